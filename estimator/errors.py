@@ -1,0 +1,17 @@
+"""Errors raised by the estimator: perception, calibration, fits and models."""
+
+
+class EstimatorError(Exception):
+    """Base of every error the ``estimator`` package raises on purpose."""
+
+
+class CalibrationError(EstimatorError, ValueError):
+    """Calibration input or a calibration file is unusable."""
+
+
+class PerceptionError(EstimatorError, ValueError):
+    """A frame or stream cannot be turned into measurements as given."""
+
+
+class ModelError(EstimatorError):
+    """A learned model cannot be loaded, or its inputs do not fit it."""

@@ -1,0 +1,1 @@
+"""teleop package."""

@@ -1,0 +1,238 @@
+"""Object catalogues: what the robot may grasp, with the ground-truth modulus.
+
+Two formats are read:
+
+* the project's own TOML catalogue (``configs/objects.toml``): one
+  ``[[objects]]`` table per object with ``name``, ``shape``, ``material``,
+  ``modulus_pa``, optional ``poisson``, ``size_m`` (x, y, z extents, m) and
+  ``texture_m`` (surface roughness amplitude, m), ``source``;
+* the published object table (CSV, label column ``Modulus [Pa]``, shape and
+  material columns, optional ``Radius [m]``), as in
+  ``../shared/seed/dataset_objects_and_compliance.csv``.
+
+Shapes are normalised to ``sphere``, ``cylinder``, ``box``, ``hex_prism`` and
+``irregular``; materials to lower case.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from teleop.errors import SettingsError
+from teleop.settings import CONFIG_DIR
+
+__all__ = [
+    "SHAPES",
+    "ObjectSpec",
+    "default_catalogue_path",
+    "load_catalogue",
+    "read_object_table",
+    "read_toml_catalogue",
+]
+
+SHAPES = ("sphere", "cylinder", "box", "hex_prism", "irregular")
+_SHAPE_ALIASES = {
+    "sphere": "sphere",
+    "cylinder": "cylinder",
+    "box": "box",
+    "rectangular": "box",
+    "hex": "hex_prism",
+    "hex_prism": "hex_prism",
+    "hexagonal prism": "hex_prism",
+    "irregular": "irregular",
+}
+
+
+def default_catalogue_path() -> Path:
+    return CONFIG_DIR / "objects.toml"
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One graspable object.
+
+    Parameters
+    ----------
+    name : str
+    shape : str
+        One of :data:`SHAPES`.
+    material : str
+        Lower-case material class (rubber, foam, plastic, wood, metal, glass, food, ...).
+    modulus_pa : float
+        Young's modulus, Pa; finite and > 0.
+    poisson : float
+        Poisson's ratio in [0, 0.5].
+    size_m : (float, float, float) or None
+        Extents along x (between the fingers), y and z, metres. Sphere: all equal
+        to the diameter; cylinder: (diameter, diameter, length); box: edges;
+        hex_prism: (across flats, across corners, length). None: unknown (the
+        simulator draws a plausible size).
+    texture_m : float
+        Surface roughness amplitude, metres.
+    """
+
+    name: str
+    shape: str
+    material: str
+    modulus_pa: float
+    poisson: float = 0.4
+    size_m: tuple[float, float, float] | None = None
+    texture_m: float = 0.0
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        if self.shape not in SHAPES:
+            raise ValueError(f"object {self.name!r}: shape {self.shape!r} is not one of {SHAPES}")
+        if not (math.isfinite(self.modulus_pa) and self.modulus_pa > 0):
+            raise ValueError(f"object {self.name!r}: modulus_pa must be finite and > 0, got {self.modulus_pa}")
+        if not 0.0 <= self.poisson <= 0.5:
+            raise ValueError(f"object {self.name!r}: poisson must be in [0, 0.5], got {self.poisson}")
+        if self.size_m is not None and (
+            len(self.size_m) != 3 or not all(math.isfinite(s) and 0 < s < 1.0 for s in self.size_m)
+        ):
+            raise ValueError(f"object {self.name!r}: size_m must be three extents in (0, 1) m, got {self.size_m}")
+        if not (math.isfinite(self.texture_m) and 0 <= self.texture_m < 1e-3):
+            raise ValueError(f"object {self.name!r}: texture_m must be in [0, 1e-3) m, got {self.texture_m}")
+
+
+def normalise_shape(raw: str, *, where: str) -> str:
+    try:
+        return _SHAPE_ALIASES[raw.strip().lower()]
+    except KeyError:
+        raise SettingsError(f"{where}: shape {raw!r} is not one of {sorted(_SHAPE_ALIASES)}") from None
+
+
+def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
+    """Read the project's TOML catalogue; errors name the file, the object and the key."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise SettingsError(f"cannot read catalogue {path}: {exc.strerror or exc}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise SettingsError(f"{path}: not valid TOML: {exc}") from exc
+    tables = data.get("objects")
+    if not isinstance(tables, list) or not tables:
+        raise SettingsError(f"{path}: expected one or more [[objects]] tables")
+    allowed = {"name", "shape", "material", "modulus_pa", "poisson", "size_m", "texture_m", "source"}
+    objects = []
+    for i, table in enumerate(tables):
+        where = f"{path}: objects[{i}]"
+        unknown = sorted(set(table) - allowed)
+        if unknown:
+            raise SettingsError(f"{where}: unknown key {unknown[0]!r}; allowed keys: {', '.join(sorted(allowed))}")
+        for key in ("name", "shape", "material", "modulus_pa"):
+            if key not in table:
+                raise SettingsError(f"{where}: key {key!r} is missing")
+        try:
+            size = table.get("size_m")
+            objects.append(
+                ObjectSpec(
+                    name=str(table["name"]),
+                    shape=normalise_shape(str(table["shape"]), where=where),
+                    material=str(table["material"]).lower(),
+                    modulus_pa=float(table["modulus_pa"]),
+                    poisson=float(table.get("poisson", 0.4)),
+                    size_m=tuple(float(s) for s in size) if size is not None else None,
+                    texture_m=float(table.get("texture_m", 0.0)),
+                    source=str(table.get("source", "")),
+                )
+            )
+        except (TypeError, ValueError) as exc:
+            raise SettingsError(f"{where} ({table.get('name', '?')}): {exc}") from exc
+    _check_unique(objects, path)
+    return tuple(objects)
+
+
+def read_object_table(path: str | Path, *, skip_unlabelled: bool = True) -> tuple[ObjectSpec, ...]:
+    """Read the published object table (CSV with ``Label``, ``Shape``, ``Material``, ``Modulus [Pa]``).
+
+    Rows whose modulus is zero or empty are unlabelled: skipped by default,
+    an error with ``skip_unlabelled=False``. A ``Radius [m]`` makes a sphere's
+    or cylinder's size known.
+    """
+    path = Path(path)
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+    except OSError as exc:
+        raise SettingsError(f"cannot read object table {path}: {exc.strerror or exc}") from exc
+    required = ("Label", "Shape", "Material", "Modulus [Pa]")
+    if not rows or any(col not in rows[0] for col in required):
+        raise SettingsError(f"{path}: expected a CSV header with columns {', '.join(required)}")
+    objects = []
+    for line, row in enumerate(rows, start=2):
+        where = f"{path}:{line}"
+        text = (row["Modulus [Pa]"] or "").strip()
+        try:
+            modulus = float(text) if text else 0.0
+        except ValueError:
+            raise SettingsError(f"{where}: Modulus [Pa] {text!r} is not a number") from None
+        if modulus <= 0 or not math.isfinite(modulus):
+            if skip_unlabelled:
+                continue
+            raise SettingsError(f"{where}: object {row['Label']!r} has no usable Modulus [Pa] ({text!r})")
+        radius_text = (row.get("Radius [m]") or "").strip()
+        shape = normalise_shape(row["Shape"], where=where)
+        size = None
+        if radius_text and shape in ("sphere", "cylinder"):
+            d = 2.0 * float(radius_text)
+            size = (d, d, d)
+        try:
+            objects.append(
+                ObjectSpec(
+                    name=row["Label"].strip(),
+                    shape=shape,
+                    material=row["Material"].strip().lower(),
+                    modulus_pa=modulus,
+                    size_m=size,
+                    source=(row.get("Notes") or "").strip(),
+                )
+            )
+        except ValueError as exc:
+            raise SettingsError(f"{where}: {exc}") from exc
+    _check_unique(objects, path)
+    return tuple(objects)
+
+
+def load_catalogue(path: str | Path | None = None) -> tuple[ObjectSpec, ...]:
+    """Read either catalogue format, chosen by suffix (``.toml`` or ``.csv``)."""
+    path = Path(path) if path is not None else default_catalogue_path()
+    if path.suffix.lower() == ".csv":
+        return read_object_table(path)
+    if path.suffix.lower() == ".toml":
+        return read_toml_catalogue(path)
+    raise SettingsError(f"{path}: unknown catalogue format; expected a .toml catalogue or a .csv object table")
+
+
+def _check_unique(objects: list[ObjectSpec], path: Path) -> None:
+    seen: set[str] = set()
+    for obj in objects:
+        if obj.name in seen:
+            raise SettingsError(f"{path}: object name {obj.name!r} appears twice")
+        seen.add(obj.name)
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("path", nargs="?", default=str(default_catalogue_path()),
+                        help="catalogue: project .toml or published .csv object table")
+    parser.add_argument("--json", action="store_true", help="print one JSON object per line")
+
+
+def run(args: argparse.Namespace) -> int:
+    objects = load_catalogue(args.path)
+    for obj in objects:
+        if args.json:
+            print(json.dumps(obj.__dict__))
+        else:
+            print(f"{obj.name:32s} {obj.shape:10s} {obj.material:10s} {obj.modulus_pa:10.3g} Pa")
+    return 0

@@ -1,0 +1,44 @@
+"""Errors raised by the robot side: devices, the bus, settings and records.
+
+Every message names the thing that failed and, where one exists, the next step.
+"""
+
+
+class TeleopError(Exception):
+    """Base of every error the ``teleop`` package raises on purpose."""
+
+
+class SettingsError(TeleopError, ValueError):
+    """A settings file or value is missing, unknown, of the wrong type or out of range."""
+
+
+class RecordError(TeleopError, ValueError):
+    """A grasp record is damaged, incomplete or of an unknown version."""
+
+
+class DatasetError(TeleopError, ValueError):
+    """A published-dataset file cannot be imported as it stands."""
+
+
+class UnsafePickleError(DatasetError):
+    """A pickle asked to build something other than a plain numpy array."""
+
+
+class DeviceError(TeleopError):
+    """A hardware or simulated device failed."""
+
+
+class DeviceNotConnectedError(DeviceError):
+    """A device was used before ``connect()`` or after ``close()``."""
+
+
+class DeviceTimeoutError(DeviceError, TimeoutError):
+    """A device did not answer within its timeout."""
+
+
+class BackendNotFoundError(DeviceError, LookupError):
+    """No backend of that name is registered for the device family."""
+
+
+class BusError(TeleopError):
+    """A bus message could not be sent, or a received one was refused."""

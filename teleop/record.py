@@ -1,0 +1,483 @@
+"""The grasp record: one grasp on disk, as simulation, capture, training and evaluation use it.
+
+Format (version 1)
+------------------
+A grasp record is a ZIP archive (suffix ``.grasp``) holding:
+
+``record.json``
+    ``{"format": "compliance-teleop.grasp", "version": 1, ...}`` with the
+    sensors (full :class:`~teleop.settings.SensorSettings` per finger: identity,
+    warp calibration and gel), the optional label, the provenance, named events
+    (``{"contact": t_s, ...}``) and, per finger, the frame encoding, count and
+    shape.
+``force/t_s.npy``, ``force/value_n.npy``
+    Load-cell samples: time (s) and normal force (N), float64, 1-D, same length.
+``width/t_s.npy``, ``width/value_m.npy``
+    Gripper width samples: time (s) and width (m), float64, 1-D, same length.
+``frames/<finger>/t_s.npy``
+    Capture time (s) of each tactile frame, float64.
+``frames/<finger>/<index:06d>.<jpg|png>``
+    Each frame exactly as captured: ``jpeg`` keeps the camera's own JPEG bytes
+    (an MJPG stream, or the simulated camera's compression, quality stated in
+    the header); ``png`` is lossless. Frames decode to uint8 BGR, H x W x 3.
+``calibration/<name>.npy`` (optional)
+    Numeric arrays the sensor calibration needs (e.g. a no-contact frame).
+
+All timestamps of one record are seconds on one clock. ``.npy`` members are
+read with ``allow_pickle=False``. Writing then reading gives back every array
+and every frame byte for byte.
+
+A reader that meets a damaged or incomplete file raises
+:class:`~teleop.errors.RecordError` naming the file, the member or field, and
+what was expected.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import zipfile
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from teleop.errors import RecordError, SettingsError
+from teleop.settings import SensorSettings, build_settings, settings_to_mapping
+
+__all__ = [
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "FrameStream",
+    "GraspRecord",
+    "Label",
+    "Provenance",
+    "Samples",
+    "read_record",
+    "software_version",
+    "write_record",
+]
+
+FORMAT_NAME = "compliance-teleop.grasp"
+FORMAT_VERSION = 1
+ENCODINGS = {"jpeg": ".jpg", "png": ".png"}
+
+
+def software_version() -> str:
+    """Installed version of the ``compliance-teleop`` distribution."""
+    try:
+        return metadata.version("compliance-teleop")
+    except metadata.PackageNotFoundError:
+        return "0+unknown"
+
+
+@dataclass(frozen=True)
+class Samples:
+    """A timestamped scalar stream: ``t_s`` (s) and ``value`` (unit in the owner's name)."""
+
+    t_s: np.ndarray
+    value: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t_s, dtype=np.float64)
+        v = np.asarray(self.value, dtype=np.float64)
+        if t.ndim != 1 or v.ndim != 1 or t.shape != v.shape:
+            raise ValueError(
+                f"Samples: t_s and value must be 1-D of one length, got shapes {t.shape} and {v.shape}"
+            )
+        object.__setattr__(self, "t_s", t)
+        object.__setattr__(self, "value", v)
+
+    def __len__(self) -> int:
+        return int(self.t_s.shape[0])
+
+
+@dataclass(frozen=True)
+class FrameStream:
+    """Tactile frames of one finger, kept encoded exactly as captured.
+
+    Parameters
+    ----------
+    finger : str
+        Finger name; matches a sensor in the record.
+    t_s : ndarray, shape (n,)
+        Capture time of each frame, seconds.
+    encoded : tuple of bytes
+        One JPEG or PNG image per frame.
+    encoding : {"jpeg", "png"}
+    jpeg_quality : int or None
+        Quality the frames were compressed with, when ``encoding == "jpeg"`` and known.
+    """
+
+    finger: str
+    t_s: np.ndarray
+    encoded: tuple[bytes, ...]
+    encoding: str = "png"
+    jpeg_quality: int | None = None
+    shape: tuple[int, int, int] | None = None
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t_s, dtype=np.float64)
+        if t.ndim != 1 or t.shape[0] != len(self.encoded):
+            raise ValueError(
+                f"FrameStream {self.finger!r}: {len(self.encoded)} frames but t_s has shape {t.shape}"
+            )
+        if self.encoding not in ENCODINGS:
+            raise ValueError(f"FrameStream {self.finger!r}: encoding {self.encoding!r} is not one of {sorted(ENCODINGS)}")
+        object.__setattr__(self, "t_s", t)
+        object.__setattr__(self, "encoded", tuple(bytes(b) for b in self.encoded))
+
+    def __len__(self) -> int:
+        return len(self.encoded)
+
+    @classmethod
+    def from_frames(
+        cls,
+        finger: str,
+        t_s: Sequence[float] | np.ndarray,
+        frames: Iterable[np.ndarray],
+        *,
+        encoding: str = "png",
+        jpeg_quality: int = 90,
+    ) -> FrameStream:
+        """Encode uint8 H x W x 3 BGR frames (``png``: lossless; ``jpeg``: at ``jpeg_quality``)."""
+        if encoding not in ENCODINGS:
+            raise ValueError(f"encoding {encoding!r} is not one of {sorted(ENCODINGS)}")
+        params = [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)] if encoding == "jpeg" else [cv2.IMWRITE_PNG_COMPRESSION, 1]
+        encoded = []
+        shape = None
+        for i, frame in enumerate(frames):
+            frame = np.asarray(frame)
+            if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
+                raise ValueError(
+                    f"frame {i} of finger {finger!r}: expected uint8 H x W x 3, got {frame.dtype} {frame.shape}"
+                )
+            shape = frame.shape
+            ok, buf = cv2.imencode(ENCODINGS[encoding], frame, params)
+            if not ok:
+                raise ValueError(f"frame {i} of finger {finger!r}: OpenCV could not encode it as {encoding}")
+            encoded.append(buf.tobytes())
+        return cls(
+            finger=finger,
+            t_s=np.asarray(t_s, dtype=np.float64),
+            encoded=tuple(encoded),
+            encoding=encoding,
+            jpeg_quality=int(jpeg_quality) if encoding == "jpeg" else None,
+            shape=tuple(shape) if shape is not None else None,
+        )
+
+    def frame(self, index: int) -> np.ndarray:
+        """Decode frame ``index`` to uint8 H x W x 3 BGR."""
+        data = np.frombuffer(self.encoded[index], dtype=np.uint8)
+        image = cv2.imdecode(data, cv2.IMREAD_COLOR)
+        if image is None:
+            raise RecordError(f"finger {self.finger!r} frame {index}: {self.encoding} data does not decode")
+        return image
+
+    def frames(self, indices: Iterable[int] | None = None) -> np.ndarray:
+        """Decode frames (all by default) to an (n, H, W, 3) uint8 array."""
+        idx = range(len(self)) if indices is None else list(indices)
+        decoded = [self.frame(i) for i in idx]
+        if not decoded:
+            return np.zeros((0, *(self.shape or (0, 0, 3))), dtype=np.uint8)
+        return np.stack(decoded)
+
+
+@dataclass(frozen=True)
+class Label:
+    """What was grasped: ground truth for training and evaluation."""
+
+    object_name: str
+    modulus_pa: float | None = None
+    material: str = ""
+    shape: str = ""
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.modulus_pa is not None and not (np.isfinite(self.modulus_pa) and self.modulus_pa > 0):
+            raise ValueError(f"Label {self.object_name!r}: modulus_pa must be finite and > 0, got {self.modulus_pa}")
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where a record came from."""
+
+    source: str  # "simulated", "hardware" or "imported"
+    software_version: str = field(default_factory=software_version)
+    seed: int | None = None
+    model: str = ""  # which physical model or capture path produced it
+    created_utc: str = ""
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.source not in ("simulated", "hardware", "imported"):
+            raise ValueError(f"Provenance.source {self.source!r}: expected simulated, hardware or imported")
+
+
+@dataclass(frozen=True)
+class GraspRecord:
+    """One grasp: frames per finger, forces and widths, each with its own timestamps."""
+
+    sensors: tuple[SensorSettings, ...]
+    frames: tuple[FrameStream, ...]
+    force_n: Samples
+    width_m: Samples
+    provenance: Provenance
+    label: Label | None = None
+    events: Mapping[str, float] = field(default_factory=dict)
+    calibration: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        fingers = {s.finger for s in self.sensors}
+        for stream in self.frames:
+            if stream.finger not in fingers:
+                raise ValueError(f"frames for finger {stream.finger!r} but no sensor on it (sensors: {sorted(fingers)})")
+
+    def sensor(self, finger: str) -> SensorSettings:
+        for s in self.sensors:
+            if s.finger == finger:
+                return s
+        raise KeyError(f"no sensor on finger {finger!r}; record has {[s.finger for s in self.sensors]}")
+
+    def stream(self, finger: str) -> FrameStream:
+        for s in self.frames:
+            if s.finger == finger:
+                return s
+        raise KeyError(f"no frames from finger {finger!r}; record has {[s.finger for s in self.frames]}")
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def _npy_bytes(array: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, np.ascontiguousarray(array), allow_pickle=False)
+    return buf.getvalue()
+
+
+def _jsonable(value: Any) -> Any:
+    if dataclasses.is_dataclass(value):
+        return {k: _jsonable(v) for k, v in dataclasses.asdict(value).items()}
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def write_record(record: GraspRecord, path: str | Path) -> Path:
+    """Write ``record`` to ``path`` (a ``.grasp`` ZIP); returns the path.
+
+    The file is written to a temporary name and renamed, so a crash never
+    leaves a half-written record under the final name.
+    """
+    path = Path(path)
+    header = {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "sensors": [settings_to_mapping(s) for s in record.sensors],
+        "label": _jsonable(record.label) if record.label is not None else None,
+        "provenance": _jsonable(record.provenance),
+        "events": {k: float(v) for k, v in record.events.items()},
+        "fingers": {
+            s.finger: {
+                "encoding": s.encoding,
+                "jpeg_quality": s.jpeg_quality,
+                "count": len(s),
+                "shape": list(s.shape) if s.shape else None,
+            }
+            for s in record.frames
+        },
+        "calibration": sorted(record.calibration),
+    }
+    tmp = path.with_name(path.name + ".partial")
+    with zipfile.ZipFile(tmp, "w") as zf:
+        zf.writestr("record.json", json.dumps(header, indent=1, allow_nan=False), zipfile.ZIP_DEFLATED)
+        for name, samples in (("force", record.force_n), ("width", record.width_m)):
+            unit = "n" if name == "force" else "m"
+            zf.writestr(f"{name}/t_s.npy", _npy_bytes(samples.t_s), zipfile.ZIP_DEFLATED)
+            zf.writestr(f"{name}/value_{unit}.npy", _npy_bytes(samples.value), zipfile.ZIP_DEFLATED)
+        for stream in record.frames:
+            zf.writestr(f"frames/{stream.finger}/t_s.npy", _npy_bytes(stream.t_s), zipfile.ZIP_DEFLATED)
+            ext = ENCODINGS[stream.encoding]
+            for i, data in enumerate(stream.encoded):
+                zf.writestr(f"frames/{stream.finger}/{i:06d}{ext}", data, zipfile.ZIP_STORED)
+        for name, array in record.calibration.items():
+            zf.writestr(f"calibration/{name}.npy", _npy_bytes(np.asarray(array)), zipfile.ZIP_DEFLATED)
+    tmp.replace(path)
+    return path
+
+
+# --------------------------------------------------------------------------- reading
+
+
+class _Reader:
+    """Reads members of one archive, turning every failure into a RecordError naming it."""
+
+    def __init__(self, path: Path, zf: zipfile.ZipFile):
+        self.path = path
+        self.zf = zf
+        self.names = set(zf.namelist())
+
+    def fail(self, what: str) -> RecordError:
+        return RecordError(f"{self.path}: {what}")
+
+    def member(self, name: str) -> bytes:
+        if name not in self.names:
+            raise self.fail(f"member {name!r} is missing; the record is incomplete")
+        try:
+            return self.zf.read(name)
+        except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+            raise self.fail(f"member {name!r} is damaged ({exc})") from exc
+
+    def array(self, name: str, *, dtype: Any, ndim: int) -> np.ndarray:
+        try:
+            array = np.load(io.BytesIO(self.member(name)), allow_pickle=False)
+        except RecordError:
+            raise
+        except Exception as exc:
+            raise self.fail(f"member {name!r} is not a readable .npy array ({exc})") from exc
+        if array.dtype != np.dtype(dtype) or array.ndim != ndim:
+            raise self.fail(f"member {name!r}: expected {ndim}-D {np.dtype(dtype)}, got {array.ndim}-D {array.dtype}")
+        return array
+
+    def field(self, mapping: Mapping[str, Any], key: str, kind: type | tuple[type, ...], where: str) -> Any:
+        if not isinstance(mapping, Mapping) or key not in mapping:
+            raise self.fail(f"record.json: {where}.{key} is missing")
+        value = mapping[key]
+        kinds = kind if isinstance(kind, tuple) else (kind,)
+        if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
+            names = " or ".join(k.__name__ for k in kinds)
+            raise self.fail(f"record.json: {where}.{key} must be {names}, got {value!r}")
+        return value
+
+    def samples(self, name: str, unit: str) -> Samples:
+        t = self.array(f"{name}/t_s.npy", dtype=np.float64, ndim=1)
+        v = self.array(f"{name}/value_{unit}.npy", dtype=np.float64, ndim=1)
+        if t.shape != v.shape:
+            raise self.fail(f"{name}: {t.shape[0]} timestamps but {v.shape[0]} values")
+        return Samples(t, v)
+
+
+def read_record(path: str | Path) -> GraspRecord:
+    """Read a grasp record written by :func:`write_record`.
+
+    Raises
+    ------
+    RecordError
+        The file is missing, not a ZIP, of another format or version, or a
+        member or field is missing, damaged or of the wrong type or shape.
+        The message names the file and the member or field.
+    """
+    path = Path(path)
+    try:
+        zf = zipfile.ZipFile(path)
+    except FileNotFoundError as exc:
+        raise RecordError(f"{path}: no such grasp record") from exc
+    except (zipfile.BadZipFile, OSError, EOFError) as exc:
+        raise RecordError(f"{path}: not a grasp record (not a readable ZIP archive: {exc})") from exc
+    with zf:
+        r = _Reader(path, zf)
+        try:
+            header = json.loads(r.member("record.json").decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise r.fail(f"record.json is not valid JSON ({exc})") from exc
+        if not isinstance(header, dict):
+            raise r.fail("record.json: expected a JSON object at the top")
+        fmt = r.field(header, "format", str, "header")
+        if fmt != FORMAT_NAME:
+            raise r.fail(f"record.json: format is {fmt!r}, expected {FORMAT_NAME!r}")
+        version = r.field(header, "version", int, "header")
+        if version != FORMAT_VERSION:
+            raise r.fail(f"record.json: version {version} is not supported (this software reads version {FORMAT_VERSION})")
+
+        sensors = []
+        for i, table in enumerate(r.field(header, "sensors", list, "header")):
+            try:
+                sensors.append(_sensor_from_json(table))
+            except (SettingsError, TypeError, ValueError) as exc:
+                raise r.fail(f"record.json: sensors[{i}] is invalid ({exc})") from exc
+
+        frames = []
+        for finger, info in r.field(header, "fingers", dict, "header").items():
+            where = f"fingers.{finger}"
+            encoding = r.field(info, "encoding", str, where)
+            if encoding not in ENCODINGS:
+                raise r.fail(f"record.json: {where}.encoding {encoding!r} is not one of {sorted(ENCODINGS)}")
+            count = r.field(info, "count", int, where)
+            t = r.array(f"frames/{finger}/t_s.npy", dtype=np.float64, ndim=1)
+            if t.shape[0] != count:
+                raise r.fail(f"frames/{finger}/t_s.npy has {t.shape[0]} timestamps, header says {count} frames")
+            encoded = tuple(r.member(f"frames/{finger}/{i:06d}{ENCODINGS[encoding]}") for i in range(count))
+            shape = info.get("shape")
+            quality = info.get("jpeg_quality")
+            try:
+                frames.append(
+                    FrameStream(
+                        finger=finger,
+                        t_s=t,
+                        encoded=encoded,
+                        encoding=encoding,
+                        jpeg_quality=quality,
+                        shape=tuple(shape) if shape else None,
+                    )
+                )
+            except ValueError as exc:
+                raise r.fail(f"record.json: {where} is invalid ({exc})") from exc
+
+        label = None
+        if header.get("label") is not None:
+            lab = header["label"]
+            try:
+                label = Label(
+                    object_name=r.field(lab, "object_name", str, "label"),
+                    modulus_pa=lab.get("modulus_pa"),
+                    material=lab.get("material", ""),
+                    shape=lab.get("shape", ""),
+                    extra=lab.get("extra", {}),
+                )
+            except (TypeError, ValueError) as exc:
+                raise r.fail(f"record.json: label is invalid ({exc})") from exc
+        prov = r.field(header, "provenance", dict, "header")
+        try:
+            provenance = Provenance(**prov)
+        except (TypeError, ValueError) as exc:
+            raise r.fail(f"record.json: provenance is invalid ({exc})") from exc
+        events = r.field(header, "events", dict, "header")
+        for key, value in events.items():
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise r.fail(f"record.json: events.{key} must be a time in seconds, got {value!r}")
+        calibration = {}
+        for name in header.get("calibration", []):
+            member = f"calibration/{name}.npy"
+            try:
+                calibration[name] = np.load(io.BytesIO(r.member(member)), allow_pickle=False)
+            except RecordError:
+                raise
+            except Exception as exc:
+                raise r.fail(f"member {member!r} is not a readable .npy array ({exc})") from exc
+        try:
+            return GraspRecord(
+                sensors=tuple(sensors),
+                frames=tuple(frames),
+                force_n=r.samples("force", "n"),
+                width_m=r.samples("width", "m"),
+                provenance=provenance,
+                label=label,
+                events={k: float(v) for k, v in events.items()},
+                calibration=calibration,
+            )
+        except ValueError as exc:
+            raise r.fail(str(exc)) from exc
+
+
+def _sensor_from_json(table: Mapping[str, Any]) -> SensorSettings:
+    # The settings loader's checks apply to the sensors stored in records too.
+    return build_settings(SensorSettings, table, "record.json", "sensors")

@@ -1,0 +1,414 @@
+"""Typed, validated settings, loaded from one explicit TOML file.
+
+Each device family has a frozen dataclass whose fields carry their allowed
+range in ``field`` metadata; values are checked on construction, so an
+invalid settings object cannot exist. :func:`load_settings` reads one TOML
+file and nothing else (no environment variables, no home-directory files):
+an unknown key, a wrong type or an out-of-range value raises
+:class:`~teleop.errors.SettingsError` naming the file, the key and what is
+allowed.
+
+All quantities are SI (m, N, Pa, s, Hz) unless the name says otherwise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+from teleop.errors import SettingsError
+
+__all__ = [
+    "BusSettings",
+    "DisplaySettings",
+    "EstimatorSettings",
+    "GripperSettings",
+    "LoadCellSettings",
+    "SensorSettings",
+    "Settings",
+    "SimulationSettings",
+    "default_settings_path",
+    "build_settings",
+    "load_settings",
+    "settings_from_mapping",
+    "settings_to_mapping",
+]
+
+T = TypeVar("T")
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+
+
+def default_settings_path() -> Path:
+    """Path of the settings file shipped in ``configs/`` (simulated hardware)."""
+    return CONFIG_DIR / "settings.toml"
+
+
+def spec(
+    default: Any = dataclasses.MISSING,
+    *,
+    lo: float | None = None,
+    hi: float | None = None,
+    lo_open: bool = False,
+    choices: tuple[Any, ...] | None = None,
+    length: int | None = None,
+    doc: str = "",
+    default_factory: Any = dataclasses.MISSING,
+) -> Any:
+    """A dataclass field with its allowed range, checked on construction.
+
+    ``lo``/``hi`` bound numbers (and every number inside a tuple); ``lo_open``
+    makes the lower bound exclusive; ``choices`` lists allowed values;
+    ``length`` fixes a tuple's length.
+    """
+    meta = {"lo": lo, "hi": hi, "lo_open": lo_open, "choices": choices, "length": length, "doc": doc}
+    if default_factory is not dataclasses.MISSING:
+        return dataclasses.field(default_factory=default_factory, metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def _allowed(meta: Mapping[str, Any]) -> str:
+    if meta.get("choices"):
+        return "one of " + ", ".join(repr(c) for c in meta["choices"])
+    lo, hi = meta.get("lo"), meta.get("hi")
+    left = "(" if meta.get("lo_open") else "["
+    if lo is not None and hi is not None:
+        return f"a value in {left}{lo}, {hi}]"
+    if lo is not None:
+        return f"a value {'>' if meta.get('lo_open') else '>='} {lo}"
+    if hi is not None:
+        return f"a value <= {hi}"
+    return "any value"
+
+
+def _iter_numbers(value: Any):
+    if isinstance(value, tuple):
+        for item in value:
+            yield from _iter_numbers(item)
+    elif isinstance(value, int | float) and not isinstance(value, bool):
+        yield value
+
+
+class _Validated:
+    """Mixin: check every field against its ``spec`` when the object is built."""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            meta = f.metadata
+            value = getattr(self, f.name)
+            where = f"{type(self).__name__}.{f.name}"
+            if meta.get("choices") is not None and value not in meta["choices"]:
+                raise SettingsError(f"{where} = {value!r}: expected {_allowed(meta)}")
+            if meta.get("length") is not None and len(value) != meta["length"]:
+                raise SettingsError(
+                    f"{where} has {len(value)} entries: expected exactly {meta['length']}"
+                )
+            lo, hi = meta.get("lo"), meta.get("hi")
+            for number in _iter_numbers(value):
+                bad = not math.isfinite(number)
+                if lo is not None:
+                    bad |= number <= lo if meta.get("lo_open") else number < lo
+                if hi is not None:
+                    bad |= number > hi
+                if bad:
+                    raise SettingsError(f"{where} = {value!r}: expected {_allowed(meta)}")
+        self._check()
+
+    def _check(self) -> None:
+        """Cross-field checks; override where fields constrain each other."""
+
+
+@dataclass(frozen=True)
+class SensorSettings(_Validated):
+    """One GelSight-style tactile sensor: camera geometry, warp and gel."""
+
+    finger: str = spec("left", doc="which finger carries it")
+    model: str = spec("wedge", choices=("wedge", "mini"))
+    serial: str = spec("", doc="sensor identity, recorded with every grasp")
+    markers: bool = spec(False, doc="gel printed with marker dots")
+    camera_hz: float = spec(30.0, lo=1.0, hi=240.0)
+    raw_width_px: int = spec(640, lo=16, hi=4096)
+    raw_height_px: int = spec(480, lo=16, hi=4096)
+    # Mirror-corner calibration in raw pixels: top-left, top-right, bottom-left, bottom-right.
+    warp_corners_px: tuple[tuple[float, float], ...] = spec(
+        ((46.0, 87.0), (439.0, 121.0), (52.0, 425.0), (446.0, 368.0)), lo=-4096, hi=8192, length=4
+    )
+    warped_width_px: int = spec(400, lo=16, hi=4096)
+    warped_height_px: int = spec(300, lo=16, hi=4096)
+    crop_px: int = spec(25, lo=0, hi=1000, doc="pixels cropped from every side after the warp")
+    pixel_pitch_m: float = spec(1.0 / 11.0 * 1e-3, lo=1e-6, hi=1e-3, doc="gel surface per warped pixel")
+    gel_modulus_pa: float = spec(0.275e6, lo=1e3, hi=1e8, lo_open=True)
+    gel_poisson: float = spec(0.48, lo=0.0, hi=0.5)
+    gel_thickness_m: float = spec(3.0e-3, lo=1e-4, hi=2e-2, lo_open=True)
+    contact_threshold_m: float = spec(0.1e-3, lo=0.0, hi=5e-3, lo_open=True)
+    depth_resolution_m: float = spec(0.02e-3, lo=0.0, hi=1e-3, lo_open=True,
+                                     doc="smallest depth step the sensor resolves")
+
+    def _check(self) -> None:
+        if 2 * self.crop_px >= min(self.warped_width_px, self.warped_height_px):
+            raise SettingsError(
+                f"SensorSettings.crop_px = {self.crop_px}: crops the whole "
+                f"{self.warped_width_px}x{self.warped_height_px} warped image away"
+            )
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        """(rows, cols) of the warped, cropped image the estimator works on."""
+        return (self.warped_height_px - 2 * self.crop_px, self.warped_width_px - 2 * self.crop_px)
+
+    @property
+    def pad_size_m(self) -> tuple[float, float]:
+        """(height, width) of the imaged gel area in metres."""
+        rows, cols = self.image_shape
+        return (rows * self.pixel_pitch_m, cols * self.pixel_pitch_m)
+
+    @property
+    def gel_compliance_per_pa(self) -> float:
+        """k = (1 - nu^2) / E of the gel, in 1/Pa."""
+        return (1.0 - self.gel_poisson**2) / self.gel_modulus_pa
+
+
+@dataclass(frozen=True)
+class GripperSettings(_Validated):
+    """Parallel gripper motion and grasp parameters."""
+
+    backend: str = spec("sim", choices=("sim", "franky"))
+    host: str = spec("127.0.0.1", doc="robot controller address (franky)")
+    max_width_m: float = spec(0.08, lo=0.0, hi=0.3, lo_open=True)
+    closing_speed_m_s: float = spec(0.0375, lo=0.0, hi=0.2, lo_open=True)
+    target_force_n: float = spec(30.0, lo=0.0, hi=140.0, lo_open=True)
+    hold_s: float = spec(0.5, lo=0.0, hi=60.0)
+    width_read_hz: float = spec(10.0, lo=0.1, hi=1000.0)
+    finger_stiffness_n_per_m: float = spec(2.0e5, lo=0.0, hi=1e9, lo_open=True,
+                                           doc="finger bending stiffness, corrected from force")
+
+
+@dataclass(frozen=True)
+class LoadCellSettings(_Validated):
+    """HX711 load cell: sample rate, calibration and transport."""
+
+    backend: str = spec("sim", choices=("sim", "serial", "tcp"))
+    sample_rate_hz: float = spec(80.0, choices=(10.0, 80.0))
+    counts_per_n: float = spec(4.2e4, lo=0.0, hi=1e9, lo_open=True, doc="scale factor")
+    tare_counts: int = spec(0, lo=-(2**23), hi=2**23 - 1)
+    port: str = spec("", doc="serial device path (serial backend)")
+    baud: int = spec(115200, lo=1200, hi=4_000_000)
+    address: str = spec("tcp://127.0.0.1:5601", doc="framed TCP endpoint (tcp backend)")
+    timeout_s: float = spec(1.0, lo=0.0, hi=60.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class BusSettings(_Validated):
+    """ZeroMQ endpoints and limits."""
+
+    robot_pub: str = spec("tcp://127.0.0.1:5550", doc="robot node publishes grasp data here")
+    estimate_pub: str = spec("tcp://127.0.0.1:5551", doc="estimator publishes estimates here")
+    command: str = spec("tcp://127.0.0.1:5552", doc="operator grasp commands")
+    heartbeat_s: float = spec(0.5, lo=0.0, hi=60.0, lo_open=True)
+    max_message_bytes: int = spec(8 * 1024 * 1024, lo=1024, hi=2**31 - 1)
+    keys_dir: str = spec("", doc="CURVE key directory; required when an endpoint is not loopback")
+
+
+@dataclass(frozen=True)
+class DisplaySettings(_Validated):
+    """Operator-side softness display and the E-to-stiffness mapping."""
+
+    backend: str = spec("sim", choices=("sim", "hid"))
+    vendor_id: int = spec(0x1209, lo=0, hi=0xFFFF)
+    product_id: int = spec(0x5EF7, lo=0, hi=0xFFFF)
+    e_soft_pa: float = spec(5.0e3, lo=0.0, hi=1e12, lo_open=True, doc="E felt as the softest setting")
+    e_rigid_pa: float = spec(1.0e9, lo=0.0, hi=1e13, lo_open=True, doc="E at and above which it feels rigid")
+    smoothing_s: float = spec(0.1, lo=0.0, hi=10.0)
+    fade_s: float = spec(0.3, lo=0.0, hi=10.0)
+    stale_after_s: float = spec(1.0, lo=0.0, hi=60.0, lo_open=True)
+
+    def _check(self) -> None:
+        if self.e_rigid_pa <= self.e_soft_pa:
+            raise SettingsError(
+                f"DisplaySettings.e_rigid_pa = {self.e_rigid_pa}: expected a value above "
+                f"e_soft_pa = {self.e_soft_pa}"
+            )
+
+
+@dataclass(frozen=True)
+class EstimatorSettings(_Validated):
+    """Grasp segmentation and estimation defaults."""
+
+    object_poisson: float = spec(0.4, lo=0.0, hi=0.5)
+    contact_force_n: float = spec(0.75, lo=0.0, hi=100.0, lo_open=True, doc="first-contact force")
+    n_frames: int = spec(3, lo=1, hi=64)
+    methods: tuple[str, ...] = spec(("split", "hertz", "elastic", "no_tactile"))
+    model_path: str = spec("", doc="ONNX model; empty means the shipped default")
+
+
+@dataclass(frozen=True)
+class SimulationSettings(_Validated):
+    """Simulated hardware: noise and timing of the virtual sensors."""
+
+    force_noise_n: float = spec(0.02, lo=0.0, hi=10.0)
+    width_noise_m: float = spec(2e-5, lo=0.0, hi=1e-3)
+    width_latency_s: float = spec(0.1, lo=0.0, hi=1.0)
+    camera_offset_s: float = spec(0.015, lo=-1.0, hi=1.0, doc="camera clock minus robot clock")
+    camera_noise: float = spec(2.0, lo=0.0, hi=50.0, doc="pixel noise standard deviation, 8-bit levels")
+    jpeg_quality: int = spec(90, lo=10, hi=100)
+    grid_px: int = spec(4, lo=1, hi=16, doc="contact solver cell size in image pixels")
+    background: str = spec("", doc="no-contact frame PNG; empty means procedural")
+
+
+@dataclass(frozen=True)
+class Settings(_Validated):
+    """Everything one deployment needs, as read from one TOML file."""
+
+    sensors: tuple[SensorSettings, ...] = spec(
+        default_factory=lambda: (SensorSettings(finger="left"), SensorSettings(finger="right", markers=True))
+    )
+    gripper: GripperSettings = spec(default_factory=GripperSettings)
+    load_cell: LoadCellSettings = spec(default_factory=LoadCellSettings)
+    bus: BusSettings = spec(default_factory=BusSettings)
+    display: DisplaySettings = spec(default_factory=DisplaySettings)
+    estimator: EstimatorSettings = spec(default_factory=EstimatorSettings)
+    simulation: SimulationSettings = spec(default_factory=SimulationSettings)
+
+    def _check(self) -> None:
+        fingers = [s.finger for s in self.sensors]
+        if not fingers:
+            raise SettingsError("Settings.sensors is empty: expected at least one [sensors.<finger>] table")
+        if len(set(fingers)) != len(fingers):
+            raise SettingsError(f"Settings.sensors names a finger twice: {fingers}")
+
+    def sensor(self, finger: str) -> SensorSettings:
+        """The sensor on ``finger``; raises SettingsError naming the fingers there are."""
+        for s in self.sensors:
+            if s.finger == finger:
+                return s
+        raise SettingsError(
+            f"no sensor on finger {finger!r}: settings have {[s.finger for s in self.sensors]}"
+        )
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", str(tp))
+
+
+def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
+    """Check ``value`` read from TOML against annotation ``tp``; return it in that type."""
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, Mapping):
+            raise SettingsError(f"{source}: [{key}] must be a table, got {type(value).__name__}")
+        return build_settings(tp, value, source, key)
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if not isinstance(value, list | tuple):
+            raise SettingsError(f"{source}: {key} must be an array, got {type(value).__name__}")
+        inner = args[0]
+        return tuple(_coerce(v, inner, f"{key}[{i}]", source) for i, v in enumerate(value))
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise SettingsError(f"{source}: {key} must be true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise SettingsError(f"{source}: {key} must be an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise SettingsError(f"{source}: {key} must be a number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise SettingsError(f"{source}: {key} must be a string, got {value!r}")
+        return value
+    raise SettingsError(f"{source}: {key} has unsupported type {_type_name(tp)}")
+
+
+def build_settings(cls: type[T], data: Mapping[str, Any], source: str, prefix: str) -> T:
+    """Build the settings dataclass ``cls`` from ``data``; errors name ``source`` and the key."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(set(data) - set(names))
+    if unknown:
+        where = f"[{prefix}]" if prefix else "top level"
+        raise SettingsError(
+            f"{source}: unknown key {unknown[0]!r} in {where}; allowed keys: {', '.join(sorted(names))}"
+        )
+    kwargs = {}
+    for name, value in data.items():
+        key = f"{prefix}.{name}" if prefix else name
+        tp = hints[name]
+        if cls is Settings and name == "sensors":
+            kwargs[name] = _build_sensors(value, source)
+            continue
+        kwargs[name] = _coerce(value, tp, key, source)
+    try:
+        return cls(**kwargs)
+    except SettingsError as exc:
+        raise SettingsError(f"{source}: {exc}") from None
+
+
+def _build_sensors(value: Any, source: str) -> tuple[SensorSettings, ...]:
+    """``[sensors.<finger>]`` tables become SensorSettings with ``finger`` filled in."""
+    if not isinstance(value, Mapping):
+        raise SettingsError(f"{source}: [sensors] must hold one table per finger, e.g. [sensors.left]")
+    out = []
+    for finger, table in value.items():
+        if not isinstance(table, Mapping):
+            raise SettingsError(f"{source}: [sensors.{finger}] must be a table")
+        if "finger" in table and table["finger"] != finger:
+            raise SettingsError(f"{source}: [sensors.{finger}] sets finger = {table['finger']!r}")
+        out.append(build_settings(SensorSettings, {**table, "finger": finger}, source, f"sensors.{finger}"))
+    return tuple(out)
+
+
+def settings_from_mapping(data: Mapping[str, Any], *, source: str = "<settings>") -> Settings:
+    """Build validated :class:`Settings` from a TOML-shaped mapping."""
+    return build_settings(Settings, data, source, "")
+
+
+def settings_to_mapping(settings: Any) -> dict[str, Any]:
+    """Plain-data form (dicts, lists, numbers, strings) of any settings object.
+
+    ``settings_from_mapping(settings_to_mapping(s)) == s`` for :class:`Settings`.
+    """
+    if isinstance(settings, Settings):
+        out = {f.name: settings_to_mapping(getattr(settings, f.name)) for f in dataclasses.fields(settings)}
+        out["sensors"] = {s.finger: settings_to_mapping(s) for s in settings.sensors}
+        return out
+    if dataclasses.is_dataclass(settings):
+        return {f.name: settings_to_mapping(getattr(settings, f.name)) for f in dataclasses.fields(settings)}
+    if isinstance(settings, tuple | list):
+        return [settings_to_mapping(v) for v in settings]
+    if isinstance(settings, types.MappingProxyType | dict):
+        return {k: settings_to_mapping(v) for k, v in settings.items()}
+    return settings
+
+
+def load_settings(path: str | Path | None = None) -> Settings:
+    """Load settings from exactly one TOML file (the shipped default when ``path`` is None).
+
+    Raises
+    ------
+    SettingsError
+        The file is missing or not TOML, or a key is unknown, mistyped or out of range;
+        the message names the file and the key.
+    """
+    path = Path(path) if path is not None else default_settings_path()
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise SettingsError(f"cannot read settings file {path}: {exc.strerror or exc}") from exc
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise SettingsError(f"{path}: not valid TOML: {exc}") from exc
+    return settings_from_mapping(data, source=str(path))
