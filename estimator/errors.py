@@ -15,3 +15,11 @@ class PerceptionError(EstimatorError, ValueError):
 
 class ModelError(EstimatorError):
     """A learned model cannot be loaded, or its inputs do not fit it."""
+
+
+class FitError(EstimatorError, ValueError):
+    """A fit's input series are malformed, or an estimate would break its invariants."""
+
+
+class SampleError(EstimatorError, ValueError):
+    """A training sample, or a sample file, is malformed."""

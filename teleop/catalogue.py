@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import math
 import tomllib
@@ -108,6 +109,21 @@ def normalise_shape(raw: str, *, where: str) -> str:
         raise SettingsError(f"{where}: shape {raw!r} is not one of {sorted(_SHAPE_ALIASES)}") from None
 
 
+_REQUIRED = object()
+
+
+def _typed(table: dict, key: str, kinds: tuple[type, ...], what: str, where: str, default=_REQUIRED):
+    """``table[key]`` when it is one of ``kinds`` (never a bool for a number); else SettingsError."""
+    if key not in table:
+        if default is _REQUIRED:
+            raise SettingsError(f"{where}: key {key!r} is missing")
+        return default
+    value = table[key]
+    if isinstance(value, bool) or not isinstance(value, kinds):
+        raise SettingsError(f"{where}: {key} must be {what}, got {value!r}")
+    return value
+
+
 def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
     """Read the project's TOML catalogue; errors name the file, the object and the key."""
     path = Path(path)
@@ -115,37 +131,43 @@ def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise SettingsError(f"cannot read catalogue {path}: {exc.strerror or exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise SettingsError(f"{path}: not valid TOML: {exc}") from exc
     tables = data.get("objects")
     if not isinstance(tables, list) or not tables:
         raise SettingsError(f"{path}: expected one or more [[objects]] tables")
     allowed = {"name", "shape", "material", "modulus_pa", "poisson", "size_m", "texture_m", "source"}
+    number = (int, float)
     objects = []
     for i, table in enumerate(tables):
         where = f"{path}: objects[{i}]"
+        if not isinstance(table, dict):
+            raise SettingsError(f"{where}: expected an [[objects]] table, got {table!r}")
         unknown = sorted(set(table) - allowed)
         if unknown:
             raise SettingsError(f"{where}: unknown key {unknown[0]!r}; allowed keys: {', '.join(sorted(allowed))}")
-        for key in ("name", "shape", "material", "modulus_pa"):
-            if key not in table:
-                raise SettingsError(f"{where}: key {key!r} is missing")
+        name = _typed(table, "name", (str,), "a string", where)
+        where = f"{where} ({name})"
+        size = _typed(table, "size_m", (list,), "an array of three extents in m", where, default=[])
+        if not all(isinstance(s, number) and not isinstance(s, bool) for s in size):
+            raise SettingsError(f"{where}: size_m must hold numbers (m), got {size!r}")
         try:
-            size = table.get("size_m")
             objects.append(
                 ObjectSpec(
-                    name=str(table["name"]),
-                    shape=normalise_shape(str(table["shape"]), where=where),
-                    material=str(table["material"]).lower(),
-                    modulus_pa=float(table["modulus_pa"]),
-                    poisson=float(table.get("poisson", 0.4)),
-                    size_m=tuple(float(s) for s in size) if size is not None else None,
-                    texture_m=float(table.get("texture_m", 0.0)),
-                    source=str(table.get("source", "")),
+                    name=name,
+                    shape=normalise_shape(_typed(table, "shape", (str,), "a string", where), where=where),
+                    material=_typed(table, "material", (str,), "a string", where).lower(),
+                    modulus_pa=float(_typed(table, "modulus_pa", number, "a number (Pa)", where)),
+                    poisson=float(_typed(table, "poisson", number, "a number", where, default=0.4)),
+                    size_m=tuple(float(s) for s in size) if "size_m" in table else None,
+                    texture_m=float(_typed(table, "texture_m", number, "a number (m)", where, default=0.0)),
+                    source=_typed(table, "source", (str,), "a string", where, default=""),
                 )
             )
-        except (TypeError, ValueError) as exc:
-            raise SettingsError(f"{where} ({table.get('name', '?')}): {exc}") from exc
+        except ValueError as exc:
+            if isinstance(exc, SettingsError):
+                raise
+            raise SettingsError(f"{where}: {exc}") from exc
     _check_unique(objects, path)
     return tuple(objects)
 
@@ -158,18 +180,31 @@ def read_object_table(path: str | Path, *, skip_unlabelled: bool = True) -> tupl
     or cylinder's size known.
     """
     path = Path(path)
+    required = ("Label", "Shape", "Material", "Modulus [Pa]")
     try:
         with path.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.DictReader(fh))
+            reader = csv.DictReader(fh)
+            rows = list(reader)
+            columns = reader.fieldnames or []
     except OSError as exc:
         raise SettingsError(f"cannot read object table {path}: {exc.strerror or exc}") from exc
-    required = ("Label", "Shape", "Material", "Modulus [Pa]")
-    if not rows or any(col not in rows[0] for col in required):
-        raise SettingsError(f"{path}: expected a CSV header with columns {', '.join(required)}")
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise SettingsError(f"{path}: not a readable UTF-8 CSV table ({exc})") from exc
+    missing = [col for col in required if col not in columns]
+    if missing:
+        raise SettingsError(
+            f"{path}: expected a CSV header with columns {', '.join(required)}; missing {', '.join(missing)}"
+        )
+    if not rows:
+        raise SettingsError(f"{path}: the object table has a header but no rows")
     objects = []
     for line, row in enumerate(rows, start=2):
         where = f"{path}:{line}"
-        text = (row["Modulus [Pa]"] or "").strip()
+        # Short rows leave None in the missing columns.
+        cell = {key: (value or "").strip() for key, value in row.items() if isinstance(key, str)}
+        if not cell["Label"]:
+            raise SettingsError(f"{where}: the Label column is empty")
+        text = cell["Modulus [Pa]"]
         try:
             modulus = float(text) if text else 0.0
         except ValueError:
@@ -177,22 +212,25 @@ def read_object_table(path: str | Path, *, skip_unlabelled: bool = True) -> tupl
         if modulus <= 0 or not math.isfinite(modulus):
             if skip_unlabelled:
                 continue
-            raise SettingsError(f"{where}: object {row['Label']!r} has no usable Modulus [Pa] ({text!r})")
-        radius_text = (row.get("Radius [m]") or "").strip()
-        shape = normalise_shape(row["Shape"], where=where)
+            raise SettingsError(f"{where}: object {cell['Label']!r} has no usable Modulus [Pa] ({text!r})")
+        shape = normalise_shape(cell["Shape"], where=where)
+        radius_text = cell.get("Radius [m]", "")
         size = None
         if radius_text and shape in ("sphere", "cylinder"):
-            d = 2.0 * float(radius_text)
+            try:
+                d = 2.0 * float(radius_text)
+            except ValueError:
+                raise SettingsError(f"{where}: Radius [m] {radius_text!r} is not a number") from None
             size = (d, d, d)
         try:
             objects.append(
                 ObjectSpec(
-                    name=row["Label"].strip(),
+                    name=cell["Label"],
                     shape=shape,
-                    material=row["Material"].strip().lower(),
+                    material=cell["Material"].lower(),
                     modulus_pa=modulus,
                     size_m=size,
-                    source=(row.get("Notes") or "").strip(),
+                    source=cell.get("Notes", ""),
                 )
             )
         except ValueError as exc:
@@ -225,14 +263,15 @@ def _check_unique(objects: list[ObjectSpec], path: Path) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", nargs="?", default=str(default_catalogue_path()),
                         help="catalogue: project .toml or published .csv object table")
-    parser.add_argument("--json", action="store_true", help="print one JSON object per line")
+    parser.add_argument("--json", action="store_true",
+                        help='print one JSON object {"path": ..., "objects": [...]} on the last line')
 
 
 def run(args: argparse.Namespace) -> int:
     objects = load_catalogue(args.path)
+    if args.json:
+        print(json.dumps({"path": str(args.path), "objects": [dataclasses.asdict(o) for o in objects]}))
+        return 0
     for obj in objects:
-        if args.json:
-            print(json.dumps(obj.__dict__))
-        else:
-            print(f"{obj.name:32s} {obj.shape:10s} {obj.material:10s} {obj.modulus_pa:10.3g} Pa")
+        print(f"{obj.name:32s} {obj.shape:10s} {obj.material:10s} {obj.modulus_pa:10.3g} Pa")
     return 0

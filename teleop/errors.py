@@ -42,3 +42,24 @@ class BackendNotFoundError(DeviceError, LookupError):
 
 class BusError(TeleopError):
     """A bus message could not be sent, or a received one was refused."""
+
+
+class SimulationError(TeleopError, ValueError):
+    """An input to the simulator (height map, shear, background, press) is not what it expects."""
+
+
+class InvalidCommandError(DeviceError, ValueError):
+    """A device command's argument is out of range (width, speed, force, timeout)."""
+
+
+class MessageRejected(BusError, ValueError):
+    """A bus message broke the wire format; ``reason`` says which rule (see teleop.bus.wire)."""
+
+    def __init__(self, reason: str, detail: str):
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+        self.detail = detail
+
+
+class BusTimeoutError(BusError, TimeoutError):
+    """A lossless send found no room within its timeout, or no subscriber appeared in time."""

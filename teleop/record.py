@@ -38,6 +38,7 @@ import dataclasses
 import io
 import json
 import zipfile
+import zlib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -334,7 +335,7 @@ class _Reader:
             raise self.fail(f"member {name!r} is missing; the record is incomplete")
         try:
             return self.zf.read(name)
-        except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+        except (zipfile.BadZipFile, zlib.error, OSError, EOFError, ValueError) as exc:
             raise self.fail(f"member {name!r} is damaged ({exc})") from exc
 
     def array(self, name: str, *, dtype: Any, ndim: int) -> np.ndarray:
@@ -429,7 +430,7 @@ def read_record(path: str | Path) -> GraspRecord:
                         shape=tuple(shape) if shape else None,
                     )
                 )
-            except ValueError as exc:
+            except (TypeError, ValueError) as exc:
                 raise r.fail(f"record.json: {where} is invalid ({exc})") from exc
 
         label = None
@@ -479,5 +480,7 @@ def read_record(path: str | Path) -> GraspRecord:
 
 
 def _sensor_from_json(table: Mapping[str, Any]) -> SensorSettings:
+    if not isinstance(table, Mapping):
+        raise TypeError(f"expected a table of sensor settings, got {table!r}")
     # The settings loader's checks apply to the sensors stored in records too.
     return build_settings(SensorSettings, table, "record.json", "sensors")

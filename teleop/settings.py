@@ -132,7 +132,11 @@ class SensorSettings(_Validated):
     finger: str = spec("left", doc="which finger carries it")
     model: str = spec("wedge", choices=("wedge", "mini"))
     serial: str = spec("", doc="sensor identity, recorded with every grasp")
+    calibration: str = spec("", doc="colour-to-gradient calibration (.npz from `estimator calibrate`); "
+                                    "relative paths are under configs/")
     markers: bool = spec(False, doc="gel printed with marker dots")
+    camera_backend: str = spec("sim", choices=("sim", "opencv"), doc="camera driver (teleop.devices.camera)")
+    camera_source: str = spec("", doc="opencv: device index ('0') or MJPG URL (http://pi:8080/?action=stream)")
     camera_hz: float = spec(30.0, lo=1.0, hi=240.0)
     raw_width_px: int = spec(640, lo=16, hi=4096)
     raw_height_px: int = spec(480, lo=16, hi=4096)
@@ -228,6 +232,8 @@ class DisplaySettings(_Validated):
     smoothing_s: float = spec(0.1, lo=0.0, hi=10.0)
     fade_s: float = spec(0.3, lo=0.0, hi=10.0)
     stale_after_s: float = spec(1.0, lo=0.0, hi=60.0, lo_open=True)
+    keepalive_s: float = spec(0.2, lo=0.0, hi=60.0, lo_open=True,
+                              doc="resend an unchanged command at least this often")
 
     def _check(self) -> None:
         if self.e_rigid_pa <= self.e_soft_pa:
@@ -241,6 +247,7 @@ class DisplaySettings(_Validated):
 class EstimatorSettings(_Validated):
     """Grasp segmentation and estimation defaults."""
 
+    finger: str = spec("left", doc="finger whose tactile frames the estimator reads")
     object_poisson: float = spec(0.4, lo=0.0, hi=0.5)
     contact_force_n: float = spec(0.75, lo=0.0, hi=100.0, lo_open=True, doc="first-contact force")
     n_frames: int = spec(3, lo=1, hi=64)
@@ -311,8 +318,11 @@ def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
         args = typing.get_args(tp)
         if not isinstance(value, list | tuple):
             raise SettingsError(f"{source}: {key} must be an array, got {type(value).__name__}")
-        inner = args[0]
-        return tuple(_coerce(v, inner, f"{key}[{i}]", source) for i, v in enumerate(value))
+        if args[-1] is Ellipsis:
+            args = (args[0],) * len(value)
+        elif len(value) != len(args):
+            raise SettingsError(f"{source}: {key} must have {len(args)} entries, got {len(value)}")
+        return tuple(_coerce(v, a, f"{key}[{i}]", source) for i, (v, a) in enumerate(zip(value, args, strict=True)))
     if tp is bool:
         if not isinstance(value, bool):
             raise SettingsError(f"{source}: {key} must be true or false, got {value!r}")
@@ -353,7 +363,8 @@ def build_settings(cls: type[T], data: Mapping[str, Any], source: str, prefix: s
     try:
         return cls(**kwargs)
     except SettingsError as exc:
-        raise SettingsError(f"{source}: {exc}") from None
+        where = f"[{prefix}] " if prefix else ""
+        raise SettingsError(f"{source}: {where}{exc}") from None
 
 
 def _build_sensors(value: Any, source: str) -> tuple[SensorSettings, ...]:

@@ -1,0 +1,420 @@
+"""Published-dataset import: safe unpickling, raw grasps, preprocessed samples, the command."""
+
+from __future__ import annotations
+
+import builtins
+import json
+import os
+import pickle
+import subprocess
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from estimator.samples import load_sample
+from teleop import cli
+from teleop.dataset import (
+    find_raw_grasps,
+    import_dataset,
+    import_preprocessed_sample,
+    import_raw_grasp,
+    load_pickled_array,
+    read_mjpg_packets,
+    safe_load_pickle,
+)
+from teleop.errors import DatasetError, UnsafePickleError
+from teleop.record import read_record
+from teleop.settings import load_settings
+
+RAW_SHAPE = (480, 640, 3)
+IMAGE_SHAPE = (250, 350)
+
+
+# --------------------------------------------------------------------------- fixture builders
+
+
+def synthetic_frames(n: int, *, markers: bool) -> list[np.ndarray]:
+    """n smooth 640x480 BGR frames with a bright disc moving right; marker frames carry dots."""
+    rows, cols = np.mgrid[0 : RAW_SHAPE[0], 0 : RAW_SHAPE[1]]
+    base = np.stack([60 + cols * 0.1, 80 + rows * 0.1, np.full(rows.shape, 120.0)], axis=-1)
+    frames = []
+    for k in range(n):
+        frame = base.copy()
+        disc = (rows - 240) ** 2 + (cols - (200 + 60 * k)) ** 2 < 50**2
+        frame[disc] = (230, 230, 230)
+        if markers:
+            frame[(rows % 40 < 4) & (cols % 40 < 4)] = 0
+        frames.append(frame.astype(np.uint8))
+    return frames
+
+
+def write_mjpg(path: Path, frames: list[np.ndarray], fps: float = 30.0) -> None:
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (RAW_SHAPE[1], RAW_SHAPE[0]))
+    assert writer.isOpened()
+    for frame in frames:
+        writer.write(frame)
+    writer.release()
+
+
+def write_pickle(path: Path, value, protocol: int = pickle.DEFAULT_PROTOCOL) -> None:
+    path.write_bytes(pickle.dumps(value, protocol=protocol))
+
+
+def make_raw_grasp(root: Path, name: str, index: int, n: int = 4) -> Path:
+    folder = root / name / f"grasp={index}"
+    folder.mkdir(parents=True)
+    write_mjpg(folder / f"{name}.avi", synthetic_frames(n, markers=False))
+    write_mjpg(folder / f"{name}_markers.avi", synthetic_frames(n, markers=True))
+    write_pickle(folder / f"{name}_forces.pkl", np.linspace(0.5, 12.0, n) + index)
+    write_pickle(folder / f"{name}_widths.pkl", np.linspace(0.050, 0.046, n))
+    return folder
+
+
+def make_preprocessed(root: Path, name: str, grasp: int, aug: int, n: int = 3, *, protocol: int = 4,
+                      elastic=2.0e6, hertz=1.5e5) -> Path:
+    folder = root / name / f"grasp={grasp}" / f"augmentation={aug}"
+    folder.mkdir(parents=True)
+    rng = np.random.default_rng(grasp * 10 + aug)
+    write_pickle(folder / "RGB.pkl", rng.normal(0, 20, (n, *IMAGE_SHAPE, 3)), protocol)
+    write_pickle(folder / "depth.pkl", rng.uniform(0, 1.5, (n, *IMAGE_SHAPE)), protocol)
+    write_pickle(folder / "RGB_markers.pkl", rng.normal(0, 20, (n, *IMAGE_SHAPE, 3)), protocol)
+    write_pickle(folder / "depth_markers.pkl", rng.uniform(0, 1.5, (n, *IMAGE_SHAPE)), protocol)
+    write_pickle(folder / "forces.pkl", np.array([2.0, 6.0, 11.0])[:n], protocol)
+    write_pickle(folder / "widths.pkl", np.array([0.031, 0.030, 0.0295])[:n], protocol)
+    write_pickle(folder / "elastic_estimate.pkl", elastic, protocol)
+    write_pickle(folder / "hertz_estimate.pkl", hertz, protocol)
+    return folder
+
+
+class RunsCode:
+    """A pickle payload that would create ``marker`` if anything executed it."""
+
+    def __init__(self, func, *args):
+        self.func, self.args = func, args
+
+    def __reduce__(self):
+        return self.func, self.args
+
+
+# --------------------------------------------------------------------------- safe unpickler
+
+
+@pytest.mark.parametrize("protocol", range(pickle.HIGHEST_PROTOCOL + 1))
+def test_safe_load_pickle_rebuilds_numpy_arrays_exactly(protocol):
+    values = [
+        np.arange(12, dtype=np.float32).reshape(3, 4),
+        np.asfortranarray(np.linspace(0, 1, 6).reshape(2, 3)),
+        np.zeros(2, dtype=[("force", "<f8"), ("frame", "<i4")]),
+        np.array([True, False]),
+        np.array(["abc", "de"]),
+        np.arange(5, dtype=">i8"),
+    ]
+    for value in values:
+        data = pickle.dumps(value, protocol=protocol)
+        loaded, plain = safe_load_pickle(data), pickle.loads(data)
+        assert type(loaded) is np.ndarray
+        # What the unrestricted unpickler builds (numpy itself drops a big-endian order below
+        # protocol 5), and the same values as pickled.
+        assert loaded.dtype == plain.dtype and loaded.shape == value.shape
+        assert np.array_equal(loaded, value)
+        assert loaded.flags.f_contiguous == value.flags.f_contiguous
+    scalars = [np.float64(2.5e6), np.int64(-3), np.float32(0.25), 3.0, [np.float64(1.0), 2]]
+    for value in scalars:
+        loaded = safe_load_pickle(pickle.dumps(value, protocol=protocol))
+        assert type(loaded) is type(value) and loaded == value
+
+
+def test_safe_load_pickle_reads_numpy1_names(tmp_path):
+    # numpy 1.x wrote numpy.core.multiarray / numpy.core.numeric; numpy 2 renamed them numpy._core.
+    data = pickle.dumps(np.arange(4.0), protocol=2)
+    assert b"numpy._core.multiarray" in data
+    path = tmp_path / "old.pkl"
+    path.write_bytes(data.replace(b"numpy._core.multiarray", b"numpy.core.multiarray"))
+    assert np.array_equal(safe_load_pickle(path), np.arange(4.0))
+    scalar = pickle.dumps(np.float64(7.5), protocol=2).replace(b"numpy._core", b"numpy.core")
+    assert safe_load_pickle(scalar) == 7.5
+    # numpy 1.x protocol 5: numpy.core.numeric._frombuffer(buffer, dtype, shape, order).
+    array = np.arange(6, dtype=np.int16).reshape(2, 3)
+    arguments = pickle.dumps((array.tobytes(), array.dtype, array.shape, "C"), protocol=2)
+    frombuffer = b"\x80\x02cnumpy.core.numeric\n_frombuffer\n" + arguments[2:-1] + b"R."
+    assert np.array_equal(safe_load_pickle(frombuffer), array)
+
+
+@pytest.mark.parametrize(
+    ("payload", "refused"),
+    [
+        (lambda m: RunsCode(os.system, f"touch {m}"), "system"),
+        (lambda m: RunsCode(eval, f"open({str(m)!r}, 'w').close()"), "builtins.eval"),
+        (lambda m: RunsCode(exec, f"open({str(m)!r}, 'w').close()"), "builtins.exec"),
+        (lambda m: RunsCode(subprocess.Popen, ["touch", str(m)]), "subprocess.Popen"),
+        (lambda m: RunsCode(builtins.open, str(m), "w"), "open"),
+        # Hidden behind a legitimate array: refused all the same.
+        (lambda m: [np.arange(3.0), RunsCode(os.system, f"touch {m}")], "system"),
+    ],
+)
+def test_malicious_pickle_is_refused_and_runs_nothing(tmp_path, payload, refused):
+    marker = tmp_path / "pwned"
+    path = tmp_path / "object_forces.pkl"
+    write_pickle(path, payload(marker))
+    with pytest.raises(UnsafePickleError) as info:
+        safe_load_pickle(path)
+    message = str(info.value)
+    assert str(path) in message and refused in message
+    assert not marker.exists()
+
+
+def test_refused_globals_are_never_imported(tmp_path):
+    # GLOBAL opcode naming a module that does not exist: refused by name, not by a failed import.
+    data = b"cno_such_module_xyz\nrun\n(tR."
+    with pytest.raises(UnsafePickleError, match=r"no_such_module_xyz\.run"):
+        safe_load_pickle(data, name="crafted.pkl")
+    # numpy functions other than the array-rebuilding ones are refused too.
+    for global_name in (b"numpy\nload\n", b"numpy.testing._private.utils\nrunstring\n"):
+        with pytest.raises(UnsafePickleError, match="crafted.pkl"):
+            safe_load_pickle(b"c" + global_name + b"(tR.", name="crafted.pkl")
+
+
+def test_admitted_globals_cannot_be_misused():
+    # ndarray(shape) called directly would allocate whatever the pickle asks for.
+    with pytest.raises(UnsafePickleError, match="numpy.ndarray"):
+        safe_load_pickle(b"cnumpy\nndarray\n(I1000000000000\ntR.")
+    # _reconstruct only ever builds numpy's empty placeholder, filled from the pickled state.
+    huge = pickle.dumps(np.arange(3.0), protocol=2).replace(b"K\x00\x85", b"J\x00\xe1\xf5\x05\x85")
+    with pytest.raises(UnsafePickleError, match="shape"):
+        safe_load_pickle(huge)
+    # _codecs.encode with any codec but latin-1.
+    import codecs
+
+    with pytest.raises(UnsafePickleError, match="rot13"):
+        safe_load_pickle(pickle.dumps(RunsCode(codecs.encode, "abc", "rot13")))
+    # An object array could carry arbitrary Python objects.
+    with pytest.raises(UnsafePickleError, match="object array"):
+        safe_load_pickle(pickle.dumps(np.array([1, "a"], dtype=object)))
+
+
+def test_damaged_or_missing_pickles_raise_dataset_errors(tmp_path):
+    path = tmp_path / "forces.pkl"
+    path.write_bytes(pickle.dumps(np.arange(100.0))[:-20])
+    with pytest.raises(DatasetError, match=r"forces\.pkl: not a valid pickle"):
+        safe_load_pickle(path)
+    with pytest.raises(DatasetError, match="cannot read"):
+        safe_load_pickle(tmp_path / "absent.pkl")
+    write_pickle(path, {"force": 1.0})
+    with pytest.raises(DatasetError, match="numeric array"):
+        load_pickled_array(path)
+    write_pickle(path, np.array([1.0, np.nan]))
+    with pytest.raises(DatasetError, match="NaN or infinite"):
+        load_pickled_array(path)
+    write_pickle(path, np.zeros((2, 2)))
+    with pytest.raises(DatasetError, match="1-D"):
+        load_pickled_array(path, ndim=1)
+
+
+# --------------------------------------------------------------------------- raw layout
+
+
+def test_read_mjpg_packets_keeps_the_jpeg_frames(tmp_path):
+    frames = synthetic_frames(3, markers=False)
+    write_mjpg(tmp_path / "v.avi", frames)
+    packets, shape = read_mjpg_packets(tmp_path / "v.avi")
+    assert shape == RAW_SHAPE and len(packets) == 3
+    for packet, frame in zip(packets, frames, strict=True):
+        assert packet[:2] == b"\xff\xd8"  # a JPEG, as stored in the video
+        decoded = cv2.imdecode(np.frombuffer(packet, np.uint8), cv2.IMREAD_COLOR)
+        assert np.mean(np.abs(decoded.astype(float) - frame)) < 3.0
+
+
+def test_raw_grasp_becomes_a_record(tmp_path, object_table):
+    src = tmp_path / "raw"
+    folder = make_raw_grasp(src, "apple", 2, n=5)
+    settings = load_settings()
+    from teleop.catalogue import load_catalogue
+
+    labels = {o.name: o for o in load_catalogue(object_table)}
+    record = import_raw_grasp(folder, sensors=settings.sensors, labels=labels)
+
+    assert [s.finger for s in record.sensors] == ["left", "right"]
+    assert [s.markers for s in record.sensors] == [False, True]
+    plain, marked = record.stream("left"), record.stream("right")
+    assert len(plain) == len(marked) == 5
+    assert plain.encoding == "jpeg" and plain.jpeg_quality is None and plain.shape == RAW_SHAPE
+    np.testing.assert_array_equal(plain.t_s, np.arange(5) / 30.0)
+    np.testing.assert_array_equal(record.force_n.t_s, plain.t_s)
+    np.testing.assert_array_equal(record.force_n.value, np.linspace(0.5, 12.0, 5) + 2)
+    np.testing.assert_array_equal(record.width_m.value, np.linspace(0.050, 0.046, 5))
+    # The frames are the videos' own JPEG bytes, in order, each finger from its own video.
+    assert plain.encoded == read_mjpg_packets(folder / "apple.avi")[0]
+    assert marked.encoded == read_mjpg_packets(folder / "apple_markers.avi")[0]
+    for k, expected in enumerate(synthetic_frames(5, markers=True)):
+        assert np.mean(np.abs(marked.frame(k).astype(float) - expected)) < 3.0
+    assert record.label.object_name == "apple"
+    assert record.label.modulus_pa == pytest.approx(3.25e6)
+    assert (record.label.material, record.label.shape) == ("food", "sphere")
+    assert record.provenance.source == "imported"
+    assert record.provenance.extra["grasp"] == 2
+
+
+def test_raw_import_writes_readable_records_and_skips_bad_grasps(tmp_path, object_table):
+    src, out = tmp_path / "raw", tmp_path / "out"
+    make_raw_grasp(src, "apple", 0)
+    make_raw_grasp(src, "apple", 1)
+    make_raw_grasp(src, "not_in_table", 0)
+
+    bad = {}
+    folder = make_raw_grasp(src, "damaged_pickle", 0)
+    (folder / "damaged_pickle_forces.pkl").write_bytes(b"\x80\x04\x95 truncated")
+    bad["damaged_pickle"] = "damaged_pickle_forces.pkl: not a valid pickle"
+    folder = make_raw_grasp(src, "unreadable_video", 0)
+    (folder / "unreadable_video.avi").write_bytes(b"RIFF\x00\x00\x00\x00AVI not a video at all" * 8)
+    bad["unreadable_video"] = "unreadable_video.avi: unreadable video"
+    folder = make_raw_grasp(src, "missing_member", 0)
+    (folder / "missing_member_widths.pkl").unlink()
+    bad["missing_member"] = "missing_member_widths.pkl: missing"
+    folder = make_raw_grasp(src, "mismatched", 0)
+    write_pickle(folder / "mismatched_forces.pkl", np.ones(7))
+    bad["mismatched"] = "4 frames but 7 forces"
+    folder = make_raw_grasp(src, "short_widths", 0)
+    write_pickle(folder / "short_widths_widths.pkl", np.ones(3))
+    bad["short_widths"] = "3 widths but 4 forces"
+    folder = make_raw_grasp(src, "truncated_video", 0, n=6)
+    video = folder / "truncated_video_markers.avi"
+    video.write_bytes(video.read_bytes()[: video.stat().st_size // 2])
+    bad["truncated_video"] = "truncated_video_markers.avi: truncated video"
+    folder = make_raw_grasp(src, "malicious", 0)
+    marker = tmp_path / "pwned"
+    write_pickle(folder / "malicious_widths.pkl", RunsCode(os.system, f"touch {marker}"))
+    bad["malicious"] = "refused pickle global"
+    (src / "bad_index" / "grasp=first").mkdir(parents=True)
+    bad["bad_index"] = "grasp=<integer>"
+
+    skipped = []
+    summary = import_dataset(src, layout="raw", out=out, objects=object_table, on_skip=skipped.append)
+
+    assert not marker.exists()
+    assert len(summary.imported) == 3 and summary.labelled == 2
+    assert sorted(Path(p).relative_to(out).as_posix() for p in summary.imported) == [
+        "apple/grasp=0.grasp", "apple/grasp=1.grasp", "not_in_table/grasp=0.grasp"]
+    assert skipped == summary.skipped and len(skipped) == len(bad)
+    reasons = {Path(item.path).relative_to(src).parts[0]: item.reason for item in skipped}
+    for name, expected in bad.items():
+        assert expected in reasons[name], (name, reasons[name])
+        assert str(src / name) in reasons[name]  # each reason names the file or folder
+    unlabelled = read_record(out / "not_in_table" / "grasp=0.grasp")
+    assert unlabelled.label.object_name == "not_in_table" and unlabelled.label.modulus_pa is None
+    record = read_record(out / "apple" / "grasp=1.grasp")
+    assert record.label.modulus_pa == pytest.approx(3.25e6)
+    assert record.stream("left").encoded == read_mjpg_packets(src / "apple" / "grasp=1" / "apple.avi")[0]
+
+
+def test_raw_import_needs_a_marker_and_a_plain_sensor(tmp_path):
+    make_raw_grasp(tmp_path / "raw", "apple", 0, n=2)
+    settings = tmp_path / "one_sensor.toml"
+    settings.write_text("[sensors.left]\nmarkers = false\n")
+    with pytest.raises(DatasetError, match="one sensor without markers and one with"):
+        import_dataset(tmp_path / "raw", layout="raw", out=tmp_path / "out", settings=settings)
+
+
+def test_import_refuses_a_source_without_the_layout(tmp_path):
+    (tmp_path / "src" / "apple").mkdir(parents=True)
+    with pytest.raises(DatasetError, match="not the expected layout"):
+        find_raw_grasps(tmp_path / "src")
+    with pytest.raises(DatasetError, match="not a directory"):
+        import_dataset(tmp_path / "nowhere", layout="preprocessed", out=tmp_path / "out")
+    with pytest.raises(DatasetError, match="layout 'video'"):
+        import_dataset(tmp_path / "src", layout="video", out=tmp_path / "out")
+
+
+# --------------------------------------------------------------------------- preprocessed layout
+
+
+@pytest.mark.parametrize("protocol", [2, 4, 5])
+def test_preprocessed_folder_becomes_a_sample(tmp_path, object_table, protocol):
+    folder = make_preprocessed(tmp_path, "apple", 3, 1, protocol=protocol)
+    from teleop.catalogue import load_catalogue
+
+    labels = {o.name: o for o in load_catalogue(object_table)}
+    sample = import_preprocessed_sample(folder, labels=labels)
+    rgb = pickle.loads((folder / "RGB.pkl").read_bytes())
+    depth_mm = pickle.loads((folder / "depth.pkl").read_bytes())
+    assert (sample.object_name, sample.grasp, sample.augmentation) == ("apple", 3, 1)
+    assert sample.rgb_diff.dtype == np.float32
+    np.testing.assert_array_equal(sample.rgb_diff, rgb.astype(np.float32))
+    np.testing.assert_allclose(sample.depth_m, depth_mm * 1e-3, rtol=1e-6)
+    assert sample.depth_markers_m.shape == (3, *IMAGE_SHAPE) and sample.has_markers
+    np.testing.assert_array_equal(sample.force_n, [2.0, 6.0, 11.0])
+    np.testing.assert_array_equal(sample.width_m, [0.031, 0.030, 0.0295])
+    assert sample.elastic_estimate_pa == 2.0e6 and sample.hertz_estar_pa == 1.5e5
+    assert sample.label_modulus_pa == pytest.approx(3.25e6)
+    assert (sample.material, sample.shape) == ("food", "sphere")
+
+
+def test_preprocessed_import_writes_samples_and_skips_bad_ones(tmp_path, object_table):
+    src, out = tmp_path / "pre", tmp_path / "out"
+    make_preprocessed(src, "apple", 0, 0)
+    make_preprocessed(src, "apple", 0, 1, elastic=np.float64(np.nan), hertz=np.array([-4.0e5]))
+    make_preprocessed(src, "mystery", 1, 0, elastic=np.inf)
+    bad = {}
+    folder = make_preprocessed(src, "frames_mismatch", 0, 0)
+    write_pickle(folder / "forces.pkl", np.ones(4))
+    bad["frames_mismatch"] = "force_n must be float64 with shape (3,)"
+    folder = make_preprocessed(src, "flat_depth", 0, 0)
+    write_pickle(folder / "depth.pkl", np.zeros((3, 250)))
+    bad["flat_depth"] = "depth.pkl: expected a 3-D array"
+    folder = make_preprocessed(src, "no_rgb", 0, 0)
+    (folder / "RGB.pkl").unlink()
+    bad["no_rgb"] = "RGB.pkl: missing"
+    folder = make_preprocessed(src, "two_estimates", 0, 0)
+    write_pickle(folder / "hertz_estimate.pkl", np.array([1.0, 2.0]))
+    bad["two_estimates"] = "expected one number"
+    folder = make_preprocessed(src, "evil", 0, 0)
+    write_pickle(folder / "depth_markers.pkl", RunsCode(os.system, f"touch {tmp_path / 'pwned'}"))
+    bad["evil"] = "refused pickle global"
+
+    summary = import_dataset(src, layout="preprocessed", out=out, objects=object_table)
+
+    assert not (tmp_path / "pwned").exists()
+    assert len(summary.imported) == 3 and summary.labelled == 2
+    assert summary.unavailable_estimates == 3
+    reasons = {Path(s.path).relative_to(src).parts[0]: s.reason for s in summary.skipped}
+    assert sorted(reasons) == sorted(bad)
+    for name, expected in bad.items():
+        assert expected in reasons[name] and str(src / name) in reasons[name], (name, reasons[name])
+    guarded = load_sample(out / "apple" / "grasp=0" / "augmentation=1.npz")
+    assert guarded.elastic_estimate_pa is None and guarded.hertz_estar_pa is None
+    assert guarded.label_modulus_pa == pytest.approx(3.25e6)
+    mystery = load_sample(out / "mystery" / "grasp=1" / "augmentation=0.npz")
+    assert mystery.label_modulus_pa is None and mystery.elastic_estimate_pa is None
+    assert mystery.hertz_estar_pa == 1.5e5
+
+
+# --------------------------------------------------------------------------- the command
+
+
+def test_import_dataset_command_json_summary(tmp_path, object_table, capsys):
+    src, out = tmp_path / "pre", tmp_path / "out"
+    make_preprocessed(src, "apple", 0, 0)
+    folder = make_preprocessed(src, "broken", 0, 0)
+    (folder / "widths.pkl").write_bytes(b"not a pickle")
+    status = cli.main(["import-dataset", str(src), "--layout", "preprocessed", "--out", str(out),
+                       "--objects", str(object_table), "--json"])
+    captured = capsys.readouterr()
+    assert status == 0
+    summary = json.loads(captured.out.strip().splitlines()[-1])
+    assert (summary["imported"], summary["skipped"], summary["labelled"]) == (1, 1, 1)
+    assert "widths.pkl" in summary["skipped_items"][0]["reason"]
+    assert f"skipped {folder}" in captured.err  # reported as it happens, on stderr
+
+
+def test_import_dataset_command_fails_when_nothing_imports(tmp_path, capsys):
+    src = tmp_path / "pre"
+    folder = make_preprocessed(src, "broken", 0, 0)
+    (folder / "RGB.pkl").unlink()
+    status = cli.main(["import-dataset", str(src), "--layout", "preprocessed",
+                       "--out", str(tmp_path / "out"), "--json"])
+    assert status == 1
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["imported"] == 0
+    status = cli.main(["import-dataset", str(tmp_path / "absent"), "--layout", "raw", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert status == 2 and "not a directory" in err and "Traceback" not in err

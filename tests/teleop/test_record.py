@@ -1,0 +1,273 @@
+"""Grasp records: bit-exact round trip and every reader error path."""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from teleop.errors import RecordError
+from teleop.record import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    FrameStream,
+    GraspRecord,
+    Label,
+    Provenance,
+    Samples,
+    read_record,
+    write_record,
+)
+from teleop.settings import load_settings
+
+
+def make_record(encoding: str, n_frames: int = 3) -> GraspRecord:
+    rng = np.random.default_rng(7)
+    sensors = load_settings().sensors
+    frames = []
+    for sensor in sensors:
+        images = rng.integers(0, 256, (n_frames, 24, 32, 3), dtype=np.uint8)
+        t_s = 0.0331 * np.arange(n_frames) + rng.uniform(0, 1e-3)
+        frames.append(FrameStream.from_frames(sensor.finger, t_s, images, encoding=encoding, jpeg_quality=85))
+    return GraspRecord(
+        sensors=sensors,
+        frames=tuple(frames),
+        force_n=Samples(np.sort(rng.uniform(0, 2, 17)), rng.normal(5.0, 3.0, 17)),
+        width_m=Samples(np.sort(rng.uniform(0, 2, 5)), rng.uniform(0.02, 0.08, 5)),
+        provenance=Provenance(source="simulated", seed=1234, model="test model", created_utc="2025-01-01T00:00:00+00:00",
+                              extra={"noise": 0.5, "tags": ["a", "b"]}),
+        label=Label("rubber_duck", 3.61e6, "rubber", "irregular", {"source": "Gent", "shore_a": 60}),
+        events={"contact": 0.12345678901234, "release": 1.75},
+        calibration={"background": rng.integers(0, 256, (24, 32, 3), dtype=np.uint8),
+                     "gradient_lut": rng.normal(size=(8, 8, 2)).astype(np.float32)},
+    )
+
+
+@pytest.fixture
+def record_path(tmp_path) -> Path:
+    return write_record(make_record("png"), tmp_path / "good.grasp")
+
+
+@pytest.mark.parametrize("encoding", ["jpeg", "png"])
+def test_round_trip_is_bit_exact(tmp_path, encoding):
+    record = make_record(encoding)
+    path = write_record(record, tmp_path / "r.grasp")
+    assert path.exists() and not list(tmp_path.glob("*.partial"))
+    back = read_record(path)
+
+    assert back.sensors == record.sensors
+    for a, b in zip(record.frames, back.frames, strict=True):
+        assert (b.finger, b.encoding, b.jpeg_quality, b.shape) == (a.finger, a.encoding, a.jpeg_quality, a.shape)
+        assert b.encoded == a.encoded
+        assert b.t_s.dtype == np.float64 and np.array_equal(b.t_s, a.t_s)
+        np.testing.assert_array_equal(b.frames(), a.frames())
+    for name in ("force_n", "width_m"):
+        a, b = getattr(record, name), getattr(back, name)
+        assert np.array_equal(a.t_s, b.t_s) and np.array_equal(a.value, b.value)
+        assert b.value.dtype == np.float64
+    assert back.label == record.label
+    assert back.provenance == record.provenance
+    assert back.events == record.events
+    assert back.calibration.keys() == record.calibration.keys()
+    for key, array in record.calibration.items():
+        assert back.calibration[key].dtype == array.dtype
+        np.testing.assert_array_equal(back.calibration[key], array)
+
+
+def test_png_frames_are_lossless_and_jpeg_keeps_its_quality(tmp_path):
+    images = np.random.default_rng(1).integers(0, 256, (2, 16, 20, 3), dtype=np.uint8)
+    png = FrameStream.from_frames("left", [0.0, 0.1], images, encoding="png")
+    np.testing.assert_array_equal(png.frames(), images)
+    jpeg = FrameStream.from_frames("left", [0.0, 0.1], images, encoding="jpeg", jpeg_quality=95)
+    assert jpeg.jpeg_quality == 95 and jpeg.frames().shape == images.shape
+
+
+def test_unlabelled_record_round_trips(tmp_path):
+    record = make_record("png")
+    record = GraspRecord(record.sensors, record.frames, record.force_n, record.width_m,
+                         Provenance(source="hardware"))
+    back = read_record(write_record(record, tmp_path / "u.grasp"))
+    assert back.label is None and back.events == {} and back.calibration == {}
+
+
+# --------------------------------------------------------------------------- error paths
+
+
+def members_of(path: Path) -> dict[str, bytes]:
+    with zipfile.ZipFile(path) as zf:
+        return {name: zf.read(name) for name in zf.namelist()}
+
+
+def rebuild(path: Path, members: dict[str, bytes]) -> Path:
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    return path
+
+
+def header_of(members: dict[str, bytes]) -> dict:
+    return json.loads(members["record.json"])
+
+
+def npy(array: np.ndarray, *, allow_pickle: bool = False) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, array, allow_pickle=allow_pickle)
+    return buf.getvalue()
+
+
+def fails(path: Path, *expected: str) -> str:
+    with pytest.raises(RecordError) as info:
+        read_record(path)
+    message = str(info.value)
+    assert str(path) in message, message
+    for part in expected:
+        assert part in message, message
+    return message
+
+
+def test_missing_file_not_a_zip_and_truncated_zip(tmp_path, record_path):
+    fails(tmp_path / "absent.grasp", "no such grasp record")
+    text = tmp_path / "text.grasp"
+    text.write_text("hello")
+    fails(text, "not a readable ZIP")
+    truncated = tmp_path / "truncated.grasp"
+    truncated.write_bytes(record_path.read_bytes()[: record_path.stat().st_size // 2])
+    fails(truncated, "not a readable ZIP")
+    fails(tmp_path, "not a readable ZIP")  # a directory
+
+
+def corrupt_member(path: Path, member: str) -> None:
+    """Flip one byte inside ``member``'s stored data, leaving the ZIP structure intact."""
+    with zipfile.ZipFile(path) as zf:
+        info = zf.getinfo(member)
+    data = bytearray(path.read_bytes())
+    name_len = int.from_bytes(data[info.header_offset + 26 : info.header_offset + 28], "little")
+    extra_len = int.from_bytes(data[info.header_offset + 28 : info.header_offset + 30], "little")
+    start = info.header_offset + 30 + name_len + extra_len
+    data[start + info.compress_size // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("member", ["frames/left/000001.png", "force/value_n.npy", "record.json"])
+def test_crc_corrupted_member_is_named(record_path, member):
+    corrupt_member(record_path, member)
+    fails(record_path, repr(member))
+
+
+@pytest.mark.parametrize(
+    "member", ["record.json", "force/value_n.npy", "width/t_s.npy", "frames/right/t_s.npy",
+               "frames/left/000002.png", "calibration/background.npy"],
+)
+def test_missing_member_is_named(record_path, member):
+    members = members_of(record_path)
+    del members[member]
+    fails(rebuild(record_path, members), repr(member), "missing")
+
+
+def edit_header(path: Path, change) -> Path:
+    members = members_of(path)
+    header = header_of(members)
+    change(header)
+    members["record.json"] = json.dumps(header).encode()
+    return rebuild(path, members)
+
+
+def test_invalid_json_and_header_fields(record_path):
+    members = members_of(record_path)
+    members["record.json"] = b'{"format": "compliance-teleop.grasp", '
+    fails(rebuild(record_path, members), "record.json is not valid JSON")
+    members["record.json"] = b"\xff\xfe not utf-8"
+    fails(rebuild(record_path, members), "record.json is not valid JSON")
+    members["record.json"] = b"[1, 2]"
+    fails(rebuild(record_path, members), "expected a JSON object")
+
+
+@pytest.mark.parametrize(
+    ("change", "expected"),
+    [
+        (lambda h: h.update(format="something.else"), "format is 'something.else'"),
+        (lambda h: h.pop("format"), "header.format is missing"),
+        (lambda h: h.update(version=FORMAT_VERSION + 1), f"version {FORMAT_VERSION + 1} is not supported"),
+        (lambda h: h.update(version="1"), "header.version must be int"),
+        (lambda h: h.update(sensors="left"), "header.sensors must be list"),
+        (lambda h: h["sensors"][0].update(gel_poisson=2.0), "sensors[0] is invalid"),
+        (lambda h: h["sensors"][0].update(colour="red"), "sensors[0] is invalid"),
+        (lambda h: h["sensors"].__setitem__(1, "right"), "sensors[1] is invalid"),
+        (lambda h: h["fingers"]["left"].update(encoding="gif"), "fingers.left.encoding 'gif'"),
+        (lambda h: h["fingers"]["left"].pop("count"), "fingers.left.count is missing"),
+        (lambda h: h["fingers"]["left"].update(count=5), "header says 5 frames"),
+        (lambda h: h["fingers"]["left"].update(shape=7), "fingers.left is invalid"),
+        (lambda h: h["fingers"].update(middle=h["fingers"]["left"]), "'frames/middle/t_s.npy'"),
+        (lambda h: h["label"].update(modulus_pa=-3.0), "label is invalid"),
+        (lambda h: h["label"].update(modulus_pa="soft"), "label is invalid"),
+        (lambda h: h["label"].pop("object_name"), "label.object_name is missing"),
+        (lambda h: h.update(label=["duck"]), "label.object_name is missing"),
+        (lambda h: h["provenance"].update(source="dreamt"), "provenance is invalid"),
+        (lambda h: h["provenance"].update(colour="red"), "provenance is invalid"),
+        (lambda h: h.update(provenance="sim"), "header.provenance must be dict"),
+        (lambda h: h["events"].update(contact="early"), "events.contact must be a time in seconds"),
+        (lambda h: h["events"].update(contact=True), "events.contact must be a time in seconds"),
+        (lambda h: h.update(calibration=["missing_array"]), "'calibration/missing_array.npy' is missing"),
+    ],
+)
+def test_bad_header_fields_are_named(record_path, change, expected):
+    fails(edit_header(record_path, change), expected)
+
+
+def test_nan_label_modulus_is_refused(record_path):
+    members = members_of(record_path)
+    header = header_of(members)
+    text = json.dumps(header).replace('"modulus_pa": 3610000.0', '"modulus_pa": NaN')
+    assert "NaN" in text
+    members["record.json"] = text.encode()
+    fails(rebuild(record_path, members), "label is invalid")
+
+
+def test_frames_for_a_finger_without_a_sensor(record_path):
+    def drop_right_sensor(h):
+        h["sensors"] = [s for s in h["sensors"] if s["finger"] != "right"]
+
+    fails(edit_header(record_path, drop_right_sensor), "no sensor on it")
+
+
+@pytest.mark.parametrize(
+    ("member", "data", "expected"),
+    [
+        ("force/t_s.npy", npy(np.zeros(17, dtype=np.float32)), "expected 1-D float64, got 1-D float32"),
+        ("force/value_n.npy", npy(np.zeros((17, 1))), "expected 1-D float64, got 2-D float64"),
+        ("width/value_m.npy", npy(np.array([{"a": 1}], dtype=object), allow_pickle=True), "not a readable .npy"),
+        ("calibration/background.npy", npy(np.array([None], dtype=object), allow_pickle=True), "not a readable .npy"),
+        ("width/t_s.npy", b"garbage, not npy", "not a readable .npy"),
+        ("force/value_n.npy", npy(np.zeros(16)), "force: 17 timestamps but 16 values"),
+        ("frames/left/t_s.npy", npy(np.zeros(2)), "has 2 timestamps, header says 3 frames"),
+    ],
+)
+def test_bad_arrays_are_named(record_path, member, data, expected):
+    members = members_of(record_path)
+    members[member] = data
+    message = fails(rebuild(record_path, members), expected)
+    if "readable" in expected or "expected 1-D" in expected:
+        assert repr(member) in message
+
+
+def test_pickled_npy_member_runs_nothing(tmp_path, record_path):
+    marker = tmp_path / "pwned"
+
+    class RunsCode:
+        def __reduce__(self):
+            import os
+
+            return os.system, (f"touch {marker}",)
+
+    members = members_of(record_path)
+    members["force/t_s.npy"] = npy(np.array([RunsCode()], dtype=object), allow_pickle=True)
+    fails(rebuild(record_path, members), "'force/t_s.npy'")
+    assert not marker.exists()
+
+
+def test_format_constants():
+    assert FORMAT_NAME == "compliance-teleop.grasp" and FORMAT_VERSION == 1

@@ -1,0 +1,179 @@
+"""Settings: the shipped file, every class of bad input, and the mapping round trip."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import pytest
+
+from teleop.errors import SettingsError
+from teleop.settings import (
+    DisplaySettings,
+    SensorSettings,
+    Settings,
+    default_settings_path,
+    load_settings,
+    settings_from_mapping,
+    settings_to_mapping,
+)
+
+
+def write(tmp_path, text: str, name: str = "settings.toml"):
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def error_for(tmp_path, text: str) -> str:
+    path = write(tmp_path, text)
+    with pytest.raises(SettingsError) as info:
+        load_settings(path)
+    message = str(info.value)
+    assert str(path) in message, message  # every file error names the file
+    return message
+
+
+def test_shipped_settings_load_with_the_documented_values():
+    settings = load_settings()
+    assert settings == load_settings(default_settings_path())
+    assert [s.finger for s in settings.sensors] == ["left", "right"]
+    left, right = settings.sensor("left"), settings.sensor("right")
+    assert (left.markers, right.markers) == (False, True)
+    assert left.gel_modulus_pa == 275e3 and left.gel_poisson == 0.48
+    assert left.image_shape == (250, 350)
+    rows_m, cols_m = left.pad_size_m
+    assert rows_m == pytest.approx(250 * 9.0909e-5) and cols_m == pytest.approx(350 * 9.0909e-5)
+    assert left.gel_compliance_per_pa == pytest.approx((1 - 0.48**2) / 275e3)
+    assert right.warp_corners_px[0] == (92.0, 103.0)
+    assert settings.gripper.max_width_m == 0.08 and settings.load_cell.sample_rate_hz == 80.0
+    assert settings.display.vendor_id == 0x1209
+
+
+def test_unknown_keys_are_named_with_the_allowed_ones(tmp_path):
+    message = error_for(tmp_path, "[gripper]\nspeed = 0.01\n")
+    assert "'speed'" in message and "[gripper]" in message and "closing_speed_m_s" in message
+    message = error_for(tmp_path, "[camera]\nfps = 30\n")
+    assert "'camera'" in message and "top level" in message
+    message = error_for(tmp_path, "[sensors.left]\nmodulus = 1.0\n")
+    assert "'modulus'" in message and "[sensors.left]" in message and "gel_modulus_pa" in message
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ('[gripper]\nmax_width_m = "wide"\n', "gripper.max_width_m must be a number"),
+        ("[gripper]\nmax_width_m = true\n", "gripper.max_width_m must be a number"),
+        ("[load_cell]\nbaud = true\n", "load_cell.baud must be an integer"),
+        ("[load_cell]\nbaud = 9600.5\n", "load_cell.baud must be an integer"),
+        ("[sensors.left]\nmarkers = 1\n", "sensors.left.markers must be true or false"),
+        ("[bus]\nrobot_pub = 5550\n", "bus.robot_pub must be a string"),
+        ('[estimator]\nmethods = "hertz"\n', "estimator.methods must be an array"),
+        ("[estimator]\nmethods = [1, 2]\n", "estimator.methods[0] must be a string"),
+        ("gripper = 3\n", "[gripper] must be a table"),
+    ],
+)
+def test_wrong_types_are_named(tmp_path, text, expected):
+    assert expected in error_for(tmp_path, text)
+
+
+@pytest.mark.parametrize(
+    ("text", "key", "allowed"),
+    [
+        ("[sensors.right]\ngel_poisson = 0.7\n", "gel_poisson", "[0.0, 0.5]"),
+        ("[gripper]\nclosing_speed_m_s = 0.0\n", "closing_speed_m_s", "(0.0, 0.2]"),
+        ("[gripper]\ntarget_force_n = 500\n", "target_force_n", "(0.0, 140.0]"),
+        ("[load_cell]\nsample_rate_hz = 20.0\n", "sample_rate_hz", "one of 10.0, 80.0"),
+        ('[sensors.left]\nmodel = "gelsight9"\n', "model", "one of 'wedge', 'mini'"),
+        ("[simulation]\ncamera_noise = inf\n", "camera_noise", "[0.0, 50.0]"),
+        ("[simulation]\nforce_noise_n = nan\n", "force_noise_n", "[0.0, 10.0]"),
+        ("[sensors.left]\nwarp_corners_px = [[0, 0], [1, 0], [0, 1], [1e5, 1]]\n", "warp_corners_px", "8192"),
+    ],
+)
+def test_out_of_range_values_name_the_key_and_the_allowed_range(tmp_path, text, key, allowed):
+    message = error_for(tmp_path, text)
+    assert key in message and allowed in message, message
+
+
+def test_out_of_range_sensor_value_names_the_finger(tmp_path):
+    message = error_for(tmp_path, "[sensors.right]\ngel_poisson = 0.7\n")
+    assert "[sensors.right]" in message
+
+
+def test_array_lengths_are_checked(tmp_path):
+    message = error_for(tmp_path, "[sensors.left]\nwarp_corners_px = [[0, 0], [1, 0], [0, 1]]\n")
+    assert "warp_corners_px" in message and "exactly 4" in message
+    message = error_for(tmp_path, "[sensors.left]\nwarp_corners_px = [[0, 0, 5], [1, 0], [0, 1], [1, 1]]\n")
+    assert "sensors.left.warp_corners_px[0] must have 2 entries" in message
+
+
+def test_cross_field_checks(tmp_path):
+    message = error_for(tmp_path, "[sensors.left]\ncrop_px = 200\n")
+    assert "crop_px" in message and "crops the whole" in message
+    message = error_for(tmp_path, "[display]\ne_soft_pa = 2e9\n")
+    assert "e_rigid_pa" in message and "e_soft_pa" in message
+
+
+def test_sensor_tables(tmp_path):
+    message = error_for(tmp_path, '[sensors.left]\nfinger = "right"\n')
+    assert "[sensors.left]" in message and "'right'" in message
+    message = error_for(tmp_path, "sensors = 3\n")
+    assert "[sensors]" in message
+    message = error_for(tmp_path, "[sensors]\nleft = 3\n")
+    assert "[sensors.left] must be a table" in message
+    message = error_for(tmp_path, "[sensors]\n")
+    assert "at least one" in message
+    # Fingers are what the tables are called; a table of its own makes one sensor.
+    settings = load_settings(write(tmp_path, "[sensors.thumb]\nmarkers = true\n", "one.toml"))
+    assert [s.finger for s in settings.sensors] == ["thumb"] and settings.sensor("thumb").markers
+    with pytest.raises(SettingsError, match=r"no sensor on finger 'left'.*\['thumb'\]"):
+        settings.sensor("left")
+
+
+def test_missing_broken_and_undecodable_files(tmp_path):
+    missing = tmp_path / "absent.toml"
+    with pytest.raises(SettingsError, match=f"cannot read settings file {missing}"):
+        load_settings(missing)
+    with pytest.raises(SettingsError, match=f"{tmp_path}.*not valid TOML"):
+        load_settings(write(tmp_path, "[gripper\nmax_width_m = 0.08\n"))
+    path = tmp_path / "latin1.toml"
+    path.write_bytes(b"# \xe9\xe9\n[gripper]\n")
+    with pytest.raises(SettingsError, match="not valid TOML"):
+        load_settings(path)
+    with pytest.raises(SettingsError, match="cannot read settings file"):
+        load_settings(tmp_path)  # a directory
+
+
+def test_missing_keys_take_their_defaults(tmp_path):
+    settings = load_settings(write(tmp_path, "[gripper]\nhold_s = 1.5\n"))
+    assert settings.gripper.hold_s == 1.5
+    assert settings.gripper.max_width_m == Settings().gripper.max_width_m
+    assert settings.sensors == Settings().sensors
+
+
+def test_construction_validates_too():
+    with pytest.raises(SettingsError, match="SensorSettings.gel_modulus_pa"):
+        SensorSettings(gel_modulus_pa=-1.0)
+    with pytest.raises(SettingsError, match="e_rigid_pa"):
+        DisplaySettings(e_soft_pa=1e6, e_rigid_pa=1e6)
+    with pytest.raises(SettingsError, match="names a finger twice"):
+        Settings(sensors=(SensorSettings(finger="left"), SensorSettings(finger="left")))
+
+
+def test_round_trip_through_a_mapping():
+    shipped = load_settings()
+    mapping = settings_to_mapping(shipped)
+    json.dumps(mapping)  # plain data only
+    assert settings_from_mapping(mapping) == shipped
+    # A changed value in every section survives the round trip too.
+    changed = dataclasses.replace(
+        shipped,
+        gripper=dataclasses.replace(shipped.gripper, hold_s=2.0),
+        simulation=dataclasses.replace(shipped.simulation, jpeg_quality=75),
+        sensors=(dataclasses.replace(shipped.sensors[0], warp_corners_px=((1.0, 2.0),) * 4),),
+    )
+    back = settings_from_mapping(settings_to_mapping(changed))
+    assert back == changed and back != shipped
+    assert back.sensors[0].warp_corners_px == ((1.0, 2.0),) * 4
+    assert all(math.isfinite(v) for v in back.sensors[0].warp_corners_px[0])
