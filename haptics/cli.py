@@ -6,7 +6,12 @@ from collections.abc import Sequence
 
 from teleop.clikit import Command, run_cli
 
-COMMANDS: dict[str, Command] = {}
+COMMANDS: dict[str, Command] = {
+    "devices": Command("haptics.devices_cli", "list the softness displays plugged in over USB HID"),
+    "protocol": Command("haptics.protocol_cli", "print the HID report layouts and descriptor"),
+    "encode": Command("haptics.encode_cli", "print a set-stiffness output report in hex"),
+    "try": Command("haptics.try_cli", "map one modulus and write it to a display"),
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -15,3 +15,11 @@ class DisplayError(HapticsError):
 
 class DisplayNotConnectedError(DisplayError):
     """A display was used before ``connect()``, after ``close()`` or after an unplug."""
+
+
+class MappingError(HapticsError, ValueError):
+    """An estimate, an interval or a time cannot be mapped to a display command."""
+
+
+class DisplayBackendNotFoundError(DisplayError, LookupError):
+    """No display backend of that name is registered."""

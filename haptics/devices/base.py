@@ -1,0 +1,251 @@
+"""The softness-display device family: one base class, one lifecycle, every backend.
+
+A backend implements six small hooks (open, close, write an OUTPUT report,
+read an INPUT report, get and set the FEATURE report); the base class owns
+the lifecycle, the protocol encoding, the sequence numbers and the
+disconnect-on-failure rule that makes reconnection possible.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+import math
+from dataclasses import dataclass, replace
+from typing import Any, Self
+
+from haptics.errors import DisplayError, DisplayNotConnectedError, ProtocolError
+from haptics.protocol import (
+    DeviceStatus,
+    DisplayInfo,
+    StiffnessCommand,
+    decode_feature_report,
+    decode_input_report,
+    encode_feature_report,
+    encode_output_report,
+)
+from teleop.settings import DisplaySettings
+
+__all__ = ["Reconnector", "SoftnessDisplay"]
+
+log = logging.getLogger(__name__)
+
+
+class SoftnessDisplay(abc.ABC):
+    """A haptic softness display speaking the protocol of :mod:`haptics.protocol`.
+
+    Lifecycle: ``connect()`` (reads the device info), then ``write_command()`` /
+    ``read_status()`` / ``configure()``, then ``close()``; or use it as a
+    context manager. Using it unconnected raises
+    :class:`~haptics.errors.DisplayNotConnectedError`. An I/O failure raises
+    :class:`~haptics.errors.DisplayError` and leaves the display disconnected;
+    :meth:`reconnect` (driven by :class:`Reconnector`) brings it back and
+    resends the last command.
+    """
+
+    def __init__(self) -> None:
+        self._connected = False
+        self._info: DisplayInfo | None = None
+        self._sequence = 0
+        self._last_command: StiffnessCommand | None = None
+        self.reports_written = 0
+
+    # ------------------------------------------------------------ backend hooks
+
+    @classmethod
+    @abc.abstractmethod
+    def from_settings(cls, settings: DisplaySettings, **options: Any) -> Self:
+        """A display configured from ``settings`` (not yet connected)."""
+
+    @abc.abstractmethod
+    def _open(self) -> None:
+        """Find and open the device; raise DisplayError when it is not there."""
+
+    @abc.abstractmethod
+    def _close(self) -> None:
+        """Release the device; must not raise."""
+
+    @abc.abstractmethod
+    def _write_report(self, report: bytes) -> None:
+        """Send one OUTPUT report; raise DisplayError on failure."""
+
+    @abc.abstractmethod
+    def _read_report(self, timeout_s: float) -> bytes | None:
+        """One INPUT report, or None when none arrives within ``timeout_s``."""
+
+    @abc.abstractmethod
+    def _get_feature(self) -> bytes:
+        """The FEATURE report as the device answers it."""
+
+    @abc.abstractmethod
+    def _set_feature(self, report: bytes) -> None:
+        """Send a FEATURE report."""
+
+    # ------------------------------------------------------------ lifecycle
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    @property
+    def info(self) -> DisplayInfo | None:
+        """Device info read at the last successful connect (None before the first)."""
+        return self._info
+
+    @property
+    def last_command(self) -> StiffnessCommand | None:
+        """The last command asked of :meth:`write_command`, written or not."""
+        return self._last_command
+
+    def connect(self) -> DisplayInfo:
+        """Open the device and read its info; a no-op when already connected."""
+        if self._connected:
+            return self._info
+        self._open()
+        try:
+            self._info = self._fetch_info()
+        except BaseException:
+            self._close()
+            raise
+        self._connected = True
+        log.info("%s connected: %s", self, self._info)
+        return self._info
+
+    def close(self) -> None:
+        """Release the device; safe to call twice."""
+        if self._connected:
+            self._connected = False
+            self._close()
+
+    def __enter__(self) -> Self:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def reconnect(self) -> DisplayInfo:
+        """Close what is left of the link, connect again and resend the last command."""
+        self.close()
+        info = self.connect()
+        last = self._last_command
+        if last is not None and last.level <= info.level_max:
+            self.write_command(last)
+        elif last is not None:
+            log.warning("%s came back with level_max %d: not resending level %d",
+                        self, info.level_max, last.level)
+        return info
+
+    # ------------------------------------------------------------ I/O
+
+    def write_command(self, command: StiffnessCommand) -> bytes:
+        """Encode ``command`` with the next sequence number and send it; return the report.
+
+        Raises
+        ------
+        DisplayNotConnectedError
+            Not connected (never, closed, or after a failed write).
+        ProtocolError
+            ``command.level`` is above this display's ``level_max``.
+        DisplayError
+            The write failed; the display is now disconnected.
+        """
+        self._require_connected("write_command")
+        if command.level > self._info.level_max:
+            raise ProtocolError(
+                f"StiffnessCommand.level = {command.level}: above this display's "
+                f"level_max = {self._info.level_max}"
+            )
+        self._last_command = command
+        report = encode_output_report(command, sequence=self._sequence)
+        self._io(self._write_report, report)
+        self._sequence = (self._sequence + 1) % 256
+        self.reports_written += 1
+        return report
+
+    def read_status(self, *, timeout_s: float = 0.0) -> DeviceStatus | None:
+        """The next status report, or None when none arrives within ``timeout_s`` seconds.
+
+        A report that does not decode raises ProtocolError (the link stays up).
+        """
+        self._require_connected("read_status")
+        if not (math.isfinite(timeout_s) and timeout_s >= 0):
+            raise DisplayError(f"read_status timeout_s = {timeout_s!r}: expected a number >= 0")
+        data = self._io(self._read_report, timeout_s)
+        return None if data is None else decode_input_report(data)
+
+    def configure(self, *, watchdog_ms: int) -> DisplayInfo:
+        """Set the display's watchdog (0 = off) and return the info read back."""
+        self._require_connected("configure")
+        report = encode_feature_report(replace(self._info, watchdog_ms=watchdog_ms))
+        self._io(self._set_feature, report)
+        info = self._fetch_info()
+        if info.watchdog_ms != watchdog_ms:
+            raise DisplayError(
+                f"{self} kept watchdog_ms = {info.watchdog_ms} after being asked for {watchdog_ms}"
+            )
+        self._info = info
+        return info
+
+    # ------------------------------------------------------------ helpers
+
+    def _require_connected(self, what: str) -> None:
+        if not self._connected:
+            raise DisplayNotConnectedError(
+                f"{self}: {what}() needs a connected display; call connect() (or reconnect() "
+                "after an unplug) first"
+            )
+
+    def _io(self, hook, *args):
+        """Run a backend I/O hook; a failure means the link is gone: mark it disconnected."""
+        try:
+            return hook(*args)
+        except DisplayError:
+            if self._connected:
+                self._connected = False
+                self._close()
+            raise
+
+    def _fetch_info(self) -> DisplayInfo:
+        data = self._io(self._get_feature)
+        try:
+            return decode_feature_report(data)
+        except ProtocolError as exc:
+            raise DisplayError(
+                f"{self} answered a device-info report this host cannot use: {exc}"
+            ) from exc
+
+
+@dataclass
+class Reconnector:
+    """Retries :meth:`SoftnessDisplay.reconnect` with exponential backoff on the caller's clock.
+
+    No sleeping and no threads: call :meth:`poll` with the current time as often
+    as convenient; it attempts at most once per backoff step, doubling the wait
+    from ``initial_s`` up to ``max_s`` after each failure.
+    """
+
+    display: SoftnessDisplay
+    initial_s: float = 0.05
+    max_s: float = 2.0
+    failures: int = 0
+    next_attempt_s: float = -math.inf
+
+    def poll(self, now_s: float) -> bool:
+        """True when the display is connected after this call."""
+        if self.display.connected:
+            return True
+        if now_s < self.next_attempt_s:
+            return False
+        try:
+            self.display.reconnect()
+        except DisplayError as exc:
+            self.failures += 1
+            # The exponent is capped so that a display left unplugged for hours cannot overflow.
+            delay_s = min(self.max_s, self.initial_s * 2.0 ** min(self.failures - 1, 60))
+            self.next_attempt_s = now_s + delay_s
+            log.warning("%s: reconnect failed (%s); next try in %.3g s", self.display, exc, delay_s)
+            return False
+        self.failures = 0
+        self.next_attempt_s = -math.inf
+        return True

@@ -1,0 +1,39 @@
+"""``haptics encode``: print the OUTPUT (set stiffness) report for given fields, in hex.
+
+For driving a display by hand, e.g. with ``hidapitester`` or a firmware test bench.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from haptics.protocol import FLAG_BITS, StiffnessCommand, encode_output_report
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--level", type=int, required=True,
+                        help="stiffness level, 0 (free) to the display's level_max (<= 65535)")
+    parser.add_argument("--uncertainty", type=int, default=0,
+                        help="interval width in counts of 1/20 decade of E, 0-255")
+    parser.add_argument("--sequence", type=int, default=0, help="sequence number, 0-255")
+    for flag in FLAG_BITS:
+        parser.add_argument(f"--{flag}", action="store_true", help=f"set the {flag} flag "
+                            f"(bit {FLAG_BITS[flag]} of the flags byte)")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object (the report's hex and fields) on the last line")
+
+
+def run(args: argparse.Namespace) -> int:
+    command = StiffnessCommand(
+        level=args.level,
+        uncertainty=args.uncertainty,
+        **{flag: getattr(args, flag) for flag in FLAG_BITS},
+    )
+    report = encode_output_report(command, sequence=args.sequence)
+    print(report.hex(" "))
+    if args.json:
+        print(json.dumps({"report_hex": report.hex(), "length": len(report), "level": command.level,
+                          "uncertainty": command.uncertainty, "flags": command.flags,
+                          "sequence": args.sequence}))
+    return 0

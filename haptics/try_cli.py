@@ -1,0 +1,67 @@
+"""``haptics try``: map one modulus to a display command and write it to a display."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+
+from haptics.devices import BACKENDS, make_display
+from haptics.mapping import ESTIMATE_STATES, EstimateUpdate, map_estimate, to_command
+from teleop.settings import load_settings
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--e-pa", type=float, default=None,
+                        help="Young's modulus in Pa (for a bound state: the bound); "
+                             "not needed with --state insufficient_data")
+    parser.add_argument("--low-pa", type=float, default=None,
+                        help="lower end of the uncertainty interval in Pa (default: open)")
+    parser.add_argument("--high-pa", type=float, default=None,
+                        help="upper end of the uncertainty interval in Pa (default: open)")
+    parser.add_argument("--state", choices=ESTIMATE_STATES, default="ok", help="estimate state")
+    parser.add_argument("--backend", choices=sorted(BACKENDS), default=None,
+                        help="display backend (default: [display] backend of the settings)")
+    parser.add_argument("--settings", default=None,
+                        help="settings TOML with the [display] section "
+                             "(default: the shipped configs/settings.toml)")
+    parser.add_argument("--timeout-s", type=float, default=0.2,
+                        help="how long to wait for the display's status report, in seconds")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object (mapping, report, status) on the last line")
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = load_settings(args.settings).display
+    if args.backend is not None:
+        settings = dataclasses.replace(settings, backend=args.backend)
+    update = EstimateUpdate(
+        e_pa=args.e_pa, interval_pa=(args.low_pa, args.high_pa), state=args.state,
+        reason="haptics try",
+    )
+    percept = map_estimate(update, e_soft_pa=settings.e_soft_pa, e_rigid_pa=settings.e_rigid_pa)
+    with make_display(settings) as display:
+        command = to_command(percept, level_max=display.info.level_max)
+        report = display.write_command(command)
+        status = display.read_status(timeout_s=args.timeout_s)
+        where = str(display)
+    flags = [name for name in ("rigid", "unknown", "provisional") if getattr(command, name)]
+    print(f"E {args.e_pa} Pa ({args.state}) -> {percept.stiffness:.3f} of the range, "
+          f"level {command.level}/{display.info.level_max}, uncertainty "
+          f"{percept.uncertainty_decades:.2f} decades, flags: {', '.join(flags) or 'none'}")
+    print(f"wrote to {where}: {report.hex(' ')}")
+    if status is None:
+        print(f"no status report within {args.timeout_s} s")
+    else:
+        print(f"display status: {status.state}, level {status.level}, faults "
+              f"{', '.join(sorted(status.faults)) or 'none'}, sequence echo {status.sequence}")
+    if args.json:
+        print(json.dumps({
+            "backend": settings.backend, "display": where, "e_pa": args.e_pa, "state": args.state,
+            "stiffness": percept.stiffness, "uncertainty_decades": percept.uncertainty_decades,
+            "level": command.level, "level_max": display.info.level_max,
+            "command": dataclasses.asdict(command), "report_hex": report.hex(),
+            "status": None if status is None else {**dataclasses.asdict(status),
+                                                   "faults": sorted(status.faults)},
+        }))
+    return 0

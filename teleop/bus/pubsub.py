@@ -1,0 +1,394 @@
+"""Publishers and subscribers over ZeroMQ, speaking only the wire format of :mod:`teleop.bus.wire`.
+
+Two delivery modes
+------------------
+*Lossless* (grasp data: frames, forces, widths, grasp events). The publisher is an XPUB
+socket with ``XPUB_NODROP``: when a subscriber's queue is full a send blocks for up to
+``send_timeout_s`` and then raises :class:`~teleop.errors.BusTimeoutError`; nothing is
+dropped silently. Both ends queue :data:`LOSSLESS_HWM` messages (about a minute of a
+two-camera grasp stream), so a subscriber that falls briefly behind loses nothing.
+Every message carries a per-topic sequence number; a subscriber that sees a jump counts
+a gap and logs how many messages it missed. A PUB socket has nowhere to deliver before a
+subscriber has subscribed: call :meth:`Publisher.wait_for_subscriber` first.
+
+*Latest value* (display topics: estimates, status). The publisher never blocks (a full
+queue drops, as plain PUB does) and the subscriber keeps only the newest message per topic:
+:meth:`Subscriber.recv` drains everything pending and hands out, per topic, the latest.
+(``ZMQ_CONFLATE`` cannot be used: it keeps one frame, not one multipart message.)
+
+Liveness
+--------
+A publisher sends a ``heartbeat`` message whenever :meth:`Publisher.heartbeat_if_due` finds
+``heartbeat_s`` passed since the last one, whatever else it sends, so a subscriber of any
+topic hears it (every Subscriber also subscribes to ``heartbeat``). Every accepted
+message refreshes its source in :class:`Heartbeat`, on the receiver's own monotonic clock;
+:meth:`Heartbeat.is_alive` says whether a peer was heard from recently.
+
+Refusals
+--------
+A subscriber that meets a message :func:`~teleop.bus.wire.decode` refuses logs the reason,
+counts it in ``stats.refused`` and carries on. A single frame larger than ``max_bytes``
+never reaches decode: ZeroMQ (``ZMQ_MAXMSGSIZE``) drops that connection first, before
+allocating it, and the publisher reconnects.
+
+Sockets are not thread-safe: use each Publisher and Subscriber from one thread.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from collections import Counter, OrderedDict
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import zmq
+
+from teleop.bus.wire import Message, decode, encode, make_message, now_ns
+from teleop.errors import BusError, BusTimeoutError, MessageRejected
+
+__all__ = [
+    "DEFAULT_MAX_BYTES",
+    "LATEST_HWM",
+    "LOSSLESS_HWM",
+    "Heartbeat",
+    "Publisher",
+    "Subscriber",
+    "SubscriberStats",
+]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_MAX_BYTES = 8 * 1024 * 1024
+LOSSLESS_HWM = 10_000  # messages queued per peer before a lossless send blocks
+LATEST_HWM = 100  # display topics: a short queue, the subscriber keeps the newest anyway
+HEARTBEAT_TOPIC = "heartbeat"
+
+
+def _ms(seconds: float | None) -> int:
+    return -1 if seconds is None else max(0, round(seconds * 1000))
+
+
+class Heartbeat:
+    """When each peer was last heard from, on this process's monotonic clock.
+
+    Parameters
+    ----------
+    clock : callable, optional
+        Seconds on a monotonic clock; ``time.monotonic`` by default.
+    """
+
+    def __init__(self, *, clock: Callable[[], float] = time.monotonic):
+        self._clock = clock
+        self._last_s: dict[str, float] = {}
+        self._interval_s: dict[str, float] = {}
+
+    def saw(self, source: str, *, interval_s: float | None = None, now_s: float | None = None) -> None:
+        """Record that ``source`` was heard from (``interval_s``: the period it announced)."""
+        self._last_s[source] = self._clock() if now_s is None else now_s
+        if interval_s is not None:
+            self._interval_s[source] = interval_s
+
+    def last_seen_s(self, source: str) -> float | None:
+        """Clock time ``source`` was last heard from, or None if never."""
+        return self._last_s.get(source)
+
+    def peers(self) -> list[str]:
+        """Every source heard from so far."""
+        return sorted(self._last_s)
+
+    def is_alive(self, source: str, *, timeout_s: float | None = None, now_s: float | None = None) -> bool:
+        """Whether ``source`` was heard from within ``timeout_s``.
+
+        The default timeout is three of the peer's announced heartbeat periods; a peer
+        never heard from, or heard from without announcing a period, needs ``timeout_s``.
+        """
+        last = self._last_s.get(source)
+        if last is None:
+            return False
+        if timeout_s is None:
+            if source not in self._interval_s:
+                raise BusError(f"peer {source!r} announced no heartbeat period: pass timeout_s")
+            timeout_s = 3.0 * self._interval_s[source]
+        now = self._clock() if now_s is None else now_s
+        return now - last <= timeout_s
+
+
+class _Socket:
+    """Lifecycle shared by both ends: context manager, idempotent close, use-after-close check."""
+
+    _socket: zmq.Socket | None
+
+    def _live(self) -> zmq.Socket:
+        if self._socket is None:
+            raise BusError(f"{type(self).__name__} on {self.endpoint_text} is closed")
+        return self._socket
+
+    @property
+    def endpoint_text(self) -> str:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Close the socket (pending messages are discarded); calling twice is fine."""
+        if self._socket is not None:
+            self._socket.close(linger=0)
+            self._socket = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+class Publisher(_Socket):
+    """Sends bus messages on one endpoint.
+
+    Parameters
+    ----------
+    endpoint : str
+        ZeroMQ endpoint, e.g. ``tcp://127.0.0.1:5550`` (``tcp://127.0.0.1:*`` picks a free
+        port; :attr:`endpoint` then holds the one bound) or ``inproc://name``.
+    lossless : bool
+        True for grasp data (block with timeout instead of dropping), False for display
+        topics (never block). See the module docstring.
+    bind : bool
+        Bind (the usual publisher) or connect (to a proxy that binds).
+    source : str
+        Node name written into every header (``"robot"``, ``"estimator"``).
+    max_bytes : int
+        Largest message this publisher will send (receivers apply their own limit).
+    send_timeout_s : float
+        How long a lossless send may wait for room before raising BusTimeoutError.
+    heartbeat_s : float
+        Heartbeat period for :meth:`heartbeat_if_due`.
+    high_water_mark : int, optional
+        Messages queued per subscriber; :data:`LOSSLESS_HWM` or :data:`LATEST_HWM` by default.
+    context : zmq.Context, optional
+        The process-wide context by default (``inproc://`` needs both ends on one context).
+    """
+
+    def __init__(
+        self,
+        endpoint: str,
+        *,
+        lossless: bool,
+        bind: bool = True,
+        source: str = "",
+        max_bytes: int = DEFAULT_MAX_BYTES,
+        send_timeout_s: float = 1.0,
+        heartbeat_s: float = 0.5,
+        high_water_mark: int | None = None,
+        context: zmq.Context | None = None,
+    ):
+        self.lossless = lossless
+        self.source = source
+        self.max_bytes = max_bytes
+        self.heartbeat_s = heartbeat_s
+        self.send_timeout_s = send_timeout_s
+        self.sent = 0
+        self._seq: Counter[str] = Counter()
+        self._subscriptions: Counter[bytes] = Counter()
+        self._last_heartbeat_s: float | None = None
+        self._socket = None
+        socket = (context or zmq.Context.instance()).socket(zmq.XPUB)
+        try:
+            hwm = high_water_mark or (LOSSLESS_HWM if lossless else LATEST_HWM)
+            socket.setsockopt(zmq.SNDHWM, hwm)
+            socket.setsockopt(zmq.XPUB_NODROP, int(lossless))
+            socket.setsockopt(zmq.XPUB_VERBOSER, 1)  # every (un)subscription reaches us
+            socket.setsockopt(zmq.SNDTIMEO, _ms(send_timeout_s))
+            socket.setsockopt(zmq.LINGER, 0)
+            (socket.bind if bind else socket.connect)(endpoint)
+            self.endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT) if bind else endpoint
+        except zmq.ZMQError as exc:
+            socket.close(linger=0)
+            raise BusError(f"cannot {'bind' if bind else 'connect'} publisher on {endpoint!r}: {exc}") from exc
+        self._socket = socket
+
+    @property
+    def endpoint_text(self) -> str:
+        return self.endpoint
+
+    def send(self, kind: str, *, t_capture_s: float, topic: str | None = None, **body: Any) -> Message:
+        """Build a ``kind`` message from ``body`` (see :func:`~teleop.bus.wire.make_message`) and publish it."""
+        return self.publish(make_message(kind, t_capture_s=t_capture_s, topic=topic, **body))
+
+    def publish(self, message: Message) -> Message:
+        """Send ``message`` with this publisher's source, the topic's next seq and the send time.
+
+        Returns the message as sent. Raises MessageRejected for a malformed or oversized
+        message and BusTimeoutError when a lossless send found no room in time.
+        """
+        socket = self._live()
+        topic = message.topic or message.type
+        sent = dataclasses.replace(
+            message, topic=topic, source=self.source, seq=self._seq[topic], t_send_ns=now_ns()
+        )
+        frames = encode(sent, max_bytes=self.max_bytes)
+        try:
+            socket.send_multipart(frames, copy=False, flags=0 if self.lossless else zmq.NOBLOCK)
+        except zmq.Again as exc:
+            if not self.lossless:  # a full latest-value queue: dropping is the contract
+                return sent
+            raise BusTimeoutError(
+                f"{self.endpoint}: no room for {topic!r} seq {sent.seq} within {self.send_timeout_s} s "
+                "(a subscriber is not keeping up)"
+            ) from exc
+        self._seq[topic] += 1
+        self.sent += 1
+        return sent
+
+    def heartbeat_if_due(self, now_s: float | None = None) -> bool:
+        """Send a heartbeat if ``heartbeat_s`` passed since the last one; True if sent."""
+        now = time.monotonic() if now_s is None else now_s
+        if self._last_heartbeat_s is not None and now - self._last_heartbeat_s < self.heartbeat_s:
+            return False
+        self.send("heartbeat", t_capture_s=now, interval_s=self.heartbeat_s)
+        self._last_heartbeat_s = now
+        return True
+
+    def wait_for_subscriber(self, topic: str = "", *, timeout_s: float = 5.0) -> None:
+        """Block until some subscriber has subscribed to a prefix of ``topic``.
+
+        Raises BusTimeoutError if none has within ``timeout_s``.
+        """
+        socket = self._live()
+        wanted = topic.encode("utf-8")
+        deadline = time.monotonic() + timeout_s
+        while not any(n > 0 and wanted.startswith(p) for p, n in self._subscriptions.items()):
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or not socket.poll(_ms(remaining)):
+                raise BusTimeoutError(f"{self.endpoint}: no subscriber for {topic!r} within {timeout_s} s")
+            event = socket.recv()
+            # XPUB delivers b"\x01<prefix>" for a subscription and b"\x00<prefix>" for its end.
+            if event[:1] in (b"\x00", b"\x01"):
+                self._subscriptions[event[1:]] += 1 if event[:1] == b"\x01" else -1
+
+
+@dataclass
+class SubscriberStats:
+    """What a subscriber received: accepted messages, refusals by reason, sequence gaps."""
+
+    received: int = 0
+    refused: Counter[str] = field(default_factory=Counter)
+    gaps: int = 0  # sequence jumps seen
+    missed: int = 0  # messages those jumps skipped
+
+
+class Subscriber(_Socket):
+    """Receives bus messages from one or more publishers.
+
+    Parameters
+    ----------
+    endpoints : str or iterable of str
+        Publisher endpoints to connect to.
+    topics : iterable of str
+        Topic prefixes to receive (``""``: everything). ``heartbeat`` is always added.
+    conflate : bool
+        False: every message, in order (lossless topics). True: per topic only the newest
+        (display topics). See the module docstring.
+    max_bytes : int
+        Largest message accepted; larger ones are refused (reason ``oversize``).
+    high_water_mark : int, optional
+        Messages queued before ZeroMQ stops reading; per mode by default.
+    context : zmq.Context, optional
+        The process-wide context by default.
+    """
+
+    def __init__(
+        self,
+        endpoints: str | Iterable[str],
+        topics: Iterable[str] = ("",),
+        *,
+        conflate: bool = False,
+        max_bytes: int = DEFAULT_MAX_BYTES,
+        high_water_mark: int | None = None,
+        context: zmq.Context | None = None,
+    ):
+        self.endpoints = [endpoints] if isinstance(endpoints, str) else list(endpoints)
+        self.topics = sorted({*topics, HEARTBEAT_TOPIC})
+        self.conflate = conflate
+        self.max_bytes = max_bytes
+        self.stats = SubscriberStats()
+        self.heartbeat = Heartbeat()
+        self._last_seq: dict[tuple[str, str], int] = {}
+        self._latest: OrderedDict[str, Message] = OrderedDict()
+        self._socket = None
+        socket = (context or zmq.Context.instance()).socket(zmq.SUB)
+        try:
+            socket.setsockopt(zmq.RCVHWM, high_water_mark or (LATEST_HWM * 10 if conflate else LOSSLESS_HWM))
+            socket.setsockopt(zmq.MAXMSGSIZE, max_bytes)
+            socket.setsockopt(zmq.LINGER, 0)
+            for endpoint in self.endpoints:
+                socket.connect(endpoint)
+            for topic in self.topics:
+                socket.setsockopt(zmq.SUBSCRIBE, topic.encode("utf-8"))
+        except zmq.ZMQError as exc:
+            socket.close(linger=0)
+            raise BusError(f"cannot connect subscriber to {self.endpoints}: {exc}") from exc
+        self._socket = socket
+
+    @property
+    def endpoint_text(self) -> str:
+        return ", ".join(self.endpoints)
+
+    def recv(self, timeout_s: float | None = None) -> Message | None:
+        """The next message (latest per topic when conflating), or None after ``timeout_s``.
+
+        ``timeout_s=None`` waits indefinitely. Heartbeats update :attr:`heartbeat` and are
+        not returned; refused messages are logged, counted and skipped.
+        """
+        socket = self._live()
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            if self.conflate:
+                while socket.poll(0):
+                    self._keep_latest(self._accept(socket.recv_multipart(copy=False)))
+                if self._latest:
+                    return self._latest.popitem(last=False)[1]
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0:
+                return None
+            if not socket.poll(_ms(remaining)):
+                return None
+            if not self.conflate:
+                message = self._accept(socket.recv_multipart(copy=False))
+                if message is not None:
+                    return message
+
+    def _keep_latest(self, message: Message | None) -> None:
+        if message is not None:
+            self._latest.pop(message.topic, None)  # re-insert at the end: newest last
+            self._latest[message.topic] = message
+
+    def _accept(self, frames: list[zmq.Frame]) -> Message | None:
+        try:
+            message = decode(frames, max_bytes=self.max_bytes)
+        except MessageRejected as exc:
+            self.stats.refused[exc.reason] += 1
+            log.warning("refused a message from %s: %s", self.endpoint_text, exc)
+            return None
+        self.stats.received += 1
+        self._check_sequence(message)
+        if message.type == "heartbeat":
+            self.heartbeat.saw(message.source, interval_s=message.body["interval_s"])
+            return None
+        self.heartbeat.saw(message.source)
+        return message
+
+    def _check_sequence(self, message: Message) -> None:
+        key = (message.source, message.topic)
+        last = self._last_seq.get(key)
+        self._last_seq[key] = message.seq
+        if last is None or message.seq == last + 1:
+            return
+        if message.seq <= last:
+            log.info("%s restarted topic %r at seq %d (was %d)", message.source, message.topic, message.seq, last)
+            return
+        missed = message.seq - last - 1
+        self.stats.gaps += 1
+        self.stats.missed += missed
+        log.warning("missed %d message(s) of %r from %s before seq %d", missed, message.topic, message.source, message.seq)

@@ -1,0 +1,596 @@
+"""The bus wire format: every message the robot, estimator and operator nodes exchange.
+
+Frames
+------
+Every message is one multipart ZeroMQ message::
+
+    [topic, header, body, *buffers]
+
+``topic`` (UTF-8, at most 256 bytes)
+    The message type, optionally followed by ``/`` and a qualifier (``frame/left``).
+    Subscribers filter on it by prefix, so a subscription to ``frame`` gets both fingers.
+``header`` (msgpack map, at most 4 KiB), exactly these keys:
+
+    ``v``            schema version, int (this software speaks version 1)
+    ``type``         message type, str (one of :data:`SCHEMAS`)
+    ``source``       sending node, str (``"robot"``, ``"estimator"``, ...)
+    ``seq``          sequence number, int >= 0, +1 per message of one topic from one
+                     source; a receiver that sees a jump knows messages were lost
+    ``t_capture_s``  capture time of the data, float seconds on the clock of the stream
+                     (the robot host's ``time.monotonic()`` for live devices, the record's
+                     clock for replays)
+    ``t_send_ns``    send time, int nanoseconds of ``time.monotonic_ns()`` on the sending
+                     host. CLOCK_MONOTONIC is system-wide on Linux and never steps, so
+                     ``time.monotonic_ns() - t_send_ns`` is the transit latency between
+                     processes of ONE host; across hosts the value is not comparable.
+    ``buffers``      one ``[field, dtype, shape]`` per array frame, in frame order: the
+                     body field it fills, a numpy dtype string from :data:`DTYPES`
+                     (``"<f8"``, ``"|u1"``, ...), and the shape as a list of ints.
+
+``body`` (msgpack map, at most 64 KiB)
+    The type's scalar fields (:data:`SCHEMAS`): str, int, float, bool, nil, a two-item
+    interval or a str->float map. Every field is present (nullable ones as nil); no
+    other key is allowed. Array fields never appear here.
+``buffers``
+    The raw bytes of each array field, C order, one frame each. They are sent
+    zero-copy (``copy=False`` over a memoryview of the array) and received zero-copy
+    (``np.frombuffer`` over the received frame; decoded arrays are read-only views).
+
+Nothing is ever pickled. :func:`decode` refuses a message with
+:class:`~teleop.errors.MessageRejected`, whose ``reason`` is one of
+:data:`REJECT_REASONS`: sizes are checked before anything is unpacked, msgpack runs
+with tight length limits, and every field is checked against its schema, numbers
+against NaN and infinity.
+
+Message types and body schemas
+------------------------------
+``frame``        finger: str, grasp_id: str|nil, index: int >= 0 (frame number of the
+                 camera), encoding: "jpeg"|"png"|"raw"; array ``data``: the image as
+                 captured, uint8 1-D (jpeg, png), or for "raw" H x W x 3 BGR, uint8 or
+                 uint16.
+``force``        grasp_id: str|nil; arrays ``t_s`` (float64) and ``value_n`` (float64 or
+                 float32), 1-D, one length >= 1, finite (seconds; newtons).
+``width``        grasp_id: str|nil; arrays ``t_s`` and ``value_m``: as ``force`` (metres).
+``grasp_event``  event: "start"|"end", grasp_id: str, object_name: str|nil.
+``estimate``     grasp_id: str, method: str, E_pa: float > 0 | nil,
+                 interval_pa: [low, high] with each float > 0 or nil (nil: open side),
+                 state: "ok"|"lower_bound"|"upper_bound"|"insufficient_data",
+                 reason: str, provisional: bool, latency_s: float >= 0.
+                 ``ok`` needs E_pa; ``insufficient_data`` has none; low <= high.
+``command``      action: "start_grasp"|"stop"|"release", grasp_id: str|nil,
+                 params: {str: finite float} (e.g. ``target_force_n``).
+``heartbeat``    interval_s: float > 0, the sender's heartbeat period.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgpack
+import numpy as np
+
+from teleop.errors import MessageRejected
+
+__all__ = [
+    "DTYPES",
+    "ESTIMATE_STATES",
+    "MAX_BODY_BYTES",
+    "MAX_BUFFERS",
+    "MAX_HEADER_BYTES",
+    "MAX_TOPIC_BYTES",
+    "REJECT_REASONS",
+    "SCHEMAS",
+    "SCHEMA_VERSION",
+    "Message",
+    "decode",
+    "default_topic",
+    "encode",
+    "make_message",
+    "now_ns",
+]
+
+SCHEMA_VERSION = 1
+MAX_TOPIC_BYTES = 256
+MAX_HEADER_BYTES = 4096
+MAX_BODY_BYTES = 64 * 1024
+MAX_BUFFERS = 8
+MAX_NDIM = 4
+MAX_STR_CHARS = 1024
+MAX_PARAMS = 32
+
+ESTIMATE_STATES = ("ok", "lower_bound", "upper_bound", "insufficient_data")
+
+REJECT_REASONS = (
+    "frame_count",  # fewer than 3 frames, or more buffers than MAX_BUFFERS
+    "oversize",  # the whole message, the topic, the header or the body is too large
+    "corrupt",  # header or body is not a msgpack map within the limits, or topic not UTF-8
+    "unknown_version",
+    "unknown_type",
+    "bad_header",  # header keys missing, extra or mistyped; topic not of the type
+    "missing_field",
+    "extra_field",
+    "mistyped_field",  # wrong type, out of range, not an allowed choice, wrong dtype/ndim
+    "not_finite",  # NaN or infinity where a finite number is required
+    "bad_buffer",  # buffer list does not match the frames, or size != dtype x shape
+)
+
+# Numeric dtypes an array may travel as; anything else (objects, structured) is refused.
+DTYPES = frozenset(
+    np.dtype(code).newbyteorder(order).str
+    for code in ("?", "u1", "i1", "u2", "i2", "u4", "i4", "u8", "i8", "f2", "f4", "f8")
+    for order in ("<", ">")
+)
+
+_HEADER_KEYS = frozenset({"v", "type", "source", "seq", "t_capture_s", "t_send_ns", "buffers"})
+
+
+# --------------------------------------------------------------------------- field checks
+# Each check takes (value, where) and returns the value in its wire form (plain Python
+# types; arrays for array fields) or raises MessageRejected naming the field.
+
+Check = Callable[[Any, str], Any]
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool | np.bool_)
+
+
+def _text(*, choices: tuple[str, ...] | None = None, nullable: bool = False, max_chars: int = 256) -> Check:
+    def check(value: Any, where: str) -> str | None:
+        if value is None and nullable:
+            return None
+        if not isinstance(value, str):
+            raise MessageRejected("mistyped_field", f"{where} must be a string, got {type(value).__name__}")
+        if choices is not None and value not in choices:
+            raise MessageRejected("mistyped_field", f"{where} = {value!r}: expected one of {', '.join(choices)}")
+        if len(value) > max_chars:
+            raise MessageRejected("mistyped_field", f"{where} has {len(value)} characters, at most {max_chars}")
+        return value
+
+    return check
+
+
+def _integer(*, lo: int = 0) -> Check:
+    def check(value: Any, where: str) -> int:
+        if not _is_int(value):
+            raise MessageRejected("mistyped_field", f"{where} must be an integer, got {value!r}")
+        if value < lo:
+            raise MessageRejected("mistyped_field", f"{where} = {value}: expected >= {lo}")
+        return int(value)
+
+    return check
+
+
+def _number(*, lo: float | None = None, lo_open: bool = False, nullable: bool = False) -> Check:
+    def check(value: Any, where: str) -> float | None:
+        if value is None and nullable:
+            return None
+        if not isinstance(value, numbers.Real) or isinstance(value, bool | np.bool_):
+            raise MessageRejected("mistyped_field", f"{where} must be a number, got {value!r}")
+        number = float(value)
+        if not math.isfinite(number):
+            raise MessageRejected("not_finite", f"{where} = {number}: expected a finite number")
+        if lo is not None and (number <= lo if lo_open else number < lo):
+            raise MessageRejected("mistyped_field", f"{where} = {number}: expected {'>' if lo_open else '>='} {lo}")
+        return number
+
+    return check
+
+
+def _flag(value: Any, where: str) -> bool:
+    if not isinstance(value, bool | np.bool_):
+        raise MessageRejected("mistyped_field", f"{where} must be true or false, got {value!r}")
+    return bool(value)
+
+
+def _interval(value: Any, where: str) -> list[float | None]:
+    if not isinstance(value, list | tuple) or len(value) != 2:
+        raise MessageRejected("mistyped_field", f"{where} must be [low, high] (each a number or nil), got {value!r}")
+    bound = _number(lo=0.0, lo_open=True, nullable=True)
+    low, high = bound(value[0], f"{where}[0]"), bound(value[1], f"{where}[1]")
+    if low is not None and high is not None and low > high:
+        raise MessageRejected("mistyped_field", f"{where} = [{low}, {high}]: low is above high")
+    return [low, high]
+
+
+def _params(value: Any, where: str) -> dict[str, float]:
+    if not isinstance(value, Mapping) or len(value) > MAX_PARAMS:
+        raise MessageRejected("mistyped_field", f"{where} must be a map of at most {MAX_PARAMS} name -> number")
+    number = _number()
+    out = {}
+    for key, item in value.items():
+        name = _text(max_chars=64)(key, f"{where} key")
+        out[name] = number(item, f"{where}.{name}")
+    return out
+
+
+@dataclass(frozen=True)
+class _Array:
+    """An array field: allowed dtypes, allowed ndims, whether floats must be finite."""
+
+    dtypes: tuple[str, ...]
+    ndims: tuple[int, ...]
+    finite: bool = False
+
+    def coerce(self, value: Any, where: str) -> np.ndarray:
+        """Sender side: arrays as given (checked later, never cast); bytes and numbers converted."""
+        if isinstance(value, bytes | bytearray | memoryview):
+            value = np.frombuffer(value, dtype=np.uint8)
+        elif not isinstance(value, np.ndarray):
+            try:
+                if isinstance(value, str) or not isinstance(value, numbers.Real | Sequence):
+                    raise TypeError(type(value).__name__)
+                value = np.atleast_1d(np.asarray(value, dtype=np.dtype(self.dtypes[0])))
+            except (TypeError, ValueError) as exc:
+                raise MessageRejected("mistyped_field", f"{where} must be an array of numbers ({exc})") from exc
+        return value
+
+    def check(self, array: np.ndarray, where: str) -> np.ndarray:
+        if array.dtype.newbyteorder("=") not in {np.dtype(d).newbyteorder("=") for d in self.dtypes}:
+            allowed = ", ".join(np.dtype(d).name for d in self.dtypes)
+            raise MessageRejected("mistyped_field", f"{where} has dtype {array.dtype.name}: expected {allowed}")
+        if array.ndim not in self.ndims:
+            raise MessageRejected("mistyped_field", f"{where} is {array.ndim}-D: expected {' or '.join(map(str, self.ndims))}-D")
+        if self.finite and array.dtype.kind == "f" and not np.isfinite(array).all():
+            raise MessageRejected("not_finite", f"{where} holds NaN or infinity")
+        return array
+
+
+@dataclass(frozen=True)
+class Schema:
+    """Body of one message type: scalar fields, array fields, cross-field rule."""
+
+    fields: Mapping[str, Check]
+    arrays: Mapping[str, _Array] = field(default_factory=dict)
+    nullable: frozenset[str] = frozenset()  # fields a sender may leave out (filled with nil)
+    rule: Callable[[dict[str, Any]], None] | None = None
+
+
+def _samples_rule(value_name: str) -> Callable[[dict[str, Any]], None]:
+    def rule(body: dict[str, Any]) -> None:
+        t, v = body["t_s"], body[value_name]
+        if t.shape != v.shape or t.shape[0] == 0:
+            raise MessageRejected("mistyped_field", f"t_s {t.shape} and {value_name} {v.shape} must be one length >= 1")
+
+    return rule
+
+
+_MAGIC = {"jpeg": b"\xff\xd8", "png": b"\x89PNG"}
+
+
+def _frame_rule(body: dict[str, Any]) -> None:
+    data, encoding = body["data"], body["encoding"]
+    if encoding == "raw":
+        if data.ndim != 3 or data.shape[2] != 3:
+            raise MessageRejected("mistyped_field", f"raw frame data has shape {data.shape}: expected H x W x 3")
+    elif data.ndim != 1 or data.dtype != np.uint8 or data[: len(_MAGIC[encoding])].tobytes() != _MAGIC[encoding]:
+        raise MessageRejected("mistyped_field", f"frame data is not a 1-D {encoding} byte string")
+
+
+def _estimate_rule(body: dict[str, Any]) -> None:
+    if body["state"] == "ok" and body["E_pa"] is None:
+        raise MessageRejected("mistyped_field", "estimate with state 'ok' has no E_pa")
+    if body["state"] == "insufficient_data" and body["E_pa"] is not None:
+        raise MessageRejected("mistyped_field", "estimate with state 'insufficient_data' carries an E_pa")
+
+
+# Timestamps stay float64: float32 would round monotonic seconds (~1e5 s) to ~8 ms.
+_TIMES = _Array(("<f8",), (1,), finite=True)
+_VALUES = _Array(("<f8", "<f4"), (1,), finite=True)
+
+SCHEMAS: Mapping[str, Schema] = {
+    "frame": Schema(
+        fields={
+            "finger": _text(max_chars=32),
+            "grasp_id": _text(nullable=True),
+            "index": _integer(),
+            "encoding": _text(choices=("jpeg", "png", "raw")),
+        },
+        arrays={"data": _Array(("|u1", "<u2"), (1, 3))},
+        nullable=frozenset({"grasp_id"}),
+        rule=_frame_rule,
+    ),
+    "force": Schema(
+        fields={"grasp_id": _text(nullable=True)},
+        arrays={"t_s": _TIMES, "value_n": _VALUES},
+        nullable=frozenset({"grasp_id"}),
+        rule=_samples_rule("value_n"),
+    ),
+    "width": Schema(
+        fields={"grasp_id": _text(nullable=True)},
+        arrays={"t_s": _TIMES, "value_m": _VALUES},
+        nullable=frozenset({"grasp_id"}),
+        rule=_samples_rule("value_m"),
+    ),
+    "grasp_event": Schema(
+        fields={
+            "event": _text(choices=("start", "end")),
+            "grasp_id": _text(),
+            "object_name": _text(nullable=True),
+        },
+        nullable=frozenset({"object_name"}),
+    ),
+    "estimate": Schema(
+        fields={
+            "grasp_id": _text(),
+            "method": _text(max_chars=64),
+            "E_pa": _number(lo=0.0, lo_open=True, nullable=True),
+            "interval_pa": _interval,
+            "state": _text(choices=ESTIMATE_STATES),
+            "reason": _text(max_chars=MAX_STR_CHARS),
+            "provisional": _flag,
+            "latency_s": _number(lo=0.0),
+        },
+        rule=_estimate_rule,
+    ),
+    "command": Schema(
+        fields={
+            "action": _text(choices=("start_grasp", "stop", "release")),
+            "grasp_id": _text(nullable=True),
+            "params": _params,
+        },
+        nullable=frozenset({"grasp_id"}),
+    ),
+    "heartbeat": Schema(fields={"interval_s": _number(lo=0.0, lo_open=True)}),
+}
+
+
+def _check_body(kind: str, body: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """Check scalar fields of ``body`` and already-typed ``arrays``; the full body, normalised."""
+    schema = SCHEMAS[kind]
+    if not isinstance(body, Mapping):
+        raise MessageRejected("corrupt", f"{kind} body is a {type(body).__name__}, expected a map")
+    missing = sorted(set(schema.fields) - set(body))
+    if missing:
+        raise MessageRejected("missing_field", f"{kind} body lacks {', '.join(missing)}")
+    extra = sorted(map(str, set(body) - set(schema.fields)))
+    if extra:
+        raise MessageRejected("extra_field", f"{kind} body has unexpected field(s) {', '.join(extra)}")
+    out = {name: check(body[name], f"{kind}.{name}") for name, check in schema.fields.items()}
+    for name, spec in schema.arrays.items():
+        out[name] = spec.check(arrays[name], f"{kind}.{name}")
+    if schema.rule is not None:
+        schema.rule(out)
+    return out
+
+
+# --------------------------------------------------------------------------- message
+
+
+def default_topic(kind: str, body: Mapping[str, Any]) -> str:
+    """``frame/<finger>`` for frames, the type name for everything else."""
+    return f"frame/{body['finger']}" if kind == "frame" else kind
+
+
+@dataclass(frozen=True)
+class Message:
+    """One bus message as the nodes see it.
+
+    ``body`` holds every field of the type's schema, arrays included (numpy arrays;
+    read-only views over the received frames after :func:`decode`). ``seq`` and
+    ``t_send_ns`` are filled in by the publisher when it sends.
+    """
+
+    type: str
+    body: Mapping[str, Any]
+    t_capture_s: float
+    topic: str = ""
+    source: str = ""
+    seq: int = 0
+    t_send_ns: int = 0
+
+
+def make_message(kind: str, *, t_capture_s: float, topic: str | None = None, **body: Any) -> Message:
+    """Build and check a message of type ``kind``; nullable fields left out become None.
+
+    Array fields accept numpy arrays of an allowed dtype (kept as they are, never cast),
+    ``bytes`` (frame data) and Python numbers or sequences (converted to the field's dtype,
+    so a scalar force becomes a one-sample array).
+
+    Raises
+    ------
+    MessageRejected
+        Unknown type, or a field missing, extra, mistyped or not finite.
+    """
+    checked = _sender_body(kind, body)
+    t = _number()(t_capture_s, "t_capture_s")
+    return Message(type=kind, body=checked, t_capture_s=t, topic=topic or default_topic(kind, checked))
+
+
+def _sender_body(kind: str, body: Mapping[str, Any]) -> dict[str, Any]:
+    """A sender's body checked and normalised: nullable fields filled, arrays contiguous."""
+    if not isinstance(kind, str) or kind not in SCHEMAS:
+        raise MessageRejected("unknown_type", f"{kind!r} is not one of {', '.join(SCHEMAS)}")
+    schema = SCHEMAS[kind]
+    body = {**dict.fromkeys(schema.nullable), **body}
+    missing = sorted(set(schema.arrays) - set(body))
+    if missing:
+        raise MessageRejected("missing_field", f"{kind} body lacks {', '.join(missing)}")
+    arrays = {name: spec.coerce(body[name], f"{kind}.{name}") for name, spec in schema.arrays.items()}
+    checked = _check_body(kind, {k: v for k, v in body.items() if k not in schema.arrays}, arrays)
+    for name in arrays:  # after the checks, so a 0-d array is refused, not promoted
+        checked[name] = np.ascontiguousarray(checked[name])
+    return checked
+
+
+# --------------------------------------------------------------------------- encode
+
+
+def encode(message: Message, *, max_bytes: int | None = None) -> list[bytes | memoryview]:
+    """Frames of ``message``: ``[topic, header, body, *buffers]``; arrays are not copied.
+
+    The body is checked against its schema first, so a sender cannot emit what a
+    receiver would refuse. Non-contiguous arrays are made contiguous (one copy).
+
+    Raises
+    ------
+    MessageRejected
+        The message breaks its schema, or its frames exceed ``max_bytes``.
+    """
+    body = _sender_body(message.type, message.body)
+    schema = SCHEMAS[message.type]
+    arrays = {name: body[name] for name in schema.arrays}
+    topic = message.topic or default_topic(message.type, body)
+    _check_topic(topic, message.type)
+    header = {
+        "v": SCHEMA_VERSION,
+        "type": message.type,
+        "source": _text(max_chars=64)(message.source, "source"),
+        "seq": _integer()(message.seq, "seq"),
+        "t_capture_s": _number()(message.t_capture_s, "t_capture_s"),
+        "t_send_ns": _integer()(message.t_send_ns, "t_send_ns"),
+        "buffers": [[name, a.dtype.str, list(a.shape)] for name, a in arrays.items()],
+    }
+    frames: list[bytes | memoryview] = [
+        topic.encode("utf-8"),
+        msgpack.packb(header, use_bin_type=True),
+        msgpack.packb({k: body[k] for k in schema.fields}, use_bin_type=True),
+    ]
+    # memoryview over the array's own memory: zmq sends it with copy=False.
+    frames += [memoryview(a).cast("B") for a in arrays.values()]
+    _check_sizes(frames, max_bytes)
+    return frames
+
+
+# --------------------------------------------------------------------------- decode
+
+
+def _frame_bytes(frame: Any) -> memoryview:
+    # zmq.Frame exposes .buffer; bytes, bytearray and memoryview are buffers already.
+    try:
+        view = memoryview(getattr(frame, "buffer", frame))
+    except TypeError as exc:
+        raise MessageRejected("corrupt", f"a frame is a {type(frame).__name__}, not a byte buffer") from exc
+    return view if view.format == "B" and view.ndim == 1 else view.cast("B")
+
+
+def _check_sizes(frames: Sequence[Any], max_bytes: int | None) -> None:
+    if len(frames) < 3:
+        raise MessageRejected("frame_count", f"{len(frames)} frame(s): expected [topic, header, body, *buffers]")
+    if len(frames) > 3 + MAX_BUFFERS:
+        raise MessageRejected("frame_count", f"{len(frames) - 3} buffers: at most {MAX_BUFFERS}")
+    sizes = [_frame_bytes(f).nbytes for f in frames]
+    for name, size, limit in zip(
+        ("topic", "header", "body"), sizes, (MAX_TOPIC_BYTES, MAX_HEADER_BYTES, MAX_BODY_BYTES), strict=False
+    ):
+        if size > limit:
+            raise MessageRejected("oversize", f"{name} frame has {size} bytes, at most {limit}")
+    if max_bytes is not None and sum(sizes) > max_bytes:
+        raise MessageRejected("oversize", f"message has {sum(sizes)} bytes, at most {max_bytes}")
+
+
+def _check_topic(topic: str, kind: str) -> None:
+    if topic != kind and not topic.startswith(kind + "/"):
+        raise MessageRejected("bad_header", f"topic {topic!r} does not belong to type {kind!r}")
+
+
+def _unpack(data: memoryview, what: str) -> dict[str, Any]:
+    try:
+        value = msgpack.unpackb(
+            data,
+            raw=False,
+            strict_map_key=True,
+            max_str_len=4 * MAX_STR_CHARS,
+            max_bin_len=0,  # bytes travel as buffers, never inside msgpack
+            max_array_len=MAX_BUFFERS * 2 + MAX_NDIM,
+            max_map_len=MAX_PARAMS + 16,
+            max_ext_len=0,
+        )
+    except Exception as exc:  # msgpack raises a zoo of types on bad input; all mean "corrupt"
+        raise MessageRejected("corrupt", f"{what} is not valid msgpack within the limits ({exc})") from exc
+    if not isinstance(value, dict):
+        raise MessageRejected("corrupt", f"{what} is a {type(value).__name__}, expected a map")
+    return value
+
+
+def _check_header(header: dict[str, Any], n_buffers: int) -> dict[str, Any]:
+    version = header.get("v")
+    if not _is_int(version) or version != SCHEMA_VERSION:
+        raise MessageRejected("unknown_version", f"header version {version!r}: this software speaks {SCHEMA_VERSION}")
+    kind = header.get("type")
+    if not isinstance(kind, str) or kind not in SCHEMAS:
+        raise MessageRejected("unknown_type", f"type {kind!r} is not one of {', '.join(SCHEMAS)}")
+    if set(header) != _HEADER_KEYS:
+        raise MessageRejected("bad_header", f"header keys {sorted(map(str, header))}, expected {sorted(_HEADER_KEYS)}")
+    try:
+        _text(max_chars=64)(header["source"], "header.source")
+        _integer()(header["seq"], "header.seq")
+        _number()(header["t_capture_s"], "header.t_capture_s")
+        _integer()(header["t_send_ns"], "header.t_send_ns")
+    except MessageRejected as exc:
+        reason = "not_finite" if exc.reason == "not_finite" else "bad_header"
+        raise MessageRejected(reason, exc.detail) from None
+    buffers = header["buffers"]
+    if not isinstance(buffers, list) or len(buffers) != n_buffers:
+        raise MessageRejected("bad_buffer", f"header lists {buffers!r} buffers, message has {n_buffers}")
+    return header
+
+
+def _buffer_array(entry: Any, frame: memoryview, kind: str, seen: set[str]) -> tuple[str, np.ndarray]:
+    """One header buffer entry ``[field, dtype, shape]`` over its frame, size checked first."""
+    if not (isinstance(entry, list) and len(entry) == 3):
+        raise MessageRejected("bad_buffer", f"buffer entry {entry!r}: expected [field, dtype, shape]")
+    name, dtype, shape = entry
+    arrays = SCHEMAS[kind].arrays
+    if not isinstance(name, str) or name not in arrays or name in seen:
+        raise MessageRejected("bad_buffer", f"buffer for {name!r}: {kind} has array fields {sorted(arrays)}, each once")
+    if not isinstance(dtype, str) or dtype not in DTYPES:
+        raise MessageRejected("bad_buffer", f"buffer {name!r} has dtype {dtype!r}, not a plain numeric dtype")
+    if not (isinstance(shape, list) and len(shape) <= MAX_NDIM and all(_is_int(s) and s >= 0 for s in shape)):
+        raise MessageRejected("bad_buffer", f"buffer {name!r} has shape {shape!r}: expected up to {MAX_NDIM} sizes >= 0")
+    expected = math.prod(shape) * np.dtype(dtype).itemsize
+    if expected != frame.nbytes:
+        raise MessageRejected("bad_buffer", f"buffer {name!r}: {dtype} x {shape} needs {expected} bytes, frame has {frame.nbytes}")
+    array = np.frombuffer(frame, dtype=np.dtype(dtype)).reshape(shape)
+    array.flags.writeable = False
+    seen.add(name)
+    return name, array
+
+
+def decode(frames: Sequence[Any], *, max_bytes: int) -> Message:
+    """Check and decode ``[topic, header, body, *buffers]`` into a :class:`Message`.
+
+    ``frames`` may be ``bytes``, memoryviews or ``zmq.Frame`` objects (from
+    ``recv_multipart(copy=False)``); array fields become read-only numpy views over
+    them, without copying. Sizes are checked before anything is unpacked.
+
+    Raises
+    ------
+    MessageRejected
+        With ``reason`` from :data:`REJECT_REASONS` and a detail naming the rule broken.
+        No other exception escapes, whatever the bytes.
+    """
+    _check_sizes(frames, max_bytes)
+    views = [_frame_bytes(f) for f in frames]
+    try:
+        topic = views[0].tobytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise MessageRejected("corrupt", "topic is not UTF-8") from exc
+    header = _check_header(_unpack(views[1], "header"), len(views) - 3)
+    kind = header["type"]
+    _check_topic(topic, kind)
+    seen: set[str] = set()
+    arrays = dict(_buffer_array(e, v, kind, seen) for e, v in zip(header["buffers"], views[3:], strict=True))
+    missing = sorted(set(SCHEMAS[kind].arrays) - seen)
+    if missing:
+        raise MessageRejected("bad_buffer", f"{kind} lacks buffer(s) {', '.join(missing)}")
+    body = _check_body(kind, _unpack(views[2], "body"), arrays)
+    return Message(
+        type=kind,
+        body=body,
+        t_capture_s=float(header["t_capture_s"]),
+        topic=topic,
+        source=header["source"],
+        seq=int(header["seq"]),
+        t_send_ns=int(header["t_send_ns"]),
+    )
+
+
+def now_ns() -> int:
+    """The send clock: ``time.monotonic_ns()`` (see the module docstring)."""
+    return time.monotonic_ns()

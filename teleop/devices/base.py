@@ -1,0 +1,152 @@
+"""What every device family shares: an explicit lifecycle and a name table of backends.
+
+A device is built unconnected, opened with :meth:`Device.connect` (or ``with``), used,
+and closed with :meth:`Device.close`; using it while not connected raises
+:class:`~teleop.errors.DeviceNotConnectedError`. Backends are named in a per-family
+table of ``"module:Class"`` strings and imported only when opened, so the simulated
+backend never imports vendor libraries.
+
+All device timestamps are seconds of ``time.monotonic()`` on the host that reads the
+device, the clock the bus and the grasp records of live sessions use.
+"""
+
+from __future__ import annotations
+
+import importlib
+import threading
+from collections import deque
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from teleop.errors import (
+    BackendNotFoundError,
+    DeviceError,
+    DeviceNotConnectedError,
+    InvalidCommandError,
+)
+from teleop.record import Samples
+
+__all__ = ["Device", "SampleQueue", "check_timeout", "load_backend"]
+
+
+def load_backend(family: str, backends: Mapping[str, str], name: str) -> type:
+    """Import the class registered as ``name`` in ``backends`` (``"module:Class"``).
+
+    Raises
+    ------
+    BackendNotFoundError
+        ``name`` is not in the table (the message lists the names there are), or its
+        module or a library it needs cannot be imported.
+    """
+    if name not in backends:
+        raise BackendNotFoundError(
+            f"no {family} backend named {name!r}; available: {', '.join(sorted(backends))}"
+        )
+    module_name, _, class_name = backends[name].partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise BackendNotFoundError(
+            f"{family} backend {name!r} cannot be loaded: {exc} (install the 'robot' extra)"
+        ) from exc
+    return getattr(module, class_name)
+
+
+def check_timeout(timeout_s: float) -> float:
+    """``timeout_s`` if it is a finite number > 0; InvalidCommandError otherwise."""
+    if not (isinstance(timeout_s, int | float) and 0 < timeout_s < float("inf")):
+        raise InvalidCommandError(f"timeout_s = {timeout_s!r}: expected a finite number of seconds > 0")
+    return float(timeout_s)
+
+
+class Device:
+    """Base of every device: ``connect()``, ``close()``, context manager, connected check.
+
+    Subclasses implement ``_connect()`` and ``_close()``; public methods that touch the
+    hardware call :meth:`_require_connected` first.
+    """
+
+    family = "device"
+
+    def __init__(self) -> None:
+        self._connected = False
+        self._was_closed = False
+
+    @property
+    def connected(self) -> bool:
+        """Whether :meth:`connect` succeeded and :meth:`close` has not been called since."""
+        return self._connected
+
+    def connect(self):
+        """Open the device; returns ``self``. Connecting twice is an error."""
+        if self._connected:
+            raise DeviceError(f"{self!r} is already connected")
+        self._connect()
+        self._connected = True
+        self._was_closed = False
+        return self
+
+    def close(self) -> None:
+        """Release the device; closing an unconnected device does nothing."""
+        if self._connected:
+            self._connected = False
+            self._was_closed = True
+            self._close()
+
+    def __enter__(self):
+        return self.connect()
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def _require_connected(self) -> None:
+        if not self._connected:
+            state = "was closed" if self._was_closed else "is not connected: call connect() first"
+            raise DeviceNotConnectedError(f"{self!r} {state}")
+
+    def _connect(self) -> None:
+        raise NotImplementedError
+
+    def _close(self) -> None:
+        raise NotImplementedError
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__}>"
+
+
+class SampleQueue:
+    """Thread-safe queue of timestamped scalar samples, drained in batches.
+
+    A reader thread :meth:`put` s samples as they arrive; the device's user takes all
+    of them at once with :meth:`take`. When ``maxlen`` is reached the oldest samples
+    are dropped and counted in :attr:`dropped`.
+    """
+
+    def __init__(self, maxlen: int = 100_000):
+        self._items: deque[tuple[float, float]] = deque(maxlen=maxlen)
+        self._ready = threading.Condition()
+        self.dropped = 0
+
+    def put(self, t_s: float, value: float) -> None:
+        with self._ready:
+            if len(self._items) == self._items.maxlen:
+                self.dropped += 1
+            self._items.append((t_s, value))
+            self._ready.notify_all()
+
+    def take(self, timeout_s: float | None = 0.0) -> Samples:
+        """Every queued sample (oldest first), waiting up to ``timeout_s`` for at least one.
+
+        Returns empty Samples when none arrived in time.
+        """
+        with self._ready:
+            if timeout_s:
+                self._ready.wait_for(lambda: bool(self._items), timeout=timeout_s)
+            items = list(self._items)
+            self._items.clear()
+        if not items:
+            return Samples(np.zeros(0), np.zeros(0))
+        t, v = np.array(items, dtype=np.float64).T
+        return Samples(t, v)

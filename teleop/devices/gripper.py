@@ -1,0 +1,232 @@
+"""The parallel gripper family: base class, backend table and :func:`open_gripper`.
+
+A gripper moves its fingers to a width, grasps with a force, and reports its width.
+On a Franka hand one width read takes about 0.1 s, so a background reader polls the
+width at ``GripperSettings.width_read_hz`` and timestamps every reading at the middle
+of its read call (the best guess of when the value was true); :meth:`Gripper.widths`
+hands out everything read since the last call. The gripper measures no force.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+
+from teleop.devices.base import Device, SampleQueue, load_backend
+from teleop.errors import DeviceError, InvalidCommandError
+from teleop.record import Samples
+from teleop.settings import GripperSettings
+
+__all__ = ["BACKENDS", "MAX_FORCE_N", "MAX_SPEED_M_S", "Gripper", "open_gripper"]
+
+log = logging.getLogger(__name__)
+
+BACKENDS = {
+    "sim": "teleop.devices.playback:SimulatedGripper",
+    "franky": "teleop.devices.franky_gripper:FrankyGripper",
+}
+MAX_SPEED_M_S = 0.2
+MAX_FORCE_N = 140.0  # the Franka hand's peak grasp force
+
+
+def open_gripper(settings: GripperSettings, *, backend: str | None = None, **options) -> Gripper:
+    """An unconnected gripper of ``backend`` (default ``settings.backend``).
+
+    ``options`` go to the backend (e.g. ``playback=`` for ``sim``).
+    """
+    cls = load_backend("gripper", BACKENDS, backend or settings.backend)
+    return cls(settings, **options)
+
+
+def _finite(name: str, value: float, lo: float, hi: float, *, lo_open: bool = False) -> float:
+    ok = isinstance(value, int | float) and math.isfinite(value) and (value > lo if lo_open else value >= lo)
+    if not ok or value > hi:
+        left = "(" if lo_open else "["
+        raise InvalidCommandError(f"{name} = {value!r}: expected a number in {left}{lo}, {hi}]")
+    return float(value)
+
+
+class Gripper(Device):
+    """A parallel gripper.
+
+    Backends implement ``_open``, ``_shutdown``, ``_move``, ``_grasp``, ``_stop``,
+    ``_read_width``, ``_max_width`` and ``_is_grasped``; they may override
+    ``_poll_widths`` when their widths come with their own timestamps.
+    """
+
+    family = "gripper"
+
+    def __init__(self, settings: GripperSettings):
+        super().__init__()
+        self.settings = settings
+        self._width_queue = SampleQueue()
+        self._reader: threading.Thread | None = None
+        self._reader_stop = threading.Event()
+        self._executor: ThreadPoolExecutor | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def _connect(self) -> None:
+        self._open()
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"{type(self).__name__}-command")
+        self._reader_stop.clear()
+        self._reader = threading.Thread(target=self._read_widths_forever, name=f"{type(self).__name__}-width", daemon=True)
+        self._reader.start()
+
+    def _close(self) -> None:
+        self._reader_stop.set()
+        if self._reader is not None:
+            self._reader.join(timeout=5.0)
+        if self._executor is not None:
+            self._executor.shutdown(wait=False, cancel_futures=True)
+        self._shutdown()
+
+    # ------------------------------------------------------------------ commands
+
+    @property
+    def max_width_m(self) -> float:
+        """Widest opening (m), as the gripper reports it."""
+        self._require_connected()
+        return float(self._max_width())
+
+    @property
+    def is_grasped(self) -> bool:
+        """Whether the last grasp holds an object within its tolerance."""
+        self._require_connected()
+        return bool(self._is_grasped())
+
+    def move(self, width_m: float, *, speed_m_s: float | None = None) -> bool:
+        """Move the fingers to ``width_m`` at ``speed_m_s`` (default: closing speed); blocks.
+
+        Returns True when the width was reached, False when stopped or failed.
+        """
+        self._require_connected()
+        return bool(self._move(*self._motion_args(width_m, speed_m_s)))
+
+    def grasp(
+        self,
+        width_m: float,
+        *,
+        speed_m_s: float | None = None,
+        force_n: float | None = None,
+        epsilon_inner_m: float = 0.005,
+        epsilon_outer_m: float = 0.005,
+    ) -> bool:
+        """Close on an object expected ``width_m`` wide with ``force_n``; blocks.
+
+        Returns True when the fingers stopped within ``[width_m - epsilon_inner_m,
+        width_m + epsilon_outer_m]``. Speed and force default to the settings.
+        """
+        self._require_connected()
+        return bool(self._grasp(*self._grasp_args(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m)))
+
+    def move_async(self, width_m: float, *, speed_m_s: float | None = None) -> Future[bool]:
+        """:meth:`move` in the command thread; bad arguments are refused here, at once."""
+        self._require_connected()
+        args = self._motion_args(width_m, speed_m_s)
+        return self._executor.submit(lambda: bool(self._move(*args)))
+
+    def grasp_async(
+        self,
+        width_m: float,
+        *,
+        speed_m_s: float | None = None,
+        force_n: float | None = None,
+        epsilon_inner_m: float = 0.005,
+        epsilon_outer_m: float = 0.005,
+    ) -> Future[bool]:
+        """:meth:`grasp` in the command thread; bad arguments are refused here, at once."""
+        self._require_connected()
+        args = self._grasp_args(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m)
+        return self._executor.submit(lambda: bool(self._grasp(*args)))
+
+    def stop(self) -> bool:
+        """Stop a running move or grasp and hold the current width."""
+        self._require_connected()
+        return bool(self._stop())
+
+    def read_width(self) -> tuple[float, float]:
+        """One width read now: ``(t_s, width_m)``, stamped at the middle of the read (slow on franky)."""
+        self._require_connected()
+        return self._timed_read()
+
+    def widths(self, *, timeout_s: float = 0.0) -> Samples:
+        """Width samples (t_s, m) the background reader took since the last call.
+
+        Waits up to ``timeout_s`` for at least one; empty Samples if none came.
+        """
+        self._require_connected()
+        return self._width_queue.take(timeout_s)
+
+    # ------------------------------------------------------------------ internals
+
+    def _motion_args(self, width_m: float, speed_m_s: float | None) -> tuple[float, float]:
+        width = _finite("width_m", width_m, 0.0, self._max_width())
+        speed = _finite(
+            "speed_m_s", self.settings.closing_speed_m_s if speed_m_s is None else speed_m_s, 0.0, MAX_SPEED_M_S, lo_open=True
+        )
+        return width, speed
+
+    def _grasp_args(
+        self, width_m: float, speed_m_s: float | None, force_n: float | None, epsilon_inner_m: float, epsilon_outer_m: float
+    ) -> tuple[float, float, float, float, float]:
+        width, speed = self._motion_args(width_m, speed_m_s)
+        force = _finite("force_n", self.settings.target_force_n if force_n is None else force_n, 0.0, MAX_FORCE_N, lo_open=True)
+        inner = _finite("epsilon_inner_m", epsilon_inner_m, 0.0, self.settings.max_width_m)
+        outer = _finite("epsilon_outer_m", epsilon_outer_m, 0.0, self.settings.max_width_m)
+        return width, speed, force, inner, outer
+
+    def _timed_read(self) -> tuple[float, float]:
+        before = time.monotonic()
+        width = float(self._read_width())
+        return (before + time.monotonic()) / 2.0, width
+
+    def _poll_widths(self) -> list[tuple[float, float]]:
+        """Width samples available now; one timed read unless the backend has its own."""
+        return [self._timed_read()]
+
+    def _read_widths_forever(self) -> None:
+        period = 1.0 / self.settings.width_read_hz
+        next_s = time.monotonic()
+        failing = False
+        while not self._reader_stop.is_set():
+            try:
+                for t_s, width in self._poll_widths():
+                    self._width_queue.put(t_s, width)
+                failing = False
+            except DeviceError as exc:  # keep polling: a dropped read must not end the stream
+                if not failing:
+                    log.warning("%r: width read failed: %s", self, exc)
+                failing = True
+            now = time.monotonic()
+            next_s = max(next_s + period, now)  # after a slow read, resume the period from now
+            self._reader_stop.wait(next_s - now)
+
+    # ------------------------------------------------------------------ backend hooks
+
+    def _open(self) -> None:
+        raise NotImplementedError
+
+    def _shutdown(self) -> None:
+        raise NotImplementedError
+
+    def _move(self, width_m: float, speed_m_s: float) -> bool:
+        raise NotImplementedError
+
+    def _grasp(self, width_m: float, speed_m_s: float, force_n: float, epsilon_inner_m: float, epsilon_outer_m: float) -> bool:
+        raise NotImplementedError
+
+    def _stop(self) -> bool:
+        raise NotImplementedError
+
+    def _read_width(self) -> float:
+        raise NotImplementedError
+
+    def _max_width(self) -> float:
+        raise NotImplementedError
+
+    def _is_grasped(self) -> bool:
+        raise NotImplementedError

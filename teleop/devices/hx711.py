@@ -1,0 +1,224 @@
+"""HX711 load cell over a serial line or framed TCP: the ``serial`` and ``tcp`` backends.
+
+The line protocols are documented in :mod:`teleop.devices.hx711_protocol`. Counts become
+newtons with ``LoadCellSettings`` (see :mod:`teleop.devices.loadcell`). Readings that are
+not valid (partial or overlong lines, garbage, counts out of range or at a rail) are
+logged (a warning the first time per reason), counted in ``skipped`` and skipped. Serial
+readings are stamped on arrival.
+
+Framed TCP readings carry the bridge's sampling time. The host maps it to its own clock
+as ``t_s = t_bridge_s + offset``, where ``offset`` is the smallest ``arrival - t_bridge_s``
+seen on the connection: the least-delayed frame bounds the clock offset best, so once one
+quick frame has arrived, network jitter and batching no longer move the timestamps. (Until
+then they are arrival times: a burst right after connecting is stamped as it arrives.
+Clock drift between hosts, ~50 ppm, is ignored: ~3 ms a minute.) Sequence jumps are
+counted in ``gaps`` and ``missed``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import socket
+import threading
+import time
+from collections import Counter
+from urllib.parse import urlsplit
+
+from teleop.devices.base import SampleQueue
+from teleop.devices.hx711_protocol import LineSplitter, Unreadable, parse_frame, parse_serial_line
+from teleop.devices.loadcell import LoadCell
+from teleop.errors import DeviceError
+from teleop.record import Samples
+from teleop.settings import LoadCellSettings
+
+__all__ = ["BridgeClock", "SerialHx711", "TcpHx711", "parse_tcp_address"]
+
+log = logging.getLogger(__name__)
+
+
+class _StreamingHx711(LoadCell):
+    """A reader thread turning a byte stream into force samples; links implement the rest."""
+
+    skip_first_line = False
+
+    def __init__(self, settings: LoadCellSettings):
+        super().__init__(settings)
+        self.skipped: Counter[str] = Counter()
+        self._queue = SampleQueue()
+        self._stop = threading.Event()
+        self._reader: threading.Thread | None = None
+        self._failure: str | None = None
+
+    def _connect(self) -> None:
+        self._open_link()
+        self._failure = None
+        self._stop.clear()
+        self._queue = SampleQueue()
+        self._reader = threading.Thread(target=self._read_forever, name=repr(self), daemon=True)
+        self._reader.start()
+
+    def _close(self) -> None:
+        self._stop.set()
+        if self._reader is not None:
+            self._reader.join(timeout=2.0)
+        self._close_link()
+
+    def _read_forever(self) -> None:
+        lines = LineSplitter(skip_first=self.skip_first_line)
+        while not self._stop.is_set():
+            try:
+                data = self._receive()
+            except (OSError, DeviceError) as exc:
+                if not self._stop.is_set():
+                    self._failure = f"{self!r}: link failed: {exc}"
+                    log.warning(self._failure)
+                return
+            arrived = time.monotonic()
+            overlong = lines.overlong
+            for line in lines.feed(data):
+                try:
+                    t_s, counts = self._sample(line, arrived)
+                except Unreadable as exc:
+                    self._skip(exc.reason, str(exc))
+                    continue
+                self._queue.put(t_s, float(self.counts_to_force_n(counts)))
+            for _ in range(lines.overlong - overlong):
+                self._skip("overlong", f"a line longer than {lines.max_bytes} bytes")
+
+    def _skip(self, reason: str, detail: str) -> None:
+        # Warn once per reason, then quietly count: a noisy line must not flood the log.
+        level = logging.WARNING if not self.skipped[reason] else logging.DEBUG
+        self.skipped[reason] += 1
+        log.log(level, "%r: skipped a reading (%s): %s", self, reason, detail)
+
+    def _take(self, timeout_s: float) -> Samples:
+        samples = self._queue.take(timeout_s)
+        if not len(samples) and self._failure is not None:
+            raise DeviceError(self._failure)
+        return samples
+
+    # link hooks
+    def _open_link(self) -> None:
+        raise NotImplementedError
+
+    def _close_link(self) -> None:
+        raise NotImplementedError
+
+    def _receive(self) -> bytes:
+        """Bytes that arrived (b"" after a short idle wait); OSError or DeviceError when the link is gone."""
+        raise NotImplementedError
+
+    def _sample(self, line: bytes, arrived_s: float) -> tuple[float, int]:
+        raise NotImplementedError
+
+
+class SerialHx711(_StreamingHx711):
+    """HX711 behind a serial bridge at ``settings.port`` / ``settings.baud`` (pyserial)."""
+
+    skip_first_line = True
+
+    def __init__(self, settings: LoadCellSettings):
+        super().__init__(settings)
+        self._port = None
+
+    def __repr__(self) -> str:
+        return f"<SerialHx711 {self.settings.port}>"
+
+    def _open_link(self) -> None:
+        import serial
+
+        if not self.settings.port:
+            raise DeviceError("serial load cell: LoadCellSettings.port is empty; set the serial device path")
+        try:
+            self._port = serial.Serial(self.settings.port, self.settings.baud, timeout=0.1)
+        except (serial.SerialException, ValueError) as exc:
+            raise DeviceError(f"{self!r}: cannot open the port: {exc}") from exc
+
+    def _close_link(self) -> None:
+        if self._port is not None:
+            self._port.close()
+            self._port = None
+
+    def _receive(self) -> bytes:
+        import serial
+
+        try:
+            return self._port.read(max(1, self._port.in_waiting))
+        except serial.SerialException as exc:
+            raise DeviceError(str(exc)) from exc
+
+    def _sample(self, line: bytes, arrived_s: float) -> tuple[float, int]:
+        return arrived_s, parse_serial_line(line)
+
+
+def parse_tcp_address(address: str) -> tuple[str, int]:
+    """``("host", port)`` from ``tcp://host:port``; DeviceError naming the address otherwise."""
+    parts = urlsplit(address)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme != "tcp" or not parts.hostname or port is None:
+        raise DeviceError(f"load-cell address {address!r}: expected tcp://host:port")
+    return parts.hostname, port
+
+
+class BridgeClock:
+    """Maps bridge sampling times to this host's clock by the least-delayed frame (see above)."""
+
+    def __init__(self) -> None:
+        self.offset_s = math.inf
+
+    def to_host(self, t_bridge_s: float, arrived_s: float) -> float:
+        """Host time of a reading taken at ``t_bridge_s`` that arrived at ``arrived_s``."""
+        self.offset_s = min(self.offset_s, arrived_s - t_bridge_s)
+        return t_bridge_s + self.offset_s
+
+
+class TcpHx711(_StreamingHx711):
+    """HX711 behind a framed-TCP bridge at ``settings.address`` (``tcp://host:port``)."""
+
+    def __init__(self, settings: LoadCellSettings):
+        super().__init__(settings)
+        self.gaps = 0
+        self.missed = 0
+        self._socket: socket.socket | None = None
+        self._last_seq: int | None = None
+        self._clock = BridgeClock()
+
+    def __repr__(self) -> str:
+        return f"<TcpHx711 {self.settings.address}>"
+
+    def _open_link(self) -> None:
+        host, port = parse_tcp_address(self.settings.address)
+        try:
+            self._socket = socket.create_connection((host, port), timeout=self.settings.timeout_s)
+        except OSError as exc:
+            raise DeviceError(f"{self!r}: cannot connect to the bridge: {exc}") from exc
+        self._socket.settimeout(0.1)
+        self._last_seq, self._clock = None, BridgeClock()
+
+    def _close_link(self) -> None:
+        if self._socket is not None:
+            self._socket.close()
+            self._socket = None
+
+    def _receive(self) -> bytes:
+        try:
+            data = self._socket.recv(65536)
+        except TimeoutError:
+            return b""
+        if not data:
+            raise DeviceError("the bridge closed the connection")
+        return data
+
+    def _sample(self, line: bytes, arrived_s: float) -> tuple[float, int]:
+        seq, t_bridge_s, counts = parse_frame(line)
+        if self._last_seq is not None and seq != self._last_seq + 1:
+            self.gaps += 1
+            self.missed += max(0, seq - self._last_seq - 1)
+            log.warning("%r: readings %d..%d lost", self, self._last_seq + 1, seq - 1)
+        self._last_seq = seq
+        return self._clock.to_host(t_bridge_s, arrived_s), counts
+

@@ -1,0 +1,276 @@
+"""The sending side of the framed-TCP load cell, and ``teleop hx711-bridge``.
+
+Runs where the HX711 is (e.g. a Raspberry Pi), with the standard library only (pyserial
+for ``--serial``). It takes readings from a source, stamps each with the bridge's
+monotonic clock when it is taken, and sends it as one frame of the protocol in
+:mod:`teleop.devices.hx711_protocol` to every connected host (the ``tcp`` load-cell
+backend). Sources: :class:`FakeHx711` (``--fake``: a simulated cell, for tests and
+demos) and :class:`SerialCounts` (``--serial PORT``: an Arduino-style HX711 bridge,
+re-served framed over the network). Any callable returning counts can be served.
+
+A host that stops reading for ``send_timeout_s`` is dropped, so it cannot stall the others.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import random
+import socket
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+
+from teleop.devices.hx711_protocol import (
+    COUNTS_MAX,
+    COUNTS_MIN,
+    LineSplitter,
+    Unreadable,
+    format_frame,
+    parse_serial_line,
+)
+from teleop.errors import DeviceError
+from teleop.settings import default_settings_path, load_settings
+
+__all__ = ["FakeHx711", "Hx711Bridge", "SerialCounts", "add_arguments", "run"]
+
+log = logging.getLogger(__name__)
+
+
+class FakeHx711:
+    """A simulated HX711: counts of ``force_n`` through the cell's calibration, paced at ``rate_hz``.
+
+    Parameters
+    ----------
+    counts_per_n, tare_counts : float, int
+        The calibration the host will undo (``LoadCellSettings``).
+    rate_hz : float
+        Readings per second; each call blocks until the next one is due.
+    force_n : float or callable
+        Force in newtons, constant or a function of seconds since the first reading.
+    noise_counts : float
+        Standard deviation of Gaussian noise added to each reading, in counts.
+    seed : int
+        Seed of the noise.
+    """
+
+    def __init__(
+        self,
+        *,
+        counts_per_n: float,
+        tare_counts: int = 0,
+        rate_hz: float = 80.0,
+        force_n: float | Callable[[float], float] = 0.0,
+        noise_counts: float = 0.0,
+        seed: int = 0,
+    ):
+        self.counts_per_n = counts_per_n
+        self.tare_counts = tare_counts
+        self.period_s = 1.0 / rate_hz
+        self.force_n = force_n if callable(force_n) else (lambda _t, f=float(force_n): f)
+        self.noise_counts = noise_counts
+        self._random = random.Random(seed)
+        self._start_s: float | None = None
+        self._next_s = 0.0
+
+    def __call__(self) -> int:
+        now = time.monotonic()
+        if self._start_s is None:
+            self._start_s = self._next_s = now
+        time.sleep(max(0.0, self._next_s - now))
+        t = self._next_s - self._start_s
+        self._next_s += self.period_s
+        counts = self.force_n(t) * self.counts_per_n + self.tare_counts + self._random.gauss(0.0, self.noise_counts)
+        return min(max(round(counts), COUNTS_MIN + 1), COUNTS_MAX - 1)
+
+
+class SerialCounts:
+    """Readings from an Arduino-style serial HX711 bridge (serial line protocol); pyserial."""
+
+    def __init__(self, port: str, baud: int = 115200):
+        import serial
+
+        try:
+            self._port = serial.Serial(port, baud, timeout=0.5)
+        except (serial.SerialException, ValueError) as exc:
+            raise DeviceError(f"serial HX711 at {port}: cannot open the port: {exc}") from exc
+        self._lines = LineSplitter(skip_first=True)
+        self._ready: deque[int] = deque()
+
+    def __call__(self) -> int | None:
+        """The next valid reading, or None when the line stayed idle for 0.5 s."""
+        while not self._ready:
+            data = self._port.read(max(1, self._port.in_waiting))
+            if not data:
+                return None
+            for line in self._lines.feed(data):
+                try:
+                    self._ready.append(parse_serial_line(line))
+                except Unreadable as exc:
+                    log.debug("serial HX711: skipped (%s): %s", exc.reason, exc)
+        return self._ready.popleft()
+
+    def close(self) -> None:
+        self._port.close()
+
+
+class Hx711Bridge:
+    """Serves readings from ``read_counts`` as framed TCP to every connected host.
+
+    Parameters
+    ----------
+    read_counts : callable
+        Blocks until the next reading and returns its counts (None: nothing this time).
+    host, port : str, int
+        Where to listen; port 0 picks a free one (see :attr:`address`).
+    send_timeout_s : float
+        A host that takes no data for this long is dropped.
+    """
+
+    def __init__(
+        self,
+        read_counts: Callable[[], int | None],
+        *,
+        host: str = "0.0.0.0",
+        port: int = 5601,
+        send_timeout_s: float = 1.0,
+    ):
+        self.read_counts = read_counts
+        self.host, self.port = host, port
+        self.send_timeout_s = send_timeout_s
+        self.sent = 0  # readings taken and framed (sent to however many hosts were there)
+        self._server: socket.socket | None = None
+        self._clients: list[socket.socket] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+
+    @property
+    def address(self) -> str:
+        """``tcp://host:port`` the bridge listens on (the real port once started)."""
+        return f"tcp://{self.host}:{self.port}"
+
+    @property
+    def clients(self) -> int:
+        with self._lock:
+            return len(self._clients)
+
+    def start(self) -> Hx711Bridge:
+        try:
+            server = socket.create_server((self.host, self.port))
+        except OSError as exc:
+            raise DeviceError(f"HX711 bridge cannot listen on {self.address}: {exc}") from exc
+        server.settimeout(0.2)
+        self._server = server
+        self.port = server.getsockname()[1]
+        self._stop.clear()
+        self._threads = [
+            threading.Thread(target=self._accept_forever, name="hx711-bridge-accept", daemon=True),
+            threading.Thread(target=self._serve_forever, name="hx711-bridge-send", daemon=True),
+        ]
+        for thread in self._threads:
+            thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(timeout=2.0)
+        self._threads = []
+        if self._server is not None:
+            self._server.close()
+            self._server = None
+        with self._lock:
+            for client in self._clients:
+                client.close()
+            self._clients.clear()
+
+    def __enter__(self) -> Hx711Bridge:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _accept_forever(self) -> None:
+        while not self._stop.is_set():
+            try:
+                client, peer = self._server.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # one reading, one packet
+            client.settimeout(self.send_timeout_s)
+            log.info("HX711 bridge: host %s:%d connected", *peer[:2])
+            with self._lock:
+                self._clients.append(client)
+
+    def _serve_forever(self) -> None:
+        seq = 0
+        while not self._stop.is_set():
+            counts = self.read_counts()
+            if counts is None:
+                continue
+            frame = format_frame(seq, time.monotonic(), counts)
+            seq += 1
+            self.sent += 1
+            with self._lock:
+                for client in list(self._clients):
+                    try:
+                        client.sendall(frame)
+                    except OSError as exc:  # gone or stalled: drop it, serve the rest
+                        log.info("HX711 bridge: dropped a host: %s", exc)
+                        client.close()
+                        self._clients.remove(client)
+
+
+# --------------------------------------------------------------------------- command
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--fake", action="store_true", help="serve a simulated load cell (constant --force-n plus noise)")
+    source.add_argument("--serial", metavar="PORT", help="serve an Arduino-style serial HX711 bridge on this port")
+    parser.add_argument("--host", default="0.0.0.0", help="address to listen on")
+    parser.add_argument("--port", type=int, default=5601, help="TCP port to listen on (0: any free port)")
+    parser.add_argument(
+        "--settings", default=str(default_settings_path()), help="settings TOML: [load_cell] calibration, rate and baud"
+    )
+    parser.add_argument("--baud", type=int, default=None, help="serial baud rate; None: [load_cell] baud of the settings")
+    parser.add_argument("--force-n", type=float, default=0.0, help="--fake: force the simulated cell feels, N")
+    parser.add_argument("--noise-counts", type=float, default=0.0, help="--fake: reading noise (std), counts")
+    parser.add_argument("--duration-s", type=float, default=None, help="stop after this many seconds; None: run until Ctrl+C")
+    parser.add_argument("--json", action="store_true", help="on exit, print a JSON summary as the last stdout line")
+
+
+def run(args: argparse.Namespace) -> int:
+    cell = load_settings(args.settings).load_cell
+    if args.fake:
+        source = FakeHx711(
+            counts_per_n=cell.counts_per_n,
+            tare_counts=cell.tare_counts,
+            rate_hz=cell.sample_rate_hz,
+            force_n=args.force_n,
+            noise_counts=args.noise_counts,
+        )
+    else:
+        source = SerialCounts(args.serial, args.baud or cell.baud)
+    started = time.monotonic()
+    try:
+        with Hx711Bridge(source, host=args.host, port=args.port) as bridge:
+            print(f"hx711-bridge: serving on {bridge.address}", flush=True)
+            if args.duration_s is None:
+                threading.Event().wait()  # until Ctrl+C
+            else:
+                time.sleep(args.duration_s)
+    finally:
+        if isinstance(source, SerialCounts):
+            source.close()
+    if args.json:
+        summary = {"address": bridge.address, "readings": bridge.sent, "seconds": round(time.monotonic() - started, 3)}
+        print(json.dumps(summary))
+    sys.stdout.flush()
+    return 0

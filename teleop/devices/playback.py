@@ -1,0 +1,364 @@
+"""Simulated twins of the robot's devices: live, real-time replays of a recorded grasp.
+
+The simulator (:mod:`teleop.sim`) produces a whole grasp offline as a
+:class:`~teleop.record.GraspRecord`. A :class:`GraspPlayback` replays it on the monotonic
+clock: from :meth:`GraspPlayback.start` on, each force sample, width sample and frame
+becomes due at its own record timestamp, shifted by one constant so that the record's
+``command_grasp`` event (or, without one, its earliest sample) falls on the start time.
+The ``sim`` backends of the three families release exactly what the record holds, when
+it falls due, stamped with those shifted times, like hardware would:
+
+* :class:`SimulatedGripper`: ``grasp()`` starts the replay (if not started) and returns
+  once the recorded width reaches its minimum; widths come from the record until it ends.
+  A replay cannot react to commands: ``move()`` during a replay waits for its end. Without
+  a replay (or after it) the gripper is kinematic: the width moves at the commanded speed,
+  stalling at ``object_width_m`` when an object is given.
+* :class:`SimulatedCamera`: every frame of its finger, in order, each when due.
+* :class:`SimulatedLoadCell`: every force sample due since the last read.
+
+One playback is shared by all devices of a rig; :meth:`replay` on each device switches
+them to the next grasp.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from teleop.devices.camera import CameraFrame, TactileCamera
+from teleop.devices.gripper import Gripper
+from teleop.devices.loadcell import LoadCell
+from teleop.errors import DeviceError
+from teleop.record import GraspRecord, Samples
+from teleop.settings import GripperSettings, LoadCellSettings, SensorSettings
+
+__all__ = ["GraspPlayback", "SimulatedCamera", "SimulatedGripper", "SimulatedLoadCell"]
+
+
+class GraspPlayback:
+    """A grasp record replayed in real time.
+
+    Parameters
+    ----------
+    record : GraspRecord
+        The grasp to replay.
+    clock : callable, optional
+        Monotonic seconds; ``time.monotonic`` (the device clock) by default.
+    """
+
+    def __init__(self, record: GraspRecord, *, clock: Callable[[], float] = time.monotonic):
+        self.record = record
+        self.clock = clock
+        firsts = [s.t_s[0] for s in (record.force_n, record.width_m, *record.frames) if len(s)]
+        lasts = [s.t_s[-1] for s in (record.force_n, record.width_m, *record.frames) if len(s)]
+        if not firsts:
+            raise DeviceError("cannot replay a grasp record without any samples or frames")
+        self.origin_s = float(record.events.get("command_grasp", min(firsts)))
+        self.duration_s = float(max(lasts) - self.origin_s)
+        self._t0_s: float | None = None
+        self._started = threading.Event()
+
+    @property
+    def started(self) -> bool:
+        return self._started.is_set()
+
+    def start(self, t0_s: float | None = None) -> None:
+        """Start the replay: the record's origin falls on ``t0_s`` (default: now)."""
+        if self.started:
+            raise DeviceError("this grasp playback was already started; make a new one to replay again")
+        self._t0_s = self.clock() if t0_s is None else float(t0_s)
+        self._started.set()
+
+    def wait_started(self, timeout_s: float) -> bool:
+        """Block until :meth:`start` was called (True) or ``timeout_s`` passed (False)."""
+        return self._started.wait(timeout_s)
+
+    def live_time(self, t_record_s: np.ndarray | float) -> np.ndarray | float:
+        """Record time(s) to device-clock time(s); the playback must have started."""
+        if self._t0_s is None:
+            raise DeviceError("grasp playback has not started")
+        return t_record_s - self.origin_s + self._t0_s
+
+    def now(self) -> float:
+        return self.clock()
+
+    def done(self, now_s: float | None = None) -> bool:
+        """Whether everything in the record is due."""
+        if not self.started:
+            return False
+        return (self.now() if now_s is None else now_s) >= self.live_time(self.origin_s + self.duration_s)
+
+    def _due(self, samples: Samples, start: int, now_s: float | None) -> tuple[int, Samples]:
+        if not self.started:
+            return start, Samples(np.zeros(0), np.zeros(0))
+        now = self.now() if now_s is None else now_s
+        live = self.live_time(samples.t_s)
+        end = max(start, int(np.searchsorted(live, now, side="right")))
+        return end, Samples(live[start:end], samples.value[start:end])
+
+    def forces_due(self, start: int, now_s: float | None = None) -> tuple[int, Samples]:
+        """Force samples ``start:end`` due by now (live times); returns ``(end, samples)``."""
+        return self._due(self.record.force_n, start, now_s)
+
+    def widths_due(self, start: int, now_s: float | None = None) -> tuple[int, Samples]:
+        """Width samples ``start:end`` due by now (live times); returns ``(end, samples)``."""
+        return self._due(self.record.width_m, start, now_s)
+
+    def frame_count(self, finger: str) -> int:
+        return len(self.record.stream(finger))
+
+    def frame_due_s(self, finger: str, index: int) -> float:
+        """Live time at which frame ``index`` of ``finger`` is due."""
+        return float(self.live_time(self.record.stream(finger).t_s[index]))
+
+    def frame_due(self, finger: str, now_s: float | None = None) -> int | None:
+        """Index of the latest frame of ``finger`` due by now, or None."""
+        if not self.started:
+            return None
+        now = self.now() if now_s is None else now_s
+        live = self.live_time(self.record.stream(finger).t_s)
+        index = int(np.searchsorted(live, now, side="right")) - 1
+        return index if index >= 0 else None
+
+    def grasp_settled_s(self) -> float:
+        """Live time at which the recorded width reaches its minimum (the grasp holds)."""
+        widths = self.record.width_m
+        if not len(widths):
+            return float(self.live_time(self.origin_s + self.duration_s))
+        return float(self.live_time(widths.t_s[int(np.argmin(widths.value))]))
+
+
+def _wait_until(t_s: float, clock: Callable[[], float], stop: threading.Event | None = None) -> bool:
+    """Sleep until clock time ``t_s``; False if ``stop`` was set first."""
+    remaining = t_s - clock()
+    if remaining <= 0:
+        return True
+    if stop is None:
+        time.sleep(remaining)
+        return True
+    return not stop.wait(remaining)
+
+
+def _due_before(playback: GraspPlayback, due_s: float, deadline_s: float) -> bool:
+    """Whether playback time ``due_s`` comes before monotonic ``deadline_s``."""
+    return due_s - playback.now() <= deadline_s - time.monotonic()
+
+
+class SimulatedGripper(Gripper):
+    """The ``sim`` gripper: a replay while one runs, kinematic otherwise (see module docstring).
+
+    Parameters
+    ----------
+    settings : GripperSettings
+    playback : GraspPlayback, optional
+        Grasp to replay; :meth:`replay` sets another later.
+    object_width_m : float, optional
+        Width of an object between the fingers for kinematic grasps (None: nothing there).
+    """
+
+    def __init__(self, settings: GripperSettings, *, playback: GraspPlayback | None = None, object_width_m: float | None = None):
+        super().__init__(settings)
+        self.object_width_m = object_width_m
+        self._lock = threading.Lock()
+        self._halt = threading.Event()
+        # Kinematic state: the width moves from _from_m (at _from_s) towards _to_m at _speed.
+        self._from_m = settings.max_width_m
+        self._from_s = time.monotonic()
+        self._to_m = settings.max_width_m
+        self._speed = 1.0
+        self._grasped = False
+        self._playback: GraspPlayback | None = None
+        self._width_index = 0
+        if playback is not None:
+            self.replay(playback)
+
+    def replay(self, playback: GraspPlayback) -> None:
+        """Serve widths from ``playback`` (started by the next grasp unless already running)."""
+        with self._lock:
+            self._playback = playback
+            self._width_index = 0
+
+    def _open(self) -> None:
+        self._halt.clear()
+
+    def _shutdown(self) -> None:
+        self._halt.set()
+
+    def _max_width(self) -> float:
+        return self.settings.max_width_m
+
+    def _is_grasped(self) -> bool:
+        return self._grasped
+
+    def _replaying(self, now: float) -> GraspPlayback | None:
+        """The playback while it runs; when it has ended, the kinematics take over from its last width."""
+        playback = self._playback
+        if playback is None or not playback.started:
+            return None
+        if not playback.done(now):
+            return playback
+        self._width_index, rest = playback.widths_due(self._width_index, now)
+        for t_s, width in zip(rest.t_s.tolist(), rest.value.tolist(), strict=True):
+            self._width_queue.put(t_s, width)  # the reader has not handed these out yet
+        widths = playback.record.width_m
+        if len(widths):
+            self._from_m = self._to_m = float(widths.value[-1])
+        self._from_s = now
+        self._playback = None
+        return None
+
+    def _kinematic_width(self, now: float) -> float:
+        travelled = self._speed * max(0.0, now - self._from_s)
+        gap = self._to_m - self._from_m
+        return self._to_m if abs(gap) <= travelled else self._from_m + np.sign(gap) * travelled
+
+    def _read_width(self) -> float:
+        with self._lock:
+            now = time.monotonic()
+            playback = self._replaying(now)
+            if playback is None:
+                return float(self._kinematic_width(now))
+            _, due = playback.widths_due(0, now)
+            return float(due.value[-1]) if len(due) else float(self._kinematic_width(now))
+
+    def _poll_widths(self) -> list[tuple[float, float]]:
+        with self._lock:
+            playback = self._replaying(time.monotonic())
+            if playback is not None:
+                self._width_index, due = playback.widths_due(self._width_index)
+                return list(zip(due.t_s.tolist(), due.value.tolist(), strict=True))
+        return [self._timed_read()]
+
+    def _drive(self, to_m: float, speed: float) -> float:
+        """Start a kinematic motion; returns when (clock time) it ends."""
+        with self._lock:
+            now = time.monotonic()
+            self._replaying(now)  # hand over from an ended replay
+            self._from_m = float(self._kinematic_width(now))
+            self._from_s, self._to_m, self._speed = now, to_m, speed
+            self._grasped = False
+            return now + abs(to_m - self._from_m) / speed
+
+    def _wait_for_replay(self) -> bool:
+        """Wait for a running replay to end; False if stopped or closed meanwhile."""
+        self._halt.clear()
+        playback = self._playback
+        if playback is None or not playback.started:
+            return True
+        return _wait_until(playback.live_time(playback.origin_s + playback.duration_s), playback.clock, self._halt)
+
+    def _move(self, width_m: float, speed_m_s: float) -> bool:
+        if not self._wait_for_replay():
+            return False
+        return _wait_until(self._drive(width_m, speed_m_s), time.monotonic, self._halt)
+
+    def _grasp(self, width_m: float, speed_m_s: float, force_n: float, epsilon_inner_m: float, epsilon_outer_m: float) -> bool:
+        playback = self._playback
+        if playback is not None and not playback.done():
+            if not playback.started:
+                playback.start()
+            self._halt.clear()
+            held = _wait_until(playback.grasp_settled_s(), playback.clock, self._halt)
+            width = self._read_width()
+            self._grasped = held and width_m - epsilon_inner_m <= width <= width_m + epsilon_outer_m
+            return self._grasped
+        if not self._wait_for_replay():
+            return False
+        current = self._read_width()
+        stall = self.object_width_m
+        target = stall if stall is not None and width_m <= stall <= current else width_m
+        if not _wait_until(self._drive(target, speed_m_s), time.monotonic, self._halt):
+            return False
+        self._grasped = width_m - epsilon_inner_m <= target <= width_m + epsilon_outer_m
+        return self._grasped
+
+    def _stop(self) -> bool:
+        self._halt.set()
+        with self._lock:
+            if self._replaying(time.monotonic()) is None:
+                now = time.monotonic()
+                self._from_m = self._to_m = float(self._kinematic_width(now))
+                self._from_s = now
+        return True
+
+
+class SimulatedCamera(TactileCamera):
+    """The ``sim`` camera: the frames of its finger from a :class:`GraspPlayback`."""
+
+    def __init__(self, sensor: SensorSettings, *, playback: GraspPlayback | None = None):
+        super().__init__(sensor)
+        self._playback: GraspPlayback | None = None
+        self._next = 0
+        if playback is not None:
+            self.replay(playback)
+
+    def replay(self, playback: GraspPlayback) -> None:
+        """Serve the frames of this finger from ``playback`` from its first frame on."""
+        playback.record.stream(self.sensor.finger)  # KeyError now, not at the first read
+        self._playback, self._next = playback, 0
+
+    def _connect(self) -> None:
+        pass
+
+    def _close(self) -> None:
+        pass
+
+    def _read(self, timeout_s: float) -> CameraFrame | None:
+        deadline = time.monotonic() + timeout_s
+        playback = self._playback
+        finger = self.sensor.finger
+        if (
+            playback is None
+            or not playback.wait_started(timeout_s)
+            or self._next >= playback.frame_count(finger)
+            or not _due_before(playback, playback.frame_due_s(finger, self._next), deadline)
+        ):
+            time.sleep(max(0.0, deadline - time.monotonic()))  # nothing to show: a silent camera
+            return None
+        due = playback.frame_due_s(finger, self._next)
+        _wait_until(due, playback.clock)
+        stream = playback.record.stream(self.sensor.finger)
+        frame = CameraFrame(self.sensor.finger, self._next, due, stream.encoded[self._next], stream.encoding)
+        self._next += 1
+        return frame
+
+
+class SimulatedLoadCell(LoadCell):
+    """The ``sim`` load cell: the force samples of a :class:`GraspPlayback`, in newtons as recorded."""
+
+    def __init__(self, settings: LoadCellSettings, *, playback: GraspPlayback | None = None):
+        super().__init__(settings)
+        self._playback: GraspPlayback | None = None
+        self._next = 0
+        if playback is not None:
+            self.replay(playback)
+
+    def replay(self, playback: GraspPlayback) -> None:
+        """Serve force samples from ``playback`` from its first sample on."""
+        self._playback, self._next = playback, 0
+
+    def _connect(self) -> None:
+        pass
+
+    def _close(self) -> None:
+        pass
+
+    def _take(self, timeout_s: float) -> Samples:
+        deadline = time.monotonic() + timeout_s
+        playback = self._playback
+        if playback is not None and playback.wait_started(timeout_s):
+            self._next, due = playback.forces_due(self._next)
+            if len(due):
+                return due
+            forces = playback.record.force_n
+            if self._next < len(forces):
+                next_due = float(playback.live_time(forces.t_s[self._next]))
+                if _due_before(playback, next_due, deadline):
+                    _wait_until(next_due, playback.clock)
+                    self._next, due = playback.forces_due(self._next)
+                    return due
+        time.sleep(max(0.0, deadline - time.monotonic()))  # nothing due in time: a silent cell
+        return Samples(np.zeros(0), np.zeros(0))

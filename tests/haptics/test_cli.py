@@ -1,0 +1,126 @@
+"""The ``haptics`` commands: devices, protocol, encode, try."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+
+import pytest
+
+from haptics.cli import COMMANDS, main
+from haptics.mapping import stiffness_fraction
+from haptics.protocol import REPORT_DESCRIPTOR, decode_output_report
+
+
+def last_json(capsys) -> dict:
+    return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_every_option_is_explained(name):
+    parser = argparse.ArgumentParser()
+    importlib.import_module(COMMANDS[name].module).add_arguments(parser)
+    for action in parser._actions:
+        assert action.help and len(action.help) > 10, f"haptics {name}: {action.dest} lacks help"
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_help_runs(name, capsys):
+    with pytest.raises(SystemExit) as exited:
+        main([name, "--help"])
+    assert exited.value.code == 0
+    assert "--json" in capsys.readouterr().out
+
+
+def test_protocol_prints_layouts_and_descriptor(capsys):
+    assert main(["protocol"]) == 0
+    out = capsys.readouterr().out
+    assert REPORT_DESCRIPTOR.hex(" ") in out
+    for field in ("`level`", "`uncertainty`", "`sequence`", "`watchdog_ms`", "`faults`"):
+        assert field in out
+    assert main(["protocol", "--json"]) == 0
+    data = last_json(capsys)
+    assert bytes.fromhex(data["descriptor_hex"]) == REPORT_DESCRIPTOR
+    assert [r["size"] for r in data["reports"]] == [8, 17, 7]
+
+
+def test_encode_prints_the_report(capsys):
+    assert main(["encode", "--level", "4660", "--uncertainty", "42", "--sequence", "7",
+                 "--rigid", "--stale"]) == 0
+    assert capsys.readouterr().out.strip() == "01 11 05 34 12 2a 07 39"
+    assert main(["encode", "--level", "1", "--fading", "--sequence", "128", "--json"]) == 0
+    assert last_json(capsys)["report_hex"] == "01110801000080ee"
+
+
+def test_encode_refuses_bad_fields_in_one_line(capsys):
+    assert main(["encode", "--level", "70000"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        "haptics encode: error: StiffnessCommand.level = 70000: expected an integer in [0, 65535]"
+    )
+    assert main(["encode", "--level", "1", "--rigid", "--unknown"]) == 2
+    assert "rigid and unknown" in capsys.readouterr().err
+
+
+def test_try_maps_and_writes_to_the_simulated_display(capsys):
+    assert main(["try", "--backend", "sim", "--e-pa", "2e5", "--low-pa", "1e5", "--high-pa",
+                 "4e5", "--json"]) == 0
+    data = last_json(capsys)
+    expected = round(stiffness_fraction(2e5, e_soft_pa=5e3, e_rigid_pa=1e9) * data["level_max"])
+    assert data["level"] == expected
+    report = decode_output_report(bytes.fromhex(data["report_hex"]))
+    assert report.command.level == expected
+    assert report.command.uncertainty == round(20 * 0.6020599913)  # log10(4e5 / 1e5)
+    assert data["status"] == {"state": "rendering", "level": expected, "faults": [], "sequence": 0}
+
+
+def test_try_insufficient_data_and_rigid(capsys):
+    assert main(["try", "--state", "insufficient_data", "--json"]) == 0
+    assert last_json(capsys)["command"]["unknown"] is True
+    assert main(["try", "--state", "lower_bound", "--e-pa", "3e10", "--json"]) == 0
+    data = last_json(capsys)
+    assert data["command"]["rigid"] is True and data["level"] == data["level_max"]
+
+
+def test_try_refuses_a_bad_modulus(capsys):
+    assert main(["try", "--e-pa", "nan"]) == 2
+    assert "E_pa" in capsys.readouterr().err
+
+
+def test_try_over_hid(fake_hid, capsys):
+    usb = fake_hid.plug()
+    assert main(["try", "--backend", "hid", "--e-pa", "1e7", "--json"]) == 0
+    data = last_json(capsys)
+    assert usb.writes == [bytes.fromhex(data["report_hex"])]
+    assert "/dev/hidraw0" in data["display"]
+
+
+def test_try_over_hid_with_nothing_plugged_in(fake_hid, capsys):
+    assert main(["try", "--backend", "hid", "--e-pa", "1e7"]) == 2
+    assert "no HID display 1209:5EF7 is plugged in" in capsys.readouterr().err
+
+
+def test_devices_says_when_none_are_plugged_in(fake_hid, capsys):
+    assert main(["devices", "--json"]) == 0
+    out = capsys.readouterr().out
+    assert "no softness display 1209:5EF7 is plugged in" in out
+    assert json.loads(out.strip().splitlines()[-1])["count"] == 0
+
+
+def test_devices_lists_what_is_plugged_in(fake_hid, capsys):
+    fake_hid.plug(serial="SD-42")
+    fake_hid.plug(vendor_id=0x046D)  # someone else's device
+    assert main(["devices", "--json"]) == 0
+    data = last_json(capsys)
+    assert data["count"] == 1
+    assert data["devices"][0]["path"] == "/dev/hidraw0"
+    assert data["devices"][0]["serial_number"] == "SD-42"
+    assert main(["devices", "--vendor-id", "0x046d", "--json"]) == 0
+    assert last_json(capsys)["count"] == 1
+
+
+def test_devices_refuses_a_bad_usb_id(capsys):
+    with pytest.raises(SystemExit):
+        main(["devices", "--vendor-id", "0x12345"])
+    assert "outside 0x0000-0xFFFF" in capsys.readouterr().err

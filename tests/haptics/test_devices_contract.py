@@ -1,0 +1,210 @@
+"""The display contract, run over every backend: sim, HID through a fake hid module, real HID."""
+
+from __future__ import annotations
+
+import pytest
+
+from haptics.devices import Reconnector
+from haptics.errors import DisplayError, DisplayNotConnectedError, ProtocolError
+from haptics.protocol import (
+    PROTOCOL_VERSION,
+    DeviceStatus,
+    StiffnessCommand,
+    decode_output_report,
+    encode_output_report,
+)
+
+
+def status_for(display, sequence: int, *, timeout_s: float = 0.5) -> DeviceStatus:
+    """The first status echoing ``sequence`` (a real display may have older ones queued)."""
+    for _ in range(64):
+        status = display.read_status(timeout_s=timeout_s)
+        assert status is not None, f"no status report echoing sequence {sequence}"
+        if status.sequence == sequence:
+            return status
+    raise AssertionError(f"no status report echoing sequence {sequence}")
+
+
+def test_use_before_connect_is_refused(rig):
+    display = rig.display
+    assert not display.connected
+    with pytest.raises(DisplayNotConnectedError, match="connect"):
+        display.write_command(StiffnessCommand(level=1))
+    with pytest.raises(DisplayNotConnectedError):
+        display.read_status()
+    with pytest.raises(DisplayNotConnectedError):
+        display.configure(watchdog_ms=100)
+
+
+def test_connect_reads_device_info_and_is_idempotent(rig):
+    info = rig.display.connect()
+    assert rig.display.connected
+    assert info.protocol_version == PROTOCOL_VERSION
+    assert info.level_max >= 1
+    assert rig.display.connect() is info
+    assert rig.display.info is info
+
+
+def test_context_manager_connects_and_closes(rig):
+    with rig.display as display:
+        assert display.connected
+        display.write_command(StiffnessCommand(level=1))
+    assert not rig.display.connected
+    with pytest.raises(DisplayNotConnectedError):
+        rig.display.write_command(StiffnessCommand(level=1))
+    rig.display.close()  # a second close is harmless
+
+
+def test_writes_are_encoded_with_consecutive_sequence_numbers(rig):
+    display = rig.display
+    level_max = display.connect().level_max
+    commands = [
+        StiffnessCommand(level=level_max // 3, uncertainty=17, provisional=True),
+        StiffnessCommand(level=level_max, rigid=True),
+        StiffnessCommand(level=0, uncertainty=106, unknown=True),
+    ]
+    reports = [display.write_command(command) for command in commands]
+    decoded = [decode_output_report(report) for report in reports]
+    assert [d.command for d in decoded] == commands
+    first = decoded[0].sequence
+    assert [d.sequence for d in decoded] == [(first + i) % 256 for i in range(3)]
+    assert display.last_command == commands[-1]
+    if rig.received is not None:
+        assert rig.received()[-3:] == reports  # byte for byte as the device got them
+
+
+def test_status_echoes_the_last_command(rig):
+    display = rig.display
+    level_max = display.connect().level_max
+    report = display.write_command(StiffnessCommand(level=level_max // 2))
+    status = status_for(display, decode_output_report(report).sequence)
+    assert status.state == "rendering"
+    assert status.level == level_max // 2
+    assert not status.faults
+
+
+def test_sequence_wraps_after_255(rig):
+    display = rig.display
+    display.connect()
+    sequences = [decode_output_report(display.write_command(StiffnessCommand(level=1))).sequence
+                 for _ in range(258)]
+    assert sequences[256] == sequences[0]
+    assert all((b - a) % 256 == 1 for a, b in zip(sequences, sequences[1:], strict=False))
+
+
+def test_level_above_the_display_range_is_refused_before_writing(rig):
+    display = rig.display
+    level_max = display.connect().level_max
+    if level_max == 0xFFFF:
+        pytest.skip("this display uses the whole 16-bit range")
+    before = len(rig.received()) if rig.received else None
+    with pytest.raises(ProtocolError, match="level_max"):
+        display.write_command(StiffnessCommand(level=level_max + 1))
+    assert display.connected
+    if rig.received:
+        assert len(rig.received()) == before
+
+
+def test_configure_sets_the_watchdog(rig):
+    display = rig.display
+    original = display.connect().watchdog_ms
+    try:
+        assert display.configure(watchdog_ms=250).watchdog_ms == 250
+        assert display.info.watchdog_ms == 250
+    finally:
+        display.configure(watchdog_ms=original)
+
+
+def test_read_status_returns_none_when_nothing_arrives(rig):
+    firmware = rig.need("firmware")
+    rig.display.connect()
+    while firmware.next_input_report() is not None:
+        pass
+    assert rig.display.read_status(timeout_s=0.01) is None
+
+
+def test_a_garbled_status_report_is_a_protocol_error_and_the_link_stays(rig):
+    firmware = rig.need("firmware")
+    display = rig.display
+    display.connect()
+    garbled = bytearray(firmware.status_report())
+    garbled[2] ^= 0x40
+    firmware.queue_input_report(bytes(garbled))
+    with pytest.raises(ProtocolError, match="crc"):
+        display.read_status()
+    assert display.connected
+
+
+def test_faults_are_reported(rig):
+    firmware = rig.need("firmware")
+    display = rig.display
+    display.connect()
+    firmware.inject_fault("over_temperature")
+    report = display.write_command(StiffnessCommand(level=5))
+    status = status_for(display, decode_output_report(report).sequence)
+    assert status.state == "fault"
+    assert status.faults == {"over_temperature"}
+    assert status.level == 0
+
+
+def test_a_malformed_output_report_is_flagged_by_the_device(rig):
+    firmware = rig.need("firmware")
+    display = rig.display
+    display.connect()
+    display.write_command(StiffnessCommand(level=9))
+    bad = bytearray(encode_output_report(StiffnessCommand(level=3), sequence=200))
+    bad[-1] ^= 0xFF
+    display._write_report(bytes(bad))  # bytes the encoder would never make
+    statuses = []
+    while (status := display.read_status()) is not None:
+        statuses.append(status)
+    assert "bad_report" in statuses[-1].faults
+    assert firmware.last_command == StiffnessCommand(level=9)
+
+
+def test_unplug_disconnects_and_reconnect_resends_the_last_command(rig):
+    unplug, replug = rig.need("unplug"), rig.need("replug")
+    display = rig.display
+    level_max = display.connect().level_max
+    display.write_command(StiffnessCommand(level=level_max // 4))
+    last = StiffnessCommand(level=level_max // 2, uncertainty=9, stale=True)
+    unplug()
+    with pytest.raises(DisplayError) as raised:
+        display.write_command(last)
+    assert not isinstance(raised.value, DisplayNotConnectedError)
+    assert not display.connected
+    with pytest.raises(DisplayNotConnectedError):
+        display.write_command(last)
+    with pytest.raises(DisplayError):
+        display.reconnect()  # still unplugged
+    replug()
+    assert rig.firmware.last_command is None  # power-on reset: the display forgot
+    display.reconnect()
+    assert display.connected
+    assert rig.firmware.last_command == last
+    assert decode_output_report(rig.received()[-1]).command == last
+
+
+def test_reconnector_backs_off_then_resends(rig):
+    unplug, replug = rig.need("unplug"), rig.need("replug")
+    display = rig.display
+    display.connect()
+    command = StiffnessCommand(level=7, provisional=True)
+    display.write_command(command)
+    unplug()
+    reconnector = Reconnector(display, initial_s=0.05, max_s=0.1)
+    with pytest.raises(DisplayError):
+        display.write_command(command)
+    assert not reconnector.poll(0.0)  # attempt 1 fails: next at 0.05
+    assert (reconnector.failures, reconnector.next_attempt_s) == (1, 0.05)
+    assert not reconnector.poll(0.04)  # too early: no attempt
+    assert reconnector.failures == 1
+    assert not reconnector.poll(0.05)  # attempt 2 fails: next at 0.15
+    assert reconnector.next_attempt_s == pytest.approx(0.15)
+    assert not reconnector.poll(0.16)  # attempt 3 fails: the wait is capped at max_s
+    assert (reconnector.failures, reconnector.next_attempt_s) == (3, pytest.approx(0.26))
+    replug()
+    assert not reconnector.poll(0.2)
+    assert reconnector.poll(0.26)
+    assert reconnector.failures == 0
+    assert rig.firmware.last_command == command

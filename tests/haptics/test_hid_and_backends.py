@@ -1,0 +1,157 @@
+"""The HID backend's own behaviour (discovery, vendor errors) and the backend name table."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from haptics.devices import BACKENDS, display_class, make_display
+from haptics.devices.sim import SimulatedDisplay
+from haptics.errors import DisplayBackendNotFoundError, DisplayError, DisplayNotConnectedError
+from haptics.protocol import StiffnessCommand, crc8, encode_output_report
+from teleop.settings import DisplaySettings
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def hid_display(**options):
+    from haptics.devices.hid import HidDisplay
+
+    return HidDisplay.from_settings(DisplaySettings(), **options)
+
+
+def test_backend_table_names_sim_and_hid():
+    assert set(BACKENDS) == {"sim", "hid"}
+    assert display_class("sim") is SimulatedDisplay
+    assert display_class("hid").__name__ == "HidDisplay"
+    assert isinstance(make_display(DisplaySettings(backend="sim")), SimulatedDisplay)
+
+
+def test_an_unknown_backend_lists_the_known_ones():
+    with pytest.raises(DisplayBackendNotFoundError, match="'usb'.*hid, sim"):
+        display_class("usb")
+
+
+def test_backends_are_imported_on_use():
+    code = (
+        "import sys, haptics.devices; "
+        "assert 'haptics.devices.hid' not in sys.modules and 'hid' not in sys.modules; "
+        "haptics.devices.display_class('sim'); assert 'haptics.devices.hid' not in sys.modules"
+    )
+    subprocess.run([sys.executable, "-c", code], cwd=REPO, check=True)
+
+
+def test_missing_hidapi_is_a_display_error(monkeypatch):
+    monkeypatch.setitem(sys.modules, "hid", None)  # makes `import hid` raise ImportError
+    with pytest.raises(DisplayError, match="pip install hidapi") as raised:
+        hid_display()
+    assert isinstance(raised.value.__cause__, ImportError)
+
+
+def test_nothing_plugged_in_says_so(fake_hid):
+    display = hid_display()
+    with pytest.raises(DisplayError, match="no HID display 1209:5EF7 is plugged in"):
+        display.connect()
+    assert not display.connected
+
+
+def test_writes_reach_hidapi_byte_for_byte(fake_hid):
+    usb = fake_hid.plug()
+    command = StiffnessCommand(level=1000, uncertainty=12, provisional=True)
+    with hid_display() as display:
+        assert display.path == b"/dev/hidraw0"
+        display.write_command(command)
+        display.write_command(command)
+    assert usb.writes == [
+        encode_output_report(command, sequence=0),
+        encode_output_report(command, sequence=1),
+    ]
+
+
+def test_read_timeout_is_passed_in_milliseconds(fake_hid):
+    usb = fake_hid.plug()
+    with hid_display() as display:
+        display.read_status(timeout_s=0.25)
+        display.read_status()
+    assert usb.read_timeouts_ms == [250, 0]
+
+
+def test_open_failure_wraps_the_vendor_error(fake_hid):
+    fake_hid.plug(refuse_open=True)
+    display = hid_display()
+    with pytest.raises(DisplayError, match="cannot open .*udev") as raised:
+        display.connect()
+    assert isinstance(raised.value.__cause__, OSError)
+    assert not display.connected
+
+
+def test_an_unplug_wraps_oserror_and_disconnects(fake_hid):
+    usb = fake_hid.plug()
+    display = hid_display()
+    display.connect()
+    fake_hid.unplug(usb)
+    with pytest.raises(DisplayError, match="write failed") as raised:
+        display.write_command(StiffnessCommand(level=3))
+    assert isinstance(raised.value.__cause__, OSError)
+    assert not display.connected
+    with pytest.raises(DisplayNotConnectedError):
+        display.read_status()
+
+
+def test_a_short_write_is_a_failure(fake_hid):
+    usb = fake_hid.plug()
+    display = hid_display()
+    display.connect()
+    usb.write_result = -1  # hidapi's error return
+    with pytest.raises(DisplayError, match="wrote -1 of 8 bytes"):
+        display.write_command(StiffnessCommand(level=3))
+    assert not display.connected
+
+
+def test_replug_under_a_new_path_is_found_again(fake_hid):
+    usb = fake_hid.plug()
+    display = hid_display()
+    display.connect()
+    display.write_command(StiffnessCommand(level=77))
+    fake_hid.unplug(usb)
+    fake_hid.plug(usb)
+    with pytest.raises(DisplayError):
+        display.write_command(StiffnessCommand(level=78))
+    display.reconnect()
+    assert display.path == b"/dev/hidraw1"
+    assert usb.firmware.last_command == StiffnessCommand(level=78)
+
+
+def test_serial_picks_one_of_several_displays(fake_hid):
+    fake_hid.plug(serial="A")
+    second = fake_hid.plug(serial="B")
+    with hid_display(serial="B") as display:
+        display.write_command(StiffnessCommand(level=5))
+    assert second.firmware.last_command == StiffnessCommand(level=5)
+    with pytest.raises(DisplayError, match="serial 'C'"):
+        hid_display(serial="C").connect()
+
+
+def test_interfaces_of_another_usage_page_are_skipped(fake_hid):
+    from haptics.devices.hid import list_hid_displays
+
+    fake_hid.plug(usage_page=0x0001)  # e.g. a keyboard interface of the same device
+    assert list_hid_displays(0x1209, 0x5EF7) == []
+    fake_hid.plug(usage_page=0)  # platform does not report usage pages
+    assert len(list_hid_displays(0x1209, 0x5EF7)) == 1
+
+
+def test_a_display_speaking_another_protocol_is_refused(fake_hid, monkeypatch):
+    usb = fake_hid.plug()
+    report = bytearray(usb.firmware.feature_report())
+    report[1] = 2  # protocol version 2
+    report[-1] = crc8(bytes(report[:-1]))
+    monkeypatch.setattr(usb.firmware, "feature_report", lambda: bytes(report))
+    display = hid_display()
+    with pytest.raises(DisplayError, match="protocol_version = 2") as raised:
+        display.connect()
+    assert not display.connected
+    assert raised.value.__cause__ is not None

@@ -1,0 +1,306 @@
+"""Mapping from E to the display: scale, states, uncertainty, smoothing, fade, staleness."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import assume, given
+from hypothesis import strategies as st
+
+from haptics.errors import MappingError
+from haptics.mapping import (
+    ESTIMATE_STATES,
+    FREE,
+    EstimateUpdate,
+    Percept,
+    fade,
+    fade_gain,
+    interval_decades,
+    is_stale,
+    map_estimate,
+    smooth,
+    smoothing_weight,
+    stiffness_fraction,
+    to_command,
+)
+
+SOFT, RIGID = 5e3, 1e9
+RANGE = {"e_soft_pa": SOFT, "e_rigid_pa": RIGID}
+FULL_DECADES = math.log10(RIGID / SOFT)
+
+moduli = st.floats(min_value=1e-300, max_value=1e300, allow_nan=False, allow_infinity=False)
+
+
+def ok(e_pa, interval=(None, None), **kw):
+    return EstimateUpdate(e_pa=e_pa, interval_pa=interval, state="ok", **kw)
+
+
+# --------------------------------------------------------------------------- scale
+
+
+def test_scale_is_logarithmic_between_the_ends():
+    assert stiffness_fraction(SOFT, **RANGE) == 0.0
+    assert stiffness_fraction(RIGID, **RANGE) == 1.0
+    assert stiffness_fraction(math.sqrt(SOFT * RIGID), **RANGE) == pytest.approx(0.5)
+    # Equal ratios of E give equal steps.
+    step_low = stiffness_fraction(1e5, **RANGE) - stiffness_fraction(1e4, **RANGE)
+    step_high = stiffness_fraction(1e8, **RANGE) - stiffness_fraction(1e7, **RANGE)
+    assert step_low == pytest.approx(step_high)
+    assert step_low == pytest.approx(1 / FULL_DECADES)
+
+
+def test_scale_is_clamped():
+    assert stiffness_fraction(1.0, **RANGE) == 0.0
+    assert stiffness_fraction(250e9, **RANGE) == 1.0
+
+
+@given(moduli, moduli)
+def test_scale_is_monotone_and_within_range(e1, e2):
+    lo, hi = sorted((e1, e2))
+    f_lo, f_hi = stiffness_fraction(lo, **RANGE), stiffness_fraction(hi, **RANGE)
+    assert 0.0 <= f_lo <= f_hi <= 1.0
+
+
+@pytest.mark.parametrize("bad", [0.0, -1e5, math.nan, math.inf, None, "1e5", True])
+def test_scale_refuses_a_bad_modulus(bad):
+    with pytest.raises(MappingError, match="e_pa"):
+        stiffness_fraction(bad, **RANGE)
+
+
+def test_scale_refuses_an_inverted_range():
+    with pytest.raises(MappingError, match="e_rigid_pa"):
+        stiffness_fraction(1e5, e_soft_pa=1e9, e_rigid_pa=1e3)
+
+
+# --------------------------------------------------------------------------- states
+
+
+def test_ok_estimate_maps_to_its_level_and_interval():
+    percept = map_estimate(ok(1e6, (1e5, 1e7)), **RANGE)
+    assert percept.stiffness == pytest.approx(math.log10(1e6 / SOFT) / FULL_DECADES)
+    assert percept.uncertainty_decades == pytest.approx(2.0)
+    assert not (percept.rigid or percept.unknown)
+
+
+def test_rigid_when_e_or_its_lower_bound_reaches_the_stiff_end():
+    assert map_estimate(ok(RIGID), **RANGE).rigid
+    assert map_estimate(ok(200e9), **RANGE).rigid
+    bound = map_estimate(EstimateUpdate(3e9, (3e9, None), "lower_bound"), **RANGE)
+    assert bound.rigid and bound.stiffness == 1.0
+    assert bound.uncertainty_decades == 0.0  # above the range: nothing left to doubt on the display
+
+
+def test_a_lower_bound_below_the_stiff_end_is_not_rigid_and_open_above():
+    bound = map_estimate(EstimateUpdate(1e6, (None, None), "lower_bound"), **RANGE)
+    assert not bound.rigid
+    assert bound.stiffness == pytest.approx(stiffness_fraction(1e6, **RANGE))
+    assert bound.uncertainty_decades == pytest.approx(3.0)  # 1e6 .. 1e9
+
+
+def test_an_upper_bound_is_never_rigid_and_open_below():
+    bound = map_estimate(EstimateUpdate(5e9, (None, 5e9), "upper_bound"), **RANGE)
+    assert not bound.rigid
+    assert bound.uncertainty_decades == pytest.approx(FULL_DECADES)
+    soft_bound = map_estimate(EstimateUpdate(5e4, (None, None), "upper_bound"), **RANGE)
+    assert soft_bound.uncertainty_decades == pytest.approx(1.0)  # 5e3 .. 5e4
+
+
+def test_insufficient_data_is_unknown_and_free():
+    update = EstimateUpdate(None, state="insufficient_data", reason="no contact")
+    percept = map_estimate(update, **RANGE)
+    assert percept.unknown and not percept.rigid
+    assert percept.stiffness == 0.0
+    assert percept.uncertainty_decades == pytest.approx(FULL_DECADES)
+
+
+def test_rigid_unknown_and_stiffest_ok_are_distinct_commands():
+    commands = {
+        state: to_command(map_estimate(update, **RANGE), level_max=4095)
+        for state, update in {
+            "rigid": EstimateUpdate(2e9, (2e9, None), "lower_bound"),
+            "unknown": EstimateUpdate(None, state="insufficient_data"),
+            "just_below": ok(0.99 * RIGID, (0.9 * RIGID, 0.99 * RIGID)),
+            "soft": ok(SOFT, (SOFT, SOFT)),
+        }.items()
+    }
+    assert len(set(commands.values())) == 4
+    assert commands["rigid"].rigid and not commands["just_below"].rigid
+    assert commands["unknown"].unknown and commands["unknown"].level == 0
+    assert commands["soft"].level == 0 and not commands["soft"].unknown
+
+
+def test_a_missing_interval_is_the_whole_range():
+    assert map_estimate(ok(1e5), **RANGE).uncertainty_decades == pytest.approx(FULL_DECADES)
+
+
+def test_interval_decades_clips_to_the_display_range():
+    assert interval_decades(1e4, 1e6, **RANGE) == pytest.approx(2.0)
+    assert interval_decades(1.0, 1e4, **RANGE) == pytest.approx(math.log10(1e4 / SOFT))
+    assert interval_decades(2e9, 3e9, **RANGE) == 0.0
+    assert interval_decades(None, None, **RANGE) == pytest.approx(FULL_DECADES)
+
+
+def test_provisional_is_carried_through():
+    assert map_estimate(ok(1e5, provisional=True), **RANGE).provisional
+    assert to_command(map_estimate(ok(1e5, provisional=True), **RANGE), level_max=10).provisional
+
+
+# --------------------------------------------------------------------------- estimate validation
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"e_pa": math.nan}, "E_pa .* = nan"),
+        ({"e_pa": -1.0}, "E_pa .* = -1.0"),
+        ({"e_pa": math.inf}, "E_pa .* = inf"),
+        ({"e_pa": None}, "E_pa .* = None"),
+        ({"e_pa": 1e5, "state": "great"}, "state = 'great'"),
+        ({"e_pa": 1e5, "interval_pa": (1e6, 1e4)}, "low above high"),
+        ({"e_pa": 1e5, "interval_pa": (math.nan, None)}, r"interval_pa\[0\] = nan"),
+        ({"e_pa": 1e5, "interval_pa": (None, -3.0)}, r"interval_pa\[1\] = -3.0"),
+        ({"e_pa": 1e5, "interval_pa": (1e6, None)}, "outside its interval"),
+        ({"e_pa": 1e5, "interval_pa": (1e3,)}, "expected \\(low or None, high or None\\)"),
+        ({"e_pa": 1e5, "t_s": math.nan}, "t_s = nan"),
+    ],
+)
+def test_bad_estimates_are_refused_naming_the_field(kwargs, message):
+    with pytest.raises(MappingError, match=message):
+        EstimateUpdate(**kwargs)
+
+
+def test_insufficient_data_needs_no_modulus():
+    assert EstimateUpdate(None, state="insufficient_data").value_pa is None
+    assert EstimateUpdate(1e5, state="insufficient_data").value_pa is None
+
+
+def test_a_bound_may_come_from_the_interval_alone():
+    lower = EstimateUpdate(None, (2e9, None), "lower_bound")
+    assert lower.value_pa == 2e9 and map_estimate(lower, **RANGE).rigid
+    upper = EstimateUpdate(None, (None, 5e4), "upper_bound")
+    explicit = EstimateUpdate(5e4, (None, 5e4), "upper_bound")
+    assert map_estimate(upper, **RANGE) == map_estimate(explicit, **RANGE)
+    with pytest.raises(MappingError, match="a bound may come from interval_pa"):
+        EstimateUpdate(None, (None, 5e4), "lower_bound")
+
+
+def test_from_mapping_reads_the_bus_keys_and_ignores_others():
+    update = EstimateUpdate.from_mapping({
+        "E_pa": 2e5, "interval_pa": [1e5, 4e5], "state": "ok", "reason": "", "provisional": True,
+        "grasp_id": "g-7", "t_s": 12.5, "latency": 0.02, "method": "hybrid",
+    })
+    assert update == EstimateUpdate(2e5, (1e5, 4e5), "ok", "", True, "g-7", 12.5)
+    with pytest.raises(MappingError, match="lacks state, t_s"):
+        EstimateUpdate.from_mapping({"E_pa": 2e5, "grasp_id": "g"})
+
+
+# --------------------------------------------------------------------------- smoothing, fade, stale
+
+
+def test_smoothing_weight_is_a_first_order_lag():
+    assert smoothing_weight(0.0, smoothing_s=0.1) == 0.0
+    assert smoothing_weight(0.1, smoothing_s=0.1) == pytest.approx(1 - math.exp(-1))
+    assert smoothing_weight(0.0, smoothing_s=0.0) == 1.0
+    with pytest.raises(MappingError, match="dt_s = -0.1"):
+        smoothing_weight(-0.1, smoothing_s=0.1)
+
+
+percepts = st.builds(
+    Percept,
+    stiffness=st.floats(0, 1),
+    uncertainty_decades=st.floats(0, 20),
+    rigid=st.booleans(),
+    provisional=st.booleans(),
+)
+durations = st.floats(0, 1e6, allow_nan=False)
+
+
+@given(percepts, percepts, durations, st.floats(0, 10))
+def test_smoothing_stays_between_previous_and_target(previous, target, dt_s, smoothing_s):
+    out = smooth(previous, target, dt_s=dt_s, smoothing_s=smoothing_s)
+    for name in ("stiffness", "uncertainty_decades"):
+        lo, hi = sorted((getattr(previous, name), getattr(target, name)))
+        value = getattr(out, name)
+        assert not math.isnan(value)
+        assert lo - 1e-12 <= value <= hi + 1e-12
+    flags = ("rigid", "unknown", "provisional")
+    assert [getattr(out, f) for f in flags] == [getattr(target, f) for f in flags]
+
+
+@given(percepts, percepts, st.floats(0, 1), st.floats(0, 1), st.floats(0.01, 10))
+def test_smoothing_in_two_steps_equals_one_step(previous, target, dt1, dt2, smoothing_s):
+    two = smooth(smooth(previous, target, dt_s=dt1, smoothing_s=smoothing_s), target,
+                 dt_s=dt2, smoothing_s=smoothing_s)
+    one = smooth(previous, target, dt_s=dt1 + dt2, smoothing_s=smoothing_s)
+    assert two.stiffness == pytest.approx(one.stiffness, abs=1e-9)
+
+
+def test_fade_is_linear_to_free():
+    assert fade_gain(0.0, fade_s=0.3) == 1.0
+    assert fade_gain(0.15, fade_s=0.3) == pytest.approx(0.5)
+    assert fade_gain(0.3, fade_s=0.3) == 0.0
+    assert fade_gain(5.0, fade_s=0.3) == 0.0
+    assert fade_gain(0.0, fade_s=0.0) == 0.0
+    held = Percept(stiffness=0.8, uncertainty_decades=1.0, rigid=True)
+    half = fade(held, gain=0.5)
+    assert half.stiffness == pytest.approx(0.4) and not half.rigid
+    with pytest.raises(MappingError, match="gain"):
+        fade(held, gain=1.5)
+
+
+@given(durations, durations, st.floats(0, 10))
+def test_fade_gain_never_grows(t1, t2, fade_s):
+    early, late = sorted((t1, t2))
+    assert 0.0 <= fade_gain(late, fade_s=fade_s) <= fade_gain(early, fade_s=fade_s) <= 1.0
+
+
+def test_staleness_starts_at_stale_after_s():
+    assert not is_stale(10.0, 10.99, stale_after_s=1.0)
+    assert is_stale(10.0, 11.0, stale_after_s=1.0)
+    with pytest.raises(MappingError, match="before the last update"):
+        is_stale(10.0, 9.0, stale_after_s=1.0)
+
+
+# --------------------------------------------------------------------------- quantisation
+
+
+def test_to_command_quantises_level_and_uncertainty():
+    command = to_command(Percept(stiffness=0.5, uncertainty_decades=2.0), level_max=4095,
+                         stale=True, fading=True)
+    assert command.level == 2048 and command.uncertainty == 40
+    assert command.stale and command.fading
+    assert to_command(Percept(uncertainty_decades=50.0), level_max=1).uncertainty == 255
+    assert to_command(FREE, level_max=4095).level == 0
+
+
+@pytest.mark.parametrize("level_max", [0, 65536, 2.5, True])
+def test_to_command_refuses_a_bad_level_max(level_max):
+    with pytest.raises(MappingError, match="level_max"):
+        to_command(FREE, level_max=level_max)
+
+
+def test_to_command_refuses_a_nan_percept():
+    with pytest.raises(MappingError, match="stiffness = nan"):
+        to_command(Percept(stiffness=math.nan), level_max=10)
+
+
+updates = st.one_of(
+    st.builds(EstimateUpdate, e_pa=st.none(), state=st.just("insufficient_data")),
+    st.builds(lambda e, state: EstimateUpdate(e, (None, None), state), moduli,
+              st.sampled_from(ESTIMATE_STATES[:3])),
+    st.builds(lambda a, b, c: EstimateUpdate(sorted((a, b, c))[1], (min(a, b, c), max(a, b, c))),
+              moduli, moduli, moduli),
+)
+
+
+@given(updates, st.integers(1, 0xFFFF), st.floats(1e-3, 1e6), st.floats(1.001, 1e9))
+def test_any_estimate_gives_a_valid_command(update, level_max, e_soft_pa, ratio):
+    assume(math.isfinite(e_soft_pa * ratio))
+    percept = map_estimate(update, e_soft_pa=e_soft_pa, e_rigid_pa=e_soft_pa * ratio)
+    assert 0.0 <= percept.stiffness <= 1.0
+    assert 0.0 <= percept.uncertainty_decades <= math.log10(ratio) + 1e-9
+    command = to_command(percept, level_max=level_max)
+    assert 0 <= command.level <= level_max
+    assert not (command.rigid and command.unknown)
+    assert command.unknown == (update.state == "insufficient_data")

@@ -1,0 +1,325 @@
+"""The HID protocol: golden vectors byte for byte, decoder error paths, round trips."""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from haptics.errors import ProtocolError
+from haptics.protocol import (
+    DEVICE_STATES,
+    FAULT_BITS,
+    FEATURE_LAYOUT,
+    INPUT_LAYOUT,
+    LAYOUTS,
+    OUTPUT_LAYOUT,
+    REPORT_DESCRIPTOR,
+    DeviceStatus,
+    DisplayInfo,
+    StiffnessCommand,
+    crc8,
+    decode_feature_report,
+    decode_input_report,
+    decode_output_report,
+    encode_feature_report,
+    encode_input_report,
+    encode_output_report,
+    layout_markdown,
+)
+
+PROTOCOL_MD = Path(__file__).resolve().parents[2] / "haptics" / "PROTOCOL.md"
+
+
+def reference_crc8(data: bytes) -> int:
+    """Bit by bit, straight from the definition (poly 0x07, init 0, no reflection)."""
+    crc = 0
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc
+
+
+def with_crc(body: bytes) -> bytes:
+    return body + bytes([reference_crc8(body)])
+
+
+# --------------------------------------------------------------------------- CRC
+
+
+def test_crc8_catalogue_check_value():
+    assert crc8(b"123456789") == 0xF4
+    assert crc8(b"") == 0
+
+
+@given(st.binary(max_size=64))
+def test_crc8_matches_the_bitwise_definition(data):
+    assert crc8(data) == reference_crc8(data)
+
+
+# --------------------------------------------------------------------------- golden vectors
+
+OUTPUT_GOLDEN = [
+    (StiffnessCommand(level=0), 0, "01 11 00 00 00 00 00 68"),
+    (StiffnessCommand(level=0x1234, uncertainty=42, rigid=True, stale=True), 7,
+     "01 11 05 34 12 2a 07 39"),
+    (StiffnessCommand(level=0, uncertainty=106, unknown=True), 0, "01 11 02 00 00 6a 00 db"),
+    (StiffnessCommand(level=0xFFFF, uncertainty=255, rigid=True, stale=True, fading=True,
+                      provisional=True), 255, "01 11 1d ff ff ff ff 70"),
+    (StiffnessCommand(level=1, fading=True), 128, "01 11 08 01 00 00 80 ee"),
+]
+
+
+@pytest.mark.parametrize(("command", "sequence", "expected"), OUTPUT_GOLDEN)
+def test_output_report_golden_vectors(command, sequence, expected):
+    assert encode_output_report(command, sequence=sequence) == bytes.fromhex(expected)
+    assert decode_output_report(bytes.fromhex(expected)) == (command, sequence)
+
+
+def test_golden_crcs_are_the_reference_crcs():
+    for *_, expected in OUTPUT_GOLDEN:
+        report = bytes.fromhex(expected)
+        assert report[-1] == reference_crc8(report[:-1])
+
+
+FEATURE_GOLDEN = (
+    DisplayInfo(level_max=4095, firmware_version=(1, 0), watchdog_ms=1000,
+                min_stiffness_n_per_m=0, max_stiffness_n_per_m=5000),
+    "02 01 01 00 ff 0f e8 03 00 00 00 00 88 13 00 00 03",
+)
+INPUT_GOLDEN = (DeviceStatus("rendering", 1238, frozenset(), 7), "03 01 d6 04 00 07 1e")
+
+
+def test_feature_report_golden_vector():
+    info, expected = FEATURE_GOLDEN
+    assert encode_feature_report(info) == bytes.fromhex(expected)
+    assert decode_feature_report(bytes.fromhex(expected)) == info
+
+
+def test_input_report_golden_vectors():
+    status, expected = INPUT_GOLDEN
+    assert encode_input_report(status) == bytes.fromhex(expected)
+    assert decode_input_report(bytes.fromhex(expected)) == status
+    faulted = DeviceStatus("fault", 0, frozenset({"over_current", "bad_report"}), 0x2A)
+    expected = with_crc(bytes.fromhex("03 02 00 00 12 2a"))
+    assert encode_input_report(faulted) == expected
+    assert decode_input_report(expected) == faulted
+
+
+def test_report_descriptor_golden_bytes():
+    expected = bytes.fromhex(
+        "06 00 ff 09 01 a1 01 15 00 26 ff 00 75 08"
+        " 85 01 09 02 95 07 91 02"
+        " 85 02 09 03 95 10 b1 02"
+        " 85 03 09 04 95 06 81 02"
+        " c0"
+    )
+    assert expected == REPORT_DESCRIPTOR
+
+
+def parse_report_lengths(descriptor: bytes) -> dict[tuple[str, int], int]:
+    """Bytes per (main item, report ID) from HID short items, per the HID 1.11 spec."""
+    mains = {0x80: "input", 0x90: "output", 0xB0: "feature"}
+    size_bits = count = report_id = 0
+    lengths: dict[tuple[str, int], int] = {}
+    i = 0
+    while i < len(descriptor):
+        prefix = descriptor[i]
+        n = (0, 1, 2, 4)[prefix & 0x03]
+        value = int.from_bytes(descriptor[i + 1:i + 1 + n], "little")
+        tag = prefix & 0xFC
+        if tag == 0x74:
+            size_bits = value
+        elif tag == 0x94:
+            count = value
+        elif tag == 0x84:
+            report_id = value
+        elif tag in mains:
+            key = (mains[tag], report_id)
+            lengths[key] = lengths.get(key, 0) + size_bits * count // 8
+        i += 1 + n
+    return lengths
+
+
+def test_descriptor_declares_the_encoders_report_lengths():
+    declared = parse_report_lengths(REPORT_DESCRIPTOR)
+    assert declared == {(layout.kind, layout.report_id): layout.size - 1 for layout in LAYOUTS}
+    assert REPORT_DESCRIPTOR[:3] == bytes([0x06, 0x00, 0xFF])  # vendor-defined usage page
+
+
+def test_protocol_document_matches_the_code():
+    text = PROTOCOL_MD.read_text(encoding="utf-8")
+    for layout in LAYOUTS:
+        assert layout_markdown(layout) in text, f"PROTOCOL.md is out of date for {layout.name}"
+    assert REPORT_DESCRIPTOR.hex(" ") in text
+    for _, _, expected in OUTPUT_GOLDEN[1:2]:
+        assert expected in text
+
+
+def test_layout_offsets_are_contiguous():
+    for layout in LAYOUTS:
+        rows = layout.offsets()
+        assert rows[0][0] == 0 and rows[0][2].name == "report_id"
+        assert rows[-1][2].name == "crc" and rows[-1][0] == layout.size - 1
+        assert all(a + s == b for (a, s, _), (b, _, _) in zip(rows, rows[1:], strict=False))
+
+
+# --------------------------------------------------------------------------- decoder errors
+
+GOOD_OUTPUT = bytes.fromhex("01 11 05 34 12 2a 07 39")
+
+
+@pytest.mark.parametrize(
+    ("data", "field"),
+    [
+        (GOOD_OUTPUT[:7], "report length is 7 bytes, expected 8"),
+        (GOOD_OUTPUT + b"\x00", "report length is 9 bytes"),
+        (b"", "report length is 0"),
+        (with_crc(bytes.fromhex("03 11 05 34 12 2a 07")), "report_id = 0x03, expected 0x01"),
+        (GOOD_OUTPUT[:-1] + b"\x38", "crc = 0x38, expected 0x39"),
+        (bytes.fromhex("01 11 05 35 12 2a 07 39"), "crc"),
+        (with_crc(bytes.fromhex("01 11 25 34 12 2a 07")), "flags = 0b00100101 sets reserved"),
+        (with_crc(bytes.fromhex("01 11 85 34 12 2a 07")), "reserved bits 0b10000000"),
+        (with_crc(bytes.fromhex("01 21 05 34 12 2a 07")), "protocol version 2, expected 1"),
+        (with_crc(bytes.fromhex("01 12 05 34 12 2a 07")), "names command 2"),
+        (with_crc(bytes.fromhex("01 11 03 34 12 2a 07")), "rigid and unknown are both set"),
+    ],
+)
+def test_output_decoder_names_the_bad_field(data, field):
+    with pytest.raises(ProtocolError, match=field):
+        decode_output_report(data)
+
+
+@pytest.mark.parametrize(
+    ("data", "field"),
+    [
+        (bytes.fromhex(INPUT_GOLDEN[1])[:-2], "report length is 5 bytes, expected 7"),
+        (with_crc(bytes.fromhex("03 04 d6 04 00 07")), "state = 4"),
+        (with_crc(bytes.fromhex("03 01 d6 04 20 07")), "faults = 0b00100000 sets reserved"),
+        (with_crc(bytes.fromhex("01 01 d6 04 00 07")), "report_id = 0x01, expected 0x03"),
+        (bytes.fromhex("03 01 d6 04 00 07 1f"), "crc = 0x1F, expected 0x1E"),
+    ],
+)
+def test_input_decoder_names_the_bad_field(data, field):
+    with pytest.raises(ProtocolError, match=field):
+        decode_input_report(data)
+
+
+@pytest.mark.parametrize(
+    ("body", "field"),
+    [
+        ("02 02 01 00 ff 0f e8 03 00 00 00 00 88 13 00 00", "protocol_version = 2"),
+        ("02 01 01 00 00 00 e8 03 00 00 00 00 88 13 00 00", "level_max = 0"),
+        ("02 01 01 00 ff 0f e8 03 88 13 00 00 10 00 00 00", "max_stiffness_n_per_m = 16: below"),
+    ],
+)
+def test_feature_decoder_names_the_bad_field(body, field):
+    with pytest.raises(ProtocolError, match=field):
+        decode_feature_report(with_crc(bytes.fromhex(body)))
+
+
+def test_decoders_refuse_non_bytes():
+    with pytest.raises(ProtocolError, match="expected bytes, got list"):
+        decode_output_report(list(GOOD_OUTPUT))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"level": 0x10000}, "level = 65536"),
+        ({"level": -1}, "level = -1"),
+        ({"level": 1.0}, "level = 1.0"),
+        ({"level": True}, "level = True"),
+        ({"level": 1, "uncertainty": 256}, "uncertainty = 256"),
+        ({"level": 1, "stale": 1}, "stale = 1: expected True or False"),
+        ({"level": 1, "rigid": True, "unknown": True}, "rigid and unknown"),
+    ],
+)
+def test_commands_are_checked_on_construction(kwargs, field):
+    with pytest.raises(ProtocolError, match=field):
+        StiffnessCommand(**kwargs)
+
+
+@pytest.mark.parametrize("sequence", [-1, 256, 1.5])
+def test_encoder_refuses_a_bad_sequence(sequence):
+    with pytest.raises(ProtocolError, match="sequence"):
+        encode_output_report(StiffnessCommand(level=1), sequence=sequence)
+
+
+def test_status_fields_are_checked():
+    with pytest.raises(ProtocolError, match="state = 'asleep'"):
+        DeviceStatus("asleep", 0)
+    with pytest.raises(ProtocolError, match="faults names \\['smoke'\\]"):
+        DeviceStatus("fault", 0, frozenset({"smoke"}))
+
+
+# --------------------------------------------------------------------------- round trips
+
+commands = st.builds(
+    StiffnessCommand,
+    level=st.integers(0, 0xFFFF),
+    uncertainty=st.integers(0, 255),
+    rigid=st.booleans(),
+    unknown=st.just(False),
+    stale=st.booleans(),
+    fading=st.booleans(),
+    provisional=st.booleans(),
+) | st.builds(StiffnessCommand, level=st.integers(0, 0xFFFF), uncertainty=st.integers(0, 255),
+              unknown=st.just(True), stale=st.booleans(), fading=st.booleans())
+
+
+@given(commands, st.integers(0, 255))
+def test_output_round_trip(command, sequence):
+    report = encode_output_report(command, sequence=sequence)
+    assert len(report) == OUTPUT_LAYOUT.size
+    assert decode_output_report(report) == (command, sequence)
+
+
+@given(commands, st.integers(0, 255), st.integers(0, 8 * OUTPUT_LAYOUT.size - 1))
+def test_every_single_bit_error_is_caught(command, sequence, bit):
+    report = bytearray(encode_output_report(command, sequence=sequence))
+    report[bit // 8] ^= 1 << (bit % 8)
+    with pytest.raises(ProtocolError):
+        decode_output_report(bytes(report))
+
+
+@given(
+    st.builds(
+        DisplayInfo,
+        level_max=st.integers(1, 0xFFFF),
+        firmware_version=st.tuples(st.integers(0, 255), st.integers(0, 255)),
+        watchdog_ms=st.integers(0, 0xFFFF),
+        min_stiffness_n_per_m=st.integers(0, 1000),
+        max_stiffness_n_per_m=st.integers(1000, 2**32 - 1),
+    )
+)
+def test_feature_round_trip(info):
+    report = encode_feature_report(info)
+    assert len(report) == FEATURE_LAYOUT.size
+    assert decode_feature_report(report) == info
+
+
+@given(
+    st.builds(
+        DeviceStatus,
+        state=st.sampled_from(DEVICE_STATES),
+        level=st.integers(0, 0xFFFF),
+        faults=st.frozensets(st.sampled_from(sorted(FAULT_BITS))),
+        sequence=st.integers(0, 255),
+    )
+)
+def test_input_round_trip(status):
+    report = encode_input_report(status)
+    assert len(report) == INPUT_LAYOUT.size
+    assert decode_input_report(report) == status
+
+
+@given(st.binary(min_size=0, max_size=24))
+def test_random_bytes_decode_or_raise_protocol_error(data):
+    for decode in (decode_output_report, decode_feature_report, decode_input_report):
+        with contextlib.suppress(ProtocolError):
+            decode(data)

@@ -1,0 +1,197 @@
+"""Publisher and Subscriber over real ZeroMQ sockets on loopback (tcp and inproc)."""
+
+from __future__ import annotations
+
+import itertools
+import time
+
+import msgpack
+import numpy as np
+import pytest
+import zmq
+
+from teleop.bus import Heartbeat, Publisher, Subscriber
+from teleop.bus.wire import encode, make_message
+from teleop.errors import BusError, BusTimeoutError
+
+_names = itertools.count()
+
+
+@pytest.fixture(params=["tcp", "inproc"])
+def endpoint(request) -> str:
+    return "tcp://127.0.0.1:*" if request.param == "tcp" else f"inproc://bus-test-{next(_names)}"
+
+
+def _drain(sub: Subscriber, timeout_s: float = 0.3) -> list:
+    got = []
+    while (message := sub.recv(timeout_s=timeout_s)) is not None:
+        got.append(message)
+    return got
+
+
+def test_lossless_burst_arrives_complete_and_in_order(endpoint):
+    with Publisher(endpoint, lossless=True, source="robot") as pub, Subscriber(pub.endpoint, ["force"]) as sub:
+        pub.wait_for_subscriber("force", timeout_s=2.0)
+        for i in range(2000):
+            pub.send("force", t_capture_s=float(i), t_s=[float(i)], value_n=[i * 0.5])
+        got = _drain(sub)
+    assert [m.seq for m in got] == list(range(2000))
+    assert np.array_equal([m.body["value_n"][0] for m in got], np.arange(2000) * 0.5)
+    assert sub.stats.gaps == 0 and sub.stats.missed == 0 and not sub.stats.refused
+
+
+def test_arrays_arrive_intact_through_zmq():
+    image = np.random.default_rng(3).integers(0, 65535, (120, 160, 3), dtype=np.uint16)
+    with Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as pub, Subscriber(pub.endpoint, ["frame"]) as sub:
+        pub.wait_for_subscriber("frame/left")
+        pub.send("frame", t_capture_s=1.0, finger="left", index=0, encoding="raw", data=image)
+        got = sub.recv(timeout_s=2.0)
+    assert got.topic == "frame/left"
+    assert got.body["data"].dtype == np.uint16 and np.array_equal(got.body["data"], image)
+
+
+def test_lossless_send_blocks_then_times_out_instead_of_dropping():
+    image = np.zeros((300, 400, 3), dtype=np.uint8)  # large enough that kernel buffers fill too
+    with (
+        Publisher("tcp://127.0.0.1:*", lossless=True, source="robot", high_water_mark=5, send_timeout_s=0.1) as pub,
+        Subscriber(pub.endpoint, ["frame"], high_water_mark=5) as sub,
+    ):
+        pub.wait_for_subscriber("frame/left")
+        started = time.monotonic()
+        with pytest.raises(BusTimeoutError, match="no room"):
+            for i in range(1000):
+                pub.send("frame", t_capture_s=float(i), finger="left", index=i, encoding="raw", data=image)
+        assert time.monotonic() - started >= 0.1
+        sent = pub.sent
+        assert sent < 1000
+        got = _drain(sub)
+        # every message the publisher accepted arrived; the refused one was never numbered
+        assert [m.seq for m in got] == list(range(sent))
+        pub.send("frame", t_capture_s=0.0, finger="left", index=sent, encoding="raw", data=image)
+        assert sub.recv(timeout_s=1.0).seq == sent
+    assert sub.stats.gaps == 0
+
+
+def test_subscriber_detects_and_reports_gaps():
+    # A latest-value publisher drops silently when queues are full; the sequence shows it.
+    with (
+        Publisher("tcp://127.0.0.1:*", lossless=False, source="robot", high_water_mark=4) as pub,
+        Subscriber(pub.endpoint, ["force"], high_water_mark=4) as sub,
+    ):
+        pub.wait_for_subscriber("force")
+        for i in range(500):
+            pub.send("force", t_capture_s=float(i), t_s=[float(i)], value_n=[1.0])
+        got = _drain(sub, 0.2)
+        pub.send("force", t_capture_s=500.0, t_s=[500.0], value_n=[1.0])
+        got += _drain(sub, 0.5)
+    assert 0 < len(got) < 501
+    assert got[-1].seq == 500
+    assert sub.stats.gaps >= 1
+    assert sub.stats.missed == 501 - len(got)
+
+
+def test_conflated_subscriber_yields_the_latest_per_topic(endpoint):
+    with (
+        Publisher(endpoint, lossless=False, source="estimator") as pub,
+        Subscriber(pub.endpoint, ["estimate", "grasp_event"], conflate=True) as sub,
+    ):
+        pub.wait_for_subscriber("estimate")
+        for i in range(50):
+            pub.send(
+                "estimate", t_capture_s=float(i), grasp_id="g", method="split", E_pa=1e5 + i,
+                interval_pa=[None, None], state="ok", reason="", provisional=True, latency_s=0.0,
+            )
+        pub.send("grasp_event", t_capture_s=50.0, event="end", grasp_id="g")
+        time.sleep(0.2)  # let everything arrive before the subscriber looks
+        first = sub.recv(timeout_s=1.0)
+        second = sub.recv(timeout_s=1.0)
+        assert sub.recv(timeout_s=0.1) is None
+    assert first.type == "estimate" and first.body["E_pa"] == 1e5 + 49 and first.seq == 49
+    assert second.type == "grasp_event"
+    assert sub.stats.received == 51  # all were read off the socket, two handed out
+
+
+def test_receiver_logs_refusals_and_carries_on(caplog):
+    context = zmq.Context.instance()
+    raw = context.socket(zmq.PUB)
+    raw.setsockopt(zmq.LINGER, 0)
+    port = raw.bind_to_random_port("tcp://127.0.0.1")
+    good = [bytes(f) for f in encode(make_message("heartbeat", t_capture_s=0.0, interval_s=0.5))]
+    force = [bytes(f) for f in encode(make_message("force", t_capture_s=0.0, t_s=[0.0, 1.0], value_n=[1.0, 2.0]))]
+    header = msgpack.unpackb(force[1])
+    bad = {
+        "unknown_version": [force[0], msgpack.packb({**header, "v": 9}), *force[2:]],
+        "unknown_type": [b"force", msgpack.packb({**header, "type": "sneeze"}), *force[2:]],
+        "corrupt": [force[0], b"\xc1\xc1", *force[2:]],
+        "bad_buffer": [*force[:4], force[4][:5]],
+        "not_finite": [*force[:4], np.array([1.0, np.nan]).tobytes()],
+        # each frame under max_bytes (ZeroMQ would drop the connection otherwise), together over
+        "oversize": [*force[:3], force[3] + b"\x00" * 1000, force[4] + b"\x00" * 1000],
+    }
+    try:
+        with Subscriber(f"tcp://127.0.0.1:{port}", ["force"], max_bytes=2048) as sub:
+            time.sleep(0.2)  # slow joiner: let the subscription reach the raw socket
+            for frames in bad.values():
+                raw.send_multipart(frames)
+            raw.send_multipart(force)
+            got = sub.recv(timeout_s=2.0)
+            raw.send_multipart(good)
+            assert sub.recv(timeout_s=0.3) is None  # heartbeats are consumed, not returned
+    finally:
+        raw.close()
+    assert got is not None and np.array_equal(got.body["value_n"], [1.0, 2.0])
+    assert dict(sub.stats.refused) == dict.fromkeys(bad, 1)
+    assert sum("refused a message" in r.message for r in caplog.records) == len(bad)
+
+
+def test_heartbeats_detect_a_dead_peer(endpoint):
+    pub = Publisher(endpoint, lossless=False, source="robot", heartbeat_s=0.05)
+    with Subscriber(pub.endpoint, ["estimate"]) as sub:
+        deadline = time.monotonic() + 0.4
+        while time.monotonic() < deadline:
+            pub.heartbeat_if_due()
+            sub.recv(timeout_s=0.01)
+        assert sub.heartbeat.is_alive("robot")
+        assert sub.heartbeat.peers() == ["robot"]
+        pub.close()  # the peer dies
+        deadline = time.monotonic() + 0.3
+        while time.monotonic() < deadline:
+            sub.recv(timeout_s=0.02)
+        assert not sub.heartbeat.is_alive("robot")  # three periods passed without a word
+
+
+def test_heartbeat_bookkeeping_on_an_injected_clock():
+    now = [100.0]
+    beat = Heartbeat(clock=lambda: now[0])
+    assert not beat.is_alive("estimator", timeout_s=1.0)
+    beat.saw("estimator", interval_s=0.5)
+    now[0] += 1.4
+    assert beat.is_alive("estimator")
+    now[0] += 0.2
+    assert not beat.is_alive("estimator")
+    assert beat.is_alive("estimator", timeout_s=2.0)
+    beat.saw("display")
+    with pytest.raises(BusError, match="timeout_s"):
+        beat.is_alive("display")
+    assert beat.last_seen_s("display") == now[0]
+
+
+def test_heartbeat_is_sent_only_when_due():
+    with Publisher("inproc://heartbeat-due", lossless=False, heartbeat_s=0.5) as pub:
+        assert pub.heartbeat_if_due(now_s=10.0)
+        assert not pub.heartbeat_if_due(now_s=10.4)
+        assert pub.heartbeat_if_due(now_s=10.5)
+        assert pub.sent == 2
+
+
+def test_errors_name_the_endpoint():
+    with pytest.raises(BusError, match="nowhere"):
+        Publisher("nowhere://x", lossless=True)
+    with Publisher("tcp://127.0.0.1:*", lossless=True) as pub, pytest.raises(BusTimeoutError, match="no subscriber"):
+        pub.wait_for_subscriber("force", timeout_s=0.05)
+    with pytest.raises(BusError, match="closed"):
+        pub.send("heartbeat", t_capture_s=0.0, interval_s=1.0)
+    sub = Subscriber("tcp://127.0.0.1:1", ["force"])
+    sub.close()
+    with pytest.raises(BusError, match="closed"):
+        sub.recv(timeout_s=0.0)

@@ -1,0 +1,307 @@
+"""The wire format: round trips, zero-copy arrays, every refusal reason, fuzzing."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+
+import cv2
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from teleop.bus.wire import (
+    MAX_BODY_BYTES,
+    MAX_HEADER_BYTES,
+    REJECT_REASONS,
+    SCHEMAS,
+    Message,
+    decode,
+    encode,
+    make_message,
+)
+from teleop.errors import BusError, MessageRejected
+
+MAX = 16 * 1024 * 1024
+
+
+def _jpeg() -> bytes:
+    image = np.random.default_rng(0).integers(0, 255, (24, 32, 3), dtype=np.uint8)
+    return cv2.imencode(".jpg", image)[1].tobytes()
+
+
+def _examples() -> dict[str, Message]:
+    """One valid message of every type (arrays of several dtypes among them)."""
+    rng = np.random.default_rng(1)
+    return {
+        "frame_jpeg": make_message("frame", t_capture_s=1.5, finger="left", grasp_id="g1", index=7, encoding="jpeg", data=_jpeg()),
+        "frame_raw_u8": make_message(
+            "frame", t_capture_s=1.5, finger="right", index=0, encoding="raw",
+            data=rng.integers(0, 255, (30, 40, 3), dtype=np.uint8),
+        ),
+        "frame_raw_u16": make_message(
+            "frame", t_capture_s=1.5, finger="right", index=1, encoding="raw",
+            data=rng.integers(0, 65535, (30, 40, 3), dtype=np.uint16),
+        ),
+        "force_f8": make_message("force", t_capture_s=2.0, grasp_id="g1", t_s=np.linspace(1.9, 2.0, 9), value_n=rng.normal(size=9)),
+        "force_f4": make_message(
+            "force", t_capture_s=2.0, t_s=np.linspace(1.9, 2.0, 9), value_n=rng.normal(size=9).astype(np.float32)
+        ),
+        "force_big_endian": make_message(
+            "force", t_capture_s=2.0, t_s=np.linspace(1.9, 2.0, 4).astype(">f8"), value_n=np.ones(4, dtype=">f8")
+        ),
+        "width": make_message("width", t_capture_s=2.0, grasp_id="g1", t_s=[1.95], value_m=[0.031]),
+        "grasp_start": make_message("grasp_event", t_capture_s=0.5, event="start", grasp_id="g1", object_name="sponge"),
+        "grasp_end": make_message("grasp_event", t_capture_s=3.5, event="end", grasp_id="g1"),
+        "estimate_ok": make_message(
+            "estimate", t_capture_s=2.1, grasp_id="g1", method="split", E_pa=2.5e5, interval_pa=[1e5, 6e5],
+            state="ok", reason="", provisional=True, latency_s=0.012,
+        ),
+        "estimate_bound": make_message(
+            "estimate", t_capture_s=2.1, grasp_id="g1", method="split", E_pa=3e9, interval_pa=[3e9, None],
+            state="lower_bound", reason="depth below resolution", provisional=False, latency_s=0.02,
+        ),
+        "estimate_none": make_message(
+            "estimate", t_capture_s=2.1, grasp_id="g1", method="hertz", E_pa=None, interval_pa=[None, None],
+            state="insufficient_data", reason="no contact", provisional=False, latency_s=0.0,
+        ),
+        "command": make_message("command", t_capture_s=0.0, action="start_grasp", grasp_id="g2", params={"target_force_n": 20, "hold_s": 0.5}),
+        "heartbeat": make_message("heartbeat", t_capture_s=10.0, interval_s=0.5),
+    }
+
+
+EXAMPLES = _examples()
+
+
+def _stamp(message: Message) -> Message:
+    return Message(
+        type=message.type, body=message.body, t_capture_s=message.t_capture_s, topic=message.topic,
+        source="robot", seq=41, t_send_ns=123_456_789,
+    )
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, np.ndarray):
+        return isinstance(b, np.ndarray) and a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b)
+    return a == b and type(a) is type(b)
+
+
+@pytest.mark.parametrize("name", sorted(EXAMPLES))
+def test_round_trip_keeps_every_field(name):
+    sent = _stamp(EXAMPLES[name])
+    frames = encode(sent)
+    got = decode([bytes(f) for f in frames], max_bytes=MAX)
+    assert (got.type, got.topic, got.source, got.seq, got.t_send_ns) == (sent.type, sent.topic, "robot", 41, 123_456_789)
+    assert got.t_capture_s == sent.t_capture_s
+    assert set(got.body) == set(sent.body)
+    for key, value in sent.body.items():
+        assert _same(value, got.body[key]), key
+
+
+def test_every_type_has_an_example():
+    assert {m.type for m in EXAMPLES.values()} == set(SCHEMAS)
+
+
+@pytest.mark.parametrize("name", ["frame_raw_u8", "frame_raw_u16", "force_f4", "force_f8", "force_big_endian"])
+def test_arrays_are_neither_copied_on_encode_nor_on_decode(name):
+    message = EXAMPLES[name]
+    arrays = {k: v for k, v in message.body.items() if isinstance(v, np.ndarray)}
+    frames = encode(message)
+    buffers = frames[3:]
+    assert len(buffers) == len(arrays)
+    for buffer, array in zip(buffers, arrays.values(), strict=True):
+        assert isinstance(buffer, memoryview)
+        assert np.shares_memory(np.frombuffer(buffer, dtype=np.uint8), array)
+    received = [bytearray(f) for f in frames]  # one receive buffer per frame, as zmq hands them out
+    got = decode(received, max_bytes=MAX)
+    for index, key in enumerate(arrays):
+        view = got.body[key]
+        assert np.shares_memory(view, np.frombuffer(received[3 + index], dtype=np.uint8))
+        assert not view.flags.writeable  # a receiver cannot scribble on a shared buffer
+
+
+def test_topics_name_the_type_and_the_finger():
+    assert EXAMPLES["frame_jpeg"].topic == "frame/left"
+    assert EXAMPLES["estimate_ok"].topic == "estimate"
+
+
+def test_scalars_become_one_sample_arrays_and_bytes_uint8():
+    m = make_message("force", t_capture_s=1.0, t_s=1.0, value_n=2.5)
+    assert m.body["t_s"].dtype == np.float64 and m.body["t_s"].shape == (1,)
+    frame = EXAMPLES["frame_jpeg"].body["data"]
+    assert frame.dtype == np.uint8 and frame.ndim == 1
+
+
+# --------------------------------------------------------------------------- refusals
+
+
+def _frames(name: str = "force_f8") -> list[bytes]:
+    return [bytes(f) for f in encode(_stamp(EXAMPLES[name]))]
+
+
+def _with_header(frames: list[bytes], **changes) -> list[bytes]:
+    header = msgpack.unpackb(frames[1])
+    header.update(changes)
+    return [frames[0], msgpack.packb(header), *frames[2:]]
+
+
+def _with_body(frames: list[bytes], drop: str | None = None, **changes) -> list[bytes]:
+    body = msgpack.unpackb(frames[2])
+    body.update(changes)
+    if drop:
+        del body[drop]
+    return [frames[0], frames[1], msgpack.packb(body), *frames[3:]]
+
+
+def _refused(frames, *, max_bytes: int = MAX) -> str:
+    with pytest.raises(MessageRejected) as info:
+        decode(frames, max_bytes=max_bytes)
+    assert info.value.reason in REJECT_REASONS
+    return info.value.reason
+
+
+def test_unknown_version():
+    assert _refused(_with_header(_frames(), v=2)) == "unknown_version"
+    assert _refused(_with_header(_frames(), v=1.0)) == "unknown_version"
+
+
+def test_unknown_type():
+    assert _refused(_with_header(_frames(), type="teleport")) == "unknown_type"
+
+
+def test_oversize_is_checked_before_unpacking():
+    frames = _frames("frame_raw_u8")
+    assert _refused(frames, max_bytes=sum(len(f) for f in frames) - 1) == "oversize"
+    # a header or body over its own limit is refused without being unpacked, even if valid msgpack
+    assert _refused([frames[0], b"\x80" + b"\x00" * MAX_HEADER_BYTES, frames[2]]) == "oversize"
+    assert _refused([frames[0], frames[1], b"\x00" * (MAX_BODY_BYTES + 1)]) == "oversize"
+
+
+def test_corrupt_msgpack():
+    frames = _frames()
+    assert _refused([frames[0], b"\xc1garbage", *frames[2:]]) == "corrupt"
+    assert _refused([frames[0], frames[1], frames[2][:-3], *frames[3:]]) == "corrupt"
+    assert _refused([frames[0], msgpack.packb([1, 2, 3]), *frames[2:]]) == "corrupt"
+    assert _refused([b"\xff\xfe", *frames[1:]]) == "corrupt"
+
+
+def test_buffer_size_must_match_dtype_times_shape():
+    frames = _frames()
+    assert _refused([*frames[:3], frames[3][:-8], frames[4]]) == "bad_buffer"
+    assert _refused(_with_header(frames, buffers=[["t_s", "<f8", [9]], ["value_n", "<f8", [10]]])) == "bad_buffer"
+    assert _refused(_with_header(frames, buffers=[["t_s", "|O", [9]], ["value_n", "<f8", [9]]])) == "bad_buffer"
+    assert _refused(frames[:4]) == "bad_buffer"  # header lists two buffers, one came
+    assert _refused(_with_header(frames, buffers=[["t_s", "<f8", [9]], ["t_s", "<f8", [9]]])) == "bad_buffer"
+
+
+def test_nan_where_a_finite_number_is_required():
+    frames = _frames("estimate_ok")
+    assert _refused(_with_body(frames, E_pa=math.nan)) == "not_finite"
+    assert _refused(_with_body(frames, latency_s=math.inf)) == "not_finite"
+    assert _refused(_with_header(frames, t_capture_s=math.nan)) == "not_finite"
+    force = _frames()
+    poisoned = np.frombuffer(force[4], dtype="<f8").copy()
+    poisoned[3] = np.nan
+    assert _refused([*force[:4], poisoned.tobytes()]) == "not_finite"
+
+
+def test_missing_extra_and_mistyped_fields():
+    frames = _frames("estimate_ok")
+    assert _refused(_with_body(frames, drop="state")) == "missing_field"
+    assert _refused(_with_body(frames, colour="red")) == "extra_field"
+    assert _refused(_with_body(frames, state="great")) == "mistyped_field"
+    assert _refused(_with_body(frames, provisional=1)) == "mistyped_field"
+    assert _refused(_with_body(frames, E_pa=-5.0)) == "mistyped_field"
+    assert _refused(_with_body(frames, interval_pa=[5e5, 1e5])) == "mistyped_field"
+    assert _refused(_with_body(frames, E_pa="1e5")) == "mistyped_field"
+    assert _refused(_with_header(frames, seq=-1)) == "bad_header"
+    assert _refused(_with_header(frames, extra=1)) == "bad_header"
+
+
+def test_frame_count_and_topic():
+    frames = _frames()
+    assert _refused(frames[:2]) == "frame_count"
+    assert _refused([*frames, *([b"x"] * 8)]) == "frame_count"
+    assert _refused([b"width", *frames[1:]]) == "bad_header"
+
+
+def test_frame_data_must_be_what_its_encoding_says():
+    frames = _frames("frame_jpeg")
+    png_claim = _with_body(frames, encoding="png")
+    assert _refused(png_claim) == "mistyped_field"
+
+
+def test_estimate_states_are_consistent():
+    base = dict(grasp_id="g", method="split", interval_pa=[None, None], reason="", provisional=False, latency_s=0.0)
+    with pytest.raises(MessageRejected, match="no E_pa"):
+        make_message("estimate", t_capture_s=0.0, E_pa=None, state="ok", **base)
+    with pytest.raises(MessageRejected, match="carries an E_pa"):
+        make_message("estimate", t_capture_s=0.0, E_pa=1e5, state="insufficient_data", **base)
+
+
+def test_senders_cannot_emit_what_receivers_refuse():
+    with pytest.raises(MessageRejected) as info:
+        make_message("force", t_capture_s=0.0, t_s=[0.0, 1.0], value_n=[1.0, np.nan])
+    assert info.value.reason == "not_finite"
+    with pytest.raises(MessageRejected) as info:
+        make_message("force", t_capture_s=0.0, t_s=np.zeros(3, np.float32), value_n=np.zeros(3))
+    assert info.value.reason == "mistyped_field"  # float32 timestamps are refused, never cast
+    with pytest.raises(MessageRejected) as info:
+        make_message("width", t_capture_s=0.0, t_s=[0.0, 1.0], value_m=[1.0])
+    assert info.value.reason == "mistyped_field"
+    with pytest.raises(MessageRejected) as info:
+        encode(EXAMPLES["frame_raw_u8"], max_bytes=1000)
+    assert info.value.reason == "oversize"
+    with pytest.raises(MessageRejected):
+        make_message("nonsense", t_capture_s=0.0)
+    assert isinstance(info.value, BusError)
+
+
+# --------------------------------------------------------------------------- fuzzing
+
+FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@FUZZ
+@given(st.lists(st.binary(max_size=200), min_size=0, max_size=12))
+def test_decode_of_random_bytes_raises_only_bus_errors(frames):
+    with contextlib.suppress(BusError):
+        decode(frames, max_bytes=4096)
+
+
+_msgpack_values = st.recursive(
+    st.none() | st.booleans() | st.integers(-(2**63), 2**64 - 1) | st.floats() | st.text(max_size=20) | st.binary(max_size=20),
+    lambda inner: st.lists(inner, max_size=5) | st.dictionaries(st.text(max_size=12), inner, max_size=5),
+    max_leaves=20,
+)
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    st.sampled_from(sorted(EXAMPLES)),
+    st.dictionaries(st.sampled_from(["v", "type", "source", "seq", "t_capture_s", "t_send_ns", "buffers", "x"]), _msgpack_values),
+    st.dictionaries(st.text(max_size=12), _msgpack_values, max_size=10),
+    st.booleans(),
+)
+def test_decode_of_random_msgpack_fields_raises_only_bus_errors(name, header_changes, body, replace_body):
+    frames = _with_header(_frames(name), **header_changes)
+    if replace_body:
+        frames = [frames[0], frames[1], msgpack.packb(body), *frames[3:]]
+    with contextlib.suppress(BusError):
+        decode(frames, max_bytes=MAX)
+
+
+@FUZZ
+@given(st.sampled_from(sorted(EXAMPLES)), st.data())
+def test_decode_of_damaged_valid_messages_raises_only_bus_errors(name, data):
+    frames = [bytearray(f) for f in _frames(name)]
+    which = data.draw(st.integers(0, len(frames) - 1))
+    if frames[which]:
+        position = data.draw(st.integers(0, len(frames[which]) - 1))
+        frames[which][position] = data.draw(st.integers(0, 255))
+    cut = data.draw(st.integers(0, len(frames[which])))
+    frames[which] = frames[which][:cut] if data.draw(st.booleans()) else frames[which]
+    with contextlib.suppress(BusError):
+        decode(frames, max_bytes=MAX)

@@ -1,0 +1,171 @@
+"""One contract for every gripper backend: sim always, franky through franky-sim, real hand on request."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from teleop.devices.gripper import BACKENDS, Gripper, open_gripper
+from teleop.devices.playback import GraspPlayback, SimulatedGripper
+from teleop.errors import (
+    BackendNotFoundError,
+    DeviceError,
+    DeviceNotConnectedError,
+    InvalidCommandError,
+)
+from teleop.settings import GripperSettings
+
+SPEED = 0.05  # m/s, franky-sim's finger speed limit
+
+
+@pytest.fixture(params=["sim", "franky", pytest.param("hardware", marks=pytest.mark.hardware)])
+def gripper(request, hardware_env) -> Gripper:
+    if request.param == "sim":
+        settings = GripperSettings(backend="sim", width_read_hz=20.0)
+    elif request.param == "franky":
+        host = request.getfixturevalue("franky_sim_host")
+        settings = GripperSettings(backend="franky", host=host, width_read_hz=20.0)
+    else:
+        settings = GripperSettings(backend="franky", host=hardware_env("COMPLIANCE_TELEOP_FRANKY_HOST"), width_read_hz=10.0)
+    device = open_gripper(settings)
+    yield device
+    device.close()
+
+
+def test_unconnected_and_closed_grippers_refuse_every_call(gripper):
+    for call in (lambda: gripper.move(0.03), lambda: gripper.widths(), lambda: gripper.read_width(), lambda: gripper.max_width_m):
+        with pytest.raises(DeviceNotConnectedError, match="connect"):
+            call()
+    with gripper:
+        assert gripper.connected
+    assert not gripper.connected
+    with pytest.raises(DeviceNotConnectedError, match="closed"):
+        gripper.read_width()
+    gripper.close()  # closing twice is harmless
+
+
+def test_move_reaches_the_width_and_the_reader_timestamps_it(gripper):
+    with gripper:
+        start = gripper.read_width()[1]
+        target = start - 0.01 if start > 0.03 else start + 0.01
+        gripper.widths()  # forget what was read before the move
+        assert gripper.move(target, speed_m_s=SPEED)
+        t_s, width = gripper.read_width()
+        samples = gripper.widths(timeout_s=1.0)
+        max_width = gripper.max_width_m
+    assert width == pytest.approx(target, abs=2e-3)
+    assert abs(t_s - time.monotonic()) < 1.0
+    assert len(samples) >= 2
+    assert np.all(np.diff(samples.t_s) > 0)
+    assert np.all((samples.value >= 0) & (samples.value <= max_width + 1e-3))
+    assert abs(samples.value[-1] - target) < abs(samples.value[0] - target) + 1e-4  # moving towards the target
+
+
+def test_grasp_succeeds_where_the_fingers_stop(gripper):
+    with gripper:
+        assert gripper.move(0.04, speed_m_s=SPEED)
+        assert gripper.grasp(0.03, speed_m_s=SPEED, force_n=10.0, epsilon_inner_m=0.005, epsilon_outer_m=0.005)
+        assert gripper.is_grasped
+        assert gripper.read_width()[1] == pytest.approx(0.03, abs=5e-3)
+
+
+def test_async_commands_return_futures(gripper):
+    with gripper:
+        future = gripper.move_async(0.035, speed_m_s=SPEED)
+        assert future.result(timeout=5.0)
+        future = gripper.grasp_async(0.03, speed_m_s=SPEED, force_n=5.0, epsilon_inner_m=0.01, epsilon_outer_m=0.01)
+        assert future.result(timeout=5.0)
+
+
+def test_stop_when_idle_holds_the_width(gripper):
+    with gripper:
+        before = gripper.read_width()[1]
+        assert gripper.stop()
+        time.sleep(0.1)
+        assert gripper.read_width()[1] == pytest.approx(before, abs=1e-3)
+
+
+@pytest.mark.parametrize(
+    "command, name",
+    [
+        (lambda g: g.move(1.0), "width_m"),
+        (lambda g: g.move(-0.01), "width_m"),
+        (lambda g: g.move(0.02, speed_m_s=0.0), "speed_m_s"),
+        (lambda g: g.move(0.02, speed_m_s=math.nan), "speed_m_s"),
+        (lambda g: g.grasp(0.02, force_n=500.0), "force_n"),
+        (lambda g: g.grasp(0.02, epsilon_inner_m=-1.0), "epsilon_inner_m"),
+        (lambda g: g.move_async(math.inf), "width_m"),
+        (lambda g: g.grasp_async(0.02, force_n=0.0), "force_n"),
+    ],
+)
+def test_bad_commands_are_refused_before_anything_moves(gripper, command, name):
+    with gripper:
+        before = gripper.read_width()[1]
+        with pytest.raises(InvalidCommandError, match=name):
+            command(gripper)
+        assert gripper.read_width()[1] == pytest.approx(before, abs=1e-3)
+
+
+# --------------------------------------------------------------------------- family and sim specifics
+
+
+def test_unknown_backend_lists_the_names():
+    with pytest.raises(BackendNotFoundError, match="sim") as info:
+        open_gripper(GripperSettings(), backend="robotiq")
+    assert all(name in str(info.value) for name in BACKENDS)
+
+
+def test_franky_backend_wraps_connection_errors():
+    gripper = open_gripper(GripperSettings(backend="franky", host="127.255.255.254"))
+    # nothing serves libfranka there (franky-sim takes the first free loopback address)
+    with pytest.raises(DeviceError, match=r"127\.255\.255\.254.*connect"):
+        gripper.connect()
+    assert not gripper.connected
+
+
+def test_sim_grasp_stalls_on_an_object_and_judges_the_tolerance():
+    settings = GripperSettings(width_read_hz=50.0)
+    with SimulatedGripper(settings, object_width_m=0.07) as gripper:
+        assert gripper.grasp(0.07, speed_m_s=0.2, epsilon_inner_m=0.002, epsilon_outer_m=0.002)
+        assert gripper.read_width()[1] == pytest.approx(0.07)
+        assert not gripper.grasp(0.05, speed_m_s=0.2)  # stalls at 0.07, outside 0.05 +- 5 mm
+        assert not gripper.is_grasped
+
+
+def test_sim_stop_interrupts_a_move():
+    with SimulatedGripper(GripperSettings(max_width_m=0.08)) as gripper:
+        future = gripper.move_async(0.0, speed_m_s=0.01)  # 8 s of travel
+        time.sleep(0.2)
+        assert gripper.stop()
+        assert future.result(timeout=1.0) is False
+        held = gripper.read_width()[1]
+        time.sleep(0.1)
+        assert gripper.read_width()[1] == held
+        assert 0.07 < held < 0.08
+
+
+def test_sim_grasp_replays_the_recorded_widths(make_record):
+    record = make_record(duration_s=0.5)
+    playback = GraspPlayback(record)
+    with SimulatedGripper(GripperSettings(width_read_hz=5.0), playback=playback) as gripper:
+        gripper.widths()  # the open gripper before the grasp command
+        started = time.monotonic()
+        assert gripper.grasp(0.03, epsilon_inner_m=0.01, epsilon_outer_m=0.01)
+        settled = time.monotonic()
+        # a replay cannot react: the move waits for its end, then the kinematics take over
+        assert gripper.move(0.06, speed_m_s=0.2)
+        moved = time.monotonic()
+        final = gripper.read_width()[1]
+        samples = gripper.widths(timeout_s=0.5)
+    assert settled - started == pytest.approx(playback.grasp_settled_s() - playback.live_time(playback.origin_s), abs=0.1)
+    assert moved - started == pytest.approx(playback.duration_s + (0.06 - record.width_m.value[-1]) / 0.2, abs=0.1)
+    assert final == pytest.approx(0.06)
+    n = len(record.width_m)
+    np.testing.assert_array_equal(samples.value[:n], record.width_m.value)
+    shift = samples.t_s[:n] - record.width_m.t_s
+    assert np.ptp(shift) < 1e-9  # the record's own timestamps, moved by one constant
+    assert np.all(np.diff(samples.t_s) > 0)
+    assert np.all(samples.value[n:] >= record.width_m.value[-1])  # then opening kinematically

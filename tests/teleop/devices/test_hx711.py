@@ -1,0 +1,259 @@
+"""HX711 line protocols, robust parsing on both links, the bridge and its command."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from teleop.devices.hx711 import BridgeClock, parse_tcp_address
+from teleop.devices.hx711_bridge import FakeHx711, Hx711Bridge, SerialCounts
+from teleop.devices.hx711_protocol import (
+    COUNTS_MAX,
+    COUNTS_MIN,
+    MAX_LINE_BYTES,
+    LineSplitter,
+    Unreadable,
+    format_frame,
+    parse_frame,
+    parse_serial_line,
+)
+from teleop.devices.loadcell import open_load_cell
+from teleop.errors import DeviceError
+from teleop.settings import LoadCellSettings
+
+CAL = {"counts_per_n": 1000.0, "tare_counts": 0, "timeout_s": 1.0}
+
+
+# --------------------------------------------------------------------------- pure protocol
+
+
+@pytest.mark.parametrize("line, counts", [(b"123", 123), (b"  -4567\r", -4567), (b"+8", 8), (b"0", 0)])
+def test_serial_lines_that_are_readings(line, counts):
+    assert parse_serial_line(line) == counts
+
+
+@pytest.mark.parametrize(
+    "line, reason",
+    [
+        (b"", "garbage"),
+        (b"12a", "garbage"),
+        (b"1.5", "garbage"),
+        (b"weight: 12", "garbage"),
+        (b"\xff\xfe", "garbage"),
+        ("١٢".encode(), "garbage"),  # digits, but not ASCII ones
+        (b"%d" % (2**23), "out_of_range"),
+        (b"%d" % COUNTS_MAX, "out_of_range"),  # the upper rail: a saturated HX711
+        (b"%d" % COUNTS_MIN, "out_of_range"),
+        (b"999999999", "out_of_range"),
+    ],
+)
+def test_serial_lines_that_are_not(line, reason):
+    with pytest.raises(Unreadable) as info:
+        parse_serial_line(line)
+    assert info.value.reason == reason
+
+
+def test_line_splitter_joins_partial_lines_and_drops_overlong_ones():
+    lines = LineSplitter(skip_first=True)
+    assert lines.feed(b"89\n12") == []  # "89" is the tail of a line begun before we listened
+    assert lines.feed(b"34\n56\n7") == [b"1234", b"56"]
+    assert lines.feed(b"x" * (MAX_LINE_BYTES + 5)) == []  # a line that never ends is dropped early
+    assert lines.feed(b"still the long line\n42\n") == [b"42"]
+    assert lines.feed(b"y" * (MAX_LINE_BYTES + 1) + b"\n43\n") == [b"43"]
+    assert lines.overlong == 2
+
+
+@given(st.integers(0, 2**40), st.floats(-1e9, 1e9, allow_nan=False), st.integers(COUNTS_MIN + 1, COUNTS_MAX - 1))
+def test_frames_round_trip(seq, t, counts):
+    frame = format_frame(seq, t, counts)
+    assert frame.endswith(b"\n") and frame.count(b"\n") == 1 and len(frame) <= MAX_LINE_BYTES
+    assert parse_frame(frame[:-1]) == (seq, t, counts)
+
+
+@pytest.mark.parametrize(
+    "line, reason",
+    [
+        (b"12345", "garbage"),  # the published rig's bare numbers
+        (b"{not json", "garbage"),
+        (b'{"v":1,"seq":0,"t_bridge_s":1.0}', "garbage"),
+        (b'{"v":1,"seq":0,"t_bridge_s":1.0,"counts":5,"x":1}', "garbage"),
+        (b'{"v":2,"seq":0,"t_bridge_s":1.0,"counts":5}', "version"),
+        (b'{"v":true,"seq":0,"t_bridge_s":1.0,"counts":5}', "version"),
+        (b'{"v":1,"seq":-1,"t_bridge_s":1.0,"counts":5}', "garbage"),
+        (b'{"v":1,"seq":1.0,"t_bridge_s":1.0,"counts":5}', "garbage"),
+        (b'{"v":1,"seq":0,"t_bridge_s":NaN,"counts":5}', "garbage"),
+        (b'{"v":1,"seq":0,"t_bridge_s":"1","counts":5}', "garbage"),
+        (b'{"v":1,"seq":0,"t_bridge_s":1.0,"counts":8388607}', "out_of_range"),
+        (b"[1,2,3]", "garbage"),
+    ],
+)
+def test_frames_that_are_refused(line, reason):
+    with pytest.raises(Unreadable) as info:
+        parse_frame(line)
+    assert info.value.reason == reason
+
+
+def test_bridge_clock_follows_the_least_delayed_frame():
+    clock = BridgeClock()
+    # bridge samples every 12.5 ms; network delays 5, 2, 9, 2 ms
+    arrivals = [(0.0, 100.005), (0.0125, 100.0145), (0.025, 100.034), (0.0375, 100.0395)]
+    host = [clock.to_host(tb, arrived) for tb, arrived in arrivals]
+    assert host[0] == pytest.approx(100.005)
+    assert np.diff(host[1:]) == pytest.approx([0.0125, 0.0125])  # jitter no longer moves them
+    assert clock.offset_s == pytest.approx(100.002)
+
+
+@pytest.mark.parametrize("address", ["127.0.0.1:5601", "tcp://:5601", "tcp://host", "udp://h:1", "tcp://h:99999"])
+def test_bad_tcp_addresses_are_named(address):
+    with pytest.raises(DeviceError, match="tcp://host:port"):
+        parse_tcp_address(address)
+
+
+# --------------------------------------------------------------------------- links
+
+
+def test_serial_link_skips_garbage_and_keeps_the_readings(pty_pair, caplog):
+    master, port = pty_pair
+    with open_load_cell(LoadCellSettings(backend="serial", port=port, **CAL)) as cell:
+        os.write(master, b"7\n1000\nhello\n")
+        os.write(master, b"20")  # a reading split across two writes
+        time.sleep(0.05)
+        os.write(master, b"00\r\n%d\n" % (2**23) + b"z" * 300 + b"\n-500\nworld\n")
+        got = []
+        while len(got) < 3:
+            got.extend(cell.read(timeout_s=1.0).value)
+        skipped = dict(cell.skipped)
+    assert got == [1.0, 2.0, -0.5]
+    assert skipped == {"garbage": 2, "out_of_range": 1, "overlong": 1}
+    warnings = [r.message for r in caplog.records if r.levelno == logging.WARNING]
+    assert sum("(garbage)" in w for w in warnings) == 1  # warned once, then counted quietly
+
+
+def test_serial_port_errors_are_device_errors(tmp_path):
+    with pytest.raises(DeviceError, match="port is empty"):
+        open_load_cell(LoadCellSettings(backend="serial")).connect()
+    with pytest.raises(DeviceError, match="cannot open"):
+        open_load_cell(LoadCellSettings(backend="serial", port=str(tmp_path / "ttyNONE"))).connect()
+
+
+class _HandServer:
+    """A TCP server sending exactly the bytes it is given, then closing."""
+
+    def __init__(self, payload: bytes):
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.address = f"tcp://127.0.0.1:{self.server.getsockname()[1]}"
+        self.payload = payload
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self):
+        client, _ = self.server.accept()
+        with client:
+            client.sendall(self.payload)
+            time.sleep(0.3)
+
+    def close(self):
+        self.server.close()
+
+
+def test_tcp_link_counts_gaps_skips_garbage_and_reports_a_closed_bridge():
+    payload = b"".join(
+        [
+            format_frame(0, 10.0, 1000),
+            format_frame(1, 10.0125, 2000),
+            b"3000\n",  # a bare number, as the published rig sent
+            format_frame(5, 10.0625, 3000),  # readings 2..4 lost on the bridge
+            format_frame(6, 10.075, 4000),
+        ]
+    )
+    server = _HandServer(payload)
+    try:
+        with open_load_cell(LoadCellSettings(backend="tcp", address=server.address, **CAL)) as cell:
+            samples = cell.read(timeout_s=1.0)
+            while len(samples) < 4:
+                more = cell.read(timeout_s=1.0)
+                samples = type(samples)(np.r_[samples.t_s, more.t_s], np.r_[samples.value, more.value])
+            with pytest.raises(DeviceError, match="closed the connection"):
+                time.sleep(0.5)
+                cell.read(timeout_s=0.5)
+            assert (cell.gaps, cell.missed, dict(cell.skipped)) == (1, 3, {"garbage": 1})
+    finally:
+        server.close()
+    assert samples.value.tolist() == [1.0, 2.0, 3.0, 4.0]
+    # one burst: each frame is the least delayed so far, so each is stamped on arrival
+    assert np.all(np.diff(samples.t_s) >= 0)
+
+
+def test_tcp_connection_refused_is_a_device_error():
+    probe = socket.create_server(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    with pytest.raises(DeviceError, match="cannot connect"):
+        open_load_cell(LoadCellSettings(backend="tcp", address=f"tcp://127.0.0.1:{port}")).connect()
+
+
+# --------------------------------------------------------------------------- bridge side
+
+
+def test_fake_cell_turns_force_into_counts_at_its_rate():
+    fake = FakeHx711(counts_per_n=1000.0, tare_counts=50, rate_hz=100.0, force_n=lambda t: 2.0 + 100.0 * t)
+    started = time.monotonic()
+    counts = [fake() for _ in range(5)]
+    assert 0.035 <= time.monotonic() - started < 0.5  # four periods of 10 ms after the first
+    assert counts == [2050, 3050, 4050, 5050, 6050]
+    noisy = [FakeHx711(counts_per_n=1.0, rate_hz=1000.0, noise_counts=10.0, seed=3)() for _ in range(2)]
+    assert noisy[0] == noisy[1] != 0  # seeded
+    assert FakeHx711(counts_per_n=1e9, rate_hz=1000.0, force_n=1.0)() == COUNTS_MAX - 1  # clipped below the rail
+
+
+def test_bridge_serves_every_connected_host_the_same_readings():
+    fake = FakeHx711(counts_per_n=1000.0, rate_hz=200.0, force_n=1.5)
+    with Hx711Bridge(fake, host="127.0.0.1", port=0) as bridge:
+        settings = LoadCellSettings(backend="tcp", address=bridge.address, **CAL)
+        with open_load_cell(settings) as first, open_load_cell(settings) as second:
+            a, b = first.read(timeout_s=1.0), second.read(timeout_s=1.0)
+            assert bridge.clients == 2
+    assert set(a.value) == set(b.value) == {1.5}
+
+
+def test_serial_counts_source_reads_an_arduino_bridge(pty_pair):
+    master, port = pty_pair
+    source = SerialCounts(port)
+    try:
+        os.write(master, b"tail\n100\nnoise\n-200\n")
+        assert [source(), source()] == [100, -200]
+        started = time.monotonic()
+        assert source() is None  # idle line: the bridge loop gets control back
+        assert time.monotonic() - started >= 0.4
+    finally:
+        source.close()
+
+
+def test_bridge_command_end_to_end():
+    command = [
+        sys.executable, "-c", "import sys; from teleop.cli import main; sys.exit(main(sys.argv[1:]))",
+        "hx711-bridge", "--fake", "--force-n", "2.5", "--host", "127.0.0.1", "--port", "0",
+        "--duration-s", "1.5", "--json",
+    ]
+    with subprocess.Popen(command, stdout=subprocess.PIPE, text=True) as process:
+        first = process.stdout.readline()
+        assert "serving on tcp://127.0.0.1:" in first
+        address = first.split()[-1]
+        with open_load_cell(LoadCellSettings(backend="tcp", address=address, counts_per_n=42000.0, tare_counts=0)) as cell:
+            forces = cell.read(timeout_s=1.0).value
+        rest = process.stdout.read()
+        assert process.wait(timeout=5.0) == 0
+    assert len(forces) >= 1 and set(forces) == {2.5}  # 105000 counts / 42000 counts per N
+    summary = json.loads(rest.strip().splitlines()[-1])
+    assert summary["address"] == address and summary["readings"] > 10

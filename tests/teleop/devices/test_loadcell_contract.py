@@ -1,0 +1,166 @@
+"""One contract for every load-cell backend: sim replay, HX711 over a pty and over framed TCP, a real cell."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from teleop.devices.hx711_bridge import Hx711Bridge
+from teleop.devices.loadcell import BACKENDS, LoadCell, open_load_cell
+from teleop.devices.playback import GraspPlayback
+from teleop.errors import (
+    BackendNotFoundError,
+    DeviceNotConnectedError,
+    DeviceTimeoutError,
+    InvalidCommandError,
+)
+from teleop.settings import LoadCellSettings
+
+RATE_HZ = 80.0
+N = 40
+CALIBRATION = {"counts_per_n": 42_000.0, "tare_counts": 1234, "sample_rate_hz": RATE_HZ, "timeout_s": 1.0}
+
+
+def _counts(seed: int = 5) -> list[int]:
+    rng = np.random.default_rng(seed)
+    return (1234 + np.round(np.linspace(0.0, 25.0, N) * 42_000 + rng.normal(0, 300, N))).astype(int).tolist()
+
+
+def _newtons(counts: list[int]) -> np.ndarray:
+    return (np.asarray(counts, dtype=np.float64) - 1234) / 42_000.0
+
+
+@dataclass
+class Rig:
+    cell: LoadCell
+    expected: np.ndarray | None  # the forces the source emits, None for real hardware
+    start: Callable[[], None] = lambda: None
+
+
+class ScriptedCounts:
+    """A bridge source that, once released, emits its counts at RATE_HZ, then stays quiet."""
+
+    def __init__(self, counts: list[int]):
+        self.counts = list(counts)
+        self.release = threading.Event()
+        self._next_s: float | None = None
+
+    def __call__(self) -> int | None:
+        if not self.release.wait(0.05) or not self.counts:
+            time.sleep(0.01)
+            return None
+        now = time.monotonic()
+        self._next_s = now if self._next_s is None else self._next_s + 1.0 / RATE_HZ
+        time.sleep(max(0.0, self._next_s - now))
+        return self.counts.pop(0)
+
+
+def _write_paced(master: int, lines: list[bytes]) -> None:
+    start = time.monotonic()
+    for i, line in enumerate(lines):  # on a fixed schedule, so a slow wake-up does not drift
+        time.sleep(max(0.0, start + i / RATE_HZ - time.monotonic()))
+        os.write(master, line)
+
+
+@pytest.fixture(params=["sim", "serial", "tcp", pytest.param("hardware", marks=pytest.mark.hardware)])
+def rig(request, make_record, hardware_env):
+    cleanup = []
+    if request.param == "sim":
+        record = make_record(duration_s=N / RATE_HZ, force_hz=RATE_HZ)
+        playback = GraspPlayback(record)
+        rig = Rig(open_load_cell(LoadCellSettings(**CALIBRATION), playback=playback), record.force_n.value, playback.start)
+    elif request.param == "serial":
+        master, port = request.getfixturevalue("pty_pair")
+        counts = _counts()
+        lines = [b"23\r\n"] + [b"%d\r\n" % c for c in counts]  # opened mid-line: "23" ends a reading
+        writer = threading.Thread(target=_write_paced, args=(master, lines), daemon=True)
+        cell = open_load_cell(LoadCellSettings(backend="serial", port=port, **CALIBRATION))
+        rig = Rig(cell, _newtons(counts), writer.start)
+        cleanup.append(lambda: writer.join(timeout=2.0) if writer.is_alive() else None)
+    elif request.param == "tcp":
+        source = ScriptedCounts(_counts())
+        bridge = Hx711Bridge(source, host="127.0.0.1", port=0).start()
+        cleanup.append(bridge.close)
+        cell = open_load_cell(LoadCellSettings(backend="tcp", address=bridge.address, **CALIBRATION))
+
+        def start():
+            deadline = time.monotonic() + 2.0
+            while bridge.clients == 0 and time.monotonic() < deadline:  # the accept thread registers it
+                time.sleep(0.005)
+            source.release.set()
+
+        rig = Rig(cell, _newtons(source.counts), start)
+    else:
+        port = hardware_env("COMPLIANCE_TELEOP_HX711_PORT")
+        rig = Rig(open_load_cell(LoadCellSettings(backend="serial", port=port, timeout_s=1.0)), None)
+    yield rig
+    rig.cell.close()
+    for step in cleanup:
+        step()
+
+
+def _collect(cell: LoadCell, n: int):
+    t, v = [], []
+    while len(v) < n:
+        samples = cell.read(timeout_s=1.0)
+        t.extend(samples.t_s)
+        v.extend(samples.value)
+    return np.array(t), np.array(v)
+
+
+def test_unconnected_and_closed_cells_refuse_calls(rig):
+    with pytest.raises(DeviceNotConnectedError, match="connect"):
+        rig.cell.read()
+    with pytest.raises(DeviceNotConnectedError):
+        rig.cell.tare()
+    with rig.cell:
+        assert rig.cell.connected
+    with pytest.raises(DeviceNotConnectedError, match="closed"):
+        rig.cell.read()
+
+
+def test_every_sample_arrives_in_order_in_newtons(rig):
+    with rig.cell:
+        rig.start()
+        t, v = _collect(rig.cell, N)
+    assert np.all(np.diff(t) >= 0)
+    assert np.median(np.diff(t)) == pytest.approx(1.0 / RATE_HZ, rel=0.4)
+    assert np.all(np.isfinite(v))
+    if rig.expected is not None:
+        np.testing.assert_allclose(v, rig.expected, rtol=0, atol=1e-12)
+
+
+def test_tare_zeroes_with_the_samples_it_saw_and_keeps_the_rest(rig):
+    with rig.cell:
+        rig.start()
+        offset = rig.cell.tare(n_samples=8)
+        t, v = _collect(rig.cell, N - 8)
+    if rig.expected is not None:
+        assert offset == pytest.approx(rig.expected[:8].mean(), abs=1e-12)
+        np.testing.assert_allclose(v, rig.expected[8:] - offset, rtol=0, atol=1e-12)
+    with pytest.raises(InvalidCommandError, match="n_samples"):
+        rig.cell.connect().tare(n_samples=0)
+
+
+def test_a_silent_source_times_out(rig):
+    if rig.expected is None:
+        pytest.skip("a real cell does not fall silent on request")
+    with rig.cell:
+        rig.start()
+        _collect(rig.cell, N)
+        started = time.monotonic()
+        with pytest.raises(DeviceTimeoutError, match="no force sample within 0.2 s"):
+            rig.cell.read(timeout_s=0.2)
+        assert time.monotonic() - started >= 0.19
+
+
+def test_unknown_backend_lists_the_names():
+    with pytest.raises(BackendNotFoundError) as info:
+        open_load_cell(LoadCellSettings(), backend="bluetooth")
+    assert all(name in str(info.value) for name in BACKENDS)

@@ -1,0 +1,76 @@
+"""GraspPlayback: what a replayed record makes due, and when, on an injected clock."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from teleop.devices.playback import GraspPlayback
+from teleop.errors import DeviceError
+from teleop.record import GraspRecord, Provenance, Samples
+
+
+class FakeClock:
+    def __init__(self, now: float = 1000.0):
+        self.now = now
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_nothing_is_due_before_the_start(make_record):
+    playback = GraspPlayback(make_record(), clock=FakeClock())
+    assert not playback.started and not playback.done()
+    index, due = playback.forces_due(0)
+    assert index == 0 and len(due) == 0
+    assert playback.frame_due("left") is None
+    with pytest.raises(DeviceError, match="not started"):
+        playback.live_time(2.0)
+
+
+def test_samples_fall_due_at_their_shifted_timestamps(make_record):
+    record = make_record(duration_s=0.5)
+    clock = FakeClock()
+    playback = GraspPlayback(record, clock=clock)
+    playback.start()
+    assert playback.origin_s == record.force_n.t_s[0] == 2.0  # no command event: the earliest sample
+    index, due = playback.forces_due(0)
+    assert index == 1 and due.value[0] == record.force_n.value[0] and due.t_s[0] == 1000.0
+    clock.now = 1000.1
+    index, due = playback.forces_due(index)
+    expected = record.force_n.t_s[(record.force_n.t_s > 2.0) & (record.force_n.t_s <= 2.1 + 1e-12)]
+    np.testing.assert_array_equal(due.t_s, expected - 2.0 + 1000.0)
+    assert index == 1 + expected.size
+    again, due = playback.forces_due(index)
+    assert again == index and len(due) == 0  # nothing new at the same time
+    frames = record.stream("left").t_s
+    assert playback.frame_due("left") == int(np.sum(frames <= 2.1 + 1e-12)) - 1
+    assert playback.frame_due_s("left", 0) == pytest.approx(frames[0] - 2.0 + 1000.0)
+    assert not playback.done()
+    clock.now = 1000.0 + playback.duration_s
+    assert playback.done()
+    index, due = playback.widths_due(0)
+    np.testing.assert_array_equal(due.value, record.width_m.value)
+
+
+def test_the_grasp_command_event_anchors_the_replay(make_record):
+    record = make_record(command_grasp_s=1.9)
+    playback = GraspPlayback(record, clock=FakeClock(50.0))
+    playback.start(t0_s=60.0)
+    assert playback.live_time(1.9) == 60.0
+    assert playback.live_time(record.force_n.t_s[0]) == pytest.approx(60.1)
+    assert playback.grasp_settled_s() == pytest.approx(60.0 + record.width_m.t_s[np.argmin(record.width_m.value)] - 1.9)
+
+
+def test_a_playback_runs_once_and_needs_data(make_record):
+    playback = GraspPlayback(make_record(), clock=FakeClock())
+    playback.start()
+    with pytest.raises(DeviceError, match="already started"):
+        playback.start()
+    empty = make_record()
+    empty = GraspRecord(
+        sensors=empty.sensors, frames=(), force_n=Samples([], []), width_m=Samples([], []),
+        provenance=Provenance(source="simulated"),
+    )
+    with pytest.raises(DeviceError, match="without any samples"):
+        GraspPlayback(empty)

@@ -1,0 +1,91 @@
+"""The console scripts: help lists every subcommand, errors are one line, options are explained."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import estimator.cli
+import haptics.cli
+import teleop.cli
+
+BIN = Path(sys.executable).parent
+PACKAGES = {"teleop": teleop.cli.COMMANDS, "estimator": estimator.cli.COMMANDS, "haptics": haptics.cli.COMMANDS}
+
+
+def run_script(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / argv[0]), *argv[1:]], capture_output=True, text=True, timeout=60)
+
+
+@pytest.mark.parametrize("prog", sorted(PACKAGES))
+def test_help_lists_every_subcommand(prog):
+    result = run_script(prog, "--help")
+    assert result.returncode == 0, result.stderr
+    assert f"usage: {prog}" in result.stdout
+    for name in PACKAGES[prog]:
+        assert name in result.stdout, f"{prog} --help does not list {name}"
+
+
+def test_teleop_has_the_foundation_commands():
+    assert {"settings", "catalogue", "import-dataset"} <= set(teleop.cli.COMMANDS)
+
+
+def test_settings_on_a_bad_file_is_one_line_without_traceback(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[gripper]\nmax_width_m = -1.0\n")
+    result = run_script("teleop", "settings", str(bad))
+    assert result.returncode == 2
+    assert result.stdout == ""
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("teleop settings: error: ") and str(bad) in lines[0] and "max_width_m" in lines[0]
+    assert "Traceback" not in result.stderr
+
+
+def test_settings_on_a_missing_file_exits_2(tmp_path):
+    result = run_script("teleop", "settings", str(tmp_path / "absent.toml"))
+    assert result.returncode == 2 and "cannot read settings file" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_settings_prints_the_resolved_settings():
+    result = run_script("teleop", "settings")
+    assert result.returncode == 0, result.stderr
+    resolved = json.loads(result.stdout)
+    assert resolved["sensors"]["left"]["gel_modulus_pa"] == 275000.0
+
+
+def test_unknown_subcommand_is_a_usage_error():
+    result = run_script("teleop", "no-such-command")
+    assert result.returncode == 2 and "invalid choice" in result.stderr
+
+
+def test_import_dataset_help_explains_every_option():
+    result = run_script("teleop", "import-dataset", "--help")
+    assert result.returncode == 0, result.stderr
+    for option in ("--layout", "--out", "--objects", "--settings", "--fps", "--json", "{raw,preprocessed}"):
+        assert option in result.stdout
+
+
+def _commands():
+    for prog, commands in sorted(PACKAGES.items()):
+        for name, command in commands.items():
+            yield pytest.param(prog, name, command.module, id=f"{prog}-{name}")
+
+
+@pytest.mark.parametrize(("prog", "name", "module"), list(_commands()))
+def test_every_option_of_every_command_has_help(prog, name, module):
+    mod = importlib.import_module(module)
+    assert callable(mod.run), f"{module} has no run(args)"
+    parser = argparse.ArgumentParser(prog=f"{prog} {name}")
+    mod.add_arguments(parser)
+    for action in parser._actions:
+        if isinstance(action, argparse._HelpAction):
+            continue
+        assert action.help and action.help.strip(), f"{prog} {name}: {action.option_strings or action.dest} has no help"
