@@ -6,7 +6,16 @@ from collections.abc import Sequence
 
 from teleop.clikit import Command, run_cli
 
-COMMANDS: dict[str, Command] = {}
+COMMANDS: dict[str, Command] = {
+    "estimate": Command("estimator.estimate_cli", "estimate Young's modulus from one grasp record"),
+    "evaluate": Command("estimator.evaluate", "score the analytical estimators over labelled grasp records"),
+    "build-dataset": Command("estimator.learned.dataset", "labelled grasp records to training samples, split by object"),
+    "train": Command("estimator.learned.train", "train the learned / hybrid model and export it to ONNX"),
+    "bench": Command("estimator.bench", "latency and error of every estimator configuration, with the Pareto frontier"),
+    "calibrate": Command("estimator.perception.calibrate_cli", "fit a sensor's colour-to-gradient calibration from ball presses"),
+    "reconstruct": Command("estimator.perception.reconstruct_cli", "check a calibration: reconstruct held-out ball presses and fit spheres"),
+    "serve": Command("estimator.service", "serve live estimates of the grasps on the bus"),
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -63,3 +63,11 @@ class MessageRejected(BusError, ValueError):
 
 class BusTimeoutError(BusError, TimeoutError):
     """A lossless send found no room within its timeout, or no subscriber appeared in time."""
+
+
+class BusSecurityError(BusError):
+    """A bus endpoint lacks the CURVE keys it needs, or the keys cannot be used."""
+
+
+class SessionLogError(TeleopError, ValueError):
+    """A session log (MCAP) cannot be written, read, replayed, exported or recovered."""

@@ -273,6 +273,14 @@ def _jsonable(value: Any) -> Any:
     return value
 
 
+def _member(name: str, compression: int) -> zipfile.ZipInfo:
+    """A ZIP member stamped 1980-01-01: the same record always gives the same file bytes."""
+    info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+    info.compress_type = compression
+    info.external_attr = 0o644 << 16
+    return info
+
+
 def write_record(record: GraspRecord, path: str | Path) -> Path:
     """Write ``record`` to ``path`` (a ``.grasp`` ZIP); returns the path.
 
@@ -300,18 +308,18 @@ def write_record(record: GraspRecord, path: str | Path) -> Path:
     }
     tmp = path.with_name(path.name + ".partial")
     with zipfile.ZipFile(tmp, "w") as zf:
-        zf.writestr("record.json", json.dumps(header, indent=1, allow_nan=False), zipfile.ZIP_DEFLATED)
+        zf.writestr(_member("record.json", zipfile.ZIP_DEFLATED), json.dumps(header, indent=1, allow_nan=False))
         for name, samples in (("force", record.force_n), ("width", record.width_m)):
             unit = "n" if name == "force" else "m"
-            zf.writestr(f"{name}/t_s.npy", _npy_bytes(samples.t_s), zipfile.ZIP_DEFLATED)
-            zf.writestr(f"{name}/value_{unit}.npy", _npy_bytes(samples.value), zipfile.ZIP_DEFLATED)
+            zf.writestr(_member(f"{name}/t_s.npy", zipfile.ZIP_DEFLATED), _npy_bytes(samples.t_s))
+            zf.writestr(_member(f"{name}/value_{unit}.npy", zipfile.ZIP_DEFLATED), _npy_bytes(samples.value))
         for stream in record.frames:
-            zf.writestr(f"frames/{stream.finger}/t_s.npy", _npy_bytes(stream.t_s), zipfile.ZIP_DEFLATED)
+            zf.writestr(_member(f"frames/{stream.finger}/t_s.npy", zipfile.ZIP_DEFLATED), _npy_bytes(stream.t_s))
             ext = ENCODINGS[stream.encoding]
             for i, data in enumerate(stream.encoded):
-                zf.writestr(f"frames/{stream.finger}/{i:06d}{ext}", data, zipfile.ZIP_STORED)
+                zf.writestr(_member(f"frames/{stream.finger}/{i:06d}{ext}", zipfile.ZIP_STORED), data)
         for name, array in record.calibration.items():
-            zf.writestr(f"calibration/{name}.npy", _npy_bytes(np.asarray(array)), zipfile.ZIP_DEFLATED)
+            zf.writestr(_member(f"calibration/{name}.npy", zipfile.ZIP_DEFLATED), _npy_bytes(np.asarray(array)))
     tmp.replace(path)
     return path
 

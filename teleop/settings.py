@@ -154,6 +154,8 @@ class SensorSettings(_Validated):
     contact_threshold_m: float = spec(0.1e-3, lo=0.0, hi=5e-3, lo_open=True)
     depth_resolution_m: float = spec(0.02e-3, lo=0.0, hi=1e-3, lo_open=True,
                                      doc="smallest depth step the sensor resolves")
+    depth_scale_uncertainty: float = spec(0.05, lo=0.0, hi=1.0,
+                                          doc="relative scale error of reconstructed depth")
 
     def _check(self) -> None:
         if 2 * self.crop_px >= min(self.warped_width_px, self.warped_height_px):
@@ -215,6 +217,7 @@ class BusSettings(_Validated):
     robot_pub: str = spec("tcp://127.0.0.1:5550", doc="robot node publishes grasp data here")
     estimate_pub: str = spec("tcp://127.0.0.1:5551", doc="estimator publishes estimates here")
     command: str = spec("tcp://127.0.0.1:5552", doc="operator grasp commands")
+    display_pub: str = spec("tcp://127.0.0.1:5553", doc="haptic renderer publishes its heartbeat here")
     heartbeat_s: float = spec(0.5, lo=0.0, hi=60.0, lo_open=True)
     max_message_bytes: int = spec(8 * 1024 * 1024, lo=1024, hi=2**31 - 1)
     keys_dir: str = spec("", doc="CURVE key directory; required when an endpoint is not loopback")

@@ -1,0 +1,558 @@
+"""Analytical estimators of Young's modulus from one grasp's loading series.
+
+Every estimator fits a line by least squares over the loading frames, turns
+the slope's interval into an interval on the object's compliance and maps
+that to an :class:`~estimator.estimate.Estimate` with an explicit state:
+a compliance interval that reaches zero means the object is stiffer than the
+data resolve (a lower bound), one that is unbounded above means it is softer
+than they resolve (an upper bound), both at once is a refusal. No path
+returns a NaN, negative or infinite modulus.
+
+Inputs (1-D, one value per loading frame, in time order; SI units):
+
+``force_n``
+    Normal force (N), load-cell baseline removed.
+``approach_m``
+    Per-finger approach since the contact onset: half the decrease of the
+    fingertip separation, i.e. the gripper width corrected for finger
+    compliance (:func:`approach_per_finger`).
+``depth_m``
+    Peak gel indentation (m).
+``area_m2``, ``contact_radius_m``
+    Contact area (m^2) and radius (m) measured on the tactile image.
+
+Intervals (about 95 %) combine the fit's residual scatter (Student t on its
+degrees of freedom) with the measurement resolution propagated through the
+fit (:class:`MeasurementNoise`: force noise, width noise, depth resolution,
+pixel pitch, and the depth reconstruction's scale uncertainty, which is
+shared by all frames), so that even a fit through exact points reports the
+resolution it rests on. Fits through at least 3 points have an intercept, so
+an error in the onset (where approach and strain are zero) shifts the line
+without tilting it; with 1 or 2 points they pass through the onset instead.
+
+The depth-based methods refuse a series whose gel indentation falls while
+the approach grows (beyond the depth noise): the sign of a contact wider
+than the pad, whose depth the border-anchored reconstruction cannot see, or
+of a slipping object.
+
+Contact mechanics follow the brief, not the printed paper: compliance
+``k = (1 - nu^2) / E``, ``1/E* = k_sensor + k_object``, the Hertz centre
+displacement ``u(0) = k * pi * p0 * a / 2`` with ``p0 = 3 F / (2 pi a^2)``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import special
+
+from estimator.errors import FitError
+from estimator.estimate import Estimate
+
+__all__ = [
+    "METHODS",
+    "LineFit",
+    "MeasurementNoise",
+    "approach_per_finger",
+    "elastic",
+    "fit_line",
+    "hertz",
+    "no_tactile",
+    "split",
+]
+
+METHODS = ("no_tactile", "elastic", "hertz", "split")
+CONFIDENCE = 0.95
+
+
+@dataclass(frozen=True)
+class MeasurementNoise:
+    """Standard deviation of one reading of each measured quantity (SI units).
+
+    Attributes
+    ----------
+    force_n : float
+        One force reading (N).
+    width_m : float
+        One fingertip-separation reading (m).
+    depth_m : float
+        Depth resolution of the tactile sensor (m).
+    length_m : float
+        Resolution of a length on the tactile image: the pixel pitch (m).
+    depth_scale : float
+        Relative scale uncertainty of reconstructed depth (a calibration
+        error shared by every frame, so it does not average out).
+    """
+
+    force_n: float = 0.0
+    width_m: float = 0.0
+    depth_m: float = 0.0
+    length_m: float = 0.0
+    depth_scale: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("force_n", "width_m", "depth_m", "length_m", "depth_scale"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise FitError(f"MeasurementNoise.{name}: expected a finite value >= 0, got {value}")
+
+    @property
+    def approach_m(self) -> float:
+        """One per-finger approach reading (m): half a width reading."""
+        return self.width_m / 2.0
+
+
+@dataclass(frozen=True)
+class LineFit:
+    """Least-squares line ``y = slope * x + intercept`` with the slope's interval half-width."""
+
+    slope: float
+    intercept: float
+    half_width: float
+    n: int
+    dof: int
+
+    @property
+    def low(self) -> float:
+        return self.slope - self.half_width
+
+    @property
+    def high(self) -> float:
+        return self.slope + self.half_width
+
+    def describe(self, symbol: str) -> str:
+        basis = "fit scatter and resolution" if self.dof > 0 else "resolution only"
+        return f"{symbol} = {self.slope:.4g} ± {self.half_width:.2g} over {self.n} frames ({basis})"
+
+
+def fit_line(
+    x: np.ndarray,
+    y: np.ndarray,
+    sigma_y: np.ndarray,
+    *,
+    through_origin: bool,
+    systematic_y: np.ndarray | None = None,
+) -> LineFit | None:
+    """Least-squares slope of ``y`` on ``x`` with a ~95 % interval.
+
+    The half-width combines in quadrature the residual standard error (times
+    Student's t on the degrees of freedom, when there are any), the
+    propagated independent measurement error ``sigma_y`` and the slope shift
+    caused by ``systematic_y``, an error shared by all points (e.g. a depth
+    scale error: one standard deviation per point, fully correlated), all in
+    units of ``y``. Returns None when the slope is undetermined (no spread in
+    ``x``).
+    """
+    n = x.size
+    if n == 0 or (not through_origin and n < 2):
+        return None
+    x_c = x if through_origin else x - x.mean()
+    sxx = float(x_c @ x_c)
+    if not (sxx > 0 and math.isfinite(sxx)):
+        return None
+    y_c = y if through_origin else y - y.mean()
+    slope = float(x_c @ y_c) / sxx
+    intercept = 0.0 if through_origin else float(y.mean() - slope * x.mean())
+    dof = n - (1 if through_origin else 2)
+    z = float(special.ndtri(0.5 + CONFIDENCE / 2))
+    se_floor = math.sqrt(float((x_c * x_c) @ (sigma_y * sigma_y))) / sxx
+    half_sq = (z * se_floor) ** 2
+    if systematic_y is not None:
+        half_sq += (z * float(x_c @ systematic_y) / sxx) ** 2
+    if dof > 0:
+        residual = y - (slope * x + intercept)
+        se_fit = math.sqrt(float(residual @ residual) / dof / sxx)
+        half_sq += (float(special.stdtrit(dof, 0.5 + CONFIDENCE / 2)) * se_fit) ** 2
+    half = math.sqrt(half_sq)
+    if not (math.isfinite(slope) and math.isfinite(half)):
+        return None
+    return LineFit(slope=slope, intercept=intercept, half_width=half, n=n, dof=dof)
+
+
+def approach_per_finger(
+    width_m: np.ndarray,
+    force_n: np.ndarray,
+    *,
+    onset_width_m: float,
+    finger_stiffness_n_per_m: float,
+) -> np.ndarray:
+    """Per-finger approach since the contact onset (m).
+
+    The gripper reports its width at the motor; under force ``F`` the
+    fingertips bend open by ``F / finger_stiffness_n_per_m``, so the fingertip
+    separation is ``width + F / k``. The approach is half its decrease from the
+    width at onset (where the force is zero).
+    """
+    tip = np.asarray(width_m, dtype=np.float64) + np.asarray(force_n, dtype=np.float64) / finger_stiffness_n_per_m
+    return (onset_width_m - tip) / 2.0
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _series(method: str, **arrays: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Arrays as float64 1-D of one length, and the mask of frames where all are finite."""
+    out = {name: np.asarray(a, dtype=np.float64) for name, a in arrays.items()}
+    lengths = {name: a.shape for name, a in out.items()}
+    if any(a.ndim != 1 for a in out.values()) or len(set(lengths.values())) > 1:
+        raise FitError(f"{method}: inputs must be 1-D series of one length, got shapes {lengths}")
+    finite = np.logical_and.reduce([np.isfinite(a) for a in out.values()])
+    return out, finite
+
+
+def _positive(method: str, **scalars: float) -> None:
+    for name, value in scalars.items():
+        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            raise FitError(f"{method}: {name} must be a finite value > 0, got {value!r}")
+
+
+def _poisson_factor(method: str, poisson: float) -> float:
+    if not (math.isfinite(poisson) and 0.0 <= poisson <= 0.5):
+        raise FitError(f"{method}: object_poisson must be in [0, 0.5], got {poisson!r}")
+    return 1.0 - poisson**2
+
+
+def _modulus(method: str, k: float, k_lo: float, k_hi: float, *, factor: float, basis: str) -> Estimate:
+    """Estimate from an object-compliance interval [k_lo, k_hi] (1/Pa; k_hi may be inf).
+
+    ``factor`` turns compliance into modulus: ``E = factor / k`` (``1 - nu^2``
+    for contact compliance, 1 for a uniaxial strain-per-stress).
+    """
+    if k_hi <= 0:
+        resolution = (k_hi - k_lo) / 2.0
+        state, values = "lower_bound", (factor / resolution if resolution > 0 else math.inf,)
+        why = ("compliance below zero beyond the noise, so the object is stiffer than resolved; "
+               "bound at the compliance resolution")
+    elif k_lo <= 0 and math.isinf(k_hi):
+        return Estimate.refuse(method, f"{basis}: neither a stiffness nor a softness limit is resolved")
+    elif k_lo <= 0:
+        state, values = "lower_bound", (factor / k_hi,)
+        why = "the object's compliance is within the resolution of zero"
+    elif math.isinf(k_hi):
+        state, values = "upper_bound", (factor / k_lo,)
+        why = "the object is softer than the data resolve"
+    else:
+        state, values = "ok", (factor / k, factor / k_hi, factor / k_lo)
+        why = ""
+    if not all(math.isfinite(v) and v > 0 for v in values):
+        return Estimate.refuse(method, f"{basis}: the modulus is out of the representable range")
+    reason = f"{basis}: {why}" if why else basis
+    if state == "ok":
+        return Estimate.ok(method, *values, reason)
+    if state == "lower_bound":
+        return Estimate.at_least(method, values[0], reason)
+    return Estimate.at_most(method, values[0], reason)
+
+
+def _safe(method: str, build: Callable[[], Estimate]) -> Estimate:
+    """Run ``build``; numbers that overflow or vanish become a refusal saying so."""
+    with np.errstate(all="ignore"):
+        try:
+            return build()
+        except (ZeroDivisionError, OverflowError) as exc:
+            return Estimate.refuse(method, f"the fit's numbers are out of range ({exc})")
+
+
+def _falling_depth(approach: np.ndarray, depth: np.ndarray, noise: MeasurementNoise) -> str:
+    """Why the depth series is unusable, or "": the gel's indentation cannot fall while the
+    fingers close further (beyond the depth noise). It does when the contact is wider than the
+    pad (the gradients the depth is built from leave the image) or the object slips. Frames
+    where either is not finite are ignored."""
+    finite = np.isfinite(approach) & np.isfinite(depth)
+    order = np.argsort(approach[finite], kind="stable")
+    by_approach = depth[finite][order]
+    drop = float(np.max(np.maximum.accumulate(by_approach) - by_approach, initial=0.0))
+    if drop > 3.0 * math.sqrt(2.0) * noise.depth_m + 1e-12:
+        return (f"the gel's indentation falls by {drop * 1e3:.3g} mm while the approach grows: the "
+                "contact is likely wider than the pad, or the object slips")
+    return ""
+
+
+def _auto_origin(n: int) -> bool:
+    return n < 3
+
+
+# --------------------------------------------------------------------------- methods
+
+
+def _uniaxial(
+    method: str,
+    stress_pa: np.ndarray,
+    strain: np.ndarray,
+    sigma_stress_pa: np.ndarray,
+    sigma_strain: np.ndarray,
+    *,
+    what: str,
+    systematic_strain: np.ndarray | None = None,
+) -> Estimate:
+    """Hooke's law: fit strain = C * stress (compliance C = 1/E), uniaxial, no Poisson factor."""
+    origin = _auto_origin(stress_pa.size)
+    first = fit_line(stress_pa, strain, sigma_strain, through_origin=origin)
+    if first is None:
+        return Estimate.refuse(method, f"{what}: the stress does not vary over the loading frames")
+    sigma = np.sqrt(sigma_strain**2 + (first.slope * sigma_stress_pa) ** 2)
+    line = fit_line(stress_pa, strain, sigma, through_origin=origin, systematic_y=systematic_strain)
+    if line is None:
+        return Estimate.refuse(method, f"{what}: the fit is undetermined")
+    basis = f"{what}: strain per stress " + line.describe("C")
+    return _modulus(method, line.slope, line.low, line.high, factor=1.0, basis=basis)
+
+
+def no_tactile(
+    force_n: np.ndarray,
+    approach_m: np.ndarray,
+    *,
+    initial_width_m: float,
+    pad_area_m2: float,
+    noise: MeasurementNoise = MeasurementNoise(),
+) -> Estimate:
+    """Hooke's law on force and width alone (paper eq. 1-3 with A = pad area, d = 0).
+
+    Stress ``F / A_pad``; strain ``2 * approach / w0``, ``w0`` the fingertip
+    separation at onset.
+
+    Parameters
+    ----------
+    force_n, approach_m : ndarray, shape (n,)
+        See the module docstring.
+    initial_width_m : float
+        Fingertip separation at the contact onset (m).
+    pad_area_m2 : float
+        Imaged gel area (m^2).
+    noise : MeasurementNoise
+    """
+    method = "no_tactile"
+    _positive(method, initial_width_m=initial_width_m, pad_area_m2=pad_area_m2)
+    s, ok = _series(method, force_n=force_n, approach_m=approach_m)
+    if not ok.any():
+        return Estimate.refuse(method, "no loading sample with finite force and width")
+    force, approach = s["force_n"][ok], s["approach_m"][ok]
+
+    def build() -> Estimate:
+        stress = force / pad_area_m2
+        strain = 2.0 * approach / initial_width_m
+        sigma_strain = np.full(strain.shape, 2.0 * noise.approach_m / initial_width_m)
+        sigma_stress = np.full(stress.shape, noise.force_n / pad_area_m2)
+        return _uniaxial(method, stress, strain, sigma_stress, sigma_strain, what="Hooke on F, w")
+
+    return _safe(method, build)
+
+
+def elastic(
+    force_n: np.ndarray,
+    approach_m: np.ndarray,
+    depth_m: np.ndarray,
+    area_m2: np.ndarray,
+    *,
+    initial_width_m: float,
+    noise: MeasurementNoise = MeasurementNoise(),
+    truncated: np.ndarray | None = None,
+) -> Estimate:
+    """Simple elasticity with the measured contact area and depth (paper eq. 1-3).
+
+    Stress ``F / A``; the object's extent is the fingertip separation plus
+    the gel indentation on both sides, so its strain since onset is
+    ``2 * (approach - depth) / w0``. Frames without contact area are skipped.
+
+    Parameters
+    ----------
+    force_n, approach_m, depth_m, area_m2 : ndarray, shape (n,)
+        See the module docstring.
+    initial_width_m : float
+        Fingertip separation at the contact onset (m).
+    noise : MeasurementNoise
+    truncated : ndarray of bool, shape (n,), optional
+        Frames whose contact reaches the pad edge (area underestimated). They
+        are left out when others remain; an estimate resting on them alone
+        overstates the stress, so it is reported as an upper bound.
+    """
+    method = "elastic"
+    _positive(method, initial_width_m=initial_width_m)
+    s, ok = _series(method, force_n=force_n, approach_m=approach_m, depth_m=depth_m, area_m2=area_m2)
+    ok &= s["area_m2"] > 0
+    if not ok.any():
+        return Estimate.refuse(method, "no loading frame has a contact area above the threshold")
+    if why := _falling_depth(s["approach_m"], s["depth_m"], noise):
+        return Estimate.refuse(method, why)
+    ok, only_truncated = _drop_truncated(ok, truncated, s["area_m2"].size)
+    force, approach, depth, area = (s[k][ok] for k in ("force_n", "approach_m", "depth_m", "area_m2"))
+
+    def build() -> Estimate:
+        stress = force / area
+        strain = 2.0 * (approach - depth) / initial_width_m
+        sigma_strain = np.full(strain.shape, 2.0 * math.hypot(noise.approach_m, noise.depth_m) / initial_width_m)
+        sigma_stress = noise.force_n / area
+        systematic = 2.0 * noise.depth_scale * depth / initial_width_m
+        result = _uniaxial(method, stress, strain, sigma_stress, sigma_strain, what="σ = F/A, ε = 2(δ-d)/w0",
+                           systematic_strain=systematic)
+        if not only_truncated:
+            return result
+        note = "contact reaches the pad edge in every frame: area underestimated, E overstated"
+        if result.state == "ok":
+            return Estimate.at_most(method, result.interval_pa[1], f"{result.reason}; {note}")
+        if result.state == "upper_bound":
+            return result.with_note(note)
+        return Estimate.refuse(method, f"{result.reason}; {note}")
+
+    return _safe(method, build)
+
+
+def _drop_truncated(ok: np.ndarray, truncated: np.ndarray | None, n: int) -> tuple[np.ndarray, bool]:
+    """Leave out truncated frames when untruncated ones remain; say whether only truncated remain."""
+    if truncated is None:
+        return ok, False
+    cut = np.asarray(truncated, dtype=bool)
+    if cut.shape != (n,):
+        raise FitError(f"truncated must have shape ({n},), got {cut.shape}")
+    if (ok & ~cut).any():
+        return ok & ~cut, False
+    return ok, True
+
+
+def hertz(
+    force_n: np.ndarray,
+    approach_m: np.ndarray,
+    depth_m: np.ndarray,
+    contact_radius_m: np.ndarray,
+    *,
+    gel_compliance_per_pa: float,
+    object_poisson: float,
+    noise: MeasurementNoise = MeasurementNoise(),
+    truncated: np.ndarray | None = None,
+) -> Estimate:
+    """Hertz contact through MDR with the textbook centre displacement.
+
+    The apparent sphere radius is ``R = a^2 / approach`` (Hertz: approach =
+    a^2 / R; the paper's eq. 4 uses the full width change, twice the
+    per-finger approach). The gel's centre displacement
+
+        d = k_sensor * pi * p0 * a / 2 = k_sensor * a * (3 E*^2 F / (4 R^2))^(1/3)
+
+    is linear in ``s = E*^(2/3)``; ``s`` is fitted through the origin, then
+    ``k_object = 1/E* - k_sensor`` and ``E = (1 - nu_object^2) / k_object``.
+    ``E*`` at or above the gel's own ``1 / k_sensor`` gives a lower bound.
+
+    Parameters
+    ----------
+    force_n, approach_m, depth_m, contact_radius_m : ndarray, shape (n,)
+        See the module docstring; frames where any is <= 0 are skipped.
+    gel_compliance_per_pa : float
+        ``(1 - nu_gel^2) / E_gel`` (1/Pa).
+    object_poisson : float
+    noise : MeasurementNoise
+    truncated : ndarray of bool, shape (n,), optional
+        Frames whose contact reaches the pad edge (radius underestimated,
+        which understates E*). Left out when others remain; an estimate
+        resting on them alone is reported as a lower bound.
+    """
+    method = "hertz"
+    _positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
+    factor = _poisson_factor(method, object_poisson)
+    s, ok = _series(method, force_n=force_n, approach_m=approach_m, depth_m=depth_m,
+                    contact_radius_m=contact_radius_m)
+    ok &= (s["force_n"] > 0) & (s["approach_m"] > 0) & (s["depth_m"] > 0) & (s["contact_radius_m"] > 0)
+    if not ok.any():
+        return Estimate.refuse(method, "no loading frame with positive force, approach, depth and "
+                                       "contact radius")
+    ok, only_truncated = _drop_truncated(ok, truncated, s["force_n"].size)
+    if why := _falling_depth(s["approach_m"], s["depth_m"], noise):
+        return Estimate.refuse(method, why)
+    force, approach, depth, radius = (s[k][ok] for k in ("force_n", "approach_m", "depth_m",
+                                                         "contact_radius_m"))
+    k_gel = gel_compliance_per_pa
+
+    def build() -> Estimate:
+        shape = k_gel * np.cbrt(0.75 * force) * np.cbrt(approach) ** 2 / np.cbrt(radius)
+        relative = np.sqrt((noise.force_n / (3 * force)) ** 2
+                           + (2 * noise.approach_m / (3 * approach)) ** 2
+                           + (noise.length_m / 2 / (3 * radius)) ** 2)
+        first = fit_line(shape, depth, np.full(depth.shape, noise.depth_m), through_origin=True)
+        if first is None:
+            return Estimate.refuse(method, "the Hertz fit is undetermined")
+        sigma = np.sqrt(noise.depth_m**2 + (first.slope * shape * relative) ** 2)
+        line = fit_line(shape, depth, sigma, through_origin=True, systematic_y=noise.depth_scale * depth)
+        if line is None or line.high <= 0:
+            return Estimate.refuse(method, "the Hertz fit gives no positive E*")
+        e_star = max(line.slope, 0.0) ** 1.5
+        e_star_lo = max(line.low, 0.0) ** 1.5
+        e_star_hi = line.high**1.5
+        k = 1.0 / e_star - k_gel if e_star > 0 else math.inf
+        k_lo = 1.0 / e_star_hi - k_gel
+        k_hi = 1.0 / e_star_lo - k_gel if e_star_lo > 0 else math.inf
+        basis = (f"Hertz/MDR: E* = {e_star:.4g} Pa in [{e_star_lo:.3g}, {e_star_hi:.3g}] "
+                 f"(gel alone 1/k = {1 / k_gel:.4g} Pa) from " + line.describe("E*^(2/3)"))
+        result = _modulus(method, k, k_lo, k_hi, factor=factor, basis=basis)
+        if not only_truncated:
+            return result
+        note = "contact reaches the pad edge in every frame: radius underestimated, E* understated"
+        if result.state == "ok":
+            return Estimate.at_least(method, result.interval_pa[0], f"{result.reason}; {note}")
+        if result.state == "lower_bound":
+            return result.with_note(note)
+        return Estimate.refuse(method, f"{result.reason}; {note}")
+
+    return _safe(method, build)
+
+
+def split(
+    approach_m: np.ndarray,
+    depth_m: np.ndarray,
+    *,
+    gel_compliance_per_pa: float,
+    object_poisson: float,
+    noise: MeasurementNoise = MeasurementNoise(),
+) -> Estimate:
+    """Compliance split: the gel's share of the approach at the first-contact point.
+
+    Under the half-space approximation both bodies feel the same pressure, so
+    at the first-contact point the gel's indentation ``d`` and the per-finger
+    approach ``delta`` satisfy ``d / delta = k_sensor / (k_sensor + k_object)``
+    whatever the geometry. The ratio ``r`` is the slope of ``d`` against
+    ``delta``; ``k_object = k_sensor * (1/r - 1)``. A stiff object leaves
+    ``delta - d`` within the depth resolution and width noise (``r`` within
+    noise of 1): a lower bound at that resolution. A very soft one leaves
+    ``d`` within noise of zero: an upper bound.
+
+    Parameters
+    ----------
+    approach_m, depth_m : ndarray, shape (n,)
+        See the module docstring.
+    gel_compliance_per_pa : float
+        ``(1 - nu_gel^2) / E_gel`` (1/Pa).
+    object_poisson : float
+    noise : MeasurementNoise
+    """
+    method = "split"
+    _positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
+    factor = _poisson_factor(method, object_poisson)
+    s, ok = _series(method, approach_m=approach_m, depth_m=depth_m)
+    if not ok.any():
+        return Estimate.refuse(method, "no loading frame with finite approach and depth")
+    approach, depth = s["approach_m"][ok], s["depth_m"][ok]
+    if why := _falling_depth(approach, depth, noise):
+        return Estimate.refuse(method, why)
+    k_gel = gel_compliance_per_pa
+
+    def build() -> Estimate:
+        origin = _auto_origin(approach.size)
+        first = fit_line(approach, depth, np.full(depth.shape, noise.depth_m), through_origin=origin)
+        if first is None:
+            return Estimate.refuse(method, "the approach does not vary over the loading frames")
+        sigma = np.sqrt(noise.depth_m**2 + (first.slope * noise.approach_m) ** 2)
+        line = fit_line(approach, depth, np.full(depth.shape, sigma), through_origin=origin,
+                        systematic_y=noise.depth_scale * depth)
+        if line is None:
+            return Estimate.refuse(method, "the split fit is undetermined")
+        basis = "compliance split: " + line.describe("d/δ")
+        if line.high <= 0:
+            return Estimate.refuse(method, f"{basis}: the gel's indentation does not grow with "
+                                           "the approach")
+        k = k_gel * (1.0 / line.slope - 1.0) if line.slope > 0 else math.inf
+        k_lo = k_gel * (1.0 / line.high - 1.0)
+        k_hi = k_gel * (1.0 / line.low - 1.0) if line.low > 0 else math.inf
+        return _modulus(method, k, k_lo, k_hi, factor=factor, basis=basis)
+
+    return _safe(method, build)

@@ -1,0 +1,403 @@
+"""From a grasp record to measurements, and from measurements to an estimate.
+
+:func:`measure_grasp` reads what hardware gives (frames, forces, widths and
+their timestamps) and nothing else: it segments the grasp, decodes only the
+frames it needs (the no-contact frames for the reference and the loading
+frames; none at all when no tactile method is asked for), warps and crops
+them for a Wedge, masks marker dots, reconstructs depth, measures contact
+features and aligns force and width with every frame.
+:func:`estimate_grasp` runs one analytical method on the result.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from estimator import analytical
+from estimator.errors import CalibrationError, FitError
+from estimator.estimate import Estimate
+from estimator.features import ContactFeatures, contact_features
+from estimator.perception.calibration import Calibration, load_calibration
+from estimator.perception.depth import reconstruct_depth
+from estimator.perception.markers import detect_markers
+from estimator.perception.warp import warp_and_crop
+from estimator.segment import Segment, estimate_camera_lag, estimate_width_lag, segment_grasp
+from teleop.record import GraspRecord
+from teleop.settings import CONFIG_DIR, SensorSettings, Settings
+
+__all__ = [
+    "TACTILE_METHODS",
+    "GraspMeasurements",
+    "calibration_path",
+    "estimate_grasp",
+    "measure_grasp",
+    "reference_frame",
+    "resolve_calibration",
+]
+
+TACTILE_METHODS = ("elastic", "hertz", "split")
+# No-contact frames: those ending this long before the force onset, the last few of them.
+REFERENCE_GUARD_S = 0.1
+REFERENCE_FRAMES = 5
+# Camera-lag search: frames this long before the onset form the no-contact baseline.
+MAX_CAMERA_LAG_S = 0.25
+
+
+@dataclass(frozen=True)
+class GraspMeasurements:
+    """Everything the analytical estimators need from one grasp, aligned in time.
+
+    Attributes
+    ----------
+    finger : str
+        Finger whose tactile frames were read.
+    sensor : SensorSettings
+        That finger's sensor as recorded with the grasp.
+    segment : Segment
+        Contact, onset, loading phase, flags; also the loading phase at the
+        force samples' times (used by ``no_tactile``).
+    finger_stiffness_n_per_m : float
+        Finger bending stiffness used to correct widths (N/m).
+    object_poisson : float
+    t_s, force_n, width_m, approach_m : ndarray, shape (n,)
+        Per loading frame: time (s, frame clock corrected by ``camera_lag_s``),
+        force (N), reported width (m) and per-finger approach since onset (m).
+    features : ContactFeatures or None
+        Contact features per loading frame; None when no tactile method was
+        asked for or frames could not be used (see ``tactile_reason``).
+    depth_m : ndarray, shape (n, H, W), float32, or None
+        Reconstructed depth of every loading frame.
+    camera_lag_s : float or None
+        Estimated camera clock lag that was corrected for, if estimated.
+    width_lag_s : float or None
+        Estimated delay of the width timestamps that was corrected for, if estimated.
+    tactile_reason : str
+        Why there are no tactile features (empty when there are, or when none
+        were asked for).
+    """
+
+    finger: str
+    sensor: SensorSettings
+    segment: Segment
+    finger_stiffness_n_per_m: float
+    object_poisson: float
+    t_s: np.ndarray
+    force_n: np.ndarray
+    width_m: np.ndarray
+    approach_m: np.ndarray
+    features: ContactFeatures | None = None
+    depth_m: np.ndarray | None = None
+    camera_lag_s: float | None = None
+    width_lag_s: float | None = None
+    tactile_reason: str = ""
+
+    @property
+    def noise(self) -> analytical.MeasurementNoise:
+        """Resolution of each measurement: force and width noise estimated from the record;
+        depth resolution, depth scale uncertainty and pixel pitch from the sensor."""
+        return analytical.MeasurementNoise(
+            force_n=self.segment.force_noise_n,
+            width_m=self.segment.width_noise_m,
+            depth_m=self.sensor.depth_resolution_m,
+            length_m=self.sensor.pixel_pitch_m,
+            depth_scale=self.sensor.depth_scale_uncertainty,
+        )
+
+    @property
+    def sample(self) -> np.ndarray:
+        """Positions of the ``n_frames`` frames sampled equidistantly over the loading phase."""
+        return self.segment.sample
+
+    def approach_at_force_samples(self) -> np.ndarray:
+        """Per-finger approach at the loading phase's force samples (m)."""
+        return analytical.approach_per_finger(
+            self.segment.load_width_m, self.segment.load_force_n,
+            onset_width_m=self.segment.onset_width_m,
+            finger_stiffness_n_per_m=self.finger_stiffness_n_per_m,
+        )
+
+
+def calibration_path(sensor: SensorSettings, override: str | Path | None = None) -> Path:
+    """The calibration file to use: ``override`` if given, else the one the sensor names.
+
+    A relative path in ``SensorSettings.calibration`` is under ``configs/``.
+
+    Raises
+    ------
+    CalibrationError
+        Neither names a calibration file.
+    """
+    if override is not None:
+        return Path(override)
+    if not sensor.calibration:
+        raise CalibrationError(
+            f"sensor on finger {sensor.finger!r} names no calibration file: run "
+            f"`estimator calibrate`, then set calibration in [sensors.{sensor.finger}] or pass "
+            "--calibration"
+        )
+    path = Path(sensor.calibration)
+    return path if path.is_absolute() else CONFIG_DIR / path
+
+
+def resolve_calibration(sensor: SensorSettings, calibration: Calibration | str | Path | None) -> Calibration:
+    """``calibration`` itself when it is loaded, else the file it or the sensor names, loaded.
+
+    Raises
+    ------
+    CalibrationError
+        No calibration is named, or the file cannot be loaded.
+    """
+    if isinstance(calibration, Calibration):
+        return calibration
+    return load_calibration(calibration_path(sensor, calibration))
+
+
+def _check_calibration_fits(cal: Calibration, sensor: SensorSettings) -> None:
+    if tuple(cal.image_shape) != tuple(sensor.image_shape):
+        raise CalibrationError(
+            f"the calibration is for {cal.image_shape} images; sensor {sensor.finger!r} gives "
+            f"{sensor.image_shape} (warped and cropped)"
+        )
+    if not np.isclose(cal.pixel_pitch_m, sensor.pixel_pitch_m, rtol=0.01):
+        raise CalibrationError(
+            f"the calibration's pixel pitch {cal.pixel_pitch_m:.4g} m differs from sensor "
+            f"{sensor.finger!r}'s {sensor.pixel_pitch_m:.4g} m"
+        )
+
+
+def _decode(record: GraspRecord, finger: str, index: np.ndarray) -> np.ndarray:
+    """Frames ``index`` of ``finger`` as uint8 (n, H, W, 3) BGR, raw as captured."""
+    return record.stream(finger).frames(int(i) for i in index)
+
+
+def _to_image_grid(frames: np.ndarray, sensor: SensorSettings) -> np.ndarray:
+    """Raw frames on the estimator's image grid: warped and cropped for a Wedge."""
+    if sensor.model != "wedge":
+        return frames
+    return np.stack([warp_and_crop(f, sensor) for f in frames]) if len(frames) else frames
+
+
+def _median_frame(frames: np.ndarray) -> np.ndarray:
+    return np.rint(np.median(frames, axis=0)).astype(np.uint8)
+
+
+def reference_frame(record: GraspRecord, finger: str, index: np.ndarray) -> np.ndarray:
+    """No-contact reference on the estimator's image grid: the per-pixel median of frames
+    ``index`` of ``finger``, each warped and cropped first (fewer pixels to take the median of).
+
+    Returns uint8 ``sensor.image_shape + (3,)`` BGR for a Wedge (the raw shape otherwise).
+    """
+    return _median_frame(_to_image_grid(_decode(record, finger, index), record.sensor(finger)))
+
+
+def _reference_index(frame_t_s: np.ndarray, t_before_s: float) -> np.ndarray:
+    """The last ``REFERENCE_FRAMES`` frames captured before ``t_before_s``."""
+    before = np.flatnonzero(np.isfinite(frame_t_s) & (frame_t_s < t_before_s))
+    return before[-REFERENCE_FRAMES:]
+
+
+def _camera_lag(record: GraspRecord, finger: str, segment: Segment) -> float | None:
+    """Lag of the frame clock, from the onset of ``mean |frame - reference|`` (raw frames).
+
+    The reference is the median of every other no-contact frame; the frames
+    left out of it give the change's no-contact baseline (a frame inside the
+    median differs less from it than a fresh one would).
+    """
+    t = record.stream(finger).t_s
+    quiet = np.flatnonzero(np.isfinite(t) & (t < segment.t_onset_s - MAX_CAMERA_LAG_S))
+    reference_index = quiet[::-2][:REFERENCE_FRAMES]
+    window = np.flatnonzero(np.isfinite(t) & (t <= segment.t_contact_s + MAX_CAMERA_LAG_S))
+    window = np.setdiff1d(window[t[window] >= segment.t_onset_s - 2 * MAX_CAMERA_LAG_S], reference_index)
+    if reference_index.size < 3 or window.size < 4:
+        return None
+    reference = _median_frame(_decode(record, finger, reference_index)).astype(np.int16)
+    change = np.abs(_decode(record, finger, window).astype(np.int16) - reference).mean(axis=(1, 2, 3))
+    return estimate_camera_lag(t[window], change, t_onset_s=segment.t_onset_s, max_lag_s=MAX_CAMERA_LAG_S)
+
+
+def measure_grasp(
+    record: GraspRecord,
+    *,
+    settings: Settings,
+    calibration: Calibration | str | Path | None = None,
+    tactile: bool = True,
+    correct_camera_lag: bool = False,
+    correct_width_lag: bool = False,
+) -> GraspMeasurements:
+    """Segment a grasp and measure force, width and tactile contact at every loading frame.
+
+    Parameters
+    ----------
+    record : GraspRecord
+    settings : Settings
+        ``estimator`` (finger, contact force, frames, object Poisson ratio)
+        and ``gripper.finger_stiffness_n_per_m`` are used; the sensor is the
+        one recorded with the grasp.
+    calibration : Calibration, path or None
+        Colour-to-gradient calibration; None reads the file the record's
+        sensor names (relative paths under ``configs/``). Only loaded when
+        ``tactile``.
+    tactile : bool
+        Decode frames and reconstruct depth; False measures force and width
+        only (enough for ``no_tactile``) and decodes nothing.
+    correct_camera_lag : bool
+        Estimate the camera clock's lag from the onset of tactile change
+        against the force onset and shift the frame times by it.
+    correct_width_lag : bool
+        Estimate how late the widths are stamped from when the fingers stop
+        against the force peak, and shift the width times by it (a host that
+        stamps a gripper read when it returns is late by about one read).
+
+    Returns
+    -------
+    GraspMeasurements
+        ``segment`` is falsy with a reason when the grasp has no usable
+        loading phase; ``features`` is None with ``tactile_reason`` when
+        frames cannot be used.
+
+    Raises
+    ------
+    CalibrationError
+        A tactile measurement was asked for and no calibration can be loaded,
+        or it was made for another image shape or pixel pitch.
+    RecordError
+        A frame does not decode.
+    """
+    finger = settings.estimator.finger
+    try:
+        sensor = record.sensor(finger)
+        stream = record.stream(finger)
+    except KeyError as exc:
+        raise FitError(f"EstimatorSettings.finger = {finger!r}: {exc.args[0]}") from exc
+    est = settings.estimator
+
+    def segment_with(width_t_s: np.ndarray, frame_t_s: np.ndarray) -> Segment:
+        return segment_grasp(
+            record.force_n.t_s, record.force_n.value, width_t_s, record.width_m.value,
+            frame_t_s, contact_force_n=est.contact_force_n, n_frames=est.n_frames,
+        )
+
+    width_t, frame_t = record.width_m.t_s, stream.t_s
+    segment = segment_with(width_t, frame_t)
+    width_lag = lag = None
+    if correct_width_lag and segment:
+        width_lag = estimate_width_lag(width_t, record.width_m.value, t_stop_s=segment.t_peak_s)
+        if width_lag is not None:
+            width_t = width_t - width_lag
+            segment = segment_with(width_t, frame_t)
+    if correct_camera_lag and segment:
+        lag = _camera_lag(record, finger, segment)
+        if lag is not None:
+            frame_t = frame_t - lag
+            segment = segment_with(width_t, frame_t)
+    stiffness = settings.gripper.finger_stiffness_n_per_m
+    approach = analytical.approach_per_finger(
+        segment.frame_width_m, segment.frame_force_n,
+        onset_width_m=segment.onset_width_m, finger_stiffness_n_per_m=stiffness,
+    )
+    measurements = GraspMeasurements(
+        finger=finger, sensor=sensor, segment=segment, finger_stiffness_n_per_m=stiffness,
+        object_poisson=est.object_poisson, t_s=segment.frame_t_s, force_n=segment.frame_force_n,
+        width_m=segment.frame_width_m, approach_m=approach, camera_lag_s=lag, width_lag_s=width_lag,
+    )
+    if not tactile:
+        return measurements
+    why = segment.reason or segment.frame_reason
+    if not why:
+        reference_index = _reference_index(frame_t, segment.t_onset_s - REFERENCE_GUARD_S)
+        if reference_index.size == 0:
+            why = (f"no tactile frame before the contact onset at {segment.t_onset_s:.3f} s to serve "
+                   "as the no-contact reference")
+    if why:
+        return replace(measurements, tactile_reason=why)
+
+    cal = resolve_calibration(sensor, calibration)
+    _check_calibration_fits(cal, sensor)
+    reference = reference_frame(record, finger, reference_index)
+    frames = _to_image_grid(_decode(record, finger, segment.frame_index), sensor)
+    depth = np.empty((len(frames), *reference.shape[:2]), dtype=np.float32)
+    for i, frame in enumerate(frames):
+        mask = detect_markers(frame, reference) if sensor.markers else None
+        depth[i] = reconstruct_depth(frame, reference, cal, marker_mask=mask)
+    features = contact_features(
+        depth, pixel_pitch_m=sensor.pixel_pitch_m, contact_threshold_m=sensor.contact_threshold_m
+    )
+    return replace(measurements, features=features, depth_m=depth)
+
+
+# --------------------------------------------------------------------------- estimation
+
+
+def _run(m: GraspMeasurements, method: str) -> Estimate:
+    segment = m.segment
+    if not segment:
+        return Estimate.refuse(method, segment.reason)
+    noise = m.noise
+    onset_width = segment.onset_width_m
+    if method in ("no_tactile", "elastic") and not (np.isfinite(onset_width) and onset_width > 0):
+        return Estimate.refuse(method, f"no positive width at the contact onset (got {onset_width:.3g} m) "
+                                       "to normalise the strain")
+    if method == "no_tactile":
+        rows, cols = m.sensor.pad_size_m
+        return analytical.no_tactile(segment.load_force_n, m.approach_at_force_samples(),
+                                     initial_width_m=onset_width, pad_area_m2=rows * cols, noise=noise)
+    f = m.features
+    if f is None:
+        return Estimate.refuse(method, m.tactile_reason or "tactile features were not measured")
+    k_gel = m.sensor.gel_compliance_per_pa
+    if method == "split":
+        return analytical.split(m.approach_m, f.peak_depth_m, gel_compliance_per_pa=k_gel,
+                                object_poisson=m.object_poisson, noise=noise)
+    if method == "hertz":
+        return analytical.hertz(m.force_n, m.approach_m, f.peak_depth_m, f.cap_radius_m,
+                                gel_compliance_per_pa=k_gel, object_poisson=m.object_poisson,
+                                noise=noise, truncated=f.cap_touches_edge)
+    return analytical.elastic(m.force_n, m.approach_m, f.peak_depth_m, f.area_m2,
+                              initial_width_m=onset_width, noise=noise,
+                              truncated=f.touches_edge)
+
+
+def estimate_grasp(
+    source: GraspRecord | GraspMeasurements,
+    method: str,
+    *,
+    settings: Settings,
+    calibration: Calibration | str | Path | None = None,
+    correct_camera_lag: bool = False,
+    correct_width_lag: bool = False,
+) -> Estimate:
+    """Estimate the grasped object's Young's modulus with one analytical method.
+
+    Parameters
+    ----------
+    source : GraspRecord or GraspMeasurements
+        A record is measured first (frames decoded only for tactile methods).
+    method : {"no_tactile", "elastic", "hertz", "split"}
+    settings : Settings
+    calibration : Calibration, path or None
+        See :func:`measure_grasp`.
+    correct_camera_lag, correct_width_lag : bool
+        See :func:`measure_grasp`.
+
+    Returns
+    -------
+    Estimate
+        Stamped with the time this call took (``latency_s``); notes on the
+        grasp's segmentation flags are appended to its reason.
+    """
+    started = time.perf_counter()
+    if method not in analytical.METHODS:
+        raise FitError(f"method {method!r}: expected one of {', '.join(analytical.METHODS)}")
+    if isinstance(source, GraspRecord):
+        source = measure_grasp(source, settings=settings, calibration=calibration,
+                               tactile=method in TACTILE_METHODS, correct_camera_lag=correct_camera_lag,
+                               correct_width_lag=correct_width_lag)
+    result = _run(source, method)
+    if source.segment:
+        result = result.with_note(source.segment.describe())
+    return result.with_latency(time.perf_counter() - started)
+

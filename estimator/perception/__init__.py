@@ -1,0 +1,37 @@
+"""Tactile perception: warp, calibration, depth reconstruction, markers.
+
+Pixel frames: images are ``[row, col]`` with ``x`` the column (right) and ``y``
+the row (down); depth is metres, positive into the gel.
+"""
+
+from estimator.perception.calibration import (
+    Calibration,
+    PressSet,
+    detect_press_circle,
+    fit_calibration,
+    load_calibration,
+    load_presses,
+    split_presses,
+)
+from estimator.perception.depth import SphereFit, fit_sphere, poisson_depth, reconstruct_depth
+from estimator.perception.markers import detect_markers, inpaint_markers
+from estimator.perception.warp import warp_and_crop, warp_matrix, warp_points
+
+__all__ = [
+    "Calibration",
+    "PressSet",
+    "SphereFit",
+    "detect_markers",
+    "detect_press_circle",
+    "fit_calibration",
+    "fit_sphere",
+    "inpaint_markers",
+    "load_calibration",
+    "load_presses",
+    "poisson_depth",
+    "reconstruct_depth",
+    "split_presses",
+    "warp_and_crop",
+    "warp_matrix",
+    "warp_points",
+]

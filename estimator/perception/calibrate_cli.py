@@ -1,0 +1,195 @@
+"""``estimator calibrate``: fit a sensor's colour-to-gradient calibration from ball presses.
+
+Presses come from a taxim-style dataPack ``.npz`` (``f0``, ``imgs``,
+``touch_center``, ``touch_radius``; optional ``frame``, ``mm_per_px``,
+``ball_radius_mm``) or a folder of images with one no-contact frame named
+``f0*``, ``ref*`` or ``background*`` (press circles are then detected).
+A deterministic share of the presses (``--train-fraction``) is used; the
+rest are left for ``estimator reconstruct`` to check the result on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+from estimator.errors import CalibrationError
+from estimator.perception.calibration import PressSet, fit_calibration, load_presses, split_presses
+from estimator.perception.markers import detect_markers
+from teleop.record import software_version
+from teleop.settings import load_settings
+
+# Two stated values of one quantity (pixel pitch, ball radius) must agree this closely.
+AGREEMENT = 0.01
+
+
+def add_press_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options shared by ``calibrate`` and ``reconstruct``: the presses and their geometry."""
+    parser.add_argument(
+        "--presses", required=True, metavar="PATH",
+        help="taxim-style dataPack .npz (f0, imgs, touch_center, touch_radius[, frame, mm_per_px, "
+             "ball_radius_mm]) or a folder of press images plus one no-contact f0*/ref*/background* image",
+    )
+    parser.add_argument(
+        "--ball-radius-mm", type=float, metavar="R",
+        help="radius of the pressed ball in mm (default: the file's ball_radius_mm)",
+    )
+    parser.add_argument(
+        "--mm-per-px", type=float, metavar="P",
+        help="gel surface per pixel of the images used, in mm (default: the file's mm_per_px, else the "
+             "sensor's pixel_pitch_m when --settings warps the images)",
+    )
+    parser.add_argument(
+        "--settings", metavar="FILE",
+        help="settings TOML: warp and crop the raw images with this sensor's corners first",
+    )
+    parser.add_argument(
+        "--finger", metavar="F",
+        help="sensor to use from --settings (default: the settings' estimator.finger)",
+    )
+    parser.add_argument(
+        "--circles", choices=("auto", "recorded", "detected"), default="auto",
+        help="press circles: the file's recorded annotations, or detected from the images "
+             "(auto: recorded when the file has them)",
+    )
+    parser.add_argument(
+        "--markers", action=argparse.BooleanOptionalAction, default=None,
+        help="the gel carries marker dots: detect and inpaint them (default: the sensor's markers "
+             "setting with --settings, else no)",
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object on the last stdout line")
+
+
+def _agreeing(name: str, candidates: list[tuple[str, float | None]]) -> float | None:
+    """The first stated value; all stated values must agree within AGREEMENT."""
+    stated = [(source, value) for source, value in candidates if value is not None]
+    for source, value in stated:
+        if not (math.isfinite(value) and value > 0):
+            raise CalibrationError(f"{name} from {source} = {value!r}: expected a positive number")
+    for source, value in stated[1:]:
+        if abs(value - stated[0][1]) > AGREEMENT * stated[0][1]:
+            raise CalibrationError(
+                f"{name}: {stated[0][0]} says {stated[0][1]:.6g} but {source} says {value:.6g}"
+            )
+    return stated[0][1] if stated else None
+
+
+def prepare_presses(
+    args: argparse.Namespace, *, stated_mm_per_px: tuple[str, float] | None = None,
+) -> tuple[PressSet, float, float, dict]:
+    """Load the presses named by the shared options, in the frame they will be used in.
+
+    ``stated_mm_per_px`` is one more ``(source, value)`` statement of the pixel
+    pitch (a calibration's) that the others must agree with. Returns the press
+    set, the pixel pitch (m), the ball radius (m) and a JSON-able record of
+    the choices made.
+    """
+    presses = load_presses(args.presses, progress=True)
+    detect = args.circles == "detected" or (args.circles == "auto" and presses.circles != "recorded")
+    if not detect and presses.circles != "recorded":
+        raise CalibrationError(f"--circles recorded: {args.presses} records no press circles")
+    sensor = None
+    if args.settings:
+        settings = load_settings(args.settings)
+        sensor = settings.sensor(args.finger or settings.estimator.finger)
+        presses = presses.in_sensor_frame(sensor, progress=True)
+    elif args.finger:
+        raise CalibrationError("--finger needs --settings (the file that describes the sensor)")
+    elif presses.frame == "warped_cropped":
+        raise CalibrationError(
+            f"{args.presses}: its press circles and pixel pitch are for the warped-and-cropped frame; "
+            "give --settings (and --finger) so the images are warped to match"
+        )
+    pitch_mm = _agreeing("mm per px", [
+        ("--mm-per-px", args.mm_per_px),
+        (f"{args.presses} (mm_per_px)", presses.mm_per_px),
+        ("--settings (pixel_pitch_m)", sensor.pixel_pitch_m * 1e3 if sensor else None),
+        stated_mm_per_px or ("", None),
+    ])
+    if pitch_mm is None:
+        raise CalibrationError("pixel pitch unknown: give --mm-per-px (the presses do not state it)")
+    ball_mm = _agreeing("ball radius (mm)", [
+        ("--ball-radius-mm", args.ball_radius_mm),
+        (f"{args.presses} (ball_radius_mm)", presses.ball_radius_mm),
+    ])
+    if ball_mm is None:
+        raise CalibrationError("ball radius unknown: give --ball-radius-mm (the presses do not state it)")
+    if detect:
+        # A contact circle is smaller than the ball; cap the seeds below it.
+        presses = presses.with_detected_circles(max_radius_px=0.9 * ball_mm / pitch_mm, progress=True)
+    record = {
+        "presses": str(args.presses),
+        "presses_sha256": presses.sha256,
+        "n_presses": len(presses),
+        "frame": presses.frame,
+        "circles": presses.circles,
+        "markers": bool(args.markers if args.markers is not None else sensor is not None and sensor.markers),
+        "sensor": None if sensor is None else {
+            "finger": sensor.finger, "model": sensor.model, "serial": sensor.serial,
+        },
+    }
+    return presses, pitch_mm * 1e-3, ball_mm * 1e-3, record
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_press_arguments(parser)
+    parser.add_argument("--out", required=True, metavar="CAL", help="calibration file to write (.npz)")
+    parser.add_argument(
+        "--train-fraction", type=float, default=0.5,
+        help="share of the presses to calibrate on, spread evenly (0.5: every other press); "
+             "recorded in the file so `estimator reconstruct` checks the rest",
+    )
+    parser.add_argument("--bins", type=int, default=48, help="bins per colour channel of the lookup table")
+    parser.add_argument(
+        "--tiles", type=int, nargs=2, default=(3, 3), metavar=("ROWS", "COLS"),
+        help="position tiles with a table each (light falls differently across the pad)",
+    )
+    parser.add_argument(
+        "--refine-passes", type=int, default=1,
+        help="times to re-measure the press circles with the fitted table and refit; 0 uses them as given",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    presses, pitch_m, ball_m, record = prepare_presses(args)
+    train = split_presses(len(presses), args.train_fraction)
+    record.update({
+        "train_fraction": args.train_fraction,
+        "train_indices": train.tolist(),
+        "software_version": software_version(),
+        "ball_radius_mm": ball_m * 1e3,
+    })
+    masks = None
+    if record["markers"]:
+        masks = [detect_markers(image, presses.reference) for image in presses.images[train]]
+    calibration = fit_calibration(
+        presses.reference, presses.images[train], presses.centers_px[train], presses.radii_px[train],
+        ball_radius_m=ball_m, pixel_pitch_m=pitch_m, bins=args.bins, tiles=tuple(args.tiles),
+        refine_passes=args.refine_passes, marker_masks=masks, provenance=record, progress=True,
+    )
+    path = calibration.save(args.out)
+    refined = sum(calibration.provenance["circles_refined"])
+    summary = {
+        "out": str(path),
+        "n_presses": len(presses),
+        "n_train": len(train),
+        "circles": presses.circles,
+        "circles_refined": refined,
+        "markers": record["markers"],
+        "image_shape": list(calibration.image_shape),
+        "mm_per_px": pitch_m * 1e3,
+        "ball_radius_mm": ball_m * 1e3,
+        "bins": calibration.bins,
+        "tiles": list(calibration.tiles),
+    }
+    print(
+        f"calibrated on {len(train)} of {len(presses)} presses ({presses.circles} circles, {refined} "
+        f"re-measured), {calibration.image_shape[0]}x{calibration.image_shape[1]} px at "
+        f"{pitch_m * 1e3:.4f} mm/px -> {path}",
+        file=sys.stderr if args.json else sys.stdout,
+    )
+    if args.json:
+        print(json.dumps(summary))
+    return 0

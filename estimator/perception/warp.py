@@ -1,0 +1,117 @@
+"""Perspective warp of a raw tactile camera frame onto the gel's rectangle, then crop.
+
+A GelSight Wedge looks at its gel through a mirror, so the gel appears as a
+quadrilateral in the raw 640x480 frame. The sensor's mirror-corner calibration
+(:attr:`~teleop.settings.SensorSettings.warp_corners_px`: top-left, top-right,
+bottom-left, bottom-right, raw pixels, x right and y down) maps onto the
+corners of a ``warped_width_px`` x ``warped_height_px`` rectangle, and
+``crop_px`` is then removed from every side. The estimator works in that
+warped-and-cropped pixel frame (:attr:`~teleop.settings.SensorSettings.image_shape`).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import cv2
+import numpy as np
+
+from estimator.errors import PerceptionError
+from teleop.settings import SensorSettings
+
+__all__ = ["warp_and_crop", "warp_matrix", "warp_points"]
+
+
+@functools.lru_cache(maxsize=32)
+def warp_matrix(sensor: SensorSettings) -> np.ndarray:
+    """Homography from raw camera pixels to the warped-and-cropped image.
+
+    Parameters
+    ----------
+    sensor : SensorSettings
+        Supplies the mirror corners (TL, TR, BL, BR in raw px), the warped size
+        and the crop.
+
+    Returns
+    -------
+    ndarray
+        3 x 3 float64, read-only (cached per sensor). A raw point ``(x, y, 1)``
+        maps to ``M @ (x, y, 1)`` in cropped pixels after division by the last
+        coordinate. The corners land on ``(0, 0)``, ``(W, 0)``, ``(0, H)`` and
+        ``(W, H)`` of the warped image, so the crop shifts them by ``-crop_px``.
+    """
+    width, height, crop = sensor.warped_width_px, sensor.warped_height_px, sensor.crop_px
+    src = np.asarray(sensor.warp_corners_px, dtype=np.float32)
+    dst = np.array([[0, 0], [width, 0], [0, height], [width, height]], dtype=np.float32)
+    singular = PerceptionError(
+        f"sensor {sensor.finger!r}: warp_corners_px {sensor.warp_corners_px} do not form a "
+        "quadrilateral (three corners on one line?)"
+    )
+    try:
+        to_warped = cv2.getPerspectiveTransform(src, dst)
+    except cv2.error as exc:
+        raise singular from exc
+    # OpenCV returns a meaningless matrix rather than failing on degenerate corners.
+    mapped = cv2.perspectiveTransform(src[None].astype(np.float64), to_warped)[0]
+    if not (np.isfinite(mapped).all() and np.allclose(mapped, dst, atol=1e-3)):
+        raise singular
+    shift = np.array([[1.0, 0.0, -crop], [0.0, 1.0, -crop], [0.0, 0.0, 1.0]])
+    matrix = shift @ to_warped
+    matrix.setflags(write=False)
+    return matrix
+
+
+def warp_and_crop(raw_bgr: np.ndarray, sensor: SensorSettings) -> np.ndarray:
+    """Warp a raw camera frame onto the gel rectangle and crop its border.
+
+    Parameters
+    ----------
+    raw_bgr : ndarray
+        uint8, shape ``(raw_height_px, raw_width_px, 3)``, BGR as captured.
+    sensor : SensorSettings
+        The sensor that took the frame.
+
+    Returns
+    -------
+    ndarray
+        uint8, shape ``sensor.image_shape + (3,)``, bilinear interpolation;
+        pixels that map outside the raw frame are black.
+
+    Raises
+    ------
+    PerceptionError
+        ``raw_bgr`` is not a uint8 BGR image of the sensor's raw size.
+    """
+    expected = (sensor.raw_height_px, sensor.raw_width_px, 3)
+    if not isinstance(raw_bgr, np.ndarray) or raw_bgr.dtype != np.uint8 or raw_bgr.shape != expected:
+        got = (
+            f"{raw_bgr.dtype} {raw_bgr.shape}" if isinstance(raw_bgr, np.ndarray)
+            else type(raw_bgr).__name__
+        )
+        raise PerceptionError(
+            f"raw_bgr: expected a uint8 BGR frame of shape {expected} (sensor {sensor.finger!r}), "
+            f"got {got}"
+        )
+    rows, cols = sensor.image_shape
+    return cv2.warpPerspective(raw_bgr, warp_matrix(sensor), (cols, rows), flags=cv2.INTER_LINEAR)
+
+
+def warp_points(points_px: np.ndarray, sensor: SensorSettings) -> np.ndarray:
+    """Map raw-pixel points ``(x, y)`` into the warped-and-cropped frame.
+
+    Parameters
+    ----------
+    points_px : array_like
+        Shape ``(N, 2)``, raw pixel coordinates, x right and y down.
+    sensor : SensorSettings
+        The sensor whose warp applies.
+
+    Returns
+    -------
+    ndarray
+        float64, shape ``(N, 2)``, cropped-image pixel coordinates.
+    """
+    points = np.asarray(points_px, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 2:
+        raise PerceptionError(f"points_px: expected shape (N, 2), got {points.shape}")
+    return cv2.perspectiveTransform(points[None], warp_matrix(sensor))[0]

@@ -1,0 +1,467 @@
+"""Grasp segmentation: contact, loading phase, frame selection and stream alignment.
+
+Each stream of a grasp (load-cell force, gripper width, tactile frames) keeps
+its own timestamps on one clock. Nothing here matches samples by index: force
+and width are interpolated at the times where they are needed, on cleaned
+samples (non-finite values and timestamps dropped, sorted, duplicate
+timestamps merged into their mean), and never extrapolated.
+
+Terms
+-----
+baseline
+    The load cell's reading before contact (a tare offset), subtracted from
+    every force.
+onset
+    The time the force leaves its baseline noise: the first moment of
+    contact, from which the approach and the strain are measured.
+contact
+    ``t = 0`` of the paper: the first time the force reaches
+    ``EstimatorSettings.contact_force_n`` (0.75 N).
+loading phase
+    From contact to peak force: the first sample within three noise deviations
+    (or 1 %) of the maximum, so that a noisy or creeping hold phase does not
+    count as loading. A
+    saturated load cell (a plateau of identical readings at the top) ends it
+    where the plateau starts.
+
+Flags
+-----
+``"cleaned_timestamps"`` non-finite or duplicate samples were dropped or merged;
+``"non_monotonic"`` the force drops beyond its noise during loading;
+``"clipped"`` the force saturates (plateau of identical top readings);
+``"too_few_samples"`` fewer samples or frames than the methods want;
+``"misaligned"`` the streams do not cover each other's times (frames or widths
+missing over part of the loading phase).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from estimator.errors import FitError
+
+__all__ = [
+    "Segment",
+    "clean_samples",
+    "estimate_camera_lag",
+    "estimate_width_lag",
+    "interpolate",
+    "noise_std",
+    "segment_grasp",
+]
+
+BASELINE_GUARD_S = 0.05
+ONSET_SIGMAS = 4.0
+MIN_CLIP_RUN = 3
+PEAK_TOLERANCE = 0.01  # loading ends within this share of the peak force
+
+
+def clean_samples(t_s: np.ndarray, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Finite samples sorted by time, duplicate timestamps merged into their mean value.
+
+    Parameters
+    ----------
+    t_s, value : array_like, shape (n,)
+        Sample times (s) and values (any unit).
+
+    Returns
+    -------
+    t_s, value : ndarray, float64
+        Strictly increasing times and their values.
+
+    Raises
+    ------
+    FitError
+        The arrays are not 1-D of one length.
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    v = np.asarray(value, dtype=np.float64)
+    if t.ndim != 1 or t.shape != v.shape:
+        raise FitError(f"samples: t_s and value must be 1-D of one length, got {t.shape} and {v.shape}")
+    keep = np.isfinite(t) & np.isfinite(v)
+    t, v = t[keep], v[keep]
+    unique_t, inverse, counts = np.unique(t, return_inverse=True, return_counts=True)
+    return unique_t, np.bincount(inverse, weights=v, minlength=unique_t.size) / counts
+
+
+def interpolate(t_query: np.ndarray, t_s: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """Linear interpolation of cleaned samples at ``t_query``; NaN outside their time span.
+
+    ``t_s`` must be strictly increasing (see :func:`clean_samples`).
+    """
+    tq = np.asarray(t_query, dtype=np.float64)
+    if t_s.size == 0:
+        return np.full(tq.shape, np.nan)
+    out = np.interp(tq, t_s, value)
+    return np.where((tq >= t_s[0]) & (tq <= t_s[-1]), out, np.nan)
+
+
+def noise_std(value: np.ndarray) -> float:
+    """Robust standard deviation of white noise on a smooth signal (same unit as ``value``).
+
+    From the median absolute second difference, which removes trends and
+    ignores the few kinks (contact, stop) of a grasp: for white noise of
+    standard deviation s the second difference has standard deviation
+    ``sqrt(6) * s``. Returns 0 for fewer than 3 samples, or when the values
+    are too large for their differences to be represented.
+    """
+    v = np.asarray(value, dtype=np.float64)
+    if v.size < 3:
+        return 0.0
+    with np.errstate(over="ignore", invalid="ignore"):
+        second = np.diff(v, n=2)
+        sigma = float(1.4826 * np.median(np.abs(second - np.median(second))) / np.sqrt(6.0))
+    return sigma if np.isfinite(sigma) else 0.0
+
+
+def _crossing_time(t: np.ndarray, v: np.ndarray, i: int, level: float) -> float:
+    """Time where ``v`` crosses ``level`` between samples ``i`` and ``i + 1``."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        frac = (level - v[i]) / (v[i + 1] - v[i])
+    frac = float(np.clip(frac, 0.0, 1.0)) if np.isfinite(frac) else 0.0
+    return float(np.clip(t[i] + frac * (t[i + 1] - t[i]), t[i], t[i + 1]))  # rounding stays inside
+
+
+@dataclass(frozen=True)
+class Segment:
+    """The loading phase of one grasp and everything aligned on it.
+
+    Times are seconds on the record's clock; forces are baseline-subtracted
+    newtons; widths are the gripper's reported widths in metres (at the motor,
+    not yet corrected for finger compliance). ``reason`` is empty when a
+    loading phase was found; it says why not otherwise. ``frame_reason`` says
+    why no tactile frame can be used (empty when frames are usable).
+    """
+
+    reason: str
+    flags: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+    force_baseline_n: float = 0.0
+    force_noise_n: float = 0.0
+    width_noise_m: float = 0.0
+    peak_force_n: float = 0.0
+    t_onset_s: float = float("nan")
+    t_contact_s: float = float("nan")
+    t_peak_s: float = float("nan")
+    onset_width_m: float = float("nan")
+    # Loading phase at the force samples' own times (for methods that need no frames).
+    load_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    load_force_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    load_width_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # Loading frames: indices into the record's frame stream and the values at their times.
+    frame_reason: str = "no loading phase"
+    frame_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+    frame_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    frame_force_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    frame_width_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # Positions within the loading frames of the n_frames sampled equidistantly in time.
+    sample: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+
+    def __bool__(self) -> bool:
+        return not self.reason
+
+    def describe(self) -> str:
+        """Flags and their details as one line, for an estimate's reason."""
+        return "; ".join(self.notes)
+
+
+def _frames_in_phase(frame_t_s: np.ndarray, t_start: float, t_end: float) -> tuple[np.ndarray, np.ndarray]:
+    """Indices and times of frames with a finite, first-seen timestamp inside [t_start, t_end]."""
+    t = np.asarray(frame_t_s, dtype=np.float64)
+    finite = np.flatnonzero(np.isfinite(t))
+    _, first = np.unique(t[finite], return_index=True)
+    index = finite[first]  # sorted by time, duplicates keep their first frame
+    inside = (t[index] >= t_start) & (t[index] <= t_end)
+    return index[inside], t[index[inside]]
+
+
+def _equidistant(frame_t: np.ndarray, t_start: float, t_end: float, n: int) -> np.ndarray:
+    """Positions of the frames nearest to ``n`` times spread evenly over [t_start, t_end]."""
+    targets = np.linspace(t_start, t_end, n)
+    return np.unique(np.abs(frame_t[None, :] - targets[:, None]).argmin(axis=1))
+
+
+def segment_grasp(
+    force_t_s: np.ndarray,
+    force_n: np.ndarray,
+    width_t_s: np.ndarray,
+    width_m: np.ndarray,
+    frame_t_s: np.ndarray,
+    *,
+    contact_force_n: float,
+    n_frames: int,
+) -> Segment:
+    """Find contact, onset and the loading phase; align force and width with the frames.
+
+    Parameters
+    ----------
+    force_t_s, force_n : array_like, shape (k,)
+        Load-cell samples: time (s) and force (N).
+    width_t_s, width_m : array_like, shape (m,)
+        Gripper width samples: time (s) and width (m).
+    frame_t_s : array_like, shape (f,)
+        Capture time (s) of each tactile frame, as recorded (may hold NaN or
+        duplicate times; such frames are skipped, a duplicate keeps its first
+        frame).
+    contact_force_n : float
+        Force that defines first contact (N).
+    n_frames : int
+        Frames to sample equidistantly in time over the loading phase.
+
+    Returns
+    -------
+    Segment
+        Falsy, with a reason, when there is no usable loading phase.
+    """
+    if not (np.isfinite(contact_force_n) and contact_force_n > 0):
+        raise FitError(f"contact_force_n: expected a finite value > 0, got {contact_force_n}")
+    if n_frames < 1:
+        raise FitError(f"n_frames: expected at least 1, got {n_frames}")
+    flags: list[str] = []
+    notes: list[str] = []
+
+    def flag(name: str, note: str) -> None:
+        if name not in flags:
+            flags.append(name)
+        notes.append(note)
+
+    tf, force = clean_samples(force_t_s, force_n)
+    tw, width = clean_samples(width_t_s, width_m)
+    dropped = (np.size(force_t_s) - tf.size, np.size(width_t_s) - tw.size)
+    if any(dropped):
+        flag("cleaned_timestamps", f"dropped or merged {dropped[0]} force and {dropped[1]} width "
+                                   "samples with non-finite or duplicate timestamps")
+    if tf.size < 3:
+        return Segment(reason=f"too few force samples ({tf.size} usable, need 3)",
+                       flags=(*flags, "too_few_samples"), notes=tuple(notes))
+    if tw.size < 2:
+        return Segment(reason=f"too few width samples ({tw.size} usable, need 2)",
+                       flags=(*flags, "too_few_samples"), notes=tuple(notes))
+
+    # Baseline: the load cell's reading well before the force first nears contact.
+    above = np.flatnonzero(force >= contact_force_n)
+    if above.size == 0:
+        return Segment(
+            reason=f"no contact: the force peaks at {force.max():.3g} N, below "
+                   f"contact_force_n = {contact_force_n:g} N",
+            flags=tuple(flags), notes=tuple(notes),
+        )
+    quiet = tf <= tf[above[0]] - BASELINE_GUARD_S
+    baseline = float(np.median(force[quiet])) if quiet.sum() >= 3 else 0.0
+    with np.errstate(over="ignore"):
+        force = force - baseline
+    representable = np.isfinite(force)  # only absurd readings overflow
+    tf, force, quiet = tf[representable], force[representable], quiet[representable]
+    sigma_f = noise_std(force[quiet]) if quiet.sum() >= 5 else noise_std(force)
+    above = np.flatnonzero(force >= contact_force_n)
+    if above.size == 0:
+        return Segment(
+            reason=f"no contact: the force peaks at {force.max():.3g} N above its baseline "
+                   f"{baseline:.3g} N, below contact_force_n = {contact_force_n:g} N",
+            flags=tuple(flags), notes=tuple(notes), force_baseline_n=baseline,
+        )
+    contact = int(above[0])
+    t_contact = _crossing_time(tf, force, contact - 1, contact_force_n) if contact > 0 else float(tf[0])
+
+    # Peak: the first sample within the noise (or 1 %) of the maximum after contact, so that noise
+    # or a slow creep on the hold phase does not stretch the loading phase over it; a saturation
+    # plateau (identical top readings) ends it where the plateau starts.
+    top = contact + int(np.argmax(force[contact:]))
+    run = top
+    while run + 1 < force.size and force[run + 1] == force[top]:
+        run += 1
+    if run - top + 1 >= MIN_CLIP_RUN and sigma_f > 0:
+        flag("clipped", f"force saturates at {force[top] + baseline:.4g} N for {run - top + 1} samples; "
+                        "loading ends where the plateau starts")
+    if "clipped" in flags:
+        peak = top
+    else:
+        near_top = force[top] - max(3.0 * sigma_f, PEAK_TOLERANCE * force[top])
+        peak = contact + int(np.argmax(force[contact : top + 1] >= near_top))
+    peak_force = float(force[peak])
+
+    loading = force[contact : peak + 1]
+    drop = float(np.max(np.maximum.accumulate(loading) - loading))
+    if drop > max(5.0 * sigma_f, 0.02 * peak_force):
+        flag("non_monotonic", f"force drops by {drop:.3g} N during loading (noise {sigma_f:.2g} N)")
+
+    # Onset: where the force last left its baseline noise before contact.
+    onset_level = min(max(ONSET_SIGMAS * sigma_f, 0.02 * contact_force_n), 0.5 * contact_force_n)
+    below = np.flatnonzero(force[:contact] <= onset_level)
+    if below.size:
+        t_onset = min(_crossing_time(tf, force, int(below[-1]), onset_level), t_contact)
+    else:
+        t_onset = float(tf[0])
+        flag("misaligned", "the force record starts in contact: onset taken at its first sample")
+
+    sigma_w = noise_std(width)
+    onset_width = float(interpolate(np.array([t_onset]), tw, width)[0])
+    if not np.isfinite(onset_width):
+        flag("misaligned", f"no width sample around the contact onset at {t_onset:.3f} s "
+                           f"(widths span {tw[0]:.3f}..{tw[-1]:.3f} s)")
+
+    t_peak = float(tf[peak])
+    load_t = tf[contact : peak + 1]
+    load_w = interpolate(load_t, tw, width)
+    covered = np.isfinite(load_w)
+    if not covered.all():
+        flag("misaligned", f"widths (span {tw[0]:.3f}..{tw[-1]:.3f} s) miss "
+                           f"{int((~covered).sum())} of {load_t.size} loading force samples")
+    if load_t.size < 2:
+        flag("too_few_samples", "the loading phase holds a single force sample")
+
+    common = dict(
+        reason="", force_baseline_n=baseline, force_noise_n=sigma_f, width_noise_m=sigma_w,
+        peak_force_n=peak_force, t_onset_s=t_onset, t_contact_s=t_contact, t_peak_s=t_peak,
+        onset_width_m=onset_width, load_t_s=load_t[covered], load_force_n=loading[covered],
+        load_width_m=load_w[covered],
+    )
+
+    index, frame_t = _frames_in_phase(frame_t_s, t_contact, t_peak)
+    if index.size == 0:
+        ft = np.asarray(frame_t_s, dtype=np.float64)
+        ft = ft[np.isfinite(ft)]
+        span = f"{ft.min():.3f}..{ft.max():.3f} s" if ft.size else "none"
+        overlap = ft.size and ft.max() >= tf[0] and ft.min() <= tf[-1]
+        name = "too_few_samples" if overlap else "misaligned"
+        why = (f"no tactile frame within the loading phase {t_contact:.3f}..{t_peak:.3f} s "
+               f"(frames: {span})")
+        flag(name, why)
+        return Segment(flags=tuple(flags), notes=tuple(notes), frame_reason=why, **common)
+
+    frame_force = interpolate(frame_t, tf, force)
+    frame_width = interpolate(frame_t, tw, width)
+    usable = np.isfinite(frame_force) & np.isfinite(frame_width)
+    if not usable.all():
+        flag("misaligned", f"{int((~usable).sum())} loading frames lie outside the width samples' span")
+    index, frame_t = index[usable], frame_t[usable]
+    frame_force, frame_width = frame_force[usable], frame_width[usable]
+    frame_reason = ""
+    if index.size == 0:
+        frame_reason = "no loading frame has a width sample around it"
+        sample = np.zeros(0, dtype=np.intp)
+    else:
+        sample = _equidistant(frame_t, t_contact, t_peak, n_frames)
+        if sample.size < n_frames:
+            flag("too_few_samples", f"{index.size} loading frames give {sample.size} distinct "
+                                    f"samples of the {n_frames} wanted")
+    return Segment(
+        flags=tuple(flags), notes=tuple(notes), frame_reason=frame_reason, frame_index=index,
+        frame_t_s=frame_t, frame_force_n=frame_force, frame_width_m=frame_width, sample=sample,
+        **common,
+    )
+
+
+def estimate_camera_lag(
+    frame_t_s: np.ndarray,
+    tactile_change: np.ndarray,
+    *,
+    t_onset_s: float,
+    max_lag_s: float = 0.25,
+) -> float | None:
+    """Camera clock lag behind the force clock, from the onset of tactile change.
+
+    The tactile change of a frame is e.g. ``mean |frame - reference|``; it
+    leaves its no-contact noise when the force does. The lag is the time the
+    change first exceeds its baseline by ``ONSET_SIGMAS`` noise deviations
+    (interpolated between frames) minus the force onset ``t_onset_s``;
+    subtract it from the frame times to put them on the force clock. Its
+    resolution is a fraction of the frame period.
+
+    Parameters
+    ----------
+    frame_t_s : ndarray, shape (f,)
+        Frame times (s), increasing.
+    tactile_change : ndarray, shape (f,)
+        Change of each frame against the no-contact reference (any unit).
+    t_onset_s : float
+        Force onset (s), see :func:`segment_grasp`.
+    max_lag_s : float
+        Largest lag considered (s); frames before ``t_onset_s - max_lag_s``
+        form the no-contact baseline.
+
+    Returns
+    -------
+    float or None
+        The lag (s), or None when there are too few no-contact frames or the
+        change never leaves its noise within ``max_lag_s`` of the onset.
+    """
+    t = np.asarray(frame_t_s, dtype=np.float64)
+    change = np.asarray(tactile_change, dtype=np.float64)
+    if t.shape != change.shape or t.ndim != 1:
+        raise FitError(f"frame_t_s and tactile_change must be 1-D of one length, got {t.shape} and {change.shape}")
+    keep = np.isfinite(t) & np.isfinite(change)
+    t, change = t[keep], change[keep]
+    quiet = t < t_onset_s - max_lag_s
+    if quiet.sum() < 3:
+        return None
+    base = float(np.median(change[quiet]))
+    spread = 1.4826 * float(np.median(np.abs(change[quiet] - base)))
+    level = base + max(ONSET_SIGMAS * spread, 1e-9 + 1e-6 * abs(base))
+    after = np.flatnonzero((t >= t_onset_s - max_lag_s) & (change > level))
+    if after.size == 0 or after[0] == 0:
+        return None
+    lag = _crossing_time(t, change, int(after[0]) - 1, level) - t_onset_s
+    return float(lag) if abs(lag) <= max_lag_s else None
+
+
+def estimate_width_lag(
+    width_t_s: np.ndarray,
+    width_m: np.ndarray,
+    *,
+    t_stop_s: float,
+    max_lag_s: float = 0.3,
+    step_s: float = 0.002,
+) -> float | None:
+    """Delay of the width timestamps behind the force clock, from the moment the fingers stop.
+
+    A gripper squeezing to a target force stops closing when the force peaks
+    (``t_stop_s``, e.g. :attr:`Segment.t_peak_s`). A host that stamps a width
+    read when the call returns stamps it late by about one read latency. The
+    width trace around the stop is fitted by least squares with a hinge:
+    closing at a constant speed, then still; the lag is the hinge time minus
+    ``t_stop_s``. Subtract it from the width times.
+
+    Parameters
+    ----------
+    width_t_s, width_m : ndarray, shape (m,)
+        Width samples: time (s) and width (m).
+    t_stop_s : float
+        When the force peaks (s).
+    max_lag_s : float
+        Largest lag considered either way (s).
+    step_s : float
+        Resolution of the hinge-time search (s).
+
+    Returns
+    -------
+    float or None
+        The lag (s); None when the trace has too few samples on either side
+        of the stop, does not close before it, or the best hinge lies at the
+        edge of the search range.
+    """
+    t, w = clean_samples(width_t_s, width_m)
+    near = (t >= t_stop_s - 1.0) & (t <= t_stop_s + 1.0)
+    t, w = t[near], w[near]
+    hinges = np.arange(t_stop_s - max_lag_s, t_stop_s + max_lag_s + step_s / 2, step_s)
+    before = (t[None, :] < hinges[:, None]).sum(axis=1)
+    usable = (before >= 3) & (t.size - before >= 2)
+    if not usable.any() or not np.isfinite(t_stop_s):
+        return None
+    # w = w_stop + v * min(t - hinge, 0): linear least squares in (w_stop, v) for every hinge.
+    x = np.minimum(t[None, :] - hinges[:, None], 0.0)
+    n = t.size
+    sx, sy = x.sum(axis=1), w.sum()
+    sxx, sxy = (x * x).sum(axis=1), x @ w
+    det = n * sxx - sx**2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        speed = (n * sxy - sx * sy) / det
+        offset = (sy - speed * sx) / n
+        residual = ((w[None, :] - offset[:, None] - speed[:, None] * x) ** 2).sum(axis=1)
+    residual = np.where(usable & (det > 0) & (speed < 0), residual, np.inf)  # closing: width falls
+    best = int(np.argmin(residual))
+    if not np.isfinite(residual[best]) or best in (0, hinges.size - 1):
+        return None
+    return float(hinges[best] - t_stop_s)

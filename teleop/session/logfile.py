@@ -1,0 +1,332 @@
+"""The session log: one MCAP file per teleoperation session, and how to read it back.
+
+Layout
+------
+``Header``
+    profile :data:`PROFILE`, library ``compliance-teleop <version>; mcap-python <version>``.
+``Schema`` (one per bus message type, registered on the type's first message)
+    name ``compliance-teleop/<type>``, encoding :data:`SCHEMA_ENCODING`, data a JSON object
+    ``{"wire_version", "type", "fields", "arrays", "framing"}`` (the authority on each type
+    is :mod:`teleop.bus.wire`).
+``Channel`` (one per bus topic: ``frame/left``, ``force``, ``estimate``, ...)
+    message encoding :data:`MESSAGE_ENCODING`, metadata ``{"type": <message type>}``.
+``Message`` (one per bus message, in the order the recorder received them)
+    ``data``: the message's ZeroMQ frames ``[topic, header, body, *buffers]`` exactly as
+    received, never re-encoded, in this container (all integers little-endian uint32)::
+
+        n | len(frame 0) | ... | len(frame n-1) | frame 0 | ... | frame n-1
+
+    with ``3 <= n <= 3 + MAX_BUFFERS`` and the lengths summing to the rest of the data.
+    ``log_time``: receive time, ``time.monotonic_ns()`` of the recording host.
+    ``publish_time``: the header's ``t_send_ns`` (the sender's ``time.monotonic_ns()``), so on
+    one host ``log_time - publish_time`` is the transit latency. ``sequence``: the header's
+    ``seq`` modulo 2**32.
+``Attachment``
+    :data:`SETTINGS_ATTACHMENT` (the resolved settings as JSON, ``settings_to_mapping``),
+    ``calibration/<finger>/<file>`` (each sensor's calibration file as it was on disk),
+    ``catalogue.toml`` or ``catalogue.csv`` (the object catalogue, for labels) and
+    ``scene.toml`` when the session ran a scene.
+``Metadata``
+    :data:`SESSION_METADATA` at the start (software version, scene, source, start time,
+    clocks, endpoints) and :data:`END_METADATA` at a clean stop (counts, refusals, gaps,
+    the write error if there was one). A log without the latter was not closed cleanly.
+
+Chunks are small (:data:`CHUNK_BYTES`) and closed at least every ``flush_interval_s``
+(the recorder's option), and every chunk goes to the operating system as soon as it is
+complete, so a recorder killed outright loses at most the chunk it had open. Such a log
+has no summary or footer: :class:`LogReader` reads it front to back with mcap's
+non-seeking reader and stops, cleanly, at the first incomplete or damaged record;
+``teleop recover`` rewrites the readable part as a complete file.
+
+Nothing read back is trusted: every stored message goes through
+:func:`teleop.bus.wire.decode` (sizes, msgpack limits, schemas) before anyone sees it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import struct
+from collections import Counter
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcap.records import Attachment, Channel, Header, McapRecord, Message, Metadata
+from mcap.stream_reader import StreamReader
+
+from teleop.bus.pubsub import DEFAULT_MAX_BYTES
+from teleop.bus.wire import MAX_BUFFERS, SCHEMA_VERSION, SCHEMAS, decode
+from teleop.bus.wire import Message as BusMessage
+from teleop.errors import MessageRejected, SessionLogError
+from teleop.settings import Settings, settings_from_mapping
+
+__all__ = [
+    "CHUNK_BYTES",
+    "END_METADATA",
+    "MESSAGE_ENCODING",
+    "PROFILE",
+    "SCHEMA_ENCODING",
+    "SESSION_METADATA",
+    "SETTINGS_ATTACHMENT",
+    "LogInfo",
+    "LogReader",
+    "LoggedMessage",
+    "pack_frames",
+    "schema_data",
+    "unpack_frames",
+]
+
+log = logging.getLogger(__name__)
+
+PROFILE = "compliance-teleop.session"
+MESSAGE_ENCODING = "compliance-teleop.multipart/1"
+SCHEMA_ENCODING = "compliance-teleop.wire/1"
+SETTINGS_ATTACHMENT = "settings.json"
+SESSION_METADATA = "session"
+END_METADATA = "session_end"
+CHUNK_BYTES = 256 * 1024
+FRAMING = (
+    "uint32 LE frame count n, n x uint32 LE frame length, then the frames "
+    "[topic, header, body, *buffers] back to back, exactly as received from ZeroMQ"
+)
+
+_U32 = struct.Struct("<I")
+MIN_FRAMES, MAX_FRAMES = 3, 3 + MAX_BUFFERS
+
+
+def pack_frames(frames: Sequence[Any]) -> bytes:
+    """One message's frames (bytes, memoryviews or ``zmq.Frame``) in the log's container."""
+    views = [memoryview(getattr(f, "buffer", f)).cast("B") for f in frames]
+    lengths = struct.pack(f"<{len(views) + 1}I", len(views), *(v.nbytes for v in views))
+    return b"".join([lengths, *views])
+
+
+def unpack_frames(data: bytes | memoryview) -> list[memoryview]:
+    """The frames in a container written by :func:`pack_frames`, as views over ``data``.
+
+    Raises
+    ------
+    MessageRejected
+        (reason ``corrupt`` or ``frame_count``) the container is not well formed.
+    """
+    view = memoryview(data).cast("B")
+    if view.nbytes < _U32.size:
+        raise MessageRejected("corrupt", f"stored message has {view.nbytes} bytes, no frame count")
+    (count,) = _U32.unpack_from(view)
+    if not MIN_FRAMES <= count <= MAX_FRAMES:
+        raise MessageRejected(
+            "frame_count", f"stored message has {count} frames, expected 3 to {MAX_FRAMES}"
+        )
+    start = _U32.size * (count + 1)
+    if view.nbytes < start:
+        raise MessageRejected("corrupt", f"stored message ends inside its {count} frame lengths")
+    lengths = struct.unpack_from(f"<{count}I", view, _U32.size)
+    if start + sum(lengths) != view.nbytes:
+        raise MessageRejected(
+            "corrupt",
+            f"stored frame lengths add up to {start + sum(lengths)} bytes, "
+            f"the message has {view.nbytes}",
+        )
+    frames = []
+    for length in lengths:
+        frames.append(view[start : start + length])
+        start += length
+    return frames
+
+
+def schema_data(kind: str) -> bytes:
+    """The schema record's data for bus message type ``kind`` (JSON, see the module docstring)."""
+    schema = SCHEMAS[kind]
+    return json.dumps(
+        {
+            "wire_version": SCHEMA_VERSION,
+            "type": kind,
+            "fields": sorted(schema.fields),
+            "arrays": sorted(schema.arrays),
+            "framing": FRAMING,
+        },
+        sort_keys=True,
+    ).encode("utf-8")
+
+
+@dataclass(frozen=True)
+class LoggedMessage:
+    """One stored bus message: when it was received and sent, its frames, and it decoded."""
+
+    log_time_ns: int
+    publish_time_ns: int
+    frames: tuple[memoryview, ...]
+    message: BusMessage
+
+
+@dataclass(frozen=True)
+class LogInfo:
+    """Everything in a log but its messages."""
+
+    profile: str
+    attachments: dict[str, bytes]
+    metadata: dict[str, dict[str, str]]
+    complete: bool  # the footer was reached
+    damage: str | None  # why reading stopped before the footer, if it did
+
+    @property
+    def session(self) -> dict[str, str]:
+        """The session metadata written at the start (empty if absent)."""
+        return self.metadata.get(SESSION_METADATA, {})
+
+    def settings(self) -> Settings:
+        """The settings the session ran with, from the settings attachment.
+
+        Raises
+        ------
+        SessionLogError
+            The log has no settings attachment, or it does not hold valid settings.
+        """
+        data = self.attachments.get(SETTINGS_ATTACHMENT)
+        if data is None:
+            raise SessionLogError(
+                f"the log has no {SETTINGS_ATTACHMENT} attachment: pass the settings explicitly"
+            )
+        try:
+            mapping = json.loads(data.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise SessionLogError(f"attachment {SETTINGS_ATTACHMENT} is not JSON ({exc})") from exc
+        if not isinstance(mapping, dict):
+            raise SessionLogError(f"attachment {SETTINGS_ATTACHMENT} is not a JSON object")
+        return settings_from_mapping(mapping, source=f"attachment {SETTINGS_ATTACHMENT}")
+
+
+@dataclass
+class LogReader:
+    """Reads a session log front to back, whether or not it was closed cleanly.
+
+    Uses mcap's non-seeking :class:`~mcap.stream_reader.StreamReader` with CRC checks, so a
+    log cut short by a crash or a full disk reads up to its last complete record; reading
+    stops there, :attr:`damage` says why, and :attr:`good_bytes` how far it got.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.mcap`` file.
+    max_bytes : int
+        Largest bus message accepted when decoding (as a subscriber's limit).
+    """
+
+    path: Path
+    max_bytes: int = DEFAULT_MAX_BYTES
+    damage: str | None = None
+    complete: bool = False
+    good_bytes: int = 0
+    refused: Counter[str] = field(default_factory=Counter)
+
+    def __post_init__(self) -> None:
+        self.path = Path(self.path)
+
+    def records(self, *, emit_chunks: bool = False) -> Iterator[McapRecord]:
+        """Every record up to the footer or the first damaged one (chunks opened unless asked).
+
+        Raises
+        ------
+        SessionLogError
+            The file cannot be opened, or does not start like an MCAP file.
+        """
+        self.damage, self.complete, self.good_bytes = None, False, 0
+        try:
+            file = self.path.open("rb")
+        except OSError as exc:
+            raise SessionLogError(
+                f"cannot read session log {self.path}: {exc.strerror or exc}"
+            ) from exc
+        with file:
+            if file.read(8) != b"\x89MCAP0\r\n":
+                raise SessionLogError(
+                    f"{self.path} is not an MCAP session log (no MCAP magic at the start)"
+                )
+            file.seek(0)
+            # No complete record is longer than the file: a larger length field is damage.
+            limit = max(self.path.stat().st_size, 1)
+            stream = StreamReader(
+                file, emit_chunks=emit_chunks, validate_crcs=True, record_size_limit=limit
+            ).records
+            while True:
+                try:
+                    record = next(stream)
+                except StopIteration:  # the footer and the closing magic were read
+                    self.complete, self.good_bytes = True, file.tell()
+                    return
+                except Exception as exc:  # any parse failure means the bytes from here are unusable
+                    self.damage = self._describe(exc, file)
+                    log.warning(
+                        "%s: stopped reading at byte %d: %s",
+                        self.path,
+                        self.good_bytes,
+                        self.damage,
+                    )
+                    return
+                # Records inside a chunk come once the whole chunk has been read.
+                self.good_bytes = file.tell()
+                yield record
+
+    def _describe(self, exc: Exception, file: Any) -> str:
+        size = self.path.stat().st_size
+        if self.good_bytes == size:
+            return (
+                f"the file ends after its last complete record (byte {size}) "
+                "without a summary and footer"
+            )
+        what = type(exc).__name__ + (f": {exc}" if str(exc) else "")
+        if file.tell() >= size:
+            return (
+                f"the file ends inside the record after byte {self.good_bytes} of {size} ({what})"
+            )
+        return f"damaged record after byte {self.good_bytes} of {size} ({what})"
+
+    def info(self) -> LogInfo:
+        """Profile, attachments and metadata (one pass that leaves chunks closed)."""
+        profile, attachments, metadata = "", {}, {}
+        for record in self.records(emit_chunks=True):
+            if isinstance(record, Header):
+                profile = record.profile
+            elif isinstance(record, Attachment):
+                attachments[record.name] = bytes(record.data)
+            elif isinstance(record, Metadata):
+                metadata[record.name] = dict(record.metadata)
+        return LogInfo(profile, attachments, metadata, self.complete, self.damage)
+
+    def messages(self, topics: Iterable[str] | None = None) -> Iterator[LoggedMessage]:
+        """Stored bus messages, decoded and checked, in the order they were received.
+
+        ``topics``: topic prefixes to keep (``None``: all). A stored message that does not
+        decode is logged, counted in :attr:`refused` by reason and skipped.
+        """
+        prefixes = None if topics is None else tuple(topics)
+        channel_topics: dict[int, str] = {}
+        for record in self.records():
+            if isinstance(record, Channel):
+                channel_topics[record.id] = record.topic
+                continue
+            if not isinstance(record, Message):
+                continue
+            topic = channel_topics.get(record.channel_id)
+            if prefixes is not None and (topic is None or not topic.startswith(prefixes)):
+                continue
+            try:
+                frames = unpack_frames(record.data)
+                message = decode(frames, max_bytes=self.max_bytes)
+                if message.topic != topic:
+                    raise MessageRejected(
+                        "bad_header", f"message topic {message.topic!r} stored on channel {topic!r}"
+                    )
+            except MessageRejected as exc:
+                self.refused[exc.reason] += 1
+                log.warning(
+                    "%s: skipped a stored message (channel %d, log time %d ns): %s",
+                    self.path,
+                    record.channel_id,
+                    record.log_time,
+                    exc,
+                )
+                continue
+            yield LoggedMessage(record.log_time, record.publish_time, tuple(frames), message)

@@ -1,0 +1,138 @@
+"""``teleop record``: record every bus message of a session into an MCAP log.
+
+Stops after --duration-s, or on Ctrl-C / SIGTERM, and then writes the log's summary and
+footer. A recorder killed outright leaves a log without them: ``teleop recover`` fixes it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from teleop.bus.security import security_from_settings
+from teleop.catalogue import default_catalogue_path
+from teleop.errors import SessionLogError
+from teleop.session.logfile import CHUNK_BYTES
+from teleop.session.recorder import COMPRESSIONS, SessionRecorder
+from teleop.settings import load_settings
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", required=True, metavar="FILE.mcap", help="session log to create")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace --out if it exists instead of refusing"
+    )
+    parser.add_argument(
+        "--settings",
+        metavar="FILE",
+        default=None,
+        help="settings TOML the session runs with (stored in the log; bus keys, size limit "
+        "and default endpoints come from it); None: the shipped one",
+    )
+    parser.add_argument(
+        "--endpoint",
+        action="append",
+        metavar="ENDPOINT",
+        default=None,
+        help="publisher endpoint to subscribe to, every topic (repeatable); default: the "
+        "settings' bus.robot_pub, bus.estimate_pub, bus.command and bus.display_pub",
+    )
+    parser.add_argument(
+        "--duration-s",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after S seconds (None: until Ctrl-C or SIGTERM)",
+    )
+    parser.add_argument(
+        "--scene",
+        default="",
+        metavar="NAME",
+        help="scene name or TOML path the session runs (recorded, and its file attached)",
+    )
+    parser.add_argument(
+        "--source",
+        choices=("auto", "simulated", "hardware"),
+        default="auto",
+        help="what produced the data; auto: simulated when every backend in the settings is 'sim'",
+    )
+    parser.add_argument(
+        "--objects",
+        metavar="PATH",
+        default=str(default_catalogue_path()),
+        help="object catalogue attached to the log, so `teleop export` can label grasps",
+    )
+    parser.add_argument(
+        "--chunk-kib",
+        type=int,
+        default=CHUNK_BYTES // 1024,
+        metavar="KIB",
+        help="MCAP chunk size in KiB: a killed recorder loses at most one chunk",
+    )
+    parser.add_argument(
+        "--flush-interval-s",
+        type=float,
+        default=0.5,
+        metavar="S",
+        help="write the open chunk at the latest S seconds after its first message",
+    )
+    parser.add_argument(
+        "--compression", choices=sorted(COMPRESSIONS), default="zstd", help="chunk compression"
+    )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object (out, messages, saved_messages, message_bytes, file_bytes, "
+        "topics, refused, gaps, missed, error) as the last stdout line",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    if out.exists() and not args.overwrite:
+        raise SessionLogError(f"--out {out} exists: choose another name or pass --overwrite")
+    if args.duration_s is not None and not args.duration_s > 0:
+        raise SessionLogError(f"--duration-s {args.duration_s}: expected a number > 0")
+    settings = load_settings(args.settings)
+    bus = settings.bus
+    endpoints = args.endpoint or [bus.robot_pub, bus.estimate_pub, bus.command, bus.display_pub]
+    recorder = SessionRecorder(
+        out,
+        endpoints,
+        settings=settings,
+        scene=args.scene,
+        source=None if args.source == "auto" else args.source,
+        catalogue=args.objects,
+        chunk_bytes=args.chunk_kib * 1024,
+        flush_interval_s=args.flush_interval_s,
+        compression=args.compression,
+        max_bytes=settings.bus.max_message_bytes,
+        security=security_from_settings(settings.bus),
+    )
+    stop = threading.Event()
+    previous = {
+        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+    try:
+        stats = recorder.run(duration_s=args.duration_s, stop=stop, progress=True)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    print(
+        f"recorded {stats.messages} messages ({stats.file_bytes / 1e6:.1f} MB) "
+        f"from {', '.join(endpoints)} into {out}; "
+        f"refused {sum(stats.refused.values())}, missed {stats.missed}",
+        file=sys.stderr,
+    )
+    if args.json:
+        print(json.dumps({"out": str(out), **stats.as_dict()}))
+    if stats.error:
+        raise SessionLogError(
+            f"{stats.error}; the log is readable up to there: "
+            f"`teleop recover {out} --out FIXED.mcap`"
+        )
+    return 0

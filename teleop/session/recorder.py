@@ -1,0 +1,563 @@
+"""The session recorder: every bus message of a session, exactly as received, into one MCAP log.
+
+The log's layout is documented in :mod:`teleop.session.logfile`. The recorder subscribes to
+every topic of the endpoints it is given (non-conflating, so nothing a lossless publisher
+sends is dropped), checks each message with :func:`teleop.bus.wire.decode` (as every
+subscriber does: a refused message is counted, never stored) and stores its frames
+verbatim.
+
+Write failures (a full disk, a removed drive) never stop the session: the recorder logs
+one clear error, cuts the file back to the end of its last complete record (so everything
+already written stays readable), closes its subscription (so lossless publishers never
+wait for it) and stops. ``teleop recover`` then turns the log into a complete file.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import socket
+import time
+from collections import Counter, deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import IO, Any
+
+import zmq
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+from tqdm import tqdm
+
+from teleop.bus.pubsub import DEFAULT_MAX_BYTES, Subscriber
+from teleop.bus.wire import Message, decode, now_ns
+from teleop.errors import BusError, SessionLogError
+from teleop.record import software_version
+from teleop.scene import scene_path
+from teleop.session.logfile import (
+    CHUNK_BYTES,
+    END_METADATA,
+    FRAMING,
+    MESSAGE_ENCODING,
+    PROFILE,
+    SCHEMA_ENCODING,
+    SESSION_METADATA,
+    SETTINGS_ATTACHMENT,
+    pack_frames,
+    schema_data,
+)
+from teleop.settings import CONFIG_DIR, Settings, load_settings, settings_to_mapping
+
+__all__ = ["COMPRESSIONS", "RecorderStats", "SessionRecorder", "session_source"]
+
+log = logging.getLogger(__name__)
+
+COMPRESSIONS = {
+    "zstd": CompressionType.ZSTD,
+    "lz4": CompressionType.LZ4,
+    "none": CompressionType.NONE,
+}
+
+
+def session_source(settings: Settings) -> str:
+    """``"simulated"`` when every device backend is the simulator, else ``"hardware"``."""
+    simulated = (
+        settings.gripper.backend == "sim"
+        and settings.load_cell.backend == "sim"
+        and all(s.camera_backend == "sim" for s in settings.sensors)
+    )
+    return "simulated" if simulated else "hardware"
+
+
+class _CapturingSubscriber(Subscriber):
+    """A Subscriber that also keeps each accepted message's frames, exactly as received."""
+
+    def __init__(self, *args: Any, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self.captured: deque[tuple[int, list[zmq.Frame]]] = deque()
+
+    def _accept(self, frames: list[zmq.Frame]) -> Message | None:
+        received_ns = now_ns()
+        accepted_before = self.stats.received
+        message = super()._accept(frames)  # decode, refusal counting, heartbeats, sequence gaps
+        if self.stats.received != accepted_before:
+            self.captured.append((received_ns, frames))
+        return message
+
+
+class _Sink:
+    """The file under the MCAP writer.
+
+    Each write goes to the operating system at once (no user-space buffer that a SIGKILL
+    would lose), and the offset where the last complete write ended is kept, so the bytes a
+    failed write left behind can be cut off again. The MCAP writer writes whole records per
+    call, so that offset is always a record boundary.
+    """
+
+    def __init__(self, file: IO[bytes]):
+        self.file = file
+        try:
+            self.position = file.tell()
+        except (OSError, AttributeError):
+            self.position = 0
+
+    def write(self, data: bytes) -> int:
+        view = memoryview(data).cast("B")
+        done = 0
+        while done < view.nbytes:  # a raw file may take part of a write
+            n = self.file.write(view[done:])
+            done = view.nbytes if n is None else done + n
+        self.file.flush()
+        self.position += view.nbytes
+        return view.nbytes
+
+    def tell(self) -> int:
+        return self.position
+
+    def flush(self) -> None:
+        self.file.flush()
+
+    def cut_back(self) -> bool:
+        """Truncate to the end of the last complete write; False if the file cannot be truncated."""
+        try:
+            self.file.truncate(self.position)
+        except (OSError, AttributeError, ValueError) as exc:
+            log.warning("could not cut the log back to byte %d: %s", self.position, exc)
+            return False
+        return True
+
+
+@dataclass
+class RecorderStats:
+    """What a recorder stored and what it saw."""
+
+    messages: int = 0
+    saved_messages: int = 0  # of those, how many are in chunks already written to the file
+    message_bytes: int = 0  # stored message data, framing included
+    file_bytes: int = 0
+    topics: Counter[str] = field(default_factory=Counter)
+    refused: Counter[str] = field(default_factory=Counter)  # by wire reject reason
+    gaps: int = 0
+    missed: int = 0
+    error: str | None = None  # the write error that stopped recording
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "messages": self.messages,
+            "saved_messages": self.saved_messages,
+            "message_bytes": self.message_bytes,
+            "file_bytes": self.file_bytes,
+            "topics": dict(sorted(self.topics.items())),
+            "refused": dict(self.refused),
+            "gaps": self.gaps,
+            "missed": self.missed,
+            "error": self.error,
+        }
+
+
+class SessionRecorder:
+    """Records every bus message from ``endpoints`` into an MCAP session log.
+
+    Nothing happens until :meth:`open` (or :meth:`run`, or ``with``), so a recorder can be
+    built in one process and run in another (``multiprocessing.Process(target=rec.run,
+    kwargs={"stop": event})``). Use it from one thread.
+
+    Parameters
+    ----------
+    out : str, Path or binary file object
+        The ``.mcap`` file to create, or an open binary stream to write to (left open).
+    endpoints : str or iterable of str
+        Publisher endpoints to subscribe to (every topic).
+    settings : Settings, optional
+        The settings the session runs with; stored in the log. Default: the shipped file.
+    scene : str
+        Scene name or path, recorded (and its TOML attached when it is a file).
+    source : {"simulated", "hardware"}, optional
+        What produced the data; default from the settings' backends (:func:`session_source`).
+    catalogue : str or Path, optional
+        Object catalogue to attach, so exported grasps can be labelled.
+    chunk_bytes : int
+        MCAP chunk size; a killed recorder loses at most one chunk.
+    flush_interval_s : float
+        A chunk is closed and written at the latest this long after its first message.
+    compression : {"zstd", "lz4", "none"}
+        Chunk compression.
+    max_bytes : int
+        Largest bus message accepted.
+    **subscriber_options
+        Passed on to :class:`~teleop.bus.pubsub.Subscriber` (``context``, ...).
+    """
+
+    def __init__(
+        self,
+        out: str | Path | IO[bytes],
+        endpoints: str | Iterable[str],
+        *,
+        settings: Settings | None = None,
+        scene: str = "",
+        source: str | None = None,
+        catalogue: str | Path | None = None,
+        chunk_bytes: int = CHUNK_BYTES,
+        flush_interval_s: float = 0.5,
+        compression: str = "zstd",
+        max_bytes: int = DEFAULT_MAX_BYTES,
+        **subscriber_options: Any,
+    ):
+        self.endpoints = [endpoints] if isinstance(endpoints, str) else list(endpoints)
+        if not self.endpoints:
+            raise SessionLogError("the recorder needs at least one endpoint to subscribe to")
+        self.settings = settings if settings is not None else load_settings()
+        self.source = source or session_source(self.settings)
+        if self.source not in ("simulated", "hardware"):
+            raise SessionLogError(f"source {self.source!r}: expected 'simulated' or 'hardware'")
+        if compression not in COMPRESSIONS:
+            raise SessionLogError(
+                f"compression {compression!r}: expected one of {', '.join(COMPRESSIONS)}"
+            )
+        if chunk_bytes < 1024:
+            raise SessionLogError(f"chunk_bytes = {chunk_bytes}: expected at least 1024")
+        if not flush_interval_s > 0:
+            raise SessionLogError(f"flush_interval_s = {flush_interval_s}: expected > 0")
+        self.out = out if hasattr(out, "write") else Path(out)
+        self.name = (
+            str(self.out) if isinstance(self.out, Path) else getattr(out, "name", "<stream>")
+        )
+        self.scene = scene
+        self.catalogue = Path(catalogue) if catalogue is not None else None
+        self.chunk_bytes = chunk_bytes
+        self.flush_interval_s = flush_interval_s
+        self.compression = compression
+        self.max_bytes = max_bytes
+        self.subscriber_options = subscriber_options
+        self.stats = RecorderStats()
+        self._file: IO[bytes] | None = None
+        self._owns_file = False
+        self._sink: _Sink | None = None
+        self._writer: Writer | None = None
+        self._subscriber: _CapturingSubscriber | None = None
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._chunk_opened_s: float | None = None
+        self._state = "new"  # new -> open -> closed, or open -> failed -> closed
+
+    # ------------------------------------------------------------------ lifecycle
+
+    @property
+    def failed(self) -> bool:
+        """Whether a write error stopped the recording."""
+        return self.stats.error is not None
+
+    def open(self) -> SessionRecorder:
+        """Create the log (header, attachments, session metadata) and subscribe.
+
+        Raises
+        ------
+        SessionLogError
+            The log cannot be created or its start cannot be written, or the recorder
+            was already closed.
+        BusError
+            The subscription cannot be set up (bad endpoint, missing CURVE keys); the
+            log is then removed again.
+        """
+        if self._state != "new":
+            if self._state == "closed":
+                raise SessionLogError(f"recorder of {self.name} is closed")
+            return self
+        attachments = self._attachments()  # read inputs before creating anything
+        if isinstance(self.out, Path):
+            try:
+                self._file = self.out.open("wb", buffering=0)
+            except OSError as exc:
+                raise SessionLogError(
+                    f"cannot create session log {self.out}: {exc.strerror or exc}"
+                ) from exc
+            self._owns_file = True
+        else:
+            self._file = self.out
+        self._sink = _Sink(self._file)
+        self._writer = Writer(
+            self._sink, chunk_size=self.chunk_bytes, compression=COMPRESSIONS[self.compression]
+        )
+        try:
+            self._writer.start(
+                PROFILE, f"compliance-teleop {software_version()}; {LIBRARY_IDENTIFIER}"
+            )
+            for name, media_type, data, create_ns in attachments:
+                self._writer.add_attachment(create_ns, now_ns(), name, media_type, data)
+            self._writer.add_metadata(SESSION_METADATA, self._session_metadata())
+        except OSError as exc:
+            self._close_file()
+            self._state = "closed"
+            raise SessionLogError(
+                f"cannot write the start of session log {self.name}: {exc.strerror or exc}"
+            ) from exc
+        try:
+            self._subscriber = _CapturingSubscriber(
+                self.endpoints, ("",), max_bytes=self.max_bytes, **self.subscriber_options
+            )
+        except BusError:
+            self._close_file()
+            if self._owns_file:  # nothing was recorded into it
+                self.out.unlink(missing_ok=True)
+            self._state = "closed"
+            raise
+        self._state = "open"
+        log.info("recording %s from %s into %s", self.source, ", ".join(self.endpoints), self.name)
+        return self
+
+    def close(self) -> RecorderStats:
+        """Write the log's summary and footer and unsubscribe; calling twice is fine."""
+        if self._state == "open":
+            self._receive_pending()
+            self._guarded(self._finish)
+        self._stop_receiving()
+        self._close_file()
+        self._state = "closed"
+        return self.stats
+
+    def __enter__(self) -> SessionRecorder:
+        return self.open()
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ recording
+
+    def poll(self, timeout_s: float = 0.1) -> int:
+        """Receive for up to ``timeout_s`` and store what arrived; the number of messages stored.
+
+        Also closes the open chunk once it is ``flush_interval_s`` old. Returns 0 at once
+        when the recorder is not open (never opened, closed, or stopped by a write error).
+        """
+        if self._state != "open":
+            return 0
+        if self._chunk_opened_s is not None:
+            due = self._chunk_opened_s + self.flush_interval_s - time.monotonic()
+            timeout_s = max(0.0, min(timeout_s, due))
+        self._subscriber.recv(timeout_s=timeout_s)
+        stored = self._drain()
+        if (
+            self._state == "open"
+            and self._chunk_opened_s is not None
+            and time.monotonic() - self._chunk_opened_s >= self.flush_interval_s
+        ):
+            self._guarded(self._flush_chunk)
+        return stored
+
+    def run(
+        self, *, duration_s: float | None = None, stop: Any = None, progress: bool = False
+    ) -> RecorderStats:
+        """Open, record until ``duration_s`` passed, ``stop.is_set()`` or a write error, close.
+
+        ``stop`` is anything with ``is_set()`` (``threading.Event``, ``multiprocessing.Event``).
+        Returns the statistics; a write error is in ``stats.error``, not raised.
+        """
+        deadline = None if duration_s is None else time.monotonic() + duration_s
+        self.open()
+        try:
+            with tqdm(desc=f"record {self.name}", unit="msg", disable=not progress) as bar:
+                while self._state == "open" and not (stop is not None and stop.is_set()):
+                    remaining = None if deadline is None else deadline - time.monotonic()
+                    if remaining is not None and remaining <= 0:
+                        break
+                    bar.update(self.poll(0.1 if remaining is None else min(0.1, remaining)))
+        finally:
+            self.close()
+        return self.stats
+
+    def _receive_pending(self) -> None:
+        """Store everything already queued on this side of the socket, without waiting."""
+        while self._state == "open":
+            self._drain()
+            if self._state != "open":
+                break
+            if self._subscriber.recv(timeout_s=0) is None and not self._subscriber.captured:
+                break
+
+    def _drain(self) -> int:
+        stored = 0
+        while self._state == "open" and self._subscriber.captured:
+            received_ns, frames = self._subscriber.captured.popleft()
+            if self._guarded(self._store, received_ns, frames):
+                stored += 1
+        return stored
+
+    def _store(self, received_ns: int, frames: list[zmq.Frame]) -> bool:
+        # The subscriber accepted these frames: decoding them again cannot fail.
+        message = decode(frames, max_bytes=self.max_bytes)
+        data = pack_frames(frames)
+        channel = self._channel(message)
+        written = self._sink.position
+        self._writer.add_message(
+            channel,
+            log_time=received_ns,
+            data=data,
+            publish_time=message.t_send_ns,
+            sequence=message.seq % 2**32,
+        )
+        self.stats.messages += 1
+        if self._sink.position != written:  # the writer closed a full chunk, this message in it
+            self._chunk_opened_s = None
+            self.stats.saved_messages = self.stats.messages
+        elif self._chunk_opened_s is None:
+            self._chunk_opened_s = time.monotonic()
+        self.stats.message_bytes += len(data)
+        self.stats.topics[message.topic] += 1
+        return True
+
+    def _channel(self, message: Message) -> int:
+        channel = self._channels.get(message.topic)
+        if channel is None:
+            schema = self._schemas.get(message.type)
+            if schema is None:
+                schema = self._writer.register_schema(
+                    f"compliance-teleop/{message.type}", SCHEMA_ENCODING, schema_data(message.type)
+                )
+                self._schemas[message.type] = schema
+            channel = self._writer.register_channel(
+                message.topic, MESSAGE_ENCODING, schema, {"type": message.type}
+            )
+            self._channels[message.topic] = channel
+        return channel
+
+    def _flush_chunk(self) -> None:
+        self._writer.flush()
+        self._chunk_opened_s = None
+        self.stats.saved_messages = self.stats.messages
+
+    def _finish(self) -> None:
+        self._flush_chunk()
+        self._sync_stats()
+        self._writer.add_metadata(
+            END_METADATA,
+            {
+                "stop_utc": datetime.now(UTC).isoformat(),
+                "stop_monotonic_ns": str(now_ns()),
+                **{key: json.dumps(value) for key, value in self.stats.as_dict().items()},
+            },
+        )
+        self._writer.finish()
+        self.stats.file_bytes = self._sink.position
+
+    # ------------------------------------------------------------------ failure
+
+    def _guarded(self, action: Any, *args: Any) -> Any:
+        """Run a write; on OSError stop recording cleanly instead of raising."""
+        try:
+            return action(*args)
+        except OSError as exc:
+            self._fail(exc)
+            return None
+
+    def _fail(self, exc: OSError) -> None:
+        self.stats.error = f"writing {self.name} failed: {exc.strerror or exc}"
+        cut = self._sink.cut_back()
+        self._sync_stats()
+        self.stats.file_bytes = self._sink.position
+        self._writer = None
+        self._state = "failed"
+        self._stop_receiving()
+        self._close_file()
+        log.error(
+            "%s; recording stopped, the session carries on without it. The log keeps every record "
+            "up to byte %d%s; run `teleop recover %s --out FIXED.mcap` to make it a complete file",
+            self.stats.error,
+            self.stats.file_bytes,
+            "" if cut else " (the bytes after it are damaged)",
+            self.name,
+        )
+
+    # ------------------------------------------------------------------ helpers
+
+    def _sync_stats(self) -> None:
+        if self._subscriber is not None:
+            seen = self._subscriber.stats
+            self.stats.refused = Counter(seen.refused)
+            self.stats.gaps, self.stats.missed = seen.gaps, seen.missed
+
+    def _stop_receiving(self) -> None:
+        if self._subscriber is not None:
+            self._sync_stats()
+            self._subscriber.close()  # a closed peer is one no lossless publisher waits for
+            self._subscriber = None
+
+    def _close_file(self) -> None:
+        if self._file is not None and self._owns_file:
+            try:
+                self._file.close()
+            except OSError as exc:
+                log.warning("closing %s: %s", self.name, exc)
+        self._file = None
+
+    def _attachments(self) -> list[tuple[str, str, bytes, int]]:
+        """(name, media type, data, create time ns) of all the log carries besides messages."""
+        settings_json = json.dumps(settings_to_mapping(self.settings), indent=1, sort_keys=True)
+        out = [(SETTINGS_ATTACHMENT, "application/json", settings_json.encode("utf-8"), 0)]
+        for sensor in self.settings.sensors:
+            if not sensor.calibration:
+                continue
+            path = Path(sensor.calibration)
+            path = path if path.is_absolute() else CONFIG_DIR / path
+            try:
+                out.append(
+                    (
+                        f"calibration/{sensor.finger}/{path.name}",
+                        "application/octet-stream",
+                        path.read_bytes(),
+                        path.stat().st_mtime_ns,
+                    )
+                )
+            except OSError as exc:
+                log.warning(
+                    "calibration of finger %r not attached: %s: %s",
+                    sensor.finger,
+                    path,
+                    exc.strerror or exc,
+                )
+        if self.catalogue is not None:
+            out.append(
+                (
+                    f"catalogue{self.catalogue.suffix.lower()}",
+                    "text/plain",
+                    self._read(self.catalogue, "catalogue"),
+                    self.catalogue.stat().st_mtime_ns,
+                )
+            )
+        if self.scene:
+            path = scene_path(self.scene)
+            out.append(
+                (
+                    "scene.toml",
+                    "application/toml",
+                    self._read(path, "scene"),
+                    path.stat().st_mtime_ns,
+                )
+            )
+        return out
+
+    @staticmethod
+    def _read(path: Path, what: str) -> bytes:
+        try:
+            return path.read_bytes()
+        except OSError as exc:
+            raise SessionLogError(
+                f"cannot read the {what} to attach, {path}: {exc.strerror or exc}"
+            ) from exc
+
+    def _session_metadata(self) -> dict[str, str]:
+        return {
+            "software_version": software_version(),
+            "scene": self.scene,
+            "source": self.source,
+            "start_utc": datetime.now(UTC).isoformat(),
+            "start_wall_ns": str(time.time_ns()),
+            "start_monotonic_ns": str(now_ns()),
+            "log_time_clock": "receive time, time.monotonic_ns() of the recording host",
+            "publish_time_clock": "header t_send_ns, time.monotonic_ns() of the sending host",
+            "endpoints": json.dumps(self.endpoints),
+            "host": socket.gethostname(),
+            "message_encoding": MESSAGE_ENCODING,
+            "framing": FRAMING,
+            "chunk_bytes": str(self.chunk_bytes),
+            "flush_interval_s": str(self.flush_interval_s),
+        }

@@ -1,0 +1,178 @@
+"""Recovery: a session log cut short (recorder killed, disk full) rewritten as a complete MCAP file.
+
+The damaged log is read front to back with mcap's non-seeking reader (CRCs checked) up to
+its first incomplete or damaged record; every complete record before it (header, schemas,
+channels, messages, attachments, metadata) is copied unchanged, message data byte for
+byte, into a new file with a summary, indexes and footer. A ``recovery`` metadata record
+says what was salvaged from where.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
+from mcap.writer import CompressionType, Writer
+from tqdm import tqdm
+
+from teleop.bus.pubsub import DEFAULT_MAX_BYTES
+from teleop.bus.wire import decode
+from teleop.errors import MessageRejected, SessionLogError
+from teleop.record import software_version
+from teleop.session.logfile import CHUNK_BYTES, END_METADATA, LogReader, unpack_frames
+
+__all__ = ["RECOVERY_METADATA", "RecoveryReport", "recover"]
+
+RECOVERY_METADATA = "recovery"
+
+
+@dataclass
+class RecoveryReport:
+    """What :func:`recover` salvaged."""
+
+    source: str
+    out: str
+    complete: bool  # the source had its footer: nothing was missing
+    closed_cleanly: bool  # the source has the recorder's end-of-session metadata
+    damage: str | None  # where and why reading the source stopped
+    messages: int = 0
+    topics: Counter[str] = field(default_factory=Counter)
+    undecodable: int = 0  # complete messages kept verbatim that are not valid bus messages
+    attachments: list[str] = field(default_factory=list)
+    metadata: list[str] = field(default_factory=list)
+    salvaged_bytes: int = 0  # bytes of the source up to the end of its last complete record
+    source_bytes: int = 0
+
+    def as_dict(self) -> dict[str, Any]:
+        out = {k: v for k, v in self.__dict__.items() if k != "topics"}
+        out["topics"] = dict(sorted(self.topics.items()))
+        return out
+
+
+def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> RecoveryReport:
+    """Copy every complete record of the session log ``source`` into a complete MCAP ``out``.
+
+    Works on complete logs too (the copy is then whole). ``out`` is written under a
+    temporary name and renamed when done.
+
+    Raises
+    ------
+    SessionLogError
+        ``out`` is ``source``, ``source`` is not an MCAP file or has no header, or ``out``
+        cannot be written.
+    """
+    source, out = Path(source), Path(out)
+    if out.exists() and source.exists() and out.resolve() == source.resolve():
+        raise SessionLogError(
+            f"--out {out} is the log being recovered: write the recovered log elsewhere"
+        )
+    reader = LogReader(source)
+    report = RecoveryReport(
+        str(source), str(out), complete=False, closed_cleanly=False, damage=None
+    )
+    tmp = out.with_name(out.name + ".partial")
+    try:
+        with (
+            tmp.open("wb") as file,
+            tqdm(
+                desc=f"recover {source.name}", unit="B", unit_scale=True, disable=not progress
+            ) as bar,
+        ):
+            _copy(
+                reader,
+                Writer(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD),
+                report,
+                bar,
+            )
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise SessionLogError(
+            f"cannot write the recovered log {out}: {exc.strerror or exc}"
+        ) from exc
+    except SessionLogError:
+        tmp.unlink(missing_ok=True)
+        raise
+    tmp.replace(out)
+    return report
+
+
+def _copy(reader: LogReader, writer: Writer, report: RecoveryReport, bar: tqdm) -> None:
+    schemas: dict[int, int] = {}  # source id -> id in the copy (the summary repeats them)
+    channels: dict[int, tuple[int, str]] = {}
+    started = False
+    for record in reader.records():
+        bar.update(reader.good_bytes - bar.n)
+        if isinstance(record, Header):
+            writer.start(record.profile, record.library)
+            started = True
+        elif not started:
+            break
+        elif isinstance(record, Schema) and record.id not in schemas:
+            schemas[record.id] = writer.register_schema(record.name, record.encoding, record.data)
+        elif isinstance(record, Channel) and record.id not in channels:
+            copy = writer.register_channel(
+                record.topic,
+                record.message_encoding,
+                schemas.get(record.schema_id, 0),
+                dict(record.metadata),
+            )
+            channels[record.id] = (copy, record.topic)
+        elif isinstance(record, Message):
+            if record.channel_id not in channels:
+                report.undecodable += 1  # no channel says what it is: cannot be written validly
+                continue
+            channel, topic = channels[record.channel_id]
+            writer.add_message(
+                channel,
+                log_time=record.log_time,
+                data=record.data,
+                publish_time=record.publish_time,
+                sequence=record.sequence,
+            )
+            report.messages += 1
+            report.topics[topic] += 1
+            report.undecodable += not _decodes(record.data)
+        elif isinstance(record, Attachment):
+            writer.add_attachment(
+                record.create_time, record.log_time, record.name, record.media_type, record.data
+            )
+            report.attachments.append(record.name)
+        elif isinstance(record, Metadata):
+            writer.add_metadata(record.name, dict(record.metadata))
+            report.metadata.append(record.name)
+    if not started:
+        raise SessionLogError(
+            f"{reader.path} has no readable MCAP header record: nothing to recover"
+        )
+    report.complete = reader.complete
+    report.damage = reader.damage
+    report.closed_cleanly = END_METADATA in report.metadata
+    report.salvaged_bytes = reader.good_bytes
+    report.source_bytes = reader.path.stat().st_size
+    writer.add_metadata(
+        RECOVERY_METADATA,
+        {
+            "source": str(reader.path.resolve()),
+            "recovered_utc": datetime.now(UTC).isoformat(),
+            "software_version": software_version(),
+            **{
+                key: json.dumps(value)
+                for key, value in report.as_dict().items()
+                if key not in ("source", "out")
+            },
+        },
+    )
+    writer.finish()
+
+
+def _decodes(data: bytes) -> bool:
+    try:
+        decode(unpack_frames(data), max_bytes=DEFAULT_MAX_BYTES)
+    except MessageRejected:
+        return False
+    return True

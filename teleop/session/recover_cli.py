@@ -1,0 +1,45 @@
+"""``teleop recover``: every complete message of a log cut short, salvaged into a complete file."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from teleop.session.recover import recover
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "log", metavar="LOG", help="session log (.mcap), e.g. one a killed recorder left"
+    )
+    parser.add_argument(
+        "--out", required=True, metavar="FIXED.mcap", help="complete MCAP file to write"
+    )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object (source, out, complete, closed_cleanly, damage, messages, "
+        "topics, undecodable, attachments, metadata, salvaged_bytes, source_bytes) as the "
+        "last stdout line",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    report = recover(args.log, args.out, progress=True)
+    state = "complete" if report.complete else f"cut short ({report.damage})"
+    print(
+        f"{args.log}: {state}; salvaged {report.messages} messages, "
+        f"{len(report.attachments)} attachments, "
+        f"{report.salvaged_bytes} of {report.source_bytes} bytes into {args.out}",
+        file=sys.stderr,
+    )
+    if report.undecodable:
+        print(
+            f"{report.undecodable} salvaged messages are not valid bus messages "
+            "(kept verbatim; readers skip them)",
+            file=sys.stderr,
+        )
+    if args.json:
+        print(json.dumps(report.as_dict()))
+    return 0

@@ -1,0 +1,119 @@
+"""``teleop replay``: publish a recorded session back onto the bus, at recorded or faster speed."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from teleop.bus.pubsub import Publisher
+from teleop.errors import SessionLogError
+from teleop.session.replay import replay
+from teleop.settings import load_settings
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("log", metavar="LOG", help="session log (.mcap) written by `teleop record`")
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="replay X times as fast as recorded (paced by the receive times)",
+    )
+    pace.add_argument(
+        "--as-fast-as-possible",
+        action="store_true",
+        help="send without pacing (a slow subscriber still holds the replay back: "
+        "nothing is dropped)",
+    )
+    parser.add_argument(
+        "--endpoint",
+        default=None,
+        metavar="ENDPOINT",
+        help="endpoint to bind and publish on; default: the settings' bus.robot_pub",
+    )
+    parser.add_argument(
+        "--settings",
+        metavar="FILE",
+        default=None,
+        help="settings TOML for the default endpoint, message size limit, heartbeat and bus keys; "
+        "None: the shipped one",
+    )
+    parser.add_argument(
+        "--topics",
+        nargs="+",
+        default=None,
+        metavar="PREFIX",
+        help="replay only topics starting with these prefixes (e.g. frame force width "
+        "grasp_event); default: all but heartbeats",
+    )
+    parser.add_argument(
+        "--source",
+        default="replay",
+        metavar="NAME",
+        help="node name in the replayed messages' headers",
+    )
+    parser.add_argument(
+        "--wait-subscriber-s",
+        type=float,
+        default=5.0,
+        metavar="S",
+        help="wait up to S seconds for a bus subscriber to connect before sending (0: do not wait)",
+    )
+    parser.add_argument(
+        "--linger-s",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="keep the endpoint open S seconds after the last message, so queued messages "
+        "reach slow subscribers before it closes",
+    )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object (log, endpoint, sent, topics, heartbeats_skipped, refused, "
+        "log_span_s, wall_s, damage) as the last stdout line",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.as_fast_as_possible and not args.speed > 0:
+        raise SessionLogError(f"--speed {args.speed}: expected a number > 0")
+    if not args.linger_s >= 0:
+        raise SessionLogError(f"--linger-s {args.linger_s}: expected a number >= 0")
+    settings = load_settings(args.settings)
+    endpoint = args.endpoint or settings.bus.robot_pub
+    # the settings' size limit, heartbeat period and CURVE keys
+    with Publisher.from_settings(
+        settings.bus, endpoint, lossless=True, source=args.source
+    ) as publisher:
+        if (
+            args.wait_subscriber_s > 0
+        ):  # every bus Subscriber subscribes to heartbeats, whatever else it wants
+            publisher.wait_for_subscriber("heartbeat", timeout_s=args.wait_subscriber_s)
+        stats = replay(
+            args.log,
+            publisher,
+            speed=None if args.as_fast_as_possible else args.speed,
+            topics=args.topics,
+            progress=True,
+        )
+        endpoint = publisher.endpoint
+        # Publisher.close() discards what is still queued: give subscribers time to take it.
+        deadline = time.monotonic() + args.linger_s
+        while (remaining := deadline - time.monotonic()) > 0:
+            time.sleep(min(remaining, publisher.heartbeat_s))
+            publisher.heartbeat_if_due()
+    print(
+        f"replayed {stats.sent} messages ({stats.log_span_s:.2f} s recorded) "
+        f"in {stats.wall_s:.2f} s on {endpoint}; refused {sum(stats.refused.values())}",
+        file=sys.stderr,
+    )
+    if stats.damage:
+        print(f"the log stopped early: {stats.damage}", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"log": args.log, "endpoint": endpoint, **stats.as_dict()}))
+    return 0

@@ -1,0 +1,424 @@
+"""One simulated grasp: gripper motion, mechanics, sensors, frames, record.
+
+The fingers close symmetrically from ``max_width_m`` at ``closing_speed_m_s``.
+From first touch, the motor's closure c (the reported width's drop below the
+object's extent between the two first-contact points) is taken up by
+
+* each finger's contact: the gel layer's and the object's surface
+  displacement at the first-contact point (BEM or Hertz, :mod:`contact`);
+* the object's bulk: uniaxial compression F L / (E A) of its extent L over its
+  mean cross-section A, on top of the local contact;
+* the fingers bending open by F / k (``finger_stiffness_n_per_m``, drawn around
+  the setting per grasp: the rig's linear correction is never exact).
+
+The object's share (contact plus bulk) stiffens as it is compressed: a finite
+body cannot be squeezed through itself, foam densifies. Its linear value X is
+mapped to X_max (1 - exp(-X / X_max)) with X_max = (densification strain) x L,
+so soft objects still reach the force target before the fingers meet.
+
+The squeeze stops when the force reaches the grasp's target (drawn per grasp,
+up to ``target_force_n``; the gripper stalls on its force limit) or the
+fingers close completely; the host holds ``hold_s`` after the grasp reports
+done, then commands release and the fingers open at the same speed. Sensors
+(:mod:`sensors`) sample the true force and motor width; the cameras image the
+gel's own displacement, interpolated between contact solutions on a ladder of
+force levels. The host keeps the streams from ``PRE_ROLL_S`` before its load
+cell first reads a touch until ``POST_ROLL_S`` after it reads the release.
+
+Nothing of this module's internals goes into the record except the provenance
+(source, seed, model); :class:`GraspTruth` carries them for previews and tests.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import zlib
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from teleop.catalogue import ObjectSpec
+from teleop.errors import SimulationError
+from teleop.record import FrameStream, GraspRecord, Label, Provenance, Samples
+from teleop.settings import SensorSettings, Settings
+from teleop.sim.contact import (
+    Body,
+    ContactSolution,
+    Influence,
+    gel_shear,
+    hertz_contact,
+    hertz_sphere,
+    layer_stiffening,
+    solve_contact,
+)
+from teleop.sim.optics import TactileCamera, procedural_background
+from teleop.sim.sensors import camera_times, gripper_width_readings, load_cell_readings
+from teleop.sim.shapes import Pose, Scene, draw_pose, make_scene, object_size, object_texture
+
+__all__ = [
+    "FingerMechanics",
+    "GraspTruth",
+    "LoadCurve",
+    "contact_grid",
+    "load_curve",
+    "simulate_grasp",
+]
+
+TARGET_FORCE_FRACTION = (0.4, 1.0)  # of GripperSettings.target_force_n, per grasp
+FINGER_STIFFNESS_SD = 0.1  # log-normal spread of the true finger stiffness around the setting
+DENSIFICATION_STRAIN = {"foam": 0.8, "food": 0.6}
+DEFAULT_DENSIFICATION_STRAIN = 0.5
+MOTION_DELAY_S = (0.02, 0.08)  # command to motion start
+HOST_DELAY_S = (0.0, 0.05)  # grasp done to release command, beyond hold_s
+RECORD_FORCE_N = 0.2  # the host's touch threshold for keeping a record
+PRE_ROLL_S = 0.2
+POST_ROLL_S = 0.1
+TIME_STEP_S = 1e-3
+LOAD_LEVELS = 12
+MIN_LEVEL_FORCE_N = 0.05
+SOLVER_TOLERANCE = 1e-3
+# Hertz is used only where its error against the layered BEM is below this
+# (first-order layer estimate, texture, object curvature and pad edges).
+HERTZ_TOLERANCE = 0.01
+
+
+def contact_grid(sensor: SensorSettings, grid_px: int) -> tuple[tuple[int, int], tuple[float, float]]:
+    """Contact-solver grid covering the sensor's image: (rows, cols) and cell size (m, m)."""
+    rows, cols = sensor.image_shape
+    cell = grid_px * sensor.pixel_pitch_m
+    return (math.ceil(rows / grid_px), math.ceil(cols / grid_px)), (cell, cell)
+
+
+def _gel_body(sensor: SensorSettings) -> Body:
+    return Body(sensor.gel_modulus_pa, sensor.gel_poisson, sensor.gel_thickness_m)
+
+
+@dataclass(frozen=True)
+class FingerMechanics:
+    """One finger's contact over the force ladder.
+
+    ``gel_m`` and ``object_m`` are the gel's and the object's displacement at the
+    first-contact point (their sum is the finger's approach), per level.
+    """
+
+    finger: str
+    solutions: tuple[ContactSolution, ...]
+    gel_m: np.ndarray
+    object_m: np.ndarray
+
+
+@dataclass(frozen=True)
+class LoadCurve:
+    """Motor closure beyond first touch as a function of force, and its parts.
+
+    All arrays run over the levels ``force_n`` (ascending, first 0).
+    """
+
+    force_n: np.ndarray
+    closure_m: np.ndarray
+    gel_m: np.ndarray  # both gels at the first-contact points
+    object_m: np.ndarray  # the object: both contacts plus bulk, after densification
+    object_linear_m: np.ndarray  # the same before densification
+    bulk_linear_m: np.ndarray  # bulk part of object_linear_m
+    finger_m: np.ndarray  # finger bending F / k
+    fingers: dict[str, FingerMechanics]
+    model: str
+
+    def force_at(self, closure_m: np.ndarray) -> np.ndarray:
+        """Force (N) at motor closure (m); 0 before touch."""
+        return np.interp(closure_m, self.closure_m, self.force_n, left=0.0)
+
+    def level_weights(self, force_n: float) -> list[tuple[int, float]]:
+        """(level index, weight) pairs giving a field at ``force_n`` from the levels' fields.
+
+        Linear in log force between the two nearest levels; below the first
+        level its field scaled as F^(2/3); none at zero force.
+        """
+        levels = self.force_n[1:]
+        if force_n <= 0:
+            return []
+        if force_n <= levels[0]:
+            return [(0, (force_n / levels[0]) ** (2.0 / 3.0))]
+        if force_n >= levels[-1]:
+            return [(len(levels) - 1, 1.0)]
+        upper = int(np.searchsorted(levels, force_n))
+        w = math.log(force_n / levels[upper - 1]) / math.log(levels[upper] / levels[upper - 1])
+        return [(upper - 1, 1.0 - w), (upper, w)]
+
+    def gel_map(self, finger: str, force_n: float) -> np.ndarray:
+        """The gel's displacement (m) on the contact grid at ``force_n`` (see :meth:`level_weights`)."""
+        maps = [s.gel_displacement_m for s in self.fingers[finger].solutions]
+        return sum((w * maps[i] for i, w in self.level_weights(force_n)), np.zeros_like(maps[0]))
+
+
+def _hertz_applies(obj: ObjectSpec, size: tuple[float, float, float], first_contact_rc: tuple[int, int],
+                   max_force_n: float, gel: Body, body: Body,
+                   grid: tuple[tuple[int, int], tuple[float, float]]) -> bool:
+    """Whether Hertz is within HERTZ_TOLERANCE of the layered BEM for one finger's contact."""
+    if obj.shape != "sphere":
+        return False
+    radius = size[0] / 2
+    e_star = 1.0 / (gel.compliance_per_pa + body.compliance_per_pa)
+    a = float(hertz_sphere(max_force_n, radius_m=radius, e_star_pa=e_star)[0])
+    small_approach = float(hertz_sphere(0.1 * max_force_n, radius_m=radius, e_star_pa=e_star)[1])
+    (rows, cols), cell = grid
+    row, col = first_contact_rc
+    edge_m = min(row * cell[0], (rows - 1 - row) * cell[0], col * cell[1], (cols - 1 - col) * cell[1])
+    return (a <= HERTZ_TOLERANCE * 10 * radius  # small strain: a <= R / 10
+            and layer_stiffening(a, gel=gel, obj=body) <= HERTZ_TOLERANCE
+            and object_texture(obj) <= HERTZ_TOLERANCE * small_approach
+            and edge_m >= 3 * a)
+
+
+def load_curve(obj: ObjectSpec, scene: Scene, *, sensors: dict[str, SensorSettings], grid_px: int,
+               max_force_n: float, finger_stiffness_n_per_m: float,
+               size: tuple[float, float, float] | None = None) -> LoadCurve:
+    """Solve both contacts on a ladder of forces up to ``max_force_n`` and assemble the closure.
+
+    Parameters
+    ----------
+    obj : ObjectSpec
+    scene : Scene
+        Gap profiles of both fingers (from :func:`~teleop.sim.shapes.make_scene`).
+    sensors : dict finger -> SensorSettings
+        The two fingers' sensors (gel layer and image grid).
+    grid_px : int
+        Contact-solver cell size in image pixels.
+    max_force_n : float
+        The top of the ladder (the grasp's target force).
+    finger_stiffness_n_per_m : float
+        True stiffness of the finger pair.
+
+    Raises
+    ------
+    SimulationError
+        A contact solve did not converge (its reason is in the message).
+    """
+    size = object_size(obj) if size is None else size
+    body = Body(obj.modulus_pa, obj.poisson)
+    gels = {finger: _gel_body(sensor) for finger, sensor in sensors.items()}
+    grids = {finger: contact_grid(sensor, grid_px) for finger, sensor in sensors.items()}
+    levels = np.geomspace(min(MIN_LEVEL_FORCE_N, max_force_n / 10), max_force_n, LOAD_LEVELS)
+    use_hertz = all(_hertz_applies(obj, size, scene.first_contact_rc[f], max_force_n, gels[f], body, grids[f])
+                    for f in sensors)
+    model = "hertz" if use_hertz else "bem-layer"
+
+    fingers = {}
+    for finger in sensors:
+        gap = scene.gap_m[finger]
+        first = scene.first_contact_rc[finger]
+        shape, cell = grids[finger]
+        if gap.shape != shape:
+            raise SimulationError(f"finger {finger!r}: gap grid {gap.shape} does not match the sensor's {shape}")
+        solutions = []
+        if use_hertz:
+            solutions = [hertz_contact(f, shape=shape, cell_m=cell, centre_rc=first, radius_m=size[0] / 2,
+                                       gel=gels[finger], obj=body) for f in levels]
+        else:
+            try:
+                influence = Influence(shape, cell, gel=gels[finger], obj=body)
+            except ValueError as exc:
+                raise SimulationError(f"sensor {finger!r} with grid_px {grid_px}: {exc}") from exc
+            previous = None
+            for force in levels:
+                solution = solve_contact(gap, influence, force_n=float(force), tolerance=SOLVER_TOLERANCE,
+                                         initial_pressure_pa=previous)
+                if not solution:
+                    raise SimulationError(
+                        f"object {obj.name!r}, finger {finger!r}: contact at {force:.3g} N failed: {solution.reason}"
+                    )
+                solutions.append(solution)
+                previous = solution.pressure_pa
+        gel_m = np.array([s.gel_displacement_m[first] for s in solutions])
+        fingers[finger] = FingerMechanics(finger, tuple(solutions), gel_m,
+                                          np.array([s.approach_m for s in solutions]) - gel_m)
+
+    bulk = levels * scene.extent_m / (obj.modulus_pa * scene.cross_section_m2)
+    object_linear = sum(m.object_m for m in fingers.values()) + bulk
+    limit = DENSIFICATION_STRAIN.get(obj.material, DEFAULT_DENSIFICATION_STRAIN) * scene.extent_m
+    object_m = limit * -np.expm1(-object_linear / limit)
+    gel_m = sum(m.gel_m for m in fingers.values())
+    finger_m = levels / finger_stiffness_n_per_m
+    closure = gel_m + object_m + finger_m
+
+    def with_zero(values: np.ndarray) -> np.ndarray:
+        return np.concatenate([[0.0], values])
+
+    closure = np.maximum.accumulate(with_zero(closure))  # guard the inverse against solver noise
+    return LoadCurve(
+        force_n=with_zero(levels), closure_m=closure, gel_m=with_zero(gel_m), object_m=with_zero(object_m),
+        object_linear_m=with_zero(object_linear), bulk_linear_m=with_zero(bulk), finger_m=with_zero(finger_m),
+        fingers=fingers, model=model,
+    )
+
+
+@dataclass(frozen=True)
+class GraspTruth:
+    """The simulator's ground truth of one grasp (never written to the record)."""
+
+    size_m: tuple[float, float, float]
+    pose: Pose
+    scene: Scene
+    curve: LoadCurve
+    target_force_n: float
+    finger_stiffness_n_per_m: float
+    t_s: np.ndarray  # fine time grid
+    force_n: np.ndarray  # true normal force
+    motor_width_m: np.ndarray  # what the gripper would report without noise or latency
+    touch_s: float
+    stall_s: float
+    release_s: float
+    peak_gel_m: dict[str, np.ndarray] = field(default_factory=dict)  # image grid, at peak force
+
+    @property
+    def tip_width_m(self) -> np.ndarray:
+        """True distance between the undeformed gel surfaces (the fingers bend open by F / k)."""
+        return self.motor_width_m + self.force_n / self.finger_stiffness_n_per_m
+
+
+@functools.lru_cache(maxsize=8)
+def _procedural_background(sensor: SensorSettings) -> np.ndarray:
+    """The sensor's no-contact frame: fixed per sensor identity, like its dust and lighting."""
+    seed = zlib.crc32(f"{sensor.model}/{sensor.finger}/{sensor.serial}/background".encode())
+    return procedural_background(sensor, rng=np.random.default_rng(seed))
+
+
+def _to_image(field_grid: np.ndarray, sensor: SensorSettings, grid_px: int) -> np.ndarray:
+    """Contact grid -> the sensor's image grid (bicubic, centred crop), float32."""
+    rows, cols = sensor.image_shape
+    up = cv2.resize(field_grid.astype(np.float32), (field_grid.shape[1] * grid_px, field_grid.shape[0] * grid_px),
+                    interpolation=cv2.INTER_CUBIC)
+    r0, c0 = (up.shape[0] - rows) // 2, (up.shape[1] - cols) // 2
+    return up[r0:r0 + rows, c0:c0 + cols]
+
+
+def _motion(t: np.ndarray, *, start_s: float, from_m: float, speed_m_s: float, sign: float) -> np.ndarray:
+    return from_m + sign * speed_m_s * np.clip(t - start_s, 0.0, None)
+
+
+def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Generator,
+                   seed: int | None = None, background: dict[str, np.ndarray] | None = None
+                   ) -> tuple[GraspRecord, GraspTruth]:
+    """Simulate one labelled grasp of ``obj``.
+
+    Parameters
+    ----------
+    obj : ObjectSpec
+    settings : Settings
+        Exactly two sensors (the first at the -x finger); gripper, load cell and
+        simulation settings.
+    rng : Generator
+        Every random draw of this grasp comes from it: same state, same record.
+    seed : int, optional
+        Stored in the record's provenance.
+    background : dict finger -> raw BGR uint8 frame, optional
+        No-contact frames for the cameras (default: as SimulationSettings says).
+
+    Returns
+    -------
+    GraspRecord, GraspTruth
+
+    Raises
+    ------
+    SimulationError
+        The settings do not have two sensors, the object does not fit the
+        gripper, or a contact solve failed.
+    """
+    if len(settings.sensors) != 2:
+        raise SimulationError(
+            f"the grasp simulator needs exactly two sensors (one per finger); settings have "
+            f"{[s.finger for s in settings.sensors]}"
+        )
+    gripper, sim = settings.gripper, settings.simulation
+    sensors = {s.finger: s for s in settings.sensors}
+    fingers = tuple(sensors)
+    first_sensor = settings.sensors[0]
+    size = object_size(obj)
+    pose = draw_pose(obj, size, rng=rng, max_width_m=gripper.max_width_m, pad_m=first_sensor.pad_size_m)
+    shape, cell = contact_grid(first_sensor, sim.grid_px)
+    if any(contact_grid(s, sim.grid_px)[0] != shape or not math.isclose(s.pixel_pitch_m, first_sensor.pixel_pitch_m,
+                                                                       rel_tol=1e-3) for s in settings.sensors):
+        raise SimulationError("the two sensors must share the image grid and pixel pitch")
+    scene = make_scene(obj, pose, shape=shape, cell_m=cell, fingers=fingers, rng=rng, size=size)
+    if scene.extent_m >= gripper.max_width_m:
+        raise SimulationError(f"object {obj.name!r} is {scene.extent_m:.3f} m wide here: "
+                              f"more than the gripper opens ({gripper.max_width_m} m)")
+    target = gripper.target_force_n * rng.uniform(*TARGET_FORCE_FRACTION)
+    stiffness = gripper.finger_stiffness_n_per_m * math.exp(rng.normal(0.0, FINGER_STIFFNESS_SD))
+    curve = load_curve(obj, scene, sensors=sensors, grid_px=sim.grid_px, max_force_n=target,
+                       finger_stiffness_n_per_m=stiffness, size=size)
+
+    # Gripper motion and the true force.
+    speed = gripper.closing_speed_m_s
+    command_s = 0.0
+    move_s = command_s + rng.uniform(*MOTION_DELAY_S)
+    touch_s = move_s + (gripper.max_width_m - scene.extent_m) / speed
+    stall_closure = min(float(curve.closure_m[-1]), scene.extent_m)  # the fingers cannot pass each other
+    stall_s = touch_s + stall_closure / speed
+    release_s = stall_s + gripper.hold_s + rng.uniform(*HOST_DELAY_S)
+    open_s = release_s + rng.uniform(*MOTION_DELAY_S)
+    lost_s = open_s + stall_closure / speed
+    t = np.arange(touch_s - 2.0, lost_s + 2.0, TIME_STEP_S)
+    closing = np.minimum(_motion(t, start_s=move_s, from_m=gripper.max_width_m, speed_m_s=speed, sign=-1.0),
+                         gripper.max_width_m)
+    stall_width = scene.extent_m - stall_closure
+    motor_width = np.where(t < open_s, np.maximum(closing, stall_width),
+                           np.minimum(_motion(t, start_s=open_s, from_m=stall_width, speed_m_s=speed, sign=1.0),
+                                      gripper.max_width_m))
+    force = curve.force_at(scene.extent_m - motor_width)
+
+    # What the host keeps: from just before its load cell reads a touch to just after it reads the release.
+    readings = load_cell_readings(t, force, load_cell=settings.load_cell, sim=sim, rng=rng,
+                                  start_s=float(t[0]), end_s=float(t[-1]))
+    threshold = min(RECORD_FORCE_N, 0.5 * float(force.max()))
+    above = np.flatnonzero(readings.value > threshold)
+    start_s = (readings.t_s[above[0]] if above.size else touch_s) - PRE_ROLL_S
+    after = np.flatnonzero((readings.t_s > release_s) & (readings.value <= threshold))
+    end_s = (readings.t_s[after[0]] if after.size else lost_s) + POST_ROLL_S
+    keep = (readings.t_s >= start_s) & (readings.t_s <= end_s)
+    force_samples = Samples(readings.t_s[keep], readings.value[keep])
+    width_samples = gripper_width_readings(t, motor_width, gripper=gripper, sim=sim, rng=rng,
+                                           start_s=start_s, end_s=end_s)
+
+    streams = []
+    peak = {}
+    for finger, sensor in sensors.items():
+        capture_s, stamp_s = camera_times(sensor=sensor, sim=sim, rng=rng, start_s=start_s, end_s=end_s)
+        camera_background = (background or {}).get(finger)
+        if camera_background is None and not sim.background:
+            camera_background = _procedural_background(sensor)
+        camera = TactileCamera(sensor, sim=sim, rng=rng.spawn(1)[0], background=camera_background)
+        # Height and in-plane displacement on the image grid at each force level; both are linear
+        # in the gel's displacement, so a frame's are the same weighted sum of the levels'.
+        levels = []
+        for solution in curve.fingers[finger].solutions:
+            shear = gel_shear(solution.gel_displacement_m, cell_m=cell, thickness_m=sensor.gel_thickness_m)
+            levels.append(np.dstack([_to_image(field, sensor, sim.grid_px) for field in
+                                     (solution.gel_displacement_m, shear[..., 0], shear[..., 1])]))
+        rest = np.zeros_like(levels[0])
+        encoded = []
+        for f in np.interp(capture_s, t, force):
+            surface = sum((w * levels[i] for i, w in curve.level_weights(float(f))), rest)
+            encoded.append(camera.capture(surface[..., 0], shear_m=surface[..., 1:]))
+        peak[finger] = _to_image(curve.gel_map(finger, float(force.max())), sensor, sim.grid_px)
+        streams.append(FrameStream(finger=finger, t_s=stamp_s, encoded=tuple(encoded), encoding="jpeg",
+                                   jpeg_quality=sim.jpeg_quality,
+                                   shape=(sensor.raw_height_px, sensor.raw_width_px, 3)))
+
+    record = GraspRecord(
+        sensors=settings.sensors,
+        frames=tuple(streams),
+        force_n=force_samples,
+        width_m=width_samples,
+        provenance=Provenance(source="simulated", seed=seed, model=curve.model),
+        label=Label(object_name=obj.name, modulus_pa=obj.modulus_pa, material=obj.material, shape=obj.shape),
+        events={"command_grasp": command_s, "command_release": release_s},
+    )
+    truth = GraspTruth(
+        size_m=size, pose=pose, scene=scene, curve=curve, target_force_n=target,
+        finger_stiffness_n_per_m=stiffness, t_s=t, force_n=force, motor_width_m=motor_width,
+        touch_s=touch_s, stall_s=stall_s, release_s=release_s, peak_gel_m=peak,
+    )
+    return record, truth

@@ -1,0 +1,185 @@
+"""``teleop simulate-presses``: rigid-ball presses on a simulated sensor, in taxim's dataPack layout.
+
+The estimator calibrates its colour-to-gradient map on presses of a ball of known
+radius. This command renders them on the simulated sensor so the estimator can be
+calibrated for simulation exactly as for hardware (where taxim's recordings are
+the reference). The file (``np.savez_compressed``, no pickles) holds:
+
+``f0``            uint8 (480, 640, 3): the no-contact raw frame (camera noise, JPEG).
+``imgs``          uint8 (n, 480, 640, 3): raw frames of the presses (noise, JPEG).
+``touch_center``  float64 (n, 2): press centres [x, y] in px of the WARPED-AND-CROPPED grid.
+``touch_radius``  int64 (n,): contact radius in grid px, rounded (as in taxim).
+``names``         unicode (n + 1,): ``frame_0.jpg`` (f0), ``frame_1.jpg`` ... (the presses).
+``img_size``      int64 (3,): raw frame shape.
+``mm_per_px``     float64 0-d: gel surface per grid px.
+``frame``         unicode 0-d: ``"warped_cropped"``: warp and crop the raw frames with the
+                  sensor's settings before using the centres and radii.
+``ball_radius_mm`` float64 0-d and ``press_depth_mm`` float64 (n,): the exact geometry
+                  (contact radius = sqrt(2 R d - d^2)).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from teleop.errors import SimulationError
+from teleop.settings import default_settings_path, load_settings
+from teleop.sim.optics import TactileCamera
+
+__all__ = ["contact_radius_m", "simulate_presses", "sphere_press_height", "write_presses"]
+
+# Keep every contact this many grid px away from the grid's edge.
+EDGE_MARGIN_PX = 3.0
+
+
+def contact_radius_m(ball_radius_m: float, depth_m: float) -> float:
+    """Radius (m) of the circle where a rigid ball of ``ball_radius_m`` pressed ``depth_m`` meets the gel."""
+    return float(np.sqrt(2.0 * ball_radius_m * depth_m - depth_m**2))
+
+
+def sphere_press_height(shape: tuple[int, int], *, center_px: tuple[float, float],
+                        ball_radius_m: float, depth_m: float, pixel_pitch_m: float) -> np.ndarray:
+    """Gel indentation (m) of a rigid ball pressed into the gel: a spherical cap.
+
+    h = max(0, d - (R - sqrt(R^2 - r^2))), r the distance from ``center_px`` = (x, y)
+    in px of ``pixel_pitch_m``. Returns float64 of ``shape`` (rows, cols).
+    """
+    rows, cols = np.indices(shape, dtype=np.float64)
+    r_sq = ((cols - center_px[0]) ** 2 + (rows - center_px[1]) ** 2) * pixel_pitch_m**2
+    cap_drop = ball_radius_m - np.sqrt(np.maximum(ball_radius_m**2 - r_sq, 0.0))
+    return np.where(r_sq < ball_radius_m**2, np.maximum(depth_m - cap_drop, 0.0), 0.0)
+
+
+def _decode(jpeg: bytes) -> np.ndarray:
+    return cv2.imdecode(np.frombuffer(jpeg, dtype=np.uint8), cv2.IMREAD_COLOR)
+
+
+def simulate_presses(camera: TactileCamera, *, n: int, ball_radius_m: float,
+                     depth_range_m: tuple[float, float], rng: np.random.Generator,
+                     progress: bool = False) -> dict[str, np.ndarray]:
+    """Press a rigid ball ``n`` times at random centres and depths; return the dataPack arrays.
+
+    Parameters
+    ----------
+    camera : TactileCamera
+        The simulated sensor's camera; frames are its captures (noise, JPEG), decoded.
+    n : int
+        Number of presses, >= 1.
+    ball_radius_m : float
+        Ball radius (m).
+    depth_range_m : (float, float)
+        Press depths (m) are drawn uniformly from [lo, hi]; 0 < lo <= hi <= ball
+        radius and hi <= the gel's thickness.
+    rng : numpy.random.Generator
+        Draws centres and depths.
+    progress : bool
+        Show a tqdm bar on stderr.
+
+    Returns
+    -------
+    dict of str to ndarray
+        The keys and layout of the module docstring.
+    """
+    sensor = camera.sensor
+    lo, hi = depth_range_m
+    if n < 1:
+        raise SimulationError(f"n = {n}: expected at least one press")
+    if not 0.0 < lo <= hi <= ball_radius_m:
+        raise SimulationError(
+            f"depth range {lo * 1e3:g}..{hi * 1e3:g} mm: expected 0 < lo <= hi <= the ball radius "
+            f"{ball_radius_m * 1e3:g} mm"
+        )
+    if hi > sensor.gel_thickness_m:
+        raise SimulationError(
+            f"depth range up to {hi * 1e3:g} mm: deeper than the gel ({sensor.gel_thickness_m * 1e3:g} mm)"
+        )
+    rows, cols = sensor.image_shape
+    pitch = sensor.pixel_pitch_m
+    depths = rng.uniform(lo, hi, n)
+    radii_px = np.array([contact_radius_m(ball_radius_m, d) for d in depths]) / pitch
+    reach = radii_px + EDGE_MARGIN_PX
+    if 2 * reach.max() >= min(rows, cols):
+        raise SimulationError(
+            f"a {2 * ball_radius_m * 1e3:g} mm ball pressed {hi * 1e3:g} mm does not fit on the "
+            f"{cols}x{rows} px grid of sensor {sensor.finger!r}"
+        )
+    centres = np.column_stack([rng.uniform(reach, cols - 1 - reach), rng.uniform(reach, rows - 1 - reach)])
+
+    f0 = _decode(camera.capture(np.zeros(sensor.image_shape)))
+    imgs = np.empty((n, *f0.shape), dtype=np.uint8)
+    for i in tqdm(range(n), desc="presses", unit="press", disable=not progress, file=sys.stderr):
+        height = sphere_press_height(sensor.image_shape, center_px=tuple(centres[i]),
+                                     ball_radius_m=ball_radius_m, depth_m=depths[i], pixel_pitch_m=pitch)
+        imgs[i] = _decode(camera.capture(height))
+    return {
+        "f0": f0,
+        "imgs": imgs,
+        "touch_center": centres.astype(np.float64),
+        "touch_radius": np.rint(radii_px).astype(np.int64),
+        "names": np.array([f"frame_{i}.jpg" for i in range(n + 1)]),
+        "img_size": np.array(f0.shape, dtype=np.int64),
+        "mm_per_px": np.array(pitch * 1e3),
+        "frame": np.array("warped_cropped"),
+        "ball_radius_mm": np.array(ball_radius_m * 1e3),
+        "press_depth_mm": depths * 1e3,
+    }
+
+
+def write_presses(path: str | Path, pack: dict[str, np.ndarray]) -> Path:
+    """Write ``pack`` to exactly ``path`` as a compressed .npz (no pickled objects)."""
+    path = Path(path)
+    try:
+        with path.open("wb") as stream:
+            np.savez_compressed(stream, **pack)
+    except OSError as exc:
+        raise SimulationError(f"cannot write presses file {path}: {exc.strerror or exc}") from exc
+    return path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", required=True, default=argparse.SUPPRESS,
+                        help="output .npz file (taxim dataPack layout)")
+    parser.add_argument("--settings", default=str(default_settings_path()), help="settings TOML file")
+    parser.add_argument("--finger", default="left", help="which finger's sensor to simulate")
+    parser.add_argument("--n", type=int, default=48, help="number of presses")
+    parser.add_argument("--ball-radius-mm", type=float, default=2.0, help="radius of the rigid ball (mm)")
+    parser.add_argument("--depth-mm", type=float, nargs=2, default=(0.3, 1.0), metavar=("LO", "HI"),
+                        help="press depths are drawn uniformly from LO..HI (mm)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="random seed (camera noise, background dust, press centres and depths)")
+    parser.add_argument("--json", action="store_true", help="print one JSON summary as the last line")
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = load_settings(args.settings)
+    sensor = settings.sensor(args.finger)
+    camera_rng, press_rng = np.random.default_rng(args.seed).spawn(2)
+    camera = TactileCamera(sensor, sim=settings.simulation, rng=camera_rng)
+    pack = simulate_presses(
+        camera, n=args.n, ball_radius_m=args.ball_radius_mm * 1e-3,
+        depth_range_m=(args.depth_mm[0] * 1e-3, args.depth_mm[1] * 1e-3), rng=press_rng, progress=True,
+    )
+    path = write_presses(args.out, pack)
+    summary = {
+        "out": str(path),
+        "finger": sensor.finger,
+        "n": int(args.n),
+        "ball_radius_mm": float(args.ball_radius_mm),
+        "mm_per_px": float(pack["mm_per_px"]),
+        "touch_radius_px": [int(pack["touch_radius"].min()), int(pack["touch_radius"].max())],
+        "frame": "warped_cropped",
+        "seed": int(args.seed),
+    }
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"wrote {args.n} presses of a {args.ball_radius_mm:g} mm ball on the {sensor.finger} "
+              f"sensor to {path} (centres in warped-and-cropped px, {summary['mm_per_px']:.4f} mm/px)")
+    return 0

@@ -1,0 +1,244 @@
+"""Calibration fitting, its file, press sets and the checks on every input."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from estimator.errors import CalibrationError, PerceptionError
+from estimator.perception import (
+    Calibration,
+    detect_press_circle,
+    fit_calibration,
+    load_calibration,
+    load_presses,
+    split_presses,
+    warp_points,
+)
+from teleop.settings import SensorSettings
+
+PITCH = 0.0295e-3
+BALL = 2.0e-3
+
+
+def small_calibration(**changes):
+    lut = np.random.default_rng(3).standard_normal((2, 3, 4, 4, 4, 2)).astype(np.float32)
+    fields = {"lut": lut, "image_shape": (20, 30), "pixel_pitch_m": PITCH, "ball_radius_m": BALL,
+              "provenance": {"source": "test", "train_indices": [0, 2]}}
+    return Calibration(**{**fields, **changes})
+
+
+# --------------------------------------------------------------------------- the file
+
+
+def test_round_trip_keeps_every_field_and_the_same_gradients(tmp_path, gelsight_calibration, gelsight_presses):
+    path = gelsight_calibration.save(tmp_path / "cal.npz")
+    loaded = load_calibration(path)
+    np.testing.assert_array_equal(loaded.lut, gelsight_calibration.lut)
+    for name in ("image_shape", "pixel_pitch_m", "ball_radius_m", "relative_range", "provenance", "bins", "tiles"):
+        assert getattr(loaded, name) == getattr(gelsight_calibration, name), name
+    frame = gelsight_presses.images[5]
+    for ours, theirs in zip(loaded.gradients(frame, gelsight_presses.reference),
+                            gelsight_calibration.gradients(frame, gelsight_presses.reference), strict=True):
+        np.testing.assert_array_equal(ours, theirs)
+    with np.load(path, allow_pickle=False) as data:  # plain arrays only
+        assert json.loads(str(data["meta"]))["format"] == "compliance-teleop.calibration"
+
+
+def test_table_is_read_only_and_copied():
+    lut = np.zeros((1, 1, 4, 4, 4, 2), np.float32)
+    calibration = small_calibration(lut=lut)
+    lut[...] = 1.0
+    assert not calibration.lut.any()
+    assert not calibration.lut.flags.writeable
+
+
+@pytest.mark.parametrize(("member", "match"), [("lut", "missing member"), ("meta", "missing member")])
+def test_load_names_a_missing_member(tmp_path, member, match):
+    path = small_calibration().save(tmp_path / "cal.npz")
+    with np.load(path) as data:
+        kept = {k: data[k] for k in data.files if k != member}
+    np.savez(tmp_path / "cut.npz", **kept)
+    with pytest.raises(CalibrationError, match=f"{match}.*{member}"):
+        load_calibration(tmp_path / "cut.npz")
+
+
+def test_load_refuses_other_files(tmp_path):
+    with pytest.raises(CalibrationError, match="does not exist"):
+        load_calibration(tmp_path / "none.npz")
+    (tmp_path / "text.npz").write_text("not a zip")
+    with pytest.raises(CalibrationError, match="text.npz"):
+        load_calibration(tmp_path / "text.npz")
+    np.savez(tmp_path / "pickled.npz", lut=np.array([{"a": 1}], dtype=object))
+    with pytest.raises(CalibrationError, match="pickled.npz"):
+        load_calibration(tmp_path / "pickled.npz")
+    path = small_calibration().save(tmp_path / "cal.npz")
+    with np.load(path) as data:
+        members = {k: data[k] for k in data.files}
+    members["meta"] = np.array(json.dumps({"format": "something else", "version": 1}))
+    np.savez(tmp_path / "foreign.npz", **members)
+    with pytest.raises(CalibrationError, match="format"):
+        load_calibration(tmp_path / "foreign.npz")
+    members["lut"] = np.full((1, 1, 4, 4, 4, 2), np.nan, np.float32)
+    members["meta"] = np.array(json.dumps({"format": "compliance-teleop.calibration", "version": 1}))
+    np.savez(tmp_path / "nan.npz", **members)
+    with pytest.raises(CalibrationError, match="nan.npz.*NaN"):
+        load_calibration(tmp_path / "nan.npz")
+
+
+@pytest.mark.parametrize(("changes", "match"), [
+    ({"lut": np.zeros((4, 4, 4, 2), np.float32)}, "lut"),
+    ({"lut": np.zeros((1, 1, 4, 4, 4, 2), np.float64)}, "lut"),
+    ({"lut": np.zeros((1, 1, 4, 5, 4, 2), np.float32)}, "lut"),
+    ({"pixel_pitch_m": 0.0}, "pixel_pitch_m"),
+    ({"ball_radius_m": -1.0}, "ball_radius_m"),
+    ({"image_shape": (2, 30)}, "image_shape"),
+])
+def test_impossible_calibrations_cannot_be_built(changes, match):
+    with pytest.raises(CalibrationError, match=match):
+        small_calibration(**changes)
+
+
+def test_gradients_are_float32_views_of_the_table():
+    calibration = small_calibration()
+    frame = np.full((20, 30, 3), 100, np.uint8)
+    gx, gy = calibration.gradients(frame, frame)
+    assert gx.dtype == gy.dtype == np.float32 and gx.shape == (20, 30)
+    # No change falls in the middle bin of each tile: top-left tile, bin (2, 2, 2).
+    assert gx[0, 0] == calibration.lut[0, 0, 2, 2, 2, 0]
+    assert gy[-1, -1] == calibration.lut[1, 2, 2, 2, 2, 1]
+    with pytest.raises(PerceptionError, match="frame"):
+        calibration.gradients(frame[:10], frame)
+
+
+# --------------------------------------------------------------------------- fitting inputs
+
+
+@pytest.fixture(scope="module")
+def few(gelsight_presses):
+    return gelsight_presses.reference, gelsight_presses.images[:2], gelsight_presses.centers_px[:2], \
+        gelsight_presses.radii_px[:2]
+
+
+@pytest.mark.parametrize(("change", "match"), [
+    (lambda a: {**a, "presses": []}, "presses: empty"),
+    (lambda a: {**a, "presses": "images"}, "presses"),
+    (lambda a: {**a, "presses": [p.astype(np.float32) for p in a["presses"]]}, r"presses\[0\]"),
+    (lambda a: {**a, "presses": [p[:100] for p in a["presses"]]}, r"presses\[0\]"),
+    (lambda a: {**a, "reference": a["reference"][..., 0]}, "reference"),
+    (lambda a: {**a, "centers_px": a["centers_px"][:1]}, "centers_px"),
+    (lambda a: {**a, "radii_px": np.array([60.0, 0.0])}, "radii_px"),
+    (lambda a: {**a, "radii_px": np.array([60.0, -3.0])}, "radii_px"),
+    (lambda a: {**a, "radii_px": np.array([60.0, 70.0])}, "radii_px.*ball"),
+    (lambda a: {**a, "centers_px": np.array([[1.0, np.nan], [3.0, 4.0]])}, "NaN"),
+    (lambda a: {**a, "ball_radius_m": 0.0}, "ball_radius_m"),
+    (lambda a: {**a, "ball_radius_m": -2e-3}, "ball_radius_m"),
+    (lambda a: {**a, "pixel_pitch_m": float("nan")}, "pixel_pitch_m"),
+    (lambda a: {**a, "bins": 1}, "bins"),
+    (lambda a: {**a, "tiles": (0, 3)}, "tiles"),
+    (lambda a: {**a, "refine_passes": -1}, "refine_passes"),
+    (lambda a: {**a, "centers_px": np.array([[-500.0, -500.0], [-500.0, -500.0]])}, "no press circle"),
+])
+def test_bad_inputs_are_refused_by_name(few, change, match):
+    reference, presses, centers, radii = few
+    args = {"reference": reference, "presses": list(presses), "centers_px": centers, "radii_px": radii,
+            "ball_radius_m": BALL, "pixel_pitch_m": PITCH, "refine_passes": 0}
+    args = change(args)
+    with pytest.raises(CalibrationError, match=match):
+        fit_calibration(args.pop("reference"), args.pop("presses"), args.pop("centers_px"),
+                        args.pop("radii_px"), **args)
+
+
+def test_provenance_records_the_circles_used(gelsight_calibration):
+    record = gelsight_calibration.provenance
+    assert len(record["press_centers_px"]) == len(record["press_radii_px"]) == 24
+    assert sum(record["circles_refined"]) >= 20
+    assert record["train_indices"] == list(range(0, 48, 2))
+    # Re-measured contact circles sit within a few px of the annotations (both are contact edges).
+    radii = np.array(record["press_radii_px"])
+    assert np.all((radii > 50) & (radii < 67))
+
+
+# --------------------------------------------------------------------------- press sets
+
+
+@pytest.mark.parametrize(("n", "fraction", "expected"), [
+    (48, 0.5, list(range(0, 48, 2))),
+    (5, 0.5, [0, 2]),
+    (3, 1.0, [0, 1, 2]),
+    (10, 0.01, [0]),
+])
+def test_split_is_deterministic_and_spread(n, fraction, expected):
+    assert split_presses(n, fraction).tolist() == expected
+
+
+@pytest.mark.parametrize(("n", "fraction"), [(0, 0.5), (10, 0.0), (10, 1.5)])
+def test_split_refuses_bad_requests(n, fraction):
+    with pytest.raises(CalibrationError):
+        split_presses(n, fraction)
+
+
+def test_real_pack_loads_as_recorded(gelsight_presses, mini_presses):
+    assert len(gelsight_presses) == 48 and len(mini_presses) == 24
+    assert gelsight_presses.circles == "recorded" and gelsight_presses.frame == "raw"
+    assert gelsight_presses.images.shape == (48, 480, 640, 3)
+    assert gelsight_presses.sha256 != mini_presses.sha256
+
+
+def test_pack_with_missing_members_is_named(tmp_path, gelsight_presses):
+    np.savez(tmp_path / "pack.npz", f0=gelsight_presses.reference, imgs=gelsight_presses.images[:2])
+    with pytest.raises(CalibrationError, match="touch_center, touch_radius"):
+        load_presses(tmp_path / "pack.npz")
+    np.savez(tmp_path / "bad.npz", f0=gelsight_presses.reference, imgs=gelsight_presses.images[:2],
+             touch_center=np.zeros((3, 2)), touch_radius=np.ones(2))
+    with pytest.raises(CalibrationError, match="touch_center"):
+        load_presses(tmp_path / "bad.npz")
+    with pytest.raises(CalibrationError, match="do not exist"):
+        load_presses(tmp_path / "absent.npz")
+
+
+def test_folder_needs_one_reference_image(tmp_path, gelsight_presses):
+    cv2.imwrite(str(tmp_path / "press_1.png"), gelsight_presses.images[0])
+    with pytest.raises(CalibrationError, match="f0"):
+        load_presses(tmp_path)
+    cv2.imwrite(str(tmp_path / "ref.png"), gelsight_presses.reference)
+    presses = load_presses(tmp_path)
+    assert presses.circles == "none" and len(presses) == 1
+    np.testing.assert_array_equal(presses.reference, gelsight_presses.reference)
+
+
+def test_detected_circles_are_near_the_annotations(gelsight_presses):
+    # Detection only seeds the calibration; it must land inside the press.
+    for i in range(0, 48, 6):
+        (x, y), radius = detect_press_circle(gelsight_presses.images[i], gelsight_presses.reference,
+                                             max_radius_px=61.0)
+        assert np.hypot(x - gelsight_presses.centers_px[i, 0], y - gelsight_presses.centers_px[i, 1]) < 20
+        assert 0.5 * gelsight_presses.radii_px[i] < radius <= 61.0
+
+
+def test_no_press_is_reported(gelsight_presses):
+    with pytest.raises(CalibrationError, match="no press visible"):
+        detect_press_circle(gelsight_presses.reference, gelsight_presses.reference)
+
+
+def test_warping_maps_circles_along(gelsight_presses):
+    sensor = SensorSettings()
+    subset = gelsight_presses.__class__(
+        gelsight_presses.reference, gelsight_presses.images[:2], gelsight_presses.centers_px[:2],
+        gelsight_presses.radii_px[:2], "recorded", "raw", None, None, "test", "x",
+    )
+    warped = subset.in_sensor_frame(sensor)
+    assert warped.images.shape == (2, *sensor.image_shape, 3) and warped.warped
+    assert warped.frame == "warped_cropped"
+    np.testing.assert_allclose(warped.centers_px, warp_points(subset.centers_px, sensor))
+    # The default Wedge warp magnifies the raw frame about 1.08x near these points
+    # (square root of the Jacobian determinant, checked against finite differences).
+    np.testing.assert_allclose(warped.radii_px / subset.radii_px, [1.078, 1.083], atol=0.002)
+    # Circles already in the warped frame stay as recorded.
+    stated = subset.__class__(**{**subset.__dict__, "frame": "warped_cropped"})
+    np.testing.assert_array_equal(stated.in_sensor_frame(sensor).centers_px, subset.centers_px)
+    with pytest.raises(CalibrationError, match="raw"):
+        warped.__class__(**{**warped.__dict__, "frame": "raw"}).in_sensor_frame(sensor)

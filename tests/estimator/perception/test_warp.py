@@ -1,0 +1,91 @@
+"""Warp and crop against the real Wedge frames and their published corner calibrations."""
+
+from __future__ import annotations
+
+import csv
+
+import cv2
+import numpy as np
+import pytest
+
+from estimator.errors import PerceptionError
+from estimator.perception import warp_and_crop, warp_matrix, warp_points
+from teleop.settings import SensorSettings
+
+
+def corners(path):
+    with path.open() as fh:
+        rows = {row["Name"]: (float(row["x"]), float(row["y"])) for row in csv.DictReader(fh)}
+    return tuple(rows[name] for name in ("topleft", "topright", "bottomleft", "bottomright"))
+
+
+@pytest.fixture(scope="module")
+def wedge(shared_dir):
+    seed = shared_dir / "seed"
+    raw = cv2.imread(str(seed / "wedge_init_frame_raw_640x480.png"), cv2.IMREAD_COLOR)
+    warped = cv2.imread(str(seed / "wedge_init_frame_warped_400x300.png"), cv2.IMREAD_COLOR)
+    return seed, raw, warped
+
+
+@pytest.mark.parametrize(("corners_file", "matches"), [
+    ("wedge_corners_no_markers.csv", True),
+    ("wedge_corners_markers.csv", False),
+])
+def test_real_wedge_frame_warps_onto_the_published_warped_frame(wedge, corners_file, matches):
+    seed, raw, warped = wedge
+    sensor = SensorSettings(warp_corners_px=corners(seed / corners_file))
+    ours = warp_and_crop(raw, sensor)
+    crop = sensor.crop_px
+    expected = warped[crop:-crop, crop:-crop]
+    assert ours.shape == (*sensor.image_shape, 3) == expected.shape
+    assert ours.dtype == np.uint8
+    psnr = cv2.PSNR(ours, expected)
+    # The no-marker corners reproduce the published frame to interpolation rounding
+    # (measured 67 dB uncropped); the other corner set is a different sensor's warp.
+    if matches:
+        assert psnr > 50.0
+        assert np.abs(ours.astype(int) - expected).max() <= 2
+    else:
+        assert psnr < 35.0
+
+
+def test_matrix_is_cached_per_sensor_and_read_only():
+    sensor = SensorSettings()
+    first = warp_matrix(sensor)
+    assert warp_matrix(SensorSettings()) is first
+    assert not first.flags.writeable
+    moved = SensorSettings(warp_corners_px=((40.0, 80.0), (439.0, 121.0), (52.0, 425.0), (446.0, 368.0)))
+    assert not np.allclose(warp_matrix(moved), first)
+
+
+def test_corners_map_to_the_cropped_rectangle_corners():
+    sensor = SensorSettings()
+    mapped = warp_points(np.array(sensor.warp_corners_px), sensor)
+    w, h, c = sensor.warped_width_px, sensor.warped_height_px, sensor.crop_px
+    np.testing.assert_allclose(mapped, [[-c, -c], [w - c, -c], [-c, h - c], [w - c, h - c]], atol=1e-6)
+
+
+def test_a_raw_dot_lands_where_warp_points_says():
+    sensor = SensorSettings()
+    raw = np.zeros((sensor.raw_height_px, sensor.raw_width_px, 3), np.uint8)
+    cv2.circle(raw, (250, 260), 6, (255, 255, 255), -1)
+    warped = warp_and_crop(raw, sensor)
+    rows, cols = np.nonzero(warped[..., 0] > 128)
+    np.testing.assert_allclose([cols.mean(), rows.mean()], warp_points([[250, 260]], sensor)[0], atol=0.5)
+
+
+@pytest.mark.parametrize("raw", [
+    np.zeros((480, 640, 3), np.float32),
+    np.zeros((300, 400, 3), np.uint8),
+    np.zeros((480, 640), np.uint8),
+    [[0, 0, 0]],
+])
+def test_bad_raw_frames_are_refused_by_name(raw):
+    with pytest.raises(PerceptionError, match="raw_bgr"):
+        warp_and_crop(raw, SensorSettings())
+
+
+def test_degenerate_corners_are_refused():
+    line = SensorSettings(warp_corners_px=((0.0, 0.0), (10.0, 0.0), (20.0, 0.0), (30.0, 0.0)))
+    with pytest.raises(PerceptionError, match="warp_corners_px"):
+        warp_matrix(line)

@@ -1,0 +1,381 @@
+"""Analytical estimators on exact synthetic series and on the hard cases."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from estimator.analytical import (
+    MeasurementNoise,
+    approach_per_finger,
+    elastic,
+    fit_line,
+    hertz,
+    no_tactile,
+    split,
+)
+from estimator.errors import FitError
+
+PITCH = 1e-3 / 11
+K_GEL = (1 - 0.48**2) / 0.275e6
+NU = 0.4
+RESOLUTION = MeasurementNoise(depth_m=2e-5, length_m=PITCH)  # exact data, sensor resolution only
+NOISY = MeasurementNoise(force_n=0.02, width_m=2e-5, depth_m=2e-5, length_m=PITCH)
+W0 = 0.04  # fingertip separation at onset
+PAD_AREA = 250 * 350 * PITCH**2
+STEEL, FOAM = 200e9, 5e3
+
+
+def k_object(e_pa):
+    return (1 - NU**2) / e_pa
+
+
+def hertz_series(e_pa, *, radius_m=10e-3, f_max=30.0, n=12):
+    """Exact Hertz sphere-on-gel series: force, per-finger approach, gel centre depth, contact radius."""
+    e_star = 1 / (K_GEL + k_object(e_pa))
+    force = np.linspace(f_max, 0.75, n)[::-1]  # one frame: at the peak
+    a = np.cbrt(3 * force * radius_m / (4 * e_star))
+    approach = a**2 / radius_m
+    p0 = 3 * force / (2 * np.pi * a**2)
+    depth = K_GEL * np.pi * p0 * a / 2  # textbook centre displacement
+    return force, approach, depth, a
+
+
+def split_series(e_pa, *, approach_max_m=2e-3, n=12):
+    approach = np.linspace(approach_max_m, 0.1e-3, n)[::-1]
+    return approach, K_GEL / (K_GEL + k_object(e_pa)) * approach
+
+
+def uniaxial_series(e_pa, *, area_m2=PAD_AREA, n=12, f_max=30.0, depth=None):
+    """Exact Hooke series: force, approach (m) such that 2 (approach - depth) / W0 = F / (A E)."""
+    force = np.linspace(f_max, 0.75, n)[::-1]
+    depth = np.zeros(n) if depth is None else depth
+    approach = force / (area_m2 * e_pa) * W0 / 2 + depth
+    return force, approach, depth
+
+
+def contains(est, truth):
+    low, high = est.interval_pa
+    return (low is None or low <= truth * (1 + 1e-9)) and (high is None or truth <= high * (1 + 1e-9))
+
+
+def check_sound(est):
+    values = [v for v in (est.e_pa, *est.interval_pa) if v is not None]
+    assert all(math.isfinite(v) and v > 0 for v in values), est
+    assert est.reason
+    if est.state == "insufficient_data":
+        assert est.e_pa is None
+    else:
+        assert contains(est, est.e_pa)
+
+
+# --------------------------------------------------------------------------- exactness
+
+
+@pytest.mark.parametrize("e_pa", [FOAM, 5e4, 3e5, 1e6, 5e6])
+def test_split_recovers_e_from_an_exact_ratio_series(e_pa):
+    approach, depth = split_series(e_pa, approach_max_m=10e-3)
+    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert est.state == "ok"
+    assert est.e_pa == pytest.approx(e_pa, rel=1e-9)
+    assert contains(est, e_pa)
+
+
+@pytest.mark.parametrize("e_pa", [FOAM, 5e4, 3e5, 1e6, 5e6])
+def test_hertz_recovers_e_star_from_an_exact_hertz_series(e_pa):
+    force, approach, depth, a = hertz_series(e_pa)
+    est = hertz(force, approach, depth, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert est.state == "ok"
+    e_star = 1 / (K_GEL + k_object(est.e_pa))
+    assert e_star == pytest.approx(1 / (K_GEL + k_object(e_pa)), rel=1e-9)
+    assert est.e_pa == pytest.approx(e_pa, rel=1e-6)
+    assert contains(est, e_pa)
+
+
+@pytest.mark.parametrize("e_pa", [FOAM, 1e5, 3e6])
+def test_elastic_and_no_tactile_recover_e_from_exact_hooke_series(e_pa):
+    force, approach, depth = uniaxial_series(e_pa, area_m2=1e-4, depth=np.linspace(0, 0.3e-3, 12))
+    area = np.full(12, 1e-4)
+    est = elastic(force, approach, depth, area, initial_width_m=W0, noise=RESOLUTION)
+    assert est.state == "ok" and est.e_pa == pytest.approx(e_pa, rel=1e-9) and contains(est, e_pa)
+    force, approach, _ = uniaxial_series(e_pa)
+    est = no_tactile(force, approach, initial_width_m=W0, pad_area_m2=PAD_AREA, noise=RESOLUTION)
+    assert est.state == "ok" and est.e_pa == pytest.approx(e_pa, rel=1e-9) and contains(est, e_pa)
+
+
+def test_the_paper_quarter_pi_slip_is_not_reproduced():
+    # With the published pi/4 centre displacement the depth is half the textbook one: a softer
+    # object. Feeding those depths must not give back the truth.
+    force, approach, depth, a = hertz_series(1e6)
+    est = hertz(force, approach, depth / 2, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert not contains(est, 1e6)
+
+
+# --------------------------------------------------------------------------- stiff and soft limits
+
+
+def test_steel_is_a_lower_bound_for_every_method():
+    approach, depth = split_series(STEEL)
+    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert est.state == "lower_bound" and est.interval_pa[1] is None and contains(est, STEEL)
+    assert 1e6 < est.e_pa < STEEL  # bounded at the depth resolution, far below the truth
+
+    force, approach, depth, a = hertz_series(STEEL)
+    est = hertz(force, approach, depth, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert est.state == "lower_bound" and contains(est, STEEL)
+
+    force, approach, depth = uniaxial_series(STEEL, area_m2=1e-4)
+    est = elastic(force, approach, depth, np.full(12, 1e-4), initial_width_m=W0, noise=RESOLUTION)
+    assert est.state == "lower_bound" and contains(est, STEEL)
+    force, approach, _ = uniaxial_series(STEEL)
+    est = no_tactile(force, approach, initial_width_m=W0, pad_area_m2=PAD_AREA, noise=NOISY)
+    assert est.state == "lower_bound" and contains(est, STEEL)
+
+
+def test_lower_bound_rises_as_the_resolution_improves():
+    approach, depth = split_series(STEEL)
+    bounds = [
+        split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU,
+              noise=MeasurementNoise(depth_m=res)).e_pa
+        for res in (1e-4, 2e-5, 2e-6)
+    ]
+    assert bounds[0] < bounds[1] < bounds[2]
+
+
+def test_e_star_above_the_gel_gives_a_bound_not_a_negative_modulus():
+    force, approach, depth, a = hertz_series(STEEL)
+    est = hertz(force, approach, depth * 1.2, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert est.state == "lower_bound" and est.e_pa > 0
+    assert "stiffer than resolved" in est.reason
+
+
+def test_gel_deeper_than_the_approach_is_a_bound():
+    approach, _ = split_series(STEEL)
+    est = split(approach, approach * 1.3, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert est.state == "lower_bound" and math.isfinite(est.e_pa)
+
+
+def test_foam_at_5_kpa_is_estimated():
+    approach, depth = split_series(FOAM, approach_max_m=10e-3)
+    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY)
+    assert est.state == "ok" and contains(est, FOAM)
+    force, approach, depth, a = hertz_series(FOAM, radius_m=5e-3, f_max=2.0)
+    est = hertz(force, approach, depth, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY)
+    assert est.state == "ok" and contains(est, FOAM)
+
+
+def test_gel_that_barely_moves_gives_an_upper_bound():
+    approach, depth = split_series(50.0, approach_max_m=10e-3)  # 50 Pa: d/delta ~ 1.7e-4
+    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert est.state == "upper_bound" and est.interval_pa[0] is None and contains(est, 50.0)
+
+
+def test_depth_falling_while_closing_is_refused():
+    # What a contact wider than the pad looks like: the reconstructed depth drops as the contact grows.
+    force, approach, depth, a = hertz_series(1e6)
+    falling = depth[::-1]
+    for est in (
+        split(approach, falling, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION),
+        hertz(force, approach, falling, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION),
+        elastic(force, approach, falling, a**2 * np.pi, initial_width_m=W0, noise=RESOLUTION),
+    ):
+        assert not est and "wider than the pad" in est.reason
+
+
+def test_depth_sinking_slowly_while_closing_is_refused():
+    approach = np.linspace(0.1e-3, 2e-3, 40)
+    depth = 0.5e-3 - 0.02 * approach  # falls by 38 um in all: within the noise frame to frame
+    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert not est and "does not grow" in est.reason
+
+
+# --------------------------------------------------------------------------- few and bad samples
+
+
+def test_one_frame_only():
+    approach, depth = split_series(1e6, n=1)
+    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert est.state == "ok" and contains(est, 1e6) and "resolution only" in est.reason
+    force, approach, depth, a = hertz_series(1e6, n=1)
+    est = hertz(force, approach, depth, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert est.state == "ok" and contains(est, 1e6)
+    force, approach, _ = uniaxial_series(1e6, n=1)
+    est = no_tactile(force, approach, initial_width_m=W0, pad_area_m2=PAD_AREA, noise=RESOLUTION)
+    assert est.state == "ok" and contains(est, 1e6)
+
+
+def test_air_grasp_is_refused():
+    zeros = np.zeros(5)
+    assert not split(zeros, zeros, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert not hertz(zeros, zeros, zeros, zeros, gel_compliance_per_pa=K_GEL, object_poisson=NU)
+    assert not elastic(zeros, zeros, zeros, zeros, initial_width_m=W0)
+    assert not no_tactile(zeros, zeros, initial_width_m=W0, pad_area_m2=PAD_AREA)
+    empty = np.zeros(0)
+    assert "no loading" in split(empty, empty, gel_compliance_per_pa=K_GEL, object_poisson=NU).reason
+
+
+def test_nan_frames_are_skipped():
+    approach, depth = split_series(1e6)
+    depth = depth.copy()
+    depth[[2, 5]] = np.nan
+    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert est.state == "ok" and est.e_pa == pytest.approx(1e6, rel=1e-9)
+    est = split(approach, np.full(12, np.nan), gel_compliance_per_pa=K_GEL, object_poisson=NU)
+    assert not est
+
+
+def test_non_monotonic_loading_keeps_a_sound_estimate():
+    force, approach, depth, a = hertz_series(1e6)
+    order = np.array([0, 1, 2, 3, 5, 4, 3, 6, 7, 8, 9, 11, 10])  # force falls back twice
+    est = hertz(force[order], approach[order], depth[order], a[order],
+                gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert est.state == "ok" and contains(est, 1e6)
+
+
+def test_mismatched_series_are_refused_naming_the_method():
+    with pytest.raises(FitError, match="split"):
+        split(np.zeros(3), np.zeros(4), gel_compliance_per_pa=K_GEL, object_poisson=NU)
+    with pytest.raises(FitError, match="object_poisson"):
+        split(np.zeros(3), np.zeros(3), gel_compliance_per_pa=K_GEL, object_poisson=0.7)
+    with pytest.raises(FitError, match="initial_width_m"):
+        no_tactile(np.zeros(3), np.zeros(3), initial_width_m=-1.0, pad_area_m2=1.0)
+
+
+# --------------------------------------------------------------------------- geometry hard cases
+
+
+def test_object_larger_than_the_pad():
+    force, approach, depth, a = hertz_series(1e6, radius_m=0.3)
+    edge = np.ones(12, dtype=bool)
+    cap = np.minimum(a, 250 * PITCH / 2)  # the pad truncates the contact
+    est = hertz(force, approach, depth, cap, gel_compliance_per_pa=K_GEL, object_poisson=NU,
+                noise=RESOLUTION, truncated=edge)
+    assert est.state == "lower_bound" and contains(est, 1e6) and "pad edge" in est.reason
+    force, approach, depth = uniaxial_series(1e6, area_m2=2 * PAD_AREA)
+    est = elastic(force, approach, depth, np.full(12, PAD_AREA), initial_width_m=W0,
+                  noise=RESOLUTION, truncated=edge)
+    assert est.state == "upper_bound" and contains(est, 1e6)
+
+
+def test_truncated_frames_are_left_out_when_others_remain():
+    force, approach, depth, a = hertz_series(1e6)
+    edge = np.zeros(12, dtype=bool)
+    edge[-3:] = True
+    bad = a.copy()
+    bad[-3:] *= 0.5
+    est = hertz(force, approach, depth, bad, gel_compliance_per_pa=K_GEL, object_poisson=NU,
+                noise=RESOLUTION, truncated=edge)
+    assert est.state == "ok" and est.e_pa == pytest.approx(1e6, rel=1e-6)
+
+
+def test_needle_thin_contact():
+    force, approach, depth, a = hertz_series(1e6, radius_m=20e-6, f_max=3.0)
+    radius_px = np.maximum(np.round(a / PITCH), 1) * PITCH  # one-pixel contact
+    est = hertz(force, approach, depth, radius_px, gel_compliance_per_pa=K_GEL, object_poisson=NU,
+                noise=RESOLUTION)
+    check_sound(est)
+    assert contains(est, 1e6)
+    approach, depth = split_series(1e6)
+    assert contains(split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION), 1e6)
+
+
+# --------------------------------------------------------------------------- noise: coverage
+
+
+def coverage(make, trials=200):
+    hits = 0
+    for seed in range(trials):
+        est = make(np.random.default_rng(seed))
+        check_sound(est)
+        hits += contains(est, 1e6)
+    return hits / trials
+
+
+def test_width_jitter_intervals_cover_the_truth():
+    approach, depth = split_series(1e6)
+    share = coverage(lambda rng: split(approach + rng.normal(0, 1e-5, 12), depth,
+                                       gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY))
+    assert share >= 0.9
+
+
+def test_depth_noise_at_the_resolution_limit_intervals_cover_the_truth():
+    approach, depth = split_series(1e6)
+    share = coverage(lambda rng: split(approach, depth + rng.normal(0, 2e-5, 12),
+                                       gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY))
+    assert share >= 0.9
+    force, approach, depth, a = hertz_series(1e6)
+    share = coverage(lambda rng: hertz(force, approach, depth + rng.normal(0, 2e-5, 12), a,
+                                       gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY))
+    assert share >= 0.9
+
+
+def test_intervals_narrow_with_more_frames():
+    widths = []
+    for n in (3, 30):
+        approach, depth = split_series(1e6, n=n)
+        est = split(approach, depth + np.random.default_rng(0).normal(0, 2e-5, n),
+                    gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY)
+        widths.append(math.log(est.interval_pa[1] / est.interval_pa[0]))
+    assert widths[1] < widths[0]
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def test_approach_corrects_for_finger_compliance():
+    width = np.array([0.040, 0.039])
+    force = np.array([0.0, 20.0])
+    approach = approach_per_finger(width, force, onset_width_m=0.040, finger_stiffness_n_per_m=2e5)
+    # The fingertips open by 20 N / 2e5 N/m = 0.1 mm: the approach is (1 - 0.1) / 2 mm.
+    assert approach == pytest.approx([0.0, 0.45e-3])
+
+
+def test_fit_line_interval_from_resolution_only_when_exact():
+    x = np.array([1.0, 2.0, 3.0])
+    line = fit_line(x, 2 * x + 1, np.full(3, 0.1), through_origin=False)
+    assert line.slope == pytest.approx(2.0) and line.intercept == pytest.approx(1.0)
+    assert line.half_width == pytest.approx(1.96 * 0.1 / math.sqrt(2.0), rel=1e-3)
+    assert fit_line(np.ones(3), x, np.zeros(3), through_origin=False) is None
+
+
+# --------------------------------------------------------------------------- properties
+
+series = hnp.arrays(np.float64, st.integers(0, 8), elements=st.floats(allow_nan=True, allow_infinity=True))
+
+
+def same_length(*arrays):
+    n = min(a.size for a in arrays)
+    return [a[:n] for a in arrays]
+
+
+@settings(max_examples=150, deadline=None)
+@given(series, series, series, series, st.sampled_from([NOISY, RESOLUTION, MeasurementNoise()]))
+def test_any_series_gives_a_sound_estimate(f, approach, depth, size, noise):
+    f, approach, depth, size = same_length(f, approach, depth, size)
+    check_sound(split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=noise))
+    check_sound(hertz(f, approach, depth, size, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=noise))
+    check_sound(elastic(f, approach, depth, size, initial_width_m=W0, noise=noise))
+    check_sound(no_tactile(f, approach, initial_width_m=W0, pad_area_m2=PAD_AREA, noise=noise))
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(1e2, 1e12), st.integers(1, 20), st.floats(0.2e-3, 20e-3))
+def test_exact_split_series_are_always_sound(e_pa, n, approach_max):
+    approach, depth = split_series(e_pa, n=n, approach_max_m=approach_max)
+    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    check_sound(est)
+    assert est and contains(est, e_pa)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(1e2, 1e12), st.integers(1, 20), st.floats(1e-4, 0.5))
+def test_exact_hertz_series_are_always_sound(e_pa, n, radius):
+    force, approach, depth, a = hertz_series(e_pa, n=n, radius_m=radius)
+    est = hertz(force, approach, depth, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    check_sound(est)
+    assert est and contains(est, e_pa)

@@ -1,0 +1,397 @@
+"""From grasp records to estimates: measure_grasp, estimate_grasp and the two commands.
+
+Records are built here the way hardware delivers them: a Hertz sphere squeezed by
+fingers with compliance, force at 80 Hz and width at 10 Hz with noise, tactile
+frames at 30 Hz rendered by the simulated camera from a gel surface computed in
+this file (half-space Hertz inside the contact; the tail outside decays within a
+gel thickness, as on a bonded layer). The estimator sees only the record.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from estimator.analytical import METHODS
+from estimator.cli import main
+from estimator.errors import CalibrationError
+from estimator.estimate import Estimate
+from estimator.features import ContactFeatures
+from estimator.measure import (
+    GraspMeasurements,
+    calibration_path,
+    estimate_grasp,
+    measure_grasp,
+)
+from estimator.perception import fit_calibration, warp_and_crop
+from estimator.segment import segment_grasp
+from teleop.errors import RecordError
+from teleop.record import FrameStream, GraspRecord, Label, Provenance, Samples, write_record
+from teleop.settings import CONFIG_DIR, SensorSettings, Settings, SimulationSettings
+from teleop.sim.optics import TactileCamera
+from teleop.sim.presses import simulate_presses
+
+SENSOR = SensorSettings(finger="left")
+SIM = SimulationSettings()
+SETTINGS = Settings()
+K_GEL = SENSOR.gel_compliance_per_pa
+NU = 0.4
+STEEL = 200e9
+
+
+@pytest.fixture(scope="module")
+def calibration():
+    camera = TactileCamera(SENSOR, sim=SIM, rng=np.random.default_rng(0))
+    pack = simulate_presses(camera, n=12, ball_radius_m=2e-3, depth_range_m=(0.3e-3, 1.2e-3),
+                            rng=np.random.default_rng(1))
+    images = np.stack([warp_and_crop(im, SENSOR) for im in pack["imgs"]])
+    return fit_calibration(warp_and_crop(pack["f0"], SENSOR), images, pack["touch_center"],
+                           pack["touch_radius"], ball_radius_m=2e-3, pixel_pitch_m=SENSOR.pixel_pitch_m)
+
+
+def gel_surface(approach_m, radius_m, share, shape=SENSOR.image_shape, pitch=SENSOR.pixel_pitch_m):
+    """Gel indentation (m) when a sphere has approached by ``approach_m`` (see the module docstring)."""
+    if approach_m <= 0:
+        return np.zeros(shape, dtype=np.float32)
+    rows, cols = shape
+    y, x = np.indices(shape)
+    r = np.hypot(x - (cols - 1) / 2, y - (rows - 1) / 2) * pitch
+    a = math.sqrt(radius_m * approach_m)
+    ro = np.maximum(r, a)
+    outside = approach_m / (np.pi * a**2) * ((2 * a**2 - ro**2) * np.arcsin(a / ro)
+                                             + ro * a * np.sqrt(np.clip(1 - a**2 / ro**2, 0, None)))
+    taper = np.exp(-np.clip(r - a, 0, None) / 1.5e-3)
+    total = np.where(r <= a, approach_m - r**2 / (2 * radius_m), outside * taper)
+    return (share * total).astype(np.float32)
+
+
+def build_record(
+    e_pa, *, sensor=SENSOR, radius_m=6e-3, target_n=8.0, camera_lag_s=0.0, seed=0, force_noise_n=0.02,
+    width_noise_m=2e-5, force_scale=1.0, frame_times=None, label=None, speed=0.0375, gap_m=0.02,
+    width_delay_s=0.0, hold_s=0.15,
+):
+    """A grasp of a sphere of modulus ``e_pa``: fingers close at ``speed`` (m/s) from ``gap_m``
+    before touching until ``target_n``."""
+    rng = np.random.default_rng(seed)
+    stiffness, diameter = SETTINGS.gripper.finger_stiffness_n_per_m, 0.03
+    e_star = 1 / (K_GEL + (1 - NU**2) / e_pa)
+    share = K_GEL * e_star
+    approach = np.linspace(0, 30e-3, 300001)
+    force = 4 / 3 * e_star * math.sqrt(radius_m) * approach**1.5
+    closure = 2 * approach + force / stiffness  # motor travel since touch
+    start_width = diameter + gap_m
+    t_touch = (start_width - diameter) / speed
+    t_stop = t_touch + np.interp(target_n, force, closure) / speed
+
+    def state(t):
+        travel = np.clip(speed * np.minimum(t, t_stop) - (start_width - diameter), 0, None)
+        return start_width - speed * np.minimum(t, t_stop), np.interp(travel, closure, approach), np.interp(travel, closure, force)
+
+    end = t_stop + hold_s
+    tf = np.arange(0, end, 1 / 80)
+    tw = np.arange(0.003, end, 1 / 10)
+    tc = np.arange(0.011, end, 1 / 30) if frame_times is None else np.asarray(frame_times)
+    f = state(tf)[2] * force_scale + rng.normal(0, force_noise_n, tf.size)
+    w = state(tw)[0] + rng.normal(0, width_noise_m, tw.size)
+    camera = TactileCamera(sensor, sim=SIM, rng=rng)
+    finite_tc = np.nan_to_num(tc, nan=0.0)
+    frames = [camera.capture(gel_surface(d, radius_m, share, shape=sensor.image_shape)) for d in state(finite_tc - camera_lag_s)[1]]
+    stream = FrameStream(sensor.finger, tc, tuple(frames), encoding="jpeg", jpeg_quality=SIM.jpeg_quality,
+                         shape=(sensor.raw_height_px, sensor.raw_width_px, 3))
+    return GraspRecord(sensors=(sensor,), frames=(stream,), force_n=Samples(tf, f),
+                       width_m=Samples(tw + width_delay_s, w),
+                       provenance=Provenance("simulated", seed=seed), label=label)
+
+
+def log_error(est, truth):
+    return abs(math.log10(est.e_pa) - math.log10(truth))
+
+
+def assert_sound(est):
+    assert isinstance(est, Estimate) and est.reason
+    values = [v for v in (est.e_pa, *est.interval_pa) if v is not None]
+    assert all(math.isfinite(v) and v > 0 for v in values)
+
+
+# --------------------------------------------------------------------------- measure_grasp
+
+
+def test_measurements_cover_every_loading_frame(calibration):
+    record = build_record(3e5)
+    m = measure_grasp(record, settings=SETTINGS, calibration=calibration)
+    n = m.segment.frame_index.size
+    assert n >= 5 and len(m.features) == n and m.depth_m.shape == (n, *SENSOR.image_shape)
+    assert m.depth_m.dtype == np.float32 and np.all(np.isfinite(m.depth_m))
+    assert m.sample.size == SETTINGS.estimator.n_frames
+    assert np.all(np.diff(m.features.peak_depth_m) > 0) and np.all(np.diff(m.approach_m) > 0)
+    assert m.force_n == pytest.approx(np.interp(m.t_s, record.force_n.t_s, record.force_n.value), abs=0.1)
+
+
+@pytest.mark.parametrize("e_pa", [1e5, 3e5])
+def test_split_and_hertz_through_the_whole_pipeline(calibration, e_pa):
+    m = measure_grasp(build_record(e_pa), settings=SETTINGS, calibration=calibration)
+    for method in ("split", "hertz"):
+        est = estimate_grasp(m, method, settings=SETTINGS)
+        assert est.state == "ok", est
+        assert log_error(est, e_pa) < 0.3, est
+
+
+def test_steel_gives_lower_bounds_through_the_whole_pipeline(calibration):
+    m = measure_grasp(build_record(STEEL), settings=SETTINGS, calibration=calibration)
+    for method, least in (("split", 1e6), ("hertz", 1e6), ("elastic", 1e5)):
+        est = estimate_grasp(m, method, settings=SETTINGS)
+        assert est.state == "lower_bound", est
+        assert least < est.e_pa < STEEL
+
+
+def test_soft_foam_through_the_whole_pipeline(calibration):
+    m = measure_grasp(build_record(2e4, target_n=3.0), settings=SETTINGS, calibration=calibration)
+    for method in ("split", "hertz"):
+        est = estimate_grasp(m, method, settings=SETTINGS)
+        assert est.state == "ok" and log_error(est, 2e4) < 0.4, est
+
+
+@pytest.mark.parametrize(("radius_m", "target_n"), [(0.3, 8.0), (1e-4, 1.0)], ids=["larger-than-pad", "needle"])
+def test_hard_geometries_give_sound_estimates(calibration, radius_m, target_n):
+    record = build_record(1e6, radius_m=radius_m, target_n=target_n, speed=0.01, gap_m=0.008)
+    m = measure_grasp(record, settings=SETTINGS, calibration=calibration)
+    assert m.segment and len(m.features) >= 3
+    for method in METHODS:
+        assert_sound(estimate_grasp(m, method, settings=SETTINGS))
+
+
+def test_markers_are_masked_before_reconstruction(calibration):
+    sensor = SensorSettings(finger="left", markers=True)
+    m = measure_grasp(build_record(3e5, sensor=sensor), settings=SETTINGS, calibration=calibration)
+    est = estimate_grasp(m, "split", settings=SETTINGS)
+    assert est.state == "ok" and log_error(est, 3e5) < 0.3
+
+
+def test_no_tactile_decodes_no_frame(calibration):
+    record = build_record(3e5)
+    stream = record.frames[0]
+    broken = FrameStream("left", stream.t_s, tuple(b"not a jpeg" for _ in stream.encoded), encoding="jpeg")
+    record = GraspRecord(sensors=record.sensors, frames=(broken,), force_n=record.force_n,
+                         width_m=record.width_m, provenance=record.provenance)
+    est = estimate_grasp(record, "no_tactile", settings=SETTINGS)
+    assert est.state == "ok" and est.latency_s > 0
+    with pytest.raises(RecordError, match="does not decode"):
+        estimate_grasp(record, "split", settings=SETTINGS, calibration=calibration)
+
+
+def test_missing_calibration_names_the_fix():
+    with pytest.raises(CalibrationError, match="--calibration"):
+        estimate_grasp(build_record(3e5), "split", settings=SETTINGS)
+    assert calibration_path(SensorSettings(calibration="cal/left.npz")) == CONFIG_DIR / "cal/left.npz"
+
+
+def test_calibration_for_another_image_is_refused(calibration):
+    sensor = SensorSettings(finger="left", crop_px=20)
+    with pytest.raises(CalibrationError, match="image"):
+        measure_grasp(build_record(3e5, sensor=sensor), settings=SETTINGS, calibration=calibration)
+
+
+def test_air_grasp_is_refused_by_every_method(calibration):
+    record = build_record(3e5, force_scale=0.05)
+    for method in METHODS:
+        est = estimate_grasp(record, method, settings=SETTINGS, calibration=calibration)
+        assert not est and "no contact" in est.reason
+
+
+def test_one_loading_frame_only(calibration):
+    record = build_record(3e5)
+    seg = segment_grasp(record.force_n.t_s, record.force_n.value, record.width_m.t_s, record.width_m.value,
+                        record.frames[0].t_s, contact_force_n=0.75, n_frames=3)
+    times = np.concatenate([np.arange(0.011, seg.t_onset_s - 0.15, 1 / 30), [seg.t_peak_s - 0.01]])
+    m = measure_grasp(build_record(3e5, frame_times=times), settings=SETTINGS, calibration=calibration)
+    assert m.segment.frame_index.size == 1 and "too_few_samples" in m.segment.flags
+    for method in ("split", "hertz"):
+        est = estimate_grasp(m, method, settings=SETTINGS)
+        assert_sound(est)
+        assert est and log_error(est, 3e5) < 0.5
+
+
+def test_frames_starting_in_contact_have_no_reference(calibration):
+    record = build_record(3e5, frame_times=np.arange(0.62, 0.9, 1 / 30))
+    est = estimate_grasp(record, "split", settings=SETTINGS, calibration=calibration)
+    assert not est and "reference" in est.reason
+
+
+def test_nan_and_duplicate_timestamps_in_a_record(calibration):
+    record = build_record(3e5)
+    f, w, s = record.force_n, record.width_m, record.frames[0]
+    t_force = f.t_s.copy()
+    t_force[[5, 40]] = np.nan
+    t_frames = s.t_s.copy()
+    t_frames[3] = np.nan
+    t_frames[20] = t_frames[19]
+    messy = GraspRecord(
+        sensors=record.sensors, frames=(FrameStream("left", t_frames, s.encoded, encoding="jpeg"),),
+        force_n=Samples(np.concatenate([t_force, f.t_s[:30]]), np.concatenate([f.value, f.value[:30]])),
+        width_m=Samples(np.concatenate([w.t_s, [np.nan]]), np.concatenate([w.value, [0.0]])),
+        provenance=record.provenance,
+    )
+    est = estimate_grasp(messy, "split", settings=SETTINGS, calibration=calibration)
+    assert est.state == "ok" and log_error(est, 3e5) < 0.3
+    assert "non-finite or duplicate" in est.reason
+
+
+def test_clipped_force_in_a_record(calibration):
+    record = build_record(3e5)
+    clipped = Samples(record.force_n.t_s, np.minimum(record.force_n.value, 5.0))
+    record = GraspRecord(sensors=record.sensors, frames=record.frames, force_n=clipped,
+                         width_m=record.width_m, provenance=record.provenance)
+    m = measure_grasp(record, settings=SETTINGS, calibration=calibration)
+    assert "clipped" in m.segment.flags and m.force_n.max() <= 5.0
+    for method in METHODS:
+        assert_sound(estimate_grasp(m, method, settings=SETTINGS))
+    assert log_error(estimate_grasp(m, "split", settings=SETTINGS), 3e5) < 0.3
+
+
+def test_camera_lag_is_estimated_and_corrected(calibration):
+    record = build_record(3e5, camera_lag_s=0.03)
+    m = measure_grasp(record, settings=SETTINGS, calibration=calibration, correct_camera_lag=True)
+    assert m.camera_lag_s == pytest.approx(0.03, abs=0.02)
+    assert m.t_s == pytest.approx(record.frames[0].t_s[m.segment.frame_index] - m.camera_lag_s)
+
+
+def test_late_width_stamps_are_estimated_and_corrected(calibration):
+    # A host that stamps a width read when it returns is late by about one read: after the
+    # fingers stop, the stale widths make the approach look larger than it is.
+    record = build_record(3e5, width_delay_s=0.1, hold_s=0.5)
+    m = measure_grasp(record, settings=SETTINGS, calibration=calibration, correct_width_lag=True)
+    assert m.width_lag_s == pytest.approx(0.1, abs=0.03)
+    fixed = estimate_grasp(m, "split", settings=SETTINGS)
+    stale = estimate_grasp(record, "split", settings=SETTINGS, calibration=calibration)
+    assert log_error(fixed, 3e5) < 0.3
+    assert log_error(fixed, 3e5) < log_error(stale, 3e5)
+
+
+# --------------------------------------------------------------------------- properties
+
+
+def random_measurements(draw_floats):
+    tf = np.arange(0, 1, 1 / 80)
+    force = np.clip((tf - 0.3) * 40, 0, 20)
+    tc = np.arange(0.01, 1, 1 / 30)
+    seg = segment_grasp(tf, force, np.arange(0, 1, 0.1), 0.05 - np.arange(0, 1, 0.1) * 0.01, tc,
+                        contact_force_n=0.75, n_frames=3)
+    k = seg.frame_index.size
+    values = np.array(draw_floats(6 * k), dtype=np.float64).reshape(6, k)
+    features = ContactFeatures(
+        peak_depth_m=values[0], area_m2=values[1], radius_m=values[2], cap_radius_m=values[3],
+        curvature_radius_m=values[4], centroid_m=np.zeros((k, 2)), touches_edge=values[5] > 0,
+        cap_touches_edge=values[5] > 1,
+    )
+    return GraspMeasurements(
+        finger="left", sensor=SENSOR, segment=seg, finger_stiffness_n_per_m=2e5, object_poisson=NU,
+        t_s=seg.frame_t_s, force_n=seg.frame_force_n, width_m=seg.frame_width_m,
+        approach_m=np.array(draw_floats(k)), features=features,
+    )
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data(), st.sampled_from(METHODS))
+def test_estimate_grasp_is_sound_on_any_measurements(data, method):
+    def draw_floats(k):
+        return data.draw(st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=k, max_size=k))
+
+    est = estimate_grasp(random_measurements(draw_floats), method, settings=SETTINGS)
+    assert_sound(est)
+
+
+def tiny_stream(t_s):
+    blank = np.zeros((4, 4, 3), dtype=np.uint8)
+    return FrameStream.from_frames("left", t_s, [blank] * len(t_s), encoding="png")
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.floats(-5, 50) | st.just(math.nan), min_size=0, max_size=60),
+    st.lists(st.floats(0.0, 0.08) | st.just(math.nan), min_size=0, max_size=12),
+    st.floats(0.0, 0.05),
+)
+def test_estimate_grasp_is_sound_on_any_force_and_width(force, width, jitter):
+    tf = np.arange(len(force)) / 80.0
+    tw = np.arange(len(width)) / 10.0 + jitter
+    record = GraspRecord(sensors=(SENSOR,), frames=(tiny_stream(np.arange(3) / 30.0),),
+                         force_n=Samples(tf, np.array(force, dtype=float)),
+                         width_m=Samples(tw, np.array(width, dtype=float)), provenance=Provenance("simulated"))
+    assert_sound(estimate_grasp(record, "no_tactile", settings=SETTINGS))
+
+
+# --------------------------------------------------------------------------- commands
+
+
+@pytest.fixture(scope="module")
+def grasp_dir(tmp_path_factory, calibration):
+    root = tmp_path_factory.mktemp("grasps")
+    cal_path = calibration.save(root / "cal.npz")
+    objects = [("ball_rubber", 3e5, "rubber", "sphere"), ("ball_soft", 1e5, "rubber", "sphere"),
+               ("ball_steel", STEEL, "metal", "sphere")]
+    for i, (name, e_pa, material, shape) in enumerate(objects):
+        label = Label(object_name=name, modulus_pa=e_pa, material=material, shape=shape)
+        write_record(build_record(e_pa, seed=i, label=label), root / f"{name}.grasp")
+    write_record(build_record(3e5, seed=9), root / "unlabelled.grasp")
+    return root, cal_path
+
+
+def test_estimate_command_prints_json(grasp_dir, capsys):
+    root, cal = grasp_dir
+    assert main(["estimate", str(root / "ball_rubber.grasp"), "--method", "split", "--calibration", str(cal),
+                 "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["state"] == "ok" and out["latency_ms"] > 0
+    low, high = out["interval_pa"]
+    assert low <= out["E_pa"] <= high
+    assert main(["estimate", str(root / "ball_steel.grasp"), "--method", "split", "--calibration", str(cal),
+                 "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["state"] == "lower_bound" and out["interval_pa"][1] is None
+
+
+def test_estimate_command_errors_are_one_line(grasp_dir, capsys):
+    root, _ = grasp_dir
+    assert main(["estimate", str(root / "ball_rubber.grasp"), "--method", "hertz"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "calibration" in err
+    assert main(["estimate", str(root / "missing.grasp")]) == 2
+    assert "no such grasp record" in capsys.readouterr().err
+
+
+def test_evaluate_command_summarises_every_method(grasp_dir, capsys, tmp_path):
+    root, cal = grasp_dir
+    png = tmp_path / "pred.png"
+    assert main(["evaluate", str(root), "--calibration", str(cal), "--json", "--plot", str(png)]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["records"] == 4 and out["labelled"] == 3 and out["skipped"] == {"unlabelled": 1}
+    assert set(out["methods"]) == set(METHODS)
+    split = out["methods"]["split"]
+    assert split["n"] == 3 and split["states"]["lower_bound"] == 1 and split["states"]["ok"] == 2
+    assert split["log10_error"] >= 0 and 0 <= split["within_10x"] <= 1
+    assert set(split["per_material"]) == {"metal", "rubber"} and set(split["per_shape"]) == {"sphere"}
+    assert out["methods"]["hertz"]["paper"] == {"log10_error": 1.68, "within_10x": 0.289}
+    assert out["methods"]["split"]["paper"] is None
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["evaluate", str(root), "--calibration", str(cal), "--json", "--workers", "2"]) == 0
+    parallel = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert parallel["methods"] == out["methods"]
+
+
+def test_evaluate_help_says_how_bounds_and_refusals_count(capsys):
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "bounds count with their bound value" in text and "refusals" in text
+    for option in ("--methods", "--workers", "--plot", "--calibration", "--settings", "--json"):
+        assert option in text
+
+
+def test_evaluate_without_records_is_an_error(tmp_path, capsys):
+    assert main(["evaluate", str(tmp_path)]) == 2
+    assert "no .grasp records" in capsys.readouterr().err

@@ -1,0 +1,221 @@
+"""Grasp segmentation on synthetic streams: contact, loading phase, flags, alignment."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from estimator.errors import FitError
+from estimator.segment import (
+    clean_samples,
+    estimate_camera_lag,
+    estimate_width_lag,
+    interpolate,
+    noise_std,
+    segment_grasp,
+)
+
+T_TOUCH = 0.5  # true first touch (s)
+T_LOAD = 0.3  # touch to peak (s)
+PEAK_N = 20.0
+SPEED = 0.0375
+
+
+def force_at(t):
+    return PEAK_N * np.clip((t - T_TOUCH) / T_LOAD, 0, 1) ** 1.5
+
+
+def width_at(t):
+    return 0.06 - SPEED * np.minimum(t, T_TOUCH + T_LOAD)
+
+
+def streams(*, force_noise=0.0, seed=0, duration=1.2):
+    rng = np.random.default_rng(seed)
+    tf = np.arange(0, duration, 1 / 80)
+    tw = np.arange(0.003, duration, 1 / 10)
+    tc = np.arange(0.011, duration, 1 / 30)
+    force = force_at(tf) + rng.normal(0, force_noise, tf.size) if force_noise else force_at(tf)
+    return tf, force, tw, width_at(tw), tc
+
+
+def run(tf, force, tw, width, tc, n_frames=3):
+    return segment_grasp(tf, force, tw, width, tc, contact_force_n=0.75, n_frames=n_frames)
+
+
+def test_clean_grasp_is_segmented():
+    seg = run(*streams())
+    assert seg and seg.flags == ()
+    t_contact = T_TOUCH + T_LOAD * (0.75 / PEAK_N) ** (2 / 3)
+    assert seg.t_contact_s == pytest.approx(t_contact, abs=2e-3)
+    assert T_TOUCH - 1e-9 <= seg.t_onset_s < T_TOUCH + 0.02
+    assert seg.t_peak_s == pytest.approx(T_TOUCH + T_LOAD, abs=1 / 80)
+    assert np.all((seg.frame_t_s >= seg.t_contact_s) & (seg.frame_t_s <= seg.t_peak_s))
+    assert seg.frame_t_s.size == 8
+    # Interpolated at the frames' own times, not matched by index.
+    assert seg.frame_force_n == pytest.approx(force_at(seg.frame_t_s), abs=0.2)
+    linear = seg.frame_t_s < 0.7  # widths are exact away from the stop at 0.8 s
+    assert seg.frame_width_m[linear] == pytest.approx(width_at(seg.frame_t_s[linear]), abs=1e-9)
+    assert seg.frame_width_m == pytest.approx(width_at(seg.frame_t_s), abs=1e-4)
+    assert seg.onset_width_m == pytest.approx(width_at(seg.t_onset_s), abs=1e-9)
+    # Three frames spread over the loading phase: first, middle, last.
+    assert seg.sample.tolist() == [0, 4, 7] or seg.sample.tolist() == [0, 3, 7]
+    assert seg.load_force_n.size == seg.load_t_s.size == seg.load_width_m.size > 20
+
+
+def test_nan_duplicate_and_unsorted_timestamps_change_nothing():
+    tf, force, tw, width, tc = streams()
+    clean = run(tf, force, tw, width, tc)
+    rng = np.random.default_rng(3)
+    order = rng.permutation(tf.size)
+    tf2 = np.concatenate([tf[order], [np.nan, tf[10], 0.7]])
+    f2 = np.concatenate([force[order], [5.0, force[10], np.nan]])
+    tw2 = np.concatenate([tw, tw[:3], [np.nan]])
+    w2 = np.concatenate([width, width[:3], [0.01]])
+    tc2 = np.concatenate([tc[:30], [np.nan], tc[30:], tc[20:22]])
+    seg = run(tf2, f2, tw2, w2, tc2)
+    assert "cleaned_timestamps" in seg.flags
+    assert seg.t_contact_s == pytest.approx(clean.t_contact_s)
+    assert seg.frame_force_n == pytest.approx(clean.frame_force_n)
+    assert seg.frame_t_s == pytest.approx(clean.frame_t_s)
+    # Frame indices point into the stream as recorded (shifted by the inserted NaN frame).
+    assert np.all(tc2[seg.frame_index] == seg.frame_t_s)
+
+
+def test_duplicate_timestamps_are_merged_into_their_mean():
+    t, v = clean_samples([0.0, 1.0, 1.0, 2.0, np.nan], [0.0, 1.0, 3.0, 4.0, 9.0])
+    assert t.tolist() == [0.0, 1.0, 2.0] and v.tolist() == [0.0, 2.0, 4.0]
+
+
+def test_interpolation_never_extrapolates():
+    out = interpolate(np.array([-1.0, 0.5, 3.0]), np.array([0.0, 1.0]), np.array([0.0, 2.0]))
+    assert np.isnan(out[0]) and out[1] == 1.0 and np.isnan(out[2])
+
+
+def test_air_grasp_has_no_contact():
+    tf, force, tw, width, tc = streams()
+    seg = run(tf, force * 0.02, tw, width, tc)
+    assert not seg and "no contact" in seg.reason
+
+
+def test_tare_offset_is_removed():
+    tf, force, tw, width, tc = streams(force_noise=0.02)
+    seg = run(tf, force + 0.4, tw, width, tc)
+    assert seg.force_baseline_n == pytest.approx(0.4, abs=0.02)
+    clean = run(tf, force, tw, width, tc)
+    assert seg.t_contact_s == pytest.approx(clean.t_contact_s, abs=0.01)
+
+
+def test_non_monotonic_loading_is_flagged():
+    tf, force, tw, width, tc = streams()
+    slip = (tf > 0.65) & (tf < 0.7)
+    seg = run(tf, np.where(slip, force - 3.0, force), tw, width, tc)
+    assert seg and "non_monotonic" in seg.flags
+    assert "force drops by 2." in seg.describe()  # 3 N below a still rising force
+
+
+def test_clipped_force_ends_loading_at_the_plateau():
+    tf, force, tw, width, tc = streams(force_noise=0.01)
+    clipped = np.minimum(force, 12.0)
+    seg = run(tf, clipped, tw, width, tc)
+    assert "clipped" in seg.flags
+    first_clip = tf[np.argmax(clipped >= 12.0)]
+    assert seg.t_peak_s == pytest.approx(first_clip)
+    assert seg.frame_force_n.max() <= 12.0
+
+
+def test_frames_on_another_clock_are_misaligned():
+    tf, force, tw, width, tc = streams()
+    seg = run(tf, force, tw, width, tc + 100.0)
+    assert seg and seg.frame_index.size == 0
+    assert "misaligned" in seg.flags and "no tactile frame" in seg.frame_reason
+    assert seg.load_force_n.size > 0  # force and width alone remain usable
+
+
+def test_width_stream_ending_early_is_misaligned():
+    tf, force, tw, width, tc = streams()
+    keep = tw < 0.65
+    seg = run(tf, force, tw[keep], width[keep], tc)
+    assert "misaligned" in seg.flags
+    assert np.all(seg.frame_t_s <= tw[keep][-1])
+
+
+def test_single_loading_frame_is_flagged():
+    tf, force, tw, width, tc = streams()
+    fast = force_at(T_TOUCH + (tf - T_TOUCH) * 10)  # loading in 30 ms
+    seg = run(tf, fast, tw, width, tc)
+    assert seg.frame_index.size == 1 and seg.sample.size == 1
+    assert "too_few_samples" in seg.flags
+
+
+def test_too_few_force_samples_is_a_refusal():
+    seg = run(np.array([0.0, 1.0]), np.array([0.0, 5.0]), np.array([0.0, 1.0]), np.array([0.05, 0.04]), np.array([0.5]))
+    assert not seg and "too few force samples" in seg.reason
+
+
+def test_noise_std_recovers_white_noise_on_a_trend():
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 1, 2000)
+    assert noise_std(5 * t**2 + rng.normal(0, 0.02, t.size)) == pytest.approx(0.02, rel=0.1)
+    assert noise_std(np.array([1.0, 2.0])) == 0.0
+
+
+def test_camera_lag_is_recovered_from_the_tactile_onset():
+    rng = np.random.default_rng(2)
+    lag = 0.015
+    tc = np.arange(0.0, 1.0, 1 / 30) + 0.004
+    change = np.clip(tc - lag - T_TOUCH, 0, None) * 40 + rng.normal(0, 0.05, tc.size)
+    seg = run(*streams(force_noise=0.02)[:4], tc)
+    estimated = estimate_camera_lag(tc, change, t_onset_s=seg.t_onset_s)
+    assert estimated == pytest.approx(lag, abs=0.012)
+
+
+def test_width_stamp_delay_is_recovered_from_the_stop():
+    rng = np.random.default_rng(4)
+    delay = 0.09
+    tw = np.arange(0.0, 1.5, 0.1) + rng.uniform(-0.01, 0.01, 15)
+    width = width_at(tw) + rng.normal(0, 2e-5, tw.size)
+    seg = run(*streams(force_noise=0.02)[:2], tw + delay, width, np.arange(0.011, 1.5, 1 / 30))
+    lag = estimate_width_lag(tw + delay, width, t_stop_s=seg.t_peak_s)
+    assert lag == pytest.approx(delay, abs=0.02)
+    assert estimate_width_lag(tw, width, t_stop_s=seg.t_peak_s) == pytest.approx(0.0, abs=0.02)
+
+
+def test_width_lag_needs_a_stop():
+    tw = np.arange(0.0, 1.5, 0.1)
+    assert estimate_width_lag(tw, 0.06 - 0.01 * tw, t_stop_s=0.8) is None  # never stops closing
+    assert estimate_width_lag(tw[:3], 0.06 - 0.01 * tw[:3], t_stop_s=0.8) is None
+
+
+def test_camera_lag_needs_no_contact_frames():
+    tc = np.arange(0.45, 1.0, 1 / 30)
+    assert estimate_camera_lag(tc, np.ones_like(tc), t_onset_s=0.5) is None
+
+
+def test_bad_arguments_are_refused():
+    with pytest.raises(FitError, match="contact_force_n"):
+        segment_grasp(*streams(), contact_force_n=0.0, n_frames=3)
+    with pytest.raises(FitError, match="1-D"):
+        clean_samples(np.zeros(3), np.zeros(4))
+
+
+finite_or_not = st.floats(allow_nan=True, allow_infinity=True, min_value=None, max_value=None)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.tuples(finite_or_not, finite_or_not), min_size=0, max_size=40),
+    st.lists(st.tuples(finite_or_not, finite_or_not), min_size=0, max_size=15),
+    st.lists(finite_or_not, min_size=0, max_size=20),
+)
+def test_any_streams_segment_without_crashing(force, width, frames):
+    tf, f = (np.array(c, dtype=float) for c in zip(*force, strict=True)) if force else (np.zeros(0), np.zeros(0))
+    tw, w = (np.array(c, dtype=float) for c in zip(*width, strict=True)) if width else (np.zeros(0), np.zeros(0))
+    seg = segment_grasp(tf, f, tw, w, np.array(frames, dtype=float), contact_force_n=0.75, n_frames=3)
+    if not seg:
+        assert seg.reason
+        return
+    assert np.all(np.isfinite(seg.frame_force_n)) and np.all(np.isfinite(seg.frame_width_m))
+    assert np.all(np.isfinite(seg.load_force_n)) and np.all(np.isfinite(seg.load_width_m))
+    assert seg.t_onset_s <= seg.t_contact_s <= seg.t_peak_s

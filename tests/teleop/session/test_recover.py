@@ -1,0 +1,201 @@
+"""Crash recovery: a recorder killed outright, logs cut anywhere or damaged, and the record CLI."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from teleop.bus import Publisher
+from teleop.bus.wire import encode
+from teleop.errors import SessionLogError
+from teleop.session import LogReader, recover
+from teleop.session.logfile import END_METADATA, SETTINGS_ATTACHMENT, unpack_frames
+from teleop.session.recover import RECOVERY_METADATA
+
+TELEOP = Path(sys.executable).parent / "teleop"
+
+
+def _wire_bytes(message) -> list[bytes]:
+    return [bytes(memoryview(frame).cast("B")) for frame in encode(message)]
+
+
+def _stored_count(path: Path) -> int:
+    return sum(1 for _ in LogReader(path).messages()) if path.exists() else 0
+
+
+def _assert_prefix_of(stored_frames, sent) -> None:
+    """The stored messages' frames are those of the first messages sent, byte for byte."""
+    assert len(stored_frames) <= len(sent)
+    for frames, message in zip(stored_frames, sent, strict=False):
+        assert [bytes(f) for f in frames] == _wire_bytes(message)
+
+
+def _start_recorder(path: Path, endpoint: str, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [
+            str(TELEOP),
+            "record",
+            "--out",
+            str(path),
+            "--endpoint",
+            endpoint,
+            "--flush-interval-s",
+            "0.05",
+            "--chunk-kib",
+            "16",
+            *extra,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def test_a_recorder_killed_with_sigkill_loses_at_most_its_open_chunk(tmp_path, helpers):
+    path, fixed = tmp_path / "killed.mcap", tmp_path / "fixed.mcap"
+    with Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as pub:
+        proc = _start_recorder(path, pub.endpoint)
+        try:
+            pub.wait_for_subscriber("", timeout_s=30.0)
+            first = helpers.publish_session(pub)
+            helpers.wait_for(
+                lambda: _stored_count(path) == len(first), what="the first batch on disk"
+            )
+            late = [
+                pub.send("force", t_capture_s=float(i), t_s=[float(i)], value_n=[1.0])
+                for i in range(50)
+            ]
+            proc.send_signal(signal.SIGKILL)
+            assert proc.wait(timeout=10) == -signal.SIGKILL
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    killed = LogReader(path)
+    readable = [m.message for m in killed.messages()]
+    assert not killed.complete and killed.damage  # no footer: read up to the last complete chunk
+    assert len(readable) >= len(first)
+
+    report = recover(path, fixed)
+    assert not report.complete and not report.closed_cleanly and report.damage == killed.damage
+    assert report.messages == len(readable) and report.undecodable == 0
+    assert SETTINGS_ATTACHMENT in report.attachments
+    with fixed.open("rb") as f:  # a complete file now: the seeking reader and its summary work
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        stored = [unpack_frames(record.data) for _, _, record in reader.iter_messages()]
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        attachments = {a.name for a in reader.iter_attachments()}
+    assert summary.statistics.message_count == len(readable) >= len(first)
+    _assert_prefix_of(stored, first + late)
+    assert SETTINGS_ATTACHMENT in attachments and "catalogue.toml" in attachments
+    assert json.loads(metadata[RECOVERY_METADATA]["messages"]) == len(readable)
+    assert END_METADATA not in metadata
+
+
+def test_sigterm_stops_the_record_command_cleanly(tmp_path, helpers):
+    path = tmp_path / "clean.mcap"
+    with Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as pub:
+        proc = _start_recorder(path, pub.endpoint, "--json", "--scene", "quick")
+        try:
+            pub.wait_for_subscriber("", timeout_s=30.0)
+            sent = helpers.publish_session(pub)
+            helpers.wait_for(lambda: _stored_count(path) == len(sent), what="the session on disk")
+            proc.send_signal(signal.SIGTERM)
+            out, err = proc.communicate(timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    assert proc.returncode == 0, err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert (
+        summary["messages"] == len(sent)
+        and summary["error"] is None
+        and summary["out"] == str(path)
+    )
+    reader = LogReader(path)
+    assert len(list(reader.messages())) == len(sent) and reader.complete
+    info = reader.info()
+    assert END_METADATA in info.metadata and info.session["scene"] == "quick"
+
+
+def test_the_record_command_refuses_to_overwrite_a_log(tmp_path):
+    path = tmp_path / "exists.mcap"
+    path.write_bytes(b"precious")
+    result = subprocess.run(
+        [str(TELEOP), "record", "--out", str(path), "--duration-s", "0.1"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2 and "exists" in result.stderr and "Traceback" not in result.stderr
+    assert path.read_bytes() == b"precious"
+
+
+@pytest.fixture(scope="module")
+def log_bytes(recorded) -> bytes:
+    return recorded.path.read_bytes()
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.001, 0.05, 0.2, 0.37, 0.5, 0.63, 0.8, 0.95, 0.999])
+def test_a_log_cut_anywhere_reads_and_recovers_a_prefix(tmp_path, recorded, log_bytes, fraction):
+    cut = max(9, int(len(log_bytes) * fraction))  # the magic and the opcode of the header survive
+    damaged = tmp_path / "cut.mcap"
+    damaged.write_bytes(log_bytes[:cut])
+    reader = LogReader(damaged)
+    readable = [m.frames for m in reader.messages()]
+    assert not reader.complete and reader.damage and reader.good_bytes <= cut
+    _assert_prefix_of(readable, recorded.sent)
+    if reader.good_bytes == 0:  # not even the header is complete: nothing to recover
+        with pytest.raises(SessionLogError, match="no readable MCAP header"):
+            recover(damaged, tmp_path / "fixed.mcap")
+        return
+    report = recover(damaged, tmp_path / "fixed.mcap")
+    assert report.messages == len(readable) and report.salvaged_bytes == reader.good_bytes
+    recovered = LogReader(tmp_path / "fixed.mcap")
+    assert [m.frames for m in recovered.messages()] == readable and recovered.complete
+
+
+def test_a_damaged_chunk_stops_reading_before_it(tmp_path, recorded, log_bytes):
+    with recorded.path.open("rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    target = chunks[len(chunks) // 2]
+    data = bytearray(log_bytes)
+    data[target.chunk_start_offset + target.chunk_length - 20] ^= (
+        0xFF  # inside the chunk's compressed data
+    )
+    damaged = tmp_path / "flipped.mcap"
+    damaged.write_bytes(bytes(data))
+    reader = LogReader(damaged)
+    readable = list(reader.messages())
+    assert "damaged record" in reader.damage and not reader.complete
+    assert reader.good_bytes <= target.chunk_start_offset
+    assert 0 < len(readable) < len(recorded.sent)
+    report = recover(damaged, tmp_path / "fixed.mcap")
+    assert report.messages == len(readable)
+
+
+def test_recovering_a_complete_log_copies_it_whole(tmp_path, recorded):
+    report = recover(recorded.path, tmp_path / "copy.mcap")
+    assert report.complete and report.closed_cleanly and report.damage is None
+    assert report.messages == len(recorded.sent) and report.undecodable == 0
+    assert report.salvaged_bytes == report.source_bytes == recorded.path.stat().st_size
+    original = [m.frames for m in LogReader(recorded.path).messages()]
+    assert [m.frames for m in LogReader(tmp_path / "copy.mcap").messages()] == original
+
+
+def test_recover_refuses_to_overwrite_its_source_and_non_logs(tmp_path, recorded):
+    with pytest.raises(SessionLogError, match="is the log being recovered"):
+        recover(recorded.path, recorded.path)
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"\x00" * 100)
+    with pytest.raises(SessionLogError, match="not an MCAP"):
+        recover(junk, tmp_path / "out.mcap")
+    assert not (tmp_path / "out.mcap").exists() and not (tmp_path / "out.mcap.partial").exists()

@@ -1,0 +1,154 @@
+"""Replay: the recorded messages back, in process and on the bus, paced and validated."""
+
+from __future__ import annotations
+
+import msgpack
+import pytest
+from mcap.writer import Writer
+
+from teleop.bus import Publisher, Subscriber
+from teleop.bus.wire import encode, make_message
+from teleop.errors import SessionLogError
+from teleop.session import LogReader, replay, replay_messages
+from teleop.session.logfile import MESSAGE_ENCODING, pack_frames
+
+
+def _same(a, b, helpers) -> bool:
+    return (a.type, a.topic, a.t_capture_s) == (
+        b.type,
+        b.topic,
+        b.t_capture_s,
+    ) and helpers.body_equal(a, b)
+
+
+def test_replay_messages_gives_back_every_message_with_its_original_header(recorded, helpers):
+    got = list(replay_messages(recorded.path))
+    assert len(got) == len(recorded.sent)
+    for message, sent in zip(got, recorded.sent, strict=True):
+        assert _same(message, sent, helpers)
+        assert (message.source, message.seq, message.t_send_ns) == (
+            sent.source,
+            sent.seq,
+            sent.t_send_ns,
+        )
+
+
+def test_replay_messages_filters_by_topic_prefix(recorded):
+    got = list(replay_messages(recorded.path, topics=["frame"]))
+    assert {m.topic for m in got} == {"frame/left", "frame/right"}
+    assert len(got) == sum(m.type == "frame" for m in recorded.sent)
+
+
+def test_replay_republishes_the_same_messages_on_the_bus_at_ten_times_speed(recorded, helpers):
+    expected = [m for m in recorded.sent if m.type != "heartbeat"]
+    with (
+        Publisher("tcp://127.0.0.1:*", lossless=True, source="replay") as pub,
+        Subscriber(pub.endpoint) as sub,
+    ):
+        pub.wait_for_subscriber("")
+        stats = replay(recorded.path, pub, speed=10.0)
+        got = []
+        while len(got) < len(expected) and (message := sub.recv(timeout_s=2.0)) is not None:
+            got.append(message)
+    assert stats.sent == len(expected) and stats.heartbeats_skipped == 1 and not stats.refused
+    assert len(got) == len(expected)
+    for message, sent in zip(got, expected, strict=True):
+        assert _same(message, sent, helpers)
+        assert message.source == "replay"
+    assert sub.stats.gaps == 0
+    # The session was spread over ~0.4 s; at x10 the replay takes a tenth of it, no less.
+    assert stats.log_span_s > 0.3
+    assert stats.log_span_s / 10 * 0.95 <= stats.wall_s < stats.log_span_s / 10 + 0.5
+
+
+class _FakeClock:
+    def __init__(self):
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        assert seconds > 0
+        self.now += seconds
+
+
+class _RecordingPublisher:
+    """Stands in for a Publisher: notes when each message would have been sent."""
+
+    max_bytes = 8 * 1024 * 1024
+    heartbeat_s = 0.05
+
+    def __init__(self, clock: _FakeClock):
+        self.clock = clock
+        self.sent: list[tuple[float, object]] = []
+        self.heartbeats = 0
+
+    def publish(self, message):
+        self.sent.append((self.clock(), message))
+        return message
+
+    def heartbeat_if_due(self, now_s=None):
+        self.heartbeats += 1
+        return False
+
+
+@pytest.mark.parametrize("speed", [1.0, 10.0, None])
+def test_replay_paces_by_the_receive_times(recorded, speed):
+    clock = _FakeClock()
+    pub = _RecordingPublisher(clock)
+    replay(recorded.path, pub, speed=speed, clock=clock, sleep=clock.sleep)
+    log_ns = [
+        m.log_time_ns for m in LogReader(recorded.path).messages() if m.message.type != "heartbeat"
+    ]
+    sent_s = [t for t, _ in pub.sent]
+    assert len(sent_s) == len(log_ns)
+    for t, ns in zip(sent_s, log_ns, strict=True):
+        expected = 0.0 if speed is None else (ns - log_ns[0]) / 1e9 / speed
+        assert t - 1000.0 == pytest.approx(expected, abs=1e-6)
+    assert pub.heartbeats >= len(sent_s)  # heartbeats kept going, also while waiting
+
+
+def test_replay_refuses_a_bad_speed(recorded):
+    with pytest.raises(SessionLogError, match="speed"):
+        replay(recorded.path, _RecordingPublisher(_FakeClock()), speed=0.0)
+
+
+def test_stored_messages_are_validated_before_anyone_sees_them(tmp_path):
+    good = encode(make_message("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0]))
+    bad_header = [b"force", msgpack.packb({"v": 1, "type": "force"}), msgpack.packb({})]
+    oversize_count = b"\x20\x00\x00\x00"  # claims 32 frames
+    path = tmp_path / "tampered.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start()
+        force = writer.register_channel("force", MESSAGE_ENCODING, 0)
+        width = writer.register_channel("width", MESSAGE_ENCODING, 0)
+        for channel, data in (
+            (force, pack_frames(bad_header)),
+            (force, oversize_count),
+            (width, pack_frames(good)),
+            (force, pack_frames(good)),
+        ):
+            writer.add_message(channel, log_time=1, data=data, publish_time=0)
+        writer.finish()
+    reader = LogReader(path)
+    got = list(reader.messages())
+    assert [m.message.topic for m in got] == ["force"]
+    assert dict(reader.refused) == {
+        "bad_header": 2,
+        "frame_count": 1,
+    }  # a force message on the width channel too
+    clock = _FakeClock()
+    pub = _RecordingPublisher(clock)
+    stats = replay(path, pub, speed=None, clock=clock, sleep=clock.sleep)
+    assert stats.sent == 1 and sum(stats.refused.values()) == 3
+
+
+def test_a_file_that_is_not_a_log_is_refused(tmp_path):
+    path = tmp_path / "not.mcap"
+    path.write_bytes(b"PK\x03\x04 not an mcap file")
+    with pytest.raises(SessionLogError, match="not an MCAP"):
+        list(replay_messages(path))
+    with pytest.raises(SessionLogError, match="cannot read"):
+        list(replay_messages(tmp_path / "absent.mcap"))

@@ -1,0 +1,178 @@
+"""Object geometry of the grasp simulator (teleop.sim.shapes)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from teleop.catalogue import ObjectSpec, load_catalogue
+from teleop.errors import SimulationError
+from teleop.sim.contact import NO_CONTACT_GAP_M
+from teleop.sim.shapes import (
+    Pose,
+    draw_pose,
+    make_scene,
+    object_size,
+    object_texture,
+    surface_distance,
+)
+
+CELL = 4.0 / 11.0 * 1e-3
+GRID = (63, 88)
+PAD = (250 / 11 * 1e-3, 350 / 11 * 1e-3)
+SMOOTH = 1e-12  # texture amplitude small enough to ignore
+
+
+def spec(shape: str, size=None, name=None, texture=SMOOTH, material="metal") -> ObjectSpec:
+    return ObjectSpec(name=name or f"test_{shape}", shape=shape, material=material, modulus_pa=1e9,
+                      size_m=size, texture_m=texture)
+
+
+def scene(obj: ObjectSpec, rotation=None, offset=(0.0, 0.0), seed=0):
+    pose = Pose(rotation=np.eye(3) if rotation is None else rotation, offset_m=offset)
+    return make_scene(obj, pose, shape=GRID, cell_m=(CELL, CELL), fingers=("left", "right"),
+                      rng=np.random.default_rng(seed))
+
+
+def grid_radius() -> np.ndarray:
+    rows, cols = np.indices(GRID)
+    return np.hypot((rows - (GRID[0] - 1) / 2) * CELL, (cols - (GRID[1] - 1) / 2) * CELL)
+
+
+def test_sphere_gap_is_the_spherical_cap_on_both_fingers():
+    radius = 0.01
+    result = scene(spec("sphere", (2 * radius,) * 3))
+    r = grid_radius()
+    cap = radius - np.sqrt(np.clip(radius**2 - r**2, 0.0, None))
+    inside = r < 0.95 * radius
+    for finger in ("left", "right"):
+        gap = result.gap_m[finger]
+        # The grid has no ray through the pole: the gap is measured from the nearest ray (< 2 um lower).
+        np.testing.assert_allclose(gap[inside], cap[inside] - cap.min(), atol=2e-6)
+        assert (gap[r > 1.01 * radius] == NO_CONTACT_GAP_M).all()
+    assert result.extent_m == pytest.approx(2 * radius, abs=5e-6)
+    assert result.cross_section_m2 == pytest.approx(2 / 3 * math.pi * radius**2, rel=0.05)
+
+
+def test_box_extent_cross_section_and_an_object_larger_than_the_pad():
+    size = (0.03, 0.06, 0.05)  # the face (y, z) is larger than the 32 x 23 mm pad
+    result = scene(spec("box", size))
+    assert result.extent_m == pytest.approx(size[0], abs=1e-6)
+    assert result.cross_section_m2 == pytest.approx(size[1] * size[2], rel=0.05)
+    for gap in result.gap_m.values():
+        assert (gap < NO_CONTACT_GAP_M).all()  # the face covers the whole pad
+        assert gap.max() < 1e-6  # and it is flat
+
+
+def test_tilted_box_meets_the_gel_on_an_edge():
+    tilt = Rotation.from_rotvec([0.0, 0.0, math.radians(5.0)]).as_matrix()  # about z: the face slopes along y
+    gap = scene(spec("box", (0.03, 0.06, 0.05)), rotation=tilt).gap_m["left"]
+    slope = np.diff(gap.mean(axis=0)) / CELL
+    assert np.allclose(slope, slope.mean(), rtol=0.02) and abs(slope.mean()) == pytest.approx(math.tan(math.radians(5)), rel=0.02)
+    assert gap[:, 0].max() < 1e-6 or gap[:, -1].max() < 1e-6  # first contact along one pad edge
+
+
+def test_cylinder_side_on_gives_a_line_contact_at_its_angle():
+    angle = math.radians(30.0)
+    # Body z (the axis) into world y, then rotate about the squeeze axis by 30 degrees.
+    rotation = (Rotation.from_rotvec([angle, 0.0, 0.0]) * Rotation.from_rotvec([math.pi / 2, 0.0, 0.0])).as_matrix()
+    gap = scene(spec("cylinder", (0.012, 0.012, 0.08)), rotation=rotation).gap_m["left"]
+    assert gap.min(axis=0).max() < 5e-6  # every column touches the line of first contact
+    line_rows = np.argmin(gap, axis=0)
+    direction = np.polyfit(np.arange(GRID[1]) * CELL, -line_rows * CELL, 1)[0]  # rows run down, world z up
+    assert math.degrees(math.atan(direction)) == pytest.approx(30.0, abs=1.0)
+
+
+def test_cylinder_end_on_is_a_flat_punch_with_rounded_edge():
+    rotation = Rotation.from_rotvec([0.0, math.pi / 2, 0.0]).as_matrix()  # body z onto world x
+    result = scene(spec("cylinder", (0.012, 0.012, 0.03)), rotation=rotation)
+    gap = result.gap_m["left"]
+    r = grid_radius()
+    assert result.extent_m == pytest.approx(0.03, abs=1e-6)
+    assert gap[r < 0.004].max() < 1e-7  # the flat end
+    rim = (r > 0.0055) & (r < 0.0059)
+    assert gap[rim].min() > 1e-6 and gap[rim].max() < 1.2e-3  # rounded, not a step
+    assert (gap[r > 0.0062] == NO_CONTACT_GAP_M).all()
+
+
+def test_hex_prism_flats_face_the_fingers():
+    result = scene(spec("hex_prism", (0.013, 0.013 * 2 / math.sqrt(3), 0.02)))
+    assert result.extent_m == pytest.approx(0.013, abs=1e-6)
+    rotated = scene(spec("hex_prism", (0.013, 0.013 * 2 / math.sqrt(3), 0.02)),
+                    rotation=Rotation.from_rotvec([0.0, 0.0, math.pi / 2]).as_matrix())
+    assert rotated.extent_m == pytest.approx(0.013 * 2 / math.sqrt(3), abs=0.002)  # corners toward the fingers
+
+
+def test_irregular_objects_are_non_convex_and_not_axisymmetric():
+    rng = np.random.default_rng(0)
+    size = (0.03, 0.035, 0.04)
+    for k in range(5):
+        obj = spec("irregular", size, name=f"blob_{k}")
+        distance = surface_distance(obj, size)
+        # Surface points along random directions (bisection on the inside test), pulled in a hair.
+        directions = rng.normal(size=(1000, 3))
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        lo, hi = np.zeros(1000), np.full(1000, float(np.linalg.norm(size)))
+        for _ in range(40):
+            mid = (lo + hi) / 2
+            inside = distance(directions * mid[:, None]) < 0
+            lo, hi = np.where(inside, mid, lo), np.where(inside, hi, mid)
+        surface = directions * (0.999 * lo)[:, None]
+        # Convex: the midpoint of every chord is inside. Over a dent, chords pass outside.
+        i, j = np.triu_indices(1000, 1)
+        near = np.einsum("ij,ij->i", directions[i], directions[j]) > math.cos(0.6)
+        assert (distance((surface[i[near]] + surface[j[near]]) / 2) > 1e-5).any(), obj.name
+        points = rng.uniform(-0.5, 0.5, (40000, 3)) * np.asarray(size)
+        # Not a body of revolution about any axis: its three extents differ and a sideways turn changes it.
+        turned = distance(points @ Rotation.from_rotvec([0.0, 0.0, 1.0]).as_matrix().T)
+        assert ((turned < 0) != (distance(points) < 0)).mean() > 0.02
+        if k < 2:
+            result = scene(obj)
+            assert not np.allclose(result.gap_m["left"], np.fliplr(result.gap_m["right"]))  # the sides differ
+
+
+def test_texture_has_the_requested_roughness():
+    result = scene(spec("box", (0.03, 0.06, 0.05), texture=20e-6), seed=3)
+    gap = result.gap_m["left"]
+    assert gap.min() == 0.0
+    assert np.std(gap) == pytest.approx(20e-6, rel=0.15)
+    assert object_texture(spec("box", texture=0.0, material="foam")) > object_texture(spec("box", texture=0.0))
+
+
+def test_unknown_sizes_are_fixed_by_the_name_and_fit_the_gripper(object_table):
+    objects = load_catalogue(object_table)
+    assert object_size(objects[0]) == object_size(objects[0])
+    rng = np.random.default_rng(0)
+    for k, obj in enumerate(objects):
+        size = object_size(obj)
+        assert all(0.004 < s < 0.2 for s in size), (obj.name, size)
+        pose = draw_pose(obj, size, rng=rng, max_width_m=0.08, pad_m=PAD)
+        assert np.allclose(pose.rotation @ pose.rotation.T, np.eye(3))
+        if k % 15 == 0:  # the ray-cast extent agrees: the object fits
+            assert make_scene(obj, pose, shape=(16, 22), cell_m=(4 * CELL, 4 * CELL), fingers=("l", "r"),
+                              rng=rng).extent_m < 0.08
+        assert all(abs(o) <= 0.2 * p for o, p in zip(pose.offset_m, (PAD[1], PAD[0]), strict=True))
+    sizes = {obj.shape: object_size(obj) for obj in objects}
+    assert sizes["box"] != sizes["irregular"]
+
+
+def test_poses_vary_between_grasps_and_repeat_with_the_seed():
+    obj = spec("box", (0.03, 0.05, 0.04))
+    size = object_size(obj)
+    draws = [draw_pose(obj, size, rng=np.random.default_rng(s), max_width_m=0.08, pad_m=PAD) for s in (1, 1, 2)]
+    np.testing.assert_array_equal(draws[0].rotation, draws[1].rotation)
+    assert not np.allclose(draws[0].rotation, draws[2].rotation)
+
+
+def test_an_object_too_wide_for_the_gripper_is_refused():
+    obj = spec("sphere", (0.09,) * 3)
+    with pytest.raises(SimulationError, match="does not fit"):
+        draw_pose(obj, object_size(obj), rng=np.random.default_rng(0), max_width_m=0.08, pad_m=PAD)
+
+
+def test_an_object_beside_the_pads_is_refused():
+    with pytest.raises(SimulationError, match="does not face the pads"):
+        scene(spec("sphere", (0.01,) * 3), offset=(0.05, 0.0))

@@ -1,0 +1,126 @@
+"""``teleop simulate`` end to end."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from teleop.catalogue import load_catalogue
+from teleop.cli import main
+from teleop.record import read_record
+from teleop.settings import default_settings_path, load_settings
+
+CATALOGUE = """
+[[objects]]
+name = "small rubber ball"
+shape = "sphere"
+material = "rubber"
+modulus_pa = 8.0e5
+size_m = [0.02, 0.02, 0.02]
+
+[[objects]]
+name = "oak_block"
+shape = "box"
+material = "wood"
+modulus_pa = 1.1e10
+texture_m = 3e-5
+"""
+
+
+@pytest.fixture
+def quick_settings(tmp_path):
+    """The shipped settings with 10 Hz cameras (a third of the frames to render)."""
+    text = default_settings_path().read_text().replace("camera_hz = 30.0", "camera_hz = 10.0")
+    text = text.replace("[sensors.right]", "[sensors.right]\ncamera_hz = 10.0")
+    path = tmp_path / "settings.toml"
+    path.write_text(text)
+    assert all(s.camera_hz == 10.0 for s in load_settings(path).sensors)
+    return path
+
+
+@pytest.fixture
+def catalogue(tmp_path):
+    path = tmp_path / "objects.toml"
+    path.write_text(CATALOGUE)
+    return path
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(["simulate", *argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+@pytest.mark.slow
+def test_simulates_a_tiny_catalogue_end_to_end(tmp_path, object_table, quick_settings, capsys):
+    out = tmp_path / "grasps"
+    code, stdout, stderr = run(capsys, "--objects", str(object_table), "--limit-objects", "2",
+                               "--grasps-per-object", "1", "--seed", "3", "--out", str(out), "--json", "--preview",
+                               "--settings", str(quick_settings))
+    assert code == 0, stderr
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert summary["grasps"] == 2 and summary["seconds"] > 0 and summary["grasps_per_s_per_core"] > 0
+    assert summary["out"] == str(out) and summary["failed"] == []
+    assert "simulate" in stderr  # the progress bar
+    expected = load_catalogue(object_table)[:2]
+    records = sorted(out.glob("*.grasp"))
+    assert len(records) == 2 and len(list(out.glob("*.png"))) == 2
+    by_name = {read_record(p).label.object_name: read_record(p) for p in records}
+    for obj in expected:
+        record = by_name[obj.name]
+        assert record.label.modulus_pa == obj.modulus_pa and record.label.material == obj.material
+        assert record.provenance.source == "simulated" and record.provenance.seed == 3
+        assert len(record.force_n) > 10 and all(len(s) > 4 for s in record.frames)
+
+
+@pytest.mark.slow
+def test_same_seed_gives_identical_files_whatever_the_workers(tmp_path, catalogue, quick_settings, capsys):
+    for workers, seed, name in (("1", "11", "one"), ("2", "11", "two"), ("1", "12", "other")):
+        code, _, stderr = run(capsys, "--objects", str(catalogue), "--seed", seed, "--workers", workers,
+                              "--out", str(tmp_path / name), "--settings", str(quick_settings))
+        assert code == 0, stderr
+    files = sorted(p.name for p in (tmp_path / "one").glob("*.grasp"))
+    assert files == ["oak_block_g000.grasp", "small_rubber_ball_g000.grasp"]
+    for name in files:
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes()
+        assert (tmp_path / "one" / name).read_bytes() != (tmp_path / "other" / name).read_bytes()
+
+
+def test_an_object_that_cannot_be_grasped_is_reported(tmp_path, capsys):
+    path = tmp_path / "big.toml"
+    path.write_text('[[objects]]\nname = "beach ball"\nshape = "sphere"\nmaterial = "plastic"\n'
+                    'modulus_pa = 1e7\nsize_m = [0.3, 0.3, 0.3]\n')
+    code, stdout, stderr = run(capsys, "--objects", str(path), "--out", str(tmp_path / "o"), "--json")
+    assert code == 1
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert summary["grasps"] == 0 and summary["failed"][0]["object"] == "beach ball"
+    assert "does not fit" in summary["failed"][0]["reason"] and "beach ball" in stderr
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--grasps-per-object", "0"], "--grasps-per-object"),
+    (["--workers", "0"], "--workers"),
+])
+def test_bad_arguments_are_one_line_errors(tmp_path, catalogue, capsys, argv, message):
+    code, _, stderr = run(capsys, "--objects", str(catalogue), "--out", str(tmp_path / "o"), *argv)
+    assert code == 2 and message in stderr and "Traceback" not in stderr
+    assert len(stderr.strip().splitlines()) == 1
+
+
+def test_unknown_catalogue_format_is_refused(tmp_path, capsys):
+    path = tmp_path / "objects.yaml"
+    path.write_text("x")
+    code, _, stderr = run(capsys, "--objects", str(path), "--out", str(tmp_path / "o"))
+    assert code == 2 and "unknown catalogue format" in stderr
+
+
+def test_help_explains_every_option(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["simulate", "--help"])
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    for option in ("--objects", "--grasps-per-object", "--seed", "--out", "--workers", "--preview", "--json",
+                   "--settings", "--limit-objects"):
+        assert option in text
+    assert "grasps_per_s_per_core" in text
