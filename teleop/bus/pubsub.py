@@ -29,7 +29,18 @@ Refusals
 A subscriber that meets a message :func:`~teleop.bus.wire.decode` refuses logs the reason,
 counts it in ``stats.refused`` and carries on. A single frame larger than ``max_bytes``
 never reaches decode: ZeroMQ (``ZMQ_MAXMSGSIZE``) drops that connection first, before
-allocating it, and the publisher reconnects.
+allocating it, and the publisher reconnects. A publisher likewise accepts from its
+subscribers only frames up to :data:`CONTROL_FRAME_BYTES` (subscriptions, handshakes).
+
+Security
+--------
+Pass ``security`` (:class:`~teleop.bus.security.BusSecurity`, e.g. from
+:func:`~teleop.bus.security.security_from_settings`) to run ZeroMQ CURVE: the binding end
+is the server and admits only authorised client keys, the connecting end authenticates
+the server. An endpoint reachable from other hosts refuses to start without it
+(:class:`~teleop.errors.BusSecurityError`). See :mod:`teleop.bus.security`.
+:meth:`Publisher.from_settings` and :meth:`Subscriber.from_settings` take the size limit,
+heartbeat period and keys from :class:`~teleop.settings.BusSettings`.
 
 Sockets are not thread-safe: use each Publisher and Subscriber from one thread.
 """
@@ -46,10 +57,19 @@ from typing import Any
 
 import zmq
 
+from teleop.bus.security import (
+    CURVE_FRAME_OVERHEAD_BYTES,
+    BusSecurity,
+    apply_security,
+    check_endpoints,
+    security_from_settings,
+)
 from teleop.bus.wire import Message, decode, encode, make_message, now_ns
 from teleop.errors import BusError, BusTimeoutError, MessageRejected
+from teleop.settings import BusSettings
 
 __all__ = [
+    "CONTROL_FRAME_BYTES",
     "DEFAULT_MAX_BYTES",
     "LATEST_HWM",
     "LOSSLESS_HWM",
@@ -65,6 +85,9 @@ DEFAULT_MAX_BYTES = 8 * 1024 * 1024
 LOSSLESS_HWM = 10_000  # messages queued per peer before a lossless send blocks
 LATEST_HWM = 100  # display topics: a short queue, the subscriber keeps the newest anyway
 HEARTBEAT_TOPIC = "heartbeat"
+# Largest frame a publisher reads from its subscribers: subscriptions (a topic prefix,
+# at most wire.MAX_TOPIC_BYTES long) and handshake commands (a CURVE INITIATE is ~300 B).
+CONTROL_FRAME_BYTES = 4096
 
 
 def _ms(seconds: float | None) -> int:
@@ -120,6 +143,7 @@ class _Socket:
     """Lifecycle shared by both ends: context manager, idempotent close, use-after-close check."""
 
     _socket: zmq.Socket | None
+    _release_security: Callable[[], None] = staticmethod(lambda: None)  # set by _secure
 
     def _live(self) -> zmq.Socket:
         if self._socket is None:
@@ -135,6 +159,19 @@ class _Socket:
         if self._socket is not None:
             self._socket.close(linger=0)
             self._socket = None
+            self._release_security()  # after close: the ZAP handler outlives the socket
+
+    def _secure(self, socket: zmq.Socket, security: BusSecurity | None, *, server: bool) -> None:
+        """CURVE on ``socket`` before it binds or connects (see :mod:`teleop.bus.security`)."""
+        self._release_security = apply_security(socket, security, server=server)
+
+    def _abandon(self, socket: zmq.Socket, exc: Exception, what: str) -> BusError:
+        """Close a socket whose setup failed; the error to raise for ``exc``."""
+        socket.close(linger=0)
+        self._release_security()
+        if isinstance(exc, BusError):
+            return exc
+        return BusError(f"{what}: {exc}")
 
     def __enter__(self):
         return self
@@ -168,6 +205,16 @@ class Publisher(_Socket):
         Messages queued per subscriber; :data:`LOSSLESS_HWM` or :data:`LATEST_HWM` by default.
     context : zmq.Context, optional
         The process-wide context by default (``inproc://`` needs both ends on one context).
+    security : BusSecurity, optional
+        CURVE keys: the publisher is the CURVE server when it binds, a client when it
+        connects. Required when ``endpoint`` is not loopback.
+
+    Raises
+    ------
+    BusSecurityError
+        ``endpoint`` is not loopback and ``security`` is None, or the keys are unusable.
+    BusError
+        ZeroMQ cannot bind or connect ``endpoint``.
     """
 
     def __init__(
@@ -182,6 +229,7 @@ class Publisher(_Socket):
         heartbeat_s: float = 0.5,
         high_water_mark: int | None = None,
         context: zmq.Context | None = None,
+        security: BusSecurity | None = None,
     ):
         self.lossless = lossless
         self.source = source
@@ -193,6 +241,7 @@ class Publisher(_Socket):
         self._subscriptions: Counter[bytes] = Counter()
         self._last_heartbeat_s: float | None = None
         self._socket = None
+        check_endpoints([endpoint], security)
         socket = (context or zmq.Context.instance()).socket(zmq.XPUB)
         try:
             hwm = high_water_mark or (LOSSLESS_HWM if lossless else LATEST_HWM)
@@ -201,12 +250,32 @@ class Publisher(_Socket):
             socket.setsockopt(zmq.XPUB_VERBOSER, 1)  # every (un)subscription reaches us
             socket.setsockopt(zmq.SNDTIMEO, _ms(send_timeout_s))
             socket.setsockopt(zmq.LINGER, 0)
+            socket.setsockopt(zmq.MAXMSGSIZE, CONTROL_FRAME_BYTES)
+            self._secure(socket, security, server=bind)
             (socket.bind if bind else socket.connect)(endpoint)
             self.endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT) if bind else endpoint
-        except zmq.ZMQError as exc:
-            socket.close(linger=0)
-            raise BusError(f"cannot {'bind' if bind else 'connect'} publisher on {endpoint!r}: {exc}") from exc
+        except (zmq.ZMQError, BusError) as exc:
+            what = f"cannot {'bind' if bind else 'connect'} publisher on {endpoint!r}"
+            raise self._abandon(socket, exc, what) from exc
         self._socket = socket
+
+    @classmethod
+    def from_settings(
+        cls, bus: BusSettings, endpoint: str, *, lossless: bool, **options: Any
+    ) -> Publisher:
+        """A publisher on ``endpoint`` with ``bus``'s size limit, heartbeat period and keys.
+
+        ``options`` are the remaining constructor arguments (``source``, ``bind``, ...).
+        Raises BusSecurityError when any bus endpoint needs keys that are not configured.
+        """
+        return cls(
+            endpoint,
+            lossless=lossless,
+            max_bytes=bus.max_message_bytes,
+            heartbeat_s=bus.heartbeat_s,
+            security=security_from_settings(bus),
+            **options,
+        )
 
     @property
     def endpoint_text(self) -> str:
@@ -296,6 +365,21 @@ class Subscriber(_Socket):
         Messages queued before ZeroMQ stops reading; per mode by default.
     context : zmq.Context, optional
         The process-wide context by default.
+    bind : bool
+        Connect to publishers (the usual subscriber) or bind (publishers connect to it).
+        A binding subscriber hands its subscriptions to a publisher that connects only
+        while it is in :meth:`recv` (libzmq processes the new peer on the socket's own
+        thread), so keep calling :meth:`recv`.
+    security : BusSecurity, optional
+        CURVE keys: the subscriber is a CURVE client when it connects, the server when it
+        binds. Required when an endpoint is not loopback.
+
+    Raises
+    ------
+    BusSecurityError
+        An endpoint is not loopback and ``security`` is None, or the keys are unusable.
+    BusError
+        ZeroMQ cannot connect or bind an endpoint.
     """
 
     def __init__(
@@ -307,6 +391,8 @@ class Subscriber(_Socket):
         max_bytes: int = DEFAULT_MAX_BYTES,
         high_water_mark: int | None = None,
         context: zmq.Context | None = None,
+        bind: bool = False,
+        security: BusSecurity | None = None,
     ):
         self.endpoints = [endpoints] if isinstance(endpoints, str) else list(endpoints)
         self.topics = sorted({*topics, HEARTBEAT_TOPIC})
@@ -317,19 +403,43 @@ class Subscriber(_Socket):
         self._last_seq: dict[tuple[str, str], int] = {}
         self._latest: OrderedDict[str, Message] = OrderedDict()
         self._socket = None
+        check_endpoints(self.endpoints, security)
         socket = (context or zmq.Context.instance()).socket(zmq.SUB)
         try:
             socket.setsockopt(zmq.RCVHWM, high_water_mark or (LATEST_HWM * 10 if conflate else LOSSLESS_HWM))
-            socket.setsockopt(zmq.MAXMSGSIZE, max_bytes)
+            # Checked on each frame's length prefix, before libzmq allocates the frame.
+            overhead = CURVE_FRAME_OVERHEAD_BYTES if security is not None else 0
+            socket.setsockopt(zmq.MAXMSGSIZE, max_bytes + overhead)
             socket.setsockopt(zmq.LINGER, 0)
+            self._secure(socket, security, server=bind)
+            resolved = []
             for endpoint in self.endpoints:
-                socket.connect(endpoint)
+                (socket.bind if bind else socket.connect)(endpoint)
+                # a bound tcp://HOST:* names the port it got, as Publisher.endpoint does
+                resolved.append(socket.getsockopt_string(zmq.LAST_ENDPOINT) if bind else endpoint)
+            self.endpoints = resolved
             for topic in self.topics:
                 socket.setsockopt(zmq.SUBSCRIBE, topic.encode("utf-8"))
-        except zmq.ZMQError as exc:
-            socket.close(linger=0)
-            raise BusError(f"cannot connect subscriber to {self.endpoints}: {exc}") from exc
+        except (zmq.ZMQError, BusError) as exc:
+            what = f"cannot {'bind' if bind else 'connect'} subscriber to {self.endpoints}"
+            raise self._abandon(socket, exc, what) from exc
         self._socket = socket
+
+    @classmethod
+    def from_settings(
+        cls,
+        bus: BusSettings,
+        endpoints: str | Iterable[str],
+        topics: Iterable[str] = ("",),
+        **options: Any,
+    ) -> Subscriber:
+        """A subscriber of ``endpoints`` with ``bus``'s size limit and keys.
+
+        ``options`` are the remaining constructor arguments (``conflate``, ``bind``, ...).
+        Raises BusSecurityError when any bus endpoint needs keys that are not configured.
+        """
+        security = security_from_settings(bus)
+        return cls(endpoints, topics, max_bytes=bus.max_message_bytes, security=security, **options)
 
     @property
     def endpoint_text(self) -> str:

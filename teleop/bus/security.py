@@ -1,0 +1,521 @@
+"""Who may use the bus: ZeroMQ CURVE encryption and authentication, and the keys it needs.
+
+When CURVE is on
+----------------
+An endpoint is *loopback* when no other host can reach it: ``inproc://``, ``ipc://`` and
+``tcp://`` on 127.0.0.0/8, ``::1`` or ``localhost``. Any other endpoint (a LAN address,
+``*``, ``0.0.0.0``, an interface or host name) must run CURVE: a socket refuses to start
+on it without keys (:class:`~teleop.errors.BusSecurityError` naming the endpoint and the
+fix). Loopback stays plain unless keys are given, and then it runs CURVE as well (which is
+how the tests exercise it). ``inproc://`` never runs CURVE: libzmq performs no handshake
+inside one process.
+
+Roles
+-----
+The socket that binds is the CURVE *server*: it proves itself with the server key pair and
+admits only clients whose public keys lie in the authorised-keys directory, checked by
+one ZAP handler per ZeroMQ context (:class:`zmq.auth.thread.ThreadAuthenticator`, one ZAP
+domain per directory). The socket that connects is the *client*: it has its own key pair
+and trusts only the server public key it was given, so it neither talks to an impostor nor
+is admitted without authorisation. A peer that fails either check gets nothing and
+delivers nothing; it only retries its handshake. The directory is read when a server
+socket is created: authorising or revoking a key takes effect when the servers restart.
+
+Keys directory (``bus.keys_dir``)
+---------------------------------
+Made by ``teleop keys init DIR`` (see :mod:`teleop.bus.keys_cli`)::
+
+    DIR/server.key         server public certificate (every client of the bus needs it)
+    DIR/server.key_secret  server secret certificate, mode 0600 (only nodes that bind)
+    DIR/client.key         this node's client public certificate
+    DIR/client.key_secret  this node's client secret certificate, mode 0600
+    DIR/authorized/*.key   public certificates of the clients the servers admit
+
+Certificates are the czmq/pyzmq text format (:func:`zmq.auth.create_certificates`).
+A secret certificate readable by other users is refused, as ssh refuses such keys.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import ipaddress
+import logging
+import os
+import re
+import shutil
+import stat
+import tempfile
+import threading
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import zmq
+import zmq.auth
+from zmq.auth.thread import ThreadAuthenticator
+from zmq.utils import z85
+
+from teleop.errors import BusError, BusSecurityError
+from teleop.settings import BusSettings
+
+__all__ = [
+    "AUTHORIZED_DIR",
+    "CLIENT_CERT",
+    "CURVE_FRAME_OVERHEAD_BYTES",
+    "SERVER_CERT",
+    "AuthorizedKey",
+    "BusSecurity",
+    "KeyListing",
+    "apply_security",
+    "authorize_key",
+    "check_endpoints",
+    "init_keys",
+    "is_loopback",
+    "list_keys",
+    "revoke_key",
+    "security_from_settings",
+]
+
+log = logging.getLogger(__name__)
+
+SERVER_CERT = "server"
+CLIENT_CERT = "client"
+AUTHORIZED_DIR = "authorized"
+PUBLIC_SUFFIX = ".key"
+SECRET_SUFFIX = ".key_secret"
+# A CURVE MESSAGE wraps each frame: "\x07MESSAGE" (8) + nonce (8) + flags (1) + MAC (16).
+# ZMQ_MAXMSGSIZE limits the wrapped frame, so a receiver adds this to its payload limit.
+CURVE_FRAME_OVERHEAD_BYTES = 33
+
+_LOOPBACK_SCHEMES = frozenset({"inproc", "ipc"})
+_HOST_SCHEMES = frozenset({"tcp", "udp", "ws", "wss"})
+_NETWORK_SCHEMES = frozenset({"pgm", "epgm", "norm", "tipc", "vmci"})
+_KEY_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+_Z85_KEY_CHARS = 40
+
+
+_FIX_HINT = "run `teleop keys init DIR` and set bus.keys_dir = DIR in the settings TOML"
+
+
+# --------------------------------------------------------------------------- endpoints
+
+
+def _host_is_loopback(host: str) -> bool:
+    host = host.removeprefix("[").removesuffix("]")
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:  # "*", an interface name or a host name: reachable from elsewhere
+        return False
+
+
+def is_loopback(endpoint: str) -> bool:
+    """Whether no other host can reach ``endpoint`` (``inproc``, ``ipc``, tcp on loopback).
+
+    A tcp endpoint with a source address (``tcp://SRC;DST:PORT``) is loopback only when
+    both are. Raises BusError for text that is not a ZeroMQ endpoint.
+    """
+    scheme, sep, rest = endpoint.partition("://")
+    if not sep or not rest or scheme not in _LOOPBACK_SCHEMES | _HOST_SCHEMES | _NETWORK_SCHEMES:
+        raise BusError(
+            f"{endpoint!r} is not a ZeroMQ endpoint: "
+            "expected tcp://HOST:PORT, ipc://PATH or inproc://NAME"
+        )
+    if scheme in _LOOPBACK_SCHEMES:
+        return True
+    if scheme in _NETWORK_SCHEMES:
+        return False
+    address = rest.split("/", 1)[0]  # ws:// endpoints carry a path
+    return all(_host_is_loopback(part.rpartition(":")[0] or part) for part in address.split(";"))
+
+
+def check_endpoints(endpoints: Iterable[str], security: BusSecurity | None) -> None:
+    """Refuse to use a non-loopback endpoint without CURVE keys.
+
+    Raises
+    ------
+    BusSecurityError
+        Naming the first such endpoint and how to configure keys.
+    BusError
+        An endpoint is not a ZeroMQ endpoint.
+    """
+    for endpoint in endpoints:
+        if not is_loopback(endpoint) and security is None:
+            raise BusSecurityError(
+                f"bus endpoint {endpoint!r} is reachable from other hosts and no CURVE keys "
+                "are configured, so anyone on the network could read or inject bus traffic: "
+                f"{_FIX_HINT}"
+            )
+
+
+# --------------------------------------------------------------------------- certificates
+
+
+def _check_name(name: str) -> str:
+    if not isinstance(name, str) or not _KEY_NAME.fullmatch(name):
+        raise BusSecurityError(
+            f"key name {name!r}: expected 1-64 letters, digits, '.', '_' or '-', "
+            "starting with a letter or digit"
+        )
+    return name
+
+
+def _check_z85(key: bytes, path: Path, which: str) -> bytes:
+    try:
+        valid = len(key) == _Z85_KEY_CHARS and len(z85.decode(key)) == 32
+    except (ValueError, KeyError, TypeError):
+        valid = False
+    if not valid:
+        raise BusSecurityError(f"{path}: the {which} key is not a 40-character Z85 CURVE key")
+    return key
+
+
+def _read_public_cert(path: Path) -> bytes:
+    """The public key of a public certificate; refuses a file that holds a secret key."""
+    try:
+        public, secret = zmq.auth.load_certificate(path)
+    except (OSError, ValueError) as exc:
+        raise BusSecurityError(f"cannot read CURVE certificate {path}: {exc}") from exc
+    if secret is not None:
+        raise BusSecurityError(
+            f"{path} holds a secret key: pass the public certificate (.key), never the .key_secret"
+        )
+    return _check_z85(public, path, "public")
+
+
+def _read_secret_cert(path: Path, public_key: bytes) -> bytes:
+    """The secret key of ``path``, after checking only its owner can read it."""
+    try:
+        mode = stat.S_IMODE(path.stat().st_mode)
+        public, secret = zmq.auth.load_certificate(path)
+    except (OSError, ValueError) as exc:
+        raise BusSecurityError(f"cannot read CURVE secret certificate {path}: {exc}") from exc
+    if mode & 0o077:
+        raise BusSecurityError(
+            f"{path} is readable by other users (mode {mode:04o}): run chmod 600 {path}"
+        )
+    if secret is None:
+        raise BusSecurityError(f"{path} holds no secret key")
+    if public != public_key:
+        raise BusSecurityError(f"{path} does not belong to {path.with_suffix(PUBLIC_SUFFIX)}")
+    return _check_z85(secret, path, "secret")
+
+
+@dataclass(frozen=True)
+class BusSecurity:
+    """The CURVE keys of one node, as read from a keys directory by :meth:`load`.
+
+    Secret keys never appear in ``repr``. ``server_secret_key`` is None on a node that
+    only connects (its directory holds the server's public certificate alone).
+    """
+
+    keys_dir: Path
+    server_public_key: bytes
+    client_public_key: bytes
+    authorized_dir: Path
+    client_secret_key: bytes = dataclasses.field(repr=False)
+    server_secret_key: bytes | None = dataclasses.field(default=None, repr=False)
+
+    @classmethod
+    def load(cls, keys_dir: str | os.PathLike[str]) -> BusSecurity:
+        """Read ``keys_dir`` (layout in the module docstring).
+
+        Raises
+        ------
+        BusSecurityError
+            A certificate is missing, malformed, mismatched or readable by other users.
+        """
+        directory = Path(keys_dir)
+        if not directory.is_dir():
+            raise BusSecurityError(f"CURVE keys directory {directory} does not exist: {_FIX_HINT}")
+        server_public = _read_public_cert(directory / f"{SERVER_CERT}{PUBLIC_SUFFIX}")
+        client_public = _read_public_cert(directory / f"{CLIENT_CERT}{PUBLIC_SUFFIX}")
+        server_secret_path = directory / f"{SERVER_CERT}{SECRET_SUFFIX}"
+        return cls(
+            keys_dir=directory,
+            server_public_key=server_public,
+            client_public_key=client_public,
+            authorized_dir=directory / AUTHORIZED_DIR,
+            client_secret_key=_read_secret_cert(
+                directory / f"{CLIENT_CERT}{SECRET_SUFFIX}", client_public
+            ),
+            server_secret_key=(
+                _read_secret_cert(server_secret_path, server_public)
+                if server_secret_path.exists()
+                else None
+            ),
+        )
+
+    @property
+    def zap_domain(self) -> str:
+        """The ZAP domain of this node's authorised-keys directory (one per directory)."""
+        digest = hashlib.sha256(str(self.authorized_dir.resolve()).encode("utf-8")).hexdigest()
+        return f"teleop-{digest[:16]}"
+
+
+def security_from_settings(bus: BusSettings) -> BusSecurity | None:
+    """The keys in ``bus.keys_dir`` (None when unset), after checking every bus endpoint.
+
+    Raises
+    ------
+    BusSecurityError
+        An endpoint is not loopback and ``keys_dir`` is unset, or the keys cannot be read.
+    """
+    security = BusSecurity.load(bus.keys_dir) if bus.keys_dir else None
+    check_endpoints((bus.robot_pub, bus.estimate_pub, bus.command), security)
+    return security
+
+
+# --------------------------------------------------------------------------- sockets
+
+
+class _ZapHandlers:
+    """One ThreadAuthenticator per context, shared by its CURVE servers, counted by lease."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._leases: dict[zmq.Context, tuple[ThreadAuthenticator, int]] = {}
+
+    def lease(self, context: zmq.Context, domain: str, authorized_dir: Path) -> Callable[[], None]:
+        """Start (or share) the context's handler, (re)load ``authorized_dir`` for ``domain``."""
+        if not authorized_dir.is_dir():
+            raise BusSecurityError(
+                f"authorised-keys directory {authorized_dir} does not exist: run `teleop keys init`"
+            )
+        if not any(authorized_dir.glob(f"*{PUBLIC_SUFFIX}")):
+            log.warning("%s holds no client keys: every client will be refused", authorized_dir)
+        with self._lock:
+            authenticator, count = self._leases.get(context, (None, 0))
+            if authenticator is None:
+                authenticator = ThreadAuthenticator(context, log=log.getChild("zap"))
+                try:
+                    authenticator.start()
+                except zmq.ZMQError as exc:  # another ZAP handler already serves this context
+                    authenticator.stop()
+                    raise BusSecurityError(
+                        f"cannot start the ZAP handler on this ZeroMQ context: {exc}"
+                    ) from exc
+            authenticator.configure_curve(domain=domain, location=str(authorized_dir))
+            self._leases[context] = (authenticator, count + 1)
+        released = False
+
+        def release() -> None:  # idempotent: a socket gives its lease back once
+            nonlocal released
+            with self._lock:
+                if released:
+                    return
+                released = True
+                authenticator, count = self._leases.pop(context)
+                if count > 1:
+                    self._leases[context] = (authenticator, count - 1)
+                else:
+                    authenticator.stop()
+
+        return release
+
+    def running(self, context: zmq.Context) -> bool:
+        """Whether a handler serves ``context`` (for tests and diagnostics)."""
+        with self._lock:
+            return context in self._leases
+
+
+ZAP_HANDLERS = _ZapHandlers()
+
+
+def _nothing() -> None:
+    return None
+
+
+def apply_security(
+    socket: zmq.Socket, security: BusSecurity | None, *, server: bool
+) -> Callable[[], None]:
+    """Make ``socket`` a CURVE server or client (nothing when ``security`` is None).
+
+    Call before binding or connecting. A server leases the context's ZAP handler; the
+    returned function gives the lease back and must be called once the socket is closed.
+
+    Raises
+    ------
+    BusSecurityError
+        A server without the server secret key, or keys libzmq refuses.
+    """
+    if security is None:
+        return _nothing
+    try:
+        if not server:
+            socket.curve_serverkey = security.server_public_key
+            socket.curve_publickey = security.client_public_key
+            socket.curve_secretkey = security.client_secret_key
+            return _nothing
+        if security.server_secret_key is None:
+            raise BusSecurityError(
+                f"{security.keys_dir} holds no {SERVER_CERT}{SECRET_SUFFIX}: this node can connect "
+                "but not bind; copy the server secret certificate there (mode 0600) to serve"
+            )
+        socket.curve_server = True
+        socket.curve_publickey = security.server_public_key
+        socket.curve_secretkey = security.server_secret_key
+        socket.zap_domain = security.zap_domain.encode("ascii")
+        socket.setsockopt(zmq.ZAP_ENFORCE_DOMAIN, 1)  # no ZAP handler answering: refuse
+    except zmq.ZMQError as exc:
+        raise BusSecurityError(
+            f"libzmq refused the CURVE keys from {security.keys_dir}: {exc}"
+        ) from exc
+    # last, so nothing above can fail while holding a lease; the handler runs before bind
+    return ZAP_HANDLERS.lease(socket.context, security.zap_domain, security.authorized_dir)
+
+
+# --------------------------------------------------------------------------- key management
+
+
+@dataclass(frozen=True)
+class AuthorizedKey:
+    """One client the servers admit: its name (file stem) and Z85 public key."""
+
+    name: str
+    public_key: str
+
+
+@dataclass(frozen=True)
+class KeyListing:
+    """What a keys directory holds; public keys only (Z85 text)."""
+
+    keys_dir: str
+    server_public_key: str
+    can_serve: bool  # the server secret certificate is present
+    client_public_key: str
+    authorized: tuple[AuthorizedKey, ...]
+
+
+def list_keys(keys_dir: str | os.PathLike[str]) -> KeyListing:
+    """Read and check ``keys_dir``; the public keys it holds and the clients it admits."""
+    security = BusSecurity.load(keys_dir)
+    if not security.authorized_dir.is_dir():
+        raise BusSecurityError(f"{security.authorized_dir} does not exist: run `teleop keys init`")
+    authorized = tuple(
+        AuthorizedKey(path.stem, _read_public_cert(path).decode("ascii"))
+        for path in sorted(security.authorized_dir.glob(f"*{PUBLIC_SUFFIX}"))
+    )
+    return KeyListing(
+        keys_dir=str(security.keys_dir),
+        server_public_key=security.server_public_key.decode("ascii"),
+        can_serve=security.server_secret_key is not None,
+        client_public_key=security.client_public_key.decode("ascii"),
+        authorized=authorized,
+    )
+
+
+def init_keys(
+    keys_dir: str | os.PathLike[str], *, server_cert: str | os.PathLike[str] | None = None
+) -> KeyListing:
+    """Create the key pairs of a new keys directory and authorise its own client.
+
+    Without ``server_cert`` a server key pair is made (the node can bind and connect);
+    with it, that server's public certificate is copied in instead (a node that only
+    connects to that server; authorise its ``client.key`` there with ``teleop keys add``).
+    Key pairs come from :func:`zmq.auth.create_certificates`, written in a private
+    staging directory and moved in with secret files at mode 0600.
+
+    Raises
+    ------
+    BusSecurityError
+        ``keys_dir`` already holds keys, or ``server_cert`` is not a public certificate.
+    """
+    directory = Path(keys_dir)
+    server_public = None if server_cert is None else _read_public_cert(Path(server_cert))
+    existing = [
+        p
+        for p in (
+            directory / f"{n}{s}"
+            for n in (SERVER_CERT, CLIENT_CERT)
+            for s in (PUBLIC_SUFFIX, SECRET_SUFFIX)
+        )
+        if p.exists()
+    ]
+    if existing or (directory / AUTHORIZED_DIR).exists():
+        found = ", ".join(p.name for p in existing) or AUTHORIZED_DIR
+        raise BusSecurityError(
+            f"{directory} already holds CURVE keys ({found}): "
+            "choose a new directory; keys are never overwritten"
+        )
+    try:
+        directory.mkdir(mode=0o700, parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".keys-", dir=directory))  # mode 0700
+        try:
+            names = (CLIENT_CERT,) if server_public is not None else (CLIENT_CERT, SERVER_CERT)
+            for name in names:
+                public, secret = map(Path, zmq.auth.create_certificates(staging, name))
+                secret.chmod(0o600)
+                public.chmod(0o644)
+                public.replace(directory / public.name)
+                secret.replace(directory / secret.name)
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+        if server_cert is not None:
+            shutil.copyfile(server_cert, directory / f"{SERVER_CERT}{PUBLIC_SUFFIX}")
+        (directory / AUTHORIZED_DIR).mkdir(mode=0o755)
+        shutil.copyfile(
+            directory / f"{CLIENT_CERT}{PUBLIC_SUFFIX}",
+            directory / AUTHORIZED_DIR / f"{CLIENT_CERT}{PUBLIC_SUFFIX}",
+        )
+    except OSError as exc:
+        raise BusSecurityError(f"cannot create CURVE keys in {directory}: {exc}") from exc
+    return list_keys(directory)
+
+
+def authorize_key(
+    keys_dir: str | os.PathLike[str], cert: str | os.PathLike[str], *, name: str | None = None
+) -> AuthorizedKey:
+    """Admit the client whose public certificate is ``cert``, as ``authorized/NAME.key``.
+
+    ``name`` defaults to the certificate's file stem.
+
+    Raises
+    ------
+    BusSecurityError
+        ``cert`` is not a public certificate (a secret one is refused), the name is taken
+        or invalid, or the key is already authorised under another name.
+    """
+    cert = Path(cert)
+    name = _check_name(cert.stem if name is None else name)
+    public = _read_public_cert(cert).decode("ascii")
+    listing = list_keys(keys_dir)
+    for known in listing.authorized:
+        if known.name == name:
+            raise BusSecurityError(
+                f"a key named {name!r} is already authorised in {keys_dir}: pass --name"
+            )
+        if known.public_key == public:
+            raise BusSecurityError(f"{cert} is already authorised in {keys_dir} as {known.name!r}")
+    target = Path(keys_dir) / AUTHORIZED_DIR / f"{name}{PUBLIC_SUFFIX}"
+    try:
+        shutil.copyfile(cert, target)
+    except OSError as exc:
+        raise BusSecurityError(f"cannot write {target}: {exc}") from exc
+    return AuthorizedKey(name, public)
+
+
+def revoke_key(keys_dir: str | os.PathLike[str], name: str) -> AuthorizedKey:
+    """Stop admitting the client ``name`` (takes effect when the servers restart).
+
+    Raises
+    ------
+    BusSecurityError
+        No key of that name is authorised (the message lists those that are).
+    """
+    name = _check_name(name)
+    listing = list_keys(keys_dir)
+    for known in listing.authorized:
+        if known.name == name:
+            target = Path(keys_dir) / AUTHORIZED_DIR / f"{name}{PUBLIC_SUFFIX}"
+            try:
+                target.unlink()
+            except OSError as exc:
+                raise BusSecurityError(f"cannot remove {target}: {exc}") from exc
+            return known
+    names = ", ".join(k.name for k in listing.authorized) or "none"
+    raise BusSecurityError(
+        f"no key named {name!r} is authorised in {keys_dir} (authorised: {names})"
+    )
