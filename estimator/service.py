@@ -1,0 +1,476 @@
+"""``estimator serve``: the estimator service, from the robot's grasp streams to estimates on the bus.
+
+It subscribes losslessly to the robot node's ``frame``, ``force``, ``width`` and
+``grasp_event`` messages and publishes ``estimate`` messages (latest-value) on its own
+endpoint. Per grasp (from a ``grasp_event`` *start* to its *end*):
+
+* a PROVISIONAL estimate for every tactile frame of the estimator's finger from contact
+  until the loading phase is over (:class:`~estimator.stream.GraspStream`: that frame is
+  warped and reconstructed, the fits rerun over what has arrived);
+* one FINAL estimate as soon as the loading phase is over
+  (:meth:`~estimator.stream.GraspStream.loading_complete`), or at the grasp's end if that
+  comes first. With a model loaded the final one is the hybrid ``auto`` estimate
+  (:class:`~estimator.learned.hybrid.HybridEstimator`, which measures its sampled frames from
+  the grasp as received once more: a few tens of milliseconds), else the analytical one;
+* the grasp's end event, forwarded on the estimate endpoint after the final estimate, so a
+  renderer that listens to estimates alone knows when to let go.
+
+Each estimate message carries its state, interval and reason; ``t_capture_s`` is the capture
+time of the newest loading frame its fit used (for the final one: the last loading frame),
+``latency_s`` the time from receiving the message that triggered it to publishing it. The
+object's name in a start event is never read.
+
+A message that cannot be used (a frame that does not decode or has the wrong size, samples
+that are not finite, data for a grasp that is not open) is logged and counted, and the service
+carries on; so are the refusals of the bus itself (:class:`~teleop.bus.pubsub.Subscriber`).
+
+The model is reloaded between grasps (never during one) when its files change or when asked
+(SIGHUP, or :meth:`ModelSlot.request_reload`); a model that fails to load is logged and the
+one in use stays.
+
+The service is meant to run on one core: start it with ``OPENBLAS_NUM_THREADS=1`` (as
+``teleop demo`` does), or BLAS threads fight for the cores and per-frame times jump.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+
+from estimator.analytical import METHODS
+from estimator.errors import EstimatorError, ModelError
+from estimator.estimate import Estimate
+from estimator.measure import resolve_calibration
+from estimator.perception.calibration import Calibration
+from estimator.segment import Segment
+from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream, StreamEstimate
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.bus.wire import MAX_STR_CHARS, Message
+from teleop.errors import TeleopError
+from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
+from teleop.settings import CONFIG_DIR, Settings, default_settings_path, load_settings
+
+__all__ = ["INPUT_TOPICS", "EstimatorService", "ModelSlot", "ServiceStats", "resolve_model_dir"]
+
+log = logging.getLogger(__name__)
+
+INPUT_TOPICS = ("frame", "force", "width", "grasp_event")
+# A bad message is one of these; anything else is a bug and ends the service.
+_BAD_INPUT = (EstimatorError, TeleopError, ValueError, cv2.error)
+
+
+def resolve_model_dir(option: str | None, settings: Settings) -> Path | None:
+    """The model directory to serve: ``option`` ("none": no model), else ``estimator.model_path``
+    (relative to ``configs/``; a ``model.onnx`` names its directory), else the shipped default
+    model when it exists, else None."""
+    from estimator.learned.infer import default_model_dir
+
+    if option == "none":
+        return None
+    if option:
+        path = Path(option)
+    elif settings.estimator.model_path:
+        path = Path(settings.estimator.model_path)
+        path = path if path.is_absolute() else CONFIG_DIR / path
+    else:
+        path = default_model_dir()
+        if not (path / "model.onnx").is_file():
+            return None
+    return path.parent if path.suffix == ".onnx" else path
+
+
+class ModelSlot:
+    """The learned model a service uses, swapped for a new one only between grasps.
+
+    Parameters
+    ----------
+    model_dir : path
+        Directory with ``model.onnx`` and ``metadata.json`` (see :mod:`estimator.learned.infer`).
+    settings : Settings
+    calibration : Calibration
+        The estimator finger's calibration, handed to the hybrid estimator.
+    mode : {"auto", "model"}
+        How :class:`~estimator.learned.hybrid.HybridEstimator` answers.
+    check_interval_s : float
+        How often :meth:`poll` looks at the files' modification times.
+
+    Raises
+    ------
+    ModelError
+        The model cannot be loaded at start.
+    """
+
+    def __init__(self, model_dir: str | Path, *, settings: Settings, calibration: Calibration,
+                 mode: str = "auto", check_interval_s: float = 1.0,
+                 clock: Callable[[], float] = time.monotonic):
+        from estimator.learned.hybrid import MODES
+
+        if mode not in MODES:
+            raise ModelError(f"model mode {mode!r}: expected one of {', '.join(MODES)}")
+        self.model_dir = Path(model_dir)
+        self.settings = settings
+        self.calibration = calibration
+        self.mode = mode
+        self.check_interval_s = check_interval_s
+        self.clock = clock
+        self.loads = 0
+        self.failures = 0
+        self._requested = threading.Event()
+        self._stamp = self._file_stamp()
+        self._checked_s = clock()
+        self.estimator = self._load()
+
+    def _file_stamp(self) -> tuple[tuple[int, int], ...] | None:
+        try:
+            stats = [(self.model_dir / name).stat() for name in ("model.onnx", "metadata.json")]
+        except OSError:
+            return None
+        return tuple((s.st_mtime_ns, s.st_size) for s in stats)
+
+    def _load(self) -> Any:
+        from estimator.learned.hybrid import HybridEstimator
+        from estimator.learned.infer import CompliancePredictor
+
+        estimator = HybridEstimator(CompliancePredictor(self.model_dir), settings=self.settings,
+                                    calibration=self.calibration)
+        self.loads += 1
+        log.info("model %s (%s) loaded", self.model_dir, estimator.predictor.variant.name)
+        return estimator
+
+    def request_reload(self) -> None:
+        """Reload at the next :meth:`poll` between grasps (thread- and signal-safe)."""
+        self._requested.set()
+
+    def poll(self, *, idle: bool) -> bool:
+        """Reload if asked or the files changed, when ``idle`` (no grasp open); True if reloaded.
+
+        A model that fails to load is logged and counted; the one in use stays, and the files
+        are tried again when they change again or a reload is asked for.
+        """
+        if not idle:
+            return False
+        requested = self._requested.is_set()
+        now = self.clock()
+        if not requested and now - self._checked_s < self.check_interval_s:
+            return False
+        self._checked_s = now
+        stamp = self._file_stamp()
+        if not requested and stamp == self._stamp:
+            return False
+        self._requested.clear()
+        self._stamp = stamp
+        try:
+            self.estimator = self._load()
+        except ModelError as exc:
+            self.failures += 1
+            log.error("model reload failed, keeping the model in use: %s", exc)
+            return False
+        return True
+
+
+@dataclass
+class ServiceStats:
+    """What the estimator service did."""
+
+    messages: int = 0
+    bad_messages: int = 0
+    ignored: int = 0  # data of no open grasp
+    grasps: int = 0
+    provisional: int = 0
+    final: int = 0
+    reloads: int = 0
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"messages": self.messages, "bad_messages": self.bad_messages, "ignored": self.ignored,
+                "grasps": self.grasps, "provisional": self.provisional, "final": self.final,
+                "reloads": self.reloads}
+
+
+@dataclass
+class _Grasp:
+    """One open grasp and what has been published for it."""
+
+    grasp_id: str
+    stream: GraspStream
+    model: Any  # the HybridEstimator pinned at the grasp's start, or None
+    seen_contact: bool = False
+    t_peak_s: float = math.inf  # of the last segmentation with contact
+    t_contact_s: float | None = None
+    first_estimate_s: float | None = None  # clock time the first non-refusal estimate went out
+    provisional_s: list[float] = field(default_factory=list)
+    final: Estimate | None = None
+    final_s: float | None = None
+    final_t_data_s: float | None = None
+    loading_frames: int = 0
+
+
+class EstimatorService:
+    """Estimates grasps from a bus subscription and publishes them (see the module docstring).
+
+    Parameters
+    ----------
+    settings : Settings
+    calibration : Calibration
+        The estimator finger's colour-to-gradient calibration.
+    subscriber : Subscriber
+        Lossless subscription to the robot node's :data:`INPUT_TOPICS`.
+    publisher : Publisher
+        Latest-value publisher of estimates (``source`` should be ``"estimator"``).
+    methods : sequence of str
+        Analytical methods, in order of preference.
+    model : ModelSlot, optional
+        The learned model for final estimates.
+    report : JsonLines, optional
+        Receives one JSON object per grasp when it ends.
+    clock : callable
+        Monotonic seconds; must be the clock the robot stamps captures with (one host).
+    """
+
+    def __init__(self, settings: Settings, *, calibration: Calibration, subscriber: Subscriber,
+                 publisher: Publisher, methods: Sequence[str] = DEFAULT_METHODS,
+                 model: ModelSlot | None = None, report: JsonLines | None = None,
+                 clock: Callable[[], float] = time.monotonic):
+        self.settings = settings
+        self.calibration = calibration
+        self.subscriber = subscriber
+        self.publisher = publisher
+        self.methods = tuple(methods)
+        # Checks the methods and the calibration now, and keeps the first grasp from paying for the caches.
+        GraspStream(settings=settings, calibration=calibration, methods=self.methods).warm_up()
+        self.model = model
+        self.report = report or JsonLines(None)
+        self.clock = clock
+        self.stats = ServiceStats()
+        self._grasp: _Grasp | None = None
+
+    # ------------------------------------------------------------------ loop
+
+    def run(self, stop: Any, *, duration_s: float | None = None, poll_s: float = 0.05) -> ServiceStats:
+        """Serve until ``stop.is_set()`` or ``duration_s`` passed."""
+        deadline = None if duration_s is None else self.clock() + duration_s
+        while not stop.is_set() and (deadline is None or self.clock() < deadline):
+            self.step(poll_s)
+        return self.stats
+
+    def step(self, timeout_s: float = 0.05) -> Message | None:
+        """Receive and handle at most one message (waiting up to ``timeout_s``); heartbeat; reload."""
+        self.publisher.heartbeat_if_due(self.clock())
+        message = self.subscriber.recv(timeout_s=timeout_s)
+        if message is not None:
+            self.handle(message, received_s=self.clock())
+        if self.model is not None and self.model.poll(idle=self._grasp is None):
+            self.stats.reloads += 1
+        return message
+
+    def handle(self, message: Message, *, received_s: float) -> None:
+        """Handle one message; a message that cannot be used is logged and counted."""
+        self.stats.messages += 1
+        try:
+            self._dispatch(message, received_s)
+        except _BAD_INPUT as exc:
+            self.stats.bad_messages += 1
+            log.warning("bad %s message from %s (seq %d), skipped: %s", message.topic, message.source or "?",
+                        message.seq, exc)
+
+    # ------------------------------------------------------------------ messages
+
+    def _dispatch(self, message: Message, received_s: float) -> None:
+        body = message.body
+        if message.type == "grasp_event":
+            if body["event"] == "start":
+                self._open(body["grasp_id"], message.t_capture_s, received_s)
+            else:
+                self._close(body["grasp_id"], message.t_capture_s, received_s)
+            return
+        if message.type not in ("frame", "force", "width"):
+            self.stats.ignored += 1
+            return
+        grasp = self._grasp
+        if grasp is None or body["grasp_id"] != grasp.grasp_id:
+            self.stats.ignored += 1
+            log.debug("%s of grasp %r: no such grasp open", message.topic, body["grasp_id"])
+            return
+        if grasp.final is not None:
+            return  # the hold and the release: nothing more to estimate
+        stream = grasp.stream
+        if message.type == "frame":
+            if stream.add_frame(body["finger"], message.t_capture_s, body["data"], body["encoding"]):
+                self._on_frame(grasp, received_s)
+            return
+        if message.type == "force":
+            stream.add_force(body["t_s"], body["value_n"])
+        else:
+            stream.add_width(body["t_s"], body["value_m"])
+        # Segmenting is cheap, but not at 80 Hz for nothing: only once the force may have settled.
+        if grasp.seen_contact and stream.newest_force_s >= grasp.t_peak_s + LOADING_SETTLED_S:
+            segment = stream.segment()
+            self._remember(grasp, segment)
+            if stream.loading_complete(segment):
+                self._finish(grasp, received_s, segment=segment)
+
+    def _open(self, grasp_id: str, t_s: float, received_s: float) -> None:
+        if self._grasp is not None:
+            log.warning("grasp %r starts while %r is open: closing that one", grasp_id, self._grasp.grasp_id)
+            self._close(self._grasp.grasp_id, t_s, received_s)
+        stream = GraspStream(settings=self.settings, calibration=self.calibration, methods=self.methods,
+                             grasp_id=grasp_id)
+        model = self.model.estimator if self.model is not None else None
+        self._grasp = _Grasp(grasp_id=grasp_id, stream=stream, model=model)
+        self.stats.grasps += 1
+
+    def _close(self, grasp_id: str, t_s: float, received_s: float) -> None:
+        grasp = self._grasp
+        if grasp is None or grasp.grasp_id != grasp_id:
+            self.stats.ignored += 1
+            log.warning("end of grasp %r, which is not open", grasp_id)
+            return
+        if grasp.final is None:
+            self._finish(grasp, received_s)
+        self.report.write(self._summary(grasp))  # before the end goes out: readers of both find it
+        self.publisher.send("grasp_event", t_capture_s=t_s, event="end", grasp_id=grasp_id)
+        self._grasp = None
+
+    def _remember(self, grasp: _Grasp, segment: Segment) -> None:
+        if segment:
+            grasp.seen_contact = True
+            grasp.t_peak_s = segment.t_peak_s
+            grasp.t_contact_s = segment.t_contact_s
+
+    def _on_frame(self, grasp: _Grasp, received_s: float) -> None:
+        stream = grasp.stream
+        segment = stream.segment()
+        self._remember(grasp, segment)
+        if not segment:
+            return  # no contact yet: the grasp is not loading
+        if stream.loading_complete(segment):
+            self._finish(grasp, received_s, segment=segment)
+            return
+        result = stream.estimate(segment)
+        self._publish(grasp, result.estimate, result.t_data_s, received_s, provisional=True)
+
+    def _finish(self, grasp: _Grasp, received_s: float, *, segment: Segment | None = None) -> None:
+        """The final estimate: analytical, or the model's when one is pinned to the grasp."""
+        result: StreamEstimate = grasp.stream.estimate(segment)
+        estimate = result.estimate
+        if grasp.model is not None:
+            try:
+                estimate = grasp.model.estimate(grasp.stream.to_record(), mode=self.model.mode)
+            except _BAD_INPUT as exc:
+                log.warning("grasp %r: the model gives no estimate (%s); publishing the analytical one",
+                            grasp.grasp_id, exc)
+                estimate = estimate.with_note(f"model failed: {exc}")
+        grasp.final, grasp.final_t_data_s, grasp.loading_frames = estimate, result.t_data_s, result.loading_frames
+        self._publish(grasp, estimate, result.t_data_s, received_s, provisional=False)
+        grasp.final_s = self.clock()
+
+    def _publish(self, grasp: _Grasp, estimate: Estimate, t_data_s: float, received_s: float, *,
+                 provisional: bool) -> None:
+        reason = estimate.reason if len(estimate.reason) <= MAX_STR_CHARS else estimate.reason[: MAX_STR_CHARS - 1] + "…"
+        low, high = estimate.interval_pa
+        self.publisher.send(
+            "estimate", t_capture_s=t_data_s, grasp_id=grasp.grasp_id, method=estimate.method,
+            E_pa=estimate.e_pa, interval_pa=[low, high], state=estimate.state, reason=reason,
+            provisional=provisional, latency_s=max(0.0, self.clock() - received_s),
+        )
+        now = self.clock()
+        if estimate and grasp.first_estimate_s is None:
+            grasp.first_estimate_s = now
+        if provisional:
+            grasp.provisional_s.append(now)
+            self.stats.provisional += 1
+        else:
+            self.stats.final += 1
+
+    def _summary(self, grasp: _Grasp) -> dict[str, Any]:
+        """The grasp's report line; times are seconds on the service's (= the capture) clock."""
+        sent = grasp.provisional_s
+        contact = grasp.t_contact_s
+        return {
+            "grasp_id": grasp.grasp_id,
+            "t_contact_s": contact,
+            "time_to_first_estimate_s": (None if contact is None or grasp.first_estimate_s is None
+                                         else grasp.first_estimate_s - contact),
+            "provisional": len(sent),
+            "provisional_span_s": sent[-1] - sent[0] if len(sent) > 1 else None,
+            "final": None if grasp.final is None else grasp.final.to_json(),
+            "t_last_loading_frame_s": grasp.final_t_data_s,
+            "final_sent_s": grasp.final_s,
+            "loading_frames": grasp.loading_frames,
+            "model": None if grasp.model is None else str(self.model.model_dir),
+        }
+
+
+# --------------------------------------------------------------------------- command
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Serve live estimates: subscribe to the robot node's frames, forces, widths and grasp events "
+        "and publish a provisional estimate per tactile frame while a grasp loads and a final one when "
+        "loading ends. Stops on Ctrl-C or SIGTERM; SIGHUP reloads the model between grasps. Run it with "
+        "OPENBLAS_NUM_THREADS=1 (one core)."
+    )
+    parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
+                        help="settings TOML (sensors, estimator, gripper, bus)")
+    parser.add_argument("--calibration", metavar="CAL", default=None,
+                        help="colour-to-gradient calibration (.npz) of the estimator's finger; default: "
+                             "the file its sensor names (relative to configs/)")
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=None, metavar="METHOD",
+                        help="analytical methods in order of preference; the first that does not refuse "
+                             f"is published (default: [estimator] methods of the settings; choices: {', '.join(METHODS)})")
+    parser.add_argument("--model", metavar="DIR", default=None,
+                        help="learned model directory (model.onnx + metadata.json) for final estimates; "
+                             "'none' for analytical only; default: [estimator] model_path, else the shipped "
+                             "default model if there is one")
+    parser.add_argument("--mode", choices=("auto", "model"), default="auto",
+                        help="with a model: auto (the split when its interval is narrow, else the model) "
+                             "or model (always the model)")
+    add_endpoint_arguments(parser, "robot_pub", "estimate_pub")
+    parser.add_argument("--report", metavar="FILE", default=None,
+                        help="append one JSON object per grasp (contact time, time to first estimate, "
+                             "provisional count, final estimate) to FILE")
+    parser.add_argument("--duration-s", type=float, default=None, metavar="S",
+                        help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
+    parser.add_argument("--json", action="store_true",
+                        help="on exit print one JSON object (messages, bad_messages, ignored, grasps, "
+                             "provisional, final, reloads) as the last stdout line")
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = load_settings(args.settings)
+    methods = tuple(args.methods or [m for m in settings.estimator.methods if m in METHODS] or DEFAULT_METHODS)
+    calibration = resolve_calibration(settings.sensor(settings.estimator.finger), args.calibration)
+    bus = bus_from_args(settings, args)
+    model_dir = resolve_model_dir(args.model, settings)
+    model = None if model_dir is None else ModelSlot(model_dir, settings=settings, calibration=calibration,
+                                                      mode=args.mode)
+    if os.environ.get("OPENBLAS_NUM_THREADS") != "1":
+        log.warning("OPENBLAS_NUM_THREADS is not 1: BLAS threads may slow per-frame estimation down")
+    with (
+        Subscriber.from_settings(bus, bus.robot_pub, INPUT_TOPICS) as subscriber,
+        Publisher.from_settings(bus, bus.estimate_pub, lossless=False, source="estimator") as publisher,
+        JsonLines(args.report) as report,
+        StopSignals(on_hangup=model.request_reload if model is not None else None) as signals,
+    ):
+        service = EstimatorService(settings, calibration=calibration, subscriber=subscriber, publisher=publisher,
+                                   methods=methods, model=model, report=report)
+        print(f"estimator: {', '.join(methods)}{'' if model is None else f' + model {model_dir}'}; "
+              f"robot data from {bus.robot_pub}, estimates on {publisher.endpoint}", file=sys.stderr)
+        stats = service.run(signals.stop, duration_s=args.duration_s)
+    print(f"estimator: {stats.grasps} grasps, {stats.provisional} provisional and {stats.final} final "
+          f"estimates, {stats.bad_messages} bad messages", file=sys.stderr)
+    if args.json:
+        print(json.dumps(stats.as_dict()))
+    return 0

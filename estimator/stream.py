@@ -1,0 +1,404 @@
+"""Incremental estimation of one grasp while its streams arrive: the live twin of :func:`measure_grasp`.
+
+A :class:`GraspStream` takes a grasp's force samples, width samples and tactile frames in
+any interleaving, each with its capture timestamps, exactly as the bus delivers them. It
+keeps what batch estimation would recompute:
+
+* each frame of the estimator's finger is decoded and warped once, on arrival;
+* depth and contact features of a frame (loading and hold frames alike) are computed once, at
+  the first estimate after contact that sees the frame, against the no-contact reference (the
+  median of the last frames before the onset, as :func:`~estimator.measure.measure_grasp`
+  takes it; if later data moves the reference, the cached depths are dropped and recomputed);
+* on every :meth:`GraspStream.estimate` the segmentation and the analytical fits run again over
+  everything that has arrived (a few hundred samples and tens of frames: vectorised and cheap).
+
+Given the same data, the estimate equals :func:`~estimator.measure.estimate_grasp` on the
+grasp record (without clock-lag corrections): same segmentation, reference, depth, features
+and fits.
+
+When is loading over?
+---------------------
+Force, width and frames come at their own rates (80, 10 and 30 Hz on the rig), so the end of
+the loading phase is only known in hindsight. :meth:`GraspStream.loading_complete` says it is
+when the segmentation's peak force is followed by :data:`LOADING_SETTLED_S` of force samples
+that stay within the peak tolerance, and a width sample and a tactile frame newer than the
+peak have arrived (so no loading frame is still to come and each has widths around it). An
+estimate taken then rests on the loading frames alone: the hold frames batch estimation adds
+(from ``segment.HOLD_SETTLE_S`` after the peak until the release) have not been captured yet.
+
+Which estimate is published
+---------------------------
+:func:`choose_estimate` takes the first estimate that is not a refusal, in the order of the
+methods asked for (the order of :data:`~estimator.learned.hybrid.FALLBACK_ORDER` by default),
+so a bound is published when it is all a method can say, and a refusal only when every method
+refuses.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from estimator import analytical
+from estimator.errors import FitError, PerceptionError
+from estimator.estimate import Estimate
+from estimator.features import ContactFeatures, contact_features
+from estimator.measure import (
+    REFERENCE_GUARD_S,
+    GraspMeasurements,
+    _check_calibration_fits,
+    _median_frame,
+    _reference_index,
+    estimate_grasp,
+)
+from estimator.perception.calibration import Calibration
+from estimator.perception.depth import reconstruct_depth
+from estimator.perception.markers import detect_markers
+from estimator.perception.warp import warp_and_crop
+from estimator.segment import Segment, segment_grasp
+from teleop.errors import SettingsError
+from teleop.record import FrameStream, GraspRecord, Provenance, Samples
+from teleop.settings import Settings
+
+__all__ = [
+    "DEFAULT_METHODS",
+    "LOADING_SETTLED_S",
+    "GraspStream",
+    "StreamEstimate",
+    "choose_estimate",
+    "decode_frame",
+]
+
+DEFAULT_METHODS = ("split", "hertz", "elastic", "no_tactile")
+# Force samples this long after the peak, all within the peak tolerance, end the loading phase.
+LOADING_SETTLED_S = 0.1
+ENCODINGS = ("jpeg", "png", "raw")
+
+
+def decode_frame(data: np.ndarray | bytes, encoding: str, *, where: str = "frame") -> np.ndarray:
+    """A tactile frame as uint8 H x W x 3 BGR.
+
+    Parameters
+    ----------
+    data : ndarray or bytes
+        ``jpeg``/``png``: the encoded bytes (1-D uint8); ``raw``: the H x W x 3 uint8 image.
+    encoding : {"jpeg", "png", "raw"}
+    where : str
+        Names the frame in errors.
+
+    Raises
+    ------
+    PerceptionError
+        Unknown encoding, bytes that do not decode, or a raw image that is not uint8 BGR.
+    """
+    if encoding not in ENCODINGS:
+        raise PerceptionError(f"{where}: encoding {encoding!r}, expected one of {', '.join(ENCODINGS)}")
+    array = np.asarray(data) if not isinstance(data, bytes | bytearray) else np.frombuffer(data, dtype=np.uint8)
+    if encoding == "raw":
+        if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
+            raise PerceptionError(f"{where}: raw frame must be uint8 H x W x 3 BGR, got {array.dtype} {array.shape}")
+        return array
+    try:
+        image = cv2.imdecode(array, cv2.IMREAD_COLOR)
+    except cv2.error as exc:
+        raise PerceptionError(f"{where}: {encoding} data does not decode ({exc})") from exc
+    if image is None:
+        raise PerceptionError(f"{where}: {encoding} data does not decode")
+    return image
+
+
+def choose_estimate(estimates: Sequence[Estimate]) -> Estimate:
+    """The first estimate that is not a refusal; if all refuse, one refusal naming every reason."""
+    if not estimates:
+        raise FitError("choose_estimate needs at least one estimate")
+    for estimate in estimates:
+        if estimate:
+            return estimate
+    reasons = "; ".join(f"{e.method}: {e.reason}" for e in estimates)
+    return Estimate.refuse(estimates[0].method, f"every method refuses ({reasons})")
+
+
+@dataclass(frozen=True)
+class StreamEstimate:
+    """One estimate of a grasp in progress.
+
+    Attributes
+    ----------
+    estimate : Estimate
+        The published one (:func:`choose_estimate`), stamped with the compute time.
+    estimates : tuple of Estimate
+        Every method asked for, in order.
+    segment : Segment
+        The segmentation it rests on.
+    t_data_s : float
+        Capture time (s, stream clock) of the newest loading frame the fits used; without
+        loading frames, of the newest frame received.
+    loading_frames : int
+        Loading frames the fits used.
+    """
+
+    estimate: Estimate
+    estimates: tuple[Estimate, ...]
+    segment: Segment
+    t_data_s: float
+    loading_frames: int
+
+
+@dataclass
+class _Series:
+    """A growing timestamped scalar stream."""
+
+    t_s: list[np.ndarray] = field(default_factory=list)
+    value: list[np.ndarray] = field(default_factory=list)
+    last_t_s: float = -np.inf
+
+    def add(self, t_s: np.ndarray, value: np.ndarray, what: str) -> None:
+        t = np.asarray(t_s, dtype=np.float64).ravel()
+        v = np.asarray(value, dtype=np.float64).ravel()
+        if t.shape != v.shape:
+            raise PerceptionError(f"{what}: {t.size} timestamps but {v.size} values")
+        if not (np.isfinite(t).all() and np.isfinite(v).all()):
+            raise PerceptionError(f"{what}: timestamps and values must be finite")
+        if t.size:
+            self.t_s.append(t)
+            self.value.append(v)
+            self.last_t_s = max(self.last_t_s, float(t.max()))
+
+    def samples(self) -> Samples:
+        if not self.t_s:
+            return Samples(np.zeros(0), np.zeros(0))
+        return Samples(np.concatenate(self.t_s), np.concatenate(self.value))
+
+
+@dataclass
+class _Frames:
+    """Frames of one finger as received: capture times and the bytes as captured."""
+
+    t_s: list[float] = field(default_factory=list)
+    encoded: list[bytes] = field(default_factory=list)
+    encoding: str | None = None
+
+
+class GraspStream:
+    """The live estimate of one grasp from its streams (see the module docstring).
+
+    Parameters
+    ----------
+    settings : Settings
+        ``estimator`` (finger, contact force, frames, object Poisson ratio), the sensors and
+        ``gripper.finger_stiffness_n_per_m``, as for :func:`~estimator.measure.measure_grasp`.
+    calibration : Calibration
+        Colour-to-gradient calibration of the estimator's finger.
+    methods : sequence of str
+        Analytical methods to run, in order of preference (see :func:`choose_estimate`).
+    grasp_id : str
+        Names the grasp in errors and in :meth:`to_record`.
+
+    Raises
+    ------
+    CalibrationError
+        The calibration does not fit the finger's image grid or pixel pitch.
+    FitError
+        An unknown method, or no sensor on the estimator's finger.
+    """
+
+    def __init__(self, *, settings: Settings, calibration: Calibration,
+                 methods: Sequence[str] = DEFAULT_METHODS, grasp_id: str = ""):
+        unknown = [m for m in methods if m not in analytical.METHODS]
+        if unknown or not methods:
+            raise FitError(f"methods {list(methods)}: expected some of {', '.join(analytical.METHODS)}")
+        self.settings = settings
+        self.finger = settings.estimator.finger
+        try:
+            self.sensor = settings.sensor(self.finger)
+        except SettingsError as exc:
+            raise FitError(f"EstimatorSettings.finger = {self.finger!r}: {exc}") from exc
+        _check_calibration_fits(calibration, self.sensor)
+        self.calibration = calibration
+        self.methods = tuple(methods)
+        self.grasp_id = grasp_id
+        self._force = _Series()
+        self._width = _Series()
+        self._frames: dict[str, _Frames] = {}
+        self._images: list[np.ndarray] = []  # the estimator finger's frames, warped and cropped
+        self._reference_key: tuple[int, ...] | None = None
+        self._reference: np.ndarray | None = None
+        self._features: dict[int, ContactFeatures] = {}  # frame position -> features of that frame
+
+    def warm_up(self) -> None:
+        """Fill the caches the first estimate would otherwise fill mid-grasp (about a second on
+        2 cores): the depth solver's and the feature fit's for this image size, and the split
+        method's gel-layer table for this gel."""
+        flat = np.full((*self.sensor.image_shape, 3), 128, dtype=np.uint8)
+        depth = reconstruct_depth(flat, flat, self.calibration)
+        contact_features(depth[None], pixel_pitch_m=self.sensor.pixel_pitch_m,
+                         contact_threshold_m=self.sensor.contact_threshold_m)
+        analytical.gel_layer_factor(0.0, gel_thickness_m=self.sensor.gel_thickness_m,
+                                    gel_poisson=self.sensor.gel_poisson)
+
+    # ------------------------------------------------------------------ input
+
+    @property
+    def frame_count(self) -> int:
+        """Frames of the estimator's finger received."""
+        return len(self._images)
+
+    @property
+    def newest_force_s(self) -> float:
+        """Capture time of the newest force sample (-inf before the first)."""
+        return self._force.last_t_s
+
+    def add_force(self, t_s: np.ndarray, value_n: np.ndarray) -> None:
+        """Load-cell samples: capture times (s) and force (N). PerceptionError if malformed."""
+        self._force.add(t_s, value_n, f"grasp {self.grasp_id!r} force")
+
+    def add_width(self, t_s: np.ndarray, value_m: np.ndarray) -> None:
+        """Gripper width samples: capture times (s) and width (m). PerceptionError if malformed."""
+        self._width.add(t_s, value_m, f"grasp {self.grasp_id!r} width")
+
+    def add_frame(self, finger: str, t_s: float, data: np.ndarray | bytes, encoding: str) -> bool:
+        """One tactile frame as captured; True when it is the estimator's finger.
+
+        The estimator's frames are decoded and warped here, once; other fingers' frames are
+        kept as they came (for :meth:`to_record`). Raises PerceptionError (the frame is not
+        kept) for an estimator frame that does not decode or has the wrong size, an unknown
+        finger, a non-finite time or an encoding other than the finger's earlier ones.
+        """
+        where = f"grasp {self.grasp_id!r} frame {len(self._frames.get(finger, _Frames()).t_s)} of finger {finger!r}"
+        if not np.isfinite(t_s):
+            raise PerceptionError(f"{where}: capture time {t_s!r} is not finite")
+        try:
+            sensor = self.settings.sensor(finger)
+        except SettingsError as exc:
+            raise PerceptionError(f"{where}: {exc}") from exc
+        frames = self._frames.setdefault(finger, _Frames())
+        stored = "png" if encoding == "raw" else encoding
+        if frames.encoding not in (None, stored):
+            raise PerceptionError(f"{where}: {encoding} after {frames.encoding} frames")
+        if finger == self.finger:
+            image = decode_frame(data, encoding, where=where)
+            self._images.append(warp_and_crop(image, sensor) if sensor.model == "wedge" else image)
+        if encoding == "raw":  # kept lossless, as a grasp record stores raw frames
+            image = decode_frame(data, encoding, where=where)
+            data = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])[1]
+        frames.encoding = stored
+        frames.t_s.append(float(t_s))
+        frames.encoded.append(bytes(data) if isinstance(data, bytes | bytearray) else np.ascontiguousarray(data).tobytes())
+        return finger == self.finger
+
+    # ------------------------------------------------------------------ state
+
+    def segment(self) -> Segment:
+        """The segmentation of what has arrived (falsy with a reason before contact)."""
+        force, width = self._force.samples(), self._width.samples()
+        est = self.settings.estimator
+        return segment_grasp(force.t_s, force.value, width.t_s, width.value, self._frame_times(),
+                             contact_force_n=est.contact_force_n, n_frames=est.n_frames)
+
+    def loading_complete(self, segment: Segment | None = None) -> bool:
+        """Whether the loading phase has ended and every loading frame is usable (module docstring)."""
+        segment = self.segment() if segment is None else segment
+        if not segment or not np.isfinite(segment.t_peak_s):
+            return False
+        frame_t = self._frame_times()
+        return (self.newest_force_s >= segment.t_peak_s + LOADING_SETTLED_S
+                and self._width.last_t_s >= segment.t_peak_s
+                and frame_t.size > 0 and float(frame_t.max()) > segment.t_peak_s)
+
+    def _frame_times(self) -> np.ndarray:
+        return np.asarray(self._frames.get(self.finger, _Frames()).t_s, dtype=np.float64)
+
+    # ------------------------------------------------------------------ estimation
+
+    def estimate(self, segment: Segment | None = None) -> StreamEstimate:
+        """Every method over what has arrived, and the one to publish.
+
+        Computes depth and features of loading frames not seen before (and of all of them
+        when the no-contact reference moved); everything else is cached.
+        """
+        started = time.perf_counter()
+        segment = self.segment() if segment is None else segment
+        measurements = self._measure(segment)
+        estimates = tuple(estimate_grasp(measurements, m, settings=self.settings) for m in self.methods)
+        frame_t = self._frame_times()
+        used = segment.frame_t_s if measurements.features is not None else np.zeros(0)
+        t_data = float(used[-1]) if used.size else (float(frame_t.max()) if frame_t.size else self._force.last_t_s)
+        chosen = choose_estimate(estimates).with_latency(time.perf_counter() - started)
+        return StreamEstimate(estimate=chosen, estimates=estimates, segment=segment,
+                              t_data_s=t_data, loading_frames=int(used.size))
+
+    def _measure(self, segment: Segment) -> GraspMeasurements:
+        """:class:`GraspMeasurements` of the loading (and hold) frames so far, as ``measure_grasp``
+        builds them."""
+        stiffness = self.settings.gripper.finger_stiffness_n_per_m
+
+        def approach(width_m: np.ndarray, force_n: np.ndarray) -> np.ndarray:
+            return analytical.approach_per_finger(width_m, force_n, onset_width_m=segment.onset_width_m,
+                                                  finger_stiffness_n_per_m=stiffness)
+
+        measurements = GraspMeasurements(
+            finger=self.finger, sensor=self.sensor, segment=segment, finger_stiffness_n_per_m=stiffness,
+            object_poisson=self.settings.estimator.object_poisson, t_s=segment.frame_t_s,
+            force_n=segment.frame_force_n, width_m=segment.frame_width_m,
+            approach_m=approach(segment.frame_width_m, segment.frame_force_n),
+            hold_force_n=segment.hold_force_n, hold_approach_m=approach(segment.hold_width_m, segment.hold_force_n),
+        )
+        why = segment.reason or segment.frame_reason
+        reference_index = np.zeros(0, dtype=np.intp)
+        if not why:
+            reference_index = _reference_index(self._frame_times(), segment.t_onset_s - REFERENCE_GUARD_S)
+            if reference_index.size == 0:
+                why = (f"no tactile frame before the contact onset at {segment.t_onset_s:.3f} s to serve "
+                       "as the no-contact reference")
+        if why:
+            return dataclasses.replace(measurements, tactile_reason=why)
+        self._use_reference(reference_index)
+        # Every frame from contact on, not only those with widths around them yet: each frame's
+        # depth is then computed when it arrives, not in a burst when the next width comes.
+        for position in np.flatnonzero(self._frame_times() >= segment.t_contact_s):
+            self._frame_features(int(position))
+        loading = self._stacked_features(segment.frame_index)
+        hold = self._stacked_features(segment.hold_index) if segment.hold_index.size else loading.take(slice(0, 0))
+        return dataclasses.replace(measurements, features=loading, hold_features=hold)
+
+    def _stacked_features(self, positions: np.ndarray) -> ContactFeatures:
+        features = [self._frame_features(int(i)) for i in positions]
+        return ContactFeatures(**{f.name: np.concatenate([getattr(x, f.name) for x in features])
+                                  for f in dataclasses.fields(ContactFeatures)})
+
+    def _use_reference(self, index: np.ndarray) -> None:
+        key = tuple(int(i) for i in index)
+        if key != self._reference_key:
+            self._reference = _median_frame(np.stack([self._images[i] for i in key]))
+            self._reference_key = key
+            self._features.clear()
+
+    def _frame_features(self, position: int) -> ContactFeatures:
+        cached = self._features.get(position)
+        if cached is None:
+            frame = self._images[position]
+            mask = detect_markers(frame, self._reference) if self.sensor.markers else None
+            depth = reconstruct_depth(frame, self._reference, self.calibration, marker_mask=mask)
+            cached = contact_features(depth[None], pixel_pitch_m=self.sensor.pixel_pitch_m,
+                                      contact_threshold_m=self.sensor.contact_threshold_m)
+            self._features[position] = cached
+        return cached
+
+    # ------------------------------------------------------------------ export
+
+    def to_record(self) -> GraspRecord:
+        """What has arrived as a grasp record (source ``hardware``: data as the bus delivered it)."""
+        fingers = {s.finger for s in self.settings.sensors}
+        streams = tuple(
+            FrameStream(finger, np.asarray(f.t_s), tuple(f.encoded), f.encoding or "jpeg")
+            for finger, f in self._frames.items() if finger in fingers
+        )
+        return GraspRecord(
+            sensors=self.settings.sensors, frames=streams, force_n=self._force.samples(),
+            width_m=self._width.samples(), provenance=Provenance(source="hardware", extra={"grasp_id": self.grasp_id}),
+        )

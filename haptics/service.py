@@ -1,0 +1,226 @@
+"""``haptics serve``: the renderer process, from estimates on the bus to reports on the display.
+
+It subscribes to the estimator's endpoint with latest-value delivery (``estimate`` and the
+forwarded ``grasp_event``), feeds :class:`~haptics.renderer.HapticRenderer` (which owns the
+mapping, smoothing, staleness, fading and the display's reconnection) and ticks it at
+``tick_s`` between messages. It publishes heartbeats on its own endpoint (``bus.display_pub``).
+
+Latency
+-------
+For every FINAL estimate it records the end-to-end latency: from the capture of the last
+loading frame (the message's ``t_capture_s``) to the completion of the first display report
+written after the estimate arrived, both on this host's monotonic clock (the robot node runs
+on the same host in the demo; across hosts the figure is meaningless). With ``--report`` one
+JSON object per final estimate goes to a file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from haptics.devices import BACKENDS, make_display
+from haptics.errors import HapticsError
+from haptics.mapping import EstimateUpdate
+from haptics.renderer import HapticRenderer
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.bus.wire import Message
+from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
+from teleop.settings import default_settings_path, load_settings
+
+__all__ = ["INPUT_TOPICS", "FinalLatency", "RendererService"]
+
+log = logging.getLogger(__name__)
+
+INPUT_TOPICS = ("estimate", "grasp_event")
+
+
+@dataclass(frozen=True)
+class FinalLatency:
+    """A final estimate as the display got it: latency from the last loading frame to the report."""
+
+    grasp_id: str
+    state: str
+    e_pa: float | None
+    latency_s: float
+    estimates_received: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {"grasp_id": self.grasp_id, "state": self.state, "E_pa": self.e_pa,
+                "latency_ms": self.latency_s * 1e3, "estimates_received": self.estimates_received}
+
+
+@dataclass
+class _Pending:
+    """A final estimate waiting for the report that shows it."""
+
+    grasp_id: str
+    update: EstimateUpdate
+    reports_before: int
+
+
+@dataclass
+class ServiceStats:
+    estimates: int = 0
+    bad_messages: int = 0
+    grasp_ends: int = 0
+    finals: list[FinalLatency] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"estimates": self.estimates, "bad_messages": self.bad_messages, "grasp_ends": self.grasp_ends,
+                "finals": [f.to_json() for f in self.finals]}
+
+
+class RendererService:
+    """Drives a :class:`HapticRenderer` from a bus subscription (see the module docstring).
+
+    Parameters
+    ----------
+    renderer : HapticRenderer
+    subscriber : Subscriber
+        Latest-value subscription to :data:`INPUT_TOPICS` on the estimator's endpoint.
+    publisher : Publisher, optional
+        Where heartbeats go (``source`` should be ``"renderer"``).
+    report : JsonLines, optional
+        Receives one JSON object per final estimate.
+    tick_s : float
+        Longest time between renderer ticks (smoothing, fading, keep-alive).
+    clock : callable
+        Monotonic seconds, the clock the robot stamps captures with.
+    """
+
+    def __init__(self, renderer: HapticRenderer, *, subscriber: Subscriber, publisher: Publisher | None = None,
+                 report: JsonLines | None = None, tick_s: float = 0.01,
+                 clock: Callable[[], float] = time.monotonic):
+        if not tick_s > 0:
+            raise HapticsError(f"tick_s = {tick_s!r}: expected a number of seconds > 0")
+        self.renderer = renderer
+        self.subscriber = subscriber
+        self.publisher = publisher
+        self.report = report or JsonLines(None)
+        self.tick_s = tick_s
+        self.clock = clock
+        self.stats = ServiceStats()
+        self._received: dict[str, int] = {}
+        self._pending: _Pending | None = None
+
+    def run(self, stop: Any, *, duration_s: float | None = None) -> ServiceStats:
+        """Serve until ``stop.is_set()`` or ``duration_s`` passed."""
+        deadline = None if duration_s is None else self.clock() + duration_s
+        while not stop.is_set() and (deadline is None or self.clock() < deadline):
+            self.step()
+        return self.stats
+
+    def step(self) -> Message | None:
+        """Wait up to ``tick_s`` for a message and handle it; tick the renderer; heartbeat."""
+        if self.publisher is not None:
+            self.publisher.heartbeat_if_due(self.clock())
+        message = self.subscriber.recv(timeout_s=self.tick_s)
+        if message is not None:
+            self.handle(message)
+        self.renderer.tick(self.clock())
+        self._check_pending()
+        return message
+
+    def handle(self, message: Message) -> None:
+        """Take one estimate or grasp event; one that cannot be rendered is logged and skipped."""
+        body = message.body
+        try:
+            if message.type == "grasp_event":
+                if body["event"] == "end":
+                    self.renderer.on_grasp_end(body["grasp_id"], self.clock())
+                    self.stats.grasp_ends += 1
+                    self._received.pop(body["grasp_id"], None)
+                return
+            if message.type != "estimate":
+                return
+            update = EstimateUpdate.from_mapping({**body, "t_s": message.t_capture_s})
+            reports_before = self.renderer.stats.reports_sent
+            ignored_before = self.renderer.stats.estimates_ignored
+            self.renderer.on_estimate(update, self.clock())
+        except HapticsError as exc:
+            self.stats.bad_messages += 1
+            log.warning("estimate from %s (seq %d) not rendered: %s", message.source or "?", message.seq, exc)
+            return
+        self.stats.estimates += 1
+        self._received[update.grasp_id] = self._received.get(update.grasp_id, 0) + 1
+        if not update.provisional and self.renderer.stats.estimates_ignored == ignored_before:
+            self._pending = _Pending(update.grasp_id, update, reports_before)
+            self._check_pending()
+
+    def _check_pending(self) -> None:
+        """Record the pending final estimate's latency once a report went out after it."""
+        pending = self._pending
+        if pending is None or self.renderer.stats.reports_sent == pending.reports_before:
+            return
+        written_s = self.clock()
+        update = pending.update
+        final = FinalLatency(grasp_id=str(pending.grasp_id), state=update.state, e_pa=update.value_pa,
+                             latency_s=written_s - update.t_s,
+                             estimates_received=self._received.get(pending.grasp_id, 0))
+        self.stats.finals.append(final)
+        self.report.write(final.to_json())
+        self._pending = None
+
+
+# --------------------------------------------------------------------------- command
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Render live estimates on the softness display: subscribe to the estimator's estimates "
+        "(latest value) and drive the display, heartbeating on the display endpoint. Records the "
+        "latency from the last loading frame's capture to the display report for every final "
+        "estimate. Stops on Ctrl-C or SIGTERM."
+    )
+    parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
+                        help="settings TOML ([display] mapping and backend, [bus] endpoints)")
+    parser.add_argument("--backend", choices=sorted(BACKENDS), default=None,
+                        help="display backend (default: [display] backend of the settings)")
+    add_endpoint_arguments(parser, "estimate_pub", "display_pub")
+    parser.add_argument("--tick-s", type=float, default=0.01, metavar="S",
+                        help="longest time between renderer updates (smoothing, fading, keep-alive), seconds")
+    parser.add_argument("--report", metavar="FILE", default=None,
+                        help="append one JSON object per final estimate (grasp_id, state, E_pa, latency_ms, "
+                             "estimates_received) to FILE")
+    parser.add_argument("--duration-s", type=float, default=None, metavar="S",
+                        help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
+    parser.add_argument("--json", action="store_true",
+                        help="on exit print one JSON object (estimates, bad_messages, grasp_ends, finals) "
+                             "as the last stdout line")
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = load_settings(args.settings)
+    display_settings = settings.display
+    if args.backend is not None:
+        display_settings = dataclasses.replace(display_settings, backend=args.backend)
+    bus = bus_from_args(settings, args)
+    display = make_display(display_settings)
+    renderer = HapticRenderer(display, display_settings)
+    try:
+        with (
+            Subscriber.from_settings(bus, bus.estimate_pub, INPUT_TOPICS, conflate=True) as subscriber,
+            Publisher.from_settings(bus, bus.display_pub, lossless=False, source="renderer") as publisher,
+            JsonLines(args.report) as report,
+            StopSignals() as signals,
+        ):
+            service = RendererService(renderer, subscriber=subscriber, publisher=publisher, report=report,
+                                      tick_s=args.tick_s)
+            print(f"renderer: {display} from estimates on {bus.estimate_pub}, heartbeat on {publisher.endpoint}",
+                  file=sys.stderr)
+            stats = service.run(signals.stop, duration_s=args.duration_s)
+    finally:
+        display.close()
+    print(f"renderer: {stats.estimates} estimates, {len(stats.finals)} final, {display.reports_written} "
+          f"reports written", file=sys.stderr)
+    if args.json:
+        print(json.dumps(stats.as_dict()))
+    return 0

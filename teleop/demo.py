@@ -1,0 +1,600 @@
+"""``teleop demo``: the live system on simulated hardware, one grasp per scene object, with a closing table.
+
+:class:`LiveSystem` starts the four processes of the live system on loopback, on free ports:
+
+==========  ====================  ==============================================================
+name        command               role
+==========  ====================  ==============================================================
+node        ``teleop node``       simulated gripper, cameras and load cell; grasps on command
+estimator   ``estimator serve``   provisional and final estimates (report: ``estimator.jsonl``)
+renderer    ``haptics serve``     simulated softness display (report: ``renderer.jsonl``)
+recorder    ``teleop record``     the session log (``session.mcap``)
+==========  ====================  ==============================================================
+
+This process is the operator: it publishes ``command`` messages and listens to grasp events and
+estimates. Each child runs in its own session (a Ctrl-C here stops them in order: node,
+estimator, renderer, recorder, so the log gets everything) and is told by the kernel to stop
+when this process dies (``PR_SET_PDEATHSIG`` on Linux), so none outlives it; a child that exits
+early stops the demo with the tail of its log; SIGTERM stops the demo as Ctrl-C does. Children
+run with one BLAS thread each and with progress bars off or rare (``TQDM_DISABLE``,
+``TQDM_MININTERVAL``).
+
+The estimator's sensor needs a colour-to-gradient calibration. When the settings name none (or
+the file is missing) one is fitted at start on simulated ball presses of that sensor
+(:func:`simulated_calibration`, a couple of seconds) and the demo says so.
+
+Results per grasp: the true E (catalogue), the final estimate and its state, the error in
+decades, the time from contact to the first estimate that is not a refusal (estimator
+report), and the latency from the last loading frame's capture to the display report that
+showed the final estimate (renderer report). All on this host's monotonic clock.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import ctypes
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.bus.wire import Message
+from teleop.catalogue import ObjectSpec
+from teleop.errors import SettingsError, TeleopError
+from teleop.scene import load_scene
+from teleop.settings import CONFIG_DIR, Settings, default_settings_path, load_settings
+
+__all__ = [
+    "CHILDREN",
+    "GraspOutcome",
+    "LiveSystem",
+    "ReportReader",
+    "free_ports",
+    "simulated_calibration",
+]
+
+CHILDREN = ("recorder", "renderer", "estimator", "node")  # start order; stopped in reverse
+STOP_TIMEOUT_S = 10.0
+START_TIMEOUT_S = 60.0
+SETTLE_S = 0.5  # after every peer is heard: subscriptions reconnect every 0.1 s
+GRASP_TIMEOUT_S = 60.0
+REPORT_TIMEOUT_S = 3.0
+CALIBRATION_PRESSES = 24
+LOG_TAIL_LINES = 15
+_PR_SET_PDEATHSIG = 1
+# One BLAS thread per child; progress bars (which a log file does not need) off or rare.
+_CHILD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "TQDM_DISABLE": "1",
+              "TQDM_MININTERVAL": "60"}
+_ENTRY = "import sys; from {package}.cli import main; sys.exit(main())"
+
+
+def free_ports(n: int) -> list[int]:
+    """``n`` distinct TCP ports free on 127.0.0.1 right now (the OS picks them)."""
+    with contextlib.ExitStack() as stack:
+        sockets = [stack.enter_context(socket.socket(socket.AF_INET, socket.SOCK_STREAM)) for _ in range(n)]
+        for s in sockets:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in sockets]
+
+
+def simulated_calibration(settings: Settings, out_dir: Path, *, finger: str | None = None,
+                          n_presses: int = CALIBRATION_PRESSES, seed: int = 0) -> Path:
+    """Fit a calibration of ``finger``'s simulated sensor on simulated ball presses; its path.
+
+    The presses (a 2 mm ball, 0.3 to 1.0 mm deep) are written to ``out_dir/presses-<finger>.npz``
+    and the calibration to ``out_dir/sim-<finger>.npz``, as ``teleop simulate-presses`` and
+    ``estimator calibrate`` would.
+    """
+    from estimator.perception.calibration import fit_calibration, load_presses
+    from teleop.sim.optics import TactileCamera
+    from teleop.sim.presses import simulate_presses, write_presses
+
+    sensor = settings.sensor(finger or settings.estimator.finger)
+    camera_rng, press_rng = np.random.default_rng(seed).spawn(2)
+    camera = TactileCamera(sensor, sim=settings.simulation, rng=camera_rng)
+    ball_m = 2e-3
+    pack = simulate_presses(camera, n=n_presses, ball_radius_m=ball_m, depth_range_m=(3e-4, 1e-3), rng=press_rng)
+    presses = load_presses(write_presses(out_dir / f"presses-{sensor.finger}.npz", pack)).in_sensor_frame(sensor)
+    calibration = fit_calibration(presses.reference, presses.images, presses.centers_px, presses.radii_px,
+                                  ball_radius_m=ball_m, pixel_pitch_m=sensor.pixel_pitch_m)
+    return calibration.save(out_dir / f"sim-{sensor.finger}.npz")
+
+
+def _configured_calibration(settings: Settings) -> Path | None:
+    sensor = settings.sensor(settings.estimator.finger)
+    if not sensor.calibration:
+        return None
+    path = Path(sensor.calibration)
+    path = path if path.is_absolute() else CONFIG_DIR / path
+    return path if path.is_file() else None
+
+
+# Resolved here, not in the forked child: another thread may hold the loader's lock at fork time.
+_prctl = ctypes.CDLL(None, use_errno=True).prctl if sys.platform.startswith("linux") else None
+
+
+def _die_with_parent() -> None:
+    """In the child, between fork and exec: have the kernel send SIGTERM when the parent dies."""
+    if _prctl is not None:
+        _prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+class ReportReader:
+    """Reads a JSON-lines report another process appends to, line by complete line."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self._offset = 0
+        self.records: list[dict[str, Any]] = []
+
+    def poll(self) -> list[dict[str, Any]]:
+        """Records appended since the last call."""
+        try:
+            with self.path.open("rb") as fh:
+                fh.seek(self._offset)
+                data = fh.read()
+        except FileNotFoundError:
+            return []
+        complete = data[: data.rfind(b"\n") + 1]
+        self._offset += len(complete)
+        new = [json.loads(line) for line in complete.decode("utf-8").splitlines() if line.strip()]
+        self.records.extend(new)
+        return new
+
+    def find(self, grasp_id: str, *, timeout_s: float) -> dict[str, Any] | None:
+        """The record of ``grasp_id``, waiting up to ``timeout_s`` for it to be written."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            self.poll()
+            found = next((r for r in self.records if r.get("grasp_id") == grasp_id), None)
+            if found is not None or time.monotonic() >= deadline:
+                return found
+            time.sleep(0.02)
+
+
+@dataclass
+class GraspOutcome:
+    """One grasp of the live system as the operator saw it, with the services' reports."""
+
+    grasp_id: str
+    obj: ObjectSpec
+    started: bool = False
+    robot_ended: bool = False
+    estimator_ended: bool = False
+    estimates: int = 0
+    latest: dict[str, Any] | None = None  # body of the newest estimate
+    final: dict[str, Any] | None = None  # body of the final estimate
+    estimator_report: dict[str, Any] | None = None
+    renderer_report: dict[str, Any] | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.robot_ended and self.estimator_ended
+
+    @property
+    def e_final_pa(self) -> float | None:
+        return None if self.final is None else self.final["E_pa"]
+
+    @property
+    def state(self) -> str:
+        return "none" if self.final is None else self.final["state"]
+
+    @property
+    def log10_error(self) -> float | None:
+        e = self.e_final_pa
+        return None if e is None else math.log10(e / self.obj.modulus_pa)
+
+    @property
+    def t_first_estimate_s(self) -> float | None:
+        return None if self.estimator_report is None else self.estimator_report.get("time_to_first_estimate_s")
+
+    @property
+    def latency_ms(self) -> float | None:
+        return None if self.renderer_report is None else self.renderer_report.get("latency_ms")
+
+    def to_json(self) -> dict[str, Any]:
+        return {"object": self.obj.name, "E_true_pa": self.obj.modulus_pa, "E_final_pa": self.e_final_pa,
+                "log10_error": self.log10_error, "t_first_estimate_s": self.t_first_estimate_s,
+                "latency_ms": self.latency_ms, "state": self.state}
+
+
+@dataclass
+class _Child:
+    name: str
+    process: subprocess.Popen
+    log_path: Path
+
+    def tail(self) -> str:
+        try:
+            lines = self.log_path.read_text(encoding="utf-8", errors="replace").splitlines()
+        except OSError:
+            return "(no log)"
+        return "\n".join(lines[-LOG_TAIL_LINES:])
+
+
+class LiveSystem:
+    """The live system's processes on loopback, and this process as their operator.
+
+    Parameters
+    ----------
+    settings_path : Path
+        Settings TOML every process reads (its bus endpoints are replaced by free ports).
+    scene : str
+        Scene name or path the node simulates.
+    run_dir : Path
+        Where the children's logs and reports and the session log go.
+    calibration : Path
+        The estimator finger's calibration.
+    record : bool
+        Also run the session recorder.
+    """
+
+    def __init__(self, settings_path: Path, scene: str, run_dir: Path, calibration: Path, *, record: bool = True):
+        self.settings_path = settings_path
+        self.scene = scene
+        self.run_dir = run_dir
+        self.calibration = calibration
+        self.record = record
+        self.endpoints: dict[str, str] = {}
+        self.children: dict[str, _Child] = {}
+        self.commands: Publisher | None = None
+        self.events: Subscriber | None = None
+        self.estimator_reports = ReportReader(run_dir / "estimator.jsonl")
+        self.renderer_reports = ReportReader(run_dir / "renderer.jsonl")
+
+    @property
+    def session_log(self) -> Path | None:
+        return self.run_dir / "session.mcap" if self.record else None
+
+    def _command_lines(self) -> dict[str, list[str]]:
+        ep, settings, out = self.endpoints, str(self.settings_path), self.run_dir
+        lines = {
+            "node": ["teleop", "node", "--settings", settings, "--scene", self.scene,
+                     "--robot-pub", ep["robot_pub"], "--command", ep["command"]],
+            "estimator": ["estimator", "serve", "--settings", settings, "--calibration", str(self.calibration),
+                          "--robot-pub", ep["robot_pub"], "--estimate-pub", ep["estimate_pub"],
+                          "--report", str(out / "estimator.jsonl")],
+            "renderer": ["haptics", "serve", "--settings", settings, "--backend", "sim", "--estimate-pub", ep["estimate_pub"],
+                         "--display-pub", ep["display_pub"], "--report", str(out / "renderer.jsonl")],
+        }
+        if self.record:
+            lines["recorder"] = ["teleop", "record", "--out", str(self.session_log), "--settings", settings,
+                                 "--scene", self.scene, *[a for name in ("robot_pub", "estimate_pub", "command",
+                                                                         "display_pub")
+                                                          for a in ("--endpoint", ep[name])]]
+        return lines
+
+    def start(self, *, timeout_s: float = START_TIMEOUT_S) -> None:
+        """Start the children and wait until every one is up and connected.
+
+        Raises
+        ------
+        TeleopError
+            A child exits or stays silent for ``timeout_s``; the others are stopped.
+        """
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        ports = free_ports(4)
+        self.endpoints = {name: f"tcp://127.0.0.1:{port}"
+                          for name, port in zip(("robot_pub", "estimate_pub", "command", "display_pub"), ports,
+                                                strict=True)}
+        settings = load_settings(self.settings_path)
+        bus = settings.bus
+        try:
+            self.commands = Publisher(self.endpoints["command"], lossless=True, source="operator",
+                                      max_bytes=bus.max_message_bytes)
+            self.events = Subscriber([self.endpoints[n] for n in ("robot_pub", "estimate_pub", "display_pub")],
+                                     ("grasp_event", "estimate"), max_bytes=bus.max_message_bytes)
+            lines = self._command_lines()
+            env = {**os.environ, **_CHILD_ENV}
+            for name in CHILDREN:
+                if name in lines:
+                    self._spawn(name, lines[name], env)
+            self._wait_ready(timeout_s)
+        except BaseException:
+            self.stop()
+            raise
+
+    def _spawn(self, name: str, line: Sequence[str], env: dict[str, str]) -> None:
+        package, *args = line
+        log_path = self.run_dir / f"{name}.log"
+        with log_path.open("wb") as log_file:
+            process = subprocess.Popen(
+                [sys.executable, "-c", _ENTRY.format(package=package), *args],
+                stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT, env=env,
+                start_new_session=True, preexec_fn=_die_with_parent,
+            )
+        self.children[name] = _Child(name, process, log_path)
+
+    def _wait_ready(self, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        wanted = {"robot", "estimator", "renderer"}
+        while not wanted <= set(self.events.heartbeat.peers()) or (
+                self.record and not self.session_log.exists()):
+            self.check()
+            if time.monotonic() >= deadline:
+                missing = sorted(wanted - set(self.events.heartbeat.peers()))
+                raise TeleopError(f"live system not up within {timeout_s:g} s: no heartbeat from "
+                                  f"{', '.join(missing) or 'nobody missing'}; logs in {self.run_dir}")
+            self.events.recv(timeout_s=0.1)
+        end = time.monotonic() + SETTLE_S
+        while time.monotonic() < end:
+            self.events.recv(timeout_s=end - time.monotonic())
+
+    def check(self) -> None:
+        """Raise TeleopError, with the tail of its log, if a child has exited."""
+        for child in self.children.values():
+            code = child.process.poll()
+            if code is not None:
+                raise TeleopError(f"{child.name} exited with status {code}; the end of {child.log_path}:\n"
+                                  f"{child.tail()}")
+
+    def stop(self) -> dict[str, int | None]:
+        """Stop every child (node first, recorder last), killing one that does not stop in time.
+
+        Returns each child's exit status; calling twice is fine.
+        """
+        codes: dict[str, int | None] = {}
+        for name in reversed(CHILDREN):
+            child = self.children.get(name)
+            if child is None:
+                continue
+            process = child.process
+            if process.poll() is None:
+                process.send_signal(signal.SIGTERM)
+            try:
+                codes[name] = process.wait(timeout=STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                codes[name] = process.wait()
+        for sock in (self.commands, self.events):
+            if sock is not None:
+                sock.close()
+        return codes
+
+    def __enter__(self) -> LiveSystem:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ operating
+
+    def grasp(self, grasp_id: str, object_index: int, obj: ObjectSpec, *,
+              on_update: Callable[[GraspOutcome], None] | None = None,
+              on_message: Callable[[Message], None] | None = None,
+              timeout_s: float = GRASP_TIMEOUT_S) -> GraspOutcome:
+        """Command one grasp of scene object ``object_index`` and follow it to the reports.
+
+        ``on_update`` sees the outcome after each of the grasp's messages, ``on_message`` each
+        of its messages.
+
+        Raises
+        ------
+        TeleopError
+            A child exits, or the grasp does not end within ``timeout_s``.
+        """
+        outcome = GraspOutcome(grasp_id, obj)
+        self.commands.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id=grasp_id,
+                           params={"object_index": float(object_index)})
+        deadline = time.monotonic() + timeout_s
+        while not outcome.done:
+            self.check()
+            if time.monotonic() >= deadline:
+                raise TeleopError(f"grasp {grasp_id} ({obj.name}) did not end within {timeout_s:g} s; "
+                                  f"logs in {self.run_dir}")
+            message = self.events.recv(timeout_s=0.05)
+            if message is None or message.body.get("grasp_id") != grasp_id:
+                continue
+            if on_message is not None:
+                on_message(message)
+            body = message.body
+            if message.type == "estimate":
+                outcome.estimates += 1
+                outcome.latest = dict(body)
+                if not body["provisional"]:
+                    outcome.final = dict(body)
+            elif body["event"] == "start":
+                outcome.started = True
+                if body["object_name"] not in (None, obj.name):
+                    raise TeleopError(f"grasp {grasp_id}: the node grasped {body['object_name']}, not {obj.name}")
+            elif message.source == "estimator":
+                outcome.estimator_ended = True
+            else:
+                outcome.robot_ended = True
+            if on_update is not None:
+                on_update(outcome)
+        outcome.estimator_report = self.estimator_reports.find(grasp_id, timeout_s=REPORT_TIMEOUT_S)
+        outcome.renderer_report = self.renderer_reports.find(
+            grasp_id, timeout_s=REPORT_TIMEOUT_S if outcome.final is not None else 0.0)
+        if on_update is not None:
+            on_update(outcome)
+        return outcome
+
+
+def scene_plan(scene_name: str, n_grasps: int | None = None) -> list[tuple[int, ObjectSpec]]:
+    """(object index, object) of each grasp: the scene's objects repeated ``grasps_per_object``
+    times, cycled to ``n_grasps`` when given."""
+    scene = load_scene(scene_name)
+    objects = [o for o in scene.objects for _ in range(scene.grasps_per_object)]
+    count = len(objects) if n_grasps is None else n_grasps
+    return [(i % len(objects), objects[i % len(objects)]) for i in range(count)]
+
+
+@contextlib.contextmanager
+def interrupted_by_sigterm() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt here, as Ctrl-C does, so the children are stopped in order."""
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def prepare_run(args: argparse.Namespace, *, prefix: str, out: TextIO) -> tuple[Path, Path]:
+    """The run directory (made) and the calibration to use (fitted there when none is configured).
+
+    Raises SettingsError when the settings are not the scene's, or name hardware backends: the
+    live system runs here on the simulated robot.
+    """
+    from teleop.session.recorder import session_source
+
+    settings = load_settings(args.settings)
+    if load_scene(args.scene).settings != settings:
+        raise SettingsError(f"scene {args.scene!r} names other settings than --settings {args.settings}: "
+                            "pass its settings file with --settings")
+    if session_source(settings) != "simulated":
+        raise SettingsError(f"{args.settings} names hardware backends; {prefix} runs on the simulated robot: "
+                            "use settings whose gripper, load cell and cameras are 'sim'")
+    run_dir = Path(args.out) if args.out else Path("runs") / f"{prefix}-{datetime.now(UTC):%Y%m%d-%H%M%S}"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    calibration = _configured_calibration(settings)
+    if calibration is None:
+        started = time.monotonic()
+        calibration = simulated_calibration(settings, run_dir)
+        print(f"no calibration file for the {settings.estimator.finger} sensor in the settings: fitted one on "
+              f"{CALIBRATION_PRESSES} simulated ball presses in {time.monotonic() - started:.1f} s -> {calibration}",
+              file=out)
+    return run_dir, calibration
+
+
+# --------------------------------------------------------------------------- display
+
+
+def _pa(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3g}"
+
+
+def _number(value: float | None, fmt: str) -> str:
+    return "-" if value is None else format(value, fmt)
+
+
+_STATE_MARK = {"ok": "", "lower_bound": ">=", "upper_bound": "<=", "insufficient_data": "?", "none": "?"}
+
+
+class LiveView:
+    """One status line per grasp: updated in place on a terminal, printed once when done otherwise."""
+
+    def __init__(self, out: TextIO, total: int, *, enabled: bool = True):
+        self.out = out
+        self.total = total
+        self.enabled = enabled
+        self.tty = enabled and out.isatty()
+
+    def line(self, number: int, outcome: GraspOutcome) -> str:
+        head = f"[{number}/{self.total}] {outcome.obj.name:<26}"
+        if not outcome.done:
+            latest = outcome.latest
+            if latest is None:
+                return f"{head} {'grasping' if outcome.started else 'simulating'}"
+            kind = "provisional" if latest["provisional"] else "final"
+            return (f"{head} {outcome.estimates:3d} estimates, {kind} "
+                    f"{_STATE_MARK[latest['state']]}{_pa(latest['E_pa'])} Pa ({latest['state']})")
+        error = outcome.log10_error
+        first = outcome.t_first_estimate_s
+        return (f"{head} E {_pa(outcome.obj.modulus_pa)} Pa -> {_STATE_MARK[outcome.state]}"
+                f"{_pa(outcome.e_final_pa)} Pa ({outcome.state}), error {_number(error, '+.2f')} dec, "
+                f"first estimate {_number(None if first is None else first * 1e3, '.0f')} ms, "
+                f"latency {_number(outcome.latency_ms, '.0f')} ms")
+
+    def update(self, number: int, outcome: GraspOutcome) -> None:
+        if self.tty:
+            self.out.write("\r\033[K" + self.line(number, outcome))
+            self.out.flush()
+
+    def finish(self, number: int, outcome: GraspOutcome) -> None:
+        if self.tty:
+            self.out.write("\r\033[K")
+        if self.enabled:
+            print(self.line(number, outcome), file=self.out, flush=True)
+
+
+def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
+    """The closing table: object, true E, final estimate and state, error, first estimate, latency."""
+    header = ("object", "E true (Pa)", "final (Pa)", "state", "error (dec)", "first est. (ms)", "latency (ms)")
+    rows = [(o.obj.name, _pa(o.obj.modulus_pa), f"{_STATE_MARK[o.state]}{_pa(o.e_final_pa)}", o.state,
+             _number(o.log10_error, "+.2f"),
+             _number(None if o.t_first_estimate_s is None else o.t_first_estimate_s * 1e3, ".0f"),
+             _number(o.latency_ms, ".0f")) for o in outcomes]
+    widths = [max(len(str(r[i])) for r in (header, *rows)) for i in range(len(header))]
+    lines = ["  ".join(str(cell).ljust(w) if i == 0 else str(cell).rjust(w)
+                       for i, (cell, w) in enumerate(zip(row, widths, strict=True))) for row in (header, *rows)]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    errors = [abs(o.log10_error) for o in outcomes if o.log10_error is not None]
+    if errors:
+        within = sum(e <= 1.0 for e in errors)
+        lines.append(f"mean |error| {np.mean(errors):.2f} decades over {len(errors)} estimates; "
+                     f"{within} of {len(outcomes)} within one decade")
+    return "\n".join(lines)
+
+
+def run_grasps(system: LiveSystem, plan: Sequence[tuple[int, ObjectSpec]], view: LiveView, prefix: str, *,
+               on_message: Callable[[Message], None] | None = None) -> Iterator[GraspOutcome]:
+    """Run the grasps of ``plan`` one after another, showing each on ``view``."""
+    for number, (index, obj) in enumerate(plan, start=1):
+        outcome = system.grasp(f"{prefix}-{number:03d}", index, obj, on_message=on_message,
+                               on_update=lambda o, n=number: view.update(n, o))
+        view.finish(number, outcome)
+        yield outcome
+
+
+# --------------------------------------------------------------------------- command
+
+
+def add_run_arguments(parser: argparse.ArgumentParser, *, default_scene: str) -> None:
+    """Options shared by ``demo`` and ``bench-latency``."""
+    parser.add_argument("--scene", default=default_scene, metavar="NAME",
+                        help="scene to grasp: a name under configs/scenes/ (default, quick) or a .toml path")
+    parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
+                        help="settings TOML every process reads, the one the scene names (the shipped "
+                             "scenes name configs/settings.toml); its bus endpoints are replaced by free "
+                             "loopback ports")
+    parser.add_argument("--out", metavar="DIR", default=None,
+                        help="run directory for the processes' logs and reports and the session log "
+                             "(default: runs/<command>-<UTC time>)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object as the last stdout line")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Run the live system on simulated hardware: robot node, estimator service, haptic renderer on a "
+        "simulated display and the session recorder, as separate processes on loopback; grasp every "
+        "object of a scene once, show each grasp live and print a closing table (true E, final estimate "
+        "and state, error in decades, time to the first estimate after contact, latency from the last "
+        "loading frame to the display report) and the session log's path."
+    )
+    add_run_arguments(parser, default_scene="default")
+    parser.add_argument("--no-view", action="store_true", help="no live status lines, only the closing table")
+
+
+def run(args: argparse.Namespace) -> int:
+    started = time.monotonic()
+    scene = load_scene(args.scene)
+    plan = scene_plan(args.scene)
+    run_dir, calibration = prepare_run(args, prefix="demo", out=sys.stderr if args.json else sys.stdout)
+    view = LiveView(sys.stdout, len(plan), enabled=not args.no_view)
+    system = LiveSystem(Path(args.settings), args.scene, run_dir, calibration)
+    with interrupted_by_sigterm(), system:
+        print(f"live system up ({', '.join(f'{n} {c.process.pid}' for n, c in system.children.items())}); "
+              f"logs in {run_dir}", file=sys.stderr)
+        outcomes = list(run_grasps(system, plan, view, prefix=scene.name))
+    print(closing_table(outcomes))
+    print(f"session log: {system.session_log}")
+    if args.json:
+        print(json.dumps({"scene": scene.name, "grasps": [o.to_json() for o in outcomes],
+                          "session_log": str(system.session_log), "run_dir": str(run_dir),
+                          "wall_s": time.monotonic() - started}, allow_nan=False))
+    return 0

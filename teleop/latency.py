@@ -1,0 +1,133 @@
+"""``teleop bench-latency``: how fast the live system shows a grasp's estimate on the display.
+
+Runs the live system (:class:`~teleop.demo.LiveSystem`: robot node on simulated hardware,
+estimator service, haptic renderer on the simulated display; no session recorder unless
+``--record``) on loopback for ``--grasps`` grasps of a scene's objects in turn, and reports:
+
+``p50_ms``, ``p99_ms``
+    Latency of each FINAL estimate, from the capture of the grasp's last loading frame to
+    the display report that showed it (renderer report), on this host's monotonic clock.
+    It is the sum of ``decision`` (the estimator waits until the force has settled past its
+    peak and a width sample newer than the peak has come, :data:`~estimator.stream.LOADING_SETTLED_S`;
+    the gripper's width arrives at 10 Hz) and ``delivery`` (final estimate published to the
+    display report written).
+``provisional_hz``
+    Provisional estimates per second while grasps load (count minus one over the span from
+    the first to the last, summed over grasps with at least two); the camera gives 30 Hz.
+``compute_p50_ms``, ``compute_p99_ms``
+    Per estimate (provisional and final), from the estimator receiving the message that
+    triggered it to publishing it (the message's ``latency_s``).
+
+The quantiles are of the measured grasps (with 20 grasps p99 is close to the maximum).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from teleop.bus.wire import Message
+from teleop.demo import (
+    GraspOutcome,
+    LiveSystem,
+    LiveView,
+    add_run_arguments,
+    interrupted_by_sigterm,
+    prepare_run,
+    run_grasps,
+    scene_plan,
+)
+from teleop.errors import TeleopError
+
+__all__ = ["latency_summary"]
+
+
+def _quantiles(values: Sequence[float], prefix: str) -> dict[str, float | None]:
+    if not values:
+        return {f"{prefix}p50_ms": None, f"{prefix}p99_ms": None}
+    p50, p99 = np.percentile(np.asarray(values, dtype=np.float64), [50, 99])
+    return {f"{prefix}p50_ms": float(p50), f"{prefix}p99_ms": float(p99)}
+
+
+def latency_summary(outcomes: Sequence[GraspOutcome], compute_s: Sequence[float]) -> dict[str, Any]:
+    """The figures of the module docstring from the grasps' outcomes and reports.
+
+    ``compute_s`` holds the ``latency_s`` of every estimate message seen.
+    """
+    latency, decision, delivery = [], [], []
+    spans, counts = 0.0, 0
+    for o in outcomes:
+        report = o.estimator_report or {}
+        if o.latency_ms is not None:
+            latency.append(o.latency_ms)
+            if report.get("final_sent_s") is not None and report.get("t_last_loading_frame_s") is not None:
+                decided = (report["final_sent_s"] - report["t_last_loading_frame_s"]) * 1e3
+                decision.append(decided)
+                delivery.append(o.latency_ms - decided)
+        if report.get("provisional_span_s"):
+            spans += report["provisional_span_s"]
+            counts += report["provisional"] - 1
+    return {
+        "grasps": len(outcomes),
+        "finals_measured": len(latency),
+        **_quantiles(latency, ""),
+        "provisional_hz": counts / spans if spans > 0 else None,
+        **_quantiles(decision, "decision_"),
+        **_quantiles(delivery, "delivery_"),
+        **_quantiles([s * 1e3 for s in compute_s], "compute_"),
+    }
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Measure the live system on loopback: latency from the last loading frame's capture to the display "
+        "report of the final estimate (p50, p99, with its decision and delivery parts), the rate of "
+        "provisional estimates while a grasp loads (the camera gives 30 Hz) and the estimator's compute "
+        "time per estimate."
+    )
+    add_run_arguments(parser, default_scene="default")
+    parser.add_argument("--grasps", type=int, default=20, metavar="N",
+                        help="grasps to run, the scene's objects in turn")
+    parser.add_argument("--record", action="store_true", help="also run the session recorder, as the demo does")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.grasps < 1:
+        raise TeleopError(f"--grasps {args.grasps}: expected at least 1")
+    plan = scene_plan(args.scene, args.grasps)
+    log = sys.stderr
+    run_dir, calibration = prepare_run(args, prefix="bench-latency", out=log)
+    compute_s: list[float] = []
+
+    def watch(message: Message) -> None:
+        if message.type == "estimate":
+            compute_s.append(message.body["latency_s"])
+
+    started = time.monotonic()
+    view = LiveView(log, len(plan))
+    system = LiveSystem(Path(args.settings), args.scene, run_dir, calibration, record=args.record)
+    with interrupted_by_sigterm(), system:
+        outcomes = list(run_grasps(system, plan, view, "bench", on_message=watch))
+    summary = {**latency_summary(outcomes, compute_s), "scene": args.scene, "run_dir": str(run_dir),
+               "wall_s": time.monotonic() - started}
+
+    def ms(key: str) -> str:
+        return "-" if summary[key] is None else f"{summary[key]:.1f} ms"
+
+    hz = summary["provisional_hz"]
+    print(f"{summary['finals_measured']} of {summary['grasps']} final estimates measured on the display")
+    print(f"last loading frame -> display report: p50 {ms('p50_ms')}, p99 {ms('p99_ms')}")
+    print(f"  decision (loading seen to end):     p50 {ms('decision_p50_ms')}, p99 {ms('decision_p99_ms')}")
+    print(f"  delivery (published -> report):     p50 {ms('delivery_p50_ms')}, p99 {ms('delivery_p99_ms')}")
+    print(f"estimator compute per estimate:       p50 {ms('compute_p50_ms')}, p99 {ms('compute_p99_ms')}")
+    print(f"provisional estimates while loading:  {'-' if hz is None else f'{hz:.1f} Hz'} (camera: 30 Hz)")
+    if args.json:
+        print(json.dumps(summary, allow_nan=False))
+    return 0

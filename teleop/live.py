@@ -1,0 +1,112 @@
+"""What the live processes share: endpoint options, signal handling and JSON-lines reports.
+
+The live system is four long-running commands on the bus: ``teleop node`` (robot side),
+``estimator serve``, ``haptics serve`` and ``teleop record``; ``teleop demo`` starts them as
+separate processes. Each takes its endpoints from the settings' ``[bus]`` table, overridable
+on the command line (:func:`add_endpoint_arguments`, :func:`bus_from_args`); each stops
+cleanly on SIGINT or SIGTERM (:class:`StopSignals`); the services write one JSON object per
+grasp to a report file when asked (:class:`JsonLines`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import signal
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from types import FrameType
+from typing import IO, Any
+
+from teleop.errors import SettingsError
+from teleop.settings import BusSettings, Settings
+
+__all__ = ["ENDPOINTS", "JsonLines", "StopSignals", "add_endpoint_arguments", "bus_from_args"]
+
+#: Bus endpoint settings a live process may be told to use instead of the settings file's.
+ENDPOINTS = ("robot_pub", "estimate_pub", "command", "display_pub")
+
+
+def add_endpoint_arguments(parser: argparse.ArgumentParser, *names: str) -> None:
+    """``--robot-pub`` etc.: one option per bus endpoint setting in ``names``."""
+    fields = {f.name: f for f in dataclasses.fields(BusSettings)}
+    for name in names:
+        if name not in ENDPOINTS:
+            raise SettingsError(f"{name!r} is not a bus endpoint setting; expected one of {', '.join(ENDPOINTS)}")
+        parser.add_argument(
+            f"--{name.replace('_', '-')}", dest=f"bus_{name}", metavar="ENDPOINT", default=None,
+            help=f"{fields[name].metadata['doc']} (default: [bus] {name} of the settings)",
+        )
+
+
+def bus_from_args(settings: Settings, args: argparse.Namespace) -> BusSettings:
+    """``settings.bus`` with the endpoints given on the command line."""
+    given = {name: getattr(args, f"bus_{name}") for name in ENDPOINTS if getattr(args, f"bus_{name}", None)}
+    try:
+        return dataclasses.replace(settings.bus, **given)
+    except SettingsError as exc:
+        raise SettingsError(f"command-line endpoint: {exc}") from None
+
+
+class StopSignals:
+    """SIGINT and SIGTERM set :attr:`stop` instead of killing the process (main thread only).
+
+    ``on_hangup`` (optional) is called on SIGHUP: the services use it to reload what they
+    read from files. The previous handlers are restored on exit.
+    """
+
+    def __init__(self, *, on_hangup: Callable[[], None] | None = None):
+        self.stop = threading.Event()
+        self.on_hangup = on_hangup
+        self._previous: dict[int, Any] = {}
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        if signum == signal.SIGHUP and self.on_hangup is not None:
+            self.on_hangup()
+        else:
+            self.stop.set()
+
+    def __enter__(self) -> StopSignals:
+        wanted = [signal.SIGINT, signal.SIGTERM] + ([signal.SIGHUP] if self.on_hangup else [])
+        for signum in wanted:
+            self._previous[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous.clear()
+
+
+class JsonLines:
+    """A report file with one JSON object per line, each flushed as it is written.
+
+    ``path`` None makes every :meth:`write` a no-op, so callers need no branches.
+    """
+
+    def __init__(self, path: str | Path | None):
+        self.path = None if path is None else Path(path)
+        self._file: IO[str] | None = None
+        if self.path is not None:
+            try:
+                self._file = self.path.open("a", encoding="utf-8")
+            except OSError as exc:
+                raise SettingsError(f"cannot open report file {self.path}: {exc.strerror or exc}") from exc
+
+    def write(self, record: dict[str, Any]) -> None:
+        if self._file is not None:
+            self._file.write(json.dumps(record, allow_nan=False) + "\n")
+            self._file.flush()
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def __enter__(self) -> JsonLines:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

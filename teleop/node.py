@@ -1,0 +1,430 @@
+"""``teleop node``: the robot node, from the devices to the bus.
+
+The node opens the gripper, one tactile camera per sensor and the load cell through their
+device families (:mod:`teleop.devices`, backends from the settings), reads each in its own
+thread and publishes everything they capture, losslessly, with its capture timestamps
+(``time.monotonic()`` of this host): ``frame/<finger>`` (the camera's JPEG bytes as a buffer,
+never re-encoded), ``force`` and ``width`` sample batches. Data captured during a grasp names
+the grasp; the rest names none.
+
+Grasps are commanded on the bus (``command`` messages on ``bus.command``):
+
+``start_grasp``
+    ``grasp_id`` names the grasp (default ``grasp-<n>``). With the simulated backends the
+    node simulates a grasp of the next object of its scene (or ``params.object_index``, an
+    index into the scene's objects repeated ``grasps_per_object`` times) with
+    :func:`~teleop.sim.grasp.simulate_grasp`, seeded from the scene's seed and the grasp
+    count, and plays it through the simulated devices in real time (the empty approach before
+    the record's first sample is skipped). With hardware it closes the gripper with
+    ``params.target_force_n`` (default ``gripper.target_force_n``), holds ``hold_s`` and
+    opens again.
+``stop``
+    Stop the gripper where it is (a simulated replay plays on to its end).
+``release``
+    Open the gripper (hardware; a simulated replay releases by itself).
+
+A ``grasp_event`` *start* (naming the object when simulated) goes out before the grasp's
+first data and an *end* after its last. A command that cannot be carried out is logged and
+the node carries on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import math
+import queue
+import sys
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.bus.wire import Message
+from teleop.devices.camera import TactileCamera, open_camera
+from teleop.devices.gripper import Gripper, open_gripper
+from teleop.devices.loadcell import LoadCell, open_load_cell
+from teleop.errors import DeviceError, DeviceTimeoutError, SimulationError, TeleopError
+from teleop.live import StopSignals, add_endpoint_arguments, bus_from_args
+from teleop.record import GraspRecord, Samples
+from teleop.scene import Scene, load_scene
+from teleop.settings import Settings, default_settings_path, load_settings
+
+__all__ = ["COMMAND_TOPICS", "NodeStats", "RobotNode"]
+
+log = logging.getLogger(__name__)
+
+COMMAND_TOPICS = ("command",)
+READ_TIMEOUT_S = 0.05  # device reads wake this often to see whether the node is stopping
+APPROACH_LEAD_S = 0.05  # a replay starts this long before the record's first sample
+COMMAND_POLL_S = 1e-3
+TAIL_S = 2 * READ_TIMEOUT_S  # after a grasp's last data is due, wait this long for the readers
+
+
+@dataclass
+class NodeStats:
+    grasps: int = 0
+    frames: int = 0
+    force_batches: int = 0
+    width_batches: int = 0
+    bad_commands: int = 0
+    device_errors: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(self.__dict__)
+
+
+@dataclass
+class _Grasp:
+    """The grasp in progress and where it stands."""
+
+    grasp_id: str
+    object_name: str | None
+    prepared: Future | None = None  # the simulation, until it is done
+    motion: Future | None = None  # the gripper's grasp, then its release
+    # simulated: preparing -> tail (the replay); hardware: grasping -> holding -> releasing -> tail
+    phase: str = "preparing"
+    phase_until_s: float = math.inf
+    started_s: float = math.inf  # when the start event went out: data captured from then on is the grasp's
+
+
+def _first_sample_s(record: GraspRecord) -> float:
+    """Record time of its first sample or frame."""
+    return min(float(s.t_s[0]) for s in (record.force_n, record.width_m, *record.frames) if len(s))
+
+
+class RobotNode:
+    """The robot side of the live system (see the module docstring).
+
+    Parameters
+    ----------
+    settings : Settings
+        Devices (backends from ``gripper.backend``, ``load_cell.backend`` and each sensor's
+        ``camera_backend``) and the simulation.
+    publisher : Publisher
+        Lossless publisher of grasp data (``source`` should be ``"robot"``).
+    commands : Subscriber, optional
+        Subscription to operator commands; None: only :meth:`start_grasp` starts grasps.
+    scene : Scene, optional
+        Objects to simulate; required with the simulated backends.
+    clock : callable
+        Monotonic seconds, the devices' clock.
+    """
+
+    def __init__(self, settings: Settings, *, publisher: Publisher, commands: Subscriber | None = None,
+                 scene: Scene | None = None, clock: Callable[[], float] = time.monotonic):
+        self.settings = settings
+        self.publisher = publisher
+        self.commands = commands
+        self.scene = scene
+        self.clock = clock
+        self.simulated = (settings.gripper.backend == "sim" and settings.load_cell.backend == "sim"
+                          and all(s.camera_backend == "sim" for s in settings.sensors))
+        if self.simulated and scene is None:
+            raise SimulationError("the simulated robot needs a scene to know what to grasp")
+        self.objects = () if scene is None else tuple(o for o in scene.objects for _ in range(scene.grasps_per_object))
+        self.stats = NodeStats()
+        self.gripper: Gripper = open_gripper(settings.gripper)
+        self.cameras: list[TactileCamera] = [open_camera(s) for s in settings.sensors]
+        self.load_cell: LoadCell = open_load_cell(settings.load_cell)
+        self._captured: queue.Queue[tuple[str, Any]] = queue.Queue()
+        self._stop_readers = threading.Event()
+        self._readers: list[threading.Thread] = []
+        self._simulator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="simulate")
+        self._grasp: _Grasp | None = None
+        self._count = 0
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def connect(self) -> RobotNode:
+        """Connect the devices and start one reader thread per device."""
+        devices = [self.gripper, *self.cameras, self.load_cell]
+        try:
+            for device in devices:
+                device.connect()
+            if not self.simulated:
+                self.load_cell.tare()  # at rest: nothing is grasped yet
+        except BaseException:
+            for device in devices:
+                device.close()
+            raise
+        readers = [(f"camera-{c.sensor.finger}", self._read_camera, c) for c in self.cameras]
+        readers += [("load-cell", self._read_forces, self.load_cell), ("gripper", self._read_widths, self.gripper)]
+        for name, target, device in readers:
+            thread = threading.Thread(target=target, args=(device,), name=name, daemon=True)
+            thread.start()
+            self._readers.append(thread)
+        return self
+
+    def close(self) -> None:
+        """Stop the readers and release the devices; calling twice is fine."""
+        self._stop_readers.set()
+        for thread in self._readers:
+            thread.join(timeout=2.0)
+        self._readers.clear()
+        self._simulator.shutdown(wait=False, cancel_futures=True)
+        for device in (self.gripper, *self.cameras, self.load_cell):
+            device.close()
+
+    def __enter__(self) -> RobotNode:
+        return self.connect()
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ readers (one thread each)
+
+    def _read_camera(self, camera: TactileCamera) -> None:
+        self._read_forever(camera, lambda: ("frame", camera.read(timeout_s=READ_TIMEOUT_S)))
+
+    def _read_forces(self, cell: LoadCell) -> None:
+        self._read_forever(cell, lambda: ("force", cell.read(timeout_s=READ_TIMEOUT_S)))
+
+    def _read_widths(self, gripper: Gripper) -> None:
+        def read() -> tuple[str, Samples] | None:
+            widths = gripper.widths(timeout_s=READ_TIMEOUT_S)
+            return ("width", widths) if len(widths) else None
+
+        self._read_forever(gripper, read)
+
+    def _read_forever(self, device: Any, read: Callable[[], tuple[str, Any] | None]) -> None:
+        failing = False
+        while not self._stop_readers.is_set():
+            try:
+                item = read()
+            except DeviceTimeoutError:
+                continue
+            except DeviceError as exc:
+                if not self._stop_readers.is_set() and not failing:
+                    log.warning("%r: read failed: %s", device, exc)
+                    self._captured.put(("device_error", str(exc)))
+                failing = True
+                self._stop_readers.wait(READ_TIMEOUT_S)
+                continue
+            failing = False
+            if item is not None:
+                self._captured.put(item)
+
+    # ------------------------------------------------------------------ loop
+
+    def run(self, stop: Any, *, duration_s: float | None = None) -> NodeStats:
+        """Serve until ``stop.is_set()`` or ``duration_s`` passed; a grasp under way is ended."""
+        deadline = None if duration_s is None else self.clock() + duration_s
+        while not stop.is_set() and (deadline is None or self.clock() < deadline):
+            self.step()
+        if self._grasp is not None and math.isfinite(self._grasp.started_s):
+            log.warning("stopping during grasp %s: it ends here", self._grasp.grasp_id)
+            self._end()
+        return self.stats
+
+    def step(self, timeout_s: float = 0.005) -> None:
+        """Take commands, publish what the devices captured (waiting up to ``timeout_s`` for
+        something), advance the grasp in progress, heartbeat."""
+        self.publisher.heartbeat_if_due(self.clock())
+        # Subscriber.recv(0) returns without looking at the socket: wait a millisecond instead.
+        while self.commands is not None and (message := self.commands.recv(timeout_s=COMMAND_POLL_S)) is not None:
+            self.handle_command(message)
+        with contextlib.suppress(queue.Empty):
+            self._publish(*self._captured.get(timeout=timeout_s))
+            while True:
+                self._publish(*self._captured.get_nowait())
+        self._advance()
+
+    @property
+    def busy(self) -> bool:
+        """Whether a grasp is being prepared or run."""
+        return self._grasp is not None
+
+    # ------------------------------------------------------------------ commands
+
+    def handle_command(self, message: Message) -> None:
+        """Carry out one operator command; one that cannot be carried out is logged."""
+        body = message.body
+        try:
+            if body["action"] == "start_grasp":
+                params = body["params"]
+                index = params.get("object_index")
+                self.start_grasp(body["grasp_id"], object_index=None if index is None else _index(index),
+                                 target_force_n=params.get("target_force_n"))
+            elif body["action"] == "stop":
+                self.gripper.stop()
+            elif self.simulated:
+                log.info("release: a simulated grasp releases by itself")
+            else:
+                self.gripper.move_async(self.settings.gripper.max_width_m)
+        except TeleopError as exc:
+            self.stats.bad_commands += 1
+            log.warning("command %s from %s not carried out: %s", body["action"], message.source or "?", exc)
+
+    def start_grasp(self, grasp_id: str | None = None, *, object_index: int | None = None,
+                    target_force_n: float | None = None) -> str:
+        """Start a grasp (see the module docstring); returns its id.
+
+        Raises
+        ------
+        DeviceError
+            A grasp is already in progress, or the gripper refuses the command.
+        SimulationError
+            ``object_index`` is outside the scene's objects.
+        """
+        if self._grasp is not None:
+            raise DeviceError(f"grasp {self._grasp.grasp_id!r} is still in progress")
+        number = self._count
+        grasp_id = grasp_id or f"grasp-{number:04d}"
+        if not self.simulated:
+            grasp = _Grasp(grasp_id, None, phase="grasping")
+            grasp.motion = self.gripper.grasp_async(  # refuses a bad force at once
+                0.0, force_n=target_force_n, epsilon_outer_m=self.settings.gripper.max_width_m)
+            self._count += 1
+            self._grasp = grasp
+            self._announce("start")
+            return grasp_id
+        index = number % len(self.objects) if object_index is None else object_index
+        if not 0 <= index < len(self.objects):
+            raise SimulationError(f"object_index {index}: the scene has objects 0..{len(self.objects) - 1}")
+        obj = self.objects[index]
+        seed = self.scene.seed * 10_000 + number
+        self._count += 1
+        self._grasp = _Grasp(grasp_id, obj.name)
+        self._grasp.prepared = self._simulator.submit(self._simulate, obj, seed)
+        log.info("grasp %s: simulating %s (seed %d)", grasp_id, obj.name, seed)
+        return grasp_id
+
+    def _simulate(self, obj: Any, seed: int) -> GraspRecord:
+        from teleop.sim.grasp import simulate_grasp
+
+        return simulate_grasp(obj, settings=self.settings, rng=np.random.default_rng(seed), seed=seed)[0]
+
+    # ------------------------------------------------------------------ grasp progress
+
+    def _advance(self) -> None:
+        grasp = self._grasp
+        if grasp is None:
+            return
+        now = self.clock()
+        if grasp.phase == "preparing" and grasp.prepared.done():
+            self._play(grasp)
+        elif grasp.phase == "grasping" and grasp.motion.done():
+            grasp.phase, grasp.phase_until_s = "holding", now + self.settings.gripper.hold_s
+        elif grasp.phase == "holding" and now >= grasp.phase_until_s:
+            grasp.phase, grasp.motion = "releasing", self.gripper.move_async(self.settings.gripper.max_width_m)
+        elif grasp.phase == "releasing" and grasp.motion.done():
+            grasp.phase, grasp.phase_until_s = "tail", now + TAIL_S
+        elif grasp.phase == "tail" and now >= grasp.phase_until_s:
+            self._end()
+
+    def _play(self, grasp: _Grasp) -> None:
+        """Replay the simulated grasp through the simulated devices, from its first sample."""
+        from teleop.devices.playback import GraspPlayback
+
+        try:
+            record = grasp.prepared.result()
+        except SimulationError as exc:
+            log.error("grasp %s of %s cannot be simulated: %s", grasp.grasp_id, grasp.object_name, exc)
+            self._announce("start")
+            self._end()
+            return
+        playback = GraspPlayback(record, clock=self.clock)
+        for device in (self.gripper, *self.cameras, self.load_cell):
+            device.replay(playback)
+        self._announce("start")
+        playback.start(self.clock() - (_first_sample_s(record) - playback.origin_s) + APPROACH_LEAD_S)
+        grasp.motion = self.gripper.grasp_async(0.0, epsilon_outer_m=self.settings.gripper.max_width_m)
+        # The replay holds and releases by itself: the grasp ends once all of it is due.
+        grasp.phase = "tail"
+        grasp.phase_until_s = playback.live_time(playback.origin_s + playback.duration_s) + TAIL_S
+
+    def _announce(self, event: str) -> None:
+        grasp = self._grasp
+        now = self.clock()
+        if event == "start":
+            grasp.started_s = now
+        self.publisher.send("grasp_event", t_capture_s=now, event=event, grasp_id=grasp.grasp_id,
+                            object_name=grasp.object_name)
+
+    def _end(self) -> None:
+        with contextlib.suppress(queue.Empty):
+            while True:  # everything the readers captured during the grasp goes out first
+                self._publish(*self._captured.get_nowait())
+        self._announce("end")
+        self.stats.grasps += 1
+        log.info("grasp %s ended", self._grasp.grasp_id)
+        self._grasp = None
+
+    # ------------------------------------------------------------------ publishing
+
+    def _grasp_of(self, t_s: float) -> str | None:
+        """The grasp data captured at ``t_s`` belongs to: the open one if captured after its start."""
+        grasp = self._grasp
+        return grasp.grasp_id if grasp is not None and t_s >= grasp.started_s else None
+
+    def _publish(self, kind: str, item: Any) -> None:
+        if kind == "frame":
+            self.publisher.send("frame", t_capture_s=item.t_s, finger=item.finger, grasp_id=self._grasp_of(item.t_s),
+                                index=item.index, encoding=item.encoding, data=item.encoded)
+            self.stats.frames += 1
+        elif kind in ("force", "width"):
+            values = {"value_n" if kind == "force" else "value_m": item.value}
+            self.publisher.send(kind, t_capture_s=float(item.t_s[-1]), grasp_id=self._grasp_of(float(item.t_s[0])),
+                                t_s=item.t_s, **values)
+            if kind == "force":
+                self.stats.force_batches += 1
+            else:
+                self.stats.width_batches += 1
+        else:  # a reader's device error, already logged by the reader
+            self.stats.device_errors += 1
+
+
+def _index(value: float) -> int:
+    if not float(value).is_integer():
+        raise SimulationError(f"object_index {value!r}: expected a whole number")
+    return int(value)
+
+
+# --------------------------------------------------------------------------- command
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Run the robot node: read the gripper, tactile cameras and load cell and publish frames, forces, "
+        "widths and grasp events on the bus; carry out operator commands (start_grasp, stop, release). "
+        "With the simulated backends a start_grasp simulates a grasp of the scene's next object and "
+        "replays it in real time. Stops on Ctrl-C or SIGTERM."
+    )
+    parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
+                        help="settings TOML (device backends, sensors, gripper, simulation, bus)")
+    parser.add_argument("--scene", default="default", metavar="NAME",
+                        help="scene whose objects simulated grasps take (name under configs/scenes/ or a "
+                             ".toml path); its settings file is not used, --settings is")
+    add_endpoint_arguments(parser, "robot_pub", "command")
+    parser.add_argument("--duration-s", type=float, default=None, metavar="S",
+                        help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
+    parser.add_argument("--json", action="store_true",
+                        help="on exit print one JSON object (grasps, frames, force_batches, width_batches, "
+                             "bad_commands, device_errors) as the last stdout line")
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = load_settings(args.settings)
+    bus = bus_from_args(settings, args)
+    scene = load_scene(args.scene)
+    with (
+        Publisher.from_settings(bus, bus.robot_pub, lossless=True, source="robot") as publisher,
+        Subscriber.from_settings(bus, bus.command, COMMAND_TOPICS) as commands,
+        RobotNode(settings, publisher=publisher, commands=commands, scene=scene) as node,
+        StopSignals() as signals,
+    ):
+        print(f"robot node: {'simulated' if node.simulated else 'hardware'} devices; data on "
+              f"{publisher.endpoint}, commands from {bus.command}", file=sys.stderr)
+        stats = node.run(signals.stop, duration_s=args.duration_s)
+    print(f"robot node: {stats.grasps} grasps, {stats.frames} frames published", file=sys.stderr)
+    if args.json:
+        print(json.dumps(stats.as_dict()))
+    return 0

@@ -1,0 +1,407 @@
+"""The live estimator: incremental estimation of a grasp (GraspStream) and the estimator service on the bus."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import zmq
+
+from estimator.errors import CalibrationError, FitError, PerceptionError
+from estimator.estimate import Estimate
+from estimator.measure import estimate_grasp, measure_grasp
+from estimator.perception.calibration import load_calibration
+from estimator.service import EstimatorService, ModelSlot
+from estimator.stream import GraspStream, choose_estimate, decode_frame
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.catalogue import load_catalogue
+from teleop.demo import simulated_calibration
+from teleop.live import JsonLines
+from teleop.record import GraspRecord
+from teleop.settings import CONFIG_DIR, load_settings
+from teleop.sim.grasp import simulate_grasp
+
+METHODS = ("split", "hertz", "elastic", "no_tactile")
+
+
+@pytest.fixture(scope="module")
+def settings():
+    return load_settings()
+
+
+@pytest.fixture(scope="module")
+def calibration(settings, tmp_path_factory):
+    return load_calibration(simulated_calibration(settings, tmp_path_factory.mktemp("cal"), n_presses=16))
+
+
+@pytest.fixture(scope="module")
+def records(settings) -> dict[str, GraspRecord]:
+    """A soft and a rigid simulated grasp (a few seconds)."""
+    objects = {o.name: o for o in load_catalogue(CONFIG_DIR / "objects.toml")}
+    return {name: simulate_grasp(objects[name], settings=settings, rng=np.random.default_rng(seed))[0]
+            for name, seed in (("stress_ball", 11), ("steel_ball_bearing", 12))}
+
+
+def in_capture_order(record: GraspRecord) -> list[tuple[float, str, dict]]:
+    """The record's data as the robot node publishes it: one message per sample or frame,
+    ordered by capture time (a frame before samples of the same time)."""
+    items = [(float(t), 1, "force", {"t_s": [t], "value_n": [v]})
+             for t, v in zip(record.force_n.t_s, record.force_n.value, strict=True)]
+    items += [(float(t), 1, "width", {"t_s": [t], "value_m": [v]})
+              for t, v in zip(record.width_m.t_s, record.width_m.value, strict=True)]
+    for stream in record.frames:
+        items += [(float(t), 0, "frame", {"finger": stream.finger, "index": i, "encoding": stream.encoding,
+                                           "data": stream.encoded[i]}) for i, t in enumerate(stream.t_s)]
+    items.sort(key=lambda item: item[:2])
+    return [(t, kind, body) for t, _, kind, body in items]
+
+
+def feed(stream: GraspStream, kind: str, body: dict, t_s: float) -> bool:
+    """One message into a GraspStream; True when it is a frame of the estimator's finger."""
+    if kind == "force":
+        stream.add_force(np.asarray(body["t_s"]), np.asarray(body["value_n"]))
+    elif kind == "width":
+        stream.add_width(np.asarray(body["t_s"]), np.asarray(body["value_m"]))
+    else:
+        return stream.add_frame(body["finger"], t_s, body["data"], body["encoding"])
+    return False
+
+
+def same(a: Estimate, b: Estimate) -> bool:
+    return (a.method, a.state, a.e_pa, a.interval_pa, a.reason) == (b.method, b.state, b.e_pa, b.interval_pa, b.reason)
+
+
+# --------------------------------------------------------------------------- GraspStream
+
+
+@pytest.mark.parametrize("name", [pytest.param("stress_ball", marks=pytest.mark.slow), "steel_ball_bearing"])
+def test_stream_fed_in_capture_order_ends_where_batch_estimation_is(settings, calibration, records, name):
+    record = records[name]
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    provisional, complete_at = 0, None
+    for t, kind, body in in_capture_order(record):
+        if feed(stream, kind, body, t) and complete_at is None and stream.segment():
+            stream.estimate()
+            provisional += 1
+        if complete_at is None and stream.loading_complete():
+            complete_at = t
+    final = stream.estimate()
+    measured = measure_grasp(record, settings=settings, calibration=calibration)
+    batch = [estimate_grasp(measured, m, settings=settings) for m in METHODS]
+    assert all(same(a, b) for a, b in zip(final.estimates, batch, strict=True))
+    assert final.estimate is choose_estimate(final.estimates) or same(final.estimate, choose_estimate(final.estimates))
+    assert provisional >= 1
+    # Loading ends (force settled past the peak) well before the record does.
+    segment = stream.segment()
+    assert complete_at is not None and segment.t_peak_s < complete_at < record.force_n.t_s[-1]
+    assert final.t_data_s <= segment.t_peak_s and final.loading_frames == segment.frame_index.size
+
+
+def test_stream_estimates_are_provisional_until_contact_and_move_with_the_data(settings, calibration, records):
+    record = records["stress_ball"]
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    seen = []
+    for t, kind, body in in_capture_order(record):
+        if feed(stream, kind, body, t) and not stream.loading_complete():
+            segment = stream.segment()
+            if not segment:
+                assert "no contact" in segment.reason or "too few" in segment.reason
+                continue
+            result = stream.estimate(segment)
+            seen.append(result)
+            assert result.estimate.latency_s >= 0
+            if result.loading_frames:
+                assert result.t_data_s == segment.frame_t_s[-1] <= t
+    frames = [r.loading_frames for r in seen]
+    assert frames == sorted(frames) and frames[-1] > frames[0]  # more loading frames as they arrive
+    assert len({r.estimate.e_pa for r in seen if r.estimate}) > 1  # the estimate evolves
+
+
+def test_stream_refuses_bad_frames_and_samples_without_keeping_them(settings, calibration, records):
+    record = records["steel_ball_bearing"]
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS, grasp_id="g1")
+    good = record.stream("left").encoded[0]
+    assert stream.add_frame("left", 1.0, good, "jpeg") and stream.frame_count == 1
+    with pytest.raises(PerceptionError, match="does not decode"):
+        stream.add_frame("left", 1.1, good[:2] + b"\x00" * 64, "jpeg")
+    small = cv2.imencode(".jpg", np.zeros((48, 64, 3), np.uint8))[1].tobytes()
+    with pytest.raises(PerceptionError, match="raw_bgr"):  # decodes, but is not the sensor's frame size
+        stream.add_frame("left", 1.2, small, "jpeg")
+    with pytest.raises(PerceptionError, match="raw after jpeg frames"):
+        stream.add_frame("left", 1.25, np.zeros((480, 640, 3), np.uint8), "raw")
+    with pytest.raises(PerceptionError, match="no sensor on finger 'thumb'"):
+        stream.add_frame("thumb", 1.3, good, "jpeg")
+    with pytest.raises(PerceptionError, match="not finite"):
+        stream.add_frame("left", math.nan, good, "jpeg")
+    with pytest.raises(PerceptionError, match="png after jpeg"):
+        stream.add_frame("left", 1.4, b"\x89PNG" + b"\x00" * 8, "png")
+    with pytest.raises(PerceptionError, match="finite"):
+        stream.add_force(np.array([1.0, 2.0]), np.array([0.5, np.inf]))
+    with pytest.raises(PerceptionError, match="2 timestamps but 1 values"):
+        stream.add_width(np.array([1.0, 2.0]), np.array([0.05]))
+    assert stream.frame_count == 1
+    assert not stream.segment() and not stream.loading_complete()
+    result = stream.estimate()
+    assert not result.estimate and "every method refuses" in result.estimate.reason
+
+
+def test_stream_checks_methods_and_calibration(settings, calibration):
+    with pytest.raises(FitError, match="methods"):
+        GraspStream(settings=settings, calibration=calibration, methods=("split", "magic"))
+    small = dataclasses.replace(calibration, image_shape=(10, 10))
+    with pytest.raises(CalibrationError, match="calibration is for"):
+        GraspStream(settings=settings, calibration=small)
+
+
+def test_stream_record_holds_what_arrived(settings, calibration, records):
+    record = records["steel_ball_bearing"]
+    stream = GraspStream(settings=settings, calibration=calibration, grasp_id="g7")
+    for t, kind, body in in_capture_order(record):
+        feed(stream, kind, body, t)
+    rebuilt = stream.to_record()
+    assert rebuilt.stream("right").encoded == record.stream("right").encoded
+    assert np.array_equal(rebuilt.stream("left").t_s, record.stream("left").t_s)
+    assert np.array_equal(rebuilt.force_n.value, record.force_n.value)
+    assert rebuilt.provenance.source == "hardware" and rebuilt.label is None
+
+
+def test_choose_estimate_takes_the_first_answer_in_order():
+    refusal = Estimate.refuse("split", "no frames")
+    bound = Estimate.at_least("hertz", 1e6, "stiff")
+    ok = Estimate.ok("elastic", 2e6, 1e6, 4e6)
+    assert choose_estimate([refusal, bound, ok]) is bound
+    everything_refuses = choose_estimate([refusal, Estimate.refuse("hertz", "flat")])
+    assert not everything_refuses and "split: no frames" in everything_refuses.reason and "hertz: flat" in everything_refuses.reason
+    with pytest.raises(FitError):
+        choose_estimate([])
+
+
+def test_decode_frame_checks_encoding_and_raw_images():
+    with pytest.raises(PerceptionError, match="encoding 'gif'"):
+        decode_frame(b"GIF89a", "gif")
+    with pytest.raises(PerceptionError, match="uint8 H x W x 3"):
+        decode_frame(np.zeros((4, 4), np.uint16), "raw")
+    image = np.full((4, 5, 3), 7, np.uint8)
+    assert decode_frame(image, "raw") is image
+
+
+# --------------------------------------------------------------------------- the service on the bus
+
+
+class Rig:
+    """An estimator service in a thread between a robot-side publisher and an estimate subscriber."""
+
+    def __init__(self, settings, calibration, *, model: ModelSlot | None = None, report: Path | None = None,
+                 extra_endpoint: str | None = None):
+        self.robot = Publisher("tcp://127.0.0.1:*", lossless=True, source="robot")
+        endpoints = [self.robot.endpoint] + ([extra_endpoint] if extra_endpoint else [])
+        self.service = EstimatorService(
+            settings, calibration=calibration, methods=METHODS, model=model, report=JsonLines(report),
+            subscriber=Subscriber(endpoints, ("frame", "force", "width", "grasp_event")),
+            publisher=Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator", high_water_mark=10_000),
+        )
+        self.estimates = Subscriber(self.service.publisher.endpoint, ("estimate", "grasp_event"))
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self.service.run, args=(self.stop,), kwargs={"poll_s": 0.01})
+        self.thread.start()
+        self.robot.wait_for_subscriber("frame", timeout_s=5.0)
+        deadline = time.monotonic() + 5.0
+        while "estimator" not in self.estimates.heartbeat.peers() and time.monotonic() < deadline:
+            self.estimates.recv(timeout_s=0.05)
+
+    def send_grasp(self, record: GraspRecord, grasp_id: str, *, start: bool = True, end: bool = True,
+                   part: slice = slice(None)) -> None:
+        if start:
+            self.robot.send("grasp_event", t_capture_s=0.0, event="start", grasp_id=grasp_id, object_name="secret")
+        for t, kind, body in in_capture_order(record)[part]:
+            self.robot.send(kind, t_capture_s=t, grasp_id=grasp_id, **body)
+        if end:
+            self.robot.send("grasp_event", t_capture_s=record.force_n.t_s[-1], event="end", grasp_id=grasp_id)
+
+    def collect(self, grasp_id: str, timeout_s: float = 30.0) -> list:
+        """Messages about ``grasp_id`` up to its forwarded end."""
+        got = []
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            message = self.estimates.recv(timeout_s=0.1)
+            if message is None or message.body["grasp_id"] != grasp_id:
+                continue
+            got.append(message)
+            if message.type == "grasp_event":
+                return got
+        raise AssertionError(f"no end of {grasp_id} within {timeout_s} s; got {len(got)} messages")
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(timeout=10)
+        for sock in (self.robot, self.service.subscriber, self.service.publisher, self.estimates):
+            sock.close()
+
+
+@pytest.fixture
+def rig(settings, calibration, tmp_path) -> Iterator[Rig]:
+    rig = Rig(settings, calibration, report=tmp_path / "estimator.jsonl")
+    yield rig
+    rig.close()
+
+
+def expected_final(settings, calibration, record: GraspRecord) -> tuple[Estimate, int]:
+    """The final estimate and the provisional count a service must produce for ``record``."""
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    provisional = 0
+    for t, kind, body in in_capture_order(record):
+        is_frame = feed(stream, kind, body, t)
+        segment = stream.segment()
+        if stream.loading_complete(segment):
+            return stream.estimate(segment).estimate, provisional
+        provisional += bool(is_frame and segment and body["finger"] == "left")
+    return stream.estimate().estimate, provisional
+
+
+def test_service_streams_provisional_estimates_per_frame_and_one_final_per_grasp(rig, settings, calibration,
+                                                                                  records, tmp_path):
+    counts = {}
+    for grasp_id, name in (("g-soft", "stress_ball"), ("g-rigid", "steel_ball_bearing")):
+        rig.send_grasp(records[name], grasp_id)
+        got = rig.collect(grasp_id)
+        estimates = [m for m in got if m.type == "estimate"]
+        provisional = [m for m in estimates if m.body["provisional"]]
+        final, count = expected_final(settings, calibration, records[name])
+        assert len(provisional) == count >= 1
+        counts[grasp_id] = count
+        assert [m.body["provisional"] for m in estimates] == [True] * count + [False]  # the final one is last
+        last = estimates[-1].body
+        assert (last["method"], last["state"], last["E_pa"]) == (final.method, final.state, final.e_pa)
+        assert got[-1].type == "grasp_event" and got[-1].body["event"] == "end"
+        # Stamped with the newest loading frame used: the final one's is the last loading frame.
+        answered = [m.t_capture_s for m in estimates if m.body["state"] != "insufficient_data"]
+        assert answered == sorted(answered) and all(m.body["latency_s"] >= 0 for m in estimates)
+    reports = [json.loads(line) for line in (tmp_path / "estimator.jsonl").read_text().splitlines()]
+    assert {r["grasp_id"]: r["provisional"] for r in reports} == counts
+    assert all(r["final"]["state"] in ("ok", "lower_bound", "upper_bound", "insufficient_data") for r in reports)
+    assert rig.service.stats.final == 2 and rig.service.stats.bad_messages == 0
+
+
+def test_service_logs_bad_messages_and_carries_on(settings, calibration, records, caplog):
+    context = zmq.Context.instance()
+    rogue = context.socket(zmq.PUB)
+    port = rogue.bind_to_random_port("tcp://127.0.0.1")
+    rig = Rig(settings, calibration, extra_endpoint=f"tcp://127.0.0.1:{port}")
+    try:
+        time.sleep(0.3)  # the service's subscription reaches the rogue publisher
+        with caplog.at_level(logging.WARNING):
+            rogue.send_multipart([b"frame/left", b"\xc1 not msgpack", b"{}"])
+            record = records["steel_ball_bearing"]
+            rig.robot.send("grasp_event", t_capture_s=0.0, event="start", grasp_id="g1", object_name=None)
+            jpeg = record.stream("left").encoded[0]
+            rig.robot.send("frame", t_capture_s=0.5, grasp_id="g1", finger="left", index=0, encoding="jpeg",
+                           data=jpeg[:2] + b"\x00" * 100)  # passes the wire's magic check, does not decode
+            rig.robot.send("frame", t_capture_s=0.5, grasp_id="g1", finger="thumb", index=0, encoding="jpeg",
+                           data=jpeg)
+            rig.robot.send("force", t_capture_s=0.5, grasp_id="no-such-grasp", t_s=[0.5], value_n=[1.0])
+            rig.send_grasp(record, "g1", start=False)
+            got = rig.collect("g1")
+        assert sum(m.type == "estimate" and not m.body["provisional"] for m in got) == 1
+        assert rig.service.subscriber.stats.refused["corrupt"] == 1
+        assert rig.service.stats.bad_messages == 2 and rig.service.stats.ignored >= 1
+        text = caplog.text
+        assert "refused a message" in text and "does not decode" in text and "no sensor on finger 'thumb'" in text
+    finally:
+        rig.close()
+        rogue.close(linger=0)
+
+
+# --------------------------------------------------------------------------- model reload
+
+
+def write_tiny_model(model_dir: Path, level: float) -> float:
+    """A model that ignores its input and answers ``level`` on the [0, 1] scale; returns its E (Pa)."""
+    onnx = pytest.importorskip("onnx")
+    from onnx import TensorProto, helper
+
+    from estimator.learned.infer import MODEL_FORMAT, MODEL_VERSION, current_scales
+    from estimator.learned.inputs import modulus_from_normalised
+
+    shape = [3, 1, 16, 22]
+    nodes = [helper.make_node("ReduceMean", ["frames"], ["mean"], axes=[1, 2, 3, 4], keepdims=0),
+             helper.make_node("Mul", ["mean", "zero"], ["nothing"]),
+             helper.make_node("Add", ["nothing", "level"], ["e_norm"])]
+    graph = helper.make_graph(
+        nodes, "tiny", [helper.make_tensor_value_info("frames", TensorProto.FLOAT, ["batch", *shape])],
+        [helper.make_tensor_value_info("e_norm", TensorProto.FLOAT, ["batch"])],
+        [helper.make_tensor("zero", TensorProto.FLOAT, [], [0.0]),
+         helper.make_tensor("level", TensorProto.FLOAT, [], [level])])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    model_dir.mkdir(parents=True, exist_ok=True)
+    onnx.save(model, model_dir / "model.onnx")
+    (model_dir / "metadata.json").write_text(json.dumps({
+        "format": MODEL_FORMAT, "version": MODEL_VERSION,
+        "variant": {"name": "depth", "n_frames": 3, "size_px": [16, 22]},
+        "inputs": {"frames": [None, *shape]}, "output": "e_norm", "scales": current_scales(),
+        "residual_log10": {"q025": -0.5, "q975": 0.5, "median_abs": 0.2, "n": 10},
+    }))
+    return float(modulus_from_normalised(np.float32(level)))
+
+
+@pytest.mark.slow
+def test_model_reload_swaps_between_grasps_without_dropping_one(settings, calibration, records, tmp_path):
+    model_dir = tmp_path / "model"
+    first_e = write_tiny_model(model_dir, 0.5)
+    slot = ModelSlot(model_dir, settings=settings, calibration=calibration, mode="model", check_interval_s=0.0)
+    rig = Rig(settings, calibration, model=slot)
+    try:
+        record = records["stress_ball"]
+        messages = in_capture_order(record)
+        half = slice(0, len(messages) // 2)
+        rig.send_grasp(record, "g-a", end=False, part=half)
+        deadline = time.monotonic() + 20
+        while not rig.service.stats.provisional and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert rig.service.stats.provisional > 0  # grasp A is loading now
+        second_e = write_tiny_model(model_dir, 0.25)  # the files change mid-grasp...
+        slot.request_reload()  # ...and a reload is asked for
+        rig.send_grasp(record, "g-a", start=False, part=slice(len(messages) // 2, None))
+        got_a = rig.collect("g-a")
+        rig.send_grasp(record, "g-b")
+        got_b = rig.collect("g-b")
+    finally:
+        rig.close()
+    final_a = [m.body for m in got_a if m.type == "estimate" and not m.body["provisional"]]
+    final_b = [m.body for m in got_b if m.type == "estimate" and not m.body["provisional"]]
+    _, provisional = expected_final(settings, calibration, record)
+    assert sum(m.type == "estimate" and m.body["provisional"] for m in got_a) == provisional  # none dropped
+    assert len(final_a) == len(final_b) == 1
+    assert final_a[0]["method"] == "cnn" and final_a[0]["E_pa"] == pytest.approx(first_e, rel=1e-5)
+    assert final_b[0]["E_pa"] == pytest.approx(second_e, rel=1e-5)
+    assert slot.loads == 2 and rig.service.stats.reloads == 1
+
+
+def test_model_slot_reloads_on_file_change_and_keeps_a_good_model_over_a_bad_one(settings, calibration, tmp_path):
+    model_dir = tmp_path / "model"
+    write_tiny_model(model_dir, 0.5)
+    now = [0.0]
+    slot = ModelSlot(model_dir, settings=settings, calibration=calibration, check_interval_s=1.0,
+                     clock=lambda: now[0])
+    first = slot.estimator
+    assert not slot.poll(idle=True)  # nothing changed
+    write_tiny_model(model_dir, 0.3)
+    now[0] = 0.5
+    assert not slot.poll(idle=True)  # not looked at before check_interval_s
+    now[0] = 2.0
+    assert not slot.poll(idle=False)  # a grasp is open: never swapped mid-grasp
+    assert slot.poll(idle=True) and slot.estimator is not first and slot.loads == 2
+    (model_dir / "metadata.json").write_text("{ not json")
+    now[0] = 4.0
+    good = slot.estimator
+    assert not slot.poll(idle=True)
+    assert slot.estimator is good and slot.failures == 1

@@ -1,0 +1,96 @@
+"""The renderer process adapter: estimates from the bus onto a simulated display, with final latencies."""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+
+import pytest
+
+from haptics.devices.sim import SimulatedDisplay
+from haptics.errors import HapticsError
+from haptics.renderer import HapticRenderer
+from haptics.service import RendererService
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.live import JsonLines
+from teleop.settings import load_settings
+
+
+@pytest.fixture
+def rig(tmp_path):
+    settings = load_settings().display
+    display = SimulatedDisplay()
+    estimator = Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator")
+    heartbeat = Publisher("tcp://127.0.0.1:*", lossless=False, source="renderer")
+    subscriber = Subscriber(estimator.endpoint, ("estimate", "grasp_event"), conflate=True)
+    report = JsonLines(tmp_path / "renderer.jsonl")
+    service = RendererService(HapticRenderer(display, settings), subscriber=subscriber, publisher=heartbeat,
+                              report=report, tick_s=0.005)
+    estimator.wait_for_subscriber("estimate", timeout_s=5.0)
+    yield service, estimator, display, tmp_path / "renderer.jsonl"
+    for sock in (estimator, heartbeat, subscriber):
+        sock.close()
+    report.close()
+
+
+def estimate(publisher: Publisher, *, grasp_id: str, t_capture_s: float, e_pa: float | None, provisional: bool,
+             state: str = "ok", interval=None) -> None:
+    interval = interval if interval is not None else ([e_pa / 2, e_pa * 2] if e_pa else [None, None])
+    publisher.send("estimate", t_capture_s=t_capture_s, grasp_id=grasp_id, method="split", E_pa=e_pa,
+                   interval_pa=interval, state=state, reason="test", provisional=provisional, latency_s=0.001)
+
+
+def step_until(service: RendererService, done, timeout_s: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        assert time.monotonic() < deadline, "timed out"
+        service.step()
+
+
+def test_final_estimate_is_rendered_and_its_latency_measured_from_capture(rig):
+    service, estimator, display, report_path = rig
+    estimate(estimator, grasp_id="g1", t_capture_s=time.monotonic(), e_pa=1e5, provisional=True)
+    step_until(service, lambda: service.stats.estimates == 1)
+    assert display.rendered_command.provisional
+    captured = time.monotonic() - 0.05  # the last loading frame was captured 50 ms ago
+    estimate(estimator, grasp_id="g1", t_capture_s=captured, e_pa=2e6, provisional=False)
+    sent = time.monotonic()
+    step_until(service, lambda: service.stats.finals)
+    final = service.stats.finals[0]
+    assert final.grasp_id == "g1" and final.e_pa == 2e6 and final.estimates_received == 2
+    assert 0.05 <= final.latency_s <= 0.05 + (time.monotonic() - sent) + 1e-3
+    shown = display.rendered_command
+    assert not shown.provisional and shown.level > 0  # the final estimate reached the display
+    assert json.loads(report_path.read_text().splitlines()[0])["latency_ms"] == pytest.approx(final.latency_s * 1e3)
+    estimator.send("grasp_event", t_capture_s=time.monotonic(), event="end", grasp_id="g1")
+    step_until(service, lambda: service.stats.grasp_ends == 1)
+    assert service.renderer.phase in ("fading", "idle")
+
+
+def test_an_estimate_that_cannot_be_rendered_is_logged_and_skipped(rig, caplog):
+    service, estimator, display, _ = rig
+    with caplog.at_level(logging.WARNING):
+        # Valid on the wire, but its value lies outside its own interval.
+        estimate(estimator, grasp_id="g2", t_capture_s=time.monotonic(), e_pa=1e6, provisional=True,
+                 interval=[1e7, 1e8])
+        step_until(service, lambda: service.stats.bad_messages == 1)
+    assert "not rendered" in caplog.text and "outside its interval" in caplog.text
+    estimate(estimator, grasp_id="g2", t_capture_s=time.monotonic(), e_pa=3e4, provisional=False)
+    step_until(service, lambda: service.stats.finals)
+    assert service.stats.finals[0].e_pa == 3e4 and not display.rendered_command.provisional
+
+
+def test_renderer_heartbeats_and_ticks_without_messages(rig):
+    service, estimator, _, _ = rig
+    listener = Subscriber(service.publisher.endpoint, ())
+    try:
+        deadline = time.monotonic() + 5.0
+        while "renderer" not in listener.heartbeat.peers():
+            assert time.monotonic() < deadline
+            service.step()
+            listener.recv(timeout_s=0.01)
+    finally:
+        listener.close()
+    with pytest.raises(HapticsError, match="tick_s"):
+        RendererService(service.renderer, subscriber=service.subscriber, tick_s=0.0)

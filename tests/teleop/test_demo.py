@@ -1,0 +1,254 @@
+"""The live system as separate processes: ``teleop demo``, ``teleop bench-latency``, shutdown and crashes."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+import teleop.cli
+from teleop.catalogue import ObjectSpec
+from teleop.demo import (
+    GraspOutcome,
+    LiveSystem,
+    ReportReader,
+    closing_table,
+    free_ports,
+    scene_plan,
+)
+from teleop.errors import SettingsError, TeleopError
+from teleop.latency import latency_summary
+from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
+from teleop.session.logfile import LogReader
+from teleop.settings import default_settings_path, load_settings
+
+STEEL = ObjectSpec(name="steel_ball_bearing", shape="sphere", material="metal", modulus_pa=2e11)
+
+
+def _process(pid: int) -> tuple[int, str, str] | None:
+    """(parent pid, state, command line) of a live process, None when it is gone."""
+    try:
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return int(fields[1]), fields[0], cmdline
+
+
+def live_processes(pids) -> list[int]:
+    """Those of ``pids`` that still run (a zombie has exited)."""
+    return [pid for pid in pids if (p := _process(pid)) is not None and p[1] != "Z"]
+
+
+def our_live_children() -> list[int]:
+    """Live-system children of this process still running."""
+    pids = (int(e.name) for e in Path("/proc").iterdir() if e.name.isdigit())
+    return [pid for pid in pids if (p := _process(pid)) is not None and p[0] == os.getpid()
+            and p[1] != "Z" and "cli import main" in p[2]]
+
+
+def wait_gone(pids, timeout_s: float = 15.0) -> list[int]:
+    deadline = time.monotonic() + timeout_s
+    while (left := live_processes(pids)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return left
+
+
+def steel_scene(tmp_path: Path) -> Path:
+    """A scene of one short grasp (a steel ball loads within a few frames)."""
+    path = tmp_path / "steel.toml"
+    path.write_text(textwrap.dedent("""
+        description = "one steel ball"
+        catalogue = "objects.toml"
+        objects = ["steel_ball_bearing"]
+        seed = 5
+    """))
+    return path
+
+
+# --------------------------------------------------------------------------- pieces (fast)
+
+
+def outcome(name: str, e_true: float, final: dict | None, first_s: float | None, latency_ms: float | None,
+            **report) -> GraspOutcome:
+    o = GraspOutcome("g", ObjectSpec(name=name, shape="sphere", material="rubber", modulus_pa=e_true))
+    o.final = final
+    o.estimator_report = {"time_to_first_estimate_s": first_s, **report}
+    o.renderer_report = None if latency_ms is None else {"latency_ms": latency_ms}
+    return o
+
+
+def test_outcomes_give_the_closing_table_and_json():
+    good = outcome("duck", 1e6, {"E_pa": 1e7, "state": "ok"}, 0.1, 150.0)
+    bound = outcome("steel", 2e11, {"E_pa": 2e9, "state": "lower_bound"}, 0.05, 120.0)
+    lost = outcome("foam", 5e3, None, None, None)
+    assert good.to_json() == {"object": "duck", "E_true_pa": 1e6, "E_final_pa": 1e7, "log10_error": 1.0,
+                              "t_first_estimate_s": 0.1, "latency_ms": 150.0, "state": "ok"}
+    assert bound.log10_error == pytest.approx(-2.0) and lost.log10_error is None and lost.state == "none"
+    table = closing_table([good, bound, lost]).splitlines()
+    assert table[0].split()[:3] == ["object", "E", "true"] and set(table[1]) <= {"-", " "}
+    assert ">=2e+09" in table[3] and "lower_bound" in table[3] and "-2.00" in table[3] and "120" in table[3]
+    assert table[4].split()[1:] == ["5e+03", "?-", "none", "-", "-", "-"]
+    assert table[-1] == "mean |error| 1.50 decades over 2 estimates; 1 of 3 within one decade"
+
+
+def test_latency_summary_splits_decision_and_delivery():
+    o1 = outcome("a", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 150.0, final_sent_s=10.14, t_last_loading_frame_s=10.0,
+                 provisional_span_s=0.5, provisional=16)
+    o2 = outcome("b", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 110.0, final_sent_s=20.1, t_last_loading_frame_s=20.0,
+                 provisional_span_s=None, provisional=1)
+    summary = latency_summary([o1, o2], [0.01, 0.02, 0.03])
+    assert summary["p50_ms"] == pytest.approx(130.0) and summary["finals_measured"] == 2
+    assert summary["provisional_hz"] == pytest.approx(15 / 0.5)
+    assert summary["decision_p50_ms"] == pytest.approx(120.0) and summary["delivery_p50_ms"] == pytest.approx(10.0)
+    assert summary["compute_p50_ms"] == pytest.approx(20.0)
+    assert latency_summary([], [])["p99_ms"] is None
+
+
+def test_report_reader_takes_complete_lines_only(tmp_path):
+    path = tmp_path / "r.jsonl"
+    reader = ReportReader(path)
+    assert reader.poll() == [] and reader.find("g1", timeout_s=0.0) is None
+    with JsonLines(path) as report:
+        report.write({"grasp_id": "g1", "x": 1})
+    with path.open("a") as fh:
+        fh.write('{"grasp_id": "g2"')  # being written
+    assert reader.poll() == [{"grasp_id": "g1", "x": 1}]
+    with path.open("a") as fh:
+        fh.write(', "x": 2}\n')
+    assert reader.find("g2", timeout_s=1.0) == {"grasp_id": "g2", "x": 2}
+
+
+def test_scene_plan_and_free_ports():
+    plan = scene_plan("quick", 5)
+    assert [i for i, _ in plan] == [0, 1, 2, 0, 1] and plan[2][1].name == "steel_ball_bearing"
+    ports = free_ports(4)
+    assert len(set(ports)) == 4 and all(1024 <= p < 65536 for p in ports)
+
+
+def test_endpoint_options_override_the_settings_bus():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("command")  # as the CLI framework's subcommand name, which must not collide
+    add_endpoint_arguments(parser, "robot_pub", "command")
+    args = parser.parse_args(["node", "--robot-pub", "tcp://127.0.0.1:7001", "--command", "tcp://127.0.0.1:7002"])
+    bus = bus_from_args(load_settings(), args)
+    assert (bus.robot_pub, bus.command, bus.estimate_pub) == ("tcp://127.0.0.1:7001", "tcp://127.0.0.1:7002",
+                                                              load_settings().bus.estimate_pub)
+    with pytest.raises(SettingsError, match="not a bus endpoint"):
+        add_endpoint_arguments(parser, "keys_dir")
+
+
+def test_stop_signals_turn_sigterm_into_a_stop_and_sighup_into_a_callback():
+    hangups = []
+    with StopSignals(on_hangup=lambda: hangups.append(1)) as signals:
+        os.kill(os.getpid(), signal.SIGHUP)
+        assert hangups == [1] and not signals.stop.is_set()
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert signals.stop.wait(1.0)
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+
+
+# --------------------------------------------------------------------------- the processes (slow)
+
+
+@pytest.mark.slow
+def test_demo_runs_the_quick_scene_end_to_end(tmp_path, capsys):
+    code = teleop.cli.main(["demo", "--scene", "quick", "--json", "--no-view", "--out", str(tmp_path)])
+    out = capsys.readouterr().out.strip().splitlines()
+    assert code == 0
+    result = json.loads(out[-1])
+    assert [g["object"] for g in result["grasps"]] == ["stress_ball", "rubber_duck", "steel_ball_bearing"]
+    for grasp in result["grasps"]:
+        assert set(grasp) == {"object", "E_true_pa", "E_final_pa", "log10_error", "t_first_estimate_s", "latency_ms",
+                              "state"}
+        assert grasp["state"] in ("ok", "lower_bound", "upper_bound", "insufficient_data")
+        assert (grasp["E_final_pa"] is None) == (grasp["state"] == "insufficient_data")
+        assert grasp["E_final_pa"] is None or grasp["E_final_pa"] > 0
+        assert 0 < grasp["latency_ms"] < 2000 and 0 < grasp["t_first_estimate_s"] < 2
+    assert any(line.startswith("object") for line in out) and f"session log: {tmp_path / 'session.mcap'}" in out
+    topics = {m.message.topic for m in LogReader(Path(result["session_log"])).messages(None)}
+    assert {"frame/left", "frame/right", "force", "width", "grasp_event", "estimate", "command"} <= topics
+    assert our_live_children() == []  # every child stopped
+
+
+@pytest.mark.slow
+def test_a_crashed_child_stops_the_run_and_leaves_no_process(tmp_path):
+    settings = load_settings()
+    from teleop.demo import simulated_calibration
+
+    calibration = simulated_calibration(settings, tmp_path, n_presses=12)
+    system = LiveSystem(default_settings_path(), str(steel_scene(tmp_path)), tmp_path / "run", calibration,
+                        record=False)
+    system.start()
+    pids = [c.process.pid for c in system.children.values()]
+    try:
+        outcome = system.grasp("g1", 0, STEEL)
+        assert outcome.final is not None and outcome.latency_ms is not None
+        system.children["estimator"].process.send_signal(signal.SIGKILL)
+        with pytest.raises(TeleopError, match=r"estimator exited with status -9"):
+            system.grasp("g2", 0, STEEL)
+    finally:
+        codes = system.stop()
+    assert codes["estimator"] == -9 and codes["node"] == 0 and codes["renderer"] == 0
+    assert live_processes(pids) == [] and our_live_children() == []
+
+
+@pytest.mark.slow
+def test_children_die_with_a_killed_parent(tmp_path):
+    script = textwrap.dedent(f"""
+        import json, sys, time
+        from pathlib import Path
+        from teleop.demo import LiveSystem, simulated_calibration
+        from teleop.settings import default_settings_path, load_settings
+        out = Path({str(tmp_path)!r})
+        cal = simulated_calibration(load_settings(), out, n_presses=12)
+        system = LiveSystem(default_settings_path(), "quick", out / "run", cal, record=False)
+        system.start()
+        print(json.dumps([c.process.pid for c in system.children.values()]), flush=True)
+        time.sleep(120)
+    """)
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        pids = json.loads(parent.stdout.readline())
+        assert len(pids) == 3 and len(live_processes(pids)) == 3
+    finally:
+        parent.kill()
+        parent.wait()
+    assert wait_gone(pids) == []
+
+
+@pytest.mark.slow
+def test_bench_latency_prints_its_figures(tmp_path, capsys):
+    code = teleop.cli.main(["bench-latency", "--scene", str(steel_scene(tmp_path)), "--grasps", "2", "--json",
+                            "--out", str(tmp_path / "run")])
+    out = capsys.readouterr().out.strip().splitlines()
+    assert code == 0
+    summary = json.loads(out[-1])
+    assert summary["grasps"] == summary["finals_measured"] == 2
+    assert 0 < summary["p50_ms"] <= summary["p99_ms"] < 2000 and summary["provisional_hz"] > 0
+    assert summary["delivery_p50_ms"] < summary["p50_ms"]
+    assert any(line.startswith("last loading frame -> display report: p50") for line in out)
+    assert our_live_children() == []
+
+
+def test_demo_refuses_settings_other_than_the_scenes_or_with_hardware(tmp_path, capsys):
+    text = default_settings_path().read_text()
+    hardware = text.replace('[gripper]\nbackend = "sim"', '[gripper]\nbackend = "franky"')
+    assert hardware != text
+    other = tmp_path / "other.toml"
+    other.write_text(hardware)
+    assert teleop.cli.main(["demo", "--scene", "quick", "--settings", str(other), "--out", str(tmp_path)]) == 2
+    assert "names other settings than --settings" in capsys.readouterr().err
+    scene = tmp_path / "hardware.toml"
+    scene.write_text(f'objects = ["steel_ball_bearing"]\nsettings = "{other}"\n')
+    assert teleop.cli.main(["bench-latency", "--scene", str(scene), "--settings", str(other),
+                            "--out", str(tmp_path)]) == 2
+    assert "names hardware backends" in capsys.readouterr().err

@@ -1,0 +1,117 @@
+"""The robot node on simulated hardware: commands in, a simulated grasp out on the bus as hardware would send it."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+
+import numpy as np
+import pytest
+
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.errors import SimulationError
+from teleop.node import RobotNode
+from teleop.scene import load_scene
+from teleop.settings import load_settings
+from teleop.sim.grasp import simulate_grasp
+
+
+@pytest.fixture
+def rig():
+    scene = load_scene("quick")
+    robot = Publisher("tcp://127.0.0.1:*", lossless=True, source="robot")
+    operator = Publisher("tcp://127.0.0.1:*", lossless=True, source="operator")
+    commands = Subscriber(operator.endpoint, ("command",))
+    listener = Subscriber(robot.endpoint, ("frame", "force", "width", "grasp_event"))
+    node = RobotNode(scene.settings, publisher=robot, commands=commands, scene=scene).connect()
+    robot.wait_for_subscriber("frame", timeout_s=5.0)
+    operator.wait_for_subscriber("command", timeout_s=5.0)
+    yield node, operator, listener, scene
+    node.close()
+    for sock in (robot, operator, commands, listener):
+        sock.close()
+
+
+def run_until_idle(node: RobotNode, grasps: int, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while node.busy or node.stats.grasps < grasps:
+        assert time.monotonic() < deadline, "the grasp did not end in time"
+        node.step()
+
+
+def drain(listener: Subscriber) -> list:
+    got = []
+    while (message := listener.recv(timeout_s=0.2)) is not None:
+        got.append(message)
+    return got
+
+
+def test_commanded_grasp_goes_out_as_the_devices_capture_it(rig):
+    node, operator, listener, scene = rig
+    operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id="g-steel",
+                  params={"object_index": 2.0})
+    run_until_idle(node, grasps=1)
+    got = [m for m in drain(listener) if m.body.get("grasp_id") == "g-steel"]
+    # What the node simulated: the scene's third object, seeded from the scene's seed and grasp count 0.
+    record, _ = simulate_grasp(scene.objects[2], settings=scene.settings,
+                               rng=np.random.default_rng(scene.seed * 10_000), seed=scene.seed * 10_000)
+    assert got[0].type == "grasp_event" and got[0].body["event"] == "start"
+    assert got[0].body["object_name"] == "steel_ball_bearing"
+    assert got[-1].type == "grasp_event" and got[-1].body["event"] == "end"
+    shifts = []
+    for stream in record.frames:
+        frames = [m for m in got if m.topic == f"frame/{stream.finger}"]
+        assert [m.body["data"].tobytes() for m in frames] == list(stream.encoded)  # the camera's bytes, as is
+        assert [m.body["index"] for m in frames] == list(range(len(stream)))
+        shifts.append(np.array([m.t_capture_s for m in frames]) - stream.t_s)
+    forces = [m for m in got if m.type == "force"]
+    assert np.array_equal(np.concatenate([m.body["value_n"] for m in forces]), record.force_n.value)
+    shifts.append(np.concatenate([m.body["t_s"] for m in forces]) - record.force_n.t_s)
+    widths = np.concatenate([m.body["value_m"] for m in got if m.type == "width"])
+    assert np.array_equal(widths[: len(record.width_m)], record.width_m.value)
+    # One replay clock: every stream is the record shifted by one constant, onto this host's monotonic clock.
+    assert np.ptp(np.concatenate(shifts)) < 1e-6
+    data_t = [m.t_capture_s for m in got[1:-1]]
+    assert got[0].t_capture_s <= min(data_t) <= max(data_t) <= got[-1].t_capture_s <= time.monotonic()
+
+
+def test_commands_that_cannot_be_carried_out_are_logged(rig, caplog):
+    node, operator, _, _ = rig
+    with caplog.at_level(logging.WARNING):
+        operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-x", params={"object_index": 9.0})
+        operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-y", params={"object_index": 0.5})
+        operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-z", params={"object_index": 2.0})
+        operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-w", params={})
+        operator.send("command", t_capture_s=0.0, action="stop", grasp_id=None, params={})
+        deadline = time.monotonic() + 5.0
+        while node.stats.bad_commands < 3 and time.monotonic() < deadline:
+            node.step()
+    assert node.stats.bad_commands == 3 and node.busy  # g-z runs; g-w came while it did
+    assert "objects 0..2" in caplog.text and "whole number" in caplog.text and "still in progress" in caplog.text
+    run_until_idle(node, grasps=1)
+
+
+def test_the_simulated_robot_needs_a_scene():
+    settings = load_settings()
+    with Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as robot, \
+            pytest.raises(SimulationError, match="needs a scene"):
+        RobotNode(settings, publisher=robot)
+
+
+def test_hardware_grasp_closes_holds_and_opens(rig):
+    node, operator, listener, scene = rig
+    # The simulated devices standing in for hardware: a kinematic gripper, a silent camera and cell.
+    node.simulated = False
+    node.settings = dataclasses.replace(
+        node.settings, gripper=dataclasses.replace(node.settings.gripper, hold_s=0.2))
+    node.gripper.settings = dataclasses.replace(node.gripper.settings, closing_speed_m_s=0.2)
+    operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-hw", params={"target_force_n": 500.0})
+    operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-hw", params={"target_force_n": 20.0})
+    run_until_idle(node, grasps=1, timeout_s=10.0)
+    assert node.stats.bad_commands == 1  # the gripper refused 500 N before anything started
+    got = [m for m in drain(listener) if m.body.get("grasp_id") == "g-hw"]
+    assert [m.body["event"] for m in got if m.type == "grasp_event"] == ["start", "end"]
+    widths = np.concatenate([m.body["value_m"] for m in got if m.type == "width"])
+    closed = int(np.argmin(widths))
+    assert widths[closed] < 0.01 and widths[0] > 0.04 and widths[-1] > 0.07  # closed, then opened again
