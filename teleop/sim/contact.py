@@ -249,6 +249,7 @@ class Influence:
         self._padded, half_space, correction = _unit_kernels(
             self.shape, self.cell_m, gel.thickness_m, float(gel.poisson)
         )
+        self._buffer = np.zeros(self._padded, dtype=np.float32)  # scratch input: not for sharing across threads
         k_gel, k_obj = gel.compliance_per_pa, obj.compliance_per_pa
         self._gel = k_gel * half_space if correction is None else k_gel * (half_space + correction)
         self._object = k_obj * half_space
@@ -258,9 +259,11 @@ class Influence:
 
     def _apply(self, spectrum: np.ndarray, pressure_pa: np.ndarray) -> np.ndarray:
         rows, cols = self.shape
-        pressure = np.asarray(pressure_pa, dtype=np.float32)
-        out = scipy.fft.irfft2(scipy.fft.rfft2(pressure, s=self._padded) * spectrum, s=self._padded)
-        return out[:rows, :cols].astype(np.float64)
+        # The zero padding stays in place between calls: only the grid's corner is rewritten.
+        self._buffer[:rows, :cols] = pressure_pa
+        product = scipy.fft.rfft2(self._buffer)
+        product *= spectrum
+        return scipy.fft.irfft2(product, s=self._padded, overwrite_x=True)[:rows, :cols].astype(np.float64)
 
     def total(self, pressure_pa: np.ndarray) -> np.ndarray:
         """Gel plus object surface displacement (m) under ``pressure_pa``."""
@@ -528,8 +531,9 @@ def gel_shear(gel_displacement_m: np.ndarray, *, cell_m: tuple[float, float], th
 
     Parameters
     ----------
-    gel_displacement_m : ndarray (rows, cols)
-        The gel's normal surface displacement (m, into the gel).
+    gel_displacement_m : ndarray (..., rows, cols)
+        The gel's normal surface displacement (m, into the gel); leading axes are
+        independent fields (e.g. force levels), transformed together.
     cell_m : (float, float)
         Cell size (row pitch, column pitch), m.
     thickness_m : float
@@ -537,16 +541,16 @@ def gel_shear(gel_displacement_m: np.ndarray, *, cell_m: tuple[float, float], th
 
     Returns
     -------
-    ndarray (rows, cols, 2)
+    ndarray (..., rows, cols, 2)
         [d_col, d_row] surface displacement, m (columns to the right, rows down).
     """
     w = np.asarray(gel_displacement_m, dtype=np.float64)
-    rows, cols = w.shape
+    rows, cols = w.shape[-2:]
     padded = (scipy.fft.next_fast_len(2 * rows, real=True), scipy.fft.next_fast_len(2 * cols, real=True))
     k_row = 2.0 * np.pi * scipy.fft.fftfreq(padded[0], d=cell_m[0])[:, None]
     k_col = 2.0 * np.pi * scipy.fft.rfftfreq(padded[1], d=cell_m[1])[None, :]
     screening = 1.0 / (2.0 * thickness_m) ** 2
     phi = -scipy.fft.rfft2(w, s=padded) / (thickness_m * (k_row**2 + k_col**2 + screening))
-    d_col = scipy.fft.irfft2(1j * k_col * phi, s=padded)[:rows, :cols]
-    d_row = scipy.fft.irfft2(1j * k_row * phi, s=padded)[:rows, :cols]
+    d_col = scipy.fft.irfft2(1j * k_col * phi, s=padded)[..., :rows, :cols]
+    d_row = scipy.fft.irfft2(1j * k_row * phi, s=padded)[..., :rows, :cols]
     return 1.5 * np.stack([d_col, d_row], axis=-1)

@@ -19,14 +19,19 @@ left, red from the top, blue from the bottom, each at ``LIGHT_ELEVATION_RAD`` ab
 the gel. Each light's relative change of Lambertian radiance (plus a weak Phong
 highlight) is computed from the surface normal, scaled by that light's irradiance
 across the pad (a smooth, uneven gain field, fixed per sensor), mixed into BGR by
-the LEDs' colour signatures, rendered on the warped image, mapped into raw pixels
-through the inverse warp and added to the raw no-contact background. Outside the
-pad's raw footprint the frame is the background, untouched.
+the LEDs' colour signatures and added to the raw no-contact background. Each raw
+pixel of the pad is shaded from the slopes at the point of the warped image it sees
+(through the mirror-corner homography); outside the pad's raw footprint the frame is
+the background, untouched.
 
 For speed, the shading is tabulated once over surface slopes (a reflectance map)
 and looked up per pixel with ``cv2.remap``; the height is blurred and
-differentiated by one separable filter per axis; only the window of the warped
-image where the gel moved (plus the filters' reach) is shaded and warped.
+differentiated by one separable filter per axis; only the raw pixels that see the
+window of the warped image where the gel moved (plus the filters' reach) are
+shaded. A series of frames whose surfaces mix a few basis surfaces
+(:meth:`TactileCamera.render_series`, e.g. a grasp's force levels) filters and
+resamples each basis once, mixes their slopes per frame, and renders each distinct
+mix once.
 
 Marker dots (``sensor.markers``) are a dark texture printed on the gel; they are
 advected with the in-plane surface displacement and darken the frame
@@ -89,6 +94,8 @@ MARKER_RADIUS_M = 0.3e-3
 MARKER_DARKNESS = 0.75
 # Noise table entries are stored as unsigned bytes around this level.
 NOISE_OFFSET = 128.0
+# Noise values in a camera's pool beyond one frame's: the number of distinct frame offsets.
+NOISE_POOL_EXTRA = 1 << 20
 # Derived in-plane flow when no shear is given: u = -gain * h * grad(h) (m).
 DERIVED_SHEAR_GAIN = 1.0
 
@@ -309,6 +316,50 @@ def procedural_background(sensor: SensorSettings, *, rng: np.random.Generator) -
     return np.clip(np.rint(frame), 0, 255).astype(np.uint8)
 
 
+@functools.lru_cache(maxsize=8)
+def _raw_footprint(sensor: SensorSettings) -> tuple[tuple[slice, slice], np.ndarray, np.ndarray]:
+    """The raw pixels that see the warped image: their bounding box and warped coordinates.
+
+    Returns
+    -------
+    box : (slice, slice)
+        Rows and columns of the raw frame holding every pixel within one warped
+        pixel of the warped image.
+    map_x, map_y : ndarray, float32, the box's shape
+        Warped (x, y) of each raw pixel centre in the box, for ``cv2.remap``.
+    """
+    w, h = sensor.warped_width_px, sensor.warped_height_px
+    to_raw = np.linalg.inv(raw_to_warped_matrix(sensor))
+    reach = np.array([[[-1.0, -1.0]], [[w, -1.0]], [[-1.0, h]], [[w, h]]])
+    corners = cv2.perspectiveTransform(reach, to_raw)[:, 0]
+    x0, y0 = np.maximum(np.floor(corners.min(axis=0)).astype(int), 0)
+    x1 = min(int(np.ceil(corners[:, 0].max())) + 1, sensor.raw_width_px)
+    y1 = min(int(np.ceil(corners[:, 1].max())) + 1, sensor.raw_height_px)
+    xs, ys = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
+    warped = cv2.perspectiveTransform(np.dstack([xs, ys]), raw_to_warped_matrix(sensor)).astype(np.float32)
+    return ((slice(y0, y1), slice(x0, x1)), _read_only(np.ascontiguousarray(warped[..., 0])),
+            _read_only(np.ascontiguousarray(warped[..., 1])))
+
+
+def _sample(field: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a warped-image ``field`` at raw pixels; zero beyond the field."""
+    return cv2.remap(field, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+
+
+@functools.lru_cache(maxsize=8)
+def _raw_gain(sensor: SensorSettings) -> np.ndarray:
+    """:func:`_channel_gain` seen by the raw pixels of :func:`_raw_footprint`'s box; 0 off the pad."""
+    _, map_x, map_y = _raw_footprint(sensor)
+    return _read_only(_sample(_channel_gain(sensor), map_x, map_y))
+
+
+@functools.lru_cache(maxsize=8)
+def _raw_marker_coverage(sensor: SensorSettings) -> np.ndarray:
+    """:func:`_marker_pattern` at rest seen by the raw pixels of the footprint box."""
+    _, map_x, map_y = _raw_footprint(sensor)
+    return _read_only(_sample(_marker_pattern(sensor), map_x, map_y))
+
+
 def _check_field(value, name: str, shape: tuple[int, ...]) -> np.ndarray:
     array = np.asarray(value)
     if array.shape != shape:
@@ -319,6 +370,80 @@ def _check_field(value, name: str, shape: tuple[int, ...]) -> np.ndarray:
     if not np.isfinite(array).all():
         raise SimulationError(f"{name} contains NaN or infinite values: expected finite metres")
     return array
+
+
+def _mix(fields: list[np.ndarray], weights: np.ndarray, active: np.ndarray, offset: float = 0.0) -> np.ndarray:
+    """offset + sum over ``active`` k of weights[k] * fields[k], float32."""
+    mixed = np.full_like(fields[active[0]], offset)
+    for k in active:
+        cv2.scaleAdd(fields[k], float(weights[k]), mixed, dst=mixed)
+    return mixed
+
+
+class _Series:
+    """A camera's view of K basis surfaces, prepared once for a series of frames mixing them.
+
+    Everything is on the raw pixels ``box`` can change: slopes (reflectance-map
+    units), in-plane displacement toward where a marker came from (warped px) and
+    height (m), each per basis (None for bases no frame uses); the warped
+    coordinates of the box's pixels, the shading gain and the rest values there.
+    """
+
+    def __init__(self, camera: TactileCamera, heights: np.ndarray, shears: np.ndarray | None,
+                 used: np.ndarray) -> None:
+        sensor = camera.sensor
+        padded_heights = {k: camera._padded(heights[k]) for k in used}
+        padded_shears = {} if shears is None or not sensor.markers else {
+            k: camera._padded(shears[k]) for k in used}
+        moved = np.zeros((sensor.warped_height_px, sensor.warped_width_px), bool)
+        for k in used:
+            moved |= padded_heights[k] != 0
+            if k in padded_shears:
+                moved |= (padded_shears[k] != 0).any(axis=-1)
+        rows, cols = np.flatnonzero(moved.any(axis=1)), np.flatnonzero(moved.any(axis=0))
+        self.box = None
+        if rows.size == 0:
+            return  # nothing moved: every frame is the rest frame
+        # Work only where the gel moved, plus the blur's, slopes' and bilinear samples' reach.
+        y0, x0 = max(rows[0] - WINDOW_MARGIN_PX, 0), max(cols[0] - WINDOW_MARGIN_PX, 0)
+        y1, x1 = rows[-1] + WINDOW_MARGIN_PX + 1, cols[-1] + WINDOW_MARGIN_PX + 1
+        window = (slice(y0, y1), slice(x0, x1))
+        (fy, fx), foot_x, foot_y = _raw_footprint(sensor)
+        inside = ((foot_x >= x0 - 1) & (foot_x <= x1) & (foot_y >= y0 - 1) & (foot_y <= y1))
+        box_rows, box_cols = np.flatnonzero(inside.any(axis=1)), np.flatnonzero(inside.any(axis=0))
+        if box_rows.size == 0:
+            return
+        local = (slice(box_rows[0], box_rows[-1] + 1), slice(box_cols[0], box_cols[-1] + 1))
+        self.box = (slice(fy.start + local[0].start, fy.start + local[0].stop),
+                    slice(fx.start + local[1].start, fx.start + local[1].stop))
+        self.map_x, self.map_y = foot_x[local], foot_y[local]  # warped px of the whole image
+        window_x, window_y = self.map_x - np.float32(x0), self.map_y - np.float32(y0)
+        self.gain = _raw_gain(sensor)[local]
+        self.rest = camera._rest_f32[self.box]
+        if sensor.markers:
+            self.background = camera._background_f32[self.box]
+            self.marked = camera._marked_f32[self.box]
+
+        smooth, derivative = camera._slope_kernels
+        k_count = heights.shape[0]
+        self.slope_x: list[np.ndarray | None] = [None] * k_count
+        self.slope_y: list[np.ndarray | None] = [None] * k_count
+        self.height: list[np.ndarray | None] = [None] * k_count
+        self.back_x: list[np.ndarray | None] | None = [None] * k_count if padded_shears else None
+        self.back_y: list[np.ndarray | None] | None = [None] * k_count if padded_shears else None
+        to_px = -1.0 / sensor.pixel_pitch_m  # a point now at p came from about p - u(p)
+        for k in used:
+            height = padded_heights[k][window]
+            self.slope_x[k] = _sample(cv2.sepFilter2D(height, cv2.CV_32F, derivative, smooth),
+                                      window_x, window_y)
+            self.slope_y[k] = _sample(cv2.sepFilter2D(height, cv2.CV_32F, smooth, derivative),
+                                      window_x, window_y)
+            if self.back_x is not None:
+                shear = padded_shears[k][window]
+                self.back_x[k] = _sample(np.ascontiguousarray(shear[..., 0]) * to_px, window_x, window_y)
+                self.back_y[k] = _sample(np.ascontiguousarray(shear[..., 1]) * to_px, window_x, window_y)
+            elif sensor.markers:
+                self.height[k] = _sample(height, window_x, window_y)
 
 
 class TactileCamera:
@@ -348,10 +473,20 @@ class TactileCamera:
 
     Notes
     -----
+    Each raw pixel of the pad is shaded from the surface slopes at the point of
+    the warped image it sees (bilinear samples of the slope field), so the
+    shading is computed once per raw pixel with no resampling of the result.
+
     When ``shear_m`` is not given, the gel surface is assumed to flow outward
     from the contact: u = -DERIVED_SHEAR_GAIN * h * grad(h) (m), which vanishes
     off contact and moves markers radially by a few pixels in a firm press.
     Shear only moves the markers; shading depends on the normals alone.
+
+    Camera noise is read from a pool of ``NOISE_POOL_EXTRA`` + one frame's worth
+    of independent quantised Gaussian values, drawn from ``rng`` when the camera
+    is built; each frame takes the pool from a fresh random offset (never one
+    used before by this camera), so a pixel's noise is independent between
+    frames and between pixels, at a fraction of the cost of fresh draws.
     """
 
     def __init__(self, sensor: SensorSettings, *, sim: SimulationSettings,
@@ -374,11 +509,8 @@ class TactileCamera:
             )
         self.background = _read_only(background.copy())
 
-        self._to_warped = raw_to_warped_matrix(sensor)
-        self._to_raw = np.linalg.inv(self._to_warped)
         self._reflectance = _reflectance_map()
-        self._gain = _channel_gain(sensor)
-        # Slopes of the membrane-blurred height (m), straight into reflectance-map coordinates:
+        # Slopes of the membrane-blurred height (m), straight into reflectance-map units:
         # one separable filter per axis (Gaussian blur and central difference folded together).
         gaussian = cv2.getGaussianKernel(2 * int(np.ceil(4 * MEMBRANE_BLUR_PX)) + 1, MEMBRANE_BLUR_PX)
         to_map = 1.0 / (sensor.pixel_pitch_m * REFLECTANCE_STEP)
@@ -389,25 +521,27 @@ class TactileCamera:
         self._map_origin = SLOPE_LIMIT / REFLECTANCE_STEP
 
         # The frame of the gel at rest; every render pastes a change onto it.
-        self._rest_f32 = self.background.astype(np.float32)
+        self._background_f32 = self.background.astype(np.float32)
         self.rest_frame = self.background
         if sensor.markers:
-            self._grid_x, self._grid_y = _warped_coordinates(sensor)
             self._marker_rest = _marker_pattern(sensor)
-            self._background_warped = cv2.warpPerspective(
-                self._rest_f32, self._to_warped, (sensor.warped_width_px, sensor.warped_height_px),
-                flags=cv2.INTER_LINEAR,
-            )
-            self._rest_warped = (1.0 - MARKER_DARKNESS * self._marker_rest[..., None]) * self._background_warped
-            self.rest_frame = _read_only(self._paste(self._rest_warped - self._background_warped, (0, 0)))
-            self._rest_f32 = self.rest_frame.astype(np.float32)
+            box = _raw_footprint(sensor)[0]
+            transmitted = 1.0 - MARKER_DARKNESS * _raw_marker_coverage(sensor)
+            self._marked_f32 = self._background_f32.copy()  # before rounding: renders add a change to it
+            self._marked_f32[box] *= cv2.merge([transmitted] * 3)
+            self.rest_frame = _read_only(np.clip(np.rint(self._marked_f32), 0, 255).astype(np.uint8))
+        self._rest_f32 = self.rest_frame.astype(np.float32)
 
         # Camera noise: a 256-entry table of Gaussian quantiles (whole levels, offset by
-        # NOISE_OFFSET) indexed by random bytes: a quantised normal with tails cut at
-        # 2.7 s.d., an order of magnitude faster than drawing 900k normals per frame.
+        # NOISE_OFFSET) indexed by random bytes gives a quantised normal with tails cut at
+        # 2.7 s.d.; a pool of such values serves every frame (see Notes).
         quantiles = ndtri((np.arange(256) + 0.5) / 256.0)
-        self._noise_table = np.clip(np.rint(NOISE_OFFSET + sim.camera_noise * quantiles),
-                                    0, 255).astype(np.uint8)
+        table = np.clip(np.rint(NOISE_OFFSET + sim.camera_noise * quantiles), 0, 255).astype(np.uint8)
+        size = int(np.prod(raw_shape)) + NOISE_POOL_EXTRA
+        # random_raw: ten times faster than Generator.bytes, and as reproducible.
+        indices = rng.bit_generator.random_raw(-(-size // 8)).view(np.uint8)[:size]
+        self._noise_pool = cv2.LUT(indices, table).ravel()
+        self._noise_offsets_used: set[int] = set()
 
     # ------------------------------------------------------------------ rendering
 
@@ -416,67 +550,43 @@ class TactileCamera:
         c = self.sensor.crop_px
         return cv2.copyMakeBorder(field, c, c, c, c, cv2.BORDER_REPLICATE)
 
-    def _paste(self, change: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
-        """Rest frame plus ``change`` (levels, a window of the warped image at ``origin`` (x, y)).
+    def _series(self, height_m, shear_m, used: np.ndarray, *, batch: bool) -> _Series:
+        shape = self.sensor.image_shape
+        heights = _check_field(height_m, "height_m", (len(np.asarray(height_m)), *shape) if batch else shape)
+        shears = None if shear_m is None else _check_field(
+            shear_m, "shear_m", (*heights.shape, 2))
+        if not batch:
+            heights, shears = heights[None], None if shears is None else shears[None]
+        return _Series(self, heights, shears, used)
 
-        Only the raw pixels the window can reach are resampled (bilinear, through
-        the inverse warp); beyond the window the change is zero.
-        """
-        x0, y0 = origin
-        rows, cols = change.shape[:2]
-        reach = np.array([[[x0 - 1, y0 - 1]], [[x0 + cols, y0 - 1]],
-                          [[x0 - 1, y0 + rows]], [[x0 + cols, y0 + rows]]], dtype=np.float64)
-        corners = cv2.perspectiveTransform(reach, self._to_raw)[:, 0]
-        rx0, ry0 = np.maximum(np.floor(corners.min(axis=0)).astype(int), 0)
-        rx1 = min(int(np.ceil(corners[:, 0].max())) + 1, self.sensor.raw_width_px)
-        ry1 = min(int(np.ceil(corners[:, 1].max())) + 1, self.sensor.raw_height_px)
+    def _draw(self, series: _Series, weights: np.ndarray) -> np.ndarray:
+        """Clean raw frame of the surface sum_k weights[k] * basis k of ``series``."""
+        active = np.flatnonzero(weights)
+        if series.box is None or active.size == 0:
+            return self.rest_frame.copy()
+        map_x = _mix(series.slope_x, weights, active, self._map_origin)
+        map_y = _mix(series.slope_y, weights, active, self._map_origin)
+        relative = cv2.remap(self._reflectance, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        change = cv2.multiply(relative, series.gain)
         frame = self.rest_frame.copy()
-        if rx1 <= rx0 or ry1 <= ry0:
+        if not self.sensor.markers:
+            frame[series.box] = cv2.add(series.rest, change, dtype=cv2.CV_8U)
             return frame
-        # raw window px -> change px, for WARP_INVERSE_MAP (no matrix inversion per frame).
-        window_to_change = (
-            np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
-            @ self._to_warped
-            @ np.array([[1.0, 0.0, rx0], [0.0, 1.0, ry0], [0.0, 0.0, 1.0]])
-        )
-        warped = cv2.warpPerspective(
-            change, window_to_change, (rx1 - rx0, ry1 - ry0),
-            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-            borderMode=cv2.BORDER_CONSTANT, borderValue=0.0,
-        )
-        window = (slice(ry0, ry1), slice(rx0, rx1))
-        frame[window] = cv2.add(self._rest_f32[window], warped, dtype=cv2.CV_8U)
-        return frame
-
-    def _shading(self, height: np.ndarray, window: tuple[slice, slice]
-                 ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-        """BGR change (levels, float32) of the warped image in ``window`` for surface z = height.
-
-        Also returns the slopes as reflectance-map coordinates (map_x, map_y).
-        """
-        smooth, derivative = self._slope_kernels
-        slope_map = (
-            cv2.sepFilter2D(height, cv2.CV_32F, derivative, smooth, delta=self._map_origin),
-            cv2.sepFilter2D(height, cv2.CV_32F, smooth, derivative, delta=self._map_origin),
-        )
-        relative = cv2.remap(self._reflectance, *slope_map, cv2.INTER_LINEAR,
-                             borderMode=cv2.BORDER_REPLICATE)
-        return cv2.multiply(relative, self._gain[window]), slope_map
-
-    def _marker_alpha(self, height: np.ndarray, shear: np.ndarray | None,
-                      slope_map: tuple[np.ndarray, np.ndarray], window: tuple[slice, slice]
-                      ) -> np.ndarray:
-        """Marker coverage (0..1, float32) in ``window`` after the gel surface moved in-plane."""
-        # A point now at p came from about p - u(p): sample the printed pattern there.
-        if shear is None:  # u = -gain * h * slope (m), so -u in px is gain * h * slope / pitch
+        if series.back_x is not None:
+            back_x, back_y = (_mix(b, weights, active) for b in (series.back_x, series.back_y))
+        else:  # u = -gain * h * slope (m), so -u in px is gain * h * slope / pitch
+            height = _mix(series.height, weights, active)
             scale = DERIVED_SHEAR_GAIN * REFLECTANCE_STEP / self.sensor.pixel_pitch_m
-            back_x, back_y = (cv2.multiply(m - self._map_origin, height, scale=scale) for m in slope_map)
-        else:
-            back_x, back_y = (shear[..., i] * (-1.0 / self.sensor.pixel_pitch_m) for i in (0, 1))
-        map_x = cv2.add(self._grid_x[window], back_x)
-        map_y = cv2.add(self._grid_y[window], back_y)
-        return cv2.remap(self._marker_rest, map_x, map_y, cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+            back_x, back_y = (cv2.multiply(m - self._map_origin, height, scale=scale) for m in (map_x, map_y))
+        coverage = _sample(self._marker_rest, cv2.add(series.map_x, back_x), cv2.add(series.map_y, back_y))
+        transmitted = cv2.merge([1.0 - MARKER_DARKNESS * coverage] * 3)
+        # (background + shading) * transmission - marked background at rest, pasted on the rest frame:
+        # a change well below a level leaves the pixel as it is at rest.
+        cv2.add(series.background, change, dst=change)
+        cv2.multiply(change, transmitted, dst=change)
+        cv2.subtract(change, series.marked, dst=change)
+        frame[series.box] = cv2.add(series.rest, change, dtype=cv2.CV_8U)
+        return frame
 
     def render(self, height_m, *, shear_m=None) -> np.ndarray:
         """Clean raw frame of the gel indented by ``height_m``.
@@ -497,43 +607,62 @@ class TactileCamera:
             BGR raw frame, no noise. A zero height map gives :attr:`rest_frame`:
             the background, with the markers at rest when the sensor has them.
         """
-        shape = self.sensor.image_shape
-        height = self._padded(_check_field(height_m, "height_m", shape))
-        shear = None if shear_m is None else self._padded(_check_field(shear_m, "shear_m", (*shape, 2)))
-        # Work only on the window where the gel moved (plus the blur's and slopes' reach):
-        # everywhere else the change is exactly zero.
-        moved = height != 0
-        if shear is not None and self.sensor.markers:
-            moved |= (shear != 0).any(axis=-1)
-        rows, cols = np.flatnonzero(moved.any(axis=1)), np.flatnonzero(moved.any(axis=0))
-        if rows.size == 0:
-            return self.rest_frame.copy()
-        y0, x0 = max(rows[0] - WINDOW_MARGIN_PX, 0), max(cols[0] - WINDOW_MARGIN_PX, 0)
-        window = (slice(y0, rows[-1] + WINDOW_MARGIN_PX + 1), slice(x0, cols[-1] + WINDOW_MARGIN_PX + 1))
-        height = height[window]
-        change, slope_map = self._shading(height, window)
-        if self.sensor.markers:
-            coverage = self._marker_alpha(
-                height, None if shear is None else shear[window], slope_map, window
-            )
-            transmitted = cv2.merge([1.0 - MARKER_DARKNESS * coverage] * 3)
-            # (background + shading) * transmission - rest frame, in place.
-            cv2.add(self._background_warped[window], change, dst=change)
-            cv2.multiply(change, transmitted, dst=change)
-            cv2.subtract(change, self._rest_warped[window], dst=change)
-        return self._paste(change, (int(x0), int(y0)))
+        one = np.ones(1)
+        return self._draw(self._series(height_m, shear_m, np.flatnonzero(one), batch=False), one)
+
+    def render_series(self, height_m, weights, *, shear_m=None) -> list[np.ndarray]:
+        """Clean raw frames of surfaces that mix a few basis surfaces linearly.
+
+        Frame n shows the surface sum_k weights[n, k] * height_m[k] (and the
+        same mix of ``shear_m``), exactly as :meth:`render` would. The blur,
+        slopes and in-plane displacement are linear in the surface, so they are
+        computed once per basis; frames with equal weights share one render.
+
+        Parameters
+        ----------
+        height_m : array_like, shape (K,) + sensor.image_shape
+            Basis indentations (m), as for :meth:`render`.
+        weights : array_like, shape (N, K)
+            Finite mixing weights; a row of zeros is the gel at rest.
+        shear_m : array_like, shape (K,) + sensor.image_shape + (2,), optional
+            Basis in-plane displacements (m); None derives them per frame.
+
+        Returns
+        -------
+        list of N ndarray, uint8, shape (raw_height_px, raw_width_px, 3)
+            The frames; equal rows of ``weights`` give the same array object.
+        """
+        weights = np.asarray(weights, dtype=np.float64)
+        k_count = len(np.asarray(height_m))
+        if weights.ndim != 2 or weights.shape[1] != k_count or not np.isfinite(weights).all():
+            raise SimulationError(f"weights has shape {weights.shape}: expected finite (frames, {k_count}) "
+                                  "mixing weights, one column per basis surface")
+        distinct, which = np.unique(weights, axis=0, return_inverse=True)
+        series = self._series(height_m, shear_m, np.flatnonzero(distinct.any(axis=0)), batch=True)
+        frames = [self._draw(series, row) for row in distinct]
+        return [frames[i] for i in which.ravel()]
 
     def add_noise(self, frame: np.ndarray) -> np.ndarray:
         """``frame`` (uint8) plus camera noise of s.d. ``sim.camera_noise`` levels, saturated."""
         if frame.dtype != np.uint8:
             raise SimulationError(f"frame has dtype {frame.dtype}: expected a uint8 camera frame")
+        if frame.size + NOISE_POOL_EXTRA > self._noise_pool.size:
+            raise SimulationError(f"frame has shape {frame.shape}: larger than the camera's raw frame")
         if self.sim.camera_noise == 0:
             return frame.copy()
-        # random_raw: ten times faster than Generator.bytes, and as reproducible.
-        words = self.rng.bit_generator.random_raw(-(-frame.size // 8))
-        indices = words.view(np.uint8)[:frame.size].reshape(frame.shape)
-        noise = cv2.LUT(indices, self._noise_table)
+        offset = int(self.rng.integers(self._noise_pool.size - frame.size + 1))
+        while offset in self._noise_offsets_used:  # never the same noise twice
+            offset = int(self.rng.integers(self._noise_pool.size - frame.size + 1))
+        self._noise_offsets_used.add(offset)
+        noise = self._noise_pool[offset:offset + frame.size].reshape(frame.shape)
         return cv2.addWeighted(frame, 1.0, noise, 1.0, -NOISE_OFFSET)
+
+    def _encode(self, frame: np.ndarray) -> bytes:
+        ok, encoded = cv2.imencode(".jpg", self.add_noise(frame),
+                                   [cv2.IMWRITE_JPEG_QUALITY, self.sim.jpeg_quality])
+        if not ok:
+            raise SimulationError(f"JPEG encoding of a {frame.shape} frame failed")
+        return encoded.tobytes()
 
     def capture(self, height_m, *, shear_m=None) -> bytes:
         """One camera frame as the sensor delivers it: render, noise, JPEG at ``sim.jpeg_quality``.
@@ -541,8 +670,11 @@ class TactileCamera:
         Same inputs as :meth:`render`; returns the JPEG bytes (decode with
         ``cv2.imdecode`` to uint8 BGR of the raw shape).
         """
-        frame = self.add_noise(self.render(height_m, shear_m=shear_m))
-        ok, encoded = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, self.sim.jpeg_quality])
-        if not ok:
-            raise SimulationError(f"JPEG encoding of a {frame.shape} frame failed")
-        return encoded.tobytes()
+        return self._encode(self.render(height_m, shear_m=shear_m))
+
+    def capture_series(self, height_m, weights, *, shear_m=None) -> list[bytes]:
+        """Camera frames of mixed basis surfaces (see :meth:`render_series`), each with its own noise.
+
+        Returns one JPEG per row of ``weights``, in order.
+        """
+        return [self._encode(frame) for frame in self.render_series(height_m, weights, shear_m=shear_m)]

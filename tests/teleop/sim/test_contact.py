@@ -282,3 +282,25 @@ def test_gel_shear_flows_outward_and_scales_with_depth():
     assert np.abs(shear).max() < 1e-3
     np.testing.assert_allclose(gel_shear(2 * depth, cell_m=(cell, cell), thickness_m=3e-3), 2 * shear, atol=1e-12)
     assert not gel_shear(np.zeros((10, 10)), cell_m=(cell, cell), thickness_m=3e-3).any()
+
+
+def test_gel_shear_of_a_stack_is_the_shear_of_each_field():
+    cell = 2e-4
+    r = centred_radius(40, 50, cell)
+    stack = np.stack([d * np.exp(-((r / 2e-3) ** 2)) for d in (0.2e-3, 1e-3)] + [np.roll(r, 7, axis=1) * 1e-2])
+    shears = gel_shear(stack, cell_m=(cell, cell), thickness_m=3e-3)
+    assert shears.shape == (3, 40, 50, 2)
+    for field, shear in zip(stack, shears, strict=True):
+        np.testing.assert_allclose(shear, gel_shear(field, cell_m=(cell, cell), thickness_m=3e-3), atol=1e-15)
+
+
+def test_influence_gives_the_same_field_whatever_it_computed_before():
+    """Its zero-padded scratch input is reused: no residue of an earlier pressure may leak in."""
+    influence = Influence((30, 40), (2e-4, 2e-4), gel=Body(2.75e5, 0.48, 3e-3), obj=OBJECT)
+    rng = np.random.default_rng(0)
+    small, large = rng.uniform(0, 1e3, (30, 40)), rng.uniform(0, 1e6, (30, 40))
+    first = influence.gel(small)
+    influence.total(large)
+    np.testing.assert_array_equal(influence.gel(small), first)
+    np.testing.assert_allclose(influence.total(small), influence.gel(small) + influence.object(small),
+                               rtol=1e-5, atol=1e-6 * np.abs(first).max())

@@ -268,3 +268,62 @@ def test_bad_backgrounds_are_refused(sensor, settings, tmp_path):
                       background=np.zeros((480, 640), np.uint8))
     with pytest.raises(SimulationError, match="cannot read background"):
         load_background(tmp_path / "missing.png")
+
+
+@pytest.mark.parametrize("which", ["camera", "marker_camera"])
+def test_a_series_renders_each_mix_as_render_would(request, which):
+    camera = request.getfixturevalue(which)
+    sensor = camera.sensor
+    bases = np.stack([press(sensor, row=125, col=175, radius_m=10e-3, depth_m=d) for d in (0.3e-3, 0.8e-3)])
+    shears = np.zeros((*bases.shape, 2))
+    shears[1, 100:150, 150:200] = (30e-6, -20e-6)
+    weights = np.array([[0.0, 0.0], [0.5, 0.0], [0.25, 0.75], [0.0, 1.0], [0.25, 0.75]])
+    frames = camera.render_series(bases, weights, shear_m=shears)
+    assert len(frames) == len(weights)
+    np.testing.assert_array_equal(frames[0], camera.rest_frame)
+    for frame, w in zip(frames[1:], weights[1:], strict=True):
+        alone = camera.render(np.tensordot(w, bases, axes=1), shear_m=np.tensordot(w, shears, axes=1))
+        # Mixing the bases' slopes equals the slopes of the mixed surface up to float rounding.
+        assert np.abs(frame.astype(int) - alone).max() <= 1
+        assert np.any(frame != camera.rest_frame)
+    assert frames[2] is frames[4]  # equal weights: one render
+
+
+def test_a_series_refuses_bad_weights(camera, sensor):
+    bases = np.zeros((2, *sensor.image_shape))
+    with pytest.raises(SimulationError, match="weights"):
+        camera.render_series(bases, np.ones((3, 3)))
+    with pytest.raises(SimulationError, match="weights"):
+        camera.render_series(bases, np.full((3, 2), np.nan))
+    with pytest.raises(SimulationError, match="height_m has shape"):
+        camera.render_series(np.zeros((2, 10, 10)), np.ones((1, 2)))
+
+
+def test_capture_series_gives_fresh_noise_per_frame(sensor, settings):
+    cam = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(5))
+    bases = press(sensor, row=125, col=175)[None]
+    jpegs = cam.capture_series(bases, np.ones((3, 1)))
+    assert len(set(jpegs)) == 3
+    again = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(5))
+    assert again.capture_series(bases, np.ones((3, 1))) == jpegs
+
+
+def test_noise_is_independent_between_frames_and_pixels(settings, sensor):
+    """The pooled noise: right spread, no correlation between frames, neighbours or channels."""
+    cam = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(11))
+    flat = np.full((480, 640, 3), 128, np.uint8)
+    noise = np.stack([cam.add_noise(flat) for _ in range(40)]).astype(np.float64) - 128
+    sigma = settings.simulation.camera_noise
+    assert noise.std() == pytest.approx(sigma, rel=0.05)
+    assert noise.std(axis=0).mean() == pytest.approx(sigma, rel=0.05)  # over time, at each pixel
+
+    def correlation(a, b):
+        return float(np.corrcoef(a.ravel(), b.ravel())[0, 1])
+
+    bound = 5 / np.sqrt(noise[0].size)  # five standard errors of a zero correlation
+    for i, j in ((0, 1), (0, 39), (17, 18)):
+        assert abs(correlation(noise[i], noise[j])) < bound
+    assert abs(correlation(noise[:, :, 1:], noise[:, :, :-1])) < bound  # horizontal neighbours
+    assert abs(correlation(noise[..., 0], noise[..., 1])) < bound  # blue and green
+    # The difference of two frames of one scene: sqrt(2) sigma, as from a real camera.
+    assert (noise[3] - noise[4]).std() == pytest.approx(np.sqrt(2) * sigma, rel=0.05)
