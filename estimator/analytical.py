@@ -45,6 +45,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy import special
@@ -59,6 +60,7 @@ __all__ = [
     "approach_per_finger",
     "elastic",
     "fit_line",
+    "gel_layer_factor",
     "hertz",
     "no_tactile",
     "split",
@@ -497,6 +499,72 @@ def hertz(
     return _safe(method, build)
 
 
+def gel_layer_factor(
+    contact_radius_m: np.ndarray | float, *, gel_thickness_m: float, gel_poisson: float
+) -> np.ndarray:
+    """The gel's centre compliance under a contact of radius ``a``, relative to a half-space's.
+
+    The gel is a layer of thickness ``h`` bonded to a rigid backing. For a
+    pressure wave of wavenumber ``q`` its surface compliance is the half-space's
+    times (Chen & Engel, Int. J. Solids Struct. 8 (1972) 1257)::
+
+        S(x) = (kappa sinh 2x - 2x) / (kappa cosh 2x + 2x^2 + (1 + kappa^2) / 2),
+        x = q h, kappa = 3 - 4 nu.
+
+    Under the Hertz pressure ``p0 sqrt(1 - r^2/a^2)`` (Hankel transform
+    ``2 pi p0 a^2 j1(qa) / (qa)``) the centre displacement is
+    ``u(0) = (k / pi) int S(qh) p~(q) dq``, so the factor is
+
+        eta(a / h) = (4 / pi) int_0^inf S(x h / a) j1(x) / x dx,
+
+    1 for ``a << h`` (a half-space), falling steeply once the contact is wider
+    than the layer is thick (a 3 mm gel with nu = 0.48 under a 6 mm contact
+    is about 6.5 times stiffer than a half-space) and like ``h / a`` (confined
+    compression) far beyond. Tabulated once per Poisson's ratio for
+    ``a / h <= 20``, interpolated.
+
+    Parameters
+    ----------
+    contact_radius_m : array_like
+        Contact radius ``a`` (m, >= 0; NaN gives NaN).
+    gel_thickness_m : float
+        ``h`` (m, > 0).
+    gel_poisson : float
+        The gel's Poisson's ratio in [0, 0.5].
+
+    Returns
+    -------
+    ndarray
+        ``eta`` in (0, 1], the shape of ``contact_radius_m``.
+    """
+    _positive("gel_layer_factor", gel_thickness_m=gel_thickness_m)
+    if not (math.isfinite(gel_poisson) and 0.0 <= gel_poisson <= 0.5):
+        raise FitError(f"gel_layer_factor: gel_poisson must be in [0, 0.5], got {gel_poisson!r}")
+    ratio, table = _layer_table(round(float(gel_poisson), 6))
+    a = np.asarray(contact_radius_m, dtype=np.float64) / gel_thickness_m
+    # Beyond the table the factor falls as h / a (confined compression of the layer).
+    tail = table[-1] * ratio[-1] / np.maximum(a, ratio[-1])
+    return np.where(a > ratio[-1], tail, np.interp(a, ratio, table))
+
+
+@lru_cache(maxsize=4)
+def _layer_table(poisson: float) -> tuple[np.ndarray, np.ndarray]:
+    """eta on a grid of a / h from 0 to 20 (see :func:`gel_layer_factor`)."""
+    kappa = 3.0 - 4.0 * poisson
+    x = np.linspace(1e-6, 80.0, 40001)
+    j1_over_x = special.spherical_jn(1, x) / x
+    ratio = np.concatenate([[0.0], np.geomspace(1e-3, 20.0, 200)])
+    qh = x[None, :] / np.maximum(ratio[1:, None], 1e-12)
+    e2 = np.exp(-2.0 * qh)
+    e4 = e2 * e2
+    s = (kappa * (1.0 - e4) - 4.0 * qh * e2) / (kappa * (1.0 + e4) + (4.0 * qh * qh + 1.0 + kappa**2) * e2)
+    # 1 - (4/pi) int (1 - S) j1(x)/x dx: the integrand vanishes where S -> 1, so the grid can end.
+    eta = 1.0 - 4.0 / math.pi * np.trapezoid((1.0 - s) * j1_over_x, x, axis=1)
+    table = np.concatenate([[1.0], np.clip(eta, 1e-12, 1.0)])
+    table.flags.writeable = False
+    return ratio, table
+
+
 def split(
     approach_m: np.ndarray,
     depth_m: np.ndarray,
@@ -504,17 +572,37 @@ def split(
     gel_compliance_per_pa: float,
     object_poisson: float,
     noise: MeasurementNoise = MeasurementNoise(),
+    contact_radius_m: np.ndarray | None = None,
+    gel_thickness_m: float | None = None,
+    gel_poisson: float | None = None,
+    force_n: np.ndarray | None = None,
+    initial_width_m: float | None = None,
 ) -> Estimate:
     """Compliance split: the gel's share of the approach at the first-contact point.
 
-    Under the half-space approximation both bodies feel the same pressure, so
-    at the first-contact point the gel's indentation ``d`` and the per-finger
-    approach ``delta`` satisfy ``d / delta = k_sensor / (k_sensor + k_object)``
-    whatever the geometry. The ratio ``r`` is the slope of ``d`` against
-    ``delta``; ``k_object = k_sensor * (1/r - 1)``. A stiff object leaves
-    ``delta - d`` within the depth resolution and width noise (``r`` within
-    noise of 1): a lower bound at that resolution. A very soft one leaves
-    ``d`` within noise of zero: an upper bound.
+    Both bodies carry the same pressure, so at the first-contact point the
+    object's displacement is ``k_object / k_sensor`` times what the gel would
+    show if it were a half-space. The gel is a thin bonded layer, whose centre
+    compliance is ``eta(a/h) k_sensor`` (:func:`gel_layer_factor`, from the
+    measured contact radius ``a``; ``eta = 1`` when no radius or thickness is
+    given), so the per-finger approach is
+
+        delta = d + k_object * (d / (eta k_sensor) + b F),
+
+    with ``d`` the gel's indentation. ``b F`` is the object's bulk compression
+    per finger, ``F w0 / (2 A E)``: its extent ``w0`` (the fingertip separation
+    at onset) squeezed over a mean cross-section taken as a ball's of that
+    diameter, ``A = pi w0^2 / 6`` (the object's depth and height are not
+    seen), so ``b = 3 / (pi w0 (1 - nu^2))``; left out unless ``force_n`` and
+    ``initial_width_m`` are given. ``k_object`` is the least-squares slope of
+    ``delta - d`` on the bracket (with an intercept from 3 frames on, which
+    absorbs an onset error); ``E = (1 - nu^2) / k_object``.
+
+    States: a slope within noise of zero (``delta - d`` within the depth and
+    width resolution: metal, glass) gives a lower bound at the slope's upper
+    limit; an indentation that never leaves its noise (the gel barely moves
+    against a very soft foam) gives an upper bound from the smallest
+    compliance consistent with the depth resolution.
 
     Parameters
     ----------
@@ -524,35 +612,69 @@ def split(
         ``(1 - nu_gel^2) / E_gel`` (1/Pa).
     object_poisson : float
     noise : MeasurementNoise
+    contact_radius_m : ndarray, shape (n,), optional
+        Hertz contact radius per frame (m), for the layer factor.
+    gel_thickness_m, gel_poisson : float, optional
+        The gel layer (needed with ``contact_radius_m``).
+    force_n : ndarray, shape (n,), optional
+        Force per frame (N), for the bulk compression.
+    initial_width_m : float, optional
+        Fingertip separation at onset (m), for the bulk compression.
     """
     method = "split"
     _positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
     factor = _poisson_factor(method, object_poisson)
-    s, ok = _series(method, approach_m=approach_m, depth_m=depth_m)
+    n = np.size(approach_m)
+    layered = contact_radius_m is not None and gel_thickness_m is not None and gel_poisson is not None
+    bulk = force_n is not None and initial_width_m is not None
+    s, ok = _series(method, approach_m=approach_m, depth_m=depth_m,
+                    contact_radius_m=contact_radius_m if layered else np.zeros(n),
+                    force_n=force_n if bulk else np.zeros(n))
     if not ok.any():
         return Estimate.refuse(method, "no loading frame with finite approach and depth")
     approach, depth = s["approach_m"][ok], s["depth_m"][ok]
     if why := _falling_depth(approach, depth, noise):
         return Estimate.refuse(method, why)
     k_gel = gel_compliance_per_pa
+    eta = (gel_layer_factor(np.maximum(s["contact_radius_m"][ok], 0.0), gel_thickness_m=gel_thickness_m,
+                            gel_poisson=gel_poisson) if layered else np.ones(depth.shape))
+    if bulk:
+        _positive(method, initial_width_m=initial_width_m)
+        bulk_per_pa = 3.0 * np.maximum(s["force_n"][ok], 0.0) / (math.pi * initial_width_m * factor)
+    else:
+        bulk_per_pa = np.zeros(depth.shape)
+    model = ("layered gel" if layered else "half-space gel") + (" + bulk" if bulk else "")
 
     def build() -> Estimate:
-        origin = _auto_origin(approach.size)
-        first = fit_line(approach, depth, np.full(depth.shape, noise.depth_m), through_origin=origin)
+        lever = depth / (eta * k_gel) + bulk_per_pa  # object displacement per unit k_object (Pa)
+        gap = approach - depth
+        sigma_gap = math.hypot(noise.approach_m, noise.depth_m)
+        if float(np.max(depth)) <= 3.0 * noise.depth_m:
+            # The gel barely moves: the object is at least as compliant as the depth resolution allows.
+            lever_hi = float(np.max(3.0 * noise.depth_m / (eta * k_gel) + bulk_per_pa))
+            k_lo = (float(np.max(gap)) - 2.0 * sigma_gap) / lever_hi
+            if not k_lo > 0:
+                return Estimate.refuse(method, f"compliance split ({model}): neither the gel nor the "
+                                               "object moves beyond the resolution")
+            return _modulus(method, math.inf, k_lo, math.inf, factor=factor,
+                            basis=f"compliance split ({model}): the gel's indentation "
+                                  f"{float(np.max(depth)) * 1e3:.3g} mm stays within its noise")
+        origin = _auto_origin(depth.size)
+        share = fit_line(approach, depth, np.full(depth.shape, sigma_gap), through_origin=origin)
+        if share is not None and share.high <= 0:
+            return Estimate.refuse(method, f"compliance split ({model}): the gel's indentation does "
+                                           "not grow with the approach")
+        first = fit_line(lever, gap, np.full(gap.shape, sigma_gap), through_origin=origin)
         if first is None:
-            return Estimate.refuse(method, "the approach does not vary over the loading frames")
-        sigma = np.sqrt(noise.depth_m**2 + (first.slope * noise.approach_m) ** 2)
-        line = fit_line(approach, depth, np.full(depth.shape, sigma), through_origin=origin,
-                        systematic_y=noise.depth_scale * depth)
+            return Estimate.refuse(method, "the gel's indentation does not vary over the loading frames")
+        sigma_lever = noise.depth_m / (eta * k_gel)
+        sigma = np.sqrt(sigma_gap**2 + (first.slope * sigma_lever) ** 2)
+        # A depth scale error moves d in the gap and in the lever together.
+        systematic = noise.depth_scale * depth * (1.0 + max(first.slope, 0.0) / (eta * k_gel))
+        line = fit_line(lever, gap, sigma, through_origin=origin, systematic_y=systematic)
         if line is None:
             return Estimate.refuse(method, "the split fit is undetermined")
-        basis = "compliance split: " + line.describe("d/δ")
-        if line.high <= 0:
-            return Estimate.refuse(method, f"{basis}: the gel's indentation does not grow with "
-                                           "the approach")
-        k = k_gel * (1.0 / line.slope - 1.0) if line.slope > 0 else math.inf
-        k_lo = k_gel * (1.0 / line.high - 1.0)
-        k_hi = k_gel * (1.0 / line.low - 1.0) if line.low > 0 else math.inf
-        return _modulus(method, k, k_lo, k_hi, factor=factor, basis=basis)
+        basis = f"compliance split ({model}): " + line.describe("k_object")
+        return _modulus(method, line.slope, line.low, line.high, factor=factor, basis=basis)
 
     return _safe(method, build)

@@ -40,9 +40,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="estimate the camera's clock lag from the onset of tactile change and correct for it",
     )
     parser.add_argument(
-        "--width-lag", action="store_true",
-        help="estimate how late the gripper widths are stamped (from when the fingers stop against "
-             "the force peak) and correct for it",
+        "--no-width-lag", dest="width_lag", action="store_false",
+        help="do not estimate and correct how late the gripper widths are stamped (by default it is "
+             "estimated from when the fingers stop against the force peak: a host stamps a gripper "
+             "read when it returns, ~0.1 s late)",
     )
     parser.add_argument(
         "--json", action="store_true",

@@ -12,7 +12,7 @@ features and aligns force and width with every frame.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -78,6 +78,11 @@ class GraspMeasurements:
     tactile_reason : str
         Why there are no tactile features (empty when there are, or when none
         were asked for).
+    hold_force_n, hold_approach_m : ndarray, shape (h,)
+        Force (N) and per-finger approach (m) at the hold frames
+        (:attr:`Segment.hold_index`, the gripper still at the peak force).
+    hold_features : ContactFeatures or None
+        Contact features of the hold frames (None when not measured).
     """
 
     finger: str
@@ -94,6 +99,9 @@ class GraspMeasurements:
     camera_lag_s: float | None = None
     width_lag_s: float | None = None
     tactile_reason: str = ""
+    hold_force_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    hold_approach_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    hold_features: ContactFeatures | None = None
 
     @property
     def noise(self) -> analytical.MeasurementNoise:
@@ -285,7 +293,8 @@ def measure_grasp(
     segment = segment_with(width_t, frame_t)
     width_lag = lag = None
     if correct_width_lag and segment:
-        width_lag = estimate_width_lag(width_t, record.width_m.value, t_stop_s=segment.t_peak_s)
+        width_lag = estimate_width_lag(width_t, record.width_m.value, t_stop_s=segment.t_peak_s,
+                                       speed_m_s=settings.gripper.closing_speed_m_s)
         if width_lag is not None:
             width_t = width_t - width_lag
             segment = segment_with(width_t, frame_t)
@@ -299,10 +308,15 @@ def measure_grasp(
         segment.frame_width_m, segment.frame_force_n,
         onset_width_m=segment.onset_width_m, finger_stiffness_n_per_m=stiffness,
     )
+    hold_approach = analytical.approach_per_finger(
+        segment.hold_width_m, segment.hold_force_n,
+        onset_width_m=segment.onset_width_m, finger_stiffness_n_per_m=stiffness,
+    )
     measurements = GraspMeasurements(
         finger=finger, sensor=sensor, segment=segment, finger_stiffness_n_per_m=stiffness,
         object_poisson=est.object_poisson, t_s=segment.frame_t_s, force_n=segment.frame_force_n,
         width_m=segment.frame_width_m, approach_m=approach, camera_lag_s=lag, width_lag_s=width_lag,
+        hold_force_n=segment.hold_force_n, hold_approach_m=hold_approach,
     )
     if not tactile:
         return measurements
@@ -318,7 +332,8 @@ def measure_grasp(
     cal = resolve_calibration(sensor, calibration)
     _check_calibration_fits(cal, sensor)
     reference = reference_frame(record, finger, reference_index)
-    frames = _to_image_grid(_decode(record, finger, segment.frame_index), sensor)
+    index = np.concatenate([segment.frame_index, segment.hold_index])
+    frames = _to_image_grid(_decode(record, finger, index), sensor)
     depth = np.empty((len(frames), *reference.shape[:2]), dtype=np.float32)
     for i, frame in enumerate(frames):
         mask = detect_markers(frame, reference) if sensor.markers else None
@@ -326,7 +341,10 @@ def measure_grasp(
     features = contact_features(
         depth, pixel_pitch_m=sensor.pixel_pitch_m, contact_threshold_m=sensor.contact_threshold_m
     )
-    return replace(measurements, features=features, depth_m=depth)
+    loading = np.arange(segment.frame_index.size)
+    hold = np.arange(segment.frame_index.size, index.size)
+    return replace(measurements, features=features.take(loading), depth_m=depth[loading],
+                   hold_features=features.take(hold))
 
 
 # --------------------------------------------------------------------------- estimation
@@ -349,16 +367,43 @@ def _run(m: GraspMeasurements, method: str) -> Estimate:
     if f is None:
         return Estimate.refuse(method, m.tactile_reason or "tactile features were not measured")
     k_gel = m.sensor.gel_compliance_per_pa
+    force, approach, f = _with_hold_point(m, f)
     if method == "split":
-        return analytical.split(m.approach_m, f.peak_depth_m, gel_compliance_per_pa=k_gel,
-                                object_poisson=m.object_poisson, noise=noise)
+        width = onset_width if np.isfinite(onset_width) and onset_width > 0 else None
+        return analytical.split(approach, f.peak_depth_m, gel_compliance_per_pa=k_gel,
+                                object_poisson=m.object_poisson, noise=noise,
+                                contact_radius_m=f.cap_radius_m, gel_thickness_m=m.sensor.gel_thickness_m,
+                                gel_poisson=m.sensor.gel_poisson, force_n=force if width else None,
+                                initial_width_m=width)
     if method == "hertz":
-        return analytical.hertz(m.force_n, m.approach_m, f.peak_depth_m, f.cap_radius_m,
+        return analytical.hertz(force, approach, f.peak_depth_m, f.cap_radius_m,
                                 gel_compliance_per_pa=k_gel, object_poisson=m.object_poisson,
                                 noise=noise, truncated=f.cap_touches_edge)
-    return analytical.elastic(m.force_n, m.approach_m, f.peak_depth_m, f.area_m2,
+    return analytical.elastic(force, approach, f.peak_depth_m, f.area_m2,
                               initial_width_m=onset_width, noise=noise,
                               truncated=f.touches_edge)
+
+
+def _with_hold_point(m: GraspMeasurements, f: ContactFeatures) -> tuple[np.ndarray, np.ndarray, ContactFeatures]:
+    """Loading frames plus one point for the hold at the peak force: the median of the hold frames.
+
+    The gel and the fingers are still during the hold, so its frames all show the peak state; their
+    median is one more (and the best resolved) point of the loading curve. Stiff objects load
+    within a frame period or two, so for them it is often the only point at full force. Used only
+    when the width stamping lag was corrected: stale widths of the stopped fingers would add
+    about ``closing speed * lag / 2`` (~2 mm) to its approach.
+    """
+    h = m.hold_features
+    if h is None or len(h) == 0 or m.width_lag_s is None:
+        return m.force_n, m.approach_m, f
+
+    def joined(loading: np.ndarray, hold: np.ndarray) -> np.ndarray:
+        point = np.median(hold, axis=0, keepdims=True)
+        return np.concatenate([loading, point.astype(loading.dtype) if loading.dtype == bool else point])
+
+    hold_point = ContactFeatures(**{name: joined(getattr(f, name), getattr(h, name))
+                                    for name in ContactFeatures.__dataclass_fields__})
+    return joined(m.force_n, m.hold_force_n), joined(m.approach_m, m.hold_approach_m), hold_point
 
 
 def estimate_grasp(

@@ -23,6 +23,11 @@ loading phase
     count as loading. A
     saturated load cell (a plateau of identical readings at the top) ends it
     where the plateau starts.
+hold
+    After the peak the gripper holds still until it releases: up to
+    ``HOLD_FRAMES`` frames from ``HOLD_SETTLE_S`` after the peak until the force
+    falls by ``HOLD_TOLERANCE`` (``Segment.hold_*``). They all show the peak
+    state; widths there are only right once their stamping lag is corrected.
 
 Flags
 -----
@@ -56,6 +61,13 @@ BASELINE_GUARD_S = 0.05
 ONSET_SIGMAS = 4.0
 MIN_CLIP_RUN = 3
 PEAK_TOLERANCE = 0.01  # loading ends within this share of the peak force
+# Hold frames: the gripper holds still at the peak force before it releases. Gripper widths are read
+# with about 0.1 s latency and stamped on return, so the first reads after the stop still show the
+# fingers closing; hold frames start this long after the peak. The hold ends where the force falls
+# below the peak by HOLD_TOLERANCE (or its noise).
+HOLD_SETTLE_S = 0.15
+HOLD_TOLERANCE = 0.05
+HOLD_FRAMES = 3
 
 
 def clean_samples(t_s: np.ndarray, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -158,6 +170,12 @@ class Segment:
     frame_width_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
     # Positions within the loading frames of the n_frames sampled equidistantly in time.
     sample: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+    # Hold frames (up to HOLD_FRAMES, spread over the hold at the peak force): indices into the
+    # record's frame stream and the force and width at their times.
+    hold_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+    hold_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    hold_force_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    hold_width_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __bool__(self) -> bool:
         return not self.reason
@@ -181,6 +199,28 @@ def _equidistant(frame_t: np.ndarray, t_start: float, t_end: float, n: int) -> n
     """Positions of the frames nearest to ``n`` times spread evenly over [t_start, t_end]."""
     targets = np.linspace(t_start, t_end, n)
     return np.unique(np.abs(frame_t[None, :] - targets[:, None]).argmin(axis=1))
+
+
+def _hold_frames(
+    frame_t_s: np.ndarray, tf: np.ndarray, force: np.ndarray, tw: np.ndarray, width: np.ndarray, *,
+    peak: int, sigma_f: float,
+) -> dict[str, np.ndarray]:
+    """Frames of the hold at the peak force, with force and width at their times (Segment fields).
+
+    The hold runs from ``HOLD_SETTLE_S`` after the peak until the force first falls below the peak
+    by ``HOLD_TOLERANCE`` (or five noise deviations, if more): the release.
+    """
+    level = force[peak] - max(HOLD_TOLERANCE * force[peak], 5.0 * sigma_f)
+    fallen = np.flatnonzero(force[peak:] < level)
+    t_end = float(tf[peak + fallen[0] - 1]) if fallen.size else float(tf[-1])
+    index, t = _frames_in_phase(frame_t_s, float(tf[peak]) + HOLD_SETTLE_S, t_end)
+    f, w = interpolate(t, tf, force), interpolate(t, tw, width)
+    usable = np.isfinite(f) & np.isfinite(w)
+    index, t, f, w = index[usable], t[usable], f[usable], w[usable]
+    if index.size > HOLD_FRAMES:
+        pick = np.unique(np.linspace(0, index.size - 1, HOLD_FRAMES).round().astype(np.intp))
+        index, t, f, w = index[pick], t[pick], f[pick], w[pick]
+    return dict(hold_index=index, hold_t_s=t, hold_force_n=f, hold_width_m=w)
 
 
 def segment_grasp(
@@ -317,6 +357,7 @@ def segment_grasp(
         peak_force_n=peak_force, t_onset_s=t_onset, t_contact_s=t_contact, t_peak_s=t_peak,
         onset_width_m=onset_width, load_t_s=load_t[covered], load_force_n=loading[covered],
         load_width_m=load_w[covered],
+        **_hold_frames(frame_t_s, tf, force, tw, width, peak=peak, sigma_f=sigma_f),
     )
 
     index, frame_t = _frames_in_phase(frame_t_s, t_contact, t_peak)
@@ -414,6 +455,7 @@ def estimate_width_lag(
     t_stop_s: float,
     max_lag_s: float = 0.3,
     step_s: float = 0.002,
+    speed_m_s: float | None = None,
 ) -> float | None:
     """Delay of the width timestamps behind the force clock, from the moment the fingers stop.
 
@@ -434,6 +476,10 @@ def estimate_width_lag(
         Largest lag considered either way (s).
     step_s : float
         Resolution of the hinge-time search (s).
+    speed_m_s : float, optional
+        The commanded closing speed (m/s, > 0). Given, the hinge fit keeps it
+        and fits the stop width alone: the record holds only two or three
+        reads before the stop, too few to fit the speed as well.
 
     Returns
     -------
@@ -457,7 +503,7 @@ def estimate_width_lag(
     sxx, sxy = (x * x).sum(axis=1), x @ w
     det = n * sxx - sx**2
     with np.errstate(invalid="ignore", divide="ignore"):
-        speed = (n * sxy - sx * sy) / det
+        speed = (n * sxy - sx * sy) / det if speed_m_s is None else np.full(hinges.shape, -float(speed_m_s))
         offset = (sy - speed * sx) / n
         residual = ((w[None, :] - offset[:, None] - speed[:, None] * x) ** 2).sum(axis=1)
     residual = np.where(usable & (det > 0) & (speed < 0), residual, np.inf)  # closing: width falls

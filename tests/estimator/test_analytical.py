@@ -15,6 +15,7 @@ from estimator.analytical import (
     approach_per_finger,
     elastic,
     fit_line,
+    gel_layer_factor,
     hertz,
     no_tactile,
     split,
@@ -379,3 +380,35 @@ def test_exact_hertz_series_are_always_sound(e_pa, n, radius):
     est = hertz(force, approach, depth, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
     check_sound(est)
     assert est and contains(est, e_pa)
+
+
+# --------------------------------------------------------------------------- layered gel, bulk
+
+
+def test_gel_layer_factor_is_a_half_space_for_small_contacts_and_stiffens_for_wide_ones():
+    a = np.array([0.0, 0.03e-3, 1.5e-3, 3e-3, 6e-3, 15e-3, 90e-3])
+    eta = gel_layer_factor(a, gel_thickness_m=3e-3, gel_poisson=0.48)
+    assert eta[0] == 1.0 and eta[1] == pytest.approx(1.0, abs=0.01)
+    assert np.all(np.diff(eta) < 0) and np.all(eta > 0)
+    assert eta[3] == pytest.approx(0.40, abs=0.02)  # a = h: the layer is 2.5 times stiffer
+    assert gel_layer_factor(3e-3, gel_thickness_m=1e-3, gel_poisson=0.48) == pytest.approx(
+        gel_layer_factor(9e-3, gel_thickness_m=3e-3, gel_poisson=0.48))  # a function of a / h alone
+    with pytest.raises(FitError, match="gel_poisson"):
+        gel_layer_factor(1e-3, gel_thickness_m=3e-3, gel_poisson=0.7)
+
+
+@pytest.mark.parametrize("e_pa", [3e4, 3e5, 3e6])
+def test_split_recovers_e_from_a_layered_gel_with_bulk_compression(e_pa):
+    h, w0, nu_gel = 3e-3, 0.03, 0.48
+    radius = np.linspace(1e-3, 6e-3, 8)
+    force = np.linspace(2.0, 20.0, 8)
+    eta = gel_layer_factor(radius, gel_thickness_m=h, gel_poisson=nu_gel)
+    depth = np.linspace(0.1e-3, 0.8e-3, 8)
+    bulk = force * w0 / (e_pa * math.pi * w0**2 / 6) / 2
+    approach = depth + k_object(e_pa) * depth / (eta * K_GEL) + bulk
+    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION,
+                contact_radius_m=radius, gel_thickness_m=h, gel_poisson=nu_gel, force_n=force,
+                initial_width_m=w0)
+    assert est.state == "ok" and est.e_pa == pytest.approx(e_pa, rel=1e-6) and contains(est, e_pa)
+    half_space = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert not half_space or half_space.e_pa < e_pa / 3  # ignoring the layer and bulk: far too soft

@@ -59,3 +59,16 @@ def test_plot_writes_a_png(tmp_path):
     path = tmp_path / "p.png"
     plot(ROWS, ["split", "hertz"], path)
     assert path.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_bounds_have_a_documented_point_value_and_ok_only_figures():
+    split = summarise(ROWS, ["split", "hertz"])["split"]
+    point = math.sqrt(2e7 * 1e12)  # geometric middle of the lower bound and E_MAX_PA
+    errors = [math.log10(2), 2.0, abs(math.log10(point / 200e9))]
+    assert split["point_log10_error"] == pytest.approx(sum(errors) / 3)
+    assert split["point_within_10x"] == pytest.approx(1 / 3)  # 4.5 GPa is 1.65 decades below steel
+    assert split["ok_only"] == {"n": 2, "log10_error": pytest.approx((math.log10(2) + 2.0) / 2),
+                                "within_10x": pytest.approx(0.5)}
+    hertz = summarise(ROWS, ["hertz"])["hertz"]
+    assert hertz["point_log10_error"] == pytest.approx(abs(math.log10(math.sqrt(3e6 * 1e3) / 1e6)))
+    assert hertz["ok_only"]["n"] == 0 and hertz["ok_only"]["log10_error"] is None

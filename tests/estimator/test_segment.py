@@ -9,6 +9,8 @@ from hypothesis import strategies as st
 
 from estimator.errors import FitError
 from estimator.segment import (
+    HOLD_FRAMES,
+    HOLD_SETTLE_S,
     clean_samples,
     estimate_camera_lag,
     estimate_width_lag,
@@ -178,6 +180,8 @@ def test_width_stamp_delay_is_recovered_from_the_stop():
     width = width_at(tw) + rng.normal(0, 2e-5, tw.size)
     seg = run(*streams(force_noise=0.02)[:2], tw + delay, width, np.arange(0.011, 1.5, 1 / 30))
     lag = estimate_width_lag(tw + delay, width, t_stop_s=seg.t_peak_s)
+    assert estimate_width_lag(tw + delay, width, t_stop_s=seg.t_peak_s, speed_m_s=SPEED) == pytest.approx(
+        delay, abs=0.01)  # the commanded speed kept
     assert lag == pytest.approx(delay, abs=0.02)
     assert estimate_width_lag(tw, width, t_stop_s=seg.t_peak_s) == pytest.approx(0.0, abs=0.02)
 
@@ -219,3 +223,13 @@ def test_any_streams_segment_without_crashing(force, width, frames):
     assert np.all(np.isfinite(seg.frame_force_n)) and np.all(np.isfinite(seg.frame_width_m))
     assert np.all(np.isfinite(seg.load_force_n)) and np.all(np.isfinite(seg.load_width_m))
     assert seg.t_onset_s <= seg.t_contact_s <= seg.t_peak_s
+
+
+def test_hold_frames_follow_the_peak_after_the_width_reads_settle():
+    tf, force, tw, width, tc = streams(duration=1.6)
+    seg = run(tf, force, tw, width, tc)
+    assert 1 <= seg.hold_index.size <= HOLD_FRAMES
+    assert np.all(seg.hold_t_s >= seg.t_peak_s + HOLD_SETTLE_S)
+    assert seg.hold_force_n == pytest.approx(np.full(seg.hold_index.size, seg.peak_force_n), rel=0.05)
+    assert np.all(np.isfinite(seg.hold_width_m))
+    assert not np.isin(seg.hold_index, seg.frame_index).any()
