@@ -21,12 +21,14 @@ time of the newest loading frame its fit used (for the final one: the last loadi
 object's name in a start event is never read.
 
 A message that cannot be used (a frame that does not decode or has the wrong size, samples
-that are not finite, data for a grasp that is not open) is logged and counted, and the service
-carries on; so are the refusals of the bus itself (:class:`~teleop.bus.pubsub.Subscriber`).
+that are not finite, capture times that go backwards, repeat or jump more than
+:data:`MAX_CLOCK_JUMP_S` ahead of the stream's last one, data for a grasp that is not open) is
+logged and counted, and the service carries on; so are the refusals of the bus itself (:class:`~teleop.bus.pubsub.Subscriber`).
 
 The model is reloaded between grasps (never during one) when its files change or when asked
-(SIGHUP, or :meth:`ModelSlot.request_reload`); a model that fails to load is logged and the
-one in use stays.
+(SIGHUP, a ``command`` message with action ``reload_model`` on ``bus.command``, or
+:meth:`ModelSlot.request_reload`); a model that fails to load is logged and the one in use
+stays. Other command actions are the robot node's and are ignored here.
 
 The service is meant to run on one core: start it with ``OPENBLAS_NUM_THREADS=1`` (as
 ``teleop demo`` does), or BLAS threads fight for the cores and per-frame times jump.
@@ -50,7 +52,7 @@ from typing import Any
 import cv2
 
 from estimator.analytical import METHODS
-from estimator.errors import EstimatorError, ModelError
+from estimator.errors import EstimatorError, ModelError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.measure import resolve_calibration
 from estimator.perception.calibration import Calibration
@@ -62,11 +64,13 @@ from teleop.errors import TeleopError
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.settings import CONFIG_DIR, Settings, default_settings_path, load_settings
 
-__all__ = ["INPUT_TOPICS", "EstimatorService", "ModelSlot", "ServiceStats", "resolve_model_dir"]
+__all__ = ["INPUT_TOPICS", "MAX_CLOCK_JUMP_S", "EstimatorService", "ModelSlot", "ServiceStats", "resolve_model_dir"]
 
 log = logging.getLogger(__name__)
 
 INPUT_TOPICS = ("frame", "force", "width", "grasp_event")
+# Capture clocks are monotonic: a time this far past the stream's last one is a broken clock.
+MAX_CLOCK_JUMP_S = 10.0
 # A bad message is one of these; anything else is a bug and ends the service.
 _BAD_INPUT = (EstimatorError, TeleopError, ValueError, cv2.error)
 
@@ -191,11 +195,12 @@ class ServiceStats:
     provisional: int = 0
     final: int = 0
     reloads: int = 0
+    reload_requests: int = 0  # reload_model commands taken (with no model: logged, nothing to do)
 
     def as_dict(self) -> dict[str, Any]:
         return {"messages": self.messages, "bad_messages": self.bad_messages, "ignored": self.ignored,
                 "grasps": self.grasps, "provisional": self.provisional, "final": self.final,
-                "reloads": self.reloads}
+                "reloads": self.reloads, "reload_requests": self.reload_requests}
 
 
 @dataclass
@@ -214,6 +219,7 @@ class _Grasp:
     final_s: float | None = None
     final_t_data_s: float | None = None
     loading_frames: int = 0
+    last_t_s: dict[str, float] = field(default_factory=dict)  # newest capture time per topic
 
 
 class EstimatorService:
@@ -234,6 +240,8 @@ class EstimatorService:
         The learned model for final estimates.
     report : JsonLines, optional
         Receives one JSON object per grasp when it ends.
+    commands : Subscriber, optional
+        Subscription to operator ``command`` messages (``reload_model``); None: none taken.
     clock : callable
         Monotonic seconds; must be the clock the robot stamps captures with (one host).
     """
@@ -241,7 +249,7 @@ class EstimatorService:
     def __init__(self, settings: Settings, *, calibration: Calibration, subscriber: Subscriber,
                  publisher: Publisher, methods: Sequence[str] = DEFAULT_METHODS,
                  model: ModelSlot | None = None, report: JsonLines | None = None,
-                 clock: Callable[[], float] = time.monotonic):
+                 commands: Subscriber | None = None, clock: Callable[[], float] = time.monotonic):
         self.settings = settings
         self.calibration = calibration
         self.subscriber = subscriber
@@ -251,6 +259,7 @@ class EstimatorService:
         GraspStream(settings=settings, calibration=calibration, methods=self.methods).warm_up()
         self.model = model
         self.report = report or JsonLines(None)
+        self.commands = commands
         self.clock = clock
         self.stats = ServiceStats()
         self._grasp: _Grasp | None = None
@@ -265,8 +274,11 @@ class EstimatorService:
         return self.stats
 
     def step(self, timeout_s: float = 0.05) -> Message | None:
-        """Receive and handle at most one message (waiting up to ``timeout_s``); heartbeat; reload."""
+        """Take commands; receive and handle at most one message (waiting up to ``timeout_s``);
+        heartbeat; reload."""
         self.publisher.heartbeat_if_due(self.clock())
+        while self.commands is not None and (command := self.commands.recv(timeout_s=0)) is not None:
+            self.handle_command(command)
         message = self.subscriber.recv(timeout_s=timeout_s)
         if message is not None:
             self.handle(message, received_s=self.clock())
@@ -283,6 +295,17 @@ class EstimatorService:
             self.stats.bad_messages += 1
             log.warning("bad %s message from %s (seq %d), skipped: %s", message.topic, message.source or "?",
                         message.seq, exc)
+
+    def handle_command(self, message: Message) -> None:
+        """Take one operator command: ``reload_model`` asks for a reload between grasps."""
+        if message.type != "command" or message.body["action"] != "reload_model":
+            return  # the robot node's
+        self.stats.reload_requests += 1
+        if self.model is None:
+            log.warning("reload_model from %s: this service runs without a model", message.source or "?")
+            return
+        log.info("reload_model from %s: reloading %s between grasps", message.source or "?", self.model.model_dir)
+        self.model.request_reload()
 
     # ------------------------------------------------------------------ messages
 
@@ -304,6 +327,7 @@ class EstimatorService:
             return
         if grasp.final is not None:
             return  # the hold and the release: nothing more to estimate
+        _check_times(grasp, message)
         stream = grasp.stream
         if message.type == "frame":
             if stream.add_frame(body["finger"], message.t_capture_s, body["data"], body["encoding"]):
@@ -412,6 +436,21 @@ class EstimatorService:
         }
 
 
+def _check_times(grasp: _Grasp, message: Message) -> None:
+    """Raise PerceptionError unless the message's capture times go strictly forward from the
+    topic's last ones without a jump of more than MAX_CLOCK_JUMP_S; then remember the newest."""
+    times = [message.t_capture_s] if message.type == "frame" else message.body["t_s"].tolist()
+    last = grasp.last_t_s.get(message.topic, -math.inf)
+    steps = [b - a for a, b in zip([last, *times], times, strict=False)]
+    where = f"grasp {grasp.grasp_id!r} {message.topic} capture times {times[0]:.6f}..{times[-1]:.6f} s"
+    if min(steps) <= 0:
+        raise PerceptionError(f"{where}: not after the previous one ({last:.6f} s): out of order or repeated")
+    if math.isfinite(last) and max(steps) > MAX_CLOCK_JUMP_S:
+        raise PerceptionError(f"{where}: jump {max(steps):.3g} s past the previous one ({last:.6f} s), "
+                              f"more than {MAX_CLOCK_JUMP_S:g} s: the capture clock is broken")
+    grasp.last_t_s[message.topic] = times[-1]
+
+
 # --------------------------------------------------------------------------- command
 
 
@@ -419,7 +458,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Serve live estimates: subscribe to the robot node's frames, forces, widths and grasp events "
         "and publish a provisional estimate per tactile frame while a grasp loads and a final one when "
-        "loading ends. Stops on Ctrl-C or SIGTERM; SIGHUP reloads the model between grasps. Run it with "
+        "loading ends. Stops on Ctrl-C or SIGTERM; SIGHUP or a reload_model command (on --command) reloads "
+        "the model between grasps. Run it with "
         "OPENBLAS_NUM_THREADS=1 (one core)."
     )
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
@@ -437,7 +477,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mode", choices=("auto", "model"), default="auto",
                         help="with a model: auto (the split when its interval is narrow, else the model) "
                              "or model (always the model)")
-    add_endpoint_arguments(parser, "robot_pub", "estimate_pub")
+    add_endpoint_arguments(parser, "robot_pub", "estimate_pub", "command")
     parser.add_argument("--report", metavar="FILE", default=None,
                         help="append one JSON object per grasp (contact time, time to first estimate, "
                              "provisional count, final estimate) to FILE")
@@ -445,7 +485,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (messages, bad_messages, ignored, grasps, "
-                             "provisional, final, reloads) as the last stdout line")
+                             "provisional, final, reloads, reload_requests) as the last stdout line")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -460,12 +500,13 @@ def run(args: argparse.Namespace) -> int:
         log.warning("OPENBLAS_NUM_THREADS is not 1: BLAS threads may slow per-frame estimation down")
     with (
         Subscriber.from_settings(bus, bus.robot_pub, INPUT_TOPICS) as subscriber,
+        Subscriber.from_settings(bus, bus.command, ("command",)) as commands,
         Publisher.from_settings(bus, bus.estimate_pub, lossless=False, source="estimator") as publisher,
         JsonLines(args.report) as report,
         StopSignals(on_hangup=model.request_reload if model is not None else None) as signals,
     ):
         service = EstimatorService(settings, calibration=calibration, subscriber=subscriber, publisher=publisher,
-                                   methods=methods, model=model, report=report)
+                                   methods=methods, model=model, report=report, commands=commands)
         print(f"estimator: {', '.join(methods)}{'' if model is None else f' + model {model_dir}'}; "
               f"robot data from {bus.robot_pub}, estimates on {publisher.endpoint}", file=sys.stderr)
         stats = service.run(signals.stop, duration_s=args.duration_s)

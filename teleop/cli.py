@@ -21,6 +21,7 @@ COMMANDS = {
     "replay": Command("teleop.session.replay_cli", "publish a recorded session back onto the bus"),
     "export": Command("teleop.session.export_cli", "turn the grasps of a session log into .grasp records"),
     "recover": Command("teleop.session.recover_cli", "salvage a session log cut short (killed recorder, full disk)"),
+    "soak": Command("teleop.soak", "soak the grasp data path on loopback: lost messages, memory growth, latency"),
 }
 
 

@@ -266,7 +266,7 @@ class LiveSystem:
                      "--robot-pub", ep["robot_pub"], "--command", ep["command"]],
             "estimator": ["estimator", "serve", "--settings", settings, "--calibration", str(self.calibration),
                           "--robot-pub", ep["robot_pub"], "--estimate-pub", ep["estimate_pub"],
-                          "--report", str(out / "estimator.jsonl")],
+                          "--command", ep["command"], "--report", str(out / "estimator.jsonl")],
             "renderer": ["haptics", "serve", "--settings", settings, "--backend", "sim", "--estimate-pub", ep["estimate_pub"],
                          "--display-pub", ep["display_pub"], "--report", str(out / "renderer.jsonl")],
         }

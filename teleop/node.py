@@ -22,6 +22,8 @@ Grasps are commanded on the bus (``command`` messages on ``bus.command``):
     Stop the gripper where it is (a simulated replay plays on to its end).
 ``release``
     Open the gripper (hardware; a simulated replay releases by itself).
+``reload_model``
+    Not for the node (the estimator service's); ignored.
 
 A ``grasp_event`` *start* (naming the object when simulated) goes out before the grasp's
 first data and an *end* after its last. A command that cannot be carried out is logged and
@@ -64,7 +66,6 @@ log = logging.getLogger(__name__)
 COMMAND_TOPICS = ("command",)
 READ_TIMEOUT_S = 0.05  # device reads wake this often to see whether the node is stopping
 APPROACH_LEAD_S = 0.05  # a replay starts this long before the record's first sample
-COMMAND_POLL_S = 1e-3
 TAIL_S = 2 * READ_TIMEOUT_S  # after a grasp's last data is due, wait this long for the readers
 
 
@@ -228,8 +229,7 @@ class RobotNode:
         """Take commands, publish what the devices captured (waiting up to ``timeout_s`` for
         something), advance the grasp in progress, heartbeat."""
         self.publisher.heartbeat_if_due(self.clock())
-        # Subscriber.recv(0) returns without looking at the socket: wait a millisecond instead.
-        while self.commands is not None and (message := self.commands.recv(timeout_s=COMMAND_POLL_S)) is not None:
+        while self.commands is not None and (message := self.commands.recv(timeout_s=0)) is not None:
             self.handle_command(message)
         with contextlib.suppress(queue.Empty):
             self._publish(*self._captured.get(timeout=timeout_s))
@@ -255,6 +255,8 @@ class RobotNode:
                                  target_force_n=params.get("target_force_n"))
             elif body["action"] == "stop":
                 self.gripper.stop()
+            elif body["action"] != "release":
+                log.debug("command %s is not for the robot node", body["action"])
             elif self.simulated:
                 log.info("release: a simulated grasp releases by itself")
             else:

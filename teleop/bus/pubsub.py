@@ -8,8 +8,10 @@ socket with ``XPUB_NODROP``: when a subscriber's queue is full a send blocks for
 dropped silently. Both ends queue :data:`LOSSLESS_HWM` messages (about a minute of a
 two-camera grasp stream), so a subscriber that falls briefly behind loses nothing.
 Every message carries a per-topic sequence number; a subscriber that sees a jump counts
-a gap and logs how many messages it missed. A PUB socket has nowhere to deliver before a
-subscriber has subscribed: call :meth:`Publisher.wait_for_subscriber` first.
+a gap and logs how many messages it missed, and one that sees the number fall (the sender
+restarted; what it had in flight cannot be counted) counts a restart and logs it. A PUB
+socket has nowhere to deliver before a subscriber has subscribed: call
+:meth:`Publisher.wait_for_subscriber` first.
 
 *Latest value* (display topics: estimates, status). The publisher never blocks (a full
 queue drops, as plain PUB does) and the subscriber keeps only the newest message per topic:
@@ -345,6 +347,7 @@ class SubscriberStats:
     refused: Counter[str] = field(default_factory=Counter)
     gaps: int = 0  # sequence jumps seen
     missed: int = 0  # messages those jumps skipped
+    restarts: int = 0  # a source's topic started again from a lower seq (the sender restarted)
 
 
 class Subscriber(_Socket):
@@ -448,11 +451,14 @@ class Subscriber(_Socket):
     def recv(self, timeout_s: float | None = None) -> Message | None:
         """The next message (latest per topic when conflating), or None after ``timeout_s``.
 
-        ``timeout_s=None`` waits indefinitely. Heartbeats update :attr:`heartbeat` and are
-        not returned; refused messages are logged, counted and skipped.
+        ``timeout_s=None`` waits indefinitely; ``timeout_s=0`` looks once, without waiting, at
+        what is already queued (None if that was a heartbeat or a refused message).
+        Heartbeats update :attr:`heartbeat` and are not returned; refused messages are
+        logged, counted and skipped.
         """
         socket = self._live()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        looked = False
         while True:
             if self.conflate:
                 while socket.poll(0):
@@ -460,9 +466,12 @@ class Subscriber(_Socket):
                 if self._latest:
                     return self._latest.popitem(last=False)[1]
             remaining = None if deadline is None else deadline - time.monotonic()
-            if remaining is not None and remaining <= 0:
+            # Look at least once (timeout_s=0 takes a queued message), but never past the
+            # deadline after that: a peer flooding heartbeats must not keep recv from returning.
+            if looked and remaining is not None and remaining <= 0:
                 return None
-            if not socket.poll(_ms(remaining)):
+            looked = True
+            if not socket.poll(_ms(None if remaining is None else max(0.0, remaining))):
                 return None
             if not self.conflate:
                 message = self._accept(socket.recv_multipart(copy=False))
@@ -496,7 +505,10 @@ class Subscriber(_Socket):
         if last is None or message.seq == last + 1:
             return
         if message.seq <= last:
-            log.info("%s restarted topic %r at seq %d (was %d)", message.source, message.topic, message.seq, last)
+            # What the old sender had in flight when it died cannot be counted: say so.
+            self.stats.restarts += 1
+            log.warning("%s restarted topic %r at seq %d (was %d): messages in flight then may be lost",
+                        message.source, message.topic, message.seq, last)
             return
         missed = message.seq - last - 1
         self.stats.gaps += 1

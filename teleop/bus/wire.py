@@ -57,8 +57,9 @@ Message types and body schemas
                  state: "ok"|"lower_bound"|"upper_bound"|"insufficient_data",
                  reason: str, provisional: bool, latency_s: float >= 0.
                  ``ok`` needs E_pa; ``insufficient_data`` has none; low <= high.
-``command``      action: "start_grasp"|"stop"|"release", grasp_id: str|nil,
-                 params: {str: finite float} (e.g. ``target_force_n``).
+``command``      action: "start_grasp"|"stop"|"release" (robot node) | "reload_model"
+                 (estimator service: reload its learned model between grasps),
+                 grasp_id: str|nil, params: {str: finite float} (e.g. ``target_force_n``).
 ``heartbeat``    interval_s: float > 0, the sender's heartbeat period.
 """
 
@@ -77,6 +78,7 @@ import numpy as np
 from teleop.errors import MessageRejected
 
 __all__ = [
+    "COMMAND_ACTIONS",
     "DTYPES",
     "ESTIMATE_STATES",
     "MAX_BODY_BYTES",
@@ -104,6 +106,8 @@ MAX_STR_CHARS = 1024
 MAX_PARAMS = 32
 
 ESTIMATE_STATES = ("ok", "lower_bound", "upper_bound", "insufficient_data")
+# The robot node carries out the first three; the estimator service the last.
+COMMAND_ACTIONS = ("start_grasp", "stop", "release", "reload_model")
 
 REJECT_REASONS = (
     "frame_count",  # fewer than 3 frames, or more buffers than MAX_BUFFERS
@@ -330,7 +334,7 @@ SCHEMAS: Mapping[str, Schema] = {
     ),
     "command": Schema(
         fields={
-            "action": _text(choices=("start_grasp", "stop", "release")),
+            "action": _text(choices=COMMAND_ACTIONS),
             "grasp_id": _text(nullable=True),
             "params": _params,
         },

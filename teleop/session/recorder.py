@@ -19,7 +19,7 @@ import logging
 import socket
 import time
 from collections import Counter, deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -184,6 +184,9 @@ class SessionRecorder:
         Chunk compression.
     max_bytes : int
         Largest bus message accepted.
+    on_message : callable, optional
+        Called as ``on_message(message, received_ns)`` after each message is stored (a
+        monitor's hook, e.g. ``teleop soak`` measuring latency); keep it quick.
     **subscriber_options
         Passed on to :class:`~teleop.bus.pubsub.Subscriber` (``context``, ...).
     """
@@ -201,6 +204,7 @@ class SessionRecorder:
         flush_interval_s: float = 0.5,
         compression: str = "zstd",
         max_bytes: int = DEFAULT_MAX_BYTES,
+        on_message: Callable[[Message, int], None] | None = None,
         **subscriber_options: Any,
     ):
         self.endpoints = [endpoints] if isinstance(endpoints, str) else list(endpoints)
@@ -228,6 +232,7 @@ class SessionRecorder:
         self.flush_interval_s = flush_interval_s
         self.compression = compression
         self.max_bytes = max_bytes
+        self.on_message = on_message
         self.subscriber_options = subscriber_options
         self.stats = RecorderStats()
         self._file: IO[bytes] | None = None
@@ -403,6 +408,8 @@ class SessionRecorder:
             self._chunk_opened_s = time.monotonic()
         self.stats.message_bytes += len(data)
         self.stats.topics[message.topic] += 1
+        if self.on_message is not None:
+            self.on_message(message, received_ns)
         return True
 
     def _channel(self, message: Message) -> int:
