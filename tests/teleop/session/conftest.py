@@ -169,13 +169,17 @@ def body_equal(a: Message, b: Message) -> bool:
 
 @pytest.fixture(scope="session")
 def session_settings(tmp_path_factory) -> Settings:
-    """Shipped settings, with a calibration file on the left sensor (to be attached)."""
+    """Shipped settings, with a tiny calibration file on the left sensor and none on the right.
+
+    The shipped calibrations are large; tests that cut logs or fill a small fake disk need the
+    attachments small.
+    """
     folder = tmp_path_factory.mktemp("calibration")
     calibration = folder / "left_cal.npz"
     np.savez(calibration, gain=np.arange(6.0))
     settings = load_settings()
     sensors = tuple(
-        dataclasses.replace(s, calibration=str(calibration)) if s.finger == "left" else s
+        dataclasses.replace(s, calibration=str(calibration) if s.finger == "left" else "")
         for s in settings.sensors
     )
     return dataclasses.replace(settings, sensors=sensors)

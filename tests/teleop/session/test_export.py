@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +15,7 @@ from teleop.catalogue import default_catalogue_path, load_catalogue
 from teleop.errors import SessionLogError
 from teleop.record import read_record
 from teleop.session import SessionRecorder, export_session, session_grasps
-from teleop.settings import load_settings
+from teleop.settings import CONFIG_DIR, load_settings
 from teleop.sim.grasp import simulate_grasp
 
 
@@ -284,5 +286,12 @@ def test_a_simulated_grasp_streamed_recorded_and_exported_is_the_same_record(tmp
     for name in ("force_n", "width_m"):
         assert np.array_equal(getattr(exported, name).t_s, getattr(source, name).t_s)
         assert np.array_equal(getattr(exported, name).value, getattr(source, name).value)
-    assert exported.label == source.label and exported.sensors == source.sensors
+    assert exported.label == source.label
+    # Export copies each sensor's calibration beside the records and points the sensor at the copy.
+    for sent_sensor, got_sensor in zip(source.sensors, exported.sensors, strict=True):
+        assert dataclasses.replace(got_sensor, calibration="") == dataclasses.replace(
+            sent_sensor, calibration=""
+        )
+        shipped = CONFIG_DIR / sent_sensor.calibration
+        assert Path(got_sensor.calibration).read_bytes() == shipped.read_bytes()
     assert exported.provenance.source == "simulated"

@@ -182,7 +182,8 @@ class DiskThatFills(io.RawIOBase):
 def test_disk_full_stops_recording_cleanly_while_the_bus_carries_on(tmp_path, helpers):
     # tcp, as deployed (on inproc libzmq keeps a closed subscriber's full pipe; see the report).
     # Frames large enough that kernel buffers cannot hide a recorder that stopped reading.
-    disk = DiskThatFills(capacity=100_000)
+    # Room for the attached settings and shipped calibrations (~0.9 MB), far less than is sent.
+    disk = DiskThatFills(capacity=2_000_000)
     image = np.random.default_rng(1).integers(0, 256, 60_000, dtype=np.uint8)
     image[:2] = (0xFF, 0xD8)  # a JPEG's magic, enough for the wire's frame check
     with (
@@ -215,7 +216,7 @@ def test_disk_full_stops_recording_cleanly_while_the_bus_carries_on(tmp_path, he
 
         reader = threading.Thread(target=estimate)
         reader.start()
-        # 18 MB for a 100 kB disk; queues hold 20 messages: a recorder not reading would block this.
+        # 18 MB for a 2 MB disk; queues hold 20 messages: a recorder not reading would block this.
         try:
             sent = [
                 pub.send(
