@@ -24,6 +24,18 @@ float images barely compress, and training reads them often) and read with
 ``elastic_estimate_pa``, ``hertz_estar_pa``, ``label_modulus_pa`` (optional float64 scalars)
     Simple-elasticity estimate of E, Hertz estimate of the composite modulus E*, and the
     true E, all Pa. A missing member means "not available"; a present one is finite and > 0.
+    (The published dataset's two estimates; samples built from grasp records carry
+    ``estimate_*`` instead.)
+``estimate_method``, ``estimate_state``, ``estimate_reason`` (optional, together, str (m,))
+``estimate_pa`` (optional, with them, float64 (m, 3))
+    The analytical :class:`~estimator.estimate.Estimate` of each method over the sample's
+    frames: method name, state, reason, and ``(e_pa, low_pa, high_pa)`` with NaN where
+    the estimate has None (an open interval side, or a refusal). These NaNs are the
+    file's encoding of None; in memory the estimates are checked ``Estimate`` objects.
+
+Images and depth maps may have any size H x W: the published dataset's are the
+sensor's 250 x 350 grid, ``estimator build-dataset`` stores them reduced (its
+``--size``).
 """
 
 from __future__ import annotations
@@ -39,7 +51,8 @@ from typing import Any
 
 import numpy as np
 
-from estimator.errors import SampleError
+from estimator.errors import FitError, SampleError
+from estimator.estimate import Estimate
 
 __all__ = [
     "SAMPLE_FORMAT",
@@ -59,6 +72,7 @@ _MARKER_ARRAYS = ("rgb_diff_markers", "depth_markers_m")
 _MODULI = ("elastic_estimate_pa", "hertz_estar_pa", "label_modulus_pa")
 _INTS = ("grasp", "augmentation")
 _STRINGS = ("object_name", "material", "shape")
+_ESTIMATE_MEMBERS = ("estimate_method", "estimate_state", "estimate_reason", "estimate_pa")
 
 
 @dataclass(frozen=True)
@@ -89,6 +103,9 @@ class TrainingSample:
         The object's true Young's modulus, Pa; None when unlabelled.
     material, shape : str
         Material class and shape of the object ("" when unknown).
+    estimates : tuple of Estimate
+        Analytical estimates over these frames, at most one per method (empty when
+        not computed).
 
     Raises
     ------
@@ -110,6 +127,7 @@ class TrainingSample:
     label_modulus_pa: float | None = None
     material: str = ""
     shape: str = ""
+    estimates: tuple[Estimate, ...] = ()
 
     def __post_init__(self) -> None:
         for name in _STRINGS:
@@ -148,6 +166,13 @@ class TrainingSample:
             if not (np.isfinite(value) and value > 0):
                 self._fail(f"{name} must be finite and > 0 Pa (or None when unknown), got {value!r}")
             object.__setattr__(self, name, float(value))
+        estimates = tuple(self.estimates) if isinstance(self.estimates, list | tuple) else None
+        if estimates is None or not all(isinstance(e, Estimate) for e in estimates):
+            self._fail(f"estimates must be a tuple of Estimate, got {self.estimates!r}")
+        methods = [e.method for e in estimates]
+        if len(set(methods)) != len(methods):
+            self._fail(f"estimates name a method twice: {methods}")
+        object.__setattr__(self, "estimates", estimates)
 
     def _fail(self, what: str) -> None:
         raise SampleError(
@@ -182,6 +207,44 @@ class TrainingSample:
         """Whether the marker finger's arrays are present."""
         return self.rgb_diff_markers is not None
 
+    def estimate(self, method: str) -> Estimate | None:
+        """The analytical estimate of ``method``, or None when the sample has none."""
+        return next((e for e in self.estimates if e.method == method), None)
+
+
+def _estimate_members(estimates: tuple[Estimate, ...]) -> dict[str, np.ndarray]:
+    """The ``estimate_*`` members of ``estimates`` (None written as NaN)."""
+    values = [(e.e_pa, *e.interval_pa) for e in estimates]
+    return {
+        "estimate_method": np.array([e.method for e in estimates], dtype=np.str_),
+        "estimate_state": np.array([e.state for e in estimates], dtype=np.str_),
+        "estimate_reason": np.array([e.reason for e in estimates], dtype=np.str_),
+        "estimate_pa": np.array([[np.nan if v is None else v for v in row] for row in values],
+                                dtype=np.float64).reshape(len(estimates), 3),
+    }
+
+
+def _estimates_from(path: Path, members: dict[str, np.ndarray]) -> tuple[Estimate, ...]:
+    """Estimates from the ``estimate_*`` members read from ``path``."""
+    text = [members[name] for name in _ESTIMATE_MEMBERS[:3]]
+    values = members["estimate_pa"]
+    m = text[0].shape[0] if text[0].ndim == 1 else -1
+    if any(t.ndim != 1 or t.dtype.kind != "U" or t.shape[0] != m for t in text) or (
+        values.dtype != np.float64 or values.shape != (m, 3)
+    ):
+        raise SampleError(
+            f"{path}: estimate_method, estimate_state, estimate_reason must be str (m,) and "
+            f"estimate_pa float64 (m, 3), got {[f'{a.dtype} {a.shape}' for a in (*text, values)]}"
+        )
+    estimates = []
+    for method, state, reason, row in zip(*text, values, strict=True):
+        e_pa, low, high = (None if np.isnan(v) else float(v) for v in row)
+        try:
+            estimates.append(Estimate(str(method), e_pa, (low, high), str(state), str(reason)))
+        except FitError as exc:
+            raise SampleError(f"{path}: member 'estimate_pa' of method {str(method)!r}: {exc}") from None
+    return tuple(estimates)
+
 
 def save_sample(sample: TrainingSample, path: str | os.PathLike[str]) -> Path:
     """Write ``sample`` to ``path`` (an ``.npz`` archive, format in the module docstring).
@@ -195,7 +258,10 @@ def save_sample(sample: TrainingSample, path: str | os.PathLike[str]) -> Path:
         value = getattr(sample, f.name)
         if value is None:
             continue
-        if f.name in _STRINGS:
+        if f.name == "estimates":
+            if value:
+                members.update(_estimate_members(value))
+        elif f.name in _STRINGS:
             members[f.name] = np.str_(value)
         elif f.name in _INTS:
             members[f.name] = np.int64(value)
@@ -231,7 +297,8 @@ def load_sample(path: str | os.PathLike[str]) -> TrainingSample:
         raise SampleError(f"{path}: not a readable .npz archive ({exc})") from exc
     with archive:
         names = set(archive.files)
-        allowed = {"format", "version"} | {f.name for f in dataclasses.fields(TrainingSample)}
+        allowed = {"format", "version", *_ESTIMATE_MEMBERS} | {
+            f.name for f in dataclasses.fields(TrainingSample) if f.name != "estimates"}
         unknown = sorted(names - allowed)
         if unknown:
             raise SampleError(f"{path}: unknown member {unknown[0]!r}; this is not a version-{SAMPLE_VERSION} sample")
@@ -265,6 +332,12 @@ def load_sample(path: str | os.PathLike[str]) -> TrainingSample:
         fields.update({name: scalar(name, "f") for name in _MODULI if name in names})
         fields.update({name: member(name) for name in _ARRAYS})
         fields.update({name: member(name) for name in _MARKER_ARRAYS if name in names})
+        present = [name for name in _ESTIMATE_MEMBERS if name in names]
+        if present and len(present) != len(_ESTIMATE_MEMBERS):
+            missing = sorted(set(_ESTIMATE_MEMBERS) - set(present))
+            raise SampleError(f"{path}: member {missing[0]!r} is missing (estimate_* members come together)")
+        if present:
+            fields["estimates"] = _estimates_from(path, {name: member(name) for name in present})
     try:
         return TrainingSample(**fields)
     except SampleError as exc:

@@ -1,0 +1,313 @@
+"""``estimator bench``: latency and error of every estimator configuration, with the Pareto frontier.
+
+Configurations
+--------------
+``<method>``
+    An analytical method over every loading frame: :func:`~estimator.measure.estimate_grasp`,
+    the live analytical path (depth reconstructed for all loading frames).
+``<method>@<N>f``
+    An analytical method over ``N`` frames sampled across the loading phase
+    (:func:`~estimator.learned.inputs.sample_grasp`, depth for those frames
+    only; the four fits run together, so these share their cost).
+``<hybrid|cnn>[<variant> <N>f <rows>x<cols>]`` and ``auto[...]``
+    A trained model (``--models``), and its ``auto`` mode
+    (:mod:`estimator.learned.hybrid`).
+
+Latency is measured in-process on one core (the process is pinned to one CPU;
+OpenCV and onnxruntime run single-threaded) from decoded frames to the
+estimate: every record's frames are decoded once beforehand, as a live camera
+delivers them, each configuration runs once per grasp as warm-up and then
+``--repeats`` times; a configuration's ``latency_ms_p50`` is the median over
+grasps of each grasp's median time. It includes building the no-contact
+reference from the frames before the onset, which ``reference_ms_p50``
+reports alone (a live estimator can build it before contact).
+
+Error is scored as ``estimator evaluate`` scores it, over the labelled records
+of DIR: ``log10_error`` the mean |log10 E_hat - log10 E| of the estimates that
+are not refusals (a bound counts with its value), ``within_10x`` the share
+within one decade, ``refusals`` the count of ``insufficient_data``; for ``auto``,
+``answered_by`` counts which branch answered each grasp (``model``, ``split``,
+``no_tactile``, ...).
+A configuration is on the Pareto frontier (``pareto: true``) when no other is
+at least as fast and at least as accurate and better in one of the two.
+``models`` lists each model with ``measurement_code_matches``: whether this code
+measures grasps as the code that built its training data did (when not, its
+figures are those of a model fed inputs it was not trained on).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from estimator.analytical import METHODS
+from estimator.errors import EstimatorError
+from estimator.estimate import Estimate
+from estimator.evaluate import summarise
+from estimator.learned.hybrid import HybridEstimator
+from estimator.learned.infer import CompliancePredictor, default_model_dir
+from estimator.learned.inputs import calibration_for, decoded, no_contact_reference, sample_grasp
+from estimator.measure import estimate_grasp, measure_grasp
+from estimator.perception.calibration import Calibration
+from teleop.errors import RecordError
+from teleop.record import GraspRecord, read_record
+from teleop.settings import Settings, default_settings_path, load_settings
+
+__all__ = ["BenchConfig", "bench", "configurations", "pareto_front"]
+
+SAMPLED_METHODS = ("elastic", "hertz", "split")
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """One configuration: a name and a function from a (decoded) record to an estimate."""
+
+    name: str
+    kind: str  # "analytical", "sampled", "model" or "auto"
+    method: str
+    n_frames: int | None
+    size_px: tuple[int, int] | None
+    run: Callable[[GraspRecord], Estimate]
+
+
+def configurations(
+    *, settings: Settings, calibration: str | None, frames: Sequence[int], models: Sequence[CompliancePredictor]
+) -> list[BenchConfig]:
+    """Every analytical method on all loading frames and on each of ``frames``, and every model with ``auto``."""
+
+    def calibrated(record: GraspRecord) -> Calibration:
+        return calibration_for(record, settings.estimator.finger, calibration)
+
+    def analytical(method: str) -> Callable[[GraspRecord], Estimate]:
+        return lambda record: estimate_grasp(record, method, settings=settings, calibration=calibrated(record))
+
+    def sampled(method: str, n: int) -> Callable[[GraspRecord], Estimate]:
+        def run(record: GraspRecord) -> Estimate:
+            s = sample_grasp(record, settings=settings, calibration=calibrated(record), n_frames=n, size_px=None)
+            return next(e for e in s.estimates if e.method == method) if s else Estimate.refuse(method, s.reason)
+        return run
+
+    configs = [BenchConfig(m, "analytical", m, None, None, analytical(m)) for m in METHODS]
+    configs += [BenchConfig(f"{m}@{n}f", "sampled", m, n, None, sampled(m, n)) for n in frames for m in SAMPLED_METHODS]
+    for predictor in models:
+        estimator = HybridEstimator(predictor, settings=settings, calibration=calibration)
+        v = predictor.variant
+        label = f"[{v.name} {v.n_frames}f {v.size_px[0]}x{v.size_px[1]}]"
+        for mode, kind, method in (("model", "model", v.method), ("auto", "auto", "auto")):
+            configs.append(BenchConfig(f"{method}{label}", kind, method, v.n_frames, v.size_px,
+                                       lambda record, e=estimator, m=mode: e.estimate(record, mode=m)))
+    return configs
+
+
+def pareto_front(points: Sequence[tuple[float, float | None]]) -> list[bool]:
+    """Whether each (latency, error) point is on the Pareto frontier (both minimised; None: never)."""
+    flags = []
+    for i, (latency, error) in enumerate(points):
+        if error is None:
+            flags.append(False)
+            continue
+        dominated = any(
+            j != i and e is not None and lat <= latency and e <= error and (lat < latency or e < error)
+            for j, (lat, e) in enumerate(points)
+        )
+        flags.append(not dominated)
+    return flags
+
+
+@contextlib.contextmanager
+def one_core() -> Iterator[bool]:
+    """Pin this process to one CPU and OpenCV to one thread; yields whether pinning was possible."""
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    affinity = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    try:
+        if affinity:
+            os.sched_setaffinity(0, {min(affinity)})
+        yield bool(affinity)
+    finally:
+        cv2.setNumThreads(threads)
+        if affinity:
+            os.sched_setaffinity(0, affinity)
+
+
+def timed(run: Callable[[GraspRecord], Estimate], record: GraspRecord, repeats: int) -> tuple[Estimate, float]:
+    """The estimate of a warm-up run and the median time of ``repeats`` more (ms)."""
+    estimate = run(record)
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        run(record)
+        times.append(time.perf_counter() - started)
+    return estimate, float(np.median(times)) * 1e3
+
+
+def _reference_ms(record: GraspRecord, settings: Settings, repeats: int) -> float | None:
+    finger = settings.estimator.finger
+    segment = measure_grasp(record, settings=settings, tactile=False).segment
+    if not segment:
+        return None
+    return timed(lambda r: no_contact_reference(r, finger, segment), record, repeats)[1]
+
+
+def bench(
+    paths: Sequence[Path],
+    *,
+    settings: Settings,
+    configs: Sequence[BenchConfig],
+    repeats: int = 5,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Time and score ``configs`` over the labelled records in ``paths`` (module notes)."""
+    rows: list[dict[str, Any]] = []
+    latency: dict[str, list[float]] = {c.name: [] for c in configs}
+    reference: list[float] = []
+    skipped = 0
+    with one_core() as pinned:
+        for path in tqdm(paths, desc="bench", unit="grasp", disable=not progress):
+            try:
+                record = read_record(path)
+            except RecordError:
+                skipped += 1
+                continue
+            label = record.label
+            if label is None or label.modulus_pa is None:
+                skipped += 1
+                continue
+            record = decoded(record)
+            ref_ms = _reference_ms(record, settings, repeats)
+            if ref_ms is not None:
+                reference.append(ref_ms)
+            for config in configs:
+                estimate, ms = timed(config.run, record, repeats)
+                latency[config.name].append(ms)
+                low, high = estimate.interval_pa
+                rows.append({"path": str(path), "object": label.object_name, "material": label.material or "unknown",
+                             "shape": label.shape or "unknown", "truth_pa": label.modulus_pa, "method": config.name,
+                             "state": estimate.state, "e_pa": estimate.e_pa, "low_pa": low, "high_pa": high,
+                             "answered_by": estimate.reason.split(":")[0]})
+    if not rows:
+        raise EstimatorError("no labelled, readable .grasp record to bench")
+    summary = summarise(rows, [c.name for c in configs])
+    out = []
+    for config in configs:
+        s = summary[config.name]
+        out.append({
+            "name": config.name, "kind": config.kind, "method": config.method, "n_frames": config.n_frames,
+            "size_px": list(config.size_px) if config.size_px else None,
+            "latency_ms_p50": float(np.median(latency[config.name])),
+            "latency_ms_p90": float(np.quantile(latency[config.name], 0.9)),
+            "log10_error": s["log10_error"], "within_10x": s["within_10x"], "n": s["n"],
+            "refusals": s["states"]["insufficient_data"],
+        })
+        if config.kind == "auto":  # where auto lands: which branch answered each grasp
+            out[-1]["answered_by"] = dict(Counter(r["answered_by"] for r in rows if r["method"] == config.name))
+    for entry, flag in zip(out, pareto_front([(c["latency_ms_p50"], c["log10_error"]) for c in out]), strict=True):
+        entry["pareto"] = flag
+    return {"records": len(paths), "labelled": len(paths) - skipped, "repeats": repeats, "one_core": pinned,
+            "reference_ms_p50": float(np.median(reference)) if reference else None, "configs": out}
+
+
+def plot(result: dict[str, Any], path: str | Path) -> None:
+    """Latency (log x) against error per configuration, the Pareto frontier joined."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    points = [c for c in result["configs"] if c["log10_error"] is not None]
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    for c in points:
+        ax.scatter(c["latency_ms_p50"], c["log10_error"], s=36, color="C3" if c["pareto"] else "C0", zorder=3)
+        ax.annotate(c["name"], (c["latency_ms_p50"], c["log10_error"]), fontsize=7, xytext=(4, 3),
+                    textcoords="offset points")
+    front = sorted((c["latency_ms_p50"], c["log10_error"]) for c in points if c["pareto"])
+    if front:
+        ax.step(*zip(*front, strict=True), where="post", color="C3", lw=1.2, label="Pareto frontier")
+        ax.legend()
+    ax.set(xscale="log", xlabel="latency per grasp, median (ms, one core, from decoded frames)",
+           ylabel="mean |log10 E_hat - log10 E| (decades)", title=f"{result['labelled']} labelled grasps")
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# --------------------------------------------------------------------------- command
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Median latency per grasp on one core (in-process, from decoded frames, after warm-up) and "
+        "error over the labelled .grasp records in DIR of every configuration: each analytical "
+        "method over all loading frames and over N sampled frames, each model given (hybrid or cnn) "
+        "and its auto mode. Marks the Pareto frontier of latency against error."
+    )
+    parser.add_argument("dir", metavar="DIR", help="directory searched recursively for labelled .grasp records")
+    parser.add_argument("--models", nargs="*", metavar="MODEL_DIR", default=None,
+                        help="trained model directories (default: the shipped default model, when present)")
+    parser.add_argument("--frames", type=int, nargs="*", metavar="N", default=None,
+                        help="frame counts of the sampled analytical configurations (default: those of the "
+                             "models, else the settings' n_frames)")
+    parser.add_argument("--repeats", type=int, default=5, help="timed runs per grasp and configuration")
+    parser.add_argument("--limit", type=int, default=None, metavar="K", help="bench only the first K records")
+    parser.add_argument("--calibration", metavar="CAL", default=None,
+                        help="calibration (.npz) for every record; default: the file each record's sensor names")
+    parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()), help="settings TOML")
+    parser.add_argument("--plot", metavar="PNG", default=None, help="write latency (log x) against error with the frontier")
+    parser.add_argument("--json", action="store_true",
+                        help='print {"configs": [{"name", "latency_ms_p50", "log10_error", "within_10x", '
+                             '"pareto", ...}], ...} as one JSON object on the last stdout line')
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.repeats < 1:
+        raise EstimatorError(f"--repeats {args.repeats}: expected at least 1")
+    root = Path(args.dir)
+    if not root.is_dir():
+        raise EstimatorError(f"{root}: not a directory")
+    paths = sorted(root.rglob("*.grasp"))[: args.limit]
+    if not paths:
+        raise EstimatorError(f"{root}: no .grasp records found")
+    settings = load_settings(args.settings)
+    model_dirs = args.models
+    if model_dirs is None:
+        model_dirs = [default_model_dir()] if (default_model_dir() / "metadata.json").is_file() else []
+    models = [CompliancePredictor(d, threads=1) for d in model_dirs]
+    frames = args.frames
+    if frames is None:
+        frames = sorted({m.variant.n_frames for m in models}) or [settings.estimator.n_frames]
+    configs = configurations(settings=settings, calibration=args.calibration, frames=frames, models=models)
+    result = {"dir": str(root), **bench(paths, settings=settings, configs=configs, repeats=args.repeats),
+              "models": [{"dir": str(m.model_dir), "variant": m.variant.name,
+                          "measurement_code_matches": m.measurement_code_matches} for m in models],
+              "plot": args.plot}
+    if args.plot:
+        plot(result, args.plot)
+    if args.json:
+        print(json.dumps(result, allow_nan=False))
+        return 0
+    for m in result["models"]:
+        if not m["measurement_code_matches"]:
+            print(f"note: {m['dir']} was trained on inputs measured by other code; its figures are not its own")
+    ref = result["reference_ms_p50"]
+    print(f"{result['labelled']} labelled grasps, {args.repeats} timed runs each, one core: {result['one_core']}; "
+          f"no-contact reference alone {'-' if ref is None else f'{ref:.1f}'} ms")
+    print(f"{'configuration':<44} {'p50 ms':>8} {'log10 err':>9} {'within10x':>9} {'refused':>7}  pareto")
+    for c in sorted(result["configs"], key=lambda c: c["latency_ms_p50"]):
+        err = "-" if c["log10_error"] is None else f"{c['log10_error']:.2f}"
+        within = "-" if c["within_10x"] is None else f"{c['within_10x']:.0%}"
+        print(f"{c['name']:<44} {c['latency_ms_p50']:>8.2f} {err:>9} {within:>9} {c['refusals']:>7}  "
+              f"{'*' if c['pareto'] else ''}")
+    return 0

@@ -1,0 +1,352 @@
+"""``estimator build-dataset``: labelled grasp records to training samples, split by object.
+
+Every record is measured with the live estimator's own code
+(:func:`~estimator.learned.inputs.sample_grasp`: segmentation, warp, depth,
+contact features and the analytical fits of :mod:`estimator.measure`), from
+its frames, forces, widths and timestamps only; simulator internals are never
+read. Each grasp gives up to ``--shifts`` sample sets: set ``k`` starts the
+equidistant sampling of the loading phase ``k`` frames after contact (set 0 is
+exactly what the live estimator samples). Images and depth are stored reduced
+to ``--size`` (area averaging), so training reads small files and the network's
+input needs no further resizing.
+
+Split
+-----
+Objects, never grasps, are split: :func:`split_objects` assigns each object to
+train, val or test, deterministically from ``--seed`` and stratified by
+material, and every sample is written under its object's split::
+
+    OUT/dataset.json                 manifest (settings, counts, skipped records)
+    OUT/split.json                   {"seed", "fractions", "train": [objects], "val": [...], "test": [...]}
+    OUT/<split>/<object>/<record>_a<k>.npz
+
+so no grasp or augmentation of a val or test object can reach training.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import time
+import zlib
+from collections import Counter, defaultdict
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from estimator.errors import EstimatorError, SampleError
+from estimator.learned.inputs import measurement_fingerprint, sample_grasp
+from estimator.samples import TrainingSample, save_sample
+from teleop.errors import RecordError
+from teleop.record import read_record
+from teleop.settings import Settings, default_settings_path, load_settings
+
+__all__ = [
+    "DATASET_FORMAT",
+    "SPLITS",
+    "DatasetOptions",
+    "build_dataset",
+    "load_manifest",
+    "load_split",
+    "split_objects",
+]
+
+DATASET_FORMAT = "compliance-teleop.dataset"
+SPLITS = ("train", "val", "test")
+DEFAULT_FRACTIONS = (0.7, 0.15, 0.15)
+
+
+# --------------------------------------------------------------------------- split
+
+
+def split_objects(
+    materials: Mapping[str, str], *, seed: int, fractions: Sequence[float] = DEFAULT_FRACTIONS
+) -> dict[str, list[str]]:
+    """Assign every object to train, val or test, stratified by material.
+
+    Objects are taken material by material (sorted), in a seeded random order
+    within each material, and each goes to the split furthest below its target
+    share so far, so every split gets its share of every material and the
+    totals follow ``fractions``. The result depends only on the objects, their
+    materials, ``seed`` and ``fractions``.
+
+    Parameters
+    ----------
+    materials : mapping
+        Object name -> material ("" when unknown).
+    seed : int
+    fractions : (train, val, test)
+        Non-negative, summing to 1.
+
+    Returns
+    -------
+    dict
+        ``{"train": [...], "val": [...], "test": [...]}``, names sorted.
+    """
+    share = np.asarray(fractions, dtype=np.float64)
+    if share.shape != (3,) or np.any(share < 0) or not math.isclose(share.sum(), 1.0, abs_tol=1e-9):
+        raise EstimatorError(f"split fractions {list(fractions)}: expected three values >= 0 summing to 1")
+    by_material: dict[str, list[str]] = defaultdict(list)
+    for name, material in materials.items():
+        by_material[material].append(name)
+    counts = np.zeros(3)
+    out: dict[str, list[str]] = {split: [] for split in SPLITS}
+    for material in sorted(by_material):
+        rng = np.random.default_rng([seed, zlib.crc32(material.encode())])
+        for name in rng.permutation(sorted(by_material[material])):
+            chosen = int(np.argmax(share * (counts.sum() + 1) - counts))
+            counts[chosen] += 1
+            out[SPLITS[chosen]].append(str(name))
+    return {split: sorted(names) for split, names in out.items()}
+
+
+def load_split(path: str | Path) -> dict[str, list[str]]:
+    """Read a split file; raises SampleError when it is malformed or names an object twice."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise SampleError(f"{path}: not a readable split file ({exc})") from exc
+    if not isinstance(data, dict) or not all(isinstance(data.get(s), list) for s in SPLITS):
+        raise SampleError(f"{path}: expected lists of object names under {', '.join(SPLITS)}")
+    names = [n for s in SPLITS for n in data[s]]
+    if len(set(names)) != len(names):
+        twice = sorted(n for n, c in Counter(names).items() if c > 1)
+        raise SampleError(f"{path}: objects in more than one split: {twice[:5]}")
+    return {s: list(data[s]) for s in SPLITS}
+
+
+def load_manifest(directory: str | Path) -> dict[str, Any]:
+    """The ``dataset.json`` of a directory written by :func:`build_dataset`."""
+    path = Path(directory) / "dataset.json"
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise SampleError(f"{path}: not a readable dataset manifest ({exc}); run `estimator build-dataset`") from exc
+    if not isinstance(manifest, dict) or manifest.get("format") != DATASET_FORMAT:
+        raise SampleError(f"{path}: not a {DATASET_FORMAT} manifest")
+    return manifest
+
+
+# --------------------------------------------------------------------------- building
+
+
+@dataclass(frozen=True)
+class DatasetOptions:
+    """How samples are made from records (recorded in the manifest)."""
+
+    n_frames: int = 3
+    shifts: int = 3
+    size_px: tuple[int, int] = (64, 88)
+    markers: bool = False
+    calibration: str | None = None
+    marker_calibration: str | None = None
+
+
+def _safe_name(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name)
+
+
+def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: DatasetOptions,
+                    out: Path) -> dict[str, Any]:
+    """Write the sample sets of one record (runs in a worker); returns what happened."""
+    path, grasp, split = job
+    try:
+        record = read_record(path)
+    except RecordError as exc:
+        return {"path": str(path), "skipped": f"unreadable: {exc}"}
+    label = record.label
+    if label is None or label.modulus_pa is None:
+        return {"path": str(path), "skipped": "unlabelled"}
+    written, reasons = [], {}
+    for shift in range(options.shifts):
+        sampled = sample_grasp(
+            record, settings=settings, calibration=options.calibration, n_frames=options.n_frames,
+            size_px=options.size_px, shift=shift, rgb=True, markers=options.markers,
+            marker_calibration=options.marker_calibration,
+        )
+        if not sampled:
+            reasons[shift] = sampled.reason
+            continue
+        sample = TrainingSample(
+            object_name=label.object_name, grasp=grasp, augmentation=shift, rgb_diff=sampled.rgb_diff,
+            depth_m=sampled.depth_m, force_n=sampled.force_n, width_m=sampled.width_m,
+            rgb_diff_markers=sampled.rgb_diff_markers, depth_markers_m=sampled.depth_markers_m,
+            label_modulus_pa=label.modulus_pa, material=label.material, shape=label.shape,
+            estimates=sampled.estimates,
+        )
+        dest = out / split / _safe_name(label.object_name) / f"{path.stem}_a{shift}.npz"
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        written.append(str(save_sample(sample, dest)))
+    row: dict[str, Any] = {"path": str(path), "object": label.object_name, "split": split,
+                           "samples": written, "notes": reasons}
+    if not written:
+        row["skipped"] = reasons[0]
+    return row
+
+
+def _labels(paths: Sequence[Path]) -> dict[Path, tuple[str, str]]:
+    """Object name and material of every labelled record (headers only)."""
+    labels = {}
+    for path in paths:
+        try:
+            label = read_record(path).label
+        except RecordError:
+            continue
+        if label is not None and label.modulus_pa is not None:
+            labels[path] = (label.object_name, label.material or "")
+    return labels
+
+
+def build_dataset(
+    records: Sequence[Path],
+    out: str | Path,
+    *,
+    settings: Settings,
+    options: DatasetOptions,
+    seed: int = 0,
+    fractions: Sequence[float] = DEFAULT_FRACTIONS,
+    workers: int = 1,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Write the samples of ``records`` under ``out`` with the split and manifest; return the summary.
+
+    Raises
+    ------
+    EstimatorError
+        No labelled record, or ``out`` already holds a dataset.
+    """
+    out = Path(out)
+    if (out / "dataset.json").exists():
+        raise EstimatorError(f"{out}: already holds a dataset (dataset.json); choose an empty --out")
+    started = time.perf_counter()
+    labels = _labels(records)
+    if not labels:
+        raise EstimatorError("no labelled .grasp record among the records given")
+    split = split_objects(dict(labels.values()), seed=seed, fractions=fractions)
+    split_of = {name: s for s, names in split.items() for name in names}
+    grasp_index: dict[str, int] = Counter()
+    jobs = []
+    for path in sorted(labels):
+        name = labels[path][0]
+        jobs.append((path, grasp_index[name], split_of[name]))
+        grasp_index[name] += 1
+    out.mkdir(parents=True, exist_ok=True)
+    work = partial(_record_samples, settings=settings, options=options, out=out)
+    bar = partial(tqdm, total=len(jobs), desc="build-dataset", unit="grasp", disable=not progress)
+    if workers <= 1:
+        rows = [work(job) for job in bar(jobs)]
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            rows = list(bar(pool.map(work, jobs, chunksize=max(1, len(jobs) // (8 * workers)))))
+    skipped = [{"path": r["path"], "reason": r["skipped"]} for r in rows if "skipped" in r]
+    skipped += [{"path": str(p), "reason": "unreadable or unlabelled"} for p in records if p not in labels]
+    counts = {s: sum(len(r.get("samples", ())) for r in rows if r.get("split") == s) for s in SPLITS}
+    (out / "split.json").write_text(json.dumps(
+        {"seed": seed, "fractions": list(fractions), "stratified_by": "material", **split}, indent=1))
+    manifest = {
+        "format": DATASET_FORMAT, "version": 1, "n_frames": options.n_frames, "shifts": options.shifts,
+        "size_px": list(options.size_px), "markers": options.markers, "finger": settings.estimator.finger,
+        "calibration": options.calibration, "marker_calibration": options.marker_calibration,
+        "measurement_fingerprint": measurement_fingerprint(),
+        "records": len(records), "grasps_used": sum(1 for r in rows if r.get("samples")),
+        "samples": counts, "objects": {s: len(v) for s, v in split.items()},
+        "skipped": skipped, "skipped_reasons": dict(Counter(re.sub(r"-?\d[\d.e+-]*", "#", s["reason"]) for s in skipped)),
+        "seconds": time.perf_counter() - started,
+    }
+    (out / "dataset.json").write_text(json.dumps(manifest, indent=1))
+    return manifest
+
+
+# --------------------------------------------------------------------------- command
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``ROWSxCOLS`` -> (rows, cols)."""
+    match = re.fullmatch(r"(\d+)x(\d+)", text.strip())
+    if not match:
+        raise argparse.ArgumentTypeError(f"size {text!r}: expected ROWSxCOLS, e.g. 64x88")
+    return int(match.group(1)), int(match.group(2))
+
+
+def _fractions(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3:
+        raise argparse.ArgumentTypeError(f"split {text!r}: expected TRAIN,VAL,TEST fractions, e.g. 0.7,0.15,0.15")
+    return values
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Turn labelled .grasp records into training samples with the live estimator's own "
+        "measurement code (segmentation, warp, depth, contact features, analytical fits), split "
+        "by object into train/val/test (seeded, stratified by material) so that no grasp or "
+        "augmentation of a val or test object is ever trained on. Writes OUT/dataset.json, "
+        "OUT/split.json and OUT/<split>/<object>/<record>_a<k>.npz."
+    )
+    parser.add_argument("--records", required=True, metavar="DIR",
+                        help="directory searched recursively for labelled .grasp records")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output directory (must hold no dataset yet)")
+    parser.add_argument("--frames", type=int, default=3, metavar="N",
+                        help="frames sampled equidistantly in time over each loading phase")
+    parser.add_argument("--shifts", type=int, default=3, metavar="K",
+                        help="sample sets per grasp: set k starts k loading frames after contact "
+                             "(set 0 is the live sampling; later sets need N distinct frames)")
+    parser.add_argument("--size", type=parse_size, default=(64, 88), metavar="ROWSxCOLS",
+                        help="images and depth are stored area-averaged to this size (the sensor "
+                             "grid is 250x350); the model reads them at this size")
+    parser.add_argument("--markers", action="store_true",
+                        help="also store the other finger's (marker sensor's) images and depth")
+    parser.add_argument("--calibration", metavar="CAL", default=None,
+                        help="calibration (.npz) of the estimator's finger for every record; default: "
+                             "the file each record's sensor names (relative to configs/)")
+    parser.add_argument("--marker-calibration", metavar="CAL", default=None,
+                        help="calibration of the marker finger (with --markers); default: the file "
+                             "its sensor names")
+    parser.add_argument("--split", type=_fractions, default=DEFAULT_FRACTIONS, metavar="TRAIN,VAL,TEST",
+                        help="object fractions of the three splits")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the object split")
+    parser.add_argument("--workers", type=int, default=1, metavar="W", help="worker processes")
+    parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
+                        help="settings TOML (estimator and gripper sections are used)")
+    parser.add_argument("--json", action="store_true",
+                        help="print the manifest as one JSON object on the last stdout line")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.workers < 1 or args.frames < 1 or args.shifts < 1:
+        raise EstimatorError(f"--workers {args.workers}, --frames {args.frames}, --shifts {args.shifts}: "
+                             "expected each >= 1")
+    root = Path(args.records)
+    if not root.is_dir():
+        raise EstimatorError(f"--records {root}: not a directory")
+    paths = sorted(root.rglob("*.grasp"))
+    if not paths:
+        raise EstimatorError(f"--records {root}: no .grasp records found")
+    options = DatasetOptions(n_frames=args.frames, shifts=args.shifts, size_px=args.size, markers=args.markers,
+                             calibration=args.calibration, marker_calibration=args.marker_calibration)
+    manifest = build_dataset(paths, args.out, settings=load_settings(args.settings), options=options,
+                             seed=args.seed, fractions=args.split,
+                             workers=min(args.workers, os.cpu_count() or 1, len(paths)))
+    if args.json:
+        print(json.dumps({k: v for k, v in manifest.items() if k != "skipped"} | {"out": str(args.out)}))
+        return 0
+    print(f"{sum(manifest['samples'].values())} samples from {manifest['grasps_used']} of {len(paths)} records "
+          f"in {manifest['seconds']:.1f} s -> {args.out}")
+    for s in SPLITS:
+        print(f"  {s:<5} {manifest['objects'][s]:>4} objects {manifest['samples'][s]:>6} samples")
+    if manifest["skipped_reasons"]:
+        print("  skipped: " + ", ".join(f"{k} ({v})" for k, v in manifest["skipped_reasons"].items()))
+    return 0

@@ -1,0 +1,186 @@
+"""The run-time learned estimate: record -> sampled frames -> analytical fits -> model -> Estimate.
+
+:class:`HybridEstimator` measures a grasp exactly as the dataset builder did
+(:func:`~estimator.learned.inputs.sample_grasp`: the loading phase sampled at
+the model's ``n_frames``, depth reconstructed for those frames only, contact
+features, every analytical fit over them), runs the ONNX model and returns an
+:class:`~estimator.estimate.Estimate` with method ``"hybrid"`` (a model with
+analytical inputs) or ``"cnn"`` (without). Its interval is the model's ~95 %
+validation residual spread (``metadata.json``, ``residual_log10``). The model's
+output is a sigmoid on log10 E in [3, 12], so the modulus is always finite and
+positive; a grasp that cannot be sampled, or a model output that is not
+finite, gives a refusal with its reason.
+
+``auto`` mode
+-------------
+Per grasp, the cheapest answer whose expected error fits the budget:
+
+1. The grasp cannot be sampled (no usable loading frame): the force/width-only
+   ``no_tactile`` fit, which needs no frame.
+2. The compliance split is ``ok`` with an interval at most
+   ``AutoPolicy.max_split_interval_decades`` wide: that estimate, and the
+   network is skipped. The threshold is chosen in training on the validation
+   objects (the widest threshold at which the split's mean error on the grasps
+   it accepts is no worse than the model's on the same grasps; ``metadata.json``
+   ``auto``), default 0.5 decade.
+3. Otherwise the model. If the model fails, the first analytical estimate that
+   is not a refusal, in the order split, hertz, elastic, no_tactile.
+
+The result's method is ``"auto"`` and its reason says which branch answered.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from estimator.errors import ModelError
+from estimator.estimate import Estimate
+from estimator.learned.infer import CompliancePredictor
+from estimator.learned.inputs import SampledGrasp, sample_grasp
+from estimator.measure import estimate_grasp
+from estimator.perception.calibration import Calibration
+from teleop.record import GraspRecord
+from teleop.settings import Settings
+
+__all__ = ["FALLBACK_ORDER", "MODES", "AutoPolicy", "HybridEstimator"]
+
+MODES = ("model", "auto")
+FALLBACK_ORDER = ("split", "hertz", "elastic", "no_tactile")
+DEFAULT_SPLIT_INTERVAL_DECADES = 0.5
+
+
+def interval_decades(estimate: Estimate) -> float:
+    """Width of an estimate's interval in decades (inf when a side is open)."""
+    low, high = estimate.interval_pa
+    return math.inf if low is None or high is None else math.log10(high / low)
+
+
+@dataclass(frozen=True)
+class AutoPolicy:
+    """When ``auto`` answers with the compliance split instead of the model.
+
+    Attributes
+    ----------
+    max_split_interval_decades : float
+        A split estimate in state ``ok`` whose interval is at most this many
+        decades wide is returned as is; 0 never skips the model.
+    """
+
+    max_split_interval_decades: float = DEFAULT_SPLIT_INTERVAL_DECADES
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.max_split_interval_decades) and self.max_split_interval_decades >= 0):
+            raise ModelError(f"max_split_interval_decades {self.max_split_interval_decades!r}: expected >= 0")
+
+    @classmethod
+    def from_metadata(cls, metadata: Mapping[str, Any]) -> AutoPolicy:
+        """The policy chosen in training (``metadata["auto"]``), else the default."""
+        auto = metadata.get("auto") or {}
+        return cls(float(auto.get("max_split_interval_decades", DEFAULT_SPLIT_INTERVAL_DECADES)))
+
+    def accepts(self, split: Estimate | None) -> bool:
+        return split is not None and split.state == "ok" and (
+            interval_decades(split) <= self.max_split_interval_decades)
+
+
+class HybridEstimator:
+    """Estimate E from grasp records with a trained model (``hybrid``/``cnn``) or ``auto``.
+
+    Parameters
+    ----------
+    predictor : CompliancePredictor
+    settings : Settings
+    calibration, marker_calibration : Calibration, path or None
+        Calibrations of the estimator's finger and (for a marker variant) the
+        other finger; None reads the file each record's sensor names.
+    policy : AutoPolicy or None
+        ``auto``'s rule; None takes the model's (:meth:`AutoPolicy.from_metadata`).
+    """
+
+    def __init__(self, predictor: CompliancePredictor, *, settings: Settings,
+                 calibration: Calibration | str | Path | None = None,
+                 marker_calibration: Calibration | str | Path | None = None,
+                 policy: AutoPolicy | None = None):
+        self.predictor = predictor
+        self.settings = settings
+        self.calibration = calibration
+        self.marker_calibration = marker_calibration
+        self.policy = AutoPolicy.from_metadata(predictor.metadata.raw) if policy is None else policy
+
+    @property
+    def method(self) -> str:
+        return self.predictor.variant.method
+
+    def sample(self, record: GraspRecord) -> SampledGrasp:
+        """The model's view of ``record`` (see :func:`~estimator.learned.inputs.sample_grasp`)."""
+        variant = self.predictor.variant
+        return sample_grasp(
+            record, settings=self.settings, calibration=self.calibration, n_frames=variant.n_frames,
+            size_px=variant.size_px, rgb=variant.image == "rgb", markers=variant.markers,
+            marker_calibration=self.marker_calibration,
+        )
+
+    def estimate(self, record: GraspRecord, *, mode: str = "model") -> Estimate:
+        """Young's modulus of the object grasped in ``record``, stamped with its latency.
+
+        Parameters
+        ----------
+        record : GraspRecord
+        mode : {"model", "auto"}
+
+        Returns
+        -------
+        Estimate
+            Never NaN, infinite or negative; a refusal carries its reason.
+        """
+        started = time.perf_counter()
+        if mode not in MODES:
+            raise ModelError(f"mode {mode!r}: expected one of {', '.join(MODES)}")
+        sampled = self.sample(record)
+        if not sampled and mode == "auto":
+            fallback = estimate_grasp(record, "no_tactile", settings=self.settings)
+            result = _as("auto", fallback, f"no tactile sample ({sampled.reason}): force and width only")
+        else:
+            result = self.estimate_sampled(sampled, mode=mode)
+        return result.with_latency(time.perf_counter() - started)
+
+    def estimate_sampled(self, sampled: SampledGrasp, *, mode: str = "model") -> Estimate:
+        """The estimate from an already sampled grasp (see :meth:`estimate`)."""
+        if mode not in MODES:
+            raise ModelError(f"mode {mode!r}: expected one of {', '.join(MODES)}")
+        method = "auto" if mode == "auto" else self.method
+        if not sampled:
+            return Estimate.refuse(method, sampled.reason)
+        by_method = {e.method: e for e in sampled.estimates}
+        split = by_method.get("split")
+        if mode == "auto" and self.policy.accepts(split):
+            return _as("auto", split, f"split interval {interval_decades(split):.2f} <= "
+                                      f"{self.policy.max_split_interval_decades:g} decades, model skipped")
+        try:
+            e_pa = float(self.predictor.predict([sampled])[0])
+        except ModelError as exc:
+            if mode != "auto":
+                return Estimate.refuse(method, f"the model gives no estimate: {exc}")
+            fallback = next((by_method[m] for m in FALLBACK_ORDER if by_method.get(m)), None)
+            if fallback is None:
+                return Estimate.refuse(method, f"the model gives no estimate ({exc}) and every analytical "
+                                               "method refuses")
+            return _as("auto", fallback, f"the model gives no estimate ({exc})")
+        low, high = self.predictor.interval(e_pa)
+        states = ", ".join(f"{e.method} {e.state}" for e in sampled.estimates)
+        reason = (f"{self.predictor.variant.name} model over {self.predictor.variant.n_frames} frames; "
+                  f"interval from validation residuals; analytical inputs: {states}")
+        if mode == "auto":
+            reason = "model: " + reason
+        return Estimate.ok(method, e_pa, low, high, reason)
+
+
+def _as(method: str, estimate: Estimate, why: str) -> Estimate:
+    """``estimate`` relabelled as ``method``, its reason prefixed with which answer it is and why."""
+    reason = f"{estimate.method}: {why}" + (f"; {estimate.reason}" if estimate.reason else "")
+    return Estimate(method, estimate.e_pa, estimate.interval_pa, estimate.state, reason)

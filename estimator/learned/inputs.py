@@ -1,0 +1,522 @@
+"""What the learned model reads: one grasp's sampled frames, measured and encoded as arrays.
+
+Torch-free: the dataset builder (training) and the run-time estimator both use
+this module, so a model sees at run time exactly what it was trained on.
+
+Sampling
+--------
+A grasp's loading phase (contact to peak force, :func:`~estimator.segment.segment_grasp`)
+is sampled at ``n_frames`` frames equidistant in time, exactly as the live
+estimator samples it (``Segment.sample``). Augmentation ``shift = k`` starts the
+sampling ``k`` loading frames later (the paper's "shifting the starting point by
+one timestep"). Only those frames (and the no-contact frames before the onset,
+for the reference) are measured: :func:`measure_grasp` runs on the grasp
+restricted to them, so depth is reconstructed for ``n_frames`` frames and the
+analytical fits run over the same frames the network sees.
+
+Model inputs (float32, batch first)
+-----------------------------------
+``frames`` (B, N, C, h, w)
+    Per sampled frame: gel depth in mm (``depth``) or the BGR difference to the
+    no-contact frame in 8-bit levels / 64 (``rgb``); with ``markers`` the other
+    finger's channels follow. Images are reduced from the sensor grid to
+    ``size_px`` with area averaging (``cv2.INTER_AREA``), explicitly, once.
+``force_width`` (B, 2N), only with ``fw``
+    Force at each frame / 30 N, then gripper width / 0.08 m.
+``analytical`` (B, 6 x 4), only with ``analytical``
+    Per method of :data:`ANALYTICAL_METHODS`: normalised log10 E (the bound's
+    value for a bound, 0 for a refusal), interval width in decades / 9 (1 for an
+    open interval or a refusal) and the state one-hot (ok, lower_bound,
+    upper_bound, insufficient_data).
+
+Output scale
+------------
+The network's sigmoid output ``y`` in [0, 1] maps linearly to log10 E in
+[3, 12]: ``E = 10 ** (3 + 9 y)`` Pa, from 1 kPa (softer than any foam) to
+1 TPa (stiffer than any metal; the published labels span 5 kPa to 250 GPa).
+Every output is therefore a finite, positive modulus.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from functools import lru_cache
+from pathlib import Path
+from typing import Protocol
+
+import cv2
+import numpy as np
+
+from estimator.analytical import METHODS
+from estimator.errors import ModelError
+from estimator.estimate import STATES, Estimate
+from estimator.measure import (
+    REFERENCE_GUARD_S,
+    GraspMeasurements,
+    _decode,
+    _median_frame,
+    _reference_index,
+    _to_image_grid,
+    calibration_path,
+    estimate_grasp,
+    measure_grasp,
+)
+from estimator.perception.calibration import Calibration, load_calibration
+from estimator.segment import Segment
+from teleop.record import FrameStream, GraspRecord
+from teleop.settings import Settings
+
+__all__ = [
+    "ANALYTICAL_METHODS",
+    "FEATURES_PER_METHOD",
+    "LOG10_E_RANGE",
+    "DecodedFrameStream",
+    "SampledGrasp",
+    "Variant",
+    "analytical_features",
+    "cached_calibration",
+    "calibration_for",
+    "decoded",
+    "encode",
+    "measurement_fingerprint",
+    "no_contact_reference",
+    "modulus_from_normalised",
+    "normalise_modulus",
+    "reduce_images",
+    "sample_grasp",
+]
+
+LOG10_E_RANGE = (3.0, 12.0)
+ANALYTICAL_METHODS = METHODS
+FEATURES_PER_METHOD = 2 + len(STATES)
+FORCE_SCALE_N = 30.0
+WIDTH_SCALE_M = 0.08
+DEPTH_SCALE_M = 1e-3
+RGB_SCALE = 64.0
+IMAGES = ("depth", "rgb")
+_VARIANT = re.compile(r"^(depth|rgb)((?:\+(?:markers|fw|analytical))*)$")
+
+
+# --------------------------------------------------------------------------- variant
+
+
+@dataclass(frozen=True)
+class Variant:
+    """Which inputs a model reads, at which resolution and frame count.
+
+    Attributes
+    ----------
+    image : {"depth", "rgb"}
+        Depth maps or colour-difference images.
+    markers : bool
+        Also the other finger's (marker) images, as extra channels.
+    force_width : bool
+        Force and width at each frame (the ``fw`` input).
+    analytical : bool
+        The analytical estimates (a hybrid model); False is the CNN alone.
+    n_frames : int
+        Frames sampled over the loading phase.
+    size_px : (int, int)
+        (rows, cols) the images are reduced to.
+    """
+
+    image: str = "depth"
+    markers: bool = False
+    force_width: bool = True
+    analytical: bool = True
+    n_frames: int = 3
+    size_px: tuple[int, int] = (64, 88)
+
+    def __post_init__(self) -> None:
+        if self.image not in IMAGES:
+            raise ModelError(f"variant image {self.image!r}: expected one of {', '.join(IMAGES)}")
+        if not 1 <= int(self.n_frames) <= 64:
+            raise ModelError(f"variant n_frames {self.n_frames!r}: expected 1..64")
+        rows, cols = (int(v) for v in self.size_px)
+        if not (8 <= rows <= 250 and 8 <= cols <= 350):
+            raise ModelError(f"variant size_px {self.size_px!r}: expected rows 8..250 and cols 8..350")
+        object.__setattr__(self, "n_frames", int(self.n_frames))
+        object.__setattr__(self, "size_px", (rows, cols))
+
+    @classmethod
+    def parse(cls, text: str, *, n_frames: int = 3, size_px: tuple[int, int] = (64, 88)) -> Variant:
+        """``IMAGE[+markers][+fw][+analytical]``, e.g. ``depth+fw+analytical`` or ``rgb+markers``."""
+        match = _VARIANT.match(text.strip())
+        if not match:
+            raise ModelError(
+                f"variant {text!r}: expected depth or rgb followed by any of +markers, +fw, "
+                "+analytical (e.g. depth+fw+analytical)"
+            )
+        flags = set(filter(None, match.group(2).split("+")))
+        return cls(image=match.group(1), markers="markers" in flags, force_width="fw" in flags,
+                   analytical="analytical" in flags, n_frames=n_frames, size_px=size_px)
+
+    @property
+    def name(self) -> str:
+        """The variant as :meth:`parse` reads it."""
+        flags = [f for f, on in (("markers", self.markers), ("fw", self.force_width),
+                                  ("analytical", self.analytical)) if on]
+        return "+".join([self.image, *flags])
+
+    @property
+    def method(self) -> str:
+        """Estimate method name: ``hybrid`` with analytical inputs, ``cnn`` without."""
+        return "hybrid" if self.analytical else "cnn"
+
+    @property
+    def channels(self) -> int:
+        """Image channels per frame."""
+        per_finger = 1 if self.image == "depth" else 3
+        return per_finger * (2 if self.markers else 1)
+
+    @property
+    def input_shapes(self) -> dict[str, tuple[int, ...]]:
+        """Model input name -> shape without the batch axis, in call order."""
+        shapes: dict[str, tuple[int, ...]] = {"frames": (self.n_frames, self.channels, *self.size_px)}
+        if self.force_width:
+            shapes["force_width"] = (2 * self.n_frames,)
+        if self.analytical:
+            shapes["analytical"] = (FEATURES_PER_METHOD * len(ANALYTICAL_METHODS),)
+        return shapes
+
+
+# --------------------------------------------------------------------------- scales
+
+
+def normalise_modulus(e_pa: np.ndarray | float) -> np.ndarray:
+    """log10 E mapped to the model's [0, 1] scale (not clipped)."""
+    lo, hi = LOG10_E_RANGE
+    return (np.log10(np.asarray(e_pa, dtype=np.float64)) - lo) / (hi - lo)
+
+
+def modulus_from_normalised(y: np.ndarray | float) -> np.ndarray:
+    """Modulus (Pa) of a model output on the [0, 1] scale (clipped to it first)."""
+    lo, hi = LOG10_E_RANGE
+    return 10.0 ** (lo + (hi - lo) * np.clip(np.asarray(y, dtype=np.float64), 0.0, 1.0))
+
+
+def analytical_features(estimates: Sequence[Estimate]) -> np.ndarray:
+    """The ``analytical`` input of one grasp (see the module notes), float32.
+
+    A method missing from ``estimates`` is encoded as a refusal.
+    """
+    by_method = {e.method: e for e in estimates}
+    out = np.zeros((len(ANALYTICAL_METHODS), FEATURES_PER_METHOD), dtype=np.float32)
+    lo, hi = LOG10_E_RANGE
+    for row, method in zip(out, ANALYTICAL_METHODS, strict=True):
+        est = by_method.get(method)
+        state = est.state if est is not None else "insufficient_data"
+        row[2 + STATES.index(state)] = 1.0
+        row[1] = 1.0
+        if est is None or est.e_pa is None:
+            continue
+        row[0] = np.clip((math.log10(est.e_pa) - lo) / (hi - lo), -0.5, 1.5)
+        low, high = est.interval_pa
+        if low is not None and high is not None:
+            row[1] = min(math.log10(high / low) / (hi - lo), 1.0)
+    return out.ravel()
+
+
+def reduce_images(images: np.ndarray, size_px: tuple[int, int] | None) -> np.ndarray:
+    """Area-average each image of a stack to ``size_px`` (rows, cols), float32.
+
+    ``images`` is (n, H, W) or (n, H, W, 3); one ``cv2.resize`` per image. ``size_px``
+    None keeps the size.
+    """
+    if size_px is None:
+        return images.astype(np.float32, copy=False)
+    rows, cols = size_px
+    out = np.empty((images.shape[0], rows, cols, *images.shape[3:]), dtype=np.float32)
+    for i, image in enumerate(images):
+        out[i] = cv2.resize(image.astype(np.float32, copy=False), (cols, rows), interpolation=cv2.INTER_AREA)
+    return out
+
+
+class ModelInputs(Protocol):
+    """What :func:`encode` reads (a :class:`SampledGrasp` or a TrainingSample)."""
+
+    depth_m: np.ndarray
+    rgb_diff: np.ndarray | None
+    depth_markers_m: np.ndarray | None
+    rgb_diff_markers: np.ndarray | None
+    force_n: np.ndarray
+    width_m: np.ndarray
+    estimates: tuple[Estimate, ...]
+
+
+def _images(item: ModelInputs, variant: Variant, where: str) -> np.ndarray:
+    """(N, C, h, w) image input of one item."""
+    names = ("depth_m", "depth_markers_m") if variant.image == "depth" else ("rgb_diff", "rgb_diff_markers")
+    names = names if variant.markers else names[:1]
+    parts = []
+    for name in names:
+        image = getattr(item, name)
+        if image is None:
+            raise ModelError(f"{where}: variant {variant.name} needs {name}, which is missing")
+        if image.shape[:3] != (variant.n_frames, *variant.size_px):
+            raise ModelError(f"{where}: {name} has shape {image.shape}; variant {variant.name} expects "
+                             f"{variant.n_frames} frames of {variant.size_px[0]} x {variant.size_px[1]} px")
+        if variant.image == "depth":
+            parts.append(image[:, None] / DEPTH_SCALE_M)
+        else:
+            parts.append(np.moveaxis(image, -1, 1) / RGB_SCALE)
+    return np.concatenate(parts, axis=1)
+
+
+def encode(variant: Variant, items: Sequence[ModelInputs], *, where: str = "model input"
+           ) -> dict[str, np.ndarray]:
+    """Batch the model inputs of ``items`` (module notes), float32, keyed by input name.
+
+    Raises
+    ------
+    ModelError
+        An item lacks what the variant reads, or its images are not of the
+        variant's frame count and size.
+    """
+    if not items:
+        raise ModelError(f"{where}: nothing to encode")
+    batch = {"frames": np.stack([_images(item, variant, where) for item in items]).astype(np.float32)}
+    if variant.force_width:
+        batch["force_width"] = np.stack([
+            np.concatenate([item.force_n / FORCE_SCALE_N, item.width_m / WIDTH_SCALE_M]) for item in items
+        ]).astype(np.float32)
+    if variant.analytical:
+        batch["analytical"] = np.stack([analytical_features(item.estimates) for item in items])
+    return batch
+
+
+# --------------------------------------------------------------------------- sampling
+
+
+MEASUREMENT_MODULES = (
+    "estimator.segment", "estimator.features", "estimator.analytical", "estimator.measure",
+    "estimator.perception.warp", "estimator.perception.markers", "estimator.perception.depth",
+    "estimator.perception.calibration", "estimator.learned.inputs",
+)
+
+
+@lru_cache(maxsize=1)
+def measurement_fingerprint() -> str:
+    """SHA-256 (16 hex digits) of the source of every module that turns a record into model inputs.
+
+    A model learned the inputs this code produced when its dataset was built; when
+    the fingerprint changes (a fix in the fits, the depth, the sampling), the
+    analytical inputs and depth maps it sees at run time may no longer be the
+    ones it was trained on, and it should be retrained.
+    """
+    digest = hashlib.sha256()
+    for name in MEASUREMENT_MODULES:
+        digest.update(Path(importlib.import_module(name).__file__).read_bytes())
+    return digest.hexdigest()[:16]
+
+
+
+class DecodedFrameStream(FrameStream):
+    """A frame stream that also holds its frames decoded (``frame(i)`` is a lookup).
+
+    Used to time the estimator from decoded frames, as a live camera delivers them.
+    """
+
+    def __init__(self, stream: FrameStream, images: np.ndarray):
+        super().__init__(stream.finger, stream.t_s, stream.encoded, stream.encoding,
+                         stream.jpeg_quality, stream.shape)
+        object.__setattr__(self, "images", images)
+
+    def frame(self, index: int) -> np.ndarray:
+        return self.images[index]
+
+
+def decoded(record: GraspRecord) -> GraspRecord:
+    """``record`` with every frame stream decoded once, up front."""
+    return replace(record, frames=tuple(DecodedFrameStream(s, s.frames()) for s in record.frames))
+
+
+def _take(stream: FrameStream, index: np.ndarray) -> FrameStream:
+    """The frames of ``stream`` at ``index``, with their timestamps."""
+    encoded = tuple(stream.encoded[i] for i in index)
+    taken = FrameStream(stream.finger, stream.t_s[index], encoded, stream.encoding, stream.jpeg_quality,
+                        stream.shape)
+    if isinstance(stream, DecodedFrameStream):
+        return DecodedFrameStream(taken, stream.images[index])
+    return taken
+
+
+def _positions(segment: Segment, n_frames: int, shift: int) -> np.ndarray | str:
+    """Positions (within the loading frames) of the sample set ``shift``, or why there is none.
+
+    The loading frame nearest to each of ``n_frames`` times spread evenly from the
+    contact (``shift = 0``, the live sampling) or from loading frame ``shift`` to the
+    peak. A short loading phase (a stiff object loads within a frame or two) repeats
+    frames; a shifted set must have ``n_frames`` distinct frames.
+    """
+    t = segment.frame_t_s
+    if shift == 0:
+        start = segment.t_contact_s
+    elif t.size - shift < n_frames:
+        return f"shift {shift} leaves {max(t.size - shift, 0)} of the {n_frames} loading frames it needs"
+    else:
+        start = float(t[shift])
+    targets = np.linspace(start, segment.t_peak_s, n_frames)
+    return np.abs(t[None, :] - targets[:, None]).argmin(axis=1)
+
+
+@dataclass(frozen=True)
+class SampledGrasp:
+    """One grasp's ``n`` sampled frames, measured as the model reads them; falsy with a reason.
+
+    Attributes
+    ----------
+    reason : str
+        Why the grasp cannot be sampled (empty when it can).
+    measurements : GraspMeasurements or None
+        Measurements of the sampled frames (the analytical fits' input).
+    estimates : tuple of Estimate
+        Every analytical method over the sampled frames.
+    force_n, width_m : ndarray, shape (n,)
+        Force (N) and gripper width (m) at each sampled frame.
+    depth_m : ndarray, float32, shape (n, h, w)
+        Gel depth (m), reduced to ``size_px``.
+    rgb_diff : ndarray, float32, shape (n, h, w, 3), or None
+        Frame minus the no-contact frame (BGR, 8-bit levels), reduced; None unless asked.
+    depth_markers_m, rgb_diff_markers : ndarray or None
+        The same from the other (marker) finger, when asked.
+    """
+
+    reason: str = ""
+    measurements: GraspMeasurements | None = None
+    estimates: tuple[Estimate, ...] = ()
+    force_n: np.ndarray | None = None
+    width_m: np.ndarray | None = None
+    depth_m: np.ndarray | None = None
+    rgb_diff: np.ndarray | None = None
+    depth_markers_m: np.ndarray | None = None
+    rgb_diff_markers: np.ndarray | None = None
+
+    def __bool__(self) -> bool:
+        return not self.reason
+
+
+def no_contact_reference(record: GraspRecord, finger: str, segment: Segment) -> np.ndarray:
+    """The no-contact frame :func:`measure_grasp` uses for ``finger``: the median of the frames
+    before the onset, on the estimator's image grid (uint8 BGR)."""
+    index = _reference_index(record.stream(finger).t_s, segment.t_onset_s - REFERENCE_GUARD_S)
+    return _to_image_grid(_median_frame(_decode(record, finger, index))[None], record.sensor(finger))[0]
+
+
+@lru_cache(maxsize=8)
+def cached_calibration(path: str) -> Calibration:
+    """:func:`~estimator.perception.calibration.load_calibration`, once per path and process."""
+    return load_calibration(path)
+
+
+def calibration_for(record: GraspRecord, finger: str, calibration: Calibration | str | Path | None) -> Calibration:
+    """``calibration`` when loaded; else the file it (or ``finger``'s sensor) names, loaded once per process."""
+    if isinstance(calibration, Calibration):
+        return calibration
+    return cached_calibration(str(calibration_path(record.sensor(finger), calibration)))
+
+
+def _marker_finger(record: GraspRecord, finger: str) -> str | None:
+    return next((s.finger for s in record.sensors if s.finger != finger and s.markers), None)
+
+
+def _measure_finger(
+    record: GraspRecord, finger: str, *, settings: Settings, calibration: Calibration, n_frames: int,
+    shift: int, size_px: tuple[int, int] | None, rgb: bool,
+) -> SampledGrasp:
+    """Measure the sample set ``shift`` of one finger (no estimates, no markers)."""
+    settings = replace(settings, estimator=replace(settings.estimator, finger=finger, n_frames=n_frames))
+    first = measure_grasp(record, settings=settings, tactile=False)
+    segment = first.segment
+    why = segment.reason or segment.frame_reason
+    if why:
+        return SampledGrasp(reason=why)
+    positions = _positions(segment, n_frames, shift)
+    if isinstance(positions, str):
+        return SampledGrasp(reason=positions)
+    distinct, rows = np.unique(positions, return_inverse=True)
+    reference_index = _reference_index(record.stream(finger).t_s, segment.t_onset_s - REFERENCE_GUARD_S)
+    loading_index = segment.frame_index[distinct]
+    keep = np.concatenate([reference_index, loading_index])
+    sampled = replace(record, frames=(_take(record.stream(finger), keep),))
+    m = measure_grasp(sampled, settings=settings, calibration=calibration)
+    if m.features is None or m.depth_m is None:
+        return SampledGrasp(reason=m.tactile_reason or "tactile features were not measured")
+    if m.t_s.size != distinct.size:
+        return SampledGrasp(reason=f"{m.t_s.size} of the {distinct.size} sampled frames are usable")
+    depth = reduce_images(m.depth_m, size_px)[rows]
+    diff = None
+    if rgb:
+        reference = no_contact_reference(record, finger, segment)
+        frames = _to_image_grid(_decode(record, finger, loading_index), record.sensor(finger))
+        diff = reduce_images(frames.astype(np.float32) - reference.astype(np.float32), size_px)[rows]
+    return SampledGrasp(measurements=m, force_n=m.force_n[rows], width_m=m.width_m[rows], depth_m=depth,
+                        rgb_diff=diff)
+
+
+def sample_grasp(
+    record: GraspRecord,
+    *,
+    settings: Settings,
+    calibration: Calibration | str | Path | None,
+    n_frames: int,
+    size_px: tuple[int, int] | None,
+    shift: int = 0,
+    rgb: bool = False,
+    markers: bool = False,
+    marker_calibration: Calibration | str | Path | None = None,
+) -> SampledGrasp:
+    """Measure one sample set of a grasp: depth, force, width and analytical estimates.
+
+    Parameters
+    ----------
+    record : GraspRecord
+    settings : Settings
+        ``estimator.finger`` is the finger read; the rest as for :func:`measure_grasp`.
+    calibration : Calibration, path or None
+        That finger's colour-to-gradient calibration (None: the file its sensor names);
+        files are loaded once per process (:func:`cached_calibration`).
+    n_frames : int
+        Frames sampled over the loading phase.
+    size_px : (int, int) or None
+        (rows, cols) the images are reduced to; None keeps the sensor grid.
+    shift : int
+        Augmentation: start the sampling this many loading frames late (0 = live sampling).
+    rgb : bool
+        Also the colour-difference images (decodes and warps the frames once more).
+    markers : bool
+        Also the other finger's images (the sensor with markers); needs its calibration.
+    marker_calibration : Calibration, path or None
+        The marker finger's calibration (None: the file its sensor names).
+
+    Returns
+    -------
+    SampledGrasp
+        Falsy with a reason when the grasp has no usable loading phase, too few
+        loading frames for ``n_frames`` (after ``shift``) or unusable frames.
+    """
+    if shift < 0 or n_frames < 1:
+        raise ModelError(f"shift {shift} and n_frames {n_frames}: expected shift >= 0 and n_frames >= 1")
+    finger = settings.estimator.finger
+    cal = calibration_for(record, finger, calibration)
+    common = dict(settings=settings, n_frames=n_frames, shift=shift, size_px=size_px, rgb=rgb)
+    sampled = _measure_finger(record, finger, calibration=cal, **common)
+    if not sampled:
+        return sampled
+    if markers:
+        other = _marker_finger(record, finger)
+        if other is None:
+            return SampledGrasp(reason=f"no finger with markers besides {finger!r} in the record")
+        other_cal = calibration_for(record, other, marker_calibration)
+        marker = _measure_finger(record, other, calibration=other_cal, **common)
+        if not marker:
+            return SampledGrasp(reason=f"marker finger {other!r}: {marker.reason}")
+        sampled = replace(sampled, depth_markers_m=marker.depth_m, rgb_diff_markers=marker.rgb_diff)
+    estimates = tuple(estimate_grasp(sampled.measurements, method, settings=settings)
+                      for method in ANALYTICAL_METHODS)
+    return replace(sampled, estimates=estimates)

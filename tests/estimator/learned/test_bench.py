@@ -1,0 +1,60 @@
+"""``estimator bench``: the Pareto frontier and the command on a tiny directory."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from estimator.bench import pareto_front
+from estimator.cli import main
+
+
+def test_pareto_front_keeps_only_undominated_points():
+    points = [(1.0, 2.0), (2.0, 1.0), (3.0, 1.5), (0.5, None), (2.0, 1.0), (10.0, 0.2), (1.0, 2.5)]
+    assert pareto_front(points) == [True, True, False, False, True, True, False]
+    assert pareto_front([]) == []
+    assert pareto_front([(5.0, None)]) == [False]
+
+
+@pytest.mark.slow
+def test_bench_runs_on_a_tiny_directory_and_marks_a_frontier(sim_grasps, trained_model, tmp_path, capsys):
+    records, calibration = sim_grasps
+    png = tmp_path / "bench.png"
+    argv = ["bench", str(records), "--models", str(trained_model), "--calibration", str(calibration),
+            "--repeats", "1", "--limit", "3", "--json", "--plot", str(png)]
+    assert main(argv) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    configs = {c["name"]: c for c in result["configs"]}
+    assert {"no_tactile", "split", "split@3f"} <= set(configs)
+    assert any(name.startswith("hybrid[depth+fw+analytical 3f 16x22]") for name in configs)
+    assert any(name.startswith("auto[") for name in configs)
+    assert result["labelled"] == 3 and result["reference_ms_p50"] > 0
+    for c in result["configs"]:
+        assert set(c) >= {"name", "latency_ms_p50", "log10_error", "within_10x", "pareto"}
+        assert c["latency_ms_p50"] > 0
+        assert c["log10_error"] is None or c["log10_error"] >= 0
+    front = [c for c in result["configs"] if c["pareto"]]
+    assert front and all(c["log10_error"] is not None for c in front)
+    fastest = min((c for c in result["configs"] if c["log10_error"] is not None), key=lambda c: c["latency_ms_p50"])
+    assert fastest["pareto"]  # nothing is faster, so nothing dominates it
+    assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("module", ["estimator.learned.dataset", "estimator.learned.train", "estimator.bench"])
+def test_commands_explain_every_option(module):
+    import argparse
+    import importlib
+
+    parser = argparse.ArgumentParser()
+    importlib.import_module(module).add_arguments(parser)
+    assert parser.description
+    for action in parser._actions:
+        assert action.help, f"{module}: {action.option_strings or action.dest} has no help"
+
+
+@pytest.mark.parametrize("command", ["build-dataset", "train", "bench"])
+def test_commands_are_registered(command, capsys):
+    with pytest.raises(SystemExit) as done:
+        main([command, "--help"])
+    assert done.value.code == 0 and "--json" in capsys.readouterr().out

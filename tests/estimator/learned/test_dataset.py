@@ -1,0 +1,80 @@
+"""The dataset builder: object-level split without leakage, samples measured from records."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter, defaultdict
+
+import numpy as np
+import pytest
+
+from estimator.cli import main
+from estimator.errors import EstimatorError, SampleError
+from estimator.learned.dataset import SPLITS, load_split, split_objects
+from estimator.learned.inputs import ANALYTICAL_METHODS
+from estimator.samples import load_sample, sample_paths
+
+MATERIALS = {f"{m}_{i}": m for m in ("foam", "rubber", "plastic", "metal", "wood") for i in range(8)} | {"odd": "glass"}
+
+
+def test_split_is_deterministic_disjoint_and_complete():
+    split = split_objects(MATERIALS, seed=4)
+    assert split == split_objects(dict(reversed(MATERIALS.items())), seed=4)  # input order does not matter
+    names = [n for s in SPLITS for n in split[s]]
+    assert sorted(names) == sorted(MATERIALS) and len(set(names)) == len(names)
+    assert split != split_objects(MATERIALS, seed=5)
+    assert [len(split[s]) for s in SPLITS] == [29, 6, 6]  # 0.7 / 0.15 / 0.15 of 41
+
+
+def test_split_is_stratified_by_material():
+    split = split_objects(MATERIALS, seed=0, fractions=(0.5, 0.25, 0.25))
+    for s, share in zip(SPLITS, (0.5, 0.25, 0.25), strict=True):
+        per_material = Counter(MATERIALS[n] for n in split[s])
+        for material in ("foam", "rubber", "plastic", "metal", "wood"):
+            assert per_material[material] == pytest.approx(8 * share, abs=1), (s, material)
+
+
+@pytest.mark.parametrize("fractions", [(0.5, 0.5), (0.8, 0.3, -0.1), (0.5, 0.2, 0.2)])
+def test_bad_fractions_are_refused(fractions):
+    with pytest.raises(EstimatorError, match="fractions"):
+        split_objects(MATERIALS, seed=0, fractions=fractions)
+
+
+def test_split_file_naming_an_object_twice_is_refused(tmp_path):
+    path = tmp_path / "split.json"
+    path.write_text(json.dumps({"train": ["a", "b"], "val": ["b"], "test": []}))
+    with pytest.raises(SampleError, match=r"more than one split: \['b'\]"):
+        load_split(path)
+
+
+@pytest.mark.slow
+def test_build_dataset_from_records_never_leaks_an_object(sim_grasps, tmp_path, capsys):
+    records, calibration = sim_grasps
+    out = tmp_path / "ds"
+    argv = ["build-dataset", "--records", str(records), "--out", str(out), "--calibration", str(calibration),
+            "--size", "32x44", "--shifts", "2", "--split", "0.5,0.25,0.25", "--seed", "3", "--json"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["records"] == 4 and summary["size_px"] == [32, 44]
+    split = load_split(out / "split.json")
+    where = defaultdict(set)
+    n_samples = 0
+    for s in SPLITS:
+        for path in (sample_paths(out / s) if (out / s).is_dir() else []):
+            sample = load_sample(path)
+            n_samples += 1
+            where[sample.object_name].add(s)
+            assert sample.object_name in split[s], path  # no object outside its split
+            assert path.parent.name == sample.object_name
+            assert sample.depth_m.shape == (3, 32, 44) and sample.rgb_diff.shape == (3, 32, 44, 3)
+            assert [e.method for e in sample.estimates] == list(ANALYTICAL_METHODS)
+            assert sample.label_modulus_pa > 0 and np.all(np.diff(sample.force_n) >= -0.5)
+    assert all(len(s) == 1 for s in where.values())  # every grasp and augmentation of an object in one split
+    assert n_samples == sum(summary["samples"].values()) >= 3
+    assert main(argv) == 2  # refuses to write over a dataset
+    assert "already holds a dataset" in capsys.readouterr().err
+
+
+def test_build_dataset_refuses_an_empty_directory(tmp_path, capsys):
+    assert main(["build-dataset", "--records", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    assert "no .grasp records" in capsys.readouterr().err

@@ -1,0 +1,130 @@
+"""ONNX export agrees with torch; inference runs on onnxruntime alone and checks what it loads."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+import torch
+
+from estimator.errors import ModelError
+from estimator.learned.export import export_onnx, max_disagreement
+from estimator.learned.infer import CompliancePredictor, ModelMetadata, load_predictor
+from estimator.learned.inputs import Variant, encode, normalise_modulus
+from estimator.learned.model import ComplianceNet
+
+
+def _random_batch(variant: Variant, batch: int, seed: int = 0) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return {n: rng.normal(0, 1, (batch, *s)).astype(np.float32) for n, s in variant.input_shapes.items()}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["depth+fw+analytical", "rgb+markers"])
+def test_torch_and_onnxruntime_agree_to_1e4_for_any_batch(tmp_path, name):
+    variant = Variant.parse(name, n_frames=3, size_px=(32, 44))
+    torch.manual_seed(0)
+    model = ComplianceNet(variant).eval()
+    path = export_onnx(model, tmp_path / "model.onnx", example=_random_batch(variant, 2))
+    for batch in (1, 7):
+        assert max_disagreement(model, path, _random_batch(variant, batch, seed=batch)) <= 1e-4
+
+
+@pytest.mark.slow
+def test_trained_model_loads_and_predicts(trained_model, synthetic):
+    predictor = CompliancePredictor(trained_model)
+    assert predictor.variant.name == "depth+fw+analytical"
+    samples = [synthetic.sample(n, 0, 0, rng=np.random.default_rng(i)) for i, n in enumerate(("foam_a", "metal_a"))]
+    e_pa = predictor.predict(samples)
+    assert e_pa.shape == (2,) and np.all(np.isfinite(e_pa)) and np.all((e_pa >= 1e3) & (e_pa <= 1e12))
+    np.testing.assert_allclose(normalise_modulus(e_pa), predictor.predict_normalised(encode(predictor.variant, samples)),
+                               rtol=1e-5, atol=1e-6)
+    low, high = predictor.interval(float(e_pa[0]))
+    assert 0 < low <= e_pa[0] <= high < np.inf
+    with pytest.raises(ModelError, match="model input 'frames'"):
+        predictor.predict_normalised({**encode(predictor.variant, samples), "frames": np.zeros((2, 3, 1, 8, 8))})
+    with pytest.raises(ModelError, match="model inputs"):
+        predictor.predict_normalised({"frames": np.zeros((2, 3, 1, 16, 22))})
+
+
+@pytest.mark.slow
+def test_inference_never_imports_torch(trained_model):
+    script = textwrap.dedent(f"""
+        import sys
+        import numpy as np
+        from estimator.learned.hybrid import HybridEstimator
+        from estimator.learned.infer import CompliancePredictor
+        from estimator.learned.inputs import encode
+        predictor = CompliancePredictor({str(trained_model)!r})
+        batch = {{n: np.zeros((2, *s), np.float32) for n, s in predictor.variant.input_shapes.items()}}
+        out = predictor.predict_normalised(batch)
+        assert out.shape == (2,), out.shape
+        import estimator.bench, estimator.learned.dataset  # the run-time commands' modules too
+        print("torch" in sys.modules)
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "False"
+
+
+def _copy(model_dir, tmp_path):
+    dest = tmp_path / "model"
+    shutil.copytree(model_dir, dest)
+    return dest, json.loads((dest / "metadata.json").read_text())
+
+
+@pytest.mark.parametrize(("change", "expected"), [
+    (lambda m: m.update(version=9), "metadata version 9"),
+    (lambda m: m.update(format="other"), "not a compliance-teleop.model"),
+    (lambda m: m["scales"].update(force_scale_n=25.0), "trained with input scales"),
+    (lambda m: m["variant"].update(name="rgb+fw+analytical"), "do not match variant"),
+    (lambda m: m["residual_log10"].update(q025=1.0, q975=-1.0), "q025 <= q975"),
+    (lambda m: m.pop("residual_log10"), "missing or malformed"),
+])
+@pytest.mark.slow
+def test_metadata_that_does_not_fit_is_refused(trained_model, tmp_path, change, expected):
+    dest, meta = _copy(trained_model, tmp_path)
+    change(meta)
+    (dest / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(ModelError, match=expected):
+        CompliancePredictor(dest)
+
+
+@pytest.mark.slow
+def test_missing_or_broken_files_are_refused(trained_model, tmp_path):
+    with pytest.raises(ModelError, match="not a readable model metadata"):
+        CompliancePredictor(tmp_path)
+    dest, _ = _copy(trained_model, tmp_path)
+    (dest / "model.onnx").write_bytes(b"not onnx")
+    with pytest.raises(ModelError, match="onnxruntime cannot load it"):
+        CompliancePredictor(dest)
+    with pytest.raises(ModelError, match="threads"):
+        CompliancePredictor(trained_model, threads=0)
+
+
+@pytest.mark.slow
+def test_a_model_knows_whether_this_code_measured_its_inputs(trained_model, tmp_path, caplog):
+    assert CompliancePredictor(trained_model).measurement_code_matches
+    dest, meta = _copy(trained_model, tmp_path)
+    meta["data"]["measurement_fingerprint"] = "0" * 16
+    (dest / "metadata.json").write_text(json.dumps(meta))
+    with caplog.at_level("WARNING"):
+        stale = CompliancePredictor(dest)
+    assert not stale.measurement_code_matches and "retrain it" in caplog.text
+
+
+@pytest.mark.slow
+def test_settings_name_the_model(trained_model):
+    from dataclasses import replace
+
+    from teleop.settings import load_settings
+
+    settings = load_settings()
+    settings = replace(settings, estimator=replace(settings.estimator, model_path=str(trained_model / "model.onnx")))
+    assert load_predictor(settings=settings).model_dir == trained_model
+    assert ModelMetadata.from_json(json.loads((trained_model / "metadata.json").read_text()), "x").variant.n_frames == 3

@@ -1,0 +1,120 @@
+"""Hybrid, CNN and auto estimates keep the Estimate invariants on hard inputs."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from estimator.estimate import Estimate
+from estimator.learned.export import export_onnx
+from estimator.learned.hybrid import AutoPolicy, HybridEstimator
+from estimator.learned.infer import CompliancePredictor
+from estimator.learned.inputs import SampledGrasp, decoded, encode, sample_grasp
+from estimator.learned.model import ComplianceNet
+from teleop.record import read_record
+from teleop.settings import load_settings
+
+pytestmark = pytest.mark.slow  # every test needs the trained model fixture
+
+SETTINGS = load_settings()
+
+
+def _valid(estimate: Estimate) -> None:
+    for value in (estimate.e_pa, *estimate.interval_pa):
+        assert value is None or (math.isfinite(value) and value > 0)
+    if estimate.state == "insufficient_data":
+        assert estimate.reason and estimate.e_pa is None
+
+
+def _sampled(synthetic, name: str, estimates: tuple[Estimate, ...] | None = None) -> SampledGrasp:
+    s = synthetic.sample(name, 0, 0, rng=np.random.default_rng(0))
+    return SampledGrasp(estimates=s.estimates if estimates is None else estimates, force_n=s.force_n,
+                        width_m=s.width_m, depth_m=s.depth_m)
+
+
+REFUSALS = tuple(Estimate.refuse(m, "nothing resolved") for m in ("no_tactile", "elastic", "hertz", "split"))
+BOUNDS = (Estimate.at_least("split", 3e8, "stiffer than resolved"), Estimate.at_least("hertz", 1e9, "rigid"),
+          Estimate.at_most("elastic", 1e4, "soft"), Estimate.refuse("no_tactile", "none"))
+
+
+@pytest.mark.parametrize("estimates", [REFUSALS, BOUNDS], ids=["all_refused", "bounds"])
+@pytest.mark.parametrize("mode", ["model", "auto"])
+def test_hard_analytical_inputs_still_give_a_valid_model_estimate(trained_model, synthetic, estimates, mode):
+    hybrid = HybridEstimator(CompliancePredictor(trained_model), settings=SETTINGS)
+    result = hybrid.estimate_sampled(_sampled(synthetic, "metal_a", estimates), mode=mode)
+    _valid(result)
+    assert result.state == "ok" and result.method == ("hybrid" if mode == "model" else "auto")
+    low, high = result.interval_pa
+    assert low <= result.e_pa <= high and 1e3 <= result.e_pa <= 1e12
+
+
+def test_an_unsampled_grasp_is_refused_with_its_reason(trained_model):
+    hybrid = HybridEstimator(CompliancePredictor(trained_model), settings=SETTINGS)
+    for mode in ("model", "auto"):
+        result = hybrid.estimate_sampled(SampledGrasp(reason="no tactile frame within the loading phase"), mode=mode)
+        assert result.state == "insufficient_data" and "no tactile frame" in result.reason and not result
+
+
+def test_a_non_finite_model_output_is_never_returned(trained_model, synthetic):
+    hybrid = HybridEstimator(CompliancePredictor(trained_model), settings=SETTINGS, policy=AutoPolicy(0.0))
+    broken = dataclasses.replace(_sampled(synthetic, "rubber_a"), depth_m=np.full((3, 16, 22), np.nan, np.float32))
+    refused = hybrid.estimate_sampled(broken, mode="model")
+    assert refused.state == "insufficient_data" and "not finite" in refused.reason
+    fallback = hybrid.estimate_sampled(broken, mode="auto")  # the split estimate, relabelled
+    assert fallback.method == "auto" and fallback.state == "ok" and fallback.reason.startswith("split: the model")
+    all_refused = dataclasses.replace(broken, estimates=REFUSALS)
+    assert hybrid.estimate_sampled(all_refused, mode="auto").state == "insufficient_data"
+
+
+@pytest.mark.parametrize("bias", [60.0, -60.0], ids=["saturated_high", "saturated_low"])
+def test_a_saturated_model_gives_the_ends_of_the_range(trained_model, synthetic, tmp_path, bias):
+    dest = tmp_path / "model"
+    shutil.copytree(trained_model, dest)
+    predictor = CompliancePredictor(trained_model)
+    model = ComplianceNet(predictor.variant).eval()
+    with torch.no_grad():
+        model.estimation[1].bias.fill_(bias)
+    sample = _sampled(synthetic, "foam_a")
+    export_onnx(model, dest / "model.onnx", example=encode(predictor.variant, [sample, sample]))
+    result = HybridEstimator(CompliancePredictor(dest), settings=SETTINGS).estimate_sampled(sample)
+    _valid(result)
+    assert result.e_pa == pytest.approx(1e12 if bias > 0 else 1e3)
+
+
+def test_auto_takes_a_narrow_split_and_skips_the_model(trained_model, synthetic):
+    predictor = CompliancePredictor(trained_model)
+    narrow = Estimate.ok("split", 2e6, 1.5e6, 2.5e6, "narrow")
+    wide = Estimate.ok("split", 2e6, 2e4, 2e8, "four decades")
+    hybrid = HybridEstimator(predictor, settings=SETTINGS, policy=AutoPolicy(0.5))
+    taken = hybrid.estimate_sampled(_sampled(synthetic, "rubber_a", (narrow,)), mode="auto")
+    assert taken.method == "auto" and taken.e_pa == 2e6 and taken.reason.startswith("split: split interval 0.22")
+    model = hybrid.estimate_sampled(_sampled(synthetic, "rubber_a", (wide,)), mode="auto")
+    assert model.reason.startswith("model:") and model.e_pa != 2e6
+    never = HybridEstimator(predictor, settings=SETTINGS, policy=AutoPolicy(0.0))
+    assert never.estimate_sampled(_sampled(synthetic, "rubber_a", (narrow,)), mode="auto").reason.startswith("model:")
+    chosen = predictor.metadata.raw["auto"]["max_split_interval_decades"]
+    assert HybridEstimator(predictor, settings=SETTINGS).policy == AutoPolicy(chosen)  # from training
+
+
+def test_records_end_to_end(trained_model, sim_grasps):
+    records, calibration = sim_grasps
+    hybrid = HybridEstimator(CompliancePredictor(trained_model), settings=SETTINGS, calibration=calibration)
+    for path in sorted(records.glob("*.grasp")):
+        record = read_record(path)
+        for mode in ("model", "auto"):
+            result = hybrid.estimate(record, mode=mode)
+            _valid(result)
+            assert result.latency_s > 0
+        sampled = sample_grasp(record, settings=SETTINGS, calibration=calibration, n_frames=3, size_px=(16, 22))
+        again = sample_grasp(decoded(record), settings=SETTINGS, calibration=calibration, n_frames=3,
+                             size_px=(16, 22))  # frames decoded up front (as the bench times it): same result
+        assert again.reason == sampled.reason
+        assert [e.with_latency(0) for e in again.estimates] == [e.with_latency(0) for e in sampled.estimates]
+        if sampled:  # the model saw exactly what the dataset builder stores
+            assert sampled.depth_m.shape == (3, 16, 22) and len(sampled.estimates) == 4
+            np.testing.assert_array_equal(again.depth_m, sampled.depth_m)

@@ -1,0 +1,77 @@
+"""Training: early stopping, what a model directory holds, leaks and mismatches refused."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from estimator.errors import EstimatorError, SampleError
+from estimator.learned.dataset import load_split
+from estimator.learned.inputs import Variant
+from estimator.learned.train import TrainConfig, load_split_data, train_model
+
+
+@pytest.mark.slow
+def test_trained_model_directory(trained_model):
+    assert {p.name for p in trained_model.iterdir()} >= {"model.onnx", "metadata.json", "training_curve.png"}
+    assert (trained_model / "training_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    meta = json.loads((trained_model / "metadata.json").read_text())
+    assert meta["variant"] == {"name": "depth+fw+analytical", "n_frames": 3, "size_px": [16, 22], "method": "hybrid"}
+    assert meta["inputs"]["frames"] == [None, 3, 1, 16, 22]
+    training = meta["training"]
+    assert training["seed"] == 1 and 1 <= training["best_epoch"] <= training["epochs_run"] <= 4
+    assert len(training["history"]) == training["epochs_run"]
+    for split in ("val", "test"):
+        metrics = meta["metrics"][split]
+        assert metrics["hybrid"]["n"] > 0 and 0 <= metrics["hybrid"]["log10_error"] < 9
+        assert metrics["split"]["n"] > 0 and "no_tactile" in metrics  # the analytical methods on the same grasps
+    residual = meta["residual_log10"]
+    assert residual["q025"] <= residual["q975"] and residual["n"] == meta["data"]["samples"]["val"]
+    assert meta["auto"]["max_split_interval_decades"] >= 0 and meta["auto"]["table"]
+
+
+@pytest.mark.slow
+def test_training_stops_early_when_validation_stops_improving(synthetic_dataset, tmp_path):
+    variant = Variant.parse("depth", n_frames=3, size_px=(16, 22))
+    config = TrainConfig(epochs=50, patience=2, lr=1e-12, batch_size=16, seed=0)  # nothing to gain after epoch 1
+    meta = train_model(synthetic_dataset, tmp_path / "m", variant=variant, config=config, progress=False)
+    training = meta["training"]
+    assert training["epochs_run"] == training["best_epoch"] + 2 < 50
+    assert meta["training"]["best_val_log10_error"] == pytest.approx(
+        min(h["val_log10_error"] for h in training["history"]))
+
+
+def test_a_sample_in_the_wrong_split_is_a_leak(synthetic_dataset, tmp_path):
+    data = tmp_path / "leaky"
+    shutil.copytree(synthetic_dataset, data)
+    victim = load_split(data / "split.json")["val"][0]
+    moved = sorted((data / "val" / victim).glob("*.npz"))[0]
+    (data / "train" / victim).mkdir(exist_ok=True)
+    shutil.copy(moved, data / "train" / victim / moved.name)
+    with pytest.raises(SampleError, match=f"object '{victim}' is not in the train split"):
+        load_split_data(data, Variant.parse("depth", n_frames=3, size_px=(16, 22)))
+
+
+def test_split_data_follows_the_split_file(synthetic_dataset):
+    data = load_split_data(synthetic_dataset, Variant.parse("depth+fw+analytical", n_frames=3, size_px=(16, 22)))
+    split = load_split(synthetic_dataset / "split.json")
+    for name, part in data.items():
+        assert {r["object"] for r in part.rows} == set(split[name])
+        assert part.inputs["frames"].shape[0] == len(part) == part.label.shape[0]
+        assert np.all((part.label >= 0) & (part.label <= 1))
+
+
+def test_mismatched_variant_or_empty_split_is_refused(synthetic, tmp_path):
+    plain = synthetic.write_dataset(tmp_path / "plain", markers=False, grasps=1, shifts=1)
+    with pytest.raises(EstimatorError, match="built without --markers"):
+        train_model(plain, tmp_path / "m", variant=Variant.parse("rgb+markers", n_frames=3, size_px=(16, 22)),
+                    progress=False)
+    shutil.rmtree(plain / "val")
+    with pytest.raises(EstimatorError, match="0 val samples"):
+        train_model(plain, tmp_path / "m", variant=Variant.parse("depth", n_frames=3, size_px=(16, 22)),
+                    progress=False)
+    with pytest.raises(EstimatorError, match="loss"):
+        TrainConfig(loss="l1")
