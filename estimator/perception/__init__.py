@@ -6,11 +6,13 @@ the row (down); depth is metres, positive into the gel.
 
 from estimator.perception.calibration import (
     Calibration,
+    PressRings,
     PressSet,
     detect_press_circle,
     fit_calibration,
     load_calibration,
     load_presses,
+    press_rings,
     split_presses,
 )
 from estimator.perception.depth import SphereFit, fit_sphere, poisson_depth, reconstruct_depth
@@ -19,6 +21,7 @@ from estimator.perception.warp import warp_and_crop, warp_matrix, warp_points
 
 __all__ = [
     "Calibration",
+    "PressRings",
     "PressSet",
     "SphereFit",
     "detect_markers",
@@ -29,6 +32,7 @@ __all__ = [
     "load_calibration",
     "load_presses",
     "poisson_depth",
+    "press_rings",
     "reconstruct_depth",
     "split_presses",
     "warp_and_crop",

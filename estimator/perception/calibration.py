@@ -29,25 +29,37 @@ ball, a cap ``z = sqrt(R^2 - r^2) - const``, so ``dz/dx = -(x - cx) /
 sqrt(R^2 - r^2)`` and likewise for y (pixels per pixel, with R in pixels).
 Pixels within ``inside_fraction * a`` of the centre are labelled so; the rim
 is left out because the skin does not follow the ball exactly at the contact
-edge. Pixels beyond ``outside_fraction * a`` are labelled flat; the ring in
-between (where the gel is pulled down around the ball) is not used.
+edge. Pixels beyond ``outside_fraction * a`` and beyond the press's visible
+colour change are labelled flat; the ring in between (where the gel is pulled
+down around the ball) is not used.
 
 Recorded press circles
 ----------------------
 Press circles from a dataPack (``touch_center``, ``touch_radius``) are hand
-annotations: the GelSight Mini set in ``taxim`` scatters them by up to ~20 px
-around where the ball visibly pressed, and the GelSight set draws them a few
-pixels wider than the contact. By default (``refine_passes=1``) they only
-seed the calibration: a first table is fitted with them, every training press
-is reconstructed with it, its contact circle is re-measured with
-:func:`~estimator.perception.depth.fit_sphere` (sphere-fit centre; radius
-where the surface slope peaks), and the table is fitted again with the
-re-measured circles. A re-measured circle whose centre moved further than the
-given radius ``a``, or whose radius left ``[a/2, 3a/2]``, is discarded and the
-given one kept. ``refine_passes=0`` uses the annotations as given. The
-circles actually used are kept in the calibration's provenance. Circles
-detected in the images (:func:`detect_press_circle`, for presses without
-annotations) are seeds of the same kind.
+annotations, and their conventions differ between sets: the GelSight set in
+``taxim`` draws the contact a few pixels wider than it is, while the GelSight
+Mini set scatters the centres by up to ~20 px around where the ball visibly
+pressed and draws the radius at the edge of the whole visible dimple (34-57 px)
+rather than of the contact (14-20 px, where the colour change peaks; the soft
+Mini gel sinks in far around the ball). Labelling that dimple with the ball's
+slopes teaches the table a depth-dependent mapping (shallow presses came out
+as smaller spheres, deep ones as larger). By default (``refine_passes=1``) the
+annotations therefore only seed the calibration: a first table is fitted with
+them, every training press is reconstructed with it and its centre re-measured
+with :func:`~estimator.perception.depth.fit_sphere` (sphere-fit centre, which
+does not depend on the annotated radius), and its rings with
+:func:`press_rings` around that centre, straight from the images: the contact
+radius is the ring of largest mean colour change (the surface slope, and so
+the colour change, peaks at the contact edge), and the flat gel starts where
+the change has fallen to ``flat_fraction`` of that peak. The table is then
+fitted again with the re-measured circles. A re-measured circle whose centre
+moved further than the given radius ``a`` is discarded and the given one
+kept. ``refine_passes=0`` uses the annotations as given. Flat labels always
+start beyond both ``outside_fraction * a`` and the measured flat ring, so the
+sunk-in gel around a press is never labelled flat. The circles actually used
+are kept in the calibration's provenance. Circles detected in the images
+(:func:`detect_press_circle`, for presses without annotations) are seeds of the
+same kind.
 
 File format
 -----------
@@ -70,7 +82,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -86,11 +98,13 @@ __all__ = [
     "FORMAT_NAME",
     "FORMAT_VERSION",
     "Calibration",
+    "PressRings",
     "PressSet",
     "detect_press_circle",
     "fit_calibration",
     "load_calibration",
     "load_presses",
+    "press_rings",
     "split_presses",
 ]
 
@@ -312,18 +326,19 @@ def load_calibration(path: str | Path) -> Calibration:
 
 
 def _press_labels(
-    grid: tuple[np.ndarray, np.ndarray], center: np.ndarray, radius_px: float, ball_px: float,
-    inside_fraction: float, outside_fraction: float, markers: np.ndarray | None,
+    grid: tuple[np.ndarray, np.ndarray], center: np.ndarray, radius_px: float, flat_px: float,
+    ball_px: float, inside_fraction: float, outside_fraction: float, markers: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Labelled pixels of one press, marker pixels left out.
 
     Returns the on-ball mask, its ``dz/dx`` and ``dz/dy`` (flat over that
-    mask), and the flat-gel mask; ``grid`` is ``np.indices`` (rows, cols).
+    mask), and the flat-gel mask (beyond both ``outside_fraction * radius_px``
+    and ``flat_px``); ``grid`` is ``np.indices`` (rows, cols).
     """
     dx, dy = grid[1] - center[0], grid[0] - center[1]
     r2 = dx * dx + dy * dy
     on_ball = r2 < (inside_fraction * radius_px) ** 2
-    flat = r2 > (outside_fraction * radius_px) ** 2
+    flat = r2 > max(outside_fraction * radius_px, flat_px) ** 2
     if markers is not None:
         on_ball &= ~markers
         flat &= ~markers
@@ -333,7 +348,7 @@ def _press_labels(
 
 def _fit_table(
     reference: np.ndarray, presses: Sequence[np.ndarray], centers: np.ndarray, radii: np.ndarray,
-    markers: Sequence[np.ndarray | None], *, ball_px: float, bins: int, tiles: tuple[int, int], relative_range: float,
+    flat_radii: np.ndarray, markers: Sequence[np.ndarray | None], *, ball_px: float, bins: int, tiles: tuple[int, int], relative_range: float,
     inside_fraction: float, outside_fraction: float, tile_prior_count: float,
 ) -> np.ndarray:
     """Accumulate labelled pixels into bins and build the filled, tiled table."""
@@ -344,8 +359,9 @@ def _fit_table(
     grid = np.indices(shape, dtype=np.float64)
     count = np.zeros(n_tiles * n_colours)
     ball_index, ball_gx, ball_gy = [], [], []
-    for press, center, radius, mask in zip(presses, centers, radii, markers, strict=True):
-        on_ball, gx, gy, flat = _press_labels(grid, center, radius, ball_px, inside_fraction,
+    for press, center, radius, flat_px, mask in zip(presses, centers, radii, flat_radii, markers,
+                                                   strict=True):
+        on_ball, gx, gy, flat = _press_labels(grid, center, radius, flat_px, ball_px, inside_fraction,
                                               outside_fraction, mask)
         index = _lut_index(press, reference, codes, offsets)
         count += np.bincount(index[on_ball | flat], minlength=count.size)
@@ -424,6 +440,7 @@ def fit_calibration(
     relative_range: float = 1.0,
     inside_fraction: float = 0.95,
     outside_fraction: float = 2.0,
+    flat_fraction: float = 0.1,
     tile_prior_count: float = 5.0,
     refine_passes: int = 1,
     marker_masks: Sequence[np.ndarray] | None = None,
@@ -455,11 +472,16 @@ def fit_calibration(
     inside_fraction, outside_fraction : float
         Label pixels within ``inside_fraction * a`` with the sphere's gradient
         and beyond ``outside_fraction * a`` as flat.
+    flat_fraction : float
+        In (0, 1): pixels are labelled flat only beyond the ring where the
+        press's mean colour change has fallen to this share of its peak
+        (:func:`press_rings`).
     tile_prior_count : float
         Weight (in pixels) pulling each tile's bin towards the all-image bin.
     refine_passes : int
-        Times to re-measure the press circles with the current table and fit
-        it again (module notes); 0 uses the given circles as they are.
+        Times to re-measure the press circles (centre from the reconstruction
+        with the current table, radius from :func:`press_rings`) and fit the
+        table again (module notes); 0 uses the given circles as they are.
     marker_masks : sequence of ndarray, optional
         Per press, bool (H, W) marker-dot pixels (from
         :func:`~estimator.perception.markers.detect_markers`): left out of the
@@ -489,6 +511,8 @@ def fit_calibration(
         raise CalibrationError(f"refine_passes: expected a non-negative integer, got {refine_passes!r}")
     if not (isinstance(bins, int) and 2 <= bins <= 128):
         raise CalibrationError(f"bins: expected an integer in [2, 128], got {bins!r}")
+    if not (isinstance(flat_fraction, int | float) and 0.0 < flat_fraction < 1.0):
+        raise CalibrationError(f"flat_fraction: expected a value in (0, 1), got {flat_fraction!r}")
     if not outside_fraction > inside_fraction:
         raise CalibrationError(
             f"outside_fraction = {outside_fraction!r}: expected more than inside_fraction = {inside_fraction!r}"
@@ -512,7 +536,17 @@ def fit_calibration(
             raise CalibrationError(
                 f"marker_masks: expected {len(press_list)} bool arrays of shape {shape}, one per press"
             )
-    lut = _fit_table(reference, press_list, centers, radii, masks, **options)
+
+    def measured_rings(i: int, center: np.ndarray) -> PressRings | None:
+        try:
+            return press_rings(press_list[i], reference, center, max_radius_px=0.98 * ball_px,
+                               flat_fraction=flat_fraction, marker_mask=masks[i])
+        except CalibrationError:  # no visible change around that centre: keep what was given
+            return None
+
+    seeds = [measured_rings(i, center) for i, center in enumerate(centers)]
+    flat_radii = np.array([0.0 if rings is None else rings.flat_px for rings in seeds])
+    lut = _fit_table(reference, press_list, centers, radii, flat_radii, masks, **options)
     used_centers, used_radii = centers.copy(), radii.copy()
     refined = np.zeros(len(press_list), dtype=bool)
     bar = tqdm(total=refine_passes * len(press_list), desc="refining press circles", unit="press",
@@ -523,23 +557,25 @@ def fit_calibration(
             bar.update()
             depth = reconstruct_depth(press, reference, current, marker_mask=masks[i])
             fit = fit_sphere(depth, pixel_pitch_m=pixel_pitch_m, center_px=tuple(used_centers[i]))
-            if not fit:
+            if not fit or math.dist(fit.center_px, centers[i]) > radii[i]:
                 continue
-            contact_px = fit.contact_radius_m / pixel_pitch_m
-            moved = math.dist(fit.center_px, centers[i])
-            if moved <= radii[i] and 0.5 * radii[i] <= contact_px <= min(1.5 * radii[i], 0.98 * ball_px):
-                used_centers[i], used_radii[i], refined[i] = fit.center_px, contact_px, True
-        lut = _fit_table(reference, press_list, used_centers, used_radii, masks, **options)
+            rings = measured_rings(i, np.array(fit.center_px))
+            if rings is not None:
+                used_centers[i], used_radii[i], flat_radii[i] = fit.center_px, rings.contact_px, rings.flat_px
+                refined[i] = True
+        lut = _fit_table(reference, press_list, used_centers, used_radii, flat_radii, masks, **options)
     bar.close()
     record = {
         "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "n_presses_used": len(press_list),
         "press_centers_px": used_centers.round(2).tolist(),
         "press_radii_px": used_radii.round(2).tolist(),
+        "press_flat_radii_px": flat_radii.round(2).tolist(),
         "circles_refined": refined.tolist(),
         "markers_masked": marker_masks is not None,
         "inside_fraction": inside_fraction,
         "outside_fraction": outside_fraction,
+        "flat_fraction": flat_fraction,
         "tile_prior_count": tile_prior_count,
         **dict(provenance or {}),
     }
@@ -701,9 +737,7 @@ def detect_press_circle(
     """
     _check_image("image", image, None, CalibrationError)
     _check_image("reference", reference, image.shape[:2], CalibrationError)
-    background = cv2.GaussianBlur(reference.astype(np.float32), (0, 0), blur_px)
-    change = cv2.GaussianBlur(image.astype(np.float32), (0, 0), blur_px) - background
-    magnitude = np.linalg.norm(change / np.maximum(background, 1.0), axis=2)
+    magnitude = _change_magnitude(image, reference, blur_px)
     peak = float(magnitude.max())
     if peak < min_change:
         raise CalibrationError(
@@ -717,6 +751,96 @@ def detect_press_circle(
         radius = min(radius, max_radius_px)
     cx, cy = (float(v) for v in centroids[largest])
     return (cx, cy), radius
+
+
+def _change_magnitude(image: np.ndarray, reference: np.ndarray, blur_px: float) -> np.ndarray:
+    """Euclidean norm over B, G, R of the relative change ``(image - reference) / reference``, blurred."""
+    background = cv2.GaussianBlur(reference.astype(np.float32), (0, 0), blur_px)
+    change = cv2.GaussianBlur(image.astype(np.float32), (0, 0), blur_px) - background
+    return np.linalg.norm(change / np.maximum(background, 1.0), axis=2)
+
+
+class PressRings(NamedTuple):
+    """Rings of one ball press measured from its colour change, pixels from its centre."""
+
+    contact_px: float
+    """Radius of the contact circle: the middle of the ring of largest mean colour change."""
+    flat_px: float
+    """Where the gel is flat again: the first ring beyond the contact whose mean change is at most
+    ``flat_fraction`` of the peak (the end of the profile when none is)."""
+
+
+def press_rings(
+    image: np.ndarray, reference: np.ndarray, center_px: Sequence[float], *, max_radius_px: float,
+    blur_px: float = 2.0, flat_fraction: float = 0.1, min_change: float = 0.1,
+    marker_mask: np.ndarray | None = None,
+) -> PressRings:
+    """Contact and flat-gel radii of a ball press around a known centre, from the images alone.
+
+    The relative colour change (the feature the calibration bins, see
+    :func:`detect_press_circle`) is averaged over 1 px rings around the
+    centre. The gel's slope is largest at the contact edge (it follows the
+    ball inside and relaxes outside), and so is the colour change, so the
+    ring of largest mean change is the contact circle; this holds whatever
+    convention a recorded circle follows and whatever the table has learnt.
+
+    Parameters
+    ----------
+    image, reference : ndarray
+        uint8 BGR, same shape.
+    center_px : (float, float)
+        Press centre ``(x, y)``, pixels.
+    max_radius_px : float
+        Largest contact radius searched (below the ball's radius in pixels).
+    blur_px : float
+        Gaussian sigma of the colour change, pixels.
+    flat_fraction : float
+        In (0, 1): share of the peak change below which the gel counts as flat.
+    min_change : float
+        Smallest peak ring-mean relative change that counts as a visible press.
+    marker_mask : ndarray of bool, optional
+        (H, W) marker-dot pixels, left out of the ring means.
+
+    Returns
+    -------
+    PressRings
+        ``contact_px`` and ``flat_px``, pixels.
+
+    Raises
+    ------
+    CalibrationError
+        An input has the wrong type or shape, or no ring within
+        ``max_radius_px`` changes by ``min_change`` (no press visible there).
+    """
+    _check_image("image", image, None, CalibrationError)
+    _check_image("reference", reference, image.shape[:2], CalibrationError)
+    center = np.asarray(center_px, dtype=np.float64)
+    if center.shape != (2,) or not np.isfinite(center).all():
+        raise CalibrationError(f"center_px: expected finite (x, y) pixels, got {center_px!r}")
+    if not 0.0 < flat_fraction < 1.0:
+        raise CalibrationError(f"flat_fraction: expected a value in (0, 1), got {flat_fraction!r}")
+    if not max_radius_px > 3:
+        raise CalibrationError(f"max_radius_px: expected more than 3 pixels, got {max_radius_px!r}")
+    if marker_mask is not None and (not isinstance(marker_mask, np.ndarray) or marker_mask.dtype != bool
+                                    or marker_mask.shape != image.shape[:2]):
+        raise CalibrationError(f"marker_mask: expected a bool array of shape {image.shape[:2]}")
+    magnitude = _change_magnitude(image, reference, blur_px)
+    rows, cols = np.indices(magnitude.shape, dtype=np.float32)
+    ring = np.hypot(cols - center[0], rows - center[1]).astype(np.intp).ravel()
+    weight = None if marker_mask is None else (~marker_mask).ravel().astype(np.float64)
+    counts = np.bincount(ring, weight)
+    sums = np.bincount(ring, magnitude.ravel() if weight is None else magnitude.ravel() * weight)
+    profile = np.divide(sums, counts, out=np.full(counts.shape, np.nan), where=counts > 0)
+    search = profile[2:min(int(max_radius_px), len(profile))]  # the centre rings are a few pixels
+    if not np.isfinite(search).any() or np.nanmax(search) < min_change:
+        raise CalibrationError(
+            f"image: no press visible around ({center[0]:.1f}, {center[1]:.1f}) within "
+            f"{max_radius_px:.1f} px (largest ring-mean relative colour change below {min_change})"
+        )
+    peak_ring = 2 + int(np.nanargmax(search))
+    beyond = np.flatnonzero(profile[peak_ring:] <= flat_fraction * profile[peak_ring])
+    flat_ring = peak_ring + int(beyond[0]) if beyond.size else len(profile)
+    return PressRings(contact_px=peak_ring + 0.5, flat_px=float(flat_ring))
 
 
 def _fingerprint(reference: np.ndarray, images: Sequence[np.ndarray]) -> str:

@@ -40,32 +40,35 @@ if TYPE_CHECKING:
 __all__ = ["SphereFit", "fit_sphere", "poisson_depth", "reconstruct_depth"]
 
 
-@functools.lru_cache(maxsize=8)
-def _inverse_eigenvalues(shape: tuple[int, int], dtype: np.dtype) -> np.ndarray:
-    """1 / eigenvalues of the central-difference normal operator in the DST-II basis.
+@functools.lru_cache(maxsize=16)
+def _inverse_eigenvalues(shape: tuple[int, int], dtype: np.dtype, scale: float) -> np.ndarray:
+    """``scale`` / eigenvalues of the central-difference normal operator in the DST-II basis.
 
     With central differences ``D`` for both gradients, the least-squares depth
     solves ``D^T D z = D^T g``. Under the odd extension about the half-pixel
     border (the DST-II basis) ``D^T D`` is diagonal with eigenvalue
     ``-(sin^2(pi k / M) + sin^2(pi l / N))``, ``k = 1..M``, ``l = 1..N``. The
     single mode ``(M, N)`` is invisible to central differences and is set to 0.
+    ``scale`` folds constant factors of the solve (the divergence's 1/2, the
+    pixel pitch) into the table so they cost no pass over the image.
     """
     rows, cols = shape
     sy = np.sin(np.pi * np.arange(1, rows + 1) / rows) ** 2
     sx = np.sin(np.pi * np.arange(1, cols + 1) / cols) ** 2
     eig = -(sy[:, None] + sx[None, :])
     eig[-1, -1] = -np.inf
-    inverse = (1.0 / eig).astype(dtype)
+    inverse = (scale / eig).astype(dtype)
     inverse.setflags(write=False)
     return inverse
 
 
 def _central_divergence(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
-    """``D^T``-side of the normal equations: central-difference divergence.
+    """``D^T``-side of the normal equations: twice the central-difference divergence.
 
     Gradients are extended evenly beyond the border (they are even when the
     depth is odd about the half-pixel border), so the edge rows use one-sided
-    half differences.
+    differences. The factor 1/2 of the central difference is left to the
+    caller (folded into :func:`_inverse_eigenvalues`).
     """
     div = np.empty_like(gx)
     div[:, 1:-1] = gx[:, 2:] - gx[:, :-2]
@@ -74,7 +77,6 @@ def _central_divergence(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
     div[1:-1] += gy[2:] - gy[:-2]
     div[0] += gy[1] - gy[0]
     div[-1] += gy[-1] - gy[-2]
-    div *= 0.5
     return div
 
 
@@ -117,13 +119,13 @@ def poisson_depth(gx: np.ndarray, gy: np.ndarray, *, pixel_pitch_m: float) -> np
         raise PerceptionError(f"gx: expected at least 3 x 3 pixels, got {gx.shape}")
     if not (isinstance(pixel_pitch_m, int | float) and math.isfinite(pixel_pitch_m) and pixel_pitch_m > 0):
         raise PerceptionError(f"pixel_pitch_m: expected a positive number of metres, got {pixel_pitch_m!r}")
-    if not (np.isfinite(gx).all() and np.isfinite(gy).all()):
+    divergence = _central_divergence(gx, gy)
+    # Every gradient value enters the divergence, so one check covers both (and overflow).
+    if not np.isfinite(divergence).all():
         raise PerceptionError("gx/gy: gradients contain NaN or infinite values")
-    spectrum = scipy.fft.dstn(_central_divergence(gx, gy), type=2, workers=1, overwrite_x=True)
-    spectrum *= _inverse_eigenvalues(gx.shape, gx.dtype)
-    depth = scipy.fft.idstn(spectrum, type=2, workers=1, overwrite_x=True)
-    depth *= gx.dtype.type(pixel_pitch_m)
-    return depth
+    spectrum = scipy.fft.dstn(divergence, type=2, workers=1, overwrite_x=True)
+    spectrum *= _inverse_eigenvalues(gx.shape, gx.dtype, 0.5 * float(pixel_pitch_m))
+    return scipy.fft.idstn(spectrum, type=2, workers=1, overwrite_x=True)
 
 
 def reconstruct_depth(

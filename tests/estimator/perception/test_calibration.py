@@ -242,3 +242,13 @@ def test_warping_maps_circles_along(gelsight_presses):
     np.testing.assert_array_equal(stated.in_sensor_frame(sensor).centers_px, subset.centers_px)
     with pytest.raises(CalibrationError, match="raw"):
         warped.__class__(**{**warped.__dict__, "frame": "raw"}).in_sensor_frame(sensor)
+
+
+def test_press_rings_refuses_a_frame_without_a_press():
+    from estimator.perception import press_rings
+
+    flat = np.full((60, 80, 3), 120, np.uint8)
+    with pytest.raises(CalibrationError, match="no press visible"):
+        press_rings(flat, flat, (40.0, 30.0), max_radius_px=20.0)
+    with pytest.raises(CalibrationError, match="center_px"):
+        press_rings(flat, flat, (np.nan, 30.0), max_radius_px=20.0)
