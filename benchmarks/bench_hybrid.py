@@ -9,10 +9,24 @@ Prints the figures of ``estimator bench`` (every configuration's median latency
 from decoded frames to E, its error over the labelled records, the Pareto
 frontier) for the default model (``estimator/models/default``, or ``--model``),
 then the hybrid path split into its stages, each a median over grasps of the
-per-grasp median: the no-contact reference, the N-frame measurement with the
-analytical fits (:func:`~estimator.learned.inputs.sample_grasp`), and the
-network alone in onnxruntime (one thread). BLAS and OpenMP are limited to one
-thread before numpy loads, and ``estimator bench`` pins the process to one CPU.
+per-grasp median time, over the grasps it can sample:
+
+``segment``
+    segmentation, force and width at every frame (``measure_grasp(tactile=False)``);
+``reference``
+    the no-contact reference: warp and median of the frames before the onset;
+``warp``, ``depth``, ``features``
+    the sampled loading frames warped and cropped, their depth reconstructed,
+    their contact features (the parts of ``measure_tactile`` after the reference);
+``fits``
+    the four analytical estimates over the sampled frames;
+``encode``, ``network``
+    the model inputs batched and reduced, and the network in onnxruntime (one thread);
+``sample``
+    all of :func:`~estimator.learned.inputs.sample_grasp` (segment to fits) as the hybrid runs it.
+
+BLAS and OpenMP are limited to one thread before numpy loads, and the process
+is pinned to one CPU with OpenCV single-threaded.
 """
 
 from __future__ import annotations
@@ -24,33 +38,70 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import platform  # noqa: E402
+from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from estimator.analytical import METHODS  # noqa: E402
 from estimator.bench import bench, configurations, one_core, timed  # noqa: E402
+from estimator.features import contact_features  # noqa: E402
 from estimator.learned.hybrid import HybridEstimator  # noqa: E402
 from estimator.learned.infer import CompliancePredictor, default_model_dir  # noqa: E402
-from estimator.learned.inputs import decoded, encode  # noqa: E402
+from estimator.learned.inputs import calibration_for, decoded, encode  # noqa: E402
+from estimator.measure import estimate_grasp, measure_grasp, no_contact_reference  # noqa: E402
+from estimator.perception.depth import reconstruct_depth  # noqa: E402
+from estimator.perception.markers import detect_markers  # noqa: E402
+from estimator.perception.warp import warp_and_crop  # noqa: E402
 from teleop.record import read_record  # noqa: E402
 from teleop.settings import load_settings  # noqa: E402
 
+STAGES = ("segment", "reference", "warp", "depth", "features", "fits", "encode", "network", "sample")
+
+
+def stage_runs(record, sampled, *, settings, predictor, calibration):
+    """One grasp's hybrid stages (module notes) as functions of nothing, on the sampled grasp's own inputs."""
+    variant, finger = predictor.variant, settings.estimator.finger
+    sampling = replace(settings, estimator=replace(settings.estimator, n_frames=variant.n_frames))
+    m = sampled.measurements
+    sensor, cal, reference = m.sensor, calibration_for(record, finger, calibration), m.reference_bgr
+    positions = np.searchsorted(m.segment.frame_t_s, m.t_s)  # the sampled loading frames
+    raw = [record.stream(finger).frame(int(i)) for i in m.segment.frame_index[positions]]
+    batch = encode(variant, [sampled])
+
+    def depth():
+        return [reconstruct_depth(image, reference, cal,
+                                  marker_mask=detect_markers(image, reference) if sensor.markers else None)
+                for image in m.image_bgr]
+
+    return {
+        "segment": lambda: measure_grasp(record, settings=sampling, tactile=False),
+        "reference": lambda: no_contact_reference(record, finger, m.segment),
+        "warp": lambda: [warp_and_crop(frame, sensor) for frame in raw],
+        "depth": depth,
+        "features": lambda: contact_features(m.depth_m, pixel_pitch_m=sensor.pixel_pitch_m,
+                                             contact_threshold_m=sensor.contact_threshold_m),
+        "fits": lambda: [estimate_grasp(m, method, settings=settings) for method in METHODS],
+        "encode": lambda: encode(variant, [sampled]),
+        "network": lambda: predictor.predict_normalised(batch),
+    }
+
 
 def stages(paths, *, settings, predictor, calibration, repeats):
-    """Median per-grasp times (ms) of the hybrid's stages over the records that can be sampled."""
+    """Median per-grasp times (ms) of the hybrid's stages (module notes) over the records it can sample."""
     hybrid = HybridEstimator(predictor, settings=settings, calibration=calibration)
-    measure_ms, network_ms = [], []
+    times = {name: [] for name in STAGES}
     with one_core():
         for path in paths:
             record = decoded(read_record(path))
-            sampled, ms = timed(hybrid.sample, record, repeats)
+            sampled, sample_ms = timed(hybrid.sample, record, repeats)
             if not sampled:
                 continue
-            measure_ms.append(ms)
-            batch = encode(predictor.variant, [sampled])
-            network_ms.append(timed(lambda _, b=batch: predictor.predict_normalised(b), record, repeats)[1])
-    return {"grasps": len(measure_ms), "sample_and_fits_ms_p50": float(np.median(measure_ms)),
-            "network_ms_p50": float(np.median(network_ms))}
+            runs = stage_runs(record, sampled, settings=settings, predictor=predictor, calibration=calibration)
+            for name, run in runs.items():
+                times[name].append(timed(lambda _, run=run: run(), record, repeats)[1])
+            times["sample"].append(sample_ms)
+    return {"grasps": len(times["sample"]), **{name: float(np.median(t)) for name, t in times.items()}}
 
 
 def main() -> None:
@@ -77,9 +128,8 @@ def main() -> None:
               f"{'*' if c['pareto'] else ''}")
     parts = stages(paths, settings=settings, predictor=predictor, calibration=args.calibration,
                    repeats=args.repeats)
-    print(f"hybrid stages over {parts['grasps']} grasps (median ms): no-contact reference "
-          f"{result['reference_ms_p50']:.2f} (inside the next), sample + fits {parts['sample_and_fits_ms_p50']:.2f}, "
-          f"network {parts['network_ms_p50']:.3f}")
+    print(f"hybrid stages over {parts['grasps']} grasps (median ms per grasp): "
+          + ", ".join(f"{name} {parts[name]:.2f}" for name in STAGES))
 
 
 if __name__ == "__main__":

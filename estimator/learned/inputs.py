@@ -9,10 +9,11 @@ A grasp's loading phase (contact to peak force, :func:`~estimator.segment.segmen
 is sampled at ``n_frames`` frames equidistant in time, exactly as the live
 estimator samples it (``Segment.sample``). Augmentation ``shift = k`` starts the
 sampling ``k`` loading frames later (the paper's "shifting the starting point by
-one timestep"). Only those frames (and the no-contact frames before the onset,
-for the reference) are measured: :func:`measure_grasp` runs on the grasp
-restricted to them, so depth is reconstructed for ``n_frames`` frames and the
-analytical fits run over the same frames the network sees.
+one timestep"). Only those frames (with the no-contact frames before the onset,
+for the reference, and the few hold frames at the peak force when the fits use
+them) are decoded and measured (:func:`~estimator.measure.measure_tactile` with
+``frames``), so depth is reconstructed for ``n_frames`` frames and the
+analytical fits run over the frames the network sees.
 
 Model inputs (float32, batch first)
 -----------------------------------
@@ -56,15 +57,12 @@ from estimator.analytical import METHODS
 from estimator.errors import ModelError
 from estimator.estimate import STATES, Estimate
 from estimator.measure import (
-    REFERENCE_GUARD_S,
     GraspMeasurements,
-    _decode,
-    _median_frame,
-    _reference_index,
-    _to_image_grid,
     calibration_path,
     estimate_grasp,
     measure_grasp,
+    measure_tactile,
+    no_contact_reference,
 )
 from estimator.perception.calibration import Calibration, load_calibration
 from estimator.segment import Segment
@@ -336,16 +334,6 @@ def decoded(record: GraspRecord) -> GraspRecord:
     return replace(record, frames=tuple(DecodedFrameStream(s, s.frames()) for s in record.frames))
 
 
-def _take(stream: FrameStream, index: np.ndarray) -> FrameStream:
-    """The frames of ``stream`` at ``index``, with their timestamps."""
-    encoded = tuple(stream.encoded[i] for i in index)
-    taken = FrameStream(stream.finger, stream.t_s[index], encoded, stream.encoding, stream.jpeg_quality,
-                        stream.shape)
-    if isinstance(stream, DecodedFrameStream):
-        return DecodedFrameStream(taken, stream.images[index])
-    return taken
-
-
 def _positions(segment: Segment, n_frames: int, shift: int) -> np.ndarray | str:
     """Positions (within the loading frames) of the sample set ``shift``, or why there is none.
 
@@ -401,13 +389,6 @@ class SampledGrasp:
         return not self.reason
 
 
-def no_contact_reference(record: GraspRecord, finger: str, segment: Segment) -> np.ndarray:
-    """The no-contact frame :func:`measure_grasp` uses for ``finger``: the median of the frames
-    before the onset, on the estimator's image grid (uint8 BGR)."""
-    index = _reference_index(record.stream(finger).t_s, segment.t_onset_s - REFERENCE_GUARD_S)
-    return _to_image_grid(_median_frame(_decode(record, finger, index))[None], record.sensor(finger))[0]
-
-
 @lru_cache(maxsize=8)
 def cached_calibration(path: str) -> Calibration:
     """:func:`~estimator.perception.calibration.load_calibration`, once per path and process."""
@@ -440,21 +421,13 @@ def _measure_finger(
     if isinstance(positions, str):
         return SampledGrasp(reason=positions)
     distinct, rows = np.unique(positions, return_inverse=True)
-    reference_index = _reference_index(record.stream(finger).t_s, segment.t_onset_s - REFERENCE_GUARD_S)
-    loading_index = segment.frame_index[distinct]
-    keep = np.concatenate([reference_index, loading_index])
-    sampled = replace(record, frames=(_take(record.stream(finger), keep),))
-    m = measure_grasp(sampled, settings=settings, calibration=calibration)
+    m = measure_tactile(record, first, calibration=calibration, frames=distinct)
     if m.features is None or m.depth_m is None:
         return SampledGrasp(reason=m.tactile_reason or "tactile features were not measured")
-    if m.t_s.size != distinct.size:
-        return SampledGrasp(reason=f"{m.t_s.size} of the {distinct.size} sampled frames are usable")
     depth = reduce_images(m.depth_m, size_px)[rows]
     diff = None
     if rgb:
-        reference = no_contact_reference(record, finger, segment)
-        frames = _to_image_grid(_decode(record, finger, loading_index), record.sensor(finger))
-        diff = reduce_images(frames.astype(np.float32) - reference.astype(np.float32), size_px)[rows]
+        diff = reduce_images(m.image_bgr.astype(np.float32) - m.reference_bgr.astype(np.float32), size_px)[rows]
     return SampledGrasp(measurements=m, force_n=m.force_n[rows], width_m=m.width_m[rows], depth_m=depth,
                         rgb_diff=diff)
 
@@ -488,7 +461,7 @@ def sample_grasp(
     shift : int
         Augmentation: start the sampling this many loading frames late (0 = live sampling).
     rgb : bool
-        Also the colour-difference images (decodes and warps the frames once more).
+        Also the colour-difference images (of the frames measured for depth, against their reference).
     markers : bool
         Also the other finger's images (the sensor with markers); needs its calibration.
     marker_calibration : Calibration, path or None

@@ -144,3 +144,21 @@ def test_features_are_finite_or_flagged_nan(depth):
     assert np.all(np.isfinite(f.area_m2) & (f.area_m2 >= 0))
     assert np.all(np.isfinite(f.cap_radius_m))
     assert not np.any(f.curvature_radius_m <= 0)
+
+
+def test_smoothing_and_cap_fit_match_their_direct_definitions():
+    # The Gaussian is scipy's (mode "nearest", radius 4 sigma) and the curvature is the least-squares
+    # paraboloid through the cap pixels alone, here fitted directly with lstsq.
+    from scipy import ndimage
+
+    rng = np.random.default_rng(3)
+    depth = hertz_gel_depth(0.4e-3, 7e-3, center_px=(90.3, 141.7)) + rng.normal(0, 1e-5, SHAPE).astype(np.float32)
+    f = contact_features(depth[None], pixel_pitch_m=PITCH, contact_threshold_m=THRESHOLD)
+    smooth = ndimage.gaussian_filter(depth, 1.0, mode="nearest")
+    assert f.peak_depth_m[0] == pytest.approx(smooth.max(), rel=1e-6)
+    rows, cols = np.nonzero(smooth >= smooth.max() / 2)
+    assert f.cap_radius_m[0] == pytest.approx(np.sqrt(rows.size / np.pi) * PITCH)
+    x, y = cols * PITCH, rows * PITCH
+    design = np.stack([np.ones_like(x), x, y, x**2 + y**2], axis=1)
+    c3 = np.linalg.lstsq(design, smooth[rows, cols].astype(np.float64), rcond=None)[0][3]
+    assert f.curvature_radius_m[0] == pytest.approx(-1 / (2 * c3), rel=1e-6)

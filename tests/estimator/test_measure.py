@@ -22,14 +22,19 @@ from hypothesis import strategies as st
 
 from estimator.analytical import METHODS
 from estimator.cli import main
-from estimator.errors import CalibrationError
+from estimator.errors import CalibrationError, FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.features import ContactFeatures
 from estimator.measure import (
+    REFERENCE_FRAMES,
+    REFERENCE_GUARD_S,
     GraspMeasurements,
+    _median_frame,
     calibration_path,
     estimate_grasp,
     measure_grasp,
+    measure_tactile,
+    no_contact_reference,
 )
 from estimator.perception import fit_calibration, warp_and_crop
 from estimator.segment import segment_grasp
@@ -284,6 +289,72 @@ def test_late_width_stamps_are_estimated_and_corrected(calibration):
     assert log_error(estimate_grasp(m, "split", settings=SETTINGS), 3e5) < 0.15
 
 
+def only_frames(record, keep):
+    """``record`` with every frame but ``keep`` replaced by bytes that do not decode."""
+    s = record.frames[0]
+    encoded = tuple(b if i in set(keep) else b"not a jpeg" for i, b in enumerate(s.encoded))
+    stream = FrameStream(s.finger, s.t_s, encoded, encoding=s.encoding, jpeg_quality=s.jpeg_quality, shape=s.shape)
+    return GraspRecord(sensors=record.sensors, frames=(stream,), force_n=record.force_n, width_m=record.width_m,
+                       provenance=record.provenance)
+
+
+def test_chosen_frames_are_measured_as_in_the_full_measurement_and_nothing_else_is_decoded(calibration):
+    record = build_record(3e5)
+    full = measure_grasp(record, settings=SETTINGS, calibration=calibration)
+    first = measure_grasp(record, settings=SETTINGS, tactile=False)
+    loading = first.segment.frame_index
+    frames = np.array([0, loading.size // 2, loading.size - 1])
+    t = record.frames[0].t_s
+    reference = np.flatnonzero(t < first.segment.t_onset_s - REFERENCE_GUARD_S)[-REFERENCE_FRAMES:]
+    m = measure_tactile(only_frames(record, [*reference, *loading[frames]]), first, calibration=calibration,
+                        frames=frames)
+    np.testing.assert_array_equal(m.depth_m, full.depth_m[frames])
+    np.testing.assert_array_equal(m.image_bgr, full.image_bgr[frames])
+    np.testing.assert_array_equal(m.reference_bgr, full.reference_bgr)
+    np.testing.assert_array_equal(m.reference_bgr, no_contact_reference(record, "left", first.segment))
+    for name in ContactFeatures.__dataclass_fields__:  # sums over a stack of another size: rounding only
+        np.testing.assert_allclose(getattr(m.features, name), getattr(full.features, name)[frames], rtol=1e-12)
+    for name in ("t_s", "force_n", "width_m", "approach_m"):
+        np.testing.assert_array_equal(getattr(m, name), getattr(full, name)[frames])
+    assert m.image_bgr.shape == (3, *SENSOR.image_shape, 3) and m.image_bgr.dtype == np.uint8
+    with pytest.raises(RecordError, match="does not decode"):  # a frame not kept is needed for all frames
+        measure_tactile(only_frames(record, [*reference, *loading[frames]]), first, calibration=calibration)
+
+
+@pytest.mark.parametrize("frames", [[0, 0], [-1], [10_000], [0.5]])
+def test_frames_that_are_not_distinct_loading_positions_are_refused(calibration, frames):
+    record = build_record(3e5)
+    first = measure_grasp(record, settings=SETTINGS, tactile=False)
+    with pytest.raises(FitError, match="frames"):
+        measure_tactile(record, first, calibration=calibration, frames=np.array(frames))
+
+
+def test_hold_frames_are_measured_only_when_the_fits_use_them(calibration):
+    record = build_record(3e5, width_delay_s=0.1, hold_s=0.5)
+    lagged = measure_grasp(record, settings=SETTINGS, calibration=calibration, correct_width_lag=True)
+    assert lagged.width_lag_s is not None and len(lagged.hold_features) == lagged.segment.hold_index.size > 0
+    hold = lagged.segment.hold_index
+    uncorrected = measure_grasp(only_frames(record, np.setdiff1d(np.arange(record.frames[0].t_s.size), hold)),
+                                settings=SETTINGS, calibration=calibration)  # hold frames never decoded
+    assert uncorrected.hold_features is None and uncorrected.hold_force_n.size == hold.size
+
+
+def test_a_reference_needs_a_frame_before_the_onset(calibration):
+    record = build_record(3e5, frame_times=np.arange(0.62, 0.9, 1 / 30))
+    segment = measure_grasp(record, settings=SETTINGS, tactile=False).segment
+    with pytest.raises(PerceptionError, match="no-contact reference"):
+        no_contact_reference(record, "left", segment)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 6])
+def test_median_frame_is_numpys_median_rounded(n):
+    frames = np.random.default_rng(n).integers(0, 256, (n, 30, 40, 3), dtype=np.uint8)
+    frames[:, 0, 0], frames[0, 1, 1], frames[-1, 1, 1] = 7, 255, 254  # ties and extremes
+    median = _median_frame(frames)
+    assert median.dtype == np.uint8
+    np.testing.assert_array_equal(median, np.rint(np.median(frames, axis=0)).astype(np.uint8))
+
+
 # --------------------------------------------------------------------------- properties
 
 
@@ -382,7 +453,8 @@ def test_evaluate_command_summarises_every_method(grasp_dir, capsys, tmp_path):
     assert main(["evaluate", str(root), "--calibration", str(cal), "--json", "--plot", str(png)]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert out["records"] == 4 and out["labelled"] == 3 and out["skipped"] == {"unlabelled": 1}
-    assert set(out["methods"]) == set(METHODS)
+    # Every analytical method, and the shipped model's hybrid with its auto policy.
+    assert set(out["methods"]) == {*METHODS, "hybrid", "auto"}
     split = out["methods"]["split"]
     assert split["n"] == 3 and split["states"]["lower_bound"] == 1 and split["states"]["ok"] == 2
     assert split["log10_error"] >= 0 and 0 <= split["within_10x"] <= 1

@@ -129,3 +129,35 @@ def test_sample_sets_spread_over_the_loading_phase_and_shift_by_a_frame():
     short = _segment([0.01, 0.03], t_contact_s=0.0, t_peak_s=0.05)  # a stiff object: two loading frames
     assert _positions(short, 3, 0).tolist() == [0, 1, 1]  # frames repeat rather than the grasp being lost
     assert isinstance(_positions(short, 3, 1), str)
+
+
+@pytest.mark.slow
+def test_sampling_decodes_only_the_reference_and_sampled_frames(sim_grasps):
+    from dataclasses import replace
+
+    from estimator.learned.inputs import sample_grasp
+    from estimator.measure import REFERENCE_FRAMES, REFERENCE_GUARD_S
+    from teleop.record import FrameStream, read_record
+    from teleop.settings import load_settings
+
+    records, calibration = sim_grasps
+    settings = load_settings()
+    finger = settings.estimator.finger
+    record = read_record(records / "stress_ball.grasp")
+    sampled = sample_grasp(record, settings=settings, calibration=calibration, n_frames=3, size_px=(16, 22), rgb=True)
+    m = sampled.measurements
+    stream = record.stream(finger)
+    sampled_frames = m.segment.frame_index[np.searchsorted(m.segment.frame_t_s, m.t_s)]
+    reference = np.flatnonzero(stream.t_s < m.segment.t_onset_s - REFERENCE_GUARD_S)[-REFERENCE_FRAMES:]
+    keep = {*sampled_frames.tolist(), *reference.tolist()}
+    broken = FrameStream(stream.finger, stream.t_s, tuple(b if i in keep else b"not a jpeg"
+                                                         for i, b in enumerate(stream.encoded)),
+                         encoding=stream.encoding, jpeg_quality=stream.jpeg_quality, shape=stream.shape)
+    frames = tuple(broken if s.finger == finger else s for s in record.frames)
+    again = sample_grasp(replace(record, frames=frames), settings=settings, calibration=calibration, n_frames=3,
+                         size_px=(16, 22), rgb=True)
+    np.testing.assert_array_equal(again.depth_m, sampled.depth_m)
+    np.testing.assert_array_equal(again.rgb_diff, sampled.rgb_diff)
+    diff = reduce_images(m.image_bgr.astype(np.float32) - m.reference_bgr.astype(np.float32), (16, 22))
+    assert sampled.rgb_diff.shape == (3, 16, 22, 3)
+    assert all(any(np.array_equal(row, d) for d in diff) for row in sampled.rgb_diff)  # frame minus reference

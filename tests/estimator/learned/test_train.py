@@ -15,7 +15,7 @@ from estimator.learned.train import TrainConfig, load_split_data, train_model
 
 
 @pytest.mark.slow
-def test_trained_model_directory(trained_model):
+def test_trained_model_directory(trained_model, synthetic_dataset):
     assert {p.name for p in trained_model.iterdir()} >= {"model.onnx", "metadata.json", "training_curve.png"}
     assert (trained_model / "training_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     meta = json.loads((trained_model / "metadata.json").read_text())
@@ -29,8 +29,12 @@ def test_trained_model_directory(trained_model):
         assert metrics["hybrid"]["n"] > 0 and 0 <= metrics["hybrid"]["log10_error"] < 9
         assert metrics["split"]["n"] > 0 and "no_tactile" in metrics  # the analytical methods on the same grasps
     residual = meta["residual_log10"]
-    assert residual["q025"] <= residual["q975"] and residual["n"] == meta["data"]["samples"]["val"]
+    live_val = len(list((synthetic_dataset / "val").rglob("*_a0.npz")))  # scored on the live sampling only
+    assert residual["q025"] <= residual["q975"] and residual["n"] == live_val < meta["data"]["samples"]["val"]
+    assert meta["metrics"]["test"]["hybrid"]["n"] == len(list((synthetic_dataset / "test").rglob("*_a0.npz")))
     assert meta["auto"]["max_split_interval_decades"] >= 0 and meta["auto"]["table"]
+    split = json.loads((synthetic_dataset / "split.json").read_text())
+    assert meta["data"]["objects"] == {name: sorted(split[name]) for name in ("train", "val", "test")}
 
 
 @pytest.mark.slow
