@@ -42,7 +42,6 @@ import contextlib
 import json
 import os
 import time
-from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,7 +54,7 @@ from tqdm import tqdm
 from estimator.analytical import METHODS
 from estimator.errors import EstimatorError
 from estimator.estimate import Estimate
-from estimator.evaluate import summarise
+from estimator.evaluate import answered_by, result_row, summarise
 from estimator.learned.hybrid import HybridEstimator
 from estimator.learned.infer import CompliancePredictor, default_model_dir
 from estimator.learned.inputs import calibration_for, decoded, no_contact_reference, sample_grasp
@@ -192,11 +191,7 @@ def bench(
             for config in configs:
                 estimate, ms = timed(config.run, record, repeats)
                 latency[config.name].append(ms)
-                low, high = estimate.interval_pa
-                rows.append({"path": str(path), "object": label.object_name, "material": label.material or "unknown",
-                             "shape": label.shape or "unknown", "truth_pa": label.modulus_pa, "method": config.name,
-                             "state": estimate.state, "e_pa": estimate.e_pa, "low_pa": low, "high_pa": high,
-                             "answered_by": estimate.reason.split(":")[0]})
+                rows.append(result_row(path, label, config.name, estimate))
     if not rows:
         raise EstimatorError("no labelled, readable .grasp record to bench")
     summary = summarise(rows, [c.name for c in configs])
@@ -212,7 +207,7 @@ def bench(
             "refusals": s["states"]["insufficient_data"],
         })
         if config.kind == "auto":  # where auto lands: which branch answered each grasp
-            out[-1]["answered_by"] = dict(Counter(r["answered_by"] for r in rows if r["method"] == config.name))
+            out[-1]["answered_by"] = answered_by(rows, config.name)
     for entry, flag in zip(out, pareto_front([(c["latency_ms_p50"], c["log10_error"]) for c in out]), strict=True):
         entry["pareto"] = flag
     return {"records": len(paths), "labelled": len(paths) - skipped, "repeats": repeats, "one_core": pinned,
@@ -226,7 +221,8 @@ def plot(result: dict[str, Any], path: str | Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    points = [c for c in result["configs"] if c["log10_error"] is not None]
+    # Frontier points last, so a dominated configuration drawn at the same place does not hide one.
+    points = sorted((c for c in result["configs"] if c["log10_error"] is not None), key=lambda c: c["pareto"])
     fig, ax = plt.subplots(figsize=(8, 5.5))
     for c in points:
         ax.scatter(c["latency_ms_p50"], c["log10_error"], s=36, color="C3" if c["pareto"] else "C0", zorder=3)

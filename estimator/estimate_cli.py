@@ -1,4 +1,9 @@
-"""``estimator estimate``: Young's modulus of the object in one grasp record, by one method."""
+"""``estimator estimate``: Young's modulus of the object in one grasp record, by one method.
+
+The method is analytical (:func:`~estimator.measure.estimate_grasp`) or learned
+(``hybrid``, ``cnn`` or ``auto``: :class:`~estimator.learned.hybrid.HybridEstimator`
+over a trained model).
+"""
 
 from __future__ import annotations
 
@@ -6,9 +11,14 @@ import argparse
 import json
 
 from estimator.analytical import METHODS
+from estimator.errors import EstimatorError
+from estimator.estimate import Estimate
+from estimator.evaluate import ALL_METHODS
+from estimator.learned.hybrid import HybridEstimator
+from estimator.learned.infer import load_predictor
 from estimator.measure import estimate_grasp
-from teleop.record import read_record
-from teleop.settings import default_settings_path, load_settings
+from teleop.record import GraspRecord, read_record
+from teleop.settings import Settings, default_settings_path, load_settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -20,10 +30,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("grasp", metavar="GRASP", help="grasp record (.grasp file)")
     parser.add_argument(
-        "--method", choices=METHODS, default="split",
+        "--method", choices=ALL_METHODS, default="split",
         help="no_tactile: Hooke on force and width only; elastic: stress F/A over strain with "
              "measured contact area and depth; hertz: Hertz contact through MDR; split: the gel's "
-             "share of the approach at the first-contact point",
+             "share of the approach at the first-contact point; hybrid: a trained model over sampled "
+             "tactile frames, force, width and the analytical estimates; cnn: a model trained without "
+             "the analytical estimates; auto: per grasp the cheapest answer whose expected error fits "
+             "(the split when its interval is narrow enough, else the model)",
+    )
+    parser.add_argument(
+        "--model", metavar="DIR", default=None,
+        help="trained model directory for hybrid, cnn and auto; hybrid needs a model with analytical "
+             "inputs, cnn one without (its metadata.json variant says which). Default: the settings' "
+             "estimator.model_path, else the shipped model (estimator/models/default)",
     )
     parser.add_argument(
         "--calibration", metavar="CAL", default=None,
@@ -37,13 +56,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--camera-lag", action="store_true",
-        help="estimate the camera's clock lag from the onset of tactile change and correct for it",
+        help="estimate the camera's clock lag from the onset of tactile change and correct for it "
+             "(analytical methods only: a model measures a grasp as its training data was measured)",
     )
     parser.add_argument(
         "--no-width-lag", dest="width_lag", action="store_false",
         help="do not estimate and correct how late the gripper widths are stamped (by default it is "
              "estimated from when the fingers stop against the force peak: a host stamps a gripper "
-             "read when it returns, ~0.1 s late)",
+             "read when it returns, ~0.1 s late; analytical methods only)",
     )
     parser.add_argument(
         "--json", action="store_true",
@@ -56,11 +76,32 @@ def _pa(value: float | None) -> str:
     return "-" if value is None else f"{value:.3g} Pa"
 
 
+def learned_estimate(record: GraspRecord, args: argparse.Namespace, settings: Settings) -> Estimate:
+    """The ``hybrid``, ``cnn`` or ``auto`` estimate of ``record`` with the model ``args.model``."""
+    if args.camera_lag:
+        raise EstimatorError(f"--camera-lag: applies to the analytical methods, not {args.method} (a model "
+                             "measures a grasp as its training data was measured)")
+    predictor = load_predictor(args.model, settings=settings)
+    variant = predictor.variant
+    if args.method != "auto" and variant.method != args.method:
+        need = "without" if args.method == "cnn" else "with"
+        raise EstimatorError(f"--method {args.method}: model {predictor.model_dir} is a {variant.method} "
+                             f"({variant.name}); {args.method} needs a model trained {need} analytical "
+                             "inputs (--model DIR)")
+    estimator = HybridEstimator(predictor, settings=settings, calibration=args.calibration)
+    return estimator.estimate(record, mode="auto" if args.method == "auto" else "model")
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.method in METHODS and args.model is not None:
+        raise EstimatorError(f"--model: applies to hybrid, cnn and auto, not {args.method}")
     settings = load_settings(args.settings)
     record = read_record(args.grasp)
-    estimate = estimate_grasp(record, args.method, settings=settings, calibration=args.calibration,
-                              correct_camera_lag=args.camera_lag, correct_width_lag=args.width_lag)
+    if args.method in METHODS:
+        estimate = estimate_grasp(record, args.method, settings=settings, calibration=args.calibration,
+                                  correct_camera_lag=args.camera_lag, correct_width_lag=args.width_lag)
+    else:
+        estimate = learned_estimate(record, args, settings)
     if args.json:
         print(json.dumps({"grasp": args.grasp, **estimate.to_json()}, allow_nan=False))
         return 0

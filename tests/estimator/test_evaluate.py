@@ -2,11 +2,24 @@
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
-from estimator.evaluate import PAPER, plot, summarise
+from estimator.errors import ModelError
+from estimator.evaluate import (
+    PAPER,
+    ablation_table,
+    answered_by,
+    held_out_objects,
+    model_methods,
+    plot,
+    summarise,
+)
+from estimator.learned.inputs import Variant
 
 
 def row(method, truth, state, e_pa=None, low=None, high=None, material="rubber", shape="sphere"):
@@ -72,3 +85,92 @@ def test_bounds_have_a_documented_point_value_and_ok_only_figures():
     hertz = summarise(ROWS, ["hertz"])["hertz"]
     assert hertz["point_log10_error"] == pytest.approx(abs(math.log10(math.sqrt(3e6 * 1e3) / 1e6)))
     assert hertz["ok_only"]["n"] == 0 and hertz["ok_only"]["log10_error"] is None
+
+
+# --------------------------------------------------------------------------- learned methods
+
+
+def predictor(variant: str, model_dir: str, *, n_frames: int = 3, size_px=(64, 88)):
+    """What model_methods reads of a CompliancePredictor: its variant, directory and fingerprint check."""
+    return SimpleNamespace(variant=Variant.parse(variant, n_frames=n_frames, size_px=size_px),
+                           model_dir=Path(model_dir), measurement_code_matches=True)
+
+
+def test_each_model_gives_its_method_and_a_hybrid_also_auto():
+    entries = model_methods([predictor("depth+fw+analytical", "m/h"), predictor("rgb+markers+fw", "m/c")])
+    assert [(e.name, e.method, e.mode, e.model_dir) for e in entries] == [
+        ("hybrid", "hybrid", "model", "m/h"), ("auto", "auto", "auto", "m/h"), ("cnn", "cnn", "model", "m/c")]
+    only = model_methods([predictor("depth+fw+analytical", "m/h")], methods=["auto"])
+    assert [e.name for e in only] == ["auto"]
+
+
+def test_two_models_of_one_method_are_named_by_variant_then_by_size():
+    entries = model_methods([predictor("depth+analytical", "a"), predictor("depth+markers+fw+analytical", "b")],
+                            methods=["hybrid"])
+    assert [e.name for e in entries] == ["hybrid[depth+analytical]", "hybrid[depth+markers+fw+analytical]"]
+    sized = model_methods([predictor("depth+fw", "a", size_px=(32, 44)), predictor("depth+fw", "b", n_frames=5)])
+    assert [e.name for e in sized] == ["cnn[depth+fw 3f 32x44]", "cnn[depth+fw 5f 64x88]"]
+    with pytest.raises(ModelError, match="both give cnn"):
+        model_methods([predictor("depth+fw", "a"), predictor("depth+fw", "b")])
+
+
+def test_the_ablation_table_follows_the_papers_row_order_and_figures():
+    models = model_methods([predictor("depth+fw+analytical", "h1"), predictor("rgb+markers+analytical", "h2"),
+                            predictor("rgb+markers+fw", "c")])
+    rows = [row(e.name, 1e6, "ok", 2e6, 1e6, 4e6) for e in models if e.method != "auto"]
+    rows += [row("split", 1e6, "ok", 2e6), row("no_tactile", 1e6, "ok", 2e6),
+             {**row("auto[depth+fw+analytical]", 1e6, "ok", 2e6), "reason": "split: narrow interval; fit"},
+             row("auto[depth+fw+analytical]", 1e6, "insufficient_data")]
+    table = ablation_table(rows, methods=["split", "no_tactile"], models=models)
+    assert list(table) == ["no_tactile", "split", "cnn", "hybrid[rgb+markers+analytical]",
+                           "hybrid[depth+fw+analytical]", "auto[rgb+markers+analytical]",
+                           "auto[depth+fw+analytical]"]
+    assert table["cnn"]["paper"] == PAPER["cnn[rgb+markers+fw]"] == {"log10_error": 0.86, "within_10x": 0.646}
+    assert table["hybrid[depth+fw+analytical]"]["paper"] == {"log10_error": 0.98, "within_10x": 0.636}
+    assert table["no_tactile"]["paper"]["log10_error"] == 2.13 and table["no_tactile"]["inputs"] == "F, w"
+    assert table["auto[depth+fw+analytical]"]["paper"] is None
+    assert table["auto[depth+fw+analytical]"]["answered_by"] == {"split": 1, "refused": 1}
+    hybrid = table["hybrid[depth+fw+analytical]"]
+    assert hybrid["model"] == "h1" and hybrid["variant"] == "depth+fw+analytical" and hybrid["size_px"] == [64, 88]
+    assert hybrid["log10_error"] == pytest.approx(math.log10(2)) and hybrid["per_material"]["rubber"]["n"] == 1
+
+
+def test_answered_by_counts_the_branch_in_each_reason_and_refusals():
+    rows = [{**row("auto", 1e6, "ok", 1e6), "reason": "model: depth model over 3 frames"},
+            {**row("auto", 1e6, "ok", 1e6), "reason": "model: again"},
+            {**row("auto", 1e6, "ok", 1e6), "reason": "no_tactile: no tactile sample (x): force and width only"},
+            {**row("auto", 1e6, "insufficient_data"), "reason": "every analytical method refuses: x"},
+            row("split", 1e6, "ok", 1e6)]
+    assert answered_by(rows, "auto") == {"model": 2, "no_tactile": 1, "refused": 1}
+
+
+def write_metadata(directory: Path, data: dict) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "metadata.json").write_text(json.dumps({"format": "compliance-teleop.model", "data": data}))
+    return directory
+
+
+def test_held_out_objects_come_from_the_metadata_or_the_datasets_split(tmp_path):
+    listed = write_metadata(tmp_path / "listed", {"objects": {"train": ["a"], "val": ["b"], "test": ["c", "d"]}})
+    assert held_out_objects(listed) == {"c", "d"}
+    dataset = tmp_path / "dataset"
+    dataset.mkdir()
+    (dataset / "split.json").write_text(json.dumps({"train": ["a"], "val": ["b"], "test": ["e"]}))
+    counted = write_metadata(tmp_path / "counted", {"dir": str(dataset), "objects": {"train": 1, "test": 1}})
+    assert held_out_objects(counted) == {"e"}
+    lost = write_metadata(tmp_path / "lost", {"dir": str(tmp_path / "gone"), "objects": {"test": 1}})
+    with pytest.raises(ModelError, match="split.json"):
+        held_out_objects(lost)
+    with pytest.raises(ModelError, match="not a readable model metadata"):
+        held_out_objects(tmp_path / "nothing")
+
+
+def test_plot_draws_one_panel_per_method(tmp_path):
+    import matplotlib.image
+
+    one, four = tmp_path / "one.png", tmp_path / "four.png"
+    plot(ROWS, ["split"], one)
+    plot(ROWS + [row("no_tactile", 1e6, "ok", 1e5), row("auto", 1e9, "insufficient_data")],
+         ["split", "hertz", "no_tactile", "auto"], four)
+    small, big = matplotlib.image.imread(one), matplotlib.image.imread(four)
+    assert big.shape[0] > small.shape[0] * 1.5 and big.shape[1] > small.shape[1] * 2.5  # a 2 x 3 grid
