@@ -7,18 +7,25 @@ endpoint. Per grasp (from a ``grasp_event`` *start* to its *end*):
 * a PROVISIONAL estimate for every tactile frame of the estimator's finger from contact
   until the loading phase is over (:class:`~estimator.stream.GraspStream`: that frame is
   warped and reconstructed, the fits rerun over what has arrived);
-* one FINAL estimate as soon as the loading phase is over
+* one FINAL estimate as soon as the loading phase is over: at once when the robot's
+  ``grasp_event`` *loading_end* marker comes (the gripper's fingers stopped at the target
+  force; everything captured before it came first), else when the data show it
   (:meth:`~estimator.stream.GraspStream.loading_complete`), or at the grasp's end if that
   comes first. With a model loaded the final one is the hybrid ``auto`` estimate
-  (:class:`~estimator.learned.hybrid.HybridEstimator`, which measures its sampled frames from
-  the grasp as received once more: a few tens of milliseconds), else the analytical one;
+  (:class:`~estimator.learned.hybrid.HybridEstimator`); for a depth model of the estimator's
+  finger its input comes from the depths already computed for the provisional estimates
+  (:meth:`~estimator.stream.GraspStream.sampled_grasp`: the same input the model would measure
+  from the grasp record, without measuring a frame again), else the model measures the grasp
+  as received. Without a model it is the analytical one;
 * the grasp's end event, forwarded on the estimate endpoint after the final estimate, so a
   renderer that listens to estimates alone knows when to let go.
 
 Each estimate message carries its state, interval and reason; ``t_capture_s`` is the capture
 time of the newest loading frame its fit used (for the final one: the last loading frame),
 ``latency_s`` the time from receiving the message that triggered it to publishing it. The
-object's name in a start event is never read.
+object's name in a start event is never read. The per-grasp report (``--report``) says what
+ended the loading (``final_by``: ``loading_end``, ``settled`` or ``grasp_end``), the marker's
+time, when the final estimate was sent and how long it took to compute.
 
 A message that cannot be used (a frame that does not decode or has the wrong size, samples
 that are not finite, capture times that go backwards, repeat or jump more than
@@ -57,7 +64,7 @@ from estimator.estimate import Estimate
 from estimator.measure import resolve_calibration
 from estimator.perception.calibration import Calibration
 from estimator.segment import Segment
-from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream, StreamEstimate
+from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import MAX_STR_CHARS, Message
 from teleop.errors import TeleopError
@@ -69,6 +76,8 @@ __all__ = ["INPUT_TOPICS", "MAX_CLOCK_JUMP_S", "EstimatorService", "ModelSlot", 
 log = logging.getLogger(__name__)
 
 INPUT_TOPICS = ("frame", "force", "width", "grasp_event")
+# A force batch reaching this share of the contact force may show the contact: segment then.
+CONTACT_HINT = 0.5
 # Capture clocks are monotonic: a time this far past the stream's last one is a broken clock.
 MAX_CLOCK_JUMP_S = 10.0
 # A bad message is one of these; anything else is a bug and ends the service.
@@ -218,6 +227,8 @@ class _Grasp:
     final: Estimate | None = None
     final_s: float | None = None
     final_t_data_s: float | None = None
+    final_by: str | None = None  # what ended the loading: loading_end, settled or grasp_end
+    final_compute_s: float | None = None
     loading_frames: int = 0
     last_t_s: dict[str, float] = field(default_factory=dict)  # newest capture time per topic
 
@@ -314,6 +325,8 @@ class EstimatorService:
         if message.type == "grasp_event":
             if body["event"] == "start":
                 self._open(body["grasp_id"], message.t_capture_s, received_s)
+            elif body["event"] == "loading_end":
+                self._loading_end(body["grasp_id"], message.t_capture_s, received_s)
             else:
                 self._close(body["grasp_id"], message.t_capture_s, received_s)
             return
@@ -335,6 +348,13 @@ class EstimatorService:
             return
         if message.type == "force":
             stream.add_force(body["t_s"], body["value_n"])
+            if not grasp.seen_contact and float(body["value_n"].max()) >= CONTACT_HINT * self.settings.estimator.contact_force_n:
+                # Contact may show in the force only after the first frames in contact came: measure
+                # them now, not in the final estimate (a stiff object loads within a frame or two).
+                segment = stream.segment()
+                self._remember(grasp, segment)
+                if segment:
+                    stream.measure_frames(segment)
         else:
             stream.add_width(body["t_s"], body["value_m"])
         # Segmenting is cheap, but not at 80 Hz for nothing: only once the force may have settled.
@@ -342,7 +362,7 @@ class EstimatorService:
             segment = stream.segment()
             self._remember(grasp, segment)
             if stream.loading_complete(segment):
-                self._finish(grasp, received_s, segment=segment)
+                self._finish(grasp, received_s, segment=segment, by="settled")
 
     def _open(self, grasp_id: str, t_s: float, received_s: float) -> None:
         if self._grasp is not None:
@@ -361,10 +381,20 @@ class EstimatorService:
             log.warning("end of grasp %r, which is not open", grasp_id)
             return
         if grasp.final is None:
-            self._finish(grasp, received_s)
+            self._finish(grasp, received_s, by="grasp_end")
         self.report.write(self._summary(grasp))  # before the end goes out: readers of both find it
         self.publisher.send("grasp_event", t_capture_s=t_s, event="end", grasp_id=grasp_id)
         self._grasp = None
+
+    def _loading_end(self, grasp_id: str, t_s: float, received_s: float) -> None:
+        grasp = self._grasp
+        if grasp is None or grasp.grasp_id != grasp_id:
+            self.stats.ignored += 1
+            log.warning("loading end of grasp %r, which is not open", grasp_id)
+            return
+        grasp.stream.mark_loading_end(t_s)
+        if grasp.final is None:
+            self._finish(grasp, received_s, by="loading_end")
 
     def _remember(self, grasp: _Grasp, segment: Segment) -> None:
         if segment:
@@ -379,36 +409,56 @@ class EstimatorService:
         if not segment:
             return  # no contact yet: the grasp is not loading
         if stream.loading_complete(segment):
-            self._finish(grasp, received_s, segment=segment)
+            self._finish(grasp, received_s, segment=segment, by="settled")
             return
         result = stream.estimate(segment)
         self._publish(grasp, result.estimate, result.t_data_s, received_s, provisional=True)
 
-    def _finish(self, grasp: _Grasp, received_s: float, *, segment: Segment | None = None) -> None:
-        """The final estimate: analytical, or the model's when one is pinned to the grasp."""
-        result: StreamEstimate = grasp.stream.estimate(segment)
-        estimate = result.estimate
+    def _finish(self, grasp: _Grasp, received_s: float, *, by: str, segment: Segment | None = None) -> None:
+        """The final estimate: the model's when one is pinned to the grasp, else (or when the
+        model fails) the analytical one."""
+        started = time.perf_counter()
+        stream = grasp.stream
+        segment = stream.segment() if segment is None else segment
+        estimate, failure = None, None
         if grasp.model is not None:
             try:
-                estimate = grasp.model.estimate(grasp.stream.to_record(), mode=self.model.mode)
+                estimate = self._model_estimate(grasp, segment)
             except _BAD_INPUT as exc:
                 log.warning("grasp %r: the model gives no estimate (%s); publishing the analytical one",
                             grasp.grasp_id, exc)
-                estimate = estimate.with_note(f"model failed: {exc}")
-        grasp.final, grasp.final_t_data_s, grasp.loading_frames = estimate, result.t_data_s, result.loading_frames
-        self._publish(grasp, estimate, result.t_data_s, received_s, provisional=False)
-        grasp.final_s = self.clock()
+                failure = exc
+        if estimate is None:
+            estimate = stream.estimate(segment).estimate
+            if failure is not None:
+                estimate = estimate.with_note(f"model failed: {failure}")
+        grasp.final, grasp.final_by = estimate, by
+        grasp.final_t_data_s, grasp.loading_frames = stream.last_loading_frame_s(segment), int(segment.frame_t_s.size)
+        grasp.final_compute_s = time.perf_counter() - started
+        grasp.final_s = self._publish(grasp, estimate, grasp.final_t_data_s, received_s, provisional=False)
+
+    def _model_estimate(self, grasp: _Grasp, segment: Segment) -> Estimate:
+        """The pinned model's estimate; a depth model of the estimator's finger reads the cached depths."""
+        model, mode = grasp.model, self.model.mode
+        variant = model.predictor.variant
+        if variant.image == "depth" and not variant.markers:
+            started = time.perf_counter()
+            sampled = grasp.stream.sampled_grasp(n_frames=variant.n_frames, size_px=variant.size_px, segment=segment)
+            if sampled:  # else the model's own answer without a tactile sample, from the record
+                return model.estimate_sampled(sampled, mode=mode).with_latency(time.perf_counter() - started)
+        return model.estimate(grasp.stream.to_record(), mode=mode)
 
     def _publish(self, grasp: _Grasp, estimate: Estimate, t_data_s: float, received_s: float, *,
-                 provisional: bool) -> None:
+                 provisional: bool) -> float:
+        """Send an estimate; returns the clock time it went out."""
         reason = estimate.reason if len(estimate.reason) <= MAX_STR_CHARS else estimate.reason[: MAX_STR_CHARS - 1] + "…"
         low, high = estimate.interval_pa
+        now = self.clock()
         self.publisher.send(
             "estimate", t_capture_s=t_data_s, grasp_id=grasp.grasp_id, method=estimate.method,
             E_pa=estimate.e_pa, interval_pa=[low, high], state=estimate.state, reason=reason,
-            provisional=provisional, latency_s=max(0.0, self.clock() - received_s),
+            provisional=provisional, latency_s=max(0.0, now - received_s),
         )
-        now = self.clock()
         if estimate and grasp.first_estimate_s is None:
             grasp.first_estimate_s = now
         if provisional:
@@ -416,6 +466,7 @@ class EstimatorService:
             self.stats.provisional += 1
         else:
             self.stats.final += 1
+        return now
 
     def _summary(self, grasp: _Grasp) -> dict[str, Any]:
         """The grasp's report line; times are seconds on the service's (= the capture) clock."""
@@ -430,6 +481,9 @@ class EstimatorService:
             "provisional_span_s": sent[-1] - sent[0] if len(sent) > 1 else None,
             "final": None if grasp.final is None else grasp.final.to_json(),
             "t_last_loading_frame_s": grasp.final_t_data_s,
+            "t_loading_end_s": grasp.stream.loading_end_s,
+            "final_by": grasp.final_by,
+            "final_compute_s": grasp.final_compute_s,
             "final_sent_s": grasp.final_s,
             "loading_frames": grasp.loading_frames,
             "model": None if grasp.model is None else str(self.model.model_dir),

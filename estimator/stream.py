@@ -6,25 +6,39 @@ keeps what batch estimation would recompute:
 
 * each frame of the estimator's finger is decoded and warped once, on arrival;
 * depth and contact features of a frame (loading and hold frames alike) are computed once, at
-  the first estimate after contact that sees the frame, against the no-contact reference (the
-  median of the last frames before the onset, as :func:`~estimator.measure.measure_grasp`
-  takes it; if later data moves the reference, the cached depths are dropped and recomputed);
+  the first estimate after contact that sees the frame (whether or not widths around it have
+  arrived yet, so no burst of frames waits for the next width sample), against the no-contact
+  reference (the median of the last frames before the onset, as
+  :func:`~estimator.measure.measure_grasp` takes it; if later data moves the reference, the
+  cached depths are dropped and recomputed);
 * on every :meth:`GraspStream.estimate` the segmentation and the analytical fits run again over
   everything that has arrived (a few hundred samples and tens of frames: vectorised and cheap).
 
 Given the same data, the estimate equals :func:`~estimator.measure.estimate_grasp` on the
 grasp record (without clock-lag corrections): same segmentation, reference, depth, features
-and fits.
+and fits; and :meth:`GraspStream.sampled_grasp` equals
+:func:`~estimator.learned.inputs.sample_grasp` on it (the learned model's input) from the
+cached depths, without measuring a frame again.
 
 When is loading over?
 ---------------------
-Force, width and frames come at their own rates (80, 10 and 30 Hz on the rig), so the end of
-the loading phase is only known in hindsight. :meth:`GraspStream.loading_complete` says it is
-when the segmentation's peak force is followed by :data:`LOADING_SETTLED_S` of force samples
-that stay within the peak tolerance, and a width sample and a tactile frame newer than the
-peak have arrived (so no loading frame is still to come and each has widths around it). An
-estimate taken then rests on the loading frames alone: the hold frames batch estimation adds
-(from ``segment.HOLD_SETTLE_S`` after the peak until the release) have not been captured yet.
+The gripper's grasp command completes when the fingers stop at the target force; the robot
+node then publishes a *loading end* marker with that time, after the width the gripper read
+at the stop and everything captured before it (:mod:`teleop.node`).
+:meth:`GraspStream.mark_loading_end` records it, and from then on
+:meth:`GraspStream.loading_complete` says the loading is over: every loading frame has
+arrived, and the width at the stop bounds them all.
+
+Without a marker (recorded grasps and sessions from before it, a gripper whose stop read
+failed) the end is only known in hindsight, as force, width and frames come at their own
+rates (80, 10 and 30 Hz on the rig): loading is over when the segmentation's peak force is
+followed by :data:`LOADING_SETTLED_S` of force samples that stay within the peak tolerance,
+and a width sample and a tactile frame newer than the peak have arrived (so no loading frame
+is still to come and each has widths around it).
+
+Either way an estimate taken then rests on the loading frames alone: the hold frames batch
+estimation adds (from ``segment.HOLD_SETTLE_S`` after the peak until the release) have not
+been captured yet.
 
 Which estimate is published
 ---------------------------
@@ -48,6 +62,7 @@ from estimator import analytical
 from estimator.errors import FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.features import ContactFeatures, contact_features
+from estimator.learned.inputs import ANALYTICAL_METHODS, SampledGrasp, _positions, reduce_images
 from estimator.measure import (
     REFERENCE_GUARD_S,
     GraspMeasurements,
@@ -229,6 +244,8 @@ class GraspStream:
         self._reference_key: tuple[int, ...] | None = None
         self._reference: np.ndarray | None = None
         self._features: dict[int, ContactFeatures] = {}  # frame position -> features of that frame
+        self._depth: dict[int, np.ndarray] = {}  # frame position -> its depth (m), for the model's input
+        self._loading_end_s: float | None = None
 
     def warm_up(self) -> None:
         """Fill the caches the first estimate would otherwise fill mid-grasp (about a second on
@@ -291,6 +308,20 @@ class GraspStream:
         frames.encoded.append(bytes(data) if isinstance(data, bytes | bytearray) else np.ascontiguousarray(data).tobytes())
         return finger == self.finger
 
+    def mark_loading_end(self, t_s: float) -> None:
+        """The loading end marker: the gripper's fingers stopped at ``t_s`` (s, capture clock).
+
+        Raises PerceptionError for a time that is not finite.
+        """
+        if not np.isfinite(t_s):
+            raise PerceptionError(f"grasp {self.grasp_id!r} loading end at {t_s!r}: not a finite time")
+        self._loading_end_s = float(t_s)
+
+    @property
+    def loading_end_s(self) -> float | None:
+        """Time of the loading end marker, or None before one came."""
+        return self._loading_end_s
+
     # ------------------------------------------------------------------ state
 
     def segment(self) -> Segment:
@@ -302,6 +333,8 @@ class GraspStream:
 
     def loading_complete(self, segment: Segment | None = None) -> bool:
         """Whether the loading phase has ended and every loading frame is usable (module docstring)."""
+        if self._loading_end_s is not None:
+            return True
         segment = self.segment() if segment is None else segment
         if not segment or not np.isfinite(segment.t_peak_s):
             return False
@@ -318,24 +351,84 @@ class GraspStream:
     def estimate(self, segment: Segment | None = None) -> StreamEstimate:
         """Every method over what has arrived, and the one to publish.
 
-        Computes depth and features of loading frames not seen before (and of all of them
-        when the no-contact reference moved); everything else is cached.
+        Computes depth and features of frames since contact not seen before (and of all of
+        them when the no-contact reference moved); everything else is cached.
         """
         started = time.perf_counter()
         segment = self.segment() if segment is None else segment
         measurements = self._measure(segment)
         estimates = tuple(estimate_grasp(measurements, m, settings=self.settings) for m in self.methods)
-        frame_t = self._frame_times()
         used = segment.frame_t_s if measurements.features is not None else np.zeros(0)
-        t_data = float(used[-1]) if used.size else (float(frame_t.max()) if frame_t.size else self._force.last_t_s)
         chosen = choose_estimate(estimates).with_latency(time.perf_counter() - started)
         return StreamEstimate(estimate=chosen, estimates=estimates, segment=segment,
-                              t_data_s=t_data, loading_frames=int(used.size))
+                              t_data_s=self._newest_data_s(used), loading_frames=int(used.size))
 
-    def _measure(self, segment: Segment) -> GraspMeasurements:
+    def measure_frames(self, segment: Segment | None = None) -> None:
+        """Compute the depth and features of every frame since contact not measured yet, ahead
+        of the estimate that will need them (e.g. when the force shows the contact only after
+        the frames came)."""
+        self._measure(self.segment() if segment is None else segment)
+
+    def last_loading_frame_s(self, segment: Segment) -> float:
+        """Capture time of the last loading frame of ``segment``; without one, of the newest
+        frame received (of the newest force sample before any frame)."""
+        return self._newest_data_s(segment.frame_t_s)
+
+    def _newest_data_s(self, loading_t_s: np.ndarray) -> float:
+        frame_t = self._frame_times()
+        if loading_t_s.size:
+            return float(loading_t_s[-1])
+        return float(frame_t.max()) if frame_t.size else self._force.last_t_s
+
+    def sampled_grasp(self, *, n_frames: int, size_px: tuple[int, int] | None,
+                      segment: Segment | None = None) -> SampledGrasp:
+        """The learned model's depth input, as :func:`~estimator.learned.inputs.sample_grasp`
+        measures it on :meth:`to_record` (no shift, depth images of the estimator's finger, no
+        colour or marker images), from the cached depths.
+
+        Parameters
+        ----------
+        n_frames : int
+            Frames sampled over the loading phase.
+        size_px : (int, int) or None
+            (rows, cols) the depth maps are reduced to; None keeps the sensor grid.
+        segment : Segment, optional
+            The segmentation of what has arrived (computed when not given).
+        """
+        segment = self.segment() if segment is None else segment
+        why = segment.reason or segment.frame_reason
+        if why:
+            return SampledGrasp(reason=why)
+        positions = _positions(segment, n_frames, 0)
+        distinct, rows = np.unique(positions, return_inverse=True)
+        frame_t = self._frame_times()
+        reference_index = _reference_index(frame_t, segment.t_onset_s - REFERENCE_GUARD_S)
+        keep = np.concatenate([reference_index, segment.frame_index[distinct], segment.hold_index])
+        force, width = self._force.samples(), self._width.samples()
+        est = self.settings.estimator
+        # measure_grasp on the grasp restricted to those frames, as sample_grasp runs it.
+        restricted = segment_grasp(force.t_s, force.value, width.t_s, width.value, frame_t[keep],
+                                   contact_force_n=est.contact_force_n, n_frames=n_frames)
+        m = self._measure(restricted, positions=keep, depth=True)
+        if m.features is None or m.depth_m is None:
+            return SampledGrasp(reason=m.tactile_reason or "tactile features were not measured")
+        if m.t_s.size != distinct.size:
+            return SampledGrasp(reason=f"{m.t_s.size} of the {distinct.size} sampled frames are usable")
+        estimates = tuple(estimate_grasp(m, method, settings=self.settings) for method in ANALYTICAL_METHODS)
+        return SampledGrasp(measurements=m, estimates=estimates, force_n=m.force_n[rows], width_m=m.width_m[rows],
+                            depth_m=reduce_images(m.depth_m, size_px)[rows])
+
+    def _measure(self, segment: Segment, *, positions: np.ndarray | None = None,
+                 depth: bool = False) -> GraspMeasurements:
         """:class:`GraspMeasurements` of the loading (and hold) frames so far, as ``measure_grasp``
-        builds them."""
+        builds them.
+
+        ``positions`` maps the segment's frames to the frames received (None: they are the
+        frames received); ``depth`` also stacks the loading frames' depth maps.
+        """
         stiffness = self.settings.gripper.finger_stiffness_n_per_m
+        frame_t = self._frame_times()
+        positions = np.arange(frame_t.size) if positions is None else positions
 
         def approach(width_m: np.ndarray, force_n: np.ndarray) -> np.ndarray:
             return analytical.approach_per_finger(width_m, force_n, onset_width_m=segment.onset_width_m,
@@ -349,22 +442,25 @@ class GraspStream:
             hold_force_n=segment.hold_force_n, hold_approach_m=approach(segment.hold_width_m, segment.hold_force_n),
         )
         why = segment.reason or segment.frame_reason
-        reference_index = np.zeros(0, dtype=np.intp)
-        if not why:
-            reference_index = _reference_index(self._frame_times(), segment.t_onset_s - REFERENCE_GUARD_S)
+        if not segment.reason:
+            reference_index = _reference_index(frame_t[positions], segment.t_onset_s - REFERENCE_GUARD_S)
             if reference_index.size == 0:
-                why = (f"no tactile frame before the contact onset at {segment.t_onset_s:.3f} s to serve "
-                       "as the no-contact reference")
+                why = why or (f"no tactile frame before the contact onset at {segment.t_onset_s:.3f} s to "
+                              "serve as the no-contact reference")
+            else:
+                self._use_reference(positions[reference_index])
+                # Every frame from contact on, whether or not widths around it have come: each frame's
+                # depth is computed when it arrives, not in a burst when the next width comes.
+                for position in positions[frame_t[positions] >= segment.t_contact_s]:
+                    self._frame_features(int(position))
         if why:
             return dataclasses.replace(measurements, tactile_reason=why)
-        self._use_reference(reference_index)
-        # Every frame from contact on, not only those with widths around them yet: each frame's
-        # depth is then computed when it arrives, not in a burst when the next width comes.
-        for position in np.flatnonzero(self._frame_times() >= segment.t_contact_s):
-            self._frame_features(int(position))
-        loading = self._stacked_features(segment.frame_index)
-        hold = self._stacked_features(segment.hold_index) if segment.hold_index.size else loading.take(slice(0, 0))
-        return dataclasses.replace(measurements, features=loading, hold_features=hold)
+        loading_positions = positions[segment.frame_index]
+        loading = self._stacked_features(loading_positions)
+        hold = (self._stacked_features(positions[segment.hold_index]) if segment.hold_index.size
+                else loading.take(slice(0, 0)))
+        depth_m = np.stack([self._depth[int(i)] for i in loading_positions]) if depth else None
+        return dataclasses.replace(measurements, features=loading, hold_features=hold, depth_m=depth_m)
 
     def _stacked_features(self, positions: np.ndarray) -> ContactFeatures:
         features = [self._frame_features(int(i)) for i in positions]
@@ -377,6 +473,7 @@ class GraspStream:
             self._reference = _median_frame(np.stack([self._images[i] for i in key]))
             self._reference_key = key
             self._features.clear()
+            self._depth.clear()
 
     def _frame_features(self, position: int) -> ContactFeatures:
         cached = self._features.get(position)
@@ -387,6 +484,7 @@ class GraspStream:
             cached = contact_features(depth[None], pixel_pitch_m=self.sensor.pixel_pitch_m,
                                       contact_threshold_m=self.sensor.contact_threshold_m)
             self._features[position] = cached
+            self._depth[position] = depth
         return cached
 
     # ------------------------------------------------------------------ export

@@ -411,6 +411,8 @@ class LiveSystem:
                 outcome.started = True
                 if body["object_name"] not in (None, obj.name):
                     raise TeleopError(f"grasp {grasp_id}: the node grasped {body['object_name']}, not {obj.name}")
+            elif body["event"] != "end":  # loading_end: the grasp goes on
+                pass
             elif message.source == "estimator":
                 outcome.estimator_ended = True
             else:

@@ -26,8 +26,14 @@ Grasps are commanded on the bus (``command`` messages on ``bus.command``):
     Not for the node (the estimator service's); ignored.
 
 A ``grasp_event`` *start* (naming the object when simulated) goes out before the grasp's
-first data and an *end* after its last. A command that cannot be carried out is logged and
-the node carries on.
+first data and an *end* after its last. In between, a *loading_end* marks when the gripper's
+grasp command completed (the fingers stopped at the target force: the object is loaded;
+:attr:`~teleop.devices.gripper.Gripper.last_stop`), stamped with that time; the width the
+gripper read at the stop goes out first, in the ``width`` stream, so everything captured up to
+the stop (frames, forces, that width) precedes the marker on the bus. The simulated gripper
+stops where the simulated record's fingers stop. No marker goes out when the gripper could
+not read its width at the stop. A command that cannot be carried out is logged and the node
+carries on.
 """
 
 from __future__ import annotations
@@ -51,7 +57,7 @@ import numpy as np
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.devices.camera import TactileCamera, open_camera
-from teleop.devices.gripper import Gripper, open_gripper
+from teleop.devices.gripper import GraspStop, Gripper, open_gripper
 from teleop.devices.loadcell import LoadCell, open_load_cell
 from teleop.errors import DeviceError, DeviceTimeoutError, SimulationError, TeleopError
 from teleop.live import StopSignals, add_endpoint_arguments, bus_from_args
@@ -94,6 +100,8 @@ class _Grasp:
     phase: str = "preparing"
     phase_until_s: float = math.inf
     started_s: float = math.inf  # when the start event went out: data captured from then on is the grasp's
+    grasp_command: Future | None = None  # the gripper's grasp, for the loading-end marker
+    stop: GraspStop | None = None  # where the grasp command stopped, until its marker went out
 
 
 def _first_sample_s(record: GraspRecord) -> float:
@@ -141,6 +149,7 @@ class RobotNode:
         self._simulator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="simulate")
         self._grasp: _Grasp | None = None
         self._count = 0
+        self._last_width_s = -math.inf  # capture time of the newest width sample published
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -287,6 +296,7 @@ class RobotNode:
             self._count += 1
             self._grasp = grasp
             self._announce("start")
+            self._watch_grasp_command(grasp)
             return grasp_id
         index = number % len(self.objects) if object_index is None else object_index
         if not 0 <= index < len(self.objects):
@@ -339,13 +349,39 @@ class RobotNode:
         self._announce("start")
         playback.start(self.clock() - (_first_sample_s(record) - playback.origin_s) + APPROACH_LEAD_S)
         grasp.motion = self.gripper.grasp_async(0.0, epsilon_outer_m=self.settings.gripper.max_width_m)
+        self._watch_grasp_command(grasp)
         # The replay holds and releases by itself: the grasp ends once all of it is due.
         grasp.phase = "tail"
         grasp.phase_until_s = playback.live_time(playback.origin_s + playback.duration_s) + TAIL_S
 
-    def _announce(self, event: str) -> None:
+    def _watch_grasp_command(self, grasp: _Grasp) -> None:
+        """Wake the loop when the gripper's grasp command completes (its loading-end marker)."""
+        grasp.grasp_command = grasp.motion
+        grasp.motion.add_done_callback(lambda future: self._captured.put(("grasp_stopped", future)))
+
+    def _grasp_stopped(self, future: Future) -> None:
         grasp = self._grasp
-        now = self.clock()
+        if grasp is None or grasp.grasp_command is not future or future.cancelled():
+            return
+        if future.exception() is not None:
+            log.warning("grasp %s: the grasp command failed: %s", grasp.grasp_id, future.exception())
+            return
+        grasp.stop = self.gripper.last_stop
+        if grasp.stop is None:
+            log.warning("grasp %s: no width read when the fingers stopped: no loading-end marker", grasp.grasp_id)
+        self._mark_loading_end()
+
+    def _mark_loading_end(self) -> None:
+        """The loading-end marker, once the width read at the stop has gone out."""
+        grasp = self._grasp
+        if grasp is None or grasp.stop is None or self._last_width_s < grasp.stop.width_t_s:
+            return
+        self._announce("loading_end", t_s=grasp.stop.stopped_s)
+        grasp.stop = None
+
+    def _announce(self, event: str, *, t_s: float | None = None) -> None:
+        grasp = self._grasp
+        now = self.clock() if t_s is None else t_s
         if event == "start":
             grasp.started_s = now
         self.publisher.send("grasp_event", t_capture_s=now, event=event, grasp_id=grasp.grasp_id,
@@ -380,6 +416,10 @@ class RobotNode:
                 self.stats.force_batches += 1
             else:
                 self.stats.width_batches += 1
+                self._last_width_s = max(self._last_width_s, float(item.t_s[-1]))
+                self._mark_loading_end()
+        elif kind == "grasp_stopped":
+            self._grasp_stopped(item)
         else:  # a reader's device error, already logged by the reader
             self.stats.device_errors += 1
 

@@ -51,7 +51,10 @@ Message types and body schemas
 ``force``        grasp_id: str|nil; arrays ``t_s`` (float64) and ``value_n`` (float64 or
                  float32), 1-D, one length >= 1, finite (seconds; newtons).
 ``width``        grasp_id: str|nil; arrays ``t_s`` and ``value_m``: as ``force`` (metres).
-``grasp_event``  event: "start"|"end", grasp_id: str, object_name: str|nil.
+``grasp_event``  event: "start"|"loading_end"|"end", grasp_id: str, object_name: str|nil.
+                 ``loading_end``: the gripper's grasp command completed (the fingers stopped
+                 at the target force) at ``t_capture_s``; the width read then went out just
+                 before it as a ``width`` message.
 ``estimate``     grasp_id: str, method: str, E_pa: float > 0 | nil,
                  interval_pa: [low, high] with each float > 0 or nil (nil: open side),
                  state: "ok"|"lower_bound"|"upper_bound"|"insufficient_data",
@@ -313,7 +316,7 @@ SCHEMAS: Mapping[str, Schema] = {
     ),
     "grasp_event": Schema(
         fields={
-            "event": _text(choices=("start", "end")),
+            "event": _text(choices=("start", "loading_end", "end")),
             "grasp_id": _text(),
             "object_name": _text(nullable=True),
         },

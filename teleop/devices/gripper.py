@@ -5,6 +5,12 @@ On a Franka hand one width read takes about 0.1 s, so a background reader polls 
 width at ``GripperSettings.width_read_hz`` and timestamps every reading at the middle
 of its read call (the best guess of when the value was true); :meth:`Gripper.widths`
 hands out everything read since the last call. The gripper measures no force.
+
+A grasp command completes when the fingers stop: at the target force, or where they were
+stopped. That moment ends the loading of the object, so the gripper then reads its width at
+once (the fingers are still, so the read is the width from the stop on) and queues it with
+the background reader's samples, in time order; :attr:`Gripper.last_stop` holds the stop's
+time and that reading (:class:`GraspStop`) for the robot node's loading-end marker.
 """
 
 from __future__ import annotations
@@ -14,13 +20,14 @@ import math
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 
 from teleop.devices.base import Device, SampleQueue, load_backend
 from teleop.errors import DeviceError, InvalidCommandError
 from teleop.record import Samples
 from teleop.settings import GripperSettings
 
-__all__ = ["BACKENDS", "MAX_FORCE_N", "MAX_SPEED_M_S", "Gripper", "open_gripper"]
+__all__ = ["BACKENDS", "MAX_FORCE_N", "MAX_SPEED_M_S", "GraspStop", "Gripper", "open_gripper"]
 
 log = logging.getLogger(__name__)
 
@@ -49,12 +56,34 @@ def _finite(name: str, value: float, lo: float, hi: float, *, lo_open: bool = Fa
     return float(value)
 
 
+@dataclass(frozen=True)
+class GraspStop:
+    """Where a grasp command's motion ended.
+
+    Attributes
+    ----------
+    stopped_s : float
+        When the grasp command completed (``time.monotonic()`` seconds): the fingers stopped.
+    width_t_s, width_m : float
+        The width read right after (s, m), stamped as every width sample is; it is queued in
+        the width stream too.
+    held : bool
+        What the grasp command returned (an object held within its tolerance).
+    """
+
+    stopped_s: float
+    width_t_s: float
+    width_m: float
+    held: bool
+
+
 class Gripper(Device):
     """A parallel gripper.
 
     Backends implement ``_open``, ``_shutdown``, ``_move``, ``_grasp``, ``_stop``,
     ``_read_width``, ``_max_width`` and ``_is_grasped``; they may override
-    ``_poll_widths`` when their widths come with their own timestamps.
+    ``_poll_widths`` when their widths come with their own timestamps, and then
+    ``_readings_at_stop`` as well.
     """
 
     family = "gripper"
@@ -63,6 +92,8 @@ class Gripper(Device):
         super().__init__()
         self.settings = settings
         self._width_queue = SampleQueue()
+        self._width_lock = threading.Lock()  # one read-and-queue at a time: the queue stays in time order
+        self._last_stop: GraspStop | None = None
         self._reader: threading.Thread | None = None
         self._reader_stop = threading.Event()
         self._executor: ThreadPoolExecutor | None = None
@@ -93,6 +124,12 @@ class Gripper(Device):
         return float(self._max_width())
 
     @property
+    def last_stop(self) -> GraspStop | None:
+        """The stop of the last grasp command that completed (None before the first); read it
+        once the command's future is done."""
+        return self._last_stop
+
+    @property
     def is_grasped(self) -> bool:
         """Whether the last grasp holds an object within its tolerance."""
         self._require_connected()
@@ -121,7 +158,7 @@ class Gripper(Device):
         width_m + epsilon_outer_m]``. Speed and force default to the settings.
         """
         self._require_connected()
-        return bool(self._grasp(*self._grasp_args(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m)))
+        return self._grasp_until_stop(self._grasp_args(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m))
 
     def move_async(self, width_m: float, *, speed_m_s: float | None = None) -> Future[bool]:
         """:meth:`move` in the command thread; bad arguments are refused here, at once."""
@@ -141,7 +178,7 @@ class Gripper(Device):
         """:meth:`grasp` in the command thread; bad arguments are refused here, at once."""
         self._require_connected()
         args = self._grasp_args(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m)
-        return self._executor.submit(lambda: bool(self._grasp(*args)))
+        return self._executor.submit(self._grasp_until_stop, args)
 
     def stop(self) -> bool:
         """Stop a running move or grasp and hold the current width."""
@@ -179,6 +216,24 @@ class Gripper(Device):
         outer = _finite("epsilon_outer_m", epsilon_outer_m, 0.0, self.settings.max_width_m)
         return width, speed, force, inner, outer
 
+    def _grasp_until_stop(self, args: tuple[float, float, float, float, float]) -> bool:
+        """Run the grasp; when its motion ends, queue a width read and remember the stop
+        (none when that read fails: the grasp itself stands)."""
+        self._last_stop = None
+        held = bool(self._grasp(*args))
+        stopped_s = time.monotonic()
+        try:
+            with self._width_lock:
+                readings = self._readings_at_stop()
+                for t_s, width in readings:
+                    self._width_queue.put(t_s, width)
+        except DeviceError as exc:
+            log.warning("%r: the width read when the grasp stopped failed: %s", self, exc)
+            return held
+        width_t_s, width_m = readings[-1]
+        self._last_stop = GraspStop(stopped_s, width_t_s, width_m, held)
+        return held
+
     def _timed_read(self) -> tuple[float, float]:
         before = time.monotonic()
         width = float(self._read_width())
@@ -188,14 +243,20 @@ class Gripper(Device):
         """Width samples available now; one timed read unless the backend has its own."""
         return [self._timed_read()]
 
+    def _readings_at_stop(self) -> list[tuple[float, float]]:
+        """Width samples to queue when a grasp stops, the last one read now; one timed read
+        unless the backend has its own timestamps."""
+        return [self._timed_read()]
+
     def _read_widths_forever(self) -> None:
         period = 1.0 / self.settings.width_read_hz
         next_s = time.monotonic()
         failing = False
         while not self._reader_stop.is_set():
             try:
-                for t_s, width in self._poll_widths():
-                    self._width_queue.put(t_s, width)
+                with self._width_lock:
+                    for t_s, width in self._poll_widths():
+                        self._width_queue.put(t_s, width)
                 failing = False
             except DeviceError as exc:  # keep polling: a dropped read must not end the stream
                 if not failing:

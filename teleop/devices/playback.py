@@ -9,7 +9,10 @@ The ``sim`` backends of the three families release exactly what the record holds
 it falls due, stamped with those shifted times, like hardware would:
 
 * :class:`SimulatedGripper`: ``grasp()`` starts the replay (if not started) and returns
-  once the recorded width reaches its minimum; widths come from the record until it ends.
+  when the recorded fingers stop at the target force (the record's ``grasp_done`` event;
+  without one, where the recorded width reaches its minimum); the width read then is the
+  recorded width of the hold (:meth:`GraspPlayback.hold_width_m`). Widths come from the
+  record until it ends.
   A replay cannot react to commands: ``move()`` during a replay waits for its end. Without
   a replay (or after it) the gripper is kinematic: the width moves at the commanded speed,
   stalling at ``object_width_m`` when an object is given.
@@ -124,11 +127,25 @@ class GraspPlayback:
         return index if index >= 0 else None
 
     def grasp_settled_s(self) -> float:
-        """Live time at which the recorded width reaches its minimum (the grasp holds)."""
+        """Live time at which the fingers stop and the grasp holds: the record's ``grasp_done``
+        event, else where the recorded width reaches its minimum (else the record's end)."""
         widths = self.record.width_m
+        if "grasp_done" in self.record.events:
+            return float(self.live_time(self.record.events["grasp_done"]))
         if not len(widths):
             return float(self.live_time(self.origin_s + self.duration_s))
         return float(self.live_time(widths.t_s[int(np.argmin(widths.value))]))
+
+    def hold_width_m(self) -> float:
+        """The fingers' width while they hold still after the stop (m): the last width recorded
+        before the record's ``command_release`` event (read well after the stop, as a hold lasts
+        several reads), else the smallest recorded width. NaN without widths."""
+        widths = self.record.width_m
+        if not len(widths):
+            return float("nan")
+        release_s = self.record.events.get("command_release")
+        before = np.flatnonzero(widths.t_s <= release_s) if release_s is not None else np.zeros(0, dtype=np.intp)
+        return float(widths.value[before[-1]] if before.size else widths.value.min())
 
 
 def _wait_until(t_s: float, clock: Callable[[], float], stop: threading.Event | None = None) -> bool:
@@ -231,6 +248,16 @@ class SimulatedGripper(Gripper):
                 self._width_index, due = playback.widths_due(self._width_index)
                 return list(zip(due.t_s.tolist(), due.value.tolist(), strict=True))
         return [self._timed_read()]
+
+    def _readings_at_stop(self) -> list[tuple[float, float]]:
+        """The recorded widths due by now, then the width of the hold read now (during a replay)."""
+        with self._lock:
+            now = time.monotonic()
+            playback = self._replaying(now)
+            if playback is None or not np.isfinite(hold := playback.hold_width_m()):
+                return [(now, float(self._kinematic_width(now)))]
+            self._width_index, due = playback.widths_due(self._width_index, now)
+            return [*zip(due.t_s.tolist(), due.value.tolist(), strict=True), (now, hold)]
 
     def _drive(self, to_m: float, speed: float) -> float:
         """Start a kinematic motion; returns when (clock time) it ends."""

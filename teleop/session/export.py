@@ -167,6 +167,8 @@ class _Assembler:
                         grasp_id, reason="started again before it ended; the first start is dropped"
                     )
                 self.open[grasp_id] = _OpenGrasp(grasp_id, message.t_capture_s, body["object_name"])
+            elif body["event"] != "end":  # loading_end: the grasp goes on
+                pass
             elif grasp_id in self.open:
                 self.ended.add(grasp_id)
                 yield self.build(self.open.pop(grasp_id), message.t_capture_s)

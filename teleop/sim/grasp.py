@@ -19,7 +19,8 @@ so soft objects still reach the force target before the fingers meet.
 The squeeze stops when the force reaches the grasp's target (drawn per grasp,
 up to ``target_force_n``; the gripper stalls on its force limit) or the
 fingers close completely; the host holds ``hold_s`` after the grasp reports
-done, then commands release and the fingers open at the same speed. Sensors
+done, then commands release and the fingers open at the same speed (record
+events ``command_grasp``, ``grasp_done``: the stop, ``command_release``). Sensors
 (:mod:`sensors`) sample the true force and motor width; the cameras image the
 gel's own displacement, interpolated between contact solutions on a ladder of
 force levels (linear in log force; measured against a 48-level ladder this departs
@@ -424,7 +425,7 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
         width_m=width_samples,
         provenance=Provenance(source="simulated", seed=seed, model=curve.model),
         label=Label(object_name=obj.name, modulus_pa=obj.modulus_pa, material=obj.material, shape=obj.shape),
-        events={"command_grasp": command_s, "command_release": release_s},
+        events={"command_grasp": command_s, "grasp_done": stall_s, "command_release": release_s},
     )
     truth = GraspTruth(
         size_m=size, pose=pose, scene=scene, curve=curve, target_force_n=target,

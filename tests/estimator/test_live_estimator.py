@@ -405,3 +405,90 @@ def test_model_slot_reloads_on_file_change_and_keeps_a_good_model_over_a_bad_one
     good = slot.estimator
     assert not slot.poll(idle=True)
     assert slot.estimator is good and slot.failures == 1
+
+
+# --------------------------------------------------------------------------- the loading end marker
+
+
+def until_loading_end(record: GraspRecord) -> tuple[list[tuple[float, str, dict]], float, float]:
+    """What the robot node publishes up to a grasp's loading-end marker: the data captured up to
+    the stop, in capture order; the stop time and the width the gripper read then (the hold's)."""
+    stop_s = record.events["grasp_done"]
+    hold = record.width_m.value[record.width_m.t_s <= record.events["command_release"]][-1]
+    return [item for item in in_capture_order(record) if item[0] <= stop_s], stop_s, float(hold)
+
+
+def test_loading_end_marker_ends_loading_at_once_and_the_model_input_comes_from_the_cache(settings, calibration,
+                                                                                       records):
+    from estimator.learned.hybrid import HybridEstimator
+    from estimator.learned.infer import CompliancePredictor, default_model_dir
+    from estimator.learned.inputs import sample_grasp
+
+    items, stop_s, hold_m = until_loading_end(records["stress_ball"])
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    for t, kind, body in items:
+        if feed(stream, kind, body, t) and stream.segment():
+            stream.estimate()  # as the provisional estimates do: every frame's depth is cached
+    assert not stream.loading_complete()  # the force has not settled past its peak yet
+    stream.add_width(np.array([stop_s + 1e-4]), np.array([hold_m]))
+    stream.mark_loading_end(stop_s)
+    assert stream.loading_complete() and stream.loading_end_s == stop_s
+    segment = stream.segment()
+    assert segment and segment.frame_t_s.size > 0 and segment.frame_t_s[-1] <= stop_s
+    assert stream.last_loading_frame_s(segment) == segment.frame_t_s[-1]
+    with pytest.raises(PerceptionError, match="finite"):
+        stream.mark_loading_end(math.nan)
+
+    record = stream.to_record()
+    for n_frames, size_px in ((3, (64, 88)), (5, None)):
+        cached = stream.sampled_grasp(n_frames=n_frames, size_px=size_px, segment=segment)
+        measured = sample_grasp(record, settings=settings, calibration=calibration, n_frames=n_frames,
+                                size_px=size_px)
+        assert cached and measured
+        np.testing.assert_array_equal(cached.depth_m, measured.depth_m)
+        np.testing.assert_array_equal(cached.force_n, measured.force_n)
+        np.testing.assert_array_equal(cached.width_m, measured.width_m)
+        assert all(same(a, b) for a, b in zip(cached.estimates, measured.estimates, strict=True))
+    # The shipped model answers the same from the cache as from the grasp as received.
+    model = HybridEstimator(CompliancePredictor(default_model_dir()), settings=settings, calibration=calibration)
+    variant = model.predictor.variant
+    cached = stream.sampled_grasp(n_frames=variant.n_frames, size_px=variant.size_px, segment=segment)
+    assert same(model.estimate_sampled(cached, mode="auto"), model.estimate(record, mode="auto"))
+    # Before contact there is nothing to sample, and the reason says why.
+    empty = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    assert not empty.sampled_grasp(n_frames=3, size_px=None) and empty.sampled_grasp(n_frames=3, size_px=None).reason
+
+
+def test_service_publishes_the_final_estimate_on_the_loading_end_marker(rig, settings, calibration, records,
+                                                                         tmp_path):
+    record = records["stress_ball"]
+    items, stop_s, hold_m = until_loading_end(record)
+    rig.robot.send("grasp_event", t_capture_s=0.0, event="start", grasp_id="g-mark", object_name=None)
+    for t, kind, body in items:
+        rig.robot.send(kind, t_capture_s=t, grasp_id="g-mark", **body)
+    rig.robot.send("width", t_capture_s=stop_s + 1e-4, grasp_id="g-mark", t_s=[stop_s + 1e-4], value_m=[hold_m])
+    rig.robot.send("grasp_event", t_capture_s=stop_s, event="loading_end", grasp_id="g-mark", object_name=None)
+    for t, kind, body in in_capture_order(record):  # the hold and the release: too late to matter
+        if t > stop_s:
+            rig.robot.send(kind, t_capture_s=t, grasp_id="g-mark", **body)
+    rig.robot.send("grasp_event", t_capture_s=record.force_n.t_s[-1], event="end", grasp_id="g-mark")
+    got = rig.collect("g-mark")
+
+    # The same data, fed up to the marker, give the final estimate and the provisional count.
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    provisional = 0
+    for t, kind, body in items:
+        provisional += bool(feed(stream, kind, body, t) and stream.segment())
+    stream.add_width(np.array([stop_s + 1e-4]), np.array([hold_m]))
+    segment = stream.segment()
+    expected = stream.estimate(segment).estimate
+    estimates = [m for m in got if m.type == "estimate"]
+    assert [m.body["provisional"] for m in estimates] == [True] * provisional + [False]
+    final = estimates[-1]
+    assert (final.body["method"], final.body["state"], final.body["E_pa"]) == (expected.method, expected.state,
+                                                                               expected.e_pa)
+    assert final.t_capture_s == segment.frame_t_s[-1] <= stop_s  # the last loading frame
+    report = json.loads((tmp_path / "estimator.jsonl").read_text().splitlines()[-1])
+    assert report["final_by"] == "loading_end" and report["t_loading_end_s"] == stop_s
+    assert report["t_last_loading_frame_s"] == final.t_capture_s and report["final_compute_s"] > 0
+    assert rig.service.stats.bad_messages == 0 and rig.service.stats.final == 1

@@ -110,7 +110,23 @@ def test_latency_summary_splits_decision_and_delivery():
     assert summary["provisional_hz"] == pytest.approx(15 / 0.5)
     assert summary["decision_p50_ms"] == pytest.approx(120.0) and summary["delivery_p50_ms"] == pytest.approx(10.0)
     assert summary["compute_p50_ms"] == pytest.approx(20.0)
+    assert summary["loading_end_to_report_p50_ms"] is None and summary["finals_by"] == {}
     assert latency_summary([], [])["p99_ms"] is None
+
+
+def test_latency_summary_splits_marker_grasps_at_the_loading_end():
+    marked = outcome("a", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 30.0, final_sent_s=10.029,
+                     t_last_loading_frame_s=10.0, t_loading_end_s=10.02, final_by="loading_end",
+                     final_compute_s=0.004, provisional_span_s=0.5, provisional=16)
+    settled = outcome("b", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 150.0, final_sent_s=20.14,
+                      t_last_loading_frame_s=20.0, t_loading_end_s=None, final_by="settled",
+                      final_compute_s=0.006, provisional_span_s=None, provisional=1)
+    summary = latency_summary([marked, settled], [])
+    assert summary["p50_ms"] == pytest.approx(90.0) and summary["finals_by"] == {"loading_end": 1, "settled": 1}
+    assert summary["loading_after_frame_p50_ms"] == pytest.approx(20.0)  # the marker grasp alone
+    assert summary["loading_end_to_report_p99_ms"] == pytest.approx(10.0)
+    assert summary["decision_p50_ms"] == pytest.approx((29.0 + 140.0) / 2)
+    assert summary["final_compute_p99_ms"] == pytest.approx(5.98)
 
 
 def test_report_reader_takes_complete_lines_only(tmp_path):

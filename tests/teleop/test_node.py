@@ -68,12 +68,34 @@ def test_commanded_grasp_goes_out_as_the_devices_capture_it(rig):
     forces = [m for m in got if m.type == "force"]
     assert np.array_equal(np.concatenate([m.body["value_n"] for m in forces]), record.force_n.value)
     shifts.append(np.concatenate([m.body["t_s"] for m in forces]) - record.force_n.t_s)
-    widths = np.concatenate([m.body["value_m"] for m in got if m.type == "width"])
-    assert np.array_equal(widths[: len(record.width_m)], record.width_m.value)
     # One replay clock: every stream is the record shifted by one constant, onto this host's monotonic clock.
-    assert np.ptp(np.concatenate(shifts)) < 1e-6
+    shifts = np.concatenate(shifts)
+    assert np.ptp(shifts) < 1e-6
     data_t = [m.t_capture_s for m in got[1:-1]]
     assert got[0].t_capture_s <= min(data_t) <= max(data_t) <= got[-1].t_capture_s <= time.monotonic()
+
+    # The loading end: the gripper stopped where the record's fingers stop (its grasp_done event) ...
+    events = [m for m in got if m.type == "grasp_event"]
+    assert [m.body["event"] for m in events] == ["start", "loading_end", "end"]
+    marker = events[1]
+    assert marker.t_capture_s - record.events["grasp_done"] == pytest.approx(shifts[0], abs=0.02)
+    # ... and the width it read then (the record's hold width) is the one sample the record lacks,
+    # in time order with the others, published before the marker, after everything captured earlier.
+    width_messages = [m for m in got if m.type == "width"]
+    widths = np.concatenate([m.body["value_m"] for m in width_messages])
+    width_t = np.concatenate([m.body["t_s"] for m in width_messages])
+    assert np.all(np.diff(width_t) > 0)
+    replayed = widths[: len(record.width_m) + 1]  # after the replay the kinematic gripper reads on
+    extra = int(np.argmax(np.append(replayed[:-1] != record.width_m.value, True)))
+    assert np.array_equal(np.delete(replayed, extra), record.width_m.value)
+    release = record.width_m.t_s <= record.events["command_release"]
+    assert widths[extra] == record.width_m.value[release][-1]
+    assert marker.t_capture_s <= width_t[extra] < marker.t_capture_s + 0.01
+    before = got[: got.index(marker)]
+    assert any(m.type == "width" and width_t[extra] in m.body["t_s"] for m in before)
+    late = [m for m in got[got.index(marker) + 1:] if m.type in ("frame", "force")
+            and min(np.atleast_1d(m.body.get("t_s", m.t_capture_s))) <= marker.t_capture_s]
+    assert not late, "data captured before the loading end came after its marker"
 
 
 def test_commands_that_cannot_be_carried_out_are_logged(rig, caplog):
@@ -111,7 +133,7 @@ def test_hardware_grasp_closes_holds_and_opens(rig):
     run_until_idle(node, grasps=1, timeout_s=10.0)
     assert node.stats.bad_commands == 1  # the gripper refused 500 N before anything started
     got = [m for m in drain(listener) if m.body.get("grasp_id") == "g-hw"]
-    assert [m.body["event"] for m in got if m.type == "grasp_event"] == ["start", "end"]
+    assert [m.body["event"] for m in got if m.type == "grasp_event"] == ["start", "loading_end", "end"]
     widths = np.concatenate([m.body["value_m"] for m in got if m.type == "width"])
     closed = int(np.argmin(widths))
     assert widths[closed] < 0.01 and widths[0] > 0.04 and widths[-1] > 0.07  # closed, then opened again

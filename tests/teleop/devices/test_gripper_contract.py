@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -169,3 +170,36 @@ def test_sim_grasp_replays_the_recorded_widths(make_record):
     assert np.ptp(shift) < 1e-9  # the record's own timestamps, moved by one constant
     assert np.all(np.diff(samples.t_s) > 0)
     assert np.all(samples.value[n:] >= record.width_m.value[-1])  # then opening kinematically
+
+
+def test_a_grasp_remembers_where_it_stopped_and_queues_that_width_in_order(gripper):
+    with gripper:
+        assert gripper.move(0.04, speed_m_s=SPEED)
+        assert gripper.last_stop is None  # no grasp yet
+        gripper.widths()
+        before = time.monotonic()
+        held = gripper.grasp(0.03, speed_m_s=SPEED, force_n=10.0, epsilon_inner_m=0.005, epsilon_outer_m=0.005)
+        stop = gripper.last_stop
+        samples = gripper.widths(timeout_s=0.5)
+    assert stop is not None and stop.held == held
+    assert before < stop.stopped_s <= stop.width_t_s <= time.monotonic()
+    assert stop.width_m == pytest.approx(0.03, abs=5e-3)
+    assert stop.width_t_s in samples.t_s.tolist() and np.all(np.diff(samples.t_s) > 0)
+
+
+def test_sim_grasp_stops_where_the_replayed_fingers_do(make_record):
+    record = make_record(duration_s=0.5, command_grasp_s=2.0)
+    record = dataclasses.replace(record, events={"command_grasp": 2.0, "grasp_done": 2.2, "command_release": 2.4})
+    with SimulatedGripper(GripperSettings(width_read_hz=20.0)) as gripper:
+        playback = GraspPlayback(record)
+        gripper.replay(playback)
+        assert gripper.grasp(0.0, epsilon_outer_m=0.08)
+        stop = gripper.last_stop
+        samples = gripper.widths(timeout_s=0.5)
+    assert stop.stopped_s == pytest.approx(playback.grasp_settled_s(), abs=0.02)
+    assert stop.width_m == playback.hold_width_m()
+    # The recorded widths due by the stop, then the stop's read: one stream in time order.
+    recorded = playback.live_time(record.width_m.t_s)
+    replayed = samples.t_s[samples.t_s >= playback.live_time(playback.origin_s)]  # not the reads before the start
+    assert np.all(np.diff(samples.t_s) > 0)
+    assert replayed[-1] == stop.width_t_s and np.allclose(replayed[:-1], recorded[recorded <= stop.width_t_s])

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -74,3 +76,15 @@ def test_a_playback_runs_once_and_needs_data(make_record):
     )
     with pytest.raises(DeviceError, match="without any samples"):
         GraspPlayback(empty)
+
+
+def test_the_fingers_stop_at_the_grasp_done_event_and_hold_the_width_read_before_release(make_record):
+    record = make_record(command_grasp_s=1.9)
+    marked = dataclasses.replace(record, events={"command_grasp": 1.9, "grasp_done": 2.25, "command_release": 2.32})
+    playback = GraspPlayback(marked, clock=FakeClock(50.0))
+    playback.start(t0_s=60.0)
+    assert playback.grasp_settled_s() == pytest.approx(60.0 + 2.25 - 1.9)
+    held = record.width_m.value[record.width_m.t_s <= 2.32][-1]
+    assert playback.hold_width_m() == held and held != record.width_m.value.min()
+    # Without the events: where the recorded width is smallest.
+    assert GraspPlayback(record).hold_width_m() == record.width_m.value.min()

@@ -128,8 +128,9 @@ def test_record_round_trip(grasps, tmp_path):
     assert (back.label.material, back.label.shape) == ("rubber", "sphere")
     assert back.provenance.source == "simulated" and back.provenance.seed == 7
     assert back.provenance.model == "bem-layer" and not back.provenance.extra
-    assert set(back.events) == {"command_grasp", "command_release"}
+    assert set(back.events) == {"command_grasp", "grasp_done", "command_release"}
     assert back.events["command_release"] == pytest.approx(truth.release_s)
+    assert back.events["grasp_done"] == pytest.approx(truth.stall_s)
     assert back.sensors == record.sensors
 
 
