@@ -22,3 +22,20 @@ def shared_dir() -> Path:
 def object_table(shared_dir: Path) -> Path:
     """The published object table CSV."""
     return shared_dir / "seed" / "dataset_objects_and_compliance.csv"
+
+
+@pytest.fixture(scope="session")
+def settings():
+    """The shipped settings (simulated hardware); modules needing others define their own."""
+    from teleop.settings import load_settings
+
+    return load_settings()
+
+
+@pytest.fixture(scope="session")
+def calibration(settings, tmp_path_factory):
+    """A calibration of the simulated left sensor from 16 simulated ball presses."""
+    from estimator.perception.calibration import load_calibration
+    from teleop.demo import simulated_calibration
+
+    return load_calibration(simulated_calibration(settings, tmp_path_factory.mktemp("cal"), n_presses=16))

@@ -19,28 +19,16 @@ import zmq
 from estimator.errors import CalibrationError, FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.measure import estimate_grasp, measure_grasp
-from estimator.perception.calibration import load_calibration
 from estimator.service import EstimatorService, ModelSlot
 from estimator.stream import GraspStream, choose_estimate, decode_frame
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.catalogue import load_catalogue
-from teleop.demo import simulated_calibration
 from teleop.live import JsonLines
 from teleop.record import GraspRecord
-from teleop.settings import CONFIG_DIR, load_settings
+from teleop.settings import CONFIG_DIR
 from teleop.sim.grasp import simulate_grasp
 
 METHODS = ("split", "hertz", "elastic", "no_tactile")
-
-
-@pytest.fixture(scope="module")
-def settings():
-    return load_settings()
-
-
-@pytest.fixture(scope="module")
-def calibration(settings, tmp_path_factory):
-    return load_calibration(simulated_calibration(settings, tmp_path_factory.mktemp("cal"), n_presses=16))
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,6 @@ from hypothesis import settings as hyp_settings
 from hypothesis import strategies as st
 
 from estimator.errors import EstimatorError
-from estimator.perception.calibration import load_calibration
 from estimator.service import MAX_CLOCK_JUMP_S, EstimatorService
 from estimator.stream import GraspStream
 from haptics.devices.sim import SimulatedDisplay
@@ -29,22 +28,11 @@ from haptics.service import RendererService
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import encode, make_message
 from teleop.catalogue import load_catalogue
-from teleop.demo import simulated_calibration
 from teleop.record import GraspRecord
-from teleop.settings import CONFIG_DIR, load_settings
+from teleop.settings import CONFIG_DIR
 from teleop.sim.grasp import simulate_grasp
 
 METHODS = ("split", "hertz", "elastic", "no_tactile")
-
-
-@pytest.fixture(scope="module")
-def settings():
-    return load_settings()
-
-
-@pytest.fixture(scope="module")
-def calibration(settings, tmp_path_factory):
-    return load_calibration(simulated_calibration(settings, tmp_path_factory.mktemp("cal"), n_presses=16))
 
 
 @pytest.fixture(scope="module")

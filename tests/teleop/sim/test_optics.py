@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from teleop.errors import SimulationError
-from teleop.settings import SimulationSettings, load_settings
+from teleop.settings import SimulationSettings
 from teleop.sim.optics import (
     TactileCamera,
     load_background,
@@ -19,11 +19,6 @@ from teleop.sim.optics import (
     warp_to_grid,
 )
 from teleop.sim.presses import contact_radius_m, sphere_press_height
-
-
-@pytest.fixture(scope="module")
-def settings():
-    return load_settings()
 
 
 @pytest.fixture(scope="module")
