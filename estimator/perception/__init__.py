@@ -17,7 +17,7 @@ from estimator.perception.calibration import (
 )
 from estimator.perception.depth import SphereFit, fit_sphere, poisson_depth, reconstruct_depth
 from estimator.perception.markers import detect_markers, inpaint_markers
-from estimator.perception.warp import warp_and_crop, warp_matrix, warp_points
+from estimator.perception.warp import warp_and_crop, warp_maps, warp_matrix, warp_points
 
 __all__ = [
     "Calibration",
@@ -36,6 +36,7 @@ __all__ = [
     "reconstruct_depth",
     "split_presses",
     "warp_and_crop",
+    "warp_maps",
     "warp_matrix",
     "warp_points",
 ]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from estimator.errors import PerceptionError
-from estimator.perception import warp_and_crop, warp_matrix, warp_points
+from estimator.perception import warp_and_crop, warp_maps, warp_matrix, warp_points
 from teleop.settings import SensorSettings
 
 
@@ -56,6 +56,32 @@ def test_matrix_is_cached_per_sensor_and_read_only():
     assert not first.flags.writeable
     moved = SensorSettings(warp_corners_px=((40.0, 80.0), (439.0, 121.0), (52.0, 425.0), (446.0, 368.0)))
     assert not np.allclose(warp_matrix(moved), first)
+
+
+def test_cached_remap_matches_a_per_frame_perspective_warp(wedge):
+    _, raw, _ = wedge
+    sensor = SensorSettings()
+    rows, cols = sensor.image_shape
+    direct = cv2.warpPerspective(raw, warp_matrix(sensor), (cols, rows), flags=cv2.INTER_LINEAR)
+    ours = warp_and_crop(raw, sensor)
+    # Both interpolate bilinearly; the remap's positions are rounded to 1/32 px (warpPerspective
+    # in OpenCV 5 interpolates at full precision), which moves a few pixels by a grey level or two.
+    difference = np.abs(ours.astype(int) - direct)
+    assert difference.max() <= 3
+    assert np.count_nonzero(difference) < 0.1 * difference.size
+    assert difference.mean() < 0.1
+
+
+def test_remap_tables_are_cached_per_sensor_and_read_only():
+    sensor = SensorSettings()
+    xy, fraction = warp_maps(sensor)
+    assert warp_maps(SensorSettings())[0] is xy
+    assert xy.shape == (*sensor.image_shape, 2) and xy.dtype == np.int16
+    assert fraction.shape == sensor.image_shape and fraction.dtype == np.uint16
+    assert not xy.flags.writeable and not fraction.flags.writeable
+    # The output pixel (0, 0) samples the raw point the inverse warp sends it to.
+    inverse = cv2.perspectiveTransform(np.zeros((1, 1, 2)), np.linalg.inv(warp_matrix(sensor)))[0, 0]
+    np.testing.assert_array_equal(xy[0, 0], np.floor(inverse))
 
 
 def test_corners_map_to_the_cropped_rectangle_corners():
