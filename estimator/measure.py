@@ -34,11 +34,14 @@ __all__ = [
     "TACTILE_METHODS",
     "GraspMeasurements",
     "calibration_path",
+    "check_calibration_fits",
     "estimate_grasp",
     "measure_grasp",
     "measure_tactile",
+    "median_frame",
     "no_contact_reference",
     "reference_frame",
+    "reference_indices",
     "resolve_calibration",
 ]
 
@@ -176,7 +179,8 @@ def resolve_calibration(sensor: SensorSettings, calibration: Calibration | str |
     return load_calibration(calibration_path(sensor, calibration))
 
 
-def _check_calibration_fits(cal: Calibration, sensor: SensorSettings) -> None:
+def check_calibration_fits(cal: Calibration, sensor: SensorSettings) -> None:
+    """Raise CalibrationError unless ``cal`` was made for ``sensor``'s image grid."""
     if tuple(cal.image_shape) != tuple(sensor.image_shape):
         raise CalibrationError(
             f"the calibration is for {cal.image_shape} images; sensor {sensor.finger!r} gives "
@@ -201,7 +205,7 @@ def _to_image_grid(frames: np.ndarray, sensor: SensorSettings) -> np.ndarray:
     return np.stack([warp_and_crop(f, sensor) for f in frames]) if len(frames) else frames
 
 
-def _median_frame(frames: np.ndarray) -> np.ndarray:
+def median_frame(frames: np.ndarray) -> np.ndarray:
     """Per-pixel median of a uint8 stack (n, ...), rounded half to even like ``np.rint(np.median)``.
 
     An odd-even transposition sort of the few images with element-wise min/max: a handful of
@@ -225,10 +229,10 @@ def reference_frame(record: GraspRecord, finger: str, index: np.ndarray) -> np.n
 
     Returns uint8 ``sensor.image_shape + (3,)`` BGR for a Wedge (the raw shape otherwise).
     """
-    return _median_frame(_to_image_grid(_decode(record, finger, index), record.sensor(finger)))
+    return median_frame(_to_image_grid(_decode(record, finger, index), record.sensor(finger)))
 
 
-def _reference_index(frame_t_s: np.ndarray, t_before_s: float) -> np.ndarray:
+def reference_indices(frame_t_s: np.ndarray, t_before_s: float) -> np.ndarray:
     """The last ``REFERENCE_FRAMES`` frames captured before ``t_before_s``."""
     before = np.flatnonzero(np.isfinite(frame_t_s) & (frame_t_s < t_before_s))
     return before[-REFERENCE_FRAMES:]
@@ -244,7 +248,7 @@ def no_contact_reference(record: GraspRecord, finger: str, segment: Segment) -> 
     PerceptionError
         No frame of ``finger`` was captured before the onset.
     """
-    index = _reference_index(record.stream(finger).t_s, segment.t_onset_s - REFERENCE_GUARD_S)
+    index = reference_indices(record.stream(finger).t_s, segment.t_onset_s - REFERENCE_GUARD_S)
     if index.size == 0:
         raise PerceptionError(f"finger {finger!r}: no tactile frame before the contact onset at "
                               f"{segment.t_onset_s:.3f} s to serve as the no-contact reference")
@@ -265,7 +269,7 @@ def _camera_lag(record: GraspRecord, finger: str, segment: Segment) -> float | N
     window = np.setdiff1d(window[t[window] >= segment.t_onset_s - 2 * MAX_CAMERA_LAG_S], reference_index)
     if reference_index.size < 3 or window.size < 4:
         return None
-    reference = _median_frame(_decode(record, finger, reference_index)).astype(np.int16)
+    reference = median_frame(_decode(record, finger, reference_index)).astype(np.int16)
     change = np.abs(_decode(record, finger, window).astype(np.int16) - reference).mean(axis=(1, 2, 3))
     return estimate_camera_lag(t[window], change, t_onset_s=segment.t_onset_s, max_lag_s=MAX_CAMERA_LAG_S)
 
@@ -421,7 +425,7 @@ def measure_tactile(
     frame_t = record.stream(finger).t_s - (m.camera_lag_s or 0.0)
     why = segment.reason or segment.frame_reason
     if not why:
-        reference_index = _reference_index(frame_t, segment.t_onset_s - REFERENCE_GUARD_S)
+        reference_index = reference_indices(frame_t, segment.t_onset_s - REFERENCE_GUARD_S)
         if reference_index.size == 0:
             why = (f"no tactile frame before the contact onset at {segment.t_onset_s:.3f} s to serve "
                    "as the no-contact reference")
@@ -429,7 +433,7 @@ def measure_tactile(
         return replace(m, tactile_reason=why)
 
     cal = resolve_calibration(sensor, calibration)
-    _check_calibration_fits(cal, sensor)
+    check_calibration_fits(cal, sensor)
     reference = reference_frame(record, finger, reference_index)
     loading_index = segment.frame_index if frames is None else segment.frame_index[frames]
     # Hold frames enter the fits only with the width lag corrected (see _with_hold_point).

@@ -62,14 +62,19 @@ from estimator import analytical
 from estimator.errors import FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.features import ContactFeatures, contact_features
-from estimator.learned.inputs import ANALYTICAL_METHODS, SampledGrasp, _positions, reduce_images
+from estimator.learned.inputs import (
+    ANALYTICAL_METHODS,
+    SampledGrasp,
+    reduce_images,
+    sample_positions,
+)
 from estimator.measure import (
     REFERENCE_GUARD_S,
     GraspMeasurements,
-    _check_calibration_fits,
-    _median_frame,
-    _reference_index,
+    check_calibration_fits,
     estimate_grasp,
+    median_frame,
+    reference_indices,
 )
 from estimator.perception.calibration import Calibration
 from estimator.perception.depth import reconstruct_depth
@@ -233,7 +238,7 @@ class GraspStream:
             self.sensor = settings.sensor(self.finger)
         except SettingsError as exc:
             raise FitError(f"EstimatorSettings.finger = {self.finger!r}: {exc}") from exc
-        _check_calibration_fits(calibration, self.sensor)
+        check_calibration_fits(calibration, self.sensor)
         self.calibration = calibration
         self.methods = tuple(methods)
         self.grasp_id = grasp_id
@@ -399,10 +404,10 @@ class GraspStream:
         why = segment.reason or segment.frame_reason
         if why:
             return SampledGrasp(reason=why)
-        positions = _positions(segment, n_frames, 0)
+        positions = sample_positions(segment, n_frames, 0)
         distinct, rows = np.unique(positions, return_inverse=True)
         frame_t = self._frame_times()
-        reference_index = _reference_index(frame_t, segment.t_onset_s - REFERENCE_GUARD_S)
+        reference_index = reference_indices(frame_t, segment.t_onset_s - REFERENCE_GUARD_S)
         keep = np.concatenate([reference_index, segment.frame_index[distinct], segment.hold_index])
         force, width = self._force.samples(), self._width.samples()
         est = self.settings.estimator
@@ -443,7 +448,7 @@ class GraspStream:
         )
         why = segment.reason or segment.frame_reason
         if not segment.reason:
-            reference_index = _reference_index(frame_t[positions], segment.t_onset_s - REFERENCE_GUARD_S)
+            reference_index = reference_indices(frame_t[positions], segment.t_onset_s - REFERENCE_GUARD_S)
             if reference_index.size == 0:
                 why = why or (f"no tactile frame before the contact onset at {segment.t_onset_s:.3f} s to "
                               "serve as the no-contact reference")
@@ -470,7 +475,7 @@ class GraspStream:
     def _use_reference(self, index: np.ndarray) -> None:
         key = tuple(int(i) for i in index)
         if key != self._reference_key:
-            self._reference = _median_frame(np.stack([self._images[i] for i in key]))
+            self._reference = median_frame(np.stack([self._images[i] for i in key]))
             self._reference_key = key
             self._features.clear()
             self._depth.clear()

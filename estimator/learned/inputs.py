@@ -87,6 +87,7 @@ __all__ = [
     "normalise_modulus",
     "reduce_images",
     "sample_grasp",
+    "sample_positions",
 ]
 
 LOG10_E_RANGE = (3.0, 12.0)
@@ -334,7 +335,7 @@ def decoded(record: GraspRecord) -> GraspRecord:
     return replace(record, frames=tuple(DecodedFrameStream(s, s.frames()) for s in record.frames))
 
 
-def _positions(segment: Segment, n_frames: int, shift: int) -> np.ndarray | str:
+def sample_positions(segment: Segment, n_frames: int, shift: int) -> np.ndarray | str:
     """Positions (within the loading frames) of the sample set ``shift``, or why there is none.
 
     The loading frame nearest to each of ``n_frames`` times spread evenly from the
@@ -417,7 +418,7 @@ def _measure_finger(
     why = segment.reason or segment.frame_reason
     if why:
         return SampledGrasp(reason=why)
-    positions = _positions(segment, n_frames, shift)
+    positions = sample_positions(segment, n_frames, shift)
     if isinstance(positions, str):
         return SampledGrasp(reason=positions)
     distinct, rows = np.unique(positions, return_inverse=True)
