@@ -29,11 +29,11 @@ from estimator.measure import (
     REFERENCE_FRAMES,
     REFERENCE_GUARD_S,
     GraspMeasurements,
-    _median_frame,
     calibration_path,
     estimate_grasp,
     measure_grasp,
     measure_tactile,
+    median_frame,
     no_contact_reference,
 )
 from estimator.perception import fit_calibration, warp_and_crop
@@ -350,7 +350,7 @@ def test_a_reference_needs_a_frame_before_the_onset(calibration):
 def test_median_frame_is_numpys_median_rounded(n):
     frames = np.random.default_rng(n).integers(0, 256, (n, 30, 40, 3), dtype=np.uint8)
     frames[:, 0, 0], frames[0, 1, 1], frames[-1, 1, 1] = 7, 255, 254  # ties and extremes
-    median = _median_frame(frames)
+    median = median_frame(frames)
     assert median.dtype == np.uint8
     np.testing.assert_array_equal(median, np.rint(np.median(frames, axis=0)).astype(np.uint8))
 

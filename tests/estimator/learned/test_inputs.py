@@ -118,17 +118,17 @@ def _segment(frame_t_s, t_contact_s, t_peak_s):
 
 
 def test_sample_sets_spread_over_the_loading_phase_and_shift_by_a_frame():
-    from estimator.learned.inputs import _positions
+    from estimator.learned.inputs import sample_positions
 
     t = np.arange(10) / 30.0  # ten loading frames at 30 Hz
     segment = _segment(t, t_contact_s=0.0, t_peak_s=t[-1])
-    assert _positions(segment, 3, 0).tolist() in ([0, 4, 9], [0, 5, 9])
-    assert _positions(segment, 3, 2)[0] == 2 and _positions(segment, 3, 2)[-1] == 9
-    assert np.all(np.diff(_positions(segment, 3, 4)) > 0)  # distinct frames when shifted
-    assert "shift 8 leaves 2 of the 3" in _positions(segment, 3, 8)
+    assert sample_positions(segment, 3, 0).tolist() in ([0, 4, 9], [0, 5, 9])
+    assert sample_positions(segment, 3, 2)[0] == 2 and sample_positions(segment, 3, 2)[-1] == 9
+    assert np.all(np.diff(sample_positions(segment, 3, 4)) > 0)  # distinct frames when shifted
+    assert "shift 8 leaves 2 of the 3" in sample_positions(segment, 3, 8)
     short = _segment([0.01, 0.03], t_contact_s=0.0, t_peak_s=0.05)  # a stiff object: two loading frames
-    assert _positions(short, 3, 0).tolist() == [0, 1, 1]  # frames repeat rather than the grasp being lost
-    assert isinstance(_positions(short, 3, 1), str)
+    assert sample_positions(short, 3, 0).tolist() == [0, 1, 1]  # frames repeat rather than the grasp being lost
+    assert isinstance(sample_positions(short, 3, 1), str)
 
 
 @pytest.mark.slow
