@@ -29,7 +29,10 @@ within one decade, ``refusals`` the count of ``insufficient_data``; for ``auto``
 ``answered_by`` counts which branch answered each grasp (``model``, ``split``,
 ``no_tactile``, ...).
 A configuration is on the Pareto frontier (``pareto: true``) when no other is
-at least as fast and at least as accurate and better in one of the two.
+at least as fast, at least as accurate and refuses no more grasps, and better in
+one of the three: the error is over the grasps a configuration answers, so one
+that refuses the hard grasps (no loading frame to sample) must not dominate one
+that answers them (``auto``, with its force/width fallback).
 ``models`` lists each model with ``measurement_code_matches``: whether this code
 measures grasps as the code that built its training data did (when not, its
 figures are those of a model fed inputs it was not trained on).
@@ -110,19 +113,19 @@ def configurations(
     return configs
 
 
-def pareto_front(points: Sequence[tuple[float, float | None]]) -> list[bool]:
-    """Whether each (latency, error) point is on the Pareto frontier (both minimised; None: never)."""
-    flags = []
-    for i, (latency, error) in enumerate(points):
-        if error is None:
-            flags.append(False)
-            continue
-        dominated = any(
-            j != i and e is not None and lat <= latency and e <= error and (lat < latency or e < error)
-            for j, (lat, e) in enumerate(points)
-        )
-        flags.append(not dominated)
-    return flags
+def pareto_front(points: Sequence[tuple[float | None, ...]]) -> list[bool]:
+    """Whether each point (latency, error, refusals, ...) is on the Pareto frontier.
+
+    Every objective is minimised; a point with a None objective (no error: it answered nothing)
+    is never on it and dominates nothing.
+    """
+    known = [None not in p for p in points]
+
+    def dominates(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+        return all(x <= y for x, y in zip(a, b, strict=True)) and any(x < y for x, y in zip(a, b, strict=True))
+
+    return [ok and not any(known[j] and j != i and dominates(points[j], p) for j in range(len(points)))
+            for i, (p, ok) in enumerate(zip(points, known, strict=True))]
 
 
 @contextlib.contextmanager
@@ -208,7 +211,8 @@ def bench(
         })
         if config.kind == "auto":  # where auto lands: which branch answered each grasp
             out[-1]["answered_by"] = answered_by(rows, config.name)
-    for entry, flag in zip(out, pareto_front([(c["latency_ms_p50"], c["log10_error"]) for c in out]), strict=True):
+    objectives = [(c["latency_ms_p50"], c["log10_error"], c["refusals"]) for c in out]
+    for entry, flag in zip(out, pareto_front(objectives), strict=True):
         entry["pareto"] = flag
     return {"records": len(paths), "labelled": len(paths) - skipped, "repeats": repeats, "one_core": pinned,
             "reference_ms_p50": float(np.median(reference)) if reference else None, "configs": out}
@@ -226,12 +230,11 @@ def plot(result: dict[str, Any], path: str | Path) -> None:
     fig, ax = plt.subplots(figsize=(8, 5.5))
     for c in points:
         ax.scatter(c["latency_ms_p50"], c["log10_error"], s=36, color="C3" if c["pareto"] else "C0", zorder=3)
-        ax.annotate(c["name"], (c["latency_ms_p50"], c["log10_error"]), fontsize=7, xytext=(4, 3),
-                    textcoords="offset points")
-    front = sorted((c["latency_ms_p50"], c["log10_error"]) for c in points if c["pareto"])
-    if front:
-        ax.step(*zip(*front, strict=True), where="post", color="C3", lw=1.2, label="Pareto frontier")
-        ax.legend()
+        ax.annotate(f"{c['name']} ({c['refusals']} refused)", (c["latency_ms_p50"], c["log10_error"]),
+                    fontsize=7, xytext=(4, 3), textcoords="offset points")
+    ax.scatter([], [], color="C3", label="on the frontier (latency, error, refusals)")
+    ax.scatter([], [], color="C0", label="dominated")
+    ax.legend()
     ax.set(xscale="log", xlabel="latency per grasp, median (ms, one core, from decoded frames)",
            ylabel="mean |log10 E_hat - log10 E| (decades)", title=f"{result['labelled']} labelled grasps")
     ax.grid(True, which="both", alpha=0.3)

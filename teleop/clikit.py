@@ -22,6 +22,16 @@ class Command:
     help: str
 
 
+class _DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Appends ``(default: ...)`` unless the option is required, a flag, has no default or says its own."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if action.required or action.default is None or action.nargs == 0 or "(default" in text:
+            return text
+        return super()._get_help_string(action)
+
+
 def run_cli(
     prog: str,
     description: str,
@@ -40,7 +50,7 @@ def run_cli(
     for name, command in commands.items():
         p = sub.add_parser(
             name, help=command.help, description=command.help,
-            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+            formatter_class=_DefaultsHelpFormatter,
         )
         if name == chosen:
             module = importlib.import_module(command.module)

@@ -17,6 +17,15 @@ def test_pareto_front_keeps_only_undominated_points():
     assert pareto_front([(5.0, None)]) == [False]
 
 
+def test_a_configuration_that_answers_more_grasps_is_not_dominated_by_one_that_refuses_them():
+    # (latency ms, error over answered grasps, refusals): the hybrid refuses the grasps with no loading
+    # frame, auto answers them with a worse force/width fallback and is as fast.
+    hybrid, auto, slower_auto = (6.2, 0.70, 5), (6.3, 0.92, 0), (6.3, 0.95, 0)
+    assert pareto_front([hybrid, auto]) == [True, True]
+    assert pareto_front([hybrid, auto, slower_auto]) == [True, True, False]
+    assert pareto_front([(6.2, 0.70, 0), auto]) == [True, False]
+
+
 @pytest.mark.slow
 def test_bench_runs_on_a_tiny_directory_and_marks_a_frontier(sim_grasps, trained_model, tmp_path, capsys):
     records, calibration = sim_grasps
