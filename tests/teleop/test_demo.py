@@ -228,17 +228,37 @@ def test_children_die_with_a_killed_parent(tmp_path):
         cal = simulated_calibration(load_settings(), out, n_presses=12)
         system = LiveSystem(default_settings_path(), "quick", out / "run", cal, record=False)
         system.start()
-        print(json.dumps([c.process.pid for c in system.children.values()]), flush=True)
+        print(json.dumps({{c.process.pid: c.name for c in system.children.values()}}), flush=True)
         time.sleep(120)
     """)
     parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
     try:
-        pids = json.loads(parent.stdout.readline())
-        assert len(pids) == 3 and len(live_processes(pids)) == 3
+        names = {int(pid): name for pid, name in json.loads(parent.stdout.readline()).items()}
+        assert len(names) == 3 and len(live_processes(names)) == 3
     finally:
         parent.kill()
         parent.wait()
-    assert wait_gone(pids) == []
+    left = wait_gone(names)
+    # Say which child outlived its parent, what it was doing and what it logged.
+    survivors = {names[pid]: (_process(pid), _wchan(pid), _log_tail(tmp_path / "run" / f"{names[pid]}.log"))
+                 for pid in left}
+    for pid in left:
+        os.kill(pid, signal.SIGKILL)
+    assert survivors == {}
+
+
+def _wchan(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/wchan").read_text()
+    except OSError:
+        return "?"
+
+
+def _log_tail(path: Path, lines: int = 15) -> str:
+    try:
+        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
+    except OSError:
+        return f"({path} unreadable)"
 
 
 @pytest.mark.slow
