@@ -27,7 +27,7 @@ from estimator.perception.depth import reconstruct_depth
 from estimator.perception.markers import detect_markers
 from estimator.perception.warp import warp_and_crop
 from estimator.segment import Segment, estimate_camera_lag, estimate_width_lag, segment_grasp
-from teleop.record import GraspRecord
+from teleop.record import GRASP_DONE_EVENT, GraspRecord
 from teleop.settings import CONFIG_DIR, SensorSettings, Settings
 
 __all__ = [
@@ -334,6 +334,7 @@ def measure_grasp(
         return segment_grasp(
             record.force_n.t_s, record.force_n.value, width_t_s, record.width_m.value,
             frame_t_s, contact_force_n=est.contact_force_n, n_frames=est.n_frames,
+            stopped_s=record.events.get(GRASP_DONE_EVENT),
         )
 
     width_t, frame_t = record.width_m.t_s, stream.t_s

@@ -23,6 +23,19 @@ loading phase
     count as loading. A
     saturated load cell (a plateau of identical readings at the top) ends it
     where the plateau starts.
+loading frames
+    The frames captured during the loading phase, and the *peak frame*: the
+    first frame captured after the peak, within ``PEAK_FRAME_WINDOW_S`` and
+    while the force still holds (as for the hold, below): force samples up to
+    a sample at or after it show that, or the gripper has reported when its
+    fingers stopped (then the force holds until the release). The fingers
+    stand still from the peak on, so that frame shows the peak state, and its
+    force and width are those at the peak. A stiff object loads between two
+    frames at 30 Hz: without it no frame would show it under load.
+stop
+    When the gripper reports its fingers stopped (``stopped_s``), widths of
+    frames after it are the width at the stop: the load cell's reading may
+    peak a little later than the fingers stop, after the last width sample.
 hold
     After the peak the gripper holds still until it releases: up to
     ``HOLD_FRAMES`` frames from ``HOLD_SETTLE_S`` after the peak until the force
@@ -68,6 +81,8 @@ PEAK_TOLERANCE = 0.01  # loading ends within this share of the peak force
 HOLD_SETTLE_S = 0.15
 HOLD_TOLERANCE = 0.05
 HOLD_FRAMES = 3
+# The peak frame comes within this time after the peak (three frame periods at 30 Hz), before the hold.
+PEAK_FRAME_WINDOW_S = 0.1
 
 
 def clean_samples(t_s: np.ndarray, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -162,13 +177,15 @@ class Segment:
     load_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     load_force_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
     load_width_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    # Loading frames: indices into the record's frame stream and the values at their times.
+    # Loading frames, the peak frame last when there is one (module notes): indices into the record's
+    # frame stream, capture times, and force and width at those times (the peak frame's: at the peak).
     frame_reason: str = "no loading phase"
     frame_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
     frame_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     frame_force_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
     frame_width_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    # Positions within the loading frames of the n_frames sampled equidistantly in time.
+    # Positions within the loading frames of the n_frames sampled equidistantly in time from contact
+    # to the last loading frame.
     sample: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
     # Hold frames (up to HOLD_FRAMES, spread over the hold at the peak force): indices into the
     # record's frame stream and the force and width at their times.
@@ -201,6 +218,24 @@ def _equidistant(frame_t: np.ndarray, t_start: float, t_end: float, n: int) -> n
     return np.unique(np.abs(frame_t[None, :] - targets[:, None]).argmin(axis=1))
 
 
+def _hold_level(force: np.ndarray, peak: int, sigma_f: float) -> float:
+    """The force below which the gripper no longer holds the peak (the release begins)."""
+    return float(force[peak] - max(HOLD_TOLERANCE * force[peak], 5.0 * sigma_f))
+
+
+def _peak_frame(frame_t_s: np.ndarray, tf: np.ndarray, force: np.ndarray, *, peak: int, sigma_f: float,
+                stopped: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Index and time of the peak frame (module notes), or two empty arrays when there is none."""
+    t_peak = float(tf[peak])
+    index, t = _frames_in_phase(frame_t_s, np.nextafter(t_peak, np.inf), t_peak + PEAK_FRAME_WINDOW_S)
+    if index.size == 0:
+        return index, t
+    known = stopped or tf[-1] >= t[0]
+    if not known or np.any(force[(tf > t_peak) & (tf <= t[0])] < _hold_level(force, peak, sigma_f)):
+        return index[:0], t[:0]
+    return index[:1], t[:1]
+
+
 def _hold_frames(
     frame_t_s: np.ndarray, tf: np.ndarray, force: np.ndarray, tw: np.ndarray, width: np.ndarray, *,
     peak: int, sigma_f: float,
@@ -210,7 +245,7 @@ def _hold_frames(
     The hold runs from ``HOLD_SETTLE_S`` after the peak until the force first falls below the peak
     by ``HOLD_TOLERANCE`` (or five noise deviations, if more): the release.
     """
-    level = force[peak] - max(HOLD_TOLERANCE * force[peak], 5.0 * sigma_f)
+    level = _hold_level(force, peak, sigma_f)
     fallen = np.flatnonzero(force[peak:] < level)
     t_end = float(tf[peak + fallen[0] - 1]) if fallen.size else float(tf[-1])
     index, t = _frames_in_phase(frame_t_s, float(tf[peak]) + HOLD_SETTLE_S, t_end)
@@ -232,6 +267,7 @@ def segment_grasp(
     *,
     contact_force_n: float,
     n_frames: int,
+    stopped_s: float | None = None,
 ) -> Segment:
     """Find contact, onset and the loading phase; align force and width with the frames.
 
@@ -248,7 +284,12 @@ def segment_grasp(
     contact_force_n : float
         Force that defines first contact (N).
     n_frames : int
-        Frames to sample equidistantly in time over the loading phase.
+        Frames to sample equidistantly in time from contact to the last loading frame.
+    stopped_s : float, optional
+        When the gripper reported its fingers stopped (its grasp command
+        completed; s): the force holds from the peak until the release, so the
+        peak frame needs no force sample after it, and frames after it take the
+        width at the stop (module notes).
 
     Returns
     -------
@@ -261,6 +302,7 @@ def segment_grasp(
         raise FitError(f"n_frames: expected at least 1, got {n_frames}")
     flags: list[str] = []
     notes: list[str] = []
+    stopped = stopped_s is not None and bool(np.isfinite(stopped_s))
 
     def flag(name: str, note: str) -> None:
         if name not in flags:
@@ -344,7 +386,7 @@ def segment_grasp(
 
     t_peak = float(tf[peak])
     load_t = tf[contact : peak + 1]
-    load_w = interpolate(load_t, tw, width)
+    load_w = interpolate(np.minimum(load_t, stopped_s) if stopped else load_t, tw, width)
     covered = np.isfinite(load_w)
     if not covered.all():
         flag("misaligned", f"widths (span {tw[0]:.3f}..{tw[-1]:.3f} s) miss "
@@ -361,19 +403,22 @@ def segment_grasp(
     )
 
     index, frame_t = _frames_in_phase(frame_t_s, t_contact, t_peak)
+    peak_index, peak_t = _peak_frame(frame_t_s, tf, force, peak=peak, sigma_f=sigma_f, stopped=stopped)
+    index, frame_t = np.concatenate([index, peak_index]), np.concatenate([frame_t, peak_t])
     if index.size == 0:
         ft = np.asarray(frame_t_s, dtype=np.float64)
         ft = ft[np.isfinite(ft)]
         span = f"{ft.min():.3f}..{ft.max():.3f} s" if ft.size else "none"
         overlap = ft.size and ft.max() >= tf[0] and ft.min() <= tf[-1]
         name = "too_few_samples" if overlap else "misaligned"
-        why = (f"no tactile frame within the loading phase {t_contact:.3f}..{t_peak:.3f} s "
-               f"(frames: {span})")
+        why = (f"no tactile frame within the loading phase {t_contact:.3f}..{t_peak:.3f} s or within "
+               f"{PEAK_FRAME_WINDOW_S:g} s after it (frames: {span})")
         flag(name, why)
         return Segment(flags=tuple(flags), notes=tuple(notes), frame_reason=why, **common)
 
-    frame_force = interpolate(frame_t, tf, force)
-    frame_width = interpolate(frame_t, tw, width)
+    state_t = np.minimum(frame_t, t_peak)  # the peak frame shows the state at the peak
+    frame_force = interpolate(state_t, tf, force)
+    frame_width = interpolate(np.minimum(state_t, stopped_s) if stopped else state_t, tw, width)
     usable = np.isfinite(frame_force) & np.isfinite(frame_width)
     if not usable.all():
         flag("misaligned", f"{int((~usable).sum())} loading frames lie outside the width samples' span")
@@ -384,7 +429,7 @@ def segment_grasp(
         frame_reason = "no loading frame has a width sample around it"
         sample = np.zeros(0, dtype=np.intp)
     else:
-        sample = _equidistant(frame_t, t_contact, t_peak, n_frames)
+        sample = _equidistant(frame_t, t_contact, float(frame_t[-1]), n_frames)
         if sample.size < n_frames:
             flag("too_few_samples", f"{index.size} loading frames give {sample.size} distinct "
                                     f"samples of the {n_frames} wanted")

@@ -7,11 +7,13 @@ endpoint. Per grasp (from a ``grasp_event`` *start* to its *end*):
 * a PROVISIONAL estimate for every tactile frame of the estimator's finger from contact
   until the loading phase is over (:class:`~estimator.stream.GraspStream`: that frame is
   warped and reconstructed, the fits rerun over what has arrived);
-* one FINAL estimate as soon as the loading phase is over: at once when the robot's
-  ``grasp_event`` *loading_end* marker comes (the gripper's fingers stopped at the target
-  force; everything captured before it came first), else when the data show it
-  (:meth:`~estimator.stream.GraspStream.loading_complete`), or at the grasp's end if that
-  comes first. With a model loaded the final one is the hybrid ``auto`` estimate
+* one FINAL estimate as soon as the loading phase is over
+  (:meth:`~estimator.stream.GraspStream.loading_complete`): after the robot's
+  ``grasp_event`` *loading_end* marker (the gripper's fingers stopped at the target force;
+  everything captured before it came first), at the first frame captured after the force
+  peak (the peak frame, which shows the object under the full force: a stiff object loads
+  between two frames), at once if that frame came before the marker; without a marker, when
+  the data show the end; or at the grasp's end if that comes first. With a model loaded the final one is the hybrid ``auto`` estimate
   (:class:`~estimator.learned.hybrid.HybridEstimator`); for a depth model of the estimator's
   finger its input comes from the depths already computed for the provisional estimates
   (:meth:`~estimator.stream.GraspStream.sampled_grasp`: the same input the model would measure
@@ -362,7 +364,7 @@ class EstimatorService:
             segment = stream.segment()
             self._remember(grasp, segment)
             if stream.loading_complete(segment):
-                self._finish(grasp, received_s, segment=segment, by="settled")
+                self._finish(grasp, received_s, segment=segment, by=_ended_by(stream))
 
     def _open(self, grasp_id: str, t_s: float, received_s: float) -> None:
         if self._grasp is not None:
@@ -393,7 +395,7 @@ class EstimatorService:
             log.warning("loading end of grasp %r, which is not open", grasp_id)
             return
         grasp.stream.mark_loading_end(t_s)
-        if grasp.final is None:
+        if grasp.final is None and grasp.stream.loading_complete():  # else at the peak frame
             self._finish(grasp, received_s, by="loading_end")
 
     def _remember(self, grasp: _Grasp, segment: Segment) -> None:
@@ -409,7 +411,7 @@ class EstimatorService:
         if not segment:
             return  # no contact yet: the grasp is not loading
         if stream.loading_complete(segment):
-            self._finish(grasp, received_s, segment=segment, by="settled")
+            self._finish(grasp, received_s, segment=segment, by=_ended_by(stream))
             return
         result = stream.estimate(segment)
         self._publish(grasp, result.estimate, result.t_data_s, received_s, provisional=True)
@@ -488,6 +490,11 @@ class EstimatorService:
             "loading_frames": grasp.loading_frames,
             "model": None if grasp.model is None else str(self.model.model_dir),
         }
+
+
+def _ended_by(stream: GraspStream) -> str:
+    """What told the loading is over: the robot's marker, or the data alone (module docstring)."""
+    return "loading_end" if stream.loading_end_s is not None else "settled"
 
 
 def _check_times(grasp: _Grasp, message: Message) -> None:

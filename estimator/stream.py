@@ -26,8 +26,10 @@ The gripper's grasp command completes when the fingers stop at the target force;
 node then publishes a *loading end* marker with that time, after the width the gripper read
 at the stop and everything captured before it (:mod:`teleop.node`).
 :meth:`GraspStream.mark_loading_end` records it, and from then on
-:meth:`GraspStream.loading_complete` says the loading is over: every loading frame has
-arrived, and the width at the stop bounds them all.
+:meth:`GraspStream.loading_complete` says the loading is over as soon as the first frame
+captured after the peak has come (within a frame period): the segmentation's *peak frame*,
+which shows the peak state (:mod:`estimator.segment`); or, should no frame come,
+``PEAK_FRAME_WINDOW_S`` of force past the peak.
 
 Without a marker (recorded grasps and sessions from before it, a gripper whose stop read
 failed) the end is only known in hindsight, as force, width and frames come at their own
@@ -80,9 +82,9 @@ from estimator.perception.calibration import Calibration
 from estimator.perception.depth import reconstruct_depth
 from estimator.perception.markers import detect_markers
 from estimator.perception.warp import warp_and_crop
-from estimator.segment import Segment, segment_grasp
+from estimator.segment import PEAK_FRAME_WINDOW_S, Segment, segment_grasp
 from teleop.errors import SettingsError
-from teleop.record import FrameStream, GraspRecord, Provenance, Samples
+from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Provenance, Samples
 from teleop.settings import Settings
 
 __all__ = [
@@ -334,19 +336,21 @@ class GraspStream:
         force, width = self._force.samples(), self._width.samples()
         est = self.settings.estimator
         return segment_grasp(force.t_s, force.value, width.t_s, width.value, self._frame_times(),
-                             contact_force_n=est.contact_force_n, n_frames=est.n_frames)
+                             contact_force_n=est.contact_force_n, n_frames=est.n_frames,
+                             stopped_s=self._loading_end_s)
 
     def loading_complete(self, segment: Segment | None = None) -> bool:
-        """Whether the loading phase has ended and every loading frame is usable (module docstring)."""
-        if self._loading_end_s is not None:
-            return True
+        """Whether the loading phase has ended and every loading frame, the peak frame included,
+        has arrived (module docstring)."""
         segment = self.segment() if segment is None else segment
         if not segment or not np.isfinite(segment.t_peak_s):
-            return False
+            return self._loading_end_s is not None  # the gripper stopped without contact
         frame_t = self._frame_times()
+        frame_after_peak = frame_t.size > 0 and float(frame_t.max()) > segment.t_peak_s
+        if self._loading_end_s is not None:
+            return frame_after_peak or self.newest_force_s >= segment.t_peak_s + PEAK_FRAME_WINDOW_S
         return (self.newest_force_s >= segment.t_peak_s + LOADING_SETTLED_S
-                and self._width.last_t_s >= segment.t_peak_s
-                and frame_t.size > 0 and float(frame_t.max()) > segment.t_peak_s)
+                and self._width.last_t_s >= segment.t_peak_s and frame_after_peak)
 
     def _frame_times(self) -> np.ndarray:
         return np.asarray(self._frames.get(self.finger, _Frames()).t_s, dtype=np.float64)
@@ -413,7 +417,8 @@ class GraspStream:
         est = self.settings.estimator
         # measure_grasp on the grasp restricted to those frames, as sample_grasp runs it.
         restricted = segment_grasp(force.t_s, force.value, width.t_s, width.value, frame_t[keep],
-                                   contact_force_n=est.contact_force_n, n_frames=n_frames)
+                                   contact_force_n=est.contact_force_n, n_frames=n_frames,
+                                   stopped_s=self._loading_end_s)
         m = self._measure(restricted, positions=keep, depth=True)
         if m.features is None or m.depth_m is None:
             return SampledGrasp(reason=m.tactile_reason or "tactile features were not measured")
@@ -504,4 +509,5 @@ class GraspStream:
         return GraspRecord(
             sensors=self.settings.sensors, frames=streams, force_n=self._force.samples(),
             width_m=self._width.samples(), provenance=Provenance(source="hardware", extra={"grasp_id": self.grasp_id}),
+            events={} if self._loading_end_s is None else {GRASP_DONE_EVENT: self._loading_end_s},
         )

@@ -6,29 +6,30 @@ estimator service, haptic renderer on the simulated display; no session recorder
 
 ``p50_ms``, ``p99_ms``
     Latency of each FINAL estimate: from the capture of the grasp's last loading frame (the
-    final estimate's ``t_capture_s``: the newest frame of the segmentation's loading phase,
-    contact to peak force) to the renderer's HID report that shows it (the display report
-    written after the final estimate arrived; renderer report), on this host's monotonic
-    clock. It is the sum of two parts:
+    final estimate's ``t_capture_s``: the segmentation's last loading frame, which once the
+    loading is over is its peak frame, the first frame captured after the force peak) to the
+    renderer's HID report that shows it (the display report written after the final estimate
+    arrived; renderer report), on this host's monotonic clock. With the robot's loading-end
+    marker (the gripper's grasp command completed: the fingers stopped at the target force) the
+    estimator takes the final estimate as that frame arrives; without one, once the force has
+    settled :data:`~estimator.stream.LOADING_SETTLED_S` past its peak and a width sample newer
+    than the peak has come (widths arrive at 10 Hz). It is the sum of two parts:
 
     ``decision_p50_ms``, ``decision_p99_ms``
-        Last loading frame captured -> final estimate published (estimator report). With the
-        robot's loading-end marker (the gripper's grasp command completed: the fingers stopped
-        at the target force) this is the time the loading went on after that frame, plus the
-        marker's way to the estimator and the final computation; without one, the estimator
-        waits until the force has settled :data:`~estimator.stream.LOADING_SETTLED_S` past its
-        peak and a width sample newer than the peak has come (widths arrive at 10 Hz).
+        Last loading frame captured -> final estimate published (estimator report): the frame's
+        way to the estimator, its depth, and the final computation.
     ``delivery_p50_ms``, ``delivery_p99_ms``
         Final estimate published -> HID report written.
 
-    For grasps ended by the marker the same latency also splits at the loading end:
+    For grasps ended by the marker, how the loading end relates to it:
 
-    ``loading_after_frame_p50_ms``, ``loading_after_frame_p99_ms``
-        Last loading frame captured -> loading end (the marker's time): the camera's frame
-        phase against the stop and the last force samples near the peak, not software. At
-        30 Hz it is up to a frame period and more, so it alone puts p99 above ~33 ms.
+    ``peak_frame_after_stop_p50_ms``, ``peak_frame_after_stop_p99_ms``
+        Loading end (the marker's time, the fingers stopped) -> the last loading frame's
+        capture: the camera's frame phase against the stop, up to a frame period (33 ms at
+        30 Hz); no software waits in it, and it is not part of the latency above.
     ``loading_end_to_report_p50_ms``, ``loading_end_to_report_p99_ms``
-        Loading end (the fingers stopped) -> HID report: what the software adds.
+        Loading end -> HID report: what the operator waits from the fingers stopping (the
+        frame phase plus the latency above).
     ``final_compute_p50_ms``, ``final_compute_p99_ms``
         The estimator's computation of the final estimate (segmentation, model input from the
         cached depths, fits, model).
@@ -85,7 +86,7 @@ def latency_summary(outcomes: Sequence[GraspOutcome], compute_s: Sequence[float]
 
     ``compute_s`` holds the ``latency_s`` of every estimate message seen.
     """
-    latency, decision, delivery, after_frame, after_end, final_compute = [], [], [], [], [], []
+    latency, decision, delivery, frame_after_stop, after_end, final_compute = [], [], [], [], [], []
     finals_by: dict[str, int] = {}
     spans, counts = 0.0, 0
     for o in outcomes:
@@ -103,9 +104,9 @@ def latency_summary(outcomes: Sequence[GraspOutcome], compute_s: Sequence[float]
                 decision.append(decided)
                 delivery.append(o.latency_ms - decided)
             if report.get("final_by") == "loading_end":
-                loading_on = (report["t_loading_end_s"] - frame_s) * 1e3
-                after_frame.append(loading_on)
-                after_end.append(o.latency_ms - loading_on)
+                frame_after = (frame_s - report["t_loading_end_s"]) * 1e3
+                frame_after_stop.append(frame_after)
+                after_end.append(o.latency_ms + frame_after)
         if report.get("provisional_span_s"):
             spans += report["provisional_span_s"]
             counts += report["provisional"] - 1
@@ -116,7 +117,7 @@ def latency_summary(outcomes: Sequence[GraspOutcome], compute_s: Sequence[float]
         "provisional_hz": counts / spans if spans > 0 else None,
         **_quantiles(decision, "decision_"),
         **_quantiles(delivery, "delivery_"),
-        **_quantiles(after_frame, "loading_after_frame_"),
+        **_quantiles(frame_after_stop, "peak_frame_after_stop_"),
         **_quantiles(after_end, "loading_end_to_report_"),
         **_quantiles(final_compute, "final_compute_"),
         "finals_by": finals_by,
@@ -127,10 +128,10 @@ def latency_summary(outcomes: Sequence[GraspOutcome], compute_s: Sequence[float]
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Measure the live system on loopback: latency from the last loading frame's capture to the HID "
-        "report that shows the final estimate (p50, p99, split into decision and delivery, and for grasps "
-        "ended by the robot's loading-end marker into loading-after-the-frame and loading-end-to-report), the rate of "
-        "provisional estimates while a grasp loads (the camera gives 30 Hz) and the estimator's compute "
-        "time per estimate."
+        "report that shows the final estimate (p50, p99, split into decision and delivery; for grasps "
+        "ended by the robot's loading-end marker also the peak frame's delay after the stop and the time from "
+        "the stop to the report), the rate of provisional estimates while a grasp loads (the camera gives "
+        "30 Hz) and the estimator's compute time per estimate."
     )
     add_run_arguments(parser, default_scene="default")
     parser.add_argument("--grasps", type=int, default=20, metavar="N",
@@ -166,9 +167,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"last loading frame -> display report: p50 {ms('p50_ms')}, p99 {ms('p99_ms')}")
     print(f"  decision (frame -> final sent):     p50 {ms('decision_p50_ms')}, p99 {ms('decision_p99_ms')}")
     print(f"  delivery (published -> report):     p50 {ms('delivery_p50_ms')}, p99 {ms('delivery_p99_ms')}")
-    print(f"  loading on after that frame:        p50 {ms('loading_after_frame_p50_ms')}, "
-          f"p99 {ms('loading_after_frame_p99_ms')} (marker grasps)")
-    print(f"  loading end -> display report:      p50 {ms('loading_end_to_report_p50_ms')}, "
+    print(f"peak frame after the fingers stop:    p50 {ms('peak_frame_after_stop_p50_ms')}, "
+          f"p99 {ms('peak_frame_after_stop_p99_ms')} (marker grasps; camera phase, not in the latency)")
+    print(f"fingers stop -> display report:       p50 {ms('loading_end_to_report_p50_ms')}, "
           f"p99 {ms('loading_end_to_report_p99_ms')}")
     print(f"final estimate compute:               p50 {ms('final_compute_p50_ms')}, p99 {ms('final_compute_p99_ms')}")
     print(f"finals by trigger: {summary['finals_by']}")

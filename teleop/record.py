@@ -8,8 +8,9 @@ A grasp record is a ZIP archive (suffix ``.grasp``) holding:
     ``{"format": "compliance-teleop.grasp", "version": 1, ...}`` with the
     sensors (full :class:`~teleop.settings.SensorSettings` per finger: identity,
     warp calibration and gel), the optional label, the provenance, named events
-    (``{"contact": t_s, ...}``) and, per finger, the frame encoding, count and
-    shape.
+    (``{"contact": t_s, ...}``; :data:`GRASP_DONE_EVENT` is the time the gripper's
+    grasp command completed: the fingers stopped at the target force and hold it
+    until the release) and, per finger, the frame encoding, count and shape.
 ``force/t_s.npy``, ``force/value_n.npy``
     Load-cell samples: time (s) and normal force (N), float64, 1-D, same length.
 ``width/t_s.npy``, ``width/value_m.npy``
@@ -54,6 +55,7 @@ from teleop.settings import SensorSettings, build_settings, settings_to_mapping
 __all__ = [
     "FORMAT_NAME",
     "FORMAT_VERSION",
+    "GRASP_DONE_EVENT",
     "FrameStream",
     "GraspRecord",
     "Label",
@@ -66,6 +68,8 @@ __all__ = [
 
 FORMAT_NAME = "compliance-teleop.grasp"
 FORMAT_VERSION = 1
+# Event: the gripper's grasp command completed (fingers stopped at the target force, held until release).
+GRASP_DONE_EVENT = "grasp_done"
 ENCODINGS = {"jpeg": ".jpg", "png": ".png"}
 
 

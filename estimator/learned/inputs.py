@@ -5,8 +5,9 @@ this module, so a model sees at run time exactly what it was trained on.
 
 Sampling
 --------
-A grasp's loading phase (contact to peak force, :func:`~estimator.segment.segment_grasp`)
-is sampled at ``n_frames`` frames equidistant in time, exactly as the live
+A grasp's loading frames (contact to peak force, and the peak frame just after it, which
+shows the peak state: :func:`~estimator.segment.segment_grasp`) are sampled at
+``n_frames`` frames equidistant in time, exactly as the live
 estimator samples it (``Segment.sample``). Augmentation ``shift = k`` starts the
 sampling ``k`` loading frames later (the paper's "shifting the starting point by
 one timestep"). Only those frames (with the no-contact frames before the onset,
@@ -340,8 +341,9 @@ def sample_positions(segment: Segment, n_frames: int, shift: int) -> np.ndarray 
 
     The loading frame nearest to each of ``n_frames`` times spread evenly from the
     contact (``shift = 0``, the live sampling) or from loading frame ``shift`` to the
-    peak. A short loading phase (a stiff object loads within a frame or two) repeats
-    frames; a shifted set must have ``n_frames`` distinct frames.
+    last loading frame (the peak frame when there is one). A short loading phase (a
+    stiff object loads within a frame or two) repeats frames; a shifted set must have
+    ``n_frames`` distinct frames.
     """
     t = segment.frame_t_s
     if shift == 0:
@@ -350,7 +352,7 @@ def sample_positions(segment: Segment, n_frames: int, shift: int) -> np.ndarray 
         return f"shift {shift} leaves {max(t.size - shift, 0)} of the {n_frames} loading frames it needs"
     else:
         start = float(t[shift])
-    targets = np.linspace(start, segment.t_peak_s, n_frames)
+    targets = np.linspace(start, float(t[-1]), n_frames)
     return np.abs(t[None, :] - targets[:, None]).argmin(axis=1)
 
 

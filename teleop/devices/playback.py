@@ -35,7 +35,7 @@ from teleop.devices.camera import CameraFrame, TactileCamera
 from teleop.devices.gripper import Gripper
 from teleop.devices.loadcell import LoadCell
 from teleop.errors import DeviceError
-from teleop.record import GraspRecord, Samples
+from teleop.record import GRASP_DONE_EVENT, GraspRecord, Samples
 from teleop.settings import GripperSettings, LoadCellSettings, SensorSettings
 
 __all__ = ["GraspPlayback", "SimulatedCamera", "SimulatedGripper", "SimulatedLoadCell"]
@@ -130,8 +130,8 @@ class GraspPlayback:
         """Live time at which the fingers stop and the grasp holds: the record's ``grasp_done``
         event, else where the recorded width reaches its minimum (else the record's end)."""
         widths = self.record.width_m
-        if "grasp_done" in self.record.events:
-            return float(self.live_time(self.record.events["grasp_done"]))
+        if GRASP_DONE_EVENT in self.record.events:
+            return float(self.live_time(self.record.events[GRASP_DONE_EVENT]))
         if not len(widths):
             return float(self.live_time(self.origin_s + self.duration_s))
         return float(self.live_time(widths.t_s[int(np.argmin(widths.value))]))

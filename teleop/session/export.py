@@ -6,7 +6,9 @@ those that name none but arrive (in receive order) while it is the only grasp op
 keeps its capture times: frame times are the messages' ``t_capture_s``; force and width
 samples are the messages' ``t_s``/``value`` arrays, concatenated in receive order. Frames
 stay the bytes the camera produced (``jpeg``/``png``); ``raw`` frames are stored as
-lossless PNG. Events ``grasp_start``/``grasp_end`` are the two grasp events' capture times.
+lossless PNG. Events ``grasp_start``/``grasp_end`` are the two grasp events' capture times,
+and ``grasp_done`` (:data:`~teleop.record.GRASP_DONE_EVENT`) the *loading_end* marker's
+when the robot sent one.
 
 The sensors come from the settings stored in the log; a calibration file stored in the
 log is written under ``<out>/calibration/<finger>/`` and the exported sensors point to it.
@@ -37,6 +39,7 @@ from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec, load_catalogue
 from teleop.errors import SessionLogError
 from teleop.record import (
+    GRASP_DONE_EVENT,
     FrameStream,
     GraspRecord,
     Label,
@@ -76,6 +79,7 @@ class _OpenGrasp:
     )
     force: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     width: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    loading_end_s: float | None = None
 
     def add(self, message: Message) -> None:
         body = message.body
@@ -167,8 +171,9 @@ class _Assembler:
                         grasp_id, reason="started again before it ended; the first start is dropped"
                     )
                 self.open[grasp_id] = _OpenGrasp(grasp_id, message.t_capture_s, body["object_name"])
-            elif body["event"] != "end":  # loading_end: the grasp goes on
-                pass
+            elif body["event"] == "loading_end":  # the grasp goes on
+                if grasp_id in self.open:
+                    self.open[grasp_id].loading_end_s = message.t_capture_s
             elif grasp_id in self.open:
                 self.ended.add(grasp_id)
                 yield self.build(self.open.pop(grasp_id), message.t_capture_s)
@@ -225,7 +230,8 @@ class _Assembler:
                 },
             ),
             label=self.label(grasp.object_name),
-            events={"grasp_start": grasp.start_s, "grasp_end": end_s},
+            events={"grasp_start": grasp.start_s, "grasp_end": end_s,
+                    **({} if grasp.loading_end_s is None else {GRASP_DONE_EVENT: grasp.loading_end_s})},
         )
         return GraspExport(gid, record=record)
 

@@ -47,7 +47,7 @@ import numpy as np
 
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SimulationError
-from teleop.record import FrameStream, GraspRecord, Label, Provenance, Samples
+from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Label, Provenance, Samples
 from teleop.settings import SensorSettings, Settings
 from teleop.sim.contact import (
     Body,
@@ -425,7 +425,7 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
         width_m=width_samples,
         provenance=Provenance(source="simulated", seed=seed, model=curve.model),
         label=Label(object_name=obj.name, modulus_pa=obj.modulus_pa, material=obj.material, shape=obj.shape),
-        events={"command_grasp": command_s, "grasp_done": stall_s, "command_release": release_s},
+        events={"command_grasp": command_s, GRASP_DONE_EVENT: stall_s, "command_release": release_s},
     )
     truth = GraspTruth(
         size_m=size, pose=pose, scene=scene, curve=curve, target_force_n=target,

@@ -19,6 +19,7 @@ import zmq
 from estimator.errors import CalibrationError, FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.measure import estimate_grasp, measure_grasp
+from estimator.segment import PEAK_FRAME_WINDOW_S
 from estimator.service import EstimatorService, ModelSlot
 from estimator.stream import GraspStream, choose_estimate, decode_frame
 from teleop.bus.pubsub import Publisher, Subscriber
@@ -73,7 +74,8 @@ def same(a: Estimate, b: Estimate) -> bool:
 
 @pytest.mark.parametrize("name", [pytest.param("stress_ball", marks=pytest.mark.slow), "steel_ball_bearing"])
 def test_stream_fed_in_capture_order_ends_where_batch_estimation_is(settings, calibration, records, name):
-    record = records[name]
+    # No loading-end marker: the stream sees the end in the data, batch estimation has no stop event.
+    record = dataclasses.replace(records[name], events={})
     stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
     provisional, complete_at = 0, None
     for t, kind, body in in_capture_order(record):
@@ -91,7 +93,9 @@ def test_stream_fed_in_capture_order_ends_where_batch_estimation_is(settings, ca
     # Loading ends (force settled past the peak) well before the record does.
     segment = stream.segment()
     assert complete_at is not None and segment.t_peak_s < complete_at < record.force_n.t_s[-1]
-    assert final.t_data_s <= segment.t_peak_s and final.loading_frames == segment.frame_index.size
+    # The last loading frame is the peak frame, captured after the peak.
+    assert segment.t_peak_s < final.t_data_s == segment.frame_t_s[-1] <= segment.t_peak_s + PEAK_FRAME_WINDOW_S
+    assert final.loading_frames == segment.frame_index.size
 
 
 def test_stream_estimates_are_provisional_until_contact_and_move_with_the_data(settings, calibration, records):
@@ -406,8 +410,17 @@ def until_loading_end(record: GraspRecord) -> tuple[list[tuple[float, str, dict]
     return [item for item in in_capture_order(record) if item[0] <= stop_s], stop_s, float(hold)
 
 
-def test_loading_end_marker_ends_loading_at_once_and_the_model_input_comes_from_the_cache(settings, calibration,
-                                                                                       records):
+def feed_to_peak_frame(stream: GraspStream, record: GraspRecord, stop_s: float) -> float:
+    """After the marker, what the node publishes next until the loading is complete: up to the first
+    frame captured after the force peak. Returns that frame's capture time."""
+    for t, kind, body in in_capture_order(record):
+        if t > stop_s and feed(stream, kind, body, t) and stream.loading_complete():
+            return t
+    raise AssertionError("the loading never completed")
+
+
+def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_comes_from_the_cache(
+        settings, calibration, records):
     from estimator.learned.hybrid import HybridEstimator
     from estimator.learned.infer import CompliancePredictor, default_model_dir
     from estimator.learned.inputs import sample_grasp
@@ -420,10 +433,14 @@ def test_loading_end_marker_ends_loading_at_once_and_the_model_input_comes_from_
     assert not stream.loading_complete()  # the force has not settled past its peak yet
     stream.add_width(np.array([stop_s + 1e-4]), np.array([hold_m]))
     stream.mark_loading_end(stop_s)
-    assert stream.loading_complete() and stream.loading_end_s == stop_s
+    assert stream.loading_end_s == stop_s
+    assert not stream.loading_complete()  # no frame shows the peak state yet
+    peak_frame_s = feed_to_peak_frame(stream, records["stress_ball"], stop_s)
     segment = stream.segment()
-    assert segment and segment.frame_t_s.size > 0 and segment.frame_t_s[-1] <= stop_s
-    assert stream.last_loading_frame_s(segment) == segment.frame_t_s[-1]
+    # The peak frame came a frame period or less after the stop, with no force sample after it yet.
+    assert segment and segment.t_peak_s < segment.frame_t_s[-1] == peak_frame_s < stop_s + 1 / 25
+    assert stream.newest_force_s < peak_frame_s
+    assert stream.last_loading_frame_s(segment) == peak_frame_s
     with pytest.raises(PerceptionError, match="finite"):
         stream.mark_loading_end(math.nan)
 
@@ -456,7 +473,7 @@ def test_service_publishes_the_final_estimate_on_the_loading_end_marker(rig, set
         rig.robot.send(kind, t_capture_s=t, grasp_id="g-mark", **body)
     rig.robot.send("width", t_capture_s=stop_s + 1e-4, grasp_id="g-mark", t_s=[stop_s + 1e-4], value_m=[hold_m])
     rig.robot.send("grasp_event", t_capture_s=stop_s, event="loading_end", grasp_id="g-mark", object_name=None)
-    for t, kind, body in in_capture_order(record):  # the hold and the release: too late to matter
+    for t, kind, body in in_capture_order(record):  # the peak frame, then the hold and the release
         if t > stop_s:
             rig.robot.send(kind, t_capture_s=t, grasp_id="g-mark", **body)
     rig.robot.send("grasp_event", t_capture_s=record.force_n.t_s[-1], event="end", grasp_id="g-mark")
@@ -468,6 +485,8 @@ def test_service_publishes_the_final_estimate_on_the_loading_end_marker(rig, set
     for t, kind, body in items:
         provisional += bool(feed(stream, kind, body, t) and stream.segment())
     stream.add_width(np.array([stop_s + 1e-4]), np.array([hold_m]))
+    stream.mark_loading_end(stop_s)
+    peak_frame_s = feed_to_peak_frame(stream, record, stop_s)
     segment = stream.segment()
     expected = stream.estimate(segment).estimate
     estimates = [m for m in got if m.type == "estimate"]
@@ -475,7 +494,7 @@ def test_service_publishes_the_final_estimate_on_the_loading_end_marker(rig, set
     final = estimates[-1]
     assert (final.body["method"], final.body["state"], final.body["E_pa"]) == (expected.method, expected.state,
                                                                                expected.e_pa)
-    assert final.t_capture_s == segment.frame_t_s[-1] <= stop_s  # the last loading frame
+    assert final.t_capture_s == segment.frame_t_s[-1] == peak_frame_s  # the last loading frame
     report = json.loads((tmp_path / "estimator.jsonl").read_text().splitlines()[-1])
     assert report["final_by"] == "loading_end" and report["t_loading_end_s"] == stop_s
     assert report["t_last_loading_frame_s"] == final.t_capture_s and report["final_compute_s"] > 0

@@ -53,16 +53,21 @@ def test_clean_grasp_is_segmented():
     assert seg.t_contact_s == pytest.approx(t_contact, abs=2e-3)
     assert T_TOUCH - 1e-9 <= seg.t_onset_s < T_TOUCH + 0.02
     assert seg.t_peak_s == pytest.approx(T_TOUCH + T_LOAD, abs=1 / 80)
-    assert np.all((seg.frame_t_s >= seg.t_contact_s) & (seg.frame_t_s <= seg.t_peak_s))
-    assert seg.frame_t_s.size == 8
+    loading, peak_frame = seg.frame_t_s[:-1], seg.frame_t_s[-1]
+    assert np.all((loading >= seg.t_contact_s) & (loading <= seg.t_peak_s))
+    assert loading.size == 8
+    # The peak frame: the next frame after the peak, showing the peak state.
+    assert seg.t_peak_s < peak_frame <= seg.t_peak_s + 1 / 30
+    assert seg.frame_force_n[-1] == pytest.approx(PEAK_N)
+    assert seg.frame_width_m[-1] == pytest.approx(width_at(seg.t_peak_s), abs=2e-4)  # 10 Hz across the stop
     # Interpolated at the frames' own times, not matched by index.
-    assert seg.frame_force_n == pytest.approx(force_at(seg.frame_t_s), abs=0.2)
-    linear = seg.frame_t_s < 0.7  # widths are exact away from the stop at 0.8 s
-    assert seg.frame_width_m[linear] == pytest.approx(width_at(seg.frame_t_s[linear]), abs=1e-9)
-    assert seg.frame_width_m == pytest.approx(width_at(seg.frame_t_s), abs=1e-4)
+    assert seg.frame_force_n[:-1] == pytest.approx(force_at(loading), abs=0.2)
+    linear = loading < 0.7  # widths are exact away from the stop at 0.8 s
+    assert seg.frame_width_m[:-1][linear] == pytest.approx(width_at(loading[linear]), abs=1e-9)
+    assert seg.frame_width_m[:-1] == pytest.approx(width_at(loading), abs=1e-4)
     assert seg.onset_width_m == pytest.approx(width_at(seg.t_onset_s), abs=1e-9)
-    # Three frames spread over the loading phase: first, middle, last.
-    assert seg.sample.tolist() == [0, 4, 7] or seg.sample.tolist() == [0, 3, 7]
+    # Three frames spread from contact to the peak frame: first, middle, last.
+    assert seg.sample.tolist() in ([0, 4, 8], [0, 5, 8])
     assert seg.load_force_n.size == seg.load_t_s.size == seg.load_width_m.size > 20
 
 
@@ -124,7 +129,7 @@ def test_clipped_force_ends_loading_at_the_plateau():
     assert "clipped" in seg.flags
     first_clip = tf[np.argmax(clipped >= 12.0)]
     assert seg.t_peak_s == pytest.approx(first_clip)
-    assert seg.frame_force_n.max() <= 12.0
+    assert seg.frame_force_n.max() <= 12.0 - seg.force_baseline_n + 1e-12  # none beyond the plateau start
 
 
 def test_frames_on_another_clock_are_misaligned():
@@ -143,12 +148,37 @@ def test_width_stream_ending_early_is_misaligned():
     assert np.all(seg.frame_t_s <= tw[keep][-1])
 
 
-def test_single_loading_frame_is_flagged():
+def test_single_loading_frame_is_flagged_and_the_peak_frame_shows_the_peak():
     tf, force, tw, width, tc = streams()
     fast = force_at(T_TOUCH + (tf - T_TOUCH) * 10)  # loading in 30 ms
     seg = run(tf, fast, tw, width, tc)
-    assert seg.frame_index.size == 1 and seg.sample.size == 1
+    assert seg.frame_index.size == 2 and seg.sample.tolist() == [0, 1]
+    assert seg.frame_t_s[0] <= seg.t_peak_s < seg.frame_t_s[1]
+    assert seg.frame_force_n[1] == pytest.approx(PEAK_N)
     assert "too_few_samples" in seg.flags
+
+
+def loading_between_frames(tf):
+    """Touch at 0.55 s, peak force 12.5 ms later: between the frames at 0.544 and 0.578 s."""
+    return force_at(T_TOUCH + (tf - 0.55) * 30)
+
+
+def test_loading_between_two_frames_leaves_the_peak_frame():
+    tf, force, tw, width, tc = streams()
+    seg = run(tf, loading_between_frames(tf), tw, width, tc)
+    assert seg and seg.frame_index.size == 1 and not seg.frame_reason
+    assert seg.frame_t_s[0] == pytest.approx(0.011 + 17 / 30) and seg.frame_force_n[0] == pytest.approx(PEAK_N)
+
+
+def test_no_peak_frame_once_the_force_falls_or_too_long_after_the_peak():
+    tf, force, tw, width, tc = streams()
+    fast = loading_between_frames(tf)
+    released = np.where(tf > 0.57, 0.0, fast)  # let go before the next frame
+    seg = run(tf, released, tw, width, tc)
+    assert seg and seg.frame_index.size == 0 and "no tactile frame" in seg.frame_reason
+    late = tc[(tc < 0.55) | (tc > 0.7)]  # frames dropped for 0.15 s after the peak
+    seg = run(tf, fast, tw, width, late)
+    assert seg and seg.frame_index.size == 0
 
 
 def test_too_few_force_samples_is_a_refusal():
@@ -233,3 +263,20 @@ def test_hold_frames_follow_the_peak_after_the_width_reads_settle():
     assert seg.hold_force_n == pytest.approx(np.full(seg.hold_index.size, seg.peak_force_n), rel=0.05)
     assert np.all(np.isfinite(seg.hold_width_m))
     assert not np.isin(seg.hold_index, seg.frame_index).any()
+
+
+def test_reported_stop_admits_the_peak_frame_before_any_force_after_it_and_fixes_its_width():
+    tf, force, tw, width, tc = streams()
+    fast = loading_between_frames(tf)
+    # What has arrived when the peak frame (0.578 s) comes: force up to 0.57 s, widths up to the stop.
+    stop_s = 0.5625
+    arrived_f, arrived_w = tf <= 0.57, tw <= stop_s
+    tw_live = np.append(tw[arrived_w], stop_s + 1e-4)
+    w_live = np.append(width[arrived_w], 0.0335)  # the width read at the stop
+    args = (tf[arrived_f], fast[arrived_f], tw_live, w_live, tc[tc <= 0.58])
+    assert run(*args).frame_index.size == 0  # the force at 0.578 s is not known yet
+    seg = segment_grasp(*args, contact_force_n=0.75, n_frames=3, stopped_s=stop_s)
+    assert seg.frame_t_s.tolist() == pytest.approx([0.011 + 17 / 30])
+    assert seg.frame_force_n[0] == pytest.approx(PEAK_N)
+    assert seg.frame_width_m[0] == pytest.approx(np.interp(stop_s, tw_live, w_live))
+    assert "misaligned" not in seg.flags  # no width is wanted after the stop

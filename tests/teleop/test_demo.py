@@ -114,17 +114,18 @@ def test_latency_summary_splits_decision_and_delivery():
     assert latency_summary([], [])["p99_ms"] is None
 
 
-def test_latency_summary_splits_marker_grasps_at_the_loading_end():
+def test_latency_summary_relates_marker_grasps_to_the_loading_end():
+    # The fingers stopped at 9.98 s; the peak frame came at 10.0 s; the report 30 ms later.
     marked = outcome("a", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 30.0, final_sent_s=10.029,
-                     t_last_loading_frame_s=10.0, t_loading_end_s=10.02, final_by="loading_end",
+                     t_last_loading_frame_s=10.0, t_loading_end_s=9.98, final_by="loading_end",
                      final_compute_s=0.004, provisional_span_s=0.5, provisional=16)
     settled = outcome("b", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 150.0, final_sent_s=20.14,
                       t_last_loading_frame_s=20.0, t_loading_end_s=None, final_by="settled",
                       final_compute_s=0.006, provisional_span_s=None, provisional=1)
     summary = latency_summary([marked, settled], [])
     assert summary["p50_ms"] == pytest.approx(90.0) and summary["finals_by"] == {"loading_end": 1, "settled": 1}
-    assert summary["loading_after_frame_p50_ms"] == pytest.approx(20.0)  # the marker grasp alone
-    assert summary["loading_end_to_report_p99_ms"] == pytest.approx(10.0)
+    assert summary["peak_frame_after_stop_p50_ms"] == pytest.approx(20.0)  # the marker grasp alone
+    assert summary["loading_end_to_report_p99_ms"] == pytest.approx(50.0)
     assert summary["decision_p50_ms"] == pytest.approx((29.0 + 140.0) / 2)
     assert summary["final_compute_p99_ms"] == pytest.approx(5.98)
 
