@@ -359,8 +359,10 @@ class EstimatorService:
                     stream.measure_frames(segment)
         else:
             stream.add_width(body["t_s"], body["value_m"])
-        # Segmenting is cheap, but not at 80 Hz for nothing: only once the force may have settled.
-        if grasp.seen_contact and stream.newest_force_s >= grasp.t_peak_s + LOADING_SETTLED_S:
+        # Segmenting is cheap, but not at 80 Hz for nothing: only once the force may have settled, or
+        # after the loading-end marker (the force may show the contact only now).
+        if stream.loading_end_s is not None or (
+                grasp.seen_contact and stream.newest_force_s >= grasp.t_peak_s + LOADING_SETTLED_S):
             segment = stream.segment()
             self._remember(grasp, segment)
             if stream.loading_complete(segment):

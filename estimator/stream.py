@@ -29,7 +29,10 @@ at the stop and everything captured before it (:mod:`teleop.node`).
 :meth:`GraspStream.loading_complete` says the loading is over as soon as the first frame
 captured after the peak has come (within a frame period): the segmentation's *peak frame*,
 which shows the peak state (:mod:`estimator.segment`); or, should no frame come,
-``PEAK_FRAME_WINDOW_S`` of force past the peak.
+``PEAK_FRAME_WINDOW_S`` of force past the peak. The load cell's readings lag the stop (a
+stiff object loads within a few of its samples), so a stop with no contact in the force yet
+ends the grasp as an air grasp only once ``PEAK_FRAME_WINDOW_S`` of force past the stop has
+come.
 
 Without a marker (recorded grasps and sessions from before it, a gripper whose stop read
 failed) the end is only known in hindsight, as force, width and frames come at their own
@@ -344,7 +347,9 @@ class GraspStream:
         has arrived (module docstring)."""
         segment = self.segment() if segment is None else segment
         if not segment or not np.isfinite(segment.t_peak_s):
-            return self._loading_end_s is not None  # the gripper stopped without contact
+            # The load cell's readings lag the fingers' stop: no contact is final only once they ran on past it.
+            return (self._loading_end_s is not None
+                    and self.newest_force_s >= self._loading_end_s + PEAK_FRAME_WINDOW_S)
         frame_t = self._frame_times()
         frame_after_peak = frame_t.size > 0 and float(frame_t.max()) > segment.t_peak_s
         if self._loading_end_s is not None:

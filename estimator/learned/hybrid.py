@@ -18,8 +18,10 @@ Per grasp, the cheapest answer whose expected error fits the budget:
 1. The grasp cannot be sampled (no usable loading frame): the force/width-only
    ``no_tactile`` fit, which needs no frame.
 2. The compliance split is ``ok`` with an interval at most
-   ``AutoPolicy.max_split_interval_decades`` wide: that estimate, and the
-   network is skipped. The threshold is chosen in training on the validation
+   ``AutoPolicy.max_split_interval_decades`` wide, over at least
+   ``MIN_SPLIT_FRAMES`` distinct frames: that estimate, and the network is
+   skipped. (A fit through fewer points has no scatter to show how far the
+   contact model misses: its interval is the measurement resolution alone.) The threshold is chosen in training on the validation
    objects (the widest threshold at which the split's mean error on the grasps
    it accepts is no worse than the model's on the same grasps; ``metadata.json``
    ``auto``), default 0.5 decade.
@@ -41,15 +43,16 @@ from typing import Any
 from estimator.errors import ModelError
 from estimator.estimate import Estimate
 from estimator.learned.infer import CompliancePredictor
-from estimator.learned.inputs import SampledGrasp, sample_grasp
+from estimator.learned.inputs import SampledGrasp, distinct_frames, sample_grasp
 from estimator.measure import estimate_grasp
 from estimator.perception.calibration import Calibration
 from teleop.record import GraspRecord
 from teleop.settings import Settings
 
-__all__ = ["FALLBACK_ORDER", "MODES", "AutoPolicy", "HybridEstimator"]
+__all__ = ["FALLBACK_ORDER", "MIN_SPLIT_FRAMES", "MODES", "AutoPolicy", "HybridEstimator"]
 
 MODES = ("model", "auto")
+MIN_SPLIT_FRAMES = 3
 FALLBACK_ORDER = ("split", "hertz", "elastic", "no_tactile")
 DEFAULT_SPLIT_INTERVAL_DECADES = 0.5
 
@@ -83,9 +86,10 @@ class AutoPolicy:
         auto = metadata.get("auto") or {}
         return cls(float(auto.get("max_split_interval_decades", DEFAULT_SPLIT_INTERVAL_DECADES)))
 
-    def accepts(self, split: Estimate | None) -> bool:
-        return split is not None and split.state == "ok" and (
-            interval_decades(split) <= self.max_split_interval_decades)
+    def accepts(self, split: Estimate | None, frames: int) -> bool:
+        """Whether ``split``, fitted over ``frames`` distinct frames, answers instead of the model."""
+        return (split is not None and split.state == "ok" and frames >= MIN_SPLIT_FRAMES
+                and interval_decades(split) <= self.max_split_interval_decades)
 
 
 class HybridEstimator:
@@ -158,7 +162,7 @@ class HybridEstimator:
             return Estimate.refuse(method, sampled.reason)
         by_method = {e.method: e for e in sampled.estimates}
         split = by_method.get("split")
-        if mode == "auto" and self.policy.accepts(split):
+        if mode == "auto" and self.policy.accepts(split, distinct_frames(sampled.force_n)):
             return _as("auto", split, f"split interval {interval_decades(split):.2f} <= "
                                       f"{self.policy.max_split_interval_decades:g} decades, model skipped")
         try:

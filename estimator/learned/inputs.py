@@ -81,6 +81,7 @@ __all__ = [
     "cached_calibration",
     "calibration_for",
     "decoded",
+    "distinct_frames",
     "encode",
     "measurement_fingerprint",
     "no_contact_reference",
@@ -220,6 +221,15 @@ def analytical_features(estimates: Sequence[Estimate]) -> np.ndarray:
         if low is not None and high is not None:
             row[1] = min(math.log10(high / low) / (hi - lo), 1.0)
     return out.ravel()
+
+
+def distinct_frames(force_n: np.ndarray) -> int:
+    """How many distinct frames a sample set holds, from the force at each sampled frame.
+
+    A short loading phase repeats frames (:func:`sample_positions`); a repeated frame repeats
+    its force exactly, while distinct frames are interpolated at distinct times.
+    """
+    return int(np.unique(np.asarray(force_n)).size)
 
 
 def reduce_images(images: np.ndarray, size_px: tuple[int, int] | None) -> np.ndarray:

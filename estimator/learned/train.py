@@ -54,11 +54,12 @@ from estimator.errors import EstimatorError, SampleError
 from estimator.evaluate import summarise
 from estimator.learned.dataset import SPLITS, load_manifest, load_split, parse_size
 from estimator.learned.export import OPSET, export_onnx
-from estimator.learned.hybrid import interval_decades
+from estimator.learned.hybrid import MIN_SPLIT_FRAMES, interval_decades
 from estimator.learned.infer import MODEL_FORMAT, MODEL_VERSION, current_scales
 from estimator.learned.inputs import (
     ANALYTICAL_METHODS,
     Variant,
+    distinct_frames,
     encode,
     measurement_fingerprint,
     modulus_from_normalised,
@@ -122,7 +123,7 @@ def _row(sample: TrainingSample, path: Path) -> dict[str, Any]:
     return {"object": sample.object_name, "augmentation": sample.augmentation,
             "material": sample.material or "unknown",
             "shape": sample.shape or "unknown", "truth_pa": sample.label_modulus_pa,
-            "estimates": sample.estimates, "path": str(path)}
+            "estimates": sample.estimates, "frames": distinct_frames(sample.force_n), "path": str(path)}
 
 
 def load_split_data(data_dir: str | Path, variant: Variant) -> dict[str, SplitData]:
@@ -215,11 +216,13 @@ def _metrics(data: SplitData, pred_norm: np.ndarray, method: str, residual: dict
 
 def _auto_policy(data: SplitData, pred_norm: np.ndarray) -> dict[str, Any]:
     """``auto``'s split threshold: the widest interval at which the split, on the validation grasps
-    it would answer, errs no more on average than the model on those grasps (0: never)."""
+    it would answer (``ok`` over at least ``MIN_SPLIT_FRAMES`` frames), errs no more on average than
+    the model on those grasps (0: never)."""
     truth = np.log10([r["truth_pa"] for r in data.rows])
     model_error = np.abs(np.log10(modulus_from_normalised(pred_norm)) - truth)
     split = [next((e for e in r["estimates"] if e.method == "split"), None) for r in data.rows]
-    ok = np.array([e is not None and e.state == "ok" for e in split])
+    ok = np.array([e is not None and e.state == "ok" and r["frames"] >= MIN_SPLIT_FRAMES
+                   for e, r in zip(split, data.rows, strict=True)])
     width = np.array([interval_decades(e) if o else np.inf for e, o in zip(split, ok, strict=True)])
     split_error = np.array([abs(math.log10(e.e_pa) - t) if o else np.inf for e, o, t in zip(split, ok, truth,
                                                                                            strict=True)])

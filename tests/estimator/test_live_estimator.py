@@ -499,3 +499,24 @@ def test_service_publishes_the_final_estimate_on_the_loading_end_marker(rig, set
     assert report["final_by"] == "loading_end" and report["t_loading_end_s"] == stop_s
     assert report["t_last_loading_frame_s"] == final.t_capture_s and report["final_compute_s"] > 0
     assert rig.service.stats.bad_messages == 0 and rig.service.stats.final == 1
+
+
+def test_a_stop_before_the_force_shows_contact_waits_for_the_load_cell(settings, calibration, records):
+    record = records["steel_ball_bearing"]
+    items, stop_s, hold_m = until_loading_end(record)
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    for t, kind, body in items:  # the load cell lags: its readings up to the stop stay below contact
+        if kind != "force" or body["value_n"][0] < 0.5 * settings.estimator.contact_force_n:
+            feed(stream, kind, body, t)
+    stream.mark_loading_end(stop_s)
+    assert not stream.segment() and not stream.loading_complete()  # not an air grasp yet
+    later = [(t, body) for t, kind, body in in_capture_order(record) if kind == "force" and t > stop_s]
+    feed(stream, "force", later[0][1], later[0][0])
+    assert stream.segment()  # the next reading shows the contact: a grasp, not an air grasp
+    # An air grasp: force readings run on past the stop without reaching contact.
+    air = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    air.add_force(np.array([stop_s - 0.5, stop_s]), np.array([0.0, 0.1]))
+    air.mark_loading_end(stop_s)
+    assert not air.loading_complete()
+    air.add_force(np.array([stop_s + PEAK_FRAME_WINDOW_S]), np.array([0.1]))
+    assert air.loading_complete() and not air.segment()

@@ -97,6 +97,10 @@ def test_auto_takes_a_narrow_split_and_skips_the_model(trained_model, synthetic)
     assert model.reason.startswith("model:") and model.e_pa != 2e6
     never = HybridEstimator(predictor, settings=SETTINGS, policy=AutoPolicy(0.0))
     assert never.estimate_sampled(_sampled(synthetic, "rubber_a", (narrow,)), mode="auto").reason.startswith("model:")
+    # A stiff object's grasp: one frame repeated and the peak frame. The split's narrow interval is its
+    # resolution alone (no scatter to show the model's miss), so the model answers.
+    short = dataclasses.replace(_sampled(synthetic, "rubber_a", (narrow,)), force_n=np.array([1.2, 1.2, 25.0]))
+    assert hybrid.estimate_sampled(short, mode="auto").reason.startswith("model:")
     chosen = predictor.metadata.raw["auto"]["max_split_interval_decades"]
     assert HybridEstimator(predictor, settings=SETTINGS).policy == AutoPolicy(chosen)  # from training
 
