@@ -11,8 +11,10 @@ it falls due, stamped with those shifted times, like hardware would:
 * :class:`SimulatedGripper`: ``grasp()`` starts the replay (if not started) and returns
   when the recorded fingers stop at the target force (the record's ``grasp_done`` event;
   without one, where the recorded width reaches its minimum); the width read then is the
-  recorded width of the hold (:meth:`GraspPlayback.hold_width_m`). Widths come from the
-  record until it ends.
+  record's next width read, handed out at once and stamped as the record stamps it (so the
+  live width stream stays the recorded one, as a model trained on records expects), or at
+  the record's end the recorded width of the hold (:meth:`GraspPlayback.hold_width_m`).
+  Widths come from the record until it ends.
   A replay cannot react to commands: ``move()`` during a replay waits for its end. Without
   a replay (or after it) the gripper is kinematic: the width moves at the commanded speed,
   stalling at ``object_width_m`` when an object is given.
@@ -250,14 +252,22 @@ class SimulatedGripper(Gripper):
         return [self._timed_read()]
 
     def _readings_at_stop(self) -> list[tuple[float, float]]:
-        """The recorded widths due by now, then the width of the hold read now (during a replay)."""
+        """The recorded widths due by now, then the read that returns with the stopped fingers:
+        the record's next read, early (during a replay; module docstring)."""
         with self._lock:
             now = time.monotonic()
             playback = self._replaying(now)
             if playback is None or not np.isfinite(hold := playback.hold_width_m()):
                 return [(now, float(self._kinematic_width(now)))]
             self._width_index, due = playback.widths_due(self._width_index, now)
-            return [*zip(due.t_s.tolist(), due.value.tolist(), strict=True), (now, hold)]
+            readings = list(zip(due.t_s.tolist(), due.value.tolist(), strict=True))
+            widths = playback.record.width_m
+            if self._width_index < len(widths):
+                t_next = float(playback.live_time(widths.t_s[self._width_index]))
+                readings.append((t_next, float(widths.value[self._width_index])))
+                self._width_index += 1
+                return readings
+            return [*readings, (now, hold)]
 
     def _drive(self, to_m: float, speed: float) -> float:
         """Start a kinematic motion; returns when (clock time) it ends."""

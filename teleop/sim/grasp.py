@@ -394,7 +394,7 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
     keep = (readings.t_s >= start_s) & (readings.t_s <= end_s)
     force_samples = Samples(readings.t_s[keep], readings.value[keep])
     width_samples = gripper_width_readings(t, motor_width, gripper=gripper, sim=sim, rng=rng,
-                                           start_s=start_s, end_s=end_s, stop_s=stall_s)
+                                           start_s=start_s, end_s=end_s)
 
     streams = []
     peak = {}

@@ -89,14 +89,12 @@ def load_cell_readings(truth_t_s: np.ndarray, truth_force_n: np.ndarray, *, load
 
 def gripper_width_readings(truth_t_s: np.ndarray, truth_width_m: np.ndarray, *, gripper: GripperSettings,
                            sim: SimulationSettings, rng: np.random.Generator, start_s: float,
-                           end_s: float, stop_s: float | None = None) -> Samples:
+                           end_s: float) -> Samples:
     """Host-side gripper width reads (m) of the true motor width.
 
     A read issued at t_req returns at t_req + d (d about ``sim.width_latency_s``)
     with the width the controller sampled shortly after t_req; the host stamps
-    the return. When the grasp command completes (``stop_s``) the host also reads
-    the width of the stopped fingers and stamps it with the stop, as the robot
-    node does for its loading-end marker (:attr:`~teleop.devices.gripper.Gripper.last_stop`).
+    the return.
     """
     min_period = 1.0 / gripper.width_read_hz
     mean_duration = max(sim.width_latency_s, 1e-3)
@@ -109,12 +107,7 @@ def gripper_width_readings(truth_t_s: np.ndarray, truth_width_m: np.ndarray, *, 
     sampled = requests + rng.uniform(0.0, WIDTH_SAMPLE_FRACTION, n) * durations
     width = np.interp(sampled, truth_t_s, truth_width_m) + rng.normal(0.0, sim.width_noise_m, n)
     keep = _window(returns, start_s, end_s)
-    t_s, width = returns[keep], width[keep]
-    if stop_s is not None and start_s <= stop_s <= end_s:
-        at = int(np.searchsorted(t_s, stop_s))
-        stopped = float(np.interp(stop_s, truth_t_s, truth_width_m)) + rng.normal(0.0, sim.width_noise_m)
-        t_s, width = np.insert(t_s, at, stop_s), np.insert(width, at, stopped)
-    return Samples(t_s, width)
+    return Samples(returns[keep], width[keep])
 
 
 def camera_times(*, sensor: SensorSettings, sim: SimulationSettings, rng: np.random.Generator,

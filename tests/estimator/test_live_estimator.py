@@ -402,19 +402,28 @@ def test_model_slot_reloads_on_file_change_and_keeps_a_good_model_over_a_bad_one
 # --------------------------------------------------------------------------- the loading end marker
 
 
-def until_loading_end(record: GraspRecord) -> tuple[list[tuple[float, str, dict]], float, float]:
+def until_loading_end(record: GraspRecord) -> tuple[list[tuple[float, str, dict]], float, tuple[float, float]]:
     """What the robot node publishes up to a grasp's loading-end marker: the data captured up to
-    the stop, in capture order; the stop time and the width the gripper read then (the hold's)."""
+    the stop, in capture order; the stop time; and the width read at the stop, ``(t_s, m)``: the
+    record's next read, which the simulated gripper hands out then with its recorded stamp."""
     stop_s = record.events["grasp_done"]
-    hold = record.width_m.value[record.width_m.t_s <= record.events["command_release"]][-1]
-    return [item for item in in_capture_order(record) if item[0] <= stop_s], stop_s, float(hold)
+    after = int(np.flatnonzero(record.width_m.t_s > stop_s)[0])
+    stop_read = (float(record.width_m.t_s[after]), float(record.width_m.value[after]))
+    return [item for item in in_capture_order(record) if item[0] <= stop_s], stop_s, stop_read
 
 
-def feed_to_peak_frame(stream: GraspStream, record: GraspRecord, stop_s: float) -> float:
+def after_stop(record: GraspRecord, stop_s: float, stop_read: tuple[float, float]) -> list[tuple[float, str, dict]]:
+    """What the node publishes after the marker: the rest of the record but the stop's read, already out."""
+    return [(t, kind, body) for t, kind, body in in_capture_order(record)
+            if t > stop_s and not (kind == "width" and t == stop_read[0])]
+
+
+def feed_to_peak_frame(stream: GraspStream, record: GraspRecord, stop_s: float,
+                       stop_read: tuple[float, float]) -> float:
     """After the marker, what the node publishes next until the loading is complete: up to the first
     frame captured after the force peak. Returns that frame's capture time."""
-    for t, kind, body in in_capture_order(record):
-        if t > stop_s and feed(stream, kind, body, t) and stream.loading_complete():
+    for t, kind, body in after_stop(record, stop_s, stop_read):
+        if feed(stream, kind, body, t) and stream.loading_complete():
             return t
     raise AssertionError("the loading never completed")
 
@@ -425,17 +434,17 @@ def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_c
     from estimator.learned.infer import CompliancePredictor, default_model_dir
     from estimator.learned.inputs import sample_grasp
 
-    items, stop_s, hold_m = until_loading_end(records["stress_ball"])
+    items, stop_s, stop_read = until_loading_end(records["stress_ball"])
     stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
     for t, kind, body in items:
         if feed(stream, kind, body, t) and stream.segment():
             stream.estimate()  # as the provisional estimates do: every frame's depth is cached
     assert not stream.loading_complete()  # the force has not settled past its peak yet
-    stream.add_width(np.array([stop_s + 1e-4]), np.array([hold_m]))
+    stream.add_width(np.array([stop_read[0]]), np.array([stop_read[1]]))
     stream.mark_loading_end(stop_s)
     assert stream.loading_end_s == stop_s
     assert not stream.loading_complete()  # no frame shows the peak state yet
-    peak_frame_s = feed_to_peak_frame(stream, records["stress_ball"], stop_s)
+    peak_frame_s = feed_to_peak_frame(stream, records["stress_ball"], stop_s, stop_read)
     segment = stream.segment()
     # The peak frame came a frame period or less after the stop, with no force sample after it yet.
     assert segment and segment.t_peak_s < segment.frame_t_s[-1] == peak_frame_s < stop_s + 1 / 25
@@ -467,15 +476,14 @@ def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_c
 def test_service_publishes_the_final_estimate_on_the_loading_end_marker(rig, settings, calibration, records,
                                                                          tmp_path):
     record = records["stress_ball"]
-    items, stop_s, hold_m = until_loading_end(record)
+    items, stop_s, stop_read = until_loading_end(record)
     rig.robot.send("grasp_event", t_capture_s=0.0, event="start", grasp_id="g-mark", object_name=None)
     for t, kind, body in items:
         rig.robot.send(kind, t_capture_s=t, grasp_id="g-mark", **body)
-    rig.robot.send("width", t_capture_s=stop_s + 1e-4, grasp_id="g-mark", t_s=[stop_s + 1e-4], value_m=[hold_m])
+    rig.robot.send("width", t_capture_s=stop_read[0], grasp_id="g-mark", t_s=[stop_read[0]], value_m=[stop_read[1]])
     rig.robot.send("grasp_event", t_capture_s=stop_s, event="loading_end", grasp_id="g-mark", object_name=None)
-    for t, kind, body in in_capture_order(record):  # the peak frame, then the hold and the release
-        if t > stop_s:
-            rig.robot.send(kind, t_capture_s=t, grasp_id="g-mark", **body)
+    for t, kind, body in after_stop(record, stop_s, stop_read):  # the peak frame, the hold, the release
+        rig.robot.send(kind, t_capture_s=t, grasp_id="g-mark", **body)
     rig.robot.send("grasp_event", t_capture_s=record.force_n.t_s[-1], event="end", grasp_id="g-mark")
     got = rig.collect("g-mark")
 
@@ -484,9 +492,9 @@ def test_service_publishes_the_final_estimate_on_the_loading_end_marker(rig, set
     provisional = 0
     for t, kind, body in items:
         provisional += bool(feed(stream, kind, body, t) and stream.segment())
-    stream.add_width(np.array([stop_s + 1e-4]), np.array([hold_m]))
+    stream.add_width(np.array([stop_read[0]]), np.array([stop_read[1]]))
     stream.mark_loading_end(stop_s)
-    peak_frame_s = feed_to_peak_frame(stream, record, stop_s)
+    peak_frame_s = feed_to_peak_frame(stream, record, stop_s, stop_read)
     segment = stream.segment()
     expected = stream.estimate(segment).estimate
     estimates = [m for m in got if m.type == "estimate"]
@@ -503,7 +511,7 @@ def test_service_publishes_the_final_estimate_on_the_loading_end_marker(rig, set
 
 def test_a_stop_before_the_force_shows_contact_waits_for_the_load_cell(settings, calibration, records):
     record = records["steel_ball_bearing"]
-    items, stop_s, hold_m = until_loading_end(record)
+    items, stop_s, _ = until_loading_end(record)
     stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
     for t, kind, body in items:  # the load cell lags: its readings up to the stop stay below contact
         if kind != "force" or body["value_n"][0] < 0.5 * settings.estimator.contact_force_n:

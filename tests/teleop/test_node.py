@@ -79,20 +79,18 @@ def test_commanded_grasp_goes_out_as_the_devices_capture_it(rig):
     assert [m.body["event"] for m in events] == ["start", "loading_end", "end"]
     marker = events[1]
     assert marker.t_capture_s - record.events["grasp_done"] == pytest.approx(shifts[0], abs=0.02)
-    # ... and the width it read then (the record's hold width) is the one sample the record lacks,
-    # in time order with the others, published before the marker, after everything captured earlier.
+    # ... and the width it read then is the record's next read, handed out early with its recorded
+    # stamp: the widths are the record's, in time order, the stop's read published before the marker.
     width_messages = [m for m in got if m.type == "width"]
     widths = np.concatenate([m.body["value_m"] for m in width_messages])
     width_t = np.concatenate([m.body["t_s"] for m in width_messages])
     assert np.all(np.diff(width_t) > 0)
-    replayed = widths[: len(record.width_m) + 1]  # after the replay the kinematic gripper reads on
-    extra = int(np.argmax(np.append(replayed[:-1] != record.width_m.value, True)))
-    assert np.array_equal(np.delete(replayed, extra), record.width_m.value)
-    release = record.width_m.t_s <= record.events["command_release"]
-    assert widths[extra] == record.width_m.value[release][-1]
-    assert marker.t_capture_s <= width_t[extra] < marker.t_capture_s + 0.01
+    assert np.array_equal(widths[: len(record.width_m)], record.width_m.value)  # then the kinematic reads
+    stop_read = int(np.searchsorted(width_t, marker.t_capture_s))
+    assert width_t[stop_read] - width_t[0] == pytest.approx(
+        record.width_m.t_s[stop_read] - record.width_m.t_s[0], abs=1e-6)
     before = got[: got.index(marker)]
-    assert any(m.type == "width" and width_t[extra] in m.body["t_s"] for m in before)
+    assert any(m.type == "width" and width_t[stop_read] in m.body["t_s"] for m in before)
     late = [m for m in got[got.index(marker) + 1:] if m.type in ("frame", "force")
             and min(np.atleast_1d(m.body.get("t_s", m.t_capture_s))) <= marker.t_capture_s]
     assert not late, "data captured before the loading end came after its marker"

@@ -197,9 +197,12 @@ def test_sim_grasp_stops_where_the_replayed_fingers_do(make_record):
         stop = gripper.last_stop
         samples = gripper.widths(timeout_s=0.5)
     assert stop.stopped_s == pytest.approx(playback.grasp_settled_s(), abs=0.02)
-    assert stop.width_m == playback.hold_width_m()
-    # The recorded widths due by the stop, then the stop's read: one stream in time order.
+    # The stop's read is the record's next read, handed out at the stop with its recorded stamp, after
+    # the recorded widths due by then: the live widths are the recorded ones, in time order.
     recorded = playback.live_time(record.width_m.t_s)
+    after_stop = int(np.searchsorted(recorded, stop.stopped_s))
+    assert stop.width_t_s == recorded[after_stop] > stop.stopped_s
+    assert stop.width_m == record.width_m.value[after_stop]
     replayed = samples.t_s[samples.t_s >= playback.live_time(playback.origin_s)]  # not the reads before the start
     assert np.all(np.diff(samples.t_s) > 0)
-    assert replayed[-1] == stop.width_t_s and np.allclose(replayed[:-1], recorded[recorded <= stop.width_t_s])
+    assert replayed[-1] == stop.width_t_s and np.allclose(replayed, recorded[: after_stop + 1])
