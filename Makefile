@@ -37,7 +37,7 @@ lint: $(VENV)/.installed-dev
 test: lint
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
-# Retrain the default model from scratch: the model card's recipe (5 to 13 minutes on 2 cores, measured).
+# Retrain the default model from scratch: the model card's recipe (5 to 16 minutes on 2 cores, measured).
 # Writes MODEL_OUT (default runs/retrain/model); MODEL_OUT=estimator/models/default replaces the shipped one.
 OBJECT_TABLE ?= ../shared/seed/dataset_objects_and_compliance.csv
 MODEL_RUN ?= runs/retrain

@@ -55,11 +55,11 @@ def test_final_estimate_is_rendered_and_its_latency_measured_from_capture(rig):
     assert display.rendered_command.provisional
     captured = time.monotonic() - 0.05  # the last loading frame was captured 50 ms ago
     estimate(estimator, grasp_id="g1", t_capture_s=captured, e_pa=2e6, provisional=False)
-    sent = time.monotonic()
     step_until(service, lambda: service.stats.finals)
     final = service.stats.finals[0]
     assert final.grasp_id == "g1" and final.e_pa == 2e6 and final.estimates_received == 2
-    assert 0.05 <= final.latency_s <= 0.05 + (time.monotonic() - sent) + 1e-3
+    # From that capture to the display write, which came before now.
+    assert 0.05 <= final.latency_s <= time.monotonic() - captured
     shown = display.rendered_command
     assert not shown.provisional and shown.level > 0  # the final estimate reached the display
     assert json.loads(report_path.read_text().splitlines()[0])["latency_ms"] == pytest.approx(final.latency_s * 1e3)
