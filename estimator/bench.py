@@ -227,20 +227,43 @@ def plot(result: dict[str, Any], path: str | Path) -> None:
 
     # Frontier points last, so a dominated configuration drawn at the same place does not hide one.
     points = sorted((c for c in result["configs"] if c["log10_error"] is not None), key=lambda c: c["pareto"])
-    fig, ax = plt.subplots(figsize=(8, 5.5))
+    fig, ax = plt.subplots(figsize=(9, 5.5))
+    frontier = sorted((c for c in points if c["pareto"]), key=lambda c: c["latency_ms_p50"])
+    if len(frontier) > 1:
+        ax.step([c["latency_ms_p50"] for c in frontier], [c["log10_error"] for c in frontier], where="post",
+                color="C3", alpha=0.4, zorder=2)
+    labels = []
     for c in points:
         ax.scatter(c["latency_ms_p50"], c["log10_error"], s=36, color="C3" if c["pareto"] else "C0", zorder=3)
-        ax.annotate(f"{c['name']} ({c['refusals']} refused)", (c["latency_ms_p50"], c["log10_error"]),
-                    fontsize=7, xytext=(4, 3), textcoords="offset points")
+        labels.append(ax.annotate(f"{c['name']} ({c['refusals']} refused)", (c["latency_ms_p50"], c["log10_error"]),
+                                  fontsize=7, xytext=(5, 2), textcoords="offset points", va="center"))
     ax.scatter([], [], color="C3", label="on the frontier (latency, error, refusals)")
     ax.scatter([], [], color="C0", label="dominated")
-    ax.legend()
+    ax.legend(loc="lower left")
     ax.set(xscale="log", xlabel="latency per grasp, median (ms, one core, from decoded frames)",
            ylabel="mean |log10 E_hat - log10 E| (decades)", title=f"{result['labelled']} labelled grasps")
+    if points:
+        latencies = [c["latency_ms_p50"] for c in points]
+        ax.set_xlim(min(latencies) / 1.5, max(latencies) * 6)  # room for the labels on the right
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
+    _separate_labels(fig, labels)
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _separate_labels(fig: Any, labels: list[Any]) -> None:
+    """Move point labels down, top to bottom, until none overlaps one placed before it."""
+    renderer = fig.canvas.get_renderer()
+    placed = []
+    for label in sorted(labels, key=lambda t: -t.xy[1]):
+        for _ in range(len(labels)):
+            box = label.get_window_extent(renderer)
+            if not any(box.overlaps(other) for other in placed):
+                break
+            dx, dy = label.xyann
+            label.xyann = (dx, dy - box.height * 72.0 / fig.dpi)
+        placed.append(label.get_window_extent(renderer))
 
 
 # --------------------------------------------------------------------------- command

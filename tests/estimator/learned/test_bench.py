@@ -67,3 +67,23 @@ def test_commands_are_registered(command, capsys):
     with pytest.raises(SystemExit) as done:
         main([command, "--help"])
     assert done.value.code == 0 and "--json" in capsys.readouterr().out
+
+
+def test_plot_labels_of_nearby_points_do_not_overlap():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from estimator.bench import _separate_labels
+
+    fig, ax = plt.subplots()
+    ax.set(xscale="log", xlim=(1, 100), ylim=(0, 3))
+    labels = [ax.annotate(f"configuration {i} (0 refused)", (20 + i * 0.1, 1.0 + i * 0.01), fontsize=7,
+                          xytext=(5, 2), textcoords="offset points") for i in range(4)]
+    renderer = fig.canvas.get_renderer()
+    assert labels[0].get_window_extent(renderer).overlaps(labels[1].get_window_extent(renderer))
+    _separate_labels(fig, labels)
+    boxes = [label.get_window_extent(renderer) for label in labels]
+    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
+    plt.close(fig)
