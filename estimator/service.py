@@ -13,12 +13,12 @@ endpoint. Per grasp (from a ``grasp_event`` *start* to its *end*):
   everything captured before it came first), at the first frame captured after the force
   peak (the peak frame, which shows the object under the full force: a stiff object loads
   between two frames), at once if that frame came before the marker; without a marker, when
-  the data show the end; or at the grasp's end if that comes first. With a model loaded the final one is the hybrid ``auto`` estimate
-  (:class:`~estimator.learned.hybrid.HybridEstimator`); for a depth model of the estimator's
-  finger its input comes from the depths already computed for the provisional estimates
-  (:meth:`~estimator.stream.GraspStream.sampled_grasp`: the same input the model would measure
-  from the grasp record, without measuring a frame again), else the model measures the grasp
-  as received. Without a model it is the analytical one;
+  the data show the end; or at the grasp's end if that comes first. With a model loaded the
+  final one is the hybrid ``auto`` estimate (:class:`~estimator.learned.hybrid.HybridEstimator`);
+  for a depth model of the estimator's finger its input comes from the depths already computed
+  for the provisional estimates (:meth:`~estimator.stream.GraspStream.sampled_grasp`: the same
+  input the model would measure from the grasp record, without measuring a frame again), else
+  the model measures the grasp as received. Without a model it is the analytical one;
 * the grasp's end event, forwarded on the estimate endpoint after the final estimate, so a
   renderer that listens to estimates alone knows when to let go.
 

@@ -21,10 +21,11 @@ Per grasp, the cheapest answer whose expected error fits the budget:
    ``AutoPolicy.max_split_interval_decades`` wide, over at least
    ``MIN_SPLIT_FRAMES`` distinct frames: that estimate, and the network is
    skipped. (A fit through fewer points has no scatter to show how far the
-   contact model misses: its interval is the measurement resolution alone.) The threshold is chosen in training on the validation
-   objects (the widest threshold at which the split's mean error on the grasps
-   it accepts is no worse than the model's on the same grasps; ``metadata.json``
-   ``auto``), default 0.5 decade.
+   contact model misses: its interval is the measurement resolution alone.)
+   The threshold is chosen in training on the validation objects (the widest
+   threshold at which the split's mean error on the grasps it accepts is no
+   worse than the model's on the same grasps; ``metadata.json`` ``auto``),
+   default 0.5 decade.
 3. Otherwise the model. If the model fails, the first analytical estimate that
    is not a refusal, in the order split, hertz, elastic, no_tactile.
 
