@@ -40,7 +40,8 @@ def ceiling(log10_e: np.ndarray, limit_log10_pa: float) -> dict[str, float]:
     unresolved = log10_e[log10_e >= limit_log10_pa]
     n = log10_e.size
     if unresolved.size == 0:
-        return {"unresolved": 0, "mean_error": 0.0, "within_10x": 1.0, "median": math.nan, "best_within": math.nan}
+        return {"unresolved": 0, "mean_error": 0.0, "within_10x_at_median": 1.0, "within_10x": 1.0,
+                "mean_error_at_best_within": 0.0, "median": math.nan, "best_within": math.nan}
     median = float(np.median(unresolved))
     candidates = np.linspace(unresolved.min(), unresolved.max(), 2001)
     hits = (np.abs(unresolved[None, :] - candidates[:, None]) <= 1.0).sum(axis=1)
