@@ -28,9 +28,12 @@ Grasps are commanded on the bus (``command`` messages on ``bus.command``):
 A ``grasp_event`` *start* (naming the object when simulated) goes out before the grasp's
 first data and an *end* after its last. In between, a *loading_end* marks when the gripper's
 grasp command completed (the fingers stopped at the target force: the object is loaded;
-:attr:`~teleop.devices.gripper.Gripper.last_stop`), stamped with that time; the width the
-gripper read at the stop goes out first, in the ``width`` stream, so everything captured up to
-the stop (frames, forces, that width) precedes the marker on the bus. The simulated gripper
+:attr:`~teleop.devices.gripper.Gripper.last_stop`), stamped with that time. It goes out once
+the width the gripper read at the stop has gone out and, when the load cell delivers during
+the grasp, a force sample captured at or after the stop, so the widths and forces captured up to
+the stop precede the marker on the bus. Frames are not waited for (a camera period, 33 ms at
+30 Hz, would be added to every final estimate): the cameras' frames up to the stop precede it
+as long as their reader keeps up with the camera. The simulated gripper
 stops where the simulated record's fingers stop. No marker goes out when the gripper could
 not read its width at the stop. A command that cannot be carried out is logged and the node
 carries on.
@@ -149,7 +152,8 @@ class RobotNode:
         self._simulator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="simulate")
         self._grasp: _Grasp | None = None
         self._count = 0
-        self._last_width_s = -math.inf  # capture time of the newest width sample published
+        # Capture time of the newest item published per stream ("width", "force", "frame/<finger>").
+        self._newest_s: dict[str, float] = {}
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -372,9 +376,15 @@ class RobotNode:
         self._mark_loading_end()
 
     def _mark_loading_end(self) -> None:
-        """The loading-end marker, once the width read at the stop has gone out."""
+        """The loading-end marker, once the width read at the stop and a force sample captured at
+        or after the stop have gone out (module docstring)."""
         grasp = self._grasp
-        if grasp is None or grasp.stop is None or self._last_width_s < grasp.stop.width_t_s:
+        if grasp is None or grasp.stop is None:
+            return
+        if self._newest_s.get("width", -math.inf) < grasp.stop.width_t_s:
+            return
+        # A load cell silent since the grasp began (a device that delivers nothing) cannot hold it up.
+        if grasp.started_s <= self._newest_s.get("force", -math.inf) < grasp.stop.stopped_s:
             return
         self._announce("loading_end", t_s=grasp.stop.stopped_s)
         grasp.stop = None
@@ -403,11 +413,17 @@ class RobotNode:
         grasp = self._grasp
         return grasp.grasp_id if grasp is not None and t_s >= grasp.started_s else None
 
+    def _published(self, stream: str, t_s: float) -> None:
+        """Note the newest capture time published on ``stream``; the marker may be due now."""
+        self._newest_s[stream] = max(self._newest_s.get(stream, -math.inf), t_s)
+        self._mark_loading_end()
+
     def _publish(self, kind: str, item: Any) -> None:
         if kind == "frame":
             self.publisher.send("frame", t_capture_s=item.t_s, finger=item.finger, grasp_id=self._grasp_of(item.t_s),
                                 index=item.index, encoding=item.encoding, data=item.encoded)
             self.stats.frames += 1
+            self._published(f"frame/{item.finger}", item.t_s)
         elif kind in ("force", "width"):
             values = {"value_n" if kind == "force" else "value_m": item.value}
             self.publisher.send(kind, t_capture_s=float(item.t_s[-1]), grasp_id=self._grasp_of(float(item.t_s[0])),
@@ -416,8 +432,7 @@ class RobotNode:
                 self.stats.force_batches += 1
             else:
                 self.stats.width_batches += 1
-                self._last_width_s = max(self._last_width_s, float(item.t_s[-1]))
-                self._mark_loading_end()
+            self._published(kind, float(item.t_s[-1]))
         elif kind == "grasp_stopped":
             self._grasp_stopped(item)
         else:  # a reader's device error, already logged by the reader

@@ -135,3 +135,27 @@ def test_hardware_grasp_closes_holds_and_opens(rig):
     widths = np.concatenate([m.body["value_m"] for m in got if m.type == "width"])
     closed = int(np.argmin(widths))
     assert widths[closed] < 0.01 and widths[0] > 0.04 and widths[-1] > 0.07  # closed, then opened again
+
+
+def test_loading_end_marker_waits_for_the_width_at_the_stop_and_a_force_sample_after_it(rig):
+    from teleop.devices.gripper import GraspStop
+    from teleop.node import _Grasp
+    from teleop.record import Samples
+
+    node, _, listener, _ = rig
+
+    def events() -> list[str]:
+        return [m.body["event"] for m in drain(listener) if m.type == "grasp_event"]
+
+    node._grasp = _Grasp("g-order", None, started_s=0.0, stop=GraspStop(stopped_s=10.0, width_t_s=10.05,
+                                                                          width_m=0.03, held=True))
+    node._publish("force", Samples(np.array([9.99]), np.array([5.0])))
+    node._publish("width", Samples(np.array([10.05]), np.array([0.03])))
+    assert events() == []  # a force sample captured before the stop may still be on its way
+    node._publish("force", Samples(np.array([10.01]), np.array([5.0])))
+    assert events() == ["loading_end"]
+    # A load cell silent since the grasp began holds nothing up: the width at the stop suffices.
+    node._grasp = _Grasp("g-silent", None, started_s=20.0, stop=GraspStop(stopped_s=30.0, width_t_s=30.05,
+                                                                           width_m=0.03, held=True))
+    node._publish("width", Samples(np.array([30.05]), np.array([0.03])))
+    assert events() == ["loading_end"]
