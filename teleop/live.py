@@ -61,11 +61,16 @@ class StopSignals:
         self.stop = threading.Event()
         self.on_hangup = on_hangup
         self._previous: dict[int, Any] = {}
+        self._stop_requested = False
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
         if signum == signal.SIGHUP and self.on_hangup is not None:
             self.on_hangup()
-        else:
+        elif not self._stop_requested:
+            # A second signal can interrupt this handler inside Event.set(), which holds a plain lock:
+            # it must not call set() again (a child of a dying multi-threaded parent gets its
+            # parent-death SIGTERM once per parent thread, and deadlocked here).
+            self._stop_requested = True
             self.stop.set()
 
     def __enter__(self) -> StopSignals:

@@ -173,6 +173,22 @@ def test_stop_signals_turn_sigterm_into_a_stop_and_sighup_into_a_callback():
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
 
 
+def test_a_second_sigterm_during_the_first_ones_handling_does_not_deadlock():
+    # A child of a dying multi-threaded parent gets its parent-death SIGTERM once per parent thread;
+    # one may arrive while the previous handler is inside Event.set(), holding the event's lock.
+    script = textwrap.dedent("""
+        import os, signal
+        from teleop.live import StopSignals
+        with StopSignals() as signals:
+            os.kill(os.getpid(), signal.SIGTERM)
+            with signals.stop._cond:  # as if that first handler were still setting the event
+                os.kill(os.getpid(), signal.SIGTERM)
+            assert signals.stop.is_set()
+    """)
+    done = subprocess.run([sys.executable, "-c", script], timeout=30, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+
 # --------------------------------------------------------------------------- the processes (slow)
 
 
