@@ -43,6 +43,13 @@ estimator service, haptic renderer on the simulated display; no session recorder
     Per estimate (provisional and final), from the estimator receiving the message that
     triggered it to publishing it (the message's ``latency_s``).
 
+``per_grasp``
+    Each measured grasp in run order: ``grasp_id``, ``object``, ``latency_ms``,
+    ``decision_ms``, ``final_compute_ms``, ``delivery_ms`` and ``final_by``. The text
+    report names the slowest ones and splits their decision into the final computation and
+    everything before it (the peak frame's way to the estimator, its decode, and any wait
+    for data the final needed); ``--plot`` draws every grasp that way against the 15 ms aim.
+
 The quantiles are of the measured grasps (with 20 grasps p99 is close to the maximum).
 """
 
@@ -71,7 +78,10 @@ from teleop.demo import (
 )
 from teleop.errors import TeleopError
 
-__all__ = ["latency_summary"]
+__all__ = ["latency_summary", "plot", "slowest"]
+
+P99_AIM_MS = 15.0  # the issue's aim for the last loading frame -> HID report p99
+SLOWEST_SHOWN = 3
 
 
 def _quantiles(values: Sequence[float], prefix: str) -> dict[str, float | None]:
@@ -87,29 +97,36 @@ def latency_summary(outcomes: Sequence[GraspOutcome], compute_s: Sequence[float]
     ``compute_s`` holds the ``latency_s`` of every estimate message seen.
     """
     latency, decision, delivery, frame_after_stop, after_end, final_compute = [], [], [], [], [], []
+    per_grasp: list[dict[str, Any]] = []
     finals_by: dict[str, int] = {}
     spans, counts = 0.0, 0
     for o in outcomes:
         report = o.estimator_report or {}
         if report.get("final_by"):
             finals_by[report["final_by"]] = finals_by.get(report["final_by"], 0) + 1
-        if report.get("final_compute_s") is not None:
-            final_compute.append(report["final_compute_s"] * 1e3)
+        computed_ms = None if report.get("final_compute_s") is None else report["final_compute_s"] * 1e3
+        if computed_ms is not None:
+            final_compute.append(computed_ms)
+        if report.get("provisional_span_s"):
+            spans += report["provisional_span_s"]
+            counts += report["provisional"] - 1
         frame_s = report.get("t_last_loading_frame_s")
-        if o.latency_ms is not None:
-            latency.append(o.latency_ms)
-        if o.latency_ms is not None and frame_s is not None:
+        if o.latency_ms is None:
+            continue
+        latency.append(o.latency_ms)
+        row = {"grasp_id": o.grasp_id, "object": o.obj.name, "latency_ms": o.latency_ms, "decision_ms": None,
+               "final_compute_ms": computed_ms, "delivery_ms": None, "final_by": report.get("final_by")}
+        per_grasp.append(row)
+        if frame_s is not None:
             if report.get("final_sent_s") is not None:
                 decided = (report["final_sent_s"] - frame_s) * 1e3
                 decision.append(decided)
                 delivery.append(o.latency_ms - decided)
+                row.update(decision_ms=decided, delivery_ms=o.latency_ms - decided)
             if report.get("final_by") == "loading_end":
                 frame_after = (frame_s - report["t_loading_end_s"]) * 1e3
                 frame_after_stop.append(frame_after)
                 after_end.append(o.latency_ms + frame_after)
-        if report.get("provisional_span_s"):
-            spans += report["provisional_span_s"]
-            counts += report["provisional"] - 1
     return {
         "grasps": len(outcomes),
         "finals_measured": len(latency),
@@ -122,7 +139,55 @@ def latency_summary(outcomes: Sequence[GraspOutcome], compute_s: Sequence[float]
         **_quantiles(final_compute, "final_compute_"),
         "finals_by": finals_by,
         **_quantiles([s * 1e3 for s in compute_s], "compute_"),
+        "per_grasp": per_grasp,
     }
+
+
+def slowest(summary: dict[str, Any], count: int = SLOWEST_SHOWN) -> list[str]:
+    """Lines naming the ``count`` slowest grasps and where their time went."""
+    rows = sorted(summary["per_grasp"], key=lambda r: r["latency_ms"], reverse=True)[:count]
+    lines = []
+    for r in rows:
+        parts = f"{r['latency_ms']:.1f} ms"
+        if r["decision_ms"] is not None and r["final_compute_ms"] is not None:
+            parts += (f" = {r['decision_ms'] - r['final_compute_ms']:.1f} before the final computation + "
+                      f"{r['final_compute_ms']:.1f} computing it + {r['delivery_ms']:.1f} delivery")
+        lines.append(f"  {r['grasp_id']} ({r['object']}, final by {r['final_by'] or '?'}): {parts}")
+    return lines
+
+
+def plot(summary: dict[str, Any], path: str | Path) -> None:
+    """Per grasp, the latency stacked as before the final computation, computing it and delivery,
+    against the p99 aim; bars above the axis are cut and labelled with their value."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in summary["per_grasp"] if r["decision_ms"] is not None and r["final_compute_ms"] is not None]
+    if not rows:
+        raise TeleopError("bench-latency --plot: no grasp has a measured final estimate to draw")
+    x = np.arange(len(rows))
+    compute = np.array([r["final_compute_ms"] for r in rows])
+    before = np.array([r["decision_ms"] for r in rows]) - compute
+    delivery = np.array([r["delivery_ms"] for r in rows])
+    total = np.array([r["latency_ms"] for r in rows])
+    top = max(P99_AIM_MS * 2.0, float(np.percentile(total, 50)) * 3.0)
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.35 * len(rows) + 2.0), 4.5))
+    ax.bar(x, before, label="frame to estimator, decode, waiting for data", color="#9ecae1")
+    ax.bar(x, compute, bottom=before, label="final computation", color="#3182bd")
+    ax.bar(x, delivery, bottom=before + compute, label="delivery to the HID report", color="#fd8d3c")
+    ax.axhline(P99_AIM_MS, color="k", linestyle="--", linewidth=1, label=f"p99 aim {P99_AIM_MS:g} ms")
+    for i in np.flatnonzero(total > top):
+        ax.annotate(f"{total[i]:.0f}", (x[i], top), ha="center", va="top", fontsize=8)
+    ax.set_ylim(0, top)
+    ax.set_xticks(x, [r["object"] for r in rows], rotation=70, ha="right", fontsize=7)
+    ax.set_ylabel("last loading frame -> HID report (ms)")
+    ax.set_title(f"{len(rows)} grasps: p50 {summary['p50_ms']:.1f} ms, p99 {summary['p99_ms']:.1f} ms")
+    ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -137,6 +202,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grasps", type=int, default=20, metavar="N",
                         help="grasps to run, the scene's objects in turn")
     parser.add_argument("--record", action="store_true", help="also run the session recorder, as the demo does")
+    parser.add_argument("--plot", metavar="PNG", default=None,
+                        help="write each grasp's latency as a bar split into what came before the final "
+                             f"computation, the computation and the delivery, against the {P99_AIM_MS:g} ms aim")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -175,6 +243,12 @@ def run(args: argparse.Namespace) -> int:
     print(f"finals by trigger: {summary['finals_by']}")
     print(f"estimator compute per estimate:       p50 {ms('compute_p50_ms')}, p99 {ms('compute_p99_ms')}")
     print(f"provisional estimates while loading:  {'-' if hz is None else f'{hz:.1f} Hz'} (camera: 30 Hz)")
+    if summary["per_grasp"]:
+        print("slowest grasps:")
+        print("\n".join(slowest(summary)))
+    if args.plot:
+        plot(summary, args.plot)
+        print(f"plot: {args.plot}")
     if args.json:
         print(json.dumps(summary, allow_nan=False))
     return 0

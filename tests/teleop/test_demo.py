@@ -25,7 +25,7 @@ from teleop.demo import (
     scene_plan,
 )
 from teleop.errors import SettingsError, TeleopError
-from teleop.latency import latency_summary
+from teleop.latency import latency_summary, plot, slowest
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.session.logfile import LogReader
 from teleop.settings import default_settings_path, load_settings
@@ -128,6 +128,30 @@ def test_latency_summary_relates_marker_grasps_to_the_loading_end():
     assert summary["loading_end_to_report_p99_ms"] == pytest.approx(50.0)
     assert summary["decision_p50_ms"] == pytest.approx((29.0 + 140.0) / 2)
     assert summary["final_compute_p99_ms"] == pytest.approx(5.98)
+
+
+def test_latency_summary_keeps_each_grasp_and_names_the_slowest_with_where_the_time_went(tmp_path):
+    fast = outcome("duck", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 12.0, final_sent_s=10.010,
+                   t_last_loading_frame_s=10.0, final_by="loading_end", t_loading_end_s=9.99,
+                   final_compute_s=0.006, provisional_span_s=0.5, provisional=16)
+    slow = outcome("oak", 1e10, {"E_pa": 1e9, "state": "ok"}, 0.1, 160.0, final_sent_s=20.158,
+                   t_last_loading_frame_s=20.0, final_by="loading_end", t_loading_end_s=20.02,
+                   final_compute_s=0.008, provisional_span_s=0.5, provisional=16)
+    lost = outcome("foam", 5e3, None, None, None, provisional_span_s=0.5, provisional=11)
+    summary = latency_summary([fast, slow, lost], [])
+    assert [r["object"] for r in summary["per_grasp"]] == ["duck", "oak"]  # measured grasps, run order
+    row = summary["per_grasp"][1]
+    assert row["decision_ms"] == pytest.approx(158.0) and row["final_compute_ms"] == pytest.approx(8.0)
+    assert row["delivery_ms"] == pytest.approx(2.0) and row["final_by"] == "loading_end"
+    assert summary["provisional_hz"] == pytest.approx(40 / 1.5)  # the unmeasured grasp's estimates count too
+    lines = slowest(summary, count=1)
+    assert len(lines) == 1 and "oak" in lines[0]
+    assert "160.0 ms = 150.0 before the final computation + 8.0 computing it + 2.0 delivery" in lines[0]
+    png = tmp_path / "latency.png"
+    plot(summary, png)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(TeleopError, match="no grasp has a measured final"):
+        plot(latency_summary([lost], []), tmp_path / "none.png")
 
 
 def test_report_reader_takes_complete_lines_only(tmp_path):
