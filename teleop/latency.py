@@ -96,7 +96,7 @@ def latency_summary(outcomes: Sequence[GraspOutcome], compute_s: Sequence[float]
 
     ``compute_s`` holds the ``latency_s`` of every estimate message seen.
     """
-    latency, decision, delivery, frame_after_stop, after_end, final_compute = [], [], [], [], [], []
+    frame_after_stop, after_end, final_compute = [], [], []
     per_grasp: list[dict[str, Any]] = []
     finals_by: dict[str, int] = {}
     spans, counts = 0.0, 0
@@ -113,27 +113,25 @@ def latency_summary(outcomes: Sequence[GraspOutcome], compute_s: Sequence[float]
         frame_s = report.get("t_last_loading_frame_s")
         if o.latency_ms is None:
             continue
-        latency.append(o.latency_ms)
         row = {"grasp_id": o.grasp_id, "object": o.obj.name, "latency_ms": o.latency_ms, "decision_ms": None,
                "final_compute_ms": computed_ms, "delivery_ms": None, "final_by": report.get("final_by")}
         per_grasp.append(row)
         if frame_s is not None:
             if report.get("final_sent_s") is not None:
-                decided = (report["final_sent_s"] - frame_s) * 1e3
-                decision.append(decided)
-                delivery.append(o.latency_ms - decided)
-                row.update(decision_ms=decided, delivery_ms=o.latency_ms - decided)
+                decision_ms = (report["final_sent_s"] - frame_s) * 1e3
+                row.update(decision_ms=decision_ms, delivery_ms=o.latency_ms - decision_ms)
             if report.get("final_by") == "loading_end":
                 frame_after = (frame_s - report["t_loading_end_s"]) * 1e3
                 frame_after_stop.append(frame_after)
                 after_end.append(o.latency_ms + frame_after)
+    decided = [r for r in per_grasp if r["decision_ms"] is not None]
     return {
         "grasps": len(outcomes),
-        "finals_measured": len(latency),
-        **_quantiles(latency, ""),
+        "finals_measured": len(per_grasp),
+        **_quantiles([r["latency_ms"] for r in per_grasp], ""),
         "provisional_hz": counts / spans if spans > 0 else None,
-        **_quantiles(decision, "decision_"),
-        **_quantiles(delivery, "delivery_"),
+        **_quantiles([r["decision_ms"] for r in decided], "decision_"),
+        **_quantiles([r["delivery_ms"] for r in decided], "delivery_"),
         **_quantiles(frame_after_stop, "peak_frame_after_stop_"),
         **_quantiles(after_end, "loading_end_to_report_"),
         **_quantiles(final_compute, "final_compute_"),
