@@ -152,7 +152,7 @@ class RobotNode:
         self._simulator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="simulate")
         self._grasp: _Grasp | None = None
         self._count = 0
-        # Capture time of the newest item published per stream ("width", "force", "frame/<finger>").
+        # Capture time of the newest sample published per stream ("width", "force"): the marker waits on them.
         self._newest_s: dict[str, float] = {}
 
     # ------------------------------------------------------------------ lifecycle
@@ -423,7 +423,6 @@ class RobotNode:
             self.publisher.send("frame", t_capture_s=item.t_s, finger=item.finger, grasp_id=self._grasp_of(item.t_s),
                                 index=item.index, encoding=item.encoding, data=item.encoded)
             self.stats.frames += 1
-            self._published(f"frame/{item.finger}", item.t_s)
         elif kind in ("force", "width"):
             values = {"value_n" if kind == "force" else "value_m": item.value}
             self.publisher.send(kind, t_capture_s=float(item.t_s[-1]), grasp_id=self._grasp_of(float(item.t_s[0])),
