@@ -327,6 +327,9 @@ class SimulatedCamera(TactileCamera):
 
     def __init__(self, sensor: SensorSettings, *, playback: GraspPlayback | None = None):
         super().__init__(sensor)
+        # The reader thread takes (playback, next frame) together and hands a frame out only if no
+        # replay() switched them meanwhile (the node switches while the reader waits).
+        self._lock = threading.Lock()
         self._playback: GraspPlayback | None = None
         self._next = 0
         if playback is not None:
@@ -335,7 +338,8 @@ class SimulatedCamera(TactileCamera):
     def replay(self, playback: GraspPlayback) -> None:
         """Serve the frames of this finger from ``playback`` from its first frame on."""
         playback.record.stream(self.sensor.finger)  # KeyError now, not at the first read
-        self._playback, self._next = playback, 0
+        with self._lock:
+            self._playback, self._next = playback, 0
 
     def _connect(self) -> None:
         pass
@@ -345,22 +349,25 @@ class SimulatedCamera(TactileCamera):
 
     def _read(self, timeout_s: float) -> CameraFrame | None:
         deadline = time.monotonic() + timeout_s
-        playback = self._playback
+        with self._lock:
+            playback, index = self._playback, self._next
         finger = self.sensor.finger
         if (
             playback is None
             or not playback.wait_started(timeout_s)
-            or self._next >= playback.frame_count(finger)
-            or not _due_before(playback, playback.frame_due_s(finger, self._next), deadline)
+            or index >= playback.frame_count(finger)
+            or not _due_before(playback, playback.frame_due_s(finger, index), deadline)
         ):
             time.sleep(max(0.0, deadline - time.monotonic()))  # nothing to show: a silent camera
             return None
-        due = playback.frame_due_s(finger, self._next)
+        due = playback.frame_due_s(finger, index)
         _wait_until(due, playback.clock)
-        stream = playback.record.stream(self.sensor.finger)
-        frame = CameraFrame(self.sensor.finger, self._next, due, stream.encoded[self._next], stream.encoding)
-        self._next += 1
-        return frame
+        with self._lock:
+            if self._playback is not playback or self._next != index:
+                return None  # another replay began while this frame was awaited
+            self._next = index + 1
+        stream = playback.record.stream(finger)
+        return CameraFrame(finger, index, due, stream.encoded[index], stream.encoding)
 
 
 class SimulatedLoadCell(LoadCell):
@@ -368,6 +375,8 @@ class SimulatedLoadCell(LoadCell):
 
     def __init__(self, settings: LoadCellSettings, *, playback: GraspPlayback | None = None):
         super().__init__(settings)
+        # As for the camera: the reader advances the sample index only of the playback it took.
+        self._lock = threading.Lock()
         self._playback: GraspPlayback | None = None
         self._next = 0
         if playback is not None:
@@ -375,7 +384,8 @@ class SimulatedLoadCell(LoadCell):
 
     def replay(self, playback: GraspPlayback) -> None:
         """Serve force samples from ``playback`` from its first sample on."""
-        self._playback, self._next = playback, 0
+        with self._lock:
+            self._playback, self._next = playback, 0
 
     def _connect(self) -> None:
         pass
@@ -385,17 +395,26 @@ class SimulatedLoadCell(LoadCell):
 
     def _take(self, timeout_s: float) -> Samples:
         deadline = time.monotonic() + timeout_s
-        playback = self._playback
+        with self._lock:
+            playback = self._playback
         if playback is not None and playback.wait_started(timeout_s):
-            self._next, due = playback.forces_due(self._next)
+            index, due = self._take_due(playback)
             if len(due):
                 return due
             forces = playback.record.force_n
-            if self._next < len(forces):
-                next_due = float(playback.live_time(forces.t_s[self._next]))
+            if index < len(forces):
+                next_due = float(playback.live_time(forces.t_s[index]))
                 if _due_before(playback, next_due, deadline):
                     _wait_until(next_due, playback.clock)
-                    self._next, due = playback.forces_due(self._next)
-                    return due
+                    return self._take_due(playback)[1]
         time.sleep(max(0.0, deadline - time.monotonic()))  # nothing due in time: a silent cell
         return Samples(np.zeros(0), np.zeros(0))
+
+    def _take_due(self, playback: GraspPlayback) -> tuple[int, Samples]:
+        """The samples of ``playback`` due since the last take and the next index; none (and no
+        next) if another replay began since the reader took ``playback``."""
+        with self._lock:
+            if self._playback is not playback:
+                return len(playback.record.force_n), Samples(np.zeros(0), np.zeros(0))
+            self._next, due = playback.forces_due(self._next)
+            return self._next, due

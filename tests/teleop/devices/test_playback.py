@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from teleop.devices.playback import GraspPlayback
-from teleop.errors import DeviceError
+from teleop.errors import DeviceError, DeviceTimeoutError
 from teleop.record import GraspRecord, Provenance, Samples
 
 
@@ -88,3 +88,40 @@ def test_the_fingers_stop_at_the_grasp_done_event_and_hold_the_width_read_before
     assert playback.hold_width_m() == held and held != record.width_m.value.min()
     # Without the events: where the recorded width is smallest.
     assert GraspPlayback(record).hold_width_m() == record.width_m.value.min()
+
+
+def test_a_replay_switched_while_a_reader_holds_the_last_one_serves_the_new_one_from_its_start(make_record):
+    # The robot node switches its devices to the next grasp from its main thread while their
+    # reader threads may be inside a read of the last replay, right after taking it. That read
+    # must not hand out the last replay's samples again nor skip the new replay's first ones
+    # (a live grasp once got no force at all this way).
+    import time
+
+    from teleop.devices.camera import open_camera
+    from teleop.devices.loadcell import open_load_cell
+    from teleop.settings import LoadCellSettings, SensorSettings
+
+    last, new_record = make_record(seed=0), make_record(seed=1)
+    cell = open_load_cell(LoadCellSettings(), backend="sim").connect()
+    camera = open_camera(SensorSettings(finger="left"), backend="sim").connect()
+    for device in (cell, camera):
+        finished = GraspPlayback(last)
+        finished.start(time.monotonic() - 10.0)  # all of it due
+        device.replay(finished)
+        new = GraspPlayback(new_record)
+
+        def switch_now(timeout_s, device=device, new=new):
+            device.replay(new)  # the node's switch, between the reader taking the replay and reading it
+            return True
+
+        finished.wait_started = switch_now
+        with pytest.raises(DeviceTimeoutError):
+            device.read(timeout_s=0.05)
+        new.start(time.monotonic() - 0.2)
+        if device is cell:
+            forces = cell.read(timeout_s=0.5)
+            assert forces.t_s[0] == new.live_time(new_record.force_n.t_s[0])
+            np.testing.assert_array_equal(forces.value, new_record.force_n.value[: forces.t_s.size])
+        else:
+            frame = camera.read(timeout_s=0.5)
+            assert frame.index == 0 and frame.encoded == new_record.stream("left").encoded[0]
