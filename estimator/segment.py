@@ -61,10 +61,13 @@ import numpy as np
 from estimator.errors import FitError
 
 __all__ = [
+    "LoadPhase",
     "Segment",
+    "align_frames",
     "clean_samples",
     "estimate_camera_lag",
     "estimate_width_lag",
+    "find_load_phase",
     "interpolate",
     "noise_std",
     "segment_grasp",
@@ -258,6 +261,41 @@ def _hold_frames(
     return dict(hold_index=index, hold_t_s=t, hold_force_n=f, hold_width_m=w)
 
 
+@dataclass(frozen=True)
+class LoadPhase:
+    """What :func:`segment_grasp` finds in the force and width streams alone, before any frame
+    is aligned on it (:func:`find_load_phase`); :func:`align_frames` aligns a frame set on it.
+
+    Falsy, with ``reason``, when there is no usable loading phase. The arrays are the cleaned
+    samples (force baseline-subtracted); ``peak`` indexes the peak force sample in them.
+    """
+
+    reason: str
+    flags: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+    force_baseline_n: float = 0.0
+    segment_fields: dict = field(default_factory=dict)  # the Segment fields that need no frames
+    force_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    force_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    width_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    width_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    peak: int = 0
+    stopped_s: float | None = None
+
+    def __bool__(self) -> bool:
+        return not self.reason
+
+
+def _check_contact_force(contact_force_n: float) -> None:
+    if not (np.isfinite(contact_force_n) and contact_force_n > 0):
+        raise FitError(f"contact_force_n: expected a finite value > 0, got {contact_force_n}")
+
+
+def _check_n_frames(n_frames: int) -> None:
+    if n_frames < 1:
+        raise FitError(f"n_frames: expected at least 1, got {n_frames}")
+
+
 def segment_grasp(
     force_t_s: np.ndarray,
     force_n: np.ndarray,
@@ -270,6 +308,8 @@ def segment_grasp(
     stopped_s: float | None = None,
 ) -> Segment:
     """Find contact, onset and the loading phase; align force and width with the frames.
+
+    :func:`find_load_phase` on the force and width, then :func:`align_frames` on the frames.
 
     Parameters
     ----------
@@ -296,10 +336,29 @@ def segment_grasp(
     Segment
         Falsy, with a reason, when there is no usable loading phase.
     """
-    if not (np.isfinite(contact_force_n) and contact_force_n > 0):
-        raise FitError(f"contact_force_n: expected a finite value > 0, got {contact_force_n}")
-    if n_frames < 1:
-        raise FitError(f"n_frames: expected at least 1, got {n_frames}")
+    _check_contact_force(contact_force_n)
+    _check_n_frames(n_frames)
+    phase = find_load_phase(force_t_s, force_n, width_t_s, width_m, contact_force_n=contact_force_n,
+                            stopped_s=stopped_s)
+    return align_frames(phase, frame_t_s, n_frames=n_frames)
+
+
+def find_load_phase(
+    force_t_s: np.ndarray,
+    force_n: np.ndarray,
+    width_t_s: np.ndarray,
+    width_m: np.ndarray,
+    *,
+    contact_force_n: float,
+    stopped_s: float | None = None,
+) -> LoadPhase:
+    """The force and width part of :func:`segment_grasp` (same parameters, no frames): contact,
+    onset, peak and the loading phase at the force samples' times.
+
+    A live estimator aligns each new frame set on it (:func:`align_frames`) without finding the
+    phase again while no force or width sample came.
+    """
+    _check_contact_force(contact_force_n)
     flags: list[str] = []
     notes: list[str] = []
     stopped = stopped_s is not None and bool(np.isfinite(stopped_s))
@@ -316,16 +375,16 @@ def segment_grasp(
         flag("cleaned_timestamps", f"dropped or merged {dropped[0]} force and {dropped[1]} width "
                                    "samples with non-finite or duplicate timestamps")
     if tf.size < 3:
-        return Segment(reason=f"too few force samples ({tf.size} usable, need 3)",
-                       flags=(*flags, "too_few_samples"), notes=tuple(notes))
+        return LoadPhase(reason=f"too few force samples ({tf.size} usable, need 3)",
+                         flags=(*flags, "too_few_samples"), notes=tuple(notes))
     if tw.size < 2:
-        return Segment(reason=f"too few width samples ({tw.size} usable, need 2)",
-                       flags=(*flags, "too_few_samples"), notes=tuple(notes))
+        return LoadPhase(reason=f"too few width samples ({tw.size} usable, need 2)",
+                         flags=(*flags, "too_few_samples"), notes=tuple(notes))
 
     # Baseline: the load cell's reading well before the force first nears contact.
     above = np.flatnonzero(force >= contact_force_n)
     if above.size == 0:
-        return Segment(
+        return LoadPhase(
             reason=f"no contact: the force peaks at {force.max():.3g} N, below "
                    f"contact_force_n = {contact_force_n:g} N",
             flags=tuple(flags), notes=tuple(notes),
@@ -339,7 +398,7 @@ def segment_grasp(
     sigma_f = noise_std(force[quiet]) if quiet.sum() >= 5 else noise_std(force)
     above = np.flatnonzero(force >= contact_force_n)
     if above.size == 0:
-        return Segment(
+        return LoadPhase(
             reason=f"no contact: the force peaks at {force.max():.3g} N above its baseline "
                    f"{baseline:.3g} N, below contact_force_n = {contact_force_n:g} N",
             flags=tuple(flags), notes=tuple(notes), force_baseline_n=baseline,
@@ -394,11 +453,37 @@ def segment_grasp(
     if load_t.size < 2:
         flag("too_few_samples", "the loading phase holds a single force sample")
 
+    fields = dict(
+        force_noise_n=sigma_f, width_noise_m=sigma_w, peak_force_n=peak_force, t_onset_s=t_onset,
+        t_contact_s=t_contact, t_peak_s=t_peak, onset_width_m=onset_width, load_t_s=load_t[covered],
+        load_force_n=loading[covered], load_width_m=load_w[covered],
+    )
+    return LoadPhase(reason="", flags=tuple(flags), notes=tuple(notes), force_baseline_n=baseline,
+                     segment_fields=fields, force_t_s=tf, force_n=force, width_t_s=tw, width_m=width,
+                     peak=peak, stopped_s=stopped_s if stopped else None)
+
+
+def align_frames(phase: LoadPhase, frame_t_s: np.ndarray, *, n_frames: int) -> Segment:
+    """The segmentation of a grasp with frames at ``frame_t_s`` on its loading ``phase``: the
+    loading frames (the peak frame last), the hold frames and the equidistant sample
+    (:func:`segment_grasp`'s frame part; ``frame_t_s`` and ``n_frames`` as there)."""
+    _check_n_frames(n_frames)
+    if not phase:
+        return Segment(reason=phase.reason, flags=phase.flags, notes=phase.notes,
+                       force_baseline_n=phase.force_baseline_n)
+    flags, notes = list(phase.flags), list(phase.notes)
+
+    def flag(name: str, note: str) -> None:
+        if name not in flags:
+            flags.append(name)
+        notes.append(note)
+
+    tf, force, tw, width, peak = phase.force_t_s, phase.force_n, phase.width_t_s, phase.width_m, phase.peak
+    stopped, stopped_s = phase.stopped_s is not None, phase.stopped_s
+    sigma_f = phase.segment_fields["force_noise_n"]
+    t_contact, t_peak = phase.segment_fields["t_contact_s"], phase.segment_fields["t_peak_s"]
     common = dict(
-        reason="", force_baseline_n=baseline, force_noise_n=sigma_f, width_noise_m=sigma_w,
-        peak_force_n=peak_force, t_onset_s=t_onset, t_contact_s=t_contact, t_peak_s=t_peak,
-        onset_width_m=onset_width, load_t_s=load_t[covered], load_force_n=loading[covered],
-        load_width_m=load_w[covered],
+        reason="", force_baseline_n=phase.force_baseline_n, **phase.segment_fields,
         **_hold_frames(frame_t_s, tf, force, tw, width, peak=peak, sigma_f=sigma_f),
     )
 

@@ -16,8 +16,9 @@ endpoint. Per grasp (from a ``grasp_event`` *start* to its *end*):
   the data show the end; or at the grasp's end if that comes first. With a model loaded the
   final one is the hybrid ``auto`` estimate (:class:`~estimator.learned.hybrid.HybridEstimator`);
   for a depth model of the estimator's finger its input comes from the depths already computed
-  for the provisional estimates (:meth:`~estimator.stream.GraspStream.sampled_grasp`: the same
-  input the model would measure from the grasp record, without measuring a frame again), else
+  for the provisional estimates and reduced to the model's input size after each of them
+  (:meth:`~estimator.stream.GraspStream.sampled_grasp`: the same input the model would measure
+  from the grasp record, without measuring a frame again), else
   the model measures the grasp as received. Without a model it is the analytical one;
 * the grasp's end event, forwarded on the estimate endpoint after the final estimate, so a
   renderer that listens to estimates alone knows when to let go.
@@ -417,6 +418,9 @@ class EstimatorService:
             return
         result = stream.estimate(segment)
         self._publish(grasp, result.estimate, result.t_data_s, received_s, provisional=True)
+        if grasp.model is not None and _reads_stream_depths(grasp.model.predictor.variant):
+            # Ahead of the final estimate, which then reduces only the peak frame's depth.
+            stream.reduce_depths(grasp.model.predictor.variant.size_px)
 
     def _finish(self, grasp: _Grasp, received_s: float, *, by: str, segment: Segment | None = None) -> None:
         """The final estimate: the model's when one is pinned to the grasp, else (or when the
@@ -445,7 +449,7 @@ class EstimatorService:
         """The pinned model's estimate; a depth model of the estimator's finger reads the cached depths."""
         model, mode = grasp.model, self.model.mode
         variant = model.predictor.variant
-        if variant.image == "depth" and not variant.markers:
+        if _reads_stream_depths(variant):
             started = time.perf_counter()
             sampled = grasp.stream.sampled_grasp(n_frames=variant.n_frames, size_px=variant.size_px, segment=segment)
             if sampled:  # else the model's own answer without a tactile sample, from the record
@@ -492,6 +496,11 @@ class EstimatorService:
             "loading_frames": grasp.loading_frames,
             "model": None if grasp.model is None else str(self.model.model_dir),
         }
+
+
+def _reads_stream_depths(variant: Any) -> bool:
+    """Whether a model variant's input is the estimator finger's depths the stream caches."""
+    return variant.image == "depth" and not variant.markers
 
 
 def _ended_by(stream: GraspStream) -> str:

@@ -11,8 +11,14 @@ keeps what batch estimation would recompute:
   reference (the median of the last frames before the onset, as
   :func:`~estimator.measure.measure_grasp` takes it; if later data moves the reference, the
   cached depths are dropped and recomputed);
-* on every :meth:`GraspStream.estimate` the segmentation and the analytical fits run again over
-  everything that has arrived (a few hundred samples and tens of frames: vectorised and cheap).
+* the loading phase in the force and width (:func:`~estimator.segment.find_load_phase`) is
+  found again only when a force or width sample or the loading-end marker came; every
+  segmentation aligns the frames received on it (:func:`~estimator.segment.align_frames`), and
+  the model's sample of frames (:meth:`GraspStream.sampled_grasp`) is aligned on the same phase;
+* depth maps are reduced to the model's input size once per frame (:meth:`GraspStream.reduce_depths`
+  between frames: the final estimate then reduces only the frames that came since);
+* on every :meth:`GraspStream.estimate` the analytical fits run again over everything that has
+  arrived (a few hundred samples and tens of frames: vectorised and cheap).
 
 Given the same data, the estimate equals :func:`~estimator.measure.estimate_grasp` on the
 grasp record (without clock-lag corrections): same segmentation, reference, depth, features
@@ -85,7 +91,7 @@ from estimator.perception.calibration import Calibration
 from estimator.perception.depth import reconstruct_depth
 from estimator.perception.markers import detect_markers
 from estimator.perception.warp import warp_and_crop
-from estimator.segment import PEAK_FRAME_WINDOW_S, Segment, segment_grasp
+from estimator.segment import PEAK_FRAME_WINDOW_S, LoadPhase, Segment, align_frames, find_load_phase
 from teleop.errors import SettingsError
 from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Provenance, Samples
 from teleop.settings import Settings
@@ -255,6 +261,8 @@ class GraspStream:
         self._reference: np.ndarray | None = None
         self._features: dict[int, ContactFeatures] = {}  # frame position -> features of that frame
         self._depth: dict[int, np.ndarray] = {}  # frame position -> its depth (m), for the model's input
+        self._reduced: dict[tuple[int, tuple[int, int] | None], np.ndarray] = {}  # (position, size) -> reduced depth
+        self._phase: LoadPhase | None = None  # of the force and width so far; None: find it again
         self._loading_end_s: float | None = None
 
     def warm_up(self) -> None:
@@ -283,10 +291,12 @@ class GraspStream:
     def add_force(self, t_s: np.ndarray, value_n: np.ndarray) -> None:
         """Load-cell samples: capture times (s) and force (N). PerceptionError if malformed."""
         self._force.add(t_s, value_n, f"grasp {self.grasp_id!r} force")
+        self._phase = None
 
     def add_width(self, t_s: np.ndarray, value_m: np.ndarray) -> None:
         """Gripper width samples: capture times (s) and width (m). PerceptionError if malformed."""
         self._width.add(t_s, value_m, f"grasp {self.grasp_id!r} width")
+        self._phase = None
 
     def add_frame(self, finger: str, t_s: float, data: np.ndarray | bytes, encoding: str) -> bool:
         """One tactile frame as captured; True when it is the estimator's finger.
@@ -326,6 +336,7 @@ class GraspStream:
         if not np.isfinite(t_s):
             raise PerceptionError(f"grasp {self.grasp_id!r} loading end at {t_s!r}: not a finite time")
         self._loading_end_s = float(t_s)
+        self._phase = None
 
     @property
     def loading_end_s(self) -> float | None:
@@ -336,11 +347,17 @@ class GraspStream:
 
     def segment(self) -> Segment:
         """The segmentation of what has arrived (falsy with a reason before contact)."""
-        force, width = self._force.samples(), self._width.samples()
-        est = self.settings.estimator
-        return segment_grasp(force.t_s, force.value, width.t_s, width.value, self._frame_times(),
-                             contact_force_n=est.contact_force_n, n_frames=est.n_frames,
-                             stopped_s=self._loading_end_s)
+        return align_frames(self._load_phase(), self._frame_times(), n_frames=self.settings.estimator.n_frames)
+
+    def _load_phase(self) -> LoadPhase:
+        """The loading phase in the force and width so far, found again only after new samples or
+        the loading-end marker (a frame alone does not move it)."""
+        if self._phase is None:
+            force, width = self._force.samples(), self._width.samples()
+            self._phase = find_load_phase(force.t_s, force.value, width.t_s, width.value,
+                                          contact_force_n=self.settings.estimator.contact_force_n,
+                                          stopped_s=self._loading_end_s)
+        return self._phase
 
     def loading_complete(self, segment: Segment | None = None) -> bool:
         """Whether the loading phase has ended and every loading frame, the peak frame included,
@@ -418,20 +435,31 @@ class GraspStream:
         frame_t = self._frame_times()
         reference_index = reference_indices(frame_t, segment.t_onset_s - REFERENCE_GUARD_S)
         keep = np.concatenate([reference_index, segment.frame_index[distinct], segment.hold_index])
-        force, width = self._force.samples(), self._width.samples()
-        est = self.settings.estimator
-        # measure_grasp on the grasp restricted to those frames, as sample_grasp runs it.
-        restricted = segment_grasp(force.t_s, force.value, width.t_s, width.value, frame_t[keep],
-                                   contact_force_n=est.contact_force_n, n_frames=n_frames,
-                                   stopped_s=self._loading_end_s)
+        # measure_grasp on the grasp restricted to those frames, as sample_grasp runs it (the same
+        # loading phase: only the frames differ).
+        restricted = align_frames(self._load_phase(), frame_t[keep], n_frames=n_frames)
         m = self._measure(restricted, positions=keep, depth=True)
         if m.features is None or m.depth_m is None:
             return SampledGrasp(reason=m.tactile_reason or "tactile features were not measured")
         if m.t_s.size != distinct.size:
             return SampledGrasp(reason=f"{m.t_s.size} of the {distinct.size} sampled frames are usable")
         estimates = tuple(estimate_grasp(m, method, settings=self.settings) for method in ANALYTICAL_METHODS)
+        # reduce_images(m.depth_m, size_px) image by image, each frame reduced once per size.
+        reduced = np.stack([self._reduced_depth(int(i), size_px) for i in keep[restricted.frame_index]])
         return SampledGrasp(measurements=m, estimates=estimates, force_n=m.force_n[rows], width_m=m.width_m[rows],
-                            depth_m=reduce_images(m.depth_m, size_px)[rows])
+                            depth_m=reduced[rows])
+
+    def reduce_depths(self, size_px: tuple[int, int] | None) -> None:
+        """Reduce every depth computed so far to ``size_px`` now, as :meth:`sampled_grasp` will
+        (between frames, so the final estimate reduces only the frames that came since)."""
+        for position in self._depth:
+            self._reduced_depth(position, size_px)
+
+    def _reduced_depth(self, position: int, size_px: tuple[int, int] | None) -> np.ndarray:
+        key = (position, size_px)
+        if key not in self._reduced:
+            self._reduced[key] = reduce_images(self._depth[position][None], size_px)[0]
+        return self._reduced[key]
 
     def _measure(self, segment: Segment, *, positions: np.ndarray | None = None,
                  depth: bool = False) -> GraspMeasurements:
@@ -489,6 +517,7 @@ class GraspStream:
             self._reference_key = key
             self._features.clear()
             self._depth.clear()
+            self._reduced.clear()
 
     def _frame_features(self, position: int) -> ContactFeatures:
         cached = self._features.get(position)

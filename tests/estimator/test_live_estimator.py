@@ -19,7 +19,7 @@ import zmq
 from estimator.errors import CalibrationError, FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.measure import estimate_grasp, measure_grasp
-from estimator.segment import PEAK_FRAME_WINDOW_S
+from estimator.segment import PEAK_FRAME_WINDOW_S, segment_grasp
 from estimator.service import EstimatorService, ModelSlot
 from estimator.stream import GraspStream, choose_estimate, decode_frame
 from teleop.bus.pubsub import Publisher, Subscriber
@@ -96,6 +96,32 @@ def test_stream_fed_in_capture_order_ends_where_batch_estimation_is(settings, ca
     # The last loading frame is the peak frame, captured after the peak.
     assert segment.t_peak_s < final.t_data_s == segment.frame_t_s[-1] <= segment.t_peak_s + PEAK_FRAME_WINDOW_S
     assert final.loading_frames == segment.frame_index.size
+
+
+def test_stream_segmentation_follows_every_sample_frame_and_marker(settings, calibration, records):
+    # The stream keeps the loading phase between frames; any new force or width sample, or the
+    # marker (here right after a frame, with no sample between), must move it as segmenting
+    # everything received afresh would.
+    record = records["steel_ball_bearing"]
+    stop_s = record.events["grasp_done"]
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    est, finger = settings.estimator, settings.estimator.finger
+    checked = 0
+    for t, kind, body in in_capture_order(record):
+        is_frame = feed(stream, kind, body, t)
+        if is_frame and t >= stop_s and stream.loading_end_s is None:
+            stream.segment()
+            stream.mark_loading_end(stop_s)
+        received = stream.to_record()
+        frames = next((f.t_s for f in received.frames if f.finger == finger), np.zeros(0))
+        fresh = segment_grasp(received.force_n.t_s, received.force_n.value, received.width_m.t_s,
+                              received.width_m.value, frames, contact_force_n=est.contact_force_n,
+                              n_frames=est.n_frames, stopped_s=stream.loading_end_s)
+        kept = stream.segment()
+        for f in dataclasses.fields(fresh):
+            np.testing.assert_equal(getattr(kept, f.name), getattr(fresh, f.name), err_msg=f.name)
+        checked += bool(fresh)
+    assert checked > 20 and stream.loading_end_s == stop_s
 
 
 def test_stream_estimates_are_provisional_until_contact_and_move_with_the_data(settings, calibration, records):
@@ -439,6 +465,7 @@ def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_c
     for t, kind, body in items:
         if feed(stream, kind, body, t) and stream.segment():
             stream.estimate()  # as the provisional estimates do: every frame's depth is cached
+            stream.reduce_depths((64, 88))  # and, with a model, reduced to its input size
     assert not stream.loading_complete()  # the force has not settled past its peak yet
     stream.add_width(np.array([stop_read[0]]), np.array([stop_read[1]]))
     stream.mark_loading_end(stop_s)
