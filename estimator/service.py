@@ -18,8 +18,8 @@ endpoint. Per grasp (from a ``grasp_event`` *start* to its *end*):
   for a depth model of the estimator's finger its input comes from the depths already computed
   for the provisional estimates and reduced to the model's input size after each of them
   (:meth:`~estimator.stream.GraspStream.sampled_grasp`: the same input the model would measure
-  from the grasp record, without measuring a frame again), else
-  the model measures the grasp as received. Without a model it is the analytical one;
+  from the grasp record, without measuring a frame again), else the model measures the grasp
+  as received. Without a model it is the analytical one;
 * the grasp's end event, forwarded on the estimate endpoint after the final estimate, so a
   renderer that listens to estimates alone knows when to let go.
 
