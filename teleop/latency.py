@@ -43,6 +43,17 @@ estimator service, haptic renderer on the simulated display; no session recorder
     Per estimate (provisional and final), from the estimator receiving the message that
     triggered it to publishing it (the message's ``latency_s``).
 
+``frame_baseline_ms``, ``frame_baseline_before_ms``, ``frame_baseline_after_ms``
+    The machine's speed at the time, measured in this (the benchmark's) process while the live
+    system is not running, before and after it: the median time of one tactile frame's
+    perception as the estimator does it for the peak frame (JPEG decode, warp, depth and contact
+    features of a simulated 2 mm ball press on the estimator's finger), over
+    :data:`BASELINE_REPEATS` frames each time; ``frame_baseline_ms`` is the median of both sets.
+    On a shared or throttled machine it moves with the latencies (the final estimate is mostly
+    this work), so runs taken at different times compare through the latencies in its units:
+``p50_in_baselines``, ``p99_in_baselines``
+    The latency quantiles divided by ``frame_baseline_ms``.
+
 ``per_grasp``
     Each measured grasp in run order: ``grasp_id``, ``object``, ``latency_ms``,
     ``decision_ms``, ``final_compute_ms``, ``delivery_ms`` and ``final_by``. The text
@@ -61,7 +72,7 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -77,11 +88,70 @@ from teleop.demo import (
     scene_plan,
 )
 from teleop.errors import TeleopError
+from teleop.settings import Settings, load_settings
 
-__all__ = ["latency_summary", "plot", "slowest"]
+if TYPE_CHECKING:
+    from estimator.perception.calibration import Calibration
+
+__all__ = ["baseline_figures", "baseline_press", "frame_baseline_ms", "latency_summary", "plot", "slowest"]
 
 P99_AIM_MS = 15.0  # the issue's aim for the last loading frame -> HID report p99
 SLOWEST_SHOWN = 3
+BASELINE_REPEATS = 30  # frames timed before and after the run
+BASELINE_BALL_RADIUS_M = 2e-3
+BASELINE_PRESS_DEPTH_M = 6e-4
+
+
+def baseline_press(settings: Settings, *, seed: int = 0) -> tuple[bytes, bytes]:
+    """JPEG captures (pressed, untouched) of the estimator's finger by its simulated camera: a
+    :data:`BASELINE_BALL_RADIUS_M` ball pressed :data:`BASELINE_PRESS_DEPTH_M` into the gel's centre."""
+    from teleop.sim.optics import TactileCamera
+    from teleop.sim.presses import sphere_press_height
+
+    sensor = settings.sensor(settings.estimator.finger)
+    camera = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(seed))
+    rows, cols = sensor.image_shape
+    press = sphere_press_height(sensor.image_shape, center_px=((cols - 1) / 2.0, (rows - 1) / 2.0),
+                                ball_radius_m=BASELINE_BALL_RADIUS_M, depth_m=BASELINE_PRESS_DEPTH_M,
+                                pixel_pitch_m=sensor.pixel_pitch_m)
+    return camera.capture(press), camera.capture(np.zeros(sensor.image_shape))
+
+
+def frame_baseline_ms(settings: Settings, calibration: Calibration, *, repeats: int = BASELINE_REPEATS,
+                      seed: int = 0) -> list[float]:
+    """Times (ms) this process takes for one tactile frame's perception, ``repeats`` times.
+
+    Each repeat takes the :func:`baseline_press` capture as the estimator takes the peak frame
+    (:class:`~estimator.stream.GraspStream`): decodes it, warps it when the sensor is a wedge,
+    finds its markers when it has them, reconstructs its depth against the untouched capture
+    and measures its contact features.
+    """
+    from estimator.features import contact_features
+    from estimator.perception.depth import reconstruct_depth
+    from estimator.perception.markers import detect_markers
+    from estimator.perception.warp import warp_and_crop
+    from estimator.stream import decode_frame
+
+    if repeats < 1:
+        raise TeleopError(f"frame baseline repeats {repeats}: expected at least 1")
+    sensor = settings.sensor(settings.estimator.finger)
+    pressed, untouched = baseline_press(settings, seed=seed)
+
+    def perceive(data: bytes) -> np.ndarray:
+        image = decode_frame(data, "jpeg")
+        return warp_and_crop(image, sensor) if sensor.model == "wedge" else image
+
+    reference = perceive(untouched)
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        frame = perceive(pressed)
+        mask = detect_markers(frame, reference) if sensor.markers else None
+        depth = reconstruct_depth(frame, reference, calibration, marker_mask=mask)
+        contact_features(depth[None], pixel_pitch_m=sensor.pixel_pitch_m,
+                         contact_threshold_m=sensor.contact_threshold_m)
+        times.append((time.perf_counter() - started) * 1e3)
+    return times
 
 
 def _quantiles(values: Sequence[float], prefix: str) -> dict[str, float | None]:
@@ -141,6 +211,15 @@ def latency_summary(outcomes: Sequence[GraspOutcome], compute_s: Sequence[float]
     }
 
 
+def baseline_figures(before_ms: Sequence[float], after_ms: Sequence[float]) -> dict[str, float]:
+    """``frame_baseline_ms`` (median of both sets), ``frame_baseline_before_ms`` and ``..._after_ms``."""
+    if not before_ms or not after_ms:
+        raise TeleopError("frame baseline: expected timings before and after the run")
+    return {"frame_baseline_ms": float(np.median([*before_ms, *after_ms])),
+            "frame_baseline_before_ms": float(np.median(before_ms)),
+            "frame_baseline_after_ms": float(np.median(after_ms))}
+
+
 def slowest(summary: dict[str, Any], count: int = SLOWEST_SHOWN) -> list[str]:
     """Lines naming the ``count`` slowest grasps and where their time went."""
     rows = sorted(summary["per_grasp"], key=lambda r: r["latency_ms"], reverse=True)[:count]
@@ -194,7 +273,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "report that shows the final estimate (p50, p99, split into decision and delivery; for grasps "
         "ended by the robot's loading-end marker also the peak frame's delay after the stop and the time from "
         "the stop to the report), the rate of provisional estimates while a grasp loads (the camera gives "
-        "30 Hz) and the estimator's compute time per estimate."
+        "30 Hz), the estimator's compute time per estimate, and the machine's speed at the time (one tactile "
+        "frame's perception timed in this process before and after the run, with the latency in those units, "
+        "so runs on a shared machine compare)."
     )
     add_run_arguments(parser, default_scene="default")
     parser.add_argument("--grasps", type=int, default=20, metavar="N",
@@ -206,11 +287,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from estimator.perception.calibration import load_calibration
+
     if args.grasps < 1:
         raise TeleopError(f"--grasps {args.grasps}: expected at least 1")
     plan = scene_plan(args.scene, args.grasps)
     log = sys.stderr
     run_dir, calibration = prepare_run(args, prefix="bench-latency", out=log)
+    settings = load_settings(args.settings)
+    baseline_calibration = load_calibration(calibration)
+    baseline_before = frame_baseline_ms(settings, baseline_calibration)
     compute_s: list[float] = []
 
     def watch(message: Message) -> None:
@@ -222,8 +308,13 @@ def run(args: argparse.Namespace) -> int:
     system = LiveSystem(Path(args.settings), args.scene, run_dir, calibration, record=args.record)
     with interrupted_by_sigterm(), system:
         outcomes = list(run_grasps(system, plan, view, "bench", on_message=watch))
-    summary = {**latency_summary(outcomes, compute_s), "scene": args.scene, "run_dir": str(run_dir),
-               "wall_s": time.monotonic() - started}
+    wall_s = time.monotonic() - started
+    baseline_after = frame_baseline_ms(settings, baseline_calibration)
+    summary = {**latency_summary(outcomes, compute_s), **baseline_figures(baseline_before, baseline_after),
+               "scene": args.scene, "run_dir": str(run_dir), "wall_s": wall_s}
+    for key in ("p50", "p99"):
+        summary[f"{key}_in_baselines"] = (None if summary[f"{key}_ms"] is None
+                                          else summary[f"{key}_ms"] / summary["frame_baseline_ms"])
 
     def ms(key: str) -> str:
         return "-" if summary[key] is None else f"{summary[key]:.1f} ms"
@@ -241,6 +332,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"finals by trigger: {summary['finals_by']}")
     print(f"estimator compute per estimate:       p50 {ms('compute_p50_ms')}, p99 {ms('compute_p99_ms')}")
     print(f"provisional estimates while loading:  {'-' if hz is None else f'{hz:.1f} Hz'} (camera: 30 Hz)")
+    print(f"machine speed: one frame's decode, warp, depth and features take {ms('frame_baseline_ms')} in this "
+          f"process (before the run {ms('frame_baseline_before_ms')}, after it {ms('frame_baseline_after_ms')})")
+    if summary["p50_in_baselines"] is not None:
+        print(f"  the latency in those frames: p50 {summary['p50_in_baselines']:.2f}, "
+              f"p99 {summary['p99_in_baselines']:.2f}")
     if summary["per_grasp"]:
         print("slowest grasps:")
         print("\n".join(slowest(summary)))

@@ -25,7 +25,15 @@ from teleop.demo import (
     scene_plan,
 )
 from teleop.errors import SettingsError, TeleopError
-from teleop.latency import latency_summary, plot, slowest
+from teleop.latency import (
+    BASELINE_PRESS_DEPTH_M,
+    baseline_figures,
+    baseline_press,
+    frame_baseline_ms,
+    latency_summary,
+    plot,
+    slowest,
+)
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.session.logfile import LogReader
 from teleop.settings import default_settings_path, load_settings
@@ -152,6 +160,37 @@ def test_latency_summary_keeps_each_grasp_and_names_the_slowest_with_where_the_t
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(TeleopError, match="no grasp has a measured final"):
         plot(latency_summary([lost], []), tmp_path / "none.png")
+
+
+def test_the_frame_baseline_times_the_perception_of_a_press_the_estimator_sees():
+    from estimator.features import contact_features
+    from estimator.measure import resolve_calibration
+    from estimator.perception.depth import reconstruct_depth
+    from estimator.perception.warp import warp_and_crop
+    from estimator.stream import decode_frame
+
+    settings = load_settings(default_settings_path())
+    sensor = settings.sensor(settings.estimator.finger)
+    calibration = resolve_calibration(sensor, None)
+    pressed, untouched = baseline_press(settings)
+    frame, reference = (warp_and_crop(decode_frame(data, "jpeg"), sensor) for data in (pressed, untouched))
+    depth = reconstruct_depth(frame, reference, calibration)
+    features = contact_features(depth[None], pixel_pitch_m=sensor.pixel_pitch_m,
+                                contact_threshold_m=sensor.contact_threshold_m)
+    # The timed frame is a real contact: its depth is the press's, within the simulator's optics.
+    assert features.peak_depth_m[0] == pytest.approx(BASELINE_PRESS_DEPTH_M, rel=0.5)
+    assert not features.touches_edge[0]
+    times = frame_baseline_ms(settings, calibration, repeats=3)
+    assert len(times) == 3 and all(0 < t < 10_000 for t in times)
+    with pytest.raises(TeleopError, match="repeats 0"):
+        frame_baseline_ms(settings, calibration, repeats=0)
+
+
+def test_baseline_figures_are_the_medians_before_after_and_of_both():
+    figures = baseline_figures([4.0, 5.0, 9.0], [6.0, 7.0, 8.0])
+    assert figures == {"frame_baseline_ms": 6.5, "frame_baseline_before_ms": 5.0, "frame_baseline_after_ms": 7.0}
+    with pytest.raises(TeleopError, match="before and after"):
+        baseline_figures([], [1.0])
 
 
 def test_report_reader_takes_complete_lines_only(tmp_path):
@@ -312,7 +351,10 @@ def test_bench_latency_prints_its_figures(tmp_path, capsys):
     assert summary["grasps"] == summary["finals_measured"] == 2
     assert 0 < summary["p50_ms"] <= summary["p99_ms"] < 2000 and summary["provisional_hz"] > 0
     assert summary["delivery_p50_ms"] < summary["p50_ms"]
+    assert summary["frame_baseline_before_ms"] > 0 and summary["frame_baseline_after_ms"] > 0
+    assert summary["p99_in_baselines"] == pytest.approx(summary["p99_ms"] / summary["frame_baseline_ms"])
     assert any(line.startswith("last loading frame -> display report: p50") for line in out)
+    assert any(line.startswith("machine speed: one frame's decode") for line in out)
     assert our_live_children() == []
 
 
