@@ -94,7 +94,7 @@ from estimator.perception.warp import warp_and_crop
 from estimator.segment import PEAK_FRAME_WINDOW_S, LoadPhase, Segment, align_frames, find_load_phase
 from teleop.errors import SettingsError
 from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Provenance, Samples
-from teleop.settings import Settings
+from teleop.settings import SensorSettings, Settings
 
 __all__ = [
     "DEFAULT_METHODS",
@@ -102,13 +102,35 @@ __all__ = [
     "GraspStream",
     "StreamEstimate",
     "choose_estimate",
+    "decode_and_warp",
     "decode_frame",
+    "measure_frame",
 ]
 
 DEFAULT_METHODS = ("split", "hertz", "elastic", "no_tactile")
 # Force samples this long after the peak, all within the peak tolerance, end the loading phase.
 LOADING_SETTLED_S = 0.1
 ENCODINGS = ("jpeg", "png", "raw")
+
+
+def decode_and_warp(data: np.ndarray | bytes, encoding: str, sensor: SensorSettings, *,
+                    where: str = "frame") -> np.ndarray:
+    """A frame of ``sensor`` in the pixel frame its calibration applies to: decoded
+    (:func:`decode_frame`) and, for a wedge sensor, warped and cropped
+    (:func:`~estimator.perception.warp.warp_and_crop`). Raises PerceptionError as those do."""
+    image = decode_frame(data, encoding, where=where)
+    return warp_and_crop(image, sensor) if sensor.model == "wedge" else image
+
+
+def measure_frame(frame: np.ndarray, reference: np.ndarray, calibration: Calibration,
+                  sensor: SensorSettings) -> tuple[np.ndarray, ContactFeatures]:
+    """Depth (m, float32, the calibration's grid) and contact features of one frame from
+    :func:`decode_and_warp` against its no-contact reference, as :func:`~estimator.measure.measure_tactile`
+    measures each frame (markers found and inpainted first when the sensor has them)."""
+    mask = detect_markers(frame, reference) if sensor.markers else None
+    depth = reconstruct_depth(frame, reference, calibration, marker_mask=mask)
+    return depth, contact_features(depth[None], pixel_pitch_m=sensor.pixel_pitch_m,
+                                   contact_threshold_m=sensor.contact_threshold_m)
 
 
 def decode_frame(data: np.ndarray | bytes, encoding: str, *, where: str = "frame") -> np.ndarray:
@@ -318,8 +340,7 @@ class GraspStream:
         if frames.encoding not in (None, stored):
             raise PerceptionError(f"{where}: {encoding} after {frames.encoding} frames")
         if finger == self.finger:
-            image = decode_frame(data, encoding, where=where)
-            self._images.append(warp_and_crop(image, sensor) if sensor.model == "wedge" else image)
+            self._images.append(decode_and_warp(data, encoding, sensor, where=where))
         if encoding == "raw":  # kept lossless, as a grasp record stores raw frames
             image = decode_frame(data, encoding, where=where)
             data = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])[1]
@@ -522,11 +543,7 @@ class GraspStream:
     def _frame_features(self, position: int) -> ContactFeatures:
         cached = self._features.get(position)
         if cached is None:
-            frame = self._images[position]
-            mask = detect_markers(frame, self._reference) if self.sensor.markers else None
-            depth = reconstruct_depth(frame, self._reference, self.calibration, marker_mask=mask)
-            cached = contact_features(depth[None], pixel_pitch_m=self.sensor.pixel_pitch_m,
-                                      contact_threshold_m=self.sensor.contact_threshold_m)
+            depth, cached = measure_frame(self._images[position], self._reference, self.calibration, self.sensor)
             self._features[position] = cached
             self._depth[position] = depth
         return cached

@@ -122,34 +122,20 @@ def frame_baseline_ms(settings: Settings, calibration: Calibration, *, repeats: 
     """Times (ms) this process takes for one tactile frame's perception, ``repeats`` times.
 
     Each repeat takes the :func:`baseline_press` capture as the estimator takes the peak frame
-    (:class:`~estimator.stream.GraspStream`): decodes it, warps it when the sensor is a wedge,
-    finds its markers when it has them, reconstructs its depth against the untouched capture
-    and measures its contact features.
+    (:class:`~estimator.stream.GraspStream`): :func:`~estimator.stream.decode_and_warp`, then
+    :func:`~estimator.stream.measure_frame` against the untouched capture (depth and contact features).
     """
-    from estimator.features import contact_features
-    from estimator.perception.depth import reconstruct_depth
-    from estimator.perception.markers import detect_markers
-    from estimator.perception.warp import warp_and_crop
-    from estimator.stream import decode_frame
+    from estimator.stream import decode_and_warp, measure_frame
 
     if repeats < 1:
         raise TeleopError(f"frame baseline repeats {repeats}: expected at least 1")
     sensor = settings.sensor(settings.estimator.finger)
     pressed, untouched = baseline_press(settings, seed=seed)
-
-    def perceive(data: bytes) -> np.ndarray:
-        image = decode_frame(data, "jpeg")
-        return warp_and_crop(image, sensor) if sensor.model == "wedge" else image
-
-    reference = perceive(untouched)
+    reference = decode_and_warp(untouched, "jpeg", sensor)
     times = []
     for _ in range(repeats):
         started = time.perf_counter()
-        frame = perceive(pressed)
-        mask = detect_markers(frame, reference) if sensor.markers else None
-        depth = reconstruct_depth(frame, reference, calibration, marker_mask=mask)
-        contact_features(depth[None], pixel_pitch_m=sensor.pixel_pitch_m,
-                         contact_threshold_m=sensor.contact_threshold_m)
+        measure_frame(decode_and_warp(pressed, "jpeg", sensor), reference, calibration, sensor)
         times.append((time.perf_counter() - started) * 1e3)
     return times
 

@@ -163,20 +163,15 @@ def test_latency_summary_keeps_each_grasp_and_names_the_slowest_with_where_the_t
 
 
 def test_the_frame_baseline_times_the_perception_of_a_press_the_estimator_sees():
-    from estimator.features import contact_features
     from estimator.measure import resolve_calibration
-    from estimator.perception.depth import reconstruct_depth
-    from estimator.perception.warp import warp_and_crop
-    from estimator.stream import decode_frame
+    from estimator.stream import decode_and_warp, measure_frame
 
     settings = load_settings(default_settings_path())
     sensor = settings.sensor(settings.estimator.finger)
     calibration = resolve_calibration(sensor, None)
     pressed, untouched = baseline_press(settings)
-    frame, reference = (warp_and_crop(decode_frame(data, "jpeg"), sensor) for data in (pressed, untouched))
-    depth = reconstruct_depth(frame, reference, calibration)
-    features = contact_features(depth[None], pixel_pitch_m=sensor.pixel_pitch_m,
-                                contact_threshold_m=sensor.contact_threshold_m)
+    frame, reference = (decode_and_warp(data, "jpeg", sensor) for data in (pressed, untouched))
+    _, features = measure_frame(frame, reference, calibration, sensor)
     # The timed frame is a real contact: its depth is the press's, within the simulator's optics.
     assert features.peak_depth_m[0] == pytest.approx(BASELINE_PRESS_DEPTH_M, rel=0.5)
     assert not features.touches_edge[0]
