@@ -459,13 +459,13 @@ class GraspStream:
         # measure_grasp on the grasp restricted to those frames, as sample_grasp runs it (the same
         # loading phase: only the frames differ).
         restricted = align_frames(self._load_phase(), frame_t[keep], n_frames=n_frames)
-        m = self._measure(restricted, positions=keep, depth=True)
-        if m.features is None or m.depth_m is None:
+        m = self._measure(restricted, positions=keep)
+        if m.features is None:
             return SampledGrasp(reason=m.tactile_reason or "tactile features were not measured")
         if m.t_s.size != distinct.size:
             return SampledGrasp(reason=f"{m.t_s.size} of the {distinct.size} sampled frames are usable")
         estimates = tuple(estimate_grasp(m, method, settings=self.settings) for method in ANALYTICAL_METHODS)
-        # reduce_images(m.depth_m, size_px) image by image, each frame reduced once per size.
+        # reduce_images of the loading frames' depths, image by image, each frame reduced once per size.
         reduced = np.stack([self._reduced_depth(int(i), size_px) for i in keep[restricted.frame_index]])
         return SampledGrasp(measurements=m, estimates=estimates, force_n=m.force_n[rows], width_m=m.width_m[rows],
                             depth_m=reduced[rows])
@@ -482,13 +482,12 @@ class GraspStream:
             self._reduced[key] = reduce_images(self._depth[position][None], size_px)[0]
         return self._reduced[key]
 
-    def _measure(self, segment: Segment, *, positions: np.ndarray | None = None,
-                 depth: bool = False) -> GraspMeasurements:
+    def _measure(self, segment: Segment, *, positions: np.ndarray | None = None) -> GraspMeasurements:
         """:class:`GraspMeasurements` of the loading (and hold) frames so far, as ``measure_grasp``
         builds them.
 
         ``positions`` maps the segment's frames to the frames received (None: they are the
-        frames received); ``depth`` also stacks the loading frames' depth maps.
+        frames received). The depth maps stay in the cache (the model reads them reduced).
         """
         stiffness = self.settings.gripper.finger_stiffness_n_per_m
         frame_t = self._frame_times()
@@ -523,8 +522,7 @@ class GraspStream:
         loading = self._stacked_features(loading_positions)
         hold = (self._stacked_features(positions[segment.hold_index]) if segment.hold_index.size
                 else loading.take(slice(0, 0)))
-        depth_m = np.stack([self._depth[int(i)] for i in loading_positions]) if depth else None
-        return dataclasses.replace(measurements, features=loading, hold_features=hold, depth_m=depth_m)
+        return dataclasses.replace(measurements, features=loading, hold_features=hold)
 
     def _stacked_features(self, positions: np.ndarray) -> ContactFeatures:
         features = [self._frame_features(int(i)) for i in positions]
