@@ -9,6 +9,14 @@ Configurations
     An analytical method over ``N`` frames sampled across the loading phase
     (:func:`~estimator.learned.inputs.sample_grasp`, depth for those frames
     only; the four fits run together, so these share their cost).
+``<method>/bin<K>`` (with ``--binning K``)
+    An analytical method over every loading frame, measured on a K times coarser grid: each
+    frame of the estimator's finger warped and cropped as usual, then averaged over K x K
+    pixel blocks (``cv2.INTER_AREA``), and its depth and contact features computed there with
+    the same calibration table at K times the pixel pitch (:func:`binned_record`). The colour
+    lookup, the Poisson solve and the contact features then see K^2 times fewer pixels; the
+    warp still runs on the full grid, so the time is an upper bound of a binned estimator's.
+    Whether the coarser depth keeps the error is what the configuration measures.
 ``<hybrid|cnn>[<variant> <N>f <rows>x<cols>]`` and ``auto[...]``
     A trained model (``--models``), and its ``auto`` mode
     (:mod:`estimator.learned.hybrid`).
@@ -46,7 +54,7 @@ import json
 import os
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -60,16 +68,24 @@ from estimator.estimate import Estimate
 from estimator.evaluate import answered_by, result_row, summarise
 from estimator.learned.hybrid import HybridEstimator
 from estimator.learned.infer import CompliancePredictor, default_model_dir
-from estimator.learned.inputs import calibration_for, decoded, no_contact_reference, sample_grasp
+from estimator.learned.inputs import (
+    DecodedFrameStream,
+    calibration_for,
+    decoded,
+    no_contact_reference,
+    sample_grasp,
+)
 from estimator.measure import estimate_grasp, measure_grasp
 from estimator.perception.calibration import Calibration
+from estimator.perception.warp import warp_and_crop
 from teleop.errors import RecordError
 from teleop.record import GraspRecord, read_record
-from teleop.settings import Settings, default_settings_path, load_settings
+from teleop.settings import SensorSettings, Settings, default_settings_path, load_settings
 
-__all__ = ["BenchConfig", "bench", "configurations", "pareto_front"]
+__all__ = ["BenchConfig", "bench", "binned_record", "binned_sensor", "configurations", "pareto_front"]
 
 SAMPLED_METHODS = ("elastic", "hertz", "split")
+TACTILE_METHODS = tuple(m for m in METHODS if m != "no_tactile")  # the ones a depth grid can change
 
 
 @dataclass(frozen=True)
@@ -84,10 +100,68 @@ class BenchConfig:
     run: Callable[[GraspRecord], Estimate]
 
 
+def binned_sensor(sensor: SensorSettings, binning: int) -> SensorSettings:
+    """``sensor`` as a sensor of a ``binning`` times coarser grid: a flat sensor (no warp) whose frames
+    are the warped and cropped ones binned, with ``binning`` times the pixel pitch (the same pad).
+
+    Raises EstimatorError when ``binning`` is not a whole number >= 2 that divides both sides of
+    ``sensor.image_shape``, or the sensor has markers (their detection works on the full grid).
+    """
+    rows, cols = sensor.image_shape
+    if isinstance(binning, bool) or not isinstance(binning, int) or binning < 2 or rows % binning or cols % binning:
+        raise EstimatorError(f"binning {binning!r}: expected a whole number >= 2 dividing both sides of sensor "
+                             f"{sensor.finger!r}'s {rows} x {cols} px grid")
+    if sensor.markers:
+        raise EstimatorError(f"binning {binning}: sensor {sensor.finger!r} has markers, which are found and "
+                             "inpainted on the full grid only; bench a finger without markers")
+    return replace(sensor, model="mini", raw_width_px=cols // binning, raw_height_px=rows // binning,
+                   warped_width_px=cols // binning, warped_height_px=rows // binning, crop_px=0,
+                   pixel_pitch_m=sensor.pixel_pitch_m * binning)
+
+
+class _BinnedFrameStream(DecodedFrameStream):
+    """A decoded stream whose frames come warped, cropped and binned, each when asked for."""
+
+    def __init__(self, stream: DecodedFrameStream, sensor: SensorSettings, binned: SensorSettings):
+        super().__init__(stream, stream.images)
+        object.__setattr__(self, "sensor", sensor)
+        object.__setattr__(self, "binned_shape", (binned.raw_width_px, binned.raw_height_px))
+
+    def frame(self, index: int) -> np.ndarray:
+        return cv2.resize(warp_and_crop(self.images[index], self.sensor), self.binned_shape,
+                          interpolation=cv2.INTER_AREA)
+
+
+def binned_record(record: GraspRecord, finger: str, binning: int) -> GraspRecord:
+    """``record`` (decoded, see :func:`~estimator.learned.inputs.decoded`) as a sensor of a ``binning``
+    times coarser grid would have captured ``finger``'s frames (:func:`binned_sensor`); the other
+    fingers, force and width unchanged. Frames are binned when measured, not here."""
+    sensor = record.sensor(finger)
+    binned = binned_sensor(sensor, binning)
+    stream = record.stream(finger)
+    if not isinstance(stream, DecodedFrameStream):
+        raise EstimatorError(f"binned_record: finger {finger!r}'s frames are not decoded; pass decoded(record)")
+    return replace(record, sensors=tuple(binned if s.finger == finger else s for s in record.sensors),
+                   frames=tuple(_BinnedFrameStream(s, sensor, binned) if s is stream else s for s in record.frames))
+
+
+def _binned_calibration(calibration: Calibration, binned: SensorSettings) -> Calibration:
+    """The same colour-to-gradient table on the binned grid (tiles keep their share of the image)."""
+    return Calibration(lut=calibration.lut, image_shape=binned.image_shape, pixel_pitch_m=binned.pixel_pitch_m,
+                       ball_radius_m=calibration.ball_radius_m, relative_range=calibration.relative_range,
+                       provenance={**calibration.provenance, "binned_to": list(binned.image_shape)})
+
+
 def configurations(
-    *, settings: Settings, calibration: str | None, frames: Sequence[int], models: Sequence[CompliancePredictor]
+    *, settings: Settings, calibration: str | None, frames: Sequence[int], models: Sequence[CompliancePredictor],
+    binning: Sequence[int] = (),
 ) -> list[BenchConfig]:
-    """Every analytical method on all loading frames and on each of ``frames``, and every model with ``auto``."""
+    """Every analytical method on all loading frames and on each of ``frames``, the tactile ones on each
+    ``binning`` of the depth grid, and every model with ``auto``."""
+    finger = settings.estimator.finger
+    for k in binning:  # a bad factor fails here, before any record is read
+        binned_sensor(settings.sensor(finger), k)
+    binned_calibrations: dict[tuple[int, int], Calibration] = {}
 
     def calibrated(record: GraspRecord) -> Calibration:
         return calibration_for(record, settings.estimator.finger, calibration)
@@ -101,7 +175,19 @@ def configurations(
             return next(e for e in s.estimates if e.method == method) if s else Estimate.refuse(method, s.reason)
         return run
 
+    def binned(method: str, k: int) -> Callable[[GraspRecord], Estimate]:
+        def run(record: GraspRecord) -> Estimate:
+            coarse = binned_record(record, finger, k)
+            full = calibrated(record)
+            key = (id(full), k)
+            if key not in binned_calibrations:
+                binned_calibrations[key] = _binned_calibration(full, coarse.sensor(finger))
+            return estimate_grasp(coarse, method, settings=settings, calibration=binned_calibrations[key])
+        return run
+
     configs = [BenchConfig(m, "analytical", m, None, None, analytical(m)) for m in METHODS]
+    configs += [BenchConfig(f"{m}/bin{k}", "analytical", m, None, None, binned(m, k))
+                for k in binning for m in TACTILE_METHODS]
     configs += [BenchConfig(f"{m}@{n}f", "sampled", m, n, None, sampled(m, n)) for n in frames for m in SAMPLED_METHODS]
     for predictor in models:
         estimator = HybridEstimator(predictor, settings=settings, calibration=calibration)
@@ -273,8 +359,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Median latency per grasp on one core (in-process, from decoded frames, after warm-up) and "
         "error over the labelled .grasp records in DIR of every configuration: each analytical "
-        "method over all loading frames and over N sampled frames, each model given (hybrid or cnn) "
-        "and its auto mode. Marks the Pareto frontier of latency against error."
+        "method over all loading frames and over N sampled frames, the tactile ones on coarser depth "
+        "grids (--binning), each model given (hybrid or cnn) and its auto mode. Marks the Pareto "
+        "frontier of latency against error."
     )
     parser.add_argument("dir", metavar="DIR", help="directory searched recursively for labelled .grasp records")
     parser.add_argument("--models", nargs="*", metavar="MODEL_DIR", default=None,
@@ -282,6 +369,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, nargs="*", metavar="N", default=None,
                         help="frame counts of the sampled analytical configurations (default: those of the "
                              "models, else the settings' n_frames)")
+    parser.add_argument("--binning", type=int, nargs="*", metavar="K", default=[],
+                        help="also run the tactile analytical methods with depth measured on a K times coarser "
+                             "grid (K x K pixel blocks averaged; K divides both sides of the image grid, e.g. 2 "
+                             "or 5 for 250 x 350 px): speed against error of a coarser measurement")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per grasp and configuration")
     parser.add_argument("--limit", type=int, default=None, metavar="K", help="bench only the first K records")
     parser.add_argument("--calibration", metavar="CAL", default=None,
@@ -310,7 +401,8 @@ def run(args: argparse.Namespace) -> int:
     frames = args.frames
     if frames is None:
         frames = sorted({m.variant.n_frames for m in models}) or [settings.estimator.n_frames]
-    configs = configurations(settings=settings, calibration=args.calibration, frames=frames, models=models)
+    configs = configurations(settings=settings, calibration=args.calibration, frames=frames, models=models,
+                             binning=args.binning)
     result = {"dir": str(root), **bench(paths, settings=settings, configs=configs, repeats=args.repeats),
               "models": [{"dir": str(m.model_dir), "variant": m.variant.name,
                           "measurement_code_matches": m.measurement_code_matches} for m in models],
