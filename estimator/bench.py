@@ -125,10 +125,10 @@ class _BinnedFrameStream(DecodedFrameStream):
     def __init__(self, stream: DecodedFrameStream, sensor: SensorSettings, binned: SensorSettings):
         super().__init__(stream, stream.images)
         object.__setattr__(self, "sensor", sensor)
-        object.__setattr__(self, "binned_shape", (binned.raw_width_px, binned.raw_height_px))
+        object.__setattr__(self, "binned_size_px", (binned.raw_width_px, binned.raw_height_px))
 
     def frame(self, index: int) -> np.ndarray:
-        return cv2.resize(warp_and_crop(self.images[index], self.sensor), self.binned_shape,
+        return cv2.resize(warp_and_crop(self.images[index], self.sensor), self.binned_size_px,
                           interpolation=cv2.INTER_AREA)
 
 
