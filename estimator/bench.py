@@ -164,7 +164,7 @@ def configurations(
     binned_calibrations: dict[tuple[int, int], Calibration] = {}
 
     def calibrated(record: GraspRecord) -> Calibration:
-        return calibration_for(record, settings.estimator.finger, calibration)
+        return calibration_for(record, finger, calibration)
 
     def analytical(method: str) -> Callable[[GraspRecord], Estimate]:
         return lambda record: estimate_grasp(record, method, settings=settings, calibration=calibrated(record))
