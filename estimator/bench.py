@@ -75,7 +75,7 @@ from estimator.learned.inputs import (
     no_contact_reference,
     sample_grasp,
 )
-from estimator.measure import estimate_grasp, measure_grasp
+from estimator.measure import TACTILE_METHODS, estimate_grasp, measure_grasp
 from estimator.perception.calibration import Calibration
 from estimator.perception.warp import warp_and_crop
 from teleop.errors import RecordError
@@ -83,9 +83,6 @@ from teleop.record import GraspRecord, read_record
 from teleop.settings import SensorSettings, Settings, default_settings_path, load_settings
 
 __all__ = ["BenchConfig", "bench", "binned_record", "binned_sensor", "configurations", "pareto_front"]
-
-SAMPLED_METHODS = ("elastic", "hertz", "split")
-TACTILE_METHODS = tuple(m for m in METHODS if m != "no_tactile")  # the ones a depth grid can change
 
 
 @dataclass(frozen=True)
@@ -188,7 +185,7 @@ def configurations(
     configs = [BenchConfig(m, "analytical", m, None, None, analytical(m)) for m in METHODS]
     configs += [BenchConfig(f"{m}/bin{k}", "analytical", m, None, None, binned(m, k))
                 for k in binning for m in TACTILE_METHODS]
-    configs += [BenchConfig(f"{m}@{n}f", "sampled", m, n, None, sampled(m, n)) for n in frames for m in SAMPLED_METHODS]
+    configs += [BenchConfig(f"{m}@{n}f", "sampled", m, n, None, sampled(m, n)) for n in frames for m in TACTILE_METHODS]
     for predictor in models:
         estimator = HybridEstimator(predictor, settings=settings, calibration=calibration)
         v = predictor.variant
