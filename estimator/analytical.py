@@ -266,7 +266,8 @@ def _falling_depth(approach: np.ndarray, depth: np.ndarray, noise: MeasurementNo
     finite = np.isfinite(approach) & np.isfinite(depth)
     order = np.argsort(approach[finite], kind="stable")
     by_approach = depth[finite][order]
-    drop = float(np.max(np.maximum.accumulate(by_approach) - by_approach, initial=0.0))
+    with np.errstate(over="ignore"):  # a drop beyond the float range (inf) is a fall all the same
+        drop = float(np.max(np.maximum.accumulate(by_approach) - by_approach, initial=0.0))
     if drop > 3.0 * math.sqrt(2.0) * noise.depth_m + 1e-12:
         return (f"the gel's indentation falls by {drop * 1e3:.3g} mm while the approach grows: the "
                 "contact is likely wider than the pad, or the object slips")

@@ -10,13 +10,9 @@ Configurations
     (:func:`~estimator.learned.inputs.sample_grasp`, depth for those frames
     only; the four fits run together, so these share their cost).
 ``<method>/bin<K>`` (with ``--binning K``)
-    An analytical method over every loading frame, measured on a K times coarser grid: each
-    frame of the estimator's finger warped and cropped as usual, then averaged over K x K
-    pixel blocks (``cv2.INTER_AREA``), and its depth and contact features computed there with
-    the same calibration table at K times the pixel pitch (:func:`binned_record`). The colour
-    lookup, the Poisson solve and the contact features then see K^2 times fewer pixels; the
-    warp still runs on the full grid, so the time is an upper bound of a binned estimator's.
-    Whether the coarser depth keeps the error is what the configuration measures.
+    An analytical method over every loading frame with depth measured on the image grid binned
+    by K instead of the settings' ``estimator.depth_binning`` (:mod:`estimator.perception.grid`;
+    K = 1 is the full grid): speed against error of a coarser or finer measurement.
 ``<hybrid|cnn>[<variant> <N>f <rows>x<cols>]`` and ``auto[...]``
     A trained model (``--models``), and its ``auto`` mode
     (:mod:`estimator.learned.hybrid`).
@@ -24,9 +20,10 @@ Configurations
 Latency is measured in-process on one core (the process is pinned to one CPU;
 OpenCV and onnxruntime run single-threaded) from decoded frames to the
 estimate: every record's frames are decoded once beforehand, as a live camera
-delivers them, each configuration runs once per grasp as warm-up and then
-``--repeats`` times; a configuration's ``latency_ms_p50`` is the median over
-grasps of each grasp's median time. It includes building the no-contact
+delivers them (at the size each configuration's depth binning reads), each
+configuration runs once per grasp as warm-up and then ``--repeats`` times; a
+configuration's ``latency_ms_p50`` is the median over grasps of each grasp's
+median time. It includes building the no-contact
 reference from the frames before the onset, which ``reference_ms_p50``
 reports alone (a live estimator can build it before contact).
 
@@ -68,26 +65,19 @@ from estimator.estimate import Estimate
 from estimator.evaluate import answered_by, result_row, summarise
 from estimator.learned.hybrid import HybridEstimator
 from estimator.learned.infer import CompliancePredictor, default_model_dir
-from estimator.learned.inputs import (
-    DecodedFrameStream,
-    calibration_for,
-    decoded,
-    no_contact_reference,
-    sample_grasp,
-)
+from estimator.learned.inputs import calibration_for, decoded, no_contact_reference, sample_grasp
 from estimator.measure import TACTILE_METHODS, estimate_grasp, measure_grasp
 from estimator.perception.calibration import Calibration
-from estimator.perception.warp import warp_and_crop
 from teleop.errors import RecordError
 from teleop.record import GraspRecord, read_record
-from teleop.settings import SensorSettings, Settings, default_settings_path, load_settings
+from teleop.settings import Settings, default_settings_path, load_settings
 
-__all__ = ["BenchConfig", "bench", "binned_record", "binned_sensor", "configurations", "pareto_front"]
+__all__ = ["BenchConfig", "bench", "configurations", "pareto_front"]
 
 
 @dataclass(frozen=True)
 class BenchConfig:
-    """One configuration: a name and a function from a (decoded) record to an estimate."""
+    """One configuration: a name and a function from a record decoded ``binning`` times smaller to an estimate."""
 
     name: str
     kind: str  # "analytical", "sampled", "model" or "auto"
@@ -95,58 +85,7 @@ class BenchConfig:
     n_frames: int | None
     size_px: tuple[int, int] | None
     run: Callable[[GraspRecord], Estimate]
-
-
-def binned_sensor(sensor: SensorSettings, binning: int) -> SensorSettings:
-    """``sensor`` as a sensor of a ``binning`` times coarser grid: a flat sensor (no warp) whose frames
-    are the warped and cropped ones binned, with ``binning`` times the pixel pitch (the same pad).
-
-    Raises EstimatorError when ``binning`` is not a whole number >= 2 that divides both sides of
-    ``sensor.image_shape``, or the sensor has markers (their detection works on the full grid).
-    """
-    rows, cols = sensor.image_shape
-    if isinstance(binning, bool) or not isinstance(binning, int) or binning < 2 or rows % binning or cols % binning:
-        raise EstimatorError(f"binning {binning!r}: expected a whole number >= 2 dividing both sides of sensor "
-                             f"{sensor.finger!r}'s {rows} x {cols} px grid")
-    if sensor.markers:
-        raise EstimatorError(f"binning {binning}: sensor {sensor.finger!r} has markers, which are found and "
-                             "inpainted on the full grid only; bench a finger without markers")
-    return replace(sensor, model="mini", raw_width_px=cols // binning, raw_height_px=rows // binning,
-                   warped_width_px=cols // binning, warped_height_px=rows // binning, crop_px=0,
-                   pixel_pitch_m=sensor.pixel_pitch_m * binning)
-
-
-class _BinnedFrameStream(DecodedFrameStream):
-    """A decoded stream whose frames come warped, cropped and binned, each when asked for."""
-
-    def __init__(self, stream: DecodedFrameStream, sensor: SensorSettings, binned: SensorSettings):
-        super().__init__(stream, stream.images)
-        object.__setattr__(self, "sensor", sensor)
-        object.__setattr__(self, "binned_size_px", (binned.raw_width_px, binned.raw_height_px))
-
-    def frame(self, index: int) -> np.ndarray:
-        return cv2.resize(warp_and_crop(self.images[index], self.sensor), self.binned_size_px,
-                          interpolation=cv2.INTER_AREA)
-
-
-def binned_record(record: GraspRecord, finger: str, binning: int) -> GraspRecord:
-    """``record`` (decoded, see :func:`~estimator.learned.inputs.decoded`) as a sensor of a ``binning``
-    times coarser grid would have captured ``finger``'s frames (:func:`binned_sensor`); the other
-    fingers, force and width unchanged. Frames are binned when measured, not here."""
-    sensor = record.sensor(finger)
-    binned = binned_sensor(sensor, binning)
-    stream = record.stream(finger)
-    if not isinstance(stream, DecodedFrameStream):
-        raise EstimatorError(f"binned_record: finger {finger!r}'s frames are not decoded; pass decoded(record)")
-    return replace(record, sensors=tuple(binned if s.finger == finger else s for s in record.sensors),
-                   frames=tuple(_BinnedFrameStream(s, sensor, binned) if s is stream else s for s in record.frames))
-
-
-def _binned_calibration(calibration: Calibration, binned: SensorSettings) -> Calibration:
-    """The same colour-to-gradient table on the binned grid (tiles keep their share of the image)."""
-    return Calibration(lut=calibration.lut, image_shape=binned.image_shape, pixel_pitch_m=binned.pixel_pitch_m,
-                       ball_radius_m=calibration.ball_radius_m, relative_range=calibration.relative_range,
-                       provenance={**calibration.provenance, "binned_to": list(binned.image_shape)})
+    binning: int
 
 
 def configurations(
@@ -154,11 +93,13 @@ def configurations(
     binning: Sequence[int] = (),
 ) -> list[BenchConfig]:
     """Every analytical method on all loading frames and on each of ``frames``, the tactile ones on each
-    ``binning`` of the depth grid, and every model with ``auto``."""
+    ``binning`` of the depth grid, and every model with ``auto``.
+
+    Raises SettingsError for a binning the estimator finger's grid does not take."""
     finger = settings.estimator.finger
-    for k in binning:  # a bad factor fails here, before any record is read
-        binned_sensor(settings.sensor(finger), k)
-    binned_calibrations: dict[tuple[int, int], Calibration] = {}
+    # A bad factor fails here, before any record is read.
+    rebinned = {k: replace(settings, estimator=replace(settings.estimator, depth_binning=k)) for k in binning}
+    own = settings.estimator.depth_binning
 
     def calibrated(record: GraspRecord) -> Calibration:
         return calibration_for(record, finger, calibration)
@@ -173,26 +114,20 @@ def configurations(
         return run
 
     def binned(method: str, k: int) -> Callable[[GraspRecord], Estimate]:
-        def run(record: GraspRecord) -> Estimate:
-            coarse = binned_record(record, finger, k)
-            full = calibrated(record)
-            key = (id(full), k)
-            if key not in binned_calibrations:
-                binned_calibrations[key] = _binned_calibration(full, coarse.sensor(finger))
-            return estimate_grasp(coarse, method, settings=settings, calibration=binned_calibrations[key])
-        return run
+        return lambda record: estimate_grasp(record, method, settings=rebinned[k], calibration=calibrated(record))
 
-    configs = [BenchConfig(m, "analytical", m, None, None, analytical(m)) for m in METHODS]
-    configs += [BenchConfig(f"{m}/bin{k}", "analytical", m, None, None, binned(m, k))
+    configs = [BenchConfig(m, "analytical", m, None, None, analytical(m), own) for m in METHODS]
+    configs += [BenchConfig(f"{m}/bin{k}", "analytical", m, None, None, binned(m, k), k)
                 for k in binning for m in TACTILE_METHODS]
-    configs += [BenchConfig(f"{m}@{n}f", "sampled", m, n, None, sampled(m, n)) for n in frames for m in TACTILE_METHODS]
+    configs += [BenchConfig(f"{m}@{n}f", "sampled", m, n, None, sampled(m, n), own)
+                for n in frames for m in TACTILE_METHODS]
     for predictor in models:
         estimator = HybridEstimator(predictor, settings=settings, calibration=calibration)
         v = predictor.variant
         label = f"[{v.name} {v.n_frames}f {v.size_px[0]}x{v.size_px[1]}]"
         for mode, kind, method in (("model", "model", v.method), ("auto", "auto", "auto")):
             configs.append(BenchConfig(f"{method}{label}", kind, method, v.n_frames, v.size_px,
-                                       lambda record, e=estimator, m=mode: e.estimate(record, mode=m)))
+                                       lambda record, e=estimator, m=mode: e.estimate(record, mode=m), own))
     return configs
 
 
@@ -239,11 +174,11 @@ def timed(run: Callable[[GraspRecord], Estimate], record: GraspRecord, repeats: 
 
 
 def _reference_ms(record: GraspRecord, settings: Settings, repeats: int) -> float | None:
-    finger = settings.estimator.finger
+    finger, binning = settings.estimator.finger, settings.estimator.depth_binning
     segment = measure_grasp(record, settings=settings, tactile=False).segment
     if not segment:
         return None
-    return timed(lambda r: no_contact_reference(r, finger, segment), record, repeats)[1]
+    return timed(lambda r: no_contact_reference(r, finger, segment, binning=binning), record, repeats)[1]
 
 
 def bench(
@@ -270,12 +205,12 @@ def bench(
             if label is None or label.modulus_pa is None:
                 skipped += 1
                 continue
-            record = decoded(record)
-            ref_ms = _reference_ms(record, settings, repeats)
+            by_binning = {k: decoded(record, reduce=k) for k in sorted({c.binning for c in configs})}
+            ref_ms = _reference_ms(by_binning[settings.estimator.depth_binning], settings, repeats)
             if ref_ms is not None:
                 reference.append(ref_ms)
             for config in configs:
-                estimate, ms = timed(config.run, record, repeats)
+                estimate, ms = timed(config.run, by_binning[config.binning], repeats)
                 latency[config.name].append(ms)
                 rows.append(result_row(path, label, config.name, estimate))
     if not rows:
@@ -367,9 +302,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="frame counts of the sampled analytical configurations (default: those of the "
                              "models, else the settings' n_frames)")
     parser.add_argument("--binning", type=int, nargs="*", metavar="K", default=[],
-                        help="also run the tactile analytical methods with depth measured on a K times coarser "
-                             "grid (K x K pixel blocks averaged; K divides both sides of the image grid, e.g. 2 "
-                             "or 5 for 250 x 350 px): speed against error of a coarser measurement")
+                        help="also run the tactile analytical methods with depth measured on the image grid "
+                             "binned by K (K x K pixel blocks averaged) instead of the settings' "
+                             "estimator.depth_binning; K divides both sides of the image grid and the raw frame, "
+                             "e.g. 1 (the full grid) or 5 for 250 x 350 px from 640 x 480: speed against error")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per grasp and configuration")
     parser.add_argument("--limit", type=int, default=None, metavar="K", help="bench only the first K records")
     parser.add_argument("--calibration", metavar="CAL", default=None,

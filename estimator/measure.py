@@ -5,8 +5,9 @@ their timestamps) and nothing else: it segments the grasp and aligns force
 and width with every frame; :func:`measure_tactile` (run by it unless no
 tactile method is asked for) decodes only the frames it needs (the no-contact
 frames for the reference, the loading frames or a chosen few of them, the hold
-frames when the fits use them), warps and crops them for a Wedge, masks marker
-dots, reconstructs depth and measures contact features.
+frames when the fits use them) onto the depth grid (warped and cropped for a Wedge,
+binned by ``EstimatorSettings.depth_binning``: :mod:`estimator.perception.grid`),
+masks marker dots, reconstructs depth and measures contact features.
 :func:`estimate_grasp` runs one analytical method on the result.
 """
 
@@ -24,8 +25,8 @@ from estimator.estimate import Estimate
 from estimator.features import ContactFeatures, contact_features
 from estimator.perception.calibration import Calibration, load_calibration
 from estimator.perception.depth import reconstruct_depth
+from estimator.perception.grid import grid_calibration, grid_sensor, to_grid
 from estimator.perception.markers import detect_markers
-from estimator.perception.warp import warp_and_crop
 from estimator.segment import Segment, estimate_camera_lag, estimate_width_lag, segment_grasp
 from teleop.record import GRASP_DONE_EVENT, GraspRecord
 from teleop.settings import CONFIG_DIR, SensorSettings, Settings
@@ -76,8 +77,10 @@ class GraspMeasurements:
     features : ContactFeatures or None
         Contact features per measured loading frame; None when no tactile method was
         asked for or frames could not be used (see ``tactile_reason``).
+    depth_binning : int
+        Depth is measured on ``sensor``'s image grid binned by this much (:attr:`grid`).
     depth_m : ndarray, shape (n, H, W), float32, or None
-        Reconstructed depth of every measured loading frame.
+        Reconstructed depth of every measured loading frame, on :attr:`grid`.
     camera_lag_s : float or None
         Estimated camera clock lag that was corrected for, if estimated.
     width_lag_s : float or None
@@ -92,8 +95,8 @@ class GraspMeasurements:
         Contact features of the hold frames; None when not measured (they are
         measured only when the fits use them: with the width lag corrected).
     image_bgr : ndarray, shape (n, H, W, 3), uint8, or None
-        The measured loading frames on the estimator's image grid (warped and
-        cropped for a Wedge), BGR.
+        The measured loading frames on the depth grid (warped and cropped for a
+        Wedge, binned), BGR.
     reference_bgr : ndarray, shape (H, W, 3), uint8, or None
         The no-contact reference they were measured against.
     """
@@ -108,6 +111,7 @@ class GraspMeasurements:
     width_m: np.ndarray
     approach_m: np.ndarray
     features: ContactFeatures | None = None
+    depth_binning: int = 1
     depth_m: np.ndarray | None = None
     camera_lag_s: float | None = None
     width_lag_s: float | None = None
@@ -119,14 +123,21 @@ class GraspMeasurements:
     reference_bgr: np.ndarray | None = None
 
     @property
+    def grid(self) -> SensorSettings:
+        """The sensor of the depth grid: ``sensor`` binned by ``depth_binning``
+        (:func:`~estimator.perception.grid.grid_sensor`)."""
+        return grid_sensor(self.sensor, self.depth_binning)
+
+    @property
     def noise(self) -> analytical.MeasurementNoise:
         """Resolution of each measurement: force and width noise estimated from the record;
-        depth resolution, depth scale uncertainty and pixel pitch from the sensor."""
+        depth resolution, depth scale uncertainty and pixel pitch from the sensor (the pitch
+        of the depth grid)."""
         return analytical.MeasurementNoise(
             force_n=self.segment.force_noise_n,
             width_m=self.segment.width_noise_m,
             depth_m=self.sensor.depth_resolution_m,
-            length_m=self.sensor.pixel_pitch_m,
+            length_m=self.sensor.pixel_pitch_m * self.depth_binning,
             depth_scale=self.sensor.depth_scale_uncertainty,
         )
 
@@ -193,16 +204,17 @@ def check_calibration_fits(cal: Calibration, sensor: SensorSettings) -> None:
         )
 
 
-def _decode(record: GraspRecord, finger: str, index: np.ndarray) -> np.ndarray:
-    """Frames ``index`` of ``finger`` as uint8 (n, H, W, 3) BGR, raw as captured."""
-    return record.stream(finger).frames(int(i) for i in index)
+def _decode(record: GraspRecord, finger: str, index: np.ndarray, *, reduce: int = 1) -> np.ndarray:
+    """Frames ``index`` of ``finger`` as uint8 (n, H, W, 3) BGR as captured, decoded ``reduce`` times smaller."""
+    return record.stream(finger).frames((int(i) for i in index), reduce=reduce)
 
 
-def _to_image_grid(frames: np.ndarray, sensor: SensorSettings) -> np.ndarray:
-    """Raw frames on the estimator's image grid: warped and cropped for a Wedge."""
-    if sensor.model != "wedge":
-        return frames
-    return np.stack([warp_and_crop(f, sensor) for f in frames]) if len(frames) else frames
+def _on_grid(record: GraspRecord, finger: str, index: np.ndarray, binning: int) -> np.ndarray:
+    """Frames ``index`` of ``finger`` on the depth grid binned by ``binning``
+    (:func:`~estimator.perception.grid.to_grid`), uint8 (n, H, W, 3) BGR."""
+    sensor = record.sensor(finger)
+    frames = _decode(record, finger, index, reduce=binning)
+    return np.stack([to_grid(f, sensor, binning=binning) for f in frames]) if len(frames) else frames
 
 
 def median_frame(frames: np.ndarray) -> np.ndarray:
@@ -223,13 +235,14 @@ def median_frame(frames: np.ndarray) -> np.ndarray:
     return np.rint(pair_sum / 2).astype(np.uint8)
 
 
-def reference_frame(record: GraspRecord, finger: str, index: np.ndarray) -> np.ndarray:
-    """No-contact reference on the estimator's image grid: the per-pixel median of frames
-    ``index`` of ``finger``, each warped and cropped first (fewer pixels to take the median of).
+def reference_frame(record: GraspRecord, finger: str, index: np.ndarray, *, binning: int = 1) -> np.ndarray:
+    """No-contact reference on the depth grid binned by ``binning``: the per-pixel median of frames
+    ``index`` of ``finger``, each on that grid first (fewer pixels to take the median of).
 
-    Returns uint8 ``sensor.image_shape + (3,)`` BGR for a Wedge (the raw shape otherwise).
+    Returns uint8 ``sensor.image_shape // binning + (3,)`` BGR for a Wedge (the raw shape over
+    ``binning`` otherwise).
     """
-    return median_frame(_to_image_grid(_decode(record, finger, index), record.sensor(finger)))
+    return median_frame(_on_grid(record, finger, index, binning))
 
 
 def reference_indices(frame_t_s: np.ndarray, t_before_s: float) -> np.ndarray:
@@ -238,10 +251,10 @@ def reference_indices(frame_t_s: np.ndarray, t_before_s: float) -> np.ndarray:
     return before[-REFERENCE_FRAMES:]
 
 
-def no_contact_reference(record: GraspRecord, finger: str, segment: Segment) -> np.ndarray:
+def no_contact_reference(record: GraspRecord, finger: str, segment: Segment, *, binning: int = 1) -> np.ndarray:
     """The no-contact frame :func:`measure_tactile` uses for ``finger`` when its frame clock is not
     corrected: the median of the last ``REFERENCE_FRAMES`` frames captured ``REFERENCE_GUARD_S``
-    or more before ``segment``'s onset (uint8 BGR, image grid).
+    or more before ``segment``'s onset (uint8 BGR, on the depth grid binned by ``binning``).
 
     Raises
     ------
@@ -252,7 +265,7 @@ def no_contact_reference(record: GraspRecord, finger: str, segment: Segment) -> 
     if index.size == 0:
         raise PerceptionError(f"finger {finger!r}: no tactile frame before the contact onset at "
                               f"{segment.t_onset_s:.3f} s to serve as the no-contact reference")
-    return reference_frame(record, finger, index)
+    return reference_frame(record, finger, index, binning=binning)
 
 
 def _camera_lag(record: GraspRecord, finger: str, segment: Segment) -> float | None:
@@ -289,8 +302,8 @@ def measure_grasp(
     ----------
     record : GraspRecord
     settings : Settings
-        ``estimator`` (finger, contact force, frames, object Poisson ratio)
-        and ``gripper.finger_stiffness_n_per_m`` are used; the sensor is the
+        ``estimator`` (finger, contact force, frames, object Poisson ratio, depth
+        binning) and ``gripper.finger_stiffness_n_per_m`` are used; the sensor is the
         one recorded with the grasp.
     calibration : Calibration, path or None
         Colour-to-gradient calibration; None reads the file the record's
@@ -364,7 +377,7 @@ def measure_grasp(
         finger=finger, sensor=sensor, segment=segment, finger_stiffness_n_per_m=stiffness,
         object_poisson=est.object_poisson, t_s=segment.frame_t_s, force_n=segment.frame_force_n,
         width_m=segment.frame_width_m, approach_m=approach, camera_lag_s=lag, width_lag_s=width_lag,
-        hold_force_n=segment.hold_force_n, hold_approach_m=hold_approach,
+        hold_force_n=segment.hold_force_n, hold_approach_m=hold_approach, depth_binning=est.depth_binning,
     )
     if not tactile:
         return measurements
@@ -435,17 +448,19 @@ def measure_tactile(
 
     cal = resolve_calibration(sensor, calibration)
     check_calibration_fits(cal, sensor)
-    reference = reference_frame(record, finger, reference_index)
+    binning, grid = m.depth_binning, m.grid
+    cal = grid_calibration(cal, binning)
+    reference = reference_frame(record, finger, reference_index, binning=binning)
     loading_index = segment.frame_index if frames is None else segment.frame_index[frames]
     # Hold frames enter the fits only with the width lag corrected (see _with_hold_point).
     hold_index = segment.hold_index if m.width_lag_s is not None else segment.hold_index[:0]
-    images = _to_image_grid(_decode(record, finger, np.concatenate([loading_index, hold_index])), sensor)
+    images = _on_grid(record, finger, np.concatenate([loading_index, hold_index]), binning)
     depth = np.empty((len(images), *reference.shape[:2]), dtype=np.float32)
     for i, image in enumerate(images):
-        mask = detect_markers(image, reference) if sensor.markers else None
+        mask = detect_markers(image, reference) if grid.markers else None
         depth[i] = reconstruct_depth(image, reference, cal, marker_mask=mask)
     features = contact_features(
-        depth, pixel_pitch_m=sensor.pixel_pitch_m, contact_threshold_m=sensor.contact_threshold_m
+        depth, pixel_pitch_m=grid.pixel_pitch_m, contact_threshold_m=grid.contact_threshold_m
     )
     loading = slice(0, loading_index.size)
     hold = slice(loading_index.size, len(images))

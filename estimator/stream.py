@@ -4,7 +4,9 @@ A :class:`GraspStream` takes a grasp's force samples, width samples and tactile 
 any interleaving, each with its capture timestamps, exactly as the bus delivers them. It
 keeps what batch estimation would recompute:
 
-* each frame of the estimator's finger is decoded and warped once, on arrival;
+* each frame of the estimator's finger is decoded and warped onto the depth grid once, on arrival
+  (:func:`~estimator.perception.grid.frame_on_grid`: with ``estimator.depth_binning`` above 1 a
+  JPEG is decoded that many times smaller and warped straight onto the binned grid);
 * depth and contact features of a frame (loading and hold frames alike) are computed once, at
   the first estimate after contact that sees the frame (whether or not widths around it have
   arrived yet, so no burst of frames waits for the next width sample), against the no-contact
@@ -89,8 +91,14 @@ from estimator.measure import (
 )
 from estimator.perception.calibration import Calibration
 from estimator.perception.depth import reconstruct_depth
+from estimator.perception.grid import (
+    ENCODINGS,
+    frame_on_grid,
+    grid_calibration,
+    grid_sensor,
+    raw_frame,
+)
 from estimator.perception.markers import detect_markers
-from estimator.perception.warp import warp_and_crop
 from estimator.segment import PEAK_FRAME_WINDOW_S, LoadPhase, Segment, align_frames, find_load_phase
 from teleop.errors import SettingsError
 from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Provenance, Samples
@@ -102,67 +110,25 @@ __all__ = [
     "GraspStream",
     "StreamEstimate",
     "choose_estimate",
-    "decode_and_warp",
-    "decode_frame",
     "measure_frame",
 ]
 
 DEFAULT_METHODS = ("split", "hertz", "elastic", "no_tactile")
 # Force samples this long after the peak, all within the peak tolerance, end the loading phase.
 LOADING_SETTLED_S = 0.1
-ENCODINGS = ("jpeg", "png", "raw")
-
-
-def decode_and_warp(data: np.ndarray | bytes, encoding: str, sensor: SensorSettings, *,
-                    where: str = "frame") -> np.ndarray:
-    """A frame of ``sensor`` in the pixel frame its calibration applies to: decoded
-    (:func:`decode_frame`) and, for a wedge sensor, warped and cropped
-    (:func:`~estimator.perception.warp.warp_and_crop`). Raises PerceptionError as those do."""
-    image = decode_frame(data, encoding, where=where)
-    return warp_and_crop(image, sensor) if sensor.model == "wedge" else image
 
 
 def measure_frame(frame: np.ndarray, reference: np.ndarray, calibration: Calibration,
                   sensor: SensorSettings) -> tuple[np.ndarray, ContactFeatures]:
-    """Depth (m, float32, the calibration's grid) and contact features of one frame from
-    :func:`decode_and_warp` against its no-contact reference, as :func:`~estimator.measure.measure_tactile`
-    measures each frame (markers found and inpainted first when the sensor has them)."""
+    """Depth (m, float32, the calibration's grid) and contact features of one frame on the depth grid
+    (:func:`~estimator.perception.grid.frame_on_grid`) against its no-contact reference, as
+    :func:`~estimator.measure.measure_tactile` measures each frame (markers found and inpainted first
+    when the sensor has them). ``calibration`` and ``sensor`` are those of the grid
+    (:func:`~estimator.perception.grid.grid_calibration`, :func:`~estimator.perception.grid.grid_sensor`)."""
     mask = detect_markers(frame, reference) if sensor.markers else None
     depth = reconstruct_depth(frame, reference, calibration, marker_mask=mask)
     return depth, contact_features(depth[None], pixel_pitch_m=sensor.pixel_pitch_m,
                                    contact_threshold_m=sensor.contact_threshold_m)
-
-
-def decode_frame(data: np.ndarray | bytes, encoding: str, *, where: str = "frame") -> np.ndarray:
-    """A tactile frame as uint8 H x W x 3 BGR.
-
-    Parameters
-    ----------
-    data : ndarray or bytes
-        ``jpeg``/``png``: the encoded bytes (1-D uint8); ``raw``: the H x W x 3 uint8 image.
-    encoding : {"jpeg", "png", "raw"}
-    where : str
-        Names the frame in errors.
-
-    Raises
-    ------
-    PerceptionError
-        Unknown encoding, bytes that do not decode, or a raw image that is not uint8 BGR.
-    """
-    if encoding not in ENCODINGS:
-        raise PerceptionError(f"{where}: encoding {encoding!r}, expected one of {', '.join(ENCODINGS)}")
-    array = np.asarray(data) if not isinstance(data, bytes | bytearray) else np.frombuffer(data, dtype=np.uint8)
-    if encoding == "raw":
-        if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
-            raise PerceptionError(f"{where}: raw frame must be uint8 H x W x 3 BGR, got {array.dtype} {array.shape}")
-        return array
-    try:
-        image = cv2.imdecode(array, cv2.IMREAD_COLOR)
-    except cv2.error as exc:
-        raise PerceptionError(f"{where}: {encoding} data does not decode ({exc})") from exc
-    if image is None:
-        raise PerceptionError(f"{where}: {encoding} data does not decode")
-    return image
 
 
 def choose_estimate(estimates: Sequence[Estimate]) -> Estimate:
@@ -243,10 +209,11 @@ class GraspStream:
     Parameters
     ----------
     settings : Settings
-        ``estimator`` (finger, contact force, frames, object Poisson ratio), the sensors and
-        ``gripper.finger_stiffness_n_per_m``, as for :func:`~estimator.measure.measure_grasp`.
+        ``estimator`` (finger, contact force, frames, object Poisson ratio, depth binning), the
+        sensors and ``gripper.finger_stiffness_n_per_m``, as for :func:`~estimator.measure.measure_grasp`.
     calibration : Calibration
-        Colour-to-gradient calibration of the estimator's finger.
+        Colour-to-gradient calibration of the estimator's finger (its full image grid; binned
+        here as the settings say).
     methods : sequence of str
         Analytical methods to run, in order of preference (see :func:`choose_estimate`).
     grasp_id : str
@@ -272,7 +239,9 @@ class GraspStream:
         except SettingsError as exc:
             raise FitError(f"EstimatorSettings.finger = {self.finger!r}: {exc}") from exc
         check_calibration_fits(calibration, self.sensor)
-        self.calibration = calibration
+        self.binning = settings.estimator.depth_binning
+        self.grid = grid_sensor(self.sensor, self.binning)  # the sensor of the depth grid
+        self.calibration = grid_calibration(calibration, self.binning)
         self.methods = tuple(methods)
         self.grasp_id = grasp_id
         self._force = _Series()
@@ -291,10 +260,10 @@ class GraspStream:
         """Fill the caches the first estimate would otherwise fill mid-grasp (about a second on
         2 cores): the depth solver's and the feature fit's for this image size, and the split
         method's gel-layer table for this gel."""
-        flat = np.full((*self.sensor.image_shape, 3), 128, dtype=np.uint8)
+        flat = np.full((*self.grid.image_shape, 3), 128, dtype=np.uint8)
         depth = reconstruct_depth(flat, flat, self.calibration)
-        contact_features(depth[None], pixel_pitch_m=self.sensor.pixel_pitch_m,
-                         contact_threshold_m=self.sensor.contact_threshold_m)
+        contact_features(depth[None], pixel_pitch_m=self.grid.pixel_pitch_m,
+                         contact_threshold_m=self.grid.contact_threshold_m)
         analytical.gel_layer_factor(0.0, gel_thickness_m=self.sensor.gel_thickness_m,
                                     gel_poisson=self.sensor.gel_poisson)
 
@@ -323,7 +292,7 @@ class GraspStream:
     def add_frame(self, finger: str, t_s: float, data: np.ndarray | bytes, encoding: str) -> bool:
         """One tactile frame as captured; True when it is the estimator's finger.
 
-        The estimator's frames are decoded and warped here, once; other fingers' frames are
+        The estimator's frames are decoded and warped onto the depth grid here, once; other fingers' frames are
         kept as they came (for :meth:`to_record`). Raises PerceptionError (the frame is not
         kept) for an estimator frame that does not decode or has the wrong size, an unknown
         finger, a non-finite time or an encoding other than the finger's earlier ones.
@@ -335,15 +304,16 @@ class GraspStream:
             sensor = self.settings.sensor(finger)
         except SettingsError as exc:
             raise PerceptionError(f"{where}: {exc}") from exc
+        if encoding not in ENCODINGS:
+            raise PerceptionError(f"{where}: encoding {encoding!r}, expected one of {', '.join(ENCODINGS)}")
         frames = self._frames.setdefault(finger, _Frames())
         stored = "png" if encoding == "raw" else encoding
         if frames.encoding not in (None, stored):
             raise PerceptionError(f"{where}: {encoding} after {frames.encoding} frames")
         if finger == self.finger:
-            self._images.append(decode_and_warp(data, encoding, sensor, where=where))
+            self._images.append(frame_on_grid(data, encoding, sensor, binning=self.binning, where=where))
         if encoding == "raw":  # kept lossless, as a grasp record stores raw frames
-            image = decode_frame(data, encoding, where=where)
-            data = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])[1]
+            data = cv2.imencode(".png", raw_frame(data, where=where), [cv2.IMWRITE_PNG_COMPRESSION, 1])[1]
         frames.encoding = stored
         frames.t_s.append(float(t_s))
         frames.encoded.append(bytes(data) if isinstance(data, bytes | bytearray) else np.ascontiguousarray(data).tobytes())
@@ -443,7 +413,7 @@ class GraspStream:
         n_frames : int
             Frames sampled over the loading phase.
         size_px : (int, int) or None
-            (rows, cols) the depth maps are reduced to; None keeps the sensor grid.
+            (rows, cols) the depth maps are reduced to; None keeps the depth grid.
         segment : Segment, optional
             The segmentation of what has arrived (computed when not given).
         """
@@ -498,7 +468,8 @@ class GraspStream:
                                                   finger_stiffness_n_per_m=stiffness)
 
         measurements = GraspMeasurements(
-            finger=self.finger, sensor=self.sensor, segment=segment, finger_stiffness_n_per_m=stiffness,
+            finger=self.finger, sensor=self.sensor, depth_binning=self.binning, segment=segment,
+            finger_stiffness_n_per_m=stiffness,
             object_poisson=self.settings.estimator.object_poisson, t_s=segment.frame_t_s,
             force_n=segment.frame_force_n, width_m=segment.frame_width_m,
             approach_m=approach(segment.frame_width_m, segment.frame_force_n),
@@ -541,7 +512,7 @@ class GraspStream:
     def _frame_features(self, position: int) -> ContactFeatures:
         cached = self._features.get(position)
         if cached is None:
-            depth, cached = measure_frame(self._images[position], self._reference, self.calibration, self.sensor)
+            depth, cached = measure_frame(self._images[position], self._reference, self.calibration, self.grid)
             self._features[position] = cached
             self._depth[position] = depth
         return cached

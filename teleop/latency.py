@@ -122,20 +122,24 @@ def frame_baseline_ms(settings: Settings, calibration: Calibration, *, repeats: 
     """Times (ms) this process takes for one tactile frame's perception, ``repeats`` times.
 
     Each repeat takes the :func:`baseline_press` capture as the estimator takes the peak frame
-    (:class:`~estimator.stream.GraspStream`): :func:`~estimator.stream.decode_and_warp`, then
+    (:class:`~estimator.stream.GraspStream`): :func:`~estimator.perception.grid.frame_on_grid` (decoded and
+    warped onto the depth grid of the settings' ``estimator.depth_binning``), then
     :func:`~estimator.stream.measure_frame` against the untouched capture (depth and contact features).
     """
-    from estimator.stream import decode_and_warp, measure_frame
+    from estimator.perception.grid import frame_on_grid, grid_calibration, grid_sensor
+    from estimator.stream import measure_frame
 
     if repeats < 1:
         raise TeleopError(f"frame baseline repeats {repeats}: expected at least 1")
     sensor = settings.sensor(settings.estimator.finger)
+    binning = settings.estimator.depth_binning
+    grid, grid_cal = grid_sensor(sensor, binning), grid_calibration(calibration, binning)
     pressed, untouched = baseline_press(settings, seed=seed)
-    reference = decode_and_warp(untouched, "jpeg", sensor)
+    reference = frame_on_grid(untouched, "jpeg", sensor, binning=binning)
     times = []
     for _ in range(repeats):
         started = time.perf_counter()
-        measure_frame(decode_and_warp(pressed, "jpeg", sensor), reference, calibration, sensor)
+        measure_frame(frame_on_grid(pressed, "jpeg", sensor, binning=binning), reference, grid_cal, grid)
         times.append((time.perf_counter() - started) * 1e3)
     return times
 

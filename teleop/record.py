@@ -61,7 +61,9 @@ __all__ = [
     "Label",
     "Provenance",
     "Samples",
+    "decode_image",
     "read_record",
+    "reduce_image",
     "software_version",
     "write_record",
 ]
@@ -71,6 +73,39 @@ FORMAT_VERSION = 1
 # Event: the gripper's grasp command completed (fingers stopped at the target force, held until release).
 GRASP_DONE_EVENT = "grasp_done"
 ENCODINGS = {"jpeg": ".jpg", "png": ".png"}
+# Reductions OpenCV decodes straight to (a JPEG through its scaled inverse DCT, a fraction of the work).
+_DECODE_REDUCED = {1: cv2.IMREAD_COLOR, 2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4,
+                   8: cv2.IMREAD_REDUCED_COLOR_8}
+
+
+def reduce_image(image: np.ndarray, reduce: int) -> np.ndarray:
+    """``image`` (H x W [x C]) averaged over ``reduce`` x ``reduce`` px blocks (``cv2.INTER_AREA``), same
+    dtype; ValueError unless ``reduce`` is a whole number >= 1 dividing both sides."""
+    rows, cols = image.shape[:2]
+    if isinstance(reduce, bool) or not isinstance(reduce, int) or reduce < 1 or rows % reduce or cols % reduce:
+        raise ValueError(f"reduce {reduce!r}: expected a whole number >= 1 dividing both sides of a "
+                         f"{rows} x {cols} px image")
+    if reduce == 1:
+        return image
+    return cv2.resize(image, (cols // reduce, rows // reduce), interpolation=cv2.INTER_AREA)
+
+
+def decode_image(data: bytes | np.ndarray, *, reduce: int = 1) -> np.ndarray | None:
+    """A JPEG or PNG image as uint8 H x W x 3 BGR, ``reduce`` times smaller on each side; None when the
+    bytes do not decode.
+
+    Reductions of 2, 4 and 8 are decoded at that size (for PNG, the same as averaging the decoded
+    image over blocks; for JPEG, within a few levels of it); others decode the full image and
+    average it (:func:`reduce_image`).
+    """
+    buffer = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes | bytearray) else np.asarray(data)
+    try:
+        image = cv2.imdecode(buffer, _DECODE_REDUCED.get(reduce, cv2.IMREAD_COLOR))
+    except cv2.error:  # an empty or malformed buffer
+        return None
+    if image is None or reduce in _DECODE_REDUCED:
+        return image
+    return reduce_image(image, reduce)
 
 
 def software_version() -> str:
@@ -176,20 +211,21 @@ class FrameStream:
             shape=tuple(shape) if shape is not None else None,
         )
 
-    def frame(self, index: int) -> np.ndarray:
-        """Decode frame ``index`` to uint8 H x W x 3 BGR."""
-        data = np.frombuffer(self.encoded[index], dtype=np.uint8)
-        image = cv2.imdecode(data, cv2.IMREAD_COLOR)
+    def frame(self, index: int, *, reduce: int = 1) -> np.ndarray:
+        """Decode frame ``index`` to uint8 H x W x 3 BGR, ``reduce`` times smaller on each side
+        (:func:`decode_image`)."""
+        image = decode_image(self.encoded[index], reduce=reduce)
         if image is None:
             raise RecordError(f"finger {self.finger!r} frame {index}: {self.encoding} data does not decode")
         return image
 
-    def frames(self, indices: Iterable[int] | None = None) -> np.ndarray:
-        """Decode frames (all by default) to an (n, H, W, 3) uint8 array."""
+    def frames(self, indices: Iterable[int] | None = None, *, reduce: int = 1) -> np.ndarray:
+        """Decode frames (all by default) to an (n, H, W, 3) uint8 array, ``reduce`` times smaller on each side."""
         idx = range(len(self)) if indices is None else list(indices)
-        decoded = [self.frame(i) for i in idx]
+        decoded = [self.frame(i, reduce=reduce) for i in idx]
         if not decoded:
-            return np.zeros((0, *(self.shape or (0, 0, 3))), dtype=np.uint8)
+            rows, cols, channels = self.shape or (0, 0, 3)
+            return np.zeros((0, rows // reduce, cols // reduce, channels), dtype=np.uint8)
         return np.stack(decoded)
 
 

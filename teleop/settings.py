@@ -256,6 +256,8 @@ class EstimatorSettings(_Validated):
     n_frames: int = spec(3, lo=1, hi=64)
     methods: tuple[str, ...] = spec(("split", "hertz", "elastic", "no_tactile"))
     model_path: str = spec("", doc="ONNX model; empty means the shipped default")
+    depth_binning: int = spec(2, lo=1, hi=16, doc="depth is measured on the finger's image grid averaged over "
+                              "N x N px blocks (1: the full grid); a model is trained for one value")
 
 
 @dataclass(frozen=True)
@@ -292,6 +294,19 @@ class Settings(_Validated):
             raise SettingsError("Settings.sensors is empty: expected at least one [sensors.<finger>] table")
         if len(set(fingers)) != len(fingers):
             raise SettingsError(f"Settings.sensors names a finger twice: {fingers}")
+        binning = self.estimator.depth_binning
+        sensor = next((s for s in self.sensors if s.finger == self.estimator.finger), None)
+        if binning > 1 and sensor is not None:
+            sides = (*sensor.image_shape, sensor.raw_height_px, sensor.raw_width_px)
+            if any(side % binning for side in sides):
+                raise SettingsError(
+                    f"EstimatorSettings.depth_binning = {binning}: does not divide the {sensor.image_shape[0]} x "
+                    f"{sensor.image_shape[1]} px image grid and the {sensor.raw_height_px} x {sensor.raw_width_px} px "
+                    f"raw frame of finger {sensor.finger!r}; choose a common divisor or 1")
+            if sensor.markers:
+                raise SettingsError(
+                    f"EstimatorSettings.depth_binning = {binning}: finger {sensor.finger!r} has markers, which are "
+                    "found and inpainted on the full grid only; set depth_binning = 1 for it")
 
     def sensor(self, finger: str) -> SensorSettings:
         """The sensor on ``finger``; raises SettingsError naming the fingers there are."""

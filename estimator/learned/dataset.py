@@ -256,6 +256,7 @@ def build_dataset(
     manifest = {
         "format": DATASET_FORMAT, "version": 1, "n_frames": options.n_frames, "shifts": options.shifts,
         "size_px": list(options.size_px), "markers": options.markers, "finger": settings.estimator.finger,
+        "depth_binning": settings.estimator.depth_binning,
         "calibration": options.calibration, "marker_calibration": options.marker_calibration,
         "measurement_fingerprint": measurement_fingerprint(),
         "records": len(records), "grasps_used": sum(1 for r in rows if r.get("samples")),

@@ -105,12 +105,23 @@ class HybridEstimator:
         other finger; None reads the file each record's sensor names.
     policy : AutoPolicy or None
         ``auto``'s rule; None takes the model's (:meth:`AutoPolicy.from_metadata`).
+
+    Raises
+    ------
+    ModelError
+        The model was trained on depth measured with another ``estimator.depth_binning``
+        than the settings'.
     """
 
     def __init__(self, predictor: CompliancePredictor, *, settings: Settings,
                  calibration: Calibration | str | Path | None = None,
                  marker_calibration: Calibration | str | Path | None = None,
                  policy: AutoPolicy | None = None):
+        if predictor.depth_binning != settings.estimator.depth_binning:
+            raise ModelError(
+                f"model {predictor.model_dir} was trained on depth binned by {predictor.depth_binning} "
+                f"(data.depth_binning in its metadata); the settings measure with estimator.depth_binning = "
+                f"{settings.estimator.depth_binning}: set that to {predictor.depth_binning} or retrain the model")
         self.predictor = predictor
         self.settings = settings
         self.calibration = calibration

@@ -17,7 +17,9 @@ A model directory holds ``model.onnx`` and ``metadata.json`` (written by
 ``metrics``, ``training``, ``data``
     What it scored on val and test objects, how and on what it was trained;
     ``data.measurement_fingerprint`` identifies the measurement code that made
-    its inputs (:func:`~estimator.learned.inputs.measurement_fingerprint`).
+    its inputs (:func:`~estimator.learned.inputs.measurement_fingerprint`), and
+    ``data.depth_binning`` the depth grid they were measured on
+    (:attr:`~teleop.settings.EstimatorSettings.depth_binning`; 1 when absent).
 """
 
 from __future__ import annotations
@@ -168,6 +170,11 @@ class CompliancePredictor:
     @property
     def variant(self) -> Variant:
         return self.metadata.variant
+
+    @property
+    def depth_binning(self) -> int:
+        """The depth binning its training inputs were measured with (1 for models from before the setting)."""
+        return int((self.metadata.raw.get("data") or {}).get("depth_binning") or 1)
 
     @property
     def measurement_code_matches(self) -> bool:

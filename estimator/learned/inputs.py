@@ -21,7 +21,8 @@ Model inputs (float32, batch first)
 ``frames`` (B, N, C, h, w)
     Per sampled frame: gel depth in mm (``depth``) or the BGR difference to the
     no-contact frame in 8-bit levels / 64 (``rgb``); with ``markers`` the other
-    finger's channels follow. Images are reduced from the sensor grid to
+    finger's channels follow. Images are reduced from the depth grid (the sensor's
+    image grid binned by ``estimator.depth_binning``; the marker finger's full grid) to
     ``size_px`` with area averaging (``cv2.INTER_AREA``), explicitly, once.
 ``force_width`` (B, 2N), only with ``fw``
     Force at each frame / 30 N, then gripper width / 0.08 m.
@@ -305,8 +306,8 @@ def encode(variant: Variant, items: Sequence[ModelInputs], *, where: str = "mode
 
 MEASUREMENT_MODULES = (
     "estimator.segment", "estimator.features", "estimator.analytical", "estimator.measure",
-    "estimator.perception.warp", "estimator.perception.markers", "estimator.perception.depth",
-    "estimator.perception.calibration", "estimator.learned.inputs",
+    "estimator.perception.warp", "estimator.perception.grid", "estimator.perception.markers",
+    "estimator.perception.depth", "estimator.perception.calibration", "estimator.learned.inputs",
 )
 
 
@@ -327,23 +328,27 @@ def measurement_fingerprint() -> str:
 
 
 class DecodedFrameStream(FrameStream):
-    """A frame stream that also holds its frames decoded (``frame(i)`` is a lookup).
+    """A frame stream that also holds its frames decoded ``reduce`` times smaller (``frame(i, reduce=reduce)``
+    is a lookup; other reductions decode).
 
     Used to time the estimator from decoded frames, as a live camera delivers them.
     """
 
-    def __init__(self, stream: FrameStream, images: np.ndarray):
+    def __init__(self, stream: FrameStream, images: np.ndarray, *, reduce: int = 1):
         super().__init__(stream.finger, stream.t_s, stream.encoded, stream.encoding,
                          stream.jpeg_quality, stream.shape)
         object.__setattr__(self, "images", images)
+        object.__setattr__(self, "reduce", reduce)
 
-    def frame(self, index: int) -> np.ndarray:
-        return self.images[index]
+    def frame(self, index: int, *, reduce: int = 1) -> np.ndarray:
+        return self.images[index] if reduce == self.reduce else super().frame(index, reduce=reduce)
 
 
-def decoded(record: GraspRecord) -> GraspRecord:
-    """``record`` with every frame stream decoded once, up front."""
-    return replace(record, frames=tuple(DecodedFrameStream(s, s.frames()) for s in record.frames))
+def decoded(record: GraspRecord, *, reduce: int = 1) -> GraspRecord:
+    """``record`` with every frame stream decoded once, up front, ``reduce`` times smaller (as the
+    estimator reads them with that depth binning)."""
+    return replace(record, frames=tuple(DecodedFrameStream(s, s.frames(reduce=reduce), reduce=reduce)
+                                        for s in record.frames))
 
 
 def sample_positions(segment: Segment, n_frames: int, shift: int) -> np.ndarray | str:
@@ -424,7 +429,10 @@ def _measure_finger(
     shift: int, size_px: tuple[int, int] | None, rgb: bool,
 ) -> SampledGrasp:
     """Measure the sample set ``shift`` of one finger (no estimates, no markers)."""
-    settings = replace(settings, estimator=replace(settings.estimator, finger=finger, n_frames=n_frames))
+    # A marker finger's dots are found on its full grid.
+    binning = 1 if record.sensor(finger).markers else settings.estimator.depth_binning
+    settings = replace(settings, estimator=replace(settings.estimator, finger=finger, n_frames=n_frames,
+                                                   depth_binning=binning))
     first = measure_grasp(record, settings=settings, tactile=False)
     segment = first.segment
     why = segment.reason or segment.frame_reason
@@ -470,7 +478,7 @@ def sample_grasp(
     n_frames : int
         Frames sampled over the loading phase.
     size_px : (int, int) or None
-        (rows, cols) the images are reduced to; None keeps the sensor grid.
+        (rows, cols) the images are reduced to; None keeps the depth grid.
     shift : int
         Augmentation: start the sampling this many loading frames late (0 = live sampling).
     rgb : bool

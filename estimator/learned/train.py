@@ -359,8 +359,8 @@ def train_model(
                      "parameters": sum(p.numel() for p in model.parameters()), "torch": torch.__version__,
                      "opset": OPSET, "history": history},
         "data": {"dir": str(data_dir), **{k: manifest.get(k) for k in (
-            "n_frames", "shifts", "size_px", "markers", "finger", "samples", "records", "grasps_used",
-            "measurement_fingerprint")},
+            "n_frames", "shifts", "size_px", "markers", "finger", "depth_binning", "samples", "records",
+            "grasps_used", "measurement_fingerprint")},
             # Names, not counts: `estimator evaluate --unseen-by` keeps the records of the test objects.
             "objects": {name: sorted(objects) for name, objects in load_split(data_dir / "split.json").items()},
             "split_seed": json.loads((data_dir / "split.json").read_text()).get("seed")},

@@ -13,6 +13,10 @@ The warp is a fixed lookup per sensor geometry, so it is tabulated once
 OpenCV's fixed-point remap format) and each frame is only resampled with
 ``cv2.remap``, about twice as fast as ``cv2.warpPerspective`` re-deriving the
 positions per frame.
+
+With ``binning`` K the same warp lands on a K times coarser grid (each output pixel
+standing for a K x K block of the warped-and-cropped image) from a raw frame decoded K
+times smaller: the estimator's binned depth grid (:mod:`estimator.perception.grid`).
 """
 
 from __future__ import annotations
@@ -67,66 +71,93 @@ def warp_matrix(sensor: SensorSettings) -> np.ndarray:
     return matrix
 
 
+def _check_binning(sensor: SensorSettings, binning: int) -> None:
+    sides = (*sensor.image_shape, sensor.raw_height_px, sensor.raw_width_px)
+    if isinstance(binning, bool) or not isinstance(binning, int) or binning < 1 or any(s % binning for s in sides):
+        raise PerceptionError(
+            f"binning {binning!r}: expected a whole number >= 1 dividing the {sides[0]} x {sides[1]} px image grid "
+            f"and the {sides[2]} x {sides[3]} px raw frame of sensor {sensor.finger!r}")
+
+
 @functools.lru_cache(maxsize=32)
-def warp_maps(sensor: SensorSettings) -> tuple[np.ndarray, np.ndarray]:
-    """Fixed-point ``cv2.remap`` maps of the warp-and-crop, cached per sensor.
+def warp_maps(sensor: SensorSettings, binning: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Fixed-point ``cv2.remap`` maps of the warp-and-crop, cached per sensor and binning.
 
     Parameters
     ----------
     sensor : SensorSettings
         Supplies the warp (see :func:`warp_matrix`) and ``image_shape``.
+    binning : int
+        Output grid ``binning`` times coarser than ``image_shape``, read from a raw
+        frame ``binning`` times smaller (both must divide by it).
 
     Returns
     -------
     xy, fraction : ndarray
         OpenCV's ``CV_16SC2`` / ``CV_16UC1`` pair (read-only), shape
-        ``image_shape``: the integer raw pixel ``(x, y)`` of every output pixel
+        ``image_shape // binning``: the integer raw pixel ``(x, y)`` of every output pixel
         and its sub-pixel position in 1/32 px (``cv2.convertMaps`` of the raw
-        positions, computed in float64).
+        positions, computed in float64). A binned pixel samples the warp at the centre of
+        its block, in the reduced raw frame (pixel centres at ``(i + 0.5) * binning - 0.5``
+        of the full one).
+
+    Raises
+    ------
+    PerceptionError
+        ``binning`` does not divide the image grid and the raw frame.
     """
-    rows, cols = sensor.image_shape
-    x_out, y_out = np.meshgrid(np.arange(cols, dtype=np.float64), np.arange(rows, dtype=np.float64))
+    _check_binning(sensor, binning)
+    rows, cols = (side // binning for side in sensor.image_shape)
+    centre = (binning - 1) / 2.0  # of a block, in full-grid pixels
+    x_out, y_out = np.meshgrid(np.arange(cols, dtype=np.float64) * binning + centre,
+                               np.arange(rows, dtype=np.float64) * binning + centre)
     out_points = np.stack([x_out, y_out], axis=-1).reshape(1, -1, 2)
     raw = cv2.perspectiveTransform(out_points, np.linalg.inv(warp_matrix(sensor)))[0]
+    if binning > 1:
+        raw = (raw + 0.5) / binning - 0.5
     xy, fraction = cv2.convertMaps(raw.astype(np.float32).reshape(rows, cols, 2), None, cv2.CV_16SC2)
     xy.setflags(write=False)
     fraction.setflags(write=False)
     return xy, fraction
 
 
-def warp_and_crop(raw_bgr: np.ndarray, sensor: SensorSettings) -> np.ndarray:
+def warp_and_crop(raw_bgr: np.ndarray, sensor: SensorSettings, *, binning: int = 1) -> np.ndarray:
     """Warp a raw camera frame onto the gel rectangle and crop its border.
 
     Parameters
     ----------
     raw_bgr : ndarray
-        uint8, shape ``(raw_height_px, raw_width_px, 3)``, BGR as captured.
+        uint8, shape ``(raw_height_px, raw_width_px, 3) // binning``, BGR as captured
+        (decoded ``binning`` times smaller).
     sensor : SensorSettings
         The sensor that took the frame.
+    binning : int
+        Land on the ``binning`` times coarser grid (:func:`warp_maps`).
 
     Returns
     -------
     ndarray
-        uint8, shape ``sensor.image_shape + (3,)``, bilinear interpolation at
+        uint8, shape ``sensor.image_shape // binning + (3,)``, bilinear interpolation at
         1/32 px (as ``cv2.warpPerspective``) through the cached :func:`warp_maps`;
         pixels that map outside the raw frame are black.
 
     Raises
     ------
     PerceptionError
-        ``raw_bgr`` is not a uint8 BGR image of the sensor's raw size.
+        ``raw_bgr`` is not a uint8 BGR image of the sensor's raw size over ``binning``, or
+        ``binning`` does not divide it.
     """
-    expected = (sensor.raw_height_px, sensor.raw_width_px, 3)
+    xy, fraction = warp_maps(sensor, binning)
+    expected = (sensor.raw_height_px // binning, sensor.raw_width_px // binning, 3)
     if not isinstance(raw_bgr, np.ndarray) or raw_bgr.dtype != np.uint8 or raw_bgr.shape != expected:
         got = (
             f"{raw_bgr.dtype} {raw_bgr.shape}" if isinstance(raw_bgr, np.ndarray)
             else type(raw_bgr).__name__
         )
         raise PerceptionError(
-            f"raw_bgr: expected a uint8 BGR frame of shape {expected} (sensor {sensor.finger!r}), "
-            f"got {got}"
+            f"raw_bgr: expected a uint8 BGR frame of shape {expected} (sensor {sensor.finger!r}"
+            f"{f', binning {binning}' if binning > 1 else ''}), got {got}"
         )
-    xy, fraction = warp_maps(sensor)
     return cv2.remap(raw_bgr, xy, fraction, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 

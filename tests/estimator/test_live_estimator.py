@@ -21,12 +21,12 @@ from estimator.estimate import Estimate
 from estimator.measure import estimate_grasp, measure_grasp
 from estimator.segment import PEAK_FRAME_WINDOW_S, segment_grasp
 from estimator.service import EstimatorService, ModelSlot
-from estimator.stream import GraspStream, choose_estimate, decode_frame
+from estimator.stream import GraspStream, choose_estimate
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.catalogue import load_catalogue
 from teleop.live import JsonLines
 from teleop.record import GraspRecord
-from teleop.settings import CONFIG_DIR
+from teleop.settings import CONFIG_DIR, load_settings
 from teleop.sim.grasp import simulate_grasp
 
 METHODS = ("split", "hertz", "elastic", "no_tactile")
@@ -72,11 +72,14 @@ def same(a: Estimate, b: Estimate) -> bool:
 # --------------------------------------------------------------------------- GraspStream
 
 
-@pytest.mark.parametrize("name", [pytest.param("stress_ball", marks=pytest.mark.slow), "steel_ball_bearing"])
-def test_stream_fed_in_capture_order_ends_where_batch_estimation_is(settings, calibration, records, name):
+@pytest.mark.parametrize(("name", "binning"), [pytest.param("stress_ball", 2, marks=pytest.mark.slow),
+                                               ("steel_ball_bearing", 2), ("steel_ball_bearing", 1)])
+def test_stream_fed_in_capture_order_ends_where_batch_estimation_is(settings, calibration, records, name, binning):
     # No loading-end marker: the stream sees the end in the data, batch estimation has no stop event.
     record = dataclasses.replace(records[name], events={})
+    settings = dataclasses.replace(settings, estimator=dataclasses.replace(settings.estimator, depth_binning=binning))
     stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    assert stream.grid.image_shape == (250 // binning, 350 // binning) == stream.calibration.image_shape
     provisional, complete_at = 0, None
     for t, kind, body in in_capture_order(record):
         if feed(stream, kind, body, t) and complete_at is None and stream.segment():
@@ -201,15 +204,6 @@ def test_choose_estimate_takes_the_first_answer_in_order():
     assert not everything_refuses and "split: no frames" in everything_refuses.reason and "hertz: flat" in everything_refuses.reason
     with pytest.raises(FitError):
         choose_estimate([])
-
-
-def test_decode_frame_checks_encoding_and_raw_images():
-    with pytest.raises(PerceptionError, match="encoding 'gif'"):
-        decode_frame(b"GIF89a", "gif")
-    with pytest.raises(PerceptionError, match="uint8 H x W x 3"):
-        decode_frame(np.zeros((4, 4), np.uint16), "raw")
-    image = np.full((4, 5, 3), 7, np.uint8)
-    assert decode_frame(image, "raw") is image
 
 
 # --------------------------------------------------------------------------- the service on the bus
@@ -367,6 +361,7 @@ def write_tiny_model(model_dir: Path, level: float) -> float:
         "variant": {"name": "depth", "n_frames": 3, "size_px": [16, 22]},
         "inputs": {"frames": [None, *shape]}, "output": "e_norm", "scales": current_scales(),
         "residual_log10": {"q025": -0.5, "q975": 0.5, "median_abs": 0.2, "n": 10},
+        "data": {"depth_binning": load_settings().estimator.depth_binning},
     }))
     return float(modulus_from_normalised(np.float32(level)))
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -135,7 +136,9 @@ def test_measurements_cover_every_loading_frame(calibration):
     record = build_record(3e5)
     m = measure_grasp(record, settings=SETTINGS, calibration=calibration)
     n = m.segment.frame_index.size
-    assert n >= 5 and len(m.features) == n and m.depth_m.shape == (n, *SENSOR.image_shape)
+    binning = SETTINGS.estimator.depth_binning
+    assert binning == 2 and m.depth_binning == binning and m.grid.image_shape == (125, 175)
+    assert n >= 5 and len(m.features) == n and m.depth_m.shape == (n, *m.grid.image_shape)
     assert m.depth_m.dtype == np.float32 and np.all(np.isfinite(m.depth_m))
     assert m.sample.size == SETTINGS.estimator.n_frames
     assert np.all(np.diff(m.features.peak_depth_m) > 0) and np.all(np.diff(m.approach_m) > 0)
@@ -178,9 +181,14 @@ def test_hard_geometries_give_sound_estimates(calibration, radius_m, target_n):
 
 def test_markers_are_masked_before_reconstruction(calibration):
     sensor = SensorSettings(finger="left", markers=True, gel_thickness_m=THICK_GEL_M)
-    m = measure_grasp(build_record(3e5, sensor=sensor), settings=SETTINGS, calibration=calibration)
-    est = estimate_grasp(m, "split", settings=SETTINGS)
+    record = build_record(3e5, sensor=sensor)
+    full_grid = replace(SETTINGS, estimator=replace(SETTINGS.estimator, depth_binning=1))
+    m = measure_grasp(record, settings=full_grid, calibration=calibration)
+    est = estimate_grasp(m, "split", settings=full_grid)
     assert est.state == "ok" and log_error(est, 3e5) < 0.3
+    # Marker dots are found on the full grid only: a binned measurement of them is refused, naming the fix.
+    with pytest.raises(PerceptionError, match="markers.*binning 1"):
+        measure_grasp(record, settings=SETTINGS, calibration=calibration)
 
 
 def test_no_tactile_decodes_no_frame(calibration):
@@ -311,12 +319,13 @@ def test_chosen_frames_are_measured_as_in_the_full_measurement_and_nothing_else_
     np.testing.assert_array_equal(m.depth_m, full.depth_m[frames])
     np.testing.assert_array_equal(m.image_bgr, full.image_bgr[frames])
     np.testing.assert_array_equal(m.reference_bgr, full.reference_bgr)
-    np.testing.assert_array_equal(m.reference_bgr, no_contact_reference(record, "left", first.segment))
+    np.testing.assert_array_equal(m.reference_bgr, no_contact_reference(record, "left", first.segment,
+                                                                        binning=first.depth_binning))
     for name in ContactFeatures.__dataclass_fields__:  # sums over a stack of another size: rounding only
         np.testing.assert_allclose(getattr(m.features, name), getattr(full.features, name)[frames], rtol=1e-12)
     for name in ("t_s", "force_n", "width_m", "approach_m"):
         np.testing.assert_array_equal(getattr(m, name), getattr(full, name)[frames])
-    assert m.image_bgr.shape == (3, *SENSOR.image_shape, 3) and m.image_bgr.dtype == np.uint8
+    assert m.image_bgr.shape == (3, *m.grid.image_shape, 3) and m.image_bgr.dtype == np.uint8
     with pytest.raises(RecordError, match="does not decode"):  # a frame not kept is needed for all frames
         measure_tactile(only_frames(record, [*reference, *loading[frames]]), first, calibration=calibration)
 

@@ -164,14 +164,16 @@ def test_latency_summary_keeps_each_grasp_and_names_the_slowest_with_where_the_t
 
 def test_the_frame_baseline_times_the_perception_of_a_press_the_estimator_sees():
     from estimator.measure import resolve_calibration
-    from estimator.stream import decode_and_warp, measure_frame
+    from estimator.perception.grid import frame_on_grid, grid_calibration, grid_sensor
+    from estimator.stream import measure_frame
 
     settings = load_settings(default_settings_path())
-    sensor = settings.sensor(settings.estimator.finger)
+    sensor, binning = settings.sensor(settings.estimator.finger), settings.estimator.depth_binning
     calibration = resolve_calibration(sensor, None)
     pressed, untouched = baseline_press(settings)
-    frame, reference = (decode_and_warp(data, "jpeg", sensor) for data in (pressed, untouched))
-    _, features = measure_frame(frame, reference, calibration, sensor)
+    frame, reference = (frame_on_grid(data, "jpeg", sensor, binning=binning) for data in (pressed, untouched))
+    _, features = measure_frame(frame, reference, grid_calibration(calibration, binning),
+                                grid_sensor(sensor, binning))
     # The timed frame is a real contact: its depth is the press's, within the simulator's optics.
     assert features.peak_depth_m[0] == pytest.approx(BASELINE_PRESS_DEPTH_M, rel=0.5)
     assert not features.touches_edge[0]

@@ -115,6 +115,21 @@ def test_cross_field_checks(tmp_path):
     assert "e_rigid_pa" in message and "e_soft_pa" in message
 
 
+def test_the_depth_binning_must_tile_the_estimator_fingers_grid(tmp_path):
+    assert load_settings().estimator.depth_binning == 2
+    # A 250 x 350 px grid from 640 x 480 frames: 3 and 4 leave remainders (5 would tile both).
+    for binning in (3, 4):
+        message = error_for(tmp_path, f"[estimator]\ndepth_binning = {binning}\n")
+        assert f"depth_binning = {binning}" in message and "250 x 350" in message and "640" in message
+    for binning in (1, 5):
+        text = f"[estimator]\ndepth_binning = {binning}\n"
+        assert load_settings(write(tmp_path, text)).estimator.depth_binning == binning
+    # Marker dots are found on the full grid: a binned marker finger is refused, naming the fix.
+    message = error_for(tmp_path, '[estimator]\nfinger = "right"\n')
+    assert "has markers" in message and "depth_binning = 1" in message
+    assert load_settings(write(tmp_path, '[estimator]\nfinger = "right"\ndepth_binning = 1\n')).estimator.finger == "right"
+
+
 def test_sensor_tables(tmp_path):
     message = error_for(tmp_path, '[sensors.left]\nfinger = "right"\n')
     assert "[sensors.left]" in message and "'right'" in message

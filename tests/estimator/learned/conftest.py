@@ -13,6 +13,7 @@ from estimator.estimate import Estimate
 from estimator.learned.dataset import DATASET_FORMAT, SPLITS, split_objects
 from estimator.learned.inputs import measurement_fingerprint
 from estimator.samples import TrainingSample, save_sample
+from teleop.settings import load_settings
 
 SIZE = (16, 22)
 N_FRAMES = 3
@@ -69,7 +70,8 @@ def write_synthetic_dataset(out: Path, *, grasps: int = 2, shifts: int = 2, mark
     (out / "split.json").write_text(json.dumps({"seed": seed, "fractions": [0.5, 0.25, 0.25], **split}))
     (out / "dataset.json").write_text(json.dumps({
         "format": DATASET_FORMAT, "version": 1, "n_frames": N_FRAMES, "shifts": shifts, "size_px": list(SIZE),
-        "markers": markers, "finger": "left", "samples": counts, "measurement_fingerprint": measurement_fingerprint(), "objects": {k: len(v) for k, v in split.items()},
+        "markers": markers, "finger": "left", "depth_binning": load_settings().estimator.depth_binning,
+        "samples": counts, "measurement_fingerprint": measurement_fingerprint(), "objects": {k: len(v) for k, v in split.items()},
     }))
     return out
 
@@ -109,7 +111,7 @@ def sim_grasps(tmp_path_factory) -> tuple[Path, Path]:
     from estimator.perception.calibration import fit_calibration, load_presses
     from teleop.catalogue import load_catalogue
     from teleop.record import write_record
-    from teleop.settings import CONFIG_DIR, load_settings
+    from teleop.settings import CONFIG_DIR
     from teleop.sim.grasp import simulate_grasp
     from teleop.sim.optics import TactileCamera
     from teleop.sim.presses import simulate_presses, write_presses

@@ -5,14 +5,12 @@ from __future__ import annotations
 import json
 import math
 
-import numpy as np
 import pytest
 
-from estimator.bench import binned_record, binned_sensor, configurations, pareto_front
+from estimator.bench import configurations, pareto_front
 from estimator.cli import main
-from estimator.errors import EstimatorError
 from estimator.learned.inputs import decoded
-from estimator.perception.warp import warp_and_crop
+from teleop.errors import SettingsError
 from teleop.record import read_record
 from teleop.settings import load_settings
 
@@ -33,59 +31,27 @@ def test_a_configuration_that_answers_more_grasps_is_not_dominated_by_one_that_r
     assert pareto_front([(6.2, 0.70, 0), auto]) == [True, False]
 
 
-def test_a_binned_sensor_covers_the_same_pad_with_coarser_pixels():
-    sensor = load_settings().sensor("left")
-    rows, cols = sensor.image_shape
-    coarse = binned_sensor(sensor, 2)
-    assert coarse.image_shape == (rows // 2, cols // 2) == (coarse.raw_height_px, coarse.raw_width_px)
-    assert coarse.pixel_pitch_m == pytest.approx(2 * sensor.pixel_pitch_m)
-    assert coarse.pad_size_m == pytest.approx(sensor.pad_size_m)
-
-
-@pytest.mark.parametrize("binning", [1, 3, 4, True, 2.0])
-def test_a_binning_that_does_not_tile_the_grid_is_refused(binning):
-    sensor = load_settings().sensor("left")  # 250 x 350 px: 3 and 4 leave a remainder
-    with pytest.raises(EstimatorError, match="binning"):
-        binned_sensor(sensor, binning)
-
-
-def test_a_binning_of_a_sensor_with_markers_is_refused():
-    with pytest.raises(EstimatorError, match="markers"):
-        binned_sensor(load_settings().sensor("right"), 2)
-
-
-def test_binned_frames_average_the_warped_frame_over_pixel_blocks(sim_grasps):
-    records, _ = sim_grasps
-    record = decoded(read_record(sorted(records.glob("*.grasp"))[0]))
-    finger = load_settings().estimator.finger
-    coarse = binned_record(record, finger, 2)
-    last = len(record.stream(finger)) - 1
-    full = warp_and_crop(record.stream(finger).frame(last), record.sensor(finger)).astype(float)
-    binned = coarse.stream(finger).frame(last).astype(float)
-    assert binned.shape == (*coarse.sensor(finger).image_shape, 3)
-    blocks = full.reshape(full.shape[0] // 2, 2, full.shape[1] // 2, 2, 3).mean(axis=(1, 3))
-    assert np.abs(binned - blocks).max() <= 0.5  # the block mean, rounded to uint8
-    assert coarse.force_n is record.force_n and coarse.width_m is record.width_m
-    with pytest.raises(EstimatorError, match="decoded"):
-        binned_record(read_record(sorted(records.glob("*.grasp"))[0]), finger, 2)
-
-
-def test_a_binned_estimate_is_close_to_the_full_grid_one(sim_grasps):
+def test_the_binned_estimate_is_close_to_the_full_grid_one(sim_grasps):
     records, calibration = sim_grasps
     settings = load_settings()
+    assert settings.estimator.depth_binning == 2
     configs = {c.name: c for c in configurations(settings=settings, calibration=str(calibration), frames=[3],
-                                                 models=[], binning=[2])}
-    assert {"split/bin2", "hertz/bin2", "elastic/bin2"} <= set(configs) and "no_tactile/bin2" not in configs
+                                                 models=[], binning=[1])}
+    assert {"split/bin1", "hertz/bin1", "elastic/bin1"} <= set(configs) and "no_tactile/bin1" not in configs
+    assert configs["split"].binning == 2 and configs["split/bin1"].binning == 1
     compared = 0
     for path in sorted(records.glob("*.grasp")):
-        record = decoded(read_record(path))
+        record = read_record(path)
         for method in ("split", "hertz"):
-            full, coarse = configs[method].run(record), configs[f"{method}/bin2"].run(record)
+            coarse = configs[method].run(decoded(record, reduce=2))
+            full = configs[f"{method}/bin1"].run(decoded(record))
             assert coarse.state == full.state, (path.name, method)
             if full.e_pa is not None:  # the same contact seen through 2 x 2 px blocks: within a tenth of a decade
                 assert abs(math.log10(coarse.e_pa / full.e_pa)) < 0.1, (path.name, method)
                 compared += 1
     assert compared >= 4
+    with pytest.raises(SettingsError, match="depth_binning = 3"):
+        configurations(settings=settings, calibration=str(calibration), frames=[3], models=[], binning=[3])
 
 
 @pytest.mark.slow
@@ -93,11 +59,11 @@ def test_bench_runs_on_a_tiny_directory_and_marks_a_frontier(sim_grasps, trained
     records, calibration = sim_grasps
     png = tmp_path / "bench.png"
     argv = ["bench", str(records), "--models", str(trained_model), "--calibration", str(calibration),
-            "--repeats", "1", "--limit", "3", "--binning", "2", "--json", "--plot", str(png)]
+            "--repeats", "1", "--limit", "3", "--binning", "1", "--json", "--plot", str(png)]
     assert main(argv) == 0
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     configs = {c["name"]: c for c in result["configs"]}
-    assert {"no_tactile", "split", "split@3f", "split/bin2"} <= set(configs)
+    assert {"no_tactile", "split", "split@3f", "split/bin1"} <= set(configs)
     assert any(name.startswith("hybrid[depth+fw+analytical 3f 16x22]") for name in configs)
     assert any(name.startswith("auto[") for name in configs)
     assert result["labelled"] == 3 and result["reference_ms_p50"] > 0

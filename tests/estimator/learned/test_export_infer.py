@@ -119,6 +119,28 @@ def test_a_model_knows_whether_this_code_measured_its_inputs(trained_model, tmp_
 
 
 @pytest.mark.slow
+def test_a_model_is_refused_where_the_settings_measure_depth_on_another_grid(trained_model, tmp_path):
+    from dataclasses import replace
+
+    from estimator.learned.hybrid import HybridEstimator
+    from teleop.settings import load_settings
+
+    settings = load_settings()
+    predictor = CompliancePredictor(trained_model)
+    assert predictor.depth_binning == settings.estimator.depth_binning == 2
+    HybridEstimator(predictor, settings=settings)
+    full_grid = replace(settings, estimator=replace(settings.estimator, depth_binning=1))
+    with pytest.raises(ModelError, match="binned by 2.*depth_binning = 1.*retrain"):
+        HybridEstimator(predictor, settings=full_grid)
+    # A model from before the setting was trained on the full grid.
+    dest, meta = _copy(trained_model, tmp_path)
+    del meta["data"]["depth_binning"]
+    (dest / "metadata.json").write_text(json.dumps(meta))
+    assert CompliancePredictor(dest).depth_binning == 1
+    HybridEstimator(CompliancePredictor(dest), settings=full_grid)
+
+
+@pytest.mark.slow
 def test_settings_name_the_model(trained_model):
     from dataclasses import replace
 

@@ -1,0 +1,150 @@
+"""The grid depth is measured on: a sensor's warped-and-cropped image grid, or that grid binned.
+
+With :attr:`~teleop.settings.EstimatorSettings.depth_binning` K > 1 the estimator measures
+depth on the image grid averaged over K x K px blocks: a frame is decoded K times smaller
+(:func:`~teleop.record.decode_image`; a JPEG at that size), warped straight onto the binned
+grid (:func:`~estimator.perception.warp.warp_and_crop` with ``binning``), and its depth is
+reconstructed with the calibration's colour-to-gradient table at K times the pixel pitch
+(:func:`grid_calibration`). The colour lookup, the Poisson solve and the contact features
+then see K^2 times fewer pixels.
+
+The binned grid is described as a sensor of its own (:func:`grid_sensor`): a flat sensor
+(nothing to warp) of that grid, with K times the pixel pitch, covering the same pad. Depth,
+contact features and the fits' length resolution all read it, as they read the full grid's
+sensor at K = 1.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import replace
+
+import numpy as np
+
+from estimator.errors import PerceptionError
+from estimator.perception.calibration import Calibration
+from estimator.perception.warp import warp_and_crop
+from teleop.record import decode_image, reduce_image
+from teleop.settings import SensorSettings
+
+__all__ = ["ENCODINGS", "frame_on_grid", "grid_calibration", "grid_sensor", "raw_frame", "to_grid"]
+
+# How a captured frame may come: encoded as the camera gave it, or as a raw BGR image.
+ENCODINGS = ("jpeg", "png", "raw")
+
+
+def _check(binning: int, shape: tuple[int, int], what: str) -> None:
+    rows, cols = shape
+    if isinstance(binning, bool) or not isinstance(binning, int) or binning < 1 or rows % binning or cols % binning:
+        raise PerceptionError(f"binning {binning!r}: expected a whole number >= 1 dividing both sides of "
+                              f"{what}'s {rows} x {cols} px grid")
+
+
+def grid_sensor(sensor: SensorSettings, binning: int) -> SensorSettings:
+    """``sensor`` itself for ``binning`` 1; else a flat sensor of its image grid ``binning`` times
+    coarser, with ``binning`` times the pixel pitch (the same pad).
+
+    Raises
+    ------
+    PerceptionError
+        ``binning`` is not a whole number >= 1 dividing both sides of ``sensor.image_shape``, or it
+        is above 1 and the sensor has markers (their dots are found and inpainted on the full grid).
+    """
+    _check(binning, sensor.image_shape, f"sensor {sensor.finger!r}")
+    if binning > 1 and sensor.markers:
+        raise PerceptionError(f"binning {binning}: sensor {sensor.finger!r} has markers, which are found and "
+                              "inpainted on the full grid only; measure it with binning 1")
+    return _grid_sensor(sensor, binning)
+
+
+@functools.lru_cache(maxsize=32)
+def _grid_sensor(sensor: SensorSettings, binning: int) -> SensorSettings:
+    if binning == 1:
+        return sensor
+    rows, cols = sensor.image_shape
+    return replace(sensor, model="mini", raw_width_px=cols // binning, raw_height_px=rows // binning,
+                   warped_width_px=cols // binning, warped_height_px=rows // binning, crop_px=0,
+                   pixel_pitch_m=sensor.pixel_pitch_m * binning)
+
+
+def grid_calibration(calibration: Calibration, binning: int) -> Calibration:
+    """``calibration`` on its grid ``binning`` times coarser: the same colour-to-gradient table (each
+    tile keeps its share of the image) at ``binning`` times the pixel pitch; itself for ``binning`` 1.
+    One object per calibration and binning (the depth solver's tables are cached per grid).
+
+    Raises PerceptionError when ``binning`` does not divide both sides of its grid.
+    """
+    _check(binning, calibration.image_shape, "the calibration")
+    return _grid_calibration(calibration, binning)
+
+
+@functools.lru_cache(maxsize=8)
+def _grid_calibration(calibration: Calibration, binning: int) -> Calibration:
+    if binning == 1:
+        return calibration
+    rows, cols = calibration.image_shape
+    return Calibration(lut=calibration.lut, image_shape=(rows // binning, cols // binning),
+                       pixel_pitch_m=calibration.pixel_pitch_m * binning, ball_radius_m=calibration.ball_radius_m,
+                       relative_range=calibration.relative_range,
+                       provenance={**calibration.provenance, "binned": binning})
+
+
+def to_grid(image: np.ndarray, sensor: SensorSettings, *, binning: int) -> np.ndarray:
+    """A raw frame of ``sensor`` decoded ``binning`` times smaller, on the depth grid: warped and cropped
+    for a Wedge (:func:`~estimator.perception.warp.warp_and_crop`), as it is otherwise.
+
+    Returns uint8 ``sensor.image_shape // binning + (3,)`` BGR for a Wedge. Raises PerceptionError
+    as :func:`~estimator.perception.warp.warp_and_crop` does.
+    """
+    return warp_and_crop(image, sensor, binning=binning) if sensor.model == "wedge" else image
+
+
+def raw_frame(data: bytes | np.ndarray, *, where: str = "frame") -> np.ndarray:
+    """A frame that came ``raw``: ``data`` itself when it is a uint8 H x W x 3 BGR image, else
+    PerceptionError naming ``where``."""
+    image = np.asarray(data)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise PerceptionError(f"{where}: raw frame must be uint8 H x W x 3 BGR, got {image.dtype} {image.shape}")
+    return image
+
+
+def frame_on_grid(data: bytes | np.ndarray, encoding: str, sensor: SensorSettings, *, binning: int,
+                  where: str = "frame") -> np.ndarray:
+    """One captured frame of ``sensor`` on the depth grid: decoded ``binning`` times smaller, then
+    :func:`to_grid`.
+
+    Parameters
+    ----------
+    data : bytes or ndarray
+        ``jpeg``/``png``: the encoded bytes (1-D uint8); ``raw``: the H x W x 3 uint8 BGR image.
+    encoding : {"jpeg", "png", "raw"}
+    sensor : SensorSettings
+    binning : int
+    where : str
+        Names the frame in errors.
+
+    Raises
+    ------
+    PerceptionError
+        Unknown encoding, bytes that do not decode, a raw image that is not uint8 BGR or not of
+        the sensor's raw size.
+    """
+    if encoding == "raw":
+        image = raw_frame(data, where=where)
+        try:
+            image = reduce_image(image, binning)
+        except ValueError as exc:
+            raise PerceptionError(f"{where}: {exc}") from exc
+    elif encoding in ("jpeg", "png"):
+        try:
+            image = decode_image(data, reduce=binning)
+        except ValueError as exc:
+            raise PerceptionError(f"{where}: {exc}") from exc
+        if image is None:
+            raise PerceptionError(f"{where}: {encoding} data does not decode")
+    else:
+        raise PerceptionError(f"{where}: encoding {encoding!r}, expected one of {', '.join(ENCODINGS)}")
+    try:
+        return to_grid(image, sensor, binning=binning)
+    except PerceptionError as exc:
+        raise PerceptionError(f"{where}: {exc}") from exc
