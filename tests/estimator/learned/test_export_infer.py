@@ -150,3 +150,17 @@ def test_settings_name_the_model(trained_model):
     settings = replace(settings, estimator=replace(settings.estimator, model_path=str(trained_model / "model.onnx")))
     assert load_predictor(settings=settings).model_dir == trained_model
     assert ModelMetadata.from_json(json.loads((trained_model / "metadata.json").read_text()), "x").variant.n_frames == 3
+
+
+@pytest.mark.parametrize("name", ["default", "cnn-depth-fw", "hybrid-depth-analytical"])
+def test_the_shipped_models_were_trained_on_what_this_code_measures(name):
+    from estimator.learned.infer import default_model_dir
+    from teleop.settings import load_settings
+
+    model_dir = default_model_dir().parent / name
+    if not (model_dir / "metadata.json").is_file():
+        pytest.skip(f"no shipped model {name}")
+    predictor = CompliancePredictor(model_dir)
+    # A change to the measurement code (or the depth grid) needs the shipped models retrained.
+    assert predictor.measurement_code_matches, f"retrain {model_dir}: the measurement code changed"
+    assert predictor.depth_binning == load_settings().estimator.depth_binning
