@@ -16,8 +16,10 @@ per-grasp median time, over the grasps it can sample:
 ``reference``
     the no-contact reference: warp and median of the frames before the onset;
 ``warp``, ``depth``, ``features``
-    the sampled loading frames warped and cropped, their depth reconstructed,
-    their contact features (the parts of ``measure_tactile`` after the reference);
+    the sampled loading frames warped and cropped onto the depth grid (binned by the
+    settings' ``estimator.depth_binning``, from frames decoded that much smaller), their
+    depth reconstructed, their contact features (the parts of ``measure_tactile`` after
+    the reference);
 ``fits``
     the four analytical estimates over the sampled frames;
 ``encode``, ``network``
@@ -51,8 +53,8 @@ from estimator.learned.infer import CompliancePredictor, default_model_dir  # no
 from estimator.learned.inputs import calibration_for, decoded, encode  # noqa: E402
 from estimator.measure import estimate_grasp, measure_grasp, no_contact_reference  # noqa: E402
 from estimator.perception.depth import reconstruct_depth  # noqa: E402
+from estimator.perception.grid import grid_calibration, to_grid  # noqa: E402
 from estimator.perception.markers import detect_markers  # noqa: E402
-from estimator.perception.warp import warp_and_crop  # noqa: E402
 from teleop.record import read_record  # noqa: E402
 from teleop.settings import load_settings  # noqa: E402
 
@@ -64,23 +66,24 @@ def stage_runs(record, sampled, *, settings, predictor, calibration):
     variant, finger = predictor.variant, settings.estimator.finger
     sampling = replace(settings, estimator=replace(settings.estimator, n_frames=variant.n_frames))
     m = sampled.measurements
-    sensor, cal, reference = m.sensor, calibration_for(record, finger, calibration), m.reference_bgr
+    binning, sensor, grid, reference = m.depth_binning, m.sensor, m.grid, m.reference_bgr
+    cal = grid_calibration(calibration_for(record, finger, calibration), binning)
     positions = np.searchsorted(m.segment.frame_t_s, m.t_s)  # the sampled loading frames
-    raw = [record.stream(finger).frame(int(i)) for i in m.segment.frame_index[positions]]
+    raw = [record.stream(finger).frame(int(i), reduce=binning) for i in m.segment.frame_index[positions]]
     batch = encode(variant, [sampled])
 
     def depth():
         return [reconstruct_depth(image, reference, cal,
-                                  marker_mask=detect_markers(image, reference) if sensor.markers else None)
+                                  marker_mask=detect_markers(image, reference) if grid.markers else None)
                 for image in m.image_bgr]
 
     return {
         "segment": lambda: measure_grasp(record, settings=sampling, tactile=False),
-        "reference": lambda: no_contact_reference(record, finger, m.segment),
-        "warp": lambda: [warp_and_crop(frame, sensor) for frame in raw],
+        "reference": lambda: no_contact_reference(record, finger, m.segment, binning=binning),
+        "warp": lambda: [to_grid(frame, sensor, binning=binning) for frame in raw],
         "depth": depth,
-        "features": lambda: contact_features(m.depth_m, pixel_pitch_m=sensor.pixel_pitch_m,
-                                             contact_threshold_m=sensor.contact_threshold_m),
+        "features": lambda: contact_features(m.depth_m, pixel_pitch_m=grid.pixel_pitch_m,
+                                             contact_threshold_m=grid.contact_threshold_m),
         "fits": lambda: [estimate_grasp(m, method, settings=settings) for method in METHODS],
         "encode": lambda: encode(variant, [sampled]),
         "network": lambda: predictor.predict_normalised(batch),
@@ -93,7 +96,7 @@ def stages(paths, *, settings, predictor, calibration, repeats):
     times = {name: [] for name in STAGES}
     with one_core():
         for path in paths:
-            record = decoded(read_record(path))
+            record = decoded(read_record(path), reduce=settings.estimator.depth_binning)
             sampled, sample_ms = timed(hybrid.sample, record, repeats)
             if not sampled:
                 continue

@@ -115,3 +115,18 @@ def test_plot_labels_of_nearby_points_do_not_overlap():
     boxes = [label.get_window_extent(renderer) for label in labels]
     assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
     plt.close(fig)
+
+
+def test_the_hybrid_benchmark_script_runs_its_stages_on_the_depth_grid(sim_grasps, trained_model):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    records, calibration = sim_grasps
+    script = Path(__file__).resolve().parents[3] / "benchmarks" / "bench_hybrid.py"
+    out = subprocess.run([sys.executable, str(script), str(records), "--model", str(trained_model),
+                          "--calibration", str(calibration), "--limit", "2", "--repeats", "1"],
+                         capture_output=True, text=True, timeout=300, check=True).stdout
+    stages = out.strip().splitlines()[-1]
+    assert stages.startswith("hybrid stages over ") and "depth " in stages and "network " in stages
+    assert not stages.startswith("hybrid stages over 0 ")
