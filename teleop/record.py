@@ -96,7 +96,7 @@ def decode_image(data: bytes | np.ndarray, *, reduce: int = 1) -> np.ndarray | N
 
     Reductions of 2, 4 and 8 are decoded at that size (for PNG, the same as averaging the decoded
     image over blocks; for JPEG, within a few levels of it); others decode the full image and
-    average it (:func:`reduce_image`).
+    average it (:func:`reduce_image`, which raises ValueError when they do not divide its sides).
     """
     buffer = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes | bytearray) else np.asarray(data)
     try:
