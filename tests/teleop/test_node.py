@@ -78,7 +78,10 @@ def test_commanded_grasp_goes_out_as_the_devices_capture_it(rig):
     events = [m for m in got if m.type == "grasp_event"]
     assert [m.body["event"] for m in events] == ["start", "loading_end", "end"]
     marker = events[1]
-    assert marker.t_capture_s - record.events["grasp_done"] == pytest.approx(shifts[0], abs=0.02)
+    # The stop is stamped when the grasp call returns: never before the record's stop, late only by this
+    # host's scheduling (a stalled VM has made it 74 ms), and long before the 0.5 s hold ends.
+    late_s = marker.t_capture_s - record.events["grasp_done"] - shifts[0]
+    assert -0.02 <= late_s < 0.25
     # ... and the width it read then is the record's next read, handed out early with its recorded
     # stamp: the widths are the record's, in time order, the stop's read published before the marker.
     width_messages = [m for m in got if m.type == "width"]
