@@ -23,7 +23,7 @@ import numpy as np
 
 from estimator.errors import PerceptionError
 from estimator.perception.calibration import Calibration
-from estimator.perception.warp import warp_and_crop
+from estimator.perception.warp import check_binning, warp_and_crop
 from teleop.record import decode_image, reduce_image
 from teleop.settings import SensorSettings
 
@@ -33,38 +33,31 @@ __all__ = ["ENCODINGS", "frame_on_grid", "grid_calibration", "grid_sensor", "raw
 ENCODINGS = ("jpeg", "png", "raw")
 
 
-def _check(binning: int, shape: tuple[int, int], what: str) -> None:
-    rows, cols = shape
-    if isinstance(binning, bool) or not isinstance(binning, int) or binning < 1 or rows % binning or cols % binning:
-        raise PerceptionError(f"binning {binning!r}: expected a whole number >= 1 dividing both sides of "
-                              f"{what}'s {rows} x {cols} px grid")
-
-
 def grid_sensor(sensor: SensorSettings, binning: int) -> SensorSettings:
     """``sensor`` itself for ``binning`` 1; else a flat sensor of its image grid ``binning`` times
-    coarser, with ``binning`` times the pixel pitch (the same pad).
+    coarser, with ``binning`` times the pixel pitch (the same pad), one object per sensor and binning.
 
     Raises
     ------
     PerceptionError
-        ``binning`` is not a whole number >= 1 dividing both sides of ``sensor.image_shape``, or it
-        is above 1 and the sensor has markers (their dots are found and inpainted on the full grid).
+        ``binning`` does not divide the sensor's image grid and raw frame
+        (:func:`~estimator.perception.warp.check_binning`), or it is above 1 and the sensor has
+        markers (their dots are found and inpainted on the full grid).
     """
-    _check(binning, sensor.image_shape, f"sensor {sensor.finger!r}")
-    if binning > 1 and sensor.markers:
+    check_binning(sensor, binning)
+    if binning == 1:
+        return sensor
+    if sensor.markers:
         raise PerceptionError(f"binning {binning}: sensor {sensor.finger!r} has markers, which are found and "
                               "inpainted on the full grid only; measure it with binning 1")
-    return _grid_sensor(sensor, binning)
+    return _binned_sensor(sensor, binning)
 
 
 @functools.lru_cache(maxsize=32)
-def _grid_sensor(sensor: SensorSettings, binning: int) -> SensorSettings:
-    if binning == 1:
-        return sensor
-    rows, cols = sensor.image_shape
-    return replace(sensor, model="mini", raw_width_px=cols // binning, raw_height_px=rows // binning,
-                   warped_width_px=cols // binning, warped_height_px=rows // binning, crop_px=0,
-                   pixel_pitch_m=sensor.pixel_pitch_m * binning)
+def _binned_sensor(sensor: SensorSettings, binning: int) -> SensorSettings:
+    rows, cols = (side // binning for side in sensor.image_shape)
+    return replace(sensor, model="mini", raw_width_px=cols, raw_height_px=rows, warped_width_px=cols,
+                   warped_height_px=rows, crop_px=0, pixel_pitch_m=sensor.pixel_pitch_m * binning)
 
 
 def grid_calibration(calibration: Calibration, binning: int) -> Calibration:
@@ -74,18 +67,18 @@ def grid_calibration(calibration: Calibration, binning: int) -> Calibration:
 
     Raises PerceptionError when ``binning`` does not divide both sides of its grid.
     """
-    _check(binning, calibration.image_shape, "the calibration")
-    return _grid_calibration(calibration, binning)
+    rows, cols = calibration.image_shape
+    if isinstance(binning, bool) or not isinstance(binning, int) or binning < 1 or rows % binning or cols % binning:
+        raise PerceptionError(f"binning {binning!r}: expected a whole number >= 1 dividing both sides of the "
+                              f"calibration's {rows} x {cols} px grid")
+    return calibration if binning == 1 else _binned_calibration(calibration, binning)
 
 
 @functools.lru_cache(maxsize=8)
-def _grid_calibration(calibration: Calibration, binning: int) -> Calibration:
-    if binning == 1:
-        return calibration
-    rows, cols = calibration.image_shape
-    return Calibration(lut=calibration.lut, image_shape=(rows // binning, cols // binning),
-                       pixel_pitch_m=calibration.pixel_pitch_m * binning, ball_radius_m=calibration.ball_radius_m,
-                       relative_range=calibration.relative_range,
+def _binned_calibration(calibration: Calibration, binning: int) -> Calibration:
+    rows, cols = (side // binning for side in calibration.image_shape)
+    return Calibration(lut=calibration.lut, image_shape=(rows, cols), pixel_pitch_m=calibration.pixel_pitch_m * binning,
+                       ball_radius_m=calibration.ball_radius_m, relative_range=calibration.relative_range,
                        provenance={**calibration.provenance, "binned": binning})
 
 

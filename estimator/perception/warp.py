@@ -29,7 +29,7 @@ import numpy as np
 from estimator.errors import PerceptionError
 from teleop.settings import SensorSettings
 
-__all__ = ["warp_and_crop", "warp_maps", "warp_matrix", "warp_points"]
+__all__ = ["check_binning", "warp_and_crop", "warp_maps", "warp_matrix", "warp_points"]
 
 
 @functools.lru_cache(maxsize=32)
@@ -71,7 +71,9 @@ def warp_matrix(sensor: SensorSettings) -> np.ndarray:
     return matrix
 
 
-def _check_binning(sensor: SensorSettings, binning: int) -> None:
+def check_binning(sensor: SensorSettings, binning: int) -> None:
+    """Raise PerceptionError unless ``binning`` is a whole number >= 1 dividing both sides of
+    ``sensor``'s image grid and of its raw frame (which is decoded that many times smaller)."""
     sides = (*sensor.image_shape, sensor.raw_height_px, sensor.raw_width_px)
     if isinstance(binning, bool) or not isinstance(binning, int) or binning < 1 or any(s % binning for s in sides):
         raise PerceptionError(
@@ -106,7 +108,7 @@ def warp_maps(sensor: SensorSettings, binning: int = 1) -> tuple[np.ndarray, np.
     PerceptionError
         ``binning`` does not divide the image grid and the raw frame.
     """
-    _check_binning(sensor, binning)
+    check_binning(sensor, binning)
     rows, cols = (side // binning for side in sensor.image_shape)
     centre = (binning - 1) / 2.0  # of a block, in full-grid pixels
     x_out, y_out = np.meshgrid(np.arange(cols, dtype=np.float64) * binning + centre,
