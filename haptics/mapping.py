@@ -10,10 +10,50 @@ the display's range (0 = free, 1 = the stiff end) and ``uncertainty_decades``
 the width of the estimate's interval in decades of E. :func:`to_command`
 quantises it onto one display's ``level_max``.
 
-The scale is logarithmic in E between ``e_soft_pa`` (fraction 0) and
-``e_rigid_pa`` (fraction 1), clamped: equal ratios of E give equal steps,
-which is how perceived softness scales (Weber-Fechner), and the range of
-real objects spans eight orders of magnitude.
+The scale
+---------
+The display's range runs from ``e_soft_pa`` (fraction 0, free) to
+``e_rigid_pa`` (fraction 1, the stiff end), clamped at both ends. In a full
+:class:`~teleop.settings.Settings` the rigid end is, unless the TOML sets it,
+the estimating sensor's resolution limit (``Settings.resolution_limit_pa``,
+about 6.75 MPa for the shipped gel): stiffer objects cannot be told apart by
+the mechanics, so the estimator reports them as ``lower_bound`` at that limit.
+A lower bound, or an ``ok`` estimate, at or above the rigid end is rendered
+*rigid* (fraction 1, the rigid flag); "at" allows a relative
+:data:`RIGID_TOLERANCE` (1e-9), so a bound rounded on its way here still counts.
+
+Between the ends the scale is logarithmic in E, after two laws of softness
+perception:
+
+- Discrimination (Weber). The Weber fraction for discriminating compliance, or
+  Young's modulus, by squeezing is about 15 % (:data:`~teleop.settings.WEBER_FRACTION`;
+  Bergmann Tiest and Kappers, IEEE Transactions on Haptics 2009; it more than
+  triples without the cue of the surface's deformation). A just-noticeable
+  difference is a fixed *ratio* of E, so equal ratios of E are equally
+  discriminable, and the scale that gives every just-noticeable step the same
+  share of the range is linear in log E. The range holds
+  ``ln(e_rigid / e_soft) / ln(1.15)`` just-noticeable steps
+  (:func:`just_noticeable_steps`): about 52 for 5 kPa .. 6.75 MPa.
+- Magnitude (Stevens). Perceived hardness is a power law of the stimulus,
+  ``psi ~ S ** beta`` with ``beta`` about 0.8 for squeezing rubber (Harper and
+  Stevens 1964). A display whose stiffness ``K`` is a power law of E,
+  ``K = K_soft * (E / e_soft) ** gamma``, is felt as ``psi ~ E ** (gamma * beta)``:
+  still a power law of E, so equal ratios of E still feel like equal ratios
+  of hardness. ``log K = log K_soft + gamma * log(E / e_soft)`` is exactly a
+  scale linear in log E: the firmware ideally renders the levels geometrically from
+  ``min_stiffness_n_per_m`` to ``max_stiffness_n_per_m`` (PROTOCOL.md), which
+  sets ``gamma = ln(K_max / K_min) / ln(e_rigid / e_soft)``.
+
+The uncertainty
+---------------
+``Percept.uncertainty_decades`` carries the width of the estimate's interval in
+decades of E, clipped to the display's range ``[e_soft_pa, e_rigid_pa]``: an
+open side reaches the end of the range, so a lower bound at the rigid end has
+width 0 and ``insufficient_data`` spans the whole range (what the display
+cannot show is no uncertainty to the operator). The protocol quantises it at
+:data:`~haptics.protocol.UNCERTAINTY_COUNTS_PER_DECADE` (20) counts per
+decade, saturating at 255; one just-noticeable step (``log10(1.15)``, 0.061
+decade) is 1.2 counts.
 """
 
 from __future__ import annotations
@@ -25,17 +65,21 @@ from typing import Any
 
 from haptics.errors import MappingError
 from haptics.protocol import UNCERTAINTY_COUNTS_PER_DECADE, StiffnessCommand
+from teleop.settings import WEBER_FRACTION
 
 __all__ = [
     "ESTIMATE_STATES",
     "FREE",
+    "RIGID_TOLERANCE",
     "EstimateUpdate",
     "Percept",
     "fade",
     "fade_gain",
     "interval_decades",
     "is_stale",
+    "just_noticeable_steps",
     "map_estimate",
+    "modulus_from_fraction",
     "smooth",
     "smoothing_weight",
     "stiffness_fraction",
@@ -43,6 +87,9 @@ __all__ = [
 ]
 
 ESTIMATE_STATES = ("ok", "lower_bound", "upper_bound", "insufficient_data")
+
+#: Relative tolerance of "at or above the rigid end": a bound equal to the limit after rounding is rigid.
+RIGID_TOLERANCE = 1e-9
 
 
 def _positive_finite(name: str, value: Any) -> float:
@@ -194,6 +241,39 @@ def stiffness_fraction(e_pa: float, *, e_soft_pa: float, e_rigid_pa: float) -> f
     return min(1.0, max(0.0, fraction))
 
 
+def modulus_from_fraction(fraction: float, *, e_soft_pa: float, e_rigid_pa: float) -> float:
+    """The modulus at ``fraction`` of the display's range: the inverse of :func:`stiffness_fraction`.
+
+    The scale is logarithmic, so ``E = e_soft_pa * (e_rigid_pa / e_soft_pa) ** fraction``;
+    the ends are returned exactly (0 gives ``e_soft_pa``, 1 gives ``e_rigid_pa``).
+
+    Parameters
+    ----------
+    fraction : float
+        Position on the display's range, in [0, 1] (a :class:`Percept`'s ``stiffness``).
+    e_soft_pa, e_rigid_pa : float
+        The display's range in Pa.
+
+    Returns
+    -------
+    float
+        Young's modulus in Pa, in ``[e_soft_pa, e_rigid_pa]``.
+
+    Raises
+    ------
+    MappingError
+        ``fraction`` is not a finite number in [0, 1], or the range is invalid.
+    """
+    soft, rigid = _check_range(e_soft_pa, e_rigid_pa)
+    if isinstance(fraction, bool) or not isinstance(fraction, int | float) or not 0.0 <= fraction <= 1.0:
+        raise MappingError(f"fraction = {fraction!r}: expected a number in [0, 1]")
+    if fraction == 0:
+        return soft
+    if fraction == 1:
+        return rigid
+    return min(rigid, max(soft, soft * (rigid / soft) ** fraction))
+
+
 def interval_decades(
     low_pa: float | None, high_pa: float | None, *, e_soft_pa: float, e_rigid_pa: float
 ) -> float:
@@ -216,7 +296,10 @@ def map_estimate(update: EstimateUpdate, *, e_soft_pa: float, e_rigid_pa: float)
     - ``insufficient_data``: unknown, free (stiffness 0), uncertainty the whole range.
     - ``ok``: stiffness of E; rigid when E >= ``e_rigid_pa``.
     - ``lower_bound``: E is the bound (E >= bound); rendered at the bound, rigid when
-      the bound is >= ``e_rigid_pa``; the interval is open above unless given.
+      the bound is >= ``e_rigid_pa`` (the estimator's bound at the sensor's resolution
+      limit, when that is the rigid end); the interval is open above unless given.
+
+    "At or above" ``e_rigid_pa`` allows a relative :data:`RIGID_TOLERANCE`.
     - ``upper_bound``: E is the bound (E <= bound); rendered at the bound, never
       rigid; the interval is open below unless given.
     """
@@ -234,13 +317,27 @@ def map_estimate(update: EstimateUpdate, *, e_soft_pa: float, e_rigid_pa: float)
         low = e_pa
     if update.state == "upper_bound" and high is None:
         high = e_pa
-    is_rigid = update.state in ("ok", "lower_bound") and e_pa >= rigid
+    is_rigid = update.state in ("ok", "lower_bound") and e_pa >= rigid * (1 - RIGID_TOLERANCE)
     return Percept(
         stiffness=1.0 if is_rigid else stiffness_fraction(e_pa, e_soft_pa=soft, e_rigid_pa=rigid),
         uncertainty_decades=interval_decades(low, high, e_soft_pa=soft, e_rigid_pa=rigid),
         rigid=is_rigid,
         provisional=update.provisional,
     )
+
+
+def just_noticeable_steps(
+    e_soft_pa: float, e_rigid_pa: float, *, weber_fraction: float = WEBER_FRACTION
+) -> float:
+    """How many just-noticeable differences of E the range [e_soft_pa, e_rigid_pa] spans:
+    ``ln(e_rigid / e_soft) / ln(1 + weber_fraction)`` (module notes; about 52 for
+    5 kPa .. 6.75 MPa at the 15 % Weber fraction)."""
+    soft, rigid = _check_range(e_soft_pa, e_rigid_pa)
+    if isinstance(weber_fraction, bool) or not isinstance(weber_fraction, int | float) or not (
+        math.isfinite(weber_fraction) and weber_fraction > 0
+    ):
+        raise MappingError(f"weber_fraction = {weber_fraction!r}: expected a finite number > 0")
+    return math.log(rigid / soft) / math.log1p(weber_fraction)
 
 
 def smoothing_weight(dt_s: float, *, smoothing_s: float) -> float:

@@ -73,9 +73,17 @@ class HapticRenderer:
         Connected or not: the renderer connects it on the first call and
         reconnects it (with backoff, resending the last command) after an unplug.
     settings : DisplaySettings
-        E range, smoothing, fade, staleness and keep-alive times.
+        E range, smoothing, fade, staleness and keep-alive times. The range must be
+        resolved: a bare ``DisplaySettings()`` has ``e_rigid_pa = 0`` ("the estimating
+        sensor's resolution limit"), which only a full :class:`~teleop.settings.Settings`
+        turns into a modulus; pass ``load_settings(...).display``.
     reconnect_initial_s, reconnect_max_s : float
         Backoff between reconnection attempts: doubling from the first to the second.
+
+    Raises
+    ------
+    MappingError
+        ``settings.e_rigid_pa`` is unresolved (0) or not above ``e_soft_pa``.
     """
 
     def __init__(
@@ -86,6 +94,13 @@ class HapticRenderer:
         reconnect_initial_s: float = 0.05,
         reconnect_max_s: float = 2.0,
     ) -> None:
+        if not settings.e_rigid_pa > settings.e_soft_pa:
+            raise MappingError(
+                f"DisplaySettings.e_rigid_pa = {settings.e_rigid_pa!r}: unresolved (0 stands for the "
+                "estimating sensor's resolution limit, which only full settings know); render with "
+                "load_settings(...).display, or set e_rigid_pa above e_soft_pa = "
+                f"{settings.e_soft_pa!r}"
+            )
         self.display = display
         self.settings = settings
         self.stats = RendererStats()
@@ -117,6 +132,12 @@ class HapticRenderer:
     def percept(self) -> Percept:
         """What is being rendered, before quantisation."""
         return self._shown
+
+    @property
+    def target(self) -> Percept:
+        """What the latest estimate maps to: the percept the display is settling on
+        (free once the grasp ended)."""
+        return self._target
 
     @property
     def command(self) -> StiffnessCommand | None:

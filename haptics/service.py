@@ -10,8 +10,11 @@ Latency
 For every FINAL estimate it records the end-to-end latency: from the capture of the last
 loading frame (the message's ``t_capture_s``) to the completion of the first display report
 written after the estimate arrived, both on this host's monotonic clock (the robot node runs
-on the same host in the demo; across hosts the figure is meaningless). With ``--report`` one
-JSON object per final estimate goes to a file.
+on the same host in the demo; across hosts the figure is meaningless), and what the display
+renders for it: the percept the estimate maps to (``display_fraction`` of the display's range,
+1 = the stiff end, the ``rigid`` and ``unknown`` flags, the interval's width in decades) and its
+``level`` of ``level_max``, the level the display settles on. With ``--report`` one JSON object
+per final estimate goes to a file.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from typing import Any
 
 from haptics.devices import BACKENDS, make_display
 from haptics.errors import HapticsError
-from haptics.mapping import EstimateUpdate
+from haptics.mapping import FREE, EstimateUpdate, Percept, to_command
 from haptics.renderer import HapticRenderer
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
@@ -44,17 +47,25 @@ INPUT_TOPICS = ("estimate", "grasp_event")
 
 @dataclass(frozen=True)
 class FinalLatency:
-    """A final estimate as the display got it: latency from the last loading frame to the report."""
+    """A final estimate as the display got it: latency from the last loading frame to the report,
+    and what the display renders for it (``percept``; ``level`` of ``level_max``, None before a
+    display was connected)."""
 
     grasp_id: str
     state: str
     e_pa: float | None
     latency_s: float
     estimates_received: int
+    percept: Percept = FREE
+    level: int | None = None
+    level_max: int | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {"grasp_id": self.grasp_id, "state": self.state, "E_pa": self.e_pa,
-                "latency_ms": self.latency_s * 1e3, "estimates_received": self.estimates_received}
+                "latency_ms": self.latency_s * 1e3, "estimates_received": self.estimates_received,
+                "display_fraction": self.percept.stiffness, "rigid": self.percept.rigid,
+                "unknown": self.percept.unknown, "uncertainty_decades": self.percept.uncertainty_decades,
+                "level": self.level, "level_max": self.level_max}
 
 
 @dataclass
@@ -64,6 +75,7 @@ class _Pending:
     grasp_id: str
     update: EstimateUpdate
     reports_before: int
+    percept: Percept
 
 
 @dataclass
@@ -152,7 +164,7 @@ class RendererService:
         self.stats.estimates += 1
         self._received[update.grasp_id] = self._received.get(update.grasp_id, 0) + 1
         if not update.provisional and self.renderer.stats.estimates_ignored == ignored_before:
-            self._pending = _Pending(update.grasp_id, update, reports_before)
+            self._pending = _Pending(update.grasp_id, update, reports_before, self.renderer.target)
             self._check_pending()
 
     def _check_pending(self) -> None:
@@ -162,9 +174,13 @@ class RendererService:
             return
         written_s = self.clock()
         update = pending.update
+        info = self.renderer.display.info
+        level_max = None if info is None else info.level_max
+        level = None if level_max is None else to_command(pending.percept, level_max=level_max).level
         final = FinalLatency(grasp_id=str(pending.grasp_id), state=update.state, e_pa=update.value_pa,
                              latency_s=written_s - update.t_s,
-                             estimates_received=self._received.get(pending.grasp_id, 0))
+                             estimates_received=self._received.get(pending.grasp_id, 0),
+                             percept=pending.percept, level=level, level_max=level_max)
         self.stats.finals.append(final)
         self.report.write(final.to_json())
         self._pending = None
@@ -189,7 +205,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="longest time between renderer updates (smoothing, fading, keep-alive), seconds")
     parser.add_argument("--report", metavar="FILE", default=None,
                         help="append one JSON object per final estimate (grasp_id, state, E_pa, latency_ms, "
-                             "estimates_received) to FILE")
+                             "estimates_received, and what the display renders for it: display_fraction, rigid, "
+                             "unknown, uncertainty_decades, level, level_max) to FILE")
     parser.add_argument("--duration-s", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
     parser.add_argument("--json", action="store_true",

@@ -23,8 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backend", choices=sorted(BACKENDS), default=None,
                         help="display backend (default: [display] backend of the settings)")
     parser.add_argument("--settings", default=None,
-                        help="settings TOML with the [display] section "
-                             "(default: the shipped configs/settings.toml)")
+                        help="settings TOML with the [display] section; its rigid end is the "
+                             "estimating sensor's resolution limit unless [display] e_rigid_pa "
+                             "sets it (default: the shipped configs/settings.toml)")
     parser.add_argument("--timeout-s", type=float, default=0.2,
                         help="how long to wait for the display's status report, in seconds")
     parser.add_argument("--json", action="store_true",
@@ -32,6 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # The full settings resolve [display] e_rigid_pa = 0 to the sensor's resolution limit.
     settings = load_settings(args.settings).display
     if args.backend is not None:
         settings = dataclasses.replace(settings, backend=args.backend)
@@ -46,7 +48,8 @@ def run(args: argparse.Namespace) -> int:
         status = display.read_status(timeout_s=args.timeout_s)
         where = str(display)
     flags = [name for name in ("rigid", "unknown", "provisional") if getattr(command, name)]
-    print(f"E {args.e_pa} Pa ({args.state}) -> {percept.stiffness:.3f} of the range, "
+    print(f"E {args.e_pa} Pa ({args.state}) -> {percept.stiffness:.3f} of the range "
+          f"{settings.e_soft_pa:.3g}..{settings.e_rigid_pa:.3g} Pa, "
           f"level {command.level}/{display.info.level_max}, uncertainty "
           f"{percept.uncertainty_decades:.2f} decades, flags: {', '.join(flags) or 'none'}")
     print(f"wrote to {where}: {report.hex(' ')}")
@@ -58,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({
             "backend": settings.backend, "display": where, "e_pa": args.e_pa, "state": args.state,
+            "e_soft_pa": settings.e_soft_pa, "e_rigid_pa": settings.e_rigid_pa,
             "stiffness": percept.stiffness, "uncertainty_decades": percept.uncertainty_decades,
             "level": command.level, "level_max": display.info.level_max,
             "command": dataclasses.asdict(command), "report_hex": report.hex(),

@@ -9,6 +9,23 @@ an unknown key, a wrong type or an out-of-range value raises
 allowed.
 
 All quantities are SI (m, N, Pa, s, Hz) unless the name says otherwise.
+
+The sensor's resolution limit
+-----------------------------
+Under the half-space approximation gel and object feel the same pressure, so
+with the gel pressed by ``d`` the object's own indentation is
+``d * k_object / k_gel`` (``k = (1 - nu^2) / E``). A change of E by the Weber
+fraction ``w`` (:data:`WEBER_FRACTION`: the smallest change of compliance a
+person feels, about 15 %; Bergmann Tiest and Kappers, IEEE ToH 2009) moves that
+indentation by ``w * d * k_object / k_gel``; the sensor sees the change only
+while it is at least its depth resolution ``r``, even with the gel pressed by its
+whole thickness ``t``. Stiffer objects than
+
+    E_limit = w * (t / r) * (1 - nu_object^2) / k_gel
+
+cannot be told apart by the mechanics (:meth:`SensorSettings.resolution_limit_pa`;
+6.8 MPa for the shipped 275 kPa, 3 mm gel resolving 20 um): an estimator reports
+them as ``lower_bound`` at that limit, and the display renders it as rigid.
 """
 
 from __future__ import annotations
@@ -34,6 +51,7 @@ __all__ = [
     "SensorSettings",
     "Settings",
     "SimulationSettings",
+    "WEBER_FRACTION",
     "default_settings_path",
     "build_settings",
     "load_settings",
@@ -42,6 +60,10 @@ __all__ = [
 ]
 
 T = TypeVar("T")
+
+#: Smallest relative change of an object's compliance a person feels when squeezing it
+#: (Bergmann Tiest and Kappers, IEEE Transactions on Haptics 2009: about 15 %).
+WEBER_FRACTION = 0.15
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 
@@ -180,6 +202,12 @@ class SensorSettings(_Validated):
         """k = (1 - nu^2) / E of the gel, in 1/Pa."""
         return (1.0 - self.gel_poisson**2) / self.gel_modulus_pa
 
+    def resolution_limit_pa(self, object_poisson: float) -> float:
+        """E (Pa) above which this sensor cannot tell objects apart (module notes), for an object
+        of Poisson ratio ``object_poisson``."""
+        ratio = self.gel_thickness_m / self.depth_resolution_m
+        return WEBER_FRACTION * ratio * (1.0 - object_poisson**2) / self.gel_compliance_per_pa
+
 
 @dataclass(frozen=True)
 class GripperSettings(_Validated):
@@ -231,7 +259,8 @@ class DisplaySettings(_Validated):
     vendor_id: int = spec(0x1209, lo=0, hi=0xFFFF)
     product_id: int = spec(0x5EF7, lo=0, hi=0xFFFF)
     e_soft_pa: float = spec(5.0e3, lo=0.0, hi=1e12, lo_open=True, doc="E felt as the softest setting")
-    e_rigid_pa: float = spec(1.0e9, lo=0.0, hi=1e13, lo_open=True, doc="E at and above which it feels rigid")
+    e_rigid_pa: float = spec(0.0, lo=0.0, hi=1e13, doc="E at and above which it feels rigid; 0: the estimating "
+                             "sensor's resolution limit (Settings.resolution_limit_pa)")
     smoothing_s: float = spec(0.1, lo=0.0, hi=10.0)
     fade_s: float = spec(0.3, lo=0.0, hi=10.0)
     stale_after_s: float = spec(1.0, lo=0.0, hi=60.0, lo_open=True)
@@ -239,7 +268,7 @@ class DisplaySettings(_Validated):
                               doc="resend an unchanged command at least this often")
 
     def _check(self) -> None:
-        if self.e_rigid_pa <= self.e_soft_pa:
+        if self.e_rigid_pa and self.e_rigid_pa <= self.e_soft_pa:
             raise SettingsError(
                 f"DisplaySettings.e_rigid_pa = {self.e_rigid_pa}: expected a value above "
                 f"e_soft_pa = {self.e_soft_pa}"
@@ -294,6 +323,15 @@ class Settings(_Validated):
             raise SettingsError("Settings.sensors is empty: expected at least one [sensors.<finger>] table")
         if len(set(fingers)) != len(fingers):
             raise SettingsError(f"Settings.sensors names a finger twice: {fingers}")
+        if not self.display.e_rigid_pa:  # the display's rigid end defaults to what the sensor resolves
+            if self.estimator.finger not in fingers:
+                raise SettingsError(f"DisplaySettings.e_rigid_pa = 0 takes the resolution limit of the estimator's "
+                                    f"finger {self.estimator.finger!r}, which has no sensor: set e_rigid_pa")
+            limit = self.resolution_limit_pa
+            if limit <= self.display.e_soft_pa:
+                raise SettingsError(f"DisplaySettings.e_soft_pa = {self.display.e_soft_pa}: expected a value below "
+                                    f"the sensor's resolution limit {limit:.4g} Pa (the display's rigid end)")
+            object.__setattr__(self, "display", dataclasses.replace(self.display, e_rigid_pa=limit))
         binning = self.estimator.depth_binning
         sensor = next((s for s in self.sensors if s.finger == self.estimator.finger), None)
         if binning > 1 and sensor is not None:
@@ -307,6 +345,11 @@ class Settings(_Validated):
                 raise SettingsError(
                     f"EstimatorSettings.depth_binning = {binning}: finger {sensor.finger!r} has markers, which are "
                     "found and inpainted on the full grid only; set depth_binning = 1 for it")
+
+    @property
+    def resolution_limit_pa(self) -> float:
+        """E (Pa) above which the estimator's finger cannot tell objects apart (module notes)."""
+        return self.sensor(self.estimator.finger).resolution_limit_pa(self.estimator.object_poisson)
 
     def sensor(self, finger: str) -> SensorSettings:
         """The sensor on ``finger``; raises SettingsError naming the fingers there are."""

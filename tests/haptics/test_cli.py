@@ -11,6 +11,7 @@ import pytest
 from haptics.cli import COMMANDS, main
 from haptics.mapping import stiffness_fraction
 from haptics.protocol import REPORT_DESCRIPTOR, decode_output_report
+from teleop.settings import default_settings_path, load_settings
 
 
 def last_json(capsys) -> dict:
@@ -67,7 +68,11 @@ def test_try_maps_and_writes_to_the_simulated_display(capsys):
     assert main(["try", "--backend", "sim", "--e-pa", "2e5", "--low-pa", "1e5", "--high-pa",
                  "4e5", "--json"]) == 0
     data = last_json(capsys)
-    expected = round(stiffness_fraction(2e5, e_soft_pa=5e3, e_rigid_pa=1e9) * data["level_max"])
+    shipped = load_settings()
+    # The shipped range: 5 kPa to the estimating sensor's resolution limit.
+    assert (data["e_soft_pa"], data["e_rigid_pa"]) == (5e3, shipped.resolution_limit_pa)
+    expected = round(stiffness_fraction(2e5, e_soft_pa=5e3, e_rigid_pa=shipped.resolution_limit_pa)
+                     * data["level_max"])
     assert data["level"] == expected
     report = decode_output_report(bytes.fromhex(data["report_hex"]))
     assert report.command.level == expected
@@ -81,6 +86,28 @@ def test_try_insufficient_data_and_rigid(capsys):
     assert main(["try", "--state", "lower_bound", "--e-pa", "3e10", "--json"]) == 0
     data = last_json(capsys)
     assert data["command"]["rigid"] is True and data["level"] == data["level_max"]
+
+
+def test_try_renders_a_bound_at_the_resolution_limit_rigid_and_one_below_at_its_bound(capsys):
+    limit = load_settings().resolution_limit_pa
+    assert main(["try", "--state", "lower_bound", "--e-pa", repr(limit), "--json"]) == 0
+    data = last_json(capsys)
+    assert data["command"]["rigid"] is True and data["level"] == data["level_max"]
+    assert data["uncertainty_decades"] == 0.0
+    below = limit / 1.15  # one just-noticeable step softer
+    assert main(["try", "--state", "lower_bound", "--e-pa", repr(below), "--json"]) == 0
+    data = last_json(capsys)
+    assert data["command"]["rigid"] is False and data["level"] < data["level_max"]
+    assert data["stiffness"] == pytest.approx(stiffness_fraction(below, e_soft_pa=5e3, e_rigid_pa=limit))
+
+
+def test_try_takes_an_explicit_rigid_end_from_the_settings(tmp_path, capsys):
+    text = default_settings_path().read_text()
+    path = tmp_path / "settings.toml"
+    path.write_text(text.replace("e_soft_pa = 5000.0", "e_soft_pa = 5000.0\ne_rigid_pa = 1.0e9"))
+    assert main(["try", "--settings", str(path), "--e-pa", "1e8", "--json"]) == 0
+    data = last_json(capsys)
+    assert data["e_rigid_pa"] == 1e9 and data["command"]["rigid"] is False
 
 
 def test_try_refuses_a_bad_modulus(capsys):

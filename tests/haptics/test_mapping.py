@@ -12,18 +12,22 @@ from haptics.errors import MappingError
 from haptics.mapping import (
     ESTIMATE_STATES,
     FREE,
+    RIGID_TOLERANCE,
     EstimateUpdate,
     Percept,
     fade,
     fade_gain,
     interval_decades,
     is_stale,
+    just_noticeable_steps,
     map_estimate,
+    modulus_from_fraction,
     smooth,
     smoothing_weight,
     stiffness_fraction,
     to_command,
 )
+from teleop.settings import load_settings
 
 SOFT, RIGID = 5e3, 1e9
 RANGE = {"e_soft_pa": SOFT, "e_rigid_pa": RIGID}
@@ -71,6 +75,19 @@ def test_scale_refuses_a_bad_modulus(bad):
 def test_scale_refuses_an_inverted_range():
     with pytest.raises(MappingError, match="e_rigid_pa"):
         stiffness_fraction(1e5, e_soft_pa=1e9, e_rigid_pa=1e3)
+
+
+@given(st.floats(min_value=SOFT, max_value=RIGID), st.floats(min_value=0.0, max_value=1.0))
+def test_modulus_from_fraction_inverts_the_scale(e_pa, fraction):
+    assert modulus_from_fraction(stiffness_fraction(e_pa, **RANGE), **RANGE) == pytest.approx(e_pa, rel=1e-9)
+    assert stiffness_fraction(modulus_from_fraction(fraction, **RANGE), **RANGE) == pytest.approx(fraction, abs=1e-12)
+    assert modulus_from_fraction(0.0, **RANGE) == SOFT and modulus_from_fraction(1.0, **RANGE) == RIGID
+    assert modulus_from_fraction(0.5, **RANGE) == pytest.approx(math.sqrt(SOFT * RIGID))
+    # Beyond the range the scale is clamped, so the round trip lands on the nearer end.
+    assert modulus_from_fraction(stiffness_fraction(250e9, **RANGE), **RANGE) == RIGID
+    for bad in (-0.1, 1.1, math.nan, None, True):
+        with pytest.raises(MappingError, match="fraction"):
+            modulus_from_fraction(bad, **RANGE)
 
 
 # --------------------------------------------------------------------------- states
@@ -304,3 +321,55 @@ def test_any_estimate_gives_a_valid_command(update, level_max, e_soft_pa, ratio)
     assert 0 <= command.level <= level_max
     assert not (command.rigid and command.unknown)
     assert command.unknown == (update.state == "insufficient_data")
+
+
+# --------------------------------------------------------------------------- the shipped range
+
+
+def shipped_range() -> dict[str, float]:
+    display = load_settings().display
+    return {"e_soft_pa": display.e_soft_pa, "e_rigid_pa": display.e_rigid_pa}
+
+
+def test_a_lower_bound_at_the_sensors_resolution_limit_renders_rigid():
+    limit = load_settings().resolution_limit_pa
+    for bound in (limit, float(f"{limit:.6g}"), limit * (1 - RIGID_TOLERANCE / 2), limit * 10):
+        percept = map_estimate(EstimateUpdate(bound, (bound, None), "lower_bound"), **shipped_range())
+        assert percept.rigid and percept.stiffness == 1.0 and percept.uncertainty_decades == pytest.approx(0, abs=1e-9)
+        command = to_command(percept, level_max=4095)
+        assert command.rigid and command.level == 4095
+    # An ok estimate at the limit is rigid too; an upper bound never is.
+    assert map_estimate(ok(limit, (limit / 2, limit * 2)), **shipped_range()).rigid
+    assert not map_estimate(EstimateUpdate(limit, (None, limit), "upper_bound"), **shipped_range()).rigid
+
+
+def test_a_lower_bound_below_the_limit_renders_at_its_bound_and_not_rigid():
+    limit = load_settings().resolution_limit_pa
+    for bound in (limit / 1.15, limit * (1 - 1e-6)):
+        percept = map_estimate(EstimateUpdate(bound, (bound, None), "lower_bound"), **shipped_range())
+        assert not percept.rigid
+        assert percept.stiffness == pytest.approx(stiffness_fraction(bound, **shipped_range()))
+        assert percept.stiffness < 1.0
+        command = to_command(percept, level_max=4095)
+        assert not command.rigid
+
+
+def test_just_noticeable_steps_count_weber_fractions_of_e():
+    limit = load_settings().resolution_limit_pa
+    assert just_noticeable_steps(5e3, limit) == pytest.approx(math.log(limit / 5e3) / math.log(1.15))
+    assert 50 < just_noticeable_steps(5e3, limit) < 54  # "about 52" (module notes)
+    assert just_noticeable_steps(1e3, 1e3 * 1.15**10) == pytest.approx(10.0)
+    assert just_noticeable_steps(1e3, 2e3, weber_fraction=1.0) == pytest.approx(1.0)
+    # Equal ratios of E are equally many steps, wherever they lie on the scale.
+    assert just_noticeable_steps(1e4, 1e5) == pytest.approx(just_noticeable_steps(1e6, 1e7))
+    with pytest.raises(MappingError, match="e_rigid_pa"):
+        just_noticeable_steps(1e6, 1e3)
+    for bad in (0.0, -0.1, math.nan, True):
+        with pytest.raises(MappingError, match="weber_fraction"):
+            just_noticeable_steps(1e3, 1e6, weber_fraction=bad)
+
+
+def test_one_just_noticeable_step_is_about_one_uncertainty_count():
+    # An interval one Weber fraction wide, inside the range, quantises to one count (1/20 decade).
+    percept = map_estimate(ok(1e5, (1e5, 1.15e5)), **shipped_range())
+    assert to_command(percept, level_max=4095).uncertainty == 1

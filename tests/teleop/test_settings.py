@@ -111,7 +111,7 @@ def test_array_lengths_are_checked(tmp_path):
 def test_cross_field_checks(tmp_path):
     message = error_for(tmp_path, "[sensors.left]\ncrop_px = 200\n")
     assert "crop_px" in message and "crops the whole" in message
-    message = error_for(tmp_path, "[display]\ne_soft_pa = 2e9\n")
+    message = error_for(tmp_path, "[display]\ne_soft_pa = 2e9\ne_rigid_pa = 1e9\n")
     assert "e_rigid_pa" in message and "e_soft_pa" in message
 
 
@@ -139,8 +139,12 @@ def test_sensor_tables(tmp_path):
     assert "[sensors.left] must be a table" in message
     message = error_for(tmp_path, "[sensors]\n")
     assert "at least one" in message
-    # Fingers are what the tables are called; a table of its own makes one sensor.
-    settings = load_settings(write(tmp_path, "[sensors.thumb]\nmarkers = true\n", "one.toml"))
+    # Fingers are what the tables are called; a table of its own makes one sensor. The display's
+    # rigid end then needs setting: the estimator's finger (left) has no sensor to take it from.
+    message = error_for(tmp_path, "[sensors.thumb]\nmarkers = true\n")
+    assert "e_rigid_pa" in message and "'left'" in message
+    text = "[sensors.thumb]\nmarkers = true\n[display]\ne_rigid_pa = 1e9\n"
+    settings = load_settings(write(tmp_path, text, "one.toml"))
     assert [s.finger for s in settings.sensors] == ["thumb"] and settings.sensor("thumb").markers
     with pytest.raises(SettingsError, match=r"no sensor on finger 'left'.*\['thumb'\]"):
         settings.sensor("left")
@@ -192,3 +196,30 @@ def test_round_trip_through_a_mapping():
     assert back == changed and back != shipped
     assert back.sensors[0].warp_corners_px == ((1.0, 2.0),) * 4
     assert all(math.isfinite(v) for v in back.sensors[0].warp_corners_px[0])
+
+
+# --------------------------------------------------------------------------- the display's rigid end
+
+
+def test_the_shipped_rigid_end_is_the_sensors_resolution_limit():
+    settings = load_settings()
+    assert settings.display.e_rigid_pa == settings.resolution_limit_pa
+    assert 3e6 < settings.display.e_rigid_pa < 10e6
+    # Its formula (module notes) for the left sensor and the estimator's object Poisson ratio.
+    left, nu = settings.sensor("left"), settings.estimator.object_poisson
+    expected = 0.15 * (left.gel_thickness_m / left.depth_resolution_m) * (1 - nu**2) / left.gel_compliance_per_pa
+    assert settings.resolution_limit_pa == pytest.approx(expected)
+    assert DisplaySettings().e_rigid_pa == 0.0  # unresolved until full settings are built
+    assert Settings().display.e_rigid_pa == Settings().resolution_limit_pa
+
+
+def test_an_explicit_rigid_end_overrides_the_resolution_limit(tmp_path):
+    text = default_settings_path().read_text().replace("e_soft_pa = 5000.0", "e_soft_pa = 5000.0\ne_rigid_pa = 1.0e9")
+    settings = load_settings(write(tmp_path, text))
+    assert settings.display.e_rigid_pa == 1e9 and settings.resolution_limit_pa < 1e9
+
+
+def test_a_soft_end_above_the_resolution_limit_is_refused_naming_e_soft_pa(tmp_path):
+    limit = load_settings().resolution_limit_pa
+    message = error_for(tmp_path, f"[display]\ne_soft_pa = {limit * 2}\n")
+    assert "e_soft_pa" in message and "resolution limit" in message
