@@ -62,11 +62,12 @@ from tqdm import tqdm
 from estimator.analytical import METHODS
 from estimator.errors import EstimatorError
 from estimator.estimate import Estimate
-from estimator.evaluate import answered_by, result_row, summarise
+from estimator.evaluate import answered_by, result_row
 from estimator.learned.hybrid import HybridEstimator
 from estimator.learned.infer import CompliancePredictor, default_model_dir
 from estimator.learned.inputs import calibration_for, decoded, no_contact_reference, sample_grasp
 from estimator.measure import TACTILE_METHODS, estimate_grasp, measure_grasp
+from estimator.metrics import summarise
 from estimator.perception.calibration import Calibration
 from teleop.errors import RecordError
 from teleop.record import GraspRecord, read_record

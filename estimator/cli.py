@@ -8,7 +8,7 @@ from teleop.clikit import Command, run_cli
 
 COMMANDS: dict[str, Command] = {
     "estimate": Command("estimator.estimate_cli", "estimate Young's modulus from one grasp record"),
-    "evaluate": Command("estimator.evaluate", "score the analytical and learned estimators over labelled grasp records (ablation table)"),
+    "evaluate": Command("estimator.evaluate_cli", "score the analytical and learned estimators over labelled grasp records (ablation table)"),
     "build-dataset": Command("estimator.learned.dataset", "labelled grasp records to training samples, split by object"),
     "train": Command("estimator.learned.train", "train the learned / hybrid model and export it to ONNX"),
     "bench": Command("estimator.bench", "latency and error of every estimator configuration, with the Pareto frontier"),

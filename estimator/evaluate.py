@@ -10,51 +10,32 @@ without them), named ``method`` or, where two models give the same method,
 clock-lag corrections asked for); a model measures a grasp as its training data
 was measured (:func:`~estimator.learned.inputs.sample_grasp`).
 
-Per method the summary holds
-
-``n``
-    estimates that count (every state but ``insufficient_data``);
-``log10_error``
-    mean ``|log10 E_hat - log10 E|`` over them (a bound counts with its bound
-    value);
-``within_10x``
-    share of them with ``|log10 E_hat - log10 E| <= 1``;
-``point_log10_error``, ``point_within_10x``
-    the same with a documented point value for each bound: the geometric
-    middle of the bound and the physical limit on that side
-    (``E_MAX_PA`` = 1e12 Pa above diamond for a lower bound, ``E_MIN_PA`` =
-    1e3 Pa below the softest gels and foams for an upper bound); an ``ok``
-    estimate counts with ``E_pa``;
-``ok_only``
-    ``n``, ``log10_error`` and ``within_10x`` over the ``ok`` estimates alone;
-``interval_coverage``
-    share whose interval (open side included) contains the label;
-``states``
-    how many of each state, refusals included;
-``per_material``, ``per_shape``
-    the same metrics per label material and shape;
-``paper``
-    the paper's figure on unseen real objects for the same method and inputs
-    (:data:`PAPER`; its ablation table), None where the paper has none;
-``inputs``
-    what the method reads; a model's entry also names ``model``, ``variant``,
-    ``n_frames``, ``size_px`` and ``measurement_code_matches``, and an ``auto``
-    entry ``answered_by`` (how many grasps each branch answered).
+Per method the summary holds the metrics of :mod:`estimator.metrics` (whose
+docstring defines them): ``n``, ``log10_error``, ``within_10x``,
+``point_log10_error``, ``point_within_10x``, ``ok_only``, what the softness
+display renders for the estimate (``felt_log10_error``, ``felt_within_2x``,
+``dangerous_misses``: against the label clipped to the display's range, with the
+display's own mapping), the intervals (``interval_level``, the nominal coverage a
+learned model states; ``interval_coverage``; ``interval_width_decades_median`` and
+``soft_interval_width_decades_median``, widths as the display shows them),
+``states``, ``per_material``, ``per_shape`` and ``paper`` (the paper's figure
+for the same method and inputs, :data:`~estimator.metrics.PAPER`). Beside them,
+``inputs`` says what the method reads; a model's entry also names ``model``,
+``variant``, ``n_frames``, ``size_px`` and ``measurement_code_matches``, and an
+``auto`` entry ``answered_by`` (how many grasps each branch answered).
 
 The methods come in the order of the paper's ablation table (:func:`ablation_order`).
-``--unseen-by MODEL_DIR`` keeps only the records of objects in that model's test
-split (:func:`held_out_objects`), so the table is on objects it never trained on.
+The command line (``--unseen-by``, ``--rows``, the printed table) is
+:mod:`estimator.evaluate_cli`; the metrics are re-exported here for existing
+importers.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import os
-import time
-from collections import Counter, defaultdict
-from collections.abc import Iterable, Mapping, Sequence
+from collections import Counter
+from collections.abc import Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache, partial
@@ -64,20 +45,23 @@ from typing import Any
 from tqdm import tqdm
 
 from estimator.analytical import METHODS
-from estimator.errors import EstimatorError, ModelError
-from estimator.estimate import STATES, Estimate
+from estimator.errors import ModelError
+from estimator.estimate import Estimate
 from estimator.learned.dataset import load_split
 from estimator.learned.hybrid import HybridEstimator
-from estimator.learned.infer import CompliancePredictor, load_predictor
+from estimator.learned.infer import CompliancePredictor
 from estimator.learned.inputs import Variant
 from estimator.measure import TACTILE_METHODS, calibration_path, estimate_grasp, measure_grasp
+from estimator.metrics import E_MAX_PA, E_MIN_PA, PAPER, point_value, summarise
 from estimator.perception.calibration import Calibration, load_calibration
 from teleop.errors import RecordError
 from teleop.record import Label, read_record
-from teleop.settings import Settings, default_settings_path, load_settings
+from teleop.settings import Settings
 
 __all__ = [
     "ALL_METHODS",
+    "E_MAX_PA",
+    "E_MIN_PA",
     "LEARNED_METHODS",
     "PAPER",
     "ModelMethod",
@@ -86,6 +70,8 @@ __all__ = [
     "answered_by",
     "evaluate_records",
     "model_methods",
+    "plot",
+    "point_value",
     "result_row",
     "summarise",
     "held_out_objects",
@@ -95,23 +81,6 @@ LEARNED_METHODS = ("cnn", "hybrid", "auto")
 ALL_METHODS = (*METHODS, *LEARNED_METHODS)
 ANALYTICAL_INPUTS = {m: "F, w" if m not in TACTILE_METHODS else "depth, F, w" for m in METHODS}
 REPO_DIR = Path(__file__).resolve().parent.parent
-
-# The paper's unseen-object figures (ablation table): mean |log10 error| and share within one
-# decade, keyed by method, and for a learned one by ``method[variant]`` (its inputs).
-PAPER: dict[str, dict[str, float] | None] = {
-    "no_tactile": {"log10_error": 2.13, "within_10x": 0.182},
-    "elastic": {"log10_error": 1.90, "within_10x": 0.273},
-    "hertz": {"log10_error": 1.68, "within_10x": 0.289},
-    "split": None,
-    "hybrid[rgb+markers+fw+analytical]": {"log10_error": 0.76, "within_10x": 0.735},
-    "hybrid[rgb+markers+analytical]": {"log10_error": 0.76, "within_10x": 0.742},
-    "hybrid[rgb+fw+analytical]": {"log10_error": 0.88, "within_10x": 0.686},
-    "hybrid[rgb+analytical]": {"log10_error": 0.90, "within_10x": 0.679},
-    "cnn[rgb+markers+fw]": {"log10_error": 0.86, "within_10x": 0.646},
-    "cnn[rgb+markers]": {"log10_error": 0.85, "within_10x": 0.650},
-    "hybrid[depth+fw+analytical]": {"log10_error": 0.98, "within_10x": 0.636},
-    "hybrid[depth+analytical]": {"log10_error": 1.04, "within_10x": 0.594},
-}
 
 
 @dataclass(frozen=True)
@@ -128,6 +97,9 @@ class ModelMethod:
         The model's inputs.
     measurement_code_matches : bool
         Whether this code measures grasps as the code that built the model's training data.
+    interval_level : float or None
+        The nominal coverage of the model's intervals (``CompliancePredictor.interval_level``,
+        e.g. 0.9); None where the model does not state it.
     """
 
     name: str
@@ -135,6 +107,7 @@ class ModelMethod:
     model_dir: str
     variant: Variant
     measurement_code_matches: bool = True
+    interval_level: float | None = None
 
     @property
     def mode(self) -> str:
@@ -178,7 +151,9 @@ def model_methods(predictors: Sequence[CompliancePredictor], *,
         if any(e.name == name for e in out):
             other = next(e.model_dir for e in out if e.name == name)
             raise ModelError(f"models {other} and {p.model_dir} both give {name}: give each model once")
-        out.append(ModelMethod(name, method, str(p.model_dir), v, p.measurement_code_matches))
+        # An older predictor has no interval_level: the model then states no coverage.
+        out.append(ModelMethod(name, method, str(p.model_dir), v, p.measurement_code_matches,
+                               getattr(p, "interval_level", None)))
     return out
 
 
@@ -289,72 +264,6 @@ def evaluate_record(
 
 
 # Physical limits of Young's modulus, for the point value of a bound (see the module docstring).
-E_MAX_PA = 1e12
-E_MIN_PA = 1e3
-
-
-def point_value(state: str, e_pa: float) -> float:
-    """The value a bound counts with in the point metrics: the geometric middle of the bound and
-    the physical limit on its open side (``e_pa`` itself for ``ok`` or a bound beyond the limit)."""
-    if state == "lower_bound" and e_pa < E_MAX_PA:
-        return math.sqrt(e_pa * E_MAX_PA)
-    if state == "upper_bound" and e_pa > E_MIN_PA:
-        return math.sqrt(e_pa * E_MIN_PA)
-    return e_pa
-
-
-def _log_errors(rows: Sequence[dict[str, Any]], value: Any) -> list[float]:
-    return [abs(math.log10(value(r)) - math.log10(r["truth_pa"])) for r in rows]
-
-
-def _summary(errors: Sequence[float]) -> tuple[float | None, float | None]:
-    if not errors:
-        return None, None
-    return sum(errors) / len(errors), sum(e <= 1.0 for e in errors) / len(errors)
-
-
-def _metrics(rows: Iterable[dict[str, Any]]) -> dict[str, Any]:
-    rows = list(rows)
-    counted = [r for r in rows if r["state"] != "insufficient_data"]
-    errors = _log_errors(counted, lambda r: r["e_pa"])
-    point_error, point_within = _summary(_log_errors(counted, lambda r: point_value(r["state"], r["e_pa"])))
-    ok = [r for r in counted if r["state"] == "ok"]
-    ok_error, ok_within = _summary(_log_errors(ok, lambda r: r["e_pa"]))
-    covered = [
-        (r["low_pa"] is None or r["low_pa"] <= r["truth_pa"]) and (r["high_pa"] is None or r["truth_pa"] <= r["high_pa"])
-        for r in counted
-    ]
-    states = Counter(r["state"] for r in rows)
-    return {
-        "n": len(counted),
-        "log10_error": sum(errors) / len(errors) if errors else None,
-        "within_10x": sum(e <= 1.0 for e in errors) / len(errors) if errors else None,
-        "point_log10_error": point_error,
-        "point_within_10x": point_within,
-        "ok_only": {"n": len(ok), "log10_error": ok_error, "within_10x": ok_within},
-        "interval_coverage": sum(covered) / len(covered) if covered else None,
-        "states": {s: states.get(s, 0) for s in STATES},
-    }
-
-
-def summarise(rows: Sequence[dict[str, Any]], methods: Sequence[str]) -> dict[str, Any]:
-    """Per-method metrics, overall and per material and shape (see the module docstring)."""
-    out = {}
-    for method in methods:
-        mine = [r for r in rows if r.get("method") == method]
-        groups: dict[str, dict[str, list]] = {"material": defaultdict(list), "shape": defaultdict(list)}
-        for r in mine:
-            for key, group in groups.items():
-                group[r[key]].append(r)
-        out[method] = {
-            **_metrics(mine),
-            "per_material": {k: _metrics(v) for k, v in sorted(groups["material"].items())},
-            "per_shape": {k: _metrics(v) for k, v in sorted(groups["shape"].items())},
-            "paper": PAPER.get(method),
-        }
-    return out
-
-
 def ablation_order(name: str, models: Sequence[ModelMethod] = ()) -> tuple:
     """Sort key of a method in the paper's ablation table: no tactile, elastic, Hertz, the
     compliance split, the CNN alone, the hybrid, then ``auto``; within a learned method RGB
@@ -368,12 +277,16 @@ def ablation_order(name: str, models: Sequence[ModelMethod] = ()) -> tuple:
 
 
 def ablation_table(rows: Sequence[dict[str, Any]], *, methods: Sequence[str],
-                   models: Sequence[ModelMethod] = ()) -> dict[str, Any]:
+                   models: Sequence[ModelMethod] = (),
+                   display_range_pa: tuple[float, float] | None = None) -> dict[str, Any]:
     """:func:`summarise` over the analytical ``methods`` and the ``models``, in the paper's
     order (:func:`ablation_order`), each with its inputs and the paper's figure for the same
-    method and inputs; a model's entry also says which model, and ``auto`` who answered."""
+    method and inputs; a model's entry also says which model and its ``interval_level``, and
+    ``auto`` who answered. ``display_range_pa`` (the display's ``(e_soft_pa, e_rigid_pa)``)
+    gives the felt and width figures; without it they are None."""
     names = sorted([*methods, *(e.name for e in models)], key=lambda n: ablation_order(n, models))
-    summary = summarise(rows, names)
+    summary = summarise(rows, names, display_range_pa=display_range_pa,
+                        interval_levels={e.name: e.interval_level for e in models})
     for name, entry in summary.items():
         model = next((e for e in models if e.name == name), None)
         if model is None:
@@ -459,152 +372,3 @@ def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], path: str | Pat
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
-
-
-# --------------------------------------------------------------------------- command
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = (
-        "Evaluate the analytical and learned estimators over the labelled .grasp records under DIR and "
-        "print the paper's ablation table (rows in its order, its unseen-object figures beside them). "
-        "Per method: n, log10_error (mean |log10 E_hat - log10 E|), within_10x (share with error <= 1 "
-        "decade), interval_coverage (share whose interval contains the label), states, per_material "
-        "and per_shape, and the paper's figure for the same method and inputs. log10_error and "
-        "within_10x count a lower or upper bound with its bound value (E_pa is the bound); "
-        "point_log10_error and point_within_10x count it with the geometric middle of the bound and "
-        "the physical limit on its open side (1e12 Pa above a lower bound, 1e3 Pa below an upper "
-        "bound); ok_only holds the figures over ok estimates alone; refusals (insufficient_data) count "
-        "as missing: left out of n and the errors, reported in states. Unlabelled and unreadable "
-        "records (and with --unseen-by, records of objects a model saw) are skipped and counted."
-    )
-    parser.add_argument("dir", metavar="DIR", help="directory searched recursively for .grasp records")
-    parser.add_argument("--methods", nargs="+", choices=ALL_METHODS, default=None,
-                        help="methods to evaluate (default: every analytical method and every method the "
-                             "models give); cnn needs a model trained without analytical inputs, hybrid "
-                             "and auto a model with them")
-    parser.add_argument("--model", dest="models", action="append", metavar="DIR", default=None,
-                        help="trained model directory; repeat for several. Each gives the method its "
-                             "metadata's variant says: hybrid (with analytical inputs, plus its auto "
-                             "mode) or cnn (without); a method two models give is named method[variant]. "
-                             "Default: the settings' estimator.model_path, else the shipped model "
-                             "(estimator/models/default). Read only when a learned method is evaluated")
-    parser.add_argument("--unseen-by", dest="unseen_by", action="append", metavar="MODEL_DIR", default=None,
-                        help="keep only records whose object is in this model's test split (metadata.json "
-                             "data.objects.test, else the split.json of its dataset), so that model never "
-                             "trained on them (a model trained on another split may have); repeat to keep "
-                             "those in every given model's test split")
-    parser.add_argument("--workers", type=int, default=1, help="worker processes")
-    parser.add_argument("--plot", metavar="PNG", default=None,
-                        help="write predictions vs label on log axes with the one-decade band, one panel "
-                             "per method")
-    parser.add_argument("--calibration", metavar="CAL", default=None,
-                        help="calibration (.npz) for every record; default: the file each record's "
-                             "sensor names (relative to configs/)")
-    parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
-                        help="settings TOML (estimator and gripper sections are used)")
-    parser.add_argument("--camera-lag", action="store_true",
-                        help="estimate and correct each record's camera clock lag (analytical methods; a "
-                             "model measures grasps as its training data was measured)")
-    parser.add_argument("--no-width-lag", dest="width_lag", action="store_false",
-                        help="do not estimate and correct how late each record's widths are stamped "
-                             "(analytical methods; by default the lag is estimated from when the fingers "
-                             "stop against the force peak: a host stamps a gripper read when it returns, "
-                             "~0.1 s late, which the hold frames at the peak force would otherwise misread "
-                             "as approach)")
-    parser.add_argument("--json", action="store_true",
-                        help="print one JSON object with the summary on the last stdout line")
-
-
-def _fmt(value: float | None, spec: str) -> str:
-    return "-" if value is None else format(value, spec)
-
-
-def _models(args: argparse.Namespace, settings: Settings) -> list[ModelMethod]:
-    """The learned methods asked for (all the models give when --methods is not given)."""
-    learned = LEARNED_METHODS if args.methods is None else [m for m in args.methods if m in LEARNED_METHODS]
-    if not learned:
-        return []
-    dirs = args.models or [load_predictor(settings=settings).model_dir]
-    resolved = [Path(d).resolve() for d in dirs]
-    twice = sorted({str(d) for d in resolved if resolved.count(d) > 1})
-    if twice:
-        raise EstimatorError(f"--model {twice[0]}: given more than once")
-    models = model_methods([_predictor(str(d)) for d in dirs], methods=learned)
-    missing = [m for m in learned if args.methods is not None and not any(e.method == m for e in models)]
-    if missing:
-        kinds = ", ".join(f"{e.variant.name} ({e.method})" for e in models if e.method != "auto") or "none"
-        raise EstimatorError(f"--methods {' '.join(missing)}: no model given has it (cnn needs a model trained "
-                             f"without analytical inputs, hybrid and auto one with them; models: {kinds}); "
-                             "add one with --model DIR")
-    return models
-
-
-def run(args: argparse.Namespace) -> int:
-    if args.workers < 1:
-        raise EstimatorError(f"--workers {args.workers}: expected at least 1")
-    settings = load_settings(args.settings)
-    root = Path(args.dir)
-    if not root.is_dir():
-        raise EstimatorError(f"{root}: not a directory")
-    paths = sorted(root.rglob("*.grasp"))
-    if not paths:
-        raise EstimatorError(f"{root}: no .grasp records found")
-    methods = list(METHODS) if args.methods is None else [m for m in args.methods if m in METHODS]
-    models = _models(args, settings)
-    objects = None
-    if args.unseen_by:
-        objects = frozenset.intersection(*(held_out_objects(d) for d in args.unseen_by))
-    started = time.perf_counter()
-    rows = evaluate_records(paths, settings=settings, methods=methods, calibration=args.calibration,
-                            models=models, objects=objects,
-                            workers=min(args.workers, os.cpu_count() or 1, len(paths)),
-                            correct_camera_lag=args.camera_lag, correct_width_lag=args.width_lag)
-    skipped = Counter(r["skipped"].split(":")[0] for r in rows if "skipped" in r)
-    labelled = len({r["path"] for r in rows if "method" in r})
-    if objects is not None and not labelled:
-        raise EstimatorError(f"{root}: no labelled record is of an object in the test split of "
-                             f"{', '.join(args.unseen_by)} ({len(objects)} objects)")
-    summary = ablation_table(rows, methods=methods, models=models)
-    if args.plot:
-        plot(rows, list(summary), args.plot)
-    result = {
-        "dir": str(root), "records": len(paths), "labelled": labelled, "skipped": dict(skipped),
-        "seconds": time.perf_counter() - started, "methods": summary,
-        "models": sorted({e.model_dir for e in models}),
-        "unseen_by": None if objects is None else {"models": args.unseen_by, "objects": sorted(objects)},
-        "plot": args.plot,
-    }
-    if args.json:
-        print(json.dumps(result, allow_nan=False))
-        return 0
-    _print_table(result, root)
-    return 0
-
-
-def _print_table(result: Mapping[str, Any], root: Path) -> None:
-    unseen = result["unseen_by"]
-    scope = "" if unseen is None else f", objects of the test split of {', '.join(unseen['models'])}"
-    print(f"{result['labelled']} labelled records of {result['records']} under {root}{scope} "
-          f"({result['seconds']:.1f} s)")
-    print("log10 err / within10x: bounds at their value; point: bounds at the geometric middle of "
-          "bound and physical limit; ok: ok estimates only; paper: its unseen-object figure for the "
-          "same method and inputs")
-    width = max([6, *(len(name) for name in result["methods"])])
-    wide = max([6, *(len(m["inputs"] or "-") for m in result["methods"].values())])
-    print(f"{'method':<{width}} {'inputs':<{wide}} {'n':>4} {'log10 err':>9} {'within10x':>9} {'point err':>9} "
-          f"{'point10x':>8} {'ok n':>4} {'ok err':>6} {'coverage':>8}  {'paper':<9} states")
-    for method, m in result["methods"].items():
-        paper = m["paper"]
-        paper_text = f"{paper['log10_error']:.2f}/{paper['within_10x']:.1%}" if paper else "-"
-        states = ", ".join(f"{k} {v}" for k, v in m["states"].items() if v)
-        ok = m["ok_only"]
-        print(f"{method:<{width}} {m['inputs'] or '-':<{wide}} {m['n']:>4} {_fmt(m['log10_error'], '9.2f')} "
-              f"{_fmt(m['within_10x'], '9.1%')} {_fmt(m['point_log10_error'], '9.2f')} "
-              f"{_fmt(m['point_within_10x'], '8.1%')} {ok['n']:>4} {_fmt(ok['log10_error'], '6.2f')} "
-              f"{_fmt(m['interval_coverage'], '8.1%')}  {paper_text:<9} {states}")
-    for method, m in result["methods"].items():
-        if "answered_by" in m:
-            print(f"{method} answered by: " + ", ".join(f"{k} {v}" for k, v in sorted(m["answered_by"].items())))
-    for model in sorted({m["model"] for m in result["methods"].values() if m.get("measurement_code_matches") is False}):
-        print(f"note: {model} was trained on inputs measured by other code; its methods' figures are not its own")

@@ -135,6 +135,26 @@ def test_the_ablation_table_follows_the_papers_row_order_and_figures():
     assert hybrid["log10_error"] == pytest.approx(math.log10(2)) and hybrid["per_material"]["rubber"]["n"] == 1
 
 
+def test_a_models_interval_level_is_carried_to_its_methods():
+    stated = SimpleNamespace(**vars(predictor("depth+fw+analytical", "h")), interval_level=0.9)
+    entries = model_methods([stated, predictor("rgb+markers+fw", "c")])  # the CNN's model states none
+    assert [(e.name, e.interval_level) for e in entries] == [("hybrid", 0.9), ("auto", 0.9), ("cnn", None)]
+    rows = [row(e.name, 1e5, "ok", 2e5, 1e5, 4e5) for e in entries] + [row("split", 1e5, "ok", 2e5, 1e5, 4e5)]
+    table = ablation_table(rows, methods=["split"], models=entries, display_range_pa=(5e3, 6.75e6))
+    assert {name: m["interval_level"] for name, m in table.items()} == {
+        "split": None, "cnn": None, "hybrid": 0.9, "auto": 0.9}
+    assert table["hybrid"]["felt_log10_error"] == pytest.approx(math.log10(2))
+    assert ablation_table(rows, methods=["split"], models=entries)["hybrid"]["felt_log10_error"] is None
+
+
+def test_metrics_stay_importable_from_evaluate():
+    import estimator.evaluate as evaluate
+    import estimator.metrics as metrics
+
+    for name in ("summarise", "point_value", "PAPER", "E_MAX_PA", "E_MIN_PA"):
+        assert getattr(evaluate, name) is getattr(metrics, name)
+
+
 def test_answered_by_counts_the_branch_in_each_reason_and_refusals():
     rows = [{**row("auto", 1e6, "ok", 1e6), "reason": "model: depth model over 3 frames"},
             {**row("auto", 1e6, "ok", 1e6), "reason": "model: again"},
