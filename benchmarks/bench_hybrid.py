@@ -86,7 +86,7 @@ def stage_runs(record, sampled, *, settings, predictor, calibration):
                                              contact_threshold_m=grid.contact_threshold_m),
         "fits": lambda: [estimate_grasp(m, method, settings=settings) for method in METHODS],
         "encode": lambda: encode(variant, [sampled]),
-        "network": lambda: predictor.predict_normalised(batch),
+        "network": lambda: predictor.predict_logits(batch),
     }
 
 

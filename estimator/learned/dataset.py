@@ -44,7 +44,7 @@ import numpy as np
 from tqdm import tqdm
 
 from estimator.errors import EstimatorError, SampleError
-from estimator.learned.inputs import measurement_fingerprint, sample_grasp
+from estimator.learned.inputs import MEASUREMENT_VERSION, sample_grasp
 from estimator.samples import TrainingSample, save_sample
 from teleop.errors import RecordError
 from teleop.record import read_record
@@ -258,7 +258,7 @@ def build_dataset(
         "size_px": list(options.size_px), "markers": options.markers, "finger": settings.estimator.finger,
         "depth_binning": settings.estimator.depth_binning,
         "calibration": options.calibration, "marker_calibration": options.marker_calibration,
-        "measurement_fingerprint": measurement_fingerprint(),
+        "measurement_version": MEASUREMENT_VERSION,
         "records": len(records), "grasps_used": sum(1 for r in rows if r.get("samples")),
         "samples": counts, "objects": {s: len(v) for s, v in split.items()},
         "skipped": skipped, "skipped_reasons": dict(Counter(re.sub(r"-?\d[\d.e+-]*", "#", s["reason"]) for s in skipped)),

@@ -5,11 +5,15 @@
 the model's ``n_frames``, depth reconstructed for those frames only, contact
 features, every analytical fit over them), runs the ONNX model and returns an
 :class:`~estimator.estimate.Estimate` with method ``"hybrid"`` (a model with
-analytical inputs) or ``"cnn"`` (without). Its interval is the model's ~95 %
-validation residual spread (``metadata.json``, ``residual_log10``). The model's
-output is a sigmoid on log10 E in [3, 12], so the modulus is always finite and
-positive; a grasp that cannot be sampled, or a model output that is not
-finite, gives a refusal with its reason.
+analytical inputs) or ``"cnn"`` (without). The model gives a distribution over
+log10 E (:mod:`estimator.learned.distribution`): its median is the estimate,
+its calibrated interval about the median holds the truth at the stated level (90 %,
+``metadata.json`` ``calibration``), and a median at or above the sensor's
+resolution limit (:attr:`~teleop.settings.Settings.resolution_limit_pa`) is a
+``lower_bound`` at that limit; below the softest training label, an
+``upper_bound``. The modulus is always finite and positive; a grasp that
+cannot be sampled, or a model output that is not finite, gives a refusal with
+its reason.
 
 ``auto`` mode
 -------------
@@ -178,7 +182,7 @@ class HybridEstimator:
             return _as("auto", split, f"split interval {interval_decades(split):.2f} <= "
                                       f"{self.policy.max_split_interval_decades:g} decades, model skipped")
         try:
-            e_pa = float(self.predictor.predict([sampled])[0])
+            probs = self.predictor.predict_distribution([sampled])[0]
         except ModelError as exc:
             if mode != "auto":
                 return Estimate.refuse(method, f"the model gives no estimate: {exc}")
@@ -187,13 +191,20 @@ class HybridEstimator:
                 return Estimate.refuse(method, f"the model gives no estimate ({exc}) and every analytical "
                                                "method refuses")
             return _as("auto", fallback, f"the model gives no estimate ({exc})")
-        low, high = self.predictor.interval(e_pa)
+        said = self.predictor.describe(probs, limit_pa=self.settings.resolution_limit_pa)
         states = ", ".join(f"{e.method} {e.state}" for e in sampled.estimates)
-        reason = (f"{self.predictor.variant.name} model over {self.predictor.variant.n_frames} frames; "
-                  f"interval from validation residuals; analytical inputs: {states}")
+        model = f"{self.predictor.variant.name} model over {self.predictor.variant.n_frames} frames"
+        if said.state == "lower_bound":
+            what = (f"median at or above the sensor's resolution limit (P = {said.p_above_limit:.2f}): "
+                    "stiffer objects look alike to the gel")
+        elif said.state == "upper_bound":
+            what = "median at or below the softest training label"
+        else:
+            what = f"{self.predictor.interval_level:.0%} interval calibrated on validation objects"
+        reason = f"{model}; {what}; analytical inputs: {states}"
         if mode == "auto":
             reason = "model: " + reason
-        return Estimate.ok(method, e_pa, low, high, reason)
+        return Estimate(method, said.e_pa, (said.low_pa, said.high_pa), said.state, reason)
 
 
 def _as(method: str, estimate: Estimate, why: str) -> Estimate:

@@ -10,16 +10,22 @@ A model directory holds ``model.onnx`` and ``metadata.json`` (written by
 ``inputs``
     Input name -> shape with ``null`` for the batch axis; ``output``: the output's name.
 ``scales``
-    The input and output scales it was trained with (checked against this code's).
-``residual_log10``
-    Quantiles of ``log10 E_hat - log10 E`` on the validation objects (``q025``,
-    ``q975``, ``median_abs``, ``n``): the run-time interval.
+    The input and output scales it was trained with (checked against this code's),
+    the output's log10 E bins among them.
+``calibration``
+    Fitted on the validation objects: ``temperature`` (divides the logits),
+    ``level`` (the stated coverage of an ``ok`` interval, 0.9), ``interval_scale``
+    (the interval's half-width in spreads of the distribution that holds the truth
+    at that level: split conformal), ``p_rigid`` (the probability of E at or above the resolution limit
+    from which the answer is a lower bound there), ``soft_pa`` (the softest training label: below it the
+    estimate is an upper bound) and what they scored on the validation grasps
+    (:mod:`estimator.learned.distribution`).
 ``metrics``, ``training``, ``data``
     What it scored on val and test objects, how and on what it was trained;
-    ``data.measurement_fingerprint`` identifies the measurement code that made
-    its inputs (:func:`~estimator.learned.inputs.measurement_fingerprint`), and
-    ``data.depth_binning`` the depth grid they were measured on
-    (:attr:`~teleop.settings.EstimatorSettings.depth_binning`; 1 when absent).
+    ``data.measurement_version`` is the :data:`~estimator.learned.inputs.MEASUREMENT_VERSION`
+    its inputs were measured with, ``data.depth_binning`` the depth grid
+    (:attr:`~teleop.settings.EstimatorSettings.depth_binning`), and ``reference``
+    its inputs on the fixed reference record (:mod:`estimator.learned.reference`).
 """
 
 from __future__ import annotations
@@ -36,14 +42,9 @@ import numpy as np
 import onnxruntime as ort
 
 from estimator.errors import ModelError
-from estimator.learned import inputs
-from estimator.learned.inputs import (
-    ModelInputs,
-    Variant,
-    encode,
-    measurement_fingerprint,
-    modulus_from_normalised,
-)
+from estimator.learned import distribution, inputs
+from estimator.learned.distribution import Described, describe, probabilities, quantile
+from estimator.learned.inputs import MEASUREMENT_VERSION, ModelInputs, Variant, encode
 from teleop.settings import CONFIG_DIR, Settings
 
 __all__ = [
@@ -58,8 +59,8 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 MODEL_FORMAT = "compliance-teleop.model"
-MODEL_VERSION = 1
-OUTPUT_NAME = "e_norm"
+MODEL_VERSION = 2
+OUTPUT_NAME = "log10_e_logits"
 
 
 def default_model_dir() -> Path:
@@ -71,6 +72,7 @@ def current_scales() -> dict[str, Any]:
     """The input and output scales of this code (a model must have been trained with them)."""
     return {
         "log10_e_range": list(inputs.LOG10_E_RANGE),
+        "log10_e_bins": distribution.N_BINS,
         "force_scale_n": inputs.FORCE_SCALE_N,
         "width_scale_m": inputs.WIDTH_SCALE_M,
         "depth_scale_m": inputs.DEPTH_SCALE_M,
@@ -85,8 +87,11 @@ class ModelMetadata:
     """The checked content of a model's ``metadata.json`` (module notes)."""
 
     variant: Variant
-    residual_q025: float
-    residual_q975: float
+    temperature: float
+    p_rigid: float
+    interval_level: float
+    interval_scale: float
+    soft_pa: float
     raw: Mapping[str, Any]
 
     @classmethod
@@ -95,24 +100,30 @@ class ModelMetadata:
         if not isinstance(data, dict) or data.get("format") != MODEL_FORMAT:
             raise ModelError(f"{source}: not a {MODEL_FORMAT} metadata file")
         if data.get("version") != MODEL_VERSION:
-            raise ModelError(f"{source}: metadata version {data.get('version')!r}, this software reads {MODEL_VERSION}")
+            raise ModelError(f"{source}: metadata version {data.get('version')!r}, this software reads "
+                             f"{MODEL_VERSION}; retrain the model (`make model`)")
         try:
             spec = data["variant"]
             variant = Variant.parse(spec["name"], n_frames=int(spec["n_frames"]),
                                     size_px=tuple(int(v) for v in spec["size_px"]))
-            residual = data["residual_log10"]
-            q025, q975 = float(residual["q025"]), float(residual["q975"])
+            cal = data["calibration"]
+            values = {k: float(cal[k]) for k in ("temperature", "p_rigid", "level", "interval_scale", "soft_pa")}
         except (KeyError, TypeError, ValueError) as exc:
             raise ModelError(f"{source}: missing or malformed field ({exc!r})") from exc
-        if not (math.isfinite(q025) and math.isfinite(q975) and q025 <= q975):
-            raise ModelError(f"{source}: residual_log10 q025 {q025} and q975 {q975} must be finite, q025 <= q975")
+        if not all(math.isfinite(v) for v in values.values()) or not (
+                values["temperature"] > 0 and 0 < values["level"] < 1 and values["interval_scale"] > 0
+                and values["soft_pa"] > 0 and 0 < values["p_rigid"] < 1):
+            raise ModelError(f"{source}: calibration {cal}: expected temperature > 0, 0 < p_rigid < 1, "
+                             "0 < level < 1, interval_scale > 0 and soft_pa > 0")
         if data.get("scales") != current_scales():
             raise ModelError(f"{source}: trained with input scales {data.get('scales')}, this code uses "
                              f"{current_scales()}; retrain the model")
         expected = {name: [None, *shape] for name, shape in variant.input_shapes.items()}
         if data.get("inputs") != expected:
             raise ModelError(f"{source}: inputs {data.get('inputs')} do not match variant {variant.name} ({expected})")
-        return cls(variant=variant, residual_q025=q025, residual_q975=q975, raw=data)
+        return cls(variant=variant, temperature=values["temperature"], p_rigid=values["p_rigid"],
+                   interval_level=values["level"],
+                   interval_scale=values["interval_scale"], soft_pa=values["soft_pa"], raw=data)
 
 
 def _session_options(threads: int) -> ort.SessionOptions:
@@ -178,12 +189,19 @@ class CompliancePredictor:
 
     @property
     def measurement_code_matches(self) -> bool:
-        """Whether this code measures grasps as the code that built the model's training data."""
+        """Whether this code measures grasps as the code that built the model's training data did
+        (the same :data:`~estimator.learned.inputs.MEASUREMENT_VERSION`)."""
         data = self.metadata.raw.get("data") or {}
-        return data.get("measurement_fingerprint") == measurement_fingerprint()
+        return data.get("measurement_version") == MEASUREMENT_VERSION
 
-    def predict_normalised(self, batch: Mapping[str, np.ndarray]) -> np.ndarray:
-        """Model output (B,) on the [0, 1] scale for encoded inputs (:func:`~estimator.learned.inputs.encode`).
+    @property
+    def interval_level(self) -> float:
+        """The coverage its ``ok`` intervals state (calibrated on the validation objects)."""
+        return self.metadata.interval_level
+
+    def predict_logits(self, batch: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Model output (B, N_BINS): logits over the log10 E bins, for encoded inputs
+        (:func:`~estimator.learned.inputs.encode`).
 
         Raises
         ------
@@ -199,20 +217,29 @@ class CompliancePredictor:
             if array.ndim != len(shape) + 1 or array.shape[1:] != shape:
                 raise ModelError(f"model input {name!r}: expected (B, {', '.join(map(str, shape))}), got {array.shape}")
             feed[name] = array
-        out = self.session.run([OUTPUT_NAME], feed)[0].reshape(-1)
-        if not np.all(np.isfinite(out)):
-            raise ModelError(f"model {self.model_dir}: output is not finite")
+        out = self.session.run([OUTPUT_NAME], feed)[0]
+        if out.shape != (feed["frames"].shape[0], distribution.N_BINS) or not np.all(np.isfinite(out)):
+            raise ModelError(f"model {self.model_dir}: output {out.shape} is not finite logits over "
+                             f"{distribution.N_BINS} bins")
         return out
 
-    def predict(self, items: Sequence[ModelInputs]) -> np.ndarray:
-        """Modulus (Pa) per item: encode, run, and map back from the [0, 1] scale."""
-        return modulus_from_normalised(self.predict_normalised(encode(self.variant, items)))
+    def predict_distribution(self, items: Sequence[ModelInputs]) -> np.ndarray:
+        """Calibrated bin probabilities (B, N_BINS) per item: encode, run, temperature-scale."""
+        logits = self.predict_logits(encode(self.variant, items))
+        return probabilities(logits, temperature=self.metadata.temperature)
 
-    def interval(self, e_pa: float) -> tuple[float, float]:
-        """The ~95 % interval of an estimate from the validation residuals (Pa), widened to hold it."""
-        low = e_pa * 10.0 ** -self.metadata.residual_q975
-        high = e_pa * 10.0 ** -self.metadata.residual_q025
-        return min(low, e_pa), max(high, e_pa)
+    def predict(self, items: Sequence[ModelInputs]) -> np.ndarray:
+        """Median modulus (Pa) per item."""
+        return 10.0 ** quantile(self.predict_distribution(items), 0.5)
+
+    def describe(self, probs: np.ndarray, *, limit_pa: float) -> Described:
+        """State, value and calibrated interval of one item's distribution, bounded above at the
+        sensor's resolution limit ``limit_pa`` (:func:`~estimator.learned.distribution.describe`; a
+        limit above the model's :data:`~estimator.learned.distribution.CENSOR_PA` is taken there)."""
+        limit_pa = min(limit_pa, distribution.CENSOR_PA)
+        soft_pa = min(self.metadata.soft_pa, limit_pa / 10.0)
+        return describe(probs, scale=self.metadata.interval_scale, limit_pa=limit_pa, soft_pa=soft_pa,
+                        p_rigid=self.metadata.p_rigid)
 
 
 def load_predictor(model_dir: str | Path | None = None, *, settings: Settings | None = None,

@@ -34,16 +34,15 @@ Model inputs (float32, batch first)
 
 Output scale
 ------------
-The network's sigmoid output ``y`` in [0, 1] maps linearly to log10 E in
-[3, 12]: ``E = 10 ** (3 + 9 y)`` Pa, from 1 kPa (softer than any foam) to
-1 TPa (stiffer than any metal; the published labels span 5 kPa to 250 GPa).
-Every output is therefore a finite, positive modulus.
+log10 E in [3, 12] (:data:`LOG10_E_RANGE`), from 1 kPa (softer than any foam)
+to 1 TPa (stiffer than any metal; the published labels span 5 kPa to 250 GPa):
+the network's distribution is over bins of that range
+(:mod:`estimator.learned.distribution`), so every estimate is a finite,
+positive modulus.
 """
 
 from __future__ import annotations
 
-import hashlib
-import importlib
 import math
 import re
 from collections.abc import Sequence
@@ -75,6 +74,7 @@ __all__ = [
     "ANALYTICAL_METHODS",
     "FEATURES_PER_METHOD",
     "LOG10_E_RANGE",
+    "MEASUREMENT_VERSION",
     "DecodedFrameStream",
     "SampledGrasp",
     "Variant",
@@ -84,10 +84,7 @@ __all__ = [
     "decoded",
     "distinct_frames",
     "encode",
-    "measurement_fingerprint",
     "no_contact_reference",
-    "modulus_from_normalised",
-    "normalise_modulus",
     "reduce_images",
     "sample_grasp",
     "sample_positions",
@@ -185,21 +182,6 @@ class Variant:
         if self.analytical:
             shapes["analytical"] = (FEATURES_PER_METHOD * len(ANALYTICAL_METHODS),)
         return shapes
-
-
-# --------------------------------------------------------------------------- scales
-
-
-def normalise_modulus(e_pa: np.ndarray | float) -> np.ndarray:
-    """log10 E mapped to the model's [0, 1] scale (not clipped)."""
-    lo, hi = LOG10_E_RANGE
-    return (np.log10(np.asarray(e_pa, dtype=np.float64)) - lo) / (hi - lo)
-
-
-def modulus_from_normalised(y: np.ndarray | float) -> np.ndarray:
-    """Modulus (Pa) of a model output on the [0, 1] scale (clipped to it first)."""
-    lo, hi = LOG10_E_RANGE
-    return 10.0 ** (lo + (hi - lo) * np.clip(np.asarray(y, dtype=np.float64), 0.0, 1.0))
 
 
 def analytical_features(estimates: Sequence[Estimate]) -> np.ndarray:
@@ -304,27 +286,12 @@ def encode(variant: Variant, items: Sequence[ModelInputs], *, where: str = "mode
 # --------------------------------------------------------------------------- sampling
 
 
-MEASUREMENT_MODULES = (
-    "estimator.segment", "estimator.features", "estimator.analytical", "estimator.measure",
-    "estimator.perception.warp", "estimator.perception.grid", "estimator.perception.markers",
-    "estimator.perception.depth", "estimator.perception.calibration", "estimator.learned.inputs",
-)
-
-
-@lru_cache(maxsize=1)
-def measurement_fingerprint() -> str:
-    """SHA-256 (16 hex digits) of the source of every module that turns a record into model inputs.
-
-    A model learned the inputs this code produced when its dataset was built; when
-    the fingerprint changes (a fix in the fits, the depth, the sampling), the
-    analytical inputs and depth maps it sees at run time may no longer be the
-    ones it was trained on, and it should be retrained.
-    """
-    digest = hashlib.sha256()
-    for name in MEASUREMENT_MODULES:
-        digest.update(Path(importlib.import_module(name).__file__).read_bytes())
-    return digest.hexdigest()[:16]
-
+#: Version of the measurement that turns a record into model inputs (segmentation, depth, contact
+#: features, analytical fits, sampling). Raise it with any change that alters the inputs; a model
+#: records the version its data was measured with (``data.measurement_version``), and
+#: :mod:`estimator.learned.reference` checks that its recorded inputs on a fixed reference record
+#: still come out the same, so a change that alters them without a raised version fails a test.
+MEASUREMENT_VERSION = 1
 
 
 class DecodedFrameStream(FrameStream):

@@ -3,14 +3,14 @@
 After the paper's Fig. 2: one small CNN encoder shared across the N sampled
 frames; small MLP encoders for force and width; a decoder over the frame
 features (and the force/width features); and an estimation decoder that also
-takes the analytical estimates and ends in a sigmoid on the normalised
-log10 E scale of :mod:`estimator.learned.inputs`.
+takes the analytical estimates and ends in logits over the log10 E bins of
+:mod:`estimator.learned.distribution` (a predictive distribution per grasp).
 
 Sizes (defaults): the frame encoder is four stride-2 3x3 convolutions (16, 32,
 48, 64 channels, batch norm, ReLU) followed by global average and max pooling
 (128 features per frame: mean activation tracks the contact's extent, the
 maximum its deepest point); force/width 2N -> 32 -> 32; decoder -> 128 -> 64;
-analytical 24 -> 32; estimation decoder 64 (+32) -> 32 -> 1. About 110 k
+analytical 24 -> 32; estimation decoder 64 (+32) -> 32 -> 90 bins. About 116 k
 parameters (0.5 MB of ONNX) and a few million multiply-adds per frame at
 64 x 88 px.
 """
@@ -20,6 +20,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from estimator.learned.distribution import N_BINS
 from estimator.learned.inputs import Variant
 
 __all__ = ["ComplianceNet"]
@@ -60,7 +61,7 @@ def _mlp(*sizes: int, dropout: float = 0.0) -> nn.Sequential:
 
 
 class ComplianceNet(nn.Module):
-    """Normalised log10 E (B, 1) in [0, 1] from the inputs ``variant`` names, in its order.
+    """Logits (B, N_BINS) over the log10 E bins from the inputs ``variant`` names, in its order.
 
     Call it with the tensors of ``variant.input_shapes`` (batch first), positionally:
     ``frames`` (B, N, C, h, w), then ``force_width`` (B, 2N) and ``analytical``
@@ -83,7 +84,7 @@ class ComplianceNet(nn.Module):
             n_features = variant.input_shapes["analytical"][0]
             self.analytical = _mlp(n_features, 32)
             estimation_in += 32
-        self.estimation = nn.Sequential(_mlp(estimation_in, 32), nn.Linear(32, 1), nn.Sigmoid())
+        self.estimation = nn.Sequential(_mlp(estimation_in, 32), nn.Linear(32, N_BINS))
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
         named = dict(zip(self.variant.input_shapes, inputs, strict=True))

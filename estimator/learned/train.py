@@ -11,22 +11,29 @@ Recipe
   every frame of a sample (a mirrored contact is an equally valid contact); the
   time shifts of the sampled frames are the dataset's sample sets (``--shifts``
   of ``build-dataset``).
-* Loss: Huber (smooth L1) on the normalised label with its knee at 0.25
-  decade, by default. The score that matters is the mean |log10 error|; Huber
-  is quadratic (smooth, MSE-like) for errors under the knee and linear beyond,
-  so the few grasps whose frames cannot tell a stiff plastic from a metal
-  (several decades apart, the paper's stated limit) do not dominate the
-  gradient as they do under MSE. ``--loss mse`` gives the paper's choice.
-* AdamW, early stopping on the mean |log10 error| of the validation objects
-  (patience ``--patience`` epochs); the best epoch is kept.
-* Trained on every sample set; validated, calibrated (interval, ``auto``) and
-  scored on the live sampling only (augmentation 0, one sample per grasp), as
-  the estimator meets grasps: the shifted sets exist only for grasps with long
-  loading phases (soft objects, the easy ones) and would flatter the figures.
+* Loss: the network outputs a distribution over log10 E bins
+  (:mod:`estimator.learned.distribution`), trained with the continuous ranked
+  probability score (CRPS, in decades: a proper scoring rule that is the
+  absolute error for a point mass, so the few grasps whose frames cannot tell a
+  stiff plastic from a metal do not dominate as under a squared loss) plus
+  ``NLL_WEIGHT`` times the log score of the label's bin (sharpens the
+  distribution; also proper).
+* AdamW, early stopping on the mean CRPS of the validation objects (patience
+  ``--patience`` epochs); the best epoch is kept.
+* Label jitter: every step adds normal noise of ``--label-sd`` decades (0.15) to
+  log10 of each label: the published labels are material-class values, uncertain
+  by about a factor of 2, and without it the distribution puts its mass on the
+  few moduli the labels take.
+* Calibration on the validation objects (:func:`calibrate`): a temperature on the
+  logits (log score), the probability of E at or above the resolution limit from
+  which the answer is a lower bound (bounds that hold at ``INTERVAL_LEVEL``), and
+  the interval's half-width in spreads of the distribution that holds the truth
+  of ``INTERVAL_LEVEL`` of the validation grasps answered ``ok`` (split
+  conformal); all in ``metadata.json`` ``calibration``, scored on the test objects.
 
 Writes ``MODEL_DIR/model.onnx`` (checked against torch to 1e-4 in
 onnxruntime), ``metadata.json`` (:mod:`estimator.learned.infer`: variant,
-inputs, scales, validation residual quantiles for the run-time interval,
+inputs, scales, the calibration of the run-time distribution,
 metrics on val and test objects next to the analytical methods' on the same
 grasps, the data and the recipe) and ``training_curve.png``.
 """
@@ -51,30 +58,41 @@ from torch import nn
 from tqdm import tqdm
 
 from estimator.errors import EstimatorError, SampleError
-from estimator.evaluate import summarise
+from estimator.learned import distribution
 from estimator.learned.dataset import SPLITS, load_manifest, load_split, parse_size
+from estimator.learned.distribution import (
+    censor,
+    conformal_scale,
+    describe,
+    fit_temperature,
+    interval_score,
+    probabilities,
+    quantile,
+)
 from estimator.learned.export import OPSET, export_onnx
 from estimator.learned.hybrid import MIN_SPLIT_FRAMES, interval_decades
 from estimator.learned.infer import MODEL_FORMAT, MODEL_VERSION, current_scales
 from estimator.learned.inputs import (
     ANALYTICAL_METHODS,
+    MEASUREMENT_VERSION,
     Variant,
     distinct_frames,
     encode,
-    measurement_fingerprint,
-    modulus_from_normalised,
-    normalise_modulus,
 )
 from estimator.learned.model import ComplianceNet
+from estimator.learned.reference import REFERENCE_RECORD, reference_inputs, summarise_inputs
+from estimator.metrics import summarise
 from estimator.samples import TrainingSample, load_sample, sample_paths
+from teleop.settings import Settings, load_settings
 
 __all__ = ["SplitData", "TrainConfig", "load_split_data", "train_model"]
 
 log = logging.getLogger(__name__)
 
-HUBER_KNEE_DECADES = 0.25
+NLL_WEIGHT = 0.05
+INTERVAL_LEVEL = 0.9
+P_RIGID_CHOICES = (0.5, 0.6, 0.7, 0.8, 0.9)
 AUTO_THRESHOLDS_DECADES = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
-LOG10_SPAN = 9.0  # decades of the normalised scale
 
 
 @dataclass(frozen=True)
@@ -86,13 +104,13 @@ class TrainConfig:
     lr: float = 2e-3
     weight_decay: float = 1e-4
     patience: int = 10
-    loss: str = "huber"
+    label_sd_decades: float = 0.15
     seed: int = 0
     threads: int = 1
 
     def __post_init__(self) -> None:
-        if self.loss not in ("huber", "mse"):
-            raise EstimatorError(f"loss {self.loss!r}: expected huber or mse")
+        if not (math.isfinite(self.label_sd_decades) and self.label_sd_decades >= 0):
+            raise EstimatorError(f"label_sd_decades {self.label_sd_decades!r}: expected a finite value >= 0")
         if min(self.epochs, self.batch_size, self.patience, self.threads) < 1:
             raise EstimatorError("epochs, batch_size, patience and threads must each be >= 1")
         if not (self.lr > 0 and self.weight_decay >= 0):
@@ -104,7 +122,7 @@ class SplitData:
     """The encoded samples of one split."""
 
     inputs: dict[str, np.ndarray]
-    label: np.ndarray  # normalised, (n,)
+    label: np.ndarray  # log10 E (Pa), (n,)
     rows: list[dict[str, Any]]  # per sample: object, material, shape, truth_pa, estimates
 
     def __len__(self) -> int:
@@ -152,7 +170,7 @@ def load_split_data(data_dir: str | Path, variant: Variant) -> dict[str, SplitDa
             rows.append(_row(sample, path))
         if samples:
             batch = encode(variant, samples, where=str(directory))
-            label = normalise_modulus([r["truth_pa"] for r in rows]).astype(np.float32)
+            label = np.log10([r["truth_pa"] for r in rows]).astype(np.float32)
         else:
             batch = {k: np.zeros((0, *s), np.float32) for k, s in variant.input_shapes.items()}
             label = np.zeros(0, np.float32)
@@ -160,10 +178,17 @@ def load_split_data(data_dir: str | Path, variant: Variant) -> dict[str, SplitDa
     return out
 
 
-def _loss(kind: str) -> nn.Module:
-    if kind == "mse":
-        return nn.MSELoss()
-    return nn.HuberLoss(delta=HUBER_KNEE_DECADES / LOG10_SPAN)
+_EDGES = torch.from_numpy(distribution.EDGES_LOG10[1:-1].astype(np.float32))
+
+
+def distribution_loss(logits: torch.Tensor, log10_e: torch.Tensor) -> torch.Tensor:
+    """Mean CRPS (decades) of the binned distributions plus ``NLL_WEIGHT`` times the log score of the
+    labels' bins (module notes), per batch, for censored labels (:func:`~estimator.learned.distribution.censor`)."""
+    cdf = torch.softmax(logits, dim=1).cumsum(dim=1)[:, :-1]
+    step = (log10_e[:, None] <= _EDGES[None]).to(cdf.dtype)
+    crps = ((cdf - step) ** 2).sum(dim=1) * distribution.BIN_DECADES
+    index = torch.from_numpy(distribution.bin_index(log10_e.detach().numpy()))
+    return crps.mean() + NLL_WEIGHT * nn.functional.cross_entropy(logits, index)
 
 
 def _flip(frames: torch.Tensor, generator: np.random.Generator) -> torch.Tensor:
@@ -174,29 +199,82 @@ def _flip(frames: torch.Tensor, generator: np.random.Generator) -> torch.Tensor:
 
 
 def _predict(model: ComplianceNet, data: SplitData, batch_size: int = 256) -> np.ndarray:
+    """Logits (n, N_BINS) of every sample of ``data``."""
     model.eval()
     names = list(model.variant.input_shapes)
     out = []
     with torch.no_grad():
         for start in range(0, len(data), batch_size):
             args = [torch.from_numpy(data.inputs[n][start:start + batch_size]) for n in names]
-            out.append(model(*args).numpy().reshape(-1))
-    return np.concatenate(out) if out else np.zeros(0, np.float32)
+            out.append(model(*args).numpy())
+    return np.concatenate(out) if out else np.zeros((0, distribution.N_BINS), np.float32)
 
 
-def _mean_log10_error(pred: np.ndarray, label: np.ndarray) -> float:
-    return float(np.mean(np.abs(pred - label)) * LOG10_SPAN)
+def _mean_log10_error(logits: np.ndarray, label: np.ndarray) -> float:
+    """Mean |median - label| in decades."""
+    return float(np.mean(np.abs(quantile(probabilities(logits), 0.5) - label)))
 
 
-def _rows(data: SplitData, pred_norm: np.ndarray, method: str, residual: dict[str, float]
+def _described(logits: np.ndarray, calibration: dict[str, Any]) -> list[distribution.Described]:
+    """What each distribution says under ``calibration`` (temperature, interval_scale, soft_pa,
+    limit_pa, p_rigid)."""
+    probs = probabilities(logits, temperature=calibration["temperature"])
+    return [describe(p, scale=calibration["interval_scale"], limit_pa=calibration["limit_pa"],
+                     soft_pa=calibration["soft_pa"], p_rigid=calibration["p_rigid"]) for p in probs]
+
+
+def calibrate(logits: np.ndarray, log10_truth: np.ndarray, *, soft_pa: float, limit_pa: float,
+              level: float = INTERVAL_LEVEL) -> dict[str, Any]:
+    """The run-time calibration fitted on validation grasps (module notes), with what it scores there.
+
+    The temperature minimises the log score of the censored truths; ``p_rigid`` is the smallest of
+    :data:`P_RIGID_CHOICES` at which the lower bounds hold on at least ``level`` of the grasps they
+    answer; ``interval_scale`` is the split-conformal scale of the ``ok`` intervals at ``level``.
+
+    Returns ``temperature``, ``p_rigid``, ``level``, ``interval_scale``, ``soft_pa``, ``limit_pa``
+    (the resolution limit it was fitted at), ``chosen_on`` and the validation figures: ``n``,
+    ``n_ok``, ``ok_coverage`` (share of ``ok`` intervals holding the truth), ``bound_coverage``
+    (share of bounds the truth satisfies) and ``coverage`` (all of them).
+    """
+    truth_pa = 10.0 ** log10_truth
+    temperature = fit_temperature(logits, censor(log10_truth))
+    calibration = {"temperature": temperature, "p_rigid": P_RIGID_CHOICES[-1], "level": level,
+                   "interval_scale": 1.0, "soft_pa": soft_pa, "limit_pa": limit_pa, "chosen_on": "val"}
+    for p_rigid in P_RIGID_CHOICES:
+        said = _described(logits, {**calibration, "p_rigid": p_rigid})
+        bounds = [_holds(d, t) for d, t in zip(said, truth_pa, strict=True) if d.state != "ok"]
+        if not bounds or np.mean(bounds) >= level:
+            calibration["p_rigid"] = p_rigid
+            break
+    probs = probabilities(logits, temperature=temperature)
+    ok = np.array([d.state == "ok" for d in _described(logits, calibration)])
+    scores = interval_score(probs[ok], log10_truth[ok])
+    scale = conformal_scale(scores, level)
+    if not math.isfinite(scale):
+        scale = max(float(scores.max(initial=0.0)), 1.0)
+        log.warning("%d validation grasps answered ok are too few to promise a %.0f%% interval; the interval "
+                    "takes the widest of them (%.2f spreads): add validation objects", ok.sum(), 100 * level, scale)
+    calibration["interval_scale"] = scale
+    held = np.array([_holds(d, t) for d, t in zip(_described(logits, calibration), truth_pa, strict=True)])
+    calibration.update(n=int(held.size), n_ok=int(ok.sum()),
+                       ok_coverage=float(held[ok].mean()) if ok.any() else None,
+                       bound_coverage=float(held[~ok].mean()) if (~ok).any() else None,
+                       coverage=float(held.mean()) if held.size else None)
+    return calibration
+
+
+def _holds(said: distribution.Described, truth_pa: float) -> bool:
+    return (said.low_pa is None or said.low_pa <= truth_pa) and (said.high_pa is None or truth_pa <= said.high_pa)
+
+
+def _rows(data: SplitData, logits: np.ndarray, method: str, calibration: dict[str, float]
           ) -> list[dict[str, Any]]:
-    """evaluate-style rows: the model's estimate (interval from the validation residuals) and each
-    analytical estimate, per sample."""
+    """evaluate-style rows: the model's calibrated estimate and each analytical estimate, per sample."""
     rows = []
-    for row, e_pa in zip(data.rows, modulus_from_normalised(pred_norm), strict=True):
+    for row, said in zip(data.rows, _described(logits, calibration), strict=True):
         base = {k: row[k] for k in ("object", "material", "shape", "truth_pa")}
-        low, high = min(e_pa * 10.0 ** -residual["q975"], e_pa), max(e_pa * 10.0 ** -residual["q025"], e_pa)
-        rows.append({**base, "method": method, "state": "ok", "e_pa": float(e_pa), "low_pa": low, "high_pa": high})
+        rows.append({**base, "method": method, "state": said.state, "e_pa": said.e_pa, "low_pa": said.low_pa,
+                     "high_pa": said.high_pa})
         for est in row["estimates"]:
             low, high = est.interval_pa
             rows.append({**base, "method": est.method, "state": est.state, "e_pa": est.e_pa,
@@ -204,22 +282,25 @@ def _rows(data: SplitData, pred_norm: np.ndarray, method: str, residual: dict[st
     return rows
 
 
-def _metrics(data: SplitData, pred_norm: np.ndarray, method: str, residual: dict[str, float]) -> dict[str, Any]:
+def _metrics(data: SplitData, logits: np.ndarray, method: str, calibration: dict[str, Any],
+             settings: Settings) -> dict[str, Any]:
     if not len(data):
         return {}
-    summary = summarise(_rows(data, pred_norm, method, residual), [method, *ANALYTICAL_METHODS])
+    display = (settings.display.e_soft_pa, settings.display.e_rigid_pa)
+    summary = summarise(_rows(data, logits, method, calibration), [method, *ANALYTICAL_METHODS],
+                        display_range_pa=display, interval_levels={method: calibration["level"]})
     for value in summary.values():
         value.pop("paper", None)
     summary["objects"] = len({r["object"] for r in data.rows})
     return summary
 
 
-def _auto_policy(data: SplitData, pred_norm: np.ndarray) -> dict[str, Any]:
+def _auto_policy(data: SplitData, logits: np.ndarray) -> dict[str, Any]:
     """``auto``'s split threshold: the widest interval at which the split, on the validation grasps
     it would answer (``ok`` over at least ``MIN_SPLIT_FRAMES`` frames), errs no more on average than
     the model on those grasps (0: never)."""
     truth = np.log10([r["truth_pa"] for r in data.rows])
-    model_error = np.abs(np.log10(modulus_from_normalised(pred_norm)) - truth)
+    model_error = np.abs(quantile(probabilities(logits), 0.5) - truth)
     split = [next((e for e in r["estimates"] if e.method == "split"), None) for r in data.rows]
     ok = np.array([e is not None and e.state == "ok" and r["frames"] >= MIN_SPLIT_FRAMES
                    for e, r in zip(split, data.rows, strict=True)])
@@ -239,68 +320,51 @@ def _auto_policy(data: SplitData, pred_norm: np.ndarray) -> dict[str, Any]:
     return {"max_split_interval_decades": chosen, "chosen_on": "val", "table": table}
 
 
-def _plot(history: list[dict[str, float]], best_epoch: int, path: Path) -> None:
+def _plot(fitted: Fitted, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    history = fitted.history
     epochs = [h["epoch"] for h in history]
     fig, (ax_loss, ax_err) = plt.subplots(1, 2, figsize=(10, 4))
     ax_loss.plot(epochs, [h["train_loss"] for h in history], label="train")
     ax_loss.plot(epochs, [h["val_loss"] for h in history], label="val")
-    ax_loss.set(xlabel="epoch", ylabel="loss (normalised log10 E)", yscale="log", title="loss")
+    ax_loss.set(xlabel="epoch", ylabel="CRPS + log score (decades)", yscale="log", title="loss")
     ax_err.plot(epochs, [h["train_log10_error"] for h in history], label="train")
     ax_err.plot(epochs, [h["val_log10_error"] for h in history], label="val")
     for ax in (ax_loss, ax_err):
-        ax.axvline(best_epoch, color="0.5", ls="--", lw=1, label="kept")
+        ax.axvline(fitted.best_epoch, color="0.5", ls="--", lw=1, label="kept")
         ax.legend()
-    ax_err.set(xlabel="epoch", ylabel="mean |log10 E_hat - log10 E|", title="error (decades)")
+    ax_err.set(xlabel="epoch", ylabel="mean |median - log10 E|", title="error (decades, E censored at 100 MPa)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def train_model(
-    data_dir: str | Path,
-    out_dir: str | Path,
-    *,
-    variant: Variant,
-    config: TrainConfig = TrainConfig(),
-    progress: bool = True,
-) -> dict[str, Any]:
-    """Train ``variant`` on the dataset in ``data_dir``; write the model to ``out_dir``; return its metadata.
+@dataclass
+class Fitted:
+    """The trained network at its best validation epoch, and how it got there."""
 
-    Raises
-    ------
-    EstimatorError
-        The dataset has no train or no val samples, or does not match the variant.
-    """
-    started = time.perf_counter()
-    data_dir, out_dir = Path(data_dir), Path(out_dir)
-    manifest = load_manifest(data_dir)
-    if manifest.get("measurement_fingerprint") != measurement_fingerprint():
-        log.warning("%s was built by other measurement code (fingerprint %s, now %s): the model will learn "
-                    "inputs the estimator no longer produces; rebuild the dataset", data_dir,
-                    manifest.get("measurement_fingerprint"), measurement_fingerprint())
-    if variant.markers and not manifest.get("markers"):
-        raise EstimatorError(f"variant {variant.name} reads markers; {data_dir} was built without --markers")
-    data = load_split_data(data_dir, variant)
-    train, val = data["train"], data["val"].live()
-    if not len(train) or not len(val):
-        raise EstimatorError(f"{data_dir}: {len(train)} train and {len(val)} val samples; both splits need "
-                             "samples (more objects, or other --split fractions)")
+    model: ComplianceNet
+    history: list[dict[str, float]]
+    best_epoch: int
+    best_val_loss: float
+
+
+def _fit(train: SplitData, val: SplitData, variant: Variant, config: TrainConfig, *, progress: bool) -> Fitted:
+    """Train the network (seeded weights, shuffles, flips and label jitter); early-stopped on the
+    validation loss, the best epoch kept."""
     torch.manual_seed(config.seed)
-    torch.use_deterministic_algorithms(True)
-    torch.set_num_threads(config.threads)
     rng = np.random.default_rng(config.seed)
     model = ComplianceNet(variant)
     optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=config.epochs)
-    loss_fn = _loss(config.loss)
     names = list(variant.input_shapes)
     tensors = {n: torch.from_numpy(train.inputs[n]) for n in names}
-    label = torch.from_numpy(train.label)
+    label = torch.from_numpy(censor(train.label).astype(np.float32))
+    val_label = censor(val.label).astype(np.float32)
     history: list[dict[str, float]] = []
     best = (math.inf, 0, copy.deepcopy(model.state_dict()))
     bar = tqdm(range(1, config.epochs + 1), desc="train", unit="epoch", disable=not progress)
@@ -315,32 +379,73 @@ def train_model(
             args = [tensors[n][index] for n in names]
             args[0] = _flip(args[0], rng)
             optimiser.zero_grad()
-            loss = loss_fn(model(*args).reshape(-1), label[index])
+            jitter = torch.from_numpy(rng.normal(0.0, config.label_sd_decades, index.numel()).astype(np.float32))
+            loss = distribution_loss(model(*args), label[index] + jitter)
             loss.backward()
             optimiser.step()
             total += float(loss.detach()) * index.numel()
         scheduler.step()
         train_pred, val_pred = _predict(model, train), _predict(model, val)
         with torch.no_grad():
-            val_loss = float(loss_fn(torch.from_numpy(val_pred), torch.from_numpy(val.label)))
+            val_loss = float(distribution_loss(torch.from_numpy(val_pred), torch.from_numpy(val_label)))
         entry = {"epoch": epoch, "train_loss": total / len(train), "val_loss": val_loss,
-                 "train_log10_error": _mean_log10_error(train_pred, train.label),
-                 "val_log10_error": _mean_log10_error(val_pred, val.label)}
+                 "train_log10_error": _mean_log10_error(train_pred, censor(train.label)),
+                 "val_log10_error": _mean_log10_error(val_pred, val_label)}
         history.append(entry)
-        bar.set_postfix(val_err=f"{entry['val_log10_error']:.3f}", best=best[1])
-        if entry["val_log10_error"] < best[0]:
-            best = (entry["val_log10_error"], epoch, copy.deepcopy(model.state_dict()))
+        bar.set_postfix(val_loss=f"{val_loss:.3f}", val_err=f"{entry['val_log10_error']:.3f}", best=best[1])
+        if val_loss < best[0]:
+            best = (val_loss, epoch, copy.deepcopy(model.state_dict()))
         elif epoch - best[1] >= config.patience:
             break
     model.load_state_dict(best[2])
-    model.eval()
+    return Fitted(model.eval(), history, best[1], best[0])
+
+
+def train_model(
+    data_dir: str | Path,
+    out_dir: str | Path,
+    *,
+    variant: Variant,
+    config: TrainConfig = TrainConfig(),
+    settings: Settings | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Train ``variant`` on the dataset in ``data_dir``; write the model to ``out_dir``; return its metadata.
+
+    ``settings`` (default: the shipped ones) give the sensor's resolution limit at which the
+    intervals are calibrated (:func:`calibrate`).
+
+    Raises
+    ------
+    EstimatorError
+        The dataset has no train or no val samples, or does not match the variant.
+    """
+    started = time.perf_counter()
+    settings = load_settings() if settings is None else settings
+    data_dir, out_dir = Path(data_dir), Path(out_dir)
+    manifest = load_manifest(data_dir)
+    if manifest.get("measurement_version") != MEASUREMENT_VERSION:
+        log.warning("%s was measured by measurement version %s, this code is version %s: the model will learn "
+                    "inputs the estimator no longer produces; rebuild the dataset", data_dir,
+                    manifest.get("measurement_version"), MEASUREMENT_VERSION)
+    if variant.markers and not manifest.get("markers"):
+        raise EstimatorError(f"variant {variant.name} reads markers; {data_dir} was built without --markers")
+    data = load_split_data(data_dir, variant)
+    train, val = data["train"], data["val"].live()
+    if not len(train) or not len(val):
+        raise EstimatorError(f"{data_dir}: {len(train)} train and {len(val)} val samples; both splits need "
+                             "samples (more objects, or other --split fractions)")
+    torch.use_deterministic_algorithms(True)
+    torch.set_num_threads(config.threads)
+    fitted = _fit(train, val, variant, config, progress=progress)
+    model = fitted.model
+    names = list(variant.input_shapes)
     out_dir.mkdir(parents=True, exist_ok=True)
     example = {n: val.inputs[n][:8] if len(val) >= 2 else train.inputs[n][:8] for n in names}
     export_onnx(model, out_dir / "model.onnx", example=example)
     val_pred = _predict(model, val)
-    errors = (val_pred - val.label) * LOG10_SPAN
-    residual = {"q025": float(np.quantile(errors, 0.025)), "q975": float(np.quantile(errors, 0.975)),
-                "median_abs": float(np.median(np.abs(errors))), "n": int(errors.size)}
+    soft_pa = float(min(r["truth_pa"] for r in train.rows))
+    calibration = calibrate(val_pred, val.label, soft_pa=soft_pa, limit_pa=settings.resolution_limit_pa)
     metadata = {
         "format": MODEL_FORMAT,
         "version": MODEL_VERSION,
@@ -348,25 +453,27 @@ def train_model(
         "variant": {"name": variant.name, "n_frames": variant.n_frames, "size_px": list(variant.size_px),
                     "method": variant.method},
         "inputs": {n: [None, *s] for n, s in variant.input_shapes.items()},
-        "output": "e_norm",
+        "output": "log10_e_logits",
         "scales": current_scales(),
-        "residual_log10": residual,
+        "calibration": calibration,
+        "reference": {"record": REFERENCE_RECORD.name,
+                      "inputs": summarise_inputs(reference_inputs(variant, settings=settings))},
         "auto": _auto_policy(val, val_pred),
-        "metrics": {name: _metrics(part, _predict(model, part), variant.method, residual)
+        "metrics": {name: _metrics(part, _predict(model, part), variant.method, calibration, settings)
                     for name, part in (("val", val), ("test", data["test"].live()))},
-        "training": {**asdict(config), "epochs_run": len(history), "best_epoch": best[1],
-                     "best_val_log10_error": best[0], "seconds": time.perf_counter() - started,
+        "training": {**asdict(config), "epochs_run": len(fitted.history), "best_epoch": fitted.best_epoch,
+                     "best_val_loss": fitted.best_val_loss, "seconds": time.perf_counter() - started,
                      "parameters": sum(p.numel() for p in model.parameters()), "torch": torch.__version__,
-                     "opset": OPSET, "history": history},
+                     "opset": OPSET, "history": fitted.history},
         "data": {"dir": str(data_dir), **{k: manifest.get(k) for k in (
             "n_frames", "shifts", "size_px", "markers", "finger", "depth_binning", "samples", "records",
-            "grasps_used", "measurement_fingerprint")},
+            "grasps_used", "measurement_version")},
             # Names, not counts: `estimator evaluate --unseen-by` keeps the records of the test objects.
             "objects": {name: sorted(objects) for name, objects in load_split(data_dir / "split.json").items()},
             "split_seed": json.loads((data_dir / "split.json").read_text()).get("seed")},
     }
     (out_dir / "metadata.json").write_text(json.dumps(metadata, indent=1, allow_nan=False))
-    _plot(history, best[1], out_dir / "training_curve.png")
+    _plot(fitted, out_dir / "training_curve.png")
     return metadata
 
 
@@ -396,9 +503,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch-size", type=int, default=TrainConfig.batch_size, help="samples per step")
     parser.add_argument("--lr", type=float, default=TrainConfig.lr, help="AdamW learning rate (cosine decay)")
     parser.add_argument("--weight-decay", type=float, default=TrainConfig.weight_decay, help="AdamW weight decay")
-    parser.add_argument("--loss", choices=("huber", "mse"), default=TrainConfig.loss,
-                        help="huber: smooth L1 with its knee at 0.25 decade (robust to hopeless grasps); "
-                             "mse: the paper's")
+    parser.add_argument("--settings", metavar="FILE", default=None,
+                        help="settings TOML whose estimating sensor's resolution limit the intervals are "
+                             "calibrated at (default: the shipped configs/settings.toml)")
+    parser.add_argument("--label-sd", dest="label_sd", type=float, default=TrainConfig.label_sd_decades,
+                        metavar="DECADES",
+                        help="standard deviation of the normal jitter added to log10 of each label at every step: "
+                             "the published labels are material-class values, uncertain by about a factor of 2")
     parser.add_argument("--seed", type=int, default=TrainConfig.seed, help="seed of weights, shuffles and flips")
     parser.add_argument("--threads", type=int, default=TrainConfig.threads, help="torch CPU threads")
     parser.add_argument("--json", action="store_true",
@@ -415,25 +526,32 @@ def _variant(args: argparse.Namespace, manifest: dict[str, Any]) -> Variant:
     return Variant.parse(args.variant, n_frames=frames, size_px=size)
 
 
+def _share(value: float | None) -> str:
+    return "-" if value is None else f"{value:.1%}"
+
+
 def _fmt(metrics: dict[str, Any], method: str) -> str:
     m = metrics.get(method) or {}
     if m.get("log10_error") is None:
         return "-"
-    return f"{m['log10_error']:.2f} / {m['within_10x']:.0%} (n={m['n']})"
+    felt = "" if m.get("felt_log10_error") is None else f", felt {m['felt_log10_error']:.2f} / {m['felt_within_2x']:.0%}"
+    return f"{m['log10_error']:.2f} / {m['within_10x']:.0%}{felt} (n={m['n']})"
 
 
 def run(args: argparse.Namespace) -> int:
     manifest = load_manifest(args.data)
     variant = _variant(args, manifest)
     config = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay,
-                         patience=args.patience, loss=args.loss, seed=args.seed, threads=args.threads)
-    meta = train_model(args.data, args.out, variant=variant, config=config)
+                         patience=args.patience, label_sd_decades=args.label_sd, seed=args.seed,
+                       threads=args.threads)
+    meta = train_model(args.data, args.out, variant=variant, config=config, settings=load_settings(args.settings))
     training = meta["training"]
     if args.json:
         print(json.dumps({"out": str(args.out), "variant": variant.name, "epochs_run": training["epochs_run"],
                           "best_epoch": training["best_epoch"], "seconds": training["seconds"],
                           "metrics": meta["metrics"]}, allow_nan=False))
         return 0
+    cal = meta["calibration"]
     print(f"{variant.name} ({variant.n_frames} frames, {variant.size_px[0]}x{variant.size_px[1]}): best epoch "
           f"{training['best_epoch']} of {training['epochs_run']}, {training['seconds']:.0f} s -> {args.out}")
     for split in ("val", "test"):
@@ -442,4 +560,8 @@ def run(args: argparse.Namespace) -> int:
             methods: Sequence[str] = [variant.method, *ANALYTICAL_METHODS]
             print(f"  {split:<4} ({metrics['objects']} objects) log10 error / within 10x: "
                   + ", ".join(f"{m} {_fmt(metrics, m)}" for m in methods))
+    print(f"  calibration on val: temperature {cal['temperature']:.2f}; lower bound from P(E >= limit) >= "
+          f"{cal['p_rigid']:g}; {cal['level']:.0%} interval = median -/+ {cal['interval_scale']:.2f} spreads; "
+          f"coverage ok {_share(cal['ok_coverage'])} of {cal['n_ok']}, bounds {_share(cal['bound_coverage'])}, "
+          f"all {_share(cal['coverage'])} of {cal['n']}")
     return 0

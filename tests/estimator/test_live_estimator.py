@@ -335,23 +335,28 @@ def test_service_logs_bad_messages_and_carries_on(settings, calibration, records
 # --------------------------------------------------------------------------- model reload
 
 
-def write_tiny_model(model_dir: Path, level: float) -> float:
-    """A model that ignores its input and answers ``level`` on the [0, 1] scale; returns its E (Pa)."""
+def write_tiny_model(model_dir: Path, log10_e: float) -> float:
+    """A model that ignores its input and puts all its mass in the bin of ``log10_e``; returns the
+    median it answers (the bin's centre, Pa)."""
     onnx = pytest.importorskip("onnx")
     from onnx import TensorProto, helper
 
-    from estimator.learned.infer import MODEL_FORMAT, MODEL_VERSION, current_scales
-    from estimator.learned.inputs import modulus_from_normalised
+    from estimator.learned.distribution import BIN_DECADES, EDGES_LOG10, N_BINS, bin_index
+    from estimator.learned.infer import MODEL_FORMAT, MODEL_VERSION, OUTPUT_NAME, current_scales
 
     shape = [3, 1, 16, 22]
-    nodes = [helper.make_node("ReduceMean", ["frames"], ["mean"], axes=[1, 2, 3, 4], keepdims=0),
-             helper.make_node("Mul", ["mean", "zero"], ["nothing"]),
-             helper.make_node("Add", ["nothing", "level"], ["e_norm"])]
+    index = int(bin_index(log10_e))
+    logits = np.full(N_BINS, -60.0, np.float32)
+    logits[index] = 0.0
+    nodes = [helper.make_node("ReduceMean", ["frames"], ["mean"], axes=[2, 3, 4], keepdims=0),
+             helper.make_node("Mul", ["mean", "zero"], ["nothing"]),  # (batch, frames) of zeros
+             helper.make_node("ReduceMean", ["nothing"], ["column"], axes=[1], keepdims=1),
+             helper.make_node("Add", ["column", "logits"], [OUTPUT_NAME])]
     graph = helper.make_graph(
         nodes, "tiny", [helper.make_tensor_value_info("frames", TensorProto.FLOAT, ["batch", *shape])],
-        [helper.make_tensor_value_info("e_norm", TensorProto.FLOAT, ["batch"])],
+        [helper.make_tensor_value_info(OUTPUT_NAME, TensorProto.FLOAT, ["batch", N_BINS])],
         [helper.make_tensor("zero", TensorProto.FLOAT, [], [0.0]),
-         helper.make_tensor("level", TensorProto.FLOAT, [], [level])])
+         helper.make_tensor("logits", TensorProto.FLOAT, [N_BINS], logits.tolist())])
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
     model.ir_version = 8
     model_dir.mkdir(parents=True, exist_ok=True)
@@ -359,17 +364,18 @@ def write_tiny_model(model_dir: Path, level: float) -> float:
     (model_dir / "metadata.json").write_text(json.dumps({
         "format": MODEL_FORMAT, "version": MODEL_VERSION,
         "variant": {"name": "depth", "n_frames": 3, "size_px": [16, 22]},
-        "inputs": {"frames": [None, *shape]}, "output": "e_norm", "scales": current_scales(),
-        "residual_log10": {"q025": -0.5, "q975": 0.5, "median_abs": 0.2, "n": 10},
+        "inputs": {"frames": [None, *shape]}, "output": OUTPUT_NAME, "scales": current_scales(),
+        "calibration": {"temperature": 1.0, "p_rigid": 0.5, "level": 0.9, "interval_scale": 1.645,
+                        "soft_pa": 5e3},
         "data": {"depth_binning": load_settings().estimator.depth_binning},
     }))
-    return float(modulus_from_normalised(np.float32(level)))
+    return float(10.0 ** (EDGES_LOG10[index] + BIN_DECADES / 2))
 
 
 @pytest.mark.slow
 def test_model_reload_swaps_between_grasps_without_dropping_one(settings, calibration, records, tmp_path):
     model_dir = tmp_path / "model"
-    first_e = write_tiny_model(model_dir, 0.5)
+    first_e = write_tiny_model(model_dir, 5.55)
     slot = ModelSlot(model_dir, settings=settings, calibration=calibration, mode="model", check_interval_s=0.0)
     rig = Rig(settings, calibration, model=slot)
     try:
@@ -381,7 +387,7 @@ def test_model_reload_swaps_between_grasps_without_dropping_one(settings, calibr
         while not rig.service.stats.provisional and time.monotonic() < deadline:
             time.sleep(0.05)
         assert rig.service.stats.provisional > 0  # grasp A is loading now
-        second_e = write_tiny_model(model_dir, 0.25)  # the files change mid-grasp...
+        second_e = write_tiny_model(model_dir, 4.25)  # the files change mid-grasp...
         slot.request_reload()  # ...and a reload is asked for
         rig.send_grasp(record, "g-a", start=False, part=slice(len(messages) // 2, None))
         got_a = rig.collect("g-a")
@@ -401,13 +407,13 @@ def test_model_reload_swaps_between_grasps_without_dropping_one(settings, calibr
 
 def test_model_slot_reloads_on_file_change_and_keeps_a_good_model_over_a_bad_one(settings, calibration, tmp_path):
     model_dir = tmp_path / "model"
-    write_tiny_model(model_dir, 0.5)
+    write_tiny_model(model_dir, 5.55)
     now = [0.0]
     slot = ModelSlot(model_dir, settings=settings, calibration=calibration, check_interval_s=1.0,
                      clock=lambda: now[0])
     first = slot.estimator
     assert not slot.poll(idle=True)  # nothing changed
-    write_tiny_model(model_dir, 0.3)
+    write_tiny_model(model_dir, 4.75)
     now[0] = 0.5
     assert not slot.poll(idle=True)  # not looked at before check_interval_s
     now[0] = 2.0

@@ -11,7 +11,7 @@ import pytest
 
 from estimator.estimate import Estimate
 from estimator.learned.dataset import DATASET_FORMAT, SPLITS, split_objects
-from estimator.learned.inputs import measurement_fingerprint
+from estimator.learned.inputs import MEASUREMENT_VERSION
 from estimator.samples import TrainingSample, save_sample
 from teleop.settings import load_settings
 
@@ -71,7 +71,7 @@ def write_synthetic_dataset(out: Path, *, grasps: int = 2, shifts: int = 2, mark
     (out / "dataset.json").write_text(json.dumps({
         "format": DATASET_FORMAT, "version": 1, "n_frames": N_FRAMES, "shifts": shifts, "size_px": list(SIZE),
         "markers": markers, "finger": "left", "depth_binning": load_settings().estimator.depth_binning,
-        "samples": counts, "measurement_fingerprint": measurement_fingerprint(), "objects": {k: len(v) for k, v in split.items()},
+        "samples": counts, "measurement_version": MEASUREMENT_VERSION, "objects": {k: len(v) for k, v in split.items()},
     }))
     return out
 

@@ -179,7 +179,7 @@ def test_estimate_without_model_uses_the_shipped_model(sim_grasps, capsys):
     assert out["state"] == direct.state and out["E_pa"] == pytest.approx(direct.e_pa)
 
 
-@pytest.mark.parametrize("module", ["estimator.evaluate", "estimator.estimate_cli"])
+@pytest.mark.parametrize("module", ["estimator.evaluate_cli", "estimator.estimate_cli"])
 def test_commands_explain_every_option(module):
     import argparse
     import importlib

@@ -13,10 +13,12 @@ import pytest
 import torch
 
 from estimator.errors import ModelError
+from estimator.learned.distribution import N_BINS, quantile
 from estimator.learned.export import export_onnx, max_disagreement
 from estimator.learned.infer import CompliancePredictor, ModelMetadata, load_predictor
-from estimator.learned.inputs import Variant, encode, normalise_modulus
+from estimator.learned.inputs import Variant, encode
 from estimator.learned.model import ComplianceNet
+from estimator.learned.reference import mismatches
 
 
 def _random_batch(variant: Variant, batch: int, seed: int = 0) -> dict[str, np.ndarray]:
@@ -42,14 +44,18 @@ def test_trained_model_loads_and_predicts(trained_model, synthetic):
     samples = [synthetic.sample(n, 0, 0, rng=np.random.default_rng(i)) for i, n in enumerate(("foam_a", "metal_a"))]
     e_pa = predictor.predict(samples)
     assert e_pa.shape == (2,) and np.all(np.isfinite(e_pa)) and np.all((e_pa >= 1e3) & (e_pa <= 1e12))
-    np.testing.assert_allclose(normalise_modulus(e_pa), predictor.predict_normalised(encode(predictor.variant, samples)),
-                               rtol=1e-5, atol=1e-6)
-    low, high = predictor.interval(float(e_pa[0]))
-    assert 0 < low <= e_pa[0] <= high < np.inf
+    probs = predictor.predict_distribution(samples)
+    assert probs.shape == (2, N_BINS) and np.allclose(probs.sum(axis=1), 1.0) and np.all(probs >= 0)
+    np.testing.assert_allclose(np.log10(e_pa), quantile(probs, 0.5), rtol=1e-9)
+    logits = predictor.predict_logits(encode(predictor.variant, samples))
+    assert logits.shape == (2, N_BINS)
+    said = predictor.describe(probs[0], limit_pa=1e12)
+    assert said.state in ("ok", "upper_bound") and 0 < said.e_pa < 1e12
+    assert predictor.interval_level == pytest.approx(0.9)
     with pytest.raises(ModelError, match="model input 'frames'"):
-        predictor.predict_normalised({**encode(predictor.variant, samples), "frames": np.zeros((2, 3, 1, 8, 8))})
+        predictor.predict_logits({**encode(predictor.variant, samples), "frames": np.zeros((2, 3, 1, 8, 8))})
     with pytest.raises(ModelError, match="model inputs"):
-        predictor.predict_normalised({"frames": np.zeros((2, 3, 1, 16, 22))})
+        predictor.predict_logits({"frames": np.zeros((2, 3, 1, 16, 22))})
 
 
 @pytest.mark.slow
@@ -62,8 +68,8 @@ def test_inference_never_imports_torch(trained_model):
         from estimator.learned.inputs import encode
         predictor = CompliancePredictor({str(trained_model)!r})
         batch = {{n: np.zeros((2, *s), np.float32) for n, s in predictor.variant.input_shapes.items()}}
-        out = predictor.predict_normalised(batch)
-        assert out.shape == (2,), out.shape
+        out = predictor.predict_logits(batch)
+        assert out.shape == (2, 90), out.shape
         import estimator.bench, estimator.learned.dataset  # the run-time commands' modules too
         print("torch" in sys.modules)
     """)
@@ -83,8 +89,9 @@ def _copy(model_dir, tmp_path):
     (lambda m: m.update(format="other"), "not a compliance-teleop.model"),
     (lambda m: m["scales"].update(force_scale_n=25.0), "trained with input scales"),
     (lambda m: m["variant"].update(name="rgb+fw+analytical"), "do not match variant"),
-    (lambda m: m["residual_log10"].update(q025=1.0, q975=-1.0), "q025 <= q975"),
-    (lambda m: m.pop("residual_log10"), "missing or malformed"),
+    (lambda m: m["calibration"].update(interval_scale=0.0), "interval_scale > 0"),
+    (lambda m: m["calibration"].update(temperature=-1.0), "temperature > 0"),
+    (lambda m: m.pop("calibration"), "missing or malformed"),
 ])
 @pytest.mark.slow
 def test_metadata_that_does_not_fit_is_refused(trained_model, tmp_path, change, expected):
@@ -111,7 +118,7 @@ def test_missing_or_broken_files_are_refused(trained_model, tmp_path):
 def test_a_model_knows_whether_this_code_measured_its_inputs(trained_model, tmp_path, caplog):
     assert CompliancePredictor(trained_model).measurement_code_matches
     dest, meta = _copy(trained_model, tmp_path)
-    meta["data"]["measurement_fingerprint"] = "0" * 16
+    meta["data"]["measurement_version"] = 0
     (dest / "metadata.json").write_text(json.dumps(meta))
     with caplog.at_level("WARNING"):
         stale = CompliancePredictor(dest)
@@ -161,6 +168,31 @@ def test_the_shipped_models_were_trained_on_what_this_code_measures(name):
     if not (model_dir / "metadata.json").is_file():
         pytest.skip(f"no shipped model {name}")
     predictor = CompliancePredictor(model_dir)
-    # A change to the measurement code (or the depth grid) needs the shipped models retrained.
-    assert predictor.measurement_code_matches, f"retrain {model_dir}: the measurement code changed"
-    assert predictor.depth_binning == load_settings().estimator.depth_binning
+    settings = load_settings()
+    # A change to the measurement (or the depth grid) needs the shipped models retrained.
+    assert predictor.measurement_code_matches, f"retrain {model_dir}: the measurement version changed"
+    assert predictor.depth_binning == settings.estimator.depth_binning
+    # ... and a change that alters the inputs must raise the measurement version.
+    recorded = predictor.metadata.raw["reference"]["inputs"]
+    moved = mismatches(recorded, predictor.variant, settings=settings)
+    assert not moved, (f"{model_dir}: the inputs on the reference record moved without a new "
+                       f"MEASUREMENT_VERSION (raise it and retrain): {moved}")
+
+
+@pytest.mark.slow
+def test_the_reference_check_sees_inputs_that_moved(trained_model):
+    from dataclasses import replace
+
+    from teleop.settings import load_settings
+
+    settings = load_settings()
+    predictor = CompliancePredictor(trained_model)
+    recorded = predictor.metadata.raw["reference"]["inputs"]
+    assert mismatches(recorded, predictor.variant, settings=settings) == []
+    # Another object Poisson ratio changes every analytical fit, and nothing else.
+    other = replace(settings, estimator=replace(settings.estimator, object_poisson=0.2))
+    moved = mismatches(recorded, predictor.variant, settings=other)
+    assert moved and all(m.startswith("analytical") for m in moved)
+    # Depth on the full grid changes the depth maps.
+    full = replace(settings, estimator=replace(settings.estimator, depth_binning=1))
+    assert any(m.startswith("frames") for m in mismatches(recorded, predictor.variant, settings=full))

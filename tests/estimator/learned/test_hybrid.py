@@ -48,9 +48,14 @@ def test_hard_analytical_inputs_still_give_a_valid_model_estimate(trained_model,
     hybrid = HybridEstimator(CompliancePredictor(trained_model), settings=SETTINGS)
     result = hybrid.estimate_sampled(_sampled(synthetic, "metal_a", estimates), mode=mode)
     _valid(result)
-    assert result.state == "ok" and result.method == ("hybrid" if mode == "model" else "auto")
-    low, high = result.interval_pa
-    assert low <= result.e_pa <= high and 1e3 <= result.e_pa <= 1e12
+    assert result.method == ("hybrid" if mode == "model" else "auto")
+    if result.state == "lower_bound":  # a metal: at least the sensor's resolution limit, no more said
+        assert result.interval_pa == (SETTINGS.resolution_limit_pa, None)
+        assert result.e_pa == SETTINGS.resolution_limit_pa and "resolution limit" in result.reason
+    else:
+        assert result.state == "ok"
+        low, high = result.interval_pa
+        assert low <= result.e_pa <= high <= 1e12
 
 
 def test_an_unsampled_grasp_is_refused_with_its_reason(trained_model):
@@ -71,19 +76,24 @@ def test_a_non_finite_model_output_is_never_returned(trained_model, synthetic):
     assert hybrid.estimate_sampled(all_refused, mode="auto").state == "insufficient_data"
 
 
-@pytest.mark.parametrize("bias", [60.0, -60.0], ids=["saturated_high", "saturated_low"])
-def test_a_saturated_model_gives_the_ends_of_the_range(trained_model, synthetic, tmp_path, bias):
+@pytest.mark.parametrize("end", [-1, 0], ids=["saturated_high", "saturated_low"])
+def test_a_saturated_model_gives_the_bounds_at_the_ends(trained_model, synthetic, tmp_path, end):
     dest = tmp_path / "model"
     shutil.copytree(trained_model, dest)
     predictor = CompliancePredictor(trained_model)
     model = ComplianceNet(predictor.variant).eval()
-    with torch.no_grad():
-        model.estimation[1].bias.fill_(bias)
+    with torch.no_grad():  # all the mass in the first or the last bin of the scale
+        model.estimation[1].weight.zero_()
+        model.estimation[1].bias.zero_()
+        model.estimation[1].bias[end] = 60.0
     sample = _sampled(synthetic, "foam_a")
     export_onnx(model, dest / "model.onnx", example=encode(predictor.variant, [sample, sample]))
     result = HybridEstimator(CompliancePredictor(dest), settings=SETTINGS).estimate_sampled(sample)
     _valid(result)
-    assert result.e_pa == pytest.approx(1e12 if bias > 0 else 1e3)
+    if end == -1:  # a terapascal: no more than "at least the resolution limit"
+        assert result.state == "lower_bound" and result.e_pa == SETTINGS.resolution_limit_pa
+    else:  # a kilopascal: no less than "at most the softest training label"
+        assert result.state == "upper_bound" and result.e_pa == predictor.metadata.soft_pa
 
 
 def test_auto_takes_a_narrow_split_and_skips_the_model(trained_model, synthetic):

@@ -15,8 +15,6 @@ from estimator.learned.inputs import (
     Variant,
     analytical_features,
     encode,
-    modulus_from_normalised,
-    normalise_modulus,
     reduce_images,
 )
 
@@ -48,14 +46,6 @@ def test_input_shapes_follow_the_flags():
 def test_bad_variants_are_refused(text, kwargs, expected):
     with pytest.raises(ModelError, match=expected):
         Variant.parse(text, **kwargs)
-
-
-def test_modulus_scale_round_trips_and_stays_finite():
-    e = np.array([5e3, 2.75e5, 2e11])
-    np.testing.assert_allclose(modulus_from_normalised(normalise_modulus(e)), e, rtol=1e-12)
-    assert normalise_modulus(1e3) == pytest.approx(0.0) and normalise_modulus(1e12) == pytest.approx(1.0)
-    extremes = modulus_from_normalised(np.array([-5.0, 0.0, 1.0, 7.0]))
-    np.testing.assert_allclose(extremes, [1e3, 1e3, 1e12, 1e12])
 
 
 def test_analytical_features_encode_states_bounds_and_widths():

@@ -7,6 +7,7 @@ import itertools
 import pytest
 import torch
 
+from estimator.learned.distribution import N_BINS
 from estimator.learned.inputs import Variant
 from estimator.learned.model import ComplianceNet
 
@@ -27,8 +28,9 @@ def test_forward_shape_and_range_for_every_variant(name):
     model = ComplianceNet(variant).eval()
     with torch.no_grad():
         out = model(*_inputs(variant, 4))
-    assert out.shape == (4, 1)
-    assert torch.all((out > 0) & (out < 1))
+    assert out.shape == (4, N_BINS) and torch.all(torch.isfinite(out))  # logits over the log10 E bins
+    probs = torch.softmax(out, dim=1)
+    assert torch.allclose(probs.sum(dim=1), torch.ones(4)) and torch.all(probs > 0)
 
 
 @pytest.mark.parametrize(("n_frames", "size_px"), [(1, (64, 88)), (5, (125, 175))])
@@ -36,7 +38,7 @@ def test_frame_count_and_resolution_are_parameters(n_frames, size_px):
     variant = Variant.parse("depth+fw+analytical", n_frames=n_frames, size_px=size_px)
     model = ComplianceNet(variant).eval()
     with torch.no_grad():
-        assert model(*_inputs(variant, 2)).shape == (2, 1)
+        assert model(*_inputs(variant, 2)).shape == (2, N_BINS)
     assert sum(p.numel() for p in model.parameters()) < 200_000  # small enough for ~1 ms per grasp
 
 

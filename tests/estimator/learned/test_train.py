@@ -10,12 +10,12 @@ import pytest
 
 from estimator.errors import EstimatorError, SampleError
 from estimator.learned.dataset import load_split
-from estimator.learned.inputs import Variant
+from estimator.learned.inputs import MEASUREMENT_VERSION, Variant
 from estimator.learned.train import TrainConfig, load_split_data, train_model
 
 
 @pytest.mark.slow
-def test_trained_model_directory(trained_model, synthetic_dataset):
+def test_trained_model_directory(trained_model, synthetic_dataset, synthetic):
     assert {p.name for p in trained_model.iterdir()} >= {"model.onnx", "metadata.json", "training_curve.png"}
     assert (trained_model / "training_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     meta = json.loads((trained_model / "metadata.json").read_text())
@@ -26,11 +26,18 @@ def test_trained_model_directory(trained_model, synthetic_dataset):
     assert len(training["history"]) == training["epochs_run"]
     for split in ("val", "test"):
         metrics = meta["metrics"][split]
-        assert metrics["hybrid"]["n"] > 0 and 0 <= metrics["hybrid"]["log10_error"] < 9
+        assert metrics["hybrid"]["n"] > 0 and metrics["hybrid"]["interval_level"] == 0.9
+        assert 0 <= metrics["hybrid"]["felt_log10_error"] <= 3.2  # the display spans 3.1 decades
         assert metrics["split"]["n"] > 0 and "no_tactile" in metrics  # the analytical methods on the same grasps
-    residual = meta["residual_log10"]
+    cal = meta["calibration"]
     live_val = len(list((synthetic_dataset / "val").rglob("*_a0.npz")))  # scored on the live sampling only
-    assert residual["q025"] <= residual["q975"] and residual["n"] == live_val < meta["data"]["samples"]["val"]
+    assert cal["n"] == live_val < meta["data"]["samples"]["val"] and cal["chosen_on"] == "val"
+    assert cal["temperature"] > 0 and cal["interval_scale"] > 0 and 0.5 <= cal["p_rigid"] < 1
+    train_objects = json.loads((synthetic_dataset / "split.json").read_text())["train"]
+    assert cal["level"] == 0.9 and cal["soft_pa"] == min(synthetic.OBJECTS[n][1] for n in train_objects)
+    assert meta["data"]["measurement_version"] == MEASUREMENT_VERSION
+    assert set(meta["reference"]["inputs"]) == {"frames_sum", "frames_abs_sum", "frames_peak", "force_width",
+                                                "analytical"}
     assert meta["metrics"]["test"]["hybrid"]["n"] == len(list((synthetic_dataset / "test").rglob("*_a0.npz")))
     assert meta["auto"]["max_split_interval_decades"] >= 0 and meta["auto"]["table"]
     split = json.loads((synthetic_dataset / "split.json").read_text())
@@ -44,8 +51,7 @@ def test_training_stops_early_when_validation_stops_improving(synthetic_dataset,
     meta = train_model(synthetic_dataset, tmp_path / "m", variant=variant, config=config, progress=False)
     training = meta["training"]
     assert training["epochs_run"] == training["best_epoch"] + 2 < 50
-    assert meta["training"]["best_val_log10_error"] == pytest.approx(
-        min(h["val_log10_error"] for h in training["history"]))
+    assert meta["training"]["best_val_loss"] == pytest.approx(min(h["val_loss"] for h in training["history"]))
 
 
 def test_a_sample_in_the_wrong_split_is_a_leak(synthetic_dataset, tmp_path):
@@ -65,7 +71,7 @@ def test_split_data_follows_the_split_file(synthetic_dataset):
     for name, part in data.items():
         assert {r["object"] for r in part.rows} == set(split[name])
         assert part.inputs["frames"].shape[0] == len(part) == part.label.shape[0]
-        assert np.all((part.label >= 0) & (part.label <= 1))
+        assert np.all((part.label >= 3) & (part.label <= 12))  # log10 E (Pa)
 
 
 def test_mismatched_variant_or_empty_split_is_refused(synthetic, tmp_path):
@@ -77,5 +83,5 @@ def test_mismatched_variant_or_empty_split_is_refused(synthetic, tmp_path):
     with pytest.raises(EstimatorError, match="0 val samples"):
         train_model(plain, tmp_path / "m", variant=Variant.parse("depth", n_frames=3, size_px=(16, 22)),
                     progress=False)
-    with pytest.raises(EstimatorError, match="loss"):
-        TrainConfig(loss="l1")
+    with pytest.raises(EstimatorError, match="label_sd_decades"):
+        TrainConfig(label_sd_decades=-0.1)

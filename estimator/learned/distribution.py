@@ -1,0 +1,215 @@
+"""The learned estimate as a predictive distribution over log10 E, and what it says (torch-free).
+
+The network ends in logits over :data:`N_BINS` bins of log10 E, each
+:data:`BIN_DECADES` wide, spanning :data:`~estimator.learned.inputs.LOG10_E_RANGE`
+(1 kPa to 1 TPa); the probability is uniform within a bin, so the cumulative
+distribution is piecewise linear in log10 E and every quantile is finite.
+The distribution is of E censored at :data:`CENSOR_PA` (100 MPa, some 15 times
+the shipped gel's resolution limit): a plastic, a wood and a metal deform the
+gel alike, so the model is not asked to tell them apart, and training and
+calibration see every label above it as that value (:func:`censor`).
+Training minimises the continuous ranked probability score of the
+distribution (a proper scoring rule that reduces to the absolute error for a
+point mass) plus a small log score; a temperature fitted on the validation
+objects then calibrates it (:func:`fit_temperature`).
+
+From a distribution, :func:`describe` gives the estimate the operator is
+shown:
+
+* ``lower_bound`` at the sensor's resolution limit (``limit_pa``,
+  :attr:`~teleop.settings.Settings.resolution_limit_pa`) when the probability
+  that E is at least that limit reaches ``p_rigid``: the gel cannot tell
+  stiffer objects apart, so no number above it is offered; ``p_rigid`` is
+  chosen on the validation objects so that these bounds hold at the stated
+  level;
+* ``upper_bound`` at ``soft_pa`` (the softest label the model was trained on)
+  when the median is at or below it;
+* otherwise ``ok``: the median ``m`` of log10 E is the value (it minimises
+  the expected absolute error in decades, the error that is scored) and the
+  interval is ``m -/+ scale * s``, where ``s`` is the distribution's spread
+  (half its 16-84 % range, at least :data:`SPREAD_FLOOR_DECADES`;
+  :func:`spread`) and ``scale`` is chosen on the validation objects so that
+  the interval holds the truth at the stated level (split conformal on the
+  normalised error :func:`interval_score`: :func:`conformal_scale`). The
+  distribution's own quantiles are no interval to state: it puts its mass on
+  the few moduli the training labels take, so its tails are lumpy, while its
+  spread still says how sure the grasp is. An interval that reaches the
+  censored value is open up to 1 TPa.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+from scipy.special import log_softmax, softmax
+
+from estimator.errors import ModelError
+from estimator.learned.inputs import LOG10_E_RANGE
+
+__all__ = [
+    "BIN_DECADES",
+    "CENSOR_PA",
+    "EDGES_LOG10",
+    "N_BINS",
+    "SPREAD_FLOOR_DECADES",
+    "Described",
+    "bin_index",
+    "censor",
+    "conformal_scale",
+    "describe",
+    "fit_temperature",
+    "interval_score",
+    "probabilities",
+    "quantile",
+    "spread",
+]
+
+BIN_DECADES = 0.1
+N_BINS = round((LOG10_E_RANGE[1] - LOG10_E_RANGE[0]) / BIN_DECADES)
+EDGES_LOG10 = np.linspace(LOG10_E_RANGE[0], LOG10_E_RANGE[1], N_BINS + 1)
+CENSOR_PA = 1e8
+SPREAD_FLOOR_DECADES = BIN_DECADES / 2
+
+
+def censor(log10_e: np.ndarray) -> np.ndarray:
+    """log10 E as the model learns it: values above log10 :data:`CENSOR_PA` become that value."""
+    return np.minimum(np.asarray(log10_e, dtype=np.float64), math.log10(CENSOR_PA))
+
+
+def probabilities(logits: np.ndarray, *, temperature: float = 1.0) -> np.ndarray:
+    """Bin probabilities (B, N_BINS) of logits (B, N_BINS) divided by ``temperature``, float64."""
+    if not (math.isfinite(temperature) and temperature > 0):
+        raise ModelError(f"temperature {temperature!r}: expected a finite value > 0")
+    return softmax(np.asarray(logits, dtype=np.float64) / temperature, axis=-1)
+
+
+def _cdf_at_edges(probs: np.ndarray) -> np.ndarray:
+    """(B, N_BINS + 1) cumulative probability at every bin edge (0 first, 1 last)."""
+    cdf = np.cumsum(probs, axis=-1)
+    cdf /= cdf[..., -1:]
+    return np.concatenate([np.zeros((*cdf.shape[:-1], 1)), cdf], axis=-1)
+
+
+def quantile(probs: np.ndarray, q: float | np.ndarray) -> np.ndarray:
+    """log10 E at probability ``q`` of each distribution (B,) (or (B, len(q)) for an array ``q``)."""
+    cdf = _cdf_at_edges(np.atleast_2d(probs))
+    qs = np.atleast_1d(np.asarray(q, dtype=np.float64))
+    out = np.stack([np.interp(qs, c, EDGES_LOG10) for c in _strictly_rising(cdf)])
+    return out[:, 0] if np.ndim(q) == 0 else out
+
+
+def _strictly_rising(cdf: np.ndarray) -> np.ndarray:
+    """The CDF nudged to rise strictly, so that interpolating its inverse is defined at empty bins."""
+    return cdf + np.linspace(0.0, 1e-12, cdf.shape[-1])
+
+
+def cdf_at(probs: np.ndarray, log10_e: np.ndarray) -> np.ndarray:
+    """P(log10 E <= log10_e) under each distribution (B,), for one value per distribution."""
+    cdf = _cdf_at_edges(np.atleast_2d(probs))
+    values = np.broadcast_to(np.asarray(log10_e, dtype=np.float64), (cdf.shape[0],))
+    return np.array([np.interp(v, EDGES_LOG10, c) for v, c in zip(values, cdf, strict=True)])
+
+
+def bin_index(log10_e: np.ndarray) -> np.ndarray:
+    """The bin of each log10 E, clipped to the first and last bin."""
+    index = np.floor((np.asarray(log10_e, dtype=np.float64) - LOG10_E_RANGE[0]) / BIN_DECADES)
+    return np.clip(index, 0, N_BINS - 1).astype(np.int64)
+
+
+def spread(probs: np.ndarray) -> np.ndarray:
+    """Half the 16-84 % range of log10 E of each distribution (B,), at least
+    :data:`SPREAD_FLOOR_DECADES` (a normal distribution's standard deviation)."""
+    q16, q84 = quantile(np.atleast_2d(probs), np.array([0.16, 0.84])).T
+    return np.maximum((q84 - q16) / 2.0, SPREAD_FLOOR_DECADES)
+
+
+def interval_score(probs: np.ndarray, log10_truth: np.ndarray) -> np.ndarray:
+    """How many spreads the (censored) truth lies from each distribution's median (B,): the
+    conformity score of :func:`conformal_scale`."""
+    probs = np.atleast_2d(probs)
+    return np.abs(censor(log10_truth) - quantile(probs, 0.5)) / spread(probs)
+
+
+def conformal_scale(scores: np.ndarray, level: float) -> float:
+    """Split-conformal scale: the ``ceil((n + 1) level) / n`` empirical quantile of the validation
+    scores (:func:`interval_score`), so that a new grasp's interval of that many spreads about its
+    median holds its truth with probability at least ``level``; infinite when there are too few."""
+    scores = np.sort(np.asarray(scores, dtype=np.float64))
+    n = scores.size
+    rank = math.ceil((n + 1) * level)
+    return math.inf if n == 0 or rank > n else float(scores[rank - 1])
+
+
+def fit_temperature(logits: np.ndarray, log10_truth: np.ndarray) -> float:
+    """The temperature minimising the log score (bin negative log likelihood) of the truths, in
+    [0.25, 8]; fitted on validation objects."""
+    logits = np.asarray(logits, dtype=np.float64)
+    index = bin_index(log10_truth)
+
+    def nll(log_t: float) -> float:
+        scaled = log_softmax(logits / math.exp(log_t), axis=-1)
+        return float(-scaled[np.arange(index.size), index].mean())
+
+    best = minimize_scalar(nll, bounds=(math.log(0.25), math.log(8.0)), method="bounded")
+    return float(math.exp(best.x))
+
+
+@dataclass(frozen=True)
+class Described:
+    """What one predictive distribution says (see the module notes).
+
+    Attributes
+    ----------
+    state : {"ok", "lower_bound", "upper_bound"}
+    e_pa : float
+        The median, or the bound.
+    low_pa, high_pa : float or None
+        The interval; None for an open side.
+    p_above_limit : float
+        Probability that E is at or above the resolution limit.
+    """
+
+    state: str
+    e_pa: float
+    low_pa: float | None
+    high_pa: float | None
+    p_above_limit: float
+
+
+def describe(probs: np.ndarray, *, scale: float, limit_pa: float, soft_pa: float,
+             p_rigid: float = 0.5) -> Described:
+    """The estimate of one distribution (N_BINS,): state, value and interval (module notes).
+
+    Parameters
+    ----------
+    probs : ndarray
+        Bin probabilities (calibrated).
+    scale : float
+        Half-width of the ``ok`` interval in spreads (:func:`spread`), > 0.
+    limit_pa : float
+        The sensor's resolution limit (Pa), at most :data:`CENSOR_PA`.
+    soft_pa : float
+        The softest modulus the model resolves (Pa): a median at or below it is an
+        ``upper_bound`` there.
+    p_rigid : float
+        The probability of E >= ``limit_pa`` from which the answer is a ``lower_bound`` there.
+    """
+    if not (0.0 < scale < math.inf and 0.0 < p_rigid < 1.0) or not (0.0 < soft_pa < limit_pa <= CENSOR_PA):
+        raise ModelError(f"describe: expected 0 < scale < inf, 0 < p_rigid < 1 and 0 < soft_pa < limit_pa <= "
+                         f"{CENSOR_PA:g}, got scale {scale}, p_rigid {p_rigid}, soft_pa {soft_pa}, "
+                         f"limit_pa {limit_pa}")
+    probs = np.asarray(probs, dtype=np.float64)[None]
+    median = float(quantile(probs, 0.5)[0])
+    p_above = float(1.0 - cdf_at(probs, math.log10(limit_pa))[0])
+    if p_above >= p_rigid:
+        return Described("lower_bound", limit_pa, limit_pa, None, p_above)
+    if median <= math.log10(soft_pa):
+        return Described("upper_bound", soft_pa, None, soft_pa, p_above)
+    half = scale * float(spread(probs)[0])
+    low, high = median - half, median + half
+    if high > math.log10(CENSOR_PA):  # the censored value stands for anything stiffer
+        high = LOG10_E_RANGE[1]
+    return Described("ok", 10.0 ** median, 10.0 ** max(low, LOG10_E_RANGE[0] - 1.0), 10.0 ** high, p_above)
