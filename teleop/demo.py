@@ -23,10 +23,12 @@ The estimator's sensor needs a colour-to-gradient calibration. When the settings
 the file is missing) one is fitted at start on simulated ball presses of that sensor
 (:func:`simulated_calibration`, a couple of seconds) and the demo says so.
 
-Results per grasp: the true E (catalogue), the final estimate and its state, the error in
-decades, the time from contact to the first estimate that is not a refusal (estimator
-report), and the latency from the last loading frame's capture to the display report that
-showed the final estimate (renderer report). All on this host's monotonic clock.
+Results per grasp: the true E (catalogue), the final estimate, its state and interval, what the
+display rendered for it (renderer report: the fraction of the display's range, 1 = rigid, i.e. at
+or beyond the sensor's resolution limit), the error in decades, the time from contact to the first
+estimate that is not a refusal (estimator report), and the latency from the last loading frame's
+capture to the display report that showed the final estimate (renderer report). All on this
+host's monotonic clock. The live lines and the closing table are in :mod:`teleop.demo_table`.
 """
 
 from __future__ import annotations
@@ -50,9 +52,12 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from haptics.errors import MappingError
+from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_fraction
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
+from teleop.demo_table import LiveView, closing_table
 from teleop.errors import SettingsError, TeleopError
 from teleop.scene import load_scene
 from teleop.settings import CONFIG_DIR, Settings, default_settings_path, load_settings
@@ -61,7 +66,9 @@ __all__ = [
     "CHILDREN",
     "GraspOutcome",
     "LiveSystem",
+    "LiveView",
     "ReportReader",
+    "closing_table",
     "free_ports",
     "simulated_calibration",
 ]
@@ -167,7 +174,11 @@ class ReportReader:
 
 @dataclass
 class GraspOutcome:
-    """One grasp of the live system as the operator saw it, with the services' reports."""
+    """One grasp of the live system as the operator saw it, with the services' reports.
+
+    ``display_range`` is the display's (e_soft_pa, e_rigid_pa) from the settings: it turns the rendered
+    fraction into a modulus, and renders the final estimate when the renderer reported none.
+    """
 
     grasp_id: str
     obj: ObjectSpec
@@ -179,6 +190,7 @@ class GraspOutcome:
     final: dict[str, Any] | None = None  # body of the final estimate
     estimator_report: dict[str, Any] | None = None
     renderer_report: dict[str, Any] | None = None
+    display_range: tuple[float, float] | None = None
 
     @property
     def done(self) -> bool:
@@ -191,6 +203,47 @@ class GraspOutcome:
     @property
     def state(self) -> str:
         return "none" if self.final is None else self.final["state"]
+
+    @property
+    def interval_pa(self) -> list[float | None] | None:
+        """The final estimate's interval [low, high] (None: an open side); None without a final."""
+        if self.final is None:
+            return None
+        low, high = self.final.get("interval_pa") or (None, None)
+        return [low, high]
+
+    @property
+    def rendered(self) -> Percept | None:
+        """What the display rendered for the final estimate: as the renderer reported it, or else the
+        final estimate mapped onto ``display_range``; None without a final estimate."""
+        if self.final is None:
+            return None
+        report = self.renderer_report or {}
+        if report.get("display_fraction") is not None:
+            return Percept(stiffness=report["display_fraction"], rigid=bool(report.get("rigid")),
+                           unknown=bool(report.get("unknown")))
+        if self.display_range is None:
+            return None
+        soft, rigid = self.display_range
+        try:
+            update = EstimateUpdate(self.final["E_pa"], tuple(self.interval_pa), self.final["state"])
+            return map_estimate(update, e_soft_pa=soft, e_rigid_pa=rigid)
+        except MappingError:
+            return None
+
+    @property
+    def display_fraction(self) -> float | None:
+        """Fraction of the display's range rendered for the final estimate: 0 free, 1 rigid."""
+        return None if self.rendered is None else self.rendered.stiffness
+
+    @property
+    def display_e_pa(self) -> float | None:
+        """The modulus the rendered fraction stands for on the display's (logarithmic) scale."""
+        fraction = self.display_fraction
+        if fraction is None or self.display_range is None:
+            return None
+        soft, rigid = self.display_range
+        return modulus_from_fraction(fraction, e_soft_pa=soft, e_rigid_pa=rigid)
 
     @property
     def log10_error(self) -> float | None:
@@ -208,7 +261,8 @@ class GraspOutcome:
     def to_json(self) -> dict[str, Any]:
         return {"object": self.obj.name, "E_true_pa": self.obj.modulus_pa, "E_final_pa": self.e_final_pa,
                 "log10_error": self.log10_error, "t_first_estimate_s": self.t_first_estimate_s,
-                "latency_ms": self.latency_ms, "state": self.state}
+                "latency_ms": self.latency_ms, "state": self.state, "interval_pa": self.interval_pa,
+                "display_fraction": self.display_fraction}
 
 
 @dataclass
@@ -254,6 +308,7 @@ class LiveSystem:
         self.events: Subscriber | None = None
         self.estimator_reports = ReportReader(run_dir / "estimator.jsonl")
         self.renderer_reports = ReportReader(run_dir / "renderer.jsonl")
+        self.display_range: tuple[float, float] | None = None  # (e_soft_pa, e_rigid_pa), known once started
 
     @property
     def session_log(self) -> Path | None:
@@ -291,6 +346,7 @@ class LiveSystem:
                           for name, port in zip(("robot_pub", "estimate_pub", "command", "display_pub"), ports,
                                                 strict=True)}
         settings = load_settings(self.settings_path)
+        self.display_range = (settings.display.e_soft_pa, settings.display.e_rigid_pa)
         bus = settings.bus
         try:
             self.commands = Publisher(self.endpoints["command"], lossless=True, source="operator",
@@ -387,7 +443,7 @@ class LiveSystem:
         TeleopError
             A child exits, or the grasp does not end within ``timeout_s``.
         """
-        outcome = GraspOutcome(grasp_id, obj)
+        outcome = GraspOutcome(grasp_id, obj, display_range=self.display_range)
         self.commands.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id=grasp_id,
                            params={"object_index": float(object_index)})
         deadline = time.monotonic() + timeout_s
@@ -473,74 +529,7 @@ def prepare_run(args: argparse.Namespace, *, prefix: str, out: TextIO) -> tuple[
     return run_dir, calibration
 
 
-# --------------------------------------------------------------------------- display
-
-
-def _pa(value: float | None) -> str:
-    return "-" if value is None else f"{value:.3g}"
-
-
-def _number(value: float | None, fmt: str) -> str:
-    return "-" if value is None else format(value, fmt)
-
-
-_STATE_MARK = {"ok": "", "lower_bound": ">=", "upper_bound": "<=", "insufficient_data": "?", "none": "?"}
-
-
-class LiveView:
-    """One status line per grasp: updated in place on a terminal, printed once when done otherwise."""
-
-    def __init__(self, out: TextIO, total: int, *, enabled: bool = True):
-        self.out = out
-        self.total = total
-        self.enabled = enabled
-        self.tty = enabled and out.isatty()
-
-    def line(self, number: int, outcome: GraspOutcome) -> str:
-        head = f"[{number}/{self.total}] {outcome.obj.name:<26}"
-        if not outcome.done:
-            latest = outcome.latest
-            if latest is None:
-                return f"{head} {'grasping' if outcome.started else 'simulating'}"
-            kind = "provisional" if latest["provisional"] else "final"
-            return (f"{head} {outcome.estimates:3d} estimates, {kind} "
-                    f"{_STATE_MARK[latest['state']]}{_pa(latest['E_pa'])} Pa ({latest['state']})")
-        error = outcome.log10_error
-        first = outcome.t_first_estimate_s
-        return (f"{head} E {_pa(outcome.obj.modulus_pa)} Pa -> {_STATE_MARK[outcome.state]}"
-                f"{_pa(outcome.e_final_pa)} Pa ({outcome.state}), error {_number(error, '+.2f')} dec, "
-                f"first estimate {_number(None if first is None else first * 1e3, '.0f')} ms, "
-                f"latency {_number(outcome.latency_ms, '.0f')} ms")
-
-    def update(self, number: int, outcome: GraspOutcome) -> None:
-        if self.tty:
-            self.out.write("\r\033[K" + self.line(number, outcome))
-            self.out.flush()
-
-    def finish(self, number: int, outcome: GraspOutcome) -> None:
-        if self.tty:
-            self.out.write("\r\033[K")
-        if self.enabled:
-            print(self.line(number, outcome), file=self.out, flush=True)
-
-
-def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
-    """The closing table: object, true E, final estimate and state, error, first estimate, latency."""
-    header = ("object", "E true (Pa)", "final (Pa)", "state", "error (dec)", "first est. (ms)", "latency (ms)")
-    rows = [(o.obj.name, _pa(o.obj.modulus_pa), f"{_STATE_MARK[o.state]}{_pa(o.e_final_pa)}", o.state,
-             _number(o.log10_error, "+.2f"),
-             _number(None if o.t_first_estimate_s is None else o.t_first_estimate_s * 1e3, ".0f"),
-             _number(o.latency_ms, ".0f")) for o in outcomes]
-    widths = [max(len(str(r[i])) for r in (header, *rows)) for i in range(len(header))]
-    lines = ["  ".join(str(cell).ljust(w) if i == 0 else str(cell).rjust(w)
-                       for i, (cell, w) in enumerate(zip(row, widths, strict=True))) for row in (header, *rows)]
-    lines.insert(1, "  ".join("-" * w for w in widths))
-    errors = [abs(o.log10_error) for o in outcomes if o.log10_error is not None]
-    if errors:
-        within = sum(e <= 1.0 for e in errors)
-        lines.append(f"mean |error| {np.mean(errors):.2f} decades over {len(errors)} estimates; "
-                     f"{within} of {len(outcomes)} within one decade")
-    return "\n".join(lines)
+# --------------------------------------------------------------------------- grasps
 
 
 def run_grasps(system: LiveSystem, plan: Sequence[tuple[int, ObjectSpec]], view: LiveView, prefix: str, *,
@@ -575,7 +564,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "Run the live system on simulated hardware: robot node, estimator service, haptic renderer on a "
         "simulated display and the session recorder, as separate processes on loopback; grasp every "
         "object of a scene once, show each grasp live and print a closing table (true E, final estimate "
-        "and state, error in decades, time to the first estimate after contact, latency from the last "
+        "and state, what the display rendered (rigid, unknown, or the fraction of its range and the modulus "
+        "it stands for), error in decades, time to the first estimate after contact, latency from the last "
         "loading frame to the display report) and the session log's path."
     )
     add_run_arguments(parser, default_scene="default")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import subprocess
@@ -86,8 +87,9 @@ def steel_scene(tmp_path: Path) -> Path:
 
 
 def outcome(name: str, e_true: float, final: dict | None, first_s: float | None, latency_ms: float | None,
-            **report) -> GraspOutcome:
-    o = GraspOutcome("g", ObjectSpec(name=name, shape="sphere", material="rubber", modulus_pa=e_true))
+            display_range: tuple[float, float] | None = None, **report) -> GraspOutcome:
+    o = GraspOutcome("g", ObjectSpec(name=name, shape="sphere", material="rubber", modulus_pa=e_true),
+                     display_range=display_range)
     o.final = final
     o.estimator_report = {"time_to_first_estimate_s": first_s, **report}
     o.renderer_report = None if latency_ms is None else {"latency_ms": latency_ms}
@@ -98,14 +100,46 @@ def test_outcomes_give_the_closing_table_and_json():
     good = outcome("duck", 1e6, {"E_pa": 1e7, "state": "ok"}, 0.1, 150.0)
     bound = outcome("steel", 2e11, {"E_pa": 2e9, "state": "lower_bound"}, 0.05, 120.0)
     lost = outcome("foam", 5e3, None, None, None)
+    # Without a display range or a renderer report of it, what the display rendered is unknown here.
     assert good.to_json() == {"object": "duck", "E_true_pa": 1e6, "E_final_pa": 1e7, "log10_error": 1.0,
-                              "t_first_estimate_s": 0.1, "latency_ms": 150.0, "state": "ok"}
+                              "t_first_estimate_s": 0.1, "latency_ms": 150.0, "state": "ok",
+                              "interval_pa": [None, None], "display_fraction": None}
     assert bound.log10_error == pytest.approx(-2.0) and lost.log10_error is None and lost.state == "none"
+    assert lost.to_json()["interval_pa"] is None and lost.to_json()["display_fraction"] is None
     table = closing_table([good, bound, lost]).splitlines()
     assert table[0].split()[:3] == ["object", "E", "true"] and set(table[1]) <= {"-", " "}
     assert ">=2e+09" in table[3] and "lower_bound" in table[3] and "-2.00" in table[3] and "120" in table[3]
-    assert table[4].split()[1:] == ["5e+03", "?-", "none", "-", "-", "-"]
+    assert table[4].split()[1:] == ["5e+03", "?-", "none", "-", "-", "-", "-"]
     assert table[-1] == "mean |error| 1.50 decades over 2 estimates; 1 of 3 within one decade"
+
+
+def test_outcomes_show_what_the_display_rendered():
+    settings = load_settings()
+    limit, soft = settings.resolution_limit_pa, settings.display.e_soft_pa
+    shipped = (soft, settings.display.e_rigid_pa)
+    # The estimator's bound for anything stiffer than the sensor resolves: rendered rigid.
+    steel = outcome("steel", 2e11, {"E_pa": limit, "interval_pa": [limit, None], "state": "lower_bound"}, 0.05,
+                    120.0, display_range=shipped)
+    duck = outcome("duck", 1e6, {"E_pa": 8e5, "interval_pa": [5e5, 1.3e6], "state": "ok"}, 0.1, 150.0,
+                   display_range=shipped)
+    lost = outcome("foam", 5e3, {"E_pa": None, "interval_pa": [None, None], "state": "insufficient_data"},
+                   None, None, display_range=shipped)
+    steel_json, duck_json, lost_json = (o.to_json() for o in (steel, duck, lost))
+    assert steel_json["state"] == "lower_bound" and steel_json["interval_pa"] == [limit, None]
+    assert steel_json["display_fraction"] == 1.0 and steel.rendered.rigid
+    assert duck_json["interval_pa"] == [5e5, 1.3e6]
+    assert duck_json["display_fraction"] == pytest.approx(math.log(8e5 / soft) / math.log(limit / soft))
+    assert duck.display_e_pa == pytest.approx(8e5) and not duck.rendered.rigid
+    assert lost_json["display_fraction"] == 0.0 and lost.rendered.unknown
+    # The renderer's report of what it rendered wins over mapping the final here.
+    duck.renderer_report = {"latency_ms": 150.0, "display_fraction": 0.5, "rigid": False, "unknown": False}
+    assert duck.to_json()["display_fraction"] == 0.5
+    assert duck.display_e_pa == pytest.approx(math.sqrt(soft * limit))
+    table = closing_table([steel, duck, lost]).splitlines()
+    assert table[0].split()[6:9] == ["state", "display", "(~Pa)"]
+    assert f"rigid >={limit:.3g}" in table[2] and "lower_bound" in table[2]
+    assert f"0.50 ~{math.sqrt(soft * limit):.3g}" in table[3]
+    assert "unknown" in table[4] and "insufficient_data" in table[4]
 
 
 def test_latency_summary_splits_decision_and_delivery():
@@ -259,14 +293,24 @@ def test_demo_runs_the_quick_scene_end_to_end(tmp_path, capsys):
     assert code == 0
     result = json.loads(out[-1])
     assert [g["object"] for g in result["grasps"]] == ["stress_ball", "rubber_duck", "steel_ball_bearing"]
+    limit = load_settings().resolution_limit_pa
     for grasp in result["grasps"]:
         assert set(grasp) == {"object", "E_true_pa", "E_final_pa", "log10_error", "t_first_estimate_s", "latency_ms",
-                              "state"}
+                              "state", "interval_pa", "display_fraction"}
         assert grasp["state"] in ("ok", "lower_bound", "upper_bound", "insufficient_data")
+        low, high = grasp["interval_pa"]
+        assert low is None or high is None or low <= high
+        assert 0.0 <= grasp["display_fraction"] <= 1.0
+        if grasp["state"] == "lower_bound" and grasp["E_final_pa"] >= limit * (1 - 1e-9):
+            assert grasp["display_fraction"] == 1.0  # at the sensor's resolution limit: rigid
+        if grasp["state"] == "insufficient_data":
+            assert grasp["display_fraction"] == 0.0
         assert (grasp["E_final_pa"] is None) == (grasp["state"] == "insufficient_data")
         assert grasp["E_final_pa"] is None or grasp["E_final_pa"] > 0
         assert 0 < grasp["latency_ms"] < 2000 and 0 < grasp["t_first_estimate_s"] < 2
     assert any(line.startswith("object") for line in out) and f"session log: {tmp_path / 'session.mcap'}" in out
+    header = next(line for line in out if line.startswith("object"))
+    assert "display" in header and "state" in header
     topics = {m.message.topic for m in LogReader(Path(result["session_log"])).messages(None)}
     assert {"frame/left", "frame/right", "force", "width", "grasp_event", "estimate", "command"} <= topics
     assert our_live_children() == []  # every child stopped

@@ -1,0 +1,103 @@
+"""How ``teleop demo`` shows its grasps: the live status lines and the closing table.
+
+The table shows what the softness display rendered for each grasp's final estimate: ``rigid``
+(at or beyond the display's stiff end, the sensor's resolution limit unless the settings set
+another), ``unknown`` (no usable estimate: the display goes free) or the fraction of the display's
+range with the modulus that fraction stands for on the logarithmic scale (``0.62 ~2.1e+05``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, TextIO
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from teleop.demo import GraspOutcome
+
+__all__ = ["LiveView", "closing_table", "display_cell"]
+
+
+def _pa(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3g}"
+
+
+def _number(value: float | None, fmt: str) -> str:
+    return "-" if value is None else format(value, fmt)
+
+
+_STATE_MARK = {"ok": "", "lower_bound": ">=", "upper_bound": "<=", "insufficient_data": "?", "none": "?"}
+
+
+def display_cell(outcome: GraspOutcome) -> str:
+    """What the display rendered for the final estimate: ``rigid >=E``, ``unknown``, or the fraction of
+    the display's range and the modulus it stands for (``0.62 ~2.1e+05``); ``-`` without a final."""
+    rendered = outcome.rendered
+    if rendered is None:
+        return "-"
+    if rendered.unknown:
+        return "unknown"
+    if rendered.rigid:
+        return "rigid" if outcome.display_range is None else f"rigid >={_pa(outcome.display_range[1])}"
+    cell = f"{rendered.stiffness:.2f}"
+    return cell if outcome.display_range is None else f"{cell} ~{_pa(outcome.display_e_pa)}"
+
+
+class LiveView:
+    """One status line per grasp: updated in place on a terminal, printed once when done otherwise."""
+
+    def __init__(self, out: TextIO, total: int, *, enabled: bool = True):
+        self.out = out
+        self.total = total
+        self.enabled = enabled
+        self.tty = enabled and out.isatty()
+
+    def line(self, number: int, outcome: GraspOutcome) -> str:
+        head = f"[{number}/{self.total}] {outcome.obj.name:<26}"
+        if not outcome.done:
+            latest = outcome.latest
+            if latest is None:
+                return f"{head} {'grasping' if outcome.started else 'simulating'}"
+            kind = "provisional" if latest["provisional"] else "final"
+            return (f"{head} {outcome.estimates:3d} estimates, {kind} "
+                    f"{_STATE_MARK[latest['state']]}{_pa(latest['E_pa'])} Pa ({latest['state']})")
+        error = outcome.log10_error
+        first = outcome.t_first_estimate_s
+        return (f"{head} E {_pa(outcome.obj.modulus_pa)} Pa -> {_STATE_MARK[outcome.state]}"
+                f"{_pa(outcome.e_final_pa)} Pa ({outcome.state}), display {display_cell(outcome)}, "
+                f"error {_number(error, '+.2f')} dec, "
+                f"first estimate {_number(None if first is None else first * 1e3, '.0f')} ms, "
+                f"latency {_number(outcome.latency_ms, '.0f')} ms")
+
+    def update(self, number: int, outcome: GraspOutcome) -> None:
+        if self.tty:
+            self.out.write("\r\033[K" + self.line(number, outcome))
+            self.out.flush()
+
+    def finish(self, number: int, outcome: GraspOutcome) -> None:
+        if self.tty:
+            self.out.write("\r\033[K")
+        if self.enabled:
+            print(self.line(number, outcome), file=self.out, flush=True)
+
+
+def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
+    """The closing table: object, true E, final estimate and state, what the display rendered
+    (:func:`display_cell`), error, first estimate, latency."""
+    header = ("object", "E true (Pa)", "final (Pa)", "state", "display (~Pa)", "error (dec)", "first est. (ms)",
+              "latency (ms)")
+    rows = [(o.obj.name, _pa(o.obj.modulus_pa), f"{_STATE_MARK[o.state]}{_pa(o.e_final_pa)}", o.state,
+             display_cell(o), _number(o.log10_error, "+.2f"),
+             _number(None if o.t_first_estimate_s is None else o.t_first_estimate_s * 1e3, ".0f"),
+             _number(o.latency_ms, ".0f")) for o in outcomes]
+    widths = [max(len(str(r[i])) for r in (header, *rows)) for i in range(len(header))]
+    lines = ["  ".join(str(cell).ljust(w) if i == 0 else str(cell).rjust(w)
+                       for i, (cell, w) in enumerate(zip(row, widths, strict=True))) for row in (header, *rows)]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    errors = [abs(o.log10_error) for o in outcomes if o.log10_error is not None]
+    if errors:
+        within = sum(e <= 1.0 for e in errors)
+        lines.append(f"mean |error| {np.mean(errors):.2f} decades over {len(errors)} estimates; "
+                     f"{within} of {len(outcomes)} within one decade")
+    return "\n".join(lines)
