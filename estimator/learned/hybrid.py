@@ -8,10 +8,10 @@ features, every analytical fit over them), runs the ONNX model and returns an
 analytical inputs) or ``"cnn"`` (without). The model gives a distribution over
 log10 E (:mod:`estimator.learned.distribution`): its median is the estimate,
 its calibrated interval about the median holds the truth at the stated level (90 %,
-``metadata.json`` ``calibration``), and a median at or above the sensor's
-resolution limit (:attr:`~teleop.settings.Settings.resolution_limit_pa`) is a
-``lower_bound`` at that limit; below the softest training label, an
-``upper_bound``. The modulus is always finite and positive; a grasp that
+``metadata.json`` ``calibration``); when the probability that E is at least the
+sensor's resolution limit (:attr:`~teleop.settings.Settings.resolution_limit_pa`)
+reaches the calibrated ``p_rigid``, the answer is a ``lower_bound`` at that
+limit; a median below the softest training label gives an ``upper_bound``. The modulus is always finite and positive; a grasp that
 cannot be sampled, or a model output that is not finite, gives a refusal with
 its reason.
 
@@ -195,8 +195,8 @@ class HybridEstimator:
         states = ", ".join(f"{e.method} {e.state}" for e in sampled.estimates)
         model = f"{self.predictor.variant.name} model over {self.predictor.variant.n_frames} frames"
         if said.state == "lower_bound":
-            what = (f"median at or above the sensor's resolution limit (P = {said.p_above_limit:.2f}): "
-                    "stiffer objects look alike to the gel")
+            what = (f"P(E >= the sensor's resolution limit) = {said.p_above_limit:.2f} >= "
+                    f"{self.predictor.metadata.p_rigid:g}: stiffer objects look alike to the gel")
         elif said.state == "upper_bound":
             what = "median at or below the softest training label"
         else:
