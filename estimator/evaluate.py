@@ -326,9 +326,11 @@ def evaluate_records(
     return [row for rows in results for row in rows]
 
 
-def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], path: str | Path) -> None:
+def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], path: str | Path, *,
+         display_range_pa: tuple[float, float] | None = None) -> None:
     """Predictions against truth, log-log, one panel per method with the one-decade band and
-    its figures; bounds drawn as triangles."""
+    its figures; bounds drawn as triangles; the display's range (``display_range_pa``) as dashed
+    lines, with the felt figures."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -346,11 +348,14 @@ def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], path: str | Pat
                              squeeze=False)
     markers = {"ok": ("o", "C0"), "lower_bound": ("^", "C3"), "upper_bound": ("v", "C2")}
     legend = [Patch(color="0.88", label="within 10x"),
+              *([Line2D([], [], ls="--", color="C1", lw=1, label="display range")] if display_range_pa else []),
               *(Line2D([], [], ls="", marker=mk, color=c, label=state) for state, (mk, c) in markers.items())]
-    summary = summarise(scored, methods)
+    summary = summarise(scored, methods, display_range_pa=display_range_pa)
     for ax, method in zip(axes.flat, methods, strict=False):
         ax.fill_between(line, [v / 10 for v in line], [v * 10 for v in line], color="0.88")
         ax.plot(line, line, color="0.4", lw=1)
+        for end in display_range_pa or ():
+            ax.axhline(end, ls="--", color="C1", lw=1)
         for state, (marker, color) in markers.items():
             pts = [(r["truth_pa"], r["e_pa"]) for r in scored if r["method"] == method and r["state"] == state]
             if pts:
@@ -358,6 +363,8 @@ def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], path: str | Pat
                 ax.scatter(xs, ys, s=14, marker=marker, color=color, alpha=0.7)
         m = summary[method]
         figures = (f"err {m['log10_error']:.2f}, {m['within_10x']:.0%} in 10x" if m["n"] else "no estimate")
+        if m["n"] and m.get("felt_log10_error") is not None:
+            figures += f"; felt {m['felt_log10_error']:.2f}, {m['felt_within_2x']:.0%} in 2x"
         ax.set_title(f"{method}\n{figures} (n={m['n']})", fontsize=8)
         ax.set(xscale="log", yscale="log", xlim=line, ylim=line)
         ax.tick_params(labelsize=7)

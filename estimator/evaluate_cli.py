@@ -196,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
     display_range = (settings.display.e_soft_pa, settings.display.e_rigid_pa)
     summary = ablation_table(rows, methods=methods, models=models, display_range_pa=display_range)
     if args.plot:
-        plot(rows, list(summary), args.plot)
+        plot(rows, list(summary), args.plot, display_range_pa=display_range)
     if args.rows:
         write_rows(rows, args.rows, display_range_pa=display_range)
     result = {
