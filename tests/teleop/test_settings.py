@@ -223,3 +223,15 @@ def test_a_soft_end_above_the_resolution_limit_is_refused_naming_e_soft_pa(tmp_p
     limit = load_settings().resolution_limit_pa
     message = error_for(tmp_path, f"[display]\ne_soft_pa = {limit * 2}\n")
     assert "e_soft_pa" in message and "resolution limit" in message
+
+
+def test_the_resolution_limit_in_numbers_and_how_it_moves():
+    sensor = load_settings().sensor("left")
+    # 275 kPa gel (nu 0.48), 3 mm thick, 20 um depth resolution, object nu 0.4: 0.15 * 150 * 0.84 / k_gel.
+    assert sensor.resolution_limit_pa(0.4) == pytest.approx(6.7535e6, rel=1e-4)
+    finer = dataclasses.replace(sensor, depth_resolution_m=1e-5)
+    stiffer = dataclasses.replace(sensor, gel_modulus_pa=2 * sensor.gel_modulus_pa)
+    thinner = dataclasses.replace(sensor, gel_thickness_m=sensor.gel_thickness_m / 2)
+    assert finer.resolution_limit_pa(0.4) == pytest.approx(2 * sensor.resolution_limit_pa(0.4))
+    assert stiffer.resolution_limit_pa(0.4) == pytest.approx(2 * sensor.resolution_limit_pa(0.4))
+    assert thinner.resolution_limit_pa(0.4) == pytest.approx(sensor.resolution_limit_pa(0.4) / 2)
