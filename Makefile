@@ -37,14 +37,14 @@ lint: $(VENV)/.installed-dev
 test: lint
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
-# Retrain the default model from scratch: the model card's recipe (5 to 16 minutes on 2 cores, measured).
+# Retrain the default model from scratch: the model card's recipe (about 20 minutes on 2 cores, measured).
 # Writes MODEL_OUT (default runs/retrain/model); MODEL_OUT=estimator/models/default replaces the shipped one.
 OBJECT_TABLE ?= ../shared/seed/dataset_objects_and_compliance.csv
 MODEL_RUN ?= runs/retrain
 MODEL_OUT ?= $(MODEL_RUN)/model
 model: $(VENV)/.installed-dev
 	rm -rf $(MODEL_RUN)/records $(MODEL_RUN)/dataset
-	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --grasps-per-object 6 --seed 1 \
+	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --grasps-per-object 12 --seed 1 \
 		--out $(MODEL_RUN)/records --workers 2
 	$(BIN)/estimator build-dataset --records $(MODEL_RUN)/records --out $(MODEL_RUN)/dataset \
 		--frames 3 --shifts 3 --size 64x88 --workers 2
