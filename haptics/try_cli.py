@@ -7,7 +7,13 @@ import dataclasses
 import json
 
 from haptics.devices import BACKENDS, make_display
-from haptics.mapping import ESTIMATE_STATES, EstimateUpdate, map_estimate, to_command
+from haptics.mapping import (
+    ESTIMATE_STATES,
+    EstimateUpdate,
+    just_noticeable_steps,
+    map_estimate,
+    to_command,
+)
 from teleop.settings import load_settings
 
 
@@ -48,8 +54,9 @@ def run(args: argparse.Namespace) -> int:
         status = display.read_status(timeout_s=args.timeout_s)
         where = str(display)
     flags = [name for name in ("rigid", "unknown", "provisional") if getattr(command, name)]
+    steps = just_noticeable_steps(settings.e_soft_pa, settings.e_rigid_pa)
     print(f"E {args.e_pa} Pa ({args.state}) -> {percept.stiffness:.3f} of the range "
-          f"{settings.e_soft_pa:.3g}..{settings.e_rigid_pa:.3g} Pa, "
+          f"{settings.e_soft_pa:.3g}..{settings.e_rigid_pa:.3g} Pa ({steps:.0f} just-noticeable steps), "
           f"level {command.level}/{display.info.level_max}, uncertainty "
           f"{percept.uncertainty_decades:.2f} decades, flags: {', '.join(flags) or 'none'}")
     print(f"wrote to {where}: {report.hex(' ')}")
@@ -61,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({
             "backend": settings.backend, "display": where, "e_pa": args.e_pa, "state": args.state,
-            "e_soft_pa": settings.e_soft_pa, "e_rigid_pa": settings.e_rigid_pa,
+            "e_soft_pa": settings.e_soft_pa, "e_rigid_pa": settings.e_rigid_pa, "just_noticeable_steps": steps,
             "stiffness": percept.stiffness, "uncertainty_decades": percept.uncertainty_decades,
             "level": command.level, "level_max": display.info.level_max,
             "command": dataclasses.asdict(command), "report_hex": report.hex(),

@@ -43,7 +43,7 @@ import onnxruntime as ort
 
 from estimator.errors import ModelError
 from estimator.learned import distribution, inputs
-from estimator.learned.distribution import Described, describe, probabilities, quantile
+from estimator.learned.distribution import Described, describe, probabilities
 from estimator.learned.inputs import MEASUREMENT_VERSION, ModelInputs, Variant, encode
 from teleop.settings import CONFIG_DIR, Settings
 
@@ -227,10 +227,6 @@ class CompliancePredictor:
         """Calibrated bin probabilities (B, N_BINS) per item: encode, run, temperature-scale."""
         logits = self.predict_logits(encode(self.variant, items))
         return probabilities(logits, temperature=self.metadata.temperature)
-
-    def predict(self, items: Sequence[ModelInputs]) -> np.ndarray:
-        """Median modulus (Pa) per item."""
-        return 10.0 ** quantile(self.predict_distribution(items), 0.5)
 
     def describe(self, probs: np.ndarray, *, limit_pa: float) -> Described:
         """State, value and calibrated interval of one item's distribution, bounded above at the

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import math
 
 import pytest
 
@@ -71,6 +72,7 @@ def test_try_maps_and_writes_to_the_simulated_display(capsys):
     shipped = load_settings()
     # The shipped range: 5 kPa to the estimating sensor's resolution limit.
     assert (data["e_soft_pa"], data["e_rigid_pa"]) == (5e3, shipped.resolution_limit_pa)
+    assert data["just_noticeable_steps"] == pytest.approx(math.log(shipped.resolution_limit_pa / 5e3) / math.log(1.15))
     expected = round(stiffness_fraction(2e5, e_soft_pa=5e3, e_rigid_pa=shipped.resolution_limit_pa)
                      * data["level_max"])
     assert data["level"] == expected
