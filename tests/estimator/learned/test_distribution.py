@@ -136,3 +136,30 @@ def test_the_training_loss_is_lowest_at_the_truth():
     # Far from the truth the CRPS grows like the absolute error (2 decades here); the log score
     # adds at most NLL_WEIGHT times the 28 nats of a near-zero bin.
     assert 1.9 <= losses[7.55] - losses[5.55] <= 2.1 + NLL_WEIGHT * 28
+
+
+def test_calibrate_picks_the_rigid_threshold_and_a_scale_that_hold_on_the_validation_grasps():
+    pytest.importorskip("torch")
+    from estimator.learned.train import P_RIGID_CHOICES, calibrate
+
+    rng = np.random.default_rng(1)
+    soft = rng.uniform(4.0, 5.8, 300)  # log10 E of soft objects, well below the 6.83 limit
+    rigid = rng.uniform(8.5, 11.5, 200)  # plastics to metals
+    truth = np.concatenate([soft, rigid])
+
+    def logits_of(centres: np.ndarray) -> np.ndarray:
+        return np.stack([-((CENTRES - c) ** 2) / (2 * 0.2**2) for c in centres])
+
+    # Right about the class, scattered 0.2 decade within it: the bounds hold at the first choice.
+    right = np.concatenate([soft + rng.normal(0, 0.2, soft.size), np.full(rigid.size, 8.05)])
+    cal = calibrate(logits_of(right), truth, soft_pa=SOFT_PA, limit_pa=LIMIT_PA)
+    assert cal["p_rigid"] == P_RIGID_CHOICES[0] and cal["bound_coverage"] >= 0.9 and cal["chosen_on"] == "val"
+    assert cal["ok_coverage"] >= 0.9 and cal["n"] == truth.size and cal["n_ok"] >= 0.95 * soft.size
+    assert cal["interval_scale"] > 0 and cal["temperature"] > 0
+    # Sure of rigid for 40 soft grasps too: no threshold saves those bounds, so the strictest is
+    # taken and the shortfall is reported, not hidden.
+    wrong = right.copy()
+    wrong[:40] = 8.05
+    cal = calibrate(logits_of(wrong), truth, soft_pa=SOFT_PA, limit_pa=LIMIT_PA)
+    assert cal["p_rigid"] == P_RIGID_CHOICES[-1] and cal["bound_coverage"] < 0.9
+    assert cal["ok_coverage"] >= 0.9
