@@ -73,7 +73,7 @@ from estimator.measure import TACTILE_METHODS, estimate_grasp, measure_grasp
 from estimator.metrics import summarise
 from estimator.perception.calibration import Calibration
 from teleop.errors import RecordError
-from teleop.record import GraspRecord, read_record
+from teleop.record import GraspRecord, find_records, read_record
 from teleop.settings import Settings, default_settings_path, load_settings
 
 __all__ = ["BenchConfig", "bench", "configurations", "pareto_front"]
@@ -333,11 +333,7 @@ def run(args: argparse.Namespace) -> int:
     if args.repeats < 1:
         raise EstimatorError(f"--repeats {args.repeats}: expected at least 1")
     root = Path(args.dir)
-    if not root.is_dir():
-        raise EstimatorError(f"{root}: not a directory")
-    paths = sorted(root.rglob("*.grasp"))[: args.limit]
-    if not paths:
-        raise EstimatorError(f"{root}: no .grasp records found")
+    paths = find_records(root)[: args.limit]
     settings = load_settings(args.settings)
     model_dirs = args.models
     if model_dirs is None:

@@ -35,6 +35,7 @@ from estimator.evaluate import (
 )
 from estimator.learned.infer import load_predictor
 from estimator.metrics import felt_pa
+from teleop.record import find_records
 from teleop.settings import Settings, default_settings_path, load_settings
 
 __all__ = ["ROW_COLUMNS", "add_arguments", "run", "write_rows"]
@@ -173,11 +174,7 @@ def run(args: argparse.Namespace) -> int:
         raise EstimatorError(f"--workers {args.workers}: expected at least 1")
     settings = load_settings(args.settings)
     root = Path(args.dir)
-    if not root.is_dir():
-        raise EstimatorError(f"{root}: not a directory")
-    paths = sorted(root.rglob("*.grasp"))
-    if not paths:
-        raise EstimatorError(f"{root}: no .grasp records found")
+    paths = find_records(root)
     methods = list(METHODS) if args.methods is None else [m for m in args.methods if m in METHODS]
     models = _models(args, settings)
     objects = None

@@ -74,7 +74,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 from estimator.estimate import STATES
-from haptics.mapping import EstimateUpdate, map_estimate, modulus_from_fraction
+from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_fraction
 
 __all__ = [
     "E_MAX_PA",
@@ -140,8 +140,12 @@ def point_value(state: str, e_pa: float) -> float:
     return e_pa
 
 
-def _update(row: Mapping[str, Any]) -> EstimateUpdate:
-    return EstimateUpdate(e_pa=row["e_pa"], interval_pa=(row["low_pa"], row["high_pa"]), state=row["state"])
+def _rendered(row: Mapping[str, Any], display_range_pa: tuple[float, float]) -> tuple[Percept, float]:
+    """What the display renders for a scored row: its percept and the modulus that stands for."""
+    soft, rigid = display_range_pa
+    update = EstimateUpdate(e_pa=row["e_pa"], interval_pa=(row["low_pa"], row["high_pa"]), state=row["state"])
+    percept = map_estimate(update, e_soft_pa=soft, e_rigid_pa=rigid)
+    return percept, modulus_from_fraction(percept.stiffness, e_soft_pa=soft, e_rigid_pa=rigid)
 
 
 def felt_pa(row: Mapping[str, Any], *, display_range_pa: tuple[float, float]) -> float | None:
@@ -165,9 +169,7 @@ def felt_pa(row: Mapping[str, Any], *, display_range_pa: tuple[float, float]) ->
     """
     if row["state"] == "insufficient_data":
         return None
-    soft, rigid = display_range_pa
-    percept = map_estimate(_update(row), e_soft_pa=soft, e_rigid_pa=rigid)
-    return modulus_from_fraction(percept.stiffness, e_soft_pa=soft, e_rigid_pa=rigid)
+    return _rendered(row, display_range_pa)[1]
 
 
 def dangerous_miss(truth_pa: float, felt: float, *, e_rigid_pa: float) -> bool:
@@ -205,8 +207,7 @@ def _felt_metrics(counted: Sequence[dict[str, Any]], display_range_pa: tuple[flo
     soft, rigid = display_range_pa
     errors, misses, widths, soft_widths = [], 0, [], []
     for r in counted:
-        percept = map_estimate(_update(r), e_soft_pa=soft, e_rigid_pa=rigid)
-        felt = modulus_from_fraction(percept.stiffness, e_soft_pa=soft, e_rigid_pa=rigid)
+        percept, felt = _rendered(r, display_range_pa)
         target = min(rigid, max(soft, r["truth_pa"]))
         errors.append(abs(math.log10(felt) - math.log10(target)))
         misses += dangerous_miss(r["truth_pa"], felt, e_rigid_pa=rigid)

@@ -62,6 +62,7 @@ __all__ = [
     "Provenance",
     "Samples",
     "decode_image",
+    "find_records",
     "read_record",
     "reduce_image",
     "software_version",
@@ -413,6 +414,25 @@ class _Reader:
         if t.shape != v.shape:
             raise self.fail(f"{name}: {t.shape[0]} timestamps but {v.shape[0]} values")
         return Samples(t, v)
+
+
+def find_records(root: str | Path, *, name: str = "") -> list[Path]:
+    """Every ``.grasp`` file under the directory ``root`` (recursively), sorted.
+
+    Raises
+    ------
+    RecordError
+        ``root`` is not a directory or holds no record; the message starts with ``name`` (the
+        option that gave the directory, e.g. ``--records``) when given.
+    """
+    root = Path(root)
+    where = f"{name} {root}" if name else str(root)
+    if not root.is_dir():
+        raise RecordError(f"{where}: not a directory")
+    paths = sorted(root.rglob("*.grasp"))
+    if not paths:
+        raise RecordError(f"{where}: no .grasp records found")
+    return paths
 
 
 def read_record(path: str | Path) -> GraspRecord:

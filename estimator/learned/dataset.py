@@ -47,7 +47,7 @@ from estimator.errors import EstimatorError, SampleError
 from estimator.learned.inputs import MEASUREMENT_VERSION, sample_grasp
 from estimator.samples import TrainingSample, save_sample
 from teleop.errors import RecordError
-from teleop.record import read_record
+from teleop.record import find_records, read_record
 from teleop.settings import Settings, default_settings_path, load_settings
 
 __all__ = [
@@ -330,12 +330,7 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1 or args.frames < 1 or args.shifts < 1:
         raise EstimatorError(f"--workers {args.workers}, --frames {args.frames}, --shifts {args.shifts}: "
                              "expected each >= 1")
-    root = Path(args.records)
-    if not root.is_dir():
-        raise EstimatorError(f"--records {root}: not a directory")
-    paths = sorted(root.rglob("*.grasp"))
-    if not paths:
-        raise EstimatorError(f"--records {root}: no .grasp records found")
+    paths = find_records(args.records, name="--records")
     options = DatasetOptions(n_frames=args.frames, shifts=args.shifts, size_px=args.size, markers=args.markers,
                              calibration=args.calibration, marker_calibration=args.marker_calibration)
     manifest = build_dataset(paths, args.out, settings=load_settings(args.settings), options=options,

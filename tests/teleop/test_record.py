@@ -271,3 +271,18 @@ def test_pickled_npy_member_runs_nothing(tmp_path, record_path):
 
 def test_format_constants():
     assert FORMAT_NAME == "compliance-teleop.grasp" and FORMAT_VERSION == 1
+
+
+def test_find_records_lists_grasps_under_a_folder_or_says_what_is_wrong(tmp_path):
+    from teleop.errors import RecordError
+    from teleop.record import find_records
+
+    (tmp_path / "b" / "deep").mkdir(parents=True)
+    for name in ("b/deep/two.grasp", "one.grasp", "notes.txt"):
+        (tmp_path / name).write_bytes(b"")
+    assert find_records(tmp_path) == [tmp_path / "b" / "deep" / "two.grasp", tmp_path / "one.grasp"]
+    with pytest.raises(RecordError, match="--records .*: not a directory"):
+        find_records(tmp_path / "one.grasp", name="--records")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(RecordError, match="no .grasp records found"):
+        find_records(tmp_path / "empty")
