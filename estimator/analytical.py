@@ -24,11 +24,12 @@ Inputs (1-D, one value per loading frame, in time order; SI units):
 Intervals (about 95 %) combine the fit's residual scatter (Student t on its
 degrees of freedom) with the measurement resolution propagated through the
 fit (:class:`MeasurementNoise`: force noise, width noise, depth resolution,
-pixel pitch, and the depth reconstruction's scale uncertainty, which is
-shared by all frames), so that even a fit through exact points reports the
-resolution it rests on. Fits through at least 3 points have an intercept, so
-an error in the onset (where approach and strain are zero) shifts the line
-without tilting it; with 1 or 2 points they pass through the onset instead.
+pixel pitch, and two errors shared by all frames: the depth reconstruction's
+scale uncertainty and the fingertip separation at the contact onset), so that
+even a fit through exact points reports the resolution it rests on. Fits
+through at least 3 points have an intercept, so an error in the onset (where
+approach and strain are zero) shifts the line without tilting it; with 1 or 2
+points they pass through the onset instead, and carry its uncertainty.
 
 The depth-based methods refuse a series whose gel indentation falls while
 the approach grows (beyond the depth noise): the sign of a contact wider
@@ -43,7 +44,7 @@ displacement ``u(0) = k * pi * p0 * a / 2`` with ``p0 = 3 F / (2 pi a^2)``.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -87,6 +88,9 @@ class MeasurementNoise:
     depth_scale : float
         Relative scale uncertainty of reconstructed depth (a calibration
         error shared by every frame, so it does not average out).
+    onset_width_m : float
+        Uncertainty of the fingertip separation at the contact onset (m), from
+        which every approach is measured: an error all frames share.
     """
 
     force_n: float = 0.0
@@ -94,9 +98,10 @@ class MeasurementNoise:
     depth_m: float = 0.0
     length_m: float = 0.0
     depth_scale: float = 0.0
+    onset_width_m: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("force_n", "width_m", "depth_m", "length_m", "depth_scale"):
+        for name in ("force_n", "width_m", "depth_m", "length_m", "depth_scale", "onset_width_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise FitError(f"MeasurementNoise.{name}: expected a finite value >= 0, got {value}")
@@ -105,6 +110,11 @@ class MeasurementNoise:
     def approach_m(self) -> float:
         """One per-finger approach reading (m): half a width reading."""
         return self.width_m / 2.0
+
+    @property
+    def onset_approach_m(self) -> float:
+        """The per-finger approach's share of the onset uncertainty (m): half of ``onset_width_m``."""
+        return self.onset_width_m / 2.0
 
 
 @dataclass(frozen=True)
@@ -136,17 +146,17 @@ def fit_line(
     sigma_y: np.ndarray,
     *,
     through_origin: bool,
-    systematic_y: np.ndarray | None = None,
+    systematic_y: Sequence[np.ndarray] = (),
 ) -> LineFit | None:
     """Least-squares slope of ``y`` on ``x`` with a ~95 % interval.
 
     The half-width combines in quadrature the residual standard error (times
     Student's t on the degrees of freedom, when there are any), the
     propagated independent measurement error ``sigma_y`` and the slope shift
-    caused by ``systematic_y``, an error shared by all points (e.g. a depth
-    scale error: one standard deviation per point, fully correlated), all in
-    units of ``y``. Returns None when the slope is undetermined (no spread in
-    ``x``).
+    caused by each error in ``systematic_y``, an error shared by all points
+    (e.g. a depth scale error: one standard deviation per point, fully
+    correlated; independent of the others), all in units of ``y``. Returns
+    None when the slope is undetermined (no spread in ``x``).
     """
     n = x.size
     if n == 0 or (not through_origin and n < 2):
@@ -162,8 +172,8 @@ def fit_line(
     z = float(special.ndtri(0.5 + CONFIDENCE / 2))
     se_floor = math.sqrt(float((x_c * x_c) @ (sigma_y * sigma_y))) / sxx
     half_sq = (z * se_floor) ** 2
-    if systematic_y is not None:
-        half_sq += (z * float(x_c @ systematic_y) / sxx) ** 2
+    for shared in systematic_y:
+        half_sq += (z * float(x_c @ shared) / sxx) ** 2
     if dof > 0:
         residual = y - (slope * x + intercept)
         se_fit = math.sqrt(float(residual @ residual) / dof / sxx)
@@ -289,7 +299,7 @@ def _uniaxial(
     sigma_strain: np.ndarray,
     *,
     what: str,
-    systematic_strain: np.ndarray | None = None,
+    systematic_strain: Sequence[np.ndarray] = (),
 ) -> Estimate:
     """Hooke's law: fit strain = C * stress (compliance C = 1/E), uniaxial, no Poisson factor."""
     origin = _auto_origin(stress_pa.size)
@@ -339,7 +349,9 @@ def no_tactile(
         strain = 2.0 * approach / initial_width_m
         sigma_strain = np.full(strain.shape, 2.0 * noise.approach_m / initial_width_m)
         sigma_stress = np.full(stress.shape, noise.force_n / pad_area_m2)
-        return _uniaxial(method, stress, strain, sigma_stress, sigma_strain, what="Hooke on F, w")
+        onset = np.full(strain.shape, 2.0 * noise.onset_approach_m / initial_width_m)
+        return _uniaxial(method, stress, strain, sigma_stress, sigma_strain, what="Hooke on F, w",
+                         systematic_strain=(onset,))
 
     return _safe(method, build)
 
@@ -388,9 +400,10 @@ def elastic(
         strain = 2.0 * (approach - depth) / initial_width_m
         sigma_strain = np.full(strain.shape, 2.0 * math.hypot(noise.approach_m, noise.depth_m) / initial_width_m)
         sigma_stress = noise.force_n / area
-        systematic = 2.0 * noise.depth_scale * depth / initial_width_m
+        depth_scale = 2.0 * noise.depth_scale * depth / initial_width_m
+        onset = np.full(strain.shape, 2.0 * noise.onset_approach_m / initial_width_m)
         result = _uniaxial(method, stress, strain, sigma_stress, sigma_strain, what="σ = F/A, ε = 2(δ-d)/w0",
-                           systematic_strain=systematic)
+                           systematic_strain=(depth_scale, onset))
         if not only_truncated:
             return result
         note = "contact reaches the pad edge in every frame: area underestimated, E overstated"
@@ -476,7 +489,10 @@ def hertz(
         if first is None:
             return Estimate.refuse(method, "the Hertz fit is undetermined")
         sigma = np.sqrt(noise.depth_m**2 + (first.slope * shape * relative) ** 2)
-        line = fit_line(shape, depth, sigma, through_origin=True, systematic_y=noise.depth_scale * depth)
+        # The onset error shifts every approach alike, so every shape by (2/3) shape d_approach / approach.
+        onset = first.slope * shape * 2.0 * noise.onset_approach_m / (3.0 * approach)
+        line = fit_line(shape, depth, sigma, through_origin=True,
+                        systematic_y=(noise.depth_scale * depth, onset))
         if line is None or line.high <= 0:
             return Estimate.refuse(method, "the Hertz fit gives no positive E*")
         e_star = max(line.slope, 0.0) ** 1.5
@@ -671,8 +687,9 @@ def split(
         sigma_lever = noise.depth_m / (eta * k_gel)
         sigma = np.sqrt(sigma_gap**2 + (first.slope * sigma_lever) ** 2)
         # A depth scale error moves d in the gap and in the lever together.
-        systematic = noise.depth_scale * depth * (1.0 + max(first.slope, 0.0) / (eta * k_gel))
-        line = fit_line(lever, gap, sigma, through_origin=origin, systematic_y=systematic)
+        depth_scale = noise.depth_scale * depth * (1.0 + max(first.slope, 0.0) / (eta * k_gel))
+        onset = np.full(gap.shape, noise.onset_approach_m)  # the approach's onset error, in every gap
+        line = fit_line(lever, gap, sigma, through_origin=origin, systematic_y=(depth_scale, onset))
         if line is None:
             return Estimate.refuse(method, "the split fit is undetermined")
         basis = f"compliance split ({model}): " + line.describe("k_object")

@@ -130,15 +130,16 @@ class GraspMeasurements:
 
     @property
     def noise(self) -> analytical.MeasurementNoise:
-        """Resolution of each measurement: force and width noise estimated from the record;
-        depth resolution, depth scale uncertainty and pixel pitch from the sensor (the pitch
-        of the depth grid)."""
+        """Resolution of each measurement: force and width noise and the onset width's
+        uncertainty estimated from the record; depth resolution, depth scale uncertainty and
+        pixel pitch from the sensor (the pitch of the depth grid)."""
         return analytical.MeasurementNoise(
             force_n=self.segment.force_noise_n,
             width_m=self.segment.width_noise_m,
             depth_m=self.sensor.depth_resolution_m,
             length_m=self.sensor.pixel_pitch_m * self.depth_binning,
             depth_scale=self.sensor.depth_scale_uncertainty,
+            onset_width_m=self.segment.onset_width_sigma_m,
         )
 
     @property

@@ -13,7 +13,12 @@ baseline
     every force.
 onset
     The time the force leaves its baseline noise: the first moment of
-    contact, from which the approach and the strain are measured.
+    contact, from which the approach and the strain are measured. It is
+    interpolated between the last quiet force sample and the next, as if the
+    force rose linearly between them; a stiff object's force jumps within that
+    period, so the onset is known only to within it: uniformly, a standard
+    deviation of period / sqrt(12), which the gripper's closing speed turns into
+    ``onset_width_sigma_m``.
 contact
     ``t = 0`` of the paper: the first time the force reaches
     ``EstimatorSettings.contact_force_n`` (0.75 N).
@@ -54,6 +59,7 @@ missing over part of the loading phase).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -176,6 +182,8 @@ class Segment:
     t_contact_s: float = float("nan")
     t_peak_s: float = float("nan")
     onset_width_m: float = float("nan")
+    # How far the gripper closes while the onset may fall (module notes), as a standard deviation (m).
+    onset_width_sigma_m: float = 0.0
     # Loading phase at the force samples' own times (for methods that need no frames).
     load_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     load_force_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -203,6 +211,14 @@ class Segment:
     def describe(self) -> str:
         """Flags and their details as one line, for an estimate's reason."""
         return "; ".join(self.notes)
+
+
+def _closing_speed(t_s: np.ndarray, width_m: np.ndarray, before_s: float) -> float:
+    """How fast the width closes (m/s) over the last two width samples at or before ``before_s``
+    (the first two when fewer precede it)."""
+    last = max(int(np.searchsorted(t_s, before_s, side="right")) - 1, 1)
+    dt = float(t_s[last] - t_s[last - 1])
+    return abs(float(width_m[last] - width_m[last - 1])) / dt if dt > 0 else 0.0
 
 
 def _frames_in_phase(frame_t_s: np.ndarray, t_start: float, t_end: float) -> tuple[np.ndarray, np.ndarray]:
@@ -432,13 +448,17 @@ def find_load_phase(
     onset_level = min(max(ONSET_SIGMAS * sigma_f, 0.02 * contact_force_n), 0.5 * contact_force_n)
     below = np.flatnonzero(force[:contact] <= onset_level)
     if below.size:
-        t_onset = min(_crossing_time(tf, force, int(below[-1]), onset_level), t_contact)
+        last_quiet = int(below[-1])
+        t_onset = min(_crossing_time(tf, force, last_quiet, onset_level), t_contact)
+        onset_t_sigma = float(tf[last_quiet + 1] - tf[last_quiet]) / math.sqrt(12.0)
     else:
         t_onset = float(tf[0])
+        onset_t_sigma = 0.0
         flag("misaligned", "the force record starts in contact: onset taken at its first sample")
 
     sigma_w = noise_std(width)
     onset_width = float(interpolate(np.array([t_onset]), tw, width)[0])
+    onset_width_sigma = _closing_speed(tw, width, t_onset) * onset_t_sigma
     if not np.isfinite(onset_width):
         flag("misaligned", f"no width sample around the contact onset at {t_onset:.3f} s "
                            f"(widths span {tw[0]:.3f}..{tw[-1]:.3f} s)")
@@ -455,7 +475,8 @@ def find_load_phase(
 
     fields = dict(
         force_noise_n=sigma_f, width_noise_m=sigma_w, peak_force_n=peak_force, t_onset_s=t_onset,
-        t_contact_s=t_contact, t_peak_s=t_peak, onset_width_m=onset_width, load_t_s=load_t[covered],
+        t_contact_s=t_contact, t_peak_s=t_peak, onset_width_m=onset_width,
+        onset_width_sigma_m=onset_width_sigma, load_t_s=load_t[covered],
         load_force_n=loading[covered], load_width_m=load_w[covered],
     )
     return LoadPhase(reason="", flags=tuple(flags), notes=tuple(notes), force_baseline_n=baseline,

@@ -291,7 +291,7 @@ def encode(variant: Variant, items: Sequence[ModelInputs], *, where: str = "mode
 #: records the version its data was measured with (``data.measurement_version``), and
 #: :mod:`estimator.learned.reference` checks that its recorded inputs on a fixed reference record
 #: still come out the same, so a change that alters them without a raised version fails a test.
-MEASUREMENT_VERSION = 1
+MEASUREMENT_VERSION = 2
 
 
 class DecodedFrameStream(FrameStream):

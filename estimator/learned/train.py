@@ -27,9 +27,13 @@ Recipe
 * Calibration on the validation objects (:func:`calibrate`): a temperature on the
   logits (log score), the probability of E at or above the resolution limit from
   which the answer is a lower bound (bounds that hold at ``INTERVAL_LEVEL``), and
-  the interval's half-width in spreads of the distribution that holds the truth
-  of ``INTERVAL_LEVEL`` of the validation grasps answered ``ok`` (split
-  conformal); all in ``metadata.json`` ``calibration``, scored on the test objects.
+  the interval's half-width in spreads of the distribution (split conformal on
+  the validation grasps answered ``ok``) at which the answers hold the truth on
+  ``INTERVAL_LEVEL`` of all validation grasps, bounds included: the level is a
+  promise about every answer the operator gets. The ``ok`` intervals alone hold
+  the truth at ``ok_level`` (the bounds' surplus lets them be narrower), never
+  below :data:`OK_LEVEL_FLOOR`; all in ``metadata.json`` ``calibration``, scored
+  on the test objects.
 
 Writes ``MODEL_DIR/model.onnx`` (checked against torch to 1e-4 in
 onnxruntime), ``metadata.json`` (:mod:`estimator.learned.infer`: variant,
@@ -92,6 +96,8 @@ log = logging.getLogger(__name__)
 NLL_WEIGHT = 0.05
 INTERVAL_LEVEL = 0.9
 P_RIGID_CHOICES = (0.5, 0.6, 0.7, 0.8, 0.9)
+#: The least an ``ok`` interval alone promises, whatever the bounds' surplus coverage.
+OK_LEVEL_FLOOR = 0.8
 AUTO_THRESHOLDS_DECADES = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
 
 
@@ -229,12 +235,14 @@ def calibrate(logits: np.ndarray, log10_truth: np.ndarray, *, soft_pa: float, li
 
     The temperature minimises the log score of the censored truths; ``p_rigid`` is the smallest of
     :data:`P_RIGID_CHOICES` at which the lower bounds hold on at least ``level`` of the grasps they
-    answer; ``interval_scale`` is the split-conformal scale of the ``ok`` intervals at ``level``.
+    answer; ``interval_scale`` is the split-conformal scale of the ``ok`` intervals at ``ok_level``,
+    the share of them that must hold for all answers to hold on ``level`` of the grasps given the
+    bounds that hold (at least :data:`OK_LEVEL_FLOOR`).
 
-    Returns ``temperature``, ``p_rigid``, ``level``, ``interval_scale``, ``soft_pa``, ``limit_pa``
-    (the resolution limit it was fitted at), ``chosen_on`` and the validation figures: ``n``,
-    ``n_ok``, ``ok_coverage`` (share of ``ok`` intervals holding the truth), ``bound_coverage``
-    (share of bounds the truth satisfies) and ``coverage`` (all of them).
+    Returns ``temperature``, ``p_rigid``, ``level``, ``ok_level``, ``interval_scale``, ``soft_pa``,
+    ``limit_pa`` (the resolution limit it was fitted at), ``chosen_on`` and the validation figures:
+    ``n``, ``n_ok``, ``ok_coverage`` (share of ``ok`` intervals holding the truth),
+    ``bound_coverage`` (share of bounds the truth satisfies) and ``coverage`` (all of them).
     """
     truth_pa = 10.0 ** log10_truth
     temperature = fit_temperature(logits, censor(log10_truth))
@@ -247,14 +255,20 @@ def calibrate(logits: np.ndarray, log10_truth: np.ndarray, *, soft_pa: float, li
             calibration["p_rigid"] = p_rigid
             break
     probs = probabilities(logits, temperature=temperature)
-    ok = np.array([d.state == "ok" for d in _described(logits, calibration)])
+    said = _described(logits, calibration)
+    ok = np.array([d.state == "ok" for d in said])
+    bounds_held = sum(_holds(d, t) for d, t, o in zip(said, truth_pa, ok, strict=True) if not o)
+    # Split conformal over all grasps: the ok intervals must hold what the bounds leave to reach level.
+    needed = math.ceil((ok.size + 1) * level) - bounds_held
+    ok_level = min(max(needed / (ok.sum() + 1), OK_LEVEL_FLOOR), 1.0)
     scores = interval_score(probs[ok], log10_truth[ok])
-    scale = conformal_scale(scores, level)
+    scale = conformal_scale(scores, ok_level)
     if not math.isfinite(scale):
         scale = max(float(scores.max(initial=0.0)), 1.0)
         log.warning("%d validation grasps answered ok are too few to promise a %.0f%% interval; the interval "
-                    "takes the widest of them (%.2f spreads): add validation objects", ok.sum(), 100 * level, scale)
-    calibration["interval_scale"] = scale
+                    "takes the widest of them (%.2f spreads): add validation objects", ok.sum(), 100 * ok_level,
+                    scale)
+    calibration.update(interval_scale=scale, ok_level=ok_level)
     held = np.array([_holds(d, t) for d, t in zip(_described(logits, calibration), truth_pa, strict=True)])
     calibration.update(n=int(held.size), n_ok=int(ok.sum()),
                        ok_coverage=float(held[ok].mean()) if ok.any() else None,

@@ -109,6 +109,22 @@ def test_elastic_and_no_tactile_recover_e_from_exact_hooke_series(e_pa):
     assert est.state == "ok" and est.e_pa == pytest.approx(e_pa, rel=1e-9) and contains(est, e_pa)
 
 
+def test_an_uncertain_onset_widens_a_fit_through_it_and_not_one_with_an_intercept():
+    # A stiff object loads within one force sample: the only point's strain rests on the onset
+    # width, known to within the closing during one sample period (0.47 mm at 37.5 mm/s, 80 Hz).
+    onset = MeasurementNoise(width_m=2e-5, onset_width_m=0.0375 / 80 / math.sqrt(12))
+    force, approach, _ = uniaxial_series(3e7, n=1)
+    sure = no_tactile(force, approach, initial_width_m=W0, pad_area_m2=PAD_AREA, noise=NOISY)
+    unsure = no_tactile(force, approach, initial_width_m=W0, pad_area_m2=PAD_AREA, noise=onset)
+    assert sure.state == "ok" and unsure.state == "lower_bound" and contains(unsure, 3e7)
+    # With an intercept the onset's error shifts the line without tilting it.
+    force, approach, _ = uniaxial_series(3e6)
+    plain = no_tactile(force, approach, initial_width_m=W0, pad_area_m2=PAD_AREA, noise=RESOLUTION)
+    shifted = no_tactile(force, approach, initial_width_m=W0, pad_area_m2=PAD_AREA,
+                         noise=MeasurementNoise(onset_width_m=onset.onset_width_m))
+    assert shifted.interval_pa == pytest.approx(plain.interval_pa, rel=1e-9)
+
+
 def test_the_paper_quarter_pi_slip_is_not_reproduced():
     # With the published pi/4 centre displacement the depth is half the textbook one: a softer
     # object. Feeding those depths must not give back the truth.

@@ -71,6 +71,17 @@ def test_clean_grasp_is_segmented():
     assert seg.load_force_n.size == seg.load_t_s.size == seg.load_width_m.size > 20
 
 
+def test_the_onset_is_known_to_one_force_period_of_closing():
+    seg = run(*streams())
+    assert seg.onset_width_sigma_m == pytest.approx(SPEED / 80 / np.sqrt(12), rel=1e-6)
+    # A stiff object's force jumps within a sample: the same uncertainty, where interpolating the
+    # crossing would put the onset just before the contact sample.
+    tf, force, tw, width, tc = streams()
+    force = np.where(tf >= T_TOUCH, PEAK_N, 0.0)
+    seg = run(tf, force, tw, width, tc)
+    assert seg.onset_width_sigma_m == pytest.approx(SPEED / 80 / np.sqrt(12), rel=1e-6)
+
+
 def test_nan_duplicate_and_unsorted_timestamps_change_nothing():
     tf, force, tw, width, tc = streams()
     clean = run(tf, force, tw, width, tc)
