@@ -153,6 +153,12 @@ class SensorSettings(_Validated):
 
     finger: str = spec("left", doc="which finger carries it")
     model: str = spec("wedge", choices=("wedge", "mini"))
+    optics: str = spec("wedge", choices=("wedge", "gelsight", "gelsight_mini"),
+                       doc="how the simulator renders this sensor's frames (teleop.sim): 'wedge', the "
+                           "GelSight Wedge appearance model (teleop/sim/optics.py); 'gelsight' or "
+                           "'gelsight_mini', the measured colour tables and no-contact frame of a real "
+                           "GelSight R1.5 or GelSight Mini (teleop/sim/table_optics.py). Not read by "
+                           "real cameras or the estimator")
     serial: str = spec("", doc="sensor identity, recorded with every grasp")
     calibration: str = spec("", doc="colour-to-gradient calibration (.npz from `estimator calibrate`); "
                                     "relative paths are under configs/")
@@ -300,7 +306,11 @@ class SimulationSettings(_Validated):
     camera_noise: float = spec(2.0, lo=0.0, hi=50.0, doc="pixel noise standard deviation, 8-bit levels")
     jpeg_quality: int = spec(90, lo=10, hi=100)
     grid_px: int = spec(4, lo=1, hi=16, doc="contact solver cell size in image pixels")
-    background: str = spec("", doc="no-contact frame PNG; empty means procedural")
+    background: str = spec("", doc="no-contact frame PNG; empty means the optics' own (procedural for "
+                                   "'wedge', the real sensor's recorded frame for table optics)")
+    illumination_gain: float = spec(1.0, lo=0.5, hi=1.5,
+                                    doc="scales the contact-induced colour change of every optics "
+                                        "(LED current, ageing); the no-contact frame is unchanged")
 
 
 @dataclass(frozen=True)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import pytest
@@ -16,6 +17,15 @@ def shared_dir() -> Path:
     if not (SHARED / "seed").is_dir():
         pytest.skip(f"reference material not found at {SHARED}")
     return SHARED
+
+
+@pytest.fixture(scope="session")
+def taxim_calib_dir() -> Path:
+    """taxim's folder of real GelSight recordings and measured tables (``calib/``); skips without taxim."""
+    spec = importlib.util.find_spec("taxim")  # locate without importing (taxim pulls in torch)
+    if spec is None or not spec.submodule_search_locations:
+        pytest.skip("taxim is not installed; its real GelSight recordings are needed")
+    return Path(next(iter(spec.submodule_search_locations))) / "calib"
 
 
 @pytest.fixture(scope="session")

@@ -28,8 +28,8 @@ by up to 5 % of the local displacement near the moving contact edge, 40-170 um o
 the benchmark objects, so the ladder is not thinned). Every frame of the record is
 rendered; frames of the same gel (before touch, through the hold) share one clean
 render and differ by their camera noise. The host keeps the streams from
-``PRE_ROLL_S`` before its load cell first reads a touch until ``POST_ROLL_S`` after
-it reads the release.
+``PRE_ROLL_S`` (or ``PRE_ROLL_READINGS`` load-cell readings, when longer) before its
+load cell first reads a touch until ``POST_ROLL_S`` after it reads the release.
 
 Nothing of this module's internals goes into the record except the provenance
 (source, seed, model); :class:`GraspTruth` carries them for previews and tests.
@@ -80,6 +80,7 @@ MOTION_DELAY_S = (0.02, 0.08)  # command to motion start
 HOST_DELAY_S = (0.0, 0.05)  # grasp done to release command, beyond hold_s
 RECORD_FORCE_N = 0.2  # the host's touch threshold for keeping a record
 PRE_ROLL_S = 0.2
+PRE_ROLL_READINGS = 8  # at least this many load-cell readings before the touch: a 10 Hz cell needs 0.8 s
 POST_ROLL_S = 0.1
 TIME_STEP_S = 1e-3
 LOAD_LEVELS = 12
@@ -388,7 +389,8 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
                                   start_s=float(t[0]), end_s=float(t[-1]))
     threshold = min(RECORD_FORCE_N, 0.5 * float(force.max()))
     above = np.flatnonzero(readings.value > threshold)
-    start_s = (readings.t_s[above[0]] if above.size else touch_s) - PRE_ROLL_S
+    pre_roll_s = max(PRE_ROLL_S, PRE_ROLL_READINGS / settings.load_cell.sample_rate_hz)
+    start_s = (readings.t_s[above[0]] if above.size else touch_s) - pre_roll_s
     after = np.flatnonzero((readings.t_s > release_s) & (readings.value <= threshold))
     end_s = (readings.t_s[after[0]] if after.size else lost_s) + POST_ROLL_S
     keep = (readings.t_s >= start_s) & (readings.t_s <= end_s)
@@ -401,8 +403,8 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
     for finger, sensor in sensors.items():
         capture_s, stamp_s = camera_times(sensor=sensor, sim=sim, rng=rng, start_s=start_s, end_s=end_s)
         camera_background = (background or {}).get(finger)
-        if camera_background is None and not sim.background:
-            camera_background = _procedural_background(sensor)
+        if camera_background is None and not sim.background and sensor.optics == "wedge":
+            camera_background = _procedural_background(sensor)  # table optics: the real sensor's own
         camera = TactileCamera(sensor, sim=sim, rng=rng.spawn(1)[0], background=camera_background)
         # Height and in-plane displacement on the image grid at each force level; both are linear
         # in the gel's displacement, so a frame's are the same weighted sum of the levels'.

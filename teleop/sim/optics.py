@@ -19,7 +19,8 @@ left, red from the top, blue from the bottom, each at ``LIGHT_ELEVATION_RAD`` ab
 the gel. Each light's relative change of Lambertian radiance (plus a weak Phong
 highlight) is computed from the surface normal, scaled by that light's irradiance
 across the pad (a smooth, uneven gain field, fixed per sensor), mixed into BGR by
-the LEDs' colour signatures and added to the raw no-contact background. Each raw
+the LEDs' colour signatures, scaled by ``sim.illumination_gain`` (LED current and
+ageing: 1 as calibrated) and added to the raw no-contact background. Each raw
 pixel of the pad is shaded from the slopes at the point of the warped image it sees
 (through the mirror-corner homography); outside the pad's raw footprint the frame is
 the background, untouched.
@@ -487,7 +488,20 @@ class TactileCamera:
     is built; each frame takes the pool from a fresh random offset (never one
     used before by this camera), so a pixel's noise is independent between
     frames and between pixels, at a fraction of the cost of fresh draws.
+
+    ``TactileCamera(sensor, ...)`` builds the camera of ``sensor.optics``: this
+    Wedge model for ``"wedge"``, a
+    :class:`~teleop.sim.table_optics.TableCamera` (same interface, the measured
+    colour tables of a real sensor) otherwise.
     """
+
+    def __new__(cls, *args, **kwargs):
+        sensor = args[0] if args else kwargs.get("sensor")
+        if cls is TactileCamera and getattr(sensor, "optics", "wedge") != "wedge":
+            from teleop.sim.table_optics import TableCamera  # imports this module
+
+            return super().__new__(TableCamera)
+        return super().__new__(cls)
 
     def __init__(self, sensor: SensorSettings, *, sim: SimulationSettings,
                  rng: np.random.Generator, background: np.ndarray | None = None) -> None:
@@ -559,6 +573,13 @@ class TactileCamera:
             heights, shears = heights[None], None if shears is None else shears[None]
         return _Series(self, heights, shears, used)
 
+    def _shade(self, series: _Series, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+        """BGR change (8-bit levels, float32, ``series.box``'s shape) of the gel with the slopes
+        ``map_x``, ``map_y`` (reflectance-map coordinates), scaled by ``sim.illumination_gain``."""
+        relative = cv2.remap(self._reflectance, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        gain = self.sim.illumination_gain
+        return cv2.multiply(relative, series.gain) if gain == 1.0 else cv2.multiply(relative, series.gain, scale=gain)
+
     def _draw(self, series: _Series, weights: np.ndarray) -> np.ndarray:
         """Clean raw frame of the surface sum_k weights[k] * basis k of ``series``."""
         active = np.flatnonzero(weights)
@@ -566,8 +587,7 @@ class TactileCamera:
             return self.rest_frame.copy()
         map_x = _mix(series.slope_x, weights, active, self._map_origin)
         map_y = _mix(series.slope_y, weights, active, self._map_origin)
-        relative = cv2.remap(self._reflectance, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        change = cv2.multiply(relative, series.gain)
+        change = self._shade(series, map_x, map_y)
         frame = self.rest_frame.copy()
         if not self.sensor.markers:
             frame[series.box] = cv2.add(series.rest, change, dtype=cv2.CV_8U)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
@@ -14,17 +13,10 @@ BALL_RADIUS_M = 2.0e-3
 TAXIM_PITCH_M = 0.0295e-3
 
 
-def _taxim_calib_dir() -> Path:
-    spec = importlib.util.find_spec("taxim")  # locate without importing (taxim pulls in torch)
-    if spec is None or not spec.submodule_search_locations:
-        pytest.skip("taxim is not installed; its real GelSight presses are needed")
-    return Path(next(iter(spec.submodule_search_locations))) / "calib"
-
-
 @pytest.fixture(scope="session")
-def taxim_pack():
+def taxim_pack(taxim_calib_dir):
     """Path of a taxim dataPack: ``taxim_pack("gelsight")`` or ``taxim_pack("gelsight_mini")``."""
-    root = _taxim_calib_dir()
+    root = taxim_calib_dir
 
     def path(sensor: str) -> Path:
         pack = root / sensor / "dataPack.npz"
