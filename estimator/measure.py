@@ -304,8 +304,9 @@ def measure_grasp(
     record : GraspRecord
     settings : Settings
         ``estimator`` (finger, contact force, frames, object Poisson ratio, depth
-        binning) and ``gripper.finger_stiffness_n_per_m`` are used; the sensor is the
-        one recorded with the grasp.
+        binning) is used; the sensor is the one recorded with the grasp, and so is the
+        gripper (``finger_stiffness_n_per_m``, ``closing_speed_m_s``) when the record
+        carries one, else ``settings.gripper``.
     calibration : Calibration, path or None
         Colour-to-gradient calibration; None reads the file the record's
         sensor names (relative paths under ``configs/``). Only loaded when
@@ -343,6 +344,7 @@ def measure_grasp(
     except KeyError as exc:
         raise FitError(f"EstimatorSettings.finger = {finger!r}: {exc.args[0]}") from exc
     est = settings.estimator
+    gripper = record.gripper if record.gripper is not None else settings.gripper
 
     def segment_with(width_t_s: np.ndarray, frame_t_s: np.ndarray) -> Segment:
         return segment_grasp(
@@ -356,7 +358,7 @@ def measure_grasp(
     width_lag = lag = None
     if correct_width_lag and segment:
         width_lag = estimate_width_lag(width_t, record.width_m.value, t_stop_s=segment.t_peak_s,
-                                       speed_m_s=settings.gripper.closing_speed_m_s)
+                                       speed_m_s=gripper.closing_speed_m_s)
         if width_lag is not None:
             width_t = width_t - width_lag
             segment = segment_with(width_t, frame_t)
@@ -365,7 +367,7 @@ def measure_grasp(
         if lag is not None:
             frame_t = frame_t - lag
             segment = segment_with(width_t, frame_t)
-    stiffness = settings.gripper.finger_stiffness_n_per_m
+    stiffness = gripper.finger_stiffness_n_per_m
     approach = analytical.approach_per_finger(
         segment.frame_width_m, segment.frame_force_n,
         onset_width_m=segment.onset_width_m, finger_stiffness_n_per_m=stiffness,
@@ -473,7 +475,22 @@ def measure_tactile(
 # --------------------------------------------------------------------------- estimation
 
 
+#: Methods whose strain rests on the approach the gripper's widths give.
+APPROACH_METHODS = ("no_tactile", "elastic", "split")
+
+
 def _run(m: GraspMeasurements, method: str) -> Estimate:
+    result = _fit(m, method)
+    if result.state == "ok" and method in APPROACH_METHODS and "width_unread" in m.segment.flags:
+        # The interpolated approach assumes the fingers kept closing; they may have stopped, so the
+        # object is at most as compliant as the fit says: its stiffer end is not resolved.
+        low, _ = result.interval_pa
+        return Estimate.at_least(method, low, f"{result.reason}; no width was read during the loading, "
+                                              "so the approach is an upper bound: E is at least the low end")
+    return result
+
+
+def _fit(m: GraspMeasurements, method: str) -> Estimate:
     segment = m.segment
     if not segment:
         return Estimate.refuse(method, segment.reason)

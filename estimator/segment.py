@@ -54,7 +54,11 @@ Flags
 ``"clipped"`` the force saturates (plateau of identical top readings);
 ``"too_few_samples"`` fewer samples or frames than the methods want;
 ``"misaligned"`` the streams do not cover each other's times (frames or widths
-missing over part of the loading phase).
+missing over part of the loading phase);
+``"width_unread"`` no width reading falls between the onset and the peak (a stiff
+object loads faster than the gripper reports its width): the approach is
+interpolated between a reading while the fingers closed and one after they
+stopped, which assumes they kept closing; the true approach is smaller.
 """
 
 from __future__ import annotations
@@ -472,6 +476,9 @@ def find_load_phase(
                            f"{int((~covered).sum())} of {load_t.size} loading force samples")
     if load_t.size < 2:
         flag("too_few_samples", "the loading phase holds a single force sample")
+    if not np.any((tw > t_onset) & (tw <= t_peak)):
+        flag("width_unread", "no width was read from the onset to the peak: the approach is interpolated "
+                             "across a stop of the fingers it cannot see")
 
     fields = dict(
         force_noise_n=sigma_f, width_noise_m=sigma_w, peak_force_n=peak_force, t_onset_s=t_onset,

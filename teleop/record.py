@@ -7,8 +7,8 @@ A grasp record is a ZIP archive (suffix ``.grasp``) holding:
 ``record.json``
     ``{"format": "compliance-teleop.grasp", "version": 1, ...}`` with the
     sensors (full :class:`~teleop.settings.SensorSettings` per finger: identity,
-    warp calibration and gel), the optional label, the provenance, named events
-    (``{"contact": t_s, ...}``; :data:`GRASP_DONE_EVENT` is the time the gripper's
+    warp calibration and gel), optionally the gripper (below), the optional label, the
+    provenance, named events (``{"contact": t_s, ...}``; :data:`GRASP_DONE_EVENT` is the time the gripper's
     grasp command completed: the fingers stopped at the target force and hold it
     until the release) and, per finger, the frame encoding, count and shape.
 ``force/t_s.npy``, ``force/value_n.npy``
@@ -23,6 +23,11 @@ A grasp record is a ZIP archive (suffix ``.grasp``) holding:
     the header); ``png`` is lossless. Frames decode to uint8 BGR, H x W x 3.
 ``calibration/<name>.npy`` (optional)
     Numeric arrays the sensor calibration needs (e.g. a no-contact frame).
+
+The optional ``gripper`` entry (full :class:`~teleop.settings.GripperSettings` as configured for
+the grasp: finger stiffness as calibrated, closing speed, target force, ...) lets a reader use the
+rig's own values; records without it (older ones, imports) leave them to the reader's settings.
+Readers that do not know it ignore it, so the version stays 1.
 
 All timestamps of one record are seconds on one clock. ``.npy`` members are
 read with ``allow_pickle=False``. Writing then reading gives back every array
@@ -50,7 +55,7 @@ import cv2
 import numpy as np
 
 from teleop.errors import RecordError, SettingsError
-from teleop.settings import SensorSettings, build_settings, settings_to_mapping
+from teleop.settings import GripperSettings, SensorSettings, build_settings, settings_to_mapping
 
 __all__ = [
     "FORMAT_NAME",
@@ -263,7 +268,11 @@ class Provenance:
 
 @dataclass(frozen=True)
 class GraspRecord:
-    """One grasp: frames per finger, forces and widths, each with its own timestamps."""
+    """One grasp: frames per finger, forces and widths, each with its own timestamps.
+
+    ``gripper``: the gripper's settings as configured for this grasp, when the record
+    carries them (None: unknown; use the reader's settings).
+    """
 
     sensors: tuple[SensorSettings, ...]
     frames: tuple[FrameStream, ...]
@@ -273,6 +282,7 @@ class GraspRecord:
     label: Label | None = None
     events: Mapping[str, float] = field(default_factory=dict)
     calibration: Mapping[str, np.ndarray] = field(default_factory=dict)
+    gripper: GripperSettings | None = None
 
     def __post_init__(self) -> None:
         fingers = {s.finger for s in self.sensors}
@@ -333,6 +343,7 @@ def write_record(record: GraspRecord, path: str | Path) -> Path:
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
         "sensors": [settings_to_mapping(s) for s in record.sensors],
+        **({} if record.gripper is None else {"gripper": settings_to_mapping(record.gripper)}),
         "label": _jsonable(record.label) if record.label is not None else None,
         "provenance": _jsonable(record.provenance),
         "events": {k: float(v) for k, v in record.events.items()},
@@ -501,6 +512,13 @@ def read_record(path: str | Path) -> GraspRecord:
             except (TypeError, ValueError) as exc:
                 raise r.fail(f"record.json: {where} is invalid ({exc})") from exc
 
+        gripper = None
+        if header.get("gripper") is not None:
+            try:
+                gripper = _gripper_from_json(header["gripper"])
+            except (SettingsError, TypeError, ValueError) as exc:
+                raise r.fail(f"record.json: gripper is invalid ({exc})") from exc
+
         label = None
         if header.get("label") is not None:
             lab = header["label"]
@@ -542,6 +560,7 @@ def read_record(path: str | Path) -> GraspRecord:
                 label=label,
                 events={k: float(v) for k, v in events.items()},
                 calibration=calibration,
+                gripper=gripper,
             )
         except ValueError as exc:
             raise r.fail(str(exc)) from exc
@@ -552,3 +571,9 @@ def _sensor_from_json(table: Mapping[str, Any]) -> SensorSettings:
         raise TypeError(f"expected a table of sensor settings, got {table!r}")
     # The settings loader's checks apply to the sensors stored in records too.
     return build_settings(SensorSettings, table, "record.json", "sensors")
+
+
+def _gripper_from_json(table: Mapping[str, Any]) -> GripperSettings:
+    if not isinstance(table, Mapping):
+        raise TypeError(f"expected a table of gripper settings, got {table!r}")
+    return build_settings(GripperSettings, table, "record.json", "gripper")

@@ -12,8 +12,9 @@ when the robot sent one.
 
 The sensors come from the settings stored in the log; a calibration file stored in the
 log is written under ``<out>/calibration/<finger>/`` and the exported sensors point to it.
-When the start event names the object (simulated sessions), the record is labelled from
-the catalogue stored in the log (or the one given); otherwise it has no label.
+So does the gripper (``record.gripper``: the finger stiffness, closing speed and target force
+the session ran with). When the start event names the object (simulated sessions), the record
+is labelled from the catalogue stored in the log (or the one given); otherwise it has no label.
 Provenance: source ``simulated`` or ``hardware`` as the session says, ``extra["session"]``
 the log's path.
 """
@@ -215,6 +216,7 @@ class _Assembler:
             streams.append(stream)
         record = GraspRecord(
             sensors=self.settings.sensors,
+            gripper=self.settings.gripper,
             frames=tuple(streams),
             force_n=_samples(grasp.force),
             width_m=_samples(grasp.width),

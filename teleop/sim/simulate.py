@@ -4,6 +4,13 @@ Each grasp is drawn from its own random stream, seeded by (--seed, object
 name, grasp index), so a seed gives the same records whatever --workers is
 and whichever objects are run beside it. One ``<object>_g<index>.grasp`` per
 grasp (and with --preview a ``.png`` contact sheet beside it).
+
+With --randomize-rig every grasp is also simulated on its own rig, drawn from the
+grasp's random stream before anything else (:mod:`teleop.sim.rig`: gel tolerances,
+finger stiffness, target force, closing speed, noise, rates, camera latency,
+illumination); the record carries what the lab would know of that rig and keeps
+the true values in ``provenance.extra["rig"]``. Without it nothing changes: the
+records are byte for byte those of the settings' one rig.
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ from teleop.record import write_record
 from teleop.settings import Settings, load_settings
 from teleop.sim.grasp import simulate_grasp
 from teleop.sim.preview import write_preview
+from teleop.sim.rig import draw as draw_rig
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +60,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="settings TOML; None: the shipped configs/settings.toml")
     parser.add_argument("--limit-objects", type=int, default=None, metavar="M",
                         help="simulate only the first M objects of the catalogue (None: all)")
+    parser.add_argument("--randomize-rig", action="store_true",
+                        help="simulate each grasp on its own rig drawn from the grasp's random stream "
+                             "(teleop.sim.rig.RigSpread: gel modulus +-15 %%, gel thickness +-10 %%, finger "
+                             "stiffness 20-500 kN/m, target force 5-30 N, closing speed, noise, rates, camera "
+                             "latency, illumination); records carry the rig's known settings, the true ones "
+                             "go to their provenance")
 
 
 def grasp_filename(obj: ObjectSpec, index: int) -> str:
@@ -64,12 +78,19 @@ def grasp_rng(seed: int, obj: ObjectSpec, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(obj.name.encode()), index]))
 
 
-def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool]) -> dict:
+def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool]) -> dict:
     """Simulate and write one grasp (runs in a worker); failures come back as a reason."""
-    obj, index, seed, settings, out, preview = job
+    obj, index, seed, settings, out, preview, randomize_rig = job
     path = Path(out) / grasp_filename(obj, index)
+    rng = grasp_rng(seed, obj, index)
     try:
-        record, truth = simulate_grasp(obj, settings=settings, rng=grasp_rng(seed, obj, index), seed=seed)
+        if randomize_rig:
+            rig = draw_rig(settings, rng)
+            record, truth = simulate_grasp(obj, settings=rig.true, rng=rng, seed=seed)
+            record = rig.record(record, finger_stiffness_n_per_m=truth.finger_stiffness_n_per_m,
+                                target_force_n=truth.target_force_n)
+        else:
+            record, truth = simulate_grasp(obj, settings=settings, rng=rng, seed=seed)
     except SimulationError as exc:
         return {"object": obj.name, "grasp": index, "error": str(exc)}
     write_record(record, path)
@@ -96,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SettingsError(f"--out {out}: cannot create the directory ({exc.strerror or exc})") from exc
-    jobs = [(obj, i, args.seed, settings, str(out), args.preview)
+    jobs = [(obj, i, args.seed, settings, str(out), args.preview, args.randomize_rig)
             for obj in objects for i in range(args.grasps_per_object)]
     workers = min(args.workers, len(jobs))
 

@@ -489,3 +489,20 @@ def test_evaluate_help_says_how_bounds_and_refusals_count(capsys):
 def test_evaluate_without_records_is_an_error(tmp_path, capsys):
     assert main(["evaluate", str(tmp_path)]) == 2
     assert "no .grasp records" in capsys.readouterr().err
+
+
+def test_an_approach_no_width_read_saw_gives_only_a_lower_bound(calibration):
+    # A stiff object loads within one 10 Hz width period: the widths bracket the stop of the fingers,
+    # so the approach interpolated between them is too large and E only bounded below.
+    # Touch at 0.31 s, peak ~60 ms later; widths are read at 0.303 s and 0.403 s.
+    record = build_record(5e7, target_n=20.0, radius_m=0.2, speed=0.075, gap_m=0.31 * 0.075)
+    stiff = measure_grasp(record, settings=SETTINGS, calibration=calibration)
+    assert "width_unread" in stiff.segment.flags
+    assert estimate_grasp(stiff, "no_tactile", settings=SETTINGS).state == "lower_bound"
+    for method in ("no_tactile", "elastic", "split"):
+        est = estimate_grasp(stiff, method, settings=SETTINGS)
+        assert est.state != "ok" and (est.state != "lower_bound" or est.e_pa <= 5e7), (method, est)
+    # A soft one loads over several width readings: nothing to bound.
+    soft = measure_grasp(build_record(3e5), settings=SETTINGS, calibration=calibration)
+    assert "width_unread" not in soft.segment.flags
+    assert estimate_grasp(soft, "no_tactile", settings=SETTINGS).state == "ok"

@@ -82,6 +82,13 @@ def test_the_onset_is_known_to_one_force_period_of_closing():
     assert seg.onset_width_sigma_m == pytest.approx(SPEED / 80 / np.sqrt(12), rel=1e-6)
 
 
+def test_a_loading_between_two_width_reads_is_flagged():
+    assert "width_unread" not in run(*streams()).flags  # 0.3 s of loading: three 10 Hz reads
+    tf, force, tw, width, tc = streams()
+    force = np.where(tf >= T_TOUCH, PEAK_N, 0.0)  # loaded within one force sample
+    assert "width_unread" in run(tf, force, tw, width, tc).flags
+
+
 def test_nan_duplicate_and_unsorted_timestamps_change_nothing():
     tf, force, tw, width, tc = streams()
     clean = run(tf, force, tw, width, tc)

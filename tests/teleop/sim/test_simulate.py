@@ -9,16 +9,8 @@ import pytest
 from teleop.catalogue import load_catalogue
 from teleop.cli import main
 from teleop.record import read_record
-from teleop.settings import default_settings_path, load_settings
 
-CATALOGUE = """
-[[objects]]
-name = "small rubber ball"
-shape = "sphere"
-material = "rubber"
-modulus_pa = 8.0e5
-size_m = [0.02, 0.02, 0.02]
-
+OAK = """
 [[objects]]
 name = "oak_block"
 shape = "box"
@@ -29,20 +21,9 @@ texture_m = 3e-5
 
 
 @pytest.fixture
-def quick_settings(tmp_path):
-    """The shipped settings with 10 Hz cameras (a third of the frames to render)."""
-    text = default_settings_path().read_text().replace("camera_hz = 30.0", "camera_hz = 10.0")
-    text = text.replace("[sensors.right]", "[sensors.right]\ncamera_hz = 10.0")
-    path = tmp_path / "settings.toml"
-    path.write_text(text)
-    assert all(s.camera_hz == 10.0 for s in load_settings(path).sensors)
-    return path
-
-
-@pytest.fixture
-def catalogue(tmp_path):
+def catalogue(tmp_path, ball_toml):
     path = tmp_path / "objects.toml"
-    path.write_text(CATALOGUE)
+    path.write_text(ball_toml + OAK)
     return path
 
 

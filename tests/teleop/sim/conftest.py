@@ -1,0 +1,31 @@
+"""Fixtures of the simulator's tests: a small catalogue and fast settings."""
+
+from __future__ import annotations
+
+import pytest
+
+from teleop.settings import default_settings_path, load_settings
+
+
+@pytest.fixture
+def ball_toml() -> str:
+    """A catalogue (TOML text) of one small rubber ball."""
+    return """
+[[objects]]
+name = "small rubber ball"
+shape = "sphere"
+material = "rubber"
+modulus_pa = 8.0e5
+size_m = [0.02, 0.02, 0.02]
+"""
+
+
+@pytest.fixture
+def quick_settings(tmp_path):
+    """The shipped settings with 10 Hz cameras (a third of the frames to render)."""
+    text = default_settings_path().read_text().replace("camera_hz = 30.0", "camera_hz = 10.0")
+    text = text.replace("[sensors.right]", "[sensors.right]\ncamera_hz = 10.0")
+    path = tmp_path / "settings.toml"
+    path.write_text(text)
+    assert all(s.camera_hz == 10.0 for s in load_settings(path).sensors)
+    return path
