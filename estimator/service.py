@@ -420,7 +420,7 @@ class EstimatorService:
         self._publish(grasp, result.estimate, result.t_data_s, received_s, provisional=True)
         if grasp.model is not None and _reads_stream_depths(grasp.model.predictor.variant):
             # Ahead of the final estimate, which then reduces only the peak frame's depth.
-            stream.reduce_depths(grasp.model.predictor.variant.size_px)
+            stream.reduce_depths(grasp.model.predictor.variant.size_px, grasp.model.predictor.variant.window_m)
 
     def _finish(self, grasp: _Grasp, received_s: float, *, by: str, segment: Segment | None = None) -> None:
         """The final estimate: the model's when one is pinned to the grasp, else (or when the
@@ -451,7 +451,8 @@ class EstimatorService:
         variant = model.predictor.variant
         if _reads_stream_depths(variant):
             started = time.perf_counter()
-            sampled = grasp.stream.sampled_grasp(n_frames=variant.n_frames, size_px=variant.size_px, segment=segment)
+            sampled = grasp.stream.sampled_grasp(n_frames=variant.n_frames, size_px=variant.size_px, segment=segment,
+                                                 window_m=variant.window_m)
             if sampled:  # else the model's own answer without a tactile sample, from the record
                 return model.estimate_sampled(sampled, mode=mode).with_latency(time.perf_counter() - started)
         return model.estimate(grasp.stream.to_record(), mode=mode)

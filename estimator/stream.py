@@ -252,7 +252,7 @@ class GraspStream:
         self._reference: np.ndarray | None = None
         self._features: dict[int, ContactFeatures] = {}  # frame position -> features of that frame
         self._depth: dict[int, np.ndarray] = {}  # frame position -> its depth (m), for the model's input
-        self._reduced: dict[tuple[int, tuple[int, int] | None], np.ndarray] = {}  # (position, size) -> reduced depth
+        self._reduced: dict[tuple, np.ndarray] = {}  # (position, size, window) -> reduced depth
         self._phase: LoadPhase | None = None  # of the force and width so far; None: find it again
         self._loading_end_s: float | None = None
 
@@ -403,7 +403,7 @@ class GraspStream:
         return float(frame_t.max()) if frame_t.size else self._force.last_t_s
 
     def sampled_grasp(self, *, n_frames: int, size_px: tuple[int, int] | None,
-                      segment: Segment | None = None) -> SampledGrasp:
+                      segment: Segment | None = None, window_m: tuple[float, float] | None = None) -> SampledGrasp:
         """The learned model's depth input, as :func:`~estimator.learned.inputs.sample_grasp`
         measures it on :meth:`to_record` (no shift, depth images of the estimator's finger, no
         colour or marker images), from the cached depths.
@@ -416,6 +416,8 @@ class GraspStream:
             (rows, cols) the depth maps are reduced to; None keeps the depth grid.
         segment : Segment, optional
             The segmentation of what has arrived (computed when not given).
+        window_m : (float, float) or None
+            The model's input window (m), centred on the pad (``sample_grasp``'s); None: the whole grid.
         """
         segment = self.segment() if segment is None else segment
         why = segment.reason or segment.frame_reason
@@ -436,20 +438,22 @@ class GraspStream:
             return SampledGrasp(reason=f"{m.t_s.size} of the {distinct.size} sampled frames are usable")
         estimates = tuple(estimate_grasp(m, method, settings=self.settings) for method in ANALYTICAL_METHODS)
         # reduce_images of the loading frames' depths, image by image, each frame reduced once per size.
-        reduced = np.stack([self._reduced_depth(int(i), size_px) for i in keep[restricted.frame_index]])
+        reduced = np.stack([self._reduced_depth(int(i), size_px, window_m) for i in keep[restricted.frame_index]])
         return SampledGrasp(measurements=m, estimates=estimates, force_n=m.force_n[rows], width_m=m.width_m[rows],
                             depth_m=reduced[rows])
 
-    def reduce_depths(self, size_px: tuple[int, int] | None) -> None:
+    def reduce_depths(self, size_px: tuple[int, int] | None, window_m: tuple[float, float] | None = None) -> None:
         """Reduce every depth computed so far to ``size_px`` now, as :meth:`sampled_grasp` will
         (between frames, so the final estimate reduces only the frames that came since)."""
         for position in self._depth:
-            self._reduced_depth(position, size_px)
+            self._reduced_depth(position, size_px, window_m)
 
-    def _reduced_depth(self, position: int, size_px: tuple[int, int] | None) -> np.ndarray:
-        key = (position, size_px)
+    def _reduced_depth(self, position: int, size_px: tuple[int, int] | None,
+                       window_m: tuple[float, float] | None = None) -> np.ndarray:
+        key = (position, size_px, window_m)
         if key not in self._reduced:
-            self._reduced[key] = reduce_images(self._depth[position][None], size_px)[0]
+            self._reduced[key] = reduce_images(self._depth[position][None], size_px, pitch_m=self.grid.pixel_pitch_m,
+                                               window_m=window_m)[0]
         return self._reduced[key]
 
     def _measure(self, segment: Segment, *, positions: np.ndarray | None = None) -> GraspMeasurements:

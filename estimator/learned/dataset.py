@@ -6,9 +6,12 @@ contact features and the analytical fits of :mod:`estimator.measure`), from
 its frames, forces, widths and timestamps only; simulator internals are never
 read. Each grasp gives up to ``--shifts`` sample sets: set ``k`` starts the
 equidistant sampling of the loading phase ``k`` frames after contact (set 0 is
-exactly what the live estimator samples). Images and depth are stored reduced
-to ``--size`` (area averaging), so training reads small files and the network's
-input needs no further resizing.
+exactly what the live estimator samples). Images and depth are stored as the
+model reads them: the gel patch ``--window`` (mm; default the pad of the settings'
+estimator sensor) centred on each record's pad, area-averaged to ``--size``
+(:mod:`estimator.learned.inputs`, "Input window"), so training reads small files,
+the network's input needs no further resizing, and records of sensors with other
+pads and pitches show contacts at their physical size.
 
 Split
 -----
@@ -35,7 +38,7 @@ import zlib
 from collections import Counter, defaultdict
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -147,6 +150,7 @@ class DatasetOptions:
     n_frames: int = 3
     shifts: int = 3
     size_px: tuple[int, int] = (64, 88)
+    window_m: tuple[float, float] | None = None  # None: the pad of the settings' estimator sensor
     markers: bool = False
     calibration: str | None = None
     marker_calibration: str | None = None
@@ -172,7 +176,7 @@ def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: 
         sampled = sample_grasp(
             record, settings=settings, calibration=options.calibration, n_frames=options.n_frames,
             size_px=options.size_px, shift=shift, rgb=True, markers=options.markers,
-            marker_calibration=options.marker_calibration,
+            marker_calibration=options.marker_calibration, window_m=options.window_m,
         )
         if not sampled:
             reasons[shift] = sampled.reason
@@ -240,6 +244,8 @@ def build_dataset(
         name = labels[path][0]
         jobs.append((path, grasp_index[name], split_of[name]))
         grasp_index[name] += 1
+    if options.window_m is None:
+        options = replace(options, window_m=settings.sensor(settings.estimator.finger).pad_size_m)
     out.mkdir(parents=True, exist_ok=True)
     work = partial(_record_samples, settings=settings, options=options, out=out)
     bar = partial(tqdm, total=len(jobs), desc="build-dataset", unit="grasp", disable=not progress)
@@ -255,7 +261,7 @@ def build_dataset(
         {"seed": seed, "fractions": list(fractions), "stratified_by": "material", **split}, indent=1))
     manifest = {
         "format": DATASET_FORMAT, "version": 1, "n_frames": options.n_frames, "shifts": options.shifts,
-        "size_px": list(options.size_px), "markers": options.markers, "finger": settings.estimator.finger,
+        "size_px": list(options.size_px), "window_m": list(options.window_m), "markers": options.markers, "finger": settings.estimator.finger,
         "depth_binning": settings.estimator.depth_binning,
         "calibration": options.calibration, "marker_calibration": options.marker_calibration,
         "measurement_version": MEASUREMENT_VERSION,
@@ -277,6 +283,14 @@ def parse_size(text: str) -> tuple[int, int]:
     if not match:
         raise argparse.ArgumentTypeError(f"size {text!r}: expected ROWSxCOLS, e.g. 64x88")
     return int(match.group(1)), int(match.group(2))
+
+
+def parse_window_mm(text: str) -> tuple[float, float]:
+    """``HEIGHTxWIDTH`` in mm -> (height, width) in m."""
+    match = re.fullmatch(r"(\d+(?:\.\d*)?)x(\d+(?:\.\d*)?)", text.strip())
+    if not match or not all(float(v) > 0 for v in match.groups()):
+        raise argparse.ArgumentTypeError(f"window {text!r}: expected HEIGHTxWIDTH in mm, e.g. 22.73x31.82")
+    return float(match.group(1)) * 1e-3, float(match.group(2)) * 1e-3
 
 
 def _fractions(text: str) -> tuple[float, float, float]:
@@ -308,6 +322,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", type=parse_size, default=(64, 88), metavar="ROWSxCOLS",
                         help="images and depth are stored area-averaged to this size (the sensor "
                              "grid is 250x350); the model reads them at this size")
+    parser.add_argument("--window", type=parse_window_mm, default=None, metavar="HEIGHTxWIDTH",
+                        help="gel patch (mm) the images show, centred on each record's pad (cut from a larger "
+                             "pad, zero-padded around a smaller one); the model's input pitch is this over "
+                             "--size (default: the pad of the settings' estimator sensor, 22.73x31.82 for the "
+                             "simulated Wedge)")
     parser.add_argument("--markers", action="store_true",
                         help="also store the other finger's (marker sensor's) images and depth")
     parser.add_argument("--calibration", metavar="CAL", default=None,
@@ -331,7 +350,8 @@ def run(args: argparse.Namespace) -> int:
         raise EstimatorError(f"--workers {args.workers}, --frames {args.frames}, --shifts {args.shifts}: "
                              "expected each >= 1")
     paths = find_records(args.records, name="--records")
-    options = DatasetOptions(n_frames=args.frames, shifts=args.shifts, size_px=args.size, markers=args.markers,
+    options = DatasetOptions(n_frames=args.frames, shifts=args.shifts, size_px=args.size, window_m=args.window,
+                             markers=args.markers,
                              calibration=args.calibration, marker_calibration=args.marker_calibration)
     manifest = build_dataset(paths, args.out, settings=load_settings(args.settings), options=options,
                              seed=args.seed, fractions=args.split,

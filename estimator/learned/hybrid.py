@@ -15,6 +15,13 @@ limit; a median below the softest training label gives an ``upper_bound``. The m
 cannot be sampled, or a model output that is not finite, gives a refusal with
 its reason.
 
+The images are resampled onto the model's input window (:mod:`estimator.learned.inputs`,
+"Input window"), and :func:`~estimator.learned.inputs.sampled_input_range` says whether the
+sensor's depth grid lies within what the model was trained on: a grid much coarser than the
+model's input pitch is refused (``insufficient_data``, the reason naming both pitches); a pad
+covering little of the window, or a contact cut off by the edge of a pad smaller than the
+window, widens the calibrated interval (its reason says why and by how much).
+
 ``auto`` mode
 -------------
 Per grasp, the cheapest answer whose expected error fits the budget:
@@ -30,8 +37,9 @@ Per grasp, the cheapest answer whose expected error fits the budget:
    threshold at which the split's mean error on the grasps it accepts is no
    worse than the model's on the same grasps; ``metadata.json`` ``auto``),
    default 0.5 decade.
-3. Otherwise the model. If the model fails, the first analytical estimate that
-   is not a refusal, in the order split, hertz, elastic, no_tactile.
+3. Otherwise the model. If the model fails or refuses the grasp (its sensor's grid
+   outside the model's range), the first analytical estimate that is not a refusal, in
+   the order split, hertz, elastic, no_tactile.
 
 The result's method is ``"auto"`` and its reason says which branch answered.
 """
@@ -48,7 +56,12 @@ from typing import Any
 from estimator.errors import ModelError
 from estimator.estimate import Estimate
 from estimator.learned.infer import CompliancePredictor
-from estimator.learned.inputs import SampledGrasp, distinct_frames, sample_grasp
+from estimator.learned.inputs import (
+    SampledGrasp,
+    distinct_frames,
+    sample_grasp,
+    sampled_input_range,
+)
 from estimator.measure import estimate_grasp
 from estimator.perception.calibration import Calibration
 from teleop.record import GraspRecord
@@ -142,7 +155,7 @@ class HybridEstimator:
         return sample_grasp(
             record, settings=self.settings, calibration=self.calibration, n_frames=variant.n_frames,
             size_px=variant.size_px, rgb=variant.image == "rgb", markers=variant.markers,
-            marker_calibration=self.marker_calibration,
+            marker_calibration=self.marker_calibration, window_m=variant.window_m,
         )
 
     def estimate(self, record: GraspRecord, *, mode: str = "model") -> Estimate:
@@ -181,17 +194,14 @@ class HybridEstimator:
         if mode == "auto" and self.policy.accepts(split, distinct_frames(sampled.force_n)):
             return _as("auto", split, f"split interval {interval_decades(split):.2f} <= "
                                       f"{self.policy.max_split_interval_decades:g} decades, model skipped")
+        fit = sampled_input_range(sampled, self.predictor.variant)
+        if not fit:
+            return _without_model(method, mode, by_method, f"the model does not apply to this sensor: {fit.refusal}")
         try:
             probs = self.predictor.predict_distribution([sampled])[0]
         except ModelError as exc:
-            if mode != "auto":
-                return Estimate.refuse(method, f"the model gives no estimate: {exc}")
-            fallback = next((by_method[m] for m in FALLBACK_ORDER if by_method.get(m)), None)
-            if fallback is None:
-                return Estimate.refuse(method, f"the model gives no estimate ({exc}) and every analytical "
-                                               "method refuses")
-            return _as("auto", fallback, f"the model gives no estimate ({exc})")
-        said = self.predictor.describe(probs, limit_pa=self.settings.resolution_limit_pa)
+            return _without_model(method, mode, by_method, f"the model gives no estimate: {exc}")
+        said = self.predictor.describe(probs, limit_pa=self.settings.resolution_limit_pa, widen=fit.widen)
         states = ", ".join(f"{e.method} {e.state}" for e in sampled.estimates)
         model = f"{self.predictor.variant.name} model over {self.predictor.variant.n_frames} frames"
         if said.state == "lower_bound":
@@ -199,12 +209,29 @@ class HybridEstimator:
                     f"{self.predictor.metadata.p_rigid:g}: stiffer objects look alike to the gel")
         elif said.state == "upper_bound":
             what = "median at or below the softest training label"
+        elif fit.notes:
+            what = (f"{self.predictor.interval_level:.0%} interval calibrated on validation objects, widened "
+                    f"{fit.widen:g} times as the grasp lies outside what the model was trained on (its coverage "
+                    "there is not validated)")
         else:
             what = f"{self.predictor.interval_level:.0%} interval calibrated on validation objects"
+        if fit.notes:
+            what += "; outside the training range: " + "; ".join(fit.notes)
         reason = f"{model}; {what}; analytical inputs: {states}"
         if mode == "auto":
             reason = "model: " + reason
         return Estimate(method, said.e_pa, (said.low_pa, said.high_pa), said.state, reason)
+
+
+def _without_model(method: str, mode: str, by_method: Mapping[str, Estimate], why: str) -> Estimate:
+    """A refusal saying ``why`` the model gives no answer; in ``auto`` mode the first analytical
+    estimate of :data:`FALLBACK_ORDER` that is not a refusal, relabelled, when there is one."""
+    if mode != "auto":
+        return Estimate.refuse(method, why)
+    fallback = next((by_method[m] for m in FALLBACK_ORDER if by_method.get(m)), None)
+    if fallback is None:
+        return Estimate.refuse(method, f"{why}; and every analytical method refuses")
+    return _as("auto", fallback, why)
 
 
 def _as(method: str, estimate: Estimate, why: str) -> Estimate:

@@ -6,7 +6,11 @@ A model directory holds ``model.onnx`` and ``metadata.json`` (written by
 ``format``, ``version``
     ``"compliance-teleop.model"``, 1.
 ``variant``
-    ``{"name", "n_frames", "size_px"}``: the inputs it reads (:class:`~estimator.learned.inputs.Variant`).
+    ``{"name", "n_frames", "size_px", "window_m"}``: the inputs it reads
+    (:class:`~estimator.learned.inputs.Variant`); ``window_m`` = [height, width] in metres of the
+    gel patch its images show (:mod:`estimator.learned.inputs`, "Input window"). A model without
+    it (made before the key) reads the pad of the sensor it was trained on, the simulated Wedge's
+    (:func:`~estimator.learned.inputs.default_window_m`).
 ``inputs``
     Input name -> shape with ``null`` for the batch axis; ``output``: the output's name.
 ``scales``
@@ -34,7 +38,7 @@ import json
 import logging
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +48,13 @@ import onnxruntime as ort
 from estimator.errors import ModelError
 from estimator.learned import distribution, inputs
 from estimator.learned.distribution import Described, describe, probabilities
-from estimator.learned.inputs import MEASUREMENT_VERSION, ModelInputs, Variant, encode
+from estimator.learned.inputs import (
+    MEASUREMENT_VERSION,
+    ModelInputs,
+    Variant,
+    default_window_m,
+    encode,
+)
 from teleop.settings import CONFIG_DIR, Settings
 
 __all__ = [
@@ -104,11 +114,13 @@ class ModelMetadata:
                              f"{MODEL_VERSION}; retrain the model (`make model`)")
         try:
             spec = data["variant"]
+            window = spec.get("window_m")
             variant = Variant.parse(spec["name"], n_frames=int(spec["n_frames"]),
-                                    size_px=tuple(int(v) for v in spec["size_px"]))
+                                    size_px=tuple(int(v) for v in spec["size_px"]),
+                                    window_m=None if window is None else tuple(float(v) for v in window))
             cal = data["calibration"]
             values = {k: float(cal[k]) for k in ("temperature", "p_rigid", "level", "interval_scale", "soft_pa")}
-        except (KeyError, TypeError, ValueError) as exc:
+        except (AttributeError, KeyError, TypeError, ValueError) as exc:
             raise ModelError(f"{source}: missing or malformed field ({exc!r})") from exc
         if not all(math.isfinite(v) for v in values.values()) or not (
                 values["temperature"] > 0 and 0 < values["level"] < 1 and values["interval_scale"] > 0
@@ -118,6 +130,11 @@ class ModelMetadata:
         if data.get("scales") != current_scales():
             raise ModelError(f"{source}: trained with input scales {data.get('scales')}, this code uses "
                              f"{current_scales()}; retrain the model")
+        if variant.window_m is None:
+            variant = replace(variant, window_m=default_window_m())
+            log.info("%s: no variant.window_m (a model from before the key): it reads the pad of the sensor the "
+                     "shipped models were trained on, the simulated Wedge's %.2f x %.2f mm", source,
+                     *(v * 1e3 for v in variant.window_m))
         expected = {name: [None, *shape] for name, shape in variant.input_shapes.items()}
         if data.get("inputs") != expected:
             raise ModelError(f"{source}: inputs {data.get('inputs')} do not match variant {variant.name} ({expected})")
@@ -228,13 +245,17 @@ class CompliancePredictor:
         logits = self.predict_logits(encode(self.variant, items))
         return probabilities(logits, temperature=self.metadata.temperature)
 
-    def describe(self, probs: np.ndarray, *, limit_pa: float) -> Described:
+    def describe(self, probs: np.ndarray, *, limit_pa: float, widen: float = 1.0) -> Described:
         """State, value and calibrated interval of one item's distribution, bounded above at the
         sensor's resolution limit ``limit_pa`` (:func:`~estimator.learned.distribution.describe`; a
-        limit above the model's :data:`~estimator.learned.distribution.CENSOR_PA` is taken there)."""
+        limit above the model's :data:`~estimator.learned.distribution.CENSOR_PA` is taken there).
+        ``widen`` (>= 1) multiplies the calibrated interval scale (a grasp outside the training
+        range: :func:`~estimator.learned.inputs.input_range`); bounds are not moved by it."""
+        if not (math.isfinite(widen) and widen >= 1.0):
+            raise ModelError(f"widen {widen!r}: expected a finite factor >= 1")
         limit_pa = min(limit_pa, distribution.CENSOR_PA)
         soft_pa = min(self.metadata.soft_pa, limit_pa / 10.0)
-        return describe(probs, scale=self.metadata.interval_scale, limit_pa=limit_pa, soft_pa=soft_pa,
+        return describe(probs, scale=self.metadata.interval_scale * widen, limit_pa=limit_pa, soft_pa=soft_pa,
                         p_rigid=self.metadata.p_rigid)
 
 

@@ -21,9 +21,9 @@ Model inputs (float32, batch first)
 ``frames`` (B, N, C, h, w)
     Per sampled frame: gel depth in mm (``depth``) or the BGR difference to the
     no-contact frame in 8-bit levels / 64 (``rgb``); with ``markers`` the other
-    finger's channels follow. Images are reduced from the depth grid (the sensor's
-    image grid binned by ``estimator.depth_binning``; the marker finger's full grid) to
-    ``size_px`` with area averaging (``cv2.INTER_AREA``), explicitly, once.
+    finger's channels follow. Images are resampled from the depth grid (the sensor's
+    image grid binned by ``estimator.depth_binning``; the marker finger's full grid) onto
+    the model's input window (below) at ``size_px``, explicitly, once.
 ``force_width`` (B, 2N), only with ``fw``
     Force at each frame / 30 N, then gripper width / 0.08 m.
 ``analytical`` (B, 6 x 4), only with ``analytical``
@@ -31,6 +31,23 @@ Model inputs (float32, batch first)
     value for a bound, 0 for a refusal), interval width in decades / 9 (1 for an
     open interval or a refusal) and the state one-hot (ok, lower_bound,
     upper_bound, insufficient_data).
+
+Input window
+------------
+A model reads a fixed patch of gel, ``window_m`` = (height, width) in metres, at
+``size_px`` = (rows, cols): its input pitch is ``window_m / size_px`` per axis, whatever
+sensor measured the grasp (:attr:`Variant.window_m`; ``variant.window_m`` in the model's
+``metadata.json``). The window is centred on the pad's centre: the depth grid is cut to the
+window's extent in whole grid pixels (the extent rounded to the nearest pixel, the odd pixel
+left over at the end), or, where the pad is smaller than the window, surrounded by zeros
+(untouched gel: the model has no mask channel), and the result is area-averaged to
+``size_px`` (``cv2.INTER_AREA``; :func:`window_images`, :func:`reduce_images`). The shipped
+models' window is the simulated Wedge's pad (:func:`default_window_m`), so on that sensor
+the window is the whole grid and the inputs are the grid area-averaged to ``size_px``, as
+they always were. :func:`input_range` says whether a grasp's grid is within what a model was
+trained on: a grid much coarser than the input pitch is refused, a pad covering little of
+the window or a contact cut off by the edge of a pad smaller than the window widens the
+interval.
 
 Output scale
 ------------
@@ -68,26 +85,36 @@ from estimator.measure import (
 from estimator.perception.calibration import Calibration, load_calibration
 from estimator.segment import Segment
 from teleop.record import FrameStream, GraspRecord
-from teleop.settings import Settings
+from teleop.settings import SensorSettings, Settings
 
 __all__ = [
     "ANALYTICAL_METHODS",
+    "COVERAGE_WIDENING",
+    "EDGE_WIDENING",
     "FEATURES_PER_METHOD",
     "LOG10_E_RANGE",
+    "MAX_PITCH_RATIO",
     "MEASUREMENT_VERSION",
+    "MIN_COVERAGE",
     "DecodedFrameStream",
+    "InputRange",
     "SampledGrasp",
     "Variant",
     "analytical_features",
     "cached_calibration",
     "calibration_for",
     "decoded",
+    "default_window_m",
     "distinct_frames",
     "encode",
+    "input_range",
     "no_contact_reference",
     "reduce_images",
     "sample_grasp",
     "sample_positions",
+    "sampled_input_range",
+    "window_bounds",
+    "window_images",
 ]
 
 LOG10_E_RANGE = (3.0, 12.0)
@@ -99,6 +126,26 @@ DEPTH_SCALE_M = 1e-3
 RGB_SCALE = 64.0
 IMAGES = ("depth", "rgb")
 _VARIANT = re.compile(r"^(depth|rgb)((?:\+(?:markers|fw|analytical))*)$")
+#: A window side outside this range (m) is not a gel pad.
+WINDOW_RANGE_M = (1e-3, 0.2)
+
+#: A depth grid coarser than this many times the model's input pitch is refused: the model would
+#: read detail the sensor cannot give (its input would be an upsampled, blurred contact).
+MAX_PITCH_RATIO = 1.5
+#: A pad covering less than this share of the model's window widens the interval...
+MIN_COVERAGE = 0.8
+#: ... by this factor on the calibrated interval scale (the rest of the window reads as untouched gel).
+COVERAGE_WIDENING = 1.5
+#: A contact reaching the edge of a pad smaller than the window (cut off where the model expects gel)
+#: widens the interval by this factor (on top of :data:`COVERAGE_WIDENING`).
+EDGE_WIDENING = 1.5
+
+
+def default_window_m() -> tuple[float, float]:
+    """(height, width) in m of the pad of the sensor the shipped models were trained on: the
+    simulated GelSight Wedge of :class:`~teleop.settings.SensorSettings`'s defaults (250 x 350 px at
+    1/11 mm, 22.73 x 31.82 mm). The window of a model whose metadata records none."""
+    return SensorSettings().pad_size_m
 
 
 # --------------------------------------------------------------------------- variant
@@ -122,6 +169,9 @@ class Variant:
         Frames sampled over the loading phase.
     size_px : (int, int)
         (rows, cols) the images are reduced to.
+    window_m : (float, float) or None
+        (height, width) in m of the gel patch the images show (module notes); None: the whole
+        depth grid of whatever sensor measured the grasp (no fixed pitch).
     """
 
     image: str = "depth"
@@ -130,6 +180,7 @@ class Variant:
     analytical: bool = True
     n_frames: int = 3
     size_px: tuple[int, int] = (64, 88)
+    window_m: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.image not in IMAGES:
@@ -141,9 +192,27 @@ class Variant:
             raise ModelError(f"variant size_px {self.size_px!r}: expected rows 8..250 and cols 8..350")
         object.__setattr__(self, "n_frames", int(self.n_frames))
         object.__setattr__(self, "size_px", (rows, cols))
+        if self.window_m is not None:
+            lo, hi = WINDOW_RANGE_M
+            try:
+                window = tuple(float(v) for v in self.window_m)
+            except (TypeError, ValueError):
+                window = ()
+            if len(window) != 2 or not all(math.isfinite(v) and lo <= v <= hi for v in window):
+                raise ModelError(f"variant window_m {self.window_m!r}: expected (height, width) in m, each "
+                                 f"{lo:g}..{hi:g}")
+            object.__setattr__(self, "window_m", window)
+
+    @property
+    def input_pitch_m(self) -> tuple[float, float] | None:
+        """(row, column) pitch of the image inputs on the gel (m): ``window_m / size_px``; None without a window."""
+        if self.window_m is None:
+            return None
+        return (self.window_m[0] / self.size_px[0], self.window_m[1] / self.size_px[1])
 
     @classmethod
-    def parse(cls, text: str, *, n_frames: int = 3, size_px: tuple[int, int] = (64, 88)) -> Variant:
+    def parse(cls, text: str, *, n_frames: int = 3, size_px: tuple[int, int] = (64, 88),
+              window_m: tuple[float, float] | None = None) -> Variant:
         """``IMAGE[+markers][+fw][+analytical]``, e.g. ``depth+fw+analytical`` or ``rgb+markers``."""
         match = _VARIANT.match(text.strip())
         if not match:
@@ -153,7 +222,7 @@ class Variant:
             )
         flags = set(filter(None, match.group(2).split("+")))
         return cls(image=match.group(1), markers="markers" in flags, force_width="fw" in flags,
-                   analytical="analytical" in flags, n_frames=n_frames, size_px=size_px)
+                   analytical="analytical" in flags, n_frames=n_frames, size_px=size_px, window_m=window_m)
 
     @property
     def name(self) -> str:
@@ -215,19 +284,140 @@ def distinct_frames(force_n: np.ndarray) -> int:
     return int(np.unique(np.asarray(force_n)).size)
 
 
-def reduce_images(images: np.ndarray, size_px: tuple[int, int] | None) -> np.ndarray:
+def window_bounds(shape: tuple[int, int], pitch_m: float, window_m: tuple[float, float]
+                  ) -> tuple[tuple[int, int], tuple[int, int]]:
+    """((row_start, row_stop), (col_start, col_stop)) of a window of ``window_m`` (height, width; m)
+    on a grid of ``shape`` (rows, cols) at ``pitch_m``, in grid pixels, centred on the grid's centre.
+
+    Each extent is rounded to whole pixels (at least one); the start is ``floor((n - extent) / 2)``,
+    negative (and the stop beyond the grid) where the window is larger than the grid.
+    """
+    bounds = []
+    for n, side in zip(shape, window_m, strict=True):
+        extent = max(1, round(side / pitch_m))
+        start = (int(n) - extent) // 2
+        bounds.append((start, start + extent))
+    return bounds[0], bounds[1]
+
+
+def window_images(images: np.ndarray, pitch_m: float, window_m: tuple[float, float]) -> np.ndarray:
+    """The window ``window_m`` (height, width; m) of each image of a stack at ``pitch_m``, centred on
+    the images' centre (:func:`window_bounds`): cut out where the images are larger, surrounded by
+    zeros where they are smaller; ``images`` itself when the window is the whole image.
+
+    ``images`` is (n, H, W) or (n, H, W, C).
+    """
+    if not (math.isfinite(pitch_m) and pitch_m > 0):
+        raise ModelError(f"pixel pitch {pitch_m!r} m: expected a finite value > 0")
+    shape = images.shape[1:3]
+    bounds = window_bounds(shape, pitch_m, window_m)
+    if all(b == (0, n) for b, n in zip(bounds, shape, strict=True)):
+        return images
+    (r0, r1), (c0, c1) = bounds
+    out = np.zeros((images.shape[0], r1 - r0, c1 - c0, *images.shape[3:]), dtype=images.dtype)
+    src_r, src_c = slice(max(r0, 0), min(r1, shape[0])), slice(max(c0, 0), min(c1, shape[1]))
+    out[:, src_r.start - r0:src_r.stop - r0, src_c.start - c0:src_c.stop - c0] = images[:, src_r, src_c]
+    return out
+
+
+def reduce_images(images: np.ndarray, size_px: tuple[int, int] | None, *, pitch_m: float | None = None,
+                  window_m: tuple[float, float] | None = None) -> np.ndarray:
     """Area-average each image of a stack to ``size_px`` (rows, cols), float32.
 
-    ``images`` is (n, H, W) or (n, H, W, 3); one ``cv2.resize`` per image. ``size_px``
-    None keeps the size.
+    ``images`` is (n, H, W) or (n, H, W, 3); one ``cv2.resize`` per image. With ``window_m``
+    (height, width; m) the images (at ``pitch_m``) are first cut or padded to that window
+    (:func:`window_images`); without it they are reduced whole. ``size_px`` None keeps the size
+    (and ignores the window).
     """
     if size_px is None:
         return images.astype(np.float32, copy=False)
+    if window_m is not None:
+        if pitch_m is None:
+            raise ModelError("reduce_images: a window needs the images' pixel pitch")
+        images = window_images(images, pitch_m, window_m)
     rows, cols = size_px
     out = np.empty((images.shape[0], rows, cols, *images.shape[3:]), dtype=np.float32)
     for i, image in enumerate(images):
         out[i] = cv2.resize(image.astype(np.float32, copy=False), (cols, rows), interpolation=cv2.INTER_AREA)
     return out
+
+
+@dataclass(frozen=True)
+class InputRange:
+    """How one grasp's depth grid fits a model's input window (:func:`input_range`); falsy when the
+    model must not answer.
+
+    Attributes
+    ----------
+    coverage : float
+        Share of the window the pad covers (1: the pad fills it; the rest reads as untouched gel).
+    pitch_ratio : float or None
+        The depth grid's pitch over the model's finest input pitch (None: not known).
+    refusal : str
+        Why the model must not answer (empty when it may).
+    notes : tuple of str
+        Why its interval is widened.
+    widen : float
+        Factor (>= 1) on the calibrated interval scale.
+    """
+
+    coverage: float = 1.0
+    pitch_ratio: float | None = None
+    refusal: str = ""
+    notes: tuple[str, ...] = ()
+    widen: float = 1.0
+
+    def __bool__(self) -> bool:
+        return not self.refusal
+
+    @property
+    def reasons(self) -> list[str]:
+        """The refusal (if any), then the notes."""
+        return [r for r in (self.refusal, *self.notes) if r]
+
+
+def _mm(pair: Sequence[float]) -> str:
+    return " x ".join(f"{v * 1e3:.2f}" for v in pair) + " mm"
+
+
+def input_range(window_m: tuple[float, float], size_px: tuple[int, int], *, pitch_m: float,
+                grid_shape: tuple[int, int], touches_edge: bool = False) -> InputRange:
+    """Whether a depth grid of ``grid_shape`` (rows, cols) at ``pitch_m`` lies within what a model of
+    input window ``window_m`` at ``size_px`` was trained on, and how far its interval must widen.
+
+    * The grid's pitch above :data:`MAX_PITCH_RATIO` times the model's finest input pitch: refused
+      (the model would read detail the sensor cannot give).
+    * The pad covering less than :data:`MIN_COVERAGE` of the window: the interval widens by
+      :data:`COVERAGE_WIDENING`.
+    * ``touches_edge`` (the contact region reaches the grid's border in a sampled frame:
+      :attr:`~estimator.features.ContactFeatures.touches_edge`) while the pad is smaller than the
+      window along either side: the contact is cut off where the model expects gel; the interval
+      widens by :data:`EDGE_WIDENING`. (Where the pad fills the window, as on the training sensor,
+      a contact cut by the window's edge is what the model was trained on.)
+    """
+    model_pitch = min(w / n for w, n in zip(window_m, size_px, strict=True))
+    ratio = pitch_m / model_pitch
+    bounds = window_bounds(grid_shape, pitch_m, window_m)
+    coverage = math.prod((min(stop, n) - max(start, 0)) / (stop - start)
+                         for (start, stop), n in zip(bounds, grid_shape, strict=True))
+    smaller = any(start < 0 or stop > n for (start, stop), n in zip(bounds, grid_shape, strict=True))
+    pad = tuple(n * pitch_m for n in grid_shape)
+    refusal = ""
+    if ratio > MAX_PITCH_RATIO:
+        refusal = (f"the depth grid's pitch {pitch_m * 1e3:.3f} mm is {ratio:.2f} times the model's input pitch "
+                   f"{model_pitch * 1e3:.3f} mm (at most {MAX_PITCH_RATIO:g} times): the model would read detail "
+                   "this sensor does not resolve (a finer depth grid, estimator.depth_binning, or another model)")
+    notes, widen = [], 1.0
+    if coverage < MIN_COVERAGE:
+        notes.append(f"the {_mm(pad)} pad covers {coverage:.0%} of the model's {_mm(window_m)} window (less than "
+                     f"{MIN_COVERAGE:.0%}; the rest reads as untouched gel)")
+        widen *= COVERAGE_WIDENING
+    if smaller and touches_edge:
+        notes.append(f"the contact reaches the edge of the {_mm(pad)} pad, smaller than the model's "
+                     f"{_mm(window_m)} window: the model sees it cut off")
+        widen *= EDGE_WIDENING
+    return InputRange(coverage=float(coverage), pitch_ratio=float(ratio), refusal=refusal, notes=tuple(notes),
+                      widen=widen)
 
 
 class ModelInputs(Protocol):
@@ -291,7 +481,7 @@ def encode(variant: Variant, items: Sequence[ModelInputs], *, where: str = "mode
 #: records the version its data was measured with (``data.measurement_version``), and
 #: :mod:`estimator.learned.reference` checks that its recorded inputs on a fixed reference record
 #: still come out the same, so a change that alters them without a raised version fails a test.
-MEASUREMENT_VERSION = 2
+MEASUREMENT_VERSION = 3
 
 
 class DecodedFrameStream(FrameStream):
@@ -393,7 +583,7 @@ def _marker_finger(record: GraspRecord, finger: str) -> str | None:
 
 def _measure_finger(
     record: GraspRecord, finger: str, *, settings: Settings, calibration: Calibration, n_frames: int,
-    shift: int, size_px: tuple[int, int] | None, rgb: bool,
+    shift: int, size_px: tuple[int, int] | None, rgb: bool, window_m: tuple[float, float] | None,
 ) -> SampledGrasp:
     """Measure the sample set ``shift`` of one finger (no estimates, no markers)."""
     # A marker finger's dots are found on its full grid.
@@ -412,10 +602,12 @@ def _measure_finger(
     m = measure_tactile(record, first, calibration=calibration, frames=distinct)
     if m.features is None or m.depth_m is None:
         return SampledGrasp(reason=m.tactile_reason or "tactile features were not measured")
-    depth = reduce_images(m.depth_m, size_px)[rows]
+    window = dict(pitch_m=m.grid.pixel_pitch_m, window_m=window_m)
+    depth = reduce_images(m.depth_m, size_px, **window)[rows]
     diff = None
     if rgb:
-        diff = reduce_images(m.image_bgr.astype(np.float32) - m.reference_bgr.astype(np.float32), size_px)[rows]
+        diff = reduce_images(m.image_bgr.astype(np.float32) - m.reference_bgr.astype(np.float32), size_px,
+                             **window)[rows]
     return SampledGrasp(measurements=m, force_n=m.force_n[rows], width_m=m.width_m[rows], depth_m=depth,
                         rgb_diff=diff)
 
@@ -431,6 +623,7 @@ def sample_grasp(
     rgb: bool = False,
     markers: bool = False,
     marker_calibration: Calibration | str | Path | None = None,
+    window_m: tuple[float, float] | None = None,
 ) -> SampledGrasp:
     """Measure one sample set of a grasp: depth, force, width and analytical estimates.
 
@@ -454,6 +647,10 @@ def sample_grasp(
         Also the other finger's images (the sensor with markers); needs its calibration.
     marker_calibration : Calibration, path or None
         The marker finger's calibration (None: the file its sensor names).
+    window_m : (float, float) or None
+        (height, width) in m of the gel patch the images show, centred on the pad (module
+        notes: cut from a larger pad, zero-padded around a smaller one); None: the whole depth
+        grid.
 
     Returns
     -------
@@ -465,7 +662,7 @@ def sample_grasp(
         raise ModelError(f"shift {shift} and n_frames {n_frames}: expected shift >= 0 and n_frames >= 1")
     finger = settings.estimator.finger
     cal = calibration_for(record, finger, calibration)
-    common = dict(settings=settings, n_frames=n_frames, shift=shift, size_px=size_px, rgb=rgb)
+    common = dict(settings=settings, n_frames=n_frames, shift=shift, size_px=size_px, rgb=rgb, window_m=window_m)
     sampled = _measure_finger(record, finger, calibration=cal, **common)
     if not sampled:
         return sampled
@@ -481,3 +678,18 @@ def sample_grasp(
     estimates = tuple(estimate_grasp(sampled.measurements, method, settings=settings)
                       for method in ANALYTICAL_METHODS)
     return replace(sampled, estimates=estimates)
+
+
+def sampled_input_range(sampled: SampledGrasp, variant: Variant) -> InputRange:
+    """:func:`input_range` of a sampled grasp's depth grid (the estimator's finger) for a model of
+    ``variant``: the grid's pitch and shape, and whether the contact reaches its border in any
+    sampled frame. In range (``InputRange()``) when the sample carries no measurements (its images
+    were made at the model's size elsewhere) or the variant has no window."""
+    m = sampled.measurements
+    if m is None or variant.window_m is None:
+        return InputRange()
+    grid = m.grid
+    shape = m.depth_m.shape[1:3] if m.depth_m is not None else grid.image_shape
+    touches = m.features is not None and bool(np.any(m.features.touches_edge))
+    return input_range(variant.window_m, variant.size_px, pitch_m=grid.pixel_pitch_m, grid_shape=shape,
+                       touches_edge=touches)

@@ -38,7 +38,7 @@ def reference_inputs(variant: Variant, *, settings: Settings) -> dict[str, np.nd
     estimator measures (the record's own sensor calibration)."""
     sampled = sample_grasp(read_record(REFERENCE_RECORD), settings=settings, calibration=None,
                            n_frames=variant.n_frames, size_px=variant.size_px, rgb=variant.image == "rgb",
-                           markers=variant.markers)
+                           markers=variant.markers, window_m=variant.window_m)
     if not sampled:
         raise ValueError(f"{REFERENCE_RECORD}: the reference grasp gives no sample ({sampled.reason})")
     return encode(variant, [sampled], where=str(REFERENCE_RECORD))

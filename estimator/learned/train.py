@@ -51,7 +51,7 @@ import logging
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -80,6 +80,7 @@ from estimator.learned.inputs import (
     ANALYTICAL_METHODS,
     MEASUREMENT_VERSION,
     Variant,
+    default_window_m,
     distinct_frames,
     encode,
 )
@@ -415,6 +416,17 @@ def _fit(train: SplitData, val: SplitData, variant: Variant, config: TrainConfig
     return Fitted(model.eval(), history, best[1], best[0])
 
 
+def dataset_window(manifest: dict[str, Any], where: str) -> tuple[float, float]:
+    """The input window (height, width; m) a dataset's images show (``window_m`` of its manifest); for a
+    dataset built before the key, the pad of the default sensor (the simulated Wedge), with a note."""
+    window = manifest.get("window_m")
+    if window is None:
+        window = default_window_m()
+        log.info("%s: the manifest records no window_m; its images show the pad of the default sensor "
+                 "(the simulated Wedge, %.2f x %.2f mm)", where, *(v * 1e3 for v in window))
+    return (float(window[0]), float(window[1]))
+
+
 def train_model(
     data_dir: str | Path,
     out_dir: str | Path,
@@ -427,7 +439,9 @@ def train_model(
     """Train ``variant`` on the dataset in ``data_dir``; write the model to ``out_dir``; return its metadata.
 
     ``settings`` (default: the shipped ones) give the sensor's resolution limit at which the
-    intervals are calibrated (:func:`calibrate`).
+    intervals are calibrated (:func:`calibrate`). The model's input window is the dataset's
+    (:func:`dataset_window`; ``variant.window_m``, when given, must equal it); it is written to the
+    metadata as ``variant.window_m``.
 
     Raises
     ------
@@ -442,6 +456,12 @@ def train_model(
         log.warning("%s was measured by measurement version %s, this code is version %s: the model will learn "
                     "inputs the estimator no longer produces; rebuild the dataset", data_dir,
                     manifest.get("measurement_version"), MEASUREMENT_VERSION)
+    window = dataset_window(manifest, str(data_dir))
+    if variant.window_m is None:
+        variant = replace(variant, window_m=window)
+    elif not np.allclose(variant.window_m, window, rtol=1e-9, atol=0.0):
+        raise EstimatorError(f"variant window {variant.window_m} m: {data_dir} holds images of a "
+                             f"{window[0]:.6g} x {window[1]:.6g} m window")
     if variant.markers and not manifest.get("markers"):
         raise EstimatorError(f"variant {variant.name} reads markers; {data_dir} was built without --markers")
     data = load_split_data(data_dir, variant)
@@ -465,7 +485,7 @@ def train_model(
         "version": MODEL_VERSION,
         "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "variant": {"name": variant.name, "n_frames": variant.n_frames, "size_px": list(variant.size_px),
-                    "method": variant.method},
+                    "window_m": list(variant.window_m), "method": variant.method},
         "inputs": {n: [None, *s] for n, s in variant.input_shapes.items()},
         "output": "log10_e_logits",
         "scales": current_scales(),
@@ -480,7 +500,7 @@ def train_model(
                      "parameters": sum(p.numel() for p in model.parameters()), "torch": torch.__version__,
                      "opset": OPSET, "history": fitted.history},
         "data": {"dir": str(data_dir), **{k: manifest.get(k) for k in (
-            "n_frames", "shifts", "size_px", "markers", "finger", "depth_binning", "samples", "records",
+            "n_frames", "shifts", "size_px", "window_m", "markers", "finger", "depth_binning", "samples", "records",
             "grasps_used", "measurement_version")},
             # Names, not counts: `estimator evaluate --unseen-by` keeps the records of the test objects.
             "objects": {name: sorted(objects) for name, objects in load_split(data_dir / "split.json").items()},
@@ -537,7 +557,7 @@ def _variant(args: argparse.Namespace, manifest: dict[str, Any]) -> Variant:
         raise EstimatorError(f"--frames {args.frames}: the dataset holds {frames} frames per sample")
     if args.size is not None and tuple(args.size) != size:
         raise EstimatorError(f"--size {args.size[0]}x{args.size[1]}: the dataset holds {size[0]}x{size[1]} images")
-    return Variant.parse(args.variant, n_frames=frames, size_px=size)
+    return Variant.parse(args.variant, n_frames=frames, size_px=size, window_m=dataset_window(manifest, args.data))
 
 
 def _share(value: float | None) -> str:

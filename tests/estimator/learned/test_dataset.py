@@ -13,6 +13,7 @@ from estimator.errors import EstimatorError, SampleError
 from estimator.learned.dataset import SPLITS, load_split, split_objects
 from estimator.learned.inputs import ANALYTICAL_METHODS
 from estimator.samples import load_sample, sample_paths
+from teleop.settings import load_settings
 
 MATERIALS = {f"{m}_{i}": m for m in ("foam", "rubber", "plastic", "metal", "wood") for i in range(8)} | {"odd": "glass"}
 
@@ -56,6 +57,9 @@ def test_build_dataset_from_records_never_leaks_an_object(sim_grasps, tmp_path, 
     assert main(argv) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["records"] == 4 and summary["size_px"] == [32, 44]
+    # The window the images show: the pad of the settings' estimator sensor (the simulated Wedge's).
+    settings = load_settings()
+    assert summary["window_m"] == pytest.approx(list(settings.sensor(settings.estimator.finger).pad_size_m))
     split = load_split(out / "split.json")
     where = defaultdict(set)
     n_samples = 0

@@ -10,7 +10,7 @@ import pytest
 
 from estimator.errors import EstimatorError, SampleError
 from estimator.learned.dataset import load_split
-from estimator.learned.inputs import MEASUREMENT_VERSION, Variant
+from estimator.learned.inputs import MEASUREMENT_VERSION, Variant, default_window_m
 from estimator.learned.train import TrainConfig, load_split_data, train_model
 
 
@@ -19,7 +19,8 @@ def test_trained_model_directory(trained_model, synthetic_dataset, synthetic):
     assert {p.name for p in trained_model.iterdir()} >= {"model.onnx", "metadata.json", "training_curve.png"}
     assert (trained_model / "training_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     meta = json.loads((trained_model / "metadata.json").read_text())
-    assert meta["variant"] == {"name": "depth+fw+analytical", "n_frames": 3, "size_px": [16, 22], "method": "hybrid"}
+    assert meta["variant"] == {"name": "depth+fw+analytical", "n_frames": 3, "size_px": [16, 22],
+                               "window_m": list(default_window_m()), "method": "hybrid"}
     assert meta["inputs"]["frames"] == [None, 3, 1, 16, 22]
     training = meta["training"]
     assert training["seed"] == 1 and 1 <= training["best_epoch"] <= training["epochs_run"] <= 4
