@@ -21,7 +21,7 @@ material, and every sample is written under its object's split::
 
     OUT/dataset.json                 manifest (settings, counts, skipped records)
     OUT/split.json                   {"seed", "fractions", "train": [objects], "val": [...], "test": [...]}
-    OUT/<split>/<object>/<record>_a<k>.npz
+    OUT/<split>/<object>/<object>_g<i>_a<k>.npz  (i: the object's i-th record, in path order)
 
 so no grasp or augmentation of a val or test object can reach training.
 """
@@ -188,7 +188,10 @@ def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: 
             label_modulus_pa=label.modulus_pa, material=label.material, shape=label.shape,
             estimates=sampled.estimates,
         )
-        dest = out / split / _safe_name(label.object_name) / f"{path.stem}_a{shift}.npz"
+        # Named by the object's grasp index, not the record's name: records of one object from
+        # several runs (rigs, sensors) may share a file name in different folders.
+        object_dir = _safe_name(label.object_name)
+        dest = out / split / object_dir / f"{object_dir}_g{grasp:04d}_a{shift}.npz"
         dest.parent.mkdir(parents=True, exist_ok=True)
         written.append(str(save_sample(sample, dest)))
     row: dict[str, Any] = {"path": str(path), "object": label.object_name, "split": split,
@@ -309,7 +312,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "measurement code (segmentation, warp, depth, contact features, analytical fits), split "
         "by object into train/val/test (seeded, stratified by material) so that no grasp or "
         "augmentation of a val or test object is ever trained on. Writes OUT/dataset.json, "
-        "OUT/split.json and OUT/<split>/<object>/<record>_a<k>.npz."
+        "OUT/split.json and OUT/<split>/<object>/<object>_g<i>_a<k>.npz (i: the object's i-th record in "
+        "path order; dataset.json lists which record gave which samples)."
     )
     parser.add_argument("--records", required=True, metavar="DIR",
                         help="directory searched recursively for labelled .grasp records")

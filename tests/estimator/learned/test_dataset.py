@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from collections import Counter, defaultdict
 
 import numpy as np
@@ -77,6 +78,21 @@ def test_build_dataset_from_records_never_leaks_an_object(sim_grasps, tmp_path, 
     assert n_samples == sum(summary["samples"].values()) >= 3
     assert main(argv) == 2  # refuses to write over a dataset
     assert "already holds a dataset" in capsys.readouterr().err
+
+
+def test_records_of_one_name_in_two_folders_keep_their_own_samples(sim_grasps, tmp_path, capsys):
+    # Runs on several rigs name their records alike (<object>_g000.grasp in each run's folder).
+    records, calibration = sim_grasps
+    first = sorted(records.glob("*.grasp"))[0]
+    (tmp_path / "recs" / "run_b").mkdir(parents=True)
+    shutil.copy(first, tmp_path / "recs" / first.name)
+    shutil.copy(first, tmp_path / "recs" / "run_b" / first.name)
+    out = tmp_path / "ds"
+    assert main(["build-dataset", "--records", str(tmp_path / "recs"), "--out", str(out), "--calibration",
+                 str(calibration), "--size", "32x44", "--shifts", "1", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    on_disk = [p for s in SPLITS if (out / s).is_dir() for p in sample_paths(out / s)]
+    assert summary["grasps_used"] == 2 and len(on_disk) == sum(summary["samples"].values()) == 2
 
 
 def test_build_dataset_refuses_an_empty_directory(tmp_path, capsys):
