@@ -152,7 +152,9 @@ class SensorSettings(_Validated):
     """One GelSight-style tactile sensor: camera geometry, warp and gel."""
 
     finger: str = spec("left", doc="which finger carries it")
-    model: str = spec("wedge", choices=("wedge", "mini"))
+    model: str = spec("wedge", choices=("wedge", "mini"),
+                      doc="wedge: raw frames warped by the mirror corners and cropped; mini: a flat sensor "
+                          "whose raw frame is the image (no warp, no crop)")
     optics: str = spec("wedge", choices=("wedge", "gelsight", "gelsight_mini"),
                        doc="how the simulator renders this sensor's frames (teleop.sim): 'wedge', the "
                            "GelSight Wedge appearance model (teleop/sim/optics.py); 'gelsight' or "
@@ -186,7 +188,7 @@ class SensorSettings(_Validated):
                                           doc="relative scale error of reconstructed depth")
 
     def _check(self) -> None:
-        if 2 * self.crop_px >= min(self.warped_width_px, self.warped_height_px):
+        if self.model == "wedge" and 2 * self.crop_px >= min(self.warped_width_px, self.warped_height_px):
             raise SettingsError(
                 f"SensorSettings.crop_px = {self.crop_px}: crops the whole "
                 f"{self.warped_width_px}x{self.warped_height_px} warped image away"
@@ -194,7 +196,10 @@ class SensorSettings(_Validated):
 
     @property
     def image_shape(self) -> tuple[int, int]:
-        """(rows, cols) of the warped, cropped image the estimator works on."""
+        """(rows, cols) of the image the estimator works on: a Wedge's warped and cropped frame; a
+        flat sensor's (``model = "mini"``: no mirror, no warp) raw frame as it comes."""
+        if self.model == "mini":
+            return (self.raw_height_px, self.raw_width_px)
         return (self.warped_height_px - 2 * self.crop_px, self.warped_width_px - 2 * self.crop_px)
 
     @property

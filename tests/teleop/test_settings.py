@@ -235,3 +235,11 @@ def test_the_resolution_limit_in_numbers_and_how_it_moves():
     assert finer.resolution_limit_pa(0.4) == pytest.approx(2 * sensor.resolution_limit_pa(0.4))
     assert stiffer.resolution_limit_pa(0.4) == pytest.approx(2 * sensor.resolution_limit_pa(0.4))
     assert thinner.resolution_limit_pa(0.4) == pytest.approx(sensor.resolution_limit_pa(0.4) / 2)
+
+
+def test_a_flat_sensor_works_on_its_raw_frame_whatever_the_warp_fields_say():
+    # A GelSight Mini or R1.5 looks straight at the gel: its raw 640 x 480 frame is the image.
+    flat = SensorSettings(model="mini", raw_width_px=640, raw_height_px=480, pixel_pitch_m=2.95e-5)
+    assert flat.image_shape == (480, 640)
+    assert flat.pad_size_m == pytest.approx((480 * 2.95e-5, 640 * 2.95e-5))
+    assert SensorSettings().image_shape == (250, 350)  # the Wedge: warped 400 x 300, 25 px cropped
