@@ -59,7 +59,7 @@ model: $(VENV)/.installed-dev
 	$(BIN)/estimator build-dataset --records $(MODEL_RUN)/records --out $(MODEL_RUN)/dataset \
 		--frames 3 --shifts 3 --size 64x88 --window $(MODEL_WINDOW_MM) --workers 2
 	$(BIN)/estimator train --data $(MODEL_RUN)/dataset --out $(MODEL_OUT) \
-		--variant $(MODEL_VARIANT) --seed 0 --threads 2
+		--variant $(MODEL_VARIANT) --seed 0 --patience 30 --threads 2
 
 # The shipped models on simulated grasps (nominal Wedge rig) of objects none of them trained on (their
 # test split), after `make model` made the records: the model card's figures. Writes runs/evaluate/.

@@ -494,7 +494,8 @@ def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_c
     # The shipped model answers the same from the cache as from the grasp as received.
     model = HybridEstimator(CompliancePredictor(default_model_dir()), settings=settings, calibration=calibration)
     variant = model.predictor.variant
-    cached = stream.sampled_grasp(n_frames=variant.n_frames, size_px=variant.size_px, segment=segment)
+    cached = stream.sampled_grasp(n_frames=variant.n_frames, size_px=variant.size_px, segment=segment,
+                                  window_m=variant.window_m)
     assert same(model.estimate_sampled(cached, mode="auto"), model.estimate(record, mode="auto"))
     # Before contact there is nothing to sample, and the reason says why.
     empty = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
