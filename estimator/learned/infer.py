@@ -250,7 +250,7 @@ class CompliancePredictor:
         sensor's resolution limit ``limit_pa`` (:func:`~estimator.learned.distribution.describe`; a
         limit above the model's :data:`~estimator.learned.distribution.CENSOR_PA` is taken there).
         ``widen`` (>= 1) multiplies the calibrated interval scale (a grasp outside the training
-        range: :func:`~estimator.learned.inputs.input_range`); bounds are not moved by it."""
+        range: :func:`~estimator.learned.window.input_range`); bounds are not moved by it."""
         if not (math.isfinite(widen) and widen >= 1.0):
             raise ModelError(f"widen {widen!r}: expected a finite factor >= 1")
         limit_pa = min(limit_pa, distribution.CENSOR_PA)

@@ -242,9 +242,8 @@ def calibrate(logits: np.ndarray, log10_truth: np.ndarray, *, soft_pa: float, li
 
     Returns ``temperature``, ``p_rigid``, ``level``, ``ok_level``, ``interval_scale``, ``soft_pa``,
     ``limit_pa`` (the resolution limit it was fitted at), ``chosen_on`` and the validation figures:
-    ``n``, ``n_ok``, ``ok_coverage`` (share of ``ok`` intervals holding the truth),
-    ``bound_coverage`` (share of bounds the truth satisfies) and ``coverage`` (all of them).
-    """
+    ``n``, ``n_ok``, ``ok_coverage`` (share of ``ok`` intervals holding the truth), ``bound_coverage``
+    (share of bounds the truth satisfies) and ``coverage`` (all of them)."""
     truth_pa = 10.0 ** log10_truth
     temperature = fit_temperature(logits, censor(log10_truth))
     calibration = {"temperature": temperature, "p_rigid": P_RIGID_CHOICES[-1], "level": level,

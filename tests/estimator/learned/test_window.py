@@ -15,15 +15,17 @@ import pytest
 
 from estimator.errors import EstimatorError, ModelError
 from estimator.learned.inputs import (
-    COVERAGE_WIDENING,
-    EDGE_WIDENING,
-    MAX_PITCH_RATIO,
     SampledGrasp,
     Variant,
     default_window_m,
-    input_range,
     reduce_images,
     sampled_input_range,
+)
+from estimator.learned.window import (
+    COVERAGE_WIDENING,
+    EDGE_WIDENING,
+    MAX_PITCH_RATIO,
+    input_range,
     window_bounds,
     window_images,
 )
