@@ -23,7 +23,7 @@ Inputs (1-D, one value per loading frame, in time order; SI units):
 
 Intervals (about 95 %) combine the fit's residual scatter (Student t on its
 degrees of freedom) with the measurement resolution propagated through the
-fit (:class:`MeasurementNoise`: force noise, width noise, depth resolution,
+fit (:class:`~estimator.linefit.MeasurementNoise`: force noise, width noise, depth resolution,
 pixel pitch, and two errors shared by all frames: the depth reconstruction's
 scale uncertainty and the fingertip separation at the contact onset), so that
 even a fit through exact points reports the resolution it rests on. Fits
@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -53,14 +52,12 @@ from scipy import special
 
 from estimator.errors import FitError
 from estimator.estimate import Estimate
+from estimator.linefit import MeasurementNoise, fit_line
 
 __all__ = [
     "METHODS",
-    "LineFit",
-    "MeasurementNoise",
     "approach_per_finger",
     "elastic",
-    "fit_line",
     "gel_layer_factor",
     "hertz",
     "no_tactile",
@@ -68,122 +65,6 @@ __all__ = [
 ]
 
 METHODS = ("no_tactile", "elastic", "hertz", "split")
-CONFIDENCE = 0.95
-
-
-@dataclass(frozen=True)
-class MeasurementNoise:
-    """Standard deviation of one reading of each measured quantity (SI units).
-
-    Attributes
-    ----------
-    force_n : float
-        One force reading (N).
-    width_m : float
-        One fingertip-separation reading (m).
-    depth_m : float
-        Depth resolution of the tactile sensor (m).
-    length_m : float
-        Resolution of a length on the tactile image: the pixel pitch (m).
-    depth_scale : float
-        Relative scale uncertainty of reconstructed depth (a calibration
-        error shared by every frame, so it does not average out).
-    onset_width_m : float
-        Uncertainty of the fingertip separation at the contact onset (m), from
-        which every approach is measured: an error all frames share.
-    """
-
-    force_n: float = 0.0
-    width_m: float = 0.0
-    depth_m: float = 0.0
-    length_m: float = 0.0
-    depth_scale: float = 0.0
-    onset_width_m: float = 0.0
-
-    def __post_init__(self) -> None:
-        for name in ("force_n", "width_m", "depth_m", "length_m", "depth_scale", "onset_width_m"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise FitError(f"MeasurementNoise.{name}: expected a finite value >= 0, got {value}")
-
-    @property
-    def approach_m(self) -> float:
-        """One per-finger approach reading (m): half a width reading."""
-        return self.width_m / 2.0
-
-    @property
-    def onset_approach_m(self) -> float:
-        """The per-finger approach's share of the onset uncertainty (m): half of ``onset_width_m``."""
-        return self.onset_width_m / 2.0
-
-
-@dataclass(frozen=True)
-class LineFit:
-    """Least-squares line ``y = slope * x + intercept`` with the slope's interval half-width."""
-
-    slope: float
-    intercept: float
-    half_width: float
-    n: int
-    dof: int
-
-    @property
-    def low(self) -> float:
-        return self.slope - self.half_width
-
-    @property
-    def high(self) -> float:
-        return self.slope + self.half_width
-
-    def describe(self, symbol: str) -> str:
-        basis = "fit scatter and resolution" if self.dof > 0 else "resolution only"
-        return f"{symbol} = {self.slope:.4g} ± {self.half_width:.2g} over {self.n} frames ({basis})"
-
-
-def fit_line(
-    x: np.ndarray,
-    y: np.ndarray,
-    sigma_y: np.ndarray,
-    *,
-    through_origin: bool,
-    systematic_y: Sequence[np.ndarray] = (),
-) -> LineFit | None:
-    """Least-squares slope of ``y`` on ``x`` with a ~95 % interval.
-
-    The half-width combines in quadrature the residual standard error (times
-    Student's t on the degrees of freedom, when there are any), the
-    propagated independent measurement error ``sigma_y`` and the slope shift
-    caused by each error in ``systematic_y``, an error shared by all points
-    (e.g. a depth scale error: one standard deviation per point, fully
-    correlated; independent of the others), all in units of ``y``. Returns
-    None when the slope is undetermined (no spread in ``x``).
-    """
-    n = x.size
-    if n == 0 or (not through_origin and n < 2):
-        return None
-    x_c = x if through_origin else x - x.mean()
-    sxx = float(x_c @ x_c)
-    if not (sxx > 0 and math.isfinite(sxx)):
-        return None
-    y_c = y if through_origin else y - y.mean()
-    slope = float(x_c @ y_c) / sxx
-    intercept = 0.0 if through_origin else float(y.mean() - slope * x.mean())
-    dof = n - (1 if through_origin else 2)
-    z = float(special.ndtri(0.5 + CONFIDENCE / 2))
-    se_floor = math.sqrt(float((x_c * x_c) @ (sigma_y * sigma_y))) / sxx
-    half_sq = (z * se_floor) ** 2
-    for shared in systematic_y:
-        half_sq += (z * float(x_c @ shared) / sxx) ** 2
-    if dof > 0:
-        residual = y - (slope * x + intercept)
-        se_fit = math.sqrt(float(residual @ residual) / dof / sxx)
-        half_sq += (float(special.stdtrit(dof, 0.5 + CONFIDENCE / 2)) * se_fit) ** 2
-    half = math.sqrt(half_sq)
-    if not (math.isfinite(slope) and math.isfinite(half)):
-        return None
-    return LineFit(slope=slope, intercept=intercept, half_width=half, n=n, dof=dof)
-
-
 def approach_per_finger(
     width_m: np.ndarray,
     force_n: np.ndarray,

@@ -23,11 +23,13 @@ from estimator import analytical
 from estimator.errors import CalibrationError, FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.features import ContactFeatures, contact_features
+from estimator.lag import estimate_camera_lag, estimate_width_lag
+from estimator.linefit import MeasurementNoise
 from estimator.perception.calibration import Calibration, load_calibration
 from estimator.perception.depth import reconstruct_depth
 from estimator.perception.grid import grid_calibration, grid_sensor, to_grid
 from estimator.perception.markers import detect_markers
-from estimator.segment import Segment, estimate_camera_lag, estimate_width_lag, segment_grasp
+from estimator.segment import Segment, segment_grasp
 from teleop.record import GRASP_DONE_EVENT, GraspRecord
 from teleop.settings import CONFIG_DIR, SensorSettings, Settings
 
@@ -129,11 +131,11 @@ class GraspMeasurements:
         return grid_sensor(self.sensor, self.depth_binning)
 
     @property
-    def noise(self) -> analytical.MeasurementNoise:
+    def noise(self) -> MeasurementNoise:
         """Resolution of each measurement: force and width noise and the onset width's
         uncertainty estimated from the record; depth resolution, depth scale uncertainty and
         pixel pitch from the sensor (the pitch of the depth grid)."""
-        return analytical.MeasurementNoise(
+        return MeasurementNoise(
             force_n=self.segment.force_noise_n,
             width_m=self.segment.width_noise_m,
             depth_m=self.sensor.depth_resolution_m,

@@ -75,8 +75,7 @@ __all__ = [
     "Segment",
     "align_frames",
     "clean_samples",
-    "estimate_camera_lag",
-    "estimate_width_lag",
+    "crossing_time",
     "find_load_phase",
     "interpolate",
     "noise_std",
@@ -156,7 +155,7 @@ def noise_std(value: np.ndarray) -> float:
     return sigma if np.isfinite(sigma) else 0.0
 
 
-def _crossing_time(t: np.ndarray, v: np.ndarray, i: int, level: float) -> float:
+def crossing_time(t: np.ndarray, v: np.ndarray, i: int, level: float) -> float:
     """Time where ``v`` crosses ``level`` between samples ``i`` and ``i + 1``."""
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         frac = (level - v[i]) / (v[i + 1] - v[i])
@@ -424,7 +423,7 @@ def find_load_phase(
             flags=tuple(flags), notes=tuple(notes), force_baseline_n=baseline,
         )
     contact = int(above[0])
-    t_contact = _crossing_time(tf, force, contact - 1, contact_force_n) if contact > 0 else float(tf[0])
+    t_contact = crossing_time(tf, force, contact - 1, contact_force_n) if contact > 0 else float(tf[0])
 
     # Peak: the first sample within the noise (or 1 %) of the maximum after contact, so that noise
     # or a slow creep on the hold phase does not stretch the loading phase over it; a saturation
@@ -453,7 +452,7 @@ def find_load_phase(
     below = np.flatnonzero(force[:contact] <= onset_level)
     if below.size:
         last_quiet = int(below[-1])
-        t_onset = min(_crossing_time(tf, force, last_quiet, onset_level), t_contact)
+        t_onset = min(crossing_time(tf, force, last_quiet, onset_level), t_contact)
         onset_t_sigma = float(tf[last_quiet + 1] - tf[last_quiet]) / math.sqrt(12.0)
     else:
         t_onset = float(tf[0])
@@ -551,121 +550,3 @@ def align_frames(phase: LoadPhase, frame_t_s: np.ndarray, *, n_frames: int) -> S
         frame_t_s=frame_t, frame_force_n=frame_force, frame_width_m=frame_width, sample=sample,
         **common,
     )
-
-
-def estimate_camera_lag(
-    frame_t_s: np.ndarray,
-    tactile_change: np.ndarray,
-    *,
-    t_onset_s: float,
-    max_lag_s: float = 0.25,
-) -> float | None:
-    """Camera clock lag behind the force clock, from the onset of tactile change.
-
-    The tactile change of a frame is e.g. ``mean |frame - reference|``; it
-    leaves its no-contact noise when the force does. The lag is the time the
-    change first exceeds its baseline by ``ONSET_SIGMAS`` noise deviations
-    (interpolated between frames) minus the force onset ``t_onset_s``;
-    subtract it from the frame times to put them on the force clock. Its
-    resolution is a fraction of the frame period.
-
-    Parameters
-    ----------
-    frame_t_s : ndarray, shape (f,)
-        Frame times (s), increasing.
-    tactile_change : ndarray, shape (f,)
-        Change of each frame against the no-contact reference (any unit).
-    t_onset_s : float
-        Force onset (s), see :func:`segment_grasp`.
-    max_lag_s : float
-        Largest lag considered (s); frames before ``t_onset_s - max_lag_s``
-        form the no-contact baseline.
-
-    Returns
-    -------
-    float or None
-        The lag (s), or None when there are too few no-contact frames or the
-        change never leaves its noise within ``max_lag_s`` of the onset.
-    """
-    t = np.asarray(frame_t_s, dtype=np.float64)
-    change = np.asarray(tactile_change, dtype=np.float64)
-    if t.shape != change.shape or t.ndim != 1:
-        raise FitError(f"frame_t_s and tactile_change must be 1-D of one length, got {t.shape} and {change.shape}")
-    keep = np.isfinite(t) & np.isfinite(change)
-    t, change = t[keep], change[keep]
-    quiet = t < t_onset_s - max_lag_s
-    if quiet.sum() < 3:
-        return None
-    base = float(np.median(change[quiet]))
-    spread = 1.4826 * float(np.median(np.abs(change[quiet] - base)))
-    level = base + max(ONSET_SIGMAS * spread, 1e-9 + 1e-6 * abs(base))
-    after = np.flatnonzero((t >= t_onset_s - max_lag_s) & (change > level))
-    if after.size == 0 or after[0] == 0:
-        return None
-    lag = _crossing_time(t, change, int(after[0]) - 1, level) - t_onset_s
-    return float(lag) if abs(lag) <= max_lag_s else None
-
-
-def estimate_width_lag(
-    width_t_s: np.ndarray,
-    width_m: np.ndarray,
-    *,
-    t_stop_s: float,
-    max_lag_s: float = 0.3,
-    step_s: float = 0.002,
-    speed_m_s: float | None = None,
-) -> float | None:
-    """Delay of the width timestamps behind the force clock, from the moment the fingers stop.
-
-    A gripper squeezing to a target force stops closing when the force peaks
-    (``t_stop_s``, e.g. :attr:`Segment.t_peak_s`). A host that stamps a width
-    read when the call returns stamps it late by about one read latency. The
-    width trace around the stop is fitted by least squares with a hinge:
-    closing at a constant speed, then still; the lag is the hinge time minus
-    ``t_stop_s``. Subtract it from the width times.
-
-    Parameters
-    ----------
-    width_t_s, width_m : ndarray, shape (m,)
-        Width samples: time (s) and width (m).
-    t_stop_s : float
-        When the force peaks (s).
-    max_lag_s : float
-        Largest lag considered either way (s).
-    step_s : float
-        Resolution of the hinge-time search (s).
-    speed_m_s : float, optional
-        The commanded closing speed (m/s, > 0). Given, the hinge fit keeps it
-        and fits the stop width alone: the record holds only two or three
-        reads before the stop, too few to fit the speed as well.
-
-    Returns
-    -------
-    float or None
-        The lag (s); None when the trace has too few samples on either side
-        of the stop, does not close before it, or the best hinge lies at the
-        edge of the search range.
-    """
-    t, w = clean_samples(width_t_s, width_m)
-    near = (t >= t_stop_s - 1.0) & (t <= t_stop_s + 1.0)
-    t, w = t[near], w[near]
-    hinges = np.arange(t_stop_s - max_lag_s, t_stop_s + max_lag_s + step_s / 2, step_s)
-    before = (t[None, :] < hinges[:, None]).sum(axis=1)
-    usable = (before >= 3) & (t.size - before >= 2)
-    if not usable.any() or not np.isfinite(t_stop_s):
-        return None
-    # w = w_stop + v * min(t - hinge, 0): linear least squares in (w_stop, v) for every hinge.
-    x = np.minimum(t[None, :] - hinges[:, None], 0.0)
-    n = t.size
-    sx, sy = x.sum(axis=1), w.sum()
-    sxx, sxy = (x * x).sum(axis=1), x @ w
-    det = n * sxx - sx**2
-    with np.errstate(invalid="ignore", divide="ignore"):
-        speed = (n * sxy - sx * sy) / det if speed_m_s is None else np.full(hinges.shape, -float(speed_m_s))
-        offset = (sy - speed * sx) / n
-        residual = ((w[None, :] - offset[:, None] - speed[:, None] * x) ** 2).sum(axis=1)
-    residual = np.where(usable & (det > 0) & (speed < 0), residual, np.inf)  # closing: width falls
-    best = int(np.argmin(residual))
-    if not np.isfinite(residual[best]) or best in (0, hinges.size - 1):
-        return None
-    return float(hinges[best] - t_stop_s)

@@ -11,16 +11,15 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from estimator.analytical import (
-    MeasurementNoise,
     approach_per_finger,
     elastic,
-    fit_line,
     gel_layer_factor,
     hertz,
     no_tactile,
     split,
 )
 from estimator.errors import FitError
+from estimator.linefit import MeasurementNoise, fit_line
 
 PITCH = 1e-3 / 11
 K_GEL = (1 - 0.48**2) / 0.275e6

@@ -8,12 +8,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from estimator.errors import FitError
+from estimator.lag import estimate_camera_lag, estimate_width_lag
 from estimator.segment import (
     HOLD_FRAMES,
     HOLD_SETTLE_S,
     clean_samples,
-    estimate_camera_lag,
-    estimate_width_lag,
     interpolate,
     noise_std,
     segment_grasp,
