@@ -321,18 +321,22 @@ class Publisher(_Socket):
         self._last_heartbeat_s = now
         return True
 
-    def wait_for_subscriber(self, topic: str = "", *, timeout_s: float = 5.0) -> None:
-        """Block until some subscriber has subscribed to a prefix of ``topic``.
+    def wait_for_subscriber(self, *topics: str, timeout_s: float = 5.0) -> None:
+        """Block until every one of ``topics`` has a subscriber (to a prefix of it).
 
-        Raises BusTimeoutError if none has within ``timeout_s``.
+        No topic waits for any subscription at all. Wait for each topic a test or a
+        sender needs: subscriptions arrive one by one, and until one has arrived this
+        publisher drops that topic's messages. Raises BusTimeoutError if some topic has
+        none within ``timeout_s``.
         """
         socket = self._live()
-        wanted = topic.encode("utf-8")
+        wanted = [t.encode("utf-8") for t in topics or ("",)]
         deadline = time.monotonic() + timeout_s
-        while not any(n > 0 and wanted.startswith(p) for p, n in self._subscriptions.items()):
+        while missing := [w for w in wanted if not any(n > 0 and w.startswith(p) for p, n in self._subscriptions.items())]:
             remaining = deadline - time.monotonic()
             if remaining <= 0 or not socket.poll(_ms(remaining)):
-                raise BusTimeoutError(f"{self.endpoint}: no subscriber for {topic!r} within {timeout_s} s")
+                names = ", ".join(repr(m.decode()) for m in missing)
+                raise BusTimeoutError(f"{self.endpoint}: no subscriber for {names} within {timeout_s} s")
             event = socket.recv()
             # XPUB delivers b"\x01<prefix>" for a subscription and b"\x00<prefix>" for its end.
             if event[:1] in (b"\x00", b"\x01"):

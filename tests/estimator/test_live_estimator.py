@@ -225,7 +225,7 @@ class Rig:
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self.service.run, args=(self.stop,), kwargs={"poll_s": 0.01})
         self.thread.start()
-        self.robot.wait_for_subscriber("frame", timeout_s=5.0)
+        self.robot.wait_for_subscriber("frame", "force", "width", "grasp_event", timeout_s=5.0)
         deadline = time.monotonic() + 5.0
         while "estimator" not in self.estimates.heartbeat.peers() and time.monotonic() < deadline:
             self.estimates.recv(timeout_s=0.05)

@@ -27,7 +27,7 @@ def rig(tmp_path):
     report = JsonLines(tmp_path / "renderer.jsonl")
     service = RendererService(HapticRenderer(display, settings), subscriber=subscriber, publisher=heartbeat,
                               report=report, tick_s=0.005)
-    estimator.wait_for_subscriber("estimate", timeout_s=5.0)
+    estimator.wait_for_subscriber("estimate", "grasp_event", timeout_s=5.0)
     yield service, estimator, display, tmp_path / "renderer.jsonl"
     for sock in (estimator, heartbeat, subscriber):
         sock.close()

@@ -81,7 +81,7 @@ class LiveEstimator:
                         threading.Thread(target=self.renderer.run, args=(self.stop,))]
         for thread in self.threads:
             thread.start()
-        self.robot.wait_for_subscriber("frame", timeout_s=5.0)
+        self.robot.wait_for_subscriber("frame", "force", "width", "grasp_event", timeout_s=5.0)
         self.operator.wait_for_subscriber("command", timeout_s=5.0)
         deadline = time.monotonic() + 5.0
         while "estimator" not in self.estimates.heartbeat.peers() and time.monotonic() < deadline:

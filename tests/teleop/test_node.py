@@ -25,7 +25,7 @@ def rig():
     commands = Subscriber(operator.endpoint, ("command",))
     listener = Subscriber(robot.endpoint, ("frame", "force", "width", "grasp_event"))
     node = RobotNode(scene.settings, publisher=robot, commands=commands, scene=scene).connect()
-    robot.wait_for_subscriber("frame", timeout_s=5.0)
+    robot.wait_for_subscriber("frame", "force", "width", "grasp_event", timeout_s=5.0)
     operator.wait_for_subscriber("command", timeout_s=5.0)
     yield node, operator, listener, scene
     node.close()

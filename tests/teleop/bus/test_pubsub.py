@@ -95,7 +95,8 @@ def test_conflated_subscriber_yields_the_latest_per_topic(endpoint):
         Publisher(endpoint, lossless=False, source="estimator") as pub,
         Subscriber(pub.endpoint, ["estimate", "grasp_event"], conflate=True) as sub,
     ):
-        pub.wait_for_subscriber("estimate")
+        # Both subscriptions must reach the publisher: it drops what nobody has asked for.
+        pub.wait_for_subscriber("estimate", "grasp_event")
         for i in range(50):
             pub.send(
                 "estimate", t_capture_s=float(i), grasp_id="g", method="split", E_pa=1e5 + i,
@@ -182,6 +183,17 @@ def test_heartbeat_is_sent_only_when_due():
         assert not pub.heartbeat_if_due(now_s=10.4)
         assert pub.heartbeat_if_due(now_s=10.5)
         assert pub.sent == 2
+
+
+def test_waiting_for_several_topics_names_the_one_nobody_asked_for():
+    with (
+        Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator") as pub,
+        Subscriber(pub.endpoint, ["estimate"]),
+    ):
+        pub.wait_for_subscriber("estimate", timeout_s=2.0)
+        with pytest.raises(BusTimeoutError, match="'grasp_event'") as caught:
+            pub.wait_for_subscriber("estimate", "grasp_event", timeout_s=0.1)
+    assert "'estimate'" not in str(caught.value)
 
 
 def test_errors_name_the_endpoint():
