@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from teleop.settings import load_settings
-from teleop.sim.optics import TactileCamera
+from teleop.sim.optics import OpticsRenderer
 from teleop.sim.presses import sphere_press_height
 
 
@@ -70,9 +70,9 @@ def main() -> None:
     print(f"{'sensor':<14}{'height map':<26}{'contact':>8}{'render':>14}{'noise':>14}{'jpeg':>14}{'capture':>14}")
     for finger in ("left", "right"):
         sensor = settings.sensor(finger)
-        camera = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(0))
+        camera = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(0))
         label = f"{finger}{' (markers)' if sensor.markers else ''}"
-        setup = timed(lambda s=sensor: TactileCamera(s, sim=settings.simulation,
+        setup = timed(lambda s=sensor: OpticsRenderer(s, sim=settings.simulation,
                                                      rng=np.random.default_rng(1)),
                       max(args.repeats // 10, 5), clock)
         results.append({"sensor": finger, "markers": sensor.markers, "setup_ms": setup})

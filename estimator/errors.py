@@ -1,7 +1,9 @@
 """Errors raised by the estimator: perception, calibration, fits and models."""
 
+from teleop.errors import ComplianceTeleopError
 
-class EstimatorError(Exception):
+
+class EstimatorError(ComplianceTeleopError):
     """Base of every error the ``estimator`` package raises on purpose."""
 
 

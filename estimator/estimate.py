@@ -28,10 +28,9 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from estimator.errors import FitError
+from teleop.states import ESTIMATE_STATES as STATES
 
 __all__ = ["STATES", "Estimate"]
-
-STATES = ("ok", "lower_bound", "upper_bound", "insufficient_data")
 
 
 def _valid_modulus(value: float | None) -> bool:

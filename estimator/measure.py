@@ -27,11 +27,11 @@ from estimator.lag import estimate_camera_lag, estimate_width_lag
 from estimator.linefit import MeasurementNoise
 from estimator.perception.calibration import Calibration, load_calibration
 from estimator.perception.depth import reconstruct_depth
-from estimator.perception.grid import grid_calibration, grid_sensor, to_grid
+from estimator.perception.grid import DepthGrid, depth_grid, grid_calibration, to_grid
 from estimator.perception.markers import detect_markers
 from estimator.segment import Segment, segment_grasp
 from teleop.record import GRASP_DONE_EVENT, GraspRecord
-from teleop.settings import CONFIG_DIR, SensorSettings, Settings
+from teleop.settings import SensorSettings, Settings, resolve_config_path
 
 __all__ = [
     "TACTILE_METHODS",
@@ -125,10 +125,10 @@ class GraspMeasurements:
     reference_bgr: np.ndarray | None = None
 
     @property
-    def grid(self) -> SensorSettings:
-        """The sensor of the depth grid: ``sensor`` binned by ``depth_binning``
-        (:func:`~estimator.perception.grid.grid_sensor`)."""
-        return grid_sensor(self.sensor, self.depth_binning)
+    def grid(self) -> DepthGrid:
+        """The depth grid: ``sensor``'s image grid binned by ``depth_binning``
+        (:func:`~estimator.perception.grid.depth_grid`)."""
+        return depth_grid(self.sensor, self.depth_binning)
 
     @property
     def noise(self) -> MeasurementNoise:
@@ -176,8 +176,7 @@ def calibration_path(sensor: SensorSettings, override: str | Path | None = None)
             f"`estimator calibrate`, then set calibration in [sensors.{sensor.finger}] or pass "
             "--calibration"
         )
-    path = Path(sensor.calibration)
-    return path if path.is_absolute() else CONFIG_DIR / path
+    return resolve_config_path(sensor.calibration)
 
 
 def resolve_calibration(sensor: SensorSettings, calibration: Calibration | str | Path | None) -> Calibration:

@@ -72,7 +72,7 @@ from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import MAX_STR_CHARS, Message
 from teleop.errors import TeleopError
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
-from teleop.settings import CONFIG_DIR, Settings, default_settings_path, load_settings
+from teleop.settings import Settings, default_settings_path, load_settings, resolve_config_path
 
 __all__ = ["INPUT_TOPICS", "MAX_CLOCK_JUMP_S", "EstimatorService", "ModelSlot", "ServiceStats", "resolve_model_dir"]
 
@@ -98,8 +98,7 @@ def resolve_model_dir(option: str | None, settings: Settings) -> Path | None:
     if option:
         path = Path(option)
     elif settings.estimator.model_path:
-        path = Path(settings.estimator.model_path)
-        path = path if path.is_absolute() else CONFIG_DIR / path
+        path = resolve_config_path(settings.estimator.model_path)
     else:
         path = default_model_dir()
         if not (path / "model.onnx").is_file():

@@ -93,16 +93,17 @@ from estimator.perception.calibration import Calibration
 from estimator.perception.depth import reconstruct_depth
 from estimator.perception.grid import (
     ENCODINGS,
+    DepthGrid,
+    depth_grid,
     frame_on_grid,
     grid_calibration,
-    grid_sensor,
     raw_frame,
 )
 from estimator.perception.markers import detect_markers
 from estimator.segment import PEAK_FRAME_WINDOW_S, LoadPhase, Segment, align_frames, find_load_phase
 from teleop.errors import SettingsError
 from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Provenance, Samples
-from teleop.settings import SensorSettings, Settings
+from teleop.settings import Settings
 
 __all__ = [
     "DEFAULT_METHODS",
@@ -119,16 +120,16 @@ LOADING_SETTLED_S = 0.1
 
 
 def measure_frame(frame: np.ndarray, reference: np.ndarray, calibration: Calibration,
-                  sensor: SensorSettings) -> tuple[np.ndarray, ContactFeatures]:
+                  grid: DepthGrid) -> tuple[np.ndarray, ContactFeatures]:
     """Depth (m, float32, the calibration's grid) and contact features of one frame on the depth grid
     (:func:`~estimator.perception.grid.frame_on_grid`) against its no-contact reference, as
     :func:`~estimator.measure.measure_tactile` measures each frame (markers found and inpainted first
-    when the sensor has them). ``calibration`` and ``sensor`` are those of the grid
-    (:func:`~estimator.perception.grid.grid_calibration`, :func:`~estimator.perception.grid.grid_sensor`)."""
-    mask = detect_markers(frame, reference) if sensor.markers else None
+    when the sensor has them). ``calibration`` and ``grid`` are those of the depth grid
+    (:func:`~estimator.perception.grid.grid_calibration`, :func:`~estimator.perception.grid.depth_grid`)."""
+    mask = detect_markers(frame, reference) if grid.markers else None
     depth = reconstruct_depth(frame, reference, calibration, marker_mask=mask)
-    return depth, contact_features(depth[None], pixel_pitch_m=sensor.pixel_pitch_m,
-                                   contact_threshold_m=sensor.contact_threshold_m)
+    return depth, contact_features(depth[None], pixel_pitch_m=grid.pixel_pitch_m,
+                                   contact_threshold_m=grid.contact_threshold_m)
 
 
 def choose_estimate(estimates: Sequence[Estimate]) -> Estimate:
@@ -240,7 +241,7 @@ class GraspStream:
             raise FitError(f"EstimatorSettings.finger = {self.finger!r}: {exc}") from exc
         check_calibration_fits(calibration, self.sensor)
         self.binning = settings.estimator.depth_binning
-        self.grid = grid_sensor(self.sensor, self.binning)  # the sensor of the depth grid
+        self.grid = depth_grid(self.sensor, self.binning)
         self.calibration = grid_calibration(calibration, self.binning)
         self.methods = tuple(methods)
         self.grasp_id = grasp_id

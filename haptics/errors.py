@@ -1,7 +1,9 @@
 """Errors raised on the operator side: mapping, HID protocol and displays."""
 
+from teleop.errors import ComplianceTeleopError
 
-class HapticsError(Exception):
+
+class HapticsError(ComplianceTeleopError):
     """Base of every error the ``haptics`` package raises on purpose."""
 
 

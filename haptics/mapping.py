@@ -66,6 +66,7 @@ from typing import Any
 from haptics.errors import MappingError
 from haptics.protocol import UNCERTAINTY_COUNTS_PER_DECADE, StiffnessCommand
 from teleop.settings import WEBER_FRACTION
+from teleop.states import ESTIMATE_STATES
 
 __all__ = [
     "ESTIMATE_STATES",
@@ -85,8 +86,6 @@ __all__ = [
     "stiffness_fraction",
     "to_command",
 ]
-
-ESTIMATE_STATES = ("ok", "lower_bound", "upper_bound", "insufficient_data")
 
 #: Relative tolerance of "at or above the rigid end": a bound equal to the limit after rounding is rigid.
 RIGID_TOLERANCE = 1e-9

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from teleop.errors import SettingsError
-from teleop.settings import CONFIG_DIR
+from teleop.settings import config_dir
 
 __all__ = [
     "SHAPES",
@@ -51,7 +51,7 @@ _SHAPE_ALIASES = {
 
 
 def default_catalogue_path() -> Path:
-    return CONFIG_DIR / "objects.toml"
+    return config_dir() / "objects.toml"
 
 
 @dataclass(frozen=True)

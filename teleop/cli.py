@@ -8,15 +8,15 @@ from teleop.clikit import Command, run_cli
 
 COMMANDS = {
     "settings": Command("teleop.settings_cli", "check a settings TOML file and print it resolved"),
-    "import-dataset": Command("teleop.dataset", "import the published dataset (raw grasps or preprocessed samples)"),
+    "import-dataset": Command("teleop.system.dataset", "import the published dataset (raw grasps or preprocessed samples)"),
     "catalogue": Command("teleop.catalogue", "list an object catalogue (project TOML or published CSV table)"),
     "hx711-bridge": Command("teleop.devices.hx711_bridge", "serve HX711 load-cell readings as framed TCP (run where the cell is)"),
     "keys": Command("teleop.bus.keys_cli", "create, authorise, list and revoke the bus's CURVE keys"),
     "simulate": Command("teleop.sim.simulate", "simulate labelled grasp records of catalogue objects"),
     "simulate-presses": Command("teleop.sim.presses", "render simulated ball presses for calibrating the estimator (taxim dataPack layout)"),
     "node": Command("teleop.node", "run the robot node: devices to the bus, grasps on operator command"),
-    "demo": Command("teleop.demo", "run the live system on simulated hardware over a scene and print the results"),
-    "bench-latency": Command("teleop.latency", "measure the live system's latency to the display report and its estimate rate"),
+    "demo": Command("teleop.system.demo", "run the live system on simulated hardware over a scene and print the results"),
+    "bench-latency": Command("teleop.system.latency", "measure the live system's latency to the display report and its estimate rate"),
     "record": Command("teleop.session.record_cli", "record every bus message of a session into an MCAP log"),
     "replay": Command("teleop.session.replay_cli", "publish a recorded session back onto the bus"),
     "export": Command("teleop.session.export_cli", "turn the grasps of a session log into .grasp records"),

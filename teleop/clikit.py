@@ -3,7 +3,8 @@
 Each subcommand lives in its own module exposing ``add_arguments(parser)`` and
 ``run(args) -> int``. Modules are imported only when their subcommand runs, so
 ``--help`` is fast and a run never imports what it does not use (torch above all).
-Errors the packages raise on purpose are printed as one line, never a traceback.
+Errors the packages raise on purpose (every one a :class:`~teleop.errors.ComplianceTeleopError`)
+are printed as one line, never a traceback.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import logging
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+
+from teleop.errors import ComplianceTeleopError
 
 
 @dataclass(frozen=True)
@@ -61,13 +64,9 @@ def run_cli(
         level=logging.WARNING - 10 * min(args.verbose, 2),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
-    from estimator.errors import EstimatorError
-    from haptics.errors import HapticsError
-    from teleop.errors import TeleopError
-
     try:
         return int(args._run(args) or 0)
-    except (TeleopError, EstimatorError, HapticsError) as exc:
+    except ComplianceTeleopError as exc:
         print(f"{prog} {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

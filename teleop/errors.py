@@ -1,10 +1,19 @@
 """Errors raised by the robot side: devices, the bus, settings and records.
 
 Every message names the thing that failed and, where one exists, the next step.
+
+:class:`ComplianceTeleopError` is the root of every error the project raises on purpose:
+``teleop``'s :class:`TeleopError`, ``estimator.errors.EstimatorError`` and
+``haptics.errors.HapticsError`` all derive from it, so the command-line kit
+(:mod:`teleop.clikit`) catches that one type and knows no other package.
 """
 
 
-class TeleopError(Exception):
+class ComplianceTeleopError(Exception):
+    """Root of every error the project (``teleop``, ``estimator``, ``haptics``) raises on purpose."""
+
+
+class TeleopError(ComplianceTeleopError):
     """Base of every error the ``teleop`` package raises on purpose."""
 
 

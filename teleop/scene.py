@@ -14,11 +14,11 @@ from pathlib import Path
 
 from teleop.catalogue import ObjectSpec, load_catalogue
 from teleop.errors import SettingsError
-from teleop.settings import CONFIG_DIR, Settings, load_settings
+from teleop.settings import Settings, config_dir, load_settings, resolve_config_path
 
 __all__ = ["Scene", "load_scene", "scene_path"]
 
-SCENE_DIR = CONFIG_DIR / "scenes"
+SCENE_DIR = config_dir() / "scenes"
 _BACKENDS = {"gripper": ("sim", "franky"), "camera": ("sim", "opencv"),
              "load_cell": ("sim", "serial", "tcp"), "display": ("sim", "hid")}
 _METHODS = ("no_tactile", "elastic", "hertz", "split", "cnn", "hybrid", "auto")
@@ -44,11 +44,6 @@ def scene_path(name_or_path: str) -> Path:
     return SCENE_DIR / f"{name_or_path}.toml"
 
 
-def _resolve(value: str) -> Path:
-    path = Path(value)
-    return path if path.is_absolute() else CONFIG_DIR / path
-
-
 def load_scene(name_or_path: str = "default") -> Scene:
     """Load and validate a scene; errors name the file and the key."""
     path = scene_path(name_or_path)
@@ -64,7 +59,7 @@ def load_scene(name_or_path: str = "default") -> Scene:
     unknown = sorted(set(data) - allowed)
     if unknown:
         raise SettingsError(f"{path}: unknown key {unknown[0]!r}; allowed keys: {', '.join(sorted(allowed))}")
-    catalogue = {o.name: o for o in load_catalogue(_resolve(str(data.get("catalogue", "objects.toml"))))}
+    catalogue = {o.name: o for o in load_catalogue(resolve_config_path(str(data.get("catalogue", "objects.toml"))))}
     names = data.get("objects")
     if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
         raise SettingsError(f"{path}: objects must be a non-empty array of object names")
@@ -93,7 +88,7 @@ def load_scene(name_or_path: str = "default") -> Scene:
         objects=tuple(catalogue[n] for n in names),
         grasps_per_object=grasps,
         seed=seed,
-        settings=load_settings(_resolve(str(data.get("settings", "settings.toml")))),
+        settings=load_settings(resolve_config_path(str(data.get("settings", "settings.toml")))),
         backends=backends,
         methods=methods,
     )

@@ -31,7 +31,9 @@ them as ``lower_bound`` at that limit, and the display renders it as rigid.
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import math
+import os
 import tomllib
 import types
 import typing
@@ -52,9 +54,12 @@ __all__ = [
     "Settings",
     "SimulationSettings",
     "WEBER_FRACTION",
+    "config_dir",
     "default_settings_path",
+    "depth_binning_problem",
     "build_settings",
     "load_settings",
+    "resolve_config_path",
     "settings_from_mapping",
     "settings_to_mapping",
 ]
@@ -65,12 +70,37 @@ T = TypeVar("T")
 #: (Bergmann Tiest and Kappers, IEEE Transactions on Haptics 2009: about 15 %).
 WEBER_FRACTION = 0.15
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+
+
+def config_dir() -> Path:
+    """The folder of the shipped configs (``configs/``: settings, rigs, scenes, catalogue, calibrations).
+
+    An installed wheel carries it as package data in ``teleop/_configs`` (``pyproject.toml`` maps
+    the package ``teleop._configs`` onto the top-level ``configs/`` folder); a source checkout,
+    editable installs included, has it beside the packages.
+    """
+    shipped = importlib.resources.files("teleop") / "_configs"
+    if isinstance(shipped, Path) and shipped.is_dir():
+        return shipped
+    return Path(__file__).resolve().parent.parent / "configs"
+
+
+#: :func:`config_dir` when this module was imported.
+CONFIG_DIR = config_dir()
+
+
+def resolve_config_path(value: str | os.PathLike[str]) -> Path:
+    """Where a path named in a settings or scene file points (``SensorSettings.calibration``,
+    ``EstimatorSettings.model_path``, ``SimulationSettings.background``, a scene's ``settings``
+    and ``catalogue``): an absolute path as it is, a relative one under :func:`config_dir`,
+    whichever file names it (the documented rule: "relative paths are under configs/")."""
+    path = Path(value)
+    return path if path.is_absolute() else config_dir() / path
 
 
 def default_settings_path() -> Path:
     """Path of the settings file shipped in ``configs/`` (simulated hardware)."""
-    return CONFIG_DIR / "settings.toml"
+    return config_dir() / "settings.toml"
 
 
 def spec(
@@ -157,7 +187,7 @@ class SensorSettings(_Validated):
                           "whose raw frame is the image (no warp, no crop)")
     optics: str = spec("wedge", choices=("wedge", "gelsight", "gelsight_mini"),
                        doc="how the simulator renders this sensor's frames (teleop.sim): 'wedge', the "
-                           "GelSight Wedge appearance model (teleop/sim/optics.py); 'gelsight' or "
+                           "GelSight Wedge appearance model (teleop/sim/wedge_optics.py); 'gelsight' or "
                            "'gelsight_mini', the measured colour tables and no-contact frame of a real "
                            "GelSight R1.5 or GelSight Mini (teleop/sim/table_optics.py). Not read by "
                            "real cameras or the estimator")
@@ -218,6 +248,31 @@ class SensorSettings(_Validated):
         of Poisson ratio ``object_poisson``."""
         ratio = self.gel_thickness_m / self.depth_resolution_m
         return WEBER_FRACTION * ratio * (1.0 - object_poisson**2) / self.gel_compliance_per_pa
+
+
+def depth_binning_problem(binning: Any, sensor: SensorSettings | None = None, *,
+                          grid_shape: tuple[int, int] | None = None) -> str | None:
+    """Why ``binning`` cannot be a depth binning (:attr:`EstimatorSettings.depth_binning`), or None.
+
+    A binning K is a whole number >= 1 dividing both sides of what it bins: ``sensor``'s image
+    grid and its raw frame (decoded K times smaller), and ``grid_shape`` (rows, cols; e.g. a
+    calibration's grid). K above 1 is refused for a sensor with markers: their dots are found and
+    inpainted on the full grid only. The one statement of the rule: the settings, the warp and the
+    depth grid (``estimator.perception``) all ask it and raise their own error with its answer.
+    """
+    if isinstance(binning, bool) or not isinstance(binning, int) or binning < 1:
+        return f"expected a whole number >= 1, got {binning!r}"
+    if sensor is not None:
+        (rows, cols), raw = sensor.image_shape, (sensor.raw_height_px, sensor.raw_width_px)
+        if any(side % binning for side in (rows, cols, *raw)):
+            return (f"does not divide the {rows} x {cols} px image grid and the {raw[0]} x {raw[1]} px raw "
+                    f"frame of finger {sensor.finger!r}; choose a common divisor or 1")
+        if binning > 1 and sensor.markers:
+            return (f"finger {sensor.finger!r} has markers, which are found and inpainted on the full grid "
+                    "only: measure it with binning 1 (depth_binning = 1)")
+    if grid_shape is not None and any(side % binning for side in grid_shape):
+        return f"does not divide both sides of the {grid_shape[0]} x {grid_shape[1]} px grid"
+    return None
 
 
 @dataclass(frozen=True)
@@ -349,17 +404,9 @@ class Settings(_Validated):
             object.__setattr__(self, "display", dataclasses.replace(self.display, e_rigid_pa=limit))
         binning = self.estimator.depth_binning
         sensor = next((s for s in self.sensors if s.finger == self.estimator.finger), None)
-        if binning > 1 and sensor is not None:
-            sides = (*sensor.image_shape, sensor.raw_height_px, sensor.raw_width_px)
-            if any(side % binning for side in sides):
-                raise SettingsError(
-                    f"EstimatorSettings.depth_binning = {binning}: does not divide the {sensor.image_shape[0]} x "
-                    f"{sensor.image_shape[1]} px image grid and the {sensor.raw_height_px} x {sensor.raw_width_px} px "
-                    f"raw frame of finger {sensor.finger!r}; choose a common divisor or 1")
-            if sensor.markers:
-                raise SettingsError(
-                    f"EstimatorSettings.depth_binning = {binning}: finger {sensor.finger!r} has markers, which are "
-                    "found and inpainted on the full grid only; set depth_binning = 1 for it")
+        problem = depth_binning_problem(binning, sensor) if sensor is not None else None
+        if problem:
+            raise SettingsError(f"EstimatorSettings.depth_binning = {binning}: {problem}")
 
     @property
     def resolution_limit_pa(self) -> float:

@@ -101,12 +101,12 @@ def soak_frames(settings: Settings, *, count: int = 30, seed: int = 0) -> dict[s
     The frames are what the sensors' simulated cameras deliver (raw size, noise, JPEG at
     ``simulation.jpeg_quality``), so their sizes are those of a live grasp.
     """
-    from teleop.sim.optics import TactileCamera
+    from teleop.sim.optics import OpticsRenderer
 
     frames = {}
     weights = np.linspace(0.0, 1.0, count)[:, None]
     for sensor in settings.sensors:
-        camera = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(seed))
+        camera = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(seed))
         rows, cols = sensor.image_shape
         y_m, x_m = np.mgrid[:rows, :cols] * sensor.pixel_pitch_m
         r2_m2 = (x_m - x_m.mean()) ** 2 + (y_m - y_m.mean()) ** 2

@@ -8,16 +8,15 @@ reconstructed with the calibration's colour-to-gradient table at K times the pix
 (:func:`grid_calibration`). The colour lookup, the Poisson solve and the contact features
 then see K^2 times fewer pixels.
 
-The binned grid is described as a sensor of its own (:func:`grid_sensor`): a flat sensor
-(nothing to warp) of that grid, with K times the pixel pitch, covering the same pad. Depth,
-contact features and the fits' length resolution all read it, as they read the full grid's
-sensor at K = 1.
+The grid is described by a :class:`DepthGrid` (:func:`depth_grid`): its shape, its pixel pitch
+(K times the sensor's, covering the same pad), and what depth and contact features read of the
+sensor there (the contact threshold, whether the gel has markers), at any K, 1 included.
 """
 
 from __future__ import annotations
 
 import functools
-from dataclasses import replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -27,37 +26,47 @@ from estimator.perception.warp import check_binning, warp_and_crop
 from teleop.record import decode_image, reduce_image
 from teleop.settings import SensorSettings
 
-__all__ = ["ENCODINGS", "frame_on_grid", "grid_calibration", "grid_sensor", "raw_frame", "to_grid"]
+__all__ = ["ENCODINGS", "DepthGrid", "depth_grid", "frame_on_grid", "grid_calibration", "raw_frame", "to_grid"]
 
 # How a captured frame may come: encoded as the camera gave it, or as a raw BGR image.
 ENCODINGS = ("jpeg", "png", "raw")
 
 
-def grid_sensor(sensor: SensorSettings, binning: int) -> SensorSettings:
-    """``sensor`` itself for ``binning`` 1; else a flat sensor of its image grid ``binning`` times
-    coarser, with ``binning`` times the pixel pitch (the same pad), one object per sensor and binning.
+@dataclass(frozen=True)
+class DepthGrid:
+    """The grid depth is measured on: ``image_shape`` (rows, cols) px of ``pixel_pitch_m``, the
+    sensor's image grid binned by ``binning``; ``contact_threshold_m`` and ``markers`` are the
+    sensor's (contact features and marker masking read them)."""
+
+    image_shape: tuple[int, int]
+    pixel_pitch_m: float
+    binning: int
+    contact_threshold_m: float
+    markers: bool
+
+    @property
+    def pad_size_m(self) -> tuple[float, float]:
+        """(height, width) of the gel area the grid covers, in metres (the sensor's at any binning)."""
+        rows, cols = self.image_shape
+        return (rows * self.pixel_pitch_m, cols * self.pixel_pitch_m)
+
+
+@functools.lru_cache(maxsize=32, typed=True)  # typed: True is no binning 1
+def depth_grid(sensor: SensorSettings, binning: int) -> DepthGrid:
+    """The depth grid of ``sensor`` binned by ``binning``: its image grid ``binning`` times coarser,
+    at ``binning`` times the pixel pitch (the same pad); one object per sensor and binning.
 
     Raises
     ------
     PerceptionError
-        ``binning`` does not divide the sensor's image grid and raw frame
-        (:func:`~estimator.perception.warp.check_binning`), or it is above 1 and the sensor has
-        markers (their dots are found and inpainted on the full grid).
+        ``binning`` does not divide the sensor's image grid and raw frame, or it is above 1 and
+        the sensor has markers (their dots are found and inpainted on the full grid):
+        :func:`~estimator.perception.warp.check_binning`.
     """
     check_binning(sensor, binning)
-    if binning == 1:
-        return sensor
-    if sensor.markers:
-        raise PerceptionError(f"binning {binning}: sensor {sensor.finger!r} has markers, which are found and "
-                              "inpainted on the full grid only; measure it with binning 1")
-    return _binned_sensor(sensor, binning)
-
-
-@functools.lru_cache(maxsize=32)
-def _binned_sensor(sensor: SensorSettings, binning: int) -> SensorSettings:
     rows, cols = (side // binning for side in sensor.image_shape)
-    return replace(sensor, model="mini", raw_width_px=cols, raw_height_px=rows, warped_width_px=cols,
-                   warped_height_px=rows, crop_px=0, pixel_pitch_m=sensor.pixel_pitch_m * binning)
+    return DepthGrid(image_shape=(rows, cols), pixel_pitch_m=sensor.pixel_pitch_m * binning, binning=binning,
+                     contact_threshold_m=sensor.contact_threshold_m, markers=sensor.markers)
 
 
 def grid_calibration(calibration: Calibration, binning: int) -> Calibration:
@@ -67,10 +76,7 @@ def grid_calibration(calibration: Calibration, binning: int) -> Calibration:
 
     Raises PerceptionError when ``binning`` does not divide both sides of its grid.
     """
-    rows, cols = calibration.image_shape
-    if isinstance(binning, bool) or not isinstance(binning, int) or binning < 1 or rows % binning or cols % binning:
-        raise PerceptionError(f"binning {binning!r}: expected a whole number >= 1 dividing both sides of the "
-                              f"calibration's {rows} x {cols} px grid")
+    check_binning(None, binning, grid_shape=calibration.image_shape)
     return calibration if binning == 1 else _binned_calibration(calibration, binning)
 
 

@@ -27,14 +27,16 @@ import cv2
 import numpy as np
 
 from estimator.errors import PerceptionError
-from teleop.settings import SensorSettings
+from teleop.errors import SettingsError
+from teleop.geometry import raw_to_grid_matrix
+from teleop.settings import SensorSettings, depth_binning_problem
 
 __all__ = ["check_binning", "warp_and_crop", "warp_maps", "warp_matrix", "warp_points"]
 
 
-@functools.lru_cache(maxsize=32)
 def warp_matrix(sensor: SensorSettings) -> np.ndarray:
-    """Homography from raw camera pixels to the warped-and-cropped image.
+    """Homography from raw camera pixels to the warped-and-cropped image
+    (:func:`teleop.geometry.raw_to_grid_matrix`).
 
     Parameters
     ----------
@@ -49,36 +51,25 @@ def warp_matrix(sensor: SensorSettings) -> np.ndarray:
         maps to ``M @ (x, y, 1)`` in cropped pixels after division by the last
         coordinate. The corners land on ``(0, 0)``, ``(W, 0)``, ``(0, H)`` and
         ``(W, H)`` of the warped image, so the crop shifts them by ``-crop_px``.
+
+    Raises
+    ------
+    PerceptionError
+        The corners do not form a quadrilateral.
     """
-    width, height, crop = sensor.warped_width_px, sensor.warped_height_px, sensor.crop_px
-    src = np.asarray(sensor.warp_corners_px, dtype=np.float32)
-    dst = np.array([[0, 0], [width, 0], [0, height], [width, height]], dtype=np.float32)
-    singular = PerceptionError(
-        f"sensor {sensor.finger!r}: warp_corners_px {sensor.warp_corners_px} do not form a "
-        "quadrilateral (three corners on one line?)"
-    )
     try:
-        to_warped = cv2.getPerspectiveTransform(src, dst)
-    except cv2.error as exc:
-        raise singular from exc
-    # OpenCV returns a meaningless matrix rather than failing on degenerate corners.
-    mapped = cv2.perspectiveTransform(src[None].astype(np.float64), to_warped)[0]
-    if not (np.isfinite(mapped).all() and np.allclose(mapped, dst, atol=1e-3)):
-        raise singular
-    shift = np.array([[1.0, 0.0, -crop], [0.0, 1.0, -crop], [0.0, 0.0, 1.0]])
-    matrix = shift @ to_warped
-    matrix.setflags(write=False)
-    return matrix
+        return raw_to_grid_matrix(sensor)
+    except SettingsError as exc:
+        raise PerceptionError(str(exc)) from exc
 
 
-def check_binning(sensor: SensorSettings, binning: int) -> None:
-    """Raise PerceptionError unless ``binning`` is a whole number >= 1 dividing both sides of
-    ``sensor``'s image grid and of its raw frame (which is decoded that many times smaller)."""
-    sides = (*sensor.image_shape, sensor.raw_height_px, sensor.raw_width_px)
-    if isinstance(binning, bool) or not isinstance(binning, int) or binning < 1 or any(s % binning for s in sides):
-        raise PerceptionError(
-            f"binning {binning!r}: expected a whole number >= 1 dividing the {sides[0]} x {sides[1]} px image grid "
-            f"and the {sides[2]} x {sides[3]} px raw frame of sensor {sensor.finger!r}")
+def check_binning(sensor: SensorSettings | None, binning: int, *,
+                  grid_shape: tuple[int, int] | None = None) -> None:
+    """Raise PerceptionError where :func:`~teleop.settings.depth_binning_problem` refuses
+    ``binning`` for ``sensor`` (its image grid, raw frame and markers) or ``grid_shape``."""
+    problem = depth_binning_problem(binning, sensor, grid_shape=grid_shape)
+    if problem:
+        raise PerceptionError(f"binning {binning!r}: {problem}")
 
 
 @functools.lru_cache(maxsize=32)
@@ -106,7 +97,8 @@ def warp_maps(sensor: SensorSettings, binning: int = 1) -> tuple[np.ndarray, np.
     Raises
     ------
     PerceptionError
-        ``binning`` does not divide the image grid and the raw frame.
+        ``binning`` does not divide the image grid and the raw frame, or is above 1 for a
+        sensor with markers (:func:`check_binning`).
     """
     check_binning(sensor, binning)
     rows, cols = (side // binning for side in sensor.image_shape)

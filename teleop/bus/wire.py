@@ -40,7 +40,8 @@ Nothing is ever pickled. :func:`decode` refuses a message with
 :class:`~teleop.errors.MessageRejected`, whose ``reason`` is one of
 :data:`REJECT_REASONS`: sizes are checked before anything is unpacked, msgpack runs
 with tight length limits, and every field is checked against its schema, numbers
-against NaN and infinity.
+against NaN and infinity. The schemas are written in the field checks of
+:mod:`teleop.bus.field_checks`; the format is this module's alone.
 
 Message types and body schemas
 ------------------------------
@@ -69,16 +70,27 @@ Message types and body schemas
 from __future__ import annotations
 
 import math
-import numbers
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import msgpack
 import numpy as np
 
+from teleop.bus.field_checks import (
+    ArrayField,
+    Schema,
+    flag_field,
+    integer_field,
+    interval_field,
+    is_int,
+    number_field,
+    number_map_field,
+    text_field,
+)
 from teleop.errors import MessageRejected
+from teleop.states import ESTIMATE_STATES
 
 __all__ = [
     "COMMAND_ACTIONS",
@@ -108,7 +120,6 @@ MAX_NDIM = 4
 MAX_STR_CHARS = 1024
 MAX_PARAMS = 32
 
-ESTIMATE_STATES = ("ok", "lower_bound", "upper_bound", "insufficient_data")
 # The robot node carries out the first three; the estimator service the last.
 COMMAND_ACTIONS = ("start_grasp", "stop", "release", "reload_model")
 
@@ -136,126 +147,7 @@ DTYPES = frozenset(
 _HEADER_KEYS = frozenset({"v", "type", "source", "seq", "t_capture_s", "t_send_ns", "buffers"})
 
 
-# --------------------------------------------------------------------------- field checks
-# Each check takes (value, where) and returns the value in its wire form (plain Python
-# types; arrays for array fields) or raises MessageRejected naming the field.
-
-Check = Callable[[Any, str], Any]
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, numbers.Integral) and not isinstance(value, bool | np.bool_)
-
-
-def _text(*, choices: tuple[str, ...] | None = None, nullable: bool = False, max_chars: int = 256) -> Check:
-    def check(value: Any, where: str) -> str | None:
-        if value is None and nullable:
-            return None
-        if not isinstance(value, str):
-            raise MessageRejected("mistyped_field", f"{where} must be a string, got {type(value).__name__}")
-        if choices is not None and value not in choices:
-            raise MessageRejected("mistyped_field", f"{where} = {value!r}: expected one of {', '.join(choices)}")
-        if len(value) > max_chars:
-            raise MessageRejected("mistyped_field", f"{where} has {len(value)} characters, at most {max_chars}")
-        return value
-
-    return check
-
-
-def _integer(*, lo: int = 0) -> Check:
-    def check(value: Any, where: str) -> int:
-        if not _is_int(value):
-            raise MessageRejected("mistyped_field", f"{where} must be an integer, got {value!r}")
-        if value < lo:
-            raise MessageRejected("mistyped_field", f"{where} = {value}: expected >= {lo}")
-        return int(value)
-
-    return check
-
-
-def _number(*, lo: float | None = None, lo_open: bool = False, nullable: bool = False) -> Check:
-    def check(value: Any, where: str) -> float | None:
-        if value is None and nullable:
-            return None
-        if not isinstance(value, numbers.Real) or isinstance(value, bool | np.bool_):
-            raise MessageRejected("mistyped_field", f"{where} must be a number, got {value!r}")
-        number = float(value)
-        if not math.isfinite(number):
-            raise MessageRejected("not_finite", f"{where} = {number}: expected a finite number")
-        if lo is not None and (number <= lo if lo_open else number < lo):
-            raise MessageRejected("mistyped_field", f"{where} = {number}: expected {'>' if lo_open else '>='} {lo}")
-        return number
-
-    return check
-
-
-def _flag(value: Any, where: str) -> bool:
-    if not isinstance(value, bool | np.bool_):
-        raise MessageRejected("mistyped_field", f"{where} must be true or false, got {value!r}")
-    return bool(value)
-
-
-def _interval(value: Any, where: str) -> list[float | None]:
-    if not isinstance(value, list | tuple) or len(value) != 2:
-        raise MessageRejected("mistyped_field", f"{where} must be [low, high] (each a number or nil), got {value!r}")
-    bound = _number(lo=0.0, lo_open=True, nullable=True)
-    low, high = bound(value[0], f"{where}[0]"), bound(value[1], f"{where}[1]")
-    if low is not None and high is not None and low > high:
-        raise MessageRejected("mistyped_field", f"{where} = [{low}, {high}]: low is above high")
-    return [low, high]
-
-
-def _params(value: Any, where: str) -> dict[str, float]:
-    if not isinstance(value, Mapping) or len(value) > MAX_PARAMS:
-        raise MessageRejected("mistyped_field", f"{where} must be a map of at most {MAX_PARAMS} name -> number")
-    number = _number()
-    out = {}
-    for key, item in value.items():
-        name = _text(max_chars=64)(key, f"{where} key")
-        out[name] = number(item, f"{where}.{name}")
-    return out
-
-
-@dataclass(frozen=True)
-class _Array:
-    """An array field: allowed dtypes, allowed ndims, whether floats must be finite."""
-
-    dtypes: tuple[str, ...]
-    ndims: tuple[int, ...]
-    finite: bool = False
-
-    def coerce(self, value: Any, where: str) -> np.ndarray:
-        """Sender side: arrays as given (checked later, never cast); bytes and numbers converted."""
-        if isinstance(value, bytes | bytearray | memoryview):
-            value = np.frombuffer(value, dtype=np.uint8)
-        elif not isinstance(value, np.ndarray):
-            try:
-                if isinstance(value, str) or not isinstance(value, numbers.Real | Sequence):
-                    raise TypeError(type(value).__name__)
-                value = np.atleast_1d(np.asarray(value, dtype=np.dtype(self.dtypes[0])))
-            except (TypeError, ValueError) as exc:
-                raise MessageRejected("mistyped_field", f"{where} must be an array of numbers ({exc})") from exc
-        return value
-
-    def check(self, array: np.ndarray, where: str) -> np.ndarray:
-        if array.dtype.newbyteorder("=") not in {np.dtype(d).newbyteorder("=") for d in self.dtypes}:
-            allowed = ", ".join(np.dtype(d).name for d in self.dtypes)
-            raise MessageRejected("mistyped_field", f"{where} has dtype {array.dtype.name}: expected {allowed}")
-        if array.ndim not in self.ndims:
-            raise MessageRejected("mistyped_field", f"{where} is {array.ndim}-D: expected {' or '.join(map(str, self.ndims))}-D")
-        if self.finite and array.dtype.kind == "f" and not np.isfinite(array).all():
-            raise MessageRejected("not_finite", f"{where} holds NaN or infinity")
-        return array
-
-
-@dataclass(frozen=True)
-class Schema:
-    """Body of one message type: scalar fields, array fields, cross-field rule."""
-
-    fields: Mapping[str, Check]
-    arrays: Mapping[str, _Array] = field(default_factory=dict)
-    nullable: frozenset[str] = frozenset()  # fields a sender may leave out (filled with nil)
-    rule: Callable[[dict[str, Any]], None] | None = None
+# --------------------------------------------------------------------------- body schemas
 
 
 def _samples_rule(value_name: str) -> Callable[[dict[str, Any]], None]:
@@ -287,63 +179,63 @@ def _estimate_rule(body: dict[str, Any]) -> None:
 
 
 # Timestamps stay float64: float32 would round monotonic seconds (~1e5 s) to ~8 ms.
-_TIMES = _Array(("<f8",), (1,), finite=True)
-_VALUES = _Array(("<f8", "<f4"), (1,), finite=True)
+_TIMES = ArrayField(("<f8",), (1,), finite=True)
+_VALUES = ArrayField(("<f8", "<f4"), (1,), finite=True)
 
 SCHEMAS: Mapping[str, Schema] = {
     "frame": Schema(
         fields={
-            "finger": _text(max_chars=32),
-            "grasp_id": _text(nullable=True),
-            "index": _integer(),
-            "encoding": _text(choices=("jpeg", "png", "raw")),
+            "finger": text_field(max_chars=32),
+            "grasp_id": text_field(nullable=True),
+            "index": integer_field(),
+            "encoding": text_field(choices=("jpeg", "png", "raw")),
         },
-        arrays={"data": _Array(("|u1", "<u2"), (1, 3))},
+        arrays={"data": ArrayField(("|u1", "<u2"), (1, 3))},
         nullable=frozenset({"grasp_id"}),
         rule=_frame_rule,
     ),
     "force": Schema(
-        fields={"grasp_id": _text(nullable=True)},
+        fields={"grasp_id": text_field(nullable=True)},
         arrays={"t_s": _TIMES, "value_n": _VALUES},
         nullable=frozenset({"grasp_id"}),
         rule=_samples_rule("value_n"),
     ),
     "width": Schema(
-        fields={"grasp_id": _text(nullable=True)},
+        fields={"grasp_id": text_field(nullable=True)},
         arrays={"t_s": _TIMES, "value_m": _VALUES},
         nullable=frozenset({"grasp_id"}),
         rule=_samples_rule("value_m"),
     ),
     "grasp_event": Schema(
         fields={
-            "event": _text(choices=("start", "loading_end", "end")),
-            "grasp_id": _text(),
-            "object_name": _text(nullable=True),
+            "event": text_field(choices=("start", "loading_end", "end")),
+            "grasp_id": text_field(),
+            "object_name": text_field(nullable=True),
         },
         nullable=frozenset({"object_name"}),
     ),
     "estimate": Schema(
         fields={
-            "grasp_id": _text(),
-            "method": _text(max_chars=64),
-            "E_pa": _number(lo=0.0, lo_open=True, nullable=True),
-            "interval_pa": _interval,
-            "state": _text(choices=ESTIMATE_STATES),
-            "reason": _text(max_chars=MAX_STR_CHARS),
-            "provisional": _flag,
-            "latency_s": _number(lo=0.0),
+            "grasp_id": text_field(),
+            "method": text_field(max_chars=64),
+            "E_pa": number_field(lo=0.0, lo_open=True, nullable=True),
+            "interval_pa": interval_field,
+            "state": text_field(choices=ESTIMATE_STATES),
+            "reason": text_field(max_chars=MAX_STR_CHARS),
+            "provisional": flag_field,
+            "latency_s": number_field(lo=0.0),
         },
         rule=_estimate_rule,
     ),
     "command": Schema(
         fields={
-            "action": _text(choices=COMMAND_ACTIONS),
-            "grasp_id": _text(nullable=True),
-            "params": _params,
+            "action": text_field(choices=COMMAND_ACTIONS),
+            "grasp_id": text_field(nullable=True),
+            "params": number_map_field(max_items=MAX_PARAMS),
         },
         nullable=frozenset({"grasp_id"}),
     ),
-    "heartbeat": Schema(fields={"interval_s": _number(lo=0.0, lo_open=True)}),
+    "heartbeat": Schema(fields={"interval_s": number_field(lo=0.0, lo_open=True)}),
 }
 
 
@@ -405,7 +297,7 @@ def make_message(kind: str, *, t_capture_s: float, topic: str | None = None, **b
         Unknown type, or a field missing, extra, mistyped or not finite.
     """
     checked = _sender_body(kind, body)
-    t = _number()(t_capture_s, "t_capture_s")
+    t = number_field()(t_capture_s, "t_capture_s")
     return Message(type=kind, body=checked, t_capture_s=t, topic=topic or default_topic(kind, checked))
 
 
@@ -447,10 +339,10 @@ def encode(message: Message, *, max_bytes: int | None = None) -> list[bytes | me
     header = {
         "v": SCHEMA_VERSION,
         "type": message.type,
-        "source": _text(max_chars=64)(message.source, "source"),
-        "seq": _integer()(message.seq, "seq"),
-        "t_capture_s": _number()(message.t_capture_s, "t_capture_s"),
-        "t_send_ns": _integer()(message.t_send_ns, "t_send_ns"),
+        "source": text_field(max_chars=64)(message.source, "source"),
+        "seq": integer_field()(message.seq, "seq"),
+        "t_capture_s": number_field()(message.t_capture_s, "t_capture_s"),
+        "t_send_ns": integer_field()(message.t_send_ns, "t_send_ns"),
         "buffers": [[name, a.dtype.str, list(a.shape)] for name, a in arrays.items()],
     }
     frames: list[bytes | memoryview] = [
@@ -517,7 +409,7 @@ def _unpack(data: memoryview, what: str) -> dict[str, Any]:
 
 def _check_header(header: dict[str, Any], n_buffers: int) -> dict[str, Any]:
     version = header.get("v")
-    if not _is_int(version) or version != SCHEMA_VERSION:
+    if not is_int(version) or version != SCHEMA_VERSION:
         raise MessageRejected("unknown_version", f"header version {version!r}: this software speaks {SCHEMA_VERSION}")
     kind = header.get("type")
     if not isinstance(kind, str) or kind not in SCHEMAS:
@@ -525,10 +417,10 @@ def _check_header(header: dict[str, Any], n_buffers: int) -> dict[str, Any]:
     if set(header) != _HEADER_KEYS:
         raise MessageRejected("bad_header", f"header keys {sorted(map(str, header))}, expected {sorted(_HEADER_KEYS)}")
     try:
-        _text(max_chars=64)(header["source"], "header.source")
-        _integer()(header["seq"], "header.seq")
-        _number()(header["t_capture_s"], "header.t_capture_s")
-        _integer()(header["t_send_ns"], "header.t_send_ns")
+        text_field(max_chars=64)(header["source"], "header.source")
+        integer_field()(header["seq"], "header.seq")
+        number_field()(header["t_capture_s"], "header.t_capture_s")
+        integer_field()(header["t_send_ns"], "header.t_send_ns")
     except MessageRejected as exc:
         reason = "not_finite" if exc.reason == "not_finite" else "bad_header"
         raise MessageRejected(reason, exc.detail) from None
@@ -548,7 +440,7 @@ def _buffer_array(entry: Any, frame: memoryview, kind: str, seen: set[str]) -> t
         raise MessageRejected("bad_buffer", f"buffer for {name!r}: {kind} has array fields {sorted(arrays)}, each once")
     if not isinstance(dtype, str) or dtype not in DTYPES:
         raise MessageRejected("bad_buffer", f"buffer {name!r} has dtype {dtype!r}, not a plain numeric dtype")
-    if not (isinstance(shape, list) and len(shape) <= MAX_NDIM and all(_is_int(s) and s >= 0 for s in shape)):
+    if not (isinstance(shape, list) and len(shape) <= MAX_NDIM and all(is_int(s) and s >= 0 for s in shape)):
         raise MessageRejected("bad_buffer", f"buffer {name!r} has shape {shape!r}: expected up to {MAX_NDIM} sizes >= 0")
     expected = math.prod(shape) * np.dtype(dtype).itemsize
     if expected != frame.nbytes:

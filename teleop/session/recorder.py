@@ -46,7 +46,7 @@ from teleop.session.logfile import (
     pack_frames,
     schema_data,
 )
-from teleop.settings import CONFIG_DIR, Settings, load_settings, settings_to_mapping
+from teleop.settings import Settings, load_settings, resolve_config_path, settings_to_mapping
 
 __all__ = ["COMPRESSIONS", "RecorderStats", "SessionRecorder", "session_source"]
 
@@ -503,8 +503,7 @@ class SessionRecorder:
         for sensor in self.settings.sensors:
             if not sensor.calibration:
                 continue
-            path = Path(sensor.calibration)
-            path = path if path.is_absolute() else CONFIG_DIR / path
+            path = resolve_config_path(sensor.calibration)
             try:
                 out.append(
                     (

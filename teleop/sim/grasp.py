@@ -59,9 +59,10 @@ from teleop.sim.contact import (
     layer_stiffening,
     solve_contact,
 )
-from teleop.sim.optics import TactileCamera, procedural_background
+from teleop.sim.optics import OpticsRenderer
 from teleop.sim.sensors import camera_times, gripper_width_readings, load_cell_readings
 from teleop.sim.shapes import Pose, Scene, draw_pose, make_scene, object_size, object_texture
+from teleop.sim.wedge_optics import procedural_background
 
 __all__ = [
     "FingerMechanics",
@@ -405,7 +406,7 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
         camera_background = (background or {}).get(finger)
         if camera_background is None and not sim.background and sensor.optics == "wedge":
             camera_background = _procedural_background(sensor)  # table optics: the real sensor's own
-        camera = TactileCamera(sensor, sim=sim, rng=rng.spawn(1)[0], background=camera_background)
+        camera = OpticsRenderer(sensor, sim=sim, rng=rng.spawn(1)[0], background=camera_background)
         # Height and in-plane displacement on the image grid at each force level; both are linear
         # in the gel's displacement, so a frame's are the same weighted sum of the levels'.
         gel = np.stack([s.gel_displacement_m for s in curve.fingers[finger].solutions])

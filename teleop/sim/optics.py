@@ -1,36 +1,25 @@
-"""Tactile optics of a simulated GelSight Wedge: gel height map in, raw camera frame out.
+"""Tactile optics of a simulated GelSight sensor: gel height map in, raw camera frame out.
 
-Frames
-------
-The mechanics work on the *grid*: the warped-and-cropped image the estimator sees,
-``sensor.image_shape`` = (rows, cols) = (250, 350) pixels of ``sensor.pixel_pitch_m``,
-x (columns) to the right, y (rows) down, z toward the camera. The camera sees the
-*raw* frame (``raw_height_px`` x ``raw_width_px``, 480 x 640). The two are related by
-the sensor's mirror-corner homography (:func:`raw_to_warped_matrix`: the raw corners
-TL, TR, BL, BR go to the corners of the ``warped_width_px`` x ``warped_height_px``
-image), after which ``crop_px`` pixels are cut from every side.
+:class:`OpticsRenderer` is the camera of one simulated sensor: it takes the gel's
+indentation on the sensor's grid (:mod:`teleop.sim.camera_geometry` has the frames)
+and gives the raw frame the camera delivers, with printed markers, camera noise and
+JPEG. Its shading is the Wedge's analytic model (:mod:`teleop.sim.wedge_optics`), or
+a real sensor's measured colour tables (:mod:`teleop.sim.table_optics`).
 
-Optical model
--------------
-The camera looks at the gel from behind, so an indentation ``h`` (m, into the gel)
-moves the membrane toward the camera: the surface seen is z = h(x, y). Three
-grazing coloured lights shine across the membrane as in the Wedge: green from the
-left, red from the top, blue from the bottom, each at ``LIGHT_ELEVATION_RAD`` above
-the gel. Each light's relative change of Lambertian radiance (plus a weak Phong
-highlight) is computed from the surface normal, scaled by that light's irradiance
-across the pad (a smooth, uneven gain field, fixed per sensor), mixed into BGR by
-the LEDs' colour signatures, scaled by ``sim.illumination_gain`` (LED current and
-ageing: 1 as calibrated) and added to the raw no-contact background. Each raw
+Rendering
+---------
+The surface change is shaded onto the raw no-contact background, scaled by
+``sim.illumination_gain`` (LED current and ageing: 1 as calibrated). Each raw
 pixel of the pad is shaded from the slopes at the point of the warped image it sees
 (through the mirror-corner homography); outside the pad's raw footprint the frame is
 the background, untouched.
 
-For speed, the shading is tabulated once over surface slopes (a reflectance map)
-and looked up per pixel with ``cv2.remap``; the height is blurred and
+For speed, the shading is looked up per pixel with ``cv2.remap`` in a table over
+surface slopes (the reflectance map); the height is blurred and
 differentiated by one separable filter per axis; only the raw pixels that see the
 window of the warped image where the gel moved (plus the filters' reach) are
 shaded. A series of frames whose surfaces mix a few basis surfaces
-(:meth:`TactileCamera.render_series`, e.g. a grasp's force levels) filters and
+(:meth:`OpticsRenderer.render_series`, e.g. a grasp's force levels) filters and
 resamples each basis once, mixes their slopes per frame, and renders each distinct
 mix once.
 
@@ -46,7 +35,6 @@ which is drawn from the camera's ``rng``.
 from __future__ import annotations
 
 import functools
-import zlib
 from pathlib import Path
 
 import cv2
@@ -54,39 +42,24 @@ import numpy as np
 from scipy.special import ndtri
 
 from teleop.errors import SimulationError
-from teleop.settings import CONFIG_DIR, SensorSettings, SimulationSettings
+from teleop.settings import SensorSettings, SimulationSettings, resolve_config_path
+from teleop.sim.camera_geometry import raw_footprint, read_only, sample_warped, warped_coordinates
+from teleop.sim.wedge_optics import (
+    REFLECTANCE_STEP,
+    SLOPE_LIMIT,
+    channel_gain,
+    procedural_background,
+    reflectance_map,
+)
 
 __all__ = [
-    "TactileCamera",
+    "OpticsRenderer",
     "load_background",
-    "procedural_background",
-    "raw_to_warped_matrix",
-    "warp_to_grid",
 ]
 
-LIGHT_ELEVATION_RAD = np.deg2rad(30.0)
-# In-plane direction from the gel toward each light (x right, y down): left, top, bottom.
-LIGHT_DIRECTIONS_XY = np.array([[-1.0, 0.0], [0.0, -1.0], [0.0, 1.0]])
-# Camera BGR response to each light (columns: green-left, red-top, blue-bottom);
-# LEDs are not spectrally pure, so each leaks a little into the other channels.
-LIGHT_BGR = np.array(
-    [[0.10, 0.05, 1.00],
-     [1.00, 0.10, 0.20],
-     [0.15, 1.00, 0.10]],
-    dtype=np.float32,
-)
-# 8-bit levels per unit relative change of one light's radiance at full irradiance.
-SHADING_GAIN_LEVELS = 80.0
-SPECULAR_WEIGHT = 0.15
-SPECULAR_EXPONENT = 8.0
-# Reflectance map tabulated over surface slopes (dz/dx, dz/dy), looked up per pixel.
-SLOPE_LIMIT = 4.0  # steeper slopes (above 76 degrees) shade like this one
-REFLECTANCE_STEP = 0.02
 # Gaussian blur of the height map (warped px): the membrane and the lens cannot
 # reproduce a sharp slope discontinuity (e.g. the rim of a ball press).
 MEMBRANE_BLUR_PX = 1.0
-# Lens blur of the procedural background (raw px).
-LENS_BLUR_PX = 0.8
 # Beyond this many warped px from the moved gel, the blur, slopes and warp change nothing.
 WINDOW_MARGIN_PX = 8
 # Printed markers: a square grid of dark dots.
@@ -101,53 +74,6 @@ NOISE_POOL_EXTRA = 1 << 20
 DERIVED_SHEAR_GAIN = 1.0
 
 
-def raw_to_warped_matrix(sensor: SensorSettings) -> np.ndarray:
-    """Homography from raw camera pixels to the warped (uncropped) image.
-
-    Maps the mirror corners ``warp_corners_px`` (TL, TR, BL, BR, raw px) to
-    (0, 0), (W, 0), (0, H), (W, H) with W, H = ``warped_width_px``,
-    ``warped_height_px`` (the GelSight SDK convention). Crop ``crop_px`` per side
-    afterwards to reach the grid.
-
-    Returns
-    -------
-    ndarray, shape (3, 3), float64
-        For ``cv2.warpPerspective(raw, M, (W, H))``.
-    """
-    w, h = sensor.warped_width_px, sensor.warped_height_px
-    src = np.array(sensor.warp_corners_px, dtype=np.float32)
-    dst = np.array([[0, 0], [w, 0], [0, h], [w, h]], dtype=np.float32)
-    return cv2.getPerspectiveTransform(src, dst)
-
-
-def warp_to_grid(raw: np.ndarray, sensor: SensorSettings) -> np.ndarray:
-    """Warp a raw frame to the warped image and crop it to the grid.
-
-    Parameters
-    ----------
-    raw : ndarray, shape (raw_height_px, raw_width_px[, C])
-        Raw camera frame, any dtype OpenCV warps (dtype is kept).
-    sensor : SensorSettings
-        Supplies the corners, warped size and crop.
-
-    Returns
-    -------
-    ndarray, shape sensor.image_shape (+ channels)
-        Bilinear resampling; same dtype as ``raw``.
-    """
-    if raw.shape[:2] != (sensor.raw_height_px, sensor.raw_width_px):
-        raise SimulationError(
-            f"raw frame has shape {raw.shape}: expected "
-            f"({sensor.raw_height_px}, {sensor.raw_width_px}[, channels]) for sensor {sensor.finger!r}"
-        )
-    warped = cv2.warpPerspective(
-        raw, raw_to_warped_matrix(sensor), (sensor.warped_width_px, sensor.warped_height_px),
-        flags=cv2.INTER_LINEAR,
-    )
-    c = sensor.crop_px
-    return warped[c:warped.shape[0] - c, c:warped.shape[1] - c]
-
-
 def load_background(path: str | Path) -> np.ndarray:
     """Read a no-contact raw frame (e.g. the real Wedge PNG) as uint8 BGR (H, W, 3)."""
     path = Path(path)
@@ -157,208 +83,30 @@ def load_background(path: str | Path) -> np.ndarray:
     return image
 
 
-def _sensor_seed(sensor: SensorSettings) -> int:
-    """A stable seed per physical sensor: its illumination does not change between grasps."""
-    return zlib.crc32(f"{sensor.model}/{sensor.finger}/{sensor.serial}".encode())
-
-
-def _warped_coordinates(sensor: SensorSettings) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel-centre coordinates (x, y) of the full warped image, float32 (H, W) each."""
-    return np.meshgrid(
-        np.arange(sensor.warped_width_px, dtype=np.float32),
-        np.arange(sensor.warped_height_px, dtype=np.float32),
-    )
-
-
-def _smooth_gain(sensor: SensorSettings, *, amplitude: float) -> np.ndarray:
-    """A smooth multiplicative field 1 +- ``amplitude`` across the warped image, fixed per sensor."""
-    knots = np.random.default_rng(_sensor_seed(sensor)).uniform(-1.0, 1.0, (4, 5)).astype(np.float32)
-    field = cv2.resize(knots, (sensor.warped_width_px, sensor.warped_height_px),
-                       interpolation=cv2.INTER_CUBIC)
-    return 1.0 + amplitude * np.clip(field, -1.0, 1.0)
-
-
-def _vignette(sensor: SensorSettings) -> np.ndarray:
-    """Radial fall-off of the whole pad's brightness (1 at the centre), float32 (H, W)."""
-    x, y = _warped_coordinates(sensor)
-    u = 2.0 * x / (sensor.warped_width_px - 1) - 1.0
-    v = 2.0 * y / (sensor.warped_height_px - 1) - 1.0
-    return (1.0 - 0.32 * u**2 - 0.12 * v**2).astype(np.float32)
-
-
-def _edge_distances(sensor: SensorSettings) -> np.ndarray:
-    """Distance (warped px) from the edge each light enters by: left, top, bottom. (3, H, W)."""
-    x, y = _warped_coordinates(sensor)
-    return np.stack([x, y, sensor.warped_height_px - 1 - y])
-
-
-def _read_only(array: np.ndarray) -> np.ndarray:
-    """Cached arrays are shared by every camera of a sensor: forbid writes."""
-    array.flags.writeable = False
-    return array
-
-
-@functools.lru_cache(maxsize=8)
-def _channel_gain(sensor: SensorSettings) -> np.ndarray:
-    """Shading gain (levels per unit relative radiance change) per BGR channel, float32 (H, W, 3).
-
-    Each light fades away from its edge (grazing light loses intensity across the
-    pad), scaled by the sensor's fixed uneven-illumination field and the vignette.
-    Each colour channel takes the field of the light that dominates it (the LEDs'
-    small leaks into other channels follow that field too, which saves a colour
-    transform per frame).
-    """
-    extent = np.array([sensor.warped_width_px, sensor.warped_height_px, sensor.warped_height_px],
-                      dtype=np.float32)[:, None, None]
-    fade = 0.6 + 0.4 * np.exp(-_edge_distances(sensor) / (0.5 * extent))
-    irradiance = fade * _smooth_gain(sensor, amplitude=0.08) * _vignette(sensor)
-    dominant = np.argmax(LIGHT_BGR, axis=1)
-    gain = SHADING_GAIN_LEVELS * irradiance[dominant].transpose(1, 2, 0)
-    return _read_only(np.ascontiguousarray(gain, dtype=np.float32))
-
-
-@functools.cache
-def _reflectance_map() -> np.ndarray:
-    """BGR change per unit irradiance versus surface slope, float32 (n, n, 3).
-
-    Entry [iy, ix] is for slopes (sx, sy) = (ix, iy) * REFLECTANCE_STEP - SLOPE_LIMIT.
-    Each light k (green-left, red-top, blue-bottom) contributes its relative
-    radiance change, Lambertian n.l / n0.l - 1 plus a weak Phong highlight toward
-    the camera (zero on a flat gel), through its BGR signature ``LIGHT_BGR[:, k]``.
-    The normal of the surface z = h(x, y) seen from the camera is n = (-sx, -sy, 1) / |.|.
-    """
-    slopes = np.arange(-SLOPE_LIMIT, SLOPE_LIMIT + REFLECTANCE_STEP / 2, REFLECTANCE_STEP)
-    sx, sy = np.meshgrid(slopes, slopes)
-    n_z = 1.0 / np.sqrt(1.0 + sx**2 + sy**2)
-    sin_e, cos_e = np.sin(LIGHT_ELEVATION_RAD), np.cos(LIGHT_ELEVATION_RAD)
-    per_light = []
-    for lx, ly in LIGHT_DIRECTIONS_XY * cos_e:
-        n_dot_l = np.maximum((sin_e - sx * lx - sy * ly) * n_z, 0.0)
-        reflect_z = np.maximum(2.0 * n_dot_l * n_z - sin_e, 0.0)  # z of the mirrored light
-        highlight = SPECULAR_WEIGHT * (reflect_z**SPECULAR_EXPONENT - sin_e**SPECULAR_EXPONENT)
-        per_light.append(n_dot_l / sin_e - 1.0 + highlight)
-    return _read_only(cv2.transform(np.stack(per_light, axis=-1).astype(np.float32), LIGHT_BGR))
-
-
 @functools.lru_cache(maxsize=8)
 def _marker_pattern(sensor: SensorSettings) -> np.ndarray:
     """Coverage (0..1, float32 (H, W)) of the printed marker dots at rest on the warped image."""
-    x, y = _warped_coordinates(sensor)
+    x, y = warped_coordinates(sensor)
     spacing = MARKER_SPACING_M / sensor.pixel_pitch_m
     offset = np.array([sensor.warped_width_px, sensor.warped_height_px]) % spacing / 2
     dx = (x - offset[0] + spacing / 2) % spacing - spacing / 2
     dy = (y - offset[1] + spacing / 2) % spacing - spacing / 2
     radius = MARKER_RADIUS_M / sensor.pixel_pitch_m
-    return _read_only(np.clip(radius + 0.5 - np.hypot(dx, dy), 0.0, 1.0).astype(np.float32))
-
-
-@functools.lru_cache(maxsize=8)
-def _lit_housing(sensor: SensorSettings) -> np.ndarray:
-    """The deterministic part of :func:`procedural_background`, float32 raw BGR, lens-blurred."""
-    ww, wh = sensor.warped_width_px, sensor.warped_height_px
-    distance = _edge_distances(sensor)
-    pad = np.empty((wh, ww, 3), dtype=np.float32)
-    pad[:] = np.array([145.0, 132.0, 110.0], dtype=np.float32)  # BGR of the real pad centre
-    pad *= (_vignette(sensor) * _smooth_gain(sensor, amplitude=0.04))[..., None]
-    # LED glow bands along the lit edges (decay lengths read off the real warped frame).
-    glow = np.array([130.0, 80.0, 100.0], dtype=np.float32)[:, None, None] * np.exp(
-        -distance / np.array([16.0, 28.0, 32.0], dtype=np.float32)[:, None, None]
-    )
-    pad += np.einsum("ck,khw->hwc", LIGHT_BGR, glow)
-    # The green LED strip itself fills the left edge: blue and red fade there.
-    pad[..., 0] *= 1.0 - 0.9 * np.exp(-distance[0] / 8.0)
-    pad[..., 2] *= 1.0 - 0.3 * np.exp(-distance[0] / 8.0)
-
-    size = (sensor.raw_width_px, sensor.raw_height_px)
-    to_raw = np.linalg.inv(raw_to_warped_matrix(sensor))
-    pad_raw = cv2.warpPerspective(pad, to_raw, size, flags=cv2.INTER_LINEAR)
-    inside = cv2.warpPerspective(np.ones((wh, ww), np.float32), to_raw, size, flags=cv2.INTER_LINEAR)
-
-    # Dark housing, a little brighter toward the bottom, and the second mirror view to the right.
-    depth = np.linspace(0.0, 1.0, sensor.raw_height_px, dtype=np.float32)[:, None, None]
-    frame = np.array([8.0, 8.0, 4.0], np.float32) + np.array([20.0, 9.0, 7.0], np.float32) * depth**2
-    frame = np.broadcast_to(frame, (sensor.raw_height_px, sensor.raw_width_px, 3)).copy()
-    corners = np.array(sensor.warp_corners_px, dtype=np.float32)
-    gap = 0.1 * (corners[1, 0] - corners[0, 0])
-    mirror = np.array(
-        [corners[1] + (gap, -0.3 * gap), (sensor.raw_width_px + gap, corners[1, 1] - 3 * gap),
-         corners[3] + (gap, 0.3 * gap), (sensor.raw_width_px + gap, corners[3, 1] + 3 * gap)],
-        dtype=np.float32,
-    )
-    src = np.array([[0, 0], [ww, 0], [0, wh], [ww, wh]], dtype=np.float32)
-    to_mirror = cv2.getPerspectiveTransform(src, mirror)
-    mirror_raw = cv2.warpPerspective(0.55 * pad, to_mirror, size, flags=cv2.INTER_LINEAR)
-    mirror_in = cv2.warpPerspective(np.ones((wh, ww), np.float32), to_mirror, size)
-    frame += (mirror_raw - frame) * mirror_in[..., None]
-    frame += (pad_raw - frame) * inside[..., None]
-    return _read_only(cv2.GaussianBlur(frame, (0, 0), LENS_BLUR_PX))  # softens the pad's border
-
-
-def procedural_background(sensor: SensorSettings, *, rng: np.random.Generator) -> np.ndarray:
-    """A Wedge-like raw no-contact frame, uint8 BGR (raw_height_px, raw_width_px, 3).
-
-    The pad (the raw footprint of the warped image) is a bright bluish-grey with
-    a vignette, a green glow along its left edge, red along the top and blue
-    along the bottom, as in the real Wedge frames; the sensor's uneven
-    illumination is fixed per sensor (seeded from its model, finger and serial).
-    Around the pad the frame is dark, with the dim second mirror view at the
-    right. ``rng`` only scatters dust specks over the gel.
-    """
-    # Dust specks: single bright pixels on the gel, spread by the lens blur.
-    n_specks = int(rng.integers(8, 20))
-    on_gel = np.column_stack([rng.uniform(0, sensor.warped_width_px, n_specks),
-                              rng.uniform(0, sensor.warped_height_px, n_specks)])
-    raw_xy = cv2.perspectiveTransform(on_gel[:, None], np.linalg.inv(raw_to_warped_matrix(sensor)))[:, 0]
-    cols = np.clip(np.rint(raw_xy[:, 0]).astype(int), 0, sensor.raw_width_px - 1)
-    rows = np.clip(np.rint(raw_xy[:, 1]).astype(int), 0, sensor.raw_height_px - 1)
-    specks = np.zeros((sensor.raw_height_px, sensor.raw_width_px), np.float32)
-    np.add.at(specks, (rows, cols), rng.uniform(60.0, 140.0, n_specks).astype(np.float32))
-    frame = _lit_housing(sensor) + cv2.GaussianBlur(specks, (0, 0), LENS_BLUR_PX)[..., None]
-    return np.clip(np.rint(frame), 0, 255).astype(np.uint8)
-
-
-@functools.lru_cache(maxsize=8)
-def _raw_footprint(sensor: SensorSettings) -> tuple[tuple[slice, slice], np.ndarray, np.ndarray]:
-    """The raw pixels that see the warped image: their bounding box and warped coordinates.
-
-    Returns
-    -------
-    box : (slice, slice)
-        Rows and columns of the raw frame holding every pixel within one warped
-        pixel of the warped image.
-    map_x, map_y : ndarray, float32, the box's shape
-        Warped (x, y) of each raw pixel centre in the box, for ``cv2.remap``.
-    """
-    w, h = sensor.warped_width_px, sensor.warped_height_px
-    to_raw = np.linalg.inv(raw_to_warped_matrix(sensor))
-    reach = np.array([[[-1.0, -1.0]], [[w, -1.0]], [[-1.0, h]], [[w, h]]])
-    corners = cv2.perspectiveTransform(reach, to_raw)[:, 0]
-    x0, y0 = np.maximum(np.floor(corners.min(axis=0)).astype(int), 0)
-    x1 = min(int(np.ceil(corners[:, 0].max())) + 1, sensor.raw_width_px)
-    y1 = min(int(np.ceil(corners[:, 1].max())) + 1, sensor.raw_height_px)
-    xs, ys = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
-    warped = cv2.perspectiveTransform(np.dstack([xs, ys]), raw_to_warped_matrix(sensor)).astype(np.float32)
-    return ((slice(y0, y1), slice(x0, x1)), _read_only(np.ascontiguousarray(warped[..., 0])),
-            _read_only(np.ascontiguousarray(warped[..., 1])))
-
-
-def _sample(field: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
-    """Bilinear samples of a warped-image ``field`` at raw pixels; zero beyond the field."""
-    return cv2.remap(field, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    return read_only(np.clip(radius + 0.5 - np.hypot(dx, dy), 0.0, 1.0).astype(np.float32))
 
 
 @functools.lru_cache(maxsize=8)
 def _raw_gain(sensor: SensorSettings) -> np.ndarray:
-    """:func:`_channel_gain` seen by the raw pixels of :func:`_raw_footprint`'s box; 0 off the pad."""
-    _, map_x, map_y = _raw_footprint(sensor)
-    return _read_only(_sample(_channel_gain(sensor), map_x, map_y))
+    """:func:`channel_gain` seen by the raw pixels of :func:`raw_footprint`'s box; 0 off the pad."""
+    _, map_x, map_y = raw_footprint(sensor)
+    return read_only(sample_warped(channel_gain(sensor), map_x, map_y))
 
 
 @functools.lru_cache(maxsize=8)
 def _raw_marker_coverage(sensor: SensorSettings) -> np.ndarray:
     """:func:`_marker_pattern` at rest seen by the raw pixels of the footprint box."""
-    _, map_x, map_y = _raw_footprint(sensor)
-    return _read_only(_sample(_marker_pattern(sensor), map_x, map_y))
+    _, map_x, map_y = raw_footprint(sensor)
+    return read_only(sample_warped(_marker_pattern(sensor), map_x, map_y))
 
 
 def _check_field(value, name: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -390,7 +138,7 @@ class _Series:
     coordinates of the box's pixels, the shading gain and the rest values there.
     """
 
-    def __init__(self, camera: TactileCamera, heights: np.ndarray, shears: np.ndarray | None,
+    def __init__(self, camera: OpticsRenderer, heights: np.ndarray, shears: np.ndarray | None,
                  used: np.ndarray) -> None:
         sensor = camera.sensor
         padded_heights = {k: camera._padded(heights[k]) for k in used}
@@ -409,7 +157,7 @@ class _Series:
         y0, x0 = max(rows[0] - WINDOW_MARGIN_PX, 0), max(cols[0] - WINDOW_MARGIN_PX, 0)
         y1, x1 = rows[-1] + WINDOW_MARGIN_PX + 1, cols[-1] + WINDOW_MARGIN_PX + 1
         window = (slice(y0, y1), slice(x0, x1))
-        (fy, fx), foot_x, foot_y = _raw_footprint(sensor)
+        (fy, fx), foot_x, foot_y = raw_footprint(sensor)
         inside = ((foot_x >= x0 - 1) & (foot_x <= x1) & (foot_y >= y0 - 1) & (foot_y <= y1))
         box_rows, box_cols = np.flatnonzero(inside.any(axis=1)), np.flatnonzero(inside.any(axis=0))
         if box_rows.size == 0:
@@ -435,20 +183,20 @@ class _Series:
         to_px = -1.0 / sensor.pixel_pitch_m  # a point now at p came from about p - u(p)
         for k in used:
             height = padded_heights[k][window]
-            self.slope_x[k] = _sample(cv2.sepFilter2D(height, cv2.CV_32F, derivative, smooth),
+            self.slope_x[k] = sample_warped(cv2.sepFilter2D(height, cv2.CV_32F, derivative, smooth),
                                       window_x, window_y)
-            self.slope_y[k] = _sample(cv2.sepFilter2D(height, cv2.CV_32F, smooth, derivative),
+            self.slope_y[k] = sample_warped(cv2.sepFilter2D(height, cv2.CV_32F, smooth, derivative),
                                       window_x, window_y)
             if self.back_x is not None:
                 shear = padded_shears[k][window]
-                self.back_x[k] = _sample(np.ascontiguousarray(shear[..., 0]) * to_px, window_x, window_y)
-                self.back_y[k] = _sample(np.ascontiguousarray(shear[..., 1]) * to_px, window_x, window_y)
+                self.back_x[k] = sample_warped(np.ascontiguousarray(shear[..., 0]) * to_px, window_x, window_y)
+                self.back_y[k] = sample_warped(np.ascontiguousarray(shear[..., 1]) * to_px, window_x, window_y)
             elif sensor.markers:
-                self.height[k] = _sample(height, window_x, window_y)
+                self.height[k] = sample_warped(height, window_x, window_y)
 
 
-class TactileCamera:
-    """The camera of one simulated GelSight sensor: gel surface in, raw frames out.
+class OpticsRenderer:
+    """The simulated optics and camera of one GelSight sensor: gel surface in, raw frames out.
 
     Parameters
     ----------
@@ -489,7 +237,7 @@ class TactileCamera:
     used before by this camera), so a pixel's noise is independent between
     frames and between pixels, at a fraction of the cost of fresh draws.
 
-    ``TactileCamera(sensor, ...)`` builds the camera of ``sensor.optics``: this
+    ``OpticsRenderer(sensor, ...)`` builds the camera of ``sensor.optics``: this
     Wedge model for ``"wedge"``, a
     :class:`~teleop.sim.table_optics.TableCamera` (same interface, the measured
     colour tables of a real sensor) otherwise.
@@ -497,7 +245,7 @@ class TactileCamera:
 
     def __new__(cls, *args, **kwargs):
         sensor = args[0] if args else kwargs.get("sensor")
-        if cls is TactileCamera and getattr(sensor, "optics", "wedge") != "wedge":
+        if cls is OpticsRenderer and getattr(sensor, "optics", "wedge") != "wedge":
             from teleop.sim.table_optics import TableCamera  # imports this module
 
             return super().__new__(TableCamera)
@@ -511,8 +259,7 @@ class TactileCamera:
         raw_shape = (sensor.raw_height_px, sensor.raw_width_px, 3)
         if background is None:
             if sim.background:
-                path = Path(sim.background)
-                background = load_background(path if path.is_absolute() else CONFIG_DIR / path)
+                background = load_background(resolve_config_path(sim.background))
             else:
                 background = procedural_background(sensor, rng=rng)
         background = np.asarray(background)
@@ -521,9 +268,9 @@ class TactileCamera:
                 f"background is {background.dtype} {background.shape}: expected uint8 {raw_shape} "
                 f"(the raw frame of sensor {sensor.finger!r})"
             )
-        self.background = _read_only(background.copy())
+        self.background = read_only(background.copy())
 
-        self._reflectance = _reflectance_map()
+        self._reflectance = reflectance_map()
         # Slopes of the membrane-blurred height (m), straight into reflectance-map units:
         # one separable filter per axis (Gaussian blur and central difference folded together).
         gaussian = cv2.getGaussianKernel(2 * int(np.ceil(4 * MEMBRANE_BLUR_PX)) + 1, MEMBRANE_BLUR_PX)
@@ -539,11 +286,11 @@ class TactileCamera:
         self.rest_frame = self.background
         if sensor.markers:
             self._marker_rest = _marker_pattern(sensor)
-            box = _raw_footprint(sensor)[0]
+            box = raw_footprint(sensor)[0]
             transmitted = 1.0 - MARKER_DARKNESS * _raw_marker_coverage(sensor)
             self._marked_f32 = self._background_f32.copy()  # before rounding: renders add a change to it
             self._marked_f32[box] *= cv2.merge([transmitted] * 3)
-            self.rest_frame = _read_only(np.clip(np.rint(self._marked_f32), 0, 255).astype(np.uint8))
+            self.rest_frame = read_only(np.clip(np.rint(self._marked_f32), 0, 255).astype(np.uint8))
         self._rest_f32 = self.rest_frame.astype(np.float32)
 
         # Camera noise: a 256-entry table of Gaussian quantiles (whole levels, offset by
@@ -598,7 +345,7 @@ class TactileCamera:
             height = _mix(series.height, weights, active)
             scale = DERIVED_SHEAR_GAIN * REFLECTANCE_STEP / self.sensor.pixel_pitch_m
             back_x, back_y = (cv2.multiply(m - self._map_origin, height, scale=scale) for m in (map_x, map_y))
-        coverage = _sample(self._marker_rest, cv2.add(series.map_x, back_x), cv2.add(series.map_y, back_y))
+        coverage = sample_warped(self._marker_rest, cv2.add(series.map_x, back_x), cv2.add(series.map_y, back_y))
         transmitted = cv2.merge([1.0 - MARKER_DARKNESS * coverage] * 3)
         # (background + shading) * transmission - marked background at rest, pasted on the rest frame:
         # a change well below a level leaves the pixel as it is at rest.

@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from teleop.errors import SimulationError
 from teleop.settings import default_settings_path, load_settings
-from teleop.sim.optics import TactileCamera
+from teleop.sim.optics import OpticsRenderer
 
 __all__ = ["contact_radius_m", "simulate_presses", "sphere_press_height", "write_presses"]
 
@@ -61,14 +61,14 @@ def _decode(jpeg: bytes) -> np.ndarray:
     return cv2.imdecode(np.frombuffer(jpeg, dtype=np.uint8), cv2.IMREAD_COLOR)
 
 
-def simulate_presses(camera: TactileCamera, *, n: int, ball_radius_m: float,
+def simulate_presses(camera: OpticsRenderer, *, n: int, ball_radius_m: float,
                      depth_range_m: tuple[float, float], rng: np.random.Generator,
                      progress: bool = False) -> dict[str, np.ndarray]:
     """Press a rigid ball ``n`` times at random centres and depths; return the dataPack arrays.
 
     Parameters
     ----------
-    camera : TactileCamera
+    camera : OpticsRenderer
         The simulated sensor's camera; frames are its captures (noise, JPEG), decoded.
     n : int
         Number of presses, >= 1.
@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
     sensor = settings.sensor(args.finger)
     camera_rng, press_rng = np.random.default_rng(args.seed).spawn(2)
-    camera = TactileCamera(sensor, sim=settings.simulation, rng=camera_rng)
+    camera = OpticsRenderer(sensor, sim=settings.simulation, rng=camera_rng)
     pack = simulate_presses(
         camera, n=args.n, ball_radius_m=args.ball_radius_mm * 1e-3,
         depth_range_m=(args.depth_mm[0] * 1e-3, args.depth_mm[1] * 1e-3), rng=press_rng, progress=True,

@@ -1,6 +1,6 @@
 """Tactile optics from a real sensor's measured colour tables: gel height map in, raw frame out.
 
-The Wedge optics (:mod:`teleop.sim.optics`) is an appearance model with made-up
+The Wedge optics (:mod:`teleop.sim.wedge_optics`) is an appearance model with made-up
 lights. This module renders through what was *measured* on two real sensors,
 a GelSight R1.5 and a GelSight Mini, as the ``taxim`` package ships them
 (``taxim/calib/gelsight/`` and ``taxim/calib/gelsight_mini/``; Si and Yuan,
@@ -9,7 +9,7 @@ located without being imported (importing it pulls in torch or jax).
 
 Frames
 ------
-As in :mod:`teleop.sim.optics`: heights arrive on the sensor's *grid* (the warped
+As in :mod:`teleop.sim.camera_geometry`: heights arrive on the sensor's *grid* (the warped
 and cropped image, ``sensor.image_shape``, x right, y down, pixels of
 ``sensor.pixel_pitch_m``), frames leave as the *raw* camera image. These sensors
 look straight at the gel (no mirror): their settings give the identity warp
@@ -52,7 +52,7 @@ mechanics treat the gel as a flat layer and ``f0`` already shows the gel at
 rest), taxim's pyramid blur that fakes the gel sinking in around a contact
 (the contact mechanics give the real displacement) and its shadow table.
 Camera noise, markers, the windowing to where the gel moved and the mixing of
-basis surfaces are :class:`~teleop.sim.optics.TactileCamera`'s.
+basis surfaces are :class:`~teleop.sim.optics.OpticsRenderer`'s.
 """
 
 from __future__ import annotations
@@ -68,8 +68,10 @@ import cv2
 import numpy as np
 
 from teleop.errors import SimulationError
-from teleop.settings import CONFIG_DIR, SensorSettings, SimulationSettings
-from teleop.sim.optics import REFLECTANCE_STEP, TactileCamera, _read_only, load_background
+from teleop.settings import SensorSettings, SimulationSettings, resolve_config_path
+from teleop.sim.camera_geometry import read_only
+from teleop.sim.optics import OpticsRenderer, load_background
+from teleop.sim.wedge_optics import REFLECTANCE_STEP
 
 __all__ = [
     "SensorTables",
@@ -167,7 +169,7 @@ def load_tables(optics: str) -> SensorTables:
         raise SimulationError(f"{folder / 'dataPack.npz'}: f0 is {f0.dtype} {f0.shape}: expected uint8 "
                               f"({sensor['h']}, {sensor['w']}, 3)")
     blur = 0.5 * (sigma_x * sensor["w"] + sigma_y * sensor["h"])  # sigmas relative to the width, height
-    return SensorTables(name=optics, polynomials=_read_only(polynomials), background=_read_only(f0),
+    return SensorTables(name=optics, polynomials=read_only(polynomials), background=read_only(f0),
                         pixel_pitch_m=float(pixmm) * 1e-3, blur_px=float(blur))
 
 
@@ -190,7 +192,7 @@ def lookup_tables(optics: str, gain: float = 1.0) -> np.ndarray:
     wrapped = np.concatenate([relative[:, n - 1:n], relative[:, :n], relative[:, :1]], axis=1)
     out = np.zeros((TERMS, tables.bins, n + 2, 4), dtype=np.float32)
     out[..., :3] = wrapped.transpose(3, 0, 1, 2)
-    return _read_only(out)
+    return read_only(out)
 
 
 @functools.lru_cache(maxsize=4)
@@ -200,7 +202,7 @@ def feature_planes(shape: tuple[int, int]) -> np.ndarray:
     rows, cols = shape
     v, u = np.meshgrid(np.arange(rows) / rows, np.arange(cols) / cols, indexing="ij")
     terms = np.stack([u * u, v * v, u * v, u, v]).astype(np.float32)
-    return _read_only(np.ascontiguousarray(np.repeat(terms[..., None], 4, axis=-1)))
+    return read_only(np.ascontiguousarray(np.repeat(terms[..., None], 4, axis=-1)))
 
 
 def colour_change(lookup: np.ndarray, features: np.ndarray, slope_x: np.ndarray, slope_y: np.ndarray,
@@ -241,13 +243,13 @@ def colour_change(lookup: np.ndarray, features: np.ndarray, slope_x: np.ndarray,
     return cv2.cvtColor(total, cv2.COLOR_BGRA2BGR)
 
 
-class TableCamera(TactileCamera):
+class TableCamera(OpticsRenderer):
     """A simulated camera of a real GelSight-type sensor, rendered through its measured tables.
 
-    Same interface and behaviour as :class:`~teleop.sim.optics.TactileCamera`
+    Same interface and behaviour as :class:`~teleop.sim.optics.OpticsRenderer`
     (``render``, ``render_series``, ``capture``, ``capture_series``,
     ``add_noise``, ``background``, ``rest_frame``; camera noise and markers
-    alike); only the shading differs (module notes). ``TactileCamera(sensor,
+    alike); only the shading differs (module notes). ``OpticsRenderer(sensor,
     ...)`` builds one for a sensor whose ``optics`` is not ``"wedge"``.
 
     Parameters
@@ -281,8 +283,7 @@ class TableCamera(TactileCamera):
                 f"tables were measured on {tables.raw_shape[1]}x{tables.raw_shape[0]} px frames")
         if background is None:
             if sim.background:
-                path = Path(sim.background)
-                background = load_background(path if path.is_absolute() else CONFIG_DIR / path)
+                background = load_background(resolve_config_path(sim.background))
             else:
                 background = tables.background
         super().__init__(sensor, sim=sim, rng=rng, background=background)

@@ -26,10 +26,10 @@ from haptics.devices.sim import SimulatedDisplay
 from haptics.renderer import HapticRenderer
 from haptics.service import RendererService
 from teleop.bus.pubsub import Publisher, Subscriber
-from teleop.demo import free_ports
 from teleop.errors import BusTimeoutError
 from teleop.settings import load_settings
 from teleop.soak import rss_bytes
+from teleop.system.demo import free_ports
 
 
 def test_recv_with_zero_timeout_takes_what_is_queued_without_waiting():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -13,8 +14,10 @@ from teleop.settings import (
     DisplaySettings,
     SensorSettings,
     Settings,
+    config_dir,
     default_settings_path,
     load_settings,
+    resolve_config_path,
     settings_from_mapping,
     settings_to_mapping,
 )
@@ -243,3 +246,17 @@ def test_a_flat_sensor_works_on_its_raw_frame_whatever_the_warp_fields_say():
     assert flat.image_shape == (480, 640)
     assert flat.pad_size_m == pytest.approx((480 * 2.95e-5, 640 * 2.95e-5))
     assert SensorSettings().image_shape == (250, 350)  # the Wedge: warped 400 x 300, 25 px cropped
+
+
+def test_the_shipped_configs_are_found_and_relative_paths_resolve_under_them(tmp_path):
+    shipped = config_dir()
+    assert (shipped / "settings.toml").is_file() and default_settings_path() == shipped / "settings.toml"
+    # In a checkout (editable or not) that is the top-level configs/ folder.
+    assert shipped == Path(__file__).resolve().parents[2] / "configs"
+    assert resolve_config_path("calibration/sim-wedge-left.npz") == shipped / "calibration/sim-wedge-left.npz"
+    assert resolve_config_path(tmp_path / "cal.npz") == tmp_path / "cal.npz"
+    # Whichever file names it, a relative path is under the shipped configs (documented rule).
+    user = load_settings(write(tmp_path, '[sensors.left]\ncalibration = "mine/left.npz"\n'))
+    assert resolve_config_path(user.sensor("left").calibration) == shipped / "mine/left.npz"
+    for sensor in load_settings().sensors:
+        assert resolve_config_path(sensor.calibration).is_file()

@@ -165,9 +165,9 @@ def test_estimate_refuses_a_model_of_the_other_kind_and_options_it_cannot_honour
         assert all(w in err for w in words), err
 
 
-def test_estimate_without_model_uses_the_shipped_model(sim_grasps, capsys):
+def test_estimate_without_model_uses_the_shipped_model(sim_grasps, capsys, missing_data):
     if not (default_model_dir() / "metadata.json").is_file():
-        pytest.skip("no shipped model")
+        missing_data("no shipped model")
     records, calibration = sim_grasps
     grasp = records / "stress_ball.grasp"
     assert main(["estimate", str(grasp), "--method", "hybrid", "--calibration", str(calibration), "--json"]) == 0

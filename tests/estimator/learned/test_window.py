@@ -29,7 +29,7 @@ from estimator.learned.window import (
     window_bounds,
     window_images,
 )
-from estimator.perception.grid import grid_sensor
+from estimator.perception.grid import DepthGrid, depth_grid
 from teleop.settings import SensorSettings, load_settings
 
 WEDGE = SensorSettings()  # the simulated Wedge the shipped models were trained on: 250 x 350 px at 1/11 mm
@@ -47,7 +47,7 @@ LARGE = _sensor(600, 800, 0.05e-3)  # 30 x 40 mm, larger than the Wedge's pad
 COARSE = _sensor(40, 56, 0.6e-3)  # 24 x 33.6 mm at 0.6 mm: coarser than the model's 0.36 mm input pitch
 
 
-def _sphere(grid: SensorSettings, *, radius_m: float = 3e-3, peak_m: float = 0.5e-3,
+def _sphere(grid: DepthGrid, *, radius_m: float = 3e-3, peak_m: float = 0.5e-3,
             offset_m: tuple[float, float] = (1.5e-3, -2.0e-3)) -> np.ndarray:
     """(1, H, W) float32 depth of a spherical cap of contact radius ``radius_m`` centred ``offset_m``
     (down, right) from the pad's centre, on ``grid``'s pixels."""
@@ -72,7 +72,7 @@ def _contact(image: np.ndarray, threshold_m: float) -> tuple[float, np.ndarray]:
 @pytest.mark.parametrize(("binning", "pitch_m"), [(2, WEDGE.pixel_pitch_m), (1, WEDGE.pixel_pitch_m), (2, 9.0909e-5)],
                          ids=["binned", "full_grid", "settings_pitch"])
 def test_on_the_wedge_the_window_is_the_whole_grid_and_the_inputs_are_as_before(binning, pitch_m):
-    grid = grid_sensor(SensorSettings(pixel_pitch_m=pitch_m), binning)
+    grid = depth_grid(SensorSettings(pixel_pitch_m=pitch_m), binning)
     rng = np.random.default_rng(binning)
     depth = (_sphere(grid) + rng.normal(0.0, 2e-5, (3, *grid.image_shape))).astype(np.float32)
     colour = rng.normal(0.0, 10.0, (3, *grid.image_shape, 3)).astype(np.float32)
@@ -88,11 +88,11 @@ def test_on_the_wedge_the_window_is_the_whole_grid_and_the_inputs_are_as_before(
         np.testing.assert_array_equal(reduce_images(images, SIZE), before)
 
 
-@pytest.mark.parametrize("grid", [R15, grid_sensor(R15, 2), LARGE], ids=["r15", "r15_binned", "larger_pad"])
+@pytest.mark.parametrize("grid", [depth_grid(R15, 1), depth_grid(R15, 2), depth_grid(LARGE, 1)], ids=["r15", "r15_binned", "larger_pad"])
 def test_a_sphere_contact_has_its_physical_size_and_place_in_the_window_on_any_sensor(grid):
     window = default_window_m()
     pitch = np.array(window) / SIZE  # the model's input pitch (rows, cols), about 0.36 mm
-    wedge = grid_sensor(WEDGE, 2)
+    wedge = depth_grid(WEDGE, 2)
     on_wedge = reduce_images(_sphere(wedge), SIZE, pitch_m=wedge.pixel_pitch_m, window_m=window)[0]
     on_other = reduce_images(_sphere(grid), SIZE, pitch_m=grid.pixel_pitch_m, window_m=window)[0]
     threshold = 0.25e-3  # half the peak: the cap of radius a / sqrt(2) = 2.12 mm, about 6 window px
@@ -129,7 +129,7 @@ def test_a_larger_pad_is_cut_about_its_centre_and_a_smaller_one_padded_with_unto
 
 
 def test_the_training_sensor_is_in_range_even_with_a_contact_at_its_edge():
-    grid = grid_sensor(WEDGE, 2)
+    grid = depth_grid(WEDGE, 2)
     for touches in (False, True):  # a contact cut by the pad's edge is what the model was trained on
         fit = input_range(default_window_m(), SIZE, pitch_m=grid.pixel_pitch_m, grid_shape=grid.image_shape,
                           touches_edge=touches)
@@ -171,7 +171,7 @@ def test_a_sample_without_measurements_or_a_variant_without_window_is_not_checke
     assert sampled_input_range(SampledGrasp(), Variant()).widen == 1.0
 
 
-def _measured(grid: SensorSettings, touches: bool = False) -> SimpleNamespace:
+def _measured(grid: DepthGrid, touches: bool = False) -> SimpleNamespace:
     """What :func:`sampled_input_range` reads of a grasp's measurements on ``grid``."""
     return SimpleNamespace(grid=grid, depth_m=None, features=SimpleNamespace(touches_edge=np.array([False, touches])))
 
@@ -188,7 +188,7 @@ def test_variant_windows_are_checked():
 # --------------------------------------------------------------------------- the model
 
 
-def _estimate(trained_model, synthetic, grid: SensorSettings, *, touches: bool = False, mode: str = "model"):
+def _estimate(trained_model, synthetic, grid: DepthGrid, *, touches: bool = False, mode: str = "model"):
     from estimator.learned.hybrid import AutoPolicy, HybridEstimator
     from estimator.learned.infer import CompliancePredictor
 
@@ -209,17 +209,17 @@ def _below(estimate) -> float:
 
 @pytest.mark.slow
 def test_the_model_widens_its_interval_where_the_pad_covers_little_of_its_window(trained_model, synthetic):
-    wedge = _estimate(trained_model, synthetic, grid_sensor(WEDGE, 2))
-    small = _estimate(trained_model, synthetic, grid_sensor(R15, 2))
+    wedge = _estimate(trained_model, synthetic, depth_grid(WEDGE, 2))
+    small = _estimate(trained_model, synthetic, depth_grid(R15, 2))
     assert wedge.state == small.state == "ok" and small.e_pa == wedge.e_pa
     assert _below(small) == pytest.approx(COVERAGE_WIDENING * _below(wedge), rel=1e-6)
     assert "widened 1.5 times" not in wedge.reason and "outside the training range" not in wedge.reason
     assert "widened 1.5 times" in small.reason and "pad covers 37% of the model's" in small.reason
-    cut = _estimate(trained_model, synthetic, grid_sensor(R15, 2), touches=True)
+    cut = _estimate(trained_model, synthetic, depth_grid(R15, 2), touches=True)
     assert _below(cut) == pytest.approx(COVERAGE_WIDENING * EDGE_WIDENING * _below(wedge), rel=1e-6)
     assert "widened 2.25 times" in cut.reason and "contact reaches the edge" in cut.reason
     # On the training sensor a contact at the pad's edge is nothing new.
-    assert _estimate(trained_model, synthetic, grid_sensor(WEDGE, 2), touches=True) == wedge
+    assert _estimate(trained_model, synthetic, depth_grid(WEDGE, 2), touches=True) == wedge
 
 
 @pytest.mark.slow

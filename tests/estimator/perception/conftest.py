@@ -14,14 +14,14 @@ TAXIM_PITCH_M = 0.0295e-3
 
 
 @pytest.fixture(scope="session")
-def taxim_pack(taxim_calib_dir):
+def taxim_pack(taxim_calib_dir, missing_data):
     """Path of a taxim dataPack: ``taxim_pack("gelsight")`` or ``taxim_pack("gelsight_mini")``."""
     root = taxim_calib_dir
 
     def path(sensor: str) -> Path:
         pack = root / sensor / "dataPack.npz"
         if not pack.is_file():
-            pytest.skip(f"{pack} not found")
+            missing_data(f"{pack} not found")
         return pack
 
     return path

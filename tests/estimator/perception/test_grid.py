@@ -10,12 +10,12 @@ from estimator.errors import PerceptionError
 from estimator.measure import resolve_calibration
 from estimator.perception.calibration import Calibration
 from estimator.perception.depth import reconstruct_depth
-from estimator.perception.grid import frame_on_grid, grid_calibration, grid_sensor, to_grid
+from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration, to_grid
 from estimator.perception.warp import warp_and_crop, warp_maps
 from estimator.stream import measure_frame
 from teleop.record import decode_image, reduce_image
 from teleop.settings import SensorSettings, load_settings
-from teleop.sim.optics import TactileCamera
+from teleop.sim.optics import OpticsRenderer
 from teleop.sim.presses import sphere_press_height
 
 
@@ -29,27 +29,29 @@ def raw_wedge(shared_dir):
     return cv2.imread(str(shared_dir / "seed" / "wedge_init_frame_raw_640x480.png"), cv2.IMREAD_COLOR)
 
 
-def test_a_grid_sensor_covers_the_same_pad_with_coarser_pixels():
+def test_a_depth_grid_covers_the_same_pad_with_coarser_pixels():
     sensor = load_settings().sensor("left")
     rows, cols = sensor.image_shape
-    coarse = grid_sensor(sensor, 2)
-    assert coarse.image_shape == (rows // 2, cols // 2) == (coarse.raw_height_px, coarse.raw_width_px)
-    assert coarse.model == "mini"  # nothing left to warp
+    coarse = depth_grid(sensor, 2)
+    assert coarse.image_shape == (rows // 2, cols // 2) and coarse.binning == 2
     assert coarse.pixel_pitch_m == pytest.approx(2 * sensor.pixel_pitch_m)
     assert coarse.pad_size_m == pytest.approx(sensor.pad_size_m)
-    assert grid_sensor(sensor, 1) is sensor
+    assert coarse.contact_threshold_m == sensor.contact_threshold_m and not coarse.markers
+    full = depth_grid(sensor, 1)
+    assert (full.image_shape, full.pixel_pitch_m, full.binning) == (sensor.image_shape, sensor.pixel_pitch_m, 1)
+    assert depth_grid(sensor, 2) is coarse
 
 
 @pytest.mark.parametrize("binning", [0, 3, 4, True, 2.0])
 def test_a_binning_that_does_not_tile_the_grid_is_refused(binning):
     sensor = load_settings().sensor("left")  # 250 x 350 px: 3 and 4 leave a remainder
     with pytest.raises(PerceptionError, match="binning"):
-        grid_sensor(sensor, binning)
+        depth_grid(sensor, binning)
 
 
 def test_a_binned_grid_of_a_sensor_with_markers_is_refused():
     with pytest.raises(PerceptionError, match="markers"):
-        grid_sensor(load_settings().sensor("right"), 2)
+        depth_grid(load_settings().sensor("right"), 2)
 
 
 def test_a_grid_calibration_is_the_same_table_at_a_coarser_pitch():
@@ -118,7 +120,7 @@ def test_depth_on_the_binned_grid_matches_the_full_grid():
     settings = load_settings()
     sensor = settings.sensor("left")
     calibration = resolve_calibration(sensor, None)
-    camera = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(3))
+    camera = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(3))
     rows, cols = sensor.image_shape
     press = sphere_press_height(sensor.image_shape, center_px=(cols / 2.0, rows / 2.0), ball_radius_m=4e-3,
                                 depth_m=0.8e-3, pixel_pitch_m=sensor.pixel_pitch_m)
@@ -126,7 +128,7 @@ def test_depth_on_the_binned_grid_matches_the_full_grid():
     measured = {}
     for k in (1, 2):
         frame, reference = (frame_on_grid(data, "jpeg", sensor, binning=k) for data in (pressed, untouched))
-        measured[k] = measure_frame(frame, reference, grid_calibration(calibration, k), grid_sensor(sensor, k))
+        measured[k] = measure_frame(frame, reference, grid_calibration(calibration, k), depth_grid(sensor, k))
     full, (coarse_depth, coarse) = measured[1][1], measured[2]
     assert coarse_depth.shape == (125, 175)
     assert coarse.peak_depth_m[0] == pytest.approx(full.peak_depth_m[0], rel=0.1)

@@ -10,15 +10,12 @@ import pytest
 from scipy.spatial import cKDTree
 
 from teleop.errors import SimulationError
+from teleop.geometry import raw_to_warped_matrix
 from teleop.settings import SimulationSettings
-from teleop.sim.optics import (
-    TactileCamera,
-    load_background,
-    procedural_background,
-    raw_to_warped_matrix,
-    warp_to_grid,
-)
+from teleop.sim.camera_geometry import warp_to_grid
+from teleop.sim.optics import OpticsRenderer, load_background
 from teleop.sim.presses import contact_radius_m, sphere_press_height
+from teleop.sim.wedge_optics import procedural_background
 
 
 @pytest.fixture(scope="module")
@@ -33,12 +30,12 @@ def marker_sensor(settings):
 
 @pytest.fixture(scope="module")
 def camera(sensor, settings):
-    return TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(7))
+    return OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(7))
 
 
 @pytest.fixture(scope="module")
 def marker_camera(marker_sensor, settings):
-    return TactileCamera(marker_sensor, sim=settings.simulation, rng=np.random.default_rng(7))
+    return OpticsRenderer(marker_sensor, sim=settings.simulation, rng=np.random.default_rng(7))
 
 
 def press(sensor, *, row, col, radius_m=2e-3, depth_m=0.6e-3):
@@ -150,7 +147,7 @@ def test_illumination_is_a_property_of_the_sensor_not_of_the_rng(sensor, setting
     background = procedural_background(sensor, rng=np.random.default_rng(0))
     height = press(sensor, row=60, col=60)
     renders = [
-        TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(seed),
+        OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(seed),
                       background=background).render(height)
         for seed in (1, 2)
     ]
@@ -161,7 +158,7 @@ def test_same_seed_same_bytes_other_seed_other_bytes(sensor, settings):
     height = press(sensor, row=120, col=200)
 
     def capture(seed):
-        cam = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(seed))
+        cam = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(seed))
         return [cam.capture(height) for _ in range(2)]
 
     first = capture(3)
@@ -186,7 +183,7 @@ def test_procedural_background_looks_like_a_wedge(sensor):
 
 def test_real_wedge_background_is_used_as_given(shared_dir, sensor, settings):
     background = load_background(shared_dir / "seed" / "wedge_init_frame_raw_640x480.png")
-    cam = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(0),
+    cam = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(0),
                         background=background)
     np.testing.assert_array_equal(cam.render(np.zeros(sensor.image_shape)), background)
     assert np.any(cam.render(press(sensor, row=125, col=175)) != background)
@@ -194,7 +191,7 @@ def test_real_wedge_background_is_used_as_given(shared_dir, sensor, settings):
 
 def test_background_file_from_settings(shared_dir, sensor):
     sim = SimulationSettings(background=str(shared_dir / "seed" / "wedge_init_frame_raw_640x480.png"))
-    cam = TactileCamera(sensor, sim=sim, rng=np.random.default_rng(0))
+    cam = OpticsRenderer(sensor, sim=sim, rng=np.random.default_rng(0))
     assert cam.background[240, 320].sum() > 300  # the real pad, not a procedural one
     np.testing.assert_array_equal(cam.background, load_background(sim.background))
 
@@ -259,7 +256,7 @@ def test_bad_fields_are_named(camera, height, shear, match):
 
 def test_bad_backgrounds_are_refused(sensor, settings, tmp_path):
     with pytest.raises(SimulationError, match="background"):
-        TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(0),
+        OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(0),
                       background=np.zeros((480, 640), np.uint8))
     with pytest.raises(SimulationError, match="cannot read background"):
         load_background(tmp_path / "missing.png")
@@ -295,17 +292,17 @@ def test_a_series_refuses_bad_weights(camera, sensor):
 
 
 def test_capture_series_gives_fresh_noise_per_frame(sensor, settings):
-    cam = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(5))
+    cam = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(5))
     bases = press(sensor, row=125, col=175)[None]
     jpegs = cam.capture_series(bases, np.ones((3, 1)))
     assert len(set(jpegs)) == 3
-    again = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(5))
+    again = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(5))
     assert again.capture_series(bases, np.ones((3, 1))) == jpegs
 
 
 def test_noise_is_independent_between_frames_and_pixels(settings, sensor):
     """The pooled noise: right spread, no correlation between frames, neighbours or channels."""
-    cam = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(11))
+    cam = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(11))
     flat = np.full((480, 640, 3), 128, np.uint8)
     noise = np.stack([cam.add_noise(flat) for _ in range(40)]).astype(np.float64) - 128
     sigma = settings.simulation.camera_noise

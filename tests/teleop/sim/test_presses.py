@@ -12,7 +12,8 @@ import pytest
 from teleop.cli import main
 from teleop.errors import SimulationError
 from teleop.settings import load_settings
-from teleop.sim.optics import TactileCamera, warp_to_grid
+from teleop.sim.camera_geometry import warp_to_grid
+from teleop.sim.optics import OpticsRenderer
 from teleop.sim.presses import contact_radius_m, simulate_presses, sphere_press_height
 
 N_PRESSES = 6
@@ -26,11 +27,10 @@ def presses_file(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def taxim_pack() -> Path:
-    taxim = pytest.importorskip("taxim")
-    path = Path(taxim.__file__).parent / "calib" / "gelsight" / "dataPack.npz"
+def taxim_pack(taxim_calib_dir, missing_data) -> Path:
+    path = taxim_calib_dir / "gelsight" / "dataPack.npz"
     if not path.is_file():
-        pytest.skip(f"taxim ships no {path}")
+        missing_data(f"taxim ships no {path}")
     return path
 
 
@@ -132,7 +132,7 @@ def test_sphere_cap_geometry():
 
 def test_pure_function_refuses_presses_deeper_than_the_gel():
     sensor = load_settings().sensor("left")
-    camera = TactileCamera(sensor, sim=load_settings().simulation, rng=np.random.default_rng(0))
+    camera = OpticsRenderer(sensor, sim=load_settings().simulation, rng=np.random.default_rng(0))
     with pytest.raises(SimulationError, match="deeper than the gel"):
         simulate_presses(camera, n=1, ball_radius_m=10e-3, depth_range_m=(1e-3, 4e-3),
                          rng=np.random.default_rng(0))

@@ -22,7 +22,7 @@ from teleop.cli import main as teleop_main
 from teleop.errors import SimulationError
 from teleop.settings import CONFIG_DIR, load_settings
 from teleop.sim import table_optics
-from teleop.sim.optics import TactileCamera
+from teleop.sim.optics import OpticsRenderer
 from teleop.sim.presses import contact_radius_m, sphere_press_height
 from teleop.sim.table_optics import (
     TableCamera,
@@ -52,7 +52,7 @@ def sensor(rig):
 
 
 def camera(sensor, sim, seed=0, **changes):
-    return TactileCamera(sensor, sim=dataclasses.replace(sim, **changes), rng=np.random.default_rng(seed))
+    return OpticsRenderer(sensor, sim=dataclasses.replace(sim, **changes), rng=np.random.default_rng(seed))
 
 
 def ball(sensor, center_px, depth_m=0.6e-3):
@@ -65,12 +65,12 @@ def decode(jpeg: bytes) -> np.ndarray:
 
 
 def test_optics_dispatch_and_the_default_rig_is_unchanged(sensor, rig):
-    assert type(TactileCamera(sensor, sim=rig.simulation, rng=np.random.default_rng(0))) is TableCamera
+    assert type(OpticsRenderer(sensor, sim=rig.simulation, rng=np.random.default_rng(0))) is TableCamera
     default = load_settings()
     assert [s.optics for s in default.sensors] == ["wedge", "wedge"]
     assert default.simulation.illumination_gain == 1.0
-    assert type(TactileCamera(default.sensor("left"), sim=default.simulation, rng=np.random.default_rng(0))) \
-        is TactileCamera
+    assert type(OpticsRenderer(default.sensor("left"), sim=default.simulation, rng=np.random.default_rng(0))) \
+        is OpticsRenderer
     with pytest.raises(SimulationError, match="no measured tables"):
         TableCamera(default.sensor("left"), sim=default.simulation, rng=np.random.default_rng(0))
 

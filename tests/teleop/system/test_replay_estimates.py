@@ -21,9 +21,9 @@ from estimator.measure import resolve_calibration
 from estimator.service import INPUT_TOPICS, EstimatorService, ModelSlot, resolve_model_dir
 from estimator.stream import DEFAULT_METHODS
 from teleop.bus.wire import Message, make_message
-from teleop.demo import LiveSystem, LiveView, prepare_run, run_grasps, scene_plan
 from teleop.session import replay_messages
 from teleop.settings import default_settings_path, load_settings
+from teleop.system.demo import LiveSystem, LiveView, prepare_run, run_grasps, scene_plan
 
 
 class CollectingPublisher:

@@ -1,6 +1,6 @@
 """``teleop bench-latency``: how fast the live system shows a grasp's estimate on the display.
 
-Runs the live system (:class:`~teleop.demo.LiveSystem`: robot node on simulated hardware,
+Runs the live system (:class:`~teleop.system.demo.LiveSystem`: robot node on simulated hardware,
 estimator service, haptic renderer on the simulated display; no session recorder unless
 ``--record``) on loopback for ``--grasps`` grasps of a scene's objects in turn, and reports:
 
@@ -77,7 +77,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from teleop.bus.wire import Message
-from teleop.demo import (
+from teleop.errors import TeleopError
+from teleop.settings import Settings, load_settings
+from teleop.system.demo import (
     GraspOutcome,
     LiveSystem,
     LiveView,
@@ -87,8 +89,6 @@ from teleop.demo import (
     run_grasps,
     scene_plan,
 )
-from teleop.errors import TeleopError
-from teleop.settings import Settings, load_settings
 
 if TYPE_CHECKING:
     from estimator.perception.calibration import Calibration
@@ -105,11 +105,11 @@ BASELINE_PRESS_DEPTH_M = 6e-4
 def baseline_press(settings: Settings, *, seed: int = 0) -> tuple[bytes, bytes]:
     """JPEG captures (pressed, untouched) of the estimator's finger by its simulated camera: a
     :data:`BASELINE_BALL_RADIUS_M` ball pressed :data:`BASELINE_PRESS_DEPTH_M` into the gel's centre."""
-    from teleop.sim.optics import TactileCamera
+    from teleop.sim.optics import OpticsRenderer
     from teleop.sim.presses import sphere_press_height
 
     sensor = settings.sensor(settings.estimator.finger)
-    camera = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(seed))
+    camera = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(seed))
     rows, cols = sensor.image_shape
     press = sphere_press_height(sensor.image_shape, center_px=((cols - 1) / 2.0, (rows - 1) / 2.0),
                                 ball_radius_m=BASELINE_BALL_RADIUS_M, depth_m=BASELINE_PRESS_DEPTH_M,
@@ -126,14 +126,14 @@ def frame_baseline_ms(settings: Settings, calibration: Calibration, *, repeats: 
     warped onto the depth grid of the settings' ``estimator.depth_binning``), then
     :func:`~estimator.stream.measure_frame` against the untouched capture (depth and contact features).
     """
-    from estimator.perception.grid import frame_on_grid, grid_calibration, grid_sensor
+    from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration
     from estimator.stream import measure_frame
 
     if repeats < 1:
         raise TeleopError(f"frame baseline repeats {repeats}: expected at least 1")
     sensor = settings.sensor(settings.estimator.finger)
     binning = settings.estimator.depth_binning
-    grid, grid_cal = grid_sensor(sensor, binning), grid_calibration(calibration, binning)
+    grid, grid_cal = depth_grid(sensor, binning), grid_calibration(calibration, binning)
     pressed, untouched = baseline_press(settings, seed=seed)
     reference = frame_on_grid(untouched, "jpeg", sensor, binning=binning)
     times = []

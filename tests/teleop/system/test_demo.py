@@ -17,7 +17,11 @@ import pytest
 
 import teleop.cli
 from teleop.catalogue import ObjectSpec
-from teleop.demo import (
+from teleop.errors import SettingsError, TeleopError
+from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
+from teleop.session.logfile import LogReader
+from teleop.settings import default_settings_path, load_settings
+from teleop.system.demo import (
     GraspOutcome,
     LiveSystem,
     ReportReader,
@@ -25,8 +29,7 @@ from teleop.demo import (
     free_ports,
     scene_plan,
 )
-from teleop.errors import SettingsError, TeleopError
-from teleop.latency import (
+from teleop.system.latency import (
     BASELINE_PRESS_DEPTH_M,
     baseline_figures,
     baseline_press,
@@ -35,9 +38,6 @@ from teleop.latency import (
     plot,
     slowest,
 )
-from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
-from teleop.session.logfile import LogReader
-from teleop.settings import default_settings_path, load_settings
 
 STEEL = ObjectSpec(name="steel_ball_bearing", shape="sphere", material="metal", modulus_pa=2e11)
 
@@ -198,7 +198,7 @@ def test_latency_summary_keeps_each_grasp_and_names_the_slowest_with_where_the_t
 
 def test_the_frame_baseline_times_the_perception_of_a_press_the_estimator_sees():
     from estimator.measure import resolve_calibration
-    from estimator.perception.grid import frame_on_grid, grid_calibration, grid_sensor
+    from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration
     from estimator.stream import measure_frame
 
     settings = load_settings(default_settings_path())
@@ -207,7 +207,7 @@ def test_the_frame_baseline_times_the_perception_of_a_press_the_estimator_sees()
     pressed, untouched = baseline_press(settings)
     frame, reference = (frame_on_grid(data, "jpeg", sensor, binning=binning) for data in (pressed, untouched))
     _, features = measure_frame(frame, reference, grid_calibration(calibration, binning),
-                                grid_sensor(sensor, binning))
+                                depth_grid(sensor, binning))
     # The timed frame is a real contact: its depth is the press's, within the simulator's optics.
     assert features.peak_depth_m[0] == pytest.approx(BASELINE_PRESS_DEPTH_M, rel=0.5)
     assert not features.touches_edge[0]
@@ -319,7 +319,7 @@ def test_demo_runs_the_quick_scene_end_to_end(tmp_path, capsys):
 @pytest.mark.slow
 def test_a_crashed_child_stops_the_run_and_leaves_no_process(tmp_path):
     settings = load_settings()
-    from teleop.demo import simulated_calibration
+    from teleop.system.demo import simulated_calibration
 
     calibration = simulated_calibration(settings, tmp_path, n_presses=12)
     system = LiveSystem(default_settings_path(), str(one_grasp_scene(tmp_path)), tmp_path / "run", calibration,
@@ -343,7 +343,7 @@ def test_children_die_with_a_killed_parent(tmp_path):
     script = textwrap.dedent(f"""
         import json, sys, time
         from pathlib import Path
-        from teleop.demo import LiveSystem, simulated_calibration
+        from teleop.system.demo import LiveSystem, simulated_calibration
         from teleop.settings import default_settings_path, load_settings
         out = Path({str(tmp_path)!r})
         cal = simulated_calibration(load_settings(), out, n_presses=12)

@@ -28,7 +28,7 @@ display rendered for it (renderer report: the fraction of the display's range, 1
 or beyond the sensor's resolution limit), the error in decades, the time from contact to the first
 estimate that is not a refusal (estimator report), and the latency from the last loading frame's
 capture to the display report that showed the final estimate (renderer report). All on this
-host's monotonic clock. The live lines and the closing table are in :mod:`teleop.demo_table`.
+host's monotonic clock. The live lines and the closing table are in :mod:`teleop.system.demo_table`.
 """
 
 from __future__ import annotations
@@ -57,10 +57,10 @@ from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
-from teleop.demo_table import LiveView, closing_table
 from teleop.errors import SettingsError, TeleopError
 from teleop.scene import load_scene
-from teleop.settings import CONFIG_DIR, Settings, default_settings_path, load_settings
+from teleop.settings import Settings, default_settings_path, load_settings, resolve_config_path
+from teleop.system.demo_table import LiveView, closing_table
 
 __all__ = [
     "CHILDREN",
@@ -105,13 +105,14 @@ def simulated_calibration(settings: Settings, out_dir: Path, *, finger: str | No
     and the calibration to ``out_dir/sim-<finger>.npz``, as ``teleop simulate-presses`` and
     ``estimator calibrate`` would.
     """
-    from estimator.perception.calibration import fit_calibration, load_presses
-    from teleop.sim.optics import TactileCamera
+    from estimator.perception.calibration_fit import fit_calibration
+    from estimator.perception.presses import load_presses
+    from teleop.sim.optics import OpticsRenderer
     from teleop.sim.presses import simulate_presses, write_presses
 
     sensor = settings.sensor(finger or settings.estimator.finger)
     camera_rng, press_rng = np.random.default_rng(seed).spawn(2)
-    camera = TactileCamera(sensor, sim=settings.simulation, rng=camera_rng)
+    camera = OpticsRenderer(sensor, sim=settings.simulation, rng=camera_rng)
     ball_m = 2e-3
     pack = simulate_presses(camera, n=n_presses, ball_radius_m=ball_m, depth_range_m=(3e-4, 1e-3), rng=press_rng)
     presses = load_presses(write_presses(out_dir / f"presses-{sensor.finger}.npz", pack)).in_sensor_frame(sensor)
@@ -124,8 +125,7 @@ def _configured_calibration(settings: Settings) -> Path | None:
     sensor = settings.sensor(settings.estimator.finger)
     if not sensor.calibration:
         return None
-    path = Path(sensor.calibration)
-    path = path if path.is_absolute() else CONFIG_DIR / path
+    path = resolve_config_path(sensor.calibration)
     return path if path.is_file() else None
 
 

@@ -15,18 +15,13 @@ import pytest
 
 from estimator.samples import load_sample
 from teleop import cli
-from teleop.dataset import (
-    find_raw_grasps,
-    import_dataset,
-    import_preprocessed_sample,
-    import_raw_grasp,
-    load_pickled_array,
-    read_mjpg_packets,
-    safe_load_pickle,
-)
 from teleop.errors import DatasetError, UnsafePickleError
 from teleop.record import read_record
 from teleop.settings import load_settings
+from teleop.system.dataset import import_dataset
+from teleop.system.dataset_files import load_pickled_array, safe_load_pickle
+from teleop.system.dataset_preprocessed import import_preprocessed_sample
+from teleop.system.dataset_raw import find_raw_grasps, import_raw_grasp, read_mjpg_packets
 
 RAW_SHAPE = (480, 640, 3)
 IMAGE_SHAPE = (250, 350)

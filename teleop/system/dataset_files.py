@@ -1,0 +1,212 @@
+"""Reading the published dataset's files: pickles that admit numpy arrays only, layout folders.
+
+Pickles execute code on load, so every ``.pkl`` of the dataset is read with
+:func:`safe_load_pickle`, which admits numpy arrays and nothing else
+(:func:`load_pickled_array` on top of it checks for a finite numeric array). The
+layouts name their folders ``<key>=<integer>`` (:func:`layout_index`); a folder's
+files are required by name (:func:`layout_member`).
+"""
+
+from __future__ import annotations
+
+import codecs
+import io
+import os
+import pickle
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy._core.multiarray import _reconstruct, scalar
+from numpy._core.numeric import _frombuffer
+
+from teleop.errors import DatasetError, UnsafePickleError
+
+__all__ = [
+    "find_layout_folders",
+    "layout_index",
+    "layout_member",
+    "load_pickled_array",
+    "safe_load_pickle",
+]
+
+# --------------------------------------------------------------------------- safe unpickling
+
+
+class _Refused(Exception):
+    """An admitted global was asked to build something outside a plain numpy array."""
+
+
+class _PickledNdarrayType:
+    """Stands for ``numpy.ndarray`` inside a pickle: only :func:`_reconstruct_array` accepts it.
+
+    Handing out the real class would let a pickle call ``ndarray(shape)`` directly and
+    allocate whatever it asks for.
+    """
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> Any:
+        raise _Refused("a direct call of numpy.ndarray (arrays are rebuilt through _reconstruct only)")
+
+
+def _reconstruct_array(subtype: Any, shape: Any, dtype: Any) -> np.ndarray:
+    # numpy always pickles an empty (0,) placeholder and fills it from the pickled state;
+    # any other shape would only serve to allocate memory.
+    if subtype is not _PickledNdarrayType or tuple(shape) != (0,):
+        raise _Refused(f"_reconstruct of {subtype!r} with shape {shape!r} (only numpy's empty placeholder is admitted)")
+    return _reconstruct(np.ndarray, (0,), dtype)
+
+
+_LATIN1_NAMES = ("latin1", "latin-1", "iso-8859-1", "iso8859-1", "l1")
+
+
+def _latin1_encode(text: str, encoding: str = "latin1", errors: str = "strict") -> bytes:
+    # Protocol 0-2 pickles carry array bytes as latin-1 text; admit no other codec.
+    # Compared by name, not looked up: a codec lookup may import a module.
+    if not isinstance(encoding, str) or encoding.lower().replace("_", "-") not in _LATIN1_NAMES:
+        raise _Refused(f"_codecs.encode with codec {encoding!r} (only latin-1 is admitted)")
+    return codecs.encode(text, "latin1", errors)
+
+
+# Every global a pickled numpy array, dtype or scalar names (numpy 2 ``numpy._core`` and the
+# ``numpy.core`` names of pickles written by numpy 1), mapped to what it may build.
+_ADMITTED_GLOBALS: dict[tuple[str, str], Any] = {
+    ("numpy", "ndarray"): _PickledNdarrayType,
+    ("numpy", "dtype"): np.dtype,
+    ("numpy._core.multiarray", "_reconstruct"): _reconstruct_array,
+    ("numpy.core.multiarray", "_reconstruct"): _reconstruct_array,
+    ("numpy._core.multiarray", "scalar"): scalar,
+    ("numpy.core.multiarray", "scalar"): scalar,
+    ("numpy._core.numeric", "_frombuffer"): _frombuffer,
+    ("numpy.core.numeric", "_frombuffer"): _frombuffer,
+    ("_codecs", "encode"): _latin1_encode,
+}
+
+
+class _ArrayUnpickler(pickle.Unpickler):
+    """An unpickler whose only globals are those of :data:`_ADMITTED_GLOBALS`."""
+
+    def __init__(self, data: bytes, name: str):
+        # latin-1 lets numpy arrays pickled by Python 2 load (their bytes are str there).
+        super().__init__(io.BytesIO(data), encoding="latin1")
+        self.name = name
+
+    def find_class(self, module: str, name: str) -> Any:
+        try:
+            return _ADMITTED_GLOBALS[(module, name)]
+        except KeyError:
+            raise UnsafePickleError(
+                f"{self.name}: refused pickle global {module}.{name}: only numpy arrays are admitted "
+                "(a pickle naming it could run code when loaded)"
+            ) from None
+
+    def persistent_load(self, pid: Any) -> Any:
+        raise UnsafePickleError(f"{self.name}: refused persistent id {pid!r}: only numpy arrays are admitted")
+
+
+def _check_plain(value: Any, name: str) -> None:
+    """Refuse anything but numeric/string arrays, numpy scalars and plain data holding them."""
+    if isinstance(value, np.ndarray | np.generic):
+        if value.dtype.hasobject:
+            raise UnsafePickleError(f"{name}: refused an object array: only plain numpy arrays are admitted")
+    elif isinstance(value, list | tuple):
+        for item in value:
+            _check_plain(item, name)
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            _check_plain(key, name)
+            _check_plain(item, name)
+    elif not (value is None or isinstance(value, bool | int | float | complex | str | bytes)):
+        raise UnsafePickleError(f"{name}: refused a {type(value).__name__}: only numpy arrays are admitted")
+
+
+def safe_load_pickle(source: str | os.PathLike[str] | bytes, *, name: str | None = None) -> Any:
+    """Unpickle ``source`` (a path, or the pickle's bytes) admitting numpy arrays and nothing else.
+
+    The unpickler resolves only the globals a pickled numpy array, dtype or numpy
+    scalar needs (numpy 2 and numpy 1 names); any other global (``os.system``,
+    ``eval``, ``subprocess.Popen``, ...) is refused before it is imported or
+    called, so nothing in the pickle runs. The result may be an array, a numpy
+    scalar, or plain numbers, strings, lists, tuples and dicts of them; object
+    arrays are refused.
+
+    Parameters
+    ----------
+    source : path or bytes
+        The pickle file, or its contents.
+    name : str, optional
+        What to call the pickle in errors (default: the path, or ``"<bytes>"``).
+
+    Raises
+    ------
+    UnsafePickleError
+        The pickle names a global other than the admitted ones, or builds an object
+        array; the message names the file and what was refused.
+    DatasetError
+        The file cannot be read, or is not a complete, valid pickle.
+    """
+    if isinstance(source, bytes | bytearray | memoryview):
+        data = bytes(source)
+        name = name or "<bytes>"
+    else:
+        name = name or str(source)
+        try:
+            data = Path(source).read_bytes()
+        except OSError as exc:
+            raise DatasetError(f"{name}: cannot read pickle ({exc.strerror or exc})") from exc
+    try:
+        value = _ArrayUnpickler(data, name).load()
+    except UnsafePickleError:
+        raise
+    except _Refused as exc:
+        raise UnsafePickleError(f"{name}: refused {exc}: only numpy arrays are admitted") from None
+    except Exception as exc:  # a damaged pickle fails in many ways; each is the same user error
+        raise DatasetError(f"{name}: not a valid pickle of numpy arrays ({type(exc).__name__}: {exc})") from exc
+    _check_plain(value, name)
+    return value
+
+
+def load_pickled_array(path: str | os.PathLike[str], *, ndim: int | None = None) -> np.ndarray:
+    """A numeric array from a pickle read with :func:`safe_load_pickle` (dtype kept as stored).
+
+    Raises
+    ------
+    DatasetError
+        The pickle is unsafe or damaged, does not hold a real-valued numeric array,
+        holds non-finite values, or (when ``ndim`` is given) has another number of
+        dimensions. The message names the file.
+    """
+    value = np.asarray(safe_load_pickle(path))
+    if value.dtype.kind not in "biuf":
+        raise DatasetError(f"{path}: expected a numeric array, got dtype {value.dtype}")
+    if ndim is not None and value.ndim != ndim:
+        raise DatasetError(f"{path}: expected a {ndim}-D array, got shape {value.shape}")
+    if not np.all(np.isfinite(value)):
+        raise DatasetError(f"{path}: {np.count_nonzero(~np.isfinite(value))} values are NaN or infinite")
+    return value
+
+
+# --------------------------------------------------------------------------- layout folders
+
+
+def layout_index(folder: Path, key: str) -> int:
+    match = re.fullmatch(rf"{key}=(\d+)", folder.name)
+    if match is None:
+        raise DatasetError(f"{folder}: expected a folder named {key}=<integer>")
+    return int(match.group(1))
+
+
+def layout_member(folder: Path, name: str) -> Path:
+    path = folder / name
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing (the layout needs it)")
+    return path
+
+
+def find_layout_folders(root: Path, pattern: str, what: str) -> list[Path]:
+    if not root.is_dir():
+        raise DatasetError(f"{root}: not a directory")
+    folders = sorted(p for p in root.glob(pattern) if p.is_dir())
+    if not folders:
+        raise DatasetError(f"{root}: no {what} folders: not the expected layout")
+    return folders
