@@ -38,8 +38,8 @@ test: lint
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
 # Retrain the default model from scratch: the model card's recipe (about 70 minutes on 2 cores, measured).
-# Grasps of every object on the nominal simulated Wedge rig, on randomized Wedge rigs and on randomized rigs
-# with a GelSight R1.5's measured optics; the GelSight Mini stays out for `make cross-sensor`.
+# Grasps of every object on the nominal simulated Wedge rig, and on randomized rigs with other gels (the
+# Wedge's optics, and a GelSight R1.5's measured optics); the GelSight Mini stays out for `make cross-sensor`.
 # Writes MODEL_OUT (default runs/retrain/model); MODEL_OUT=estimator/models/default replaces the shipped one.
 OBJECT_TABLE ?= ../shared/seed/dataset_objects_and_compliance.csv
 MODEL_RUN ?= runs/retrain
@@ -52,10 +52,10 @@ model: $(VENV)/.installed-dev
 	rm -rf $(MODEL_RUN)/records $(MODEL_RUN)/dataset
 	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --grasps-per-object 12 --seed 1 \
 		--out $(MODEL_RUN)/records/wedge_nominal --workers 2
-	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --grasps-per-object 6 --seed 2 --randomize-rig \
-		--out $(MODEL_RUN)/records/wedge_rig --workers 2
-	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --grasps-per-object 6 --seed 3 --randomize-rig \
-		--settings configs/rigs/gelsight.toml --out $(MODEL_RUN)/records/gelsight_rig --workers 2
+	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --grasps-per-object 6 --seed 2 --randomize-rig --vary-gel \
+		--out $(MODEL_RUN)/records/wedge_rig_gel --workers 2
+	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --grasps-per-object 6 --seed 3 --randomize-rig --vary-gel \
+		--settings configs/rigs/gelsight.toml --out $(MODEL_RUN)/records/gelsight_rig_gel --workers 2
 	$(BIN)/estimator build-dataset --records $(MODEL_RUN)/records --out $(MODEL_RUN)/dataset \
 		--frames 3 --shifts 3 --size 64x88 --window $(MODEL_WINDOW_MM) --workers 2
 	$(BIN)/estimator train --data $(MODEL_RUN)/dataset --out $(MODEL_OUT) \
@@ -79,6 +79,26 @@ cross-sensor: $(VENV)/.installed-dev
 	$(BIN)/estimator evaluate runs/cross-sensor/records --settings $(CROSS_RIG) \
 		$(foreach m,$(SHIPPED_MODELS),--unseen-by $(m) --model $(m)) --workers 2 \
 		--rows runs/cross-sensor/rows.csv --plot runs/cross-sensor/plot.png --json > runs/cross-sensor/figures.json
+
+# Fine-tuning for the held-out sensor, after `make cross-sensor`: 3 grasps on randomized Mini rigs of each of
+# 5 objects the shipped models trained on (on other sensors; never their test objects), the train-split objects
+# nearest five log-spaced moduli from the softest to the stiffest; then the shipped and the fine-tuned models on
+# the cross-sensor records. About 2 minutes. Writes runs/fine-tune/.
+FINE_TUNE_OBJECTS ?= pillow,scotch_brite,charger_cable,gel_mold,steel_ball_big
+FINE_TUNED := default cnn-depth-fw
+fine-tune: $(VENV)/.installed-dev
+	@test -d runs/cross-sensor/records || { echo "no runs/cross-sensor/records: run make cross-sensor first"; exit 1; }
+	rm -rf runs/fine-tune
+	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --only $(FINE_TUNE_OBJECTS) --grasps-per-object 3 --seed 5 \
+		--randomize-rig --settings $(CROSS_RIG) --out runs/fine-tune/records --workers 2
+	$(BIN)/estimator build-dataset --records runs/fine-tune/records --out runs/fine-tune/dataset \
+		--frames 3 --shifts 3 --size 64x88 --window $(MODEL_WINDOW_MM) --settings $(CROSS_RIG) --workers 2
+	$(foreach m,$(FINE_TUNED),$(BIN)/estimator fine-tune --model estimator/models/$(m) \
+		--data runs/fine-tune/dataset --out runs/fine-tune/models/$(m) &&) true
+	$(BIN)/estimator evaluate runs/cross-sensor/records --settings $(CROSS_RIG) --workers 2 \
+		$(foreach m,$(FINE_TUNED),--unseen-by estimator/models/$(m) --model estimator/models/$(m) \
+		--unseen-by runs/fine-tune/models/$(m) --model runs/fine-tune/models/$(m)) \
+		--rows runs/fine-tune/rows.csv --json > runs/fine-tune/figures.json
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache

@@ -125,14 +125,14 @@ def model_methods(predictors: Sequence[CompliancePredictor], *,
     """The learned methods of ``predictors`` that are in ``methods``, named (module notes).
 
     Each model gives its variant's method (``hybrid`` or ``cnn``) and a hybrid also ``auto``;
-    a name is the method, ``method[variant]`` where two models give the method, and
-    ``method[variant Nf RxC]`` where the variant alone does not tell them apart.
+    a name is the method, ``method[variant]`` where two models give the method,
+    ``method[variant Nf RxC]`` where the variant alone does not tell them apart, and
+    ``method[variant MODEL_DIR]`` where frames and size do not either.
 
     Raises
     ------
     ModelError
-        Two models would have the same name (the same model, or the same variant at the same
-        frame count and size).
+        The same model directory is given twice.
     """
     wanted = set(methods)
     found = [(method, p) for p in predictors
@@ -140,6 +140,7 @@ def model_methods(predictors: Sequence[CompliancePredictor], *,
              if method in wanted]
     per_method = Counter(method for method, _ in found)
     per_variant = Counter((method, p.variant.name) for method, p in found)
+    per_shape = Counter((method, p.variant.name, p.variant.n_frames, p.variant.size_px) for method, p in found)
     out: list[ModelMethod] = []
     for method, p in found:
         v = p.variant
@@ -148,6 +149,8 @@ def model_methods(predictors: Sequence[CompliancePredictor], *,
             name = f"{method}[{v.name}]"
         if per_variant[(method, v.name)] > 1:
             name = f"{method}[{v.name} {v.n_frames}f {v.size_px[0]}x{v.size_px[1]}]"
+        if per_shape[(method, v.name, v.n_frames, v.size_px)] > 1:  # e.g. a model and its fine-tuned copy
+            name = f"{method}[{v.name} {p.model_dir}]"
         if any(e.name == name for e in out):
             other = next(e.model_dir for e in out if e.name == name)
             raise ModelError(f"models {other} and {p.model_dir} both give {name}: give each model once")

@@ -21,9 +21,13 @@ float images barely compress, and training reads them often) and read with
     float64 (n,): normal force (N) and gripper width (m) at each frame.
 ``rgb_diff_markers``, ``depth_markers_m`` (optional, together)
     The same from the marker finger.
-``elastic_estimate_pa``, ``hertz_estar_pa``, ``label_modulus_pa`` (optional float64 scalars)
-    Simple-elasticity estimate of E, Hertz estimate of the composite modulus E*, and the
-    true E, all Pa. A missing member means "not available"; a present one is finite and > 0.
+``elastic_estimate_pa``, ``hertz_estar_pa``, ``label_modulus_pa``, ``gel_modulus_pa`` (optional float64 scalars)
+    Simple-elasticity estimate of E, Hertz estimate of the composite modulus E*, the
+    true E, and the Young's modulus of the gel that measured the grasp (its sensor's
+    settings), all Pa. A missing member means "not available"; a present one is finite and > 0.
+``gel_thickness_m``, ``finger_stiffness_n_per_m`` (optional float64 scalars)
+    The measuring rig's gel thickness (m) and finger stiffness (N/m), as its settings say;
+    missing or finite and > 0 as the moduli.
     (The published dataset's two estimates; samples built from grasp records carry
     ``estimate_*`` instead.)
 ``estimate_method``, ``estimate_state``, ``estimate_reason`` (optional, together, str (m,))
@@ -69,7 +73,9 @@ SAMPLE_VERSION = 1
 
 _ARRAYS = ("rgb_diff", "depth_m", "force_n", "width_m")
 _MARKER_ARRAYS = ("rgb_diff_markers", "depth_markers_m")
-_MODULI = ("elastic_estimate_pa", "hertz_estar_pa", "label_modulus_pa")
+# Optional positive scalars: moduli (Pa) and the measuring rig's gel thickness (m) and finger stiffness (N/m).
+_POSITIVE = ("elastic_estimate_pa", "hertz_estar_pa", "label_modulus_pa", "gel_modulus_pa", "gel_thickness_m",
+             "finger_stiffness_n_per_m")
 _INTS = ("grasp", "augmentation")
 _STRINGS = ("object_name", "material", "shape")
 _ESTIMATE_MEMBERS = ("estimate_method", "estimate_state", "estimate_reason", "estimate_pa")
@@ -101,6 +107,10 @@ class TrainingSample:
         None when not available. Never NaN, infinite or <= 0.
     label_modulus_pa : float or None
         The object's true Young's modulus, Pa; None when unlabelled.
+    gel_modulus_pa : float or None
+        Young's modulus of the measuring sensor's gel (its settings), Pa; None when unknown.
+    gel_thickness_m, finger_stiffness_n_per_m : float or None
+        The measuring rig's gel thickness (m) and finger stiffness (N/m); None when unknown.
     material, shape : str
         Material class and shape of the object ("" when unknown).
     estimates : tuple of Estimate
@@ -125,6 +135,9 @@ class TrainingSample:
     elastic_estimate_pa: float | None = None
     hertz_estar_pa: float | None = None
     label_modulus_pa: float | None = None
+    gel_modulus_pa: float | None = None
+    gel_thickness_m: float | None = None
+    finger_stiffness_n_per_m: float | None = None
     material: str = ""
     shape: str = ""
     estimates: tuple[Estimate, ...] = ()
@@ -157,14 +170,14 @@ class TrainingSample:
             if rgb_markers.shape[0] != n or rgb_markers.shape[3] != 3:
                 self._fail(f"rgb_diff_markers must have shape ({n}, H, W, 3), got {rgb_markers.shape}")
             self._array("depth_markers_m", np.float32, shape=rgb_markers.shape[:3])
-        for name in _MODULI:
+        for name in _POSITIVE:
             value = getattr(self, name)
             if value is None:
                 continue
             if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-                self._fail(f"{name} must be a number (Pa) or None, got {value!r}")
+                self._fail(f"{name} must be a number or None, got {value!r}")
             if not (np.isfinite(value) and value > 0):
-                self._fail(f"{name} must be finite and > 0 Pa (or None when unknown), got {value!r}")
+                self._fail(f"{name} must be finite and > 0 (or None when unknown), got {value!r}")
             object.__setattr__(self, name, float(value))
         estimates = tuple(self.estimates) if isinstance(self.estimates, list | tuple) else None
         if estimates is None or not all(isinstance(e, Estimate) for e in estimates):
@@ -265,7 +278,7 @@ def save_sample(sample: TrainingSample, path: str | os.PathLike[str]) -> Path:
             members[f.name] = np.str_(value)
         elif f.name in _INTS:
             members[f.name] = np.int64(value)
-        elif f.name in _MODULI:
+        elif f.name in _POSITIVE:
             members[f.name] = np.float64(value)
         else:
             members[f.name] = value
@@ -329,7 +342,7 @@ def load_sample(path: str | os.PathLike[str]) -> TrainingSample:
             )
         fields: dict[str, Any] = {name: scalar(name, "U") for name in _STRINGS}
         fields.update({name: scalar(name, "i") for name in _INTS})
-        fields.update({name: scalar(name, "f") for name in _MODULI if name in names})
+        fields.update({name: scalar(name, "f") for name in _POSITIVE if name in names})
         fields.update({name: member(name) for name in _ARRAYS})
         fields.update({name: member(name) for name in _MARKER_ARRAYS if name in names})
         present = [name for name in _ESTIMATE_MEMBERS if name in names]

@@ -178,6 +178,14 @@ class Described:
     high_pa: float | None
     p_above_limit: float
 
+    def divided(self, factor: float) -> Described:
+        """The same answer with every modulus divided by ``factor`` (> 0): from the reference gel's
+        moduli to the measuring gel's (:func:`~estimator.learned.inputs.gel_scale`)."""
+        def div(value: float | None) -> float | None:
+            return None if value is None else value / factor
+
+        return Described(self.state, self.e_pa / factor, div(self.low_pa), div(self.high_pa), self.p_above_limit)
+
 
 def describe(probs: np.ndarray, *, scale: float, limit_pa: float, soft_pa: float,
              p_rigid: float = 0.5) -> Described:

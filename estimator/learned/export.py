@@ -1,8 +1,12 @@
-"""Export a trained :class:`~estimator.learned.model.ComplianceNet` to ONNX (torch; training only).
+"""Export a trained :class:`~estimator.learned.model.ComplianceNet` to ONNX and back (torch; training only).
 
 The graph is exported with the ``torch.export``-based exporter (``dynamo=True``,
 onnxscript) at opset 18, the batch axis dynamic, and checked against torch in
-onnxruntime before it is kept.
+onnxruntime before it is kept. :func:`network_from_onnx` rebuilds the network
+from such a file's weights (to fine-tune a shipped model, which ships as ONNX
+only): the exporter names the initialisers after the parameters and folds each
+batch norm into the convolution before it, so the rebuilt batch norms are
+identities that carry the folded bias.
 """
 
 from __future__ import annotations
@@ -16,12 +20,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch import nn
 
 from estimator.errors import ModelError
 from estimator.learned.infer import OUTPUT_NAME
+from estimator.learned.inputs import Variant
 from estimator.learned.model import ComplianceNet
 
-__all__ = ["OPSET", "export_onnx", "max_disagreement"]
+__all__ = ["OPSET", "export_onnx", "max_disagreement", "network_from_onnx"]
 
 OPSET = 18
 AGREEMENT_ATOL = 1e-4
@@ -78,3 +84,59 @@ def max_disagreement(model: ComplianceNet, path: str | Path, batch: Mapping[str,
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     got = session.run([OUTPUT_NAME], feed)[0].reshape(-1)
     return float(np.max(np.abs(got - expected)))
+
+
+def network_from_onnx(path: str | Path, variant: Variant, *, check: Mapping[str, np.ndarray]) -> ComplianceNet:
+    """The network ``path`` (written by :func:`export_onnx`) computes, rebuilt in torch (eval mode).
+
+    Parameters
+    ----------
+    path : path
+        The ``.onnx`` file.
+    variant : Variant
+        Its variant (from its ``metadata.json``).
+    check : mapping
+        Encoded inputs (at least 2 in the batch): the rebuilt network must agree with
+        onnxruntime within 1e-4 on them.
+
+    Raises
+    ------
+    ModelError
+        The file is unreadable, lacks a parameter of the variant's network, or the
+        rebuilt network disagrees with it.
+    """
+    import onnx
+    from onnx import numpy_helper
+
+    path = Path(path)
+    try:
+        weights = {i.name: numpy_helper.to_array(i) for i in onnx.load(str(path)).graph.initializer}
+    except Exception as exc:  # onnx raises protobuf and OS errors alike
+        raise ModelError(f"{path}: not a readable ONNX file ({exc})") from exc
+    model = ComplianceNet(variant)
+    state = model.state_dict()
+    batch_norms = tuple(f"{name}." for name, module in model.named_modules() if isinstance(module, nn.BatchNorm2d))
+    for name, value in model.named_parameters():
+        if name.startswith(batch_norms):
+            continue
+        found = weights.get(name)
+        if found is None or found.shape != tuple(value.shape):
+            raise ModelError(f"{path}: {name} of variant {variant.name} should be {tuple(value.shape)}, the file "
+                             f"has {'none' if found is None else found.shape}: another variant's model?")
+        state[name] = torch.from_numpy(found.copy())
+    for name, module in model.named_modules():
+        if isinstance(module, nn.BatchNorm2d):
+            conv = name.rsplit(".", 1)[0] + ".0.weight"  # the Conv2d before it in the same Sequential
+            folded = weights.get(conv + "_bias")
+            if folded is None:
+                raise ModelError(f"{path}: no folded batch-norm bias {conv}_bias for {name}")
+            state[f"{name}.weight"] = torch.ones_like(state[f"{name}.weight"])
+            state[f"{name}.bias"] = torch.from_numpy(folded.copy())
+            state[f"{name}.running_mean"] = torch.zeros_like(state[f"{name}.running_mean"])
+            state[f"{name}.running_var"] = torch.full_like(state[f"{name}.running_var"], 1.0 - module.eps)
+    model.load_state_dict(state)
+    worst = max_disagreement(model, path, check)
+    if not worst <= AGREEMENT_ATOL:
+        raise ModelError(f"{path}: the network rebuilt from its weights differs from onnxruntime by {worst:.3g} "
+                         f"(> {AGREEMENT_ATOL}); was it exported by this code?")
+    return model.eval()

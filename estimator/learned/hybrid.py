@@ -59,6 +59,7 @@ from estimator.learned.infer import CompliancePredictor
 from estimator.learned.inputs import (
     SampledGrasp,
     distinct_frames,
+    gel_scale,
     sample_grasp,
     sampled_input_range,
 )
@@ -201,7 +202,8 @@ class HybridEstimator:
             probs = self.predictor.predict_distribution([sampled])[0]
         except ModelError as exc:
             return _without_model(method, mode, by_method, f"the model gives no estimate: {exc}")
-        said = self.predictor.describe(probs, limit_pa=self.settings.resolution_limit_pa, widen=fit.widen)
+        said = self.predictor.describe(probs, limit_pa=self.settings.resolution_limit_pa, widen=fit.widen,
+                                       gel_scale=gel_scale(sampled.gel_modulus_pa))
         states = ", ".join(f"{e.method} {e.state}" for e in sampled.estimates)
         model = f"{self.predictor.variant.name} model over {self.predictor.variant.n_frames} frames"
         if said.state == "lower_bound":

@@ -55,7 +55,7 @@ from estimator.learned.inputs import (
     default_window_m,
     encode,
 )
-from teleop.settings import CONFIG_DIR, Settings
+from teleop.settings import Settings, resolve_config_path
 
 __all__ = [
     "MODEL_FORMAT",
@@ -89,6 +89,9 @@ def current_scales() -> dict[str, Any]:
         "rgb_scale": inputs.RGB_SCALE,
         "analytical_methods": list(inputs.ANALYTICAL_METHODS),
         "features_per_method": inputs.FEATURES_PER_METHOD,
+        "reference_gel_modulus_pa": inputs.REFERENCE_GEL_MODULUS_PA,
+        "reference_gel_thickness_m": inputs.REFERENCE_GEL_THICKNESS_M,
+        "reference_finger_stiffness_n_per_m": inputs.REFERENCE_FINGER_STIFFNESS_N_PER_M,
     }
 
 
@@ -245,18 +248,24 @@ class CompliancePredictor:
         logits = self.predict_logits(encode(self.variant, items))
         return probabilities(logits, temperature=self.metadata.temperature)
 
-    def describe(self, probs: np.ndarray, *, limit_pa: float, widen: float = 1.0) -> Described:
+    def describe(self, probs: np.ndarray, *, limit_pa: float, widen: float = 1.0, gel_scale: float = 1.0
+                 ) -> Described:
         """State, value and calibrated interval of one item's distribution, bounded above at the
         sensor's resolution limit ``limit_pa`` (:func:`~estimator.learned.distribution.describe`; a
         limit above the model's :data:`~estimator.learned.distribution.CENSOR_PA` is taken there).
         ``widen`` (>= 1) multiplies the calibrated interval scale (a grasp outside the training
-        range: :func:`~estimator.learned.window.input_range`); bounds are not moved by it."""
+        range: :func:`~estimator.learned.window.input_range`); bounds are not moved by it.
+        ``gel_scale`` is the item's :func:`~estimator.learned.inputs.gel_scale`: the distribution
+        is over moduli on the reference gel, the answer in the measuring gel's."""
         if not (math.isfinite(widen) and widen >= 1.0):
             raise ModelError(f"widen {widen!r}: expected a finite factor >= 1")
-        limit_pa = min(limit_pa, distribution.CENSOR_PA)
+        if not (math.isfinite(gel_scale) and gel_scale > 0):
+            raise ModelError(f"gel_scale {gel_scale!r}: expected a finite factor > 0")
+        limit_pa = min(limit_pa * gel_scale, distribution.CENSOR_PA)
         soft_pa = min(self.metadata.soft_pa, limit_pa / 10.0)
-        return describe(probs, scale=self.metadata.interval_scale * widen, limit_pa=limit_pa, soft_pa=soft_pa,
+        said = describe(probs, scale=self.metadata.interval_scale * widen, limit_pa=limit_pa, soft_pa=soft_pa,
                         p_rigid=self.metadata.p_rigid)
+        return said.divided(gel_scale)
 
 
 def load_predictor(model_dir: str | Path | None = None, *, settings: Settings | None = None,
@@ -267,7 +276,6 @@ def load_predictor(model_dir: str | Path | None = None, *, settings: Settings | 
     under ``configs/``, like calibration files.
     """
     if model_dir is None and settings is not None and settings.estimator.model_path:
-        path = Path(settings.estimator.model_path)
-        path = path if path.is_absolute() else CONFIG_DIR / path
+        path = resolve_config_path(settings.estimator.model_path)
         model_dir = path.parent if path.suffix == ".onnx" else path
     return CompliancePredictor(default_model_dir() if model_dir is None else model_dir, threads=threads)

@@ -24,13 +24,29 @@ Model inputs (float32, batch first)
     finger's channels follow. Images are resampled from the depth grid (the sensor's
     image grid binned by ``estimator.depth_binning``; the marker finger's full grid) onto
     the model's input window (below) at ``size_px``, explicitly, once.
-``force_width`` (B, 2N), only with ``fw``
-    Force at each frame / 30 N, then gripper width / 0.08 m.
+``force_width`` (B, 2N + 2), only with ``fw``
+    Force at each frame on the reference gel (below) / 30 N, then gripper width / 0.08 m,
+    then the rig: log2 of the gel's thickness over 3 mm and log10 of the finger stiffness
+    over 200 kN/m (the record's settings; 0 where unknown): the network learns what the
+    gel scale cannot carry (:func:`rig_features`).
 ``analytical`` (B, 6 x 4), only with ``analytical``
-    Per method of :data:`ANALYTICAL_METHODS`: normalised log10 E (the bound's
-    value for a bound, 0 for a refusal), interval width in decades / 9 (1 for an
-    open interval or a refusal) and the state one-hot (ok, lower_bound,
+    Per method of :data:`ANALYTICAL_METHODS`: normalised log10 E on the reference gel
+    (the bound's value for a bound, 0 for a refusal), interval width in decades / 9 (1
+    for an open interval or a refusal) and the state one-hot (ok, lower_bound,
     upper_bound, insufficient_data).
+
+Gel scale
+---------
+Linear elasticity has no modulus scale of its own: an object of modulus E pressed into a
+gel of modulus E_gel by a force F takes the same shape as one of k E pressed into a gel of
+k E_gel by k F (same Poisson ratios, same gel thickness). The model therefore works on the
+reference gel, :data:`REFERENCE_GEL_MODULUS_PA` (the simulated Wedge's): a grasp measured
+by a gel of modulus E_gel (its sensor's settings) has its forces and analytical moduli
+multiplied by ``k = REFERENCE_GEL_MODULUS_PA / E_gel`` (:func:`gel_scale`), the network's
+distribution is over k E, and the estimate is divided by k (training labels are
+multiplied by it). The depth maps need no scaling. What the scale does not cover, a gel
+of another thickness and the fingers' own compliance in the widths, the ``fw`` input's
+rig features give the network.
 
 Input window
 ------------
@@ -92,6 +108,10 @@ __all__ = [
     "ANALYTICAL_METHODS",
     "FEATURES_PER_METHOD",
     "LOG10_E_RANGE",
+    "REFERENCE_FINGER_STIFFNESS_N_PER_M",
+    "REFERENCE_GEL_MODULUS_PA",
+    "REFERENCE_GEL_THICKNESS_M",
+    "RIG_FEATURES",
     "MEASUREMENT_VERSION",
     "DecodedFrameStream",
     "SampledGrasp",
@@ -103,6 +123,8 @@ __all__ = [
     "default_window_m",
     "distinct_frames",
     "encode",
+    "gel_scale",
+    "rig_features",
     "no_contact_reference",
     "reduce_images",
     "sample_grasp",
@@ -111,6 +133,12 @@ __all__ = [
 ]
 
 LOG10_E_RANGE = (3.0, 12.0)
+#: The gel the model's forces and moduli refer to (Pa): the simulated Wedge's (module notes, "Gel scale").
+REFERENCE_GEL_MODULUS_PA = 275e3
+#: The rig features' reference gel thickness (m) and finger stiffness (N/m): the shipped settings'.
+REFERENCE_GEL_THICKNESS_M = 3e-3
+REFERENCE_FINGER_STIFFNESS_N_PER_M = 2e5
+RIG_FEATURES = 2
 ANALYTICAL_METHODS = METHODS
 FEATURES_PER_METHOD = 2 + len(STATES)
 FORCE_SCALE_N = 30.0
@@ -228,14 +256,29 @@ class Variant:
         """Model input name -> shape without the batch axis, in call order."""
         shapes: dict[str, tuple[int, ...]] = {"frames": (self.n_frames, self.channels, *self.size_px)}
         if self.force_width:
-            shapes["force_width"] = (2 * self.n_frames,)
+            shapes["force_width"] = (2 * self.n_frames + RIG_FEATURES,)
         if self.analytical:
             shapes["analytical"] = (FEATURES_PER_METHOD * len(ANALYTICAL_METHODS),)
         return shapes
 
 
-def analytical_features(estimates: Sequence[Estimate]) -> np.ndarray:
-    """The ``analytical`` input of one grasp (see the module notes), float32.
+def gel_scale(gel_modulus_pa: float | None) -> float:
+    """``k``, the factor that takes a grasp's forces and moduli onto the reference gel (module notes,
+    "Gel scale"); 1 where the gel's modulus is unknown (samples from before it was recorded)."""
+    return 1.0 if gel_modulus_pa is None else REFERENCE_GEL_MODULUS_PA / gel_modulus_pa
+
+
+def rig_features(gel_thickness_m: float | None, finger_stiffness_n_per_m: float | None) -> np.ndarray:
+    """The rig part of the ``force_width`` input (module notes), float32 (2,); 0 for an unknown value."""
+    thickness = 0.0 if gel_thickness_m is None else math.log2(gel_thickness_m / REFERENCE_GEL_THICKNESS_M)
+    stiffness = (0.0 if finger_stiffness_n_per_m is None
+                 else math.log10(finger_stiffness_n_per_m / REFERENCE_FINGER_STIFFNESS_N_PER_M))
+    return np.array([thickness, stiffness], dtype=np.float32)
+
+
+def analytical_features(estimates: Sequence[Estimate], *, scale: float = 1.0) -> np.ndarray:
+    """The ``analytical`` input of one grasp (see the module notes), float32; ``scale`` is the
+    grasp's :func:`gel_scale`.
 
     A method missing from ``estimates`` is encoded as a refusal.
     """
@@ -249,7 +292,7 @@ def analytical_features(estimates: Sequence[Estimate]) -> np.ndarray:
         row[1] = 1.0
         if est is None or est.e_pa is None:
             continue
-        row[0] = np.clip((math.log10(est.e_pa) - lo) / (hi - lo), -0.5, 1.5)
+        row[0] = np.clip((math.log10(est.e_pa * scale) - lo) / (hi - lo), -0.5, 1.5)
         low, high = est.interval_pa
         if low is not None and high is not None:
             row[1] = min(math.log10(high / low) / (hi - lo), 1.0)
@@ -297,6 +340,9 @@ class ModelInputs(Protocol):
     force_n: np.ndarray
     width_m: np.ndarray
     estimates: tuple[Estimate, ...]
+    gel_modulus_pa: float | None
+    gel_thickness_m: float | None
+    finger_stiffness_n_per_m: float | None
 
 
 def _images(item: ModelInputs, variant: Variant, where: str) -> np.ndarray:
@@ -331,12 +377,16 @@ def encode(variant: Variant, items: Sequence[ModelInputs], *, where: str = "mode
     if not items:
         raise ModelError(f"{where}: nothing to encode")
     batch = {"frames": np.stack([_images(item, variant, where) for item in items]).astype(np.float32)}
+    scales = [gel_scale(item.gel_modulus_pa) for item in items]
     if variant.force_width:
         batch["force_width"] = np.stack([
-            np.concatenate([item.force_n / FORCE_SCALE_N, item.width_m / WIDTH_SCALE_M]) for item in items
+            np.concatenate([item.force_n * k / FORCE_SCALE_N, item.width_m / WIDTH_SCALE_M,
+                            rig_features(item.gel_thickness_m, item.finger_stiffness_n_per_m)])
+            for item, k in zip(items, scales, strict=True)
         ]).astype(np.float32)
     if variant.analytical:
-        batch["analytical"] = np.stack([analytical_features(item.estimates) for item in items])
+        batch["analytical"] = np.stack([analytical_features(item.estimates, scale=k)
+                                        for item, k in zip(items, scales, strict=True)])
     return batch
 
 
@@ -348,7 +398,7 @@ def encode(variant: Variant, items: Sequence[ModelInputs], *, where: str = "mode
 #: records the version its data was measured with (``data.measurement_version``), and
 #: :mod:`estimator.learned.reference` checks that its recorded inputs on a fixed reference record
 #: still come out the same, so a change that alters them without a raised version fails a test.
-MEASUREMENT_VERSION = 3
+MEASUREMENT_VERSION = 4
 
 
 class DecodedFrameStream(FrameStream):
@@ -415,6 +465,11 @@ class SampledGrasp:
         Frame minus the no-contact frame (BGR, 8-bit levels), reduced; None unless asked.
     depth_markers_m, rgb_diff_markers : ndarray or None
         The same from the other (marker) finger, when asked.
+    gel_modulus_pa, gel_thickness_m : float or None
+        Young's modulus (Pa) and thickness (m) of the measuring finger's gel (the record's
+        sensor settings).
+    finger_stiffness_n_per_m : float or None
+        The fingers' bending stiffness the fits used (the record's gripper, else the settings').
     """
 
     reason: str = ""
@@ -426,6 +481,9 @@ class SampledGrasp:
     rgb_diff: np.ndarray | None = None
     depth_markers_m: np.ndarray | None = None
     rgb_diff_markers: np.ndarray | None = None
+    gel_modulus_pa: float | None = None
+    gel_thickness_m: float | None = None
+    finger_stiffness_n_per_m: float | None = None
 
     def __bool__(self) -> bool:
         return not self.reason
@@ -544,7 +602,9 @@ def sample_grasp(
         sampled = replace(sampled, depth_markers_m=marker.depth_m, rgb_diff_markers=marker.rgb_diff)
     estimates = tuple(estimate_grasp(sampled.measurements, method, settings=settings)
                       for method in ANALYTICAL_METHODS)
-    return replace(sampled, estimates=estimates)
+    gel = record.sensor(finger)
+    return replace(sampled, estimates=estimates, gel_modulus_pa=gel.gel_modulus_pa, gel_thickness_m=gel.gel_thickness_m,
+                   finger_stiffness_n_per_m=sampled.measurements.finger_stiffness_n_per_m)
 
 
 def sampled_input_range(sampled: SampledGrasp, variant: Variant) -> InputRange:

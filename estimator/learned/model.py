@@ -9,7 +9,7 @@ takes the analytical estimates and ends in logits over the log10 E bins of
 Sizes (defaults): the frame encoder is four stride-2 3x3 convolutions (16, 32,
 48, 64 channels, batch norm, ReLU) followed by global average and max pooling
 (128 features per frame: mean activation tracks the contact's extent, the
-maximum its deepest point); force/width 2N -> 32 -> 32; decoder -> 128 -> 64;
+maximum its deepest point); force/width and rig 2N + 2 -> 32 -> 32; decoder -> 128 -> 64;
 analytical 24 -> 32; estimation decoder 64 (+32) -> 32 -> 90 bins. About 116 k
 parameters (0.5 MB of ONNX) and a few million multiply-adds per frame at
 64 x 88 px.
@@ -64,7 +64,7 @@ class ComplianceNet(nn.Module):
     """Logits (B, N_BINS) over the log10 E bins from the inputs ``variant`` names, in its order.
 
     Call it with the tensors of ``variant.input_shapes`` (batch first), positionally:
-    ``frames`` (B, N, C, h, w), then ``force_width`` (B, 2N) and ``analytical``
+    ``frames`` (B, N, C, h, w), then ``force_width`` (B, 2N + 2) and ``analytical``
     (B, 24) when the variant reads them.
     """
 
@@ -75,7 +75,7 @@ class ComplianceNet(nn.Module):
         decoder_in = variant.n_frames * self.encoder.features
         self.force_width = None
         if variant.force_width:
-            self.force_width = _mlp(2 * variant.n_frames, 32, 32)
+            self.force_width = _mlp(variant.input_shapes["force_width"][0], 32, 32)
             decoder_in += 32
         self.decoder = _mlp(decoder_in, 128, 64, dropout=dropout)
         estimation_in = 64

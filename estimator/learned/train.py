@@ -83,6 +83,7 @@ from estimator.learned.inputs import (
     default_window_m,
     distinct_frames,
     encode,
+    gel_scale,
 )
 from estimator.learned.model import ComplianceNet
 from estimator.learned.reference import REFERENCE_RECORD, reference_inputs, summarise_inputs
@@ -129,8 +130,8 @@ class SplitData:
     """The encoded samples of one split."""
 
     inputs: dict[str, np.ndarray]
-    label: np.ndarray  # log10 E (Pa), (n,)
-    rows: list[dict[str, Any]]  # per sample: object, material, shape, truth_pa, estimates
+    label: np.ndarray  # log10 E (Pa) on the reference gel (inputs' "Gel scale"), (n,)
+    rows: list[dict[str, Any]]  # per sample: object, material, shape, truth_pa, gel_scale, estimates
 
     def __len__(self) -> int:
         return int(self.label.shape[0])
@@ -146,7 +147,7 @@ def _row(sample: TrainingSample, path: Path) -> dict[str, Any]:
     if sample.label_modulus_pa is None:
         raise SampleError(f"{path}: sample has no label_modulus_pa")
     return {"object": sample.object_name, "augmentation": sample.augmentation,
-            "material": sample.material or "unknown",
+            "gel_scale": gel_scale(sample.gel_modulus_pa), "material": sample.material or "unknown",
             "shape": sample.shape or "unknown", "truth_pa": sample.label_modulus_pa,
             "estimates": sample.estimates, "frames": distinct_frames(sample.force_n), "path": str(path)}
 
@@ -177,7 +178,7 @@ def load_split_data(data_dir: str | Path, variant: Variant) -> dict[str, SplitDa
             rows.append(_row(sample, path))
         if samples:
             batch = encode(variant, samples, where=str(directory))
-            label = np.log10([r["truth_pa"] for r in rows]).astype(np.float32)
+            label = np.log10([r["truth_pa"] * r["gel_scale"] for r in rows]).astype(np.float32)
         else:
             batch = {k: np.zeros((0, *s), np.float32) for k, s in variant.input_shapes.items()}
             label = np.zeros(0, np.float32)
@@ -203,6 +204,29 @@ def _flip(frames: torch.Tensor, generator: np.random.Generator) -> torch.Tensor:
     flips = torch.from_numpy(generator.random((frames.shape[0], 2)) < 0.5)
     frames = torch.where(flips[:, 0, None, None, None, None], frames.flip(-1), frames)
     return torch.where(flips[:, 1, None, None, None, None], frames.flip(-2), frames)
+
+
+def train_epoch(model: ComplianceNet, data: SplitData, optimiser: torch.optim.Optimizer, config: TrainConfig,
+                rng: np.random.Generator) -> float:
+    """One pass over ``data`` in shuffled batches (flips and label jitter as the module notes say), in
+    the mode the caller set; returns the mean loss per sample."""
+    names = list(model.variant.input_shapes)
+    label = torch.from_numpy(censor(data.label).astype(np.float32))
+    order = torch.from_numpy(rng.permutation(len(data)))
+    total = 0.0
+    for start in range(0, len(data), config.batch_size):
+        index = order[start:start + config.batch_size]
+        if index.numel() < 2:  # batch norm needs two samples
+            continue
+        args = [torch.from_numpy(data.inputs[n][index.numpy()]) for n in names]
+        args[0] = _flip(args[0], rng)
+        optimiser.zero_grad()
+        jitter = torch.from_numpy(rng.normal(0.0, config.label_sd_decades, index.numel()).astype(np.float32))
+        loss = distribution_loss(model(*args), label[index] + jitter)
+        loss.backward()
+        optimiser.step()
+        total += float(loss.detach()) * index.numel()
+    return total / len(data)
 
 
 def _predict(model: ComplianceNet, data: SplitData, batch_size: int = 256) -> np.ndarray:
@@ -286,6 +310,7 @@ def _rows(data: SplitData, logits: np.ndarray, method: str, calibration: dict[st
     """evaluate-style rows: the model's calibrated estimate and each analytical estimate, per sample."""
     rows = []
     for row, said in zip(data.rows, _described(logits, calibration), strict=True):
+        said = said.divided(row["gel_scale"])
         base = {k: row[k] for k in ("object", "material", "shape", "truth_pa")}
         rows.append({**base, "method": method, "state": said.state, "e_pa": said.e_pa, "low_pa": said.low_pa,
                      "high_pa": said.high_pa})
@@ -314,7 +339,7 @@ def _auto_policy(data: SplitData, logits: np.ndarray) -> dict[str, Any]:
     it would answer (``ok`` over at least ``MIN_SPLIT_FRAMES`` frames), errs no more on average than
     the model on those grasps (0: never)."""
     truth = np.log10([r["truth_pa"] for r in data.rows])
-    model_error = np.abs(quantile(probabilities(logits), 0.5) - truth)
+    model_error = np.abs(quantile(probabilities(logits), 0.5) - np.log10([r["gel_scale"] for r in data.rows]) - truth)
     split = [next((e for e in r["estimates"] if e.method == "split"), None) for r in data.rows]
     ok = np.array([e is not None and e.state == "ok" and r["frames"] >= MIN_SPLIT_FRAMES
                    for e, r in zip(split, data.rows, strict=True)])
@@ -375,34 +400,18 @@ def _fit(train: SplitData, val: SplitData, variant: Variant, config: TrainConfig
     model = ComplianceNet(variant)
     optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=config.epochs)
-    names = list(variant.input_shapes)
-    tensors = {n: torch.from_numpy(train.inputs[n]) for n in names}
-    label = torch.from_numpy(censor(train.label).astype(np.float32))
     val_label = censor(val.label).astype(np.float32)
     history: list[dict[str, float]] = []
     best = (math.inf, 0, copy.deepcopy(model.state_dict()))
     bar = tqdm(range(1, config.epochs + 1), desc="train", unit="epoch", disable=not progress)
     for epoch in bar:
         model.train()
-        order = torch.from_numpy(rng.permutation(len(train)))
-        total = 0.0
-        for start in range(0, len(train), config.batch_size):
-            index = order[start:start + config.batch_size]
-            if index.numel() < 2:  # batch norm needs two samples
-                continue
-            args = [tensors[n][index] for n in names]
-            args[0] = _flip(args[0], rng)
-            optimiser.zero_grad()
-            jitter = torch.from_numpy(rng.normal(0.0, config.label_sd_decades, index.numel()).astype(np.float32))
-            loss = distribution_loss(model(*args), label[index] + jitter)
-            loss.backward()
-            optimiser.step()
-            total += float(loss.detach()) * index.numel()
+        total = train_epoch(model, train, optimiser, config, rng)
         scheduler.step()
         train_pred, val_pred = _predict(model, train), _predict(model, val)
         with torch.no_grad():
             val_loss = float(distribution_loss(torch.from_numpy(val_pred), torch.from_numpy(val_label)))
-        entry = {"epoch": epoch, "train_loss": total / len(train), "val_loss": val_loss,
+        entry = {"epoch": epoch, "train_loss": total, "val_loss": val_loss,
                  "train_log10_error": _mean_log10_error(train_pred, censor(train.label)),
                  "val_log10_error": _mean_log10_error(val_pred, val_label)}
         history.append(entry)
@@ -477,8 +486,10 @@ def train_model(
     example = {n: val.inputs[n][:8] if len(val) >= 2 else train.inputs[n][:8] for n in names}
     export_onnx(model, out_dir / "model.onnx", example=example)
     val_pred = _predict(model, val)
-    soft_pa = float(min(r["truth_pa"] for r in train.rows))
-    calibration = calibrate(val_pred, val.label, soft_pa=soft_pa, limit_pa=settings.resolution_limit_pa)
+    # In the reference gel's moduli, as the network's labels.
+    soft_pa = float(min(r["truth_pa"] * r["gel_scale"] for r in train.rows))
+    limit_pa = settings.resolution_limit_pa * gel_scale(settings.sensor(settings.estimator.finger).gel_modulus_pa)
+    calibration = calibrate(val_pred, val.label, soft_pa=soft_pa, limit_pa=limit_pa)
     metadata = {
         "format": MODEL_FORMAT,
         "version": MODEL_VERSION,

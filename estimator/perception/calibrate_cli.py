@@ -16,8 +16,9 @@ import math
 import sys
 
 from estimator.errors import CalibrationError
-from estimator.perception.calibration import PressSet, fit_calibration, load_presses, split_presses
+from estimator.perception.calibration_fit import DEFAULT_FLAT_WEIGHT, fit_calibration
 from estimator.perception.markers import detect_markers
+from estimator.perception.presses import PressSet, load_presses, split_presses
 from teleop.record import software_version
 from teleop.settings import load_settings
 
@@ -150,6 +151,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--refine-passes", type=int, default=1,
         help="times to re-measure the press circles with the fitted table and refit; 0 uses them as given",
     )
+    parser.add_argument(
+        "--flat-weight", type=_flat_weight, default=DEFAULT_FLAT_WEIGHT, metavar="W",
+        help="total weight of the flat-gel pixels relative to the on-ball pixels in each table bin's "
+             f"mean (default {DEFAULT_FLAT_WEIGHT:g}); 'none' counts every flat pixel once, so the "
+             "mostly-flat calibration set pulls small slopes towards zero",
+    )
+
+
+def _flat_weight(text: str) -> float | None:
+    if text.strip().lower() == "none":
+        return None
+    value = float(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number or 'none', got {text!r}")
+    return value
 
 
 def run(args: argparse.Namespace) -> int:
@@ -167,7 +183,8 @@ def run(args: argparse.Namespace) -> int:
     calibration = fit_calibration(
         presses.reference, presses.images[train], presses.centers_px[train], presses.radii_px[train],
         ball_radius_m=ball_m, pixel_pitch_m=pitch_m, bins=args.bins, tiles=tuple(args.tiles),
-        refine_passes=args.refine_passes, marker_masks=masks, provenance=record, progress=True,
+        refine_passes=args.refine_passes, flat_weight=args.flat_weight, marker_masks=masks,
+        provenance=record, progress=True,
     )
     path = calibration.save(args.out)
     refined = sum(calibration.provenance["circles_refined"])

@@ -22,6 +22,12 @@ A drawn :class:`Rig` is two :class:`~teleop.settings.Settings`:
     ``teleop.sim.grasp.FINGER_STIFFNESS_SD``) around the configured value for every
     grasp, with or without this option; a second error on top would stack.
 
+With ``vary_gel`` (``teleop simulate --vary-gel``) the gel itself is drawn first, as
+another sensor's datasheet would give it (both fingers alike, and ``known`` carries it):
+GelSight-type sensors are cast from different silicones in different thicknesses
+(the simulated Wedge's 275 kPa and 3 mm, the R1.5's 250 kPa, softer and thicker gels
+on others). The tolerances then apply around the drawn gel.
+
 Noise, rates and latencies are simply what the devices do: both settings carry
 them. The record's provenance (``extra["rig"]``, :meth:`Rig.provenance`) keeps the
 true values for later analysis; no estimator reads it.
@@ -46,6 +52,8 @@ load-cell rate           10 or 80 Hz, either         the HX711's two rates (RATE
 width read rate          5-30 Hz, log-uniform        polling budgets of the host
 camera offset            0-60 ms, uniform            USB/MJPG capture latency of the cameras
 illumination gain        0.7-1.3, uniform            LED current and ageing
+gel (``vary_gel``)       120-400 kPa, log-uniform;   silicones of GelSight-type gels (Shore 00
+                         2.5-4.5 mm, uniform         10-40) cast 2.5 to 4.5 mm thick
 =======================  ==========================  ===========================================
 """
 
@@ -89,11 +97,14 @@ class RigSpread:
     # Frames stamped on arrival over USB; a larger offset a rig measures and corrects (issue 22).
     camera_offset_s: Range = (0.0, 0.03)
     illumination_gain: Range = (0.7, 1.3)
+    # Only with vary_gel: another sensor's datasheet gel.
+    gel_modulus_pa: Range = (1.2e5, 4.0e5)
+    gel_thickness_m: Range = (2.5e-3, 4.5e-3)
 
 
-#: The fields of :class:`RigSpread` drawn log-uniformly (ranges spanning a decade or more).
+#: The fields of :class:`RigSpread` drawn log-uniformly (ranges spanning a decade or more, or moduli).
 LOG_UNIFORM = frozenset({"finger_stiffness_n_per_m", "closing_speed_m_s", "force_noise_n", "width_noise_m",
-                         "width_read_hz"})
+                         "width_read_hz", "gel_modulus_pa"})
 
 #: The spread ``teleop simulate --randomize-rig`` draws from.
 RIG_SPREAD = RigSpread()
@@ -146,11 +157,14 @@ def _log_uniform(rng: np.random.Generator, bounds: Range) -> float:
     return float(math.exp(rng.uniform(math.log(bounds[0]), math.log(bounds[1]))))
 
 
-def draw(settings: Settings, rng: np.random.Generator, spread: RigSpread = RIG_SPREAD) -> Rig:
+def draw(settings: Settings, rng: np.random.Generator, spread: RigSpread = RIG_SPREAD, *,
+         vary_gel: bool = False) -> Rig:
     """Draw one rig around ``settings`` (the catalogue gels, the devices' other settings).
 
+    With ``vary_gel`` the gels' datasheet modulus and thickness are drawn too (module notes).
     Pure: the same ``settings`` and ``rng`` state give the same rig; every value comes
-    from ``rng`` in a fixed order.
+    from ``rng`` in a fixed order (the gel's, when drawn, last: the rest of the rig is the
+    one drawn without it).
     """
     def pick(name: str) -> float:
         bounds = getattr(spread, name)
@@ -170,15 +184,16 @@ def draw(settings: Settings, rng: np.random.Generator, spread: RigSpread = RIG_S
     simulation = dataclasses.replace(settings.simulation, **sim_values)
     camera_hz = pick("camera_hz")  # both cameras of a rig are alike
     known_sensors = tuple(dataclasses.replace(s, camera_hz=camera_hz) for s in settings.sensors)
+    tolerances = [(_uniform(rng, (-spread.gel_modulus_tolerance, spread.gel_modulus_tolerance)),
+                   _uniform(rng, (-spread.gel_thickness_tolerance, spread.gel_thickness_tolerance)))
+                  for _ in known_sensors]
+    if vary_gel:
+        gel = {"gel_modulus_pa": pick("gel_modulus_pa"), "gel_thickness_m": pick("gel_thickness_m")}
+        known_sensors = tuple(dataclasses.replace(s, **gel) for s in known_sensors)
     true_sensors = tuple(
-        dataclasses.replace(
-            s,
-            gel_modulus_pa=s.gel_modulus_pa * (1.0 + _uniform(rng, (-spread.gel_modulus_tolerance,
-                                                                     spread.gel_modulus_tolerance))),
-            gel_thickness_m=s.gel_thickness_m * (1.0 + _uniform(rng, (-spread.gel_thickness_tolerance,
-                                                                       spread.gel_thickness_tolerance))),
-        )
-        for s in known_sensors
+        dataclasses.replace(s, gel_modulus_pa=s.gel_modulus_pa * (1.0 + modulus),
+                            gel_thickness_m=s.gel_thickness_m * (1.0 + thickness))
+        for s, (modulus, thickness) in zip(known_sensors, tolerances, strict=True)
     )
     known = dataclasses.replace(settings, sensors=known_sensors, gripper=gripper, load_cell=load_cell,
                                 simulation=simulation)

@@ -60,12 +60,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="settings TOML; None: the shipped configs/settings.toml")
     parser.add_argument("--limit-objects", type=int, default=None, metavar="M",
                         help="simulate only the first M objects of the catalogue (None: all)")
+    parser.add_argument("--only", type=_names, default=None, metavar="NAME,NAME,...",
+                        help="simulate only these objects of the catalogue (comma-separated names)")
     parser.add_argument("--randomize-rig", action="store_true",
                         help="simulate each grasp on its own rig drawn from the grasp's random stream "
                              "(teleop.sim.rig.RigSpread: gel modulus +-15 %%, gel thickness +-10 %%, finger "
                              "stiffness 20-500 kN/m, target force 5-30 N, closing speed, noise, rates, camera "
                              "latency, illumination); records carry the rig's known settings, the true ones "
                              "go to their provenance")
+    parser.add_argument("--vary-gel", action="store_true",
+                        help="with --randomize-rig: also draw each rig's datasheet gel (120-400 kPa, 2.5-4.5 mm), "
+                             "as other GelSight-type sensors have; the records carry it")
+
+
+def _names(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected comma-separated object names")
+    return names
+
+
+def _chosen(objects: list[ObjectSpec], names: list[str] | None, where: str) -> list[ObjectSpec]:
+    """The objects named in ``names`` (all when None), in catalogue order."""
+    if names is None:
+        return objects
+    unknown = sorted(set(names) - {o.name for o in objects})
+    if unknown:
+        raise SettingsError(f"--only: {', '.join(unknown)} not in the catalogue {where}")
+    return [o for o in objects if o.name in set(names)]
 
 
 def grasp_filename(obj: ObjectSpec, index: int) -> str:
@@ -78,14 +100,14 @@ def grasp_rng(seed: int, obj: ObjectSpec, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(obj.name.encode()), index]))
 
 
-def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool]) -> dict:
+def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bool]) -> dict:
     """Simulate and write one grasp (runs in a worker); failures come back as a reason."""
-    obj, index, seed, settings, out, preview, randomize_rig = job
+    obj, index, seed, settings, out, preview, randomize_rig, vary_gel = job
     path = Path(out) / grasp_filename(obj, index)
     rng = grasp_rng(seed, obj, index)
     try:
         if randomize_rig:
-            rig = draw_rig(settings, rng)
+            rig = draw_rig(settings, rng, vary_gel=vary_gel)
             record, truth = simulate_grasp(obj, settings=rig.true, rng=rng, seed=seed)
             record = rig.record(record, finger_stiffness_n_per_m=truth.finger_stiffness_n_per_m,
                                 target_force_n=truth.target_force_n)
@@ -111,13 +133,15 @@ def run(args: argparse.Namespace) -> int:
     if args.limit_objects is not None and args.limit_objects < 1:
         raise SettingsError(f"--limit-objects {args.limit_objects}: expected 1 or more")
     settings = load_settings(args.settings)
-    objects = load_catalogue(args.objects)[: args.limit_objects]
+    objects = _chosen(load_catalogue(args.objects), args.only, args.objects)[: args.limit_objects]
     out = Path(args.out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SettingsError(f"--out {out}: cannot create the directory ({exc.strerror or exc})") from exc
-    jobs = [(obj, i, args.seed, settings, str(out), args.preview, args.randomize_rig)
+    if args.vary_gel and not args.randomize_rig:
+        raise SettingsError("--vary-gel draws a rig's gel: it needs --randomize-rig")
+    jobs = [(obj, i, args.seed, settings, str(out), args.preview, args.randomize_rig, args.vary_gel)
             for obj in objects for i in range(args.grasps_per_object)]
     workers = min(args.workers, len(jobs))
 

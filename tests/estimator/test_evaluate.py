@@ -104,14 +104,16 @@ def test_each_model_gives_its_method_and_a_hybrid_also_auto():
     assert [e.name for e in only] == ["auto"]
 
 
-def test_two_models_of_one_method_are_named_by_variant_then_by_size():
+def test_two_models_of_one_method_are_named_by_variant_then_by_size_then_by_directory():
     entries = model_methods([predictor("depth+analytical", "a"), predictor("depth+markers+fw+analytical", "b")],
                             methods=["hybrid"])
     assert [e.name for e in entries] == ["hybrid[depth+analytical]", "hybrid[depth+markers+fw+analytical]"]
     sized = model_methods([predictor("depth+fw", "a", size_px=(32, 44)), predictor("depth+fw", "b", n_frames=5)])
     assert [e.name for e in sized] == ["cnn[depth+fw 3f 32x44]", "cnn[depth+fw 5f 64x88]"]
+    tuned = model_methods([predictor("depth+fw", "a"), predictor("depth+fw", "a_tuned")])
+    assert [e.name for e in tuned] == ["cnn[depth+fw a]", "cnn[depth+fw a_tuned]"]
     with pytest.raises(ModelError, match="both give cnn"):
-        model_methods([predictor("depth+fw", "a"), predictor("depth+fw", "b")])
+        model_methods([predictor("depth+fw", "a"), predictor("depth+fw", "a")])
 
 
 def test_the_ablation_table_follows_the_papers_row_order_and_figures():

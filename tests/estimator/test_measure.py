@@ -42,7 +42,7 @@ from estimator.segment import segment_grasp
 from teleop.errors import RecordError
 from teleop.record import FrameStream, GraspRecord, Label, Provenance, Samples, write_record
 from teleop.settings import CONFIG_DIR, SensorSettings, Settings, SimulationSettings
-from teleop.sim.optics import TactileCamera
+from teleop.sim.optics import OpticsRenderer
 from teleop.sim.presses import simulate_presses
 
 THICK_GEL_M = 2e-2
@@ -56,7 +56,7 @@ STEEL = 200e9
 
 @pytest.fixture(scope="module")
 def calibration():
-    camera = TactileCamera(SENSOR, sim=SIM, rng=np.random.default_rng(0))
+    camera = OpticsRenderer(SENSOR, sim=SIM, rng=np.random.default_rng(0))
     pack = simulate_presses(camera, n=12, ball_radius_m=2e-3, depth_range_m=(0.3e-3, 1.2e-3),
                             rng=np.random.default_rng(1))
     images = np.stack([warp_and_crop(im, SENSOR) for im in pack["imgs"]])
@@ -109,7 +109,7 @@ def build_record(
     tc = np.arange(0.011, end, 1 / 30) if frame_times is None else np.asarray(frame_times)
     f = state(tf)[2] * force_scale + rng.normal(0, force_noise_n, tf.size)
     w = state(tw)[0] + rng.normal(0, width_noise_m, tw.size)
-    camera = TactileCamera(sensor, sim=SIM, rng=rng)
+    camera = OpticsRenderer(sensor, sim=SIM, rng=rng)
     finite_tc = np.nan_to_num(tc, nan=0.0)
     frames = [camera.capture(gel_surface(d, radius_m, share, shape=sensor.image_shape)) for d in state(finite_tc - camera_lag_s)[1]]
     stream = FrameStream(sensor.finger, tc, tuple(frames), encoding="jpeg", jpeg_quality=SIM.jpeg_quality,

@@ -108,18 +108,19 @@ SIM_OBJECTS = ("stress_ball", "rubber_duck", "silicone_ball_shore00_30", "steel_
 def sim_grasps(tmp_path_factory) -> tuple[Path, Path]:
     """(records directory, calibration file): simulated grasps of a few catalogue objects, soft to
     rigid, and a calibration of the estimator's finger fitted on simulated ball presses (~10 s)."""
-    from estimator.perception.calibration import fit_calibration, load_presses
+    from estimator.perception.calibration_fit import fit_calibration
+    from estimator.perception.presses import load_presses
     from teleop.catalogue import load_catalogue
     from teleop.record import write_record
     from teleop.settings import CONFIG_DIR
     from teleop.sim.grasp import simulate_grasp
-    from teleop.sim.optics import TactileCamera
+    from teleop.sim.optics import OpticsRenderer
     from teleop.sim.presses import simulate_presses, write_presses
 
     out = tmp_path_factory.mktemp("sim")
     settings = load_settings()
     sensor = settings.sensor(settings.estimator.finger)
-    camera = TactileCamera(sensor, sim=settings.simulation, rng=np.random.default_rng(1))
+    camera = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(1))
     pack = simulate_presses(camera, n=16, ball_radius_m=2e-3, depth_range_m=(3e-4, 1e-3),
                             rng=np.random.default_rng(2))
     presses = load_presses(write_presses(out / "presses.npz", pack)).in_sensor_frame(sensor)

@@ -74,6 +74,10 @@ def test_build_dataset_from_records_never_leaks_an_object(sim_grasps, tmp_path, 
             assert sample.depth_m.shape == (3, 32, 44) and sample.rgb_diff.shape == (3, 32, 44, 3)
             assert [e.method for e in sample.estimates] == list(ANALYTICAL_METHODS)
             assert sample.label_modulus_pa > 0 and np.all(np.diff(sample.force_n) >= -0.5)
+            # The rig it was measured on, for the gel scale and the rig features.
+            gel = settings.sensor(settings.estimator.finger)
+            assert (sample.gel_modulus_pa, sample.gel_thickness_m) == (gel.gel_modulus_pa, gel.gel_thickness_m)
+            assert sample.finger_stiffness_n_per_m == settings.gripper.finger_stiffness_n_per_m
     assert all(len(s) == 1 for s in where.values())  # every grasp and augmentation of an object in one split
     assert n_samples == sum(summary["samples"].values()) >= 3
     assert main(argv) == 2  # refuses to write over a dataset

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,9 +13,13 @@ from estimator.estimate import Estimate
 from estimator.learned.inputs import (
     ANALYTICAL_METHODS,
     FEATURES_PER_METHOD,
+    LOG10_E_RANGE,
+    REFERENCE_GEL_MODULUS_PA,
+    RIG_FEATURES,
     Variant,
     analytical_features,
     encode,
+    gel_scale,
     reduce_images,
 )
 
@@ -32,7 +37,7 @@ def test_input_shapes_follow_the_flags():
     shapes = Variant.parse("rgb+markers+fw+analytical", n_frames=2, size_px=(32, 44)).input_shapes
     assert list(shapes) == ["frames", "force_width", "analytical"]
     assert shapes["frames"] == (2, 6, 32, 44)
-    assert shapes["force_width"] == (4,)
+    assert shapes["force_width"] == (4 + RIG_FEATURES,)
     assert shapes["analytical"] == (FEATURES_PER_METHOD * len(ANALYTICAL_METHODS),)
 
 
@@ -73,10 +78,30 @@ def test_encode_batches_every_input_at_its_scale(synthetic):
     assert {k: v.shape for k, v in batch.items()} == {k: (2, *s) for k, s in variant.input_shapes.items()}
     assert all(v.dtype == np.float32 for v in batch.values())
     np.testing.assert_allclose(batch["frames"][0, :, :3], np.moveaxis(samples[0].rgb_diff, -1, 1) / 64.0, rtol=1e-6)
-    np.testing.assert_allclose(batch["force_width"][1], np.r_[samples[1].force_n / 30.0, samples[1].width_m / 0.08],
-                               rtol=1e-6)
+    np.testing.assert_allclose(batch["force_width"][1],
+                               np.r_[samples[1].force_n / 30.0, samples[1].width_m / 0.08, 0.0, 0.0], rtol=1e-6)
     depth = encode(Variant.parse("depth", n_frames=synthetic.N_FRAMES, size_px=synthetic.SIZE), samples)["frames"]
     np.testing.assert_allclose(depth[:, :, 0], np.stack([s.depth_m for s in samples]) * 1e3, rtol=1e-6)
+
+
+def test_a_softer_gel_reads_as_the_reference_gel_under_more_force(synthetic):
+    """The gel scale (module notes): half the reference gel's modulus doubles forces and moduli."""
+    sample = synthetic.sample("rubber_a", 0, 0, rng=np.random.default_rng(0))
+    soft = replace(sample, gel_modulus_pa=REFERENCE_GEL_MODULUS_PA / 2, gel_thickness_m=6e-3,
+                   finger_stiffness_n_per_m=2e4)
+    variant = Variant.parse("depth+fw+analytical", n_frames=synthetic.N_FRAMES, size_px=synthetic.SIZE)
+    plain, scaled = encode(variant, [sample]), encode(variant, [soft])
+    n = synthetic.N_FRAMES
+    np.testing.assert_allclose(scaled["force_width"][0, :n], 2 * plain["force_width"][0, :n], rtol=1e-6)
+    np.testing.assert_allclose(scaled["force_width"][0, n:2 * n], plain["force_width"][0, n:2 * n])
+    np.testing.assert_allclose(scaled["force_width"][0, 2 * n:], [1.0, -1.0], rtol=1e-6)  # log2 6/3, log10 20/200
+    np.testing.assert_array_equal(scaled["frames"], plain["frames"])  # depth needs no scaling
+    shift = np.log10(2) / (LOG10_E_RANGE[1] - LOG10_E_RANGE[0])
+    values = slice(0, None, FEATURES_PER_METHOD)  # each method's normalised log10 E
+    answered = plain["analytical"][0, values] != 0
+    np.testing.assert_allclose(scaled["analytical"][0, values][answered], plain["analytical"][0, values][answered] + shift,
+                               rtol=1e-5)
+    assert gel_scale(None) == 1.0 and gel_scale(REFERENCE_GEL_MODULUS_PA / 2) == 2.0
 
 
 def test_encode_names_what_does_not_fit(synthetic):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import cv2
@@ -140,6 +141,8 @@ def few(gelsight_presses):
     (lambda a: {**a, "bins": 1}, "bins"),
     (lambda a: {**a, "tiles": (0, 3)}, "tiles"),
     (lambda a: {**a, "refine_passes": -1}, "refine_passes"),
+    (lambda a: {**a, "flat_weight": 0.0}, "flat_weight"),
+    (lambda a: {**a, "flat_weight": float("inf")}, "flat_weight"),
     (lambda a: {**a, "centers_px": np.array([[-500.0, -500.0], [-500.0, -500.0]])}, "no press circle"),
 ])
 def test_bad_inputs_are_refused_by_name(few, change, match):
@@ -242,6 +245,22 @@ def test_warping_maps_circles_along(gelsight_presses):
     np.testing.assert_array_equal(stated.in_sensor_frame(sensor).centers_px, subset.centers_px)
     with pytest.raises(CalibrationError, match="raw"):
         warped.__class__(**{**warped.__dict__, "frame": "raw"}).in_sensor_frame(sensor)
+
+
+def test_a_flat_sensor_keeps_its_raw_presses(mini_presses):
+    """A GelSight Mini (model "mini") has no mirror: its raw frame is its image, whatever warp its settings
+    keep (here the default Wedge corners), so raw presses and their circles are used as they are."""
+    sensor = SensorSettings(model="mini", raw_width_px=640, raw_height_px=480, pixel_pitch_m=2.95e-5)
+    subset = mini_presses.__class__(
+        mini_presses.reference, mini_presses.images[:2], mini_presses.centers_px[:2],
+        mini_presses.radii_px[:2], "recorded", "raw", None, None, "test", "x",
+    )
+    flat = subset.in_sensor_frame(sensor)
+    assert flat.warped and flat.frame == "warped_cropped"
+    assert flat.reference is subset.reference and flat.images is subset.images
+    assert flat.centers_px is subset.centers_px and flat.radii_px is subset.radii_px
+    with pytest.raises(CalibrationError, match="480 x 640"):
+        subset.in_sensor_frame(dataclasses.replace(sensor, raw_width_px=320, raw_height_px=240))
 
 
 def test_press_rings_refuses_a_frame_without_a_press():

@@ -111,7 +111,8 @@ def test_stated_values_must_agree(tmp_path, gelsight_presses, capsys):
 
 
 def test_help_explains_every_option(capsys):
-    for command, own in (("calibrate", ("--out", "--train-fraction", "--bins", "--tiles", "--refine-passes")),
+    for command, own in (("calibrate", ("--out", "--train-fraction", "--bins", "--tiles", "--refine-passes",
+                                       "--flat-weight")),
                          ("reconstruct", ("--calibration", "--all"))):
         with pytest.raises(SystemExit):
             main([command, "--help"])

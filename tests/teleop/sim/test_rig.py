@@ -89,6 +89,22 @@ def test_every_drawn_value_is_inside_its_documented_range(settings):
         assert r.true.gripper == r.known.gripper  # the finger's calibration error is the grasp simulator's
 
 
+def test_varying_the_gel_draws_another_sensors_datasheet_and_leaves_the_rest(settings):
+    rigs = [draw(settings, grasp_rng(SEED, BALL, i), vary_gel=True) for i in range(200)]
+    moduli = [r.known.sensors[0].gel_modulus_pa for r in rigs]
+    thicknesses = [r.known.sensors[0].gel_thickness_m for r in rigs]
+    assert RIG_SPREAD.gel_modulus_pa[0] <= min(moduli) < 1.6e5 and 3.0e5 < max(moduli) <= RIG_SPREAD.gel_modulus_pa[1]
+    assert RIG_SPREAD.gel_thickness_m[0] <= min(thicknesses) < 3e-3 < 4e-3 < max(thicknesses)
+    for i, rig in enumerate(rigs[:20]):
+        assert len({(s.gel_modulus_pa, s.gel_thickness_m) for s in rig.known.sensors}) == 1  # one gel per rig
+        for known, true in zip(rig.known.sensors, rig.true.sensors, strict=True):  # tolerances around it
+            assert abs(true.gel_modulus_pa / known.gel_modulus_pa - 1) <= RIG_SPREAD.gel_modulus_tolerance
+        # The rest of the rig is the one drawn without the option.
+        plain = draw(settings, grasp_rng(SEED, BALL, i))
+        assert rig.known.gripper == plain.known.gripper and rig.known.simulation == plain.known.simulation
+        assert [s.camera_hz for s in rig.known.sensors] == [s.camera_hz for s in plain.known.sensors]
+
+
 def test_a_narrower_spread_is_honoured(settings):
     spread = RigSpread(finger_stiffness_n_per_m=(5e4, 5e4), camera_hz=(40.0, 40.0), load_cell_hz=(80.0,),
                        gel_modulus_tolerance=0.0)

@@ -79,9 +79,18 @@ def test_an_object_that_cannot_be_grasped_is_reported(tmp_path, capsys):
     assert "does not fit" in summary["failed"][0]["reason"] and "beach ball" in stderr
 
 
+@pytest.mark.slow
+def test_only_simulates_the_named_objects(tmp_path, catalogue, quick_settings, capsys):
+    code, _, stderr = run(capsys, "--objects", str(catalogue), "--only", "oak_block", "--out", str(tmp_path / "o"),
+                          "--settings", str(quick_settings))
+    assert code == 0, stderr
+    assert [p.name for p in (tmp_path / "o").glob("*.grasp")] == ["oak_block_g000.grasp"]
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--grasps-per-object", "0"], "--grasps-per-object"),
     (["--workers", "0"], "--workers"),
+    (["--only", "oak_block,teapot,anvil"], "--only: anvil, teapot not in the catalogue"),
 ])
 def test_bad_arguments_are_one_line_errors(tmp_path, catalogue, capsys, argv, message):
     code, _, stderr = run(capsys, "--objects", str(catalogue), "--out", str(tmp_path / "o"), *argv)
@@ -102,6 +111,6 @@ def test_help_explains_every_option(capsys):
     assert exit_info.value.code == 0
     text = capsys.readouterr().out
     for option in ("--objects", "--grasps-per-object", "--seed", "--out", "--workers", "--preview", "--json",
-                   "--settings", "--limit-objects"):
+                   "--settings", "--limit-objects", "--only"):
         assert option in text
     assert "grasps_per_s_per_core" in text

@@ -1,0 +1,105 @@
+"""Fine-tuning: the network rebuilt from ONNX, adapted to a few grasps, honest about what it saw."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from estimator.cli import main
+from estimator.errors import EstimatorError, ModelError
+from estimator.learned.distribution import CENSOR_PA, probabilities, quantile
+from estimator.learned.export import network_from_onnx
+from estimator.learned.finetune import fine_tune
+from estimator.learned.infer import CompliancePredictor
+from estimator.learned.inputs import Variant
+from estimator.learned.train import TrainConfig, load_split_data
+from estimator.samples import load_sample, sample_paths, save_sample
+
+QUICK = TrainConfig(epochs=12, batch_size=8, lr=2e-3, seed=0)
+
+
+def _variant(trained_model) -> Variant:
+    return CompliancePredictor(trained_model).variant
+
+
+def _relabelled(source, out, factor: float):
+    """A copy of dataset ``source`` whose labels are ``factor`` times the originals (a rig that reads differently)."""
+    for path in sample_paths(source):
+        target = out / path.relative_to(source)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        sample = load_sample(path)
+        save_sample(replace(sample, label_modulus_pa=sample.label_modulus_pa * factor), target)
+    for name in ("dataset.json", "split.json"):
+        (out / name).write_text((source / name).read_text())
+    return out
+
+
+def _mean_error_decades(model_dir, data_dir) -> float:
+    """Mean |median - label| (decades) over the samples labelled below the censoring modulus (the
+    rigid labels are censored there, so a tenfold label says nothing new about them)."""
+    predictor = CompliancePredictor(model_dir)
+    errors = []
+    for part in load_split_data(data_dir, predictor.variant).values():
+        keep = part.label < np.log10(CENSOR_PA)
+        if keep.any():
+            probs = probabilities(predictor.predict_logits(part.inputs))[keep]
+            errors.append(np.abs(quantile(probs, 0.5) - part.label[keep]))
+    return float(np.mean(np.concatenate(errors)))
+
+
+@pytest.mark.slow
+def test_the_network_rebuilt_from_onnx_computes_what_the_file_does(trained_model, synthetic_dataset):
+    variant = _variant(trained_model)
+    batch = load_split_data(synthetic_dataset, variant)["val"].inputs
+    model = network_from_onnx(trained_model / "model.onnx", variant, check=batch)
+    assert not model.training
+    other = Variant.parse("depth+fw", n_frames=variant.n_frames, size_px=variant.size_px, window_m=variant.window_m)
+    with pytest.raises(ModelError, match="another variant"):  # the file has the analytical tower
+        network_from_onnx(trained_model / "model.onnx", other, check={n: batch[n] for n in other.input_shapes})
+
+
+@pytest.mark.slow
+def test_fine_tuning_moves_the_model_towards_the_new_rigs_labels(trained_model, synthetic, tmp_path):
+    new_rig = _relabelled(synthetic.write_dataset(tmp_path / "d", seed=3), tmp_path / "new_rig", factor=10.0)
+    before = _mean_error_decades(trained_model, new_rig)
+    meta = fine_tune(trained_model, new_rig, tmp_path / "tuned", config=QUICK, progress=False)
+    after = _mean_error_decades(tmp_path / "tuned", new_rig)
+    assert after < 0.7 * before  # labels a decade off what the model learned: it follows them
+    tuned = meta["fine_tuning"]
+    assert tuned["objects"] == sorted(synthetic.OBJECTS) and tuned["grasps"] == 2 * len(synthetic.OBJECTS)
+    assert len(tuned["history"]) == QUICK.epochs and tuned["base"] == str(trained_model)
+    # Every fine-tuning object counts as trained on, so `evaluate --unseen-by` keeps it out.
+    assert meta["data"]["objects"]["train"] == sorted(synthetic.OBJECTS)
+    assert meta["data"]["objects"]["val"] == meta["data"]["objects"]["test"] == []
+    base = json.loads((trained_model / "metadata.json").read_text())
+    assert meta["calibration"] == base["calibration"] and meta["variant"] == base["variant"]
+    assert CompliancePredictor(tmp_path / "tuned").metadata.interval_level == 0.9
+
+
+def test_a_dataset_that_does_not_fit_the_model_is_refused(trained_model, synthetic, tmp_path):
+    data = synthetic.write_dataset(tmp_path / "d", seed=4)
+    manifest = json.loads((data / "dataset.json").read_text())
+    (data / "dataset.json").write_text(json.dumps({**manifest, "n_frames": 4}))
+    with pytest.raises(EstimatorError, match="4 frames"):
+        fine_tune(trained_model, data, tmp_path / "out", config=QUICK, progress=False)
+    (data / "dataset.json").write_text(json.dumps({**manifest, "measurement_version": -1}))
+    with pytest.raises(EstimatorError, match="rebuild the dataset"):
+        fine_tune(trained_model, data, tmp_path / "out", config=QUICK, progress=False)
+    (data / "dataset.json").write_text(json.dumps({**manifest, "window_m": [0.01, 0.02]}))
+    with pytest.raises(EstimatorError, match="--window"):
+        fine_tune(trained_model, data, tmp_path / "out", config=QUICK, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_the_command_fine_tunes_and_says_how_to_score_it(trained_model, synthetic, tmp_path, capsys):
+    data = synthetic.write_dataset(tmp_path / "d", seed=5)
+    assert main(["fine-tune", "--model", str(trained_model), "--data", str(data), "--out", str(tmp_path / "m"),
+                 "--epochs", "2", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["out"] == str(tmp_path / "m") and summary["grasps"] == 2 * len(synthetic.OBJECTS)
+    assert np.isfinite(summary["final_train_loss"])
+    assert {p.name for p in (tmp_path / "m").iterdir()} == {"model.onnx", "metadata.json"}
