@@ -560,9 +560,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "provisional, final, reloads, reload_requests) as the last stdout line")
 
 
+def configured_methods(settings: Settings) -> tuple[str, ...]:
+    """The analytical methods ``estimator.methods`` names (the defaults when it names none).
+
+    Raises EstimatorError naming the key and the name when one is not a method: a typo must not
+    silently switch a method off.
+    """
+    unknown = [m for m in settings.estimator.methods if m not in METHODS]
+    if unknown:
+        raise EstimatorError(f"estimator.methods: {', '.join(map(repr, unknown))} is not an analytical method; "
+                             f"expected some of {', '.join(METHODS)}")
+    return tuple(settings.estimator.methods) or DEFAULT_METHODS
+
+
 def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
-    methods = tuple(args.methods or [m for m in settings.estimator.methods if m in METHODS] or DEFAULT_METHODS)
+    methods = tuple(args.methods or configured_methods(settings))
     calibration = resolve_calibration(settings.sensor(settings.estimator.finger), args.calibration)
     bus = bus_from_args(settings, args)
     model_dir = resolve_model_dir(args.model, settings)

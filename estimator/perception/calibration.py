@@ -220,6 +220,18 @@ class Calibration:
         return path
 
 
+def read_npz(path: Path, *, missing: str, kind: str) -> dict[str, np.ndarray]:
+    """Every member of the ``.npz`` at ``path`` (no pickles); CalibrationError saying ``missing``
+    when there is no file, and that it is not ``kind`` when it cannot be read."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {name: data[name] for name in data.files}
+    except FileNotFoundError as exc:
+        raise CalibrationError(missing) from exc
+    except (OSError, ValueError, EOFError) as exc:
+        raise CalibrationError(f"{path}: not {kind}: {exc}") from exc
+
+
 def load_calibration(path: str | Path) -> Calibration:
     """Read a calibration written by :meth:`Calibration.save`.
 
@@ -230,13 +242,7 @@ def load_calibration(path: str | Path) -> Calibration:
         a calibration cannot have; the message names the file and member.
     """
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            members = {name: data[name] for name in data.files}
-    except FileNotFoundError as exc:
-        raise CalibrationError(f"calibration file {path} does not exist") from exc
-    except (OSError, ValueError, EOFError) as exc:
-        raise CalibrationError(f"{path}: not a calibration .npz: {exc}") from exc
+    members = read_npz(path, missing=f"calibration file {path} does not exist", kind="a calibration .npz")
     missing = sorted({"lut", "image_shape", "pixel_pitch_m", "ball_radius_m", "relative_range", "meta"} - set(members))
     if missing:
         raise CalibrationError(f"{path}: missing member(s) {', '.join(missing)}")

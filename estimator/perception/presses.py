@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from estimator.errors import CalibrationError
-from estimator.perception.calibration import _check_image
+from estimator.perception.calibration import _check_image, read_npz
 from estimator.perception.press_circles import detect_press_circle
 from estimator.perception.warp import warp_and_crop, warp_matrix, warp_points
 from teleop.settings import SensorSettings
@@ -181,13 +181,7 @@ def load_presses(path: str | Path, *, progress: bool = False) -> PressSet:
     path = Path(path)
     if path.is_dir():
         return _load_folder(path, progress)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            members = {name: data[name] for name in data.files}
-    except FileNotFoundError as exc:
-        raise CalibrationError(f"presses {path} do not exist") from exc
-    except (OSError, ValueError, EOFError) as exc:
-        raise CalibrationError(f"{path}: not a press .npz (or a folder of images): {exc}") from exc
+    members = read_npz(path, missing=f"presses {path} do not exist", kind="a press .npz (or a folder of images)")
     missing = sorted({"f0", "imgs", "touch_center", "touch_radius"} - set(members))
     if missing:
         raise CalibrationError(f"{path}: missing member(s) {', '.join(missing)} (a taxim-style dataPack needs f0, imgs, touch_center, touch_radius)")

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import zmq
 
-from estimator.errors import CalibrationError, FitError, PerceptionError
+from estimator.errors import CalibrationError, EstimatorError, FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.measure import estimate_grasp, measure_grasp
 from estimator.segment import PEAK_FRAME_WINDOW_S, segment_grasp
@@ -181,6 +181,15 @@ def test_stream_checks_methods_and_calibration(settings, calibration):
     small = dataclasses.replace(calibration, image_shape=(10, 10))
     with pytest.raises(CalibrationError, match="calibration is for"):
         GraspStream(settings=settings, calibration=small)
+
+
+def test_the_service_refuses_a_configured_method_it_does_not_know(settings):
+    from estimator.service import configured_methods
+
+    assert configured_methods(settings) == settings.estimator.methods
+    typo = dataclasses.replace(settings, estimator=dataclasses.replace(settings.estimator, methods=("split", "hertzz")))
+    with pytest.raises(EstimatorError, match="estimator.methods: 'hertzz' is not an analytical method"):
+        configured_methods(typo)
 
 
 def test_stream_record_holds_what_arrived(settings, calibration, records):
