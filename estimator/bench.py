@@ -7,7 +7,7 @@ Configurations
     the live analytical path (depth reconstructed for all loading frames).
 ``<method>@<N>f``
     An analytical method over ``N`` frames sampled across the loading phase
-    (:func:`~estimator.learned.inputs.sample_grasp`, depth for those frames
+    (:func:`~estimator.learned.sampling.sample_grasp`, depth for those frames
     only; the four fits run together, so these share their cost).
 ``<method>/bin<K>`` (with ``--binning K``)
     An analytical method over every loading frame with depth measured on the image grid binned
@@ -68,8 +68,8 @@ from estimator.estimate import Estimate
 from estimator.evaluate import answered_by, result_row
 from estimator.learned.hybrid import HybridEstimator
 from estimator.learned.infer import CompliancePredictor, default_model_dir
-from estimator.learned.inputs import calibration_for, decoded, no_contact_reference, sample_grasp
-from estimator.measure import TACTILE_METHODS, estimate_grasp, measure_grasp
+from estimator.learned.sampling import calibration_for, decoded, sample_grasp
+from estimator.measure import TACTILE_METHODS, estimate_grasp, measure_grasp, no_contact_reference
 from estimator.metrics import summarise
 from estimator.perception.calibration import Calibration
 from teleop.errors import RecordError

@@ -10,7 +10,7 @@ COMMANDS: dict[str, Command] = {
     "estimate": Command("estimator.estimate_cli", "estimate Young's modulus from one grasp record"),
     "evaluate": Command("estimator.evaluate_cli", "score the analytical and learned estimators over labelled grasp records (ablation table)"),
     "build-dataset": Command("estimator.learned.dataset", "labelled grasp records to training samples, split by object"),
-    "train": Command("estimator.learned.train", "train the learned / hybrid model and export it to ONNX"),
+    "train": Command("estimator.learned.train_cli", "train the learned / hybrid model and export it to ONNX"),
     "fine-tune": Command("estimator.learned.finetune", "adapt a trained model to a new rig from a few labelled grasps"),
     "bench": Command("estimator.bench", "latency and error of every estimator configuration, with the Pareto frontier"),
     "calibrate": Command("estimator.perception.calibrate_cli", "fit a sensor's colour-to-gradient calibration from ball presses"),

@@ -8,7 +8,7 @@ For every labelled ``.grasp`` under a directory, each method gives an
 without them), named ``method`` or, where two models give the same method,
 ``method[variant]``. Analytical methods measure every loading frame (with the
 clock-lag corrections asked for); a model measures a grasp as its training data
-was measured (:func:`~estimator.learned.inputs.sample_grasp`).
+was measured (:func:`~estimator.learned.sampling.sample_grasp`).
 
 Per method the summary holds the metrics of :mod:`estimator.metrics` (whose
 docstring defines them): ``n``, ``log10_error``, ``within_10x``,

@@ -67,7 +67,7 @@ from estimator.estimate import Estimate
 from estimator.measure import resolve_calibration
 from estimator.perception.calibration import Calibration
 from estimator.segment import Segment
-from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream
+from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream, configured_methods
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import MAX_STR_CHARS, Message
 from teleop.errors import TeleopError
@@ -558,19 +558,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (messages, bad_messages, ignored, grasps, "
                              "provisional, final, reloads, reload_requests) as the last stdout line")
-
-
-def configured_methods(settings: Settings) -> tuple[str, ...]:
-    """The analytical methods ``estimator.methods`` names (the defaults when it names none).
-
-    Raises EstimatorError naming the key and the name when one is not a method: a typo must not
-    silently switch a method off.
-    """
-    unknown = [m for m in settings.estimator.methods if m not in METHODS]
-    if unknown:
-        raise EstimatorError(f"estimator.methods: {', '.join(map(repr, unknown))} is not an analytical method; "
-                             f"expected some of {', '.join(METHODS)}")
-    return tuple(settings.estimator.methods) or DEFAULT_METHODS
 
 
 def run(args: argparse.Namespace) -> int:

@@ -25,7 +25,7 @@ keeps what batch estimation would recompute:
 Given the same data, the estimate equals :func:`~estimator.measure.estimate_grasp` on the
 grasp record (without clock-lag corrections): same segmentation, reference, depth, features
 and fits; and :meth:`GraspStream.sampled_grasp` equals
-:func:`~estimator.learned.inputs.sample_grasp` on it (the learned model's input) from the
+:func:`~estimator.learned.sampling.sample_grasp` on it (the learned model's input) from the
 cached depths, without measuring a frame again.
 
 When is loading over?
@@ -72,15 +72,11 @@ import cv2
 import numpy as np
 
 from estimator import analytical
-from estimator.errors import FitError, PerceptionError
+from estimator.errors import EstimatorError, FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.features import ContactFeatures, contact_features
-from estimator.learned.inputs import (
-    ANALYTICAL_METHODS,
-    SampledGrasp,
-    reduce_images,
-    sample_positions,
-)
+from estimator.learned.inputs import ANALYTICAL_METHODS, reduce_images
+from estimator.learned.sampling import SampledGrasp, sample_positions
 from estimator.measure import (
     REFERENCE_GUARD_S,
     GraspMeasurements,
@@ -107,6 +103,7 @@ from teleop.settings import Settings
 
 __all__ = [
     "DEFAULT_METHODS",
+    "configured_methods",
     "LOADING_SETTLED_S",
     "GraspStream",
     "StreamEstimate",
@@ -115,6 +112,21 @@ __all__ = [
 ]
 
 DEFAULT_METHODS = ("split", "hertz", "elastic", "no_tactile")
+
+
+def configured_methods(settings: Settings) -> tuple[str, ...]:
+    """The analytical methods ``estimator.methods`` names (the defaults when it names none).
+
+    Raises EstimatorError naming the key and the name when one is not a method: a typo must not
+    silently switch a method off.
+    """
+    unknown = [m for m in settings.estimator.methods if m not in ANALYTICAL_METHODS]
+    if unknown:
+        raise EstimatorError(f"estimator.methods: {', '.join(map(repr, unknown))} is not an analytical method; "
+                             f"expected some of {', '.join(ANALYTICAL_METHODS)}")
+    return tuple(settings.estimator.methods) or DEFAULT_METHODS
+
+
 # Force samples this long after the peak, all within the peak tolerance, end the loading phase.
 LOADING_SETTLED_S = 0.1
 
@@ -405,7 +417,7 @@ class GraspStream:
 
     def sampled_grasp(self, *, n_frames: int, size_px: tuple[int, int] | None,
                       segment: Segment | None = None, window_m: tuple[float, float] | None = None) -> SampledGrasp:
-        """The learned model's depth input, as :func:`~estimator.learned.inputs.sample_grasp`
+        """The learned model's depth input, as :func:`~estimator.learned.sampling.sample_grasp`
         measures it on :meth:`to_record` (no shift, depth images of the estimator's finger, no
         colour or marker images), from the cached depths.
 

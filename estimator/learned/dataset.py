@@ -1,7 +1,7 @@
 """``estimator build-dataset``: labelled grasp records to training samples, split by object.
 
 Every record is measured with the live estimator's own code
-(:func:`~estimator.learned.inputs.sample_grasp`: segmentation, warp, depth,
+(:func:`~estimator.learned.sampling.sample_grasp`: segmentation, warp, depth,
 contact features and the analytical fits of :mod:`estimator.measure`), from
 its frames, forces, widths and timestamps only; simulator internals are never
 read. Each grasp gives up to ``--shifts`` sample sets: set ``k`` starts the
@@ -47,7 +47,8 @@ import numpy as np
 from tqdm import tqdm
 
 from estimator.errors import EstimatorError, SampleError
-from estimator.learned.inputs import MEASUREMENT_VERSION, sample_grasp
+from estimator.learned.inputs import MEASUREMENT_VERSION
+from estimator.learned.sampling import sample_grasp
 from estimator.samples import TrainingSample, save_sample
 from teleop.errors import RecordError
 from teleop.record import find_records, read_record

@@ -1,7 +1,7 @@
 """The run-time learned estimate: record -> sampled frames -> analytical fits -> model -> Estimate.
 
 :class:`HybridEstimator` measures a grasp exactly as the dataset builder did
-(:func:`~estimator.learned.inputs.sample_grasp`: the loading phase sampled at
+(:func:`~estimator.learned.sampling.sample_grasp`: the loading phase sampled at
 the model's ``n_frames``, depth reconstructed for those frames only, contact
 features, every analytical fit over them), runs the ONNX model and returns an
 :class:`~estimator.estimate.Estimate` with method ``"hybrid"`` (a model with
@@ -16,7 +16,7 @@ cannot be sampled, or a model output that is not finite, gives a refusal with
 its reason.
 
 The images are resampled onto the model's input window (:mod:`estimator.learned.inputs`,
-"Input window"), and :func:`~estimator.learned.inputs.sampled_input_range` says whether the
+"Input window"), and :func:`~estimator.learned.sampling.sampled_input_range` says whether the
 sensor's depth grid lies within what the model was trained on: a grid much coarser than the
 model's input pitch is refused (``insufficient_data``, the reason naming both pitches); a pad
 covering little of the window, or a contact cut off by the edge of a pad smaller than the
@@ -56,13 +56,8 @@ from typing import Any
 from estimator.errors import ModelError
 from estimator.estimate import Estimate
 from estimator.learned.infer import CompliancePredictor
-from estimator.learned.inputs import (
-    SampledGrasp,
-    distinct_frames,
-    gel_scale,
-    sample_grasp,
-    sampled_input_range,
-)
+from estimator.learned.inputs import distinct_frames, gel_scale
+from estimator.learned.sampling import SampledGrasp, sample_grasp, sampled_input_range
 from estimator.measure import estimate_grasp
 from estimator.perception.calibration import Calibration
 from teleop.record import GraspRecord
@@ -151,7 +146,7 @@ class HybridEstimator:
         return self.predictor.variant.method
 
     def sample(self, record: GraspRecord) -> SampledGrasp:
-        """The model's view of ``record`` (see :func:`~estimator.learned.inputs.sample_grasp`)."""
+        """The model's view of ``record`` (see :func:`~estimator.learned.sampling.sample_grasp`)."""
         variant = self.predictor.variant
         return sample_grasp(
             record, settings=self.settings, calibration=self.calibration, n_frames=variant.n_frames,

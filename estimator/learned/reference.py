@@ -22,7 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from estimator.learned.inputs import Variant, encode, sample_grasp
+from estimator.learned.inputs import Variant, encode
+from estimator.learned.sampling import sample_grasp
 from teleop.record import read_record
 from teleop.settings import Settings
 

@@ -184,7 +184,7 @@ def test_stream_checks_methods_and_calibration(settings, calibration):
 
 
 def test_the_service_refuses_a_configured_method_it_does_not_know(settings):
-    from estimator.service import configured_methods
+    from estimator.stream import configured_methods
 
     assert configured_methods(settings) == settings.estimator.methods
     typo = dataclasses.replace(settings, estimator=dataclasses.replace(settings.estimator, methods=("split", "hertzz")))
@@ -468,7 +468,7 @@ def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_c
         settings, calibration, records):
     from estimator.learned.hybrid import HybridEstimator
     from estimator.learned.infer import CompliancePredictor, default_model_dir
-    from estimator.learned.inputs import sample_grasp
+    from estimator.learned.sampling import sample_grasp
 
     items, stop_s, stop_read = until_loading_end(records["stress_ball"])
     stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)

@@ -9,7 +9,7 @@ import pytest
 
 from estimator.bench import configurations, pareto_front
 from estimator.cli import main
-from estimator.learned.inputs import decoded
+from estimator.learned.sampling import decoded
 from teleop.errors import SettingsError
 from teleop.record import read_record
 from teleop.settings import load_settings
@@ -80,7 +80,7 @@ def test_bench_runs_on_a_tiny_directory_and_marks_a_frontier(sim_grasps, trained
     assert png.read_bytes()[:4] == b"\x89PNG"
 
 
-@pytest.mark.parametrize("module", ["estimator.learned.dataset", "estimator.learned.train", "estimator.bench"])
+@pytest.mark.parametrize("module", ["estimator.learned.dataset", "estimator.learned.train_cli", "estimator.learned.finetune", "estimator.bench"])
 def test_commands_explain_every_option(module):
     import argparse
     import importlib

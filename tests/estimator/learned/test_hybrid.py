@@ -14,8 +14,9 @@ from estimator.estimate import Estimate
 from estimator.learned.export import export_onnx
 from estimator.learned.hybrid import AutoPolicy, HybridEstimator
 from estimator.learned.infer import CompliancePredictor
-from estimator.learned.inputs import SampledGrasp, decoded, encode, sample_grasp
+from estimator.learned.inputs import encode
 from estimator.learned.model import ComplianceNet
+from estimator.learned.sampling import SampledGrasp, decoded, sample_grasp
 from teleop.record import read_record
 from teleop.settings import load_settings
 

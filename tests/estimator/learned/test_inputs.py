@@ -133,7 +133,7 @@ def _segment(frame_t_s, t_contact_s, t_peak_s):
 
 
 def test_sample_sets_spread_over_the_loading_phase_and_shift_by_a_frame():
-    from estimator.learned.inputs import sample_positions
+    from estimator.learned.sampling import sample_positions
 
     t = np.arange(10) / 30.0  # ten loading frames at 30 Hz
     segment = _segment(t, t_contact_s=0.0, t_peak_s=t[-1])
@@ -150,7 +150,7 @@ def test_sample_sets_spread_over_the_loading_phase_and_shift_by_a_frame():
 def test_sampling_decodes_only_the_reference_and_sampled_frames(sim_grasps):
     from dataclasses import replace
 
-    from estimator.learned.inputs import sample_grasp
+    from estimator.learned.sampling import sample_grasp
     from estimator.measure import REFERENCE_FRAMES, REFERENCE_GUARD_S
     from teleop.record import FrameStream, read_record
     from teleop.settings import load_settings

@@ -14,13 +14,8 @@ import numpy as np
 import pytest
 
 from estimator.errors import EstimatorError, ModelError
-from estimator.learned.inputs import (
-    SampledGrasp,
-    Variant,
-    default_window_m,
-    reduce_images,
-    sampled_input_range,
-)
+from estimator.learned.inputs import Variant, default_window_m, reduce_images
+from estimator.learned.sampling import SampledGrasp, sampled_input_range
 from estimator.learned.window import (
     COVERAGE_WIDENING,
     EDGE_WIDENING,
