@@ -15,6 +15,10 @@ limit; a median below the softest training label gives an ``upper_bound``. The m
 cannot be sampled, or a model output that is not finite, gives a refusal with
 its reason.
 
+A grasp whose rig (gel modulus and thickness, finger stiffness: the record's settings) lies
+outside the rigs the model was trained on (its ``data.rig_range``) has its interval widened
+:data:`RIG_WIDENING` times, and its reason says which quantity and by how much.
+
 The images are resampled onto the model's input window (:mod:`estimator.learned.inputs`,
 "Input window"), and :func:`~estimator.learned.sampling.sampled_input_range` says whether the
 sensor's depth grid lies within what the model was trained on: a grid much coarser than the
@@ -48,8 +52,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -63,12 +67,28 @@ from estimator.perception.calibration import Calibration
 from teleop.record import GraspRecord
 from teleop.settings import Settings
 
-__all__ = ["FALLBACK_ORDER", "MIN_SPLIT_FRAMES", "MODES", "AutoPolicy", "HybridEstimator"]
+__all__ = ["FALLBACK_ORDER", "MIN_SPLIT_FRAMES", "MODES", "RIG_WIDENING", "AutoPolicy", "HybridEstimator", "rig_notes"]
 
 MODES = ("model", "auto")
 MIN_SPLIT_FRAMES = 3
 FALLBACK_ORDER = ("split", "hertz", "elastic", "no_tactile")
 DEFAULT_SPLIT_INTERVAL_DECADES = 0.5
+#: Factor on the interval of a grasp whose rig lies outside the trained ones (as the window's widening).
+RIG_WIDENING = 1.5
+_RIG_NAMES = {"gel_modulus_pa": ("gel modulus", 1e-3, "kPa"), "gel_thickness_m": ("gel thickness", 1e3, "mm"),
+              "finger_stiffness_n_per_m": ("finger stiffness", 1e-3, "kN/m")}
+
+
+def rig_notes(sampled: SampledGrasp, rig_range: Mapping[str, Sequence[float]]) -> tuple[str, ...]:
+    """Why ``sampled``'s rig lies outside ``rig_range`` (a model's ``data.rig_range``), one note per
+    quantity; empty when it lies inside, or where either side does not record the quantity."""
+    notes = []
+    for name, (label, scale, unit) in _RIG_NAMES.items():
+        value, bounds = getattr(sampled, name), rig_range.get(name)
+        if value is not None and bounds is not None and not bounds[0] <= value <= bounds[1]:
+            notes.append(f"{label} {value * scale:.4g} {unit} outside the {bounds[0] * scale:.4g}-"
+                         f"{bounds[1] * scale:.4g} {unit} trained on")
+    return tuple(notes)
 
 
 def interval_decades(estimate: Estimate) -> float:
@@ -193,6 +213,9 @@ class HybridEstimator:
         fit = sampled_input_range(sampled, self.predictor.variant)
         if not fit:
             return _without_model(method, mode, by_method, f"the model does not apply to this sensor: {fit.refusal}")
+        rig = rig_notes(sampled, self.predictor.rig_range)
+        if rig:
+            fit = replace(fit, notes=(*fit.notes, *rig), widen=fit.widen * RIG_WIDENING)
         try:
             probs = self.predictor.predict_distribution([sampled])[0]
         except ModelError as exc:

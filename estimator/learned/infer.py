@@ -215,6 +215,12 @@ class CompliancePredictor:
         return data.get("measurement_version") == MEASUREMENT_VERSION
 
     @property
+    def rig_range(self) -> dict[str, list[float]]:
+        """[least, most] of each rig quantity it was trained on (``data.rig_range``; empty for a model
+        from before the key or trained on samples that do not record their rig)."""
+        return dict((self.metadata.raw.get("data") or {}).get("rig_range") or {})
+
+    @property
     def interval_level(self) -> float:
         """The coverage its ``ok`` intervals state (calibrated on the validation objects)."""
         return self.metadata.interval_level

@@ -87,6 +87,7 @@ __all__ = [
     "REFERENCE_GEL_MODULUS_PA",
     "REFERENCE_GEL_THICKNESS_M",
     "RIG_FEATURES",
+    "RIG_QUANTITIES",
     "MEASUREMENT_VERSION",
     "Variant",
     "analytical_features",
@@ -105,6 +106,8 @@ REFERENCE_GEL_MODULUS_PA = 275e3
 REFERENCE_GEL_THICKNESS_M = 3e-3
 REFERENCE_FINGER_STIFFNESS_N_PER_M = 2e5
 RIG_FEATURES = 2
+#: What a grasp records of the rig that measured it (a sample's fields, a model's ``data.rig_range``).
+RIG_QUANTITIES = ("gel_modulus_pa", "gel_thickness_m", "finger_stiffness_n_per_m")
 ANALYTICAL_METHODS = METHODS
 FEATURES_PER_METHOD = 2 + len(STATES)
 FORCE_SCALE_N = 30.0

@@ -49,6 +49,7 @@ import json
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -77,6 +78,7 @@ from estimator.learned.infer import MODEL_FORMAT, MODEL_VERSION, current_scales
 from estimator.learned.inputs import (
     ANALYTICAL_METHODS,
     MEASUREMENT_VERSION,
+    RIG_QUANTITIES,
     Variant,
     default_window_m,
     distinct_frames,
@@ -147,7 +149,19 @@ def _row(sample: TrainingSample, path: Path) -> dict[str, Any]:
     return {"object": sample.object_name, "augmentation": sample.augmentation,
             "gel_scale": gel_scale(sample.gel_modulus_pa), "material": sample.material or "unknown",
             "shape": sample.shape or "unknown", "truth_pa": sample.label_modulus_pa,
-            "estimates": sample.estimates, "frames": distinct_frames(sample.force_n), "path": str(path)}
+            "estimates": sample.estimates, "frames": distinct_frames(sample.force_n), "path": str(path),
+            **{name: getattr(sample, name) for name in RIG_QUANTITIES}}
+
+
+def rig_range(rows: Sequence[dict[str, Any]]) -> dict[str, list[float]]:
+    """[least, most] of each rig quantity (:data:`RIG_QUANTITIES`) over the samples that record it: the
+    rigs a model was trained on (``metadata.json`` ``data.rig_range``)."""
+    out = {}
+    for name in RIG_QUANTITIES:
+        values = [r[name] for r in rows if r.get(name) is not None]
+        if values:
+            out[name] = [float(min(values)), float(max(values))]
+    return out
 
 
 def load_split_data(data_dir: str | Path, variant: Variant) -> dict[str, SplitData]:
@@ -510,6 +524,7 @@ def train_model(
         "data": {"dir": str(data_dir), **{k: manifest.get(k) for k in (
             "n_frames", "shifts", "size_px", "window_m", "markers", "finger", "depth_binning", "samples", "records",
             "grasps_used", "measurement_version")},
+            "rig_range": rig_range(train.rows),
             # Names, not counts: `estimator evaluate --unseen-by` keeps the records of the test objects.
             "objects": {name: sorted(objects) for name, objects in load_split(data_dir / "split.json").items()},
             "split_seed": json.loads((data_dir / "split.json").read_text()).get("seed")},

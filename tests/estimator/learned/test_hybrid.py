@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import shutil
 
@@ -12,7 +13,7 @@ import torch
 
 from estimator.estimate import Estimate
 from estimator.learned.export import export_onnx
-from estimator.learned.hybrid import AutoPolicy, HybridEstimator
+from estimator.learned.hybrid import RIG_WIDENING, AutoPolicy, HybridEstimator, rig_notes
 from estimator.learned.infer import CompliancePredictor
 from estimator.learned.inputs import encode
 from estimator.learned.model import ComplianceNet
@@ -57,6 +58,25 @@ def test_hard_analytical_inputs_still_give_a_valid_model_estimate(trained_model,
         assert result.state == "ok"
         low, high = result.interval_pa
         assert low <= result.e_pa <= high <= 1e12
+
+
+def test_a_rig_outside_the_trained_ones_widens_the_interval_and_says_why(trained_model, synthetic, tmp_path):
+    inside, outside = tmp_path / "inside", tmp_path / "outside"
+    for dest, gels in ((inside, [2e5, 3e5]), (outside, [3e5, 4e5])):
+        shutil.copytree(trained_model, dest)
+        meta = json.loads((dest / "metadata.json").read_text())
+        meta["data"]["rig_range"] = {"gel_modulus_pa": gels, "gel_thickness_m": [2e-3, 4e-3]}
+        (dest / "metadata.json").write_text(json.dumps(meta))
+    sampled = dataclasses.replace(_sampled(synthetic, "rubber_a"), gel_modulus_pa=2.5e5, gel_thickness_m=3e-3)
+    said = {name: HybridEstimator(CompliancePredictor(d), settings=SETTINGS).estimate_sampled(sampled)
+            for name, d in (("inside", inside), ("outside", outside))}
+    assert said["inside"].state == said["outside"].state == "ok" and said["inside"].e_pa == said["outside"].e_pa
+    assert "outside the training range" not in said["inside"].reason
+    assert "gel modulus 250 kPa outside the 300-400 kPa trained on" in said["outside"].reason
+    assert f"widened {RIG_WIDENING:g} times" in said["outside"].reason
+    widths = {k: math.log10(e.interval_pa[1] / e.interval_pa[0]) for k, e in said.items()}
+    assert widths["outside"] > widths["inside"]  # (clipped at the scale's ends: not always the full factor)
+    assert rig_notes(sampled, {}) == ()  # a model that records no rig range says nothing
 
 
 def test_an_unsampled_grasp_is_refused_with_its_reason(trained_model):

@@ -11,7 +11,7 @@ import pytest
 from estimator.errors import EstimatorError, SampleError
 from estimator.learned.dataset import load_split
 from estimator.learned.inputs import MEASUREMENT_VERSION, Variant, default_window_m
-from estimator.learned.train import TrainConfig, load_split_data, train_model
+from estimator.learned.train import TrainConfig, load_split_data, rig_range, train_model
 
 
 @pytest.mark.slow
@@ -53,6 +53,13 @@ def test_training_stops_early_when_validation_stops_improving(synthetic_dataset,
     training = meta["training"]
     assert training["epochs_run"] == training["best_epoch"] + 2 < 50
     assert meta["training"]["best_val_loss"] == pytest.approx(min(h["val_loss"] for h in training["history"]))
+
+
+def test_the_rig_range_spans_the_samples_that_record_their_rig():
+    rows = [{"gel_modulus_pa": 2.5e5, "gel_thickness_m": 3e-3, "finger_stiffness_n_per_m": None},
+            {"gel_modulus_pa": 1.2e5, "gel_thickness_m": None, "finger_stiffness_n_per_m": None},
+            {"gel_modulus_pa": 4.0e5, "gel_thickness_m": 4.5e-3, "finger_stiffness_n_per_m": None}]
+    assert rig_range(rows) == {"gel_modulus_pa": [1.2e5, 4.0e5], "gel_thickness_m": [3e-3, 4.5e-3]}
 
 
 def test_a_sample_in_the_wrong_split_is_a_leak(synthetic_dataset, tmp_path):
