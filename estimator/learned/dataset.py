@@ -47,7 +47,7 @@ import numpy as np
 from tqdm import tqdm
 
 from estimator.errors import EstimatorError, SampleError
-from estimator.learned.inputs import MEASUREMENT_VERSION
+from estimator.learned.inputs import MEASUREMENT_VERSION, RIG_QUANTITIES
 from estimator.learned.sampling import sample_grasp
 from estimator.samples import TrainingSample, save_sample
 from teleop.errors import RecordError
@@ -186,9 +186,8 @@ def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: 
             object_name=label.object_name, grasp=grasp, augmentation=shift, rgb_diff=sampled.rgb_diff,
             depth_m=sampled.depth_m, force_n=sampled.force_n, width_m=sampled.width_m,
             rgb_diff_markers=sampled.rgb_diff_markers, depth_markers_m=sampled.depth_markers_m,
-            label_modulus_pa=label.modulus_pa, gel_modulus_pa=sampled.gel_modulus_pa,
-            gel_thickness_m=sampled.gel_thickness_m, finger_stiffness_n_per_m=sampled.finger_stiffness_n_per_m,
-            material=label.material, shape=label.shape, estimates=sampled.estimates,
+            label_modulus_pa=label.modulus_pa, material=label.material, shape=label.shape,
+            estimates=sampled.estimates, **{name: getattr(sampled, name) for name in RIG_QUANTITIES},
         )
         # Named by the object's grasp index, not the record's name: records of one object from
         # several runs (rigs, sensors) may share a file name in different folders.

@@ -60,7 +60,7 @@ from typing import Any
 from estimator.errors import ModelError
 from estimator.estimate import Estimate
 from estimator.learned.infer import CompliancePredictor
-from estimator.learned.inputs import distinct_frames, gel_scale
+from estimator.learned.inputs import RIG_QUANTITIES, distinct_frames, gel_scale
 from estimator.learned.sampling import SampledGrasp, sample_grasp, sampled_input_range
 from estimator.measure import estimate_grasp
 from estimator.perception.calibration import Calibration
@@ -75,15 +75,17 @@ FALLBACK_ORDER = ("split", "hertz", "elastic", "no_tactile")
 DEFAULT_SPLIT_INTERVAL_DECADES = 0.5
 #: Factor on the interval of a grasp whose rig lies outside the trained ones (as the window's widening).
 RIG_WIDENING = 1.5
-_RIG_NAMES = {"gel_modulus_pa": ("gel modulus", 1e-3, "kPa"), "gel_thickness_m": ("gel thickness", 1e3, "mm"),
-              "finger_stiffness_n_per_m": ("finger stiffness", 1e-3, "kN/m")}
+# How a reason names each of inputs.RIG_QUANTITIES: label, factor from SI, unit.
+_RIG_LABELS = {"gel_modulus_pa": ("gel modulus", 1e-3, "kPa"), "gel_thickness_m": ("gel thickness", 1e3, "mm"),
+               "finger_stiffness_n_per_m": ("finger stiffness", 1e-3, "kN/m")}
 
 
 def rig_notes(sampled: SampledGrasp, rig_range: Mapping[str, Sequence[float]]) -> tuple[str, ...]:
     """Why ``sampled``'s rig lies outside ``rig_range`` (a model's ``data.rig_range``), one note per
     quantity; empty when it lies inside, or where either side does not record the quantity."""
     notes = []
-    for name, (label, scale, unit) in _RIG_NAMES.items():
+    for name in RIG_QUANTITIES:
+        label, scale, unit = _RIG_LABELS[name]
         value, bounds = getattr(sampled, name), rig_range.get(name)
         if value is not None and bounds is not None and not bounds[0] <= value <= bounds[1]:
             notes.append(f"{label} {value * scale:.4g} {unit} outside the {bounds[0] * scale:.4g}-"
