@@ -5,6 +5,18 @@ forwarded ``grasp_event``), feeds :class:`~haptics.renderer.HapticRenderer` (whi
 mapping, smoothing, staleness, fading and the display's reconnection) and ticks it at
 ``tick_s`` between messages. It publishes heartbeats on its own endpoint (``bus.display_pub``).
 
+What it renders
+---------------
+Every time the renderer writes a report to the display (a changed command, or a keep-alive
+every ``keepalive_s``), the service publishes one ``display`` message on that endpoint
+(latest value; :mod:`teleop.bus.wire` has the schema): the grasp rendered (nil when idle),
+the renderer's phase, the percept as numbers (``stiffness`` as a fraction of the display's
+range, ``uncertainty_decades``, the ``rigid``, ``unknown`` and ``provisional`` flags), the
+modulus the stiffness stands for on the display's range (``E_pa``, nil when free or
+unknown) and the ``level`` written of ``level_max``. ``t_capture_s`` is the time of the
+write on the service's clock. A session log therefore holds what the operator felt. A
+message that cannot be published is logged and dropped: publishing never stops rendering.
+
 Latency
 -------
 For every FINAL estimate it records the end-to-end latency: from the capture of the last
@@ -25,16 +37,19 @@ import json
 import logging
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from typing import Any
 
+import zmq
+
 from haptics.devices import BACKENDS, make_display
 from haptics.errors import HapticsError
-from haptics.mapping import FREE, EstimateUpdate, Percept, to_command
+from haptics.mapping import FREE, EstimateUpdate, Percept, modulus_from_fraction, to_command
 from haptics.renderer import HapticRenderer
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
+from teleop.errors import ComplianceTeleopError
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.settings import default_settings_path, load_settings
 
@@ -83,10 +98,13 @@ class ServiceStats:
     estimates: int = 0
     bad_messages: int = 0
     grasp_ends: int = 0
+    display_messages: int = 0  # ``display`` messages published, one per report written
+    display_failures: int = 0  # reports whose ``display`` message could not be published
     finals: list[FinalLatency] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         return {"estimates": self.estimates, "bad_messages": self.bad_messages, "grasp_ends": self.grasp_ends,
+                "display_messages": self.display_messages, "display_failures": self.display_failures,
                 "finals": [f.to_json() for f in self.finals]}
 
 
@@ -99,7 +117,8 @@ class RendererService:
     subscriber : Subscriber
         Latest-value subscription to :data:`INPUT_TOPICS` on the estimator's endpoint.
     publisher : Publisher, optional
-        Where heartbeats go (``source`` should be ``"renderer"``).
+        Where heartbeats and ``display`` messages go (latest value, ``source`` should be
+        ``"renderer"``).
     report : JsonLines, optional
         Receives one JSON object per final estimate.
     tick_s : float
@@ -122,6 +141,9 @@ class RendererService:
         self.stats = ServiceStats()
         self._received: dict[str, int] = {}
         self._pending: _Pending | None = None
+        self._reports_published = renderer.stats.reports_sent
+        self._last_grasp: Hashable = None  # the grasp active last: the one a fade renders
+        self._publish_failing = False
 
     def run(self, stop: Any, *, duration_s: float | None = None) -> ServiceStats:
         """Serve until ``stop.is_set()`` or ``duration_s`` passed."""
@@ -138,6 +160,7 @@ class RendererService:
         if message is not None:
             self.handle(message)
         self.renderer.tick(self.clock())
+        self._publish_display()
         self._check_pending()
         return message
 
@@ -161,11 +184,58 @@ class RendererService:
             self.stats.bad_messages += 1
             log.warning("estimate from %s (seq %d) not rendered: %s", message.source or "?", message.seq, exc)
             return
+        finally:
+            self._publish_display()  # for a report written on the estimate or the grasp's end
         self.stats.estimates += 1
         self._received[update.grasp_id] = self._received.get(update.grasp_id, 0) + 1
         if not update.provisional and self.renderer.stats.estimates_ignored == ignored_before:
             self._pending = _Pending(update.grasp_id, update, reports_before, self.renderer.target)
             self._check_pending()
+
+    def _display_body(self) -> dict[str, Any]:
+        """The body of a ``display`` message for what the renderer shows now (see the module docstring)."""
+        renderer = self.renderer
+        percept, phase = renderer.percept, renderer.phase
+        grasp_id = {"idle": None, "fading": self._last_grasp}.get(phase, renderer.grasp_id)
+        e_pa = None
+        if percept.stiffness > 0 and not percept.unknown:
+            e_pa = modulus_from_fraction(float(percept.stiffness), e_soft_pa=renderer.settings.e_soft_pa,
+                                         e_rigid_pa=renderer.settings.e_rigid_pa)
+        info, command = renderer.display.info, renderer.command
+        level_max = None if info is None else int(info.level_max)
+        level = None if command is None or level_max is None else int(command.level)
+        return {"grasp_id": None if grasp_id is None else str(grasp_id), "phase": phase,
+                "stiffness": float(percept.stiffness), "uncertainty_decades": float(percept.uncertainty_decades),
+                "rigid": bool(percept.rigid), "unknown": bool(percept.unknown),
+                "provisional": bool(percept.provisional), "E_pa": e_pa, "level": level, "level_max": level_max}
+
+    def _publish_display(self) -> None:
+        """Publish one ``display`` message if the renderer wrote a report since the last one.
+
+        Called right after each renderer call, so the renderer's state is what that report
+        carried. A failure is logged (once per run of failures) and counted; it never
+        reaches the rendering.
+        """
+        if self.renderer.grasp_id is not None:
+            self._last_grasp = self.renderer.grasp_id
+        sent = self.renderer.stats.reports_sent
+        if sent == self._reports_published:
+            return
+        self._reports_published = sent
+        if self.publisher is None:
+            return
+        try:
+            self.publisher.send("display", t_capture_s=self.clock(), **self._display_body())
+        except (ComplianceTeleopError, zmq.ZMQError) as exc:
+            self.stats.display_failures += 1
+            if not self._publish_failing:
+                log.warning("display message not published (rendering goes on): %s", exc)
+            self._publish_failing = True
+            return
+        if self._publish_failing:
+            log.info("display messages published again after %d failure(s)", self.stats.display_failures)
+        self._publish_failing = False
+        self.stats.display_messages += 1
 
     def _check_pending(self) -> None:
         """Record the pending final estimate's latency once a report went out after it."""
@@ -192,7 +262,8 @@ class RendererService:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Render live estimates on the softness display: subscribe to the estimator's estimates "
-        "(latest value) and drive the display, heartbeating on the display endpoint. Records the "
+        "(latest value) and drive the display, publishing heartbeats and one 'display' message per "
+        "report written (what the display renders, as numbers) on the display endpoint. Records the "
         "latency from the last loading frame's capture to the display report for every final "
         "estimate. Stops on Ctrl-C or SIGTERM."
     )
@@ -210,7 +281,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration-s", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
     parser.add_argument("--json", action="store_true",
-                        help="on exit print one JSON object (estimates, bad_messages, grasp_ends, finals) "
+                        help="on exit print one JSON object (estimates, bad_messages, grasp_ends, display_messages, "
+                             "display_failures, finals) "
                              "as the last stdout line")
 
 
@@ -231,7 +303,8 @@ def run(args: argparse.Namespace) -> int:
         ):
             service = RendererService(renderer, subscriber=subscriber, publisher=publisher, report=report,
                                       tick_s=args.tick_s)
-            print(f"renderer: {display} from estimates on {bus.estimate_pub}, heartbeat on {publisher.endpoint}",
+            print(f"renderer: {display} from estimates on {bus.estimate_pub}, heartbeat and display messages on "
+                  f"{publisher.endpoint}",
                   file=sys.stderr)
             stats = service.run(signals.stop, duration_s=args.duration_s)
     finally:

@@ -65,6 +65,19 @@ Message types and body schemas
                  (estimator service: reload its learned model between grasps),
                  grasp_id: str|nil, params: {str: finite float} (e.g. ``target_force_n``).
 ``heartbeat``    interval_s: float > 0, the sender's heartbeat period.
+``display``      what the haptic renderer wrote to the softness display, one per report written
+                 (``haptics serve``, on ``bus.display_pub``; ``t_capture_s`` is the write time
+                 on the renderer's clock): grasp_id: str|nil (nil when idle),
+                 phase: "idle"|"active"|"stale"|"fading", stiffness: float in [0, 1] (fraction
+                 of the display's range, 1 = the rigid end), uncertainty_decades: float >= 0,
+                 rigid: bool, unknown: bool (not both), provisional: bool,
+                 E_pa: float > 0 | nil (the modulus the stiffness stands for on the display's
+                 range; nil exactly when stiffness is 0 or unknown is set),
+                 level: int >= 0 | nil and level_max: int >= 1 | nil (the quantised level
+                 written and the display's full scale; level <= level_max, level needs level_max).
+
+Adding a message type changes no existing message, so it keeps the version: a receiver that
+predates a type refuses its messages as ``unknown_type`` and goes on with the rest.
 """
 
 from __future__ import annotations
@@ -94,6 +107,7 @@ from teleop.states import ESTIMATE_STATES
 
 __all__ = [
     "COMMAND_ACTIONS",
+    "DISPLAY_PHASES",
     "DTYPES",
     "ESTIMATE_STATES",
     "MAX_BODY_BYTES",
@@ -122,6 +136,9 @@ MAX_PARAMS = 32
 
 # The robot node carries out the first three; the estimator service the last.
 COMMAND_ACTIONS = ("start_grasp", "stop", "release", "reload_model")
+
+# The haptic renderer's phases (haptics.renderer.HapticRenderer.phase).
+DISPLAY_PHASES = ("idle", "active", "stale", "fading")
 
 REJECT_REASONS = (
     "frame_count",  # fewer than 3 frames, or more buffers than MAX_BUFFERS
@@ -176,6 +193,34 @@ def _estimate_rule(body: dict[str, Any]) -> None:
         raise MessageRejected("mistyped_field", "estimate with state 'ok' has no E_pa")
     if body["state"] == "insufficient_data" and body["E_pa"] is not None:
         raise MessageRejected("mistyped_field", "estimate with state 'insufficient_data' carries an E_pa")
+
+
+def _optional(check: Callable[[Any, str], Any]) -> Callable[[Any, str], Any]:
+    """``check``, or nil."""
+
+    def optional(value: Any, where: str) -> Any:
+        return None if value is None else check(value, where)
+
+    return optional
+
+
+def _display_rule(body: dict[str, Any]) -> None:
+    if body["stiffness"] > 1.0:
+        raise MessageRejected("mistyped_field", f"display.stiffness = {body['stiffness']}: expected <= 1")
+    if body["rigid"] and body["unknown"]:
+        raise MessageRejected("mistyped_field", "display with both rigid and unknown set")
+    has_modulus = body["stiffness"] > 0 and not body["unknown"]
+    if has_modulus != (body["E_pa"] is not None):
+        raise MessageRejected(
+            "mistyped_field",
+            "display.E_pa must be given exactly when stiffness > 0 and not unknown "
+            f"(stiffness {body['stiffness']}, unknown {body['unknown']}, E_pa {body['E_pa']})",
+        )
+    level, level_max = body["level"], body["level_max"]
+    if level is not None and level_max is None:
+        raise MessageRejected("mistyped_field", f"display.level = {level} without a level_max")
+    if level is not None and level > level_max:
+        raise MessageRejected("mistyped_field", f"display.level = {level}: above level_max = {level_max}")
 
 
 # Timestamps stay float64: float32 would round monotonic seconds (~1e5 s) to ~8 ms.
@@ -236,6 +281,22 @@ SCHEMAS: Mapping[str, Schema] = {
         nullable=frozenset({"grasp_id"}),
     ),
     "heartbeat": Schema(fields={"interval_s": number_field(lo=0.0, lo_open=True)}),
+    "display": Schema(
+        fields={
+            "grasp_id": text_field(nullable=True),
+            "phase": text_field(choices=DISPLAY_PHASES),
+            "stiffness": number_field(lo=0.0),
+            "uncertainty_decades": number_field(lo=0.0),
+            "rigid": flag_field,
+            "unknown": flag_field,
+            "provisional": flag_field,
+            "E_pa": number_field(lo=0.0, lo_open=True, nullable=True),
+            "level": _optional(integer_field(lo=0)),
+            "level_max": _optional(integer_field(lo=1)),
+        },
+        nullable=frozenset({"grasp_id", "E_pa", "level", "level_max"}),
+        rule=_display_rule,
+    ),
 }
 
 

@@ -69,6 +69,14 @@ def _examples() -> dict[str, Message]:
         ),
         "command": make_message("command", t_capture_s=0.0, action="start_grasp", grasp_id="g2", params={"target_force_n": 20, "hold_s": 0.5}),
         "heartbeat": make_message("heartbeat", t_capture_s=10.0, interval_s=0.5),
+        "display_active": make_message(
+            "display", t_capture_s=2.2, grasp_id="g1", phase="active", stiffness=0.42, uncertainty_decades=0.3,
+            rigid=False, unknown=False, provisional=True, E_pa=1.2e5, level=1720, level_max=4095,
+        ),
+        "display_idle": make_message(
+            "display", t_capture_s=9.0, phase="idle", stiffness=0.0, uncertainty_decades=0.0,
+            rigid=False, unknown=False, provisional=False,
+        ),
     }
 
 
@@ -239,6 +247,45 @@ def test_estimate_states_are_consistent():
         make_message("estimate", t_capture_s=0.0, E_pa=None, state="ok", **base)
     with pytest.raises(MessageRejected, match="carries an E_pa"):
         make_message("estimate", t_capture_s=0.0, E_pa=1e5, state="insufficient_data", **base)
+
+
+def test_display_fields_are_checked():
+    frames = _frames("display_active")
+    assert decode(frames, max_bytes=MAX).body["level"] == 1720
+    idle = decode(_frames("display_idle"), max_bytes=MAX).body
+    assert (idle["grasp_id"], idle["E_pa"], idle["level"], idle["level_max"]) == (None, None, None, None)
+    assert _refused(_with_body(frames, drop="phase")) == "missing_field"
+    assert _refused(_with_body(frames, drop="E_pa")) == "missing_field"  # nullable, but always present on the wire
+    assert _refused(_with_body(frames, stale=True)) == "extra_field"
+    refusals = {
+        "phase": ("resting", "mistyped_field"),
+        "stiffness": (1.5, "mistyped_field"),
+        "uncertainty_decades": (-0.1, "mistyped_field"),
+        "rigid": (1, "mistyped_field"),
+        "provisional": (None, "mistyped_field"),
+        "E_pa": (0.0, "mistyped_field"),
+        "level": (-1, "mistyped_field"),
+        "level_max": (0, "mistyped_field"),
+        "grasp_id": (7, "mistyped_field"),
+    }
+    for field, (value, reason) in refusals.items():
+        assert _refused(_with_body(frames, **{field: value})) == reason, field
+    assert _refused(_with_body(frames, stiffness=-0.01)) == "mistyped_field"
+    assert _refused(_with_body(frames, stiffness=math.nan)) == "not_finite"
+    assert _refused(_with_body(frames, E_pa=math.inf)) == "not_finite"
+    assert _refused(_with_body(frames, level=2.0)) == "mistyped_field"
+    assert _refused(_with_body(frames, level=4096)) == "mistyped_field"  # above level_max
+    assert _refused(_with_body(frames, level_max=None)) == "mistyped_field"  # a level needs its full scale
+    assert _refused(_with_body(frames, rigid=True, unknown=True)) == "mistyped_field"
+    # E_pa is the modulus of a stiffness on the display: there exactly when stiffness > 0 and not unknown.
+    assert _refused(_with_body(frames, E_pa=None)) == "mistyped_field"
+    assert _refused(_with_body(frames, unknown=True)) == "mistyped_field"
+    assert _refused(_with_body(_frames("display_idle"), E_pa=5e3)) == "mistyped_field"
+    unknown = _with_body(frames, unknown=True, E_pa=None)
+    assert decode(unknown, max_bytes=MAX).body["unknown"] is True
+    with pytest.raises(MessageRejected, match="stiffness"):
+        make_message("display", t_capture_s=0.0, phase="active", stiffness=1.0001, uncertainty_decades=0.0,
+                     rigid=True, unknown=False, provisional=False, E_pa=1e6)
 
 
 def test_senders_cannot_emit_what_receivers_refuse():
