@@ -10,7 +10,7 @@ PIP := $(BIN)/python -m pip
 CONSTRAINTS := constraints.txt
 PYTEST_ARGS ?=
 
-.PHONY: demo test lint install install-dev model evaluate cross-sensor fine-tune clean
+.PHONY: demo test lint browser install install-dev model evaluate cross-sensor fine-tune clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -34,7 +34,13 @@ demo: $(VENV)/.installed-run
 lint: $(VENV)/.installed-dev
 	$(BIN)/ruff check .
 
-test: lint
+# Headless Chromium, for the report's browser test and `teleop report --screenshot`: installed when missing
+# (as root), else how to install it is printed and the test skips (it fails where CI=true).
+browser:
+	@command -v chromium >/dev/null || { if [ "$$(id -u)" = 0 ]; then apt-get update -q && apt-get install -y -q chromium; \
+		else echo "no chromium: install it with sudo apt-get install -y chromium"; fi; }
+
+test: lint browser
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
 # Retrain the default model from scratch: the model card's recipe (about 70 minutes on 2 cores, measured).

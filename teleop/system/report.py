@@ -1,0 +1,379 @@
+"""``teleop report``: a session log as a web page to look at and share.
+
+``teleop report LOG --out DIR`` writes ``DIR/index.html`` and, beside it, the PNG figures it
+shows through relative links: the folder is the report (copy or zip it whole; a single PNG can
+be shared on its own), it needs no network and no JavaScript, and the page stays small and
+quick to open however many grasps the session has (inline base64 would make it a third larger
+and the figures harder to pass around alone).
+
+The page starts with a summary table (one row per grasp: object, label E, final estimate,
+interval, state, what the display rendered, |log10 error|) and the final estimates against their
+labels (log-log, factor-2 band); then, per grasp, the final state and its reason, the tactile
+frames of each finger before contact, mid-loading and at the peak force with the depth the
+estimator's perception reconstructs from them (:mod:`teleop.system.report_data`), and force,
+width, the provisional and final estimates with their intervals, and what the display rendered
+(``display`` messages; older logs have none, and the page says so) over time
+(:mod:`teleop.system.report_figures`).
+
+``--screenshot PNG`` also renders the written page in headless Chromium, the whole page (blank
+rows below the content cut off), so the report can be checked or shared as one picture.
+"""
+
+from __future__ import annotations
+
+import argparse
+import html
+import logging
+import re
+import shutil
+import subprocess
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from teleop.errors import SessionLogError, TeleopError
+from teleop.session.export import session_grasps
+from teleop.session.logfile import LogReader
+from teleop.system.report_data import GraspView, grasp_messages, log_calibrations, tactile_moments
+from teleop.system.report_figures import predictions_figure, tactile_figure, timeline_figure
+
+__all__ = ["Report", "ReportError", "build_report", "find_chromium", "run_chromium", "screenshot"]
+
+CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
+CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                  "--disable-component-update", "--disable-sync", "--no-first-run", "--hide-scrollbars")
+MAX_SCREENSHOT_PX = 32000  # the tallest window tried (Chromium 150 renders it whole, ~10 s); a longer page is cut
+_BOUND = {"lower_bound": "\u2265 ", "upper_bound": "\u2264 "}
+DASH, INFINITY = "\u2013", "\u221e"
+
+
+log = logging.getLogger(__name__)
+
+
+class ReportError(TeleopError):
+    """A report cannot be written, or its page cannot be rendered (no Chromium, Chromium failed)."""
+
+
+@dataclass(frozen=True)
+class Report:
+    """A written report: its page, its figures (name: (width, height) px) and its grasps."""
+
+    index: Path
+    figures: dict[str, tuple[int, int]]
+    views: list[GraspView]
+
+
+# --------------------------------------------------------------------------- cells
+
+
+def _pa(value: float | None) -> str:
+    return DASH if value is None else f"{value:.3g}"
+
+
+def _final_cell(view: GraspView) -> str:
+    final = view.final
+    if final is None:
+        return "no final estimate"
+    return DASH if final.e_pa is None else f"{_BOUND.get(final.state, '')}{_pa(final.e_pa)} Pa"
+
+
+def _interval_cell(view: GraspView) -> str:
+    final = view.final
+    if final is None or final.interval_pa == (None, None):
+        return DASH
+    low, high = final.interval_pa
+    return f"[{'0' if low is None else _pa(low)}, {INFINITY if high is None else _pa(high)}] Pa"
+
+
+def _display_cell(view: GraspView, recorded: bool) -> str:
+    """What the display settled on for the grasp: ``unknown (free)``, ``rigid``, or the fraction of
+    its range with the modulus it stands for; ``not recorded`` for a log without display messages."""
+    if not recorded:
+        return "not recorded"
+    d = view.rendered
+    if d is None:
+        return "nothing for this grasp"
+    if d.unknown:
+        return "unknown (free)"
+    if d.rigid:
+        return "rigid" + ("" if d.e_pa is None else f" (\u2265 {_pa(d.e_pa)} Pa)")
+    return f"{d.stiffness:.2f} of range" + ("" if d.e_pa is None else f" (~{_pa(d.e_pa)} Pa)")
+
+
+def _error_cell(view: GraspView) -> str:
+    error = view.log10_error
+    return DASH if error is None else f"{abs(error):.2f}"
+
+
+# --------------------------------------------------------------------------- page
+
+_CSS = """
+body { font-family: system-ui, sans-serif; color: #222; background: #fff; max-width: 1320px;
+       margin: 1.5em auto; padding: 0 1em; }
+h1 { margin-bottom: 0.2em; } h2 { margin-top: 2em; border-bottom: 1px solid #ccc; }
+table { border-collapse: collapse; margin: 0.8em 0; font-size: 14px; }
+th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: left; vertical-align: top; }
+th { background: #f2f2f2; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
+table.facts th { width: 12em; } .reason { max-width: 70em; font-size: 13px; }
+img { max-width: 100%; height: auto; display: block; margin: 0.5em 0; }
+.note { color: #8a4b00; } .meta { color: #555; font-size: 13px; }
+figure { margin: 1em 0; } figcaption { color: #555; font-size: 13px; }
+"""
+
+
+def _e(text: object) -> str:
+    return html.escape(str(text))
+
+
+def _figure(name: str, size: tuple[int, int], alt: str, caption: str) -> str:
+    return (f'<figure><img src="{_e(name)}" width="{size[0]}" height="{size[1]}" alt="{_e(alt)}">'
+            f"<figcaption>{_e(caption)}</figcaption></figure>")
+
+
+def _summary(views: Sequence[GraspView], recorded: bool) -> str:
+    head = ("grasp", "object", "label E", "final estimate", "interval", "state", "display rendered",
+            "|log10 error|")
+    rows = []
+    for v in views:
+        final = v.final
+        cells = (f'<a href="#{_e(_anchor(v))}">{_e(v.grasp_id)}</a>', _e(v.object_name or DASH),
+                 _e(_pa(v.label_pa)), _e(_final_cell(v)), _e(_interval_cell(v)),
+                 _e(final.state if final else DASH), _e(_display_cell(v, recorded)), _e(_error_cell(v)))
+        rows.append("<tr>" + "".join(
+            f'<td class="num">{c}</td>' if i in (2, 3, 7) else f"<td>{c}</td>" for i, c in enumerate(cells)
+        ) + "</tr>")
+    errors = [abs(v.log10_error) for v in views if v.log10_error is not None]
+    closing = (f'<p>Mean |log10 error| {np.mean(errors):.2f} decades over {len(errors)} labelled estimates; '
+               f"{sum(e <= np.log10(2) for e in errors)} within a factor 2.</p>" if errors else "")
+    return ('<table class="summary"><thead><tr>' + "".join(f"<th>{_e(h)}</th>" for h in head)
+            + "</tr></thead><tbody>" + "".join(rows) + "</tbody></table>" + closing)
+
+
+def _anchor(view: GraspView) -> str:
+    return "grasp-" + re.sub(r"[^A-Za-z0-9_-]+", "_", view.grasp_id)
+
+
+def _grasp_section(view: GraspView, figures: dict[str, tuple[int, int]], recorded: bool) -> str:
+    anchor, final = _anchor(view), view.final
+    facts = [("label E (catalogue)", _pa(view.label_pa) + (" Pa" if view.label_pa else " (no label)")),
+             ("final estimate", _final_cell(view) + (f" ({final.method})" if final else "")),
+             ("interval", _interval_cell(view)),
+             ("final state", final.state if final else "no final estimate"),
+             ("reason", final.reason if final else DASH),
+             ("display rendered", _display_cell(view, recorded)),
+             ("estimates", f"{len(view.estimates)} ({sum(e.provisional for e in view.estimates)} provisional)")]
+    parts = [f'<section id="{_e(anchor)}"><h2>Grasp {_e(view.grasp_id)}: {_e(view.object_name or "unnamed")}</h2>',
+             '<table class="facts">' + "".join(
+                 f'<tr><th>{_e(k)}</th><td{" class=reason" if k == "reason" else ""}>{_e(v)}</td></tr>'
+                 for k, v in facts) + "</table>"]
+    if view.reason:
+        parts.append(f'<p class="note">No frames, force or width to show: {_e(view.reason)}.</p>')
+    parts += [f'<p class="note">{_e(note)}</p>' for note in view.notes]
+    if f"{anchor}-tactile.png" in figures:
+        parts.append(_figure(f"{anchor}-tactile.png", figures[f"{anchor}-tactile.png"], "tactile frames and depth",
+                             "Each finger's frame (warped and cropped onto the depth grid) and the depth the "
+                             "estimator's perception reconstructs from it with the calibration the log carries."))
+    if f"{anchor}-timeline.png" in figures:
+        shown = ("What the display rendered: the bottom panel (fraction of its range) and the orange step "
+                 "in the estimate panel (the modulus that fraction stands for)." if view.display
+                 else "What the display rendered: " + _display_cell(view, recorded) + ".")
+        parts.append(_figure(f"{anchor}-timeline.png", figures[f"{anchor}-timeline.png"], "force, width, estimates",
+                             "Force and width; provisional (small) and final (large) estimates with their "
+                             "intervals on a log scale against the label (dashed). " + shown))
+    return "".join(parts) + "</section>"
+
+
+def _page(log: Path, info_lines: Sequence[str], views: Sequence[GraspView], figures: dict[str, tuple[int, int]],
+          recorded: bool) -> str:
+    return "".join([
+        '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">',
+        f"<title>Grasp report: {_e(log.name)}</title><style>{_CSS}</style></head><body>",
+        f"<h1>Grasp report: {_e(log.name)}</h1>",
+        '<p class="meta">' + "<br>".join(_e(line) for line in info_lines) + "</p>",
+        "<h2>Summary</h2>", _summary(views, recorded),
+        _figure("predictions.png", figures["predictions.png"], "predictions versus label",
+                "Final estimates against their catalogue labels (log-log); grey: within a factor 2."),
+        *(_grasp_section(v, figures, recorded) for v in views),
+        "</body></html>\n",
+    ])
+
+
+# --------------------------------------------------------------------------- build
+
+
+def build_report(
+    log: str | Path, out: str | Path, *, catalogue: str | Path | None = None, progress: bool = False
+) -> Report:
+    """Write the report of session log ``log`` into the directory ``out`` (created).
+
+    Parameters
+    ----------
+    log : str or Path
+        A session log (MCAP) written by ``teleop record`` or ``teleop demo``.
+    out : str or Path
+        Directory for ``index.html`` and its PNGs; files of the same names are replaced.
+    catalogue : str or Path, optional
+        Object catalogue for the labels; default: the one stored in the log.
+    progress : bool
+        Show a progress bar over the grasps.
+
+    Raises
+    ------
+    SessionLogError
+        The log is missing, not a session log, holds no settings or no grasp.
+    ReportError
+        ``out`` cannot be created or written.
+    """
+    log, out = Path(log), Path(out)
+    reader = LogReader(log)
+    info = reader.info()
+    if info.damage and not info.attachments:
+        raise SessionLogError(f"{log}: the session log is damaged before its settings: {info.damage}")
+    settings = info.settings()
+    messages, recorded = grasp_messages(reader)
+    calibrations = log_calibrations(info, settings)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ReportError(f"cannot create the report directory {out}: {exc.strerror or exc}") from exc
+    views, figures = [], {}
+    grasps = session_grasps(log, catalogue=catalogue)
+    try:
+        for grasp in tqdm(grasps, desc=f"report {log.name}", unit="grasp", total=len(messages),
+                          disable=not progress):
+            view = messages.pop(grasp.grasp_id, None) or GraspView(grasp.grasp_id)
+            view.take(grasp.record, grasp.reason)
+            views.append(view)
+            if view.record is None:
+                continue
+            tactile_moments(view, settings=settings, calibrations=calibrations)
+            anchor = _anchor(view)
+            if view.moments:
+                figures[f"{anchor}-tactile.png"] = tactile_figure(view, out / f"{anchor}-tactile.png")
+            figures[f"{anchor}-timeline.png"] = timeline_figure(view, out / f"{anchor}-timeline.png",
+                                                                display_recorded=recorded)
+            view.record, view.moments = None, []  # drawn: a long session's frames need not stay in memory
+        if not views:
+            raise SessionLogError(f"{log}: no grasp in the log (no grasp_event start message): nothing to report")
+        for view in messages.values():  # estimates or renderings of grasps the log never started
+            view.reason = "the log has no grasp_event start for this grasp id"
+            views.append(view)
+        figures["predictions.png"] = predictions_figure(views, out / "predictions.png")
+        session = info.session
+        lines = [f"log {log.resolve()}",
+                 f"scene {session.get('scene') or '-'}, {session.get('source', 'unknown source')}, "
+                 f"recorded {session.get('start_utc', 'at an unknown time')} with compliance-teleop "
+                 f"{session.get('software_version', '?')} on {session.get('host', '?')}",
+                 f"{len(views)} grasps; depth on the estimator's grid (binning {settings.estimator.depth_binning}, "
+                 "1 for fingers with markers); display messages "
+                 + ("recorded" if recorded else "not recorded (the log has none)")]
+        if info.damage:
+            lines.append(f"the log is damaged; read up to the damage: {info.damage}")
+        index = out / "index.html"
+        index.write_text(_page(log, lines, views, figures, recorded), encoding="utf-8")
+    except OSError as exc:
+        raise ReportError(f"cannot write the report into {out}: {exc.strerror or exc}") from exc
+    return Report(index, figures, views)
+
+
+# --------------------------------------------------------------------------- chromium
+
+
+def find_chromium() -> str | None:
+    """The first Chromium (or Chrome) executable on PATH, or None."""
+    return next((path for name in CHROMIUM_NAMES if (path := shutil.which(name))), None)
+
+
+def run_chromium(page: Path, *args: str, chromium: str | None = None, timeout_s: float = 120.0) -> str:
+    """Run headless Chromium on ``page`` with ``args`` added to :data:`CHROMIUM_FLAGS` (a throw-away
+    profile, no network services); returns its stdout.
+
+    Raises
+    ------
+    ReportError
+        No Chromium is installed (and ``chromium`` names none), it fails or it runs past ``timeout_s``.
+    """
+    chromium = chromium or find_chromium()
+    if chromium is None:
+        raise ReportError("no Chromium found (looked for " + ", ".join(CHROMIUM_NAMES) + " on PATH): install it, "
+                          "e.g. `apt-get install -y chromium` (or `make browser`)")
+    with tempfile.TemporaryDirectory(prefix="teleop-report-chromium-") as profile:
+        command = [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", *args, Path(page).resolve().as_uri()]
+        try:
+            done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s, check=False)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            raise ReportError(f"headless Chromium ({chromium}) on {page} failed: {exc}") from exc
+    if done.returncode != 0:
+        raise ReportError(f"headless Chromium ({chromium}) on {page} exited with {done.returncode}: "
+                          f"{done.stderr.strip()[-500:]}")
+    return done.stdout
+
+
+def _page_height_px(report: Report, width_px: int) -> int:
+    """More than the page's height at ``width_px``: the figures' shown heights plus room for text."""
+    content = min(width_px - 60, 1320)
+    figures = sum(h * min(1.0, content / w) for w, h in report.figures.values())
+    return int(min(MAX_SCREENSHOT_PX, 1.2 * figures + 900 + 500 * len(report.views)))
+
+
+def screenshot(report: Report, png: str | Path, *, width_px: int = 1400, chromium: str | None = None) -> Path:
+    """Render ``report``'s page in headless Chromium into ``png``: the whole page (up to
+    :data:`MAX_SCREENSHOT_PX` tall) at ``width_px``, the blank rows below it cut off.
+
+    Raises
+    ------
+    ReportError
+        As :func:`run_chromium`, or Chromium wrote no image.
+    """
+    png = Path(png).resolve()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    png.unlink(missing_ok=True)
+    height = _page_height_px(report, width_px)
+    if height == MAX_SCREENSHOT_PX:
+        log.warning("the page may be taller than the screenshot's %d px: its end is cut off", height)
+    run_chromium(report.index, f"--screenshot={png}", f"--window-size={width_px},{height}", chromium=chromium)
+    image = cv2.imread(str(png), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ReportError(f"headless Chromium wrote no readable screenshot at {png}")
+    rows = np.flatnonzero((image != image[-1:, :]).any(axis=(1, 2)))  # rows unlike the blank bottom one
+    if rows.size and rows[-1] + 40 < image.shape[0]:
+        cv2.imwrite(str(png), image[: rows[-1] + 40])
+    return png
+
+
+# --------------------------------------------------------------------------- command
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Write a web page (DIR/index.html with its PNG figures beside it; no network, no JavaScript) "
+        "for a session log: a summary table of the grasps (object, label E, final estimate, interval, "
+        "state, what the display rendered, |log10 error|) and the final estimates against their labels; "
+        "per grasp, each finger's tactile frames before contact, mid-loading and at the peak force with the "
+        "depth reconstructed from them (the log's calibration), force and width with the loading phase "
+        "shaded, the provisional and final estimates with their intervals against the label, the final "
+        "state and its reason, and what the display rendered (when the log recorded it). Open the page in "
+        "any browser, or add --screenshot for one PNG of it (needs Chromium)."
+    )
+    parser.add_argument("log", metavar="LOG", help="session log (.mcap) written by `teleop record` or `teleop demo`")
+    parser.add_argument("--out", required=True, metavar="DIR", help="directory for index.html and its PNGs (created)")
+    parser.add_argument("--objects", metavar="PATH", default=None,
+                        help="object catalogue for the labels; None: the catalogue stored in the log")
+    parser.add_argument("--screenshot", metavar="PNG", default=None,
+                        help="also render the page with headless Chromium into this PNG (whole page)")
+    parser.add_argument("--width", type=int, default=1400, metavar="PX", help="screenshot width in pixels")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.width < 400:
+        raise ReportError(f"--width {args.width}: expected at least 400 px")
+    report = build_report(args.log, args.out, catalogue=args.objects, progress=True)
+    print(f"report: {report.index} ({len(report.views)} grasps, {len(report.figures)} figures)")
+    if args.screenshot:
+        print(f"screenshot: {screenshot(report, args.screenshot, width_px=args.width)}")
+    return 0
