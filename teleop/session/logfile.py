@@ -1,7 +1,7 @@
 """The session log: one MCAP file per teleoperation session, and how to read it back.
 
-Layout
-------
+Layout (format :data:`FORMAT_VERSION`)
+--------------------------------------
 ``Header``
     profile :data:`PROFILE`, library ``compliance-teleop <version>; mcap-python <version>``.
 ``Schema`` (one per bus message type, registered on the type's first message)
@@ -14,22 +14,40 @@ Layout
     ``data``: the message's ZeroMQ frames ``[topic, header, body, *buffers]`` exactly as
     received, never re-encoded, in this container (all integers little-endian uint32)::
 
-        n | len(frame 0) | ... | len(frame n-1) | frame 0 | ... | frame n-1
+        n + flags | len(frame 0) | ... | len(frame n-1) | frame 0 | ... | frame n-1
 
     with ``3 <= n <= 3 + MAX_BUFFERS`` and the lengths summing to the rest of the data.
+    ``flags`` is 0, or :data:`ELIDED` for a JPEG or PNG ``frame`` message: its last frame
+    (the image bytes) is then listed with its length but not stored here, because the
+    ``foxglove.CompressedImage`` message stored immediately before it, with the same
+    ``log_time`` and ``sequence``, holds those very bytes as its ``data``; the reader
+    puts them back, so it yields the frames exactly as received.
     ``log_time``: receive time, ``time.monotonic_ns()`` of the recording host.
     ``publish_time``: the header's ``t_send_ns`` (the sender's ``time.monotonic_ns()``), so on
     one host ``log_time - publish_time`` is the transit latency. ``sequence``: the header's
     ``seq`` modulo 2**32.
+Foxglove channels (:mod:`teleop.session.foxglove`: what each bus type becomes and why)
+    ``/tactile/<finger>`` (``foxglove.CompressedImage``), ``/events`` (``foxglove.Log``), both
+    protobuf with a ``FileDescriptorSet`` schema; ``/force``, ``/width``, ``/estimate``,
+    ``/display``, ``/command`` as JSON with a JSON Schema. Each is written just before the bus
+    message it comes from, with its receive time as ``log_time`` (a force or width sample:
+    minus its age in its batch), the same ``publish_time`` and ``sequence``. Readers of the
+    bus messages skip these channels (all but the image data above).
 ``Attachment``
     :data:`SETTINGS_ATTACHMENT` (the resolved settings as JSON, ``settings_to_mapping``),
     ``calibration/<finger>/<file>`` (each sensor's calibration file as it was on disk),
     ``catalogue.toml`` or ``catalogue.csv`` (the object catalogue, for labels) and
     ``scene.toml`` when the session ran a scene.
 ``Metadata``
-    :data:`SESSION_METADATA` at the start (software version, scene, source, start time,
-    clocks, endpoints) and :data:`END_METADATA` at a clean stop (counts, refusals, gaps,
-    the write error if there was one). A log without the latter was not closed cleanly.
+    :data:`SESSION_METADATA` at the start (software version, log format, scene, source,
+    start time, clocks, endpoints), :data:`RIG_METADATA` (each finger's gel modulus,
+    Poisson ratio and thickness, pixel pitch, markers; the gripper's finger stiffness:
+    what Foxglove's metadata panel shows) and :data:`END_METADATA` at a clean stop (counts,
+    refusals, gaps, the write error if there was one). A log without the latter was not
+    closed cleanly.
+
+Format 1 (before the Foxglove channels) had only the bus channels, message encoding
+``compliance-teleop.multipart/1`` and no flags; :class:`LogReader` reads both.
 
 Chunks are small (:data:`CHUNK_BYTES`) and closed at least every ``flush_interval_s``
 (the recorder's option), and every chunk goes to the operating system as soon as it is
@@ -53,26 +71,35 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcap.records import Attachment, Channel, Header, McapRecord, Message, Metadata
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from google.protobuf.message import DecodeError
+from mcap.records import Attachment, Channel, Header, McapRecord, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES
 from teleop.bus.wire import MAX_BUFFERS, SCHEMA_VERSION, SCHEMAS, decode
 from teleop.bus.wire import Message as BusMessage
 from teleop.errors import MessageRejected, SessionLogError
+from teleop.session.foxglove import IMAGE_SCHEMA
 from teleop.settings import Settings, settings_from_mapping
 
 __all__ = [
+    "BUS_ENCODINGS",
     "CHUNK_BYTES",
+    "ELIDED",
     "END_METADATA",
+    "FORMAT_VERSION",
     "MESSAGE_ENCODING",
     "PROFILE",
+    "RIG_METADATA",
     "SCHEMA_ENCODING",
     "SESSION_METADATA",
     "SETTINGS_ATTACHMENT",
     "LogInfo",
     "LogReader",
     "LoggedMessage",
+    "StoredFrames",
+    "elides",
     "pack_frames",
     "schema_data",
     "unpack_frames",
@@ -81,10 +108,13 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 PROFILE = "compliance-teleop.session"
-MESSAGE_ENCODING = "compliance-teleop.multipart/1"
+FORMAT_VERSION = 2  # in the session metadata as "log_format"; 1: no Foxglove channels
+MESSAGE_ENCODING = f"compliance-teleop.multipart/{FORMAT_VERSION}"
+BUS_ENCODINGS = ("compliance-teleop.multipart/1", MESSAGE_ENCODING)  # channels of bus messages
 SCHEMA_ENCODING = "compliance-teleop.wire/1"
 SETTINGS_ATTACHMENT = "settings.json"
 SESSION_METADATA = "session"
+RIG_METADATA = "rig"
 END_METADATA = "session_end"
 CHUNK_BYTES = 256 * 1024
 FRAMING = (
@@ -94,27 +124,46 @@ FRAMING = (
 
 _U32 = struct.Struct("<I")
 MIN_FRAMES, MAX_FRAMES = 3, 3 + MAX_BUFFERS
+ELIDED = 0x1_0000  # flag added to the frame count: the last frame's bytes are stored elsewhere
 
 
-def pack_frames(frames: Sequence[Any]) -> bytes:
-    """One message's frames (bytes, memoryviews or ``zmq.Frame``) in the log's container."""
+def pack_frames(frames: Sequence[Any], *, elide_last: bool = False) -> bytes:
+    """One message's frames (bytes, memoryviews or ``zmq.Frame``) in the log's container.
+
+    ``elide_last``: list the last frame's length but leave its bytes out (they are stored
+    in the image message written just before, see the module docstring).
+    """
     views = [memoryview(getattr(f, "buffer", f)).cast("B") for f in frames]
-    lengths = struct.pack(f"<{len(views) + 1}I", len(views), *(v.nbytes for v in views))
-    return b"".join([lengths, *views])
+    count = len(views) + (ELIDED if elide_last else 0)
+    lengths = struct.pack(f"<{len(views) + 1}I", count, *(v.nbytes for v in views))
+    return b"".join([lengths, *(views[:-1] if elide_last else views)])
 
 
-def unpack_frames(data: bytes | memoryview) -> list[memoryview]:
+def elides(data: bytes | memoryview) -> bool:
+    """Whether the container ``data`` leaves its last frame's bytes out."""
+    return len(data) >= _U32.size and bool(_U32.unpack_from(data)[0] & ELIDED)
+
+
+def unpack_frames(
+    data: bytes | memoryview, *, elided: bytes | memoryview | None = None
+) -> list[memoryview]:
     """The frames in a container written by :func:`pack_frames`, as views over ``data``.
+
+    ``elided``: the bytes of the last frame when the container leaves them out.
 
     Raises
     ------
     MessageRejected
-        (reason ``corrupt`` or ``frame_count``) the container is not well formed.
+        (reason ``corrupt`` or ``frame_count``) the container is not well formed, or it
+        leaves the last frame out and ``elided`` is missing or of another length.
     """
     view = memoryview(data).cast("B")
     if view.nbytes < _U32.size:
         raise MessageRejected("corrupt", f"stored message has {view.nbytes} bytes, no frame count")
-    (count,) = _U32.unpack_from(view)
+    (word,) = _U32.unpack_from(view)
+    count, flags = word & (ELIDED - 1), word & ~(ELIDED - 1)
+    if flags not in (0, ELIDED):
+        raise MessageRejected("corrupt", f"stored message has unknown flags {flags:#x}")
     if not MIN_FRAMES <= count <= MAX_FRAMES:
         raise MessageRejected(
             "frame_count", f"stored message has {count} frames, expected 3 to {MAX_FRAMES}"
@@ -123,16 +172,29 @@ def unpack_frames(data: bytes | memoryview) -> list[memoryview]:
     if view.nbytes < start:
         raise MessageRejected("corrupt", f"stored message ends inside its {count} frame lengths")
     lengths = struct.unpack_from(f"<{count}I", view, _U32.size)
-    if start + sum(lengths) != view.nbytes:
+    stored = lengths[:-1] if flags else lengths
+    if start + sum(stored) != view.nbytes:
         raise MessageRejected(
             "corrupt",
-            f"stored frame lengths add up to {start + sum(lengths)} bytes, "
+            f"stored frame lengths add up to {start + sum(stored)} bytes, "
             f"the message has {view.nbytes}",
         )
     frames = []
-    for length in lengths:
+    for length in stored:
         frames.append(view[start : start + length])
         start += length
+    if flags:
+        if elided is None:
+            raise MessageRejected(
+                "corrupt", "stored frame data is elided and its image message was not found"
+            )
+        image = memoryview(elided).cast("B")
+        if image.nbytes != lengths[-1]:
+            raise MessageRejected(
+                "corrupt",
+                f"elided frame has {lengths[-1]} bytes, its image message {image.nbytes}",
+            )
+        frames.append(image)
     return frames
 
 
@@ -149,6 +211,61 @@ def schema_data(kind: str) -> bytes:
         },
         sort_keys=True,
     ).encode("utf-8")
+
+
+class StoredFrames:
+    """The bus frames of stored messages read in file order, elided image data put back.
+
+    Feed it every ``Schema`` and ``Channel`` record (:meth:`add`); for each ``Message``
+    record, :meth:`is_bus` says whether it is a bus message (its channel is unknown or has
+    a bus encoding): if not, :meth:`note` it (an image may carry the next one's frame data),
+    else :meth:`frames` gives its frames.
+    """
+
+    def __init__(self) -> None:
+        self.channels: dict[int, Channel] = {}
+        self._schemas: dict[int, str] = {}  # id -> name
+        self._image: Message | None = None  # the latest foxglove.CompressedImage record
+
+    def add(self, record: Schema | Channel) -> None:
+        if isinstance(record, Schema):
+            self._schemas[record.id] = record.name
+        else:
+            self.channels[record.id] = record
+
+    def is_bus(self, record: Message) -> bool:
+        channel = self.channels.get(record.channel_id)
+        return channel is None or channel.message_encoding in BUS_ENCODINGS
+
+    def note(self, record: Message) -> None:
+        """Keep ``record`` if it is an image (the next bus message may elide its bytes)."""
+        channel = self.channels.get(record.channel_id)
+        if channel is not None and self._schemas.get(channel.schema_id) == IMAGE_SCHEMA:
+            self._image = record
+
+    def frames(self, record: Message) -> list[memoryview]:
+        """The frames of the bus message ``record``, exactly as they were received.
+
+        Raises
+        ------
+        MessageRejected
+            The container is not well formed, or its elided image data is not right before it.
+        """
+        image, self._image = self._image, None
+        if not elides(record.data):
+            return unpack_frames(record.data)
+        if image is None or (image.log_time, image.sequence) != (
+            record.log_time,
+            record.sequence,
+        ):
+            return unpack_frames(record.data)  # refused: the image data is not there
+        try:
+            data = CompressedImage.FromString(image.data).data
+        except DecodeError as exc:
+            raise MessageRejected(
+                "corrupt", f"the image message holding this frame's data does not parse ({exc})"
+            ) from exc
+        return unpack_frames(record.data, elided=data)
 
 
 @dataclass(frozen=True)
@@ -298,22 +415,28 @@ class LogReader:
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[LoggedMessage]:
         """Stored bus messages, decoded and checked, in the order they were received.
 
-        ``topics``: topic prefixes to keep (``None``: all). A stored message that does not
-        decode is logged, counted in :attr:`refused` by reason and skipped.
+        ``topics``: topic prefixes to keep (``None``: all); Foxglove channels are never
+        yielded. Frames are exactly as received (elided image data put back). A stored
+        message that does not decode is logged, counted in :attr:`refused` by reason and
+        skipped.
         """
         prefixes = None if topics is None else tuple(topics)
-        channel_topics: dict[int, str] = {}
+        stored = StoredFrames()
         for record in self.records():
-            if isinstance(record, Channel):
-                channel_topics[record.id] = record.topic
+            if isinstance(record, Schema | Channel):
+                stored.add(record)
                 continue
             if not isinstance(record, Message):
                 continue
-            topic = channel_topics.get(record.channel_id)
+            if not stored.is_bus(record):
+                stored.note(record)
+                continue
+            channel = stored.channels.get(record.channel_id)
+            topic = None if channel is None else channel.topic
             if prefixes is not None and (topic is None or not topic.startswith(prefixes)):
                 continue
             try:
-                frames = unpack_frames(record.data)
+                frames = stored.frames(record)
                 message = decode(frames, max_bytes=self.max_bytes)
                 if message.topic != topic:
                     raise MessageRejected(

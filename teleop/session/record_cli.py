@@ -2,6 +2,7 @@
 
 Stops after --duration-s, or on Ctrl-C / SIGTERM, and then writes the log's summary and
 footer. A recorder killed outright leaves a log without them: ``teleop recover`` fixes it.
+With ``--foxglove`` it also serves what it records live to Foxglove.
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ from pathlib import Path
 from teleop.bus.security import security_from_settings
 from teleop.catalogue import default_catalogue_path
 from teleop.errors import SessionLogError
+from teleop.session.foxglove_live import LiveServer, add_foxglove_argument
 from teleop.session.logfile import CHUNK_BYTES
-from teleop.session.recorder import COMPRESSIONS, SessionRecorder
+from teleop.session.recorder import COMPRESSIONS, RecorderStats, SessionRecorder
 from teleop.settings import load_settings
 
 
@@ -83,6 +85,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--compression", choices=sorted(COMPRESSIONS), default="zstd", help="chunk compression"
     )
+    add_foxglove_argument(parser, what="the messages as they are recorded")
     parser.add_argument(
         "--json",
         action="store_true",
@@ -100,28 +103,28 @@ def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
     bus = settings.bus
     endpoints = args.endpoint or [bus.robot_pub, bus.estimate_pub, bus.command, bus.display_pub]
-    recorder = SessionRecorder(
-        out,
-        endpoints,
-        settings=settings,
-        scene=args.scene,
-        source=None if args.source == "auto" else args.source,
-        catalogue=args.objects,
-        chunk_bytes=args.chunk_kib * 1024,
-        flush_interval_s=args.flush_interval_s,
-        compression=args.compression,
-        max_bytes=settings.bus.max_message_bytes,
-        security=security_from_settings(settings.bus),
-    )
-    stop = threading.Event()
-    previous = {
-        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
-    }
+    live = None if args.foxglove is None else LiveServer(*args.foxglove)
     try:
-        stats = recorder.run(duration_s=args.duration_s, stop=stop, progress=True)
+        if live is not None:
+            print(f"Foxglove live view: {live.url}", file=sys.stderr, flush=True)
+        recorder = SessionRecorder(
+            out,
+            endpoints,
+            settings=settings,
+            scene=args.scene,
+            source=None if args.source == "auto" else args.source,
+            catalogue=args.objects,
+            chunk_bytes=args.chunk_kib * 1024,
+            flush_interval_s=args.flush_interval_s,
+            compression=args.compression,
+            max_bytes=settings.bus.max_message_bytes,
+            security=security_from_settings(settings.bus),
+            on_foxglove=None if live is None else live.log,
+        )
+        stats = _record_until_stopped(recorder, args.duration_s)
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        if live is not None:
+            live.close()
     print(
         f"recorded {stats.messages} messages ({stats.file_bytes / 1e6:.1f} MB) "
         f"from {', '.join(endpoints)} into {out}; "
@@ -136,3 +139,16 @@ def run(args: argparse.Namespace) -> int:
             f"`teleop recover {out} --out FIXED.mcap`"
         )
     return 0
+
+
+def _record_until_stopped(recorder: SessionRecorder, duration_s: float | None) -> RecorderStats:
+    """Run ``recorder`` until ``duration_s`` passed or Ctrl-C / SIGTERM."""
+    stop = threading.Event()
+    previous = {
+        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+    try:
+        return recorder.run(duration_s=duration_s, stop=stop, progress=True)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

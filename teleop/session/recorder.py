@@ -4,7 +4,8 @@ The log's layout is documented in :mod:`teleop.session.logfile`. The recorder su
 every topic of the endpoints it is given (non-conflating, so nothing a lossless publisher
 sends is dropped), checks each message with :func:`teleop.bus.wire.decode` (as every
 subscriber does: a refused message is counted, never stored) and stores its frames
-verbatim.
+verbatim, each after its Foxglove-decodable forms (:mod:`teleop.session.foxglove`), which
+can also go to a live view as they are written (``on_foxglove``).
 
 Write failures (a full disk, a removed drive) never stop the session: the recorder logs
 one clear error, cuts the file back to the end of its last complete record (so everything
@@ -19,7 +20,7 @@ import logging
 import socket
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -34,17 +35,18 @@ from teleop.bus.wire import Message, decode, now_ns
 from teleop.errors import BusError, SessionLogError
 from teleop.record import software_version
 from teleop.scene import scene_path
+from teleop.session.foxglove import FoxgloveMessage
+from teleop.session.foxglove_log import LogChannels, rig_metadata
 from teleop.session.logfile import (
     CHUNK_BYTES,
     END_METADATA,
+    FORMAT_VERSION,
     FRAMING,
     MESSAGE_ENCODING,
     PROFILE,
-    SCHEMA_ENCODING,
+    RIG_METADATA,
     SESSION_METADATA,
     SETTINGS_ATTACHMENT,
-    pack_frames,
-    schema_data,
 )
 from teleop.settings import Settings, load_settings, resolve_config_path, settings_to_mapping
 
@@ -133,7 +135,7 @@ class RecorderStats:
 
     messages: int = 0
     saved_messages: int = 0  # of those, how many are in chunks already written to the file
-    message_bytes: int = 0  # stored message data, framing included
+    message_bytes: int = 0  # stored message data, framing and Foxglove forms included
     file_bytes: int = 0
     topics: Counter[str] = field(default_factory=Counter)
     refused: Counter[str] = field(default_factory=Counter)  # by wire reject reason
@@ -187,6 +189,9 @@ class SessionRecorder:
     on_message : callable, optional
         Called as ``on_message(message, received_ns)`` after each message is stored (a
         monitor's hook, e.g. ``teleop soak`` measuring latency); keep it quick.
+    on_foxglove : callable, optional
+        Called as ``on_foxglove(converted, received_ns)`` with the Foxglove forms of each
+        message stored (e.g. :meth:`teleop.session.foxglove_live.LiveServer.log`).
     **subscriber_options
         Passed on to :class:`~teleop.bus.pubsub.Subscriber` (``context``, ...).
     """
@@ -205,6 +210,7 @@ class SessionRecorder:
         compression: str = "zstd",
         max_bytes: int = DEFAULT_MAX_BYTES,
         on_message: Callable[[Message, int], None] | None = None,
+        on_foxglove: Callable[[Sequence[FoxgloveMessage], int], None] | None = None,
         **subscriber_options: Any,
     ):
         self.endpoints = [endpoints] if isinstance(endpoints, str) else list(endpoints)
@@ -233,15 +239,15 @@ class SessionRecorder:
         self.compression = compression
         self.max_bytes = max_bytes
         self.on_message = on_message
+        self.on_foxglove = on_foxglove
         self.subscriber_options = subscriber_options
         self.stats = RecorderStats()
         self._file: IO[bytes] | None = None
         self._owns_file = False
         self._sink: _Sink | None = None
         self._writer: Writer | None = None
+        self._log: LogChannels | None = None
         self._subscriber: _CapturingSubscriber | None = None
-        self._schemas: dict[str, int] = {}
-        self._channels: dict[str, int] = {}
         self._chunk_opened_s: float | None = None
         self._state = "new"  # new -> open -> closed, or open -> failed -> closed
 
@@ -283,6 +289,7 @@ class SessionRecorder:
         self._writer = Writer(
             self._sink, chunk_size=self.chunk_bytes, compression=COMPRESSIONS[self.compression]
         )
+        self._log = LogChannels(self._writer)
         try:
             self._writer.start(
                 PROFILE, f"compliance-teleop {software_version()}; {LIBRARY_IDENTIFIER}"
@@ -290,6 +297,7 @@ class SessionRecorder:
             for name, media_type, data, create_ns in attachments:
                 self._writer.add_attachment(create_ns, now_ns(), name, media_type, data)
             self._writer.add_metadata(SESSION_METADATA, self._session_metadata())
+            self._writer.add_metadata(RIG_METADATA, rig_metadata(self.settings))
         except OSError as exc:
             self._close_file()
             self._state = "closed"
@@ -390,42 +398,28 @@ class SessionRecorder:
     def _store(self, received_ns: int, frames: list[zmq.Frame]) -> bool:
         # The subscriber accepted these frames: decoding them again cannot fail.
         message = decode(frames, max_bytes=self.max_bytes)
-        data = pack_frames(frames)
-        channel = self._channel(message)
-        written = self._sink.position
-        self._writer.add_message(
-            channel,
-            log_time=received_ns,
-            data=data,
-            publish_time=message.t_send_ns,
-            sequence=message.seq % 2**32,
+        before = self._sink.position
+        converted = self._log.write_foxglove(message, received_ns)
+        between = self._sink.position
+        size = self._log.write_bus(
+            message, frames, received_ns, elide_image=LogChannels.carries_image(converted)
         )
         self.stats.messages += 1
-        if self._sink.position != written:  # the writer closed a full chunk, this message in it
+        # A full chunk goes to the file inside add_message: the one holding this message, or
+        # (written between) one with only its Foxglove forms, this message opening the next.
+        if self._sink.position != between:
             self._chunk_opened_s = None
             self.stats.saved_messages = self.stats.messages
-        elif self._chunk_opened_s is None:
+        elif between != before or self._chunk_opened_s is None:
             self._chunk_opened_s = time.monotonic()
-        self.stats.message_bytes += len(data)
+            self.stats.saved_messages = self.stats.messages - 1
+        self.stats.message_bytes += size + sum(len(item.data) for item in converted)
         self.stats.topics[message.topic] += 1
         if self.on_message is not None:
             self.on_message(message, received_ns)
+        if self.on_foxglove is not None:
+            self.on_foxglove(converted, received_ns)
         return True
-
-    def _channel(self, message: Message) -> int:
-        channel = self._channels.get(message.topic)
-        if channel is None:
-            schema = self._schemas.get(message.type)
-            if schema is None:
-                schema = self._writer.register_schema(
-                    f"compliance-teleop/{message.type}", SCHEMA_ENCODING, schema_data(message.type)
-                )
-                self._schemas[message.type] = schema
-            channel = self._writer.register_channel(
-                message.topic, MESSAGE_ENCODING, schema, {"type": message.type}
-            )
-            self._channels[message.topic] = channel
-        return channel
 
     def _flush_chunk(self) -> None:
         self._writer.flush()
@@ -562,6 +556,7 @@ class SessionRecorder:
             "publish_time_clock": "header t_send_ns, time.monotonic_ns() of the sending host",
             "endpoints": json.dumps(self.endpoints),
             "host": socket.gethostname(),
+            "log_format": str(FORMAT_VERSION),
             "message_encoding": MESSAGE_ENCODING,
             "framing": FRAMING,
             "chunk_bytes": str(self.chunk_bytes),

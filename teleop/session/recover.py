@@ -24,7 +24,7 @@ from teleop.bus.pubsub import DEFAULT_MAX_BYTES
 from teleop.bus.wire import decode
 from teleop.errors import MessageRejected, SessionLogError
 from teleop.record import software_version
-from teleop.session.logfile import CHUNK_BYTES, END_METADATA, LogReader, unpack_frames
+from teleop.session.logfile import CHUNK_BYTES, END_METADATA, LogReader, StoredFrames
 
 __all__ = ["RECOVERY_METADATA", "RecoveryReport", "recover"]
 
@@ -40,7 +40,7 @@ class RecoveryReport:
     complete: bool  # the source had its footer: nothing was missing
     closed_cleanly: bool  # the source has the recorder's end-of-session metadata
     damage: str | None  # where and why reading the source stopped
-    messages: int = 0
+    messages: int = 0  # bus messages (Foxglove channels are copied, not counted)
     topics: Counter[str] = field(default_factory=Counter)
     undecodable: int = 0  # complete messages kept verbatim that are not valid bus messages
     attachments: list[str] = field(default_factory=list)
@@ -104,6 +104,7 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
 def _copy(reader: LogReader, writer: Writer, report: RecoveryReport, bar: tqdm) -> None:
     schemas: dict[int, int] = {}  # source id -> id in the copy (the summary repeats them)
     channels: dict[int, tuple[int, str]] = {}
+    stored = StoredFrames()  # puts elided image data back, to check each bus message decodes
     started = False
     for record in reader.records():
         bar.update(reader.good_bytes - bar.n)
@@ -113,8 +114,10 @@ def _copy(reader: LogReader, writer: Writer, report: RecoveryReport, bar: tqdm) 
         elif not started:
             break
         elif isinstance(record, Schema) and record.id not in schemas:
+            stored.add(record)
             schemas[record.id] = writer.register_schema(record.name, record.encoding, record.data)
         elif isinstance(record, Channel) and record.id not in channels:
+            stored.add(record)
             copy = writer.register_channel(
                 record.topic,
                 record.message_encoding,
@@ -134,9 +137,12 @@ def _copy(reader: LogReader, writer: Writer, report: RecoveryReport, bar: tqdm) 
                 publish_time=record.publish_time,
                 sequence=record.sequence,
             )
+            if not stored.is_bus(record):
+                stored.note(record)
+                continue
             report.messages += 1
             report.topics[topic] += 1
-            report.undecodable += not _decodes(record.data)
+            report.undecodable += not _decodes(stored, record)
         elif isinstance(record, Attachment):
             writer.add_attachment(
                 record.create_time, record.log_time, record.name, record.media_type, record.data
@@ -170,9 +176,9 @@ def _copy(reader: LogReader, writer: Writer, report: RecoveryReport, bar: tqdm) 
     writer.finish()
 
 
-def _decodes(data: bytes) -> bool:
+def _decodes(stored: StoredFrames, record: Message) -> bool:
     try:
-        decode(unpack_frames(data), max_bytes=DEFAULT_MAX_BYTES)
+        decode(stored.frames(record), max_bytes=DEFAULT_MAX_BYTES)
     except MessageRejected:
         return False
     return True

@@ -59,6 +59,7 @@ from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SettingsError, TeleopError
 from teleop.scene import load_scene
+from teleop.session.foxglove_live import add_foxglove_argument
 from teleop.settings import Settings, default_settings_path, load_settings, resolve_config_path
 from teleop.system.demo_table import LiveView, closing_table
 
@@ -294,14 +295,18 @@ class LiveSystem:
         The estimator finger's calibration.
     record : bool
         Also run the session recorder.
+    foxglove : (host, port), optional
+        The recorder also serves the bus live to Foxglove there (``teleop record --foxglove``).
     """
 
-    def __init__(self, settings_path: Path, scene: str, run_dir: Path, calibration: Path, *, record: bool = True):
+    def __init__(self, settings_path: Path, scene: str, run_dir: Path, calibration: Path, *, record: bool = True,
+                 foxglove: tuple[str, int] | None = None):
         self.settings_path = settings_path
         self.scene = scene
         self.run_dir = run_dir
         self.calibration = calibration
         self.record = record
+        self.foxglove = foxglove
         self.endpoints: dict[str, str] = {}
         self.children: dict[str, _Child] = {}
         self.commands: Publisher | None = None
@@ -330,6 +335,8 @@ class LiveSystem:
                                  "--scene", self.scene, *[a for name in ("robot_pub", "estimate_pub", "command",
                                                                          "display_pub")
                                                           for a in ("--endpoint", ep[name])]]
+            if self.foxglove is not None:
+                lines["recorder"] += ["--foxglove", "{}:{}".format(*self.foxglove)]
         return lines
 
     def start(self, *, timeout_s: float = START_TIMEOUT_S) -> None:
@@ -570,6 +577,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_run_arguments(parser, default_scene="default")
     parser.add_argument("--no-view", action="store_true", help="no live status lines, only the closing table")
+    add_foxglove_argument(parser, what="the live system's bus (tactile video, force, width, estimates)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -578,7 +586,11 @@ def run(args: argparse.Namespace) -> int:
     plan = scene_plan(args.scene)
     run_dir, calibration = prepare_run(args, prefix="demo", out=sys.stderr if args.json else sys.stdout)
     view = LiveView(sys.stdout, len(plan), enabled=not args.no_view)
-    system = LiveSystem(Path(args.settings), args.scene, run_dir, calibration)
+    system = LiveSystem(Path(args.settings), args.scene, run_dir, calibration, foxglove=args.foxglove)
+    if args.foxglove is not None:
+        host, port = args.foxglove
+        print(f"Foxglove live view: ws://{host}:{port}" if port else
+              f"Foxglove live view: the port the recorder chose, in {run_dir / 'recorder.log'}", file=sys.stderr)
     with interrupted_by_sigterm(), system:
         print(f"live system up ({', '.join(f'{n} {c.process.pid}' for n, c in system.children.items())}); "
               f"logs in {run_dir}", file=sys.stderr)

@@ -11,18 +11,21 @@ import msgpack
 import numpy as np
 import pytest
 import zmq
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from mcap.reader import make_reader
 
 from teleop.bus import Publisher, Subscriber
 from teleop.bus.wire import encode
 from teleop.errors import BusError, MessageRejected, SessionLogError
 from teleop.session import LogReader, SessionRecorder, recover, session_source
+from teleop.session.foxglove import IMAGE_SCHEMA
 from teleop.session.logfile import (
     END_METADATA,
     MESSAGE_ENCODING,
     SCHEMA_ENCODING,
     SESSION_METADATA,
     SETTINGS_ATTACHMENT,
+    elides,
     pack_frames,
     unpack_frames,
 )
@@ -38,24 +41,34 @@ def test_every_message_is_stored_byte_identical_with_its_times(recorded):
     with recorded.path.open("rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
-        stored = list(reader.iter_messages())
-    assert summary.statistics.message_count == len(recorded.sent) == len(stored)
-    assert {c.topic for c in summary.channels.values()} == {m.topic for m in recorded.sent}
-    for (schema, channel, record), sent in zip(stored, recorded.sent, strict=True):
+        everything = list(reader.iter_messages(log_time_order=False))  # file order
+    # Each bus message follows its Foxglove forms; a JPEG or PNG frame's bytes are in its image.
+    stored, image = [], None
+    for schema, channel, record in everything:
+        if channel.message_encoding == MESSAGE_ENCODING:
+            stored.append((schema, channel, record, image))
+        else:
+            image = CompressedImage.FromString(record.data).data if schema.name == IMAGE_SCHEMA else None
+    bus_channels = {c.id for c in summary.channels.values() if c.message_encoding == MESSAGE_ENCODING}
+    counts = summary.statistics.channel_message_counts
+    assert sum(counts[c] for c in bus_channels) == len(recorded.sent) == len(stored)
+    assert {summary.channels[c].topic for c in bus_channels} == {m.topic for m in recorded.sent}
+    for (schema, channel, record, image), sent in zip(stored, recorded.sent, strict=True):
         assert channel.topic == sent.topic
-        assert channel.message_encoding == MESSAGE_ENCODING
         assert channel.metadata == {"type": sent.type}
         assert (
             schema.name == f"compliance-teleop/{sent.type}" and schema.encoding == SCHEMA_ENCODING
         )
         assert json.loads(schema.data)["type"] == sent.type
-        assert [bytes(f) for f in unpack_frames(record.data)] == _wire_bytes(sent)
+        elided = image if sent.type == "frame" and sent.body["encoding"] != "raw" else None
+        assert elides(record.data) == (elided is not None)
+        assert [bytes(f) for f in unpack_frames(record.data, elided=elided)] == _wire_bytes(sent)
         assert record.publish_time == sent.t_send_ns
         assert record.sequence == sent.seq
         assert (
             record.log_time >= record.publish_time
         )  # received after it was sent, one host's clock
-    log_times = [record.log_time for _, _, record in stored]
+    log_times = [record.log_time for _, _, record, _ in stored]
     assert log_times == sorted(log_times)
 
 

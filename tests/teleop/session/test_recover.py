@@ -15,7 +15,7 @@ from teleop.bus import Publisher
 from teleop.bus.wire import encode
 from teleop.errors import SessionLogError
 from teleop.session import LogReader, recover
-from teleop.session.logfile import END_METADATA, SETTINGS_ATTACHMENT, unpack_frames
+from teleop.session.logfile import END_METADATA, MESSAGE_ENCODING, SETTINGS_ATTACHMENT
 from teleop.session.recover import RECOVERY_METADATA
 
 TELEOP = Path(sys.executable).parent / "teleop"
@@ -89,10 +89,12 @@ def test_a_recorder_killed_with_sigkill_loses_at_most_its_open_chunk(tmp_path, h
     with fixed.open("rb") as f:  # a complete file now: the seeking reader and its summary work
         reader = make_reader(f)
         summary = reader.get_summary()
-        stored = [unpack_frames(record.data) for _, _, record in reader.iter_messages()]
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
         attachments = {a.name for a in reader.iter_attachments()}
-    assert summary.statistics.message_count == len(readable) >= len(first)
+    stored = [m.frames for m in LogReader(fixed).messages()]
+    bus = [c.id for c in summary.channels.values() if c.message_encoding == MESSAGE_ENCODING]
+    counts = summary.statistics.channel_message_counts
+    assert sum(counts.get(c, 0) for c in bus) == len(readable) >= len(first)
     _assert_prefix_of(stored, first + late)
     assert SETTINGS_ATTACHMENT in attachments and "catalogue.toml" in attachments
     assert json.loads(metadata[RECOVERY_METADATA]["messages"]) == len(readable)

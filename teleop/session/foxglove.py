@@ -1,0 +1,357 @@
+"""Bus messages in forms Foxglove decodes: the conversion the session log and the live view share.
+
+:func:`foxglove_messages` turns one decoded bus message into zero or more
+:class:`FoxgloveMessage` (topic, schema, encoding, data), nothing else: writing them into
+an MCAP log is :mod:`teleop.session.foxglove_log`'s job, serving them live
+:mod:`teleop.session.foxglove_live`'s.
+
+=============  ===============================  ==========================================
+bus type       Foxglove topic                   form
+=============  ===============================  ==========================================
+frame          ``/tactile/<finger>``            ``foxglove.CompressedImage`` (protobuf): the
+                                                camera's JPEG or PNG bytes exactly as sent;
+                                                ``raw`` frames have no Foxglove form
+grasp_event    ``/events``                      ``foxglove.Log`` (protobuf), e.g. "grasp g1
+                                                start (object: aluminium block)"
+heartbeat      (none)
+force, width   ``/force``, ``/width``           JSON, one message per sample
+anything else  ``/<bus topic>``                 JSON: ``estimate``, ``display``, ``command``...
+=============  ===============================  ==========================================
+
+Why JSON for the numeric types: Foxglove's Plot, State Transitions and Raw Messages panels
+read JSON fields by message path (``/estimate.log10_E_pa``) with no generated code, and a
+JSON Schema per type can be derived from :data:`teleop.bus.wire.SCHEMAS` at run time, so a
+new bus type (or field) is plotted without a line of new code here; these messages are a
+small fraction of a session's bytes, and the log's chunks are compressed. Images and log
+lines use the Foxglove protobuf schemas, which the Image and Log panels need.
+
+JSON message fields: ``timestamp`` (``{sec, nsec}``, the capture time, or the sample time
+for sample messages), ``t_capture_s``, every scalar field of the type as sent, plus, for
+quantities that must be positive (E), their ``log10_`` form (Foxglove's Plot has no log
+axis and E spans decades). Intervals become ``{low, high, log10_low, log10_high}``. A nil
+value (no E, an open interval side, no grasp) is left out: Foxglove's JSON Schema reader
+takes no nullable types. A type with a ``t_s`` array (force, width) gives one message per
+sample with ``t_s`` and the value as numbers, each placed at its own time on the receive
+clock (:attr:`FoxgloveMessage.age_ns`), so the Plot panel draws the true sample spacing.
+Array fields of other types are not shown (the bus channels keep them).
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from functools import cache
+from typing import Any
+
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.Log_pb2 import Log
+from google.protobuf.descriptor_pb2 import FileDescriptorSet
+from google.protobuf.timestamp_pb2 import Timestamp
+
+from teleop.bus.field_checks import Check
+from teleop.bus.wire import SCHEMAS, Message
+from teleop.errors import MessageRejected
+
+__all__ = [
+    "EVENTS_TOPIC",
+    "IMAGE_SCHEMA",
+    "FoxgloveMessage",
+    "file_descriptor_set",
+    "foxglove_messages",
+    "image_topic",
+    "json_schema",
+]
+
+IMAGE_SCHEMA = CompressedImage.DESCRIPTOR.full_name  # "foxglove.CompressedImage"
+EVENTS_TOPIC = "/events"
+JSON_SCHEMA_PREFIX = "compliance_teleop."
+_SAMPLE_TIMES = "t_s"
+
+
+@dataclass(frozen=True)
+class FoxgloveMessage:
+    """One message Foxglove can decode: where it goes, its schema, and its bytes.
+
+    ``age_ns``: how long before the bus message's receive time this message's data was
+    taken (a sample before the newest of its batch); its log time is the receive time
+    minus this.
+    """
+
+    topic: str
+    schema_name: str
+    schema_encoding: str  # "protobuf" or "jsonschema"
+    schema_data: bytes
+    message_encoding: str  # "protobuf" or "json"
+    data: bytes
+    age_ns: int = 0
+
+
+def image_topic(finger: str) -> str:
+    """The Foxglove topic of one finger's tactile images."""
+    return f"/tactile/{finger}"
+
+
+def file_descriptor_set(message_class: Any) -> bytes:
+    """A protobuf class's schema as MCAP wants it: its file and every dependency, serialized."""
+    files = FileDescriptorSet()
+    seen: set[str] = set()
+
+    def add(descriptor: Any) -> None:
+        if descriptor.name in seen:
+            return
+        seen.add(descriptor.name)
+        for dependency in descriptor.dependencies:
+            add(dependency)
+        descriptor.CopyToProto(files.file.add())
+
+    add(message_class.DESCRIPTOR.file)
+    return files.SerializeToString()
+
+
+@cache
+def _protobuf_schema(message_class: Any) -> bytes:
+    return file_descriptor_set(message_class)
+
+
+def _timestamp(t_s: float) -> Timestamp:
+    whole = math.floor(t_s)
+    return Timestamp(seconds=whole, nanos=min(round((t_s - whole) * 1e9), 999_999_999))
+
+
+def _time_json(t_s: float) -> dict[str, int]:
+    stamp = _timestamp(t_s)
+    return {"sec": stamp.seconds, "nsec": stamp.nanos}
+
+
+def _protobuf(topic: str, proto: Any) -> FoxgloveMessage:
+    cls = type(proto)
+    return FoxgloveMessage(
+        topic,
+        cls.DESCRIPTOR.full_name,
+        "protobuf",
+        _protobuf_schema(cls),
+        "protobuf",
+        proto.SerializeToString(),
+    )
+
+
+# --------------------------------------------------------------------------- protobuf types
+
+
+def _image(message: Message) -> list[FoxgloveMessage]:
+    body = message.body
+    if body["encoding"] == "raw":  # no compressed bytes to show as they are
+        return []
+    image = CompressedImage(
+        timestamp=_timestamp(message.t_capture_s),
+        frame_id=body["finger"],
+        data=body["data"].tobytes(),
+        format=body["encoding"],
+    )
+    return [_protobuf(image_topic(body["finger"]), image)]
+
+
+def _event(message: Message) -> list[FoxgloveMessage]:
+    body = message.body
+    text = f"grasp {body['grasp_id']} {body['event']}"
+    if body["object_name"]:
+        text += f" (object: {body['object_name']})"
+    line = Log(
+        timestamp=_timestamp(message.t_capture_s),
+        level=Log.Level.INFO,
+        message=text,
+        name=message.source or "teleop",
+    )
+    return [_protobuf(EVENTS_TOPIC, line)]
+
+
+# --------------------------------------------------------------------------- JSON types
+
+# Foxglove's JSON Schema reader (``parseJsonSchema`` of its mcap-support package) takes one
+# "type" per property (boolean, string, number, integer, object with "properties", array)
+# and refuses type lists and typeless properties: a nil value is therefore left out of the
+# message, and its property is simply not required.
+
+
+def _text_schema(o: Mapping[str, Any]) -> dict[str, Any]:
+    schema: dict[str, Any] = {"type": "string"}
+    if o.get("choices"):
+        schema["enum"] = list(o["choices"])
+    return schema
+
+
+def _number_schema(o: Mapping[str, Any]) -> dict[str, Any]:
+    schema: dict[str, Any] = {"type": "number"}
+    if o.get("lo") is not None:
+        schema["exclusiveMinimum" if o.get("lo_open") else "minimum"] = o["lo"]
+    return schema
+
+
+_BOUNDS = ("low", "high", "log10_low", "log10_high")  # an interval's JSON form; nil sides left out
+
+# One entry per kind of field check (teleop.bus.field_checks): the JSON Schema of its value.
+_FIELD_SCHEMAS: dict[str, Callable[[Mapping[str, Any]], dict[str, Any]]] = {
+    "text_field": _text_schema,
+    "integer_field": lambda o: {"type": "integer", "minimum": o.get("lo", 0)},
+    "number_field": _number_schema,
+    "flag_field": lambda o: {"type": "boolean"},
+    "interval_field": lambda o: {
+        "type": "object",
+        "properties": {k: {"type": "number"} for k in _BOUNDS},
+        "additionalProperties": False,
+    },
+    "number_map_field": lambda o: {
+        "type": "object",
+        "properties": {},
+        "additionalProperties": {"type": "number"},
+    },
+}
+
+
+@cache
+def _check_kind(check: Check) -> tuple[str, dict[str, Any]]:
+    """The factory a field check came from and the options it was made with.
+
+    The checks are closures over their options (``text_field(choices=...)``); reading
+    them back keeps :data:`~teleop.bus.wire.SCHEMAS` the one table of every field. A check
+    of another kind that wraps exactly one check (nil or that check) is read as the one it
+    wraps; ``nullable`` says whether the check takes nil.
+    """
+    kind = check.__qualname__.split(".")[0]
+    options = dict(inspect.getclosurevars(check).nonlocals)
+    inner = [value for value in options.values() if callable(value)]
+    if kind not in _FIELD_SCHEMAS and len(inner) == 1:
+        kind, options = _check_kind(inner[0])
+    return kind, {**options, "nullable": _takes_nil(check)}
+
+
+def _takes_nil(check: Check) -> bool:
+    try:
+        check(None, "probe")
+    except MessageRejected:
+        return False
+    return True
+
+
+@dataclass(frozen=True)
+class _Field:
+    name: str
+    schema: dict[str, Any]
+    nullable: bool
+    interval: bool
+    positive: bool  # must be > 0 (a modulus): also given as log10
+
+
+@cache
+def _fields(kind: str) -> tuple[_Field, ...]:
+    """The scalar fields of ``kind`` with a JSON form (checks of kinds not in the table have none)."""
+    out = []
+    for name, check in SCHEMAS[kind].fields.items():
+        check_kind, options = _check_kind(check)
+        build = _FIELD_SCHEMAS.get(check_kind)
+        if build is not None:
+            positive = check_kind == "number_field" and options.get("lo") == 0 and options["lo_open"]
+            out.append(
+                _Field(name, build(options), options["nullable"], check_kind == "interval_field", positive)
+            )
+    return tuple(out)
+
+
+@cache
+def json_schema(kind: str) -> dict[str, Any]:
+    """The JSON Schema of bus type ``kind``'s JSON messages (see the module docstring)."""
+    properties: dict[str, Any] = {
+        "timestamp": {
+            "type": "object",
+            "properties": {
+                "sec": {"type": "integer"},
+                "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
+            },
+            "required": ["sec", "nsec"],
+        },
+        "t_capture_s": {"type": "number"},
+    }
+    required = list(properties)
+    for field in _fields(kind):
+        names = [field.name, *([f"log10_{field.name}"] if field.positive else [])]
+        properties |= {name: field.schema if name == field.name else {"type": "number"} for name in names}
+        required += [] if field.nullable else names
+    arrays = SCHEMAS[kind].arrays
+    if _SAMPLE_TIMES in arrays:
+        properties |= {name: {"type": "number"} for name in arrays}
+        required += list(arrays)
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": f"{JSON_SCHEMA_PREFIX}{kind}",
+        "type": "object",
+        "properties": properties,
+        "required": sorted(required),
+        "additionalProperties": False,
+    }
+
+
+@cache
+def _json_schema_bytes(kind: str) -> bytes:
+    return json.dumps(json_schema(kind), sort_keys=True).encode("utf-8")
+
+
+def _json_fields(kind: str, body: Mapping[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for field in _fields(kind):
+        value = body[field.name]
+        if value is None:
+            continue
+        if field.interval:
+            low, high = value
+            logs = (None if v is None else math.log10(v) for v in (low, high))
+            value = {k: v for k, v in zip(_BOUNDS, (low, high, *logs), strict=True) if v is not None}
+        out[field.name] = value
+        if field.positive:
+            out[f"log10_{field.name}"] = math.log10(value)
+    return out
+
+
+def _json(topic: str, kind: str, fields: dict[str, Any], age_ns: int = 0) -> FoxgloveMessage:
+    data = json.dumps(fields, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    return FoxgloveMessage(
+        topic,
+        f"{JSON_SCHEMA_PREFIX}{kind}",
+        "jsonschema",
+        _json_schema_bytes(kind),
+        "json",
+        data,
+        age_ns,
+    )
+
+
+def _plain(message: Message) -> list[FoxgloveMessage]:
+    kind, body = message.type, message.body
+    common = {"t_capture_s": message.t_capture_s, **_json_fields(kind, body)}
+    topic = "/" + message.topic
+    arrays = SCHEMAS[kind].arrays
+    if _SAMPLE_TIMES not in arrays:
+        return [_json(topic, kind, {"timestamp": _time_json(message.t_capture_s), **common})]
+    columns = {name: body[name].tolist() for name in arrays}
+    times = columns[_SAMPLE_TIMES]
+    newest = max(times)
+    out = []
+    for i, t_s in enumerate(times):
+        sample = {name: values[i] for name, values in columns.items()}
+        age_ns = round((newest - t_s) * 1e9)
+        out.append(_json(topic, kind, {"timestamp": _time_json(t_s), **common, **sample}, age_ns))
+    return out
+
+
+_SPECIAL: dict[str, Callable[[Message], list[FoxgloveMessage]]] = {
+    "frame": _image,
+    "grasp_event": _event,
+    "heartbeat": lambda message: [],
+}
+
+
+def foxglove_messages(message: Message) -> list[FoxgloveMessage]:
+    """The Foxglove forms of one decoded bus message (none for heartbeats and raw frames)."""
+    return _SPECIAL.get(message.type, _plain)(message)

@@ -1,0 +1,115 @@
+"""Writing one session log's messages: each bus message verbatim, after its Foxglove forms.
+
+The layout (and why a JPEG's bytes are stored once, in its ``foxglove.CompressedImage``)
+is documented in :mod:`teleop.session.logfile`; the conversion is
+:mod:`teleop.session.foxglove`'s. :class:`LogChannels` registers schemas and channels on
+first use and writes; :func:`rig_metadata` is the rig summary for Foxglove's metadata panel.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from mcap.writer import Writer
+
+from teleop.bus.wire import Message
+from teleop.session.foxglove import IMAGE_SCHEMA, FoxgloveMessage, foxglove_messages
+from teleop.session.logfile import MESSAGE_ENCODING, SCHEMA_ENCODING, pack_frames, schema_data
+from teleop.settings import Settings
+
+__all__ = ["LogChannels", "rig_metadata"]
+
+_SENSOR_METADATA = (
+    "model",
+    "serial",
+    "gel_modulus_pa",
+    "gel_poisson",
+    "gel_thickness_m",
+    "pixel_pitch_m",
+    "markers",
+    "camera_hz",
+)
+
+
+def rig_metadata(settings: Settings) -> dict[str, str]:
+    """Each finger's gel and camera geometry and the gripper's stiffness, as MCAP metadata.
+
+    Keys ``<finger>.<setting>`` (SI units, as in the settings), values strings (MCAP
+    metadata holds only strings; flags as ``true``/``false``).
+    """
+    out = {}
+    for sensor in settings.sensors:
+        for name in _SENSOR_METADATA:
+            value = getattr(sensor, name)
+            text = str(value).lower() if isinstance(value, bool) else str(value)
+            out[f"{sensor.finger}.{name}"] = text
+    out["gripper.finger_stiffness_n_per_m"] = str(settings.gripper.finger_stiffness_n_per_m)
+    return out
+
+
+class LogChannels:
+    """The schemas and channels of one log's MCAP writer, and the writing of each message.
+
+    Parameters
+    ----------
+    writer : mcap.writer.Writer
+        Started writer of the log.
+    """
+
+    def __init__(self, writer: Writer):
+        self.writer = writer
+        self._schemas: dict[tuple[str, str], int] = {}  # (name, encoding) -> id
+        self._channels: dict[str, int] = {}  # topic -> id
+
+    def write_foxglove(self, message: Message, received_ns: int) -> list[FoxgloveMessage]:
+        """Write the Foxglove forms of ``message`` (call first); returns them."""
+        converted = foxglove_messages(message)
+        for item in converted:
+            channel = self._channels.get(item.topic)
+            if channel is None:
+                schema = self._schema(item.schema_name, item.schema_encoding, item.schema_data)
+                channel = self._channel(item.topic, item.message_encoding, schema, {})
+            self._add(channel, item.data, message, received_ns - item.age_ns)
+        return converted
+
+    def write_bus(
+        self, message: Message, frames: Sequence[Any], received_ns: int, *, elide_image: bool
+    ) -> int:
+        """Write ``message``'s frames verbatim (the image bytes left out when ``elide_image``:
+        the CompressedImage just written holds them); returns the bytes of message data."""
+        channel = self._channels.get(message.topic)
+        if channel is None:
+            name = f"compliance-teleop/{message.type}"
+            schema = self._schema(name, SCHEMA_ENCODING, schema_data(message.type))
+            channel = self._channel(message.topic, MESSAGE_ENCODING, schema, {"type": message.type})
+        data = pack_frames(frames, elide_last=elide_image)
+        self._add(channel, data, message, received_ns)
+        return len(data)
+
+    @staticmethod
+    def carries_image(converted: Sequence[FoxgloveMessage]) -> bool:
+        """Whether the Foxglove forms hold the bus message's image bytes (a frame's only buffer)."""
+        return any(item.schema_name == IMAGE_SCHEMA for item in converted)
+
+    def _add(self, channel: int, data: bytes, message: Message, log_time_ns: int) -> None:
+        self.writer.add_message(
+            channel,
+            log_time=log_time_ns,
+            data=data,
+            publish_time=message.t_send_ns,
+            sequence=message.seq % 2**32,
+        )
+
+    def _schema(self, name: str, encoding: str, data: bytes) -> int:
+        """The id of schema ``(name, encoding)``, registered with ``data`` on first use."""
+        schema = self._schemas.get((name, encoding))
+        if schema is None:
+            schema = self.writer.register_schema(name, encoding, data)
+            self._schemas[name, encoding] = schema
+        return schema
+
+    def _channel(self, topic: str, encoding: str, schema: int, metadata: dict[str, str]) -> int:
+        channel = self.writer.register_channel(topic, encoding, schema, metadata)
+        self._channels[topic] = channel
+        return channel
