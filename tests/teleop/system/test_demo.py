@@ -13,7 +13,10 @@ import textwrap
 import time
 from pathlib import Path
 
+import jsonschema
 import pytest
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
 
 import teleop.cli
 from teleop.catalogue import ObjectSpec
@@ -314,6 +317,30 @@ def test_demo_runs_the_quick_scene_end_to_end(tmp_path, capsys):
     topics = {m.message.topic for m in LogReader(Path(result["session_log"])).messages(None)}
     assert {"frame/left", "frame/right", "force", "width", "grasp_event", "estimate", "command"} <= topics
     assert our_live_children() == []  # every child stopped
+    _check_foxglove_channels(Path(result["session_log"]))
+    assert teleop.cli.main(["report", result["session_log"], "--out", str(tmp_path / "report")]) == 0
+    page = (tmp_path / "report" / "index.html").read_text()
+    assert all(g["object"] in page for g in result["grasps"])
+
+
+def _check_foxglove_channels(log: Path) -> None:
+    """Every message on the log's Foxglove channels decodes with its declared schema, through
+    mcap-protobuf-support and jsonschema only (no project code); the tactile ones are JPEG images."""
+    with log.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        channels = reader.get_summary().channels.values()
+        protobuf = [c.topic for c in channels if c.message_encoding == "protobuf"]
+        json_topics = [c.topic for c in channels if c.message_encoding == "json"]
+        images = 0
+        for schema, channel, _, decoded in reader.iter_decoded_messages(topics=protobuf, log_time_order=False):
+            if channel.topic.startswith("/tactile/"):
+                assert schema.name == "foxglove.CompressedImage" and decoded.format == "jpeg"
+                images += 1
+        for schema, _, message in reader.iter_messages(topics=json_topics, log_time_order=False):
+            assert schema.encoding == "jsonschema"
+            jsonschema.validate(json.loads(message.data), json.loads(schema.data))
+    assert {"/tactile/left", "/tactile/right", "/events"} <= set(protobuf) and images > 0
+    assert {"/force", "/width", "/estimate", "/display"} <= set(json_topics)
 
 
 @pytest.mark.slow
