@@ -20,8 +20,11 @@ COMMANDS = {
     "record": Command("teleop.session.record_cli", "record every bus message of a session into an MCAP log"),
     "replay": Command("teleop.session.replay_cli", "publish a recorded session back onto the bus"),
     "export": Command("teleop.session.export_cli", "turn the grasps of a session log into .grasp records"),
+    "report": Command("teleop.system.report", "write a web page (HTML + PNGs) of a session log's grasps: frames, depth, force, estimates, display"),
     "recover": Command("teleop.session.recover_cli", "salvage a session log cut short (killed recorder, full disk)"),
     "soak": Command("teleop.soak", "soak the grasp data path on loopback: lost messages, memory growth, latency"),
+    "calibrate": Command("teleop.rig.calibrate_cli", "calibrate a rig (load cell, gripper, camera) into its settings file"),
+    "doctor": Command("teleop.system.doctor", "check every configured device, the bus ports and the calibration files"),
 }
 
 

@@ -198,6 +198,10 @@ class SensorSettings(_Validated):
     camera_backend: str = spec("sim", choices=("sim", "opencv"), doc="camera driver (teleop.devices.camera)")
     camera_source: str = spec("", doc="opencv: device index ('0') or MJPG URL (http://pi:8080/?action=stream)")
     camera_hz: float = spec(30.0, lo=1.0, hi=240.0)
+    camera_latency_s: float = spec(0.0, lo=-1.0, hi=1.0,
+                                   doc="how much later this camera stamps a frame than the load cell stamps "
+                                       "the same event (s; measured from a tap by `teleop calibrate camera "
+                                       "--latency`); recorded, not yet applied to frame stamps")
     raw_width_px: int = spec(640, lo=16, hi=4096)
     raw_height_px: int = spec(480, lo=16, hi=4096)
     # Mirror-corner calibration in raw pixels: top-left, top-right, bottom-left, bottom-right.

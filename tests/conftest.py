@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import http.server
 import importlib.util
 import os
+import socketserver
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import pytest
@@ -64,3 +69,67 @@ def calibration(settings, tmp_path_factory):
     from teleop.system.demo import simulated_calibration
 
     return load_calibration(simulated_calibration(settings, tmp_path_factory.mktemp("cal"), n_presses=16))
+
+
+class MjpgServer:
+    """An MJPG-over-HTTP stream on loopback, as mjpg-streamer serves it (``/?action=stream``).
+
+    Each connection is sent ``jpegs`` in order, one every ``1 / fps`` s: a list, or an iterable
+    iterated anew per connection (one that makes each JPEG when asked serves content that
+    depends on the time it is sent).
+    """
+
+    def __init__(self, jpegs: Iterable[bytes], *, fps: float, then: str = "stall"):
+        self.jpegs, self.period_s, self.then = jpegs, 1.0 / fps, then
+        self.done = threading.Event()
+        server = self
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def do_GET(self):
+                if not self.path.startswith("/?action=stream"):
+                    self.send_error(404)
+                    return
+                self.send_response(200)
+                self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=boundarydonotcross")
+                self.end_headers()
+                try:
+                    for jpeg in server.jpegs:
+                        self.wfile.write(
+                            b"--boundarydonotcross\r\nContent-Type: image/jpeg\r\n"
+                            + f"Content-Length: {len(jpeg)}\r\n\r\n".encode()
+                            + jpeg
+                            + b"\r\n"
+                        )
+                        self.wfile.flush()
+                        time.sleep(server.period_s)
+                    if server.then == "stall":  # keep the connection open, send nothing
+                        server.done.wait(30.0)
+                except (BrokenPipeError, ConnectionResetError):
+                    pass
+
+            def log_message(self, *args):
+                pass
+
+        self.httpd = socketserver.ThreadingTCPServer(("127.0.0.1", 0), Handler)
+        self.httpd.daemon_threads = True
+        self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}/?action=stream"
+        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
+        self.thread.start()
+
+    def close(self) -> None:
+        self.done.set()
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+@pytest.fixture
+def mjpg_server() -> Iterator[Callable[..., MjpgServer]]:
+    servers: list[MjpgServer] = []
+
+    def start(jpegs: Iterable[bytes], *, fps: float = 30.0, then: str = "stall") -> MjpgServer:
+        servers.append(MjpgServer(jpegs, fps=fps, then=then))
+        return servers[-1]
+
+    yield start
+    for server in servers:
+        server.close()

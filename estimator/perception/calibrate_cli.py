@@ -4,6 +4,9 @@ Presses come from a taxim-style dataPack ``.npz`` (``f0``, ``imgs``,
 ``touch_center``, ``touch_radius``; optional ``frame``, ``mm_per_px``,
 ``ball_radius_mm``) or a folder of images with one no-contact frame named
 ``f0*``, ``ref*`` or ``background*`` (press circles are then detected).
+With ``--capture`` the presses are first captured live from the sensor's
+camera into the folder ``--presses``, guided press by press in the terminal
+(:mod:`estimator.perception.capture`).
 A deterministic share of the presses (``--train-fraction``) is used; the
 rest are left for ``estimator reconstruct`` to check the result on.
 """
@@ -17,6 +20,7 @@ import sys
 
 from estimator.errors import CalibrationError
 from estimator.perception.calibration_fit import DEFAULT_FLAT_WEIGHT, fit_calibration
+from estimator.perception.capture import add_capture_arguments, capture_to_folder
 from estimator.perception.markers import detect_markers
 from estimator.perception.presses import PressSet, load_presses, split_presses
 from teleop.record import software_version
@@ -142,6 +146,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="share of the presses to calibrate on, spread evenly (0.5: every other press); "
              "recorded in the file so `estimator reconstruct` checks the rest",
     )
+    add_capture_arguments(parser)
     parser.add_argument("--bins", type=int, default=48, help="bins per colour channel of the lookup table")
     parser.add_argument(
         "--tiles", type=int, nargs=2, default=(3, 3), metavar=("ROWS", "COLS"),
@@ -169,6 +174,8 @@ def _flat_weight(text: str) -> float | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.capture:
+        capture_to_folder(args)
     presses, pitch_m, ball_m, record = prepare_presses(args)
     train = split_presses(len(presses), args.train_fraction)
     record.update({

@@ -1,0 +1,1 @@
+"""Bringing up a real rig: ``teleop calibrate`` (load cell, gripper, camera) and what they share."""

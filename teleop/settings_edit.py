@@ -1,0 +1,136 @@
+"""Write calibrated values into a settings TOML file, keeping its comments and layout.
+
+The calibration commands (``teleop calibrate ...``, ``estimator calibrate --capture``) end
+by writing what they measured into the settings file they were given.
+:func:`update_settings_file` changes only the keys it is given (``tomlkit`` keeps every
+comment, blank line and key order of the rest), checks the whole result with
+:func:`~teleop.settings.settings_from_mapping` before anything is written, and replaces the
+file atomically (a temporary file in the same folder, then ``os.replace``): a crash or a
+refused value leaves the old file as it was.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+import tempfile
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import tomlkit
+from tomlkit.exceptions import TOMLKitError
+
+from teleop.errors import SettingsError
+from teleop.settings import settings_from_mapping
+
+__all__ = ["SettingChange", "format_changes", "update_settings_file"]
+
+
+@dataclass(frozen=True)
+class SettingChange:
+    """One key written: its dotted TOML path, the value it had (None: unset) and the new one."""
+
+    key: str
+    old: Any
+    new: Any
+
+
+def _plain(value: Any) -> Any:
+    """TOML-ready form of a value: tuples become lists (nested too), numpy values Python ones."""
+    if hasattr(value, "tolist"):  # a numpy scalar or array
+        value = value.tolist()
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _parent_table(document: tomlkit.TOMLDocument, key: str) -> tuple[Any, str]:
+    """The table holding ``key``'s last part (tables on the way created), and that part."""
+    parts = key.split(".")
+    if not all(p.strip() for p in parts) or len(parts) < 2:
+        raise SettingsError(f"settings key {key!r}: expected a dotted path such as 'load_cell.counts_per_n'")
+    table: Any = document
+    for depth, part in enumerate(parts[:-1]):
+        if part not in table:
+            table[part] = tomlkit.table()
+        table = table[part]
+        if not isinstance(table, Mapping):
+            raise SettingsError(f"settings key {key!r}: {'.'.join(parts[:depth + 1])} is a value, not a table")
+    return table, parts[-1]
+
+
+def update_settings_file(path: Path, changes: Mapping[str, Any]) -> list[SettingChange]:
+    """Write ``changes`` (dotted TOML key -> value) into the settings file at ``path``.
+
+    Parameters
+    ----------
+    path : Path
+        A settings TOML file (:func:`~teleop.settings.load_settings`'s format).
+    changes : Mapping
+        ``{"load_cell.counts_per_n": 41873.2, "sensors.left.warp_corners_px": [[x, y], ...]}``;
+        tables that are missing are created; tuples are written as arrays.
+
+    Returns
+    -------
+    list of SettingChange
+        One per key, in the order given, with the value the file had (None when unset).
+
+    Raises
+    ------
+    SettingsError
+        The file cannot be read or is not TOML, a key is not a dotted path, or the file with
+        the changes would not be valid settings (the message is the settings check's); the
+        file is then left untouched.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SettingsError(f"cannot read settings file {path}: {getattr(exc, 'strerror', None) or exc}") from exc
+    try:
+        document = tomlkit.parse(text)
+    except TOMLKitError as exc:
+        raise SettingsError(f"{path}: not valid TOML: {exc}") from exc
+    records = []
+    for key, value in changes.items():
+        table, name = _parent_table(document, key)
+        old = table.get(name)
+        table[name] = _plain(value)
+        records.append(SettingChange(key, None if old is None else _unwrap(old), _plain(value)))
+    settings_from_mapping(document.unwrap(), source=f"{path} (with {', '.join(changes)} changed)")
+    _write_atomically(path, tomlkit.dumps(document))
+    return records
+
+
+def _unwrap(item: Any) -> Any:
+    return item.unwrap() if hasattr(item, "unwrap") else item
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    mode = stat.S_IMODE(path.stat().st_mode)
+    descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with open(descriptor, "w", encoding="utf-8") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.chmod(temporary, mode)
+        os.replace(temporary, path)
+    except OSError as exc:
+        Path(temporary).unlink(missing_ok=True)
+        raise SettingsError(f"cannot write settings file {path}: {exc.strerror or exc}") from exc
+
+
+def _show(value: Any) -> str:
+    if value is None:
+        return "(unset)"
+    if isinstance(value, list):
+        return "[" + ", ".join(_show(v) for v in value) + "]"
+    return repr(value)
+
+
+def format_changes(changes: Iterable[SettingChange]) -> str:
+    """One line per change, ``load_cell.counts_per_n: 42000.0 -> 41873.2``."""
+    return "\n".join(f"{c.key}: {_show(c.old)} -> {_show(c.new)}" for c in changes)

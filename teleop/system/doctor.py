@@ -1,0 +1,387 @@
+"""``teleop doctor``: is this rig ready for a session? Every configured device, the bus ports, the calibrations.
+
+Devices (all read at once, for ``--duration-s``): the gripper's width stream, the load cell,
+each finger's camera and the softness display. Each is opened through its configured backend
+and read; the report gives
+
+``rate_hz``
+    readings per second over the span read (the display: none; it answers commands);
+``latency_ms``
+    how old the newest reading is when it reaches this process (receipt time minus its
+    timestamp), median over the reads; the display: the round trip of a command (level 0,
+    free) to its status report;
+and a problem, with what to do, when a device does not open, sends nothing, reads slower than
+80 % of its configured rate, stamps readings out of order or on another clock (more than 1 s
+from this host's ``time.monotonic()``, the clock of every device timestamp), or a camera's
+frames are not the size the settings say. Simulated devices (backend ``sim``) are fed one
+simulated grasp of the default scene's first object while they are read.
+
+Bus: each endpoint on this host must be free to bind (a port in use is a session still
+running, or another program); an endpoint on another host must answer (a refused connection
+is fine: nothing listens there before the session); endpoints off loopback need CURVE keys.
+
+Calibrations: each sensor's colour calibration (present, loads, made for the sensor's image
+grid; its age in days), required for the estimator's finger; and the estimator's model.
+
+Exit status 0 when everything a session needs is right, 1 otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import json
+import socket
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+import numpy as np
+
+from teleop.devices.camera import open_camera
+from teleop.devices.gripper import open_gripper
+from teleop.devices.loadcell import open_load_cell
+from teleop.errors import ComplianceTeleopError, DeviceTimeoutError
+from teleop.rig.load_cell_calibration import load_cell_source
+from teleop.settings import Settings, default_settings_path, load_settings, resolve_config_path
+
+__all__ = ["Check", "check_calibrations", "check_devices", "check_endpoints", "diagnose"]
+
+RATE_TOLERANCE = 0.8  # a device reading below this fraction of its configured rate is a problem
+MAX_CLOCK_OFFSET_S = 1.0  # readings stamped further than this from the host's clock are on another clock
+READ_SLICE_S = 0.2  # each read waits at most this long, so a silent device is noticed
+
+
+@dataclass
+class Check:
+    """One line of the report: a device, a bus endpoint or a calibration file."""
+
+    name: str
+    ok: bool
+    rate_hz: float | None = None
+    latency_ms: float | None = None
+    problem: str | None = None
+    detail: dict[str, Any] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- devices
+
+
+@dataclass
+class _Probe:
+    """How to read one device: ``read`` returns the timestamps of what arrived (maybe none)."""
+
+    name: str
+    device: Any
+    read: Callable[[], list[float]]
+    expected_hz: float | None
+    where: str
+    fix: str
+    inspect: Callable[[], str | None] | None = None  # a check of what was read, after reading
+
+
+def _fixes(settings: Settings) -> dict[str, str]:
+    cell = {"serial": "check the cable and `load_cell.port`",
+            "tcp": "check the bridge runs (`teleop hx711-bridge`) and `load_cell.address`"}
+    return {"gripper": "check the robot is on with FCI enabled and `gripper.host`" if settings.gripper.backend == "franky"
+            else "check [gripper] backend", "load cell": cell.get(settings.load_cell.backend, "check [load_cell]"),
+            "display": "check the display's USB cable and `display.vendor_id` / `display.product_id`"
+            if settings.display.backend == "hid" else "check [display] backend"}
+
+
+def _camera_probe(settings: Settings, sensor: Any, playback: Any) -> _Probe:
+    options = {"playback": playback} if sensor.camera_backend == "sim" else {}
+    camera = open_camera(sensor, **options)
+    first: list[Any] = []
+
+    def read() -> list[float]:
+        try:
+            frame = camera.read(timeout_s=READ_SLICE_S)
+        except DeviceTimeoutError:
+            return []
+        if not first:
+            first.append(frame)
+        return [frame.t_s]
+
+    def inspect() -> str | None:
+        want = (sensor.raw_height_px, sensor.raw_width_px)
+        got = first[0].image().shape[:2] if first else want
+        return None if got == want else (f"frames are {got[1]}x{got[0]} px, the settings say {want[1]}x{want[0]}: set "
+                                         f"raw_width_px / raw_height_px in [sensors.{sensor.finger}] or the camera's mode")
+
+    where = sensor.camera_source or "the simulated camera"
+    key = f"`camera_source` in [sensors.{sensor.finger}]"
+    fix = f"check the camera or its stream server and {key}" if sensor.camera_backend == "opencv" else "check [sensors]"
+    return _Probe(f"camera {sensor.finger}", camera, read, sensor.camera_hz, where, fix, inspect)
+
+
+def _display_probe(settings: Settings, fix: str) -> _Probe:
+    from haptics.devices import make_display
+    from haptics.protocol import StiffnessCommand
+
+    display = make_display(settings.display)
+    faults: set[str] = set()
+
+    def read() -> list[float]:  # one command every keepalive, as the renderer sends them; stamped when it left
+        time.sleep(settings.display.keepalive_s)
+        sent = time.monotonic()
+        display.write_command(StiffnessCommand(level=0))  # free: safe with a hand on it
+        status = display.read_status(timeout_s=READ_SLICE_S)
+        if status is None:
+            return []
+        faults.update(status.faults)
+        return [sent]
+
+    def inspect() -> str | None:
+        return f"reports faults {sorted(faults)}: see the display's manual; power-cycle it" if faults else None
+
+    where = f"the display (backend {settings.display.backend!r})"
+    return _Probe("display", display, read, None, where, fix, inspect)
+
+
+def _simulated_playback(settings: Settings) -> Any:
+    """One simulated grasp to feed the ``sim`` devices, started so that its data flows now."""
+    from teleop.devices.playback import GraspPlayback
+    from teleop.scene import load_scene
+    from teleop.sim.grasp import simulate_grasp
+
+    obj = load_scene("default").objects[0]
+    record = simulate_grasp(obj, settings=settings, rng=np.random.default_rng(0), seed=0)[0]
+    playback = GraspPlayback(record)
+    first_s = min(float(s.t_s[0]) for s in (record.force_n, record.width_m, *record.frames) if len(s))
+    playback.start(time.monotonic() - (first_s - playback.origin_s))
+    return playback
+
+
+def _gripper_probe(settings: Settings, playback: Any, fix: str) -> _Probe:
+    options = {"playback": playback} if settings.gripper.backend == "sim" else {}
+    gripper = open_gripper(settings.gripper, **options)
+    where = settings.gripper.host if settings.gripper.backend == "franky" else "the simulated gripper"
+    return _Probe("gripper", gripper, lambda: gripper.widths(timeout_s=READ_SLICE_S).t_s.tolist(),
+                  settings.gripper.width_read_hz, where, fix)
+
+
+def _load_cell_probe(settings: Settings, playback: Any, fix: str) -> _Probe:
+    cell = open_load_cell(settings.load_cell, **({"playback": playback} if settings.load_cell.backend == "sim" else {}))
+
+    def read() -> list[float]:
+        try:
+            return cell.read(timeout_s=READ_SLICE_S).t_s.tolist()
+        except DeviceTimeoutError:
+            return []
+
+    where = load_cell_source(settings.load_cell).split(" (")[0]
+    return _Probe("load cell", cell, read, settings.load_cell.sample_rate_hz, where, fix)
+
+
+def _probes(settings: Settings) -> list[_Probe | Check]:
+    """A probe per device; a Check with the problem for a device that cannot even be set up."""
+    fixes = _fixes(settings)
+    uses_sim = "sim" in {settings.gripper.backend, settings.load_cell.backend,
+                         *(s.camera_backend for s in settings.sensors)}
+    playback = _simulated_playback(settings) if uses_sim else None
+    builders = [
+        ("gripper", lambda: _gripper_probe(settings, playback, fixes["gripper"])),
+        ("load cell", lambda: _load_cell_probe(settings, playback, fixes["load cell"])),
+        *((f"camera {s.finger}", lambda s=s: _camera_probe(settings, s, playback)) for s in settings.sensors),
+        ("display", lambda: _display_probe(settings, fixes["display"])),
+    ]
+    probes: list[_Probe | Check] = []
+    for name, build in builders:
+        try:
+            probes.append(build())
+        except ComplianceTeleopError as exc:  # no backend library, no camera source, ...
+            probes.append(Check(name, False, problem=f"cannot be set up: {exc}"))
+    return probes
+
+
+def _judge(probe: _Probe, stamps: list[float], lags: list[float], duration_s: float) -> Check:
+    if not stamps:
+        return Check(probe.name, False, problem=f"no data from {probe.where} within {duration_s:g} s: {probe.fix}")
+    t = np.asarray(stamps)
+    span = float(t[-1] - t[0])
+    rate = (t.size - 1) / span if t.size > 1 and span > 0 and probe.expected_hz else None
+    latency_ms = 1e3 * float(np.median(lags))
+    detail = {"readings": int(t.size), "expected_hz": probe.expected_hz, "monotonic": bool(np.all(np.diff(t) >= 0)),
+              "host_clock": bool(max(abs(x) for x in lags) <= MAX_CLOCK_OFFSET_S)}
+    problems = []
+    if probe.expected_hz and (rate is None or rate < RATE_TOLERANCE * probe.expected_hz):
+        problems.append(f"reads at {rate or 0:.3g} Hz, configured {probe.expected_hz:g} Hz: {probe.fix}, and that "
+                        "the configured rate is what the device delivers")
+    if not detail["monotonic"]:
+        problems.append("timestamps go backwards: the device or its bridge restamps readings; update its firmware")
+    if not detail["host_clock"]:
+        problems.append(f"timestamps are {max(lags, key=abs):+.3g} s from this host's monotonic clock: stamp on "
+                        "arrival, or map the device clock to the host's (as the tcp load cell does)")
+    if probe.inspect is not None and (found := probe.inspect()):
+        problems.append(found)
+    return Check(probe.name, not problems, rate, latency_ms, "; ".join(problems) or None, detail)
+
+
+def _run_probe(probe: _Probe | Check, duration_s: float) -> Check:
+    if isinstance(probe, Check):
+        return probe
+    try:
+        probe.device.connect()
+    except ComplianceTeleopError as exc:
+        return Check(probe.name, False, problem=f"cannot open: {exc}: {probe.fix}")
+    stamps: list[float] = []
+    lags: list[float] = []
+    try:
+        end = time.monotonic() + duration_s
+        while time.monotonic() < end:
+            got = probe.read()
+            if got:
+                lags.append(time.monotonic() - got[-1])
+                stamps += got
+    except ComplianceTeleopError as exc:
+        return Check(probe.name, False, problem=f"failed while read: {exc}: {probe.fix}")
+    finally:
+        probe.device.close()
+    return _judge(probe, stamps, lags, duration_s)
+
+
+def check_devices(settings: Settings, *, duration_s: float = 2.0) -> list[Check]:
+    """Open and read every configured device at once for ``duration_s``; one Check each."""
+    probes = _probes(settings)
+    with ThreadPoolExecutor(max_workers=len(probes), thread_name_prefix="doctor") as pool:
+        return list(pool.map(lambda p: _run_probe(p, duration_s), probes))
+
+
+# --------------------------------------------------------------------------- bus and calibrations
+
+
+def _endpoint_check(name: str, endpoint: str) -> Check:
+    key = f"`bus.{name}`"
+    parts = urlsplit(endpoint)
+    if parts.scheme != "tcp":
+        return Check(name, True, detail={"endpoint": endpoint, "probed": False})
+    host, port = parts.hostname or "", parts.port
+    probe = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
+    probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # a port in TIME_WAIT is free for the session
+    try:
+        probe.bind(("0.0.0.0" if host == "*" else host, port))
+        problem = None
+    except socket.gaierror as exc:
+        problem = f"host {host!r} does not resolve ({exc.strerror}): fix {key}"
+    except OSError as exc:
+        problem = (f"port {port} on {host} is in use (a session still running, or another program): stop it or "
+                   f"choose another port in {key}") if exc.errno == errno.EADDRINUSE else _reach(host, port, key)
+    finally:
+        probe.close()
+    return Check(name, problem is None, problem=problem, detail={"endpoint": endpoint, "probed": True})
+
+
+def _reach(host: str, port: int, key: str) -> str | None:
+    """None when ``host`` answers on ``port`` (a refusal counts: nothing need listen before the session)."""
+    try:
+        socket.create_connection((host, port), timeout=1.0).close()
+    except ConnectionRefusedError:
+        return None
+    except OSError as exc:
+        return f"{host}:{port} does not answer ({exc.strerror or exc}): check the network, that host, and {key}"
+    return None
+
+
+def check_endpoints(settings: Settings) -> list[Check]:
+    """Each bus endpoint free (on this host) or answering (elsewhere), and CURVE keys where needed."""
+    from teleop.bus.security import security_from_settings
+
+    bus = settings.bus
+    checks = [_endpoint_check(name, getattr(bus, name)) for name in ("robot_pub", "estimate_pub", "command",
+                                                                      "display_pub")]
+    try:
+        security_from_settings(bus)
+    except ComplianceTeleopError as exc:
+        checks.append(Check("bus keys", False, problem=f"{exc}: create them with `teleop keys` and set `bus.keys_dir`"))
+    return checks
+
+
+def _age_days(path: Path) -> float:
+    return round((time.time() - path.stat().st_mtime) / 86400.0, 1)
+
+
+def check_calibrations(settings: Settings, settings_path: Path) -> list[Check]:
+    """Each sensor's colour calibration and the estimator's model: present, loadable, their age."""
+    from estimator.errors import EstimatorError
+    from estimator.measure import check_calibration_fits
+    from estimator.perception.calibration import load_calibration
+    from estimator.service import resolve_model_dir
+
+    checks = []
+    for sensor in settings.sensors:
+        name, needed = f"calibration {sensor.finger}", sensor.finger == settings.estimator.finger
+        todo = (f"run `estimator calibrate --capture --settings {settings_path} --finger {sensor.finger}`")
+        if not sensor.calibration:
+            checks.append(Check(name, not needed, problem=f"none configured: {todo}" if needed else None))
+            continue
+        path = resolve_config_path(sensor.calibration)
+        detail = {"path": str(path)}
+        try:
+            check_calibration_fits(load_calibration(path), sensor)
+            checks.append(Check(name, True, detail={**detail, "age_days": _age_days(path)}))
+        except EstimatorError as exc:
+            checks.append(Check(name, False, problem=f"{exc}: {todo}", detail=detail))
+    model_dir = resolve_model_dir(None, settings)
+    if model_dir is None:
+        checks.append(Check("model", True, problem=None, detail={"path": None, "note": "none: analytical fits only"}))
+    elif not (model_dir / "model.onnx").is_file() or not (model_dir / "metadata.json").is_file():
+        checks.append(Check("model", False, problem=f"{model_dir} lacks model.onnx or metadata.json: fix "
+                                                    "`estimator.model_path` or train one", detail={"path": str(model_dir)}))
+    else:
+        checks.append(Check("model", True, detail={"path": str(model_dir), "age_days": _age_days(model_dir / "model.onnx")}))
+    return checks
+
+
+def diagnose(settings_path: Path, *, duration_s: float = 2.0) -> dict[str, Any]:
+    """The whole report as the JSON object ``--json`` prints."""
+    settings = load_settings(settings_path)
+    devices = check_devices(settings, duration_s=duration_s)
+    endpoints = check_endpoints(settings)
+    calibrations = check_calibrations(settings, settings_path)
+    report = {name: [asdict(c) for c in checks]
+              for name, checks in (("devices", devices), ("endpoints", endpoints), ("calibrations", calibrations))}
+    return {"ok": all(c.ok for c in (*devices, *endpoints, *calibrations)), "settings": str(settings_path), **report}
+
+
+# --------------------------------------------------------------------------- command
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = __doc__.replace("``", "")
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument("--settings", default=str(default_settings_path()), metavar="FILE",
+                        help="settings TOML of the rig (default: the shipped simulated one)")
+    parser.add_argument("--duration-s", type=float, default=2.0, metavar="S",
+                        help="how long every device is read (default: 2.0)")
+    parser.add_argument("--json", action="store_true",
+                        help='print one JSON object: {"ok", "devices": [{"name", "ok", "rate_hz", "latency_ms", '
+                             '"problem", "detail"}...], "endpoints": [...], "calibrations": [...]}')
+
+
+def _number(value: float | None, digits: str) -> str:
+    return "-" if value is None else format(value, digits)
+
+
+def _table(report: dict[str, Any]) -> str:
+    lines = [f"{'':18s} {'ok':4s} {'rate Hz':>16s} {'latency ms':>10s}  problem / what to do"]
+    for section in ("devices", "endpoints", "calibrations"):
+        for c in report[section]:
+            expected = c["detail"].get("expected_hz")
+            rate = _number(c["rate_hz"], ".1f") + (f" / {expected:g}" if expected and c["rate_hz"] else "")
+            extra = c["detail"].get("endpoint") or (f"{c['detail']['age_days']:g} days old"
+                                                   if "age_days" in c["detail"] else "")
+            lines.append(f"{c['name']:18s} {'yes' if c['ok'] else 'NO':4s} {rate:>16s} "
+                         f"{_number(c['latency_ms'], '.1f'):>10s}  {c['problem'] or extra}")
+    lines.append("ready for a session" if report["ok"] else "NOT ready: fix the lines marked NO")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    report = diagnose(Path(args.settings), duration_s=args.duration_s)
+    print(json.dumps(report) if args.json else _table(report))
+    return 0 if report["ok"] else 1

@@ -1,0 +1,108 @@
+"""``teleop calibrate gripper`` end to end: the franky backend against franky-sim, a load cell on TCP.
+
+What is simulated: franky-sim (MuJoCo) moves the Franka hand's fingers, position-controlled,
+with nothing between them; it has no finger compliance to configure. The rigid reference
+object and the fingers' compliance live in the load cell instead: an HX711 bridge
+(:class:`~teleop.devices.hx711_bridge.Hx711Bridge`, served on loopback to the ``tcp``
+backend) whose fake cell reads, at 80 Hz with noise,
+
+    F = K_TRUE * max(0, W - width)
+
+where ``width`` is the simulated hand's width at that instant: the force a finger of stiffness
+K_TRUE feels when the motor closes past contact with a rigid object of width W. The settings
+configure a different stiffness (the prior the command starts from); the command must find
+K_TRUE from the forces and widths it reads. franky-sim's fingers stop about 0.5 mm short of a
+commanded width (the offset of its finger controller), where a real hand's force control would
+press on; so the simulated fingers are soft (10 kN/m: millimetres of squeeze) and the prior
+softer still, so that every squeeze gets past contact.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from teleop.cli import main
+from teleop.devices.hx711_bridge import FakeHx711, Hx711Bridge
+from teleop.rig.gripper_calibration import Squeeze, fit_finger_stiffness
+from teleop.settings import default_settings_path, load_settings
+from teleop.settings_edit import update_settings_file
+
+K_TRUE = 1.0e4  # N/m
+K_CONFIGURED = 8.0e3
+WIDTH_M = 0.05
+COUNTS_PER_N = 42000.0
+TARE = 1234
+
+
+@pytest.fixture(scope="module")
+def franky_sim_robot():
+    """A franky-sim robot; the test reads its hand width directly, as the fake cell's input."""
+    try:
+        from franky_sim import SimulationServer
+        from franky_sim.mujoco_simulator import MujocoSimulator
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        pytest.skip(f"franky-sim cannot be imported here: {exc}")
+    with MujocoSimulator(enable_visualization=False) as sim:
+        robot = sim.add_robot()
+        with SimulationServer(sim) as server:
+            server.run_async()
+            yield robot
+
+
+@pytest.mark.slow
+def test_recovers_the_finger_stiffness_through_franky_sim(franky_sim_robot, tmp_path, capsys):
+    cell = FakeHx711(counts_per_n=COUNTS_PER_N, tare_counts=TARE, rate_hz=80.0, noise_counts=0.02 * COUNTS_PER_N,
+                     force_n=lambda _t: K_TRUE * max(0.0, WIDTH_M - franky_sim_robot.hand_width))
+    path = tmp_path / "rig.toml"
+    shutil.copy(default_settings_path(), path)
+    with Hx711Bridge(cell, host="127.0.0.1", port=0) as bridge:
+        update_settings_file(path, {
+            "gripper.backend": "franky", "gripper.host": franky_sim_robot.hostname,
+            "gripper.closing_speed_m_s": 0.05, "gripper.width_read_hz": 20.0,
+            "gripper.finger_stiffness_n_per_m": K_CONFIGURED,
+            "load_cell.backend": "tcp", "load_cell.address": bridge.address,
+            "load_cell.counts_per_n": COUNTS_PER_N, "load_cell.tare_counts": TARE,
+        })
+        code = main(["calibrate", "gripper", "--settings", str(path), "--object-width-mm", str(WIDTH_M * 1e3),
+                     "--repeats", "2", "--levels", "4", "--settle-s", "0.2", "--average-s", "0.3", "--json"])
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert code == 0, result
+    assert result["stiffness_n_per_m"] == pytest.approx(K_TRUE, rel=0.10)
+    assert 0 < result["stiffness_se_n_per_m"] < 0.05 * result["stiffness_n_per_m"]
+    assert result["contact_width_m"] == pytest.approx(WIDTH_M, abs=5e-4)
+    assert len(result["squeezes"]) == 8 and len(result["per_repeat_n_per_m"]) == 2
+    forces = [s["force_n"] for s in result["squeezes"]]
+    assert min(forces) > 1.0 and max(forces) > 3 * min(forces)  # the cell read real squeezes at four levels
+    assert load_settings(path).gripper.finger_stiffness_n_per_m == pytest.approx(result["stiffness_n_per_m"],
+                                                                                   rel=1e-3)
+
+
+def _squeezes(stiffness: float, *, scatter_m: float = 0.0, width_m: float = WIDTH_M) -> list[Squeeze]:
+    rng = np.random.default_rng(0)
+    out = []
+    for repeat in range(3):
+        for force in (5.0, 10.0, 20.0, 30.0):
+            out.append(Squeeze(repeat, force, force, 0.01, width_m - force / stiffness + rng.normal(0.0, scatter_m)))
+    return out
+
+
+def test_fit_recovers_an_exact_line_per_repeat_too():
+    fit = fit_finger_stiffness(_squeezes(1.2e5, scatter_m=1e-7), object_width_m=WIDTH_M)
+    assert fit and fit.stiffness_n_per_m == pytest.approx(1.2e5, rel=0.01)
+    assert all(k == pytest.approx(1.2e5, rel=0.02) for k in fit.per_repeat_n_per_m)
+    assert fit.contact_width_m == pytest.approx(WIDTH_M, abs=1e-6)
+
+
+@pytest.mark.parametrize("squeezes, object_width_m, start", [
+    (_squeezes(1.2e5, scatter_m=5e-5), WIDTH_M, "too uncertain"),
+    (_squeezes(-1.2e5), WIDTH_M, "the width does not fall"),
+    (_squeezes(1.2e5), 0.03, "the fingers touch at 50.0 mm"),
+    (_squeezes(1.2e5)[:2], WIDTH_M, "2 squeezes reached the object"),
+])
+def test_refusals_say_why(squeezes, object_width_m, start):
+    fit = fit_finger_stiffness(squeezes, object_width_m=object_width_m)
+    assert not fit and fit.reason.startswith(start), fit.reason

@@ -1,0 +1,117 @@
+"""``teleop doctor``: the shipped simulated rig is ready; an unplugged device is named with what to do."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import tty
+
+import pytest
+
+from teleop.cli import main
+from teleop.settings import default_settings_path, load_settings
+from teleop.settings_edit import update_settings_file
+from teleop.system.doctor import check_calibrations, check_endpoints
+
+DEVICES = ["gripper", "load cell", "camera left", "camera right", "display"]
+
+
+def _closed_port() -> int:
+    probe = socket.create_server(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    return port
+
+
+def _doctor(capsys, *argv: str) -> tuple[int, dict]:
+    code = main(["doctor", "--json", "--duration-s", "1", *argv])
+    return code, json.loads(capsys.readouterr().out)
+
+
+def _copy(tmp_path, changes):
+    path = tmp_path / "rig.toml"
+    shutil.copy(default_settings_path(), path)
+    update_settings_file(path, changes)
+    return path
+
+
+def test_the_shipped_simulated_rig_is_ready(capsys):
+    code, report = _doctor(capsys)
+    devices = {d["name"]: d for d in report["devices"]}
+    assert list(devices) == DEVICES
+    assert all(d["ok"] and d["problem"] is None for d in devices.values()), devices
+    settings = load_settings(default_settings_path())
+    assert devices["load cell"]["rate_hz"] == pytest.approx(settings.load_cell.sample_rate_hz, rel=0.2)
+    assert devices["camera left"]["rate_hz"] == pytest.approx(settings.sensor("left").camera_hz, rel=0.2)
+    assert devices["gripper"]["rate_hz"] == pytest.approx(settings.gripper.width_read_hz, rel=0.2)
+    assert all(0 <= d["latency_ms"] < 150 for d in devices.values())
+    assert all(d["detail"]["monotonic"] and d["detail"]["host_clock"] for d in devices.values())
+    assert all(c["ok"] for c in report["calibrations"])
+    assert all(c["detail"]["age_days"] >= 0 for c in report["calibrations"] if c["name"].startswith("calibration"))
+    # the bus ports are free unless something on this machine holds them right now
+    assert report["ok"] == all(e["ok"] for e in report["endpoints"]) and code == (0 if report["ok"] else 1)
+
+
+def test_unplugged_devices_are_named_with_what_to_do(tmp_path, capsys):
+    cell_port, camera_port = _closed_port(), _closed_port()
+    path = _copy(tmp_path, {
+        "load_cell.backend": "tcp", "load_cell.address": f"tcp://127.0.0.1:{cell_port}",
+        "sensors.left.camera_backend": "opencv", "sensors.left.camera_source": f"http://127.0.0.1:{camera_port}/",
+        "sensors.right.camera_backend": "opencv",  # and no source at all
+    })
+    code, report = _doctor(capsys, "--settings", str(path))
+    devices = {d["name"]: d for d in report["devices"]}
+    assert code == 1 and not report["ok"]
+    assert not devices["load cell"]["ok"] and devices["load cell"]["rate_hz"] is None
+    assert f"127.0.0.1:{cell_port}" in devices["load cell"]["problem"]
+    assert devices["load cell"]["problem"].endswith("check the bridge runs (`teleop hx711-bridge`) and "
+                                                    "`load_cell.address`")
+    assert not devices["camera left"]["ok"]
+    assert f"http://127.0.0.1:{camera_port}/" in devices["camera left"]["problem"]
+    assert "`camera_source` in [sensors.left]" in devices["camera left"]["problem"]
+    assert "no source (set camera_source" in devices["camera right"]["problem"]
+    assert all(devices[name]["ok"] for name in ("gripper", "display"))
+
+
+def test_a_silent_serial_cell_says_no_data_and_the_table_says_not_ready(tmp_path, capsys):
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    port = os.ttyname(slave)
+    try:
+        path = _copy(tmp_path, {"load_cell.backend": "serial", "load_cell.port": port})
+        code = main(["doctor", "--settings", str(path), "--duration-s", "1"])
+    finally:
+        os.close(master)
+        os.close(slave)
+    table = capsys.readouterr().out
+    assert code == 1 and "NOT ready" in table
+    line = next(ln for ln in table.splitlines() if ln.startswith("load cell"))
+    assert f"no data from {port} within 1 s: check the cable and `load_cell.port`" in line
+
+
+def test_a_port_in_use_and_an_unknown_unkeyed_host_are_problems():
+    holder = socket.create_server(("127.0.0.1", 0))
+    try:
+        port = holder.getsockname()[1]
+        settings = load_settings(default_settings_path())
+        bus = settings.bus.__class__(robot_pub=f"tcp://127.0.0.1:{port}", estimate_pub="tcp://no-such-host.invalid:5551")
+        checks = {c.name: c for c in check_endpoints(settings.__class__(bus=bus))}
+    finally:
+        holder.close()
+    assert not checks["robot_pub"].ok and f"port {port} on 127.0.0.1 is in use" in checks["robot_pub"].problem
+    assert "`bus.robot_pub`" in checks["robot_pub"].problem
+    assert not checks["estimate_pub"].ok
+    assert "host 'no-such-host.invalid' does not resolve" in checks["estimate_pub"].problem
+    assert not checks["bus keys"].ok and "`teleop keys`" in checks["bus keys"].problem
+    assert checks["command"].ok
+
+
+def test_a_missing_calibration_is_a_problem_for_the_estimators_finger(tmp_path):
+    path = _copy(tmp_path, {"sensors.left.calibration": "calibration/absent.npz", "sensors.right.calibration": ""})
+    checks = {c.name: c for c in check_calibrations(load_settings(path), path)}
+    assert not checks["calibration left"].ok
+    assert "absent.npz" in checks["calibration left"].problem
+    assert f"estimator calibrate --capture --settings {path} --finger left" in checks["calibration left"].problem
+    assert checks["calibration right"].ok  # not the estimator's finger: nothing needs it

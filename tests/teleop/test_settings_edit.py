@@ -1,0 +1,86 @@
+"""Writing calibrated values into a settings file: comments and order kept, bad values refused."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from teleop.errors import SettingsError
+from teleop.settings import default_settings_path, load_settings
+from teleop.settings_edit import SettingChange, format_changes, update_settings_file
+
+
+@pytest.fixture
+def settings_file(tmp_path):
+    path = tmp_path / "rig.toml"
+    shutil.copy(default_settings_path(), path)
+    return path
+
+
+def _keys_in_order(text: str) -> list[str]:
+    return [line.split("=")[0].strip() for line in text.splitlines() if "=" in line and not line.startswith("#")]
+
+
+def test_changes_are_written_and_everything_else_is_kept(settings_file):
+    before = settings_file.read_text()
+    corners = ((40.5, 80.0), (430.0, 120.25), (50.0, 420.0), (440.0, 360.0))
+    changes = update_settings_file(settings_file, {
+        "load_cell.counts_per_n": np.float64(41873.2),
+        "load_cell.tare_counts": -1234,
+        "sensors.left.warp_corners_px": corners,
+        "sensors.left.pixel_pitch_m": 9.1e-5,  # a key with a comment on its line
+    })
+    after = settings_file.read_text()
+    assert changes[0] == SettingChange("load_cell.counts_per_n", 42000.0, 41873.2)
+    assert changes[2].old == [[46.0, 87.0], [439.0, 121.0], [52.0, 425.0], [446.0, 368.0]]
+    settings = load_settings(settings_file)
+    assert settings.load_cell.counts_per_n == 41873.2 and settings.load_cell.tare_counts == -1234
+    assert settings.sensor("left").warp_corners_px == corners
+    # every comment line survives, keys stay where they were, the inline comment too
+    assert [line for line in before.splitlines() if line.startswith("#")] == \
+           [line for line in after.splitlines() if line.startswith("#")]
+    assert _keys_in_order(before) == _keys_in_order(after)
+    assert "# 11 px per mm, measured with calipers" in after
+    changed = [a for b, a in zip(before.splitlines(), after.splitlines(), strict=True) if a != b]
+    assert len(changed) == 4
+    assert format_changes(changes).splitlines()[:2] == [
+        "load_cell.counts_per_n: 42000.0 -> 41873.2", "load_cell.tare_counts: 0 -> -1234"]
+
+
+def test_missing_keys_and_tables_are_created(tmp_path):
+    path = tmp_path / "small.toml"
+    path.write_text("# a minimal rig\n[load_cell]\nbackend = \"sim\"\n")
+    changes = update_settings_file(path, {"gripper.finger_stiffness_n_per_m": 1.5e5, "load_cell.tare_counts": 7})
+    assert [c.old for c in changes] == [None, None]
+    assert format_changes(changes).startswith("gripper.finger_stiffness_n_per_m: (unset) -> 150000.0")
+    settings = load_settings(path)
+    assert settings.gripper.finger_stiffness_n_per_m == 1.5e5 and settings.load_cell.tare_counts == 7
+    assert path.read_text().startswith("# a minimal rig\n[load_cell]\n")
+
+
+@pytest.mark.parametrize("changes, match", [
+    ({"load_cell.counts_per_n": -5.0}, "counts_per_n"),
+    ({"gripper.no_such_key": 1.0}, "unknown key 'no_such_key'"),
+    ({"sensors.left.warp_corners_px": [[1.0, 2.0]]}, "warp_corners_px"),
+    ({"counts_per_n": 1.0}, "dotted path"),
+    ({"gripper.max_width_m.inner": 1.0}, "is a value, not a table"),
+])
+def test_an_invalid_result_is_refused_and_the_file_left_untouched(settings_file, changes, match):
+    before = settings_file.read_bytes()
+    stamp = os.stat(settings_file).st_mtime_ns
+    with pytest.raises(SettingsError, match=match):
+        update_settings_file(settings_file, {"load_cell.tare_counts": 5, **changes})
+    assert settings_file.read_bytes() == before and os.stat(settings_file).st_mtime_ns == stamp
+    assert [p.name for p in settings_file.parent.iterdir()] == ["rig.toml"]  # no temporary left behind
+
+
+def test_a_file_that_is_not_toml_is_named(tmp_path):
+    path = tmp_path / "broken.toml"
+    path.write_text("[load_cell\n")
+    with pytest.raises(SettingsError, match="broken.toml: not valid TOML"):
+        update_settings_file(path, {"load_cell.tare_counts": 1})
+    with pytest.raises(SettingsError, match="cannot read settings file"):
+        update_settings_file(tmp_path / "absent.toml", {"load_cell.tare_counts": 1})
