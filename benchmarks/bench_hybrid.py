@@ -56,6 +56,7 @@ from estimator.measure import estimate_grasp, measure_grasp, no_contact_referenc
 from estimator.perception.depth import reconstruct_depth  # noqa: E402
 from estimator.perception.grid import grid_calibration, to_grid  # noqa: E402
 from estimator.perception.markers import detect_markers  # noqa: E402
+from estimator.settings import estimator_settings  # noqa: E402
 from teleop.record import read_record  # noqa: E402
 from teleop.settings import load_settings  # noqa: E402
 
@@ -64,8 +65,8 @@ STAGES = ("segment", "reference", "warp", "depth", "features", "fits", "encode",
 
 def stage_runs(record, sampled, *, settings, predictor, calibration):
     """One grasp's hybrid stages (module notes) as functions of nothing, on the sampled grasp's own inputs."""
-    variant, finger = predictor.variant, settings.estimator.finger
-    sampling = replace(settings, estimator=replace(settings.estimator, n_frames=variant.n_frames))
+    variant, finger = predictor.variant, settings.sensing.finger
+    sampling = settings.with_section(replace(estimator_settings(settings), n_frames=variant.n_frames))
     m = sampled.measurements
     binning, sensor, grid, reference = m.depth_binning, m.sensor, m.grid, m.reference_bgr
     cal = grid_calibration(calibration_for(record, finger, calibration), binning)
@@ -97,7 +98,7 @@ def stages(paths, *, settings, predictor, calibration, repeats):
     times = {name: [] for name in STAGES}
     with one_core():
         for path in paths:
-            record = decoded(read_record(path), reduce=settings.estimator.depth_binning)
+            record = decoded(read_record(path), reduce=estimator_settings(settings).depth_binning)
             sampled, sample_ms = timed(hybrid.sample, record, repeats)
             if not sampled:
                 continue

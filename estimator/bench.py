@@ -72,6 +72,8 @@ from estimator.learned.sampling import calibration_for, decoded, sample_grasp
 from estimator.measure import TACTILE_METHODS, estimate_grasp, measure_grasp, no_contact_reference
 from estimator.metrics import summarise
 from estimator.perception.calibration import Calibration
+from estimator.settings import estimator_settings
+from haptics.settings import display_settings
 from teleop.errors import RecordError
 from teleop.record import GraspRecord, find_records, read_record
 from teleop.settings import Settings, default_settings_path, load_settings
@@ -100,10 +102,10 @@ def configurations(
     ``binning`` of the depth grid, and every model with ``auto``.
 
     Raises SettingsError for a binning the estimator finger's grid does not take."""
-    finger = settings.estimator.finger
+    finger = settings.sensing.finger
     # A bad factor fails here, before any record is read.
-    rebinned = {k: replace(settings, estimator=replace(settings.estimator, depth_binning=k)) for k in binning}
-    own = settings.estimator.depth_binning
+    rebinned = {k: settings.with_section(replace(estimator_settings(settings), depth_binning=k)) for k in binning}
+    own = estimator_settings(settings).depth_binning
 
     def calibrated(record: GraspRecord) -> Calibration:
         return calibration_for(record, finger, calibration)
@@ -178,7 +180,7 @@ def timed(run: Callable[[GraspRecord], Estimate], record: GraspRecord, repeats: 
 
 
 def _reference_ms(record: GraspRecord, settings: Settings, repeats: int) -> float | None:
-    finger, binning = settings.estimator.finger, settings.estimator.depth_binning
+    finger, binning = settings.sensing.finger, estimator_settings(settings).depth_binning
     segment = measure_grasp(record, settings=settings, tactile=False).segment
     if not segment:
         return None
@@ -210,7 +212,7 @@ def bench(
                 skipped += 1
                 continue
             by_binning = {k: decoded(record, reduce=k) for k in sorted({c.binning for c in configs})}
-            ref_ms = _reference_ms(by_binning[settings.estimator.depth_binning], settings, repeats)
+            ref_ms = _reference_ms(by_binning[estimator_settings(settings).depth_binning], settings, repeats)
             if ref_ms is not None:
                 reference.append(ref_ms)
             for config in configs:
@@ -220,7 +222,7 @@ def bench(
     if not rows:
         raise EstimatorError("no labelled, readable .grasp record to bench")
     summary = summarise(rows, [c.name for c in configs],
-                        display_range_pa=(settings.display.e_soft_pa, settings.display.e_rigid_pa))
+                        display_range_pa=(display_settings(settings).e_soft_pa, display_settings(settings).e_rigid_pa))
     out = []
     for config in configs:
         s = summary[config.name]
@@ -341,7 +343,7 @@ def run(args: argparse.Namespace) -> int:
     models = [CompliancePredictor(d, threads=1) for d in model_dirs]
     frames = args.frames
     if frames is None:
-        frames = sorted({m.variant.n_frames for m in models}) or [settings.estimator.n_frames]
+        frames = sorted({m.variant.n_frames for m in models}) or [estimator_settings(settings).n_frames]
     configs = configurations(settings=settings, calibration=args.calibration, frames=frames, models=models,
                              binning=args.binning)
     result = {"dir": str(root), **bench(paths, settings=settings, configs=configs, repeats=args.repeats),

@@ -255,7 +255,7 @@ def evaluate_record(
         tactile = any(m in TACTILE_METHODS for m in methods)
         cal = None
         if tactile:
-            sensor = record.sensor(settings.estimator.finger)
+            sensor = record.sensor(settings.sensing.finger)
             cal = _calibration(str(calibration_path(sensor, calibration)))
         measurements = measure_grasp(record, settings=settings, calibration=cal, tactile=tactile,
                                      correct_camera_lag=correct_camera_lag, correct_width_lag=correct_width_lag)

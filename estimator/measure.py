@@ -30,8 +30,9 @@ from estimator.perception.depth import reconstruct_depth
 from estimator.perception.grid import DepthGrid, depth_grid, grid_calibration, to_grid
 from estimator.perception.markers import detect_markers
 from estimator.segment import Segment, segment_grasp
+from estimator.settings import estimator_settings
 from teleop.record import GRASP_DONE_EVENT, GraspRecord
-from teleop.settings import SensorSettings, Settings, resolve_config_path
+from teleop.settings import SensorSettings, Settings, resolve_path
 
 __all__ = [
     "TACTILE_METHODS",
@@ -176,7 +177,7 @@ def calibration_path(sensor: SensorSettings, override: str | Path | None = None)
             f"`estimator calibrate`, then set calibration in [sensors.{sensor.finger}] or pass "
             "--calibration"
         )
-    return resolve_config_path(sensor.calibration)
+    return resolve_path(sensor.calibration)
 
 
 def resolve_calibration(sensor: SensorSettings, calibration: Calibration | str | Path | None) -> Calibration:
@@ -338,13 +339,13 @@ def measure_grasp(
     RecordError
         A frame does not decode.
     """
-    finger = settings.estimator.finger
+    finger = settings.sensing.finger
     try:
         sensor = record.sensor(finger)
         stream = record.stream(finger)
     except KeyError as exc:
-        raise FitError(f"EstimatorSettings.finger = {finger!r}: {exc.args[0]}") from exc
-    est = settings.estimator
+        raise FitError(f"SensingSettings.finger = {finger!r}: {exc.args[0]}") from exc
+    est = estimator_settings(settings)
     gripper = record.gripper if record.gripper is not None else settings.gripper
 
     def segment_with(width_t_s: np.ndarray, frame_t_s: np.ndarray) -> Segment:
@@ -379,7 +380,7 @@ def measure_grasp(
     )
     measurements = GraspMeasurements(
         finger=finger, sensor=sensor, segment=segment, finger_stiffness_n_per_m=stiffness,
-        object_poisson=est.object_poisson, t_s=segment.frame_t_s, force_n=segment.frame_force_n,
+        object_poisson=settings.sensing.object_poisson, t_s=segment.frame_t_s, force_n=segment.frame_force_n,
         width_m=segment.frame_width_m, approach_m=approach, camera_lag_s=lag, width_lag_s=width_lag,
         hold_force_n=segment.hold_force_n, hold_approach_m=hold_approach, depth_binning=est.depth_binning,
     )

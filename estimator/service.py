@@ -67,12 +67,13 @@ from estimator.estimate import Estimate
 from estimator.measure import resolve_calibration
 from estimator.perception.calibration import Calibration
 from estimator.segment import Segment
+from estimator.settings import estimator_settings
 from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream, configured_methods
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import MAX_STR_CHARS, Message
 from teleop.errors import TeleopError
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
-from teleop.settings import Settings, default_settings_path, load_settings, resolve_config_path
+from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
 
 __all__ = ["INPUT_TOPICS", "MAX_CLOCK_JUMP_S", "EstimatorService", "ModelSlot", "ServiceStats", "resolve_model_dir"]
 
@@ -97,8 +98,8 @@ def resolve_model_dir(option: str | None, settings: Settings) -> Path | None:
         return None
     if option:
         path = Path(option)
-    elif settings.estimator.model_path:
-        path = resolve_config_path(settings.estimator.model_path)
+    elif estimator_settings(settings).model_path:
+        path = resolve_path(estimator_settings(settings).model_path)
     else:
         path = default_model_dir()
         if not (path / "model.onnx").is_file():
@@ -350,7 +351,7 @@ class EstimatorService:
             return
         if message.type == "force":
             stream.add_force(body["t_s"], body["value_n"])
-            if not grasp.seen_contact and float(body["value_n"].max()) >= CONTACT_HINT * self.settings.estimator.contact_force_n:
+            if not grasp.seen_contact and float(body["value_n"].max()) >= CONTACT_HINT * estimator_settings(self.settings).contact_force_n:
                 # Contact may show in the force only after the first frames in contact came: measure
                 # them now, not in the final estimate (a stiff object loads within a frame or two).
                 segment = stream.segment()
@@ -563,7 +564,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
     methods = tuple(args.methods or configured_methods(settings))
-    calibration = resolve_calibration(settings.sensor(settings.estimator.finger), args.calibration)
+    calibration = resolve_calibration(settings.sensor(settings.sensing.finger), args.calibration)
     bus = bus_from_args(settings, args)
     model_dir = resolve_model_dir(args.model, settings)
     model = None if model_dir is None else ModelSlot(model_dir, settings=settings, calibration=calibration,

@@ -72,7 +72,7 @@ import cv2
 import numpy as np
 
 from estimator import analytical
-from estimator.errors import EstimatorError, FitError, PerceptionError
+from estimator.errors import FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.features import ContactFeatures, contact_features
 from estimator.learned.inputs import ANALYTICAL_METHODS, reduce_images
@@ -97,6 +97,7 @@ from estimator.perception.grid import (
 )
 from estimator.perception.markers import detect_markers
 from estimator.segment import PEAK_FRAME_WINDOW_S, LoadPhase, Segment, align_frames, find_load_phase
+from estimator.settings import DEFAULT_METHODS, estimator_settings
 from teleop.errors import SettingsError
 from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Provenance, Samples
 from teleop.settings import Settings
@@ -111,20 +112,10 @@ __all__ = [
     "measure_frame",
 ]
 
-DEFAULT_METHODS = ("split", "hertz", "elastic", "no_tactile")
-
-
 def configured_methods(settings: Settings) -> tuple[str, ...]:
-    """The analytical methods ``estimator.methods`` names (the defaults when it names none).
-
-    Raises EstimatorError naming the key and the name when one is not a method: a typo must not
-    silently switch a method off.
-    """
-    unknown = [m for m in settings.estimator.methods if m not in ANALYTICAL_METHODS]
-    if unknown:
-        raise EstimatorError(f"estimator.methods: {', '.join(map(repr, unknown))} is not an analytical method; "
-                             f"expected some of {', '.join(ANALYTICAL_METHODS)}")
-    return tuple(settings.estimator.methods) or DEFAULT_METHODS
+    """The analytical methods ``estimator.methods`` names (each checked when the settings are
+    read), or the defaults when it names none."""
+    return estimator_settings(settings).methods or DEFAULT_METHODS
 
 
 # Force samples this long after the peak, all within the peak tolerance, end the loading phase.
@@ -246,13 +237,13 @@ class GraspStream:
         if unknown or not methods:
             raise FitError(f"methods {list(methods)}: expected some of {', '.join(analytical.METHODS)}")
         self.settings = settings
-        self.finger = settings.estimator.finger
+        self.finger = settings.sensing.finger
         try:
             self.sensor = settings.sensor(self.finger)
         except SettingsError as exc:
-            raise FitError(f"EstimatorSettings.finger = {self.finger!r}: {exc}") from exc
+            raise FitError(f"SensingSettings.finger = {self.finger!r}: {exc}") from exc
         check_calibration_fits(calibration, self.sensor)
-        self.binning = settings.estimator.depth_binning
+        self.binning = estimator_settings(settings).depth_binning
         self.grid = depth_grid(self.sensor, self.binning)
         self.calibration = grid_calibration(calibration, self.binning)
         self.methods = tuple(methods)
@@ -351,7 +342,7 @@ class GraspStream:
 
     def segment(self) -> Segment:
         """The segmentation of what has arrived (falsy with a reason before contact)."""
-        return align_frames(self._load_phase(), self._frame_times(), n_frames=self.settings.estimator.n_frames)
+        return align_frames(self._load_phase(), self._frame_times(), n_frames=estimator_settings(self.settings).n_frames)
 
     def _load_phase(self) -> LoadPhase:
         """The loading phase in the force and width so far, found again only after new samples or
@@ -359,7 +350,7 @@ class GraspStream:
         if self._phase is None:
             force, width = self._force.samples(), self._width.samples()
             self._phase = find_load_phase(force.t_s, force.value, width.t_s, width.value,
-                                          contact_force_n=self.settings.estimator.contact_force_n,
+                                          contact_force_n=estimator_settings(self.settings).contact_force_n,
                                           stopped_s=self._loading_end_s)
         return self._phase
 
@@ -487,7 +478,7 @@ class GraspStream:
         measurements = GraspMeasurements(
             finger=self.finger, sensor=self.sensor, depth_binning=self.binning, segment=segment,
             finger_stiffness_n_per_m=stiffness,
-            object_poisson=self.settings.estimator.object_poisson, t_s=segment.frame_t_s,
+            object_poisson=self.settings.sensing.object_poisson, t_s=segment.frame_t_s,
             force_n=segment.frame_force_n, width_m=segment.frame_width_m,
             approach_m=approach(segment.frame_width_m, segment.frame_force_n),
             hold_force_n=segment.hold_force_n, hold_approach_m=approach(segment.hold_width_m, segment.hold_force_n),

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from haptics.devices.hid import list_hid_displays
+from haptics.settings import display_settings
 from teleop.settings import load_settings
 
 #: hidapi's keys reported for each device, in print order.
@@ -44,7 +45,7 @@ def _plain(value: object) -> object:
 
 
 def run(args: argparse.Namespace) -> int:
-    display = load_settings(args.settings).display
+    display = display_settings(load_settings(args.settings))
     vendor_id = display.vendor_id if args.vendor_id is None else args.vendor_id
     product_id = display.product_id if args.product_id is None else args.product_id
     found = [

@@ -36,7 +36,7 @@ from haptics.mapping import (
     to_command,
 )
 from haptics.protocol import StiffnessCommand
-from teleop.settings import DisplaySettings
+from haptics.settings import DisplaySettings
 
 __all__ = ["HapticRenderer", "RendererStats"]
 
@@ -76,7 +76,7 @@ class HapticRenderer:
         E range, smoothing, fade, staleness and keep-alive times. The range must be
         resolved: a bare ``DisplaySettings()`` has ``e_rigid_pa = 0`` ("the estimating
         sensor's resolution limit"), which only a full :class:`~teleop.settings.Settings`
-        turns into a modulus; pass ``load_settings(...).display``.
+        turns into a modulus; pass ``display_settings(load_settings(...))``.
     reconnect_initial_s, reconnect_max_s : float
         Backoff between reconnection attempts: doubling from the first to the second.
 
@@ -98,7 +98,7 @@ class HapticRenderer:
             raise MappingError(
                 f"DisplaySettings.e_rigid_pa = {settings.e_rigid_pa!r}: unresolved (0 stands for the "
                 "estimating sensor's resolution limit, which only full settings know); render with "
-                "load_settings(...).display, or set e_rigid_pa above e_soft_pa = "
+                "display_settings(load_settings(...)), or set e_rigid_pa above e_soft_pa = "
                 f"{settings.e_soft_pa!r}"
             )
         self.display = display

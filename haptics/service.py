@@ -47,6 +47,7 @@ from haptics.devices import BACKENDS, make_display
 from haptics.errors import HapticsError
 from haptics.mapping import FREE, EstimateUpdate, Percept, modulus_from_fraction, to_command
 from haptics.renderer import HapticRenderer
+from haptics.settings import display_settings
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.errors import ComplianceTeleopError
@@ -288,12 +289,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
-    display_settings = settings.display
+    rendering = display_settings(settings)
     if args.backend is not None:
-        display_settings = dataclasses.replace(display_settings, backend=args.backend)
+        rendering = dataclasses.replace(rendering, backend=args.backend)
     bus = bus_from_args(settings, args)
-    display = make_display(display_settings)
-    renderer = HapticRenderer(display, display_settings)
+    display = make_display(rendering)
+    renderer = HapticRenderer(display, rendering)
     try:
         with (
             Subscriber.from_settings(bus, bus.estimate_pub, INPUT_TOPICS, conflate=True) as subscriber,

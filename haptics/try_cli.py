@@ -14,6 +14,7 @@ from haptics.mapping import (
     map_estimate,
     to_command,
 )
+from haptics.settings import display_settings
 from teleop.settings import load_settings
 
 
@@ -40,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # The full settings resolve [display] e_rigid_pa = 0 to the sensor's resolution limit.
-    settings = load_settings(args.settings).display
+    settings = display_settings(load_settings(args.settings))
     if args.backend is not None:
         settings = dataclasses.replace(settings, backend=args.backend)
     update = EstimateUpdate(

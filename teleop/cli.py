@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from teleop.clikit import Command, run_cli
 
 COMMANDS = {
-    "settings": Command("teleop.settings_cli", "check a settings TOML file and print it resolved"),
+    "settings": Command("teleop.system.settings_cli", "check a settings TOML file (every table) and print it resolved"),
     "import-dataset": Command("teleop.system.dataset", "import the published dataset (raw grasps or preprocessed samples)"),
     "catalogue": Command("teleop.catalogue", "list an object catalogue (project TOML or published CSV table)"),
     "hx711-bridge": Command("teleop.devices.hx711_bridge", "serve HX711 load-cell readings as framed TCP (run where the cell is)"),

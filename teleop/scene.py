@@ -3,7 +3,7 @@
 A scene is one TOML file under ``configs/scenes/`` (or any path): ``catalogue``,
 ``objects`` (names in it), ``grasps_per_object``, ``seed``, ``settings``, a
 ``[backends]`` table (gripper, camera, load_cell, display) and an
-``[estimator]`` table (``methods``). Relative paths are under ``configs/``.
+``[estimator]`` table (``methods``). Relative paths are against the scene file's folder.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 
 from teleop.catalogue import ObjectSpec, load_catalogue
 from teleop.errors import SettingsError
-from teleop.settings import Settings, config_dir, load_settings, resolve_config_path
+from teleop.settings import Settings, config_dir, default_settings_path, load_settings, resolve_path
 
 __all__ = ["Scene", "load_scene", "scene_path"]
 
@@ -44,6 +44,11 @@ def scene_path(name_or_path: str) -> Path:
     return SCENE_DIR / f"{name_or_path}.toml"
 
 
+def _named_path(data: dict, key: str, scene: Path) -> Path | None:
+    """The path the scene names under ``key`` (against the scene file's folder), or None."""
+    return resolve_path(str(data[key]), folder=scene.parent) if key in data else None
+
+
 def load_scene(name_or_path: str = "default") -> Scene:
     """Load and validate a scene; errors name the file and the key."""
     path = scene_path(name_or_path)
@@ -59,7 +64,8 @@ def load_scene(name_or_path: str = "default") -> Scene:
     unknown = sorted(set(data) - allowed)
     if unknown:
         raise SettingsError(f"{path}: unknown key {unknown[0]!r}; allowed keys: {', '.join(sorted(allowed))}")
-    catalogue = {o.name: o for o in load_catalogue(resolve_config_path(str(data.get("catalogue", "objects.toml"))))}
+    catalogue_path = _named_path(data, "catalogue", path) or config_dir() / "objects.toml"
+    catalogue = {o.name: o for o in load_catalogue(catalogue_path)}
     names = data.get("objects")
     if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
         raise SettingsError(f"{path}: objects must be a non-empty array of object names")
@@ -88,7 +94,7 @@ def load_scene(name_or_path: str = "default") -> Scene:
         objects=tuple(catalogue[n] for n in names),
         grasps_per_object=grasps,
         seed=seed,
-        settings=load_settings(resolve_config_path(str(data.get("settings", "settings.toml")))),
+        settings=load_settings(_named_path(data, "settings", path) or default_settings_path()),
         backends=backends,
         methods=methods,
     )

@@ -8,6 +8,12 @@ an unknown key, a wrong type or an out-of-range value raises
 :class:`~teleop.errors.SettingsError` naming the file, the key and what is
 allowed.
 
+Each package owns its tables. This base owns the rig's: ``[sensors.<finger>]``, ``[sensing]``,
+``[gripper]``, ``[load_cell]``, ``[bus]`` and ``[simulation]``. The estimator's ``[estimator]``
+(``estimator.settings``) and the display's ``[display]`` (``haptics.settings``) are kept as read
+and built, checked and completed by their owners (:meth:`Settings.section`), so the base imports
+neither package. A relative path in a file resolves against the file's folder (:func:`resolve_path`).
+
 All quantities are SI (m, N, Pa, s, Hz) unless the name says otherwise.
 
 The sensor's resolution limit
@@ -40,16 +46,17 @@ import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 from teleop.errors import SettingsError
 
 __all__ = [
     "BusSettings",
-    "DisplaySettings",
-    "EstimatorSettings",
     "GripperSettings",
     "LoadCellSettings",
+    "PACKAGE_TABLES",
+    "Section",
+    "SensingSettings",
     "SensorSettings",
     "Settings",
     "SimulationSettings",
@@ -59,7 +66,7 @@ __all__ = [
     "depth_binning_problem",
     "build_settings",
     "load_settings",
-    "resolve_config_path",
+    "resolve_path",
     "settings_from_mapping",
     "settings_to_mapping",
 ]
@@ -89,13 +96,17 @@ def config_dir() -> Path:
 CONFIG_DIR = config_dir()
 
 
-def resolve_config_path(value: str | os.PathLike[str]) -> Path:
+def resolve_path(value: str | os.PathLike[str], *, folder: Path | None = None) -> Path:
     """Where a path named in a settings or scene file points (``SensorSettings.calibration``,
-    ``EstimatorSettings.model_path``, ``SimulationSettings.background``, a scene's ``settings``
-    and ``catalogue``): an absolute path as it is, a relative one under :func:`config_dir`,
-    whichever file names it (the documented rule: "relative paths are under configs/")."""
+    ``SimulationSettings.background``, the estimator's ``model_path``, a scene's ``settings`` and
+    ``catalogue``): an absolute path as it is, a relative one against ``folder``, the folder of the
+    file that names it. Loading a file resolves its paths, so settings and the records made with
+    them carry absolute ones; ``folder`` None (a path from settings built in code, or from a record
+    of an older version) means :func:`config_dir`."""
     path = Path(value)
-    return path if path.is_absolute() else config_dir() / path
+    if path.is_absolute():
+        return path
+    return Path(os.path.normpath((config_dir() if folder is None else folder) / path))  # no "a/../"
 
 
 def default_settings_path() -> Path:
@@ -156,7 +167,12 @@ class _Validated:
             meta = f.metadata
             value = getattr(self, f.name)
             where = f"{type(self).__name__}.{f.name}"
-            if meta.get("choices") is not None and value not in meta["choices"]:
+            choices = meta.get("choices")
+            if choices is not None and isinstance(value, tuple):  # a list: each element is one of them
+                for i, item in enumerate(value):
+                    if item not in choices:
+                        raise SettingsError(f"{where}[{i}] = {item!r}: expected {_allowed(meta)}")
+            elif choices is not None and value not in choices:
                 raise SettingsError(f"{where} = {value!r}: expected {_allowed(meta)}")
             if meta.get("length") is not None and len(value) != meta["length"]:
                 raise SettingsError(
@@ -193,7 +209,7 @@ class SensorSettings(_Validated):
                            "real cameras or the estimator")
     serial: str = spec("", doc="sensor identity, recorded with every grasp")
     calibration: str = spec("", doc="colour-to-gradient calibration (.npz from `estimator calibrate`); "
-                                    "relative paths are under configs/")
+                                    "a relative path is against the settings file's folder")
     markers: bool = spec(False, doc="gel printed with marker dots")
     camera_backend: str = spec("sim", choices=("sim", "opencv"), doc="camera driver (teleop.devices.camera)")
     camera_source: str = spec("", doc="opencv: device index ('0') or MJPG URL (http://pi:8080/?action=stream)")
@@ -322,44 +338,6 @@ class BusSettings(_Validated):
 
 
 @dataclass(frozen=True)
-class DisplaySettings(_Validated):
-    """Operator-side softness display and the E-to-stiffness mapping."""
-
-    backend: str = spec("sim", choices=("sim", "hid"))
-    vendor_id: int = spec(0x1209, lo=0, hi=0xFFFF)
-    product_id: int = spec(0x5EF7, lo=0, hi=0xFFFF)
-    e_soft_pa: float = spec(5.0e3, lo=0.0, hi=1e12, lo_open=True, doc="E felt as the softest setting")
-    e_rigid_pa: float = spec(0.0, lo=0.0, hi=1e13, doc="E at and above which it feels rigid; 0: the estimating "
-                             "sensor's resolution limit (Settings.resolution_limit_pa)")
-    smoothing_s: float = spec(0.1, lo=0.0, hi=10.0)
-    fade_s: float = spec(0.3, lo=0.0, hi=10.0)
-    stale_after_s: float = spec(1.0, lo=0.0, hi=60.0, lo_open=True)
-    keepalive_s: float = spec(0.2, lo=0.0, hi=60.0, lo_open=True,
-                              doc="resend an unchanged command at least this often")
-
-    def _check(self) -> None:
-        if self.e_rigid_pa and self.e_rigid_pa <= self.e_soft_pa:
-            raise SettingsError(
-                f"DisplaySettings.e_rigid_pa = {self.e_rigid_pa}: expected a value above "
-                f"e_soft_pa = {self.e_soft_pa}"
-            )
-
-
-@dataclass(frozen=True)
-class EstimatorSettings(_Validated):
-    """Grasp segmentation and estimation defaults."""
-
-    finger: str = spec("left", doc="finger whose tactile frames the estimator reads")
-    object_poisson: float = spec(0.4, lo=0.0, hi=0.5)
-    contact_force_n: float = spec(0.75, lo=0.0, hi=100.0, lo_open=True, doc="first-contact force")
-    n_frames: int = spec(3, lo=1, hi=64)
-    methods: tuple[str, ...] = spec(("split", "hertz", "elastic", "no_tactile"))
-    model_path: str = spec("", doc="ONNX model; empty means the shipped default")
-    depth_binning: int = spec(2, lo=1, hi=16, doc="depth is measured on the finger's image grid averaged over "
-                              "N x N px blocks (1: the full grid); a model is trained for one value")
-
-
-@dataclass(frozen=True)
 class SimulationSettings(_Validated):
     """Simulated hardware: noise and timing of the virtual sensors."""
 
@@ -378,18 +356,57 @@ class SimulationSettings(_Validated):
 
 
 @dataclass(frozen=True)
+class SensingSettings(_Validated):
+    """What every estimate refers to: the finger whose sensor estimates, and the Poisson ratio
+    assumed for grasped objects. With that sensor's gel they set the resolution limit (module
+    notes), which is both the estimator's ``lower_bound`` and the display's rigid end."""
+
+    finger: str = spec("left", doc="finger whose tactile frames the estimator reads")
+    object_poisson: float = spec(0.4, lo=0.0, hi=0.5, doc="Poisson ratio assumed for grasped objects")
+
+
+#: Top-level tables owned by the packages above this base (``estimator.settings``,
+#: ``haptics.settings``): the base keeps them as read, and each package builds and checks its own
+#: (:meth:`Settings.section`).
+PACKAGE_TABLES = ("estimator", "display")
+
+S = TypeVar("S", bound="Section")
+
+
+class Section(_Validated):
+    """Base of a package's own settings table: a frozen dataclass with its fields' ``spec``.
+
+    ``TABLE`` names its table in the settings file, ``PATHS`` its fields holding file paths
+    (resolved like every path of the file, :func:`resolve_path`). :meth:`resolved` completes and
+    checks it against the whole settings (rules across tables); the default has none.
+    """
+
+    TABLE: ClassVar[str] = ""
+    PATHS: ClassVar[tuple[str, ...]] = ()
+
+    def resolved(self: S, settings: Settings) -> S:  # noqa: ARG002 - the hook's signature
+        return self
+
+
+@dataclass(frozen=True)
 class Settings(_Validated):
-    """Everything one deployment needs, as read from one TOML file."""
+    """Everything one deployment needs, as read from one TOML file.
+
+    The base's own tables are fields; the packages' tables (:data:`PACKAGE_TABLES`) are kept as read
+    in ``tables`` and built by their owners through :meth:`section`. ``source`` is the file read
+    (None when built in code): relative paths in it resolve against its folder.
+    """
 
     sensors: tuple[SensorSettings, ...] = spec(
         default_factory=lambda: (SensorSettings(finger="left"), SensorSettings(finger="right", markers=True))
     )
+    sensing: SensingSettings = spec(default_factory=SensingSettings)
     gripper: GripperSettings = spec(default_factory=GripperSettings)
     load_cell: LoadCellSettings = spec(default_factory=LoadCellSettings)
     bus: BusSettings = spec(default_factory=BusSettings)
-    display: DisplaySettings = spec(default_factory=DisplaySettings)
-    estimator: EstimatorSettings = spec(default_factory=EstimatorSettings)
     simulation: SimulationSettings = spec(default_factory=SimulationSettings)
+    tables: Mapping[str, Mapping[str, Any]] = spec(default_factory=dict, doc="the packages' own tables, as read")
+    source: Path | None = dataclasses.field(default=None, compare=False, repr=False)
 
     def _check(self) -> None:
         fingers = [s.finger for s in self.sensors]
@@ -397,25 +414,27 @@ class Settings(_Validated):
             raise SettingsError("Settings.sensors is empty: expected at least one [sensors.<finger>] table")
         if len(set(fingers)) != len(fingers):
             raise SettingsError(f"Settings.sensors names a finger twice: {fingers}")
-        if not self.display.e_rigid_pa:  # the display's rigid end defaults to what the sensor resolves
-            if self.estimator.finger not in fingers:
-                raise SettingsError(f"DisplaySettings.e_rigid_pa = 0 takes the resolution limit of the estimator's "
-                                    f"finger {self.estimator.finger!r}, which has no sensor: set e_rigid_pa")
-            limit = self.resolution_limit_pa
-            if limit <= self.display.e_soft_pa:
-                raise SettingsError(f"DisplaySettings.e_soft_pa = {self.display.e_soft_pa}: expected a value below "
-                                    f"the sensor's resolution limit {limit:.4g} Pa (the display's rigid end)")
-            object.__setattr__(self, "display", dataclasses.replace(self.display, e_rigid_pa=limit))
-        binning = self.estimator.depth_binning
-        sensor = next((s for s in self.sensors if s.finger == self.estimator.finger), None)
-        problem = depth_binning_problem(binning, sensor) if sensor is not None else None
-        if problem:
-            raise SettingsError(f"EstimatorSettings.depth_binning = {binning}: {problem}")
+        if self.sensing.finger not in fingers:
+            raise SettingsError(f"SensingSettings.finger = {self.sensing.finger!r}: expected a finger with a "
+                                f"sensor, one of {fingers}")
+        unknown = sorted(set(self.tables) - set(PACKAGE_TABLES))
+        if unknown:
+            raise SettingsError(f"Settings.tables names {unknown[0]!r}: expected some of {', '.join(PACKAGE_TABLES)}")
+
+    def __hash__(self) -> int:  # the packages' tables are plain dicts: hash a frozen copy
+        own = tuple(getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in _NOT_KEYS)
+        return hash((own, _frozen(self.tables)))
+
+    @property
+    def folder(self) -> Path:
+        """Where relative paths of these settings point from: the settings file's folder, or
+        :func:`config_dir` for settings built in code."""
+        return config_dir() if self.source is None else self.source.parent
 
     @property
     def resolution_limit_pa(self) -> float:
-        """E (Pa) above which the estimator's finger cannot tell objects apart (module notes)."""
-        return self.sensor(self.estimator.finger).resolution_limit_pa(self.estimator.object_poisson)
+        """E (Pa) above which the estimating finger cannot tell objects apart (module notes)."""
+        return self.sensor(self.sensing.finger).resolution_limit_pa(self.sensing.object_poisson)
 
     def sensor(self, finger: str) -> SensorSettings:
         """The sensor on ``finger``; raises SettingsError naming the fingers there are."""
@@ -425,6 +444,32 @@ class Settings(_Validated):
         raise SettingsError(
             f"no sensor on finger {finger!r}: settings have {[s.finger for s in self.sensors]}"
         )
+
+    def section(self, cls: type[S]) -> S:
+        """The package table ``cls.TABLE`` as a ``cls``: built from the file's table (defaults where
+        it has none), its paths resolved, completed by :meth:`Section.resolved`; built once.
+
+        Raises SettingsError naming the file and the key when the table is invalid.
+        """
+        cache = self.__dict__.setdefault("_sections", {})  # frozen: the cache is not a field
+        if cls not in cache:
+            where = str(self.source or "<settings>")
+            table = dict(self.tables.get(cls.TABLE, {}))
+            for key in cls.PATHS:
+                if isinstance(table.get(key), str) and table[key]:
+                    table[key] = str(resolve_path(table[key], folder=self.folder))
+            built = build_settings(cls, table, where, cls.TABLE)
+            try:
+                cache[cls] = built.resolved(self)
+            except SettingsError as exc:
+                raise SettingsError(f"{where}: [{cls.TABLE}] {exc}") from None
+        return cache[cls]
+
+    def with_section(self, section: Section) -> Settings:
+        """These settings with ``section`` as its package's table, checked against them at once."""
+        changed = dataclasses.replace(self, tables={**self.tables, section.TABLE: settings_to_mapping(section)})
+        changed.section(type(section))
+        return changed
 
 
 # --------------------------------------------------------------------------- loading
@@ -472,7 +517,7 @@ def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
 def build_settings(cls: type[T], data: Mapping[str, Any], source: str, prefix: str) -> T:
     """Build the settings dataclass ``cls`` from ``data``; errors name ``source`` and the key."""
     hints = typing.get_type_hints(cls)
-    names = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    names = {f.name: f for f in dataclasses.fields(cls) if f.init and f.name not in _NOT_KEYS}  # type: ignore[arg-type]
     unknown = sorted(set(data) - set(names))
     if unknown:
         where = f"[{prefix}]" if prefix else "top level"
@@ -494,6 +539,54 @@ def build_settings(cls: type[T], data: Mapping[str, Any], source: str, prefix: s
         raise SettingsError(f"{source}: {where}{exc}") from None
 
 
+#: Settings fields that are not keys of the file: the packages' tables keep their own names.
+_NOT_KEYS = frozenset({"tables", "source"})
+
+#: Keys that moved between tables: (table, key) -> where they are now.
+_MOVED = {("estimator", "finger"): "[sensing] finger", ("estimator", "object_poisson"): "[sensing] object_poisson"}
+
+
+def _build_settings_file(data: Mapping[str, Any], source: Path | None) -> Settings:
+    """:class:`Settings` from a whole file's mapping: the packages' tables kept as read, paths of the
+    base's tables resolved against the file's folder (:func:`resolve_path`)."""
+    where = str(source or "<settings>")
+    tables = {}
+    for name in PACKAGE_TABLES:
+        if name not in data:
+            continue
+        table = data[name]
+        if not isinstance(table, Mapping):
+            raise SettingsError(f"{where}: [{name}] must be a table, got {type(table).__name__}")
+        for key in table:
+            if (name, key) in _MOVED:
+                raise SettingsError(f"{where}: [{name}] {key} is now {_MOVED[name, key]}: move it there")
+        tables[name] = dict(table)
+    own = {k: v for k, v in data.items() if k not in PACKAGE_TABLES}
+    folder = config_dir() if source is None else source.parent
+    sensors = own.get("sensors")
+    if isinstance(sensors, Mapping):
+        own["sensors"] = {finger: _with_path(table, "calibration", folder) for finger, table in sensors.items()}
+    if isinstance(own.get("simulation"), Mapping):
+        own["simulation"] = _with_path(own["simulation"], "background", folder)
+    settings = build_settings(Settings, own, where, "")
+    return dataclasses.replace(settings, tables=tables, source=source)
+
+
+def _frozen(value: Any) -> Any:
+    """A hashable copy of TOML-shaped data (tables and arrays become sorted tuples and tuples)."""
+    if isinstance(value, Mapping):
+        return tuple(sorted((k, _frozen(v)) for k, v in value.items()))
+    if isinstance(value, list | tuple):
+        return tuple(_frozen(v) for v in value)
+    return value
+
+
+def _with_path(table: Any, key: str, folder: Path) -> Any:
+    if isinstance(table, Mapping) and isinstance(table.get(key), str) and table[key]:
+        return {**table, key: str(resolve_path(table[key], folder=folder))}
+    return table
+
+
 def _build_sensors(value: Any, source: str) -> tuple[SensorSettings, ...]:
     """``[sensors.<finger>]`` tables become SensorSettings with ``finger`` filled in."""
     if not isinstance(value, Mapping):
@@ -508,9 +601,10 @@ def _build_sensors(value: Any, source: str) -> tuple[SensorSettings, ...]:
     return tuple(out)
 
 
-def settings_from_mapping(data: Mapping[str, Any], *, source: str = "<settings>") -> Settings:
-    """Build validated :class:`Settings` from a TOML-shaped mapping."""
-    return build_settings(Settings, data, source, "")
+def settings_from_mapping(data: Mapping[str, Any], *, source: str | Path | None = None) -> Settings:
+    """Build validated :class:`Settings` from a TOML-shaped mapping; ``source`` is the file it was
+    read from (relative paths resolve against its folder), or None (against :func:`config_dir`)."""
+    return _build_settings_file(data, None if source is None else Path(source))
 
 
 def settings_to_mapping(settings: Any) -> dict[str, Any]:
@@ -519,9 +613,10 @@ def settings_to_mapping(settings: Any) -> dict[str, Any]:
     ``settings_from_mapping(settings_to_mapping(s)) == s`` for :class:`Settings`.
     """
     if isinstance(settings, Settings):
-        out = {f.name: settings_to_mapping(getattr(settings, f.name)) for f in dataclasses.fields(settings)}
+        out = {f.name: settings_to_mapping(getattr(settings, f.name)) for f in dataclasses.fields(settings)
+               if f.name not in _NOT_KEYS}
         out["sensors"] = {s.finger: settings_to_mapping(s) for s in settings.sensors}
-        return out
+        return {**out, **settings_to_mapping(dict(settings.tables))}
     if dataclasses.is_dataclass(settings):
         return {f.name: settings_to_mapping(getattr(settings, f.name)) for f in dataclasses.fields(settings)}
     if isinstance(settings, tuple | list):
@@ -549,4 +644,4 @@ def load_settings(path: str | Path | None = None) -> Settings:
         data = tomllib.loads(raw.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise SettingsError(f"{path}: not valid TOML: {exc}") from exc
-    return settings_from_mapping(data, source=str(path))
+    return settings_from_mapping(data, source=Path(os.path.abspath(path)))

@@ -45,7 +45,7 @@ _CHECK = r"""
 import json, sys
 from pathlib import Path
 import teleop, estimator, haptics
-from teleop.settings import config_dir, load_settings, resolve_config_path
+from teleop.settings import config_dir, load_settings, resolve_path
 from teleop.scene import load_scene
 from teleop.catalogue import load_catalogue, default_catalogue_path
 from estimator.measure import calibration_path
@@ -58,7 +58,7 @@ scene = load_scene("quick")
 calibrations = [str(calibration_path(s)) for s in settings.sensors if s.calibration]
 for path in calibrations:
     load_calibration(path)
-rigs = {p.stem: [str(resolve_config_path(s.calibration)) for s in load_settings(p).sensors]
+rigs = {p.stem: [str(resolve_path(s.calibration)) for s in load_settings(p).sensors]
         for p in sorted((config_dir() / "rigs").glob("*.toml"))}
 for paths in rigs.values():
     for path in paths:

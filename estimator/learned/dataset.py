@@ -50,6 +50,7 @@ from estimator.errors import EstimatorError, SampleError
 from estimator.learned.inputs import MEASUREMENT_VERSION, RIG_QUANTITIES
 from estimator.learned.sampling import sample_grasp
 from estimator.samples import TrainingSample, save_sample
+from estimator.settings import estimator_settings
 from teleop.errors import RecordError
 from teleop.record import find_records, read_record
 from teleop.settings import Settings, default_settings_path, load_settings
@@ -249,7 +250,7 @@ def build_dataset(
         jobs.append((path, grasp_index[name], split_of[name]))
         grasp_index[name] += 1
     if options.window_m is None:
-        options = replace(options, window_m=settings.sensor(settings.estimator.finger).pad_size_m)
+        options = replace(options, window_m=settings.sensor(settings.sensing.finger).pad_size_m)
     out.mkdir(parents=True, exist_ok=True)
     work = partial(_record_samples, settings=settings, options=options, out=out)
     bar = partial(tqdm, total=len(jobs), desc="build-dataset", unit="grasp", disable=not progress)
@@ -265,8 +266,8 @@ def build_dataset(
         {"seed": seed, "fractions": list(fractions), "stratified_by": "material", **split}, indent=1))
     manifest = {
         "format": DATASET_FORMAT, "version": 1, "n_frames": options.n_frames, "shifts": options.shifts,
-        "size_px": list(options.size_px), "window_m": list(options.window_m), "markers": options.markers, "finger": settings.estimator.finger,
-        "depth_binning": settings.estimator.depth_binning,
+        "size_px": list(options.size_px), "window_m": list(options.window_m), "markers": options.markers, "finger": settings.sensing.finger,
+        "depth_binning": estimator_settings(settings).depth_binning,
         "calibration": options.calibration, "marker_calibration": options.marker_calibration,
         "measurement_version": MEASUREMENT_VERSION,
         "records": len(records), "grasps_used": sum(1 for r in rows if r.get("samples")),

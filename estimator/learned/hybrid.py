@@ -64,6 +64,7 @@ from estimator.learned.inputs import RIG_QUANTITIES, distinct_frames, gel_scale
 from estimator.learned.sampling import SampledGrasp, sample_grasp, sampled_input_range
 from estimator.measure import estimate_grasp
 from estimator.perception.calibration import Calibration
+from estimator.settings import estimator_settings
 from teleop.record import GraspRecord
 from teleop.settings import Settings
 
@@ -152,11 +153,11 @@ class HybridEstimator:
                  calibration: Calibration | str | Path | None = None,
                  marker_calibration: Calibration | str | Path | None = None,
                  policy: AutoPolicy | None = None):
-        if predictor.depth_binning != settings.estimator.depth_binning:
+        if predictor.depth_binning != estimator_settings(settings).depth_binning:
             raise ModelError(
                 f"model {predictor.model_dir} was trained on depth binned by {predictor.depth_binning} "
                 f"(data.depth_binning in its metadata); the settings measure with estimator.depth_binning = "
-                f"{settings.estimator.depth_binning}: set that to {predictor.depth_binning} or retrain the model")
+                f"{estimator_settings(settings).depth_binning}: set that to {predictor.depth_binning} or retrain the model")
         self.predictor = predictor
         self.settings = settings
         self.calibration = calibration

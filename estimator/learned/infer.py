@@ -55,7 +55,8 @@ from estimator.learned.inputs import (
     default_window_m,
     encode,
 )
-from teleop.settings import Settings, resolve_config_path
+from estimator.settings import estimator_settings
+from teleop.settings import Settings, resolve_path
 
 __all__ = [
     "MODEL_FORMAT",
@@ -276,12 +277,12 @@ class CompliancePredictor:
 
 def load_predictor(model_dir: str | Path | None = None, *, settings: Settings | None = None,
                    threads: int = 1) -> CompliancePredictor:
-    """The model in ``model_dir``; else ``settings.estimator.model_path``; else the shipped default.
+    """The model in ``model_dir``; else ``estimator_settings(settings).model_path``; else the shipped default.
 
     ``model_path`` names the model directory or its ``model.onnx``; a relative path is
     under ``configs/``, like calibration files.
     """
-    if model_dir is None and settings is not None and settings.estimator.model_path:
-        path = resolve_config_path(settings.estimator.model_path)
+    if model_dir is None and settings is not None and estimator_settings(settings).model_path:
+        path = resolve_path(estimator_settings(settings).model_path)
         model_dir = path.parent if path.suffix == ".onnx" else path
     return CompliancePredictor(default_model_dir() if model_dir is None else model_dir, threads=threads)

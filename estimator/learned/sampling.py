@@ -35,6 +35,7 @@ from estimator.measure import (
 )
 from estimator.perception.calibration import Calibration, load_calibration
 from estimator.segment import Segment
+from estimator.settings import estimator_settings
 from teleop.record import FrameStream, GraspRecord
 from teleop.settings import Settings
 
@@ -161,9 +162,9 @@ def _measure_finger(
 ) -> SampledGrasp:
     """Measure the sample set ``shift`` of one finger (no estimates, no markers)."""
     # A marker finger's dots are found on its full grid.
-    binning = 1 if record.sensor(finger).markers else settings.estimator.depth_binning
-    settings = replace(settings, estimator=replace(settings.estimator, finger=finger, n_frames=n_frames,
-                                                   depth_binning=binning))
+    binning = 1 if record.sensor(finger).markers else estimator_settings(settings).depth_binning
+    estimating = replace(estimator_settings(settings), n_frames=n_frames, depth_binning=binning)
+    settings = replace(settings, sensing=replace(settings.sensing, finger=finger)).with_section(estimating)
     first = measure_grasp(record, settings=settings, tactile=False)
     segment = first.segment
     why = segment.reason or segment.frame_reason
@@ -205,7 +206,7 @@ def sample_grasp(
     ----------
     record : GraspRecord
     settings : Settings
-        ``estimator.finger`` is the finger read; the rest as for :func:`measure_grasp`.
+        ``sensing.finger`` is the finger read; the rest as for :func:`measure_grasp`.
     calibration : Calibration, path or None
         That finger's colour-to-gradient calibration (None: the file its sensor names);
         files are loaded once per process (:func:`cached_calibration`).
@@ -234,7 +235,7 @@ def sample_grasp(
     """
     if shift < 0 or n_frames < 1:
         raise ModelError(f"shift {shift} and n_frames {n_frames}: expected shift >= 0 and n_frames >= 1")
-    finger = settings.estimator.finger
+    finger = settings.sensing.finger
     cal = calibration_for(record, finger, calibration)
     common = dict(settings=settings, n_frames=n_frames, shift=shift, size_px=size_px, rgb=rgb, window_m=window_m)
     sampled = _measure_finger(record, finger, calibration=cal, **common)

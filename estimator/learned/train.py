@@ -89,6 +89,7 @@ from estimator.learned.model import ComplianceNet
 from estimator.learned.reference import REFERENCE_RECORD, reference_inputs, summarise_inputs
 from estimator.metrics import summarise
 from estimator.samples import TrainingSample, load_sample, sample_paths
+from haptics.settings import display_settings
 from teleop.settings import Settings, load_settings
 
 __all__ = ["SplitData", "TrainConfig", "load_split_data", "train_model"]
@@ -337,7 +338,7 @@ def _metrics(data: SplitData, logits: np.ndarray, method: str, calibration: dict
              settings: Settings) -> dict[str, Any]:
     if not len(data):
         return {}
-    display = (settings.display.e_soft_pa, settings.display.e_rigid_pa)
+    display = (display_settings(settings).e_soft_pa, display_settings(settings).e_rigid_pa)
     summary = summarise(_rows(data, logits, method, calibration), [method, *ANALYTICAL_METHODS],
                         display_range_pa=display, interval_levels={method: calibration["level"]})
     for value in summary.values():
@@ -500,7 +501,7 @@ def train_model(
     val_pred = _predict(model, val)
     # In the reference gel's moduli, as the network's labels.
     soft_pa = float(min(r["truth_pa"] * r["gel_scale"] for r in train.rows))
-    limit_pa = settings.resolution_limit_pa * gel_scale(settings.sensor(settings.estimator.finger).gel_modulus_pa)
+    limit_pa = settings.resolution_limit_pa * gel_scale(settings.sensor(settings.sensing.finger).gel_modulus_pa)
     calibration = calibrate(val_pred, val.label, soft_pa=soft_pa, limit_pa=limit_pa)
     metadata = {
         "format": MODEL_FORMAT,

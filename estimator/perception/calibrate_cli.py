@@ -52,7 +52,7 @@ def add_press_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--finger", metavar="F",
-        help="sensor to use from --settings (default: the settings' estimator.finger)",
+        help="sensor to use from --settings (default: the settings' sensing.finger)",
     )
     parser.add_argument(
         "--circles", choices=("auto", "recorded", "detected"), default="auto",
@@ -98,7 +98,7 @@ def prepare_presses(
     sensor = None
     if args.settings:
         settings = load_settings(args.settings)
-        sensor = settings.sensor(args.finger or settings.estimator.finger)
+        sensor = settings.sensor(args.finger or settings.sensing.finger)
         presses = presses.in_sensor_frame(sensor, progress=True)
     elif args.finger:
         raise CalibrationError("--finger needs --settings (the file that describes the sensor)")

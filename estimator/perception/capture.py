@@ -243,7 +243,7 @@ def capture_to_folder(args: argparse.Namespace) -> Path:
     if folder.exists() and (not folder.is_dir() or any(p.suffix.lower() in IMAGE_SUFFIXES for p in folder.iterdir())):
         raise CalibrationError(f"--presses {folder}: with --capture, a new or empty folder to save the presses in")
     settings = load_settings(args.settings)
-    sensor = settings.sensor(args.finger or settings.estimator.finger)
+    sensor = settings.sensor(args.finger or settings.sensing.finger)
     try:
         with open_camera(sensor) as camera:
             reference, presses = capture_presses(

@@ -2,7 +2,7 @@
 
 Typical use::
 
-    with make_display(settings.display) as display:
+    with make_display(display_settings(settings)) as display:
         display.write_command(StiffnessCommand(level=100))
 """
 
@@ -12,9 +12,9 @@ from typing import Any
 
 from haptics.devices.base import Reconnector, SoftnessDisplay
 from haptics.errors import DisplayBackendNotFoundError
+from haptics.settings import DisplaySettings
 from teleop.devices.base import load_backend
 from teleop.errors import BackendNotFoundError
-from teleop.settings import DisplaySettings
 
 __all__ = ["BACKENDS", "Reconnector", "SoftnessDisplay", "display_class", "make_display"]
 

@@ -24,7 +24,7 @@ from haptics.protocol import (
     encode_feature_report,
     encode_output_report,
 )
-from teleop.settings import DisplaySettings
+from haptics.settings import DisplaySettings
 
 __all__ = ["Reconnector", "SoftnessDisplay"]
 

@@ -18,7 +18,7 @@ from typing import Any, Self
 from haptics.devices.base import SoftnessDisplay
 from haptics.errors import DisplayError
 from haptics.protocol import FEATURE_LAYOUT, USAGE_PAGE
-from teleop.settings import DisplaySettings
+from haptics.settings import DisplaySettings
 
 __all__ = ["HidDisplay", "import_hid", "list_hid_displays"]
 

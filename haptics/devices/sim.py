@@ -26,7 +26,7 @@ from haptics.protocol import (
     encode_feature_report,
     encode_input_report,
 )
-from teleop.settings import DisplaySettings
+from haptics.settings import DisplaySettings
 
 __all__ = ["DisplayFirmware", "SimulatedDisplay"]
 

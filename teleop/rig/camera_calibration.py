@@ -53,7 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="settings TOML of the rig: the camera of [sensors.<finger>] (and with --latency the "
                              "[load_cell]) is read, and what is measured is written back into it")
     parser.add_argument("--finger", metavar="F",
-                        help="the sensor to calibrate (default: the settings' estimator.finger)")
+                        help="the sensor to calibrate (default: the settings' sensing.finger)")
     parser.add_argument("--out-png", metavar="PNG",
                         help="where to write the no-contact frame with the found corners drawn on it "
                              "(default: <settings folder>/<settings name>-<finger>-corners.png)")
@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
         raise TeleopError(f"--duration-s {args.duration_s}: expected a positive number of seconds")
     path = Path(args.settings)
     settings = load_settings(path)
-    sensor = settings.sensor(args.finger or settings.estimator.finger)
+    sensor = settings.sensor(args.finger or settings.sensing.finger)
     if sensor.camera_backend == "sim" or (args.latency and settings.load_cell.backend == "sim"):
         raise TeleopError(f"{path}: the camera of [sensors.{sensor.finger}]{' or the load cell' if args.latency else ''} "
                           "is simulated (backend 'sim'): its constants are set, not measured; configure the real "

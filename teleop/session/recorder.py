@@ -48,7 +48,7 @@ from teleop.session.logfile import (
     SESSION_METADATA,
     SETTINGS_ATTACHMENT,
 )
-from teleop.settings import Settings, load_settings, resolve_config_path, settings_to_mapping
+from teleop.settings import Settings, load_settings, resolve_path, settings_to_mapping
 
 __all__ = ["COMPRESSIONS", "RecorderStats", "SessionRecorder", "session_source"]
 
@@ -497,7 +497,7 @@ class SessionRecorder:
         for sensor in self.settings.sensors:
             if not sensor.calibration:
                 continue
-            path = resolve_config_path(sensor.calibration)
+            path = resolve_path(sensor.calibration)
             try:
                 out.append(
                     (

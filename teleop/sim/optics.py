@@ -42,7 +42,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from teleop.errors import SimulationError
-from teleop.settings import SensorSettings, SimulationSettings, resolve_config_path
+from teleop.settings import SensorSettings, SimulationSettings, resolve_path
 from teleop.sim.camera_geometry import raw_footprint, read_only, sample_warped, warped_coordinates
 from teleop.sim.wedge_optics import (
     REFLECTANCE_STEP,
@@ -259,7 +259,7 @@ class OpticsRenderer:
         raw_shape = (sensor.raw_height_px, sensor.raw_width_px, 3)
         if background is None:
             if sim.background:
-                background = load_background(resolve_config_path(sim.background))
+                background = load_background(resolve_path(sim.background))
             else:
                 background = procedural_background(sensor, rng=rng)
         background = np.asarray(background)

@@ -68,7 +68,7 @@ import cv2
 import numpy as np
 
 from teleop.errors import SimulationError
-from teleop.settings import SensorSettings, SimulationSettings, resolve_config_path
+from teleop.settings import SensorSettings, SimulationSettings, resolve_path
 from teleop.sim.camera_geometry import read_only
 from teleop.sim.optics import OpticsRenderer, load_background
 from teleop.sim.wedge_optics import REFLECTANCE_STEP
@@ -283,7 +283,7 @@ class TableCamera(OpticsRenderer):
                 f"tables were measured on {tables.raw_shape[1]}x{tables.raw_shape[0]} px frames")
         if background is None:
             if sim.background:
-                background = load_background(resolve_config_path(sim.background))
+                background = load_background(resolve_path(sim.background))
             else:
                 background = tables.background
         super().__init__(sensor, sim=sim, rng=rng, background=background)

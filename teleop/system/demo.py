@@ -54,13 +54,14 @@ import numpy as np
 
 from haptics.errors import MappingError
 from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_fraction
+from haptics.settings import display_settings
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SettingsError, TeleopError
 from teleop.scene import load_scene
 from teleop.session.foxglove_live import add_foxglove_argument
-from teleop.settings import Settings, default_settings_path, load_settings, resolve_config_path
+from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
 from teleop.system.demo_table import LiveView, closing_table
 
 __all__ = [
@@ -111,7 +112,7 @@ def simulated_calibration(settings: Settings, out_dir: Path, *, finger: str | No
     from teleop.sim.optics import OpticsRenderer
     from teleop.sim.presses import simulate_presses, write_presses
 
-    sensor = settings.sensor(finger or settings.estimator.finger)
+    sensor = settings.sensor(finger or settings.sensing.finger)
     camera_rng, press_rng = np.random.default_rng(seed).spawn(2)
     camera = OpticsRenderer(sensor, sim=settings.simulation, rng=camera_rng)
     ball_m = 2e-3
@@ -123,10 +124,10 @@ def simulated_calibration(settings: Settings, out_dir: Path, *, finger: str | No
 
 
 def _configured_calibration(settings: Settings) -> Path | None:
-    sensor = settings.sensor(settings.estimator.finger)
+    sensor = settings.sensor(settings.sensing.finger)
     if not sensor.calibration:
         return None
-    path = resolve_config_path(sensor.calibration)
+    path = resolve_path(sensor.calibration)
     return path if path.is_file() else None
 
 
@@ -353,7 +354,7 @@ class LiveSystem:
                           for name, port in zip(("robot_pub", "estimate_pub", "command", "display_pub"), ports,
                                                 strict=True)}
         settings = load_settings(self.settings_path)
-        self.display_range = (settings.display.e_soft_pa, settings.display.e_rigid_pa)
+        self.display_range = (display_settings(settings).e_soft_pa, display_settings(settings).e_rigid_pa)
         bus = settings.bus
         try:
             self.commands = Publisher(self.endpoints["command"], lossless=True, source="operator",
@@ -530,7 +531,7 @@ def prepare_run(args: argparse.Namespace, *, prefix: str, out: TextIO) -> tuple[
     if calibration is None:
         started = time.monotonic()
         calibration = simulated_calibration(settings, run_dir)
-        print(f"no calibration file for the {settings.estimator.finger} sensor in the settings: fitted one on "
+        print(f"no calibration file for the {settings.sensing.finger} sensor in the settings: fitted one on "
               f"{CALIBRATION_PRESSES} simulated ball presses in {time.monotonic() - started:.1f} s -> {calibration}",
               file=out)
     return run_dir, calibration

@@ -42,12 +42,13 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
+from haptics.settings import display_settings
 from teleop.devices.camera import open_camera
 from teleop.devices.gripper import open_gripper
 from teleop.devices.loadcell import open_load_cell
 from teleop.errors import ComplianceTeleopError, DeviceTimeoutError
 from teleop.rig.load_cell_calibration import load_cell_source
-from teleop.settings import Settings, default_settings_path, load_settings, resolve_config_path
+from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
 
 __all__ = ["Check", "check_calibrations", "check_devices", "check_endpoints", "diagnose"]
 
@@ -90,7 +91,7 @@ def _fixes(settings: Settings) -> dict[str, str]:
     return {"gripper": "check the robot is on with FCI enabled and `gripper.host`" if settings.gripper.backend == "franky"
             else "check [gripper] backend", "load cell": cell.get(settings.load_cell.backend, "check [load_cell]"),
             "display": "check the display's USB cable and `display.vendor_id` / `display.product_id`"
-            if settings.display.backend == "hid" else "check [display] backend"}
+            if display_settings(settings).backend == "hid" else "check [display] backend"}
 
 
 def _camera_probe(settings: Settings, sensor: Any, playback: Any) -> _Probe:
@@ -123,11 +124,11 @@ def _display_probe(settings: Settings, fix: str) -> _Probe:
     from haptics.devices import make_display
     from haptics.protocol import StiffnessCommand
 
-    display = make_display(settings.display)
+    display = make_display(display_settings(settings))
     faults: set[str] = set()
 
     def read() -> list[float]:  # one command every keepalive, as the renderer sends them; stamped when it left
-        time.sleep(settings.display.keepalive_s)
+        time.sleep(display_settings(settings).keepalive_s)
         sent = time.monotonic()
         display.write_command(StiffnessCommand(level=0))  # free: safe with a hand on it
         status = display.read_status(timeout_s=READ_SLICE_S)
@@ -139,7 +140,7 @@ def _display_probe(settings: Settings, fix: str) -> _Probe:
     def inspect() -> str | None:
         return f"reports faults {sorted(faults)}: see the display's manual; power-cycle it" if faults else None
 
-    where = f"the display (backend {settings.display.backend!r})"
+    where = f"the display (backend {display_settings(settings).backend!r})"
     return _Probe("display", display, read, None, where, fix, inspect)
 
 
@@ -314,12 +315,12 @@ def check_calibrations(settings: Settings, settings_path: Path) -> list[Check]:
 
     checks = []
     for sensor in settings.sensors:
-        name, needed = f"calibration {sensor.finger}", sensor.finger == settings.estimator.finger
+        name, needed = f"calibration {sensor.finger}", sensor.finger == settings.sensing.finger
         todo = (f"run `estimator calibrate --capture --settings {settings_path} --finger {sensor.finger}`")
         if not sensor.calibration:
             checks.append(Check(name, not needed, problem=f"none configured: {todo}" if needed else None))
             continue
-        path = resolve_config_path(sensor.calibration)
+        path = resolve_path(sensor.calibration)
         detail = {"path": str(path)}
         try:
             check_calibration_fits(load_calibration(path), sensor)

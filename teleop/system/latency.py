@@ -76,6 +76,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from estimator.settings import estimator_settings
 from teleop.bus.wire import Message
 from teleop.errors import TeleopError
 from teleop.settings import Settings, load_settings
@@ -108,7 +109,7 @@ def baseline_press(settings: Settings, *, seed: int = 0) -> tuple[bytes, bytes]:
     from teleop.sim.optics import OpticsRenderer
     from teleop.sim.presses import sphere_press_height
 
-    sensor = settings.sensor(settings.estimator.finger)
+    sensor = settings.sensor(settings.sensing.finger)
     camera = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(seed))
     rows, cols = sensor.image_shape
     press = sphere_press_height(sensor.image_shape, center_px=((cols - 1) / 2.0, (rows - 1) / 2.0),
@@ -131,8 +132,8 @@ def frame_baseline_ms(settings: Settings, calibration: Calibration, *, repeats: 
 
     if repeats < 1:
         raise TeleopError(f"frame baseline repeats {repeats}: expected at least 1")
-    sensor = settings.sensor(settings.estimator.finger)
-    binning = settings.estimator.depth_binning
+    sensor = settings.sensor(settings.sensing.finger)
+    binning = estimator_settings(settings).depth_binning
     grid, grid_cal = depth_grid(sensor, binning), grid_calibration(calibration, binning)
     pressed, untouched = baseline_press(settings, seed=seed)
     reference = frame_on_grid(untouched, "jpeg", sensor, binning=binning)

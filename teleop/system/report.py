@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from estimator.settings import estimator_settings
 from teleop.errors import SessionLogError, TeleopError
 from teleop.session.export import session_grasps
 from teleop.session.logfile import LogReader
@@ -269,7 +270,7 @@ def build_report(
                  f"scene {session.get('scene') or '-'}, {session.get('source', 'unknown source')}, "
                  f"recorded {session.get('start_utc', 'at an unknown time')} with compliance-teleop "
                  f"{session.get('software_version', '?')} on {session.get('host', '?')}",
-                 f"{len(views)} grasps; depth on the estimator's grid (binning {settings.estimator.depth_binning}, "
+                 f"{len(views)} grasps; depth on the estimator's grid (binning {estimator_settings(settings).depth_binning}, "
                  "1 for fingers with markers); display messages "
                  + ("recorded" if recorded else "not recorded (the log has none)")]
         if info.damage:

@@ -39,6 +39,7 @@ from estimator.perception.depth import reconstruct_depth
 from estimator.perception.grid import grid_calibration, to_grid
 from estimator.perception.markers import detect_markers
 from estimator.segment import Segment
+from estimator.settings import estimator_settings
 from teleop.errors import ComplianceTeleopError
 from teleop.record import GraspRecord
 from teleop.session.logfile import LogInfo, LogReader
@@ -209,11 +210,10 @@ def _finger_settings(settings: Settings, finger: str) -> Settings:
     """``settings`` with the estimator on ``finger``, at the estimator's depth binning, or 1 where
     that finger's sensor cannot be binned (markers are found on the full grid only)."""
     sensor = next(s for s in settings.sensors if s.finger == finger)
-    binning = settings.estimator.depth_binning
+    binning = estimator_settings(settings).depth_binning
     binning = 1 if depth_binning_problem(binning, sensor) else binning
-    return dataclasses.replace(
-        settings, estimator=dataclasses.replace(settings.estimator, finger=finger, depth_binning=binning)
-    )
+    on_finger = dataclasses.replace(settings, sensing=dataclasses.replace(settings.sensing, finger=finger))
+    return on_finger.with_section(dataclasses.replace(estimator_settings(settings), depth_binning=binning))
 
 
 def _moment_indices(t_s: np.ndarray, segment: Segment, reference: np.ndarray) -> list[int]:
@@ -239,7 +239,7 @@ def tactile_moments(
         for stream in record.frames
     }
     segments = {finger: m.segment for finger, m in measured.items()}
-    view.segment = segments.get(settings.estimator.finger, next(iter(segments.values())))
+    view.segment = segments.get(settings.sensing.finger, next(iter(segments.values())))
     if not view.segment:
         view.notes.append(f"no loading phase: {view.segment.reason}")
         return

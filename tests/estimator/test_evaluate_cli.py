@@ -12,6 +12,7 @@ import pytest
 from estimator.cli import main
 from estimator.evaluate_cli import ROW_COLUMNS
 from estimator.metrics import felt_pa
+from haptics.settings import display_settings
 from teleop.settings import load_settings
 
 OBJECTS = ("stress_ball", "rubber_duck", "steel_ball_bearing")
@@ -42,7 +43,7 @@ def test_evaluate_writes_rows_and_scores_what_the_display_renders(records, tmp_p
     csv_path = tmp_path / "rows.csv"
     assert main(["evaluate", str(records), "--methods", "no_tactile", "--rows", str(csv_path), "--json"]) == 0
     result = last_json(capsys)
-    display = load_settings().display
+    display = display_settings(load_settings())
     assert result["display_range_pa"] == [display.e_soft_pa, display.e_rigid_pa]
     assert display.e_rigid_pa < 1e8  # resolved to the sensor's limit, not left at 0
     m = result["methods"]["no_tactile"]

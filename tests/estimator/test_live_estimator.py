@@ -16,17 +16,19 @@ import numpy as np
 import pytest
 import zmq
 
-from estimator.errors import CalibrationError, EstimatorError, FitError, PerceptionError
+from estimator.errors import CalibrationError, FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.measure import estimate_grasp, measure_grasp
 from estimator.segment import PEAK_FRAME_WINDOW_S, segment_grasp
 from estimator.service import EstimatorService, ModelSlot
+from estimator.settings import estimator_settings
 from estimator.stream import GraspStream, choose_estimate
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.catalogue import load_catalogue
+from teleop.errors import SettingsError
 from teleop.live import JsonLines
 from teleop.record import GraspRecord
-from teleop.settings import CONFIG_DIR, load_settings
+from teleop.settings import CONFIG_DIR, default_settings_path, load_settings
 from teleop.sim.grasp import simulate_grasp
 
 METHODS = ("split", "hertz", "elastic", "no_tactile")
@@ -77,7 +79,7 @@ def same(a: Estimate, b: Estimate) -> bool:
 def test_stream_fed_in_capture_order_ends_where_batch_estimation_is(settings, calibration, records, name, binning):
     # No loading-end marker: the stream sees the end in the data, batch estimation has no stop event.
     record = dataclasses.replace(records[name], events={})
-    settings = dataclasses.replace(settings, estimator=dataclasses.replace(settings.estimator, depth_binning=binning))
+    settings = settings.with_section(dataclasses.replace(estimator_settings(settings), depth_binning=binning))
     stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
     assert stream.grid.image_shape == (250 // binning, 350 // binning) == stream.calibration.image_shape
     provisional, complete_at = 0, None
@@ -108,7 +110,7 @@ def test_stream_segmentation_follows_every_sample_frame_and_marker(settings, cal
     record = records["steel_ball_bearing"]
     stop_s = record.events["grasp_done"]
     stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
-    est, finger = settings.estimator, settings.estimator.finger
+    est, finger = estimator_settings(settings), settings.sensing.finger
     checked = 0
     for t, kind, body in in_capture_order(record):
         is_frame = feed(stream, kind, body, t)
@@ -183,13 +185,15 @@ def test_stream_checks_methods_and_calibration(settings, calibration):
         GraspStream(settings=settings, calibration=small)
 
 
-def test_the_service_refuses_a_configured_method_it_does_not_know(settings):
+def test_the_settings_refuse_a_configured_method_they_do_not_know(settings, tmp_path):
     from estimator.stream import configured_methods
 
-    assert configured_methods(settings) == settings.estimator.methods
-    typo = dataclasses.replace(settings, estimator=dataclasses.replace(settings.estimator, methods=("split", "hertzz")))
-    with pytest.raises(EstimatorError, match="estimator.methods: 'hertzz' is not an analytical method"):
-        configured_methods(typo)
+    assert configured_methods(settings) == estimator_settings(settings).methods
+    text = default_settings_path().read_text().replace('methods = ["split", "hertz"', 'methods = ["split", "hertzz"')
+    typo = tmp_path / "typo.toml"
+    typo.write_text(text)
+    with pytest.raises(SettingsError, match=r"typo.toml: \[estimator\] EstimatorSettings.methods\[1\] = 'hertzz'"):
+        estimator_settings(load_settings(typo))
 
 
 def test_stream_record_holds_what_arrived(settings, calibration, records):
@@ -376,7 +380,7 @@ def write_tiny_model(model_dir: Path, log10_e: float) -> float:
         "inputs": {"frames": [None, *shape]}, "output": OUTPUT_NAME, "scales": current_scales(),
         "calibration": {"temperature": 1.0, "p_rigid": 0.5, "level": 0.9, "interval_scale": 1.645,
                         "soft_pa": 5e3},
-        "data": {"depth_binning": load_settings().estimator.depth_binning},
+        "data": {"depth_binning": estimator_settings(load_settings()).depth_binning},
     }))
     return float(10.0 ** (EDGES_LOG10[index] + BIN_DECADES / 2))
 
@@ -552,7 +556,7 @@ def test_a_stop_before_the_force_shows_contact_waits_for_the_load_cell(settings,
     items, stop_s, _ = until_loading_end(record)
     stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
     for t, kind, body in items:  # the load cell lags: its readings up to the stop stay below contact
-        if kind != "force" or body["value_n"][0] < 0.5 * settings.estimator.contact_force_n:
+        if kind != "force" or body["value_n"][0] < 0.5 * estimator_settings(settings).contact_force_n:
             feed(stream, kind, body, t)
     stream.mark_loading_end(stop_s)
     assert not stream.segment() and not stream.loading_complete()  # not an air grasp yet

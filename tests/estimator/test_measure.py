@@ -39,6 +39,7 @@ from estimator.measure import (
 )
 from estimator.perception import fit_calibration, warp_and_crop
 from estimator.segment import segment_grasp
+from estimator.settings import estimator_settings
 from teleop.errors import RecordError
 from teleop.record import FrameStream, GraspRecord, Label, Provenance, Samples, write_record
 from teleop.settings import CONFIG_DIR, SensorSettings, Settings, SimulationSettings
@@ -136,11 +137,11 @@ def test_measurements_cover_every_loading_frame(calibration):
     record = build_record(3e5)
     m = measure_grasp(record, settings=SETTINGS, calibration=calibration)
     n = m.segment.frame_index.size
-    binning = SETTINGS.estimator.depth_binning
+    binning = estimator_settings(SETTINGS).depth_binning
     assert binning == 2 and m.depth_binning == binning and m.grid.image_shape == (125, 175)
     assert n >= 5 and len(m.features) == n and m.depth_m.shape == (n, *m.grid.image_shape)
     assert m.depth_m.dtype == np.float32 and np.all(np.isfinite(m.depth_m))
-    assert m.sample.size == SETTINGS.estimator.n_frames
+    assert m.sample.size == estimator_settings(SETTINGS).n_frames
     assert np.all(np.diff(m.features.peak_depth_m) > 0) and np.all(np.diff(m.approach_m) > 0)
     assert m.force_n == pytest.approx(np.interp(m.t_s, record.force_n.t_s, record.force_n.value), abs=0.1)
 
@@ -182,7 +183,7 @@ def test_hard_geometries_give_sound_estimates(calibration, radius_m, target_n):
 def test_markers_are_masked_before_reconstruction(calibration):
     sensor = SensorSettings(finger="left", markers=True, gel_thickness_m=THICK_GEL_M)
     record = build_record(3e5, sensor=sensor)
-    full_grid = replace(SETTINGS, estimator=replace(SETTINGS.estimator, depth_binning=1))
+    full_grid = SETTINGS.with_section(replace(estimator_settings(SETTINGS), depth_binning=1))
     m = measure_grasp(record, settings=full_grid, calibration=calibration)
     est = estimate_grasp(m, "split", settings=full_grid)
     assert est.state == "ok" and log_error(est, 3e5) < 0.3

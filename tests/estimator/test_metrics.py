@@ -15,6 +15,7 @@ from estimator.metrics import (
     summarise,
 )
 from haptics.mapping import map_estimate, modulus_from_fraction
+from haptics.settings import display_settings
 from teleop.settings import load_settings
 
 SOFT, RIGID = 5e3, 6.75e6  # the shipped display: the rigid end is the sensor's resolution limit
@@ -141,7 +142,7 @@ def test_interval_levels_are_carried_per_method():
 
 
 def test_the_shipped_display_range_resolves_its_rigid_end():
-    display = load_settings().display
+    display = display_settings(load_settings())
     assert display.e_soft_pa < display.e_rigid_pa < 1e8  # the sensor's limit, a few MPa
     m = one([row(2e11, "lower_bound", display.e_rigid_pa, display.e_rigid_pa, None)],
             (display.e_soft_pa, display.e_rigid_pa))

@@ -20,7 +20,8 @@ import pytest
 from haptics.devices.base import SoftnessDisplay
 from haptics.devices.sim import DisplayFirmware, SimulatedDisplay
 from haptics.protocol import USAGE_PAGE
-from teleop.settings import DisplaySettings, load_settings
+from haptics.settings import DisplaySettings, display_settings
+from teleop.settings import load_settings
 
 
 @dataclass
@@ -192,7 +193,7 @@ def _hardware_rig() -> Rig:
         pytest.skip("set COMPLIANCE_TELEOP_HID=1 with a display plugged in to test real hardware")
     from haptics.devices.hid import HidDisplay
 
-    return Rig(display=HidDisplay.from_settings(load_settings().display))
+    return Rig(display=HidDisplay.from_settings(display_settings(load_settings())))
 
 
 @pytest.fixture(params=["sim", "fake-hid", pytest.param("hid", marks=pytest.mark.hardware)])

@@ -12,6 +12,7 @@ from haptics.devices.sim import SimulatedDisplay
 from haptics.mapping import stiffness_fraction
 from haptics.renderer import HapticRenderer
 from haptics.service import RendererService
+from haptics.settings import display_settings
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import SCHEMAS
 from teleop.errors import BusTimeoutError
@@ -39,7 +40,7 @@ class Rig:
 
 
 def make_rig(**display_overrides) -> Rig:
-    settings = dataclasses.replace(load_settings().display, **display_overrides)
+    settings = dataclasses.replace(display_settings(load_settings()), **display_overrides)
     estimator = Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator")
     renderer_pub = Publisher("tcp://127.0.0.1:*", lossless=False, source="renderer")
     subscriber = Subscriber(estimator.endpoint, ("estimate", "grasp_event"), conflate=True)
@@ -194,7 +195,7 @@ class _BrokenPublisher:
 
 
 def test_rendering_goes_on_when_publishing_fails(caplog):
-    settings = dataclasses.replace(load_settings().display, smoothing_s=0.0)
+    settings = dataclasses.replace(display_settings(load_settings()), smoothing_s=0.0)
     estimator = Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator")
     subscriber = Subscriber(estimator.endpoint, ("estimate", "grasp_event"), conflate=True)
     display = SimulatedDisplay()
@@ -219,7 +220,7 @@ def test_rendering_goes_on_when_publishing_fails(caplog):
 
 
 def test_no_publisher_no_messages():
-    settings = load_settings().display
+    settings = display_settings(load_settings())
     estimator = Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator")
     subscriber = Subscriber(estimator.endpoint, ("estimate",), conflate=True)
     service = RendererService(HapticRenderer(SimulatedDisplay(), settings), subscriber=subscriber, tick_s=0.005)

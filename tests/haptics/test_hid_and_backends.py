@@ -12,7 +12,7 @@ from haptics.devices import BACKENDS, display_class, make_display
 from haptics.devices.sim import SimulatedDisplay
 from haptics.errors import DisplayBackendNotFoundError, DisplayError, DisplayNotConnectedError
 from haptics.protocol import StiffnessCommand, crc8, encode_output_report
-from teleop.settings import DisplaySettings
+from haptics.settings import DisplaySettings
 
 REPO = Path(__file__).resolve().parents[2]
 

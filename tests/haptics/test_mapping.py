@@ -27,6 +27,7 @@ from haptics.mapping import (
     stiffness_fraction,
     to_command,
 )
+from haptics.settings import display_settings
 from teleop.settings import load_settings
 
 SOFT, RIGID = 5e3, 1e9
@@ -327,7 +328,7 @@ def test_any_estimate_gives_a_valid_command(update, level_max, e_soft_pa, ratio)
 
 
 def shipped_range() -> dict[str, float]:
-    display = load_settings().display
+    display = display_settings(load_settings())
     return {"e_soft_pa": display.e_soft_pa, "e_rigid_pa": display.e_rigid_pa}
 
 

@@ -14,7 +14,8 @@ from haptics.errors import MappingError
 from haptics.mapping import ESTIMATE_STATES, EstimateUpdate, map_estimate, stiffness_fraction
 from haptics.protocol import decode_output_report
 from haptics.renderer import HapticRenderer
-from teleop.settings import DisplaySettings, load_settings
+from haptics.settings import DisplaySettings, display_settings
+from teleop.settings import load_settings
 
 SETTINGS = DisplaySettings(
     e_soft_pa=5e3, e_rigid_pa=1e9, smoothing_s=0.1, fade_s=0.3, stale_after_s=1.0, keepalive_s=0.2
@@ -265,14 +266,14 @@ def test_stiffer_estimates_settle_on_higher_levels():
 
 def test_an_unresolved_display_range_is_refused_naming_e_rigid_pa():
     # A bare DisplaySettings() leaves the rigid end at 0: "the sensor's resolution limit", unknown here.
-    with pytest.raises(MappingError, match=r"e_rigid_pa = 0\.0: unresolved.*load_settings\(\.\.\.\)\.display"):
+    with pytest.raises(MappingError, match=r"e_rigid_pa = 0\.0: unresolved.*display_settings\(load_settings\(\.\.\.\)\)"):
         HapticRenderer(SimulatedDisplay(), DisplaySettings())
     HapticRenderer(SimulatedDisplay(), DisplaySettings(e_rigid_pa=1e9))  # set explicitly: fine
 
 
 def test_with_the_shipped_settings_a_bound_at_the_resolution_limit_is_rigid():
     settings = load_settings()
-    display, renderer = make(replace(settings.display, smoothing_s=0.0))
+    display, renderer = make(replace(display_settings(settings), smoothing_s=0.0))
     limit = settings.resolution_limit_pa
     renderer.on_estimate(estimate(limit, state="lower_bound", interval=(limit, None)), 0.0)
     rigid = written(display)[-1]
@@ -281,5 +282,5 @@ def test_with_the_shipped_settings_a_bound_at_the_resolution_limit_is_rigid():
     below = limit / 2
     renderer.on_estimate(estimate(below, state="lower_bound", interval=(below, None)), 0.1)
     bound = written(display)[-1]
-    fraction = stiffness_fraction(below, e_soft_pa=settings.display.e_soft_pa, e_rigid_pa=limit)
+    fraction = stiffness_fraction(below, e_soft_pa=display_settings(settings).e_soft_pa, e_rigid_pa=limit)
     assert not bound.rigid and bound.level == round(fraction * LEVEL_MAX) < LEVEL_MAX

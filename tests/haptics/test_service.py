@@ -12,6 +12,7 @@ from haptics.devices.sim import SimulatedDisplay
 from haptics.errors import HapticsError
 from haptics.renderer import HapticRenderer
 from haptics.service import RendererService
+from haptics.settings import display_settings
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.live import JsonLines
 from teleop.settings import load_settings
@@ -19,7 +20,7 @@ from teleop.settings import load_settings
 
 @pytest.fixture
 def rig(tmp_path):
-    settings = load_settings().display
+    settings = display_settings(load_settings())
     display = SimulatedDisplay()
     estimator = Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator")
     heartbeat = Publisher("tcp://127.0.0.1:*", lossless=False, source="renderer")

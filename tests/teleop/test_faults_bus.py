@@ -25,6 +25,7 @@ import pytest
 from haptics.devices.sim import SimulatedDisplay
 from haptics.renderer import HapticRenderer
 from haptics.service import RendererService
+from haptics.settings import display_settings
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.errors import BusTimeoutError
 from teleop.settings import load_settings
@@ -79,10 +80,10 @@ def kill(process: subprocess.Popen) -> None:
 @pytest.mark.slow
 def test_estimator_killed_and_restarted_renderer_holds_flags_stale_and_resumes():
     """The estimator's endpoint goes silent mid-grasp (SIGKILL) and comes back on the same port."""
-    display_settings = load_settings().display
+    rendering = display_settings(load_settings())
     endpoint = f"tcp://127.0.0.1:{free_ports(1)[0]}"
     subscriber = Subscriber(endpoint, ("estimate", "grasp_event"), conflate=True)
-    service = RendererService(HapticRenderer(SimulatedDisplay(), display_settings), subscriber=subscriber,
+    service = RendererService(HapticRenderer(SimulatedDisplay(), rendering), subscriber=subscriber,
                               tick_s=0.005)
     peer = start_peer(endpoint, "estimate", "estimator")
     try:
@@ -97,10 +98,10 @@ def test_estimator_killed_and_restarted_renderer_holds_flags_stale_and_resumes()
         kill(peer)
         killed = time.monotonic()
         received = service.stats.estimates
-        run_until(lambda: service.renderer.phase == "stale", display_settings.stale_after_s + 2.0)
-        assert time.monotonic() - killed >= display_settings.stale_after_s - 0.1  # not before its time
+        run_until(lambda: service.renderer.phase == "stale", rendering.stale_after_s + 2.0)
+        assert time.monotonic() - killed >= rendering.stale_after_s - 0.1  # not before its time
         held = service.renderer.percept
-        run_until(lambda: time.monotonic() - killed > display_settings.stale_after_s + 0.5, 5.0)
+        run_until(lambda: time.monotonic() - killed > rendering.stale_after_s + 0.5, 5.0)
         assert service.renderer.phase == "stale" and service.renderer.command.stale
         assert service.renderer.percept == held  # the last safe value, held
         assert service.stats.estimates == received

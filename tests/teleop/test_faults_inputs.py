@@ -25,6 +25,7 @@ from estimator.stream import GraspStream
 from haptics.devices.sim import SimulatedDisplay
 from haptics.renderer import HapticRenderer
 from haptics.service import RendererService
+from haptics.settings import display_settings
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import encode, make_message
 from teleop.catalogue import load_catalogue
@@ -72,7 +73,7 @@ class LiveEstimator:
         )
         self.display = SimulatedDisplay()
         self.renderer = RendererService(
-            HapticRenderer(self.display, settings.display),
+            HapticRenderer(self.display, display_settings(settings)),
             subscriber=Subscriber(self.service.publisher.endpoint, ("estimate", "grasp_event"), conflate=True),
             tick_s=0.005)
         self.estimates = Subscriber(self.service.publisher.endpoint, ("estimate", "grasp_event"))

@@ -9,15 +9,16 @@ from pathlib import Path
 
 import pytest
 
+from estimator.settings import estimator_settings
+from haptics.settings import DisplaySettings, display_settings
 from teleop.errors import SettingsError
 from teleop.settings import (
-    DisplaySettings,
     SensorSettings,
     Settings,
     config_dir,
     default_settings_path,
     load_settings,
-    resolve_config_path,
+    resolve_path,
     settings_from_mapping,
     settings_to_mapping,
 )
@@ -29,10 +30,17 @@ def write(tmp_path, text: str, name: str = "settings.toml"):
     return path
 
 
+def load_all(path) -> Settings:
+    """Load ``path`` as the packages read it: the base's tables, then the estimator's and the display's."""
+    settings = load_settings(path)
+    estimator_settings(settings), display_settings(settings)
+    return settings
+
+
 def error_for(tmp_path, text: str) -> str:
     path = write(tmp_path, text)
     with pytest.raises(SettingsError) as info:
-        load_settings(path)
+        load_all(path)
     message = str(info.value)
     assert str(path) in message, message  # every file error names the file
     return message
@@ -51,7 +59,7 @@ def test_shipped_settings_load_with_the_documented_values():
     assert left.gel_compliance_per_pa == pytest.approx((1 - 0.48**2) / 275e3)
     assert right.warp_corners_px[0] == (92.0, 103.0)
     assert settings.gripper.max_width_m == 0.08 and settings.load_cell.sample_rate_hz == 80.0
-    assert settings.display.vendor_id == 0x1209
+    assert display_settings(settings).vendor_id == 0x1209
 
 
 def test_unknown_keys_are_named_with_the_allowed_ones(tmp_path):
@@ -119,18 +127,37 @@ def test_cross_field_checks(tmp_path):
 
 
 def test_the_depth_binning_must_tile_the_estimator_fingers_grid(tmp_path):
-    assert load_settings().estimator.depth_binning == 2
+    assert estimator_settings(load_settings()).depth_binning == 2
     # A 250 x 350 px grid from 640 x 480 frames: 3 and 4 leave remainders (5 would tile both).
     for binning in (3, 4):
         message = error_for(tmp_path, f"[estimator]\ndepth_binning = {binning}\n")
         assert f"depth_binning = {binning}" in message and "250 x 350" in message and "640" in message
     for binning in (1, 5):
         text = f"[estimator]\ndepth_binning = {binning}\n"
-        assert load_settings(write(tmp_path, text)).estimator.depth_binning == binning
+        assert estimator_settings(load_settings(write(tmp_path, text))).depth_binning == binning
     # Marker dots are found on the full grid: a binned marker finger is refused, naming the fix.
-    message = error_for(tmp_path, '[estimator]\nfinger = "right"\n')
+    message = error_for(tmp_path, '[sensing]\nfinger = "right"\n')
     assert "has markers" in message and "depth_binning = 1" in message
-    assert load_settings(write(tmp_path, '[estimator]\nfinger = "right"\ndepth_binning = 1\n')).estimator.finger == "right"
+    text = '[sensing]\nfinger = "right"\n[estimator]\ndepth_binning = 1\n'
+    assert load_all(write(tmp_path, text)).sensing.finger == "right"
+
+
+def test_each_package_table_is_checked_by_its_owner_naming_the_file_and_key(tmp_path):
+    # The base keeps [estimator] and [display] as read; their owners build and check them.
+    path = write(tmp_path, '[estimator]\nmethods = ["split", "hertzz"]\n[display]\nbackend = "usb"\n')
+    settings = load_settings(path)
+    with pytest.raises(SettingsError, match=r"settings.toml: \[estimator\] EstimatorSettings.methods\[1\] = 'hertzz': "
+                                            r"expected one of 'no_tactile', 'elastic', 'hertz', 'split'"):
+        estimator_settings(settings)
+    with pytest.raises(SettingsError, match=r"settings.toml: \[display\] .*backend = 'usb'"):
+        display_settings(settings)
+    message = error_for(tmp_path, "[estimator]\nspeed = 1\n")
+    assert "unknown key 'speed' in [estimator]" in message and "depth_binning" in message
+    # Keys that moved to [sensing] say where they are now.
+    message = error_for(tmp_path, '[estimator]\nfinger = "left"\n')
+    assert "[estimator] finger is now [sensing] finger" in message
+    message = error_for(tmp_path, "[display]\n[estimator]\nobject_poisson = 0.3\n")
+    assert "[sensing] object_poisson" in message
 
 
 def test_sensor_tables(tmp_path):
@@ -142,12 +169,12 @@ def test_sensor_tables(tmp_path):
     assert "[sensors.left] must be a table" in message
     message = error_for(tmp_path, "[sensors]\n")
     assert "at least one" in message
-    # Fingers are what the tables are called; a table of its own makes one sensor. The display's
-    # rigid end then needs setting: the estimator's finger (left) has no sensor to take it from.
+    # Fingers are what the tables are called; a table of its own makes one sensor. The estimating
+    # finger must then be one with a sensor.
     message = error_for(tmp_path, "[sensors.thumb]\nmarkers = true\n")
-    assert "e_rigid_pa" in message and "'left'" in message
-    text = "[sensors.thumb]\nmarkers = true\n[display]\ne_rigid_pa = 1e9\n"
-    settings = load_settings(write(tmp_path, text, "one.toml"))
+    assert "SensingSettings.finger = 'left'" in message and "['thumb']" in message
+    text = '[sensors.thumb]\nmarkers = true\n[sensing]\nfinger = "thumb"\n[estimator]\ndepth_binning = 1\n'
+    settings = load_all(write(tmp_path, text, "one.toml"))
     assert [s.finger for s in settings.sensors] == ["thumb"] and settings.sensor("thumb").markers
     with pytest.raises(SettingsError, match=r"no sensor on finger 'left'.*\['thumb'\]"):
         settings.sensor("left")
@@ -206,20 +233,20 @@ def test_round_trip_through_a_mapping():
 
 def test_the_shipped_rigid_end_is_the_sensors_resolution_limit():
     settings = load_settings()
-    assert settings.display.e_rigid_pa == settings.resolution_limit_pa
-    assert 3e6 < settings.display.e_rigid_pa < 10e6
+    assert display_settings(settings).e_rigid_pa == settings.resolution_limit_pa
+    assert 3e6 < display_settings(settings).e_rigid_pa < 10e6
     # Its formula (module notes) for the left sensor and the estimator's object Poisson ratio.
-    left, nu = settings.sensor("left"), settings.estimator.object_poisson
+    left, nu = settings.sensor("left"), settings.sensing.object_poisson
     expected = 0.15 * (left.gel_thickness_m / left.depth_resolution_m) * (1 - nu**2) / left.gel_compliance_per_pa
     assert settings.resolution_limit_pa == pytest.approx(expected)
     assert DisplaySettings().e_rigid_pa == 0.0  # unresolved until full settings are built
-    assert Settings().display.e_rigid_pa == Settings().resolution_limit_pa
+    assert display_settings(Settings()).e_rigid_pa == Settings().resolution_limit_pa
 
 
 def test_an_explicit_rigid_end_overrides_the_resolution_limit(tmp_path):
     text = default_settings_path().read_text().replace("e_soft_pa = 5000.0", "e_soft_pa = 5000.0\ne_rigid_pa = 1.0e9")
     settings = load_settings(write(tmp_path, text))
-    assert settings.display.e_rigid_pa == 1e9 and settings.resolution_limit_pa < 1e9
+    assert display_settings(settings).e_rigid_pa == 1e9 and settings.resolution_limit_pa < 1e9
 
 
 def test_a_soft_end_above_the_resolution_limit_is_refused_naming_e_soft_pa(tmp_path):
@@ -248,15 +275,19 @@ def test_a_flat_sensor_works_on_its_raw_frame_whatever_the_warp_fields_say():
     assert SensorSettings().image_shape == (250, 350)  # the Wedge: warped 400 x 300, 25 px cropped
 
 
-def test_the_shipped_configs_are_found_and_relative_paths_resolve_under_them(tmp_path):
+def test_the_shipped_configs_are_found_and_relative_paths_resolve_against_their_file(tmp_path):
     shipped = config_dir()
     assert (shipped / "settings.toml").is_file() and default_settings_path() == shipped / "settings.toml"
     # In a checkout (editable or not) that is the top-level configs/ folder.
     assert shipped == Path(__file__).resolve().parents[2] / "configs"
-    assert resolve_config_path("calibration/sim-wedge-left.npz") == shipped / "calibration/sim-wedge-left.npz"
-    assert resolve_config_path(tmp_path / "cal.npz") == tmp_path / "cal.npz"
-    # Whichever file names it, a relative path is under the shipped configs (documented rule).
-    user = load_settings(write(tmp_path, '[sensors.left]\ncalibration = "mine/left.npz"\n'))
-    assert resolve_config_path(user.sensor("left").calibration) == shipped / "mine/left.npz"
-    for sensor in load_settings().sensors:
-        assert resolve_config_path(sensor.calibration).is_file()
+    assert resolve_path("calibration/sim-wedge-left.npz") == shipped / "calibration/sim-wedge-left.npz"
+    assert resolve_path("cal.npz", folder=tmp_path) == tmp_path / "cal.npz"
+    assert resolve_path(tmp_path / "cal.npz", folder=shipped) == tmp_path / "cal.npz"
+    # Loading resolves every path of a file against the file's folder, package tables' included.
+    text = '[sensors.left]\ncalibration = "mine/left.npz"\n[estimator]\nmodel_path = "../models/m.onnx"\n'
+    user = load_settings(write(tmp_path, text))
+    assert user.sensor("left").calibration == str(tmp_path / "mine/left.npz")
+    assert estimator_settings(user).model_path == str(tmp_path.parent / "models/m.onnx")
+    for path in [default_settings_path(), *sorted((shipped / "rigs").glob("*.toml"))]:
+        for sensor in load_settings(path).sensors:
+            assert Path(sensor.calibration).is_absolute() and Path(sensor.calibration).is_file(), path

@@ -13,6 +13,7 @@ from estimator.estimate import Estimate
 from estimator.learned.dataset import DATASET_FORMAT, SPLITS, split_objects
 from estimator.learned.inputs import MEASUREMENT_VERSION
 from estimator.samples import TrainingSample, save_sample
+from estimator.settings import estimator_settings
 from teleop.settings import load_settings
 
 SIZE = (16, 22)
@@ -70,7 +71,7 @@ def write_synthetic_dataset(out: Path, *, grasps: int = 2, shifts: int = 2, mark
     (out / "split.json").write_text(json.dumps({"seed": seed, "fractions": [0.5, 0.25, 0.25], **split}))
     (out / "dataset.json").write_text(json.dumps({
         "format": DATASET_FORMAT, "version": 1, "n_frames": N_FRAMES, "shifts": shifts, "size_px": list(SIZE),
-        "markers": markers, "finger": "left", "depth_binning": load_settings().estimator.depth_binning,
+        "markers": markers, "finger": "left", "depth_binning": estimator_settings(load_settings()).depth_binning,
         "samples": counts, "measurement_version": MEASUREMENT_VERSION, "objects": {k: len(v) for k, v in split.items()},
     }))
     return out
@@ -119,7 +120,7 @@ def sim_grasps(tmp_path_factory) -> tuple[Path, Path]:
 
     out = tmp_path_factory.mktemp("sim")
     settings = load_settings()
-    sensor = settings.sensor(settings.estimator.finger)
+    sensor = settings.sensor(settings.sensing.finger)
     camera = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(1))
     pack = simulate_presses(camera, n=16, ball_radius_m=2e-3, depth_range_m=(3e-4, 1e-3),
                             rng=np.random.default_rng(2))

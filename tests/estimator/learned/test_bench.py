@@ -10,6 +10,7 @@ import pytest
 from estimator.bench import configurations, pareto_front
 from estimator.cli import main
 from estimator.learned.sampling import decoded
+from estimator.settings import estimator_settings
 from teleop.errors import SettingsError
 from teleop.record import read_record
 from teleop.settings import load_settings
@@ -34,7 +35,7 @@ def test_a_configuration_that_answers_more_grasps_is_not_dominated_by_one_that_r
 def test_the_binned_estimate_is_close_to_the_full_grid_one(sim_grasps):
     records, calibration = sim_grasps
     settings = load_settings()
-    assert settings.estimator.depth_binning == 2
+    assert estimator_settings(settings).depth_binning == 2
     configs = {c.name: c for c in configurations(settings=settings, calibration=str(calibration), frames=[3],
                                                  models=[], binning=[1])}
     assert {"split/bin1", "hertz/bin1", "elastic/bin1"} <= set(configs) and "no_tactile/bin1" not in configs

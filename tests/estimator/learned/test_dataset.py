@@ -60,7 +60,7 @@ def test_build_dataset_from_records_never_leaks_an_object(sim_grasps, tmp_path, 
     assert summary["records"] == 4 and summary["size_px"] == [32, 44]
     # The window the images show: the pad of the settings' estimator sensor (the simulated Wedge's).
     settings = load_settings()
-    assert summary["window_m"] == pytest.approx(list(settings.sensor(settings.estimator.finger).pad_size_m))
+    assert summary["window_m"] == pytest.approx(list(settings.sensor(settings.sensing.finger).pad_size_m))
     split = load_split(out / "split.json")
     where = defaultdict(set)
     n_samples = 0
@@ -75,7 +75,7 @@ def test_build_dataset_from_records_never_leaks_an_object(sim_grasps, tmp_path, 
             assert [e.method for e in sample.estimates] == list(ANALYTICAL_METHODS)
             assert sample.label_modulus_pa > 0 and np.all(np.diff(sample.force_n) >= -0.5)
             # The rig it was measured on, for the gel scale and the rig features.
-            gel = settings.sensor(settings.estimator.finger)
+            gel = settings.sensor(settings.sensing.finger)
             assert (sample.gel_modulus_pa, sample.gel_thickness_m) == (gel.gel_modulus_pa, gel.gel_thickness_m)
             assert sample.finger_stiffness_n_per_m == settings.gripper.finger_stiffness_n_per_m
     assert all(len(s) == 1 for s in where.values())  # every grasp and augmentation of an object in one split

@@ -19,6 +19,7 @@ from estimator.learned.infer import CompliancePredictor, ModelMetadata, load_pre
 from estimator.learned.inputs import Variant, encode
 from estimator.learned.model import ComplianceNet
 from estimator.learned.reference import mismatches
+from estimator.settings import estimator_settings
 
 
 def _random_batch(variant: Variant, batch: int, seed: int = 0) -> dict[str, np.ndarray]:
@@ -139,9 +140,9 @@ def test_a_model_is_refused_where_the_settings_measure_depth_on_another_grid(tra
 
     settings = load_settings()
     predictor = CompliancePredictor(trained_model)
-    assert predictor.depth_binning == settings.estimator.depth_binning == 2
+    assert predictor.depth_binning == estimator_settings(settings).depth_binning == 2
     HybridEstimator(predictor, settings=settings)
-    full_grid = replace(settings, estimator=replace(settings.estimator, depth_binning=1))
+    full_grid = settings.with_section(replace(estimator_settings(settings), depth_binning=1))
     with pytest.raises(ModelError, match="binned by 2.*depth_binning = 1.*retrain"):
         HybridEstimator(predictor, settings=full_grid)
     # A model from before the setting was trained on the full grid.
@@ -159,7 +160,7 @@ def test_settings_name_the_model(trained_model):
     from teleop.settings import load_settings
 
     settings = load_settings()
-    settings = replace(settings, estimator=replace(settings.estimator, model_path=str(trained_model / "model.onnx")))
+    settings = settings.with_section(replace(estimator_settings(settings), model_path=str(trained_model / "model.onnx")))
     assert load_predictor(settings=settings).model_dir == trained_model
     assert ModelMetadata.from_json(json.loads((trained_model / "metadata.json").read_text()), "x").variant.n_frames == 3
 
@@ -176,7 +177,7 @@ def test_the_shipped_models_were_trained_on_what_this_code_measures(name, missin
     settings = load_settings()
     # A change to the measurement (or the depth grid) needs the shipped models retrained.
     assert predictor.measurement_code_matches, f"retrain {model_dir}: the measurement version changed"
-    assert predictor.depth_binning == settings.estimator.depth_binning
+    assert predictor.depth_binning == estimator_settings(settings).depth_binning
     # ... and a change that alters the inputs must raise the measurement version.
     recorded = predictor.metadata.raw["reference"]["inputs"]
     moved = mismatches(recorded, predictor.variant, settings=settings)
@@ -195,9 +196,9 @@ def test_the_reference_check_sees_inputs_that_moved(trained_model):
     recorded = predictor.metadata.raw["reference"]["inputs"]
     assert mismatches(recorded, predictor.variant, settings=settings) == []
     # Another object Poisson ratio changes every analytical fit, and nothing else.
-    other = replace(settings, estimator=replace(settings.estimator, object_poisson=0.2))
+    other = replace(settings, sensing=replace(settings.sensing, object_poisson=0.2))
     moved = mismatches(recorded, predictor.variant, settings=other)
     assert moved and all(m.startswith("analytical") for m in moved)
     # Depth on the full grid changes the depth maps.
-    full = replace(settings, estimator=replace(settings.estimator, depth_binning=1))
+    full = settings.with_section(replace(estimator_settings(settings), depth_binning=1))
     assert any(m.startswith("frames") for m in mismatches(recorded, predictor.variant, settings=full))

@@ -157,7 +157,7 @@ def test_sampling_decodes_only_the_reference_and_sampled_frames(sim_grasps):
 
     records, calibration = sim_grasps
     settings = load_settings()
-    finger = settings.estimator.finger
+    finger = settings.sensing.finger
     record = read_record(records / "stress_ball.grasp")
     sampled = sample_grasp(record, settings=settings, calibration=calibration, n_frames=3, size_px=(16, 22), rgb=True)
     m = sampled.measurements

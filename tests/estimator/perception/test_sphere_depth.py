@@ -44,6 +44,7 @@ from estimator.features import contact_features
 from estimator.measure import calibration_path
 from estimator.perception import load_calibration, reconstruct_depth
 from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration
+from estimator.settings import estimator_settings
 from teleop.catalogue import ObjectSpec
 from teleop.settings import CONFIG_DIR, default_settings_path, load_settings
 from teleop.sim.grasp import _to_image, contact_grid, load_curve
@@ -89,7 +90,7 @@ def sphere_press(optics: str, *, seed: int = 0):
     assert sensor.optics == optics
     grid_px = settings.simulation.grid_px
     ball = ObjectSpec(name="20 mm sphere", shape="sphere", material="rubber",
-                      modulus_pa=sensor.gel_modulus_pa, poisson=settings.estimator.object_poisson,
+                      modulus_pa=sensor.gel_modulus_pa, poisson=settings.sensing.object_poisson,
                       size_m=(2 * BALL_RADIUS_M,) * 3, texture_m=1e-9)
     shape, cell = contact_grid(sensor, grid_px)
     scene = make_scene(ball, Pose(rotation=np.eye(3), offset_m=(0.0, 0.0)), shape=shape, cell_m=cell,
@@ -101,7 +102,7 @@ def sphere_press(optics: str, *, seed: int = 0):
     camera = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(seed))
     reference_jpeg = camera.capture(np.zeros(sensor.image_shape))
     frame_jpeg = camera.capture(truth)
-    binning = settings.estimator.depth_binning
+    binning = estimator_settings(settings).depth_binning
     grid = depth_grid(sensor, binning)
     calibration = grid_calibration(load_calibration(calibration_path(sensor)), binning)
     depth = reconstruct_depth(frame_on_grid(frame_jpeg, "jpeg", sensor, binning=binning),
@@ -122,7 +123,7 @@ def test_press_is_a_broad_shallow_contact_of_10_n(optics):
     cell_m = contact_grid(settings.sensor("left"), settings.simulation.grid_px)[1]
     assert math.sqrt(contact.contact.sum() * cell_m[0] * cell_m[1] / math.pi) > 5e-3
     assert 0.1e-3 < truth.max() < 1e-3
-    binning = settings.estimator.depth_binning
+    binning = estimator_settings(settings).depth_binning
     assert depth.shape == tuple(side // binning for side in truth.shape)
     assert np.isfinite(depth).all()
 
@@ -137,7 +138,7 @@ def test_sphere_of_gel_modulus_reconstructs_to_its_peak_indentation(optics):
         f"(ratio {ratio:.3f})"
     )
     # The peak is the press's: where the gel is sunk at least half the simulated peak.
-    binning = settings.estimator.depth_binning
+    binning = estimator_settings(settings).depth_binning
     rows, cols = depth.shape
     truth_on_grid = truth.reshape(rows, binning, cols, binning).mean(axis=(1, 3))
     deepest = np.unravel_index(int(np.argmax(scipy.ndimage.gaussian_filter(depth, 1.0))), depth.shape)

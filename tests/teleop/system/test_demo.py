@@ -19,6 +19,8 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 import teleop.cli
+from estimator.settings import estimator_settings
+from haptics.settings import display_settings
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SettingsError, TeleopError
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
@@ -79,7 +81,6 @@ def one_grasp_scene(tmp_path: Path, obj: str = "steel_ball_bearing") -> Path:
     path = tmp_path / "scene.toml"
     path.write_text(textwrap.dedent(f"""
         description = "one grasp"
-        catalogue = "objects.toml"
         objects = ["{obj}"]
         seed = 5
     """))
@@ -118,8 +119,8 @@ def test_outcomes_give_the_closing_table_and_json():
 
 def test_outcomes_show_what_the_display_rendered():
     settings = load_settings()
-    limit, soft = settings.resolution_limit_pa, settings.display.e_soft_pa
-    shipped = (soft, settings.display.e_rigid_pa)
+    limit, soft = settings.resolution_limit_pa, display_settings(settings).e_soft_pa
+    shipped = (soft, display_settings(settings).e_rigid_pa)
     # The estimator's bound for anything stiffer than the sensor resolves: rendered rigid.
     steel = outcome("steel", 2e11, {"E_pa": limit, "interval_pa": [limit, None], "state": "lower_bound"}, 0.05,
                     120.0, display_range=shipped)
@@ -205,7 +206,7 @@ def test_the_frame_baseline_times_the_perception_of_a_press_the_estimator_sees()
     from estimator.stream import measure_frame
 
     settings = load_settings(default_settings_path())
-    sensor, binning = settings.sensor(settings.estimator.finger), settings.estimator.depth_binning
+    sensor, binning = settings.sensor(settings.sensing.finger), estimator_settings(settings).depth_binning
     calibration = resolve_calibration(sensor, None)
     pressed, untouched = baseline_press(settings)
     frame, reference = (frame_on_grid(data, "jpeg", sensor, binning=binning) for data in (pressed, untouched))

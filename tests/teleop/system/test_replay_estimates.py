@@ -19,6 +19,7 @@ import pytest
 from estimator.analytical import METHODS
 from estimator.measure import resolve_calibration
 from estimator.service import INPUT_TOPICS, EstimatorService, ModelSlot, resolve_model_dir
+from estimator.settings import estimator_settings
 from estimator.stream import DEFAULT_METHODS
 from teleop.bus.wire import Message, make_message
 from teleop.session import replay_messages
@@ -71,8 +72,8 @@ def test_the_recorded_session_replays_to_the_same_final_estimates(tmp_path):
 
     # The estimator as `estimator serve` builds it in the demo (see estimator.service.run).
     settings = load_settings(settings_path)
-    methods = tuple([m for m in settings.estimator.methods if m in METHODS] or DEFAULT_METHODS)
-    calibration = resolve_calibration(settings.sensor(settings.estimator.finger), str(calibration_path))
+    methods = tuple([m for m in estimator_settings(settings).methods if m in METHODS] or DEFAULT_METHODS)
+    calibration = resolve_calibration(settings.sensor(settings.sensing.finger), str(calibration_path))
     model_dir = resolve_model_dir(None, settings)
     assert model_dir is not None, "the demo serves the shipped default model; it is missing"
     model = ModelSlot(model_dir, settings=settings, calibration=calibration, mode="auto")
