@@ -122,6 +122,22 @@ class MjpgServer:
         self.httpd.server_close()
 
 
+@pytest.fixture(scope="session")
+def franky_sim_robot():
+    """A franky-sim robot (MuJoCo) serving the libfranka protocol on a free loopback address; its
+    ``hostname`` is the address, its ``hand_width`` the simulated hand's width (m)."""
+    try:
+        from franky_sim import SimulationServer
+        from franky_sim.mujoco_simulator import MujocoSimulator
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        pytest.skip(f"franky-sim cannot be imported here: {exc}")
+    with MujocoSimulator(enable_visualization=False) as sim:
+        robot = sim.add_robot()
+        with SimulationServer(sim) as server:
+            server.run_async()
+            yield robot
+
+
 @pytest.fixture
 def mjpg_server() -> Iterator[Callable[..., MjpgServer]]:
     servers: list[MjpgServer] = []

@@ -52,18 +52,9 @@ def make_record() -> Callable[..., GraspRecord]:
 
 
 @pytest.fixture(scope="session")
-def franky_sim_host() -> Iterator[str]:
-    """A franky-sim robot (MuJoCo) serving the libfranka protocol on a free loopback address."""
-    try:
-        from franky_sim import SimulationServer
-        from franky_sim.mujoco_simulator import MujocoSimulator
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        pytest.skip(f"franky-sim cannot be imported here: {exc}")
-    with MujocoSimulator(enable_visualization=False) as sim:
-        robot = sim.add_robot()
-        with SimulationServer(sim) as server:
-            server.run_async()
-            yield robot.hostname
+def franky_sim_host(franky_sim_robot) -> str:
+    """The address the franky-sim robot serves the libfranka protocol on (loopback)."""
+    return franky_sim_robot.hostname
 
 
 def _jpegs(n: int, shape=(480, 640, 3), seed: int = 0) -> list[bytes]:

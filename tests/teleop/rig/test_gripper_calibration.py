@@ -38,21 +38,6 @@ COUNTS_PER_N = 42000.0
 TARE = 1234
 
 
-@pytest.fixture(scope="module")
-def franky_sim_robot():
-    """A franky-sim robot; the test reads its hand width directly, as the fake cell's input."""
-    try:
-        from franky_sim import SimulationServer
-        from franky_sim.mujoco_simulator import MujocoSimulator
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        pytest.skip(f"franky-sim cannot be imported here: {exc}")
-    with MujocoSimulator(enable_visualization=False) as sim:
-        robot = sim.add_robot()
-        with SimulationServer(sim) as server:
-            server.run_async()
-            yield robot
-
-
 @pytest.mark.slow
 def test_recovers_the_finger_stiffness_through_franky_sim(franky_sim_robot, tmp_path, capsys):
     cell = FakeHx711(counts_per_n=COUNTS_PER_N, tare_counts=TARE, rate_hz=80.0, noise_counts=0.02 * COUNTS_PER_N,
