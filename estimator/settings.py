@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 from estimator.analytical import METHODS
 from teleop.errors import SettingsError
-from teleop.settings import Section, Settings, depth_binning_problem, spec
+from teleop.settings import Section, Settings, depth_binning_problem
+from teleop.settings_fields import spec
 
 __all__ = ["DEFAULT_METHODS", "EstimatorSettings", "estimator_settings"]
 

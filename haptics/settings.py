@@ -12,7 +12,8 @@ import dataclasses
 from dataclasses import dataclass
 
 from teleop.errors import SettingsError
-from teleop.settings import Section, Settings, spec
+from teleop.settings import Section, Settings
+from teleop.settings_fields import spec
 
 __all__ = ["DisplaySettings", "display_settings"]
 

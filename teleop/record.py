@@ -55,7 +55,8 @@ import cv2
 import numpy as np
 
 from teleop.errors import RecordError, SettingsError
-from teleop.settings import GripperSettings, SensorSettings, build_settings, settings_to_mapping
+from teleop.settings import GripperSettings, SensorSettings, settings_to_mapping
+from teleop.settings_fields import build_settings
 
 __all__ = [
     "FORMAT_NAME",

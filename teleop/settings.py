@@ -38,17 +38,16 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.resources
-import math
 import os
 import tomllib
 import types
-import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
 from teleop.errors import SettingsError
+from teleop.settings_fields import Validated, build_settings, spec
 
 __all__ = [
     "BusSettings",
@@ -64,14 +63,12 @@ __all__ = [
     "config_dir",
     "default_settings_path",
     "depth_binning_problem",
-    "build_settings",
     "load_settings",
     "resolve_path",
     "settings_from_mapping",
     "settings_to_mapping",
 ]
 
-T = TypeVar("T")
 
 #: Smallest relative change of an object's compliance a person feels when squeezing it
 #: (Bergmann Tiest and Kappers, IEEE Transactions on Haptics 2009: about 15 %).
@@ -114,87 +111,8 @@ def default_settings_path() -> Path:
     return config_dir() / "settings.toml"
 
 
-def spec(
-    default: Any = dataclasses.MISSING,
-    *,
-    lo: float | None = None,
-    hi: float | None = None,
-    lo_open: bool = False,
-    choices: tuple[Any, ...] | None = None,
-    length: int | None = None,
-    doc: str = "",
-    default_factory: Any = dataclasses.MISSING,
-) -> Any:
-    """A dataclass field with its allowed range, checked on construction.
-
-    ``lo``/``hi`` bound numbers (and every number inside a tuple); ``lo_open``
-    makes the lower bound exclusive; ``choices`` lists allowed values;
-    ``length`` fixes a tuple's length.
-    """
-    meta = {"lo": lo, "hi": hi, "lo_open": lo_open, "choices": choices, "length": length, "doc": doc}
-    if default_factory is not dataclasses.MISSING:
-        return dataclasses.field(default_factory=default_factory, metadata=meta)
-    return dataclasses.field(default=default, metadata=meta)
-
-
-def _allowed(meta: Mapping[str, Any]) -> str:
-    if meta.get("choices"):
-        return "one of " + ", ".join(repr(c) for c in meta["choices"])
-    lo, hi = meta.get("lo"), meta.get("hi")
-    left = "(" if meta.get("lo_open") else "["
-    if lo is not None and hi is not None:
-        return f"a value in {left}{lo}, {hi}]"
-    if lo is not None:
-        return f"a value {'>' if meta.get('lo_open') else '>='} {lo}"
-    if hi is not None:
-        return f"a value <= {hi}"
-    return "any value"
-
-
-def _iter_numbers(value: Any):
-    if isinstance(value, tuple):
-        for item in value:
-            yield from _iter_numbers(item)
-    elif isinstance(value, int | float) and not isinstance(value, bool):
-        yield value
-
-
-class _Validated:
-    """Mixin: check every field against its ``spec`` when the object is built."""
-
-    def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):  # type: ignore[arg-type]
-            meta = f.metadata
-            value = getattr(self, f.name)
-            where = f"{type(self).__name__}.{f.name}"
-            choices = meta.get("choices")
-            if choices is not None and isinstance(value, tuple):  # a list: each element is one of them
-                for i, item in enumerate(value):
-                    if item not in choices:
-                        raise SettingsError(f"{where}[{i}] = {item!r}: expected {_allowed(meta)}")
-            elif choices is not None and value not in choices:
-                raise SettingsError(f"{where} = {value!r}: expected {_allowed(meta)}")
-            if meta.get("length") is not None and len(value) != meta["length"]:
-                raise SettingsError(
-                    f"{where} has {len(value)} entries: expected exactly {meta['length']}"
-                )
-            lo, hi = meta.get("lo"), meta.get("hi")
-            for number in _iter_numbers(value):
-                bad = not math.isfinite(number)
-                if lo is not None:
-                    bad |= number <= lo if meta.get("lo_open") else number < lo
-                if hi is not None:
-                    bad |= number > hi
-                if bad:
-                    raise SettingsError(f"{where} = {value!r}: expected {_allowed(meta)}")
-        self._check()
-
-    def _check(self) -> None:
-        """Cross-field checks; override where fields constrain each other."""
-
-
 @dataclass(frozen=True)
-class SensorSettings(_Validated):
+class SensorSettings(Validated):
     """One GelSight-style tactile sensor: camera geometry, warp and gel."""
 
     finger: str = spec("left", doc="which finger carries it")
@@ -296,7 +214,7 @@ def depth_binning_problem(binning: Any, sensor: SensorSettings | None = None, *,
 
 
 @dataclass(frozen=True)
-class GripperSettings(_Validated):
+class GripperSettings(Validated):
     """Parallel gripper motion and grasp parameters."""
 
     backend: str = spec("sim", choices=("sim", "franky"))
@@ -311,7 +229,7 @@ class GripperSettings(_Validated):
 
 
 @dataclass(frozen=True)
-class LoadCellSettings(_Validated):
+class LoadCellSettings(Validated):
     """HX711 load cell: sample rate, calibration and transport."""
 
     backend: str = spec("sim", choices=("sim", "serial", "tcp"))
@@ -325,7 +243,7 @@ class LoadCellSettings(_Validated):
 
 
 @dataclass(frozen=True)
-class BusSettings(_Validated):
+class BusSettings(Validated):
     """ZeroMQ endpoints and limits."""
 
     robot_pub: str = spec("tcp://127.0.0.1:5550", doc="robot node publishes grasp data here")
@@ -338,7 +256,7 @@ class BusSettings(_Validated):
 
 
 @dataclass(frozen=True)
-class SimulationSettings(_Validated):
+class SimulationSettings(Validated):
     """Simulated hardware: noise and timing of the virtual sensors."""
 
     force_noise_n: float = spec(0.02, lo=0.0, hi=10.0)
@@ -356,7 +274,7 @@ class SimulationSettings(_Validated):
 
 
 @dataclass(frozen=True)
-class SensingSettings(_Validated):
+class SensingSettings(Validated):
     """What every estimate refers to: the finger whose sensor estimates, and the Poisson ratio
     assumed for grasped objects. With that sensor's gel they set the resolution limit (module
     notes), which is both the estimator's ``lower_bound`` and the display's rigid end."""
@@ -373,7 +291,7 @@ PACKAGE_TABLES = ("estimator", "display")
 S = TypeVar("S", bound="Section")
 
 
-class Section(_Validated):
+class Section(Validated):
     """Base of a package's own settings table: a frozen dataclass with its fields' ``spec``.
 
     ``TABLE`` names its table in the settings file, ``PATHS`` its fields holding file paths
@@ -389,7 +307,7 @@ class Section(_Validated):
 
 
 @dataclass(frozen=True)
-class Settings(_Validated):
+class Settings(Validated):
     """Everything one deployment needs, as read from one TOML file.
 
     The base's own tables are fields; the packages' tables (:data:`PACKAGE_TABLES`) are kept as read
@@ -405,8 +323,9 @@ class Settings(_Validated):
     load_cell: LoadCellSettings = spec(default_factory=LoadCellSettings)
     bus: BusSettings = spec(default_factory=BusSettings)
     simulation: SimulationSettings = spec(default_factory=SimulationSettings)
-    tables: Mapping[str, Mapping[str, Any]] = spec(default_factory=dict, doc="the packages' own tables, as read")
-    source: Path | None = dataclasses.field(default=None, compare=False, repr=False)
+    # Not keys of the file: the packages' tables keep their own names, and where the file was.
+    tables: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict, metadata={"key": False})
+    source: Path | None = dataclasses.field(default=None, compare=False, repr=False, metadata={"key": False})
 
     def _check(self) -> None:
         fingers = [s.finger for s in self.sensors]
@@ -422,7 +341,7 @@ class Settings(_Validated):
             raise SettingsError(f"Settings.tables names {unknown[0]!r}: expected some of {', '.join(PACKAGE_TABLES)}")
 
     def __hash__(self) -> int:  # the packages' tables are plain dicts: hash a frozen copy
-        own = tuple(getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in _NOT_KEYS)
+        own = tuple(getattr(self, f.name) for f in dataclasses.fields(self) if f.metadata.get("key", True))
         return hash((own, _frozen(self.tables)))
 
     @property
@@ -475,73 +394,6 @@ class Settings(_Validated):
 # --------------------------------------------------------------------------- loading
 
 
-def _type_name(tp: Any) -> str:
-    return getattr(tp, "__name__", str(tp))
-
-
-def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
-    """Check ``value`` read from TOML against annotation ``tp``; return it in that type."""
-    origin = typing.get_origin(tp)
-    if dataclasses.is_dataclass(tp):
-        if not isinstance(value, Mapping):
-            raise SettingsError(f"{source}: [{key}] must be a table, got {type(value).__name__}")
-        return build_settings(tp, value, source, key)
-    if origin is tuple:
-        args = typing.get_args(tp)
-        if not isinstance(value, list | tuple):
-            raise SettingsError(f"{source}: {key} must be an array, got {type(value).__name__}")
-        if args[-1] is Ellipsis:
-            args = (args[0],) * len(value)
-        elif len(value) != len(args):
-            raise SettingsError(f"{source}: {key} must have {len(args)} entries, got {len(value)}")
-        return tuple(_coerce(v, a, f"{key}[{i}]", source) for i, (v, a) in enumerate(zip(value, args, strict=True)))
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise SettingsError(f"{source}: {key} must be true or false, got {value!r}")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise SettingsError(f"{source}: {key} must be an integer, got {value!r}")
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise SettingsError(f"{source}: {key} must be a number, got {value!r}")
-        return float(value)
-    if tp is str:
-        if not isinstance(value, str):
-            raise SettingsError(f"{source}: {key} must be a string, got {value!r}")
-        return value
-    raise SettingsError(f"{source}: {key} has unsupported type {_type_name(tp)}")
-
-
-def build_settings(cls: type[T], data: Mapping[str, Any], source: str, prefix: str) -> T:
-    """Build the settings dataclass ``cls`` from ``data``; errors name ``source`` and the key."""
-    hints = typing.get_type_hints(cls)
-    names = {f.name: f for f in dataclasses.fields(cls) if f.init and f.name not in _NOT_KEYS}  # type: ignore[arg-type]
-    unknown = sorted(set(data) - set(names))
-    if unknown:
-        where = f"[{prefix}]" if prefix else "top level"
-        raise SettingsError(
-            f"{source}: unknown key {unknown[0]!r} in {where}; allowed keys: {', '.join(sorted(names))}"
-        )
-    kwargs = {}
-    for name, value in data.items():
-        key = f"{prefix}.{name}" if prefix else name
-        tp = hints[name]
-        if cls is Settings and name == "sensors":
-            kwargs[name] = _build_sensors(value, source)
-            continue
-        kwargs[name] = _coerce(value, tp, key, source)
-    try:
-        return cls(**kwargs)
-    except SettingsError as exc:
-        where = f"[{prefix}] " if prefix else ""
-        raise SettingsError(f"{source}: {where}{exc}") from None
-
-
-#: Settings fields that are not keys of the file: the packages' tables keep their own names.
-_NOT_KEYS = frozenset({"tables", "source"})
-
 #: Keys that moved between tables: (table, key) -> where they are now.
 _MOVED = {("estimator", "finger"): "[sensing] finger", ("estimator", "object_poisson"): "[sensing] object_poisson"}
 
@@ -568,7 +420,8 @@ def _build_settings_file(data: Mapping[str, Any], source: Path | None) -> Settin
         own["sensors"] = {finger: _with_path(table, "calibration", folder) for finger, table in sensors.items()}
     if isinstance(own.get("simulation"), Mapping):
         own["simulation"] = _with_path(own["simulation"], "background", folder)
-    settings = build_settings(Settings, own, where, "")
+    built = {"sensors": _build_sensors(own["sensors"], where)} if "sensors" in own else {}
+    settings = build_settings(Settings, own, where, "", built=built)
     return dataclasses.replace(settings, tables=tables, source=source)
 
 
@@ -614,7 +467,7 @@ def settings_to_mapping(settings: Any) -> dict[str, Any]:
     """
     if isinstance(settings, Settings):
         out = {f.name: settings_to_mapping(getattr(settings, f.name)) for f in dataclasses.fields(settings)
-               if f.name not in _NOT_KEYS}
+               if f.metadata.get("key", True)}
         out["sensors"] = {s.finger: settings_to_mapping(s) for s in settings.sensors}
         return {**out, **settings_to_mapping(dict(settings.tables))}
     if dataclasses.is_dataclass(settings):

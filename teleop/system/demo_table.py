@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, TextIO
 import numpy as np
 
 if TYPE_CHECKING:
-    from teleop.system.demo import GraspOutcome
+    from teleop.system.outcome import GraspOutcome
 
 __all__ = ["LiveView", "closing_table", "display_cell"]
 

@@ -81,7 +81,6 @@ from teleop.bus.wire import Message
 from teleop.errors import TeleopError
 from teleop.settings import Settings, load_settings
 from teleop.system.demo import (
-    GraspOutcome,
     LiveSystem,
     LiveView,
     add_run_arguments,
@@ -90,6 +89,7 @@ from teleop.system.demo import (
     run_grasps,
     scene_plan,
 )
+from teleop.system.outcome import GraspOutcome
 
 if TYPE_CHECKING:
     from estimator.perception.calibration import Calibration

@@ -27,9 +27,7 @@ from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from
 from teleop.session.logfile import LogReader
 from teleop.settings import default_settings_path, load_settings
 from teleop.system.demo import (
-    GraspOutcome,
     LiveSystem,
-    ReportReader,
     closing_table,
     free_ports,
     scene_plan,
@@ -43,6 +41,7 @@ from teleop.system.latency import (
     plot,
     slowest,
 )
+from teleop.system.outcome import GraspOutcome, ReportReader
 
 STEEL = ObjectSpec(name="steel_ball_bearing", shape="sphere", material="metal", modulus_pa=2e11)
 
