@@ -135,7 +135,7 @@ class SensorSettings(Validated):
     camera_latency_s: float = spec(0.0, lo=-1.0, hi=1.0,
                                    doc="how much later this camera stamps a frame than the load cell stamps "
                                        "the same event (s; measured from a tap by `teleop calibrate camera "
-                                       "--latency`); recorded, not yet applied to frame stamps")
+                                       "--latency`); the camera subtracts it from every frame's time")
     raw_width_px: int = spec(640, lo=16, hi=4096)
     raw_height_px: int = spec(480, lo=16, hi=4096)
     # Mirror-corner calibration in raw pixels: top-left, top-right, bottom-left, bottom-right.

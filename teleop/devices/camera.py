@@ -7,6 +7,7 @@ bytes), ready for the grasp record and the bus without re-encoding.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
@@ -44,7 +45,8 @@ class CameraFrame:
     index : int
         Frame number since the camera connected (0, 1, ...); a jump means lost frames.
     t_s : float
-        Arrival time, ``time.monotonic()`` seconds.
+        Capture time, ``time.monotonic()`` seconds on the load cell's clock: the arrival time less
+        the sensor's calibrated ``camera_latency_s`` (``teleop calibrate camera --latency``).
     encoded : bytes
         The image as captured: JPEG or PNG bytes.
     encoding : {"jpeg", "png"}
@@ -90,6 +92,8 @@ class TactileCamera(Device):
         frame = self._read(check_timeout(timeout_s))
         if frame is None:
             raise DeviceTimeoutError(f"{self!r}: no frame within {timeout_s} s")
+        if self.sensor.camera_latency_s:  # onto the load cell's clock, as calibrated
+            return dataclasses.replace(frame, t_s=frame.t_s - self.sensor.camera_latency_s)
         return frame
 
     def _read(self, timeout_s: float) -> CameraFrame | None:

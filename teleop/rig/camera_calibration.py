@@ -171,7 +171,8 @@ def run(args: argparse.Namespace) -> int:
             fit = _latency(camera, settings, args.duration_s)
             report["latency"] = _jsonable(fit)
             if fit:
-                changes[f"{key}.camera_latency_s"] = round(fit.latency_s, 4)
+                # Frames arrive already shifted by the configured latency: what is left adds to it.
+                changes[f"{key}.camera_latency_s"] = round(sensor.camera_latency_s + fit.latency_s, 4)
             else:
                 refused.append(f"latency: {fit.reason}")
     written = [] if refused or not changes else update_settings_file(path, changes)

@@ -158,3 +158,17 @@ def test_opencv_stream_that_is_not_mjpg_is_decoded_and_encoded(tmp_path):
     assert all(f.encoded.startswith(b"\xff\xd8") for f in frames)
     levels = [f.image().mean() for f in frames]
     assert levels == pytest.approx(list(range(0, 200, 20)), abs=4.0)
+
+
+def test_a_calibrated_latency_puts_frames_on_the_load_cells_clock(make_record):
+    """Every backend's frames come through the base class: its latency comes off their times."""
+    record = make_record(duration_s=N_FRAMES / FPS, camera_hz=FPS, frame_shape=(120, 160, 3))
+    for latency_s in (0.0, 0.04):
+        playback = GraspPlayback(record)
+        sensor = SensorSettings(finger="right", camera_latency_s=latency_s)
+        with open_camera(sensor, playback=playback) as camera:
+            playback.start()
+            frames = [camera.read(timeout_s=2.0) for _ in range(4)]
+        # The sim camera stamps a frame with the live time it was due.
+        due = np.array([playback.frame_due_s("right", f.index) for f in frames])
+        assert np.array([f.t_s for f in frames]) == pytest.approx(due - latency_s, abs=1e-9)

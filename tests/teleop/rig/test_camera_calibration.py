@@ -49,10 +49,12 @@ def decode(jpeg: bytes) -> np.ndarray:
     return cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
 
 
-def write_settings(tmp_path, url: str, **load_cell) -> os.PathLike:
+def write_settings(tmp_path, url: str, *, camera_latency_s: float = 0.0, **load_cell) -> os.PathLike:
     path = tmp_path / "rig.toml"
     lines = ["# the rig on the bench", "[sensors.left]", 'model = "wedge"', 'camera_backend = "opencv"',
              f'camera_source = "{url}"', "# read off a picture, roughly", f"warp_corners_px = {START_CORNERS}"]
+    if camera_latency_s:
+        lines.append(f"camera_latency_s = {camera_latency_s}")
     if load_cell:
         lines += ["", "[load_cell]", *(f"{k} = {json.dumps(v)}" for k, v in load_cell.items())]
     path.write_text("\n".join(lines) + "\n")
@@ -173,11 +175,15 @@ def tapping_cell():
     os.close(slave)
 
 
-def test_latency_against_the_load_cell_is_measured_from_taps(tmp_path, mjpg_server, tapping_cell, capsys):
+@pytest.mark.parametrize("configured_s", [0.0, 0.04])
+def test_latency_against_the_load_cell_is_measured_from_taps(tmp_path, mjpg_server, tapping_cell, capsys,
+                                                             configured_s):
+    # A latency already configured shifts the frames the calibration reads: it measures the rest.
     port, t0 = tapping_cell
     sensor = wedge()
     server = mjpg_server(TapFrames(renderer(sensor), t0), fps=FPS)
-    path = write_settings(tmp_path, server.url, backend="serial", port=port, counts_per_n=1000.0)
+    path = write_settings(tmp_path, server.url, camera_latency_s=configured_s, backend="serial", port=port,
+                          counts_per_n=1000.0)
     code, report, err = calibrate(capsys, "--settings", str(path), "--latency", "--duration-s", "3")
     assert code == 0, err
     latency = load_settings(path).sensor("left").camera_latency_s
