@@ -9,13 +9,13 @@ from teleop.clikit import Command, run_cli
 COMMANDS: dict[str, Command] = {
     "estimate": Command("estimator.estimate_cli", "estimate Young's modulus from one grasp record"),
     "evaluate": Command("estimator.evaluate_cli", "score the analytical and learned estimators over labelled grasp records (ablation table)"),
-    "build-dataset": Command("estimator.learned.dataset", "labelled grasp records to training samples, split by object"),
+    "build-dataset": Command("estimator.learned.dataset_cli", "labelled grasp records to training samples, split by object"),
     "train": Command("estimator.learned.train_cli", "train the learned / hybrid model and export it to ONNX"),
-    "fine-tune": Command("estimator.learned.finetune", "adapt a trained model to a new rig from a few labelled grasps"),
-    "bench": Command("estimator.bench", "latency and error of every estimator configuration, with the Pareto frontier"),
+    "fine-tune": Command("estimator.learned.finetune_cli", "adapt a trained model to a new rig from a few labelled grasps"),
+    "bench": Command("estimator.bench_cli", "latency and error of every estimator configuration, with the Pareto frontier"),
     "calibrate": Command("estimator.perception.calibrate_cli", "fit a sensor's colour-to-gradient calibration from ball presses"),
     "reconstruct": Command("estimator.perception.reconstruct_cli", "check a calibration: reconstruct held-out ball presses and fit spheres"),
-    "serve": Command("estimator.service", "serve live estimates of the grasps on the bus"),
+    "serve": Command("estimator.service_cli", "serve live estimates of the grasps on the bus"),
 }
 
 

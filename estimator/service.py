@@ -1,4 +1,4 @@
-"""``estimator serve``: the estimator service, from the robot's grasp streams to estimates on the bus.
+"""The estimator service, from the robot's grasp streams to estimates on the bus.
 
 It subscribes losslessly to the robot node's ``frame``, ``force``, ``width`` and
 ``grasp_event`` messages and publishes ``estimate`` messages (latest-value) on its own
@@ -26,9 +26,10 @@ endpoint. Per grasp (from a ``grasp_event`` *start* to its *end*):
 Each estimate message carries its state, interval and reason; ``t_capture_s`` is the capture
 time of the newest loading frame its fit used (for the final one: the last loading frame),
 ``latency_s`` the time from receiving the message that triggered it to publishing it. The
-object's name in a start event is never read. The per-grasp report (``--report``) says what
-ended the loading (``final_by``: ``loading_end``, ``settled`` or ``grasp_end``), the marker's
-time, when the final estimate was sent and how long it took to compute.
+object's name in a start event is never read. The per-grasp report (one JSON line per grasp
+to ``report``) says what ended the loading (``final_by``: ``loading_end``, ``settled`` or
+``grasp_end``), the marker's time, when the final estimate was sent and how long it took to
+compute.
 
 A message that cannot be used (a frame that does not decode or has the wrong size, samples
 that are not finite, capture times that go backwards, repeat or jump more than
@@ -46,12 +47,8 @@ The service is meant to run on one core: start it with ``OPENBLAS_NUM_THREADS=1`
 
 from __future__ import annotations
 
-import argparse
-import json
 import logging
 import math
-import os
-import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -61,19 +58,17 @@ from typing import Any
 
 import cv2
 
-from estimator.analytical import METHODS
 from estimator.errors import EstimatorError, ModelError, PerceptionError
 from estimator.estimate import Estimate
-from estimator.measure import resolve_calibration
 from estimator.perception.calibration import Calibration
 from estimator.segment import Segment
 from estimator.settings import estimator_settings
-from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream, configured_methods
+from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import MAX_STR_CHARS, Message
 from teleop.errors import TeleopError
-from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
-from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
+from teleop.live import JsonLines
+from teleop.settings import Settings, resolve_path
 
 __all__ = ["INPUT_TOPICS", "MAX_CLOCK_JUMP_S", "EstimatorService", "ModelSlot", "ServiceStats", "resolve_model_dir"]
 
@@ -522,69 +517,3 @@ def _check_times(grasp: _Grasp, message: Message) -> None:
         raise PerceptionError(f"{where}: jump {max(steps):.3g} s past the previous one ({last:.6f} s), "
                               f"more than {MAX_CLOCK_JUMP_S:g} s: the capture clock is broken")
     grasp.last_t_s[message.topic] = times[-1]
-
-
-# --------------------------------------------------------------------------- command
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = (
-        "Serve live estimates: subscribe to the robot node's frames, forces, widths and grasp events "
-        "and publish a provisional estimate per tactile frame while a grasp loads and a final one when "
-        "loading ends. Stops on Ctrl-C or SIGTERM; SIGHUP or a reload_model command (on --command) reloads "
-        "the model between grasps. Run it with "
-        "OPENBLAS_NUM_THREADS=1 (one core)."
-    )
-    parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
-                        help="settings TOML (sensors, estimator, gripper, bus)")
-    parser.add_argument("--calibration", metavar="CAL", default=None,
-                        help="colour-to-gradient calibration (.npz) of the estimator's finger; default: "
-                             "the file its sensor names (relative to configs/)")
-    parser.add_argument("--methods", nargs="+", choices=METHODS, default=None, metavar="METHOD",
-                        help="analytical methods in order of preference; the first that does not refuse "
-                             f"is published (default: [estimator] methods of the settings; choices: {', '.join(METHODS)})")
-    parser.add_argument("--model", metavar="DIR", default=None,
-                        help="learned model directory (model.onnx + metadata.json) for final estimates; "
-                             "'none' for analytical only; default: [estimator] model_path, else the shipped "
-                             "default model if there is one")
-    parser.add_argument("--mode", choices=("auto", "model"), default="auto",
-                        help="with a model: auto (the split when its interval is narrow, else the model) "
-                             "or model (always the model)")
-    add_endpoint_arguments(parser, "robot_pub", "estimate_pub", "command")
-    parser.add_argument("--report", metavar="FILE", default=None,
-                        help="append one JSON object per grasp (contact time, time to first estimate, "
-                             "provisional count, final estimate) to FILE")
-    parser.add_argument("--duration-s", type=float, default=None, metavar="S",
-                        help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
-    parser.add_argument("--json", action="store_true",
-                        help="on exit print one JSON object (messages, bad_messages, ignored, grasps, "
-                             "provisional, final, reloads, reload_requests) as the last stdout line")
-
-
-def run(args: argparse.Namespace) -> int:
-    settings = load_settings(args.settings)
-    methods = tuple(args.methods or configured_methods(settings))
-    calibration = resolve_calibration(settings.sensor(settings.sensing.finger), args.calibration)
-    bus = bus_from_args(settings, args)
-    model_dir = resolve_model_dir(args.model, settings)
-    model = None if model_dir is None else ModelSlot(model_dir, settings=settings, calibration=calibration,
-                                                      mode=args.mode)
-    if os.environ.get("OPENBLAS_NUM_THREADS") != "1":
-        log.warning("OPENBLAS_NUM_THREADS is not 1: BLAS threads may slow per-frame estimation down")
-    with (
-        Subscriber.from_settings(bus, bus.robot_pub, INPUT_TOPICS) as subscriber,
-        Subscriber.from_settings(bus, bus.command, ("command",)) as commands,
-        Publisher.from_settings(bus, bus.estimate_pub, lossless=False, source="estimator") as publisher,
-        JsonLines(args.report) as report,
-        StopSignals(on_hangup=model.request_reload if model is not None else None) as signals,
-    ):
-        service = EstimatorService(settings, calibration=calibration, subscriber=subscriber, publisher=publisher,
-                                   methods=methods, model=model, report=report, commands=commands)
-        print(f"estimator: {', '.join(methods)}{'' if model is None else f' + model {model_dir}'}; "
-              f"robot data from {bus.robot_pub}, estimates on {publisher.endpoint}", file=sys.stderr)
-        stats = service.run(signals.stop, duration_s=args.duration_s)
-    print(f"estimator: {stats.grasps} grasps, {stats.provisional} provisional and {stats.final} final "
-          f"estimates, {stats.bad_messages} bad messages", file=sys.stderr)
-    if args.json:
-        print(json.dumps(stats.as_dict()))
-    return 0

@@ -11,7 +11,7 @@ COMMANDS: dict[str, Command] = {
     "protocol": Command("haptics.protocol_cli", "print the HID report layouts and descriptor"),
     "encode": Command("haptics.encode_cli", "print a set-stiffness output report in hex"),
     "try": Command("haptics.try_cli", "map one modulus and write it to a display"),
-    "serve": Command("haptics.service", "render live estimates from the bus on the softness display"),
+    "serve": Command("haptics.service_cli", "render live estimates from the bus on the softness display"),
 }
 
 

@@ -16,10 +16,7 @@ Shapes are normalised to ``sphere``, ``cylinder``, ``box``, ``hex_prism`` and
 
 from __future__ import annotations
 
-import argparse
 import csv
-import dataclasses
-import json
 import math
 import tomllib
 from dataclasses import dataclass
@@ -255,23 +252,3 @@ def _check_unique(objects: list[ObjectSpec], path: Path) -> None:
         if obj.name in seen:
             raise SettingsError(f"{path}: object name {obj.name!r} appears twice")
         seen.add(obj.name)
-
-
-# --------------------------------------------------------------------------- CLI
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("path", nargs="?", default=str(default_catalogue_path()),
-                        help="catalogue: project .toml or published .csv object table")
-    parser.add_argument("--json", action="store_true",
-                        help='print one JSON object {"path": ..., "objects": [...]} on the last line')
-
-
-def run(args: argparse.Namespace) -> int:
-    objects = load_catalogue(args.path)
-    if args.json:
-        print(json.dumps({"path": str(args.path), "objects": [dataclasses.asdict(o) for o in objects]}))
-        return 0
-    for obj in objects:
-        print(f"{obj.name:32s} {obj.shape:10s} {obj.material:10s} {obj.modulus_pa:10.3g} Pa")
-    return 0

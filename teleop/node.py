@@ -1,4 +1,4 @@
-"""``teleop node``: the robot node, from the devices to the bus.
+"""The robot node, from the devices to the bus.
 
 The node opens the gripper, one tactile camera per sensor and the load cell through their
 device families (:mod:`teleop.devices`, backends from the settings), reads each in its own
@@ -41,13 +41,10 @@ carries on.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
-import json
 import logging
 import math
 import queue
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -63,10 +60,9 @@ from teleop.devices.camera import TactileCamera, open_camera
 from teleop.devices.gripper import GraspStop, Gripper, open_gripper
 from teleop.devices.loadcell import LoadCell, open_load_cell
 from teleop.errors import DeviceError, DeviceTimeoutError, SimulationError, TeleopError
-from teleop.live import StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.record import GraspRecord, Samples
-from teleop.scene import Scene, load_scene
-from teleop.settings import Settings, default_settings_path, load_settings
+from teleop.scene import Scene
+from teleop.settings import Settings
 
 __all__ = ["COMMAND_TOPICS", "NodeStats", "RobotNode"]
 
@@ -442,45 +438,3 @@ def _index(value: float) -> int:
     if not float(value).is_integer():
         raise SimulationError(f"object_index {value!r}: expected a whole number")
     return int(value)
-
-
-# --------------------------------------------------------------------------- command
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = (
-        "Run the robot node: read the gripper, tactile cameras and load cell and publish frames, forces, "
-        "widths and grasp events on the bus; carry out operator commands (start_grasp, stop, release). "
-        "With the simulated backends a start_grasp simulates a grasp of the scene's next object and "
-        "replays it in real time. Stops on Ctrl-C or SIGTERM."
-    )
-    parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
-                        help="settings TOML (device backends, sensors, gripper, simulation, bus)")
-    parser.add_argument("--scene", default="default", metavar="NAME",
-                        help="scene whose objects simulated grasps take (name under configs/scenes/ or a "
-                             ".toml path); its settings file is not used, --settings is")
-    add_endpoint_arguments(parser, "robot_pub", "command")
-    parser.add_argument("--duration-s", type=float, default=None, metavar="S",
-                        help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
-    parser.add_argument("--json", action="store_true",
-                        help="on exit print one JSON object (grasps, frames, force_batches, width_batches, "
-                             "bad_commands, device_errors) as the last stdout line")
-
-
-def run(args: argparse.Namespace) -> int:
-    settings = load_settings(args.settings)
-    bus = bus_from_args(settings, args)
-    scene = load_scene(args.scene)
-    with (
-        Publisher.from_settings(bus, bus.robot_pub, lossless=True, source="robot") as publisher,
-        Subscriber.from_settings(bus, bus.command, COMMAND_TOPICS) as commands,
-        RobotNode(settings, publisher=publisher, commands=commands, scene=scene) as node,
-        StopSignals() as signals,
-    ):
-        print(f"robot node: {'simulated' if node.simulated else 'hardware'} devices; data on "
-              f"{publisher.endpoint}, commands from {bus.command}", file=sys.stderr)
-        stats = node.run(signals.stop, duration_s=args.duration_s)
-    print(f"robot node: {stats.grasps} grasps, {stats.frames} frames published", file=sys.stderr)
-    if args.json:
-        print(json.dumps(stats.as_dict()))
-    return 0

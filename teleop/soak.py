@@ -1,19 +1,19 @@
-"""``teleop soak``: a bounded soak test of the grasp data path on loopback.
+"""A bounded soak test of the grasp data path on loopback.
 
 This process plays the robot node: it publishes, through the real lossless
 :class:`~teleop.bus.pubsub.Publisher`, two 30 Hz tactile streams (JPEG frames from the
 simulated camera, :func:`soak_frames`), force batches at 80 Hz and width batches at 10 Hz,
 on a schedule, for the time asked. A second process consumes them: the session recorder
 (:class:`~teleop.session.recorder.SessionRecorder`, writing a real MCAP log, deleted at the
-end unless ``--log`` names where to keep it) with a monitor on every stored message.
+end unless ``log_path`` names where to keep it) with a monitor on every stored message.
 
-Reported (``--json``: one object on the last stdout line):
+Reported (:class:`SoakResult`):
 
 ``lost_grasp_msgs``
     Grasp messages sent but never stored, plus sends that timed out (a lossless send that
     found no room): must be 0.
 ``rss_growth_mb``
-    The consumer's resident memory at the end minus after the warm-up (``--warmup-s``,
+    The consumer's resident memory at the end minus after the warm-up (``warmup_s``,
     default a fifth of the run, at most 60 s): the steady-state growth.
 ``p50_ms``, ``p99_ms``, ``max_ms``
     Send-to-receive latency (``t_send_ns`` of the header to the recorder's receive time,
@@ -23,9 +23,7 @@ Reported (``--json``: one object on the last stdout line):
 
 from __future__ import annotations
 
-import argparse
 import contextlib
-import json
 import multiprocessing
 import os
 import queue
@@ -349,40 +347,3 @@ def _send(publisher: Publisher, topic: str, n: int, t_s: float, frames: dict[str
     else:
         publisher.send("width", t_capture_s=t_s, grasp_id="soak", t_s=[t_s],
                        value_m=[0.04 + 0.01 * np.sin(0.5 * t_s)])
-
-
-# --------------------------------------------------------------------------- command
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = (
-        "Soak the grasp data path on loopback: publish two 30 Hz JPEG tactile streams, force at 80 Hz and "
-        "width at 10 Hz through the lossless publisher into a session recorder in another process for the "
-        "time given, then report lost grasp messages (must be 0), the recorder's memory growth after the "
-        "warm-up and the send-to-receive latency."
-    )
-    parser.add_argument("--minutes", type=float, required=True, metavar="M",
-                        help="how long to publish, in minutes (e.g. 0.05 for a 3 s check, 10 for a soak)")
-    parser.add_argument("--warmup-s", type=float, default=None, metavar="S",
-                        help="seconds after the consumer starts at which its memory is first taken "
-                             f"(default: a fifth of the run, at most {MAX_DEFAULT_WARMUP_S:g} s)")
-    parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
-                        help="settings TOML (sensors for the frames, bus size limit)")
-    parser.add_argument("--log", metavar="FILE", default=None,
-                        help="keep the session log here (default: a temporary file, deleted at the end)")
-    parser.add_argument("--json", action="store_true",
-                        help="print one JSON object (lost_grasp_msgs, rss_growth_mb, p50_ms, p99_ms, ...) as "
-                             "the last stdout line")
-
-
-def run(args: argparse.Namespace) -> int:
-    settings = load_settings(args.settings)
-    result = run_soak(settings, duration_s=args.minutes * 60.0, warmup_s=args.warmup_s,
-                      settings_path=args.settings, log_path=args.log, progress=True)
-    print(f"soak: {result.duration_s:.0f} s, {sum(result.sent.values())} grasp messages sent, "
-          f"{result.lost_grasp_msgs} lost; latency p50 {result.p50_ms} ms, p99 {result.p99_ms} ms; "
-          f"recorder memory {result.rss_warm_mb:.1f} MB after warm-up, {result.rss_end_mb:.1f} MB at the end "
-          f"({result.rss_growth_mb:+.2f} MB)", file=sys.stderr)
-    if args.json:
-        print(json.dumps(result.as_dict()))
-    return 0 if result.lost_grasp_msgs == 0 and result.recorder_error is None else 1

@@ -1,4 +1,4 @@
-"""``estimator fine-tune``: adapt a trained model to a new rig from a few labelled grasps.
+"""Adapt a trained model to a new rig from a few labelled grasps.
 
 A lab with its own sensor grasps a few objects whose modulus it knows, builds a
 dataset of them with ``estimator build-dataset`` (the model's ``--window``), and
@@ -11,9 +11,9 @@ figure was seen, for about 15 grasps of 5 objects:
   few to hold some out, and the model's own test objects are what to score on.
 * Batch-norm statistics stay frozen (a few grasps cannot estimate them; the
   rebuilt norms carry the folded ones); every weight trains.
-* AdamW at ``--lr`` (3e-4, a seventh of training's), cosine decay over
-  ``--epochs`` (20) with no early stopping, the flips and label jitter of
-  ``estimator train``.
+* AdamW at ``lr`` (3e-4, a seventh of training's), cosine decay over ``epochs``
+  (20) with no early stopping (:data:`FINE_TUNE_CONFIG`), the flips and label
+  jitter of ``estimator train``.
 * The calibration (temperature, rigid probability, interval scale) and the
   hybrid's policy stay the base model's: a few grasps cannot recalibrate them.
 
@@ -25,11 +25,10 @@ and how it was made.
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import time
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -148,41 +147,3 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     }
     (out_dir / "metadata.json").write_text(json.dumps(new, indent=1, allow_nan=False))
     return new
-
-
-# --------------------------------------------------------------------------- command
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = (
-        "Fine-tune a trained model on a few labelled grasps of a new rig (a build-dataset directory made with "
-        "the model's --window; every sample of every split trains). Batch-norm statistics and the interval "
-        "calibration stay the base model's. Writes OUT/model.onnx and metadata.json, whose train objects "
-        "include the fine-tuning objects, so `estimator evaluate --unseen-by OUT` keeps them out."
-    )
-    parser.add_argument("--model", required=True, metavar="MODEL_DIR", help="the model to start from")
-    parser.add_argument("--data", required=True, metavar="DIR", help="directory written by `estimator build-dataset`")
-    parser.add_argument("--out", required=True, metavar="MODEL_DIR", help="directory for the fine-tuned model")
-    parser.add_argument("--epochs", type=int, default=FINE_TUNE_CONFIG.epochs, help="epochs (no early stopping)")
-    parser.add_argument("--lr", type=float, default=FINE_TUNE_CONFIG.lr, help="AdamW learning rate (cosine decay)")
-    parser.add_argument("--batch-size", type=int, default=FINE_TUNE_CONFIG.batch_size, help="samples per step")
-    parser.add_argument("--seed", type=int, default=FINE_TUNE_CONFIG.seed, help="seed of shuffles, flips and jitter")
-    parser.add_argument("--json", action="store_true",
-                        help="print one JSON object (out, objects, grasps, samples, seconds) on the last stdout line")
-
-
-def run(args: argparse.Namespace) -> int:
-    config = replace(FINE_TUNE_CONFIG, epochs=args.epochs, lr=args.lr, batch_size=args.batch_size, seed=args.seed)
-    meta = fine_tune(args.model, args.data, args.out, config=config)
-    tuned = meta["fine_tuning"]
-    summary = {"out": str(args.out), "objects": tuned["objects"], "grasps": tuned["grasps"],
-               "samples": tuned["samples"], "seconds": tuned["seconds"],
-               "final_train_loss": tuned["history"][-1]["train_loss"]}
-    if args.json:
-        print(json.dumps(summary, allow_nan=False))
-        return 0
-    print(f"fine-tuned {args.model} on {tuned['grasps']} grasps ({tuned['samples']} samples) of "
-          f"{len(tuned['objects'])} objects in {tuned['seconds']:.0f} s -> {args.out}; final train loss "
-          f"{summary['final_train_loss']:.3f}. Score it on objects it never saw: "
-          f"estimator evaluate RECORDS --unseen-by {args.out} --model {args.out}")
-    return 0

@@ -8,7 +8,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from estimator.errors import EstimatorError
-from estimator.learned.dataset import load_manifest, parse_size
+from estimator.learned.dataset import load_manifest
+from estimator.learned.dataset_cli import parse_size
 from estimator.learned.inputs import ANALYTICAL_METHODS, Variant
 from estimator.learned.train import TrainConfig, dataset_window, train_model
 from teleop.settings import load_settings

@@ -1,24 +1,21 @@
-"""The sending side of the framed-TCP load cell, and ``teleop hx711-bridge``.
+"""The sending side of the framed-TCP load cell (served by ``teleop hx711-bridge``).
 
 Runs where the HX711 is (e.g. a Raspberry Pi), with the standard library only (pyserial
-for ``--serial``). It takes readings from a source, stamps each with the bridge's
+for :class:`SerialCounts`). It takes readings from a source, stamps each with the bridge's
 monotonic clock when it is taken, and sends it as one frame of the protocol in
 :mod:`teleop.devices.hx711_protocol` to every connected host (the ``tcp`` load-cell
-backend). Sources: :class:`FakeHx711` (``--fake``: a simulated cell, for tests and
-demos) and :class:`SerialCounts` (``--serial PORT``: an Arduino-style HX711 bridge,
-re-served framed over the network). Any callable returning counts can be served.
+backend). Sources: :class:`FakeHx711` (a simulated cell, for tests and demos) and
+:class:`SerialCounts` (an Arduino-style HX711 bridge, re-served framed over the network).
+Any callable returning counts can be served.
 
 A host that stops reading for ``send_timeout_s`` is dropped, so it cannot stall the others.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import logging
 import random
 import socket
-import sys
 import threading
 import time
 from collections import deque
@@ -33,9 +30,8 @@ from teleop.devices.hx711_protocol import (
     parse_serial_line,
 )
 from teleop.errors import DeviceError
-from teleop.settings import default_settings_path, load_settings
 
-__all__ = ["FakeHx711", "Hx711Bridge", "SerialCounts", "add_arguments", "run"]
+__all__ = ["FakeHx711", "Hx711Bridge", "SerialCounts"]
 
 log = logging.getLogger(__name__)
 
@@ -225,52 +221,3 @@ class Hx711Bridge:
                         log.info("HX711 bridge: dropped a host: %s", exc)
                         client.close()
                         self._clients.remove(client)
-
-
-# --------------------------------------------------------------------------- command
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument("--fake", action="store_true", help="serve a simulated load cell (constant --force-n plus noise)")
-    source.add_argument("--serial", metavar="PORT", help="serve an Arduino-style serial HX711 bridge on this port")
-    parser.add_argument("--host", default="0.0.0.0", help="address to listen on")
-    parser.add_argument("--port", type=int, default=5601, help="TCP port to listen on (0: any free port)")
-    parser.add_argument(
-        "--settings", default=str(default_settings_path()), help="settings TOML: [load_cell] calibration, rate and baud"
-    )
-    parser.add_argument("--baud", type=int, default=None, help="serial baud rate; None: [load_cell] baud of the settings")
-    parser.add_argument("--force-n", type=float, default=0.0, help="--fake: force the simulated cell feels, N")
-    parser.add_argument("--noise-counts", type=float, default=0.0, help="--fake: reading noise (std), counts")
-    parser.add_argument("--duration-s", type=float, default=None, help="stop after this many seconds; None: run until Ctrl+C")
-    parser.add_argument("--json", action="store_true", help="on exit, print a JSON summary as the last stdout line")
-
-
-def run(args: argparse.Namespace) -> int:
-    cell = load_settings(args.settings).load_cell
-    if args.fake:
-        source = FakeHx711(
-            counts_per_n=cell.counts_per_n,
-            tare_counts=cell.tare_counts,
-            rate_hz=cell.sample_rate_hz,
-            force_n=args.force_n,
-            noise_counts=args.noise_counts,
-        )
-    else:
-        source = SerialCounts(args.serial, args.baud or cell.baud)
-    started = time.monotonic()
-    try:
-        with Hx711Bridge(source, host=args.host, port=args.port) as bridge:
-            print(f"hx711-bridge: serving on {bridge.address}", flush=True)
-            if args.duration_s is None:
-                threading.Event().wait()  # until Ctrl+C
-            else:
-                time.sleep(args.duration_s)
-    finally:
-        if isinstance(source, SerialCounts):
-            source.close()
-    if args.json:
-        summary = {"address": bridge.address, "readings": bridge.sent, "seconds": round(time.monotonic() - started, 3)}
-        print(json.dumps(summary))
-    sys.stdout.flush()
-    return 0

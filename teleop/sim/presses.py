@@ -1,9 +1,9 @@
-"""``teleop simulate-presses``: rigid-ball presses on a simulated sensor, in taxim's dataPack layout.
+"""Rigid-ball presses on a simulated sensor, in taxim's dataPack layout.
 
 The estimator calibrates its colour-to-gradient map on presses of a ball of known
-radius. This command renders them on the simulated sensor so the estimator can be
-calibrated for simulation exactly as for hardware (where taxim's recordings are
-the reference). The file (``np.savez_compressed``, no pickles) holds:
+radius. :func:`simulate_presses` renders them on the simulated sensor so the estimator
+can be calibrated for simulation exactly as for hardware (where taxim's recordings are
+the reference). The file (:func:`write_presses`, ``np.savez_compressed``, no pickles) holds:
 
 ``f0``            uint8 (480, 640, 3): the no-contact raw frame (camera noise, JPEG).
 ``imgs``          uint8 (n, 480, 640, 3): raw frames of the presses (noise, JPEG).
@@ -20,8 +20,6 @@ the reference). The file (``np.savez_compressed``, no pickles) holds:
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -30,7 +28,6 @@ import numpy as np
 from tqdm import tqdm
 
 from teleop.errors import SimulationError
-from teleop.settings import default_settings_path, load_settings
 from teleop.sim.optics import OpticsRenderer
 
 __all__ = ["contact_radius_m", "simulate_presses", "sphere_press_height", "write_presses"]
@@ -141,45 +138,3 @@ def write_presses(path: str | Path, pack: dict[str, np.ndarray]) -> Path:
     except OSError as exc:
         raise SimulationError(f"cannot write presses file {path}: {exc.strerror or exc}") from exc
     return path
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", required=True, default=argparse.SUPPRESS,
-                        help="output .npz file (taxim dataPack layout)")
-    parser.add_argument("--settings", default=str(default_settings_path()), help="settings TOML file")
-    parser.add_argument("--finger", default="left", help="which finger's sensor to simulate")
-    parser.add_argument("--n", type=int, default=48, help="number of presses")
-    parser.add_argument("--ball-radius-mm", type=float, default=2.0, help="radius of the rigid ball (mm)")
-    parser.add_argument("--depth-mm", type=float, nargs=2, default=(0.3, 1.0), metavar=("LO", "HI"),
-                        help="press depths are drawn uniformly from LO..HI (mm)")
-    parser.add_argument("--seed", type=int, default=0,
-                        help="random seed (camera noise, background dust, press centres and depths)")
-    parser.add_argument("--json", action="store_true", help="print one JSON summary as the last line")
-
-
-def run(args: argparse.Namespace) -> int:
-    settings = load_settings(args.settings)
-    sensor = settings.sensor(args.finger)
-    camera_rng, press_rng = np.random.default_rng(args.seed).spawn(2)
-    camera = OpticsRenderer(sensor, sim=settings.simulation, rng=camera_rng)
-    pack = simulate_presses(
-        camera, n=args.n, ball_radius_m=args.ball_radius_mm * 1e-3,
-        depth_range_m=(args.depth_mm[0] * 1e-3, args.depth_mm[1] * 1e-3), rng=press_rng, progress=True,
-    )
-    path = write_presses(args.out, pack)
-    summary = {
-        "out": str(path),
-        "finger": sensor.finger,
-        "n": int(args.n),
-        "ball_radius_mm": float(args.ball_radius_mm),
-        "mm_per_px": float(pack["mm_per_px"]),
-        "touch_radius_px": [int(pack["touch_radius"].min()), int(pack["touch_radius"].max())],
-        "frame": "warped_cropped",
-        "seed": int(args.seed),
-    }
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        print(f"wrote {args.n} presses of a {args.ball_radius_mm:g} mm ball on the {sensor.finger} "
-              f"sensor to {path} (centres in warped-and-cropped px, {summary['mm_per_px']:.4f} mm/px)")
-    return 0

@@ -81,7 +81,7 @@ def test_bench_runs_on_a_tiny_directory_and_marks_a_frontier(sim_grasps, trained
     assert png.read_bytes()[:4] == b"\x89PNG"
 
 
-@pytest.mark.parametrize("module", ["estimator.learned.dataset", "estimator.learned.train_cli", "estimator.learned.finetune", "estimator.bench"])
+@pytest.mark.parametrize("module", ["estimator.learned.dataset_cli", "estimator.learned.train_cli", "estimator.learned.finetune_cli", "estimator.bench_cli"])
 def test_commands_explain_every_option(module):
     import argparse
     import importlib

@@ -76,7 +76,7 @@ def test_inference_never_imports_torch(trained_model):
         batch = {{n: np.zeros((2, *s), np.float32) for n, s in predictor.variant.input_shapes.items()}}
         out = predictor.predict_logits(batch)
         assert out.shape == (2, 90), out.shape
-        import estimator.bench, estimator.learned.dataset  # the run-time commands' modules too
+        import estimator.bench_cli, estimator.learned.dataset_cli  # the run-time commands' modules too
         print("torch" in sys.modules)
     """)
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=False)

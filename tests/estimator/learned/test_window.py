@@ -259,7 +259,7 @@ def test_the_window_round_trips_through_the_metadata(trained_model, tmp_path, ca
 
 
 def test_a_dataset_records_its_window_and_a_model_must_read_it(synthetic, tmp_path):
-    from estimator.learned.dataset import parse_window_mm
+    from estimator.learned.dataset_cli import parse_window_mm
     from estimator.learned.train import dataset_window, train_model
 
     assert parse_window_mm("14.16x18.88") == pytest.approx((14.16e-3, 18.88e-3))

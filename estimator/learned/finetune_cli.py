@@ -1,0 +1,45 @@
+"""``estimator fine-tune``: adapt a trained model to a new rig from a few labelled grasps
+(:mod:`estimator.learned.finetune`, whose notes give the recipe)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+
+from estimator.learned.finetune import FINE_TUNE_CONFIG, fine_tune
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Fine-tune a trained model on a few labelled grasps of a new rig (a build-dataset directory made with "
+        "the model's --window; every sample of every split trains). Batch-norm statistics and the interval "
+        "calibration stay the base model's. Writes OUT/model.onnx and metadata.json, whose train objects "
+        "include the fine-tuning objects, so `estimator evaluate --unseen-by OUT` keeps them out."
+    )
+    parser.add_argument("--model", required=True, metavar="MODEL_DIR", help="the model to start from")
+    parser.add_argument("--data", required=True, metavar="DIR", help="directory written by `estimator build-dataset`")
+    parser.add_argument("--out", required=True, metavar="MODEL_DIR", help="directory for the fine-tuned model")
+    parser.add_argument("--epochs", type=int, default=FINE_TUNE_CONFIG.epochs, help="epochs (no early stopping)")
+    parser.add_argument("--lr", type=float, default=FINE_TUNE_CONFIG.lr, help="AdamW learning rate (cosine decay)")
+    parser.add_argument("--batch-size", type=int, default=FINE_TUNE_CONFIG.batch_size, help="samples per step")
+    parser.add_argument("--seed", type=int, default=FINE_TUNE_CONFIG.seed, help="seed of shuffles, flips and jitter")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object (out, objects, grasps, samples, seconds) on the last stdout line")
+
+
+def run(args: argparse.Namespace) -> int:
+    config = replace(FINE_TUNE_CONFIG, epochs=args.epochs, lr=args.lr, batch_size=args.batch_size, seed=args.seed)
+    meta = fine_tune(args.model, args.data, args.out, config=config)
+    tuned = meta["fine_tuning"]
+    summary = {"out": str(args.out), "objects": tuned["objects"], "grasps": tuned["grasps"],
+               "samples": tuned["samples"], "seconds": tuned["seconds"],
+               "final_train_loss": tuned["history"][-1]["train_loss"]}
+    if args.json:
+        print(json.dumps(summary, allow_nan=False))
+        return 0
+    print(f"fine-tuned {args.model} on {tuned['grasps']} grasps ({tuned['samples']} samples) of "
+          f"{len(tuned['objects'])} objects in {tuned['seconds']:.0f} s -> {args.out}; final train loss "
+          f"{summary['final_train_loss']:.3f}. Score it on objects it never saw: "
+          f"estimator evaluate RECORDS --unseen-by {args.out} --model {args.out}")
+    return 0

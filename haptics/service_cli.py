@@ -1,0 +1,77 @@
+"""``haptics serve``: render live estimates from the bus on the softness display (:mod:`haptics.service`).
+
+``--report`` appends one JSON object per final estimate (its latency and what the display
+renders for it) to a file; ``--json`` prints the service's counts on exit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+
+from haptics.devices import BACKENDS, make_display
+from haptics.renderer import HapticRenderer
+from haptics.service import INPUT_TOPICS, RendererService
+from haptics.settings import display_settings
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
+from teleop.settings import default_settings_path, load_settings
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Render live estimates on the softness display: subscribe to the estimator's estimates "
+        "(latest value) and drive the display, publishing heartbeats and one 'display' message per "
+        "report written (what the display renders, as numbers) on the display endpoint. Records the "
+        "latency from the last loading frame's capture to the display report for every final "
+        "estimate. Stops on Ctrl-C or SIGTERM."
+    )
+    parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
+                        help="settings TOML ([display] mapping and backend, [bus] endpoints)")
+    parser.add_argument("--backend", choices=sorted(BACKENDS), default=None,
+                        help="display backend (default: [display] backend of the settings)")
+    add_endpoint_arguments(parser, "estimate_pub", "display_pub")
+    parser.add_argument("--tick-s", type=float, default=0.01, metavar="S",
+                        help="longest time between renderer updates (smoothing, fading, keep-alive), seconds")
+    parser.add_argument("--report", metavar="FILE", default=None,
+                        help="append one JSON object per final estimate (grasp_id, state, E_pa, latency_ms, "
+                             "estimates_received, and what the display renders for it: display_fraction, rigid, "
+                             "unknown, uncertainty_decades, level, level_max) to FILE")
+    parser.add_argument("--duration-s", type=float, default=None, metavar="S",
+                        help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
+    parser.add_argument("--json", action="store_true",
+                        help="on exit print one JSON object (estimates, bad_messages, grasp_ends, display_messages, "
+                             "display_failures, finals) "
+                             "as the last stdout line")
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = load_settings(args.settings)
+    rendering = display_settings(settings)
+    if args.backend is not None:
+        rendering = dataclasses.replace(rendering, backend=args.backend)
+    bus = bus_from_args(settings, args)
+    display = make_display(rendering)
+    renderer = HapticRenderer(display, rendering)
+    try:
+        with (
+            Subscriber.from_settings(bus, bus.estimate_pub, INPUT_TOPICS, conflate=True) as subscriber,
+            Publisher.from_settings(bus, bus.display_pub, lossless=False, source="renderer") as publisher,
+            JsonLines(args.report) as report,
+            StopSignals() as signals,
+        ):
+            service = RendererService(renderer, subscriber=subscriber, publisher=publisher, report=report,
+                                      tick_s=args.tick_s)
+            print(f"renderer: {display} from estimates on {bus.estimate_pub}, heartbeat and display messages on "
+                  f"{publisher.endpoint}",
+                  file=sys.stderr)
+            stats = service.run(signals.stop, duration_s=args.duration_s)
+    finally:
+        display.close()
+    print(f"renderer: {stats.estimates} estimates, {len(stats.finals)} final, {display.reports_written} "
+          f"reports written", file=sys.stderr)
+    if args.json:
+        print(json.dumps(stats.as_dict()))
+    return 0

@@ -1,0 +1,173 @@
+"""``teleop simulate``: labelled grasp records of catalogue objects, from the grasp simulator.
+
+Each grasp is drawn from its own random stream, seeded by (--seed, object
+name, grasp index) (:func:`~teleop.sim.simulate.grasp_rng`), so a seed gives the
+same records whatever --workers is and whichever objects are run beside it. One
+``<object>_g<index>.grasp`` per grasp (and with --preview a ``.png`` contact sheet
+beside it).
+
+With --randomize-rig every grasp is also simulated on its own rig, drawn from the
+grasp's random stream before anything else (:mod:`teleop.sim.rig`: gel tolerances,
+finger stiffness, target force, closing speed, noise, rates, camera latency,
+illumination); the record carries what the lab would know of that rig and keeps
+the true values in ``provenance.extra["rig"]``. Without it nothing changes: the
+records are byte for byte those of the settings' one rig.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
+
+import cv2
+from tqdm import tqdm
+
+from teleop.catalogue import ObjectSpec, load_catalogue
+from teleop.errors import SettingsError, SimulationError
+from teleop.record import write_record
+from teleop.settings import Settings, load_settings
+from teleop.sim.grasp import simulate_grasp
+from teleop.sim.preview import write_preview
+from teleop.sim.rig import draw as draw_rig
+from teleop.sim.simulate import grasp_filename, grasp_rng
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--objects", required=True, metavar="PATH",
+                        help="object catalogue: the project's .toml or the published .csv object table")
+    parser.add_argument("--grasps-per-object", type=int, default=1, metavar="N",
+                        help="grasps simulated per object (each in a newly drawn pose and target force)")
+    parser.add_argument("--seed", type=int, default=0, metavar="S",
+                        help="run seed; with the object name and grasp index it fixes every random draw")
+    parser.add_argument("--out", required=True, metavar="DIR", help="directory for the .grasp records (created)")
+    parser.add_argument("--workers", type=int, default=1, metavar="K",
+                        help="worker processes; the records do not depend on it")
+    parser.add_argument("--preview", action="store_true",
+                        help="also write a PNG contact sheet beside each record (frames, true depth, F(t), w(t))")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON summary object as the last stdout line "
+                             "(grasps, seconds, grasps_per_s_per_core, out, models, failed)")
+    parser.add_argument("--settings", metavar="FILE", default=None,
+                        help="settings TOML; None: the shipped configs/settings.toml")
+    parser.add_argument("--limit-objects", type=int, default=None, metavar="M",
+                        help="simulate only the first M objects of the catalogue (None: all)")
+    parser.add_argument("--only", type=_names, default=None, metavar="NAME,NAME,...",
+                        help="simulate only these objects of the catalogue (comma-separated names)")
+    parser.add_argument("--randomize-rig", action="store_true",
+                        help="simulate each grasp on its own rig drawn from the grasp's random stream "
+                             "(teleop.sim.rig.RigSpread: gel modulus +-15 %%, gel thickness +-10 %%, finger "
+                             "stiffness 20-500 kN/m, target force 5-30 N, closing speed, noise, rates, camera "
+                             "latency, illumination); records carry the rig's known settings, the true ones "
+                             "go to their provenance")
+    parser.add_argument("--vary-gel", action="store_true",
+                        help="with --randomize-rig: also draw each rig's datasheet gel (120-400 kPa, 2.5-4.5 mm), "
+                             "as other GelSight-type sensors have; the records carry it")
+
+
+def _names(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected comma-separated object names")
+    return names
+
+
+def _chosen(objects: list[ObjectSpec], names: list[str] | None, where: str) -> list[ObjectSpec]:
+    """The objects named in ``names`` (all when None), in catalogue order."""
+    if names is None:
+        return objects
+    unknown = sorted(set(names) - {o.name for o in objects})
+    if unknown:
+        raise SettingsError(f"--only: {', '.join(unknown)} not in the catalogue {where}")
+    return [o for o in objects if o.name in set(names)]
+
+
+def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bool]) -> dict:
+    """Simulate and write one grasp (runs in a worker); failures come back as a reason."""
+    obj, index, seed, settings, out, preview, randomize_rig, vary_gel = job
+    path = Path(out) / grasp_filename(obj, index)
+    rng = grasp_rng(seed, obj, index)
+    try:
+        if randomize_rig:
+            rig = draw_rig(settings, rng, vary_gel=vary_gel)
+            record, truth = simulate_grasp(obj, settings=rig.true, rng=rng, seed=seed)
+            record = rig.record(record, finger_stiffness_n_per_m=truth.finger_stiffness_n_per_m,
+                                target_force_n=truth.target_force_n)
+        else:
+            record, truth = simulate_grasp(obj, settings=settings, rng=rng, seed=seed)
+    except SimulationError as exc:
+        return {"object": obj.name, "grasp": index, "error": str(exc)}
+    write_record(record, path)
+    if preview:
+        write_preview(record, truth, path.with_suffix(".png"))
+    return {"object": obj.name, "grasp": index, "path": str(path), "model": record.provenance.model}
+
+
+def _init_worker() -> None:
+    cv2.setNumThreads(1)  # one core per worker: OpenCV would otherwise spread over all of them
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.grasps_per_object < 1:
+        raise SettingsError(f"--grasps-per-object {args.grasps_per_object}: expected 1 or more")
+    if args.workers < 1:
+        raise SettingsError(f"--workers {args.workers}: expected 1 or more")
+    if args.limit_objects is not None and args.limit_objects < 1:
+        raise SettingsError(f"--limit-objects {args.limit_objects}: expected 1 or more")
+    settings = load_settings(args.settings)
+    objects = _chosen(load_catalogue(args.objects), args.only, args.objects)[: args.limit_objects]
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SettingsError(f"--out {out}: cannot create the directory ({exc.strerror or exc})") from exc
+    if args.vary_gel and not args.randomize_rig:
+        raise SettingsError("--vary-gel draws a rig's gel: it needs --randomize-rig")
+    jobs = [(obj, i, args.seed, settings, str(out), args.preview, args.randomize_rig, args.vary_gel)
+            for obj in objects for i in range(args.grasps_per_object)]
+    workers = min(args.workers, len(jobs))
+
+    start = time.perf_counter()
+    results = []
+    with tqdm(total=len(jobs), unit="grasp", desc="simulate", file=sys.stderr) as bar:
+        if workers == 1:
+            _init_worker()
+            for job in jobs:
+                results.append(_simulate_one(job))
+                bar.update()
+        else:
+            with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_init_worker) as pool:
+                for result in pool.map(_simulate_one, jobs):
+                    results.append(result)
+                    bar.update()
+    seconds = time.perf_counter() - start
+
+    failed = [r for r in results if "error" in r]
+    for r in failed:
+        log.warning("%s grasp %d not simulated: %s", r["object"], r["grasp"], r["error"])
+        print(f"teleop simulate: {r['object']} grasp {r['grasp']}: {r['error']}", file=sys.stderr)
+    written = [r for r in results if "path" in r]
+    models: dict[str, int] = {}
+    for r in written:
+        models[r["model"]] = models.get(r["model"], 0) + 1
+    summary = {
+        "grasps": len(written),
+        "seconds": round(seconds, 3),
+        "grasps_per_s_per_core": round(len(written) / seconds / max(workers, 1), 3) if seconds > 0 else None,
+        "out": str(out),
+        "workers": workers,
+        "models": models,
+        "failed": [{"object": r["object"], "grasp": r["grasp"], "reason": r["error"]} for r in failed],
+    }
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"{len(written)} grasps in {seconds:.1f} s ({summary['grasps_per_s_per_core']} grasps/s/core) -> {out}")
+    return 1 if failed else 0
