@@ -1,7 +1,8 @@
 """``estimator serve``: serve live estimates of the grasps on the bus (:mod:`estimator.service`).
 
 ``--report`` appends the service's per-grasp report lines to a file; ``--json`` prints its
-counts on exit.
+counts on exit. ``--foxglove`` serves the estimates it publishes live to Foxglove
+(:class:`~teleop.session.foxglove_live.LiveTap`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from estimator.service import INPUT_TOPICS, EstimatorService, ModelSlot, resolve
 from estimator.stream import configured_methods
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
+from teleop.session.foxglove_live import LiveTap, add_foxglove_argument
 from teleop.settings import default_settings_path, load_settings
 
 log = logging.getLogger(__name__)
@@ -52,6 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "provisional count, final estimate) to FILE")
     parser.add_argument("--duration-s", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
+    add_foxglove_argument(parser, what="the estimates it publishes")
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (messages, bad_messages, ignored, grasps, "
                              "provisional, final, reloads, reload_requests) as the last stdout line")
@@ -72,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
         Subscriber.from_settings(bus, bus.command, ("command",)) as commands,
         Publisher.from_settings(bus, bus.estimate_pub, lossless=False, source="estimator") as publisher,
         JsonLines(args.report) as report,
+        LiveTap(publisher.endpoint, args.foxglove, bus=bus, name="estimator serve"),
         StopSignals(on_hangup=model.request_reload if model is not None else None) as signals,
     ):
         service = EstimatorService(settings, calibration=calibration, subscriber=subscriber, publisher=publisher,

@@ -1,7 +1,9 @@
 """``haptics serve``: render live estimates from the bus on the softness display (:mod:`haptics.service`).
 
 ``--report`` appends one JSON object per final estimate (its latency and what the display
-renders for it) to a file; ``--json`` prints the service's counts on exit.
+renders for it) to a file; ``--json`` prints the service's counts on exit. ``--foxglove``
+serves the display messages it publishes live to Foxglove
+(:class:`~teleop.session.foxglove_live.LiveTap`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from haptics.service import INPUT_TOPICS, RendererService
 from haptics.settings import display_settings
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
+from teleop.session.foxglove_live import LiveTap, add_foxglove_argument
 from teleop.settings import default_settings_path, load_settings
 
 
@@ -41,6 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "unknown, uncertainty_decades, level, level_max) to FILE")
     parser.add_argument("--duration-s", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
+    add_foxglove_argument(parser, what="the display messages it publishes")
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (estimates, bad_messages, grasp_ends, display_messages, "
                              "display_failures, finals) "
@@ -60,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
             Subscriber.from_settings(bus, bus.estimate_pub, INPUT_TOPICS, conflate=True) as subscriber,
             Publisher.from_settings(bus, bus.display_pub, lossless=False, source="renderer") as publisher,
             JsonLines(args.report) as report,
+            LiveTap(publisher.endpoint, args.foxglove, bus=bus, name="haptics serve"),
             StopSignals() as signals,
         ):
             service = RendererService(renderer, subscriber=subscriber, publisher=publisher, report=report,

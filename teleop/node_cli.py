@@ -1,4 +1,8 @@
-"""``teleop node``: run the robot node (:mod:`teleop.node`) on the bus until Ctrl-C or SIGTERM."""
+"""``teleop node``: run the robot node (:mod:`teleop.node`) on the bus until Ctrl-C or SIGTERM.
+
+With ``--foxglove`` it also serves what it publishes live to Foxglove
+(:class:`~teleop.session.foxglove_live.LiveTap`).
+"""
 
 from __future__ import annotations
 
@@ -10,6 +14,7 @@ from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.live import StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.node import COMMAND_TOPICS, RobotNode
 from teleop.scene import load_scene
+from teleop.session.foxglove_live import LiveTap, add_foxglove_argument
 from teleop.settings import default_settings_path, load_settings
 
 
@@ -28,6 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_endpoint_arguments(parser, "robot_pub", "command")
     parser.add_argument("--duration-s", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
+    add_foxglove_argument(parser, what="what the node publishes (frames, forces, widths, grasp events)")
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (grasps, frames, force_batches, width_batches, "
                              "bad_commands, device_errors) as the last stdout line")
@@ -41,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
         Publisher.from_settings(bus, bus.robot_pub, lossless=True, source="robot") as publisher,
         Subscriber.from_settings(bus, bus.command, COMMAND_TOPICS) as commands,
         RobotNode(settings, publisher=publisher, commands=commands, scene=scene) as node,
+        LiveTap(publisher.endpoint, args.foxglove, bus=bus, name="teleop node"),
         StopSignals() as signals,
     ):
         print(f"robot node: {'simulated' if node.simulated else 'hardware'} devices; data on "

@@ -8,25 +8,45 @@ times the log uses (this host's ``time.monotonic_ns()``). ``teleop record --foxg
 serves what it records; ``teleop demo --foxglove`` passes the option to its recorder.
 Clients that fall behind lose the oldest messages (the SDK's per-client backlog), never
 the recording.
+
+:class:`LiveTap` serves what one live service publishes: ``teleop node``, ``estimator
+serve`` and ``haptics serve`` take the same ``--foxglove`` option and tap their own
+publisher endpoint. The tap is a subscriber of its own (every topic, non-conflating) read
+in a background thread, which takes each message off the socket at once and keeps at most
+``max_pending`` waiting for conversion, dropping (and counting) the oldest beyond that, so
+a lossless publisher never waits for it. A tap that cannot start or fails later logs one
+error and stops; the service carries on without it.
 """
 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+import logging
+import sys
+import threading
+from collections import deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import foxglove
 
+from teleop.bus.pubsub import Subscriber
+from teleop.bus.wire import Message, now_ns
 from teleop.errors import BusError
-from teleop.session.foxglove import FoxgloveMessage
+from teleop.session.foxglove import FoxgloveMessage, foxglove_messages
+from teleop.settings import BusSettings
 
 __all__ = [
     "DEFAULT_ADDRESS",
     "LiveServer",
+    "LiveTap",
+    "LiveTapStats",
     "add_foxglove_argument",
     "parse_address",
 ]
+
+log = logging.getLogger(__name__)
 
 DEFAULT_HOST, DEFAULT_PORT = "127.0.0.1", 8765
 DEFAULT_ADDRESS = f"{DEFAULT_HOST}:{DEFAULT_PORT}"
@@ -132,6 +152,10 @@ class LiveServer:
                 self._channels[item.topic] = channel
             channel.log(item.data, log_time=received_ns - item.age_ns)
 
+    def log_message(self, message: Message, received_ns: int) -> None:
+        """Send the Foxglove forms of one bus message received at ``received_ns``."""
+        self.log(foxglove_messages(message), received_ns)
+
     def close(self) -> None:
         """Stop serving; calling twice is fine."""
         for channel in self._channels.values():
@@ -144,3 +168,147 @@ class LiveServer:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+@dataclass
+class LiveTapStats:
+    """What a :class:`LiveTap` took off the bus and what became of it."""
+
+    received: int = 0  # bus messages taken off the socket (heartbeats not counted)
+    served: int = 0  # of those, converted and handed to the server
+    dropped: int = 0  # of those, dropped unserved: the tap fell more than max_pending behind
+    error: str | None = None  # why the tap stopped early, if it did
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"received": self.received, "served": self.served, "dropped": self.dropped,
+                "error": self.error}
+
+
+class LiveTap:
+    """Serve what the publishers on ``endpoints`` send live to Foxglove, beside a service.
+
+    A context manager: ``with LiveTap(publisher.endpoint, args.foxglove, bus=bus):``. Entering
+    it starts the server, prints its ``ws://`` address on stderr and subscribes; leaving it
+    stops both. It never raises once constructed: a failure (the port is taken, the
+    subscription cannot be set up, a message cannot be served) is logged once as an error,
+    kept in ``stats.error``, and the tap stops while the service carries on.
+
+    Parameters
+    ----------
+    endpoints : str or iterable of str
+        Publisher endpoints to serve, every topic.
+    address : (host, port), optional
+        Where to serve (``args.foxglove`` of :func:`add_foxglove_argument`); None: the option
+        was not given, and the tap does nothing.
+    bus : BusSettings, optional
+        Size limit and CURVE keys of the subscription (:meth:`Subscriber.from_settings`);
+        None: a plain loopback subscriber.
+    name : str
+        Server name shown by Foxglove.
+    max_pending : int
+        Messages received but not yet served beyond which the oldest are dropped.
+    **subscriber_options
+        Passed on to :class:`~teleop.bus.pubsub.Subscriber` (``context``, ...).
+    """
+
+    def __init__(
+        self,
+        endpoints: str | Iterable[str],
+        address: tuple[str, int] | None,
+        *,
+        bus: BusSettings | None = None,
+        name: str = "compliance-teleop",
+        max_pending: int = 1000,
+        **subscriber_options: Any,
+    ):
+        self.endpoints = [endpoints] if isinstance(endpoints, str) else list(endpoints)
+        self.address = address
+        self.bus = bus
+        self.name = name
+        self.max_pending = max(1, max_pending)
+        self.subscriber_options = subscriber_options
+        self.stats = LiveTapStats()
+        self.server: LiveServer | None = None
+        self._pending: deque[tuple[Message, int]] = deque()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def running(self) -> bool:
+        """Whether the tap is serving (started, not stopped, not failed)."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def start(self) -> LiveTap:
+        """Start serving (nothing when ``address`` is None or already started)."""
+        if self.address is None or self.server is not None or self.stats.error:
+            return self
+        try:
+            self.server = LiveServer(*self.address, name=self.name)
+            subscriber = self._subscribe()
+        except Exception as exc:  # noqa: BLE001 - the service must carry on whatever happened
+            self._fail(exc)
+            return self
+        print(f"Foxglove live view: {self.server.url} ({', '.join(self.endpoints)})",
+              file=sys.stderr, flush=True)
+        self._thread = threading.Thread(
+            target=self._run, args=(subscriber,), name="foxglove-live-tap", daemon=True
+        )
+        self._thread.start()
+        return self
+
+    def close(self, timeout_s: float = 2.0) -> LiveTapStats:
+        """Stop serving and unsubscribe; calling twice is fine."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            self._thread = None
+        if self.server is not None:
+            self.server.close()
+            self.server = None
+        if self.stats.dropped:
+            log.warning("Foxglove live view: dropped %d of %d messages (it fell more than %d behind)",
+                        self.stats.dropped, self.stats.received, self.max_pending)
+        return self.stats
+
+    def __enter__(self) -> LiveTap:
+        return self.start()
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ the thread
+
+    def _subscribe(self) -> Subscriber:
+        if self.bus is not None:
+            return Subscriber.from_settings(self.bus, self.endpoints, ("",), conflate=False,
+                                            **self.subscriber_options)
+        return Subscriber(self.endpoints, ("",), conflate=False, **self.subscriber_options)
+
+    def _run(self, subscriber: Subscriber) -> None:
+        try:
+            with subscriber:  # closed on the way out: a closed peer is one no publisher waits for
+                while not self._stop.is_set():
+                    self._take(subscriber, timeout_s=0 if self._pending else 0.1)
+                    if self._pending:
+                        message, received_ns = self._pending.popleft()
+                        self.server.log_message(message, received_ns)
+                        self.stats.served += 1
+        except Exception as exc:  # noqa: BLE001 - the service must carry on whatever happened
+            self._fail(exc)
+
+    def _take(self, subscriber: Subscriber, timeout_s: float) -> None:
+        """Take everything queued on the socket (waiting up to ``timeout_s`` for the first)."""
+        message = subscriber.recv(timeout_s=timeout_s)
+        while message is not None:
+            self.stats.received += 1
+            if len(self._pending) >= self.max_pending:
+                self._pending.popleft()
+                self.stats.dropped += 1
+            self._pending.append((message, now_ns()))
+            message = subscriber.recv(timeout_s=0)
+
+    def _fail(self, exc: Exception) -> None:
+        self.stats.error = f"{type(exc).__name__}: {exc}" if not isinstance(exc, BusError) else str(exc)
+        log.error("Foxglove live view of %s stopped: %s; the service carries on without it",
+                  ", ".join(self.endpoints), self.stats.error)
+        self._pending.clear()

@@ -1,4 +1,5 @@
-"""The live view: Foxglove's WebSocket protocol, the channels it advertises, and ``record --foxglove``.
+"""The live view: Foxglove's WebSocket protocol, the channels it advertises, ``record --foxglove``,
+and the tap beside each live service (``teleop node``, ``estimator serve``, ``haptics serve``).
 
 The client is ``websockets`` (installed with franky-control); it speaks only what a Foxglove
 client would: the subprotocol handshake, ``serverInfo``, ``advertise``, ``subscribe`` and the
@@ -7,11 +8,15 @@ binary message-data frames.
 
 from __future__ import annotations
 
+import argparse
+import importlib
 import json
+import logging
 import re
 import struct
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -21,11 +26,12 @@ from teleop.bus import Publisher
 from teleop.bus.wire import make_message
 from teleop.errors import BusError
 from teleop.session.foxglove import foxglove_messages
-from teleop.session.foxglove_live import LiveServer, parse_address
+from teleop.session.foxglove_live import LiveServer, LiveTap, parse_address
 
 TELEOP = Path(sys.executable).parent / "teleop"
 SUBPROTOCOL = "foxglove.sdk.v1"  # what foxglove-sdk 0.30 accepts (it refuses foxglove.websocket.v1)
 JPEG = b"\xff\xd8" + bytes(range(200))
+BIG_JPEG = b"\xff\xd8" + bytes(100_000)
 
 
 def _ops(ws, wanted: str, *, timeout_s: float = 5.0) -> dict:
@@ -111,3 +117,121 @@ def test_record_serves_the_bus_live(tmp_path):
             proc.terminate()
             proc.wait(timeout=20)
     assert proc.returncode == 0
+
+
+def _estimate(pub: Publisher, grasp_id: str = "g1") -> None:
+    pub.send("estimate", t_capture_s=1.0, grasp_id=grasp_id, method="split", E_pa=1e5,
+             interval_pa=[5e4, 2e5], state="ok", reason="", provisional=True, latency_s=0.01)
+
+
+def _frames(pub: Publisher, n: int) -> None:
+    """``n`` frames of 100 kB: far past small queues and the sockets' buffers."""
+    for i in range(n):  # a lossless send with no room raises BusTimeoutError after send_timeout_s
+        pub.send("frame", t_capture_s=1.0, finger="left", index=i, encoding="jpeg", data=BIG_JPEG)
+
+
+def _until(condition, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.01)
+
+
+def test_a_tap_serves_what_the_publisher_sends(capsys):
+    with Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as pub:
+        with LiveTap(pub.endpoint, ("127.0.0.1", 0)) as tap:
+            assert tap.running
+            assert f"Foxglove live view: {tap.server.url}" in capsys.readouterr().err
+            with connect(tap.server.url, subprotocols=[SUBPROTOCOL], open_timeout=5) as ws:
+                _ops(ws, "serverInfo")
+                pub.wait_for_subscriber("", timeout_s=5.0)
+                _estimate(pub)
+                pub.send("frame", t_capture_s=1.0, finger="left", index=0, encoding="jpeg", data=JPEG)
+                pub.heartbeat_if_due()
+                channels = _advertised(ws, {"/estimate", "/tactile/left"})
+            assert channels["/estimate"]["schemaName"] == "compliance_teleop.estimate"
+        assert not tap.running and tap.server is None
+        assert tap.stats.as_dict() == {"received": 2, "served": 2, "dropped": 0, "error": None}
+
+
+def test_a_tap_that_falls_behind_drops_the_oldest_and_never_holds_a_lossless_publisher_up():
+    served = []
+
+    def slow(message, received_ns):
+        time.sleep(0.02)
+        served.append(message.body["index"])
+
+    with (
+        Publisher("tcp://127.0.0.1:*", lossless=True, source="robot", send_timeout_s=0.5,
+                  high_water_mark=5) as pub,
+        LiveTap(pub.endpoint, ("127.0.0.1", 0), max_pending=3, high_water_mark=5) as tap,
+    ):
+        tap.server.log_message = slow
+        pub.wait_for_subscriber("", timeout_s=5.0)
+        _frames(pub, 200)
+        _until(lambda: tap.stats.served + tap.stats.dropped == 200)
+    assert tap.stats.received == 200 and tap.stats.dropped > 0 and tap.stats.error is None
+    assert served[-1] == 199  # the newest is always served
+
+
+def test_a_tap_that_fails_logs_one_error_and_lets_the_service_carry_on(caplog):
+    caplog.set_level(logging.ERROR)
+    assert not LiveTap("tcp://127.0.0.1:9", None).start().running  # no --foxglove: nothing
+    with LiveServer("127.0.0.1", 0) as taken, LiveTap("tcp://127.0.0.1:9", ("127.0.0.1", taken.port)) as tap:
+        assert not tap.running and "cannot serve" in tap.stats.error
+    def broken(message, received_ns):
+        raise RuntimeError("no more")
+
+    with (
+        Publisher("tcp://127.0.0.1:*", lossless=True, source="robot", send_timeout_s=0.5,
+                  high_water_mark=5) as pub,
+        LiveTap(pub.endpoint, ("127.0.0.1", 0), high_water_mark=5) as tap,
+    ):
+        tap.server.log_message = broken
+        pub.wait_for_subscriber("", timeout_s=5.0)
+        _estimate(pub)
+        _until(lambda: not tap.running)
+        assert tap.stats.error == "RuntimeError: no more"
+        _frames(pub, 200)  # the tap's subscription is gone: nothing waits for it
+    errors = [r.getMessage() for r in caplog.records if r.levelno == logging.ERROR]
+    assert len(errors) == 2 and all("the service carries on without it" in e for e in errors)
+
+
+SERVICES = ["teleop.node_cli", "estimator.service_cli", "haptics.service_cli"]
+
+
+@pytest.mark.parametrize("module", SERVICES)
+def test_every_live_service_takes_the_foxglove_option(module):
+    parser = argparse.ArgumentParser()
+    importlib.import_module(module).add_arguments(parser)
+    assert "--foxglove [[HOST:]PORT]" in parser.format_help()
+    assert parser.parse_args(["--foxglove", "127.0.0.1:0"]).foxglove == ("127.0.0.1", 0)
+    assert parser.parse_args(["--foxglove"]).foxglove == ("127.0.0.1", 8765)
+    assert parser.parse_args([]).foxglove is None
+
+
+def test_the_node_serves_what_it_publishes_live(tmp_path):
+    stderr = tmp_path / "node.log"
+    with Publisher("tcp://127.0.0.1:*", lossless=True, source="operator") as operator, stderr.open("w") as err:
+        proc = subprocess.Popen(
+            [str(TELEOP), "node", "--scene", "quick", "--robot-pub", "tcp://127.0.0.1:*",
+             "--command", operator.endpoint, "--duration-s", "60", "--foxglove", "127.0.0.1:0"],
+            stdout=subprocess.DEVNULL, stderr=err,
+        )
+        try:
+            url = []
+            _until(lambda: url.extend(re.findall(r"Foxglove live view: (ws://\S+)", stderr.read_text()))
+                   or url or proc.poll() is not None, timeout_s=60.0)
+            assert url, f"the node printed no ws:// address: {stderr.read_text()}"
+            with connect(url[0], subprotocols=[SUBPROTOCOL], open_timeout=10) as ws:
+                _ops(ws, "serverInfo")
+                operator.wait_for_subscriber("command", timeout_s=30.0)
+                operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id="g1",
+                              params={"object_index": 0.0})
+                channels = _advertised(ws, {"/events", "/force", "/width"})
+            assert channels["/events"]["schemaName"] == "foxglove.Log"
+        finally:
+            proc.terminate()
+            proc.wait(timeout=30)
+    assert proc.returncode == 0, stderr.read_text()
+    assert "robot node:" in stderr.read_text().splitlines()[-1]
