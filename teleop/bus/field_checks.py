@@ -3,7 +3,9 @@
 The wire format itself (frames, header, limits, which fields each message type has)
 is :mod:`teleop.bus.wire`'s; this module only says what a field check is and
 provides the kinds the schemas use: bounded strings, integers, finite numbers,
-flags, intervals, maps of names to numbers, and typed arrays.
+flags, intervals, maps of names to numbers, and typed arrays. Each kind is a frozen
+dataclass whose attributes are its options, so other views of a message type (the
+session log's JSON Schemas, :mod:`teleop.session.foxglove`) read the same table.
 
 Every check refuses with :class:`~teleop.errors.MessageRejected` (``mistyped_field``,
 or ``not_finite`` for NaN and infinity), naming the field.
@@ -22,101 +24,149 @@ import numpy as np
 from teleop.errors import MessageRejected
 
 __all__ = [
+    "FLAG",
+    "INTERVAL",
     "ArrayField",
     "Check",
+    "FlagField",
+    "IntegerField",
+    "IntervalField",
+    "NumberField",
+    "NumberMapField",
     "Schema",
-    "flag_field",
-    "integer_field",
-    "interval_field",
+    "TextField",
     "is_int",
-    "number_field",
-    "number_map_field",
-    "text_field",
 ]
-
-
-# Each check takes (value, where) and returns the value in its wire form (plain Python
-# types; arrays for array fields) or raises MessageRejected naming the field.
-
-Check = Callable[[Any, str], Any]
 
 
 def is_int(value: Any) -> bool:
     return isinstance(value, numbers.Integral) and not isinstance(value, bool | np.bool_)
 
 
-def text_field(*, choices: tuple[str, ...] | None = None, nullable: bool = False, max_chars: int = 256) -> Check:
-    def check(value: Any, where: str) -> str | None:
-        if value is None and nullable:
+# A field check is a frozen description of the field (its options are its attributes, so the
+# session log derives a JSON Schema from them) that, called with (value, where), returns the
+# value in its wire form (plain Python types) or raises MessageRejected naming the field.
+
+
+@dataclass(frozen=True)
+class TextField:
+    """A string of at most ``max_chars`` characters, one of ``choices`` when given; nil if ``nullable``."""
+
+    choices: tuple[str, ...] | None = None
+    nullable: bool = False
+    max_chars: int = 256
+
+    def __call__(self, value: Any, where: str) -> str | None:
+        if value is None and self.nullable:
             return None
         if not isinstance(value, str):
             raise MessageRejected("mistyped_field", f"{where} must be a string, got {type(value).__name__}")
-        if choices is not None and value not in choices:
-            raise MessageRejected("mistyped_field", f"{where} = {value!r}: expected one of {', '.join(choices)}")
-        if len(value) > max_chars:
-            raise MessageRejected("mistyped_field", f"{where} has {len(value)} characters, at most {max_chars}")
+        if self.choices is not None and value not in self.choices:
+            raise MessageRejected("mistyped_field", f"{where} = {value!r}: expected one of {', '.join(self.choices)}")
+        if len(value) > self.max_chars:
+            raise MessageRejected("mistyped_field", f"{where} has {len(value)} characters, at most {self.max_chars}")
         return value
 
-    return check
 
+@dataclass(frozen=True)
+class IntegerField:
+    """An integer >= ``lo``; nil if ``nullable``."""
 
-def integer_field(*, lo: int = 0) -> Check:
-    def check(value: Any, where: str) -> int:
+    lo: int = 0
+    nullable: bool = False
+
+    def __call__(self, value: Any, where: str) -> int | None:
+        if value is None and self.nullable:
+            return None
         if not is_int(value):
             raise MessageRejected("mistyped_field", f"{where} must be an integer, got {value!r}")
-        if value < lo:
-            raise MessageRejected("mistyped_field", f"{where} = {value}: expected >= {lo}")
+        if value < self.lo:
+            raise MessageRejected("mistyped_field", f"{where} = {value}: expected >= {self.lo}")
         return int(value)
 
-    return check
 
+@dataclass(frozen=True)
+class NumberField:
+    """A finite number, above ``lo`` (strictly if ``lo_open``) when given; nil if ``nullable``."""
 
-def number_field(*, lo: float | None = None, lo_open: bool = False, nullable: bool = False) -> Check:
-    def check(value: Any, where: str) -> float | None:
-        if value is None and nullable:
+    lo: float | None = None
+    lo_open: bool = False
+    nullable: bool = False
+
+    @property
+    def positive(self) -> bool:
+        """Whether the number is > 0 (a modulus, a period)."""
+        return self.lo == 0 and self.lo_open
+
+    def __call__(self, value: Any, where: str) -> float | None:
+        if value is None and self.nullable:
             return None
         if not isinstance(value, numbers.Real) or isinstance(value, bool | np.bool_):
             raise MessageRejected("mistyped_field", f"{where} must be a number, got {value!r}")
         number = float(value)
         if not math.isfinite(number):
             raise MessageRejected("not_finite", f"{where} = {number}: expected a finite number")
-        if lo is not None and (number <= lo if lo_open else number < lo):
-            raise MessageRejected("mistyped_field", f"{where} = {number}: expected {'>' if lo_open else '>='} {lo}")
+        lo = self.lo
+        if lo is not None and (number <= lo if self.lo_open else number < lo):
+            raise MessageRejected("mistyped_field", f"{where} = {number}: expected {'>' if self.lo_open else '>='} {lo}")
         return number
 
-    return check
+
+@dataclass(frozen=True)
+class FlagField:
+    """True or false."""
+
+    nullable = False
+
+    def __call__(self, value: Any, where: str) -> bool:
+        if not isinstance(value, bool | np.bool_):
+            raise MessageRejected("mistyped_field", f"{where} must be true or false, got {value!r}")
+        return bool(value)
 
 
-def flag_field(value: Any, where: str) -> bool:
-    if not isinstance(value, bool | np.bool_):
-        raise MessageRejected("mistyped_field", f"{where} must be true or false, got {value!r}")
-    return bool(value)
+_BOUND = NumberField(lo=0.0, lo_open=True, nullable=True)
 
 
-def interval_field(value: Any, where: str) -> list[float | None]:
-    if not isinstance(value, list | tuple) or len(value) != 2:
-        raise MessageRejected("mistyped_field", f"{where} must be [low, high] (each a number or nil), got {value!r}")
-    bound = number_field(lo=0.0, lo_open=True, nullable=True)
-    low, high = bound(value[0], f"{where}[0]"), bound(value[1], f"{where}[1]")
-    if low is not None and high is not None and low > high:
-        raise MessageRejected("mistyped_field", f"{where} = [{low}, {high}]: low is above high")
-    return [low, high]
+@dataclass(frozen=True)
+class IntervalField:
+    """``[low, high]`` of moduli (Pa), each > 0 or nil (an open side), low <= high."""
+
+    nullable = False
+
+    def __call__(self, value: Any, where: str) -> list[float | None]:
+        if not isinstance(value, list | tuple) or len(value) != 2:
+            raise MessageRejected("mistyped_field", f"{where} must be [low, high] (each a number or nil), got {value!r}")
+        low, high = _BOUND(value[0], f"{where}[0]"), _BOUND(value[1], f"{where}[1]")
+        if low is not None and high is not None and low > high:
+            raise MessageRejected("mistyped_field", f"{where} = [{low}, {high}]: low is above high")
+        return [low, high]
 
 
-def number_map_field(*, max_items: int) -> Check:
+_NAME, _NUMBER = TextField(max_chars=64), NumberField()
+
+
+@dataclass(frozen=True)
+class NumberMapField:
     """A map of at most ``max_items`` names (64 characters at most) to finite numbers."""
 
-    def check(value: Any, where: str) -> dict[str, float]:
-        if not isinstance(value, Mapping) or len(value) > max_items:
-            raise MessageRejected("mistyped_field", f"{where} must be a map of at most {max_items} name -> number")
-        number = number_field()
+    max_items: int
+    nullable = False
+
+    def __call__(self, value: Any, where: str) -> dict[str, float]:
+        if not isinstance(value, Mapping) or len(value) > self.max_items:
+            raise MessageRejected("mistyped_field",
+                                  f"{where} must be a map of at most {self.max_items} name -> number")
         out = {}
         for key, item in value.items():
-            name = text_field(max_chars=64)(key, f"{where} key")
-            out[name] = number(item, f"{where}.{name}")
+            name = _NAME(key, f"{where} key")
+            out[name] = _NUMBER(item, f"{where}.{name}")
         return out
 
-    return check
+
+#: Every kind of scalar field check.
+Check = TextField | IntegerField | NumberField | FlagField | IntervalField | NumberMapField
+#: The checks without options.
+FLAG, INTERVAL = FlagField(), IntervalField()
 
 
 @dataclass(frozen=True)

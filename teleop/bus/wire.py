@@ -92,15 +92,15 @@ import msgpack
 import numpy as np
 
 from teleop.bus.field_checks import (
+    FLAG,
+    INTERVAL,
     ArrayField,
+    IntegerField,
+    NumberField,
+    NumberMapField,
     Schema,
-    flag_field,
-    integer_field,
-    interval_field,
+    TextField,
     is_int,
-    number_field,
-    number_map_field,
-    text_field,
 )
 from teleop.errors import MessageRejected
 from teleop.states import ESTIMATE_STATES
@@ -195,15 +195,6 @@ def _estimate_rule(body: dict[str, Any]) -> None:
         raise MessageRejected("mistyped_field", "estimate with state 'insufficient_data' carries an E_pa")
 
 
-def _optional(check: Callable[[Any, str], Any]) -> Callable[[Any, str], Any]:
-    """``check``, or nil."""
-
-    def optional(value: Any, where: str) -> Any:
-        return None if value is None else check(value, where)
-
-    return optional
-
-
 def _display_rule(body: dict[str, Any]) -> None:
     if body["stiffness"] > 1.0:
         raise MessageRejected("mistyped_field", f"display.stiffness = {body['stiffness']}: expected <= 1")
@@ -230,69 +221,69 @@ _VALUES = ArrayField(("<f8", "<f4"), (1,), finite=True)
 SCHEMAS: Mapping[str, Schema] = {
     "frame": Schema(
         fields={
-            "finger": text_field(max_chars=32),
-            "grasp_id": text_field(nullable=True),
-            "index": integer_field(),
-            "encoding": text_field(choices=("jpeg", "png", "raw")),
+            "finger": TextField(max_chars=32),
+            "grasp_id": TextField(nullable=True),
+            "index": IntegerField(),
+            "encoding": TextField(choices=("jpeg", "png", "raw")),
         },
         arrays={"data": ArrayField(("|u1", "<u2"), (1, 3))},
         nullable=frozenset({"grasp_id"}),
         rule=_frame_rule,
     ),
     "force": Schema(
-        fields={"grasp_id": text_field(nullable=True)},
+        fields={"grasp_id": TextField(nullable=True)},
         arrays={"t_s": _TIMES, "value_n": _VALUES},
         nullable=frozenset({"grasp_id"}),
         rule=_samples_rule("value_n"),
     ),
     "width": Schema(
-        fields={"grasp_id": text_field(nullable=True)},
+        fields={"grasp_id": TextField(nullable=True)},
         arrays={"t_s": _TIMES, "value_m": _VALUES},
         nullable=frozenset({"grasp_id"}),
         rule=_samples_rule("value_m"),
     ),
     "grasp_event": Schema(
         fields={
-            "event": text_field(choices=("start", "loading_end", "end")),
-            "grasp_id": text_field(),
-            "object_name": text_field(nullable=True),
+            "event": TextField(choices=("start", "loading_end", "end")),
+            "grasp_id": TextField(),
+            "object_name": TextField(nullable=True),
         },
         nullable=frozenset({"object_name"}),
     ),
     "estimate": Schema(
         fields={
-            "grasp_id": text_field(),
-            "method": text_field(max_chars=64),
-            "E_pa": number_field(lo=0.0, lo_open=True, nullable=True),
-            "interval_pa": interval_field,
-            "state": text_field(choices=ESTIMATE_STATES),
-            "reason": text_field(max_chars=MAX_STR_CHARS),
-            "provisional": flag_field,
-            "latency_s": number_field(lo=0.0),
+            "grasp_id": TextField(),
+            "method": TextField(max_chars=64),
+            "E_pa": NumberField(lo=0.0, lo_open=True, nullable=True),
+            "interval_pa": INTERVAL,
+            "state": TextField(choices=ESTIMATE_STATES),
+            "reason": TextField(max_chars=MAX_STR_CHARS),
+            "provisional": FLAG,
+            "latency_s": NumberField(lo=0.0),
         },
         rule=_estimate_rule,
     ),
     "command": Schema(
         fields={
-            "action": text_field(choices=COMMAND_ACTIONS),
-            "grasp_id": text_field(nullable=True),
-            "params": number_map_field(max_items=MAX_PARAMS),
+            "action": TextField(choices=COMMAND_ACTIONS),
+            "grasp_id": TextField(nullable=True),
+            "params": NumberMapField(max_items=MAX_PARAMS),
         },
         nullable=frozenset({"grasp_id"}),
     ),
-    "heartbeat": Schema(fields={"interval_s": number_field(lo=0.0, lo_open=True)}),
+    "heartbeat": Schema(fields={"interval_s": NumberField(lo=0.0, lo_open=True)}),
     "display": Schema(
         fields={
-            "grasp_id": text_field(nullable=True),
-            "phase": text_field(choices=DISPLAY_PHASES),
-            "stiffness": number_field(lo=0.0),
-            "uncertainty_decades": number_field(lo=0.0),
-            "rigid": flag_field,
-            "unknown": flag_field,
-            "provisional": flag_field,
-            "E_pa": number_field(lo=0.0, lo_open=True, nullable=True),
-            "level": _optional(integer_field(lo=0)),
-            "level_max": _optional(integer_field(lo=1)),
+            "grasp_id": TextField(nullable=True),
+            "phase": TextField(choices=DISPLAY_PHASES),
+            "stiffness": NumberField(lo=0.0),
+            "uncertainty_decades": NumberField(lo=0.0),
+            "rigid": FLAG,
+            "unknown": FLAG,
+            "provisional": FLAG,
+            "E_pa": NumberField(lo=0.0, lo_open=True, nullable=True),
+            "level": IntegerField(lo=0, nullable=True),
+            "level_max": IntegerField(lo=1, nullable=True),
         },
         nullable=frozenset({"grasp_id", "E_pa", "level", "level_max"}),
         rule=_display_rule,
@@ -358,7 +349,7 @@ def make_message(kind: str, *, t_capture_s: float, topic: str | None = None, **b
         Unknown type, or a field missing, extra, mistyped or not finite.
     """
     checked = _sender_body(kind, body)
-    t = number_field()(t_capture_s, "t_capture_s")
+    t = NumberField()(t_capture_s, "t_capture_s")
     return Message(type=kind, body=checked, t_capture_s=t, topic=topic or default_topic(kind, checked))
 
 
@@ -400,10 +391,10 @@ def encode(message: Message, *, max_bytes: int | None = None) -> list[bytes | me
     header = {
         "v": SCHEMA_VERSION,
         "type": message.type,
-        "source": text_field(max_chars=64)(message.source, "source"),
-        "seq": integer_field()(message.seq, "seq"),
-        "t_capture_s": number_field()(message.t_capture_s, "t_capture_s"),
-        "t_send_ns": integer_field()(message.t_send_ns, "t_send_ns"),
+        "source": TextField(max_chars=64)(message.source, "source"),
+        "seq": IntegerField()(message.seq, "seq"),
+        "t_capture_s": NumberField()(message.t_capture_s, "t_capture_s"),
+        "t_send_ns": IntegerField()(message.t_send_ns, "t_send_ns"),
         "buffers": [[name, a.dtype.str, list(a.shape)] for name, a in arrays.items()],
     }
     frames: list[bytes | memoryview] = [
@@ -478,10 +469,10 @@ def _check_header(header: dict[str, Any], n_buffers: int) -> dict[str, Any]:
     if set(header) != _HEADER_KEYS:
         raise MessageRejected("bad_header", f"header keys {sorted(map(str, header))}, expected {sorted(_HEADER_KEYS)}")
     try:
-        text_field(max_chars=64)(header["source"], "header.source")
-        integer_field()(header["seq"], "header.seq")
-        number_field()(header["t_capture_s"], "header.t_capture_s")
-        integer_field()(header["t_send_ns"], "header.t_send_ns")
+        TextField(max_chars=64)(header["source"], "header.source")
+        IntegerField()(header["seq"], "header.seq")
+        NumberField()(header["t_capture_s"], "header.t_capture_s")
+        IntegerField()(header["t_send_ns"], "header.t_send_ns")
     except MessageRejected as exc:
         reason = "not_finite" if exc.reason == "not_finite" else "bad_header"
         raise MessageRejected(reason, exc.detail) from None

@@ -38,7 +38,6 @@ Array fields of other types are not shown (the bus channels keep them).
 
 from __future__ import annotations
 
-import inspect
 import json
 import math
 from collections.abc import Callable, Mapping
@@ -51,9 +50,15 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from google.protobuf.descriptor_pb2 import FileDescriptorSet
 from google.protobuf.timestamp_pb2 import Timestamp
 
-from teleop.bus.field_checks import Check
+from teleop.bus.field_checks import (
+    FlagField,
+    IntegerField,
+    IntervalField,
+    NumberField,
+    NumberMapField,
+    TextField,
+)
 from teleop.bus.wire import SCHEMAS, Message
-from teleop.errors import MessageRejected
 
 __all__ = [
     "EVENTS_TOPIC",
@@ -176,64 +181,39 @@ def _event(message: Message) -> list[FoxgloveMessage]:
 # message, and its property is simply not required.
 
 
-def _text_schema(o: Mapping[str, Any]) -> dict[str, Any]:
+def _text_schema(check: TextField) -> dict[str, Any]:
     schema: dict[str, Any] = {"type": "string"}
-    if o.get("choices"):
-        schema["enum"] = list(o["choices"])
+    if check.choices:
+        schema["enum"] = list(check.choices)
     return schema
 
 
-def _number_schema(o: Mapping[str, Any]) -> dict[str, Any]:
+def _number_schema(check: NumberField) -> dict[str, Any]:
     schema: dict[str, Any] = {"type": "number"}
-    if o.get("lo") is not None:
-        schema["exclusiveMinimum" if o.get("lo_open") else "minimum"] = o["lo"]
+    if check.lo is not None:
+        schema["exclusiveMinimum" if check.lo_open else "minimum"] = check.lo
     return schema
 
 
 _BOUNDS = ("low", "high", "log10_low", "log10_high")  # an interval's JSON form; nil sides left out
 
-# One entry per kind of field check (teleop.bus.field_checks): the JSON Schema of its value.
-_FIELD_SCHEMAS: dict[str, Callable[[Mapping[str, Any]], dict[str, Any]]] = {
-    "text_field": _text_schema,
-    "integer_field": lambda o: {"type": "integer", "minimum": o.get("lo", 0)},
-    "number_field": _number_schema,
-    "flag_field": lambda o: {"type": "boolean"},
-    "interval_field": lambda o: {
+# The JSON Schema of each kind of field check's value (teleop.bus.field_checks), from its options.
+_FIELD_SCHEMAS: dict[type, Callable[[Any], dict[str, Any]]] = {
+    TextField: _text_schema,
+    IntegerField: lambda check: {"type": "integer", "minimum": check.lo},
+    NumberField: _number_schema,
+    FlagField: lambda check: {"type": "boolean"},
+    IntervalField: lambda check: {
         "type": "object",
         "properties": {k: {"type": "number"} for k in _BOUNDS},
         "additionalProperties": False,
     },
-    "number_map_field": lambda o: {
+    NumberMapField: lambda check: {
         "type": "object",
         "properties": {},
         "additionalProperties": {"type": "number"},
     },
 }
-
-
-@cache
-def _check_kind(check: Check) -> tuple[str, dict[str, Any]]:
-    """The factory a field check came from and the options it was made with.
-
-    The checks are closures over their options (``text_field(choices=...)``); reading
-    them back keeps :data:`~teleop.bus.wire.SCHEMAS` the one table of every field. A check
-    of another kind that wraps exactly one check (nil or that check) is read as the one it
-    wraps; ``nullable`` says whether the check takes nil.
-    """
-    kind = check.__qualname__.split(".")[0]
-    options = dict(inspect.getclosurevars(check).nonlocals)
-    inner = [value for value in options.values() if callable(value)]
-    if kind not in _FIELD_SCHEMAS and len(inner) == 1:
-        kind, options = _check_kind(inner[0])
-    return kind, {**options, "nullable": _takes_nil(check)}
-
-
-def _takes_nil(check: Check) -> bool:
-    try:
-        check(None, "probe")
-    except MessageRejected:
-        return False
-    return True
 
 
 @dataclass(frozen=True)
@@ -247,17 +227,12 @@ class _Field:
 
 @cache
 def _fields(kind: str) -> tuple[_Field, ...]:
-    """The scalar fields of ``kind`` with a JSON form (checks of kinds not in the table have none)."""
-    out = []
-    for name, check in SCHEMAS[kind].fields.items():
-        check_kind, options = _check_kind(check)
-        build = _FIELD_SCHEMAS.get(check_kind)
-        if build is not None:
-            positive = check_kind == "number_field" and options.get("lo") == 0 and options["lo_open"]
-            out.append(
-                _Field(name, build(options), options["nullable"], check_kind == "interval_field", positive)
-            )
-    return tuple(out)
+    """The scalar fields of ``kind``, each with the JSON Schema of its value."""
+    return tuple(
+        _Field(name, _FIELD_SCHEMAS[type(check)](check), check.nullable, isinstance(check, IntervalField),
+               isinstance(check, NumberField) and check.positive)
+        for name, check in SCHEMAS[kind].fields.items()
+    )
 
 
 @cache
