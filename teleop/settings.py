@@ -268,6 +268,11 @@ class SimulationSettings(Validated):
     grid_px: int = spec(4, lo=1, hi=16, doc="contact solver cell size in image pixels")
     background: str = spec("", doc="no-contact frame PNG; empty means the optics' own (procedural for "
                                    "'wedge', the real sensor's recorded frame for table optics)")
+    gel_model: str = spec("layer", choices=("layer", "half-space"),
+                          doc="the gel in the contact solver: 'layer', an elastic layer of the sensor's "
+                              "thickness bonded to a rigid backing (the sensor as built); 'half-space', "
+                              "an unbounded elastic body, a contact model the estimator was not trained "
+                              "on (teleop/sim/contact.py)")
     illumination_gain: float = spec(1.0, lo=0.5, hi=1.5,
                                     doc="scales the contact-induced colour change of every optics "
                                         "(LED current, ageing); the no-contact frame is unchanged")

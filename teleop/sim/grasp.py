@@ -99,8 +99,10 @@ def contact_grid(sensor: SensorSettings, grid_px: int) -> tuple[tuple[int, int],
     return (math.ceil(rows / grid_px), math.ceil(cols / grid_px)), (cell, cell)
 
 
-def _gel_body(sensor: SensorSettings) -> Body:
-    return Body(sensor.gel_modulus_pa, sensor.gel_poisson, sensor.gel_thickness_m)
+def _gel_body(sensor: SensorSettings, gel_model: str) -> Body:
+    """The gel as the contact solver sees it (``SimulationSettings.gel_model``)."""
+    thickness = sensor.gel_thickness_m if gel_model == "layer" else None
+    return Body(sensor.gel_modulus_pa, sensor.gel_poisson, thickness)
 
 
 @dataclass(frozen=True)
@@ -190,7 +192,7 @@ def _hertz_applies(obj: ObjectSpec, size: tuple[float, float, float], first_cont
 
 def load_curve(obj: ObjectSpec, scene: Scene, *, sensors: dict[str, SensorSettings], grid_px: int,
                max_force_n: float, finger_stiffness_n_per_m: float,
-               size: tuple[float, float, float] | None = None) -> LoadCurve:
+               size: tuple[float, float, float] | None = None, gel_model: str = "layer") -> LoadCurve:
     """Solve both contacts on a ladder of forces up to ``max_force_n`` and assemble the closure.
 
     Parameters
@@ -206,6 +208,8 @@ def load_curve(obj: ObjectSpec, scene: Scene, *, sensors: dict[str, SensorSettin
         The top of the ladder (the grasp's target force).
     finger_stiffness_n_per_m : float
         True stiffness of the finger pair.
+    gel_model : {"layer", "half-space"}
+        The gel as a bonded layer of its thickness, or as a half-space.
 
     Raises
     ------
@@ -214,12 +218,12 @@ def load_curve(obj: ObjectSpec, scene: Scene, *, sensors: dict[str, SensorSettin
     """
     size = object_size(obj) if size is None else size
     body = Body(obj.modulus_pa, obj.poisson)
-    gels = {finger: _gel_body(sensor) for finger, sensor in sensors.items()}
+    gels = {finger: _gel_body(sensor, gel_model) for finger, sensor in sensors.items()}
     grids = {finger: contact_grid(sensor, grid_px) for finger, sensor in sensors.items()}
     levels = np.geomspace(min(MIN_LEVEL_FORCE_N, max_force_n / 10), max_force_n, LOAD_LEVELS)
     use_hertz = all(_hertz_applies(obj, size, scene.first_contact_rc[f], max_force_n, gels[f], body, grids[f])
                     for f in sensors)
-    model = "hertz" if use_hertz else "bem-layer"
+    model = "hertz" if use_hertz else ("bem-layer" if gel_model == "layer" else "bem-half-space")
 
     fingers = {}
     for finger in sensors:
@@ -364,7 +368,7 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
     target = gripper.target_force_n * rng.uniform(*TARGET_FORCE_FRACTION)
     stiffness = gripper.finger_stiffness_n_per_m * math.exp(rng.normal(0.0, FINGER_STIFFNESS_SD))
     curve = load_curve(obj, scene, sensors=sensors, grid_px=sim.grid_px, max_force_n=target,
-                       finger_stiffness_n_per_m=stiffness, size=size)
+                       finger_stiffness_n_per_m=stiffness, size=size, gel_model=sim.gel_model)
 
     # Gripper motion and the true force.
     speed = gripper.closing_speed_m_s

@@ -17,6 +17,7 @@ records are byte for byte those of the settings' one rig.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import sys
@@ -67,6 +68,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "stiffness 20-500 kN/m, target force 5-30 N, closing speed, noise, rates, camera "
                              "latency, illumination); records carry the rig's known settings, the true ones "
                              "go to their provenance")
+    parser.add_argument("--gel-model", choices=("layer", "half-space"), default=None,
+                        help="the gel in the contact solver (default: the settings' simulation.gel_model, "
+                             "'layer'); 'half-space' simulates with a contact model the estimator was not "
+                             "trained on")
     parser.add_argument("--vary-gel", action="store_true",
                         help="with --randomize-rig: also draw each rig's datasheet gel (120-400 kPa, 2.5-4.5 mm), "
                              "as other GelSight-type sensors have; the records carry it")
@@ -122,6 +127,9 @@ def run(args: argparse.Namespace) -> int:
     if args.limit_objects is not None and args.limit_objects < 1:
         raise SettingsError(f"--limit-objects {args.limit_objects}: expected 1 or more")
     settings = load_settings(args.settings)
+    if args.gel_model is not None:
+        settings = dataclasses.replace(
+            settings, simulation=dataclasses.replace(settings.simulation, gel_model=args.gel_model))
     objects = _chosen(load_catalogue(args.objects), args.only, args.objects)[: args.limit_objects]
     out = Path(args.out)
     try:

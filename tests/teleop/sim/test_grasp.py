@@ -159,3 +159,16 @@ def test_hertz_only_where_it_is_exact(settings):
     with pytest.raises(SimulationError, match="two sensors"):
         simulate_grasp(ball, settings=dataclasses.replace(settings, sensors=settings.sensors[:1]),
                        rng=np.random.default_rng(0))
+
+
+def test_a_half_space_gel_is_another_contact_model_softer_than_the_bonded_layer(settings, grasps):
+    """``gel_model = "half-space"``: the same grasp on an unbounded gel, which the 3 mm bonded layer
+    stiffens; a contact model for testing an estimator beyond the one it was trained on."""
+    half = dataclasses.replace(settings, simulation=dataclasses.replace(settings.simulation, gel_model="half-space"))
+    record, truth = simulate_grasp(FOAM, settings=half, rng=np.random.default_rng(7), seed=7)
+    layered = grasps[FOAM.name][1].curve
+    assert record.provenance.model == "bem-half-space"
+    assert truth.target_force_n == grasps[FOAM.name][1].target_force_n  # the same draws
+    for finger, mechanics in truth.curve.fingers.items():
+        # The same force sinks an unbounded gel deeper than one bonded to a rigid backing 3 mm down.
+        assert mechanics.gel_m[-1] > 1.2 * layered.fingers[finger].gel_m[-1]
