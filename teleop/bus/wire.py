@@ -161,7 +161,10 @@ DTYPES = frozenset(
     for order in ("<", ">")
 )
 
-_HEADER_KEYS = frozenset({"v", "type", "source", "seq", "t_capture_s", "t_send_ns", "buffers"})
+# The header's checked fields (the sender's identity and clocks), checked alike on both ends.
+_HEADER_FIELDS = {"source": TextField(max_chars=64), "seq": IntegerField(), "t_capture_s": NumberField(),
+                  "t_send_ns": IntegerField()}
+_HEADER_KEYS = frozenset({"v", "type", *_HEADER_FIELDS, "buffers"})
 
 
 # --------------------------------------------------------------------------- body schemas
@@ -349,7 +352,7 @@ def make_message(kind: str, *, t_capture_s: float, topic: str | None = None, **b
         Unknown type, or a field missing, extra, mistyped or not finite.
     """
     checked = _sender_body(kind, body)
-    t = NumberField()(t_capture_s, "t_capture_s")
+    t = _HEADER_FIELDS["t_capture_s"](t_capture_s, "t_capture_s")
     return Message(type=kind, body=checked, t_capture_s=t, topic=topic or default_topic(kind, checked))
 
 
@@ -391,10 +394,7 @@ def encode(message: Message, *, max_bytes: int | None = None) -> list[bytes | me
     header = {
         "v": SCHEMA_VERSION,
         "type": message.type,
-        "source": TextField(max_chars=64)(message.source, "source"),
-        "seq": IntegerField()(message.seq, "seq"),
-        "t_capture_s": NumberField()(message.t_capture_s, "t_capture_s"),
-        "t_send_ns": IntegerField()(message.t_send_ns, "t_send_ns"),
+        **{name: check(getattr(message, name), name) for name, check in _HEADER_FIELDS.items()},
         "buffers": [[name, a.dtype.str, list(a.shape)] for name, a in arrays.items()],
     }
     frames: list[bytes | memoryview] = [
@@ -469,10 +469,8 @@ def _check_header(header: dict[str, Any], n_buffers: int) -> dict[str, Any]:
     if set(header) != _HEADER_KEYS:
         raise MessageRejected("bad_header", f"header keys {sorted(map(str, header))}, expected {sorted(_HEADER_KEYS)}")
     try:
-        TextField(max_chars=64)(header["source"], "header.source")
-        IntegerField()(header["seq"], "header.seq")
-        NumberField()(header["t_capture_s"], "header.t_capture_s")
-        IntegerField()(header["t_send_ns"], "header.t_send_ns")
+        for name, check in _HEADER_FIELDS.items():
+            check(header[name], f"header.{name}")
     except MessageRejected as exc:
         reason = "not_finite" if exc.reason == "not_finite" else "bad_header"
         raise MessageRejected(reason, exc.detail) from None

@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import sys
 import time
 from pathlib import Path
 
@@ -34,8 +32,8 @@ from teleop.errors import DeviceTimeoutError, TeleopError
 from teleop.record import Samples
 from teleop.rig.camera_latency import LatencyFit, image_change, measure_latency
 from teleop.rig.gel_corners import CornerFit, draw_corners, find_gel_corners
+from teleop.rig.outcome import conclude, say
 from teleop.settings import SensorSettings, Settings, load_settings
-from teleop.settings_edit import format_changes, update_settings_file
 
 __all__ = ["add_arguments", "no_contact_frame", "record_tap", "run"]
 
@@ -63,10 +61,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --latency: seconds of frames and force recorded around the tap (default: 5.0)")
     parser.add_argument("--json", action="store_true",
                         help="print the result as one JSON object (corners, latency, changes) on stdout")
-
-
-def _say(text: str) -> None:
-    print(text, file=sys.stderr, flush=True)
 
 
 def no_contact_frame(camera: TactileCamera, *, settle_frames: int = SETTLE_FRAMES,
@@ -117,15 +111,15 @@ def _corners(reference: np.ndarray, sensor: SensorSettings, png: Path) -> Corner
     if not cv2.imwrite(str(png), draw_corners(reference, fit)):
         raise TeleopError(f"--out-png {png}: cannot write the overlay PNG there")
     if fit:
-        _say(f"gel corners of finger {sensor.finger!r} (TL, TR, BL, BR; raw px): {fit.as_settings()}; edges "
+        say(f"gel corners of finger {sensor.finger!r} (TL, TR, BL, BR; raw px): {fit.as_settings()}; edges "
              f"straight to {fit.edge_rms_px:.2f} px RMS, {fit.contrast:.0f} levels above the housing")
-        _say(f"check them on {png}")
+        say(f"check them on {png}")
     return fit
 
 
 def _latency(camera: TactileCamera, settings: Settings, duration_s: float) -> LatencyFit:
     with open_load_cell(settings.load_cell) as cell:
-        _say(f"tap the gel of finger {camera.sensor.finger!r} once, firmly, over the load cell, now "
+        say(f"tap the gel of finger {camera.sensor.finger!r} once, firmly, over the load cell, now "
              f"(recording {duration_s:g} s)")
         frames, force = record_tap(camera, cell, duration_s=duration_s)
     change = np.zeros(0)
@@ -134,7 +128,7 @@ def _latency(camera: TactileCamera, settings: Settings, duration_s: float) -> La
         change = image_change((frame.image() for frame in frames), rest)
     fit = measure_latency([f.t_s for f in frames], change, force.t_s, force.value)
     if fit:
-        _say(f"camera latency {fit.latency_s * 1e3:+.1f} ms against the load cell (correlation "
+        say(f"camera latency {fit.latency_s * 1e3:+.1f} ms against the load cell (correlation "
              f"{fit.correlation:.2f}; tap {fit.force_peak_n:.2f} N, image change {fit.change_peak:.1f} levels; "
              f"{len(frames)} frames, {len(force)} force samples)")
     return fit
@@ -175,16 +169,7 @@ def run(args: argparse.Namespace) -> int:
                 changes[f"{key}.camera_latency_s"] = round(sensor.camera_latency_s + fit.latency_s, 4)
             else:
                 refused.append(f"latency: {fit.reason}")
-    written = [] if refused or not changes else update_settings_file(path, changes)
-    report["changes"] = [dataclasses.asdict(c) for c in written]
-    if args.json:
-        print(json.dumps(report))
-    if refused:
-        _say(f"camera refused: {'; '.join(refused)}; {path} not changed")
-        return 1
-    if not args.json:
-        print(format_changes(written))
-    return 0
+    return conclude("camera", path, report=report, changes=changes, refused="; ".join(refused), as_json=args.json)
 
 
 def _jsonable(fit: CornerFit | LatencyFit) -> dict:

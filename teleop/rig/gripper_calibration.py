@@ -26,13 +26,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -40,8 +38,8 @@ from teleop.devices.gripper import Gripper, open_gripper
 from teleop.devices.loadcell import LoadCell, open_load_cell
 from teleop.errors import DeviceError, InvalidCommandError, SettingsError
 from teleop.rig.load_cell_calibration import load_cell_source
+from teleop.rig.outcome import conclude
 from teleop.settings import Settings, load_settings
-from teleop.settings_edit import format_changes, update_settings_file
 
 __all__ = ["Squeeze", "StiffnessFit", "fit_finger_stiffness", "squeeze_reference"]
 
@@ -268,20 +266,11 @@ def run(args: argparse.Namespace) -> int:
         cell.close()
         gripper.close()
     fit = fit_finger_stiffness(squeezes, object_width_m=width_m, max_relative_se=args.max_se_percent / 100)
-    changes = []
-    if fit:
-        changes = update_settings_file(Path(args.settings), {
-            "gripper.finger_stiffness_n_per_m": float(f"{fit.stiffness_n_per_m:.4g}")})
-    if args.json:
-        print(json.dumps({**fit.as_dict(), "squeezes": [dataclasses.asdict(s) for s in squeezes],
-                          "changes": [dataclasses.asdict(c) for c in changes]}))
-    if not fit:
-        print(f"gripper refused: {fit.reason}; {args.settings} not changed", file=sys.stderr)
-        return 1
     spread = ", ".join(f"{k:.4g}" for k in fit.per_repeat_n_per_m)
-    print(f"finger stiffness {fit.stiffness_n_per_m:.4g} +- {fit.stiffness_se_n_per_m:.2g} N/m (standard error; "
-          f"per repeat: {spread}); contact at {fit.contact_width_m * 1e3:.2f} mm, rms miss "
-          f"{fit.residual_m * 1e6:.3g} um", file=sys.stderr)
-    if not args.json:
-        print(format_changes(changes))
-    return 0
+    return conclude(
+        "gripper", args.settings, as_json=args.json, refused=fit.reason,
+        report={**fit.as_dict(), "squeezes": [dataclasses.asdict(s) for s in squeezes]},
+        changes={"gripper.finger_stiffness_n_per_m": float(f"{fit.stiffness_n_per_m:.4g}")} if fit else {},
+        summary=f"finger stiffness {fit.stiffness_n_per_m:.4g} +- {fit.stiffness_se_n_per_m:.2g} N/m (standard error; "
+                f"per repeat: {spread}); contact at {fit.contact_width_m * 1e3:.2f} mm, rms miss "
+                f"{fit.residual_m * 1e6:.3g} um")

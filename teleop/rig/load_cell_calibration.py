@@ -29,20 +29,18 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from teleop.devices.loadcell import LoadCell, open_load_cell
 from teleop.errors import DeviceError, DeviceTimeoutError, SettingsError, TeleopError
+from teleop.rig.outcome import conclude, say
 from teleop.settings import LoadCellSettings, load_settings
-from teleop.settings_edit import format_changes, update_settings_file
 
 __all__ = ["G_M_S2", "Level", "LoadCellFit", "fit_load_cell", "load_cell_source", "read_level", "wait_for_level"]
 
@@ -237,10 +235,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print the result as one JSON object (fit, levels, changes) on stdout")
 
 
-def _say(text: str) -> None:
-    print(text, file=sys.stderr, flush=True)
-
-
 def _interactive_levels(cell: LoadCell, args: argparse.Namespace, ask: Callable[[str], str]) -> list[Level]:
     levels = []
     while True:
@@ -250,31 +244,31 @@ def _interactive_levels(cell: LoadCell, args: argparse.Namespace, ask: Callable[
         try:
             mass_g = float(answer)
         except ValueError:
-            _say(f"not a mass in grams: {answer!r}")
+            say(f"not a mass in grams: {answer!r}")
             continue
         if not mass_g > 0:
-            _say("the mass must be > 0 g")
+            say("the mass must be > 0 g")
             continue
         levels.append(read_level(cell, mass_g, duration_s=args.average_s))
-        _say(f"{mass_g:g} g: {levels[-1].mean_counts:.1f} counts")
+        say(f"{mass_g:g} g: {levels[-1].mean_counts:.1f} counts")
 
 
 def _measure(cell: LoadCell, args: argparse.Namespace, ask: Callable[[str], str]) -> tuple[Level, list[Level]]:
     if args.mass_g is None:
         ask("Remove everything from the cell and press Enter: ")
     tare = read_level(cell, 0.0, duration_s=args.average_s)
-    _say(f"tare: {tare.mean_counts:.1f} counts (std {tare.std_counts:.1f}, {tare.n} readings)")
+    say(f"tare: {tare.mean_counts:.1f} counts (std {tare.std_counts:.1f}, {tare.n} readings)")
     if args.mass_g is None:
         return tare, _interactive_levels(cell, args, ask)
     threshold = max(DEPART_SIGMA * tare.std_counts, DEPART_MIN_COUNTS)
     levels, previous = [], tare
     for mass_g in args.mass_g:
-        _say(f"place {mass_g:g} g on the cell")
+        say(f"place {mass_g:g} g on the cell")
         wait_for_level(cell, previous, threshold, timeout_s=args.place_timeout_s)
         time.sleep(args.settle_s)
         previous = read_level(cell, mass_g, duration_s=args.average_s)
         levels.append(previous)
-        _say(f"{mass_g:g} g: {previous.mean_counts:.1f} counts (std {previous.std_counts:.1f})")
+        say(f"{mass_g:g} g: {previous.mean_counts:.1f} counts (std {previous.std_counts:.1f})")
     return tare, levels
 
 
@@ -293,20 +287,10 @@ def run(args: argparse.Namespace, *, ask: Callable[[str], str] = input) -> int:
         raise SettingsError("no mass was measured: at least one known mass is needed")
     fit = fit_load_cell(tare, levels, max_residual_fraction=args.max_residual_percent / 100,
                         max_noise_fraction=args.max_noise_percent / 100)
-    changes = []
-    if fit:
-        changes = update_settings_file(Path(args.settings), {
-            "load_cell.tare_counts": round(fit.tare_counts),
-            "load_cell.counts_per_n": float(f"{fit.counts_per_n:.6g}"),
-        })
-    if args.json:
-        print(json.dumps({**fit.as_dict(), "changes": [dataclasses.asdict(c) for c in changes]}))
-    if not fit:
-        _say(f"load cell refused: {fit.reason}; {args.settings} not changed")
-        return 1
     note = " (one mass: linearity not checked)" if len(levels) == 1 else ""
-    _say(f"counts per N {fit.counts_per_n:.6g}, tare {fit.tare_counts:.1f} counts; residual {fit.residual_n:.3g} N "
-         f"({100 * fit.residual_fraction:.2g} % of {fit.full_scale_n:.3g} N){note}; noise {fit.noise_n:.2g} N")
-    if not args.json:
-        print(format_changes(changes))
-    return 0
+    return conclude("load cell", args.settings, report=fit.as_dict(), as_json=args.json, refused=fit.reason,
+                    changes={"load_cell.tare_counts": round(fit.tare_counts),
+                             "load_cell.counts_per_n": float(f"{fit.counts_per_n:.6g}")} if fit else {},
+                    summary=f"counts per N {fit.counts_per_n:.6g}, tare {fit.tare_counts:.1f} counts; residual "
+                            f"{fit.residual_n:.3g} N ({100 * fit.residual_fraction:.2g} % of {fit.full_scale_n:.3g} "
+                            f"N){note}; noise {fit.noise_n:.2g} N")
