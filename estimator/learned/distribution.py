@@ -60,6 +60,7 @@ __all__ = [
     "censor",
     "conformal_scale",
     "describe",
+    "describe_on_gel",
     "fit_temperature",
     "interval_score",
     "probabilities",
@@ -221,3 +222,20 @@ def describe(probs: np.ndarray, *, scale: float, limit_pa: float, soft_pa: float
     if high > math.log10(CENSOR_PA):  # the censored value stands for anything stiffer
         high = LOG10_E_RANGE[1]
     return Described("ok", 10.0 ** median, 10.0 ** max(low, LOG10_E_RANGE[0] - 1.0), 10.0 ** high, p_above)
+
+
+def describe_on_gel(probs: np.ndarray, *, scale: float, limit_pa: float, soft_pa: float, p_rigid: float,
+                    gel_scale: float) -> Described:
+    """The estimate of one distribution (N_BINS,) over the reference gel's moduli for a grasp on a gel
+    of :func:`~estimator.learned.inputs.gel_scale` ``gel_scale``, in that gel's moduli: what the
+    estimator answers, and what calibration scores.
+
+    ``limit_pa`` is the settings' resolution limit (Pa, the measuring gel's moduli), taken onto the
+    reference gel and at most :data:`CENSOR_PA` there; ``soft_pa`` the softest modulus the model
+    resolves on the reference gel, at most a tenth of that limit. ``scale`` and ``p_rigid`` as
+    :func:`describe`.
+    """
+    limit_ref_pa = min(limit_pa * gel_scale, CENSOR_PA)
+    said = describe(probs, scale=scale, limit_pa=limit_ref_pa, soft_pa=min(soft_pa, limit_ref_pa / 10.0),
+                    p_rigid=p_rigid)
+    return said.divided(gel_scale)

@@ -14,8 +14,18 @@ figure was seen, for about 15 grasps of 5 objects:
 * AdamW at ``lr`` (3e-4, a seventh of training's), cosine decay over ``epochs``
   (20) with no early stopping (:data:`FINE_TUNE_CONFIG`), the flips and label
   jitter of ``estimator train``.
-* The calibration (temperature, rigid probability, interval scale) and the
-  hybrid's policy stay the base model's: a few grasps cannot recalibrate them.
+* Without ``replay``, the calibration (temperature, rigid probability, interval
+  scale) and the hybrid's policy stay the base model's: a few grasps cannot
+  recalibrate them.
+* With ``replay`` (a ``build-dataset`` directory of the base model's own
+  training data, such as ``make model`` writes), rehearsal keeps what the model
+  knew: every epoch trains on the new samples plus ``replay_ratio`` times as
+  many (1: chosen on the soft-gel Wedge validation rig among 1, 4 and 16) drawn
+  afresh from the replay dataset's train split, and the intervals
+  are then recalibrated (:func:`~estimator.learned.train.calibrate`) on its
+  validation objects that fine-tuning did not train on. Its train objects must
+  be the base model's train objects, so that nothing the base model held out
+  is trained on.
 
 The fine-tuned model's metadata lists the fine-tuning objects among its train
 objects (and no longer among its val or test objects), so ``estimator evaluate
@@ -27,6 +37,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import time
 from dataclasses import asdict
 from datetime import UTC, datetime
@@ -39,23 +50,28 @@ from torch import nn
 from tqdm import tqdm
 
 from estimator.errors import EstimatorError
-from estimator.learned.dataset import SPLITS, load_manifest, load_split
+from estimator.learned.dataset import SPLITS, load_split
 from estimator.learned.export import export_onnx, network_from_onnx
 from estimator.learned.infer import ModelMetadata
+from estimator.learned.inputs import Variant
 from estimator.learned.model import ComplianceNet
 from estimator.learned.train import (
     SplitData,
     TrainConfig,
-    dataset_window,
+    calibrate,
+    check_dataset_fits,
     load_split_data,
+    predict,
     train_epoch,
 )
 
-__all__ = ["FINE_TUNE_CONFIG", "fine_tune"]
+__all__ = ["FINE_TUNE_CONFIG", "REPLAY_RATIO", "fine_tune"]
 
 log = logging.getLogger(__name__)
 
 FINE_TUNE_CONFIG = TrainConfig(epochs=20, batch_size=16, lr=3e-4)
+#: Replayed base-training samples per new sample in every epoch (module notes).
+REPLAY_RATIO = 1
 
 
 def _joined(parts: list[SplitData]) -> SplitData:
@@ -64,6 +80,25 @@ def _joined(parts: list[SplitData]) -> SplitData:
         return SplitData({}, np.zeros(0, np.float32), [])
     return SplitData({n: np.concatenate([p.inputs[n] for p in parts]) for n in parts[0].inputs},
                      np.concatenate([p.label for p in parts]), [r for p in parts for r in p.rows])
+
+
+def _replay_data(replay_dir: Path, variant: Variant, base: dict[str, Any], added: set[str]
+                 ) -> tuple[SplitData, SplitData]:
+    """The replay dataset's train split and the live samples of its val objects not in ``added``."""
+    check_dataset_fits(replay_dir, variant, (base.get("data") or {}).get("measurement_version"))
+    trained_on = set(((base.get("data") or {}).get("objects") or {}).get("train") or [])
+    split = load_split(replay_dir / "split.json")
+    foreign = sorted(set(split["train"]) - trained_on)
+    if foreign:
+        raise EstimatorError(f"{replay_dir}: train objects the base model did not train on ({', '.join(foreign[:5])}"
+                             f"{', ...' if len(foreign) > 5 else ''}): replay the base model's own training data")
+    parts = load_split_data(replay_dir, variant, ("train", "val"))
+    val = parts["val"].live()
+    val = val.subset(np.array([r["object"] not in added for r in val.rows], dtype=bool))
+    if not len(parts["train"]) or not len(val):
+        raise EstimatorError(f"{replay_dir}: {len(parts['train'])} train and {len(val)} val samples to replay and "
+                             "recalibrate on; both are needed")
+    return parts["train"], val
 
 
 def _freeze_batch_norm(model: ComplianceNet) -> None:
@@ -80,8 +115,12 @@ def _objects_after(base: dict[str, Any], added: set[str]) -> dict[str, list[str]
 
 
 def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, *,
-              config: TrainConfig = FINE_TUNE_CONFIG, progress: bool = True) -> dict[str, Any]:
+              config: TrainConfig = FINE_TUNE_CONFIG, replay: str | Path | None = None,
+              replay_ratio: float = REPLAY_RATIO, progress: bool = True) -> dict[str, Any]:
     """Fine-tune the model in ``model_dir`` on every sample in ``data_dir``; write it to ``out_dir``.
+
+    ``replay`` names the base model's training dataset to rehearse and recalibrate on, ``replay_ratio``
+    (> 0) how many of its samples each epoch adds per new sample (module notes).
 
     Returns the new model's metadata (module notes).
 
@@ -89,7 +128,8 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     ------
     EstimatorError
         The dataset is empty, was measured by other code than the model's training data, or its
-        window, frames or image size differ from the model's.
+        window, frames or image size differ from the model's; the replay dataset likewise, or it
+        trains on objects the base model did not.
     ModelError
         The model cannot be read or rebuilt.
     """
@@ -98,22 +138,14 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     meta_path = model_dir / "metadata.json"
     metadata = ModelMetadata.from_json(json.loads(meta_path.read_text()), str(meta_path))
     variant, base = metadata.variant, dict(metadata.raw)
-    manifest = load_manifest(data_dir)
-    version = (base.get("data") or {}).get("measurement_version")
-    if manifest.get("measurement_version") != version:
-        raise EstimatorError(f"{data_dir} was measured by measurement version {manifest.get('measurement_version')}, "
-                             f"the model's training data by {version}: rebuild the dataset with this code")
-    window = dataset_window(manifest, str(data_dir))
-    if not np.allclose(window, variant.window_m, rtol=1e-9, atol=0.0):
-        raise EstimatorError(f"{data_dir} holds images of a {window[0]:.6g} x {window[1]:.6g} m window, the model "
-                             f"reads {variant.window_m[0]:.6g} x {variant.window_m[1]:.6g} m: build the dataset with "
-                             f"--window {variant.window_m[0] * 1e3:.2f}x{variant.window_m[1] * 1e3:.2f}")
-    if (manifest["n_frames"], tuple(manifest["size_px"])) != (variant.n_frames, variant.size_px):
-        raise EstimatorError(f"{data_dir} holds {manifest['n_frames']} frames of {manifest['size_px']} px per sample, "
-                             f"the model reads {variant.n_frames} of {list(variant.size_px)}")
+    check_dataset_fits(data_dir, variant, (base.get("data") or {}).get("measurement_version"))
+    if not (math.isfinite(replay_ratio) and replay_ratio > 0):
+        raise EstimatorError(f"replay_ratio {replay_ratio!r}: expected a finite value > 0")
     data = _joined(list(load_split_data(data_dir, variant).values()))
     if len(data) < 2:
         raise EstimatorError(f"{data_dir}: {len(data)} samples; fine-tuning needs at least 2")
+    added = {r["object"] for r in data.rows}
+    replayed, recalibrate_on = (None, None) if replay is None else _replay_data(Path(replay), variant, base, added)
     torch.use_deterministic_algorithms(True)
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
@@ -126,22 +158,33 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     for epoch in tqdm(range(1, config.epochs + 1), desc="fine-tune", unit="epoch", disable=not progress):
         model.train()
         _freeze_batch_norm(model)
-        history.append({"epoch": epoch, "train_loss": train_epoch(model, data, optimiser, config, rng)})
+        epoch_data = data
+        if replayed is not None:
+            drawn = rng.choice(len(replayed), size=min(len(replayed), round(replay_ratio * len(data))), replace=False)
+            epoch_data = _joined([data, replayed.subset(np.sort(drawn))])
+        history.append({"epoch": epoch, "train_loss": train_epoch(model, epoch_data, optimiser, config, rng)})
         scheduler.step()
     model.eval()
     out_dir.mkdir(parents=True, exist_ok=True)
     export_onnx(model, out_dir / "model.onnx", example={n: v[:8] for n, v in data.inputs.items()})
-    added = {r["object"] for r in data.rows}
+    calibration = base["calibration"]
+    if recalibrate_on is not None:
+        calibration = {**calibrate(predict(model, recalibrate_on), recalibrate_on.label,
+                                   gel_scales=recalibrate_on.gel_scales, soft_pa=calibration["soft_pa"],
+                                   limit_pa=calibration["limit_pa"], level=calibration["level"]),
+                       "chosen_on": f"val of {replay}"}
     grasps = {(r["object"], Path(r["path"]).name.rsplit("_a", 1)[0]) for r in data.rows}
     new = {
         **base,
         "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
+        "calibration": calibration,
         "metrics": {},  # the base model's figures no longer describe this one: score it with `evaluate`
         "data": {**base["data"], "objects": _objects_after(base["data"].get("objects") or {}, added)},
         "fine_tuning": {
             "base": str(model_dir), "base_created_utc": base.get("created_utc"), "data": str(data_dir),
             "objects": sorted(added), "grasps": len(grasps), "samples": len(data),
             "split_of_data": {k: sorted(v) for k, v in load_split(data_dir / "split.json").items()},
+            "replay": None if replay is None else {"data": str(replay), "ratio": replay_ratio},
             "config": asdict(config), "seconds": time.perf_counter() - started, "history": history,
         },
     }

@@ -7,7 +7,7 @@ import argparse
 import json
 from dataclasses import replace
 
-from estimator.learned.finetune import FINE_TUNE_CONFIG, fine_tune
+from estimator.learned.finetune import FINE_TUNE_CONFIG, REPLAY_RATIO, fine_tune
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -20,6 +20,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", required=True, metavar="MODEL_DIR", help="the model to start from")
     parser.add_argument("--data", required=True, metavar="DIR", help="directory written by `estimator build-dataset`")
     parser.add_argument("--out", required=True, metavar="MODEL_DIR", help="directory for the fine-tuned model")
+    parser.add_argument("--replay", metavar="DIR",
+                        help="the base model's training dataset (build-dataset directory, as `make model` writes): "
+                             "rehearse it while fine-tuning, then recalibrate the intervals on its val objects")
+    parser.add_argument("--replay-ratio", type=float, default=REPLAY_RATIO,
+                        help="replayed samples per new sample in each epoch (with --replay)")
     parser.add_argument("--epochs", type=int, default=FINE_TUNE_CONFIG.epochs, help="epochs (no early stopping)")
     parser.add_argument("--lr", type=float, default=FINE_TUNE_CONFIG.lr, help="AdamW learning rate (cosine decay)")
     parser.add_argument("--batch-size", type=int, default=FINE_TUNE_CONFIG.batch_size, help="samples per step")
@@ -30,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     config = replace(FINE_TUNE_CONFIG, epochs=args.epochs, lr=args.lr, batch_size=args.batch_size, seed=args.seed)
-    meta = fine_tune(args.model, args.data, args.out, config=config)
+    meta = fine_tune(args.model, args.data, args.out, config=config, replay=args.replay,
+                     replay_ratio=args.replay_ratio)
     tuned = meta["fine_tuning"]
     summary = {"out": str(args.out), "objects": tuned["objects"], "grasps": tuned["grasps"],
                "samples": tuned["samples"], "seconds": tuned["seconds"],

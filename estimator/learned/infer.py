@@ -47,7 +47,7 @@ import onnxruntime as ort
 
 from estimator.errors import ModelError
 from estimator.learned import distribution, inputs
-from estimator.learned.distribution import Described, describe, probabilities
+from estimator.learned.distribution import Described, describe_on_gel, probabilities
 from estimator.learned.inputs import (
     MEASUREMENT_VERSION,
     ModelInputs,
@@ -258,8 +258,8 @@ class CompliancePredictor:
     def describe(self, probs: np.ndarray, *, limit_pa: float, widen: float = 1.0, gel_scale: float = 1.0
                  ) -> Described:
         """State, value and calibrated interval of one item's distribution, bounded above at the
-        sensor's resolution limit ``limit_pa`` (:func:`~estimator.learned.distribution.describe`; a
-        limit above the model's :data:`~estimator.learned.distribution.CENSOR_PA` is taken there).
+        sensor's resolution limit ``limit_pa`` (:func:`~estimator.learned.distribution.describe_on_gel`,
+        as calibration scores it).
         ``widen`` (>= 1) multiplies the calibrated interval scale (a grasp outside the training
         range: :func:`~estimator.learned.window.input_range`); bounds are not moved by it.
         ``gel_scale`` is the item's :func:`~estimator.learned.inputs.gel_scale`: the distribution
@@ -268,11 +268,8 @@ class CompliancePredictor:
             raise ModelError(f"widen {widen!r}: expected a finite factor >= 1")
         if not (math.isfinite(gel_scale) and gel_scale > 0):
             raise ModelError(f"gel_scale {gel_scale!r}: expected a finite factor > 0")
-        limit_pa = min(limit_pa * gel_scale, distribution.CENSOR_PA)
-        soft_pa = min(self.metadata.soft_pa, limit_pa / 10.0)
-        said = describe(probs, scale=self.metadata.interval_scale * widen, limit_pa=limit_pa, soft_pa=soft_pa,
-                        p_rigid=self.metadata.p_rigid)
-        return said.divided(gel_scale)
+        return describe_on_gel(probs, scale=self.metadata.interval_scale * widen, limit_pa=limit_pa,
+                               soft_pa=self.metadata.soft_pa, p_rigid=self.metadata.p_rigid, gel_scale=gel_scale)
 
 
 def load_predictor(model_dir: str | Path | None = None, *, settings: Settings | None = None,

@@ -66,7 +66,7 @@ from estimator.learned.dataset import SPLITS, load_manifest, load_split
 from estimator.learned.distribution import (
     censor,
     conformal_scale,
-    describe,
+    describe_on_gel,
     fit_temperature,
     interval_score,
     probabilities,
@@ -92,7 +92,8 @@ from estimator.samples import TrainingSample, load_sample, sample_paths
 from haptics.settings import display_settings
 from teleop.settings import Settings, load_settings
 
-__all__ = ["SplitData", "TrainConfig", "load_split_data", "train_model"]
+__all__ = ["SplitData", "TrainConfig", "calibrate", "check_dataset_fits", "load_split_data", "predict", "split_metrics",
+           "train_model"]
 
 log = logging.getLogger(__name__)
 
@@ -137,11 +138,20 @@ class SplitData:
     def __len__(self) -> int:
         return int(self.label.shape[0])
 
+    @property
+    def gel_scales(self) -> np.ndarray:
+        """Each sample's :func:`~estimator.learned.inputs.gel_scale` (n,)."""
+        return np.array([r["gel_scale"] for r in self.rows], dtype=np.float64)
+
+    def subset(self, index: np.ndarray) -> SplitData:
+        """The samples at ``index`` (positions, or a boolean mask)."""
+        index = np.flatnonzero(index) if np.asarray(index).dtype == bool else np.asarray(index, dtype=np.int64)
+        return SplitData({k: v[index] for k, v in self.inputs.items()}, self.label[index],
+                         [self.rows[i] for i in index])
+
     def live(self) -> SplitData:
         """The samples of the live sampling (augmentation 0): one per grasp, as the estimator sees it."""
-        keep = np.array([r["augmentation"] == 0 for r in self.rows], dtype=bool)
-        return SplitData({k: v[keep] for k, v in self.inputs.items()}, self.label[keep],
-                         [r for r, k in zip(self.rows, keep, strict=True) if k])
+        return self.subset(np.array([r["augmentation"] == 0 for r in self.rows], dtype=bool))
 
 
 def _row(sample: TrainingSample, path: Path) -> dict[str, Any]:
@@ -165,8 +175,8 @@ def rig_range(rows: Sequence[dict[str, Any]]) -> dict[str, list[float]]:
     return out
 
 
-def load_split_data(data_dir: str | Path, variant: Variant) -> dict[str, SplitData]:
-    """Encode every sample of a ``build-dataset`` directory, per split.
+def load_split_data(data_dir: str | Path, variant: Variant, splits: Sequence[str] = SPLITS) -> dict[str, SplitData]:
+    """Encode every sample of ``splits`` of a ``build-dataset`` directory, per split.
 
     Raises
     ------
@@ -177,7 +187,7 @@ def load_split_data(data_dir: str | Path, variant: Variant) -> dict[str, SplitDa
     data_dir = Path(data_dir)
     split = load_split(data_dir / "split.json")
     out = {}
-    for name in SPLITS:
+    for name in splits:
         allowed = set(split[name])
         directory = data_dir / name
         paths = sample_paths(directory) if directory.is_dir() else []
@@ -242,7 +252,7 @@ def train_epoch(model: ComplianceNet, data: SplitData, optimiser: torch.optim.Op
     return total / len(data)
 
 
-def _predict(model: ComplianceNet, data: SplitData, batch_size: int = 256) -> np.ndarray:
+def predict(model: ComplianceNet, data: SplitData, batch_size: int = 256) -> np.ndarray:
     """Logits (n, N_BINS) of every sample of ``data``."""
     model.eval()
     names = list(model.variant.input_shapes)
@@ -259,17 +269,25 @@ def _mean_log10_error(logits: np.ndarray, label: np.ndarray) -> float:
     return float(np.mean(np.abs(quantile(probabilities(logits), 0.5) - label)))
 
 
-def _described(logits: np.ndarray, calibration: dict[str, Any]) -> list[distribution.Described]:
+def _described(logits: np.ndarray, calibration: dict[str, Any], gel_scales: np.ndarray
+               ) -> list[distribution.Described]:
     """What each distribution says under ``calibration`` (temperature, interval_scale, soft_pa,
-    limit_pa, p_rigid)."""
+    limit_pa, p_rigid) for grasps on gels of ``gel_scales``, in their gels' moduli: exactly what the
+    estimator answers (:meth:`~estimator.learned.infer.CompliancePredictor.describe`)."""
     probs = probabilities(logits, temperature=calibration["temperature"])
-    return [describe(p, scale=calibration["interval_scale"], limit_pa=calibration["limit_pa"],
-                     soft_pa=calibration["soft_pa"], p_rigid=calibration["p_rigid"]) for p in probs]
+    return [describe_on_gel(p, scale=calibration["interval_scale"], limit_pa=calibration["limit_pa"],
+                            soft_pa=calibration["soft_pa"], p_rigid=calibration["p_rigid"], gel_scale=float(g))
+            for p, g in zip(probs, gel_scales, strict=True)]
 
 
-def calibrate(logits: np.ndarray, log10_truth: np.ndarray, *, soft_pa: float, limit_pa: float,
-              level: float = INTERVAL_LEVEL) -> dict[str, Any]:
+def calibrate(logits: np.ndarray, log10_truth: np.ndarray, *, gel_scales: np.ndarray, soft_pa: float,
+              limit_pa: float, level: float = INTERVAL_LEVEL) -> dict[str, Any]:
     """The run-time calibration fitted on validation grasps (module notes), with what it scores there.
+
+    ``log10_truth`` are the labels on the reference gel, ``gel_scales`` each grasp's
+    :func:`~estimator.learned.inputs.gel_scale`, ``soft_pa`` the softest training label on the
+    reference gel and ``limit_pa`` the resolution limit of the settings the estimator runs with (Pa):
+    each grasp is answered as the estimator would answer it (:func:`_described`).
 
     The temperature minimises the log score of the censored truths; ``p_rigid`` is the smallest of
     :data:`P_RIGID_CHOICES` at which the lower bounds hold on at least ``level`` of the grasps they
@@ -281,18 +299,19 @@ def calibrate(logits: np.ndarray, log10_truth: np.ndarray, *, soft_pa: float, li
     ``limit_pa`` (the resolution limit it was fitted at), ``chosen_on`` and the validation figures:
     ``n``, ``n_ok``, ``ok_coverage`` (share of ``ok`` intervals holding the truth), ``bound_coverage``
     (share of bounds the truth satisfies) and ``coverage`` (all of them)."""
-    truth_pa = 10.0 ** log10_truth
+    gel_scales = np.asarray(gel_scales, dtype=np.float64)
+    truth_pa = 10.0 ** np.asarray(log10_truth, dtype=np.float64) / gel_scales
     temperature = fit_temperature(logits, censor(log10_truth))
     calibration = {"temperature": temperature, "p_rigid": P_RIGID_CHOICES[-1], "level": level,
                    "interval_scale": 1.0, "soft_pa": soft_pa, "limit_pa": limit_pa, "chosen_on": "val"}
     for p_rigid in P_RIGID_CHOICES:
-        said = _described(logits, {**calibration, "p_rigid": p_rigid})
+        said = _described(logits, {**calibration, "p_rigid": p_rigid}, gel_scales)
         bounds = [_holds(d, t) for d, t in zip(said, truth_pa, strict=True) if d.state != "ok"]
         if not bounds or np.mean(bounds) >= level:
             calibration["p_rigid"] = p_rigid
             break
     probs = probabilities(logits, temperature=temperature)
-    said = _described(logits, calibration)
+    said = _described(logits, calibration, gel_scales)
     ok = np.array([d.state == "ok" for d in said])
     bounds_held = sum(_holds(d, t) for d, t, o in zip(said, truth_pa, ok, strict=True) if not o)
     # Split conformal over all grasps: the ok intervals must hold what the bounds leave to reach level.
@@ -306,7 +325,8 @@ def calibrate(logits: np.ndarray, log10_truth: np.ndarray, *, soft_pa: float, li
                     "takes the widest of them (%.2f spreads): add validation objects", ok.sum(), 100 * ok_level,
                     scale)
     calibration.update(interval_scale=scale, ok_level=ok_level)
-    held = np.array([_holds(d, t) for d, t in zip(_described(logits, calibration), truth_pa, strict=True)])
+    held = np.array([_holds(d, t) for d, t in zip(_described(logits, calibration, gel_scales), truth_pa,
+                                                              strict=True)])
     calibration.update(n=int(held.size), n_ok=int(ok.sum()),
                        ok_coverage=float(held[ok].mean()) if ok.any() else None,
                        bound_coverage=float(held[~ok].mean()) if (~ok).any() else None,
@@ -322,8 +342,7 @@ def _rows(data: SplitData, logits: np.ndarray, method: str, calibration: dict[st
           ) -> list[dict[str, Any]]:
     """evaluate-style rows: the model's calibrated estimate and each analytical estimate, per sample."""
     rows = []
-    for row, said in zip(data.rows, _described(logits, calibration), strict=True):
-        said = said.divided(row["gel_scale"])
+    for row, said in zip(data.rows, _described(logits, calibration, data.gel_scales), strict=True):
         base = {k: row[k] for k in ("object", "material", "shape", "truth_pa")}
         rows.append({**base, "method": method, "state": said.state, "e_pa": said.e_pa, "low_pa": said.low_pa,
                      "high_pa": said.high_pa})
@@ -334,8 +353,10 @@ def _rows(data: SplitData, logits: np.ndarray, method: str, calibration: dict[st
     return rows
 
 
-def _metrics(data: SplitData, logits: np.ndarray, method: str, calibration: dict[str, Any],
-             settings: Settings) -> dict[str, Any]:
+def split_metrics(data: SplitData, logits: np.ndarray, method: str, calibration: dict[str, Any],
+                  settings: Settings) -> dict[str, Any]:
+    """The model's figures on ``data`` (its calibrated answers, as ``estimator evaluate`` scores them) beside
+    the analytical methods' on the same grasps."""
     if not len(data):
         return {}
     display = (display_settings(settings).e_soft_pa, display_settings(settings).e_rigid_pa)
@@ -421,7 +442,7 @@ def _fit(train: SplitData, val: SplitData, variant: Variant, config: TrainConfig
         model.train()
         total = train_epoch(model, train, optimiser, config, rng)
         scheduler.step()
-        train_pred, val_pred = _predict(model, train), _predict(model, val)
+        train_pred, val_pred = predict(model, train), predict(model, val)
         with torch.no_grad():
             val_loss = float(distribution_loss(torch.from_numpy(val_pred), torch.from_numpy(val_label)))
         entry = {"epoch": epoch, "train_loss": total, "val_loss": val_loss,
@@ -446,6 +467,22 @@ def dataset_window(manifest: dict[str, Any], where: str) -> tuple[float, float]:
         log.info("%s: the manifest records no window_m; its images show the pad of the default sensor "
                  "(the simulated Wedge, %.2f x %.2f mm)", where, *(v * 1e3 for v in window))
     return (float(window[0]), float(window[1]))
+
+
+def check_dataset_fits(data_dir: Path, variant: Variant, version: Any) -> None:
+    """Refuse a dataset measured by other code, or of another window, frame count or image size than ``variant``."""
+    manifest = load_manifest(data_dir)
+    if manifest.get("measurement_version") != version:
+        raise EstimatorError(f"{data_dir} was measured by measurement version {manifest.get('measurement_version')}, "
+                             f"the model's training data by {version}: rebuild the dataset with this code")
+    window = dataset_window(manifest, str(data_dir))
+    if not np.allclose(window, variant.window_m, rtol=1e-9, atol=0.0):
+        raise EstimatorError(f"{data_dir} holds images of a {window[0]:.6g} x {window[1]:.6g} m window, the model "
+                             f"reads {variant.window_m[0]:.6g} x {variant.window_m[1]:.6g} m: build the dataset with "
+                             f"--window {variant.window_m[0] * 1e3:.2f}x{variant.window_m[1] * 1e3:.2f}")
+    if (manifest["n_frames"], tuple(manifest["size_px"])) != (variant.n_frames, variant.size_px):
+        raise EstimatorError(f"{data_dir} holds {manifest['n_frames']} frames of {manifest['size_px']} px per sample, "
+                             f"the model reads {variant.n_frames} of {list(variant.size_px)}")
 
 
 def train_model(
@@ -498,11 +535,11 @@ def train_model(
     out_dir.mkdir(parents=True, exist_ok=True)
     example = {n: val.inputs[n][:8] if len(val) >= 2 else train.inputs[n][:8] for n in names}
     export_onnx(model, out_dir / "model.onnx", example=example)
-    val_pred = _predict(model, val)
+    val_pred = predict(model, val)
     # In the reference gel's moduli, as the network's labels.
     soft_pa = float(min(r["truth_pa"] * r["gel_scale"] for r in train.rows))
-    limit_pa = settings.resolution_limit_pa * gel_scale(settings.sensor(settings.sensing.finger).gel_modulus_pa)
-    calibration = calibrate(val_pred, val.label, soft_pa=soft_pa, limit_pa=limit_pa)
+    calibration = calibrate(val_pred, val.label, gel_scales=val.gel_scales, soft_pa=soft_pa,
+                            limit_pa=settings.resolution_limit_pa)
     metadata = {
         "format": MODEL_FORMAT,
         "version": MODEL_VERSION,
@@ -516,7 +553,7 @@ def train_model(
         "reference": {"record": REFERENCE_RECORD.name,
                       "inputs": summarise_inputs(reference_inputs(variant, settings=settings))},
         "auto": _auto_policy(val, val_pred),
-        "metrics": {name: _metrics(part, _predict(model, part), variant.method, calibration, settings)
+        "metrics": {name: split_metrics(part, predict(model, part), variant.method, calibration, settings)
                     for name, part in (("val", val), ("test", data["test"].live()))},
         "training": {**asdict(config), "epochs_run": len(fitted.history), "best_epoch": fitted.best_epoch,
                      "best_val_loss": fitted.best_val_loss, "seconds": time.perf_counter() - started,

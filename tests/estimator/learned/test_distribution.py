@@ -152,7 +152,8 @@ def test_calibrate_picks_the_rigid_threshold_and_a_scale_that_hold_on_the_valida
 
     # Right about the class, scattered 0.2 decade within it: the bounds hold at the first choice.
     right = np.concatenate([soft + rng.normal(0, 0.2, soft.size), np.full(rigid.size, 8.05)])
-    cal = calibrate(logits_of(right), truth, soft_pa=SOFT_PA, limit_pa=LIMIT_PA)
+    cal = calibrate(logits_of(right), truth, gel_scales=np.ones(truth.size), soft_pa=SOFT_PA,
+                    limit_pa=LIMIT_PA)
     assert cal["p_rigid"] == P_RIGID_CHOICES[0] and cal["bound_coverage"] >= 0.9 and cal["chosen_on"] == "val"
     assert cal["n"] == truth.size and cal["n_ok"] >= 0.95 * soft.size
     assert cal["interval_scale"] > 0 and cal["temperature"] > 0
@@ -163,7 +164,8 @@ def test_calibrate_picks_the_rigid_threshold_and_a_scale_that_hold_on_the_valida
     # taken and the shortfall is reported, not hidden.
     wrong = right.copy()
     wrong[:40] = 8.05
-    cal = calibrate(logits_of(wrong), truth, soft_pa=SOFT_PA, limit_pa=LIMIT_PA)
+    cal = calibrate(logits_of(wrong), truth, gel_scales=np.ones(truth.size), soft_pa=SOFT_PA,
+                    limit_pa=LIMIT_PA)
     assert cal["p_rigid"] == P_RIGID_CHOICES[-1] and cal["bound_coverage"] < 0.9
     # The ok intervals make up for the failed bounds.
     assert cal["ok_level"] > 0.9 and cal["ok_coverage"] >= cal["ok_level"] - 0.01 and cal["coverage"] >= 0.9

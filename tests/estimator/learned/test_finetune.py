@@ -25,24 +25,29 @@ def _variant(trained_model) -> Variant:
     return CompliancePredictor(trained_model).variant
 
 
-def _relabelled(source, out, factor: float):
-    """A copy of dataset ``source`` whose labels are ``factor`` times the originals (a rig that reads differently)."""
+def _relabelled(source, out, factor: float, only=None):
+    """A copy of dataset ``source`` whose labels are ``factor`` times the originals (a rig that reads
+    differently), of the objects in ``only`` (all when None)."""
     for path in sample_paths(source):
+        sample = load_sample(path)
+        if only is not None and sample.object_name not in only:
+            continue
         target = out / path.relative_to(source)
         target.parent.mkdir(parents=True, exist_ok=True)
-        sample = load_sample(path)
         save_sample(replace(sample, label_modulus_pa=sample.label_modulus_pa * factor), target)
     for name in ("dataset.json", "split.json"):
         (out / name).write_text((source / name).read_text())
     return out
 
 
-def _mean_error_decades(model_dir, data_dir) -> float:
-    """Mean |median - label| (decades) over the samples labelled below the censoring modulus (the
-    rigid labels are censored there, so a tenfold label says nothing new about them)."""
+def _mean_error_decades(model_dir, data_dir, splits=("train", "val", "test")) -> float:
+    """Mean |median - label| (decades) over the samples of ``splits`` labelled below the censoring
+    modulus (the rigid labels are censored there, so a tenfold label says nothing new about them)."""
     predictor = CompliancePredictor(model_dir)
     errors = []
-    for part in load_split_data(data_dir, predictor.variant).values():
+    for name, part in load_split_data(data_dir, predictor.variant).items():
+        if name not in splits:
+            continue
         keep = part.label < np.log10(CENSOR_PA)
         if keep.any():
             probs = probabilities(predictor.predict_logits(part.inputs))[keep]
@@ -77,6 +82,41 @@ def test_fine_tuning_moves_the_model_towards_the_new_rigs_labels(trained_model, 
     base = json.loads((trained_model / "metadata.json").read_text())
     assert meta["calibration"] == base["calibration"] and meta["variant"] == base["variant"]
     assert CompliancePredictor(tmp_path / "tuned").metadata.interval_level == 0.9
+
+
+@pytest.mark.slow
+def test_replay_keeps_what_the_model_knew_and_recalibrates(trained_model, synthetic, synthetic_dataset, tmp_path):
+    trained_on = json.loads((trained_model / "metadata.json").read_text())["data"]["objects"]["train"]
+    new_rig = _relabelled(synthetic.write_dataset(tmp_path / "d", seed=3), tmp_path / "new_rig", factor=10.0,
+                          only=trained_on)
+    plain = fine_tune(trained_model, new_rig, tmp_path / "plain", config=QUICK, progress=False)
+    meta = fine_tune(trained_model, new_rig, tmp_path / "replayed", config=QUICK, replay=synthetic_dataset,
+                     replay_ratio=4, progress=False)
+    # Objects the base model held out, under their own labels: rehearsal forgets less of them.
+    forgot = {name: _mean_error_decades(tmp_path / name, synthetic_dataset, splits=("val", "test"))
+              for name in ("plain", "replayed")}
+    assert forgot["replayed"] < forgot["plain"]
+    assert _mean_error_decades(tmp_path / "replayed", new_rig) < _mean_error_decades(trained_model, new_rig)
+    val = load_split_data(synthetic_dataset, _variant(trained_model))["val"].live()
+    calibration = meta["calibration"]
+    assert calibration["chosen_on"] == f"val of {synthetic_dataset}" and calibration["n"] == len(val)
+    assert calibration != plain["calibration"] and 0.0 <= calibration["coverage"] <= 1.0
+    assert meta["fine_tuning"]["replay"] == {"data": str(synthetic_dataset), "ratio": 4}
+    assert CompliancePredictor(tmp_path / "replayed").metadata.interval_scale == calibration["interval_scale"]
+
+
+def test_a_replay_dataset_of_other_training_objects_is_refused(trained_model, synthetic, tmp_path):
+    trained_on = json.loads((trained_model / "metadata.json").read_text())["data"]["objects"]["train"]
+    data = synthetic.write_dataset(tmp_path / "d", seed=4)
+    other = synthetic.write_dataset(tmp_path / "other", seed=5)
+    split = json.loads((other / "split.json").read_text())
+    assert set(split["train"]) != set(trained_on)  # seed 5 splits the objects otherwise
+    with pytest.raises(EstimatorError, match="did not train on"):
+        fine_tune(trained_model, data, tmp_path / "out", config=QUICK, replay=other, progress=False)
+    with pytest.raises(EstimatorError, match="replay_ratio"):
+        fine_tune(trained_model, data, tmp_path / "out", config=QUICK, replay=other, replay_ratio=0.0,
+                  progress=False)
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_dataset_that_does_not_fit_the_model_is_refused(trained_model, synthetic, tmp_path):

@@ -1,0 +1,74 @@
+"""Recalibration without retraining, and calibration that scores what the estimator answers."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from estimator.cli import main
+from estimator.errors import EstimatorError
+from estimator.learned.distribution import CENSOR_PA, probabilities
+from estimator.learned.infer import CompliancePredictor
+from estimator.learned.recalibrate import recalibrate
+from estimator.learned.train import _described, load_split_data
+from teleop.settings import load_settings
+
+
+def test_calibration_scores_exactly_what_the_estimator_answers_on_any_gel(trained_model, synthetic_dataset):
+    predictor = CompliancePredictor(trained_model)
+    val = load_split_data(synthetic_dataset, predictor.variant, ("val",))["val"].live()
+    logits = predictor.predict_logits(val.inputs)
+    calibration = predictor.metadata.raw["calibration"]
+    limit_pa = load_settings().resolution_limit_pa
+    states = set()
+    for gel_scale in (0.4, 1.0, 2.5):  # a stiffer gel, the reference one, a softer one
+        scored = _described(logits, {**calibration, "limit_pa": limit_pa}, np.full(len(val), gel_scale))
+        for probs, said in zip(probabilities(logits, temperature=predictor.metadata.temperature), scored,
+                               strict=True):
+            assert predictor.describe(probs, limit_pa=limit_pa, gel_scale=gel_scale) == said
+            if said.state == "lower_bound":  # at the settings' limit, whatever the gel
+                assert said.e_pa == pytest.approx(min(limit_pa, CENSOR_PA / gel_scale))
+            states.add(said.state)
+    assert "ok" in states and "lower_bound" in states
+
+
+def _copy(model, tmp_path):
+    return shutil.copytree(model, tmp_path / "model")
+
+
+def test_recalibrating_on_the_models_own_data_reproduces_its_calibration(trained_model, synthetic_dataset,
+                                                                         tmp_path):
+    model = _copy(trained_model, tmp_path)
+    before = json.loads((model / "metadata.json").read_text())
+    meta = recalibrate(model, synthetic_dataset)
+    after = meta["calibration"]
+    val = load_split_data(synthetic_dataset, CompliancePredictor(model).variant, ("val",))["val"].live()
+    # onnxruntime's logits are torch's to 1e-4: the same data give the same calibration.
+    assert after["n"] == len(val) and after["p_rigid"] == before["calibration"]["p_rigid"]
+    assert after["temperature"] == pytest.approx(before["calibration"]["temperature"], rel=1e-3)
+    assert after["interval_scale"] == pytest.approx(before["calibration"]["interval_scale"], rel=1e-3)
+    assert meta["recalibrated"]["previous"] == before["calibration"]
+    assert meta["recalibrated"]["data"] == str(synthetic_dataset)
+    assert set(meta["metrics"]) == {"val", "test"} and meta["metrics"]["val"]["objects"] > 0
+    assert json.loads((model / "metadata.json").read_text()) == meta
+    assert CompliancePredictor(model).metadata.interval_scale == after["interval_scale"]
+
+
+def test_a_dataset_whose_val_or_test_objects_the_model_trained_on_is_refused(trained_model, synthetic, tmp_path):
+    other = synthetic.write_dataset(tmp_path / "other", seed=5)
+    with pytest.raises(EstimatorError, match="trained on"):
+        recalibrate(trained_model, other, out_dir=tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_command_writes_a_recalibrated_copy(trained_model, synthetic_dataset, tmp_path, capsys):
+    out = tmp_path / "recalibrated"
+    assert main(["recalibrate", "--model", str(trained_model), "--data", str(synthetic_dataset), "--out", str(out),
+                 "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert printed["out"] == str(out) and printed["calibration"]["n"] > 0
+    assert (out / "model.onnx").read_bytes() == (trained_model / "model.onnx").read_bytes()
+    assert json.loads((out / "metadata.json").read_text())["calibration"] == printed["calibration"]
