@@ -91,8 +91,10 @@ cross-sensor: $(VENV)/.installed-dev
 # Fine-tuning for the held-out sensor, after `make cross-sensor`: 3 grasps on randomized Mini rigs of each of
 # 5 objects the shipped models trained on (on other sensors; never their test objects), the train-split objects
 # nearest five log-spaced moduli from the softest to the stiffest; then the shipped and the fine-tuned models on
-# the cross-sensor records. About 2 minutes. Writes runs/fine-tune/.
+# the cross-sensor records. About 2 minutes. Writes runs/fine-tune/. FINE_TUNE_REPLAY=DIR (the models' own
+# training dataset, as `make model` writes it) rehearses it and recalibrates on its validation objects.
 FINE_TUNE_OBJECTS ?= pillow,scotch_brite,charger_cable,gel_mold,steel_ball_big
+FINE_TUNE_REPLAY ?=
 FINE_TUNED := default cnn-depth-fw
 fine-tune: $(VENV)/.installed-dev
 	@test -d runs/cross-sensor/records || { echo "no runs/cross-sensor/records: run make cross-sensor first"; exit 1; }
@@ -102,7 +104,7 @@ fine-tune: $(VENV)/.installed-dev
 	$(BIN)/estimator build-dataset --records runs/fine-tune/records --out runs/fine-tune/dataset \
 		--frames 3 --shifts 3 --size 64x88 --window $(MODEL_WINDOW_MM) --settings $(CROSS_RIG) --workers 2
 	$(foreach m,$(FINE_TUNED),$(BIN)/estimator fine-tune --model estimator/models/$(m) \
-		--data runs/fine-tune/dataset --out runs/fine-tune/models/$(m) &&) true
+		--data runs/fine-tune/dataset --out runs/fine-tune/models/$(m) $(if $(FINE_TUNE_REPLAY),--replay $(FINE_TUNE_REPLAY)) &&) true
 	$(BIN)/estimator evaluate runs/cross-sensor/records --settings $(CROSS_RIG) --workers 2 \
 		$(foreach m,$(FINE_TUNED),--unseen-by estimator/models/$(m) --model estimator/models/$(m) \
 		--unseen-by runs/fine-tune/models/$(m) --model runs/fine-tune/models/$(m)) \
