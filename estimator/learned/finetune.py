@@ -86,7 +86,7 @@ def _joined(parts: list[SplitData]) -> SplitData:
 def _replay_data(replay_dir: Path, variant: Variant, base: dict[str, Any], added: set[str]
                  ) -> tuple[SplitData, SplitData]:
     """The replay dataset's train split and the live samples of its val objects not in ``added``."""
-    check_dataset_fits(replay_dir, variant, (base.get("data") or {}).get("measurement_version"))
+    check_dataset_fits(replay_dir, variant, base.get("data") or {})
     trained_on = set(((base.get("data") or {}).get("objects") or {}).get("train") or [])
     split = load_split(replay_dir / "split.json")
     foreign = sorted(set(split["train"]) - trained_on)
@@ -139,7 +139,7 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     meta_path = model_dir / "metadata.json"
     metadata = ModelMetadata.from_json(json.loads(meta_path.read_text()), str(meta_path))
     variant, base = metadata.variant, dict(metadata.raw)
-    check_dataset_fits(data_dir, variant, (base.get("data") or {}).get("measurement_version"))
+    check_dataset_fits(data_dir, variant, base.get("data") or {})
     if not (math.isfinite(replay_ratio) and replay_ratio > 0):
         raise EstimatorError(f"replay_ratio {replay_ratio!r}: expected a finite value > 0")
     data = _joined(list(load_split_data(data_dir, variant).values()))

@@ -62,7 +62,7 @@ def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | P
     predictor = CompliancePredictor(model_dir)
     variant, metadata = predictor.variant, dict(predictor.metadata.raw)
     settings = load_settings() if settings is None else settings
-    check_dataset_fits(data_dir, variant, (metadata.get("data") or {}).get("measurement_version"))
+    check_dataset_fits(data_dir, variant, metadata.get("data") or {})
     trained_on = set(((metadata.get("data") or {}).get("objects") or {}).get("train") or [])
     split = load_split(data_dir / "split.json")
     seen = sorted(trained_on & (set(split["val"]) | set(split["test"])))

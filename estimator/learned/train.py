@@ -469,12 +469,19 @@ def dataset_window(manifest: dict[str, Any], where: str) -> tuple[float, float]:
     return (float(window[0]), float(window[1]))
 
 
-def check_dataset_fits(data_dir: Path, variant: Variant, version: Any) -> None:
-    """Refuse a dataset measured by other code, or of another window, frame count or image size than ``variant``."""
+def check_dataset_fits(data_dir: Path, variant: Variant, model_data: dict[str, Any]) -> None:
+    """Refuse a dataset measured otherwise than a model's training data (``model_data``, its metadata's
+    ``data``: measurement version, depth binning), or of another window, frame count or image size
+    than ``variant``."""
     manifest = load_manifest(data_dir)
+    version = model_data.get("measurement_version")
     if manifest.get("measurement_version") != version:
         raise EstimatorError(f"{data_dir} was measured by measurement version {manifest.get('measurement_version')}, "
                              f"the model's training data by {version}: rebuild the dataset with this code")
+    binning, trained = manifest.get("depth_binning") or 1, model_data.get("depth_binning") or 1
+    if binning != trained:
+        raise EstimatorError(f"{data_dir} holds depth binned by {binning}, the model's training data by {trained}: "
+                             f"build the dataset with settings whose estimator.depth_binning is {trained}")
     window = dataset_window(manifest, str(data_dir))
     if not np.allclose(window, variant.window_m, rtol=1e-9, atol=0.0):
         raise EstimatorError(f"{data_dir} holds images of a {window[0]:.6g} x {window[1]:.6g} m window, the model "
