@@ -12,6 +12,7 @@ COMMANDS: dict[str, Command] = {
     "build-dataset": Command("estimator.learned.dataset_cli", "labelled grasp records to training samples, split by object"),
     "train": Command("estimator.learned.train_cli", "train the learned / hybrid model and export it to ONNX"),
     "fine-tune": Command("estimator.learned.finetune_cli", "adapt a trained model to a new rig from a few labelled grasps"),
+    "pool": Command("estimator.learned.pool_cli", "pool models of one variant trained with other seeds into one"),
     "recalibrate": Command("estimator.learned.recalibrate_cli", "refit a trained model's interval calibration on its validation objects, without retraining"),
     "bench": Command("estimator.bench_cli", "latency and error of every estimator configuration, with the Pareto frontier"),
     "calibrate": Command("estimator.perception.calibrate_cli", "fit a sensor's colour-to-gradient calibration from ball presses"),

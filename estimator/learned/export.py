@@ -27,7 +27,8 @@ from estimator.learned.infer import OUTPUT_NAME
 from estimator.learned.inputs import Variant
 from estimator.learned.model import ComplianceNet
 
-__all__ = ["OPSET", "export_onnx", "max_disagreement", "network_from_onnx"]
+__all__ = ["OPSET", "check_rebuilt", "export_onnx", "load_exported_weights", "max_disagreement", "network_from_onnx",
+           "onnx_weights"]
 
 OPSET = 18
 AGREEMENT_ATOL = 1e-4
@@ -86,6 +87,56 @@ def max_disagreement(model: ComplianceNet, path: str | Path, batch: Mapping[str,
     return float(np.max(np.abs(got - expected)))
 
 
+def onnx_weights(path: str | Path) -> dict[str, np.ndarray]:
+    """The initialisers of an ONNX file by name; ModelError when it is unreadable."""
+    import onnx
+    from onnx import numpy_helper
+
+    try:
+        return {i.name: numpy_helper.to_array(i) for i in onnx.load(str(path)).graph.initializer}
+    except Exception as exc:  # onnx raises protobuf and OS errors alike
+        raise ModelError(f"{path}: not a readable ONNX file ({exc})") from exc
+
+
+def load_exported_weights(model: ComplianceNet, weights: Mapping[str, np.ndarray], *, prefix: str = "",
+                          source: str) -> ComplianceNet:
+    """Load into ``model`` the weights :func:`export_onnx` wrote for it (named ``prefix`` + its parameter
+    names; batch norms folded into the convolutions before them, so they become identities carrying the
+    folded bias). ModelError names ``source`` when a weight is missing or of another shape."""
+    variant = model.variant
+    state = model.state_dict()
+    batch_norms = tuple(f"{name}." for name, module in model.named_modules() if isinstance(module, nn.BatchNorm2d))
+    for name, value in model.named_parameters():
+        if name.startswith(batch_norms):
+            continue
+        found = weights.get(prefix + name)
+        if found is None or found.shape != tuple(value.shape):
+            raise ModelError(f"{source}: {prefix}{name} of variant {variant.name} should be {tuple(value.shape)}, "
+                             f"the file has {'none' if found is None else found.shape}: another variant's model?")
+        state[name] = torch.from_numpy(found.copy())
+    for name, module in model.named_modules():
+        if isinstance(module, nn.BatchNorm2d):
+            conv = prefix + name.rsplit(".", 1)[0] + ".0.weight"  # the Conv2d before it in the same Sequential
+            folded = weights.get(conv + "_bias")
+            if folded is None:
+                raise ModelError(f"{source}: no folded batch-norm bias {conv}_bias for {prefix}{name}")
+            state[f"{name}.weight"] = torch.ones_like(state[f"{name}.weight"])
+            state[f"{name}.bias"] = torch.from_numpy(folded.copy())
+            state[f"{name}.running_mean"] = torch.zeros_like(state[f"{name}.running_mean"])
+            state[f"{name}.running_var"] = torch.full_like(state[f"{name}.running_var"], 1.0 - module.eps)
+    model.load_state_dict(state)
+    return model
+
+
+def check_rebuilt(model: nn.Module, path: str | Path, check: Mapping[str, np.ndarray]) -> nn.Module:
+    """``model`` in eval mode, once it agrees with the ONNX file at ``path`` within 1e-4 on ``check``."""
+    worst = max_disagreement(model, path, check)
+    if not worst <= AGREEMENT_ATOL:
+        raise ModelError(f"{path}: the network rebuilt from its weights differs from onnxruntime by {worst:.3g} "
+                         f"(> {AGREEMENT_ATOL}); was it exported by this code?")
+    return model.eval()
+
+
 def network_from_onnx(path: str | Path, variant: Variant, *, check: Mapping[str, np.ndarray]) -> ComplianceNet:
     """The network ``path`` (written by :func:`export_onnx`) computes, rebuilt in torch (eval mode).
 
@@ -105,38 +156,5 @@ def network_from_onnx(path: str | Path, variant: Variant, *, check: Mapping[str,
         The file is unreadable, lacks a parameter of the variant's network, or the
         rebuilt network disagrees with it.
     """
-    import onnx
-    from onnx import numpy_helper
-
-    path = Path(path)
-    try:
-        weights = {i.name: numpy_helper.to_array(i) for i in onnx.load(str(path)).graph.initializer}
-    except Exception as exc:  # onnx raises protobuf and OS errors alike
-        raise ModelError(f"{path}: not a readable ONNX file ({exc})") from exc
-    model = ComplianceNet(variant)
-    state = model.state_dict()
-    batch_norms = tuple(f"{name}." for name, module in model.named_modules() if isinstance(module, nn.BatchNorm2d))
-    for name, value in model.named_parameters():
-        if name.startswith(batch_norms):
-            continue
-        found = weights.get(name)
-        if found is None or found.shape != tuple(value.shape):
-            raise ModelError(f"{path}: {name} of variant {variant.name} should be {tuple(value.shape)}, the file "
-                             f"has {'none' if found is None else found.shape}: another variant's model?")
-        state[name] = torch.from_numpy(found.copy())
-    for name, module in model.named_modules():
-        if isinstance(module, nn.BatchNorm2d):
-            conv = name.rsplit(".", 1)[0] + ".0.weight"  # the Conv2d before it in the same Sequential
-            folded = weights.get(conv + "_bias")
-            if folded is None:
-                raise ModelError(f"{path}: no folded batch-norm bias {conv}_bias for {name}")
-            state[f"{name}.weight"] = torch.ones_like(state[f"{name}.weight"])
-            state[f"{name}.bias"] = torch.from_numpy(folded.copy())
-            state[f"{name}.running_mean"] = torch.zeros_like(state[f"{name}.running_mean"])
-            state[f"{name}.running_var"] = torch.full_like(state[f"{name}.running_var"], 1.0 - module.eps)
-    model.load_state_dict(state)
-    worst = max_disagreement(model, path, check)
-    if not worst <= AGREEMENT_ATOL:
-        raise ModelError(f"{path}: the network rebuilt from its weights differs from onnxruntime by {worst:.3g} "
-                         f"(> {AGREEMENT_ATOL}); was it exported by this code?")
-    return model.eval()
+    model = load_exported_weights(ComplianceNet(variant), onnx_weights(path), source=str(path))
+    return check_rebuilt(model, path, check)

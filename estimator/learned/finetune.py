@@ -6,7 +6,8 @@ fine-tunes the shipped model on it. The recipe was fixed before any held-out
 figure was seen, for about 15 grasps of 5 objects:
 
 * Start from the model's weights, rebuilt from its ONNX file
-  (:func:`~estimator.learned.export.network_from_onnx`).
+  (:func:`~estimator.learned.export.network_from_onnx`; a pooled model's members
+  train together through the pool, :func:`~estimator.learned.pool.pooled_from_onnx`).
 * Every sample of the dataset trains, whatever its split: a few objects are too
   few to hold some out, and the model's own test objects are what to score on.
 * Batch-norm statistics stay frozen (a few grasps cannot estimate them; the
@@ -151,8 +152,14 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
-    model = network_from_onnx(model_dir / "model.onnx", variant,
-                              check={n: v[:8] for n, v in data.inputs.items()})
+    check = {n: v[:8] for n, v in data.inputs.items()}
+    if base.get("ensemble"):  # a pooled model (`estimator pool`) is fine-tuned as one network
+        from estimator.learned.pool import pooled_from_onnx
+
+        temperatures = [m["temperature"] for m in base["ensemble"]["members"]]
+        model = pooled_from_onnx(model_dir / "model.onnx", variant, temperatures, check=check)
+    else:
+        model = network_from_onnx(model_dir / "model.onnx", variant, check=check)
     optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=config.epochs)
     history = []

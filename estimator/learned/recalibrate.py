@@ -1,9 +1,9 @@
 """Refit a trained model's calibration on its validation objects, without retraining.
 
-The network's weights stay. What :func:`~estimator.learned.train.calibrate` fits from its outputs
-on the validation objects (temperature, rigid probability, interval scale) is fitted anew, with this
-code's rules for what an answer says, and the model's ``metrics`` on its val and test objects are
-scored again: a change to how answers are described or calibrated needs no retraining. The
+The network's weights stay. What is fitted on the validation objects from its outputs (the
+calibration of :func:`~estimator.learned.train.calibrate`: temperature, rigid probability, interval
+scale; and ``auto``'s split threshold) is fitted anew, with this code's rules for what an answer
+says, and the model's ``metrics`` on its val and test objects are scored again: a change to how answers are described or calibrated needs no retraining. The
 dataset is a ``build-dataset`` directory of the model's own data (``metadata.json`` ``data.dir``);
 its val and test objects must be objects the model never trained on. ``recalibrated`` in the
 metadata says when, from what, and keeps the calibration it replaced.
@@ -23,6 +23,7 @@ from estimator.learned.dataset import load_split
 from estimator.learned.infer import CompliancePredictor
 from estimator.learned.train import (
     SplitData,
+    auto_policy,
     calibrate,
     check_dataset_fits,
     load_split_data,
@@ -79,6 +80,7 @@ def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | P
     new = {
         **metadata,
         "calibration": calibration,
+        "auto": auto_policy(val, logits["val"]),
         "metrics": {name: split_metrics(part, logits[name], variant.method, calibration, settings)
                     for name, part in parts.items()},
         "recalibrated": {"utc": datetime.now(UTC).isoformat(timespec="seconds"), "data": str(data_dir),

@@ -92,7 +92,7 @@ from estimator.samples import TrainingSample, load_sample, sample_paths
 from haptics.settings import display_settings
 from teleop.settings import Settings, load_settings
 
-__all__ = ["SplitData", "TrainConfig", "calibrate", "check_dataset_fits", "load_split_data", "predict", "split_metrics",
+__all__ = ["SplitData", "TrainConfig", "auto_policy", "calibrate", "check_dataset_fits", "load_split_data", "predict", "split_metrics",
            "train_model"]
 
 log = logging.getLogger(__name__)
@@ -368,7 +368,7 @@ def split_metrics(data: SplitData, logits: np.ndarray, method: str, calibration:
     return summary
 
 
-def _auto_policy(data: SplitData, logits: np.ndarray) -> dict[str, Any]:
+def auto_policy(data: SplitData, logits: np.ndarray) -> dict[str, Any]:
     """``auto``'s split threshold: the widest interval at which the split, on the validation grasps
     it would answer (``ok`` over at least ``MIN_SPLIT_FRAMES`` frames), errs no more on average than
     the model on those grasps (0: never)."""
@@ -559,7 +559,7 @@ def train_model(
         "calibration": calibration,
         "reference": {"record": REFERENCE_RECORD.name,
                       "inputs": summarise_inputs(reference_inputs(variant, settings=settings))},
-        "auto": _auto_policy(val, val_pred),
+        "auto": auto_policy(val, val_pred),
         "metrics": {name: split_metrics(part, predict(model, part), variant.method, calibration, settings)
                     for name, part in (("val", val), ("test", data["test"].live()))},
         "training": {**asdict(config), "epochs_run": len(fitted.history), "best_epoch": fitted.best_epoch,
