@@ -43,8 +43,8 @@ browser:
 test: lint browser
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
-# Retrain the default model from scratch: the model card's recipe (simulation, dataset, two trainings and their
-# pool; the parts' measured times are in the model card).
+# Retrain the default model from scratch: the model card's recipe (simulation, dataset, three trainings and
+# their pool; the parts' measured times are in the model card).
 # Grasps of every object on the nominal simulated Wedge rig, and on randomized rigs with other gels (the
 # Wedge's optics, and a GelSight R1.5's measured optics); the GelSight Mini stays out for `make cross-sensor`.
 # Writes MODEL_OUT (default runs/retrain/model); MODEL_OUT=estimator/models/default replaces the shipped one.
@@ -65,10 +65,10 @@ model: $(VENV)/.installed-dev
 		--settings configs/rigs/gelsight.toml --out $(MODEL_RUN)/records/gelsight_rig_gel --workers 2
 	$(BIN)/estimator build-dataset --records $(MODEL_RUN)/records --out $(MODEL_RUN)/dataset \
 		--frames 3 --shifts 3 --size 64x88 --window $(MODEL_WINDOW_MM) --workers 2
-	$(foreach seed,0 1,$(BIN)/estimator train --data $(MODEL_RUN)/dataset --out $(MODEL_RUN)/seed$(seed) \
+	$(foreach seed,0 1 2,$(BIN)/estimator train --data $(MODEL_RUN)/dataset --out $(MODEL_RUN)/seed$(seed) \
 		--variant $(MODEL_VARIANT) --seed $(seed) --patience 30 --threads 2 &&) true
-	$(BIN)/estimator pool --model $(MODEL_RUN)/seed0 --model $(MODEL_RUN)/seed1 --data $(MODEL_RUN)/dataset \
-		--out $(MODEL_OUT)
+	$(BIN)/estimator pool --model $(MODEL_RUN)/seed0 --model $(MODEL_RUN)/seed1 --model $(MODEL_RUN)/seed2 \
+		--data $(MODEL_RUN)/dataset --out $(MODEL_OUT)
 
 # The shipped models on simulated grasps (nominal Wedge rig) of objects none of them trained on (their
 # test split), after `make model` made the records: the model card's figures. Writes runs/evaluate/.
