@@ -57,6 +57,7 @@ from estimator.learned.export import export_onnx, network_from_onnx
 from estimator.learned.infer import ModelMetadata
 from estimator.learned.inputs import Variant
 from estimator.learned.model import ComplianceNet
+from estimator.learned.pool import pooled_from_onnx
 from estimator.learned.train import (
     SplitData,
     TrainConfig,
@@ -154,8 +155,6 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     rng = np.random.default_rng(config.seed)
     check = {n: v[:8] for n, v in data.inputs.items()}
     if base.get("ensemble"):  # a pooled model (`estimator pool`) is fine-tuned as one network
-        from estimator.learned.pool import pooled_from_onnx
-
         temperatures = [m["temperature"] for m in base["ensemble"]["members"]]
         model = pooled_from_onnx(model_dir / "model.onnx", variant, temperatures, check=check)
     else:

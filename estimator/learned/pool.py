@@ -117,7 +117,5 @@ def pool_models(model_dirs: Sequence[str | Path], data_dir: str | Path, out_dir:
                      "pool": "linear: log mean of the members' temperature-scaled bin probabilities"},
     }
     (out_dir / "metadata.json").write_text(json.dumps(metadata, indent=1, allow_nan=False))
-    metadata = recalibrate(out_dir, data_dir, settings=settings)
-    del metadata["recalibrated"]  # it replaced the first member's calibration, not one of this model's
-    (out_dir / "metadata.json").write_text(json.dumps(metadata, indent=1, allow_nan=False))
-    return metadata
+    # The calibration in the file so far is the first member's, which recalibrate() reads the model by.
+    return recalibrate(out_dir, data_dir, settings=settings, record=False)

@@ -44,11 +44,13 @@ def _logits(predictor: CompliancePredictor, data: SplitData) -> np.ndarray:
 
 
 def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | Path | None = None,
-                settings: Settings | None = None) -> dict[str, Any]:
+                settings: Settings | None = None, record: bool = True) -> dict[str, Any]:
     """Refit the calibration of the model in ``model_dir`` on the val objects of ``data_dir`` and score
     it on the val and test objects; write the metadata to ``out_dir`` (default: in place, with
     ``model.onnx`` copied there when elsewhere). ``settings`` (default: the shipped ones) give the
-    resolution limit, as for ``estimator train``. Returns the new metadata.
+    resolution limit, as for ``estimator train``. ``record`` keeps when, from what and the calibration it
+    replaced under ``recalibrated`` (off for a model whose calibration is its first). Returns the new
+    metadata.
 
     Raises
     ------
@@ -83,10 +85,11 @@ def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | P
         "auto": auto_policy(val, logits["val"]),
         "metrics": {name: split_metrics(part, logits[name], variant.method, calibration, settings)
                     for name, part in parts.items()},
-        "recalibrated": {"utc": datetime.now(UTC).isoformat(timespec="seconds"), "data": str(data_dir),
-                         "settings": str(settings.source) if settings.source else None,
-                         "previous": metadata["calibration"]},
     }
+    if record:
+        new["recalibrated"] = {"utc": datetime.now(UTC).isoformat(timespec="seconds"), "data": str(data_dir),
+                               "settings": str(settings.source) if settings.source else None,
+                               "previous": metadata["calibration"]}
     out_dir.mkdir(parents=True, exist_ok=True)
     if out_dir.resolve() != model_dir.resolve():
         (out_dir / "model.onnx").write_bytes((model_dir / "model.onnx").read_bytes())
