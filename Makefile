@@ -70,12 +70,19 @@ model: $(VENV)/.installed-dev
 	$(BIN)/estimator pool --model $(MODEL_RUN)/seed0 --model $(MODEL_RUN)/seed1 --model $(MODEL_RUN)/seed2 \
 		--data $(MODEL_RUN)/dataset --out $(MODEL_OUT)
 
-# The shipped models on simulated grasps (nominal Wedge rig) of objects none of them trained on (their
-# test split), after `make model` made the records: the model card's figures. Writes runs/evaluate/.
+# The shipped models on simulated grasps of objects none of them trained on (their test split), after
+# `make model` made the records: the model card's figures. The nominal Wedge rig (runs/evaluate/figures.json),
+# then the randomized rigs of the two training optics (runs/evaluate/<rig>/), each shown on its own display.
+RANDOMIZED_RIGS := wedge_rig_gel:configs/settings.toml gelsight_rig_gel:configs/rigs/gelsight.toml
+UNSEEN_BY_SHIPPED = $(foreach m,$(SHIPPED_MODELS),--unseen-by $(m) --model $(m))
 evaluate: $(VENV)/.installed-dev
 	mkdir -p runs/evaluate
-	$(BIN)/estimator evaluate $(MODEL_RUN)/records/wedge_nominal $(foreach m,$(SHIPPED_MODELS),--unseen-by $(m) --model $(m)) \
+	$(BIN)/estimator evaluate $(MODEL_RUN)/records/wedge_nominal $(UNSEEN_BY_SHIPPED) \
 		--workers 2 --rows runs/evaluate/rows.csv --plot runs/evaluate/plot.png --json > runs/evaluate/figures.json
+	$(foreach r,$(RANDOMIZED_RIGS),mkdir -p runs/evaluate/$(word 1,$(subst :, ,$(r))) && \
+		$(BIN)/estimator evaluate $(MODEL_RUN)/records/$(word 1,$(subst :, ,$(r))) --settings $(word 2,$(subst :, ,$(r))) \
+		$(UNSEEN_BY_SHIPPED) --workers 2 --rows runs/evaluate/$(word 1,$(subst :, ,$(r)))/rows.csv \
+		--json > runs/evaluate/$(word 1,$(subst :, ,$(r)))/figures.json &&) true
 
 # A sensor held out of training and model selection: the shipped models' test objects (their metadata's
 # data.objects.test) rendered through the GelSight Mini's measured optics on randomized rigs, estimated with
@@ -88,7 +95,7 @@ cross-sensor: $(VENV)/.installed-dev
 	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --only $(TEST_OBJECTS) --grasps-per-object 4 --seed 4 \
 		--randomize-rig --settings $(CROSS_RIG) --out runs/cross-sensor/records --workers 2
 	$(BIN)/estimator evaluate runs/cross-sensor/records --settings $(CROSS_RIG) \
-		$(foreach m,$(SHIPPED_MODELS),--unseen-by $(m) --model $(m)) --workers 2 \
+		$(UNSEEN_BY_SHIPPED) --workers 2 \
 		--rows runs/cross-sensor/rows.csv --plot runs/cross-sensor/plot.png --json > runs/cross-sensor/figures.json
 
 # Fine-tuning for the held-out sensor, after `make cross-sensor`: 3 grasps on randomized Mini rigs of each of
