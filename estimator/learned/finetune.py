@@ -29,6 +29,11 @@ figure was seen, for about 15 grasps of 5 objects:
   be the base model's train objects, so that nothing the base model held out
   is trained on.
 
+Whether fine-tuning pays off on a rig can be told from its own grasps before any test
+(:func:`check_by_object`, ``estimator fine-tune --check``): each object is left out in turn, the
+model fine-tuned on the rest, and that object's grasps scored as the rig's display renders them,
+base model against fine-tuned.
+
 The fine-tuned model's metadata lists the fine-tuning objects among its train
 objects (and no longer among its val or test objects), so ``estimator evaluate
 --unseen-by`` scores it on objects it never saw; ``fine_tuning`` says from what
@@ -54,7 +59,7 @@ from tqdm import tqdm
 from estimator.errors import EstimatorError
 from estimator.learned.dataset import SPLITS, load_split
 from estimator.learned.export import export_onnx, network_from_onnx
-from estimator.learned.infer import ModelMetadata
+from estimator.learned.infer import CompliancePredictor, ModelMetadata
 from estimator.learned.inputs import Variant
 from estimator.learned.model import ComplianceNet
 from estimator.learned.pool import pooled_from_onnx
@@ -65,10 +70,12 @@ from estimator.learned.train import (
     check_dataset_fits,
     load_split_data,
     predict,
+    split_metrics,
     train_epoch,
 )
+from teleop.settings import Settings
 
-__all__ = ["FINE_TUNE_CONFIG", "REPLAY_RATIO", "fine_tune"]
+__all__ = ["FINE_TUNE_CONFIG", "REPLAY_RATIO", "check_by_object", "fine_tune"]
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +124,64 @@ def _objects_after(base: dict[str, Any], added: set[str]) -> dict[str, list[str]
     return objects
 
 
+def _tuned(model_dir: Path, base: dict[str, Any], variant: Variant, data: SplitData, replayed: SplitData | None, *,
+           config: TrainConfig, replay_ratio: float, progress: bool, desc: str = "fine-tune"
+           ) -> tuple[ComplianceNet, list[dict[str, Any]]]:
+    """The base model rebuilt from its ONNX file and fine-tuned on ``data`` (module notes), and its history."""
+    torch.use_deterministic_algorithms(True)
+    torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+    check = {n: v[:8] for n, v in data.inputs.items()}
+    if base.get("ensemble"):  # a pooled model (`estimator pool`) is fine-tuned as one network
+        temperatures = [m["temperature"] for m in base["ensemble"]["members"]]
+        model = pooled_from_onnx(model_dir / "model.onnx", variant, temperatures, check=check)
+    else:
+        model = network_from_onnx(model_dir / "model.onnx", variant, check=check)
+    optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=config.epochs)
+    history = []
+    for epoch in tqdm(range(1, config.epochs + 1), desc=desc, unit="epoch", disable=not progress):
+        model.train()
+        _freeze_batch_norm(model)
+        epoch_data = data
+        if replayed is not None:
+            drawn = rng.choice(len(replayed), size=min(len(replayed), round(replay_ratio * len(data))), replace=False)
+            epoch_data = _joined([data, replayed.subset(np.sort(drawn))])
+        history.append({"epoch": epoch, "train_loss": train_epoch(model, epoch_data, optimiser, config, rng)})
+        scheduler.step()
+    model.eval()
+    return model, history
+
+
+def _calibration(model: ComplianceNet, base: dict[str, Any], recalibrate_on: SplitData | None,
+                 replay: str | Path | None) -> dict[str, Any]:
+    """The base model's calibration, or with ``replay`` one refitted on its validation samples."""
+    calibration = base["calibration"]
+    if recalibrate_on is None:
+        return calibration
+    return {**calibrate(predict(model, recalibrate_on), recalibrate_on.label, gel_scales=recalibrate_on.gel_scales,
+                        soft_pa=calibration["soft_pa"], limit_pa=calibration["limit_pa"], level=calibration["level"]),
+            "chosen_on": f"val of {replay}"}
+
+
+def _prepared(model_dir: Path, data_dir: Path, replay: str | Path | None, replay_ratio: float
+              ) -> tuple[dict[str, Any], Variant, SplitData, SplitData | None, SplitData | None]:
+    """The base metadata, its variant, every sample of ``data_dir``, and the replay's train and val samples."""
+    meta_path = model_dir / "metadata.json"
+    metadata = ModelMetadata.from_json(json.loads(meta_path.read_text()), str(meta_path))
+    variant, base = metadata.variant, dict(metadata.raw)
+    check_dataset_fits(data_dir, variant, base.get("data") or {})
+    if not (math.isfinite(replay_ratio) and replay_ratio > 0):
+        raise EstimatorError(f"replay_ratio {replay_ratio!r}: expected a finite value > 0")
+    data = _joined(list(load_split_data(data_dir, variant).values()))
+    if len(data) < 2:
+        raise EstimatorError(f"{data_dir}: {len(data)} samples; fine-tuning needs at least 2")
+    added = {r["object"] for r in data.rows}
+    replayed, recalibrate_on = (None, None) if replay is None else _replay_data(Path(replay), variant, base, added)
+    return base, variant, data, replayed, recalibrate_on
+
+
 def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, *,
               config: TrainConfig = FINE_TUNE_CONFIG, replay: str | Path | None = None,
               replay_ratio: float = REPLAY_RATIO, progress: bool = True) -> dict[str, Any]:
@@ -138,48 +203,13 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     """
     started = time.perf_counter()
     model_dir, data_dir, out_dir = Path(model_dir), Path(data_dir), Path(out_dir)
-    meta_path = model_dir / "metadata.json"
-    metadata = ModelMetadata.from_json(json.loads(meta_path.read_text()), str(meta_path))
-    variant, base = metadata.variant, dict(metadata.raw)
-    check_dataset_fits(data_dir, variant, base.get("data") or {})
-    if not (math.isfinite(replay_ratio) and replay_ratio > 0):
-        raise EstimatorError(f"replay_ratio {replay_ratio!r}: expected a finite value > 0")
-    data = _joined(list(load_split_data(data_dir, variant).values()))
-    if len(data) < 2:
-        raise EstimatorError(f"{data_dir}: {len(data)} samples; fine-tuning needs at least 2")
+    base, variant, data, replayed, recalibrate_on = _prepared(model_dir, data_dir, replay, replay_ratio)
     added = {r["object"] for r in data.rows}
-    replayed, recalibrate_on = (None, None) if replay is None else _replay_data(Path(replay), variant, base, added)
-    torch.use_deterministic_algorithms(True)
-    torch.set_num_threads(config.threads)
-    torch.manual_seed(config.seed)
-    rng = np.random.default_rng(config.seed)
-    check = {n: v[:8] for n, v in data.inputs.items()}
-    if base.get("ensemble"):  # a pooled model (`estimator pool`) is fine-tuned as one network
-        temperatures = [m["temperature"] for m in base["ensemble"]["members"]]
-        model = pooled_from_onnx(model_dir / "model.onnx", variant, temperatures, check=check)
-    else:
-        model = network_from_onnx(model_dir / "model.onnx", variant, check=check)
-    optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=config.epochs)
-    history = []
-    for epoch in tqdm(range(1, config.epochs + 1), desc="fine-tune", unit="epoch", disable=not progress):
-        model.train()
-        _freeze_batch_norm(model)
-        epoch_data = data
-        if replayed is not None:
-            drawn = rng.choice(len(replayed), size=min(len(replayed), round(replay_ratio * len(data))), replace=False)
-            epoch_data = _joined([data, replayed.subset(np.sort(drawn))])
-        history.append({"epoch": epoch, "train_loss": train_epoch(model, epoch_data, optimiser, config, rng)})
-        scheduler.step()
-    model.eval()
+    model, history = _tuned(model_dir, base, variant, data, replayed, config=config, replay_ratio=replay_ratio,
+                            progress=progress)
     out_dir.mkdir(parents=True, exist_ok=True)
     export_onnx(model, out_dir / "model.onnx", example={n: v[:8] for n, v in data.inputs.items()})
-    calibration = base["calibration"]
-    if recalibrate_on is not None:
-        calibration = {**calibrate(predict(model, recalibrate_on), recalibrate_on.label,
-                                   gel_scales=recalibrate_on.gel_scales, soft_pa=calibration["soft_pa"],
-                                   limit_pa=calibration["limit_pa"], level=calibration["level"]),
-                       "chosen_on": f"val of {replay}"}
+    calibration = _calibration(model, base, recalibrate_on, replay)
     grasps = {(r["object"], Path(r["path"]).name.rsplit("_a", 1)[0]) for r in data.rows}
     new = {
         **base,
@@ -197,3 +227,56 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     }
     (out_dir / "metadata.json").write_text(json.dumps(new, indent=1, allow_nan=False))
     return new
+
+
+def _felt(data: SplitData, logits: np.ndarray, calibration: dict[str, Any], settings: Settings) -> dict[str, Any]:
+    """The display's figures of the model's answers on ``data``, described at ``settings``' limit as at run time."""
+    at_limit = {**calibration, "limit_pa": settings.resolution_limit_pa}
+    figures = split_metrics(data, logits, "model", at_limit, settings)["model"]
+    return {k: figures[k] for k in ("n", "felt_log10_error", "felt_within_2x", "dangerous_misses")}
+
+
+def check_by_object(model_dir: str | Path, data_dir: str | Path, *, settings: Settings,
+                    config: TrainConfig = FINE_TUNE_CONFIG, replay: str | Path | None = None,
+                    replay_ratio: float = REPLAY_RATIO, progress: bool = True) -> dict[str, Any]:
+    """Whether fine-tuning on ``data_dir`` helps on objects it did not see, from those grasps alone.
+
+    Leave one object out: for each object of ``data_dir``, fine-tune as :func:`fine_tune` would on
+    the others and answer that object's grasps (their live samples) with it and with the base model,
+    at the resolution limit and on the display of ``settings`` (the new rig's). Nothing is written.
+
+    Returns ``base`` and ``fine_tuned`` (``n``, ``felt_log10_error``, ``felt_within_2x``,
+    ``dangerous_misses`` over every held-out grasp) and ``per_object`` (object -> the two felt errors).
+
+    Raises
+    ------
+    EstimatorError
+        As :func:`fine_tune`, or ``data_dir`` holds fewer than 2 objects.
+    """
+    model_dir, data_dir = Path(model_dir), Path(data_dir)
+    base, variant, data, replayed, recalibrate_on = _prepared(model_dir, data_dir, replay, replay_ratio)
+    objects = sorted({r["object"] for r in data.rows})
+    if len(objects) < 2:
+        raise EstimatorError(f"{data_dir}: {len(objects)} object; leaving one out needs at least 2")
+    base_predictor = CompliancePredictor(model_dir)
+    figures: dict[str, list[dict[str, Any]]] = {"base": [], "fine_tuned": []}
+    for n, name in enumerate(objects, start=1):
+        own = np.array([r["object"] == name for r in data.rows], dtype=bool)
+        model, _ = _tuned(model_dir, base, variant, data.subset(~own), replayed, config=config,
+                          replay_ratio=replay_ratio, progress=progress, desc=f"without {name} ({n}/{len(objects)})")
+        held = data.subset(own).live()
+        figures["base"].append(_felt(held, base_predictor.predict_logits(held.inputs), base["calibration"], settings))
+        figures["fine_tuned"].append(_felt(held, predict(model, held), _calibration(model, base, recalibrate_on, replay),
+                                           settings))
+    return {
+        **{which: _pooled(folds) for which, folds in figures.items()},
+        "per_object": {name: {which: figures[which][i]["felt_log10_error"] for which in figures}
+                       for i, name in enumerate(objects)},
+    }
+
+
+def _pooled(folds: list[dict[str, Any]]) -> dict[str, Any]:
+    """Figures over the grasps of every fold, from each fold's."""
+    n = sum(f["n"] for f in folds)
+    return {"n": n, "dangerous_misses": sum(f["dangerous_misses"] for f in folds),
+            **{k: sum(f[k] * f["n"] for f in folds) / n for k in ("felt_log10_error", "felt_within_2x")}}

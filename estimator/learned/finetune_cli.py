@@ -7,7 +7,8 @@ import argparse
 import json
 from dataclasses import replace
 
-from estimator.learned.finetune import FINE_TUNE_CONFIG, REPLAY_RATIO, fine_tune
+from estimator.learned.finetune import FINE_TUNE_CONFIG, REPLAY_RATIO, check_by_object, fine_tune
+from teleop.settings import load_settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,21 +30,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lr", type=float, default=FINE_TUNE_CONFIG.lr, help="AdamW learning rate (cosine decay)")
     parser.add_argument("--batch-size", type=int, default=FINE_TUNE_CONFIG.batch_size, help="samples per step")
     parser.add_argument("--seed", type=int, default=FINE_TUNE_CONFIG.seed, help="seed of shuffles, flips and jitter")
+    parser.add_argument("--check", action="store_true",
+                        help="first, leave one object out: fine-tune without each object in turn and score its "
+                             "grasps as the display would render them, base model against fine-tuned, to see "
+                             "whether fine-tuning helps on objects it did not see (one fine-tuning per object)")
+    parser.add_argument("--settings", metavar="FILE", default=None,
+                        help="with --check: the new rig's settings TOML, whose resolution limit and display "
+                             "the grasps are scored at (default: the shipped configs/settings.toml)")
     parser.add_argument("--json", action="store_true",
-                        help="print one JSON object (out, objects, grasps, samples, seconds) on the last stdout line")
+                        help="print one JSON object (out, objects, grasps, samples, seconds; check with --check) "
+                             "on the last stdout line")
 
 
 def run(args: argparse.Namespace) -> int:
     config = replace(FINE_TUNE_CONFIG, epochs=args.epochs, lr=args.lr, batch_size=args.batch_size, seed=args.seed)
+    check = None
+    if args.check:
+        check = check_by_object(args.model, args.data, settings=load_settings(args.settings), config=config,
+                                replay=args.replay, replay_ratio=args.replay_ratio)
     meta = fine_tune(args.model, args.data, args.out, config=config, replay=args.replay,
                      replay_ratio=args.replay_ratio)
     tuned = meta["fine_tuning"]
     summary = {"out": str(args.out), "objects": tuned["objects"], "grasps": tuned["grasps"],
                "samples": tuned["samples"], "seconds": tuned["seconds"],
                "final_train_loss": tuned["history"][-1]["train_loss"]}
+    if check is not None:
+        summary["check"] = check
     if args.json:
         print(json.dumps(summary, allow_nan=False))
         return 0
+    if check is not None:
+        before, after = check["base"], check["fine_tuned"]
+        print(f"leaving one object out, on {before['n']} grasps: felt error {before['felt_log10_error']:.3f} -> "
+              f"{after['felt_log10_error']:.3f} decade, within a factor 2 {before['felt_within_2x']:.0%} -> "
+              f"{after['felt_within_2x']:.0%}, dangerous misses {before['dangerous_misses']} -> "
+              f"{after['dangerous_misses']} (base -> fine-tuned)")
     print(f"fine-tuned {args.model} on {tuned['grasps']} grasps ({tuned['samples']} samples) of "
           f"{len(tuned['objects'])} objects in {tuned['seconds']:.0f} s -> {args.out}; final train loss "
           f"{summary['final_train_loss']:.3f}. Score it on objects it never saw: "

@@ -12,11 +12,12 @@ from estimator.cli import main
 from estimator.errors import EstimatorError, ModelError
 from estimator.learned.distribution import CENSOR_PA, probabilities, quantile
 from estimator.learned.export import network_from_onnx
-from estimator.learned.finetune import fine_tune
+from estimator.learned.finetune import check_by_object, fine_tune
 from estimator.learned.infer import CompliancePredictor
 from estimator.learned.inputs import Variant
 from estimator.learned.train import TrainConfig, load_split_data
 from estimator.samples import load_sample, sample_paths, save_sample
+from teleop.settings import load_settings
 
 QUICK = TrainConfig(epochs=12, batch_size=8, lr=2e-3, seed=0)
 
@@ -105,6 +106,24 @@ def test_replay_keeps_what_the_model_knew_and_recalibrates(trained_model, synthe
     assert CompliancePredictor(tmp_path / "replayed").metadata.interval_scale == calibration["interval_scale"]
 
 
+@pytest.mark.slow
+def test_leaving_one_object_out_says_whether_fine_tuning_helps_on_unseen_objects(trained_model, synthetic, tmp_path):
+    # A rig that reads every object a decade stiffer: what the other objects teach carries over.
+    new_rig = _relabelled(synthetic.write_dataset(tmp_path / "d", seed=3), tmp_path / "new_rig", factor=10.0)
+    check = check_by_object(trained_model, new_rig, settings=load_settings(), config=QUICK, progress=False)
+    assert set(check["per_object"]) == set(synthetic.OBJECTS)
+    assert check["base"]["n"] == check["fine_tuned"]["n"] == 2 * len(synthetic.OBJECTS)  # live samples only
+    # Fine-tuned without it, each object's grasps are felt closer to the new rig's labels than before.
+    assert check["fine_tuned"]["felt_log10_error"] < check["base"]["felt_log10_error"]
+    for which in ("base", "fine_tuned"):  # two grasps of each object: the mean of the objects' figures
+        per_object = [v[which] for v in check["per_object"].values()]
+        assert check[which]["felt_log10_error"] == pytest.approx(np.mean(per_object))
+    assert not list(tmp_path.glob("**/model.onnx"))  # nothing written
+    one = _relabelled(new_rig, tmp_path / "one", factor=1.0, only={"foam_a"})
+    with pytest.raises(EstimatorError, match="1 object"):
+        check_by_object(trained_model, one, settings=load_settings(), config=QUICK, progress=False)
+
+
 def test_a_replay_dataset_of_other_training_objects_is_refused(trained_model, synthetic, tmp_path):
     trained_on = json.loads((trained_model / "metadata.json").read_text())["data"]["objects"]["train"]
     data = synthetic.write_dataset(tmp_path / "d", seed=4)
@@ -146,3 +165,17 @@ def test_the_command_fine_tunes_and_says_how_to_score_it(trained_model, syntheti
     assert summary["out"] == str(tmp_path / "m") and summary["grasps"] == 2 * len(synthetic.OBJECTS)
     assert np.isfinite(summary["final_train_loss"])
     assert {p.name for p in (tmp_path / "m").iterdir()} == {"model.onnx", "metadata.json"}
+    assert "check" not in summary
+
+
+@pytest.mark.slow
+def test_the_command_checks_by_leaving_objects_out_when_asked(trained_model, synthetic, tmp_path, capsys):
+    data = synthetic.write_dataset(tmp_path / "d", seed=5)
+    args = ["fine-tune", "--model", str(trained_model), "--data", str(data), "--out", str(tmp_path / "m"),
+            "--epochs", "1", "--check"]
+    assert main([*args, "--json"]) == 0
+    check = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["check"]
+    assert set(check["per_object"]) == set(synthetic.OBJECTS)
+    assert {"felt_log10_error", "felt_within_2x", "dangerous_misses", "n"} <= set(check["fine_tuned"])
+    assert main(args) == 0
+    assert "leaving one object out, on 24 grasps: felt error" in capsys.readouterr().out
