@@ -79,10 +79,9 @@ evaluate: $(VENV)/.installed-dev
 	mkdir -p runs/evaluate
 	$(BIN)/estimator evaluate $(MODEL_RUN)/records/wedge_nominal $(UNSEEN_BY_SHIPPED) \
 		--workers 2 --rows runs/evaluate/rows.csv --plot runs/evaluate/plot.png --json > runs/evaluate/figures.json
-	$(foreach r,$(RANDOMIZED_RIGS),mkdir -p runs/evaluate/$(word 1,$(subst :, ,$(r))) && \
-		$(BIN)/estimator evaluate $(MODEL_RUN)/records/$(word 1,$(subst :, ,$(r))) --settings $(word 2,$(subst :, ,$(r))) \
-		$(UNSEEN_BY_SHIPPED) --workers 2 --rows runs/evaluate/$(word 1,$(subst :, ,$(r)))/rows.csv \
-		--json > runs/evaluate/$(word 1,$(subst :, ,$(r)))/figures.json &&) true
+	for r in $(RANDOMIZED_RIGS); do rig=$${r%%:*}; mkdir -p runs/evaluate/$$rig && \
+		$(BIN)/estimator evaluate $(MODEL_RUN)/records/$$rig --settings $${r#*:} $(UNSEEN_BY_SHIPPED) --workers 2 \
+		--rows runs/evaluate/$$rig/rows.csv --json > runs/evaluate/$$rig/figures.json || exit 1; done
 
 # A sensor held out of training and model selection: the shipped models' test objects (their metadata's
 # data.objects.test) rendered through the GelSight Mini's measured optics on randomized rigs, estimated with

@@ -3,10 +3,11 @@
 The network's weights stay. What is fitted on the validation objects from its outputs (the
 calibration of :func:`~estimator.learned.train.calibrate`: temperature, rigid probability, interval
 scale; and ``auto``'s split threshold) is fitted anew, with this code's rules for what an answer
-says, and the model's ``metrics`` on its val and test objects are scored again: a change to how answers are described or calibrated needs no retraining. The
-dataset is a ``build-dataset`` directory of the model's own data (``metadata.json`` ``data.dir``);
-its val and test objects must be objects the model never trained on. ``recalibrated`` in the
-metadata says when, from what, and keeps the calibration it replaced.
+says, and the model's ``metrics`` on its val and test objects are scored again: a change to how
+answers are described or calibrated needs no retraining. The dataset is a ``build-dataset``
+directory of the model's own data (``metadata.json`` ``data.dir``); its val and test objects must
+be objects the model never trained on. ``recalibrated`` in the metadata says when, from what, and
+keeps the calibration it replaced.
 """
 
 from __future__ import annotations

@@ -92,8 +92,8 @@ from estimator.samples import TrainingSample, load_sample, sample_paths
 from haptics.settings import display_settings
 from teleop.settings import Settings, load_settings
 
-__all__ = ["SplitData", "TrainConfig", "auto_policy", "calibrate", "check_dataset_fits", "load_split_data", "predict", "split_metrics",
-           "train_model"]
+__all__ = ["SplitData", "TrainConfig", "auto_policy", "calibrate", "check_dataset_fits", "load_split_data", "predict",
+           "split_metrics", "train_model"]
 
 log = logging.getLogger(__name__)
 
