@@ -30,7 +30,11 @@ shown:
   (half its 16-84 % range, at least :data:`SPREAD_FLOOR_DECADES`;
   :func:`spread`) and ``scale`` is chosen on the validation objects so that
   the interval holds the truth at the stated level (split conformal on the
-  normalised error :func:`interval_score`: :func:`conformal_scale`). The
+  normalised error :func:`interval_score`: :func:`conformal_scale`), one
+  scale per band of the grasp's peak force (:func:`force_band`): a light
+  grasp presses the gel less and its distribution is overconfident, so a
+  single scale gave intervals too narrow there and too wide on firm grasps
+  (Mondrian conformal: the level then holds within each band). The
   distribution's own quantiles are no interval to state: it puts its mass on
   the few moduli the training labels take, so its tails are lumpy, while its
   spread still says how sure the grasp is. An interval that reaches the
@@ -62,6 +66,7 @@ __all__ = [
     "describe",
     "describe_on_gel",
     "fit_temperature",
+    "force_band",
     "interval_score",
     "probabilities",
     "quantile",
@@ -142,6 +147,13 @@ def conformal_scale(scores: np.ndarray, level: float) -> float:
     n = scores.size
     rank = math.ceil((n + 1) * level)
     return math.inf if n == 0 or rank > n else float(scores[rank - 1])
+
+
+def force_band(peak_force_n: float | np.ndarray, edges_n: tuple[float, ...]) -> np.ndarray:
+    """The force band of each grasp's peak force (N): 0 below ``edges_n[0]``, ``i`` from
+    ``edges_n[i - 1]`` up to ``edges_n[i]``, ``len(edges_n)`` from the last edge on."""
+    return np.searchsorted(np.asarray(edges_n, dtype=np.float64), np.asarray(peak_force_n, dtype=np.float64),
+                           side="right")
 
 
 def fit_temperature(logits: np.ndarray, log10_truth: np.ndarray) -> float:

@@ -57,6 +57,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from estimator.errors import ModelError
 from estimator.estimate import Estimate
 from estimator.learned.infer import CompliancePredictor
@@ -223,8 +225,11 @@ class HybridEstimator:
             probs = self.predictor.predict_distribution([sampled])[0]
         except ModelError as exc:
             return _without_model(method, mode, by_method, f"the model gives no estimate: {exc}")
-        said = self.predictor.describe(probs, limit_pa=self.settings.resolution_limit_pa, widen=fit.widen,
-                                       gel_scale=gel_scale(sampled.gel_modulus_pa))
+        peak_force_n = float(np.max(sampled.force_n))
+        said = self.predictor.describe(probs, limit_pa=self.settings.resolution_limit_pa, peak_force_n=peak_force_n,
+                                       widen=fit.widen, gel_scale=gel_scale(sampled.gel_modulus_pa))
+        calibrated = (f"{self.predictor.interval_level:.0%} interval calibrated on validation objects' grasps "
+                      f"{self.predictor.metadata.force_band_at(peak_force_n)}")
         states = ", ".join(f"{e.method} {e.state}" for e in sampled.estimates)
         model = f"{self.predictor.variant.name} model over {self.predictor.variant.n_frames} frames"
         if said.state == "lower_bound":
@@ -233,11 +238,10 @@ class HybridEstimator:
         elif said.state == "upper_bound":
             what = "median at or below the softest training label"
         elif fit.notes:
-            what = (f"{self.predictor.interval_level:.0%} interval calibrated on validation objects, widened "
-                    f"{fit.widen:g} times as the grasp lies outside what the model was trained on (its coverage "
-                    "there is not validated)")
+            what = (f"{calibrated}, widened {fit.widen:g} times as the grasp lies outside what the model was "
+                    "trained on (its coverage there is not validated)")
         else:
-            what = f"{self.predictor.interval_level:.0%} interval calibrated on validation objects"
+            what = calibrated
         if fit.notes:
             what += "; outside the training range: " + "; ".join(fit.notes)
         reason = f"{model}; {what}; analytical inputs: {states}"

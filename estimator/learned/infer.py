@@ -18,9 +18,10 @@ A model directory holds ``model.onnx`` and ``metadata.json`` (written by
     the output's log10 E bins among them.
 ``calibration``
     Fitted on the validation objects: ``temperature`` (divides the logits),
-    ``level`` (the stated coverage of an ``ok`` interval, 0.9), ``interval_scale``
-    (the interval's half-width in spreads of the distribution that holds the truth
-    at that level: split conformal), ``p_rigid`` (the probability of E at or above the resolution limit
+    ``level`` (the stated coverage of an ``ok`` interval, 0.9), ``force_band_edges_n`` and
+    ``interval_scales`` (per band of the grasp's peak force, the interval's half-width in spreads of
+    the distribution that holds the truth at that level: split conformal per band; a model from
+    before the bands has one ``interval_scale`` for every force), ``p_rigid`` (the probability of E at or above the resolution limit
     from which the answer is a lower bound there), ``soft_pa`` (the softest training label: below it the
     estimate is an upper bound) and what they scored on the validation grasps
     (:mod:`estimator.learned.distribution`).
@@ -34,6 +35,7 @@ A model directory holds ``model.onnx`` and ``metadata.json`` (written by
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import math
@@ -47,7 +49,7 @@ import onnxruntime as ort
 
 from estimator.errors import ModelError
 from estimator.learned import distribution, inputs
-from estimator.learned.distribution import Described, describe_on_gel, probabilities
+from estimator.learned.distribution import Described, describe_on_gel, force_band, probabilities
 from estimator.learned.inputs import (
     MEASUREMENT_VERSION,
     ModelInputs,
@@ -62,9 +64,11 @@ __all__ = [
     "MODEL_FORMAT",
     "CompliancePredictor",
     "ModelMetadata",
+    "band_scales",
     "current_scales",
     "default_model_dir",
     "load_predictor",
+    "scales_text",
 ]
 
 log = logging.getLogger(__name__)
@@ -104,9 +108,18 @@ class ModelMetadata:
     temperature: float
     p_rigid: float
     interval_level: float
-    interval_scale: float
+    force_band_edges_n: tuple[float, ...]
+    interval_scales: tuple[float, ...]
     soft_pa: float
     raw: Mapping[str, Any]
+
+    def interval_scale_at(self, peak_force_n: float) -> float:
+        """The calibrated interval half-width (spreads) for a grasp of peak force ``peak_force_n`` (N)."""
+        return self.interval_scales[int(force_band(peak_force_n, self.force_band_edges_n))]
+
+    def force_band_at(self, peak_force_n: float) -> str:
+        """The force band of a grasp of peak force ``peak_force_n`` (N) in words (``"below 10 N"``)."""
+        return band_names(self.force_band_edges_n)[int(force_band(peak_force_n, self.force_band_edges_n))]
 
     @classmethod
     def from_json(cls, data: Any, source: str) -> ModelMetadata:
@@ -123,14 +136,17 @@ class ModelMetadata:
                                     size_px=tuple(int(v) for v in spec["size_px"]),
                                     window_m=None if window is None else tuple(float(v) for v in window))
             cal = data["calibration"]
-            values = {k: float(cal[k]) for k in ("temperature", "p_rigid", "level", "interval_scale", "soft_pa")}
+            values = {k: float(cal[k]) for k in ("temperature", "p_rigid", "level", "soft_pa")}
+            edges, scales = band_scales(cal)
         except (AttributeError, KeyError, TypeError, ValueError) as exc:
             raise ModelError(f"{source}: missing or malformed field ({exc!r})") from exc
-        if not all(math.isfinite(v) for v in values.values()) or not (
-                values["temperature"] > 0 and 0 < values["level"] < 1 and values["interval_scale"] > 0
-                and values["soft_pa"] > 0 and 0 < values["p_rigid"] < 1):
+        if not all(math.isfinite(v) for v in (*values.values(), *edges, *scales)) or not (
+                values["temperature"] > 0 and 0 < values["level"] < 1 and min(scales) > 0
+                and values["soft_pa"] > 0 and 0 < values["p_rigid"] < 1
+                and len(scales) == len(edges) + 1 and list(edges) == sorted(set(edges))):
             raise ModelError(f"{source}: calibration {cal}: expected temperature > 0, 0 < p_rigid < 1, "
-                             "0 < level < 1, interval_scale > 0 and soft_pa > 0")
+                             "0 < level < 1, soft_pa > 0, rising force_band_edges_n and one interval scale > 0 "
+                             "per force band")
         if data.get("scales") != current_scales():
             raise ModelError(f"{source}: trained with input scales {data.get('scales')}, this code uses "
                              f"{current_scales()}; retrain the model")
@@ -143,8 +159,32 @@ class ModelMetadata:
         if data.get("inputs") != expected:
             raise ModelError(f"{source}: inputs {data.get('inputs')} do not match variant {variant.name} ({expected})")
         return cls(variant=variant, temperature=values["temperature"], p_rigid=values["p_rigid"],
-                   interval_level=values["level"],
-                   interval_scale=values["interval_scale"], soft_pa=values["soft_pa"], raw=data)
+                   interval_level=values["level"], force_band_edges_n=edges, interval_scales=scales,
+                   soft_pa=values["soft_pa"], raw=data)
+
+
+def band_scales(calibration: Mapping[str, Any]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """``(force_band_edges_n, interval_scales)`` of a model's calibration: one scale for every force in
+    a model from before the bands (its ``interval_scale``)."""
+    if "interval_scales" not in calibration:
+        return (), (float(calibration["interval_scale"]),)
+    return (tuple(float(v) for v in calibration["force_band_edges_n"]),
+            tuple(float(v) for v in calibration["interval_scales"]))
+
+
+def band_names(edges_n: tuple[float, ...]) -> list[str]:
+    """Each force band of ``edges_n`` (N) in words: ``["below 10 N", "at 10-20 N", "from 20 N"]``."""
+    if not edges_n:
+        return ["at any force"]
+    return [f"below {edges_n[0]:g} N", *(f"at {a:g}-{b:g} N" for a, b in itertools.pairwise(edges_n)),
+            f"from {edges_n[-1]:g} N"]
+
+
+def scales_text(calibration: Mapping[str, Any]) -> str:
+    """The interval scales of a calibration in words: ``"4.1 spreads below 10 N, 1.9 at 10-20 N, ..."``."""
+    edges, scales = band_scales(calibration)
+    return ", ".join(f"{s:.3g}{' spreads' if i == 0 else ''} {w}"
+                     for i, (s, w) in enumerate(zip(scales, band_names(edges), strict=True)))
 
 
 def _session_options(threads: int) -> ort.SessionOptions:
@@ -255,11 +295,11 @@ class CompliancePredictor:
         logits = self.predict_logits(encode(self.variant, items))
         return probabilities(logits, temperature=self.metadata.temperature)
 
-    def describe(self, probs: np.ndarray, *, limit_pa: float, widen: float = 1.0, gel_scale: float = 1.0
-                 ) -> Described:
+    def describe(self, probs: np.ndarray, *, limit_pa: float, peak_force_n: float, widen: float = 1.0,
+                 gel_scale: float = 1.0) -> Described:
         """State, value and calibrated interval of one item's distribution, bounded above at the
         sensor's resolution limit ``limit_pa`` (:func:`~estimator.learned.distribution.describe_on_gel`,
-        as calibration scores it).
+        as calibration scores it), the interval scale that of the grasp's peak force ``peak_force_n`` (N).
         ``widen`` (>= 1) multiplies the calibrated interval scale (a grasp outside the training
         range: :func:`~estimator.learned.window.input_range`); bounds are not moved by it.
         ``gel_scale`` is the item's :func:`~estimator.learned.inputs.gel_scale`: the distribution
@@ -268,7 +308,9 @@ class CompliancePredictor:
             raise ModelError(f"widen {widen!r}: expected a finite factor >= 1")
         if not (math.isfinite(gel_scale) and gel_scale > 0):
             raise ModelError(f"gel_scale {gel_scale!r}: expected a finite factor > 0")
-        return describe_on_gel(probs, scale=self.metadata.interval_scale * widen, limit_pa=limit_pa,
+        if not math.isfinite(peak_force_n):
+            raise ModelError(f"peak_force_n {peak_force_n!r}: expected a finite force (N)")
+        return describe_on_gel(probs, scale=self.metadata.interval_scale_at(peak_force_n) * widen, limit_pa=limit_pa,
                                soft_pa=self.metadata.soft_pa, p_rigid=self.metadata.p_rigid, gel_scale=gel_scale)
 
 

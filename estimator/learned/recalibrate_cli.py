@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 
+from estimator.learned.infer import scales_text
 from estimator.learned.recalibrate import recalibrate
 from teleop.settings import load_settings
 
-_SHOWN = ("temperature", "p_rigid", "interval_scale", "coverage")
+_SHOWN = ("temperature", "p_rigid", "coverage")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,5 +38,6 @@ def run(args: argparse.Namespace) -> int:
     for key in _SHOWN:
         before = old.get(key)
         print(f"{key:15s} {'-' if before is None else f'{before:.4g}':>8s} -> {new[key]:.4g}")
+    print(f"interval scale  {scales_text(old)}\n             -> {scales_text(new)}")
     print(f"on {new['n']} val grasps; wrote {args.out or args.model}/metadata.json")
     return 0

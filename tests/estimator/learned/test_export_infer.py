@@ -49,12 +49,12 @@ def test_trained_model_loads_and_predicts(trained_model, synthetic):
     assert np.all(np.isfinite(median)) and np.all((median >= 3) & (median <= 12))
     logits = predictor.predict_logits(encode(predictor.variant, samples))
     assert logits.shape == (2, N_BINS)
-    said = predictor.describe(probs[0], limit_pa=1e12)
+    said = predictor.describe(probs[0], limit_pa=1e12, peak_force_n=20.0)
     assert said.state in ("ok", "upper_bound") and 0 < said.e_pa < 1e12
     # On a gel half the reference's, the same distribution means half the modulus, and the limit
     # (in the measuring gel's moduli) is taken on the reference gel at twice its value.
-    reference = predictor.describe(probs[1], limit_pa=2e6)
-    halved = predictor.describe(probs[1], limit_pa=1e6, gel_scale=2.0)
+    reference = predictor.describe(probs[1], limit_pa=2e6, peak_force_n=20.0)
+    halved = predictor.describe(probs[1], limit_pa=1e6, peak_force_n=20.0, gel_scale=2.0)
     assert halved.state == reference.state and halved.e_pa == pytest.approx(reference.e_pa / 2)
     assert halved.p_above_limit == reference.p_above_limit
     assert predictor.interval_level == pytest.approx(0.9)
@@ -95,7 +95,9 @@ def _copy(model_dir, tmp_path):
     (lambda m: m.update(format="other"), "not a compliance-teleop.model"),
     (lambda m: m["scales"].update(force_scale_n=25.0), "trained with input scales"),
     (lambda m: m["variant"].update(name="rgb+fw+analytical"), "do not match variant"),
-    (lambda m: m["calibration"].update(interval_scale=0.0), "interval_scale > 0"),
+    (lambda m: m["calibration"].update(interval_scales=[0.0, 1.0, 1.0]), "one interval scale > 0 per force band"),
+    (lambda m: m["calibration"].update(interval_scales=[1.0, 1.0]), "one interval scale > 0 per force band"),
+    (lambda m: m["calibration"].update(force_band_edges_n=[20.0, 10.0]), "rising force_band_edges_n"),
     (lambda m: m["calibration"].update(temperature=-1.0), "temperature > 0"),
     (lambda m: m.pop("calibration"), "missing or malformed"),
 ])
@@ -106,6 +108,21 @@ def test_metadata_that_does_not_fit_is_refused(trained_model, tmp_path, change, 
     (dest / "metadata.json").write_text(json.dumps(meta))
     with pytest.raises(ModelError, match=expected):
         CompliancePredictor(dest)
+
+
+@pytest.mark.slow
+def test_each_force_band_reads_its_interval_scale_and_an_older_model_has_one_for_all(trained_model, tmp_path):
+    dest, meta = _copy(trained_model, tmp_path)
+    meta["calibration"].update(force_band_edges_n=[10.0, 20.0], interval_scales=[4.0, 2.0, 1.5])
+    (dest / "metadata.json").write_text(json.dumps(meta))
+    metadata = CompliancePredictor(dest).metadata
+    assert [metadata.interval_scale_at(f) for f in (3.0, 10.0, 19.0, 20.0, 80.0)] == [4.0, 2.0, 2.0, 1.5, 1.5]
+    for key in ("force_band_edges_n", "interval_scales"):
+        del meta["calibration"][key]
+    meta["calibration"]["interval_scale"] = 1.7
+    (dest / "metadata.json").write_text(json.dumps(meta))
+    metadata = CompliancePredictor(dest).metadata
+    assert metadata.interval_scales == (1.7,) and metadata.interval_scale_at(3.0) == metadata.interval_scale_at(80.0)
 
 
 @pytest.mark.slow

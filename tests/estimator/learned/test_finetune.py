@@ -103,7 +103,7 @@ def test_replay_keeps_what_the_model_knew_and_recalibrates(trained_model, synthe
     assert calibration["chosen_on"] == f"val of {synthetic_dataset}" and calibration["n"] == len(val)
     assert calibration != plain["calibration"] and 0.0 <= calibration["coverage"] <= 1.0
     assert meta["fine_tuning"]["replay"] == {"data": str(synthetic_dataset), "ratio": 4}
-    assert CompliancePredictor(tmp_path / "replayed").metadata.interval_scale == calibration["interval_scale"]
+    assert list(CompliancePredictor(tmp_path / "replayed").metadata.interval_scales) == calibration["interval_scales"]
 
 
 @pytest.mark.slow

@@ -79,6 +79,23 @@ def test_a_rig_outside_the_trained_ones_widens_the_interval_and_says_why(trained
     assert rig_notes(sampled, {}) == ()  # a model that records no rig range says nothing
 
 
+def test_the_interval_is_that_of_the_grasps_force_band_and_says_so(trained_model, synthetic):
+    sampled = _sampled(synthetic, "rubber_a")
+    peak_n = float(np.max(sampled.force_n))
+    predictor = CompliancePredictor(trained_model)
+    said = {}
+    for name, edge_n in (("light", 2.0 * peak_n), ("firm", 0.5 * peak_n)):
+        predictor.metadata = dataclasses.replace(predictor.metadata, force_band_edges_n=(edge_n,),
+                                                 interval_scales=(0.4, 0.2))
+        said[name] = HybridEstimator(predictor, settings=SETTINGS).estimate_sampled(sampled)
+    assert said["light"].state == said["firm"].state == "ok" and said["light"].e_pa == said["firm"].e_pa
+    # Below the estimate (above it the interval may open at the censored end) the half-width is the band's.
+    below = {k: math.log10(e.e_pa / e.interval_pa[0]) for k, e in said.items()}
+    assert below["light"] == pytest.approx(2.0 * below["firm"], rel=1e-6)
+    assert f"validation objects' grasps below {2.0 * peak_n:g} N" in said["light"].reason
+    assert f"validation objects' grasps from {0.5 * peak_n:g} N" in said["firm"].reason
+
+
 def test_an_unsampled_grasp_is_refused_with_its_reason(trained_model):
     hybrid = HybridEstimator(CompliancePredictor(trained_model), settings=SETTINGS)
     for mode in ("model", "auto"):

@@ -25,10 +25,11 @@ def test_calibration_scores_exactly_what_the_estimator_answers_on_any_gel(traine
     limit_pa = load_settings().resolution_limit_pa
     states = set()
     for gel_scale in (0.4, 1.0, 2.5):  # a stiffer gel, the reference one, a softer one
-        scored = _described(logits, {**calibration, "limit_pa": limit_pa}, np.full(len(val), gel_scale))
-        for probs, said in zip(probabilities(logits, temperature=predictor.metadata.temperature), scored,
-                               strict=True):
-            assert predictor.describe(probs, limit_pa=limit_pa, gel_scale=gel_scale) == said
+        scored = _described(logits, {**calibration, "limit_pa": limit_pa}, np.full(len(val), gel_scale),
+                            val.peak_forces_n)
+        for probs, said, force_n in zip(probabilities(logits, temperature=predictor.metadata.temperature), scored,
+                                        val.peak_forces_n, strict=True):
+            assert predictor.describe(probs, limit_pa=limit_pa, peak_force_n=force_n, gel_scale=gel_scale) == said
             if said.state == "lower_bound":  # at the settings' limit, whatever the gel
                 assert said.e_pa == pytest.approx(min(limit_pa, CENSOR_PA / gel_scale))
             states.add(said.state)
@@ -49,12 +50,12 @@ def test_recalibrating_on_the_models_own_data_reproduces_its_calibration(trained
     # onnxruntime's logits are torch's to 1e-4: the same data give the same calibration.
     assert after["n"] == len(val) and after["p_rigid"] == before["calibration"]["p_rigid"]
     assert after["temperature"] == pytest.approx(before["calibration"]["temperature"], rel=1e-3)
-    assert after["interval_scale"] == pytest.approx(before["calibration"]["interval_scale"], rel=1e-3)
+    assert after["interval_scales"] == pytest.approx(before["calibration"]["interval_scales"], rel=1e-3)
     assert meta["recalibrated"]["previous"] == before["calibration"]
     assert meta["recalibrated"]["data"] == str(synthetic_dataset)
     assert set(meta["metrics"]) == {"val", "test"} and meta["metrics"]["val"]["objects"] > 0
     assert json.loads((model / "metadata.json").read_text()) == meta
-    assert CompliancePredictor(model).metadata.interval_scale == after["interval_scale"]
+    assert list(CompliancePredictor(model).metadata.interval_scales) == after["interval_scales"]
 
 
 def test_a_dataset_whose_val_or_test_objects_the_model_trained_on_is_refused(trained_model, synthetic, tmp_path):

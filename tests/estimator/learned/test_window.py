@@ -192,7 +192,8 @@ def _estimate(trained_model, synthetic, grid: DepthGrid, *, touches: bool = Fals
                            width_m=s.width_m, depth_m=s.depth_m)
     predictor = CompliancePredictor(trained_model)
     # The few-epoch model's calibrated interval spans most of the scale; a tenth of it is clipped by neither end.
-    predictor.metadata = dataclasses.replace(predictor.metadata, interval_scale=predictor.metadata.interval_scale / 10)
+    predictor.metadata = dataclasses.replace(predictor.metadata,
+                                             interval_scales=tuple(s / 10 for s in predictor.metadata.interval_scales))
     hybrid = HybridEstimator(predictor, settings=load_settings(), policy=AutoPolicy(0.0))
     return hybrid.estimate_sampled(sampled, mode=mode)
 
