@@ -92,7 +92,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "renders (its own mapping, over the settings' display range [e_soft_pa, e_rigid_pa]) is scored "
         "against the label clipped to that range: felt_log10_error, felt_within_2x (share within a "
         "factor 2), dangerous_misses (a rigid object, label >= 100 MPa, felt below 1 MPa, or a soft one, "
-        "label <= 1 MPa, felt at or above 10 MPa, i.e. rigid where the rigid end is below 10 MPa); "
+        "label <= 1 MPa, felt at or above 10 MPa, i.e. rigid where the rigid end is below 10 MPa), "
+        "rigid_shown_rigid (share of the rigid objects' grasps rendered rigid); "
         "interval_level is the coverage a model states for its intervals, "
         "interval_width_decades_median the median interval width in decades as the display shows it "
         "(soft_...: over labels below 3 MPa). Unlabelled and unreadable "
@@ -236,15 +237,17 @@ def _print_table(result: Mapping[str, Any], root: Path) -> None:
     print()
     print(f"on the display (range {soft:.3g} to {rigid:.3g} Pa, labels clipped to it): felt err = mean |log10 "
           "felt - log10 label|; felt2x = share felt within 2x; danger = rigid (>= 100 MPa) felt below 1 MPa "
-          "or soft (<= 1 MPa) felt at or above 10 MPa (or rigid); level = interval coverage the method "
+          "or soft (<= 1 MPa) felt at or above 10 MPa (or rigid); rigid = share of rigid objects' grasps "
+          "rendered rigid; level = interval coverage the method "
           "states, coverage = share of intervals holding the label; width = median interval width in "
           "decades as shown (all / labels below 3 MPa)")
-    print(f"{'method':<{width}} {'n':>4} {'felt err':>8} {'felt2x':>7} {'danger':>6} {'level':>6} "
+    print(f"{'method':<{width}} {'n':>4} {'felt err':>8} {'felt2x':>7} {'danger':>6} {'rigid':>6} {'level':>6} "
           f"{'coverage':>8} {'width':>6} {'soft width':>10}")
     for method, m in result["methods"].items():
         danger = "-" if m["dangerous_misses"] is None else str(m["dangerous_misses"])
         print(f"{method:<{width}} {m['n']:>4} {_fmt(m['felt_log10_error'], '8.2f')} "
-              f"{_fmt(m['felt_within_2x'], '7.1%')} {danger:>6} {_fmt(m['interval_level'], '6.0%')} "
+              f"{_fmt(m['felt_within_2x'], '7.1%')} {danger:>6} {_fmt(m['rigid_shown_rigid'], '6.1%')} "
+              f"{_fmt(m['interval_level'], '6.0%')} "
               f"{_fmt(m['interval_coverage'], '8.1%')} {_fmt(m['interval_width_decades_median'], '6.2f')} "
               f"{_fmt(m['soft_interval_width_decades_median'], '10.2f')}")
     for method, m in result["methods"].items():

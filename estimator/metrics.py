@@ -40,6 +40,9 @@ Per method :func:`summarise` gives
     resolution limit, about 6.8 MPa) cannot render 10 MPa, so there the soft miss is
     a soft object rendered rigid, ``E_felt >= min(10 MPa, e_rigid_pa)``; likewise the
     rigid miss is ``E_felt < min(1 MPa, e_rigid_pa)``;
+``rigid_shown_rigid``
+    share of the rigid objects' grasps (label ``>=`` :data:`RIGID_TRUTH_PA`) the
+    display renders rigid (its rigid flag: at the rigid end); None when there are none;
 ``interval_level``
     the nominal coverage the method states for its intervals (a learned model's,
     from its metadata; None for the analytical methods and for old models);
@@ -202,15 +205,17 @@ def _median(values: Sequence[float]) -> float | None:
 def _felt_metrics(counted: Sequence[dict[str, Any]], display_range_pa: tuple[float, float] | None) -> dict[str, Any]:
     """The display's figures over the counted rows (module docstring); None without a range."""
     if display_range_pa is None:
-        return dict.fromkeys(("felt_log10_error", "felt_within_2x", "dangerous_misses",
+        return dict.fromkeys(("felt_log10_error", "felt_within_2x", "dangerous_misses", "rigid_shown_rigid",
                               "interval_width_decades_median", "soft_interval_width_decades_median"))
     soft, rigid = display_range_pa
-    errors, misses, widths, soft_widths = [], 0, [], []
+    errors, misses, widths, soft_widths, rigid_shown = [], 0, [], [], []
     for r in counted:
         percept, felt = _rendered(r, display_range_pa)
         target = min(rigid, max(soft, r["truth_pa"]))
         errors.append(abs(math.log10(felt) - math.log10(target)))
         misses += dangerous_miss(r["truth_pa"], felt, e_rigid_pa=rigid)
+        if r["truth_pa"] >= RIGID_TRUTH_PA:
+            rigid_shown.append(percept.rigid)
         widths.append(percept.uncertainty_decades)
         if r["truth_pa"] < SOFT_SUBSET_BELOW_PA:
             soft_widths.append(percept.uncertainty_decades)
@@ -219,6 +224,7 @@ def _felt_metrics(counted: Sequence[dict[str, Any]], display_range_pa: tuple[flo
         "felt_log10_error": sum(errors) / len(errors) if errors else None,
         "felt_within_2x": sum(e <= within for e in errors) / len(errors) if errors else None,
         "dangerous_misses": misses,
+        "rigid_shown_rigid": sum(rigid_shown) / len(rigid_shown) if rigid_shown else None,
         "interval_width_decades_median": _median(widths),
         "soft_interval_width_decades_median": _median(soft_widths),
     }

@@ -55,6 +55,14 @@ def test_a_rigid_object_felt_soft_is_a_dangerous_miss():
     assert one([row(2e11, "ok", 2e6, 1e6, 4e6)])["dangerous_misses"] == 0  # 2 MPa: not below 1 MPa
 
 
+def test_rigid_shown_rigid_counts_the_rigid_objects_rendered_at_the_rigid_end():
+    rigid_rows = [row(2e11, "lower_bound", RIGID, RIGID, None), row(1e9, "ok", 5e7, 2e7, 1e9),
+                  row(2e11, "ok", 2e6, 1e6, 4e6), row(1e9, "ok", RIGID * 0.999999999, RIGID / 2, None)]
+    m = one([*rigid_rows, row(5e5, "lower_bound", RIGID, RIGID, None)])  # a soft one shown rigid is not counted
+    assert m["rigid_shown_rigid"] == pytest.approx(3 / 4)
+    assert one([row(5e5, "ok", 5e5, 2.5e5, 1e6)])["rigid_shown_rigid"] is None
+
+
 def test_a_soft_object_felt_rigid_is_a_dangerous_miss_even_below_10_mpa():
     # The rigid end (6.75 MPa) is below 10 MPa, so rendered rigid counts as "at or above 10 MPa".
     assert one([row(5e5, "lower_bound", RIGID, RIGID, None)])["dangerous_misses"] == 1
