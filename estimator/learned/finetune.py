@@ -161,7 +161,9 @@ def _calibration(model: ComplianceNet, base: dict[str, Any], recalibrate_on: Spl
     if recalibrate_on is None:
         return calibration
     return {**calibrate(predict(model, recalibrate_on), recalibrate_on.label, gel_scales=recalibrate_on.gel_scales,
-                        peak_forces_n=recalibrate_on.peak_forces_n, soft_pa=calibration["soft_pa"],
+                        peak_forces_n=recalibrate_on.peak_forces_n,
+                        floors_log10=recalibrate_on.floors_log10 if calibration.get("floor") else None,
+                        soft_pa=calibration["soft_pa"],
                         limit_pa=calibration["limit_pa"], level=calibration["level"]),
             "chosen_on": f"val of {replay}"}
 

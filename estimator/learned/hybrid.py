@@ -234,7 +234,7 @@ class HybridEstimator:
         model = f"{self.predictor.variant.name} model over {self.predictor.variant.n_frames} frames"
         if said.state == "lower_bound":
             what = (f"P(E >= the sensor's resolution limit) = {said.p_above_limit:.2f} >= "
-                    f"{self.predictor.metadata.p_rigid:g}: stiffer objects look alike to the gel")
+                    f"{self.predictor.metadata.p_rigid_at(peak_force_n):g}: stiffer objects look alike to the gel")
         elif said.state == "upper_bound":
             what = "median at or below the softest training label"
         elif fit.notes:
@@ -242,6 +242,10 @@ class HybridEstimator:
                     "trained on (its coverage there is not validated)")
         else:
             what = calibrated
+        floor_log10, floor_method = self.predictor.floor(sampled)
+        if floor_method is not None:
+            what += (f"; its distribution floored at the {floor_method} lower bound "
+                     f"{10.0 ** floor_log10 / gel_scale(sampled.gel_modulus_pa):.3g} Pa")
         if fit.notes:
             what += "; outside the training range: " + "; ".join(fit.notes)
         reason = f"{model}; {what}; analytical inputs: {states}"

@@ -17,12 +17,15 @@ A model directory holds ``model.onnx`` and ``metadata.json`` (written by
     The input and output scales it was trained with (checked against this code's),
     the output's log10 E bins among them.
 ``calibration``
-    Fitted on the validation objects: ``temperature`` (divides the logits),
+    Fitted on the validation objects: ``temperature`` (divides the logits), ``floor``
+    (``{"methods", "leak"}``: the analytical methods whose lower bounds floor a hybrid's
+    distribution, and the share of its mass left below; null or absent for none),
     ``level`` (the stated coverage of an ``ok`` interval, 0.9), ``force_band_edges_n`` and
     ``interval_scales`` (per band of the grasp's peak force, the interval's half-width in spreads of
     the distribution that holds the truth at that level: split conformal per band; a model from
-    before the bands has one ``interval_scale`` for every force), ``p_rigid`` (the probability of E at or above the resolution limit
-    from which the answer is a lower bound there), ``soft_pa`` (the softest training label: below it the
+    before the bands has one ``interval_scale`` for every force), ``p_rigids`` (per band, the
+    probability of E at or above the resolution limit from which the answer is a lower bound there;
+    one ``p_rigid`` for all bands in a model from before the key), ``soft_pa`` (the softest training label: below it the
     estimate is an upper bound) and what they scored on the validation grasps
     (:mod:`estimator.learned.distribution`).
 ``metrics``, ``training``, ``data``
@@ -49,7 +52,13 @@ import onnxruntime as ort
 
 from estimator.errors import ModelError
 from estimator.learned import distribution, inputs
-from estimator.learned.distribution import Described, describe_on_gel, force_band, probabilities
+from estimator.learned.distribution import (
+    Described,
+    describe_on_gel,
+    floor_log_weights,
+    force_band,
+    probabilities,
+)
 from estimator.learned.inputs import (
     MEASUREMENT_VERSION,
     ModelInputs,
@@ -64,11 +73,11 @@ __all__ = [
     "MODEL_FORMAT",
     "CompliancePredictor",
     "ModelMetadata",
-    "band_scales",
+    "bands_text",
     "current_scales",
     "default_model_dir",
+    "force_bands",
     "load_predictor",
-    "scales_text",
 ]
 
 log = logging.getLogger(__name__)
@@ -106,8 +115,10 @@ class ModelMetadata:
 
     variant: Variant
     temperature: float
-    p_rigid: float
+    p_rigids: tuple[float, ...]
     interval_level: float
+    floor_methods: tuple[str, ...]
+    floor_leak: float
     force_band_edges_n: tuple[float, ...]
     interval_scales: tuple[float, ...]
     soft_pa: float
@@ -116,6 +127,10 @@ class ModelMetadata:
     def interval_scale_at(self, peak_force_n: float) -> float:
         """The calibrated interval half-width (spreads) for a grasp of peak force ``peak_force_n`` (N)."""
         return self.interval_scales[int(force_band(peak_force_n, self.force_band_edges_n))]
+
+    def p_rigid_at(self, peak_force_n: float) -> float:
+        """The calibrated ``p_rigid`` for a grasp of peak force ``peak_force_n`` (N)."""
+        return self.p_rigids[int(force_band(peak_force_n, self.force_band_edges_n))]
 
     def force_band_at(self, peak_force_n: float) -> str:
         """The force band of a grasp of peak force ``peak_force_n`` (N) in words (``"below 10 N"``)."""
@@ -136,17 +151,20 @@ class ModelMetadata:
                                     size_px=tuple(int(v) for v in spec["size_px"]),
                                     window_m=None if window is None else tuple(float(v) for v in window))
             cal = data["calibration"]
-            values = {k: float(cal[k]) for k in ("temperature", "p_rigid", "level", "soft_pa")}
-            edges, scales = band_scales(cal)
+            values = {k: float(cal[k]) for k in ("temperature", "level", "soft_pa")}
+            edges, p_rigids, scales = force_bands(cal)
+            floor = cal.get("floor") or {"methods": [], "leak": 1.0}
+            floor_methods, floor_leak = tuple(str(m) for m in floor["methods"]), float(floor["leak"])
         except (AttributeError, KeyError, TypeError, ValueError) as exc:
             raise ModelError(f"{source}: missing or malformed field ({exc!r})") from exc
         if not all(math.isfinite(v) for v in (*values.values(), *edges, *scales)) or not (
                 values["temperature"] > 0 and 0 < values["level"] < 1 and min(scales) > 0
-                and values["soft_pa"] > 0 and 0 < values["p_rigid"] < 1
-                and len(scales) == len(edges) + 1 and list(edges) == sorted(set(edges))):
-            raise ModelError(f"{source}: calibration {cal}: expected temperature > 0, 0 < p_rigid < 1, "
-                             "0 < level < 1, soft_pa > 0, rising force_band_edges_n and one interval scale > 0 "
-                             "per force band")
+                and values["soft_pa"] > 0 and all(0 < p < 1 for p in p_rigids)
+                and len(scales) == len(p_rigids) == len(edges) + 1 and list(edges) == sorted(set(edges))
+                and 0 < floor_leak <= 1 and set(floor_methods) <= set(inputs.ANALYTICAL_METHODS)):
+            raise ModelError(f"{source}: calibration {cal}: expected temperature > 0, 0 < level < 1, "
+                             "soft_pa > 0, rising force_band_edges_n, one interval scale > 0 and one "
+                             "0 < p_rigid < 1 per force band and a floor of analytical methods leaking 0-1")
         if data.get("scales") != current_scales():
             raise ModelError(f"{source}: trained with input scales {data.get('scales')}, this code uses "
                              f"{current_scales()}; retrain the model")
@@ -158,18 +176,23 @@ class ModelMetadata:
         expected = {name: [None, *shape] for name, shape in variant.input_shapes.items()}
         if data.get("inputs") != expected:
             raise ModelError(f"{source}: inputs {data.get('inputs')} do not match variant {variant.name} ({expected})")
-        return cls(variant=variant, temperature=values["temperature"], p_rigid=values["p_rigid"],
-                   interval_level=values["level"], force_band_edges_n=edges, interval_scales=scales,
+        return cls(variant=variant, temperature=values["temperature"], p_rigids=p_rigids,
+                   interval_level=values["level"], floor_methods=floor_methods, floor_leak=floor_leak,
+                   force_band_edges_n=edges, interval_scales=scales,
                    soft_pa=values["soft_pa"], raw=data)
 
 
-def band_scales(calibration: Mapping[str, Any]) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """``(force_band_edges_n, interval_scales)`` of a model's calibration: one scale for every force in
-    a model from before the bands (its ``interval_scale``)."""
+def force_bands(calibration: Mapping[str, Any]) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+    """``(force_band_edges_n, p_rigids, interval_scales)`` of a model's calibration, one ``p_rigid`` and
+    one scale per band; a model from before the bands has one band (its ``interval_scale``), and one
+    from before ``p_rigids`` the same ``p_rigid`` in every band."""
     if "interval_scales" not in calibration:
-        return (), (float(calibration["interval_scale"]),)
-    return (tuple(float(v) for v in calibration["force_band_edges_n"]),
-            tuple(float(v) for v in calibration["interval_scales"]))
+        edges, scales = (), (float(calibration["interval_scale"]),)
+    else:
+        edges = tuple(float(v) for v in calibration["force_band_edges_n"])
+        scales = tuple(float(v) for v in calibration["interval_scales"])
+    p_rigids = calibration.get("p_rigids") or [calibration["p_rigid"]] * len(scales)
+    return edges, tuple(float(v) for v in p_rigids), scales
 
 
 def band_names(edges_n: tuple[float, ...]) -> list[str]:
@@ -180,11 +203,12 @@ def band_names(edges_n: tuple[float, ...]) -> list[str]:
             f"from {edges_n[-1]:g} N"]
 
 
-def scales_text(calibration: Mapping[str, Any]) -> str:
-    """The interval scales of a calibration in words: ``"4.1 spreads below 10 N, 1.9 at 10-20 N, ..."``."""
-    edges, scales = band_scales(calibration)
-    return ", ".join(f"{s:.3g}{' spreads' if i == 0 else ''} {w}"
-                     for i, (s, w) in enumerate(zip(scales, band_names(edges), strict=True)))
+def bands_text(calibration: Mapping[str, Any]) -> str:
+    """A calibration's force bands in words: ``"below 10 N: lower bound from P(E >= limit) >= 0.98,
+    interval -/+ 4.1 spreads; ..."``."""
+    edges, p_rigids, scales = force_bands(calibration)
+    return "; ".join(f"{where}: lower bound from P(E >= limit) >= {p:g}, interval -/+ {s:.3g} spreads"
+                     for where, p, s in zip(band_names(edges), p_rigids, scales, strict=True))
 
 
 def _session_options(threads: int) -> ort.SessionOptions:
@@ -291,15 +315,27 @@ class CompliancePredictor:
         return out
 
     def predict_distribution(self, items: Sequence[ModelInputs]) -> np.ndarray:
-        """Calibrated bin probabilities (B, N_BINS) per item: encode, run, temperature-scale."""
+        """Calibrated bin probabilities (B, N_BINS) per item: encode, run, floor at the analytical lower
+        bounds (a model calibrated with that floor), temperature-scale."""
         logits = self.predict_logits(encode(self.variant, items))
-        return probabilities(logits, temperature=self.metadata.temperature)
+        weights = None
+        if self.metadata.floor_methods:
+            floors = [self.floor(item)[0] for item in items]
+            weights = floor_log_weights(np.array(floors), leak=self.metadata.floor_leak)
+        return probabilities(logits, temperature=self.metadata.temperature, log_weights=weights)
+
+    def floor(self, item: ModelInputs) -> tuple[float, str | None]:
+        """The item's analytical floor on the reference gel, log10 Pa, and the method that sets it
+        (``(-inf, None)`` for none, or a model calibrated without a floor)."""
+        return inputs.analytical_floor(item.estimates, methods=self.metadata.floor_methods,
+                                       scale=inputs.gel_scale(item.gel_modulus_pa))
 
     def describe(self, probs: np.ndarray, *, limit_pa: float, peak_force_n: float, widen: float = 1.0,
                  gel_scale: float = 1.0) -> Described:
         """State, value and calibrated interval of one item's distribution, bounded above at the
         sensor's resolution limit ``limit_pa`` (:func:`~estimator.learned.distribution.describe_on_gel`,
-        as calibration scores it), the interval scale that of the grasp's peak force ``peak_force_n`` (N).
+        as calibration scores it), its interval scale and ``p_rigid`` those of the force band of the
+        grasp's peak force ``peak_force_n`` (N).
         ``widen`` (>= 1) multiplies the calibrated interval scale (a grasp outside the training
         range: :func:`~estimator.learned.window.input_range`); bounds are not moved by it.
         ``gel_scale`` is the item's :func:`~estimator.learned.inputs.gel_scale`: the distribution
@@ -311,7 +347,8 @@ class CompliancePredictor:
         if not math.isfinite(peak_force_n):
             raise ModelError(f"peak_force_n {peak_force_n!r}: expected a finite force (N)")
         return describe_on_gel(probs, scale=self.metadata.interval_scale_at(peak_force_n) * widen, limit_pa=limit_pa,
-                               soft_pa=self.metadata.soft_pa, p_rigid=self.metadata.p_rigid, gel_scale=gel_scale)
+                               soft_pa=self.metadata.soft_pa, p_rigid=self.metadata.p_rigid_at(peak_force_n),
+                               gel_scale=gel_scale)
 
 
 def load_predictor(model_dir: str | Path | None = None, *, settings: Settings | None = None,

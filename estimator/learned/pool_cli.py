@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from estimator.learned.infer import scales_text
+from estimator.learned.infer import bands_text
 from estimator.learned.pool import pool_models
 from teleop.settings import load_settings
 
@@ -32,6 +32,6 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"out": args.out, "members": len(args.model), "calibration": calibration}, allow_nan=False))
         return 0
-    print(f"pooled {len(args.model)} models into {args.out}: interval scale {scales_text(calibration)}, "
-          f"p_rigid {calibration['p_rigid']:g}, coverage {calibration['coverage']:.1%} on {calibration['n']} val grasps")
+    print(f"pooled {len(args.model)} models into {args.out}: coverage {calibration['coverage']:.1%} on "
+          f"{calibration['n']} val grasps; {bands_text(calibration)}")
     return 0

@@ -79,7 +79,8 @@ def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | P
     logits = {name: _logits(predictor, part) for name, part in parts.items()}
     val = parts["val"]
     calibration = calibrate(logits["val"], val.label, gel_scales=val.gel_scales, peak_forces_n=val.peak_forces_n,
-                            soft_pa=predictor.metadata.soft_pa, limit_pa=settings.resolution_limit_pa)
+                            floors_log10=val.floors_for(variant), soft_pa=predictor.metadata.soft_pa,
+                            limit_pa=settings.resolution_limit_pa)
     new = {
         **metadata,
         "calibration": calibration,

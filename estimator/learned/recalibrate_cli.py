@@ -5,16 +5,16 @@ from __future__ import annotations
 import argparse
 import json
 
-from estimator.learned.infer import scales_text
+from estimator.learned.infer import bands_text
 from estimator.learned.recalibrate import recalibrate
 from teleop.settings import load_settings
 
-_SHOWN = ("temperature", "p_rigid", "coverage")
+_SHOWN = ("temperature", "coverage")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
-        "Refit a trained model's calibration (temperature, rigid probability, interval scale) on the val objects "
+        "Refit a trained model's calibration (analytical floor, temperature, and per force band the rigid probability and interval scale) on the val objects "
         "of its own build-dataset directory and score it again on the val and test objects, without retraining: "
         "for a change to how answers are described or calibrated. Rewrites MODEL_DIR/metadata.json (or writes "
         "OUT) and keeps the replaced calibration under `recalibrated`."
@@ -38,6 +38,6 @@ def run(args: argparse.Namespace) -> int:
     for key in _SHOWN:
         before = old.get(key)
         print(f"{key:15s} {'-' if before is None else f'{before:.4g}':>8s} -> {new[key]:.4g}")
-    print(f"interval scale  {scales_text(old)}\n             -> {scales_text(new)}")
+    print(f"force bands     {bands_text(old)}\n             -> {bands_text(new)}")
     print(f"on {new['n']} val grasps; wrote {args.out or args.model}/metadata.json")
     return 0

@@ -10,7 +10,7 @@ from typing import Any
 from estimator.errors import EstimatorError
 from estimator.learned.dataset import load_manifest
 from estimator.learned.dataset_cli import parse_size
-from estimator.learned.infer import scales_text
+from estimator.learned.infer import bands_text
 from estimator.learned.inputs import ANALYTICAL_METHODS, Variant
 from estimator.learned.train import TrainConfig, dataset_window, train_model
 from teleop.settings import load_settings
@@ -96,8 +96,7 @@ def run(args: argparse.Namespace) -> int:
             methods: Sequence[str] = [variant.method, *ANALYTICAL_METHODS]
             print(f"  {split:<4} ({metrics['objects']} objects) log10 error / within 10x: "
                   + ", ".join(f"{m} {_fmt(metrics, m)}" for m in methods))
-    print(f"  calibration on val: temperature {cal['temperature']:.2f}; lower bound from P(E >= limit) >= "
-          f"{cal['p_rigid']:g}; {cal['level']:.0%} interval = median -/+ {scales_text(cal)}; "
-          f"coverage ok {_share(cal['ok_coverage'])} of {cal['n_ok']}, bounds {_share(cal['bound_coverage'])}, "
-          f"all {_share(cal['coverage'])} of {cal['n']}")
+    print(f"  calibration on val: temperature {cal['temperature']:.2f}; {cal['level']:.0%} answers per force band: "
+          f"{bands_text(cal)}; coverage ok {_share(cal['ok_coverage'])} of {cal['n_ok']}, bounds "
+          f"{_share(cal['bound_coverage'])}, all {_share(cal['coverage'])} of {cal['n']}")
     return 0

@@ -378,7 +378,7 @@ def write_tiny_model(model_dir: Path, log10_e: float) -> float:
         "format": MODEL_FORMAT, "version": MODEL_VERSION,
         "variant": {"name": "depth", "n_frames": 3, "size_px": [16, 22]},
         "inputs": {"frames": [None, *shape]}, "output": OUTPUT_NAME, "scales": current_scales(),
-        "calibration": {"temperature": 1.0, "p_rigid": 0.5, "level": 0.9, "force_band_edges_n": [],
+        "calibration": {"temperature": 1.0, "p_rigids": [0.5], "level": 0.9, "force_band_edges_n": [],
                         "interval_scales": [1.645], "soft_pa": 5e3},
         "data": {"depth_binning": estimator_settings(load_settings()).depth_binning},
     }))

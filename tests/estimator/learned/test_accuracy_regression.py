@@ -25,7 +25,7 @@ OBJECTS = ("memory_foam_cube", "kitchen_sponge", "stress_ball", "silicone_ball_s
 SEED = 21
 #: The shipped default's figures on this set, measured when it was shipped (felt error in decades,
 #: share within a factor 2, dangerous misses), and the worst a model may do here.
-MEASURED = {"felt_log10_error": 0.131, "felt_within_2x": 12 / 14, "dangerous_misses": 1}
+MEASURED = {"felt_log10_error": 0.135, "felt_within_2x": 12 / 14, "dangerous_misses": 1}
 WORST = {"felt_log10_error": 0.18, "felt_within_2x": 11 / 14, "dangerous_misses": 1}
 
 

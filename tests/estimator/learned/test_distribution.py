@@ -20,6 +20,7 @@ from estimator.learned.distribution import (
     conformal_scale,
     describe,
     fit_temperature,
+    floor_log_weights,
     force_band,
     interval_score,
     probabilities,
@@ -156,7 +157,7 @@ def test_calibrate_picks_the_rigid_threshold_and_a_scale_that_hold_on_the_valida
     firm = np.full(truth.size, 25.0)  # one force band: the per-band fit is tested below
     cal = calibrate(logits_of(right), truth, gel_scales=np.ones(truth.size), peak_forces_n=firm, soft_pa=SOFT_PA,
                     limit_pa=LIMIT_PA)
-    assert cal["p_rigid"] == P_RIGID_CHOICES[0] and cal["bound_coverage"] >= 0.9 and cal["chosen_on"] == "val"
+    assert cal["p_rigids"][-1] == P_RIGID_CHOICES[0] and cal["bound_coverage"] >= 0.9 and cal["chosen_on"] == "val"
     assert cal["n"] == truth.size and cal["n_ok"] >= 0.95 * soft.size
     assert min(cal["interval_scales"]) > 0 and cal["temperature"] > 0
     # Every bound holds, so the ok intervals need hold less than 90 % for 90 % of all answers.
@@ -168,7 +169,7 @@ def test_calibrate_picks_the_rigid_threshold_and_a_scale_that_hold_on_the_valida
     wrong[:40] = 8.05
     cal = calibrate(logits_of(wrong), truth, gel_scales=np.ones(truth.size), peak_forces_n=firm, soft_pa=SOFT_PA,
                     limit_pa=LIMIT_PA)
-    assert cal["p_rigid"] == P_RIGID_CHOICES[-1] and cal["bound_coverage"] < 0.9
+    assert cal["p_rigids"][-1] == P_RIGID_CHOICES[-1] and cal["bound_coverage"] < 0.9
     # The ok intervals make up for the failed bounds.
     assert cal["ok_levels"][-1] > 0.9 and cal["ok_coverage"] >= cal["ok_levels"][-1] - 0.01
     assert cal["coverage"] >= 0.9
@@ -181,7 +182,7 @@ def test_force_bands_split_at_their_edges():
 
 def test_each_force_band_gets_the_interval_scale_that_holds_there():
     pytest.importorskip("torch")
-    from estimator.learned.train import MIN_BAND_OK, calibrate
+    from estimator.learned.train import MIN_BAND_GRASPS, calibrate
 
     rng = np.random.default_rng(2)
     n = 600
@@ -198,9 +199,35 @@ def test_each_force_band_gets_the_interval_scale_that_holds_there():
         int((force_n == f).sum()) for f in (5.0, 15.0, 25.0)]
     # A band with too few grasps to fit takes the scale fitted on all of them.
     few = force_n.copy()
-    few[np.flatnonzero(force_n == 5.0)[MIN_BAND_OK - 1:]] = 15.0
+    few[np.flatnonzero(force_n == 5.0)[MIN_BAND_GRASPS - 1:]] = 15.0
     sparse = calibrate(logits, truth, gel_scales=np.ones(n), peak_forces_n=few, soft_pa=SOFT_PA, limit_pa=LIMIT_PA,
                        force_band_edges_n=(10.0, 20.0))
     everywhere = calibrate(logits, truth, gel_scales=np.ones(n), peak_forces_n=few, soft_pa=SOFT_PA,
                            limit_pa=LIMIT_PA, force_band_edges_n=())
     assert sparse["interval_scales"][0] == everywhere["interval_scales"][0] != sparse["interval_scales"][1]
+
+
+def test_a_floor_keeps_a_leak_of_the_mass_below_it_and_cuts_its_bin():
+    probs = gaussian(5.0, 0.5)[None]
+    floored = probabilities(np.log(np.maximum(probs, 1e-300)), log_weights=floor_log_weights(np.array([5.0]), leak=0.01))
+    below = cdf_at(floored, 5.0)[0]
+    # Half the mass lay below 5.0: it keeps 1 % of its weight against the half above.
+    assert below == pytest.approx(0.005 / 0.505, rel=1e-3)
+    mid_bin = floor_log_weights(np.array([EDGES_LOG10[20] + BIN_DECADES / 4]), leak=0.0 + 1e-12)[0]
+    assert math.exp(mid_bin[20]) == pytest.approx(0.75) and math.exp(mid_bin[19]) < 1e-11 and mid_bin[21] == 0.0
+    untouched = floor_log_weights(np.array([-np.inf]), leak=0.01)
+    assert np.all(untouched == 0.0)
+    with pytest.raises(ModelError, match="leak"):
+        floor_log_weights(np.array([5.0]), leak=0.0)
+
+
+def test_the_floor_is_the_highest_lower_bound_of_the_reliable_methods():
+    from estimator.estimate import Estimate
+    from estimator.learned.inputs import analytical_floor
+
+    estimates = (Estimate.at_least("no_tactile", 2e5, "stiff"), Estimate.at_least("split", 3e6, "stiffer"),
+                 Estimate.at_least("elastic", 1e9, "not trusted"), Estimate.at_most("hertz", 1e4, "soft"))
+    assert analytical_floor(estimates) == (pytest.approx(math.log10(3e6)), "split")
+    assert analytical_floor(estimates, scale=2.0)[0] == pytest.approx(math.log10(6e6))
+    assert analytical_floor(estimates, methods=("no_tactile",)) == (pytest.approx(math.log10(2e5)), "no_tactile")
+    assert analytical_floor(estimates[2:]) == (-math.inf, None)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import subprocess
@@ -13,10 +14,11 @@ import pytest
 import torch
 
 from estimator.errors import ModelError
-from estimator.learned.distribution import N_BINS, quantile
+from estimator.estimate import Estimate
+from estimator.learned.distribution import N_BINS, cdf_at, probabilities, quantile
 from estimator.learned.export import export_onnx, max_disagreement
 from estimator.learned.infer import CompliancePredictor, ModelMetadata, load_predictor
-from estimator.learned.inputs import Variant, encode
+from estimator.learned.inputs import Variant, encode, gel_scale
 from estimator.learned.model import ComplianceNet
 from estimator.learned.reference import mismatches
 from estimator.settings import estimator_settings
@@ -95,9 +97,11 @@ def _copy(model_dir, tmp_path):
     (lambda m: m.update(format="other"), "not a compliance-teleop.model"),
     (lambda m: m["scales"].update(force_scale_n=25.0), "trained with input scales"),
     (lambda m: m["variant"].update(name="rgb+fw+analytical"), "do not match variant"),
-    (lambda m: m["calibration"].update(interval_scales=[0.0, 1.0, 1.0]), "one interval scale > 0 per force band"),
-    (lambda m: m["calibration"].update(interval_scales=[1.0, 1.0]), "one interval scale > 0 per force band"),
+    (lambda m: m["calibration"].update(interval_scales=[0.0, 1.0, 1.0]), "one interval scale > 0 and one"),
+    (lambda m: m["calibration"].update(interval_scales=[1.0, 1.0]), "one interval scale > 0 and one"),
     (lambda m: m["calibration"].update(force_band_edges_n=[20.0, 10.0]), "rising force_band_edges_n"),
+    (lambda m: m["calibration"].update(p_rigids=[0.9, 1.0, 0.5]), "0 < p_rigid < 1 per force band"),
+    (lambda m: m["calibration"].update(floor={"methods": ["split"], "leak": 0.0}), "leaking 0-1"),
     (lambda m: m["calibration"].update(temperature=-1.0), "temperature > 0"),
     (lambda m: m.pop("calibration"), "missing or malformed"),
 ])
@@ -111,18 +115,44 @@ def test_metadata_that_does_not_fit_is_refused(trained_model, tmp_path, change, 
 
 
 @pytest.mark.slow
-def test_each_force_band_reads_its_interval_scale_and_an_older_model_has_one_for_all(trained_model, tmp_path):
+def test_a_hybrid_distribution_keeps_a_leak_of_its_mass_below_the_analytical_lower_bounds(trained_model, synthetic):
+    predictor = CompliancePredictor(trained_model)
+    leak = predictor.metadata.floor_leak
+    assert predictor.metadata.floor_methods == ("no_tactile", "split") and 0 < leak < 0.1
+    sample = synthetic.sample("foam_a", 0, 0, rng=np.random.default_rng(0))
+    k = gel_scale(sample.gel_modulus_pa)
+    bounded = dataclasses.replace(sample, estimates=(  # a bound at a bin edge (1 GPa) on the reference gel
+        *(e for e in sample.estimates if e.method != "split"), Estimate.at_least("split", 1e9 / k, "stiff")))
+    floor_log10, method = predictor.floor(bounded)
+    assert method == "split" and floor_log10 == pytest.approx(9.0)
+    floored = cdf_at(predictor.predict_distribution([bounded]), floor_log10)[0]
+    # Without a floor in its calibration the model's own distribution stands...
+    predictor.metadata = dataclasses.replace(predictor.metadata, floor_methods=())
+    own = predictor.predict_distribution([bounded])
+    logits = predictor.predict_logits(encode(predictor.variant, [bounded]))
+    assert np.allclose(own, probabilities(logits, temperature=predictor.metadata.temperature))
+    # ...and the floor multiplies the odds of E below it by the leak.
+    below = cdf_at(own, floor_log10)[0]
+    assert floored / (1 - floored) == pytest.approx(leak * below / (1 - below), rel=1e-6)
+
+
+@pytest.mark.slow
+def test_each_force_band_reads_its_own_calibration_and_an_older_model_has_one_for_all(trained_model, tmp_path):
     dest, meta = _copy(trained_model, tmp_path)
-    meta["calibration"].update(force_band_edges_n=[10.0, 20.0], interval_scales=[4.0, 2.0, 1.5])
+    meta["calibration"].update(force_band_edges_n=[10.0, 20.0], interval_scales=[4.0, 2.0, 1.5],
+                               p_rigids=[0.98, 0.9, 0.5])
     (dest / "metadata.json").write_text(json.dumps(meta))
     metadata = CompliancePredictor(dest).metadata
-    assert [metadata.interval_scale_at(f) for f in (3.0, 10.0, 19.0, 20.0, 80.0)] == [4.0, 2.0, 2.0, 1.5, 1.5]
-    for key in ("force_band_edges_n", "interval_scales"):
+    forces = (3.0, 10.0, 19.0, 20.0, 80.0)
+    assert [metadata.interval_scale_at(f) for f in forces] == [4.0, 2.0, 2.0, 1.5, 1.5]
+    assert [metadata.p_rigid_at(f) for f in forces] == [0.98, 0.9, 0.9, 0.5, 0.5]
+    for key in ("force_band_edges_n", "interval_scales", "p_rigids", "floor"):
         del meta["calibration"][key]
-    meta["calibration"]["interval_scale"] = 1.7
+    meta["calibration"].update(interval_scale=1.7, p_rigid=0.8)
     (dest / "metadata.json").write_text(json.dumps(meta))
     metadata = CompliancePredictor(dest).metadata
     assert metadata.interval_scales == (1.7,) and metadata.interval_scale_at(3.0) == metadata.interval_scale_at(80.0)
+    assert metadata.p_rigids == (0.8,) and metadata.floor_methods == ()
 
 
 @pytest.mark.slow

@@ -86,7 +86,7 @@ def test_the_interval_is_that_of_the_grasps_force_band_and_says_so(trained_model
     said = {}
     for name, edge_n in (("light", 2.0 * peak_n), ("firm", 0.5 * peak_n)):
         predictor.metadata = dataclasses.replace(predictor.metadata, force_band_edges_n=(edge_n,),
-                                                 interval_scales=(0.4, 0.2))
+                                                 p_rigids=(0.9, 0.9), interval_scales=(0.4, 0.2))
         said[name] = HybridEstimator(predictor, settings=SETTINGS).estimate_sampled(sampled)
     assert said["light"].state == said["firm"].state == "ok" and said["light"].e_pa == said["firm"].e_pa
     # Below the estimate (above it the interval may open at the censored end) the half-width is the band's.

@@ -10,8 +10,9 @@ import pytest
 
 from estimator.cli import main
 from estimator.errors import EstimatorError
-from estimator.learned.distribution import CENSOR_PA, probabilities
+from estimator.learned.distribution import CENSOR_PA, floor_log_weights, probabilities
 from estimator.learned.infer import CompliancePredictor
+from estimator.learned.inputs import analytical_floor
 from estimator.learned.recalibrate import recalibrate
 from estimator.learned.train import _described, load_split_data
 from teleop.settings import load_settings
@@ -25,10 +26,13 @@ def test_calibration_scores_exactly_what_the_estimator_answers_on_any_gel(traine
     limit_pa = load_settings().resolution_limit_pa
     states = set()
     for gel_scale in (0.4, 1.0, 2.5):  # a stiffer gel, the reference one, a softer one
+        floors = np.array([analytical_floor(r["estimates"], scale=gel_scale)[0] for r in val.rows])
         scored = _described(logits, {**calibration, "limit_pa": limit_pa}, np.full(len(val), gel_scale),
-                            val.peak_forces_n)
-        for probs, said, force_n in zip(probabilities(logits, temperature=predictor.metadata.temperature), scored,
-                                        val.peak_forces_n, strict=True):
+                            val.peak_forces_n, floors)
+        # As predict_distribution gives them to describe: floored at the analytical lower bounds.
+        weights = floor_log_weights(floors, leak=predictor.metadata.floor_leak)
+        for probs, said, force_n in zip(probabilities(logits, temperature=predictor.metadata.temperature,
+                                                      log_weights=weights), scored, val.peak_forces_n, strict=True):
             assert predictor.describe(probs, limit_pa=limit_pa, peak_force_n=force_n, gel_scale=gel_scale) == said
             if said.state == "lower_bound":  # at the settings' limit, whatever the gel
                 assert said.e_pa == pytest.approx(min(limit_pa, CENSOR_PA / gel_scale))
@@ -48,7 +52,7 @@ def test_recalibrating_on_the_models_own_data_reproduces_its_calibration(trained
     after = meta["calibration"]
     val = load_split_data(synthetic_dataset, CompliancePredictor(model).variant, ("val",))["val"].live()
     # onnxruntime's logits are torch's to 1e-4: the same data give the same calibration.
-    assert after["n"] == len(val) and after["p_rigid"] == before["calibration"]["p_rigid"]
+    assert after["n"] == len(val) and after["p_rigids"] == before["calibration"]["p_rigids"]
     assert after["temperature"] == pytest.approx(before["calibration"]["temperature"], rel=1e-3)
     assert after["interval_scales"] == pytest.approx(before["calibration"]["interval_scales"], rel=1e-3)
     assert meta["recalibrated"]["previous"] == before["calibration"]

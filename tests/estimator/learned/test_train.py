@@ -33,8 +33,9 @@ def test_trained_model_directory(trained_model, synthetic_dataset, synthetic):
     cal = meta["calibration"]
     live_val = len(list((synthetic_dataset / "val").rglob("*_a0.npz")))  # scored on the live sampling only
     assert cal["n"] == live_val < meta["data"]["samples"]["val"] and cal["chosen_on"] == "val"
-    assert cal["temperature"] > 0 and min(cal["interval_scales"]) > 0 and 0.5 <= cal["p_rigid"] < 1
-    assert len(cal["interval_scales"]) == len(cal["force_band_edges_n"]) + 1 == len(cal["band_coverage"])
+    assert cal["temperature"] > 0 and min(cal["interval_scales"]) > 0 and all(0.5 <= p < 1 for p in cal["p_rigids"])
+    assert len(cal["interval_scales"]) == len(cal["p_rigids"]) == len(cal["force_band_edges_n"]) + 1
+    assert cal["floor"] == {"methods": ["no_tactile", "split"], "leak": 0.01}  # the fixture reads the fits
     train_objects = json.loads((synthetic_dataset / "split.json").read_text())["train"]
     assert cal["level"] == 0.9 and cal["soft_pa"] == min(synthetic.OBJECTS[n][1] for n in train_objects)
     assert meta["data"]["measurement_version"] == MEASUREMENT_VERSION
