@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import replace
 
 from estimator.learned.finetune import FINE_TUNE_CONFIG, REPLAY_RATIO, check_by_object, fine_tune
@@ -44,6 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     config = replace(FINE_TUNE_CONFIG, epochs=args.epochs, lr=args.lr, batch_size=args.batch_size, seed=args.seed)
+    if args.replay is None:
+        print("note: without --replay the model may forget what it knew about other objects (on the held-out "
+              "sensor of the model card it did); pass the base model's training dataset if you have it",
+              file=sys.stderr)
     check = None
     if args.check:
         check = check_by_object(args.model, args.data, settings=load_settings(args.settings), config=config,

@@ -161,7 +161,9 @@ def test_the_command_fine_tunes_and_says_how_to_score_it(trained_model, syntheti
     data = synthetic.write_dataset(tmp_path / "d", seed=5)
     assert main(["fine-tune", "--model", str(trained_model), "--data", str(data), "--out", str(tmp_path / "m"),
                  "--epochs", "2", "--json"]) == 0
-    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    out, err = capsys.readouterr()
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert "without --replay the model may forget" in err
     assert summary["out"] == str(tmp_path / "m") and summary["grasps"] == 2 * len(synthetic.OBJECTS)
     assert np.isfinite(summary["final_train_loss"])
     assert {p.name for p in (tmp_path / "m").iterdir()} == {"model.onnx", "metadata.json"}
