@@ -24,7 +24,7 @@ figure was seen, for about 15 grasps of 5 objects:
   many drawn afresh from the replay dataset's train split (1: chosen on the
   soft-gel Wedge validation rig among 1, 4 and 16, after the held-out Mini's
   figures for 1 and 4 had been seen; both rank them alike), and the intervals
-  are then recalibrated (:func:`~estimator.learned.train.calibrate`) on its
+  are then recalibrated (:func:`~estimator.learned.calibrate.calibrate`) on its
   validation objects that fine-tuning did not train on. Its train objects must
   be the base model's train objects, so that nothing the base model held out
   is trained on.
@@ -57,6 +57,7 @@ from torch import nn
 from tqdm import tqdm
 
 from estimator.errors import EstimatorError
+from estimator.learned.calibrate import calibrate
 from estimator.learned.dataset import SPLITS, load_split
 from estimator.learned.export import export_onnx, network_from_onnx
 from estimator.learned.infer import CompliancePredictor, ModelMetadata
@@ -66,7 +67,6 @@ from estimator.learned.pool import pooled_from_onnx
 from estimator.learned.train import (
     SplitData,
     TrainConfig,
-    calibrate,
     check_dataset_fits,
     load_split_data,
     predict,

@@ -1,7 +1,7 @@
 """Refit a trained model's calibration on its validation objects, without retraining.
 
 The network's weights stay. What is fitted on the validation objects from its outputs (the
-calibration of :func:`~estimator.learned.train.calibrate`: temperature, rigid probability, interval
+calibration of :func:`~estimator.learned.calibrate.calibrate`: temperature, rigid probability, interval
 scale; and ``auto``'s split threshold) is fitted anew, with this code's rules for what an answer
 says, and the model's ``metrics`` on its val and test objects are scored again: a change to how
 answers are described or calibrated needs no retraining. The dataset is a ``build-dataset``
@@ -20,12 +20,12 @@ from typing import Any
 import numpy as np
 
 from estimator.errors import EstimatorError
+from estimator.learned.calibrate import calibrate
 from estimator.learned.dataset import load_split
 from estimator.learned.infer import CompliancePredictor
 from estimator.learned.train import (
     SplitData,
     auto_policy,
-    calibrate,
     check_dataset_fits,
     load_split_data,
     split_metrics,

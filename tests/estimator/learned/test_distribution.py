@@ -142,7 +142,7 @@ def test_the_training_loss_is_lowest_at_the_truth():
 
 def test_calibrate_picks_the_rigid_threshold_and_a_scale_that_hold_on_the_validation_grasps():
     pytest.importorskip("torch")
-    from estimator.learned.train import OK_LEVEL_FLOOR, P_RIGID_CHOICES, calibrate
+    from estimator.learned.calibrate import OK_LEVEL_FLOOR, P_RIGID_CHOICES, calibrate
 
     rng = np.random.default_rng(1)
     soft = rng.uniform(4.0, 5.8, 300)  # log10 E of soft objects, well below the 6.83 limit
@@ -182,7 +182,7 @@ def test_force_bands_split_at_their_edges():
 
 def test_each_force_band_gets_the_interval_scale_that_holds_there():
     pytest.importorskip("torch")
-    from estimator.learned.train import MIN_BAND_GRASPS, calibrate
+    from estimator.learned.calibrate import MIN_BAND_GRASPS, calibrate
 
     rng = np.random.default_rng(2)
     n = 600

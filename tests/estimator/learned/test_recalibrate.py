@@ -10,11 +10,12 @@ import pytest
 
 from estimator.cli import main
 from estimator.errors import EstimatorError
+from estimator.learned.calibrate import described
 from estimator.learned.distribution import CENSOR_PA, floor_log_weights, probabilities
 from estimator.learned.infer import CompliancePredictor
 from estimator.learned.inputs import analytical_floor
 from estimator.learned.recalibrate import recalibrate
-from estimator.learned.train import _described, load_split_data
+from estimator.learned.train import load_split_data
 from teleop.settings import load_settings
 
 
@@ -27,7 +28,7 @@ def test_calibration_scores_exactly_what_the_estimator_answers_on_any_gel(traine
     states = set()
     for gel_scale in (0.4, 1.0, 2.5):  # a stiffer gel, the reference one, a softer one
         floors = np.array([analytical_floor(r["estimates"], scale=gel_scale)[0] for r in val.rows])
-        scored = _described(logits, {**calibration, "limit_pa": limit_pa}, np.full(len(val), gel_scale),
+        scored = described(logits, {**calibration, "limit_pa": limit_pa}, np.full(len(val), gel_scale),
                             val.peak_forces_n, floors)
         # As predict_distribution gives them to describe: floored at the analytical lower bounds.
         weights = floor_log_weights(floors, leak=predictor.metadata.floor_leak)
