@@ -16,9 +16,9 @@ takes the analytical fits' most reliable lower bounds as evidence: below the
 highest of them (:func:`~estimator.learned.inputs.analytical_floor`) its
 mass is multiplied by a small leak, the share of such bounds that fail
 (:func:`floor_log_weights`), before the temperature is fitted. The network
-reads those bounds as inputs too, but does not always heed them: an
-aluminium extrusion whose force and width alone showed it to be at least
-0.5 MPa was answered at 31 kPa.
+reads those bounds as inputs too, but does not always heed them; the floor
+lowered the validation objects' felt error (the model card gives the
+figures).
 
 From a distribution, :func:`describe` gives the estimate the operator is
 shown:

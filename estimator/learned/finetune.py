@@ -154,7 +154,7 @@ def _tuned(model_dir: Path, base: dict[str, Any], variant: Variant, data: SplitD
     return model, history
 
 
-def _calibration(model: ComplianceNet, base: dict[str, Any], recalibrate_on: SplitData | None,
+def _calibration(model: ComplianceNet, base: dict[str, Any], variant: Variant, recalibrate_on: SplitData | None,
                  replay: str | Path | None) -> dict[str, Any]:
     """The base model's calibration, or with ``replay`` one refitted on its validation samples."""
     calibration = base["calibration"]
@@ -162,7 +162,7 @@ def _calibration(model: ComplianceNet, base: dict[str, Any], recalibrate_on: Spl
         return calibration
     return {**calibrate(predict(model, recalibrate_on), recalibrate_on.label, gel_scales=recalibrate_on.gel_scales,
                         peak_forces_n=recalibrate_on.peak_forces_n,
-                        floors_log10=recalibrate_on.floors_log10 if calibration.get("floor") else None,
+                        floors_log10=recalibrate_on.floors_for(variant),
                         soft_pa=calibration["soft_pa"],
                         limit_pa=calibration["limit_pa"], level=calibration["level"]),
             "chosen_on": f"val of {replay}"}
@@ -212,7 +212,7 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
                             progress=progress)
     out_dir.mkdir(parents=True, exist_ok=True)
     export_onnx(model, out_dir / "model.onnx", example={n: v[:8] for n, v in data.inputs.items()})
-    calibration = _calibration(model, base, recalibrate_on, replay)
+    calibration = _calibration(model, base, variant, recalibrate_on, replay)
     grasps = {(r["object"], Path(r["path"]).name.rsplit("_a", 1)[0]) for r in data.rows}
     new = {
         **base,
@@ -269,7 +269,7 @@ def check_by_object(model_dir: str | Path, data_dir: str | Path, *, settings: Se
                           replay_ratio=replay_ratio, progress=progress, desc=f"without {name} ({n}/{len(objects)})")
         held = data.subset(own).live()
         figures["base"].append(_felt(held, base_predictor.predict_logits(held.inputs), base["calibration"], settings))
-        figures["fine_tuned"].append(_felt(held, predict(model, held), _calibration(model, base, recalibrate_on, replay),
+        figures["fine_tuned"].append(_felt(held, predict(model, held), _calibration(model, base, variant, recalibrate_on, replay),
                                            settings))
     return {
         **{which: _pooled(folds) for which, folds in figures.items()},

@@ -124,17 +124,21 @@ class ModelMetadata:
     soft_pa: float
     raw: Mapping[str, Any]
 
+    def band(self, peak_force_n: float) -> int:
+        """The force band of a grasp of peak force ``peak_force_n`` (N): an index into the per-band fields."""
+        return int(force_band(peak_force_n, self.force_band_edges_n))
+
     def interval_scale_at(self, peak_force_n: float) -> float:
         """The calibrated interval half-width (spreads) for a grasp of peak force ``peak_force_n`` (N)."""
-        return self.interval_scales[int(force_band(peak_force_n, self.force_band_edges_n))]
+        return self.interval_scales[self.band(peak_force_n)]
 
     def p_rigid_at(self, peak_force_n: float) -> float:
         """The calibrated ``p_rigid`` for a grasp of peak force ``peak_force_n`` (N)."""
-        return self.p_rigids[int(force_band(peak_force_n, self.force_band_edges_n))]
+        return self.p_rigids[self.band(peak_force_n)]
 
     def force_band_at(self, peak_force_n: float) -> str:
         """The force band of a grasp of peak force ``peak_force_n`` (N) in words (``"below 10 N"``)."""
-        return band_names(self.force_band_edges_n)[int(force_band(peak_force_n, self.force_band_edges_n))]
+        return band_names(self.force_band_edges_n)[self.band(peak_force_n)]
 
     @classmethod
     def from_json(cls, data: Any, source: str) -> ModelMetadata:
