@@ -9,7 +9,8 @@ import sys
 from dataclasses import replace
 
 from estimator.learned.finetune import FINE_TUNE_CONFIG, REPLAY_RATIO, check_by_object, fine_tune
-from teleop.settings import load_settings
+from estimator.learned.train import TrainConfig
+from teleop.settings import Settings, load_settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,23 +46,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     config = replace(FINE_TUNE_CONFIG, epochs=args.epochs, lr=args.lr, batch_size=args.batch_size, seed=args.seed)
-    if args.replay is None:
+    return fine_tune_and_report(args.model, args.data, args.out, config=config, replay=args.replay,
+                                replay_ratio=args.replay_ratio,
+                                check_settings=load_settings(args.settings) if args.check else None,
+                                as_json=args.json)
+
+
+def fine_tune_and_report(model: str, data: str, out: str, *, config: TrainConfig, replay: str | None,
+                         replay_ratio: float, check_settings: Settings | None = None, as_json: bool = False) -> int:
+    """Fine-tune ``model`` on ``data`` into ``out`` and print what happened (``estimator fine-tune``, and
+    ``estimator train --init``); with ``check_settings``, first the leave-one-object-out check on that rig."""
+    if replay is None:
         print("note: without --replay the model may forget what it knew about other objects (on the held-out "
               "sensor of the model card it did); pass the base model's training dataset if you have it",
               file=sys.stderr)
     check = None
-    if args.check:
-        check = check_by_object(args.model, args.data, settings=load_settings(args.settings), config=config,
-                                replay=args.replay, replay_ratio=args.replay_ratio)
-    meta = fine_tune(args.model, args.data, args.out, config=config, replay=args.replay,
-                     replay_ratio=args.replay_ratio)
+    if check_settings is not None:
+        check = check_by_object(model, data, settings=check_settings, config=config, replay=replay,
+                                replay_ratio=replay_ratio)
+    meta = fine_tune(model, data, out, config=config, replay=replay, replay_ratio=replay_ratio)
     tuned = meta["fine_tuning"]
-    summary = {"out": str(args.out), "objects": tuned["objects"], "grasps": tuned["grasps"],
+    summary = {"out": str(out), "objects": tuned["objects"], "grasps": tuned["grasps"],
                "samples": tuned["samples"], "seconds": tuned["seconds"],
                "final_train_loss": tuned["history"][-1]["train_loss"]}
     if check is not None:
         summary["check"] = check
-    if args.json:
+    if as_json:
         print(json.dumps(summary, allow_nan=False))
         return 0
     if check is not None:
@@ -70,8 +80,8 @@ def run(args: argparse.Namespace) -> int:
               f"{after['felt_log10_error']:.3f} decade, within a factor 2 {before['felt_within_2x']:.0%} -> "
               f"{after['felt_within_2x']:.0%}, dangerous misses {before['dangerous_misses']} -> "
               f"{after['dangerous_misses']} (base -> fine-tuned)")
-    print(f"fine-tuned {args.model} on {tuned['grasps']} grasps ({tuned['samples']} samples) of "
-          f"{len(tuned['objects'])} objects in {tuned['seconds']:.0f} s -> {args.out}; final train loss "
+    print(f"fine-tuned {model} on {tuned['grasps']} grasps ({tuned['samples']} samples) of "
+          f"{len(tuned['objects'])} objects in {tuned['seconds']:.0f} s -> {out}; final train loss "
           f"{summary['final_train_loss']:.3f}. Score it on objects it never saw: "
-          f"estimator evaluate RECORDS --unseen-by {args.out} --model {args.out}")
+          f"estimator evaluate RECORDS --unseen-by {out} --model {out}")
     return 0

@@ -13,11 +13,11 @@ from estimator.errors import EstimatorError, ModelError
 from estimator.learned.distribution import CENSOR_PA, probabilities, quantile
 from estimator.learned.export import network_from_onnx
 from estimator.learned.finetune import check_by_object, fine_tune
-from estimator.learned.infer import CompliancePredictor
+from estimator.learned.infer import CompliancePredictor, default_model_dir
 from estimator.learned.inputs import Variant
 from estimator.learned.train import TrainConfig, load_split_data
 from estimator.samples import load_sample, sample_paths, save_sample
-from teleop.settings import load_settings
+from teleop.settings import default_settings_path, load_settings
 
 QUICK = TrainConfig(epochs=12, batch_size=8, lr=2e-3, seed=0)
 
@@ -181,3 +181,40 @@ def test_the_command_checks_by_leaving_objects_out_when_asked(trained_model, syn
     assert {"felt_log10_error", "felt_within_2x", "dangerous_misses", "n"} <= set(check["fine_tuned"])
     assert main(args) == 0
     assert "leaving one object out, on 24 grasps: felt error" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_train_with_init_fine_tunes_the_model_it_is_given(trained_model, synthetic, tmp_path, capsys):
+    data = synthetic.write_dataset(tmp_path / "d", seed=5)
+    assert main(["train", "--init", str(trained_model), "--data", str(data), "--out", str(tmp_path / "m"),
+                 "--epochs", "2", "--json"]) == 0
+    out, err = capsys.readouterr()
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert "without --replay the model may forget" in err
+    assert summary["grasps"] == 2 * len(synthetic.OBJECTS) and len(summary["objects"]) == len(synthetic.OBJECTS)
+    tuned = json.loads((tmp_path / "m" / "metadata.json").read_text())["fine_tuning"]
+    # fine-tuning's recipe, not training's: its learning rate and batch, the epochs asked for
+    assert tuned["base"] == str(trained_model) and tuned["replay"] is None
+    assert (tuned["config"]["epochs"], tuned["config"]["lr"], tuned["config"]["batch_size"]) == (2, 3e-4, 16)
+    assert len(tuned["history"]) == 2
+
+
+@pytest.mark.parametrize(("extra", "named"), [
+    (["--patience", "3"], "--patience"),
+    (["--settings", str(default_settings_path())], "--settings"),
+    (["--variant", "depth"], "--variant depth"),
+])
+def test_train_with_init_refuses_what_fine_tuning_does_not_use(extra, named, tmp_path, capsys):
+    # The shipped default reads depth+fw+analytical; each refusal comes before any data is read.
+    args = ["train", "--init", str(default_model_dir()), "--data", str(tmp_path / "none"),
+            "--out", str(tmp_path / "m"), *extra]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert named in err and "error" in err
+    assert not (tmp_path / "m").exists()
+
+
+def test_replay_without_init_is_refused(tmp_path, capsys):
+    assert main(["train", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "m"),
+                 "--replay", str(tmp_path)]) == 2
+    assert "need --init MODEL_DIR" in capsys.readouterr().err
