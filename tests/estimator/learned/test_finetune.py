@@ -157,9 +157,10 @@ def test_a_dataset_that_does_not_fit_the_model_is_refused(trained_model, synthet
 
 
 @pytest.mark.slow
-def test_the_command_fine_tunes_and_says_how_to_score_it(trained_model, synthetic, tmp_path, capsys):
+@pytest.mark.parametrize("command", [["fine-tune", "--model"], ["train", "--init"]])
+def test_the_command_fine_tunes_and_says_how_to_score_it(command, trained_model, synthetic, tmp_path, capsys):
     data = synthetic.write_dataset(tmp_path / "d", seed=5)
-    assert main(["fine-tune", "--model", str(trained_model), "--data", str(data), "--out", str(tmp_path / "m"),
+    assert main([*command, str(trained_model), "--data", str(data), "--out", str(tmp_path / "m"),
                  "--epochs", "2", "--json"]) == 0
     out, err = capsys.readouterr()
     summary = json.loads(out.strip().splitlines()[-1])
@@ -168,6 +169,11 @@ def test_the_command_fine_tunes_and_says_how_to_score_it(trained_model, syntheti
     assert np.isfinite(summary["final_train_loss"])
     assert {p.name for p in (tmp_path / "m").iterdir()} == {"model.onnx", "metadata.json"}
     assert "check" not in summary
+    # Either way fine-tuning's recipe (its learning rate and batch), for the epochs asked for.
+    tuned = json.loads((tmp_path / "m" / "metadata.json").read_text())["fine_tuning"]
+    assert tuned["base"] == str(trained_model) and tuned["replay"] is None
+    assert (tuned["config"]["epochs"], tuned["config"]["lr"], tuned["config"]["batch_size"]) == (2, 3e-4, 16)
+    assert len(tuned["history"]) == 2
 
 
 @pytest.mark.slow
@@ -181,22 +187,6 @@ def test_the_command_checks_by_leaving_objects_out_when_asked(trained_model, syn
     assert {"felt_log10_error", "felt_within_2x", "dangerous_misses", "n"} <= set(check["fine_tuned"])
     assert main(args) == 0
     assert "leaving one object out, on 24 grasps: felt error" in capsys.readouterr().out
-
-
-@pytest.mark.slow
-def test_train_with_init_fine_tunes_the_model_it_is_given(trained_model, synthetic, tmp_path, capsys):
-    data = synthetic.write_dataset(tmp_path / "d", seed=5)
-    assert main(["train", "--init", str(trained_model), "--data", str(data), "--out", str(tmp_path / "m"),
-                 "--epochs", "2", "--json"]) == 0
-    out, err = capsys.readouterr()
-    summary = json.loads(out.strip().splitlines()[-1])
-    assert "without --replay the model may forget" in err
-    assert summary["grasps"] == 2 * len(synthetic.OBJECTS) and len(summary["objects"]) == len(synthetic.OBJECTS)
-    tuned = json.loads((tmp_path / "m" / "metadata.json").read_text())["fine_tuning"]
-    # fine-tuning's recipe, not training's: its learning rate and batch, the epochs asked for
-    assert tuned["base"] == str(trained_model) and tuned["replay"] is None
-    assert (tuned["config"]["epochs"], tuned["config"]["lr"], tuned["config"]["batch_size"]) == (2, 3e-4, 16)
-    assert len(tuned["history"]) == 2
 
 
 @pytest.mark.parametrize(("extra", "named"), [
