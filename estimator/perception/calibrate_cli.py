@@ -19,7 +19,11 @@ import math
 import sys
 
 from estimator.errors import CalibrationError
-from estimator.perception.calibration_fit import DEFAULT_FLAT_WEIGHT, fit_calibration
+from estimator.perception.calibration_fit import (
+    DEFAULT_FLAT_WEIGHT,
+    DEFAULT_SMOOTHING_PX,
+    fit_calibration,
+)
 from estimator.perception.capture import add_capture_arguments, capture_to_folder
 from estimator.perception.markers import detect_markers
 from estimator.perception.presses import PressSet, load_presses, split_presses
@@ -162,6 +166,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
              f"mean (default {DEFAULT_FLAT_WEIGHT:g}); 'none' counts every flat pixel once, so the "
              "mostly-flat calibration set pulls small slopes towards zero",
     )
+    parser.add_argument(
+        "--smoothing-px", type=float, default=DEFAULT_SMOOTHING_PX, metavar="S",
+        help="Gaussian sigma (pixels of the warped image) the frames are smoothed by before their colour "
+             "change is looked up, here and at every use of the calibration, so that the small colour changes "
+             "of shallow slopes stand out of the pixel noise; 0 looks up the 8-bit pixels as they are, as the "
+             "shipped models were trained (2 reads broad contacts far better, but those models would need "
+             "retraining on it: see estimator/perception/calibration_fit.py)",
+    )
 
 
 def _flat_weight(text: str) -> float | None:
@@ -190,7 +202,8 @@ def run(args: argparse.Namespace) -> int:
     calibration = fit_calibration(
         presses.reference, presses.images[train], presses.centers_px[train], presses.radii_px[train],
         ball_radius_m=ball_m, pixel_pitch_m=pitch_m, bins=args.bins, tiles=tuple(args.tiles),
-        refine_passes=args.refine_passes, flat_weight=args.flat_weight, marker_masks=masks,
+        refine_passes=args.refine_passes, flat_weight=args.flat_weight, smoothing_px=args.smoothing_px,
+        marker_masks=masks,
         provenance=record, progress=True,
     )
     path = calibration.save(args.out)
@@ -206,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
         "mm_per_px": pitch_m * 1e3,
         "ball_radius_mm": ball_m * 1e3,
         "bins": calibration.bins,
+        "smoothing_px": calibration.smoothing_px,
         "tiles": list(calibration.tiles),
     }
     print(

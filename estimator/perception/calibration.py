@@ -10,7 +10,8 @@ the colour change of a pixel against the no-contact reference encodes the
 local surface slope. The calibration is a lookup table over that change:
 
 * feature: per channel the *relative* change ``(frame - reference) / reference``
-  (dividing by the reference evens out the uneven illumination), quantised into
+  (dividing by the reference evens out the uneven illumination) of the two images
+  each smoothed by a Gaussian of ``smoothing_px`` pixels, in floating point, quantised into
   ``bins`` bins of width ``2 * relative_range / bins``, bin ``bins // 2``
   centred on no change (so sensor noise on an untouched pixel stays in one
   bin); changes beyond the range are clipped into the end bins;
@@ -23,16 +24,23 @@ local surface slope. The calibration is a lookup table over that change:
   weight of ``tile_prior_count`` pixels, so sparsely seen bins fall back on it;
   bins never seen anywhere take the value of the nearest seen bin.
 
-A lookup costs a few integer gathers per pixel (the 256 x 256 (reference,
-value) pairs per channel are pre-quantised), no floating-point maths.
+Why smooth: a slope below ~0.05 changes an 8-bit pixel's colour by a grey level or two, the
+size of the camera and JPEG noise, so pixel by pixel broad, shallow contacts read as flat.
+Averaged over a few pixels in floating point, those changes stand out of the noise and land in
+bins of their own; the table is then fitted on the same smoothed changes
+(:mod:`~estimator.perception.calibration_fit`, which gives the figures and why the shipped
+calibrations have none). With ``smoothing_px`` 0 (every file of format version 1) a lookup is a
+few integer gathers per pixel (the 256 x 256 (reference, value) pairs per channel are
+pre-quantised).
 
 File format
 -----------
 ``.npz`` written with :meth:`Calibration.save` and read with
 :func:`load_calibration` (``allow_pickle=False``): ``lut`` float32
 ``(tiles_y, tiles_x, bins, bins, bins, 2)``, ``image_shape`` int64 (2,),
-``pixel_pitch_m``, ``ball_radius_m``, ``relative_range`` float64 scalars and
-``meta`` (a JSON string: format name, version, provenance).
+``pixel_pitch_m``, ``ball_radius_m``, ``relative_range``, ``smoothing_px`` float64
+scalars and ``meta`` (a JSON string: format name, version, provenance). Version 1 files
+have no ``smoothing_px`` and read as 0.
 """
 
 from __future__ import annotations
@@ -45,14 +53,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from estimator.errors import CalibrationError, PerceptionError
 
-__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "Calibration", "load_calibration"]
+__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "READABLE_VERSIONS", "Calibration", "load_calibration", "lut_index"]
 
 FORMAT_NAME = "compliance-teleop.calibration"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Format versions :func:`load_calibration` reads (1: before ``smoothing_px``, read as 0).
+READABLE_VERSIONS = (1, 2)
 
 
 # --------------------------------------------------------------------------- lookup
@@ -98,6 +109,22 @@ def _lut_index(frame: np.ndarray, reference: np.ndarray, codes: np.ndarray, offs
     return index
 
 
+def lut_index(frame: np.ndarray, reference: np.ndarray, *, bins: int, relative_range: float,
+              offsets: np.ndarray, smoothing_px: float) -> np.ndarray:
+    """Flat LUT index (int32, H x W) of every pixel: its tile's start in ``offsets`` plus the bin of
+    its relative colour change, the images smoothed by a Gaussian of ``smoothing_px`` (module notes;
+    0: the 8-bit pairs as they are)."""
+    if smoothing_px == 0:
+        return _lut_index(frame, reference, _channel_codes(bins, relative_range), offsets)
+    value = cv2.GaussianBlur(frame.astype(np.float32), (0, 0), smoothing_px)
+    base = cv2.GaussianBlur(reference.astype(np.float32), (0, 0), smoothing_px)
+    value -= base
+    value /= np.maximum(base, 1.0)
+    bin_ = np.floor(value * (bins / (2.0 * relative_range)) + 0.5) + bins // 2
+    bin_ = np.clip(bin_, 0, bins - 1).astype(np.int32)
+    return offsets + bin_[..., 0] * (bins * bins) + bin_[..., 1] * bins + bin_[..., 2]
+
+
 def _check_image(name: str, image: Any, shape: tuple[int, int] | None, error: type[Exception]) -> None:
     if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
         got = f"{image.dtype} {image.shape}" if isinstance(image, np.ndarray) else type(image).__name__
@@ -126,6 +153,8 @@ class Calibration:
         Radius of the calibration ball, metres.
     relative_range : float
         Relative colour change covered by the bins, ``[-range, +range]``.
+    smoothing_px : float
+        Gaussian sigma (pixels of those frames) the images are smoothed by before the lookup.
     provenance : Mapping
         JSON-able record of how it was made (source, split, circles, date).
     """
@@ -135,6 +164,7 @@ class Calibration:
     pixel_pitch_m: float
     ball_radius_m: float
     relative_range: float = 1.0
+    smoothing_px: float = 0.0
     provenance: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -155,6 +185,9 @@ class Calibration:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise CalibrationError(f"{name}: expected a positive number, got {value!r}")
+        if not (isinstance(self.smoothing_px, int | float) and math.isfinite(self.smoothing_px)
+                and self.smoothing_px >= 0):
+            raise CalibrationError(f"smoothing_px: expected a number of pixels >= 0, got {self.smoothing_px!r}")
         frozen = np.ascontiguousarray(lut)
         if frozen is lut:
             frozen = lut.copy()
@@ -195,9 +228,9 @@ class Calibration:
         """
         _check_image("frame", frame, self.image_shape, PerceptionError)
         _check_image("reference", reference, self.image_shape, PerceptionError)
-        codes = _channel_codes(self.bins, float(self.relative_range))
         offsets = _tile_offsets(self.image_shape, self.tiles, self.bins)
-        slopes = self._flat_lut.take(_lut_index(frame, reference, codes, offsets))
+        slopes = self._flat_lut.take(lut_index(frame, reference, bins=self.bins, relative_range=float(self.relative_range),
+                                               offsets=offsets, smoothing_px=float(self.smoothing_px)))
         return slopes.real, slopes.imag
 
     def save(self, path: str | Path) -> Path:
@@ -213,6 +246,7 @@ class Calibration:
                     pixel_pitch_m=np.float64(self.pixel_pitch_m),
                     ball_radius_m=np.float64(self.ball_radius_m),
                     relative_range=np.float64(self.relative_range),
+                    smoothing_px=np.float64(self.smoothing_px),
                     meta=np.array(json.dumps(meta, sort_keys=True)),
                 )
         except OSError as exc:
@@ -252,10 +286,12 @@ def load_calibration(path: str | Path) -> Calibration:
         raise CalibrationError(f"{path}: member 'meta' is not JSON: {exc}") from exc
     if not isinstance(meta, dict) or meta.get("format") != FORMAT_NAME:
         raise CalibrationError(f"{path}: member 'meta' does not name format {FORMAT_NAME!r}")
-    if meta.get("version") != FORMAT_VERSION:
-        raise CalibrationError(
-            f"{path}: calibration format version {meta.get('version')!r}, this software reads {FORMAT_VERSION}"
-        )
+    version = meta.get("version")
+    if version not in READABLE_VERSIONS:
+        raise CalibrationError(f"{path}: calibration format version {version!r}, this software reads "
+                               f"{' and '.join(map(str, READABLE_VERSIONS))}")
+    if version >= 2 and "smoothing_px" not in members:
+        raise CalibrationError(f"{path}: missing member smoothing_px (format version {version})")
     try:
         return Calibration(
             lut=members["lut"],
@@ -263,6 +299,7 @@ def load_calibration(path: str | Path) -> Calibration:
             pixel_pitch_m=float(members["pixel_pitch_m"]),
             ball_radius_m=float(members["ball_radius_m"]),
             relative_range=float(members["relative_range"]),
+            smoothing_px=float(members.get("smoothing_px", 0.0)),
             provenance=meta.get("provenance", {}),
         )
     except (CalibrationError, TypeError, ValueError) as exc:

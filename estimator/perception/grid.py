@@ -71,7 +71,8 @@ def depth_grid(sensor: SensorSettings, binning: int) -> DepthGrid:
 
 def grid_calibration(calibration: Calibration, binning: int) -> Calibration:
     """``calibration`` on its grid ``binning`` times coarser: the same colour-to-gradient table (each
-    tile keeps its share of the image) at ``binning`` times the pixel pitch; itself for ``binning`` 1.
+    tile keeps its share of the image) at ``binning`` times the pixel pitch, its smoothing ``binning``
+    times fewer pixels (the same on the gel); itself for ``binning`` 1.
     One object per calibration and binning (the depth solver's tables are cached per grid).
 
     Raises PerceptionError when ``binning`` does not divide both sides of its grid.
@@ -85,6 +86,7 @@ def _binned_calibration(calibration: Calibration, binning: int) -> Calibration:
     rows, cols = (side // binning for side in calibration.image_shape)
     return Calibration(lut=calibration.lut, image_shape=(rows, cols), pixel_pitch_m=calibration.pixel_pitch_m * binning,
                        ball_radius_m=calibration.ball_radius_m, relative_range=calibration.relative_range,
+                       smoothing_px=calibration.smoothing_px / binning,
                        provenance={**calibration.provenance, "binned": binning})
 
 

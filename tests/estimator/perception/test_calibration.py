@@ -39,7 +39,9 @@ def test_round_trip_keeps_every_field_and_the_same_gradients(tmp_path, gelsight_
     path = gelsight_calibration.save(tmp_path / "cal.npz")
     loaded = load_calibration(path)
     np.testing.assert_array_equal(loaded.lut, gelsight_calibration.lut)
-    for name in ("image_shape", "pixel_pitch_m", "ball_radius_m", "relative_range", "provenance", "bins", "tiles"):
+    assert gelsight_calibration.smoothing_px == 0.0  # the fit's default
+    for name in ("image_shape", "pixel_pitch_m", "ball_radius_m", "relative_range", "smoothing_px", "provenance",
+                 "bins", "tiles"):
         assert getattr(loaded, name) == getattr(gelsight_calibration, name), name
     frame = gelsight_presses.images[5]
     for ours, theirs in zip(loaded.gradients(frame, gelsight_presses.reference),
@@ -90,7 +92,42 @@ def test_load_refuses_other_files(tmp_path):
         load_calibration(tmp_path / "nan.npz")
 
 
+def test_a_version_1_file_reads_unsmoothed_and_a_version_2_file_needs_its_smoothing(tmp_path):
+    path = small_calibration(smoothing_px=1.5).save(tmp_path / "cal.npz")
+    with np.load(path) as data:
+        members = {k: data[k] for k in data.files if k != "smoothing_px"}
+    np.savez(tmp_path / "v2.npz", **members)
+    with pytest.raises(CalibrationError, match="v2.npz.*smoothing_px"):
+        load_calibration(tmp_path / "v2.npz")
+    meta = json.loads(str(members["meta"]))
+    members["meta"] = np.array(json.dumps({**meta, "version": 1}))
+    np.savez(tmp_path / "v1.npz", **members)
+    assert load_calibration(tmp_path / "v1.npz").smoothing_px == 0.0
+    members["meta"] = np.array(json.dumps({**meta, "version": 3}))
+    np.savez(tmp_path / "v3.npz", **members)
+    with pytest.raises(CalibrationError, match="version 3, this software reads 1 and 2"):
+        load_calibration(tmp_path / "v3.npz")
+
+
+def test_smoothing_resolves_a_change_below_the_pixel_noise():
+    # A 2 % brighter frame under 3 grey levels of noise per pixel, against a flat reference of 100:
+    # bins of 2 % put the mean change in the bin next to the centre, where a pixel alone rarely lands.
+    rng = np.random.default_rng(0)
+    reference = np.full((60, 80, 3), 100, np.uint8)
+    frame = np.clip(np.rint(102 + 3 * rng.standard_normal((60, 80, 3))), 0, 255).astype(np.uint8)
+    lut = np.zeros((1, 1, 100, 100, 100, 2), np.float32)
+    lut[0, 0, 51, 51, 51, 0] = 1.0  # the centre bin is 50
+    share = {}
+    for sigma in (0.0, 3.0):
+        calibration = small_calibration(lut=lut, image_shape=(60, 80), smoothing_px=sigma)
+        gx, _ = calibration.gradients(frame, reference)
+        share[sigma] = float((gx[10:-10, 10:-10] == 1.0).mean())
+    assert share[0.0] < 0.4 and share[3.0] > 0.95, share
+
+
 @pytest.mark.parametrize(("changes", "match"), [
+    ({"smoothing_px": -1.0}, "smoothing_px"),
+    ({"smoothing_px": float("nan")}, "smoothing_px"),
     ({"lut": np.zeros((4, 4, 4, 2), np.float32)}, "lut"),
     ({"lut": np.zeros((1, 1, 4, 4, 4, 2), np.float64)}, "lut"),
     ({"lut": np.zeros((1, 1, 4, 5, 4, 2), np.float32)}, "lut"),
@@ -143,6 +180,7 @@ def few(gelsight_presses):
     (lambda a: {**a, "refine_passes": -1}, "refine_passes"),
     (lambda a: {**a, "flat_weight": 0.0}, "flat_weight"),
     (lambda a: {**a, "flat_weight": float("inf")}, "flat_weight"),
+    (lambda a: {**a, "smoothing_px": -0.5}, "smoothing_px"),
     (lambda a: {**a, "centers_px": np.array([[-500.0, -500.0], [-500.0, -500.0]])}, "no press circle"),
 ])
 def test_bad_inputs_are_refused_by_name(few, change, match):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -60,6 +62,9 @@ def test_a_grid_calibration_is_the_same_table_at_a_coarser_pitch():
     coarse = grid_calibration(full, 2)
     assert np.array_equal(coarse.lut, full.lut) and coarse.image_shape == (125, 175)
     assert coarse.pixel_pitch_m == pytest.approx(2 * full.pixel_pitch_m)
+    # The same smoothing on the gel: half the pixels of a grid twice as coarse.
+    smoothed = dataclasses.replace(full, smoothing_px=2.0)
+    assert coarse.smoothing_px == 0.0 and grid_calibration(smoothed, 2).smoothing_px == pytest.approx(1.0)
     assert grid_calibration(full, 2) is coarse and grid_calibration(full, 1) is full
     with pytest.raises(PerceptionError, match="binning 3"):
         grid_calibration(full, 3)
