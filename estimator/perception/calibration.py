@@ -69,6 +69,13 @@ READABLE_VERSIONS = (1, 2)
 # --------------------------------------------------------------------------- lookup
 
 
+def _bin_of(relative: np.ndarray, bins: int, relative_range: float) -> np.ndarray:
+    """The bin (int32) of each relative colour change: ``bins`` bins over ``[-range, +range]``, bin
+    ``bins // 2`` centred on no change, changes beyond the range in the end bins."""
+    quantised = np.floor(relative * (bins / (2.0 * relative_range)) + 0.5) + bins // 2
+    return np.clip(quantised, 0, bins - 1).astype(np.int32)
+
+
 @functools.lru_cache(maxsize=8)
 def _channel_codes(bins: int, relative_range: float) -> np.ndarray:
     """Bin offsets per channel for every (reference, value) byte pair.
@@ -78,9 +85,7 @@ def _channel_codes(bins: int, relative_range: float) -> np.ndarray:
     flattened ``(bins, bins, bins)`` table, so a lookup is a sum of gathers.
     """
     reference, value = np.divmod(np.arange(256 * 256, dtype=np.float64), 256.0)
-    relative = (value - reference) / np.maximum(reference, 1.0)
-    quantised = np.floor(relative * (bins / (2.0 * relative_range)) + 0.5) + bins // 2
-    quantised = np.clip(quantised, 0, bins - 1).astype(np.int32)
+    quantised = _bin_of((value - reference) / np.maximum(reference, 1.0), bins, relative_range)
     codes = quantised[None, :] * np.array([bins * bins, bins, 1], dtype=np.int32)[:, None]
     codes.setflags(write=False)
     return codes
@@ -120,9 +125,8 @@ def lut_index(frame: np.ndarray, reference: np.ndarray, *, bins: int, relative_r
     base = cv2.GaussianBlur(reference.astype(np.float32), (0, 0), smoothing_px)
     value -= base
     value /= np.maximum(base, 1.0)
-    bin_ = np.floor(value * (bins / (2.0 * relative_range)) + 0.5) + bins // 2
-    bin_ = np.clip(bin_, 0, bins - 1).astype(np.int32)
-    return offsets + bin_[..., 0] * (bins * bins) + bin_[..., 1] * bins + bin_[..., 2]
+    quantised = _bin_of(value, bins, relative_range)
+    return offsets + quantised[..., 0] * (bins * bins) + quantised[..., 1] * bins + quantised[..., 2]
 
 
 def _check_image(name: str, image: Any, shape: tuple[int, int] | None, error: type[Exception]) -> None:
