@@ -14,9 +14,10 @@ _SHOWN = ("temperature", "coverage")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
-        "Refit a trained model's calibration (analytical floor, temperature, and per force band the rigid probability and interval scale) on the val objects "
-        "of its own build-dataset directory and score it again on the val and test objects, without retraining: "
-        "for a change to how answers are described or calibrated. Rewrites MODEL_DIR/metadata.json (or writes "
+        "Refit a trained model's calibration (analytical floor, temperature, and per force band the rigid "
+        "probability and interval scale) on the val objects of its own build-dataset directory and score it "
+        "again on the val and test objects, without retraining: for a change to how answers are described or "
+        "calibrated. Rewrites MODEL_DIR/metadata.json (or writes "
         "OUT) and keeps the replaced calibration under `recalibrated`."
     )
     parser.add_argument("--model", required=True, metavar="MODEL_DIR", help="the trained model")

@@ -41,7 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "model forgets less; the intervals are then recalibrated on its val objects (without "
                              "it they stay the base model's)")
     parser.add_argument("--replay-ratio", type=float, default=None,
-                        help=f"with --replay: replayed samples per new sample in each epoch (default: {REPLAY_RATIO:g})")
+                        help="with --replay: replayed samples per new sample in each epoch "
+                             f"(default: {REPLAY_RATIO:g})")
     parser.add_argument("--variant", default=None, metavar="SPEC",
                         help="inputs: depth or rgb, then any of +markers (the other finger's images), +fw "
                              "(force and width per frame), +analytical (the analytical estimates: a hybrid "
@@ -91,7 +92,8 @@ def _variant(args: argparse.Namespace, manifest: dict[str, Any]) -> Variant:
 
 def _fine_tune(args: argparse.Namespace) -> int:
     """``--init``: fine-tune the model there with ``estimator fine-tune``'s recipe and report."""
-    unused = [flag for flag, value in (("--patience", args.patience), ("--settings", args.settings)) if value is not None]
+    unused = [flag for flag, value in (("--patience", args.patience), ("--settings", args.settings))
+              if value is not None]
     if unused:
         raise EstimatorError(f"{', '.join(unused)}: not used with --init (fine-tuning runs every epoch and keeps "
                              "the base model's resolution limit)")

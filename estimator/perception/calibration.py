@@ -233,8 +233,9 @@ class Calibration:
         _check_image("frame", frame, self.image_shape, PerceptionError)
         _check_image("reference", reference, self.image_shape, PerceptionError)
         offsets = _tile_offsets(self.image_shape, self.tiles, self.bins)
-        slopes = self._flat_lut.take(lut_index(frame, reference, bins=self.bins, relative_range=float(self.relative_range),
-                                               offsets=offsets, smoothing_px=float(self.smoothing_px)))
+        index = lut_index(frame, reference, bins=self.bins, relative_range=float(self.relative_range),
+                          offsets=offsets, smoothing_px=float(self.smoothing_px))
+        slopes = self._flat_lut.take(index)
         return slopes.real, slopes.imag
 
     def save(self, path: str | Path) -> Path:
