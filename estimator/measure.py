@@ -102,6 +102,10 @@ class GraspMeasurements:
         Wedge, binned), BGR.
     reference_bgr : ndarray, shape (H, W, 3), uint8, or None
         The no-contact reference they were measured against.
+    calibration_smoothing_px : float or None
+        The colour smoothing (Gaussian sigma, px of the calibration's images) of the calibration
+        the depth was reconstructed with (a learned model reads depth only as it was trained);
+        None without depth.
     """
 
     finger: str
@@ -124,6 +128,7 @@ class GraspMeasurements:
     hold_features: ContactFeatures | None = None
     image_bgr: np.ndarray | None = None
     reference_bgr: np.ndarray | None = None
+    calibration_smoothing_px: float | None = None
 
     @property
     def grid(self) -> DepthGrid:
@@ -453,6 +458,7 @@ def measure_tactile(
 
     cal = resolve_calibration(sensor, calibration)
     check_calibration_fits(cal, sensor)
+    smoothing_px = cal.smoothing_px
     binning, grid = m.depth_binning, m.grid
     cal = grid_calibration(cal, binning)
     reference = reference_frame(record, finger, reference_index, binning=binning)
@@ -471,7 +477,7 @@ def measure_tactile(
     hold = slice(loading_index.size, len(images))
     return replace(m, features=features.take(loading), depth_m=depth[loading],
                    hold_features=features.take(hold) if hold_index.size else None,
-                   image_bgr=images[loading], reference_bgr=reference)
+                   image_bgr=images[loading], reference_bgr=reference, calibration_smoothing_px=smoothing_px)
 
 
 # --------------------------------------------------------------------------- estimation

@@ -246,6 +246,7 @@ class GraspStream:
         self.binning = estimator_settings(settings).depth_binning
         self.grid = depth_grid(self.sensor, self.binning)
         self.calibration = grid_calibration(calibration, self.binning)
+        self.calibration_smoothing_px = calibration.smoothing_px  # the file's, as measure_tactile records it
         self.methods = tuple(methods)
         self.grasp_id = grasp_id
         self._force = _Series()
@@ -501,7 +502,8 @@ class GraspStream:
         loading = self._stacked_features(loading_positions)
         hold = (self._stacked_features(positions[segment.hold_index]) if segment.hold_index.size
                 else loading.take(slice(0, 0)))
-        return dataclasses.replace(measurements, features=loading, hold_features=hold)
+        return dataclasses.replace(measurements, features=loading, hold_features=hold,
+                                   calibration_smoothing_px=self.calibration_smoothing_px)
 
     def _stacked_features(self, positions: np.ndarray) -> ContactFeatures:
         features = [self._frame_features(int(i)) for i in positions]

@@ -172,6 +172,7 @@ def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: 
     if label is None or label.modulus_pa is None:
         return {"path": str(path), "skipped": "unlabelled"}
     written, reasons = [], {}
+    smoothings = set()
     for shift in range(options.shifts):
         sampled = sample_grasp(
             record, settings=settings, calibration=options.calibration, n_frames=options.n_frames,
@@ -181,6 +182,8 @@ def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: 
         if not sampled:
             reasons[shift] = sampled.reason
             continue
+        if sampled.measurements is not None and sampled.measurements.calibration_smoothing_px is not None:
+            smoothings.add(sampled.measurements.calibration_smoothing_px)
         sample = TrainingSample(
             object_name=label.object_name, grasp=grasp, augmentation=shift, rgb_diff=sampled.rgb_diff,
             depth_m=sampled.depth_m, force_n=sampled.force_n, width_m=sampled.width_m,
@@ -195,7 +198,7 @@ def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: 
         dest.parent.mkdir(parents=True, exist_ok=True)
         written.append(str(save_sample(sample, dest)))
     row: dict[str, Any] = {"path": str(path), "object": label.object_name, "split": split,
-                           "samples": written, "notes": reasons}
+                           "samples": written, "notes": reasons, "calibration_smoothing_px": sorted(smoothings)}
     if not written:
         row["skipped"] = reasons[0]
     return row
@@ -268,6 +271,7 @@ def build_dataset(
         "depth_binning": estimator_settings(settings).depth_binning,
         "calibration": options.calibration, "marker_calibration": options.marker_calibration,
         "measurement_version": MEASUREMENT_VERSION,
+        "calibration_smoothing_px": sorted({s for r in rows for s in r.get("calibration_smoothing_px", ())}),
         "records": len(records), "grasps_used": sum(1 for r in rows if r.get("samples")),
         "samples": counts, "objects": {s: len(v) for s, v in split.items()},
         "skipped": skipped, "skipped_reasons": dict(Counter(re.sub(r"-?\d[\d.e+-]*", "#", s["reason"]) for s in skipped)),

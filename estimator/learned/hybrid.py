@@ -24,7 +24,11 @@ The images are resampled onto the model's input window (:mod:`estimator.learned.
 sensor's depth grid lies within what the model was trained on: a grid much coarser than the
 model's input pitch is refused (``insufficient_data``, the reason naming both pitches); a pad
 covering little of the window, or a contact cut off by the edge of a pad smaller than the
-window, widens the calibrated interval (its reason says why and by how much).
+window, widens the calibrated interval (its reason says why and by how much). A grasp whose
+calibration smooths the colours (``estimator calibrate --smoothing-px``) otherwise than the
+calibrations of the model's training data (``data.calibration_smoothing_px``; none for the shipped
+models) is refused: smoothing changes how shallow slopes read, and the model reads depth only as it
+was trained.
 
 ``auto`` mode
 -------------
@@ -62,7 +66,7 @@ import numpy as np
 from estimator.errors import ModelError
 from estimator.estimate import Estimate
 from estimator.learned.infer import CompliancePredictor
-from estimator.learned.inputs import RIG_QUANTITIES, distinct_frames, gel_scale
+from estimator.learned.inputs import RIG_QUANTITIES, distinct_frames, gel_scale, smoothings_text
 from estimator.learned.sampling import SampledGrasp, sample_grasp, sampled_input_range
 from estimator.measure import estimate_grasp
 from estimator.perception.calibration import Calibration
@@ -179,6 +183,17 @@ class HybridEstimator:
             marker_calibration=self.marker_calibration, window_m=variant.window_m,
         )
 
+    def _smoothing_refusal(self, sampled: SampledGrasp) -> str:
+        """Why the model cannot read ``sampled``'s depth (empty when it can): its calibration smooths the
+        colours otherwise than the calibrations of the model's training data, so shallow slopes read
+        otherwise than the model learned."""
+        used = None if sampled.measurements is None else sampled.measurements.calibration_smoothing_px
+        trained = self.predictor.calibration_smoothing_px
+        if used is None or any(math.isclose(used, s, abs_tol=1e-9) for s in trained):
+            return ""
+        return (f"it smooths the colours by {used:g} px, the model was trained on depth from calibrations smoothing "
+                f"by {smoothings_text(trained)}: calibrate with `estimator calibrate --smoothing-px {trained[0]:g}`")
+
     def estimate(self, record: GraspRecord, *, mode: str = "model") -> Estimate:
         """Young's modulus of the object grasped in ``record``, stamped with its latency.
 
@@ -218,6 +233,9 @@ class HybridEstimator:
         fit = sampled_input_range(sampled, self.predictor.variant)
         if not fit:
             return _without_model(method, mode, by_method, f"the model does not apply to this sensor: {fit.refusal}")
+        smoothing = self._smoothing_refusal(sampled)
+        if smoothing:
+            return _without_model(method, mode, by_method, f"the model does not apply to this calibration: {smoothing}")
         rig = rig_notes(sampled, self.predictor.rig_range)
         if rig:
             fit = replace(fit, notes=(*fit.notes, *rig), widen=fit.widen * RIG_WIDENING)

@@ -63,6 +63,7 @@ from estimator.learned.inputs import (
     MEASUREMENT_VERSION,
     ModelInputs,
     Variant,
+    calibration_smoothings,
     default_window_m,
     encode,
 )
@@ -288,6 +289,12 @@ class CompliancePredictor:
         """[least, most] of each rig quantity it was trained on (``data.rig_range``; empty for a model
         from before the key or trained on samples that do not record their rig)."""
         return dict((self.metadata.raw.get("data") or {}).get("rig_range") or {})
+
+    @property
+    def calibration_smoothing_px(self) -> tuple[float, ...]:
+        """The colour smoothings (px) of the calibrations whose depth it was trained on
+        (:func:`~estimator.learned.inputs.calibration_smoothings` of ``data``)."""
+        return calibration_smoothings(self.metadata.raw.get("data") or {})
 
     @property
     def interval_level(self) -> float:

@@ -66,9 +66,9 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -92,6 +92,8 @@ __all__ = [
     "Variant",
     "analytical_features",
     "analytical_floor",
+    "calibration_smoothings",
+    "smoothings_text",
     "default_window_m",
     "distinct_frames",
     "encode",
@@ -123,6 +125,19 @@ IMAGES = ("depth", "rgb")
 _VARIANT = re.compile(r"^(depth|rgb)((?:\+(?:markers|fw|analytical))*)$")
 #: A window side outside this range (m) is not a gel pad.
 WINDOW_RANGE_M = (1e-3, 0.2)
+
+def calibration_smoothings(data: Mapping[str, Any]) -> tuple[float, ...]:
+    """The colour smoothings (Gaussian sigma, px of the calibration's images) of the calibrations whose
+    depth a dataset holds or a model was trained on (``calibration_smoothing_px`` of ``dataset.json``
+    or of ``metadata.json`` ``data``). A dataset or model without the key had none: calibrations
+    could not smooth when it was made."""
+    return tuple(sorted(float(v) for v in (data.get("calibration_smoothing_px") or [0.0])))
+
+
+def smoothings_text(smoothings: Sequence[float]) -> str:
+    """Calibration smoothings in words: ``"0 px"``, ``"0 and 2 px"``."""
+    return " and ".join(f"{v:g}" for v in smoothings) + " px"
+
 
 def default_window_m() -> tuple[float, float]:
     """(height, width) in m of the pad of the sensor the shipped models were trained on: the

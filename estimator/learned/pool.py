@@ -32,7 +32,7 @@ from estimator.learned.export import (
     onnx_weights,
 )
 from estimator.learned.infer import CompliancePredictor
-from estimator.learned.inputs import Variant
+from estimator.learned.inputs import Variant, smoothings_text
 from estimator.learned.model import ComplianceNet
 from estimator.learned.recalibrate import recalibrate
 from estimator.learned.train import check_dataset_fits, load_split_data
@@ -83,8 +83,8 @@ def pool_models(model_dirs: Sequence[str | Path], data_dir: str | Path, out_dir:
     Raises
     ------
     EstimatorError
-        Fewer than two models, models of other variants or trained on other object splits than the
-        first, or a dataset that does not fit them.
+        Fewer than two models, models of other variants, trained on other object splits or on depth
+        of other calibration smoothings than the first, or a dataset that does not fit them.
     ModelError
         A model cannot be read or rebuilt.
     """
@@ -99,6 +99,10 @@ def pool_models(model_dirs: Sequence[str | Path], data_dir: str | Path, out_dir:
         if (predictor.metadata.raw.get("data") or {}).get("objects") != (first.metadata.raw.get("data") or {}).get("objects"):
             raise EstimatorError(f"{directory} was trained on another split of objects than {model_dirs[0]}: "
                                  "pool models trained on one dataset")
+        if predictor.calibration_smoothing_px != first.calibration_smoothing_px:
+            raise EstimatorError(f"{directory} was trained on depth from calibrations smoothing by "
+                                 f"{smoothings_text(predictor.calibration_smoothing_px)}, {model_dirs[0]} by "
+                                 f"{smoothings_text(first.calibration_smoothing_px)}: pool models trained on one dataset")
     if any(p.metadata.raw.get("ensemble") for p in predictors):
         raise EstimatorError("a pooled model cannot be pooled again: pool its members")
     check_dataset_fits(data_dir, first.variant, first.metadata.raw.get("data") or {})

@@ -69,10 +69,12 @@ from estimator.learned.inputs import (
     RIG_QUANTITIES,
     Variant,
     analytical_floor,
+    calibration_smoothings,
     default_window_m,
     distinct_frames,
     encode,
     gel_scale,
+    smoothings_text,
 )
 from estimator.learned.model import ComplianceNet
 from estimator.learned.reference import REFERENCE_RECORD, reference_inputs, summarise_inputs
@@ -403,7 +405,7 @@ def dataset_window(manifest: dict[str, Any], where: str) -> tuple[float, float]:
 
 def check_dataset_fits(data_dir: Path, variant: Variant, model_data: dict[str, Any]) -> None:
     """Refuse a dataset measured otherwise than a model's training data (``model_data``, its metadata's
-    ``data``: measurement version, depth binning), or of another window, frame count or image size
+    ``data``: measurement version, depth binning, calibration smoothing), or of another window, frame count or image size
     than ``variant``."""
     manifest = load_manifest(data_dir)
     version = model_data.get("measurement_version")
@@ -414,6 +416,11 @@ def check_dataset_fits(data_dir: Path, variant: Variant, model_data: dict[str, A
     if binning != trained:
         raise EstimatorError(f"{data_dir} holds depth binned by {binning}, the model's training data by {trained}: "
                              f"build the dataset with settings whose estimator.depth_binning is {trained}")
+    smoothings, trained_smoothings = calibration_smoothings(manifest), calibration_smoothings(model_data)
+    if not set(smoothings) <= set(trained_smoothings):
+        raise EstimatorError(f"{data_dir} holds depth from calibrations smoothing colours by {smoothings_text(smoothings)}, "
+                             f"the model's training data from {smoothings_text(trained_smoothings)}: calibrate with `estimator calibrate "
+                             f"--smoothing-px {trained_smoothings[0]:g}` and rebuild the dataset")
     window = dataset_window(manifest, str(data_dir))
     if not np.allclose(window, variant.window_m, rtol=1e-9, atol=0.0):
         raise EstimatorError(f"{data_dir} holds images of a {window[0]:.6g} x {window[1]:.6g} m window, the model "
@@ -501,7 +508,7 @@ def train_model(
                      "opset": OPSET, "history": fitted.history},
         "data": {"dir": str(data_dir), **{k: manifest.get(k) for k in (
             "n_frames", "shifts", "size_px", "window_m", "markers", "finger", "depth_binning", "samples", "records",
-            "grasps_used", "measurement_version")},
+            "grasps_used", "measurement_version", "calibration_smoothing_px")},
             "rig_range": rig_range(train.rows),
             # Names, not counts: `estimator evaluate --unseen-by` keeps the records of the test objects.
             "objects": {name: sorted(objects) for name, objects in load_split(data_dir / "split.json").items()},

@@ -43,6 +43,16 @@ on half of taxim's presses, stays at 17 um at most (15 um unweighted; 20 um at
 every flat pixel once, the set's own mix (the behaviour before the weight
 existed).
 
+Why each bin's mean, not an inverted forward map: fitting the mean colour of each slope (the
+slope is the exact variable of a ball press) and giving every colour bin the slope whose colour
+lies nearest has no flat-gel prior at all, and on simulated presses it reads the 20 mm sphere at
+1.07 of its peak on the Wedge, 0.57 on the R1.5 optics and 0.24 on the Mini's (0.82, 0.35, 0.18
+here). On real presses it fails: with a table fitted on half of taxim's GelSight presses, a
+no-contact frame reconstructs to 102 um and the other half's ball radii read 7.4 % small
+(GelSight Mini: 239 um, +29 %), because a real press frame's flat gel differs from the
+reference by more than noise, which the bins' means absorb and a forward map does not; with
+each tile's zero-slope colour subtracted the radii still read 6-8 % small.
+
 Smoothing
 ---------
 A slope below ~0.05 changes an 8-bit pixel's colour by a grey level or two, the size of the

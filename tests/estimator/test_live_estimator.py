@@ -503,6 +503,7 @@ def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_c
         np.testing.assert_array_equal(cached.depth_m, measured.depth_m)
         np.testing.assert_array_equal(cached.force_n, measured.force_n)
         np.testing.assert_array_equal(cached.width_m, measured.width_m)
+        assert cached.measurements.calibration_smoothing_px == measured.measurements.calibration_smoothing_px == 0.0
         assert all(same(a, b) for a, b in zip(cached.estimates, measured.estimates, strict=True))
     # The shipped model answers the same from the cache as from the grasp as received.
     model = HybridEstimator(CompliancePredictor(default_model_dir()), settings=settings, calibration=calibration)

@@ -58,6 +58,7 @@ def test_build_dataset_from_records_never_leaks_an_object(sim_grasps, tmp_path, 
     assert main(argv) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["records"] == 4 and summary["size_px"] == [32, 44]
+    assert summary["calibration_smoothing_px"] == [0.0]  # what a model trained on it then reads
     # The window the images show: the pad of the settings' estimator sensor (the simulated Wedge's).
     settings = load_settings()
     assert summary["window_m"] == pytest.approx(list(settings.sensor(settings.sensing.finger).pad_size_m))

@@ -150,6 +150,9 @@ def test_a_dataset_that_does_not_fit_the_model_is_refused(trained_model, synthet
     (data / "dataset.json").write_text(json.dumps({**manifest, "depth_binning": 3}))
     with pytest.raises(EstimatorError, match="depth binned by 3"):
         fine_tune(trained_model, data, tmp_path / "out", config=QUICK, progress=False)
+    (data / "dataset.json").write_text(json.dumps({**manifest, "calibration_smoothing_px": [2.0]}))
+    with pytest.raises(EstimatorError, match="smoothing colours by 2 px.*from 0 px.*--smoothing-px 0"):
+        fine_tune(trained_model, data, tmp_path / "out", config=QUICK, progress=False)
     (data / "dataset.json").write_text(json.dumps({**manifest, "window_m": [0.01, 0.02]}))
     with pytest.raises(EstimatorError, match="--window"):
         fine_tune(trained_model, data, tmp_path / "out", config=QUICK, progress=False)

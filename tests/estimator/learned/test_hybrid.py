@@ -18,6 +18,7 @@ from estimator.learned.infer import CompliancePredictor
 from estimator.learned.inputs import encode
 from estimator.learned.model import ComplianceNet
 from estimator.learned.sampling import SampledGrasp, decoded, sample_grasp
+from estimator.perception import load_calibration
 from teleop.record import read_record
 from teleop.settings import load_settings
 
@@ -170,3 +171,24 @@ def test_records_end_to_end(trained_model, sim_grasps):
         if sampled:  # the model saw exactly what the dataset builder stores
             assert sampled.depth_m.shape == (3, 16, 22) and len(sampled.estimates) == 4
             np.testing.assert_array_equal(again.depth_m, sampled.depth_m)
+
+
+def test_depth_from_a_calibration_smoothed_otherwise_is_refused_with_the_fix(trained_model, sim_grasps, tmp_path):
+    records, cal_path = sim_grasps
+    smoothed = dataclasses.replace(load_calibration(cal_path), smoothing_px=2.0)
+    record = read_record(sorted(records.glob("*.grasp"))[0])
+    predictor = CompliancePredictor(trained_model)
+    assert predictor.calibration_smoothing_px == (0.0,)  # trained on unsmoothed calibrations
+    hybrid = HybridEstimator(predictor, settings=SETTINGS, calibration=smoothed, policy=AutoPolicy(0.0))
+    refused = hybrid.estimate(record)
+    assert refused.state == "insufficient_data"
+    assert "smooths the colours by 2 px" in refused.reason and "--smoothing-px 0" in refused.reason
+    auto = hybrid.estimate(record, mode="auto")  # answered by an analytical fit instead
+    assert auto.state != "insufficient_data" and "the model does not apply to this calibration" in auto.reason
+    # A model trained on calibrations smoothing by 2 px reads it.
+    shutil.copytree(trained_model, tmp_path / "smoothed")
+    meta = json.loads((tmp_path / "smoothed" / "metadata.json").read_text())
+    meta["data"]["calibration_smoothing_px"] = [2.0]
+    (tmp_path / "smoothed" / "metadata.json").write_text(json.dumps(meta))
+    reads = HybridEstimator(CompliancePredictor(tmp_path / "smoothed"), settings=SETTINGS, calibration=smoothed)
+    assert "smooths the colours" not in reads.estimate(record).reason

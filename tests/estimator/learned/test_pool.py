@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -52,10 +53,17 @@ def test_models_that_cannot_be_pooled_are_refused(trained_model, other_seed, syn
                 config=TrainConfig(epochs=1, patience=1, batch_size=8, seed=0), progress=False)
     with pytest.raises(EstimatorError, match="variant"):
         pool_models([trained_model, cnn], synthetic_dataset, tmp_path / "mixed")
+    smoothed = tmp_path / "smoothed"
+    shutil.copytree(other_seed, smoothed)
+    meta = json.loads((smoothed / "metadata.json").read_text())
+    meta["data"]["calibration_smoothing_px"] = [2.0]
+    (smoothed / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(EstimatorError, match="smoothing by 2 px"):
+        pool_models([trained_model, smoothed], synthetic_dataset, tmp_path / "unlike")
     pool_models([trained_model, other_seed], synthetic_dataset, tmp_path / "pooled")
     with pytest.raises(EstimatorError, match="pooled again"):
         pool_models([tmp_path / "pooled", trained_model], synthetic_dataset, tmp_path / "twice")
-    assert not any((tmp_path / name).exists() for name in ("one", "mixed", "twice"))
+    assert not any((tmp_path / name).exists() for name in ("one", "mixed", "unlike", "twice"))
 
 
 def test_a_pooled_model_fine_tunes_as_one_network(trained_model, other_seed, synthetic, synthetic_dataset, tmp_path):
