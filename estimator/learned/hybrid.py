@@ -6,12 +6,14 @@ the model's ``n_frames``, depth reconstructed for those frames only, contact
 features, every analytical fit over them), runs the ONNX model and returns an
 :class:`~estimator.estimate.Estimate` with method ``"hybrid"`` (a model with
 analytical inputs) or ``"cnn"`` (without). The model gives a distribution over
-log10 E (:mod:`estimator.learned.distribution`): its median is the estimate,
-its calibrated interval about the median holds the truth at the stated level (90 %,
+log10 E (:mod:`estimator.learned.distribution`): its calibrated interval about
+the median holds the truth at the stated level (90 %,
 ``metadata.json`` ``calibration``); when the probability that E is at least the
 sensor's resolution limit (:attr:`~teleop.settings.Settings.resolution_limit_pa`)
 reaches the calibrated ``p_rigid``, the answer is a ``lower_bound`` at that
-limit; a median below the softest training label gives an ``upper_bound``. The modulus is always finite and positive; a grasp that
+limit; a median below the softest training label gives an ``upper_bound``; otherwise the answer
+is ``ok`` at the value the display should render (:func:`~estimator.learned.distribution.hedged_point`,
+within that interval). The modulus is always finite and positive; a grasp that
 cannot be sampled, or a model output that is not finite, gives a refusal with
 its reason.
 

@@ -13,6 +13,8 @@ from estimator.learned.distribution import (
     BIN_DECADES,
     CENSOR_PA,
     EDGES_LOG10,
+    HEDGE_FROM_DECADES,
+    HEDGE_WEIGHT,
     N_BINS,
     SPREAD_FLOOR_DECADES,
     cdf_at,
@@ -22,6 +24,7 @@ from estimator.learned.distribution import (
     fit_temperature,
     floor_log_weights,
     force_band,
+    hedged_point,
     interval_score,
     probabilities,
     quantile,
@@ -97,10 +100,10 @@ def test_states_follow_the_mass_above_the_resolution_limit_and_the_median():
     assert (rigid.state, rigid.e_pa, rigid.low_pa, rigid.high_pa) == ("lower_bound", LIMIT_PA, LIMIT_PA, None)
     assert rigid.p_above_limit > 0.8
     # Probably rigid, but not as sure as p_rigid asks: a number whose interval is open to the top
-    # of the scale, since the censored value stands for anything stiffer.
+    # of the scale, since the censored value stands for anything stiffer; rendered at the rigid end.
     unsure = describe(0.3 * gaussian(5.5, 0.2) + 0.7 * gaussian(8.0, 0.04), scale=1.645, limit_pa=LIMIT_PA,
                       soft_pa=SOFT_PA, p_rigid=0.8)
-    assert unsure.state == "ok" and unsure.e_pa > LIMIT_PA and unsure.high_pa == pytest.approx(1e12)
+    assert unsure.state == "ok" and unsure.e_pa == pytest.approx(LIMIT_PA) and unsure.high_pa == pytest.approx(1e12)
     soft = describe(gaussian(3.4, 0.2), scale=1.645, limit_pa=LIMIT_PA, soft_pa=SOFT_PA)
     assert (soft.state, soft.e_pa, soft.low_pa, soft.high_pa) == ("upper_bound", SOFT_PA, None, SOFT_PA)
     rubber = describe(gaussian(5.9, 0.2), scale=1.645, limit_pa=LIMIT_PA, soft_pa=SOFT_PA)
@@ -231,3 +234,38 @@ def test_the_floor_is_the_highest_lower_bound_of_the_reliable_methods():
     assert analytical_floor(estimates, scale=2.0)[0] == pytest.approx(math.log10(6e6))
     assert analytical_floor(estimates, methods=("no_tactile",)) == (pytest.approx(math.log10(2e5)), "no_tactile")
     assert analytical_floor(estimates[2:]) == (-math.inf, None)
+
+
+def _expected_loss(probs: np.ndarray, points: np.ndarray, *, soft: float, limit: float) -> np.ndarray:
+    """Brute force: the hedging loss at each point, the distribution drawn uniformly within its bins."""
+    rng = np.random.default_rng(0)
+    draws = rng.choice(CENTRES, size=200_000, p=probs) + rng.uniform(-BIN_DECADES / 2, BIN_DECADES / 2, 200_000)
+    d = np.abs(np.clip(points, soft, limit)[:, None] - np.clip(draws, soft, limit)[None, :])
+    return (d + HEDGE_WEIGHT * np.maximum(0.0, d - HEDGE_FROM_DECADES)).mean(axis=1)
+
+
+@pytest.mark.parametrize(("probs", "where"), [
+    (gaussian(5.9, 0.2), "about the median"),
+    (0.45 * gaussian(5.9, 0.05) + 0.55 * gaussian(8.0, 0.05), "between the modes"),
+])
+def test_the_value_of_an_ok_answer_minimises_the_hedging_loss(probs, where):
+    soft, limit = math.log10(SOFT_PA), math.log10(LIMIT_PA)
+    said = describe(probs, scale=1.645, limit_pa=LIMIT_PA, soft_pa=SOFT_PA, p_rigid=0.9)
+    assert said.state == "ok" and said.low_pa <= said.e_pa <= said.high_pa
+    value = math.log10(said.e_pa)
+    assert value == pytest.approx(hedged_point(probs, low=math.log10(said.low_pa), high=math.log10(said.high_pa),
+                                               soft=soft, limit=limit))
+    grid = np.linspace(math.log10(said.low_pa), min(math.log10(said.high_pa), limit), 400)
+    loss = _expected_loss(probs, grid, soft=soft, limit=limit)
+    assert _expected_loss(probs, np.array([value]), soft=soft, limit=limit)[0] <= loss.min() + 2e-3
+    median = float(quantile(probs, 0.5)[0])
+    if where == "about the median":
+        assert value == pytest.approx(median, abs=0.01)
+    else:  # the median lies in the rigid mode; the value between the modes, well short of the rigid end
+        assert median > limit and 6.2 < value < limit - 0.3
+
+
+def test_no_value_is_hedged_outside_the_display_range():
+    probs = gaussian(5.9, 0.2)
+    assert hedged_point(probs, low=7.0, high=8.0, soft=3.7, limit=6.83) is None
+    assert hedged_point(probs, low=5.0, high=6.5, soft=3.7, limit=6.83) == pytest.approx(5.9, abs=0.01)

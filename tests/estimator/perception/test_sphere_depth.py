@@ -32,7 +32,8 @@ expected to fail (strict xfail, with the reason): ``gelsight`` 0.264 mm, 0.35; `
    but does not lift them to the slopes the press has. Smoothing the colours before the lookup
    (:mod:`estimator.perception.calibration_fit`, "Smoothing") reads 1.06, 0.52 and 0.29 of the
    peak on the three optics; the shipped calibrations have none, as their models were trained
-   without it.
+   without it. A table filled by inverting the mean colour of each slope reads 1.07, 0.57 and
+   0.24, but fails on real presses (module notes there, "Flat-gel weight").
 2. The contact is wider than the GelSight pads (both table optics): their pad is 17.7 x 13.0 mm
    and the contact radius about 8 mm, so the gel is sunk at the pad's edges, where the Poisson
    solve anchors the depth at zero: even the exact gradients integrate to only 0.77 (R1.5) and
