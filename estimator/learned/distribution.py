@@ -62,7 +62,8 @@ at the 15 % Weber fraction of :mod:`haptics.mapping`) costs twice as much.
 A unimodal distribution keeps about its median; a bimodal one is rendered
 between its modes, no more wrong than a factor of about 3 either way, and its
 wide interval says how unsure it is. The value stays within the answer's
-interval. The loss names no threshold of the evaluation's: a loss that
+calibrated interval; a grasp outside what the model was trained on has that
+interval widened afterwards, which moves its ends and not the value. The loss names no threshold of the evaluation's: a loss that
 charged the dangerous misses themselves (rigid shown below 1 MPa, soft at the
 rigid end) removed more of them on the validation objects only by rendering
 answers 0.01 decade short of the rigid end, which the operator still feels
@@ -290,7 +291,7 @@ class Described:
 
 
 def describe(probs: np.ndarray, *, scale: float, limit_pa: float, soft_pa: float,
-             p_rigid: float = 0.5) -> Described:
+             p_rigid: float = 0.5, widen: float = 1.0) -> Described:
     """The estimate of one distribution (N_BINS,): state, value and interval (module notes).
 
     Parameters
@@ -306,11 +307,15 @@ def describe(probs: np.ndarray, *, scale: float, limit_pa: float, soft_pa: float
         ``upper_bound`` there.
     p_rigid : float
         The probability of E >= ``limit_pa`` from which the answer is a ``lower_bound`` there.
+    widen : float
+        Factor (>= 1) on the interval for a grasp outside what the model was trained on. The value
+        is sought within the interval before widening, so widening moves only the interval's ends.
     """
-    if not (0.0 < scale < math.inf and 0.0 < p_rigid < 1.0) or not (0.0 < soft_pa < limit_pa <= CENSOR_PA):
-        raise ModelError(f"describe: expected 0 < scale < inf, 0 < p_rigid < 1 and 0 < soft_pa < limit_pa <= "
-                         f"{CENSOR_PA:g}, got scale {scale}, p_rigid {p_rigid}, soft_pa {soft_pa}, "
-                         f"limit_pa {limit_pa}")
+    if not (0.0 < scale < math.inf and 0.0 < p_rigid < 1.0 and 1.0 <= widen < math.inf) or not (
+            0.0 < soft_pa < limit_pa <= CENSOR_PA):
+        raise ModelError(f"describe: expected 0 < scale < inf, 0 < p_rigid < 1, 1 <= widen < inf and 0 < soft_pa < "
+                         f"limit_pa <= {CENSOR_PA:g}, got scale {scale}, p_rigid {p_rigid}, widen {widen}, soft_pa "
+                         f"{soft_pa}, limit_pa {limit_pa}")
     probs = np.asarray(probs, dtype=np.float64)[None]
     median = float(quantile(probs, 0.5)[0])
     p_above = float(1.0 - cdf_at(probs, math.log10(limit_pa))[0])
@@ -318,26 +323,33 @@ def describe(probs: np.ndarray, *, scale: float, limit_pa: float, soft_pa: float
         return Described("lower_bound", limit_pa, limit_pa, None, p_above)
     if median <= math.log10(soft_pa):
         return Described("upper_bound", soft_pa, None, soft_pa, p_above)
+
+    def interval(half: float) -> tuple[float, float]:
+        high = median + half
+        if high > math.log10(CENSOR_PA):  # the censored value stands for anything stiffer
+            high = LOG10_E_RANGE[1]
+        return max(median - half, LOG10_E_RANGE[0] - 1.0), high
+
     half = scale * float(spread(probs)[0])
-    low, high = max(median - half, LOG10_E_RANGE[0] - 1.0), median + half
-    if high > math.log10(CENSOR_PA):  # the censored value stands for anything stiffer
-        high = LOG10_E_RANGE[1]
-    point = hedged_point(probs[0], low=low, high=high, soft=math.log10(soft_pa), limit=math.log10(limit_pa))
+    low_calibrated, high_calibrated = interval(half)
+    point = hedged_point(probs[0], low=low_calibrated, high=high_calibrated, soft=math.log10(soft_pa),
+                         limit=math.log10(limit_pa))
+    low, high = interval(half * widen)
     return Described("ok", 10.0 ** (median if point is None else point), 10.0 ** low, 10.0 ** high, p_above)
 
 
 def describe_on_gel(probs: np.ndarray, *, scale: float, limit_pa: float, soft_pa: float, p_rigid: float,
-                    gel_scale: float) -> Described:
+                    gel_scale: float, widen: float = 1.0) -> Described:
     """The estimate of one distribution (N_BINS,) over the reference gel's moduli for a grasp on a gel
     of :func:`~estimator.learned.inputs.gel_scale` ``gel_scale``, in that gel's moduli: what the
     estimator answers, and what calibration scores.
 
     ``limit_pa`` is the settings' resolution limit (Pa, the measuring gel's moduli), taken onto the
     reference gel and at most :data:`CENSOR_PA` there; ``soft_pa`` the softest modulus the model
-    resolves on the reference gel, at most a tenth of that limit. ``scale`` and ``p_rigid`` as
-    :func:`describe`.
+    resolves on the reference gel, at most a tenth of that limit. ``scale``, ``p_rigid`` and ``widen``
+    as :func:`describe`.
     """
     limit_ref_pa = min(limit_pa * gel_scale, CENSOR_PA)
     said = describe(probs, scale=scale, limit_pa=limit_ref_pa, soft_pa=min(soft_pa, limit_ref_pa / 10.0),
-                    p_rigid=p_rigid)
+                    p_rigid=p_rigid, widen=widen)
     return said.divided(gel_scale)

@@ -348,7 +348,7 @@ class CompliancePredictor:
         as calibration scores it), its interval scale and ``p_rigid`` those of the force band of the
         grasp's peak force ``peak_force_n`` (N).
         ``widen`` (>= 1) multiplies the calibrated interval scale (a grasp outside the training
-        range: :func:`~estimator.learned.window.input_range`); bounds are not moved by it.
+        range: :func:`~estimator.learned.window.input_range`); bounds and the value are not moved by it.
         ``gel_scale`` is the item's :func:`~estimator.learned.inputs.gel_scale`: the distribution
         is over moduli on the reference gel, the answer in the measuring gel's."""
         if not (math.isfinite(widen) and widen >= 1.0):
@@ -357,9 +357,9 @@ class CompliancePredictor:
             raise ModelError(f"gel_scale {gel_scale!r}: expected a finite factor > 0")
         if not math.isfinite(peak_force_n):
             raise ModelError(f"peak_force_n {peak_force_n!r}: expected a finite force (N)")
-        return describe_on_gel(probs, scale=self.metadata.interval_scale_at(peak_force_n) * widen, limit_pa=limit_pa,
+        return describe_on_gel(probs, scale=self.metadata.interval_scale_at(peak_force_n), limit_pa=limit_pa,
                                soft_pa=self.metadata.soft_pa, p_rigid=self.metadata.p_rigid_at(peak_force_n),
-                               gel_scale=gel_scale)
+                               gel_scale=gel_scale, widen=widen)
 
 
 def load_predictor(model_dir: str | Path | None = None, *, settings: Settings | None = None,

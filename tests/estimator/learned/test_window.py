@@ -222,8 +222,7 @@ def test_the_model_widens_its_interval_where_the_pad_covers_little_of_its_window
     wedge = _estimate(trained_model, synthetic, depth_grid(WEDGE, 2))
     small = _estimate(trained_model, synthetic, depth_grid(R15, 2))
     median = _median(trained_model, synthetic)
-    assert wedge.state == small.state == "ok"
-    assert small.interval_pa[0] < wedge.interval_pa[0] <= wedge.e_pa <= wedge.interval_pa[1] < small.interval_pa[1]
+    assert wedge.state == small.state == "ok" and small.e_pa == wedge.e_pa  # widening moves the interval only
     assert _below(small, median) == pytest.approx(COVERAGE_WIDENING * _below(wedge, median), rel=1e-6)
     assert "widened 1.5 times" not in wedge.reason and "outside the training range" not in wedge.reason
     assert "widened 1.5 times" in small.reason and "pad covers 37% of the model's" in small.reason
