@@ -63,11 +63,13 @@ A unimodal distribution keeps about its median; a bimodal one is rendered
 between its modes, no more wrong than a factor of about 3 either way, and its
 wide interval says how unsure it is. The value stays within the answer's
 calibrated interval; a grasp outside what the model was trained on has that
-interval widened afterwards, which moves its ends and not the value. The loss names no threshold of the evaluation's: a loss that
-charged the dangerous misses themselves (rigid shown below 1 MPa, soft at the
-rigid end) removed more of them on the validation objects only by rendering
-answers 0.01 decade short of the rigid end, which the operator still feels
-as rigid, and was dropped. The weight was chosen by a rule fixed before the
+interval widened afterwards, which moves its ends and not the value.
+
+The loss names no threshold of the evaluation's: a loss that charged the
+dangerous misses themselves (rigid shown below 1 MPa, soft at the rigid end)
+removed more of them on the validation objects only by rendering answers
+0.01 decade short of the rigid end, which the operator still feels as rigid,
+and was dropped. The weight was chosen by a rule fixed before the
 run (the fewest dangerous misses among weights 1, 2 and 4 with rigid objects
 still shown rigid in at least 95 % of grasps), on the validation objects
 (5-fold cross-validation by object, the shipped pool): weight 1 took the

@@ -93,13 +93,13 @@ __all__ = [
     "analytical_features",
     "analytical_floor",
     "calibration_smoothings",
-    "smoothings_text",
     "default_window_m",
     "distinct_frames",
     "encode",
     "gel_scale",
     "rig_features",
     "reduce_images",
+    "smoothings_text",
 ]
 
 LOG10_E_RANGE = (3.0, 12.0)
@@ -125,6 +125,7 @@ IMAGES = ("depth", "rgb")
 _VARIANT = re.compile(r"^(depth|rgb)((?:\+(?:markers|fw|analytical))*)$")
 #: A window side outside this range (m) is not a gel pad.
 WINDOW_RANGE_M = (1e-3, 0.2)
+
 
 def calibration_smoothings(data: Mapping[str, Any]) -> tuple[float, ...]:
     """The colour smoothings (Gaussian sigma, px of the calibration's images) of the calibrations whose

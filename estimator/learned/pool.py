@@ -102,7 +102,8 @@ def pool_models(model_dirs: Sequence[str | Path], data_dir: str | Path, out_dir:
         if predictor.calibration_smoothing_px != first.calibration_smoothing_px:
             raise EstimatorError(f"{directory} was trained on depth from calibrations smoothing by "
                                  f"{smoothings_text(predictor.calibration_smoothing_px)}, {model_dirs[0]} by "
-                                 f"{smoothings_text(first.calibration_smoothing_px)}: pool models trained on one dataset")
+                                 f"{smoothings_text(first.calibration_smoothing_px)}: "
+                                 "pool models trained on one dataset")
     if any(p.metadata.raw.get("ensemble") for p in predictors):
         raise EstimatorError("a pooled model cannot be pooled again: pool its members")
     check_dataset_fits(data_dir, first.variant, first.metadata.raw.get("data") or {})

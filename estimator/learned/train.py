@@ -405,8 +405,8 @@ def dataset_window(manifest: dict[str, Any], where: str) -> tuple[float, float]:
 
 def check_dataset_fits(data_dir: Path, variant: Variant, model_data: dict[str, Any]) -> None:
     """Refuse a dataset measured otherwise than a model's training data (``model_data``, its metadata's
-    ``data``: measurement version, depth binning, calibration smoothing), or of another window, frame count or image size
-    than ``variant``."""
+    ``data``: measurement version, depth binning, calibration smoothing), or of another window, frame
+    count or image size than ``variant``."""
     manifest = load_manifest(data_dir)
     version = model_data.get("measurement_version")
     if manifest.get("measurement_version") != version:
@@ -418,8 +418,9 @@ def check_dataset_fits(data_dir: Path, variant: Variant, model_data: dict[str, A
                              f"build the dataset with settings whose estimator.depth_binning is {trained}")
     smoothings, trained_smoothings = calibration_smoothings(manifest), calibration_smoothings(model_data)
     if not set(smoothings) <= set(trained_smoothings):
-        raise EstimatorError(f"{data_dir} holds depth from calibrations smoothing colours by {smoothings_text(smoothings)}, "
-                             f"the model's training data from {smoothings_text(trained_smoothings)}: calibrate with `estimator calibrate "
+        raise EstimatorError(f"{data_dir} holds depth from calibrations smoothing colours by "
+                             f"{smoothings_text(smoothings)}, the model's training data from "
+                             f"{smoothings_text(trained_smoothings)}: calibrate with `estimator calibrate "
                              f"--smoothing-px {trained_smoothings[0]:g}` and rebuild the dataset")
     window = dataset_window(manifest, str(data_dir))
     if not np.allclose(window, variant.window_m, rtol=1e-9, atol=0.0):
