@@ -228,6 +228,10 @@ def run(args: argparse.Namespace) -> int:
         f"{pitch_m * 1e3:.4f} mm/px -> {path}",
         file=sys.stderr if args.json else sys.stdout,
     )
+    if calibration.smoothing_px:
+        print(f"note: this calibration smooths the colours by {calibration.smoothing_px:g} px; a learned model "
+              "trained on unsmoothed calibrations (the shipped ones) refuses its depth, and --method auto answers "
+              "from the analytical fits", file=sys.stderr)
     if args.json:
         print(json.dumps(summary))
     return 0

@@ -37,6 +37,16 @@ def test_calibrate_then_reconstruct_the_held_out_mini_presses(tmp_path, taxim_pa
 
 
 @pytest.mark.slow
+@pytest.mark.slow
+def test_a_smoothing_calibration_says_which_models_refuse_it(tmp_path, taxim_pack, capsys):
+    pack = str(taxim_pack("gelsight_mini"))
+    summary, err = run_json(capsys, "calibrate", "--presses", pack, *MINI_ARGS, "--out", str(tmp_path / "s.npz"),
+                            "--smoothing-px", "2")
+    assert summary["smoothing_px"] == 2.0 and "smooths the colours by 2 px" in err and "refuses" in err
+    _, err = run_json(capsys, "calibrate", "--presses", pack, *MINI_ARGS, "--out", str(tmp_path / "plain.npz"))
+    assert "smooths the colours" not in err
+
+
 def test_folder_of_images_calibrates_on_detected_circles(tmp_path, gelsight_presses, capsys):
     folder = tmp_path / "presses"
     folder.mkdir()
