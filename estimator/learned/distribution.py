@@ -190,12 +190,12 @@ def hedged_point(probs: np.ndarray, *, low: float, high: float, soft: float, lim
     The expected loss is convex; its slope at ``v`` is ``2 F(v) - 1 + HEDGE_WEIGHT * (F(v - c) +
     F(v + c) - 1)`` with ``F`` the clipped distribution's CDF and ``c`` = HEDGE_FROM_DECADES, so the
     minimum is where that slope turns non-negative, found on a grid of :data:`_HEDGE_GRID` points
-    across the interval.
+    across the interval and interpolated between them.
     """
     lo, hi = max(low, soft), min(high, limit)
     if lo > hi:
         return None
-    cdf = _strictly_rising(_cdf_at_edges(np.atleast_2d(probs)))[0]
+    cdf = _cdf_at_edges(np.atleast_2d(probs))[0]
     grid = np.linspace(lo, hi, _HEDGE_GRID)
 
     def clipped_cdf(x: np.ndarray) -> np.ndarray:
@@ -203,10 +203,17 @@ def hedged_point(probs: np.ndarray, *, low: float, high: float, soft: float, lim
 
     slope = (2.0 * clipped_cdf(grid) - 1.0
              + HEDGE_WEIGHT * (clipped_cdf(grid - HEDGE_FROM_DECADES) + clipped_cdf(grid + HEDGE_FROM_DECADES) - 1.0))
-    # The first grid point where the slope is no longer negative (to within one grid step; the slope
-    # jumps where F does, at the clip ends, so the minimum often lies exactly on one).
     rising = np.flatnonzero(slope >= 0.0)
-    return float(grid[rising[0]] if rising.size else hi)
+    if rising.size == 0:
+        return float(hi)
+    i = int(rising[0])
+    # The slope jumps where F does: at the limit it often turns there, so the minimum lies exactly on
+    # it (rendered rigid). Elsewhere interpolate its zero within the grid step, so that the value
+    # moves continuously with the distribution.
+    if i == 0 or (i == grid.size - 1 and hi == limit):
+        return float(grid[i])
+    before, after = slope[i - 1], slope[i]
+    return float(grid[i - 1] + (grid[i] - grid[i - 1]) * -before / (after - before))
 
 
 def bin_index(log10_e: np.ndarray) -> np.ndarray:

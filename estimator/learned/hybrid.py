@@ -191,7 +191,7 @@ class HybridEstimator:
         otherwise than the model learned."""
         used = None if sampled.measurements is None else sampled.measurements.calibration_smoothing_px
         trained = self.predictor.calibration_smoothing_px
-        if used is None or any(math.isclose(used, s, abs_tol=1e-9) for s in trained):
+        if used is None or used in trained:  # as check_dataset_fits compares them
             return ""
         return (f"it smooths the colours by {used:g} px, the model was trained on depth from calibrations smoothing "
                 f"by {smoothings_text(trained)}: calibrate with `estimator calibrate --smoothing-px {trained[0]:g}`")
