@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
-from estimator.learned.infer import bands_text
-from estimator.learned.recalibrate import recalibrate
+from estimator.errors import EstimatorError
+from estimator.learned.infer import band_names, bands_text
+from estimator.learned.recalibrate import cross_validate, recalibrate
 from teleop.settings import load_settings
 
 _SHOWN = ("temperature", "coverage")
@@ -18,7 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "probability and interval scale) on the val objects of its own build-dataset directory and score it "
         "again on the val and test objects, without retraining: for a change to how answers are described or "
         "calibrated. Rewrites MODEL_DIR/metadata.json (or writes "
-        "OUT) and keeps the replaced calibration under `recalibrated`."
+        "OUT) and keeps the replaced calibration under `recalibrated`. With --cross-validate it writes nothing "
+        "and says what such a calibration scores on objects it did not see."
     )
     parser.add_argument("--model", required=True, metavar="MODEL_DIR", help="the trained model")
     parser.add_argument("--data", required=True, metavar="DIR",
@@ -27,10 +29,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--settings", metavar="FILE", default=None,
                         help="settings TOML whose resolution limit the intervals are calibrated at "
                              "(default: the shipped configs/settings.toml)")
-    parser.add_argument("--json", action="store_true", help="print the new and previous calibration as JSON")
+    parser.add_argument("--cross-validate", type=int, nargs="?", const=5, default=None, metavar="FOLDS",
+                        help="write nothing: deal the val objects into FOLDS groups (default 5), answer each group's "
+                             "grasps under a calibration fitted on the others, and print what those answers score "
+                             "(felt error, dangerous misses, coverage per force band): the figures to compare two "
+                             "ways of calibrating or describing by, without touching the test objects")
+    parser.add_argument("--seed", type=int, default=0, help="how the val objects are dealt into folds (default 0)")
+    parser.add_argument("--json", action="store_true", help="print the new and previous calibration (or the "
+                                                            "cross-validated figures) as JSON")
+
+
+def _print_cross_validation(result: dict) -> None:
+    m, level = result["metrics"], result["level"]
+    rigid = m["rigid_shown_rigid"]
+    print(f"{result['folds']}-fold cross-validation by object (seed {result['seed']}) over {result['objects']} val "
+          f"objects, {result['grasps']} grasps, {result['method']}:")
+    print(f"felt error      {m['felt_log10_error']:.4f} decade, {100 * m['felt_within_2x']:.1f} % within a factor 2")
+    print(f"dangerous       {m['dangerous_misses']}; rigid shown rigid "
+          f"{'-' if rigid is None else f'{100 * rigid:.1f} %'}")
+    print(f"coverage        {100 * m['interval_coverage']:.1f} % at the stated {100 * level:.0f} %; median width "
+          f"{m['soft_interval_width_decades_median']:.2f} decade below 3 MPa")
+    for label, n, cover in zip(band_names(tuple(result["force_band_edges_n"])), result["band_n"], result["band_coverage"], strict=True):
+        print(f"  {label:14s} {n:5d} grasps, coverage {'-' if cover is None else f'{100 * cover:.1f} %'}")
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.cross_validate is not None:
+        if args.out:
+            raise EstimatorError("--out: --cross-validate writes nothing; leave --out out")
+        result = cross_validate(args.model, args.data, folds=args.cross_validate, seed=args.seed,
+                                settings=load_settings(args.settings))
+        if args.json:
+            print(json.dumps(result, allow_nan=False))
+        else:
+            _print_cross_validation(result)
+        return 0
     meta = recalibrate(args.model, args.data, out_dir=args.out, settings=load_settings(args.settings))
     new, old = meta["calibration"], meta["recalibrated"]["previous"]
     if args.json:

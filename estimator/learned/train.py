@@ -84,7 +84,7 @@ from haptics.settings import display_settings
 from teleop.settings import Settings, load_settings
 
 __all__ = ["SplitData", "TrainConfig", "auto_policy", "check_dataset_fits", "load_split_data", "predict",
-           "split_metrics", "train_model"]
+           "scored_rows", "split_metrics", "train_model"]
 
 log = logging.getLogger(__name__)
 
@@ -271,8 +271,8 @@ def _mean_log10_error(logits: np.ndarray, label: np.ndarray) -> float:
     return float(np.mean(np.abs(quantile(probabilities(logits), 0.5) - label)))
 
 
-def _rows(data: SplitData, logits: np.ndarray, method: str, calibration: dict[str, float]
-          ) -> list[dict[str, Any]]:
+def scored_rows(data: SplitData, logits: np.ndarray, method: str, calibration: dict[str, Any]
+                ) -> list[dict[str, Any]]:
     """evaluate-style rows: the model's calibrated estimate and each analytical estimate, per sample."""
     rows = []
     for row, said in zip(data.rows, described(logits, calibration, data.gel_scales, data.peak_forces_n,
@@ -294,7 +294,7 @@ def split_metrics(data: SplitData, logits: np.ndarray, method: str, calibration:
     if not len(data):
         return {}
     display = (display_settings(settings).e_soft_pa, display_settings(settings).e_rigid_pa)
-    summary = summarise(_rows(data, logits, method, calibration), [method, *ANALYTICAL_METHODS],
+    summary = summarise(scored_rows(data, logits, method, calibration), [method, *ANALYTICAL_METHODS],
                         display_range_pa=display, interval_levels={method: calibration["level"]})
     for value in summary.values():
         value.pop("paper", None)

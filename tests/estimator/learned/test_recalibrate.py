@@ -10,11 +10,12 @@ import pytest
 
 from estimator.cli import main
 from estimator.errors import EstimatorError
+from estimator.learned import recalibrate as recalibrate_module
 from estimator.learned.calibrate import described
 from estimator.learned.distribution import CENSOR_PA, floor_log_weights, probabilities
 from estimator.learned.infer import CompliancePredictor
 from estimator.learned.inputs import analytical_floor
-from estimator.learned.recalibrate import recalibrate
+from estimator.learned.recalibrate import cross_validate, recalibrate
 from estimator.learned.train import load_split_data
 from teleop.settings import load_settings
 
@@ -78,3 +79,49 @@ def test_the_command_writes_a_recalibrated_copy(trained_model, synthetic_dataset
     assert printed["out"] == str(out) and printed["calibration"]["n"] > 0
     assert (out / "model.onnx").read_bytes() == (trained_model / "model.onnx").read_bytes()
     assert json.loads((out / "metadata.json").read_text())["calibration"] == printed["calibration"]
+
+
+def test_cross_validation_answers_each_object_under_a_calibration_fitted_without_it(trained_model, synthetic_dataset,
+                                                                                    monkeypatch):
+    calibrated_on, answered = [], []
+    fit, score = recalibrate_module._calibrate_on, recalibrate_module.scored_rows
+
+    def spy_fit(predictor, val, logits, settings):
+        calibrated_on.append({r["object"] for r in val.rows})
+        return fit(predictor, val, logits, settings)
+
+    def spy_score(data, logits, method, calibration):
+        answered.append({r["object"] for r in data.rows})
+        return score(data, logits, method, calibration)
+
+    monkeypatch.setattr(recalibrate_module, "_calibrate_on", spy_fit)
+    monkeypatch.setattr(recalibrate_module, "scored_rows", spy_score)
+    before = (trained_model / "metadata.json").read_bytes()
+    result = cross_validate(trained_model, synthetic_dataset, folds=2)
+    val = load_split_data(synthetic_dataset, CompliancePredictor(trained_model).variant, ("val",))["val"].live()
+    objects = {r["object"] for r in val.rows}
+    assert len(answered) == 2 and set().union(*answered) == objects and not answered[0] & answered[1]
+    assert all(seen | mine == objects and not seen & mine for seen, mine in zip(calibrated_on, answered, strict=True))
+    assert result["grasps"] == result["metrics"]["n"] == sum(result["band_n"]) == len(val)
+    assert result["objects"] == len(objects) and 0 <= result["metrics"]["interval_coverage"] <= 1
+    assert (trained_model / "metadata.json").read_bytes() == before  # writes nothing
+
+
+def test_cross_validation_needs_two_folds_to_one_per_val_object(trained_model, synthetic_dataset):
+    for folds in (1, 10_000):
+        with pytest.raises(EstimatorError, match="folds: expected 2 to"):
+            cross_validate(trained_model, synthetic_dataset, folds=folds)
+
+
+def test_the_command_cross_validates_without_writing(trained_model, synthetic_dataset, tmp_path, capsys):
+    before = (trained_model / "metadata.json").read_bytes()
+    args = ["recalibrate", "--model", str(trained_model), "--data", str(synthetic_dataset), "--cross-validate", "2"]
+    assert main(args) == 0
+    shown = capsys.readouterr().out
+    assert "2-fold cross-validation by object" in shown and "dangerous" in shown and "coverage" in shown
+    assert main([*args, "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert printed == json.loads(json.dumps(cross_validate(trained_model, synthetic_dataset, folds=2)))
+    assert main([*args, "--out", str(tmp_path / "x")]) != 0
+    assert "--out" in capsys.readouterr().err and not (tmp_path / "x").exists()
+    assert (trained_model / "metadata.json").read_bytes() == before
