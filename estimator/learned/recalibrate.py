@@ -54,7 +54,7 @@ def _logits(predictor: CompliancePredictor, data: SplitData) -> np.ndarray:
 
 
 def _load(model_dir: Path, data_dir: Path, splits: tuple[str, ...]
-                  ) -> tuple[CompliancePredictor, dict[str, SplitData], dict[str, np.ndarray]]:
+          ) -> tuple[CompliancePredictor, dict[str, SplitData], dict[str, np.ndarray]]:
     """The model, the live samples of ``splits`` of its own dataset and its logits for them, after the
     checks of :func:`recalibrate`."""
     predictor = CompliancePredictor(model_dir)
@@ -152,7 +152,8 @@ def cross_validate(model_dir: str | Path, data_dir: str | Path, *, folds: int = 
     for k in range(folds):
         out = fold == k
         calibration = _calibrate_on(predictor, val.subset(~out), val_logits[~out], settings)
-        answers = (r for r in scored_rows(val.subset(out), val_logits[out], method, calibration) if r["method"] == method)
+        scored = scored_rows(val.subset(out), val_logits[out], method, calibration)
+        answers = (r for r in scored if r["method"] == method)
         for i, row in zip(np.flatnonzero(out), answers, strict=True):
             rows[i] = row
     edges = tuple(calibration["force_band_edges_n"])

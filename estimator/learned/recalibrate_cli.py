@@ -41,15 +41,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _print_cross_validation(result: dict) -> None:
     m, level = result["metrics"], result["level"]
-    rigid = m["rigid_shown_rigid"]
+    rigid, soft_width = m["rigid_shown_rigid"], m["soft_interval_width_decades_median"]
     print(f"{result['folds']}-fold cross-validation by object (seed {result['seed']}) over {result['objects']} val "
           f"objects, {result['grasps']} grasps, {result['method']}:")
     print(f"felt error      {m['felt_log10_error']:.4f} decade, {100 * m['felt_within_2x']:.1f} % within a factor 2")
     print(f"dangerous       {m['dangerous_misses']}; rigid shown rigid "
           f"{'-' if rigid is None else f'{100 * rigid:.1f} %'}")
     print(f"coverage        {100 * m['interval_coverage']:.1f} % at the stated {100 * level:.0f} %; median width "
-          f"{m['soft_interval_width_decades_median']:.2f} decade below 3 MPa")
-    for label, n, cover in zip(band_names(tuple(result["force_band_edges_n"])), result["band_n"], result["band_coverage"], strict=True):
+          f"{'-' if soft_width is None else f'{soft_width:.2f} decade'} below 3 MPa")
+    bands = band_names(tuple(result["force_band_edges_n"]))
+    for label, n, cover in zip(bands, result["band_n"], result["band_coverage"], strict=True):
         print(f"  {label:14s} {n:5d} grasps, coverage {'-' if cover is None else f'{100 * cover:.1f} %'}")
 
 
