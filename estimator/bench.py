@@ -68,7 +68,7 @@ from estimator.measure import TACTILE_METHODS, estimate_grasp, measure_grasp, no
 from estimator.metrics import summarise
 from estimator.perception.calibration import Calibration
 from estimator.settings import estimator_settings
-from haptics.settings import display_settings
+from haptics.settings import display_range_pa
 from teleop.errors import RecordError
 from teleop.record import GraspRecord, read_record
 from teleop.settings import Settings
@@ -217,7 +217,7 @@ def bench(
     if not rows:
         raise EstimatorError("no labelled, readable .grasp record to bench")
     summary = summarise(rows, [c.name for c in configs],
-                        display_range_pa=(display_settings(settings).e_soft_pa, display_settings(settings).e_rigid_pa))
+                        display_range_pa=display_range_pa(settings))
     out = []
     for config in configs:
         s = summary[config.name]

@@ -35,7 +35,7 @@ from estimator.evaluate import (
 )
 from estimator.learned.infer import load_predictor
 from estimator.metrics import felt_pa
-from haptics.settings import display_settings
+from haptics.settings import display_range_pa
 from teleop.record import find_records
 from teleop.settings import Settings, default_settings_path, load_settings
 
@@ -192,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
     if objects is not None and not labelled:
         raise EstimatorError(f"{root}: no labelled record is of an object in the test split of "
                              f"{', '.join(args.unseen_by)} ({len(objects)} objects)")
-    display_range = (display_settings(settings).e_soft_pa, display_settings(settings).e_rigid_pa)
+    display_range = display_range_pa(settings)
     summary = ablation_table(rows, methods=methods, models=models, display_range_pa=display_range)
     if args.plot:
         plot(rows, list(summary), args.plot, display_range_pa=display_range)

@@ -15,7 +15,7 @@ from teleop.errors import SettingsError
 from teleop.settings import Section, Settings
 from teleop.settings_fields import spec
 
-__all__ = ["DisplaySettings", "display_settings"]
+__all__ = ["DisplaySettings", "display_range_pa", "display_settings"]
 
 
 @dataclass(frozen=True)
@@ -57,3 +57,10 @@ class DisplaySettings(Section):
 def display_settings(settings: Settings) -> DisplaySettings:
     """The ``[display]`` table of ``settings``, checked, with its rigid end resolved."""
     return settings.section(DisplaySettings)
+
+
+def display_range_pa(settings: Settings) -> tuple[float, float]:
+    """The display's ``(e_soft_pa, e_rigid_pa)`` under ``settings`` (Pa): what it renders, and the
+    range felt errors are clipped to."""
+    display = display_settings(settings)
+    return display.e_soft_pa, display.e_rigid_pa

@@ -38,7 +38,7 @@ from estimator.learned.train import (
     split_metrics,
 )
 from estimator.metrics import summarise
-from haptics.settings import display_settings
+from haptics.settings import display_range_pa
 from teleop.settings import Settings, load_settings
 
 __all__ = ["cross_validate", "recalibrate"]
@@ -157,7 +157,7 @@ def cross_validate(model_dir: str | Path, data_dir: str | Path, *, folds: int = 
         for i, row in zip(np.flatnonzero(out), answers, strict=True):
             rows[i] = row
     edges = tuple(calibration["force_band_edges_n"])
-    display = (display_settings(settings).e_soft_pa, display_settings(settings).e_rigid_pa)
+    display = display_range_pa(settings)
 
     def score(mask: np.ndarray) -> dict[str, Any]:
         return summarise([r for r, m in zip(rows, mask, strict=True) if m], [method], display_range_pa=display,

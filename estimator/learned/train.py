@@ -80,7 +80,7 @@ from estimator.learned.model import ComplianceNet
 from estimator.learned.reference import REFERENCE_RECORD, reference_inputs, summarise_inputs
 from estimator.metrics import summarise
 from estimator.samples import TrainingSample, load_sample, sample_paths
-from haptics.settings import display_settings
+from haptics.settings import display_range_pa
 from teleop.settings import Settings, load_settings
 
 __all__ = ["SplitData", "TrainConfig", "auto_policy", "check_dataset_fits", "load_split_data", "predict",
@@ -293,7 +293,7 @@ def split_metrics(data: SplitData, logits: np.ndarray, method: str, calibration:
     the analytical methods' on the same grasps."""
     if not len(data):
         return {}
-    display = (display_settings(settings).e_soft_pa, display_settings(settings).e_rigid_pa)
+    display = display_range_pa(settings)
     summary = summarise(scored_rows(data, logits, method, calibration), [method, *ANALYTICAL_METHODS],
                         display_range_pa=display, interval_levels={method: calibration["level"]})
     for value in summary.values():

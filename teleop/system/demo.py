@@ -51,7 +51,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from haptics.settings import display_settings
+from haptics.settings import display_range_pa
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
@@ -224,7 +224,7 @@ class LiveSystem:
                           for name, port in zip(("robot_pub", "estimate_pub", "command", "display_pub"), ports,
                                                 strict=True)}
         settings = load_settings(self.settings_path)
-        self.display_range = (display_settings(settings).e_soft_pa, display_settings(settings).e_rigid_pa)
+        self.display_range = display_range_pa(settings)
         bus = settings.bus
         try:
             self.commands = Publisher(self.endpoints["command"], lossless=True, source="operator",
