@@ -8,7 +8,13 @@ from __future__ import annotations
 import argparse
 import json
 
-from haptics.protocol import FLAG_BITS, StiffnessCommand, encode_output_report
+from haptics.protocol import (
+    FLAG_BITS,
+    PROTOCOL_VERSION,
+    PROTOCOL_VERSIONS,
+    StiffnessCommand,
+    encode_output_report,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -17,6 +23,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--uncertainty", type=int, default=0,
                         help="interval width in counts of 1/20 decade of E, 0-255")
     parser.add_argument("--sequence", type=int, default=0, help="sequence number, 0-255")
+    parser.add_argument("--protocol-version", type=int, choices=PROTOCOL_VERSIONS,
+                        default=PROTOCOL_VERSION,
+                        help="the display's protocol version (its FEATURE report says it), "
+                             f"carried in the report's second byte (default {PROTOCOL_VERSION})")
     for flag in FLAG_BITS:
         parser.add_argument(f"--{flag}", action="store_true", help=f"set the {flag} flag "
                             f"(bit {FLAG_BITS[flag]} of the flags byte)")
@@ -30,10 +40,10 @@ def run(args: argparse.Namespace) -> int:
         uncertainty=args.uncertainty,
         **{flag: getattr(args, flag) for flag in FLAG_BITS},
     )
-    report = encode_output_report(command, sequence=args.sequence)
+    report = encode_output_report(command, sequence=args.sequence, version=args.protocol_version)
     print(report.hex(" "))
     if args.json:
         print(json.dumps({"report_hex": report.hex(), "length": len(report), "level": command.level,
                           "uncertainty": command.uncertainty, "flags": command.flags,
-                          "sequence": args.sequence}))
+                          "sequence": args.sequence, "protocol_version": args.protocol_version}))
     return 0

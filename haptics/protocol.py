@@ -1,6 +1,6 @@
-"""Vendor-defined USB HID protocol of the softness display, version 1.
+"""Vendor-defined USB HID protocol of the softness display, versions 1 and 2.
 
-Softness displays have no standard HID usage, so the display speaks three
+Softness displays have no standard HID usage, so the display speaks
 vendor-defined reports (usage page 0xFF00) with numbered report IDs:
 
 - OUTPUT ``0x01`` *set stiffness* (host to device, 8 bytes): flags, the
@@ -10,6 +10,9 @@ vendor-defined reports (usage page 0xFF00) with numbered report IDs:
   physical stiffness range. Only ``watchdog_ms`` is writable.
 - INPUT ``0x03`` *status* (device to host, 7 bytes): device state, the level
   rendered now, fault bits and the echo of the last accepted sequence number.
+- INPUT ``0x04`` *grip* (device to host, 9 bytes, version 2 only): the
+  operator's grip on the display's handle (position, force where the device
+  measures it), its buttons and a sequence number.
 
 Every report starts with its report ID and ends with a CRC-8 over all bytes
 before it (polynomial 0x07, initial value 0x00, no reflection, no final XOR;
@@ -17,10 +20,21 @@ before it (polynomial 0x07, initial value 0x00, no reflection, no final XOR;
 The byte-by-byte layout is in ``PROTOCOL.md`` beside this module; ``haptics
 protocol`` prints the same tables, rendered from the layouts defined here.
 
+Versions: the display states the version it speaks in its FEATURE report; the
+host speaks :data:`PROTOCOL_VERSIONS` and talks to each display in that
+display's version (the OUTPUT report carries it). Version 2 adds the grip
+report and changes nothing else, so a version-1 display works as before.
+
+This module owns the wire format: every layout, the report descriptor, the
+CRC and the versions. The grip report's message class and codec live in
+:mod:`haptics.protocol_grip` (built on :data:`GRIP_LAYOUT` and the helpers
+here, to keep modules small); ``GripReport``, ``encode_grip_report`` and
+``decode_grip_report`` can be imported from either module.
+
 Encoders and decoders are pure functions on ``bytes``. Decoding a report that
 is short, long, of another report ID, with a bad CRC, with reserved bits set
 or with a value out of its range raises :class:`~haptics.errors.ProtocolError`
-naming the field.
+naming the report and the field.
 """
 
 from __future__ import annotations
@@ -37,10 +51,16 @@ __all__ = [
     "FAULT_BITS",
     "FEATURE_LAYOUT",
     "FLAG_BITS",
+    "GRIP_BUTTON_BITS",
+    "GRIP_FLAG_NO_FORCE",
+    "GRIP_FORCE_COUNTS_PER_N",
+    "GRIP_LAYOUT",
+    "GRIP_POSITION_FULL_SCALE",
     "INPUT_LAYOUT",
     "LAYOUTS",
     "OUTPUT_LAYOUT",
     "PROTOCOL_VERSION",
+    "PROTOCOL_VERSIONS",
     "REPORT_DESCRIPTOR",
     "DESCRIPTOR_ITEMS",
     "DEVICE_STATES",
@@ -59,10 +79,15 @@ __all__ = [
     "encode_feature_report",
     "encode_input_report",
     "encode_output_report",
+    "descriptor_items",
     "layout_markdown",
+    "report_descriptor",
 ]
 
-PROTOCOL_VERSION = 1
+#: The newest protocol version this host speaks.
+PROTOCOL_VERSION = 2
+#: Every version this host speaks; it talks to each display in the display's own version.
+PROTOCOL_VERSIONS = (1, 2)
 USAGE_PAGE = 0xFF00
 COMMAND_SET_STIFFNESS = 0x1
 #: Uncertainty byte resolution: 20 counts per decade of E, so 255 counts = 12.75 decades.
@@ -80,6 +105,15 @@ FAULT_BITS = {
 }
 #: INPUT report device states, by code.
 DEVICE_STATES = ("free", "rendering", "fault", "watchdog")
+#: Bit number of each button in the grip report's buttons byte (version 2); bits 5-7 reserved.
+#: ``enable`` is the dead-man (held); the others are a subset of ``teleop.operator.BUTTONS``.
+GRIP_BUTTON_BITS = {"enable": 0, "grasp": 1, "release": 2, "stop": 3, "next": 4}
+#: Bit 0 of the grip report's flags byte: the device has no force sensor (force is 0).
+GRIP_FLAG_NO_FORCE = 0x01
+#: Grip position counts at full travel (fully squeezed): 1/10000 of the travel per count.
+GRIP_POSITION_FULL_SCALE = 10_000
+#: Grip force counts per newton: 0.01 N per count, so 0 to 655.35 N.
+GRIP_FORCE_COUNTS_PER_N = 100
 
 _TYPES = {"u8": ("B", "uint8"), "u16": ("H", "uint16 LE"), "u32": ("I", "uint32 LE")}
 
@@ -98,12 +132,16 @@ class Field:
 
 @dataclass(frozen=True)
 class ReportLayout:
-    """The fields of one report in wire order; offsets follow from the types."""
+    """The fields of one report in wire order; offsets follow from the types.
+
+    ``version`` is the first protocol version with this report.
+    """
 
     name: str
     kind: str  # "output", "feature" or "input", as seen from the host
     report_id: int
     fields: tuple[Field, ...] = field(repr=False)
+    version: int = 1
 
     @cached_property
     def packer(self) -> struct.Struct:
@@ -131,7 +169,8 @@ _CRC = "CRC-8 (poly 0x07, init 0x00) of every byte before it"
 OUTPUT_LAYOUT = ReportLayout("set stiffness", "output", 0x01, (
     Field("report_id", "u8", f"{_ID}: 0x01"),
     Field("version_command", "u8",
-          "high nibble: protocol version (1); low nibble: command (1 = set stiffness); 0x11"),
+          "high nibble: protocol version, the display's own (1 or 2); "
+          "low nibble: command (1 = set stiffness); 0x11 or 0x21"),
     Field("flags", "u8",
           "bit 0 rigid, bit 1 unknown, bit 2 stale, bit 3 fading, bit 4 provisional; "
           "bits 5-7 reserved, 0; rigid and unknown never both set"),
@@ -147,7 +186,8 @@ OUTPUT_LAYOUT = ReportLayout("set stiffness", "output", 0x01, (
 
 FEATURE_LAYOUT = ReportLayout("device info / configuration", "feature", 0x02, (
     Field("report_id", "u8", f"{_ID}: 0x02"),
-    Field("protocol_version", "u8", "protocol version the firmware speaks: 1"),
+    Field("protocol_version", "u8",
+          "protocol version the firmware speaks: 1, or 2 (adds the grip report); read-only"),
     Field("firmware_major", "u8", "firmware version, major"),
     Field("firmware_minor", "u8", "firmware version, minor"),
     Field("level_max", "u16", "full-scale stiffness level, >= 1; read-only"),
@@ -175,32 +215,66 @@ INPUT_LAYOUT = ReportLayout("status", "input", 0x03, (
     Field("crc", "u8", _CRC),
 ))
 
-LAYOUTS = (OUTPUT_LAYOUT, FEATURE_LAYOUT, INPUT_LAYOUT)
+GRIP_LAYOUT = ReportLayout("grip", "input", 0x04, (
+    Field("report_id", "u8", f"{_ID}: 0x04"),
+    Field("buttons", "u8",
+          "bit 0 enable (dead-man held now); bit 1 grasp, bit 2 release, bit 3 stop, bit 4 next "
+          "(held now or pressed since the previous grip report); bits 5-7 reserved, 0"),
+    Field("flags", "u8",
+          "bit 0 no force sensor (force is then 0); bits 1-7 reserved, 0"),
+    Field("position", "u16",
+          "grip position, 0 (open) to 10000 (fully squeezed), 1/10000 of the handle's travel "
+          "per count; 10001-65535 invalid"),
+    Field("force", "u16",
+          "operator's grip force on the handle, 0.01 N per count (0 to 655.35 N); "
+          "0 when flags bit 0 is set"),
+    Field("sequence", "u8", "device counter, +1 per grip report, wraps from 255 to 0"),
+    Field("crc", "u8", _CRC),
+), version=2)
 
-#: The HID report descriptor, item by item: (bytes, what the item says).
-#: Report counts exclude the report ID byte.
-DESCRIPTOR_ITEMS: tuple[tuple[bytes, str], ...] = (
-    (bytes([0x06, 0x00, 0xFF]), "Usage Page (Vendor Defined 0xFF00)"),
-    (bytes([0x09, 0x01]), "Usage (0x01: softness display)"),
-    (bytes([0xA1, 0x01]), "Collection (Application)"),
-    (bytes([0x15, 0x00]), "  Logical Minimum (0)"),
-    (bytes([0x26, 0xFF, 0x00]), "  Logical Maximum (255)"),
-    (bytes([0x75, 0x08]), "  Report Size (8 bits)"),
-    (bytes([0x85, OUTPUT_LAYOUT.report_id]), "  Report ID (0x01)"),
-    (bytes([0x09, 0x02]), "  Usage (0x02: set stiffness)"),
-    (bytes([0x95, OUTPUT_LAYOUT.size - 1]), f"  Report Count ({OUTPUT_LAYOUT.size - 1})"),
-    (bytes([0x91, 0x02]), "  Output (Data, Variable, Absolute)"),
-    (bytes([0x85, FEATURE_LAYOUT.report_id]), "  Report ID (0x02)"),
-    (bytes([0x09, 0x03]), "  Usage (0x03: device info / configuration)"),
-    (bytes([0x95, FEATURE_LAYOUT.size - 1]), f"  Report Count ({FEATURE_LAYOUT.size - 1})"),
-    (bytes([0xB1, 0x02]), "  Feature (Data, Variable, Absolute)"),
-    (bytes([0x85, INPUT_LAYOUT.report_id]), "  Report ID (0x03)"),
-    (bytes([0x09, 0x04]), "  Usage (0x04: status)"),
-    (bytes([0x95, INPUT_LAYOUT.size - 1]), f"  Report Count ({INPUT_LAYOUT.size - 1})"),
-    (bytes([0x81, 0x02]), "  Input (Data, Variable, Absolute)"),
-    (bytes([0xC0]), "End Collection"),
-)
-REPORT_DESCRIPTOR = b"".join(item for item, _ in DESCRIPTOR_ITEMS)
+LAYOUTS = (OUTPUT_LAYOUT, FEATURE_LAYOUT, INPUT_LAYOUT, GRIP_LAYOUT)
+
+_MAIN_ITEMS = {"output": (0x91, "Output"), "feature": (0xB1, "Feature"), "input": (0x81, "Input")}
+
+
+def descriptor_items(version: int = PROTOCOL_VERSION) -> tuple[tuple[bytes, str], ...]:
+    """The HID report descriptor of a ``version`` display, item by item: (bytes, meaning).
+
+    Report counts exclude the report ID byte; report ``n`` of :data:`LAYOUTS` has usage
+    ``n + 2``. Version 2 adds the grip report's four items before End Collection.
+    """
+    if version not in PROTOCOL_VERSIONS:
+        raise ProtocolError(f"descriptor version = {version!r}: expected one of {PROTOCOL_VERSIONS}")
+    items = [
+        (bytes([0x06, 0x00, 0xFF]), "Usage Page (Vendor Defined 0xFF00)"),
+        (bytes([0x09, 0x01]), "Usage (0x01: softness display)"),
+        (bytes([0xA1, 0x01]), "Collection (Application)"),
+        (bytes([0x15, 0x00]), "  Logical Minimum (0)"),
+        (bytes([0x26, 0xFF, 0x00]), "  Logical Maximum (255)"),
+        (bytes([0x75, 0x08]), "  Report Size (8 bits)"),
+    ]
+    for usage, layout in enumerate(LAYOUTS, start=2):
+        if layout.version > version:
+            continue
+        main, main_name = _MAIN_ITEMS[layout.kind]
+        items += [
+            (bytes([0x85, layout.report_id]), f"  Report ID (0x{layout.report_id:02X})"),
+            (bytes([0x09, usage]), f"  Usage (0x{usage:02X}: {layout.name})"),
+            (bytes([0x95, layout.size - 1]), f"  Report Count ({layout.size - 1})"),
+            (bytes([main, 0x02]), f"  {main_name} (Data, Variable, Absolute)"),
+        ]
+    items.append((bytes([0xC0]), "End Collection"))
+    return tuple(items)
+
+
+def report_descriptor(version: int = PROTOCOL_VERSION) -> bytes:
+    """The HID report descriptor bytes of a ``version`` display."""
+    return b"".join(item for item, _ in descriptor_items(version))
+
+
+#: The report descriptor of a version-2 display, item by item (a version-1 one lacks report 0x04).
+DESCRIPTOR_ITEMS = descriptor_items()
+REPORT_DESCRIPTOR = report_descriptor()
 
 
 def layout_markdown(layout: ReportLayout) -> str:
@@ -329,10 +403,10 @@ class DisplayInfo:
                 f"DisplayInfo.max_stiffness_n_per_m = {self.max_stiffness_n_per_m}: below "
                 f"min_stiffness_n_per_m = {self.min_stiffness_n_per_m}"
             )
-        if self.protocol_version != PROTOCOL_VERSION:
+        if self.protocol_version not in PROTOCOL_VERSIONS:
             raise ProtocolError(
                 f"DisplayInfo.protocol_version = {self.protocol_version!r}: this host speaks "
-                f"version {PROTOCOL_VERSION} only"
+                f"versions {_versions()}"
             )
 
 
@@ -395,6 +469,15 @@ def _unpack(layout: ReportLayout, data: bytes) -> tuple[int, ...]:
     return layout.packer.unpack(data)[1:-1]
 
 
+def _versions() -> str:
+    return " and ".join(str(v) for v in PROTOCOL_VERSIONS)
+
+
+def _check_version(owner: str, version: object) -> None:
+    if isinstance(version, bool) or version not in PROTOCOL_VERSIONS:
+        raise ProtocolError(f"{owner}.version = {version!r}: this host speaks versions {_versions()}")
+
+
 def _reserved_bits(where: str, name: str, value: int, used: int) -> None:
     if value & ~used & 0xFF:
         raise ProtocolError(
@@ -402,23 +485,37 @@ def _reserved_bits(where: str, name: str, value: int, used: int) -> None:
         )
 
 
-def encode_output_report(command: StiffnessCommand, *, sequence: int) -> bytes:
-    """The 8-byte OUTPUT report (ID 0x01) that sets ``command``, numbered ``sequence`` (0-255)."""
+def encode_output_report(
+    command: StiffnessCommand, *, sequence: int, version: int = PROTOCOL_VERSION
+) -> bytes:
+    """The 8-byte OUTPUT report (ID 0x01) that sets ``command``, numbered ``sequence`` (0-255).
+
+    ``version`` is the protocol version of the display it is for (its FEATURE report's
+    ``protocol_version``); the layout is the same in every version.
+    """
     _check_uint("output report", "sequence", sequence, 8)
-    version_command = PROTOCOL_VERSION << 4 | COMMAND_SET_STIFFNESS
+    _check_version("output report", version)
+    version_command = version << 4 | COMMAND_SET_STIFFNESS
     return _pack(
         OUTPUT_LAYOUT, version_command, command.flags, command.level, command.uncertainty, sequence
     )
 
 
-def decode_output_report(data: bytes) -> OutputReport:
-    """Decode an OUTPUT report (what a display's firmware does with the host's bytes)."""
+def decode_output_report(data: bytes, *, version: int | None = None) -> OutputReport:
+    """Decode an OUTPUT report (what a display's firmware does with the host's bytes).
+
+    ``version``: the only protocol version accepted (a display's own); None accepts every
+    version of :data:`PROTOCOL_VERSIONS`.
+    """
+    if version is not None:
+        _check_version("decode_output_report", version)
     version_command, flags, level, uncertainty, sequence = _unpack(OUTPUT_LAYOUT, data)
     where = "output report 0x01"
-    if version_command >> 4 != PROTOCOL_VERSION:
+    accepted = PROTOCOL_VERSIONS if version is None else (version,)
+    if version_command >> 4 not in accepted:
         raise ProtocolError(
             f"{where}: version_command = 0x{version_command:02X} says protocol version "
-            f"{version_command >> 4}, expected {PROTOCOL_VERSION}"
+            f"{version_command >> 4}, expected {' or '.join(str(v) for v in accepted)}"
         )
     if version_command & 0x0F != COMMAND_SET_STIFFNESS:
         raise ProtocolError(
@@ -448,7 +545,7 @@ def encode_feature_report(info: DisplayInfo) -> bytes:
 
 
 def decode_feature_report(data: bytes) -> DisplayInfo:
-    """Decode a FEATURE report; an unknown protocol version is an error naming the field."""
+    """Decode a FEATURE report; a version this host does not speak is an error naming the field."""
     version, major, minor, level_max, watchdog_ms, k_min, k_max = _unpack(FEATURE_LAYOUT, data)
     try:
         return DisplayInfo(
@@ -483,3 +580,17 @@ def decode_input_report(data: bytes) -> DeviceStatus:
     _reserved_bits(where, "faults", faults, sum(1 << bit for bit in FAULT_BITS.values()))
     names = frozenset(name for name, bit in FAULT_BITS.items() if faults >> bit & 1)
     return DeviceStatus(DEVICE_STATES[state], level, names, sequence)
+
+
+# --------------------------------------------------------------------------- grip (version 2)
+
+_GRIP_NAMES = frozenset({"GRIP_BUTTONS", "GripReport", "decode_grip_report", "encode_grip_report"})
+
+
+def __getattr__(name: str) -> object:
+    """The grip report's API, defined in :mod:`haptics.protocol_grip`, imported on first use."""
+    if name in _GRIP_NAMES:
+        from haptics import protocol_grip
+
+        return getattr(protocol_grip, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

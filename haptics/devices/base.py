@@ -4,6 +4,15 @@ A backend implements six small hooks (open, close, write an OUTPUT report,
 read an INPUT report, get and set the FEATURE report); the base class owns
 the lifecycle, the protocol encoding, the sequence numbers and the
 disconnect-on-failure rule that makes reconnection possible.
+
+Versions: ``connect()`` reads the FEATURE report and the display's
+``protocol_version`` decides the session: OUTPUT reports carry that version,
+and a version-2 display's INPUT pipe carries grip reports (``0x04``) between
+its status reports (``0x03``). The base class sorts them by report ID, so
+:meth:`SoftnessDisplay.read_status` and :meth:`SoftnessDisplay.read_operator`
+each see only their own kind; a version-1 display behaves exactly as before
+(a ``0x04`` report from it is refused by ``read_status`` like any other
+foreign report ID).
 """
 
 from __future__ import annotations
@@ -11,11 +20,14 @@ from __future__ import annotations
 import abc
 import logging
 import math
+import time
+from collections import deque
 from dataclasses import dataclass, replace
 from typing import Any, Self
 
 from haptics.errors import DisplayError, DisplayNotConnectedError, ProtocolError
 from haptics.protocol import (
+    GRIP_LAYOUT,
     DeviceStatus,
     DisplayInfo,
     StiffnessCommand,
@@ -24,19 +36,25 @@ from haptics.protocol import (
     encode_feature_report,
     encode_output_report,
 )
+from haptics.protocol_grip import GripReport, decode_grip_report
 from haptics.settings import DisplaySettings
 
 __all__ = ["Reconnector", "SoftnessDisplay"]
 
 log = logging.getLogger(__name__)
 
+#: INPUT reports of one kind kept aside while reading the other kind (oldest dropped beyond).
+_INBOX_SIZE = 256
+#: Most INPUT reports one read_status() / read_operator() call takes from the device.
+_MAX_READS = 1024
+
 
 class SoftnessDisplay(abc.ABC):
     """A haptic softness display speaking the protocol of :mod:`haptics.protocol`.
 
     Lifecycle: ``connect()`` (reads the device info), then ``write_command()`` /
-    ``read_status()`` / ``configure()``, then ``close()``; or use it as a
-    context manager. Using it unconnected raises
+    ``read_status()`` / ``read_operator()`` / ``configure()``, then ``close()``;
+    or use it as a context manager. Using it unconnected raises
     :class:`~haptics.errors.DisplayNotConnectedError`. An I/O failure raises
     :class:`~haptics.errors.DisplayError` and leaves the display disconnected;
     :meth:`reconnect` (driven by :class:`Reconnector`) brings it back and
@@ -49,6 +67,10 @@ class SoftnessDisplay(abc.ABC):
         self._sequence = 0
         self._last_command: StiffnessCommand | None = None
         self.reports_written = 0
+        # INPUT reports read while looking for the other kind, as raw bytes (decoded when
+        # their own reader takes them, so that a malformed one is refused there).
+        self._status_inbox: deque[bytes] = deque(maxlen=_INBOX_SIZE)
+        self._grip_inbox: deque[bytes] = deque(maxlen=_INBOX_SIZE)
 
     # ------------------------------------------------------------ backend hooks
 
@@ -93,6 +115,16 @@ class SoftnessDisplay(abc.ABC):
         return self._info
 
     @property
+    def protocol_version(self) -> int | None:
+        """The protocol version of the session: the display's own (None before connecting)."""
+        return None if self._info is None else self._info.protocol_version
+
+    @property
+    def has_grip(self) -> bool:
+        """The display serves grip reports (protocol version 2 or later)."""
+        return self._info is not None and self._info.protocol_version >= GRIP_LAYOUT.version
+
+    @property
     def last_command(self) -> StiffnessCommand | None:
         """The last command asked of :meth:`write_command`, written or not."""
         return self._last_command
@@ -102,6 +134,8 @@ class SoftnessDisplay(abc.ABC):
         if self._connected:
             return self._info
         self._open()
+        self._status_inbox.clear()
+        self._grip_inbox.clear()
         try:
             self._info = self._fetch_info()
         except BaseException:
@@ -157,7 +191,9 @@ class SoftnessDisplay(abc.ABC):
                 f"level_max = {self._info.level_max}"
             )
         self._last_command = command
-        report = encode_output_report(command, sequence=self._sequence)
+        report = encode_output_report(
+            command, sequence=self._sequence, version=self._info.protocol_version
+        )
         self._io(self._write_report, report)
         self._sequence = (self._sequence + 1) % 256
         self.reports_written += 1
@@ -169,10 +205,44 @@ class SoftnessDisplay(abc.ABC):
         A report that does not decode raises ProtocolError (the link stays up).
         """
         self._require_connected("read_status")
-        if not (math.isfinite(timeout_s) and timeout_s >= 0):
-            raise DisplayError(f"read_status timeout_s = {timeout_s!r}: expected a number >= 0")
-        data = self._io(self._read_report, timeout_s)
-        return None if data is None else decode_input_report(data)
+        self._check_timeout("read_status", timeout_s)
+        if not self._status_inbox:
+            self._read_inputs(timeout_s, until=self._status_inbox)
+        return decode_input_report(self._status_inbox.popleft()) if self._status_inbox else None
+
+    def read_operator(self, *, timeout_s: float) -> GripReport | None:
+        """The operator's grip on the display's handle, or None.
+
+        None for a version-1 display (at once: it has no grip; see :attr:`has_grip`) and when
+        no grip report arrives within ``timeout_s`` seconds. Otherwise the newest grip report
+        that arrived since the previous call, with ``buttons`` the union over all of them, so
+        that a press shorter than the caller's polling period is not lost. Status reports read
+        on the way are kept for :meth:`read_status`. A grip report that does not decode raises
+        ProtocolError naming it (the link stays; the reports after it wait for the next call).
+        """
+        self._require_connected("read_operator")
+        self._check_timeout("read_operator", timeout_s)
+        if not self.has_grip:
+            return None
+        if not self._grip_inbox:
+            self._read_inputs(timeout_s, until=self._grip_inbox)
+        if self._grip_inbox:
+            self._read_inputs(0.0, until=None)  # and whatever else is already there
+        reports: list[GripReport] = []
+        while self._grip_inbox:
+            try:
+                report = decode_grip_report(self._grip_inbox[0])
+            except ProtocolError:
+                if not reports:
+                    self._grip_inbox.popleft()
+                    raise
+                break  # return the good ones; the bad one is refused by the next call
+            self._grip_inbox.popleft()
+            reports.append(report)
+        if not reports:
+            return None
+        pressed = frozenset().union(*(report.buttons for report in reports))
+        return replace(reports[-1], buttons=pressed)
 
     def configure(self, *, watchdog_ms: int) -> DisplayInfo:
         """Set the display's watchdog (0 = off) and return the info read back."""
@@ -188,6 +258,31 @@ class SoftnessDisplay(abc.ABC):
         return info
 
     # ------------------------------------------------------------ helpers
+
+    def _check_timeout(self, what: str, timeout_s: float) -> None:
+        if not (isinstance(timeout_s, int | float) and math.isfinite(timeout_s) and timeout_s >= 0):
+            raise DisplayError(f"{what} timeout_s = {timeout_s!r}: expected a number >= 0")
+
+    def _read_inputs(self, timeout_s: float, *, until: deque[bytes] | None) -> None:
+        """Read INPUT reports into the inboxes, sorted by report ID.
+
+        Stops as soon as a report lands in ``until``, waiting up to ``timeout_s`` in all;
+        with ``until=None`` reads, without waiting, what is already there. Only a display that
+        serves grip reports has its ``0x04`` reports set aside: from a version-1 display every
+        report goes to the status inbox (and a foreign report ID is refused by ``read_status``).
+        """
+        deadline = time.monotonic() + timeout_s
+        grip = self.has_grip
+        wait_s = timeout_s
+        for _ in range(_MAX_READS):
+            data = self._io(self._read_report, wait_s)
+            if data is None:
+                return
+            is_grip = grip and data[0] == GRIP_LAYOUT.report_id
+            (self._grip_inbox if is_grip else self._status_inbox).append(data)
+            if until:
+                return
+            wait_s = 0.0 if until is None else max(0.0, deadline - time.monotonic())
 
     def _require_connected(self, what: str) -> None:
         if not self._connected:

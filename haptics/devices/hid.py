@@ -5,7 +5,9 @@ vendor-defined usage page where the platform reports usage pages; the display
 is opened by path, so a display replugged under a new path is found again.
 Every vendor ``OSError`` / ``ValueError`` becomes a
 :class:`~haptics.errors.DisplayError` (``raise ... from``), which the base
-class takes as an unplug.
+class takes as an unplug. Status reports and a version-2 display's grip
+reports both arrive through ``read()`` on the one interrupt IN endpoint; the
+base class sorts them by report ID.
 """
 
 from __future__ import annotations

@@ -2,7 +2,9 @@
 
 :class:`DisplayFirmware` is the device side of the protocol: it decodes the
 host's OUTPUT reports exactly as firmware would, answers the FEATURE report
-and queues one status (INPUT) report per OUTPUT report it receives.
+and queues one status (INPUT) report per OUTPUT report it receives. It speaks
+protocol version 2 unless told 1; a version-2 one has a scriptable grip
+(:meth:`DisplayFirmware.set_grip` queues a grip report on the same INPUT pipe).
 :class:`SimulatedDisplay` puts it behind the :class:`SoftnessDisplay`
 lifecycle, logs every report byte for byte and can be unplugged and replugged.
 The same firmware model stands behind the fake ``hid`` module in the tests.
@@ -11,6 +13,7 @@ The same firmware model stands behind the fake ``hid`` module in the tests.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import replace
 from typing import Any, Self
 
@@ -18,6 +21,8 @@ from haptics.devices.base import SoftnessDisplay
 from haptics.errors import DisplayError, ProtocolError
 from haptics.protocol import (
     FAULT_BITS,
+    GRIP_LAYOUT,
+    PROTOCOL_VERSION,
     DeviceStatus,
     DisplayInfo,
     StiffnessCommand,
@@ -26,6 +31,7 @@ from haptics.protocol import (
     encode_feature_report,
     encode_input_report,
 )
+from haptics.protocol_grip import GripReport, encode_grip_report
 from haptics.settings import DisplaySettings
 
 __all__ = ["DisplayFirmware", "SimulatedDisplay"]
@@ -36,17 +42,26 @@ class DisplayFirmware:
 
     Parameters
     ----------
-    info : DisplayInfo
+    info : DisplayInfo, optional
         What the device reports in its FEATURE report (``watchdog_ms`` is writable).
+    protocol_version : int, optional
+        The version the device speaks when ``info`` is not given (default: the newest, 2);
+        given with ``info``, it must agree with ``info.protocol_version``.
     """
 
-    def __init__(self, info: DisplayInfo | None = None) -> None:
+    def __init__(self, info: DisplayInfo | None = None, *, protocol_version: int | None = None) -> None:
+        if info is not None and protocol_version not in (None, info.protocol_version):
+            raise ProtocolError(
+                f"DisplayFirmware: protocol_version = {protocol_version!r} disagrees with "
+                f"info.protocol_version = {info.protocol_version}"
+            )
         self.info = info or DisplayInfo(
             level_max=4095,
             firmware_version=(1, 0),
             watchdog_ms=1000,
             min_stiffness_n_per_m=0,
             max_stiffness_n_per_m=5000,
+            protocol_version=PROTOCOL_VERSION if protocol_version is None else protocol_version,
         )
         self.power_on_reset()
 
@@ -56,6 +71,10 @@ class DisplayFirmware:
         self.sequence = 0
         self.faults: set[str] = set()
         self.bad_reports = 0
+        #: The last grip report sent (None before any).
+        self.grip: GripReport | None = None
+        self._grip_sequence = 0
+        # The INPUT pipe: status and (version 2) grip reports, in the order they were sent.
         self._statuses: deque[bytes] = deque(maxlen=64)
 
     @property
@@ -81,7 +100,7 @@ class DisplayFirmware:
     def receive_output(self, report: bytes) -> None:
         """Handle one OUTPUT report; a malformed one is counted and flagged, never rendered."""
         try:
-            decoded = decode_output_report(report)
+            decoded = decode_output_report(report, version=self.info.protocol_version)
             if decoded.command.level > self.info.level_max:
                 raise ProtocolError(f"level {decoded.command.level} above {self.info.level_max}")
         except ProtocolError:
@@ -98,12 +117,37 @@ class DisplayFirmware:
             DeviceStatus(self.state, self.level, frozenset(self.faults), self.sequence)
         )
 
+    def set_grip(
+        self,
+        grip: float,
+        *,
+        force_n: float | None = None,
+        enable: bool = True,
+        buttons: Iterable[str] = (),
+    ) -> bytes:
+        """Move the handle: queue the grip report a version-2 device sends; return its bytes.
+
+        ``grip`` 0 (open) to 1 (squeezed); ``force_n`` None for a device without a force
+        sensor; ``enable`` the dead-man (held unless said otherwise); ``buttons`` the buttons
+        pressed in this report. Each call sends one report, numbered by the device's counter.
+        """
+        if self.info.protocol_version < GRIP_LAYOUT.version:
+            raise ProtocolError(
+                f"a protocol version {self.info.protocol_version} display has no grip report "
+                f"(version {GRIP_LAYOUT.version} and later)"
+            )
+        self.grip = GripReport(grip, force_n, enable, frozenset(buttons), self._grip_sequence)
+        self._grip_sequence = (self._grip_sequence + 1) % 256
+        report = encode_grip_report(self.grip)
+        self._statuses.append(report)
+        return report
+
     def queue_input_report(self, report: bytes) -> None:
         """Queue raw bytes as the next INPUT report: lets a test play a misbehaving device."""
         self._statuses.append(bytes(report))
 
     def next_input_report(self) -> bytes | None:
-        """The oldest queued status report, or None."""
+        """The oldest queued INPUT report (status or grip), or None."""
         return self._statuses.popleft() if self._statuses else None
 
     def feature_report(self) -> bytes:
@@ -121,12 +165,21 @@ class SimulatedDisplay(SoftnessDisplay):
     ``log`` holds ``(kind, bytes)`` for every report that crossed the simulated
     link, kind in ``output``, ``input``, ``feature_get``, ``feature_set``.
     ``unplug()`` makes every I/O fail as a pulled cable would; ``replug()``
-    powers the firmware up again.
+    powers the firmware up again. ``protocol_version`` (1 or 2, default 2) is
+    the version the simulated device speaks; a version-2 one's grip is set
+    with :meth:`set_grip` and read with :meth:`read_operator`.
     """
 
-    def __init__(self, *, firmware: DisplayFirmware | None = None) -> None:
+    def __init__(
+        self, *, firmware: DisplayFirmware | None = None, protocol_version: int | None = None
+    ) -> None:
         super().__init__()
-        self.firmware = firmware or DisplayFirmware()
+        if firmware is not None and protocol_version not in (None, firmware.info.protocol_version):
+            raise ProtocolError(
+                f"SimulatedDisplay: protocol_version = {protocol_version!r} disagrees with its "
+                f"firmware's {firmware.info.protocol_version}"
+            )
+        self.firmware = firmware or DisplayFirmware(protocol_version=protocol_version)
         self.log: list[tuple[str, bytes]] = []
         self.plugged = True
 
@@ -141,6 +194,17 @@ class SimulatedDisplay(SoftnessDisplay):
     def rendered_command(self) -> StiffnessCommand | None:
         """The last command the firmware decoded and accepted."""
         return self.firmware.last_command
+
+    def set_grip(
+        self,
+        grip: float,
+        *,
+        force_n: float | None = None,
+        enable: bool = True,
+        buttons: Iterable[str] = (),
+    ) -> bytes:
+        """The operator moves the simulated handle: see :meth:`DisplayFirmware.set_grip`."""
+        return self.firmware.set_grip(grip, force_n=force_n, enable=enable, buttons=buttons)
 
     def unplug(self) -> None:
         self.plugged = False

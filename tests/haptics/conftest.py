@@ -4,7 +4,9 @@ This kernel has no uhid, so the HID backend is tested through a fake ``hid``
 module injected into ``sys.modules``: its devices record every write byte for
 byte, answer through the same firmware model as the simulated display, raise
 OSError once unplugged and come back under a new hidraw path when replugged.
-A real display joins the contract suite when COMPLIANCE_TELEOP_HID=1.
+The simulated and the fake-HID displays each run twice, speaking protocol
+version 2 (the default, with a grip) and version 1 (a display from before the
+grip report). A real display joins the contract suite when COMPLIANCE_TELEOP_HID=1.
 """
 
 from __future__ import annotations
@@ -156,6 +158,8 @@ class Rig:
     firmware: DisplayFirmware | None = None
     unplug: Callable[[], None] | None = None
     replug: Callable[[], None] | None = None
+    #: The protocol version the device speaks (None: whatever a real display says).
+    version: int | None = None
 
     def need(self, what: str):
         value = getattr(self, what)
@@ -164,27 +168,29 @@ class Rig:
         return value
 
 
-def _sim_rig() -> Rig:
-    display = SimulatedDisplay()
+def _sim_rig(version: int) -> Rig:
+    display = SimulatedDisplay.from_settings(DisplaySettings(), protocol_version=version)
     return Rig(
         display=display,
         received=lambda: [data for kind, data in display.log if kind == "output"],
         firmware=display.firmware,
         unplug=display.unplug,
         replug=display.replug,
+        version=version,
     )
 
 
-def _fake_hid_rig(bus: FakeHidBus) -> Rig:
+def _fake_hid_rig(bus: FakeHidBus, version: int) -> Rig:
     from haptics.devices.hid import HidDisplay
 
-    usb = bus.plug()
+    usb = bus.plug(firmware=DisplayFirmware(protocol_version=version))
     return Rig(
         display=HidDisplay.from_settings(DisplaySettings()),
         received=lambda: list(usb.writes),
         firmware=usb.firmware,
         unplug=lambda: bus.unplug(usb),
         replug=lambda: bus.plug(usb),
+        version=version,
     )
 
 
@@ -196,13 +202,17 @@ def _hardware_rig() -> Rig:
     return Rig(display=HidDisplay.from_settings(display_settings(load_settings())))
 
 
-@pytest.fixture(params=["sim", "fake-hid", pytest.param("hid", marks=pytest.mark.hardware)])
+@pytest.fixture(
+    params=["sim", "sim-v1", "fake-hid", "fake-hid-v1",
+            pytest.param("hid", marks=pytest.mark.hardware)]
+)
 def rig(request: pytest.FixtureRequest) -> Rig:
-    """Every display backend in turn; closed after the test."""
-    if request.param == "sim":
-        made = _sim_rig()
-    elif request.param == "fake-hid":
-        made = _fake_hid_rig(request.getfixturevalue("fake_hid"))
+    """Every display backend in turn, the simulated ones in both protocol versions; closed after."""
+    version = 1 if request.param.endswith("-v1") else 2
+    if request.param.startswith("sim"):
+        made = _sim_rig(version)
+    elif request.param.startswith("fake-hid"):
+        made = _fake_hid_rig(request.getfixturevalue("fake_hid"), version)
     else:
         made = _hardware_rig()
     yield made

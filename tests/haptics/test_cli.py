@@ -44,15 +44,34 @@ def test_protocol_prints_layouts_and_descriptor(capsys):
     assert main(["protocol", "--json"]) == 0
     data = last_json(capsys)
     assert bytes.fromhex(data["descriptor_hex"]) == REPORT_DESCRIPTOR
-    assert [r["size"] for r in data["reports"]] == [8, 17, 7]
+    assert [r["size"] for r in data["reports"]] == [8, 17, 7, 9]
+    assert [r["since_version"] for r in data["reports"]] == [1, 1, 1, 2]
+    assert data["protocol_versions"] == [1, 2]
+    assert data["descriptors_hex"]["2"] == REPORT_DESCRIPTOR.hex()
+    assert len(bytes.fromhex(data["descriptors_hex"]["1"])) == 39
+
+
+def test_protocol_shows_the_grip_report(capsys):
+    assert main(["protocol"]) == 0
+    out = capsys.readouterr().out
+    assert "INPUT report 0x04: grip (9 bytes, version 2 and later)" in out
+    for field in ("`buttons`", "`position`", "`force`", "no force sensor", "enable (dead-man"):
+        assert field in out
+    assert "Report ID (0x04)" in out and "Usage (0x05: grip)" in out
 
 
 def test_encode_prints_the_report(capsys):
     assert main(["encode", "--level", "4660", "--uncertainty", "42", "--sequence", "7",
-                 "--rigid", "--stale"]) == 0
+                 "--rigid", "--stale", "--protocol-version", "1"]) == 0
     assert capsys.readouterr().out.strip() == "01 11 05 34 12 2a 07 39"
-    assert main(["encode", "--level", "1", "--fading", "--sequence", "128", "--json"]) == 0
+    assert main(["encode", "--level", "1", "--fading", "--sequence", "128", "--json",
+                 "--protocol-version", "1"]) == 0
     assert last_json(capsys)["report_hex"] == "01110801000080ee"
+    # By default the newest version, 2: only the version nibble and the CRC differ.
+    assert main(["encode", "--level", "4660", "--uncertainty", "42", "--sequence", "7",
+                 "--rigid", "--stale", "--json"]) == 0
+    data = last_json(capsys)
+    assert (data["report_hex"], data["protocol_version"]) == ("01210534122a079c", 2)
 
 
 def test_encode_refuses_bad_fields_in_one_line(capsys):

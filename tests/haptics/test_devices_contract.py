@@ -1,4 +1,8 @@
-"""The display contract, run over every backend: sim, HID through a fake hid module, real HID."""
+"""The display contract, run over every backend: sim, HID through a fake hid module, real HID.
+
+The simulated and fake-HID displays run in protocol versions 2 and 1: a version-1
+display renders through the same code path, and only a version-2 one serves a grip.
+"""
 
 from __future__ import annotations
 
@@ -7,12 +11,13 @@ import pytest
 from haptics.devices import Reconnector
 from haptics.errors import DisplayError, DisplayNotConnectedError, ProtocolError
 from haptics.protocol import (
-    PROTOCOL_VERSION,
+    PROTOCOL_VERSIONS,
     DeviceStatus,
     StiffnessCommand,
     decode_output_report,
     encode_output_report,
 )
+from haptics.protocol_grip import GripReport, encode_grip_report
 
 
 def status_for(display, sequence: int, *, timeout_s: float = 0.5) -> DeviceStatus:
@@ -39,7 +44,11 @@ def test_use_before_connect_is_refused(rig):
 def test_connect_reads_device_info_and_is_idempotent(rig):
     info = rig.display.connect()
     assert rig.display.connected
-    assert info.protocol_version == PROTOCOL_VERSION
+    assert info.protocol_version in PROTOCOL_VERSIONS
+    if rig.version is not None:
+        assert info.protocol_version == rig.version
+    assert rig.display.protocol_version == info.protocol_version
+    assert rig.display.has_grip == (info.protocol_version >= 2)
     assert info.level_max >= 1
     assert rig.display.connect() is info
     assert rig.display.info is info
@@ -64,7 +73,10 @@ def test_writes_are_encoded_with_consecutive_sequence_numbers(rig):
         StiffnessCommand(level=0, uncertainty=106, unknown=True),
     ]
     reports = [display.write_command(command) for command in commands]
-    decoded = [decode_output_report(report) for report in reports]
+    decoded = [decode_output_report(report, version=display.info.protocol_version)
+               for report in reports]
+    # The OUTPUT report speaks the display's own version: 0x11 to a version-1 display.
+    assert {report[1] for report in reports} == {display.info.protocol_version << 4 | 1}
     assert [d.command for d in decoded] == commands
     first = decoded[0].sequence
     assert [d.sequence for d in decoded] == [(first + i) % 256 for i in range(3)]
@@ -208,3 +220,126 @@ def test_reconnector_backs_off_then_resends(rig):
     assert reconnector.poll(0.26)
     assert reconnector.failures == 0
     assert rig.firmware.last_command == command
+
+
+# --------------------------------------------------------------------------- the grip (version 2)
+
+
+def need_grip(rig):
+    firmware = rig.need("firmware")
+    if firmware.info.protocol_version < 2:
+        pytest.skip("a version-1 display has no grip")
+    return firmware
+
+
+def test_a_version_1_display_has_no_grip_and_still_renders(rig):
+    firmware = rig.need("firmware")
+    if firmware.info.protocol_version != 1:
+        pytest.skip("about version-1 displays")
+    display = rig.display
+    display.connect()
+    assert not display.has_grip
+    assert display.read_operator(timeout_s=0.01) is None
+    report = display.write_command(StiffnessCommand(level=300, uncertainty=4))
+    assert report == bytes.fromhex("01 11 00 2c 01 04 00") + report[-1:]  # byte for byte as ever
+    assert firmware.last_command == StiffnessCommand(level=300, uncertainty=4)
+    assert display.read_operator(timeout_s=0.0) is None
+    assert status_for(display, 0).level == 300  # the status stays for read_status
+    with pytest.raises(ProtocolError):
+        firmware.set_grip(0.5)  # its firmware has no grip to send
+
+
+def test_a_grip_report_from_a_version_1_display_is_refused_as_ever(rig):
+    firmware = rig.need("firmware")
+    if firmware.info.protocol_version != 1:
+        pytest.skip("about version-1 displays")
+    rig.display.connect()
+    firmware.queue_input_report(encode_grip_report(GripReport(0.5, None, True, frozenset(), 0)))
+    with pytest.raises(ProtocolError, match=r"input report 0x03 \(status\): report length is 9 bytes"):
+        rig.display.read_status()
+    assert rig.display.connected
+
+
+def test_the_grip_arrives_as_the_device_sent_it(rig):
+    firmware = need_grip(rig)
+    display = rig.display
+    display.connect()
+    assert display.has_grip
+    firmware.set_grip(0.25, force_n=12.5, enable=True, buttons={"grasp"})
+    report = display.read_operator(timeout_s=0.5)
+    assert report == GripReport(0.25, 12.5, True, frozenset({"grasp"}), 0)
+    assert display.read_operator(timeout_s=0.01) is None  # nothing new
+    firmware.set_grip(0.5, force_n=None, enable=False)
+    assert display.read_operator(timeout_s=0.5) == GripReport(0.5, None, False, frozenset(), 1)
+
+
+def test_read_operator_returns_the_newest_grip_and_every_press(rig):
+    firmware = need_grip(rig)
+    display = rig.display
+    display.connect()
+    firmware.set_grip(0.1, buttons={"release"})
+    firmware.set_grip(0.2)
+    firmware.set_grip(0.3, force_n=4.0, buttons={"next"})
+    firmware.set_grip(0.4, force_n=5.0)
+    report = display.read_operator(timeout_s=0.5)
+    assert report == GripReport(0.4, 5.0, True, frozenset({"release", "next"}), 3)
+
+
+def test_status_and_grip_reports_interleave_and_each_reader_gets_its_own(rig):
+    firmware = need_grip(rig)
+    display = rig.display
+    display.connect()
+    firmware.set_grip(0.6, force_n=2.0)
+    first = display.write_command(StiffnessCommand(level=40))
+    firmware.set_grip(0.7, force_n=3.0, buttons={"stop"})
+    second = display.write_command(StiffnessCommand(level=41))
+    # read_status skips (and keeps) the grip reports; read_operator skips (and keeps) statuses.
+    assert status_for(display, decode_output_report(first).sequence).level == 40
+    assert display.read_operator(timeout_s=0.5) == GripReport(0.7, 3.0, True,
+                                                              frozenset({"stop"}), 1)
+    assert status_for(display, decode_output_report(second).sequence).level == 41
+    assert display.read_status(timeout_s=0.01) is None
+    assert display.read_operator(timeout_s=0.01) is None
+
+
+def test_a_garbled_grip_report_is_refused_by_read_operator_and_named(rig):
+    firmware = need_grip(rig)
+    display = rig.display
+    display.connect()
+    good = firmware.set_grip(0.5)
+    garbled = bytearray(good)
+    garbled[3] ^= 0x01
+    firmware.queue_input_report(bytes(garbled))
+    firmware.set_grip(0.75)
+    # The good report before it comes first; the bad one is refused by the next call ...
+    assert display.read_operator(timeout_s=0.5).grip == 0.5
+    with pytest.raises(ProtocolError, match=r"input report 0x04 \(grip\): crc"):
+        display.read_operator(timeout_s=0.5)
+    assert display.connected
+    # ... and the one after it is not lost.
+    assert display.read_operator(timeout_s=0.5).grip == 0.75
+
+
+def test_read_operator_checks_its_timeout_and_the_connection(rig):
+    display = rig.display
+    with pytest.raises(DisplayNotConnectedError, match="read_operator"):
+        display.read_operator(timeout_s=0.0)
+    display.connect()
+    with pytest.raises(DisplayError, match="timeout_s = -1"):
+        display.read_operator(timeout_s=-1)
+
+
+def test_the_grip_comes_back_after_a_replug(rig):
+    firmware = need_grip(rig)
+    unplug, replug = rig.need("unplug"), rig.need("replug")
+    display = rig.display
+    display.connect()
+    firmware.set_grip(0.3)
+    unplug()
+    with pytest.raises(DisplayError):
+        display.read_operator(timeout_s=0.0)
+    assert not display.connected
+    replug()
+    display.reconnect()
+    firmware.set_grip(0.9, force_n=1.5)
+    assert display.read_operator(timeout_s=0.5) == GripReport(0.9, 1.5, True, frozenset(), 0)

@@ -9,9 +9,15 @@ from pathlib import Path
 import pytest
 
 from haptics.devices import BACKENDS, display_class, make_display
-from haptics.devices.sim import SimulatedDisplay
-from haptics.errors import DisplayBackendNotFoundError, DisplayError, DisplayNotConnectedError
+from haptics.devices.sim import DisplayFirmware, SimulatedDisplay
+from haptics.errors import (
+    DisplayBackendNotFoundError,
+    DisplayError,
+    DisplayNotConnectedError,
+    ProtocolError,
+)
 from haptics.protocol import StiffnessCommand, crc8, encode_output_report
+from haptics.protocol_grip import GripReport
 from haptics.settings import DisplaySettings
 
 REPO = Path(__file__).resolve().parents[2]
@@ -147,11 +153,48 @@ def test_interfaces_of_another_usage_page_are_skipped(fake_hid):
 def test_a_display_speaking_another_protocol_is_refused(fake_hid, monkeypatch):
     usb = fake_hid.plug()
     report = bytearray(usb.firmware.feature_report())
-    report[1] = 2  # protocol version 2
+    report[1] = 3  # protocol version 3
     report[-1] = crc8(bytes(report[:-1]))
     monkeypatch.setattr(usb.firmware, "feature_report", lambda: bytes(report))
     display = hid_display()
-    with pytest.raises(DisplayError, match="protocol_version = 2") as raised:
+    with pytest.raises(DisplayError, match="protocol_version = 3: this host speaks versions 1 and 2") as raised:
         display.connect()
     assert not display.connected
     assert raised.value.__cause__ is not None
+
+
+def test_a_version_1_display_gets_the_bytes_it_always_got(fake_hid):
+    usb = fake_hid.plug(firmware=DisplayFirmware(protocol_version=1))
+    with hid_display() as display:
+        assert display.info.protocol_version == 1 and not display.has_grip
+        display.write_command(StiffnessCommand(level=0x0123, uncertainty=42, rigid=True, stale=True))
+        assert display.read_operator(timeout_s=0.5) is None
+    assert usb.writes == [bytes.fromhex("01 11 05 23 01 2a 00 36")]
+    assert usb.read_timeouts_ms == []  # read_operator never touched the device
+
+
+def test_a_version_2_display_speaks_version_2(fake_hid):
+    usb = fake_hid.plug()
+    with hid_display() as display:
+        assert display.info.protocol_version == 2 and display.has_grip
+        display.write_command(StiffnessCommand(level=0x0123, uncertainty=42, rigid=True, stale=True))
+    assert usb.writes == [bytes.fromhex("01 21 05 23 01 2a 00 93")]
+
+
+def test_the_grip_is_read_from_hidapi_with_the_timeout_then_drained(fake_hid):
+    usb = fake_hid.plug()
+    with hid_display() as display:
+        assert display.read_operator(timeout_s=0.25) is None
+        usb.firmware.set_grip(0.5, force_n=2.0)
+        assert display.read_operator(timeout_s=0.25) == GripReport(0.5, 2.0, True, frozenset(), 0)
+    # Nothing there: one read of 250 ms. A report there: it, then a poll that finds nothing more.
+    assert usb.read_timeouts_ms == [250, 250, 0]
+
+
+def test_a_simulated_display_speaks_the_version_it_is_given():
+    assert SimulatedDisplay().connect().protocol_version == 2
+    assert SimulatedDisplay(protocol_version=1).connect().protocol_version == 1
+    firmware = DisplayFirmware(protocol_version=1)
+    assert SimulatedDisplay(firmware=firmware).connect().protocol_version == 1
+    with pytest.raises(ProtocolError, match="disagrees"):
+        SimulatedDisplay(firmware=firmware, protocol_version=2)
