@@ -1,4 +1,4 @@
-"""Errors raised on the operator side: mapping, HID protocol and displays."""
+"""Errors raised on the operator side: mapping, HID protocol, displays and operator input devices."""
 
 from teleop.errors import ComplianceTeleopError
 
@@ -25,3 +25,20 @@ class MappingError(HapticsError, ValueError):
 
 class DisplayBackendNotFoundError(DisplayError, LookupError):
     """No display backend of that name is registered."""
+
+
+class InputDeviceError(HapticsError):
+    """An operator input device (keyboard, gamepad, the display's grip, the simulated operator)
+    failed: not found, unplugged, or a device that has no grip."""
+
+
+class InputNotConnectedError(InputDeviceError):
+    """An operator input device was used before ``connect()``, after ``close()`` or after a failure."""
+
+
+class InputBackendNotFoundError(InputDeviceError, LookupError):
+    """No operator input backend of that name is registered."""
+
+
+class OperatorInputError(HapticsError, ValueError):
+    """An operator input reading, or an argument given to an input device, is out of range."""

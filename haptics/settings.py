@@ -1,9 +1,26 @@
-"""The display's own settings: the ``[display]`` table of the settings file.
+"""The operator side's own settings: the ``[display]`` and ``[operator]`` tables of the settings file.
 
-Built from a loaded :class:`~teleop.settings.Settings` by :func:`display_settings`, which
-completes the rigid end: ``e_rigid_pa = 0`` (the default) stands for the sensor's resolution
+``[display]`` is built from a loaded :class:`~teleop.settings.Settings` by :func:`display_settings`,
+which completes the rigid end: ``e_rigid_pa = 0`` (the default) stands for the sensor's resolution
 limit (:attr:`teleop.settings.Settings.resolution_limit_pa`), beyond which the estimator reports
 only a lower bound, so anything at or above it is rendered rigid.
+
+``[operator]`` (:func:`operator_settings`) chooses the operator input device
+(:mod:`haptics.inputs`) and configures its backends. Every key has a default, so the shipped file
+leaves the table out; a deployment with a gamepad writes for instance::
+
+    [operator]
+    input = "gamepad"
+    gamepad_path = "/dev/input/by-id/usb-Microsoft_Controller-event-joystick"  # "": the first pad with the trigger axis
+    gamepad_trigger = "ABS_RZ"      # the analogue trigger that sets the grip (scaled by its min..max)
+    gamepad_enable = "BTN_TR"       # the dead-man: enabled while held
+    gamepad_grasp = "BTN_SOUTH"     # face buttons; "" leaves a button unmapped
+    gamepad_release = "BTN_EAST"
+    gamepad_stop = "BTN_WEST"
+    gamepad_next = "BTN_NORTH"
+    gamepad_quit = "BTN_SELECT"
+    keyboard_grip_step = 0.05       # grip change per up/down key press
+    sim_seed = 0                    # the simulated operator's seed
 """
 
 from __future__ import annotations
@@ -15,7 +32,8 @@ from teleop.errors import SettingsError
 from teleop.settings import Section, Settings
 from teleop.settings_fields import spec
 
-__all__ = ["DisplaySettings", "display_range_pa", "display_settings"]
+__all__ = ["INPUT_BACKENDS", "DisplaySettings", "OperatorSettings", "display_range_pa", "display_settings",
+           "operator_settings"]
 
 
 @dataclass(frozen=True)
@@ -64,3 +82,60 @@ def display_range_pa(settings: Settings) -> tuple[float, float]:
     range felt errors are clipped to."""
     display = display_settings(settings)
     return display.e_soft_pa, display.e_rigid_pa
+
+
+#: The operator input backends (:data:`haptics.inputs.base.BACKENDS` names the same).
+INPUT_BACKENDS = ("keyboard", "gamepad", "display", "sim")
+# The discrete buttons a gamepad maps, each to the field ``gamepad_<button>``.
+_GAMEPAD_BUTTONS = ("grasp", "release", "stop", "next", "quit")
+
+
+@dataclass(frozen=True)
+class OperatorSettings(Section):
+    """The operator input device (:mod:`haptics.inputs`) and its backends' keys and codes.
+
+    Gamepad codes are Linux evdev names (``evdev.ecodes``): the trigger an ``ABS_*`` axis, the
+    buttons ``BTN_*`` (or ``KEY_*``) keys. Which physical button carries which name depends on the
+    pad and its kernel driver: ``evtest`` shows them.
+    """
+
+    TABLE = "operator"
+
+    input: str = spec("keyboard", choices=INPUT_BACKENDS, doc="operator input device")
+    gamepad_path: str = spec("", doc="evdev device path; '': the first device with the trigger axis")
+    gamepad_trigger: str = spec("ABS_RZ", doc="absolute axis setting the grip, scaled by its min..max to 0..1")
+    gamepad_enable: str = spec("BTN_TR", doc="dead-man button: enabled while held")
+    gamepad_grasp: str = spec("BTN_SOUTH", doc="button: grasp at the chosen force; '': unmapped")
+    gamepad_release: str = spec("BTN_EAST", doc="button: release; '': unmapped")
+    gamepad_stop: str = spec("BTN_WEST", doc="button: stop the fingers; '': unmapped")
+    gamepad_next: str = spec("BTN_NORTH", doc="button: next object; '': unmapped")
+    gamepad_quit: str = spec("BTN_SELECT", doc="button: quit; '': unmapped")
+    keyboard_grip_step: float = spec(0.05, lo=0.0, hi=1.0, lo_open=True, doc="grip change per up/down key")
+    sim_seed: int = spec(0, lo=0, hi=2**63 - 1, doc="seed of the simulated operator")
+
+    def _check(self) -> None:
+        if not self.gamepad_trigger.startswith("ABS_"):
+            raise SettingsError(f"OperatorSettings.gamepad_trigger = {self.gamepad_trigger!r}: expected an "
+                                "absolute axis name such as 'ABS_RZ'")
+        if not self.gamepad_enable:
+            raise SettingsError("OperatorSettings.gamepad_enable = '': expected a button name such as 'BTN_TR' "
+                                "(the dead-man cannot be left unmapped)")
+        seen: dict[str, str] = {}
+        for key, code in self.gamepad_buttons().items():
+            if not code.startswith(("BTN_", "KEY_")):
+                raise SettingsError(f"OperatorSettings.gamepad_{key} = {code!r}: expected a button name such "
+                                    "as 'BTN_SOUTH' (or '' to leave it unmapped)")
+            if code in seen:
+                raise SettingsError(f"OperatorSettings.gamepad_{key} = {code!r}: already gamepad_{seen[code]}")
+            seen[code] = key
+
+    def gamepad_buttons(self) -> dict[str, str]:
+        """Button name -> evdev key name for ``"enable"`` and every mapped discrete button."""
+        named = {"enable": self.gamepad_enable}
+        named.update({b: getattr(self, f"gamepad_{b}") for b in _GAMEPAD_BUTTONS})
+        return {b: code for b, code in named.items() if code}
+
+
+def operator_settings(settings: Settings) -> OperatorSettings:
+    """The ``[operator]`` table of ``settings``, checked (defaults where the file has none)."""
+    return settings.section(OperatorSettings)

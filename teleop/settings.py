@@ -291,7 +291,7 @@ class SensingSettings(Validated):
 #: Top-level tables owned by the packages above this base (``estimator.settings``,
 #: ``haptics.settings``): the base keeps them as read, and each package builds and checks its own
 #: (:meth:`Settings.section`).
-PACKAGE_TABLES = ("estimator", "display")
+PACKAGE_TABLES = ("estimator", "display", "operator")
 
 S = TypeVar("S", bound="Section")
 

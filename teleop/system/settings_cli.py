@@ -10,7 +10,7 @@ import argparse
 import json
 
 from estimator.settings import estimator_settings
-from haptics.settings import display_settings
+from haptics.settings import display_settings, operator_settings
 from teleop.settings import default_settings_path, load_settings, settings_to_mapping
 
 
@@ -25,6 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.path)
-    resolved = settings.with_section(estimator_settings(settings)).with_section(display_settings(settings))
+    resolved = (settings.with_section(estimator_settings(settings)).with_section(display_settings(settings))
+                .with_section(operator_settings(settings)))
     print(json.dumps(settings_to_mapping(resolved), indent=2))
     return 0
