@@ -364,8 +364,10 @@ def measure_grasp(
     segment = segment_with(width_t, frame_t)
     width_lag = lag = None
     if correct_width_lag and segment:
+        # An operator's grasp (no stop reported) closes at its own speed: the hinge fits it.
+        stopped = GRASP_DONE_EVENT in record.events
         width_lag = estimate_width_lag(width_t, record.width_m.value, t_stop_s=segment.t_peak_s,
-                                       speed_m_s=gripper.closing_speed_m_s)
+                                       speed_m_s=gripper.closing_speed_m_s if stopped else None)
         if width_lag is not None:
             width_t = width_t - width_lag
             segment = segment_with(width_t, frame_t)

@@ -28,8 +28,22 @@ loading phase
     count as loading. A
     saturated load cell (a plateau of identical readings at the top) ends it
     where the plateau starts.
+loading envelope
+    A grasp whose gripper reported no stop (``stopped_s`` None: an operator drove the fingers'
+    target, or the stop is unknown) may close at a varying speed, pause, back off and squeeze
+    again before its peak. Its loading phase is the monotone *loading envelope*: from contact to
+    the peak, the samples and frames at a running maximum of the force (within
+    ``ENVELOPE_TOLERANCE`` of the maximum so far, or three noise deviations); backing off and
+    re-squeezing below the previous maximum are skipped (their states repeat those of the way
+    up), and pauses on the way up leave frames of one state. Its frames are sampled
+    equidistantly in approach (the width's closure since contact) rather than in time
+    (``Segment.sample_by``): at the paper's constant closing speed the two coincide, so the
+    models see the distribution they were trained on. ``Segment.loading`` says which loading
+    phase was used and what was skipped, for the estimate's reason. A grasp with a reported stop
+    (the paper's scripted grasp) keeps the whole loading phase, sampled in time.
 loading frames
-    The frames captured during the loading phase, and the *peak frame*: the
+    The frames captured during the loading phase (on its envelope when it has one), and the
+    *peak frame*: the
     first frame captured after the peak, within ``PEAK_FRAME_WINDOW_S`` and
     while the force still holds (as for the hold, below): force samples up to
     a sample at or after it show that, or the gripper has reported when its
@@ -79,6 +93,7 @@ __all__ = [
     "find_load_phase",
     "interpolate",
     "noise_std",
+    "sampling_axis",
     "segment_grasp",
 ]
 
@@ -95,6 +110,12 @@ HOLD_TOLERANCE = 0.05
 HOLD_FRAMES = 3
 # The peak frame comes within this time after the peak (three frame periods at 30 Hz), before the hold.
 PEAK_FRAME_WINDOW_S = 0.1
+# Loading envelope (module notes): a sample or frame is on it within this share of the running maximum
+# (or three noise deviations); a fall below the maximum by BACKOFF_SHARE (or five deviations) is a
+# back-off; the maximum rising by no more than the tolerance for PAUSE_S or longer is a pause.
+ENVELOPE_TOLERANCE = 0.01
+BACKOFF_SHARE = 0.02
+PAUSE_S = 0.15
 
 
 def clean_samples(t_s: np.ndarray, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -198,9 +219,14 @@ class Segment:
     frame_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     frame_force_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
     frame_width_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    # Positions within the loading frames of the n_frames sampled equidistantly in time from contact
-    # to the last loading frame.
+    # Positions within the loading frames of the n_frames sampled equidistantly from contact to the
+    # last loading frame: in time ("time"), or in approach along the loading envelope ("approach").
     sample: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+    sample_by: str = "time"
+    # The reported width at contact (m), where approach sampling starts.
+    contact_width_m: float = float("nan")
+    # Which loading phase was used and why, when it is a loading envelope (module notes); else empty.
+    loading: str = ""
     # Hold frames (up to HOLD_FRAMES, spread over the hold at the peak force): indices into the
     # record's frame stream and the force and width at their times.
     hold_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
@@ -212,8 +238,9 @@ class Segment:
         return not self.reason
 
     def describe(self) -> str:
-        """Flags and their details as one line, for an estimate's reason."""
-        return "; ".join(self.notes)
+        """Flags and their details, and the loading envelope when there is one, as one line, for an
+        estimate's reason."""
+        return "; ".join(n for n in (*self.notes, self.loading) if n)
 
 
 def _closing_speed(t_s: np.ndarray, width_m: np.ndarray, before_s: float) -> float:
@@ -238,6 +265,16 @@ def _equidistant(frame_t: np.ndarray, t_start: float, t_end: float, n: int) -> n
     """Positions of the frames nearest to ``n`` times spread evenly over [t_start, t_end]."""
     targets = np.linspace(t_start, t_end, n)
     return np.unique(np.abs(frame_t[None, :] - targets[:, None]).argmin(axis=1))
+
+
+def _on_envelope(index: np.ndarray, frame_t: np.ndarray, tf: np.ndarray, force: np.ndarray, *, contact: int,
+                 peak: int, sigma_f: float) -> tuple[np.ndarray, np.ndarray]:
+    """The frames (indices, times) of the loading phase whose force lies on its envelope (module notes)."""
+    top = np.maximum.accumulate(force[contact : peak + 1])
+    before = np.searchsorted(tf[contact : peak + 1], frame_t, side="right") - 1
+    top_at = np.where(before >= 0, top[np.maximum(before, 0)], 0.0)
+    on = interpolate(frame_t, tf, force) >= top_at - np.maximum(3.0 * sigma_f, ENVELOPE_TOLERANCE * top_at)
+    return index[on], frame_t[on]
 
 
 def _hold_level(force: np.ndarray, peak: int, sigma_f: float) -> float:
@@ -280,6 +317,49 @@ def _hold_frames(
     return dict(hold_index=index, hold_t_s=t, hold_force_n=f, hold_width_m=w)
 
 
+def _envelope(t: np.ndarray, loading: np.ndarray, sigma_f: float) -> tuple[np.ndarray, int, float, float]:
+    """The loading envelope of the loading samples ``loading`` at times ``t`` (module notes).
+
+    Returns the mask of samples on it, the number of back-offs, the seconds spent backing off and
+    re-squeezing, and the seconds paused on the way up.
+    """
+    top = np.maximum.accumulate(loading)
+    tolerance = np.maximum(3.0 * sigma_f, ENVELOPE_TOLERANCE * top)
+    on = loading >= top - tolerance
+    fallen = loading < top - np.maximum(5.0 * sigma_f, BACKOFF_SHARE * top)
+    backoffs = int(np.count_nonzero(np.diff(np.concatenate([[False], fallen]).astype(np.int8)) == 1))
+    off = ~on
+    skipped_s = float(np.sum(np.diff(t)[off[1:] | off[:-1]])) if t.size > 1 else 0.0
+    paused_s, anchor = 0.0, 0
+    for i in range(1, loading.size):
+        if top[i] > top[anchor] + tolerance[anchor]:
+            if t[i] - t[anchor] >= PAUSE_S and not fallen[anchor:i].any():
+                paused_s += float(t[i] - t[anchor])
+            anchor = i
+    return on, backoffs, skipped_s, paused_s
+
+
+def _describe_envelope(*, duration_s: float, peak_force_n: float, backoffs: int, skipped_s: float,
+                       paused_s: float) -> str:
+    """``Segment.loading``: which loading phase was used and why."""
+    parts = [f"loading: the envelope over {duration_s:.2f} s from contact to the {peak_force_n:.3g} N peak"]
+    if backoffs:
+        parts.append(f"{backoffs} back-off{'s' if backoffs > 1 else ''} and re-squeeze skipped ({skipped_s:.2f} s)")
+    if paused_s > 0:
+        parts.append(f"paused {paused_s:.2f} s")
+    parts.append("frames sampled by approach (no gripper stop reported: an operator's grasp)")
+    return ", ".join(parts)
+
+
+def sampling_axis(segment: Segment) -> tuple[np.ndarray, float]:
+    """Where each loading frame lies on the axis its sample is spread over, and where contact lies
+    on it: capture time (s) from the contact time, or (``sample_by == "approach"``) the reported
+    width's closure since contact (m) from 0."""
+    if segment.sample_by == "approach":
+        return segment.contact_width_m - segment.frame_width_m, 0.0
+    return segment.frame_t_s, segment.t_contact_s
+
+
 @dataclass(frozen=True)
 class LoadPhase:
     """What :func:`segment_grasp` finds in the force and width streams alone, before any frame
@@ -300,6 +380,8 @@ class LoadPhase:
     width_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
     peak: int = 0
     stopped_s: float | None = None
+    contact: int = 0  # index of the first sample at contact force
+    envelope: bool = False  # the loading phase is the loading envelope (module notes)
 
     def __bool__(self) -> bool:
         return not self.reason
@@ -443,9 +525,16 @@ def find_load_phase(
     peak_force = float(force[peak])
 
     loading = force[contact : peak + 1]
+    load_t = tf[contact : peak + 1]
+    on_envelope = np.ones(loading.shape, dtype=bool)
+    envelope_note = ""
     drop = float(np.max(np.maximum.accumulate(loading) - loading))
     if drop > max(5.0 * sigma_f, 0.02 * peak_force):
         flag("non_monotonic", f"force drops by {drop:.3g} N during loading (noise {sigma_f:.2g} N)")
+    if not stopped:  # no stop reported: the loading envelope (module notes)
+        on_envelope, backoffs, skipped_s, paused_s = _envelope(load_t, loading, sigma_f)
+        envelope_note = _describe_envelope(duration_s=float(tf[peak]) - t_contact, peak_force_n=peak_force,
+                                           backoffs=backoffs, skipped_s=skipped_s, paused_s=paused_s)
 
     # Onset: where the force last left its baseline noise before contact.
     onset_level = min(max(ONSET_SIGMAS * sigma_f, 0.02 * contact_force_n), 0.5 * contact_force_n)
@@ -467,7 +556,7 @@ def find_load_phase(
                            f"(widths span {tw[0]:.3f}..{tw[-1]:.3f} s)")
 
     t_peak = float(tf[peak])
-    load_t = tf[contact : peak + 1]
+    loading, load_t = loading[on_envelope], load_t[on_envelope]
     load_w = interpolate(np.minimum(load_t, stopped_s) if stopped else load_t, tw, width)
     covered = np.isfinite(load_w)
     if not covered.all():
@@ -484,10 +573,11 @@ def find_load_phase(
         t_contact_s=t_contact, t_peak_s=t_peak, onset_width_m=onset_width,
         onset_width_sigma_m=onset_width_sigma, load_t_s=load_t[covered],
         load_force_n=loading[covered], load_width_m=load_w[covered],
+        contact_width_m=float(interpolate(np.array([t_contact]), tw, width)[0]), loading=envelope_note,
     )
     return LoadPhase(reason="", flags=tuple(flags), notes=tuple(notes), force_baseline_n=baseline,
                      segment_fields=fields, force_t_s=tf, force_n=force, width_t_s=tw, width_m=width,
-                     peak=peak, stopped_s=stopped_s if stopped else None)
+                     peak=peak, stopped_s=stopped_s if stopped else None, contact=contact, envelope=not stopped)
 
 
 def align_frames(phase: LoadPhase, frame_t_s: np.ndarray, *, n_frames: int) -> Segment:
@@ -515,6 +605,8 @@ def align_frames(phase: LoadPhase, frame_t_s: np.ndarray, *, n_frames: int) -> S
     )
 
     index, frame_t = _frames_in_phase(frame_t_s, t_contact, t_peak)
+    if phase.envelope:
+        index, frame_t = _on_envelope(index, frame_t, tf, force, contact=phase.contact, peak=peak, sigma_f=sigma_f)
     peak_index, peak_t = _peak_frame(frame_t_s, tf, force, peak=peak, sigma_f=sigma_f, stopped=stopped)
     index, frame_t = np.concatenate([index, peak_index]), np.concatenate([frame_t, peak_t])
     if index.size == 0:
@@ -541,7 +633,12 @@ def align_frames(phase: LoadPhase, frame_t_s: np.ndarray, *, n_frames: int) -> S
         frame_reason = "no loading frame has a width sample around it"
         sample = np.zeros(0, dtype=np.intp)
     else:
-        sample = _equidistant(frame_t, t_contact, float(frame_t[-1]), n_frames)
+        axis = dict(sample_by="approach") if phase.envelope and np.isfinite(common["contact_width_m"]) else {}
+        coords, start = sampling_axis(Segment(reason="", frame_t_s=frame_t, frame_width_m=frame_width,
+                                              t_contact_s=t_contact, contact_width_m=common["contact_width_m"],
+                                              **axis))
+        common.update(axis)
+        sample = _equidistant(coords, start, float(coords[-1]), n_frames)
         if sample.size < n_frames:
             flag("too_few_samples", f"{index.size} loading frames give {sample.size} distinct "
                                     f"samples of the {n_frames} wanted")

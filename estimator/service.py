@@ -13,7 +13,10 @@ endpoint. Per grasp (from a ``grasp_event`` *start* to its *end*):
   everything captured before it came first), at the first frame captured after the force
   peak (the peak frame, which shows the object under the full force: a stiff object loads
   between two frames), at once if that frame came before the marker; without a marker, when
-  the data show the end; or at the grasp's end if that comes first. With a model loaded the
+  the data show the end; or at the grasp's end if that comes first. A leader-follower grasp
+  (the robot's ``robot_state`` says ``following`` for it: an operator drives the fingers) gets
+  provisional estimates for every frame while the operator squeezes, and its final one at the
+  grasp's end (:meth:`~estimator.stream.GraspStream.mark_follow`). With a model loaded the
   final one is the hybrid ``auto`` estimate (:class:`~estimator.learned.hybrid.HybridEstimator`);
   for a depth model of the estimator's finger its input comes from the depths already computed
   for the provisional estimates and reduced to the model's input size after each of them
@@ -74,7 +77,7 @@ __all__ = ["INPUT_TOPICS", "MAX_CLOCK_JUMP_S", "EstimatorService", "ModelSlot", 
 
 log = logging.getLogger(__name__)
 
-INPUT_TOPICS = ("frame", "force", "width", "grasp_event")
+INPUT_TOPICS = ("frame", "force", "width", "grasp_event", "robot_state")
 # A force batch reaching this share of the contact force may show the contact: segment then.
 CONTACT_HINT = 0.5
 # Capture clocks are monotonic: a time this far past the stream's last one is a broken clock.
@@ -272,6 +275,7 @@ class EstimatorService:
         self.clock = clock
         self.stats = ServiceStats()
         self._grasp: _Grasp | None = None
+        self._following: str | None = None  # the grasp the robot last said it follows an operator in
 
     # ------------------------------------------------------------------ loop
 
@@ -328,6 +332,11 @@ class EstimatorService:
             else:
                 self._close(body["grasp_id"], message.t_capture_s, received_s)
             return
+        if message.type == "robot_state":
+            self._following = body["grasp_id"] if body["mode"] == "following" else self._following
+            if self._grasp is not None and self._following == self._grasp.grasp_id:
+                self._grasp.stream.mark_follow()
+            return
         if message.type not in ("frame", "force", "width"):
             self.stats.ignored += 1
             return
@@ -372,6 +381,8 @@ class EstimatorService:
                              grasp_id=grasp_id)
         model = self.model.estimator if self.model is not None else None
         self._grasp = _Grasp(grasp_id=grasp_id, stream=stream, model=model)
+        if self._following is not None and self._following == grasp_id:
+            stream.mark_follow()  # the robot said so before the start reached us
         self.stats.grasps += 1
 
     def _close(self, grasp_id: str, t_s: float, received_s: float) -> None:

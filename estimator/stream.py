@@ -49,6 +49,13 @@ followed by :data:`LOADING_SETTLED_S` of force samples that stay within the peak
 and a width sample and a tactile frame newer than the peak have arrived (so no loading frame
 is still to come and each has widths around it).
 
+A leader-follower grasp (an operator drives the fingers' target width; the estimator service
+learns it from the robot node's ``robot_state`` mode ``following`` and calls
+:meth:`GraspStream.mark_follow`) has no marker and no settled end: the operator may pause, back
+off and squeeze again, so a flat force says nothing. Its loading is over only at the grasp's end
+event; until then every frame gives a provisional estimate, on the loading envelope so far
+(:mod:`estimator.segment`: the segmentation without a stop).
+
 Either way an estimate taken then rests on the loading frames alone: the hold frames batch
 estimation adds (from ``segment.HOLD_SETTLE_S`` after the peak until the release) have not
 been captured yet.
@@ -260,6 +267,7 @@ class GraspStream:
         self._reduced: dict[tuple, np.ndarray] = {}  # (position, size, window) -> reduced depth
         self._phase: LoadPhase | None = None  # of the force and width so far; None: find it again
         self._loading_end_s: float | None = None
+        self._follow = False
 
     def warm_up(self) -> None:
         """Fill the caches the first estimate would otherwise fill mid-grasp (about a second on
@@ -334,6 +342,17 @@ class GraspStream:
         self._loading_end_s = float(t_s)
         self._phase = None
 
+    def mark_follow(self) -> None:
+        """The grasp is a leader-follower grasp: an operator drives the fingers' target (the robot
+        node's ``robot_state`` mode ``following``). It has no loading-end marker, and its loading is
+        over only at the grasp's end (module notes)."""
+        self._follow = True
+
+    @property
+    def follow(self) -> bool:
+        """Whether :meth:`mark_follow` was called."""
+        return self._follow
+
     @property
     def loading_end_s(self) -> float | None:
         """Time of the loading end marker, or None before one came."""
@@ -358,6 +377,8 @@ class GraspStream:
     def loading_complete(self, segment: Segment | None = None) -> bool:
         """Whether the loading phase has ended and every loading frame, the peak frame included,
         has arrived (module docstring)."""
+        if self._follow and self._loading_end_s is None:
+            return False  # an operator may squeeze on: its grasp's end ends the loading
         segment = self.segment() if segment is None else segment
         if not segment or not np.isfinite(segment.t_peak_s):
             # The load cell's readings lag the fingers' stop: no contact is final only once they ran on past it.
@@ -538,6 +559,7 @@ class GraspStream:
         )
         return GraspRecord(
             sensors=self.settings.sensors, frames=streams, force_n=self._force.samples(),
-            width_m=self._width.samples(), provenance=Provenance(source="hardware", extra={"grasp_id": self.grasp_id}),
+            width_m=self._width.samples(), provenance=Provenance(source="hardware", extra={"grasp_id": self.grasp_id},
+                                                           style="operator" if self._follow else "script"),
             events={} if self._loading_end_s is None else {GRASP_DONE_EVENT: self._loading_end_s},
         )

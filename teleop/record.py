@@ -1,11 +1,11 @@
 """The grasp record: one grasp on disk, as simulation, capture, training and evaluation use it.
 
-Format (version 1)
+Format (version 2)
 ------------------
 A grasp record is a ZIP archive (suffix ``.grasp``) holding:
 
 ``record.json``
-    ``{"format": "compliance-teleop.grasp", "version": 1, ...}`` with the
+    ``{"format": "compliance-teleop.grasp", "version": 2, ...}`` (or 1: below) with the
     sensors (full :class:`~teleop.settings.SensorSettings` per finger: identity,
     warp calibration and gel), optionally the gripper (below), the optional label, the
     provenance, named events (``{"contact": t_s, ...}``; :data:`GRASP_DONE_EVENT` is the time the gripper's
@@ -24,10 +24,18 @@ A grasp record is a ZIP archive (suffix ``.grasp``) holding:
 ``calibration/<name>.npy`` (optional)
     Numeric arrays the sensor calibration needs (e.g. a no-contact frame).
 
+Version 2 adds ``provenance.style``: how the grasp was driven, ``"script"`` (the paper's grasp: close
+at a constant speed to one target force, hold, release; the gripper reports when its fingers
+stopped, :data:`GRASP_DONE_EVENT`) or ``"operator"`` (a person, or the simulated one, drove the
+fingers' target width continuously: variable speed, pauses, back-offs; no ``grasp_done`` event).
+A record whose style is ``"script"`` is written as version 1 without the key, byte for byte as
+before, so that older readers keep reading it; this reader reads both versions (a version-1
+record's style is ``"script"``).
+
 The optional ``gripper`` entry (full :class:`~teleop.settings.GripperSettings` as configured for
 the grasp: finger stiffness as calibrated, closing speed, target force, ...) lets a reader use the
 rig's own values; records without it (older ones, imports) leave them to the reader's settings.
-Readers that do not know it ignore it, so the version stays 1.
+Readers that do not know it ignore it, so it needed no new version.
 
 All timestamps of one record are seconds on one clock. ``.npy`` members are
 read with ``allow_pickle=False``. Writing then reading gives back every array
@@ -62,6 +70,8 @@ __all__ = [
     "FORMAT_NAME",
     "FORMAT_VERSION",
     "GRASP_DONE_EVENT",
+    "READABLE_VERSIONS",
+    "STYLES",
     "FrameStream",
     "GraspRecord",
     "Label",
@@ -76,7 +86,10 @@ __all__ = [
 ]
 
 FORMAT_NAME = "compliance-teleop.grasp"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+# Provenance.style: how the grasp was driven (module notes); version 1 knew only the first.
+STYLES = ("script", "operator")
 # Event: the gripper's grasp command completed (fingers stopped at the target force, held until release).
 GRASP_DONE_EVENT = "grasp_done"
 ENCODINGS = {"jpeg": ".jpg", "png": ".png"}
@@ -253,7 +266,7 @@ class Label:
 
 @dataclass(frozen=True)
 class Provenance:
-    """Where a record came from."""
+    """Where a record came from, and how the grasp was driven (``style``, one of :data:`STYLES`)."""
 
     source: str  # "simulated", "hardware" or "imported"
     software_version: str = field(default_factory=software_version)
@@ -261,10 +274,13 @@ class Provenance:
     model: str = ""  # which physical model or capture path produced it
     created_utc: str = ""
     extra: Mapping[str, Any] = field(default_factory=dict)
+    style: str = "script"
 
     def __post_init__(self) -> None:
         if self.source not in ("simulated", "hardware", "imported"):
             raise ValueError(f"Provenance.source {self.source!r}: expected simulated, hardware or imported")
+        if self.style not in STYLES:
+            raise ValueError(f"Provenance.style {self.style!r}: expected {' or '.join(STYLES)}")
 
 
 @dataclass(frozen=True)
@@ -340,13 +356,16 @@ def write_record(record: GraspRecord, path: str | Path) -> Path:
     leaves a half-written record under the final name.
     """
     path = Path(path)
+    provenance = _jsonable(record.provenance)
+    if record.provenance.style == "script":
+        del provenance["style"]  # version 1, as older readers read it (module notes)
     header = {
         "format": FORMAT_NAME,
-        "version": FORMAT_VERSION,
+        "version": FORMAT_VERSION if "style" in provenance else 1,
         "sensors": [settings_to_mapping(s) for s in record.sensors],
         **({} if record.gripper is None else {"gripper": settings_to_mapping(record.gripper)}),
         "label": _jsonable(record.label) if record.label is not None else None,
-        "provenance": _jsonable(record.provenance),
+        "provenance": provenance,
         "events": {k: float(v) for k, v in record.events.items()},
         "fingers": {
             s.finger: {
@@ -476,8 +495,9 @@ def read_record(path: str | Path) -> GraspRecord:
         if fmt != FORMAT_NAME:
             raise r.fail(f"record.json: format is {fmt!r}, expected {FORMAT_NAME!r}")
         version = r.field(header, "version", int, "header")
-        if version != FORMAT_VERSION:
-            raise r.fail(f"record.json: version {version} is not supported (this software reads version {FORMAT_VERSION})")
+        if version not in READABLE_VERSIONS:
+            raise r.fail(f"record.json: version {version} is not supported (this software reads versions "
+                         f"{' and '.join(map(str, READABLE_VERSIONS))})")
 
         sensors = []
         for i, table in enumerate(r.field(header, "sensors", list, "header")):
@@ -534,6 +554,8 @@ def read_record(path: str | Path) -> GraspRecord:
             except (TypeError, ValueError) as exc:
                 raise r.fail(f"record.json: label is invalid ({exc})") from exc
         prov = r.field(header, "provenance", dict, "header")
+        if version == 1 and "style" in prov:
+            raise r.fail("record.json: provenance.style is a version-2 field, but the record says version 1")
         try:
             provenance = Provenance(**prov)
         except (TypeError, ValueError) as exc:

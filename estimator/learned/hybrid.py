@@ -269,6 +269,9 @@ class HybridEstimator:
         if fit.notes:
             what += "; outside the training range: " + "; ".join(fit.notes)
         reason = f"{model}; {what}; analytical inputs: {states}"
+        loading = getattr(getattr(sampled.measurements, "segment", None), "loading", "")
+        if loading:
+            reason += f"; {loading}"
         if mode == "auto":
             reason = "model: " + reason
         return Estimate(method, said.e_pa, (said.low_pa, said.high_pa), said.state, reason)

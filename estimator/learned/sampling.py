@@ -4,7 +4,8 @@ Sampling
 --------
 A grasp's loading frames (contact to peak force, and the peak frame just after it, which
 shows the peak state: :func:`~estimator.segment.segment_grasp`) are sampled at
-``n_frames`` frames equidistant in time, exactly as the live
+``n_frames`` frames equidistant in time (along an operator's loading envelope: in approach,
+:mod:`estimator.segment`), exactly as the live
 estimator samples it (``Segment.sample``). Augmentation ``shift = k`` starts the
 sampling ``k`` loading frames later (the paper's "shifting the starting point by
 one timestep"). Only those frames (with the no-contact frames before the onset,
@@ -34,7 +35,7 @@ from estimator.measure import (
     measure_tactile,
 )
 from estimator.perception.calibration import Calibration, load_calibration
-from estimator.segment import Segment
+from estimator.segment import Segment, sampling_axis
 from estimator.settings import estimator_settings
 from teleop.record import FrameStream, GraspRecord
 from teleop.settings import Settings
@@ -78,15 +79,16 @@ def decoded(record: GraspRecord, *, reduce: int = 1) -> GraspRecord:
 def sample_positions(segment: Segment, n_frames: int, shift: int) -> np.ndarray | str:
     """Positions (within the loading frames) of the sample set ``shift``, or why there is none.
 
-    The loading frame nearest to each of ``n_frames`` times spread evenly from the
+    The loading frame nearest to each of ``n_frames`` times (along a loading envelope, an
+    operator's grasp: approaches, :func:`~estimator.segment.sampling_axis`) spread evenly from the
     contact (``shift = 0``, the live sampling) or from loading frame ``shift`` to the
     last loading frame (the peak frame when there is one). A short loading phase (a
     stiff object loads within a frame or two) repeats frames; a shifted set must have
     ``n_frames`` distinct frames.
     """
-    t = segment.frame_t_s
+    t, contact = sampling_axis(segment)
     if shift == 0:
-        start = segment.t_contact_s
+        start = contact
     elif t.size - shift < n_frames:
         return f"shift {shift} leaves {max(t.size - shift, 0)} of the {n_frames} loading frames it needs"
     else:

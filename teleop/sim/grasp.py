@@ -31,13 +31,28 @@ render and differ by their camera noise. The host keeps the streams from
 ``PRE_ROLL_S`` (or ``PRE_ROLL_READINGS`` load-cell readings, when longer) before its
 load cell first reads a touch until ``POST_ROLL_S`` after it reads the release.
 
+Operator-driven grasps (``operator="sim"``, ``teleop simulate --operator sim``) replace the
+scripted motion by a :class:`~teleop.sim.operator.SimulatedOperator` closed loop, as the robot
+node runs a leader-follower grasp: the operator commands a target width at
+``teleop.operator.FOLLOW_RATE_HZ`` from the force it feels (the true force; it feels it late),
+the commands reach the gripper ``FOLLOW_LATENCY_S`` later, and the fingers follow the target at
+up to ``FOLLOW_SPEED_M_S``, force-capped at ``gripper.target_force_n`` (the load curve is solved
+up to that cap; the gripper stalls there). When the operator releases, the fingers open as after
+a scripted grasp. Everything downstream (load cell, width readings, frames, record window) is as
+for scripted grasps; the record has no ``grasp_done`` event (there is no discrete stop), its
+provenance says ``style="operator"`` and keeps the operator's drawn style in
+``extra["operator"]``. The pose, scene and finger stiffness are drawn as for a scripted grasp
+first, so the same random stream gives the same object placement in both styles.
+
 Nothing of this module's internals goes into the record except the provenance
 (source, seed, model); :class:`GraspTruth` carries them for previews and tests.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import json
 import math
 import zlib
 from dataclasses import dataclass, field
@@ -47,8 +62,9 @@ import numpy as np
 
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SimulationError
+from teleop.operator import FOLLOW_RATE_HZ
 from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Label, Provenance, Samples
-from teleop.settings import SensorSettings, Settings
+from teleop.settings import GripperSettings, SensorSettings, Settings
 from teleop.sim.contact import (
     Body,
     ContactSolution,
@@ -59,12 +75,14 @@ from teleop.sim.contact import (
     layer_stiffening,
     solve_contact,
 )
+from teleop.sim.operator import SimulatedOperator
 from teleop.sim.optics import OpticsRenderer
 from teleop.sim.sensors import camera_times, gripper_width_readings, load_cell_readings
 from teleop.sim.shapes import Pose, Scene, draw_pose, make_scene, object_size, object_texture
 from teleop.sim.wedge_optics import procedural_background
 
 __all__ = [
+    "OPERATORS",
     "FingerMechanics",
     "GraspTruth",
     "LoadCurve",
@@ -84,6 +102,10 @@ PRE_ROLL_S = 0.2
 PRE_ROLL_READINGS = 8  # at least this many load-cell readings before the touch: a 10 Hz cell needs 0.8 s
 POST_ROLL_S = 0.1
 TIME_STEP_S = 1e-3
+OPERATORS = ("script", "sim")  # who drives the fingers: the scripted grasp or the simulated operator
+FOLLOW_SPEED_M_S = 0.1  # the fingers follow an operator's target width at up to this speed
+FOLLOW_LATENCY_S = (0.005, 0.03)  # operator command to the gripper (bus and controller), uniform
+MAX_OPERATOR_S = 120.0  # an operator grasp that has not finished by then is a simulation error
 LOAD_LEVELS = 12
 MIN_LEVEL_FORCE_N = 0.05
 SOLVER_TOLERANCE = 1e-3
@@ -276,7 +298,12 @@ def load_curve(obj: ObjectSpec, scene: Scene, *, sensors: dict[str, SensorSettin
 
 @dataclass(frozen=True)
 class GraspTruth:
-    """The simulator's ground truth of one grasp (never written to the record)."""
+    """The simulator's ground truth of one grasp (never written to the record).
+
+    ``target_force_n`` is the force the grasp squeezed to (an operator grasp: the peak force it
+    reached); ``stall_s`` when the fingers stopped at it (an operator grasp: when the force first
+    peaked); ``release_s`` when the release was commanded.
+    """
 
     size_m: tuple[float, float, float]
     pose: Pose
@@ -291,6 +318,7 @@ class GraspTruth:
     stall_s: float
     release_s: float
     peak_gel_m: dict[str, np.ndarray] = field(default_factory=dict)  # image grid, at peak force
+    operator: SimulatedOperator | None = None  # who drove an operator grasp (None: scripted)
 
     @property
     def tip_width_m(self) -> np.ndarray:
@@ -318,9 +346,101 @@ def _motion(t: np.ndarray, *, start_s: float, from_m: float, speed_m_s: float, s
     return from_m + sign * speed_m_s * np.clip(t - start_s, 0.0, None)
 
 
+@dataclass(frozen=True)
+class _Motion:
+    """The fingers' true motion on the fine grid and the times the record and truth need."""
+
+    t_s: np.ndarray
+    motor_width_m: np.ndarray
+    force_n: np.ndarray
+    touch_s: float
+    stall_s: float
+    release_s: float
+    lost_s: float  # the fingers have left the object
+    events: dict[str, float]
+
+
+def _scripted_motion(curve: LoadCurve, scene: Scene, gripper: GripperSettings,
+                     rng: np.random.Generator) -> _Motion:
+    """The paper's grasp: close at the closing speed until the force target stalls the fingers,
+    hold ``hold_s``, release and open at the same speed."""
+    speed = gripper.closing_speed_m_s
+    command_s = 0.0
+    move_s = command_s + rng.uniform(*MOTION_DELAY_S)
+    touch_s = move_s + (gripper.max_width_m - scene.extent_m) / speed
+    stall_closure = min(float(curve.closure_m[-1]), scene.extent_m)  # the fingers cannot pass each other
+    stall_s = touch_s + stall_closure / speed
+    release_s = stall_s + gripper.hold_s + rng.uniform(*HOST_DELAY_S)
+    open_s = release_s + rng.uniform(*MOTION_DELAY_S)
+    lost_s = open_s + stall_closure / speed
+    t = np.arange(touch_s - 2.0, lost_s + 2.0, TIME_STEP_S)
+    closing = np.minimum(_motion(t, start_s=move_s, from_m=gripper.max_width_m, speed_m_s=speed, sign=-1.0),
+                         gripper.max_width_m)
+    stall_width = scene.extent_m - stall_closure
+    motor_width = np.where(t < open_s, np.maximum(closing, stall_width),
+                           np.minimum(_motion(t, start_s=open_s, from_m=stall_width, speed_m_s=speed, sign=1.0),
+                                      gripper.max_width_m))
+    force = curve.force_at(scene.extent_m - motor_width)
+    return _Motion(t, motor_width, force, touch_s, stall_s, release_s, lost_s,
+                   {"command_grasp": command_s, GRASP_DONE_EVENT: stall_s, "command_release": release_s})
+
+
+def _operator_motion(curve: LoadCurve, scene: Scene, gripper: GripperSettings, operator: SimulatedOperator,
+                     rng: np.random.Generator) -> _Motion:
+    """A leader-follower grasp (module notes): the operator commands a target width at
+    FOLLOW_RATE_HZ from the force it feels; the fingers follow at up to FOLLOW_SPEED_M_S,
+    stalled by the force cap (the curve's top) and by each other; after the release they open at
+    the closing speed."""
+    dt = TIME_STEP_S
+    every = max(round(1.0 / (FOLLOW_RATE_HZ * dt)), 1)
+    latency = max(round(rng.uniform(*FOLLOW_LATENCY_S) / dt), 1)
+    open_delay = rng.uniform(*MOTION_DELAY_S)
+    stall_width = scene.extent_m - min(float(curve.closure_m[-1]), scene.extent_m)
+    open_m, step_m = gripper.max_width_m, FOLLOW_SPEED_M_S * dt
+    width, target, release_s, done_s = open_m, open_m, None, None
+    pending: list[tuple[int, float]] = []  # (step it reaches the gripper, target width)
+    widths = []
+    for i in range(round(MAX_OPERATOR_S / dt)):
+        t_s = i * dt
+        command = None
+        if i % every == 0:
+            force = float(curve.force_at(np.array(scene.extent_m - width)))
+            command = operator.step(t_s, force_n=force, width_m=width)
+            if command.release and release_s is None:
+                release_s = t_s
+            elif command.enable and release_s is None:
+                pending.append((i + latency, command.target_width_m))
+        while pending and pending[0][0] <= i:
+            target = pending.pop(0)[1]
+        if release_s is None:
+            width = max(width + min(max(target - width, -step_m), step_m), stall_width)
+        elif t_s >= release_s + open_delay:
+            width = min(width + gripper.closing_speed_m_s * dt, open_m)
+        widths.append(width)
+        if command is not None and operator.done:
+            done_s = t_s
+            break
+    if done_s is None:
+        raise SimulationError(f"the simulated operator had not finished its grasp after {MAX_OPERATOR_S:g} s "
+                              f"({operator.style.describe()})")
+    t = np.arange(-2.0, done_s + 2.0, dt)[: len(widths) + round(4.0 / dt)]
+    motor_width = np.full(t.shape, open_m)
+    begin = round(2.0 / dt)
+    motor_width[begin : begin + len(widths)] = widths
+    tail = motor_width[begin + len(widths):]  # the fingers finish opening
+    tail[:] = np.minimum(widths[-1] + gripper.closing_speed_m_s * dt * np.arange(1, tail.size + 1), open_m)
+    force = curve.force_at(scene.extent_m - motor_width)
+    touched = np.flatnonzero(force > 0)
+    touch_s = float(t[touched[0]]) if touched.size else float(t[begin])
+    stall_s = float(t[int(np.argmax(force))])
+    lost_s = float(t[touched[-1]]) if touched.size else done_s
+    return _Motion(t, motor_width, force, touch_s, stall_s, release_s, lost_s,
+                   {"command_grasp": 0.0, "command_release": release_s})
+
+
 def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Generator,
-                   seed: int | None = None, background: dict[str, np.ndarray] | None = None
-                   ) -> tuple[GraspRecord, GraspTruth]:
+                   seed: int | None = None, background: dict[str, np.ndarray] | None = None,
+                   operator: str = "script") -> tuple[GraspRecord, GraspTruth]:
     """Simulate one labelled grasp of ``obj``.
 
     Parameters
@@ -335,6 +455,10 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
         Stored in the record's provenance.
     background : dict finger -> raw BGR uint8 frame, optional
         No-contact frames for the cameras (default: as SimulationSettings says).
+    operator : {"script", "sim"}
+        Who drives the fingers: the paper's scripted grasp, or a
+        :class:`~teleop.sim.operator.SimulatedOperator` drawn from ``rng`` in a leader-follower
+        loop (module notes; the record's ``provenance.style`` is ``"operator"``).
 
     Returns
     -------
@@ -346,6 +470,8 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
         The settings do not have two sensors, the object does not fit the
         gripper, or a contact solve failed.
     """
+    if operator not in OPERATORS:
+        raise SimulationError(f"operator {operator!r}: expected one of {', '.join(OPERATORS)}")
     if len(settings.sensors) != 2:
         raise SimulationError(
             f"the grasp simulator needs exactly two sensors (one per finger); settings have "
@@ -365,29 +491,22 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
     if scene.extent_m >= gripper.max_width_m:
         raise SimulationError(f"object {obj.name!r} is {scene.extent_m:.3f} m wide here: "
                               f"more than the gripper opens ({gripper.max_width_m} m)")
+    # Drawn in both styles, so that one random stream gives one placement and one pair of fingers.
     target = gripper.target_force_n * rng.uniform(*TARGET_FORCE_FRACTION)
     stiffness = gripper.finger_stiffness_n_per_m * math.exp(rng.normal(0.0, FINGER_STIFFNESS_SD))
-    curve = load_curve(obj, scene, sensors=sensors, grid_px=sim.grid_px, max_force_n=target,
+    driver = None
+    if operator == "sim":
+        driver = SimulatedOperator(rng, max_width_m=gripper.max_width_m, max_force_n=gripper.target_force_n)
+    curve = load_curve(obj, scene, sensors=sensors, grid_px=sim.grid_px,
+                       max_force_n=target if driver is None else gripper.target_force_n,
                        finger_stiffness_n_per_m=stiffness, size=size, gel_model=sim.gel_model)
-
-    # Gripper motion and the true force.
-    speed = gripper.closing_speed_m_s
-    command_s = 0.0
-    move_s = command_s + rng.uniform(*MOTION_DELAY_S)
-    touch_s = move_s + (gripper.max_width_m - scene.extent_m) / speed
-    stall_closure = min(float(curve.closure_m[-1]), scene.extent_m)  # the fingers cannot pass each other
-    stall_s = touch_s + stall_closure / speed
-    release_s = stall_s + gripper.hold_s + rng.uniform(*HOST_DELAY_S)
-    open_s = release_s + rng.uniform(*MOTION_DELAY_S)
-    lost_s = open_s + stall_closure / speed
-    t = np.arange(touch_s - 2.0, lost_s + 2.0, TIME_STEP_S)
-    closing = np.minimum(_motion(t, start_s=move_s, from_m=gripper.max_width_m, speed_m_s=speed, sign=-1.0),
-                         gripper.max_width_m)
-    stall_width = scene.extent_m - stall_closure
-    motor_width = np.where(t < open_s, np.maximum(closing, stall_width),
-                           np.minimum(_motion(t, start_s=open_s, from_m=stall_width, speed_m_s=speed, sign=1.0),
-                                      gripper.max_width_m))
-    force = curve.force_at(scene.extent_m - motor_width)
+    if driver is None:
+        motion = _scripted_motion(curve, scene, gripper, rng)
+    else:
+        motion = _operator_motion(curve, scene, gripper, driver, rng)
+        target = float(motion.force_n.max())
+    t, force, motor_width = motion.t_s, motion.force_n, motion.motor_width_m
+    release_s = motion.release_s
 
     # What the host keeps: from just before its load cell reads a touch to just after it reads the release.
     readings = load_cell_readings(t, force, load_cell=settings.load_cell, sim=sim, rng=rng,
@@ -395,9 +514,9 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
     threshold = min(RECORD_FORCE_N, 0.5 * float(force.max()))
     above = np.flatnonzero(readings.value > threshold)
     pre_roll_s = max(PRE_ROLL_S, PRE_ROLL_READINGS / settings.load_cell.sample_rate_hz)
-    start_s = (readings.t_s[above[0]] if above.size else touch_s) - pre_roll_s
+    start_s = (readings.t_s[above[0]] if above.size else motion.touch_s) - pre_roll_s
     after = np.flatnonzero((readings.t_s > release_s) & (readings.value <= threshold))
-    end_s = (readings.t_s[after[0]] if after.size else lost_s) + POST_ROLL_S
+    end_s = (readings.t_s[after[0]] if after.size else motion.lost_s) + POST_ROLL_S
     keep = (readings.t_s >= start_s) & (readings.t_s <= end_s)
     force_samples = Samples(readings.t_s[keep], readings.value[keep])
     width_samples = gripper_width_readings(t, motor_width, gripper=gripper, sim=sim, rng=rng,
@@ -425,18 +544,23 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
                                    jpeg_quality=sim.jpeg_quality,
                                    shape=(sensor.raw_height_px, sensor.raw_width_px, 3)))
 
+    provenance = Provenance(source="simulated", seed=seed, model=curve.model)
+    if driver is not None:
+        provenance = Provenance(source="simulated", seed=seed, model=curve.model, style="operator",
+                                extra={"operator": json.loads(json.dumps({  # as the record reads it back
+                                    **dataclasses.asdict(driver.style), "description": driver.style.describe()}))})
     record = GraspRecord(
         sensors=settings.sensors,
         frames=tuple(streams),
         force_n=force_samples,
         width_m=width_samples,
-        provenance=Provenance(source="simulated", seed=seed, model=curve.model),
+        provenance=provenance,
         label=Label(object_name=obj.name, modulus_pa=obj.modulus_pa, material=obj.material, shape=obj.shape),
-        events={"command_grasp": command_s, GRASP_DONE_EVENT: stall_s, "command_release": release_s},
+        events=motion.events,
     )
     truth = GraspTruth(
         size_m=size, pose=pose, scene=scene, curve=curve, target_force_n=target,
         finger_stiffness_n_per_m=stiffness, t_s=t, force_n=force, motor_width_m=motor_width,
-        touch_s=touch_s, stall_s=stall_s, release_s=release_s, peak_gel_m=peak,
+        touch_s=motion.touch_s, stall_s=motion.stall_s, release_s=release_s, peak_gel_m=peak, operator=driver,
     )
     return record, truth

@@ -12,6 +12,13 @@ finger stiffness, target force, closing speed, noise, rates, camera latency,
 illumination); the record carries what the lab would know of that rig and keeps
 the true values in ``provenance.extra["rig"]``. Without it nothing changes: the
 records are byte for byte those of the settings' one rig.
+
+With --operator sim each grasp is driven by a simulated operator (seeded from the grasp's
+stream: :class:`~teleop.sim.operator.SimulatedOperator`, variable closing speed, pauses,
+back-offs and re-squeezes, different peak forces) in a leader-follower loop instead of the
+paper's scripted grasp; the records say ``provenance.style = "operator"``. The object's pose
+and the fingers are drawn as for the scripted grasp of the same seed, so the two styles grasp
+the same objects alike.
 """
 
 from __future__ import annotations
@@ -33,7 +40,7 @@ from teleop.catalogue import ObjectSpec, load_catalogue
 from teleop.errors import SettingsError, SimulationError
 from teleop.record import write_record
 from teleop.settings import Settings, load_settings
-from teleop.sim.grasp import simulate_grasp
+from teleop.sim.grasp import OPERATORS, simulate_grasp
 from teleop.sim.preview import write_preview
 from teleop.sim.rig import draw as draw_rig
 from teleop.sim.simulate import grasp_filename, grasp_rng
@@ -72,6 +79,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the gel in the contact solver (default: the settings' simulation.gel_model, "
                              "'layer'); 'half-space' simulates with a contact model the estimator was not "
                              "trained on")
+    parser.add_argument("--operator", choices=OPERATORS, default="script",
+                        help="who drives each grasp: 'script' (the paper's grasp: constant closing speed to one "
+                             "target force, hold, release) or 'sim' (a seeded simulated operator in a "
+                             "leader-follower loop: variable speed, pauses, back-offs, re-squeezes, peaks from "
+                             "3 N up to the settings' maximum grasp force)")
     parser.add_argument("--vary-gel", action="store_true",
                         help="with --randomize-rig: also draw each rig's datasheet gel (120-400 kPa, 2.5-4.5 mm), "
                              "as other GelSight-type sensors have; the records carry it")
@@ -94,19 +106,19 @@ def _chosen(objects: list[ObjectSpec], names: list[str] | None, where: str) -> l
     return [o for o in objects if o.name in set(names)]
 
 
-def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bool]) -> dict:
+def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bool, str]) -> dict:
     """Simulate and write one grasp (runs in a worker); failures come back as a reason."""
-    obj, index, seed, settings, out, preview, randomize_rig, vary_gel = job
+    obj, index, seed, settings, out, preview, randomize_rig, vary_gel, operator = job
     path = Path(out) / grasp_filename(obj, index)
     rng = grasp_rng(seed, obj, index)
     try:
         if randomize_rig:
             rig = draw_rig(settings, rng, vary_gel=vary_gel)
-            record, truth = simulate_grasp(obj, settings=rig.true, rng=rng, seed=seed)
+            record, truth = simulate_grasp(obj, settings=rig.true, rng=rng, seed=seed, operator=operator)
             record = rig.record(record, finger_stiffness_n_per_m=truth.finger_stiffness_n_per_m,
                                 target_force_n=truth.target_force_n)
         else:
-            record, truth = simulate_grasp(obj, settings=settings, rng=rng, seed=seed)
+            record, truth = simulate_grasp(obj, settings=settings, rng=rng, seed=seed, operator=operator)
     except SimulationError as exc:
         return {"object": obj.name, "grasp": index, "error": str(exc)}
     write_record(record, path)
@@ -138,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         raise SettingsError(f"--out {out}: cannot create the directory ({exc.strerror or exc})") from exc
     if args.vary_gel and not args.randomize_rig:
         raise SettingsError("--vary-gel draws a rig's gel: it needs --randomize-rig")
-    jobs = [(obj, i, args.seed, settings, str(out), args.preview, args.randomize_rig, args.vary_gel)
+    jobs = [(obj, i, args.seed, settings, str(out), args.preview, args.randomize_rig, args.vary_gel, args.operator)
             for obj in objects for i in range(args.grasps_per_object)]
     workers = min(args.workers, len(jobs))
 

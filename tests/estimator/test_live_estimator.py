@@ -20,7 +20,7 @@ from estimator.errors import CalibrationError, FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.measure import estimate_grasp, measure_grasp
 from estimator.segment import PEAK_FRAME_WINDOW_S, segment_grasp
-from estimator.service import EstimatorService, ModelSlot
+from estimator.service import INPUT_TOPICS, EstimatorService, ModelSlot
 from estimator.settings import estimator_settings
 from estimator.stream import GraspStream, choose_estimate
 from teleop.bus.pubsub import Publisher, Subscriber
@@ -231,7 +231,7 @@ class Rig:
         endpoints = [self.robot.endpoint] + ([extra_endpoint] if extra_endpoint else [])
         self.service = EstimatorService(
             settings, calibration=calibration, methods=METHODS, model=model, report=JsonLines(report),
-            subscriber=Subscriber(endpoints, ("frame", "force", "width", "grasp_event")),
+            subscriber=Subscriber(endpoints, INPUT_TOPICS),
             publisher=Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator", high_water_mark=10_000),
         )
         self.estimates = Subscriber(self.service.publisher.endpoint, ("estimate", "grasp_event"))
@@ -571,3 +571,31 @@ def test_a_stop_before_the_force_shows_contact_waits_for_the_load_cell(settings,
     assert not air.loading_complete()
     air.add_force(np.array([stop_s + PEAK_FRAME_WINDOW_S]), np.array([0.1]))
     assert air.loading_complete() and not air.segment()
+
+
+def test_a_follow_grasp_streams_provisional_estimates_until_its_end(rig, settings, calibration, tmp_path):
+    # An operator drives the fingers (the robot says "following"): no loading-end marker, pauses and
+    # back-offs; every frame from contact on gives a provisional estimate, the final one comes at the end.
+    objects = {o.name: o for o in load_catalogue(CONFIG_DIR / "objects.toml")}
+    record = simulate_grasp(objects["rubber_duck"], settings=settings, rng=np.random.default_rng(3),
+                            operator="sim")[0]
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    stream.mark_follow()
+    provisional = 0
+    for t, kind, body in in_capture_order(record):
+        is_frame = feed(stream, kind, body, t)
+        assert not stream.loading_complete()
+        provisional += bool(is_frame and body["finger"] == "left" and stream.segment())
+    final = stream.estimate().estimate
+    assert stream.to_record().provenance.style == "operator"
+
+    rig.robot.send("robot_state", t_capture_s=0.0, mode="following", grasp_id="g-follow", target_width_m=0.08,
+                   enable=True)
+    rig.send_grasp(record, "g-follow")
+    estimates = [m for m in rig.collect("g-follow") if m.type == "estimate"]
+    assert [m.body["provisional"] for m in estimates] == [True] * provisional + [False]
+    assert provisional > 5
+    last = estimates[-1].body
+    assert (last["method"], last["state"], last["E_pa"]) == (final.method, final.state, final.e_pa)
+    report = json.loads((tmp_path / "estimator.jsonl").read_text().splitlines()[-1])
+    assert report["final_by"] == "grasp_end"

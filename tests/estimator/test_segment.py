@@ -297,3 +297,64 @@ def test_reported_stop_admits_the_peak_frame_before_any_force_after_it_and_fixes
     assert seg.frame_force_n[0] == pytest.approx(PEAK_N)
     assert seg.frame_width_m[0] == pytest.approx(np.interp(stop_s, tw_live, w_live))
     assert "misaligned" not in seg.flags  # no width is wanted after the stop
+
+
+# --------------------------------------------------------------------------- an operator's grasp
+
+
+def operator_streams(*, pause=None, backoff=None, speed_m_s=0.01, noise=0.0, seed=0):
+    """An operator's grasp of a linear spring (2000 N/m): it closes at ``speed_m_s`` from 0.5 s,
+    holds still over ``pause`` (start, end), and over ``backoff`` (start, turn, end) opens at the
+    same speed until ``turn`` and closes again; it stops at 0.9 of the way and never reports a stop."""
+    dt = 1e-3
+    t = np.arange(0.0, 4.0, dt)
+    velocity = np.where(t >= 0.5, -speed_m_s, 0.0)
+    if pause:
+        velocity[(t >= pause[0]) & (t < pause[1])] = 0.0
+    if backoff:
+        velocity[(t >= backoff[0]) & (t < backoff[1])] = speed_m_s
+    closure = np.cumsum(-velocity) * dt
+    closure = np.minimum(closure, 0.9 * closure.max() if closure.max() > 0 else 0.0)
+    closure = np.maximum.accumulate(closure) if not backoff else closure
+    width = 0.06 - closure
+    force = 2000.0 * np.clip(closure - 0.004, 0.0, None)  # touch after 4 mm
+    rng = np.random.default_rng(seed)
+    tf = np.arange(0.0, 4.0, 1 / 80)
+    tw = np.arange(0.003, 4.0, 1 / 10)
+    tc = np.arange(0.011, 4.0, 1 / 30)
+    f = np.interp(tf, t, force) + (rng.normal(0, noise, tf.size) if noise else 0.0)
+    return tf, f, tw, np.interp(tw, t, width), tc
+
+
+def test_an_operator_grasp_is_segmented_on_its_loading_envelope_and_sampled_by_approach():
+    tf, force, tw, width, tc = operator_streams(backoff=(1.6, 1.9, 2.5), noise=0.01)
+    seg = run(tf, force, tw, width, tc, n_frames=5)
+    assert seg and seg.sample_by == "approach"
+    # Backing off and squeezing back up to the first peak's force is skipped: no loading frame
+    # there lies below the force reached before it.
+    backing = (seg.frame_t_s > 1.62) & (seg.frame_t_s < 2.18)  # back at the first peak's force at 2.2 s
+    assert not backing.any()
+    assert np.all(np.diff(seg.frame_force_n) > -0.1)
+    assert "1 back-off and re-squeeze skipped" in seg.loading and seg.loading in seg.describe()
+    assert (seg.load_force_n >= np.maximum.accumulate(seg.load_force_n) - 0.1).all()
+    # The sample is spread evenly in approach along the envelope.
+    approach = seg.contact_width_m - seg.frame_width_m[seg.sample]
+    steps = np.diff(approach)
+    assert steps.max() < 1.6 * steps.mean()
+
+
+def test_a_pause_is_named_and_sampling_by_approach_skips_its_repeated_frames():
+    tf, force, tw, width, tc = operator_streams(pause=(1.2, 2.4))
+    seg = run(tf, force, tw, width, tc, n_frames=5)
+    assert seg and "paused 1.2" in seg.loading
+    by_time = np.abs(seg.frame_t_s[None, :] - np.linspace(seg.t_contact_s, seg.frame_t_s[-1], 5)[:, None]).argmin(1)
+    in_pause = (seg.frame_t_s > 1.25) & (seg.frame_t_s < 2.35)
+    assert in_pause[seg.sample].sum() <= 1 < in_pause[by_time].sum()
+
+
+def test_a_reported_stop_keeps_the_papers_segmentation():
+    tf, force, tw, width, tc = streams()
+    seg = segment_grasp(tf, force, tw, width, tc, contact_force_n=0.75, n_frames=3, stopped_s=T_TOUCH + T_LOAD)
+    assert seg.sample_by == "time" and seg.loading == ""
+    targets = np.linspace(seg.t_contact_s, seg.frame_t_s[-1], 3)
+    assert seg.sample.tolist() == np.unique(np.abs(seg.frame_t_s[None, :] - targets[:, None]).argmin(1)).tolist()

@@ -270,7 +270,29 @@ def test_pickled_npy_member_runs_nothing(tmp_path, record_path):
 
 
 def test_format_constants():
-    assert FORMAT_NAME == "compliance-teleop.grasp" and FORMAT_VERSION == 1
+    assert FORMAT_NAME == "compliance-teleop.grasp" and FORMAT_VERSION == 2
+
+
+def test_style_round_trips_and_scripted_records_stay_version_1(tmp_path):
+    import dataclasses
+
+    record = make_record("png")
+    scripted = write_record(record, tmp_path / "script.grasp")
+    header = json.loads(zipfile.ZipFile(scripted).read("record.json"))
+    assert header["version"] == 1 and "style" not in header["provenance"]  # as older readers read it
+    assert read_record(scripted).provenance.style == "script"
+    operated = dataclasses.replace(record, provenance=dataclasses.replace(record.provenance, style="operator"))
+    path = write_record(operated, tmp_path / "operator.grasp")
+    header = json.loads(zipfile.ZipFile(path).read("record.json"))
+    assert header["version"] == 2 and header["provenance"]["style"] == "operator"
+    assert read_record(path).provenance == operated.provenance
+    with pytest.raises(ValueError, match="Provenance.style 'person'"):
+        dataclasses.replace(record.provenance, style="person")
+    members = members_of(scripted)
+    header = json.loads(members["record.json"])
+    header["provenance"]["style"] = "operator"
+    members["record.json"] = json.dumps(header).encode()
+    fails(rebuild(scripted, members), "provenance.style is a version-2 field")
 
 
 def test_find_records_lists_grasps_under_a_folder_or_says_what_is_wrong(tmp_path):

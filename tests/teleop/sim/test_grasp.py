@@ -9,10 +9,10 @@ import pytest
 
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SimulationError
-from teleop.record import read_record, write_record
+from teleop.record import GRASP_DONE_EVENT, read_record, write_record
 from teleop.settings import load_settings
 from teleop.sim.contact import hertz_sphere
-from teleop.sim.grasp import simulate_grasp
+from teleop.sim.grasp import FOLLOW_SPEED_M_S, simulate_grasp
 
 STEEL = ObjectSpec(name="steel_ball", shape="sphere", material="metal", modulus_pa=2.0e11, size_m=(0.025,) * 3)
 FOAM = ObjectSpec(name="foam_block", shape="box", material="foam", modulus_pa=5.0e3, size_m=(0.04, 0.05, 0.03))
@@ -172,3 +172,50 @@ def test_a_half_space_gel_is_another_contact_model_softer_than_the_bonded_layer(
     for finger, mechanics in truth.curve.fingers.items():
         # The same force sinks an unbounded gel deeper than one bonded to a rigid backing 3 mm down.
         assert mechanics.gel_m[-1] > 1.2 * layered.fingers[finger].gel_m[-1]
+
+
+# --------------------------------------------------------------------------- operator-driven grasps
+
+
+@pytest.fixture(scope="module")
+def operated(settings):
+    return {obj.name: simulate_grasp(obj, settings=settings, rng=np.random.default_rng(7), seed=7, operator="sim")
+            for obj in (STEEL, FOAM)}
+
+
+@pytest.mark.parametrize("name", [STEEL.name, FOAM.name])
+def test_an_operator_drives_the_fingers_force_capped_and_releases(operated, settings, name):
+    record, truth = operated[name]
+    assert record.provenance.style == "operator" and truth.operator is not None
+    assert "description" in record.provenance.extra["operator"]
+    assert GRASP_DONE_EVENT not in record.events and "command_release" in record.events
+    assert truth.force_n.max() <= settings.gripper.target_force_n + 1e-9  # the gripper's force limit
+    assert truth.force_n.max() > 1.0 and truth.force_n[-1] == 0.0  # it squeezed, then let go
+    # The fingers follow no faster than they can, and stay between closed and open.
+    speed = np.abs(np.diff(truth.motor_width_m)) / np.diff(truth.t_s)
+    assert speed.max() <= max(FOLLOW_SPEED_M_S, settings.gripper.closing_speed_m_s) + 1e-6
+    assert (truth.motor_width_m >= 0).all() and (truth.motor_width_m <= settings.gripper.max_width_m + 1e-12).all()
+    assert truth.touch_s < truth.stall_s < truth.release_s
+    assert record.force_n.t_s[0] < truth.stall_s and record.force_n.t_s[-1] > truth.release_s
+    assert len(record.frames[0]) > 4
+
+
+def test_an_operator_grasp_places_the_object_as_the_scripted_one_and_repeats(operated, grasps, settings):
+    record, truth = operated[STEEL.name]
+    _, scripted = grasps[STEEL.name]
+    assert np.array_equal(truth.pose.rotation, scripted.pose.rotation)
+    assert truth.finger_stiffness_n_per_m == scripted.finger_stiffness_n_per_m
+    again, truth_again = simulate_grasp(STEEL, settings=settings, rng=np.random.default_rng(7), seed=7, operator="sim")
+    assert truth_again.operator.style == truth.operator.style
+    assert np.array_equal(again.force_n.value, record.force_n.value)
+
+
+def test_an_operator_grasp_round_trips_with_its_style(operated, tmp_path):
+    record, _ = operated[FOAM.name]
+    back = read_record(write_record(record, tmp_path / "op.grasp"))
+    assert back.provenance == record.provenance and back.events == record.events
+
+
+def test_an_unknown_operator_is_refused(settings):
+    with pytest.raises(SimulationError, match="operator 'person'"):
+        simulate_grasp(STEEL, settings=settings, rng=np.random.default_rng(0), operator="person")

@@ -1,0 +1,130 @@
+"""The simulated operator: seeded, person-like, closed loop on the force it feels."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from teleop.operator import FOLLOW_RATE_HZ
+from teleop.sim.operator import (
+    MIN_PEAK_FORCE_N,
+    OperatorCommand,
+    OperatorStyle,
+    SimulatedOperator,
+    draw_style,
+)
+
+MAX_WIDTH_M = 0.08
+MAX_FORCE_N = 30.0
+FOLLOW_SPEED_M_S = 0.1
+
+
+def drive(seed: int, *, stiffness_n_per_m: float, extent_m: float = 0.04, max_s: float = 40.0,
+          dt: float = 1e-3) -> tuple[SimulatedOperator, dict]:
+    """One grasp of a spring-like object: force k (extent - width), capped at MAX_FORCE_N; the
+    fingers follow the enabled target at FOLLOW_SPEED_M_S and open after the release."""
+    op = SimulatedOperator(np.random.default_rng(seed), max_width_m=MAX_WIDTH_M, max_force_n=MAX_FORCE_N)
+    every = round(1.0 / FOLLOW_RATE_HZ / dt)
+    width, target, released = MAX_WIDTH_M, MAX_WIDTH_M, False
+    out = {"t": [], "force": [], "width": [], "commands": [], "releases": 0}
+    for i in range(round(max_s / dt)):
+        t = i * dt
+        force = min(stiffness_n_per_m * max(extent_m - width, 0.0), MAX_FORCE_N)
+        if i % every == 0:
+            command = op.step(t, force_n=force, width_m=width)
+            out["commands"].append(command)
+            out["releases"] += command.release
+            released |= command.release
+            if command.enable:
+                target = command.target_width_m
+        if released:
+            target = MAX_WIDTH_M
+        width = width + float(np.clip(target - width, -FOLLOW_SPEED_M_S * dt, FOLLOW_SPEED_M_S * dt))
+        width = max(width, extent_m - MAX_FORCE_N / stiffness_n_per_m, 0.0)  # the force limit stalls them
+        out["t"].append(t)
+        out["force"].append(force)
+        out["width"].append(width)
+        if op.done:
+            break
+    return op, out
+
+
+def test_same_seed_same_operator_and_commands():
+    a, run_a = drive(3, stiffness_n_per_m=3000.0)
+    b, run_b = drive(3, stiffness_n_per_m=3000.0)
+    assert a.style == b.style
+    assert run_a["commands"] == run_b["commands"]
+    c, _ = drive(4, stiffness_n_per_m=3000.0)
+    assert c.style != a.style
+
+
+def test_styles_occur_across_seeds():
+    styles = [draw_style(np.random.default_rng(seed), max_force_n=MAX_FORCE_N) for seed in range(200)]
+    traits = {name: sum(name in s.traits for s in styles) for name in ("pauses", "re-squeezes", "never still", "holds")}
+    assert all(count >= 20 for count in traits.values()), traits
+    speeds = np.array([s.squeeze_speed_m_s for s in styles])
+    assert speeds.min() < 0.01 and speeds.max() > 0.06  # slower and faster than the paper's 3.75 cm/s
+    peaks = [p for s in styles for p in s.peaks_n]
+    assert min(peaks) >= MIN_PEAK_FORCE_N and max(peaks) <= MAX_FORCE_N  # max force respected as a goal
+    re_squeezes = [s.peaks_n for s in styles if len(s.peaks_n) > 1]
+    assert any(p[1] > p[0] for p in re_squeezes) and any(p[1] < p[0] for p in re_squeezes)
+    assert all(isinstance(s.describe(), str) and "N" in s.describe() for s in styles)
+    assert "never holds still" in next(s for s in styles if s.hold_s == 0).describe()
+
+
+@pytest.mark.parametrize("stiffness", [500.0, 5000.0, 2e5])
+@pytest.mark.parametrize("seed", range(8))
+def test_releases_once_and_finishes(seed, stiffness):
+    op, run = drive(seed, stiffness_n_per_m=stiffness)
+    assert op.done
+    assert run["releases"] == 1
+    commands: list[OperatorCommand] = run["commands"]
+    assert all(0.0 <= c.target_width_m <= MAX_WIDTH_M for c in commands)
+    release = next(i for i, c in enumerate(commands) if c.release)
+    assert all(c.enable for c in commands[:release]) and not any(c.enable for c in commands[release:])
+    assert max(run["force"]) > 0.3  # it touched
+
+
+def test_squeezes_to_its_goal_on_a_soft_object():
+    for seed in range(10):
+        op, run = drive(seed, stiffness_n_per_m=800.0, extent_m=0.06)
+        goal = max(op.style.peaks_n)
+        # A soft spring: it reaches its goal and overshoots it only by what it closes while it
+        # has not felt it yet.
+        overshoot = 800.0 * 0.09 * op.style.reaction_delay_s
+        assert 0.8 * goal <= max(run["force"]) <= goal + overshoot + 0.5, op.style.describe()
+
+
+def test_backs_off_and_re_squeezes():
+    seed = next(s for s in range(100) if len(draw_style(np.random.default_rng(s), max_force_n=MAX_FORCE_N)
+                                            .backoff_to) == 1)
+    op, run = drive(seed, stiffness_n_per_m=1000.0, extent_m=0.06)
+    release = next(i for i, c in enumerate(run["commands"]) if c.release)
+    force = np.array(run["force"])[: round(release / FOLLOW_RATE_HZ / 1e-3)]  # until the release
+    first = op.style.peaks_n[0]
+    crossed = np.flatnonzero(force >= 0.9 * first)[0]
+    dip = crossed + int(np.argmin(force[crossed:]))
+    assert force[crossed:dip].max() - force[dip] > 0.2 * first  # it let the force fall
+    assert np.any(force[dip:] > force[dip] + 0.2 * first)  # and squeezed again
+
+
+def test_reaction_delay_makes_it_overshoot_a_stiff_object():
+    op, run = drive(0, stiffness_n_per_m=2e5)
+    assert max(run["force"]) == pytest.approx(MAX_FORCE_N)  # the fingers' force limit holds them
+    assert op.done
+
+
+def test_rejects_bad_limits():
+    with pytest.raises(ValueError, match="max_width_m"):
+        SimulatedOperator(np.random.default_rng(0), max_width_m=0.0, max_force_n=MAX_FORCE_N)
+    with pytest.raises(ValueError, match="max_force_n"):
+        SimulatedOperator(np.random.default_rng(0), max_width_m=MAX_WIDTH_M, max_force_n=float("nan"))
+
+
+def test_style_is_frozen():
+    style = draw_style(np.random.default_rng(1), max_force_n=MAX_FORCE_N)
+    assert isinstance(style, OperatorStyle)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        style.hold_s = 3.0  # type: ignore[misc]
