@@ -25,6 +25,27 @@ Grasps are commanded on the bus (``command`` messages on ``bus.command``):
 ``reload_model``
     Not for the node (the estimator service's); ignored.
 
+The operator drives a grasp continuously with ``follow`` messages (also on ``bus.command``,
+about :data:`~teleop.operator.FOLLOW_RATE_HZ`): the fingers follow the message's target width,
+force-capped (:mod:`teleop.operator`). A follow counts only with ``enable`` (the dead-man) held:
+
+* while idle, it starts a *follow grasp* (``grasp_id`` names it, default ``grasp-<n>``; a grasp
+  that has ended is not started again). With the simulated backends the node simulates the
+  scene's next object live (:mod:`teleop.sim.live`, prepared ahead in its simulator thread: at
+  start for the first object, after each grasp for the next; the fingers may move once it is
+  ready) and the simulated devices sample it (:mod:`teleop.devices.live_sim`); an object still
+  between the closed fingers (a grasp ended by the watchdog) is grasped again;
+* during a follow grasp it moves the fingers' target (:meth:`~teleop.devices.gripper.Gripper.follow`).
+  The fingers never exceed the settings' maximum grasp force (``gripper.target_force_n``): the
+  simulated physics stalls there; with hardware the node stops closing once the load cell
+  reads it. Reaching it sends a ``robot_notice`` *force_limit*, once per grasp.
+
+A follow without enable stops the fingers where they are. When no follow came for
+:data:`~teleop.operator.WATCHDOG_S`, the node stops the fingers, sends a ``robot_notice``
+*watchdog* and ends the grasp (mode *stopped*). ``release`` ends a follow grasp: the fingers
+open, then the grasp ends; ``stop`` stops the fingers and ignores further follows until
+``release`` (or the watchdog) ends the grasp.
+
 A ``grasp_event`` *start* (naming the object when simulated) goes out before the grasp's
 first data and an *end* after its last. In between, a *loading_end* marks when the gripper's
 grasp command completed (the fingers stopped at the target force: the object is loaded;
@@ -35,8 +56,13 @@ the stop precede the marker on the bus. Frames are not waited for (a camera peri
 30 Hz, would be added to every final estimate): the cameras' frames up to the stop precede it
 as long as their reader keeps up with the camera. The simulated gripper
 stops where the simulated record's fingers stop. No marker goes out when the gripper could
-not read its width at the stop. A command that cannot be carried out is logged and the node
-carries on.
+not read its width at the stop (nor for follow grasps: no grasp command stops them).
+
+A command that cannot be carried out (a start_grasp during a grasp or above the maximum force, a
+follow during a scripted grasp or beyond the gripper's width, ...) is logged and answered with a
+``robot_notice`` *refused* with the reason (the same refusal at most once per
+:data:`REFUSAL_REPEAT_S`), and the node carries on. A ``robot_state`` goes out on every change
+of the node's mode, grasp, target width or enable, and with every heartbeat.
 """
 
 from __future__ import annotations
@@ -59,7 +85,14 @@ from teleop.bus.wire import Message
 from teleop.devices.camera import TactileCamera, open_camera
 from teleop.devices.gripper import GraspStop, Gripper, open_gripper
 from teleop.devices.loadcell import LoadCell, open_load_cell
-from teleop.errors import DeviceError, DeviceTimeoutError, SimulationError, TeleopError
+from teleop.errors import (
+    DeviceError,
+    DeviceTimeoutError,
+    InvalidCommandError,
+    SimulationError,
+    TeleopError,
+)
+from teleop.operator import WATCHDOG_S
 from teleop.record import GraspRecord, Samples
 from teleop.scene import Scene
 from teleop.settings import Settings
@@ -68,7 +101,8 @@ __all__ = ["COMMAND_TOPICS", "NodeStats", "RobotNode"]
 
 log = logging.getLogger(__name__)
 
-COMMAND_TOPICS = ("command",)
+COMMAND_TOPICS = ("command", "follow")
+REFUSAL_REPEAT_S = 1.0  # the same refusal (action and reason) goes out at most this often
 READ_TIMEOUT_S = 0.05  # device reads wake this often to see whether the node is stopping
 APPROACH_LEAD_S = 0.05  # a replay starts this long before the record's first sample
 TAIL_S = 2 * READ_TIMEOUT_S  # after a grasp's last data is due, wait this long for the readers
@@ -82,6 +116,7 @@ class NodeStats:
     width_batches: int = 0
     bad_commands: int = 0
     device_errors: int = 0
+    watchdogs: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
@@ -101,6 +136,10 @@ class _Grasp:
     started_s: float = math.inf  # when the start event went out: data captured from then on is the grasp's
     grasp_command: Future | None = None  # the gripper's grasp, for the loading-end marker
     stop: GraspStop | None = None  # where the grasp command stopped, until its marker went out
+    # Follow grasps: phases preparing (the live object) -> following (-> stopped) -> releasing -> tail.
+    follow: bool = False
+    target_width_m: float | None = None  # the latest enabled target
+    force_limited: bool = False  # the force_limit notice went out
 
 
 def _first_sample_s(record: GraspRecord) -> float:
@@ -150,6 +189,17 @@ class RobotNode:
         self._count = 0
         # Capture time of the newest sample published per stream ("width", "force"): the marker waits on them.
         self._newest_s: dict[str, float] = {}
+        self._latest: dict[str, float] = {}  # the newest force (N) and width (m) published
+        # Follow grasps: the live object between the simulated fingers, the next one being prepared
+        # (its grasp number and the future of (object name, LiveObject, rng)), the operator's last follow.
+        self._live = None
+        self._next_live: tuple[int, Future] | None = None
+        self._last_follow_s = -math.inf
+        self._enable = False
+        self._stopped = False  # mode "stopped" while no grasp runs: after the watchdog
+        self._ended: set[str] = set()  # follow grasps that ended: never started again
+        self._refused: dict[tuple[str, str], float] = {}  # when each refusal last went out
+        self._state: tuple | None = None  # the last robot_state sent
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -171,6 +221,8 @@ class RobotNode:
             thread = threading.Thread(target=target, args=(device,), name=name, daemon=True)
             thread.start()
             self._readers.append(thread)
+        if self.simulated:
+            self._prepare_next()
         return self
 
     def close(self) -> None:
@@ -237,7 +289,8 @@ class RobotNode:
     def step(self, timeout_s: float = 0.005) -> None:
         """Take commands, publish what the devices captured (waiting up to ``timeout_s`` for
         something), advance the grasp in progress, heartbeat."""
-        self.publisher.heartbeat_if_due(self.clock())
+        if self.publisher.heartbeat_if_due(self.clock()):
+            self._state = None  # a robot_state goes out with every heartbeat
         while self.commands is not None and (message := self.commands.recv(timeout_s=0)) is not None:
             self.handle_command(message)
         with contextlib.suppress(queue.Empty):
@@ -245,6 +298,7 @@ class RobotNode:
             while True:
                 self._publish(*self._captured.get_nowait())
         self._advance()
+        self._send_state()
 
     @property
     def busy(self) -> bool:
@@ -254,25 +308,191 @@ class RobotNode:
     # ------------------------------------------------------------------ commands
 
     def handle_command(self, message: Message) -> None:
-        """Carry out one operator command; one that cannot be carried out is logged."""
+        """Carry out one operator command or follow; one that cannot be carried out is refused
+        (module docstring)."""
         body = message.body
+        action = "follow" if message.type == "follow" else body["action"]
         try:
-            if body["action"] == "start_grasp":
+            if message.type == "follow":
+                self._follow(body["grasp_id"], body["target_width_m"], body["enable"])
+            elif action == "start_grasp":
                 params = body["params"]
                 index = params.get("object_index")
                 self.start_grasp(body["grasp_id"], object_index=None if index is None else _index(index),
                                  target_force_n=params.get("target_force_n"))
-            elif body["action"] == "stop":
+            elif action == "stop":
                 self.gripper.stop()
-            elif body["action"] != "release":
-                log.debug("command %s is not for the robot node", body["action"])
-            elif self.simulated:
-                log.info("release: a simulated grasp releases by itself")
+                if self._grasp is not None and self._grasp.follow and self._grasp.phase == "following":
+                    self._grasp.phase = "stopped"
+            elif action == "release":
+                self._release()
             else:
-                self.gripper.move_async(self.settings.gripper.max_width_m)
+                log.debug("command %s is not for the robot node", action)
         except TeleopError as exc:
             self.stats.bad_commands += 1
-            log.warning("command %s from %s not carried out: %s", body["action"], message.source or "?", exc)
+            grasp_id = body["grasp_id"] or (self._grasp.grasp_id if self._grasp is not None else None)
+            if self._notice("refused", action, grasp_id, str(exc), repeat_s=REFUSAL_REPEAT_S):
+                log.warning("command %s from %s not carried out: %s", action, message.source or "?", exc)
+
+    def _release(self) -> None:
+        grasp = self._grasp
+        if grasp is not None and grasp.follow and grasp.phase in ("following", "stopped"):
+            self.gripper.stop()
+            grasp.phase = "releasing"
+            grasp.motion = self.gripper.move_async(self.settings.gripper.max_width_m)
+        elif grasp is not None and grasp.follow:
+            raise DeviceError(f"follow grasp {grasp.grasp_id!r} is {grasp.phase}: nothing to release")
+        elif self.simulated:
+            log.info("release: a simulated grasp releases by itself")
+        else:
+            self.gripper.move_async(self.settings.gripper.max_width_m)
+
+    # ------------------------------------------------------------------ follow grasps
+
+    def _follow(self, grasp_id: str | None, target_width_m: float, enable: bool) -> None:
+        """One follow message (module docstring); raises what makes it refused."""
+        self._last_follow_s = self.clock()
+        self._enable = enable
+        grasp = self._grasp
+        if grasp is not None and not grasp.follow:
+            raise DeviceError(f"grasp {grasp.grasp_id!r} is a commanded grasp: the fingers cannot follow until it ends")
+        if grasp is not None and grasp_id is not None and grasp_id != grasp.grasp_id:
+            raise DeviceError(f"grasp {grasp.grasp_id!r} is in progress, not {grasp_id!r}")
+        if not enable:
+            if grasp is not None and grasp.phase == "following" and grasp.target_width_m is not None:
+                self.gripper.stop()
+                grasp.target_width_m = None
+            return
+        max_width = self.settings.gripper.max_width_m
+        if target_width_m > max_width:
+            raise InvalidCommandError(f"target_width_m = {target_width_m}: the fingers open to {max_width} m at most")
+        if grasp is None:
+            grasp = self._start_follow(grasp_id)
+        if grasp.phase not in ("preparing", "following"):
+            return  # stopped or releasing: the operator's targets no longer move the fingers
+        grasp.target_width_m = target_width_m
+        if grasp.phase == "following":
+            self._drive_fingers(grasp)
+
+    def _start_follow(self, grasp_id: str | None) -> _Grasp:
+        number = self._count
+        grasp_id = grasp_id or f"grasp-{number:04d}"
+        if grasp_id in self._ended:
+            raise DeviceError(f"grasp {grasp_id!r} has ended: name a new grasp to start one")
+        self._count += 1
+        self._stopped = False
+        grasp = self._grasp = _Grasp(grasp_id, None, follow=True, phase="following")
+        if not self.simulated:
+            self._announce("start")
+        elif self._live is not None:  # the object is still between the fingers: grasp it again
+            grasp.object_name = self._live.object.name
+            self._announce("start")
+        else:
+            if self._next_live is None or self._next_live[0] != number:
+                self._prepare_next(number)
+            grasp.phase, grasp.prepared = "preparing", self._next_live[1]
+        return grasp
+
+    def _prepare_next(self, number: int | None = None) -> None:
+        """Prepare the live object of grasp ``number`` (default: the next) in the simulator thread."""
+        number = self._count if number is None else number
+        self._next_live = (number, self._simulator.submit(self._prepare_live, number))
+
+    def _prepare_live(self, number: int) -> tuple[Any, np.random.Generator]:
+        from teleop.sim.live import prepare_object
+
+        obj = self.objects[number % len(self.objects)]
+        rng = np.random.default_rng(self.scene.seed * 10_000 + number)
+        return prepare_object(obj, settings=self.settings, rng=rng), rng
+
+    def _go_live(self, grasp: _Grasp) -> None:
+        """The prepared object is ready: put it between the simulated fingers and start the grasp."""
+        from teleop.devices.live_sim import LiveGrasp
+
+        self._next_live = None
+        try:
+            obj, rng = grasp.prepared.result()
+        except SimulationError as exc:
+            log.error("grasp %s cannot be simulated: %s", grasp.grasp_id, exc)
+            self._notice("refused", "follow", grasp.grasp_id, f"the object cannot be simulated: {exc}")
+            self._grasp = None
+            self._prepare_next()
+            return
+        self._live = LiveGrasp(obj, settings=self.settings, rng=rng, width_m=self.gripper.read_width()[1],
+                               clock=self.clock)
+        for device in (self.gripper, *self.cameras, self.load_cell):
+            device.live(self._live)
+        grasp.object_name, grasp.phase = obj.name, "following"
+        self._announce("start")
+        if grasp.target_width_m is not None:
+            self._drive_fingers(grasp)
+
+    def _drive_fingers(self, grasp: _Grasp) -> None:
+        """Move the fingers toward the grasp's target; with hardware, no closer once the load cell
+        reads the maximum force."""
+        capped = (not self.simulated and self._latest.get("force", 0.0) >= self.settings.gripper.target_force_n
+                  and grasp.target_width_m < self._latest.get("width", math.inf))
+        if capped:
+            self.gripper.stop()
+            self._force_limit(grasp)
+        else:
+            self.gripper.follow(grasp.target_width_m)
+
+    def _force_limit(self, grasp: _Grasp) -> None:
+        if not grasp.force_limited:
+            grasp.force_limited = True
+            self._notice("force_limit", "follow", grasp.grasp_id,
+                         f"the fingers reached the maximum force {self.settings.gripper.target_force_n} N "
+                         "and close no further")
+
+    def _watchdog(self, grasp: _Grasp) -> None:
+        """No follow came for WATCHDOG_S: stop the fingers and end the grasp."""
+        self.gripper.stop()
+        self.stats.watchdogs += 1
+        silent_s = self.clock() - self._last_follow_s
+        log.warning("grasp %s: no follow for %.3f s: fingers stopped", grasp.grasp_id, silent_s)
+        self._notice("watchdog", "follow", grasp.grasp_id,
+                     f"no follow command for {silent_s:.3f} s (watchdog {WATCHDOG_S} s): the fingers stopped")
+        self._enable = False
+        if grasp.phase == "preparing":
+            self._grasp = None
+        else:
+            self._end()
+        self._stopped = True
+
+    # ------------------------------------------------------------------ notices and state
+
+    def _notice(self, event: str, action: str, grasp_id: str | None, reason: str, *, repeat_s: float = 0.0) -> bool:
+        """Send a robot_notice unless the same one went out less than ``repeat_s`` ago; True if sent."""
+        now = self.clock()
+        if now - self._refused.get((action, reason), -math.inf) < repeat_s:
+            return False
+        self._refused = {key: t for key, t in self._refused.items() if now - t < REFUSAL_REPEAT_S}
+        self._refused[(action, reason)] = now
+        self.publisher.send("robot_notice", t_capture_s=now, event=event, action=action, grasp_id=grasp_id,
+                            reason=reason)
+        return True
+
+    def _mode(self) -> str:
+        grasp = self._grasp
+        if grasp is None:
+            return "stopped" if self._stopped else "idle"
+        if grasp.follow:
+            return {"preparing": "following", "following": "following", "stopped": "stopped"}.get(
+                grasp.phase, "releasing")
+        return {"holding": "holding", "releasing": "releasing"}.get(
+            grasp.phase, "releasing" if grasp.phase == "tail" and not self.simulated else "grasping")
+
+    def _send_state(self) -> None:
+        """A robot_state when anything in it changed (or after a heartbeat)."""
+        grasp = self._grasp
+        state = (self._mode(), None if grasp is None else grasp.grasp_id,
+                 grasp.target_width_m if grasp is not None and grasp.follow else None, self._enable)
+        if state != self._state:
+            self._state = state
+            mode, grasp_id, target, enable = state
+            self.publisher.send("robot_state", t_capture_s=self.clock(), mode=mode, grasp_id=grasp_id,
+                                target_width_m=target, enable=enable)
 
     def start_grasp(self, grasp_id: str | None = None, *, object_index: int | None = None,
                     target_force_n: float | None = None) -> str:
@@ -287,6 +507,10 @@ class RobotNode:
         """
         if self._grasp is not None:
             raise DeviceError(f"grasp {self._grasp.grasp_id!r} is still in progress")
+        maximum = self.settings.gripper.target_force_n
+        if target_force_n is not None and not 0 < target_force_n <= maximum:
+            raise InvalidCommandError(f"target_force_n = {target_force_n}: expected a force in (0, {maximum}] N, "
+                                      "the settings' maximum")
         number = self._count
         grasp_id = grasp_id or f"grasp-{number:04d}"
         if not self.simulated:
@@ -321,7 +545,15 @@ class RobotNode:
         if grasp is None:
             return
         now = self.clock()
-        if grasp.phase == "preparing" and grasp.prepared.done():
+        if grasp.follow and grasp.phase in ("preparing", "following", "stopped") \
+                and now - self._last_follow_s > WATCHDOG_S:
+            self._watchdog(grasp)
+        elif grasp.follow and grasp.phase == "preparing" and grasp.prepared.done():
+            self._go_live(grasp)
+        elif grasp.follow and grasp.phase == "following":
+            if self._live is not None and self._live.at_force_limit():
+                self._force_limit(grasp)
+        elif grasp.phase == "preparing" and grasp.prepared.done():
             self._play(grasp)
         elif grasp.phase == "grasping" and grasp.motion.done():
             grasp.phase, grasp.phase_until_s = "holding", now + self.settings.gripper.hold_s
@@ -344,6 +576,7 @@ class RobotNode:
             self._end()
             return
         playback = GraspPlayback(record, clock=self.clock)
+        self._live = None
         for device in (self.gripper, *self.cameras, self.load_cell):
             device.replay(playback)
         self._announce("start")
@@ -399,8 +632,18 @@ class RobotNode:
                 self._publish(*self._captured.get_nowait())
         self._announce("end")
         self.stats.grasps += 1
-        log.info("grasp %s ended", self._grasp.grasp_id)
+        grasp = self._grasp
+        log.info("grasp %s ended", grasp.grasp_id)
         self._grasp = None
+        if grasp.follow:
+            self._ended.add(grasp.grasp_id)
+        live = self._live
+        if live is not None and live.force_at(self.clock()) <= 0:  # the fingers let go: the object leaves
+            self._live = None
+            for device in (self.gripper, *self.cameras, self.load_cell):
+                device.live(None)
+        if self.simulated and self._live is None and self._next_live is None:
+            self._prepare_next()
 
     # ------------------------------------------------------------------ publishing
 
@@ -420,6 +663,7 @@ class RobotNode:
                                 index=item.index, encoding=item.encoding, data=item.encoded)
             self.stats.frames += 1
         elif kind in ("force", "width"):
+            self._latest[kind] = float(item.value[-1])
             values = {"value_n" if kind == "force" else "value_m": item.value}
             self.publisher.send(kind, t_capture_s=float(item.t_s[-1]), grasp_id=self._grasp_of(float(item.t_s[0])),
                                 t_s=item.t_s, **values)

@@ -21,9 +21,11 @@ from teleop.settings import default_settings_path, load_settings
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Run the robot node: read the gripper, tactile cameras and load cell and publish frames, forces, "
-        "widths and grasp events on the bus; carry out operator commands (start_grasp, stop, release). "
-        "With the simulated backends a start_grasp simulates a grasp of the scene's next object and "
-        "replays it in real time. Stops on Ctrl-C or SIGTERM."
+        "widths and grasp events on the bus; carry out operator commands (start_grasp, stop, release) and "
+        "follow the operator's target width (follow messages, while enable is held; the fingers stop when "
+        "none came for 0.2 s); publish robot_state and robot_notice. With the simulated backends a "
+        "start_grasp simulates a grasp of the scene's next object and replays it in real time, and a "
+        "follow grasp simulates the next object live. Stops on Ctrl-C or SIGTERM."
     )
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
                         help="settings TOML (device backends, sensors, gripper, simulation, bus)")
@@ -36,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_foxglove_argument(parser, what="what the node publishes (frames, forces, widths, grasp events)")
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (grasps, frames, force_batches, width_batches, "
-                             "bad_commands, device_errors) as the last stdout line")
+                             "bad_commands, device_errors, watchdogs) as the last stdout line")
 
 
 def run(args: argparse.Namespace) -> int:

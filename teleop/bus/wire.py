@@ -75,6 +75,20 @@ Message types and body schemas
                  range; nil exactly when stiffness is 0 or unknown is set),
                  level: int >= 0 | nil and level_max: int >= 1 | nil (the quantised level
                  written and the display's full scale; level <= level_max, level needs level_max).
+``follow``       the operator's continuous target for the fingers (operator -> robot node, on
+                 ``bus.command`` at :data:`teleop.operator.FOLLOW_RATE_HZ` while the operator
+                 drives): grasp_id: str|nil, target_width_m: float >= 0 (m),
+                 enable: bool (the dead-man is held; a follow without it only stops the fingers).
+``robot_state``  where the robot node stands (robot node, on ``bus.robot_pub``, on every change
+                 and at least once per heartbeat): mode: one of :data:`ROBOT_MODES`,
+                 grasp_id: str|nil, target_width_m: float >= 0 | nil (the fingers' target while
+                 following), enable: bool (the last follow's enable).
+``robot_notice`` something the robot node did or refused on its own (robot node, on
+                 ``bus.robot_pub``): event: one of :data:`ROBOT_NOTICES` ("refused": a command it
+                 cannot carry out; "watchdog": no follow came for
+                 :data:`teleop.operator.WATCHDOG_S`, the fingers stopped; "force_limit": the
+                 fingers reached the settings' maximum force and close no further),
+                 action: str (the command's action, or "follow"), grasp_id: str|nil, reason: str.
 
 Adding a message type changes no existing message, so it keeps the version: a receiver that
 predates a type refuses its messages as ``unknown_type`` and goes on with the rest.
@@ -115,6 +129,8 @@ __all__ = [
     "MAX_HEADER_BYTES",
     "MAX_TOPIC_BYTES",
     "REJECT_REASONS",
+    "ROBOT_MODES",
+    "ROBOT_NOTICES",
     "SCHEMAS",
     "SCHEMA_VERSION",
     "Message",
@@ -139,6 +155,10 @@ COMMAND_ACTIONS = ("start_grasp", "stop", "release", "reload_model")
 
 # The haptic renderer's phases (haptics.renderer.HapticRenderer.phase).
 DISPLAY_PHASES = ("idle", "active", "stale", "fading")
+
+# The robot node's modes (robot_state) and the notices it sends (robot_notice).
+ROBOT_MODES = ("idle", "grasping", "holding", "releasing", "following", "stopped")
+ROBOT_NOTICES = ("refused", "watchdog", "force_limit")
 
 REJECT_REASONS = (
     "frame_count",  # fewer than 3 frames, or more buffers than MAX_BUFFERS
@@ -290,6 +310,32 @@ SCHEMAS: Mapping[str, Schema] = {
         },
         nullable=frozenset({"grasp_id", "E_pa", "level", "level_max"}),
         rule=_display_rule,
+    ),
+    "follow": Schema(
+        fields={
+            "grasp_id": TextField(nullable=True),
+            "target_width_m": NumberField(lo=0.0),
+            "enable": FLAG,
+        },
+        nullable=frozenset({"grasp_id"}),
+    ),
+    "robot_state": Schema(
+        fields={
+            "mode": TextField(choices=ROBOT_MODES),
+            "grasp_id": TextField(nullable=True),
+            "target_width_m": NumberField(lo=0.0, nullable=True),
+            "enable": FLAG,
+        },
+        nullable=frozenset({"grasp_id", "target_width_m"}),
+    ),
+    "robot_notice": Schema(
+        fields={
+            "event": TextField(choices=ROBOT_NOTICES),
+            "action": TextField(max_chars=64),
+            "grasp_id": TextField(nullable=True),
+            "reason": TextField(max_chars=MAX_STR_CHARS),
+        },
+        nullable=frozenset({"grasp_id"}),
     ),
 }
 

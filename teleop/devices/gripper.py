@@ -11,6 +11,11 @@ stopped. That moment ends the loading of the object, so the gripper then reads i
 once (the fingers are still, so the read is the width from the stop on) and queues it with
 the background reader's samples, in time order; :attr:`Gripper.last_stop` holds the stop's
 time and that reading (:class:`GraspStop`) for the robot node's loading-end marker.
+
+Leader-follower teleoperation drives the fingers with :meth:`Gripper.follow`: it sets the
+fingers' target width and returns at once; the backend moves them toward the latest target
+(by default at :data:`FOLLOW_SPEED_M_S`) until :meth:`Gripper.stop`, which ends the following
+within one of the backend's control steps.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ from teleop.errors import DeviceError, InvalidCommandError
 from teleop.record import Samples
 from teleop.settings import GripperSettings
 
-__all__ = ["BACKENDS", "MAX_FORCE_N", "MAX_SPEED_M_S", "GraspStop", "Gripper", "open_gripper"]
+__all__ = ["BACKENDS", "FOLLOW_SPEED_M_S", "MAX_FORCE_N", "MAX_SPEED_M_S", "GraspStop", "Gripper", "open_gripper"]
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +42,7 @@ BACKENDS = {
 }
 MAX_SPEED_M_S = 0.2
 MAX_FORCE_N = 140.0  # the Franka hand's peak grasp force
+FOLLOW_SPEED_M_S = 0.1  # default finger speed while following an operator: faster than a grasp closes
 
 
 def open_gripper(settings: GripperSettings, *, backend: str | None = None, **options) -> Gripper:
@@ -80,7 +86,7 @@ class GraspStop:
 class Gripper(Device):
     """A parallel gripper.
 
-    Backends implement ``_open``, ``_shutdown``, ``_move``, ``_grasp``, ``_stop``,
+    Backends implement ``_open``, ``_shutdown``, ``_move``, ``_grasp``, ``_follow``, ``_stop``,
     ``_read_width``, ``_max_width`` and ``_is_grasped``; they may override
     ``_poll_widths`` when their widths come with their own timestamps, and then
     ``_readings_at_stop`` as well.
@@ -180,8 +186,18 @@ class Gripper(Device):
         args = self._grasp_args(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m)
         return self._executor.submit(self._grasp_until_stop, args)
 
+    def follow(self, width_m: float, *, speed_m_s: float | None = None) -> None:
+        """Set the fingers' target width ``width_m`` (m) and return at once.
+
+        The fingers move toward the latest target at up to ``speed_m_s`` (m/s, default
+        :data:`FOLLOW_SPEED_M_S`) and hold it, until :meth:`stop` or another command. A running
+        move or grasp is superseded. Arguments are checked as :meth:`move` checks them.
+        """
+        self._require_connected()
+        self._follow(*self._motion_args(width_m, FOLLOW_SPEED_M_S if speed_m_s is None else speed_m_s))
+
     def stop(self) -> bool:
-        """Stop a running move or grasp and hold the current width."""
+        """Stop a running move, grasp or follow and hold the current width."""
         self._require_connected()
         return bool(self._stop())
 
@@ -278,6 +294,9 @@ class Gripper(Device):
         raise NotImplementedError
 
     def _grasp(self, width_m: float, speed_m_s: float, force_n: float, epsilon_inner_m: float, epsilon_outer_m: float) -> bool:
+        raise NotImplementedError
+
+    def _follow(self, width_m: float, speed_m_s: float) -> None:
         raise NotImplementedError
 
     def _stop(self) -> bool:

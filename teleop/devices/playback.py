@@ -23,6 +23,13 @@ it falls due, stamped with those shifted times, like hardware would:
 
 One playback is shared by all devices of a rig; :meth:`replay` on each device switches
 them to the next grasp.
+
+Live mode: ``live(grasp)`` on each device switches it to a
+:class:`~teleop.devices.live_sim.LiveGrasp` instead, an operator-driven grasp simulated as it
+happens: the gripper's moves, grasps and :meth:`~teleop.devices.gripper.Gripper.follow` drive
+the simulated motor (stalling at the maximum force), the width reads, the load cell and the
+cameras sample it. ``live(None)`` or a ``replay()`` leaves live mode; the gripper's kinematics
+take over from the live width.
 """
 
 from __future__ import annotations
@@ -35,6 +42,7 @@ import numpy as np
 
 from teleop.devices.camera import CameraFrame, TactileCamera
 from teleop.devices.gripper import Gripper
+from teleop.devices.live_sim import LiveGrasp
 from teleop.devices.loadcell import LoadCell
 from teleop.errors import DeviceError
 from teleop.record import GRASP_DONE_EVENT, GraspRecord, Samples
@@ -191,14 +199,27 @@ class SimulatedGripper(Gripper):
         self._grasped = False
         self._playback: GraspPlayback | None = None
         self._width_index = 0
+        self._live: LiveGrasp | None = None
         if playback is not None:
             self.replay(playback)
 
     def replay(self, playback: GraspPlayback) -> None:
         """Serve widths from ``playback`` (started by the next grasp unless already running)."""
+        self.live(None)
         with self._lock:
             self._playback = playback
             self._width_index = 0
+
+    def live(self, grasp: LiveGrasp | None) -> None:
+        """Drive and read the motor of ``grasp`` (None: back to the kinematics, from its width)."""
+        with self._lock:
+            now = time.monotonic()
+            if grasp is None and self._live is not None:
+                self._from_m = self._to_m = self._live.motor.width_at(now)
+                self._from_s = now
+            self._live = grasp
+            if grasp is not None:
+                self._playback = None
 
     def _open(self) -> None:
         self._halt.clear()
@@ -236,6 +257,8 @@ class SimulatedGripper(Gripper):
 
     def _read_width(self) -> float:
         with self._lock:
+            if self._live is not None:
+                return self._live.width_read()[1]
             now = time.monotonic()
             playback = self._replaying(now)
             if playback is None:
@@ -245,6 +268,8 @@ class SimulatedGripper(Gripper):
 
     def _poll_widths(self) -> list[tuple[float, float]]:
         with self._lock:
+            if self._live is not None:
+                return [self._live.width_read()]
             playback = self._replaying(time.monotonic())
             if playback is not None:
                 self._width_index, due = playback.widths_due(self._width_index)
@@ -255,6 +280,8 @@ class SimulatedGripper(Gripper):
         """The recorded widths due by now, then the read that returns with the stopped fingers:
         the record's next read, early (during a replay; module docstring)."""
         with self._lock:
+            if self._live is not None:
+                return [self._live.width_read()]
             now = time.monotonic()
             playback = self._replaying(now)
             if playback is None or not np.isfinite(hold := playback.hold_width_m()):
@@ -270,9 +297,12 @@ class SimulatedGripper(Gripper):
             return [*readings, (now, hold)]
 
     def _drive(self, to_m: float, speed: float) -> float:
-        """Start a kinematic motion; returns when (clock time) it ends."""
+        """Start a kinematic (or live) motion; returns when (clock time) it ends."""
         with self._lock:
             now = time.monotonic()
+            if self._live is not None:
+                self._grasped = False
+                return self._live.motor.command(to_m, speed, now)
             self._replaying(now)  # hand over from an ended replay
             self._from_m = float(self._kinematic_width(now))
             self._from_s, self._to_m, self._speed = now, to_m, speed
@@ -294,6 +324,13 @@ class SimulatedGripper(Gripper):
 
     def _grasp(self, width_m: float, speed_m_s: float, force_n: float, epsilon_inner_m: float, epsilon_outer_m: float) -> bool:
         playback = self._playback
+        if self._live is not None:
+            self._halt.clear()
+            if not _wait_until(self._drive(width_m, speed_m_s), time.monotonic, self._halt):
+                return False
+            width = self._live.motor.width_at(time.monotonic())
+            self._grasped = width_m - epsilon_inner_m <= width <= width_m + epsilon_outer_m
+            return self._grasped
         if playback is not None and not playback.done():
             if not playback.started:
                 playback.start()
@@ -312,9 +349,24 @@ class SimulatedGripper(Gripper):
         self._grasped = width_m - epsilon_inner_m <= target <= width_m + epsilon_outer_m
         return self._grasped
 
+    def _follow(self, width_m: float, speed_m_s: float) -> None:
+        """Head for ``width_m`` at once (a running move or grasp returns, interrupted); stalls at
+        the object as a grasp does (kinematic) or where the force reaches its maximum (live)."""
+        playback = self._playback
+        if playback is not None and playback.started and not playback.done():
+            raise DeviceError("the simulated gripper replays a recorded grasp: it cannot follow until it ends")
+        self._halt.set()
+        target, stall = width_m, self.object_width_m
+        if self._live is None and stall is not None and width_m <= stall <= self._read_width():
+            target = stall
+        self._drive(target, speed_m_s)
+
     def _stop(self) -> bool:
         self._halt.set()
         with self._lock:
+            if self._live is not None:
+                self._live.motor.stop(time.monotonic())
+                return True
             if self._replaying(time.monotonic()) is None:
                 now = time.monotonic()
                 self._from_m = self._to_m = float(self._kinematic_width(now))
@@ -331,6 +383,7 @@ class SimulatedCamera(TactileCamera):
         # replay() switched them meanwhile (the node switches while the reader waits).
         self._lock = threading.Lock()
         self._playback: GraspPlayback | None = None
+        self._live: LiveGrasp | None = None
         self._next = 0
         if playback is not None:
             self.replay(playback)
@@ -339,7 +392,24 @@ class SimulatedCamera(TactileCamera):
         """Serve the frames of this finger from ``playback`` from its first frame on."""
         playback.record.stream(self.sensor.finger)  # KeyError now, not at the first read
         with self._lock:
-            self._playback, self._next = playback, 0
+            self._playback, self._next, self._live = playback, 0, None
+
+    def live(self, grasp: LiveGrasp | None) -> None:
+        """Render this finger's frames of ``grasp`` as they are captured (None: a silent camera)."""
+        with self._lock:
+            self._playback, self._live = None, grasp
+
+    def _read_live(self, grasp: LiveGrasp, deadline: float) -> CameraFrame | None:
+        finger = self.sensor.finger
+        due = grasp.next_frame_s(finger)
+        if due > deadline:
+            time.sleep(max(0.0, deadline - time.monotonic()))
+            return None
+        _wait_until(due, time.monotonic)
+        with self._lock:
+            if self._live is not grasp:
+                return None  # switched while the frame was awaited
+            return grasp.take_frame(finger)
 
     def _connect(self) -> None:
         pass
@@ -350,7 +420,9 @@ class SimulatedCamera(TactileCamera):
     def _read(self, timeout_s: float) -> CameraFrame | None:
         deadline = time.monotonic() + timeout_s
         with self._lock:
-            playback, index = self._playback, self._next
+            playback, index, live = self._playback, self._next, self._live
+        if live is not None:
+            return self._read_live(live, deadline)
         finger = self.sensor.finger
         if (
             playback is None
@@ -378,6 +450,7 @@ class SimulatedLoadCell(LoadCell):
         # As for the camera: the reader advances the sample index only of the playback it took.
         self._lock = threading.Lock()
         self._playback: GraspPlayback | None = None
+        self._live: LiveGrasp | None = None
         self._next = 0
         if playback is not None:
             self.replay(playback)
@@ -385,7 +458,25 @@ class SimulatedLoadCell(LoadCell):
     def replay(self, playback: GraspPlayback) -> None:
         """Serve force samples from ``playback`` from its first sample on."""
         with self._lock:
-            self._playback, self._next = playback, 0
+            self._playback, self._next, self._live = playback, 0, None
+
+    def live(self, grasp: LiveGrasp | None) -> None:
+        """Serve the readings of ``grasp`` as they arrive (None: a silent cell)."""
+        with self._lock:
+            self._playback, self._live = None, grasp
+
+    def _take_live(self, grasp: LiveGrasp, deadline: float) -> Samples:
+        """The readings of ``grasp`` that arrived, waiting for the next one up to ``deadline``."""
+        for waited in (False, True):
+            if waited:
+                _wait_until(min(grasp.next_reading_s(), deadline), time.monotonic)
+            with self._lock:
+                if self._live is not grasp:  # switched meanwhile
+                    return Samples(np.zeros(0), np.zeros(0))
+                due = grasp.forces_due()
+            if len(due):
+                break
+        return due
 
     def _connect(self) -> None:
         pass
@@ -396,7 +487,9 @@ class SimulatedLoadCell(LoadCell):
     def _take(self, timeout_s: float) -> Samples:
         deadline = time.monotonic() + timeout_s
         with self._lock:
-            playback = self._playback
+            playback, live = self._playback, self._live
+        if live is not None:
+            return self._take_live(live, deadline)
         if playback is not None and playback.wait_started(timeout_s):
             index, due = self._take_due(playback)
             if len(due):

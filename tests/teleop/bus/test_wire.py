@@ -77,6 +77,13 @@ def _examples() -> dict[str, Message]:
             "display", t_capture_s=9.0, phase="idle", stiffness=0.0, uncertainty_decades=0.0,
             rigid=False, unknown=False, provisional=False,
         ),
+        "follow": make_message("follow", t_capture_s=3.0, grasp_id="g3", target_width_m=0.042, enable=True),
+        "follow_released": make_message("follow", t_capture_s=3.0, target_width_m=0.08, enable=False),
+        "robot_state": make_message("robot_state", t_capture_s=3.1, mode="following", grasp_id="g3",
+                                    target_width_m=0.042, enable=True),
+        "robot_state_idle": make_message("robot_state", t_capture_s=3.1, mode="idle", enable=False),
+        "robot_notice": make_message("robot_notice", t_capture_s=3.2, event="watchdog", action="follow",
+                                     grasp_id="g3", reason="no follow command for 0.2 s"),
     }
 
 
@@ -286,6 +293,27 @@ def test_display_fields_are_checked():
     with pytest.raises(MessageRejected, match="stiffness"):
         make_message("display", t_capture_s=0.0, phase="active", stiffness=1.0001, uncertainty_decades=0.0,
                      rigid=True, unknown=False, provisional=False, E_pa=1e6)
+
+
+def test_operator_and_robot_state_fields_are_checked():
+    idle = decode(_frames("robot_state_idle"), max_bytes=MAX).body
+    assert (idle["grasp_id"], idle["target_width_m"]) == (None, None)
+    refusals = {
+        "follow": {"target_width_m": (-0.001, "mistyped_field"), "enable": (1, "mistyped_field"),
+                   "grasp_id": (3, "mistyped_field")},
+        "robot_state": {"mode": ("dancing", "mistyped_field"), "target_width_m": (-1.0, "mistyped_field"),
+                        "enable": (None, "mistyped_field")},
+        "robot_notice": {"event": ("oops", "mistyped_field"), "action": (None, "mistyped_field"),
+                         "reason": ("x" * 2000, "mistyped_field")},
+    }
+    for kind, fields in refusals.items():
+        frames = _frames(kind)
+        for field, (value, reason) in fields.items():
+            assert _refused(_with_body(frames, **{field: value})) == reason, (kind, field)
+        assert _refused(_with_body(frames, colour="red")) == "extra_field"
+    assert _refused(_with_body(_frames("follow"), drop="enable")) == "missing_field"
+    assert _refused(_with_body(_frames("follow"), target_width_m=math.nan)) == "not_finite"
+    assert _refused(_with_body(_frames("robot_state"), target_width_m=math.inf)) == "not_finite"
 
 
 def test_senders_cannot_emit_what_receivers_refuse():

@@ -20,6 +20,7 @@ from teleop.errors import (
 from teleop.settings import GripperSettings
 
 SPEED = 0.05  # m/s, franky-sim's finger speed limit
+STEP_M = SPEED * 0.02  # one franky follow step at SPEED (teleop.devices.franky_gripper.FOLLOW_STEP_S), m
 
 
 @pytest.fixture(params=["sim", "franky", pytest.param("hardware", marks=pytest.mark.hardware)])
@@ -100,6 +101,9 @@ def test_stop_when_idle_holds_the_width(gripper):
         (lambda g: g.grasp(0.02, epsilon_inner_m=-1.0), "epsilon_inner_m"),
         (lambda g: g.move_async(math.inf), "width_m"),
         (lambda g: g.grasp_async(0.02, force_n=0.0), "force_n"),
+        (lambda g: g.follow(0.5), "width_m"),
+        (lambda g: g.follow(math.nan), "width_m"),
+        (lambda g: g.follow(0.02, speed_m_s=1.0), "speed_m_s"),
     ],
 )
 def test_bad_commands_are_refused_before_anything_moves(gripper, command, name):
@@ -108,6 +112,50 @@ def test_bad_commands_are_refused_before_anything_moves(gripper, command, name):
         with pytest.raises(InvalidCommandError, match=name):
             command(gripper)
         assert gripper.read_width()[1] == pytest.approx(before, abs=1e-3)
+
+
+def _settle(gripper: Gripper, *, timeout_s: float = 5.0, still_m: float = 1e-4) -> float:
+    """The width once two reads 0.15 s apart agree within ``still_m`` (m)."""
+    deadline = time.monotonic() + timeout_s
+    last = gripper.read_width()[1]
+    while time.monotonic() < deadline:
+        time.sleep(0.15)
+        now = gripper.read_width()[1]
+        if abs(now - last) < still_m:
+            return now
+        last = now
+    raise AssertionError(f"the fingers did not settle within {timeout_s} s")
+
+
+def test_follow_returns_at_once_and_the_fingers_go_to_the_latest_target(gripper):
+    with gripper:
+        start = gripper.read_width()[1]
+        first = start - 0.01 if start > 0.03 else start + 0.01
+        before = time.monotonic()
+        gripper.follow(first, speed_m_s=SPEED)
+        assert time.monotonic() - before < 0.05  # non-blocking
+        gripper.follow(first + 0.004, speed_m_s=SPEED)  # a new target supersedes the last
+        assert _settle(gripper) == pytest.approx(first + 0.004, abs=2e-3)
+        gripper.follow(first - 0.004, speed_m_s=SPEED)
+        assert _settle(gripper) == pytest.approx(first - 0.004, abs=2e-3)
+        assert gripper.stop()
+
+
+def test_stop_ends_a_follow_within_one_step_and_a_move_works_after(gripper):
+    with gripper:
+        start = gripper.read_width()[1]
+        target = 0.005 if start > 0.04 else 0.075
+        gripper.follow(target, speed_m_s=SPEED)
+        time.sleep(0.3)
+        assert gripper.stop()
+        time.sleep(0.25)  # a step in flight ends within this
+        held = gripper.read_width()[1]
+        time.sleep(0.3)
+        # Stopped: franky-sim's fingers creep on toward the last step's goal, within one step.
+        assert gripper.read_width()[1] == pytest.approx(held, abs=STEP_M)
+        assert abs(held - start) > 2e-3 and abs(held - target) > 5e-3  # ... on its way
+        assert gripper.move(0.04, speed_m_s=SPEED)  # the gripper takes commands again
+        assert gripper.read_width()[1] == pytest.approx(0.04, abs=2e-3)
 
 
 # --------------------------------------------------------------------------- family and sim specifics
@@ -146,6 +194,16 @@ def test_sim_stop_interrupts_a_move():
         time.sleep(0.1)
         assert gripper.read_width()[1] == held
         assert 0.07 < held < 0.08
+
+
+def test_sim_follow_stalls_on_an_object_and_supersedes_a_move():
+    with SimulatedGripper(GripperSettings(max_width_m=0.08), object_width_m=0.05) as gripper:
+        moving = gripper.move_async(0.07, speed_m_s=0.01)
+        time.sleep(0.05)
+        gripper.follow(0.03, speed_m_s=0.2)
+        assert moving.result(timeout=1.0) is False  # interrupted by the follow
+        time.sleep(0.25)
+        assert gripper.read_width()[1] == pytest.approx(0.05)  # the object stops the fingers
 
 
 def test_sim_grasp_replays_the_recorded_widths(make_record):

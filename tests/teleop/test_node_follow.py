@@ -1,0 +1,197 @@
+"""The robot node driven by an operator: follow grasps, simulated live, the watchdog and refusals."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.node import COMMAND_TOPICS, RobotNode
+from teleop.operator import FOLLOW_RATE_HZ, WATCHDOG_S
+from teleop.scene import load_scene
+
+TOPICS = ("frame", "force", "width", "grasp_event", "robot_state", "robot_notice")
+
+
+def _rig(settings_of: Callable = lambda s: s):
+    scene = load_scene("quick")
+    robot = Publisher("tcp://127.0.0.1:*", lossless=True, source="robot")
+    operator = Publisher("tcp://127.0.0.1:*", lossless=True, source="operator")
+    commands = Subscriber(operator.endpoint, COMMAND_TOPICS)
+    listener = Subscriber(robot.endpoint, TOPICS)
+    node = RobotNode(settings_of(scene.settings), publisher=robot, commands=commands, scene=scene).connect()
+    robot.wait_for_subscriber(*TOPICS, timeout_s=5.0)
+    operator.wait_for_subscriber("command", "follow", timeout_s=5.0)
+    return node, operator, listener, scene, (robot, operator, commands, listener)
+
+
+@pytest.fixture
+def rig():
+    node, operator, listener, scene, sockets = _rig()
+    yield node, operator, listener, scene
+    node.close()
+    for sock in sockets:
+        sock.close()
+
+
+def drive(node: RobotNode, operator: Publisher, target: Callable[[float], float], duration_s: float, *,
+          grasp_id: str | None = "g-follow", enable: bool = True) -> float:
+    """Send follows at FOLLOW_RATE_HZ for ``duration_s`` (target width of the time since the start),
+    stepping the node; returns when the last follow went out."""
+    start = next_s = time.monotonic()
+    last = start
+    while (now := time.monotonic()) - start < duration_s:
+        if now >= next_s:
+            operator.send("follow", t_capture_s=now, grasp_id=grasp_id, target_width_m=target(now - start),
+                          enable=enable)
+            last, next_s = now, next_s + 1.0 / FOLLOW_RATE_HZ
+        node.step(timeout_s=0.002)
+    return last
+
+
+def step_for(node: RobotNode, duration_s: float) -> None:
+    end = time.monotonic() + duration_s
+    while time.monotonic() < end:
+        node.step(timeout_s=0.002)
+
+
+def drain(listener: Subscriber) -> list:
+    got = []
+    while (message := listener.recv(timeout_s=0.2)) is not None:
+        got.append(message)
+    return got
+
+
+def wait_prepared(node: RobotNode) -> None:
+    node._next_live[1].result(timeout=30.0)  # the first object, prepared at connect
+
+
+def test_a_follow_grasp_is_simulated_live_force_capped_and_released(rig):
+    node, operator, listener, scene = rig
+    wait_prepared(node)
+    cap = scene.settings.gripper.target_force_n
+    # Close to 0 over 1 s (the stress ball stalls at the maximum force), hold, then release.
+    drive(node, operator, lambda t: max(0.0, 0.08 * (1.0 - t)), 1.3)
+    operator.send("command", t_capture_s=time.monotonic(), action="release", grasp_id="g-follow", params={})
+    deadline = time.monotonic() + 5.0
+    while node.busy:
+        assert time.monotonic() < deadline, "the released grasp did not end"
+        node.step(timeout_s=0.002)
+    got = drain(listener)
+    ours = [m for m in got if m.body.get("grasp_id") == "g-follow"]
+    events = [m for m in ours if m.type == "grasp_event"]
+    assert [m.body["event"] for m in events] == ["start", "end"]
+    assert events[0].body["object_name"] == scene.objects[0].name
+    data = [m for m in ours if m.type in ("frame", "force", "width")]
+    assert {m.type for m in data} == {"frame", "force", "width"}
+    assert {m.topic for m in data if m.type == "frame"} == {"frame/left", "frame/right"}
+    assert events[0].t_capture_s <= min(m.t_capture_s for m in data)
+    forces = np.concatenate([m.body["value_n"] for m in data if m.type == "force"])
+    assert 0.9 * cap < forces.max() <= 1.05 * cap  # squeezed to the cap, never beyond (gain error, noise)
+    widths = np.concatenate([m.body["value_m"] for m in data if m.type == "width"])
+    assert widths.min() < 0.05  # closed on the ball
+    assert widths[-1] > 0.07  # opened again
+    notices = [m.body for m in got if m.type == "robot_notice"]
+    assert [n["event"] for n in notices] == ["force_limit"]
+    modes = [m.body["mode"] for m in got if m.type == "robot_state"]
+    assert "following" in modes and "releasing" in modes and modes[-1] == "idle"
+
+
+def test_enable_released_stops_the_fingers(rig):
+    node, operator, listener, _ = rig
+    wait_prepared(node)
+    drive(node, operator, lambda t: 0.08 - 0.05 * t, 0.3)
+    drive(node, operator, lambda t: 0.0, 0.2, enable=False)  # targets without enable do not count
+    held = node.gripper.read_width()[1]
+    drive(node, operator, lambda t: 0.0, 0.3, enable=False)
+    assert node.gripper.read_width()[1] == pytest.approx(held, abs=2e-4)
+    assert held < 0.075 and node.busy  # it had moved; the grasp goes on
+    states = [m.body for m in drain(listener) if m.type == "robot_state"]
+    assert states[-1]["enable"] is False and states[-1]["mode"] == "following"
+
+
+def _killed_console_stops_the_fingers(node: RobotNode, operator: Publisher, listener: Subscriber,
+                                      closing: Callable[[float], float], still_m: float) -> None:
+    """Drive the fingers closing, go silent (the console killed), and check that the fingers stand
+    still from 250 ms after the last follow, with the watchdog's notice and the grasp's end."""
+    last = drive(node, operator, closing, 0.5)
+    moving_from = node.gripper.read_width()[1]
+    while time.monotonic() < last + 0.25:
+        node.step(timeout_s=0.002)
+    stopped = node.gripper.read_width()[1]
+    step_for(node, 0.35)
+    assert abs(moving_from - stopped) > 1e-3, "the fingers were not moving when the console died"
+    assert node.gripper.read_width()[1] == pytest.approx(stopped, abs=still_m)
+    got = drain(listener)
+    notices = [m for m in got if m.type == "robot_notice"]
+    assert [m.body["event"] for m in notices] == ["watchdog"]
+    assert WATCHDOG_S <= notices[0].t_capture_s - last < 0.25
+    assert [m.body["event"] for m in got if m.type == "grasp_event"] == ["start", "end"]
+    assert [m.body["mode"] for m in got if m.type == "robot_state"][-1] == "stopped"
+    assert not node.busy
+
+
+def test_killing_the_console_stops_the_simulated_gripper_within_250_ms(rig):
+    node, operator, listener, _ = rig
+    wait_prepared(node)
+    # Closing at 40 mm/s: still in the air (the stress ball is 63 mm wide) when the console dies.
+    _killed_console_stops_the_fingers(node, operator, listener, lambda t: 0.08 - 0.04 * (t + 0.1), still_m=1e-4)
+
+
+def test_killing_the_console_stops_the_franky_sim_gripper_within_250_ms(franky_sim_robot, monkeypatch):
+    from teleop.devices.franky_gripper import FOLLOW_STEP_S
+    from teleop.devices.gripper import FOLLOW_SPEED_M_S
+    from teleop.devices.playback import SimulatedLoadCell
+
+    # franky-sim stands in for the hand; the simulated load cell, silent without a grasp, for the
+    # bridge (the node tares a hardware cell when it connects).
+    monkeypatch.setattr(SimulatedLoadCell, "tare", lambda self: 0.0)
+
+    def on_franky(settings):
+        gripper = dataclasses.replace(settings.gripper, backend="franky", host=franky_sim_robot.hostname)
+        return dataclasses.replace(settings, gripper=gripper)
+
+    node, operator, listener, _, sockets = _rig(on_franky)
+    try:
+        assert not node.simulated
+        start = node.gripper.read_width()[1]
+        target = 0.0 if start > 0.04 else 0.08
+        # franky-sim's fingers creep toward the last step's goal: within one step at the follow speed.
+        _killed_console_stops_the_fingers(node, operator, listener, lambda t: target,
+                                          still_m=FOLLOW_SPEED_M_S * FOLLOW_STEP_S)
+    finally:
+        node.close()
+        for sock in sockets:
+            sock.close()
+
+
+def test_commands_that_cannot_be_carried_out_are_refused_on_the_bus(rig):
+    node, operator, listener, scene = rig
+    wait_prepared(node)
+    maximum = scene.settings.gripper.target_force_n
+    operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-hard", params={"target_force_n": 500.0})
+    drive(node, operator, lambda t: 0.5, 0.05, grasp_id="g-wide")  # wider than the gripper opens
+    drive(node, operator, lambda t: 0.07, 0.1, grasp_id="g-follow")
+    operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-during", params={})
+    drive(node, operator, lambda t: 0.07, 0.1, grasp_id="g-other")
+    refusals = [m.body for m in drain(listener) if m.type == "robot_notice"]
+    assert [(r["action"], r["grasp_id"]) for r in refusals] == [
+        ("start_grasp", "g-hard"), ("follow", "g-wide"), ("start_grasp", "g-during"), ("follow", "g-other")]
+    assert all(r["event"] == "refused" for r in refusals)
+    assert f"{maximum}" in refusals[0]["reason"] and "open to" in refusals[1]["reason"]
+    assert "in progress" in refusals[2]["reason"] and "g-follow" in refusals[3]["reason"]
+    # After the grasp: its id is spent, and a commanded grasp takes no follows.
+    operator.send("command", t_capture_s=0.0, action="release", grasp_id="g-follow", params={})
+    drive(node, operator, lambda t: 0.07, 0.6, grasp_id=None, enable=False)
+    assert not node.busy
+    drive(node, operator, lambda t: 0.07, 0.05, grasp_id="g-follow")
+    operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-script", params={})
+    step_for(node, 0.05)
+    drive(node, operator, lambda t: 0.07, 0.05, grasp_id=None)
+    reasons = [m.body["reason"] for m in drain(listener) if m.type == "robot_notice"]
+    assert any("has ended" in r for r in reasons) and any("commanded grasp" in r for r in reasons)
+    assert node.stats.bad_commands >= len(refusals) + 2  # repeated follows refused, their notices not repeated
