@@ -1,4 +1,4 @@
-"""``haptics``: the operator's softness display: mapping, HID protocol, devices."""
+"""``haptics``: the operator's side: softness display (mapping, HID protocol, devices), console."""
 
 from __future__ import annotations
 
@@ -12,6 +12,9 @@ COMMANDS: dict[str, Command] = {
     "encode": Command("haptics.encode_cli", "print a set-stiffness output report in hex"),
     "try": Command("haptics.try_cli", "map one modulus and write it to a display"),
     "serve": Command("haptics.service_cli", "render live estimates from the bus on the softness display"),
+    "operate": Command("haptics.operate_cli", "the operator console: drive the gripper (a grasp at a chosen force, "
+                                              "or following the grip while the enable is held) and watch the "
+                                              "force, the live estimate and the display"),
 }
 
 

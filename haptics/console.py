@@ -1,0 +1,295 @@
+"""The operator console: a terminal UI (textual) over :class:`~haptics.operator_link.OperatorLoop`.
+
+It runs over SSH and in tmux, with the keyboard alone. The loop runs in its own thread (it
+sends ``follow`` at 50 Hz and must not wait for the screen); the screen redraws from the loop's
+frozen :class:`~haptics.operator_link.LoopStatus` ten times a second. Panels:
+
+* **live system**: whether the robot node, the estimator and the display's renderer are alive
+  (heard from within three heartbeat periods) and when each was last heard;
+* **grasp**: its id and object, its phase (loading, loaded, ended), the robot's mode and target
+  width, the force (N, with a bar up to the settings' maximum) and the fingers' width;
+* **estimate**: the grasp's newest estimate: E with its interval, its state (a bound reads
+  ``E >= ...``), provisional or final, and the estimator's reason;
+* **display**: what the softness display renders: the fraction of its range and the modulus it
+  stands for, rigid or unknown, the level written of its full scale;
+* **operator**: the input device, the grip as a bar and the target width it asks for, the
+  dead-man enable, the mode (follow, discrete grasp, idle), the discrete grasp's force;
+* **notices**: the robot's last notice (a refused command, the watchdog), and what went wrong on
+  this side (a send that failed), with the operator's last actions;
+* the **keys**.
+
+Keys: with ``--input keyboard`` every key goes to the keyboard input device
+(:mod:`haptics.inputs.keyboard`: up/down squeeze and open, e toggles the enable, g r s n q are the
+buttons). With the other inputs the device drives the grip and enable, and g r s n q still work
+as the buttons from the keyboard. Always: ``+``/``-`` change the discrete grasp's force by 1 N
+(up to the settings' maximum), ctrl+c and ctrl+q quit.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections.abc import Mapping
+from typing import Any
+
+from rich.text import Text
+from textual import events
+from textual.app import App, ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal
+from textual.widgets import Static
+
+from haptics.operator_link import LoopStatus, OperatorLoop
+
+__all__ = ["CONSOLE_BUTTON_KEYS", "OperatorConsole", "estimate_line", "format_pa"]
+
+log = logging.getLogger(__name__)
+
+#: Keys that press a button from the console whatever the input device.
+CONSOLE_BUTTON_KEYS = {"g": "grasp", "r": "release", "s": "stop", "n": "next", "q": "quit"}
+FORCE_STEP_N = 1.0
+REFRESH_S = 0.1
+QUIT_GRACE_S = 1.0  # after quit, the loop thread is told to stop if it has not ended by itself
+BAR_CELLS = 24
+
+
+def format_pa(value: float | None) -> str:
+    """A modulus for people: ``3.6 MPa``, ``9 kPa``, ``200 GPa``; ``-`` for None."""
+    if value is None or not math.isfinite(value):
+        return "-"
+    for scale, unit in ((1e9, "GPa"), (1e6, "MPa"), (1e3, "kPa")):
+        if value >= scale:
+            return f"{value / scale:.3g} {unit}"
+    return f"{value:.3g} Pa"
+
+
+def estimate_line(estimate: Mapping[str, Any] | None) -> str:
+    """The estimate in one line: ``E = 3.6 MPa  [2 MPa, 6 MPa]  ok  final``, a bound as ``E >= ...``."""
+    if estimate is None:
+        return "no estimate yet"
+    state = estimate["state"]
+    kind = "provisional" if estimate["provisional"] else "final"
+    if estimate["E_pa"] is None:
+        return f"no modulus ({state.replace('_', ' ')})  {kind}"
+    sign = {"lower_bound": ">=", "upper_bound": "<="}.get(state, "=")
+    low, high = estimate["interval_pa"]
+    interval = ""
+    if low is not None or high is not None:
+        interval = f"  interval [{format_pa(low) if low else '-'}, {format_pa(high) if high else '-'}]"
+    return f"E {sign} {format_pa(estimate['E_pa'])}{interval}  {state}  {kind}"
+
+
+def _bar(fraction: float | None, cells: int = BAR_CELLS) -> str:
+    if fraction is None:
+        return "[" + " " * cells + "]"
+    filled = round(min(max(fraction, 0.0), 1.0) * cells)
+    return "[" + "#" * filled + "-" * (cells - filled) + "]"
+
+
+def _mm(width_m: float | None) -> str:
+    return "-" if width_m is None else f"{width_m * 1e3:.1f} mm"
+
+
+def _ago(seconds: float | None) -> str:
+    return "never heard" if seconds is None else f"heard {seconds:.1f} s ago"
+
+
+class OperatorConsole(App):
+    """The console's screen over a running :class:`OperatorLoop` (module docstring).
+
+    Parameters
+    ----------
+    loop : OperatorLoop
+        The loop to run (in a thread of this app, unless ``run_loop`` is False) and to show.
+    input_name : str
+        The input backend's name, for the screen.
+    keyboard : object, optional
+        The keyboard input device (with ``press(key) -> bool``): every key goes to it first.
+    run_loop : bool
+        Run ``loop`` in a thread while the app runs (False: something else steps it).
+    duration_s : float, optional
+        Quit after this many seconds.
+
+    ``exit_status`` after the run: the loop's last :class:`LoopStatus`.
+    """
+
+    TITLE = "haptics operate"
+    CSS = """
+    Screen { layout: vertical; overflow-y: auto; }
+    .row { height: auto; width: 100%; }
+    .panel { border: round $primary; padding: 0 1; height: auto; width: 1fr; }
+    #keys { color: $text-muted; padding: 0 1; height: auto; }
+    """
+    BINDINGS = [
+        Binding("ctrl+c", "quit_console", "Quit", priority=True, show=False),
+        Binding("ctrl+q", "quit_console", "Quit", priority=True, show=False),
+    ]
+    PANELS = (("alive", "live system"), ("grasp", "grasp"), ("estimate", "estimate"), ("display", "display"),
+              ("input", "operator"), ("notice", "notices"))
+
+    def __init__(self, loop: OperatorLoop, *, input_name: str, keyboard: Any = None, run_loop: bool = True,
+                 duration_s: float | None = None):
+        super().__init__()
+        self.duration_s = duration_s
+        self.loop = loop
+        self.input_name = input_name
+        self.keyboard = keyboard
+        self.run_loop = run_loop
+        self.exit_status: LoopStatus | None = None
+        self.loop_error = ""
+        self.texts: dict[str, str] = {}  # each panel's text as last drawn (for tests and logs)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ layout
+
+    def compose(self) -> ComposeResult:
+        names = [name for name, _ in self.PANELS]
+        for row in (names[0:2], names[2:4], names[4:6]):
+            with Horizontal(classes="row"):
+                for name in row:
+                    panel = Static("", id=name, classes="panel", markup=False)
+                    panel.border_title = dict(self.PANELS)[name]
+                    yield panel
+        yield Static(self._legend(), id="keys", markup=False)
+
+    def on_mount(self) -> None:
+        self.sub_title = f"input {self.input_name}"
+        if self.run_loop:
+            self._thread = threading.Thread(target=self._run_loop, name="operator-loop", daemon=True)
+            self._thread.start()
+        self.redraw()
+        self.set_interval(REFRESH_S, self.redraw)
+        if self.duration_s is not None:
+            self.set_timer(self.duration_s, self.action_quit_console)
+
+    def _run_loop(self) -> None:
+        try:
+            self.loop.run(self._stop)  # the screen's timer sees the loop end (status.quit) and exits
+        except Exception as exc:  # a bug: shown on the screen, which stays up until quit
+            log.exception("the operator loop stopped")
+            self.loop_error = f"the operator loop stopped: {type(exc).__name__}: {exc}"
+
+    def stop_loop(self, timeout_s: float = 2.0) -> bool:
+        """Stop the loop's thread (the loop lets the enable go on its way out) and wait for it;
+        whether it has stopped (or never ran)."""
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=timeout_s)
+        return self._thread is None or not self._thread.is_alive()
+
+    async def on_unmount(self) -> None:
+        self.stop_loop()
+
+    # ------------------------------------------------------------------ keys
+
+    def on_key(self, event: events.Key) -> None:
+        key = event.key
+        event.stop()
+        if key == "q":  # whatever the input, and even if the loop has stopped stepping
+            self.action_quit_console()
+            return
+        if self.keyboard is not None and self.keyboard.press(key):
+            return
+        character = event.character or ""
+        if character in ("+", "=") or key in ("plus", "equals_sign"):
+            self.loop.set_force(self.loop.force_n + FORCE_STEP_N)
+        elif character == "-" or key in ("minus", "hyphen"):
+            self.loop.set_force(self.loop.force_n - FORCE_STEP_N)
+        elif self.keyboard is None and key in CONSOLE_BUTTON_KEYS:
+            self.loop.press(CONSOLE_BUTTON_KEYS[key])
+        self.redraw()
+
+    def action_quit_console(self) -> None:
+        self.loop.press("quit")
+        self.set_timer(QUIT_GRACE_S, self._stop.set)  # in case the loop no longer steps
+
+    # ------------------------------------------------------------------ drawing
+
+    def _legend(self) -> str:
+        if self.keyboard is not None:
+            drive = ("keys: up/k squeeze  down/j open  o open fully  e enable on/off (dead-man)  |  "
+                     "g grasp  r release  s stop  n next object  q quit  |  +/- grasp force")
+        else:
+            drive = (f"the {self.input_name} input drives grip and enable  |  keys: g grasp  r release  s stop  "
+                     "n next object  q quit  |  +/- grasp force")
+        return (drive + "\ntwo ways to drive: g grasps at the chosen force (discrete); holding the enable "
+                "makes the fingers follow the grip (continuous), letting it go stops them")
+
+    def redraw(self) -> None:
+        status = self.loop.status
+        texts = self.render_status(status)
+        for name, _ in self.PANELS:
+            text = texts[name]
+            if self.texts.get(name) != text:
+                self.query_one(f"#{name}", Static).update(Text(text))
+        self.texts = texts
+        ended = status.quit or self._stop.is_set()
+        if ended and (self._thread is None or not self._thread.is_alive()):
+            status = self.loop.status  # as the loop left it
+            self.exit_status = status
+            self.exit(status)
+
+    def render_status(self, status: LoopStatus) -> dict[str, str]:
+        """Each panel's text for ``status``."""
+        view = status.view
+        max_force = self.loop.settings.gripper.target_force_n
+        alive = "\n".join(f"{'UP  ' if p.alive else 'DOWN'}  {p.name:<11} {_ago(p.seen_ago_s)}" for p in view.peers)
+        robot = view.robot or {}
+        grasp = [
+            f"grasp  {view.grasp_id or '-'}" + (f"  ({view.object_name})" if view.object_name else ""),
+            f"phase  {view.phase}",
+            f"robot  {robot.get('mode', '-')}" + (f"  target {_mm(robot.get('target_width_m'))}"
+                                                   if robot.get("target_width_m") is not None else ""),
+            f"force  {_bar(None if view.force_n is None else view.force_n / max_force, 16)} "
+            + ("-" if view.force_n is None else f"{view.force_n:.1f} N"),
+            f"width  {_mm(view.width_m)}",
+        ]
+        estimate = view.estimate
+        lines = [estimate_line(estimate)]
+        if estimate is not None:
+            lines.append(f"{view.estimates} estimate(s) for this grasp, method {estimate['method']}")
+            lines.append(f"reason: {estimate['reason']}")
+        shown = view.display
+        if shown is None:
+            display = ["nothing rendered yet"]
+        else:
+            level = (f"  level {shown['level']}/{shown['level_max']}" if shown.get("level") is not None else "")
+            if shown["unknown"]:
+                what = "unknown (the display says it cannot tell)"
+            elif shown["rigid"]:
+                what = "RIGID (at or beyond the sensor's resolution limit)"
+            elif shown["phase"] == "idle":
+                what = "free (idle)"
+            else:
+                what = f"stiffness {shown['stiffness']:.2f} of range = E {format_pa(shown['E_pa'])}"
+            display = [
+                f"{what}{level}",
+                f"{_bar(view.stiffness)}",
+                f"phase {shown['phase']}  {'provisional' if shown['provisional'] else 'final'}  "
+                f"+/- {shown['uncertainty_decades']:.2f} decade",
+            ]
+        felt = "-" if status.operator_force_n is None else f"{status.operator_force_n:.1f} N"
+        operator = [
+            f"input  {self.input_name}   mode {status.mode}   enable {'HELD' if status.enable else 'off'}",
+            f"grip   {_bar(status.grip)} {status.grip:.2f} -> target {_mm(status.target_width_m)}",
+            f"grasp force {status.force_n:g} N (max {max_force:g})   hand force {felt}",
+            f"sent   {status.follows_sent} follow, {status.commands_sent} command",
+        ]
+        notice_lines = []
+        if view.notice is not None:
+            n = view.notice
+            ago = "" if view.notice_t_s is None else f" ({max(0.0, view.t_s - view.notice_t_s):.1f} s ago)"
+            notice_lines.append(f"robot {n['event']}{ago}: {n['action']} {n.get('grasp_id') or ''} - {n['reason']}")
+        else:
+            notice_lines.append("robot: no notice")
+        if self.loop_error:
+            notice_lines.append(self.loop_error + " (q quits)")
+        if status.problem:
+            notice_lines.append(f"problem: {status.problem}")
+        if view.refused:
+            notice_lines.append(f"{view.refused} bus message(s) refused (see the log)")
+        notice_lines.append("last: " + ("  |  ".join(status.log[-3:]) or "-"))
+        return {"alive": alive, "grasp": "\n".join(grasp), "estimate": "\n".join(lines),
+                "display": "\n".join(display), "input": "\n".join(operator), "notice": "\n".join(notice_lines)}

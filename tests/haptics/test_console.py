@@ -1,0 +1,200 @@
+"""The operator console (:mod:`haptics.console`): driven by textual's pilot against a fake link."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import json
+import time
+
+import pytest
+
+from haptics.console import OperatorConsole, estimate_line, format_pa
+from haptics.inputs.keyboard import KeyboardInput
+from haptics.operator_link import PEERS, OperatorLoop, OperatorView, Peer
+from teleop.settings import load_settings
+
+NOBODY = tuple(Peer(name, source, False, None) for name, source in PEERS)
+
+
+class FakeLink:
+    def __init__(self):
+        self.view = OperatorView(t_s=time.monotonic(), peers=NOBODY)
+        self.sent: list[tuple[str, dict]] = []
+        self.follows_sent = self.commands_sent = 0
+
+    def poll(self, timeout_s: float = 0.0) -> int:
+        time.sleep(timeout_s)
+        return 0
+
+    def follow(self, target_width_m, *, enable, grasp_id=None):
+        self.follows_sent += 1
+        self.sent.append(("follow", {"target_width_m": target_width_m, "enable": enable, "grasp_id": grasp_id}))
+
+    def _command(self, action, **body):
+        self.commands_sent += 1
+        self.sent.append((action, body))
+
+    def start_grasp(self, *, target_force_n, grasp_id=None):
+        self._command("start_grasp", target_force_n=target_force_n, grasp_id=grasp_id)
+
+    def stop(self, grasp_id=None):
+        self._command("stop", grasp_id=grasp_id)
+
+    def release(self, grasp_id=None):
+        self._command("release", grasp_id=grasp_id)
+
+    def clear(self):
+        self._command("clear")
+        self.view = OperatorView(t_s=time.monotonic())
+
+    def kinds(self) -> list[str]:
+        return [kind for kind, _ in self.sent]
+
+
+ESTIMATE = {"grasp_id": "g", "method": "hybrid", "E_pa": 3.6e6, "interval_pa": [2.0e6, 6.0e6], "state": "ok",
+            "reason": "loading phase 0.12-0.41 s (the first squeeze)", "provisional": False, "latency_s": 0.01}
+DISPLAY = {"grasp_id": "g", "phase": "active", "stiffness": 0.87, "uncertainty_decades": 0.3, "rigid": False,
+           "unknown": False, "provisional": False, "E_pa": 3.6e6, "level": 55, "level_max": 63}
+
+
+def test_estimates_and_moduli_read_as_people_write_them():
+    assert format_pa(3.6e6) == "3.6 MPa" and format_pa(9e3) == "9 kPa" and format_pa(2e11) == "200 GPa"
+    assert format_pa(None) == "-" and format_pa(12.0) == "12 Pa"
+    assert estimate_line(None) == "no estimate yet"
+    assert estimate_line(ESTIMATE) == "E = 3.6 MPa  interval [2 MPa, 6 MPa]  ok  final"
+    bound = {**ESTIMATE, "state": "lower_bound", "E_pa": 6.75e6, "interval_pa": [6.75e6, None], "provisional": True}
+    assert estimate_line(bound) == "E >= 6.75 MPa  interval [6.75 MPa, -]  lower_bound  provisional"
+    none = {**ESTIMATE, "state": "insufficient_data", "E_pa": None, "interval_pa": [None, None]}
+    assert estimate_line(none) == "no modulus (insufficient data)  final"
+
+
+async def _until(predicate, pilot, timeout_s: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        await pilot.pause(0.05)
+
+
+def test_a_session_with_the_keyboard_in_the_console():
+    settings = load_settings()
+    link = FakeLink()
+
+    async def session() -> OperatorConsole:
+        with KeyboardInput(grip_step=0.25) as keyboard:
+            loop = OperatorLoop(link, keyboard, settings, force_n=10.0)
+            app = OperatorConsole(loop, input_name="keyboard", keyboard=keyboard)
+            async with app.run_test(size=(120, 40)) as pilot:
+                await _until(lambda: "DOWN  robot node" in app.texts.get("alive", ""), pilot)
+                assert "no estimate yet" in app.texts["estimate"] and "up/k squeeze" in str(
+                    app.query_one("#keys").render())
+                # a discrete grasp at the chosen force, raised by one newton with "+"
+                await pilot.press("plus", "g")
+                await _until(lambda: "start_grasp" in link.kinds(), pilot)
+                assert link.sent[-1][1]["target_force_n"] == 11.0
+                grasp_id = link.sent[-1][1]["grasp_id"]
+                peers = (Peer("robot node", "robot", True, 0.1), Peer("estimator", "estimator", True, 0.2),
+                         Peer("display", "renderer", False, 4.0))
+                link.view = OperatorView(t_s=time.monotonic(), peers=peers, grasp_id=grasp_id, phase="loaded",
+                                         object_name="rubber_duck", force_n=11.0, width_m=0.0312,
+                                         robot={"mode": "holding", "grasp_id": grasp_id, "target_width_m": None,
+                                                "enable": False},
+                                         estimate={**ESTIMATE, "grasp_id": grasp_id}, estimates=7, display=DISPLAY,
+                                         notice={"event": "refused", "action": "follow", "grasp_id": grasp_id,
+                                                 "reason": "a discrete grasp is under way"},
+                                         notice_t_s=time.monotonic())
+                await _until(lambda: "E = 3.6 MPa" in app.texts["estimate"], pilot)
+                texts = app.texts
+                assert "UP    robot node" in texts["alive"] and "DOWN  display" in texts["alive"]
+                assert "rubber_duck" in texts["grasp"] and "31.2 mm" in texts["grasp"] and "11.0 N" in texts["grasp"]
+                assert "loading phase 0.12-0.41 s" in texts["estimate"] and "7 estimate(s)" in texts["estimate"]
+                assert "stiffness 0.87 of range" in texts["display"] and "level 55/63" in texts["display"]
+                assert "refused" in texts["notice"] and "a discrete grasp is under way" in texts["notice"]
+                assert "mode discrete" in texts["input"]
+                await pilot.press("r")
+                await _until(lambda: link.kinds()[-1] == "release", pilot)
+                assert link.sent[-1][1]["grasp_id"] == grasp_id
+                # leader-follower: squeeze two steps, hold the enable: follows at the grip's width
+                link.view = dataclasses.replace(link.view, phase="ended")
+                await pilot.press("up", "up", "e")
+                await _until(lambda: link.follows_sent >= 10, pilot)
+                follow = link.sent[-1][1]
+                assert follow["enable"] and follow["target_width_m"] == pytest.approx(0.04)
+                assert "enable HELD" in app.texts["input"] and "mode follow" in app.texts["input"]
+                await pilot.press("e")  # let go
+                await _until(lambda: link.sent[-1][1].get("enable") is False, pilot)
+                await pilot.press("n", "q")
+                await _until(lambda: app.exit_status is not None, pilot)
+        return app
+
+    app = asyncio.run(session())
+    assert app.exit_status.quit and "clear" in link.kinds()
+    assert app._thread is not None and not app._thread.is_alive()
+
+
+def test_other_inputs_still_take_the_buttons_and_q_or_ctrl_c_quits():
+    settings = load_settings()
+    link = FakeLink()
+
+    class Still:
+        """An input device nobody touches."""
+
+        def read(self, *, timeout_s):
+            from haptics.inputs import OperatorInput
+
+            return OperatorInput(t_s=time.monotonic(), grip=0.0, enable=False)
+
+        def feel(self, **_):
+            pass
+
+    async def session() -> OperatorConsole:
+        loop = OperatorLoop(link, Still(), settings)
+        app = OperatorConsole(loop, input_name="gamepad")
+        async with app.run_test(size=(100, 30)) as pilot:
+            await pilot.press("g", "s")
+            await _until(lambda: link.kinds() == ["start_grasp", "stop"], pilot)
+            assert "gamepad input drives grip and enable" in str(app.query_one("#keys").render())
+            await pilot.press("q")
+            await _until(lambda: app.exit_status is not None, pilot)
+        return app
+
+    assert asyncio.run(session()).exit_status.quit
+
+    async def interrupted() -> OperatorConsole:
+        app = OperatorConsole(OperatorLoop(FakeLink(), Still(), settings), input_name="gamepad")
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("ctrl+c")
+            await _until(lambda: app.exit_status is not None, pilot)
+        return app
+
+    assert asyncio.run(interrupted()).exit_status.quit
+
+
+# --------------------------------------------------------------------------- the command
+
+
+def _endpoints() -> list[str]:
+    from teleop.system.demo import free_ports
+
+    names = ("--robot-pub", "--estimate-pub", "--command", "--display-pub")
+    return [a for name, port in zip(names, free_ports(4), strict=True) for a in (name, f"tcp://127.0.0.1:{port}")]
+
+
+def test_operate_headless_with_the_simulated_operator(capsys):
+    from haptics.cli import main
+
+    assert main(["operate", "--headless", "--input", "sim", "--duration-s", "0.6", "--json", *_endpoints()]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    result = json.loads(out[-1])
+    # the simulated operator holds the enable and squeezes: follows at about 50 Hz, nobody listening
+    assert result["input"] == "sim" and 5 <= result["follows_sent"] <= 35 and result["problem"] is None
+    assert out[0].startswith("follow ")
+
+
+def test_operate_refuses_a_force_beyond_the_maximum_and_a_missing_terminal(capsys):
+    from haptics.cli import main
+
+    assert main(["operate", "--headless", "--force", "80", *_endpoints()]) == 2
+    assert "--force 80: expected a force in (0, 30] N" in capsys.readouterr().err
+    assert main(["operate", "--input", "keyboard", *_endpoints()]) == 2  # pytest's stdin is no terminal
+    assert "needs a terminal" in capsys.readouterr().err

@@ -1,0 +1,365 @@
+"""The operator's bus link and loop (:mod:`haptics.operator_link`): the loop against fakes, the link on loopback."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from haptics.operator_link import RELEASE_FOLLOWS, OperatorLink, OperatorLoop, OperatorView
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.operator import FOLLOW_RATE_HZ
+from teleop.settings import load_settings
+
+
+@dataclass(frozen=True)
+class Reading:
+    """An operator input reading (the fields of haptics.inputs.OperatorInput)."""
+
+    t_s: float
+    grip: float = 0.0
+    enable: bool = False
+    force_n: float | None = None
+    buttons: frozenset[str] = frozenset()
+
+
+class FakeDevice:
+    def __init__(self, clock):
+        self.clock = clock
+        self.grip = 0.0
+        self.enable = False
+        self.buttons: set[str] = set()
+        self.felt: list[tuple[float, float, float | None]] = []
+
+    def read(self, *, timeout_s: float) -> Reading:
+        pressed, self.buttons = frozenset(self.buttons), set()
+        return Reading(self.clock(), self.grip, self.enable, None, pressed)
+
+    def feel(self, *, force_n: float, width_m: float, stiffness: float | None) -> None:
+        self.felt.append((force_n, width_m, stiffness))
+
+
+class FakeLink:
+    """Records what the loop sends, with the fake clock's time."""
+
+    def __init__(self, clock):
+        self.clock = clock
+        self.view = OperatorView(t_s=0.0)
+        self.sent: list[tuple[float, str, dict]] = []
+        self.cleared = 0
+
+    def poll(self, timeout_s: float = 0.0) -> int:
+        return 0
+
+    def follow(self, target_width_m, *, enable, grasp_id=None):
+        self.sent.append((self.clock(), "follow", {"target_width_m": target_width_m, "enable": enable,
+                                                   "grasp_id": grasp_id}))
+
+    def start_grasp(self, *, target_force_n, grasp_id=None):
+        self.sent.append((self.clock(), "start_grasp", {"target_force_n": target_force_n, "grasp_id": grasp_id}))
+
+    def stop(self, grasp_id=None):
+        self.sent.append((self.clock(), "stop", {"grasp_id": grasp_id}))
+
+    def release(self, grasp_id=None):
+        self.sent.append((self.clock(), "release", {"grasp_id": grasp_id}))
+
+    def clear(self):
+        self.cleared += 1
+        self.view = OperatorView(t_s=self.clock())
+
+    def kinds(self) -> list[str]:
+        return [kind for _, kind, _ in self.sent]
+
+
+class Clock:
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+@pytest.fixture
+def rig():
+    clock = Clock()
+    link, device = FakeLink(clock), FakeDevice(clock)
+    loop = OperatorLoop(link, device, load_settings(), force_n=12.0, clock=clock)
+    return clock, link, device, loop
+
+
+def run_for(clock: Clock, loop: OperatorLoop, seconds: float, tick_s: float = 0.001) -> None:
+    end = clock.t + seconds
+    while clock.t < end - 1e-9:
+        loop.step()
+        clock.t += tick_s
+
+
+def test_follow_goes_out_at_the_rate_while_enable_is_held(rig):
+    clock, link, device, loop = rig
+    device.grip, device.enable = 0.25, True
+    run_for(clock, loop, 1.0)
+    follows = [(t, body) for t, kind, body in link.sent if kind == "follow"]
+    assert abs(len(follows) - FOLLOW_RATE_HZ) <= 1
+    gaps = np.diff([t for t, _ in follows])
+    assert gaps.max() <= 1.0 / FOLLOW_RATE_HZ + 0.0011 and gaps.min() >= 1.0 / FOLLOW_RATE_HZ - 0.0011
+    assert all(b["enable"] and b["target_width_m"] == pytest.approx(0.08 * 0.75) for _, b in follows)
+    assert len({b["grasp_id"] for _, b in follows}) == 1 and follows[0][1]["grasp_id"].startswith("op-")
+    assert loop.status.mode == "follow" and loop.status.enable
+    # The grip moves the target within one period.
+    device.grip = 1.0
+    run_for(clock, loop, 0.03)
+    assert link.sent[-1][2]["target_width_m"] == 0.0
+
+
+def test_no_follow_without_enable_and_a_few_disabled_ones_when_let_go(rig):
+    clock, link, device, loop = rig
+    device.grip = 0.8
+    run_for(clock, loop, 0.5)
+    assert link.sent == [] and loop.status.mode == "idle"
+    device.enable = True
+    run_for(clock, loop, 0.2)
+    held = len(link.sent)
+    device.enable = False
+    run_for(clock, loop, 0.5)
+    after = [b for _, _, b in link.sent[held:]]
+    assert len(after) == RELEASE_FOLLOWS and not any(b["enable"] for b in after)
+    assert {b["grasp_id"] for b in after} == {link.sent[0][2]["grasp_id"]}
+    assert not loop.status.enable
+
+
+def test_buttons_become_commands(rig):
+    clock, link, device, loop = rig
+    device.buttons = {"grasp"}
+    loop.step()
+    assert link.sent[-1][1:] == ("start_grasp", {"target_force_n": 12.0, "grasp_id": loop.status.grasp_id})
+    grasp_id = loop.status.grasp_id
+    assert loop.status.mode == "discrete"
+    for button in ("stop", "release"):
+        device.buttons = {button}
+        loop.step()
+        assert link.sent[-1][1:] == (button, {"grasp_id": grasp_id})
+    # next: releases a grasp still under way, clears the view, forgets the grasp
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loaded")
+    device.buttons = {"next"}
+    loop.step()
+    assert link.kinds()[-1] == "release" and link.cleared == 1 and loop.status.grasp_id is None
+    loop.press("grasp")  # from another thread, as the console's keys do
+    loop.step()
+    assert link.kinds()[-1] == "start_grasp" and loop.status.grasp_id != grasp_id
+    device.buttons = {"quit"}
+    assert loop.run(duration_s=5.0).quit
+
+
+def test_a_follow_grasp_gets_a_new_id_after_the_robot_ended_it(rig):
+    clock, link, device, loop = rig
+    device.enable = True
+    run_for(clock, loop, 0.1)
+    first = link.sent[-1][2]["grasp_id"]
+    device.enable = False
+    run_for(clock, loop, 0.1)
+    link.view = OperatorView(t_s=clock(), grasp_id=first, phase="loading")
+    device.enable = True
+    run_for(clock, loop, 0.1)
+    assert link.sent[-1][2]["grasp_id"] == first  # paused and resumed: the same grasp
+    device.enable = False
+    run_for(clock, loop, 0.1)
+    link.view = OperatorView(t_s=clock(), grasp_id=first, phase="ended")
+    run_for(clock, loop, 0.01)
+    device.enable = True
+    run_for(clock, loop, 0.1)
+    assert link.sent[-1][2]["grasp_id"] not in (first, None)
+
+
+def test_the_robot_state_goes_back_to_the_device(rig):
+    clock, link, device, loop = rig
+    loop.step()
+    assert device.felt[-1] == (0.0, 0.08, None)  # nothing heard yet: open, no force, nothing rendered
+    display = {"phase": "active", "stiffness": 0.4, "rigid": False, "unknown": False}
+    link.view = OperatorView(t_s=clock(), force_n=3.5, width_m=0.03, display=display)
+    loop.step()
+    assert device.felt[-1] == (3.5, 0.03, 0.4)
+    link.view = dataclasses.replace(link.view, display={**display, "rigid": True, "stiffness": 1.0})
+    loop.step()
+    assert device.felt[-1][2] == 1.0
+
+
+def test_force_beyond_the_settings_maximum_is_refused():
+    clock = Clock()
+    with pytest.raises(ValueError, match=r"maximum grasp force"):
+        OperatorLoop(FakeLink(clock), FakeDevice(clock), load_settings(), force_n=500.0)
+    with pytest.raises(ValueError, match=r"button"):
+        OperatorLoop(FakeLink(clock), FakeDevice(clock), load_settings()).press("launch")
+
+
+def test_a_failed_send_is_shown_and_the_loop_goes_on(rig):
+    from teleop.errors import BusTimeoutError
+
+    clock, link, device, loop = rig
+
+    def refuse(**_):
+        raise BusTimeoutError("no room for 'command'")
+
+    link.start_grasp = refuse
+    device.buttons = {"grasp"}
+    loop.step()
+    assert "no room" in loop.status.problem and loop.status.mode == "idle"
+    device.buttons = {"stop"}
+    loop.step()
+    assert link.kinds() == ["stop"]
+
+
+# --------------------------------------------------------------------------- the link on loopback
+
+
+def _wait(predicate, link: OperatorLink, timeout_s: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate(link.view):
+        assert time.monotonic() < deadline, link.view
+        link.poll(0.02)
+
+
+def test_the_link_keeps_the_latest_of_each_and_who_is_alive():
+    settings = load_settings()
+    bus = dataclasses.replace(settings.bus, command="tcp://127.0.0.1:*", heartbeat_s=0.1)
+    with (
+        Publisher("tcp://127.0.0.1:*", lossless=True, source="robot", heartbeat_s=0.1) as robot,
+        Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator", heartbeat_s=0.1) as estimator,
+        Publisher("tcp://127.0.0.1:*", lossless=False, source="renderer", heartbeat_s=0.1) as renderer,
+    ):
+        bus = dataclasses.replace(bus, robot_pub=robot.endpoint, estimate_pub=estimator.endpoint,
+                                  display_pub=renderer.endpoint)
+        with OperatorLink.from_settings(bus) as link:
+            robot.wait_for_subscriber("grasp_event", "force")
+            estimator.wait_for_subscriber("estimate")
+            renderer.wait_for_subscriber("display")
+            for publisher in (robot, estimator, renderer):
+                publisher.heartbeat_if_due()
+            _wait(lambda v: all(p.alive for p in v.peers), link)
+            assert link.view.phase == "idle" and link.view.grasp_id is None
+            t = time.monotonic()
+            robot.send("grasp_event", t_capture_s=t, event="start", grasp_id="g1", object_name="duck")
+            robot.send("force", t_capture_s=t, grasp_id="g1", t_s=np.array([t, t]), value_n=np.array([1.0, 2.5]))
+            robot.send("width", t_capture_s=t, grasp_id="g1", t_s=np.array([t]), value_m=np.array([0.031]))
+            estimator.send("estimate", t_capture_s=t, grasp_id="g1", method="hybrid", E_pa=3.6e6,
+                           interval_pa=[2e6, 6e6], state="ok", reason="loading phase 0.1-0.4 s", provisional=True,
+                           latency_s=0.01)
+            renderer.send("display", t_capture_s=t, grasp_id="g1", phase="active", stiffness=0.9,
+                          uncertainty_decades=0.3, rigid=False, unknown=False, provisional=True, E_pa=3.6e6,
+                          level=57, level_max=63)
+            _wait(lambda v: v.estimate is not None and v.display is not None and v.width_m is not None, link)
+            view = link.view
+            assert (view.grasp_id, view.object_name, view.phase) == ("g1", "duck", "loading")
+            assert view.force_n == 2.5 and view.width_m == 0.031 and view.estimate["E_pa"] == 3.6e6
+            assert view.stiffness == 0.9 and view.estimates == 1
+            robot.send("robot_state", t_capture_s=t, mode="following", grasp_id="g1", target_width_m=0.03,
+                       enable=True)
+            robot.send("robot_notice", t_capture_s=t, event="watchdog", action="follow", grasp_id="g1",
+                       reason="no follow for 0.2 s: fingers stopped")
+            robot.send("grasp_event", t_capture_s=t, event="end", grasp_id="g1", object_name="duck")
+            _wait(lambda v: v.phase == "ended", link)
+            assert link.view.robot["mode"] == "following" and link.view.notice["event"] == "watchdog"
+            assert link.view.notice_t_s is not None
+            link.clear()
+            assert link.view.grasp_id is None and link.view.estimate is None and link.view.phase == "idle"
+            # what the cleared grasp still sends stays out of the view
+            estimator.send("estimate", t_capture_s=t, grasp_id="g1", method="hybrid", E_pa=3.5e6,
+                           interval_pa=[2e6, 6e6], state="ok", reason="final", provisional=False, latency_s=0.01)
+            robot.send("grasp_event", t_capture_s=t, event="end", grasp_id="g1", object_name="duck")
+            robot.send("grasp_event", t_capture_s=t, event="start", grasp_id="g2", object_name="ball")
+            _wait(lambda v: v.grasp_id == "g2", link)
+            assert link.view.estimate is None and link.view.phase == "loading"
+            # the estimator goes quiet: shown dead after three heartbeat periods
+            deadline = time.monotonic() + 0.5
+            while time.monotonic() < deadline:
+                robot.heartbeat_if_due()
+                renderer.heartbeat_if_due()
+                link.poll(0.02)
+            assert link.view.alive("robot node") and link.view.alive("display") and not link.view.alive("estimator")
+
+
+def test_the_link_sends_follows_and_commands():
+    settings = load_settings()
+    bus = dataclasses.replace(settings.bus, command="tcp://127.0.0.1:*")
+    with (
+        OperatorLink.from_settings(bus) as link,
+        Subscriber(link.publisher.endpoint, ("follow", "command")) as robot,
+    ):
+        link.publisher.wait_for_subscriber("follow", "command")
+        link.follow(0.05, enable=True, grasp_id="g1")
+        link.start_grasp(target_force_n=10.0, grasp_id="g2")
+        link.release("g2")
+        got = [robot.recv(timeout_s=2.0) for _ in range(3)]
+    assert [m.type for m in got] == ["follow", "command", "command"]
+    assert dict(got[0].body) == {"grasp_id": "g1", "target_width_m": 0.05, "enable": True}
+    assert got[1].body["action"] == "start_grasp" and got[1].body["params"] == {"target_force_n": 10.0}
+    assert got[2].body["action"] == "release" and got[0].source == "operator"
+
+
+def test_the_loop_runs_in_a_thread_and_stops(rig):
+    clock, link, device, loop = rig
+    real = OperatorLoop(link, device, load_settings())
+    stop = threading.Event()
+    thread = threading.Thread(target=real.run, args=(stop,))
+    thread.start()
+    real.press("quit")
+    thread.join(timeout=2.0)
+    assert not thread.is_alive() and real.status.quit
+
+
+def test_after_a_stop_or_the_grasps_end_the_enable_must_be_held_anew(rig):
+    clock, link, device, loop = rig
+    device.enable, device.grip = True, 0.5
+    run_for(clock, loop, 0.1)
+    grasp_id = link.sent[-1][2]["grasp_id"]
+    device.buttons = {"stop"}
+    run_for(clock, loop, 0.2)
+    stop = link.kinds().index("stop")
+    assert "suspended" in loop.status.mode and not loop.status.enable
+    assert [b["enable"] for _, _, b in link.sent[stop + 1:]] == [False] * RELEASE_FOLLOWS
+    device.enable = False
+    run_for(clock, loop, 0.05)
+    device.enable = True
+    run_for(clock, loop, 0.1)
+    assert link.sent[-1][2] == {"target_width_m": 0.04, "enable": True, "grasp_id": grasp_id}
+    # the robot ends the grasp (its watchdog, say) while the enable is still held: nothing more
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="ended")
+    run_for(clock, loop, 0.2)
+    sent = len(link.sent)
+    run_for(clock, loop, 0.3)
+    assert len(link.sent) == sent
+    device.enable = False
+    run_for(clock, loop, 0.05)
+    device.enable = True
+    run_for(clock, loop, 0.05)
+    assert link.sent[-1][2]["enable"] and link.sent[-1][2]["grasp_id"] not in (grasp_id, None)
+
+
+def test_follows_go_on_without_the_enable_while_the_robot_runs_the_grasp(rig):
+    """A paused operator keeps the grasp: the robot's watchdog must only fire when the console dies."""
+    clock, link, device, loop = rig
+    device.enable, device.grip = True, 0.5
+    run_for(clock, loop, 0.1)
+    grasp_id = link.sent[-1][2]["grasp_id"]
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loading",
+                             robot={"mode": "following", "grasp_id": grasp_id, "target_width_m": 0.04,
+                                    "enable": True})
+    device.enable = False
+    run_for(clock, loop, 1.0)
+    paused = [(t, b) for t, kind, b in link.sent if kind == "follow" and not b["enable"]]
+    assert abs(len(paused) - FOLLOW_RATE_HZ) <= 1 and {b["grasp_id"] for _, b in paused} == {grasp_id}
+    assert loop.status.mode == "follow (paused)"
+    device.enable = True  # resumes the same grasp
+    run_for(clock, loop, 0.05)
+    assert link.sent[-1][2] == {"target_width_m": 0.04, "enable": True, "grasp_id": grasp_id}
+    device.enable = False
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="ended",
+                             robot={"mode": "idle", "grasp_id": None, "target_width_m": None, "enable": False})
+    run_for(clock, loop, 0.2)
+    sent = len(link.sent)
+    run_for(clock, loop, 0.5)
+    assert len(link.sent) == sent and loop.status.mode == "idle"
