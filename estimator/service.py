@@ -16,7 +16,9 @@ endpoint. Per grasp (from a ``grasp_event`` *start* to its *end*):
   the data show the end; or at the grasp's end if that comes first. A leader-follower grasp
   (the robot's ``robot_state`` says ``following`` for it: an operator drives the fingers) gets
   provisional estimates for every frame while the operator squeezes, and its final one at the
-  grasp's end (:meth:`~estimator.stream.GraspStream.mark_follow`). With a model loaded the
+  grasp's end (:meth:`~estimator.stream.GraspStream.mark_follow`); with a model loaded, its
+  provisional estimates are the model's over the loading so far (the operator feels the answer
+  while squeezing, not seconds later when letting go). With a model loaded the
   final one is the hybrid ``auto`` estimate (:class:`~estimator.learned.hybrid.HybridEstimator`);
   for a depth model of the estimator's finger its input comes from the depths already computed
   for the provisional estimates and reduced to the model's input size after each of them
@@ -422,8 +424,16 @@ class EstimatorService:
         if stream.loading_complete(segment):
             self._finish(grasp, received_s, segment=segment, by=_ended_by(stream))
             return
-        result = stream.estimate(segment)
-        self._publish(grasp, result.estimate, result.t_data_s, received_s, provisional=True)
+        if stream.follow and grasp.model is not None:
+            # An operator's grasp has its final only when the operator lets go: meanwhile the display
+            # follows the model's answer over the loading so far, which the final will be.
+            stream.measure_frames(segment)
+            started = time.perf_counter()
+            estimate = self._best_estimate(grasp, segment).with_latency(time.perf_counter() - started)
+            self._publish(grasp, estimate, stream.last_loading_frame_s(segment), received_s, provisional=True)
+        else:
+            result = stream.estimate(segment)
+            self._publish(grasp, result.estimate, result.t_data_s, received_s, provisional=True)
         if grasp.model is not None and _reads_stream_depths(grasp.model.predictor.variant):
             # Ahead of the final estimate, which then reduces only the peak frame's depth.
             stream.reduce_depths(grasp.model.predictor.variant.size_px, grasp.model.predictor.variant.window_m)
@@ -434,22 +444,25 @@ class EstimatorService:
         started = time.perf_counter()
         stream = grasp.stream
         segment = stream.segment() if segment is None else segment
-        estimate, failure = None, None
-        if grasp.model is not None:
-            try:
-                estimate = self._model_estimate(grasp, segment)
-            except _BAD_INPUT as exc:
-                log.warning("grasp %r: the model gives no estimate (%s); publishing the analytical one",
-                            grasp.grasp_id, exc)
-                failure = exc
-        if estimate is None:
-            estimate = stream.estimate(segment).estimate
-            if failure is not None:
-                estimate = estimate.with_note(f"model failed: {failure}")
+        estimate = self._best_estimate(grasp, segment)
         grasp.final, grasp.final_by = estimate, by
         grasp.final_t_data_s, grasp.loading_frames = stream.last_loading_frame_s(segment), int(segment.frame_t_s.size)
         grasp.final_compute_s = time.perf_counter() - started
         grasp.final_s = self._publish(grasp, estimate, grasp.final_t_data_s, received_s, provisional=False)
+
+    def _best_estimate(self, grasp: _Grasp, segment: Segment) -> Estimate:
+        """The model's estimate when one is pinned to the grasp, else (or when the model fails) the
+        analytical one."""
+        failure = None
+        if grasp.model is not None:
+            try:
+                return self._model_estimate(grasp, segment)
+            except _BAD_INPUT as exc:
+                log.warning("grasp %r: the model gives no estimate (%s); publishing the analytical one",
+                            grasp.grasp_id, exc)
+                failure = exc
+        estimate = grasp.stream.estimate(segment).estimate
+        return estimate if failure is None else estimate.with_note(f"model failed: {failure}")
 
     def _model_estimate(self, grasp: _Grasp, segment: Segment) -> Estimate:
         """The pinned model's estimate; a depth model of the estimator's finger reads the cached depths."""

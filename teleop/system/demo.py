@@ -185,6 +185,8 @@ class LiveSystem:
         self.estimator_reports = ReportReader(run_dir / "estimator.jsonl")
         self.renderer_reports = ReportReader(run_dir / "renderer.jsonl")
         self.display_range: tuple[float, float] | None = None  # (e_soft_pa, e_rigid_pa), known once started
+        self._followed: set[str] = set()  # grasps followed to their end
+        self._later: list[Message] = []  # messages of a grasp that started while another was followed
 
     @property
     def session_log(self) -> Path | None:
@@ -230,7 +232,8 @@ class LiveSystem:
             self.commands = Publisher(self.endpoints["command"], lossless=True, source="operator",
                                       max_bytes=bus.max_message_bytes)
             self.events = Subscriber([self.endpoints[n] for n in ("robot_pub", "estimate_pub", "display_pub")],
-                                     ("grasp_event", "estimate"), max_bytes=bus.max_message_bytes)
+                                     ("grasp_event", "estimate", "force", "display"),
+                                     max_bytes=bus.max_message_bytes)
             lines = self._command_lines()
             env = {**os.environ, **_CHILD_ENV}
             for name in CHILDREN:
@@ -321,22 +324,50 @@ class LiveSystem:
         TeleopError
             A child exits, or the grasp does not end within ``timeout_s``.
         """
-        outcome = GraspOutcome(grasp_id, obj, display_range=self.display_range)
         self.commands.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id=grasp_id,
                            params={"object_index": float(object_index)})
+        return self._follow(GraspOutcome(grasp_id, obj, display_range=self.display_range), on_update=on_update,
+                            on_message=on_message, timeout_s=timeout_s)
+
+    def operated_grasp(self, obj: ObjectSpec, *, on_update: Callable[[GraspOutcome], None] | None = None,
+                       on_message: Callable[[Message], None] | None = None,
+                       timeout_s: float = GRASP_TIMEOUT_S) -> GraspOutcome:
+        """Follow the next grasp an operator makes (:mod:`teleop.system.seat`) to the reports: the first
+        grasp the robot starts after those already followed; ``obj`` is the object it should grasp.
+        Arguments and errors as :meth:`grasp`."""
+        outcome = GraspOutcome(None, obj, style="operator", display_range=self.display_range)
+        return self._follow(outcome, on_update=on_update, on_message=on_message, timeout_s=timeout_s)
+
+    def _next_message(self, timeout_s: float) -> Message | None:
+        """The next grasp message: one set aside for a later grasp first, then the bus."""
+        return self._later.pop(0) if self._later else self.events.recv(timeout_s=timeout_s)
+
+    def _follow(self, outcome: GraspOutcome, *, on_update: Callable[[GraspOutcome], None] | None,
+                on_message: Callable[[Message], None] | None, timeout_s: float) -> GraspOutcome:
+        """Take the grasp's messages until the robot and the estimator ended it; then its reports."""
+        obj = outcome.obj
         deadline = time.monotonic() + timeout_s
         while not outcome.done:
             self.check()
             if time.monotonic() >= deadline:
-                raise TeleopError(f"grasp {grasp_id} ({obj.name}) did not end within {timeout_s:g} s; "
-                                  f"logs in {self.run_dir}")
-            message = self.events.recv(timeout_s=0.05)
-            if message is None or message.body.get("grasp_id") != grasp_id:
+                raise TeleopError(f"grasp {outcome.grasp_id or '(not started)'} ({obj.name}) did not end within "
+                                  f"{timeout_s:g} s; logs in {self.run_dir}")
+            message = self._next_message(timeout_s=0.05)
+            if message is None:
+                continue
+            body, grasp_id = message.body, message.body.get("grasp_id")
+            if (outcome.grasp_id is None and message.type == "grasp_event" and body["event"] == "start"
+                    and message.source == "robot" and grasp_id not in self._followed):
+                outcome.grasp_id = grasp_id  # the operator's next grasp
+            if grasp_id != outcome.grasp_id:
+                if grasp_id is not None and outcome.grasp_id is not None and grasp_id not in self._followed:
+                    self._later.append(message)  # the operator went on to the next object meanwhile
                 continue
             if on_message is not None:
                 on_message(message)
-            body = message.body
-            if message.type == "estimate":
+            if message.type in ("force", "display"):
+                outcome.observe(message)
+            elif message.type == "estimate":
                 outcome.estimates += 1
                 outcome.latest = dict(body)
                 if not body["provisional"]:
@@ -353,6 +384,8 @@ class LiveSystem:
                 outcome.robot_ended = True
             if on_update is not None:
                 on_update(outcome)
+        grasp_id = outcome.grasp_id
+        self._followed.add(grasp_id)
         outcome.estimator_report = self.estimator_reports.find(grasp_id, timeout_s=REPORT_TIMEOUT_S)
         outcome.renderer_report = self.renderer_reports.find(
             grasp_id, timeout_s=REPORT_TIMEOUT_S if outcome.final is not None else 0.0)
@@ -420,6 +453,25 @@ def run_grasps(system: LiveSystem, plan: Sequence[tuple[int, ObjectSpec]], view:
         yield outcome
 
 
+def operated_grasps(system: LiveSystem, plan: Sequence[tuple[int, ObjectSpec]], view: LiveView,
+                    settings: Settings) -> Iterator[GraspOutcome]:
+    """The simulated operator grasps the objects of ``plan`` in order (the node takes the scene's
+    objects in turn), each shown on ``view`` with how the operator squeezed it."""
+    from teleop.system.seat import SimulatedSeat
+
+    with SimulatedSeat(system, settings, grasps=len(plan)) as seat:
+        for number, (_, obj) in enumerate(plan, start=1):
+            def update(outcome: GraspOutcome, n: int = number) -> None:
+                seat.check()
+                if outcome.started and not outcome.operator_style:
+                    outcome.operator_style = seat.style()
+                view.update(n, outcome)
+
+            outcome = system.operated_grasp(obj, on_update=update)
+            view.finish(number, outcome)
+            yield outcome
+
+
 # --------------------------------------------------------------------------- command
 
 
@@ -447,6 +499,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "loading frame to the display report) and the session log's path."
     )
     add_run_arguments(parser, default_scene="default")
+    parser.add_argument("--operator", choices=("sim", "script"), default="sim",
+                        help="who grasps: 'sim' (default), a simulated person in the operator's seat driving the "
+                             "fingers leader-follower, closing at a speed of its own, pausing, backing off and "
+                             "squeezing again, as haptics operate --input sim does; 'script', the paper's grasp "
+                             "commanded at once (close at the settings' speed to a force, hold, release)")
     parser.add_argument("--no-view", action="store_true", help="no live status lines, only the closing table")
     add_foxglove_argument(parser, what="the live system's bus (tactile video, force, width, estimates)")
 
@@ -465,11 +522,14 @@ def run(args: argparse.Namespace) -> int:
     with interrupted_by_sigterm(), system:
         print(f"live system up ({', '.join(f'{n} {c.process.pid}' for n, c in system.children.items())}); "
               f"logs in {run_dir}", file=sys.stderr)
-        outcomes = list(run_grasps(system, plan, view, prefix=scene.name))
+        if args.operator == "sim":
+            outcomes = list(operated_grasps(system, plan, view, load_settings(args.settings)))
+        else:
+            outcomes = list(run_grasps(system, plan, view, prefix=scene.name))
     print(closing_table(outcomes))
     print(f"session log: {system.session_log}")
     if args.json:
-        print(json.dumps({"scene": scene.name, "grasps": [o.to_json() for o in outcomes],
+        print(json.dumps({"scene": scene.name, "operator": args.operator, "grasps": [o.to_json() for o in outcomes],
                           "session_log": str(system.session_log), "run_dir": str(run_dir),
                           "wall_s": time.monotonic() - started}, allow_nan=False))
     return 0

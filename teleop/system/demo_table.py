@@ -16,7 +16,7 @@ import numpy as np
 if TYPE_CHECKING:
     from teleop.system.outcome import GraspOutcome
 
-__all__ = ["LiveView", "closing_table", "display_cell"]
+__all__ = ["LiveView", "closing_table", "display_cell", "felt_summary"]
 
 
 def _pa(value: float | None) -> str:
@@ -83,21 +83,43 @@ class LiveView:
 
 
 def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
-    """The closing table: object, true E, final estimate and state, what the display rendered
-    (:func:`display_cell`), error, first estimate, latency."""
-    header = ("object", "E true (Pa)", "final (Pa)", "state", "display (~Pa)", "error (dec)", "first est. (ms)",
-              "latency (ms)")
-    rows = [(o.obj.name, _pa(o.obj.modulus_pa), f"{_STATE_MARK[o.state]}{_pa(o.e_final_pa)}", o.state,
+    """The closing table: object, grasp style, true E, final estimate and state, what the display
+    rendered (:func:`display_cell`), error, first estimate, the time from contact until the display
+    stayed within a factor 2 of the label, latency; then :func:`felt_summary`.
+
+    The latency runs from the last loading frame to the display report of the final estimate; an
+    operator's grasp has its final when the operator lets go, seconds after the peak, so it shows
+    none (its provisional estimates follow the squeeze instead: see the felt time).
+    """
+    header = ("object", "style", "E true (Pa)", "final (Pa)", "state", "display (~Pa)", "error (dec)", "first est. (ms)",
+              "felt 2x (s)", "latency (ms)")
+    rows = [(o.obj.name, o.style, _pa(o.obj.modulus_pa), f"{_STATE_MARK[o.state]}{_pa(o.e_final_pa)}", o.state,
              display_cell(o), _number(o.log10_error, "+.2f"),
              _number(None if o.t_first_estimate_s is None else o.t_first_estimate_s * 1e3, ".0f"),
-             _number(o.latency_ms, ".0f")) for o in outcomes]
+             _number(o.t_felt_within_2x_s, ".2f"),
+             _number(o.latency_ms if o.style == "script" else None, ".0f")) for o in outcomes]
     widths = [max(len(str(r[i])) for r in (header, *rows)) for i in range(len(header))]
     lines = ["  ".join(str(cell).ljust(w) if i == 0 else str(cell).rjust(w)
                        for i, (cell, w) in enumerate(zip(row, widths, strict=True))) for row in (header, *rows)]
     lines.insert(1, "  ".join("-" * w for w in widths))
-    errors = [abs(o.log10_error) for o in outcomes if o.log10_error is not None]
-    if errors:
-        within = sum(e <= 1.0 for e in errors)
-        lines.append(f"mean |error| {np.mean(errors):.2f} decades over {len(errors)} estimates; "
-                     f"{within} of {len(outcomes)} within one decade")
+    lines.append(felt_summary(outcomes))
     return "\n".join(lines)
+
+
+def felt_summary(outcomes: Sequence[GraspOutcome]) -> str:
+    """What the operator felt, in one line: the display's rendering against the label clipped to the
+    display's range (an object stiffer than its rigid end is right when rendered rigid), the share within
+    a factor 2, the dangerous misses (:func:`estimator.metrics.dangerous_miss`) and the grasps the display
+    rendered nothing for."""
+    from estimator.metrics import FELT_WITHIN_FACTOR, dangerous_miss
+
+    felt = [o for o in outcomes if o.felt_log10_error is not None]
+    if not felt:
+        return f"the display rendered none of {len(outcomes)} grasps"
+    errors = [o.felt_log10_error for o in felt]
+    within = sum(e <= np.log10(FELT_WITHIN_FACTOR) + 1e-9 for e in errors)
+    misses = sum(dangerous_miss(o.obj.modulus_pa, o.display_e_pa, e_rigid_pa=o.display_range[1]) for o in felt)
+    unrendered = len(outcomes) - len(felt)
+    return (f"felt (display against the label on its range): mean error {np.mean(errors):.2f} decades, "
+            f"{within} of {len(outcomes)} within a factor 2, {misses} dangerous misses"
+            + (f", {unrendered} not rendered" if unrendered else ""))

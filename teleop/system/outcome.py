@@ -6,9 +6,11 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from haptics.errors import MappingError
 from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_fraction
@@ -58,8 +60,10 @@ class GraspOutcome:
     fraction into a modulus, and renders the final estimate when the renderer reported none.
     """
 
-    grasp_id: str
+    grasp_id: str | None  # None until the grasp an operator makes has started
     obj: ObjectSpec
+    style: str = "script"  # "script": the paper's commanded grasp; "operator": a person (or the simulated one) drove it
+    operator_style: str = ""  # how the simulated operator squeezed, in words
     started: bool = False
     robot_ended: bool = False
     estimator_ended: bool = False
@@ -69,6 +73,23 @@ class GraspOutcome:
     estimator_report: dict[str, Any] | None = None
     renderer_report: dict[str, Any] | None = None
     display_range: tuple[float, float] | None = None
+    # Convergence, from the grasp's own bus messages: when its force first reached contact_force_n
+    # (load-cell capture time) and each display report written for it (write time, E_pa or None).
+    contact_force_n: float = 0.75
+    t_contact_s: float | None = None
+    display_track: list[tuple[float, float | None]] = field(default_factory=list)
+
+    def observe(self, message: Any) -> None:
+        """Note a ``force`` or ``display`` message of this grasp (the convergence figures)."""
+        body = message.body
+        if message.type == "force" and self.t_contact_s is None:
+            reached = np.flatnonzero(np.asarray(body["value_n"]) >= self.contact_force_n)
+            if reached.size:
+                self.t_contact_s = float(body["t_s"][reached[0]])
+        elif message.type == "display" and body["phase"] == "active":  # not the fade after the grasp
+            soft_end = self.display_range[0] if self.display_range else None
+            e_pa = None if body["unknown"] else (body["E_pa"] if body["E_pa"] is not None else soft_end)
+            self.display_track.append((message.t_capture_s, e_pa))
 
     @property
     def done(self) -> bool:
@@ -129,6 +150,34 @@ class GraspOutcome:
         return None if e is None else math.log10(e / self.obj.modulus_pa)
 
     @property
+    def felt_log10_error(self) -> float | None:
+        """How far (decades) what the display rendered lies from the label clipped to the display's range
+        (a rigid object rendered rigid is exact); None without a rendering or a range, or when the display
+        was told the modulus is unknown (a refusal)."""
+        felt = self.display_e_pa
+        if felt is None or self.rendered.unknown:
+            return None
+        soft, rigid = self.display_range
+        return abs(math.log10(felt) - math.log10(min(rigid, max(soft, self.obj.modulus_pa))))
+
+    @property
+    def t_felt_within_2x_s(self) -> float | None:
+        """Time (s) from contact until the display stays within a factor 2 of the label clipped to its
+        range, for every report from then to the grasp's last; None when it never settles there (or
+        without contact, reports or a range). Load cell and display share the host's monotonic clock."""
+        if self.t_contact_s is None or not self.display_track or self.display_range is None:
+            return None
+        soft, rigid = self.display_range
+        target = math.log10(min(rigid, max(soft, self.obj.modulus_pa)))
+        settled = None
+        for t_s, e_pa in self.display_track:
+            if e_pa is None or abs(math.log10(e_pa) - target) > math.log10(2.0) + 1e-9:
+                settled = None
+            elif settled is None:
+                settled = t_s
+        return None if settled is None else max(0.0, settled - self.t_contact_s)
+
+    @property
     def t_first_estimate_s(self) -> float | None:
         return None if self.estimator_report is None else self.estimator_report.get("time_to_first_estimate_s")
 
@@ -137,7 +186,9 @@ class GraspOutcome:
         return None if self.renderer_report is None else self.renderer_report.get("latency_ms")
 
     def to_json(self) -> dict[str, Any]:
-        return {"object": self.obj.name, "E_true_pa": self.obj.modulus_pa, "E_final_pa": self.e_final_pa,
+        return {"object": self.obj.name, "style": self.style, "operator_style": self.operator_style,
+                "E_true_pa": self.obj.modulus_pa, "E_final_pa": self.e_final_pa,
                 "log10_error": self.log10_error, "t_first_estimate_s": self.t_first_estimate_s,
                 "latency_ms": self.latency_ms, "state": self.state, "interval_pa": self.interval_pa,
-                "display_fraction": self.display_fraction}
+                "display_fraction": self.display_fraction,
+                "felt_log10_error": self.felt_log10_error, "t_felt_within_2x_s": self.t_felt_within_2x_s}

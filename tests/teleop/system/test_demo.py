@@ -12,8 +12,10 @@ import sys
 import textwrap
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import jsonschema
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
@@ -104,16 +106,17 @@ def test_outcomes_give_the_closing_table_and_json():
     bound = outcome("steel", 2e11, {"E_pa": 2e9, "state": "lower_bound"}, 0.05, 120.0)
     lost = outcome("foam", 5e3, None, None, None)
     # Without a display range or a renderer report of it, what the display rendered is unknown here.
-    assert good.to_json() == {"object": "duck", "E_true_pa": 1e6, "E_final_pa": 1e7, "log10_error": 1.0,
-                              "t_first_estimate_s": 0.1, "latency_ms": 150.0, "state": "ok",
-                              "interval_pa": [None, None], "display_fraction": None}
+    assert good.to_json() == {"object": "duck", "style": "script", "operator_style": "", "E_true_pa": 1e6, "E_final_pa": 1e7,
+                              "log10_error": 1.0, "t_first_estimate_s": 0.1, "latency_ms": 150.0, "state": "ok",
+                              "interval_pa": [None, None], "display_fraction": None, "felt_log10_error": None,
+                              "t_felt_within_2x_s": None}
     assert bound.log10_error == pytest.approx(-2.0) and lost.log10_error is None and lost.state == "none"
     assert lost.to_json()["interval_pa"] is None and lost.to_json()["display_fraction"] is None
     table = closing_table([good, bound, lost]).splitlines()
-    assert table[0].split()[:3] == ["object", "E", "true"] and set(table[1]) <= {"-", " "}
+    assert table[0].split()[:4] == ["object", "style", "E", "true"] and set(table[1]) <= {"-", " "}
     assert ">=2e+09" in table[3] and "lower_bound" in table[3] and "-2.00" in table[3] and "120" in table[3]
-    assert table[4].split()[1:] == ["5e+03", "?-", "none", "-", "-", "-", "-"]
-    assert table[-1] == "mean |error| 1.50 decades over 2 estimates; 1 of 3 within one decade"
+    assert table[4].split()[1:] == ["script", "5e+03", "?-", "none", "-", "-", "-", "-", "-"]
+    assert table[-1] == "the display rendered none of 3 grasps"
 
 
 def test_outcomes_show_what_the_display_rendered():
@@ -139,10 +142,38 @@ def test_outcomes_show_what_the_display_rendered():
     assert duck.to_json()["display_fraction"] == 0.5
     assert duck.display_e_pa == pytest.approx(math.sqrt(soft * limit))
     table = closing_table([steel, duck, lost]).splitlines()
-    assert table[0].split()[6:9] == ["state", "display", "(~Pa)"]
+    assert table[0].split()[7:10] == ["state", "display", "(~Pa)"]
     assert f"rigid >={limit:.3g}" in table[2] and "lower_bound" in table[2]
     assert f"0.50 ~{math.sqrt(soft * limit):.3g}" in table[3]
     assert "unknown" in table[4] and "insufficient_data" in table[4]
+    # Felt: the steel rendered rigid is exact, the duck at 0.5 of the range is off its label, the refusal
+    # renders nothing.
+    assert steel.felt_log10_error == 0.0 and lost.felt_log10_error is None
+    assert duck.felt_log10_error == pytest.approx(abs(math.log10(math.sqrt(soft * limit) / 1e6)))
+    within = int(steel.felt_log10_error <= math.log10(2)) + int(duck.felt_log10_error <= math.log10(2))
+    assert table[-1] == (f"felt (display against the label on its range): mean error "
+                         f"{(steel.felt_log10_error + duck.felt_log10_error) / 2:.2f} decades, {within} of 3 "
+                         "within a factor 2, 0 dangerous misses, 1 not rendered")
+
+
+def test_time_to_feel_within_a_factor_2_counts_from_contact_until_the_display_stays_there():
+    soft, rigid = 5e3, 6.75e6
+    duck = outcome("duck", 1e6, None, None, None, display_range=(soft, rigid))
+
+    def message(kind, sent_s, **body):
+        return SimpleNamespace(type=kind, t_capture_s=sent_s, body=body)
+
+    duck.observe(message("force", 10.0, t_s=np.array([10.0, 10.1]), value_n=np.array([0.2, 0.5])))
+    assert duck.t_contact_s is None and duck.t_felt_within_2x_s is None
+    duck.observe(message("force", 10.2, t_s=np.array([10.2, 10.3]), value_n=np.array([0.8, 2.0])))
+    assert duck.t_contact_s == 10.2
+    for sent_s, e_pa, phase in ((10.3, 1e5, "active"), (10.4, 1.5e6, "active"), (10.5, 3e6, "active"),
+                                (10.6, 1.2e6, "active"), (10.7, 9e5, "active"), (10.9, None, "fading")):
+        duck.observe(message("display", sent_s, phase=phase, unknown=False, E_pa=e_pa))
+    # Within 2x at 10.4, out at 10.5 (3 MPa), back for good at 10.6; the fade after the grasp does not count.
+    assert duck.t_felt_within_2x_s == pytest.approx(0.4)
+    duck.observe(message("display", 11.0, phase="active", unknown=True, E_pa=None))
+    assert duck.t_felt_within_2x_s is None  # it ended unknown: never settled
 
 
 def test_latency_summary_splits_decision_and_delivery():
@@ -291,15 +322,18 @@ def test_a_second_sigterm_during_the_first_ones_handling_does_not_deadlock():
 
 @pytest.mark.slow
 def test_demo_runs_the_quick_scene_end_to_end(tmp_path, capsys):
-    code = teleop.cli.main(["demo", "--scene", "quick", "--json", "--no-view", "--out", str(tmp_path)])
+    code = teleop.cli.main(["demo", "--scene", "quick", "--operator", "script", "--json", "--no-view",
+                            "--out", str(tmp_path)])
     out = capsys.readouterr().out.strip().splitlines()
     assert code == 0
     result = json.loads(out[-1])
+    assert result["operator"] == "script" and {g["style"] for g in result["grasps"]} == {"script"}
     assert [g["object"] for g in result["grasps"]] == ["stress_ball", "rubber_duck", "steel_ball_bearing"]
     limit = load_settings().resolution_limit_pa
     for grasp in result["grasps"]:
-        assert set(grasp) == {"object", "E_true_pa", "E_final_pa", "log10_error", "t_first_estimate_s", "latency_ms",
-                              "state", "interval_pa", "display_fraction"}
+        assert set(grasp) == {"object", "style", "operator_style", "E_true_pa", "E_final_pa", "log10_error", "t_first_estimate_s",
+                              "latency_ms", "state", "interval_pa", "display_fraction", "felt_log10_error",
+                              "t_felt_within_2x_s"}
         assert grasp["state"] in ("ok", "lower_bound", "upper_bound", "insufficient_data")
         low, high = grasp["interval_pa"]
         assert low is None or high is None or low <= high
@@ -321,6 +355,31 @@ def test_demo_runs_the_quick_scene_end_to_end(tmp_path, capsys):
     assert teleop.cli.main(["report", result["session_log"], "--out", str(tmp_path / "report")]) == 0
     page = (tmp_path / "report" / "index.html").read_text()
     assert all(g["object"] in page for g in result["grasps"])
+
+
+@pytest.mark.slow
+def test_the_simulated_operator_grasps_the_quick_scene_leader_follower(tmp_path, capsys):
+    code = teleop.cli.main(["demo", "--scene", "quick", "--json", "--no-view", "--out", str(tmp_path)])
+    out = capsys.readouterr().out.strip().splitlines()
+    assert code == 0
+    result = json.loads(out[-1])
+    assert result["operator"] == "sim"  # the default
+    grasps = {g["object"]: g for g in result["grasps"]}
+    assert list(grasps) == ["stress_ball", "rubber_duck", "steel_ball_bearing"]
+    for grasp in grasps.values():
+        assert grasp["style"] == "operator" and "squeeze" in grasp["operator_style"]
+        assert grasp["state"] in ("ok", "lower_bound", "upper_bound")  # every grasp got a final
+    assert grasps["steel_ball_bearing"]["display_fraction"] == 1.0  # rendered rigid
+    assert grasps["stress_ball"]["felt_log10_error"] <= math.log10(2.0)  # soft: within a factor 2
+    assert grasps["stress_ball"]["t_felt_within_2x_s"] is not None
+    table = next(i for i, line in enumerate(out) if line.startswith("object"))
+    assert out[table].split()[:2] == ["object", "style"] and out[table + 2].split()[1] == "operator"
+    assert any(line.startswith("felt (display against the label") for line in out)
+    messages = [m.message for m in LogReader(Path(result["session_log"])).messages(("follow", "robot_state"))]
+    follows = [m for m in messages if m.type == "follow"]
+    assert follows and any(m.body["enable"] for m in follows)
+    assert "following" in {m.body["mode"] for m in messages if m.type == "robot_state"}
+    assert our_live_children() == []
 
 
 def _check_foxglove_channels(log: Path) -> None:

@@ -1,0 +1,148 @@
+"""From the operator's hand to the fingers, and from contact to feeling the object right.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_operator.py [--seconds 10] [--scene quick] [--grasps N] [--json]
+
+1. **Input to gripper command** (loopback): the operator's loop (:class:`haptics.operator_link.OperatorLoop`)
+   reads a scripted input device whose grip sweeps the fingers' free travel at the follow rate, and
+   sends ``follow`` over ZeroMQ on loopback to a robot node on the simulated rig in another thread;
+   the figure is the time from the input reading (its ``t_s``) to the node's call of
+   ``gripper.follow`` with that reading's target width, matched by width. Printed as p50 and p99.
+2. **Contact to the display within a factor 2**, on operator-driven grasps: ``teleop demo
+   --operator sim`` on ``--scene`` (its processes on loopback; the simulated operator squeezes every
+   object), and per grasp the time from the load cell first reading the contact force until every
+   later display report of the grasp lies within a factor 2 of the label clipped to the display's
+   range (``t_felt_within_2x_s`` of its JSON). Printed as median and 90th percentile over the grasps
+   that settled, with the count that never did. The online estimator of the paper's authors
+   converges in 0.24 s.
+
+Both on this host's monotonic clock. Run on an otherwise idle machine: the figures move with its load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from haptics.inputs.base import OperatorInput
+from haptics.operator_link import OperatorLink, OperatorLoop
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.node import COMMAND_TOPICS, RobotNode
+from teleop.operator import grip_to_width_m
+from teleop.scene import load_scene
+
+SWEEP_GRIP = (0.0, 0.15)  # the fingers move through free air, well before any scene object
+
+
+class SweepInput:
+    """A scripted operator input: enable held, the grip sweeping SWEEP_GRIP back and forth; every
+    reading's time and target width are kept."""
+
+    def __init__(self, max_width_m: float, period_s: float = 2.0):
+        self.max_width_m = max_width_m
+        self.period_s = period_s
+        self.readings: list[tuple[float, float]] = []  # (t_s, target width m)
+        self._start = time.monotonic()
+
+    def read(self, *, timeout_s: float = 0.0) -> OperatorInput:
+        now = time.monotonic()
+        phase = ((now - self._start) / self.period_s) % 1.0
+        grip = SWEEP_GRIP[0] + (SWEEP_GRIP[1] - SWEEP_GRIP[0]) * (1.0 - abs(2.0 * phase - 1.0))
+        self.readings.append((now, grip_to_width_m(grip, max_width_m=self.max_width_m)))
+        return OperatorInput(t_s=now, grip=grip, enable=True)
+
+    def feel(self, *, force_n: float, width_m: float, stiffness: float | None = None) -> None:
+        pass
+
+
+def input_to_command(scene_name: str, seconds: float) -> dict[str, float | int | None]:
+    """Part 1 (module docstring): p50 and p99 (ms) of input reading -> gripper.follow."""
+    scene = load_scene(scene_name)
+    settings = scene.settings
+    robot = Publisher("tcp://127.0.0.1:*", lossless=True, source="robot")
+    operator = Publisher("tcp://127.0.0.1:*", lossless=True, source="operator")
+    commands = Subscriber(operator.endpoint, COMMAND_TOPICS)
+    node = RobotNode(settings, publisher=robot, commands=commands, scene=scene).connect()
+    calls: list[tuple[float, float]] = []
+    follow = node.gripper.follow
+
+    def timed_follow(width_m: float, **kwargs) -> None:
+        calls.append((time.monotonic(), float(width_m)))
+        follow(width_m, **kwargs)
+
+    node.gripper.follow = timed_follow
+    stop = threading.Event()
+    thread = threading.Thread(target=node.run, args=(stop,), daemon=True)
+    thread.start()
+    device = SweepInput(settings.gripper.max_width_m)
+    link = OperatorLink(publisher=operator,
+                        subscriber=Subscriber(robot.endpoint, ("grasp_event", "robot_state", "robot_notice")),
+                        heartbeat_s=settings.bus.heartbeat_s)
+    try:
+        operator.wait_for_subscriber(*COMMAND_TOPICS, timeout_s=5.0)
+        OperatorLoop(link, device, settings).run(duration_s=seconds)
+    finally:
+        stop.set()
+        thread.join(timeout=5.0)
+        node.close()
+        for sock in (link, robot, commands):
+            sock.close()
+    sent = dict((round(w, 9), t) for t, w in reversed(device.readings))  # a width's first reading
+    latencies = [t_call - sent[round(w, 9)] for t_call, w in calls if round(w, 9) in sent]
+    ms = np.array(latencies) * 1e3
+    return {"commands": len(calls), "matched": len(latencies),
+            "p50_ms": float(np.percentile(ms, 50)) if ms.size else None,
+            "p99_ms": float(np.percentile(ms, 99)) if ms.size else None}
+
+
+def contact_to_felt(scene_name: str, grasps: int | None) -> dict[str, float | int | None]:
+    """Part 2 (module docstring): median and p90 (s) of contact -> display within 2x, from the demo."""
+    with tempfile.TemporaryDirectory() as out:
+        line = [sys.executable, "-m", "teleop.cli", "demo", "--operator", "sim", "--scene", scene_name,
+                "--json", "--no-view", "--out", str(Path(out) / "demo")]
+        if grasps is not None:
+            line += ["--grasps", str(grasps)]
+        done = subprocess.run(line, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"teleop demo failed ({done.returncode}):\n{done.stderr[-3000:]}")
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    times = [g["t_felt_within_2x_s"] for g in result["grasps"]]
+    settled = np.array([t for t in times if t is not None])
+    return {"grasps": len(times), "settled": int(settled.size),
+            "median_s": float(np.median(settled)) if settled.size else None,
+            "p90_s": float(np.percentile(settled, 90)) if settled.size else None}
+
+
+def _fmt(value: float | None, scale: float, unit: str) -> str:
+    return "-" if value is None else f"{value * scale:.1f} {unit}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seconds", type=float, default=10.0, help="how long the operator's loop drives (part 1)")
+    parser.add_argument("--scene", default="quick", help="scene of the operator-driven grasps (part 2)")
+    parser.add_argument("--grasps", type=int, default=None, help="grasps in part 2 (default: the scene's)")
+    parser.add_argument("--json", action="store_true", help="print all figures as one JSON object last")
+    args = parser.parse_args()
+    command = input_to_command(args.scene, args.seconds)
+    print(f"operator input -> gripper command (loopback, {command['matched']} of {command['commands']} "
+          f"commands matched): p50 {_fmt(command['p50_ms'], 1, 'ms')}, p99 {_fmt(command['p99_ms'], 1, 'ms')}")
+    felt = contact_to_felt(args.scene, args.grasps)
+    print(f"contact -> display stays within a factor 2 ({felt['settled']} of {felt['grasps']} operator grasps "
+          f"settled): median {_fmt(felt['median_s'], 1, 's')}, p90 {_fmt(felt['p90_s'], 1, 's')} "
+          "(the paper's online estimator: 0.24 s)")
+    if args.json:
+        print(json.dumps({"input_to_command": command, "contact_to_felt_within_2x": felt}))
+
+
+if __name__ == "__main__":
+    main()

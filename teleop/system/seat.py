@@ -1,0 +1,81 @@
+"""The demo's simulated operator in the operator's seat: ``teleop demo --operator sim``.
+
+The seat is what ``haptics operate --headless --input sim`` runs, in a thread of the demo: the
+operator's loop (:class:`haptics.operator_link.OperatorLoop`) reads the simulated operator
+(:class:`haptics.inputs.sim.SimulatedInput`: a seeded, person-like hand closed on the force it
+feels) and drives the robot node leader-follower over the live system's ``command`` endpoint,
+sending ``follow`` at the follow rate while its dead-man is held, ``release`` when it is done with
+an object and going on to the next. The demo's main thread only listens (:meth:`LiveSystem.operated_grasp
+<teleop.system.demo.LiveSystem.operated_grasp>`); the command publisher is the seat's alone.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING
+
+from haptics.inputs.base import open_input
+from haptics.operator_link import ROBOT_TOPICS, OperatorLink, OperatorLoop
+from teleop.bus.pubsub import Subscriber
+from teleop.settings import Settings
+
+if TYPE_CHECKING:
+    from teleop.system.demo import LiveSystem
+
+__all__ = ["SimulatedSeat"]
+
+JOIN_TIMEOUT_S = 5.0
+
+
+class SimulatedSeat:
+    """The simulated operator driving ``system`` for ``grasps`` grasps, in a thread; a context manager.
+
+    Parameters
+    ----------
+    system : LiveSystem
+        Started; its ``commands`` publisher becomes the seat's.
+    settings : Settings
+        The live system's (``[gripper]`` limits, ``[operator] sim_seed``).
+    grasps : int
+        Grasps to make; then the operator quits.
+    """
+
+    def __init__(self, system: LiveSystem, settings: Settings, *, grasps: int):
+        self.device = open_input("sim", settings, grasps=grasps)
+        ep = system.endpoints
+        self._subscriber = Subscriber([ep["robot_pub"], ep["estimate_pub"], ep["display_pub"]],
+                                      (*ROBOT_TOPICS, "estimate", "display"),
+                                      max_bytes=settings.bus.max_message_bytes)
+        self.link = OperatorLink(publisher=system.commands, subscriber=self._subscriber,
+                                 heartbeat_s=settings.bus.heartbeat_s)
+        self.loop = OperatorLoop(self.link, self.device, settings)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="simulated-operator", daemon=True)
+        self.error: BaseException | None = None
+
+    def _run(self) -> None:
+        try:
+            self.loop.run(self._stop)
+        except BaseException as exc:  # shown by the demo's main thread (check())
+            self.error = exc
+
+    def style(self) -> str:
+        """How the current (or last) grasp's operator squeezes, in words ("" before the first)."""
+        operator = self.device.operator
+        return "" if operator is None else operator.style.describe()
+
+    def check(self) -> None:
+        """Raise what ended the operator's thread, if something did."""
+        if self.error is not None:
+            raise self.error
+
+    def __enter__(self) -> SimulatedSeat:
+        self.device.connect()
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=JOIN_TIMEOUT_S)
+        self.device.close()
+        self._subscriber.close()
