@@ -10,7 +10,7 @@ PIP := $(BIN)/python -m pip
 CONSTRAINTS := constraints.txt
 PYTEST_ARGS ?=
 
-.PHONY: demo test lint browser install install-dev model evaluate cross-sensor fine-tune operator-eval clean
+.PHONY: demo test lint browser tmux install install-dev model evaluate cross-sensor fine-tune operator-eval clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -29,7 +29,7 @@ install: $(VENV)/.installed-run
 install-dev: $(VENV)/.installed-dev
 
 demo: $(VENV)/.installed-run
-	$(BIN)/teleop demo
+	$(BIN)/teleop demo --operator sim
 
 lint: $(VENV)/.installed-dev
 	$(BIN)/ruff check .
@@ -40,7 +40,12 @@ browser:
 	@command -v chromium >/dev/null || { if [ "$$(id -u)" = 0 ]; then apt-get update -q && apt-get install -y -q chromium; \
 		else echo "no chromium: install it with sudo apt-get install -y chromium"; fi; }
 
-test: lint browser
+# tmux, for the operator console's test in a real terminal: installed when missing (as root), as for browser.
+tmux:
+	@command -v tmux >/dev/null || { if [ "$$(id -u)" = 0 ]; then apt-get update -q && apt-get install -y -q tmux; \
+		else echo "no tmux: install it with sudo apt-get install -y tmux"; fi; }
+
+test: lint browser tmux
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
 # Retrain the default model from scratch: the model card's recipe (simulation, dataset, three trainings and
