@@ -209,3 +209,6 @@ class Schema:
     arrays: Mapping[str, ArrayField] = field(default_factory=dict)
     nullable: frozenset[str] = frozenset()  # fields a sender may leave out (filled with nil)
     rule: Callable[[dict[str, Any]], None] | None = None
+    # Nullable fields added after the type was first sent: a receiver fills them with nil when a
+    # sender (or a logged message) predates them; senders always send them.
+    optional: frozenset[str] = frozenset()

@@ -59,8 +59,11 @@ Message types and body schemas
 ``estimate``     grasp_id: str, method: str, E_pa: float > 0 | nil,
                  interval_pa: [low, high] with each float > 0 or nil (nil: open side),
                  state: "ok"|"lower_bound"|"upper_bound"|"insufficient_data",
-                 reason: str, provisional: bool, latency_s: float >= 0.
-                 ``ok`` needs E_pa; ``insufficient_data`` has none; low <= high.
+                 reason: str, provisional: bool, latency_s: float >= 0,
+                 model: str|nil (the id of the learned model that made it; nil: none did).
+                 ``ok`` needs E_pa; ``insufficient_data`` has none; low <= high. ``model`` came
+                 after the type: a receiver reads an estimate without it (an older sender, an
+                 older session log) as nil.
 ``command``      action: "start_grasp"|"stop"|"release" (robot node) | "reload_model"
                  (estimator service: reload its learned model between grasps),
                  grasp_id: str|nil, params: {str: finite float} (e.g. ``target_force_n``).
@@ -89,6 +92,19 @@ Message types and body schemas
                  :data:`teleop.operator.WATCHDOG_S`, the fingers stopped; "force_limit": the
                  fingers reached the settings' maximum force and close no further),
                  action: str (the command's action, or "follow"), grasp_id: str|nil, reason: str.
+``label``        what the grasped object is (operator -> all, on ``bus.command``; also written
+                 into a session log after the fact by ``teleop label``): grasp_id: str,
+                 object_name: str, modulus_pa: float > 0 | nil (nil: the catalogue's),
+                 source: one of :data:`teleop.labels.LABEL_SOURCES`, detail: str (e.g. the
+                 Shore hardness read and the conversion used).
+``load_model``   switch the estimator service to another model (operator -> estimator, on
+                 ``bus.command``): path: str (the model folder on the estimator's host),
+                 request: str (echoed in the answer).
+``model_event``  what the estimator service did with its model (estimator, on its
+                 ``estimate_pub``): event: one of :data:`MODEL_EVENTS` ("loaded": it serves
+                 another model from now on; "refused": it kept the one it had),
+                 request: str|nil (the ``load_model`` it answers; nil for a reload of its own),
+                 model: str|nil (the id of the model it serves now), path: str|nil, reason: str.
 
 Adding a message type changes no existing message, so it keeps the version: a receiver that
 predates a type refuses its messages as ``unknown_type`` and goes on with the rest.
@@ -117,6 +133,7 @@ from teleop.bus.field_checks import (
     is_int,
 )
 from teleop.errors import MessageRejected
+from teleop.labels import LABEL_SOURCES
 from teleop.states import ESTIMATE_STATES
 
 __all__ = [
@@ -127,7 +144,9 @@ __all__ = [
     "MAX_BODY_BYTES",
     "MAX_BUFFERS",
     "MAX_HEADER_BYTES",
+    "MAX_MODEL_ID_CHARS",
     "MAX_TOPIC_BYTES",
+    "MODEL_EVENTS",
     "REJECT_REASONS",
     "ROBOT_MODES",
     "ROBOT_NOTICES",
@@ -159,6 +178,9 @@ DISPLAY_PHASES = ("idle", "active", "stale", "fading")
 # The robot node's modes (robot_state) and the notices it sends (robot_notice).
 ROBOT_MODES = ("idle", "grasping", "holding", "releasing", "following", "stopped")
 ROBOT_NOTICES = ("refused", "watchdog", "force_limit")
+# What the estimator service says of its model: it serves another now, or it kept the one it had.
+MODEL_EVENTS = ("loaded", "refused")
+MAX_MODEL_ID_CHARS = 64
 
 REJECT_REASONS = (
     "frame_count",  # fewer than 3 frames, or more buffers than MAX_BUFFERS
@@ -283,8 +305,34 @@ SCHEMAS: Mapping[str, Schema] = {
             "reason": TextField(max_chars=MAX_STR_CHARS),
             "provisional": FLAG,
             "latency_s": NumberField(lo=0.0),
+            "model": TextField(max_chars=MAX_MODEL_ID_CHARS, nullable=True),
         },
+        nullable=frozenset({"model"}),
+        optional=frozenset({"model"}),
         rule=_estimate_rule,
+    ),
+    "label": Schema(
+        fields={
+            "grasp_id": TextField(),
+            "object_name": TextField(max_chars=128),
+            "modulus_pa": NumberField(lo=0.0, lo_open=True, nullable=True),
+            "source": TextField(choices=LABEL_SOURCES),
+            "detail": TextField(max_chars=MAX_STR_CHARS),
+        },
+        nullable=frozenset({"modulus_pa"}),
+    ),
+    "load_model": Schema(
+        fields={"path": TextField(max_chars=MAX_STR_CHARS), "request": TextField(max_chars=64)},
+    ),
+    "model_event": Schema(
+        fields={
+            "event": TextField(choices=MODEL_EVENTS),
+            "request": TextField(max_chars=64, nullable=True),
+            "model": TextField(max_chars=MAX_MODEL_ID_CHARS, nullable=True),
+            "path": TextField(max_chars=MAX_STR_CHARS, nullable=True),
+            "reason": TextField(max_chars=MAX_STR_CHARS),
+        },
+        nullable=frozenset({"request", "model", "path"}),
     ),
     "command": Schema(
         fields={
@@ -345,9 +393,10 @@ def _check_body(kind: str, body: Mapping[str, Any], arrays: Mapping[str, np.ndar
     schema = SCHEMAS[kind]
     if not isinstance(body, Mapping):
         raise MessageRejected("corrupt", f"{kind} body is a {type(body).__name__}, expected a map")
-    missing = sorted(set(schema.fields) - set(body))
+    missing = sorted(set(schema.fields) - set(body) - schema.optional)
     if missing:
         raise MessageRejected("missing_field", f"{kind} body lacks {', '.join(missing)}")
+    body = {**dict.fromkeys(schema.optional), **body}
     extra = sorted(map(str, set(body) - set(schema.fields)))
     if extra:
         raise MessageRejected("extra_field", f"{kind} body has unexpected field(s) {', '.join(extra)}")

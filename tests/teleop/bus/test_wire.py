@@ -84,6 +84,19 @@ def _examples() -> dict[str, Message]:
         "robot_state_idle": make_message("robot_state", t_capture_s=3.1, mode="idle", enable=False),
         "robot_notice": make_message("robot_notice", t_capture_s=3.2, event="watchdog", action="follow",
                                      grasp_id="g3", reason="no follow command for 0.2 s"),
+        "estimate_model": make_message(
+            "estimate", t_capture_s=2.1, grasp_id="g1", method="auto", E_pa=2e5, interval_pa=[1e5, 4e5],
+            state="ok", reason="", provisional=False, latency_s=0.003, model="default-3f2a9c1e",
+        ),
+        "label": make_message("label", t_capture_s=4.0, grasp_id="g3", object_name="tennis_ball",
+                              modulus_pa=None, source="catalogue", detail="configs/objects.toml"),
+        "label_durometer": make_message("label", t_capture_s=4.0, grasp_id="g4", object_name="pad",
+                                        modulus_pa=1.2e6, source="durometer", detail="Shore A 40 (Gent)"),
+        "load_model": make_message("load_model", t_capture_s=5.0, path="/models/fine-tuned", request="r1"),
+        "model_event": make_message("model_event", t_capture_s=5.1, event="loaded", request="r1",
+                                    model="fine-tuned-9b1d", path="/models/fine-tuned", reason=""),
+        "model_event_refused": make_message("model_event", t_capture_s=5.1, event="refused", request="r2",
+                                            reason="no metadata.json in /tmp/x"),
     }
 
 
@@ -314,6 +327,32 @@ def test_operator_and_robot_state_fields_are_checked():
     assert _refused(_with_body(_frames("follow"), drop="enable")) == "missing_field"
     assert _refused(_with_body(_frames("follow"), target_width_m=math.nan)) == "not_finite"
     assert _refused(_with_body(_frames("robot_state"), target_width_m=math.inf)) == "not_finite"
+
+
+def test_an_estimate_from_before_the_model_field_reads_as_no_model():
+    # Session logs and senders that predate the field: a receiver fills it with nil.
+    old = _with_body(_frames("estimate_model"), drop="model")
+    assert decode(old, max_bytes=MAX).body["model"] is None
+    assert decode(_frames("estimate_model"), max_bytes=MAX).body["model"] == "default-3f2a9c1e"
+    assert make_message("estimate", t_capture_s=0.0, grasp_id="g", method="split", E_pa=1e5,
+                        interval_pa=[None, None], state="ok", reason="", provisional=True,
+                        latency_s=0.0).body["model"] is None  # senders always send it
+
+
+def test_label_and_model_messages_are_checked():
+    refusals = {
+        "label": {"source": ("guess", "mistyped_field"), "modulus_pa": (0.0, "mistyped_field"),
+                  "object_name": (None, "mistyped_field")},
+        "load_model": {"path": (None, "mistyped_field"), "request": (7, "mistyped_field")},
+        "model_event": {"event": ("maybe", "mistyped_field"), "model": ("x" * 65, "mistyped_field")},
+    }
+    for kind, fields in refusals.items():
+        frames = _frames(kind)
+        for field, (value, reason) in fields.items():
+            assert _refused(_with_body(frames, **{field: value})) == reason, (kind, field)
+        assert _refused(_with_body(frames, colour="red")) == "extra_field"
+    assert _refused(_with_body(_frames("label"), drop="source")) == "missing_field"
+    assert _refused(_with_body(_frames("label_durometer"), modulus_pa=math.inf)) == "not_finite"
 
 
 def test_senders_cannot_emit_what_receivers_refuse():
