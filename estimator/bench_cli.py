@@ -42,7 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also run the tactile analytical methods with depth measured on the image grid "
                              "binned by K (K x K pixel blocks averaged) instead of the settings' "
                              "estimator.depth_binning; K divides both sides of the image grid and the raw frame, "
-                             "e.g. 1 (the full grid) or 5 for 250 x 350 px from 640 x 480: speed against error")
+                             "e.g. 1 (the full grid) or 5 for 250 x 350 px from 640 x 480: speed against error (default: "
+                             "none, only the settings' binning)")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per grasp and configuration")
     parser.add_argument("--limit", type=int, default=None, metavar="K", help="bench only the first K records")
     parser.add_argument("--calibration", metavar="CAL", default=None,

@@ -24,9 +24,10 @@ from teleop.settings import Settings, default_settings_path, load_settings
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Estimate the grasped object's Young's modulus from one .grasp record. States: ok (E with "
-        "a ~95 % interval), lower_bound (stiffer than the data resolve, e.g. metal: E_pa is the "
-        "bound), upper_bound (softer than resolved), insufficient_data (a refusal with its reason; "
-        "exit status is still 0)."
+        "an interval: 90 % for a learned model, as its model card and metadata.json calibration.level "
+        "state; about 95 % for the analytical fits), lower_bound (stiffer than the data resolve, e.g. "
+        "metal: E_pa is the bound), upper_bound (softer than resolved), insufficient_data (a refusal "
+        "with its reason; exit status is still 0)."
     )
     parser.add_argument("grasp", metavar="GRASP", help="grasp record (.grasp file)")
     parser.add_argument(

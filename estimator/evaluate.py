@@ -73,8 +73,10 @@ __all__ = [
     "plot",
     "point_value",
     "result_row",
-    "summarise",
     "held_out_objects",
+    "skip_cause",
+    "summarise",
+    "trained_objects",
 ]
 
 LEARNED_METHODS = ("cnn", "hybrid", "auto")
@@ -160,39 +162,89 @@ def model_methods(predictors: Sequence[CompliancePredictor], *,
     return out
 
 
-def held_out_objects(model_dir: str | Path) -> frozenset[str]:
-    """Names of the objects in a model's test split: the objects it never trained or stopped on.
-
-    Read from ``metadata.json`` ``data.objects.test`` when it lists names, else from the
-    ``split.json`` of the dataset the model was trained on (``data.dir``; a relative
-    directory is looked up under the working directory, then the repository).
-
-    Raises
-    ------
-    ModelError
-        The metadata is unreadable or neither source names the test objects.
-    """
+def _model_metadata(model_dir: str | Path) -> tuple[Path, dict[str, Any]]:
+    """The path and ``data`` section of a model's ``metadata.json``."""
     meta_path = Path(model_dir) / "metadata.json"
+    if not Path(model_dir).is_dir():
+        raise ModelError(f"{model_dir}: no such model directory (expected one holding metadata.json and "
+                         "model.onnx)")
     try:
         data = json.loads(meta_path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise ModelError(f"{meta_path}: not a readable model metadata file ({exc})") from exc
     info = data.get("data") if isinstance(data, dict) else None
     if not isinstance(info, dict):
-        raise ModelError(f"{meta_path}: no data section, so its test objects are unknown")
-    objects = info.get("objects")
-    listed = objects.get("test") if isinstance(objects, dict) else None
-    if isinstance(listed, list):
-        return frozenset(map(str, listed))
+        raise ModelError(f"{meta_path}: no data section, so the objects it trained on are unknown")
+    return meta_path, data
+
+
+def _split_of_dataset(meta_path: Path, info: dict[str, Any], missing: str) -> dict[str, list[str]]:
+    """The split of the dataset a model was trained on (``data.dir``; a relative directory is looked up
+    under the working directory, then the repository)."""
     dataset = Path(str(info.get("dir") or ""))
     candidates = [dataset] if dataset.is_absolute() else [Path.cwd() / dataset, REPO_DIR / dataset]
     split_path = next((d / "split.json" for d in candidates if info.get("dir") and (d / "split.json").is_file()),
                       None)
     if split_path is None:
-        raise ModelError(f"{meta_path}: data.objects.test does not list the test objects and its dataset's "
-                         f"split ({info.get('dir')!r}/split.json) is not found; rebuild that dataset "
-                         "(same seed) to recover it")
-    return frozenset(load_split(split_path)["test"])
+        raise ModelError(f"{meta_path}: data.objects does not list the {missing} objects and its dataset's "
+                         f"split ({info.get('dir') or 'no data.dir'}/split.json) is not found; rebuild that "
+                         "dataset (same seed) to recover it")
+    return load_split(split_path)
+
+
+def held_out_objects(model_dir: str | Path) -> frozenset[str]:
+    """Names of the objects in a model's test split: the published objects it never trained or stopped on.
+
+    Read from ``metadata.json`` ``data.objects.test`` when it lists names, else from the
+    ``split.json`` of the dataset the model was trained on (``data.dir``; a relative
+    directory is looked up under the working directory, then the repository). Which records
+    a model did not train on is :func:`trained_objects`' complement, not this.
+
+    Raises
+    ------
+    ModelError
+        The metadata is unreadable or neither source names the test objects.
+    """
+    meta_path, data = _model_metadata(model_dir)
+    info = data["data"]
+    objects = info.get("objects")
+    listed = objects.get("test") if isinstance(objects, dict) else None
+    if isinstance(listed, list):
+        return frozenset(map(str, listed))
+    return frozenset(_split_of_dataset(meta_path, info, "test")["test"])
+
+
+def trained_objects(model_dir: str | Path) -> frozenset[str]:
+    """Names of every object that shaped a model: what ``--unseen-by`` keeps out.
+
+    A model is shaped by its train objects (the weights), its val objects (early stopping, the
+    interval calibration, the ``auto`` policy; ``estimator recalibrate`` refits on them too) and
+    the objects it was fine-tuned on (:func:`estimator.learned.finetune.fine_tune` lists them among
+    its train objects and in ``fine_tuning.objects``). Read from ``metadata.json``
+    ``data.objects.train`` and ``.val`` when they list names, else from the ``split.json`` of the
+    dataset the model was trained on (as :func:`held_out_objects`), plus ``fine_tuning.objects``.
+    Any other object, whatever the records' source (the published table's test objects, a lab's
+    session records under catalogue names), the model never trained on.
+
+    Raises
+    ------
+    ModelError
+        The directory or its metadata is unreadable, or neither source names the train and val
+        objects.
+    """
+    meta_path, data = _model_metadata(model_dir)
+    info = data["data"]
+    objects = info.get("objects") if isinstance(info.get("objects"), dict) else {}
+    listed = [objects.get(name) for name in ("train", "val")]
+    if all(isinstance(names, list) for names in listed):
+        names = {str(n) for part in listed for n in part}
+    else:
+        split = _split_of_dataset(meta_path, info, "train and val")
+        names = {*split["train"], *split["val"], *(n for part in listed if isinstance(part, list) for n in part)}
+    tuned = data.get("fine_tuning")
+    if isinstance(tuned, dict) and isinstance(tuned.get("objects"), list):
+        names |= {str(n) for n in tuned["objects"]}
+    return frozenset(names)
 
 
 @lru_cache(maxsize=8)
@@ -227,6 +279,11 @@ def answered_by(rows: Iterable[dict[str, Any]], method: str) -> dict[str, int]:
                         for r in rows if r.get("method") == method))
 
 
+def skip_cause(row: dict[str, Any]) -> str:
+    """The kind of a skipped row's cause: ``unreadable``, ``unlabelled`` or ``trained on``."""
+    return row["skipped"].split(":")[0]
+
+
 def evaluate_record(
     path: Path,
     *,
@@ -234,22 +291,26 @@ def evaluate_record(
     methods: Sequence[str],
     calibration: str | None,
     models: Sequence[ModelMethod] = (),
-    objects: frozenset[str] | None = None,
+    exclude: frozenset[str] | None = None,
     correct_camera_lag: bool = False,
     correct_width_lag: bool = True,
 ) -> list[dict[str, Any]]:
     """One row per method (analytical ``methods``, then ``models``) for a labelled record; one
-    row without a method for a skipped one (unreadable, unlabelled, or its object not in
-    ``objects`` when given)."""
+    row without a method for a skipped one, whose ``skipped`` says why: ``unreadable: ...``,
+    ``unlabelled`` (no label, or no modulus), or ``trained on: OBJECT`` (its object is in
+    ``exclude``, the objects a model trained on: :func:`trained_objects`)."""
     try:
         record = read_record(path)
     except RecordError as exc:
         return [{"path": str(path), "skipped": f"unreadable: {exc}"}]
     label = record.label
-    if label is None or label.modulus_pa is None:
-        return [{"path": str(path), "skipped": "unlabelled"}]
-    if objects is not None and label.object_name not in objects:
-        return [{"path": str(path), "skipped": f"seen: {label.object_name} is not a test object"}]
+    if label is None:
+        return [{"path": str(path), "skipped": "unlabelled: no label"}]
+    if label.modulus_pa is None:
+        return [{"path": str(path), "skipped": f"unlabelled: {label.object_name} has no modulus",
+                 "object": label.object_name}]
+    if exclude is not None and label.object_name in exclude:
+        return [{"path": str(path), "skipped": f"trained on: {label.object_name}", "object": label.object_name}]
     rows = []
     if methods:
         tactile = any(m in TACTILE_METHODS for m in methods)
@@ -310,15 +371,16 @@ def evaluate_records(
     methods: Sequence[str],
     calibration: str | None = None,
     models: Sequence[ModelMethod] = (),
-    objects: frozenset[str] | None = None,
+    exclude: frozenset[str] | None = None,
     workers: int = 1,
     correct_camera_lag: bool = False,
     correct_width_lag: bool = True,
     progress: bool = True,
 ) -> list[dict[str, Any]]:
-    """Rows of :func:`evaluate_record` over ``paths``, in order, with a progress bar on stderr."""
+    """Rows of :func:`evaluate_record` over ``paths``, in order, with a progress bar on stderr; records
+    of an object in ``exclude`` are skipped (``trained on``)."""
     work = partial(evaluate_record, settings=settings, methods=tuple(methods), calibration=calibration,
-                   models=tuple(models), objects=objects, correct_camera_lag=correct_camera_lag,
+                   models=tuple(models), exclude=exclude, correct_camera_lag=correct_camera_lag,
                    correct_width_lag=correct_width_lag)
     bar = partial(tqdm, total=len(paths), desc="evaluate", unit="grasp", disable=not progress)
     if workers <= 1:

@@ -14,6 +14,7 @@ import argparse
 import csv
 import json
 import os
+import sys
 import time
 from collections import Counter
 from collections.abc import Mapping, Sequence
@@ -29,9 +30,10 @@ from estimator.evaluate import (
     _predictor,
     ablation_table,
     evaluate_records,
-    held_out_objects,
     model_methods,
     plot,
+    skip_cause,
+    trained_objects,
 )
 from estimator.learned.infer import load_predictor
 from estimator.metrics import felt_pa
@@ -39,7 +41,7 @@ from haptics.settings import display_range_pa
 from teleop.record import find_records
 from teleop.settings import Settings, default_settings_path, load_settings
 
-__all__ = ["ROW_COLUMNS", "add_arguments", "run", "write_rows"]
+__all__ = ["ROW_COLUMNS", "add_arguments", "run", "skipped_records", "unseen_by", "write_rows"]
 
 #: The columns of ``--rows``: one row per grasp and method.
 ROW_COLUMNS = ("record", "object", "material", "shape", "truth_pa", "method", "state", "e_pa", "low_pa",
@@ -96,8 +98,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "rigid_shown_rigid (share of the rigid objects' grasps rendered rigid); "
         "interval_level is the coverage a model states for its intervals, "
         "interval_width_decades_median the median interval width in decades as the display shows it "
-        "(soft_...: over labels below 3 MPa). Unlabelled and unreadable "
-        "records (and with --unseen-by, records of objects a model saw) are skipped and counted."
+        "(soft_...: over labels below 3 MPa). Unreadable and unlabelled records (and with --unseen-by, "
+        "records of objects a model trained on) are skipped and listed by name with the cause; a run that "
+        "scores no record exits with status 2."
     )
     parser.add_argument("dir", metavar="DIR", help="directory searched recursively for .grasp records")
     parser.add_argument("--methods", nargs="+", choices=ALL_METHODS, default=None,
@@ -111,10 +114,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "Default: the settings' estimator.model_path, else the shipped model "
                              "(estimator/models/default). Read only when a learned method is evaluated")
     parser.add_argument("--unseen-by", dest="unseen_by", action="append", metavar="MODEL_DIR", default=None,
-                        help="keep only records whose object is in this model's test split (metadata.json "
-                             "data.objects.test, else the split.json of its dataset), so that model never "
-                             "trained on them (a model trained on another split may have); repeat to keep "
-                             "those in every given model's test split")
+                        help="keep only records whose object this model did not train on: skip the objects its "
+                             "metadata.json lists as train or val objects (val objects chose its epoch and "
+                             "calibrated its intervals; a fine-tuned model lists its fine-tuning objects among "
+                             "the train ones) or, where it lists no names, its dataset's split.json does. Any "
+                             "other object is kept, whatever the records' source (the published table's test "
+                             "objects, a lab's session records). Repeat to keep only objects no given model "
+                             "trained on")
     parser.add_argument("--workers", type=int, default=1, help="worker processes")
     parser.add_argument("--plot", metavar="PNG", default=None,
                         help="write predictions vs label on log axes with the one-decade band, one panel "
@@ -171,6 +177,42 @@ def _models(args: argparse.Namespace, settings: Settings) -> list[ModelMethod]:
     return models
 
 
+def unseen_by(model_dirs: Sequence[str]) -> dict[str, list[str]]:
+    """Object name -> the models of ``model_dirs`` that trained on it (:func:`trained_objects`)."""
+    by_object: dict[str, list[str]] = {}
+    for model_dir in model_dirs:
+        for name in trained_objects(model_dir):
+            by_object.setdefault(name, []).append(str(model_dir))
+    return by_object
+
+
+def skipped_records(rows: Sequence[Mapping[str, Any]], *,
+                    trained_by: Mapping[str, Sequence[str]] | None = None) -> list[dict[str, str]]:
+    """The skipped records of ``rows``, each ``{"path", "cause"}``: ``unreadable: ...``, ``unlabelled: ...``
+    or ``excluded by --unseen-by: MODEL trained on OBJECT`` (``trained_by``: object -> models)."""
+    out = []
+    for r in rows:
+        if "skipped" not in r:
+            continue
+        cause = r["skipped"]
+        if skip_cause(r) == "trained on":
+            models = ", ".join((trained_by or {}).get(r.get("object", ""), [])) or "a model"
+            cause = f"excluded by --unseen-by: {models} trained on {r.get('object')}"
+        out.append({"path": r["path"], "cause": cause})
+    return out
+
+
+def print_skipped(skipped: Sequence[Mapping[str, str]], total: int, *, file: Any = None, limit: int = 50) -> None:
+    """List skipped records, one a line with its cause (the first ``limit``; ``--json`` holds them all)."""
+    if not skipped:
+        return
+    print(f"skipped {len(skipped)} of {total} records:", file=file)
+    for entry in skipped[:limit]:
+        print(f"  {entry['path']}: {entry['cause']}", file=file)
+    if len(skipped) > limit:
+        print(f"  ... and {len(skipped) - limit} more (--json lists every one)", file=file)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise EstimatorError(f"--workers {args.workers}: expected at least 1")
@@ -178,31 +220,36 @@ def run(args: argparse.Namespace) -> int:
     root = Path(args.dir)
     paths = find_records(root)
     methods = list(METHODS) if args.methods is None else [m for m in args.methods if m in METHODS]
+    trained_by = unseen_by(args.unseen_by) if args.unseen_by else None
     models = _models(args, settings)
-    objects = None
-    if args.unseen_by:
-        objects = frozenset.intersection(*(held_out_objects(d) for d in args.unseen_by))
     started = time.perf_counter()
     rows = evaluate_records(paths, settings=settings, methods=methods, calibration=args.calibration,
-                            models=models, objects=objects,
+                            models=models, exclude=None if trained_by is None else frozenset(trained_by),
                             workers=min(args.workers, os.cpu_count() or 1, len(paths)),
                             correct_camera_lag=args.camera_lag, correct_width_lag=args.width_lag)
-    skipped = Counter(r["skipped"].split(":")[0] for r in rows if "skipped" in r)
-    labelled = len({r["path"] for r in rows if "method" in r})
-    if objects is not None and not labelled:
-        raise EstimatorError(f"{root}: no labelled record is of an object in the test split of "
-                             f"{', '.join(args.unseen_by)} ({len(objects)} objects)")
+    skipped = skipped_records(rows, trained_by=trained_by)
+    scored = sorted({r["path"] for r in rows if "method" in r})
+    if not scored:
+        print_skipped(skipped, len(paths), file=sys.stderr)
+        causes = Counter(skip_cause(r) for r in rows if "skipped" in r)
+        said = {"trained on": f"of objects {', '.join(args.unseen_by or [])} trained on"}
+        raise EstimatorError(f"{root}: no record scored, all {len(paths)} skipped ("
+                             + ", ".join(f"{n} {said.get(cause, cause)}" for cause, n in causes.most_common())
+                             + "; listed above)")
     display_range = display_range_pa(settings)
     summary = ablation_table(rows, methods=methods, models=models, display_range_pa=display_range)
     if args.plot:
         plot(rows, list(summary), args.plot, display_range_pa=display_range)
     if args.rows:
         write_rows(rows, args.rows, display_range_pa=display_range)
+    kept = sorted({r["object"] for r in rows if "method" in r})
     result = {
-        "dir": str(root), "records": len(paths), "labelled": labelled, "skipped": dict(skipped),
+        "dir": str(root), "records": len(paths), "labelled": len(scored),
+        "skipped": dict(Counter(skip_cause(r) for r in rows if "skipped" in r)), "skipped_records": skipped,
         "seconds": time.perf_counter() - started, "display_range_pa": list(display_range), "methods": summary,
         "models": sorted({e.model_dir for e in models}),
-        "unseen_by": None if objects is None else {"models": args.unseen_by, "objects": sorted(objects)},
+        "unseen_by": None if trained_by is None else {"models": args.unseen_by, "trained_on": sorted(trained_by),
+                                                     "objects": kept},
         "plot": args.plot, "rows": args.rows,
     }
     if args.json:
@@ -214,9 +261,11 @@ def run(args: argparse.Namespace) -> int:
 
 def _print_table(result: Mapping[str, Any], root: Path) -> None:
     unseen = result["unseen_by"]
-    scope = "" if unseen is None else f", objects of the test split of {', '.join(unseen['models'])}"
-    print(f"{result['labelled']} labelled records of {result['records']} under {root}{scope} "
+    scope = "" if unseen is None else (f", {len(unseen['objects'])} objects {', '.join(unseen['models'])} "
+                                       "did not train on")
+    print(f"scored {result['labelled']} records of {result['records']} under {root}{scope} "
           f"({result['seconds']:.1f} s)")
+    print_skipped(result["skipped_records"], result["records"])
     print("log10 err / within10x: bounds at their value; point: bounds at the geometric middle of "
           "bound and physical limit; ok: ok estimates only; paper: its unseen-object figure for the "
           "same method and inputs")

@@ -35,9 +35,12 @@ model fine-tuned on the rest, and that object's grasps scored as the rig's displ
 base model against fine-tuned.
 
 The fine-tuned model's metadata lists the fine-tuning objects among its train
-objects (and no longer among its val or test objects), so ``estimator evaluate
---unseen-by`` scores it on objects it never saw; ``fine_tuning`` says from what
-and how it was made.
+objects (and no longer among its val or test objects) and in ``fine_tuning.objects``,
+so ``estimator evaluate --unseen-by`` scores it on objects it never saw
+(:func:`~estimator.evaluate.trained_objects`); ``fine_tuning`` says from what
+and how it was made. Whether it is better than the base model on a lab's own
+labelled records of other objects is :func:`estimator.compare.compare_models`
+(``estimator fine-tune --compare RECORDS``, or ``estimator compare`` afterwards).
 """
 
 from __future__ import annotations
@@ -56,7 +59,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from estimator.errors import EstimatorError
+from estimator.errors import EstimatorError, ModelError
 from estimator.learned.calibrate import calibrate
 from estimator.learned.dataset import SPLITS, load_split
 from estimator.learned.export import export_onnx, network_from_onnx
@@ -172,7 +175,14 @@ def _prepared(model_dir: Path, data_dir: Path, replay: str | Path | None, replay
               ) -> tuple[dict[str, Any], Variant, SplitData, SplitData | None, SplitData | None]:
     """The base metadata, its variant, every sample of ``data_dir``, and the replay's train and val samples."""
     meta_path = model_dir / "metadata.json"
-    metadata = ModelMetadata.from_json(json.loads(meta_path.read_text()), str(meta_path))
+    if not model_dir.is_dir():
+        raise ModelError(f"{model_dir}: no such model directory (expected one holding metadata.json and model.onnx, "
+                         "e.g. estimator/models/default)")
+    try:
+        raw = json.loads(meta_path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ModelError(f"{meta_path}: not a readable model metadata file ({exc})") from exc
+    metadata = ModelMetadata.from_json(raw, str(meta_path))
     variant, base = metadata.variant, dict(metadata.raw)
     check_dataset_fits(data_dir, variant, base.get("data") or {})
     if not (math.isfinite(replay_ratio) and replay_ratio > 0):

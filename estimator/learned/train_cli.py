@@ -107,7 +107,8 @@ def _fine_tune(args: argparse.Namespace) -> int:
                      lr=_given(args.lr, FINE_TUNE_CONFIG.lr), weight_decay=args.weight_decay,
                      label_sd_decades=args.label_sd, seed=args.seed, threads=args.threads)
     return fine_tune_and_report(args.init, args.data, args.out, config=config, replay=args.replay,
-                                replay_ratio=_given(args.replay_ratio, REPLAY_RATIO), as_json=args.json)
+                                replay_ratio=_given(args.replay_ratio, REPLAY_RATIO), as_json=args.json,
+                                model_option="--init")
 
 
 def _given(value: Any, default: Any) -> Any:

@@ -154,7 +154,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--bins", type=int, default=48, help="bins per colour channel of the lookup table")
     parser.add_argument(
         "--tiles", type=int, nargs=2, default=(3, 3), metavar=("ROWS", "COLS"),
-        help="position tiles with a table each (light falls differently across the pad)",
+        help="position tiles with a table each (light falls differently across the pad) (default: 3 3)",
     )
     parser.add_argument(
         "--refine-passes", type=int, default=1,

@@ -25,10 +25,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--settings", default=str(default_settings_path()), help="settings TOML: [load_cell] calibration, rate and baud"
     )
-    parser.add_argument("--baud", type=int, default=None, help="serial baud rate; None: [load_cell] baud of the settings")
+    parser.add_argument("--baud", type=int, default=None, help="serial baud rate (default: [load_cell] baud of the settings)")
     parser.add_argument("--force-n", type=float, default=0.0, help="--fake: force the simulated cell feels, N")
     parser.add_argument("--noise-counts", type=float, default=0.0, help="--fake: reading noise (std), counts")
-    parser.add_argument("--duration-s", type=float, default=None, help="stop after this many seconds; None: run until Ctrl+C")
+    parser.add_argument("--duration-s", type=float, default=None, help="stop after this many seconds (default: run until Ctrl+C)")
     parser.add_argument("--json", action="store_true", help="on exit, print a JSON summary as the last stdout line")
 
 

@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         default=None,
         help="settings TOML the session runs with (stored in the log; bus keys, size limit "
-        "and default endpoints come from it); None: the shipped one",
+        "and default endpoints come from it; default: the shipped one)",
     )
     parser.add_argument(
         "--endpoint",
@@ -48,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="S",
-        help="stop after S seconds (None: until Ctrl-C or SIGTERM)",
+        help="stop after S seconds (default: run until Ctrl-C or SIGTERM)",
     )
     parser.add_argument(
         "--scene",

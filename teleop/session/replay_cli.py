@@ -40,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         default=None,
         help="settings TOML for the default endpoint, message size limit, heartbeat and bus keys; "
-        "None: the shipped one",
+        "default: the shipped one",
     )
     parser.add_argument(
         "--topics",

@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--n", type=int, default=48, help="number of presses")
     parser.add_argument("--ball-radius-mm", type=float, default=2.0, help="radius of the rigid ball (mm)")
     parser.add_argument("--depth-mm", type=float, nargs=2, default=(0.3, 1.0), metavar=("LO", "HI"),
-                        help="press depths are drawn uniformly from LO..HI (mm)")
+                        help="press depths are drawn uniformly from LO..HI, in mm (default: 0.3 1.0)")
     parser.add_argument("--seed", type=int, default=0,
                         help="random seed (camera noise, background dust, press centres and depths)")
     parser.add_argument("--json", action="store_true", help="print one JSON summary as the last line")

@@ -64,9 +64,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print one JSON summary object as the last stdout line "
                              "(grasps, seconds, grasps_per_s_per_core, out, models, failed)")
     parser.add_argument("--settings", metavar="FILE", default=None,
-                        help="settings TOML; None: the shipped configs/settings.toml")
+                        help="settings TOML (default: the shipped configs/settings.toml)")
     parser.add_argument("--limit-objects", type=int, default=None, metavar="M",
-                        help="simulate only the first M objects of the catalogue (None: all)")
+                        help="simulate only the first M objects of the catalogue (default: all)")
     parser.add_argument("--only", type=_names, default=None, metavar="NAME,NAME,...",
                         help="simulate only these objects of the catalogue (comma-separated names)")
     parser.add_argument("--randomize-rig", action="store_true",

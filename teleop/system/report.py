@@ -364,7 +364,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", metavar="LOG", help="session log (.mcap) written by `teleop record` or `teleop demo`")
     parser.add_argument("--out", required=True, metavar="DIR", help="directory for index.html and its PNGs (created)")
     parser.add_argument("--objects", metavar="PATH", default=None,
-                        help="object catalogue for the labels; None: the catalogue stored in the log")
+                        help="object catalogue for the labels (default: the catalogue stored in the log)")
     parser.add_argument("--screenshot", metavar="PNG", default=None,
                         help="also render the page with headless Chromium into this PNG (whole page)")
     parser.add_argument("--width", type=int, default=1400, metavar="PX", help="screenshot width in pixels")

@@ -18,6 +18,7 @@ from estimator.evaluate import (
     model_methods,
     plot,
     summarise,
+    trained_objects,
 )
 from estimator.learned.inputs import Variant
 
@@ -183,8 +184,30 @@ def test_held_out_objects_come_from_the_metadata_or_the_datasets_split(tmp_path)
     lost = write_metadata(tmp_path / "lost", {"dir": str(tmp_path / "gone"), "objects": {"test": 1}})
     with pytest.raises(ModelError, match="split.json"):
         held_out_objects(lost)
-    with pytest.raises(ModelError, match="not a readable model metadata"):
+    with pytest.raises(ModelError, match="no such model directory"):
         held_out_objects(tmp_path / "nothing")
+
+
+def test_trained_objects_are_train_val_and_fine_tuning_objects(tmp_path):
+    listed = write_metadata(tmp_path / "listed", {"objects": {"train": ["a"], "val": ["b"], "test": ["c", "d"]}})
+    assert trained_objects(listed) == {"a", "b"}
+    tuned = write_metadata(tmp_path / "tuned", {"objects": {"train": ["a"], "val": [], "test": ["c"]}})
+    meta = json.loads((tuned / "metadata.json").read_text())
+    (tuned / "metadata.json").write_text(json.dumps({**meta, "fine_tuning": {"objects": ["lab_mug", "c"]}}))
+    assert trained_objects(tuned) == {"a", "lab_mug", "c"}
+    dataset = tmp_path / "dataset"
+    dataset.mkdir()
+    (dataset / "split.json").write_text(json.dumps({"train": ["a"], "val": ["b"], "test": ["e"]}))
+    counted = write_metadata(tmp_path / "counted", {"dir": str(dataset), "objects": {"train": 1, "val": 1}})
+    assert trained_objects(counted) == {"a", "b"}
+    lost = write_metadata(tmp_path / "lost", {"dir": str(tmp_path / "gone"), "objects": {"train": 1}})
+    with pytest.raises(ModelError, match="train and val objects.*split.json"):
+        trained_objects(lost)
+    with pytest.raises(ModelError, match="no such model directory"):
+        trained_objects(tmp_path / "nothing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ModelError, match="not a readable model metadata"):
+        trained_objects(tmp_path / "empty")
 
 
 def test_plot_draws_one_panel_per_method(tmp_path):

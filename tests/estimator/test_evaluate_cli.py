@@ -105,3 +105,32 @@ def test_rows_option_is_explained():
     evaluate_cli.add_arguments(parser)
     action = next(a for a in parser._actions if "--rows" in a.option_strings)
     assert "felt_pa" in action.help and "CSV" in action.help
+
+
+def test_skipped_records_are_named_with_their_cause_and_nothing_scored_fails(records, tmp_path, capsys):
+    from dataclasses import replace
+
+    from teleop.record import read_record, write_record
+
+    folder = tmp_path / "mixed"
+    folder.mkdir()
+    rigid = read_record(records / "steel_ball_bearing.grasp")
+    write_record(rigid, folder / "labelled.grasp")
+    write_record(replace(rigid, label=None), folder / "unlabelled.grasp")
+    (folder / "broken.grasp").write_bytes(b"not a zip")
+    assert main(["evaluate", str(folder), "--methods", "no_tactile"]) == 0
+    out = capsys.readouterr().out
+    assert "scored 1 records of 3" in out and "skipped 2 of 3 records:" in out
+    assert f"{folder / 'broken.grasp'}: unreadable: " in out and f"{folder / 'unlabelled.grasp'}: unlabelled" in out
+    assert main(["evaluate", str(folder), "--methods", "no_tactile", "--json"]) == 0
+    result = last_json(capsys)
+    assert result["skipped"] == {"unreadable": 1, "unlabelled": 1}
+    assert [s["path"] for s in result["skipped_records"]] == [str(folder / "broken.grasp"),
+                                                              str(folder / "unlabelled.grasp")]
+
+    (folder / "labelled.grasp").unlink()
+    assert main(["evaluate", str(folder), "--methods", "no_tactile", "--json"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and "Traceback" not in captured.err
+    assert "no record scored, all 2 skipped (1 unreadable, 1 unlabelled" in captured.err
+    assert "broken.grasp: unreadable" in captured.err

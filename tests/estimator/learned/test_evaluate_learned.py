@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -113,20 +114,47 @@ def test_two_hybrids_are_named_by_variant_and_workers_agree(sim_grasps, trained_
         assert two[name]["log10_error"] == pytest.approx(one[name]["log10_error"])
 
 
-def test_unseen_by_keeps_only_the_models_test_objects(sim_grasps, tmp_path, capsys):
+def _metadata(model, objects, **extra):
+    model.mkdir(exist_ok=True)
+    (model / "metadata.json").write_text(json.dumps({"data": {"objects": objects}, **extra}))
+    return model
+
+
+def test_unseen_by_excludes_exactly_the_objects_the_model_trained_on(sim_grasps, tmp_path, capsys):
+    # Session records under catalogue names: an object the published table never held is unseen; the
+    # model's train and val objects (and those it was fine-tuned on) are not, whatever split lists the rest.
     records, _ = sim_grasps
-    model = tmp_path / "model"
-    model.mkdir()
-    objects = {"train": ["stress_ball"], "val": [], "test": ["rubber_duck", "steel_ball_bearing", "not_here"]}
-    (model / "metadata.json").write_text(json.dumps({"data": {"objects": objects}}))
+    model = _metadata(tmp_path / "model", {"train": ["stress_ball", "acrylic_hex"], "val": ["rubber_duck"],
+                                           "test": ["steel_ball_bearing"]})
     assert main(["evaluate", str(records), "--methods", "no_tactile", "--unseen-by", str(model), "--json"]) == 0
     result = last_json(capsys)
-    assert result["labelled"] == 2 and result["skipped"] == {"seen": 2}
-    assert result["methods"]["no_tactile"]["n"] + result["methods"]["no_tactile"]["states"]["insufficient_data"] == 2
-    assert result["unseen_by"]["objects"] == ["not_here", "rubber_duck", "steel_ball_bearing"]
-    (model / "metadata.json").write_text(json.dumps({"data": {"objects": {"test": ["not_here"]}}}))
-    assert main(["evaluate", str(records), "--methods", "no_tactile", "--unseen-by", str(model)]) == 2
-    assert "test split" in error_line(capsys)
+    assert result["labelled"] == 2 and result["skipped"] == {"trained on": 2}
+    assert result["unseen_by"]["objects"] == ["silicone_ball_shore00_30", "steel_ball_bearing"]
+    assert result["unseen_by"]["trained_on"] == ["acrylic_hex", "rubber_duck", "stress_ball"]
+    causes = {Path(s["path"]).name: s["cause"] for s in result["skipped_records"]}
+    assert causes == {"rubber_duck.grasp": f"excluded by --unseen-by: {model} trained on rubber_duck",
+                      "stress_ball.grasp": f"excluded by --unseen-by: {model} trained on stress_ball"}
+
+    # A fine-tuned model: its fine-tuning objects count as trained on, even where data.objects omits them.
+    tuned = _metadata(tmp_path / "tuned", {"train": ["stress_ball"], "val": [], "test": []},
+                      fine_tuning={"objects": ["silicone_ball_shore00_30"]})
+    assert main(["evaluate", str(records), "--methods", "no_tactile", "--unseen-by", str(tuned), "--json"]) == 0
+    assert last_json(capsys)["unseen_by"]["objects"] == ["rubber_duck", "steel_ball_bearing"]
+    # Two models: only objects neither trained on; the table names each skipped record and its cause.
+    assert main(["evaluate", str(records), "--methods", "no_tactile", "--unseen-by", str(model),
+                 "--unseen-by", str(tuned)]) == 0
+    out = capsys.readouterr().out
+    assert "scored 1 records of 4" in out and "skipped 3 of 4 records:" in out
+    assert f"silicone_ball_shore00_30.grasp: excluded by --unseen-by: {tuned} trained on" in out
+
+    names = sorted(p.stem for p in records.glob("*.grasp"))
+    everything = _metadata(tmp_path / "all", {"train": names, "val": [], "test": []})
+    assert main(["evaluate", str(records), "--methods", "no_tactile", "--unseen-by", str(everything)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "no record scored, all 4 skipped (4 of objects" in err
+    assert "rubber_duck.grasp: excluded by --unseen-by" in err  # listed before the error
+    assert main(["evaluate", str(records), "--methods", "no_tactile", "--unseen-by", str(tmp_path / "nope")]) == 2
+    assert "no such model directory" in error_line(capsys)
 
 
 def test_a_learned_method_no_model_gives_is_a_one_line_error(sim_grasps, trained_model, capsys):
