@@ -7,7 +7,8 @@ frozen :class:`~haptics.operator_link.LoopStatus` ten times a second. Panels:
 * **live system**: whether the robot node, the estimator and the display's renderer are alive
   (heard from within three heartbeat periods) and when each was last heard;
 * **grasp**: its id and object, its phase (loading, loaded, ended), the robot's mode and target
-  width, the force (N, with a bar up to the settings' maximum) and the fingers' width;
+  width, the force (N, with a bar up to the settings' maximum), the fingers' width, and the label
+  the operator gave it;
 * **estimate**: the grasp's newest estimate: E with its interval, its state (a bound reads
   ``E >= ...``), provisional or final, and the estimator's reason;
 * **display**: what the softness display renders: the fraction of its range and the modulus it
@@ -22,7 +23,15 @@ Keys: with ``--input keyboard`` every key goes to the keyboard input device
 (:mod:`haptics.inputs.keyboard`: up/down squeeze and open, e toggles the enable, g r s n q are the
 buttons). With the other inputs the device drives the grip and enable, and g r s n q still work
 as the buttons from the keyboard. Always: ``+``/``-`` change the discrete grasp's force by 1 N
-(up to the settings' maximum), ctrl+c and ctrl+q quit.
+(up to the settings' maximum), ctrl+c and ctrl+q quit, and ``l`` labels a grasp.
+
+Labelling: ``l`` opens a line under the panels for the grasp shown (after ``n``, the last one):
+type the object's catalogue name (the right arrow takes the suggestion), or a name with a Shore
+reading (``blue gel shore 00 60``, ``pad shore A 40``) or a stated modulus (``cork mat 12 MPa``,
+``... measured``), as :func:`teleop.labels.parse_label` reads them; enter sends the ``label`` (the
+loop publishes it on ``bus.command``, where ``teleop record`` logs it), escape closes the line.
+A reading out of range or an unknown name is shown on the line, which stays open. While it is
+open, keys go to the line, not to the keyboard input device (ctrl+c still quits).
 """
 
 from __future__ import annotations
@@ -30,7 +39,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from rich.text import Text
@@ -38,9 +47,11 @@ from textual import events
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal
-from textual.widgets import Static
+from textual.suggester import SuggestFromList
+from textual.widgets import Input, Static
 
 from haptics.operator_link import LoopStatus, OperatorLoop
+from teleop.labels import LabelError, describe_label, parse_label
 
 __all__ = ["CONSOLE_BUTTON_KEYS", "OperatorConsole", "estimate_line", "format_pa"]
 
@@ -48,6 +59,8 @@ log = logging.getLogger(__name__)
 
 #: Keys that press a button from the console whatever the input device.
 CONSOLE_BUTTON_KEYS = {"g": "grasp", "r": "release", "s": "stop", "n": "next", "q": "quit"}
+LABEL_KEY = "l"
+LABEL_PLACEHOLDER = "object name (right arrow takes the suggestion), NAME shore A 40, NAME shore 00 60 or NAME 12 MPa"
 FORCE_STEP_N = 1.0
 REFRESH_S = 0.1
 QUIT_GRACE_S = 1.0  # after quit, the loop thread is told to stop if it has not ended by itself
@@ -110,16 +123,23 @@ class OperatorConsole(App):
         Run ``loop`` in a thread while the app runs (False: something else steps it).
     duration_s : float, optional
         Quit after this many seconds.
+    catalogue : sequence of ObjectSpec
+        The objects a label may name by name alone (their names are suggested as typed).
+    catalogue_name : str
+        What the catalogue is called in labels and errors (its file).
 
     ``exit_status`` after the run: the loop's last :class:`LoopStatus`.
     """
 
     TITLE = "haptics operate"
+    AUTO_FOCUS = None  # the keys are the console's until the label line opens
     CSS = """
     Screen { layout: vertical; overflow-y: auto; }
     .row { height: auto; width: 100%; }
     .panel { border: round $primary; padding: 0 1; height: auto; width: 1fr; }
     #keys { color: $text-muted; padding: 0 1; height: auto; }
+    #label { display: none; }
+    #label.open { display: block; }
     """
     BINDINGS = [
         Binding("ctrl+c", "quit_console", "Quit", priority=True, show=False),
@@ -129,8 +149,12 @@ class OperatorConsole(App):
               ("input", "operator"), ("notice", "notices"))
 
     def __init__(self, loop: OperatorLoop, *, input_name: str, keyboard: Any = None, run_loop: bool = True,
-                 duration_s: float | None = None):
+                 duration_s: float | None = None, catalogue: Sequence[Any] = (),
+                 catalogue_name: str = "the catalogue"):
         super().__init__()
+        self.catalogue = tuple(catalogue)
+        self.catalogue_name = catalogue_name
+        self.labelling: str | None = None  # the grasp the open label line names
         self.duration_s = duration_s
         self.loop = loop
         self.input_name = input_name
@@ -139,6 +163,7 @@ class OperatorConsole(App):
         self.exit_status: LoopStatus | None = None
         self.loop_error = ""
         self.texts: dict[str, str] = {}  # each panel's text as last drawn (for tests and logs)
+        self.console_note = ""  # the console's own last note (a label sent, nothing to label)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -152,6 +177,10 @@ class OperatorConsole(App):
                     panel = Static("", id=name, classes="panel", markup=False)
                     panel.border_title = dict(self.PANELS)[name]
                     yield panel
+        label = Input(id="label", placeholder=LABEL_PLACEHOLDER, disabled=True,
+                      suggester=SuggestFromList([spec.name for spec in self.catalogue], case_sensitive=False))
+        label.border_title = "label"
+        yield label
         yield Static(self._legend(), id="keys", markup=False)
 
     def on_mount(self) -> None:
@@ -186,7 +215,17 @@ class OperatorConsole(App):
 
     def on_key(self, event: events.Key) -> None:
         key = event.key
+        if self.labelling is not None:  # the label line has the keys; escape closes it
+            event.stop()
+            if key == "escape":
+                self.close_label()
+            else:
+                self.query_one("#label", Input).focus()  # back to the line (after a tab, say)
+            return
         event.stop()
+        if key == LABEL_KEY and (self.keyboard is None or not self.keyboard.press(key)):
+            self.open_label()
+            return
         if key == "q":  # whatever the input, and even if the loop has stopped stepping
             self.action_quit_console()
             return
@@ -201,6 +240,46 @@ class OperatorConsole(App):
             self.loop.press(CONSOLE_BUTTON_KEYS[key])
         self.redraw()
 
+    # ------------------------------------------------------------------ labels
+
+    def open_label(self) -> bool:
+        """Open the label line for the grasp a label would name now; False (and a note) if none."""
+        grasp_id = self.loop.status.label_grasp_id
+        line = self.query_one("#label", Input)
+        if grasp_id is None:
+            self.console_note = "no grasp to label yet: grasp first, then l"
+            self.redraw()
+            return False
+        self.labelling = grasp_id
+        line.border_title = f"label grasp {grasp_id}: enter sends, escape closes"
+        line.border_subtitle = ""
+        line.value = ""
+        line.disabled = False
+        line.add_class("open")
+        line.focus()
+        return True
+
+    def close_label(self) -> None:
+        line = self.query_one("#label", Input)
+        line.remove_class("open")
+        line.blur()
+        line.disabled = True
+        self.labelling = None
+        self.redraw()
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        event.stop()
+        if self.labelling is None:
+            return
+        try:
+            label = parse_label(event.value, self.catalogue, where=self.catalogue_name)
+        except LabelError as exc:
+            event.input.border_subtitle = str(exc)
+            return
+        self.loop.label(self.labelling, label)
+        self.console_note = f"label {self.labelling}: {describe_label(label)} sent"
+        self.close_label()
+
     def action_quit_console(self) -> None:
         self.loop.press("quit")
         self.set_timer(QUIT_GRACE_S, self._stop.set)  # in case the loop no longer steps
@@ -210,10 +289,10 @@ class OperatorConsole(App):
     def _legend(self) -> str:
         if self.keyboard is not None:
             drive = ("keys: up/k squeeze  down/j open  o open fully  e enable on/off (dead-man)  |  "
-                     "g grasp  r release  s stop  n next object  q quit  |  +/- grasp force")
+                     "g grasp  r release  s stop  n next object  q quit  |  +/- grasp force  l label")
         else:
             drive = (f"the {self.input_name} input drives grip and enable  |  keys: g grasp  r release  s stop  "
-                     "n next object  q quit  |  +/- grasp force")
+                     "n next object  q quit  |  +/- grasp force  l label")
         return (drive + "\ntwo ways to drive: g grasps at the chosen force (discrete); holding the enable "
                 "makes the fingers follow the grip (continuous), letting it go stops them")
 
@@ -246,6 +325,14 @@ class OperatorConsole(App):
             + ("-" if view.force_n is None else f"{view.force_n:.1f} N"),
             f"width  {_mm(view.width_m)}",
         ]
+        given = status.labels.get(view.grasp_id) if view.grasp_id else None
+        given = given or view.label
+        if given is not None:
+            grasp.append(f"label  {describe_label(given)}")
+        elif status.label_grasp_id is not None and status.label_grasp_id in status.labels:
+            grasp.append(f"label  {status.label_grasp_id}: {describe_label(status.labels[status.label_grasp_id])}")
+        else:
+            grasp.append(f"label  - ({LABEL_KEY} names the object)")
         estimate = view.estimate
         lines = [estimate_line(estimate)]
         if estimate is not None:
@@ -288,6 +375,8 @@ class OperatorConsole(App):
             notice_lines.append(self.loop_error + " (q quits)")
         if status.problem:
             notice_lines.append(f"problem: {status.problem}")
+        if self.console_note:
+            notice_lines.append(self.console_note)
         if view.refused:
             notice_lines.append(f"{view.refused} bus message(s) refused (see the log)")
         notice_lines.append("last: " + ("  |  ".join(status.log[-3:]) or "-"))

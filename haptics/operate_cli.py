@@ -20,6 +20,7 @@ from haptics.inputs import BACKENDS as INPUT_BACKENDS
 from haptics.inputs import open_input
 from haptics.operator_link import LoopStatus, OperatorLink, OperatorLoop
 from haptics.settings import operator_settings
+from teleop.catalogue import default_catalogue_path, load_catalogue
 from teleop.errors import SettingsError
 from teleop.live import StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.settings import default_settings_path, load_settings
@@ -43,8 +44,16 @@ Keys (--input keyboard; a terminal has no key release, so the enable toggles):
   e          enable on / off (dead-man)     g          grasp at the force  r   release
   s          stop (enable off)              n          next object         q   quit
   + / -      grasp force +/- 1 N            ctrl+c     quit
+  l          label the grasp: what the object is (below)
 With --input gamepad, display or sim the device drives the grip, the enable and its buttons;
-g r s n q and + - still work from the keyboard.
+g r s n q, + - and l still work from the keyboard.
+
+Labelling: l opens a line for the grasp shown (after n, the last one). Type the object's name
+from the catalogue (--objects; the right arrow takes the suggestion), or a name with a Shore
+reading ("blue gel shore 00 60", "pad shore A 40": converted to E by Gent's relation) or the
+maker's modulus ("cork mat 12 MPa"); enter sends it on the bus, where `teleop record` logs it
+and `teleop export` takes it as the grasp's label; escape closes the line. After the session,
+`teleop label LOG --csv FILE` labels grasps from a CSV instead.
 
 A session: g (or hold the enable and squeeze), watch the force, the estimate and what the
 display renders, r to release, n for the next object, q to quit.
@@ -68,12 +77,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="discrete grasp force, newtons, at most the settings' gripper.target_force_n "
                              "(default: gripper.target_force_n)")
     add_endpoint_arguments(parser, "robot_pub", "estimate_pub", "command", "display_pub")
+    parser.add_argument("--objects", metavar="PATH", default=str(default_catalogue_path()),
+                        help="object catalogue (.toml or .csv) whose names a label may give (the l key)")
     parser.add_argument("--headless", action="store_true",
                         help="no screen: run the loop and print one line per action (the sim input, scripts)")
     parser.add_argument("--duration-s", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: until quit, Ctrl-C or SIGTERM)")
     parser.add_argument("--json", action="store_true",
-                        help="on exit print one JSON object (follows_sent, commands_sent, last grasp, problem) "
+                        help="on exit print one JSON object (follows_sent, commands_sent, last grasp, labels given, problem) "
                              "as the last stdout line")
 
 
@@ -103,13 +114,15 @@ def run(args: argparse.Namespace) -> int:
     if not args.headless and not (sys.stdin.isatty() and sys.stdout.isatty()):
         raise SettingsError("haptics operate needs a terminal for its screen; run it in one (or in tmux), "
                             "or pass --headless")
+    catalogue = () if args.headless else load_catalogue(args.objects)
     device = open_input(name, settings)
     with device, OperatorLink.from_settings(bus) as link:
         loop = OperatorLoop(link, device, settings, force_n=args.force)
         if args.headless:
             status = _run_headless(loop, name, duration_s=args.duration_s)
         else:
-            status = _run_console(loop, name, device, duration_s=args.duration_s)
+            status = _run_console(loop, name, device, duration_s=args.duration_s, catalogue=catalogue,
+                                  catalogue_name=args.objects)
     print(f"operator: {status.follows_sent} follow and {status.commands_sent} command message(s) sent"
           + (f"; last problem: {status.problem}" if status.problem else ""), file=sys.stderr)
     if args.json:
@@ -117,15 +130,18 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps({"input": name, "follows_sent": status.follows_sent, "commands_sent": status.commands_sent,
                           "grasp_id": view.grasp_id, "phase": view.phase,
                           "estimate": None if view.estimate is None else dict(view.estimate),
+                          "labels": {grasp_id: dict(body) for grasp_id, body in status.labels.items()},
                           "problem": status.problem or None}, allow_nan=False))
     return 0
 
 
-def _run_console(loop: OperatorLoop, name: str, device: object, *, duration_s: float | None) -> LoopStatus:
+def _run_console(loop: OperatorLoop, name: str, device: object, *, duration_s: float | None,
+                 catalogue: tuple = (), catalogue_name: str = "the catalogue") -> LoopStatus:
     from haptics.console import OperatorConsole
 
     keyboard = device if getattr(device, "name", "") == "keyboard" else None
-    app = OperatorConsole(loop, input_name=name, keyboard=keyboard, duration_s=duration_s)
+    app = OperatorConsole(loop, input_name=name, keyboard=keyboard, duration_s=duration_s, catalogue=catalogue,
+                          catalogue_name=catalogue_name)
     # Log lines written to the terminal would tear the screen: held while it runs, printed after.
     held = _HeldLog()
     root = logging.getLogger()

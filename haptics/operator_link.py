@@ -18,8 +18,11 @@ state and reason, what the display renders, the last robot notice, and who is al
 alive when heard from (a heartbeat or any message) within :data:`LIVENESS_PERIODS` of its
 heartbeat periods.
 
-It sends ``follow`` messages (target width, dead-man enable, grasp id) and the discrete
-``command`` actions ``start_grasp`` (``params.target_force_n``), ``stop`` and ``release``. The
+It sends ``follow`` messages (target width, dead-man enable, grasp id), the discrete
+``command`` actions ``start_grasp`` (``params.target_force_n``), ``stop`` and ``release``, and
+``label`` messages: what the object of a grasp is and its modulus, from the catalogue or a Shore
+reading (:mod:`teleop.labels`), which ``teleop record`` logs with the session (it records every
+topic of ``bus.command``) and ``teleop export`` takes as the grasp's label. The
 command publisher is lossless (commands are never dropped silently) with a short send timeout
 (:data:`SEND_TIMEOUT_S`), so a robot that stops reading cannot stall the operator's loop; a send
 that fails raises, and :class:`OperatorLoop` shows it instead of stopping.
@@ -35,6 +38,8 @@ those messages (:meth:`OperatorLoop.step`):
   runs that follow grasp (its ``robot_state`` or grasp events say so), at least
   :data:`RELEASE_FOLLOWS` of them: an operator pausing keeps the grasp, while the robot's
   watchdog ends it when the console dies (follows stop arriving);
+* :meth:`OperatorLoop.label` (any thread) names the object of a grasp; the loop sends the
+  ``label`` on its next step;
 * buttons: ``grasp`` starts a discrete grasp at the chosen force, ``release`` opens the fingers,
   ``stop`` stops them where they are, ``next`` ends the grasp shown (releasing it if still under
   way) and clears the view for the next object, ``quit`` ends the loop;
@@ -107,7 +112,8 @@ class OperatorView:
     ``phase``: ``idle`` (no grasp yet, or cleared for the next object), ``loading`` (started),
     ``loaded`` (the gripper's grasp command completed: fingers stopped at the force), ``ended``.
     ``robot``, ``estimate``, ``display`` and ``notice`` are the latest such message bodies
-    (``estimate``: the current grasp's), None before any.
+    (``estimate``: the current grasp's), None before any. ``label``: the body of the last
+    ``label`` this link sent for the current grasp, None if none.
     """
 
     t_s: float
@@ -124,6 +130,7 @@ class OperatorView:
     notice: Mapping[str, Any] | None = None
     notice_t_s: float | None = None
     refused: int = 0  # bus messages the subscription refused (malformed, unknown type)
+    label: Mapping[str, Any] | None = None
 
     def peer(self, name: str) -> Peer | None:
         return next((p for p in self.peers if p.name == name or p.source == name), None)
@@ -169,6 +176,7 @@ class OperatorLink:
         self.clock = clock
         self.follows_sent = 0
         self.commands_sent = 0
+        self.labels_sent = 0
         self._grasp_id: str | None = None
         self._object_name: str | None = None
         self._phase = "idle"
@@ -179,6 +187,7 @@ class OperatorLink:
         self._display: Mapping[str, Any] | None = None
         self._notice: tuple[Mapping[str, Any], float] | None = None
         self._dismissed: set[str] = set()  # grasps cleared from the view: their late messages are ignored
+        self._labels: dict[str, Mapping[str, Any]] = {}  # grasp id -> the last label sent for it
         self.view = self._snapshot()
 
     @classmethod
@@ -234,6 +243,18 @@ class OperatorLink:
     def release(self, grasp_id: str | None = None) -> None:
         """Open the fingers (ends a follow grasp)."""
         self.command("release", grasp_id=grasp_id)
+
+    def label(self, grasp_id: str, object_name: str, *, modulus_pa: float | None = None, source: str,
+              detail: str = "") -> None:
+        """Send one ``label``: grasp ``grasp_id`` held ``object_name``, of modulus ``modulus_pa`` (Pa;
+        None: the catalogue's), from ``source`` (one of :data:`teleop.labels.LABEL_SOURCES`),
+        ``detail`` in words. Raises MessageRejected for fields the ``label`` message refuses."""
+        sent = self.publisher.send("label", t_capture_s=self.clock(), grasp_id=grasp_id, object_name=object_name,
+                                   modulus_pa=None if modulus_pa is None else float(modulus_pa), source=source,
+                                   detail=detail)
+        self.labels_sent += 1
+        self._labels[grasp_id] = dict(sent.body)
+        self.view = self._snapshot()
 
     def clear(self) -> None:
         """Forget the grasp shown (its phase and estimate, and whatever it still sends): ready for the
@@ -313,6 +334,7 @@ class OperatorLink:
             phase=self._phase, force_n=self._force_n, width_m=self._width_m, robot=self._robot,
             estimate=estimate, estimates=count, display=self._display, notice=notice, notice_t_s=notice_t,
             refused=sum(self.subscriber.stats.refused.values()),
+            label=self._labels.get(self._grasp_id) if self._grasp_id is not None else None,
         )
 
 
@@ -344,6 +366,9 @@ class Link(Protocol):
 
     def clear(self) -> None: ...
 
+    def label(self, grasp_id: str, object_name: str, *, modulus_pa: float | None = None, source: str,
+              detail: str = "") -> None: ...
+
 
 @dataclass(frozen=True)
 class LoopStatus:
@@ -363,6 +388,8 @@ class LoopStatus:
     commands_sent: int = 0
     quit: bool = False
     log: tuple[str, ...] = field(default_factory=tuple)
+    label_grasp_id: str | None = None  # the grasp a label would name now: the current one, else the last
+    labels: Mapping[str, Any] = field(default_factory=dict)  # grasp id -> the label body sent, this session
 
 
 class OperatorLoop:
@@ -418,6 +445,9 @@ class OperatorLoop:
         self._input: Any = None
         self._target_m: float | None = None
         self._pressed: list[str] = []  # buttons pushed from another thread (press())
+        self._to_label: list[tuple[str, Any]] = []  # (grasp id, ObjectLabel) from another thread (label())
+        self._labels: dict[str, Mapping[str, Any]] = {}  # grasp id -> the label body sent
+        self._last_grasp: str | None = None  # the last grasp seen or commanded (what a label names after "next")
         self._lock = threading.Lock()
         self._last_action = ""
         self._problem = ""
@@ -432,6 +462,14 @@ class OperatorLoop:
             raise ValueError(f"button {button!r}: expected one of {', '.join(BUTTONS)}")
         with self._lock:
             self._pressed.append(button)
+
+    def label(self, grasp_id: str, label: Any) -> None:
+        """Send ``label`` (a :class:`teleop.labels.ObjectLabel`) for grasp ``grasp_id`` on the next step;
+        any thread. The loop's status then holds it (:attr:`LoopStatus.labels`)."""
+        if not grasp_id:
+            raise ValueError("a label needs the id of the grasp it names")
+        with self._lock:
+            self._to_label.append((grasp_id, label))
 
     def set_force(self, force_n: float) -> float:
         """Set the discrete grasp's force, clipped to [1 N, gripper.target_force_n]; the force set. Any thread."""
@@ -451,6 +489,7 @@ class OperatorLoop:
             reading = None
         with self._lock:
             pressed, self._pressed = self._pressed, []
+            to_label, self._to_label = self._to_label, []
         if reading is not None:
             self._input = reading
             pressed = [*pressed, *(b for b in BUTTONS if b in reading.buttons)]
@@ -459,6 +498,8 @@ class OperatorLoop:
             self._drive(reading)
         for button in pressed:
             self._button(button)
+        for grasp_id, label in to_label:
+            self._send_label(grasp_id, label)
         try:
             self.link.poll(timeout_s)
         except ComplianceTeleopError as exc:
@@ -526,6 +567,14 @@ class OperatorLoop:
         elif button == "quit":
             self.quit = True
             self._act("quit")
+
+    def _send_label(self, grasp_id: str, label: Any) -> None:
+        sent = self._send(lambda: self.link.label(grasp_id, label.object_name, modulus_pa=label.modulus_pa,
+                                                  source=label.source, detail=label.detail))
+        if sent:
+            self._labels = {**self._labels, grasp_id: label.body(grasp_id)}
+            value = "the catalogue's E" if label.modulus_pa is None else f"E {label.modulus_pa:.3g} Pa"
+            self._act(f"label {grasp_id}: {label.object_name}, {value} ({label.source})")
 
     def _drive(self, reading: Any) -> None:
         now = self.clock()
@@ -615,6 +664,9 @@ class OperatorLoop:
     def _status(self) -> LoopStatus:
         reading = self._input
         view = self.link.view
+        current = self._follow_grasp or self._discrete_grasp or view.grasp_id
+        if current is not None:
+            self._last_grasp = current
         if self._rearm:
             mode = "follow suspended (let go of the enable)"
         elif self._enable:
@@ -640,5 +692,7 @@ class OperatorLoop:
             commands_sent=getattr(self.link, "commands_sent", 0),
             quit=self.quit,
             log=tuple(self._log),
+            label_grasp_id=self._last_grasp,
+            labels=self._labels,
         )
 

@@ -19,6 +19,7 @@ COMMANDS = {
     "bench-latency": Command("teleop.system.latency", "measure the live system's latency to the display report and its estimate rate"),
     "record": Command("teleop.session.record_cli", "record every bus message of a session into an MCAP log"),
     "replay": Command("teleop.session.replay_cli", "publish a recorded session back onto the bus"),
+    "label": Command("teleop.session.label_cli", "attach labels (object and modulus per grasp) to a session log from a CSV"),
     "export": Command("teleop.session.export_cli", "turn the grasps of a session log into .grasp records"),
     "report": Command("teleop.system.report", "write a web page (HTML + PNGs) of a session log's grasps: frames, depth, force, estimates, display"),
     "recover": Command("teleop.session.recover_cli", "salvage a session log cut short (killed recorder, full disk)"),

@@ -198,3 +198,75 @@ def test_operate_refuses_a_force_beyond_the_maximum_and_a_missing_terminal(capsy
     assert "--force 80: expected a force in (0, 30] N" in capsys.readouterr().err
     assert main(["operate", "--input", "keyboard", *_endpoints()]) == 2  # pytest's stdin is no terminal
     assert "needs a terminal" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- labels
+
+
+class LabellingLink(FakeLink):
+    def label(self, grasp_id, object_name, *, modulus_pa=None, source, detail=""):
+        self._command("label", grasp_id=grasp_id, object_name=object_name, modulus_pa=modulus_pa, source=source,
+                      detail=detail)
+
+
+def test_l_labels_the_grasp_from_the_catalogue_or_a_shore_reading():
+    from teleop.catalogue import load_catalogue
+    from teleop.labels import shore_to_modulus_pa
+
+    settings = load_settings()
+    link = LabellingLink()
+    catalogue = load_catalogue()
+
+    async def session() -> OperatorConsole:
+        with KeyboardInput(grip_step=0.25) as keyboard:
+            loop = OperatorLoop(link, keyboard, settings, force_n=10.0)
+            app = OperatorConsole(loop, input_name="keyboard", keyboard=keyboard, catalogue=catalogue,
+                                  catalogue_name="objects.toml")
+            async with app.run_test(size=(120, 44)) as pilot:
+                await _until(lambda: "label  - (l names the object)" in app.texts.get("grasp", ""), pilot)
+                await pilot.press("l")  # nothing grasped yet: nothing to label
+                await _until(lambda: "no grasp to label yet" in app.texts["notice"], pilot)
+                assert app.labelling is None
+                await pilot.press("g")
+                await _until(lambda: "start_grasp" in link.kinds(), pilot)
+                grasp_id = link.sent[-1][1]["grasp_id"]
+                link.view = OperatorView(t_s=time.monotonic(), peers=NOBODY, grasp_id=grasp_id, phase="loaded")
+                await _until(lambda: loop.status.label_grasp_id == grasp_id, pilot)
+                # the catalogue's name, typed in part and completed with the suggestion; letters that are
+                # keys (g grasp, r release, e enable, q quit) go to the line, not to the robot
+                await pilot.press("l")
+                line = app.query_one("#label")
+                assert app.labelling == grasp_id and line.has_focus and grasp_id in line.border_title
+                await pilot.press(*"stress_b")
+                await _until(lambda: line._suggestion == "stress_ball", pilot)
+                await pilot.press("right", "enter")
+                await _until(lambda: "label" in link.kinds(), pilot)
+                kind, body = link.sent[-1]
+                assert body["grasp_id"] == grasp_id and body["object_name"] == "stress_ball"
+                assert body["modulus_pa"] == 4.0e4 and body["source"] == "catalogue"
+                assert link.kinds().count("start_grasp") == 1 and "release" not in link.kinds()
+                assert not keyboard.read(timeout_s=0).enable and app.labelling is None
+                await _until(lambda: "stress_ball  E 40 kPa  (catalogue)" in app.texts["grasp"], pilot)
+                # a Shore reading out of range stays on the line with the reason; a good one goes out
+                await pilot.press("l", *"gel pad shore 00 20", "enter")
+                await _until(lambda: "Shore 00 20 is outside 45 to 90" in str(line.border_subtitle), pilot)
+                assert app.labelling == grasp_id and link.kinds().count("label") == 1
+                line.value = ""
+                await pilot.press(*"gel pad shore 00 70", "enter")
+                await _until(lambda: link.kinds().count("label") == 2, pilot)
+                body = link.sent[-1][1]
+                assert body["source"] == "durometer" and "Shore 00 70" in body["detail"]
+                assert body["modulus_pa"] == pytest.approx(shore_to_modulus_pa(70, "00"))
+                await _until(lambda: "gel pad  E 732 kPa  (durometer)" in app.texts["grasp"], pilot)
+                # after "next" the last grasp is still the one labelled; escape closes the line unsent
+                await pilot.press("n")
+                await _until(lambda: "clear" in link.kinds(), pilot)
+                await pilot.press("l", "x", "escape")
+                assert app.labelling is None and link.kinds().count("label") == 2
+                await _until(lambda: f"label  {grasp_id}: gel pad  E 732 kPa" in app.texts["grasp"], pilot)
+                await pilot.press("q")
+                await _until(lambda: app.exit_status is not None, pilot)
+        return app
+
+    app = asyncio.run(session())
+    assert app.exit_status.quit and [body["object_name"] for body in app.exit_status.labels.values()] == ["gel pad"]

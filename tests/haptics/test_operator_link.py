@@ -12,6 +12,8 @@ import pytest
 
 from haptics.operator_link import RELEASE_FOLLOWS, OperatorLink, OperatorLoop, OperatorView
 from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.bus.wire import Message
+from teleop.errors import MessageRejected
 from teleop.operator import FOLLOW_RATE_HZ
 from teleop.settings import load_settings
 
@@ -71,6 +73,10 @@ class FakeLink:
     def clear(self):
         self.cleared += 1
         self.view = OperatorView(t_s=self.clock())
+
+    def label(self, grasp_id, object_name, *, modulus_pa=None, source, detail=""):
+        self.sent.append((self.clock(), "label", {"grasp_id": grasp_id, "object_name": object_name,
+                                                  "modulus_pa": modulus_pa, "source": source, "detail": detail}))
 
     def kinds(self) -> list[str]:
         return [kind for _, kind, _ in self.sent]
@@ -153,6 +159,32 @@ def test_buttons_become_commands(rig):
     assert link.kinds()[-1] == "start_grasp" and loop.status.grasp_id != grasp_id
     device.buttons = {"quit"}
     assert loop.run(duration_s=5.0).quit
+
+
+def test_a_label_names_the_current_grasp_then_the_last_one(rig):
+    from teleop.labels import modulus_label, shore_label
+
+    clock, link, device, loop = rig
+    assert loop.status.label_grasp_id is None
+    device.buttons = {"grasp"}
+    loop.step()
+    grasp_id = loop.status.grasp_id
+    assert loop.status.label_grasp_id == grasp_id
+    loop.label(grasp_id, shore_label("gel pad", 40, "A"))  # from another thread, as the console does
+    assert link.kinds()[-1] == "start_grasp"  # sent on the next step, from the loop's thread
+    loop.step()
+    assert link.sent[-1][1:] == ("label", shore_label("gel pad", 40, "A").body(grasp_id))
+    assert loop.status.labels[grasp_id]["object_name"] == "gel pad" and "label " + grasp_id in loop.status.last_action
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="ended")
+    loop.step()
+    device.buttons = {"next"}
+    loop.step()
+    assert loop.status.grasp_id is None and loop.status.label_grasp_id == grasp_id  # the last grasp still
+    loop.label(grasp_id, modulus_label("gel pad", 2e6))
+    loop.step()
+    assert link.sent[-1][2]["source"] == "datasheet" and loop.status.labels[grasp_id]["modulus_pa"] == 2e6
+    with pytest.raises(ValueError, match="needs the id"):
+        loop.label("", modulus_label("x", 1.0))
 
 
 def test_a_follow_grasp_gets_a_new_id_after_the_robot_ended_it(rig):
@@ -298,6 +330,28 @@ def test_the_link_sends_follows_and_commands():
     assert dict(got[0].body) == {"grasp_id": "g1", "target_width_m": 0.05, "enable": True}
     assert got[1].body["action"] == "start_grasp" and got[1].body["params"] == {"target_force_n": 10.0}
     assert got[2].body["action"] == "release" and got[0].source == "operator"
+
+
+def test_the_link_sends_a_label_and_shows_it_with_its_grasp():
+    settings = load_settings()
+    bus = dataclasses.replace(settings.bus, command="tcp://127.0.0.1:*")
+    with (
+        OperatorLink.from_settings(bus) as link,
+        Subscriber(link.publisher.endpoint, ("label",)) as listener,
+    ):
+        link.publisher.wait_for_subscriber("label")
+        link.handle(Message("grasp_event", {"event": "start", "grasp_id": "g1", "object_name": None}, 1.0,
+                            source="robot"))
+        link.label("g1", "stress_ball", modulus_pa=4e4, source="catalogue", detail="objects.toml")
+        got = listener.recv(timeout_s=2.0)
+        assert link.view.label["object_name"] == "stress_ball" and link.labels_sent == 1
+        with pytest.raises(MessageRejected):
+            link.label("g1", "x", source="guess")
+        link.clear()
+        assert link.view.label is None
+    assert got.type == "label" and got.source == "operator"
+    assert dict(got.body) == {"grasp_id": "g1", "object_name": "stress_ball", "modulus_pa": 4e4,
+                              "source": "catalogue", "detail": "objects.toml"}
 
 
 def test_the_loop_runs_in_a_thread_and_stops(rig):

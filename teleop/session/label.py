@@ -1,0 +1,361 @@
+"""Labelling a session log after the fact: ``label`` messages for its grasps, from a CSV.
+
+A session recorded on a rig knows which grasps happened but not always what was grasped. A
+person writes a CSV with one row per grasp (``grasp_id``, ``object``, and optionally
+``modulus_pa``, ``shore_a`` or ``shore_00``, ``source``, ``detail``; :func:`read_label_csv`,
+:func:`teleop.labels.label_from_fields` for what each column means) and :func:`label_session`
+writes one ``label`` bus message per row into the log:
+
+* the log is copied record by record into a new file next to it (``<log>.partial``): its
+  header, schemas, channels, every message (data, log time, publish time and sequence byte for
+  byte, the Foxglove forms included), attachments and metadata; then the labels are added on
+  the ``label`` topic (each after its Foxglove JSON form, as the recorder writes them), and a
+  ``labels`` metadata record says what was added from where. The new file is flushed to disk
+  and moved over the original (``os.replace``: atomic on one file system), so the log is either
+  the old one or the new one, never half of each; no backup is kept.
+* Each label is stamped just after its grasp: log time 1 ns after the grasp's last
+  ``grasp_event`` (its end) or after the last label the log already holds for it, whichever is
+  later, and the same time as its send time (``publish_time``); ``t_capture_s`` is the grasp
+  event's. It is sent as source :data:`LABEL_SOURCE_NAME`, its ``seq`` following that source's
+  earlier labels in the log. It comes after every earlier message in the file too, so readers
+  that take the last label per grasp (in file or log-time order) take the newest: labelling a
+  grasp again replaces its label.
+
+Refused, with nothing written: a log cut short (``teleop recover`` first), a CSV row naming a
+grasp the log does not hold (the error lists the log's grasps), an object that is neither in the
+catalogue nor given a modulus or Shore hardness, a bad number, an unknown column.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
+from mcap.writer import CompressionType, Writer
+
+from teleop.bus.wire import encode, make_message
+from teleop.catalogue import default_catalogue_path, load_catalogue
+from teleop.errors import SessionLogError, SettingsError
+from teleop.labels import LabelError, ObjectLabel, label_from_fields
+from teleop.record import software_version
+from teleop.session.foxglove import foxglove_messages
+from teleop.session.logfile import (
+    CHUNK_BYTES,
+    MESSAGE_ENCODING,
+    SCHEMA_ENCODING,
+    LogReader,
+    pack_frames,
+    schema_data,
+)
+
+__all__ = [
+    "CSV_COLUMNS",
+    "LABELS_METADATA",
+    "LABEL_SOURCE_NAME",
+    "GraspLabel",
+    "LabelReport",
+    "label_session",
+    "read_label_csv",
+]
+
+LABEL_SOURCE_NAME = "teleop label"  # the header source of labels written after the fact
+LABELS_METADATA = "labels"
+REQUIRED_COLUMNS = ("grasp_id", "object")
+CSV_COLUMNS = (*REQUIRED_COLUMNS, "modulus_pa", "shore_a", "shore_00", "source", "detail")
+_LISTED_GRASPS = 30  # grasp ids named in an error before "..."
+
+
+@dataclass(frozen=True)
+class GraspLabel:
+    """One CSV row: the grasp and its label, and the row it came from (``file:line``)."""
+
+    grasp_id: str
+    label: ObjectLabel
+    where: str
+
+
+@dataclass
+class LabelReport:
+    """What :func:`label_session` wrote."""
+
+    log: str
+    csv: str
+    labels: list[dict[str, Any]] = field(default_factory=list)  # each label's body, as written
+    relabelled: list[str] = field(default_factory=list)  # grasps that had a label before
+    messages: int = 0  # messages of the original kept (bus and Foxglove)
+    grasps: int = 0  # grasps in the log
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def _catalogue_objects(catalogue: str | Path | None, attachments: dict[str, bytes]) -> tuple[tuple, str]:
+    """The catalogue's entries and its name for errors: ``catalogue``, else the log's, else the shipped."""
+    if catalogue is not None:
+        path = Path(catalogue)
+        return load_catalogue(path), str(path)
+    for name in ("catalogue.toml", "catalogue.csv"):
+        if name in attachments:
+            with tempfile.TemporaryDirectory() as folder:
+                path = Path(folder) / name
+                path.write_bytes(attachments[name])
+                try:
+                    objects = load_catalogue(path)
+                except SettingsError as exc:
+                    raise SettingsError(
+                        f"the log's {name} attachment: {str(exc).replace(str(path), name)}"
+                    ) from None
+            return objects, f"the log's {name}"
+    path = default_catalogue_path()
+    return load_catalogue(path), str(path)
+
+
+def read_label_csv(path: str | Path, catalogue: Any = (), *, where: str = "the catalogue") -> list[GraspLabel]:
+    """The rows of a label CSV, each made a label (:func:`teleop.labels.label_from_fields`).
+
+    Columns: ``grasp_id`` and ``object`` (required), ``modulus_pa``, ``shore_a``, ``shore_00``,
+    ``source``, ``detail`` (optional); a header row first; blank rows skipped.
+
+    Raises
+    ------
+    LabelError
+        The file cannot be read, has no rows, lacks a required column or has an unknown one, or
+        a row's fields do not make a label; each error names the file and line.
+    """
+    path = Path(path)
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            columns = [c.strip() for c in (reader.fieldnames or [])]
+            rows = [(reader.line_num, row) for row in reader]
+    except OSError as exc:
+        raise LabelError(f"cannot read the label CSV {path}: {exc.strerror or exc}") from exc
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise LabelError(f"{path}: not a readable UTF-8 CSV file ({exc})") from exc
+    missing = [c for c in REQUIRED_COLUMNS if c not in columns]
+    if missing:
+        raise LabelError(
+            f"{path}: expected a header row with columns {', '.join(REQUIRED_COLUMNS)} (and optionally "
+            f"{', '.join(CSV_COLUMNS[2:])}); missing {', '.join(missing)}"
+        )
+    unknown = [c for c in columns if c not in CSV_COLUMNS]
+    if unknown:
+        raise LabelError(f"{path}: unknown column(s) {', '.join(map(repr, unknown))}; the columns are {', '.join(CSV_COLUMNS)}")
+    out = []
+    for line, row in rows:
+        cells = {(k or "").strip(): (v or "").strip() for k, v in row.items() if isinstance(k, str)}
+        if None in row:
+            raise LabelError(f"{path}:{line}: more cells than the header has columns")
+        if not any(cells.values()):
+            continue
+        where_row = f"{path}:{line}"
+        grasp_id = cells.get("grasp_id", "")
+        if not grasp_id:
+            raise LabelError(f"{where_row}: the grasp_id is empty")
+        try:
+            label = label_from_fields(
+                cells.get("object", ""),
+                catalogue=catalogue,
+                modulus_pa=cells.get("modulus_pa"),
+                shore_a=cells.get("shore_a"),
+                shore_00=cells.get("shore_00"),
+                source=cells.get("source"),
+                detail=cells.get("detail", ""),
+                where=where,
+            )
+        except LabelError as exc:
+            raise LabelError(f"{where_row} (grasp {grasp_id}): {exc}") from None
+        out.append(GraspLabel(grasp_id, label, where_row))
+    if not out:
+        raise LabelError(f"{path}: no label rows under the header")
+    return out
+
+
+@dataclass
+class _Grasp:
+    log_time_ns: int = 0  # of its last grasp_event, then of its last label
+    t_capture_s: float = 0.0
+    labelled: bool = False
+
+
+def _survey(reader: LogReader) -> tuple[dict[str, _Grasp], int]:
+    """The log's grasps (from their events and labels) and the next seq of our source's labels."""
+    grasps: dict[str, _Grasp] = {}
+    seq = 0
+    for logged in reader.messages(topics=("grasp_event", "label")):
+        message = logged.message
+        grasp_id = message.body["grasp_id"]
+        if message.type == "grasp_event":
+            grasp = grasps.setdefault(grasp_id, _Grasp())
+            grasp.log_time_ns = max(grasp.log_time_ns, logged.log_time_ns)
+            grasp.t_capture_s = message.t_capture_s
+        elif message.type == "label" and grasp_id in grasps:
+            grasp = grasps[grasp_id]
+            grasp.log_time_ns = max(grasp.log_time_ns, logged.log_time_ns)
+            grasp.labelled = True
+            if message.source == LABEL_SOURCE_NAME:
+                seq = max(seq, message.seq + 1)
+    if not reader.complete:
+        raise SessionLogError(
+            f"{reader.path} is cut short ({reader.damage}): make it a complete file first with "
+            f"`teleop recover {reader.path} --out FIXED.mcap`, then label FIXED.mcap"
+        )
+    return grasps, seq
+
+
+def _grasp_list(grasps: dict[str, _Grasp]) -> str:
+    names = list(grasps)
+    if not names:
+        return "the log holds no grasps"
+    shown = ", ".join(names[:_LISTED_GRASPS])
+    more = f", ... ({len(names)} in all)" if len(names) > _LISTED_GRASPS else ""
+    return f"the log's grasps are {shown}{more}"
+
+
+def label_session(
+    log: str | Path,
+    csv_path: str | Path,
+    *,
+    catalogue: str | Path | None = None,
+) -> LabelReport:
+    """Write the labels of ``csv_path`` into the session log ``log`` (module notes).
+
+    ``catalogue``: the object catalogue for rows without a modulus; None: the catalogue attached
+    to the log, else the shipped one.
+
+    Raises
+    ------
+    SessionLogError
+        The log cannot be read, is not a session log, is cut short, or the new log cannot be
+        written (the original is then left as it was).
+    LabelError
+        The CSV is bad, names a grasp not in the log, or an object without a modulus.
+    SettingsError
+        The catalogue cannot be read.
+    """
+    log, csv_path = Path(log), Path(csv_path)
+    reader = LogReader(log)
+    info = reader.info()
+    if not info.complete:
+        raise SessionLogError(
+            f"{log} is cut short ({info.damage}): make it a complete file first with "
+            f"`teleop recover {log} --out FIXED.mcap`, then label FIXED.mcap"
+        )
+    objects, where = _catalogue_objects(catalogue, info.attachments)
+    rows = read_label_csv(csv_path, objects, where=where)
+    grasps, seq = _survey(reader)
+    for row in rows:
+        if row.grasp_id not in grasps:
+            raise LabelError(f"{row.where}: grasp {row.grasp_id!r} is not in {log}; {_grasp_list(grasps)}")
+    report = LabelReport(str(log), str(csv_path), grasps=len(grasps))
+    labels = []
+    for row in rows:
+        grasp = grasps[row.grasp_id]
+        if grasp.labelled and row.grasp_id not in report.relabelled:
+            report.relabelled.append(row.grasp_id)
+        grasp.log_time_ns += 1
+        grasp.labelled = True
+        message = make_message("label", t_capture_s=grasp.t_capture_s, **row.label.body(row.grasp_id))
+        message = dataclasses.replace(message, source=LABEL_SOURCE_NAME, seq=seq, t_send_ns=grasp.log_time_ns)
+        seq += 1
+        labels.append((grasp.log_time_ns, message))
+        report.labels.append(dict(message.body))
+    tmp = log.with_name(log.name + ".partial")
+    try:
+        with tmp.open("wb") as file:
+            writer = Writer(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+            report.messages = _copy_with_labels(reader, writer, labels, csv_path)
+            file.flush()
+            os.fsync(file.fileno())
+        tmp.replace(log)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise SessionLogError(f"cannot write the labelled log next to {log}: {exc.strerror or exc}; "
+                              "the log is unchanged") from exc
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return report
+
+
+def _copy_with_labels(reader: LogReader, writer: Writer, labels: list[tuple[int, Any]], csv_path: Path) -> int:
+    """Copy every record of ``reader``'s log into ``writer``, then add ``labels``; messages copied."""
+    schemas: dict[int, int] = {}
+    channels: dict[int, int] = {}
+    by_topic: dict[str, int] = {}  # topic -> channel id in the copy
+    schema_ids: dict[tuple[str, str], int] = {}  # (name, encoding) -> schema id in the copy
+    copied = 0
+    started = False
+    for record in reader.records():
+        if isinstance(record, Header):
+            writer.start(record.profile, record.library)
+            started = True
+        elif not started:
+            break
+        elif isinstance(record, Schema) and record.id not in schemas:
+            schemas[record.id] = writer.register_schema(record.name, record.encoding, record.data)
+            schema_ids.setdefault((record.name, record.encoding), schemas[record.id])
+        elif isinstance(record, Channel) and record.id not in channels:
+            channels[record.id] = writer.register_channel(
+                record.topic, record.message_encoding, schemas.get(record.schema_id, 0), dict(record.metadata)
+            )
+            by_topic.setdefault(record.topic, channels[record.id])
+        elif isinstance(record, Message):
+            if record.channel_id not in channels:
+                continue  # no channel says what it is (never in a log the recorder wrote)
+            writer.add_message(
+                channels[record.channel_id],
+                log_time=record.log_time,
+                data=record.data,
+                publish_time=record.publish_time,
+                sequence=record.sequence,
+            )
+            copied += 1
+        elif isinstance(record, Attachment):
+            writer.add_attachment(record.create_time, record.log_time, record.name, record.media_type, record.data)
+        elif isinstance(record, Metadata):
+            writer.add_metadata(record.name, dict(record.metadata))
+    if not started or not reader.complete:  # changed since it was read
+        raise SessionLogError(
+            f"{reader.path} could not be read to its end ({reader.damage or 'no header'}); the log is unchanged"
+        )
+
+    def channel(topic: str, encoding: str, schema: tuple[str, str, bytes], metadata: dict[str, str]) -> int:
+        if topic not in by_topic:
+            name, schema_encoding, data = schema
+            if (name, schema_encoding) not in schema_ids:
+                schema_ids[name, schema_encoding] = writer.register_schema(name, schema_encoding, data)
+            by_topic[topic] = writer.register_channel(topic, encoding, schema_ids[name, schema_encoding], metadata)
+        return by_topic[topic]
+
+    for log_time_ns, message in labels:
+        for item in foxglove_messages(message):
+            target = channel(item.topic, item.message_encoding,
+                             (item.schema_name, item.schema_encoding, item.schema_data), {})
+            writer.add_message(target, log_time=log_time_ns - item.age_ns, data=item.data,
+                               publish_time=message.t_send_ns, sequence=message.seq % 2**32)
+        target = channel(message.topic, MESSAGE_ENCODING,
+                         (f"compliance-teleop/{message.type}", SCHEMA_ENCODING, schema_data(message.type)),
+                         {"type": message.type})
+        writer.add_message(target, log_time=log_time_ns, data=pack_frames(encode(message)),
+                           publish_time=message.t_send_ns, sequence=message.seq % 2**32)
+    writer.add_metadata(
+        LABELS_METADATA,
+        {
+            "labelled_utc": datetime.now(UTC).isoformat(),
+            "software_version": software_version(),
+            "csv": str(csv_path),
+            "labels": json.dumps([message.body["grasp_id"] for _, message in labels]),
+        },
+    )
+    writer.finish()
+    return copied
+

@@ -1,0 +1,183 @@
+"""``teleop label``: labels from a CSV written into a session log, every original record kept."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+from mcap.reader import make_reader
+
+import teleop.cli
+from teleop.errors import SessionLogError
+from teleop.labels import LabelError, gent_modulus_pa, shore_to_modulus_pa
+from teleop.session import LogReader
+from teleop.session.label import LABEL_SOURCE_NAME, LABELS_METADATA, label_session
+
+
+@pytest.fixture
+def log(recorded, tmp_path):
+    """A copy of the recorded session (grasps g0 with stress_ball, g1 unnamed, g2 never ended)."""
+    path = tmp_path / "session.mcap"
+    shutil.copyfile(recorded.path, path)
+    return path
+
+
+def _csv(tmp_path, text: str, name: str = "labels.csv"):
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def _records(path):
+    """Every stored message in file order: (topic, log time, publish time, sequence, data)."""
+    with path.open("rb") as f:
+        return [
+            (channel.topic, m.log_time, m.publish_time, m.sequence, bytes(m.data))
+            for _, channel, m in make_reader(f).iter_messages(log_time_order=False)
+        ]
+
+
+def _labels(path, *, log_time_order: bool = False):
+    messages = [m for m in LogReader(path).messages(topics=("label",))]
+    if log_time_order:
+        messages.sort(key=lambda m: m.log_time_ns)
+    return messages
+
+
+def _last_per_grasp(messages):
+    return {m.message.body["grasp_id"]: m.message.body for m in messages}
+
+
+def test_labels_are_added_and_every_original_record_is_kept(recorded, log, tmp_path):
+    before = _records(log)
+    info_before = LogReader(log).info()
+    events = {m.message.body["grasp_id"]: m for m in LogReader(log).messages(topics=("grasp_event",))}
+    csv_path = _csv(tmp_path, "grasp_id,object,shore_00\ng0,stress_ball,\ng1,blue gel pad,60\n")
+
+    report = label_session(log, csv_path)
+
+    assert [b["grasp_id"] for b in report.labels] == ["g0", "g1"] and report.relabelled == []
+    assert report.messages == len(before) and report.grasps == 3
+    after = _records(log)
+    # the original messages, byte for byte, in their order; then each label after its JSON form
+    assert after[: len(before)] == before
+    assert [topic for topic, *_ in after[len(before):]] == ["/label", "label", "/label", "label"]
+    info = LogReader(log).info()
+    assert info.complete and info.attachments == info_before.attachments
+    assert {k: v for k, v in info.metadata.items() if k != LABELS_METADATA} == info_before.metadata
+    assert json.loads(info.metadata[LABELS_METADATA]["labels"]) == ["g0", "g1"]
+    assert not list(tmp_path.glob("*.partial")) and not list(tmp_path.glob("*.bak"))
+
+    labels = _labels(log)
+    g0, g1 = (m.message for m in labels)
+    assert g0.body == {"grasp_id": "g0", "object_name": "stress_ball", "modulus_pa": 4.0e4, "source": "catalogue",
+                       "detail": g0.body["detail"]}
+    assert "catalogue.toml" in g0.body["detail"]  # the catalogue attached to the log
+    assert g1.body["source"] == "durometer" and g1.body["object_name"] == "blue gel pad"
+    assert g1.body["modulus_pa"] == pytest.approx(shore_to_modulus_pa(60, "00"))
+    assert "Shore 00 60" in g1.body["detail"]
+    for logged, grasp_id in zip(labels, ("g0", "g1"), strict=True):
+        end = events[grasp_id]
+        assert logged.log_time_ns == end.log_time_ns + 1  # stamped just after the grasp's end
+        assert logged.publish_time_ns == logged.log_time_ns
+        assert logged.message.t_capture_s == end.message.t_capture_s
+        assert logged.message.source == LABEL_SOURCE_NAME
+    assert [m.message.seq for m in labels] == [0, 1]
+    # every bus message still decodes: nothing refused
+    reader = LogReader(log)
+    assert sum(1 for _ in reader.messages()) == len(recorded.sent) + 2 and not reader.refused
+
+
+def test_a_grasp_labelled_again_takes_the_newer_label(log, tmp_path):
+    label_session(log, _csv(tmp_path, "grasp_id,object,shore_a\ng1,pad,40\n", "first.csv"))
+    report = label_session(
+        log, _csv(tmp_path, "grasp_id,object,modulus_pa,source\ng1,pad,2.5e6,measured\ng2,cork,1.2e7,\n", "second.csv")
+    )
+    assert report.relabelled == ["g1"]
+    labels = _labels(log)
+    assert len(labels) == 3 and [m.message.seq for m in labels] == [0, 1, 2]
+    for order in (False, True):  # file order and log-time order agree
+        last = _last_per_grasp(_labels(log, log_time_order=order))
+        assert last["g1"]["modulus_pa"] == 2.5e6 and last["g1"]["source"] == "measured"
+        assert last["g2"]["source"] == "datasheet"
+    first, second = labels[0], labels[1]
+    assert second.log_time_ns == first.log_time_ns + 1
+
+
+def test_a_catalogue_can_be_given(log, tmp_path):
+    catalogue = tmp_path / "lab.toml"
+    catalogue.write_text('[[objects]]\nname = "lab_gel"\nshape = "box"\nmaterial = "rubber"\nmodulus_pa = 7.5e4\n')
+    report = label_session(log, _csv(tmp_path, "grasp_id,object\ng0,lab_gel\n"), catalogue=catalogue)
+    assert report.labels[0]["modulus_pa"] == 7.5e4 and str(catalogue) in report.labels[0]["detail"]
+
+
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("grasp_id,object\ng7,stress_ball\n", "grasp 'g7' is not in"),
+        ("grasp_id,object\ng7,stress_ball\n", "the log's grasps are g0, g1, g2"),
+        ("grasp_id,object\ng0,blue gel\n", "labels.csv:2 (grasp g0): object 'blue gel' is not in the log's catalogue.toml"),
+        ("grasp_id,object,modulus_pa\ng0,pad,1.2 MPa\n", "modulus_pa '1.2 MPa' is not a number"),
+        ("grasp_id,object,shore_a\ng0,pad,40\ng1,pad,120\n", "labels.csv:3 (grasp g1): Shore A 120 is outside 10 to 90"),
+        ("grasp,object\ng0,pad\n", "missing grasp_id"),
+        ("grasp_id,object,shore_d\ng0,pad,40\n", "unknown column(s) 'shore_d'"),
+        ("grasp_id,object\n", "no label rows"),
+        ("grasp_id,object\n,pad\n", "labels.csv:2: the grasp_id is empty"),
+    ],
+)
+def test_bad_input_is_refused_and_the_log_left_as_it_was(log, tmp_path, text, says):
+    before = log.read_bytes()
+    with pytest.raises(LabelError) as info:
+        label_session(log, _csv(tmp_path, text))
+    assert says in str(info.value)
+    assert log.read_bytes() == before and not list(tmp_path.glob("*.partial"))
+
+
+def test_a_cut_log_is_refused_with_the_way_out(log, tmp_path):
+    data = log.read_bytes()
+    log.write_bytes(data[: len(data) // 2])
+    with pytest.raises(SessionLogError, match=r"is cut short .*`teleop recover .* --out FIXED.mcap`"):
+        label_session(log, _csv(tmp_path, "grasp_id,object\ng0,stress_ball\n"))
+    assert log.read_bytes() == data[: len(data) // 2]
+
+
+def test_the_command(log, tmp_path, capsys):
+    csv_path = _csv(tmp_path, "grasp_id,object,shore_a\ng0,stress_ball,\ng1,pad,40\n")
+    assert teleop.cli.main(["label", str(log), "--csv", str(csv_path), "--json"]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out.strip().splitlines()[-1])
+    assert [b["grasp_id"] for b in summary["labels"]] == ["g0", "g1"] and summary["grasps"] == 3
+    assert summary["labels"][1]["modulus_pa"] == pytest.approx(gent_modulus_pa(40))
+    assert "labelled 2 grasp(s) of 3" in captured.err and "g1: pad, E 1.69e+06 Pa (durometer)" in captured.err
+    # an error is one line naming the input, no traceback
+    assert teleop.cli.main(["label", str(log), "--csv", str(_csv(tmp_path, "grasp_id,object\nzz,pad\n", "b.csv"))]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("teleop label: error: ") and "b.csv:2" in err and "Traceback" not in err
+    assert teleop.cli.main(["label", str(tmp_path / "missing.mcap"), "--csv", str(csv_path)]) == 2
+    assert "cannot read session log" in capsys.readouterr().err
+
+
+def test_the_recorder_logs_a_label_sent_at_capture(tmp_path, helpers, session_settings):
+    """The console's label goes out on bus.command, which `teleop record` subscribes to (every topic)."""
+    import argparse
+    import dataclasses
+
+    from haptics.operator_link import OperatorLink
+    from teleop.session import record_cli
+
+    parser = argparse.ArgumentParser()
+    record_cli.add_arguments(parser)
+    assert "bus.command" in parser.format_help().replace("\n", " ").replace("  ", " ")  # default endpoints
+    bus = dataclasses.replace(session_settings.bus, command="tcp://127.0.0.1:*")
+    path = tmp_path / "live.mcap"
+    with (
+        OperatorLink.from_settings(bus) as link,
+        helpers.recording(path, [link.publisher.endpoint], settings=session_settings) as recorder,
+    ):
+        link.publisher.wait_for_subscriber("label")
+        link.label("op-1", "stress_ball", modulus_pa=4e4, source="catalogue", detail="objects.toml")
+        helpers.wait_for(lambda: recorder.stats.topics["label"] == 1, what="the label in the log")
+    (logged,) = _labels(path)
+    assert logged.message.source == "operator" and logged.message.body["object_name"] == "stress_ball"
+    assert logged.message.body["modulus_pa"] == 4e4 and logged.message.body["source"] == "catalogue"
