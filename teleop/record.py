@@ -1,11 +1,11 @@
 """The grasp record: one grasp on disk, as simulation, capture, training and evaluation use it.
 
-Format (version 2)
+Format (version 3)
 ------------------
 A grasp record is a ZIP archive (suffix ``.grasp``) holding:
 
 ``record.json``
-    ``{"format": "compliance-teleop.grasp", "version": 2, ...}`` (or 1: below) with the
+    ``{"format": "compliance-teleop.grasp", "version": 3, ...}`` (or 1 or 2: below) with the
     sensors (full :class:`~teleop.settings.SensorSettings` per finger: identity,
     warp calibration and gel), optionally the gripper (below), the optional label, the
     provenance, named events (``{"contact": t_s, ...}``; :data:`GRASP_DONE_EVENT` is the time the gripper's
@@ -23,6 +23,10 @@ A grasp record is a ZIP archive (suffix ``.grasp``) holding:
     the header); ``png`` is lossless. Frames decode to uint8 BGR, H x W x 3.
 ``calibration/<name>.npy`` (optional)
     Numeric arrays the sensor calibration needs (e.g. a no-contact frame).
+``sensors/<finger>/<file>`` (optional, version 3)
+    A sensor's colour-to-gradient calibration file (the ``.npz`` of ``estimator calibrate``), byte
+    for byte, listed in the header's ``calibration_files`` (``{finger: member}``); that sensor's
+    ``calibration`` in the header is the member's name.
 
 Version 2 adds ``provenance.style``: how the grasp was driven, ``"script"`` (the paper's grasp: close
 at a constant speed to one target force, hold, release; the gripper reports when its fingers
@@ -37,6 +41,18 @@ the grasp: finger stiffness as calibrated, closing speed, target force, ...) let
 rig's own values; records without it (older ones, imports) leave them to the reader's settings.
 Readers that do not know it ignore it, so it needed no new version.
 
+Version 3 adds ``calibration_files``: a record that carries its sensors' calibration files inside
+it (``teleop export`` writes such records) depends on no file outside it, so a folder of records
+can be moved or shared. A reader gets the sensor's ``calibration`` as the path of a copy of the file
+in a private cache folder (:func:`calibration_cache`; one file per content, written once), so every
+tool that opens the file a sensor names works unchanged. Records without calibration files are
+written as version 1 or 2 as before, byte for byte.
+
+The label's ``source`` (one of :data:`teleop.labels.LABEL_SOURCES`: where its modulus comes from) and
+``detail`` (e.g. the Shore hardness read) are written only when they are not the defaults
+(``"catalogue"``, ``""``), so records labelled from a catalogue keep their bytes; readers that do
+not know them ignore them, and this reader reads a label without them as a catalogue label.
+
 All timestamps of one record are seconds on one clock. ``.npy`` members are
 read with ``allow_pickle=False``. Writing then reading gives back every array
 and every frame byte for byte.
@@ -49,8 +65,13 @@ what was expected.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import io
 import json
+import os
+import re
+import stat
+import tempfile
 import zipfile
 import zlib
 from collections.abc import Iterable, Mapping, Sequence
@@ -63,6 +84,7 @@ import cv2
 import numpy as np
 
 from teleop.errors import RecordError, SettingsError
+from teleop.labels import LABEL_SOURCES
 from teleop.settings import GripperSettings, SensorSettings, settings_to_mapping
 from teleop.settings_fields import build_settings
 
@@ -77,6 +99,8 @@ __all__ = [
     "Label",
     "Provenance",
     "Samples",
+    "calibration_cache",
+    "calibration_copy",
     "decode_image",
     "find_records",
     "read_record",
@@ -86,8 +110,8 @@ __all__ = [
 ]
 
 FORMAT_NAME = "compliance-teleop.grasp"
-FORMAT_VERSION = 2
-READABLE_VERSIONS = (1, 2)
+FORMAT_VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
 # Provenance.style: how the grasp was driven (module notes); version 1 knew only the first.
 STYLES = ("script", "operator")
 # Event: the gripper's grasp command completed (fingers stopped at the target force, held until release).
@@ -251,17 +275,29 @@ class FrameStream:
 
 @dataclass(frozen=True)
 class Label:
-    """What was grasped: ground truth for training and evaluation."""
+    """What was grasped: ground truth for training and evaluation.
+
+    ``source``: where the modulus comes from, one of :data:`teleop.labels.LABEL_SOURCES`
+    (``"catalogue"``: the object's catalogue entry; ``"durometer"``: a Shore hardness converted to a
+    modulus; ...); ``detail``: free text about it (e.g. the reading and the conversion used).
+    """
 
     object_name: str
     modulus_pa: float | None = None
     material: str = ""
     shape: str = ""
     extra: Mapping[str, Any] = field(default_factory=dict)
+    source: str = "catalogue"
+    detail: str = ""
 
     def __post_init__(self) -> None:
         if self.modulus_pa is not None and not (np.isfinite(self.modulus_pa) and self.modulus_pa > 0):
             raise ValueError(f"Label {self.object_name!r}: modulus_pa must be finite and > 0, got {self.modulus_pa}")
+        if self.source not in LABEL_SOURCES:
+            raise ValueError(f"Label {self.object_name!r}: source {self.source!r} is not one of "
+                             f"{', '.join(LABEL_SOURCES)}")
+        if not isinstance(self.detail, str):
+            raise ValueError(f"Label {self.object_name!r}: detail must be text, got {self.detail!r}")
 
 
 @dataclass(frozen=True)
@@ -289,6 +325,10 @@ class GraspRecord:
 
     ``gripper``: the gripper's settings as configured for this grasp, when the record
     carries them (None: unknown; use the reader's settings).
+
+    ``calibration_files``: finger -> the bytes of that sensor's calibration file, for a record that
+    carries them (format version 3, module notes); written inside the record, and on reading the
+    sensor's ``calibration`` names a copy of them (:func:`calibration_cache`).
     """
 
     sensors: tuple[SensorSettings, ...]
@@ -300,12 +340,17 @@ class GraspRecord:
     events: Mapping[str, float] = field(default_factory=dict)
     calibration: Mapping[str, np.ndarray] = field(default_factory=dict)
     gripper: GripperSettings | None = None
+    calibration_files: Mapping[str, bytes] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         fingers = {s.finger for s in self.sensors}
         for stream in self.frames:
             if stream.finger not in fingers:
                 raise ValueError(f"frames for finger {stream.finger!r} but no sensor on it (sensors: {sorted(fingers)})")
+        for finger in self.calibration_files:
+            if finger not in fingers:
+                raise ValueError(f"a calibration file for finger {finger!r} but no sensor on it "
+                                 f"(sensors: {sorted(fingers)})")
 
     def sensor(self, finger: str) -> SensorSettings:
         for s in self.sensors:
@@ -359,12 +404,19 @@ def write_record(record: GraspRecord, path: str | Path) -> Path:
     provenance = _jsonable(record.provenance)
     if record.provenance.style == "script":
         del provenance["style"]  # version 1, as older readers read it (module notes)
+    files = {finger: _calibration_member(record.sensor(finger)) for finger in sorted(record.calibration_files)}
+    sensors = []
+    for sensor in record.sensors:
+        table = settings_to_mapping(sensor)
+        if sensor.finger in files:
+            table["calibration"] = files[sensor.finger]
+        sensors.append(table)
     header = {
         "format": FORMAT_NAME,
-        "version": FORMAT_VERSION if "style" in provenance else 1,
-        "sensors": [settings_to_mapping(s) for s in record.sensors],
+        "version": 3 if files else 2 if "style" in provenance else 1,
+        "sensors": sensors,
         **({} if record.gripper is None else {"gripper": settings_to_mapping(record.gripper)}),
-        "label": _jsonable(record.label) if record.label is not None else None,
+        "label": _label_json(record.label) if record.label is not None else None,
         "provenance": provenance,
         "events": {k: float(v) for k, v in record.events.items()},
         "fingers": {
@@ -377,6 +429,7 @@ def write_record(record: GraspRecord, path: str | Path) -> Path:
             for s in record.frames
         },
         "calibration": sorted(record.calibration),
+        **({"calibration_files": files} if files else {}),
     }
     tmp = path.with_name(path.name + ".partial")
     with zipfile.ZipFile(tmp, "w") as zf:
@@ -392,8 +445,74 @@ def write_record(record: GraspRecord, path: str | Path) -> Path:
                 zf.writestr(_member(f"frames/{stream.finger}/{i:06d}{ext}", zipfile.ZIP_STORED), data)
         for name, array in record.calibration.items():
             zf.writestr(_member(f"calibration/{name}.npy", zipfile.ZIP_DEFLATED), _npy_bytes(np.asarray(array)))
+        for finger, member in files.items():
+            zf.writestr(_member(member, zipfile.ZIP_STORED), bytes(record.calibration_files[finger]))
     tmp.replace(path)
     return path
+
+
+def _label_json(label: Label) -> dict[str, Any]:
+    """The label as written: ``source`` and ``detail`` only when not the defaults (module notes)."""
+    table = _jsonable(label)
+    if label.source == "catalogue":
+        del table["source"]
+    if not label.detail:
+        del table["detail"]
+    return table
+
+
+def _calibration_member(sensor: SensorSettings) -> str:
+    """The member holding ``sensor``'s calibration file: ``sensors/<finger>/<its file name>``."""
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(sensor.calibration).name) if sensor.calibration else ""
+    return f"sensors/{sensor.finger}/{name or 'calibration.npz'}"
+
+
+_CACHE: list[Path] = []  # the folder calibration_cache chose, once per process
+
+
+def calibration_cache() -> Path:
+    """The folder where the calibration files carried by records are copied when they are read.
+
+    ``<temp>/compliance-teleop-<user id>/calibration``, created private (mode 0700); when that
+    folder exists but belongs to another user or others may write to it, a fresh private folder
+    of this process instead. Files in it are named by their content's SHA-256, so records carrying
+    the same calibration share one copy, and a copy is never changed once written.
+    """
+    if _CACHE:
+        return _CACHE[0]
+    uid = os.getuid() if hasattr(os, "getuid") else 0
+    root = Path(tempfile.gettempdir()) / f"compliance-teleop-{uid}"
+    try:
+        root.mkdir(mode=0o700, exist_ok=True)
+        info = root.lstat()
+        private = (stat.S_ISDIR(info.st_mode) and not info.st_mode & 0o022
+                   and (not hasattr(os, "getuid") or info.st_uid == uid))
+    except OSError:
+        private = False
+    folder = root / "calibration" if private else Path(tempfile.mkdtemp(prefix="compliance-teleop-"))
+    _CACHE.append(folder)
+    return folder
+
+
+def calibration_copy(data: bytes, name: str) -> Path:
+    """A file holding ``data`` in :func:`calibration_cache`, ``<sha256>/<name>`` (written once); raises OSError."""
+    digest = hashlib.sha256(data).hexdigest()[:32]
+    dest = calibration_cache() / digest / (re.sub(r"[^A-Za-z0-9._-]+", "_", name) or "calibration.npz")
+    try:
+        if dest.read_bytes() == data:
+            return dest
+    except OSError:
+        pass
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=dest.parent, prefix=f".{name}.", suffix=".partial")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, dest)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return dest
 
 
 # --------------------------------------------------------------------------- reading
@@ -505,6 +624,16 @@ def read_record(path: str | Path) -> GraspRecord:
                 sensors.append(_sensor_from_json(table))
             except (SettingsError, TypeError, ValueError) as exc:
                 raise r.fail(f"record.json: sensors[{i}] is invalid ({exc})") from exc
+        calibration_files = _calibration_files(r, header, version)
+        for i, sensor in enumerate(sensors):
+            if sensor.finger in calibration_files:
+                member, data = calibration_files[sensor.finger]
+                try:
+                    copy = calibration_copy(data, Path(member).name)
+                except OSError as exc:
+                    raise r.fail(f"cannot copy member {member!r} (the calibration of finger "
+                                 f"{sensor.finger!r}) to {calibration_cache()}: {exc.strerror or exc}") from exc
+                sensors[i] = dataclasses.replace(sensor, calibration=str(copy))
 
         frames = []
         for finger, info in r.field(header, "fingers", dict, "header").items():
@@ -550,6 +679,8 @@ def read_record(path: str | Path) -> GraspRecord:
                     material=lab.get("material", ""),
                     shape=lab.get("shape", ""),
                     extra=lab.get("extra", {}),
+                    source=lab.get("source", "catalogue"),
+                    detail=lab.get("detail", ""),
                 )
             except (TypeError, ValueError) as exc:
                 raise r.fail(f"record.json: label is invalid ({exc})") from exc
@@ -584,9 +715,29 @@ def read_record(path: str | Path) -> GraspRecord:
                 events={k: float(v) for k, v in events.items()},
                 calibration=calibration,
                 gripper=gripper,
+                calibration_files={finger: data for finger, (_, data) in calibration_files.items()},
             )
         except ValueError as exc:
             raise r.fail(str(exc)) from exc
+
+
+def _calibration_files(r: _Reader, header: Mapping[str, Any], version: int) -> dict[str, tuple[str, bytes]]:
+    """finger -> (member, bytes) of the calibration files the record carries (version 3)."""
+    if "calibration_files" not in header:
+        return {}
+    if version < 3:
+        raise r.fail(f"record.json: calibration_files is a version-3 field, but the record says version {version}")
+    files = r.field(header, "calibration_files", dict, "header")
+    fingers = {table.get("finger") for table in header["sensors"] if isinstance(table, Mapping)}
+    out = {}
+    for finger, member in files.items():
+        if not isinstance(member, str) or not member.startswith(f"sensors/{finger}/"):
+            raise r.fail(f"record.json: calibration_files.{finger} must name a member sensors/{finger}/<file>, "
+                         f"got {member!r}")
+        if finger not in fingers:
+            raise r.fail(f"record.json: calibration_files.{finger}: the record has no sensor on finger {finger!r}")
+        out[finger] = (member, r.member(member))
+    return out
 
 
 def _sensor_from_json(table: Mapping[str, Any]) -> SensorSettings:

@@ -7,6 +7,7 @@ import argparse
 import json
 import os
 import re
+import sys
 
 from estimator.errors import EstimatorError
 from estimator.learned.dataset import DEFAULT_FRACTIONS, SPLITS, DatasetOptions, build_dataset
@@ -47,11 +48,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "by object into train/val/test (seeded, stratified by material) so that no grasp or "
         "augmentation of a val or test object is ever trained on. Writes OUT/dataset.json, "
         "OUT/split.json and OUT/<split>/<object>/<object>_g<i>_a<k>.npz (i: the object's i-th record in "
-        "path order; dataset.json lists which record gave which samples)."
+        "path order; dataset.json lists which record gave which samples, and every record skipped with "
+        "its cause). OUT is written beside itself under a hidden name and appears only when complete. "
+        "Exits non-zero when no sample could be made."
     )
     parser.add_argument("--records", required=True, metavar="DIR",
                         help="directory searched recursively for labelled .grasp records")
-    parser.add_argument("--out", required=True, metavar="DIR", help="output directory (must hold no dataset yet)")
+    parser.add_argument("--out", required=True, metavar="DIR",
+                        help="output directory (created; must not exist yet, or be empty)")
     parser.add_argument("--frames", type=int, default=3, metavar="N",
                         help="frames sampled equidistantly in time over each loading phase")
     parser.add_argument("--shifts", type=int, default=3, metavar="K",
@@ -59,7 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(set 0 is the live sampling; later sets need N distinct frames)")
     parser.add_argument("--size", type=parse_size, default=(64, 88), metavar="ROWSxCOLS",
                         help="images and depth are stored area-averaged to this size (the sensor "
-                             "grid is 250x350); the model reads them at this size")
+                             "grid is 250x350); the model reads them at this size (default: 64x88)")
     parser.add_argument("--window", type=parse_window_mm, default=None, metavar="HEIGHTxWIDTH",
                         help="gel patch (mm) the images show, centred on each record's pad (cut from a larger "
                              "pad, zero-padded around a smaller one); the model's input pitch is this over "
@@ -69,18 +73,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also store the other finger's (marker sensor's) images and depth")
     parser.add_argument("--calibration", metavar="CAL", default=None,
                         help="calibration (.npz) of the estimator's finger for every record; default: "
-                             "the file each record's sensor names (relative to configs/)")
+                             "the one each record carries (`teleop export` puts it inside), else the file "
+                             "its sensor names (a relative name is under configs/)")
     parser.add_argument("--marker-calibration", metavar="CAL", default=None,
                         help="calibration of the marker finger (with --markers); default: the file "
                              "its sensor names")
     parser.add_argument("--split", type=_fractions, default=DEFAULT_FRACTIONS, metavar="TRAIN,VAL,TEST",
-                        help="object fractions of the three splits")
+                        help="object fractions of the three splits (default: "
+                             f"{','.join(f'{f:g}' for f in DEFAULT_FRACTIONS)})")
     parser.add_argument("--seed", type=int, default=0, help="seed of the object split")
     parser.add_argument("--workers", type=int, default=1, metavar="W", help="worker processes")
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
                         help="settings TOML (estimator and gripper sections are used)")
     parser.add_argument("--json", action="store_true",
-                        help="print the manifest as one JSON object on the last stdout line")
+                        help="print the manifest (with 'skipped': [{path, cause, reason}] and 'used') as one "
+                             "JSON object on the last stdout line")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -94,13 +101,16 @@ def run(args: argparse.Namespace) -> int:
     manifest = build_dataset(paths, args.out, settings=load_settings(args.settings), options=options,
                              seed=args.seed, fractions=args.split,
                              workers=min(args.workers, os.cpu_count() or 1, len(paths)))
+    for item in manifest["skipped"]:
+        print(f"skipped {item['path']}: {item['reason']}", file=sys.stderr)
     if args.json:
-        print(json.dumps({k: v for k, v in manifest.items() if k != "skipped"} | {"out": str(args.out)}))
+        print(json.dumps(manifest | {"out": str(args.out)}))
         return 0
     print(f"{sum(manifest['samples'].values())} samples from {manifest['grasps_used']} of {len(paths)} records "
           f"in {manifest['seconds']:.1f} s -> {args.out}")
     for s in SPLITS:
         print(f"  {s:<5} {manifest['objects'][s]:>4} objects {manifest['samples'][s]:>6} samples")
     if manifest["skipped_reasons"]:
-        print("  skipped: " + ", ".join(f"{k} ({v})" for k, v in manifest["skipped_reasons"].items()))
+        print(f"  skipped {len(manifest['skipped'])} records (listed above): "
+              + ", ".join(f"{k} ({v})" for k, v in manifest["skipped_reasons"].items()))
     return 0

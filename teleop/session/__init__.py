@@ -7,7 +7,7 @@ and :mod:`~teleop.session.recover` do the rest. Commands: ``teleop record``, ``t
 ``teleop export``, ``teleop recover``.
 """
 
-from teleop.session.export import GraspExport, export_session, session_grasps
+from teleop.session.export import GraspExport, SessionExport, export_session, session_grasps
 from teleop.session.logfile import LoggedMessage, LogInfo, LogReader
 from teleop.session.recorder import RecorderStats, SessionRecorder, session_source
 from teleop.session.recover import RecoveryReport, recover
@@ -21,6 +21,7 @@ __all__ = [
     "RecorderStats",
     "RecoveryReport",
     "ReplayStats",
+    "SessionExport",
     "SessionRecorder",
     "export_session",
     "recover",

@@ -10,18 +10,42 @@ lossless PNG. Events ``grasp_start``/``grasp_end`` are the two grasp events' cap
 and ``grasp_done`` (:data:`~teleop.record.GRASP_DONE_EVENT`) the *loading_end* marker's
 when the robot sent one.
 
-The sensors come from the settings stored in the log; a calibration file stored in the
-log is written under ``<out>/calibration/<finger>/`` and the exported sensors point to it.
-So does the gripper (``record.gripper``: the finger stiffness, closing speed and target force
-the session ran with). When the start event names the object (simulated sessions), the record
-is labelled from the catalogue stored in the log (or the one given); otherwise it has no label.
-Provenance: source ``simulated`` or ``hardware`` as the session says, ``extra["session"]``
-the log's path.
+Records travel
+--------------
+The sensors come from the settings stored in the log (or those given). Each sensor's calibration
+file goes inside every record (``GraspRecord.calibration_files``, record format version 3): from
+the log's ``calibration/<finger>/<file>`` attachment, else from the file the sensor names when it
+exists on this machine (given settings look at that file first). So does the gripper
+(``record.gripper``: the finger stiffness, closing speed and target force the session ran with).
+An exported record depends on no file outside it: a folder of them can be moved or shared.
+
+Names
+-----
+``<log stem>_<session id>_<grasp id>.grasp``: the session id is the session's start time from the
+log's metadata (``20250101T120000.123Z``; a log without it: ``log-`` and 8 hex digits of a hash of
+its first MiB), so two sessions whose grasps have the same ids never share a name, and exporting
+one log again gives the same names. :func:`export_session` refuses to replace an existing file
+unless asked (``overwrite``), and writes nothing under a final name before every record of the
+log is written (records are written under hidden names and renamed at the end).
+
+Labels
+------
+A grasp is labelled by the last ``label`` message the log holds for its ``grasp_id`` (written at
+capture by the operator's console, or after the fact by ``teleop label``): its object, its modulus
+(nil: the catalogue's modulus of that object, source ``catalogue``), source and detail; material
+and shape come from the catalogue when the object is in it. A grasp without a ``label`` message,
+whose start event names its object (simulated sessions), is labelled from the catalogue stored in
+the log (or the one given), source ``catalogue``. Otherwise the record has no label. A record
+exported without a modulus says why (:attr:`GraspExport.unlabelled`).
+
+Provenance: source ``simulated`` or ``hardware`` as the session says, ``extra["session"]`` the
+log's path (for reference only), ``extra["session_id"]`` the session id.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import logging
 import re
 import tempfile
@@ -46,28 +70,56 @@ from teleop.record import (
     Label,
     Provenance,
     Samples,
+    calibration_copy,
     software_version,
     write_record,
 )
 from teleop.session.logfile import LogInfo, LogReader
-from teleop.settings import Settings
+from teleop.settings import Settings, resolve_path
 
-__all__ = ["GraspExport", "export_session", "session_grasps"]
+__all__ = ["GraspExport", "SessionExport", "export_session", "session_grasps", "session_id"]
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
 class GraspExport:
-    """One grasp of a session: its record, or (falsy) the reason there is none."""
+    """One grasp of a session: its record, or (falsy) the reason there is none.
+
+    ``unlabelled``: for a record without a modulus to train on, why ("" when it has one).
+    """
 
     grasp_id: str
     record: GraspRecord | None = None
     reason: str = ""
     path: Path | None = None  # where export_session wrote it
+    unlabelled: str = ""
 
     def __bool__(self) -> bool:
         return self.record is not None
+
+
+class SessionExport(list[GraspExport]):
+    """What :func:`export_session` did: one :class:`GraspExport` per grasp, in order, and about the log.
+
+    Attributes
+    ----------
+    session_id : str
+        The session's id in the record names (:func:`session_id`).
+    complete : bool
+        The log was read to its end (False: cut short, :attr:`damage` says where).
+    damage : str or None
+    stray_labels : list of str
+        ``label`` messages naming a grasp id the log has no grasp for, one line each.
+    """
+
+    def __init__(self, grasps: list[GraspExport], *, session_id: str, complete: bool, damage: str | None,
+                 stray_labels: list[str]):
+        super().__init__(grasps)
+        self.session_id = session_id
+        self.complete = complete
+        self.damage = damage
+        self.stray_labels = stray_labels
 
 
 @dataclass
@@ -152,12 +204,18 @@ class _Assembler:
         objects: dict[str, ObjectSpec],
         source: str,
         session_version: str,
+        session: str,
+        labels: dict[str, dict],
+        calibration_files: dict[str, bytes],
     ):
         self.path = path
         self.settings = settings
         self.objects = objects
         self.source = source
         self.session_version = session_version
+        self.session = session
+        self.labels = labels
+        self.calibration_files = calibration_files
         self.open: dict[str, _OpenGrasp] = {}
         self.ended: set[str] = set()
         self.unassigned = 0
@@ -214,6 +272,7 @@ class _Assembler:
             if isinstance(stream, str):
                 return GraspExport(gid, reason=stream)
             streams.append(stream)
+        label, unlabelled = self.label(gid, grasp.object_name)
         record = GraspRecord(
             sensors=self.settings.sensors,
             gripper=self.settings.gripper,
@@ -227,30 +286,50 @@ class _Assembler:
                 created_utc=datetime.now(UTC).isoformat(),
                 extra={
                     "session": str(self.path.resolve()),
+                    "session_id": self.session,
                     "grasp_id": gid,
                     "exported_by": software_version(),
                 },
             ),
-            label=self.label(grasp.object_name),
+            label=label,
             events={"grasp_start": grasp.start_s, "grasp_end": end_s,
                     **({} if grasp.loading_end_s is None else {GRASP_DONE_EVENT: grasp.loading_end_s})},
+            calibration_files=self.calibration_files,
         )
-        return GraspExport(gid, record=record)
+        return GraspExport(gid, record=record, unlabelled=unlabelled)
 
-    def label(self, object_name: str | None) -> Label | None:
-        if object_name is None:
-            return None
-        obj = self.objects.get(object_name)
-        if obj is None:
-            log.warning(
-                "%s: object %r is not in the catalogue; its grasps carry no modulus",
-                self.path,
-                object_name,
-            )
-            return Label(object_name=object_name)
-        return Label(
-            object_name=obj.name, modulus_pa=obj.modulus_pa, material=obj.material, shape=obj.shape
-        )
+    def label(self, grasp_id: str, object_name: str | None) -> tuple[Label | None, str]:
+        """The grasp's label (module notes) and, when it has no modulus, why."""
+        message = self.labels.get(grasp_id)
+        if message is None:
+            if object_name is None:
+                return None, (
+                    "no label: the log names no object for this grasp "
+                    "(attach one with `teleop label LOG --csv FILE`)"
+                )
+            obj = self.objects.get(object_name)
+            if obj is None:
+                return Label(object_name=object_name), (
+                    f"object {object_name!r} is not in the catalogue, so it has no modulus "
+                    "(give it one with `teleop label`, or export with --objects CATALOGUE)"
+                )
+            return Label(
+                object_name=obj.name, modulus_pa=obj.modulus_pa, material=obj.material, shape=obj.shape
+            ), ""
+        name, modulus = message["object_name"], message["modulus_pa"]
+        source, detail = message["source"], message["detail"]
+        obj = self.objects.get(name)
+        material, shape = (obj.material, obj.shape) if obj is not None else ("", "")
+        if modulus is None:
+            if obj is None:
+                return Label(object_name=name, source=source, detail=detail), (
+                    f"its label names object {name!r} without a modulus, and the catalogue has no "
+                    "object of that name (label it with a modulus or a Shore hardness, or export "
+                    "with --objects CATALOGUE)"
+                )
+            modulus, source = obj.modulus_pa, "catalogue"
+        return Label(object_name=name, modulus_pa=float(modulus), material=material, shape=shape,
+                     source=source, detail=detail), ""
 
 
 def session_grasps(
@@ -285,6 +364,35 @@ def session_grasps(
     yield from _grasps(reader, info, settings=settings, catalogue=catalogue, source=source)
 
 
+def session_id(info: LogInfo, path: str | Path) -> str:
+    """The id of the session in a log: its start time (UTC) from the session metadata,
+    ``20250101T120000.123Z``; without it, ``log-`` and 8 hex digits of the SHA-256 of the log's
+    first MiB."""
+    start = info.session.get("start_utc")
+    if start:
+        try:
+            when = datetime.fromisoformat(start).astimezone(UTC)
+        except ValueError:
+            log.warning("%s: session start_utc %r is not an ISO time", path, start)
+        else:
+            return f"{when:%Y%m%dT%H%M%S}.{when.microsecond // 1000:03d}Z"
+    try:
+        with Path(path).open("rb") as f:
+            head = f.read(1 << 20)
+    except OSError as exc:
+        raise SessionLogError(f"cannot read session log {path}: {exc.strerror or exc}") from exc
+    return f"log-{hashlib.sha256(head).hexdigest()[:8]}"
+
+
+def _labels(reader: LogReader) -> dict[str, dict]:
+    """The last ``label`` message body per grasp id (topic ``label``)."""
+    labels = {}
+    for logged in reader.messages(("label",)):
+        if logged.message.type == "label":
+            labels[logged.message.body["grasp_id"]] = logged.message.body
+    return labels
+
+
 def _grasps(
     reader: LogReader,
     info: LogInfo,
@@ -292,45 +400,99 @@ def _grasps(
     settings: Settings | None,
     catalogue: str | Path | None,
     source: str | None,
+    stray_labels: list[str] | None = None,
 ) -> Iterator[GraspExport]:
     path = reader.path
-    settings = settings if settings is not None else info.settings()
+    given = settings is not None
+    settings = settings if given else info.settings()
     source = source or info.session.get("source")
     if source not in ("simulated", "hardware"):
         raise SessionLogError(
             f"{path}: the session metadata gives source {source!r}; "
             "pass simulated or hardware explicitly"
         )
+    settings, files = _carried_calibrations(info, settings, path, disk_first=given)
+    labels = _labels(reader)
     assembler = _Assembler(
         path=path,
         settings=settings,
         objects=_load_objects(info, catalogue),
         source=source,
         session_version=info.session.get("software_version", "0+unknown"),
+        session=session_id(info, path),
+        labels=labels,
+        calibration_files=files,
     )
+    seen = set()
     for logged in reader.messages(("grasp_event", "frame", "force", "width")):
-        yield from assembler.feed(logged.message)
-    yield from assembler.unfinished()
+        for grasp in assembler.feed(logged.message):
+            seen.add(grasp.grasp_id)
+            yield grasp
+    for grasp in assembler.unfinished():
+        seen.add(grasp.grasp_id)
+        yield grasp
     if assembler.unassigned:
         log.info("%s: %d frame/force/width messages outside any grasp", path, assembler.unassigned)
+    for grasp_id in sorted(set(labels) - seen):
+        line = (f"a label names grasp {grasp_id!r} (object {labels[grasp_id]['object_name']!r}), "
+                "but the log has no grasp of that id")
+        log.warning("%s: %s", path, line)
+        if stray_labels is not None:
+            stray_labels.append(line)
 
 
 def _safe_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", name)
 
 
-def _calibrated_settings(info: LogInfo, settings: Settings, out: Path) -> Settings:
-    """``settings``; a sensor whose calibration the log stores points to a copy in ``out``."""
-    sensors = []
+def _carried_calibrations(
+    info: LogInfo, settings: Settings, path: Path, *, disk_first: bool
+) -> tuple[Settings, dict[str, bytes]]:
+    """The calibration file of every sensor that names one, to carry in the records (module notes).
+
+    Returns ``settings`` with each such sensor pointing at a copy of the file
+    (:func:`~teleop.record.calibration_copy`), and finger -> the file's bytes.
+    """
+    sensors, files = [], {}
     for sensor in settings.sensors:
+        if not sensor.calibration:
+            sensors.append(sensor)
+            continue
         stored = f"calibration/{sensor.finger}/{Path(sensor.calibration).name}"
-        if sensor.calibration and stored in info.attachments:
-            dest = out / "calibration" / _safe_name(sensor.finger) / _safe_name(Path(stored).name)
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            dest.write_bytes(info.attachments[stored])
-            sensor = dataclasses.replace(sensor, calibration=str(dest.resolve()))
-        sensors.append(sensor)
-    return dataclasses.replace(settings, sensors=tuple(sensors))
+        disk = resolve_path(sensor.calibration)
+
+        def from_disk(disk: Path = disk) -> bytes | None:
+            try:
+                return disk.read_bytes() if disk.is_file() else None
+            except OSError:
+                return None
+
+        def from_log(stored: str = stored) -> bytes | None:
+            return info.attachments.get(stored)
+
+        data = None
+        for source in (from_disk, from_log) if disk_first else (from_log, from_disk):
+            data = source()
+            if data is not None:
+                break
+        if data is None:
+            log.warning(
+                "%s: sensor %r names calibration %s, which is neither stored in the log nor on this "
+                "machine; its records name it without carrying it",
+                path, sensor.finger, sensor.calibration,
+            )
+            sensors.append(sensor)
+            continue
+        try:
+            copy = calibration_copy(data, Path(sensor.calibration).name)
+        except OSError as exc:
+            raise SessionLogError(
+                f"cannot copy the calibration of sensor {sensor.finger!r} to a cache folder: "
+                f"{exc.strerror or exc}"
+            ) from exc
+        files[sensor.finger] = data
+        sensors.append(dataclasses.replace(sensor, calibration=str(copy)))
+    return dataclasses.replace(settings, sensors=tuple(sensors)), files
 
 
 def export_session(
@@ -340,17 +502,26 @@ def export_session(
     settings: Settings | None = None,
     catalogue: str | Path | None = None,
     source: str | None = None,
+    overwrite: bool = False,
     progress: bool = False,
-) -> list[GraspExport]:
-    """Write every complete grasp of a session log as ``<out>/<log>_<grasp_id>.grasp``.
+) -> SessionExport:
+    """Write every complete grasp of a session log as ``<out>/<log>_<session id>_<grasp id>.grasp``.
 
-    Takes the options of :func:`session_grasps`. Returns one :class:`GraspExport` per grasp
-    (``path`` set where a record was written, ``reason`` where none could be).
+    Takes the options of :func:`session_grasps`. Records are written under hidden names and
+    renamed once every grasp of the log is done, so an error leaves no new record behind.
+    Returns one :class:`GraspExport` per grasp (``path`` set where a record was written,
+    ``reason`` where none could be), with what it learnt about the log (:class:`SessionExport`).
+
+    Parameters
+    ----------
+    overwrite : bool
+        Replace records of those names already in ``out`` (default: refuse).
 
     Raises
     ------
     SessionLogError
-        As :func:`session_grasps`, or ``out`` cannot be created.
+        As :func:`session_grasps`; ``out`` cannot be created or written; or a record's name is
+        taken in ``out`` and ``overwrite`` is False (the message names the file).
     """
     path, out = Path(path), Path(out)
     try:
@@ -361,18 +532,55 @@ def export_session(
         ) from exc
     reader = LogReader(path)
     info = reader.info()
-    settings = _calibrated_settings(
-        info, settings if settings is not None else info.settings(), out
+    complete, damage = info.complete, info.damage
+    sid = session_id(info, path)
+    stray: list[str] = []
+    results: list[GraspExport] = []
+    staged: list[tuple[Path, Path]] = []  # (hidden name, final name)
+    names: set[str] = set()
+    grasps = _grasps(
+        reader, info, settings=settings, catalogue=catalogue, source=source, stray_labels=stray
     )
-    results = []
-    grasps = _grasps(reader, info, settings=settings, catalogue=catalogue, source=source)
-    for grasp in tqdm(grasps, desc=f"export {path.name}", unit="grasp", disable=not progress):
-        if grasp:
-            dest = write_record(
-                grasp.record, out / f"{_safe_name(path.stem)}_{_safe_name(grasp.grasp_id)}.grasp"
-            )
-            grasp = dataclasses.replace(grasp, path=dest)
-        else:
-            log.warning("%s: grasp %r not exported: %s", path, grasp.grasp_id, grasp.reason)
-        results.append(grasp)
-    return results
+    try:
+        for grasp in tqdm(grasps, desc=f"export {path.name}", unit="grasp", disable=not progress):
+            if grasp:
+                name = _record_name(path, sid, grasp.grasp_id, names)
+                dest = out / name
+                if dest.exists() and not overwrite:
+                    raise SessionLogError(
+                        f"{dest} already exists (grasp {grasp.grasp_id!r} of session {sid} of {path}, "
+                        "exported before?): pass --overwrite to replace it, or export into another "
+                        "folder; nothing was written"
+                    )
+                hidden = write_record(grasp.record, out / f".{name}.exporting")
+                staged.append((hidden, dest))
+                grasp = dataclasses.replace(grasp, path=dest)
+                if grasp.unlabelled:
+                    log.info("%s: grasp %r has no modulus: %s", path, grasp.grasp_id, grasp.unlabelled)
+            else:
+                log.warning("%s: grasp %r not exported: %s", path, grasp.grasp_id, grasp.reason)
+            results.append(grasp)
+        for hidden, dest in staged:
+            hidden.replace(dest)
+    except OSError as exc:
+        raise SessionLogError(
+            f"cannot write the records of {path} into {out}: {exc.strerror or exc}"
+        ) from exc
+    finally:
+        for hidden, _ in staged:
+            hidden.unlink(missing_ok=True)
+    return SessionExport(
+        results, session_id=sid, complete=complete, damage=damage, stray_labels=stray
+    )
+
+
+def _record_name(log_path: Path, session: str, grasp_id: str, taken: set[str]) -> str:
+    """``<log stem>_<session id>_<grasp id>.grasp``; ``-2``, ``-3``, ... after a grasp id the
+    session used before (a grasp id started again after it ended)."""
+    base = f"{_safe_name(log_path.stem)}_{_safe_name(session)}_{_safe_name(grasp_id)}"
+    name, k = f"{base}.grasp", 1
+    while name in taken:
+        k += 1
+        name = f"{base}-{k}.grasp"
+    taken.add(name)
+    return name

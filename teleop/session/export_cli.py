@@ -11,34 +11,53 @@ from teleop.settings import load_settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Write every complete grasp of a session log as a .grasp record named "
+        "<log>_<session start>_<grasp id>.grasp, so sessions exported into one folder never "
+        "share a name. Each record carries its sensors' calibration files and the gripper "
+        "settings, so the folder can be moved or shared. Labels come from the log's label "
+        "messages (`teleop label`, the operator's console), else from the object catalogue for "
+        "grasps whose object the session named. Exits 1 when no record was written."
+    )
     parser.add_argument("log", metavar="LOG", help="session log (.mcap) written by `teleop record`")
     parser.add_argument(
         "--out", required=True, metavar="DIR", help="directory for the .grasp records (created)"
     )
     parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace records of the same names already in DIR (default: refuse, naming the file)",
+    )
+    parser.add_argument(
         "--settings",
         metavar="FILE",
         default=None,
-        help="settings TOML whose sensors the records carry; None: the settings stored in the log",
+        help="settings TOML whose sensors the records carry (default: the settings stored in the log)",
     )
     parser.add_argument(
         "--objects",
         metavar="PATH",
         default=None,
-        help="object catalogue for labels; None: the catalogue stored in the log",
+        help="object catalogue for labels (default: the catalogue stored in the log)",
     )
     parser.add_argument(
         "--source",
         choices=("simulated", "hardware"),
         default=None,
-        help="provenance source of the records; None: what the log's session metadata says",
+        help="provenance source of the records (default: what the log's session metadata says)",
     )
     parser.add_argument(
         "--json",
         action="store_true",
-        help="print one JSON object (log, out, exported, skipped: [{grasp_id, reason}], "
-        "records: [paths]) as the last stdout line",
+        help="print one JSON object as the last stdout line: log, out, session_id, complete, "
+        "exported (count), records (paths written), written ([{grasp_id, path, object, "
+        "modulus_pa, label_source}]), unlabelled ([{grasp_id, path, reason}]: written without a "
+        "modulus), skipped ([{grasp_id, reason}]: not written), stray_labels, error",
     )
+
+
+def _recover_hint(log: str) -> str:
+    return f"run `teleop recover {log} --out FIXED.mcap` first and export FIXED.mcap"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -49,26 +68,68 @@ def run(args: argparse.Namespace) -> int:
         settings=settings,
         catalogue=args.objects,
         source=args.source,
+        overwrite=args.overwrite,
         progress=True,
     )
-    written = [str(r.path) for r in results if r]
+    written = [r for r in results if r]
     skipped = [{"grasp_id": r.grasp_id, "reason": r.reason} for r in results if not r]
+    unlabelled = [
+        {"grasp_id": r.grasp_id, "path": str(r.path), "reason": r.unlabelled}
+        for r in written
+        if r.unlabelled
+    ]
     print(
-        f"exported {len(written)} grasp records into {args.out}; {len(skipped)} grasps skipped",
+        f"exported {len(written)} grasp records of session {results.session_id} into {args.out}; "
+        f"{len(skipped)} grasps skipped, {len(unlabelled)} records without a modulus",
         file=sys.stderr,
     )
     for item in skipped:
         print(f"skipped grasp {item['grasp_id']}: {item['reason']}", file=sys.stderr)
+    for item in unlabelled:
+        print(f"no modulus for grasp {item['grasp_id']} ({item['path']}): {item['reason']}",
+              file=sys.stderr)
+    for line in results.stray_labels:
+        print(f"unused label: {line}", file=sys.stderr)
+    error = None
+    if not results.complete:
+        cut = f"{args.log} is cut short ({results.damage})"
+        if written:
+            print(f"note: {cut}; grasps after the cut are lost. `teleop recover` writes the "
+                  "readable part as a complete log", file=sys.stderr)
+        else:
+            error = f"no grasp record exported: {cut}; {_recover_hint(args.log)}"
+    elif not written:
+        error = (
+            f"no grasp record exported: {args.log} holds no complete grasp"
+            + (" (every grasp was skipped, above)" if skipped else " (no grasp_event start/end)")
+        )
+    if error:
+        print(f"teleop export: error: {error}", file=sys.stderr)
     if args.json:
         print(
             json.dumps(
                 {
                     "log": args.log,
                     "out": args.out,
+                    "session_id": results.session_id,
+                    "complete": results.complete,
                     "exported": len(written),
+                    "records": [str(r.path) for r in written],
+                    "written": [
+                        {
+                            "grasp_id": r.grasp_id,
+                            "path": str(r.path),
+                            "object": r.record.label.object_name if r.record.label else None,
+                            "modulus_pa": r.record.label.modulus_pa if r.record.label else None,
+                            "label_source": r.record.label.source if r.record.label else None,
+                        }
+                        for r in written
+                    ],
+                    "unlabelled": unlabelled,
                     "skipped": skipped,
-                    "records": written,
+                    "stray_labels": results.stray_labels,
+                    "error": error,
                 }
             )
         )
-    return 0
+    return 1 if error else 0

@@ -270,7 +270,7 @@ def test_pickled_npy_member_runs_nothing(tmp_path, record_path):
 
 
 def test_format_constants():
-    assert FORMAT_NAME == "compliance-teleop.grasp" and FORMAT_VERSION == 2
+    assert FORMAT_NAME == "compliance-teleop.grasp" and FORMAT_VERSION == 3
 
 
 def test_style_round_trips_and_scripted_records_stay_version_1(tmp_path):
@@ -308,3 +308,94 @@ def test_find_records_lists_grasps_under_a_folder_or_says_what_is_wrong(tmp_path
     (tmp_path / "empty").mkdir()
     with pytest.raises(RecordError, match="no .grasp records found"):
         find_records(tmp_path / "empty")
+
+
+# --------------------------------------------------------------------------- labels' provenance
+
+
+def test_a_catalogue_label_is_written_as_before_and_other_sources_round_trip(tmp_path):
+    import dataclasses
+
+    record = make_record("png")
+    assert record.label.source == "catalogue" and record.label.detail == ""
+    path = write_record(record, tmp_path / "catalogue.grasp")
+    header = json.loads(zipfile.ZipFile(path).read("record.json"))
+    # The defaults are not written: records labelled from a catalogue keep their bytes (version 1).
+    assert sorted(header["label"]) == ["extra", "material", "modulus_pa", "object_name", "shape"]
+    assert header["version"] == 1
+    assert read_record(path).label == record.label
+    measured = dataclasses.replace(record.label, source="durometer", detail="Shore 00 30 -> 62 kPa")
+    path = write_record(dataclasses.replace(record, label=measured), tmp_path / "durometer.grasp")
+    header = json.loads(zipfile.ZipFile(path).read("record.json"))
+    assert header["version"] == 1  # older readers read it and ignore the two keys
+    assert (header["label"]["source"], header["label"]["detail"]) == ("durometer", "Shore 00 30 -> 62 kPa")
+    assert read_record(path).label == measured
+
+
+def test_a_label_source_outside_the_list_is_refused(tmp_path, record_path):
+    with pytest.raises(ValueError, match="source 'guess' is not one of catalogue, durometer"):
+        Label("duck", 1e6, source="guess")
+    fails(edit_header(record_path, lambda h: h["label"].update(source="guess")), "label is invalid")
+    fails(edit_header(record_path, lambda h: h["label"].update(detail=7)), "label is invalid")
+
+
+# --------------------------------------------------------------------------- calibration files inside
+
+
+def with_calibration_files(record: GraspRecord, tmp_path: Path) -> tuple[GraspRecord, bytes]:
+    import dataclasses
+
+    data = npy(np.arange(12.0))  # any bytes: the record keeps them as they are
+    cal = tmp_path / "elsewhere" / "left cal.npz"
+    sensors = tuple(dataclasses.replace(s, calibration=str(cal)) if s.finger == "left" else s
+                    for s in record.sensors)
+    return dataclasses.replace(record, sensors=sensors, calibration_files={"left": data}), data
+
+
+def test_calibration_files_travel_inside_the_record(tmp_path, monkeypatch):
+    import teleop.record as record_module
+
+    record, data = with_calibration_files(make_record("png"), tmp_path)
+    path = write_record(record, tmp_path / "v3.grasp")
+    header = json.loads(zipfile.ZipFile(path).read("record.json"))
+    assert header["version"] == FORMAT_VERSION == 3
+    assert header["calibration_files"] == {"left": "sensors/left/left_cal.npz"}
+    left = next(s for s in header["sensors"] if s["finger"] == "left")
+    assert left["calibration"] == "sensors/left/left_cal.npz"  # no path outside the record
+    assert str(tmp_path) not in zipfile.ZipFile(path).read("record.json").decode()
+    # Read in a fresh cache: the reader's sensor names a copy of the bytes, wherever the record is.
+    monkeypatch.setattr(record_module, "_CACHE", [tmp_path / "cache"])
+    moved = tmp_path / "moved" / "v3.grasp"
+    moved.parent.mkdir()
+    path.rename(moved)
+    back = read_record(moved)
+    copy = Path(back.sensor("left").calibration)
+    assert copy.is_relative_to(tmp_path / "cache") and copy.name == "left_cal.npz"
+    assert copy.read_bytes() == data and back.calibration_files == {"left": data}
+    assert back.sensor("right") == record.sensor("right")
+    # Written again, it is the same file.
+    again = write_record(back, tmp_path / "again.grasp")
+    assert again.read_bytes() == moved.read_bytes()
+    # A copy changed in the cache is put right on the next read.
+    copy.write_bytes(b"tampered")
+    assert Path(read_record(moved).sensor("left").calibration).read_bytes() == data
+
+
+def test_calibration_files_errors_are_named(tmp_path):
+    record, _ = with_calibration_files(make_record("png"), tmp_path)
+    path = write_record(record, tmp_path / "v3.grasp")
+    fails(edit_header(path, lambda h: h.update(version=2)), "calibration_files is a version-3 field")
+    path = write_record(record, tmp_path / "v3.grasp")
+    fails(edit_header(path, lambda h: h["calibration_files"].update(left="../x.npz")),
+          "calibration_files.left must name a member sensors/left/<file>")
+    path = write_record(record, tmp_path / "v3.grasp")
+    fails(edit_header(path, lambda h: h["calibration_files"].update(thumb="sensors/thumb/x.npz")),
+          "no sensor on finger 'thumb'")
+    path = write_record(record, tmp_path / "v3.grasp")
+    members = members_of(path)
+    del members["sensors/left/left_cal.npz"]
+    fails(rebuild(path, members), "'sensors/left/left_cal.npz'", "missing")
+    import dataclasses
+
+    with pytest.raises(ValueError, match="calibration file for finger 'thumb'"):
+        dataclasses.replace(record, calibration_files={"thumb": b""})

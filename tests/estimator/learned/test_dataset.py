@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 from collections import Counter, defaultdict
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -103,3 +104,103 @@ def test_records_of_one_name_in_two_folders_keep_their_own_samples(sim_grasps, t
 def test_build_dataset_refuses_an_empty_directory(tmp_path, capsys):
     assert main(["build-dataset", "--records", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
     assert "no .grasp records" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- every drop has a name
+
+
+def _variants(sim_grasps, folder):
+    """One good simulated record and one of each kind build-dataset must skip, in ``folder``."""
+    import dataclasses
+
+    from teleop.record import Samples, read_record, write_record
+
+    records, _ = sim_grasps
+    good_path = sorted(records.glob("*.grasp"))[0]
+    good = read_record(good_path)
+    folder.mkdir(parents=True)
+    shutil.copy(good_path, folder / "good.grasp")
+    (folder / "garbage.grasp").write_bytes(b"not a zip")
+    write_record(dataclasses.replace(good, label=None), folder / "no_label.grasp")
+    write_record(dataclasses.replace(good, label=dataclasses.replace(good.label, modulus_pa=None)),
+                 folder / "no_modulus.grasp")
+    gone = folder / "gone" / "cal.npz"
+    sensors = tuple(dataclasses.replace(s, calibration=str(gone)) for s in good.sensors)
+    write_record(dataclasses.replace(good, sensors=sensors), folder / "moved_calibration.grasp")
+    flat = Samples(good.force_n.t_s, np.zeros_like(good.force_n.value))
+    write_record(dataclasses.replace(good, force_n=flat), folder / "no_loading.grasp")
+    return folder, gone
+
+
+def test_every_skipped_record_is_named_with_its_cause(sim_grasps, tmp_path, capsys):
+    folder, gone = _variants(sim_grasps, tmp_path / "recs")
+    out = tmp_path / "ds"
+    argv = ["build-dataset", "--records", str(folder), "--out", str(out), "--size", "32x44", "--shifts", "1",
+            "--json"]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    manifest = json.loads(captured.out.strip().splitlines()[-1])
+    skipped = {Path(s["path"]).name: s for s in manifest["skipped"]}
+    assert {name: s["cause"] for name, s in skipped.items()} == {
+        "garbage.grasp": "unreadable", "no_label.grasp": "unlabelled", "no_modulus.grasp": "unlabelled",
+        "moved_calibration.grasp": "calibration missing", "no_loading.grasp": "no usable loading phase",
+    }
+    reason = skipped["moved_calibration.grasp"]["reason"]
+    assert str(gone) in reason and "does not exist" in reason and "teleop export" in reason
+    assert "--calibration" in reason
+    assert "not a readable ZIP" in skipped["garbage.grasp"]["reason"]
+    assert "teleop label" in skipped["no_label.grasp"]["reason"]
+    for name in skipped:  # and on stderr, by name
+        assert f"skipped {folder / name}: " in captured.err
+    assert [Path(u["path"]).name for u in manifest["used"]] == ["good.grasp"]
+    assert manifest["skipped_reasons"] == {"unreadable": 1, "unlabelled": 2, "calibration missing": 1,
+                                           "no usable loading phase": 1}
+    assert json.loads((out / "dataset.json").read_text())["skipped"] == manifest["skipped"]
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_a_build_that_makes_nothing_fails_naming_every_record_and_leaves_no_folder(sim_grasps, tmp_path, capsys):
+    folder, _ = _variants(sim_grasps, tmp_path / "recs")
+    (folder / "good.grasp").unlink()
+    out = tmp_path / "ds"
+    assert main(["build-dataset", "--records", str(folder), "--out", str(out), "--size", "32x44",
+                 "--shifts", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "no training sample made from the 5 records" in err and "Traceback" not in err
+    for name in ("garbage", "no_label", "no_modulus", "moved_calibration", "no_loading"):
+        assert f"{folder / name}.grasp: " in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["recs"]  # no dataset, whole or half
+
+
+def test_a_build_that_fails_midway_leaves_nothing_behind(sim_grasps, tmp_path, monkeypatch):
+    import estimator.learned.dataset as dataset
+    from estimator.learned.dataset import DatasetOptions, build_dataset
+
+    records, calibration = sim_grasps
+    real, calls = dataset.save_sample, []
+
+    def failing_save(sample, path):  # the disk fills up at the second sample
+        calls.append(path)
+        if len(calls) > 1:
+            raise OSError(28, "No space left on device")
+        return real(sample, path)
+
+    monkeypatch.setattr(dataset, "save_sample", failing_save)
+    out = tmp_path / "ds"
+    with pytest.raises(EstimatorError, match="cannot write the dataset beside --out .*No space left"):
+        build_dataset(sorted(records.glob("*.grasp")), out, settings=load_settings(),
+                      options=DatasetOptions(shifts=1, size_px=(32, 44), calibration=str(calibration)),
+                      progress=False)
+    assert len(calls) == 2 and list(tmp_path.iterdir()) == []
+
+
+def test_an_out_folder_with_files_in_it_or_a_missing_calibration_is_refused(sim_grasps, tmp_path, capsys):
+    records, _ = sim_grasps
+    (tmp_path / "ds").mkdir()
+    (tmp_path / "ds" / "notes.txt").write_text("mine")
+    assert main(["build-dataset", "--records", str(records), "--out", str(tmp_path / "ds")]) == 2
+    assert "not an empty folder" in capsys.readouterr().err
+    assert main(["build-dataset", "--records", str(records), "--out", str(tmp_path / "ds2"),
+                 "--calibration", str(tmp_path / "typo.npz")]) == 2
+    assert f"--calibration {tmp_path / 'typo.npz'}: no such calibration file" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +16,7 @@ from mcap.writer import Writer
 from teleop.bus import Publisher
 from teleop.catalogue import default_catalogue_path, load_catalogue
 from teleop.errors import SessionLogError
-from teleop.record import read_record
+from teleop.record import Label, read_record
 from teleop.session import SessionRecorder, export_session, session_grasps
 from teleop.settings import CONFIG_DIR, load_settings
 from teleop.sim.grasp import simulate_grasp
@@ -104,7 +107,7 @@ def test_the_named_object_is_labelled_from_the_stored_catalogue(exported, helper
     assert read_record(results[1].path).label is None  # hardware-like: no object named
 
 
-def test_sensors_come_from_the_stored_settings_with_the_stored_calibration(recorded, exported):
+def test_sensors_come_from_the_stored_settings_and_carry_the_stored_calibration(recorded, exported):
     out, results = exported
     record = read_record(results[0].path)
     assert [s.finger for s in record.sensors] == [s.finger for s in recorded.settings.sensors]
@@ -113,11 +116,17 @@ def test_sensors_come_from_the_stored_settings_with_the_stored_calibration(recor
         left.warp_corners_px == original.warp_corners_px
         and left.gel_modulus_pa == original.gel_modulus_pa
     )
-    copy = out / "calibration" / "left" / "left_cal.npz"
-    assert left.calibration == str(copy.resolve())
+    # The calibration file travels inside the record (format version 3), not beside it.
+    header = json.loads(zipfile.ZipFile(results[0].path).read("record.json"))
+    assert header["version"] == 3
+    assert header["calibration_files"] == {"left": "sensors/left/left_cal.npz"}
+    assert header["sensors"][0]["calibration"] == "sensors/left/left_cal.npz"
     with open(original.calibration, "rb") as f:
-        assert copy.read_bytes() == f.read()
-    assert record.sensor("right") == recorded.settings.sensor("right")
+        assert record.calibration_files["left"] == f.read()
+        f.seek(0)
+        assert Path(left.calibration).read_bytes() == f.read()  # the reader's copy of it
+    assert not (out / "calibration").exists()
+    assert record.sensor("right") == recorded.settings.sensor("right")  # names no calibration
 
 
 def test_only_a_stray_end_event_is_warned_about(recorded, caplog):
@@ -263,11 +272,14 @@ def _publish_record(pub, record, grasp_id):
     ]
 
 
-def test_a_simulated_grasp_streamed_recorded_and_exported_is_the_same_record(tmp_path, helpers):
+@pytest.fixture(scope="module")
+def sim_session(tmp_path_factory, helpers):
+    """A simulated grasp of the catalogue's stress ball streamed on the bus and recorded with the
+    shipped settings (their calibration files stored in the log): (log, the grasp's record)."""
     settings = load_settings()
     obj = next(o for o in load_catalogue() if o.name == helpers.object_name)
     source, _ = simulate_grasp(obj, settings=settings, rng=np.random.default_rng(0), seed=0)
-    path = tmp_path / "sim.mcap"
+    path = tmp_path_factory.mktemp("sim") / "sim.mcap"
     with (
         Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as pub,
         helpers.recording(
@@ -277,6 +289,11 @@ def test_a_simulated_grasp_streamed_recorded_and_exported_is_the_same_record(tmp
         pub.wait_for_subscriber("")
         sent = _publish_record(pub, source, "sim-0")
         helpers.wait_for(lambda: recorder.stats.messages == len(sent), what="the grasp recorded")
+    return path, source
+
+
+def test_a_simulated_grasp_streamed_recorded_and_exported_is_the_same_record(tmp_path, sim_session):
+    path, source = sim_session
     (grasp,) = export_session(path, tmp_path / "out")
     exported = read_record(grasp.path)
     for stream in source.frames:
@@ -287,11 +304,212 @@ def test_a_simulated_grasp_streamed_recorded_and_exported_is_the_same_record(tmp
         assert np.array_equal(getattr(exported, name).t_s, getattr(source, name).t_s)
         assert np.array_equal(getattr(exported, name).value, getattr(source, name).value)
     assert exported.label == source.label
-    # Export copies each sensor's calibration beside the records and points the sensor at the copy.
+    # Export puts each sensor's calibration inside the record; the reader names a copy of it.
     for sent_sensor, got_sensor in zip(source.sensors, exported.sensors, strict=True):
         assert dataclasses.replace(got_sensor, calibration="") == dataclasses.replace(
             sent_sensor, calibration=""
         )
         shipped = CONFIG_DIR / sent_sensor.calibration
         assert Path(got_sensor.calibration).read_bytes() == shipped.read_bytes()
+        assert exported.calibration_files[got_sensor.finger] == shipped.read_bytes()
     assert exported.provenance.source == "simulated"
+
+
+# --------------------------------------------------------------------------- names, overwrite, labels
+
+
+def _record_session(path, helpers, settings, *, then=lambda pub: []):
+    """The synthetic session of conftest recorded at full speed, then the messages ``then(pub)``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with (
+        Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as pub,
+        helpers.recording(
+            path, [pub.endpoint], settings=settings, catalogue=default_catalogue_path()
+        ) as recorder,
+    ):
+        pub.wait_for_subscriber("")
+        sent = helpers.publish_session(pub)
+        sent += then(pub)
+        helpers.wait_for(lambda: recorder.stats.messages == len(sent), what="the session recorded")
+    return path
+
+
+def _checksums(folder):
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in folder.glob("*.grasp")}
+
+
+def test_two_sessions_with_the_same_grasp_ids_exported_into_one_folder_keep_every_record(
+    recorded, session_settings, helpers, tmp_path
+):
+    out = tmp_path / "records"
+    first = export_session(recorded.path, out)
+    before = _checksums(out)
+    assert len(before) == 2
+    # Another session, its log of the same name, its grasps of the same ids.
+    second_log = _record_session(tmp_path / "again" / "session.mcap", helpers, session_settings)
+    second = export_session(second_log, out)
+    after = _checksums(out)
+    assert len(after) == 4 and {k: after[k] for k in before} == before  # nothing replaced
+    assert first.session_id != second.session_id
+    for session in (first, second):
+        for result in session:
+            if result:
+                assert result.path.name == f"session_{session.session_id}_{result.grasp_id}.grasp"
+                assert read_record(result.path).provenance.extra["session_id"] == session.session_id
+
+
+def test_an_export_never_replaces_a_record_unless_asked(recorded, tmp_path, capsys):
+    from teleop.cli import main
+
+    out = tmp_path / "records"
+    results = export_session(recorded.path, out)
+    before = _checksums(out)
+    taken = next(r.path for r in results if r)
+    with pytest.raises(SessionLogError, match="--overwrite") as info:
+        export_session(recorded.path, out)
+    assert str(taken) in str(info.value) or str(out / taken.name) in str(info.value)
+    assert _checksums(out) == before and sorted(p.name for p in out.iterdir()) == sorted(before)
+    assert main(["export", str(recorded.path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "already exists" in err and "--overwrite" in err and "Traceback" not in err
+    again = export_session(recorded.path, out, overwrite=True)
+    assert [r.path.name for r in again if r] == [r.path.name for r in results if r]
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no staged file left
+
+
+def test_export_json_says_what_was_written_and_what_was_skipped(recorded, tmp_path, capsys):
+    from teleop.cli import main
+
+    out = tmp_path / "records"
+    assert main(["export", str(recorded.path), "--out", str(out), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert report["exported"] == 2 and report["complete"] and report["error"] is None
+    assert sorted(report["records"]) == sorted(str(p) for p in out.glob("*.grasp"))
+    written = {w["grasp_id"]: w for w in report["written"]}
+    assert written["g0"]["object"] == "stress_ball" and written["g0"]["label_source"] == "catalogue"
+    assert written["g0"]["modulus_pa"] > 0 and written["g1"]["object"] is None
+    assert [(u["grasp_id"], "names no object" in u["reason"]) for u in report["unlabelled"]] == [
+        ("g1", True)
+    ]
+    assert [s["grasp_id"] for s in report["skipped"]] == ["g2"]
+    assert "before the grasp's end event" in report["skipped"][0]["reason"]
+
+
+def test_exporting_a_cut_log_that_yields_nothing_fails_and_names_recover(recorded, tmp_path, capsys):
+    from mcap.records import Metadata
+
+    from teleop.cli import main
+    from teleop.session import LogReader
+
+    reader = LogReader(recorded.path)
+    cut_at = next(  # just after the settings and the session metadata, inside the first chunk
+        reader.good_bytes
+        for record in reader.records(emit_chunks=True)
+        if isinstance(record, Metadata) and record.name == "rig"
+    )
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(recorded.path.read_bytes()[: cut_at + 500])
+    assert main(["export", str(cut), "--out", str(tmp_path / "out"), "--json"]) == 1
+    captured = capsys.readouterr()
+    assert f"teleop recover {cut}" in captured.err
+    report = json.loads(captured.out.strip().splitlines()[-1])
+    assert report["exported"] == 0 and not report["complete"] and "teleop recover" in report["error"]
+
+
+def test_a_complete_log_without_a_grasp_fails(recorded, tmp_path, capsys):
+    from teleop.cli import main
+
+    path = tmp_path / "idle.mcap"
+    with (
+        Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as pub,
+        SessionRecorder(path, [pub.endpoint], settings=recorded.settings) as recorder,
+    ):
+        pub.wait_for_subscriber("")
+        pub.send("force", t_capture_s=1.0, t_s=[1.0], value_n=[0.0])
+        deadline = time.monotonic() + 5.0
+        while recorder.stats.messages < 1 and time.monotonic() < deadline:
+            recorder.poll(0.1)
+    assert main(["export", str(path), "--out", str(tmp_path / "out"), "--source", "simulated"]) == 1
+    assert "holds no complete grasp" in capsys.readouterr().err
+
+
+def test_labels_in_the_log_win_over_the_catalogue(session_settings, helpers, tmp_path):
+    catalogue = {o.name: o for o in load_catalogue()}
+
+    def labels(pub):
+        def label(gid, name, modulus, source="measured", detail=""):
+            return pub.send("label", t_capture_s=200.0, grasp_id=gid, object_name=name,
+                            modulus_pa=modulus, source=source, detail=detail)
+
+        return [
+            label("g0", "rubber_duck", 1.0e6, "datasheet"),  # replaced by the next one
+            label("g0", helpers.object_name, 6.2e4, "durometer", "Shore 00 30"),
+            label("g1", helpers.object_name, None, "catalogue"),  # nil: the catalogue's modulus
+            label("g2", helpers.object_name, 5e4),  # g2 never ends: no record to label
+            label("g9", helpers.object_name, 5e4),  # no such grasp
+        ]
+
+    path = _record_session(tmp_path / "labelled.mcap", helpers, session_settings, then=labels)
+    results = export_session(path, tmp_path / "out")
+    g0, g1, g2 = results
+    assert read_record(g0.path).label == Label(
+        helpers.object_name, 6.2e4, catalogue[helpers.object_name].material,
+        catalogue[helpers.object_name].shape, source="durometer", detail="Shore 00 30",
+    )
+    obj = catalogue[helpers.object_name]
+    assert read_record(g1.path).label == Label(obj.name, obj.modulus_pa, obj.material, obj.shape)
+    assert not g0.unlabelled and not g1.unlabelled and not g2
+    assert len(results.stray_labels) == 1 and "'g9'" in results.stray_labels[0]
+
+
+def test_a_label_without_a_modulus_for_an_unknown_object_leaves_the_record_unlabelled(
+    session_settings, helpers, tmp_path
+):
+    def labels(pub):
+        return [pub.send("label", t_capture_s=200.0, grasp_id="g1", object_name="mystery_foam",
+                         modulus_pa=None, source="catalogue", detail="")]
+
+    path = _record_session(tmp_path / "mystery.mcap", helpers, session_settings, then=labels)
+    g1 = next(r for r in export_session(path, tmp_path / "out") if r.grasp_id == "g1")
+    label = read_record(g1.path).label
+    assert label.object_name == "mystery_foam" and label.modulus_pa is None
+    assert "'mystery_foam' without a modulus" in g1.unlabelled
+
+
+def test_an_exported_folder_moved_elsewhere_builds_a_dataset(sim_session, tmp_path, monkeypatch, capsys):
+    import shutil
+
+    import teleop.record as record_module
+    from estimator.cli import main as estimator
+
+    path, _ = sim_session
+    out = tmp_path / "exported"
+    (grasp,) = export_session(path, out)
+    header = json.loads(zipfile.ZipFile(grasp.path).read("record.json"))
+    assert all(not Path(s["calibration"]).is_absolute() for s in header["sensors"])
+    moved = tmp_path / "elsewhere" / "records"
+    moved.parent.mkdir()
+    shutil.move(out, moved)
+    # A fresh cache: whatever the records need comes from inside them.
+    monkeypatch.setattr(record_module, "_CACHE", [tmp_path / "fresh-cache"])
+    dataset = tmp_path / "dataset"
+    argv = ["build-dataset", "--records", str(moved), "--out", str(dataset), "--size", "32x44",
+            "--shifts", "1", "--json"]
+    assert estimator(argv) == 0, capsys.readouterr().err
+    manifest = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert manifest["grasps_used"] == 1 and sum(manifest["samples"].values()) == 1
+    assert manifest["skipped"] == []
+
+
+def test_settings_given_to_the_export_carry_the_calibration_they_name(recorded, tmp_path):
+    newer = tmp_path / "cal" / "left_cal.npz"  # recalibrated since, under the same name
+    newer.parent.mkdir()
+    np.savez(newer, gain=np.arange(7.0))
+    sensors = tuple(
+        dataclasses.replace(s, calibration=str(newer)) if s.finger == "left" else s
+        for s in recorded.settings.sensors
+    )
+    settings = dataclasses.replace(recorded.settings, sensors=sensors)
+    results = export_session(recorded.path, tmp_path / "out", settings=settings)
+    record = read_record(results[0].path)
+    assert record.calibration_files["left"] == newer.read_bytes()

@@ -20,7 +20,8 @@ def test_export_command_writes_the_records(recorded, tmp_path, capsys):
     assert teleop.cli.main(["export", str(recorded.path), "--out", str(out), "--json"]) == 0
     summary = _json_tail(capsys)
     assert summary["exported"] == 2 and [s["grasp_id"] for s in summary["skipped"]] == ["g2"]
-    assert sorted(p.name for p in out.glob("*.grasp")) == ["session_g0.grasp", "session_g1.grasp"]
+    session = summary["session_id"]  # the log's start time: two sessions never share a name
+    assert sorted(p.name for p in out.glob("*.grasp")) == [f"session_{session}_g0.grasp", f"session_{session}_g1.grasp"]
     assert read_record(summary["records"][0]).label.object_name == "stress_ball"
 
 
