@@ -9,6 +9,7 @@ from teleop.clikit import Command, run_cli
 COMMANDS: dict[str, Command] = {
     "estimate": Command("estimator.estimate_cli", "estimate Young's modulus from one grasp record"),
     "evaluate": Command("estimator.evaluate_cli", "score the analytical and learned estimators over labelled grasp records (ablation table)"),
+    "compare": Command("estimator.compare_cli", "score a base and a candidate model on labelled records neither trained on: which is better, with its uncertainty"),
     "build-dataset": Command("estimator.learned.dataset_cli", "labelled grasp records to training samples, split by object"),
     "train": Command("estimator.learned.train_cli", "train the learned / hybrid model and export it to ONNX"),
     "fine-tune": Command("estimator.learned.finetune_cli", "adapt a trained model to a new rig from a few labelled grasps"),
@@ -18,6 +19,7 @@ COMMANDS: dict[str, Command] = {
     "calibrate": Command("estimator.perception.calibrate_cli", "fit a sensor's colour-to-gradient calibration from ball presses"),
     "reconstruct": Command("estimator.perception.reconstruct_cli", "check a calibration: reconstruct held-out ball presses and fit spheres"),
     "serve": Command("estimator.service_cli", "serve live estimates of the grasps on the bus"),
+    "reload": Command("estimator.reload_cli", "switch a running estimator service to another model, checked before it serves"),
 }
 
 

@@ -41,10 +41,28 @@ that are not finite, capture times that go backwards, repeat or jump more than
 :data:`MAX_CLOCK_JUMP_S` ahead of the stream's last one, data for a grasp that is not open) is
 logged and counted, and the service carries on; so are the refusals of the bus itself (:class:`~teleop.bus.pubsub.Subscriber`).
 
-The model is reloaded between grasps (never during one) when its files change or when asked
-(SIGHUP, a ``command`` message with action ``reload_model`` on ``bus.command``, or
-:meth:`ModelSlot.request_reload`); a model that fails to load is logged and the one in use
-stays. Other command actions are the robot node's and are ignored here.
+Models
+------
+Every estimate names the learned model that made it (``model``: its
+:func:`~estimator.learned.infer.model_id`, ``"<folder>-<hash>"``; nil for an analytical estimate),
+and so does the per-grasp report. The model is pinned to a grasp at its start: a switch takes
+effect from the next grasp on, never during one. The service switches models:
+
+* on a ``load_model`` message on ``bus.command`` (``estimator reload``): the folder it names;
+* on SIGHUP, a ``command`` with action ``reload_model``, or :meth:`ModelSlot.request_reload`:
+  the folder it serves, read again;
+* when the served folder's files change (``model.onnx``, ``metadata.json``): once the id over
+  both has stayed the same over two looks :attr:`ModelSlot.check_interval_s` apart, so a folder
+  being copied over is never loaded half old, half new.
+
+Each candidate is loaded and checked in a background thread while grasps go on (the metadata,
+the ONNX session and its inputs against the metadata, the settings' depth binning, and one
+inference on the shipped reference grasp, :mod:`estimator.learned.reference`), then switched to
+between grasps. A candidate that fails any check is refused and the model in use stays. Either
+way the service says so in a ``model_event`` on its estimate endpoint ("loaded" with the new id,
+or "refused" with the reason; ``request`` echoes the ``load_model``'s) and in its log, at INFO
+for a switch and WARNING for a refusal (``estimator serve`` shows both at its default level).
+Other command actions are the robot node's and are ignored here.
 
 The service is meant to run on one core: start it with ``OPENBLAS_NUM_THREADS=1`` (as
 ``teleop demo`` does), or BLAS threads fight for the cores and per-frame times jump.
@@ -56,6 +74,7 @@ import logging
 import math
 import threading
 import time
+from collections import OrderedDict, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -75,11 +94,18 @@ from teleop.errors import TeleopError
 from teleop.live import JsonLines
 from teleop.settings import Settings, resolve_path
 
-__all__ = ["INPUT_TOPICS", "MAX_CLOCK_JUMP_S", "EstimatorService", "ModelSlot", "ServiceStats", "resolve_model_dir"]
+__all__ = ["COMMAND_TOPICS", "INPUT_TOPICS", "MAX_CLOCK_JUMP_S", "EstimatorService", "ModelEvent", "ModelSlot",
+           "ServiceStats", "resolve_model_dir"]
 
 log = logging.getLogger(__name__)
+# Model switches and refusals: `estimator serve` shows this logger at INFO at least, whatever its -v.
+model_log = logging.getLogger(__name__ + ".model")
 
 INPUT_TOPICS = ("frame", "force", "width", "grasp_event", "robot_state")
+# What the service takes from bus.command: reload_model (a command action) and load_model.
+COMMAND_TOPICS = ("command", "load_model")
+# load_model requests remembered, so a repeated one is answered again and not loaded twice.
+REMEMBERED_REQUESTS = 64
 # A force batch reaching this share of the contact force may show the contact: segment then.
 CONTACT_HINT = 0.5
 # Capture clocks are monotonic: a time this far past the stream's last one is a broken clock.
@@ -107,93 +133,289 @@ def resolve_model_dir(option: str | None, settings: Settings) -> Path | None:
     return path.parent if path.suffix == ".onnx" else path
 
 
+@dataclass(frozen=True)
+class ModelEvent:
+    """What a :class:`ModelSlot` did with a candidate model: the body of a ``model_event`` message.
+
+    ``event`` is "loaded" (served from the next grasp on) or "refused" (the model in use stays);
+    ``request`` the ``load_model`` request it answers (None for a reload of the slot's own);
+    ``model`` the id served now (None: none); ``path`` the candidate's folder.
+    """
+
+    event: str
+    request: str | None
+    model: str | None
+    path: str | None
+    reason: str
+
+    def body(self) -> dict[str, Any]:
+        """The ``model_event`` body (reason and path cut to what the bus carries)."""
+        return {"event": self.event, "request": self.request, "model": self.model,
+                "path": None if self.path is None else _cut(self.path), "reason": _cut(self.reason)}
+
+
+@dataclass
+class _Candidate:
+    """A model folder being loaded and checked in the background."""
+
+    path: Path
+    request: str | None  # the load_model request, None for a reload of the slot's own
+    expect_id: str | None = None  # a file-watch reload: the id that stayed the same over two looks
+    done: threading.Event = field(default_factory=threading.Event)
+    estimator: Any = None
+    model_id: str | None = None
+    stamp: Any = None
+    error: str | None = None
+
+
+def _model_folder(path: str | Path) -> Path:
+    """A model folder from a path to it or to its ``model.onnx``."""
+    path = Path(path)
+    return path.parent if path.suffix == ".onnx" else path
+
+
 class ModelSlot:
     """The learned model a service uses, swapped for a new one only between grasps.
 
+    Candidates (:meth:`request_load`, :meth:`request_reload`, a change of the served files: see
+    the module notes) are loaded and checked one at a time in a background thread;
+    :meth:`poll`, called by the service's loop, starts them and switches to one that checked out
+    only when no grasp is open.
+
     Parameters
     ----------
-    model_dir : path
-        Directory with ``model.onnx`` and ``metadata.json`` (see :mod:`estimator.learned.infer`).
+    model_dir : path or None
+        Directory with ``model.onnx`` and ``metadata.json`` (see :mod:`estimator.learned.infer`),
+        or None: no model yet (until a :meth:`request_load`).
     settings : Settings
     calibration : Calibration
         The estimator finger's calibration, handed to the hybrid estimator.
     mode : {"auto", "model"}
         How :class:`~estimator.learned.hybrid.HybridEstimator` answers.
     check_interval_s : float
-        How often :meth:`poll` looks at the files' modification times.
+        How often :meth:`poll` looks at the served folder's files.
+    check_reference : bool
+        Check each model with one inference on the shipped reference grasp before serving it.
+
+    Attributes
+    ----------
+    estimator : HybridEstimator or None
+        The model served now.
+    model_id : str or None
+        Its :func:`~estimator.learned.infer.model_id`.
 
     Raises
     ------
     ModelError
-        The model cannot be loaded at start.
+        The model cannot be loaded at start, or fails its checks.
     """
 
-    def __init__(self, model_dir: str | Path, *, settings: Settings, calibration: Calibration,
-                 mode: str = "auto", check_interval_s: float = 1.0,
+    def __init__(self, model_dir: str | Path | None, *, settings: Settings, calibration: Calibration,
+                 mode: str = "auto", check_interval_s: float = 1.0, check_reference: bool = True,
                  clock: Callable[[], float] = time.monotonic):
         from estimator.learned.hybrid import MODES
 
         if mode not in MODES:
             raise ModelError(f"model mode {mode!r}: expected one of {', '.join(MODES)}")
-        self.model_dir = Path(model_dir)
         self.settings = settings
         self.calibration = calibration
         self.mode = mode
         self.check_interval_s = check_interval_s
+        self.check_reference = check_reference
         self.clock = clock
         self.loads = 0
         self.failures = 0
+        self.model_dir: Path | None = None
+        self.estimator: Any = None
+        self.model_id: str | None = None
         self._requested = threading.Event()
-        self._stamp = self._file_stamp()
+        self._queue: deque[_Candidate] = deque()
+        self._candidate: _Candidate | None = None  # being loaded, or loaded and waiting for the grasp's end
+        self._stamp: Any = None  # the served files' stamp last looked at
+        self._watched_id: str | None = None  # the id the files had at the last look, while it differs
+        self._refused_id: str | None = None  # files the watch tried and refused: not tried again
         self._checked_s = clock()
-        self.estimator = self._load()
+        if model_dir is not None:
+            loaded = _Candidate(_model_folder(model_dir), None)
+            self._build(loaded)
+            if loaded.error is not None:
+                raise ModelError(loaded.error)
+            self._install(loaded)
+            model_log.info("serving model %s (%s, %s)", self.model_id, self.model_dir,
+                           self.estimator.predictor.variant.name)
 
-    def _file_stamp(self) -> tuple[tuple[int, int], ...] | None:
+    # ------------------------------------------------------------------ requests (any thread)
+
+    def request_reload(self) -> None:
+        """Read the served folder again, and switch to it at the next :meth:`poll` between grasps
+        once it checks out (thread- and signal-safe)."""
+        self._requested.set()
+
+    def request_load(self, path: str | Path, request: str | None = None) -> None:
+        """Load the model in ``path`` (a folder, or its ``model.onnx``) and switch to it between
+        grasps once it checks out; ``request`` is echoed in the :class:`ModelEvent`."""
+        self._queue.append(_Candidate(_model_folder(path), request))
+
+    @property
+    def busy(self) -> bool:
+        """Whether a candidate is being loaded or waits to be switched to, or requests wait."""
+        return self._candidate is not None or bool(self._queue) or self._requested.is_set()
+
+    @property
+    def switch_pending(self) -> bool:
+        """Whether a candidate checked out and waits for the open grasp's end to be switched to."""
+        candidate = self._candidate
+        return candidate is not None and candidate.done.is_set() and candidate.error is None
+
+    def wait(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for the candidate being loaded to be checked; True when none is
+        loading now (a test's or a tool's convenience: :meth:`poll` never waits)."""
+        candidate = self._candidate
+        return candidate is None or candidate.done.wait(timeout_s)
+
+    # ------------------------------------------------------------------ the service's loop
+
+    def poll(self, *, idle: bool) -> ModelEvent | None:
+        """Advance the candidates: switch to one that checked out when ``idle`` (no grasp open),
+        report one that failed, start the next (a request, or the served files changed and
+        then stayed the same over two looks). Returns what happened, if anything."""
+        candidate = self._candidate
+        if candidate is not None:
+            if not candidate.done.is_set() or (candidate.error is None and not idle):
+                return None  # still loading, or a grasp is open: never swapped mid-grasp
+            self._candidate = None
+            return self._settle(candidate)
+        if self._queue:
+            self._start(self._queue.popleft())
+        elif self._requested.is_set():
+            self._requested.clear()
+            if self.model_dir is None:
+                model_log.warning("a reload was asked for, but no model is served: nothing to reload")
+            else:
+                self._start(_Candidate(self.model_dir, None))
+        else:
+            self._watch()
+        return None
+
+    def _watch(self) -> None:
+        """Start a reload of the served folder once its files changed and kept one id over two looks."""
+        from estimator.learned.infer import model_id
+
+        now = self.clock()
+        if self.model_dir is None or now - self._checked_s < self.check_interval_s:
+            return
+        self._checked_s = now
+        stamp = _file_stamp(self.model_dir)
+        if stamp == self._stamp and self._watched_id is None:
+            return  # nothing new
+        self._stamp = stamp
         try:
-            stats = [(self.model_dir / name).stat() for name in ("model.onnx", "metadata.json")]
-        except OSError:
-            return None
-        return tuple((s.st_mtime_ns, s.st_size) for s in stats)
+            current = model_id(self.model_dir)
+        except ModelError:
+            current = None  # a file missing: being copied, or gone
+        if current in (None, self.model_id, self._refused_id):
+            self._watched_id = None
+        elif current != self._watched_id:
+            self._watched_id = current
+            model_log.info("model files in %s changed (now %s): switching once they stay the same",
+                           self.model_dir, current)
+        else:
+            self._watched_id = None
+            self._start(_Candidate(self.model_dir, None, expect_id=current))
 
-    def _load(self) -> Any:
+    def _start(self, candidate: _Candidate) -> None:
+        self._candidate = candidate
+        threading.Thread(target=self._build, args=(candidate,), name="model-load", daemon=True).start()
+
+    def _build(self, candidate: _Candidate) -> None:
+        """Load and check ``candidate`` (in the loader thread); sets its estimator or its error."""
         from estimator.learned.hybrid import HybridEstimator
         from estimator.learned.infer import CompliancePredictor
 
-        estimator = HybridEstimator(CompliancePredictor(self.model_dir), settings=self.settings,
-                                    calibration=self.calibration)
-        self.loads += 1
-        log.info("model %s (%s) loaded", self.model_dir, estimator.predictor.variant.name)
-        return estimator
-
-    def request_reload(self) -> None:
-        """Reload at the next :meth:`poll` between grasps (thread- and signal-safe)."""
-        self._requested.set()
-
-    def poll(self, *, idle: bool) -> bool:
-        """Reload if asked or the files changed, when ``idle`` (no grasp open); True if reloaded.
-
-        A model that fails to load is logged and counted; the one in use stays, and the files
-        are tried again when they change again or a reload is asked for.
-        """
-        if not idle:
-            return False
-        requested = self._requested.is_set()
-        now = self.clock()
-        if not requested and now - self._checked_s < self.check_interval_s:
-            return False
-        self._checked_s = now
-        stamp = self._file_stamp()
-        if not requested and stamp == self._stamp:
-            return False
-        self._requested.clear()
-        self._stamp = stamp
         try:
-            self.estimator = self._load()
+            if candidate.path == self.model_dir:
+                self._requested.clear()  # this load reads the files after any reload asked so far
+            candidate.stamp = _file_stamp(candidate.path)
+            predictor = CompliancePredictor(candidate.path)
+            candidate.model_id = predictor.model_id
+            estimator = HybridEstimator(predictor, settings=self.settings, calibration=self.calibration)
+            if self.check_reference:
+                _check_on_reference(predictor, self.settings)
+            candidate.estimator = estimator
         except ModelError as exc:
+            candidate.error = str(exc)
+        except Exception as exc:  # a model that breaks the loader in another way is refused all the same
+            log.exception("loading model %s failed unexpectedly", candidate.path)
+            candidate.error = f"{candidate.path}: loading failed ({type(exc).__name__}: {exc})"
+        finally:
+            candidate.done.set()
+
+    def _settle(self, candidate: _Candidate) -> ModelEvent | None:
+        """Switch to a checked candidate, or refuse a failed one."""
+        path = str(candidate.path)
+        if candidate.error is not None:
             self.failures += 1
-            log.error("model reload failed, keeping the model in use: %s", exc)
-            return False
-        return True
+            if candidate.expect_id is not None:
+                self._refused_id = candidate.expect_id
+            model_log.warning("model %s refused, still serving %s: %s", path, self.model_id or "no model",
+                              candidate.error)
+            return ModelEvent("refused", candidate.request, self.model_id, path, candidate.error)
+        if candidate.expect_id is not None and candidate.model_id != candidate.expect_id:
+            model_log.info("model files in %s changed again while loading: waiting for them to stay the same", path)
+            self._stamp = None  # look again
+            return None
+        previous = self.model_id
+        self._install(candidate)
+        model_log.info("model %s (%s) serves from the next grasp on, in place of %s", self.model_id, path,
+                       previous or "no model")
+        reason = "switched" if previous != self.model_id else "reloaded (the same files)"
+        return ModelEvent("loaded", candidate.request, self.model_id, path,
+                          f"{reason}; was {previous or 'no model'}")
+
+    def _install(self, candidate: _Candidate) -> None:
+        self.estimator, self.model_id, self.model_dir = candidate.estimator, candidate.model_id, candidate.path
+        self._stamp, self._watched_id, self._refused_id = candidate.stamp, None, None
+        self.loads += 1
+
+
+def _file_stamp(folder: Path) -> tuple[tuple[str, int, int], ...] | None:
+    """Names, modification times and sizes of a model folder's files (None: the folder is unreadable)."""
+    try:
+        paths = [folder / "metadata.json", *sorted(folder.glob("*.onnx"))]
+        return tuple((p.name, p.stat().st_mtime_ns, p.stat().st_size) for p in paths)
+    except OSError:
+        return None
+
+
+def _check_on_reference(predictor: Any, settings: Settings) -> None:
+    """One inference on the shipped reference grasp, measured with ``settings``: ModelError unless the
+    model gives finite logits. Where the reference cannot be measured with these settings (a rig
+    unlike the simulated one), the inference runs on zero inputs of the model's shapes instead: that
+    is the code's limit, not the model's."""
+    import numpy as np
+
+    from estimator.learned.reference import REFERENCE_RECORD, reference_inputs
+
+    where = f"the reference grasp {REFERENCE_RECORD.name}"
+    try:
+        batch = reference_inputs(predictor.variant, settings=settings)
+    except (EstimatorError, TeleopError, ValueError, OSError) as exc:
+        log.warning("the reference grasp cannot be measured with these settings (%s): checking model %s on zero "
+                    "inputs instead", exc, predictor.model_dir)
+        batch = {name: np.zeros((1, *shape), np.float32) for name, shape in predictor.variant.input_shapes.items()}
+        where = "zero inputs"
+    try:
+        predictor.predict_logits(batch)
+    except ModelError as exc:
+        raise ModelError(f"model {predictor.model_dir} fails on {where}: {exc}") from exc
+    except Exception as exc:  # onnxruntime raises its own untyped errors
+        raise ModelError(f"model {predictor.model_dir}: onnxruntime fails on {where} "
+                         f"({type(exc).__name__}: {exc})") from exc
+
+
+def _cut(text: str, limit: int = MAX_STR_CHARS) -> str:
+    """``text`` cut to ``limit`` characters (an ellipsis marks the cut)."""
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 @dataclass
@@ -206,13 +428,16 @@ class ServiceStats:
     grasps: int = 0
     provisional: int = 0
     final: int = 0
-    reloads: int = 0
+    reloads: int = 0  # switches to another model (or the same folder read again)
     reload_requests: int = 0  # reload_model commands taken (with no model: logged, nothing to do)
+    load_requests: int = 0  # load_model messages taken (a repeated request counts once)
+    model_refusals: int = 0  # candidate models refused (the one in use stayed)
 
     def as_dict(self) -> dict[str, Any]:
         return {"messages": self.messages, "bad_messages": self.bad_messages, "ignored": self.ignored,
                 "grasps": self.grasps, "provisional": self.provisional, "final": self.final,
-                "reloads": self.reloads, "reload_requests": self.reload_requests}
+                "reloads": self.reloads, "reload_requests": self.reload_requests,
+                "load_requests": self.load_requests, "model_refusals": self.model_refusals}
 
 
 @dataclass
@@ -222,6 +447,8 @@ class _Grasp:
     grasp_id: str
     stream: GraspStream
     model: Any  # the HybridEstimator pinned at the grasp's start, or None
+    model_id: str | None = None  # its id
+    model_dir: str | None = None  # its folder
     seen_contact: bool = False
     t_peak_s: float = math.inf  # of the last segmentation with contact
     t_contact_s: float | None = None
@@ -232,6 +459,7 @@ class _Grasp:
     final_t_data_s: float | None = None
     final_by: str | None = None  # what ended the loading: loading_end, settled or grasp_end
     final_compute_s: float | None = None
+    final_by_model: bool = False  # the grasp's model made the final estimate
     loading_frames: int = 0
     last_t_s: dict[str, float] = field(default_factory=dict)  # newest capture time per topic
 
@@ -255,7 +483,8 @@ class EstimatorService:
     report : JsonLines, optional
         Receives one JSON object per grasp when it ends.
     commands : Subscriber, optional
-        Subscription to operator ``command`` messages (``reload_model``); None: none taken.
+        Subscription to :data:`COMMAND_TOPICS` on ``bus.command`` (``reload_model``, ``load_model``);
+        None: none taken.
     clock : callable
         Monotonic seconds; must be the clock the robot stamps captures with (one host).
     """
@@ -278,6 +507,8 @@ class EstimatorService:
         self.stats = ServiceStats()
         self._grasp: _Grasp | None = None
         self._following: str | None = None  # the grasp the robot last said it follows an operator in
+        # load_model requests taken: None while the candidate is being checked, then its answer.
+        self._requests: OrderedDict[str, ModelEvent | None] = OrderedDict()
 
     # ------------------------------------------------------------------ loop
 
@@ -297,8 +528,10 @@ class EstimatorService:
         message = self.subscriber.recv(timeout_s=timeout_s)
         if message is not None:
             self.handle(message, received_s=self.clock())
-        if self.model is not None and self.model.poll(idle=self._grasp is None):
-            self.stats.reloads += 1
+        if self.model is not None:
+            event = self.model.poll(idle=self._grasp is None)
+            if event is not None:
+                self._model_event(event)
         return message
 
     def handle(self, message: Message, *, received_s: float) -> None:
@@ -312,15 +545,53 @@ class EstimatorService:
                         message.seq, exc)
 
     def handle_command(self, message: Message) -> None:
-        """Take one operator command: ``reload_model`` asks for a reload between grasps."""
+        """Take one operator message: ``load_model`` asks for another model, a ``command`` with
+        action ``reload_model`` for the served one read again; both switch between grasps."""
+        if message.type == "load_model":
+            self._load_model(message)
+            return
         if message.type != "command" or message.body["action"] != "reload_model":
             return  # the robot node's
         self.stats.reload_requests += 1
         if self.model is None:
             log.warning("reload_model from %s: this service runs without a model", message.source or "?")
             return
-        log.info("reload_model from %s: reloading %s between grasps", message.source or "?", self.model.model_dir)
+        model_log.info("reload_model from %s: reading %s again, switching between grasps", message.source or "?",
+                       self.model.model_dir)
         self.model.request_reload()
+
+    def _load_model(self, message: Message) -> None:
+        """A ``load_model``: check the folder in the background, switch between grasps, answer with a
+        ``model_event``. A request already taken is not loaded again; one already answered is
+        answered again (the sender may have missed it)."""
+        path, request = message.body["path"], message.body["request"]
+        if request in self._requests:
+            answer = self._requests[request]
+            if answer is not None:
+                self._send_model_event(answer)
+            return
+        self.stats.load_requests += 1
+        self._requests[request] = None
+        while len(self._requests) > REMEMBERED_REQUESTS:
+            self._requests.popitem(last=False)
+        model_log.info("load_model %s from %s (request %s): checking it, switching between grasps", path,
+                       message.source or "?", request)
+        if self.model is None:  # serving without a model so far: a slot for the first one
+            self.model = ModelSlot(None, settings=self.settings, calibration=self.calibration)
+        self.model.request_load(path, request)
+
+    def _model_event(self, event: ModelEvent) -> None:
+        """Count, remember and publish what the model slot did."""
+        if event.event == "loaded":
+            self.stats.reloads += 1
+        else:
+            self.stats.model_refusals += 1
+        if event.request is not None and event.request in self._requests:
+            self._requests[event.request] = event
+        self._send_model_event(event)
+
+    def _send_model_event(self, event: ModelEvent) -> None:
+        self.publisher.send("model_event", t_capture_s=self.clock(), **event.body())
 
     # ------------------------------------------------------------------ messages
 
@@ -381,8 +652,11 @@ class EstimatorService:
             self._close(self._grasp.grasp_id, t_s, received_s)
         stream = GraspStream(settings=self.settings, calibration=self.calibration, methods=self.methods,
                              grasp_id=grasp_id)
-        model = self.model.estimator if self.model is not None else None
-        self._grasp = _Grasp(grasp_id=grasp_id, stream=stream, model=model)
+        slot = self.model
+        model = None if slot is None else slot.estimator
+        self._grasp = _Grasp(grasp_id=grasp_id, stream=stream, model=model,
+                             model_id=None if model is None else slot.model_id,
+                             model_dir=None if model is None else str(slot.model_dir))
         if self._following is not None and self._following == grasp_id:
             stream.mark_follow()  # the robot said so before the start reached us
         self.stats.grasps += 1
@@ -429,11 +703,13 @@ class EstimatorService:
             # follows the model's answer over the loading so far, which the final will be.
             stream.measure_frames(segment)
             started = time.perf_counter()
-            estimate = self._best_estimate(grasp, segment).with_latency(time.perf_counter() - started)
-            self._publish(grasp, estimate, stream.last_loading_frame_s(segment), received_s, provisional=True)
+            estimate, by_model = self._best_estimate(grasp, segment)
+            estimate = estimate.with_latency(time.perf_counter() - started)
+            self._publish(grasp, estimate, stream.last_loading_frame_s(segment), received_s, provisional=True,
+                          by_model=by_model)
         else:
             result = stream.estimate(segment)
-            self._publish(grasp, result.estimate, result.t_data_s, received_s, provisional=True)
+            self._publish(grasp, result.estimate, result.t_data_s, received_s, provisional=True, by_model=False)
         if grasp.model is not None and _reads_stream_depths(grasp.model.predictor.variant):
             # Ahead of the final estimate, which then reduces only the peak frame's depth.
             stream.reduce_depths(grasp.model.predictor.variant.size_px, grasp.model.predictor.variant.window_m)
@@ -444,25 +720,26 @@ class EstimatorService:
         started = time.perf_counter()
         stream = grasp.stream
         segment = stream.segment() if segment is None else segment
-        estimate = self._best_estimate(grasp, segment)
-        grasp.final, grasp.final_by = estimate, by
+        estimate, by_model = self._best_estimate(grasp, segment)
+        grasp.final, grasp.final_by, grasp.final_by_model = estimate, by, by_model
         grasp.final_t_data_s, grasp.loading_frames = stream.last_loading_frame_s(segment), int(segment.frame_t_s.size)
         grasp.final_compute_s = time.perf_counter() - started
-        grasp.final_s = self._publish(grasp, estimate, grasp.final_t_data_s, received_s, provisional=False)
+        grasp.final_s = self._publish(grasp, estimate, grasp.final_t_data_s, received_s, provisional=False,
+                                      by_model=by_model)
 
-    def _best_estimate(self, grasp: _Grasp, segment: Segment) -> Estimate:
+    def _best_estimate(self, grasp: _Grasp, segment: Segment) -> tuple[Estimate, bool]:
         """The model's estimate when one is pinned to the grasp, else (or when the model fails) the
-        analytical one."""
+        analytical one; and whether the model made it."""
         failure = None
         if grasp.model is not None:
             try:
-                return self._model_estimate(grasp, segment)
+                return self._model_estimate(grasp, segment), True
             except _BAD_INPUT as exc:
                 log.warning("grasp %r: the model gives no estimate (%s); publishing the analytical one",
                             grasp.grasp_id, exc)
                 failure = exc
         estimate = grasp.stream.estimate(segment).estimate
-        return estimate if failure is None else estimate.with_note(f"model failed: {failure}")
+        return (estimate if failure is None else estimate.with_note(f"model failed: {failure}")), False
 
     def _model_estimate(self, grasp: _Grasp, segment: Segment) -> Estimate:
         """The pinned model's estimate; a depth model of the estimator's finger reads the cached depths."""
@@ -477,15 +754,17 @@ class EstimatorService:
         return model.estimate(grasp.stream.to_record(), mode=mode)
 
     def _publish(self, grasp: _Grasp, estimate: Estimate, t_data_s: float, received_s: float, *,
-                 provisional: bool) -> float:
-        """Send an estimate; returns the clock time it went out."""
-        reason = estimate.reason if len(estimate.reason) <= MAX_STR_CHARS else estimate.reason[: MAX_STR_CHARS - 1] + "…"
+                 provisional: bool, by_model: bool) -> float:
+        """Send an estimate (``by_model``: the grasp's model made it, and the estimate names it);
+        returns the clock time it went out."""
+        reason = _cut(estimate.reason)
         low, high = estimate.interval_pa
         now = self.clock()
         self.publisher.send(
             "estimate", t_capture_s=t_data_s, grasp_id=grasp.grasp_id, method=estimate.method,
             E_pa=estimate.e_pa, interval_pa=[low, high], state=estimate.state, reason=reason,
             provisional=provisional, latency_s=max(0.0, now - received_s),
+            model=grasp.model_id if by_model else None,
         )
         if estimate and grasp.first_estimate_s is None:
             grasp.first_estimate_s = now
@@ -514,7 +793,9 @@ class EstimatorService:
             "final_compute_s": grasp.final_compute_s,
             "final_sent_s": grasp.final_s,
             "loading_frames": grasp.loading_frames,
-            "model": None if grasp.model is None else str(self.model.model_dir),
+            "model": grasp.model_id if grasp.final_by_model else None,  # the final estimate's
+            "model_served": grasp.model_id,  # pinned at the grasp's start
+            "model_path": grasp.model_dir,
         }
 
 

@@ -1,7 +1,13 @@
 """Run a trained model with onnxruntime; never imports torch.
 
 A model directory holds ``model.onnx`` and ``metadata.json`` (written by
-``estimator train``):
+``estimator train``). Its identity is :func:`model_id`: the folder's name and a hash of those
+files' contents, so two copies of one model have one id and any edit gives another; the live
+service stamps every estimate with it. :class:`CompliancePredictor` reads each file once and
+takes its :attr:`~CompliancePredictor.model_id` from the bytes it loaded, so the id names exactly
+the pair it runs even while the files are being replaced.
+
+``metadata.json`` holds:
 
 ``format``, ``version``
     ``"compliance-teleop.model"``, 1.
@@ -38,6 +44,7 @@ A model directory holds ``model.onnx`` and ``metadata.json`` (written by
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import json
 import logging
@@ -71,6 +78,7 @@ from estimator.settings import estimator_settings
 from teleop.settings import Settings, resolve_path
 
 __all__ = [
+    "MODEL_FILES",
     "MODEL_FORMAT",
     "CompliancePredictor",
     "ModelMetadata",
@@ -79,6 +87,8 @@ __all__ = [
     "default_model_dir",
     "force_bands",
     "load_predictor",
+    "model_files",
+    "model_id",
 ]
 
 log = logging.getLogger(__name__)
@@ -86,6 +96,59 @@ log = logging.getLogger(__name__)
 MODEL_FORMAT = "compliance-teleop.model"
 MODEL_VERSION = 2
 OUTPUT_NAME = "log10_e_logits"
+#: The files a model folder must hold.
+MODEL_FILES = ("model.onnx", "metadata.json")
+MODEL_ID_HEX = 8  # hex digits of the content hash in a model id
+MAX_MODEL_ID_CHARS = 64  # as the bus carries it (teleop.bus.wire.MAX_MODEL_ID_CHARS)
+
+
+def model_files(model_dir: str | Path) -> list[Path]:
+    """The files a model's identity covers: ``metadata.json``, then every ``.onnx`` file of the
+    folder by name (``model.onnx`` among them).
+
+    Raises
+    ------
+    ModelError
+        ``model_dir`` does not exist, is not a folder, or lacks one of :data:`MODEL_FILES` (named).
+    """
+    folder = Path(model_dir)
+    if not folder.exists():
+        raise ModelError(f"model folder {folder} does not exist")
+    if not folder.is_dir():
+        raise ModelError(f"{folder} is not a model folder (a folder holding {' and '.join(MODEL_FILES)})")
+    missing = [name for name in MODEL_FILES if not (folder / name).is_file()]
+    if missing:
+        raise ModelError(f"{folder} is not a model folder: it has no {' and no '.join(missing)} (a model folder "
+                         f"holds {' and '.join(MODEL_FILES)}, as `estimator train` writes them)")
+    return [folder / "metadata.json", *sorted(folder.glob("*.onnx"))]
+
+
+def _digest_id(folder: Path, contents: Sequence[tuple[str, bytes]]) -> str:
+    """``<folder name>-<hex>``: the name cut so the id has at most MAX_MODEL_ID_CHARS characters."""
+    digest = hashlib.sha256()
+    for name, data in contents:  # the names too: a file renamed is another model
+        digest.update(name.encode("utf-8") + b"\0" + len(data).to_bytes(8, "little"))
+        digest.update(data)
+    name = folder.resolve().name or "model"
+    return f"{name[: MAX_MODEL_ID_CHARS - MODEL_ID_HEX - 1]}-{digest.hexdigest()[:MODEL_ID_HEX]}"
+
+
+def model_id(model_dir: str | Path) -> str:
+    """The id of the model in ``model_dir``: ``"<folder name>-<8 hex digits>"``, the digits the start
+    of a SHA-256 over the contents of ``metadata.json`` and every ``.onnx`` file (:func:`model_files`);
+    at most 64 characters (a long folder name is cut). The same files give the same id wherever
+    they lie under a folder of that name; a changed byte gives another.
+
+    Raises
+    ------
+    ModelError
+        ``model_dir`` is not a model folder (:func:`model_files`) or a file cannot be read.
+    """
+    files = model_files(model_dir)
+    try:
+        return _digest_id(Path(model_dir), [(f.name, f.read_bytes()) for f in files])
+    except OSError as exc:
+        raise ModelError(f"{model_dir}: cannot read the model's files ({exc.strerror or exc})") from exc
 
 
 def default_model_dir() -> Path:
@@ -235,25 +298,40 @@ class CompliancePredictor:
     threads : int
         onnxruntime intra-op threads (1: one core, as the latency figures are taken).
 
+    Attributes
+    ----------
+    model_id : str
+        :func:`model_id` of the bytes it loaded (each file is read once).
+
     Raises
     ------
     ModelError
-        A file is missing or unreadable, the metadata is malformed or was
+        A file is missing (named) or unreadable, the metadata is malformed or was
         made with other input scales, or the ONNX inputs do not match it.
     """
 
     def __init__(self, model_dir: str | Path, *, threads: int = 1):
         self.model_dir = Path(model_dir)
         meta_path, onnx_path = self.model_dir / "metadata.json", self.model_dir / "model.onnx"
+        files = model_files(self.model_dir)
+        contents = []
+        for path in files:
+            try:
+                contents.append((path.name, path.read_bytes()))
+            except OSError as exc:
+                raise ModelError(f"{path}: not a readable model file ({exc.strerror or exc})") from exc
+        self.model_id = _digest_id(self.model_dir, contents)
+        blobs = dict(contents)
         try:
-            data = json.loads(meta_path.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
+            data = json.loads(blobs["metadata.json"])
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise ModelError(f"{meta_path}: not a readable model metadata file ({exc})") from exc
         self.metadata = ModelMetadata.from_json(data, str(meta_path))
         if threads < 1:
             raise ModelError(f"threads {threads}: expected at least 1")
         try:
-            self.session = ort.InferenceSession(str(onnx_path), sess_options=_session_options(threads),
+            # From the bytes read above, not the path: the session runs the model the id names.
+            self.session = ort.InferenceSession(blobs["model.onnx"], sess_options=_session_options(threads),
                                                 providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own untyped errors
             raise ModelError(f"{onnx_path}: onnxruntime cannot load it ({exc})") from exc

@@ -6,7 +6,8 @@
 name        command               role
 ==========  ====================  ==============================================================
 node        ``teleop node``       simulated gripper, cameras and load cell; grasps on command
-estimator   ``estimator serve``   provisional and final estimates (report: ``estimator.jsonl``)
+estimator   ``estimator serve``   provisional and final estimates (report: ``estimator.jsonl``), by
+                                  the model of ``--model`` when given
 renderer    ``haptics serve``     simulated softness display (report: ``renderer.jsonl``)
 recorder    ``teleop record``     the session log (``session.mcap``)
 ==========  ====================  ==============================================================
@@ -28,7 +29,12 @@ display rendered for it (renderer report: the fraction of the display's range, 1
 or beyond the sensor's resolution limit), the error in decades, the time from contact to the first
 estimate that is not a refusal (estimator report), and the latency from the last loading frame's
 capture to the display report that showed the final estimate (renderer report). All on this
-host's monotonic clock. The live lines and the closing table are in :mod:`teleop.system.demo_table`.
+host's monotonic clock; and the learned model that made the final estimate (``model``: its
+:func:`~estimator.learned.infer.model_id`, none for an analytical estimate). The live lines and the
+closing table are in :mod:`teleop.system.demo_table`.
+
+:meth:`LiveSystem.load_model` switches the running estimator to another model between grasps, as
+``estimator reload`` does (which cannot bind the command endpoint while the demo holds it).
 """
 
 from __future__ import annotations
@@ -59,7 +65,7 @@ from teleop.errors import SettingsError, TeleopError
 from teleop.scene import load_scene
 from teleop.session.foxglove_live import add_foxglove_argument
 from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
-from teleop.system.demo_table import LiveView, closing_table
+from teleop.system.demo_table import LiveView, closing_table, models_answered
 from teleop.system.outcome import GraspOutcome, ReportReader
 
 __all__ = [
@@ -168,16 +174,19 @@ class LiveSystem:
         Also run the session recorder.
     foxglove : (host, port), optional
         The recorder also serves the bus live to Foxglove there (``teleop record --foxglove``).
+    model : str, optional
+        The estimator's ``--model``: a model folder, or "none" (analytical only); default: the settings'.
     """
 
     def __init__(self, settings_path: Path, scene: str, run_dir: Path, calibration: Path, *, record: bool = True,
-                 foxglove: tuple[str, int] | None = None):
+                 foxglove: tuple[str, int] | None = None, model: str | None = None):
         self.settings_path = settings_path
         self.scene = scene
         self.run_dir = run_dir
         self.calibration = calibration
         self.record = record
         self.foxglove = foxglove
+        self.model = model
         self.endpoints: dict[str, str] = {}
         self.children: dict[str, _Child] = {}
         self.commands: Publisher | None = None
@@ -187,6 +196,8 @@ class LiveSystem:
         self.display_range: tuple[float, float] | None = None  # (e_soft_pa, e_rigid_pa), known once started
         self._followed: set[str] = set()  # grasps followed to their end
         self._later: list[Message] = []  # messages of a grasp that started while another was followed
+        self.model_events: list[dict[str, Any]] = []  # what the estimator said of its model, as heard
+        self._load_requests = 0
 
     @property
     def session_log(self) -> Path | None:
@@ -199,7 +210,8 @@ class LiveSystem:
                      "--robot-pub", ep["robot_pub"], "--command", ep["command"]],
             "estimator": ["estimator", "serve", "--settings", settings, "--calibration", str(self.calibration),
                           "--robot-pub", ep["robot_pub"], "--estimate-pub", ep["estimate_pub"],
-                          "--command", ep["command"], "--report", str(out / "estimator.jsonl")],
+                          "--command", ep["command"], "--report", str(out / "estimator.jsonl"),
+                          *(["--model", str(self.model)] if self.model is not None else [])],
             "renderer": ["haptics", "serve", "--settings", settings, "--backend", "sim", "--estimate-pub", ep["estimate_pub"],
                          "--display-pub", ep["display_pub"], "--report", str(out / "renderer.jsonl")],
         }
@@ -232,7 +244,7 @@ class LiveSystem:
             self.commands = Publisher(self.endpoints["command"], lossless=True, source="operator",
                                       max_bytes=bus.max_message_bytes)
             self.events = Subscriber([self.endpoints[n] for n in ("robot_pub", "estimate_pub", "display_pub")],
-                                     ("grasp_event", "estimate", "force", "display"),
+                                     ("grasp_event", "estimate", "force", "display", "model_event"),
                                      max_bytes=bus.max_message_bytes)
             lines = self._command_lines()
             env = {**os.environ, **_CHILD_ENV}
@@ -338,9 +350,51 @@ class LiveSystem:
         outcome = GraspOutcome(None, obj, style="operator", display_range=self.display_range)
         return self._follow(outcome, on_update=on_update, on_message=on_message, timeout_s=timeout_s)
 
+    def load_model(self, path: str | Path, *, timeout_s: float = 30.0) -> dict[str, Any]:
+        """Switch the running estimator to the model in ``path`` (``load_model`` on the command
+        endpoint, as ``estimator reload`` sends it); the body of the service's ``model_event``
+        answer ("loaded" with the new id, or "refused" with the reason). Call it between grasps,
+        from the thread that operates (the command publisher is not thread-safe); grasp messages
+        that arrive meanwhile are kept for :meth:`grasp`.
+
+        Raises
+        ------
+        TeleopError
+            A child exits, or no answer within ``timeout_s``.
+        """
+        from estimator.reload_cli import RESEND_S
+
+        self._load_requests += 1
+        request = f"demo-{os.getpid()}-{self._load_requests}"
+        deadline = time.monotonic() + timeout_s
+        next_send = 0.0
+        while True:
+            self.check()
+            now = time.monotonic()
+            if now >= deadline:
+                raise TeleopError(f"the estimator did not answer load_model {path} within {timeout_s:g} s; "
+                                  f"logs in {self.run_dir}")
+            if now >= next_send:  # again until answered: the service loads a request once
+                self.commands.send("load_model", t_capture_s=now, path=os.path.abspath(path), request=request)
+                next_send = now + RESEND_S
+            message = self.events.recv(timeout_s=0.05)
+            if message is None:
+                continue
+            if message.type != "model_event":
+                self._later.append(message)
+            else:
+                self.model_events.append(dict(message.body))
+                if message.body["request"] == request:
+                    return dict(message.body)
+
     def _next_message(self, timeout_s: float) -> Message | None:
-        """The next grasp message: one set aside for a later grasp first, then the bus."""
-        return self._later.pop(0) if self._later else self.events.recv(timeout_s=timeout_s)
+        """The next grasp message: one set aside for a later grasp first, then the bus (a
+        ``model_event`` is kept in :attr:`model_events`)."""
+        while True:
+            message = self._later.pop(0) if self._later else self.events.recv(timeout_s=timeout_s)
+            if message is None or message.type != "model_event":
+                return message
+            self.model_events.append(dict(message.body))
 
     def _follow(self, outcome: GraspOutcome, *, on_update: Callable[[GraspOutcome], None] | None,
                 on_message: Callable[[Message], None] | None, timeout_s: float) -> GraspOutcome:
@@ -504,17 +558,42 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "fingers leader-follower, closing at a speed of its own, pausing, backing off and "
                              "squeezing again, as haptics operate --input sim does; 'script', the paper's grasp "
                              "commanded at once (close at the settings' speed to a force, hold, release)")
+    parser.add_argument("--model", metavar="DIR", default=None,
+                        help="learned model folder (model.onnx and metadata.json) the estimator serves, or 'none' "
+                             "for analytical estimates only (default: [estimator] model_path of the settings, else "
+                             "the shipped default model); each grasp's JSON and the closing table name the model "
+                             "that answered")
     parser.add_argument("--no-view", action="store_true", help="no live status lines, only the closing table")
     add_foxglove_argument(parser, what="the live system's bus (tactile video, force, width, estimates)")
+
+
+def checked_model(option: str | None) -> str | None:
+    """``--model`` as the estimator child gets it: None (the settings' model) or "none" as given,
+    else the folder's absolute path once it is seen to hold a model.
+
+    Raises
+    ------
+    ModelError
+        The folder does not exist or lacks a model file (named), before any process starts.
+    """
+    from estimator.learned.infer import model_id
+
+    if option is None or option == "none":
+        return option
+    path = Path(option).absolute()
+    path = path.parent if path.suffix == ".onnx" else path
+    model_id(path)
+    return str(path)
 
 
 def run(args: argparse.Namespace) -> int:
     started = time.monotonic()
     scene = load_scene(args.scene)
     plan = scene_plan(args.scene)
+    model = checked_model(args.model)
     run_dir, calibration = prepare_run(args, prefix="demo", out=sys.stderr if args.json else sys.stdout)
     view = LiveView(sys.stdout, len(plan), enabled=not args.no_view)
-    system = LiveSystem(Path(args.settings), args.scene, run_dir, calibration, foxglove=args.foxglove)
+    system = LiveSystem(Path(args.settings), args.scene, run_dir, calibration, foxglove=args.foxglove, model=model)
     if args.foxglove is not None:
         host, port = args.foxglove
         print(f"Foxglove live view: ws://{host}:{port}" if port else
@@ -530,6 +609,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"session log: {system.session_log}")
     if args.json:
         print(json.dumps({"scene": scene.name, "operator": args.operator, "grasps": [o.to_json() for o in outcomes],
+                          "models": models_answered(outcomes),
                           "session_log": str(system.session_log), "run_dir": str(run_dir),
                           "wall_s": time.monotonic() - started}, allow_nan=False))
     return 0

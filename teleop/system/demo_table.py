@@ -4,6 +4,8 @@ The table shows what the softness display rendered for each grasp's final estima
 (at or beyond the display's stiff end, the sensor's resolution limit unless the settings set
 another), ``unknown`` (no usable estimate: the display goes free) or the fraction of the display's
 range with the modulus that fraction stands for on the logarithmic scale (``0.62 ~2.1e+05``).
+Below the table a line names the learned model(s) whose final estimates it shows
+(:func:`models_line`).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import numpy as np
 if TYPE_CHECKING:
     from teleop.system.outcome import GraspOutcome
 
-__all__ = ["LiveView", "closing_table", "display_cell", "felt_summary"]
+__all__ = ["LiveView", "closing_table", "display_cell", "felt_summary", "models_answered", "models_line"]
 
 
 def _pa(value: float | None) -> str:
@@ -85,7 +87,7 @@ class LiveView:
 def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
     """The closing table: object, grasp style, true E, final estimate and state, what the display
     rendered (:func:`display_cell`), error, first estimate, the time from contact until the display
-    stayed within a factor 2 of the label, latency; then :func:`felt_summary`.
+    stayed within a factor 2 of the label, latency; then :func:`felt_summary` and :func:`models_line`.
 
     The latency runs from the last loading frame to the display report of the final estimate; an
     operator's grasp has its final when the operator lets go, seconds after the peak, so it shows
@@ -103,7 +105,31 @@ def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
                        for i, (cell, w) in enumerate(zip(row, widths, strict=True))) for row in (header, *rows)]
     lines.insert(1, "  ".join("-" * w for w in widths))
     lines.append(felt_summary(outcomes))
+    lines.append(models_line(outcomes))
     return "\n".join(lines)
+
+
+def models_answered(outcomes: Sequence[GraspOutcome]) -> dict[str, int]:
+    """How many final estimates each learned model made (by id, in the order they first answered)."""
+    counts: dict[str, int] = {}
+    for o in outcomes:
+        if o.model is not None:
+            counts[o.model] = counts.get(o.model, 0) + 1
+    return counts
+
+
+def models_line(outcomes: Sequence[GraspOutcome]) -> str:
+    """Which learned models answered, in one line: ``model: default-1a2b3c4d (3 of 3 finals)``, several
+    in the order they first answered (the estimator switched models during the run), and the finals
+    no model made (analytical)."""
+    counts = models_answered(outcomes)
+    finals = sum(o.final is not None for o in outcomes)
+    analytical = finals - sum(counts.values())
+    if not counts:
+        return f"model: none (analytical estimates, {finals} of {len(outcomes)} finals)"
+    named = ", ".join(f"{model} ({n} of {finals} finals)" for model, n in counts.items())
+    return (f"model{'s' if len(counts) > 1 else ''}: {named}"
+            + (f"; analytical: {analytical}" if analytical else ""))
 
 
 def felt_summary(outcomes: Sequence[GraspOutcome]) -> str:

@@ -178,6 +178,11 @@ class GraspOutcome:
         return None if settled is None else max(0.0, settled - self.t_contact_s)
 
     @property
+    def model(self) -> str | None:
+        """The id of the learned model that made the final estimate (None: an analytical one, or none)."""
+        return None if self.final is None else self.final.get("model")
+
+    @property
     def t_first_estimate_s(self) -> float | None:
         return None if self.estimator_report is None else self.estimator_report.get("time_to_first_estimate_s")
 
@@ -191,4 +196,5 @@ class GraspOutcome:
                 "log10_error": self.log10_error, "t_first_estimate_s": self.t_first_estimate_s,
                 "latency_ms": self.latency_ms, "state": self.state, "interval_pa": self.interval_pa,
                 "display_fraction": self.display_fraction,
-                "felt_log10_error": self.felt_log10_error, "t_felt_within_2x_s": self.t_felt_within_2x_s}
+                "felt_log10_error": self.felt_log10_error, "t_felt_within_2x_s": self.t_felt_within_2x_s,
+                "model": self.model}

@@ -157,9 +157,15 @@ def test_each_force_band_reads_its_own_calibration_and_an_older_model_has_one_fo
 
 @pytest.mark.slow
 def test_missing_or_broken_files_are_refused(trained_model, tmp_path):
-    with pytest.raises(ModelError, match="not a readable model metadata"):
+    with pytest.raises(ModelError, match="is not a model folder: it has no model.onnx and no metadata.json"):
         CompliancePredictor(tmp_path)
-    dest, _ = _copy(trained_model, tmp_path)
+    with pytest.raises(ModelError, match="does not exist"):
+        CompliancePredictor(tmp_path / "nowhere")
+    dest, meta = _copy(trained_model, tmp_path)
+    (dest / "metadata.json").write_text("{ not json")
+    with pytest.raises(ModelError, match="not a readable model metadata"):
+        CompliancePredictor(dest)
+    (dest / "metadata.json").write_text(json.dumps(meta))
     (dest / "model.onnx").write_bytes(b"not onnx")
     with pytest.raises(ModelError, match="onnxruntime cannot load it"):
         CompliancePredictor(dest)

@@ -109,14 +109,53 @@ def test_outcomes_give_the_closing_table_and_json():
     assert good.to_json() == {"object": "duck", "style": "script", "operator_style": "", "E_true_pa": 1e6, "E_final_pa": 1e7,
                               "log10_error": 1.0, "t_first_estimate_s": 0.1, "latency_ms": 150.0, "state": "ok",
                               "interval_pa": [None, None], "display_fraction": None, "felt_log10_error": None,
-                              "t_felt_within_2x_s": None}
+                              "t_felt_within_2x_s": None, "model": None}
     assert bound.log10_error == pytest.approx(-2.0) and lost.log10_error is None and lost.state == "none"
     assert lost.to_json()["interval_pa"] is None and lost.to_json()["display_fraction"] is None
     table = closing_table([good, bound, lost]).splitlines()
     assert table[0].split()[:4] == ["object", "style", "E", "true"] and set(table[1]) <= {"-", " "}
     assert ">=2e+09" in table[3] and "lower_bound" in table[3] and "-2.00" in table[3] and "120" in table[3]
     assert table[4].split()[1:] == ["script", "5e+03", "?-", "none", "-", "-", "-", "-", "-"]
-    assert table[-1] == "the display rendered none of 3 grasps"
+    assert table[-2] == "the display rendered none of 3 grasps"
+    assert table[-1] == "model: none (analytical estimates, 2 of 3 finals)"
+
+
+def test_each_grasp_names_the_model_that_answered_and_the_table_the_models():
+    by_a = outcome("duck", 1e6, {"E_pa": 1e7, "state": "ok", "model": "default-1a2b3c4d"}, 0.1, 150.0)
+    by_b = outcome("ball", 1e5, {"E_pa": 1e5, "state": "ok", "model": "tuned-5e6f7a8b"}, 0.1, 150.0)
+    analytical = outcome("steel", 2e11, {"E_pa": 2e9, "state": "lower_bound", "model": None}, 0.1, 150.0)
+    old = outcome("foam", 5e3, {"E_pa": 5e3, "state": "ok"}, 0.1, 150.0)  # a final from before the field
+    assert [o.to_json()["model"] for o in (by_a, by_b, analytical, old)] == ["default-1a2b3c4d", "tuned-5e6f7a8b",
+                                                                            None, None]
+    assert closing_table([by_a, analytical]).splitlines()[-1] == "model: default-1a2b3c4d (1 of 2 finals); analytical: 1"
+    assert closing_table([by_a, by_b, by_a]).splitlines()[-1] == (
+        "models: default-1a2b3c4d (2 of 3 finals), tuned-5e6f7a8b (1 of 3 finals)")
+
+
+def test_demo_model_option_reaches_the_estimator_and_a_folder_that_is_not_a_model_stops_it_first(tmp_path,
+                                                                                                  capsys):
+    from estimator.learned.infer import default_model_dir
+    from teleop.system.demo import checked_model
+
+    def estimator_line(model):
+        system = LiveSystem(default_settings_path(), "quick", tmp_path / "run", tmp_path / "cal.npz", model=model)
+        system.endpoints = {name: f"tcp://127.0.0.1:{7000 + i}"
+                            for i, name in enumerate(("robot_pub", "estimate_pub", "command", "display_pub"))}
+        return system._command_lines()["estimator"]
+
+    shipped = str(default_model_dir())
+    assert checked_model(shipped) == shipped and checked_model(shipped + "/model.onnx") == shipped
+    assert checked_model(None) is None and checked_model("none") == "none"
+    line = estimator_line(checked_model(shipped))
+    assert line[line.index("--model") + 1] == shipped
+    assert "--model" not in estimator_line(None)  # the settings' model, as before
+    (tmp_path / "half").mkdir()
+    (tmp_path / "half" / "metadata.json").write_text("{}")
+    code = teleop.cli.main(["demo", "--scene", "quick", "--model", str(tmp_path / "half"), "--out",
+                            str(tmp_path / "never")])
+    err = capsys.readouterr().err
+    assert code == 2 and "is not a model folder: it has no model.onnx" in err and "Traceback" not in err
+    assert not (tmp_path / "never").exists()  # refused before anything started
 
 
 def test_outcomes_show_what_the_display_rendered():
@@ -151,7 +190,7 @@ def test_outcomes_show_what_the_display_rendered():
     assert steel.felt_log10_error == 0.0 and lost.felt_log10_error is None
     assert duck.felt_log10_error == pytest.approx(abs(math.log10(math.sqrt(soft * limit) / 1e6)))
     within = int(steel.felt_log10_error <= math.log10(2)) + int(duck.felt_log10_error <= math.log10(2))
-    assert table[-1] == (f"felt (display against the label on its range): mean error "
+    assert table[-2] == (f"felt (display against the label on its range): mean error "
                          f"{(steel.felt_log10_error + duck.felt_log10_error) / 2:.2f} decades, {within} of 3 "
                          "within a factor 2, 0 dangerous misses, 1 not rendered")
 
@@ -322,18 +361,23 @@ def test_a_second_sigterm_during_the_first_ones_handling_does_not_deadlock():
 
 @pytest.mark.slow
 def test_demo_runs_the_quick_scene_end_to_end(tmp_path, capsys):
+    from estimator.learned.infer import model_id
+
     code = teleop.cli.main(["demo", "--scene", "quick", "--operator", "script", "--json", "--no-view",
-                            "--out", str(tmp_path)])
+                            "--out", str(tmp_path), "--model", "estimator/models/default"])
     out = capsys.readouterr().out.strip().splitlines()
     assert code == 0
     result = json.loads(out[-1])
+    served = model_id("estimator/models/default")
+    assert {g["model"] for g in result["grasps"]} <= {served, None} and result["models"].get(served, 0) >= 1
+    assert any(line.startswith(f"model: {served} (") for line in out)
     assert result["operator"] == "script" and {g["style"] for g in result["grasps"]} == {"script"}
     assert [g["object"] for g in result["grasps"]] == ["stress_ball", "rubber_duck", "steel_ball_bearing"]
     limit = load_settings().resolution_limit_pa
     for grasp in result["grasps"]:
         assert set(grasp) == {"object", "style", "operator_style", "E_true_pa", "E_final_pa", "log10_error", "t_first_estimate_s",
                               "latency_ms", "state", "interval_pa", "display_fraction", "felt_log10_error",
-                              "t_felt_within_2x_s"}
+                              "t_felt_within_2x_s", "model"}
         assert grasp["state"] in ("ok", "lower_bound", "upper_bound", "insufficient_data")
         low, high = grasp["interval_pa"]
         assert low is None or high is None or low <= high
@@ -415,6 +459,16 @@ def test_a_crashed_child_stops_the_run_and_leaves_no_process(tmp_path):
     try:
         outcome = system.grasp("g1", 0, STEEL)
         assert outcome.final is not None and outcome.latency_ms is not None
+        # The running estimator switches models between grasps, as `estimator reload` asks.
+        from estimator.learned.infer import default_model_dir, model_id
+
+        other = default_model_dir().parent / "cnn-depth-fw"
+        assert outcome.model == model_id(default_model_dir())
+        answer = system.load_model(other)
+        assert (answer["event"], answer["model"], answer["path"]) == ("loaded", model_id(other), str(other))
+        refused = system.load_model(tmp_path / "nowhere")
+        assert refused["event"] == "refused" and refused["model"] == model_id(other)
+        assert system.grasp("g1b", 0, STEEL).model == model_id(other)
         system.children["estimator"].process.send_signal(signal.SIGKILL)
         with pytest.raises(TeleopError, match=r"estimator exited with status -9"):
             system.grasp("g2", 0, STEEL)

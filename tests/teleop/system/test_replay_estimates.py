@@ -93,6 +93,7 @@ def test_the_recorded_session_replays_to_the_same_final_estimates(tmp_path):
         # Same inputs in the same order through the same deterministic code (no clock is read on
         # the estimate's path; latency_s is the only timing field): the replay must be exact.
         assert (now["state"], now["method"], now["reason"]) == (was["state"], was["method"], was["reason"]), grasp_id
+        assert now["model"] == was["model"] == model.model_id, grasp_id  # the log names the model that answered
         assert same_value(now["E_pa"], was["E_pa"]), (grasp_id, now["E_pa"], was["E_pa"])
         assert all((a is None and b is None) or (a is not None and b is not None and same_value(float(a), float(b)))
                    for a, b in zip(now["interval_pa"], was["interval_pa"], strict=True)), grasp_id  # None: open

@@ -1,0 +1,125 @@
+"""``estimator reload``: switch a running estimator service to another model, without a restart.
+
+It sends one ``load_model`` message (the folder, and a request id of its own) on ``bus.command``
+and waits for the service's ``model_event`` answering that request on ``bus.estimate_pub``
+(:mod:`estimator.service`, "Models"): the service loads and checks the model while it serves,
+switches to it between grasps and says "loaded" with the new model's id, or keeps the model it
+has and says "refused" with the reason. Exit status 0 when loaded, 1 when refused, 2 when no
+service answered within ``--timeout-s`` (or the folder or the endpoints are unusable).
+
+``bus.command`` has one sender at a time (the operator's): this command binds it while it runs,
+so it cannot while an operator console or ``teleop demo`` holds it. There, the console's or the
+demo's own link sends ``load_model`` (:meth:`teleop.system.demo.LiveSystem.load_model`); or copy
+the new files into the folder the service serves: it switches once both files have stopped
+changing.
+
+Until the service's subscription to the command endpoint has connected, a message sent there is
+lost; so the request is sent again every :data:`RESEND_S` until answered: the service loads a
+request once and answers a repeat with the answer it gave.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import uuid
+from typing import Any
+
+from estimator.errors import ModelError
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.errors import BusError, TeleopError
+from teleop.live import add_endpoint_arguments, bus_from_args
+from teleop.settings import default_settings_path, load_settings
+
+__all__ = ["RESEND_S", "reload_model"]
+
+RESEND_S = 0.5
+DEFAULT_TIMEOUT_S = 30.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Switch a running estimator service (estimator serve, or the one teleop demo starts) to another "
+        "model: it loads and checks the model while it serves, switches between grasps and answers; the "
+        "model in use stays when the new one fails. Exit status 0 when loaded, 1 when refused (the reason "
+        "is printed), 2 when no service answered. Binds the command endpoint while it runs: not while an "
+        "operator console holds it."
+    )
+    parser.add_argument("--model", metavar="DIR", required=True,
+                        help="the model folder (model.onnx and metadata.json) on the service's host; a "
+                             "relative path is taken from this directory")
+    parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
+                        help="settings TOML whose [bus] endpoints the service uses")
+    add_endpoint_arguments(parser, "command", "estimate_pub")
+    parser.add_argument("--timeout-s", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
+                        help="how long to wait for the service's answer; it answers after the grasp open "
+                             "now, if any, has ended")
+    parser.add_argument("--json", action="store_true",
+                        help="print the answer as one JSON object (event, request, model, path, reason) as "
+                             "the last stdout line")
+
+
+def reload_model(path: str, *, command: Publisher, answers: Subscriber, timeout_s: float = DEFAULT_TIMEOUT_S,
+                 request: str | None = None) -> dict[str, Any]:
+    """Send ``load_model`` for ``path`` on ``command`` until the ``model_event`` answering it
+    arrives on ``answers`` (a subscriber of the service's estimate endpoint, topic ``model_event``);
+    its body.
+
+    Raises
+    ------
+    TeleopError
+        No answer within ``timeout_s``.
+    """
+    request = request or f"reload-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    deadline = time.monotonic() + timeout_s
+    next_send = 0.0
+    while True:
+        now = time.monotonic()
+        if now >= deadline:
+            heard = "heard" if answers.heartbeat.is_alive("estimator") else "did not hear"
+            raise TeleopError(f"no answer to load_model {path} (request {request}) within {timeout_s:g} s: this "
+                              f"{heard} the estimator service on {answers.endpoint_text}; is it running there, "
+                              f"and subscribed to {command.endpoint}?")
+        if now >= next_send:
+            command.send("load_model", t_capture_s=now, path=path, request=request)
+            next_send = now + RESEND_S
+        message = answers.recv(timeout_s=min(0.05, max(0.0, deadline - now)))
+        if message is not None and message.type == "model_event" and message.body["request"] == request:
+            return dict(message.body)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.timeout_s <= 0:
+        raise TeleopError(f"--timeout-s {args.timeout_s:g}: expected a time > 0")
+    settings = load_settings(args.settings)
+    bus = bus_from_args(settings, args)
+    if not args.model.strip():
+        raise ModelError("--model: expected a model folder, got an empty path")
+    path = os.path.abspath(args.model)  # the service's working directory is not this one
+    try:
+        answers = Subscriber.from_settings(bus, bus.estimate_pub, ("model_event",))
+    except BusError as exc:
+        raise TeleopError(f"cannot listen to the estimator service on {bus.estimate_pub}: {exc}") from exc
+    with answers:
+        try:
+            command = Publisher.from_settings(bus, bus.command, lossless=False,
+                                              source=f"reload-{os.getpid()}")  # its own: seq from 0
+        except BusError as exc:
+            raise TeleopError(f"cannot send on the command endpoint {bus.command} ({exc}): an operator console or "
+                              "teleop demo holds it; send load_model from there, or copy the model's files "
+                              "into the folder the service serves") from exc
+        with command:
+            answer = reload_model(path, command=command, answers=answers, timeout_s=args.timeout_s)
+    loaded = answer["event"] == "loaded"
+    if loaded:
+        print(f"estimator reload: the service serves {answer['model']} ({answer['path']}) from its next grasp on",
+              file=sys.stderr)
+    else:
+        print(f"estimator reload: refused {answer['path']}: {answer['reason']}; the service keeps "
+              f"{answer['model'] or 'no model'}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(answer))
+    return 0 if loaded else 1
