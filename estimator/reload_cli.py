@@ -1,19 +1,18 @@
 """``estimator reload``: switch a running estimator service to another model, without a restart.
 
-It sends one ``load_model`` message (the folder, and a request id of its own) on ``bus.command``
+It sends one ``load_model`` message (the folder, and a request id of its own) on ``bus.control``
 and waits for the service's ``model_event`` answering that request on ``bus.estimate_pub``
 (:mod:`estimator.service`, "Models"): the service loads and checks the model while it serves,
 switches to it between grasps and says "loaded" with the new model's id, or keeps the model it
 has and says "refused" with the reason. Exit status 0 when loaded, 1 when refused, 2 when no
 service answered within ``--timeout-s`` (or the folder or the endpoints are unusable).
 
-``bus.command`` has one sender at a time (the operator's): this command binds it while it runs,
-so it cannot while an operator console or ``teleop demo`` holds it. There, the console's or the
-demo's own link sends ``load_model`` (:meth:`teleop.system.demo.LiveSystem.load_model`); or copy
-the new files into the folder the service serves: it switches once both files have stopped
-changing.
+The service listens for commands on ``bus.command`` (the operator's: a console or ``teleop
+demo`` holds it) and on ``bus.control``, which this command binds while it runs, so it works while
+an operator operates. Copying new files into the folder the service serves works too: it switches
+once both files have stopped changing.
 
-Until the service's subscription to the command endpoint has connected, a message sent there is
+Until the service's subscription to the control endpoint has connected, a message sent there is
 lost; so the request is sent again every :data:`RESEND_S` until answered: the service loads a
 request once and answers a repeat with the answer it gave.
 """
@@ -45,15 +44,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "Switch a running estimator service (estimator serve, or the one teleop demo starts) to another "
         "model: it loads and checks the model while it serves, switches between grasps and answers; the "
         "model in use stays when the new one fails. Exit status 0 when loaded, 1 when refused (the reason "
-        "is printed), 2 when no service answered. Binds the command endpoint while it runs: not while an "
-        "operator console holds it."
+        "is printed), 2 when no service answered. Sends on the control endpoint, so an operator console "
+        "may hold the command endpoint meanwhile."
     )
     parser.add_argument("--model", metavar="DIR", required=True,
                         help="the model folder (model.onnx and metadata.json) on the service's host; a "
                              "relative path is taken from this directory")
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
                         help="settings TOML whose [bus] endpoints the service uses")
-    add_endpoint_arguments(parser, "command", "estimate_pub")
+    add_endpoint_arguments(parser, "control", "estimate_pub")
     parser.add_argument("--timeout-s", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
                         help="how long to wait for the service's answer; it answers after the grasp open "
                              "now, if any, has ended")
@@ -105,12 +104,12 @@ def run(args: argparse.Namespace) -> int:
         raise TeleopError(f"cannot listen to the estimator service on {bus.estimate_pub}: {exc}") from exc
     with answers:
         try:
-            command = Publisher.from_settings(bus, bus.command, lossless=False,
+            command = Publisher.from_settings(bus, bus.control, lossless=False,
                                               source=f"reload-{os.getpid()}")  # its own: seq from 0
         except BusError as exc:
-            raise TeleopError(f"cannot send on the command endpoint {bus.command} ({exc}): an operator console or "
-                              "teleop demo holds it; send load_model from there, or copy the model's files "
-                              "into the folder the service serves") from exc
+            raise TeleopError(f"cannot send on the control endpoint {bus.control} ({exc}): another estimator "
+                              "reload runs, or copy the model's files into the folder the service "
+                              "serves") from exc
         with command:
             answer = reload_model(path, command=command, answers=answers, timeout_s=args.timeout_s)
     loaded = answer["event"] == "loaded"

@@ -60,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mode", choices=("auto", "model"), default="auto",
                         help="with a model: auto (the split when its interval is narrow, else the model) "
                              "or model (always the model)")
-    add_endpoint_arguments(parser, "robot_pub", "estimate_pub", "command")
+    add_endpoint_arguments(parser, "robot_pub", "estimate_pub", "command", "control")
     parser.add_argument("--report", metavar="FILE", default=None,
                         help="append one JSON object per grasp (contact time, time to first estimate, "
                              "provisional count, final estimate) to FILE")
@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
 
     with (
         Subscriber.from_settings(bus, bus.robot_pub, INPUT_TOPICS) as subscriber,
-        Subscriber.from_settings(bus, bus.command, COMMAND_TOPICS) as commands,
+        Subscriber.from_settings(bus, [bus.command, bus.control], COMMAND_TOPICS) as commands,
         Publisher.from_settings(bus, bus.estimate_pub, lossless=False, source="estimator") as publisher,
         JsonLines(args.report) as report,
         LiveTap(publisher.endpoint, args.foxglove, bus=bus, name="estimator serve"),

@@ -250,6 +250,8 @@ class BusSettings(Validated):
     estimate_pub: str = spec("tcp://127.0.0.1:5551", doc="estimator publishes estimates here")
     command: str = spec("tcp://127.0.0.1:5552", doc="operator grasp commands")
     display_pub: str = spec("tcp://127.0.0.1:5553", doc="haptic renderer publishes its heartbeat here")
+    control: str = spec("tcp://127.0.0.1:5554", doc="one-off tools (estimator reload) send here while an "
+                                                    "operator holds the command endpoint")
     heartbeat_s: float = spec(0.5, lo=0.0, hi=60.0, lo_open=True)
     max_message_bytes: int = spec(8 * 1024 * 1024, lo=1024, hi=2**31 - 1)
     keys_dir: str = spec("", doc="CURVE key directory; required when an endpoint is not loopback")

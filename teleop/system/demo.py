@@ -62,6 +62,7 @@ from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SettingsError, TeleopError
+from teleop.live import ENDPOINTS
 from teleop.scene import load_scene
 from teleop.session.foxglove_live import add_foxglove_argument
 from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
@@ -210,16 +211,15 @@ class LiveSystem:
                      "--robot-pub", ep["robot_pub"], "--command", ep["command"]],
             "estimator": ["estimator", "serve", "--settings", settings, "--calibration", str(self.calibration),
                           "--robot-pub", ep["robot_pub"], "--estimate-pub", ep["estimate_pub"],
-                          "--command", ep["command"], "--report", str(out / "estimator.jsonl"),
+                          "--command", ep["command"], "--control", ep["control"],
+                          "--report", str(out / "estimator.jsonl"),
                           *(["--model", str(self.model)] if self.model is not None else [])],
             "renderer": ["haptics", "serve", "--settings", settings, "--backend", "sim", "--estimate-pub", ep["estimate_pub"],
                          "--display-pub", ep["display_pub"], "--report", str(out / "renderer.jsonl")],
         }
         if self.record:
             lines["recorder"] = ["teleop", "record", "--out", str(self.session_log), "--settings", settings,
-                                 "--scene", self.scene, *[a for name in ("robot_pub", "estimate_pub", "command",
-                                                                         "display_pub")
-                                                          for a in ("--endpoint", ep[name])]]
+                                 "--scene", self.scene, *[a for name in ENDPOINTS for a in ("--endpoint", ep[name])]]
             if self.foxglove is not None:
                 lines["recorder"] += ["--foxglove", "{}:{}".format(*self.foxglove)]
         return lines
@@ -233,10 +233,8 @@ class LiveSystem:
             A child exits or stays silent for ``timeout_s``; the others are stopped.
         """
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        ports = free_ports(4)
         self.endpoints = {name: f"tcp://127.0.0.1:{port}"
-                          for name, port in zip(("robot_pub", "estimate_pub", "command", "display_pub"), ports,
-                                                strict=True)}
+                          for name, port in zip(ENDPOINTS, free_ports(len(ENDPOINTS)), strict=True)}
         settings = load_settings(self.settings_path)
         self.display_range = display_range_pa(settings)
         bus = settings.bus

@@ -47,6 +47,7 @@ from teleop.devices.camera import open_camera
 from teleop.devices.gripper import open_gripper
 from teleop.devices.loadcell import open_load_cell
 from teleop.errors import ComplianceTeleopError, DeviceTimeoutError
+from teleop.live import ENDPOINTS
 from teleop.rig.load_cell_calibration import load_cell_source
 from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
 
@@ -293,8 +294,7 @@ def check_endpoints(settings: Settings) -> list[Check]:
     from teleop.bus.security import security_from_settings
 
     bus = settings.bus
-    checks = [_endpoint_check(name, getattr(bus, name)) for name in ("robot_pub", "estimate_pub", "command",
-                                                                      "display_pub")]
+    checks = [_endpoint_check(name, getattr(bus, name)) for name in ENDPOINTS]
     try:
         security_from_settings(bus)
     except ComplianceTeleopError as exc:

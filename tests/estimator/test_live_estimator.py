@@ -660,7 +660,7 @@ def test_estimator_reload_switches_a_running_service_and_says_why_it_refuses(set
     rig = Rig(settings, calibration, model=slot, commands=command)
 
     def reload(model: Path, *options: str) -> tuple[int, str, str]:
-        code = estimator.cli.main(["reload", "--model", str(model), "--command", command, "--estimate-pub",
+        code = estimator.cli.main(["reload", "--model", str(model), "--control", command, "--estimate-pub",
                                    rig.service.publisher.endpoint, *options])
         out, err = capsys.readouterr()
         return code, out, err
@@ -679,7 +679,7 @@ def test_estimator_reload_switches_a_running_service_and_says_why_it_refuses(set
         rig.close()
     assert final["model"] == slot.model_id and final["E_pa"] == pytest.approx(second_e, rel=1e-5)
     # No service there: it says so, without a traceback.
-    code = estimator.cli.main(["reload", "--model", str(tmp_path / "b"), "--command", command, "--estimate-pub",
+    code = estimator.cli.main(["reload", "--model", str(tmp_path / "b"), "--control", command, "--estimate-pub",
                                nobody, "--timeout-s", "1"])
     err = capsys.readouterr().err
     assert code == 2 and "no answer to load_model" in err and nobody in err and "Traceback" not in err
@@ -692,11 +692,11 @@ def test_estimator_reload_switches_a_running_service_and_says_why_it_refuses(set
             if time.monotonic() > deadline:
                 raise
             time.sleep(0.05)
-    with console:  # an operator console holds the endpoint
-        code = estimator.cli.main(["reload", "--model", str(tmp_path / "b"), "--command", command, "--estimate-pub",
+    with console:  # another reload holds the control endpoint
+        code = estimator.cli.main(["reload", "--model", str(tmp_path / "b"), "--control", command, "--estimate-pub",
                                    nobody, "--timeout-s", "1"])
     err = capsys.readouterr().err
-    assert code == 2 and f"cannot send on the command endpoint {command}" in err and "console" in err
+    assert code == 2 and f"cannot send on the control endpoint {command}" in err and "another" in err
 
 
 def test_estimator_serve_names_the_missing_file_of_a_folder_that_is_not_a_model(tmp_path, capsys):

@@ -25,7 +25,7 @@ from estimator.settings import estimator_settings
 from haptics.settings import display_settings
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SettingsError, TeleopError
-from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
+from teleop.live import ENDPOINTS, JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.session.logfile import LogReader
 from teleop.settings import default_settings_path, load_settings
 from teleop.system.demo import (
@@ -140,7 +140,7 @@ def test_demo_model_option_reaches_the_estimator_and_a_folder_that_is_not_a_mode
     def estimator_line(model):
         system = LiveSystem(default_settings_path(), "quick", tmp_path / "run", tmp_path / "cal.npz", model=model)
         system.endpoints = {name: f"tcp://127.0.0.1:{7000 + i}"
-                            for i, name in enumerate(("robot_pub", "estimate_pub", "command", "display_pub"))}
+                            for i, name in enumerate(ENDPOINTS)}
         return system._command_lines()["estimator"]
 
     shipped = str(default_model_dir())
