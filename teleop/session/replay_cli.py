@@ -9,6 +9,7 @@ import time
 
 from teleop.bus.pubsub import Publisher
 from teleop.errors import SessionLogError
+from teleop.session.logfile import LogReader
 from teleop.session.replay import replay
 from teleop.settings import load_settings
 
@@ -85,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.linger_s >= 0:
         raise SessionLogError(f"--linger-s {args.linger_s}: expected a number >= 0")
     settings = load_settings(args.settings)
+    LogReader(args.log).info()  # a missing or unreadable log is named before the bus is set up
     endpoint = args.endpoint or settings.bus.robot_pub
     # the settings' size limit, heartbeat period and CURVE keys
     with Publisher.from_settings(
