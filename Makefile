@@ -10,7 +10,7 @@ PIP := $(BIN)/python -m pip
 CONSTRAINTS := constraints.txt
 PYTEST_ARGS ?=
 
-.PHONY: demo test lint browser tmux install install-dev model evaluate cross-sensor fine-tune operator-eval clean
+.PHONY: demo test check lint browser tmux install install-dev model evaluate cross-sensor fine-tune operator-eval clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -47,6 +47,10 @@ tmux:
 
 test: lint browser tmux
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+# While working: lint and the tests not marked slow.
+check: lint
+	$(BIN)/python -m pytest -m "not slow" $(PYTEST_ARGS)
 
 # Retrain the default model from scratch: the model card's recipe (simulation, dataset, three trainings and
 # their pool; the parts' measured times are in the model card).
