@@ -32,7 +32,6 @@ importers.
 
 from __future__ import annotations
 
-import json
 import math
 from collections import Counter
 from collections.abc import Iterable, Sequence
@@ -49,7 +48,7 @@ from estimator.errors import ModelError
 from estimator.estimate import Estimate
 from estimator.learned.dataset import load_split
 from estimator.learned.hybrid import HybridEstimator
-from estimator.learned.infer import CompliancePredictor
+from estimator.learned.infer import CompliancePredictor, read_metadata
 from estimator.learned.inputs import Variant
 from estimator.measure import TACTILE_METHODS, calibration_path, estimate_grasp, measure_grasp
 from estimator.metrics import E_MAX_PA, E_MIN_PA, PAPER, point_value, summarise
@@ -164,14 +163,7 @@ def model_methods(predictors: Sequence[CompliancePredictor], *,
 
 def _model_metadata(model_dir: str | Path) -> tuple[Path, dict[str, Any]]:
     """The path and ``data`` section of a model's ``metadata.json``."""
-    meta_path = Path(model_dir) / "metadata.json"
-    if not Path(model_dir).is_dir():
-        raise ModelError(f"{model_dir}: no such model directory (expected one holding metadata.json and "
-                         "model.onnx)")
-    try:
-        data = json.loads(meta_path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ModelError(f"{meta_path}: not a readable model metadata file ({exc})") from exc
+    meta_path, data = read_metadata(model_dir)
     info = data.get("data") if isinstance(data, dict) else None
     if not isinstance(info, dict):
         raise ModelError(f"{meta_path}: no data section, so the objects it trained on are unknown")

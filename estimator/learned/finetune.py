@@ -59,11 +59,11 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from estimator.errors import EstimatorError, ModelError
+from estimator.errors import EstimatorError
 from estimator.learned.calibrate import calibrate
 from estimator.learned.dataset import SPLITS, load_split
 from estimator.learned.export import export_onnx, network_from_onnx
-from estimator.learned.infer import CompliancePredictor, ModelMetadata
+from estimator.learned.infer import CompliancePredictor, ModelMetadata, read_metadata
 from estimator.learned.inputs import Variant
 from estimator.learned.model import ComplianceNet
 from estimator.learned.pool import pooled_from_onnx
@@ -174,14 +174,7 @@ def _calibration(model: ComplianceNet, base: dict[str, Any], variant: Variant, r
 def _prepared(model_dir: Path, data_dir: Path, replay: str | Path | None, replay_ratio: float
               ) -> tuple[dict[str, Any], Variant, SplitData, SplitData | None, SplitData | None]:
     """The base metadata, its variant, every sample of ``data_dir``, and the replay's train and val samples."""
-    meta_path = model_dir / "metadata.json"
-    if not model_dir.is_dir():
-        raise ModelError(f"{model_dir}: no such model directory (expected one holding metadata.json and model.onnx, "
-                         "e.g. estimator/models/default)")
-    try:
-        raw = json.loads(meta_path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ModelError(f"{meta_path}: not a readable model metadata file ({exc})") from exc
+    meta_path, raw = read_metadata(model_dir)
     metadata = ModelMetadata.from_json(raw, str(meta_path))
     variant, base = metadata.variant, dict(metadata.raw)
     check_dataset_fits(data_dir, variant, base.get("data") or {})

@@ -75,6 +75,7 @@ from estimator.learned.inputs import (
     encode,
 )
 from estimator.settings import estimator_settings
+from teleop.bus.wire import MAX_MODEL_ID_CHARS
 from teleop.settings import Settings, resolve_path
 
 __all__ = [
@@ -99,7 +100,6 @@ OUTPUT_NAME = "log10_e_logits"
 #: The files a model folder must hold.
 MODEL_FILES = ("model.onnx", "metadata.json")
 MODEL_ID_HEX = 8  # hex digits of the content hash in a model id
-MAX_MODEL_ID_CHARS = 64  # as the bus carries it (teleop.bus.wire.MAX_MODEL_ID_CHARS)
 
 
 def model_files(model_dir: str | Path) -> list[Path]:
@@ -111,16 +111,39 @@ def model_files(model_dir: str | Path) -> list[Path]:
     ModelError
         ``model_dir`` does not exist, is not a folder, or lacks one of :data:`MODEL_FILES` (named).
     """
-    folder = Path(model_dir)
-    if not folder.exists():
-        raise ModelError(f"model folder {folder} does not exist")
-    if not folder.is_dir():
-        raise ModelError(f"{folder} is not a model folder (a folder holding {' and '.join(MODEL_FILES)})")
+    folder = _model_folder(model_dir)
     missing = [name for name in MODEL_FILES if not (folder / name).is_file()]
     if missing:
         raise ModelError(f"{folder} is not a model folder: it has no {' and no '.join(missing)} (a model folder "
                          f"holds {' and '.join(MODEL_FILES)}, as `estimator train` writes them)")
     return [folder / "metadata.json", *sorted(folder.glob("*.onnx"))]
+
+
+def _model_folder(model_dir: str | Path) -> Path:
+    folder = Path(model_dir)
+    if not folder.exists():
+        raise ModelError(f"model folder {folder} does not exist")
+    if not folder.is_dir():
+        raise ModelError(f"{folder} is not a model folder (a folder holding {' and '.join(MODEL_FILES)})")
+    return folder
+
+
+def read_metadata(model_dir: str | Path) -> tuple[Path, dict[str, Any]]:
+    """The path and parsed contents of a model folder's ``metadata.json``, unchecked (what a model
+    says of itself needs no network file).
+
+    Raises
+    ------
+    ModelError
+        ``model_dir`` is not a folder, or its ``metadata.json`` is missing or not JSON.
+    """
+    meta_path = _model_folder(model_dir) / "metadata.json"
+    if not meta_path.is_file():
+        raise ModelError(f"{model_dir} is not a model folder: it has no metadata.json")
+    try:
+        return meta_path, json.loads(meta_path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ModelError(f"{meta_path}: not a readable model metadata file ({exc})") from exc
 
 
 def _digest_id(folder: Path, contents: Sequence[tuple[str, bytes]]) -> str:

@@ -184,7 +184,7 @@ def test_held_out_objects_come_from_the_metadata_or_the_datasets_split(tmp_path)
     lost = write_metadata(tmp_path / "lost", {"dir": str(tmp_path / "gone"), "objects": {"test": 1}})
     with pytest.raises(ModelError, match="split.json"):
         held_out_objects(lost)
-    with pytest.raises(ModelError, match="no such model directory"):
+    with pytest.raises(ModelError, match="model folder .* does not exist"):
         held_out_objects(tmp_path / "nothing")
 
 
@@ -203,9 +203,12 @@ def test_trained_objects_are_train_val_and_fine_tuning_objects(tmp_path):
     lost = write_metadata(tmp_path / "lost", {"dir": str(tmp_path / "gone"), "objects": {"train": 1}})
     with pytest.raises(ModelError, match="train and val objects.*split.json"):
         trained_objects(lost)
-    with pytest.raises(ModelError, match="no such model directory"):
+    with pytest.raises(ModelError, match="model folder .* does not exist"):
         trained_objects(tmp_path / "nothing")
     (tmp_path / "empty").mkdir()
+    with pytest.raises(ModelError, match="it has no metadata.json"):
+        trained_objects(tmp_path / "empty")
+    (tmp_path / "empty" / "metadata.json").write_text("{not json")
     with pytest.raises(ModelError, match="not a readable model metadata"):
         trained_objects(tmp_path / "empty")
 

@@ -120,7 +120,7 @@ def test_compare_scores_both_models_on_objects_neither_trained_on(sim_grasps, tr
     err = capsys.readouterr().err
     assert "Traceback" not in err and "stress_ball.grasp: candidate trained on stress_ball" in err
     assert main(["compare", str(records), "--base", str(tmp_path / "typo"), "--candidate", str(candidate)]) == 2
-    assert f"--base {tmp_path / 'typo'}: no such model directory" in capsys.readouterr().err
+    assert f"--base model folder {tmp_path / 'typo'} does not exist" in capsys.readouterr().err
 
 
 @pytest.mark.slow

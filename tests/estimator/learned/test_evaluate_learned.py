@@ -154,7 +154,7 @@ def test_unseen_by_excludes_exactly_the_objects_the_model_trained_on(sim_grasps,
     assert "Traceback" not in err and "no record scored, all 4 skipped (4 of objects" in err
     assert "rubber_duck.grasp: excluded by --unseen-by" in err  # listed before the error
     assert main(["evaluate", str(records), "--methods", "no_tactile", "--unseen-by", str(tmp_path / "nope")]) == 2
-    assert "no such model directory" in error_line(capsys)
+    assert "does not exist" in error_line(capsys)
 
 
 def test_a_learned_method_no_model_gives_is_a_one_line_error(sim_grasps, trained_model, capsys):
