@@ -16,8 +16,10 @@ docstring defines them): ``n``, ``log10_error``, ``within_10x``,
 display renders for the estimate (``felt_log10_error``, ``felt_within_2x``,
 ``dangerous_misses``: against the label clipped to the display's range, with the
 display's own mapping), the intervals (``interval_level``, the nominal coverage a
-learned model states; ``interval_coverage``; ``interval_width_decades_median`` and
-``soft_interval_width_decades_median``, widths as the display shows them),
+learned model states; ``interval_coverage``; ``interval_width_decades_median``, widths as
+the display shows them), the same over the soft objects the display scales (``soft_n``,
+``soft_felt_log10_error``, ``soft_felt_within_2x``, ``soft_interval_coverage``,
+``soft_interval_width_decades_median``: labels at or below 3 MPa),
 ``states``, ``per_material``, ``per_shape`` and ``paper`` (the paper's figure
 for the same method and inputs, :data:`~estimator.metrics.PAPER`). Beside them,
 ``inputs`` says what the method reads; a model's entry also names ``model``,

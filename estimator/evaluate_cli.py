@@ -289,16 +289,17 @@ def _print_table(result: Mapping[str, Any], root: Path) -> None:
           "or soft (<= 1 MPa) felt at or above 10 MPa (or rigid); rigid = share of rigid objects' grasps "
           "rendered rigid; level = interval coverage the method "
           "states, coverage = share of intervals holding the label; width = median interval width in "
-          "decades as shown (all / labels below 3 MPa)")
+          "decades as shown; soft: the same over labels at or below 3 MPa, the objects the display scales")
     print(f"{'method':<{width}} {'n':>4} {'felt err':>8} {'felt2x':>7} {'danger':>6} {'rigid':>6} {'level':>6} "
-          f"{'coverage':>8} {'width':>6} {'soft width':>10}")
+          f"{'coverage':>8} {'width':>6} | {'soft n':>6} {'felt err':>8} {'felt2x':>7} {'coverage':>8} {'width':>6}")
     for method, m in result["methods"].items():
         danger = "-" if m["dangerous_misses"] is None else str(m["dangerous_misses"])
         print(f"{method:<{width}} {m['n']:>4} {_fmt(m['felt_log10_error'], '8.2f')} "
               f"{_fmt(m['felt_within_2x'], '7.1%')} {danger:>6} {_fmt(m['rigid_shown_rigid'], '6.1%')} "
               f"{_fmt(m['interval_level'], '6.0%')} "
-              f"{_fmt(m['interval_coverage'], '8.1%')} {_fmt(m['interval_width_decades_median'], '6.2f')} "
-              f"{_fmt(m['soft_interval_width_decades_median'], '10.2f')}")
+              f"{_fmt(m['interval_coverage'], '8.1%')} {_fmt(m['interval_width_decades_median'], '6.2f')} | "
+              f"{m['soft_n']:>6} {_fmt(m['soft_felt_log10_error'], '8.2f')} {_fmt(m['soft_felt_within_2x'], '7.1%')} "
+              f"{_fmt(m['soft_interval_coverage'], '8.1%')} {_fmt(m['soft_interval_width_decades_median'], '6.2f')}")
     for method, m in result["methods"].items():
         if "answered_by" in m:
             print(f"{method} answered by: " + ", ".join(f"{k} {v}" for k, v in sorted(m["answered_by"].items())))

@@ -53,9 +53,12 @@ Per method :func:`summarise` gives
     (:func:`~haptics.mapping.interval_decades` as :func:`~haptics.mapping.map_estimate`
     reads the estimate: clipped to the display's range, an open side reaching the
     range's end);
-``soft_interval_width_decades_median``
-    the same over the grasps of objects softer than :data:`SOFT_SUBSET_BELOW_PA` =
-    3 MPa (None when there are none);
+``soft_n``, ``soft_felt_log10_error``, ``soft_felt_within_2x``, ``soft_interval_coverage``, ``soft_interval_width_decades_median``
+    the counted grasps, felt error, share felt within 2x, interval coverage and median
+    width over the objects at or below :data:`SOFT_SUBSET_MAX_PA` = 3 MPa: the objects
+    the display can scale (its rigid end is the sensor's resolution limit, about 6.8 MPa),
+    where rigid objects rendered rigid at zero error do not hide the misses (None when
+    there are none);
 ``states``
     how many of each state, refusals included;
 ``per_material``, ``per_shape``
@@ -87,7 +90,7 @@ __all__ = [
     "RIGID_FELT_BELOW_PA",
     "RIGID_TRUTH_PA",
     "SOFT_FELT_FROM_PA",
-    "SOFT_SUBSET_BELOW_PA",
+    "SOFT_SUBSET_MAX_PA",
     "SOFT_TRUTH_PA",
     "dangerous_miss",
     "felt_pa",
@@ -109,8 +112,8 @@ RIGID_FELT_BELOW_PA = 1e6
 SOFT_TRUTH_PA = 1e6
 #: ...and rendering one at or above this (Pa; or at the display's rigid end, when lower) is a dangerous miss.
 SOFT_FELT_FROM_PA = 1e7
-#: The soft subset of the interval width: labels below this (Pa).
-SOFT_SUBSET_BELOW_PA = 3e6
+#: The soft objects' figures: labels at or below this (Pa), the objects the display can scale.
+SOFT_SUBSET_MAX_PA = 3e6
 
 # Float slack for the within-2x share: a rendered value goes through the log scale and back.
 _TOLERANCE_DECADES = 1e-9
@@ -206,9 +209,10 @@ def _felt_metrics(counted: Sequence[dict[str, Any]], display_range_pa: tuple[flo
     """The display's figures over the counted rows (module docstring); None without a range."""
     if display_range_pa is None:
         return dict.fromkeys(("felt_log10_error", "felt_within_2x", "dangerous_misses", "rigid_shown_rigid",
-                              "interval_width_decades_median", "soft_interval_width_decades_median"))
+                              "interval_width_decades_median", "soft_felt_log10_error", "soft_felt_within_2x",
+                              "soft_interval_width_decades_median"))
     soft, rigid = display_range_pa
-    errors, misses, widths, soft_widths, rigid_shown = [], 0, [], [], []
+    errors, soft_errors, misses, widths, soft_widths, rigid_shown = [], [], 0, [], [], []
     for r in counted:
         percept, felt = _rendered(r, display_range_pa)
         target = min(rigid, max(soft, r["truth_pa"]))
@@ -217,17 +221,32 @@ def _felt_metrics(counted: Sequence[dict[str, Any]], display_range_pa: tuple[flo
         if r["truth_pa"] >= RIGID_TRUTH_PA:
             rigid_shown.append(percept.rigid)
         widths.append(percept.uncertainty_decades)
-        if r["truth_pa"] < SOFT_SUBSET_BELOW_PA:
+        if _soft(r):
+            soft_errors.append(errors[-1])
             soft_widths.append(percept.uncertainty_decades)
-    within = math.log10(FELT_WITHIN_FACTOR) + _TOLERANCE_DECADES
     return {
-        "felt_log10_error": sum(errors) / len(errors) if errors else None,
-        "felt_within_2x": sum(e <= within for e in errors) / len(errors) if errors else None,
+        "felt_log10_error": _mean(errors),
+        "felt_within_2x": _within_2x(errors),
         "dangerous_misses": misses,
         "rigid_shown_rigid": sum(rigid_shown) / len(rigid_shown) if rigid_shown else None,
         "interval_width_decades_median": _median(widths),
+        "soft_felt_log10_error": _mean(soft_errors),
+        "soft_felt_within_2x": _within_2x(soft_errors),
         "soft_interval_width_decades_median": _median(soft_widths),
     }
+
+
+def _soft(row: Mapping[str, Any]) -> bool:
+    return row["truth_pa"] <= SOFT_SUBSET_MAX_PA
+
+
+def _mean(values: Sequence[float]) -> float | None:
+    return sum(values) / len(values) if values else None
+
+
+def _within_2x(felt_errors: Sequence[float]) -> float | None:
+    within = math.log10(FELT_WITHIN_FACTOR) + _TOLERANCE_DECADES
+    return sum(e <= within for e in felt_errors) / len(felt_errors) if felt_errors else None
 
 
 def _metrics(rows: Iterable[dict[str, Any]], *,
@@ -244,6 +263,7 @@ def _metrics(rows: Iterable[dict[str, Any]], *,
         (r["low_pa"] is None or r["low_pa"] <= r["truth_pa"]) and (r["high_pa"] is None or r["truth_pa"] <= r["high_pa"])
         for r in counted
     ]
+    soft_covered = [c for c, r in zip(covered, counted, strict=True) if _soft(r)]
     states = Counter(r["state"] for r in rows)
     return {
         "n": len(counted),
@@ -253,7 +273,9 @@ def _metrics(rows: Iterable[dict[str, Any]], *,
         "point_within_10x": point_within,
         "ok_only": {"n": len(ok), "log10_error": ok_error, "within_10x": ok_within},
         **_felt_metrics(counted, display_range_pa),
-        "interval_coverage": sum(covered) / len(covered) if covered else None,
+        "interval_coverage": _mean(covered),
+        "soft_n": len(soft_covered),
+        "soft_interval_coverage": _mean(soft_covered),
         "states": {s: states.get(s, 0) for s in STATES},
     }
 

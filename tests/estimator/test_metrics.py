@@ -8,7 +8,7 @@ import pytest
 
 from estimator.metrics import (
     RIGID_TRUTH_PA,
-    SOFT_SUBSET_BELOW_PA,
+    SOFT_SUBSET_MAX_PA,
     SOFT_TRUTH_PA,
     dangerous_miss,
     felt_pa,
@@ -122,10 +122,23 @@ def test_interval_widths_are_clipped_to_the_display_range():
     assert m["interval_width_decades_median"] == pytest.approx((widths[1] + widths[2]) / 2)
     assert one(rows[1:2])["interval_width_decades_median"] == pytest.approx(FULL)
     assert one(rows[3:4])["interval_width_decades_median"] == 0.0
-    # The soft subset: labels below 3 MPa.
+    # The soft subset: labels at or below 3 MPa.
     assert m["soft_interval_width_decades_median"] == pytest.approx(math.log10(3e6 / SOFT))
     assert one(rows[3:4])["soft_interval_width_decades_median"] is None
-    assert one([row(SOFT_SUBSET_BELOW_PA, "ok", 2e6, 1e6, 4e6)])["soft_interval_width_decades_median"] is None
+    assert one([row(SOFT_SUBSET_MAX_PA, "ok", 2e6, 1e6, 4e6)])["soft_interval_width_decades_median"] is not None
+    assert one([row(1.01 * SOFT_SUBSET_MAX_PA, "ok", 2e6, 1e6, 4e6)])["soft_interval_width_decades_median"] is None
+
+
+def test_soft_objects_are_scored_on_their_own():
+    # A foam felt 4x too stiff and a rubber felt right; the steel rendered rigid is exact but not soft.
+    rows = [row(1e4, "ok", 4e4, 2e4, 8e4), row(1e6, "ok", 1e6, 5e5, 2e6), row(2e11, "lower_bound", 2e7, 2e7, None),
+            row(5e4, "insufficient_data")]
+    m = one(rows)
+    assert m["soft_n"] == 2 and m["soft_felt_within_2x"] == 0.5
+    assert m["soft_felt_log10_error"] == pytest.approx(math.log10(4) / 2)
+    assert m["felt_log10_error"] == pytest.approx(math.log10(4) / 3)  # the rigid grasp dilutes the overall
+    assert m["soft_interval_coverage"] == 0.5  # the foam's interval misses it
+    assert one(rows[2:])["soft_felt_log10_error"] is None and one(rows[2:])["soft_interval_coverage"] is None
 
 
 def test_felt_figures_per_material_and_only_with_a_display_range():
