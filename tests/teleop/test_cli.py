@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +15,7 @@ import pytest
 import estimator.cli
 import haptics.cli
 import teleop.cli
+from teleop.clikit import _DefaultsHelpFormatter
 
 BIN = Path(sys.executable).parent
 PACKAGES = {"teleop": teleop.cli.COMMANDS, "estimator": estimator.cli.COMMANDS, "haptics": haptics.cli.COMMANDS}
@@ -80,12 +82,18 @@ def _commands():
 
 
 @pytest.mark.parametrize(("prog", "name", "module"), list(_commands()))
-def test_every_option_of_every_command_has_help(prog, name, module):
+def test_every_option_of_every_command_is_explained_as_a_person_would(prog, name, module):
     mod = importlib.import_module(module)
     assert callable(mod.run), f"{module} has no run(args)"
-    parser = argparse.ArgumentParser(prog=f"{prog} {name}")
+    parser = argparse.ArgumentParser(prog=f"{prog} {name}", formatter_class=_DefaultsHelpFormatter)
     mod.add_arguments(parser)
     for action in parser._actions:
         if isinstance(action, argparse._HelpAction):
             continue
-        assert action.help and action.help.strip(), f"{prog} {name}: {action.option_strings or action.dest} has no help"
+        assert action.help and len(action.help.strip()) > 10, \
+            f"{prog} {name}: {action.option_strings or action.dest} has no help"
+    # As printed: no Python values ("None: ...", "(default: (64, 88))"), no unexpanded format codes.
+    text = " ".join(parser.format_help().split())
+    assert not re.search(r"\bNone\b", text), f"{prog} {name}"
+    assert not re.search(r"\(default: [(\[][-\d'\"\])]", text), f"{prog} {name}"
+    assert "%(" not in text and "%%" not in text
