@@ -21,14 +21,22 @@ Layers (the rules tested):
     command table refers to it.
 
 So the static package graph is a chain with no cycle: teleop.system -> estimator -> haptics -> teleop.
+
+Beside the graph, each live process's command module is imported in a fresh interpreter: training
+(torch, onnx) and plotting (matplotlib) never load in a live service, nor the packages it does not run.
 """
 
 from __future__ import annotations
 
 import ast
+import json
+import subprocess
+import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+
+import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGES = ("teleop", "estimator", "haptics")
@@ -272,3 +280,18 @@ def test_the_rules_pass_a_clean_tree(tmp_path):
     imports = collect_imports(_tree(tmp_path, clean))
     assert layering_violations(imports) == []
     assert package_cycles(imports) == []
+
+
+@pytest.mark.parametrize(("module", "absent"), [
+    ("estimator.service_cli", ("torch", "matplotlib", "onnx", "haptics")),
+    ("teleop.node_cli", ("torch", "matplotlib", "estimator", "haptics")),
+    ("haptics.service_cli", ("torch", "matplotlib", "estimator")),
+    ("haptics.operate_cli", ("torch", "matplotlib", "estimator")),
+])
+def test_a_live_process_loads_only_what_it_runs(module, absent):
+    # A fresh interpreter, as the process starts: training and plotting never load in a live service.
+    code = ("import importlib, json, sys; importlib.import_module(sys.argv[1]); "
+            "print(json.dumps(sorted({name.split('.')[0] for name in sys.modules})))")
+    done = subprocess.run([sys.executable, "-c", code, module], capture_output=True, text=True, timeout=120, check=True)
+    loaded = set(json.loads(done.stdout))
+    assert not loaded & set(absent), f"{module} loads {sorted(loaded & set(absent))}"
