@@ -198,7 +198,6 @@ class LiveSystem:
         self._followed: set[str] = set()  # grasps followed to their end
         self._later: list[Message] = []  # messages of a grasp that started while another was followed
         self.model_events: list[dict[str, Any]] = []  # what the estimator said of its model, as heard
-        self._load_requests = 0
 
     @property
     def session_log(self) -> Path | None:
@@ -349,41 +348,26 @@ class LiveSystem:
         return self._follow(outcome, on_update=on_update, on_message=on_message, timeout_s=timeout_s)
 
     def load_model(self, path: str | Path, *, timeout_s: float = 30.0) -> dict[str, Any]:
-        """Switch the running estimator to the model in ``path`` (``load_model`` on the command
-        endpoint, as ``estimator reload`` sends it); the body of the service's ``model_event``
-        answer ("loaded" with the new id, or "refused" with the reason). Call it between grasps,
-        from the thread that operates (the command publisher is not thread-safe); grasp messages
-        that arrive meanwhile are kept for :meth:`grasp`.
+        """Switch the running estimator to the model in ``path``, as ``estimator reload`` does (on the
+        control endpoint, so from any thread, whoever operates); the body of the service's
+        ``model_event`` answer ("loaded" with the new id, or "refused" with the reason).
 
         Raises
         ------
         TeleopError
             A child exits, or no answer within ``timeout_s``.
         """
-        from estimator.reload_cli import RESEND_S
+        from estimator.reload_cli import reload_model
 
-        self._load_requests += 1
-        request = f"demo-{os.getpid()}-{self._load_requests}"
-        deadline = time.monotonic() + timeout_s
-        next_send = 0.0
-        while True:
-            self.check()
-            now = time.monotonic()
-            if now >= deadline:
-                raise TeleopError(f"the estimator did not answer load_model {path} within {timeout_s:g} s; "
-                                  f"logs in {self.run_dir}")
-            if now >= next_send:  # again until answered: the service loads a request once
-                self.commands.send("load_model", t_capture_s=now, path=os.path.abspath(path), request=request)
-                next_send = now + RESEND_S
-            message = self.events.recv(timeout_s=0.05)
-            if message is None:
-                continue
-            if message.type != "model_event":
-                self._later.append(message)
-            else:
-                self.model_events.append(dict(message.body))
-                if message.body["request"] == request:
-                    return dict(message.body)
+        self.check()
+        max_bytes = load_settings(self.settings_path).bus.max_message_bytes
+        with (Publisher(self.endpoints["control"], lossless=False, source="demo", max_bytes=max_bytes) as control,
+              Subscriber(self.endpoints["estimate_pub"], ("model_event",), max_bytes=max_bytes) as answers):
+            try:
+                return reload_model(os.path.abspath(path), command=control, answers=answers, timeout_s=timeout_s)
+            except TeleopError:
+                self.check()  # a child that died is the better reason
+                raise
 
     def _next_message(self, timeout_s: float) -> Message | None:
         """The next grasp message: one set aside for a later grasp first, then the bus (a
