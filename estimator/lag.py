@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from estimator.errors import FitError
-from estimator.segment import ONSET_SIGMAS, clean_samples, crossing_time
+from estimator.segment import ONSET_SIGMAS
+from estimator.signals import clean_samples, crossing_time
 
 __all__ = ["estimate_camera_lag", "estimate_width_lag"]
 
