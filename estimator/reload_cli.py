@@ -2,7 +2,7 @@
 
 It sends one ``load_model`` message (the folder, and a request id of its own) on ``bus.control``
 and waits for the service's ``model_event`` answering that request on ``bus.estimate_pub``
-(:mod:`estimator.service`, "Models"): the service loads and checks the model while it serves,
+(:mod:`estimator.model_slot`): the service loads and checks the model while it serves,
 switches to it between grasps and says "loaded" with the new model's id, or keeps the model it
 has and says "refused" with the reason. Exit status 0 when loaded, 1 when refused, 2 when no
 service answered within ``--timeout-s`` (or the folder or the endpoints are unusable).

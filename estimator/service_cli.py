@@ -18,14 +18,8 @@ import sys
 from estimator.analytical import METHODS
 from estimator.learned.infer import model_files
 from estimator.measure import resolve_calibration
-from estimator.service import (
-    COMMAND_TOPICS,
-    INPUT_TOPICS,
-    EstimatorService,
-    ModelSlot,
-    model_log,
-    resolve_model_dir,
-)
+from estimator.model_slot import ModelSlot, model_log
+from estimator.service import COMMAND_TOPICS, INPUT_TOPICS, EstimatorService, resolve_model_dir
 from estimator.stream import configured_methods
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args

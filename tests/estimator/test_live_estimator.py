@@ -21,8 +21,9 @@ import zmq
 from estimator.errors import CalibrationError, FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.measure import estimate_grasp, measure_grasp
+from estimator.model_slot import ModelSlot
 from estimator.segment import PEAK_FRAME_WINDOW_S, segment_grasp
-from estimator.service import COMMAND_TOPICS, INPUT_TOPICS, EstimatorService, ModelSlot
+from estimator.service import COMMAND_TOPICS, INPUT_TOPICS, EstimatorService
 from estimator.settings import estimator_settings
 from estimator.stream import GraspStream, choose_estimate
 from teleop.bus.pubsub import Publisher, Subscriber

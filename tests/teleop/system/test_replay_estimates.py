@@ -18,7 +18,8 @@ import pytest
 
 from estimator.analytical import METHODS
 from estimator.measure import resolve_calibration
-from estimator.service import INPUT_TOPICS, EstimatorService, ModelSlot, resolve_model_dir
+from estimator.model_slot import ModelSlot
+from estimator.service import INPUT_TOPICS, EstimatorService, resolve_model_dir
 from estimator.settings import estimator_settings
 from estimator.stream import DEFAULT_METHODS
 from teleop.bus.wire import Message, make_message
