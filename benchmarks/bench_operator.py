@@ -4,7 +4,7 @@ Usage::
 
     .venv/bin/python benchmarks/bench_operator.py [--seconds 10] [--scene default] [--json]
 
-1. **Input to gripper command** (loopback): the operator's loop (:class:`haptics.operator_link.OperatorLoop`)
+1. **Input to gripper command** (loopback): the operator's loop (:class:`haptics.operator_loop.OperatorLoop`)
    reads a scripted input device whose grip sweeps the fingers' free travel at the follow rate, and
    sends ``follow`` over ZeroMQ on loopback to a robot node on the simulated rig in another thread;
    the figure is the time from the input reading (its ``t_s``) to the node's call of
@@ -35,7 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from haptics.inputs.base import OperatorInput
-from haptics.operator_link import OperatorLink, OperatorLoop
+from haptics.operator_link import OperatorLink
+from haptics.operator_loop import OperatorLoop
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.node import COMMAND_TOPICS, RobotNode
 from teleop.operator import grip_to_width_m

@@ -1,8 +1,8 @@
-"""The operator console: a terminal UI (textual) over :class:`~haptics.operator_link.OperatorLoop`.
+"""The operator console: a terminal UI (textual) over :class:`~haptics.operator_loop.OperatorLoop`.
 
 It runs over SSH and in tmux, with the keyboard alone. The loop runs in its own thread (it
 sends ``follow`` at 50 Hz and must not wait for the screen); the screen redraws from the loop's
-frozen :class:`~haptics.operator_link.LoopStatus` ten times a second. Panels:
+frozen :class:`~haptics.operator_loop.LoopStatus` ten times a second. Panels:
 
 * **live system**: whether the robot node, the estimator and the display's renderer are alive
   (heard from within three heartbeat periods) and when each was last heard;
@@ -50,7 +50,7 @@ from textual.containers import Horizontal
 from textual.suggester import SuggestFromList
 from textual.widgets import Input, Static
 
-from haptics.operator_link import LoopStatus, OperatorLoop
+from haptics.operator_loop import LoopStatus, OperatorLoop
 from teleop.labels import LabelError, describe_label, parse_label
 
 __all__ = ["CONSOLE_BUTTON_KEYS", "OperatorConsole", "estimate_line", "format_pa"]

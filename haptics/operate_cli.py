@@ -2,7 +2,7 @@
 
 It binds the command endpoint (the operator's), subscribes to the robot node's, the
 estimator's and the display's endpoints, and drives the gripper from an operator input device
-(:mod:`haptics.inputs`) through :class:`~haptics.operator_link.OperatorLoop`. ``--headless``
+(:mod:`haptics.inputs`) through :class:`~haptics.operator_loop.OperatorLoop`. ``--headless``
 runs the same loop without the screen (for the simulated operator, scripts and logs), printing
 one line per action.
 """
@@ -18,7 +18,8 @@ import textwrap
 
 from haptics.inputs import BACKENDS as INPUT_BACKENDS
 from haptics.inputs import open_input
-from haptics.operator_link import LoopStatus, OperatorLink, OperatorLoop
+from haptics.operator_link import OperatorLink
+from haptics.operator_loop import LoopStatus, OperatorLoop
 from haptics.settings import operator_settings
 from teleop.catalogue import default_catalogue_path, load_catalogue
 from teleop.errors import SettingsError

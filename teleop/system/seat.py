@@ -1,7 +1,7 @@
 """The demo's simulated operator in the operator's seat: ``teleop demo --operator sim``.
 
 The seat is what ``haptics operate --headless --input sim`` runs, in a thread of the demo: the
-operator's loop (:class:`haptics.operator_link.OperatorLoop`) reads the simulated operator
+operator's loop (:class:`haptics.operator_loop.OperatorLoop`) reads the simulated operator
 (:class:`haptics.inputs.sim.SimulatedInput`: a seeded, person-like hand closed on the force it
 feels) and drives the robot node leader-follower over the live system's ``command`` endpoint,
 sending ``follow`` at the follow rate while its dead-man is held, ``release`` when it is done with
@@ -15,7 +15,8 @@ import threading
 from typing import TYPE_CHECKING
 
 from haptics.inputs.base import open_input
-from haptics.operator_link import ROBOT_TOPICS, OperatorLink, OperatorLoop
+from haptics.operator_link import ROBOT_TOPICS, OperatorLink
+from haptics.operator_loop import OperatorLoop
 from teleop.bus.pubsub import Subscriber
 from teleop.settings import Settings
 

@@ -11,7 +11,8 @@ import pytest
 
 from haptics.console import OperatorConsole, estimate_line, format_pa
 from haptics.inputs.keyboard import KeyboardInput
-from haptics.operator_link import PEERS, OperatorLoop, OperatorView, Peer
+from haptics.operator_link import PEERS, OperatorView, Peer
+from haptics.operator_loop import OperatorLoop
 from teleop.settings import load_settings
 
 NOBODY = tuple(Peer(name, source, False, None) for name, source in PEERS)

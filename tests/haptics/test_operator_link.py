@@ -1,4 +1,4 @@
-"""The operator's bus link and loop (:mod:`haptics.operator_link`): the loop against fakes, the link on loopback."""
+"""The operator's bus link and loop (:mod:`haptics.operator_link`, :mod:`haptics.operator_loop`): the loop against fakes, the link on loopback."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from haptics.operator_link import RELEASE_FOLLOWS, OperatorLink, OperatorLoop, OperatorView
+from haptics.operator_link import OperatorLink, OperatorView
+from haptics.operator_loop import RELEASE_FOLLOWS, OperatorLoop
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.errors import MessageRejected
