@@ -124,6 +124,17 @@ def _reading(value: Any, scale: str) -> float:
     return number
 
 
+def _in_range(value: Any, scale: str, bounds: tuple[float, float], covered: str, *, below: str,
+              above: str) -> float:
+    """The Shore reading on ``scale`` as a number within ``bounds``; LabelError with advice otherwise."""
+    s = _reading(value, scale)
+    low, high = bounds
+    if not low <= s <= high:
+        raise LabelError(f"Shore {scale} {s:g} is outside {low:g} to {high:g}, {covered}: "
+                         f"{below if s < low else above}")
+    return s
+
+
 def gent_modulus_pa(shore_a: float) -> float:
     """Young's modulus (Pa) of a Shore A reading by Gent's relation (module notes).
 
@@ -132,18 +143,9 @@ def gent_modulus_pa(shore_a: float) -> float:
     LabelError
         The reading is not a number in :data:`SHORE_A_RANGE`.
     """
-    s = _reading(shore_a, "A")
-    low, high = SHORE_A_RANGE
-    if not low <= s <= high:
-        advice = (
-            "measure it on the Shore 00 scale, or give the maker's modulus"
-            if s < low
-            else "measure it on the Shore D scale or give the maker's modulus"
-        )
-        raise LabelError(
-            f"Shore A {s:g} is outside {low:g} to {high:g}, the readings Gent's relation and "
-            f"ASTM D2240 cover: {advice}"
-        )
+    s = _in_range(shore_a, "A", SHORE_A_RANGE, "the readings Gent's relation and ASTM D2240 cover",
+                  below="measure it on the Shore 00 scale, or give the maker's modulus",
+                  above="measure it on the Shore D scale or give the maker's modulus")
     return _gent(s)
 
 
@@ -159,16 +161,10 @@ def shore_00_to_a(shore_00: float) -> float:
     LabelError
         The reading is not a number in :data:`SHORE_00_RANGE`.
     """
-    s = _reading(shore_00, "00")
-    low, high = SHORE_00_RANGE
-    if not low <= s <= high:
-        advice = (
-            "the table has no Shore A equivalent this soft: give the maker's modulus (datasheet) "
-            "or a measured one"
-            if s < low
-            else "readings this hard are unreliable on the 00 scale: measure it on the Shore A scale"
-        )
-        raise LabelError(f"Shore 00 {s:g} is outside {low:g} to {high:g}, the readings the conversion covers: {advice}")
+    s = _in_range(shore_00, "00", SHORE_00_RANGE, "the readings the conversion covers",
+                  below="the table has no Shore A equivalent this soft: give the maker's modulus (datasheet) "
+                        "or a measured one",
+                  above="readings this hard are unreliable on the 00 scale: measure it on the Shore A scale")
     oo_values = [oo for _, oo in SHORE_A_00_TABLE]
     i = min(max(bisect.bisect_left(oo_values, s), 1), len(oo_values) - 1)
     (a0, o0), (a1, o1) = SHORE_A_00_TABLE[i - 1], SHORE_A_00_TABLE[i]
