@@ -93,7 +93,9 @@ __all__ = [
     "SOFT_SUBSET_MAX_PA",
     "SOFT_TRUTH_PA",
     "dangerous_miss",
+    "felt_log10_error",
     "felt_pa",
+    "felt_within",
     "point_value",
     "summarise",
 ]
@@ -178,6 +180,19 @@ def felt_pa(row: Mapping[str, Any], *, display_range_pa: tuple[float, float]) ->
     return _rendered(row, display_range_pa)[1]
 
 
+def felt_log10_error(felt: float, truth_pa: float, *, display_range_pa: tuple[float, float]) -> float:
+    """How far (decades) a rendered modulus ``felt`` lies from the label clipped to the display's range:
+    the best the display could have rendered (an object stiffer than its rigid end is right when
+    rendered rigid)."""
+    soft, rigid = display_range_pa
+    return abs(math.log10(felt) - math.log10(min(rigid, max(soft, truth_pa))))
+
+
+def felt_within(error_decades: float) -> bool:
+    """Whether a felt error counts as right: within :data:`FELT_WITHIN_FACTOR` of the clipped label."""
+    return error_decades <= math.log10(FELT_WITHIN_FACTOR) + _TOLERANCE_DECADES
+
+
 def dangerous_miss(truth_pa: float, felt: float, *, e_rigid_pa: float) -> bool:
     """Whether rendering ``felt`` (Pa) for an object of modulus ``truth_pa`` is a dangerous miss.
 
@@ -211,12 +226,11 @@ def _felt_metrics(counted: Sequence[dict[str, Any]], display_range_pa: tuple[flo
         return dict.fromkeys(("felt_log10_error", "felt_within_2x", "dangerous_misses", "rigid_shown_rigid",
                               "interval_width_decades_median", "soft_felt_log10_error", "soft_felt_within_2x",
                               "soft_interval_width_decades_median"))
-    soft, rigid = display_range_pa
+    rigid = display_range_pa[1]
     errors, soft_errors, misses, widths, soft_widths, rigid_shown = [], [], 0, [], [], []
     for r in counted:
         percept, felt = _rendered(r, display_range_pa)
-        target = min(rigid, max(soft, r["truth_pa"]))
-        errors.append(abs(math.log10(felt) - math.log10(target)))
+        errors.append(felt_log10_error(felt, r["truth_pa"], display_range_pa=display_range_pa))
         misses += dangerous_miss(r["truth_pa"], felt, e_rigid_pa=rigid)
         if r["truth_pa"] >= RIGID_TRUTH_PA:
             rigid_shown.append(percept.rigid)
@@ -245,8 +259,7 @@ def _mean(values: Sequence[float]) -> float | None:
 
 
 def _within_2x(felt_errors: Sequence[float]) -> float | None:
-    within = math.log10(FELT_WITHIN_FACTOR) + _TOLERANCE_DECADES
-    return sum(e <= within for e in felt_errors) / len(felt_errors) if felt_errors else None
+    return sum(map(felt_within, felt_errors)) / len(felt_errors) if felt_errors else None
 
 
 def _metrics(rows: Iterable[dict[str, Any]], *,

@@ -137,13 +137,13 @@ def felt_summary(outcomes: Sequence[GraspOutcome]) -> str:
     display's range (an object stiffer than its rigid end is right when rendered rigid), the share within
     a factor 2, the dangerous misses (:func:`estimator.metrics.dangerous_miss`) and the grasps the display
     rendered nothing for."""
-    from estimator.metrics import FELT_WITHIN_FACTOR, dangerous_miss
+    from estimator.metrics import dangerous_miss, felt_within
 
     felt = [o for o in outcomes if o.felt_log10_error is not None]
     if not felt:
         return f"the display rendered none of {len(outcomes)} grasps"
     errors = [o.felt_log10_error for o in felt]
-    within = sum(e <= np.log10(FELT_WITHIN_FACTOR) + 1e-9 for e in errors)
+    within = sum(map(felt_within, errors))
     misses = sum(dangerous_miss(o.obj.modulus_pa, o.display_e_pa, e_rigid_pa=o.display_range[1]) for o in felt)
     unrendered = len(outcomes) - len(felt)
     return (f"felt (display against the label on its range): mean error {np.mean(errors):.2f} decades, "

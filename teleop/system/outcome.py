@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from estimator.metrics import felt_log10_error, felt_within
+from estimator.settings import EstimatorSettings
 from haptics.errors import MappingError
 from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_fraction
 from teleop.catalogue import ObjectSpec
@@ -75,7 +77,7 @@ class GraspOutcome:
     display_range: tuple[float, float] | None = None
     # Convergence, from the grasp's own bus messages: when its force first reached contact_force_n
     # (load-cell capture time) and each display report written for it (write time, E_pa or None).
-    contact_force_n: float = 0.75
+    contact_force_n: float = field(default_factory=lambda: EstimatorSettings().contact_force_n)
     t_contact_s: float | None = None
     display_track: list[tuple[float, float | None]] = field(default_factory=list)
 
@@ -157,8 +159,7 @@ class GraspOutcome:
         felt = self.display_e_pa
         if felt is None or self.rendered.unknown:
             return None
-        soft, rigid = self.display_range
-        return abs(math.log10(felt) - math.log10(min(rigid, max(soft, self.obj.modulus_pa))))
+        return felt_log10_error(felt, self.obj.modulus_pa, display_range_pa=self.display_range)
 
     @property
     def t_felt_within_2x_s(self) -> float | None:
@@ -167,11 +168,10 @@ class GraspOutcome:
         without contact, reports or a range). Load cell and display share the host's monotonic clock."""
         if self.t_contact_s is None or not self.display_track or self.display_range is None:
             return None
-        soft, rigid = self.display_range
-        target = math.log10(min(rigid, max(soft, self.obj.modulus_pa)))
         settled = None
         for t_s, e_pa in self.display_track:
-            if e_pa is None or abs(math.log10(e_pa) - target) > math.log10(2.0) + 1e-9:
+            if e_pa is None or not felt_within(felt_log10_error(e_pa, self.obj.modulus_pa,
+                                                                display_range_pa=self.display_range)):
                 settled = None
             elif settled is None:
                 settled = t_s
