@@ -25,26 +25,9 @@ Grasps are commanded on the bus (``command`` messages on ``bus.command``):
 ``reload_model``
     Not for the node (the estimator service's); ignored.
 
-The operator drives a grasp continuously with ``follow`` messages (also on ``bus.command``,
-about :data:`~teleop.operator.FOLLOW_RATE_HZ`): the fingers follow the message's target width,
-force-capped (:mod:`teleop.operator`). A follow counts only with ``enable`` (the dead-man) held:
-
-* while idle, it starts a *follow grasp* (``grasp_id`` names it, default ``grasp-<n>``; a grasp
-  that has ended is not started again). With the simulated backends the node simulates the
-  scene's next object live (:mod:`teleop.sim.live`, prepared ahead in its simulator thread: at
-  start for the first object, after each grasp for the next; the fingers may move once it is
-  ready) and the simulated devices sample it (:mod:`teleop.devices.live_sim`); an object still
-  between the closed fingers (a grasp ended by the watchdog) is grasped again;
-* during a follow grasp it moves the fingers' target (:meth:`~teleop.devices.gripper.Gripper.follow`).
-  The fingers never exceed the settings' maximum grasp force (``gripper.target_force_n``): the
-  simulated physics stalls there; with hardware the node stops closing once the load cell
-  reads it. Reaching it sends a ``robot_notice`` *force_limit*, once per grasp.
-
-A follow without enable stops the fingers where they are. When no follow came for
-:data:`~teleop.operator.WATCHDOG_S`, the node stops the fingers, sends a ``robot_notice``
-*watchdog* and ends the grasp (mode *stopped*). ``release`` ends a follow grasp: the fingers
-open, then the grasp ends; ``stop`` stops the fingers and ignores further follows until
-``release`` (or the watchdog) ends the grasp.
+The operator also drives a grasp continuously with ``follow`` messages (also on ``bus.command``):
+a *follow grasp*, the fingers following the operator's target width, force-capped, with a
+watchdog; see :mod:`teleop.follow`.
 
 A ``grasp_event`` *start* (naming the object when simulated) goes out before the grasp's
 first data and an *end* after its last. In between, a *loading_end* marks when the gripper's
@@ -92,7 +75,7 @@ from teleop.errors import (
     SimulationError,
     TeleopError,
 )
-from teleop.operator import WATCHDOG_S
+from teleop.follow import Follower
 from teleop.record import GraspRecord, Samples
 from teleop.scene import Scene
 from teleop.settings import Settings
@@ -190,14 +173,7 @@ class RobotNode:
         # Capture time of the newest sample published per stream ("width", "force"): the marker waits on them.
         self._newest_s: dict[str, float] = {}
         self._latest: dict[str, float] = {}  # the newest force (N) and width (m) published
-        # Follow grasps: the live object between the simulated fingers, the next one being prepared
-        # (its grasp number and the future of (object name, LiveObject, rng)), the operator's last follow.
-        self._live = None
-        self._next_live: tuple[int, Future] | None = None
-        self._last_follow_s = -math.inf
-        self._enable = False
-        self._stopped = False  # mode "stopped" while no grasp runs: after the watchdog
-        self._ended: set[str] = set()  # follow grasps that ended: never started again
+        self._follower = Follower(self)  # follow grasps (teleop.follow)
         self._refused: dict[tuple[str, str], float] = {}  # when each refusal last went out
         self._state: tuple | None = None  # the last robot_state sent
 
@@ -222,7 +198,7 @@ class RobotNode:
             thread.start()
             self._readers.append(thread)
         if self.simulated:
-            self._prepare_next()
+            self._follower.prepare_next()
         return self
 
     def close(self) -> None:
@@ -232,7 +208,7 @@ class RobotNode:
             thread.join(timeout=2.0)
         self._readers.clear()
         self._simulator.shutdown(wait=False, cancel_futures=True)
-        for device in (self.gripper, *self.cameras, self.load_cell):
+        for device in self._devices:
             device.close()
 
     def __enter__(self) -> RobotNode:
@@ -301,6 +277,15 @@ class RobotNode:
         self._send_state()
 
     @property
+    def _devices(self) -> tuple[Any, ...]:
+        return (self.gripper, *self.cameras, self.load_cell)
+
+    @property
+    def _next_live(self) -> tuple[int, Future] | None:
+        """The next live object being prepared (:attr:`teleop.follow.Follower.next_live`)."""
+        return self._follower.next_live
+
+    @property
     def busy(self) -> bool:
         """Whether a grasp is being prepared or run."""
         return self._grasp is not None
@@ -314,7 +299,7 @@ class RobotNode:
         action = "follow" if message.type == "follow" else body["action"]
         try:
             if message.type == "follow":
-                self._follow(body["grasp_id"], body["target_width_m"], body["enable"])
+                self._follower.follow(body["grasp_id"], body["target_width_m"], body["enable"])
             elif action == "start_grasp":
                 params = body["params"]
                 index = params.get("object_index")
@@ -322,8 +307,8 @@ class RobotNode:
                                  target_force_n=params.get("target_force_n"))
             elif action == "stop":
                 self.gripper.stop()
-                if self._grasp is not None and self._grasp.follow and self._grasp.phase == "following":
-                    self._grasp.phase = "stopped"
+                if self._grasp is not None and self._grasp.follow:
+                    self._follower.stop(self._grasp)
             elif action == "release":
                 self._release()
             else:
@@ -336,129 +321,12 @@ class RobotNode:
 
     def _release(self) -> None:
         grasp = self._grasp
-        if grasp is not None and grasp.follow and grasp.phase in ("following", "stopped"):
-            self.gripper.stop()
-            grasp.phase = "releasing"
-            grasp.motion = self.gripper.move_async(self.settings.gripper.max_width_m)
-        elif grasp is not None and grasp.follow:
-            raise DeviceError(f"follow grasp {grasp.grasp_id!r} is {grasp.phase}: nothing to release")
+        if grasp is not None and grasp.follow:
+            self._follower.release(grasp)
         elif self.simulated:
             log.info("release: a simulated grasp releases by itself")
         else:
             self.gripper.move_async(self.settings.gripper.max_width_m)
-
-    # ------------------------------------------------------------------ follow grasps
-
-    def _follow(self, grasp_id: str | None, target_width_m: float, enable: bool) -> None:
-        """One follow message (module docstring); raises what makes it refused."""
-        self._last_follow_s = self.clock()
-        self._enable = enable
-        grasp = self._grasp
-        if grasp is not None and not grasp.follow:
-            raise DeviceError(f"grasp {grasp.grasp_id!r} is a commanded grasp: the fingers cannot follow until it ends")
-        if grasp is not None and grasp_id is not None and grasp_id != grasp.grasp_id:
-            raise DeviceError(f"grasp {grasp.grasp_id!r} is in progress, not {grasp_id!r}")
-        if not enable:
-            if grasp is not None and grasp.phase == "following" and grasp.target_width_m is not None:
-                self.gripper.stop()
-                grasp.target_width_m = None
-            return
-        max_width = self.settings.gripper.max_width_m
-        if target_width_m > max_width:
-            raise InvalidCommandError(f"target_width_m = {target_width_m}: the fingers open to {max_width} m at most")
-        if grasp is None:
-            grasp = self._start_follow(grasp_id)
-        if grasp.phase not in ("preparing", "following"):
-            return  # stopped or releasing: the operator's targets no longer move the fingers
-        grasp.target_width_m = target_width_m
-        if grasp.phase == "following":
-            self._drive_fingers(grasp)
-
-    def _start_follow(self, grasp_id: str | None) -> _Grasp:
-        number = self._count
-        grasp_id = grasp_id or f"grasp-{number:04d}"
-        if grasp_id in self._ended:
-            raise DeviceError(f"grasp {grasp_id!r} has ended: name a new grasp to start one")
-        self._count += 1
-        self._stopped = False
-        grasp = self._grasp = _Grasp(grasp_id, None, follow=True, phase="following")
-        if not self.simulated:
-            self._announce("start")
-        elif self._live is not None:  # the object is still between the fingers: grasp it again
-            grasp.object_name = self._live.object.name
-            self._announce("start")
-        else:
-            if self._next_live is None or self._next_live[0] != number:
-                self._prepare_next(number)
-            grasp.phase, grasp.prepared = "preparing", self._next_live[1]
-        return grasp
-
-    def _prepare_next(self, number: int | None = None) -> None:
-        """Prepare the live object of grasp ``number`` (default: the next) in the simulator thread."""
-        number = self._count if number is None else number
-        self._next_live = (number, self._simulator.submit(self._prepare_live, number))
-
-    def _prepare_live(self, number: int) -> tuple[Any, np.random.Generator]:
-        from teleop.sim.live import prepare_object
-
-        obj = self.objects[number % len(self.objects)]
-        rng = np.random.default_rng(self.scene.seed * 10_000 + number)
-        return prepare_object(obj, settings=self.settings, rng=rng), rng
-
-    def _go_live(self, grasp: _Grasp) -> None:
-        """The prepared object is ready: put it between the simulated fingers and start the grasp."""
-        from teleop.devices.live_sim import LiveGrasp
-
-        self._next_live = None
-        try:
-            obj, rng = grasp.prepared.result()
-        except SimulationError as exc:
-            log.error("grasp %s cannot be simulated: %s", grasp.grasp_id, exc)
-            self._notice("refused", "follow", grasp.grasp_id, f"the object cannot be simulated: {exc}")
-            self._grasp = None
-            self._prepare_next()
-            return
-        self._live = LiveGrasp(obj, settings=self.settings, rng=rng, width_m=self.gripper.read_width()[1],
-                               clock=self.clock)
-        for device in (self.gripper, *self.cameras, self.load_cell):
-            device.live(self._live)
-        grasp.object_name, grasp.phase = obj.name, "following"
-        self._announce("start")
-        if grasp.target_width_m is not None:
-            self._drive_fingers(grasp)
-
-    def _drive_fingers(self, grasp: _Grasp) -> None:
-        """Move the fingers toward the grasp's target; with hardware, no closer once the load cell
-        reads the maximum force."""
-        capped = (not self.simulated and self._latest.get("force", 0.0) >= self.settings.gripper.target_force_n
-                  and grasp.target_width_m < self._latest.get("width", math.inf))
-        if capped:
-            self.gripper.stop()
-            self._force_limit(grasp)
-        else:
-            self.gripper.follow(grasp.target_width_m)
-
-    def _force_limit(self, grasp: _Grasp) -> None:
-        if not grasp.force_limited:
-            grasp.force_limited = True
-            self._notice("force_limit", "follow", grasp.grasp_id,
-                         f"the fingers reached the maximum force {self.settings.gripper.target_force_n} N "
-                         "and close no further")
-
-    def _watchdog(self, grasp: _Grasp) -> None:
-        """No follow came for WATCHDOG_S: stop the fingers and end the grasp."""
-        self.gripper.stop()
-        self.stats.watchdogs += 1
-        silent_s = self.clock() - self._last_follow_s
-        log.warning("grasp %s: no follow for %.3f s: fingers stopped", grasp.grasp_id, silent_s)
-        self._notice("watchdog", "follow", grasp.grasp_id,
-                     f"no follow command for {silent_s:.3f} s (watchdog {WATCHDOG_S} s): the fingers stopped")
-        self._enable = False
-        if grasp.phase == "preparing":
-            self._grasp = None
-        else:
-            self._end()
-        self._stopped = True
 
     # ------------------------------------------------------------------ notices and state
 
@@ -476,7 +344,7 @@ class RobotNode:
     def _mode(self) -> str:
         grasp = self._grasp
         if grasp is None:
-            return "stopped" if self._stopped else "idle"
+            return "stopped" if self._follower.stopped else "idle"
         if grasp.follow:
             return {"preparing": "following", "following": "following", "stopped": "stopped"}.get(
                 grasp.phase, "releasing")
@@ -487,7 +355,7 @@ class RobotNode:
         """A robot_state when anything in it changed (or after a heartbeat)."""
         grasp = self._grasp
         state = (self._mode(), None if grasp is None else grasp.grasp_id,
-                 grasp.target_width_m if grasp is not None and grasp.follow else None, self._enable)
+                 grasp.target_width_m if grasp is not None and grasp.follow else None, self._follower.enable)
         if state != self._state:
             self._state = state
             mode, grasp_id, target, enable = state
@@ -545,15 +413,9 @@ class RobotNode:
         if grasp is None:
             return
         now = self.clock()
-        if grasp.follow and grasp.phase in ("preparing", "following", "stopped") \
-                and now - self._last_follow_s > WATCHDOG_S:
-            self._watchdog(grasp)
-        elif grasp.follow and grasp.phase == "preparing" and grasp.prepared.done():
-            self._go_live(grasp)
-        elif grasp.follow and grasp.phase == "following":
-            if self._live is not None and self._live.at_force_limit():
-                self._force_limit(grasp)
-        elif grasp.phase == "preparing" and grasp.prepared.done():
+        if grasp.follow and self._follower.advance(grasp, now):
+            return
+        if grasp.phase == "preparing" and grasp.prepared.done():
             self._play(grasp)
         elif grasp.phase == "grasping" and grasp.motion.done():
             grasp.phase, grasp.phase_until_s = "holding", now + self.settings.gripper.hold_s
@@ -576,8 +438,8 @@ class RobotNode:
             self._end()
             return
         playback = GraspPlayback(record, clock=self.clock)
-        self._live = None
-        for device in (self.gripper, *self.cameras, self.load_cell):
+        self._follower.live = None
+        for device in self._devices:
             device.replay(playback)
         self._announce("start")
         playback.start(self.clock() - (_first_sample_s(record) - playback.origin_s) + APPROACH_LEAD_S)
@@ -635,15 +497,7 @@ class RobotNode:
         grasp = self._grasp
         log.info("grasp %s ended", grasp.grasp_id)
         self._grasp = None
-        if grasp.follow:
-            self._ended.add(grasp.grasp_id)
-        live = self._live
-        if live is not None and live.force_at(self.clock()) <= 0:  # the fingers let go: the object leaves
-            self._live = None
-            for device in (self.gripper, *self.cameras, self.load_cell):
-                device.live(None)
-        if self.simulated and self._live is None and self._next_live is None:
-            self._prepare_next()
+        self._follower.grasp_ended(grasp)
 
     # ------------------------------------------------------------------ publishing
 

@@ -1,0 +1,232 @@
+"""Follow grasps: the robot node's leader-follower handling (:class:`Follower`).
+
+The operator drives a grasp continuously with ``follow`` messages (also on ``bus.command``,
+about :data:`~teleop.operator.FOLLOW_RATE_HZ`): the fingers follow the message's target width,
+force-capped (:mod:`teleop.operator`). A follow counts only with ``enable`` (the dead-man) held:
+
+* while idle, it starts a *follow grasp* (``grasp_id`` names it, default ``grasp-<n>``; a grasp
+  that has ended is not started again). With the simulated backends the node simulates the
+  scene's next object live (:mod:`teleop.sim.live`, prepared ahead in its simulator thread: at
+  start for the first object, after each grasp for the next; the fingers may move once it is
+  ready) and the simulated devices sample it (:mod:`teleop.devices.live_sim`); an object still
+  between the closed fingers (a grasp ended by the watchdog) is grasped again;
+* during a follow grasp it moves the fingers' target (:meth:`~teleop.devices.gripper.Gripper.follow`).
+  The fingers never exceed the settings' maximum grasp force (``gripper.target_force_n``): the
+  simulated physics stalls there; with hardware the node stops closing once the load cell
+  reads it. Reaching it sends a ``robot_notice`` *force_limit*, once per grasp.
+
+A follow without enable stops the fingers where they are. When no follow came for
+:data:`~teleop.operator.WATCHDOG_S`, the node stops the fingers, sends a ``robot_notice``
+*watchdog* and ends the grasp (mode *stopped*). ``release`` ends a follow grasp: the fingers
+open, then the grasp ends; ``stop`` stops the fingers and ignores further follows until
+``release`` (or the watchdog) ends the grasp.
+
+A follow that cannot be carried out (during a scripted grasp, naming another grasp, beyond the
+gripper's width, ...) raises; the node answers it with a ``robot_notice`` *refused*
+(:mod:`teleop.node`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from concurrent.futures import Future
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from teleop.errors import DeviceError, InvalidCommandError, SimulationError
+from teleop.operator import WATCHDOG_S
+
+if TYPE_CHECKING:
+    from teleop.node import RobotNode, _Grasp
+
+__all__ = ["Follower"]
+
+log = logging.getLogger("teleop.node")  # the node's records, as before the split: its log filters apply
+
+
+class Follower:
+    """The follow state of one :class:`~teleop.node.RobotNode` and what it does with follows.
+
+    Holds the live object between the simulated fingers (``live``), the next one being prepared
+    (``next_live``: its grasp number and the future of (LiveObject, rng)), when the operator's last
+    follow came, the operator's enable, whether the watchdog stopped the node and the follow
+    grasps that ended.
+    """
+
+    def __init__(self, node: RobotNode):
+        self.node = node
+        self.live: Any = None
+        self.next_live: tuple[int, Future] | None = None
+        self.last_follow_s = -math.inf
+        self.enable = False
+        self.stopped = False  # mode "stopped" while no grasp runs: after the watchdog
+        self.ended: set[str] = set()  # follow grasps that ended: never started again
+
+    # ------------------------------------------------------------------ commands
+
+    def follow(self, grasp_id: str | None, target_width_m: float, enable: bool) -> None:
+        """One follow message (module docstring); raises what makes it refused."""
+        node = self.node
+        self.last_follow_s = node.clock()
+        self.enable = enable
+        grasp = node._grasp
+        if grasp is not None and not grasp.follow:
+            raise DeviceError(f"grasp {grasp.grasp_id!r} is a commanded grasp: the fingers cannot follow until it ends")
+        if grasp is not None and grasp_id is not None and grasp_id != grasp.grasp_id:
+            raise DeviceError(f"grasp {grasp.grasp_id!r} is in progress, not {grasp_id!r}")
+        if not enable:
+            if grasp is not None and grasp.phase == "following" and grasp.target_width_m is not None:
+                node.gripper.stop()
+                grasp.target_width_m = None
+            return
+        max_width = node.settings.gripper.max_width_m
+        if target_width_m > max_width:
+            raise InvalidCommandError(f"target_width_m = {target_width_m}: the fingers open to {max_width} m at most")
+        if grasp is None:
+            grasp = self._start(grasp_id)
+        if grasp.phase not in ("preparing", "following"):
+            return  # stopped or releasing: the operator's targets no longer move the fingers
+        grasp.target_width_m = target_width_m
+        if grasp.phase == "following":
+            self._drive_fingers(grasp)
+
+    def stop(self, grasp: _Grasp) -> None:
+        """``stop`` during a follow grasp: further follows are ignored until it ends."""
+        if grasp.phase == "following":
+            grasp.phase = "stopped"
+
+    def release(self, grasp: _Grasp) -> None:
+        """``release`` of a follow grasp: the fingers open, then the grasp ends."""
+        node = self.node
+        if grasp.phase not in ("following", "stopped"):
+            raise DeviceError(f"follow grasp {grasp.grasp_id!r} is {grasp.phase}: nothing to release")
+        node.gripper.stop()
+        grasp.phase = "releasing"
+        grasp.motion = node.gripper.move_async(node.settings.gripper.max_width_m)
+
+    def _start(self, grasp_id: str | None) -> _Grasp:
+        from teleop.node import _Grasp
+
+        node = self.node
+        number = node._count
+        grasp_id = grasp_id or f"grasp-{number:04d}"
+        if grasp_id in self.ended:
+            raise DeviceError(f"grasp {grasp_id!r} has ended: name a new grasp to start one")
+        node._count += 1
+        self.stopped = False
+        grasp = node._grasp = _Grasp(grasp_id, None, follow=True, phase="following")
+        if not node.simulated:
+            node._announce("start")
+        elif self.live is not None:  # the object is still between the fingers: grasp it again
+            grasp.object_name = self.live.object.name
+            node._announce("start")
+        else:
+            if self.next_live is None or self.next_live[0] != number:
+                self.prepare_next(number)
+            grasp.phase, grasp.prepared = "preparing", self.next_live[1]
+        return grasp
+
+    # ------------------------------------------------------------------ the live simulation
+
+    def prepare_next(self, number: int | None = None) -> None:
+        """Prepare the live object of grasp ``number`` (default: the next) in the simulator thread."""
+        node = self.node
+        number = node._count if number is None else number
+        self.next_live = (number, node._simulator.submit(self._prepare_live, number))
+
+    def _prepare_live(self, number: int) -> tuple[Any, np.random.Generator]:
+        from teleop.sim.live import prepare_object
+
+        node = self.node
+        obj = node.objects[number % len(node.objects)]
+        rng = np.random.default_rng(node.scene.seed * 10_000 + number)
+        return prepare_object(obj, settings=node.settings, rng=rng), rng
+
+    def _go_live(self, grasp: _Grasp) -> None:
+        """The prepared object is ready: put it between the simulated fingers and start the grasp."""
+        from teleop.devices.live_sim import LiveGrasp
+
+        node = self.node
+        self.next_live = None
+        try:
+            obj, rng = grasp.prepared.result()
+        except SimulationError as exc:
+            log.error("grasp %s cannot be simulated: %s", grasp.grasp_id, exc)
+            node._notice("refused", "follow", grasp.grasp_id, f"the object cannot be simulated: {exc}")
+            node._grasp = None
+            self.prepare_next()
+            return
+        self.live = LiveGrasp(obj, settings=node.settings, rng=rng, width_m=node.gripper.read_width()[1],
+                              clock=node.clock)
+        for device in node._devices:
+            device.live(self.live)
+        grasp.object_name, grasp.phase = obj.name, "following"
+        node._announce("start")
+        if grasp.target_width_m is not None:
+            self._drive_fingers(grasp)
+
+    def grasp_ended(self, grasp: _Grasp) -> None:
+        """A grasp ended: an object the fingers let go leaves them; the next one is prepared."""
+        node = self.node
+        if grasp.follow:
+            self.ended.add(grasp.grasp_id)
+        live = self.live
+        if live is not None and live.force_at(node.clock()) <= 0:  # the fingers let go: the object leaves
+            self.live = None
+            for device in node._devices:
+                device.live(None)
+        if node.simulated and self.live is None and self.next_live is None:
+            self.prepare_next()
+
+    # ------------------------------------------------------------------ progress
+
+    def advance(self, grasp: _Grasp, now: float) -> bool:
+        """Advance a follow grasp (watchdog, going live, force limit); False when nothing of
+        this applies (the node's own progress then does)."""
+        if grasp.phase in ("preparing", "following", "stopped") and now - self.last_follow_s > WATCHDOG_S:
+            self._watchdog(grasp)
+        elif grasp.phase == "preparing" and grasp.prepared.done():
+            self._go_live(grasp)
+        elif grasp.phase == "following":
+            if self.live is not None and self.live.at_force_limit():
+                self._force_limit(grasp)
+        else:
+            return False
+        return True
+
+    def _drive_fingers(self, grasp: _Grasp) -> None:
+        """Move the fingers toward the grasp's target; with hardware, no closer once the load cell
+        reads the maximum force."""
+        node = self.node
+        capped = (not node.simulated and node._latest.get("force", 0.0) >= node.settings.gripper.target_force_n
+                  and grasp.target_width_m < node._latest.get("width", math.inf))
+        if capped:
+            node.gripper.stop()
+            self._force_limit(grasp)
+        else:
+            node.gripper.follow(grasp.target_width_m)
+
+    def _force_limit(self, grasp: _Grasp) -> None:
+        if not grasp.force_limited:
+            grasp.force_limited = True
+            self.node._notice("force_limit", "follow", grasp.grasp_id,
+                              f"the fingers reached the maximum force {self.node.settings.gripper.target_force_n} N "
+                              "and close no further")
+
+    def _watchdog(self, grasp: _Grasp) -> None:
+        """No follow came for WATCHDOG_S: stop the fingers and end the grasp."""
+        node = self.node
+        node.gripper.stop()
+        node.stats.watchdogs += 1
+        silent_s = node.clock() - self.last_follow_s
+        log.warning("grasp %s: no follow for %.3f s: fingers stopped", grasp.grasp_id, silent_s)
+        node._notice("watchdog", "follow", grasp.grasp_id,
+                     f"no follow command for {silent_s:.3f} s (watchdog {WATCHDOG_S} s): the fingers stopped")
+        self.enable = False
+        if grasp.phase == "preparing":
+            node._grasp = None
+        else:
+            node._end()
+        self.stopped = True
