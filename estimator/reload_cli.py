@@ -31,12 +31,14 @@ from estimator.errors import ModelError
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.errors import BusError, TeleopError
 from teleop.live import add_endpoint_arguments, bus_from_args
-from teleop.settings import default_settings_path, load_settings
+from teleop.settings import BusSettings, default_settings_path, load_settings
 
 __all__ = ["RESEND_S", "reload_model"]
 
 RESEND_S = 0.5
 DEFAULT_TIMEOUT_S = 30.0
+# A reload that just ended lets go of the control port a moment after its socket closed.
+BIND_WAIT_S = 2.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -90,6 +92,22 @@ def reload_model(path: str, *, command: Publisher, answers: Subscriber, timeout_
             return dict(message.body)
 
 
+def _control_publisher(bus: BusSettings) -> Publisher:
+    """Bind the control endpoint, waiting up to :data:`BIND_WAIT_S` for a reload that just ended."""
+    deadline = time.monotonic() + BIND_WAIT_S
+    while True:
+        try:
+            return Publisher.from_settings(bus, bus.control, lossless=False,
+                                           source=f"reload-{os.getpid()}")  # its own: seq from 0
+        except BusError as exc:
+            if time.monotonic() < deadline:
+                time.sleep(0.05)
+                continue
+            raise TeleopError(f"cannot send on the control endpoint {bus.control} ({exc}): another estimator "
+                              "reload runs, or copy the model's files into the folder the service "
+                              "serves") from exc
+
+
 def run(args: argparse.Namespace) -> int:
     if args.timeout_s <= 0:
         raise TeleopError(f"--timeout-s {args.timeout_s:g}: expected a time > 0")
@@ -103,14 +121,7 @@ def run(args: argparse.Namespace) -> int:
     except BusError as exc:
         raise TeleopError(f"cannot listen to the estimator service on {bus.estimate_pub}: {exc}") from exc
     with answers:
-        try:
-            command = Publisher.from_settings(bus, bus.control, lossless=False,
-                                              source=f"reload-{os.getpid()}")  # its own: seq from 0
-        except BusError as exc:
-            raise TeleopError(f"cannot send on the control endpoint {bus.control} ({exc}): another estimator "
-                              "reload runs, or copy the model's files into the folder the service "
-                              "serves") from exc
-        with command:
+        with _control_publisher(bus) as command:
             answer = reload_model(path, command=command, answers=answers, timeout_s=args.timeout_s)
     loaded = answer["event"] == "loaded"
     if loaded:
