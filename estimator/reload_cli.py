@@ -120,9 +120,8 @@ def run(args: argparse.Namespace) -> int:
         answers = Subscriber.from_settings(bus, bus.estimate_pub, ("model_event",))
     except BusError as exc:
         raise TeleopError(f"cannot listen to the estimator service on {bus.estimate_pub}: {exc}") from exc
-    with answers:
-        with _control_publisher(bus) as command:
-            answer = reload_model(path, command=command, answers=answers, timeout_s=args.timeout_s)
+    with answers, _control_publisher(bus) as command:
+        answer = reload_model(path, command=command, answers=answers, timeout_s=args.timeout_s)
     loaded = answer["event"] == "loaded"
     if loaded:
         print(f"estimator reload: the service serves {answer['model']} ({answer['path']}) from its next grasp on",

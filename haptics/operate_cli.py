@@ -17,7 +17,7 @@ import sys
 import textwrap
 
 from haptics.inputs import BACKENDS as INPUT_BACKENDS
-from haptics.inputs import open_input
+from haptics.inputs import make_input
 from haptics.operator_link import OperatorLink
 from haptics.operator_loop import LoopStatus, OperatorLoop
 from haptics.settings import operator_settings
@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
         raise SettingsError("haptics operate needs a terminal for its screen; run it in one (or in tmux), "
                             "or pass --headless")
     catalogue = () if args.headless else load_catalogue(args.objects)
-    device = open_input(name, settings)
+    device = make_input(name, settings)
     with device, OperatorLink.from_settings(bus) as link:
         loop = OperatorLoop(link, device, settings, force_n=args.force)
         if args.headless:

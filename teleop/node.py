@@ -65,9 +65,9 @@ import numpy as np
 
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
-from teleop.devices.camera import TactileCamera, open_camera
-from teleop.devices.gripper import GraspStop, Gripper, open_gripper
-from teleop.devices.loadcell import LoadCell, open_load_cell
+from teleop.devices.camera import TactileCamera, make_camera
+from teleop.devices.gripper import GraspStop, Gripper, make_gripper
+from teleop.devices.loadcell import LoadCell, make_load_cell
 from teleop.errors import (
     DeviceError,
     DeviceTimeoutError,
@@ -161,9 +161,9 @@ class RobotNode:
             raise SimulationError("the simulated robot needs a scene to know what to grasp")
         self.objects = () if scene is None else tuple(o for o in scene.objects for _ in range(scene.grasps_per_object))
         self.stats = NodeStats()
-        self.gripper: Gripper = open_gripper(settings.gripper)
-        self.cameras: list[TactileCamera] = [open_camera(s) for s in settings.sensors]
-        self.load_cell: LoadCell = open_load_cell(settings.load_cell)
+        self.gripper: Gripper = make_gripper(settings.gripper)
+        self.cameras: list[TactileCamera] = [make_camera(s) for s in settings.sensors]
+        self.load_cell: LoadCell = make_load_cell(settings.load_cell)
         self._captured: queue.Queue[tuple[str, Any]] = queue.Queue()
         self._stop_readers = threading.Event()
         self._readers: list[threading.Thread] = []

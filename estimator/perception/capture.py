@@ -34,7 +34,7 @@ from estimator.errors import CalibrationError
 from estimator.perception.press_circles import _change_magnitude
 from estimator.perception.presses import IMAGE_SUFFIXES
 from estimator.perception.warp import warp_points
-from teleop.devices.camera import TactileCamera, open_camera
+from teleop.devices.camera import TactileCamera, make_camera
 from teleop.errors import DeviceError
 from teleop.rig.camera_calibration import READ_TIMEOUT_S, no_contact_frame
 from teleop.settings import SensorSettings, load_settings
@@ -245,7 +245,7 @@ def capture_to_folder(args: argparse.Namespace) -> Path:
     settings = load_settings(args.settings)
     sensor = settings.sensor(args.finger or settings.sensing.finger)
     try:
-        with open_camera(sensor) as camera:
+        with make_camera(sensor) as camera:
             reference, presses = capture_presses(
                 camera, n_presses=args.capture_presses, tiles=tiles, press_timeout_s=args.press_timeout_s,
                 say=lambda text: print(text, file=sys.stderr, flush=True))

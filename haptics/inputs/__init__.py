@@ -3,7 +3,7 @@
 
 Typical use::
 
-    with open_input(None, settings) as device:   # the settings' [operator] input
+    with make_input(None, settings) as device:   # the settings' [operator] input
         reading = device.read(timeout_s=0.02)
 """
 
@@ -12,7 +12,7 @@ from haptics.inputs.base import (
     OperatorInput,
     OperatorInputDevice,
     input_class,
-    open_input,
+    make_input,
 )
 
-__all__ = ["BACKENDS", "OperatorInput", "OperatorInputDevice", "input_class", "open_input"]
+__all__ = ["BACKENDS", "OperatorInput", "OperatorInputDevice", "input_class", "make_input"]

@@ -15,7 +15,7 @@ An operator input device tells the operator side what the person's hand does: ho
 
 Typical use (python-can style: built unconnected, then a context manager)::
 
-    with open_input("gamepad", settings) as device:
+    with make_input("gamepad", settings) as device:
         while True:
             reading = device.read(timeout_s=0.02)
             device.feel(force_n=state.force_n, width_m=state.width_m, stiffness=None)
@@ -55,7 +55,7 @@ from teleop.errors import BackendNotFoundError
 from teleop.operator import BUTTONS
 from teleop.settings import Settings
 
-__all__ = ["BACKENDS", "OperatorInput", "OperatorInputDevice", "input_class", "open_input"]
+__all__ = ["BACKENDS", "OperatorInput", "OperatorInputDevice", "input_class", "make_input"]
 
 #: Backend name -> "module:class"; the module is imported only when the backend is used.
 BACKENDS = {
@@ -251,7 +251,7 @@ def input_class(name: str) -> type[OperatorInputDevice]:
         raise InputBackendNotFoundError(str(exc)) from exc
 
 
-def open_input(name: str | None, settings: Settings, **options: Any) -> OperatorInputDevice:
+def make_input(name: str | None, settings: Settings, **options: Any) -> OperatorInputDevice:
     """The operator input backend ``name`` (None: the settings' ``[operator] input``), configured
     from ``settings``, not yet connected: use it in a ``with`` block.
 

@@ -3,9 +3,9 @@
 ==============  ===============================  =========================================
 family          open with                        backends (``BACKENDS`` in the module)
 ==============  ===============================  =========================================
-gripper         ``gripper.open_gripper``         ``sim`` (playback), ``franky``
-tactile camera  ``camera.open_camera``           ``sim`` (playback), ``opencv``
-load cell       ``loadcell.open_load_cell``      ``sim`` (playback), ``serial``, ``tcp``
+gripper         ``gripper.make_gripper``         ``sim`` (playback), ``franky``
+tactile camera  ``camera.make_camera``           ``sim`` (playback), ``opencv``
+load cell       ``loadcell.make_load_cell``      ``sim`` (playback), ``serial``, ``tcp``
 ==============  ===============================  =========================================
 
 Every device has the lifecycle of :class:`teleop.devices.base.Device`. Backends are

@@ -1,4 +1,4 @@
-"""The tactile camera family: base class, frame type, backend table and :func:`open_camera`.
+"""The tactile camera family: base class, frame type, backend table and :func:`make_camera`.
 
 A camera hands out every frame it captured, in order, each stamped on arrival
 (``time.monotonic()`` seconds) and kept encoded as captured (an MJPG stream's own JPEG
@@ -17,7 +17,7 @@ from teleop.devices.base import Device, check_timeout, load_backend
 from teleop.errors import DeviceError, DeviceTimeoutError
 from teleop.settings import SensorSettings
 
-__all__ = ["BACKENDS", "CameraFrame", "TactileCamera", "open_camera"]
+__all__ = ["BACKENDS", "CameraFrame", "TactileCamera", "make_camera"]
 
 BACKENDS = {
     "sim": "teleop.devices.playback:SimulatedCamera",
@@ -25,7 +25,7 @@ BACKENDS = {
 }
 
 
-def open_camera(sensor: SensorSettings, *, backend: str | None = None, **options) -> TactileCamera:
+def make_camera(sensor: SensorSettings, *, backend: str | None = None, **options) -> TactileCamera:
     """An unconnected camera for ``sensor`` of ``backend`` (default ``sensor.camera_backend``).
 
     ``options`` go to the backend (``playback=`` for ``sim``; ``source=`` for ``opencv``).

@@ -1,4 +1,4 @@
-"""The parallel gripper family: base class, backend table and :func:`open_gripper`.
+"""The parallel gripper family: base class, backend table and :func:`make_gripper`.
 
 A gripper moves its fingers to a width, grasps with a force, and reports its width.
 On a Franka hand one width read takes about 0.1 s, so a background reader polls the
@@ -32,7 +32,7 @@ from teleop.errors import DeviceError, InvalidCommandError
 from teleop.record import Samples
 from teleop.settings import GripperSettings
 
-__all__ = ["BACKENDS", "FOLLOW_SPEED_M_S", "MAX_FORCE_N", "MAX_SPEED_M_S", "GraspStop", "Gripper", "open_gripper"]
+__all__ = ["BACKENDS", "FOLLOW_SPEED_M_S", "MAX_FORCE_N", "MAX_SPEED_M_S", "GraspStop", "Gripper", "make_gripper"]
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +45,7 @@ MAX_FORCE_N = 140.0  # the Franka hand's peak grasp force
 FOLLOW_SPEED_M_S = 0.1  # default finger speed while following an operator: faster than a grasp closes
 
 
-def open_gripper(settings: GripperSettings, *, backend: str | None = None, **options) -> Gripper:
+def make_gripper(settings: GripperSettings, *, backend: str | None = None, **options) -> Gripper:
     """An unconnected gripper of ``backend`` (default ``settings.backend``).
 
     ``options`` go to the backend (e.g. ``playback=`` for ``sim``).

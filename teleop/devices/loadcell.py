@@ -1,4 +1,4 @@
-"""The load-cell family: base class, backend table and :func:`open_load_cell`.
+"""The load-cell family: base class, backend table and :func:`make_load_cell`.
 
 A load cell streams normal force (N) samples stamped with ``time.monotonic()`` seconds.
 HX711 backends convert raw counts with ``LoadCellSettings``:
@@ -15,7 +15,7 @@ from teleop.errors import DeviceTimeoutError, InvalidCommandError
 from teleop.record import Samples
 from teleop.settings import LoadCellSettings
 
-__all__ = ["BACKENDS", "LoadCell", "open_load_cell"]
+__all__ = ["BACKENDS", "LoadCell", "make_load_cell"]
 
 BACKENDS = {
     "sim": "teleop.devices.playback:SimulatedLoadCell",
@@ -26,7 +26,7 @@ BACKENDS = {
 TARE_WINDOW_S = 0.25  # default tare: average over this much of the sample stream
 
 
-def open_load_cell(settings: LoadCellSettings, *, backend: str | None = None, **options) -> LoadCell:
+def make_load_cell(settings: LoadCellSettings, *, backend: str | None = None, **options) -> LoadCell:
     """An unconnected load cell of ``backend`` (default ``settings.backend``).
 
     ``options`` go to the backend (``playback=`` for ``sim``).

@@ -26,13 +26,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from teleop.devices.camera import CameraFrame, TactileCamera, open_camera
-from teleop.devices.loadcell import LoadCell, open_load_cell
+from teleop.devices.camera import CameraFrame, TactileCamera, make_camera
+from teleop.devices.loadcell import LoadCell, make_load_cell
 from teleop.errors import DeviceTimeoutError, TeleopError
 from teleop.record import Samples
 from teleop.rig.camera_latency import LatencyFit, image_change, measure_latency
+from teleop.rig.conclude import conclude, say
 from teleop.rig.gel_corners import CornerFit, draw_corners, find_gel_corners
-from teleop.rig.outcome import conclude, say
 from teleop.settings import SensorSettings, Settings, load_settings
 
 __all__ = ["add_arguments", "no_contact_frame", "record_tap", "run"]
@@ -118,7 +118,7 @@ def _corners(reference: np.ndarray, sensor: SensorSettings, png: Path) -> Corner
 
 
 def _latency(camera: TactileCamera, settings: Settings, duration_s: float) -> LatencyFit:
-    with open_load_cell(settings.load_cell) as cell:
+    with make_load_cell(settings.load_cell) as cell:
         say(f"tap the gel of finger {camera.sensor.finger!r} once, firmly, over the load cell, now "
              f"(recording {duration_s:g} s)")
         frames, force = record_tap(camera, cell, duration_s=duration_s)
@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
     refused: list[str] = []
     changes: dict = {}
     # Device errors name the device and its source (URL, port) already.
-    with open_camera(sensor) as camera:
+    with make_camera(sensor) as camera:
         if sensor.model != "mini":
             png = Path(args.out_png) if args.out_png else _default_png(path, sensor.finger)
             fit = _corners(no_contact_frame(camera), sensor, png)

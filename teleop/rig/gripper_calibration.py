@@ -34,11 +34,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.devices.gripper import Gripper, open_gripper
-from teleop.devices.loadcell import LoadCell, open_load_cell
+from teleop.devices.gripper import Gripper, make_gripper
+from teleop.devices.loadcell import LoadCell, make_load_cell
 from teleop.errors import DeviceError, InvalidCommandError, SettingsError
+from teleop.rig.conclude import conclude
 from teleop.rig.load_cell_calibration import load_cell_source
-from teleop.rig.outcome import conclude
 from teleop.settings import Settings, load_settings
 
 __all__ = ["Squeeze", "StiffnessFit", "fit_finger_stiffness", "squeeze_reference"]
@@ -249,7 +249,7 @@ def _check(args: argparse.Namespace, settings: Settings) -> tuple[float, list[fl
 def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
     width_m, forces = _check(args, settings)
-    gripper, cell = open_gripper(settings.gripper), open_load_cell(settings.load_cell)
+    gripper, cell = make_gripper(settings.gripper), make_load_cell(settings.load_cell)
     try:
         gripper.connect()
         gripper.move(min(width_m + CLEARANCE_M, gripper.max_width_m))

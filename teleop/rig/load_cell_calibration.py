@@ -37,9 +37,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.devices.loadcell import LoadCell, open_load_cell
+from teleop.devices.loadcell import LoadCell, make_load_cell
 from teleop.errors import DeviceError, DeviceTimeoutError, SettingsError, TeleopError
-from teleop.rig.outcome import conclude, say
+from teleop.rig.conclude import conclude, say
 from teleop.settings import LoadCellSettings, load_settings
 
 __all__ = ["G_M_S2", "Level", "LoadCellFit", "fit_load_cell", "load_cell_source", "read_level", "wait_for_level"]
@@ -170,7 +170,7 @@ def connect_counts_cell(settings: LoadCellSettings) -> LoadCell:
     if settings.backend == "sim":
         raise SettingsError("load_cell.backend = 'sim' delivers newtons, not counts: nothing to calibrate; "
                             "set the backend to 'serial' or 'tcp'")
-    cell = open_load_cell(dataclasses.replace(settings, counts_per_n=1.0, tare_counts=0))
+    cell = make_load_cell(dataclasses.replace(settings, counts_per_n=1.0, tare_counts=0))
     try:
         return cell.connect()
     except DeviceError as exc:

@@ -43,9 +43,9 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from haptics.settings import display_settings
-from teleop.devices.camera import open_camera
-from teleop.devices.gripper import open_gripper
-from teleop.devices.loadcell import open_load_cell
+from teleop.devices.camera import make_camera
+from teleop.devices.gripper import make_gripper
+from teleop.devices.loadcell import make_load_cell
 from teleop.errors import ComplianceTeleopError, DeviceTimeoutError
 from teleop.live import ENDPOINTS
 from teleop.rig.load_cell_calibration import load_cell_source
@@ -97,7 +97,7 @@ def _fixes(settings: Settings) -> dict[str, str]:
 
 def _camera_probe(settings: Settings, sensor: Any, playback: Any) -> _Probe:
     options = {"playback": playback} if sensor.camera_backend == "sim" else {}
-    camera = open_camera(sensor, **options)
+    camera = make_camera(sensor, **options)
     first: list[Any] = []
 
     def read() -> list[float]:
@@ -161,14 +161,14 @@ def _simulated_playback(settings: Settings) -> Any:
 
 def _gripper_probe(settings: Settings, playback: Any, fix: str) -> _Probe:
     options = {"playback": playback} if settings.gripper.backend == "sim" else {}
-    gripper = open_gripper(settings.gripper, **options)
+    gripper = make_gripper(settings.gripper, **options)
     where = settings.gripper.host if settings.gripper.backend == "franky" else "the simulated gripper"
     return _Probe("gripper", gripper, lambda: gripper.widths(timeout_s=READ_SLICE_S).t_s.tolist(),
                   settings.gripper.width_read_hz, where, fix)
 
 
 def _load_cell_probe(settings: Settings, playback: Any, fix: str) -> _Probe:
-    cell = open_load_cell(settings.load_cell, **({"playback": playback} if settings.load_cell.backend == "sim" else {}))
+    cell = make_load_cell(settings.load_cell, **({"playback": playback} if settings.load_cell.backend == "sim" else {}))
 
     def read() -> list[float]:
         try:

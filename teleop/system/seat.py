@@ -14,7 +14,7 @@ from __future__ import annotations
 import threading
 from typing import TYPE_CHECKING
 
-from haptics.inputs.base import open_input
+from haptics.inputs.base import make_input
 from haptics.operator_link import ROBOT_TOPICS, OperatorLink
 from haptics.operator_loop import OperatorLoop
 from teleop.bus.pubsub import Subscriber
@@ -42,7 +42,7 @@ class SimulatedSeat:
     """
 
     def __init__(self, system: LiveSystem, settings: Settings, *, grasps: int):
-        self.device = open_input("sim", settings, grasps=grasps)
+        self.device = make_input("sim", settings, grasps=grasps)
         ep = system.endpoints
         self._subscriber = Subscriber([ep["robot_pub"], ep["estimate_pub"], ep["display_pub"]],
                                       (*ROBOT_TOPICS, "estimate", "display"),

@@ -8,7 +8,7 @@ import pytest
 
 from haptics.devices.sim import SimulatedDisplay
 from haptics.errors import InputDeviceError, InputNotConnectedError, ProtocolError
-from haptics.inputs import open_input
+from haptics.inputs import make_input
 from haptics.inputs.display import DisplayInput
 
 
@@ -97,7 +97,7 @@ def test_a_display_that_stops_reporting_reads_not_enabled(make_grip_display):
 
 def test_the_simulated_display_s_grip(settings):
     display = SimulatedDisplay()
-    with open_input("display", settings, display=display) as device:
+    with make_input("display", settings, display=display) as device:
         assert device.read(timeout_s=0.01).enable is False  # nothing reported yet
         display.firmware.set_grip(0.3, force_n=2.0, buttons=("next",))
         display.firmware.set_grip(0.35, force_n=2.5)
@@ -108,7 +108,7 @@ def test_the_simulated_display_s_grip(settings):
 
 def test_a_malformed_grip_report_is_refused_and_the_link_stays(settings):
     display = SimulatedDisplay()
-    with open_input("display", settings, display=display) as device:
+    with make_input("display", settings, display=display) as device:
         garbled = bytearray(display.firmware.set_grip(0.5))
         display.firmware.next_input_report()
         garbled[3] ^= 0x10
@@ -122,11 +122,11 @@ def test_a_malformed_grip_report_is_refused_and_the_link_stays(settings):
 
 def test_a_simulated_version_1_display_is_refused(settings):
     with pytest.raises(InputDeviceError, match="display speaks protocol version 1: it has no grip"):
-        open_input("display", settings, display=SimulatedDisplay(protocol_version=1)).connect()
+        make_input("display", settings, display=SimulatedDisplay(protocol_version=1)).connect()
 
 
 def test_by_default_it_owns_a_display_made_from_the_settings(settings):
-    device = open_input("display", settings)
+    device = make_input("display", settings)
     assert isinstance(device.display, SimulatedDisplay)
     with device:
         assert device.display.connected

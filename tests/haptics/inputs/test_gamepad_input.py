@@ -8,7 +8,7 @@ import pytest
 
 import haptics.inputs.gamepad as gamepad_module
 from haptics.errors import InputDeviceError, InputNotConnectedError
-from haptics.inputs import open_input
+from haptics.inputs import make_input
 from haptics.inputs.gamepad import GamepadInput
 from haptics.settings import OperatorSettings
 
@@ -153,7 +153,7 @@ def test_the_first_device_with_the_trigger_is_found(bus, settings, make_pad):
     pad = make_pad("/dev/input/event3", "Pad")
     _plug(bus, **{"/dev/input/event10": mouse, "/dev/input/event2": keyboard, "/dev/input/event3": pad,
                   "/dev/input/event1": OSError(errno.EACCES, "Permission denied")})
-    with open_input("gamepad", settings) as device:
+    with make_input("gamepad", settings) as device:
         pad.move("ABS_RZ", 255)
         assert device.read().grip == 1.0
         assert "event3" in repr(device)
@@ -166,24 +166,24 @@ def test_no_suitable_device_lists_what_was_seen(bus, settings, make_pad):
     with pytest.raises(InputDeviceError, match=r"no gamepad with the trigger axis ABS_RZ .*event0 'Mouse': "
                                                r"no absolute axis ABS_RZ; /dev/input/event1 \(Permission denied\)"
                                                r".*gamepad_path"):
-        open_input("gamepad", settings).connect()
+        make_input("gamepad", settings).connect()
     bus.clear()
     with pytest.raises(InputDeviceError, match="no readable /dev/input/event"):
-        open_input("gamepad", settings).connect()
+        make_input("gamepad", settings).connect()
 
 
 def test_the_path_from_the_settings_is_used(bus, with_operator, make_pad):
     pad = make_pad("/dev/input/by-id/usb-pad-event-joystick")
     _plug(bus, **{pad.path: pad, "/dev/input/event0": make_pad("/dev/input/event0")})
-    with open_input("gamepad", with_operator(gamepad_path=pad.path)) as device:
+    with make_input("gamepad", with_operator(gamepad_path=pad.path)) as device:
         pad.key("BTN_TR", 1)
         assert device.read().enable is True
     with pytest.raises(InputDeviceError, match="cannot open gamepad /dev/input/nope: No such file"):
-        open_input("gamepad", with_operator(gamepad_path="/dev/input/nope")).connect()
+        make_input("gamepad", with_operator(gamepad_path="/dev/input/nope")).connect()
     bus["/dev/input/locked"] = OSError(errno.EACCES, "Permission denied")
     with pytest.raises(InputDeviceError, match="Permission denied .*'input' group"):
-        open_input("gamepad", with_operator(gamepad_path="/dev/input/locked")).connect()
+        make_input("gamepad", with_operator(gamepad_path="/dev/input/locked")).connect()
     bus["/dev/input/event9"] = make_pad("/dev/input/event9", "Mouse", axes={"ABS_X": (0, 9)})
     with pytest.raises(InputDeviceError, match="event9 \\(Mouse\\) has no absolute axis ABS_RZ: set"):
-        open_input("gamepad", with_operator(gamepad_path="/dev/input/event9")).connect()
+        make_input("gamepad", with_operator(gamepad_path="/dev/input/event9")).connect()
     assert bus["/dev/input/event9"].closed

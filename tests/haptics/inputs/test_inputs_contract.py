@@ -9,7 +9,7 @@ import time
 import pytest
 
 from haptics.errors import InputBackendNotFoundError, InputNotConnectedError, OperatorInputError
-from haptics.inputs import BACKENDS, OperatorInput, input_class, open_input
+from haptics.inputs import BACKENDS, OperatorInput, input_class, make_input
 from haptics.settings import INPUT_BACKENDS
 from teleop.operator import BUTTONS
 
@@ -137,13 +137,13 @@ def test_the_table_names_every_backend_the_settings_allow():
 
 def test_an_unknown_backend_is_named_with_the_ones_there_are(settings):
     with pytest.raises(InputBackendNotFoundError, match=r"'joystick'.*display, gamepad, keyboard, sim"):
-        open_input("joystick", settings)
+        make_input("joystick", settings)
 
 
-def test_open_input_builds_each_backend_unconnected(settings, input_rig):
+def test_make_input_builds_each_backend_unconnected(settings, input_rig):
     name = input_rig.device.name
     options = {"gamepad": {"device": input_rig.fake}, "display": {"display": input_rig.fake}}.get(name, {})
-    device = open_input(name, settings, **options)
+    device = make_input(name, settings, **options)
     assert type(device) is type(input_rig.device) and not device.connected
     with device:
         assert isinstance(device.read(timeout_s=0.0), OperatorInput)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from haptics.errors import InputNotConnectedError, OperatorInputError
-from haptics.inputs import OperatorInput, open_input
+from haptics.inputs import OperatorInput, make_input
 from haptics.inputs.keyboard import KEYS, KeyboardInput
 from teleop.operator import BUTTONS
 
@@ -92,7 +92,7 @@ def test_keys_before_connect_are_refused():
 
 
 def test_the_step_comes_from_the_settings(settings, with_operator):
-    with open_input("keyboard", with_operator(keyboard_grip_step=0.2)) as device:
+    with make_input("keyboard", with_operator(keyboard_grip_step=0.2)) as device:
         assert device.grip_step == 0.2
-    with open_input("keyboard", settings, grip_step=0.1) as device:
+    with make_input("keyboard", settings, grip_step=0.1) as device:
         assert device.grip_step == 0.1

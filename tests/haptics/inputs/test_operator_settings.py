@@ -8,7 +8,7 @@ import pytest
 
 import teleop.settings
 from haptics.errors import OperatorInputError
-from haptics.inputs import OperatorInput, open_input
+from haptics.inputs import OperatorInput, make_input
 from haptics.inputs.keyboard import KeyboardInput
 from haptics.settings import INPUT_BACKENDS, OperatorSettings, operator_settings
 from teleop.errors import SettingsError
@@ -23,11 +23,11 @@ def test_without_a_table_the_defaults_apply(settings):
     assert (defaults.keyboard_grip_step, defaults.sim_seed) == (0.05, 0)
     assert defaults.gamepad_buttons() == {"enable": "BTN_TR", "grasp": "BTN_SOUTH", "release": "BTN_EAST",
                                           "stop": "BTN_WEST", "next": "BTN_NORTH", "quit": "BTN_SELECT"}
-    assert isinstance(open_input(None, settings), KeyboardInput)
+    assert isinstance(make_input(None, settings), KeyboardInput)
 
 
 def test_the_input_named_in_the_settings_is_opened(with_operator):
-    assert open_input(None, with_operator(input="sim", sim_seed=4)).seed == 4
+    assert make_input(None, with_operator(input="sim", sim_seed=4)).seed == 4
 
 
 @pytest.mark.parametrize(("keys", "match"), [

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from haptics.errors import OperatorInputError
-from haptics.inputs import open_input
+from haptics.inputs import make_input
 from haptics.inputs.sim import SimulatedInput
 from teleop.operator import grip_to_width_m
 
@@ -130,9 +130,9 @@ def test_grasp_k_does_not_depend_on_what_came_before():
 
 
 def test_connect_starts_over_and_the_seed_comes_from_the_settings(settings, with_operator):
-    device = open_input("sim", with_operator(sim_seed=5))
+    device = make_input("sim", with_operator(sim_seed=5))
     assert (device.seed, device.max_width_m, device.max_force_n) == (5, 0.08, 30.0)
-    assert open_input("sim", settings, seed=9).seed == 9
+    assert make_input("sim", settings, seed=9).seed == 9
     with device:
         device.read()
         assert device.operator is not None

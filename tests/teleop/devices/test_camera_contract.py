@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from teleop.devices.camera import BACKENDS, TactileCamera, open_camera
+from teleop.devices.camera import BACKENDS, TactileCamera, make_camera
 from teleop.devices.playback import GraspPlayback
 from teleop.errors import (
     BackendNotFoundError,
@@ -39,16 +39,16 @@ def rig(request, make_record, jpeg_frames, mjpg_server, hardware_env) -> Rig:
     if request.param == "sim":
         record = make_record(duration_s=N_FRAMES / FPS, camera_hz=FPS, frame_shape=(120, 160, 3))
         playback = GraspPlayback(record)
-        camera = open_camera(SensorSettings(finger="right"), playback=playback)
+        camera = make_camera(SensorSettings(finger="right"), playback=playback)
         rig = Rig(camera, list(record.stream("right").encoded), (120, 160, 3), playback.start)
     elif request.param == "opencv":
         jpegs = jpeg_frames(N_FRAMES)
         server = mjpg_server(jpegs, fps=FPS, then="stall")
-        camera = open_camera(SensorSettings(camera_backend="opencv", camera_source=server.url), read_timeout_s=1.0)
+        camera = make_camera(SensorSettings(camera_backend="opencv", camera_source=server.url), read_timeout_s=1.0)
         rig = Rig(camera, jpegs, (480, 640, 3))
     else:
         sensor = SensorSettings(camera_backend="opencv", camera_source=hardware_env("COMPLIANCE_TELEOP_CAMERA"))
-        rig = Rig(open_camera(sensor), None, (sensor.raw_height_px, sensor.raw_width_px, 3))
+        rig = Rig(make_camera(sensor), None, (sensor.raw_height_px, sensor.raw_width_px, 3))
     yield rig
     rig.camera.close()
 
@@ -100,13 +100,13 @@ def test_bad_timeouts_are_refused(rig):
 
 def test_unknown_backend_lists_the_names():
     with pytest.raises(BackendNotFoundError) as info:
-        open_camera(SensorSettings(), backend="gstreamer")
+        make_camera(SensorSettings(), backend="gstreamer")
     assert all(name in str(info.value) for name in BACKENDS)
 
 
 def test_opencv_stream_that_ends_is_an_error(jpeg_frames, mjpg_server):
     server = mjpg_server(jpeg_frames(3), fps=60.0, then="close")
-    with open_camera(SensorSettings(camera_backend="opencv", camera_source=server.url), read_timeout_s=1.0) as camera:
+    with make_camera(SensorSettings(camera_backend="opencv", camera_source=server.url), read_timeout_s=1.0) as camera:
         assert camera.passthrough
         for _ in range(3):
             camera.read(timeout_s=2.0)
@@ -115,19 +115,19 @@ def test_opencv_stream_that_ends_is_an_error(jpeg_frames, mjpg_server):
 
 
 def test_opencv_source_that_cannot_open_is_an_error():
-    camera = open_camera(
+    camera = make_camera(
         SensorSettings(camera_backend="opencv", camera_source="http://127.0.0.1:1/?action=stream"), read_timeout_s=0.5
     )
     with pytest.raises(DeviceError, match="cannot open"):
         camera.connect()
     with pytest.raises(DeviceError, match="no source"):
-        open_camera(SensorSettings(camera_backend="opencv"))
+        make_camera(SensorSettings(camera_backend="opencv"))
 
 
 def test_sim_camera_waits_for_the_replay_and_serves_its_finger_only(make_record):
     record = make_record(duration_s=0.2)
     playback = GraspPlayback(record)
-    with open_camera(SensorSettings(finger="left"), playback=playback) as camera:
+    with make_camera(SensorSettings(finger="left"), playback=playback) as camera:
         with pytest.raises(DeviceTimeoutError):
             camera.read(timeout_s=0.1)  # not started: nothing is due
         playback.start()
@@ -135,7 +135,7 @@ def test_sim_camera_waits_for_the_replay_and_serves_its_finger_only(make_record)
     assert frame.encoded == record.stream("left").encoded[0]
     assert frame.t_s == pytest.approx(playback.live_time(record.stream("left").t_s[0]))
     with pytest.raises(KeyError):
-        open_camera(SensorSettings(finger="thumb"), playback=playback)
+        make_camera(SensorSettings(finger="thumb"), playback=playback)
 
 
 def test_opencv_stream_that_is_not_mjpg_is_decoded_and_encoded(tmp_path):
@@ -151,7 +151,7 @@ def test_opencv_stream_that_is_not_mjpg_is_decoded_and_encoded(tmp_path):
     with socketserver.ThreadingTCPServer(("127.0.0.1", 0), handler) as httpd:
         threading.Thread(target=httpd.serve_forever, daemon=True).start()
         url = f"http://127.0.0.1:{httpd.server_address[1]}/clip.mp4"
-        with open_camera(SensorSettings(camera_backend="opencv", camera_source=url), read_timeout_s=1.0) as camera:
+        with make_camera(SensorSettings(camera_backend="opencv", camera_source=url), read_timeout_s=1.0) as camera:
             assert not camera.passthrough
             frames = [camera.read(timeout_s=2.0) for _ in range(10)]
         httpd.shutdown()
@@ -166,7 +166,7 @@ def test_a_calibrated_latency_puts_frames_on_the_load_cells_clock(make_record):
     for latency_s in (0.0, 0.04):
         playback = GraspPlayback(record)
         sensor = SensorSettings(finger="right", camera_latency_s=latency_s)
-        with open_camera(sensor, playback=playback) as camera:
+        with make_camera(sensor, playback=playback) as camera:
             playback.start()
             frames = [camera.read(timeout_s=2.0) for _ in range(4)]
         # The sim camera stamps a frame with the live time it was due.

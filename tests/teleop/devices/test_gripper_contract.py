@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from teleop.devices.gripper import BACKENDS, Gripper, open_gripper
+from teleop.devices.gripper import BACKENDS, Gripper, make_gripper
 from teleop.devices.playback import GraspPlayback, SimulatedGripper
 from teleop.errors import (
     BackendNotFoundError,
@@ -32,7 +32,7 @@ def gripper(request, hardware_env) -> Gripper:
         settings = GripperSettings(backend="franky", host=host, width_read_hz=20.0)
     else:
         settings = GripperSettings(backend="franky", host=hardware_env("COMPLIANCE_TELEOP_FRANKY_HOST"), width_read_hz=10.0)
-    device = open_gripper(settings)
+    device = make_gripper(settings)
     yield device
     device.close()
 
@@ -163,12 +163,12 @@ def test_stop_ends_a_follow_within_one_step_and_a_move_works_after(gripper):
 
 def test_unknown_backend_lists_the_names():
     with pytest.raises(BackendNotFoundError, match="sim") as info:
-        open_gripper(GripperSettings(), backend="robotiq")
+        make_gripper(GripperSettings(), backend="robotiq")
     assert all(name in str(info.value) for name in BACKENDS)
 
 
 def test_franky_backend_wraps_connection_errors():
-    gripper = open_gripper(GripperSettings(backend="franky", host="127.255.255.254"))
+    gripper = make_gripper(GripperSettings(backend="franky", host="127.255.255.254"))
     # nothing serves libfranka there (franky-sim takes the first free loopback address)
     with pytest.raises(DeviceError, match=r"127\.255\.255\.254.*connect"):
         gripper.connect()

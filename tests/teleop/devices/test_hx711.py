@@ -28,7 +28,7 @@ from teleop.devices.hx711_protocol import (
     parse_frame,
     parse_serial_line,
 )
-from teleop.devices.loadcell import open_load_cell
+from teleop.devices.loadcell import make_load_cell
 from teleop.errors import DeviceError
 from teleop.settings import LoadCellSettings
 
@@ -125,7 +125,7 @@ def test_bad_tcp_addresses_are_named(address):
 
 def test_serial_link_skips_garbage_and_keeps_the_readings(pty_pair, caplog):
     master, port = pty_pair
-    with open_load_cell(LoadCellSettings(backend="serial", port=port, **CAL)) as cell:
+    with make_load_cell(LoadCellSettings(backend="serial", port=port, **CAL)) as cell:
         os.write(master, b"7\n1000\nhello\n")
         os.write(master, b"20")  # a reading split across two writes
         time.sleep(0.05)
@@ -142,9 +142,9 @@ def test_serial_link_skips_garbage_and_keeps_the_readings(pty_pair, caplog):
 
 def test_serial_port_errors_are_device_errors(tmp_path):
     with pytest.raises(DeviceError, match="port is empty"):
-        open_load_cell(LoadCellSettings(backend="serial")).connect()
+        make_load_cell(LoadCellSettings(backend="serial")).connect()
     with pytest.raises(DeviceError, match="cannot open"):
-        open_load_cell(LoadCellSettings(backend="serial", port=str(tmp_path / "ttyNONE"))).connect()
+        make_load_cell(LoadCellSettings(backend="serial", port=str(tmp_path / "ttyNONE"))).connect()
 
 
 class _HandServer:
@@ -179,7 +179,7 @@ def test_tcp_link_counts_gaps_skips_garbage_and_reports_a_closed_bridge():
     )
     server = _HandServer(payload)
     try:
-        with open_load_cell(LoadCellSettings(backend="tcp", address=server.address, **CAL)) as cell:
+        with make_load_cell(LoadCellSettings(backend="tcp", address=server.address, **CAL)) as cell:
             samples = cell.read(timeout_s=1.0)
             while len(samples) < 4:
                 more = cell.read(timeout_s=1.0)
@@ -200,7 +200,7 @@ def test_tcp_connection_refused_is_a_device_error():
     port = probe.getsockname()[1]
     probe.close()
     with pytest.raises(DeviceError, match="cannot connect"):
-        open_load_cell(LoadCellSettings(backend="tcp", address=f"tcp://127.0.0.1:{port}")).connect()
+        make_load_cell(LoadCellSettings(backend="tcp", address=f"tcp://127.0.0.1:{port}")).connect()
 
 
 # --------------------------------------------------------------------------- bridge side
@@ -221,7 +221,7 @@ def test_bridge_serves_every_connected_host_the_same_readings():
     fake = FakeHx711(counts_per_n=1000.0, rate_hz=200.0, force_n=1.5)
     with Hx711Bridge(fake, host="127.0.0.1", port=0) as bridge:
         settings = LoadCellSettings(backend="tcp", address=bridge.address, **CAL)
-        with open_load_cell(settings) as first, open_load_cell(settings) as second:
+        with make_load_cell(settings) as first, make_load_cell(settings) as second:
             a, b = first.read(timeout_s=1.0), second.read(timeout_s=1.0)
             assert bridge.clients == 2
     assert set(a.value) == set(b.value) == {1.5}
@@ -250,7 +250,7 @@ def test_bridge_command_end_to_end():
         first = process.stdout.readline()
         assert "serving on tcp://127.0.0.1:" in first
         address = first.split()[-1]
-        with open_load_cell(LoadCellSettings(backend="tcp", address=address, counts_per_n=42000.0, tare_counts=0)) as cell:
+        with make_load_cell(LoadCellSettings(backend="tcp", address=address, counts_per_n=42000.0, tare_counts=0)) as cell:
             forces = cell.read(timeout_s=1.0).value
         rest = process.stdout.read()
         assert process.wait(timeout=5.0) == 0

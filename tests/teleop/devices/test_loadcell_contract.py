@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from teleop.devices.hx711_bridge import Hx711Bridge
-from teleop.devices.loadcell import BACKENDS, LoadCell, open_load_cell
+from teleop.devices.loadcell import BACKENDS, LoadCell, make_load_cell
 from teleop.devices.playback import GraspPlayback
 from teleop.errors import (
     BackendNotFoundError,
@@ -74,20 +74,20 @@ def rig(request, make_record, hardware_env):
     if request.param == "sim":
         record = make_record(duration_s=N / RATE_HZ, force_hz=RATE_HZ)
         playback = GraspPlayback(record)
-        rig = Rig(open_load_cell(LoadCellSettings(**CALIBRATION), playback=playback), record.force_n.value, playback.start)
+        rig = Rig(make_load_cell(LoadCellSettings(**CALIBRATION), playback=playback), record.force_n.value, playback.start)
     elif request.param == "serial":
         master, port = request.getfixturevalue("pty_pair")
         counts = _counts()
         lines = [b"23\r\n"] + [b"%d\r\n" % c for c in counts]  # opened mid-line: "23" ends a reading
         writer = threading.Thread(target=_write_paced, args=(master, lines), daemon=True)
-        cell = open_load_cell(LoadCellSettings(backend="serial", port=port, **CALIBRATION))
+        cell = make_load_cell(LoadCellSettings(backend="serial", port=port, **CALIBRATION))
         rig = Rig(cell, _newtons(counts), writer.start)
         cleanup.append(lambda: writer.join(timeout=2.0) if writer.is_alive() else None)
     elif request.param == "tcp":
         source = ScriptedCounts(_counts())
         bridge = Hx711Bridge(source, host="127.0.0.1", port=0).start()
         cleanup.append(bridge.close)
-        cell = open_load_cell(LoadCellSettings(backend="tcp", address=bridge.address, **CALIBRATION))
+        cell = make_load_cell(LoadCellSettings(backend="tcp", address=bridge.address, **CALIBRATION))
 
         def start():
             deadline = time.monotonic() + 2.0
@@ -98,7 +98,7 @@ def rig(request, make_record, hardware_env):
         rig = Rig(cell, _newtons(source.counts), start)
     else:
         port = hardware_env("COMPLIANCE_TELEOP_HX711_PORT")
-        rig = Rig(open_load_cell(LoadCellSettings(backend="serial", port=port, timeout_s=1.0)), None)
+        rig = Rig(make_load_cell(LoadCellSettings(backend="serial", port=port, timeout_s=1.0)), None)
     yield rig
     rig.cell.close()
     for step in cleanup:
@@ -162,5 +162,5 @@ def test_a_silent_source_times_out(rig):
 
 def test_unknown_backend_lists_the_names():
     with pytest.raises(BackendNotFoundError) as info:
-        open_load_cell(LoadCellSettings(), backend="bluetooth")
+        make_load_cell(LoadCellSettings(), backend="bluetooth")
     assert all(name in str(info.value) for name in BACKENDS)

@@ -97,13 +97,13 @@ def test_a_replay_switched_while_a_reader_holds_the_last_one_serves_the_new_one_
     # (a live grasp once got no force at all this way).
     import time
 
-    from teleop.devices.camera import open_camera
-    from teleop.devices.loadcell import open_load_cell
+    from teleop.devices.camera import make_camera
+    from teleop.devices.loadcell import make_load_cell
     from teleop.settings import LoadCellSettings, SensorSettings
 
     last, new_record = make_record(seed=0), make_record(seed=1)
-    cell = open_load_cell(LoadCellSettings(), backend="sim").connect()
-    camera = open_camera(SensorSettings(finger="left"), backend="sim").connect()
+    cell = make_load_cell(LoadCellSettings(), backend="sim").connect()
+    camera = make_camera(SensorSettings(finger="left"), backend="sim").connect()
     for device in (cell, camera):
         finished = GraspPlayback(last)
         finished.start(time.monotonic() - 10.0)  # all of it due
