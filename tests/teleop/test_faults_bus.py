@@ -38,7 +38,7 @@ def test_recv_with_zero_timeout_takes_what_is_queued_without_waiting():
         pub.wait_for_subscriber("force")
         started = time.monotonic()
         assert sub.recv(timeout_s=0) is None  # nothing sent yet
-        assert time.monotonic() - started < 0.05
+        assert time.monotonic() - started < 1.0  # a recv that waited would wait for ever
         for i in range(3):
             pub.send("force", t_capture_s=float(i), t_s=[float(i)], value_n=[1.0])
         time.sleep(0.2)  # in the subscriber's queue now
