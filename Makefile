@@ -10,7 +10,7 @@ PIP := $(BIN)/python -m pip
 CONSTRAINTS := constraints.txt
 PYTEST_ARGS ?=
 
-.PHONY: demo test check lint browser tmux install install-dev model evaluate cross-sensor cross-contact fine-tune operator-eval clean
+.PHONY: demo test check lint browser tmux install install-dev model evaluate cross-sensor cross-contact replay fine-tune operator-eval clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -116,16 +116,33 @@ cross-contact: $(VENV)/.installed-dev
 	$(BIN)/estimator evaluate runs/cross-contact/records $(UNSEEN_BY_SHIPPED) --workers 2 \
 		--rows runs/cross-contact/rows.csv --plot runs/cross-contact/plot.png --json > runs/cross-contact/figures.json
 
-# Fine-tuning for the held-out sensor, after `make cross-sensor`: 3 grasps on randomized Mini rigs of each of
-# 5 objects the shipped models trained on (on other sensors; never their test objects), the train-split objects
-# nearest five log-spaced moduli from the softest to the stiffest; then the shipped and the fine-tuned models on
-# the cross-sensor records. About 2 minutes. Writes runs/fine-tune/. FINE_TUNE_REPLAY=DIR (the models' own
-# training dataset, as `make model` writes it) rehearses it and recalibrates on its validation objects.
-FINE_TUNE_OBJECTS ?= pillow,scotch_brite,charger_cable,gel_mold,steel_ball_big
-FINE_TUNE_REPLAY ?=
+# A rehearsal set for fine-tuning: the shipped models' kind of training data, smaller (4 grasps of every object on
+# the nominal Wedge rig, 2 on randomized Wedge rigs and 2 on randomized R1.5 rigs, other gels: `make model`'s
+# recipe and seeds with fewer grasps). About 12 minutes on 2 cores. Writes runs/replay/.
+replay: $(VENV)/.installed-dev
+	rm -rf runs/replay
+	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --grasps-per-object 4 --seed 1 \
+		--out runs/replay/records/wedge_nominal --workers 2
+	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --grasps-per-object 2 --seed 2 --randomize-rig --vary-gel \
+		--out runs/replay/records/wedge_rig_gel --workers 2
+	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --grasps-per-object 2 --seed 3 --randomize-rig --vary-gel \
+		--settings configs/rigs/gelsight.toml --out runs/replay/records/gelsight_rig_gel --workers 2
+	$(BIN)/estimator build-dataset --records runs/replay/records --out $(REPLAY_DATA) \
+		--frames 3 --shifts 3 --size 64x88 --window $(MODEL_WINDOW_MM) --workers 2
+
+# Fine-tuning for the held-out sensor, after `make cross-sensor` and `make replay`: 3 grasps on randomized Mini
+# rigs of each of 5 objects the shipped models trained on (on other sensors; never their test objects): the
+# train-split objects nearest five log-spaced moduli over the display's range, from the softest to 3 MPa (rigid
+# objects need no scale; the replay keeps what the model knew of them). It rehearses FINE_TUNE_REPLAY (the models'
+# own kind of training data) and recalibrates on its validation objects; FINE_TUNE_REPLAY= fine-tunes without.
+# Then the shipped and the fine-tuned models on the cross-sensor records. About 3 minutes. Writes runs/fine-tune/.
+FINE_TUNE_OBJECTS ?= pillow,blue_foam_brick,green_elastic_ball,fake_half_rose,rubber_band_ball
+REPLAY_DATA := runs/replay/dataset
+FINE_TUNE_REPLAY ?= $(REPLAY_DATA)
 FINE_TUNED := default cnn-depth-fw
 fine-tune: $(VENV)/.installed-dev
 	@test -d runs/cross-sensor/records || { echo "no runs/cross-sensor/records: run make cross-sensor first"; exit 1; }
+	@test -z "$(FINE_TUNE_REPLAY)" -o -d "$(FINE_TUNE_REPLAY)" || { echo "no $(FINE_TUNE_REPLAY): run make replay first"; exit 1; }
 	rm -rf runs/fine-tune
 	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --only $(FINE_TUNE_OBJECTS) --grasps-per-object 3 --seed 5 \
 		--randomize-rig --settings $(CROSS_RIG) --out runs/fine-tune/records --workers 2
