@@ -9,6 +9,7 @@ from teleop.clikit import Command, run_cli
 COMMANDS: dict[str, Command] = {
     "estimate": Command("estimator.estimate_cli", "estimate Young's modulus from one grasp record"),
     "evaluate": Command("estimator.evaluate_cli", "score the analytical and learned estimators over labelled grasp records (ablation table)"),
+    "card": Command("estimator.card_cli", "write a model card's figures table from estimator evaluate --json outputs, or check it"),
     "compare": Command("estimator.compare_cli", "score a base and a candidate model on labelled records neither trained on: which is better, with its uncertainty"),
     "build-dataset": Command("estimator.learned.dataset_cli", "labelled grasp records to training samples, split by object"),
     "train": Command("estimator.learned.train_cli", "train the learned / hybrid model and export it to ONNX"),

@@ -14,6 +14,7 @@ import argparse
 import csv
 import json
 import os
+import shlex
 import sys
 import time
 from collections import Counter
@@ -146,7 +147,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "~0.1 s late, which the hold frames at the peak force would otherwise misread "
                              "as approach)")
     parser.add_argument("--json", action="store_true",
-                        help="print one JSON object with the summary on the last stdout line")
+                        help="print one JSON object with the summary on the last stdout line (with 'command', the "
+                             "command line that made it, which estimator card quotes)")
 
 
 def _fmt(value: float | None, spec: str) -> str:
@@ -244,6 +246,7 @@ def run(args: argparse.Namespace) -> int:
         write_rows(rows, args.rows, display_range_pa=display_range)
     kept = sorted({r["object"] for r in rows if "method" in r})
     result = {
+        "command": shlex.join(getattr(args, "_command_line", None) or ["estimator", "evaluate", str(root)]),
         "dir": str(root), "records": len(paths), "labelled": len(scored),
         "skipped": dict(Counter(skip_cause(r) for r in rows if "skipped" in r)), "skipped_records": skipped,
         "seconds": time.perf_counter() - started, "display_range_pa": list(display_range), "methods": summary,

@@ -60,6 +60,7 @@ def run_cli(
             module.add_arguments(p)
             p.set_defaults(_run=module.run)
     args = parser.parse_args(argv)
+    args._command_line = [prog, *argv]  # as typed, for outputs that say how they were made
     logging.basicConfig(
         level=logging.WARNING - 10 * min(args.verbose, 2),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",

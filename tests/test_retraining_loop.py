@@ -1,4 +1,4 @@
-"""The retraining loop end to end, as the README's "The retraining loop" runs it: record, label,
+"""The retraining loop end to end, as docs/retraining.md's "The retraining loop" runs it: record, label,
 export, build, fine-tune, compare, serve, on simulated sessions; nothing lost on the way."""
 
 from __future__ import annotations

@@ -16,9 +16,8 @@ takes the analytical fits' most reliable lower bounds as evidence: below the
 highest of them (:func:`~estimator.learned.inputs.analytical_floor`) its
 mass is multiplied by a small leak, the share of such bounds that fail
 (:func:`floor_log_weights`), before the temperature is fitted. The network
-reads those bounds as inputs too, but does not always heed them; the floor
-lowered the validation objects' felt error (the model card gives the
-figures).
+reads those bounds as inputs too, but does not always heed them
+(``docs/decisions/0004-analytical-floor.md``).
 
 From a distribution, :func:`describe` gives the estimate the operator is
 shown:
@@ -65,19 +64,10 @@ wide interval says how unsure it is. The value stays within the answer's
 calibrated interval; a grasp outside what the model was trained on has that
 interval widened afterwards, which moves its ends and not the value.
 
-The loss names no threshold of the evaluation's: a loss that charged the
-dangerous misses themselves (rigid shown below 1 MPa, soft at the rigid end)
-removed more of them on the validation objects only by rendering answers
-0.01 decade short of the rigid end, which the operator still feels as rigid,
-and was dropped. The weight was chosen by a rule fixed before the
-run (the fewest dangerous misses among weights 1, 2 and 4 with rigid objects
-still shown rigid in at least 95 % of grasps), on the validation objects
-(5-fold cross-validation by object, the shipped pool): weight 1 took the
-felt error from 0.1018 to 0.1000 decade, dangerous misses from 13 to 9 (one
-of the four it removed renders 0.03 decade short of the rigid end), rigid
-objects shown rigid from 96.1 to 95.5 %; weight 2 gave 8 misses and 94.3 %,
-weight 4 gave 6 and 92.4 %. On the test objects and the held-out Mini the
-gain did not carry over (the model card gives the figures).
+The loss names no threshold of the evaluation's; the hedge's weight was
+chosen on the validation objects by a rule fixed before the run, and a loss
+that charged the dangerous misses themselves was tried and dropped
+(``docs/decisions/0003-hedged-value.md``).
 """
 
 from __future__ import annotations

@@ -21,9 +21,8 @@ figure was seen, for about 15 grasps of 5 objects:
 * With ``replay`` (a ``build-dataset`` directory of the base model's own
   training data, such as ``make model`` writes), rehearsal keeps what the model
   knew: every epoch trains on the new samples plus ``replay_ratio`` times as
-  many drawn afresh from the replay dataset's train split (1: chosen on the
-  soft-gel Wedge validation rig among 1, 4 and 16, after the held-out Mini's
-  figures for 1 and 4 had been seen; both rank them alike), and the intervals
+  many drawn afresh from the replay dataset's train split (1; how it was chosen:
+  ``docs/decisions/0006-fine-tuning-recipe.md``), and the intervals
   are then recalibrated (:func:`~estimator.learned.calibrate.calibrate`) on its
   validation objects that fine-tuning did not train on. Its train objects must
   be the base model's train objects, so that nothing the base model held out

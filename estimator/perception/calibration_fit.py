@@ -18,64 +18,37 @@ Flat-gel weight
 ---------------
 A bin's mean is the conditional mean of the gradient given the colour *under
 the calibration set's mix of slopes*. In ball presses that mix is almost all
-flat gel: the shipped simulated sets label 45 (GelSight pads) to 210 (Wedge)
-flat pixels for every on-ball one, and of the on-ball ones only the few at the
-top of the cap have small slopes. A bin near "no colour change" is hit by
-both, by sensor noise on flat gel and by a small slope, and the flat majority
-pulls its mean towards zero: small slopes read far too small (the steep 2 mm
-ball presses hide this; real contacts are broad and shallow, with slopes of a
-few hundredths over most of the contact).
+flat gel (the shipped simulated sets label 45 to 210 flat pixels for every
+on-ball one), so a bin near "no colour change", hit both by sensor noise on
+flat gel and by a small slope, is pulled towards zero: small slopes read far
+too small, while real contacts are broad and shallow.
 The table should not carry that prior, so the flat labels are reweighted:
 together they count ``flat_weight`` times the on-ball labels (each flat pixel
 ``flat_weight * n_on_ball / n_flat``), whatever the pad and press sizes. A
 bin seen only by flat gel still reads zero and a bin seen only on the ball
 reads the ball; only bins hit by both shift. The price is noise: an untouched
 pixel whose noise moves it out of the centre bin reads a small slope rather
-than ~0, and such slopes integrate over the pad. The default 15 (flat gel
-counts 15 times the ball, against the 45-210 times of the raw sets) was chosen
-between the two (study in ``tests/estimator/perception/test_sphere_depth.py``):
-a 20 mm sphere at 10 N on the simulated Wedge reconstructs to 0.82 of its peak
-(0.67 unweighted; 0.84 at 10, 0.88 at 3, 0.92 at 1), while a real GelSight
-no-contact frame with 2 grey levels of noise, reconstructed with a table fitted
-on half of taxim's presses, stays at 17 um at most (15 um unweighted; 20 um at
-10, 34 um at 3, 59 um at 1), within the 20 um depth resolution of the settings
-(tests/estimator/perception/test_depth.py). Held-out ball radii do not depend on the weight. ``flat_weight=None`` counts
-every flat pixel once, the set's own mix (the behaviour before the weight
-existed).
+than ~0, and such slopes integrate over the pad. The default 15 lies between
+the two (figures: ``docs/decisions/0009-flat-gel-weight.md``; the study is in
+``tests/estimator/perception/test_sphere_depth.py`` and ``test_depth.py``).
+Held-out ball radii do not depend on the weight. ``flat_weight=None`` counts
+every flat pixel once, the set's own mix.
 
-Why each bin's mean, not an inverted forward map: fitting the mean colour of each slope (the
-slope is the exact variable of a ball press) and giving every colour bin the slope whose colour
-lies nearest has no flat-gel prior at all, and on simulated presses it reads the 20 mm sphere at
-1.07 of its peak on the Wedge, 0.57 on the R1.5 optics and 0.24 on the Mini's (0.82, 0.35, 0.18
-here). On real presses it fails: with a table fitted on half of taxim's GelSight presses, a
-no-contact frame reconstructs to 102 um and the other half's ball radii read 7.4 % small
-(GelSight Mini: 239 um, +29 %), because a real press frame's flat gel differs from the
-reference by more than noise, which the bins' means absorb and a forward map does not; with
-each tile's zero-slope colour subtracted the radii still read 6-8 % small.
+Each bin holds its mean slope, not the slope of an inverted forward map
+(colour as a function of slope): a real press frame's flat gel differs from
+the reference by more than noise, which the bins' means absorb and a forward
+map does not (``docs/decisions/0010-bin-means-not-forward-map.md``).
 
 Smoothing
 ---------
 A slope below ~0.05 changes an 8-bit pixel's colour by a grey level or two, the size of the
 camera and JPEG noise, so bin by bin the table cannot tell a broad, shallow contact from flat
-gel: on the simulated Wedge, slopes of 0.02-0.05 read at 1 % of their value, and on the GelSight
-tables' optics slopes of 0.1-0.3 do. With ``smoothing_px`` > 0 the frames and the reference are
-smoothed by a Gaussian of that many pixels, in floating point, before their colour change is
-binned, here and at every lookup of the table. Measured at 2 pixels (flat weight 15), against
-none: the 20 mm sphere at 10 N of ``tests/estimator/perception/test_sphere_depth.py`` reads 1.06
-of its peak on the simulated Wedge (0.82), 0.52 on the R1.5 optics (0.35) and 0.29 on the Mini's
-(0.18); a real GelSight no-contact frame with 2 grey levels of noise, reconstructed with a table
-fitted on half of taxim's presses, stays within 0.5 um (17 um), and the other half's ball radii
-come back with a median error of 0.0 % (-0.4 %; GelSight Mini -0.1 %, against +0.6 %). The
-default stays 0 (:data:`DEFAULT_SMOOTHING_PX`): the shipped calibrations and the models trained on
-their depth have none, and a model reads depth as it was trained. Retrained on 2-pixel depth,
-single seeds of the default model lowered the cross-validated felt error on the validation
-objects from 0.108 to 0.103 decade (seed 0; dangerous misses 15 to 14) and from 0.102 to 0.100
-(seed 1; 11 to 10), short of the 0.005 decade set beforehand for a retrain of the shipped pool.
-The analytical fits gain little: on the nominal Wedge's test objects the elastic fit's felt
-error went from 0.79 to 0.73 decade (dangerous misses 132 to 107), the split fit's from 0.59 to
-0.60 (104 to 108). Its cost: a Wedge frame's depth on the binning-2 grid takes 0.53 ms against
-0.33 ms (medians of 300 in one process, ratio 1.6). The flat-weight figures above were measured
-without smoothing.
+gel. With ``smoothing_px`` > 0 the frames and the reference are smoothed by a Gaussian of that
+many pixels, in floating point, before their colour change is binned, here and at every lookup
+of the table: shallow slopes then read far better, at about 1.6 times the depth's cost. The
+default stays 0 (:data:`DEFAULT_SMOOTHING_PX`): the shipped calibrations and the models trained
+on their depth have none, and a model reads depth as it was trained
+(``docs/decisions/0011-no-colour-smoothing.md`` has the figures and the retraining tried).
 
 Recorded press circles
 ----------------------
