@@ -5,8 +5,7 @@ Recipe
 * Seeded and repeatable: ``torch.manual_seed``, deterministic algorithms, a
   seeded numpy generator for shuffles and flips, ``--threads`` torch threads.
   One thread by default: on a 2-core machine shared with anything else, two
-  OpenMP threads spin against each other and an epoch took 9-10 s instead of
-  1.7 s (measured on the project machine, 567 samples at 64 x 88 px).
+  OpenMP threads spin against each other (docs/decisions/0012-train-on-one-thread.md).
 * Augmentation that keeps the physics: random horizontal and vertical flips of
   every frame of a sample (a mirrored contact is an equally valid contact); the
   time shifts of the sampled frames are the dataset's sample sets (``--shifts``
