@@ -29,6 +29,20 @@ Two models, each used only where a scene needs it:
     plus a smooth correction, the Hankel transform of (S - 1), tabulated once
     per Poisson's ratio.
 
+    A layer may instead lie on a lubricated backing (``Body.base_slip`` = 1: no
+    shear at the interface, the companion case of Chen & Engel). Mirrored about
+    its base it is a free plate of thickness 2h pressed alike on both faces, a
+    pure traction problem, so its stresses do not depend on nu and::
+
+        S_slip(x) = (cosh 2x - 1) / (sinh 2x + 2x)
+
+    S_slip -> 1 as qh -> inf and u/p -> h (1 - nu^2) / E as qh -> 0 (the layer
+    spreads sideways over its base: far softer than the bonded layer, stiffer
+    than the half-space). Between the two (0 < ``base_slip`` < 1) the compliance
+    is the blend (1 - s) S + s S_slip, an interpolation for a partly bonded
+    backing (no solved partial-slip problem); its correction is the same blend of
+    the two tables, the slip one tabulated once.
+
     The object is a half-space of its own compliance. Both bodies carry the
     same pressure, so the total displacement is the gel's layer response plus
     the object's half-space response to that pressure; the composite modulus
@@ -88,13 +102,18 @@ class Body:
     poisson : float
         Poisson's ratio in [0, 0.5].
     thickness_m : float or None
-        None: a half-space. Otherwise a layer of this thickness (m) bonded to a
-        rigid backing, loaded on its frictionless free surface.
+        None: a half-space. Otherwise a layer of this thickness (m) on a rigid
+        backing, loaded on its frictionless free surface.
+    base_slip : float
+        A layer only: how freely it slides on its backing, in [0, 1]; 0 bonded
+        (the sensor as built), 1 on a frictionless (lubricated) backing, between
+        a blend of the two compliances (module notes).
     """
 
     modulus_pa: float
     poisson: float
     thickness_m: float | None = None
+    base_slip: float = 0.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.modulus_pa) and self.modulus_pa > 0):
@@ -103,6 +122,10 @@ class Body:
             raise ValueError(f"Body.poisson must be in [0, 0.5], got {self.poisson}")
         if self.thickness_m is not None and not (math.isfinite(self.thickness_m) and self.thickness_m > 0):
             raise ValueError(f"Body.thickness_m must be None or finite and > 0, got {self.thickness_m}")
+        if not 0.0 <= self.base_slip <= 1.0:
+            raise ValueError(f"Body.base_slip must be in [0, 1], got {self.base_slip}")
+        if self.thickness_m is None and self.base_slip != 0.0:
+            raise ValueError(f"Body.base_slip {self.base_slip} is for a layer: a half-space has no backing")
 
     @property
     def compliance_per_pa(self) -> float:
@@ -110,8 +133,8 @@ class Body:
         return (1.0 - self.poisson**2) / self.modulus_pa
 
 
-def layer_factor(qh: np.ndarray | float, *, poisson: float) -> np.ndarray:
-    """S(qh): the bonded layer's surface compliance relative to a half-space's.
+def layer_factor(qh: np.ndarray | float, *, poisson: float, base_slip: float = 0.0) -> np.ndarray:
+    """S(qh): the layer's surface compliance relative to a half-space's.
 
     Parameters
     ----------
@@ -119,6 +142,8 @@ def layer_factor(qh: np.ndarray | float, *, poisson: float) -> np.ndarray:
         Wavenumber (rad/m) times layer thickness (m), >= 0.
     poisson : float
         The layer's Poisson's ratio in [0, 0.5].
+    base_slip : float
+        0: bonded to its backing; 1: on a frictionless backing; between: the blend (module notes).
 
     Returns
     -------
@@ -129,18 +154,30 @@ def layer_factor(qh: np.ndarray | float, *, poisson: float) -> np.ndarray:
     kappa = 3.0 - 4.0 * poisson
     e2 = np.exp(-2.0 * x)
     e4 = e2 * e2
-    return (kappa * (1.0 - e4) - 4.0 * x * e2) / (kappa * (1.0 + e4) + (4.0 * x * x + 1.0 + kappa**2) * e2)
+    bonded = (kappa * (1.0 - e4) - 4.0 * x * e2) / (kappa * (1.0 + e4) + (4.0 * x * x + 1.0 + kappa**2) * e2)
+    if base_slip == 0.0:
+        return bonded
+    return (1.0 - base_slip) * bonded + base_slip * _slip_factor(x)
+
+
+def _slip_factor(x: np.ndarray) -> np.ndarray:
+    """S_slip(x) = (cosh 2x - 1) / (sinh 2x + 2x), written with exp(-2x); x/2 to first order, 0 at 0."""
+    e2 = np.exp(-2.0 * x)
+    denominator = -np.expm1(-4.0 * x) + 4.0 * x * e2
+    return np.expm1(-2.0 * x) ** 2 / np.where(x > 0, denominator, 1.0)
 
 
 @functools.lru_cache(maxsize=8)
-def _layer_correction_table(poisson: float) -> tuple[np.ndarray, np.ndarray]:
+def _layer_correction_table(poisson: float | None) -> tuple[np.ndarray, np.ndarray]:
     """f(rho) = integral_0^inf (S(x) - 1) J0(x rho) dx on a table of rho = r / h.
 
-    The layer's point-load displacement is the half-space's plus
-    k / (pi h) * f(r / h) (k = (1 - nu^2)/E).
+    For the bonded layer of this Poisson's ratio; None: the layer on a
+    frictionless backing (S_slip does not depend on nu: one table). The layer's
+    point-load displacement is the half-space's plus k / (pi h) * f(r / h)
+    (k = (1 - nu^2)/E).
     """
     x = np.arange(0.0, _LAYER_X_MAX + _LAYER_X_STEP / 2, _LAYER_X_STEP)
-    s_minus_1 = layer_factor(x, poisson=poisson) - 1.0
+    s_minus_1 = (_slip_factor(x) if poisson is None else layer_factor(x, poisson=poisson)) - 1.0
     weights = np.full(x.shape, _LAYER_X_STEP)
     weights[[0, -1]] *= 0.5  # trapezoid rule
     rho = np.arange(0.0, _LAYER_RHO_MAX + _LAYER_RHO_STEP / 2, _LAYER_RHO_STEP)
@@ -151,11 +188,13 @@ def _layer_correction_table(poisson: float) -> tuple[np.ndarray, np.ndarray]:
     return rho, table
 
 
-def _layer_correction(r_m: np.ndarray, thickness_m: float, poisson: float) -> np.ndarray:
+def _layer_correction(r_m: np.ndarray, thickness_m: float, poisson: float, base_slip: float) -> np.ndarray:
     """The layer's point-load displacement minus the half-space's, per unit force and compliance (1/m^2)."""
     rho_table, f_table = _layer_correction_table(poisson)
+    if base_slip > 0.0:  # the correction is linear in S: blend the tables
+        f_table = (1.0 - base_slip) * f_table + base_slip * _layer_correction_table(None)[1]
     rho = r_m / thickness_m
-    far = rho > rho_table[-1]
+    far = rho > rho_table[-1]  # both corrections' far field: S(0) = 0 for both backings
     f = np.interp(rho, rho_table, f_table)
     f[far] = -1.0 / rho[far]
     return f / (math.pi * thickness_m)
@@ -183,7 +222,7 @@ def _fft_size(n: int) -> int:
 
 @functools.lru_cache(maxsize=16)
 def _unit_kernels(shape: tuple[int, int], cell_m: tuple[float, float], thickness_m: float | None,
-                  poisson: float) -> tuple[tuple[int, int], np.ndarray, np.ndarray | None]:
+                  poisson: float, base_slip: float) -> tuple[tuple[int, int], np.ndarray, np.ndarray | None]:
     """FFTs of the influence coefficients for unit compliance k = 1 on the zero-padded grid.
 
     Returns the padded shape, the half-space kernel's rFFT and the layer
@@ -208,7 +247,7 @@ def _unit_kernels(shape: tuple[int, int], cell_m: tuple[float, float], thickness
         total = np.zeros(half_space.shape)
         for oy in offsets:  # average over sub-points of the source cell: 16 vectorised passes
             for ox in offsets:
-                total += _layer_correction(np.hypot(x + ox * dx, y + oy * dy), thickness_m, poisson)
+                total += _layer_correction(np.hypot(x + ox * dx, y + oy * dy), thickness_m, poisson, base_slip)
         correction = spectrum(total * (dx * dy / _LAYER_SUBCELLS**2))
     return padded, spectrum(half_space), correction
 
@@ -223,7 +262,8 @@ class Influence:
     cell_m : (float, float)
         Cell size (row pitch, column pitch), m.
     gel : Body
-        The gel; a layer when ``gel.thickness_m`` is set. Its thickness must be at
+        The gel; a layer when ``gel.thickness_m`` is set (bonded, sliding on its
+        backing or between: ``gel.base_slip``). Its thickness must be at
         least the larger cell side (the layer correction is averaged over
         ``_LAYER_SUBCELLS``^2 points of a cell).
     obj : Body
@@ -247,7 +287,7 @@ class Influence:
         self.cell_area_m2 = self.cell_m[0] * self.cell_m[1]
         self.gel_body, self.object_body = gel, obj
         self._padded, half_space, correction = _unit_kernels(
-            self.shape, self.cell_m, gel.thickness_m, float(gel.poisson)
+            self.shape, self.cell_m, gel.thickness_m, float(gel.poisson), float(gel.base_slip)
         )
         self._buffer = np.zeros(self._padded, dtype=np.float32)  # scratch input: not for sharing across threads
         k_gel, k_obj = gel.compliance_per_pa, obj.compliance_per_pa
@@ -507,12 +547,12 @@ def layer_stiffening(contact_radius_m: float, *, gel: Body, obj: Body) -> float:
     the half-space solution; relative to the Hertz approach a^2 / R that is
     (4 / (3 pi)) (k_gel / (k_gel + k_obj)) I a / h. (At nu = 0.5 this is the
     1.133 a/h term of Dimitriadis et al., Biophys. J. 82 (2002) 2798, at fixed approach.)
-    Zero for a half-space gel.
+    S is the gel's own (its ``base_slip``). Zero for a half-space gel.
     """
     if gel.thickness_m is None:
         return 0.0
     x = np.arange(0.0, _LAYER_X_MAX, _LAYER_X_STEP)
-    integral = float(np.trapezoid(1.0 - layer_factor(x, poisson=gel.poisson), x))
+    integral = float(np.trapezoid(1.0 - layer_factor(x, poisson=gel.poisson, base_slip=gel.base_slip), x))
     share = gel.compliance_per_pa / (gel.compliance_per_pa + obj.compliance_per_pa)
     return 4.0 / (3.0 * math.pi) * share * integral * contact_radius_m / gel.thickness_m
 

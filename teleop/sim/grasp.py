@@ -16,6 +16,11 @@ body cannot be squeezed through itself, foam densifies. Its linear value X is
 mapped to X_max (1 - exp(-X / X_max)) with X_max = (densification strain) x L,
 so soft objects still reach the force target before the fingers meet.
 
+With drawn contact mechanics (``mechanics``, ``teleop simulate --vary-contact``:
+:mod:`teleop.sim.mechanics`) the gel layer, the object's Poisson's ratio, size and
+local stiffness, and its non-linear laws are the draw's, and the record's provenance
+keeps them in ``extra["mechanics"]``; without, everything is as above.
+
 The squeeze stops when the force reaches the grasp's target (drawn per grasp,
 up to ``target_force_n``; the gripper stalls on its force limit) or the
 fingers close completely; the host holds ``hold_s`` after the grasp reports
@@ -75,6 +80,7 @@ from teleop.sim.contact import (
     layer_stiffening,
     solve_contact,
 )
+from teleop.sim.mechanics import ContactMechanics
 from teleop.sim.operator import SimulatedOperator
 from teleop.sim.optics import OpticsRenderer
 from teleop.sim.sensors import camera_times, gripper_width_readings, load_cell_readings
@@ -151,8 +157,8 @@ class LoadCurve:
     force_n: np.ndarray
     closure_m: np.ndarray
     gel_m: np.ndarray  # both gels at the first-contact points
-    object_m: np.ndarray  # the object: both contacts plus bulk, after densification
-    object_linear_m: np.ndarray  # the same before densification
+    object_m: np.ndarray  # the object: both contacts plus bulk, after densification (and drawn laws)
+    object_linear_m: np.ndarray  # the same before them
     bulk_linear_m: np.ndarray  # bulk part of object_linear_m
     finger_m: np.ndarray  # finger bending F / k
     fingers: dict[str, FingerMechanics]
@@ -214,7 +220,8 @@ def _hertz_applies(obj: ObjectSpec, size: tuple[float, float, float], first_cont
 
 def load_curve(obj: ObjectSpec, scene: Scene, *, sensors: dict[str, SensorSettings], grid_px: int,
                max_force_n: float, finger_stiffness_n_per_m: float,
-               size: tuple[float, float, float] | None = None, gel_model: str = "layer") -> LoadCurve:
+               size: tuple[float, float, float] | None = None, gel_model: str = "layer",
+               mechanics: ContactMechanics | None = None) -> LoadCurve:
     """Solve both contacts on a ladder of forces up to ``max_force_n`` and assemble the closure.
 
     Parameters
@@ -232,15 +239,22 @@ def load_curve(obj: ObjectSpec, scene: Scene, *, sensors: dict[str, SensorSettin
         True stiffness of the finger pair.
     gel_model : {"layer", "half-space"}
         The gel as a bonded layer of its thickness, or as a half-space.
+    mechanics : ContactMechanics, optional
+        Drawn contact mechanics (module notes); only with the ``"layer"`` gel model.
 
     Raises
     ------
     SimulationError
-        A contact solve did not converge (its reason is in the message).
+        A contact solve did not converge (its reason is in the message), or ``mechanics``
+        came with the half-space gel model.
     """
+    if mechanics is not None and gel_model != "layer":
+        raise SimulationError(f"drawn contact mechanics replace the gel model, and gel_model {gel_model!r} is the "
+                              "held-out one: expected gel_model 'layer' with mechanics")
     size = object_size(obj) if size is None else size
-    body = Body(obj.modulus_pa, obj.poisson)
-    gels = {finger: _gel_body(sensor, gel_model) for finger, sensor in sensors.items()}
+    body = Body(obj.modulus_pa, obj.poisson) if mechanics is None else mechanics.object_body(obj)
+    gels = {finger: _gel_body(sensor, gel_model) if mechanics is None else mechanics.gel_body(sensor)
+            for finger, sensor in sensors.items()}
     grids = {finger: contact_grid(sensor, grid_px) for finger, sensor in sensors.items()}
     levels = np.geomspace(min(MIN_LEVEL_FORCE_N, max_force_n / 10), max_force_n, LOAD_LEVELS)
     use_hertz = all(_hertz_applies(obj, size, scene.first_contact_rc[f], max_force_n, gels[f], body, grids[f])
@@ -279,8 +293,12 @@ def load_curve(obj: ObjectSpec, scene: Scene, *, sensors: dict[str, SensorSettin
 
     bulk = levels * scene.extent_m / (obj.modulus_pa * scene.cross_section_m2)
     object_linear = sum(m.object_m for m in fingers.values()) + bulk
-    limit = DENSIFICATION_STRAIN.get(obj.material, DEFAULT_DENSIFICATION_STRAIN) * scene.extent_m
-    object_m = limit * -np.expm1(-object_linear / limit)
+    strain = DENSIFICATION_STRAIN.get(obj.material, DEFAULT_DENSIFICATION_STRAIN)
+    if mechanics is None:
+        limit = strain * scene.extent_m
+        object_m = limit * -np.expm1(-object_linear / limit)
+    else:
+        object_m = mechanics.object_response(object_linear, extent_m=scene.extent_m, densification_strain=strain)
     gel_m = sum(m.gel_m for m in fingers.values())
     finger_m = levels / finger_stiffness_n_per_m
     closure = gel_m + object_m + finger_m
@@ -440,7 +458,8 @@ def _operator_motion(curve: LoadCurve, scene: Scene, gripper: GripperSettings, o
 
 def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Generator,
                    seed: int | None = None, background: dict[str, np.ndarray] | None = None,
-                   operator: str = "script") -> tuple[GraspRecord, GraspTruth]:
+                   operator: str = "script", mechanics: ContactMechanics | None = None
+                   ) -> tuple[GraspRecord, GraspTruth]:
     """Simulate one labelled grasp of ``obj``.
 
     Parameters
@@ -459,6 +478,9 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
         Who drives the fingers: the paper's scripted grasp, or a
         :class:`~teleop.sim.operator.SimulatedOperator` drawn from ``rng`` in a leader-follower
         loop (module notes; the record's ``provenance.style`` is ``"operator"``).
+    mechanics : ContactMechanics, optional
+        Drawn contact mechanics (:mod:`teleop.sim.mechanics`; the settings' gel model must be
+        ``"layer"``); the record's ``provenance.extra["mechanics"]`` keeps them and the size used.
 
     Returns
     -------
@@ -482,6 +504,8 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
     fingers = tuple(sensors)
     first_sensor = settings.sensors[0]
     size = object_size(obj)
+    if mechanics is not None:
+        size = mechanics.object_size(obj, size, max_width_m=gripper.max_width_m)
     pose = draw_pose(obj, size, rng=rng, max_width_m=gripper.max_width_m, pad_m=first_sensor.pad_size_m)
     shape, cell = contact_grid(first_sensor, sim.grid_px)
     if any(contact_grid(s, sim.grid_px)[0] != shape or not math.isclose(s.pixel_pitch_m, first_sensor.pixel_pitch_m,
@@ -499,7 +523,7 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
         driver = SimulatedOperator(rng, max_width_m=gripper.max_width_m, max_force_n=gripper.target_force_n)
     curve = load_curve(obj, scene, sensors=sensors, grid_px=sim.grid_px,
                        max_force_n=target if driver is None else gripper.target_force_n,
-                       finger_stiffness_n_per_m=stiffness, size=size, gel_model=sim.gel_model)
+                       finger_stiffness_n_per_m=stiffness, size=size, gel_model=sim.gel_model, mechanics=mechanics)
     if driver is None:
         motion = _scripted_motion(curve, scene, gripper, rng)
     else:
@@ -544,11 +568,14 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
                                    jpeg_quality=sim.jpeg_quality,
                                    shape=(sensor.raw_height_px, sensor.raw_width_px, 3)))
 
-    provenance = Provenance(source="simulated", seed=seed, model=curve.model)
+    extra = {}
     if driver is not None:
-        provenance = Provenance(source="simulated", seed=seed, model=curve.model, style="operator",
-                                extra={"operator": json.loads(json.dumps({  # as the record reads it back
-                                    **dataclasses.asdict(driver.style), "description": driver.style.describe()}))})
+        extra["operator"] = json.loads(json.dumps({  # as the record reads it back
+            **dataclasses.asdict(driver.style), "description": driver.style.describe()}))
+    if mechanics is not None:
+        extra["mechanics"] = {**mechanics.provenance(), "size_m": list(size)}
+    provenance = Provenance(source="simulated", seed=seed, model=curve.model,
+                            style="script" if driver is None else "operator", extra=extra)
     record = GraspRecord(
         sensors=settings.sensors,
         frames=tuple(streams),

@@ -43,6 +43,7 @@ __all__ = [
     "make_scene",
     "object_size",
     "object_texture",
+    "scaled_size",
     "surface_distance",
 ]
 
@@ -209,6 +210,36 @@ def _hull_points(obj: ObjectSpec, size: tuple[float, float, float]) -> np.ndarra
     radius = size[0] / 2 / (np.cos(np.radians(30.0)) if obj.shape == "hex_prism" else 1.0)
     ring = np.stack([radius * np.cos(angles), radius * np.sin(angles)], axis=-1)
     return np.concatenate([np.column_stack([ring, np.full(len(ring), z)]) for z in (-size[2] / 2, size[2] / 2)])
+
+
+def _narrowest_width(obj: ObjectSpec, size: tuple[float, float, float]) -> float:
+    """The object's smallest extent (m) over the body axes and 256 other directions."""
+    directions = np.concatenate([np.eye(3), _directions(256)])
+    return float(np.ptp(_hull_points(obj, size) @ directions.T, axis=0).min())
+
+
+def scaled_size(obj: ObjectSpec, size: tuple[float, float, float], factors: tuple[float, float, float], *,
+                max_width_m: float) -> tuple[float, float, float]:
+    """``size`` (m, body axes) scaled by ``factors`` as far as the shape and the gripper allow.
+
+    A sphere takes the first factor on every axis; a cylinder's or hex prism's
+    cross-section the first on both of its axes (it stays round, or regular) and its
+    length the third; a box or irregular body one factor per axis. A result whose
+    narrowest width exceeds both the object's own and ``FIT_MARGIN``^2 x
+    ``max_width_m`` (the pose draw's margin, twice: room for the pose's tilt) is
+    shrunk as a whole to the larger of the two, so that an object that fits the
+    gripper still fits it.
+    """
+    fx, fy, fz = factors
+    if obj.shape == "sphere":
+        scaled = tuple(s * fx for s in size)
+    elif obj.shape in ("cylinder", "hex_prism"):
+        scaled = (size[0] * fx, size[1] * fx, size[2] * fz)
+    else:
+        scaled = (size[0] * fx, size[1] * fy, size[2] * fz)
+    bound = max(_narrowest_width(obj, size), FIT_MARGIN**2 * max_width_m)
+    width = _narrowest_width(obj, scaled)
+    return scaled if width <= bound else tuple(s * bound / width for s in scaled)
 
 
 def surface_distance(obj: ObjectSpec, size: tuple[float, float, float]) -> Callable[[np.ndarray], np.ndarray]:

@@ -19,6 +19,14 @@ back-offs and re-squeezes, different peak forces) in a leader-follower loop inst
 paper's scripted grasp; the records say ``provenance.style = "operator"``. The object's pose
 and the fingers are drawn as for the scripted grasp of the same seed, so the two styles grasp
 the same objects alike.
+
+With --vary-contact every grasp also draws the contact mechanics the simulator assumes
+(:mod:`teleop.sim.mechanics`: the gel layer's backing and effective thickness, the object's
+Poisson's ratio, densification, rubber-like stiffening, friction and size) from a stream of
+its own (:func:`~teleop.sim.simulate.mechanics_rng`: the rig, pose and operator stay those of
+the grasp without it); the drawn values go to ``provenance.extra["mechanics"]``, never to
+what an estimator reads. The gel is never drawn as a half-space, the contact model held out
+for testing: --vary-contact with --gel-model half-space is refused.
 """
 
 from __future__ import annotations
@@ -41,9 +49,10 @@ from teleop.errors import SettingsError, SimulationError
 from teleop.record import write_record
 from teleop.settings import Settings, load_settings
 from teleop.sim.grasp import OPERATORS, simulate_grasp
+from teleop.sim.mechanics import draw_mechanics
 from teleop.sim.preview import write_preview
 from teleop.sim.rig import draw as draw_rig
-from teleop.sim.simulate import grasp_filename, grasp_rng
+from teleop.sim.simulate import grasp_filename, grasp_rng, mechanics_rng
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +96,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vary-gel", action="store_true",
                         help="with --randomize-rig: also draw each rig's datasheet gel (120-400 kPa, 2.5-4.5 mm), "
                              "as other GelSight-type sensors have; the records carry it")
+    parser.add_argument("--vary-contact", action="store_true",
+                        help="draw the contact mechanics of each grasp (teleop.sim.mechanics.ContactSpread): the gel "
+                             "layer bonded to, sliding on or partly bonded to its backing, its effective thickness "
+                             "x0.6-1.5, the object's Poisson's ratio 0.3-0.5, foam densification and rubber-like "
+                             "stiffening, friction stiffening 0-5 %%, object size x0.8-1.2 per axis; never the "
+                             "held-out half-space gel (refused with --gel-model half-space); the drawn values go "
+                             "to the records' provenance only")
 
 
 def _names(text: str) -> list[str]:
@@ -106,19 +122,22 @@ def _chosen(objects: list[ObjectSpec], names: list[str] | None, where: str) -> l
     return [o for o in objects if o.name in set(names)]
 
 
-def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bool, str]) -> dict:
+def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bool, str, bool]) -> dict:
     """Simulate and write one grasp (runs in a worker); failures come back as a reason."""
-    obj, index, seed, settings, out, preview, randomize_rig, vary_gel, operator = job
+    obj, index, seed, settings, out, preview, randomize_rig, vary_gel, operator, vary_contact = job
     path = Path(out) / grasp_filename(obj, index)
     rng = grasp_rng(seed, obj, index)
+    mechanics = draw_mechanics(mechanics_rng(seed, obj, index)) if vary_contact else None
     try:
         if randomize_rig:
             rig = draw_rig(settings, rng, vary_gel=vary_gel)
-            record, truth = simulate_grasp(obj, settings=rig.true, rng=rng, seed=seed, operator=operator)
+            record, truth = simulate_grasp(obj, settings=rig.true, rng=rng, seed=seed, operator=operator,
+                                           mechanics=mechanics)
             record = rig.record(record, finger_stiffness_n_per_m=truth.finger_stiffness_n_per_m,
                                 target_force_n=truth.target_force_n)
         else:
-            record, truth = simulate_grasp(obj, settings=settings, rng=rng, seed=seed, operator=operator)
+            record, truth = simulate_grasp(obj, settings=settings, rng=rng, seed=seed, operator=operator,
+                                           mechanics=mechanics)
     except SimulationError as exc:
         return {"object": obj.name, "grasp": index, "error": str(exc)}
     write_record(record, path)
@@ -142,6 +161,10 @@ def run(args: argparse.Namespace) -> int:
     if args.gel_model is not None:
         settings = dataclasses.replace(
             settings, simulation=dataclasses.replace(settings.simulation, gel_model=args.gel_model))
+    if args.vary_contact and settings.simulation.gel_model != "layer":
+        raise SettingsError(f"--vary-contact draws the gel's contact model and never the held-out "
+                            f"{settings.simulation.gel_model!r} one: drop --gel-model {settings.simulation.gel_model} "
+                            "(or simulation.gel_model in the settings) to vary the contact")
     objects = _chosen(load_catalogue(args.objects), args.only, args.objects)[: args.limit_objects]
     out = Path(args.out)
     try:
@@ -150,8 +173,8 @@ def run(args: argparse.Namespace) -> int:
         raise SettingsError(f"--out {out}: cannot create the directory ({exc.strerror or exc})") from exc
     if args.vary_gel and not args.randomize_rig:
         raise SettingsError("--vary-gel draws a rig's gel: it needs --randomize-rig")
-    jobs = [(obj, i, args.seed, settings, str(out), args.preview, args.randomize_rig, args.vary_gel, args.operator)
-            for obj in objects for i in range(args.grasps_per_object)]
+    jobs = [(obj, i, args.seed, settings, str(out), args.preview, args.randomize_rig, args.vary_gel, args.operator,
+             args.vary_contact) for obj in objects for i in range(args.grasps_per_object)]
     workers = min(args.workers, len(jobs))
 
     start = time.perf_counter()

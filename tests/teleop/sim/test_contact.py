@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.linalg import expm
 
 from teleop.sim.contact import (
     NO_CONTACT_GAP_M,
@@ -165,6 +166,71 @@ def test_rigid_sphere_on_bonded_layer_matches_published_correction(chi):
     assert ratio == pytest.approx(dimitriadis, rel=0.03)
 
 
+def _plane_strain_factor(qh: float, nu: float, *, slip: bool) -> float:
+    """S from Navier's equations for one pressure wave, solved directly (no Chen & Engel formula).
+
+    u_x = U(z) sin qx, u_z = W(z) cos qx on a layer 0 <= z <= h (z into it, h = 1); the state
+    (U, U', W, W') is propagated by expm; the loaded frictionless top and the backing give four
+    conditions, W(h) = 0 and U(h) = 0 (bonded) or U'(h) = 0 (no shear: slip).
+    """
+    q, modulus = qh, 1.0
+    mu, lam = modulus / (2 * (1 + nu)), modulus * nu / ((1 + nu) * (1 - 2 * nu))
+    system = np.zeros((4, 4))
+    system[0, 1] = system[2, 3] = 1.0
+    system[1, 0], system[1, 3] = q * q * (lam + 2 * mu) / mu, q * (lam + mu) / mu
+    system[3, 2], system[3, 1] = mu * q * q / (lam + 2 * mu), -q * (lam + mu) / (lam + 2 * mu)
+    base = expm(system)
+    conditions = np.array([[lam * q, 0, 0, lam + 2 * mu],  # sigma_zz(0) = -p
+                           [0, 1, -q, 0],  # no shear at the top
+                           base[2],  # W(h) = 0
+                           base[1] if slip else base[0]])
+    state = np.linalg.solve(conditions, [-1.0, 0.0, 0.0, 0.0])
+    return state[2] / (2 * (1 - nu**2) / (modulus * q))
+
+
+@pytest.mark.parametrize("nu", [0.0, 0.3, 0.45])
+def test_both_backings_match_a_direct_plane_strain_solution(nu):
+    for qh in (0.05, 0.5, 2.0):
+        assert layer_factor(qh, poisson=nu) == pytest.approx(_plane_strain_factor(qh, nu, slip=False), rel=1e-8)
+        assert layer_factor(qh, poisson=nu, base_slip=1.0) == pytest.approx(
+            _plane_strain_factor(qh, nu, slip=True), rel=1e-8)
+
+
+def test_sliding_layer_factor_limits():
+    for nu in (0.0, 0.3, 0.48, 0.5):
+        assert layer_factor(40.0, poisson=nu, base_slip=1.0) == pytest.approx(1.0, abs=1e-12)
+        x = 1e-4  # thin layer free to slide: u/p -> h (1 - nu^2) / E, i.e. S -> x / 2 whatever nu
+        assert layer_factor(x, poisson=nu, base_slip=1.0) == pytest.approx(x / 2, rel=1e-3)
+    x = np.linspace(0.0, 10.0, 200)
+    slip = layer_factor(x, poisson=0.48, base_slip=1.0)
+    bonded = layer_factor(x, poisson=0.48)
+    assert slip[0] == 0.0 and np.all(np.diff(slip) >= 0) and np.isfinite(layer_factor(1e4, poisson=0.48, base_slip=1))
+    # Softer than the bonded layer, stiffer than the half-space; a partly bonded backing lies between.
+    assert np.all(slip[1:] > bonded[1:]) and np.all(slip < 1.0)
+    half = layer_factor(x, poisson=0.48, base_slip=0.5)
+    np.testing.assert_allclose(half, 0.5 * (slip + bonded), rtol=1e-12)
+    assert 0 < layer_stiffening(1e-4, gel=Body(1e6, 0.48, 1e-3, base_slip=1.0), obj=RIGID) < layer_stiffening(
+        1e-4, gel=Body(1e6, 0.48, 1e-3), obj=RIGID)
+
+
+@pytest.mark.parametrize("nu", [0.3, 0.48])
+def test_wide_punch_on_a_sliding_layer_reaches_its_thin_layer_asymptote(nu):
+    """a >> h on a lubricated backing: the layer spreads sideways, F -> A E delta / ((1 - nu^2) h),
+    far below the bonded layer's confined compression when the gel is nearly incompressible."""
+    cell, thickness, a, approach = 1e-4, 5e-4, 4.5e-3, 1e-5
+    n = 100
+    r = centred_radius(n, n, cell)
+    gap = np.where(r <= a, 0.0, NO_CONTACT_GAP_M)
+    forces = {slip: solve_contact(gap, Influence((n, n), (cell, cell), gel=Body(1e6, nu, thickness, base_slip=slip),
+                                                 obj=RIGID), approach_m=approach, tolerance=1e-7,
+                                  max_iterations=2000).force_n for slip in (0.0, 0.5, 1.0)}
+    area = (r <= a).sum() * cell**2
+    assert forces[1.0] == pytest.approx(area * 1e6 * approach / ((1 - nu**2) * thickness), rel=0.05)
+    assert forces[1.0] < forces[0.5] < forces[0.0]
+    if nu == 0.48:
+        assert forces[0.0] > 4 * forces[1.0]
+
+
 def test_wide_punch_on_a_thin_layer_reaches_the_confined_compression_asymptote():
     """a >> h: the layer acts as a bed of confined columns, F -> A M delta / h (M the P-wave modulus)."""
     cell, thickness, a, approach = 1e-4, 5e-4, 4.5e-3, 1e-5
@@ -247,6 +313,10 @@ def test_bad_input_is_named():
         Influence((8, 8), (1e-3, 1e-3), gel=Body(1e6, 0.4, 1e-4), obj=OBJECT)
     with pytest.raises(ValueError, match="modulus_pa"):
         Body(float("nan"), 0.3)
+    with pytest.raises(ValueError, match="base_slip must be in"):
+        Body(1e6, 0.4, 1e-3, base_slip=1.5)
+    with pytest.raises(ValueError, match="half-space has no backing"):
+        Body(1e6, 0.4, base_slip=0.5)
 
 
 # --------------------------------------------------------------------------- closed forms and shear

@@ -17,6 +17,7 @@ from teleop.sim.shapes import (
     make_scene,
     object_size,
     object_texture,
+    scaled_size,
     surface_distance,
 )
 
@@ -176,3 +177,23 @@ def test_an_object_too_wide_for_the_gripper_is_refused():
 def test_an_object_beside_the_pads_is_refused():
     with pytest.raises(SimulationError, match="does not face the pads"):
         scene(spec("sphere", (0.01,) * 3), offset=(0.05, 0.0))
+
+
+def test_a_scaled_size_keeps_the_shape_and_fits_the_gripper():
+    factors = (1.1, 0.9, 1.2)
+    assert scaled_size(spec("sphere", (0.02,) * 3), (0.02,) * 3, factors, max_width_m=0.08) == pytest.approx(
+        (0.022,) * 3)  # still a sphere
+    cylinder = spec("cylinder", (0.02, 0.02, 0.05))
+    assert scaled_size(cylinder, cylinder.size_m, factors, max_width_m=0.08) == pytest.approx((0.022, 0.022, 0.06))
+    box = spec("box", (0.02, 0.03, 0.04))
+    assert scaled_size(box, box.size_m, factors, max_width_m=0.08) == pytest.approx((0.022, 0.027, 0.048))
+    # Grown past what the gripper takes: shrunk back as a whole, to the margin or to what it was.
+    ball = spec("sphere", (0.07,) * 3)
+    grown = scaled_size(ball, ball.size_m, (1.2, 1.2, 1.2), max_width_m=0.08)
+    assert len(set(grown)) == 1 and grown[0] == pytest.approx(0.95**2 * 0.08, rel=0.01)  # the hull's width
+    draw_pose(ball, grown, rng=np.random.default_rng(0), max_width_m=0.08, pad_m=PAD)
+    wide = spec("box", (0.075, 0.09, 0.09))
+    kept = scaled_size(wide, wide.size_m, (1.2, 1.1, 0.9), max_width_m=0.08)
+    assert min(kept) == pytest.approx(0.075) and kept[1] / kept[0] == pytest.approx(1.1 / 1.2 * 0.09 / 0.075)
+    shrunk = scaled_size(wide, wide.size_m, (0.8, 0.8, 0.8), max_width_m=0.08)
+    assert shrunk == pytest.approx((0.06, 0.072, 0.072))  # shrinking is never limited

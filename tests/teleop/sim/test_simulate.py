@@ -91,6 +91,7 @@ def test_only_simulates_the_named_objects(tmp_path, catalogue, quick_settings, c
     (["--grasps-per-object", "0"], "--grasps-per-object"),
     (["--workers", "0"], "--workers"),
     (["--only", "oak_block,teapot,anvil"], "--only: anvil, teapot not in the catalogue"),
+    (["--vary-contact", "--gel-model", "half-space"], "--vary-contact draws the gel's contact model and never"),
 ])
 def test_bad_arguments_are_one_line_errors(tmp_path, catalogue, capsys, argv, message):
     code, _, stderr = run(capsys, "--objects", str(catalogue), "--out", str(tmp_path / "o"), *argv)
@@ -111,6 +112,11 @@ def test_help_explains_every_option(capsys):
     assert exit_info.value.code == 0
     text = capsys.readouterr().out
     for option in ("--objects", "--grasps-per-object", "--seed", "--out", "--workers", "--preview", "--json",
-                   "--settings", "--limit-objects", "--only"):
+                   "--settings", "--limit-objects", "--only", "--vary-contact"):
         assert option in text
     assert "grasps_per_s_per_core" in text
+    # --vary-contact says what it draws, that the half-space is held out, and where the draws go.
+    vary = " ".join(text[text.index("\n  --vary-contact"):].split())
+    for words in ("teleop.sim.mechanics.ContactSpread", "Poisson's ratio 0.3-0.5", "x0.6-1.5", "friction",
+                  "held-out half-space gel", "provenance only"):
+        assert words in vary, words
