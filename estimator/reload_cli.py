@@ -25,9 +25,9 @@ import os
 import sys
 import time
 import uuid
-from typing import Any
 
 from estimator.errors import ModelError
+from teleop.bus.messages import ModelEventBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.errors import BusError, TeleopError
 from teleop.live import add_endpoint_arguments, bus_from_args
@@ -64,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def reload_model(path: str, *, command: Publisher, answers: Subscriber, timeout_s: float = DEFAULT_TIMEOUT_S,
-                 request: str | None = None) -> dict[str, Any]:
+                 request: str | None = None) -> ModelEventBody:
     """Send ``load_model`` for ``path`` on ``command`` until the ``model_event`` answering it
     arrives on ``answers`` (a subscriber of the service's estimate endpoint, topic ``model_event``);
     its body.
@@ -88,8 +88,8 @@ def reload_model(path: str, *, command: Publisher, answers: Subscriber, timeout_
             command.send("load_model", t_capture_s=now, path=path, request=request)
             next_send = now + RESEND_S
         message = answers.recv(timeout_s=min(0.05, max(0.0, deadline - now)))
-        if message is not None and message.type == "model_event" and message.body["request"] == request:
-            return dict(message.body)
+        if message is not None and message.type == "model_event" and message.fields.request == request:
+            return message.fields
 
 
 def _control_publisher(bus: BusSettings) -> Publisher:
@@ -122,13 +122,13 @@ def run(args: argparse.Namespace) -> int:
         raise TeleopError(f"cannot listen to the estimator service on {bus.estimate_pub}: {exc}") from exc
     with answers, _control_publisher(bus) as command:
         answer = reload_model(path, command=command, answers=answers, timeout_s=args.timeout_s)
-    loaded = answer["event"] == "loaded"
+    loaded = answer.event == "loaded"
     if loaded:
-        print(f"estimator reload: the service serves {answer['model']} ({answer['path']}) from its next grasp on",
+        print(f"estimator reload: the service serves {answer.model} ({answer.path}) from its next grasp on",
               file=sys.stderr)
     else:
-        print(f"estimator reload: refused {answer['path']}: {answer['reason']}; the service keeps "
-              f"{answer['model'] or 'no model'}", file=sys.stderr)
+        print(f"estimator reload: refused {answer.path}: {answer.reason}; the service keeps "
+              f"{answer.model or 'no model'}", file=sys.stderr)
     if args.json:
-        print(json.dumps(answer))
+        print(json.dumps(answer.as_dict()))
     return 0 if loaded else 1

@@ -247,7 +247,7 @@ class EstimatorService:
         if message.type == "load_model":
             self._load_model(message)
             return
-        if message.type != "command" or message.body["action"] != "reload_model":
+        if message.type != "command" or message.fields.action != "reload_model":
             return  # the robot node's
         self.stats.reload_requests += 1
         if self.model is None:
@@ -261,7 +261,8 @@ class EstimatorService:
         """A ``load_model``: check the folder in the background, switch between grasps, answer with a
         ``model_event``. A request already taken is not loaded again; one already answered is
         answered again (the sender may have missed it)."""
-        path, request = message.body["path"], message.body["request"]
+        load = message.fields
+        path, request = load.path, load.request
         if request in self._requests:
             answer = self._requests[request]
             if answer is not None:
@@ -293,17 +294,17 @@ class EstimatorService:
     # ------------------------------------------------------------------ messages
 
     def _dispatch(self, message: Message, received_s: float) -> None:
-        body = message.body
+        body = message.fields
         if message.type == "grasp_event":
-            if body["event"] == "start":
-                self._open(body["grasp_id"], message.t_capture_s, received_s)
-            elif body["event"] == "loading_end":
-                self._loading_end(body["grasp_id"], message.t_capture_s, received_s)
+            if body.event == "start":
+                self._open(body.grasp_id, message.t_capture_s, received_s)
+            elif body.event == "loading_end":
+                self._loading_end(body.grasp_id, message.t_capture_s, received_s)
             else:
-                self._close(body["grasp_id"], message.t_capture_s, received_s)
+                self._close(body.grasp_id, message.t_capture_s, received_s)
             return
         if message.type == "robot_state":
-            self._following = body["grasp_id"] if body["mode"] == "following" else self._following
+            self._following = body.grasp_id if body.mode == "following" else self._following
             if self._grasp is not None and self._following == self._grasp.grasp_id:
                 self._grasp.stream.mark_follow()
             return
@@ -311,21 +312,21 @@ class EstimatorService:
             self.stats.ignored += 1
             return
         grasp = self._grasp
-        if grasp is None or body["grasp_id"] != grasp.grasp_id:
+        if grasp is None or body.grasp_id != grasp.grasp_id:
             self.stats.ignored += 1
-            log.debug("%s of grasp %r: no such grasp open", message.topic, body["grasp_id"])
+            log.debug("%s of grasp %r: no such grasp open", message.topic, body.grasp_id)
             return
         if grasp.final is not None:
             return  # the hold and the release: nothing more to estimate
         _check_times(grasp, message)
         stream = grasp.stream
         if message.type == "frame":
-            if stream.add_frame(body["finger"], message.t_capture_s, body["data"], body["encoding"]):
+            if stream.add_frame(body.finger, message.t_capture_s, body.data, body.encoding):
                 self._on_frame(grasp, received_s)
             return
         if message.type == "force":
-            stream.add_force(body["t_s"], body["value_n"])
-            if not grasp.seen_contact and float(body["value_n"].max()) >= CONTACT_HINT * estimator_settings(self.settings).contact_force_n:
+            stream.add_force(body.t_s, body.value_n)
+            if not grasp.seen_contact and float(body.value_n.max()) >= CONTACT_HINT * estimator_settings(self.settings).contact_force_n:
                 # Contact may show in the force only after the first frames in contact came: measure
                 # them now, not in the final estimate (a stiff object loads within a frame or two).
                 segment = stream.segment()
@@ -333,7 +334,7 @@ class EstimatorService:
                 if segment:
                     stream.measure_frames(segment)
         else:
-            stream.add_width(body["t_s"], body["value_m"])
+            stream.add_width(body.t_s, body.value_m)
         # Segmenting is cheap, but not at 80 Hz for nothing: only once the force may have settled, or
         # after the loading-end marker (the force may show the contact only now).
         if stream.loading_end_s is not None or (
@@ -509,7 +510,7 @@ def _ended_by(stream: GraspStream) -> str:
 def _check_times(grasp: _Grasp, message: Message) -> None:
     """Raise PerceptionError unless the message's capture times go strictly forward from the
     topic's last ones without a jump of more than MAX_CLOCK_JUMP_S; then remember the newest."""
-    times = [message.t_capture_s] if message.type == "frame" else message.body["t_s"].tolist()
+    times = [message.t_capture_s] if message.type == "frame" else message.fields.t_s.tolist()
     last = grasp.last_t_s.get(message.topic, -math.inf)
     steps = [b - a for a, b in zip([last, *times], times, strict=False)]
     where = f"grasp {grasp.grasp_id!r} {message.topic} capture times {times[0]:.6f}..{times[-1]:.6f} s"

@@ -39,7 +39,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from rich.text import Text
@@ -51,6 +51,7 @@ from textual.suggester import SuggestFromList
 from textual.widgets import Input, Static
 
 from haptics.operator_loop import LoopStatus, OperatorLoop
+from teleop.bus.messages import EstimateBody
 from teleop.labels import LabelError, describe_label, parse_label
 
 __all__ = ["CONSOLE_BUTTON_KEYS", "OperatorConsole", "estimate_line", "format_pa"]
@@ -77,20 +78,20 @@ def format_pa(value: float | None) -> str:
     return f"{value:.3g} Pa"
 
 
-def estimate_line(estimate: Mapping[str, Any] | None) -> str:
+def estimate_line(estimate: EstimateBody | None) -> str:
     """The estimate in one line: ``E = 3.6 MPa  [2 MPa, 6 MPa]  ok  final``, a bound as ``E >= ...``."""
     if estimate is None:
         return "no estimate yet"
-    state = estimate["state"]
-    kind = "provisional" if estimate["provisional"] else "final"
-    if estimate["E_pa"] is None:
+    state = estimate.state
+    kind = "provisional" if estimate.provisional else "final"
+    if estimate.E_pa is None:
         return f"no modulus ({state.replace('_', ' ')})  {kind}"
     sign = {"lower_bound": ">=", "upper_bound": "<="}.get(state, "=")
-    low, high = estimate["interval_pa"]
+    low, high = estimate.interval_pa
     interval = ""
     if low is not None or high is not None:
         interval = f"  interval [{format_pa(low) if low else '-'}, {format_pa(high) if high else '-'}]"
-    return f"E {sign} {format_pa(estimate['E_pa'])}{interval}  {state}  {kind}"
+    return f"E {sign} {format_pa(estimate.E_pa)}{interval}  {state}  {kind}"
 
 
 def _bar(fraction: float | None, cells: int = BAR_CELLS) -> str:
@@ -315,12 +316,13 @@ class OperatorConsole(App):
         view = status.view
         max_force = self.loop.settings.gripper.target_force_n
         alive = "\n".join(f"{'UP  ' if p.alive else 'DOWN'}  {p.name:<11} {_ago(p.seen_ago_s)}" for p in view.peers)
-        robot = view.robot or {}
+        robot = view.robot
+        target = None if robot is None else robot.target_width_m
         grasp = [
             f"grasp  {view.grasp_id or '-'}" + (f"  ({view.object_name})" if view.object_name else ""),
             f"phase  {view.phase}",
-            f"robot  {robot.get('mode', '-')}" + (f"  target {_mm(robot.get('target_width_m'))}"
-                                                   if robot.get("target_width_m") is not None else ""),
+            f"robot  {'-' if robot is None else robot.mode}"
+            + (f"  target {_mm(target)}" if target is not None else ""),
             f"force  {_bar(None if view.force_n is None else view.force_n / max_force, 16)} "
             + ("-" if view.force_n is None else f"{view.force_n:.1f} N"),
             f"width  {_mm(view.width_m)}",
@@ -336,26 +338,26 @@ class OperatorConsole(App):
         estimate = view.estimate
         lines = [estimate_line(estimate)]
         if estimate is not None:
-            lines.append(f"{view.estimates} estimate(s) for this grasp, method {estimate['method']}")
-            lines.append(f"reason: {estimate['reason']}")
+            lines.append(f"{view.estimates} estimate(s) for this grasp, method {estimate.method}")
+            lines.append(f"reason: {estimate.reason}")
         shown = view.display
         if shown is None:
             display = ["nothing rendered yet"]
         else:
-            level = (f"  level {shown['level']}/{shown['level_max']}" if shown.get("level") is not None else "")
-            if shown["unknown"]:
+            level = f"  level {shown.level}/{shown.level_max}" if shown.level is not None else ""
+            if shown.unknown:
                 what = "unknown (the display says it cannot tell)"
-            elif shown["rigid"]:
+            elif shown.rigid:
                 what = "RIGID (at or beyond the sensor's resolution limit)"
-            elif shown["phase"] == "idle":
+            elif shown.phase == "idle":
                 what = "free (idle)"
             else:
-                what = f"stiffness {shown['stiffness']:.2f} of range = E {format_pa(shown['E_pa'])}"
+                what = f"stiffness {shown.stiffness:.2f} of range = E {format_pa(shown.E_pa)}"
             display = [
                 f"{what}{level}",
                 f"{_bar(view.stiffness)}",
-                f"phase {shown['phase']}  {'provisional' if shown['provisional'] else 'final'}  "
-                f"+/- {shown['uncertainty_decades']:.2f} decade",
+                f"phase {shown.phase}  {'provisional' if shown.provisional else 'final'}  "
+                f"+/- {shown.uncertainty_decades:.2f} decade",
             ]
         felt = "-" if status.operator_force_n is None else f"{status.operator_force_n:.1f} N"
         operator = [
@@ -368,7 +370,7 @@ class OperatorConsole(App):
         if view.notice is not None:
             n = view.notice
             ago = "" if view.notice_t_s is None else f" ({max(0.0, view.t_s - view.notice_t_s):.1f} s ago)"
-            notice_lines.append(f"robot {n['event']}{ago}: {n['action']} {n.get('grasp_id') or ''} - {n['reason']}")
+            notice_lines.append(f"robot {n.event}{ago}: {n.action} {n.grasp_id or ''} - {n.reason}")
         else:
             notice_lines.append("robot: no notice")
         if self.loop_error:

@@ -59,14 +59,17 @@ decade) is 1.2 counts.
 from __future__ import annotations
 
 import math
-from collections.abc import Hashable, Mapping
+from collections.abc import Hashable
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from haptics.errors import MappingError
 from haptics.protocol import UNCERTAINTY_COUNTS_PER_DECADE, StiffnessCommand
 from teleop.settings import WEBER_FRACTION
 from teleop.states import ESTIMATE_STATES
+
+if TYPE_CHECKING:
+    from teleop.bus.messages import EstimateBody
 
 __all__ = [
     "ESTIMATE_STATES",
@@ -183,22 +186,17 @@ class EstimateUpdate:
         return {"lower_bound": low, "upper_bound": high}.get(self.state)
 
     @classmethod
-    def from_mapping(cls, message: Mapping[str, Any]) -> EstimateUpdate:
-        """Build from a mapping with the bus's keys ``E_pa``, ``interval_pa``, ``state``,
-        ``reason``, ``provisional``, ``grasp_id`` and ``t_s`` (the capture time: the bus
-        carries it in the message header); other keys are ignored."""
-        missing = [key for key in ("E_pa", "state", "grasp_id", "t_s") if key not in message]
-        if missing:
-            raise MappingError(f"estimate message lacks {', '.join(missing)}")
-        interval = message.get("interval_pa") or (None, None)
+    def from_estimate(cls, estimate: EstimateBody, t_s: float) -> EstimateUpdate:
+        """Build from a bus ``estimate`` body and ``t_s``, its message's capture time (the bus
+        carries it in the message header); the method, latency and model are left out."""
         return cls(
-            e_pa=message["E_pa"],
-            interval_pa=tuple(interval),
-            state=message["state"],
-            reason=str(message.get("reason", "")),
-            provisional=bool(message.get("provisional", False)),
-            grasp_id=message["grasp_id"],
-            t_s=message["t_s"],
+            e_pa=estimate.E_pa,
+            interval_pa=tuple(estimate.interval_pa),
+            state=estimate.state,
+            reason=estimate.reason,
+            provisional=estimate.provisional,
+            grasp_id=estimate.grasp_id,
+            t_s=t_s,
         )
 
 

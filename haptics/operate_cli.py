@@ -130,8 +130,8 @@ def run(args: argparse.Namespace) -> int:
         view = status.view
         print(json.dumps({"input": name, "follows_sent": status.follows_sent, "commands_sent": status.commands_sent,
                           "grasp_id": view.grasp_id, "phase": view.phase,
-                          "estimate": None if view.estimate is None else dict(view.estimate),
-                          "labels": {grasp_id: dict(body) for grasp_id, body in status.labels.items()},
+                          "estimate": None if view.estimate is None else view.estimate.as_dict(),
+                          "labels": {grasp_id: body.as_dict() for grasp_id, body in status.labels.items()},
                           "problem": status.problem or None}, allow_nan=False))
     return 0
 

@@ -34,10 +34,17 @@ The loop that drives the gripper from an input device over this link is
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from teleop.bus.messages import (
+    DisplayBody,
+    EstimateBody,
+    LabelBody,
+    RobotNoticeBody,
+    RobotStateBody,
+)
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.errors import BusError
@@ -78,7 +85,8 @@ class OperatorView:
     ``loaded`` (the gripper's grasp command completed: fingers stopped at the force), ``ended``.
     ``robot``, ``estimate``, ``display`` and ``notice`` are the latest such message bodies
     (``estimate``: the current grasp's), None before any. ``label``: the body of the last
-    ``label`` this link sent for the current grasp, None if none.
+    ``label`` this link sent for the current grasp, None if none. Each body is its type's
+    dataclass (:mod:`teleop.bus.messages`).
     """
 
     t_s: float
@@ -88,14 +96,14 @@ class OperatorView:
     phase: str = "idle"
     force_n: float | None = None
     width_m: float | None = None
-    robot: Mapping[str, Any] | None = None
-    estimate: Mapping[str, Any] | None = None
+    robot: RobotStateBody | None = None
+    estimate: EstimateBody | None = None
     estimates: int = 0  # estimates received for the current grasp
-    display: Mapping[str, Any] | None = None
-    notice: Mapping[str, Any] | None = None
+    display: DisplayBody | None = None
+    notice: RobotNoticeBody | None = None
     notice_t_s: float | None = None
     refused: int = 0  # bus messages the subscription refused (malformed, unknown type)
-    label: Mapping[str, Any] | None = None
+    label: LabelBody | None = None
 
     def peer(self, name: str) -> Peer | None:
         return next((p for p in self.peers if p.name == name or p.source == name), None)
@@ -109,9 +117,9 @@ class OperatorView:
     def stiffness(self) -> float | None:
         """What the display renders as a fraction of its range (1: rigid); None when unknown or idle."""
         shown = self.display
-        if shown is None or shown["unknown"] or shown["phase"] == "idle":
+        if shown is None or shown.unknown or shown.phase == "idle":
             return None
-        return 1.0 if shown["rigid"] else float(shown["stiffness"])
+        return 1.0 if shown.rigid else float(shown.stiffness)
 
 
 class OperatorLink:
@@ -147,12 +155,12 @@ class OperatorLink:
         self._phase = "idle"
         self._force_n: float | None = None
         self._width_m: float | None = None
-        self._robot: Mapping[str, Any] | None = None
-        self._estimates: dict[str, tuple[Mapping[str, Any], int]] = {}
-        self._display: Mapping[str, Any] | None = None
-        self._notice: tuple[Mapping[str, Any], float] | None = None
+        self._robot: RobotStateBody | None = None
+        self._estimates: dict[str, tuple[EstimateBody, int]] = {}
+        self._display: DisplayBody | None = None
+        self._notice: tuple[RobotNoticeBody, float] | None = None
         self._dismissed: set[str] = set()  # grasps cleared from the view: their late messages are ignored
-        self._labels: dict[str, Mapping[str, Any]] = {}  # grasp id -> the last label sent for it
+        self._labels: dict[str, LabelBody] = {}  # grasp id -> the last label sent for it
         self.view = self._snapshot()
 
     @classmethod
@@ -218,7 +226,7 @@ class OperatorLink:
                                    modulus_pa=None if modulus_pa is None else float(modulus_pa), source=source,
                                    detail=detail)
         self.labels_sent += 1
-        self._labels[grasp_id] = dict(sent.body)
+        self._labels[grasp_id] = sent.fields
         self.view = self._snapshot()
 
     def clear(self) -> None:
@@ -250,28 +258,28 @@ class OperatorLink:
 
     def handle(self, message: Message) -> None:
         """Keep what ``message`` says (called by :meth:`poll`; public for tests and replays)."""
-        body = message.body
+        body = message.fields
         kind = message.type
-        if kind in ("grasp_event", "estimate") and body["grasp_id"] in self._dismissed:
+        if kind in ("grasp_event", "estimate") and body.grasp_id in self._dismissed:
             return
         if kind == "grasp_event" and message.source == "robot":
-            if body["event"] == "start" or body["grasp_id"] != self._grasp_id:
-                self._grasp_id, self._object_name = body["grasp_id"], body["object_name"]
+            if body.event == "start" or body.grasp_id != self._grasp_id:
+                self._grasp_id, self._object_name = body.grasp_id, body.object_name
                 self._estimates = {k: v for k, v in self._estimates.items() if k == self._grasp_id}
-            self._phase = {"start": "loading", "loading_end": "loaded", "end": "ended"}[body["event"]]
+            self._phase = {"start": "loading", "loading_end": "loaded", "end": "ended"}[body.event]
         elif kind == "force":
-            self._force_n = float(body["value_n"][-1])
+            self._force_n = float(body.value_n[-1])
         elif kind == "width":
-            self._width_m = float(body["value_m"][-1])
+            self._width_m = float(body.value_m[-1])
         elif kind == "robot_state":
-            self._robot = dict(body)
+            self._robot = body
         elif kind == "robot_notice":
-            self._notice = (dict(body), self.clock())
+            self._notice = (body, self.clock())
         elif kind == "estimate":
-            _, count = self._estimates.get(body["grasp_id"], (None, 0))
-            self._estimates[body["grasp_id"]] = (dict(body), count + 1)
+            _, count = self._estimates.get(body.grasp_id, (None, 0))
+            self._estimates[body.grasp_id] = (body, count + 1)
         elif kind == "display":
-            self._display = dict(body)
+            self._display = body
 
     def _peers(self, now: float) -> tuple[Peer, ...]:
         heartbeat = self.subscriber.heartbeat

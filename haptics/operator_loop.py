@@ -42,6 +42,7 @@ from datetime import datetime
 from typing import Any, Protocol
 
 from haptics.operator_link import OperatorView
+from teleop.bus.messages import LabelBody
 from teleop.errors import ComplianceTeleopError
 from teleop.operator import BUTTONS, FOLLOW_RATE_HZ, grip_to_width_m
 from teleop.settings import Settings
@@ -102,7 +103,7 @@ class LoopStatus:
     quit: bool = False
     log: tuple[str, ...] = field(default_factory=tuple)
     label_grasp_id: str | None = None  # the grasp a label would name now: the current one, else the last
-    labels: Mapping[str, Any] = field(default_factory=dict)  # grasp id -> the label body sent, this session
+    labels: Mapping[str, LabelBody] = field(default_factory=dict)  # grasp id -> the label body sent, this session
 
 
 class OperatorLoop:
@@ -159,7 +160,7 @@ class OperatorLoop:
         self._target_m: float | None = None
         self._pressed: list[str] = []  # buttons pushed from another thread (press())
         self._to_label: list[tuple[str, Any]] = []  # (grasp id, ObjectLabel) from another thread (label())
-        self._labels: dict[str, Mapping[str, Any]] = {}  # grasp id -> the label body sent
+        self._labels: dict[str, LabelBody] = {}  # grasp id -> the label body sent
         self._last_grasp: str | None = None  # the last grasp seen or commanded (what a label names after "next")
         self._lock = threading.Lock()
         self._last_action = ""
@@ -285,7 +286,7 @@ class OperatorLoop:
         sent = self._send(lambda: self.link.label(grasp_id, label.object_name, modulus_pa=label.modulus_pa,
                                                   source=label.source, detail=label.detail))
         if sent:
-            self._labels = {**self._labels, grasp_id: label.body(grasp_id)}
+            self._labels = {**self._labels, grasp_id: LabelBody(**label.body(grasp_id))}
             value = "the catalogue's E" if label.modulus_pa is None else f"E {label.modulus_pa:.3g} Pa"
             self._act(f"label {grasp_id}: {label.object_name}, {value} ({label.source})")
 
@@ -324,8 +325,8 @@ class OperatorLoop:
         if self._follow_grasp is None:
             return False
         view = self.link.view
-        robot = view.robot or {}
-        if robot.get("grasp_id") == self._follow_grasp and robot.get("mode") in ("following", "stopped"):
+        robot = view.robot
+        if robot is not None and robot.grasp_id == self._follow_grasp and robot.mode in ("following", "stopped"):
             return True
         return view.grasp_id == self._follow_grasp and view.phase in ("loading", "loaded")
 

@@ -160,17 +160,17 @@ class RendererService:
 
     def handle(self, message: Message) -> None:
         """Take one estimate or grasp event; one that cannot be rendered is logged and skipped."""
-        body = message.body
         try:
             if message.type == "grasp_event":
-                if body["event"] == "end":
-                    self.renderer.on_grasp_end(body["grasp_id"], self.clock())
+                event = message.fields
+                if event.event == "end":
+                    self.renderer.on_grasp_end(event.grasp_id, self.clock())
                     self.stats.grasp_ends += 1
-                    self._received.pop(body["grasp_id"], None)
+                    self._received.pop(event.grasp_id, None)
                 return
             if message.type != "estimate":
                 return
-            update = EstimateUpdate.from_mapping({**body, "t_s": message.t_capture_s})
+            update = EstimateUpdate.from_estimate(message.fields, message.t_capture_s)
             reports_before = self.renderer.stats.reports_sent
             ignored_before = self.renderer.stats.estimates_ignored
             self.renderer.on_estimate(update, self.clock())

@@ -63,11 +63,14 @@ import bisect
 import difflib
 import math
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from teleop.errors import TeleopError
+
+if TYPE_CHECKING:  # at run time the bus's messages import this module
+    from teleop.bus.messages import LabelBody
 
 __all__ = [
     "LABEL_SOURCES",
@@ -243,14 +246,12 @@ class ObjectLabel:
         }
 
 
-def describe_label(label: ObjectLabel | Mapping[str, Any]) -> str:
-    """A label in one line for people: ``stress_ball  E 40 kPa  (catalogue)``."""
-    if isinstance(label, ObjectLabel):
-        name, modulus, source = label.object_name, label.modulus_pa, label.source
-    else:
-        name, modulus, source = label["object_name"], label["modulus_pa"], label["source"]
+def describe_label(label: ObjectLabel | LabelBody) -> str:
+    """A label (as given, or the body of a ``label`` message) in one line for people:
+    ``stress_ball  E 40 kPa  (catalogue)``."""
+    modulus = label.modulus_pa
     value = "E from the catalogue" if modulus is None else f"E {_format_pa(modulus)}"
-    return f"{name}  {value}  ({source})"
+    return f"{label.object_name}  {value}  ({label.source})"
 
 
 def _format_pa(value: float) -> str:

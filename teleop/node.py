@@ -295,15 +295,15 @@ class RobotNode:
     def handle_command(self, message: Message) -> None:
         """Carry out one operator command or follow; one that cannot be carried out is refused
         (module docstring)."""
-        body = message.body
-        action = "follow" if message.type == "follow" else body["action"]
+        body = message.fields
+        action = "follow" if message.type == "follow" else body.action
         try:
             if message.type == "follow":
-                self._follower.follow(body["grasp_id"], body["target_width_m"], body["enable"])
+                self._follower.follow(body.grasp_id, body.target_width_m, body.enable)
             elif action == "start_grasp":
-                params = body["params"]
+                params = body.params
                 index = params.get("object_index")
-                self.start_grasp(body["grasp_id"], object_index=None if index is None else _index(index),
+                self.start_grasp(body.grasp_id, object_index=None if index is None else _index(index),
                                  target_force_n=params.get("target_force_n"))
             elif action == "stop":
                 self.gripper.stop()
@@ -315,7 +315,7 @@ class RobotNode:
                 log.debug("command %s is not for the robot node", action)
         except TeleopError as exc:
             self.stats.bad_commands += 1
-            grasp_id = body["grasp_id"] or (self._grasp.grasp_id if self._grasp is not None else None)
+            grasp_id = body.grasp_id or (self._grasp.grasp_id if self._grasp is not None else None)
             if self._notice("refused", action, grasp_id, str(exc), repeat_s=REFUSAL_REPEAT_S):
                 log.warning("command %s from %s not carried out: %s", action, message.source or "?", exc)
 

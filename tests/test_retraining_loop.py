@@ -117,7 +117,7 @@ def test_the_loop_from_two_sessions_to_a_served_model(tmp_path, capsys):
                                    "--estimate-pub", system.endpoints["estimate_pub"], "--json"]) == 0
         assert _last_json(capsys)["model"] == candidate_id
         after = system.grasp("served-2", 1, objects[1])
-    assert before.final["model"] == base_id and after.final["model"] == candidate_id
+    assert before.final.model == base_id and after.final.model == candidate_id
     logged = _estimates(system.session_log)
     finals = {e["grasp_id"]: e["model"] for e in logged if not e["provisional"]}
     assert finals == {"served-1": base_id, "served-2": candidate_id}

@@ -1,11 +1,13 @@
-"""The checks bus message fields are written in: the vocabulary of :data:`teleop.bus.wire.SCHEMAS`.
+"""The checks bus message fields are written in: the vocabulary of :mod:`teleop.bus.messages`.
 
-The wire format itself (frames, header, limits, which fields each message type has)
-is :mod:`teleop.bus.wire`'s; this module only says what a field check is and
-provides the kinds the schemas use: bounded strings, integers, finite numbers,
-flags, intervals, maps of names to numbers, and typed arrays. Each kind is a frozen
-dataclass whose attributes are its options, so other views of a message type (the
-session log's JSON Schemas, :mod:`teleop.session.foxglove`) read the same table.
+The wire format itself (frames, header, limits) is :mod:`teleop.bus.wire`'s, and which fields
+each message type has is :mod:`teleop.bus.messages`' (one dataclass per type); this module says
+what a field check is, provides the kinds the types use (bounded strings, integers, finite
+numbers, flags, intervals, maps of names to numbers, and typed arrays), how a body dataclass
+declares its fields with them (:func:`scalar`, :func:`array`), and the :class:`Schema` the wire
+checks a body against, derived from such a dataclass (:meth:`Schema.of`). Each kind of check is
+a frozen dataclass whose attributes are its options, so other views of a message type (the
+session log's JSON Schemas, :mod:`teleop.session.foxglove`) read the same definitions.
 
 Every check refuses with :class:`~teleop.errors.MessageRejected` (``mistyped_field``,
 or ``not_finite`` for NaN and infinity), naming the field.
@@ -13,6 +15,7 @@ or ``not_finite`` for NaN and infinity), naming the field.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 from collections.abc import Callable, Mapping, Sequence
@@ -35,7 +38,9 @@ __all__ = [
     "NumberMapField",
     "Schema",
     "TextField",
+    "array",
     "is_int",
+    "scalar",
 ]
 
 
@@ -201,6 +206,45 @@ class ArrayField:
         return array
 
 
+# How a body dataclass field says what it is (dataclasses.Field.metadata keys).
+_CHECK, _ARRAY, _ADDED = "bus_check", "bus_array", "bus_added_later"
+
+
+def scalar(check: Check, *, required: bool = False, added_later: bool = False) -> Any:
+    """A scalar body field checked by ``check``, as a :func:`dataclasses.field`.
+
+    Parameters
+    ----------
+    check : Check
+        What the field's value must be.
+    required : bool
+        For a nullable field: a sender must give it (nil included). Otherwise a sender may leave
+        a nullable field out, and it is sent as nil (its dataclass default is None).
+    added_later : bool
+        The field came after its type was first sent: a receiver reads a message without it (an
+        older sender, an older session log) as nil. Such a field is nullable and never required.
+
+    Raises
+    ------
+    TypeError
+        ``required`` or ``added_later`` for a field they cannot apply to (a mistake in a type's
+        definition).
+    """
+    if added_later and (required or not check.nullable):
+        raise TypeError(f"a field added later must be nullable and not required, not {check!r}")
+    if required and not check.nullable:
+        raise TypeError(f"only a nullable field can be required: {check!r} always is")
+    metadata = {_CHECK: check, _ADDED: added_later}
+    if check.nullable and not required:
+        return field(default=None, metadata=metadata)
+    return field(metadata=metadata)
+
+
+def array(spec: ArrayField) -> Any:
+    """An array body field of ``spec``, as a :func:`dataclasses.field` (it travels as a buffer)."""
+    return field(metadata={_ARRAY: spec})
+
+
 @dataclass(frozen=True)
 class Schema:
     """Body of one message type: scalar fields, array fields, cross-field rule."""
@@ -212,3 +256,46 @@ class Schema:
     # Nullable fields added after the type was first sent: a receiver fills them with nil when a
     # sender (or a logged message) predates them; senders always send them.
     optional: frozenset[str] = frozenset()
+
+    @classmethod
+    def of(cls, body: type) -> Schema:
+        """The schema a body dataclass declares.
+
+        Its fields, in order, each made with :func:`scalar` or :func:`array`; its rule, when it
+        has a ``cross_check`` method: called on the body built from the checked fields, it raises
+        :class:`~teleop.errors.MessageRejected` for fields that disagree.
+
+        Raises
+        ------
+        TypeError
+            ``body`` is not a dataclass, or a field of it is not declared with :func:`scalar` or
+            :func:`array`.
+        """
+        if not dataclasses.is_dataclass(body):
+            raise TypeError(f"{body!r} is not a dataclass: a message body is one")
+        scalars: dict[str, dataclasses.Field] = {}
+        arrays: dict[str, ArrayField] = {}
+        for item in dataclasses.fields(body):
+            if _ARRAY in item.metadata:
+                arrays[item.name] = item.metadata[_ARRAY]
+            elif _CHECK in item.metadata:
+                scalars[item.name] = item
+            else:
+                raise TypeError(f"{body.__name__}.{item.name} is declared without scalar() or array()")
+        return cls(
+            fields={name: item.metadata[_CHECK] for name, item in scalars.items()},
+            arrays=arrays,
+            nullable=frozenset(name for name, item in scalars.items() if item.default is None),
+            rule=_CrossCheck(body) if hasattr(body, "cross_check") else None,
+            optional=frozenset(name for name, item in scalars.items() if item.metadata[_ADDED]),
+        )
+
+
+@dataclass(frozen=True)
+class _CrossCheck:
+    """A body class's ``cross_check`` as a schema's rule: run on the body built from the checked fields."""
+
+    body: type
+
+    def __call__(self, checked: dict[str, Any]) -> None:
+        self.body(**checked).cross_check()

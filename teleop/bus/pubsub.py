@@ -497,7 +497,7 @@ class Subscriber(_Socket):
         self.stats.received += 1
         self._check_sequence(message)
         if message.type == "heartbeat":
-            self.heartbeat.saw(message.source, interval_s=message.body["interval_s"])
+            self.heartbeat.saw(message.source, interval_s=message.fields.interval_s)
             return None
         self.heartbeat.saw(message.source)
         return message

@@ -28,9 +28,9 @@ Every message is one multipart ZeroMQ message::
                      (``"<f8"``, ``"|u1"``, ...), and the shape as a list of ints.
 
 ``body`` (msgpack map, at most 64 KiB)
-    The type's scalar fields (:data:`SCHEMAS`): str, int, float, bool, nil, a two-item
-    interval or a str->float map. Every field is present (nullable ones as nil); no
-    other key is allowed. Array fields never appear here.
+    The type's scalar fields (:data:`BODIES`), in their declared order: str, int, float,
+    bool, nil, a two-item interval or a str->float map. Every field is present (nullable
+    ones as nil); no other key is allowed. Array fields never appear here.
 ``buffers``
     The raw bytes of each array field, C order, one frame each. They are sent
     zero-copy (``copy=False`` over a memoryview of the array) and received zero-copy
@@ -44,17 +44,22 @@ against NaN and infinity. The envelope and its encoding are this module's alone.
 
 Message types and body schemas
 ------------------------------
-The message types, their body fields and what each means are :mod:`teleop.bus.messages`
-(:data:`SCHEMAS`, written in the field checks of :mod:`teleop.bus.field_checks`); this module
-checks every body against them and re-exports their names.
+The message types, their body fields and what each means are :mod:`teleop.bus.messages`: one
+dataclass per type (:data:`BODIES`), its fields written in the field checks of
+:mod:`teleop.bus.field_checks`, and :data:`SCHEMAS` derived from them. This module checks every
+body against them and re-exports their names. A received (or built) message's fields are read
+from its typed view, :attr:`Message.fields`, an instance of its type's dataclass; the body map
+(:attr:`Message.body`) is the wire's form, which :func:`encode` writes.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import msgpack
@@ -62,6 +67,7 @@ import numpy as np
 
 from teleop.bus.field_checks import IntegerField, NumberField, TextField, is_int
 from teleop.bus.messages import (
+    BODIES,
     COMMAND_ACTIONS,
     DISPLAY_PHASES,
     ESTIMATE_STATES,
@@ -72,10 +78,12 @@ from teleop.bus.messages import (
     ROBOT_MODES,
     ROBOT_NOTICES,
     SCHEMAS,
+    Body,
 )
 from teleop.errors import MessageRejected
 
 __all__ = [
+    "BODIES",
     "COMMAND_ACTIONS",
     "DISPLAY_PHASES",
     "DTYPES",
@@ -91,6 +99,7 @@ __all__ = [
     "ROBOT_NOTICES",
     "SCHEMAS",
     "SCHEMA_VERSION",
+    "Body",
     "Message",
     "decode",
     "default_topic",
@@ -164,9 +173,10 @@ def default_topic(kind: str, body: Mapping[str, Any]) -> str:
 class Message:
     """One bus message as the nodes see it.
 
-    ``body`` holds every field of the type's schema, arrays included (numpy arrays;
-    read-only views over the received frames after :func:`decode`). ``seq`` and
-    ``t_send_ns`` are filled in by the publisher when it sends.
+    ``body`` holds every field of the type's schema by name, arrays included (numpy arrays;
+    read-only views over the received frames after :func:`decode`): the wire's form, which
+    :func:`encode` writes. Code reads the fields from :attr:`fields`. ``seq`` and ``t_send_ns``
+    are filled in by the publisher when it sends.
     """
 
     type: str
@@ -176,6 +186,36 @@ class Message:
     source: str = ""
     seq: int = 0
     t_send_ns: int = 0
+
+    @cached_property
+    def fields(self) -> Body:
+        """The body as its type's dataclass (:data:`BODIES`), the same values (arrays not
+        copied); built on the first read, so a message nobody reads costs nothing more.
+
+        Raises
+        ------
+        MessageRejected
+            Only for a message built by hand, not by :func:`make_message` or :func:`decode`:
+            ``unknown_type``, ``missing_field`` or ``extra_field``.
+        """
+        return _typed_body(self.type, self.body)
+
+
+def _typed_body(kind: str, body: Mapping[str, Any]) -> Body:
+    """``body`` as the dataclass of type ``kind``; a field left out takes its default (nil)."""
+    cls = BODIES.get(kind) if isinstance(kind, str) else None
+    if cls is None:
+        raise MessageRejected("unknown_type", f"{kind!r} is not one of {', '.join(BODIES)}")
+    try:
+        return cls(**body)
+    except TypeError:  # a field too many or one missing: say which
+        declared = {item.name: item for item in dataclasses.fields(cls)}
+        extra = sorted(map(str, set(body) - set(declared)))
+        if extra:
+            raise MessageRejected("extra_field", f"{kind} body has unexpected field(s) {', '.join(extra)}") from None
+        missing = sorted(name for name, item in declared.items()
+                         if name not in body and item.default is dataclasses.MISSING)
+        raise MessageRejected("missing_field", f"{kind} body lacks {', '.join(missing)}") from None
 
 
 def make_message(kind: str, *, t_capture_s: float, topic: str | None = None, **body: Any) -> Message:

@@ -59,6 +59,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from teleop.bus.messages import LabelBody
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec, load_catalogue
@@ -135,14 +136,14 @@ class _OpenGrasp:
     loading_end_s: float | None = None
 
     def add(self, message: Message) -> None:
-        body = message.body
+        body = message.fields
         if message.type == "frame":
-            data = body["data"] if body["encoding"] == "raw" else body["data"].tobytes()
-            self.frames[body["finger"]].append((message.t_capture_s, body["encoding"], data))
+            data = body.data if body.encoding == "raw" else body.data.tobytes()
+            self.frames[body.finger].append((message.t_capture_s, body.encoding, data))
         elif message.type == "force":
-            self.force.append((body["t_s"], body["value_n"]))
+            self.force.append((body.t_s, body.value_n))
         else:
-            self.width.append((body["t_s"], body["value_m"]))
+            self.width.append((body.t_s, body.value_m))
 
 
 def _samples(parts: list[tuple[np.ndarray, np.ndarray]]) -> Samples:
@@ -205,7 +206,7 @@ class _Assembler:
         source: str,
         session_version: str,
         session: str,
-        labels: dict[str, dict],
+        labels: dict[str, LabelBody],
         calibration_files: dict[str, bytes],
     ):
         self.path = path
@@ -221,16 +222,16 @@ class _Assembler:
         self.unassigned = 0
 
     def feed(self, message: Message) -> Iterator[GraspExport]:
-        body = message.body
+        body = message.fields
         if message.type == "grasp_event":
-            grasp_id = body["grasp_id"]
-            if body["event"] == "start":
+            grasp_id = body.grasp_id
+            if body.event == "start":
                 if grasp_id in self.open:
                     yield GraspExport(
                         grasp_id, reason="started again before it ended; the first start is dropped"
                     )
-                self.open[grasp_id] = _OpenGrasp(grasp_id, message.t_capture_s, body["object_name"])
-            elif body["event"] == "loading_end":  # the grasp goes on
+                self.open[grasp_id] = _OpenGrasp(grasp_id, message.t_capture_s, body.object_name)
+            elif body.event == "loading_end":  # the grasp goes on
                 if grasp_id in self.open:
                     self.open[grasp_id].loading_end_s = message.t_capture_s
             elif grasp_id in self.open:
@@ -239,7 +240,7 @@ class _Assembler:
             elif grasp_id not in self.ended:  # other nodes may announce an end again
                 log.warning("%s: grasp %r ends but never started; ignored", self.path, grasp_id)
         elif message.type in ("frame", "force", "width"):
-            grasp_id = body["grasp_id"]
+            grasp_id = body.grasp_id
             if grasp_id is None and len(self.open) == 1:
                 grasp_id = next(iter(self.open))
             if grasp_id in self.open:
@@ -300,8 +301,8 @@ class _Assembler:
 
     def label(self, grasp_id: str, object_name: str | None) -> tuple[Label | None, str]:
         """The grasp's label (module notes) and, when it has no modulus, why."""
-        message = self.labels.get(grasp_id)
-        if message is None:
+        given = self.labels.get(grasp_id)
+        if given is None:
             if object_name is None:
                 return None, (
                     "no label: the log names no object for this grasp "
@@ -316,8 +317,7 @@ class _Assembler:
             return Label(
                 object_name=obj.name, modulus_pa=obj.modulus_pa, material=obj.material, shape=obj.shape
             ), ""
-        name, modulus = message["object_name"], message["modulus_pa"]
-        source, detail = message["source"], message["detail"]
+        name, modulus, source, detail = given.object_name, given.modulus_pa, given.source, given.detail
         obj = self.objects.get(name)
         material, shape = (obj.material, obj.shape) if obj is not None else ("", "")
         if modulus is None:
@@ -384,12 +384,13 @@ def session_id(info: LogInfo, path: str | Path) -> str:
     return f"log-{hashlib.sha256(head).hexdigest()[:8]}"
 
 
-def _labels(reader: LogReader) -> dict[str, dict]:
+def _labels(reader: LogReader) -> dict[str, LabelBody]:
     """The last ``label`` message body per grasp id (topic ``label``)."""
     labels = {}
     for logged in reader.messages(("label",)):
         if logged.message.type == "label":
-            labels[logged.message.body["grasp_id"]] = logged.message.body
+            label = logged.message.fields
+            labels[label.grasp_id] = label
     return labels
 
 
@@ -434,7 +435,7 @@ def _grasps(
     if assembler.unassigned:
         log.info("%s: %d frame/force/width messages outside any grasp", path, assembler.unassigned)
     for grasp_id in sorted(set(labels) - seen):
-        line = (f"a label names grasp {grasp_id!r} (object {labels[grasp_id]['object_name']!r}), "
+        line = (f"a label names grasp {grasp_id!r} (object {labels[grasp_id].object_name!r}), "
                 "but the log has no grasp of that id")
         log.warning("%s: %s", path, line)
         if stray_labels is not None:

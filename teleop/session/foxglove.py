@@ -20,10 +20,11 @@ anything else  ``/<bus topic>``                 JSON: ``estimate``, ``display``,
 
 Why JSON for the numeric types: Foxglove's Plot, State Transitions and Raw Messages panels
 read JSON fields by message path (``/estimate.log10_E_pa``) with no generated code, and a
-JSON Schema per type can be derived from :data:`teleop.bus.wire.SCHEMAS` at run time, so a
-new bus type (or field) is plotted without a line of new code here; these messages are a
-small fraction of a session's bytes, and the log's chunks are compressed. Images and log
-lines use the Foxglove protobuf schemas, which the Image and Log panels need.
+JSON Schema per type is derived at run time from the type's one definition
+(:mod:`teleop.bus.messages`, through :data:`teleop.bus.wire.SCHEMAS`), so a new bus type (or
+field) is plotted without a line of new code here; these messages are a small fraction of a
+session's bytes, and the log's chunks are compressed. Images and log lines use the Foxglove
+protobuf schemas, which the Image and Log panels need.
 
 JSON message fields: ``timestamp`` (``{sec, nsec}``, the capture time, or the sample time
 for sample messages), ``t_capture_s``, every scalar field of the type as sent, plus, for
@@ -40,7 +41,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 from typing import Any
@@ -58,7 +59,7 @@ from teleop.bus.field_checks import (
     NumberMapField,
     TextField,
 )
-from teleop.bus.wire import SCHEMAS, Message
+from teleop.bus.wire import SCHEMAS, Body, Message
 
 __all__ = [
     "EVENTS_TOPIC",
@@ -147,23 +148,23 @@ def _protobuf(topic: str, proto: Any) -> FoxgloveMessage:
 
 
 def _image(message: Message) -> list[FoxgloveMessage]:
-    body = message.body
-    if body["encoding"] == "raw":  # no compressed bytes to show as they are
+    frame = message.fields
+    if frame.encoding == "raw":  # no compressed bytes to show as they are
         return []
     image = CompressedImage(
         timestamp=_timestamp(message.t_capture_s),
-        frame_id=body["finger"],
-        data=body["data"].tobytes(),
-        format=body["encoding"],
+        frame_id=frame.finger,
+        data=frame.data.tobytes(),
+        format=frame.encoding,
     )
-    return [_protobuf(image_topic(body["finger"]), image)]
+    return [_protobuf(image_topic(frame.finger), image)]
 
 
 def _event(message: Message) -> list[FoxgloveMessage]:
-    body = message.body
-    text = f"grasp {body['grasp_id']} {body['event']}"
-    if body["object_name"]:
-        text += f" (object: {body['object_name']})"
+    event = message.fields
+    text = f"grasp {event.grasp_id} {event.event}"
+    if event.object_name:
+        text += f" (object: {event.object_name})"
     line = Log(
         timestamp=_timestamp(message.t_capture_s),
         level=Log.Level.INFO,
@@ -273,10 +274,10 @@ def _json_schema_bytes(kind: str) -> bytes:
     return json.dumps(json_schema(kind), sort_keys=True).encode("utf-8")
 
 
-def _json_fields(kind: str, body: Mapping[str, Any]) -> dict[str, Any]:
+def _json_fields(kind: str, body: Body) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for field in _fields(kind):
-        value = body[field.name]
+        value = getattr(body, field.name)
         if value is None:
             continue
         if field.interval:
@@ -303,13 +304,13 @@ def _json(topic: str, kind: str, fields: dict[str, Any], age_ns: int = 0) -> Fox
 
 
 def _plain(message: Message) -> list[FoxgloveMessage]:
-    kind, body = message.type, message.body
+    kind, body = message.type, message.fields
     common = {"t_capture_s": message.t_capture_s, **_json_fields(kind, body)}
     topic = "/" + message.topic
     arrays = SCHEMAS[kind].arrays
     if _SAMPLE_TIMES not in arrays:
         return [_json(topic, kind, {"timestamp": _time_json(message.t_capture_s), **common})]
-    columns = {name: body[name].tolist() for name in arrays}
+    columns = {name: getattr(body, name).tolist() for name in arrays}
     times = columns[_SAMPLE_TIMES]
     newest = max(times)
     out = []

@@ -192,7 +192,7 @@ def _survey(reader: LogReader) -> tuple[dict[str, _Grasp], int]:
     seq = 0
     for logged in reader.messages(topics=("grasp_event", "label")):
         message = logged.message
-        grasp_id = message.body["grasp_id"]
+        grasp_id = message.fields.grasp_id
         if message.type == "grasp_event":
             grasp = grasps.setdefault(grasp_id, _Grasp())
             grasp.log_time_ns = max(grasp.log_time_ns, logged.log_time_ns)
@@ -267,7 +267,7 @@ def label_session(
         message = dataclasses.replace(message, source=LABEL_SOURCE_NAME, seq=seq, t_send_ns=grasp.log_time_ns)
         seq += 1
         labels.append((grasp.log_time_ns, message))
-        report.labels.append(dict(message.body))
+        report.labels.append(message.fields.as_dict())
     tmp = log.with_name(log.name + ".partial")
     try:
         with tmp.open("wb") as file:
@@ -353,7 +353,7 @@ def _copy_with_labels(reader: LogReader, writer: Writer, labels: list[tuple[int,
             "labelled_utc": datetime.now(UTC).isoformat(),
             "software_version": software_version(),
             "csv": str(csv_path),
-            "labels": json.dumps([message.body["grasp_id"] for _, message in labels]),
+            "labels": json.dumps([message.fields.grasp_id for _, message in labels]),
         },
     )
     writer.finish()

@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 
+from teleop.bus.messages import LabelBody
 from teleop.session.label import label_session
 
 EPILOG = """\
@@ -55,9 +56,9 @@ def run(args: argparse.Namespace) -> int:
         + (f"; replaced the labels of {', '.join(report.relabelled)}" if report.relabelled else ""),
         file=sys.stderr,
     )
-    for body in report.labels:
-        modulus = "the catalogue's" if body["modulus_pa"] is None else f"{body['modulus_pa']:.4g} Pa"
-        print(f"  {body['grasp_id']}: {body['object_name']}, E {modulus} ({body['source']})", file=sys.stderr)
+    for label in (LabelBody(**body) for body in report.labels):
+        modulus = "the catalogue's" if label.modulus_pa is None else f"{label.modulus_pa:.4g} Pa"
+        print(f"  {label.grasp_id}: {label.object_name}, E {modulus} ({label.source})", file=sys.stderr)
     if args.json:
         print(json.dumps(report.as_dict()))
     return 0

@@ -58,6 +58,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from haptics.settings import display_range_pa
+from teleop.bus.messages import ModelEventBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
@@ -197,7 +198,7 @@ class LiveSystem:
         self.display_range: tuple[float, float] | None = None  # (e_soft_pa, e_rigid_pa), known once started
         self._followed: set[str] = set()  # grasps followed to their end
         self._later: list[Message] = []  # messages of a grasp that started while another was followed
-        self.model_events: list[dict[str, Any]] = []  # what the estimator said of its model, as heard
+        self.model_events: list[ModelEventBody] = []  # what the estimator said of its model, as heard
 
     @property
     def session_log(self) -> Path | None:
@@ -347,7 +348,7 @@ class LiveSystem:
         outcome = GraspOutcome(None, obj, style="operator", display_range=self.display_range)
         return self._follow(outcome, on_update=on_update, on_message=on_message, timeout_s=timeout_s)
 
-    def load_model(self, path: str | Path, *, timeout_s: float = 30.0) -> dict[str, Any]:
+    def load_model(self, path: str | Path, *, timeout_s: float = 30.0) -> ModelEventBody:
         """Switch the running estimator to the model in ``path``, as ``estimator reload`` does (on the
         control endpoint, so from any thread, whoever operates); the body of the service's
         ``model_event`` answer ("loaded" with the new id, or "refused" with the reason).
@@ -376,7 +377,7 @@ class LiveSystem:
             message = self._later.pop(0) if self._later else self.events.recv(timeout_s=timeout_s)
             if message is None or message.type != "model_event":
                 return message
-            self.model_events.append(dict(message.body))
+            self.model_events.append(message.fields)
 
     def _follow(self, outcome: GraspOutcome, *, on_update: Callable[[GraspOutcome], None] | None,
                 on_message: Callable[[Message], None] | None, timeout_s: float) -> GraspOutcome:
@@ -391,8 +392,9 @@ class LiveSystem:
             message = self._next_message(timeout_s=0.05)
             if message is None:
                 continue
-            body, grasp_id = message.body, message.body.get("grasp_id")
-            if (outcome.grasp_id is None and message.type == "grasp_event" and body["event"] == "start"
+            body = message.fields  # a grasp_event, estimate, force or display: each names its grasp
+            grasp_id = body.grasp_id
+            if (outcome.grasp_id is None and message.type == "grasp_event" and body.event == "start"
                     and message.source == "robot" and grasp_id not in self._followed):
                 outcome.grasp_id = grasp_id  # the operator's next grasp
             if grasp_id != outcome.grasp_id:
@@ -405,14 +407,14 @@ class LiveSystem:
                 outcome.observe(message)
             elif message.type == "estimate":
                 outcome.estimates += 1
-                outcome.latest = dict(body)
-                if not body["provisional"]:
-                    outcome.final = dict(body)
-            elif body["event"] == "start":
+                outcome.latest = body
+                if not body.provisional:
+                    outcome.final = body
+            elif body.event == "start":
                 outcome.started = True
-                if body["object_name"] not in (None, obj.name):
-                    raise TeleopError(f"grasp {grasp_id}: the node grasped {body['object_name']}, not {obj.name}")
-            elif body["event"] != "end":  # loading_end: the grasp goes on
+                if body.object_name not in (None, obj.name):
+                    raise TeleopError(f"grasp {grasp_id}: the node grasped {body.object_name}, not {obj.name}")
+            elif body.event != "end":  # loading_end: the grasp goes on
                 pass
             elif message.source == "estimator":
                 outcome.estimator_ended = True

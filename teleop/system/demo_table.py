@@ -61,9 +61,9 @@ class LiveView:
             latest = outcome.latest
             if latest is None:
                 return f"{head} {'grasping' if outcome.started else 'simulating'}"
-            kind = "provisional" if latest["provisional"] else "final"
+            kind = "provisional" if latest.provisional else "final"
             return (f"{head} {outcome.estimates:3d} estimates, {kind} "
-                    f"{_STATE_MARK[latest['state']]}{_pa(latest['E_pa'])} Pa ({latest['state']})")
+                    f"{_STATE_MARK[latest.state]}{_pa(latest.E_pa)} Pa ({latest.state})")
         error = outcome.log10_error
         first = outcome.t_first_estimate_s
         return (f"{head} E {_pa(outcome.obj.modulus_pa)} Pa -> {_STATE_MARK[outcome.state]}"

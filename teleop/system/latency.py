@@ -292,7 +292,7 @@ def run(args: argparse.Namespace) -> int:
 
     def watch(message: Message) -> None:
         if message.type == "estimate":
-            compute_s.append(message.body["latency_s"])
+            compute_s.append(message.fields.latency_s)
 
     started = time.monotonic()
     view = LiveView(log, len(plan))

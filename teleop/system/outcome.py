@@ -16,6 +16,7 @@ from estimator.metrics import felt_log10_error, felt_within
 from estimator.settings import EstimatorSettings
 from haptics.errors import MappingError
 from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_fraction
+from teleop.bus.messages import EstimateBody
 from teleop.catalogue import ObjectSpec
 
 __all__ = ["GraspOutcome", "ReportReader"]
@@ -70,8 +71,8 @@ class GraspOutcome:
     robot_ended: bool = False
     estimator_ended: bool = False
     estimates: int = 0
-    latest: dict[str, Any] | None = None  # body of the newest estimate
-    final: dict[str, Any] | None = None  # body of the final estimate
+    latest: EstimateBody | None = None  # the newest estimate
+    final: EstimateBody | None = None  # the final estimate
     estimator_report: dict[str, Any] | None = None
     renderer_report: dict[str, Any] | None = None
     display_range: tuple[float, float] | None = None
@@ -83,14 +84,14 @@ class GraspOutcome:
 
     def observe(self, message: Any) -> None:
         """Note a ``force`` or ``display`` message of this grasp (the convergence figures)."""
-        body = message.body
+        body = message.fields
         if message.type == "force" and self.t_contact_s is None:
-            reached = np.flatnonzero(np.asarray(body["value_n"]) >= self.contact_force_n)
+            reached = np.flatnonzero(np.asarray(body.value_n) >= self.contact_force_n)
             if reached.size:
-                self.t_contact_s = float(body["t_s"][reached[0]])
-        elif message.type == "display" and body["phase"] == "active":  # not the fade after the grasp
+                self.t_contact_s = float(body.t_s[reached[0]])
+        elif message.type == "display" and body.phase == "active":  # not the fade after the grasp
             soft_end = self.display_range[0] if self.display_range else None
-            e_pa = None if body["unknown"] else (body["E_pa"] if body["E_pa"] is not None else soft_end)
+            e_pa = None if body.unknown else (body.E_pa if body.E_pa is not None else soft_end)
             self.display_track.append((message.t_capture_s, e_pa))
 
     @property
@@ -99,18 +100,18 @@ class GraspOutcome:
 
     @property
     def e_final_pa(self) -> float | None:
-        return None if self.final is None else self.final["E_pa"]
+        return None if self.final is None else self.final.E_pa
 
     @property
     def state(self) -> str:
-        return "none" if self.final is None else self.final["state"]
+        return "none" if self.final is None else self.final.state
 
     @property
     def interval_pa(self) -> list[float | None] | None:
         """The final estimate's interval [low, high] (None: an open side); None without a final."""
         if self.final is None:
             return None
-        low, high = self.final.get("interval_pa") or (None, None)
+        low, high = self.final.interval_pa
         return [low, high]
 
     @property
@@ -127,7 +128,7 @@ class GraspOutcome:
             return None
         soft, rigid = self.display_range
         try:
-            update = EstimateUpdate(self.final["E_pa"], tuple(self.interval_pa), self.final["state"])
+            update = EstimateUpdate(self.final.E_pa, tuple(self.interval_pa), self.final.state)
             return map_estimate(update, e_soft_pa=soft, e_rigid_pa=rigid)
         except MappingError:
             return None
@@ -180,7 +181,7 @@ class GraspOutcome:
     @property
     def model(self) -> str | None:
         """The id of the learned model that made the final estimate (None: an analytical one, or none)."""
-        return None if self.final is None else self.final.get("model")
+        return None if self.final is None else self.final.model
 
     @property
     def t_first_estimate_s(self) -> float | None:

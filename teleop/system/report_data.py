@@ -160,26 +160,27 @@ def grasp_messages(reader: LogReader) -> tuple[dict[str, GraspView], bool]:
     views: dict[str, GraspView] = {}
     any_display = False
     for logged in reader.messages(("grasp_event", "estimate", "display")):
-        message, body = logged.message, logged.message.body
+        message = logged.message
         if message.type not in ("grasp_event", "estimate", "display"):
             continue
         any_display |= message.type == "display"
-        grasp_id = body["grasp_id"]
+        body = message.fields
+        grasp_id = body.grasp_id
         if grasp_id is None:  # the display idling between grasps
             continue
         view = views.setdefault(grasp_id, GraspView(grasp_id))
         if message.type == "grasp_event":
-            if body["event"] == "start" and body["object_name"] is not None:
-                view.object_name = body["object_name"]
+            if body.event == "start" and body.object_name is not None:
+                view.object_name = body.object_name
         elif message.type == "estimate":
-            low, high = body["interval_pa"]
+            low, high = body.interval_pa
             view.estimates.append(EstimatePoint(
-                message.t_capture_s, body["E_pa"], (low, high), body["state"], body["reason"],
-                bool(body["provisional"]), body["method"]))
+                message.t_capture_s, body.E_pa, (low, high), body.state, body.reason,
+                bool(body.provisional), body.method))
         else:
             view.display.append(DisplayPoint(
-                message.t_capture_s, body["phase"], float(body["stiffness"]), body["E_pa"],
-                bool(body["rigid"]), bool(body["unknown"]), bool(body["provisional"])))
+                message.t_capture_s, body.phase, float(body.stiffness), body.E_pa,
+                bool(body.rigid), bool(body.unknown), bool(body.provisional)))
     return views, any_display
 
 

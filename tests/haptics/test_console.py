@@ -13,6 +13,7 @@ from haptics.console import OperatorConsole, estimate_line, format_pa
 from haptics.inputs.keyboard import KeyboardInput
 from haptics.operator_link import PEERS, OperatorView, Peer
 from haptics.operator_loop import OperatorLoop
+from teleop.bus.messages import DisplayBody, EstimateBody, RobotNoticeBody, RobotStateBody
 from teleop.settings import load_settings
 
 NOBODY = tuple(Peer(name, source, False, None) for name, source in PEERS)
@@ -53,10 +54,10 @@ class FakeLink:
         return [kind for kind, _ in self.sent]
 
 
-ESTIMATE = {"grasp_id": "g", "method": "hybrid", "E_pa": 3.6e6, "interval_pa": [2.0e6, 6.0e6], "state": "ok",
-            "reason": "loading phase 0.12-0.41 s (the first squeeze)", "provisional": False, "latency_s": 0.01}
-DISPLAY = {"grasp_id": "g", "phase": "active", "stiffness": 0.87, "uncertainty_decades": 0.3, "rigid": False,
-           "unknown": False, "provisional": False, "E_pa": 3.6e6, "level": 55, "level_max": 63}
+ESTIMATE = EstimateBody(grasp_id="g", method="hybrid", E_pa=3.6e6, interval_pa=[2.0e6, 6.0e6], state="ok",
+                        reason="loading phase 0.12-0.41 s (the first squeeze)", provisional=False, latency_s=0.01)
+DISPLAY = DisplayBody(grasp_id="g", phase="active", stiffness=0.87, uncertainty_decades=0.3, rigid=False,
+                      unknown=False, provisional=False, E_pa=3.6e6, level=55, level_max=63)
 
 
 def test_estimates_and_moduli_read_as_people_write_them():
@@ -64,9 +65,9 @@ def test_estimates_and_moduli_read_as_people_write_them():
     assert format_pa(None) == "-" and format_pa(12.0) == "12 Pa"
     assert estimate_line(None) == "no estimate yet"
     assert estimate_line(ESTIMATE) == "E = 3.6 MPa  interval [2 MPa, 6 MPa]  ok  final"
-    bound = {**ESTIMATE, "state": "lower_bound", "E_pa": 6.75e6, "interval_pa": [6.75e6, None], "provisional": True}
+    bound = dataclasses.replace(ESTIMATE, state="lower_bound", E_pa=6.75e6, interval_pa=[6.75e6, None], provisional=True)
     assert estimate_line(bound) == "E >= 6.75 MPa  interval [6.75 MPa, -]  lower_bound  provisional"
-    none = {**ESTIMATE, "state": "insufficient_data", "E_pa": None, "interval_pa": [None, None]}
+    none = dataclasses.replace(ESTIMATE, state="insufficient_data", E_pa=None, interval_pa=[None, None])
     assert estimate_line(none) == "no modulus (insufficient data)  final"
 
 
@@ -98,11 +99,11 @@ def test_a_session_with_the_keyboard_in_the_console():
                          Peer("display", "renderer", False, 4.0))
                 link.view = OperatorView(t_s=time.monotonic(), peers=peers, grasp_id=grasp_id, phase="loaded",
                                          object_name="rubber_duck", force_n=11.0, width_m=0.0312,
-                                         robot={"mode": "holding", "grasp_id": grasp_id, "target_width_m": None,
-                                                "enable": False},
-                                         estimate={**ESTIMATE, "grasp_id": grasp_id}, estimates=7, display=DISPLAY,
-                                         notice={"event": "refused", "action": "follow", "grasp_id": grasp_id,
-                                                 "reason": "a discrete grasp is under way"},
+                                         robot=RobotStateBody(mode="holding", grasp_id=grasp_id, enable=False),
+                                         estimate=dataclasses.replace(ESTIMATE, grasp_id=grasp_id), estimates=7,
+                                         display=DISPLAY,
+                                         notice=RobotNoticeBody(event="refused", action="follow", grasp_id=grasp_id,
+                                                                reason="a discrete grasp is under way"),
                                          notice_t_s=time.monotonic())
                 await _until(lambda: "E = 3.6 MPa" in app.texts["estimate"], pilot)
                 texts = app.texts
@@ -270,4 +271,4 @@ def test_l_labels_the_grasp_from_the_catalogue_or_a_shore_reading():
         return app
 
     app = asyncio.run(session())
-    assert app.exit_status.quit and [body["object_name"] for body in app.exit_status.labels.values()] == ["gel pad"]
+    assert app.exit_status.quit and [label.object_name for label in app.exit_status.labels.values()] == ["gel pad"]

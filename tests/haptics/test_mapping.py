@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -28,6 +29,7 @@ from haptics.mapping import (
     to_command,
 )
 from haptics.settings import display_settings
+from teleop.bus.messages import EstimateBody
 from teleop.settings import load_settings
 
 SOFT, RIGID = 5e3, 1e9
@@ -203,14 +205,13 @@ def test_a_bound_may_come_from_the_interval_alone():
         EstimateUpdate(None, (None, 5e4), "lower_bound")
 
 
-def test_from_mapping_reads_the_bus_keys_and_ignores_others():
-    update = EstimateUpdate.from_mapping({
-        "E_pa": 2e5, "interval_pa": [1e5, 4e5], "state": "ok", "reason": "", "provisional": True,
-        "grasp_id": "g-7", "t_s": 12.5, "latency": 0.02, "method": "hybrid",
-    })
+def test_from_estimate_reads_the_bus_estimate_and_its_capture_time():
+    estimate = EstimateBody(E_pa=2e5, interval_pa=[1e5, 4e5], state="ok", reason="", provisional=True,
+                            grasp_id="g-7", latency_s=0.02, method="hybrid", model=None)
+    update = EstimateUpdate.from_estimate(estimate, 12.5)
     assert update == EstimateUpdate(2e5, (1e5, 4e5), "ok", "", True, "g-7", 12.5)
-    with pytest.raises(MappingError, match="lacks state, t_s"):
-        EstimateUpdate.from_mapping({"E_pa": 2e5, "grasp_id": "g"})
+    with pytest.raises(MappingError, match="lies outside its interval_pa"):
+        EstimateUpdate.from_estimate(dataclasses.replace(estimate, E_pa=9e5), 12.5)
 
 
 # --------------------------------------------------------------------------- smoothing, fade, stale

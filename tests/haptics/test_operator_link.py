@@ -12,6 +12,7 @@ import pytest
 
 from haptics.operator_link import OperatorLink, OperatorView
 from haptics.operator_loop import RELEASE_FOLLOWS, OperatorLoop
+from teleop.bus.messages import DisplayBody, RobotStateBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.errors import MessageRejected
@@ -175,7 +176,7 @@ def test_a_label_names_the_current_grasp_then_the_last_one(rig):
     assert link.kinds()[-1] == "start_grasp"  # sent on the next step, from the loop's thread
     loop.step()
     assert link.sent[-1][1:] == ("label", shore_label("gel pad", 40, "A").body(grasp_id))
-    assert loop.status.labels[grasp_id]["object_name"] == "gel pad" and "label " + grasp_id in loop.status.last_action
+    assert loop.status.labels[grasp_id].object_name == "gel pad" and "label " + grasp_id in loop.status.last_action
     link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="ended")
     loop.step()
     device.buttons = {"next"}
@@ -183,7 +184,7 @@ def test_a_label_names_the_current_grasp_then_the_last_one(rig):
     assert loop.status.grasp_id is None and loop.status.label_grasp_id == grasp_id  # the last grasp still
     loop.label(grasp_id, modulus_label("gel pad", 2e6))
     loop.step()
-    assert link.sent[-1][2]["source"] == "datasheet" and loop.status.labels[grasp_id]["modulus_pa"] == 2e6
+    assert link.sent[-1][2]["source"] == "datasheet" and loop.status.labels[grasp_id].modulus_pa == 2e6
     with pytest.raises(ValueError, match="needs the id"):
         loop.label("", modulus_label("x", 1.0))
 
@@ -212,11 +213,12 @@ def test_the_robot_state_goes_back_to_the_device(rig):
     clock, link, device, loop = rig
     loop.step()
     assert device.felt[-1] == (0.0, 0.08, None)  # nothing heard yet: open, no force, nothing rendered
-    display = {"phase": "active", "stiffness": 0.4, "rigid": False, "unknown": False}
+    display = DisplayBody(phase="active", stiffness=0.4, uncertainty_decades=0.2, rigid=False, unknown=False,
+                          provisional=False, E_pa=1e6)
     link.view = OperatorView(t_s=clock(), force_n=3.5, width_m=0.03, display=display)
     loop.step()
     assert device.felt[-1] == (3.5, 0.03, 0.4)
-    link.view = dataclasses.replace(link.view, display={**display, "rigid": True, "stiffness": 1.0})
+    link.view = dataclasses.replace(link.view, display=dataclasses.replace(display, rigid=True, stiffness=1.0))
     loop.step()
     assert device.felt[-1][2] == 1.0
 
@@ -287,7 +289,7 @@ def test_the_link_keeps_the_latest_of_each_and_who_is_alive():
             _wait(lambda v: v.estimate is not None and v.display is not None and v.width_m is not None, link)
             view = link.view
             assert (view.grasp_id, view.object_name, view.phase) == ("g1", "duck", "loading")
-            assert view.force_n == 2.5 and view.width_m == 0.031 and view.estimate["E_pa"] == 3.6e6
+            assert view.force_n == 2.5 and view.width_m == 0.031 and view.estimate.E_pa == 3.6e6
             assert view.stiffness == 0.9 and view.estimates == 1
             robot.send("robot_state", t_capture_s=t, mode="following", grasp_id="g1", target_width_m=0.03,
                        enable=True)
@@ -295,7 +297,7 @@ def test_the_link_keeps_the_latest_of_each_and_who_is_alive():
                        reason="no follow for 0.2 s: fingers stopped")
             robot.send("grasp_event", t_capture_s=t, event="end", grasp_id="g1", object_name="duck")
             _wait(lambda v: v.phase == "ended", link)
-            assert link.view.robot["mode"] == "following" and link.view.notice["event"] == "watchdog"
+            assert link.view.robot.mode == "following" and link.view.notice.event == "watchdog"
             assert link.view.notice_t_s is not None
             link.clear()
             assert link.view.grasp_id is None and link.view.estimate is None and link.view.phase == "idle"
@@ -345,7 +347,7 @@ def test_the_link_sends_a_label_and_shows_it_with_its_grasp():
                             source="robot"))
         link.label("g1", "stress_ball", modulus_pa=4e4, source="catalogue", detail="objects.toml")
         got = listener.recv(timeout_s=2.0)
-        assert link.view.label["object_name"] == "stress_ball" and link.labels_sent == 1
+        assert link.view.label.object_name == "stress_ball" and link.labels_sent == 1
         with pytest.raises(MessageRejected):
             link.label("g1", "x", source="guess")
         link.clear()
@@ -401,8 +403,8 @@ def test_follows_go_on_without_the_enable_while_the_robot_runs_the_grasp(rig):
     run_for(clock, loop, 0.1)
     grasp_id = link.sent[-1][2]["grasp_id"]
     link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loading",
-                             robot={"mode": "following", "grasp_id": grasp_id, "target_width_m": 0.04,
-                                    "enable": True})
+                             robot=RobotStateBody(mode="following", grasp_id=grasp_id, target_width_m=0.04,
+                                                  enable=True))
     device.enable = False
     run_for(clock, loop, 1.0)
     paused = [(t, b) for t, kind, b in link.sent if kind == "follow" and not b["enable"]]
@@ -413,7 +415,7 @@ def test_follows_go_on_without_the_enable_while_the_robot_runs_the_grasp(rig):
     assert link.sent[-1][2] == {"target_width_m": 0.04, "enable": True, "grasp_id": grasp_id}
     device.enable = False
     link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="ended",
-                             robot={"mode": "idle", "grasp_id": None, "target_width_m": None, "enable": False})
+                             robot=RobotStateBody(mode="idle", enable=False))
     run_for(clock, loop, 0.2)
     sent = len(link.sent)
     run_for(clock, loop, 0.5)

@@ -23,6 +23,7 @@ from mcap_protobuf.decoder import DecoderFactory
 import teleop.cli
 from estimator.settings import estimator_settings
 from haptics.settings import display_settings
+from teleop.bus.messages import EstimateBody
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SettingsError, TeleopError
 from teleop.live import ENDPOINTS, JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
@@ -91,11 +92,17 @@ def one_grasp_scene(tmp_path: Path, obj: str = "steel_ball_bearing") -> Path:
 # --------------------------------------------------------------------------- pieces (fast)
 
 
+# What a final estimate says besides the fields a test gives (an estimate left without "model" is
+# one from before the field: it reads as None).
+FINAL = {"grasp_id": "g", "method": "auto", "interval_pa": [None, None], "reason": "", "provisional": False,
+         "latency_s": 0.0}
+
+
 def outcome(name: str, e_true: float, final: dict | None, first_s: float | None, latency_ms: float | None,
             display_range: tuple[float, float] | None = None, **report) -> GraspOutcome:
     o = GraspOutcome("g", ObjectSpec(name=name, shape="sphere", material="rubber", modulus_pa=e_true),
                      display_range=display_range)
-    o.final = final
+    o.final = None if final is None else EstimateBody(**{**FINAL, **final})
     o.estimator_report = {"time_to_first_estimate_s": first_s, **report}
     o.renderer_report = None if latency_ms is None else {"latency_ms": latency_ms}
     return o
@@ -200,7 +207,7 @@ def test_time_to_feel_within_a_factor_2_counts_from_contact_until_the_display_st
     duck = outcome("duck", 1e6, None, None, None, display_range=(soft, rigid))
 
     def message(kind, sent_s, **body):
-        return SimpleNamespace(type=kind, t_capture_s=sent_s, body=body)
+        return SimpleNamespace(type=kind, t_capture_s=sent_s, fields=SimpleNamespace(**body))
 
     duck.observe(message("force", 10.0, t_s=np.array([10.0, 10.1]), value_n=np.array([0.2, 0.5])))
     assert duck.t_contact_s is None and duck.t_felt_within_2x_s is None
@@ -466,9 +473,9 @@ def test_a_crashed_child_stops_the_run_and_leaves_no_process(tmp_path):
         other = default_model_dir().parent / "cnn-depth-fw"
         assert outcome.model == model_id(default_model_dir())
         answer = system.load_model(other)
-        assert (answer["event"], answer["model"], answer["path"]) == ("loaded", model_id(other), str(other))
+        assert (answer.event, answer.model, answer.path) == ("loaded", model_id(other), str(other))
         refused = system.load_model(tmp_path / "nowhere")
-        assert refused["event"] == "refused" and refused["model"] == model_id(other)
+        assert refused.event == "refused" and refused.model == model_id(other)
         assert system.grasp("g1b", 0, STEEL).model == model_id(other)
         system.children["estimator"].process.send_signal(signal.SIGKILL)
         with pytest.raises(TeleopError, match=r"estimator exited with status -9"):
