@@ -25,7 +25,7 @@ per-grasp median time, over the grasps it can sample:
 ``encode``, ``network``
     the model inputs batched and reduced, and the network in onnxruntime (one thread);
 ``sample``
-    all of :func:`~estimator.learned.sampling.sample_grasp` (segment to fits) as the hybrid runs it.
+    all of :func:`~estimator.inference.sampling.sample_grasp` (segment to fits) as the hybrid runs it.
 
 BLAS and OpenMP are limited to one thread before numpy loads, and the process
 is pinned to one CPU with OpenCV single-threaded.
@@ -46,12 +46,12 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from estimator.analytical import METHODS  # noqa: E402
-from estimator.bench import bench, configurations, one_core, timed  # noqa: E402
+from estimator.evaluation.bench import bench, configurations, one_core, timed  # noqa: E402
 from estimator.features import contact_features  # noqa: E402
-from estimator.learned.hybrid import HybridEstimator  # noqa: E402
-from estimator.learned.infer import CompliancePredictor, default_model_dir  # noqa: E402
-from estimator.learned.inputs import encode  # noqa: E402
-from estimator.learned.sampling import calibration_for, decoded  # noqa: E402
+from estimator.inference.hybrid import HybridEstimator  # noqa: E402
+from estimator.inference.infer import CompliancePredictor, default_model_dir  # noqa: E402
+from estimator.inference.inputs import encode  # noqa: E402
+from estimator.inference.sampling import calibration_for, decoded  # noqa: E402
 from estimator.measure import estimate_grasp, measure_grasp, no_contact_reference  # noqa: E402
 from estimator.perception.depth import reconstruct_depth  # noqa: E402
 from estimator.perception.grid import grid_calibration, to_grid  # noqa: E402

@@ -1,7 +1,7 @@
 """``estimator estimate``: Young's modulus of the object in one grasp record, by one method.
 
 The method is analytical (:func:`~estimator.measure.estimate_grasp`) or learned
-(``hybrid``, ``cnn`` or ``auto``: :class:`~estimator.learned.hybrid.HybridEstimator`
+(``hybrid``, ``cnn`` or ``auto``: :class:`~estimator.inference.hybrid.HybridEstimator`
 over a trained model).
 """
 
@@ -13,9 +13,8 @@ import json
 from estimator.analytical import METHODS
 from estimator.errors import EstimatorError
 from estimator.estimate import Estimate
-from estimator.evaluate import ALL_METHODS
-from estimator.learned.hybrid import HybridEstimator
-from estimator.learned.infer import load_predictor
+from estimator.inference.hybrid import ALL_METHODS, HybridEstimator
+from estimator.inference.infer import load_predictor
 from estimator.measure import estimate_grasp
 from teleop.record import GraspRecord, read_record
 from teleop.settings import Settings, default_settings_path, load_settings

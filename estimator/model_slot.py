@@ -5,7 +5,7 @@
 slot from its loop and publishes the events.
 
 Every estimate names the learned model that made it (``model``: its
-:func:`~estimator.learned.infer.model_id`, ``"<folder>-<hash>"``; nil for an analytical estimate),
+:func:`~estimator.inference.infer.model_id`, ``"<folder>-<hash>"``; nil for an analytical estimate),
 and so does the per-grasp report. The model is pinned to a grasp at its start: a switch takes
 effect from the next grasp on, never during one. The service switches models:
 
@@ -18,7 +18,7 @@ effect from the next grasp on, never during one. The service switches models:
 
 Each candidate is loaded and checked in a background thread while grasps go on (the metadata,
 the ONNX session and its inputs against the metadata, the settings' depth binning, and one
-inference on the shipped reference grasp, :mod:`estimator.learned.reference`), then switched to
+inference on the shipped reference grasp, :mod:`estimator.inference.reference`), then switched to
 between grasps. A candidate that fails any check is refused and the model in use stays. Either
 way the service says so in a ``model_event`` on its estimate endpoint ("loaded" with the new id,
 or "refused" with the reason; ``request`` echoes the ``load_model``'s) and in its log, at INFO
@@ -104,13 +104,13 @@ class ModelSlot:
     Parameters
     ----------
     model_dir : path or None
-        Directory with ``model.onnx`` and ``metadata.json`` (see :mod:`estimator.learned.infer`),
+        Directory with ``model.onnx`` and ``metadata.json`` (see :mod:`estimator.inference.infer`),
         or None: no model yet (until a :meth:`request_load`).
     settings : Settings
     calibration : Calibration
         The estimator finger's calibration, handed to the hybrid estimator.
     mode : {"auto", "model"}
-        How :class:`~estimator.learned.hybrid.HybridEstimator` answers.
+        How :class:`~estimator.inference.hybrid.HybridEstimator` answers.
     check_interval_s : float
         How often :meth:`poll` looks at the served folder's files.
     check_reference : bool
@@ -121,7 +121,7 @@ class ModelSlot:
     estimator : HybridEstimator or None
         The model served now.
     model_id : str or None
-        Its :func:`~estimator.learned.infer.model_id`.
+        Its :func:`~estimator.inference.infer.model_id`.
 
     Raises
     ------
@@ -132,7 +132,7 @@ class ModelSlot:
     def __init__(self, model_dir: str | Path | None, *, settings: Settings, calibration: Calibration,
                  mode: str = "auto", check_interval_s: float = 1.0, check_reference: bool = True,
                  clock: Callable[[], float] = time.monotonic):
-        from estimator.learned.hybrid import MODES
+        from estimator.inference.hybrid import MODES
 
         if mode not in MODES:
             raise ModelError(f"model mode {mode!r}: expected one of {', '.join(MODES)}")
@@ -218,7 +218,7 @@ class ModelSlot:
 
     def _watch(self) -> None:
         """Start a reload of the served folder once its files changed and kept one id over two looks."""
-        from estimator.learned.infer import model_id
+        from estimator.inference.infer import model_id
 
         now = self.clock()
         if self.model_dir is None or now - self._checked_s < self.check_interval_s:
@@ -248,8 +248,8 @@ class ModelSlot:
 
     def _build(self, candidate: _Candidate) -> None:
         """Load and check ``candidate`` (in the loader thread); sets its estimator or its error."""
-        from estimator.learned.hybrid import HybridEstimator
-        from estimator.learned.infer import CompliancePredictor
+        from estimator.inference.hybrid import HybridEstimator
+        from estimator.inference.infer import CompliancePredictor
 
         try:
             if candidate.path == self.model_dir:
@@ -313,7 +313,7 @@ def _check_on_reference(predictor: Any, settings: Settings) -> None:
     is the code's limit, not the model's."""
     import numpy as np
 
-    from estimator.learned.reference import REFERENCE_RECORD, reference_inputs
+    from estimator.inference.reference import REFERENCE_RECORD, reference_inputs
 
     where = f"the reference grasp {REFERENCE_RECORD.name}"
     try:

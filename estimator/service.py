@@ -19,7 +19,7 @@ endpoint. Per grasp (from a ``grasp_event`` *start* to its *end*):
   grasp's end (:meth:`~estimator.stream.GraspStream.mark_follow`); with a model loaded, its
   provisional estimates are the model's over the loading so far (the operator feels the answer
   while squeezing, not seconds later when letting go). With a model loaded the
-  final one is the hybrid ``auto`` estimate (:class:`~estimator.learned.hybrid.HybridEstimator`);
+  final one is the hybrid ``auto`` estimate (:class:`~estimator.inference.hybrid.HybridEstimator`);
   for a depth model of the estimator's finger its input comes from the depths already computed
   for the provisional estimates and reduced to the model's input size after each of them
   (:meth:`~estimator.stream.GraspStream.sampled_grasp`: the same input the model would measure
@@ -100,7 +100,7 @@ def resolve_model_dir(option: str | None, settings: Settings) -> Path | None:
     """The model directory to serve: ``option`` ("none": no model), else ``estimator.model_path``
     (relative to ``configs/``; a ``model.onnx`` names its directory), else the shipped default
     model when it exists, else None."""
-    from estimator.learned.infer import default_model_dir
+    from estimator.inference.infer import default_model_dir
 
     if option == "none":
         return None

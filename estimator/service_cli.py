@@ -16,7 +16,7 @@ import os
 import sys
 
 from estimator.analytical import METHODS
-from estimator.learned.infer import model_files
+from estimator.inference.infer import model_files
 from estimator.measure import resolve_calibration
 from estimator.model_slot import ModelSlot, model_log
 from estimator.service import COMMAND_TOPICS, INPUT_TOPICS, EstimatorService, resolve_model_dir

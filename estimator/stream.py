@@ -25,7 +25,7 @@ keeps what batch estimation would recompute:
 Given the same data, the estimate equals :func:`~estimator.measure.estimate_grasp` on the
 grasp record (without clock-lag corrections): same segmentation, reference, depth, features
 and fits; and :meth:`GraspStream.sampled_grasp` equals
-:func:`~estimator.learned.sampling.sample_grasp` on it (the learned model's input) from the
+:func:`~estimator.inference.sampling.sample_grasp` on it (the learned model's input) from the
 cached depths, without measuring a frame again.
 
 When is loading over?
@@ -63,7 +63,7 @@ been captured yet.
 Which estimate is published
 ---------------------------
 :func:`choose_estimate` takes the first estimate that is not a refusal, in the order of the
-methods asked for (the order of :data:`~estimator.learned.hybrid.FALLBACK_ORDER` by default),
+methods asked for (the order of :data:`~estimator.inference.hybrid.FALLBACK_ORDER` by default),
 so a bound is published when it is all a method can say, and a refusal only when every method
 refuses.
 """
@@ -82,8 +82,8 @@ from estimator import analytical
 from estimator.errors import FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.features import ContactFeatures, contact_features
-from estimator.learned.inputs import ANALYTICAL_METHODS, reduce_images
-from estimator.learned.sampling import SampledGrasp, sample_positions
+from estimator.inference.inputs import ANALYTICAL_METHODS, reduce_images
+from estimator.inference.sampling import SampledGrasp, sample_positions
 from estimator.measure import (
     REFERENCE_GUARD_S,
     GraspMeasurements,
@@ -430,7 +430,7 @@ class GraspStream:
 
     def sampled_grasp(self, *, n_frames: int, size_px: tuple[int, int] | None,
                       segment: Segment | None = None, window_m: tuple[float, float] | None = None) -> SampledGrasp:
-        """The learned model's depth input, as :func:`~estimator.learned.sampling.sample_grasp`
+        """The learned model's depth input, as :func:`~estimator.inference.sampling.sample_grasp`
         measures it on :meth:`to_record` (no shift, depth images of the estimator's finger, no
         colour or marker images), from the cached depths.
 

@@ -14,13 +14,25 @@ Layers (the rules tested):
 ``haptics``
     imports the base only.
 ``estimator``
-    imports the base, and ``haptics`` (``estimator.metrics`` scores estimates with the
-    display's own mapping, ``haptics.mapping``); ``haptics`` never imports ``estimator``.
+    imports the base, and ``haptics`` outside its run time (``estimator.evaluation.metrics``
+    scores estimates with the display's own mapping, ``haptics.mapping``); ``haptics`` never
+    imports ``estimator``.
 ``teleop.system``
     the commands that tie the three together: may import anything; nothing but the base's
     command table refers to it.
 
 So the static package graph is a chain with no cycle: teleop.system -> estimator -> haptics -> teleop.
+
+Inside ``estimator``, layers by lifecycle:
+
+the run time (every estimator module outside the two below: the service, fits, perception, inference)
+    imports neither ``estimator.training`` nor ``estimator.evaluation`` (its CLI command table,
+    ``estimator.cli``, names their command modules as strings: the one way in), nor ``haptics``,
+    nor a training or plotting library (torch, onnx, onnxscript, matplotlib), even inside a function.
+``estimator.evaluation``
+    imports the run time; never ``estimator.training``.
+``estimator.training``
+    imports the run time and ``estimator.evaluation`` (a model's scores, a fine-tune's comparison).
 
 Beside the graph, each live process's command module is imported in a fresh interpreter: training
 (torch, onnx) and plotting (matplotlib) never load in a live service, nor the packages it does not run.
@@ -54,13 +66,27 @@ ALLOWED = frozenset({
 #: Allowed only as a dynamic (string) import: the base's CLI command table naming system commands.
 ALLOWED_DYNAMIC = frozenset({("teleop", SYSTEM)})
 
+#: The estimator's layers by lifecycle besides its run time: subpackage -> layer name.
+ESTIMATOR_LAYERS = {"estimator.training": "training", "estimator.evaluation": "evaluation"}
+#: The imports between the estimator's layers allowed besides a layer importing itself: (importer, imported).
+ESTIMATOR_ALLOWED = frozenset({
+    ("evaluation", "runtime"),
+    ("training", "runtime"),
+    ("training", "evaluation"),
+})
+#: The estimator's CLI command table: the one run-time module that names training and evaluation
+#: modules, as strings only.
+ESTIMATOR_CLI = "estimator.cli"
+#: Libraries of training and plotting that the estimator's run time never imports.
+NOT_AT_RUN_TIME = ("torch", "onnx", "onnxscript", "matplotlib")
+
 
 @dataclass(frozen=True)
 class Import:
     module: str  # the importing module, e.g. "teleop.cli"
     path: str  # its file, relative to the repository
     line: int
-    target: str  # the imported module, e.g. "estimator.samples"
+    target: str  # the imported module, e.g. "estimator.training.samples"
     dynamic: bool = False  # a string module path, not an import statement
 
     def __str__(self) -> str:
@@ -96,9 +122,11 @@ def _module_path_in(text: str, known: Iterable[str]) -> str | None:
     return name if name in known and "." in name else None
 
 
-def collect_imports(root: Path, packages: Iterable[str] = PACKAGES) -> list[Import]:
-    """Every import (static and dynamic) of a project package made by a module under ``root``."""
+def collect_imports(root: Path, packages: Iterable[str] = PACKAGES, of: Iterable[str] | None = None) -> list[Import]:
+    """Every import (static and dynamic) of a project package made by a module under ``root``;
+    with ``of``, the (static) imports of those top-level packages instead, e.g. ``("torch",)``."""
     packages = tuple(packages)
+    wanted = packages if of is None else tuple(of)
     files = module_files(root, packages)
     found = []
     for module, path in files.items():
@@ -119,7 +147,7 @@ def collect_imports(root: Path, packages: Iterable[str] = PACKAGES) -> list[Impo
                 target = _module_path_in(node.value, files)
                 targets, dynamic = ([target], True) if target else ([], False)
             for target in targets:
-                if target.split(".")[0] in packages:
+                if target.split(".")[0] in wanted:
                     found.append(Import(module, rel, node.lineno, target, dynamic))
     return sorted(found, key=lambda i: (i.path, i.line, i.target))
 
@@ -142,6 +170,34 @@ def layering_violations(imports: Iterable[Import]) -> list[str]:
         if edge[0] == edge[1] or edge in ALLOWED or (imp.dynamic and edge in ALLOWED_DYNAMIC):
             continue
         bad.append(f"{imp}: {edge[0]} may not depend on {edge[1]}")
+    return bad
+
+
+def estimator_layer(module: str) -> str | None:
+    """The estimator layer of a module (``runtime``, ``training``, ``evaluation``); None outside ``estimator``."""
+    if module.split(".")[0] != "estimator":
+        return None
+    return next((name for package, name in ESTIMATOR_LAYERS.items()
+                 if module == package or module.startswith(package + ".")), "runtime")
+
+
+def estimator_violations(imports: Iterable[Import]) -> list[str]:
+    """One line per import of an estimator module that crosses its layers in a way
+    :data:`ESTIMATOR_ALLOWED` does not allow, or by which its run time depends on ``haptics``."""
+    bad = []
+    for imp in imports:
+        source, target = estimator_layer(imp.module), estimator_layer(imp.target)
+        if source is None:
+            continue
+        if target is None:
+            if source == "runtime" and layer(imp.target) == "haptics":
+                bad.append(f"{imp}: the estimator's run time may not depend on haptics")
+            continue
+        if source == target or (source, target) in ESTIMATOR_ALLOWED:
+            continue
+        if imp.dynamic and imp.module == ESTIMATOR_CLI:
+            continue
+        bad.append(f"{imp}: estimator {source} may not depend on estimator {target}")
     return bad
 
 
@@ -200,6 +256,20 @@ def test_no_import_cycle_between_the_packages():
     assert not cycles, _report("import cycles between the packages", cycles)
 
 
+def test_the_estimators_layers_by_lifecycle():
+    imports = collect_imports(REPO)
+    layers = {estimator_layer(imp.module) for imp in imports}
+    assert {"runtime", "training", "evaluation"} <= layers
+    bad = estimator_violations(imports)
+    assert not bad, _report("imports across the estimator's layers (run time <- evaluation <- training)", bad)
+
+
+def test_the_estimator_run_time_imports_no_training_or_plotting_library():
+    bad = [f"{imp}" for imp in collect_imports(REPO, of=NOT_AT_RUN_TIME) if estimator_layer(imp.module) == "runtime"]
+    assert not bad, _report("the estimator's run time imports", bad)
+    assert collect_imports(REPO, of=("torch",)), "the training imports torch: the check reads third-party imports"
+
+
 def test_the_cli_kit_catches_one_error_base():
     from estimator.errors import EstimatorError, SampleError
     from haptics.errors import HapticsError, MappingError
@@ -235,7 +305,17 @@ BAD_TREE = {
     "teleop/system/demo.py": "from . import helper\nimport estimator.samples\nimport haptics.mapping\n",
     "teleop/system/helper.py": "",
     "estimator/__init__.py": "",
-    "estimator/samples.py": "from teleop.errors import ComplianceTeleopError\nfrom haptics import mapping\n",
+    "estimator/samples.py": "from teleop.errors import ComplianceTeleopError\n",
+    "estimator/cli.py": 'COMMANDS = {"train": ("estimator.training.train", "help")}\n',
+    "estimator/bad_up.py": "def f():\n    from estimator.training import train\n",
+    "estimator/bad_table.py": 'METRICS = "estimator.evaluation.metrics:summarise"\n',
+    "estimator/bad_display.py": "import haptics.mapping\n",
+    "estimator/bad_torch.py": "def f():\n    import torch.nn\n",
+    "estimator/evaluation/__init__.py": "",
+    "estimator/evaluation/metrics.py": "from estimator import samples\nfrom haptics import mapping\n",
+    "estimator/evaluation/bad_down.py": "from ..training.train import fit\n",
+    "estimator/training/__init__.py": "",
+    "estimator/training/train.py": "import torch\nfrom estimator.evaluation import metrics\nimport estimator.samples\n",
     "haptics/__init__.py": "",
     "haptics/mapping.py": "from teleop.errors import ComplianceTeleopError\n",
     "haptics/bad_back.py": "def f():\n    from estimator import samples\n",
@@ -252,6 +332,10 @@ def test_collect_imports_finds_every_kind_of_import(tmp_path):
     assert ("teleop.bad_system", "teleop.system.demo", False) in got
     assert ("teleop.system.demo", "teleop.system.helper", False) in got
     assert ("haptics.bad_back", "estimator.samples", False) in got
+    assert ("estimator.evaluation.bad_down", "estimator.training.train", False) in got
+    assert ("estimator.bad_table", "estimator.evaluation.metrics", True) in got
+    torch = {(i.module, i.target) for i in collect_imports(tmp_path, of=NOT_AT_RUN_TIME)}
+    assert torch == {("estimator.bad_torch", "torch.nn"), ("estimator.training.train", "torch")}
 
 
 def test_the_rules_fail_on_a_bad_tree_and_name_the_module_and_import(tmp_path):
@@ -268,22 +352,41 @@ def test_the_rules_fail_on_a_bad_tree_and_name_the_module_and_import(tmp_path):
     ):
         assert needle in text, text
     # Allowed: system importing everything, the CLI table naming a system command, estimator -> haptics.
-    assert not any(s in text for s in ("(teleop.system.demo)", "(teleop.cli)", "(estimator.samples)")), text
+    assert not any(s in text for s in ("(teleop.system.demo)", "(teleop.cli)", "(estimator.evaluation.metrics)")), text
     with_cycle = "\n".join(package_cycles(imports))
     assert "estimator -> haptics -> estimator" in with_cycle or "haptics -> estimator -> haptics" in with_cycle
     assert "(haptics.bad_back) imports estimator.samples" in with_cycle
     assert "teleop -> estimator -> teleop" in with_cycle or "estimator -> teleop -> estimator" in with_cycle
 
 
+def test_the_estimator_rules_fail_on_a_bad_tree_and_name_the_module_and_import(tmp_path):
+    text = "\n".join(estimator_violations(collect_imports(_tree(tmp_path, BAD_TREE))))
+    for needle in (
+        "estimator/bad_up.py:2 (estimator.bad_up) imports estimator.training.train: "
+        "estimator runtime may not depend on estimator training",
+        "estimator/bad_table.py:1 (estimator.bad_table) names the module path estimator.evaluation.metrics: "
+        "estimator runtime may not depend on estimator evaluation",
+        "estimator/bad_display.py:1 (estimator.bad_display) imports haptics.mapping: "
+        "the estimator's run time may not depend on haptics",
+        "estimator/evaluation/bad_down.py:1 (estimator.evaluation.bad_down) imports estimator.training.train: "
+        "estimator evaluation may not depend on estimator training",
+    ):
+        assert needle in text, text
+    # Allowed: the command table naming a training module, training -> evaluation -> run time, evaluation -> haptics.
+    assert not any(s in text for s in ("(estimator.cli)", "(estimator.training.train)",
+                                       "(estimator.evaluation.metrics)", "(haptics.")), text
+
+
 def test_the_rules_pass_a_clean_tree(tmp_path):
     clean = {k: v for k, v in BAD_TREE.items() if "/bad_" not in k}
     imports = collect_imports(_tree(tmp_path, clean))
     assert layering_violations(imports) == []
+    assert estimator_violations(imports) == []
     assert package_cycles(imports) == []
 
 
 @pytest.mark.parametrize(("module", "absent"), [
-    ("estimator.service_cli", ("torch", "matplotlib", "onnx", "haptics")),
+    ("estimator.service_cli", ("torch", "matplotlib", "onnx", "haptics", "estimator.training", "estimator.evaluation")),
     ("teleop.node_cli", ("torch", "matplotlib", "estimator", "haptics")),
     ("haptics.service_cli", ("torch", "matplotlib", "estimator")),
     ("haptics.operate_cli", ("torch", "matplotlib", "estimator")),
@@ -291,7 +394,8 @@ def test_the_rules_pass_a_clean_tree(tmp_path):
 def test_a_live_process_loads_only_what_it_runs(module, absent):
     # A fresh interpreter, as the process starts: training and plotting never load in a live service.
     code = ("import importlib, json, sys; importlib.import_module(sys.argv[1]); "
-            "print(json.dumps(sorted({name.split('.')[0] for name in sys.modules})))")
+            "print(json.dumps(sorted(sys.modules)))")
     done = subprocess.run([sys.executable, "-c", code, module], capture_output=True, text=True, timeout=120, check=True)
-    loaded = set(json.loads(done.stdout))
-    assert not loaded & set(absent), f"{module} loads {sorted(loaded & set(absent))}"
+    loaded = json.loads(done.stdout)
+    found = sorted({a for a in absent for name in loaded if name == a or name.startswith(a + ".")})
+    assert not found, f"{module} loads {found}"

@@ -50,8 +50,8 @@ from teleop.scene import load_scene
 from teleop.catalogue import load_catalogue, default_catalogue_path
 from estimator.measure import calibration_path
 from estimator.perception.calibration import load_calibration
-from estimator.learned.infer import default_model_dir
-from estimator.learned.reference import REFERENCE_RECORD
+from estimator.inference.infer import default_model_dir
+from estimator.inference.reference import REFERENCE_RECORD
 
 settings = load_settings()
 scene = load_scene("quick")

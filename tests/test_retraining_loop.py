@@ -13,7 +13,7 @@ import pytest
 
 import estimator.cli
 import teleop.cli
-from estimator.learned.infer import default_model_dir, model_id
+from estimator.inference.infer import default_model_dir, model_id
 from teleop.record import read_record
 from teleop.scene import load_scene
 from teleop.session.logfile import LogReader

@@ -33,7 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from estimator.errors import SampleError
-from estimator.samples import TrainingSample, save_sample
+from estimator.training.samples import TrainingSample, save_sample
 from teleop.catalogue import load_catalogue
 from teleop.errors import DatasetError
 from teleop.record import GraspRecord, write_record

@@ -5,7 +5,7 @@ difference images, BGR), ``depth.pkl`` (n x 250 x 350, mm), ``RGB_markers.pkl``,
 ``depth_markers.pkl``, ``forces.pkl`` (n,), ``widths.pkl`` (n,),
 ``elastic_estimate.pkl`` (E, Pa) and ``hertz_estimate.pkl`` (E*, Pa). Each becomes
 one training sample ``<out>/<object>/grasp=<g>/augmentation=<k>.npz``
-(:mod:`estimator.samples`), converted explicitly to float32 images and depth in
+(:mod:`estimator.training.samples`), converted explicitly to float32 images and depth in
 metres. A published estimate that is NaN, infinite or <= 0 (the published code had
 no guards) is stored as "not available" and counted.
 """
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator.errors import SampleError
-from estimator.samples import TrainingSample
+from estimator.training.samples import TrainingSample
 from teleop.catalogue import ObjectSpec
 from teleop.errors import DatasetError
 from teleop.system.dataset_files import (
@@ -53,7 +53,7 @@ def _published_modulus(path: Path) -> float | None:
 def import_preprocessed_sample(
     sample_dir: str | os.PathLike[str], *, labels: Mapping[str, ObjectSpec] | None = None
 ) -> TrainingSample:
-    """One preprocessed-layout folder as a :class:`~estimator.samples.TrainingSample`.
+    """One preprocessed-layout folder as a :class:`~estimator.training.samples.TrainingSample`.
 
     Images are converted to float32 and depth from mm to m (float32); forces and widths
     to float64. A published estimate that is NaN, infinite or <= 0 becomes None.

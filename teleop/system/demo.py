@@ -30,7 +30,7 @@ or beyond the sensor's resolution limit), the error in decades, the time from co
 estimate that is not a refusal (estimator report), and the latency from the last loading frame's
 capture to the display report that showed the final estimate (renderer report). All on this
 host's monotonic clock; and the learned model that made the final estimate (``model``: its
-:func:`~estimator.learned.infer.model_id`, none for an analytical estimate). The live lines and the
+:func:`~estimator.inference.infer.model_id`, none for an analytical estimate). The live lines and the
 closing table are in :mod:`teleop.system.demo_table`.
 
 :meth:`LiveSystem.load_model` switches the running estimator to another model between grasps, as
@@ -560,7 +560,7 @@ def checked_model(option: str | None) -> str | None:
     ModelError
         The folder does not exist or lacks a model file (named), before any process starts.
     """
-    from estimator.learned.infer import model_id
+    from estimator.inference.infer import model_id
 
     if option is None or option == "none":
         return option

@@ -135,9 +135,9 @@ def models_line(outcomes: Sequence[GraspOutcome]) -> str:
 def felt_summary(outcomes: Sequence[GraspOutcome]) -> str:
     """What the operator felt, in one line: the display's rendering against the label clipped to the
     display's range (an object stiffer than its rigid end is right when rendered rigid), the share within
-    a factor 2, the dangerous misses (:func:`estimator.metrics.dangerous_miss`) and the grasps the display
+    a factor 2, the dangerous misses (:func:`estimator.evaluation.metrics.dangerous_miss`) and the grasps the display
     rendered nothing for."""
-    from estimator.metrics import dangerous_miss, felt_within
+    from estimator.evaluation.metrics import dangerous_miss, felt_within
 
     felt = [o for o in outcomes if o.felt_log10_error is not None]
     if not felt:

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from estimator.metrics import felt_log10_error, felt_within
+from estimator.evaluation.metrics import felt_log10_error, felt_within
 from estimator.settings import EstimatorSettings
 from haptics.errors import MappingError
 from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_fraction

@@ -380,8 +380,8 @@ def write_tiny_model(model_dir: Path, log10_e: float, *, data: dict | None = Non
     onnx = pytest.importorskip("onnx")
     from onnx import TensorProto, helper
 
-    from estimator.learned.distribution import BIN_DECADES, EDGES_LOG10, N_BINS, bin_index
-    from estimator.learned.infer import MODEL_FORMAT, MODEL_VERSION, OUTPUT_NAME, current_scales
+    from estimator.inference.distribution import BIN_DECADES, EDGES_LOG10, N_BINS, bin_index
+    from estimator.inference.infer import MODEL_FORMAT, MODEL_VERSION, OUTPUT_NAME, current_scales
 
     shape = [3, 1, 16, 22]
     index = int(bin_index(log10_e))
@@ -416,7 +416,7 @@ def write_tiny_model(model_dir: Path, log10_e: float, *, data: dict | None = Non
 
 def test_model_id_names_the_folder_and_the_contents_of_its_files(tmp_path):
     from estimator.errors import ModelError
-    from estimator.learned.infer import CompliancePredictor, model_id
+    from estimator.inference.infer import CompliancePredictor, model_id
 
     folder = tmp_path / "soft-v1"
     write_tiny_model(folder, 5.55)
@@ -489,7 +489,7 @@ def settled(slot: ModelSlot, *, idle: bool = True):
 
 def test_model_slot_switches_to_new_files_once_they_stay_the_same_and_keeps_a_good_model_over_a_bad_one(
         settings, calibration, tmp_path, caplog):
-    from estimator.learned.infer import model_id
+    from estimator.inference.infer import model_id
 
     served, new = tmp_path / "served", tmp_path / "new"
     write_tiny_model(served, 5.55)
@@ -576,7 +576,7 @@ def test_model_slot_without_a_model_serves_the_first_one_it_is_given(settings, c
 
 def test_service_switches_models_on_load_model_between_grasps_and_every_estimate_names_its_model(
         settings, calibration, records, tmp_path):
-    from estimator.learned.infer import model_id
+    from estimator.inference.infer import model_id
 
     first_e, second_e = write_tiny_model(tmp_path / "a", 5.55), write_tiny_model(tmp_path / "b", 4.25)
     slot = ModelSlot(tmp_path / "a", settings=settings, calibration=calibration, mode="model", check_interval_s=3600)
@@ -651,7 +651,7 @@ def test_service_refuses_a_model_that_does_not_check_out_and_keeps_its_own(setti
 def test_estimator_reload_switches_a_running_service_and_says_why_it_refuses(settings, calibration, records,
                                                                               tmp_path, capsys):
     import estimator.cli
-    from estimator.learned.infer import model_id
+    from estimator.inference.infer import model_id
     from teleop.system.demo import free_ports
 
     write_tiny_model(tmp_path / "a", 5.55)
@@ -742,9 +742,9 @@ def feed_to_peak_frame(stream: GraspStream, record: GraspRecord, stop_s: float,
 
 def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_comes_from_the_cache(
         settings, calibration, records):
-    from estimator.learned.hybrid import HybridEstimator
-    from estimator.learned.infer import CompliancePredictor, default_model_dir
-    from estimator.learned.sampling import sample_grasp
+    from estimator.inference.hybrid import HybridEstimator
+    from estimator.inference.infer import CompliancePredictor, default_model_dir
+    from estimator.inference.sampling import sample_grasp
 
     items, stop_s, stop_read = until_loading_end(records["stress_ball"])
     stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)

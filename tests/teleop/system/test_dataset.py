@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.samples import load_sample
+from estimator.training.samples import load_sample
 from teleop import cli
 from teleop.errors import DatasetError, UnsafePickleError
 from teleop.record import read_record

@@ -141,7 +141,7 @@ def test_each_grasp_names_the_model_that_answered_and_the_table_the_models():
 
 def test_demo_model_option_reaches_the_estimator_and_a_folder_that_is_not_a_model_stops_it_first(tmp_path,
                                                                                                   capsys):
-    from estimator.learned.infer import default_model_dir
+    from estimator.inference.infer import default_model_dir
     from teleop.system.demo import checked_model
 
     def estimator_line(model):
@@ -368,7 +368,7 @@ def test_a_second_sigterm_during_the_first_ones_handling_does_not_deadlock():
 
 @pytest.mark.slow
 def test_demo_runs_the_quick_scene_end_to_end(tmp_path, capsys):
-    from estimator.learned.infer import model_id
+    from estimator.inference.infer import model_id
 
     code = teleop.cli.main(["demo", "--scene", "quick", "--operator", "script", "--json", "--no-view",
                             "--out", str(tmp_path), "--model", "estimator/models/default"])
@@ -468,7 +468,7 @@ def test_a_crashed_child_stops_the_run_and_leaves_no_process(tmp_path):
         outcome = system.grasp("g1", 0, STEEL)
         assert outcome.final is not None and outcome.latency_ms is not None
         # The running estimator switches models between grasps, as `estimator reload` asks.
-        from estimator.learned.infer import default_model_dir, model_id
+        from estimator.inference.infer import default_model_dir, model_id
 
         other = default_model_dir().parent / "cnn-depth-fw"
         assert outcome.model == model_id(default_model_dir())

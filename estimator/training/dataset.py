@@ -1,0 +1,380 @@
+"""Labelled grasp records to training samples, split by object.
+
+Every record is measured with the live estimator's own code
+(:func:`~estimator.inference.sampling.sample_grasp`: segmentation, warp, depth,
+contact features and the analytical fits of :mod:`estimator.measure`), from
+its frames, forces, widths and timestamps only; simulator internals are never
+read. Each grasp gives up to ``shifts`` sample sets: set ``k`` starts the
+equidistant sampling of the loading phase ``k`` frames after contact (set 0 is
+exactly what the live estimator samples). Images and depth are stored as the
+model reads them: the gel patch ``window_m`` (default the pad of the settings'
+estimator sensor) centred on each record's pad, area-averaged to ``size_px``
+(:mod:`estimator.inference.inputs`, "Input window"), so training reads small files,
+the network's input needs no further resizing, and records of sensors with other
+pads and pitches show contacts at their physical size.
+
+Split
+-----
+Objects, never grasps, are split: :func:`split_objects` assigns each object to
+train, val or test, deterministically from ``seed`` and stratified by
+material, and every sample is written under its object's split::
+
+    OUT/dataset.json                 manifest (settings, counts, the records used and skipped)
+    OUT/split.json                   {"seed", "fractions", "train": [objects], "val": [...], "test": [...]}
+    OUT/<split>/<object>/<object>_g<i>_a<k>.npz  (i: the object's i-th record, in path order)
+
+so no grasp or augmentation of a val or test object can reach training. The split file is
+read with :func:`~estimator.inference.provenance.load_split` (evaluation reads it too).
+
+Nothing half-written, nothing dropped silently
+----------------------------------------------
+The dataset is written into a hidden folder beside ``OUT`` and renamed to ``OUT`` at the end; an
+error (or an interrupt) removes it, so ``OUT`` is either a whole dataset or absent. Every record
+that gives no sample is in the manifest's ``skipped`` list with its path, a ``cause`` (one of
+:data:`SKIP_CAUSES`) and a ``reason`` that says what to do about it: unreadable; unlabelled (no
+label, or no modulus); no sensor on the settings' finger; a calibration it names that does not
+exist; no usable loading phase (or too few loading frames); its measurement failed. A build that
+gives no sample at all raises :class:`~estimator.errors.EstimatorError` listing them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import secrets
+import shutil
+import time
+import zlib
+from collections import Counter, defaultdict
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, replace
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from estimator.errors import EstimatorError, SampleError
+from estimator.inference.inputs import MEASUREMENT_VERSION, RIG_QUANTITIES
+from estimator.inference.provenance import SPLITS
+from estimator.inference.sampling import sample_grasp
+from estimator.measure import calibration_path
+from estimator.settings import estimator_settings
+from estimator.training.samples import TrainingSample, save_sample
+from teleop.errors import RecordError
+from teleop.record import GraspRecord, read_record
+from teleop.settings import SensorSettings, Settings
+
+__all__ = [
+    "DATASET_FORMAT",
+    "SKIP_CAUSES",
+    "DatasetOptions",
+    "build_dataset",
+    "load_manifest",
+    "split_objects",
+]
+
+DATASET_FORMAT = "compliance-teleop.dataset"
+DEFAULT_FRACTIONS = (0.7, 0.15, 0.15)
+#: Why a record gave no sample (the ``cause`` of each entry in the manifest's ``skipped``).
+SKIP_CAUSES = ("unreadable", "unlabelled", "no sensor", "calibration missing", "no usable loading phase",
+               "measurement failed")
+
+
+# --------------------------------------------------------------------------- split
+
+
+def split_objects(
+    materials: Mapping[str, str], *, seed: int, fractions: Sequence[float] = DEFAULT_FRACTIONS
+) -> dict[str, list[str]]:
+    """Assign every object to train, val or test, stratified by material.
+
+    Objects are taken material by material (sorted), in a seeded random order
+    within each material, and each goes to the split furthest below its target
+    share so far, so every split gets its share of every material and the
+    totals follow ``fractions``. The result depends only on the objects, their
+    materials, ``seed`` and ``fractions``.
+
+    Parameters
+    ----------
+    materials : mapping
+        Object name -> material ("" when unknown).
+    seed : int
+    fractions : (train, val, test)
+        Non-negative, summing to 1.
+
+    Returns
+    -------
+    dict
+        ``{"train": [...], "val": [...], "test": [...]}``, names sorted.
+    """
+    share = np.asarray(fractions, dtype=np.float64)
+    if share.shape != (3,) or np.any(share < 0) or not math.isclose(share.sum(), 1.0, abs_tol=1e-9):
+        raise EstimatorError(f"split fractions {list(fractions)}: expected three values >= 0 summing to 1")
+    by_material: dict[str, list[str]] = defaultdict(list)
+    for name, material in materials.items():
+        by_material[material].append(name)
+    counts = np.zeros(3)
+    out: dict[str, list[str]] = {split: [] for split in SPLITS}
+    for material in sorted(by_material):
+        rng = np.random.default_rng([seed, zlib.crc32(material.encode())])
+        for name in rng.permutation(sorted(by_material[material])):
+            chosen = int(np.argmax(share * (counts.sum() + 1) - counts))
+            counts[chosen] += 1
+            out[SPLITS[chosen]].append(str(name))
+    return {split: sorted(names) for split, names in out.items()}
+
+
+def load_manifest(directory: str | Path) -> dict[str, Any]:
+    """The ``dataset.json`` of a directory written by :func:`build_dataset`."""
+    path = Path(directory) / "dataset.json"
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise SampleError(f"{path}: not a readable dataset manifest ({exc}); run `estimator build-dataset`") from exc
+    if not isinstance(manifest, dict) or manifest.get("format") != DATASET_FORMAT:
+        raise SampleError(f"{path}: not a {DATASET_FORMAT} manifest")
+    return manifest
+
+
+# --------------------------------------------------------------------------- building
+
+
+@dataclass(frozen=True)
+class DatasetOptions:
+    """How samples are made from records (recorded in the manifest)."""
+
+    n_frames: int = 3
+    shifts: int = 3
+    size_px: tuple[int, int] = (64, 88)
+    window_m: tuple[float, float] | None = None  # None: the pad of the settings' estimator sensor
+    markers: bool = False
+    calibration: str | None = None
+    marker_calibration: str | None = None
+
+
+def _safe_name(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name)
+
+
+def _skip(path: Path, cause: str, reason: str) -> dict[str, Any]:
+    return {"path": str(path), "cause": cause, "skipped": reason}
+
+
+def _calibration_problem(record: GraspRecord, finger: str, override: str | None, option: str) -> str | None:
+    """Why the calibration of ``finger`` of ``record`` cannot be used (None: it can)."""
+    if override is not None:
+        return None
+    sensor: SensorSettings = record.sensor(finger)
+    if not sensor.calibration:
+        return (f"its sensor on finger {finger!r} names no calibration file: pass {option} CAL "
+                "(a calibration of that sensor from `estimator calibrate`)")
+    path = calibration_path(sensor)
+    if not path.is_file():
+        return (f"it names calibration {path} for finger {finger!r}, which does not exist: export its session "
+                f"again with `teleop export` (exported records carry their calibration inside), put the file "
+                f"there, or pass {option} CAL")
+    return None
+
+
+def _check_record(path: Path, *, finger: str, options: DatasetOptions) -> tuple[str, str] | dict[str, Any]:
+    """(object, material) of a record samples can be made of, or why it cannot be used (a skipped row)."""
+    try:
+        record = read_record(path)
+    except RecordError as exc:
+        return _skip(path, "unreadable", f"unreadable: {exc}")
+    label = record.label
+    if label is None:
+        return _skip(path, "unlabelled", "unlabelled: the record has no label (label its session's grasps with "
+                                         "`teleop label LOG --csv FILE`, then export it again)")
+    if label.modulus_pa is None:
+        return _skip(path, "unlabelled", f"unlabelled: its object {label.object_name!r} has no modulus (give it "
+                                         "one with `teleop label`, or export with a catalogue that has it)")
+    fingers = [s.finger for s in record.sensors]
+    if finger not in fingers:
+        return _skip(path, "no sensor", f"no sensor on finger {finger!r} (the settings' sensing.finger); the "
+                                        f"record has {', '.join(fingers)}: pass the --settings of its rig")
+    problem = _calibration_problem(record, finger, options.calibration, "--calibration")
+    if problem is None and options.markers:
+        other = next((s.finger for s in record.sensors if s.finger != finger and s.markers), None)
+        if other is not None:
+            problem = _calibration_problem(record, other, options.marker_calibration, "--marker-calibration")
+    if problem is not None:
+        return _skip(path, "calibration missing", problem)
+    return label.object_name, label.material or ""
+
+
+def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: DatasetOptions,
+                    out: Path) -> dict[str, Any]:
+    """Write the sample sets of one record (runs in a worker); returns what happened."""
+    path, grasp, split = job
+    try:
+        record = read_record(path)
+    except RecordError as exc:
+        return _skip(path, "unreadable", f"unreadable: {exc}")
+    label = record.label
+    written, reasons = [], {}
+    smoothings = set()
+    for shift in range(options.shifts):
+        try:
+            sampled = sample_grasp(
+                record, settings=settings, calibration=options.calibration, n_frames=options.n_frames,
+                size_px=options.size_px, shift=shift, rgb=True, markers=options.markers,
+                marker_calibration=options.marker_calibration, window_m=options.window_m,
+            )
+        except (EstimatorError, RecordError) as exc:
+            return _skip(path, "measurement failed", f"measurement failed: {exc}")
+        if not sampled:
+            reasons[shift] = sampled.reason
+            continue
+        if sampled.measurements is not None and sampled.measurements.calibration_smoothing_px is not None:
+            smoothings.add(sampled.measurements.calibration_smoothing_px)
+        sample = TrainingSample(
+            object_name=label.object_name, grasp=grasp, augmentation=shift, rgb_diff=sampled.rgb_diff,
+            depth_m=sampled.depth_m, force_n=sampled.force_n, width_m=sampled.width_m,
+            rgb_diff_markers=sampled.rgb_diff_markers, depth_markers_m=sampled.depth_markers_m,
+            label_modulus_pa=label.modulus_pa, material=label.material, shape=label.shape,
+            estimates=sampled.estimates, **{name: getattr(sampled, name) for name in RIG_QUANTITIES},
+        )
+        # Named by the object's grasp index, not the record's name: records of one object from
+        # several runs (rigs, sensors) may share a file name in different folders.
+        object_dir = _safe_name(label.object_name)
+        relative = Path(split) / object_dir / f"{object_dir}_g{grasp:04d}_a{shift}.npz"
+        (out / relative).parent.mkdir(parents=True, exist_ok=True)
+        save_sample(sample, out / relative)
+        written.append(relative.as_posix())
+    row: dict[str, Any] = {"path": str(path), "object": label.object_name, "split": split,
+                           "samples": written, "notes": reasons, "calibration_smoothing_px": sorted(smoothings)}
+    if not written:
+        row["cause"] = "no usable loading phase"
+        row["skipped"] = f"no usable loading phase: {reasons[0]}"
+    return row
+
+
+def _nothing_made(skipped: list[dict[str, Any]], n_records: int) -> EstimatorError:
+    lines = "\n".join(f"  {s['path']}: {s['reason']}" for s in skipped)
+    return EstimatorError(f"no training sample made from the {n_records} records given; every one was "
+                          f"skipped:\n{lines}")
+
+
+def build_dataset(
+    records: Sequence[Path],
+    out: str | Path,
+    *,
+    settings: Settings,
+    options: DatasetOptions,
+    seed: int = 0,
+    fractions: Sequence[float] = DEFAULT_FRACTIONS,
+    workers: int = 1,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Write the samples of ``records`` under ``out`` with the split and manifest; return the manifest.
+
+    ``out`` appears whole or not at all (module notes). The manifest's ``skipped`` lists every
+    record that gave no sample (``path``, ``cause``, ``reason``), ``used`` the others (``path``,
+    ``object``, ``split``, ``samples``: paths relative to ``out``).
+
+    Raises
+    ------
+    EstimatorError
+        ``out`` already holds a dataset or other files, or no sample could be made (the message
+        lists every record with the cause).
+    """
+    out = Path(out)
+    if (out / "dataset.json").exists():
+        raise EstimatorError(f"{out}: already holds a dataset (dataset.json); choose an empty --out")
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise EstimatorError(f"{out}: exists and is not an empty folder; choose a new or empty --out")
+    for option, given in (("--calibration", options.calibration), ("--marker-calibration", options.marker_calibration)):
+        if given is not None and not Path(given).is_file():
+            raise EstimatorError(f"{option} {given}: no such calibration file")
+    started = time.perf_counter()
+    finger = settings.sensing.finger
+    labels: dict[Path, tuple[str, str]] = {}
+    skipped: list[dict[str, Any]] = []
+    for path in records:
+        checked = _check_record(Path(path), finger=finger, options=options)
+        if isinstance(checked, dict):
+            skipped.append(checked)
+        else:
+            labels[Path(path)] = checked
+    if not labels:
+        raise _nothing_made([_skipped_entry(s) for s in skipped], len(records))
+    split = split_objects(dict(labels.values()), seed=seed, fractions=fractions)
+    split_of = {name: s for s, names in split.items() for name in names}
+    grasp_index: dict[str, int] = Counter()
+    jobs = []
+    for path in sorted(labels):
+        name = labels[path][0]
+        jobs.append((path, grasp_index[name], split_of[name]))
+        grasp_index[name] += 1
+    if options.window_m is None:
+        options = replace(options, window_m=settings.sensor(finger).pad_size_m)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.parent / f".{out.name}.{os.getpid()}-{secrets.token_hex(4)}.partial"
+        tmp.mkdir()
+    except OSError as exc:
+        raise EstimatorError(f"cannot create a folder beside --out {out}: {exc.strerror or exc}") from exc
+    try:
+        manifest = _write(jobs, tmp, settings=settings, options=options, workers=workers, progress=progress,
+                          skipped=skipped, split=split, seed=seed, fractions=fractions, n_records=len(records),
+                          started=started)
+        try:
+            if out.exists():
+                out.rmdir()  # empty (checked above): the dataset takes its place
+            tmp.replace(out)
+        except OSError as exc:
+            raise EstimatorError(f"cannot move the dataset into --out {out}: {exc.strerror or exc}") from exc
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise EstimatorError(f"cannot write the dataset beside --out {out} ({tmp.name}): {exc.strerror or exc}; "
+                             "nothing was kept") from exc
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return manifest
+
+
+def _skipped_entry(row: dict[str, Any]) -> dict[str, Any]:
+    return {"path": row["path"], "cause": row["cause"], "reason": row["skipped"]}
+
+
+def _write(jobs: list[tuple[Path, int, str]], out: Path, *, settings: Settings, options: DatasetOptions,
+           workers: int, progress: bool, skipped: list[dict[str, Any]], split: dict[str, list[str]], seed: int,
+           fractions: Sequence[float], n_records: int, started: float) -> dict[str, Any]:
+    """Write the samples, split and manifest of ``jobs`` into ``out``; return the manifest."""
+    work = partial(_record_samples, settings=settings, options=options, out=out)
+    bar = partial(tqdm, total=len(jobs), desc="build-dataset", unit="grasp", disable=not progress)
+    if workers <= 1:
+        rows = [work(job) for job in bar(jobs)]
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            rows = list(bar(pool.map(work, jobs, chunksize=max(1, len(jobs) // (8 * workers)))))
+    skipped = [_skipped_entry(s) for s in skipped] + [_skipped_entry(r) for r in rows if "skipped" in r]
+    skipped.sort(key=lambda s: s["path"])
+    if not any(r.get("samples") for r in rows):
+        raise _nothing_made(skipped, n_records)
+    counts = {s: sum(len(r.get("samples", ())) for r in rows if r.get("split") == s) for s in SPLITS}
+    (out / "split.json").write_text(json.dumps(
+        {"seed": seed, "fractions": list(fractions), "stratified_by": "material", **split}, indent=1))
+    manifest = {
+        "format": DATASET_FORMAT, "version": 1, "n_frames": options.n_frames, "shifts": options.shifts,
+        "size_px": list(options.size_px), "window_m": list(options.window_m), "markers": options.markers,
+        "finger": settings.sensing.finger,
+        "depth_binning": estimator_settings(settings).depth_binning,
+        "calibration": options.calibration, "marker_calibration": options.marker_calibration,
+        "measurement_version": MEASUREMENT_VERSION,
+        "calibration_smoothing_px": sorted({s for r in rows for s in r.get("calibration_smoothing_px", ())}),
+        "records": n_records, "grasps_used": sum(1 for r in rows if r.get("samples")),
+        "samples": counts, "objects": {s: len(v) for s, v in split.items()},
+        "used": [{k: r[k] for k in ("path", "object", "split", "samples")} for r in rows if r.get("samples")],
+        "skipped": skipped, "skipped_reasons": dict(Counter(s["cause"] for s in skipped)),
+        "seconds": time.perf_counter() - started,
+    }
+    (out / "dataset.json").write_text(json.dumps(manifest, indent=1))
+    return manifest

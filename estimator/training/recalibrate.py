@@ -1,0 +1,171 @@
+"""Refit a trained model's calibration on its validation objects, without retraining.
+
+The network's weights stay. What is fitted on the validation objects from its outputs (the
+calibration of :func:`~estimator.training.conformal.fit_conformal`: temperature, rigid probability, interval
+scale; and ``auto``'s split threshold) is fitted anew, with this code's rules for what an answer
+says, and the model's ``metrics`` on its val and test objects are scored again: a change to how
+answers are described or calibrated needs no retraining. The dataset is a ``build-dataset``
+directory of the model's own data (``metadata.json`` ``data.dir``); its val and test objects must
+be objects the model never trained on. ``recalibrated`` in the metadata says when, from what, and
+keeps the calibration it replaced.
+
+:func:`cross_validate` (``estimator recalibrate --cross-validate``) says what such a calibration
+scores on objects it was not fitted on, from the val objects alone (k folds by object): the figures
+to choose between two ways of calibrating or describing answers by, leaving the test objects for
+the verdict.
+"""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from estimator.errors import EstimatorError
+from estimator.evaluation.metrics import summarise
+from estimator.inference.distribution import force_band
+from estimator.inference.infer import CompliancePredictor
+from estimator.inference.provenance import load_split
+from estimator.training.conformal import fit_conformal
+from estimator.training.train import (
+    SplitData,
+    auto_policy,
+    check_dataset_fits,
+    load_split_data,
+    scored_rows,
+    split_metrics,
+)
+from haptics.settings import display_range_pa
+from teleop.settings import Settings, load_settings
+
+__all__ = ["cross_validate", "recalibrate"]
+
+_BATCH = 256
+
+
+def _logits(predictor: CompliancePredictor, data: SplitData) -> np.ndarray:
+    """The model's logits for every sample of ``data``, in batches (onnxruntime)."""
+    chunks = [predictor.predict_logits({n: v[start:start + _BATCH] for n, v in data.inputs.items()})
+              for start in range(0, len(data), _BATCH)]
+    return np.concatenate(chunks) if chunks else np.zeros((0, 0), np.float32)
+
+
+def _load(model_dir: Path, data_dir: Path, splits: tuple[str, ...]
+          ) -> tuple[CompliancePredictor, dict[str, SplitData], dict[str, np.ndarray]]:
+    """The model, the live samples of ``splits`` of its own dataset and its logits for them, after the
+    checks of :func:`recalibrate`."""
+    predictor = CompliancePredictor(model_dir)
+    metadata = predictor.metadata.raw
+    check_dataset_fits(data_dir, predictor.variant, metadata.get("data") or {})
+    trained_on = set(((metadata.get("data") or {}).get("objects") or {}).get("train") or [])
+    split = load_split(data_dir / "split.json")
+    seen = sorted(trained_on & (set(split["val"]) | set(split["test"])))
+    if seen:
+        raise EstimatorError(f"{data_dir}: val or test objects the model trained on ({', '.join(seen[:5])}"
+                             f"{', ...' if len(seen) > 5 else ''}): use the dataset the model was trained on")
+    parts = {name: part.live() for name, part in load_split_data(data_dir, predictor.variant, splits).items()}
+    if not len(parts["val"]):
+        raise EstimatorError(f"{data_dir}: no val samples to calibrate on")
+    return predictor, parts, {name: _logits(predictor, part) for name, part in parts.items()}
+
+
+def _fit_conformal_on(predictor: CompliancePredictor, val: SplitData, logits: np.ndarray,
+                  settings: Settings) -> dict[str, Any]:
+    return fit_conformal(logits, val.label, gel_scales=val.gel_scales, peak_forces_n=val.peak_forces_n,
+                         floors_log10=val.floors_for(predictor.variant), soft_pa=predictor.metadata.soft_pa,
+                         limit_pa=settings.resolution_limit_pa)
+
+
+def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | Path | None = None,
+                settings: Settings | None = None, record: bool = True) -> dict[str, Any]:
+    """Refit the calibration of the model in ``model_dir`` on the val objects of ``data_dir`` and score
+    it on the val and test objects; write the metadata to ``out_dir`` (default: in place, with
+    ``model.onnx`` copied there when elsewhere). ``settings`` (default: the shipped ones) give the
+    resolution limit, as for ``estimator train``. ``record`` keeps when, from what and the calibration it
+    replaced under ``recalibrated`` (off for a model whose calibration is its first). Returns the new
+    metadata.
+
+    Raises
+    ------
+    EstimatorError
+        The dataset does not fit the model (measurement version, window, frames, size), has no val
+        samples, or holds val or test objects the model trained on.
+    ModelError
+        The model cannot be read.
+    """
+    model_dir, data_dir = Path(model_dir), Path(data_dir)
+    out_dir = model_dir if out_dir is None else Path(out_dir)
+    settings = load_settings() if settings is None else settings
+    predictor, parts, logits = _load(model_dir, data_dir, ("val", "test"))
+    variant, metadata = predictor.variant, dict(predictor.metadata.raw)
+    val = parts["val"]
+    calibration = _fit_conformal_on(predictor, val, logits["val"], settings)
+    new = {
+        **metadata,
+        "calibration": calibration,
+        "auto": auto_policy(val, logits["val"]),
+        "metrics": {name: split_metrics(part, logits[name], variant.method, calibration, settings)
+                    for name, part in parts.items()},
+    }
+    if record:
+        new["recalibrated"] = {"utc": datetime.now(UTC).isoformat(timespec="seconds"), "data": str(data_dir),
+                               "settings": str(settings.source) if settings.source else None,
+                               "previous": metadata["calibration"]}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if out_dir.resolve() != model_dir.resolve():
+        (out_dir / "model.onnx").write_bytes((model_dir / "model.onnx").read_bytes())
+    (out_dir / "metadata.json").write_text(json.dumps(new, indent=1, allow_nan=False))
+    return new
+
+
+def cross_validate(model_dir: str | Path, data_dir: str | Path, *, folds: int = 5, seed: int = 0,
+                   settings: Settings | None = None) -> dict[str, Any]:
+    """What :func:`recalibrate` can expect on objects it did not calibrate on: ``folds``-fold
+    cross-validation by object over the val objects of ``data_dir``. The val objects are dealt into
+    ``folds`` groups (shuffled with ``seed``); each group's grasps are answered under a calibration
+    fitted on the other groups, and all the answers are scored as ``estimator evaluate`` scores them.
+    Writes nothing; the test objects are not read.
+
+    Returns ``folds``, ``seed``, ``objects``, ``grasps``, ``level``, ``metrics`` (the model method's
+    :func:`~estimator.evaluation.metrics.summarise` figures: felt error, dangerous misses, coverage, widths, ...) and,
+    per band of peak force (``force_band_edges_n``), ``band_n`` and ``band_coverage``.
+
+    Raises
+    ------
+    EstimatorError
+        As :func:`recalibrate`, or ``folds`` is not from 2 to the number of val objects.
+    """
+    settings = load_settings() if settings is None else settings
+    predictor, parts, logits = _load(Path(model_dir), Path(data_dir), ("val",))
+    val, val_logits = parts["val"], logits["val"]
+    objects = np.array([r["object"] for r in val.rows])
+    names = sorted(set(objects))
+    if not 2 <= folds <= len(names):
+        raise EstimatorError(f"folds: expected 2 to {len(names)} (the val objects of {data_dir}), got {folds}")
+    order = np.random.default_rng(seed).permutation(len(names))
+    fold_of = {names[i]: k % folds for k, i in enumerate(order)}
+    fold = np.array([fold_of[o] for o in objects])
+    method, rows = predictor.variant.method, [None] * len(val)
+    for k in range(folds):
+        out = fold == k
+        calibration = _fit_conformal_on(predictor, val.subset(~out), val_logits[~out], settings)
+        scored = scored_rows(val.subset(out), val_logits[out], method, calibration)
+        answers = (r for r in scored if r["method"] == method)
+        for i, row in zip(np.flatnonzero(out), answers, strict=True):
+            rows[i] = row
+    edges = tuple(calibration["force_band_edges_n"])
+    display = display_range_pa(settings)
+
+    def score(mask: np.ndarray) -> dict[str, Any]:
+        return summarise([r for r, m in zip(rows, mask, strict=True) if m], [method], display_range_pa=display,
+                         interval_levels={method: calibration["level"]})[method]
+
+    bands = force_band(val.peak_forces_n, edges)
+    per_band = [score(bands == b) for b in range(len(edges) + 1)]
+    return {"folds": folds, "seed": seed, "objects": len(names), "grasps": len(val), "method": method,
+            "level": calibration["level"], "metrics": score(np.ones(len(val), dtype=bool)),
+            "force_band_edges_n": list(edges), "band_n": [m["n"] for m in per_band],
+            "band_coverage": [m["interval_coverage"] for m in per_band]}

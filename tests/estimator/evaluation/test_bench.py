@@ -1,0 +1,135 @@
+"""``estimator bench``: the Pareto frontier, coarser depth grids, and the command on a tiny directory."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from estimator.cli import main
+from estimator.evaluation.bench import configurations, pareto_front
+from estimator.inference.sampling import decoded
+from estimator.settings import estimator_settings
+from teleop.errors import SettingsError
+from teleop.record import read_record
+from teleop.settings import load_settings
+
+
+def test_pareto_front_keeps_only_undominated_points():
+    points = [(1.0, 2.0), (2.0, 1.0), (3.0, 1.5), (0.5, None), (2.0, 1.0), (10.0, 0.2), (1.0, 2.5)]
+    assert pareto_front(points) == [True, True, False, False, True, True, False]
+    assert pareto_front([]) == []
+    assert pareto_front([(5.0, None)]) == [False]
+
+
+def test_a_configuration_that_answers_more_grasps_is_not_dominated_by_one_that_refuses_them():
+    # (latency ms, error over answered grasps, refusals): the hybrid refuses the grasps with no loading
+    # frame, auto answers them with a worse force/width fallback and is as fast.
+    hybrid, auto, slower_auto = (6.2, 0.70, 5), (6.3, 0.92, 0), (6.3, 0.95, 0)
+    assert pareto_front([hybrid, auto]) == [True, True]
+    assert pareto_front([hybrid, auto, slower_auto]) == [True, True, False]
+    assert pareto_front([(6.2, 0.70, 0), auto]) == [True, False]
+
+
+def test_the_binned_estimate_is_close_to_the_full_grid_one(sim_grasps):
+    records, calibration = sim_grasps
+    settings = load_settings()
+    assert estimator_settings(settings).depth_binning == 2
+    configs = {c.name: c for c in configurations(settings=settings, calibration=str(calibration), frames=[3],
+                                                 models=[], binning=[1])}
+    assert {"split/bin1", "hertz/bin1", "elastic/bin1"} <= set(configs) and "no_tactile/bin1" not in configs
+    assert configs["split"].binning == 2 and configs["split/bin1"].binning == 1
+    compared = 0
+    for path in sorted(records.glob("*.grasp")):
+        record = read_record(path)
+        for method in ("split", "hertz"):
+            coarse = configs[method].run(decoded(record, reduce=2))
+            full = configs[f"{method}/bin1"].run(decoded(record))
+            assert coarse.state == full.state, (path.name, method)
+            if full.e_pa is not None:  # the same contact seen through 2 x 2 px blocks: within a tenth of a decade
+                assert abs(math.log10(coarse.e_pa / full.e_pa)) < 0.1, (path.name, method)
+                compared += 1
+    assert compared >= 4
+    with pytest.raises(SettingsError, match="depth_binning = 3"):
+        configurations(settings=settings, calibration=str(calibration), frames=[3], models=[], binning=[3])
+
+
+@pytest.mark.slow
+def test_bench_runs_on_a_tiny_directory_and_marks_a_frontier(sim_grasps, trained_model, tmp_path, capsys):
+    records, calibration = sim_grasps
+    png = tmp_path / "bench.png"
+    argv = ["bench", str(records), "--models", str(trained_model), "--calibration", str(calibration),
+            "--repeats", "1", "--limit", "3", "--binning", "1", "--json", "--plot", str(png)]
+    assert main(argv) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    configs = {c["name"]: c for c in result["configs"]}
+    assert {"no_tactile", "split", "split@3f", "split/bin1"} <= set(configs)
+    assert any(name.startswith("hybrid[depth+fw+analytical 3f 16x22]") for name in configs)
+    assert any(name.startswith("auto[") for name in configs)
+    assert result["labelled"] == 3 and result["reference_ms_p50"] > 0
+    for c in result["configs"]:
+        assert set(c) >= {"name", "latency_ms_p50", "felt_log10_error", "felt_within_2x", "log10_error",
+                          "within_10x", "pareto"}
+        assert c["latency_ms_p50"] > 0
+        assert c["log10_error"] is None or c["log10_error"] >= 0
+    front = [c for c in result["configs"] if c["pareto"]]
+    assert front and all(c["felt_log10_error"] is not None for c in front)
+    fastest = min((c for c in result["configs"] if c["felt_log10_error"] is not None),
+                  key=lambda c: c["latency_ms_p50"])
+    assert fastest["pareto"]  # nothing is faster, so nothing dominates it
+    assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("module", ["estimator.training.dataset_cli", "estimator.training.train_cli", "estimator.training.finetune_cli", "estimator.evaluation.bench_cli"])
+def test_commands_explain_every_option(module):
+    import argparse
+    import importlib
+
+    parser = argparse.ArgumentParser()
+    importlib.import_module(module).add_arguments(parser)
+    assert parser.description
+    for action in parser._actions:
+        assert action.help, f"{module}: {action.option_strings or action.dest} has no help"
+
+
+@pytest.mark.parametrize("command", ["build-dataset", "train", "bench"])
+def test_commands_are_registered(command, capsys):
+    with pytest.raises(SystemExit) as done:
+        main([command, "--help"])
+    assert done.value.code == 0 and "--json" in capsys.readouterr().out
+
+
+def test_plot_labels_of_nearby_points_do_not_overlap():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from estimator.evaluation.bench import _separate_labels
+
+    fig, ax = plt.subplots()
+    ax.set(xscale="log", xlim=(1, 100), ylim=(0, 3))
+    labels = [ax.annotate(f"configuration {i} (0 refused)", (20 + i * 0.1, 1.0 + i * 0.01), fontsize=7,
+                          xytext=(5, 2), textcoords="offset points") for i in range(4)]
+    renderer = fig.canvas.get_renderer()
+    assert labels[0].get_window_extent(renderer).overlaps(labels[1].get_window_extent(renderer))
+    _separate_labels(fig, labels)
+    boxes = [label.get_window_extent(renderer) for label in labels]
+    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
+    plt.close(fig)
+
+
+def test_the_hybrid_benchmark_script_runs_its_stages_on_the_depth_grid(sim_grasps, trained_model):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    records, calibration = sim_grasps
+    script = Path(__file__).resolve().parents[3] / "benchmarks" / "bench_hybrid.py"
+    out = subprocess.run([sys.executable, str(script), str(records), "--model", str(trained_model),
+                          "--calibration", str(calibration), "--limit", "2", "--repeats", "1"],
+                         capture_output=True, text=True, timeout=300, check=True).stdout
+    stages = out.strip().splitlines()[-1]
+    assert stages.startswith("hybrid stages over ") and "depth " in stages and "network " in stages
+    assert not stages.startswith("hybrid stages over 0 ")

@@ -1,0 +1,110 @@
+"""``estimator card``: the model card's figures table is written from evaluate's JSON and checked against it."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from estimator.cli import main
+from estimator.evaluation.card_cli import BEGIN, COLUMNS, END, SHIPPED_CARD, recorded_sources
+from estimator.evaluation.metrics import summarise
+
+DISPLAY = (5e3, 6.75e6)
+
+
+def _row(method: str, truth_pa: float, e_pa: float, state: str = "ok", spread: float = 2.0) -> dict:
+    return {"path": f"{method}-{truth_pa:g}-{e_pa:g}.grasp", "object": f"o{truth_pa:g}", "material": "rubber",
+            "shape": "sphere", "truth_pa": truth_pa, "method": method, "state": state, "e_pa": e_pa,
+            "low_pa": e_pa / spread, "high_pa": None if state == "lower_bound" else e_pa * spread, "reason": ""}
+
+
+def evaluate_output(tmp_path, *, name: str = "figures.json", shift: float = 1.0) -> tuple:
+    """An ``estimator evaluate --json`` output, its figures made by the real metrics from a few scored rows."""
+    rows = [_row("hybrid", 2e4, 2.5e4 * shift), _row("hybrid", 3e5, 9e5), _row("hybrid", 2e11, 6.75e6, "lower_bound"),
+            _row("split", 2e4, 1e5), _row("split", 3e5, 3e5), _row("split", 2e11, 1e6)]
+    methods = summarise(rows, ["split", "hybrid"], display_range_pa=DISPLAY, interval_levels={"hybrid": 0.9})
+    methods["hybrid"]["model"] = "estimator/models/default"
+    result = {"command": "estimator evaluate runs/x/records --json", "dir": "runs/x/records", "records": 3,
+              "labelled": 3, "display_range_pa": list(DISPLAY), "methods": methods}
+    path = tmp_path / name
+    path.write_text("progress line\n" + json.dumps(result) + "\n")  # as evaluate prints it: the JSON last
+    return path, methods
+
+
+@pytest.fixture
+def card(tmp_path):
+    path = tmp_path / "MODEL_CARD.md"
+    path.write_text(f"# A card\n\nBefore.\n\n{BEGIN}\n{END}\n\nAfter.\n")
+    return path
+
+
+def test_the_table_is_written_from_the_json_soft_objects_first(tmp_path, card, capsys):
+    source, methods = evaluate_output(tmp_path)
+    assert main(["card", str(card), "--figures", f"Nominal={source}"]) == 0
+    text = card.read_text()
+    assert text.startswith("# A card\n\nBefore.\n\n") and text.endswith("\nAfter.\n")
+    header = next(line for line in text.splitlines() if line.startswith("| figures |"))
+    headings = [c.strip() for c in header.strip("|").split("|")]
+    assert headings.index("soft felt err") < headings.index("felt err")
+    assert headings.index("soft within 2x") < headings.index("within 2x")
+    hybrid = next(line for line in text.splitlines() if line.startswith("| Nominal | hybrid (default) |"))
+    cells = [c.strip() for c in hybrid.strip("|").split("|")]
+    m = methods["hybrid"]
+    assert cells[headings.index("felt err")] == f"{m['felt_log10_error']:.3f}"
+    assert cells[headings.index("soft felt err")] == f"{m['soft_felt_log10_error']:.3f}"
+    assert cells[headings.index("within 2x")] == f"{100 * m['felt_within_2x']:.1f} %"
+    assert cells[headings.index("coverage (stated)")] == f"{100 * m['interval_coverage']:.1f} % (90 %)"
+    assert cells[headings.index("dangerous")] == str(m["dangerous_misses"])
+    assert "| Nominal | split |" in text
+    assert "made by `estimator evaluate runs/x/records --json`" in text
+    assert len(headings) == 2 + len(COLUMNS)
+    assert main(["card", str(card), "--check"]) == 0  # from the sources the block records
+
+
+def test_check_fails_naming_the_figure_that_moved(tmp_path, card, capsys):
+    source, _ = evaluate_output(tmp_path)
+    assert main(["card", str(card), "--figures", f"Nominal={source}", "--methods", "hybrid"]) == 0
+    written = card.read_text()
+    assert "| Nominal | split |" not in written
+    capsys.readouterr()
+    evaluate_output(tmp_path, shift=3.0)  # the JSON changes under the card: the soft object felt elsewhere
+    assert main(["card", str(card), "--check"]) == 1
+    err = capsys.readouterr().err
+    assert "Nominal / hybrid (default) / felt err: card says" in err
+    assert "Nominal / hybrid (default) / soft felt err" in err
+    assert card.read_text() == written  # --check writes nothing
+
+    source, _ = evaluate_output(tmp_path)  # back as it was: the card matches again
+    assert main(["card", str(card), "--check"]) == 0
+    card.write_text(written.replace("| Nominal | hybrid (default) | 2 |", "| Nominal | hybrid (default) | 7 |"))
+    assert main(["card", str(card), "--check"]) == 1
+    assert "Nominal / hybrid (default) / soft n: card says 7, the JSON gives 2" in capsys.readouterr().err
+
+
+def test_keep_writes_small_copies_the_card_points_at(tmp_path, card):
+    source, _ = evaluate_output(tmp_path)
+    keep = tmp_path / "figures"
+    assert main(["card", str(card), "--figures", f"Soft gel rig={source}", "--methods", "hybrid",
+                 "--keep", str(keep)]) == 0
+    kept = json.loads((keep / "soft-gel-rig.json").read_text())
+    assert list(kept["methods"]) == ["hybrid"] and kept["command"] == "estimator evaluate runs/x/records --json"
+    assert "per_material" not in kept["methods"]["hybrid"]
+    (sources, methods) = recorded_sources(card.read_text(), card)
+    assert sources == [("Soft gel rig", card.parent / "figures/soft-gel-rig.json")] and methods == ["hybrid"]
+    source.unlink()  # the card no longer needs the original
+    assert main(["card", str(card), "--check"]) == 0
+
+
+def test_a_card_without_markers_is_refused(tmp_path, capsys):
+    source, _ = evaluate_output(tmp_path)
+    card = tmp_path / "card.md"
+    card.write_text("# no markers\n")
+    assert main(["card", str(card), "--figures", f"A={source}"]) == 2
+    assert "figures:begin" in capsys.readouterr().err
+
+
+def test_the_shipped_card_matches_the_json_it_came_from(capsys):
+    assert main(["card", str(SHIPPED_CARD), "--check"]) == 0, capsys.readouterr().err
+    sources, _ = recorded_sources(SHIPPED_CARD.read_text(), SHIPPED_CARD)
+    assert sources and all(path.is_file() and path.stat().st_size < 16_000 for _, path in sources)

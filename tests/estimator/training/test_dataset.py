@@ -1,0 +1,207 @@
+"""The dataset builder: object-level split without leakage, samples measured from records."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from estimator.cli import main
+from estimator.errors import EstimatorError, SampleError
+from estimator.inference.inputs import ANALYTICAL_METHODS
+from estimator.inference.provenance import SPLITS, load_split
+from estimator.training.dataset import split_objects
+from estimator.training.samples import load_sample, sample_paths
+from teleop.settings import load_settings
+
+MATERIALS = {f"{m}_{i}": m for m in ("foam", "rubber", "plastic", "metal", "wood") for i in range(8)} | {"odd": "glass"}
+
+
+def test_split_is_deterministic_disjoint_and_complete():
+    split = split_objects(MATERIALS, seed=4)
+    assert split == split_objects(dict(reversed(MATERIALS.items())), seed=4)  # input order does not matter
+    names = [n for s in SPLITS for n in split[s]]
+    assert sorted(names) == sorted(MATERIALS) and len(set(names)) == len(names)
+    assert split != split_objects(MATERIALS, seed=5)
+    assert [len(split[s]) for s in SPLITS] == [29, 6, 6]  # 0.7 / 0.15 / 0.15 of 41
+
+
+def test_split_is_stratified_by_material():
+    split = split_objects(MATERIALS, seed=0, fractions=(0.5, 0.25, 0.25))
+    for s, share in zip(SPLITS, (0.5, 0.25, 0.25), strict=True):
+        per_material = Counter(MATERIALS[n] for n in split[s])
+        for material in ("foam", "rubber", "plastic", "metal", "wood"):
+            assert per_material[material] == pytest.approx(8 * share, abs=1), (s, material)
+
+
+@pytest.mark.parametrize("fractions", [(0.5, 0.5), (0.8, 0.3, -0.1), (0.5, 0.2, 0.2)])
+def test_bad_fractions_are_refused(fractions):
+    with pytest.raises(EstimatorError, match="fractions"):
+        split_objects(MATERIALS, seed=0, fractions=fractions)
+
+
+def test_split_file_naming_an_object_twice_is_refused(tmp_path):
+    path = tmp_path / "split.json"
+    path.write_text(json.dumps({"train": ["a", "b"], "val": ["b"], "test": []}))
+    with pytest.raises(SampleError, match=r"more than one split: \['b'\]"):
+        load_split(path)
+
+
+@pytest.mark.slow
+def test_build_dataset_from_records_never_leaks_an_object(sim_grasps, tmp_path, capsys):
+    records, calibration = sim_grasps
+    out = tmp_path / "ds"
+    argv = ["build-dataset", "--records", str(records), "--out", str(out), "--calibration", str(calibration),
+            "--size", "32x44", "--shifts", "2", "--split", "0.5,0.25,0.25", "--seed", "3", "--json"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["records"] == 4 and summary["size_px"] == [32, 44]
+    assert summary["calibration_smoothing_px"] == [0.0]  # what a model trained on it then reads
+    # The window the images show: the pad of the settings' estimator sensor (the simulated Wedge's).
+    settings = load_settings()
+    assert summary["window_m"] == pytest.approx(list(settings.sensor(settings.sensing.finger).pad_size_m))
+    split = load_split(out / "split.json")
+    where = defaultdict(set)
+    n_samples = 0
+    for s in SPLITS:
+        for path in (sample_paths(out / s) if (out / s).is_dir() else []):
+            sample = load_sample(path)
+            n_samples += 1
+            where[sample.object_name].add(s)
+            assert sample.object_name in split[s], path  # no object outside its split
+            assert path.parent.name == sample.object_name
+            assert sample.depth_m.shape == (3, 32, 44) and sample.rgb_diff.shape == (3, 32, 44, 3)
+            assert [e.method for e in sample.estimates] == list(ANALYTICAL_METHODS)
+            assert sample.label_modulus_pa > 0 and np.all(np.diff(sample.force_n) >= -0.5)
+            # The rig it was measured on, for the gel scale and the rig features.
+            gel = settings.sensor(settings.sensing.finger)
+            assert (sample.gel_modulus_pa, sample.gel_thickness_m) == (gel.gel_modulus_pa, gel.gel_thickness_m)
+            assert sample.finger_stiffness_n_per_m == settings.gripper.finger_stiffness_n_per_m
+    assert all(len(s) == 1 for s in where.values())  # every grasp and augmentation of an object in one split
+    assert n_samples == sum(summary["samples"].values()) >= 3
+    assert main(argv) == 2  # refuses to write over a dataset
+    assert "already holds a dataset" in capsys.readouterr().err
+
+
+def test_records_of_one_name_in_two_folders_keep_their_own_samples(sim_grasps, tmp_path, capsys):
+    # Runs on several rigs name their records alike (<object>_g000.grasp in each run's folder).
+    records, calibration = sim_grasps
+    first = sorted(records.glob("*.grasp"))[0]
+    (tmp_path / "recs" / "run_b").mkdir(parents=True)
+    shutil.copy(first, tmp_path / "recs" / first.name)
+    shutil.copy(first, tmp_path / "recs" / "run_b" / first.name)
+    out = tmp_path / "ds"
+    assert main(["build-dataset", "--records", str(tmp_path / "recs"), "--out", str(out), "--calibration",
+                 str(calibration), "--size", "32x44", "--shifts", "1", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    on_disk = [p for s in SPLITS if (out / s).is_dir() for p in sample_paths(out / s)]
+    assert summary["grasps_used"] == 2 and len(on_disk) == sum(summary["samples"].values()) == 2
+
+
+def test_build_dataset_refuses_an_empty_directory(tmp_path, capsys):
+    assert main(["build-dataset", "--records", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    assert "no .grasp records" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- every drop has a name
+
+
+def _variants(sim_grasps, folder):
+    """One good simulated record and one of each kind build-dataset must skip, in ``folder``."""
+    import dataclasses
+
+    from teleop.record import Samples, read_record, write_record
+
+    records, _ = sim_grasps
+    good_path = sorted(records.glob("*.grasp"))[0]
+    good = read_record(good_path)
+    folder.mkdir(parents=True)
+    shutil.copy(good_path, folder / "good.grasp")
+    (folder / "garbage.grasp").write_bytes(b"not a zip")
+    write_record(dataclasses.replace(good, label=None), folder / "no_label.grasp")
+    write_record(dataclasses.replace(good, label=dataclasses.replace(good.label, modulus_pa=None)),
+                 folder / "no_modulus.grasp")
+    gone = folder / "gone" / "cal.npz"
+    sensors = tuple(dataclasses.replace(s, calibration=str(gone)) for s in good.sensors)
+    write_record(dataclasses.replace(good, sensors=sensors), folder / "moved_calibration.grasp")
+    flat = Samples(good.force_n.t_s, np.zeros_like(good.force_n.value))
+    write_record(dataclasses.replace(good, force_n=flat), folder / "no_loading.grasp")
+    return folder, gone
+
+
+def test_every_skipped_record_is_named_with_its_cause(sim_grasps, tmp_path, capsys):
+    folder, gone = _variants(sim_grasps, tmp_path / "recs")
+    out = tmp_path / "ds"
+    argv = ["build-dataset", "--records", str(folder), "--out", str(out), "--size", "32x44", "--shifts", "1",
+            "--json"]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    manifest = json.loads(captured.out.strip().splitlines()[-1])
+    skipped = {Path(s["path"]).name: s for s in manifest["skipped"]}
+    assert {name: s["cause"] for name, s in skipped.items()} == {
+        "garbage.grasp": "unreadable", "no_label.grasp": "unlabelled", "no_modulus.grasp": "unlabelled",
+        "moved_calibration.grasp": "calibration missing", "no_loading.grasp": "no usable loading phase",
+    }
+    reason = skipped["moved_calibration.grasp"]["reason"]
+    assert str(gone) in reason and "does not exist" in reason and "teleop export" in reason
+    assert "--calibration" in reason
+    assert "not a readable ZIP" in skipped["garbage.grasp"]["reason"]
+    assert "teleop label" in skipped["no_label.grasp"]["reason"]
+    for name in skipped:  # and on stderr, by name
+        assert f"skipped {folder / name}: " in captured.err
+    assert [Path(u["path"]).name for u in manifest["used"]] == ["good.grasp"]
+    assert manifest["skipped_reasons"] == {"unreadable": 1, "unlabelled": 2, "calibration missing": 1,
+                                           "no usable loading phase": 1}
+    assert json.loads((out / "dataset.json").read_text())["skipped"] == manifest["skipped"]
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_a_build_that_makes_nothing_fails_naming_every_record_and_leaves_no_folder(sim_grasps, tmp_path, capsys):
+    folder, _ = _variants(sim_grasps, tmp_path / "recs")
+    (folder / "good.grasp").unlink()
+    out = tmp_path / "ds"
+    assert main(["build-dataset", "--records", str(folder), "--out", str(out), "--size", "32x44",
+                 "--shifts", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "no training sample made from the 5 records" in err and "Traceback" not in err
+    for name in ("garbage", "no_label", "no_modulus", "moved_calibration", "no_loading"):
+        assert f"{folder / name}.grasp: " in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["recs"]  # no dataset, whole or half
+
+
+def test_a_build_that_fails_midway_leaves_nothing_behind(sim_grasps, tmp_path, monkeypatch):
+    import estimator.training.dataset as dataset
+    from estimator.training.dataset import DatasetOptions, build_dataset
+
+    records, calibration = sim_grasps
+    real, calls = dataset.save_sample, []
+
+    def failing_save(sample, path):  # the disk fills up at the second sample
+        calls.append(path)
+        if len(calls) > 1:
+            raise OSError(28, "No space left on device")
+        return real(sample, path)
+
+    monkeypatch.setattr(dataset, "save_sample", failing_save)
+    out = tmp_path / "ds"
+    with pytest.raises(EstimatorError, match="cannot write the dataset beside --out .*No space left"):
+        build_dataset(sorted(records.glob("*.grasp")), out, settings=load_settings(),
+                      options=DatasetOptions(shifts=1, size_px=(32, 44), calibration=str(calibration)),
+                      progress=False)
+    assert len(calls) == 2 and list(tmp_path.iterdir()) == []
+
+
+def test_an_out_folder_with_files_in_it_or_a_missing_calibration_is_refused(sim_grasps, tmp_path, capsys):
+    records, _ = sim_grasps
+    (tmp_path / "ds").mkdir()
+    (tmp_path / "ds" / "notes.txt").write_text("mine")
+    assert main(["build-dataset", "--records", str(records), "--out", str(tmp_path / "ds")]) == 2
+    assert "not an empty folder" in capsys.readouterr().err
+    assert main(["build-dataset", "--records", str(records), "--out", str(tmp_path / "ds2"),
+                 "--calibration", str(tmp_path / "typo.npz")]) == 2
+    assert f"--calibration {tmp_path / 'typo.npz'}: no such calibration file" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]

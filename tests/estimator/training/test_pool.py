@@ -1,0 +1,86 @@
+"""Pooling models: one ONNX file that computes the members' linear opinion pool, calibrated."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from scipy.special import logsumexp
+
+from estimator.cli import main
+from estimator.errors import EstimatorError
+from estimator.inference.distribution import probabilities
+from estimator.inference.infer import CompliancePredictor
+from estimator.inference.inputs import Variant
+from estimator.training.finetune import fine_tune
+from estimator.training.pool import pool_models
+from estimator.training.train import TrainConfig, load_split_data, train_model
+
+
+@pytest.fixture(scope="module")
+def other_seed(trained_model, synthetic_dataset, tmp_path_factory):
+    """The shared test model's recipe with another seed."""
+    variant = CompliancePredictor(trained_model).variant
+    out = tmp_path_factory.mktemp("other_seed")
+    train_model(synthetic_dataset, out, variant=variant, config=TrainConfig(epochs=4, patience=4, batch_size=8, seed=2),
+                progress=False)
+    return out
+
+
+def test_the_pooled_model_computes_the_members_linear_pool(trained_model, other_seed, synthetic_dataset, tmp_path):
+    meta = pool_models([trained_model, other_seed], synthetic_dataset, tmp_path / "pooled")
+    members = [CompliancePredictor(d) for d in (trained_model, other_seed)]
+    pooled = CompliancePredictor(tmp_path / "pooled")
+    val = load_split_data(synthetic_dataset, pooled.variant, ("val",))["val"].live()
+    expected = logsumexp(np.stack([np.log(probabilities(m.predict_logits(val.inputs), temperature=m.metadata.temperature))
+                                   for m in members]), axis=0) - np.log(2)
+    assert np.allclose(pooled.predict_logits(val.inputs), expected, atol=1e-4)
+    assert [m["dir"] for m in meta["ensemble"]["members"]] == [str(trained_model), str(other_seed)]
+    assert [m["training"]["seed"] for m in meta["ensemble"]["members"]] == [1, 2] and "training" not in meta
+    assert meta["calibration"]["n"] == len(val) and "recalibrated" not in meta
+    assert json.loads((tmp_path / "pooled" / "metadata.json").read_text()) == meta
+
+
+def test_models_that_cannot_be_pooled_are_refused(trained_model, other_seed, synthetic_dataset, tmp_path):
+    with pytest.raises(EstimatorError, match="at least two"):
+        pool_models([trained_model], synthetic_dataset, tmp_path / "one")
+    variant = CompliancePredictor(trained_model).variant
+    cnn = tmp_path / "cnn"
+    train_model(synthetic_dataset, cnn, variant=Variant.parse("depth+fw", n_frames=variant.n_frames,
+                                                                size_px=variant.size_px),
+                config=TrainConfig(epochs=1, patience=1, batch_size=8, seed=0), progress=False)
+    with pytest.raises(EstimatorError, match="variant"):
+        pool_models([trained_model, cnn], synthetic_dataset, tmp_path / "mixed")
+    smoothed = tmp_path / "smoothed"
+    shutil.copytree(other_seed, smoothed)
+    meta = json.loads((smoothed / "metadata.json").read_text())
+    meta["data"]["calibration_smoothing_px"] = [2.0]
+    (smoothed / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(EstimatorError, match="smoothing by 2 px"):
+        pool_models([trained_model, smoothed], synthetic_dataset, tmp_path / "unlike")
+    pool_models([trained_model, other_seed], synthetic_dataset, tmp_path / "pooled")
+    with pytest.raises(EstimatorError, match="pooled again"):
+        pool_models([tmp_path / "pooled", trained_model], synthetic_dataset, tmp_path / "twice")
+    assert not any((tmp_path / name).exists() for name in ("one", "mixed", "unlike", "twice"))
+
+
+def test_a_pooled_model_fine_tunes_as_one_network(trained_model, other_seed, synthetic, synthetic_dataset, tmp_path):
+    pool_models([trained_model, other_seed], synthetic_dataset, tmp_path / "pooled")
+    data = synthetic.write_dataset(tmp_path / "d", seed=3)
+    meta = fine_tune(tmp_path / "pooled", data, tmp_path / "tuned", config=TrainConfig(epochs=2, batch_size=8, lr=2e-3),
+                     progress=False)
+    assert meta["ensemble"] == json.loads((tmp_path / "pooled" / "metadata.json").read_text())["ensemble"]
+    before, after = CompliancePredictor(tmp_path / "pooled"), CompliancePredictor(tmp_path / "tuned")
+    inputs = load_split_data(data, before.variant, ("val",))["val"].inputs
+    assert not np.allclose(before.predict_logits(inputs), after.predict_logits(inputs), atol=1e-3)
+
+
+def test_the_command_pools_models(trained_model, other_seed, synthetic_dataset, tmp_path, capsys):
+    out = tmp_path / "pooled"
+    assert main(["pool", "--model", str(trained_model), "--model", str(other_seed), "--data", str(synthetic_dataset),
+                 "--out", str(out), "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert printed["out"] == str(out) and printed["members"] == 2 and printed["calibration"]["n"] > 0
+    assert {p.name for p in out.iterdir()} == {"model.onnx", "metadata.json"}

@@ -1,0 +1,97 @@
+"""Training: early stopping, what a model directory holds, leaks and mismatches refused."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from estimator.errors import EstimatorError, SampleError
+from estimator.inference.inputs import MEASUREMENT_VERSION, Variant, default_window_m
+from estimator.inference.provenance import load_split
+from estimator.training.train import TrainConfig, load_split_data, rig_range, train_model
+
+
+@pytest.mark.slow
+def test_trained_model_directory(trained_model, synthetic_dataset, synthetic):
+    assert {p.name for p in trained_model.iterdir()} >= {"model.onnx", "metadata.json", "training_curve.png"}
+    assert (trained_model / "training_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    meta = json.loads((trained_model / "metadata.json").read_text())
+    assert meta["variant"] == {"name": "depth+fw+analytical", "n_frames": 3, "size_px": [16, 22],
+                               "window_m": list(default_window_m()), "method": "hybrid"}
+    assert meta["inputs"]["frames"] == [None, 3, 1, 16, 22]
+    training = meta["training"]
+    assert training["seed"] == 1 and 1 <= training["best_epoch"] <= training["epochs_run"] <= 4
+    assert len(training["history"]) == training["epochs_run"]
+    for split in ("val", "test"):
+        metrics = meta["metrics"][split]
+        assert metrics["hybrid"]["n"] > 0 and metrics["hybrid"]["interval_level"] == 0.9
+        assert 0 <= metrics["hybrid"]["felt_log10_error"] <= 3.2  # the display spans 3.1 decades
+        assert metrics["split"]["n"] > 0 and "no_tactile" in metrics  # the analytical methods on the same grasps
+    cal = meta["calibration"]
+    live_val = len(list((synthetic_dataset / "val").rglob("*_a0.npz")))  # scored on the live sampling only
+    assert cal["n"] == live_val < meta["data"]["samples"]["val"] and cal["chosen_on"] == "val"
+    assert cal["temperature"] > 0 and min(cal["interval_scales"]) > 0 and all(0.5 <= p < 1 for p in cal["p_rigids"])
+    assert len(cal["interval_scales"]) == len(cal["p_rigids"]) == len(cal["force_band_edges_n"]) + 1
+    assert cal["floor"] == {"methods": ["no_tactile", "split"], "leak": 0.01}  # the fixture reads the fits
+    train_objects = json.loads((synthetic_dataset / "split.json").read_text())["train"]
+    assert cal["level"] == 0.9 and cal["soft_pa"] == min(synthetic.OBJECTS[n][1] for n in train_objects)
+    assert meta["data"]["measurement_version"] == MEASUREMENT_VERSION
+    assert set(meta["reference"]["inputs"]) == {"frames_sum", "frames_abs_sum", "frames_peak", "force_width",
+                                                "analytical"}
+    assert meta["metrics"]["test"]["hybrid"]["n"] == len(list((synthetic_dataset / "test").rglob("*_a0.npz")))
+    assert meta["auto"]["max_split_interval_decades"] >= 0 and meta["auto"]["table"]
+    split = json.loads((synthetic_dataset / "split.json").read_text())
+    assert meta["data"]["objects"] == {name: sorted(split[name]) for name in ("train", "val", "test")}
+
+
+@pytest.mark.slow
+def test_training_stops_early_when_validation_stops_improving(synthetic_dataset, tmp_path):
+    variant = Variant.parse("depth", n_frames=3, size_px=(16, 22))
+    config = TrainConfig(epochs=50, patience=2, lr=1e-12, batch_size=16, seed=0)  # nothing to gain after epoch 1
+    meta = train_model(synthetic_dataset, tmp_path / "m", variant=variant, config=config, progress=False)
+    training = meta["training"]
+    assert training["epochs_run"] == training["best_epoch"] + 2 < 50
+    assert meta["training"]["best_val_loss"] == pytest.approx(min(h["val_loss"] for h in training["history"]))
+
+
+def test_the_rig_range_spans_the_samples_that_record_their_rig():
+    rows = [{"gel_modulus_pa": 2.5e5, "gel_thickness_m": 3e-3, "finger_stiffness_n_per_m": None},
+            {"gel_modulus_pa": 1.2e5, "gel_thickness_m": None, "finger_stiffness_n_per_m": None},
+            {"gel_modulus_pa": 4.0e5, "gel_thickness_m": 4.5e-3, "finger_stiffness_n_per_m": None}]
+    assert rig_range(rows) == {"gel_modulus_pa": [1.2e5, 4.0e5], "gel_thickness_m": [3e-3, 4.5e-3]}
+
+
+def test_a_sample_in_the_wrong_split_is_a_leak(synthetic_dataset, tmp_path):
+    data = tmp_path / "leaky"
+    shutil.copytree(synthetic_dataset, data)
+    victim = load_split(data / "split.json")["val"][0]
+    moved = sorted((data / "val" / victim).glob("*.npz"))[0]
+    (data / "train" / victim).mkdir(exist_ok=True)
+    shutil.copy(moved, data / "train" / victim / moved.name)
+    with pytest.raises(SampleError, match=f"object '{victim}' is not in the train split"):
+        load_split_data(data, Variant.parse("depth", n_frames=3, size_px=(16, 22)))
+
+
+def test_split_data_follows_the_split_file(synthetic_dataset):
+    data = load_split_data(synthetic_dataset, Variant.parse("depth+fw+analytical", n_frames=3, size_px=(16, 22)))
+    split = load_split(synthetic_dataset / "split.json")
+    for name, part in data.items():
+        assert {r["object"] for r in part.rows} == set(split[name])
+        assert part.inputs["frames"].shape[0] == len(part) == part.label.shape[0]
+        assert np.all((part.label >= 3) & (part.label <= 12))  # log10 E (Pa)
+
+
+def test_mismatched_variant_or_empty_split_is_refused(synthetic, tmp_path):
+    plain = synthetic.write_dataset(tmp_path / "plain", markers=False, grasps=1, shifts=1)
+    with pytest.raises(EstimatorError, match="built without --markers"):
+        train_model(plain, tmp_path / "m", variant=Variant.parse("rgb+markers", n_frames=3, size_px=(16, 22)),
+                    progress=False)
+    shutil.rmtree(plain / "val")
+    with pytest.raises(EstimatorError, match="0 val samples"):
+        train_model(plain, tmp_path / "m", variant=Variant.parse("depth", n_frames=3, size_px=(16, 22)),
+                    progress=False)
+    with pytest.raises(EstimatorError, match="label_sd_decades"):
+        TrainConfig(label_sd_decades=-0.1)
