@@ -8,16 +8,42 @@ finger and the objects' Poisson ratio are ``[sensing]``, shared with the display
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from estimator.analytical import METHODS
 from teleop.errors import SettingsError
-from teleop.settings import Section, Settings, depth_binning_problem
+from teleop.settings import Section, SensorSettings, Settings
 from teleop.settings_fields import spec
 
-__all__ = ["DEFAULT_METHODS", "EstimatorSettings", "estimator_settings"]
+__all__ = ["DEFAULT_METHODS", "EstimatorSettings", "depth_binning_problem", "estimator_settings"]
 
 #: The analytical fits run when ``methods`` names none, in order of preference.
 DEFAULT_METHODS = ("split", "hertz", "elastic", "no_tactile")
+
+
+def depth_binning_problem(binning: Any, sensor: SensorSettings | None = None, *,
+                          grid_shape: tuple[int, int] | None = None) -> str | None:
+    """Why ``binning`` cannot be a depth binning (:attr:`EstimatorSettings.depth_binning`), or None.
+
+    A binning K is a whole number >= 1 dividing both sides of what it bins: ``sensor``'s image
+    grid and its raw frame (decoded K times smaller), and ``grid_shape`` (rows, cols; e.g. a
+    calibration's grid). K above 1 is refused for a sensor with markers: their dots are found and
+    inpainted on the full grid only. The one statement of the rule: the settings, the warp and the
+    depth grid (``estimator.perception``) all ask it and raise their own error with its answer.
+    """
+    if isinstance(binning, bool) or not isinstance(binning, int) or binning < 1:
+        return f"expected a whole number >= 1, got {binning!r}"
+    if sensor is not None:
+        (rows, cols), raw = sensor.image_shape, (sensor.raw_height_px, sensor.raw_width_px)
+        if any(side % binning for side in (rows, cols, *raw)):
+            return (f"does not divide the {rows} x {cols} px image grid and the {raw[0]} x {raw[1]} px raw "
+                    f"frame of finger {sensor.finger!r}; choose a common divisor or 1")
+        if binning > 1 and sensor.markers:
+            return (f"finger {sensor.finger!r} has markers, which are found and inpainted on the full grid "
+                    "only: measure it with binning 1 (depth_binning = 1)")
+    if grid_shape is not None and any(side % binning for side in grid_shape):
+        return f"does not divide both sides of the {grid_shape[0]} x {grid_shape[1]} px grid"
+    return None
 
 
 @dataclass(frozen=True)
@@ -26,6 +52,7 @@ class EstimatorSettings(Section):
 
     TABLE = "estimator"
     PATHS = ("model_path",)
+    MOVED = {"finger": "[sensing] finger", "object_poisson": "[sensing] object_poisson"}
 
     contact_force_n: float = spec(0.75, lo=0.0, hi=100.0, lo_open=True, doc="first-contact force")
     n_frames: int = spec(3, lo=1, hi=64)

@@ -26,7 +26,7 @@ Between the ends the scale is logarithmic in E, after two laws of softness
 perception:
 
 - Discrimination (Weber). The Weber fraction for discriminating compliance, or
-  Young's modulus, by squeezing is about 15 % (:data:`~teleop.settings.WEBER_FRACTION`;
+  Young's modulus, by squeezing is about 15 % (:data:`~teleop.physics.WEBER_FRACTION`;
   Bergmann Tiest and Kappers, IEEE Transactions on Haptics 2009; it more than
   triples without the cue of the surface's deformation). A just-noticeable
   difference is a fixed *ratio* of E, so equal ratios of E are equally
@@ -65,7 +65,7 @@ from typing import TYPE_CHECKING, Any
 
 from haptics.errors import MappingError
 from haptics.protocol import UNCERTAINTY_COUNTS_PER_DECADE, StiffnessCommand
-from teleop.settings import WEBER_FRACTION
+from teleop.physics import WEBER_FRACTION
 from teleop.states import ESTIMATE_STATES
 
 if TYPE_CHECKING:

@@ -9,34 +9,23 @@ an unknown key, a wrong type or an out-of-range value raises
 allowed.
 
 Each package owns its tables. This base owns the rig's: ``[sensors.<finger>]``, ``[sensing]``,
-``[gripper]``, ``[load_cell]``, ``[bus]`` and ``[simulation]``. The estimator's ``[estimator]``
-(``estimator.settings``) and the display's ``[display]`` (``haptics.settings``) are kept as read
-and built, checked and completed by their owners (:meth:`Settings.section`), so the base imports
-neither package. A relative path in a file resolves against the file's folder (:func:`resolve_path`).
+``[gripper]``, ``[load_cell]``, ``[bus]`` and ``[simulation]``. A package above it registers its
+own table by name in the ``compliance_teleop.settings_tables`` entry-point group (pyproject.toml:
+``[estimator]``, ``[display]``, ``[operator]``); the base keeps such tables as read, and their
+owners build, check and complete them (:meth:`Settings.section`), so the base names and imports
+none of them. A relative path in a file resolves against the file's folder (:func:`resolve_path`).
 
 All quantities are SI (m, N, Pa, s, Hz) unless the name says otherwise.
 
-The sensor's resolution limit
------------------------------
-Under the half-space approximation gel and object feel the same pressure, so
-with the gel pressed by ``d`` the object's own indentation is
-``d * k_object / k_gel`` (``k = (1 - nu^2) / E``). A change of E by the Weber
-fraction ``w`` (:data:`WEBER_FRACTION`: the smallest change of compliance a
-person feels, about 15 %; Bergmann Tiest and Kappers, IEEE ToH 2009) moves that
-indentation by ``w * d * k_object / k_gel``; the sensor sees the change only
-while it is at least its depth resolution ``r``, even with the gel pressed by its
-whole thickness ``t``. Stiffer objects than
-
-    E_limit = w * (t / r) * (1 - nu_object^2) / k_gel
-
-cannot be told apart by the mechanics (:meth:`SensorSettings.resolution_limit_pa`;
-6.8 MPa for the shipped 275 kPa, 3 mm gel resolving 20 um): an estimator reports
-them as ``lower_bound`` at that limit, and the display renders it as rigid.
+The sensor's resolution limit (the stiffest object its gel tells apart) is derived in
+:mod:`teleop.physics`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
+import importlib.metadata
 import importlib.resources
 import os
 import tomllib
@@ -47,32 +36,28 @@ from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
 from teleop.errors import SettingsError
+from teleop.physics import resolution_limit_pa
 from teleop.settings_fields import Validated, build_settings, spec
 
 __all__ = [
     "BusSettings",
     "GripperSettings",
     "LoadCellSettings",
-    "PACKAGE_TABLES",
     "Section",
     "SensingSettings",
     "SensorSettings",
     "Settings",
     "SimulationSettings",
-    "WEBER_FRACTION",
+    "TABLES_GROUP",
     "config_dir",
     "default_settings_path",
-    "depth_binning_problem",
     "load_settings",
+    "package_tables",
     "resolve_path",
     "settings_from_mapping",
     "settings_to_mapping",
 ]
 
-
-#: Smallest relative change of an object's compliance a person feels when squeezing it
-#: (Bergmann Tiest and Kappers, IEEE Transactions on Haptics 2009: about 15 %).
-WEBER_FRACTION = 0.15
 
 
 
@@ -182,35 +167,10 @@ class SensorSettings(Validated):
         return (1.0 - self.gel_poisson**2) / self.gel_modulus_pa
 
     def resolution_limit_pa(self, object_poisson: float) -> float:
-        """E (Pa) above which this sensor cannot tell objects apart (module notes), for an object
-        of Poisson ratio ``object_poisson``."""
-        ratio = self.gel_thickness_m / self.depth_resolution_m
-        return WEBER_FRACTION * ratio * (1.0 - object_poisson**2) / self.gel_compliance_per_pa
-
-
-def depth_binning_problem(binning: Any, sensor: SensorSettings | None = None, *,
-                          grid_shape: tuple[int, int] | None = None) -> str | None:
-    """Why ``binning`` cannot be a depth binning (:attr:`EstimatorSettings.depth_binning`), or None.
-
-    A binning K is a whole number >= 1 dividing both sides of what it bins: ``sensor``'s image
-    grid and its raw frame (decoded K times smaller), and ``grid_shape`` (rows, cols; e.g. a
-    calibration's grid). K above 1 is refused for a sensor with markers: their dots are found and
-    inpainted on the full grid only. The one statement of the rule: the settings, the warp and the
-    depth grid (``estimator.perception``) all ask it and raise their own error with its answer.
-    """
-    if isinstance(binning, bool) or not isinstance(binning, int) or binning < 1:
-        return f"expected a whole number >= 1, got {binning!r}"
-    if sensor is not None:
-        (rows, cols), raw = sensor.image_shape, (sensor.raw_height_px, sensor.raw_width_px)
-        if any(side % binning for side in (rows, cols, *raw)):
-            return (f"does not divide the {rows} x {cols} px image grid and the {raw[0]} x {raw[1]} px raw "
-                    f"frame of finger {sensor.finger!r}; choose a common divisor or 1")
-        if binning > 1 and sensor.markers:
-            return (f"finger {sensor.finger!r} has markers, which are found and inpainted on the full grid "
-                    "only: measure it with binning 1 (depth_binning = 1)")
-    if grid_shape is not None and any(side % binning for side in grid_shape):
-        return f"does not divide both sides of the {grid_shape[0]} x {grid_shape[1]} px grid"
-    return None
+        """E (Pa) above which this sensor cannot tell objects apart (:mod:`teleop.physics`), for an
+        object of Poisson ratio ``object_poisson``."""
+        return resolution_limit_pa(gel_thickness_m=self.gel_thickness_m, depth_resolution_m=self.depth_resolution_m,
+                                   gel_compliance_per_pa=self.gel_compliance_per_pa, object_poisson=object_poisson)
 
 
 @dataclass(frozen=True)
@@ -290,10 +250,16 @@ class SensingSettings(Validated):
     object_poisson: float = spec(0.4, lo=0.0, hi=0.5, doc="Poisson ratio assumed for grasped objects")
 
 
-#: Top-level tables owned by the packages above this base (``estimator.settings``,
-#: ``haptics.settings``): the base keeps them as read, and each package builds and checks its own
-#: (:meth:`Settings.section`).
-PACKAGE_TABLES = ("estimator", "display", "operator")
+#: The entry-point group in which a package above this base registers its settings table: the
+#: entry's name is the table's, its value the :class:`Section` that builds it.
+TABLES_GROUP = "compliance_teleop.settings_tables"
+
+
+@functools.cache
+def package_tables() -> tuple[str, ...]:
+    """The top-level tables the packages above this base registered (:data:`TABLES_GROUP`): the base
+    keeps them as read, and each package builds and checks its own (:meth:`Settings.section`)."""
+    return tuple(sorted(entry.name for entry in importlib.metadata.entry_points(group=TABLES_GROUP)))
 
 S = TypeVar("S", bound="Section")
 
@@ -302,12 +268,14 @@ class Section(Validated):
     """Base of a package's own settings table: a frozen dataclass with its fields' ``spec``.
 
     ``TABLE`` names its table in the settings file, ``PATHS`` its fields holding file paths
-    (resolved like every path of the file, :func:`resolve_path`). :meth:`resolved` completes and
+    (resolved like every path of the file, :func:`resolve_path`), ``MOVED`` keys that moved to
+    another table (key -> where it is now, said when a file still has it). :meth:`resolved` completes and
     checks it against the whole settings (rules across tables); the default has none.
     """
 
     TABLE: ClassVar[str] = ""
     PATHS: ClassVar[tuple[str, ...]] = ()
+    MOVED: ClassVar[Mapping[str, str]] = {}
 
     def resolved(self: S, settings: Settings) -> S:  # noqa: ARG002 - the hook's signature
         return self
@@ -317,7 +285,7 @@ class Section(Validated):
 class Settings(Validated):
     """Everything one deployment needs, as read from one TOML file.
 
-    The base's own tables are fields; the packages' tables (:data:`PACKAGE_TABLES`) are kept as read
+    The base's own tables are fields; the packages' tables (:func:`package_tables`) are kept as read
     in ``tables`` and built by their owners through :meth:`section`. ``source`` is the file read
     (None when built in code): relative paths in it resolve against its folder.
     """
@@ -343,9 +311,10 @@ class Settings(Validated):
         if self.sensing.finger not in fingers:
             raise SettingsError(f"SensingSettings.finger = {self.sensing.finger!r}: expected a finger with a "
                                 f"sensor, one of {fingers}")
-        unknown = sorted(set(self.tables) - set(PACKAGE_TABLES))
+        unknown = sorted(set(self.tables) - set(package_tables()))
         if unknown:
-            raise SettingsError(f"Settings.tables names {unknown[0]!r}: expected some of {', '.join(PACKAGE_TABLES)}")
+            raise SettingsError(f"Settings.tables names {unknown[0]!r}: expected some of "
+                                f"{', '.join(package_tables()) or 'none (is the project installed?)'}")
 
     def __hash__(self) -> int:  # the packages' tables are plain dicts: hash a frozen copy
         own = tuple(getattr(self, f.name) for f in dataclasses.fields(self) if f.metadata.get("key", True))
@@ -381,6 +350,9 @@ class Settings(Validated):
         if cls not in cache:
             where = str(self.source or "<settings>")
             table = dict(self.tables.get(cls.TABLE, {}))
+            for key in table:
+                if key in cls.MOVED:
+                    raise SettingsError(f"{where}: [{cls.TABLE}] {key} is now {cls.MOVED[key]}: move it there")
             for key in cls.PATHS:
                 if isinstance(table.get(key), str) and table[key]:
                     table[key] = str(resolve_path(table[key], folder=self.folder))
@@ -401,26 +373,20 @@ class Settings(Validated):
 # --------------------------------------------------------------------------- loading
 
 
-#: Keys that moved between tables: (table, key) -> where they are now.
-_MOVED = {("estimator", "finger"): "[sensing] finger", ("estimator", "object_poisson"): "[sensing] object_poisson"}
-
 
 def _build_settings_file(data: Mapping[str, Any], source: Path | None) -> Settings:
     """:class:`Settings` from a whole file's mapping: the packages' tables kept as read, paths of the
     base's tables resolved against the file's folder (:func:`resolve_path`)."""
     where = str(source or "<settings>")
     tables = {}
-    for name in PACKAGE_TABLES:
+    for name in package_tables():
         if name not in data:
             continue
         table = data[name]
         if not isinstance(table, Mapping):
             raise SettingsError(f"{where}: [{name}] must be a table, got {type(table).__name__}")
-        for key in table:
-            if (name, key) in _MOVED:
-                raise SettingsError(f"{where}: [{name}] {key} is now {_MOVED[name, key]}: move it there")
         tables[name] = dict(table)
-    own = {k: v for k, v in data.items() if k not in PACKAGE_TABLES}
+    own = {k: v for k, v in data.items() if k not in package_tables()}
     folder = config_dir() if source is None else source.parent
     sensors = own.get("sensors")
     if isinstance(sensors, Mapping):

@@ -27,9 +27,10 @@ import cv2
 import numpy as np
 
 from estimator.errors import PerceptionError
+from estimator.settings import depth_binning_problem
 from teleop.errors import SettingsError
 from teleop.geometry import raw_to_grid_matrix
-from teleop.settings import SensorSettings, depth_binning_problem
+from teleop.settings import SensorSettings
 
 __all__ = ["check_binning", "warp_and_crop", "warp_maps", "warp_matrix", "warp_points"]
 
@@ -65,7 +66,7 @@ def warp_matrix(sensor: SensorSettings) -> np.ndarray:
 
 def check_binning(sensor: SensorSettings | None, binning: int, *,
                   grid_shape: tuple[int, int] | None = None) -> None:
-    """Raise PerceptionError where :func:`~teleop.settings.depth_binning_problem` refuses
+    """Raise PerceptionError where :func:`~estimator.settings.depth_binning_problem` refuses
     ``binning`` for ``sensor`` (its image grid, raw frame and markers) or ``grid_shape``."""
     problem = depth_binning_problem(binning, sensor, grid_shape=grid_shape)
     if problem:

@@ -39,11 +39,11 @@ from estimator.perception.depth import reconstruct_depth
 from estimator.perception.grid import grid_calibration, to_grid
 from estimator.perception.markers import detect_markers
 from estimator.segment import Segment
-from estimator.settings import estimator_settings
+from estimator.settings import depth_binning_problem, estimator_settings
 from teleop.errors import ComplianceTeleopError
 from teleop.record import GraspRecord
 from teleop.session.logfile import LogInfo, LogReader
-from teleop.settings import Settings, depth_binning_problem
+from teleop.settings import Settings
 
 __all__ = [
     "MOMENTS",

@@ -303,15 +303,8 @@ def input_rig(request: pytest.FixtureRequest) -> InputRig:
 
 
 @pytest.fixture
-def with_operator(monkeypatch: pytest.MonkeyPatch, settings):
-    """``with_operator(**keys)``: the shipped settings with an ``[operator]`` table of ``keys``.
-
-    Lets the base's table list name ``operator`` in case it does not yet (``teleop.settings``).
-    """
-    import teleop.settings
-
-    if "operator" not in teleop.settings.PACKAGE_TABLES:
-        monkeypatch.setattr(teleop.settings, "PACKAGE_TABLES", (*teleop.settings.PACKAGE_TABLES, "operator"))
+def with_operator(settings):
+    """``with_operator(**keys)``: the shipped settings with an ``[operator]`` table of ``keys``."""
 
     def make(**keys):
         from haptics.settings import OperatorSettings

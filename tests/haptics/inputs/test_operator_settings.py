@@ -6,7 +6,6 @@ import math
 
 import pytest
 
-import teleop.settings
 from haptics.errors import OperatorInputError
 from haptics.inputs import OperatorInput, make_input
 from haptics.inputs.keyboard import KeyboardInput
@@ -55,8 +54,6 @@ def test_the_choices_are_the_backends():
     assert tuple(BACKENDS) == INPUT_BACKENDS
 
 
-@pytest.mark.skipif("operator" not in teleop.settings.PACKAGE_TABLES,
-                    reason="teleop.settings.PACKAGE_TABLES does not list 'operator' yet")
 def test_an_operator_table_in_a_file_is_read_and_checked_naming_the_file(tmp_path):
     path = tmp_path / "settings.toml"
     path.write_text('[operator]\ninput = "gamepad"\ngamepad_path = "/dev/input/event4"\n')
