@@ -648,6 +648,7 @@ def test_service_refuses_a_model_that_does_not_check_out_and_keeps_its_own(setti
     assert (stats.load_requests, stats.model_refusals, stats.reloads) == (2, 2, 0)
 
 
+@pytest.mark.slow
 def test_estimator_reload_switches_a_running_service_and_says_why_it_refuses(settings, calibration, records,
                                                                               tmp_path, capsys):
     import estimator.cli

@@ -211,6 +211,7 @@ class LabellingLink(FakeLink):
                       detail=detail)
 
 
+@pytest.mark.slow
 def test_l_labels_the_grasp_from_the_catalogue_or_a_shore_reading():
     from teleop.catalogue import load_catalogue
     from teleop.labels import shore_to_modulus_pa

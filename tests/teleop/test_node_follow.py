@@ -70,6 +70,7 @@ def wait_prepared(node: RobotNode) -> None:
     node._next_live[1].result(timeout=30.0)  # the first object, prepared at connect
 
 
+@pytest.mark.slow
 def test_a_follow_grasp_is_simulated_live_force_capped_and_released(rig):
     node, operator, listener, scene = rig
     wait_prepared(node)

@@ -186,6 +186,7 @@ def _expected_loss(probs: np.ndarray, points: np.ndarray, *, soft: float, limit:
     (gaussian(5.9, 0.2), "about the median"),
     (0.45 * gaussian(5.9, 0.05) + 0.55 * gaussian(8.0, 0.05), "between the modes"),
 ])
+@pytest.mark.slow
 def test_the_value_of_an_ok_answer_minimises_the_hedging_loss(probs, where):
     soft, limit = math.log10(SOFT_PA), math.log10(LIMIT_PA)
     said = describe(probs, scale=1.645, limit_pa=LIMIT_PA, soft_pa=SOFT_PA, p_rigid=0.9)

@@ -59,6 +59,7 @@ def run_json(capsys, *argv):
     return json.loads(out.strip().splitlines()[-1]), err
 
 
+@pytest.mark.slow
 def test_capture_guides_the_presses_saves_them_and_calibrates(tmp_path, gelsight_presses, mjpg_server, capsys):
     server = mjpg_server(press_stream(gelsight_presses), fps=30.0)
     settings, folder, cal = write_settings(tmp_path, server.url), tmp_path / "presses", tmp_path / "cal.npz"

@@ -43,6 +43,7 @@ def test_the_pooled_model_computes_the_members_linear_pool(trained_model, other_
     assert json.loads((tmp_path / "pooled" / "metadata.json").read_text()) == meta
 
 
+@pytest.mark.slow
 def test_models_that_cannot_be_pooled_are_refused(trained_model, other_seed, synthetic_dataset, tmp_path):
     with pytest.raises(EstimatorError, match="at least two"):
         pool_models([trained_model], synthetic_dataset, tmp_path / "one")
@@ -66,6 +67,7 @@ def test_models_that_cannot_be_pooled_are_refused(trained_model, other_seed, syn
     assert not any((tmp_path / name).exists() for name in ("one", "mixed", "unlike", "twice"))
 
 
+@pytest.mark.slow
 def test_a_pooled_model_fine_tunes_as_one_network(trained_model, other_seed, synthetic, synthetic_dataset, tmp_path):
     pool_models([trained_model, other_seed], synthetic_dataset, tmp_path / "pooled")
     data = synthetic.write_dataset(tmp_path / "d", seed=3)

@@ -175,6 +175,7 @@ def tapping_cell():
     os.close(slave)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("configured_s", [0.0, 0.04])
 def test_latency_against_the_load_cell_is_measured_from_taps(tmp_path, mjpg_server, tapping_cell, capsys,
                                                              configured_s):

@@ -89,6 +89,7 @@ def _calibrate(path, masses, capsys) -> tuple[int, dict]:
     return code, json.loads(capsys.readouterr().out.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_recovers_tare_and_counts_per_newton_and_writes_them(serial_rig, capsys):
     path, master = serial_rig
     before = path.read_text()
@@ -109,6 +110,7 @@ def test_recovers_tare_and_counts_per_newton_and_writes_them(serial_rig, capsys)
            [ln for ln in path.read_text().splitlines() if ln.startswith("#")]
 
 
+@pytest.mark.slow
 def test_a_non_linear_cell_is_refused_with_the_reason(serial_rig, capsys):
     path, master = serial_rig
     before = path.read_bytes()

@@ -300,6 +300,7 @@ def test_capture_series_gives_fresh_noise_per_frame(sensor, settings):
     assert again.capture_series(bases, np.ones((3, 1))) == jpegs
 
 
+@pytest.mark.slow
 def test_noise_is_independent_between_frames_and_pixels(settings, sensor):
     """The pooled noise: right spread, no correlation between frames, neighbours or channels."""
     cam = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(11))

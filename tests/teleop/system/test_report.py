@@ -234,6 +234,7 @@ def _need_chromium() -> None:
     pytest.skip(f"{CHROMIUM} is missing: install it with `make browser` (apt-get install -y chromium)")
 
 
+@pytest.mark.slow
 def test_headless_chromium_renders_the_page_with_its_figures(report, tmp_path):
     _need_chromium()
     shot = tmp_path / "window.png"
