@@ -13,7 +13,7 @@ card, and the methods), so ``estimator card CARD`` alone writes the table again 
 says whether the card still says what its JSONs say (exit status 1, naming each figure that
 differs). ``--keep DIR`` writes a small copy of each source (its figures, without the per-record
 lists) into DIR and points the card at the copies: a card kept in git can then be checked
-against the JSONs it came from (``tests/estimator/test_card.py`` does so for the shipped card).
+against the JSONs it came from (``tests/estimator/evaluation/test_card.py`` does so for the shipped card).
 """
 
 from __future__ import annotations
