@@ -18,7 +18,7 @@ per-grasp median time, over the grasps it can sample:
 ``warp``, ``depth``, ``features``
     the sampled loading frames warped and cropped onto the depth grid (binned by the
     settings' ``estimator.depth_binning``, from frames decoded that much smaller), their
-    depth reconstructed, their contact features (the parts of ``measure_tactile`` after
+    depth reconstructed, their contact features (the parts of ``GraspStream.measurements`` after
     the reference);
 ``fits``
     the four analytical estimates over the sampled frames;
@@ -69,7 +69,7 @@ def stage_runs(record, sampled, *, settings, predictor, calibration):
     sampling = settings.with_section(replace(estimator_settings(settings), n_frames=variant.n_frames))
     m = sampled.measurements
     binning, sensor, grid, reference = m.depth_binning, m.sensor, m.grid, m.reference_bgr
-    cal = grid_calibration(calibration_for(record, finger, calibration), binning)
+    cal = grid_calibration(calibration_for(record.sensor(finger), calibration), binning)
     positions = np.searchsorted(m.segment.frame_t_s, m.t_s)  # the sampled loading frames
     raw = [record.stream(finger).frame(int(i), reduce=binning) for i in m.segment.frame_index[positions]]
     batch = encode(variant, [sampled])

@@ -68,7 +68,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--json", action="store_true",
         help="print one JSON object (E_pa, interval_pa [low, high] with null for an open side, "
-             "state, reason, latency_ms) on the last stdout line",
+             "state, reason, latency_ms, and model: the learned model's id, null for an analytical "
+             "method) on the last stdout line",
     )
 
 
@@ -76,8 +77,9 @@ def _pa(value: float | None) -> str:
     return "-" if value is None else f"{value:.3g} Pa"
 
 
-def learned_estimate(record: GraspRecord, args: argparse.Namespace, settings: Settings) -> Estimate:
-    """The ``hybrid``, ``cnn`` or ``auto`` estimate of ``record`` with the model ``args.model``."""
+def learned_estimate(record: GraspRecord, args: argparse.Namespace, settings: Settings) -> tuple[Estimate, str]:
+    """The ``hybrid``, ``cnn`` or ``auto`` estimate of ``record`` with the model ``args.model``, and that
+    model's id (:func:`~estimator.inference.infer.model_id`, as the live service names it)."""
     if args.camera_lag:
         raise EstimatorError(f"--camera-lag: applies to the analytical methods, not {args.method} (a model "
                              "measures a grasp as its training data was measured)")
@@ -89,7 +91,7 @@ def learned_estimate(record: GraspRecord, args: argparse.Namespace, settings: Se
                              f"({variant.name}); {args.method} needs a model trained {need} analytical "
                              "inputs (--model DIR)")
     estimator = HybridEstimator(predictor, settings=settings, calibration=args.calibration)
-    return estimator.estimate(record, mode="auto" if args.method == "auto" else "model")
+    return estimator.estimate(record, mode="auto" if args.method == "auto" else "model"), predictor.model_id
 
 
 def run(args: argparse.Namespace) -> int:
@@ -97,13 +99,14 @@ def run(args: argparse.Namespace) -> int:
         raise EstimatorError(f"--model: applies to hybrid, cnn and auto, not {args.method}")
     settings = load_settings(args.settings)
     record = read_record(args.grasp)
+    model = None
     if args.method in METHODS:
         estimate = estimate_grasp(record, args.method, settings=settings, calibration=args.calibration,
                                   correct_camera_lag=args.camera_lag, correct_width_lag=args.width_lag)
     else:
-        estimate = learned_estimate(record, args, settings)
+        estimate, model = learned_estimate(record, args, settings)
     if args.json:
-        print(json.dumps({"grasp": args.grasp, **estimate.to_json()}, allow_nan=False))
+        print(json.dumps({"grasp": args.grasp, **estimate.to_json(), "model": model}, allow_nan=False))
         return 0
     low, high = estimate.interval_pa
     print(f"{args.method}: {estimate.state}  E = {_pa(estimate.e_pa)}  interval [{_pa(low)}, {_pa(high)}]  "

@@ -76,6 +76,11 @@ class ContactFeatures:
     def __len__(self) -> int:
         return int(self.peak_depth_m.shape[0])
 
+    @classmethod
+    def concatenate(cls, parts: list[ContactFeatures]) -> ContactFeatures:
+        """The features of ``parts``' frames, one after another (at least one part)."""
+        return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in cls.__dataclass_fields__})
+
     def take(self, indices: np.ndarray) -> ContactFeatures:
         """Features of the frames at ``indices`` (integer positions or a boolean mask)."""
         return ContactFeatures(

@@ -19,12 +19,12 @@ endpoint. Per grasp (from a ``grasp_event`` *start* to its *end*):
   grasp's end (:meth:`~estimator.stream.GraspStream.mark_follow`); with a model loaded, its
   provisional estimates are the model's over the loading so far (the operator feels the answer
   while squeezing, not seconds later when letting go). With a model loaded the
-  final one is the hybrid ``auto`` estimate (:class:`~estimator.inference.hybrid.HybridEstimator`);
+  final one is the hybrid ``auto`` estimate of the grasp's stream
+  (:meth:`~estimator.inference.hybrid.HybridEstimator.estimate_stream`: the one measurement path,
+  so the grasp's exported record gives the same estimate offline when it holds the same data);
   for a depth model of the estimator's finger its input comes from the depths already computed
-  for the provisional estimates and reduced to the model's input size after each of them
-  (:meth:`~estimator.stream.GraspStream.sampled_grasp`: the same input the model would measure
-  from the grasp record, without measuring a frame again), else the model measures the grasp
-  as received. Without a model it is the analytical one;
+  for the provisional estimates and reduced to the model's input size after each of them,
+  without measuring a frame again. Without a model it is the analytical one;
 * the grasp's end event, forwarded on the estimate endpoint after the final estimate, so a
   renderer that listens to estimates alone knows when to let go.
 
@@ -431,25 +431,14 @@ class EstimatorService:
         failure = None
         if grasp.model is not None:
             try:
-                return self._model_estimate(grasp, segment), True
+                # The one measurement path: a depth model reads the depths cached for the provisional estimates.
+                return grasp.model.estimate_stream(grasp.stream, mode=self.model.mode), True
             except _BAD_INPUT as exc:
                 log.warning("grasp %r: the model gives no estimate (%s); publishing the analytical one",
                             grasp.grasp_id, exc)
                 failure = exc
         estimate = grasp.stream.estimate(segment).estimate
         return (estimate if failure is None else estimate.with_note(f"model failed: {failure}")), False
-
-    def _model_estimate(self, grasp: _Grasp, segment: Segment) -> Estimate:
-        """The pinned model's estimate; a depth model of the estimator's finger reads the cached depths."""
-        model, mode = grasp.model, self.model.mode
-        variant = model.predictor.variant
-        if _reads_stream_depths(variant):
-            started = time.perf_counter()
-            sampled = grasp.stream.sampled_grasp(n_frames=variant.n_frames, size_px=variant.size_px, segment=segment,
-                                                 window_m=variant.window_m)
-            if sampled:  # else the model's own answer without a tactile sample, from the record
-                return model.estimate_sampled(sampled, mode=mode).with_latency(time.perf_counter() - started)
-        return model.estimate(grasp.stream.to_record(), mode=mode)
 
     def _publish(self, grasp: _Grasp, estimate: Estimate, t_data_s: float, received_s: float, *,
                  provisional: bool, by_model: bool) -> float:

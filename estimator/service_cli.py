@@ -17,10 +17,10 @@ import sys
 
 from estimator.analytical import METHODS
 from estimator.inference.infer import model_files
-from estimator.measure import resolve_calibration
+from estimator.measurements import resolve_calibration
 from estimator.model_slot import ModelSlot, model_log
 from estimator.service import COMMAND_TOPICS, INPUT_TOPICS, EstimatorService, resolve_model_dir
-from estimator.stream import configured_methods
+from estimator.settings import configured_methods
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.session.foxglove_live import LiveTap, add_foxglove_argument

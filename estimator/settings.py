@@ -15,7 +15,8 @@ from teleop.errors import SettingsError
 from teleop.settings import Section, SensorSettings, Settings
 from teleop.settings_fields import spec
 
-__all__ = ["DEFAULT_METHODS", "EstimatorSettings", "depth_binning_problem", "estimator_settings"]
+__all__ = ["DEFAULT_METHODS", "EstimatorSettings", "configured_methods", "depth_binning_problem",
+           "estimator_settings"]
 
 #: The analytical fits run when ``methods`` names none, in order of preference.
 DEFAULT_METHODS = ("split", "hertz", "elastic", "no_tactile")
@@ -73,3 +74,9 @@ class EstimatorSettings(Section):
 def estimator_settings(settings: Settings) -> EstimatorSettings:
     """The ``[estimator]`` table of ``settings``, checked against the rig."""
     return settings.section(EstimatorSettings)
+
+
+def configured_methods(settings: Settings) -> tuple[str, ...]:
+    """The analytical methods ``estimator.methods`` names (each checked when the settings are
+    read), or the defaults when it names none."""
+    return estimator_settings(settings).methods or DEFAULT_METHODS

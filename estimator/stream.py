@@ -1,32 +1,36 @@
-"""Incremental estimation of one grasp while its streams arrive: the live twin of :func:`measure_grasp`.
+"""The one measurement of a grasp: incremental while its streams arrive, or of a whole record.
 
 A :class:`GraspStream` takes a grasp's force samples, width samples and tactile frames in
-any interleaving, each with its capture timestamps, exactly as the bus delivers them. It
-keeps what batch estimation would recompute:
+any interleaving, each with its capture timestamps, exactly as the bus delivers them; or a
+grasp record's, whole (:meth:`GraspStream.from_record`, which offline measurement feeds through
+it: :func:`~estimator.measure.measure_grasp`). It is the only code that builds
+:class:`~estimator.measurements.GraspMeasurements` (:meth:`GraspStream.measurements`, which the
+learned model's input is sampled from: :func:`~estimator.inference.sampling.sample_stream`), so
+given the same data the live estimate and the offline one are the same floats. It keeps what a
+measurement would recompute:
 
-* each frame of the estimator's finger is decoded and warped onto the depth grid once, on arrival
+* each frame of the estimator's finger is decoded and warped onto the depth grid once
   (:func:`~estimator.perception.grid.frame_on_grid`: with ``estimator.depth_binning`` above 1 a
-  JPEG is decoded that many times smaller and warped straight onto the binned grid);
-* depth and contact features of a frame (loading and hold frames alike) are computed once, at
-  the first estimate after contact that sees the frame (whether or not widths around it have
-  arrived yet, so no burst of frames waits for the next width sample), against the no-contact
-  reference (the median of the last frames before the onset, as
-  :func:`~estimator.measure.measure_grasp` takes it; if later data moves the reference, the
-  cached depths are dropped and recomputed);
+  JPEG is decoded that many times smaller): live on arrival, offline when first needed;
+* depth and contact features of a frame are computed once, against the no-contact reference
+  (the median of the last frames before the onset; if later data moves the reference, the
+  cached depths are dropped and recomputed); live, every frame since contact at the first
+  estimate that sees it (:meth:`GraspStream.measure_frames`), offline only the frames measured;
 * the loading phase in the force and width (:func:`~estimator.segment.find_load_phase`) is
   found again only when a force or width sample or the loading-end marker came; every
   segmentation aligns the frames received on it (:func:`~estimator.segment.align_frames`), and
-  the model's sample of frames (:meth:`GraspStream.sampled_grasp`) is aligned on the same phase;
+  the model's sample of frames is aligned on the same phase;
 * depth maps are reduced to the model's input size once per frame (:meth:`GraspStream.reduce_depths`
   between frames: the final estimate then reduces only the frames that came since);
 * on every :meth:`GraspStream.estimate` the analytical fits run again over everything that has
   arrived (a few hundred samples and tens of frames: vectorised and cheap).
 
-Given the same data, the estimate equals :func:`~estimator.measure.estimate_grasp` on the
-grasp record (without clock-lag corrections): same segmentation, reference, depth, features
-and fits; and :meth:`GraspStream.sampled_grasp` equals
-:func:`~estimator.inference.sampling.sample_grasp` on it (the learned model's input) from the
-cached depths, without measuring a frame again.
+The rig
+-------
+A grasp is measured on the sensors and the gripper it was captured with: a record's own (its
+gripper when it carries one, else the settings'), live the settings' (the robot node publishes no
+rig: it reads the service's settings file). Clock-lag corrections are offline only: they correct a
+record's timestamps before it is fed (:func:`~estimator.measure.measure_grasp`).
 
 When is loading over?
 ---------------------
@@ -56,9 +60,11 @@ off and squeeze again, so a flat force says nothing. Its loading is over only at
 event; until then every frame gives a provisional estimate, on the loading envelope so far
 (:mod:`estimator.segment`: the segmentation without a stop).
 
-Either way an estimate taken then rests on the loading frames alone: the hold frames batch
-estimation adds (from ``segment.HOLD_SETTLE_S`` after the peak until the release) have not
-been captured yet.
+Either way an estimate taken then rests on what has arrived by then: the hold and the release
+(from ``segment.HOLD_SETTLE_S`` after the peak) have not been captured yet. A whole grasp record
+holds them, so its offline measurement can differ from a final taken at the loading end (the width
+noise is estimated over every width sample, the peak searched over the whole force); a grasp whose
+final comes at its end (an operator's) is measured on the same data both ways.
 
 Which estimate is published
 ---------------------------
@@ -73,73 +79,39 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from pathlib import Path
 
-import cv2
 import numpy as np
 
 from estimator import analytical
 from estimator.errors import FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.features import ContactFeatures, contact_features
-from estimator.inference.inputs import ANALYTICAL_METHODS, reduce_images
-from estimator.inference.sampling import SampledGrasp, sample_positions
-from estimator.measure import (
+from estimator.inference.inputs import reduce_images
+from estimator.measurements import (
     REFERENCE_GUARD_S,
     GraspMeasurements,
     check_calibration_fits,
-    estimate_grasp,
+    estimate_measurements,
+    measure_frame,
     median_frame,
     reference_indices,
+    resolve_calibration,
 )
 from estimator.perception.calibration import Calibration
 from estimator.perception.depth import reconstruct_depth
-from estimator.perception.grid import (
-    ENCODINGS,
-    DepthGrid,
-    depth_grid,
-    frame_on_grid,
-    grid_calibration,
-    raw_frame,
-)
-from estimator.perception.markers import detect_markers
+from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration
+from estimator.received import Frames, Series
 from estimator.segment import PEAK_FRAME_WINDOW_S, LoadPhase, Segment, align_frames, find_load_phase
 from estimator.settings import DEFAULT_METHODS, estimator_settings
-from teleop.errors import SettingsError
-from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Provenance, Samples
-from teleop.settings import Settings
+from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Provenance
+from teleop.settings import GripperSettings, SensorSettings, Settings
 
-__all__ = [
-    "DEFAULT_METHODS",
-    "configured_methods",
-    "LOADING_SETTLED_S",
-    "GraspStream",
-    "StreamEstimate",
-    "choose_estimate",
-    "measure_frame",
-]
-
-def configured_methods(settings: Settings) -> tuple[str, ...]:
-    """The analytical methods ``estimator.methods`` names (each checked when the settings are
-    read), or the defaults when it names none."""
-    return estimator_settings(settings).methods or DEFAULT_METHODS
-
+__all__ = ["DEFAULT_METHODS", "LOADING_SETTLED_S", "GraspStream", "StreamEstimate", "choose_estimate"]
 
 # Force samples this long after the peak, all within the peak tolerance, end the loading phase.
 LOADING_SETTLED_S = 0.1
-
-
-def measure_frame(frame: np.ndarray, reference: np.ndarray, calibration: Calibration,
-                  grid: DepthGrid) -> tuple[np.ndarray, ContactFeatures]:
-    """Depth (m, float32, the calibration's grid) and contact features of one frame on the depth grid
-    (:func:`~estimator.perception.grid.frame_on_grid`) against its no-contact reference, as
-    :func:`~estimator.measure.measure_tactile` measures each frame (markers found and inpainted first
-    when the sensor has them). ``calibration`` and ``grid`` are those of the depth grid
-    (:func:`~estimator.perception.grid.grid_calibration`, :func:`~estimator.perception.grid.depth_grid`)."""
-    mask = detect_markers(frame, reference) if grid.markers else None
-    depth = reconstruct_depth(frame, reference, calibration, marker_mask=mask)
-    return depth, contact_features(depth[None], pixel_pitch_m=grid.pixel_pitch_m,
-                                   contact_threshold_m=grid.contact_threshold_m)
 
 
 def choose_estimate(estimates: Sequence[Estimate]) -> Estimate:
@@ -179,100 +151,144 @@ class StreamEstimate:
     loading_frames: int
 
 
-@dataclass
-class _Series:
-    """A growing timestamped scalar stream."""
-
-    t_s: list[np.ndarray] = field(default_factory=list)
-    value: list[np.ndarray] = field(default_factory=list)
-    last_t_s: float = -np.inf
-
-    def add(self, t_s: np.ndarray, value: np.ndarray, what: str) -> None:
-        t = np.asarray(t_s, dtype=np.float64).ravel()
-        v = np.asarray(value, dtype=np.float64).ravel()
-        if t.shape != v.shape:
-            raise PerceptionError(f"{what}: {t.size} timestamps but {v.size} values")
-        if not (np.isfinite(t).all() and np.isfinite(v).all()):
-            raise PerceptionError(f"{what}: timestamps and values must be finite")
-        if t.size:
-            self.t_s.append(t)
-            self.value.append(v)
-            self.last_t_s = max(self.last_t_s, float(t.max()))
-
-    def samples(self) -> Samples:
-        if not self.t_s:
-            return Samples(np.zeros(0), np.zeros(0))
-        return Samples(np.concatenate(self.t_s), np.concatenate(self.value))
-
-
-@dataclass
-class _Frames:
-    """Frames of one finger as received: capture times and the bytes as captured."""
-
-    t_s: list[float] = field(default_factory=list)
-    encoded: list[bytes] = field(default_factory=list)
-    encoding: str | None = None
-
-
 class GraspStream:
-    """The live estimate of one grasp from its streams (see the module docstring).
+    """The measurement and the live estimate of one grasp from its streams (see the module docstring).
 
     Parameters
     ----------
     settings : Settings
-        ``estimator`` (finger, contact force, frames, object Poisson ratio, depth binning), the
-        sensors and ``gripper.finger_stiffness_n_per_m``, as for :func:`~estimator.measure.measure_grasp`.
-    calibration : Calibration
+        ``estimator`` (finger, contact force, frames, object Poisson ratio, depth binning); the
+        rig too unless ``sensors`` and ``gripper`` are given.
+    calibration : Calibration, path or None
         Colour-to-gradient calibration of the estimator's finger (its full image grid; binned
-        here as the settings say).
+        here as the settings say); a path or None (the file its sensor names) is loaded when a
+        frame is first measured. Checked against the sensor then (:meth:`warm_up` checks it at once).
     methods : sequence of str
-        Analytical methods to run, in order of preference (see :func:`choose_estimate`).
+        Analytical methods :meth:`estimate` runs, in order of preference (see :func:`choose_estimate`).
     grasp_id : str
         Names the grasp in errors and in :meth:`to_record`.
+    sensors, gripper : optional
+        The rig the grasp is captured with (module notes); None: the settings'.
 
     Raises
     ------
-    CalibrationError
-        The calibration does not fit the finger's image grid or pixel pitch.
     FitError
         An unknown method, or no sensor on the estimator's finger.
     """
 
-    def __init__(self, *, settings: Settings, calibration: Calibration,
-                 methods: Sequence[str] = DEFAULT_METHODS, grasp_id: str = ""):
+    def __init__(self, *, settings: Settings, calibration: Calibration | str | Path | None,
+                 methods: Sequence[str] = DEFAULT_METHODS, grasp_id: str = "",
+                 sensors: Sequence[SensorSettings] | None = None, gripper: GripperSettings | None = None):
         unknown = [m for m in methods if m not in analytical.METHODS]
         if unknown or not methods:
             raise FitError(f"methods {list(methods)}: expected some of {', '.join(analytical.METHODS)}")
         self.settings = settings
+        self.sensors = tuple(settings.sensors if sensors is None else sensors)
+        self.gripper = settings.gripper if gripper is None else gripper
         self.finger = settings.sensing.finger
-        try:
-            self.sensor = settings.sensor(self.finger)
-        except SettingsError as exc:
-            raise FitError(f"SensingSettings.finger = {self.finger!r}: {exc}") from exc
-        check_calibration_fits(calibration, self.sensor)
+        self.sensor = self._sensor(self.finger, FitError, f"SensingSettings.finger = {self.finger!r}")
         self.binning = estimator_settings(settings).depth_binning
         self.grid = depth_grid(self.sensor, self.binning)
-        self.calibration = grid_calibration(calibration, self.binning)
-        self.calibration_smoothing_px = calibration.smoothing_px  # the file's, as measure_tactile records it
+        self._calibration_source = calibration
+        self._calibration: Calibration | None = None  # on the depth grid, once loaded and checked
+        self.calibration_smoothing_px: float | None = None  # the file's, as the measurements record it
         self.methods = tuple(methods)
         self.grasp_id = grasp_id
-        self._force = _Series()
-        self._width = _Series()
-        self._frames: dict[str, _Frames] = {}
-        self._images: list[np.ndarray] = []  # the estimator finger's frames, warped and cropped
+        self.camera_lag_s: float | None = None  # offline corrections the record's times were fed with
+        self.width_lag_s: float | None = None
+        self._force = Series()
+        self._width = Series()
+        self._frames: dict[str, Frames] = {}
+        self._images: dict[int, np.ndarray] = {}  # the estimator finger's frames on the depth grid
         self._reference_key: tuple[int, ...] | None = None
         self._reference: np.ndarray | None = None
         self._features: dict[int, ContactFeatures] = {}  # frame position -> features of that frame
-        self._depth: dict[int, np.ndarray] = {}  # frame position -> its depth (m), for the model's input
+        self._depth: dict[int, np.ndarray] = {}  # frame position -> its depth (m)
         self._reduced: dict[tuple, np.ndarray] = {}  # (position, size, window) -> reduced depth
         self._phase: LoadPhase | None = None  # of the force and width so far; None: find it again
         self._loading_end_s: float | None = None
         self._follow = False
 
+    @classmethod
+    def from_record(cls, record: GraspRecord, *, settings: Settings,
+                    calibration: Calibration | str | Path | None = None, methods: Sequence[str] = DEFAULT_METHODS,
+                    camera_lag_s: float | None = None, width_lag_s: float | None = None) -> GraspStream:
+        """A stream fed a whole grasp record, on the rig it was captured with (its sensors, and its
+        gripper when it carries one, else the settings').
+
+        Samples and frames go in as recorded (a record may hold non-finite or repeated timestamps,
+        which the segmentation skips), the ``grasp_done`` event as the loading-end marker. The
+        estimator finger's frame times are corrected by ``camera_lag_s`` and the width times by
+        ``width_lag_s`` (s, estimated offline: :func:`~estimator.measure.measure_grasp`); the
+        measurements record both.
+
+        Raises
+        ------
+        FitError
+            The record has no sensor or no frames on the settings' finger.
+        """
+        finger = settings.sensing.finger
+        try:
+            record.sensor(finger)
+            record.stream(finger)
+        except KeyError as exc:
+            raise FitError(f"SensingSettings.finger = {finger!r}: {exc.args[0]}") from exc
+        stream = cls(settings=settings, calibration=calibration, methods=methods, sensors=record.sensors,
+                     gripper=record.gripper)
+        stream.camera_lag_s, stream.width_lag_s = camera_lag_s, width_lag_s
+        stream._force = Series.of(record.force_n)
+        stream._width = Series.of(record.width_m, shift_s=width_lag_s)
+        stream._frames = {s.finger: Frames.of_record(s, shift_s=camera_lag_s if s.finger == finger else None)
+                          for s in record.frames}
+        stream._loading_end_s = record.events.get(GRASP_DONE_EVENT)
+        return stream
+
+    def for_finger(self, finger: str, *, calibration: Calibration | str | Path | None) -> GraspStream:
+        """A stream of the data received so far that measures ``finger`` (on its full grid when its
+        sensor has markers: their dots are found there only), e.g. a model's marker finger.
+
+        Raises
+        ------
+        FitError
+            The rig has no sensor on ``finger``.
+        """
+        sensor = self._sensor(finger, FitError, f"finger {finger!r}")
+        est = estimator_settings(self.settings)
+        binning = 1 if sensor.markers else est.depth_binning
+        settings = dataclasses.replace(self.settings, sensing=dataclasses.replace(self.settings.sensing, finger=finger))
+        twin = GraspStream(settings=settings.with_section(dataclasses.replace(est, depth_binning=binning)),
+                           calibration=calibration, methods=self.methods, grasp_id=self.grasp_id,
+                           sensors=self.sensors, gripper=self.gripper)
+        twin._force, twin._width = self._force.copy(), self._width.copy()
+        twin._frames = {name: frames.copy() for name, frames in self._frames.items()}
+        twin._loading_end_s, twin._follow, twin.width_lag_s = self._loading_end_s, self._follow, self.width_lag_s
+        return twin
+
+    def _sensor(self, finger: str, error: type[Exception], where: str) -> SensorSettings:
+        """The rig's sensor on ``finger``; ``error`` naming ``where`` when it has none."""
+        for sensor in self.sensors:
+            if sensor.finger == finger:
+                return sensor
+        raise error(f"{where}: no sensor on finger {finger!r}: the rig has {[s.finger for s in self.sensors]}")
+
+    @property
+    def calibration(self) -> Calibration:
+        """The calibration on the depth grid, loaded and checked against the sensor on first use.
+
+        Raises CalibrationError when none can be loaded, or it was made for another image shape
+        or pixel pitch.
+        """
+        if self._calibration is None:
+            calibration = resolve_calibration(self.sensor, self._calibration_source)
+            check_calibration_fits(calibration, self.sensor)
+            self._calibration = grid_calibration(calibration, self.binning)
+            self.calibration_smoothing_px = calibration.smoothing_px
+        return self._calibration
+
     def warm_up(self) -> None:
-        """Fill the caches the first estimate would otherwise fill mid-grasp (about a second on
-        2 cores): the depth solver's and the feature fit's for this image size, and the split
-        method's gel-layer table for this gel."""
+        """Load and check the calibration, and fill the caches the first estimate would otherwise
+        fill mid-grasp (about a second on 2 cores): the depth solver's and the feature fit's for
+        this image size, and the split method's gel-layer table for this gel."""
         flat = np.full((*self.grid.image_shape, 3), 128, dtype=np.uint8)
         depth = reconstruct_depth(flat, flat, self.calibration)
         contact_features(depth[None], pixel_pitch_m=self.grid.pixel_pitch_m,
@@ -285,7 +301,7 @@ class GraspStream:
     @property
     def frame_count(self) -> int:
         """Frames of the estimator's finger received."""
-        return len(self._images)
+        return len(self._frames.get(self.finger, Frames()).t_s)
 
     @property
     def newest_force_s(self) -> float:
@@ -305,31 +321,19 @@ class GraspStream:
     def add_frame(self, finger: str, t_s: float, data: np.ndarray | bytes, encoding: str) -> bool:
         """One tactile frame as captured; True when it is the estimator's finger.
 
-        The estimator's frames are decoded and warped onto the depth grid here, once; other fingers' frames are
-        kept as they came (for :meth:`to_record`). Raises PerceptionError (the frame is not
-        kept) for an estimator frame that does not decode or has the wrong size, an unknown
-        finger, a non-finite time or an encoding other than the finger's earlier ones.
+        The estimator's frames are decoded and warped onto the depth grid here, once; other fingers'
+        frames are kept as they came. Raises PerceptionError (the frame is not kept) for an
+        estimator frame that does not decode or has the wrong size, a finger without a sensor, a
+        non-finite time or an encoding other than the finger's earlier ones.
         """
-        where = f"grasp {self.grasp_id!r} frame {len(self._frames.get(finger, _Frames()).t_s)} of finger {finger!r}"
-        if not np.isfinite(t_s):
-            raise PerceptionError(f"{where}: capture time {t_s!r} is not finite")
-        try:
-            sensor = self.settings.sensor(finger)
-        except SettingsError as exc:
-            raise PerceptionError(f"{where}: {exc}") from exc
-        if encoding not in ENCODINGS:
-            raise PerceptionError(f"{where}: encoding {encoding!r}, expected one of {', '.join(ENCODINGS)}")
-        frames = self._frames.setdefault(finger, _Frames())
-        stored = "png" if encoding == "raw" else encoding
-        if frames.encoding not in (None, stored):
-            raise PerceptionError(f"{where}: {encoding} after {frames.encoding} frames")
+        frames = self._frames.get(finger, Frames())
+        where = f"grasp {self.grasp_id!r} frame {len(frames.t_s)} of finger {finger!r}"
+        sensor = self._sensor(finger, PerceptionError, where)
+        frames.check(t_s, encoding, where=where)
         if finger == self.finger:
-            self._images.append(frame_on_grid(data, encoding, sensor, binning=self.binning, where=where))
-        if encoding == "raw":  # kept lossless, as a grasp record stores raw frames
-            data = cv2.imencode(".png", raw_frame(data, where=where), [cv2.IMWRITE_PNG_COMPRESSION, 1])[1]
-        frames.encoding = stored
-        frames.t_s.append(float(t_s))
-        frames.encoded.append(bytes(data) if isinstance(data, bytes | bytearray) else np.ascontiguousarray(data).tobytes())
+            self._images[len(frames.t_s)] = frame_on_grid(data, encoding, sensor, binning=self.binning, where=where)
+        frames.add(t_s, data, encoding, where=where)
+        self._frames[finger] = frames
         return finger == self.finger
 
     def mark_loading_end(self, t_s: float) -> None:
@@ -360,9 +364,11 @@ class GraspStream:
 
     # ------------------------------------------------------------------ state
 
-    def segment(self) -> Segment:
-        """The segmentation of what has arrived (falsy with a reason before contact)."""
-        return align_frames(self._load_phase(), self._frame_times(), n_frames=estimator_settings(self.settings).n_frames)
+    def segment(self, *, n_frames: int | None = None) -> Segment:
+        """The segmentation of what has arrived (falsy with a reason before contact), its frames
+        sampled at ``n_frames`` (default ``estimator.n_frames``)."""
+        n_frames = estimator_settings(self.settings).n_frames if n_frames is None else n_frames
+        return align_frames(self._load_phase(), self._frame_times(), n_frames=n_frames)
 
     def _load_phase(self) -> LoadPhase:
         """The loading phase in the force and width so far, found again only after new samples or
@@ -392,30 +398,154 @@ class GraspStream:
                 and self._width.last_t_s >= segment.t_peak_s and frame_after_peak)
 
     def _frame_times(self) -> np.ndarray:
-        return np.asarray(self._frames.get(self.finger, _Frames()).t_s, dtype=np.float64)
+        return self._frames.get(self.finger, Frames()).times()
+
+    # ------------------------------------------------------------------ measurement
+
+    def measurements(self, segment: Segment | None = None, *, frames: np.ndarray | None = None,
+                     tactile: bool = True) -> GraspMeasurements:
+        """:class:`~estimator.measurements.GraspMeasurements` of what has arrived: force, width and
+        approach at every loading frame and, with ``tactile``, depth and contact features.
+
+        Decodes and measures only the frames it holds (cached): the no-contact frames of the
+        reference, the loading frames (or ``frames`` of them) and the hold frames when the fits use
+        them (the width times were corrected: ``width_lag_s``).
+
+        Parameters
+        ----------
+        segment : Segment, optional
+            The segmentation of what has arrived (:meth:`segment`; computed when not given).
+        frames : array of int, optional
+            Distinct positions within the loading frames (``segment.frame_index``) to measure, in
+            the order given; None measures every loading frame. ``t_s``, ``force_n``, ``width_m``
+            and ``approach_m`` are restricted to them as well.
+        tactile : bool
+            Measure depth and contact features; False measures force and width only (enough for
+            ``no_tactile``) and decodes nothing.
+
+        Returns
+        -------
+        GraspMeasurements
+            ``segment`` is falsy with a reason when the grasp has no usable loading phase;
+            ``features`` is None with ``tactile_reason`` when frames cannot be used.
+
+        Raises
+        ------
+        CalibrationError
+            A frame is to be measured and no calibration can be loaded, or it does not fit the sensor.
+        FitError
+            ``frames`` are not distinct positions of loading frames.
+        RecordError, PerceptionError
+            A frame does not decode (a record's, or one received live).
+        """
+        segment = self.segment() if segment is None else segment
+        stiffness = self.gripper.finger_stiffness_n_per_m
+
+        def approach(width_m: np.ndarray, force_n: np.ndarray) -> np.ndarray:
+            return analytical.approach_per_finger(width_m, force_n, onset_width_m=segment.onset_width_m,
+                                                  finger_stiffness_n_per_m=stiffness)
+
+        m = GraspMeasurements(
+            finger=self.finger, sensor=self.sensor, segment=segment, finger_stiffness_n_per_m=stiffness,
+            object_poisson=self.settings.sensing.object_poisson, t_s=segment.frame_t_s,
+            force_n=segment.frame_force_n, width_m=segment.frame_width_m,
+            approach_m=approach(segment.frame_width_m, segment.frame_force_n), camera_lag_s=self.camera_lag_s,
+            width_lag_s=self.width_lag_s, hold_force_n=segment.hold_force_n,
+            hold_approach_m=approach(segment.hold_width_m, segment.hold_force_n), depth_binning=self.binning,
+        )
+        if not tactile:
+            return m
+        loading_index = segment.frame_index
+        if frames is not None:
+            frames = np.asarray(frames)
+            count = loading_index.size
+            if (frames.ndim != 1 or frames.dtype.kind not in "iu" or np.unique(frames).size != frames.size
+                    or np.any((frames < 0) | (frames >= count))):
+                raise FitError(f"frames {frames!r}: expected distinct positions 0..{count - 1} of the loading frames")
+            m = dataclasses.replace(m, t_s=m.t_s[frames], force_n=m.force_n[frames], width_m=m.width_m[frames],
+                                    approach_m=m.approach_m[frames])
+            loading_index = loading_index[frames]
+        why = segment.reason or segment.frame_reason or self._reference_reason(segment)
+        if why:
+            return dataclasses.replace(m, tactile_reason=why)
+        calibration = self.calibration  # loaded and checked before a frame is decoded
+        self._use_reference(segment)
+        # Hold frames enter the fits only with the width lag corrected (measurements._with_hold_point).
+        hold_index = segment.hold_index if self.width_lag_s is not None else segment.hold_index[:0]
+        loading = [int(i) for i in loading_index]
+        features = ContactFeatures.concatenate([self._frame_features(i, calibration) for i in loading])
+        hold = [self._frame_features(int(i), calibration) for i in hold_index]
+        return dataclasses.replace(
+            m, features=features, depth_m=np.stack([self._depth[i] for i in loading]),
+            hold_features=ContactFeatures.concatenate(hold) if hold else None,
+            image_bgr=np.stack([self._image(i) for i in loading]), reference_bgr=self._reference,
+            calibration_smoothing_px=self.calibration_smoothing_px,
+        )
+
+    def measure_frames(self, segment: Segment | None = None) -> None:
+        """Compute the depth and features of every frame since contact not measured yet (live), ahead
+        of the estimate that will need them: whether or not widths around it have come, so no
+        burst of frames waits for the next width sample (e.g. when the force shows the contact only
+        after the frames came)."""
+        segment = self.segment() if segment is None else segment
+        if segment.reason or self._reference_reason(segment):
+            return
+        calibration = self.calibration
+        self._use_reference(segment)
+        for position in np.flatnonzero(self._frame_times() >= segment.t_contact_s):
+            self._frame_features(int(position), calibration)
+
+    def _reference_index(self, segment: Segment) -> np.ndarray:
+        """The frames the no-contact reference is the median of: the last ones before the onset."""
+        return reference_indices(self._frame_times(), segment.t_onset_s - REFERENCE_GUARD_S)
+
+    def _reference_reason(self, segment: Segment) -> str:
+        return "" if self._reference_index(segment).size else (
+            f"no tactile frame before the contact onset at {segment.t_onset_s:.3f} s to serve as the no-contact reference")
+
+    def _use_reference(self, segment: Segment) -> None:
+        key = tuple(int(i) for i in self._reference_index(segment))
+        if key != self._reference_key:
+            self._reference = median_frame(np.stack([self._image(i) for i in key]))
+            self._reference_key = key
+            self._features.clear()
+            self._depth.clear()
+            self._reduced.clear()
+
+    def _image(self, position: int) -> np.ndarray:
+        """Frame ``position`` of the estimator's finger on the depth grid, decoded once."""
+        image = self._images.get(position)
+        if image is None:
+            where = f"grasp {self.grasp_id!r} frame {position} of finger {self.finger!r}"
+            image = self._images[position] = self._frames[self.finger].on_grid(position, self.sensor,
+                                                                              binning=self.binning, where=where)
+        return image
+
+    def _frame_features(self, position: int, calibration: Calibration) -> ContactFeatures:
+        cached = self._features.get(position)
+        if cached is None:
+            depth, cached = measure_frame(self._image(position), self._reference, calibration, self.grid)
+            self._features[position] = cached
+            self._depth[position] = depth
+        return cached
 
     # ------------------------------------------------------------------ estimation
 
     def estimate(self, segment: Segment | None = None) -> StreamEstimate:
         """Every method over what has arrived, and the one to publish.
 
-        Computes depth and features of frames since contact not seen before (and of all of
-        them when the no-contact reference moved); everything else is cached.
+        Computes depth and features of frames since contact not seen before (:meth:`measure_frames`;
+        of all of them when the no-contact reference moved); everything else is cached.
         """
         started = time.perf_counter()
         segment = self.segment() if segment is None else segment
-        measurements = self._measure(segment)
-        estimates = tuple(estimate_grasp(measurements, m, settings=self.settings) for m in self.methods)
+        self.measure_frames(segment)
+        measurements = self.measurements(segment)
+        estimates = tuple(estimate_measurements(measurements, m) for m in self.methods)
         used = segment.frame_t_s if measurements.features is not None else np.zeros(0)
         chosen = choose_estimate(estimates).with_latency(time.perf_counter() - started)
         return StreamEstimate(estimate=chosen, estimates=estimates, segment=segment,
                               t_data_s=self._newest_data_s(used), loading_frames=int(used.size))
-
-    def measure_frames(self, segment: Segment | None = None) -> None:
-        """Compute the depth and features of every frame since contact not measured yet, ahead
-        of the estimate that will need them (e.g. when the force shows the contact only after
-        the frames came)."""
-        self._measure(self.segment() if segment is None else segment)
 
     def last_loading_frame_s(self, segment: Segment) -> float:
         """Capture time of the last loading frame of ``segment``; without one, of the newest
@@ -428,51 +558,18 @@ class GraspStream:
             return float(loading_t_s[-1])
         return float(frame_t.max()) if frame_t.size else self._force.last_t_s
 
-    def sampled_grasp(self, *, n_frames: int, size_px: tuple[int, int] | None,
-                      segment: Segment | None = None, window_m: tuple[float, float] | None = None) -> SampledGrasp:
-        """The learned model's depth input, as :func:`~estimator.inference.sampling.sample_grasp`
-        measures it on :meth:`to_record` (no shift, depth images of the estimator's finger, no
-        colour or marker images), from the cached depths.
-
-        Parameters
-        ----------
-        n_frames : int
-            Frames sampled over the loading phase.
-        size_px : (int, int) or None
-            (rows, cols) the depth maps are reduced to; None keeps the depth grid.
-        segment : Segment, optional
-            The segmentation of what has arrived (computed when not given).
-        window_m : (float, float) or None
-            The model's input window (m), centred on the pad (``sample_grasp``'s); None: the whole grid.
-        """
-        segment = self.segment() if segment is None else segment
-        why = segment.reason or segment.frame_reason
-        if why:
-            return SampledGrasp(reason=why)
-        positions = sample_positions(segment, n_frames, 0)
-        distinct, rows = np.unique(positions, return_inverse=True)
-        frame_t = self._frame_times()
-        reference_index = reference_indices(frame_t, segment.t_onset_s - REFERENCE_GUARD_S)
-        keep = np.concatenate([reference_index, segment.frame_index[distinct], segment.hold_index])
-        # measure_grasp on the grasp restricted to those frames, as sample_grasp runs it (the same
-        # loading phase: only the frames differ).
-        restricted = align_frames(self._load_phase(), frame_t[keep], n_frames=n_frames)
-        m = self._measure(restricted, positions=keep)
-        if m.features is None:
-            return SampledGrasp(reason=m.tactile_reason or "tactile features were not measured")
-        if m.t_s.size != distinct.size:
-            return SampledGrasp(reason=f"{m.t_s.size} of the {distinct.size} sampled frames are usable")
-        estimates = tuple(estimate_grasp(m, method, settings=self.settings) for method in ANALYTICAL_METHODS)
-        # reduce_images of the loading frames' depths, image by image, each frame reduced once per size.
-        reduced = np.stack([self._reduced_depth(int(i), size_px, window_m) for i in keep[restricted.frame_index]])
-        return SampledGrasp(measurements=m, estimates=estimates, force_n=m.force_n[rows], width_m=m.width_m[rows],
-                            depth_m=reduced[rows])
-
     def reduce_depths(self, size_px: tuple[int, int] | None, window_m: tuple[float, float] | None = None) -> None:
-        """Reduce every depth computed so far to ``size_px`` now, as :meth:`sampled_grasp` will
+        """Reduce every depth computed so far to ``size_px`` now, as :meth:`reduced_depths` will
         (between frames, so the final estimate reduces only the frames that came since)."""
         for position in self._depth:
             self._reduced_depth(position, size_px, window_m)
+
+    def reduced_depths(self, positions: np.ndarray, size_px: tuple[int, int] | None,
+                       window_m: tuple[float, float] | None = None) -> np.ndarray:
+        """Depth of the frames at ``positions`` (frames received; measured by the last
+        :meth:`measurements`) reduced to the model's input (:func:`~estimator.inference.inputs.reduce_images`),
+        float32 (n, rows, cols); each frame is reduced once per size and window."""
+        return np.stack([self._reduced_depth(int(i), size_px, window_m) for i in positions])
 
     def _reduced_depth(self, position: int, size_px: tuple[int, int] | None,
                        window_m: tuple[float, float] | None = None) -> np.ndarray:
@@ -482,84 +579,20 @@ class GraspStream:
                                                window_m=window_m)[0]
         return self._reduced[key]
 
-    def _measure(self, segment: Segment, *, positions: np.ndarray | None = None) -> GraspMeasurements:
-        """:class:`GraspMeasurements` of the loading (and hold) frames so far, as ``measure_grasp``
-        builds them.
-
-        ``positions`` maps the segment's frames to the frames received (None: they are the
-        frames received). The depth maps stay in the cache (the model reads them reduced).
-        """
-        stiffness = self.settings.gripper.finger_stiffness_n_per_m
-        frame_t = self._frame_times()
-        positions = np.arange(frame_t.size) if positions is None else positions
-
-        def approach(width_m: np.ndarray, force_n: np.ndarray) -> np.ndarray:
-            return analytical.approach_per_finger(width_m, force_n, onset_width_m=segment.onset_width_m,
-                                                  finger_stiffness_n_per_m=stiffness)
-
-        measurements = GraspMeasurements(
-            finger=self.finger, sensor=self.sensor, depth_binning=self.binning, segment=segment,
-            finger_stiffness_n_per_m=stiffness,
-            object_poisson=self.settings.sensing.object_poisson, t_s=segment.frame_t_s,
-            force_n=segment.frame_force_n, width_m=segment.frame_width_m,
-            approach_m=approach(segment.frame_width_m, segment.frame_force_n),
-            hold_force_n=segment.hold_force_n, hold_approach_m=approach(segment.hold_width_m, segment.hold_force_n),
-        )
-        why = segment.reason or segment.frame_reason
-        if not segment.reason:
-            reference_index = reference_indices(frame_t[positions], segment.t_onset_s - REFERENCE_GUARD_S)
-            if reference_index.size == 0:
-                why = why or (f"no tactile frame before the contact onset at {segment.t_onset_s:.3f} s to "
-                              "serve as the no-contact reference")
-            else:
-                self._use_reference(positions[reference_index])
-                # Every frame from contact on, whether or not widths around it have come: each frame's
-                # depth is computed when it arrives, not in a burst when the next width comes.
-                for position in positions[frame_t[positions] >= segment.t_contact_s]:
-                    self._frame_features(int(position))
-        if why:
-            return dataclasses.replace(measurements, tactile_reason=why)
-        loading_positions = positions[segment.frame_index]
-        loading = self._stacked_features(loading_positions)
-        hold = (self._stacked_features(positions[segment.hold_index]) if segment.hold_index.size
-                else loading.take(slice(0, 0)))
-        return dataclasses.replace(measurements, features=loading, hold_features=hold,
-                                   calibration_smoothing_px=self.calibration_smoothing_px)
-
-    def _stacked_features(self, positions: np.ndarray) -> ContactFeatures:
-        features = [self._frame_features(int(i)) for i in positions]
-        return ContactFeatures(**{f.name: np.concatenate([getattr(x, f.name) for x in features])
-                                  for f in dataclasses.fields(ContactFeatures)})
-
-    def _use_reference(self, index: np.ndarray) -> None:
-        key = tuple(int(i) for i in index)
-        if key != self._reference_key:
-            self._reference = median_frame(np.stack([self._images[i] for i in key]))
-            self._reference_key = key
-            self._features.clear()
-            self._depth.clear()
-            self._reduced.clear()
-
-    def _frame_features(self, position: int) -> ContactFeatures:
-        cached = self._features.get(position)
-        if cached is None:
-            depth, cached = measure_frame(self._images[position], self._reference, self.calibration, self.grid)
-            self._features[position] = cached
-            self._depth[position] = depth
-        return cached
-
     # ------------------------------------------------------------------ export
 
     def to_record(self) -> GraspRecord:
-        """What has arrived as a grasp record (source ``hardware``: data as the bus delivered it)."""
-        fingers = {s.finger for s in self.settings.sensors}
+        """What has arrived as a grasp record on this stream's rig (source ``hardware``: data as the
+        bus delivered it)."""
+        fingers = {s.finger for s in self.sensors}
         streams = tuple(
-            FrameStream(finger, np.asarray(f.t_s), tuple(f.encoded), f.encoding or "jpeg")
+            FrameStream(finger, f.times(), tuple(f.encoded), f.encoding or "jpeg")
             for finger, f in self._frames.items() if finger in fingers
         )
+        force, width = self._force.samples(), self._width.samples()
         return GraspRecord(
-            sensors=self.settings.sensors, frames=streams, force_n=self._force.samples(),
-            width_m=self._width.samples(), provenance=Provenance(source="hardware", extra={"grasp_id": self.grasp_id},
-                                                           style="operator" if self._follow else "script"),
+            sensors=self.sensors, gripper=self.gripper, frames=streams, force_n=force, width_m=width,
+            provenance=Provenance(source="hardware", extra={"grasp_id": self.grasp_id},
+                                  style="operator" if self._follow else "script"),
             events={} if self._loading_end_s is None else {GRASP_DONE_EVENT: self._loading_end_s},
         )

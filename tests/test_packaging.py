@@ -48,7 +48,7 @@ import teleop, estimator, haptics
 from teleop.settings import config_dir, load_settings, resolve_path
 from teleop.scene import load_scene
 from teleop.catalogue import load_catalogue, default_catalogue_path
-from estimator.measure import calibration_path
+from estimator.measurements import calibration_path
 from estimator.perception.calibration import load_calibration
 from estimator.inference.infer import default_model_dir
 from estimator.inference.reference import REFERENCE_RECORD

@@ -65,7 +65,8 @@ from estimator.evaluation.metrics import summarise
 from estimator.inference.hybrid import HybridEstimator
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.sampling import calibration_for, decoded, sample_grasp
-from estimator.measure import TACTILE_METHODS, estimate_grasp, measure_grasp, no_contact_reference
+from estimator.measure import estimate_grasp, measure_grasp, no_contact_reference
+from estimator.measurements import TACTILE_METHODS
 from estimator.perception.calibration import Calibration
 from estimator.settings import estimator_settings
 from haptics.settings import display_range_pa
@@ -103,7 +104,7 @@ def configurations(
     own = estimator_settings(settings).depth_binning
 
     def calibrated(record: GraspRecord) -> Calibration:
-        return calibration_for(record, finger, calibration)
+        return calibration_for(record.sensor(finger), calibration)
 
     def analytical(method: str) -> Callable[[GraspRecord], Estimate]:
         return lambda record: estimate_grasp(record, method, settings=settings, calibration=calibrated(record))

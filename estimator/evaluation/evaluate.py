@@ -52,7 +52,8 @@ from estimator.evaluation.metrics import E_MAX_PA, E_MIN_PA, PAPER, point_value,
 from estimator.inference.hybrid import ALL_METHODS, LEARNED_METHODS, HybridEstimator
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.inputs import Variant
-from estimator.measure import TACTILE_METHODS, calibration_path, estimate_grasp, measure_grasp
+from estimator.measure import estimate_grasp, measure_grasp
+from estimator.measurements import TACTILE_METHODS, calibration_path
 from estimator.perception.calibration import Calibration, load_calibration
 from teleop.errors import RecordError
 from teleop.record import Label, read_record

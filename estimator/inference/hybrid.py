@@ -1,9 +1,11 @@
-"""The run-time learned estimate: record -> sampled frames -> analytical fits -> model -> Estimate.
+"""The run-time learned estimate: grasp -> sampled frames -> analytical fits -> model -> Estimate.
 
 :class:`HybridEstimator` measures a grasp exactly as the dataset builder did
-(:func:`~estimator.inference.sampling.sample_grasp`: the loading phase sampled at
+(:func:`~estimator.inference.sampling.sample_stream`: the loading phase sampled at
 the model's ``n_frames``, depth reconstructed for those frames only, contact
-features, every analytical fit over them), runs the ONNX model and returns an
+features, every analytical fit over them), from the live service's
+:class:`~estimator.stream.GraspStream` or a record fed through one (one path: the same
+floats either way), runs the ONNX model and returns an
 :class:`~estimator.estimate.Estimate` with method ``"hybrid"`` (a model with
 analytical inputs) or ``"cnn"`` (without). The model gives a distribution over
 log10 E (:mod:`estimator.inference.distribution`): its calibrated interval about
@@ -70,10 +72,16 @@ from estimator.errors import ModelError
 from estimator.estimate import Estimate
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.inputs import RIG_QUANTITIES, distinct_frames, gel_scale, smoothings_text
-from estimator.inference.sampling import SampledGrasp, sample_grasp, sampled_input_range
-from estimator.measure import estimate_grasp
+from estimator.inference.sampling import (
+    SampledGrasp,
+    record_stream,
+    sample_stream,
+    sampled_input_range,
+)
+from estimator.measurements import estimate_measurements
 from estimator.perception.calibration import Calibration
 from estimator.settings import estimator_settings
+from estimator.stream import GraspStream
 from teleop.record import GraspRecord
 from teleop.settings import Settings
 
@@ -150,8 +158,8 @@ class HybridEstimator:
     predictor : CompliancePredictor
     settings : Settings
     calibration, marker_calibration : Calibration, path or None
-        Calibrations of the estimator's finger and (for a marker variant) the
-        other finger; None reads the file each record's sensor names.
+        Calibrations of the estimator's finger (of records: a stream has its own) and (for a
+        marker variant) the other finger; None reads the file each record's sensor names.
     policy : AutoPolicy or None
         ``auto``'s rule; None takes the model's (:meth:`AutoPolicy.from_metadata`).
 
@@ -181,15 +189,6 @@ class HybridEstimator:
     def method(self) -> str:
         return self.predictor.variant.method
 
-    def sample(self, record: GraspRecord) -> SampledGrasp:
-        """The model's view of ``record`` (see :func:`~estimator.inference.sampling.sample_grasp`)."""
-        variant = self.predictor.variant
-        return sample_grasp(
-            record, settings=self.settings, calibration=self.calibration, n_frames=variant.n_frames,
-            size_px=variant.size_px, rgb=variant.image == "rgb", markers=variant.markers,
-            marker_calibration=self.marker_calibration, window_m=variant.window_m,
-        )
-
     def _smoothing_refusal(self, sampled: SampledGrasp) -> str:
         """Why the model cannot read ``sampled``'s depth (empty when it can): its calibration smooths the
         colours otherwise than the calibrations of the model's training data, so shallow slopes read
@@ -201,8 +200,23 @@ class HybridEstimator:
         return (f"it smooths the colours by {used:g} px, the model was trained on depth from calibrations smoothing "
                 f"by {smoothings_text(trained)}: calibrate with `estimator calibrate --smoothing-px {trained[0]:g}`")
 
+    def sample(self, record: GraspRecord) -> SampledGrasp:
+        """The model's view of ``record`` (:func:`~estimator.inference.sampling.sample_grasp`)."""
+        return self._sample(self._stream(record))
+
+    def _stream(self, record: GraspRecord) -> GraspStream:
+        return record_stream(record, settings=self.settings, calibration=self.calibration)
+
+    def _sample(self, stream: GraspStream) -> SampledGrasp:
+        variant = self.predictor.variant
+        return sample_stream(stream, n_frames=variant.n_frames, size_px=variant.size_px, rgb=variant.image == "rgb",
+                             markers=variant.markers, marker_calibration=self.marker_calibration,
+                             window_m=variant.window_m)
+
     def estimate(self, record: GraspRecord, *, mode: str = "model") -> Estimate:
-        """Young's modulus of the object grasped in ``record``, stamped with its latency.
+        """Young's modulus of the object grasped in ``record``, stamped with its latency: the record
+        fed through a :class:`~estimator.stream.GraspStream` (:func:`~estimator.inference.sampling.record_stream`),
+        then :meth:`estimate_stream`.
 
         Parameters
         ----------
@@ -214,12 +228,32 @@ class HybridEstimator:
         Estimate
             Never NaN, infinite or negative; a refusal carries its reason.
         """
+        return self.estimate_stream(self._stream(record), mode=mode)
+
+    def estimate_stream(self, stream: GraspStream, *, mode: str = "model") -> Estimate:
+        """Young's modulus of the object grasped in what ``stream`` has received (live: the
+        estimator service's stream; offline: a record's), stamped with its latency.
+
+        The model's view of the grasp (:func:`~estimator.inference.sampling.sample_stream`) from the
+        stream's finger and calibration, and the other finger's for a marker variant; a grasp that
+        cannot be sampled gets, in ``auto`` mode, the force/width-only ``no_tactile`` fit over the
+        stream's measurements, else a refusal with its reason.
+
+        Parameters
+        ----------
+        stream : GraspStream
+        mode : {"model", "auto"}
+
+        Returns
+        -------
+        Estimate
+            Never NaN, infinite or negative; a refusal carries its reason.
+        """
         started = time.perf_counter()
-        if mode not in MODES:
-            raise ModelError(f"mode {mode!r}: expected one of {', '.join(MODES)}")
-        sampled = self.sample(record)
+        _check_mode(mode)
+        sampled = self._sample(stream)
         if not sampled and mode == "auto":
-            fallback = estimate_grasp(record, "no_tactile", settings=self.settings)
+            fallback = estimate_measurements(stream.measurements(tactile=False), "no_tactile")
             result = _as("auto", fallback, f"no tactile sample ({sampled.reason}): force and width only")
         else:
             result = self.estimate_sampled(sampled, mode=mode)
@@ -227,8 +261,7 @@ class HybridEstimator:
 
     def estimate_sampled(self, sampled: SampledGrasp, *, mode: str = "model") -> Estimate:
         """The estimate from an already sampled grasp (see :meth:`estimate`)."""
-        if mode not in MODES:
-            raise ModelError(f"mode {mode!r}: expected one of {', '.join(MODES)}")
+        _check_mode(mode)
         method = "auto" if mode == "auto" else self.method
         if not sampled:
             return Estimate.refuse(method, sampled.reason)
@@ -280,6 +313,11 @@ class HybridEstimator:
         if mode == "auto":
             reason = "model: " + reason
         return Estimate(method, said.e_pa, (said.low_pa, said.high_pa), said.state, reason)
+
+
+def _check_mode(mode: str) -> None:
+    if mode not in MODES:
+        raise ModelError(f"mode {mode!r}: expected one of {', '.join(MODES)}")
 
 
 def _without_model(method: str, mode: str, by_method: Mapping[str, Estimate], why: str) -> Estimate:

@@ -9,10 +9,13 @@ shows the peak state: :func:`~estimator.segment.segment_grasp`) are sampled at
 estimator samples it (``Segment.sample``). Augmentation ``shift = k`` starts the
 sampling ``k`` loading frames later (the paper's "shifting the starting point by
 one timestep"). Only those frames (with the no-contact frames before the onset,
-for the reference, and the few hold frames at the peak force when the fits use
-them) are decoded and measured (:func:`~estimator.measure.measure_tactile` with
-``frames``), so depth is reconstructed for ``n_frames`` frames and the
-analytical fits run over the frames the network sees.
+for the reference) are decoded and measured
+(:meth:`~estimator.stream.GraspStream.measurements` with ``frames``), so depth is reconstructed
+for ``n_frames`` frames and the analytical fits run over the frames the network sees.
+
+One path: :func:`sample_stream` samples a :class:`~estimator.stream.GraspStream`, live (the
+estimator service's stream, from the depths it cached for the provisional estimates) and offline
+(:func:`sample_grasp`: a record fed through a stream), so the model reads the same floats both ways.
 """
 
 from __future__ import annotations
@@ -27,18 +30,13 @@ from estimator.errors import ModelError
 from estimator.estimate import Estimate
 from estimator.inference.inputs import ANALYTICAL_METHODS, Variant, reduce_images
 from estimator.inference.window import InputRange, input_range
-from estimator.measure import (
-    GraspMeasurements,
-    calibration_path,
-    estimate_grasp,
-    measure_grasp,
-    measure_tactile,
-)
+from estimator.measurements import GraspMeasurements, calibration_path, estimate_measurements
 from estimator.perception.calibration import Calibration, load_calibration
 from estimator.segment import Segment, sampling_axis
 from estimator.settings import estimator_settings
+from estimator.stream import GraspStream
 from teleop.record import FrameStream, GraspRecord
-from teleop.settings import Settings
+from teleop.settings import SensorSettings, Settings
 
 __all__ = [
     "DecodedFrameStream",
@@ -46,8 +44,10 @@ __all__ = [
     "cached_calibration",
     "calibration_for",
     "decoded",
+    "record_stream",
     "sample_grasp",
     "sample_positions",
+    "sample_stream",
     "sampled_input_range",
 ]
 
@@ -118,10 +118,10 @@ class SampledGrasp:
     depth_markers_m, rgb_diff_markers : ndarray or None
         The same from the other (marker) finger, when asked.
     gel_modulus_pa, gel_thickness_m : float or None
-        Young's modulus (Pa) and thickness (m) of the measuring finger's gel (the record's
-        sensor settings).
+        Young's modulus (Pa) and thickness (m) of the measuring finger's gel (the rig's sensor:
+        the record's, or live the settings').
     finger_stiffness_n_per_m : float or None
-        The fingers' bending stiffness the fits used (the record's gripper, else the settings').
+        The fingers' bending stiffness the fits used (the rig's gripper).
     """
 
     reason: str = ""
@@ -147,28 +147,17 @@ def cached_calibration(path: str) -> Calibration:
     return load_calibration(path)
 
 
-def calibration_for(record: GraspRecord, finger: str, calibration: Calibration | str | Path | None) -> Calibration:
-    """``calibration`` when loaded; else the file it (or ``finger``'s sensor) names, loaded once per process."""
+def calibration_for(sensor: SensorSettings, calibration: Calibration | str | Path | None) -> Calibration:
+    """``calibration`` when loaded; else the file it (or ``sensor``) names, loaded once per process."""
     if isinstance(calibration, Calibration):
         return calibration
-    return cached_calibration(str(calibration_path(record.sensor(finger), calibration)))
+    return cached_calibration(str(calibration_path(sensor, calibration)))
 
 
-def _marker_finger(record: GraspRecord, finger: str) -> str | None:
-    return next((s.finger for s in record.sensors if s.finger != finger and s.markers), None)
-
-
-def _measure_finger(
-    record: GraspRecord, finger: str, *, settings: Settings, calibration: Calibration, n_frames: int,
-    shift: int, size_px: tuple[int, int] | None, rgb: bool, window_m: tuple[float, float] | None,
-) -> SampledGrasp:
-    """Measure the sample set ``shift`` of one finger (no estimates, no markers)."""
-    # A marker finger's dots are found on its full grid.
-    binning = 1 if record.sensor(finger).markers else estimator_settings(settings).depth_binning
-    estimating = replace(estimator_settings(settings), n_frames=n_frames, depth_binning=binning)
-    settings = replace(settings, sensing=replace(settings.sensing, finger=finger)).with_section(estimating)
-    first = measure_grasp(record, settings=settings, tactile=False)
-    segment = first.segment
+def _sampled(stream: GraspStream, *, n_frames: int, shift: int, size_px: tuple[int, int] | None, rgb: bool,
+             window_m: tuple[float, float] | None) -> SampledGrasp:
+    """The sample set ``shift`` of ``stream``'s finger: its frames measured, every analytical method over them."""
+    segment = stream.segment(n_frames=n_frames)
     why = segment.reason or segment.frame_reason
     if why:
         return SampledGrasp(reason=why)
@@ -176,17 +165,75 @@ def _measure_finger(
     if isinstance(positions, str):
         return SampledGrasp(reason=positions)
     distinct, rows = np.unique(positions, return_inverse=True)
-    m = measure_tactile(record, first, calibration=calibration, frames=distinct)
-    if m.features is None or m.depth_m is None:
+    m = stream.measurements(segment, frames=distinct)
+    if m.features is None:
         return SampledGrasp(reason=m.tactile_reason or "tactile features were not measured")
-    window = dict(pitch_m=m.grid.pixel_pitch_m, window_m=window_m)
-    depth = reduce_images(m.depth_m, size_px, **window)[rows]
+    depth = stream.reduced_depths(segment.frame_index[distinct], size_px, window_m)[rows]
     diff = None
     if rgb:
         diff = reduce_images(m.image_bgr.astype(np.float32) - m.reference_bgr.astype(np.float32), size_px,
-                             **window)[rows]
-    return SampledGrasp(measurements=m, force_n=m.force_n[rows], width_m=m.width_m[rows], depth_m=depth,
-                        rgb_diff=diff)
+                             pitch_m=m.grid.pixel_pitch_m, window_m=window_m)[rows]
+    return SampledGrasp(measurements=m, estimates=tuple(estimate_measurements(m, method) for method in ANALYTICAL_METHODS),
+                        force_n=m.force_n[rows], width_m=m.width_m[rows], depth_m=depth, rgb_diff=diff,
+                        gel_modulus_pa=m.sensor.gel_modulus_pa, gel_thickness_m=m.sensor.gel_thickness_m,
+                        finger_stiffness_n_per_m=m.finger_stiffness_n_per_m)
+
+
+def sample_stream(
+    stream: GraspStream,
+    *,
+    n_frames: int,
+    size_px: tuple[int, int] | None,
+    shift: int = 0,
+    rgb: bool = False,
+    markers: bool = False,
+    marker_calibration: Calibration | str | Path | None = None,
+    window_m: tuple[float, float] | None = None,
+) -> SampledGrasp:
+    """Measure one sample set of what ``stream`` has received: depth, force, width and analytical estimates.
+
+    Parameters
+    ----------
+    stream : GraspStream
+        Its finger is read, on its rig, with its calibration; depths it has computed are not
+        computed again.
+    n_frames : int
+        Frames sampled over the loading phase.
+    size_px : (int, int) or None
+        (rows, cols) the images are reduced to; None keeps the depth grid.
+    shift : int
+        Augmentation: start the sampling this many loading frames late (0 = live sampling).
+    rgb : bool
+        Also the colour-difference images (of the frames measured for depth, against their reference).
+    markers : bool
+        Also the other finger's images (the sensor with markers), measured on its full grid
+        (:meth:`~estimator.stream.GraspStream.for_finger`).
+    marker_calibration : Calibration, path or None
+        The marker finger's calibration (None: the file its sensor names), loaded once per process.
+    window_m : (float, float) or None
+        (height, width) in m of the gel patch the images show, centred on the pad
+        (:mod:`estimator.inference.inputs`, "Input window": cut from a larger pad, zero-padded
+        around a smaller one); None: the whole depth grid.
+
+    Returns
+    -------
+    SampledGrasp
+        Falsy with a reason when the grasp has no usable loading phase, too few
+        loading frames for ``n_frames`` (after ``shift``) or unusable frames.
+    """
+    if shift < 0 or n_frames < 1:
+        raise ModelError(f"shift {shift} and n_frames {n_frames}: expected shift >= 0 and n_frames >= 1")
+    common = dict(n_frames=n_frames, shift=shift, size_px=size_px, rgb=rgb, window_m=window_m)
+    sampled = _sampled(stream, **common)
+    if not sampled or not markers:
+        return sampled
+    other = next((s for s in stream.sensors if s.finger != stream.finger and s.markers), None)
+    if other is None:
+        return SampledGrasp(reason=f"no finger with markers besides {stream.finger!r} in the record")
+    marker = _sampled(stream.for_finger(other.finger, calibration=calibration_for(other, marker_calibration)), **common)
+    if not marker:
+        return SampledGrasp(reason=f"marker finger {other.finger!r}: {marker.reason}")
+    return replace(sampled, depth_markers_m=marker.depth_m, rgb_diff_markers=marker.rgb_diff)
 
 
 def sample_grasp(
@@ -202,61 +249,41 @@ def sample_grasp(
     marker_calibration: Calibration | str | Path | None = None,
     window_m: tuple[float, float] | None = None,
 ) -> SampledGrasp:
-    """Measure one sample set of a grasp: depth, force, width and analytical estimates.
+    """Measure one sample set of a grasp record: :func:`sample_stream` of the record fed through a
+    :class:`~estimator.stream.GraspStream` (:func:`record_stream`).
 
     Parameters
     ----------
     record : GraspRecord
     settings : Settings
-        ``sensing.finger`` is the finger read; the rest as for :func:`measure_grasp`.
+        ``sensing.finger`` is the finger read; the rest as for :func:`~estimator.measure.measure_grasp`.
     calibration : Calibration, path or None
         That finger's colour-to-gradient calibration (None: the file its sensor names);
         files are loaded once per process (:func:`cached_calibration`).
-    n_frames : int
-        Frames sampled over the loading phase.
-    size_px : (int, int) or None
-        (rows, cols) the images are reduced to; None keeps the depth grid.
-    shift : int
-        Augmentation: start the sampling this many loading frames late (0 = live sampling).
-    rgb : bool
-        Also the colour-difference images (of the frames measured for depth, against their reference).
-    markers : bool
-        Also the other finger's images (the sensor with markers); needs its calibration.
-    marker_calibration : Calibration, path or None
-        The marker finger's calibration (None: the file its sensor names).
-    window_m : (float, float) or None
-        (height, width) in m of the gel patch the images show, centred on the pad (module
-        notes: cut from a larger pad, zero-padded around a smaller one); None: the whole depth
-        grid.
+    n_frames, size_px, shift, rgb, markers, marker_calibration, window_m
+        See :func:`sample_stream`.
 
     Returns
     -------
     SampledGrasp
-        Falsy with a reason when the grasp has no usable loading phase, too few
-        loading frames for ``n_frames`` (after ``shift``) or unusable frames.
     """
-    if shift < 0 or n_frames < 1:
-        raise ModelError(f"shift {shift} and n_frames {n_frames}: expected shift >= 0 and n_frames >= 1")
+    return sample_stream(record_stream(record, settings=settings, calibration=calibration), n_frames=n_frames,
+                         size_px=size_px, shift=shift, rgb=rgb, markers=markers,
+                         marker_calibration=marker_calibration, window_m=window_m)
+
+
+def record_stream(record: GraspRecord, *, settings: Settings,
+                  calibration: Calibration | str | Path | None) -> GraspStream:
+    """``record`` fed through a :class:`~estimator.stream.GraspStream` for sampling: its finger's
+    calibration loaded at once (once per process), on its full grid when the record's sensor has
+    markers (their dots are found there only)."""
     finger = settings.sensing.finger
-    cal = calibration_for(record, finger, calibration)
-    common = dict(settings=settings, n_frames=n_frames, shift=shift, size_px=size_px, rgb=rgb, window_m=window_m)
-    sampled = _measure_finger(record, finger, calibration=cal, **common)
-    if not sampled:
-        return sampled
-    if markers:
-        other = _marker_finger(record, finger)
-        if other is None:
-            return SampledGrasp(reason=f"no finger with markers besides {finger!r} in the record")
-        other_cal = calibration_for(record, other, marker_calibration)
-        marker = _measure_finger(record, other, calibration=other_cal, **common)
-        if not marker:
-            return SampledGrasp(reason=f"marker finger {other!r}: {marker.reason}")
-        sampled = replace(sampled, depth_markers_m=marker.depth_m, rgb_diff_markers=marker.rgb_diff)
-    estimates = tuple(estimate_grasp(sampled.measurements, method, settings=settings)
-                      for method in ANALYTICAL_METHODS)
-    gel = record.sensor(finger)
-    return replace(sampled, estimates=estimates, gel_modulus_pa=gel.gel_modulus_pa, gel_thickness_m=gel.gel_thickness_m,
-                   finger_stiffness_n_per_m=sampled.measurements.finger_stiffness_n_per_m)
+    sensor = record.sensor(finger)
+    cal = calibration_for(sensor, calibration)
+    est = estimator_settings(settings)
+    if sensor.markers and est.depth_binning != 1:
+        settings = settings.with_section(replace(est, depth_binning=1))
+    return GraspStream.from_record(record, settings=settings, calibration=cal)
 
 
 def sampled_input_range(sampled: SampledGrasp, variant: Variant) -> InputRange:

@@ -2,7 +2,7 @@
 
 Every record is measured with the live estimator's own code
 (:func:`~estimator.inference.sampling.sample_grasp`: segmentation, warp, depth,
-contact features and the analytical fits of :mod:`estimator.measure`), from
+contact features and the analytical fits of :mod:`estimator.measurements`), from
 its frames, forces, widths and timestamps only; simulator internals are never
 read. Each grasp gives up to ``shifts`` sample sets: set ``k`` starts the
 equidistant sampling of the loading phase ``k`` frames after contact (set 0 is
@@ -62,7 +62,7 @@ from estimator.errors import EstimatorError, SampleError
 from estimator.inference.inputs import MEASUREMENT_VERSION, RIG_QUANTITIES
 from estimator.inference.provenance import SPLITS
 from estimator.inference.sampling import sample_grasp
-from estimator.measure import calibration_path
+from estimator.measurements import calibration_path
 from estimator.settings import estimator_settings
 from estimator.training.samples import TrainingSample, save_sample
 from teleop.errors import RecordError

@@ -309,7 +309,7 @@ def _age_days(path: Path) -> float:
 def check_calibrations(settings: Settings, settings_path: Path) -> list[Check]:
     """Each sensor's colour calibration and the estimator's model: present, loadable, their age."""
     from estimator.errors import EstimatorError
-    from estimator.measure import check_calibration_fits
+    from estimator.measurements import check_calibration_fits
     from estimator.perception.calibration import load_calibration
     from estimator.service import resolve_model_dir
 

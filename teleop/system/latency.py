@@ -125,10 +125,10 @@ def frame_baseline_ms(settings: Settings, calibration: Calibration, *, repeats: 
     Each repeat takes the :func:`baseline_press` capture as the estimator takes the peak frame
     (:class:`~estimator.stream.GraspStream`): :func:`~estimator.perception.grid.frame_on_grid` (decoded and
     warped onto the depth grid of the settings' ``estimator.depth_binning``), then
-    :func:`~estimator.stream.measure_frame` against the untouched capture (depth and contact features).
+    :func:`~estimator.measurements.measure_frame` against the untouched capture (depth and contact features).
     """
+    from estimator.measurements import measure_frame
     from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration
-    from estimator.stream import measure_frame
 
     if repeats < 1:
         raise TeleopError(f"frame baseline repeats {repeats}: expected at least 1")

@@ -26,12 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from estimator.errors import EstimatorError
-from estimator.measure import (
+from estimator.measure import measure_grasp, no_contact_reference
+from estimator.measurements import (
     REFERENCE_GUARD_S,
     GraspMeasurements,
     check_calibration_fits,
-    measure_grasp,
-    no_contact_reference,
     reference_indices,
 )
 from estimator.perception.calibration import Calibration, load_calibration

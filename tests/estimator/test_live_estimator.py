@@ -185,12 +185,13 @@ def test_stream_checks_methods_and_calibration(settings, calibration):
     with pytest.raises(FitError, match="methods"):
         GraspStream(settings=settings, calibration=calibration, methods=("split", "magic"))
     small = dataclasses.replace(calibration, image_shape=(10, 10))
+    stream = GraspStream(settings=settings, calibration=small)  # checked when first used (offline: a frame measured)
     with pytest.raises(CalibrationError, match="calibration is for"):
-        GraspStream(settings=settings, calibration=small)
+        stream.warm_up()  # as the service does when it starts
 
 
 def test_the_settings_refuse_a_configured_method_they_do_not_know(settings, tmp_path):
-    from estimator.stream import configured_methods
+    from estimator.settings import configured_methods
 
     assert configured_methods(settings) == estimator_settings(settings).methods
     text = default_settings_path().read_text().replace('methods = ["split", "hertz"', 'methods = ["split", "hertzz"')
@@ -742,10 +743,11 @@ def feed_to_peak_frame(stream: GraspStream, record: GraspRecord, stop_s: float,
 
 
 def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_comes_from_the_cache(
-        settings, calibration, records):
+        settings, calibration, records, monkeypatch):
+    import estimator.stream
     from estimator.inference.hybrid import HybridEstimator
     from estimator.inference.infer import CompliancePredictor, default_model_dir
-    from estimator.inference.sampling import sample_grasp
+    from estimator.inference.sampling import sample_grasp, sample_stream
 
     items, stop_s, stop_read = until_loading_end(records["stress_ball"])
     stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
@@ -768,8 +770,12 @@ def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_c
         stream.mark_loading_end(math.nan)
 
     record = stream.to_record()
+    stream.measure_frames(segment)  # as the final estimate finds them: every frame since contact measured
+    with monkeypatch.context() as patched:  # the model's input from the cache: no frame is measured again
+        patched.setattr(estimator.stream, "measure_frame", lambda *a, **k: pytest.fail("a frame measured again"))
+        from_cache = {n: sample_stream(stream, n_frames=n, size_px=size) for n, size in ((3, (64, 88)), (5, None))}
     for n_frames, size_px in ((3, (64, 88)), (5, None)):
-        cached = stream.sampled_grasp(n_frames=n_frames, size_px=size_px, segment=segment)
+        cached = from_cache[n_frames]
         measured = sample_grasp(record, settings=settings, calibration=calibration, n_frames=n_frames,
                                 size_px=size_px)
         assert cached and measured
@@ -780,13 +786,41 @@ def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_c
         assert all(same(a, b) for a, b in zip(cached.estimates, measured.estimates, strict=True))
     # The shipped model answers the same from the cache as from the grasp as received.
     model = HybridEstimator(CompliancePredictor(default_model_dir()), settings=settings, calibration=calibration)
-    variant = model.predictor.variant
-    cached = stream.sampled_grasp(n_frames=variant.n_frames, size_px=variant.size_px, segment=segment,
-                                  window_m=variant.window_m)
-    assert same(model.estimate_sampled(cached, mode="auto"), model.estimate(record, mode="auto"))
+    assert same(model.estimate_stream(stream, mode="auto"), model.estimate(record, mode="auto"))
     # Before contact there is nothing to sample, and the reason says why.
     empty = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
-    assert not empty.sampled_grasp(n_frames=3, size_px=None) and empty.sampled_grasp(n_frames=3, size_px=None).reason
+    assert not sample_stream(empty, n_frames=3, size_px=None) and sample_stream(empty, n_frames=3, size_px=None).reason
+
+
+def test_a_model_answers_from_the_stream_as_from_the_record_of_it(settings, calibration, records):
+    # The service's model never measures through a record: a grasp that can be sampled, one whose
+    # frames were lost from the contact on (auto: force and width only), and a marker variant's
+    # other finger all come from the stream, as from the record of what it received.
+    from estimator.inference.hybrid import HybridEstimator
+    from estimator.inference.infer import CompliancePredictor, default_model_dir
+    from estimator.inference.sampling import sample_grasp, sample_stream
+
+    record = records["stress_ball"]
+    t_contact = measure_grasp(record, settings=settings, tactile=False).segment.t_contact_s
+    full = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    lost = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    for t, kind, body in in_capture_order(record):
+        feed(full, kind, body, t)
+        if not (kind == "frame" and body["finger"] == settings.sensing.finger and t >= t_contact):
+            feed(lost, kind, body, t)
+    model = HybridEstimator(CompliancePredictor(default_model_dir()), settings=settings, calibration=calibration)
+    for stream in (full, lost):
+        for mode in ("auto", "model"):
+            assert same(model.estimate_stream(stream, mode=mode), model.estimate(stream.to_record(), mode=mode))
+    said = model.estimate_stream(lost, mode="auto")
+    assert said and "no tactile sample" in said.reason and "no_tactile" in said.reason
+    assert not model.estimate_stream(lost, mode="model")
+    options = dict(n_frames=3, size_px=(32, 44), markers=True, rgb=True)
+    from_stream = sample_stream(full, **options)
+    from_record = sample_grasp(full.to_record(), settings=settings, calibration=calibration, **options)
+    for name in ("depth_m", "depth_markers_m", "rgb_diff", "rgb_diff_markers", "force_n", "width_m"):
+        np.testing.assert_array_equal(getattr(from_stream, name), getattr(from_record, name), err_msg=name)
+    assert from_stream.depth_markers_m.shape == (3, 32, 44)
 
 
 def test_service_publishes_the_final_estimate_on_the_loading_end_marker(rig, settings, calibration, records,

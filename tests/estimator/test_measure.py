@@ -26,20 +26,18 @@ from estimator.cli import main
 from estimator.errors import CalibrationError, FitError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.features import ContactFeatures
-from estimator.measure import (
+from estimator.measure import estimate_grasp, measure_grasp, no_contact_reference
+from estimator.measurements import (
     REFERENCE_FRAMES,
     REFERENCE_GUARD_S,
     GraspMeasurements,
     calibration_path,
-    estimate_grasp,
-    measure_grasp,
-    measure_tactile,
     median_frame,
-    no_contact_reference,
 )
 from estimator.perception import fit_calibration, warp_and_crop
 from estimator.segment import segment_grasp
 from estimator.settings import estimator_settings
+from estimator.stream import GraspStream
 from teleop.errors import RecordError
 from teleop.record import FrameStream, GraspRecord, Label, Provenance, Samples, write_record
 from teleop.settings import CONFIG_DIR, SensorSettings, Settings, SimulationSettings
@@ -315,28 +313,27 @@ def test_chosen_frames_are_measured_as_in_the_full_measurement_and_nothing_else_
     frames = np.array([0, loading.size // 2, loading.size - 1])
     t = record.frames[0].t_s
     reference = np.flatnonzero(t < first.segment.t_onset_s - REFERENCE_GUARD_S)[-REFERENCE_FRAMES:]
-    m = measure_tactile(only_frames(record, [*reference, *loading[frames]]), first, calibration=calibration,
-                        frames=frames)
+    kept = only_frames(record, [*reference, *loading[frames]])
+    m = GraspStream.from_record(kept, settings=SETTINGS, calibration=calibration).measurements(frames=frames)
     np.testing.assert_array_equal(m.depth_m, full.depth_m[frames])
     np.testing.assert_array_equal(m.image_bgr, full.image_bgr[frames])
     np.testing.assert_array_equal(m.reference_bgr, full.reference_bgr)
     np.testing.assert_array_equal(m.reference_bgr, no_contact_reference(record, "left", first.segment,
                                                                         binning=first.depth_binning))
-    for name in ContactFeatures.__dataclass_fields__:  # sums over a stack of another size: rounding only
-        np.testing.assert_allclose(getattr(m.features, name), getattr(full.features, name)[frames], rtol=1e-12)
+    for name in ContactFeatures.__dataclass_fields__:  # each frame measured alone: the same floats
+        np.testing.assert_array_equal(getattr(m.features, name), getattr(full.features, name)[frames])
     for name in ("t_s", "force_n", "width_m", "approach_m"):
         np.testing.assert_array_equal(getattr(m, name), getattr(full, name)[frames])
     assert m.image_bgr.shape == (3, *m.grid.image_shape, 3) and m.image_bgr.dtype == np.uint8
     with pytest.raises(RecordError, match="does not decode"):  # a frame not kept is needed for all frames
-        measure_tactile(only_frames(record, [*reference, *loading[frames]]), first, calibration=calibration)
+        GraspStream.from_record(kept, settings=SETTINGS, calibration=calibration).measurements()
 
 
 @pytest.mark.parametrize("frames", [[0, 0], [-1], [10_000], [0.5]])
 def test_frames_that_are_not_distinct_loading_positions_are_refused(calibration, frames):
-    record = build_record(3e5)
-    first = measure_grasp(record, settings=SETTINGS, tactile=False)
+    stream = GraspStream.from_record(build_record(3e5), settings=SETTINGS, calibration=calibration)
     with pytest.raises(FitError, match="frames"):
-        measure_tactile(record, first, calibration=calibration, frames=np.array(frames))
+        stream.measurements(frames=np.array(frames))
 
 
 def test_hold_frames_are_measured_only_when_the_fits_use_them(calibration):

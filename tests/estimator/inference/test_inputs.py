@@ -151,7 +151,7 @@ def test_sampling_decodes_only_the_reference_and_sampled_frames(sim_grasps):
     from dataclasses import replace
 
     from estimator.inference.sampling import sample_grasp
-    from estimator.measure import REFERENCE_FRAMES, REFERENCE_GUARD_S
+    from estimator.measurements import REFERENCE_FRAMES, REFERENCE_GUARD_S
     from teleop.record import FrameStream, read_record
     from teleop.settings import load_settings
 

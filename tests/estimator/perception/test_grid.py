@@ -9,12 +9,11 @@ import numpy as np
 import pytest
 
 from estimator.errors import PerceptionError
-from estimator.measure import resolve_calibration
+from estimator.measurements import measure_frame, resolve_calibration
 from estimator.perception.calibration import Calibration
 from estimator.perception.depth import reconstruct_depth
 from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration, to_grid
 from estimator.perception.warp import warp_and_crop, warp_maps
-from estimator.stream import measure_frame
 from teleop.record import decode_image, reduce_image
 from teleop.settings import SensorSettings, load_settings
 from teleop.sim.optics import OpticsRenderer

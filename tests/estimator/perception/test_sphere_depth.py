@@ -49,7 +49,7 @@ import pytest
 import scipy.ndimage
 
 from estimator.features import contact_features
-from estimator.measure import calibration_path
+from estimator.measurements import calibration_path
 from estimator.perception import load_calibration, reconstruct_depth
 from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration
 from estimator.settings import estimator_settings

@@ -277,9 +277,8 @@ def test_latency_summary_keeps_each_grasp_and_names_the_slowest_with_where_the_t
 
 
 def test_the_frame_baseline_times_the_perception_of_a_press_the_estimator_sees():
-    from estimator.measure import resolve_calibration
+    from estimator.measurements import measure_frame, resolve_calibration
     from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration
-    from estimator.stream import measure_frame
 
     settings = load_settings(default_settings_path())
     sensor, binning = settings.sensor(settings.sensing.finger), estimator_settings(settings).depth_binning

@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from estimator.analytical import METHODS
-from estimator.measure import resolve_calibration
+from estimator.measurements import resolve_calibration
 from estimator.model_slot import ModelSlot
 from estimator.service import INPUT_TOPICS, EstimatorService, resolve_model_dir
 from estimator.settings import estimator_settings

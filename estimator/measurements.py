@@ -1,0 +1,348 @@
+"""What the analytical estimators read from one grasp, and the estimate they give from it.
+
+:class:`GraspMeasurements` is built by one implementation, :class:`~estimator.stream.GraspStream`,
+live from the bus and offline from a grasp record (:func:`~estimator.measure.measure_grasp` feeds
+the record through it). :func:`estimate_measurements` runs one analytical method on them. The
+helpers here are what both sides share: the calibration a sensor names, the no-contact
+reference's frames (:func:`reference_indices`) and their per-pixel median (:func:`median_frame`), and
+the measurement of one frame against it (:func:`measure_frame`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from estimator import analytical
+from estimator.errors import CalibrationError, FitError
+from estimator.estimate import Estimate
+from estimator.features import ContactFeatures, contact_features
+from estimator.linefit import MeasurementNoise
+from estimator.perception.calibration import Calibration, load_calibration
+from estimator.perception.depth import reconstruct_depth
+from estimator.perception.grid import DepthGrid, depth_grid
+from estimator.perception.markers import detect_markers
+from estimator.segment import Segment
+from teleop.settings import SensorSettings, resolve_path
+
+__all__ = [
+    "REFERENCE_FRAMES",
+    "REFERENCE_GUARD_S",
+    "TACTILE_METHODS",
+    "GraspMeasurements",
+    "calibration_path",
+    "check_calibration_fits",
+    "check_method",
+    "estimate_measurements",
+    "measure_frame",
+    "median_frame",
+    "reference_indices",
+    "resolve_calibration",
+]
+
+#: The methods that read depth (the others need no tactile frame).
+TACTILE_METHODS = ("elastic", "hertz", "split")
+# No-contact frames: those ending this long before the force onset, the last few of them.
+REFERENCE_GUARD_S = 0.1
+REFERENCE_FRAMES = 5
+
+
+@dataclass(frozen=True)
+class GraspMeasurements:
+    """Everything the analytical estimators need from one grasp, aligned in time.
+
+    Attributes
+    ----------
+    finger : str
+        Finger whose tactile frames were read.
+    sensor : SensorSettings
+        That finger's sensor, from the rig the grasp was captured with (the record's, or live the
+        settings').
+    segment : Segment
+        Contact, onset, loading phase, flags; also the loading phase at the
+        force samples' times (used by ``no_tactile``).
+    finger_stiffness_n_per_m : float
+        Finger bending stiffness used to correct widths (N/m): the rig's gripper.
+    object_poisson : float
+    t_s, force_n, width_m, approach_m : ndarray, shape (n,)
+        Per measured loading frame (every loading frame unless only some ``frames`` were asked
+        for: :meth:`~estimator.stream.GraspStream.measurements`): time (s, frame clock corrected
+        by ``camera_lag_s``),
+        force (N), reported width (m) and per-finger approach since onset (m).
+    features : ContactFeatures or None
+        Contact features per measured loading frame; None when no tactile method was
+        asked for or frames could not be used (see ``tactile_reason``).
+    depth_binning : int
+        Depth is measured on ``sensor``'s image grid binned by this much (:attr:`grid`).
+    depth_m : ndarray, shape (n, H, W), float32, or None
+        Reconstructed depth of every measured loading frame, on :attr:`grid`.
+    camera_lag_s : float or None
+        Estimated camera clock lag that was corrected for, if estimated.
+    width_lag_s : float or None
+        Estimated delay of the width timestamps that was corrected for, if estimated.
+    tactile_reason : str
+        Why there are no tactile features (empty when there are, or when none
+        were asked for).
+    hold_force_n, hold_approach_m : ndarray, shape (h,)
+        Force (N) and per-finger approach (m) at the hold frames
+        (:attr:`Segment.hold_index`, the gripper still at the peak force).
+    hold_features : ContactFeatures or None
+        Contact features of the hold frames; None when not measured (they are
+        measured only when the fits use them: with the width lag corrected, offline).
+    image_bgr : ndarray, shape (n, H, W, 3), uint8, or None
+        The measured loading frames on the depth grid (warped and cropped for a
+        Wedge, binned), BGR.
+    reference_bgr : ndarray, shape (H, W, 3), uint8, or None
+        The no-contact reference they were measured against.
+    calibration_smoothing_px : float or None
+        The colour smoothing (Gaussian sigma, px of the calibration's images) of the calibration
+        the depth was reconstructed with (a learned model reads depth only as it was trained);
+        None without depth.
+    """
+
+    finger: str
+    sensor: SensorSettings
+    segment: Segment
+    finger_stiffness_n_per_m: float
+    object_poisson: float
+    t_s: np.ndarray
+    force_n: np.ndarray
+    width_m: np.ndarray
+    approach_m: np.ndarray
+    features: ContactFeatures | None = None
+    depth_binning: int = 1
+    depth_m: np.ndarray | None = None
+    camera_lag_s: float | None = None
+    width_lag_s: float | None = None
+    tactile_reason: str = ""
+    hold_force_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    hold_approach_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    hold_features: ContactFeatures | None = None
+    image_bgr: np.ndarray | None = None
+    reference_bgr: np.ndarray | None = None
+    calibration_smoothing_px: float | None = None
+
+    @property
+    def grid(self) -> DepthGrid:
+        """The depth grid: ``sensor``'s image grid binned by ``depth_binning``
+        (:func:`~estimator.perception.grid.depth_grid`)."""
+        return depth_grid(self.sensor, self.depth_binning)
+
+    @property
+    def noise(self) -> MeasurementNoise:
+        """Resolution of each measurement: force and width noise and the onset width's
+        uncertainty estimated from the record; depth resolution, depth scale uncertainty and
+        pixel pitch from the sensor (the pitch of the depth grid)."""
+        return MeasurementNoise(
+            force_n=self.segment.force_noise_n,
+            width_m=self.segment.width_noise_m,
+            depth_m=self.sensor.depth_resolution_m,
+            length_m=self.sensor.pixel_pitch_m * self.depth_binning,
+            depth_scale=self.sensor.depth_scale_uncertainty,
+            onset_width_m=self.segment.onset_width_sigma_m,
+        )
+
+    @property
+    def sample(self) -> np.ndarray:
+        """Positions of the ``n_frames`` frames sampled equidistantly over the loading phase."""
+        return self.segment.sample
+
+    def approach_at_force_samples(self) -> np.ndarray:
+        """Per-finger approach at the loading phase's force samples (m)."""
+        return analytical.approach_per_finger(
+            self.segment.load_width_m, self.segment.load_force_n,
+            onset_width_m=self.segment.onset_width_m,
+            finger_stiffness_n_per_m=self.finger_stiffness_n_per_m,
+        )
+
+
+def calibration_path(sensor: SensorSettings, override: str | Path | None = None) -> Path:
+    """The calibration file to use: ``override`` if given, else the one the sensor names.
+
+    A relative path in ``SensorSettings.calibration`` is under ``configs/``.
+
+    Raises
+    ------
+    CalibrationError
+        Neither names a calibration file.
+    """
+    if override is not None:
+        return Path(override)
+    if not sensor.calibration:
+        raise CalibrationError(
+            f"sensor on finger {sensor.finger!r} names no calibration file: run "
+            f"`estimator calibrate`, then set calibration in [sensors.{sensor.finger}] or pass "
+            "--calibration"
+        )
+    return resolve_path(sensor.calibration)
+
+
+def resolve_calibration(sensor: SensorSettings, calibration: Calibration | str | Path | None) -> Calibration:
+    """``calibration`` itself when it is loaded, else the file it or the sensor names, loaded.
+
+    Raises
+    ------
+    CalibrationError
+        No calibration is named, or the file cannot be loaded.
+    """
+    if isinstance(calibration, Calibration):
+        return calibration
+    return load_calibration(calibration_path(sensor, calibration))
+
+
+def check_calibration_fits(cal: Calibration, sensor: SensorSettings) -> None:
+    """Raise CalibrationError unless ``cal`` was made for ``sensor``'s image grid."""
+    if tuple(cal.image_shape) != tuple(sensor.image_shape):
+        raise CalibrationError(
+            f"the calibration is for {cal.image_shape} images; sensor {sensor.finger!r} gives "
+            f"{sensor.image_shape} (warped and cropped)"
+        )
+    if not np.isclose(cal.pixel_pitch_m, sensor.pixel_pitch_m, rtol=0.01):
+        raise CalibrationError(
+            f"the calibration's pixel pitch {cal.pixel_pitch_m:.4g} m differs from sensor "
+            f"{sensor.finger!r}'s {sensor.pixel_pitch_m:.4g} m"
+        )
+
+
+def median_frame(frames: np.ndarray) -> np.ndarray:
+    """Per-pixel median of a uint8 stack (n, ...), rounded half to even like ``np.rint(np.median)``.
+
+    An odd-even transposition sort of the few images with element-wise min/max: a handful of
+    passes over whole images instead of a partition of n values at every pixel (40x faster).
+    """
+    layers = list(frames)
+    n = len(layers)
+    for sweep in range(n):
+        for i in range(sweep % 2, n - 1, 2):
+            low, high = layers[i], layers[i + 1]
+            layers[i], layers[i + 1] = np.minimum(low, high), np.maximum(low, high)
+    if n % 2:
+        return np.array(layers[n // 2], dtype=np.uint8)
+    pair_sum = layers[n // 2 - 1].astype(np.uint16) + layers[n // 2]
+    return np.rint(pair_sum / 2).astype(np.uint8)
+
+
+def reference_indices(frame_t_s: np.ndarray, t_before_s: float) -> np.ndarray:
+    """The last ``REFERENCE_FRAMES`` frames captured before ``t_before_s``."""
+    before = np.flatnonzero(np.isfinite(frame_t_s) & (frame_t_s < t_before_s))
+    return before[-REFERENCE_FRAMES:]
+
+
+def measure_frame(frame: np.ndarray, reference: np.ndarray, calibration: Calibration,
+                  grid: DepthGrid) -> tuple[np.ndarray, ContactFeatures]:
+    """Depth (m, float32, the calibration's grid) and contact features of one frame on the depth grid
+    (:func:`~estimator.perception.grid.frame_on_grid`) against its no-contact reference, as
+    :class:`~estimator.stream.GraspStream` measures each frame (markers found and inpainted first
+    when the sensor has them). ``calibration`` and ``grid`` are those of the depth grid
+    (:func:`~estimator.perception.grid.grid_calibration`, :func:`~estimator.perception.grid.depth_grid`)."""
+    mask = detect_markers(frame, reference) if grid.markers else None
+    depth = reconstruct_depth(frame, reference, calibration, marker_mask=mask)
+    return depth, contact_features(depth[None], pixel_pitch_m=grid.pixel_pitch_m,
+                                   contact_threshold_m=grid.contact_threshold_m)
+
+
+# --------------------------------------------------------------------------- estimation
+
+
+#: Methods whose strain rests on the approach the gripper's widths give.
+APPROACH_METHODS = ("no_tactile", "elastic", "split")
+
+
+def _run(m: GraspMeasurements, method: str) -> Estimate:
+    result = _fit(m, method)
+    if result.state == "ok" and method in APPROACH_METHODS and "width_unread" in m.segment.flags:
+        # The interpolated approach assumes the fingers kept closing; they may have stopped, so the
+        # object is at most as compliant as the fit says: its stiffer end is not resolved.
+        low, _ = result.interval_pa
+        return Estimate.at_least(method, low, f"{result.reason}; no width was read during the loading, "
+                                              "so the approach is an upper bound: E is at least the low end")
+    return result
+
+
+def _fit(m: GraspMeasurements, method: str) -> Estimate:
+    segment = m.segment
+    if not segment:
+        return Estimate.refuse(method, segment.reason)
+    noise = m.noise
+    onset_width = segment.onset_width_m
+    if method in ("no_tactile", "elastic") and not (np.isfinite(onset_width) and onset_width > 0):
+        return Estimate.refuse(method, f"no positive width at the contact onset (got {onset_width:.3g} m) "
+                                       "to normalise the strain")
+    if method == "no_tactile":
+        rows, cols = m.sensor.pad_size_m
+        return analytical.no_tactile(segment.load_force_n, m.approach_at_force_samples(),
+                                     initial_width_m=onset_width, pad_area_m2=rows * cols, noise=noise)
+    f = m.features
+    if f is None:
+        return Estimate.refuse(method, m.tactile_reason or "tactile features were not measured")
+    k_gel = m.sensor.gel_compliance_per_pa
+    force, approach, f = _with_hold_point(m, f)
+    if method == "split":
+        width = onset_width if np.isfinite(onset_width) and onset_width > 0 else None
+        return analytical.split(approach, f.peak_depth_m, gel_compliance_per_pa=k_gel,
+                                object_poisson=m.object_poisson, noise=noise,
+                                contact_radius_m=f.cap_radius_m, gel_thickness_m=m.sensor.gel_thickness_m,
+                                gel_poisson=m.sensor.gel_poisson, force_n=force if width else None,
+                                initial_width_m=width)
+    if method == "hertz":
+        return analytical.hertz(force, approach, f.peak_depth_m, f.cap_radius_m,
+                                gel_compliance_per_pa=k_gel, object_poisson=m.object_poisson,
+                                noise=noise, truncated=f.cap_touches_edge)
+    return analytical.elastic(force, approach, f.peak_depth_m, f.area_m2,
+                              initial_width_m=onset_width, noise=noise,
+                              truncated=f.touches_edge)
+
+
+def _with_hold_point(m: GraspMeasurements, f: ContactFeatures) -> tuple[np.ndarray, np.ndarray, ContactFeatures]:
+    """Loading frames plus one point for the hold at the peak force: the median of the hold frames.
+
+    The gel and the fingers are still during the hold, so its frames all show the peak state; their
+    median is one more (and the best resolved) point of the loading curve. Stiff objects load
+    within a frame period or two, so for them it is often the only point at full force. Used only
+    when the width stamping lag was corrected: stale widths of the stopped fingers would add
+    about ``closing speed * lag / 2`` (~2 mm) to its approach.
+    """
+    h = m.hold_features
+    if h is None or len(h) == 0 or m.width_lag_s is None:
+        return m.force_n, m.approach_m, f
+
+    def joined(loading: np.ndarray, hold: np.ndarray) -> np.ndarray:
+        point = np.median(hold, axis=0, keepdims=True)
+        return np.concatenate([loading, point.astype(loading.dtype) if loading.dtype == bool else point])
+
+    hold_point = ContactFeatures(**{name: joined(getattr(f, name), getattr(h, name))
+                                    for name in ContactFeatures.__dataclass_fields__})
+    return joined(m.force_n, m.hold_force_n), joined(m.approach_m, m.hold_approach_m), hold_point
+
+
+
+
+def check_method(method: str) -> None:
+    """Raise FitError unless ``method`` is an analytical method (:data:`~estimator.analytical.METHODS`)."""
+    if method not in analytical.METHODS:
+        raise FitError(f"method {method!r}: expected one of {', '.join(analytical.METHODS)}")
+
+
+def estimate_measurements(m: GraspMeasurements, method: str) -> Estimate:
+    """One analytical method on ``m``: the grasp's segmentation notes appended to its reason.
+
+    Parameters
+    ----------
+    m : GraspMeasurements
+    method : {"no_tactile", "elastic", "hertz", "split"}
+
+    Returns
+    -------
+    Estimate
+        Not stamped with a latency (the caller knows what it waited for).
+
+    Raises
+    ------
+    FitError
+        An unknown method.
+    """
+    check_method(method)
+    result = _run(m, method)
+    return result.with_note(m.segment.describe()) if m.segment else result
