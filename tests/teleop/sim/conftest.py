@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from teleop.cli import main
 from teleop.settings import default_settings_path, load_settings
 
 
@@ -29,3 +30,26 @@ def quick_settings(tmp_path):
     path.write_text(text)
     assert all(s.camera_hz == 10.0 for s in load_settings(path).sensors)
     return path
+
+
+@pytest.fixture
+def catalogue(tmp_path, ball_toml):
+    """The one-ball catalogue as a file."""
+    path = tmp_path / "objects.toml"
+    path.write_text(ball_toml)
+    return path
+
+
+@pytest.fixture
+def simulate_cli(capsys, catalogue, quick_settings):
+    """``simulate_cli(out, *options, seed=3)``: ``teleop simulate`` of :func:`catalogue` with
+    :func:`quick_settings` into ``out``; the one record's path."""
+
+    def run(out, *extra, seed: int = 3):
+        code = main(["simulate", "--objects", str(catalogue), "--seed", str(seed), "--out", str(out),
+                     "--settings", str(quick_settings), *extra])
+        assert code == 0, capsys.readouterr().err
+        (path,) = out.glob("*.grasp")
+        return path
+
+    return run

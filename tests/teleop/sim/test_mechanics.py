@@ -38,27 +38,12 @@ def settings():
     return dataclasses.replace(shipped, sensors=tuple(dataclasses.replace(s, camera_hz=10.0) for s in shipped.sensors))
 
 
-@pytest.fixture
-def catalogue(tmp_path, ball_toml):
-    path = tmp_path / "objects.toml"
-    path.write_text(ball_toml)
-    return path
-
-
 def neutral(obj: ObjectSpec, **changes) -> ContactMechanics:
     """The simulator's own mechanics as a draw (then ``changes``)."""
     values = dict(base_slip=0.0, thickness_factor=1.0, object_poisson=obj.poisson, densification_factor=1.0,
                   densification_sharpness=1.0, rubber_weight=0.0, gent_locking=100.0, friction_stiffening=0.0,
                   size_factors=(1.0, 1.0, 1.0))
     return ContactMechanics(**{**values, **changes})
-
-
-def simulate(capsys, catalogue, settings_path, out, *extra):
-    code = main(["simulate", "--objects", str(catalogue), "--seed", str(SEED), "--out", str(out),
-                 "--settings", str(settings_path), *extra])
-    assert code == 0, capsys.readouterr().err
-    (path,) = out.glob("*.grasp")
-    return path
 
 
 # --------------------------------------------------------------------------- the draw
@@ -221,13 +206,12 @@ def test_a_grasp_with_drawn_mechanics_keeps_its_rig_and_pose_and_refuses_the_hal
 
 @pytest.mark.parametrize("extra", [[], ["--operator", "sim", "--randomize-rig", "--vary-gel"]],
                          ids=["scripted", "operator on a drawn rig"])
-def test_a_varied_record_is_valid_and_its_provenance_holds_the_drawn_mechanics(
-        tmp_path, catalogue, quick_settings, capsys, extra):
+def test_a_varied_record_is_valid_and_its_provenance_holds_the_drawn_mechanics(tmp_path, catalogue, extra, simulate_cli):
     (obj,) = load_catalogue(catalogue)
-    path = simulate(capsys, catalogue, quick_settings, tmp_path / "varied", "--vary-contact", *extra)
-    plain = simulate(capsys, catalogue, quick_settings, tmp_path / "plain", *extra)
+    path = simulate_cli(tmp_path / "varied", "--vary-contact", *extra, seed=SEED)
+    plain = simulate_cli(tmp_path / "plain", *extra, seed=SEED)
     assert path.name == grasp_filename(obj, 0) and path.read_bytes() != plain.read_bytes()
-    again = simulate(capsys, catalogue, quick_settings, tmp_path / "again", "--vary-contact", *extra)
+    again = simulate_cli(tmp_path / "again", "--vary-contact", *extra, seed=SEED)
     assert again.read_bytes() == path.read_bytes()
     record, without = read_record(path), read_record(plain)
     drawn = record.provenance.extra["mechanics"]
@@ -244,8 +228,8 @@ def test_a_varied_record_is_valid_and_its_provenance_holds_the_drawn_mechanics(
     assert read_record(write_record(record, tmp_path / "copy.grasp")).provenance == record.provenance
 
 
-def test_without_the_option_the_records_are_the_plain_simulators(tmp_path, catalogue, quick_settings, capsys):
-    plain = simulate(capsys, catalogue, quick_settings, tmp_path / "plain")
+def test_without_the_option_the_records_are_the_plain_simulators(tmp_path, catalogue, quick_settings, simulate_cli):
+    plain = simulate_cli(tmp_path / "plain", seed=SEED)
     (obj,) = load_catalogue(catalogue)
     record, _ = simulate_grasp(obj, settings=load_settings(quick_settings), rng=grasp_rng(SEED, obj, 0), seed=SEED)
     assert plain.read_bytes() == write_record(record, tmp_path / "direct.grasp").read_bytes()

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from teleop.catalogue import ObjectSpec, load_catalogue
-from teleop.cli import main
 from teleop.record import read_record, write_record
 from teleop.settings import load_settings
 from teleop.sim.grasp import simulate_grasp
@@ -23,21 +22,6 @@ BALL = ObjectSpec(name="small rubber ball", shape="sphere", material="rubber", m
 @pytest.fixture(scope="module")
 def settings():
     return load_settings()
-
-
-@pytest.fixture
-def catalogue(tmp_path, ball_toml):
-    path = tmp_path / "objects.toml"
-    path.write_text(ball_toml)
-    return path
-
-
-def simulate(capsys, catalogue, settings_path, out, *extra):
-    code = main(["simulate", "--objects", str(catalogue), "--seed", str(SEED), "--out", str(out),
-                 "--settings", str(settings_path), *extra])
-    assert code == 0, capsys.readouterr().err
-    (path,) = out.glob("*.grasp")
-    return path
 
 
 def test_a_seed_gives_the_same_rig_and_each_grasp_its_own(settings):
@@ -114,8 +98,8 @@ def test_a_narrower_spread_is_honoured(settings):
     assert [s.gel_modulus_pa for s in rig.true.sensors] == [s.gel_modulus_pa for s in settings.sensors]
 
 
-def test_without_the_option_the_records_are_those_of_the_settings_rig(tmp_path, catalogue, quick_settings, capsys):
-    plain = simulate(capsys, catalogue, quick_settings, tmp_path / "plain")
+def test_without_the_option_the_records_are_those_of_the_settings_rig(tmp_path, catalogue, quick_settings, simulate_cli):
+    plain = simulate_cli(tmp_path / "plain", seed=SEED)
     (obj,) = load_catalogue(catalogue)
     assert plain.name == grasp_filename(obj, 0)
     record, _ = simulate_grasp(obj, settings=load_settings(quick_settings), rng=grasp_rng(SEED, obj, 0), seed=SEED)
@@ -124,15 +108,14 @@ def test_without_the_option_the_records_are_those_of_the_settings_rig(tmp_path, 
     back = read_record(plain)
     assert back.gripper is None and "rig" not in back.provenance.extra
 
-    randomized = simulate(capsys, catalogue, quick_settings, tmp_path / "rig", "--randomize-rig")
+    randomized = simulate_cli(tmp_path / "rig", "--randomize-rig", seed=SEED)
     assert randomized.read_bytes() != plain.read_bytes()
-    again = simulate(capsys, catalogue, quick_settings, tmp_path / "again", "--randomize-rig")
+    again = simulate_cli(tmp_path / "again", "--randomize-rig", seed=SEED)
     assert again.read_bytes() == randomized.read_bytes()
 
 
-def test_a_randomized_record_carries_the_known_rig_and_its_provenance_the_true_one(
-        tmp_path, catalogue, quick_settings, capsys):
-    path = simulate(capsys, catalogue, quick_settings, tmp_path / "rig", "--randomize-rig")
+def test_a_randomized_record_carries_the_known_rig_and_its_provenance_the_true_one(tmp_path, catalogue, quick_settings, simulate_cli):
+    path = simulate_cli(tmp_path / "rig", "--randomize-rig", seed=SEED)
     (obj,) = load_catalogue(catalogue)
     settings = load_settings(quick_settings)
     rig = draw(settings, grasp_rng(SEED, obj, 0))
