@@ -17,9 +17,10 @@ measurement would recompute:
   cached depths are dropped and recomputed); live, every frame since contact at the first
   estimate that sees it (:meth:`GraspStream.measure_frames`), offline only the frames measured;
 * the loading phase in the force and width (:func:`~estimator.segment.find_load_phase`) is
-  found again only when a force or width sample or the loading-end marker came; every
-  segmentation aligns the frames received on it (:func:`~estimator.segment.align_frames`), and
-  the model's sample of frames is aligned on the same phase;
+  found again only when a force or width sample or the loading-end marker came; the frames
+  received are aligned on it (:func:`~estimator.segment.align_frames`) once per phase, frame
+  count and ``n_frames``, so the model's sample of frames at the final estimate reuses the
+  segmentation that found the loading over;
 * depth maps are reduced to the model's input size once per frame (:meth:`GraspStream.reduce_depths`
   between frames: the final estimate then reduces only the frames that came since);
 * on every :meth:`GraspStream.estimate` the analytical fits run again over everything that has
@@ -206,6 +207,8 @@ class GraspStream:
         self._depth: dict[int, np.ndarray] = {}  # frame position -> its depth (m)
         self._reduced: dict[tuple, np.ndarray] = {}  # (position, size, window) -> reduced depth
         self._phase: LoadPhase | None = None  # of the force and width so far; None: find it again
+        self._segments: dict[tuple[int, int], Segment] = {}  # (n_frames, frames received) -> on self._phase
+        self._segments_phase: LoadPhase | None = None  # the phase self._segments were aligned on
         self._loading_end_s: float | None = None
         self._follow = False
 
@@ -368,7 +371,16 @@ class GraspStream:
         """The segmentation of what has arrived (falsy with a reason before contact), its frames
         sampled at ``n_frames`` (default ``estimator.n_frames``)."""
         n_frames = estimator_settings(self.settings).n_frames if n_frames is None else n_frames
-        return align_frames(self._load_phase(), self._frame_times(), n_frames=n_frames)
+        phase = self._load_phase()
+        if phase is not self._segments_phase:
+            self._segments.clear()
+            self._segments_phase = phase
+        # Frames are only ever appended: their count names the frame times aligned.
+        key = (n_frames, self.frame_count)
+        cached = self._segments.get(key)
+        if cached is None:
+            cached = self._segments[key] = align_frames(phase, self._frame_times(), n_frames=n_frames)
+        return cached
 
     def _load_phase(self) -> LoadPhase:
         """The loading phase in the force and width so far, found again only after new samples or
