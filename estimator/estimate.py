@@ -24,13 +24,14 @@ States
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
 from estimator.errors import FitError
 from teleop.states import ESTIMATE_STATES as STATES
 
-__all__ = ["STATES", "Estimate"]
+__all__ = ["STATES", "Estimate", "choose_estimate"]
 
 
 def _valid_modulus(value: float | None) -> bool:
@@ -156,3 +157,14 @@ class Estimate:
             "reason": self.reason,
             "latency_ms": self.latency_s * 1e3,
         }
+
+
+def choose_estimate(estimates: Sequence[Estimate]) -> Estimate:
+    """The first estimate that is not a refusal; if all refuse, one refusal naming every reason."""
+    if not estimates:
+        raise FitError("choose_estimate needs at least one estimate")
+    for estimate in estimates:
+        if estimate:
+            return estimate
+    reasons = "; ".join(f"{e.method}: {e.reason}" for e in estimates)
+    return Estimate.refuse(estimates[0].method, f"every method refuses ({reasons})")

@@ -69,7 +69,7 @@ final comes at its end (an operator's) is measured on the same data both ways.
 
 Which estimate is published
 ---------------------------
-:func:`choose_estimate` takes the first estimate that is not a refusal, in the order of the
+:func:`~estimator.estimate.choose_estimate` takes the first estimate that is not a refusal, in the order of the
 methods asked for (the order of :data:`~estimator.inference.hybrid.FALLBACK_ORDER` by default),
 so a bound is published when it is all a method can say, and a refusal only when every method
 refuses.
@@ -87,7 +87,7 @@ import numpy as np
 
 from estimator import analytical
 from estimator.errors import FitError, PerceptionError
-from estimator.estimate import Estimate
+from estimator.estimate import Estimate, choose_estimate
 from estimator.features import ContactFeatures, contact_features
 from estimator.inference.inputs import reduce_images
 from estimator.measurements import (
@@ -109,21 +109,10 @@ from estimator.settings import DEFAULT_METHODS, estimator_settings
 from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Provenance
 from teleop.settings import GripperSettings, SensorSettings, Settings
 
-__all__ = ["DEFAULT_METHODS", "LOADING_SETTLED_S", "GraspStream", "StreamEstimate", "choose_estimate"]
+__all__ = ["DEFAULT_METHODS", "LOADING_SETTLED_S", "GraspStream", "StreamEstimate"]
 
 # Force samples this long after the peak, all within the peak tolerance, end the loading phase.
 LOADING_SETTLED_S = 0.1
-
-
-def choose_estimate(estimates: Sequence[Estimate]) -> Estimate:
-    """The first estimate that is not a refusal; if all refuse, one refusal naming every reason."""
-    if not estimates:
-        raise FitError("choose_estimate needs at least one estimate")
-    for estimate in estimates:
-        if estimate:
-            return estimate
-    reasons = "; ".join(f"{e.method}: {e.reason}" for e in estimates)
-    return Estimate.refuse(estimates[0].method, f"every method refuses ({reasons})")
 
 
 @dataclass(frozen=True)
@@ -133,7 +122,7 @@ class StreamEstimate:
     Attributes
     ----------
     estimate : Estimate
-        The published one (:func:`choose_estimate`), stamped with the compute time.
+        The published one (:func:`~estimator.estimate.choose_estimate`), stamped with the compute time.
     estimates : tuple of Estimate
         Every method asked for, in order.
     segment : Segment
@@ -165,7 +154,7 @@ class GraspStream:
         here as the settings say); a path or None (the file its sensor names) is loaded when a
         frame is first measured. Checked against the sensor then (:meth:`warm_up` checks it at once).
     methods : sequence of str
-        Analytical methods :meth:`estimate` runs, in order of preference (see :func:`choose_estimate`).
+        Analytical methods :meth:`estimate` runs, in order of preference (see :func:`~estimator.estimate.choose_estimate`).
     grasp_id : str
         Names the grasp in errors and in :meth:`to_record`.
     sensors, gripper : optional
@@ -208,7 +197,6 @@ class GraspStream:
         self._reduced: dict[tuple, np.ndarray] = {}  # (position, size, window) -> reduced depth
         self._phase: LoadPhase | None = None  # of the force and width so far; None: find it again
         self._segments: dict[tuple[int, int], Segment] = {}  # (n_frames, frames received) -> on self._phase
-        self._segments_phase: LoadPhase | None = None  # the phase self._segments were aligned on
         self._loading_end_s: float | None = None
         self._follow = False
 
@@ -372,9 +360,6 @@ class GraspStream:
         sampled at ``n_frames`` (default ``estimator.n_frames``)."""
         n_frames = estimator_settings(self.settings).n_frames if n_frames is None else n_frames
         phase = self._load_phase()
-        if phase is not self._segments_phase:
-            self._segments.clear()
-            self._segments_phase = phase
         # Frames are only ever appended: their count names the frame times aligned.
         key = (n_frames, self.frame_count)
         cached = self._segments.get(key)
@@ -386,6 +371,7 @@ class GraspStream:
         """The loading phase in the force and width so far, found again only after new samples or
         the loading-end marker (a frame alone does not move it)."""
         if self._phase is None:
+            self._segments.clear()  # aligned on the phase found before
             force, width = self._force.samples(), self._width.samples()
             self._phase = find_load_phase(force.t_s, force.value, width.t_s, width.value,
                                           contact_force_n=estimator_settings(self.settings).contact_force_n,

@@ -1,14 +1,16 @@
-"""Fixtures of the learned-model tests (inference, training, evaluation): tiny synthetic datasets,
-simulated records, a calibration."""
+"""Fixtures of the estimator tests: tiny synthetic datasets, simulated records, a calibration (the
+learned model's), and a soft and a rigid grasp with an estimator service to send them to (the live ones)."""
 
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from support.live import Rig
 
 from estimator.estimate import Estimate
 from estimator.inference.inputs import MEASUREMENT_VERSION
@@ -16,7 +18,10 @@ from estimator.inference.provenance import SPLITS
 from estimator.settings import estimator_settings
 from estimator.training.dataset import DATASET_FORMAT, split_objects
 from estimator.training.samples import TrainingSample, save_sample
-from teleop.settings import load_settings
+from teleop.catalogue import load_catalogue
+from teleop.record import GraspRecord
+from teleop.settings import CONFIG_DIR, load_settings
+from teleop.sim.grasp import simulate_grasp
 
 SIZE = (16, 22)
 N_FRAMES = 3
@@ -137,3 +142,18 @@ def sim_grasps(tmp_path_factory) -> tuple[Path, Path]:
         record, _ = simulate_grasp(objects[name], settings=settings, rng=np.random.default_rng(100 + i), seed=100 + i)
         write_record(record, records / f"{name}.grasp")
     return records, cal_path
+
+
+@pytest.fixture(scope="session")
+def records(settings) -> dict[str, GraspRecord]:
+    """A soft and a rigid simulated grasp (a few seconds)."""
+    objects = {o.name: o for o in load_catalogue(CONFIG_DIR / "objects.toml")}
+    return {name: simulate_grasp(objects[name], settings=settings, rng=np.random.default_rng(seed))[0]
+            for name, seed in (("stress_ball", 11), ("steel_ball_bearing", 12))}
+
+
+@pytest.fixture
+def rig(settings, calibration, tmp_path) -> Iterator[Rig]:
+    rig = Rig(settings, calibration, report=tmp_path / "estimator.jsonl")
+    yield rig
+    rig.close()

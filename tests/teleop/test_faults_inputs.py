@@ -18,6 +18,7 @@ import zmq
 from hypothesis import HealthCheck, given
 from hypothesis import settings as hyp_settings
 from hypothesis import strategies as st
+from support.live import in_capture_order
 
 from estimator.errors import EstimatorError
 from estimator.service import MAX_CLOCK_JUMP_S, EstimatorService
@@ -40,19 +41,6 @@ METHODS = ("split", "hertz", "elastic", "no_tactile")
 def record(settings) -> GraspRecord:
     obj = {o.name: o for o in load_catalogue(CONFIG_DIR / "objects.toml")}["steel_ball_bearing"]
     return simulate_grasp(obj, settings=settings, rng=np.random.default_rng(12))[0]
-
-
-def in_capture_order(record: GraspRecord) -> list[tuple[float, str, dict]]:
-    """One message per sample or frame, as the robot node publishes them, by capture time."""
-    items = [(float(t), 1, "force", {"t_s": [t], "value_n": [v]})
-             for t, v in zip(record.force_n.t_s, record.force_n.value, strict=True)]
-    items += [(float(t), 1, "width", {"t_s": [t], "value_m": [v]})
-              for t, v in zip(record.width_m.t_s, record.width_m.value, strict=True)]
-    for stream in record.frames:
-        items += [(float(t), 0, "frame", {"finger": stream.finger, "index": i, "encoding": stream.encoding,
-                                           "data": stream.encoded[i]}) for i, t in enumerate(stream.t_s)]
-    items.sort(key=lambda item: item[:2])
-    return [(t, kind, body) for t, _, kind, body in items]
 
 
 class LiveEstimator:
