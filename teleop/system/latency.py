@@ -307,33 +307,38 @@ def run(args: argparse.Namespace) -> int:
         summary[f"{key}_in_baselines"] = (None if summary[f"{key}_ms"] is None
                                           else summary[f"{key}_ms"] / summary["frame_baseline_ms"])
 
+    text = sys.stderr if args.json else sys.stdout  # under --json stdout is the JSON alone
+
+    def say(line: str) -> None:
+        print(line, file=text)
+
     def ms(key: str) -> str:
         return "-" if summary[key] is None else f"{summary[key]:.1f} ms"
 
     hz = summary["provisional_hz"]
-    print(f"{summary['finals_measured']} of {summary['grasps']} final estimates measured on the display")
-    print(f"last loading frame -> display report: p50 {ms('p50_ms')}, p99 {ms('p99_ms')}")
-    print(f"  decision (frame -> final sent):     p50 {ms('decision_p50_ms')}, p99 {ms('decision_p99_ms')}")
-    print(f"  delivery (published -> report):     p50 {ms('delivery_p50_ms')}, p99 {ms('delivery_p99_ms')}")
-    print(f"peak frame after the fingers stop:    p50 {ms('peak_frame_after_stop_p50_ms')}, "
-          f"p99 {ms('peak_frame_after_stop_p99_ms')} (marker grasps; camera phase, not in the latency)")
-    print(f"fingers stop -> display report:       p50 {ms('loading_end_to_report_p50_ms')}, "
-          f"p99 {ms('loading_end_to_report_p99_ms')}")
-    print(f"final estimate compute:               p50 {ms('final_compute_p50_ms')}, p99 {ms('final_compute_p99_ms')}")
-    print(f"finals by trigger: {summary['finals_by']}")
-    print(f"estimator compute per estimate:       p50 {ms('compute_p50_ms')}, p99 {ms('compute_p99_ms')}")
-    print(f"provisional estimates while loading:  {'-' if hz is None else f'{hz:.1f} Hz'} (camera: 30 Hz)")
-    print(f"machine speed: one frame's decode, warp, depth and features take {ms('frame_baseline_ms')} in this "
-          f"process (before the run {ms('frame_baseline_before_ms')}, after it {ms('frame_baseline_after_ms')})")
+    say(f"{summary['finals_measured']} of {summary['grasps']} final estimates measured on the display")
+    say(f"last loading frame -> display report: p50 {ms('p50_ms')}, p99 {ms('p99_ms')}")
+    say(f"  decision (frame -> final sent):     p50 {ms('decision_p50_ms')}, p99 {ms('decision_p99_ms')}")
+    say(f"  delivery (published -> report):     p50 {ms('delivery_p50_ms')}, p99 {ms('delivery_p99_ms')}")
+    say(f"peak frame after the fingers stop:    p50 {ms('peak_frame_after_stop_p50_ms')}, "
+        f"p99 {ms('peak_frame_after_stop_p99_ms')} (marker grasps; camera phase, not in the latency)")
+    say(f"fingers stop -> display report:       p50 {ms('loading_end_to_report_p50_ms')}, "
+        f"p99 {ms('loading_end_to_report_p99_ms')}")
+    say(f"final estimate compute:               p50 {ms('final_compute_p50_ms')}, p99 {ms('final_compute_p99_ms')}")
+    say(f"finals by trigger: {summary['finals_by']}")
+    say(f"estimator compute per estimate:       p50 {ms('compute_p50_ms')}, p99 {ms('compute_p99_ms')}")
+    say(f"provisional estimates while loading:  {'-' if hz is None else f'{hz:.1f} Hz'} (camera: 30 Hz)")
+    say(f"machine speed: one frame's decode, warp, depth and features take {ms('frame_baseline_ms')} in this "
+        f"process (before the run {ms('frame_baseline_before_ms')}, after it {ms('frame_baseline_after_ms')})")
     if summary["p50_in_baselines"] is not None:
-        print(f"  the latency in those frames: p50 {summary['p50_in_baselines']:.2f}, "
-              f"p99 {summary['p99_in_baselines']:.2f}")
+        say(f"  the latency in those frames: p50 {summary['p50_in_baselines']:.2f}, "
+            f"p99 {summary['p99_in_baselines']:.2f}")
     if summary["per_grasp"]:
-        print("slowest grasps:")
-        print("\n".join(slowest(summary)))
+        say("slowest grasps:")
+        say("\n".join(slowest(summary)))
     if args.plot:
         plot(summary, args.plot)
-        print(f"plot: {args.plot}")
+        say(f"plot: {args.plot}")
     if args.json:
         print(json.dumps(summary, allow_nan=False))
     return 0

@@ -535,9 +535,10 @@ def test_bench_latency_prints_its_figures(tmp_path, capsys):
     # finish loading between two frames and stream none).
     code = teleop.cli.main(["bench-latency", "--scene", str(one_grasp_scene(tmp_path, "grape")), "--grasps", "2", "--json",
                             "--out", str(tmp_path / "run")])
-    out = capsys.readouterr().out.strip().splitlines()
+    captured = capsys.readouterr()
     assert code == 0
-    summary = json.loads(out[-1])
+    summary = json.loads(captured.out)  # under --json stdout is the JSON alone; the report goes to stderr
+    out = captured.err.splitlines()
     assert summary["grasps"] == summary["finals_measured"] == 2
     assert 0 < summary["p50_ms"] <= summary["p99_ms"] < 2000 and summary["provisional_hz"] > 0
     assert summary["delivery_p50_ms"] < summary["p50_ms"]
