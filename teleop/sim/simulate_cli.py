@@ -93,6 +93,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "target force, hold, release) or 'sim' (a seeded simulated operator in a "
                              "leader-follower loop: variable speed, pauses, back-offs, re-squeezes, peaks from "
                              "3 N up to the settings' maximum grasp force)")
+    parser.add_argument("--target-force-n", type=float, default=None, metavar="N",
+                        help="the grasps' force ceiling in N instead of the settings' gripper.target_force_n: a "
+                             "scripted grasp squeezes to 40-100 %% of it, the simulated operator at most to it "
+                             "(e.g. 12 for light grasps of 4.8-12 N); not with --randomize-rig, which draws "
+                             "each rig's own")
     parser.add_argument("--vary-gel", action="store_true",
                         help="with --randomize-rig: also draw each rig's datasheet gel (120-400 kPa, 2.5-4.5 mm), "
                              "as other GelSight-type sensors have; the records carry it")
@@ -161,6 +166,15 @@ def run(args: argparse.Namespace) -> int:
     if args.gel_model is not None:
         settings = dataclasses.replace(
             settings, simulation=dataclasses.replace(settings.simulation, gel_model=args.gel_model))
+    if args.target_force_n is not None:
+        if args.randomize_rig:
+            raise SettingsError("--target-force-n sets the one rig's force ceiling; --randomize-rig draws each "
+                                "rig's own: use one of them")
+        try:
+            gripper = dataclasses.replace(settings.gripper, target_force_n=args.target_force_n)
+        except SettingsError as exc:
+            raise SettingsError(f"--target-force-n {args.target_force_n:g}: {exc}") from exc
+        settings = dataclasses.replace(settings, gripper=gripper)
     if args.vary_contact and settings.simulation.gel_model != "layer":
         raise SettingsError(f"--vary-contact draws the gel's contact model and never the held-out "
                             f"{settings.simulation.gel_model!r} one: drop --gel-model {settings.simulation.gel_model} "

@@ -87,11 +87,27 @@ def test_only_simulates_the_named_objects(tmp_path, catalogue, quick_settings, c
     assert [p.name for p in (tmp_path / "o").glob("*.grasp")] == ["oak_block_g000.grasp"]
 
 
+@pytest.mark.slow
+def test_target_force_sets_how_hard_the_scripted_grasps_squeeze(tmp_path, catalogue, quick_settings, capsys):
+    peaks = {}
+    for ceiling in ("30", "6"):
+        code, _, stderr = run(capsys, "--objects", str(catalogue), "--only", "small rubber ball", "--seed", "4",
+                              "--grasps-per-object", "2", "--target-force-n", ceiling, "--out", str(tmp_path / ceiling),
+                              "--settings", str(quick_settings))
+        assert code == 0, stderr
+        peaks[ceiling] = [float(read_record(p).force_n.value.max()) for p in sorted((tmp_path / ceiling).glob("*.grasp"))]
+    # Targets are drawn at 40-100 % of the ceiling (the same draw for both ceilings); the load cell adds noise.
+    assert all(2.0 < p < 6.5 for p in peaks["6"]), peaks
+    assert all(p > 10.0 for p in peaks["30"]), peaks
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--grasps-per-object", "0"], "--grasps-per-object"),
     (["--workers", "0"], "--workers"),
     (["--only", "oak_block,teapot,anvil"], "--only: anvil, teapot not in the catalogue"),
     (["--vary-contact", "--gel-model", "half-space"], "--vary-contact draws the gel's contact model and never"),
+    (["--target-force-n", "0"], "--target-force-n 0: GripperSettings.target_force_n = 0"),
+    (["--target-force-n", "12", "--randomize-rig"], "--target-force-n sets the one rig's force ceiling"),
 ])
 def test_bad_arguments_are_one_line_errors(tmp_path, catalogue, capsys, argv, message):
     code, _, stderr = run(capsys, "--objects", str(catalogue), "--out", str(tmp_path / "o"), *argv)
