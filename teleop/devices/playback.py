@@ -374,13 +374,12 @@ class SimulatedGripper(Gripper):
         return True
 
 
-class SimulatedCamera(TactileCamera):
-    """The ``sim`` camera: the frames of its finger from a :class:`GraspPlayback`."""
+class _Switched:
+    """A simulated reader's source, a :class:`GraspPlayback` or a :class:`LiveGrasp`, switched by the
+    node while the reader waits: the reader takes (source, next index) together under the lock and
+    hands data out only if no switch came meanwhile."""
 
-    def __init__(self, sensor: SensorSettings, *, playback: GraspPlayback | None = None):
-        super().__init__(sensor)
-        # The reader thread takes (playback, next frame) together and hands a frame out only if no
-        # replay() switched them meanwhile (the node switches while the reader waits).
+    def _serve(self, playback: GraspPlayback | None) -> None:
         self._lock = threading.Lock()
         self._playback: GraspPlayback | None = None
         self._live: LiveGrasp | None = None
@@ -389,15 +388,27 @@ class SimulatedCamera(TactileCamera):
             self.replay(playback)
 
     def replay(self, playback: GraspPlayback) -> None:
-        """Serve the frames of this finger from ``playback`` from its first frame on."""
-        playback.record.stream(self.sensor.finger)  # KeyError now, not at the first read
+        """Serve ``playback``'s data from its start on."""
         with self._lock:
             self._playback, self._next, self._live = playback, 0, None
 
     def live(self, grasp: LiveGrasp | None) -> None:
-        """Render this finger's frames of ``grasp`` as they are captured (None: a silent camera)."""
+        """Serve ``grasp``'s data as it is captured (None: silence)."""
         with self._lock:
             self._playback, self._live = None, grasp
+
+
+class SimulatedCamera(_Switched, TactileCamera):
+    """The ``sim`` camera: the frames of its finger from a :class:`GraspPlayback`, or rendered from a
+    :class:`LiveGrasp` as they are captured."""
+
+    def __init__(self, sensor: SensorSettings, *, playback: GraspPlayback | None = None):
+        super().__init__(sensor)
+        self._serve(playback)
+
+    def replay(self, playback: GraspPlayback) -> None:
+        playback.record.stream(self.sensor.finger)  # KeyError now, not at the first read
+        super().replay(playback)
 
     def _read_live(self, grasp: LiveGrasp, deadline: float) -> CameraFrame | None:
         finger = self.sensor.finger
@@ -446,28 +457,13 @@ class SimulatedCamera(TactileCamera):
         return CameraFrame(finger, index, due, stream.encoded[index], stream.encoding)
 
 
-class SimulatedLoadCell(LoadCell):
-    """The ``sim`` load cell: the force samples of a :class:`GraspPlayback`, in newtons as recorded."""
+class SimulatedLoadCell(_Switched, LoadCell):
+    """The ``sim`` load cell: the force samples of a :class:`GraspPlayback`, in newtons as recorded,
+    or the readings of a :class:`LiveGrasp` as they arrive."""
 
     def __init__(self, settings: LoadCellSettings, *, playback: GraspPlayback | None = None):
         super().__init__(settings)
-        # As for the camera: the reader advances the sample index only of the playback it took.
-        self._lock = threading.Lock()
-        self._playback: GraspPlayback | None = None
-        self._live: LiveGrasp | None = None
-        self._next = 0
-        if playback is not None:
-            self.replay(playback)
-
-    def replay(self, playback: GraspPlayback) -> None:
-        """Serve force samples from ``playback`` from its first sample on."""
-        with self._lock:
-            self._playback, self._next, self._live = playback, 0, None
-
-    def live(self, grasp: LiveGrasp | None) -> None:
-        """Serve the readings of ``grasp`` as they arrive (None: a silent cell)."""
-        with self._lock:
-            self._playback, self._live = None, grasp
+        self._serve(playback)
 
     def _take_live(self, grasp: LiveGrasp, deadline: float) -> Samples:
         """The readings of ``grasp`` that arrived, waiting for the next one up to ``deadline``."""
