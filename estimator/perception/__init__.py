@@ -2,34 +2,40 @@
 
 Pixel frames: images are ``[row, col]`` with ``x`` the column (right) and ``y``
 the row (down); depth is metres, positive into the gel.
+
+The names below load their module on first use, so the live service, which reads
+calibrations but never fits one, does not load the fitting and press-set code.
 """
 
-from estimator.perception.calibration import Calibration, load_calibration
-from estimator.perception.calibration_fit import fit_calibration
-from estimator.perception.depth import SphereFit, fit_sphere, poisson_depth, reconstruct_depth
-from estimator.perception.markers import detect_markers, inpaint_markers
-from estimator.perception.press_circles import PressRings, detect_press_circle, press_rings
-from estimator.perception.presses import PressSet, load_presses, split_presses
-from estimator.perception.warp import warp_and_crop, warp_maps, warp_matrix, warp_points
+from importlib import import_module
+from typing import Any
 
-__all__ = [
-    "Calibration",
-    "PressRings",
-    "PressSet",
-    "SphereFit",
-    "detect_markers",
-    "detect_press_circle",
-    "fit_calibration",
-    "fit_sphere",
-    "inpaint_markers",
-    "load_calibration",
-    "load_presses",
-    "poisson_depth",
-    "press_rings",
-    "reconstruct_depth",
-    "split_presses",
-    "warp_and_crop",
-    "warp_maps",
-    "warp_matrix",
-    "warp_points",
-]
+_HOMES = {
+    "Calibration": "calibration",
+    "load_calibration": "calibration",
+    "fit_calibration": "calibration_fit",
+    "SphereFit": "depth",
+    "fit_sphere": "depth",
+    "poisson_depth": "depth",
+    "reconstruct_depth": "depth",
+    "detect_markers": "markers",
+    "inpaint_markers": "markers",
+    "PressRings": "press_circles",
+    "detect_press_circle": "press_circles",
+    "press_rings": "press_circles",
+    "PressSet": "presses",
+    "load_presses": "presses",
+    "split_presses": "presses",
+    "warp_and_crop": "warp",
+    "warp_maps": "warp",
+    "warp_matrix": "warp",
+    "warp_points": "warp",
+}
+
+__all__ = sorted(_HOMES)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
