@@ -75,7 +75,7 @@ from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.errors import TeleopError
-from teleop.live import JsonLines
+from teleop.live import JsonLines, ServiceLoop
 from teleop.settings import Settings, resolve_path
 
 __all__ = ["COMMAND_TOPICS", "INPUT_TOPICS", "MAX_CLOCK_JUMP_S", "EstimatorService", "ServiceStats",
@@ -161,7 +161,7 @@ class _Grasp:
     last_t_s: dict[str, float] = field(default_factory=dict)  # newest capture time per topic
 
 
-class EstimatorService:
+class EstimatorService(ServiceLoop):
     """Estimates grasps from a bus subscription and publishes them (see the module docstring).
 
     Parameters
@@ -184,12 +184,15 @@ class EstimatorService:
         None: none taken.
     clock : callable
         Monotonic seconds; must be the clock the robot stamps captures with (one host).
+    poll_s : float
+        How long each :meth:`step` of :meth:`~teleop.live.ServiceLoop.run` waits for a message (s).
     """
 
     def __init__(self, settings: Settings, *, calibration: Calibration, subscriber: Subscriber,
                  publisher: Publisher, methods: Sequence[str] = DEFAULT_METHODS,
                  model: ModelSlot | None = None, report: JsonLines | None = None,
-                 commands: Subscriber | None = None, clock: Callable[[], float] = time.monotonic):
+                 commands: Subscriber | None = None, clock: Callable[[], float] = time.monotonic,
+                 poll_s: float = 0.05):
         self.settings = settings
         self.calibration = calibration
         self.subscriber = subscriber
@@ -201,6 +204,7 @@ class EstimatorService:
         self.report = report or JsonLines(None)
         self.commands = commands
         self.clock = clock
+        self.poll_s = poll_s
         self.stats = ServiceStats()
         self._grasp: _Grasp | None = None
         self._following: str | None = None  # the grasp the robot last said it follows an operator in
@@ -209,16 +213,10 @@ class EstimatorService:
 
     # ------------------------------------------------------------------ loop
 
-    def run(self, stop: Any, *, duration_s: float | None = None, poll_s: float = 0.05) -> ServiceStats:
-        """Serve until ``stop.is_set()`` or ``duration_s`` passed."""
-        deadline = None if duration_s is None else self.clock() + duration_s
-        while not stop.is_set() and (deadline is None or self.clock() < deadline):
-            self.step(poll_s)
-        return self.stats
-
-    def step(self, timeout_s: float = 0.05) -> Message | None:
-        """Take commands; receive and handle at most one message (waiting up to ``timeout_s``);
-        heartbeat; reload."""
+    def step(self, timeout_s: float | None = None) -> Message | None:
+        """Take commands; receive and handle at most one message (waiting up to ``timeout_s``, by
+        default :attr:`poll_s`); heartbeat; reload."""
+        timeout_s = self.poll_s if timeout_s is None else timeout_s
         self.publisher.heartbeat_if_due(self.clock())
         while self.commands is not None and (command := self.commands.recv(timeout_s=0)) is not None:
             self.handle_command(command)

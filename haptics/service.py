@@ -45,7 +45,7 @@ from haptics.renderer import HapticRenderer
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.errors import ComplianceTeleopError
-from teleop.live import JsonLines
+from teleop.live import JsonLines, ServiceLoop
 
 __all__ = ["INPUT_TOPICS", "FinalLatency", "RendererService"]
 
@@ -102,7 +102,7 @@ class ServiceStats:
                 "finals": [f.to_json() for f in self.finals]}
 
 
-class RendererService:
+class RendererService(ServiceLoop):
     """Drives a :class:`HapticRenderer` from a bus subscription (see the module docstring).
 
     Parameters
@@ -138,13 +138,6 @@ class RendererService:
         self._reports_published = renderer.stats.reports_sent
         self._last_grasp: Hashable = None  # the grasp active last: the one a fade renders
         self._publish_failing = False
-
-    def run(self, stop: Any, *, duration_s: float | None = None) -> ServiceStats:
-        """Serve until ``stop.is_set()`` or ``duration_s`` passed."""
-        deadline = None if duration_s is None else self.clock() + duration_s
-        while not stop.is_set() and (deadline is None or self.clock() < deadline):
-            self.step()
-        return self.stats
 
     def step(self) -> Message | None:
         """Wait up to ``tick_s`` for a message and handle it; tick the renderer; heartbeat."""

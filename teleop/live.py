@@ -1,11 +1,11 @@
-"""What the live processes share: endpoint options, signal handling and JSON-lines reports.
+"""What the live processes share: endpoint options, the serving loop, signal handling and JSON-lines reports.
 
 The live system is four long-running commands on the bus: ``teleop node`` (robot side),
 ``estimator serve``, ``haptics serve`` and ``teleop record``; ``teleop demo`` starts them as
 separate processes. Each takes its endpoints from the settings' ``[bus]`` table, overridable
-on the command line (:func:`add_endpoint_arguments`, :func:`bus_from_args`); each stops
-cleanly on SIGINT or SIGTERM (:class:`StopSignals`); the services write one JSON object per
-grasp to a report file when asked (:class:`JsonLines`).
+on the command line (:func:`add_endpoint_arguments`, :func:`bus_from_args`); each serves in
+one loop (:class:`ServiceLoop`) and stops cleanly on SIGINT or SIGTERM (:class:`StopSignals`);
+the services write one JSON object per grasp to a report file when asked (:class:`JsonLines`).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import IO, Any
 from teleop.errors import SettingsError
 from teleop.settings import BusSettings, Settings
 
-__all__ = ["ENDPOINTS", "JsonLines", "StopSignals", "add_endpoint_arguments", "bus_from_args"]
+__all__ = ["ENDPOINTS", "JsonLines", "ServiceLoop", "StopSignals", "add_endpoint_arguments", "bus_from_args"]
 
 #: Bus endpoint settings a live process may be told to use instead of the settings file's.
 ENDPOINTS = ("robot_pub", "estimate_pub", "command", "display_pub", "control")
@@ -48,6 +48,30 @@ def bus_from_args(settings: Settings, args: argparse.Namespace) -> BusSettings:
         return dataclasses.replace(settings.bus, **given)
     except SettingsError as exc:
         raise SettingsError(f"command-line endpoint: {exc}") from None
+
+
+class ServiceLoop:
+    """The loop of a long-running process (the robot node, the estimator and the renderer services):
+    :meth:`run` takes :meth:`step` after step (each waits a little for work, heartbeats and does
+    what is due) until ``stop`` is set or ``duration_s`` passed on the subclass's ``clock``, then
+    :meth:`finish`, and returns the subclass's ``stats``."""
+
+    clock: Callable[[], float]
+    stats: Any
+
+    def step(self) -> Any:
+        raise NotImplementedError
+
+    def finish(self) -> None:
+        """What to do once the loop ends (nothing by default)."""
+
+    def run(self, stop: threading.Event, *, duration_s: float | None = None) -> Any:
+        """Serve until ``stop.is_set()`` or ``duration_s`` passed."""
+        deadline = None if duration_s is None else self.clock() + duration_s
+        while not stop.is_set() and (deadline is None or self.clock() < deadline):
+            self.step()
+        self.finish()
+        return self.stats
 
 
 class StopSignals:

@@ -76,6 +76,7 @@ from teleop.errors import (
     TeleopError,
 )
 from teleop.follow import Follower
+from teleop.live import ServiceLoop
 from teleop.record import GraspRecord, Samples
 from teleop.scene import Scene
 from teleop.settings import Settings
@@ -130,7 +131,7 @@ def _first_sample_s(record: GraspRecord) -> float:
     return min(float(s.t_s[0]) for s in (record.force_n, record.width_m, *record.frames) if len(s))
 
 
-class RobotNode:
+class RobotNode(ServiceLoop):
     """The robot side of the live system (see the module docstring).
 
     Parameters
@@ -252,15 +253,11 @@ class RobotNode:
 
     # ------------------------------------------------------------------ loop
 
-    def run(self, stop: Any, *, duration_s: float | None = None) -> NodeStats:
-        """Serve until ``stop.is_set()`` or ``duration_s`` passed; a grasp under way is ended."""
-        deadline = None if duration_s is None else self.clock() + duration_s
-        while not stop.is_set() and (deadline is None or self.clock() < deadline):
-            self.step()
+    def finish(self) -> None:
+        """A grasp under way when the loop stops ends here."""
         if self._grasp is not None and math.isfinite(self._grasp.started_s):
             log.warning("stopping during grasp %s: it ends here", self._grasp.grasp_id)
             self._end()
-        return self.stats
 
     def step(self, timeout_s: float = 0.005) -> None:
         """Take commands, publish what the devices captured (waiting up to ``timeout_s`` for

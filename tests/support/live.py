@@ -61,12 +61,12 @@ class Rig:
             settings, calibration=calibration, methods=METHODS, model=model, report=JsonLines(report),
             subscriber=Subscriber(endpoints, INPUT_TOPICS),
             publisher=Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator", high_water_mark=10_000),
-            commands=None if commands is None else Subscriber(commands, COMMAND_TOPICS),
+            commands=None if commands is None else Subscriber(commands, COMMAND_TOPICS), poll_s=0.01,
         )
         self.estimates = Subscriber(self.service.publisher.endpoint, ("estimate", "grasp_event", "model_event"))
         self.model_events: list[Message] = []  # model_event messages, as collect() met them
         self.stop = threading.Event()
-        self.thread = threading.Thread(target=self.service.run, args=(self.stop,), kwargs={"poll_s": 0.01})
+        self.thread = threading.Thread(target=self.service.run, args=(self.stop,))
         self.thread.start()
         self.robot.wait_for_subscriber("frame", "force", "width", "grasp_event", timeout_s=5.0)
         deadline = time.monotonic() + 5.0

@@ -57,7 +57,7 @@ class LiveEstimator:
             subscriber=Subscriber([self.robot.endpoint, f"tcp://127.0.0.1:{rogue_port}"],
                                   ("frame", "force", "width", "grasp_event")),
             publisher=Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator", high_water_mark=10_000),
-            commands=Subscriber(self.operator.endpoint, ("command",)),
+            commands=Subscriber(self.operator.endpoint, ("command",)), poll_s=0.01,
         )
         self.display = SimulatedDisplay()
         self.renderer = RendererService(
@@ -66,7 +66,7 @@ class LiveEstimator:
             tick_s=0.005)
         self.estimates = Subscriber(self.service.publisher.endpoint, ("estimate", "grasp_event"))
         self.stop = threading.Event()
-        self.threads = [threading.Thread(target=self.service.run, args=(self.stop,), kwargs={"poll_s": 0.01}),
+        self.threads = [threading.Thread(target=self.service.run, args=(self.stop,)),
                         threading.Thread(target=self.renderer.run, args=(self.stop,))]
         for thread in self.threads:
             thread.start()
