@@ -135,17 +135,12 @@ class LiveGrasp:
 
     # ------------------------------------------------------------------ cameras
 
-    def next_capture_s(self, finger: str) -> float:
-        """When ``finger``'s camera captures its next frame (clock s)."""
-        return self._cameras[finger][1]
-
     def next_frame_s(self, finger: str) -> float:
         """When ``finger``'s next frame reaches the host (clock s, before its jitter)."""
-        return self.next_capture_s(finger) + self.settings.simulation.camera_offset_s
+        return self._cameras[finger][1] + self.settings.simulation.camera_offset_s
 
     def take_frame(self, finger: str) -> CameraFrame:
-        """``finger``'s next frame, rendered at the force of its capture instant (call once it is
-        captured; the frame's ``t_s`` is when it reaches the host)."""
+        """``finger``'s next frame, rendered at the force of its capture instant (call once it is due)."""
         period, capture_s, index = self._cameras[finger]
         self._cameras[finger] = [period, capture_s + period, index + 1]
         jitter = self._draw(lambda r: np.clip(r.normal(0.0, CAMERA_JITTER_S), -0.2 * period, 0.2 * period))

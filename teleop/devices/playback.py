@@ -416,15 +416,11 @@ class SimulatedCamera(_Switched, TactileCamera):
         if due > deadline:
             time.sleep(max(0.0, deadline - time.monotonic()))
             return None
-        # Rendered once captured and handed out on arrival, as a camera's frame is ready when it
-        # reaches the host: the simulator's rendering is not part of the rig's latency.
-        _wait_until(grasp.next_capture_s(finger), time.monotonic)
+        _wait_until(due, time.monotonic)
         with self._lock:
             if self._live is not grasp:
                 return None  # switched while the frame was awaited
-            frame = grasp.take_frame(finger)
-        _wait_until(frame.t_s, time.monotonic)
-        return frame
+            return grasp.take_frame(finger)
 
     def _connect(self) -> None:
         pass

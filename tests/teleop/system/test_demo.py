@@ -410,8 +410,9 @@ def test_demo_runs_the_quick_scene_end_to_end(tmp_path, capsys):
 @pytest.mark.slow
 def test_the_simulated_operator_grasps_the_quick_scene_leader_follower(tmp_path, capsys):
     code = teleop.cli.main(["demo", "--scene", "quick", "--json", "--no-view", "--out", str(tmp_path)])
-    out = capsys.readouterr().out.strip().splitlines()
-    assert code == 0
+    captured = capsys.readouterr()
+    assert code == 0, "\n".join([captured.err, *(f"--- {log.name}:\n{_log_tail(log)}" for log in sorted(tmp_path.glob("*.log")))])
+    out = captured.out.strip().splitlines()
     result = json.loads(out[-1])
     assert result["operator"] == "sim"  # the default
     grasps = {g["object"]: g for g in result["grasps"]}
