@@ -9,7 +9,8 @@ force-capped (:mod:`teleop.operator`). A follow counts only with ``enable`` (the
   scene's next object live (:mod:`teleop.sim.live`, prepared ahead in its simulator thread: at
   start for the first object, after each grasp for the next; the fingers may move once it is
   ready) and the simulated devices sample it (:mod:`teleop.devices.live_sim`); an object still
-  between the closed fingers (a grasp ended by the watchdog) is grasped again;
+  between the closed fingers (a grasp ended by the watchdog) is grasped again, unless a
+  ``release`` opened them meanwhile (the object then leaves, and the scene's next one comes);
 * during a follow grasp it moves the fingers' target (:meth:`~teleop.devices.gripper.Gripper.follow`).
   The fingers never exceed the settings' maximum grasp force (``gripper.target_force_n``): the
   simulated physics stalls there; with hardware the node stops closing once the load cell
@@ -18,8 +19,9 @@ force-capped (:mod:`teleop.operator`). A follow counts only with ``enable`` (the
 A follow without enable stops the fingers where they are. When no follow came for
 :data:`~teleop.operator.WATCHDOG_S`, the node stops the fingers, sends a ``robot_notice``
 *watchdog* and ends the grasp (mode *stopped*). ``release`` ends a follow grasp: the fingers
-open, then the grasp ends; ``stop`` stops the fingers and ignores further follows until
-``release`` (or the watchdog) ends the grasp.
+open, then the grasp ends; with no grasp open it opens fingers the watchdog left closed on an
+object. ``stop`` stops the fingers and ignores further follows until ``release`` (or the
+watchdog) ends the grasp.
 
 A follow that cannot be carried out (during a scripted grasp, naming another grasp, beyond the
 gripper's width, ...) raises; the node answers it with a ``robot_notice`` *refused*
@@ -119,7 +121,7 @@ class Follower:
         grasp = node._grasp = _Grasp(grasp_id, None, follow=True, phase="following")
         if not node.simulated:
             node._announce("start")
-        elif self.live is not None:  # the object is still between the fingers: grasp it again
+        elif not self._let_go():  # the object is still between the fingers: grasp it again
             grasp.object_name = self.live.object.name
             node._announce("start")
         else:
@@ -172,13 +174,19 @@ class Follower:
         node = self.node
         if grasp.follow:
             self.ended.add(grasp.grasp_id)
-        live = self.live
-        if live is not None and live.force_at(node.clock()) <= 0:  # the fingers let go: the object leaves
-            self.live = None
-            for device in node._devices:
-                device.live(None)
+        self._let_go()
         if node.simulated and self.live is None and self.next_live is None:
             self.prepare_next()
+
+    def _let_go(self) -> bool:
+        """Whether no live object is between the fingers: one they no longer press (let go, or opened
+        by a ``release`` after the watchdog ended its grasp) leaves them now."""
+        live = self.live
+        if live is not None and live.force_at(self.node.clock()) <= 0:
+            self.live = None
+            for device in self.node._devices:
+                device.live(None)
+        return self.live is None
 
     # ------------------------------------------------------------------ progress
 

@@ -320,9 +320,11 @@ class RobotNode(ServiceLoop):
         grasp = self._grasp
         if grasp is not None and grasp.follow:
             self._follower.release(grasp)
-        elif self.simulated:
+        elif grasp is not None and self.simulated:
             log.info("release: a simulated grasp releases by itself")
-        else:
+        elif grasp is None and self.simulated and self._follower.live is None:
+            log.info("release: nothing between the simulated fingers")
+        else:  # hardware, or an object left between the simulated fingers by a grasp the watchdog ended
             self.gripper.move_async(self.settings.gripper.max_width_m)
 
     # ------------------------------------------------------------------ notices and state

@@ -196,3 +196,28 @@ def test_commands_that_cannot_be_carried_out_are_refused_on_the_bus(rig):
     reasons = [m.body["reason"] for m in drain(listener) if m.type == "robot_notice"]
     assert any("has ended" in r for r in reasons) and any("commanded grasp" in r for r in reasons)
     assert node.stats.bad_commands >= len(refusals) + 2  # repeated follows refused, their notices not repeated
+
+
+@pytest.mark.slow
+def test_a_release_opens_fingers_the_watchdog_left_closed_and_the_next_grasp_takes_the_next_object(rig):
+    node, operator, listener, scene = rig
+    wait_prepared(node)
+    # Squeeze the stress ball to the force limit, then go silent: the watchdog ends the grasp with
+    # the fingers closed on it.
+    drive(node, operator, lambda t: max(0.0, 0.08 * (1.0 - 1.5 * t)), 1.0, grasp_id="g-first")
+    step_for(node, 0.4)
+    assert not node.busy and node.gripper.read_width()[1] < 0.06
+    # A release without a grasp opens them (as the operator's console sends it); the ball leaves.
+    operator.send("command", t_capture_s=time.monotonic(), action="release", grasp_id=None, params={})
+    deadline = time.monotonic() + 5.0
+    while node.gripper.read_width()[1] < 0.075:
+        assert time.monotonic() < deadline, "the fingers did not open"
+        step_for(node, 0.1)
+    # The next follow grasp takes the scene's next object, prepared once it is asked for.
+    deadline, starts = time.monotonic() + 30.0, {}
+    while "g-second" not in starts:
+        assert time.monotonic() < deadline, "the second grasp did not start"
+        drive(node, operator, lambda t: 0.08, 0.3, grasp_id="g-second")
+        starts |= {m.body["grasp_id"]: m.body["object_name"] for m in drain(listener)
+                   if m.type == "grasp_event" and m.body["event"] == "start"}
+    assert starts["g-second"] == scene.objects[1].name != scene.objects[0].name
