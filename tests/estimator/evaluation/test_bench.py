@@ -32,6 +32,7 @@ def test_a_configuration_that_answers_more_grasps_is_not_dominated_by_one_that_r
     assert pareto_front([(6.2, 0.70, 0), auto]) == [True, False]
 
 
+@pytest.mark.slow
 def test_the_binned_estimate_is_close_to_the_full_grid_one(sim_grasps):
     records, calibration = sim_grasps
     settings = load_settings()
@@ -120,6 +121,7 @@ def test_plot_labels_of_nearby_points_do_not_overlap():
     plt.close(fig)
 
 
+@pytest.mark.slow
 def test_the_hybrid_benchmark_script_runs_its_stages_on_the_depth_grid(sim_grasps, trained_model):
     import subprocess
     import sys

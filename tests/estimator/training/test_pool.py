@@ -79,6 +79,7 @@ def test_a_pooled_model_fine_tunes_as_one_network(trained_model, other_seed, syn
     assert not np.allclose(before.predict_logits(inputs), after.predict_logits(inputs), atol=1e-3)
 
 
+@pytest.mark.slow
 def test_the_command_pools_models(trained_model, other_seed, synthetic_dataset, tmp_path, capsys):
     out = tmp_path / "pooled"
     assert main(["pool", "--model", str(trained_model), "--model", str(other_seed), "--data", str(synthetic_dataset),

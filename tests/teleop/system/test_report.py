@@ -136,6 +136,7 @@ class _Page(HTMLParser):
             self._row = None
 
 
+@pytest.mark.slow
 def test_the_page_shows_every_figure_it_wrote_and_one_summary_row_per_grasp(report):
     text = report.index.read_text(encoding="utf-8")
     page = _Page(text)
