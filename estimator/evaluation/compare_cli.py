@@ -19,7 +19,7 @@ from estimator.evaluation.compare import (
     NothingToCompare,
     compare_models,
 )
-from estimator.evaluation.evaluate_cli import print_skipped
+from estimator.evaluation.evaluate_cli import fmt_value, print_skipped
 from estimator.inference.provenance import trained_objects
 from teleop.settings import default_settings_path, load_settings
 
@@ -59,13 +59,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "dangerous_misses_increase, verdict, objects, skipped")
 
 
-def _fmt(value: float | None, spec: str) -> str:
-    if value is None:
-        width = "".join(c for c in spec.split(".")[0] if c.isdigit())
-        return format("-", f">{width}") if width else "-"
-    return format(value, spec)
-
-
 def print_comparison(result: Mapping[str, Any], *, file: Any = None) -> None:
     """The comparison as a short table and the verdict in one sentence."""
     print(f"compared on {result['grasps']} grasps of {result['n_objects']} objects neither model trained on "
@@ -74,11 +67,11 @@ def print_comparison(result: Mapping[str, Any], *, file: Any = None) -> None:
           f"{'coverage':>8} {'width':>6} {'soft width':>10}  dir", file=file)
     for role in ("base", "candidate"):
         m = result[role]
-        print(f"{role:<9} {m['n']:>4} {_fmt(m['felt_log10_error'], '8.3f')} {_fmt(m['felt_within_2x'], '7.1%')} "
+        print(f"{role:<9} {m['n']:>4} {fmt_value(m['felt_log10_error'], '8.3f')} {fmt_value(m['felt_within_2x'], '7.1%')} "
               f"{m['dangerous_misses'] if m['dangerous_misses'] is not None else '-':>6} "
-              f"{_fmt(m['rigid_shown_rigid'], '6.1%')} {_fmt(m['answered'], '8.1%')} "
-              f"{_fmt(m['interval_coverage'], '8.1%')} {_fmt(m['interval_width_decades_median'], '6.2f')} "
-              f"{_fmt(m['soft_interval_width_decades_median'], '10.2f')}  {m['model']}", file=file)
+              f"{fmt_value(m['rigid_shown_rigid'], '6.1%')} {fmt_value(m['answered'], '8.1%')} "
+              f"{fmt_value(m['interval_coverage'], '8.1%')} {fmt_value(m['interval_width_decades_median'], '6.2f')} "
+              f"{fmt_value(m['soft_interval_width_decades_median'], '10.2f')}  {m['model']}", file=file)
     print(result["verdict"], file=file)
 
 

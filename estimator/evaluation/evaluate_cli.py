@@ -41,7 +41,7 @@ from haptics.settings import display_range_pa
 from teleop.record import find_records
 from teleop.settings import Settings, default_settings_path, load_settings
 
-__all__ = ["ROW_COLUMNS", "add_arguments", "run", "skipped_records", "unseen_by", "write_rows"]
+__all__ = ["ROW_COLUMNS", "add_arguments", "fmt_value", "print_skipped", "run", "skipped_records", "unseen_by", "write_rows"]
 
 #: The columns of ``--rows``: one row per grasp and method.
 ROW_COLUMNS = ("record", "object", "material", "shape", "truth_pa", "method", "state", "e_pa", "low_pa",
@@ -150,7 +150,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "command line that made it, which estimator card quotes)")
 
 
-def _fmt(value: float | None, spec: str) -> str:
+def fmt_value(value: float | None, spec: str) -> str:
     """``value`` formatted by ``spec``; None as "-", right-aligned to the spec's width."""
     if value is None:
         width = "".join(c for c in spec.split(".")[0] if c.isdigit())
@@ -280,10 +280,10 @@ def _print_table(result: Mapping[str, Any], root: Path) -> None:
         paper_text = f"{paper['log10_error']:.2f}/{paper['within_10x']:.1%}" if paper else "-"
         states = ", ".join(f"{k} {v}" for k, v in m["states"].items() if v)
         ok = m["ok_only"]
-        print(f"{method:<{width}} {m['inputs'] or '-':<{wide}} {m['n']:>4} {_fmt(m['log10_error'], '9.2f')} "
-              f"{_fmt(m['within_10x'], '9.1%')} {_fmt(m['point_log10_error'], '9.2f')} "
-              f"{_fmt(m['point_within_10x'], '8.1%')} {ok['n']:>4} {_fmt(ok['log10_error'], '6.2f')} "
-              f"{_fmt(m['interval_coverage'], '8.1%')}  {paper_text:<9} {states}")
+        print(f"{method:<{width}} {m['inputs'] or '-':<{wide}} {m['n']:>4} {fmt_value(m['log10_error'], '9.2f')} "
+              f"{fmt_value(m['within_10x'], '9.1%')} {fmt_value(m['point_log10_error'], '9.2f')} "
+              f"{fmt_value(m['point_within_10x'], '8.1%')} {ok['n']:>4} {fmt_value(ok['log10_error'], '6.2f')} "
+              f"{fmt_value(m['interval_coverage'], '8.1%')}  {paper_text:<9} {states}")
     soft, rigid = result["display_range_pa"]
     print()
     print(f"on the display (range {soft:.3g} to {rigid:.3g} Pa, labels clipped to it): felt err = mean |log10 "
@@ -296,12 +296,12 @@ def _print_table(result: Mapping[str, Any], root: Path) -> None:
           f"{'coverage':>8} {'width':>6} | {'soft n':>6} {'felt err':>8} {'felt2x':>7} {'coverage':>8} {'width':>6}")
     for method, m in result["methods"].items():
         danger = "-" if m["dangerous_misses"] is None else str(m["dangerous_misses"])
-        print(f"{method:<{width}} {m['n']:>4} {_fmt(m['felt_log10_error'], '8.2f')} "
-              f"{_fmt(m['felt_within_2x'], '7.1%')} {danger:>6} {_fmt(m['rigid_shown_rigid'], '6.1%')} "
-              f"{_fmt(m['interval_level'], '6.0%')} "
-              f"{_fmt(m['interval_coverage'], '8.1%')} {_fmt(m['interval_width_decades_median'], '6.2f')} | "
-              f"{m['soft_n']:>6} {_fmt(m['soft_felt_log10_error'], '8.2f')} {_fmt(m['soft_felt_within_2x'], '7.1%')} "
-              f"{_fmt(m['soft_interval_coverage'], '8.1%')} {_fmt(m['soft_interval_width_decades_median'], '6.2f')}")
+        print(f"{method:<{width}} {m['n']:>4} {fmt_value(m['felt_log10_error'], '8.2f')} "
+              f"{fmt_value(m['felt_within_2x'], '7.1%')} {danger:>6} {fmt_value(m['rigid_shown_rigid'], '6.1%')} "
+              f"{fmt_value(m['interval_level'], '6.0%')} "
+              f"{fmt_value(m['interval_coverage'], '8.1%')} {fmt_value(m['interval_width_decades_median'], '6.2f')} | "
+              f"{m['soft_n']:>6} {fmt_value(m['soft_felt_log10_error'], '8.2f')} {fmt_value(m['soft_felt_within_2x'], '7.1%')} "
+              f"{fmt_value(m['soft_interval_coverage'], '8.1%')} {fmt_value(m['soft_interval_width_decades_median'], '6.2f')}")
     for method, m in result["methods"].items():
         if "answered_by" in m:
             print(f"{method} answered by: " + ", ".join(f"{k} {v}" for k, v in sorted(m["answered_by"].items())))

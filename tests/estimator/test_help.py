@@ -1,10 +1,13 @@
-"""The estimator's help texts state the intervals the model card states (every command's help is
-checked for Python values in tests/teleop/test_cli.py)."""
+"""The estimator's help texts state the intervals the model card states, and its dataset, training
+and evaluation commands describe themselves (every option's help of every command is checked in
+tests/teleop/test_cli.py)."""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+
+import pytest
 
 from teleop.clikit import _DefaultsHelpFormatter
 
@@ -18,3 +21,12 @@ def help_text(module: str) -> str:
 def test_estimate_states_the_model_cards_interval():
     text = " ".join(help_text("estimator.estimate_cli").split())
     assert "90 % for a learned model" in text and "95 %" in text
+
+
+@pytest.mark.parametrize("module", ["estimator.training.dataset_cli", "estimator.training.train_cli",
+                                    "estimator.training.finetune_cli", "estimator.evaluation.bench_cli",
+                                    "estimator.evaluation.evaluate_cli", "estimator.estimate_cli"])
+def test_the_command_has_a_description(module):
+    parser = argparse.ArgumentParser()
+    importlib.import_module(module).add_arguments(parser)
+    assert parser.description

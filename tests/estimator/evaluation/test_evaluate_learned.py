@@ -207,18 +207,6 @@ def test_estimate_without_model_uses_the_shipped_model(sim_grasps, capsys, missi
     assert out["state"] == direct.state and out["E_pa"] == pytest.approx(direct.e_pa)
 
 
-@pytest.mark.parametrize("module", ["estimator.evaluation.evaluate_cli", "estimator.estimate_cli"])
-def test_commands_explain_every_option(module):
-    import argparse
-    import importlib
-
-    parser = argparse.ArgumentParser()
-    importlib.import_module(module).add_arguments(parser)
-    assert parser.description
-    for action in parser._actions:
-        assert action.help, f"{module}: {action.option_strings or action.dest} has no help"
-
-
 def test_evaluate_prints_the_table_with_the_papers_figures(sim_grasps, trained_model, capsys):
     records, calibration = sim_grasps
     assert main(["evaluate", str(records), "--methods", "hertz", "hybrid", "--model", str(trained_model),
