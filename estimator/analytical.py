@@ -534,8 +534,6 @@ def split(
     if why := _falling_depth(approach, depth, noise):
         return Estimate.refuse(method, why)
     k_gel = gel_compliance_per_pa
-    eta = (gel_layer_factor(np.maximum(s["contact_radius_m"][ok], 0.0), gel_thickness_m=gel_thickness_m,
-                            gel_poisson=gel_poisson) if layered else np.ones(depth.shape))
     if bulk:
         _positive(method, initial_width_m=initial_width_m)
         bulk_per_pa = 3.0 * np.maximum(s["force_n"][ok], 0.0) / (math.pi * initial_width_m * factor)
@@ -544,6 +542,11 @@ def split(
     model = ("layered gel" if layered else "half-space gel") + (" + bulk" if bulk else "")
 
     def build() -> Estimate:
+        # Inside _safe: a radius far beyond any gel (a / h overflows) ends in a refusal, not a warning.
+        eta = (gel_layer_factor(np.maximum(s["contact_radius_m"][ok], 0.0), gel_thickness_m=gel_thickness_m,
+                                gel_poisson=gel_poisson) if layered else np.ones(depth.shape))
+        if not np.all(eta > 0):
+            return Estimate.refuse(method, "a contact radius is out of range for the gel layer (a / h overflows)")
         lever = depth / (eta * k_gel) + bulk_per_pa  # object displacement per unit k_object (Pa)
         gap = approach - depth
         sigma_gap = math.hypot(noise.approach_m, noise.depth_m)

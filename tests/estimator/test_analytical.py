@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -427,3 +428,13 @@ def test_split_recovers_e_from_a_layered_gel_with_bulk_compression(e_pa):
     assert est.state == "ok" and est.e_pa == pytest.approx(e_pa, rel=1e-6) and contains(est, e_pa)
     half_space = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
     assert not half_space or half_space.e_pa < e_pa / 3  # ignoring the layer and bulk: far too soft
+
+
+def test_split_refuses_quietly_a_radius_beyond_any_gel():
+    depth = np.linspace(0.1e-3, 0.8e-3, 8)
+    radius = np.full(8, 1e308)  # finite, but a / h overflows
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        est = split(depth * 2, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION,
+                    contact_radius_m=radius, gel_thickness_m=3e-3, gel_poisson=0.48)
+    assert not est and "out of range for the gel layer" in est.reason
