@@ -37,13 +37,10 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache, partial
 from pathlib import Path
 from typing import Any
-
-from tqdm import tqdm
 
 from estimator.analytical import METHODS
 from estimator.errors import ModelError
@@ -56,6 +53,7 @@ from estimator.measure import estimate_grasp, measure_grasp
 from estimator.measurements import TACTILE_METHODS, calibration_path
 from estimator.perception.calibration import Calibration, load_calibration
 from teleop.errors import RecordError
+from teleop.parallel import progress_map
 from teleop.record import Label, read_record
 from teleop.settings import Settings
 
@@ -291,12 +289,7 @@ def evaluate_records(
     work = partial(evaluate_record, settings=settings, methods=tuple(methods), calibration=calibration,
                    models=tuple(models), exclude=exclude, correct_camera_lag=correct_camera_lag,
                    correct_width_lag=correct_width_lag)
-    bar = partial(tqdm, total=len(paths), desc="evaluate", unit="grasp", disable=not progress)
-    if workers <= 1:
-        results = [work(p) for p in bar(paths)]
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            results = list(bar(pool.map(work, paths, chunksize=max(1, len(paths) // (8 * workers)))))
+    results = progress_map(work, paths, workers=workers, desc="evaluate", progress=progress)
     return [row for rows in results for row in rows]
 
 

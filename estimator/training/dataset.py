@@ -49,14 +49,12 @@ import time
 import zlib
 from collections import Counter, defaultdict
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from estimator.errors import EstimatorError, SampleError
 from estimator.inference.inputs import MEASUREMENT_VERSION, RIG_QUANTITIES
@@ -66,6 +64,7 @@ from estimator.measurements import calibration_path
 from estimator.settings import estimator_settings
 from estimator.training.samples import TrainingSample, save_sample
 from teleop.errors import RecordError
+from teleop.parallel import progress_map
 from teleop.record import GraspRecord, read_record
 from teleop.settings import SensorSettings, Settings
 
@@ -349,12 +348,7 @@ def _write(jobs: list[tuple[Path, int, str]], out: Path, *, settings: Settings, 
            fractions: Sequence[float], n_records: int, started: float) -> dict[str, Any]:
     """Write the samples, split and manifest of ``jobs`` into ``out``; return the manifest."""
     work = partial(_record_samples, settings=settings, options=options, out=out)
-    bar = partial(tqdm, total=len(jobs), desc="build-dataset", unit="grasp", disable=not progress)
-    if workers <= 1:
-        rows = [work(job) for job in bar(jobs)]
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            rows = list(bar(pool.map(work, jobs, chunksize=max(1, len(jobs) // (8 * workers)))))
+    rows = progress_map(work, jobs, workers=workers, desc="build-dataset", progress=progress)
     skipped = [_skipped_entry(s) for s in skipped] + [_skipped_entry(r) for r in rows if "skipped" in r]
     skipped.sort(key=lambda s: s["path"])
     if not any(r.get("samples") for r in rows):

@@ -37,15 +37,11 @@ import json
 import logging
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
-
-import cv2
-from tqdm import tqdm
 
 from teleop.catalogue import ObjectSpec, load_catalogue
 from teleop.errors import SettingsError, SimulationError
+from teleop.parallel import progress_map
 from teleop.record import write_record
 from teleop.settings import Settings, load_settings
 from teleop.sim.grasp import OPERATORS, simulate_grasp
@@ -151,10 +147,6 @@ def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bo
     return {"object": obj.name, "grasp": index, "path": str(path), "model": record.provenance.model}
 
 
-def _init_worker() -> None:
-    cv2.setNumThreads(1)  # one core per worker: OpenCV would otherwise spread over all of them
-
-
 def run(args: argparse.Namespace) -> int:
     if args.grasps_per_object < 1:
         raise SettingsError(f"--grasps-per-object {args.grasps_per_object}: expected 1 or more")
@@ -192,18 +184,7 @@ def run(args: argparse.Namespace) -> int:
     workers = min(args.workers, len(jobs))
 
     start = time.perf_counter()
-    results = []
-    with tqdm(total=len(jobs), unit="grasp", desc="simulate", file=sys.stderr) as bar:
-        if workers == 1:
-            _init_worker()
-            for job in jobs:
-                results.append(_simulate_one(job))
-                bar.update()
-        else:
-            with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_init_worker) as pool:
-                for result in pool.map(_simulate_one, jobs):
-                    results.append(result)
-                    bar.update()
+    results = progress_map(_simulate_one, jobs, workers=workers, desc="simulate", spawn=True)
     seconds = time.perf_counter() - start
 
     failed = [r for r in results if "error" in r]
