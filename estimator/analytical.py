@@ -61,10 +61,10 @@ __all__ = [
     "gel_layer_factor",
     "hertz",
     "no_tactile",
-    "split",
+    "series",
 ]
 
-METHODS = ("no_tactile", "elastic", "hertz", "split")
+METHODS = ("no_tactile", "elastic", "hertz", "series")
 def approach_per_finger(
     width_m: np.ndarray,
     force_n: np.ndarray,
@@ -86,7 +86,7 @@ def approach_per_finger(
 # --------------------------------------------------------------------------- helpers
 
 
-def _series(method: str, **arrays: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+def _frames(method: str, **arrays: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Arrays as float64 1-D of one length, and the mask of frames where all are finite."""
     out = {name: np.asarray(a, dtype=np.float64) for name, a in arrays.items()}
     lengths = {name: a.shape for name, a in out.items()}
@@ -220,7 +220,7 @@ def no_tactile(
     """
     method = "no_tactile"
     _positive(method, initial_width_m=initial_width_m, pad_area_m2=pad_area_m2)
-    s, ok = _series(method, force_n=force_n, approach_m=approach_m)
+    s, ok = _frames(method, force_n=force_n, approach_m=approach_m)
     if not ok.any():
         return Estimate.refuse(method, "no loading sample with finite force and width")
     force, approach = s["force_n"][ok], s["approach_m"][ok]
@@ -267,7 +267,7 @@ def elastic(
     """
     method = "elastic"
     _positive(method, initial_width_m=initial_width_m)
-    s, ok = _series(method, force_n=force_n, approach_m=approach_m, depth_m=depth_m, area_m2=area_m2)
+    s, ok = _frames(method, force_n=force_n, approach_m=approach_m, depth_m=depth_m, area_m2=area_m2)
     ok &= s["area_m2"] > 0
     if not ok.any():
         return Estimate.refuse(method, "no loading frame has a contact area above the threshold")
@@ -348,7 +348,7 @@ def hertz(
     method = "hertz"
     _positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
     factor = _poisson_factor(method, object_poisson)
-    s, ok = _series(method, force_n=force_n, approach_m=approach_m, depth_m=depth_m,
+    s, ok = _frames(method, force_n=force_n, approach_m=approach_m, depth_m=depth_m,
                     contact_radius_m=contact_radius_m)
     ok &= (s["force_n"] > 0) & (s["approach_m"] > 0) & (s["depth_m"] > 0) & (s["contact_radius_m"] > 0)
     if not ok.any():
@@ -463,7 +463,7 @@ def _layer_table(poisson: float) -> tuple[np.ndarray, np.ndarray]:
     return ratio, table
 
 
-def split(
+def series(
     approach_m: np.ndarray,
     depth_m: np.ndarray,
     *,
@@ -476,14 +476,15 @@ def split(
     force_n: np.ndarray | None = None,
     initial_width_m: float | None = None,
 ) -> Estimate:
-    """Compliance split: the gel's share of the approach at the first-contact point.
+    """Series compliance: the gel's share of the approach at the first-contact point.
 
-    Both bodies carry the same pressure, so at the first-contact point the
-    object's displacement is ``k_object / k_sensor`` times what the gel would
-    show if it were a half-space. The gel is a thin bonded layer, whose centre
-    compliance is ``eta(a/h) k_sensor`` (:func:`gel_layer_factor`, from the
-    measured contact radius ``a``; ``eta = 1`` when no radius or thickness is
-    given), so the per-finger approach is
+    The gel and the object are two compliances in series: both carry the same
+    pressure, so at the first-contact point the object's displacement is
+    ``k_object / k_sensor`` times what the gel would show if it were a
+    half-space. The gel is a thin bonded layer, whose centre compliance is
+    ``eta(a/h) k_sensor`` (:func:`gel_layer_factor`, from the measured contact
+    radius ``a``; ``eta = 1`` when no radius or thickness is given), so the
+    per-finger approach is
 
         delta = d + k_object * (d / (eta k_sensor) + b F),
 
@@ -519,13 +520,13 @@ def split(
     initial_width_m : float, optional
         Fingertip separation at onset (m), for the bulk compression.
     """
-    method = "split"
+    method = "series"
     _positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
     factor = _poisson_factor(method, object_poisson)
     n = np.size(approach_m)
     layered = contact_radius_m is not None and gel_thickness_m is not None and gel_poisson is not None
     bulk = force_n is not None and initial_width_m is not None
-    s, ok = _series(method, approach_m=approach_m, depth_m=depth_m,
+    s, ok = _frames(method, approach_m=approach_m, depth_m=depth_m,
                     contact_radius_m=contact_radius_m if layered else np.zeros(n),
                     force_n=force_n if bulk else np.zeros(n))
     if not ok.any():
@@ -555,15 +556,15 @@ def split(
             lever_hi = float(np.max(3.0 * noise.depth_m / (eta * k_gel) + bulk_per_pa))
             k_lo = (float(np.max(gap)) - 2.0 * sigma_gap) / lever_hi
             if not k_lo > 0:
-                return Estimate.refuse(method, f"compliance split ({model}): neither the gel nor the "
+                return Estimate.refuse(method, f"series compliance ({model}): neither the gel nor the "
                                                "object moves beyond the resolution")
             return _modulus(method, math.inf, k_lo, math.inf, factor=factor,
-                            basis=f"compliance split ({model}): the gel's indentation "
+                            basis=f"series compliance ({model}): the gel's indentation "
                                   f"{float(np.max(depth)) * 1e3:.3g} mm stays within its noise")
         origin = _auto_origin(depth.size)
         share = fit_line(approach, depth, np.full(depth.shape, sigma_gap), through_origin=origin)
         if share is not None and share.high <= 0:
-            return Estimate.refuse(method, f"compliance split ({model}): the gel's indentation does "
+            return Estimate.refuse(method, f"series compliance ({model}): the gel's indentation does "
                                            "not grow with the approach")
         first = fit_line(lever, gap, np.full(gap.shape, sigma_gap), through_origin=origin)
         if first is None:
@@ -575,8 +576,8 @@ def split(
         onset = np.full(gap.shape, noise.onset_approach_m)  # the approach's onset error, in every gap
         line = fit_line(lever, gap, sigma, through_origin=origin, systematic_y=(depth_scale, onset))
         if line is None:
-            return Estimate.refuse(method, "the split fit is undetermined")
-        basis = f"compliance split ({model}): " + line.describe("k_object")
+            return Estimate.refuse(method, "the series fit is undetermined")
+        basis = f"series compliance ({model}): " + line.describe("k_object")
         return _modulus(method, line.slope, line.low, line.high, factor=factor, basis=basis)
 
     return _safe(method, build)

@@ -45,7 +45,7 @@ class Estimate:
     Parameters
     ----------
     method : str
-        Which estimator produced it (``"split"``, ``"hertz"``, ...).
+        Which estimator produced it (``"series"``, ``"hertz"``, ...).
     e_pa : float or None
         The modulus in Pa (the bound's value for a bound; None for a refusal).
     interval_pa : (float or None, float or None)

@@ -30,13 +30,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("grasp", metavar="GRASP", help="grasp record (.grasp file)")
     parser.add_argument(
-        "--method", choices=ALL_METHODS, default="split",
+        "--method", choices=ALL_METHODS, default="series",
         help="no_tactile: Hooke on force and width only; elastic: stress F/A over strain with "
-             "measured contact area and depth; hertz: Hertz contact through MDR; split: the gel's "
+             "measured contact area and depth; hertz: Hertz contact through MDR; series: the gel's "
              "share of the approach at the first-contact point; hybrid: a trained model over sampled "
              "tactile frames, force, width and the analytical estimates; cnn: a model trained without "
              "the analytical estimates; auto: per grasp the cheapest answer whose expected error fits "
-             "(the split when its interval is narrow enough, else the model)",
+             "(the series fit when its interval is narrow enough, else the model)",
     )
     parser.add_argument(
         "--model", metavar="DIR", default=None,

@@ -198,7 +198,7 @@ def estimate_grasp(
     ----------
     source : GraspRecord or GraspMeasurements
         A record is measured first (frames decoded only for tactile methods).
-    method : {"no_tactile", "elastic", "hertz", "split"}
+    method : {"no_tactile", "elastic", "hertz", "series"}
     settings : Settings
     calibration : Calibration, path or None
         See :func:`measure_grasp`.

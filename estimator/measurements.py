@@ -43,7 +43,7 @@ __all__ = [
 ]
 
 #: The methods that read depth (the others need no tactile frame).
-TACTILE_METHODS = ("elastic", "hertz", "split")
+TACTILE_METHODS = ("elastic", "hertz", "series")
 # No-contact frames: those ending this long before the force onset, the last few of them.
 REFERENCE_GUARD_S = 0.1
 REFERENCE_FRAMES = 5
@@ -247,7 +247,7 @@ def measure_frame(frame: np.ndarray, reference: np.ndarray, calibration: Calibra
 
 
 #: Methods whose strain rests on the approach the gripper's widths give.
-APPROACH_METHODS = ("no_tactile", "elastic", "split")
+APPROACH_METHODS = ("no_tactile", "elastic", "series")
 
 
 def _run(m: GraspMeasurements, method: str) -> Estimate:
@@ -279,13 +279,13 @@ def _fit(m: GraspMeasurements, method: str) -> Estimate:
         return Estimate.refuse(method, m.tactile_reason or "tactile features were not measured")
     k_gel = m.sensor.gel_compliance_per_pa
     force, approach, f = _with_hold_point(m, f)
-    if method == "split":
+    if method == "series":
         width = onset_width if np.isfinite(onset_width) and onset_width > 0 else None
-        return analytical.split(approach, f.peak_depth_m, gel_compliance_per_pa=k_gel,
-                                object_poisson=m.object_poisson, noise=noise,
-                                contact_radius_m=f.cap_radius_m, gel_thickness_m=m.sensor.gel_thickness_m,
-                                gel_poisson=m.sensor.gel_poisson, force_n=force if width else None,
-                                initial_width_m=width)
+        return analytical.series(approach, f.peak_depth_m, gel_compliance_per_pa=k_gel,
+                                 object_poisson=m.object_poisson, noise=noise,
+                                 contact_radius_m=f.cap_radius_m, gel_thickness_m=m.sensor.gel_thickness_m,
+                                 gel_poisson=m.sensor.gel_poisson, force_n=force if width else None,
+                                 initial_width_m=width)
     if method == "hertz":
         return analytical.hertz(force, approach, f.peak_depth_m, f.cap_radius_m,
                                 gel_compliance_per_pa=k_gel, object_poisson=m.object_poisson,
@@ -331,7 +331,7 @@ def estimate_measurements(m: GraspMeasurements, method: str) -> Estimate:
     Parameters
     ----------
     m : GraspMeasurements
-    method : {"no_tactile", "elastic", "hertz", "split"}
+    method : {"no_tactile", "elastic", "hertz", "series"}
 
     Returns
     -------

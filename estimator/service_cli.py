@@ -52,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "'none' for analytical estimates only (default: [estimator] model_path of the "
                              "settings, else the shipped default model)")
     parser.add_argument("--mode", choices=("auto", "model"), default="auto",
-                        help="with a model: auto (the split when its interval is narrow, else the model) "
+                        help="with a model: auto (the series fit when its interval is narrow, else the model) "
                              "or model (always the model)")
     add_endpoint_arguments(parser, "robot_pub", "estimate_pub", "command", "control")
     parser.add_argument("--report", metavar="FILE", default=None,

@@ -19,7 +19,7 @@ __all__ = ["DEFAULT_METHODS", "EstimatorSettings", "configured_methods", "depth_
            "estimator_settings"]
 
 #: The analytical fits run when ``methods`` names none, in order of preference.
-DEFAULT_METHODS = ("split", "hertz", "elastic", "no_tactile")
+DEFAULT_METHODS = ("series", "hertz", "elastic", "no_tactile")
 
 
 def depth_binning_problem(binning: Any, sensor: SensorSettings | None = None, *,
@@ -62,6 +62,13 @@ class EstimatorSettings(Section):
     model_path: str = spec("", doc="ONNX model; empty means the shipped default")
     depth_binning: int = spec(2, lo=1, hi=16, doc="depth is measured on the finger's image grid averaged over "
                               "N x N px blocks (1: the full grid); a model is trained for one value")
+
+    def __post_init__(self) -> None:
+        # The series fit was "split" until the word was left to the dataset split: settings files and
+        # session logs from before the rename name it so.
+        if isinstance(self.methods, tuple) and "split" in self.methods:
+            object.__setattr__(self, "methods", tuple("series" if m == "split" else m for m in self.methods))
+        super().__post_init__()
 
     def resolved(self, settings: Settings) -> EstimatorSettings:
         """Checked against the estimating finger's sensor (its image grid divides by the binning)."""

@@ -279,7 +279,7 @@ class GraspStream:
     def warm_up(self) -> None:
         """Load and check the calibration, and fill the caches the first estimate would otherwise
         fill mid-grasp (about a second on 2 cores): the depth solver's and the feature fit's for
-        this image size, and the split method's gel-layer table for this gel."""
+        this image size, and the series method's gel-layer table for this gel."""
         flat = np.full((*self.grid.image_shape, 3), 128, dtype=np.uint8)
         depth = reconstruct_depth(flat, flat, self.calibration)
         contact_features(depth[None], pixel_pitch_m=self.grid.pixel_pitch_m,

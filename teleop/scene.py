@@ -21,7 +21,7 @@ __all__ = ["Scene", "load_scene", "scene_path"]
 SCENE_DIR = config_dir() / "scenes"
 _BACKENDS = {"gripper": ("sim", "franky"), "camera": ("sim", "opencv"),
              "load_cell": ("sim", "serial", "tcp"), "display": ("sim", "hid")}
-_METHODS = ("no_tactile", "elastic", "hertz", "split", "cnn", "hybrid", "auto")
+_METHODS = ("no_tactile", "elastic", "hertz", "series", "cnn", "hybrid", "auto")
 
 
 @dataclass(frozen=True)
@@ -84,7 +84,8 @@ def load_scene(name_or_path: str = "default") -> Scene:
         if value not in _BACKENDS[key]:
             raise SettingsError(f"{path}: backends.{key} = {value!r}: expected one of {_BACKENDS[key]}")
     estimator = data.get("estimator", {})
-    methods = tuple(estimator.get("methods", ("split",)))
+    # The series fit was "split" until the word was left to the dataset split: older scenes name it so.
+    methods = tuple("series" if m == "split" else m for m in estimator.get("methods", ("series",)))
     bad = [m for m in methods if m not in _METHODS]
     if bad or not methods:
         raise SettingsError(f"{path}: estimator.methods {bad or methods}: expected names from {_METHODS}")

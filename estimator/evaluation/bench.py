@@ -34,7 +34,7 @@ feels; the frontier's error), ``felt_within_2x`` the share within a factor 2,
 ``log10_error`` the paper's mean |log10 E_hat - log10 E| of the estimates that
 are not refusals (a bound counts with its value), ``within_10x`` the share
 within one decade, ``refusals`` the count of ``insufficient_data``; for ``auto``,
-``answered_by`` counts which branch answered each grasp (``model``, ``split``,
+``answered_by`` counts which branch answered each grasp (``model``, ``series``,
 ``no_tactile``, ...).
 A configuration is on the Pareto frontier (``pareto: true``) when no other is
 at least as fast, at least as accurate and refuses no more grasps, and better in

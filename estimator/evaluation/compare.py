@@ -8,7 +8,7 @@ which is better and by how much.
 
 Scoring
     Each model answers every kept grasp as the service would: ``auto`` (the hybrid's per-grasp
-    choice between the compliance split and the network; :class:`~estimator.inference.hybrid.HybridEstimator`)
+    choice between the series-compliance fit and the network; :class:`~estimator.inference.hybrid.HybridEstimator`)
     by default, or with ``mode="model"`` the network alone. Per model the figures are those of
     ``estimator evaluate`` (:func:`~estimator.evaluation.metrics.summarise`: felt error, share within a
     factor 2, dangerous misses, rigid objects rendered rigid, interval level, coverage and width,

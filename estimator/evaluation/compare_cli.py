@@ -50,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration", metavar="CAL", default=None,
                         help="calibration (.npz) for every record; default: the file each record's sensor names")
     parser.add_argument("--mode", choices=MODES, default="auto",
-                        help="auto: answer as the service does (the compliance split where its interval is "
+                        help="auto: answer as the service does (the series-compliance fit where its interval is "
                              "narrow, else the network); model: the network alone")
     parser.add_argument("--workers", type=int, default=1, help="worker processes")
     parser.add_argument("--json", action="store_true",

@@ -180,7 +180,7 @@ def result_row(path: str | Path, label: Label, method: str, estimate: Estimate) 
 
 
 def answered_by(rows: Iterable[dict[str, Any]], method: str) -> dict[str, int]:
-    """For an ``auto`` method: how many grasps each branch answered (``model``, ``split``, ...,
+    """For an ``auto`` method: how many grasps each branch answered (``model``, ``series``, ...,
     ``refused``), read from the reason :class:`HybridEstimator` gives."""
     return dict(Counter("refused" if r["state"] == "insufficient_data" else r["reason"].split(":")[0]
                         for r in rows if r.get("method") == method))
@@ -237,7 +237,7 @@ def evaluate_record(
 # Physical limits of Young's modulus, for the point value of a bound (see the module docstring).
 def ablation_order(name: str, models: Sequence[ModelMethod] = ()) -> tuple:
     """Sort key of a method in the paper's ablation table: no tactile, elastic, Hertz, the
-    compliance split, the CNN alone, the hybrid, then ``auto``; within a learned method RGB
+    series-compliance fit, the CNN alone, the hybrid, then ``auto``; within a learned method RGB
     before depth, with markers before without, with force and width before without."""
     entry = next((e for e in models if e.name == name), None)
     if entry is None:

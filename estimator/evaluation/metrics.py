@@ -126,7 +126,7 @@ PAPER: dict[str, dict[str, float] | None] = {
     "no_tactile": {"log10_error": 2.13, "within_10x": 0.182},
     "elastic": {"log10_error": 1.90, "within_10x": 0.273},
     "hertz": {"log10_error": 1.68, "within_10x": 0.289},
-    "split": None,
+    "series": None,
     "hybrid[rgb+markers+fw+analytical]": {"log10_error": 0.76, "within_10x": 0.735},
     "hybrid[rgb+markers+analytical]": {"log10_error": 0.76, "within_10x": 0.742},
     "hybrid[rgb+fw+analytical]": {"log10_error": 0.88, "within_10x": 0.686},

@@ -40,18 +40,18 @@ Per grasp, the cheapest answer whose expected error fits the budget:
 
 1. The grasp cannot be sampled (no usable loading frame): the force/width-only
    ``no_tactile`` fit, which needs no frame.
-2. The compliance split is ``ok`` with an interval at most
-   ``AutoPolicy.max_split_interval_decades`` wide, over at least
-   ``MIN_SPLIT_FRAMES`` distinct frames: that estimate, and the network is
+2. The series-compliance fit is ``ok`` with an interval at most
+   ``AutoPolicy.max_series_interval_decades`` wide, over at least
+   ``MIN_SERIES_FRAMES`` distinct frames: that estimate, and the network is
    skipped. (A fit through fewer points has no scatter to show how far the
    contact model misses: its interval is the measurement resolution alone.)
    The threshold is chosen in training on the validation objects (the widest
-   threshold at which the split's mean error on the grasps it accepts is no
+   threshold at which the series fit's mean error on the grasps it accepts is no
    worse than the model's on the same grasps; ``metadata.json`` ``auto``),
    default 0.5 decade.
 3. Otherwise the model. If the model fails or refuses the grasp (its sensor's grid
    outside the model's range), the first analytical estimate that is not a refusal, in
-   the order split, hertz, elastic, no_tactile.
+   the order series, hertz, elastic, no_tactile.
 
 The result's method is ``"auto"`` and its reason says which branch answered.
 """
@@ -85,16 +85,16 @@ from estimator.stream import GraspStream
 from teleop.record import GraspRecord
 from teleop.settings import Settings
 
-__all__ = ["ALL_METHODS", "FALLBACK_ORDER", "LEARNED_METHODS", "MIN_SPLIT_FRAMES", "MODES", "RIG_WIDENING", "AutoPolicy", "HybridEstimator", "rig_notes"]
+__all__ = ["ALL_METHODS", "FALLBACK_ORDER", "LEARNED_METHODS", "MIN_SERIES_FRAMES", "MODES", "RIG_WIDENING", "AutoPolicy", "HybridEstimator", "rig_notes"]
 
 #: The learned methods: a model's own (``hybrid``, with analytical inputs; ``cnn``, without) and ``auto``.
 LEARNED_METHODS = ("cnn", "hybrid", "auto")
 #: Every method an estimate can be asked for: the analytical fits, then the learned ones.
 ALL_METHODS = (*METHODS, *LEARNED_METHODS)
 MODES = ("model", "auto")
-MIN_SPLIT_FRAMES = 3
-FALLBACK_ORDER = ("split", "hertz", "elastic", "no_tactile")
-DEFAULT_SPLIT_INTERVAL_DECADES = 0.5
+MIN_SERIES_FRAMES = 3
+FALLBACK_ORDER = ("series", "hertz", "elastic", "no_tactile")
+DEFAULT_SERIES_INTERVAL_DECADES = 0.5
 #: Factor on the interval of a grasp whose rig lies outside the trained ones (as the window's widening).
 RIG_WIDENING = 1.5
 # How a reason names each of inputs.RIG_QUANTITIES: label, factor from SI, unit.
@@ -123,31 +123,31 @@ def interval_decades(estimate: Estimate) -> float:
 
 @dataclass(frozen=True)
 class AutoPolicy:
-    """When ``auto`` answers with the compliance split instead of the model.
+    """When ``auto`` answers with the series-compliance fit instead of the model.
 
     Attributes
     ----------
-    max_split_interval_decades : float
-        A split estimate in state ``ok`` whose interval is at most this many
+    max_series_interval_decades : float
+        A series estimate in state ``ok`` whose interval is at most this many
         decades wide is returned as is; 0 never skips the model.
     """
 
-    max_split_interval_decades: float = DEFAULT_SPLIT_INTERVAL_DECADES
+    max_series_interval_decades: float = DEFAULT_SERIES_INTERVAL_DECADES
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.max_split_interval_decades) and self.max_split_interval_decades >= 0):
-            raise ModelError(f"max_split_interval_decades {self.max_split_interval_decades!r}: expected >= 0")
+        if not (math.isfinite(self.max_series_interval_decades) and self.max_series_interval_decades >= 0):
+            raise ModelError(f"max_series_interval_decades {self.max_series_interval_decades!r}: expected >= 0")
 
     @classmethod
     def from_metadata(cls, metadata: Mapping[str, Any]) -> AutoPolicy:
         """The policy chosen in training (``metadata["auto"]``), else the default."""
         auto = metadata.get("auto") or {}
-        return cls(float(auto.get("max_split_interval_decades", DEFAULT_SPLIT_INTERVAL_DECADES)))
+        return cls(float(auto.get("max_series_interval_decades", DEFAULT_SERIES_INTERVAL_DECADES)))
 
-    def accepts(self, split: Estimate | None, frames: int) -> bool:
-        """Whether ``split``, fitted over ``frames`` distinct frames, answers instead of the model."""
-        return (split is not None and split.state == "ok" and frames >= MIN_SPLIT_FRAMES
-                and interval_decades(split) <= self.max_split_interval_decades)
+    def accepts(self, series: Estimate | None, frames: int) -> bool:
+        """Whether ``series``, fitted over ``frames`` distinct frames, answers instead of the model."""
+        return (series is not None and series.state == "ok" and frames >= MIN_SERIES_FRAMES
+                and interval_decades(series) <= self.max_series_interval_decades)
 
 
 class HybridEstimator:
@@ -266,10 +266,10 @@ class HybridEstimator:
         if not sampled:
             return Estimate.refuse(method, sampled.reason)
         by_method = {e.method: e for e in sampled.estimates}
-        split = by_method.get("split")
-        if mode == "auto" and self.policy.accepts(split, distinct_frames(sampled.force_n)):
-            return _as("auto", split, f"split interval {interval_decades(split):.2f} <= "
-                                      f"{self.policy.max_split_interval_decades:g} decades, model skipped")
+        series = by_method.get("series")
+        if mode == "auto" and self.policy.accepts(series, distinct_frames(sampled.force_n)):
+            return _as("auto", series, f"series interval {interval_decades(series):.2f} <= "
+                                       f"{self.policy.max_series_interval_decades:g} decades, model skipped")
         fit = sampled_input_range(sampled, self.predictor.variant)
         if not fit:
             return _without_model(method, mode, by_method, f"the model does not apply to this sensor: {fit.refusal}")

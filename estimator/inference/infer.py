@@ -44,6 +44,7 @@ the pair it runs even while the files are being replaced.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import itertools
 import json
@@ -232,6 +233,7 @@ class ModelMetadata:
         """Check ``data`` (parsed JSON) and build the metadata; ModelError names ``source``."""
         if not isinstance(data, dict) or data.get("format") != MODEL_FORMAT:
             raise ModelError(f"{source}: not a {MODEL_FORMAT} metadata file")
+        data = _series_renamed(data)
         if data.get("version") != MODEL_VERSION:
             raise ModelError(f"{source}: metadata version {data.get('version')!r}, this software reads "
                              f"{MODEL_VERSION}; retrain the model (`make model`)")
@@ -271,6 +273,39 @@ class ModelMetadata:
                    interval_level=values["level"], floor_methods=floor_methods, floor_leak=floor_leak,
                    force_band_edges_n=edges, interval_scales=scales,
                    soft_pa=values["soft_pa"], raw=data)
+
+
+def _series_renamed(data: dict[str, Any]) -> dict[str, Any]:
+    """A copy of a model's metadata with the series fit's old name, ``split``, replaced where it
+    names the method: in the method lists, the per-method metrics and ``auto``'s fields."""
+    # The series fit was called "split" until the word was left to the dataset split alone: a model
+    # trained before the rename still loads, and answers as it did.
+    data = copy.deepcopy(data)
+
+    def at(*path: str) -> Any:
+        node: Any = data
+        for key in path:
+            node = node.get(key) if isinstance(node, dict) else None
+        return node
+
+    def rekeyed(mapping: dict[str, Any], old: str, new: str) -> dict[str, Any]:
+        return {new if key == old else key: value for key, value in mapping.items()}
+
+    for path, key in ((("scales",), "analytical_methods"), (("calibration", "floor"), "methods"),
+                      (("recalibrated", "previous", "floor"), "methods")):
+        holder = at(*path)
+        if isinstance(holder, dict) and isinstance(holder.get(key), list):
+            holder[key] = ["series" if m == "split" else m for m in holder[key]]
+    metrics = at("metrics")
+    for part, figures in metrics.items() if isinstance(metrics, dict) else ():
+        if isinstance(figures, dict):
+            metrics[part] = rekeyed(figures, "split", "series")
+    if isinstance(at("auto"), dict):
+        auto = data["auto"] = rekeyed(data["auto"], "max_split_interval_decades", "max_series_interval_decades")
+        if isinstance(auto.get("table"), list):
+            auto["table"] = [rekeyed(row, "split_log10_error", "series_log10_error") if isinstance(row, dict)
+                             else row for row in auto["table"]]
+    return data
 
 
 def force_bands(calibration: Mapping[str, Any]) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:

@@ -114,8 +114,8 @@ RIG_QUANTITIES = ("gel_modulus_pa", "gel_thickness_m", "finger_stiffness_n_per_m
 ANALYTICAL_METHODS = METHODS
 #: The analytical methods whose lower bounds a hybrid model takes as a floor on its distribution
 #: (:func:`analytical_floor`): on the shipped models' validation grasps they held for 99.2 % (no_tactile,
-#: 390 bounds) and 99.7 % (split, 796); the elastic fit's for 91 %.
-FLOOR_METHODS = ("no_tactile", "split")
+#: 390 bounds) and 99.7 % (series, 796); the elastic fit's for 91 %.
+FLOOR_METHODS = ("no_tactile", "series")
 FEATURES_PER_METHOD = 2 + len(STATES)
 FORCE_SCALE_N = 30.0
 WIDTH_SCALE_M = 0.08

@@ -36,6 +36,7 @@ float images barely compress, and training reads them often) and read with
     frames: method name, state, reason, and ``(e_pa, low_pa, high_pa)`` with NaN where
     the estimate has None (an open interval side, or a refusal). These NaNs are the
     file's encoding of None; in memory the estimates are checked ``Estimate`` objects.
+    A sample written before the series fit's rename names it ``split``: it is read as ``series``.
 
 Images and depth maps may have any size H x W: the published dataset's are the
 sensor's 250 x 350 grid, ``estimator build-dataset`` stores them reduced (its
@@ -252,6 +253,8 @@ def _estimates_from(path: Path, members: dict[str, np.ndarray]) -> tuple[Estimat
     estimates = []
     for method, state, reason, row in zip(*text, values, strict=True):
         e_pa, low, high = (None if np.isnan(v) else float(v) for v in row)
+        # Datasets built before the rename name the series fit "split": they still train and calibrate.
+        method = "series" if method == "split" else method
         try:
             estimates.append(Estimate(str(method), e_pa, (low, high), str(state), str(reason)))
         except FitError as exc:

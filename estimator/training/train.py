@@ -58,7 +58,7 @@ from estimator.errors import EstimatorError, SampleError
 from estimator.evaluation.metrics import summarise
 from estimator.inference import distribution
 from estimator.inference.distribution import censor, probabilities, quantile
-from estimator.inference.hybrid import MIN_SPLIT_FRAMES, interval_decades
+from estimator.inference.hybrid import MIN_SERIES_FRAMES, interval_decades
 from estimator.inference.infer import MODEL_FORMAT, MODEL_VERSION, current_scales
 from estimator.inference.inputs import (
     ANALYTICAL_METHODS,
@@ -303,28 +303,28 @@ def split_metrics(data: SplitData, logits: np.ndarray, method: str, calibration:
 
 
 def auto_policy(data: SplitData, logits: np.ndarray) -> dict[str, Any]:
-    """``auto``'s split threshold: the widest interval at which the split, on the validation grasps
-    it would answer (``ok`` over at least ``MIN_SPLIT_FRAMES`` frames), errs no more on average than
+    """``auto``'s series threshold: the widest interval at which the series fit, on the validation grasps
+    it would answer (``ok`` over at least ``MIN_SERIES_FRAMES`` frames), errs no more on average than
     the model on those grasps (0: never)."""
     truth = np.log10([r["truth_pa"] for r in data.rows])
     model_error = np.abs(quantile(probabilities(logits), 0.5) - np.log10([r["gel_scale"] for r in data.rows]) - truth)
-    split = [next((e for e in r["estimates"] if e.method == "split"), None) for r in data.rows]
-    ok = np.array([e is not None and e.state == "ok" and r["frames"] >= MIN_SPLIT_FRAMES
-                   for e, r in zip(split, data.rows, strict=True)])
-    width = np.array([interval_decades(e) if o else np.inf for e, o in zip(split, ok, strict=True)])
-    split_error = np.array([abs(math.log10(e.e_pa) - t) if o else np.inf for e, o, t in zip(split, ok, truth,
-                                                                                           strict=True)])
+    series = [next((e for e in r["estimates"] if e.method == "series"), None) for r in data.rows]
+    ok = np.array([e is not None and e.state == "ok" and r["frames"] >= MIN_SERIES_FRAMES
+                   for e, r in zip(series, data.rows, strict=True)])
+    width = np.array([interval_decades(e) if o else np.inf for e, o in zip(series, ok, strict=True)])
+    series_error = np.array([abs(math.log10(e.e_pa) - t) if o else np.inf for e, o, t in zip(series, ok, truth,
+                                                                                             strict=True)])
     table, chosen = [], 0.0
     for threshold in AUTO_THRESHOLDS_DECADES:
         taken = width <= threshold
         n = int(taken.sum())
         entry = {"max_interval_decades": threshold, "n": n, "share": n / len(data.rows),
-                 "split_log10_error": float(split_error[taken].mean()) if n else None,
+                 "series_log10_error": float(series_error[taken].mean()) if n else None,
                  "model_log10_error": float(model_error[taken].mean()) if n else None}
         table.append(entry)
-        if n and entry["split_log10_error"] <= entry["model_log10_error"]:
+        if n and entry["series_log10_error"] <= entry["model_log10_error"]:
             chosen = threshold
-    return {"max_split_interval_decades": chosen, "chosen_on": "val", "table": table}
+    return {"max_series_interval_decades": chosen, "chosen_on": "val", "table": table}
 
 
 def _plot(fitted: Fitted, path: Path) -> None:

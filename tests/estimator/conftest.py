@@ -36,7 +36,7 @@ OBJECTS = {
 
 def synthetic_sample(name: str, grasp: int, augmentation: int, *, rng: np.random.Generator,
                      markers: bool = False, size: tuple[int, int] = SIZE) -> TrainingSample:
-    """A sample whose contact depth and split estimate carry its modulus (so a model can learn it)."""
+    """A sample whose contact depth and series estimate carry its modulus (so a model can learn it)."""
     material, modulus = OBJECTS[name]
     stiffness = (np.log10(modulus) - 3.0) / 9.0  # 0 soft .. 1 rigid
     rows, cols = np.indices(size)
@@ -44,9 +44,9 @@ def synthetic_sample(name: str, grasp: int, augmentation: int, *, rng: np.random
     ramp = np.linspace(0.3, 1.0, N_FRAMES)[:, None, None]
     depth = (ramp * blob * 1e-3 * (0.2 + stiffness) + rng.normal(0, 2e-5, (N_FRAMES, *size))).astype(np.float32)
     rgb = (depth[..., None] * np.array([40e3, -20e3, 10e3])).astype(np.float32)
-    e_split = modulus * 10 ** rng.normal(0, 0.3)
+    e_series = modulus * 10 ** rng.normal(0, 0.3)
     estimates = (
-        Estimate.ok("split", e_split, e_split / 2, e_split * 2, "synthetic"),
+        Estimate.ok("series", e_series, e_series / 2, e_series * 2, "synthetic"),
         Estimate.at_least("hertz", 1e6, "synthetic bound") if stiffness > 0.5 else Estimate.refuse("hertz", "none"),
         Estimate.refuse("elastic", "synthetic refusal"),
         Estimate.at_most("no_tactile", 5e5, "synthetic bound"),

@@ -17,7 +17,7 @@ from estimator.analytical import (
     gel_layer_factor,
     hertz,
     no_tactile,
-    split,
+    series,
 )
 from estimator.errors import FitError
 from estimator.linefit import MeasurementNoise, fit_line
@@ -47,7 +47,7 @@ def hertz_series(e_pa, *, radius_m=10e-3, f_max=30.0, n=12):
     return force, approach, depth, a
 
 
-def split_series(e_pa, *, approach_max_m=2e-3, n=12):
+def series_loading(e_pa, *, approach_max_m=2e-3, n=12):
     approach = np.linspace(approach_max_m, 0.1e-3, n)[::-1]
     return approach, K_GEL / (K_GEL + k_object(e_pa)) * approach
 
@@ -79,9 +79,9 @@ def check_sound(est):
 
 
 @pytest.mark.parametrize("e_pa", [FOAM, 5e4, 3e5, 1e6, 5e6])
-def test_split_recovers_e_from_an_exact_ratio_series(e_pa):
-    approach, depth = split_series(e_pa, approach_max_m=10e-3)
-    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+def test_series_recovers_e_from_an_exact_ratio_series(e_pa):
+    approach, depth = series_loading(e_pa, approach_max_m=10e-3)
+    est = series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
     assert est.state == "ok"
     assert est.e_pa == pytest.approx(e_pa, rel=1e-9)
     assert contains(est, e_pa)
@@ -137,8 +137,8 @@ def test_the_paper_quarter_pi_slip_is_not_reproduced():
 
 
 def test_steel_is_a_lower_bound_for_every_method():
-    approach, depth = split_series(STEEL)
-    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    approach, depth = series_loading(STEEL)
+    est = series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
     assert est.state == "lower_bound" and est.interval_pa[1] is None and contains(est, STEEL)
     assert 1e6 < est.e_pa < STEEL  # bounded at the depth resolution, far below the truth
 
@@ -155,9 +155,9 @@ def test_steel_is_a_lower_bound_for_every_method():
 
 
 def test_lower_bound_rises_as_the_resolution_improves():
-    approach, depth = split_series(STEEL)
+    approach, depth = series_loading(STEEL)
     bounds = [
-        split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU,
+        series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU,
               noise=MeasurementNoise(depth_m=res)).e_pa
         for res in (1e-4, 2e-5, 2e-6)
     ]
@@ -172,14 +172,14 @@ def test_e_star_above_the_gel_gives_a_bound_not_a_negative_modulus():
 
 
 def test_gel_deeper_than_the_approach_is_a_bound():
-    approach, _ = split_series(STEEL)
-    est = split(approach, approach * 1.3, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    approach, _ = series_loading(STEEL)
+    est = series(approach, approach * 1.3, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
     assert est.state == "lower_bound" and math.isfinite(est.e_pa)
 
 
 def test_foam_at_5_kpa_is_estimated():
-    approach, depth = split_series(FOAM, approach_max_m=10e-3)
-    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY)
+    approach, depth = series_loading(FOAM, approach_max_m=10e-3)
+    est = series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY)
     assert est.state == "ok" and contains(est, FOAM)
     force, approach, depth, a = hertz_series(FOAM, radius_m=5e-3, f_max=2.0)
     est = hertz(force, approach, depth, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY)
@@ -187,8 +187,8 @@ def test_foam_at_5_kpa_is_estimated():
 
 
 def test_gel_that_barely_moves_gives_an_upper_bound():
-    approach, depth = split_series(50.0, approach_max_m=10e-3)  # 50 Pa: d/delta ~ 1.7e-4
-    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    approach, depth = series_loading(50.0, approach_max_m=10e-3)  # 50 Pa: d/delta ~ 1.7e-4
+    est = series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
     assert est.state == "upper_bound" and est.interval_pa[0] is None and contains(est, 50.0)
 
 
@@ -197,7 +197,7 @@ def test_depth_falling_while_closing_is_refused():
     force, approach, depth, a = hertz_series(1e6)
     falling = depth[::-1]
     for est in (
-        split(approach, falling, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION),
+        series(approach, falling, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION),
         hertz(force, approach, falling, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION),
         elastic(force, approach, falling, a**2 * np.pi, initial_width_m=W0, noise=RESOLUTION),
     ):
@@ -207,7 +207,7 @@ def test_depth_falling_while_closing_is_refused():
 def test_depth_sinking_slowly_while_closing_is_refused():
     approach = np.linspace(0.1e-3, 2e-3, 40)
     depth = 0.5e-3 - 0.02 * approach  # falls by 38 um in all: within the noise frame to frame
-    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    est = series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
     assert not est and "does not grow" in est.reason
 
 
@@ -215,8 +215,8 @@ def test_depth_sinking_slowly_while_closing_is_refused():
 
 
 def test_one_frame_only():
-    approach, depth = split_series(1e6, n=1)
-    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    approach, depth = series_loading(1e6, n=1)
+    est = series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
     assert est.state == "ok" and contains(est, 1e6) and "resolution only" in est.reason
     force, approach, depth, a = hertz_series(1e6, n=1)
     est = hertz(force, approach, depth, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
@@ -228,21 +228,21 @@ def test_one_frame_only():
 
 def test_air_grasp_is_refused():
     zeros = np.zeros(5)
-    assert not split(zeros, zeros, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    assert not series(zeros, zeros, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
     assert not hertz(zeros, zeros, zeros, zeros, gel_compliance_per_pa=K_GEL, object_poisson=NU)
     assert not elastic(zeros, zeros, zeros, zeros, initial_width_m=W0)
     assert not no_tactile(zeros, zeros, initial_width_m=W0, pad_area_m2=PAD_AREA)
     empty = np.zeros(0)
-    assert "no loading" in split(empty, empty, gel_compliance_per_pa=K_GEL, object_poisson=NU).reason
+    assert "no loading" in series(empty, empty, gel_compliance_per_pa=K_GEL, object_poisson=NU).reason
 
 
 def test_nan_frames_are_skipped():
-    approach, depth = split_series(1e6)
+    approach, depth = series_loading(1e6)
     depth = depth.copy()
     depth[[2, 5]] = np.nan
-    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    est = series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
     assert est.state == "ok" and est.e_pa == pytest.approx(1e6, rel=1e-9)
-    est = split(approach, np.full(12, np.nan), gel_compliance_per_pa=K_GEL, object_poisson=NU)
+    est = series(approach, np.full(12, np.nan), gel_compliance_per_pa=K_GEL, object_poisson=NU)
     assert not est
 
 
@@ -255,10 +255,10 @@ def test_non_monotonic_loading_keeps_a_sound_estimate():
 
 
 def test_mismatched_series_are_refused_naming_the_method():
-    with pytest.raises(FitError, match="split"):
-        split(np.zeros(3), np.zeros(4), gel_compliance_per_pa=K_GEL, object_poisson=NU)
+    with pytest.raises(FitError, match="series"):
+        series(np.zeros(3), np.zeros(4), gel_compliance_per_pa=K_GEL, object_poisson=NU)
     with pytest.raises(FitError, match="object_poisson"):
-        split(np.zeros(3), np.zeros(3), gel_compliance_per_pa=K_GEL, object_poisson=0.7)
+        series(np.zeros(3), np.zeros(3), gel_compliance_per_pa=K_GEL, object_poisson=0.7)
     with pytest.raises(FitError, match="initial_width_m"):
         no_tactile(np.zeros(3), np.zeros(3), initial_width_m=-1.0, pad_area_m2=1.0)
 
@@ -297,8 +297,8 @@ def test_needle_thin_contact():
                 noise=RESOLUTION)
     check_sound(est)
     assert contains(est, 1e6)
-    approach, depth = split_series(1e6)
-    assert contains(split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION), 1e6)
+    approach, depth = series_loading(1e6)
+    assert contains(series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION), 1e6)
 
 
 # --------------------------------------------------------------------------- noise: coverage
@@ -314,15 +314,15 @@ def coverage(make, trials=200):
 
 
 def test_width_jitter_intervals_cover_the_truth():
-    approach, depth = split_series(1e6)
-    share = coverage(lambda rng: split(approach + rng.normal(0, 1e-5, 12), depth,
+    approach, depth = series_loading(1e6)
+    share = coverage(lambda rng: series(approach + rng.normal(0, 1e-5, 12), depth,
                                        gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY))
     assert share >= 0.9
 
 
 def test_depth_noise_at_the_resolution_limit_intervals_cover_the_truth():
-    approach, depth = split_series(1e6)
-    share = coverage(lambda rng: split(approach, depth + rng.normal(0, 2e-5, 12),
+    approach, depth = series_loading(1e6)
+    share = coverage(lambda rng: series(approach, depth + rng.normal(0, 2e-5, 12),
                                        gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY))
     assert share >= 0.9
     force, approach, depth, a = hertz_series(1e6)
@@ -334,8 +334,8 @@ def test_depth_noise_at_the_resolution_limit_intervals_cover_the_truth():
 def test_intervals_narrow_with_more_frames():
     widths = []
     for n in (3, 30):
-        approach, depth = split_series(1e6, n=n)
-        est = split(approach, depth + np.random.default_rng(0).normal(0, 2e-5, n),
+        approach, depth = series_loading(1e6, n=n)
+        est = series(approach, depth + np.random.default_rng(0).normal(0, 2e-5, n),
                     gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY)
         widths.append(math.log(est.interval_pa[1] / est.interval_pa[0]))
     assert widths[1] < widths[0]
@@ -362,7 +362,7 @@ def test_fit_line_interval_from_resolution_only_when_exact():
 
 # --------------------------------------------------------------------------- properties
 
-series = hnp.arrays(np.float64, st.integers(0, 8), elements=st.floats(allow_nan=True, allow_infinity=True))
+any_series = hnp.arrays(np.float64, st.integers(0, 8), elements=st.floats(allow_nan=True, allow_infinity=True))
 
 
 def same_length(*arrays):
@@ -371,10 +371,10 @@ def same_length(*arrays):
 
 
 @settings(max_examples=150, deadline=None)
-@given(series, series, series, series, st.sampled_from([NOISY, RESOLUTION, MeasurementNoise()]))
+@given(any_series, any_series, any_series, any_series, st.sampled_from([NOISY, RESOLUTION, MeasurementNoise()]))
 def test_any_series_gives_a_sound_estimate(f, approach, depth, size, noise):
     f, approach, depth, size = same_length(f, approach, depth, size)
-    check_sound(split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=noise))
+    check_sound(series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=noise))
     check_sound(hertz(f, approach, depth, size, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=noise))
     check_sound(elastic(f, approach, depth, size, initial_width_m=W0, noise=noise))
     check_sound(no_tactile(f, approach, initial_width_m=W0, pad_area_m2=PAD_AREA, noise=noise))
@@ -382,9 +382,9 @@ def test_any_series_gives_a_sound_estimate(f, approach, depth, size, noise):
 
 @settings(max_examples=100, deadline=None)
 @given(st.floats(1e2, 1e12), st.integers(1, 20), st.floats(0.2e-3, 20e-3))
-def test_exact_split_series_are_always_sound(e_pa, n, approach_max):
-    approach, depth = split_series(e_pa, n=n, approach_max_m=approach_max)
-    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+def test_exact_series_loadings_are_always_sound(e_pa, n, approach_max):
+    approach, depth = series_loading(e_pa, n=n, approach_max_m=approach_max)
+    est = series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
     check_sound(est)
     assert est and contains(est, e_pa)
 
@@ -414,7 +414,7 @@ def test_gel_layer_factor_is_a_half_space_for_small_contacts_and_stiffens_for_wi
 
 
 @pytest.mark.parametrize("e_pa", [3e4, 3e5, 3e6])
-def test_split_recovers_e_from_a_layered_gel_with_bulk_compression(e_pa):
+def test_series_recovers_e_from_a_layered_gel_with_bulk_compression(e_pa):
     h, w0, nu_gel = 3e-3, 0.03, 0.48
     radius = np.linspace(1e-3, 6e-3, 8)
     force = np.linspace(2.0, 20.0, 8)
@@ -422,11 +422,11 @@ def test_split_recovers_e_from_a_layered_gel_with_bulk_compression(e_pa):
     depth = np.linspace(0.1e-3, 0.8e-3, 8)
     bulk = force * w0 / (e_pa * math.pi * w0**2 / 6) / 2
     approach = depth + k_object(e_pa) * depth / (eta * K_GEL) + bulk
-    est = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION,
+    est = series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION,
                 contact_radius_m=radius, gel_thickness_m=h, gel_poisson=nu_gel, force_n=force,
                 initial_width_m=w0)
     assert est.state == "ok" and est.e_pa == pytest.approx(e_pa, rel=1e-6) and contains(est, e_pa)
-    half_space = split(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
+    half_space = series(approach, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION)
     assert not half_space or half_space.e_pa < e_pa / 3  # ignoring the layer and bulk: far too soft
 
 

@@ -14,18 +14,18 @@ from estimator.estimate import Estimate
 
 
 def test_ok_estimate_round_trips_to_json():
-    est = Estimate.ok("split", 2.0e6, 1.5e6, 3.0e6, "fit").with_latency(0.012)
+    est = Estimate.ok("series", 2.0e6, 1.5e6, 3.0e6, "fit").with_latency(0.012)
     assert est
     data = json.loads(json.dumps(est.to_json()))
     assert data == {
-        "method": "split", "E_pa": 2.0e6, "interval_pa": [1.5e6, 3.0e6], "state": "ok",
+        "method": "series", "E_pa": 2.0e6, "interval_pa": [1.5e6, 3.0e6], "state": "ok",
         "reason": "fit", "latency_ms": pytest.approx(12.0),
     }
 
 
 def test_bounds_have_one_open_side_and_carry_the_bound():
     low = Estimate.at_least("hertz", 5e7, "rigid")
-    high = Estimate.at_most("split", 1e3, "soft")
+    high = Estimate.at_most("series", 1e3, "soft")
     assert low.to_json()["interval_pa"] == [5e7, None] and low.e_pa == 5e7
     assert high.to_json()["interval_pa"] == [None, 1e3] and high.e_pa == 1e3
     assert low and high

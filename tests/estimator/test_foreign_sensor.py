@@ -148,7 +148,7 @@ def test_the_calibration_the_record_names_is_the_one_read(lab, tmp_path, capsys)
     (tmp_path / "records").mkdir()
     write_record(dataclasses.replace(record, sensors=sensors), tmp_path / "records" / "r.grasp")
     assert main(["evaluate", str(tmp_path / "records"), "--settings", str(lab["settings"]),
-                 "--methods", "split", "--json"]) == 2
+                 "--methods", "series", "--json"]) == 2
     err = capsys.readouterr().err
     assert str(missing) in err and "does not exist" in err
 

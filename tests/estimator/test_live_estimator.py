@@ -134,7 +134,7 @@ def test_stream_refuses_bad_frames_and_samples_without_keeping_them(settings, ca
 
 def test_stream_checks_methods_and_calibration(settings, calibration):
     with pytest.raises(FitError, match="methods"):
-        GraspStream(settings=settings, calibration=calibration, methods=("split", "magic"))
+        GraspStream(settings=settings, calibration=calibration, methods=("series", "magic"))
     small = dataclasses.replace(calibration, image_shape=(10, 10))
     stream = GraspStream(settings=settings, calibration=small)  # checked when first used (offline: a frame measured)
     with pytest.raises(CalibrationError, match="calibration is for"):
@@ -145,7 +145,7 @@ def test_the_settings_refuse_a_configured_method_they_do_not_know(settings, tmp_
     from estimator.settings import configured_methods
 
     assert configured_methods(settings) == estimator_settings(settings).methods
-    text = default_settings_path().read_text().replace('methods = ["split", "hertz"', 'methods = ["split", "hertzz"')
+    text = default_settings_path().read_text().replace('methods = ["series", "hertz"', 'methods = ["series", "hertzz"')
     typo = tmp_path / "typo.toml"
     typo.write_text(text)
     with pytest.raises(SettingsError, match=r"typo.toml: \[estimator\] EstimatorSettings.methods\[1\] = 'hertzz'"):
@@ -165,12 +165,12 @@ def test_stream_record_holds_what_arrived(settings, calibration, records):
 
 
 def test_choose_estimate_takes_the_first_answer_in_order():
-    refusal = Estimate.refuse("split", "no frames")
+    refusal = Estimate.refuse("series", "no frames")
     bound = Estimate.at_least("hertz", 1e6, "stiff")
     ok = Estimate.ok("elastic", 2e6, 1e6, 4e6)
     assert choose_estimate([refusal, bound, ok]) is bound
     everything_refuses = choose_estimate([refusal, Estimate.refuse("hertz", "flat")])
-    assert not everything_refuses and "split: no frames" in everything_refuses.reason and "hertz: flat" in everything_refuses.reason
+    assert not everything_refuses and "series: no frames" in everything_refuses.reason and "hertz: flat" in everything_refuses.reason
     with pytest.raises(FitError):
         choose_estimate([])
 

@@ -6,8 +6,8 @@ frames at 30 Hz rendered by the simulated camera from a gel surface computed in
 this file (half-space Hertz inside the contact; the tail outside decays within a
 gel thickness, as on a bonded layer). The sensor's gel is the thickest the settings
 allow (20 mm), so that the half-space surface is what the estimator's layer model
-expects for these small contacts, and the sphere compresses in bulk as the split
-models it (extent over a ball's mean cross-section). The estimator sees only the record.
+expects for these small contacts, and the sphere compresses in bulk as the series
+fit models it (extent over a ball's mean cross-section). The estimator sees only the record.
 """
 
 from __future__ import annotations
@@ -145,9 +145,9 @@ def test_measurements_cover_every_loading_frame(calibration):
 
 
 @pytest.mark.parametrize("e_pa", [1e5, 3e5])
-def test_split_and_hertz_through_the_whole_pipeline(calibration, e_pa):
+def test_series_and_hertz_through_the_whole_pipeline(calibration, e_pa):
     m = measure_grasp(build_record(e_pa), settings=SETTINGS, calibration=calibration)
-    for method in ("split", "hertz"):
+    for method in ("series", "hertz"):
         est = estimate_grasp(m, method, settings=SETTINGS)
         assert est.state == "ok", est
         assert log_error(est, e_pa) < 0.3, est
@@ -155,7 +155,7 @@ def test_split_and_hertz_through_the_whole_pipeline(calibration, e_pa):
 
 def test_steel_gives_lower_bounds_through_the_whole_pipeline(calibration):
     m = measure_grasp(build_record(STEEL), settings=SETTINGS, calibration=calibration)
-    for method, least in (("split", 1e6), ("hertz", 1e6), ("elastic", 1e5)):
+    for method, least in (("series", 1e6), ("hertz", 1e6), ("elastic", 1e5)):
         est = estimate_grasp(m, method, settings=SETTINGS)
         assert est.state == "lower_bound", est
         assert least < est.e_pa < STEEL
@@ -163,8 +163,8 @@ def test_steel_gives_lower_bounds_through_the_whole_pipeline(calibration):
 
 def test_soft_foam_through_the_whole_pipeline(calibration):
     m = measure_grasp(build_record(2e4, target_n=3.0), settings=SETTINGS, calibration=calibration)
-    # Hertz ignores the foam's bulk compression, which the split models.
-    for method, tolerance in (("split", 0.4), ("hertz", 0.6)):
+    # Hertz ignores the foam's bulk compression, which the series fit models.
+    for method, tolerance in (("series", 0.4), ("hertz", 0.6)):
         est = estimate_grasp(m, method, settings=SETTINGS)
         assert est.state == "ok" and log_error(est, 2e4) < tolerance, est
 
@@ -183,7 +183,7 @@ def test_markers_are_masked_before_reconstruction(calibration):
     record = build_record(3e5, sensor=sensor)
     full_grid = SETTINGS.with_section(replace(estimator_settings(SETTINGS), depth_binning=1))
     m = measure_grasp(record, settings=full_grid, calibration=calibration)
-    est = estimate_grasp(m, "split", settings=full_grid)
+    est = estimate_grasp(m, "series", settings=full_grid)
     assert est.state == "ok" and log_error(est, 3e5) < 0.3
     # Marker dots are found on the full grid only: a binned measurement of them is refused, naming the fix.
     with pytest.raises(PerceptionError, match="markers.*binning 1"):
@@ -199,12 +199,12 @@ def test_no_tactile_decodes_no_frame(calibration):
     est = estimate_grasp(record, "no_tactile", settings=SETTINGS)
     assert est.state == "ok" and est.latency_s > 0
     with pytest.raises(RecordError, match="does not decode"):
-        estimate_grasp(record, "split", settings=SETTINGS, calibration=calibration)
+        estimate_grasp(record, "series", settings=SETTINGS, calibration=calibration)
 
 
 def test_missing_calibration_names_the_fix():
     with pytest.raises(CalibrationError, match="--calibration"):
-        estimate_grasp(build_record(3e5), "split", settings=SETTINGS)
+        estimate_grasp(build_record(3e5), "series", settings=SETTINGS)
     assert calibration_path(SensorSettings(calibration="cal/left.npz")) == CONFIG_DIR / "cal/left.npz"
 
 
@@ -228,7 +228,7 @@ def test_one_loading_frame_only(calibration):
     times = np.concatenate([np.arange(0.011, seg.t_onset_s - 0.15, 1 / 30), [seg.t_peak_s - 0.01]])
     m = measure_grasp(build_record(3e5, frame_times=times), settings=SETTINGS, calibration=calibration)
     assert m.segment.frame_index.size == 1 and "too_few_samples" in m.segment.flags
-    for method in ("split", "hertz"):
+    for method in ("series", "hertz"):
         est = estimate_grasp(m, method, settings=SETTINGS)
         assert_sound(est)
         assert est and log_error(est, 3e5) < 0.5
@@ -236,7 +236,7 @@ def test_one_loading_frame_only(calibration):
 
 def test_frames_starting_in_contact_have_no_reference(calibration):
     record = build_record(3e5, frame_times=np.arange(0.62, 0.9, 1 / 30))
-    est = estimate_grasp(record, "split", settings=SETTINGS, calibration=calibration)
+    est = estimate_grasp(record, "series", settings=SETTINGS, calibration=calibration)
     assert not est and "reference" in est.reason
 
 
@@ -254,7 +254,7 @@ def test_nan_and_duplicate_timestamps_in_a_record(calibration):
         width_m=Samples(np.concatenate([w.t_s, [np.nan]]), np.concatenate([w.value, [0.0]])),
         provenance=record.provenance,
     )
-    est = estimate_grasp(messy, "split", settings=SETTINGS, calibration=calibration)
+    est = estimate_grasp(messy, "series", settings=SETTINGS, calibration=calibration)
     assert est.state == "ok" and log_error(est, 3e5) < 0.3
     assert "non-finite or duplicate" in est.reason
 
@@ -268,7 +268,7 @@ def test_clipped_force_in_a_record(calibration):
     assert "clipped" in m.segment.flags and m.force_n.max() <= 5.0
     for method in METHODS:
         assert_sound(estimate_grasp(m, method, settings=SETTINGS))
-    assert log_error(estimate_grasp(m, "split", settings=SETTINGS), 3e5) < 0.3
+    assert log_error(estimate_grasp(m, "series", settings=SETTINGS), 3e5) < 0.3
 
 
 def test_camera_lag_is_estimated_and_corrected(calibration):
@@ -293,7 +293,7 @@ def test_late_width_stamps_are_estimated_and_corrected(calibration):
     true_m = hertz_m + 0.5 * force * 0.03 / (3e5 * math.pi * 0.03**2 / 6)
     assert m.hold_approach_m.size and m.hold_approach_m == pytest.approx(true_m, abs=0.15e-3)
     assert np.all(stale.hold_approach_m > true_m + 1e-3)
-    assert log_error(estimate_grasp(m, "split", settings=SETTINGS), 3e5) < 0.15
+    assert log_error(estimate_grasp(m, "series", settings=SETTINGS), 3e5) < 0.15
 
 
 def only_frames(record, keep):
@@ -433,13 +433,13 @@ def grasp_dir(tmp_path_factory, calibration):
 
 def test_estimate_command_prints_json(grasp_dir, capsys):
     root, cal = grasp_dir
-    assert main(["estimate", str(root / "ball_rubber.grasp"), "--method", "split", "--calibration", str(cal),
+    assert main(["estimate", str(root / "ball_rubber.grasp"), "--method", "series", "--calibration", str(cal),
                  "--json"]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert out["state"] == "ok" and out["latency_ms"] > 0
     low, high = out["interval_pa"]
     assert low <= out["E_pa"] <= high
-    assert main(["estimate", str(root / "ball_steel.grasp"), "--method", "split", "--calibration", str(cal),
+    assert main(["estimate", str(root / "ball_steel.grasp"), "--method", "series", "--calibration", str(cal),
                  "--json"]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert out["state"] == "lower_bound" and out["interval_pa"][1] is None
@@ -462,12 +462,12 @@ def test_evaluate_command_summarises_every_method(grasp_dir, capsys, tmp_path):
     assert out["records"] == 4 and out["labelled"] == 3 and out["skipped"] == {"unlabelled": 1}
     # Every analytical method, and the shipped model's hybrid with its auto policy.
     assert set(out["methods"]) == {*METHODS, "hybrid", "auto"}
-    split = out["methods"]["split"]
-    assert split["n"] == 3 and split["states"]["lower_bound"] == 1 and split["states"]["ok"] == 2
-    assert split["log10_error"] >= 0 and 0 <= split["within_10x"] <= 1
-    assert set(split["per_material"]) == {"metal", "rubber"} and set(split["per_shape"]) == {"sphere"}
+    series = out["methods"]["series"]
+    assert series["n"] == 3 and series["states"]["lower_bound"] == 1 and series["states"]["ok"] == 2
+    assert series["log10_error"] >= 0 and 0 <= series["within_10x"] <= 1
+    assert set(series["per_material"]) == {"metal", "rubber"} and set(series["per_shape"]) == {"sphere"}
     assert out["methods"]["hertz"]["paper"] == {"log10_error": 1.68, "within_10x": 0.289}
-    assert out["methods"]["split"]["paper"] is None
+    assert out["methods"]["series"]["paper"] is None
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main(["evaluate", str(root), "--calibration", str(cal), "--json", "--workers", "2"]) == 0
     parallel = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
@@ -497,7 +497,7 @@ def test_an_approach_no_width_read_saw_gives_only_a_lower_bound(calibration):
     stiff = measure_grasp(record, settings=SETTINGS, calibration=calibration)
     assert "width_unread" in stiff.segment.flags
     assert estimate_grasp(stiff, "no_tactile", settings=SETTINGS).state == "lower_bound"
-    for method in ("no_tactile", "elastic", "split"):
+    for method in ("no_tactile", "elastic", "series"):
         est = estimate_grasp(stiff, method, settings=SETTINGS)
         assert est.state != "ok" and (est.state != "lower_bound" or est.e_pa <= 5e7), (method, est)
     # A soft one loads over several width readings: nothing to bound.

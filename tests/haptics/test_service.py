@@ -38,7 +38,7 @@ def rig(tmp_path):
 def estimate(publisher: Publisher, *, grasp_id: str, t_capture_s: float, e_pa: float | None, provisional: bool,
              state: str = "ok", interval=None) -> None:
     interval = interval if interval is not None else ([e_pa / 2, e_pa * 2] if e_pa else [None, None])
-    publisher.send("estimate", t_capture_s=t_capture_s, grasp_id=grasp_id, method="split", E_pa=e_pa,
+    publisher.send("estimate", t_capture_s=t_capture_s, grasp_id=grasp_id, method="series", E_pa=e_pa,
                    interval_pa=interval, state=state, reason="test", provisional=provisional, latency_s=0.001)
 
 

@@ -18,7 +18,7 @@ from teleop.bus.wire import Message
 from teleop.live import JsonLines
 from teleop.record import GraspRecord
 
-METHODS = ("split", "hertz", "elastic", "no_tactile")
+METHODS = ("series", "hertz", "elastic", "no_tactile")
 
 
 def in_capture_order(record: GraspRecord) -> list[tuple[float, str, dict]]:

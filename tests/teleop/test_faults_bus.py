@@ -59,7 +59,7 @@ _PEER = textwrap.dedent("""
             pub.heartbeat_if_due()
             t = time.monotonic()
             if kind == "estimate":
-                pub.send("estimate", t_capture_s=t, grasp_id="g1", method="split", E_pa=1e5 * (1 + n % 2),
+                pub.send("estimate", t_capture_s=t, grasp_id="g1", method="series", E_pa=1e5 * (1 + n % 2),
                          interval_pa=[5e4, 4e5], state="ok", reason="peer", provisional=True, latency_s=0.0)
             else:
                 pub.send("force", t_capture_s=t, grasp_id=None, t_s=[t], value_n=[float(n)])
@@ -223,7 +223,7 @@ def test_slow_conflating_subscriber_keeps_the_newest_and_bounded_memory():
         pub.wait_for_subscriber("estimate", timeout_s=5.0)
         started = time.monotonic()
         for i in range(3000):
-            pub.send("estimate", t_capture_s=float(i), grasp_id="g", method="split", E_pa=1e5, interval_pa=[5e4, 2e5],
+            pub.send("estimate", t_capture_s=float(i), grasp_id="g", method="series", E_pa=1e5, interval_pa=[5e4, 2e5],
                      state="ok", reason="x" * 1000, provisional=True, latency_s=0.0)
             if i % 100 == 0:
                 time.sleep(0.01)

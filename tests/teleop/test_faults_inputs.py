@@ -34,7 +34,7 @@ from teleop.record import GraspRecord
 from teleop.settings import CONFIG_DIR
 from teleop.sim.grasp import simulate_grasp
 
-METHODS = ("split", "hertz", "elastic", "no_tactile")
+METHODS = ("series", "hertz", "elastic", "no_tactile")
 
 
 @pytest.fixture(scope="module")
@@ -208,11 +208,11 @@ def test_renderer_refuses_an_unrenderable_estimate_and_carries_on(live, caplog):
     before = live.renderer.stats.bad_messages
     with caplog.at_level(logging.WARNING):
         # Valid on the wire, but the value lies outside its own interval.
-        live.service.publisher.send("estimate", t_capture_s=time.monotonic(), grasp_id="g-r", method="split",
+        live.service.publisher.send("estimate", t_capture_s=time.monotonic(), grasp_id="g-r", method="series",
                                     E_pa=1e6, interval_pa=[1e7, 1e8], state="ok", reason="injected",
                                     provisional=True, latency_s=0.0)
         live.until(lambda: live.renderer.stats.bad_messages == before + 1, "the renderer's refusal")
-        live.service.publisher.send("estimate", t_capture_s=time.monotonic(), grasp_id="g-r", method="split",
+        live.service.publisher.send("estimate", t_capture_s=time.monotonic(), grasp_id="g-r", method="series",
                                     E_pa=3e4, interval_pa=[2e4, 4e4], state="ok", reason="injected",
                                     provisional=False, latency_s=0.0)
         live.until(lambda: any(f.grasp_id == "g-r" for f in live.renderer.stats.finals), "the good estimate")

@@ -12,6 +12,7 @@ import pytest
 from estimator.settings import estimator_settings
 from haptics.settings import DisplaySettings, display_settings
 from teleop.errors import SettingsError
+from teleop.scene import load_scene
 from teleop.settings import (
     SensorSettings,
     Settings,
@@ -144,10 +145,10 @@ def test_the_depth_binning_must_tile_the_estimator_fingers_grid(tmp_path):
 
 def test_each_package_table_is_checked_by_its_owner_naming_the_file_and_key(tmp_path):
     # The base keeps [estimator] and [display] as read; their owners build and check them.
-    path = write(tmp_path, '[estimator]\nmethods = ["split", "hertzz"]\n[display]\nbackend = "usb"\n')
+    path = write(tmp_path, '[estimator]\nmethods = ["series", "hertzz"]\n[display]\nbackend = "usb"\n')
     settings = load_settings(path)
     with pytest.raises(SettingsError, match=r"settings.toml: \[estimator\] EstimatorSettings.methods\[1\] = 'hertzz': "
-                                            r"expected one of 'no_tactile', 'elastic', 'hertz', 'split'"):
+                                            r"expected one of 'no_tactile', 'elastic', 'hertz', 'series'"):
         estimator_settings(settings)
     with pytest.raises(SettingsError, match=r"settings.toml: \[display\] .*backend = 'usb'"):
         display_settings(settings)
@@ -158,6 +159,17 @@ def test_each_package_table_is_checked_by_its_owner_naming_the_file_and_key(tmp_
     assert "[estimator] finger is now [sensing] finger" in message
     message = error_for(tmp_path, "[display]\n[estimator]\nobject_poisson = 0.3\n")
     assert "[sensing] object_poisson" in message
+
+
+def test_settings_and_scenes_naming_the_series_fit_split_still_load(tmp_path):
+    # "split" was the series fit's name until the word was left to the dataset split; older
+    # settings files, session logs' settings and scenes say it.
+    old = write(tmp_path, default_settings_path().read_text().replace('methods = ["series",', 'methods = ["split",'))
+    assert '"split"' in old.read_text()
+    assert estimator_settings(load_settings(old)).methods == estimator_settings(load_settings()).methods
+    scene = write(tmp_path, f'catalogue = "{config_dir() / "objects.toml"}"\nobjects = ["stress_ball"]\n'
+                            f'settings = "{old}"\n[estimator]\nmethods = ["split", "hertz"]\n', "scene.toml")
+    assert load_scene(str(scene)).methods == ("series", "hertz")
 
 
 def test_sensor_tables(tmp_path):

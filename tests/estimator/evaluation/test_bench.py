@@ -39,12 +39,12 @@ def test_the_binned_estimate_is_close_to_the_full_grid_one(sim_grasps):
     assert estimator_settings(settings).depth_binning == 2
     configs = {c.name: c for c in configurations(settings=settings, calibration=str(calibration), frames=[3],
                                                  models=[], binning=[1])}
-    assert {"split/bin1", "hertz/bin1", "elastic/bin1"} <= set(configs) and "no_tactile/bin1" not in configs
-    assert configs["split"].binning == 2 and configs["split/bin1"].binning == 1
+    assert {"series/bin1", "hertz/bin1", "elastic/bin1"} <= set(configs) and "no_tactile/bin1" not in configs
+    assert configs["series"].binning == 2 and configs["series/bin1"].binning == 1
     compared = 0
     for path in sorted(records.glob("*.grasp")):
         record = read_record(path)
-        for method in ("split", "hertz"):
+        for method in ("series", "hertz"):
             coarse = configs[method].run(decoded(record, reduce=2))
             full = configs[f"{method}/bin1"].run(decoded(record))
             assert coarse.state == full.state, (path.name, method)
@@ -65,7 +65,7 @@ def test_bench_runs_on_a_tiny_directory_and_marks_a_frontier(sim_grasps, trained
     assert main(argv) == 0
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     configs = {c["name"]: c for c in result["configs"]}
-    assert {"no_tactile", "split", "split@3f", "split/bin1"} <= set(configs)
+    assert {"no_tactile", "series", "series@3f", "series/bin1"} <= set(configs)
     assert any(name.startswith("hybrid[depth+fw+analytical 3f 16x22]") for name in configs)
     assert any(name.startswith("auto[") for name in configs)
     assert result["labelled"] == 3 and result["reference_ms_p50"] > 0

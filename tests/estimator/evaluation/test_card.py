@@ -22,8 +22,8 @@ def _row(method: str, truth_pa: float, e_pa: float, state: str = "ok", spread: f
 def evaluate_output(tmp_path, *, name: str = "figures.json", shift: float = 1.0) -> tuple:
     """An ``estimator evaluate --json`` output, its figures made by the real metrics from a few scored rows."""
     rows = [_row("hybrid", 2e4, 2.5e4 * shift), _row("hybrid", 3e5, 9e5), _row("hybrid", 2e11, 6.75e6, "lower_bound"),
-            _row("split", 2e4, 1e5), _row("split", 3e5, 3e5), _row("split", 2e11, 1e6)]
-    methods = summarise(rows, ["split", "hybrid"], display_range_pa=DISPLAY, interval_levels={"hybrid": 0.9})
+            _row("series", 2e4, 1e5), _row("series", 3e5, 3e5), _row("series", 2e11, 1e6)]
+    methods = summarise(rows, ["series", "hybrid"], display_range_pa=DISPLAY, interval_levels={"hybrid": 0.9})
     methods["hybrid"]["model"] = "estimator/models/default"
     result = {"command": "estimator evaluate runs/x/records --json", "dir": "runs/x/records", "records": 3,
               "labelled": 3, "display_range_pa": list(DISPLAY), "methods": methods}
@@ -56,7 +56,7 @@ def test_the_table_is_written_from_the_json_soft_objects_first(tmp_path, card, c
     assert cells[headings.index("within 2x")] == f"{100 * m['felt_within_2x']:.1f} %"
     assert cells[headings.index("coverage (stated)")] == f"{100 * m['interval_coverage']:.1f} % (90 %)"
     assert cells[headings.index("dangerous")] == str(m["dangerous_misses"])
-    assert "| Nominal | split |" in text
+    assert "| Nominal | series |" in text
     assert "made by `estimator evaluate runs/x/records --json`" in text
     assert len(headings) == 2 + len(COLUMNS)
     assert main(["card", str(card), "--check"]) == 0  # from the sources the block records
@@ -66,7 +66,7 @@ def test_check_fails_naming_the_figure_that_moved(tmp_path, card, capsys):
     source, _ = evaluate_output(tmp_path)
     assert main(["card", str(card), "--figures", f"Nominal={source}", "--methods", "hybrid"]) == 0
     written = card.read_text()
-    assert "| Nominal | split |" not in written
+    assert "| Nominal | series |" not in written
     capsys.readouterr()
     evaluate_output(tmp_path, shift=3.0)  # the JSON changes under the card: the soft object felt elsewhere
     assert main(["card", str(card), "--check"]) == 1

@@ -28,30 +28,30 @@ def row(method, truth, state, e_pa=None, low=None, high=None, material="rubber",
 
 
 ROWS = [
-    row("split", 1e6, "ok", 2e6, 1e6, 4e6),  # 0.30 decades, covered
-    row("split", 1e6, "ok", 1e8, 5e7, 2e8, material="wood"),  # 2 decades, not covered
-    row("split", 200e9, "lower_bound", 2e7, 2e7, None, material="metal", shape="box"),  # bound value counts
-    row("split", 1e5, "insufficient_data"),  # a refusal: missing
+    row("series", 1e6, "ok", 2e6, 1e6, 4e6),  # 0.30 decades, covered
+    row("series", 1e6, "ok", 1e8, 5e7, 2e8, material="wood"),  # 2 decades, not covered
+    row("series", 200e9, "lower_bound", 2e7, 2e7, None, material="metal", shape="box"),  # bound value counts
+    row("series", 1e5, "insufficient_data"),  # a refusal: missing
     row("hertz", 1e6, "upper_bound", 3e6, None, 3e6),
 ]
 
 
 def test_bounds_count_with_their_value_and_refusals_are_missing():
-    split = summarise(ROWS, ["split", "hertz"])["split"]
+    series = summarise(ROWS, ["series", "hertz"])["series"]
     errors = [math.log10(2), 2.0, math.log10(200e9 / 2e7)]
-    assert split["n"] == 3
-    assert split["log10_error"] == pytest.approx(sum(errors) / 3)
-    assert split["within_10x"] == pytest.approx(1 / 3)
-    assert split["interval_coverage"] == pytest.approx(2 / 3)
-    assert split["states"] == {"ok": 2, "lower_bound": 1, "upper_bound": 0, "insufficient_data": 1}
+    assert series["n"] == 3
+    assert series["log10_error"] == pytest.approx(sum(errors) / 3)
+    assert series["within_10x"] == pytest.approx(1 / 3)
+    assert series["interval_coverage"] == pytest.approx(2 / 3)
+    assert series["states"] == {"ok": 2, "lower_bound": 1, "upper_bound": 0, "insufficient_data": 1}
 
 
 def test_metrics_per_material_and_shape():
-    split = summarise(ROWS, ["split"])["split"]
-    assert set(split["per_material"]) == {"rubber", "wood", "metal"}
-    assert split["per_material"]["rubber"]["n"] == 1
-    assert split["per_material"]["rubber"]["states"]["insufficient_data"] == 1
-    assert split["per_shape"]["box"]["log10_error"] == pytest.approx(math.log10(1e4))
+    series = summarise(ROWS, ["series"])["series"]
+    assert set(series["per_material"]) == {"rubber", "wood", "metal"}
+    assert series["per_material"]["rubber"]["n"] == 1
+    assert series["per_material"]["rubber"]["states"]["insufficient_data"] == 1
+    assert series["per_shape"]["box"]["log10_error"] == pytest.approx(math.log10(1e4))
 
 
 def test_only_refusals_give_no_error_figure():
@@ -60,27 +60,27 @@ def test_only_refusals_give_no_error_figure():
 
 
 def test_paper_figures_sit_beside_each_method():
-    summary = summarise(ROWS, ["no_tactile", "elastic", "hertz", "split"])
+    summary = summarise(ROWS, ["no_tactile", "elastic", "hertz", "series"])
     assert summary["no_tactile"]["paper"] == {"log10_error": 2.13, "within_10x": 0.182}
     assert summary["elastic"]["paper"] == PAPER["elastic"] == {"log10_error": 1.90, "within_10x": 0.273}
     assert summary["hertz"]["paper"]["within_10x"] == 0.289
-    assert summary["split"]["paper"] is None
+    assert summary["series"]["paper"] is None
     assert summary["no_tactile"]["n"] == 0
 
 
 def test_plot_writes_a_png(tmp_path):
     path = tmp_path / "p.png"
-    plot(ROWS, ["split", "hertz"], path)
+    plot(ROWS, ["series", "hertz"], path)
     assert path.read_bytes()[:4] == b"\x89PNG"
 
 
 def test_bounds_have_a_documented_point_value_and_ok_only_figures():
-    split = summarise(ROWS, ["split", "hertz"])["split"]
+    series = summarise(ROWS, ["series", "hertz"])["series"]
     point = math.sqrt(2e7 * 1e12)  # geometric middle of the lower bound and E_MAX_PA
     errors = [math.log10(2), 2.0, abs(math.log10(point / 200e9))]
-    assert split["point_log10_error"] == pytest.approx(sum(errors) / 3)
-    assert split["point_within_10x"] == pytest.approx(1 / 3)  # 4.5 GPa is 1.65 decades below steel
-    assert split["ok_only"] == {"n": 2, "log10_error": pytest.approx((math.log10(2) + 2.0) / 2),
+    assert series["point_log10_error"] == pytest.approx(sum(errors) / 3)
+    assert series["point_within_10x"] == pytest.approx(1 / 3)  # 4.5 GPa is 1.65 decades below steel
+    assert series["ok_only"] == {"n": 2, "log10_error": pytest.approx((math.log10(2) + 2.0) / 2),
                                 "within_10x": pytest.approx(0.5)}
     hertz = summarise(ROWS, ["hertz"])["hertz"]
     assert hertz["point_log10_error"] == pytest.approx(abs(math.log10(math.sqrt(3e6 * 1e3) / 1e6)))
@@ -120,18 +120,18 @@ def test_the_ablation_table_follows_the_papers_row_order_and_figures():
     models = model_methods([predictor("depth+fw+analytical", "h1"), predictor("rgb+markers+analytical", "h2"),
                             predictor("rgb+markers+fw", "c")])
     rows = [row(e.name, 1e6, "ok", 2e6, 1e6, 4e6) for e in models if e.method != "auto"]
-    rows += [row("split", 1e6, "ok", 2e6), row("no_tactile", 1e6, "ok", 2e6),
-             {**row("auto[depth+fw+analytical]", 1e6, "ok", 2e6), "reason": "split: narrow interval; fit"},
+    rows += [row("series", 1e6, "ok", 2e6), row("no_tactile", 1e6, "ok", 2e6),
+             {**row("auto[depth+fw+analytical]", 1e6, "ok", 2e6), "reason": "series: narrow interval; fit"},
              row("auto[depth+fw+analytical]", 1e6, "insufficient_data")]
-    table = ablation_table(rows, methods=["split", "no_tactile"], models=models)
-    assert list(table) == ["no_tactile", "split", "cnn", "hybrid[rgb+markers+analytical]",
+    table = ablation_table(rows, methods=["series", "no_tactile"], models=models)
+    assert list(table) == ["no_tactile", "series", "cnn", "hybrid[rgb+markers+analytical]",
                            "hybrid[depth+fw+analytical]", "auto[rgb+markers+analytical]",
                            "auto[depth+fw+analytical]"]
     assert table["cnn"]["paper"] == PAPER["cnn[rgb+markers+fw]"] == {"log10_error": 0.86, "within_10x": 0.646}
     assert table["hybrid[depth+fw+analytical]"]["paper"] == {"log10_error": 0.98, "within_10x": 0.636}
     assert table["no_tactile"]["paper"]["log10_error"] == 2.13 and table["no_tactile"]["inputs"] == "F, w"
     assert table["auto[depth+fw+analytical]"]["paper"] is None
-    assert table["auto[depth+fw+analytical]"]["answered_by"] == {"split": 1, "refused": 1}
+    assert table["auto[depth+fw+analytical]"]["answered_by"] == {"series": 1, "refused": 1}
     hybrid = table["hybrid[depth+fw+analytical]"]
     assert hybrid["model"] == "h1" and hybrid["variant"] == "depth+fw+analytical" and hybrid["size_px"] == [64, 88]
     assert hybrid["log10_error"] == pytest.approx(math.log10(2)) and hybrid["per_material"]["rubber"]["n"] == 1
@@ -141,12 +141,12 @@ def test_a_models_interval_level_is_carried_to_its_methods():
     stated = SimpleNamespace(**vars(predictor("depth+fw+analytical", "h")), interval_level=0.9)
     entries = model_methods([stated, predictor("rgb+markers+fw", "c")])  # the CNN's model states none
     assert [(e.name, e.interval_level) for e in entries] == [("hybrid", 0.9), ("auto", 0.9), ("cnn", None)]
-    rows = [row(e.name, 1e5, "ok", 2e5, 1e5, 4e5) for e in entries] + [row("split", 1e5, "ok", 2e5, 1e5, 4e5)]
-    table = ablation_table(rows, methods=["split"], models=entries, display_range_pa=(5e3, 6.75e6))
+    rows = [row(e.name, 1e5, "ok", 2e5, 1e5, 4e5) for e in entries] + [row("series", 1e5, "ok", 2e5, 1e5, 4e5)]
+    table = ablation_table(rows, methods=["series"], models=entries, display_range_pa=(5e3, 6.75e6))
     assert {name: m["interval_level"] for name, m in table.items()} == {
-        "split": None, "cnn": None, "hybrid": 0.9, "auto": 0.9}
+        "series": None, "cnn": None, "hybrid": 0.9, "auto": 0.9}
     assert table["hybrid"]["felt_log10_error"] == pytest.approx(math.log10(2))
-    assert ablation_table(rows, methods=["split"], models=entries)["hybrid"]["felt_log10_error"] is None
+    assert ablation_table(rows, methods=["series"], models=entries)["hybrid"]["felt_log10_error"] is None
 
 
 def test_metrics_stay_importable_from_evaluate():
@@ -162,7 +162,7 @@ def test_answered_by_counts_the_branch_in_each_reason_and_refusals():
             {**row("auto", 1e6, "ok", 1e6), "reason": "model: again"},
             {**row("auto", 1e6, "ok", 1e6), "reason": "no_tactile: no tactile sample (x): force and width only"},
             {**row("auto", 1e6, "insufficient_data"), "reason": "every analytical method refuses: x"},
-            row("split", 1e6, "ok", 1e6)]
+            row("series", 1e6, "ok", 1e6)]
     assert answered_by(rows, "auto") == {"model": 2, "no_tactile": 1, "refused": 1}
 
 
@@ -216,8 +216,8 @@ def test_plot_draws_one_panel_per_method(tmp_path):
     import matplotlib.image
 
     one, four = tmp_path / "one.png", tmp_path / "four.png"
-    plot(ROWS, ["split"], one)
+    plot(ROWS, ["series"], one)
     plot(ROWS + [row("no_tactile", 1e6, "ok", 1e5), row("auto", 1e9, "insufficient_data")],
-         ["split", "hertz", "no_tactile", "auto"], four)
+         ["series", "hertz", "no_tactile", "auto"], four)
     small, big = matplotlib.image.imread(one), matplotlib.image.imread(four)
     assert big.shape[0] > small.shape[0] * 1.5 and big.shape[1] > small.shape[1] * 2.5  # a 2 x 3 grid

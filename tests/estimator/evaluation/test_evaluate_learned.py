@@ -68,7 +68,7 @@ def test_evaluate_scores_analytical_cnn_hybrid_and_auto_in_the_papers_order(
                  "--calibration", str(calibration), "--plot", str(png), "--json"]) == 0
     result = last_json(capsys)
     methods = result["methods"]
-    assert list(methods) == ["no_tactile", "elastic", "hertz", "split", "cnn", "hybrid", "auto"]
+    assert list(methods) == ["no_tactile", "elastic", "hertz", "series", "cnn", "hybrid", "auto"]
     assert result["labelled"] == 4 and set(result["models"]) == {str(trained_model), str(cnn_model)}
     for name in ("cnn", "hybrid", "auto"):
         m = methods[name]
@@ -100,11 +100,11 @@ def test_evaluate_scores_analytical_cnn_hybrid_and_auto_in_the_papers_order(
 @pytest.mark.slow
 def test_two_hybrids_are_named_by_variant_and_workers_agree(sim_grasps, trained_model, hybrid_without_fw, capsys):
     records, calibration = sim_grasps
-    argv = ["evaluate", str(records), "--methods", "hybrid", "auto", "split", "--model", str(trained_model),
+    argv = ["evaluate", str(records), "--methods", "hybrid", "auto", "series", "--model", str(trained_model),
             "--model", str(hybrid_without_fw), "--calibration", str(calibration), "--json"]
     assert main(argv) == 0
     one = last_json(capsys)["methods"]
-    assert list(one) == ["split", "hybrid[depth+fw+analytical]", "hybrid[depth+analytical]",
+    assert list(one) == ["series", "hybrid[depth+fw+analytical]", "hybrid[depth+analytical]",
                          "auto[depth+fw+analytical]", "auto[depth+analytical]"]
     assert one["hybrid[depth+analytical]"]["paper"] == {"log10_error": 1.04, "within_10x": 0.594}
     assert main([*argv, "--workers", "2"]) == 0
@@ -186,7 +186,7 @@ def test_estimate_refuses_a_model_of_the_other_kind_and_options_it_cannot_honour
         (["--method", "cnn", "--model", str(trained_model)], ("cnn", "without analytical")),
         (["--method", "hybrid", "--model", str(cnn_model)], ("hybrid", "with analytical")),
         (["--method", "hybrid", "--model", str(trained_model), "--camera-lag"], ("--camera-lag",)),
-        (["--method", "split", "--model", str(trained_model)], ("--model", "split")),
+        (["--method", "series", "--model", str(trained_model)], ("--model", "series")),
     ):
         assert main(["estimate", grasp, *argv]) == 2
         err = error_line(capsys)

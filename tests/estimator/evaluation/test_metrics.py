@@ -23,12 +23,12 @@ DISPLAY = (SOFT, RIGID)
 FULL = math.log10(RIGID / SOFT)
 
 
-def row(truth, state, e_pa=None, low=None, high=None, method="split", material="rubber", shape="sphere"):
+def row(truth, state, e_pa=None, low=None, high=None, method="series", material="rubber", shape="sphere"):
     return {"path": "x.grasp", "object": "o", "material": material, "shape": shape, "truth_pa": truth,
             "method": method, "state": state, "e_pa": e_pa, "low_pa": low, "high_pa": high, "reason": "r"}
 
 
-def one(rows, display=DISPLAY, method="split"):
+def one(rows, display=DISPLAY, method="series"):
     return summarise(rows, [method], display_range_pa=display)[method]
 
 
@@ -149,7 +149,7 @@ def test_felt_figures_per_material_and_only_with_a_display_range():
     assert m["per_material"]["rubber"]["felt_log10_error"] == pytest.approx(math.log10(2))
     assert m["per_shape"]["sphere"]["dangerous_misses"] == 1
     assert m["interval_level"] is None  # an analytical method states no coverage
-    bare = summarise(rows, ["split"])["split"]
+    bare = summarise(rows, ["series"])["series"]
     assert bare["n"] == 2 and bare["log10_error"] == pytest.approx(m["log10_error"])
     for key in ("felt_log10_error", "felt_within_2x", "dangerous_misses", "interval_width_decades_median",
                 "soft_interval_width_decades_median"):
@@ -158,8 +158,8 @@ def test_felt_figures_per_material_and_only_with_a_display_range():
 
 def test_interval_levels_are_carried_per_method():
     rows = [row(1e5, "ok", 2e5, 1e5, 4e5, method="hybrid"), row(1e5, "ok", 2e5, 1e5, 4e5)]
-    summary = summarise(rows, ["split", "hybrid"], display_range_pa=DISPLAY, interval_levels={"hybrid": 0.9})
-    assert summary["hybrid"]["interval_level"] == 0.9 and summary["split"]["interval_level"] is None
+    summary = summarise(rows, ["series", "hybrid"], display_range_pa=DISPLAY, interval_levels={"hybrid": 0.9})
+    assert summary["hybrid"]["interval_level"] == 0.9 and summary["series"]["interval_level"] is None
 
 
 def test_the_shipped_display_range_resolves_its_rigid_end():

@@ -166,9 +166,9 @@ def test_the_floor_is_the_highest_lower_bound_of_the_reliable_methods():
     from estimator.estimate import Estimate
     from estimator.inference.inputs import analytical_floor
 
-    estimates = (Estimate.at_least("no_tactile", 2e5, "stiff"), Estimate.at_least("split", 3e6, "stiffer"),
+    estimates = (Estimate.at_least("no_tactile", 2e5, "stiff"), Estimate.at_least("series", 3e6, "stiffer"),
                  Estimate.at_least("elastic", 1e9, "not trusted"), Estimate.at_most("hertz", 1e4, "soft"))
-    assert analytical_floor(estimates) == (pytest.approx(math.log10(3e6)), "split")
+    assert analytical_floor(estimates) == (pytest.approx(math.log10(3e6)), "series")
     assert analytical_floor(estimates, scale=2.0)[0] == pytest.approx(math.log10(6e6))
     assert analytical_floor(estimates, methods=("no_tactile",)) == (pytest.approx(math.log10(2e5)), "no_tactile")
     assert analytical_floor(estimates[2:]) == (-math.inf, None)

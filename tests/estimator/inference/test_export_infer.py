@@ -101,7 +101,7 @@ def _copy(model_dir, tmp_path):
     (lambda m: m["calibration"].update(interval_scales=[1.0, 1.0]), "one interval scale > 0 and one"),
     (lambda m: m["calibration"].update(force_band_edges_n=[20.0, 10.0]), "rising force_band_edges_n"),
     (lambda m: m["calibration"].update(p_rigids=[0.9, 1.0, 0.5]), "0 < p_rigid < 1 per force band"),
-    (lambda m: m["calibration"].update(floor={"methods": ["split"], "leak": 0.0}), "leaking 0-1"),
+    (lambda m: m["calibration"].update(floor={"methods": ["series"], "leak": 0.0}), "leaking 0-1"),
     (lambda m: m["calibration"].update(temperature=-1.0), "temperature > 0"),
     (lambda m: m.pop("calibration"), "missing or malformed"),
 ])
@@ -118,13 +118,13 @@ def test_metadata_that_does_not_fit_is_refused(trained_model, tmp_path, change, 
 def test_a_hybrid_distribution_keeps_a_leak_of_its_mass_below_the_analytical_lower_bounds(trained_model, synthetic):
     predictor = CompliancePredictor(trained_model)
     leak = predictor.metadata.floor_leak
-    assert predictor.metadata.floor_methods == ("no_tactile", "split") and 0 < leak < 0.1
+    assert predictor.metadata.floor_methods == ("no_tactile", "series") and 0 < leak < 0.1
     sample = synthetic.sample("foam_a", 0, 0, rng=np.random.default_rng(0))
     k = gel_scale(sample.gel_modulus_pa)
     bounded = dataclasses.replace(sample, estimates=(  # a bound at a bin edge (1 GPa) on the reference gel
-        *(e for e in sample.estimates if e.method != "split"), Estimate.at_least("split", 1e9 / k, "stiff")))
+        *(e for e in sample.estimates if e.method != "series"), Estimate.at_least("series", 1e9 / k, "stiff")))
     floor_log10, method = predictor.floor(bounded)
-    assert method == "split" and floor_log10 == pytest.approx(9.0)
+    assert method == "series" and floor_log10 == pytest.approx(9.0)
     floored = cdf_at(predictor.predict_distribution([bounded]), floor_log10)[0]
     # Without a floor in its calibration the model's own distribution stands...
     predictor.metadata = dataclasses.replace(predictor.metadata, floor_methods=())
@@ -255,3 +255,39 @@ def test_the_reference_check_sees_inputs_that_moved(trained_model):
     # Depth on the full grid changes the depth maps.
     full = settings.with_section(replace(estimator_settings(settings), depth_binning=1))
     assert any(m.startswith("frames") for m in mismatches(recorded, predictor.variant, settings=full))
+
+
+def test_a_model_from_before_the_series_rename_loads_and_answers_as_the_shipped_one(sim_grasps, tmp_path,
+                                                                                    missing_data):
+    from estimator.inference.hybrid import HybridEstimator
+    from estimator.inference.infer import default_model_dir
+    from teleop.record import read_record
+    from teleop.settings import load_settings
+
+    if not (default_model_dir() / "metadata.json").is_file():
+        missing_data("no shipped model")
+    # The shipped model as it was trained, before the series fit was renamed from "split".
+    dest, meta = _copy(default_model_dir(), tmp_path)
+    old = {"series": "split", "max_series_interval_decades": "max_split_interval_decades",
+           "series_log10_error": "split_log10_error"}
+
+    def back(mapping):
+        return {old.get(k, k): v for k, v in mapping.items()}
+
+    for methods in (meta["scales"]["analytical_methods"], meta["calibration"]["floor"]["methods"],
+                    meta["recalibrated"]["previous"]["floor"]["methods"]):
+        methods[methods.index("series")] = "split"
+    meta["metrics"] = {part: back(figures) for part, figures in meta["metrics"].items()}
+    meta["auto"] = back(meta["auto"])
+    meta["auto"]["table"] = [back(row) for row in meta["auto"]["table"]]
+    (dest / "metadata.json").write_text(json.dumps(meta, indent=1))
+    assert "series" not in (dest / "metadata.json").read_text()
+
+    shipped, legacy = CompliancePredictor(default_model_dir()), CompliancePredictor(dest)
+    assert legacy.metadata.raw == shipped.metadata.raw and legacy.metadata.floor_methods == ("no_tactile", "series")
+    records, calibration = sim_grasps
+    record, settings = read_record(records / "steel_ball_bearing.grasp"), load_settings()
+    for mode in ("model", "auto"):
+        first, second = (HybridEstimator(p, settings=settings, calibration=calibration).estimate(record, mode=mode)
+                         for p in (shipped, legacy))
+        assert dataclasses.replace(first, latency_s=0.0) == dataclasses.replace(second, latency_s=0.0)

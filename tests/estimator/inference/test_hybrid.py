@@ -41,8 +41,8 @@ def _sampled(synthetic, name: str, estimates: tuple[Estimate, ...] | None = None
                         width_m=s.width_m, depth_m=s.depth_m)
 
 
-REFUSALS = tuple(Estimate.refuse(m, "nothing resolved") for m in ("no_tactile", "elastic", "hertz", "split"))
-BOUNDS = (Estimate.at_least("split", 3e8, "stiffer than resolved"), Estimate.at_least("hertz", 1e9, "rigid"),
+REFUSALS = tuple(Estimate.refuse(m, "nothing resolved") for m in ("no_tactile", "elastic", "hertz", "series"))
+BOUNDS = (Estimate.at_least("series", 3e8, "stiffer than resolved"), Estimate.at_least("hertz", 1e9, "rigid"),
           Estimate.at_most("elastic", 1e4, "soft"), Estimate.refuse("no_tactile", "none"))
 
 
@@ -113,8 +113,8 @@ def test_a_non_finite_model_output_is_never_returned(trained_model, synthetic):
     broken = dataclasses.replace(_sampled(synthetic, "rubber_a"), depth_m=np.full((3, 16, 22), np.nan, np.float32))
     refused = hybrid.estimate_sampled(broken, mode="model")
     assert refused.state == "insufficient_data" and "not finite" in refused.reason
-    fallback = hybrid.estimate_sampled(broken, mode="auto")  # the split estimate, relabelled
-    assert fallback.method == "auto" and fallback.state == "ok" and fallback.reason.startswith("split: the model")
+    fallback = hybrid.estimate_sampled(broken, mode="auto")  # the series estimate, relabelled
+    assert fallback.method == "auto" and fallback.state == "ok" and fallback.reason.startswith("series: the model")
     all_refused = dataclasses.replace(broken, estimates=REFUSALS)
     assert hybrid.estimate_sampled(all_refused, mode="auto").state == "insufficient_data"
 
@@ -139,22 +139,22 @@ def test_a_saturated_model_gives_the_bounds_at_the_ends(trained_model, synthetic
         assert result.state == "upper_bound" and result.e_pa == predictor.metadata.soft_pa
 
 
-def test_auto_takes_a_narrow_split_and_skips_the_model(trained_model, synthetic):
+def test_auto_takes_a_narrow_series_fit_and_skips_the_model(trained_model, synthetic):
     predictor = CompliancePredictor(trained_model)
-    narrow = Estimate.ok("split", 2e6, 1.5e6, 2.5e6, "narrow")
-    wide = Estimate.ok("split", 2e6, 2e4, 2e8, "four decades")
+    narrow = Estimate.ok("series", 2e6, 1.5e6, 2.5e6, "narrow")
+    wide = Estimate.ok("series", 2e6, 2e4, 2e8, "four decades")
     hybrid = HybridEstimator(predictor, settings=SETTINGS, policy=AutoPolicy(0.5))
     taken = hybrid.estimate_sampled(_sampled(synthetic, "rubber_a", (narrow,)), mode="auto")
-    assert taken.method == "auto" and taken.e_pa == 2e6 and taken.reason.startswith("split: split interval 0.22")
+    assert taken.method == "auto" and taken.e_pa == 2e6 and taken.reason.startswith("series: series interval 0.22")
     model = hybrid.estimate_sampled(_sampled(synthetic, "rubber_a", (wide,)), mode="auto")
     assert model.reason.startswith("model:") and model.e_pa != 2e6
     never = HybridEstimator(predictor, settings=SETTINGS, policy=AutoPolicy(0.0))
     assert never.estimate_sampled(_sampled(synthetic, "rubber_a", (narrow,)), mode="auto").reason.startswith("model:")
-    # A stiff object's grasp: one frame repeated and the peak frame. The split's narrow interval is its
+    # A stiff object's grasp: one frame repeated and the peak frame. The series fit's narrow interval is its
     # resolution alone (no scatter to show the model's miss), so the model answers.
     short = dataclasses.replace(_sampled(synthetic, "rubber_a", (narrow,)), force_n=np.array([1.2, 1.2, 25.0]))
     assert hybrid.estimate_sampled(short, mode="auto").reason.startswith("model:")
-    chosen = predictor.metadata.raw["auto"]["max_split_interval_decades"]
+    chosen = predictor.metadata.raw["auto"]["max_series_interval_decades"]
     assert HybridEstimator(predictor, settings=SETTINGS).policy == AutoPolicy(chosen)  # from training
 
 

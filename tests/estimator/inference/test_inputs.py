@@ -55,14 +55,14 @@ def test_bad_variants_are_refused(text, kwargs, expected):
 
 def test_analytical_features_encode_states_bounds_and_widths():
     estimates = [
-        Estimate.ok("split", 1e6, 1e5, 1e7, "two decades wide"),
+        Estimate.ok("series", 1e6, 1e5, 1e7, "two decades wide"),
         Estimate.at_least("hertz", 1e9, "stiffer than resolved"),
         Estimate.refuse("elastic", "no contact"),
     ]  # no_tactile missing: encoded as a refusal
     f = analytical_features(estimates).reshape(len(ANALYTICAL_METHODS), FEATURES_PER_METHOD)
     rows = dict(zip(ANALYTICAL_METHODS, f, strict=True))
-    assert rows["split"][0] == pytest.approx((6 - 3) / 9) and rows["split"][1] == pytest.approx(2 / 9)
-    assert rows["split"][2:].tolist() == [1, 0, 0, 0]
+    assert rows["series"][0] == pytest.approx((6 - 3) / 9) and rows["series"][1] == pytest.approx(2 / 9)
+    assert rows["series"][2:].tolist() == [1, 0, 0, 0]
     assert rows["hertz"][0] == pytest.approx((9 - 3) / 9) and rows["hertz"][1] == 1.0  # open interval
     assert rows["hertz"][2:].tolist() == [0, 1, 0, 0]
     for refused in ("elastic", "no_tactile"):

@@ -240,9 +240,9 @@ def test_the_model_refuses_a_sensor_much_coarser_than_its_input_pitch(trained_mo
     refused = _estimate(trained_model, synthetic, coarse)
     assert refused.state == "insufficient_data" and not refused and refused.e_pa is None
     assert "does not apply to this sensor" in refused.reason and "pitch 2.500 mm is 1.76 times" in refused.reason
-    fallback = _estimate(trained_model, synthetic, coarse, mode="auto")  # the split estimate, relabelled
+    fallback = _estimate(trained_model, synthetic, coarse, mode="auto")  # the series estimate, relabelled
     assert fallback.method == "auto" and fallback.state == "ok"
-    assert fallback.reason.startswith("split: the model does not apply to this sensor") and "2.500 mm" in fallback.reason
+    assert fallback.reason.startswith("series: the model does not apply to this sensor") and "2.500 mm" in fallback.reason
     assert _estimate(trained_model, synthetic, COARSE).state == "ok"  # 0.6 mm is fine at that pitch
 
 

@@ -221,6 +221,16 @@ def test_estimates_round_trip_with_open_sides_and_refusals(synthetic, tmp_path):
     assert values.shape == (4, 3) and np.isnan(values[2]).all()  # the refusal's None values
 
 
+def test_a_sample_from_before_the_series_rename_reads_split_as_series(synthetic, tmp_path):
+    # Datasets built before the rename name the series fit "split"; they still train and calibrate.
+    sample = synthetic.sample("foam_a", 0, 0, rng=np.random.default_rng(0))
+    path = save_sample(sample, tmp_path / "s.npz")
+    with np.load(path) as archive:
+        methods = archive["estimate_method"]
+    rewrite(path, estimate_method=np.where(methods == "series", "split", methods))
+    assert "series" in methods and load_sample(path).estimates == sample.estimates
+
+
 def test_a_sample_without_estimates_writes_no_estimate_members(synthetic, tmp_path):
     sample = dataclasses.replace(synthetic.sample("foam_a", 0, 0, rng=np.random.default_rng(0)), estimates=())
     path = save_sample(sample, tmp_path / "s.npz")
@@ -232,16 +242,16 @@ def test_a_sample_without_estimates_writes_no_estimate_members(synthetic, tmp_pa
 def test_bad_estimates_are_refused(synthetic):
     sample = synthetic.sample("foam_a", 0, 0, rng=np.random.default_rng(0))
     with pytest.raises(SampleError, match="name a method twice"):
-        dataclasses.replace(sample, estimates=(Estimate.refuse("split", "a"), Estimate.refuse("split", "b")))
+        dataclasses.replace(sample, estimates=(Estimate.refuse("series", "a"), Estimate.refuse("series", "b")))
     with pytest.raises(SampleError, match="estimates must be a tuple of Estimate"):
-        dataclasses.replace(sample, estimates=({"method": "split"},))
+        dataclasses.replace(sample, estimates=({"method": "series"},))
 
 
 @pytest.mark.parametrize(("members", "expected"), [
     ({"estimate_state": None}, "member 'estimate_state' is missing"),
     ({"estimate_pa": np.zeros((4, 2))}, "estimate_pa float64 (m, 3)"),
-    ({"estimate_method": np.array(["split"])}, "must be str (m,)"),
-    ({"estimate_pa": np.full((4, 3), -1.0)}, "member 'estimate_pa' of method 'split'"),
+    ({"estimate_method": np.array(["series"])}, "must be str (m,)"),
+    ({"estimate_pa": np.full((4, 3), -1.0)}, "member 'estimate_pa' of method 'series'"),
     ({"estimate_state": np.array(["ok", "ok", "maybe", "ok"])}, "member 'estimate_pa' of method"),
 ])
 def test_damaged_estimate_members_name_the_file(synthetic, tmp_path, members, expected):

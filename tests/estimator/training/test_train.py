@@ -29,20 +29,20 @@ def test_trained_model_directory(trained_model, synthetic_dataset, synthetic):
         metrics = meta["metrics"][split]
         assert metrics["hybrid"]["n"] > 0 and metrics["hybrid"]["interval_level"] == 0.9
         assert 0 <= metrics["hybrid"]["felt_log10_error"] <= 3.2  # the display spans 3.1 decades
-        assert metrics["split"]["n"] > 0 and "no_tactile" in metrics  # the analytical methods on the same grasps
+        assert metrics["series"]["n"] > 0 and "no_tactile" in metrics  # the analytical methods on the same grasps
     cal = meta["calibration"]
     live_val = len(list((synthetic_dataset / "val").rglob("*_a0.npz")))  # scored on the live sampling only
     assert cal["n"] == live_val < meta["data"]["samples"]["val"] and cal["chosen_on"] == "val"
     assert cal["temperature"] > 0 and min(cal["interval_scales"]) > 0 and all(0.5 <= p < 1 for p in cal["p_rigids"])
     assert len(cal["interval_scales"]) == len(cal["p_rigids"]) == len(cal["force_band_edges_n"]) + 1
-    assert cal["floor"] == {"methods": ["no_tactile", "split"], "leak": 0.01}  # the fixture reads the fits
+    assert cal["floor"] == {"methods": ["no_tactile", "series"], "leak": 0.01}  # the fixture reads the fits
     train_objects = json.loads((synthetic_dataset / "split.json").read_text())["train"]
     assert cal["level"] == 0.9 and cal["soft_pa"] == min(synthetic.OBJECTS[n][1] for n in train_objects)
     assert meta["data"]["measurement_version"] == MEASUREMENT_VERSION
     assert set(meta["reference"]["inputs"]) == {"frames_sum", "frames_abs_sum", "frames_peak", "force_width",
                                                 "analytical"}
     assert meta["metrics"]["test"]["hybrid"]["n"] == len(list((synthetic_dataset / "test").rglob("*_a0.npz")))
-    assert meta["auto"]["max_split_interval_decades"] >= 0 and meta["auto"]["table"]
+    assert meta["auto"]["max_series_interval_decades"] >= 0 and meta["auto"]["table"]
     split = json.loads((synthetic_dataset / "split.json").read_text())
     assert meta["data"]["objects"] == {name: sorted(split[name]) for name in ("train", "val", "test")}
 

@@ -99,7 +99,7 @@ def test_conflated_subscriber_yields_the_latest_per_topic(endpoint):
         pub.wait_for_subscriber("estimate", "grasp_event")
         for i in range(50):
             pub.send(
-                "estimate", t_capture_s=float(i), grasp_id="g", method="split", E_pa=1e5 + i,
+                "estimate", t_capture_s=float(i), grasp_id="g", method="series", E_pa=1e5 + i,
                 interval_pa=[None, None], state="ok", reason="", provisional=True, latency_s=0.0,
             )
         pub.send("grasp_event", t_capture_s=50.0, event="end", grasp_id="g")

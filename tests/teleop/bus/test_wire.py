@@ -56,11 +56,11 @@ def _examples() -> dict[str, Message]:
         "grasp_start": make_message("grasp_event", t_capture_s=0.5, event="start", grasp_id="g1", object_name="sponge"),
         "grasp_end": make_message("grasp_event", t_capture_s=3.5, event="end", grasp_id="g1"),
         "estimate_ok": make_message(
-            "estimate", t_capture_s=2.1, grasp_id="g1", method="split", E_pa=2.5e5, interval_pa=[1e5, 6e5],
+            "estimate", t_capture_s=2.1, grasp_id="g1", method="series", E_pa=2.5e5, interval_pa=[1e5, 6e5],
             state="ok", reason="", provisional=True, latency_s=0.012,
         ),
         "estimate_bound": make_message(
-            "estimate", t_capture_s=2.1, grasp_id="g1", method="split", E_pa=3e9, interval_pa=[3e9, None],
+            "estimate", t_capture_s=2.1, grasp_id="g1", method="series", E_pa=3e9, interval_pa=[3e9, None],
             state="lower_bound", reason="depth below resolution", provisional=False, latency_s=0.02,
         ),
         "estimate_none": make_message(
@@ -262,7 +262,7 @@ def test_frame_data_must_be_what_its_encoding_says():
 
 
 def test_estimate_states_are_consistent():
-    base = dict(grasp_id="g", method="split", interval_pa=[None, None], reason="", provisional=False, latency_s=0.0)
+    base = dict(grasp_id="g", method="series", interval_pa=[None, None], reason="", provisional=False, latency_s=0.0)
     with pytest.raises(MessageRejected, match="no E_pa"):
         make_message("estimate", t_capture_s=0.0, E_pa=None, state="ok", **base)
     with pytest.raises(MessageRejected, match="carries an E_pa"):
@@ -334,7 +334,7 @@ def test_an_estimate_from_before_the_model_field_reads_as_no_model():
     old = _with_body(_frames("estimate_model"), drop="model")
     assert decode(old, max_bytes=MAX).body["model"] is None
     assert decode(_frames("estimate_model"), max_bytes=MAX).body["model"] == "default-3f2a9c1e"
-    assert make_message("estimate", t_capture_s=0.0, grasp_id="g", method="split", E_pa=1e5,
+    assert make_message("estimate", t_capture_s=0.0, grasp_id="g", method="series", E_pa=1e5,
                         interval_pa=[None, None], state="ok", reason="", provisional=True,
                         latency_s=0.0).body["model"] is None  # senders always send it
 

@@ -113,7 +113,7 @@ def publish_session(pub: Publisher, *, pause_s: float = 0.0, seed: int = 0) -> l
             "estimate",
             t_capture_s=t,
             grasp_id="g2",
-            method="split",
+            method="series",
             E_pa=None,
             interval_pa=[None, None],
             state="insufficient_data",

@@ -107,7 +107,7 @@ def test_record_serves_the_bus_live(tmp_path):
             with connect(url, subprotocols=[SUBPROTOCOL], open_timeout=10) as ws:
                 _ops(ws, "serverInfo")
                 pub.wait_for_subscriber("", timeout_s=30.0)
-                pub.send("estimate", t_capture_s=1.0, grasp_id="g1", method="split", E_pa=1e5,
+                pub.send("estimate", t_capture_s=1.0, grasp_id="g1", method="series", E_pa=1e5,
                          interval_pa=[5e4, 2e5], state="ok", reason="", provisional=True,
                          latency_s=0.01)
                 pub.send("frame", t_capture_s=1.0, finger="right", index=0, encoding="jpeg", data=JPEG)
@@ -120,7 +120,7 @@ def test_record_serves_the_bus_live(tmp_path):
 
 
 def _estimate(pub: Publisher, grasp_id: str = "g1") -> None:
-    pub.send("estimate", t_capture_s=1.0, grasp_id=grasp_id, method="split", E_pa=1e5,
+    pub.send("estimate", t_capture_s=1.0, grasp_id=grasp_id, method="series", E_pa=1e5,
              interval_pa=[5e4, 2e5], state="ok", reason="", provisional=True, latency_s=0.01)
 
 

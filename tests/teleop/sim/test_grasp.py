@@ -72,7 +72,7 @@ def test_layer_stiffening_the_gel_layer_makes_contacts_stiffer_than_half_space_h
         ratio = approach / hertz
         assert (ratio < 1).all()
         assert ratio[-1] < ratio[0] - 0.1  # the wider the contact against the 3 mm gel, the stiffer
-        # The gel's own share is below the half-space split d/delta = k_gel / (k_gel + k_obj).
+        # The gel's own share is below the half-space share d/delta = k_gel / (k_gel + k_obj).
         assert mechanics.gel_m[-1] / approach[-1] < k_gel / (k_gel + k_obj)
 
 

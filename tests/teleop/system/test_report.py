@@ -45,7 +45,7 @@ def _grasp_messages(record, grasp_id: str, offset_s: float, estimates, *, displa
                                                           "object_name": record.label.object_name}))
     for k, (e_pa, interval, state, provisional) in enumerate(estimates):
         when = t[GRASP_DONE_EVENT] + (0.02 if not provisional else -0.1 * (len(estimates) - k))
-        items.append((when, 3, "estimate", {"method": "split" if provisional else "auto", "E_pa": e_pa,
+        items.append((when, 3, "estimate", {"method": "series" if provisional else "auto", "E_pa": e_pa,
                                             "interval_pa": interval, "state": state, "reason": f"test {state}",
                                             "provisional": provisional, "latency_s": 0.003}))
         if display:
@@ -70,7 +70,7 @@ def session_log(tmp_path_factory) -> Path:
     items += _grasp_messages(steel, "g-steel", 110.0, [(None, [None, None], "insufficient_data", True),
                                                        (6.75e6, [6.75e6, None], "lower_bound", False)], display=False)
     items += [(120.0, 0, "grasp_event", {"grasp_id": "g-cut", "event": "start", "object_name": "stress_ball"}),
-              (120.5, 3, "estimate", {"grasp_id": "g-cut", "method": "split", "E_pa": None, "interval_pa": [None, None],
+              (120.5, 3, "estimate", {"grasp_id": "g-cut", "method": "series", "E_pa": None, "interval_pa": [None, None],
                                       "state": "insufficient_data", "reason": "no contact yet", "provisional": True,
                                       "latency_s": 0.001})]
     return _record(tmp_path_factory.mktemp("session") / "session.mcap", items, settings)
