@@ -430,11 +430,11 @@ def test_series_recovers_e_from_a_layered_gel_with_bulk_compression(e_pa):
     assert not half_space or half_space.e_pa < e_pa / 3  # ignoring the layer and bulk: far too soft
 
 
-def test_split_refuses_quietly_a_radius_beyond_any_gel():
+def test_series_refuses_quietly_a_radius_beyond_any_gel():
     depth = np.linspace(0.1e-3, 0.8e-3, 8)
     radius = np.full(8, 1e308)  # finite, but a / h overflows
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        est = split(depth * 2, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION,
+        est = series(depth * 2, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION,
                     contact_radius_m=radius, gel_thickness_m=3e-3, gel_poisson=0.48)
     assert not est and "out of range for the gel layer" in est.reason
