@@ -24,9 +24,9 @@ def progress_map(work: Callable[[T], R], items: Iterable[T], *, workers: int, de
                  progress: bool = True, spawn: bool = False) -> list[R]:
     """``[work(item) for item in items]``, in order, with a progress bar on stderr.
 
-    With ``workers`` above 1 the items go to that many processes (``spawn`` starts them fresh
-    instead of forking this one), in chunks of about an eighth of each worker's share; ``work``
-    and the items must pickle. OpenCV runs on one thread in each worker.
+    With ``workers`` above 1 the items go to that many processes, in chunks of about an eighth of
+    each worker's share; ``work`` and the items must pickle. ``spawn`` starts them fresh instead of
+    forking this one, with OpenCV on one thread in each.
     """
     items = list(items)
     results: list[R] = []
@@ -37,8 +37,9 @@ def progress_map(work: Callable[[T], R], items: Iterable[T], *, workers: int, de
                 results.append(result)
                 bar.update()
             return results
-        context = get_context("spawn") if spawn else None
-        with ProcessPoolExecutor(workers, mp_context=context, initializer=_one_thread) as pool:
+        # A forked child inherits OpenCV's thread pool mid-state: setting its threads there can hang.
+        context, initializer = (get_context("spawn"), _one_thread) if spawn else (None, None)
+        with ProcessPoolExecutor(workers, mp_context=context, initializer=initializer) as pool:
             for result in pool.map(work, items, chunksize=max(1, len(items) // (8 * workers))):
                 results.append(result)
                 bar.update()
