@@ -66,6 +66,9 @@ FORCE_STEP_N = 1.0
 REFRESH_S = 0.1
 QUIT_GRACE_S = 1.0  # after quit, the loop thread is told to stop if it has not ended by itself
 BAR_CELLS = 24
+#: A final interval wider than this (a factor 10, a third of the display's scale) gets a hint: a
+#: firmer squeeze reads surer (the model card's light-squeeze limit).
+WIDE_INTERVAL_DECADES = 1.0
 
 
 def format_pa(value: float | None) -> str:
@@ -92,6 +95,19 @@ def estimate_line(estimate: EstimateBody | None) -> str:
     if low is not None or high is not None:
         interval = f"  interval [{format_pa(low) if low else '-'}, {format_pa(high) if high else '-'}]"
     return f"E {sign} {format_pa(estimate.E_pa)}{interval}  {state}  {kind}"
+
+
+def squeeze_hint(estimate: EstimateBody | None) -> str | None:
+    """A hint for a final ``ok`` estimate whose interval is wider than :data:`WIDE_INTERVAL_DECADES`."""
+    if estimate is None or estimate.provisional or estimate.state != "ok":
+        return None
+    low, high = estimate.interval_pa
+    if not (low and high):
+        return None
+    width = math.log10(high / low)
+    if width <= WIDE_INTERVAL_DECADES:
+        return None
+    return f"wide interval ({width:.1f} decades): a firmer squeeze reads surer"
 
 
 def _bar(fraction: float | None, cells: int = BAR_CELLS) -> str:
@@ -340,6 +356,8 @@ class OperatorConsole(App):
         if estimate is not None:
             lines.append(f"{view.estimates} estimate(s) for this grasp, method {estimate.method}")
             lines.append(f"reason: {estimate.reason}")
+            if hint := squeeze_hint(estimate):
+                lines.append(hint)
         shown = view.display
         if shown is None:
             display = ["nothing rendered yet"]

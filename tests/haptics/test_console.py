@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from haptics.console import OperatorConsole, estimate_line, format_pa
+from haptics.console import OperatorConsole, estimate_line, format_pa, squeeze_hint
 from haptics.inputs.keyboard import KeyboardInput
 from haptics.operator_link import PEERS, OperatorView, Peer
 from haptics.operator_loop import OperatorLoop
@@ -69,6 +69,15 @@ def test_estimates_and_moduli_read_as_people_write_them():
     assert estimate_line(bound) == "E >= 6.75 MPa  interval [6.75 MPa, -]  lower_bound  provisional"
     none = dataclasses.replace(ESTIMATE, state="insufficient_data", E_pa=None, interval_pa=[None, None])
     assert estimate_line(none) == "no modulus (insufficient data)  final"
+
+
+def test_a_final_answer_too_wide_to_place_asks_for_a_firmer_squeeze():
+    assert squeeze_hint(ESTIMATE) is None  # 0.48 decade: placed on the display's scale
+    wide = dataclasses.replace(ESTIMATE, E_pa=3e4, interval_pa=[5e3, 2e5])
+    assert squeeze_hint(wide) == "wide interval (1.6 decades): a firmer squeeze reads surer"
+    assert squeeze_hint(dataclasses.replace(wide, provisional=True)) is None  # still squeezing
+    assert squeeze_hint(dataclasses.replace(wide, state="lower_bound", interval_pa=[5e3, None])) is None
+    assert squeeze_hint(None) is None
 
 
 async def _until(predicate, pilot, timeout_s: float = 5.0) -> None:
