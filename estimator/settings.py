@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from estimator.analytical import METHODS
+from estimator.analytical import METHODS, current_method
 from teleop.errors import SettingsError
 from teleop.settings import Section, SensorSettings, Settings
 from teleop.settings_fields import spec
@@ -64,10 +64,8 @@ class EstimatorSettings(Section):
                               "N x N px blocks (1: the full grid); a model is trained for one value")
 
     def __post_init__(self) -> None:
-        # The series fit was "split" until the word was left to the dataset split: settings files and
-        # session logs from before the rename name it so.
-        if isinstance(self.methods, tuple) and "split" in self.methods:
-            object.__setattr__(self, "methods", tuple("series" if m == "split" else m for m in self.methods))
+        if isinstance(self.methods, tuple):
+            object.__setattr__(self, "methods", tuple(current_method(m) for m in self.methods))
         super().__post_init__()
 
     def resolved(self, settings: Settings) -> EstimatorSettings:

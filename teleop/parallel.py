@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from multiprocessing import get_context
 from typing import TypeVar
 
@@ -29,18 +30,10 @@ def progress_map(work: Callable[[T], R], items: Iterable[T], *, workers: int, de
     forking this one, with OpenCV on one thread in each.
     """
     items = list(items)
-    results: list[R] = []
-    with tqdm(total=len(items), desc=desc, unit=unit, disable=not progress) as bar:
-        if workers <= 1:
-            mapped: Iterable[R] = map(work, items)
-            for result in mapped:
-                results.append(result)
-                bar.update()
-            return results
-        # A forked child inherits OpenCV's thread pool mid-state: setting its threads there can hang.
-        context, initializer = (get_context("spawn"), _one_thread) if spawn else (None, None)
-        with ProcessPoolExecutor(workers, mp_context=context, initializer=initializer) as pool:
-            for result in pool.map(work, items, chunksize=max(1, len(items) // (8 * workers))):
-                results.append(result)
-                bar.update()
-    return results
+    bar = partial(tqdm, total=len(items), desc=desc, unit=unit, disable=not progress)
+    if workers <= 1:
+        return list(bar(map(work, items)))
+    # A forked child inherits OpenCV's thread pool mid-state: setting its threads there can hang.
+    context, initializer = (get_context("spawn"), _one_thread) if spawn else (None, None)
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=initializer) as pool:
+        return list(bar(pool.map(work, items, chunksize=max(1, len(items) // (8 * workers)))))

@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
+from estimator.analytical import current_method
 from estimator.errors import ModelError
 from estimator.inference import distribution, inputs
 from estimator.inference.distribution import (
@@ -276,10 +277,9 @@ class ModelMetadata:
 
 
 def _series_renamed(data: dict[str, Any]) -> dict[str, Any]:
-    """A copy of a model's metadata with the series fit's old name, ``split``, replaced where it
-    names the method: in the method lists, the per-method metrics and ``auto``'s fields."""
-    # The series fit was called "split" until the word was left to the dataset split alone: a model
-    # trained before the rename still loads, and answers as it did.
+    """A copy of a model's metadata with every method named as it is now
+    (:func:`~estimator.analytical.current_method`): in the method lists, the per-method metrics and
+    ``auto``'s fields, so that a model trained before a rename loads and answers as it did."""
     data = copy.deepcopy(data)
 
     def at(*path: str) -> Any:
@@ -288,23 +288,24 @@ def _series_renamed(data: dict[str, Any]) -> dict[str, Any]:
             node = node.get(key) if isinstance(node, dict) else None
         return node
 
-    def rekeyed(mapping: dict[str, Any], old: str, new: str) -> dict[str, Any]:
-        return {new if key == old else key: value for key, value in mapping.items()}
-
     for path, key in ((("scales",), "analytical_methods"), (("calibration", "floor"), "methods"),
                       (("recalibrated", "previous", "floor"), "methods")):
         holder = at(*path)
         if isinstance(holder, dict) and isinstance(holder.get(key), list):
-            holder[key] = ["series" if m == "split" else m for m in holder[key]]
+            holder[key] = [current_method(m) for m in holder[key]]
     metrics = at("metrics")
     for part, figures in metrics.items() if isinstance(metrics, dict) else ():
         if isinstance(figures, dict):
-            metrics[part] = rekeyed(figures, "split", "series")
-    if isinstance(at("auto"), dict):
-        auto = data["auto"] = rekeyed(data["auto"], "max_split_interval_decades", "max_series_interval_decades")
+            metrics[part] = {current_method(k): v for k, v in figures.items()}
+    auto = at("auto")
+    if isinstance(auto, dict):
+        # auto's fields name the series fit: its interval threshold and its column of the table.
+        renamed = {"max_split_interval_decades": "max_series_interval_decades",
+                   "split_log10_error": "series_log10_error"}
+        data["auto"] = auto = {renamed.get(k, k): v for k, v in auto.items()}
         if isinstance(auto.get("table"), list):
-            auto["table"] = [rekeyed(row, "split_log10_error", "series_log10_error") if isinstance(row, dict)
-                             else row for row in auto["table"]]
+            auto["table"] = [{renamed.get(k, k): v for k, v in row.items()} if isinstance(row, dict) else row
+                             for row in auto["table"]]
     return data
 
 

@@ -56,6 +56,7 @@ from typing import Any
 
 import numpy as np
 
+from estimator.analytical import current_method
 from estimator.errors import FitError, SampleError
 from estimator.estimate import Estimate
 
@@ -253,8 +254,7 @@ def _estimates_from(path: Path, members: dict[str, np.ndarray]) -> tuple[Estimat
     estimates = []
     for method, state, reason, row in zip(*text, values, strict=True):
         e_pa, low, high = (None if np.isnan(v) else float(v) for v in row)
-        # Datasets built before the rename name the series fit "split": they still train and calibrate.
-        method = "series" if method == "split" else method
+        method = current_method(str(method))  # datasets from before a rename still train and calibrate
         try:
             estimates.append(Estimate(str(method), e_pa, (low, high), str(state), str(reason)))
         except FitError as exc:
