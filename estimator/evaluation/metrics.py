@@ -94,6 +94,7 @@ __all__ = [
     "SOFT_TRUTH_PA",
     "dangerous_miss",
     "felt_log10_error",
+    "felt_log10_offset",
     "felt_pa",
     "felt_within",
     "point_value",
@@ -180,12 +181,18 @@ def felt_pa(row: Mapping[str, Any], *, display_range_pa: tuple[float, float]) ->
     return _rendered(row, display_range_pa)[1]
 
 
-def felt_log10_error(felt: float, truth_pa: float, *, display_range_pa: tuple[float, float]) -> float:
-    """How far (decades) a rendered modulus ``felt`` lies from the label clipped to the display's range:
-    the best the display could have rendered (an object stiffer than its rigid end is right when
-    rendered rigid)."""
+def felt_log10_offset(felt: float, truth_pa: float, *, display_range_pa: tuple[float, float]) -> float:
+    """Decades from the label clipped to the display's range (the best the display could have
+    rendered: an object stiffer than its rigid end is right when rendered rigid) to a rendered
+    modulus ``felt``: negative when the object was felt softer than it is."""
     soft, rigid = display_range_pa
-    return abs(math.log10(felt) - math.log10(min(rigid, max(soft, truth_pa))))
+    return math.log10(felt) - math.log10(min(rigid, max(soft, truth_pa)))
+
+
+def felt_log10_error(felt: float, truth_pa: float, *, display_range_pa: tuple[float, float]) -> float:
+    """How far (decades) a rendered modulus ``felt`` lies from the label clipped to the display's
+    range: the size of :func:`felt_log10_offset`."""
+    return abs(felt_log10_offset(felt, truth_pa, display_range_pa=display_range_pa))
 
 
 def felt_within(error_decades: float) -> bool:

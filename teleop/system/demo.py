@@ -26,8 +26,9 @@ the file is missing) one is fitted at start on simulated ball presses of that se
 
 Results per grasp: the true E (catalogue), the final estimate, its state and interval, what the
 display rendered for it (renderer report: the fraction of the display's range, 1 = rigid, i.e. at
-or beyond the sensor's resolution limit), the error in decades, the time from contact to the first
-estimate that is not a refusal (estimator report), and the latency from the last loading frame's
+or beyond the sensor's resolution limit), the error in decades (of the estimate; the table shows the
+rendering's), the time from contact to the first estimate that is not a refusal (estimator
+report), and the latency from the last loading frame's
 capture to the display report that showed the final estimate (renderer report). All on this
 host's monotonic clock; and the learned model that made the final estimate (``model``: its
 :func:`~estimator.inference.infer.model_id`, none for an analytical estimate). The live lines and the
@@ -533,8 +534,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "simulated display and the session recorder, as separate processes on loopback; grasp every "
         "object of a scene once, show each grasp live and print a closing table (true E, final estimate "
         "and state, what the display rendered (rigid, unknown, or the fraction of its range and the modulus "
-        "it stands for), error in decades, time to the first estimate after contact, latency from the last "
-        "loading frame to the display report) and the session log's path."
+        "it stands for), the felt error in decades (the rendering against the label on the display's range: "
+        "an object stiffer than the sensor resolves is right when rendered rigid), time to the first estimate "
+        "after contact, latency from the last loading frame to the display report) and the session log's path."
     )
     add_run_arguments(parser, default_scene="default")
     parser.add_argument("--operator", choices=("sim", "script"), default="sim",

@@ -64,11 +64,11 @@ class LiveView:
             kind = "provisional" if latest.provisional else "final"
             return (f"{head} {outcome.estimates:3d} estimates, {kind} "
                     f"{_STATE_MARK[latest.state]}{_pa(latest.E_pa)} Pa ({latest.state})")
-        error = outcome.log10_error
+        felt = outcome.felt_log10_offset
         first = outcome.t_first_estimate_s
         return (f"{head} E {_pa(outcome.obj.modulus_pa)} Pa -> {_STATE_MARK[outcome.state]}"
                 f"{_pa(outcome.e_final_pa)} Pa ({outcome.state}), display {display_cell(outcome)}, "
-                f"error {_number(error, '+.2f')} dec, "
+                f"felt {_number(felt, '+.2f')} dec, "
                 f"first estimate {_number(None if first is None else first * 1e3, '.0f')} ms, "
                 f"latency {_number(outcome.latency_ms, '.0f')} ms")
 
@@ -86,17 +86,19 @@ class LiveView:
 
 def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
     """The closing table: object, grasp style, true E, final estimate and state, what the display
-    rendered (:func:`display_cell`), error, first estimate, the time from contact until the display
-    stayed within a factor 2 of the label, latency; then :func:`felt_summary` and :func:`models_line`.
+    rendered (:func:`display_cell`), the felt error (decades from the label on the display's range to
+    the rendering, negative when felt too soft: a rigid object rendered rigid is exact, whatever the
+    bound), first estimate, the time from contact until the display stayed within a factor 2 of the
+    label, latency; then :func:`felt_summary` and :func:`models_line`.
 
     The latency runs from the last loading frame to the display report of the final estimate; an
     operator's grasp has its final when the operator lets go, seconds after the peak, so it shows
     none (its provisional estimates follow the squeeze instead: see the felt time).
     """
-    header = ("object", "style", "E true (Pa)", "final (Pa)", "state", "display (~Pa)", "error (dec)", "first est. (ms)",
+    header = ("object", "style", "E true (Pa)", "final (Pa)", "state", "display (~Pa)", "felt (dec)", "first est. (ms)",
               "felt 2x (s)", "latency (ms)")
     rows = [(o.obj.name, o.style, _pa(o.obj.modulus_pa), f"{_STATE_MARK[o.state]}{_pa(o.e_final_pa)}", o.state,
-             display_cell(o), _number(o.log10_error, "+.2f"),
+             display_cell(o), _number(o.felt_log10_offset, "+.2f"),
              _number(None if o.t_first_estimate_s is None else o.t_first_estimate_s * 1e3, ".0f"),
              _number(o.t_felt_within_2x_s, ".2f"),
              _number(o.latency_ms if o.style == "script" else None, ".0f")) for o in outcomes]

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from estimator.evaluation.metrics import felt_log10_error, felt_within
+from estimator.evaluation.metrics import felt_log10_error, felt_log10_offset, felt_within
 from estimator.settings import EstimatorSettings
 from haptics.errors import MappingError
 from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_fraction
@@ -153,14 +153,20 @@ class GraspOutcome:
         return None if e is None else math.log10(e / self.obj.modulus_pa)
 
     @property
-    def felt_log10_error(self) -> float | None:
-        """How far (decades) what the display rendered lies from the label clipped to the display's range
-        (a rigid object rendered rigid is exact); None without a rendering or a range, or when the display
-        was told the modulus is unknown (a refusal)."""
+    def felt_log10_offset(self) -> float | None:
+        """Decades from the label clipped to the display's range to what the display rendered (a rigid
+        object rendered rigid is exact; negative: felt softer than it is); None without a rendering or a
+        range, or when the display was told the modulus is unknown (a refusal)."""
         felt = self.display_e_pa
         if felt is None or self.rendered.unknown:
             return None
-        return felt_log10_error(felt, self.obj.modulus_pa, display_range_pa=self.display_range)
+        return felt_log10_offset(felt, self.obj.modulus_pa, display_range_pa=self.display_range)
+
+    @property
+    def felt_log10_error(self) -> float | None:
+        """The size of :attr:`felt_log10_offset`."""
+        offset = self.felt_log10_offset
+        return None if offset is None else abs(offset)
 
     @property
     def t_felt_within_2x_s(self) -> float | None:

@@ -121,7 +121,9 @@ def test_outcomes_give_the_closing_table_and_json():
     assert lost.to_json()["interval_pa"] is None and lost.to_json()["display_fraction"] is None
     table = closing_table([good, bound, lost]).splitlines()
     assert table[0].split()[:4] == ["object", "style", "E", "true"] and set(table[1]) <= {"-", " "}
-    assert ">=2e+09" in table[3] and "lower_bound" in table[3] and "-2.00" in table[3] and "120" in table[3]
+    # Without a rendering there is no felt error: the estimate's own -2 decades are not shown as one.
+    assert ">=2e+09" in table[3] and "lower_bound" in table[3] and "120" in table[3]
+    assert table[3].split()[5:7] == ["-", "-"] and "-2.00" not in table[3]
     assert table[4].split()[1:] == ["script", "5e+03", "?-", "none", "-", "-", "-", "-", "-"]
     assert table[-2] == "the display rendered none of 3 grasps"
     assert table[-1] == "model: none (analytical estimates, 2 of 3 finals)"
@@ -196,6 +198,11 @@ def test_outcomes_show_what_the_display_rendered():
     # renders nothing.
     assert steel.felt_log10_error == 0.0 and lost.felt_log10_error is None
     assert duck.felt_log10_error == pytest.approx(abs(math.log10(math.sqrt(soft * limit) / 1e6)))
+    # The table shows the felt error signed (negative: felt softer than the label): the steel's bound,
+    # rendered rigid, is exact.
+    assert duck.felt_log10_offset == pytest.approx(math.log10(math.sqrt(soft * limit) / 1e6))
+    assert duck.felt_log10_offset < 0
+    assert table[2].split()[7] == "+0.00" and table[3].split()[7] == f"{duck.felt_log10_offset:+.2f}"
     within = int(steel.felt_log10_error <= math.log10(2)) + int(duck.felt_log10_error <= math.log10(2))
     assert table[-2] == (f"felt (display against the label on its range): mean error "
                          f"{(steel.felt_log10_error + duck.felt_log10_error) / 2:.2f} decades, {within} of 3 "
