@@ -147,8 +147,9 @@ class RendererService(ServiceLoop):
         if message is not None:
             self.handle(message)
         self.renderer.tick(self.clock())
+        written_s = self.clock()  # before the display message goes out: the latency ends at the report
         self._publish_display()
-        self._check_pending()
+        self._check_pending(written_s)
         return message
 
     def handle(self, message: Message) -> None:
@@ -167,6 +168,7 @@ class RendererService(ServiceLoop):
             reports_before = self.renderer.stats.reports_sent
             ignored_before = self.renderer.stats.estimates_ignored
             self.renderer.on_estimate(update, self.clock())
+            written_s = self.clock()
         except HapticsError as exc:
             self.stats.bad_messages += 1
             log.warning("estimate from %s (seq %d) not rendered: %s", message.source or "?", message.seq, exc)
@@ -177,7 +179,7 @@ class RendererService(ServiceLoop):
         self._received[update.grasp_id] = self._received.get(update.grasp_id, 0) + 1
         if not update.provisional and self.renderer.stats.estimates_ignored == ignored_before:
             self._pending = _Pending(update.grasp_id, update, reports_before, self.renderer.target)
-            self._check_pending()
+            self._check_pending(written_s)
 
     def _display_body(self) -> dict[str, Any]:
         """The body of a ``display`` message for what the renderer shows now (see the module docstring)."""
@@ -224,12 +226,12 @@ class RendererService(ServiceLoop):
         self._publish_failing = False
         self.stats.display_messages += 1
 
-    def _check_pending(self) -> None:
-        """Record the pending final estimate's latency once a report went out after it."""
+    def _check_pending(self, written_s: float) -> None:
+        """Record the pending final estimate's latency once a report went out after it (``written_s``:
+        the clock just after the renderer call that may have written it)."""
         pending = self._pending
         if pending is None or self.renderer.stats.reports_sent == pending.reports_before:
             return
-        written_s = self.clock()
         update = pending.update
         info = self.renderer.display.info
         level_max = None if info is None else info.level_max
