@@ -158,9 +158,10 @@ fine-tune: $(VENV)/.installed-dev
 # Grasps a person makes against the paper's scripted grasp: the shipped models' test objects grasped by the
 # simulated operator (variable speed, pauses, back-offs and re-squeezes, grasps that never hold still), by
 # the scripted grasp, and by the scripted grasp squeezing lightly (4.8-12 N, where the nominal rig's training
-# grasps go to 12-30 N), same seeds, poses and objects; the hybrid scored on each. About 3 minutes.
-# Writes runs/operator-eval/{script,sim,light}/figures.json.
-OPERATOR_GRASPS ?= 3
+# grasps go to 12-30 N), same seeds, poses and objects; the hybrid scored on each. 12 grasps of each object
+# (516 a set, as the nominal rig's test set): with 3, one grasp moves a set's dangerous misses and felt error
+# more than the sets differ. About 6 minutes. Writes runs/operator-eval/{script,sim,light}/figures.json.
+OPERATOR_GRASPS ?= 12
 OPERATOR_EVAL_SETS := script:--operator=script sim:--operator=sim light:--target-force-n=12
 operator-eval: $(VENV)/.installed-dev
 	rm -rf runs/operator-eval
