@@ -221,7 +221,7 @@ def _peak_frame(frame_t_s: np.ndarray, tf: np.ndarray, force: np.ndarray, *, pea
                 stopped: bool) -> tuple[np.ndarray, np.ndarray]:
     """Index and time of the peak frame (module notes), or two empty arrays when there is none."""
     t_peak = float(tf[peak])
-    index, t = _frames_in_phase(frame_t_s, np.nextafter(t_peak, np.inf), t_peak + PEAK_FRAME_WINDOW_S)
+    index, t = _frames_in_phase(frame_t_s, math.nextafter(t_peak, math.inf), t_peak + PEAK_FRAME_WINDOW_S)
     if index.size == 0:
         return index, t
     known = stopped or tf[-1] >= t[0]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -270,6 +272,15 @@ def test_any_streams_segment_without_crashing(force, width, frames):
     assert np.all(np.isfinite(seg.frame_force_n)) and np.all(np.isfinite(seg.frame_width_m))
     assert np.all(np.isfinite(seg.load_force_n)) and np.all(np.isfinite(seg.load_width_m))
     assert seg.t_onset_s <= seg.t_contact_s <= seg.t_peak_s
+
+
+def test_a_peak_at_the_last_representable_time_segments_without_overflow_warnings():
+    big = np.finfo(float).max
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the peak frame is searched after the peak's time
+        seg = segment_grasp(np.array([0.0, 0.1, 0.2, big]), np.array([0.0, 2.0, 4.0, 10.0]), np.array([0.0, big]),
+                            np.array([0.05, 0.04]), np.array([0.05, 0.15, 0.25]), contact_force_n=0.75, n_frames=3)
+    assert seg.t_peak_s == big
 
 
 def test_hold_frames_follow_the_peak_after_the_width_reads_settle():
