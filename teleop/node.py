@@ -423,6 +423,10 @@ class RobotNode(ServiceLoop):
         elif grasp.phase == "releasing" and grasp.motion.done():
             grasp.phase, grasp.phase_until_s = "tail", now + TAIL_S
         elif grasp.phase == "tail" and now >= grasp.phase_until_s:
+            if self.simulated and not grasp.follow:
+                # A replay lets go where its record ends; a hardware release opens the fingers fully,
+                # and so must the next object (a follow grasp's) find them.
+                self.gripper.move_async(self.settings.gripper.max_width_m)
             self._end()
 
     def _play(self, grasp: _Grasp) -> None:

@@ -221,3 +221,21 @@ def test_a_release_opens_fingers_the_watchdog_left_closed_and_the_next_grasp_tak
         starts |= {m.body["grasp_id"]: m.body["object_name"] for m in drain(listener)
                    if m.type == "grasp_event" and m.body["event"] == "start"}
     assert starts["g-second"] == scene.objects[1].name != scene.objects[0].name
+
+
+@pytest.mark.slow
+def test_a_commanded_grasp_leaves_the_fingers_open_for_the_next_objects_follow_grasp(rig):
+    node, operator, listener, scene = rig
+    operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id="g-script", params={})
+    deadline = time.monotonic() + 30.0
+    while node.busy or node.stats.grasps < 1:
+        assert time.monotonic() < deadline, "the commanded grasp did not end"
+        node.step(timeout_s=0.002)
+    step_for(node, 1.0)
+    # The replay let go where its record ends; as a hardware release, the fingers then open fully.
+    assert node.gripper.read_width()[1] == pytest.approx(scene.settings.gripper.max_width_m, abs=1e-3)
+    wait_prepared(node)
+    drain(listener)
+    drive(node, operator, lambda t: scene.settings.gripper.max_width_m, 0.4, grasp_id="g-next")
+    forces = np.concatenate([m.body["value_n"] for m in drain(listener) if m.type == "force"])
+    assert forces.size and forces.max() < 1.0  # the next object sits between open fingers, untouched
