@@ -30,13 +30,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("grasp", metavar="GRASP", help="grasp record (.grasp file)")
     parser.add_argument(
-        "--method", choices=ALL_METHODS, default="series",
-        help="no_tactile: Hooke on force and width only; elastic: stress F/A over strain with "
+        "--method", choices=ALL_METHODS, default="auto",
+        help="auto (as the live service answers): per grasp the cheapest answer whose "
+             "expected error fits (the series fit when its interval is narrow enough, else the model); "
+             "no_tactile: Hooke on force and width only; elastic: stress F/A over strain with "
              "measured contact area and depth; hertz: Hertz contact through MDR; series: the gel's "
              "share of the approach at the first-contact point; hybrid: a trained model over sampled "
              "tactile frames, force, width and the analytical estimates; cnn: a model trained without "
-             "the analytical estimates; auto: per grasp the cheapest answer whose expected error fits "
-             "(the series fit when its interval is narrow enough, else the model)",
+             "the analytical estimates",
     )
     parser.add_argument(
         "--model", metavar="DIR", default=None,
@@ -109,7 +110,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps({"grasp": args.grasp, **estimate.to_json(), "model": model}, allow_nan=False))
         return 0
     low, high = estimate.interval_pa
+    by = "" if model is None else f", model {model}"
     print(f"{args.method}: {estimate.state}  E = {_pa(estimate.e_pa)}  interval [{_pa(low)}, {_pa(high)}]  "
-          f"({estimate.latency_s * 1e3:.1f} ms)")
+          f"({estimate.latency_s * 1e3:.1f} ms{by})")
     print(f"  {estimate.reason}")
     return 0

@@ -445,6 +445,14 @@ def test_estimate_command_prints_json(grasp_dir, capsys):
     assert out["state"] == "lower_bound" and out["interval_pa"][1] is None
 
 
+def test_estimate_command_answers_as_the_live_service_by_default(grasp_dir, capsys):
+    root, cal = grasp_dir
+    assert main(["estimate", str(root / "ball_rubber.grasp"), "--calibration", str(cal), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    # The service's default: auto mode over the shipped model, which names itself.
+    assert out["method"] == "auto" and out["model"].startswith("default-")
+
+
 def test_estimate_command_errors_are_one_line(grasp_dir, capsys):
     root, _ = grasp_dir
     assert main(["estimate", str(root / "ball_rubber.grasp"), "--method", "hertz"]) == 2
