@@ -7,6 +7,7 @@ import dataclasses
 import json
 
 from haptics.devices import BACKENDS, make_display
+from haptics.errors import HapticsError
 from haptics.mapping import (
     ESTIMATE_STATES,
     EstimateUpdate,
@@ -40,6 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.e_pa is None and args.state == "ok":
+        raise HapticsError("--e-pa: expected Young's modulus in Pa (only --state insufficient_data needs none)")
     # The full settings resolve [display] e_rigid_pa = 0 to the sensor's resolution limit.
     settings = display_settings(load_settings(args.settings))
     if args.backend is not None:

@@ -91,6 +91,11 @@ def test_try_maps_and_writes_to_the_simulated_display(capsys):
     assert data["status"] == {"state": "rendering", "level": expected, "faults": [], "sequence": 0}
 
 
+def test_try_without_a_modulus_names_the_option(capsys):
+    assert main(["try", "--backend", "sim"]) == 2
+    assert "--e-pa: expected Young's modulus in Pa" in capsys.readouterr().err
+
+
 def test_try_insufficient_data_and_rigid(capsys):
     assert main(["try", "--state", "insufficient_data", "--json"]) == 0
     assert last_json(capsys)["command"]["unknown"] is True
