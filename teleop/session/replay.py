@@ -52,6 +52,7 @@ class ReplayStats:
     sent: int = 0
     topics: Counter[str] = field(default_factory=Counter)
     heartbeats_skipped: int = 0
+    other_sources: int = 0  # messages recorded from publishers not asked for
     refused: Counter[str] = field(default_factory=Counter)  # stored messages that did not decode
     log_span_s: float = 0.0  # receive-time span of what was sent
     wall_s: float = 0.0
@@ -62,6 +63,7 @@ class ReplayStats:
             "sent": self.sent,
             "topics": dict(sorted(self.topics.items())),
             "heartbeats_skipped": self.heartbeats_skipped,
+            "other_sources": self.other_sources,
             "refused": dict(self.refused),
             "log_span_s": self.log_span_s,
             "wall_s": self.wall_s,
@@ -75,6 +77,7 @@ def replay(
     *,
     speed: float | None = 1.0,
     topics: Iterable[str] | None = None,
+    recorded_from: Iterable[str] | None = None,
     clock: Callable[[], float] = time.monotonic,
     sleep: Callable[[float], None] = time.sleep,
     progress: bool = False,
@@ -91,6 +94,9 @@ def replay(
         Replay speed relative to the recording (2.0: twice as fast); None: as fast as possible.
     topics : iterable of str, optional
         Topic prefixes to replay; default all (heartbeats never).
+    recorded_from : iterable of str, optional
+        Replay only messages recorded from these publishers (their ``source``: ``robot``,
+        ``estimator``, ...); default every one.
     clock, sleep : callable
         Monotonic seconds and a sleep; replaceable for tests.
     progress : bool
@@ -107,6 +113,7 @@ def replay(
         raise SessionLogError(
             f"replay speed {speed}: expected a number > 0 (or None: as fast as possible)"
         )
+    sources = None if recorded_from is None else frozenset(recorded_from)
     reader = LogReader(Path(path), max_bytes=publisher.max_bytes)
     stats = ReplayStats()
     first_ns = last_ns = None
@@ -116,6 +123,9 @@ def replay(
             message = logged.message
             if message.type == "heartbeat":
                 stats.heartbeats_skipped += 1
+                continue
+            if sources is not None and message.source not in sources:
+                stats.other_sources += 1
                 continue
             if first_ns is None:
                 first_ns, start_s = logged.log_time_ns, clock()

@@ -52,6 +52,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "grasp_event); default: all but heartbeats",
     )
     parser.add_argument(
+        "--recorded-from",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help="replay only messages recorded from these publishers (robot: what `teleop node` sent; "
+        "estimator, renderer, ...): `--recorded-from robot` onto a running `estimator serve` "
+        "estimates a session's grasps again, without its recorded estimates and grasp ends; "
+        "default: every publisher",
+    )
+    parser.add_argument(
         "--source",
         default="replay",
         metavar="NAME",
@@ -75,8 +85,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--json",
         action="store_true",
-        help="print one JSON object (log, endpoint, sent, topics, heartbeats_skipped, refused, "
-        "log_span_s, wall_s, damage) as the last stdout line",
+        help="print one JSON object (log, endpoint, sent, topics, heartbeats_skipped, other_sources, "
+        "refused, log_span_s, wall_s, damage) as the last stdout line",
     )
 
 
@@ -101,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
             publisher,
             speed=None if args.as_fast_as_possible else args.speed,
             topics=args.topics,
+            recorded_from=args.recorded_from,
             progress=True,
         )
         endpoint = publisher.endpoint
@@ -111,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
             publisher.heartbeat_if_due()
     print(
         f"replayed {stats.sent} messages ({stats.log_span_s:.2f} s recorded) "
-        f"in {stats.wall_s:.2f} s on {endpoint}; refused {sum(stats.refused.values())}",
+        f"in {stats.wall_s:.2f} s on {endpoint}; refused {sum(stats.refused.values())}"
+        + (f"; left out {stats.other_sources} from other publishers" if stats.other_sources else ""),
         file=sys.stderr,
     )
     if stats.damage:
