@@ -27,12 +27,11 @@ the file is missing) one is fitted at start on simulated ball presses of that se
 Results per grasp: the true E (catalogue), the final estimate, its state and interval, what the
 display rendered for it (renderer report: the fraction of the display's range, 1 = rigid, i.e. at
 or beyond the sensor's resolution limit), the error in decades (of the estimate; the table shows the
-rendering's), the time from contact to the first estimate that is not a refusal (estimator
-report), and the latency from the last loading frame's
-capture to the display report that showed the final estimate (renderer report). All on this
-host's monotonic clock; and the learned model that made the final estimate (``model``: its
-:func:`~estimator.inference.infer.model_id`, none for an analytical estimate). The live lines and the
-closing table are in :mod:`teleop.system.demo_table`.
+rendering's), the time from contact to the first estimate that is not a refusal (estimator report),
+and the latency from the last loading frame's capture to the display report that showed the final
+estimate (renderer report). All on this host's monotonic clock; and the learned model that made the
+final estimate (``model``: its :func:`~estimator.inference.infer.model_id`, none for an analytical
+estimate). The live lines and the closing table are in :mod:`teleop.system.demo_table`.
 
 :meth:`LiveSystem.load_model` switches the running estimator to another model between grasps, as
 ``estimator reload`` does (which cannot bind the command endpoint while the demo holds it).
