@@ -57,7 +57,6 @@ from estimator.linefit import MeasurementNoise, fit_line
 __all__ = [
     "METHODS",
     "approach_per_finger",
-    "current_method",
     "elastic",
     "gel_layer_factor",
     "hertz",
@@ -66,12 +65,6 @@ __all__ = [
 ]
 
 METHODS = ("no_tactile", "elastic", "hertz", "series")
-
-
-def current_method(name: str) -> str:
-    """``name`` as the method is called now: the series fit was ``split`` until the word was left to the
-    dataset split, and settings, session logs, datasets and models from before still name it so."""
-    return "series" if name == "split" else name
 
 def approach_per_finger(
     width_m: np.ndarray,

@@ -10,8 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from estimator.analytical import METHODS, current_method
+from estimator.analytical import METHODS
 from teleop.errors import SettingsError
+from teleop.scene import current_method
 from teleop.settings import Section, SensorSettings, Settings
 from teleop.settings_fields import spec
 

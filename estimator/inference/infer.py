@@ -58,7 +58,6 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
-from estimator.analytical import current_method
 from estimator.errors import ModelError
 from estimator.inference import distribution, inputs
 from estimator.inference.distribution import (
@@ -78,6 +77,7 @@ from estimator.inference.inputs import (
 )
 from estimator.settings import estimator_settings
 from teleop.bus.wire import MAX_MODEL_ID_CHARS
+from teleop.scene import current_method
 from teleop.settings import Settings, resolve_path
 
 __all__ = [
@@ -278,7 +278,7 @@ class ModelMetadata:
 
 def _series_renamed(data: dict[str, Any]) -> dict[str, Any]:
     """A copy of a model's metadata with every method named as it is now
-    (:func:`~estimator.analytical.current_method`): in the method lists, the per-method metrics and
+    (:func:`~teleop.scene.current_method`): in the method lists, the per-method metrics and
     ``auto``'s fields, so that a model trained before a rename loads and answers as it did."""
     data = copy.deepcopy(data)
 

@@ -56,9 +56,9 @@ from typing import Any
 
 import numpy as np
 
-from estimator.analytical import current_method
 from estimator.errors import FitError, SampleError
 from estimator.estimate import Estimate
+from teleop.scene import current_method
 
 __all__ = [
     "SAMPLE_FORMAT",
