@@ -441,6 +441,9 @@ class RobotNode(ServiceLoop):
             self._end()
             return
         playback = GraspPlayback(record, clock=self.clock)
+        # The last replay's opening move may still run: the replay takes the fingers now, and its grasp
+        # command must not queue behind that move (its stop is the loading-end marker).
+        self.gripper.stop()
         self._follower.live = None
         for device in self._devices:
             device.replay(playback)

@@ -162,3 +162,24 @@ def test_loading_end_marker_waits_for_the_width_at_the_stop_and_a_force_sample_a
                                                                            width_m=0.03, held=True))
     node._publish("width", Samples(np.array([30.05]), np.array([0.03])))
     assert events() == ["loading_end"]
+
+
+def test_the_next_commanded_grasp_stops_on_time_after_the_fingers_opened(rig):
+    node, operator, listener, scene = rig
+    # Fingers that open slowly (their moves, not the replays, take the gripper's speed) are still
+    # opening when the second grasp comes.
+    node.gripper.settings = dataclasses.replace(node.gripper.settings, closing_speed_m_s=0.01)
+    for number, grasp_id in enumerate(("g-first", "g-second")):
+        operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id=grasp_id,
+                      params={"object_index": 1.0})
+        run_until_idle(node, grasps=number + 1)
+    got = [m for m in drain(listener) if m.body.get("grasp_id") == "g-second"]
+    # The second's replay takes the fingers over at once: its stop (the loading-end marker) comes when
+    # the record's fingers stop, not after the first grasp's opening move.
+    record, _ = simulate_grasp(scene.objects[1], settings=scene.settings,
+                               rng=np.random.default_rng(scene.seed * 10_000 + 1), seed=scene.seed * 10_000 + 1)
+    forces = [m for m in got if m.type == "force"]
+    shift = forces[0].body["t_s"][0] - record.force_n.t_s[0]
+    markers = [m for m in got if m.type == "grasp_event" and m.body["event"] == "loading_end"]
+    assert len(markers) == 1
+    assert -0.02 <= markers[0].t_capture_s - record.events["grasp_done"] - shift < 0.25
