@@ -548,6 +548,8 @@ def test_bench_latency_prints_its_figures(tmp_path, capsys):
     summary = json.loads(captured.out)  # under --json stdout is the JSON alone; the report goes to stderr
     out = captured.err.splitlines()
     assert summary["grasps"] == summary["finals_measured"] == 2
+    # Each grasp's final comes as its fingers stop, the second's too (not by the settled-force fallback).
+    assert summary["finals_by"] == {"loading_end": 2}
     assert 0 < summary["p50_ms"] <= summary["p99_ms"] < 2000 and summary["provisional_hz"] > 0
     assert summary["delivery_p50_ms"] < summary["p50_ms"]
     assert summary["frame_baseline_before_ms"] > 0 and summary["frame_baseline_after_ms"] > 0
