@@ -67,8 +67,10 @@ REFRESH_S = 0.1
 QUIT_GRACE_S = 1.0  # after quit, the loop thread is told to stop if it has not ended by itself
 BAR_CELLS = 24
 #: A final interval wider than this (a factor 10, a third of the display's scale) gets a hint: a
-#: firmer squeeze reads surer (the model card's light-squeeze limit).
+#: firmer squeeze reads surer (the model card's light-squeeze limit) ...
 WIDE_INTERVAL_DECADES = 1.0
+#: ... unless the grasp already reached this share of the settings' maximum force.
+FULL_SQUEEZE = 0.9
 
 
 def format_pa(value: float | None) -> str:
@@ -97,8 +99,11 @@ def estimate_line(estimate: EstimateBody | None) -> str:
     return f"E {sign} {format_pa(estimate.E_pa)}{interval}  {state}  {kind}"
 
 
-def squeeze_hint(estimate: EstimateBody | None) -> str | None:
-    """A hint for a final ``ok`` estimate whose interval is wider than :data:`WIDE_INTERVAL_DECADES`."""
+def squeeze_hint(estimate: EstimateBody | None, *, peak_force_n: float | None = None,
+                 max_force_n: float | None = None) -> str | None:
+    """A hint for a final ``ok`` estimate whose interval is wider than :data:`WIDE_INTERVAL_DECADES`,
+    after a grasp that peaked at ``peak_force_n`` (N) of the ``max_force_n`` (N) allowed: none when
+    it reached :data:`FULL_SQUEEZE` of that maximum, as no firmer squeeze is possible."""
     if estimate is None or estimate.provisional or estimate.state != "ok":
         return None
     low, high = estimate.interval_pa
@@ -107,7 +112,12 @@ def squeeze_hint(estimate: EstimateBody | None) -> str | None:
     width = math.log10(high / low)
     if width <= WIDE_INTERVAL_DECADES:
         return None
-    return f"wide interval ({width:.1f} decades): a firmer squeeze reads surer"
+    if peak_force_n is None or max_force_n is None:
+        return f"wide interval ({width:.1f} decades): a firmer squeeze reads surer"
+    if peak_force_n >= FULL_SQUEEZE * max_force_n:
+        return None
+    return (f"wide interval ({width:.1f} decades) after a {peak_force_n:.0f} N squeeze: a firmer one "
+            f"(up to {max_force_n:.0f} N) reads surer")
 
 
 def _bar(fraction: float | None, cells: int = BAR_CELLS) -> str:
@@ -356,7 +366,7 @@ class OperatorConsole(App):
         if estimate is not None:
             lines.append(f"{view.estimates} estimate(s) for this grasp, method {estimate.method}")
             lines.append(f"reason: {estimate.reason}")
-            if hint := squeeze_hint(estimate):
+            if hint := squeeze_hint(estimate, peak_force_n=view.peak_force_n, max_force_n=max_force):
                 lines.append(hint)
         shown = view.display
         if shown is None:

@@ -95,6 +95,7 @@ class OperatorView:
     object_name: str | None = None
     phase: str = "idle"
     force_n: float | None = None
+    peak_force_n: float | None = None  # the current grasp's highest force so far
     width_m: float | None = None
     robot: RobotStateBody | None = None
     estimate: EstimateBody | None = None
@@ -154,6 +155,7 @@ class OperatorLink:
         self._object_name: str | None = None
         self._phase = "idle"
         self._force_n: float | None = None
+        self._peak_force_n: float | None = None
         self._width_m: float | None = None
         self._robot: RobotStateBody | None = None
         self._estimates: dict[str, tuple[EstimateBody, int]] = {}
@@ -236,6 +238,7 @@ class OperatorLink:
         if self._grasp_id is not None:
             self._dismissed.add(self._grasp_id)
         self._grasp_id, self._object_name, self._phase = None, None, "idle"
+        self._peak_force_n = None
         self._estimates.clear()
         self.view = self._snapshot()
 
@@ -265,10 +268,13 @@ class OperatorLink:
         if kind == "grasp_event" and message.source == "robot":
             if body.event == "start" or body.grasp_id != self._grasp_id:
                 self._grasp_id, self._object_name = body.grasp_id, body.object_name
+                self._peak_force_n = None
                 self._estimates = {k: v for k, v in self._estimates.items() if k == self._grasp_id}
             self._phase = {"start": "loading", "loading_end": "loaded", "end": "ended"}[body.event]
         elif kind == "force":
             self._force_n = float(body.value_n[-1])
+            if body.grasp_id is not None and body.grasp_id == self._grasp_id:
+                self._peak_force_n = max(self._peak_force_n or 0.0, float(body.value_n.max()))
         elif kind == "width":
             self._width_m = float(body.value_m[-1])
         elif kind == "robot_state":
@@ -304,7 +310,8 @@ class OperatorLink:
         notice, notice_t = self._notice if self._notice is not None else (None, None)
         return OperatorView(
             t_s=now, peers=self._peers(now), grasp_id=self._grasp_id, object_name=self._object_name,
-            phase=self._phase, force_n=self._force_n, width_m=self._width_m, robot=self._robot,
+            phase=self._phase, force_n=self._force_n, peak_force_n=self._peak_force_n, width_m=self._width_m,
+            robot=self._robot,
             estimate=estimate, estimates=count, display=self._display, notice=notice, notice_t_s=notice_t,
             refused=sum(self.subscriber.stats.refused.values()),
             label=self._labels.get(self._grasp_id) if self._grasp_id is not None else None,

@@ -78,6 +78,11 @@ def test_a_final_answer_too_wide_to_place_asks_for_a_firmer_squeeze():
     assert squeeze_hint(dataclasses.replace(wide, provisional=True)) is None  # still squeezing
     assert squeeze_hint(dataclasses.replace(wide, state="lower_bound", interval_pa=[5e3, None])) is None
     assert squeeze_hint(None) is None
+    # A grasp that stopped short of the maximum force is told how much firmer it may go; one that
+    # reached it is not asked for what it cannot do.
+    assert squeeze_hint(wide, peak_force_n=12.4, max_force_n=30.0) == (
+        "wide interval (1.6 decades) after a 12 N squeeze: a firmer one (up to 30 N) reads surer")
+    assert squeeze_hint(wide, peak_force_n=29.0, max_force_n=30.0) is None
 
 
 async def _until(predicate, pilot, timeout_s: float = 5.0) -> None:

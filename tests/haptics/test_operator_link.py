@@ -290,6 +290,7 @@ def test_the_link_keeps_the_latest_of_each_and_who_is_alive():
             view = link.view
             assert (view.grasp_id, view.object_name, view.phase) == ("g1", "duck", "loading")
             assert view.force_n == 2.5 and view.width_m == 0.031 and view.estimate.E_pa == 3.6e6
+            assert view.peak_force_n == 2.5  # the grasp's highest force so far
             assert view.stiffness == 0.9 and view.estimates == 1
             robot.send("robot_state", t_capture_s=t, mode="following", grasp_id="g1", target_width_m=0.03,
                        enable=True)
@@ -308,6 +309,7 @@ def test_the_link_keeps_the_latest_of_each_and_who_is_alive():
             robot.send("grasp_event", t_capture_s=t, event="start", grasp_id="g2", object_name="ball")
             _wait(lambda v: v.grasp_id == "g2", link)
             assert link.view.estimate is None and link.view.phase == "loading"
+            assert link.view.peak_force_n is None  # a new grasp: no force of its own yet
             # the estimator goes quiet: shown dead after three heartbeat periods
             deadline = time.monotonic() + 0.5
             while time.monotonic() < deadline:
