@@ -14,8 +14,9 @@ Grasps are commanded on the bus (``command`` messages on ``bus.command``):
     node simulates a grasp of the next object of its scene (or ``params.object_index``, an
     index into the scene's objects repeated ``grasps_per_object`` times) with
     :func:`~teleop.sim.grasp.simulate_grasp`, seeded from the scene's seed and the grasp
-    count, and plays it through the simulated devices in real time (the empty approach before
-    the record's first sample is skipped). With hardware it closes the gripper with
+    count, squeezing to ``params.target_force_n`` when given (else to a drawn share of
+    ``gripper.target_force_n``), and plays it through the simulated devices in real time (the
+    empty approach before the record's first sample is skipped). With hardware it closes the gripper with
     ``params.target_force_n`` (default ``gripper.target_force_n``), holds ``hold_s`` and
     opens again.
 ``stop``
@@ -396,14 +397,15 @@ class RobotNode(ServiceLoop):
         seed = self.scene.seed * 10_000 + number
         self._count += 1
         self._grasp = _Grasp(grasp_id, obj.name)
-        self._grasp.prepared = self._simulator.submit(self._simulate, obj, seed)
+        self._grasp.prepared = self._simulator.submit(self._simulate, obj, seed, target_force_n)
         log.info("grasp %s: simulating %s (seed %d)", grasp_id, obj.name, seed)
         return grasp_id
 
-    def _simulate(self, obj: Any, seed: int) -> GraspRecord:
+    def _simulate(self, obj: Any, seed: int, force_n: float | None) -> GraspRecord:
         from teleop.sim.grasp import simulate_grasp
 
-        return simulate_grasp(obj, settings=self.settings, rng=np.random.default_rng(seed), seed=seed)[0]
+        return simulate_grasp(obj, settings=self.settings, rng=np.random.default_rng(seed), seed=seed,
+                              force_n=force_n)[0]
 
     # ------------------------------------------------------------------ grasp progress
 

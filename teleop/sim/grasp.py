@@ -458,8 +458,8 @@ def _operator_motion(curve: LoadCurve, scene: Scene, gripper: GripperSettings, o
 
 def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Generator,
                    seed: int | None = None, background: dict[str, np.ndarray] | None = None,
-                   operator: str = "script", mechanics: ContactMechanics | None = None
-                   ) -> tuple[GraspRecord, GraspTruth]:
+                   operator: str = "script", mechanics: ContactMechanics | None = None,
+                   force_n: float | None = None) -> tuple[GraspRecord, GraspTruth]:
     """Simulate one labelled grasp of ``obj``.
 
     Parameters
@@ -481,6 +481,9 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
     mechanics : ContactMechanics, optional
         Drawn contact mechanics (:mod:`teleop.sim.mechanics`; the settings' gel model must be
         ``"layer"``); the record's ``provenance.extra["mechanics"]`` keeps them and the size used.
+    force_n : float, optional
+        A scripted grasp commanded to this force (N) squeezes to it, not to a drawn share of
+        ``gripper.target_force_n`` (the draw is still made: the rest of the grasp stays the same).
 
     Returns
     -------
@@ -517,6 +520,7 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
                               f"more than the gripper opens ({gripper.max_width_m} m)")
     # Drawn in both styles, so that one random stream gives one placement and one pair of fingers.
     target = gripper.target_force_n * rng.uniform(*TARGET_FORCE_FRACTION)
+    target = target if force_n is None else force_n
     stiffness = gripper.finger_stiffness_n_per_m * math.exp(rng.normal(0.0, FINGER_STIFFNESS_SD))
     driver = None
     if operator == "sim":

@@ -183,3 +183,15 @@ def test_the_next_commanded_grasp_stops_on_time_after_the_fingers_opened(rig):
     markers = [m for m in got if m.type == "grasp_event" and m.body["event"] == "loading_end"]
     assert len(markers) == 1
     assert -0.02 <= markers[0].t_capture_s - record.events["grasp_done"] - shift < 0.25
+
+
+def test_a_simulated_grasp_squeezes_to_the_commanded_force(rig):
+    node, operator, listener, scene = rig
+    operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id="g-soft",
+                  params={"object_index": 1.0, "target_force_n": 8.0})
+    run_until_idle(node, grasps=1)
+    forces = np.concatenate([m.body["value_n"] for m in drain(listener)
+                             if m.type == "force" and m.body["grasp_id"] == "g-soft"])
+    # As a gripper's grasp stops at its force: the peak is the command's, within the load cell's noise,
+    # not a share of the settings' 30 N drawn by the simulator.
+    assert forces.max() == pytest.approx(8.0, abs=0.5)
