@@ -299,21 +299,27 @@ def map_estimate(update: EstimateUpdate, *, e_soft_pa: float, e_rigid_pa: float)
     "At or above" ``e_rigid_pa`` allows a relative :data:`RIGID_TOLERANCE`.
     - ``upper_bound``: E is the bound (E <= bound); rendered at the bound, never
       rigid; the interval is open below unless given.
+    - any of these three whose interval spans the whole range (from its soft end or below to
+      its rigid end or above; a bound's open side reaches past the end on its side, an ``ok``
+      estimate's open side states nothing): unknown, as ``insufficient_data``. Such an estimate
+      places the object nowhere on the scale; rendering its value (often rigid: the middle of a
+      distribution over every modulus) would tell the operator what the estimate does not.
     """
     soft, rigid = _check_range(e_soft_pa, e_rigid_pa)
+    unknown = Percept(stiffness=0.0, uncertainty_decades=math.log10(rigid / soft), unknown=True,
+                      provisional=update.provisional)
     if update.state == "insufficient_data":
-        return Percept(
-            stiffness=0.0,
-            uncertainty_decades=math.log10(rigid / soft),
-            unknown=True,
-            provisional=update.provisional,
-        )
+        return unknown
     e_pa = update.value_pa
     low, high = update.interval_pa
     if update.state == "lower_bound" and low is None:
         low = e_pa
     if update.state == "upper_bound" and high is None:
         high = e_pa
+    reaches_soft = low <= soft if low is not None else update.state == "upper_bound"
+    reaches_rigid = high >= rigid if high is not None else update.state == "lower_bound"
+    if reaches_soft and reaches_rigid:
+        return unknown
     is_rigid = update.state in ("ok", "lower_bound") and e_pa >= rigid * (1 - RIGID_TOLERANCE)
     return Percept(
         stiffness=1.0 if is_rigid else stiffness_fraction(e_pa, e_soft_pa=soft, e_rigid_pa=rigid),

@@ -68,12 +68,13 @@ COLUMNS: tuple[tuple[str, Any], ...] = (
     ("felt err", lambda m: _number(".3f")(m.get("felt_log10_error"))),
     ("within 2x", lambda m: _share(m.get("felt_within_2x"))),
     ("dangerous", lambda m: _number("d")(m.get("dangerous_misses"))),
+    ("shown unknown", lambda m: _number("d")(m.get("shown_unknown"))),
     ("rigid shown rigid", lambda m: _share(m.get("rigid_shown_rigid"))),
     ("coverage (stated)", lambda m: _coverage(m, "")),
 )
 #: A method's fields a kept copy holds (the figures; not the per-material and per-shape breakdowns).
 _KEPT_METHOD_FIELDS = ("n", "log10_error", "within_10x", "point_log10_error", "point_within_10x", "ok_only",
-                       "felt_log10_error", "felt_within_2x", "dangerous_misses", "rigid_shown_rigid",
+                       "felt_log10_error", "felt_within_2x", "dangerous_misses", "shown_unknown", "rigid_shown_rigid",
                        "interval_level", "interval_coverage", "interval_width_decades_median", "soft_n",
                        "soft_felt_log10_error", "soft_felt_within_2x", "soft_interval_coverage",
                        "soft_interval_width_decades_median", "states", "inputs", "model", "variant")
@@ -255,7 +256,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "Write a model card's figures table from estimator evaluate --json outputs: the block between "
         f"'{BEGIN}' and '{END}' becomes a table with a row per source and method (soft objects' figures "
         "first, then all objects': felt error, share felt within a factor 2, interval coverage with the stated "
-        "level, median interval width, dangerous misses, rigid objects shown rigid) and the command that made "
+        "level, median interval width, dangerous misses, estimates shown unknown, rigid objects shown rigid) and the command that made "
         "each source. The block records its sources, so without --figures the card is written again from them. "
         "--check writes nothing and exits with status 1 when the card differs from its sources, naming each "
         "figure that does."

@@ -13,7 +13,8 @@ Scoring
     ``estimator evaluate`` (:func:`~estimator.evaluation.metrics.summarise`: felt error, share within a
     factor 2, dangerous misses, rigid objects rendered rigid, interval level, coverage and width,
     soft objects' width, states, per material and shape), plus ``answered`` (the share of the
-    grasps not refused), against the display range of the settings.
+    grasps the display places: neither refused nor shown unknown), against the display range of
+    the settings.
 
 The verdict
     ``better`` is ``"candidate"``, ``"base"`` or ``"undecided"`` by the felt error (what the
@@ -326,7 +327,8 @@ def compare_models(
         total = sum(figures["states"].values())
         result[m.name] = {"model": m.model_dir, "method": m.method, "variant": m.variant.name,
                           "measurement_code_matches": m.measurement_code_matches,
-                          "answered": figures["n"] / total if total else None, **figures}
+                          "answered": (figures["n"] - figures["shown_unknown"]) / total if total else None,
+                          **figures}
     result["difference"] = felt_difference(rows, display_range_pa=display_range, resamples=resamples,
                                            level=level, seed=seed)
     result["better"] = _better(result["difference"])

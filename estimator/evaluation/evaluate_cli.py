@@ -288,16 +288,19 @@ def _print_table(result: Mapping[str, Any], root: Path) -> None:
     print()
     print(f"on the display (range {soft:.3g} to {rigid:.3g} Pa, labels clipped to it): felt err = mean |log10 "
           "felt - log10 label|; felt2x = share felt within 2x; danger = rigid (>= 100 MPa) felt below 1 MPa "
-          "or soft (<= 1 MPa) felt at or above 10 MPa (or rigid); rigid = share of rigid objects' grasps "
+          "or soft (<= 1 MPa) felt at or above 10 MPa (or rigid); unknown = estimates whose interval spans "
+          "the whole range, shown as unknown and left out of felt err, felt2x and danger; rigid = share of "
+          "rigid objects' grasps "
           "rendered rigid; level = interval coverage the method "
           "states, coverage = share of intervals holding the label; width = median interval width in "
           "decades as shown; soft: the same over labels at or below 3 MPa, the objects the display scales")
-    print(f"{'method':<{width}} {'n':>4} {'felt err':>8} {'felt2x':>7} {'danger':>6} {'rigid':>6} {'level':>6} "
+    print(f"{'method':<{width}} {'n':>4} {'felt err':>8} {'felt2x':>7} {'danger':>6} {'unknown':>7} {'rigid':>6} {'level':>6} "
           f"{'coverage':>8} {'width':>6} | {'soft n':>6} {'felt err':>8} {'felt2x':>7} {'coverage':>8} {'width':>6}")
     for method, m in result["methods"].items():
         danger = "-" if m["dangerous_misses"] is None else str(m["dangerous_misses"])
         print(f"{method:<{width}} {m['n']:>4} {fmt_value(m['felt_log10_error'], '8.2f')} "
-              f"{fmt_value(m['felt_within_2x'], '7.1%')} {danger:>6} {fmt_value(m['rigid_shown_rigid'], '6.1%')} "
+              f"{fmt_value(m['felt_within_2x'], '7.1%')} {danger:>6} {fmt_value(m['shown_unknown'], '7d')} "
+              f"{fmt_value(m['rigid_shown_rigid'], '6.1%')} "
               f"{fmt_value(m['interval_level'], '6.0%')} "
               f"{fmt_value(m['interval_coverage'], '8.1%')} {fmt_value(m['interval_width_decades_median'], '6.2f')} | "
               f"{m['soft_n']:>6} {fmt_value(m['soft_felt_log10_error'], '8.2f')} {fmt_value(m['soft_felt_within_2x'], '7.1%')} "

@@ -28,7 +28,13 @@ Per method :func:`summarise` gives
     :func:`~haptics.mapping.map_estimate`, its stiffness fraction turned back into
     a modulus), ``clip(E)`` the label clipped to the display's range
     ``[e_soft_pa, e_rigid_pa]``: what the operator feels against the best the
-    display could have rendered;
+    display could have rendered; over the estimates the display places (an estimate whose
+    interval spans its whole range it shows as unknown, as a refusal:
+    :func:`~haptics.mapping.map_estimate`);
+``shown_unknown``
+    how many counted estimates the display shows as unknown, left out of the felt figures
+    and the dangerous misses (not of ``rigid_shown_rigid``: a rigid object shown unknown is
+    not shown rigid);
 ``felt_within_2x``
     share with that felt error ``<= log10(2)`` (:data:`FELT_WITHIN_FACTOR`);
 ``dangerous_misses``
@@ -174,11 +180,13 @@ def felt_pa(row: Mapping[str, Any], *, display_range_pa: tuple[float, float]) ->
     Returns
     -------
     float or None
-        None for a refusal (``insufficient_data``): the display renders nothing.
+        None for a refusal (``insufficient_data``) and an estimate the display shows as unknown
+        (its interval spans the display's whole range): the display renders nothing.
     """
     if row["state"] == "insufficient_data":
         return None
-    return _rendered(row, display_range_pa)[1]
+    percept, felt = _rendered(row, display_range_pa)
+    return None if percept.unknown else felt
 
 
 def felt_log10_offset(felt: float, truth_pa: float, *, display_range_pa: tuple[float, float]) -> float:
@@ -230,25 +238,30 @@ def _median(values: Sequence[float]) -> float | None:
 def _felt_metrics(counted: Sequence[dict[str, Any]], display_range_pa: tuple[float, float] | None) -> dict[str, Any]:
     """The display's figures over the counted rows (module docstring); None without a range."""
     if display_range_pa is None:
-        return dict.fromkeys(("felt_log10_error", "felt_within_2x", "dangerous_misses", "rigid_shown_rigid",
-                              "interval_width_decades_median", "soft_felt_log10_error", "soft_felt_within_2x",
-                              "soft_interval_width_decades_median"))
+        return dict.fromkeys(("felt_log10_error", "felt_within_2x", "dangerous_misses", "shown_unknown",
+                              "rigid_shown_rigid", "interval_width_decades_median", "soft_felt_log10_error",
+                              "soft_felt_within_2x", "soft_interval_width_decades_median"))
     rigid = display_range_pa[1]
-    errors, soft_errors, misses, widths, soft_widths, rigid_shown = [], [], 0, [], [], []
+    errors, soft_errors, misses, unknown, widths, soft_widths, rigid_shown = [], [], 0, 0, [], [], []
     for r in counted:
         percept, felt = _rendered(r, display_range_pa)
-        errors.append(felt_log10_error(felt, r["truth_pa"], display_range_pa=display_range_pa))
-        misses += dangerous_miss(r["truth_pa"], felt, e_rigid_pa=rigid)
         if r["truth_pa"] >= RIGID_TRUTH_PA:
             rigid_shown.append(percept.rigid)
         widths.append(percept.uncertainty_decades)
         if _soft(r):
-            soft_errors.append(errors[-1])
             soft_widths.append(percept.uncertainty_decades)
+        if percept.unknown:
+            unknown += 1
+            continue
+        errors.append(felt_log10_error(felt, r["truth_pa"], display_range_pa=display_range_pa))
+        misses += dangerous_miss(r["truth_pa"], felt, e_rigid_pa=rigid)
+        if _soft(r):
+            soft_errors.append(errors[-1])
     return {
         "felt_log10_error": _mean(errors),
         "felt_within_2x": _within_2x(errors),
         "dangerous_misses": misses,
+        "shown_unknown": unknown,
         "rigid_shown_rigid": sum(rigid_shown) / len(rigid_shown) if rigid_shown else None,
         "interval_width_decades_median": _median(widths),
         "soft_felt_log10_error": _mean(soft_errors),

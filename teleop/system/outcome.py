@@ -156,7 +156,7 @@ class GraspOutcome:
     def felt_log10_offset(self) -> float | None:
         """Decades from the label clipped to the display's range to what the display rendered (a rigid
         object rendered rigid is exact; negative: felt softer than it is); None without a rendering or a
-        range, or when the display was told the modulus is unknown (a refusal)."""
+        range, or when the display showed the modulus as unknown (a refusal, or an interval over its whole range)."""
         felt = self.display_e_pa
         if felt is None or self.rendered.unknown:
             return None

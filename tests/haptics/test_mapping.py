@@ -134,6 +134,22 @@ def test_insufficient_data_is_unknown_and_free():
     assert percept.uncertainty_decades == pytest.approx(FULL_DECADES)
 
 
+def test_an_interval_over_the_whole_range_is_unknown_as_a_refusal():
+    # The middle of a distribution over every modulus is often rigid: rendering it would say what
+    # the estimate does not.
+    lo, hi = RANGE["e_soft_pa"], RANGE["e_rigid_pa"]
+    for update in (ok(hi, (lo / 50, hi * 1e5)), ok(3e4, (lo, hi)),
+                   EstimateUpdate(lo, (None, None), "lower_bound"), EstimateUpdate(hi, (None, hi), "upper_bound")):
+        percept = map_estimate(update, **RANGE)
+        assert percept.unknown and not percept.rigid and percept.stiffness == 0.0
+        assert percept.uncertainty_decades == pytest.approx(FULL_DECADES)
+    # Anything narrower is placed: a side inside the range, or an ok estimate's side left open.
+    for update in (ok(3e4, (lo * 1.01, hi * 10)), ok(3e4, (lo / 10, hi * 0.99)), ok(3e4, (None, None)),
+                   EstimateUpdate(lo * 2, (None, None), "lower_bound"),
+                   EstimateUpdate(hi / 2, (None, hi / 2), "upper_bound")):
+        assert not map_estimate(update, **RANGE).unknown
+
+
 def test_rigid_unknown_and_stiffest_ok_are_distinct_commands():
     commands = {
         state: to_command(map_estimate(update, **RANGE), level_max=4095)
@@ -322,7 +338,13 @@ def test_any_estimate_gives_a_valid_command(update, level_max, e_soft_pa, ratio)
     command = to_command(percept, level_max=level_max)
     assert 0 <= command.level <= level_max
     assert not (command.rigid and command.unknown)
-    assert command.unknown == (update.state == "insufficient_data")
+    # Unknown: a refusal, or an interval over the whole range (a bound's open side reaching past its end).
+    low, high = update.interval_pa
+    low = update.value_pa if update.state == "lower_bound" and low is None else low
+    high = update.value_pa if update.state == "upper_bound" and high is None else high
+    spans = ((update.state == "upper_bound" if low is None else low <= e_soft_pa)
+             and (update.state == "lower_bound" if high is None else high >= e_soft_pa * ratio))
+    assert command.unknown == (update.state == "insufficient_data" or spans)
 
 
 # --------------------------------------------------------------------------- the shipped range

@@ -95,11 +95,26 @@ def test_refusals_are_left_out_of_the_felt_figures():
     assert refused["dangerous_misses"] == 0 and refused["interval_width_decades_median"] is None
 
 
+def test_an_estimate_the_display_shows_as_unknown_is_left_out_of_the_felt_figures():
+    # Intervals over the display's whole range place the object nowhere: shown unknown, as a refusal.
+    whole = [row(2e11, "ok", 6.75e6, 1e2, 1e12), row(8e5, "ok", 6.75e6, 8e2, 1e12),
+             row(2e11, "upper_bound", 1e9, None, 1e9), row(2e11, "lower_bound", 3e3, 3e3, None)]
+    placed = row(1e5, "ok", 2e5, 1e5, 4e5)
+    assert all(felt_pa(r, display_range_pa=DISPLAY) is None for r in whole)
+    m = one([*whole, placed])
+    assert m["n"] == 5 and m["shown_unknown"] == 4 and m["dangerous_misses"] == 0
+    assert m["felt_log10_error"] == pytest.approx(math.log10(2))
+    # A rigid object shown unknown is not shown rigid; the widths are as the display shows them.
+    assert m["rigid_shown_rigid"] == 0.0 and m["interval_width_decades_median"] == pytest.approx(FULL)
+    # Counted before: the soft cylinder felt rigid was a dangerous miss.
+    assert one([placed])["shown_unknown"] == 0
+
+
 def test_felt_is_what_the_display_mapping_renders():
     from haptics.mapping import EstimateUpdate
 
     for r in (row(1e5, "ok", 2e5, 1e5, 4e5), row(1e6, "upper_bound", 3e3, None, 3e3),
-              row(1e6, "upper_bound", 3e7, None, 3e7), row(1e9, "lower_bound", 2e7, 2e7, None)):
+              row(1e6, "upper_bound", 3e6, None, 3e6), row(1e9, "lower_bound", 2e7, 2e7, None)):
         percept = map_estimate(EstimateUpdate(r["e_pa"], (r["low_pa"], r["high_pa"]), r["state"]),
                                e_soft_pa=SOFT, e_rigid_pa=RIGID)
         felt = felt_pa(r, display_range_pa=DISPLAY)
