@@ -17,8 +17,9 @@ the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.
 * :meth:`OperatorLoop.label` (any thread) names the object of a grasp; the loop sends the
   ``label`` on its next step;
 * buttons: ``grasp`` starts a discrete grasp at the chosen force, ``release`` opens the fingers,
-  ``stop`` stops them where they are, ``next`` ends the grasp shown (releasing it if still under
-  way) and clears the view for the next object, ``quit`` ends the loop;
+  ``stop`` stops them where they are, ``next`` ends the grasp shown (releasing it unless the robot
+  already does) and, once the robot has ended it, clears the view for the next object (the device is
+  not read meanwhile, so a simulated operator starts the next grasp only then), ``quit`` ends the loop;
 * after ``stop``, ``release`` or ``next``, and when the robot ends the follow grasp (released,
   the watchdog), no follow goes out until the enable has been let go and held again: a held
   enable never moves the fingers again, nor starts a new grasp, by itself;
@@ -53,6 +54,7 @@ log = logging.getLogger(__name__)
 
 RELEASE_FOLLOWS = 3  # follows with enable=False sent at least when the dead-man is let go
 IDLE_TICK_S = 0.01  # the loop's longest wait when not sending follows
+NEXT_WAIT_S = 5.0  # after "next", the longest wait for the robot to end the grasp left
 
 
 class InputDevice(Protocol):
@@ -156,6 +158,7 @@ class OperatorLoop:
         self._follow_grasp: str | None = None  # the follow grasp's id, until it ends
         self._rearm = False  # follows suspended until the enable is let go and held again
         self._discrete_grasp: str | None = None
+        self._leaving: tuple[str, float] | None = None  # after "next": (the grasp left, when) until it ends
         self._input: Any = None
         self._target_m: float | None = None
         self._pressed: list[str] = []  # buttons pushed from another thread (press())
@@ -196,11 +199,12 @@ class OperatorLoop:
     def step(self, timeout_s: float = 0.0) -> LoopStatus:
         """Read the device, act on its buttons, send ``follow`` when due, take what the bus
         brought (waiting up to ``timeout_s``), feed the robot's state back; the new status."""
+        reading = None
         try:
-            reading = self.device.read(timeout_s=0.0)
+            if self._leaving is None:
+                reading = self.device.read(timeout_s=0.0)
         except ComplianceTeleopError as exc:
             self._trouble(f"input device: {exc}")
-            reading = None
         with self._lock:
             pressed, self._pressed = self._pressed, []
             to_label, self._to_label = self._to_label, []
@@ -273,11 +277,14 @@ class OperatorLoop:
             self._suspend()
         elif button == "next":
             self._suspend()
-            if view.grasp_id is not None and view.phase in ("loading", "loaded"):
+            if view.grasp_id is None or view.phase not in ("loading", "loaded"):
+                self._next_object()
+                return
+            robot = view.robot
+            if robot is None or robot.grasp_id != view.grasp_id or robot.mode != "releasing":
                 self._send(lambda: self.link.release(view.grasp_id))
-            self.link.clear()
-            self._follow_grasp = self._discrete_grasp = None
-            self._act("next object: ready")
+            self._leaving = (view.grasp_id, self.clock())
+            self._act(f"next object: once {view.grasp_id} ends")
         elif button == "quit":
             self.quit = True
             self._act("quit")
@@ -330,9 +337,21 @@ class OperatorLoop:
             return True
         return view.grasp_id == self._follow_grasp and view.phase in ("loading", "loaded")
 
+    def _next_object(self) -> None:
+        self._leaving = None
+        self.link.clear()
+        self._follow_grasp = self._discrete_grasp = None
+        self._act("next object: ready")
+
     def _track(self) -> None:
-        """Forget a grasp's id once the robot says it ended (the next enable starts another)."""
+        """Forget a grasp's id once the robot says it ended (the next enable starts another); after
+        ``next``, clear the view once the grasp left has ended (or after :data:`NEXT_WAIT_S`)."""
         view = self.link.view
+        if self._leaving is not None:
+            grasp_id, since = self._leaving
+            if view.grasp_id != grasp_id or view.phase == "ended" or self.clock() - since >= NEXT_WAIT_S:
+                self._next_object()
+                return
         if view.phase == "ended" and view.grasp_id is not None:
             if view.grasp_id == self._follow_grasp:
                 self._follow_grasp = None

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from haptics.operator_link import OperatorLink, OperatorView
-from haptics.operator_loop import RELEASE_FOLLOWS, OperatorLoop
+from haptics.operator_loop import NEXT_WAIT_S, RELEASE_FOLLOWS, OperatorLoop
 from teleop.bus.messages import DisplayBody, RobotStateBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
@@ -151,16 +151,44 @@ def test_buttons_become_commands(rig):
         device.buttons = {button}
         loop.step()
         assert link.sent[-1][1:] == (button, {"grasp_id": grasp_id})
-    # next: releases a grasp still under way, clears the view, forgets the grasp
+    # next: releases a grasp still under way; once the robot has ended it, clears the view and forgets
+    # the grasp. Meanwhile the device is not read: its next grasp starts once this one is over.
     link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loaded")
     device.buttons = {"next"}
     loop.step()
-    assert link.kinds()[-1] == "release" and link.cleared == 1 and loop.status.grasp_id is None
+    assert link.kinds()[-1] == "release" and link.cleared == 0 and loop.status.grasp_id == grasp_id
+    device.buttons = {"grasp"}
+    loop.step()
+    assert link.kinds()[-1] == "release" and device.buttons == {"grasp"}  # not read yet
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="ended")
+    loop.step()
+    assert link.cleared == 1 and loop.status.grasp_id is None
+    device.buttons = set()
     loop.press("grasp")  # from another thread, as the console's keys do
     loop.step()
     assert link.kinds()[-1] == "start_grasp" and loop.status.grasp_id != grasp_id
     device.buttons = {"quit"}
     assert loop.run(duration_s=5.0).quit
+
+
+def test_next_leaves_a_grasp_the_robot_already_releases_without_a_second_release(rig):
+    clock, link, device, loop = rig
+    device.enable = True
+    run_for(clock, loop, 0.1)
+    grasp_id = link.sent[-1][2]["grasp_id"]
+    device.enable = False
+    run_for(clock, loop, 0.1)
+    # The operator let go and the robot opens the fingers; "next" comes before the robot ends the grasp.
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loading",
+                             robot=RobotStateBody(mode="releasing", grasp_id=grasp_id, target_width_m=None,
+                                                  enable=False))
+    device.buttons = {"next"}
+    sent = len(link.sent)
+    run_for(clock, loop, 0.5)
+    assert "release" not in link.kinds()[sent:] and link.cleared == 0
+    # The robot never says it ended (say it died): the view is cleared after NEXT_WAIT_S all the same.
+    run_for(clock, loop, NEXT_WAIT_S, tick_s=0.01)
+    assert link.cleared == 1 and loop.status.last_action == "next object: ready"
 
 
 def test_a_label_names_the_current_grasp_then_the_last_one(rig):
