@@ -171,13 +171,19 @@ def test_buttons_become_commands(rig):
     assert loop.run(duration_s=5.0).quit
 
 
-def test_next_leaves_a_grasp_the_robot_already_releases_without_a_second_release(rig):
-    clock, link, device, loop = rig
+def hold_and_let_go(clock: Clock, loop: OperatorLoop, device: FakeDevice, link: FakeLink) -> str:
+    """Hold the enable for 0.1 s, then let it go for 0.1 s; the follow grasp's id."""
     device.enable = True
     run_for(clock, loop, 0.1)
     grasp_id = link.sent[-1][2]["grasp_id"]
     device.enable = False
     run_for(clock, loop, 0.1)
+    return grasp_id
+
+
+def test_next_leaves_a_grasp_the_robot_already_releases_without_a_second_release(rig):
+    clock, link, device, loop = rig
+    grasp_id = hold_and_let_go(clock, loop, device, link)
     # The operator let go and the robot opens the fingers; "next" comes before the robot ends the grasp.
     link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loading",
                              robot=RobotStateBody(mode="releasing", grasp_id=grasp_id, target_width_m=None,
@@ -219,11 +225,7 @@ def test_a_label_names_the_current_grasp_then_the_last_one(rig):
 
 def test_a_follow_grasp_gets_a_new_id_after_the_robot_ended_it(rig):
     clock, link, device, loop = rig
-    device.enable = True
-    run_for(clock, loop, 0.1)
-    first = link.sent[-1][2]["grasp_id"]
-    device.enable = False
-    run_for(clock, loop, 0.1)
+    first = hold_and_let_go(clock, loop, device, link)
     link.view = OperatorView(t_s=clock(), grasp_id=first, phase="loading")
     device.enable = True
     run_for(clock, loop, 0.1)
