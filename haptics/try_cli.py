@@ -63,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
           f"{settings.e_soft_pa:.3g}..{settings.e_rigid_pa:.3g} Pa ({steps:.0f} just-noticeable steps), "
           f"level {command.level}/{display.info.level_max}, uncertainty "
           f"{percept.uncertainty_decades:.2f} decades, flags: {', '.join(flags) or 'none'}")
+    if percept.unknown and args.state != "insufficient_data":
+        print("unknown: the interval spans the display's whole range, so it places the object nowhere")
     print(f"wrote to {where}: {report.hex(' ')}")
     if status is None:
         print(f"no status report within {args.timeout_s} s")

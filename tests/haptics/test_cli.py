@@ -102,6 +102,11 @@ def test_try_insufficient_data_and_rigid(capsys):
     assert main(["try", "--state", "lower_bound", "--e-pa", "3e10", "--json"]) == 0
     data = last_json(capsys)
     assert data["command"]["rigid"] is True and data["level"] == data["level_max"]
+    # An ok estimate whose interval spans the display's whole range is shown unknown, and says why.
+    assert main(["try", "--e-pa", "1e5", "--low-pa", "100", "--high-pa", "1e9", "--json"]) == 0
+    out = capsys.readouterr().out
+    assert "spans the display's whole range" in out
+    assert json.loads(out.strip().splitlines()[-1])["command"]["unknown"] is True
 
 
 def test_try_renders_a_bound_at_the_resolution_limit_rigid_and_one_below_at_its_bound(capsys):
