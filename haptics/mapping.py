@@ -287,6 +287,12 @@ def interval_decades(
     return math.log10(high / low)
 
 
+def _unknown(update: EstimateUpdate, soft: float, rigid: float) -> Percept:
+    """Nothing placed: free, the whole range as uncertainty."""
+    return Percept(stiffness=0.0, uncertainty_decades=math.log10(rigid / soft), unknown=True,
+                   provisional=update.provisional)
+
+
 def map_estimate(update: EstimateUpdate, *, e_soft_pa: float, e_rigid_pa: float) -> Percept:
     """The percept for one estimate.
 
@@ -306,10 +312,8 @@ def map_estimate(update: EstimateUpdate, *, e_soft_pa: float, e_rigid_pa: float)
       distribution over every modulus) would tell the operator what the estimate does not.
     """
     soft, rigid = _check_range(e_soft_pa, e_rigid_pa)
-    unknown = Percept(stiffness=0.0, uncertainty_decades=math.log10(rigid / soft), unknown=True,
-                      provisional=update.provisional)
     if update.state == "insufficient_data":
-        return unknown
+        return _unknown(update, soft, rigid)
     e_pa = update.value_pa
     low, high = update.interval_pa
     if update.state == "lower_bound" and low is None:
@@ -319,7 +323,7 @@ def map_estimate(update: EstimateUpdate, *, e_soft_pa: float, e_rigid_pa: float)
     reaches_soft = low <= soft if low is not None else update.state == "upper_bound"
     reaches_rigid = high >= rigid if high is not None else update.state == "lower_bound"
     if reaches_soft and reaches_rigid:
-        return unknown
+        return _unknown(update, soft, rigid)
     is_rigid = update.state in ("ok", "lower_bound") and e_pa >= rigid * (1 - RIGID_TOLERANCE)
     return Percept(
         stiffness=1.0 if is_rigid else stiffness_fraction(e_pa, e_soft_pa=soft, e_rigid_pa=rigid),
