@@ -1,14 +1,18 @@
-"""``estimator estimate``: Young's modulus of the object in one grasp record, by one method.
+"""``estimator estimate``: Young's modulus of the object in each grasp record, by one method.
 
 The method is analytical (:func:`~estimator.measure.estimate_grasp`) or learned
 (``hybrid``, ``cnn`` or ``auto``: :class:`~estimator.inference.hybrid.HybridEstimator`
-over a trained model).
+over a trained model, loaded once for every record). The records need no label: this is how a
+session's exported grasps are read back (``estimator evaluate`` scores labelled ones).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
 
 from estimator.analytical import METHODS
 from estimator.errors import EstimatorError
@@ -16,19 +20,27 @@ from estimator.estimate import Estimate
 from estimator.inference.hybrid import ALL_METHODS, HybridEstimator
 from estimator.inference.infer import load_predictor
 from estimator.measure import estimate_grasp
+from teleop.errors import ComplianceTeleopError
 from teleop.record import GraspRecord, read_record
 from teleop.settings import Settings, default_settings_path, load_settings
+
+Estimator = Callable[[GraspRecord], tuple[Estimate, str | None]]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
-        "Estimate the grasped object's Young's modulus from one .grasp record. States: ok (E with "
+        "Estimate the grasped object's Young's modulus from each .grasp record given, in order. States: ok (E with "
         "an interval: 90 % for a learned model, as its model card and metadata.json calibration.level "
         "state; about 95 % for the analytical fits), lower_bound (stiffer than the data resolve, e.g. "
         "metal: E_pa is the bound), upper_bound (softer than resolved), insufficient_data (a refusal "
-        "with its reason; exit status is still 0)."
+        "with its reason; exit status is still 0). A record that cannot be read or measured is named "
+        "with the cause on stderr and the others are still estimated; the exit status is then 2. Each "
+        "latency is the estimate's own: the first record is estimated once untimed, which loads the "
+        "calibration and fills the caches, as the live service does when it starts."
     )
-    parser.add_argument("grasp", metavar="GRASP", help="grasp record (.grasp file)")
+    parser.add_argument("grasps", metavar="GRASP", nargs="+",
+                        help="grasp records (.grasp files), or folders searched recursively for them "
+                             "(e.g. what `teleop export` wrote)")
     parser.add_argument(
         "--method", choices=ALL_METHODS, default="auto",
         help="auto (as the live service answers): per grasp the cheapest answer whose "
@@ -68,9 +80,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--json", action="store_true",
-        help="print one JSON object (E_pa, interval_pa [low, high] with null for an open side, "
-             "state, reason, latency_ms, and model: the learned model's id, null for an analytical "
-             "method) on the last stdout line",
+        help="print one JSON object per record, one a line (grasp: its path, E_pa, interval_pa [low, "
+             "high] with null for an open side, state, reason, latency_ms, and model: the learned "
+             "model's id, null for an analytical method; for a record that failed, grasp and error)",
     )
 
 
@@ -78,8 +90,24 @@ def _pa(value: float | None) -> str:
     return "-" if value is None else f"{value:.3g} Pa"
 
 
-def learned_estimate(record: GraspRecord, args: argparse.Namespace, settings: Settings) -> tuple[Estimate, str]:
-    """The ``hybrid``, ``cnn`` or ``auto`` estimate of ``record`` with the model ``args.model``, and that
+def grasp_paths(arguments: list[str]) -> list[Path]:
+    """The records the arguments name: files as given, folders' ``.grasp`` files sorted by path;
+    EstimatorError for a folder without one."""
+    paths: list[Path] = []
+    for argument in arguments:
+        path = Path(argument)
+        if path.is_dir():
+            found = sorted(path.rglob("*.grasp"))
+            if not found:
+                raise EstimatorError(f"{path}: a folder with no .grasp record in it")
+            paths += found
+        else:
+            paths.append(path)
+    return paths
+
+
+def learned_estimator(args: argparse.Namespace, settings: Settings) -> Estimator:
+    """The ``hybrid``, ``cnn`` or ``auto`` estimate of a record with the model ``args.model``, and that
     model's id (:func:`~estimator.inference.infer.model_id`, as the live service names it)."""
     if args.camera_lag:
         raise EstimatorError(f"--camera-lag: applies to the analytical methods, not {args.method} (a model "
@@ -92,26 +120,45 @@ def learned_estimate(record: GraspRecord, args: argparse.Namespace, settings: Se
                              f"({variant.name}); {args.method} needs a model trained {need} analytical "
                              "inputs (--model DIR)")
     estimator = HybridEstimator(predictor, settings=settings, calibration=args.calibration)
-    return estimator.estimate(record, mode="auto" if args.method == "auto" else "model"), predictor.model_id
+    mode = "auto" if args.method == "auto" else "model"
+    return lambda record: (estimator.estimate(record, mode=mode), predictor.model_id)
+
+
+def analytical_estimator(args: argparse.Namespace, settings: Settings) -> Estimator:
+    """The analytical method ``args.method``'s estimate of a record (no model: None)."""
+    if args.model is not None:
+        raise EstimatorError(f"--model: applies to hybrid, cnn and auto, not {args.method}")
+    return lambda record: (estimate_grasp(record, args.method, settings=settings, calibration=args.calibration,
+                                          correct_camera_lag=args.camera_lag, correct_width_lag=args.width_lag), None)
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.method in METHODS and args.model is not None:
-        raise EstimatorError(f"--model: applies to hybrid, cnn and auto, not {args.method}")
     settings = load_settings(args.settings)
-    record = read_record(args.grasp)
-    model = None
-    if args.method in METHODS:
-        estimate = estimate_grasp(record, args.method, settings=settings, calibration=args.calibration,
-                                  correct_camera_lag=args.camera_lag, correct_width_lag=args.width_lag)
-    else:
-        estimate, model = learned_estimate(record, args, settings)
-    if args.json:
-        print(json.dumps({"grasp": args.grasp, **estimate.to_json(), "model": model}, allow_nan=False))
-        return 0
-    low, high = estimate.interval_pa
-    by = "" if model is None else f", model {model}"
-    print(f"{args.method}: {estimate.state}  E = {_pa(estimate.e_pa)}  interval [{_pa(low)}, {_pa(high)}]  "
-          f"({estimate.latency_s * 1e3:.1f} ms{by})")
-    print(f"  {estimate.reason}")
-    return 0
+    make = analytical_estimator if args.method in METHODS else learned_estimator
+    estimate_record = make(args, settings)
+    warm = False
+    failed = 0
+    for path in grasp_paths(args.grasps):
+        try:
+            record = read_record(path)
+            if not warm:
+                estimate_record(record)  # untimed: the calibration and the caches, loaded once
+                warm = True
+            estimate, model = estimate_record(record)
+        except ComplianceTeleopError as exc:
+            failed += 1
+            print(f"estimator estimate: error: {exc}", file=sys.stderr)
+            if args.json:
+                print(json.dumps({"grasp": str(path), "error": str(exc)}), flush=True)
+            continue
+        if args.json:
+            print(json.dumps({"grasp": str(path), **estimate.to_json(), "model": model}, allow_nan=False), flush=True)
+            continue
+        low, high = estimate.interval_pa
+        by = "" if model is None else f", model {model}"
+        if len(args.grasps) > 1 or Path(args.grasps[0]).is_dir():
+            print(path)
+        print(f"{args.method}: {estimate.state}  E = {_pa(estimate.e_pa)}  interval [{_pa(low)}, {_pa(high)}]  "
+              f"({estimate.latency_s * 1e3:.1f} ms{by})")
+        print(f"  {estimate.reason}", flush=True)
+    return 2 if failed else 0

@@ -445,6 +445,29 @@ def test_estimate_command_prints_json(grasp_dir, capsys):
     assert out["state"] == "lower_bound" and out["interval_pa"][1] is None
 
 
+def test_estimate_command_reads_folders_and_names_the_records_it_cannot_read(grasp_dir, capsys, tmp_path):
+    root, cal = grasp_dir
+    bad = tmp_path / "bad.grasp"
+    bad.write_text("not a record")
+    options = ["--method", "series", "--calibration", str(cal), "--json"]
+    assert main(["estimate", str(root), str(bad), *options]) == 2
+    captured = capsys.readouterr()
+    lines = [json.loads(line) for line in captured.out.strip().splitlines()]
+    assert [line["grasp"] for line in lines] == [*map(str, sorted(root.rglob("*.grasp"))), str(bad)]
+    assert all(line["state"] for line in lines[:-1]) and "not a grasp record" in lines[-1]["error"]
+    assert captured.err.strip().splitlines() == [f"estimator estimate: error: {lines[-1]['error']}"]
+    # The untimed first estimate changes no answer: each record reads as it does on its own.
+    for line in lines[:-1]:
+        assert main(["estimate", line["grasp"], *options]) == 0
+        alone = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+        assert {k: alone[k] for k in ("E_pa", "interval_pa", "state", "reason")} == {
+            k: line[k] for k in ("E_pa", "interval_pa", "state", "reason")}
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["estimate", str(empty)]) == 2
+    assert "no .grasp record" in capsys.readouterr().err
+
+
 def test_estimate_command_answers_as_the_live_service_by_default(grasp_dir, capsys):
     root, cal = grasp_dir
     assert main(["estimate", str(root / "ball_rubber.grasp"), "--calibration", str(cal), "--json"]) == 0
