@@ -148,8 +148,10 @@ def timeline_figure(view: GraspView, path: Path, *, display_recorded: bool) -> t
         if GRASP_DONE_EVENT in record.events:
             ax.axvline(record.events[GRASP_DONE_EVENT] - t0, color="C4", ls="--", lw=1)
         ax.grid(alpha=0.3)
+    stop = ("dashed purple = gripper reported loading done" if GRASP_DONE_EVENT in record.events
+            else "no gripper stop reported (an operator's grasp)")
     axes[0].set_title(f"grasp {view.grasp_id}: shaded = loading phase (onset to peak force); dotted = the "
-                      "tactile frames shown; dashed purple = gripper reported loading done", fontsize=8)
+                      f"tactile frames shown; {stop}", fontsize=8)
     axes[-1].set_xlabel("time since the grasp's start event (s)")
     return _save(fig, path)
 
