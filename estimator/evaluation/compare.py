@@ -36,7 +36,6 @@ the same verdict for the model it has just made.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -50,7 +49,7 @@ from estimator.evaluation.evaluate import (
     evaluate_records,
     skip_cause,
 )
-from estimator.evaluation.metrics import felt_pa, summarise
+from estimator.evaluation.metrics import felt_log10_error, felt_pa, summarise
 from estimator.inference.provenance import trained_objects
 from haptics.settings import display_range_pa
 from teleop.errors import RecordError
@@ -94,7 +93,6 @@ class NothingToCompare(EstimatorError):
 def _felt_errors(rows: Sequence[Mapping[str, Any]], method: str, display_range_pa: tuple[float, float]
                  ) -> dict[str, list[float]]:
     """Object -> the felt errors (decades) of ``method``'s counted grasps (as :mod:`estimator.evaluation.metrics`)."""
-    soft, rigid = display_range_pa
     out: dict[str, list[float]] = {}
     for r in rows:
         if r.get("method") != method:
@@ -102,8 +100,7 @@ def _felt_errors(rows: Sequence[Mapping[str, Any]], method: str, display_range_p
         out.setdefault(r["object"], [])
         felt = felt_pa(r, display_range_pa=display_range_pa)
         if felt is not None:
-            target = min(rigid, max(soft, r["truth_pa"]))
-            out[r["object"]].append(abs(math.log10(felt) - math.log10(target)))
+            out[r["object"]].append(felt_log10_error(felt, r["truth_pa"], display_range_pa=display_range_pa))
     return out
 
 
