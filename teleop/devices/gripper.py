@@ -2,9 +2,11 @@
 
 A gripper moves its fingers to a width, grasps with a force, and reports its width.
 On a Franka hand one width read takes about 0.1 s, so a background reader polls the
-width at ``GripperSettings.width_read_hz`` and timestamps every reading at the middle
-of its read call (the best guess of when the value was true); :meth:`Gripper.widths`
-hands out everything read since the last call. The gripper measures no force.
+width at ``GripperSettings.width_read_hz`` and timestamps every reading when its read call
+returns: the convention of the simulated records the shipped model learned from and of the
+estimator's lag model (:mod:`teleop.sim.sensors`, :mod:`estimator.lag`), whatever part of the
+call the value comes from. :meth:`Gripper.widths` hands out everything read since the last
+call. The gripper measures no force.
 
 A grasp command completes when the fingers stop: at the target force, or where they were
 stopped. That moment ends the loading of the object, so the gripper then reads its width at
@@ -202,7 +204,7 @@ class Gripper(Device):
         return bool(self._stop())
 
     def read_width(self) -> tuple[float, float]:
-        """One width read now: ``(t_s, width_m)``, stamped at the middle of the read (slow on franky)."""
+        """One width read now: ``(t_s, width_m)``, stamped when the read returns (slow on franky)."""
         self._require_connected()
         return self._timed_read()
 
@@ -251,9 +253,8 @@ class Gripper(Device):
         return held
 
     def _timed_read(self) -> tuple[float, float]:
-        before = time.monotonic()
         width = float(self._read_width())
-        return (before + time.monotonic()) / 2.0, width
+        return time.monotonic(), width
 
     def _poll_widths(self) -> list[tuple[float, float]]:
         """Width samples available now; one timed read unless the backend has its own."""

@@ -264,3 +264,18 @@ def test_sim_grasp_stops_where_the_replayed_fingers_do(make_record):
     replayed = samples.t_s[samples.t_s >= playback.live_time(playback.origin_s)]  # not the reads before the start
     assert np.all(np.diff(samples.t_s) > 0)
     assert replayed[-1] == stop.width_t_s and np.allclose(replayed, recorded[: after_stop + 1])
+
+
+def test_a_width_read_is_stamped_when_it_returns_as_the_training_records_are():
+    # A Franka hand's read takes about 0.1 s. The simulated records the model learned from, the live
+    # simulation and the estimator's lag model all stamp a read when it returns: so does every backend.
+    class SlowRead(SimulatedGripper):
+        def _read_width(self) -> float:
+            time.sleep(0.05)
+            return super()._read_width()
+
+    with SlowRead(GripperSettings(max_width_m=0.08)) as gripper:
+        before = time.monotonic()
+        t_s, _ = gripper.read_width()
+        after = time.monotonic()
+    assert before + 0.05 <= t_s <= after
