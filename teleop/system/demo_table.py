@@ -66,11 +66,14 @@ class LiveView:
                     f"{_STATE_MARK[latest.state]}{_pa(latest.E_pa)} Pa ({latest.state})")
         felt = outcome.felt_log10_offset
         first = outcome.t_first_estimate_s
+        # As in the closing table: an operator's final waits for the hand to let go, so its latency
+        # says nothing; how soon the display followed the squeeze does.
+        timing = (f"latency {_number(outcome.latency_ms, '.0f')} ms" if outcome.style == "script" else
+                  f"felt within 2x {_number(outcome.t_felt_within_2x_s, '.2f')} s after contact")
         return (f"{head} E {_pa(outcome.obj.modulus_pa)} Pa -> {_STATE_MARK[outcome.state]}"
                 f"{_pa(outcome.e_final_pa)} Pa ({outcome.state}), display {display_cell(outcome)}, "
                 f"felt {_number(felt, '+.2f')} dec, "
-                f"first estimate {_number(None if first is None else first * 1e3, '.0f')} ms, "
-                f"latency {_number(outcome.latency_ms, '.0f')} ms")
+                f"first estimate {_number(None if first is None else first * 1e3, '.0f')} ms, {timing}")
 
     def update(self, number: int, outcome: GraspOutcome) -> None:
         if self.tty:

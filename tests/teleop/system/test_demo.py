@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
 import os
@@ -35,6 +36,7 @@ from teleop.system.demo import (
     free_ports,
     scene_plan,
 )
+from teleop.system.demo_table import LiveView
 from teleop.system.latency import (
     BASELINE_PRESS_DEPTH_M,
     baseline_figures,
@@ -127,6 +129,20 @@ def test_outcomes_give_the_closing_table_and_json():
     assert table[4].split()[1:] == ["script", "5e+03", "?-", "none", "-", "-", "-", "-", "-"]
     assert table[-2] == "the display rendered none of 3 grasps"
     assert table[-1] == "model: none (analytical estimates, 2 of 3 finals)"
+
+
+def test_the_live_line_gives_an_operators_grasp_the_time_to_feel_it_not_the_latency():
+    # An operator's final waits for the hand to let go (seconds): as in the table, its line says how
+    # soon the display followed the squeeze instead of that latency.
+    scripted = outcome("duck", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 150.0, display_range=(5e3, 6.75e6))
+    operated = outcome("duck", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 1582.0, display_range=(5e3, 6.75e6))
+    operated.style, operated.t_contact_s, operated.display_track = "operator", 1.0, [(1.2, 3e5), (1.3, 9e5)]
+    for ended in (scripted, operated):
+        ended.robot_ended = ended.estimator_ended = True
+    view = LiveView(io.StringIO(), 2)
+    assert view.line(1, scripted).endswith("first estimate 100 ms, latency 150 ms")
+    line = view.line(2, operated)
+    assert line.endswith("first estimate 100 ms, felt within 2x 0.30 s after contact") and "1582" not in line
 
 
 def test_each_grasp_names_the_model_that_answered_and_the_table_the_models():
