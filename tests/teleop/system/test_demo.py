@@ -443,7 +443,11 @@ def test_the_simulated_operator_grasps_the_quick_scene_leader_follower(tmp_path,
     for grasp in grasps.values():
         assert grasp["style"] == "operator" and "squeeze" in grasp["operator_style"]
         assert grasp["state"] in ("ok", "lower_bound", "upper_bound")  # every grasp got a final
-    assert grasps["steel_ball_bearing"]["display_fraction"] == 1.0  # rendered rigid
+    # At the stiff end. Its operator squeezes it to about 16 N, where P(rigid) lies near the 10-20 N
+    # band's threshold: the live follow's timing tips it either way (rendered rigid in seven runs of
+    # eight measured; in the eighth ok at 5.0 MPa, 0.96 of the range, 0.13 decade below rigid).
+    steel = grasps["steel_ball_bearing"]
+    assert steel["display_fraction"] >= 0.9 and steel["felt_log10_error"] <= math.log10(2.0)
     # Soft, and felt so: 0.12-0.28 decade in the runs measured, with the timing of a loaded machine moving it.
     assert grasps["stress_ball"]["felt_log10_error"] < 0.5 and grasps["stress_ball"]["display_fraction"] < 0.6
     assert grasps["stress_ball"]["t_felt_within_2x_s"] is not None
