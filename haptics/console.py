@@ -362,7 +362,10 @@ class OperatorConsole(App):
         else:
             grasp.append(f"label  - ({LABEL_KEY} names the object)")
         estimate = view.estimate
+        down = {peer.name for peer in view.peers if not peer.alive}
         lines = [estimate_line(estimate)]
+        if estimate is None and "estimator" in down:
+            lines.append("the estimator is down: none will come (start `estimator serve`)")
         if estimate is not None:
             lines.append(f"{view.estimates} estimate(s) for this grasp, method {estimate.method}")
             lines.append(f"reason: {estimate.reason}")
@@ -371,6 +374,8 @@ class OperatorConsole(App):
         shown = view.display
         if shown is None:
             display = ["nothing rendered yet"]
+            if "display" in down:
+                display.append("the renderer is down: nothing will be (start `haptics serve`)")
         else:
             level = f"  level {shown.level}/{shown.level_max}" if shown.level is not None else ""
             if shown.unknown:

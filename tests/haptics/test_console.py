@@ -104,6 +104,9 @@ def test_a_session_with_the_keyboard_in_the_console():
                 await _until(lambda: "DOWN  robot node" in app.texts.get("alive", ""), pilot)
                 assert "no estimate yet" in app.texts["estimate"] and "up/k squeeze" in str(
                     app.query_one("#keys").render())
+                # Nothing running but the console: it says why no estimate and no rendering will come.
+                assert "the estimator is down" in app.texts["estimate"]
+                assert "the renderer is down" in app.texts["display"]
                 # a discrete grasp at the chosen force, raised by one newton with "+"
                 await pilot.press("plus", "g")
                 await _until(lambda: "start_grasp" in link.kinds(), pilot)
@@ -122,6 +125,7 @@ def test_a_session_with_the_keyboard_in_the_console():
                 await _until(lambda: "E = 3.6 MPa" in app.texts["estimate"], pilot)
                 texts = app.texts
                 assert "UP    robot node" in texts["alive"] and "DOWN  display" in texts["alive"]
+                assert "is down" not in texts["estimate"] + texts["display"]  # an estimate came, a rendering too
                 assert "rubber_duck" in texts["grasp"] and "31.2 mm" in texts["grasp"] and "11.0 N" in texts["grasp"]
                 assert "loading phase 0.12-0.41 s" in texts["estimate"] and "7 estimate(s)" in texts["estimate"]
                 assert "stiffness 0.87 of range" in texts["display"] and "level 55/63" in texts["display"]
