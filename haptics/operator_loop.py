@@ -266,7 +266,7 @@ class OperatorLoop:
             grasp_id = self._new_grasp_id()
             if self._send(lambda: self.link.start_grasp(target_force_n=self.force_n, grasp_id=grasp_id)):
                 self._discrete_grasp = grasp_id
-                self._act(f"grasp {grasp_id} at {self.force_n:g} N")
+                self._act(f"grasp {grasp_id} at {self.force_n:g} N{self._robot_down()}")
         elif button == "release":
             if self._send(lambda: self.link.release(current)):
                 self._act(f"release {current or ''}".rstrip())
@@ -289,6 +289,12 @@ class OperatorLoop:
             self.quit = True
             self._act("quit")
 
+    def _robot_down(self) -> str:
+        """What to add to a command's log line when the link hears the robot node dead: it is sent,
+        as the node may just be starting, but nothing moves until the node runs."""
+        dead = any(peer.name == "robot node" and not peer.alive for peer in self.link.view.peers)
+        return " (the robot node is down: nothing moves until `teleop node` runs)" if dead else ""
+
     def _send_label(self, grasp_id: str, label: Any) -> None:
         sent = self._send(lambda: self.link.label(grasp_id, label.object_name, modulus_pa=label.modulus_pa,
                                                   source=label.source, detail=label.detail))
@@ -307,7 +313,7 @@ class OperatorLoop:
         if enable and not self._enable:
             if self._follow_grasp is None:
                 self._follow_grasp = self._new_grasp_id()
-                self._act(f"follow {self._follow_grasp}: enable held")
+                self._act(f"follow {self._follow_grasp}: enable held{self._robot_down()}")
             self._next_follow_s = now  # the first one at once
         elif self._enable and not enable:
             self._release_left = RELEASE_FOLLOWS

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from haptics.operator_link import OperatorLink, OperatorView
+from haptics.operator_link import OperatorLink, OperatorView, Peer
 from haptics.operator_loop import NEXT_WAIT_S, RELEASE_FOLLOWS, OperatorLoop
 from teleop.bus.messages import DisplayBody, RobotStateBody
 from teleop.bus.pubsub import Publisher, Subscriber
@@ -169,6 +169,16 @@ def test_buttons_become_commands(rig):
     assert link.kinds()[-1] == "start_grasp" and loop.status.grasp_id != grasp_id
     device.buttons = {"quit"}
     assert loop.run(duration_s=5.0).quit
+
+
+def test_a_command_while_the_robot_node_is_down_says_that_nothing_moves(rig):
+    clock, link, device, loop = rig
+    for alive in (False, True):
+        link.view = OperatorView(t_s=clock(), peers=(Peer("robot node", "robot", alive, None if not alive else 0.1),))
+        device.buttons = {"grasp"}
+        loop.step()
+        assert link.kinds()[-1] == "start_grasp"  # sent all the same: the node may be starting
+        assert ("robot node is down" in loop.status.log[-1]) == (not alive)
 
 
 def hold_and_let_go(clock: Clock, loop: OperatorLoop, device: FakeDevice, link: FakeLink) -> str:
