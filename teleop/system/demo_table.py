@@ -68,8 +68,9 @@ class LiveView:
         first = outcome.t_first_estimate_s
         # As in the closing table: an operator's final waits for the hand to let go, so its latency
         # says nothing; how soon the display followed the squeeze does.
+        settled = outcome.t_felt_within_2x_s
         timing = (f"latency {_number(outcome.latency_ms, '.0f')} ms" if outcome.style == "script" else
-                  f"felt within 2x {_number(outcome.t_felt_within_2x_s, '.2f')} s after contact")
+                  "never felt within 2x" if settled is None else f"felt within 2x {settled:.2f} s after contact")
         return (f"{head} E {_pa(outcome.obj.modulus_pa)} Pa -> {_STATE_MARK[outcome.state]}"
                 f"{_pa(outcome.e_final_pa)} Pa ({outcome.state}), display {display_cell(outcome)}, "
                 f"felt {_number(felt, '+.2f')} dec, "
