@@ -48,6 +48,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -193,6 +194,8 @@ class LiveSystem:
         self.children: dict[str, _Child] = {}
         self.commands: Publisher | None = None
         self.events: Subscriber | None = None
+        self._control: Publisher | None = None  # load_model's, bound once (see there)
+        self._control_lock = threading.Lock()
         self.estimator_reports = ReportReader(run_dir / "estimator.jsonl")
         self.renderer_reports = ReportReader(run_dir / "renderer.jsonl")
         self.display_range: tuple[float, float] | None = None  # (e_soft_pa, e_rigid_pa), known once started
@@ -306,7 +309,7 @@ class LiveSystem:
             except subprocess.TimeoutExpired:
                 process.kill()
                 codes[name] = process.wait()
-        for sock in (self.commands, self.events):
+        for sock in (self.commands, self.events, self._control):
             if sock is not None:
                 sock.close()
         return codes
@@ -362,10 +365,12 @@ class LiveSystem:
 
         self.check()
         max_bytes = load_settings(self.settings_path).bus.max_message_bytes
-        with (Publisher(self.endpoints["control"], lossless=False, source="demo", max_bytes=max_bytes) as control,
-              Subscriber(self.endpoints["estimate_pub"], ("model_event",), max_bytes=max_bytes) as answers):
+        with self._control_lock, Subscriber(self.endpoints["estimate_pub"], ("model_event",),
+                                             max_bytes=max_bytes) as answers:
+            if self._control is None:  # bound once: a socket closed in this process frees its port only later
+                self._control = Publisher(self.endpoints["control"], lossless=False, source="demo", max_bytes=max_bytes)
             try:
-                return reload_model(os.path.abspath(path), command=control, answers=answers, timeout_s=timeout_s)
+                return reload_model(os.path.abspath(path), command=self._control, answers=answers, timeout_s=timeout_s)
             except TeleopError:
                 self.check()  # a child that died is the better reason
                 raise
