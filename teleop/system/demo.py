@@ -48,7 +48,6 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -194,8 +193,7 @@ class LiveSystem:
         self.children: dict[str, _Child] = {}
         self.commands: Publisher | None = None
         self.events: Subscriber | None = None
-        self._control: Publisher | None = None  # load_model's, bound once (see there)
-        self._control_lock = threading.Lock()
+        self.control: Publisher | None = None  # load_model's (see there)
         self.estimator_reports = ReportReader(run_dir / "estimator.jsonl")
         self.renderer_reports = ReportReader(run_dir / "renderer.jsonl")
         self.display_range: tuple[float, float] | None = None  # (e_soft_pa, e_rigid_pa), known once started
@@ -309,7 +307,7 @@ class LiveSystem:
             except subprocess.TimeoutExpired:
                 process.kill()
                 codes[name] = process.wait()
-        for sock in (self.commands, self.events, self._control):
+        for sock in (self.commands, self.events, self.control):
             if sock is not None:
                 sock.close()
         return codes
@@ -352,9 +350,8 @@ class LiveSystem:
         return self._follow(outcome, on_update=on_update, on_message=on_message, timeout_s=timeout_s)
 
     def load_model(self, path: str | Path, *, timeout_s: float = 30.0) -> ModelEventBody:
-        """Switch the running estimator to the model in ``path``, as ``estimator reload`` does (on the
-        control endpoint, so from any thread, whoever operates); the body of the service's
-        ``model_event`` answer ("loaded" with the new id, or "refused" with the reason).
+        """Switch the running estimator to the model in ``path``, as ``estimator reload`` does; the body
+        of the service's ``model_event`` answer ("loaded" with the new id, or "refused" with the reason).
 
         Raises
         ------
@@ -364,13 +361,11 @@ class LiveSystem:
         from estimator.reload_cli import reload_model
 
         self.check()
-        max_bytes = load_settings(self.settings_path).bus.max_message_bytes
-        with self._control_lock, Subscriber(self.endpoints["estimate_pub"], ("model_event",),
-                                             max_bytes=max_bytes) as answers:
-            if self._control is None:  # bound once: a socket closed in this process frees its port only later
-                self._control = Publisher(self.endpoints["control"], lossless=False, source="demo", max_bytes=max_bytes)
+        if self.control is None:  # bound at the first load, then kept: a closed socket frees its port late
+            self.control = Publisher(self.endpoints["control"], lossless=False, source="demo", max_bytes=self.commands.max_bytes)
+        with Subscriber(self.endpoints["estimate_pub"], ("model_event",), max_bytes=self.commands.max_bytes) as answers:
             try:
-                return reload_model(os.path.abspath(path), command=self._control, answers=answers, timeout_s=timeout_s)
+                return reload_model(os.path.abspath(path), command=self.control, answers=answers, timeout_s=timeout_s)
             except TeleopError:
                 self.check()  # a child that died is the better reason
                 raise
