@@ -362,9 +362,8 @@ class OperatorConsole(App):
         else:
             grasp.append(f"label  - ({LABEL_KEY} names the object)")
         estimate = view.estimate
-        down = {peer.name for peer in view.peers if not peer.alive}
         lines = [estimate_line(estimate)]
-        if estimate is None and "estimator" in down:
+        if estimate is None and view.down("estimator"):
             lines.append("the estimator is down: none will come (start `estimator serve`)")
         if estimate is not None:
             lines.append(f"{view.estimates} estimate(s) for this grasp, method {estimate.method}")
@@ -374,7 +373,7 @@ class OperatorConsole(App):
         shown = view.display
         if shown is None:
             display = ["nothing rendered yet"]
-            if "display" in down:
+            if view.down("display"):
                 display.append("the renderer is down: nothing will be (start `haptics serve`)")
         else:
             level = f"  level {shown.level}/{shown.level_max}" if shown.level is not None else ""

@@ -114,6 +114,11 @@ class OperatorView:
         peer = self.peer(name)
         return peer is not None and peer.alive
 
+    def down(self, name: str) -> bool:
+        """Whether the peer named ``name`` (or publishing as ``name``) is listed and not alive."""
+        peer = self.peer(name)
+        return peer is not None and not peer.alive
+
     @property
     def stiffness(self) -> float | None:
         """What the display renders as a fraction of its range (1: rigid); None when unknown or idle."""

@@ -292,8 +292,8 @@ class OperatorLoop:
     def _robot_down(self) -> str:
         """What to add to a command's log line when the link hears the robot node dead: it is sent,
         as the node may just be starting, but nothing moves until the node runs."""
-        dead = any(peer.name == "robot node" and not peer.alive for peer in self.link.view.peers)
-        return " (the robot node is down: nothing moves until `teleop node` runs)" if dead else ""
+        down = self.link.view.down("robot node")
+        return " (the robot node is down: nothing moves until `teleop node` runs)" if down else ""
 
     def _send_label(self, grasp_id: str, label: Any) -> None:
         sent = self._send(lambda: self.link.label(grasp_id, label.object_name, modulus_pa=label.modulus_pa,
