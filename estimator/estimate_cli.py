@@ -136,9 +136,11 @@ def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
     make = analytical_estimator if args.method in METHODS else learned_estimator
     estimate_record = make(args, settings)
+    paths = grasp_paths(args.grasps)
+    name_each = len(args.grasps) > 1 or Path(args.grasps[0]).is_dir()
     warm = False
     failed = 0
-    for path in grasp_paths(args.grasps):
+    for path in paths:
         try:
             record = read_record(path)
             if not warm:
@@ -156,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
             continue
         low, high = estimate.interval_pa
         by = "" if model is None else f", model {model}"
-        if len(args.grasps) > 1 or Path(args.grasps[0]).is_dir():
+        if name_each:
             print(path)
         print(f"{args.method}: {estimate.state}  E = {_pa(estimate.e_pa)}  interval [{_pa(low)}, {_pa(high)}]  "
               f"({estimate.latency_s * 1e3:.1f} ms{by})")
