@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from teleop.clikit import Command, run_cli
 
 COMMANDS: dict[str, Command] = {
-    "estimate": Command("estimator.estimate_cli", "estimate Young's modulus from one grasp record"),
+    "estimate": Command("estimator.estimate_cli", "estimate Young's modulus from each grasp record or folder of records"),
     "evaluate": Command("estimator.evaluation.evaluate_cli", "score the analytical and learned estimators over labelled grasp records (ablation table)"),
     "card": Command("estimator.evaluation.card_cli", "write a model card's figures table from estimator evaluate --json outputs, or check it"),
     "compare": Command("estimator.evaluation.compare_cli", "score a base and a candidate model on labelled records neither trained on: which is better, with its uncertainty"),

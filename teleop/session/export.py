@@ -404,13 +404,18 @@ def _grasps(
     stray_labels: list[str] | None = None,
 ) -> Iterator[GraspExport]:
     path = reader.path
+    if not info.session and not info.complete:  # the metadata precedes every message
+        raise SessionLogError(
+            f"{path} is cut short before its session metadata ({info.damage}): no grasp in it "
+            "can be read"
+        )
     given = settings is not None
     settings = settings if given else info.settings()
     source = source or info.session.get("source")
     if source not in ("simulated", "hardware"):
         raise SessionLogError(
-            f"{path}: the session metadata gives source {source!r}; "
-            "pass simulated or hardware explicitly"
+            f"{path}: the session metadata gives source {source!r}; give the source "
+            "(simulated or hardware) explicitly"
         )
     settings, files = _carried_calibrations(info, settings, path, disk_first=given)
     labels = _labels(reader)

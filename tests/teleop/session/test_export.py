@@ -416,6 +416,25 @@ def test_exporting_a_cut_log_that_yields_nothing_fails_and_names_recover(recorde
     assert report["exported"] == 0 and not report["complete"] and "teleop recover" in report["error"]
 
 
+def test_a_log_cut_before_its_session_metadata_says_so(recorded, tmp_path, capsys):
+    from mcap.records import Metadata
+
+    from teleop.cli import main
+    from teleop.session import LogReader
+
+    reader, before = LogReader(recorded.path), 0
+    for record in reader.records(emit_chunks=True):
+        if isinstance(record, Metadata) and record.name == "session":
+            break
+        before = reader.good_bytes
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(recorded.path.read_bytes()[: before + 10])  # the attachments, not the metadata
+    for command in (["export", str(cut), "--out", str(tmp_path / "out")], ["report", str(cut), "--out",
+                                                                          str(tmp_path / "page")]):
+        assert main(command) != 0
+        assert f"{cut} is cut short before its session metadata" in capsys.readouterr().err
+
+
 def test_a_complete_log_without_a_grasp_fails(recorded, tmp_path, capsys):
     from teleop.cli import main
 
