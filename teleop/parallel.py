@@ -9,7 +9,8 @@ from multiprocessing import get_context
 from typing import TypeVar
 
 import cv2
-from tqdm import tqdm
+
+from teleop.progress import progress_bar
 
 __all__ = ["progress_map"]
 
@@ -30,7 +31,7 @@ def progress_map(work: Callable[[T], R], items: Iterable[T], *, workers: int, de
     forking this one, with OpenCV on one thread in each.
     """
     items = list(items)
-    bar = partial(tqdm, total=len(items), desc=desc, unit=unit, disable=not progress)
+    bar = partial(progress_bar, total=len(items), desc=desc, unit=unit, enabled=progress)
     if workers <= 1:
         return list(bar(map(work, items)))
     # A forked child inherits OpenCV's thread pool mid-state: setting its threads there can hang.

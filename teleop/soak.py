@@ -27,7 +27,6 @@ import contextlib
 import multiprocessing
 import os
 import queue
-import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -35,11 +34,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from teleop.bus.pubsub import Publisher
 from teleop.bus.wire import Message
 from teleop.errors import BusTimeoutError, SettingsError, TeleopError
+from teleop.progress import progress_bar
 from teleop.settings import Settings, default_settings_path, load_settings
 
 __all__ = ["GRASP_RATES_HZ", "LatencyHistogram", "SoakResult", "rss_bytes", "run_soak", "soak_frames"]
@@ -313,7 +312,7 @@ def _publish(publisher: Publisher, frames: dict[str, list[bytes]], duration_s: f
     due = start + period_s * np.arange(len(topics)) / len(topics)  # staggered, as devices are
     sent = dict.fromkeys(topics, 0)
     timeouts = 0
-    with tqdm(total=round(duration_s), unit="s", desc="soak", disable=not progress, file=sys.stderr) as bar:
+    with progress_bar(total=round(duration_s), unit="s", desc="soak", enabled=progress) as bar:
         while True:
             k = int(np.argmin(due))
             t_due = float(due[k])

@@ -55,7 +55,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from estimator.analytical import METHODS
 from estimator.errors import EstimatorError
@@ -71,6 +70,7 @@ from estimator.perception.calibration import Calibration
 from estimator.settings import estimator_settings
 from haptics.settings import display_range_pa
 from teleop.errors import RecordError
+from teleop.progress import progress_bar
 from teleop.record import GraspRecord, read_record
 from teleop.settings import Settings
 
@@ -197,7 +197,7 @@ def bench(
     reference: list[float] = []
     skipped = 0
     with one_core() as pinned:
-        for path in tqdm(paths, desc="bench", unit="grasp", disable=not progress):
+        for path in progress_bar(paths, desc="bench", unit="grasp", enabled=progress):
             try:
                 record = read_record(path)
             except RecordError:

@@ -89,12 +89,12 @@ from typing import Any
 
 import numpy as np
 import scipy.ndimage
-from tqdm import tqdm
 
 from estimator.errors import CalibrationError
 from estimator.perception.calibration import Calibration, _check_image, _tile_offsets, lut_index
 from estimator.perception.depth import fit_sphere, reconstruct_depth
 from estimator.perception.press_circles import PressRings, press_rings
+from teleop.progress import progress_bar
 
 __all__ = ["DEFAULT_FLAT_WEIGHT", "DEFAULT_SMOOTHING_PX", "fit_calibration"]
 
@@ -355,8 +355,8 @@ def fit_calibration(
     lut = _fit_table(reference, press_list, centers, radii, flat_radii, masks, **options)
     used_centers, used_radii = centers.copy(), radii.copy()
     refined = np.zeros(len(press_list), dtype=bool)
-    bar = tqdm(total=refine_passes * len(press_list), desc="refining press circles", unit="press",
-               disable=not progress)
+    bar = progress_bar(total=refine_passes * len(press_list), desc="refining press circles", unit="press",
+               enabled=progress)
     for _ in range(refine_passes):
         current = Calibration(lut, shape, pixel_pitch_m, ball_radius_m, relative_range, float(smoothing_px))
         for i, press in enumerate(press_list):

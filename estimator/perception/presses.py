@@ -16,12 +16,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from estimator.errors import CalibrationError
 from estimator.perception.calibration import _check_image, read_npz
 from estimator.perception.press_circles import detect_press_circle
 from estimator.perception.warp import warp_and_crop, warp_matrix, warp_points
+from teleop.progress import progress_bar
 from teleop.settings import SensorSettings
 
 __all__ = ["PressSet", "load_presses", "split_presses"]
@@ -108,8 +108,8 @@ class PressSet:
                 f"{self.source}: images are {shape[0]} x {shape[1]}; sensor {sensor.finger!r} expects raw "
                 f"{raw_shape[0]} x {raw_shape[1]} frames (or {sensor.image_shape} with frame = 'warped_cropped')"
             )
-        images = np.stack([warp_and_crop(im, sensor) for im in tqdm(
-            self.images, desc="warping presses", unit="press", disable=not progress)])
+        images = np.stack([warp_and_crop(im, sensor) for im in progress_bar(
+            self.images, desc="warping presses", unit="press", enabled=progress)])
         centers, radii = self.centers_px, self.radii_px
         if self.frame == "raw" and centers is not None:
             centers = warp_points(self.centers_px, sensor)
@@ -123,8 +123,8 @@ class PressSet:
     def with_detected_circles(self, *, max_radius_px: float | None = None, progress: bool = False) -> PressSet:
         """The same presses with circles found by :func:`detect_press_circle` in the images."""
         centers, radii = [], []
-        for i, image in enumerate(tqdm(self.images, desc="detecting press circles", unit="press",
-                                       disable=not progress)):
+        for i, image in enumerate(progress_bar(self.images, desc="detecting press circles", unit="press",
+                                       enabled=progress)):
             try:
                 center, radius = detect_press_circle(image, self.reference, max_radius_px=max_radius_px)
             except CalibrationError as exc:
@@ -226,7 +226,7 @@ def _load_folder(path: Path, progress: bool) -> PressSet:
         raise CalibrationError(f"{path}: no press images beside {references[0].name}")
     reference = _read_image(references[0])
     images = []
-    for file in tqdm(press_files, desc="reading presses", unit="image", disable=not progress):
+    for file in progress_bar(press_files, desc="reading presses", unit="image", enabled=progress):
         image = _read_image(file)
         if image.shape != reference.shape:
             raise CalibrationError(f"{file}: {image.shape} differs from the reference's {reference.shape}")

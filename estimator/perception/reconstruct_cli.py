@@ -16,13 +16,13 @@ import math
 import sys
 
 import numpy as np
-from tqdm import tqdm
 
 from estimator.errors import CalibrationError
 from estimator.perception.calibrate_cli import add_press_arguments, prepare_presses
 from estimator.perception.calibration import load_calibration
 from estimator.perception.depth import fit_sphere, reconstruct_depth
 from estimator.perception.markers import detect_markers
+from teleop.progress import progress_bar
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
             f"{args.presses}: the calibration used every press; nothing is held out (use --all)"
         )
     results, failures = [], []
-    for i in tqdm(indices, desc="reconstructing presses", unit="press"):
+    for i in progress_bar(indices, desc="reconstructing presses", unit="press"):
         image = presses.images[i]
         mask = detect_markers(image, presses.reference) if record["markers"] else None
         depth = reconstruct_depth(image, presses.reference, calibration, marker_mask=mask)

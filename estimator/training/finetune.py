@@ -56,7 +56,6 @@ from typing import Any
 import numpy as np
 import torch
 from torch import nn
-from tqdm import tqdm
 
 from estimator.errors import EstimatorError
 from estimator.inference.infer import CompliancePredictor, ModelMetadata, read_metadata
@@ -75,6 +74,7 @@ from estimator.training.train import (
     split_metrics,
     train_epoch,
 )
+from teleop.progress import progress_bar
 from teleop.settings import Settings
 
 __all__ = ["FINE_TUNE_CONFIG", "REPLAY_RATIO", "check_by_object", "fine_tune"]
@@ -143,7 +143,7 @@ def _tuned(model_dir: Path, base: dict[str, Any], variant: Variant, data: SplitD
     optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=config.epochs)
     history = []
-    for epoch in tqdm(range(1, config.epochs + 1), desc=desc, unit="epoch", disable=not progress):
+    for epoch in progress_bar(range(1, config.epochs + 1), desc=desc, unit="epoch", enabled=progress):
         model.train()
         _freeze_batch_norm(model)
         epoch_data = data

@@ -52,7 +52,6 @@ from typing import Any
 import numpy as np
 import torch
 from torch import nn
-from tqdm import tqdm
 
 from estimator.errors import EstimatorError, SampleError
 from estimator.evaluation.metrics import summarise
@@ -81,6 +80,7 @@ from estimator.training.export import OPSET, export_onnx
 from estimator.training.model import ComplianceNet
 from estimator.training.samples import TrainingSample, load_sample, sample_paths
 from haptics.settings import display_range_pa
+from teleop.progress import progress_bar
 from teleop.settings import Settings, load_settings
 
 __all__ = ["SplitData", "TrainConfig", "auto_policy", "check_dataset_fits", "load_split_data", "predict",
@@ -371,7 +371,7 @@ def _fit(train: SplitData, val: SplitData, variant: Variant, config: TrainConfig
     val_label = censor(val.label).astype(np.float32)
     history: list[dict[str, float]] = []
     best = (math.inf, 0, copy.deepcopy(model.state_dict()))
-    bar = tqdm(range(1, config.epochs + 1), desc="train", unit="epoch", disable=not progress)
+    bar = progress_bar(range(1, config.epochs + 1), desc="train", unit="epoch", enabled=progress)
     for epoch in bar:
         model.train()
         total = train_epoch(model, train, optimiser, config, rng)

@@ -57,13 +57,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from teleop.bus.messages import LabelBody
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec, load_catalogue
 from teleop.errors import SessionLogError
+from teleop.progress import progress_bar
 from teleop.record import (
     GRASP_DONE_EVENT,
     FrameStream,
@@ -548,7 +548,7 @@ def export_session(
         reader, info, settings=settings, catalogue=catalogue, source=source, stray_labels=stray
     )
     try:
-        for grasp in tqdm(grasps, desc=f"export {path.name}", unit="grasp", disable=not progress):
+        for grasp in progress_bar(grasps, desc=f"export {path.name}", unit="grasp", enabled=progress):
             if grasp:
                 name = _record_name(path, sid, grasp.grasp_id, names)
                 dest = out / name

@@ -28,11 +28,11 @@ from typing import IO, Any
 
 import zmq
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
-from tqdm import tqdm
 
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES, Subscriber
 from teleop.bus.wire import Message, decode, now_ns
 from teleop.errors import BusError, SessionLogError
+from teleop.progress import progress_bar
 from teleop.record import software_version
 from teleop.scene import scene_path
 from teleop.session.foxglove import FoxgloveMessage
@@ -368,7 +368,7 @@ class SessionRecorder:
         deadline = None if duration_s is None else time.monotonic() + duration_s
         self.open()
         try:
-            with tqdm(desc=f"record {self.name}", unit="msg", disable=not progress) as bar:
+            with progress_bar(desc=f"record {self.name}", unit="msg", enabled=progress) as bar:
                 while self._state == "open" and not (stop is not None and stop.is_set()):
                     remaining = None if deadline is None else deadline - time.monotonic()
                     if remaining is not None and remaining <= 0:

@@ -23,6 +23,7 @@ from tqdm import tqdm
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES
 from teleop.bus.wire import decode
 from teleop.errors import MessageRejected, SessionLogError
+from teleop.progress import progress_bar
 from teleop.record import software_version
 from teleop.session.logfile import CHUNK_BYTES, END_METADATA, LogReader, StoredFrames
 
@@ -79,8 +80,8 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
     try:
         with (
             tmp.open("wb") as file,
-            tqdm(
-                desc=f"recover {source.name}", unit="B", unit_scale=True, disable=not progress
+            progress_bar(
+                desc=f"recover {source.name}", unit="B", unit_scale=True, enabled=progress
             ) as bar,
         ):
             _copy(

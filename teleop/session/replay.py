@@ -17,11 +17,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES, Publisher
 from teleop.bus.wire import Message
 from teleop.errors import SessionLogError
+from teleop.progress import progress_bar
 from teleop.session.logfile import LogReader
 
 __all__ = ["ReplayStats", "replay", "replay_messages"]
@@ -118,7 +117,7 @@ def replay(
     stats = ReplayStats()
     first_ns = last_ns = None
     start_s = clock()
-    with tqdm(desc=f"replay {path}", unit="msg", disable=not progress) as bar:
+    with progress_bar(desc=f"replay {path}", unit="msg", enabled=progress) as bar:
         for logged in reader.messages(topics):
             message = logged.message
             if message.type == "heartbeat":

@@ -20,14 +20,13 @@ the reference). The file (:func:`write_presses`, ``np.savez_compressed``, no pic
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from teleop.errors import SimulationError
+from teleop.progress import progress_bar
 from teleop.sim.optics import OpticsRenderer
 
 __all__ = ["contact_radius_m", "simulate_presses", "sphere_press_height", "write_presses"]
@@ -111,7 +110,7 @@ def simulate_presses(camera: OpticsRenderer, *, n: int, ball_radius_m: float,
 
     f0 = _decode(camera.capture(np.zeros(sensor.image_shape)))
     imgs = np.empty((n, *f0.shape), dtype=np.uint8)
-    for i in tqdm(range(n), desc="presses", unit="press", disable=not progress, file=sys.stderr):
+    for i in progress_bar(range(n), desc="presses", unit="press", enabled=progress):
         height = sphere_press_height(sensor.image_shape, center_px=tuple(centres[i]),
                                      ball_radius_m=ball_radius_m, depth_m=depths[i], pixel_pitch_m=pitch)
         imgs[i] = _decode(camera.capture(height))

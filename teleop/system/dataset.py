@@ -36,6 +36,7 @@ from estimator.errors import SampleError
 from estimator.training.samples import TrainingSample, save_sample
 from teleop.catalogue import load_catalogue
 from teleop.errors import DatasetError
+from teleop.progress import progress_bar
 from teleop.record import GraspRecord, write_record
 from teleop.settings import default_settings_path, load_settings
 from teleop.system.dataset_preprocessed import find_preprocessed_samples, import_preprocessed_sample
@@ -96,7 +97,7 @@ def import_dataset(
     settings: str | os.PathLike[str] | None = None,
     fps: float = RAW_FPS,
     on_skip: Callable[[SkippedItem], None] | None = None,
-    progress: bool | None = False,
+    progress: bool = False,
 ) -> ImportSummary:
     """Import every grasp (raw) or sample (preprocessed) under ``src`` into ``out``.
 
@@ -119,8 +120,8 @@ def import_dataset(
         Frame rate of the raw videos, Hz.
     on_skip : callable, optional
         Called with each :class:`SkippedItem` as it happens.
-    progress : bool or None
-        Show a tqdm bar on stderr (None: only on a terminal).
+    progress : bool
+        Show a progress bar on stderr (:func:`teleop.progress.progress_bar`).
 
     Raises
     ------
@@ -140,8 +141,8 @@ def import_dataset(
         folders = find_raw_grasps(src)
     else:
         folders = find_preprocessed_samples(src)
-    for folder in tqdm(folders, desc=f"import {layout}", unit="grasp" if layout == "raw" else "sample",
-                       file=sys.stderr, disable=None if progress is None else not progress):
+    for folder in progress_bar(folders, desc=f"import {layout}", unit="grasp" if layout == "raw" else "sample",
+                       enabled=progress):
         relative = folder.relative_to(src)
         try:
             if layout == "raw":
@@ -203,11 +204,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     def report(item: SkippedItem) -> None:
-        tqdm.write(f"skipped {item.path}: {item.reason}", file=sys.stderr)
+        tqdm.write(f"skipped {item.path}: {item.reason}", file=sys.stderr)  # above the bar
 
     summary = import_dataset(
         args.src, layout=args.layout, out=args.out, objects=args.objects, settings=args.settings,
-        fps=args.fps, on_skip=report, progress=None,
+        fps=args.fps, on_skip=report, progress=True,
     )
     what = "grasp records" if args.layout == "raw" else "training samples"
     if args.json:

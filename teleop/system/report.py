@@ -34,10 +34,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from estimator.settings import estimator_settings
 from teleop.errors import SessionLogError, TeleopError
+from teleop.progress import progress_bar
 from teleop.session.export import session_grasps
 from teleop.session.logfile import LogReader
 from teleop.system.report_data import GraspView, grasp_messages, log_calibrations, tactile_moments
@@ -245,8 +245,8 @@ def build_report(
     views, figures = [], {}
     grasps = session_grasps(log, catalogue=catalogue)
     try:
-        for grasp in tqdm(grasps, desc=f"report {log.name}", unit="grasp", total=len(messages),
-                          disable=not progress):
+        for grasp in progress_bar(grasps, desc=f"report {log.name}", unit="grasp", total=len(messages),
+                          enabled=progress):
             view = messages.pop(grasp.grasp_id, None) or GraspView(grasp.grasp_id)
             view.take(grasp.record, grasp.reason)
             views.append(view)
