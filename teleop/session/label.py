@@ -21,9 +21,10 @@ writes one ``label`` bus message per row into the log:
   that take the last label per grasp (in file or log-time order) take the newest: labelling a
   grasp again replaces its label.
 
-Refused, with nothing written: a log cut short (``teleop recover`` first), a CSV row naming a
-grasp the log does not hold (the error lists the log's grasps), an object that is neither in the
-catalogue nor given a modulus or Shore hardness, a bad number, an unknown column.
+Refused, with nothing written: a log cut short (``teleop recover`` first), an unknown column, and
+CSV rows naming a grasp the log does not hold (the error lists the log's grasps), an object that
+is neither in the catalogue nor given a modulus or Shore hardness, or a bad number: every such row
+is named in one error, so that a long CSV is mended in one go.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import dataclasses
 import json
 import os
 import tempfile
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -71,6 +73,7 @@ LABELS_METADATA = "labels"
 REQUIRED_COLUMNS = ("grasp_id", "object")
 CSV_COLUMNS = (*REQUIRED_COLUMNS, "modulus_pa", "shore_a", "shore_00", "source", "detail")
 _LISTED_GRASPS = 30  # grasp ids named in an error before "..."
+_LISTED_ROWS = 20  # refused rows named in an error before "... and N more"
 
 
 @dataclass(frozen=True)
@@ -118,17 +121,19 @@ def _catalogue_objects(catalogue: str | Path | None, attachments: dict[str, byte
     return load_catalogue(path), str(path)
 
 
-def read_label_csv(path: str | Path, catalogue: Any = (), *, where: str = "the catalogue") -> list[GraspLabel]:
+def read_label_csv(path: str | Path, catalogue: Any = (), *, where: str = "the catalogue",
+                   grasps: Collection[str] | None = None, log: str = "the log") -> list[GraspLabel]:
     """The rows of a label CSV, each made a label (:func:`teleop.labels.label_from_fields`).
 
     Columns: ``grasp_id`` and ``object`` (required), ``modulus_pa``, ``shore_a``, ``shore_00``,
-    ``source``, ``detail`` (optional); a header row first; blank rows skipped.
+    ``source``, ``detail`` (optional); a header row first; blank rows skipped. ``grasps``: the
+    grasp ids of ``log`` a row may name (None: any).
 
     Raises
     ------
     LabelError
         The file cannot be read, has no rows, lacks a required column or has an unknown one, or
-        a row's fields do not make a label; each error names the file and line.
+        rows do not make labels (every such row is named, by file and line).
     """
     path = Path(path)
     try:
@@ -149,17 +154,23 @@ def read_label_csv(path: str | Path, catalogue: Any = (), *, where: str = "the c
     unknown = [c for c in columns if c not in CSV_COLUMNS]
     if unknown:
         raise LabelError(f"{path}: unknown column(s) {', '.join(map(repr, unknown))}; the columns are {', '.join(CSV_COLUMNS)}")
-    out = []
+    out, errors, stray = [], [], False
     for line, row in rows:
         cells = {(k or "").strip(): (v or "").strip() for k, v in row.items() if isinstance(k, str)}
         if None in row:
-            raise LabelError(f"{path}:{line}: more cells than the header has columns")
+            errors.append(f"{path}:{line}: more cells than the header has columns")
+            continue
         if not any(cells.values()):
             continue
         where_row = f"{path}:{line}"
         grasp_id = cells.get("grasp_id", "")
         if not grasp_id:
-            raise LabelError(f"{where_row}: the grasp_id is empty")
+            errors.append(f"{where_row}: the grasp_id is empty")
+            continue
+        if grasps is not None and grasp_id not in grasps:
+            errors.append(f"{where_row}: grasp {grasp_id!r} is not in {log}")
+            stray = True
+            continue
         try:
             label = label_from_fields(
                 cells.get("object", ""),
@@ -172,8 +183,12 @@ def read_label_csv(path: str | Path, catalogue: Any = (), *, where: str = "the c
                 where=where,
             )
         except LabelError as exc:
-            raise LabelError(f"{where_row} (grasp {grasp_id}): {exc}") from None
+            errors.append(f"{where_row} (grasp {grasp_id}): {exc}")
+            continue
         out.append(GraspLabel(grasp_id, label, where_row))
+    if errors:
+        listing = ("; " if len(errors) == 1 else "\n") + _grasp_list(grasps) if stray else ""
+        raise LabelError(_each_row(errors) + listing)
     if not out:
         raise LabelError(f"{path}: no label rows under the header")
     return out
@@ -211,7 +226,16 @@ def _survey(reader: LogReader) -> tuple[dict[str, _Grasp], int]:
     return grasps, seq
 
 
-def _grasp_list(grasps: dict[str, _Grasp]) -> str:
+def _each_row(errors: list[str]) -> str:
+    """One error, or every row's under a count (so that a long CSV is mended in one go)."""
+    if len(errors) == 1:
+        return errors[0]
+    shown = errors[:_LISTED_ROWS]
+    more = [f"... and {len(errors) - len(shown)} more"] if len(errors) > len(shown) else []
+    return "\n  ".join([f"{len(errors)} rows are refused:", *shown, *more])
+
+
+def _grasp_list(grasps: Collection[str]) -> str:
     names = list(grasps)
     if not names:
         return "the log holds no grasps"
@@ -250,11 +274,8 @@ def label_session(
             f"`teleop recover {log} --out FIXED.mcap`, then label FIXED.mcap"
         )
     objects, where = _catalogue_objects(catalogue, info.attachments)
-    rows = read_label_csv(csv_path, objects, where=where)
     grasps, seq = _survey(reader)
-    for row in rows:
-        if row.grasp_id not in grasps:
-            raise LabelError(f"{row.where}: grasp {row.grasp_id!r} is not in {log}; {_grasp_list(grasps)}")
+    rows = read_label_csv(csv_path, objects, where=where, grasps=grasps, log=str(log))
     report = LabelReport(str(log), str(csv_path), grasps=len(grasps))
     labels = []
     for row in rows:

@@ -134,6 +134,17 @@ def test_bad_input_is_refused_and_the_log_left_as_it_was(log, tmp_path, text, sa
     assert log.read_bytes() == before and not list(tmp_path.glob("*.partial"))
 
 
+def test_every_refused_row_is_named_in_one_error(log, tmp_path):
+    text = "grasp_id,object,modulus_pa\ng0,stress_ball,\ng7,pad,1e6\ng1,blue gel,\ng2,pad,-3\n"
+    with pytest.raises(LabelError) as info:
+        label_session(log, _csv(tmp_path, text))
+    lines = str(info.value).splitlines()
+    assert lines[0] == "3 rows are refused:"
+    assert [line.split(":")[1].split()[0] for line in lines[1:4]] == ["3", "4", "5"]  # the CSV's lines, in order
+    assert "grasp 'g7' is not in" in lines[1] and "'blue gel'" in lines[2] and "-3.0" in lines[3]
+    assert lines[4].startswith("the log's grasps are g0, g1, g2")
+
+
 def test_a_cut_log_is_refused_with_the_way_out(log, tmp_path):
     data = log.read_bytes()
     log.write_bytes(data[: len(data) // 2])
