@@ -529,13 +529,13 @@ def add_run_arguments(parser: argparse.ArgumentParser, *, default_scene: str) ->
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
-        "Run the live system on simulated hardware: robot node, estimator service, haptic renderer on a "
-        "simulated display and the session recorder, as separate processes on loopback; grasp every "
-        "object of a scene once, show each grasp live and print a closing table (true E, final estimate "
-        "and state, what the display rendered (rigid, unknown, or the fraction of its range and the modulus "
-        "it stands for), the felt error in decades (the rendering against the label on the display's range: "
-        "an object stiffer than the sensor resolves is right when rendered rigid), time to the first estimate "
-        "after contact, latency from the last loading frame to the display report) and the session log's path."
+        "Run the live system on simulated hardware (robot node, estimator service, haptic renderer on a "
+        "simulated display, session recorder: separate processes on loopback), grasp every object of a scene "
+        "once, show each grasp live, then print a closing table (grasp style, true E, final estimate and state, "
+        "what the display rendered: rigid, unknown, or the fraction of its range and the modulus it stands for; "
+        "the felt error in decades, against the label on the display's range, so that an object stiffer than the "
+        "sensor resolves is right when rendered rigid; time to the first estimate; how soon after contact the display "
+        "stayed within a factor 2; a scripted grasp's latency to the display report), what was felt, and the log's path."
     )
     add_run_arguments(parser, default_scene="default")
     parser.add_argument("--operator", choices=("sim", "script"), default="sim",
