@@ -81,7 +81,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--objects", metavar="PATH", default=str(default_catalogue_path()),
                         help="object catalogue (.toml or .csv) whose names a label may give (the l key)")
     parser.add_argument("--headless", action="store_true",
-                        help="no screen: run the loop and print one line per action (the sim input, scripts)")
+                        help="no screen: run the loop and print one line per action (the sim input, scripts; "
+                             "any input but the keyboard, whose keys the screen reads)")
     parser.add_argument("--duration-s", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: until quit, Ctrl-C or SIGTERM)")
     parser.add_argument("--json", action="store_true",
@@ -112,6 +113,9 @@ def run(args: argparse.Namespace) -> int:
     if args.force is not None and not 0 < args.force <= limit:
         raise SettingsError(f"--force {args.force:g}: expected a force in (0, {limit:g}] N, the settings' maximum "
                             "grasp force (gripper.target_force_n)")
+    if args.headless and name == "keyboard":
+        raise SettingsError("--input keyboard reads the console's own keys, which --headless has none of: drop "
+                            "--headless, or drive it headless from another input (sim, gamepad, display)")
     if not args.headless and not (sys.stdin.isatty() and sys.stdout.isatty()):
         raise SettingsError("haptics operate needs a terminal for its screen; run it in one (or in tmux), "
                             "or pass --headless")

@@ -211,13 +211,15 @@ def test_operate_headless_with_the_simulated_operator(capsys):
     assert out[0].startswith("follow ")
 
 
-def test_operate_refuses_a_force_beyond_the_maximum_and_a_missing_terminal(capsys):
+def test_operate_refuses_a_force_beyond_the_maximum_a_missing_terminal_and_headless_keys(capsys):
     from haptics.cli import main
 
     assert main(["operate", "--headless", "--force", "80", *_endpoints()]) == 2
     assert "--force 80: expected a force in (0, 30] N" in capsys.readouterr().err
     assert main(["operate", "--input", "keyboard", *_endpoints()]) == 2  # pytest's stdin is no terminal
     assert "needs a terminal" in capsys.readouterr().err
+    assert main(["operate", "--headless", *_endpoints()]) == 2  # the settings' input: the keyboard
+    assert "--input keyboard reads the console's own keys" in capsys.readouterr().err
 
 
 # --------------------------------------------------------------------------- labels
