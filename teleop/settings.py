@@ -80,8 +80,8 @@ CONFIG_DIR = config_dir()
 
 def resolve_path(value: str | os.PathLike[str], *, folder: Path | None = None) -> Path:
     """Where a path named in a settings or scene file points (``SensorSettings.calibration``,
-    ``SimulationSettings.background``, the estimator's ``model_path``, a scene's ``settings`` and
-    ``catalogue``): an absolute path as it is, a relative one against ``folder``, the folder of the
+    ``SimulationSettings.background``, ``BusSettings.keys_dir``, the estimator's ``model_path``, a
+    scene's ``settings`` and ``catalogue``): an absolute path as it is, a relative one against ``folder``, the folder of the
     file that names it. Loading a file resolves its paths, so settings and the records made with
     them carry absolute ones; ``folder`` None (a path from settings built in code, or from a record
     of an older version) means :func:`config_dir`."""
@@ -214,7 +214,8 @@ class BusSettings(Validated):
                                                     "operator holds the command endpoint")
     heartbeat_s: float = spec(0.5, lo=0.0, hi=60.0, lo_open=True)
     max_message_bytes: int = spec(8 * 1024 * 1024, lo=1024, hi=2**31 - 1)
-    keys_dir: str = spec("", doc="CURVE key directory; required when an endpoint is not loopback")
+    keys_dir: str = spec("", doc="CURVE key directory (a relative one: against the settings file's folder); "
+                              "required when an endpoint is not loopback")
 
 
 @dataclass(frozen=True)
@@ -393,6 +394,8 @@ def _build_settings_file(data: Mapping[str, Any], source: Path | None) -> Settin
         own["sensors"] = {finger: _with_path(table, "calibration", folder) for finger, table in sensors.items()}
     if isinstance(own.get("simulation"), Mapping):
         own["simulation"] = _with_path(own["simulation"], "background", folder)
+    if isinstance(own.get("bus"), Mapping):
+        own["bus"] = _with_path(own["bus"], "keys_dir", folder)
     built = {"sensors": _build_sensors(own["sensors"], where)} if "sensors" in own else {}
     settings = build_settings(Settings, own, where, "", built=built)
     return dataclasses.replace(settings, tables=tables, source=source)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+from pathlib import Path
 
 from teleop.bus.security import (
     AuthorizedKey,
@@ -83,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         result = init_keys(args.dir, server_cert=args.server_cert)
         if not args.json:
             _print_listing(result)
-            print(f"next: set bus.keys_dir = {str(args.dir)!r} in the settings TOML")
+            print(f"next: set bus.keys_dir = {str(Path(args.dir).resolve())!r} in the settings TOML")
     elif args.action == "add":
         result = authorize_key(args.dir, args.cert, name=args.name)
         if not args.json:

@@ -296,9 +296,11 @@ def test_the_shipped_configs_are_found_and_relative_paths_resolve_against_their_
     assert resolve_path("cal.npz", folder=tmp_path) == tmp_path / "cal.npz"
     assert resolve_path(tmp_path / "cal.npz", folder=shipped) == tmp_path / "cal.npz"
     # Loading resolves every path of a file against the file's folder, package tables' included.
-    text = '[sensors.left]\ncalibration = "mine/left.npz"\n[estimator]\nmodel_path = "../models/m.onnx"\n'
+    text = ('[sensors.left]\ncalibration = "mine/left.npz"\n[estimator]\nmodel_path = "../models/m.onnx"\n'
+            '[bus]\nkeys_dir = "keys"\n')
     user = load_settings(write(tmp_path, text))
     assert user.sensor("left").calibration == str(tmp_path / "mine/left.npz")
+    assert user.bus.keys_dir == str(tmp_path / "keys")
     assert estimator_settings(user).model_path == str(tmp_path.parent / "models/m.onnx")
     for path in [default_settings_path(), *sorted((shipped / "rigs").glob("*.toml"))]:
         for sensor in load_settings(path).sensors:
