@@ -63,6 +63,14 @@ def test_settings_prints_the_resolved_settings():
     assert resolved["sensors"]["left"]["gel_modulus_pa"] == 275000.0
 
 
+def test_a_reader_that_leaves_early_is_no_error_of_the_command():
+    # stdout's reader is gone before the command prints (as `haptics protocol | head -1` can be)
+    proc = subprocess.Popen([str(BIN / "haptics"), "protocol"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1 and err == b""
+
+
 def test_unknown_subcommand_is_a_usage_error():
     result = run_script("teleop", "no-such-command")
     assert result.returncode == 2 and "invalid choice" in result.stderr
