@@ -7,7 +7,7 @@ quick to open however many grasps the session has (inline base64 would make it a
 and the figures harder to pass around alone).
 
 The page starts with a summary table (one row per grasp: object, label E, final estimate,
-interval, state, what the display rendered, |log10 error|) and the final estimates against their
+interval, state, what the display rendered, the felt error) and the final estimates against their
 labels (log-log, factor-2 band); then, per grasp, the final state and its reason, the tactile
 frames of each finger before contact, mid-loading and at the peak force with the depth the
 estimator's perception reconstructs from them (:mod:`teleop.system.report_data`), and force,
@@ -35,7 +35,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from estimator.evaluation.metrics import dangerous_miss, felt_log10_error, felt_pa, felt_within
 from estimator.settings import estimator_settings
+from haptics.settings import display_range_pa
 from teleop.errors import SessionLogError, TeleopError
 from teleop.progress import progress_bar
 from teleop.session.export import session_grasps
@@ -106,9 +108,39 @@ def _display_cell(view: GraspView, recorded: bool) -> str:
     return f"{d.stiffness:.2f} of range" + ("" if d.e_pa is None else f" (~{_pa(d.e_pa)} Pa)")
 
 
-def _error_cell(view: GraspView) -> str:
-    error = view.log10_error
-    return DASH if error is None else f"{abs(error):.2f}"
+def _felt_pa(view: GraspView, display_range: tuple[float, float]) -> float | None:
+    """The modulus the display renders for the final estimate, by its own mapping (as ``estimator
+    evaluate`` scores it); None without a final estimate, for a refusal and when shown unknown."""
+    final = view.final
+    if final is None or final.e_pa is None:
+        return None
+    row = {"state": final.state, "e_pa": final.e_pa, "low_pa": final.interval_pa[0], "high_pa": final.interval_pa[1]}
+    return felt_pa(row, display_range_pa=display_range)
+
+
+def _felt_cell(view: GraspView, display_range: tuple[float, float]) -> str:
+    if view.final is None or view.final.e_pa is None or not view.label_pa:
+        return DASH
+    felt = _felt_pa(view, display_range)
+    if felt is None:
+        return "shown unknown"
+    return f"{felt_log10_error(felt, view.label_pa, display_range_pa=display_range):.2f}"
+
+
+def _felt_line(views: Sequence[GraspView], display_range: tuple[float, float]) -> str:
+    """What the operator felt over the labelled grasps, in one sentence (the demo's closing line)."""
+    labelled = [v for v in views if v.label_pa and v.final is not None]
+    felt = [(v.label_pa, f) for v in labelled if (f := _felt_pa(v, display_range)) is not None]
+    if not felt:
+        return ""
+    errors = [felt_log10_error(f, label, display_range_pa=display_range) for label, f in felt]
+    misses = sum(dangerous_miss(label, f, e_rigid_pa=display_range[1]) for label, f in felt)
+    unknown = len(labelled) - len(felt)
+    return (f"<p>Felt (the display's rendering of each final estimate against the label clipped to its range, "
+            f"{_pa(display_range[0])} to {_pa(display_range[1])} Pa: an object stiffer than that is right when "
+            f"rendered rigid): mean error {np.mean(errors):.2f} decades over {len(felt)} labelled grasps, "
+            f"{sum(map(felt_within, errors))} within a factor 2, {misses} dangerous misses"
+            + (f", {unknown} shown unknown" if unknown else "") + ".</p>")
 
 
 # --------------------------------------------------------------------------- page
@@ -136,23 +168,20 @@ def _figure(name: str, size: tuple[int, int], alt: str, caption: str) -> str:
             f"<figcaption>{_e(caption)}</figcaption></figure>")
 
 
-def _summary(views: Sequence[GraspView], recorded: bool) -> str:
+def _summary(views: Sequence[GraspView], recorded: bool, display_range: tuple[float, float]) -> str:
     head = ("grasp", "object", "label E", "final estimate", "interval", "state", "display rendered",
-            "|log10 error|")
+            "felt error (dec)")
     rows = []
     for v in views:
         final = v.final
         cells = (f'<a href="#{_e(_anchor(v))}">{_e(v.grasp_id)}</a>', _e(v.object_name or DASH),
                  _e(_pa(v.label_pa)), _e(_final_cell(v)), _e(_interval_cell(v)),
-                 _e(final.state if final else DASH), _e(_display_cell(v, recorded)), _e(_error_cell(v)))
+                 _e(final.state if final else DASH), _e(_display_cell(v, recorded)), _e(_felt_cell(v, display_range)))
         rows.append("<tr>" + "".join(
             f'<td class="num">{c}</td>' if i in (2, 3, 7) else f"<td>{c}</td>" for i, c in enumerate(cells)
         ) + "</tr>")
-    errors = [abs(v.log10_error) for v in views if v.log10_error is not None]
-    closing = (f'<p>Mean |log10 error| {np.mean(errors):.2f} decades over {len(errors)} labelled estimates; '
-               f"{sum(e <= np.log10(2) for e in errors)} within a factor 2.</p>" if errors else "")
     return ('<table class="summary"><thead><tr>' + "".join(f"<th>{_e(h)}</th>" for h in head)
-            + "</tr></thead><tbody>" + "".join(rows) + "</tbody></table>" + closing)
+            + "</tr></thead><tbody>" + "".join(rows) + "</tbody></table>" + _felt_line(views, display_range))
 
 
 def _anchor(view: GraspView) -> str:
@@ -190,13 +219,13 @@ def _grasp_section(view: GraspView, figures: dict[str, tuple[int, int]], recorde
 
 
 def _page(log: Path, info_lines: Sequence[str], views: Sequence[GraspView], figures: dict[str, tuple[int, int]],
-          recorded: bool) -> str:
+          recorded: bool, display_range: tuple[float, float]) -> str:
     return "".join([
         '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">',
         f"<title>Grasp report: {_e(log.name)}</title><style>{_CSS}</style></head><body>",
         f"<h1>Grasp report: {_e(log.name)}</h1>",
         '<p class="meta">' + "<br>".join(_e(line) for line in info_lines) + "</p>",
-        "<h2>Summary</h2>", _summary(views, recorded),
+        "<h2>Summary</h2>", _summary(views, recorded, display_range),
         _figure("predictions.png", figures["predictions.png"], "predictions versus label",
                 "Final estimates against their catalogue labels (log-log); grey: within a factor 2."),
         *(_grasp_section(v, figures, recorded) for v in views),
@@ -276,7 +305,7 @@ def build_report(
         if info.damage:
             lines.append(f"the log is damaged; read up to the damage: {info.damage}")
         index = out / "index.html"
-        index.write_text(_page(log, lines, views, figures, recorded), encoding="utf-8")
+        index.write_text(_page(log, lines, views, figures, recorded, display_range_pa(settings)), encoding="utf-8")
     except OSError as exc:
         raise ReportError(f"cannot write the report into {out}: {exc.strerror or exc}") from exc
     return Report(index, figures, views)
@@ -354,7 +383,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Write a web page (DIR/index.html with its PNG figures beside it; no network, no JavaScript) "
         "for a session log: a summary table of the grasps (object, label E, final estimate, interval, "
-        "state, what the display rendered, |log10 error|) and the final estimates against their labels; "
+        "state, what the display rendered, the felt error: that rendering against the label on the display's "
+        "range) and the final estimates against their labels; "
         "per grasp, each finger's tactile frames before contact, mid-loading and at the peak force with the "
         "depth reconstructed from them (the log's calibration), force and width with the loading phase "
         "shaded, the provisional and final estimates with their intervals against the label, the final "

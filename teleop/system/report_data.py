@@ -18,7 +18,6 @@ truth.
 from __future__ import annotations
 
 import dataclasses
-import math
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -135,14 +134,6 @@ class GraspView:
     def final(self) -> EstimatePoint | None:
         """The last non-provisional estimate, if the estimator sent one."""
         return next((e for e in reversed(self.estimates) if not e.provisional), None)
-
-    @property
-    def log10_error(self) -> float | None:
-        """``log10(final / label)``, when both are known."""
-        final, label = self.final, self.label_pa
-        if final is None or final.e_pa is None or not label:
-            return None
-        return math.log10(final.e_pa / label)
 
     @property
     def rendered(self) -> DisplayPoint | None:
