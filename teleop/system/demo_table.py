@@ -18,7 +18,7 @@ import numpy as np
 if TYPE_CHECKING:
     from teleop.system.outcome import GraspOutcome
 
-__all__ = ["LiveView", "closing_table", "display_cell", "felt_summary", "models_answered", "models_line"]
+__all__ = ["LiveView", "closing_table", "display_cell", "felt_line", "felt_summary", "models_answered", "models_line"]
 
 
 def _pa(value: float | None) -> str:
@@ -139,19 +139,25 @@ def models_line(outcomes: Sequence[GraspOutcome]) -> str:
 
 
 def felt_summary(outcomes: Sequence[GraspOutcome]) -> str:
-    """What the operator felt, in one line: the display's rendering against the label clipped to the
-    display's range (an object stiffer than its rigid end is right when rendered rigid), the share within
-    a factor 2, the dangerous misses (:func:`estimator.evaluation.metrics.dangerous_miss`) and the grasps the display
-    rendered nothing for."""
-    from estimator.evaluation.metrics import dangerous_miss, felt_within
-
+    """What the operator felt over ``outcomes``, in one line (:func:`felt_line`)."""
     felt = [o for o in outcomes if o.felt_log10_error is not None]
+    display_range = felt[0].display_range if felt else (0.0, 0.0)
+    return felt_line([(o.obj.modulus_pa, o.display_e_pa) for o in felt], display_range, grasps=len(outcomes))
+
+
+def felt_line(felt: Sequence[tuple[float, float]], display_range: tuple[float, float], *, grasps: int) -> str:
+    """What the operator felt, in one line, from the (label, rendered modulus) pairs (Pa) of the
+    ``grasps`` the display rendered a modulus for: each rendering against the label clipped to the
+    display's range (an object stiffer than its rigid end is right when rendered rigid), the share
+    within a factor 2, the dangerous misses (:func:`estimator.evaluation.metrics.dangerous_miss`) and
+    the grasps the display rendered nothing for (no estimate, or shown unknown)."""
+    from estimator.evaluation.metrics import dangerous_miss, felt_log10_error, felt_within
+
     if not felt:
-        return f"the display rendered none of {len(outcomes)} grasps"
-    errors = [o.felt_log10_error for o in felt]
-    within = sum(map(felt_within, errors))
-    misses = sum(dangerous_miss(o.obj.modulus_pa, o.display_e_pa, e_rigid_pa=o.display_range[1]) for o in felt)
-    unrendered = len(outcomes) - len(felt)
+        return f"the display rendered none of {grasps} grasps"
+    errors = [felt_log10_error(e_pa, label, display_range_pa=display_range) for label, e_pa in felt]
+    misses = sum(dangerous_miss(label, e_pa, e_rigid_pa=display_range[1]) for label, e_pa in felt)
+    unrendered = grasps - len(felt)
     return (f"felt (display against the label on its range): mean error {np.mean(errors):.2f} decades, "
-            f"{within} of {len(outcomes)} within a factor 2, {misses} dangerous misses"
+            f"{sum(map(felt_within, errors))} of {grasps} within a factor 2, {misses} dangerous misses"
             + (f", {unrendered} not rendered" if unrendered else ""))

@@ -35,13 +35,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from estimator.evaluation.metrics import dangerous_miss, felt_log10_error, felt_pa, felt_within
+from estimator.evaluation.metrics import felt_log10_error, felt_pa
 from estimator.settings import estimator_settings
 from haptics.settings import display_range_pa
 from teleop.errors import SessionLogError, TeleopError
 from teleop.progress import progress_bar
 from teleop.session.export import session_grasps
 from teleop.session.logfile import LogReader
+from teleop.system.demo_table import felt_line
 from teleop.system.report_data import GraspView, grasp_messages, log_calibrations, tactile_moments
 from teleop.system.report_figures import predictions_figure, tactile_figure, timeline_figure
 
@@ -128,19 +129,11 @@ def _felt_cell(view: GraspView, display_range: tuple[float, float]) -> str:
 
 
 def _felt_line(views: Sequence[GraspView], display_range: tuple[float, float]) -> str:
-    """What the operator felt over the labelled grasps, in one sentence (the demo's closing line)."""
-    labelled = [v for v in views if v.label_pa and v.final is not None]
+    """What the operator felt over the labelled grasps: the demo's closing line."""
+    labelled = [v for v in views if v.label_pa]
     felt = [(v.label_pa, f) for v in labelled if (f := _felt_pa(v, display_range)) is not None]
-    if not felt:
-        return ""
-    errors = [felt_log10_error(f, label, display_range_pa=display_range) for label, f in felt]
-    misses = sum(dangerous_miss(label, f, e_rigid_pa=display_range[1]) for label, f in felt)
-    unknown = len(labelled) - len(felt)
-    return (f"<p>Felt (the display's rendering of each final estimate against the label clipped to its range, "
-            f"{_pa(display_range[0])} to {_pa(display_range[1])} Pa: an object stiffer than that is right when "
-            f"rendered rigid): mean error {np.mean(errors):.2f} decades over {len(felt)} labelled grasps, "
-            f"{sum(map(felt_within, errors))} within a factor 2, {misses} dangerous misses"
-            + (f", {unknown} shown unknown" if unknown else "") + ".</p>")
+    line = felt_line(felt, display_range, grasps=len(labelled))
+    return f"<p>{_e(line[:1].upper() + line[1:])}.</p>" if labelled else ""
 
 
 # --------------------------------------------------------------------------- page

@@ -165,8 +165,8 @@ def test_the_page_shows_every_figure_it_wrote_and_one_summary_row_per_grasp(repo
     assert steel[1] == "steel_ball_bearing" and steel[3] == "\u2265 6.75e+06 Pa" and steel[4] == "[6.75e+06, \u221e] Pa"
     assert steel[5] == "lower_bound" and steel[7] == "0.00"  # rendered rigid: right for a metal
     # scored as the demo and `estimator evaluate` score it, not the bound's 4.5 decades from 2e11 Pa
-    assert (f"mean error {abs(np.log10(3e6 / 3.61e6)) / 2:.2f} decades over 2 labelled grasps, 2 within a factor 2, "
-            "0 dangerous misses.") in html.unescape(text)
+    assert (f"Felt (display against the label on its range): mean error {abs(np.log10(3e6 / 3.61e6)) / 2:.2f} "
+            "decades, 2 of 2 within a factor 2, 0 dangerous misses.") in html.unescape(text)
     assert cut[1] == "stress_ball" and cut[3] == "no final estimate"
     assert "the log stops before the grasp's end event" in html.unescape(text)
     # the duck's last final rendering: 0.4 of the range, standing for the final 3e6 Pa
