@@ -182,8 +182,8 @@ def _closing_speed(t_s: np.ndarray, width_m: np.ndarray, before_s: float) -> flo
     """How fast the width closes (m/s) over the last two width samples at or before ``before_s``
     (the first two when fewer precede it)."""
     last = max(int(np.searchsorted(t_s, before_s, side="right")) - 1, 1)
-    dt = float(t_s[last] - t_s[last - 1])
-    return abs(float(width_m[last] - width_m[last - 1])) / dt if dt > 0 else 0.0
+    dt = float(t_s[last]) - float(t_s[last - 1])  # Python floats: a gap beyond the float range is inf, silently
+    return abs(float(width_m[last]) - float(width_m[last - 1])) / dt if dt > 0 else 0.0
 
 
 def _frames_in_phase(frame_t_s: np.ndarray, t_start: float, t_end: float) -> tuple[np.ndarray, np.ndarray]:
@@ -477,7 +477,7 @@ def find_load_phase(
     if below.size:
         last_quiet = int(below[-1])
         t_onset = min(crossing_time(tf, force, last_quiet, onset_level), t_contact)
-        onset_t_sigma = float(tf[last_quiet + 1] - tf[last_quiet]) / math.sqrt(12.0)
+        onset_t_sigma = (float(tf[last_quiet + 1]) - float(tf[last_quiet])) / math.sqrt(12.0)
     else:
         t_onset = float(tf[0])
         onset_t_sigma = 0.0

@@ -283,6 +283,15 @@ def test_a_peak_at_the_last_representable_time_segments_without_overflow_warning
     assert seg.t_peak_s == big
 
 
+def test_width_reads_a_float_range_apart_segment_without_overflow_warnings():
+    big = np.finfo(float).max
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the closing speed at the onset divides by their gap
+        seg = segment_grasp(np.array([0.0, 0.1, 0.2, 0.3]), np.array([0.0, 2.0, 4.0, 10.0]), np.array([-big, big]),
+                            np.array([0.05, 0.04]), np.array([0.05, 0.15, 0.25]), contact_force_n=0.75, n_frames=3)
+    assert seg.onset_width_sigma_m == 0.0  # no closing speed over an unbounded gap
+
+
 def test_hold_frames_follow_the_peak_after_the_width_reads_settle():
     tf, force, tw, width, tc = streams(duration=1.6)
     seg = run(tf, force, tw, width, tc)
