@@ -57,8 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.repeats < 1:
-        raise EstimatorError(f"--repeats {args.repeats}: expected at least 1")
+    for option, value in (("--repeats", args.repeats), ("--limit", args.limit)):
+        if value is not None and value < 1:
+            raise EstimatorError(f"{option} {value}: expected at least 1")
     root = Path(args.dir)
     paths = find_records(root)[: args.limit]
     settings = load_settings(args.settings)

@@ -82,6 +82,12 @@ def test_bench_runs_on_a_tiny_directory_and_marks_a_frontier(sim_grasps, trained
     assert png.read_bytes()[:4] == b"\x89PNG"
 
 
+@pytest.mark.parametrize("option", ["--limit", "--repeats"])
+def test_bench_refuses_a_count_below_one_by_name(option, tmp_path, capsys):
+    assert main(["bench", str(tmp_path), option, "0"]) == 2  # not "no record to bench"
+    assert f"{option} 0: expected at least 1" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("command", ["build-dataset", "train", "bench"])
 def test_commands_are_registered(command, capsys):
     with pytest.raises(SystemExit) as done:
