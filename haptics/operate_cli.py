@@ -17,7 +17,7 @@ import sys
 import textwrap
 
 from haptics.inputs import BACKENDS as INPUT_BACKENDS
-from haptics.inputs import make_input
+from haptics.inputs import input_class, make_input
 from haptics.operator_link import OperatorLink
 from haptics.operator_loop import LoopStatus, OperatorLoop
 from haptics.settings import operator_settings
@@ -113,8 +113,8 @@ def run(args: argparse.Namespace) -> int:
     if args.force is not None and not 0 < args.force <= limit:
         raise SettingsError(f"--force {args.force:g}: expected a force in (0, {limit:g}] N, the settings' maximum "
                             "grasp force (gripper.target_force_n)")
-    if args.headless and name == "keyboard":
-        raise SettingsError("--input keyboard reads the console's own keys, which --headless has none of: drop "
+    if args.headless and input_class(name).needs_console:
+        raise SettingsError(f"--input {name} reads the console's own keys, which --headless has none of: drop "
                             "--headless, or drive it headless from another input (sim, gamepad, display)")
     if not args.headless and not (sys.stdin.isatty() and sys.stdout.isatty()):
         raise SettingsError("haptics operate needs a terminal for its screen; run it in one (or in tmux), "

@@ -124,6 +124,8 @@ class OperatorInputDevice(abc.ABC):
     family: ClassVar[str] = "operator input"
     #: The backend's name in :data:`BACKENDS`.
     name: ClassVar[str] = ""
+    #: Whether its input comes through the console's screen (its keys): then it cannot run headless.
+    needs_console: ClassVar[bool] = False
 
     def __init__(self) -> None:
         self._connected = False

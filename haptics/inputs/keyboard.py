@@ -65,6 +65,7 @@ class KeyboardInput(OperatorInputDevice):
     """
 
     name: ClassVar[str] = "keyboard"
+    needs_console: ClassVar[bool] = True
 
     def __init__(self, *, grip_step: float = 0.05, clock: Callable[[], float] = time.monotonic) -> None:
         super().__init__()
