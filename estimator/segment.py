@@ -282,7 +282,7 @@ def _describe_envelope(*, duration_s: float, peak_force_n: float, backoffs: int,
         parts.append(f"{backoffs} back-off{'s' if backoffs > 1 else ''} and re-squeeze skipped ({skipped_s:.2f} s)")
     if paused_s > 0:
         parts.append(f"paused {paused_s:.2f} s")
-    parts.append("frames sampled by approach (no gripper stop reported: an operator's grasp)")
+    parts.append("frames sampled by approach (no gripper stop reported, as when an operator drives the fingers)")
     return ", ".join(parts)
 
 

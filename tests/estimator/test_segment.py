@@ -356,6 +356,8 @@ def test_an_operator_grasp_is_segmented_on_its_loading_envelope_and_sampled_by_a
     assert not backing.any()
     assert np.all(np.diff(seg.frame_force_n) > -0.1)
     assert "1 back-off and re-squeeze skipped" in seg.loading and seg.loading in seg.describe()
+    # Said of any grasp without a reported stop, a scripted one still loading live included.
+    assert "no gripper stop reported, as when an operator drives" in seg.loading
     assert (seg.load_force_n >= np.maximum.accumulate(seg.load_force_n) - 0.1).all()
     # The sample is spread evenly in approach along the envelope.
     approach = seg.contact_width_m - seg.frame_width_m[seg.sample]
