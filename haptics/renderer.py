@@ -6,8 +6,9 @@ step by step. A thin adapter feeds :meth:`HapticRenderer.on_estimate` from
 the bus; anything else (a file replay, a test) can feed it the same way.
 
 Phases: *idle* (free, nothing to render) -> *active* on the first estimate of
-a grasp (smoothing toward the latest estimate; *stale* when no estimate came
-for ``stale_after_s``: the last value is held and flagged) -> *fading* on the
+a grasp (smoothing toward the latest estimate; *stale* when, after a provisional
+estimate, no estimate came for ``stale_after_s``: the last value is held and
+flagged; a final estimate is the grasp's last and never goes stale) -> *fading* on the
 grasp's end (linear fade to free over ``fade_s``) -> idle. Estimates of a
 grasp that has ended are ignored, so a late estimate cannot re-engage the
 display. A report is written when the command changes, or every
@@ -113,6 +114,7 @@ class HapticRenderer:
         self._released = FREE
         self._release_s: float | None = None
         self._last_update_s = -math.inf
+        self._expecting = False  # the last estimate was provisional: more are due
         self._last_tick_s: float | None = None
         self._last_written: StiffnessCommand | None = None
         self._last_write_s = -math.inf
@@ -169,7 +171,7 @@ class HapticRenderer:
         self._shown = smooth(
             self._shown, self._target, dt_s=0.0, smoothing_s=self.settings.smoothing_s
         )
-        self._last_update_s = now_s
+        self._last_update_s, self._expecting = now_s, update.provisional
         self._pending_t_s = update.t_s
         self.stats.estimates += 1
         self._output(now_s)
@@ -196,6 +198,7 @@ class HapticRenderer:
     def _stale(self, now_s: float | None) -> bool:
         return (
             self._active
+            and self._expecting
             and now_s is not None
             and is_stale(self._last_update_s, now_s, stale_after_s=self.settings.stale_after_s)
         )
@@ -209,7 +212,7 @@ class HapticRenderer:
         self._last_tick_s = now_s
         if self._active:
             # Smoothing runs until the estimate goes stale; from then on the value is held.
-            stale_at_s = self._last_update_s + self.settings.stale_after_s
+            stale_at_s = self._last_update_s + self.settings.stale_after_s if self._expecting else math.inf
             dt_s = max(0.0, min(now_s, stale_at_s) - last)
             self._shown = smooth(
                 self._shown, self._target, dt_s=dt_s, smoothing_s=self.settings.smoothing_s

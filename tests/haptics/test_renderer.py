@@ -23,8 +23,8 @@ SETTINGS = DisplaySettings(
 LEVEL_MAX = 4095
 
 
-def estimate(e_pa=1e6, *, grasp="g1", t_s=0.0, state="ok", interval=(None, None)):
-    return EstimateUpdate(e_pa, interval, state, "", False, grasp, t_s)
+def estimate(e_pa=1e6, *, grasp="g1", t_s=0.0, state="ok", interval=(None, None), provisional=False):
+    return EstimateUpdate(e_pa, interval, state, "", provisional, grasp, t_s)
 
 
 def written(display: SimulatedDisplay) -> list:
@@ -97,7 +97,7 @@ def test_unchanged_commands_are_written_only_as_keep_alive():
 def test_stale_after_stale_after_s_holds_the_last_level_and_recovers():
     display, renderer = make()
     renderer.tick(0.0)
-    renderer.on_estimate(estimate(1e6), 0.0)
+    renderer.on_estimate(estimate(1e6, provisional=True), 0.0)
     run_ticks(renderer, 0.01, 0.99)
     held = renderer.tick(0.99)
     assert not held.stale and renderer.phase == "active"
@@ -108,7 +108,7 @@ def test_stale_after_stale_after_s_holds_the_last_level_and_recovers():
     assert all(c.stale and c.level == held.level for c in later)
     assert written(display)[-1].stale
     # Updates resume with a different estimate: the flag clears at once and the level moves.
-    renderer.on_estimate(estimate(1e8, t_s=3.0), 3.0)
+    renderer.on_estimate(estimate(1e8, t_s=3.0, provisional=True), 3.0)
     assert renderer.phase == "active"
     assert not written(display)[-1].stale
     moved = run_ticks(renderer, 3.01, 3.6)
@@ -119,11 +119,22 @@ def test_stale_after_stale_after_s_holds_the_last_level_and_recovers():
 def test_stale_holds_the_value_reached_when_it_went_stale():
     _, renderer = make(replace(SETTINGS, smoothing_s=1.0, stale_after_s=0.5))
     renderer.tick(0.0)
-    renderer.on_estimate(estimate(1e9), 0.0)
+    renderer.on_estimate(estimate(1e9, provisional=True), 0.0)
     # One long tick across the stale time: smoothing stops at 0.5 s, not at 5 s.
     command = renderer.tick(5.0)
     assert command.stale
     assert command.level == pytest.approx((1 - math.exp(-0.5)) * LEVEL_MAX, abs=1)
+
+
+def test_a_final_estimate_never_goes_stale_and_settles_on_its_value():
+    # A discrete grasp holds and opens for seconds after its final: no estimate is due then.
+    display, renderer = make(replace(SETTINGS, smoothing_s=1.0, stale_after_s=0.5))
+    renderer.tick(0.0)
+    renderer.on_estimate(estimate(1e6, provisional=True), 0.0)
+    renderer.on_estimate(estimate(1e9), 0.2)
+    command = renderer.tick(10.0)
+    assert not command.stale and renderer.phase == "active"
+    assert command.level == LEVEL_MAX and not any(c.stale for c in written(display))
 
 
 def test_grasp_end_fades_to_free_and_ignores_late_estimates():
