@@ -18,8 +18,10 @@ the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.
   ``label`` on its next step;
 * buttons: ``grasp`` starts a discrete grasp at the chosen force, ``release`` opens the fingers,
   ``stop`` stops them where they are, ``next`` ends the grasp shown (releasing it unless the robot
-  already does) and, once the robot has ended it, clears the view for the next object (the device is
-  not read meanwhile, so a simulated operator starts the next grasp only then), ``quit`` ends the loop;
+  already does) and, once the robot has ended it and its final estimate is in (an operator's grasp
+  gets it only after its end; not awaited when no estimator is alive), clears the view for the next
+  object (the device is not read meanwhile, so a simulated operator starts the next grasp only then),
+  ``quit`` ends the loop;
 * after ``stop``, ``release`` or ``next``, and when the robot ends the follow grasp (released,
   the watchdog), no follow goes out until the enable has been let go and held again: a held
   enable never moves the fingers again, nor starts a new grasp, by itself;
@@ -54,7 +56,7 @@ log = logging.getLogger(__name__)
 
 RELEASE_FOLLOWS = 3  # follows with enable=False sent at least when the dead-man is let go
 IDLE_TICK_S = 0.01  # the loop's longest wait when not sending follows
-NEXT_WAIT_S = 5.0  # after "next", the longest wait for the robot to end the grasp left
+NEXT_WAIT_S = 5.0  # after "next", the longest wait for the grasp left to end and get its final
 
 
 class InputDevice(Protocol):
@@ -158,7 +160,8 @@ class OperatorLoop:
         self._follow_grasp: str | None = None  # the follow grasp's id, until it ends
         self._rearm = False  # follows suspended until the enable is let go and held again
         self._discrete_grasp: str | None = None
-        self._leaving: tuple[str, float] | None = None  # after "next": (the grasp left, when) until it ends
+        self._leaving: tuple[str, float] | None = None  # after "next": (the grasp left, when) until it is over
+        self._shown_over = False  # a status showed the grasp left over (its final in): clear on the next step
         self._input: Any = None
         self._target_m: float | None = None
         self._pressed: list[str] = []  # buttons pushed from another thread (press())
@@ -277,14 +280,15 @@ class OperatorLoop:
             self._suspend()
         elif button == "next":
             self._suspend()
-            if view.grasp_id is None or view.phase not in ("loading", "loaded"):
+            if view.grasp_id is None or _over(view):
                 self._next_object()
                 return
             robot = view.robot
-            if robot is None or robot.grasp_id != view.grasp_id or robot.mode != "releasing":
+            if view.phase != "ended" and (robot is None or robot.grasp_id != view.grasp_id
+                                          or robot.mode != "releasing"):
                 self._send(lambda: self.link.release(view.grasp_id))
             self._leaving = (view.grasp_id, self.clock())
-            self._act(f"next object: once {view.grasp_id} ends")
+            self._act(f"next object: once {view.grasp_id} ends and its final estimate is in")
         elif button == "quit":
             self.quit = True
             self._act("quit")
@@ -344,20 +348,22 @@ class OperatorLoop:
         return view.grasp_id == self._follow_grasp and view.phase in ("loading", "loaded")
 
     def _next_object(self) -> None:
-        self._leaving = None
+        self._leaving, self._shown_over = None, False
         self.link.clear()
         self._follow_grasp = self._discrete_grasp = None
         self._act("next object: ready")
 
     def _track(self) -> None:
         """Forget a grasp's id once the robot says it ended (the next enable starts another); after
-        ``next``, clear the view once the grasp left has ended (or after :data:`NEXT_WAIT_S`)."""
+        ``next``, clear the view once a status has shown the grasp left over (:func:`_over`: its final
+        is seen before it goes), or after :data:`NEXT_WAIT_S`."""
         view = self.link.view
         if self._leaving is not None:
             grasp_id, since = self._leaving
-            if view.grasp_id != grasp_id or view.phase == "ended" or self.clock() - since >= NEXT_WAIT_S:
+            if view.grasp_id != grasp_id or self._shown_over or self.clock() - since >= NEXT_WAIT_S:
                 self._next_object()
                 return
+            self._shown_over = _over(view)
         if view.phase == "ended" and view.grasp_id is not None:
             if view.grasp_id == self._follow_grasp:
                 self._follow_grasp = None
@@ -435,3 +441,11 @@ class OperatorLoop:
             labels=self._labels,
         )
 
+
+def _over(view: OperatorView) -> bool:
+    """Whether the grasp shown is over for the operator: ended, with its final estimate in unless no
+    estimator is alive to send one."""
+    if view.phase != "ended":
+        return False
+    final = view.estimate is not None and not view.estimate.provisional
+    return final or not view.alive("estimator")

@@ -12,7 +12,7 @@ import pytest
 
 from haptics.operator_link import OperatorLink, OperatorView, Peer
 from haptics.operator_loop import NEXT_WAIT_S, RELEASE_FOLLOWS, OperatorLoop
-from teleop.bus.messages import DisplayBody, RobotStateBody
+from teleop.bus.messages import DisplayBody, EstimateBody, RobotStateBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.errors import MessageRejected
@@ -161,6 +161,7 @@ def test_buttons_become_commands(rig):
     loop.step()
     assert link.kinds()[-1] == "release" and device.buttons == {"grasp"}  # not read yet
     link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="ended")
+    assert loop.step().view.phase == "ended"  # shown over once, then cleared
     loop.step()
     assert link.cleared == 1 and loop.status.grasp_id is None
     device.buttons = set()
@@ -205,6 +206,34 @@ def test_next_leaves_a_grasp_the_robot_already_releases_without_a_second_release
     # The robot never says it ended (say it died): the view is cleared after NEXT_WAIT_S all the same.
     run_for(clock, loop, NEXT_WAIT_S, tick_s=0.01)
     assert link.cleared == 1 and loop.status.last_action == "next object: ready"
+
+
+def test_next_waits_for_the_final_estimate_that_follows_an_operator_grasps_end(rig):
+    clock, link, device, loop = rig
+    grasp_id = hold_and_let_go(clock, loop, device, link)
+    alive = (Peer("estimator", "estimator", True, 0.1),)
+
+    def estimate(provisional: bool) -> EstimateBody:
+        return EstimateBody(grasp_id=grasp_id, method="auto", E_pa=3e4, interval_pa=[1.5e4, 6e4], state="ok",
+                            reason="", provisional=provisional, latency_s=0.002)
+
+    # The robot ended the grasp; its final estimate comes after, from the estimator.
+    link.view = OperatorView(t_s=clock(), peers=alive, grasp_id=grasp_id, phase="ended", estimate=estimate(True))
+    device.buttons = {"next"}
+    run_for(clock, loop, 0.5)
+    assert link.cleared == 0 and "final estimate" in loop.status.last_action
+    assert "release" not in link.kinds()  # ended: nothing to release
+    link.view = dataclasses.replace(link.view, estimate=estimate(False))
+    assert not loop.step().view.estimate.provisional and link.cleared == 0  # the final shown once
+    loop.step()
+    assert link.cleared == 1 and loop.status.last_action == "next object: ready"
+    # With no estimator alive, no final is awaited.
+    grasp_id = hold_and_let_go(clock, loop, device, link)
+    link.view = OperatorView(t_s=clock(), peers=(dataclasses.replace(alive[0], alive=False),), grasp_id=grasp_id,
+                             phase="ended")
+    device.buttons = {"next"}
+    loop.step()
+    assert link.cleared == 2
 
 
 def test_a_label_names_the_current_grasp_then_the_last_one(rig):
