@@ -49,6 +49,8 @@ class SweepInput:
     """A scripted operator input: enable held, the grip sweeping SWEEP_GRIP back and forth; every
     reading's time and target width are kept."""
 
+    waits_for_robot = False
+
     def __init__(self, max_width_m: float, period_s: float = 2.0):
         self.max_width_m = max_width_m
         self.period_s = period_s

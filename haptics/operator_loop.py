@@ -22,6 +22,8 @@ the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.
   gets it only after its end; not awaited when no estimator is alive), clears the view for the next
   object (the device is not read meanwhile, so a simulated operator starts the next grasp only then),
   ``quit`` ends the loop;
+* a device that ``waits_for_robot`` (the simulated operator) is not read while the robot node is
+  down: it starts squeezing once the node is heard;
 * after ``stop``, ``release`` or ``next``, and when the robot ends the follow grasp (released,
   the watchdog), no follow goes out until the enable has been let go and held again: a held
   enable never moves the fingers again, nor starts a new grasp, by itself;
@@ -61,6 +63,8 @@ NEXT_WAIT_S = 5.0  # after "next", the longest wait for the grasp left to end an
 
 class InputDevice(Protocol):
     """What the loop needs of an operator input device (:mod:`haptics.inputs`)."""
+
+    waits_for_robot: bool
 
     def read(self, *, timeout_s: float) -> Any: ...
 
@@ -162,6 +166,7 @@ class OperatorLoop:
         self._discrete_grasp: str | None = None
         self._leaving: tuple[str, float] | None = None  # after "next": (the grasp left, when) until it is over
         self._shown_over = False  # a status showed the grasp left over (its final in): clear on the next step
+        self._waiting = False  # the device waits for the robot node, not heard
         self._input: Any = None
         self._target_m: float | None = None
         self._pressed: list[str] = []  # buttons pushed from another thread (press())
@@ -203,8 +208,12 @@ class OperatorLoop:
         """Read the device, act on its buttons, send ``follow`` when due, take what the bus
         brought (waiting up to ``timeout_s``), feed the robot's state back; the new status."""
         reading = None
+        waiting = self.device.waits_for_robot and self.link.view.down("robot node")
+        if waiting and not self._waiting:
+            self._act("waiting for the robot node: the simulated operator squeezes once it is heard")
+        self._waiting = waiting
         try:
-            if self._leaving is None:
+            if self._leaving is None and not waiting:
                 reading = self.device.read(timeout_s=0.0)
         except ComplianceTeleopError as exc:
             self._trouble(f"input device: {exc}")

@@ -126,6 +126,9 @@ class OperatorInputDevice(abc.ABC):
     name: ClassVar[str] = ""
     #: Whether its input comes through the console's screen (its keys): then it cannot run headless.
     needs_console: ClassVar[bool] = False
+    #: Whether it is read only once the robot node is heard: a simulated person waits for the robot
+    #: before squeezing, where a person's own device shows its grip at once.
+    waits_for_robot: ClassVar[bool] = False
 
     def __init__(self) -> None:
         self._connected = False

@@ -59,6 +59,7 @@ class SimulatedInput(OperatorInputDevice):
     """
 
     name: ClassVar[str] = "sim"
+    waits_for_robot: ClassVar[bool] = True
 
     def __init__(
         self,

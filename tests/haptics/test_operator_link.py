@@ -32,6 +32,8 @@ class Reading:
 
 
 class FakeDevice:
+    waits_for_robot = False
+
     def __init__(self, clock):
         self.clock = clock
         self.grip = 0.0
@@ -180,6 +182,16 @@ def test_a_command_while_the_robot_node_is_down_says_that_nothing_moves(rig):
         loop.step()
         assert link.kinds()[-1] == "start_grasp"  # sent all the same: the node may be starting
         assert ("robot node is down" in loop.status.log[-1]) == (not alive)
+
+
+def test_a_simulated_person_waits_for_the_robot_node_before_squeezing(rig):
+    clock, link, device, loop = rig
+    device.waits_for_robot, device.grip, device.enable = True, 0.5, True
+    for alive in (False, True):
+        link.view = OperatorView(t_s=clock(), peers=(Peer("robot node", "robot", alive, None if not alive else 0.1),))
+        run_for(clock, loop, 0.1)
+        assert (link.kinds().count("follow") > 0) == alive
+        assert ("waiting for the robot node" in loop.status.log[0]) and len(loop.status.log) == 1 + alive
 
 
 def hold_and_let_go(clock: Clock, loop: OperatorLoop, device: FakeDevice, link: FakeLink) -> str:
