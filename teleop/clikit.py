@@ -27,11 +27,12 @@ class Command:
 
 
 class _DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Appends ``(default: ...)`` unless the option is required, a flag, has no default or says its own."""
+    """Appends ``(default: ...)`` unless the option is required, a flag, has no default (None or
+    empty) or says its own."""
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
         text = action.help or ""
-        if action.required or action.default is None or action.nargs == 0 or "(default" in text:
+        if action.required or action.default in (None, "") or action.nargs == 0 or "(default" in text:
             return text
         return super()._get_help_string(action)
 
@@ -44,8 +45,8 @@ def run_cli(
 ) -> int:
     """Parse ``argv``, import the chosen subcommand's module and run it."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(
-        prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter
+    parser = argparse.ArgumentParser(  # the module docstring, without its reStructuredText literals
+        prog=prog, description=description.replace("``", ""), formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (repeatable)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")

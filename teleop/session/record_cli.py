@@ -54,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--scene",
         default="",
         metavar="NAME",
-        help="scene name or TOML path the session runs (recorded, and its file attached)",
+        help="scene name or TOML path the session runs (recorded, and its file attached; default: none recorded)",
     )
     parser.add_argument(
         "--source",
