@@ -307,9 +307,10 @@ class HybridEstimator:
         if fit.notes:
             what += "; outside the training range: " + "; ".join(fit.notes)
         reason = f"{model}; {what}; analytical inputs: {states}"
-        loading = getattr(getattr(sampled.measurements, "segment", None), "loading", "")
-        if loading:
-            reason += f"; {loading}"
+        segment = getattr(sampled.measurements, "segment", None)  # its flags and loading phase, as the fits say
+        said_of_data = segment.describe() if segment is not None else ""
+        if said_of_data:
+            reason += f"; {said_of_data}"
         if mode == "auto":
             reason = "model: " + reason
         return Estimate(method, said.e_pa, (said.low_pa, said.high_pa), said.state, reason)

@@ -177,6 +177,20 @@ def test_records_end_to_end(trained_model, sim_grasps):
             np.testing.assert_array_equal(again.depth_m, sampled.depth_m)
 
 
+def test_the_models_reason_names_what_the_segmentation_flagged_as_the_fits_do(trained_model, sim_grasps):
+    records, calibration = sim_grasps
+    hybrid = HybridEstimator(CompliancePredictor(trained_model), settings=SETTINGS, calibration=calibration)
+    record = read_record(sorted(records.glob("*.grasp"))[0])
+    force = record.force_n
+    clip_n = 0.5 * float(force.value.max())  # a load cell saturating halfway up
+    saturated = dataclasses.replace(record, force_n=dataclasses.replace(force, value=np.minimum(force.value, clip_n)))
+    said = hybrid.estimate(saturated, mode="model")
+    assert said.state != "insufficient_data" and f"force saturates at {clip_n:.4g} N" in said.reason
+    series = next(e for e in sample_grasp(saturated, settings=SETTINGS, calibration=calibration, n_frames=3,
+                                          size_px=(16, 22)).estimates if e.method == "series")
+    assert "force saturates" in series.reason
+
+
 def test_depth_from_a_calibration_smoothed_otherwise_is_refused_with_the_fix(trained_model, sim_grasps, tmp_path):
     records, cal_path = sim_grasps
     smoothed = dataclasses.replace(load_calibration(cal_path), smoothing_px=2.0)
