@@ -409,7 +409,7 @@ def find_load_phase(
     dropped = (np.size(force_t_s) - tf.size, np.size(width_t_s) - tw.size)
     if any(dropped):
         flag("cleaned_timestamps", f"dropped or merged {dropped[0]} force and {dropped[1]} width "
-                                   "samples with non-finite or duplicate timestamps")
+                                   "samples: non-finite values or timestamps, or duplicate timestamps")
     if tf.size < 3:
         return LoadPhase(reason=f"too few force samples ({tf.size} usable, need 3)",
                          flags=(*flags, "too_few_samples"), notes=tuple(notes))

@@ -102,6 +102,7 @@ def test_nan_duplicate_and_unsorted_timestamps_change_nothing():
     tc2 = np.concatenate([tc[:30], [np.nan], tc[30:], tc[20:22]])
     seg = run(tf2, f2, tw2, w2, tc2)
     assert "cleaned_timestamps" in seg.flags
+    assert "dropped or merged 3 force and 4 width samples: non-finite values or timestamps" in seg.describe()
     assert seg.t_contact_s == pytest.approx(clean.t_contact_s)
     assert seg.frame_force_n == pytest.approx(clean.frame_force_n)
     assert seg.frame_t_s == pytest.approx(clean.frame_t_s)
