@@ -345,4 +345,4 @@ def estimate_measurements(m: GraspMeasurements, method: str) -> Estimate:
     """
     check_method(method)
     result = _run(m, method)
-    return result.with_note(m.segment.describe()) if m.segment else result
+    return result.with_note(m.segment.describe())  # a refusal too: what was dropped may say why

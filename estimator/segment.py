@@ -117,6 +117,8 @@ PEAK_FRAME_WINDOW_S = 0.1
 ENVELOPE_TOLERANCE = 0.01
 BACKOFF_SHARE = 0.02
 PAUSE_S = 0.15
+# A width reading below 0 or beyond the gripper's opening by more than this share of it is no width.
+WIDTH_SLACK_SHARE = 0.1
 
 
 @dataclass(frozen=True)
@@ -342,6 +344,7 @@ def segment_grasp(
     contact_force_n: float,
     n_frames: int,
     stopped_s: float | None = None,
+    max_width_m: float | None = None,
 ) -> Segment:
     """Find contact, onset and the loading phase; align force and width with the frames.
 
@@ -366,6 +369,10 @@ def segment_grasp(
         completed; s): the force holds from the peak until the release, so the
         peak frame needs no force sample after it, and frames after it take the
         width at the stop (module notes).
+    max_width_m : float, optional
+        The gripper's full opening (m): widths beyond it by more than
+        :data:`WIDTH_SLACK_SHARE` of it either way are dropped and flagged (a
+        glitch, or widths not in metres).
 
     Returns
     -------
@@ -375,6 +382,7 @@ def segment_grasp(
     _check_contact_force(contact_force_n)
     _check_n_frames(n_frames)
     phase = find_load_phase(force_t_s, force_n, width_t_s, width_m, contact_force_n=contact_force_n,
+                            max_width_m=max_width_m,
                             stopped_s=stopped_s)
     return align_frames(phase, frame_t_s, n_frames=n_frames)
 
@@ -387,6 +395,7 @@ def find_load_phase(
     *,
     contact_force_n: float,
     stopped_s: float | None = None,
+    max_width_m: float | None = None,
 ) -> LoadPhase:
     """The force and width part of :func:`segment_grasp` (same parameters, no frames): contact,
     onset, peak and the loading phase at the force samples' times.
@@ -410,6 +419,14 @@ def find_load_phase(
     if any(dropped):
         flag("cleaned_timestamps", f"dropped or merged {dropped[0]} force and {dropped[1]} width "
                                    "samples: non-finite values or timestamps, or duplicate timestamps")
+    if max_width_m is not None:
+        slack = WIDTH_SLACK_SHARE * max_width_m
+        outside = (width < -slack) | (width > max_width_m + slack)
+        if outside.any():
+            flag("implausible_width", f"dropped {int(outside.sum())} width samples outside the gripper's "
+                                      f"0-{max_width_m:.4g} m opening (from {width[outside].min():.4g} to "
+                                      f"{width[outside].max():.4g} m: a glitch, or not in metres?)")
+            tw, width = tw[~outside], width[~outside]
     if tf.size < 3:
         return LoadPhase(reason=f"too few force samples ({tf.size} usable, need 3)",
                          flags=(*flags, "too_few_samples"), notes=tuple(notes))

@@ -254,7 +254,8 @@ class HybridEstimator:
         sampled = self._sample(stream)
         if not sampled and mode == "auto":
             fallback = estimate_measurements(stream.measurements(tactile=False), "no_tactile")
-            result = _as("auto", fallback, f"no tactile sample ({sampled.reason}): force and width only")
+            why = "" if sampled.reason in fallback.reason else f" ({sampled.reason})"  # said once
+            result = _as("auto", fallback, f"no tactile sample{why}: force and width only")
         else:
             result = self.estimate_sampled(sampled, mode=mode)
         return result.with_latency(time.perf_counter() - started)

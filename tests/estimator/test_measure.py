@@ -256,7 +256,16 @@ def test_nan_and_duplicate_timestamps_in_a_record(calibration):
     )
     est = estimate_grasp(messy, "series", settings=SETTINGS, calibration=calibration)
     assert est.state == "ok" and log_error(est, 3e5) < 0.3
-    assert "non-finite or duplicate" in est.reason
+    assert "non-finite values or timestamps, or duplicate" in est.reason
+
+
+def test_widths_not_in_metres_are_refused_with_the_reason(calibration):
+    record = build_record(3e5)
+    w = record.width_m
+    in_mm = replace(record, width_m=Samples(w.t_s, w.value * 1e3))
+    for method in ("no_tactile", "series"):
+        est = estimate_grasp(in_mm, method, settings=SETTINGS, calibration=calibration)
+        assert est.state == "insufficient_data" and "outside the gripper's 0-0.08 m opening" in est.reason
 
 
 def test_clipped_force_in_a_record(calibration):

@@ -90,6 +90,20 @@ def test_a_loading_between_two_width_reads_is_flagged():
     assert "width_unread" in run(tf, force, tw, width, tc).flags
 
 
+def test_widths_beyond_the_grippers_opening_are_dropped_and_named():
+    tf, force, tw, width, tc = streams()
+    clean = run(tf, force, tw, width, tc)
+    glitch = width.copy()
+    glitch[4] = 5.0  # one bad read: dropped, nothing else changes
+    seg = segment_grasp(tf, force, tw, glitch, tc, contact_force_n=0.75, n_frames=3, max_width_m=0.08)
+    assert "implausible_width" in seg.flags and "dropped 1 width samples outside the gripper's 0-0.08 m" in seg.describe()
+    assert seg.frame_width_m == pytest.approx(clean.frame_width_m, abs=2e-4)
+    # Every width in millimetres: no width left, and the refusal's notes say why.
+    in_mm = segment_grasp(tf, force, tw, width * 1e3, tc, contact_force_n=0.75, n_frames=3, max_width_m=0.08)
+    assert not in_mm and "too few width samples (0 usable" in in_mm.reason
+    assert "not in metres?" in in_mm.describe()
+
+
 def test_nan_duplicate_and_unsorted_timestamps_change_nothing():
     tf, force, tw, width, tc = streams()
     clean = run(tf, force, tw, width, tc)
