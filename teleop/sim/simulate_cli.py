@@ -39,7 +39,7 @@ import sys
 import time
 from pathlib import Path
 
-from teleop.catalogue import ObjectSpec, load_catalogue
+from teleop.catalogue import ObjectSpec, default_catalogue_path, load_catalogue
 from teleop.errors import SettingsError, SimulationError
 from teleop.parallel import progress_map
 from teleop.record import write_record
@@ -54,7 +54,7 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--objects", required=True, metavar="PATH",
+    parser.add_argument("--objects", default=str(default_catalogue_path()), metavar="PATH",
                         help="object catalogue: the project's .toml or the published .csv object table")
     parser.add_argument("--grasps-per-object", type=int, default=1, metavar="N",
                         help="grasps simulated per object (each in a newly drawn pose and target force)")
@@ -207,5 +207,5 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary))
     else:
-        print(f"{len(written)} grasps in {seconds:.1f} s ({summary['grasps_per_s_per_core']} grasps/s/core) -> {out}")
+        print(f"{len(written)} grasp{'' if len(written) == 1 else 's'} in {seconds:.1f} s ({summary['grasps_per_s_per_core']} grasps/s/core) -> {out}")
     return 1 if failed else 0

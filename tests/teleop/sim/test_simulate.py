@@ -122,6 +122,13 @@ def test_unknown_catalogue_format_is_refused(tmp_path, capsys):
     assert code == 2 and "unknown catalogue format" in stderr
 
 
+def test_the_shipped_catalogue_is_the_default_and_one_grasp_is_one(tmp_path, quick_settings, capsys):
+    code, stdout, stderr = run(capsys, "--only", "stress_ball", "--out", str(tmp_path / "o"),
+                               "--settings", str(quick_settings))
+    assert code == 0, stderr
+    assert stdout.startswith("1 grasp in ") and len(list((tmp_path / "o").glob("stress_ball_g*.grasp"))) == 1
+
+
 def test_help_explains_every_option(capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["simulate", "--help"])
