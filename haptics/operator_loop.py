@@ -363,9 +363,9 @@ class OperatorLoop:
         self._act("next object: ready")
 
     def _track(self) -> None:
-        """Forget a grasp's id once the robot says it ended (the next enable starts another); after
-        ``next``, clear the view once a status has shown the grasp left over (:func:`_over`: its final
-        is seen before it goes), or after :data:`NEXT_WAIT_S`."""
+        """Forget a grasp's id once the robot says it ended (the next enable starts another) or
+        refused to start it; after ``next``, clear the view once a status has shown the grasp left
+        over (:func:`_over`: its final is seen before it goes), or after :data:`NEXT_WAIT_S`."""
         view = self.link.view
         if self._leaving is not None:
             grasp_id, since = self._leaving
@@ -380,6 +380,10 @@ class OperatorLoop:
                     self._suspend()
             if view.grasp_id == self._discrete_grasp:
                 self._discrete_grasp = None
+        notice = view.notice
+        if (notice is not None and notice.event == "refused" and notice.action == "start_grasp"
+                and notice.grasp_id == self._discrete_grasp):
+            self._discrete_grasp = None  # it never started: release and stop name the grasp there is
 
     def _suspend(self) -> None:
         """Send no more follows until the enable is let go and held again."""

@@ -12,7 +12,7 @@ import pytest
 
 from haptics.operator_link import OperatorLink, OperatorView, Peer
 from haptics.operator_loop import NEXT_WAIT_S, RELEASE_FOLLOWS, OperatorLoop
-from teleop.bus.messages import DisplayBody, EstimateBody, RobotStateBody
+from teleop.bus.messages import DisplayBody, EstimateBody, RobotNoticeBody, RobotStateBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.errors import MessageRejected
@@ -182,6 +182,26 @@ def test_a_command_while_the_robot_node_is_down_says_that_nothing_moves(rig):
         loop.step()
         assert link.kinds()[-1] == "start_grasp"  # sent all the same: the node may be starting
         assert ("robot node is down" in loop.status.log[-1]) == (not alive)
+
+
+def test_a_grasp_the_robot_refused_to_start_is_forgotten(rig):
+    clock, link, device, loop = rig
+    grasp_id = hold_and_let_go(clock, loop, device, link)  # a follow grasp the robot runs
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loading")
+    device.buttons = {"grasp"}
+    loop.step()
+    refused = link.sent[-1][2]["grasp_id"]
+    assert link.kinds()[-1] == "start_grasp" and loop.status.mode == "discrete"
+    link.view = dataclasses.replace(link.view, notice=RobotNoticeBody(
+        event="refused", action="start_grasp", grasp_id=refused, reason=f"grasp {grasp_id!r} is still in progress"))
+    loop.step()
+    assert loop.status.mode != "discrete" and loop.status.grasp_id == grasp_id
+    device.buttons = {"release"}
+    loop.step()
+    assert link.sent[-1][1:] == ("release", {"grasp_id": grasp_id})  # the grasp there is, not the refused one
+    link.view = dataclasses.replace(link.view, phase="ended")
+    loop.step()
+    assert loop.status.mode == "idle" and loop.status.grasp_id is None
 
 
 def test_a_simulated_person_waits_for_the_robot_node_before_squeezing(rig):
