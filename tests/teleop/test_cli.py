@@ -6,6 +6,7 @@ import argparse
 import importlib
 import json
 import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -106,3 +107,34 @@ def test_every_option_of_every_command_is_explained_as_a_person_would(prog, name
     assert not re.search(r"\(default: [(\[][-\d'\"\])]", text), f"{prog} {name}"
     assert "(default: )" not in text and "``" not in text, f"{prog} {name}"
     assert "%(" not in text and "%%" not in text
+
+
+# --------------------------------------------------------------------------- commands the docs give
+
+ROOT = Path(__file__).resolve().parents[2]
+DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "estimator/models/default/MODEL_CARD.md")
+
+
+def _documented_commands():
+    """(page, line, prog, argv) of every console-script call in the docs' ``sh`` blocks."""
+    for page in DOCS:
+        text = page.read_text()
+        for block in re.findall(r"```sh\n(.*?)```", text, flags=re.S):
+            for line in block.replace("\\\n", " ").splitlines():
+                for part in re.split(r"&&|[&;|]", line.split("#")[0]):
+                    words = [w for w in shlex.split(part) if not re.fullmatch(r"[A-Z_]+=\S*", w)]
+                    if words and Path(words[0]).name in PACKAGES and len(words) > 1:
+                        yield pytest.param(page.name, part.strip(), Path(words[0]).name, words[1:],
+                                           id=f"{page.name}:{' '.join(words[:2])}")
+
+
+@pytest.mark.parametrize(("page", "line", "prog", "argv"), list(_documented_commands()))
+def test_every_command_the_docs_give_parses(page, line, prog, argv):
+    command = PACKAGES[prog].get(argv[0])
+    assert command is not None, f"{page}: {line!r}: {prog} has no command {argv[0]!r}"
+    parser = argparse.ArgumentParser(prog=f"{prog} {argv[0]}", formatter_class=_DefaultsHelpFormatter)
+    importlib.import_module(command.module).add_arguments(parser)
+    try:
+        parser.parse_args(argv[1:])
+    except SystemExit:
+        pytest.fail(f"{page}: {line!r} does not parse")
