@@ -21,6 +21,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"path": str(args.path), "objects": [dataclasses.asdict(o) for o in objects]}))
         return 0
+    print(f"{'object':32s} {'shape':10s} {'material':10s} {'E':>13s}")
     for obj in objects:
         print(f"{obj.name:32s} {obj.shape:10s} {obj.material:10s} {obj.modulus_pa:10.3g} Pa")
+    print(f"{len(objects)} object{'' if len(objects) == 1 else 's'} in {args.path}")
     return 0

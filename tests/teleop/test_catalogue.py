@@ -200,6 +200,10 @@ def test_catalogue_command_json(tmp_path, capsys):
     listing = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert [o["name"] for o in listing["objects"]] == ["duck", "block"]
     assert listing["objects"][0]["size_m"] == [0.06, 0.08, 0.075]
+    assert cli.main(["catalogue", str(path)]) == 0
+    table = capsys.readouterr().out.splitlines()
+    assert table[0].split() == ["object", "shape", "material", "E"] and table[1].startswith("duck ")
+    assert table[-1] == f"2 objects in {path}"
     assert cli.main(["catalogue", str(tmp_path / "absent.toml")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cannot read catalogue" in err
