@@ -64,6 +64,8 @@ hold
 Flags
 -----
 ``"cleaned_timestamps"`` non-finite or duplicate samples were dropped or merged;
+``"implausible_width"`` width readings beyond the gripper's opening (``max_width_m``)
+by more than ``WIDTH_SLACK_SHARE`` of it were dropped (a glitch, or not metres);
 ``"non_monotonic"`` the force drops beyond its noise during loading;
 ``"clipped"`` the force saturates (plateau of identical top readings);
 ``"too_few_samples"`` fewer samples or frames than the methods want;
@@ -382,8 +384,7 @@ def segment_grasp(
     _check_contact_force(contact_force_n)
     _check_n_frames(n_frames)
     phase = find_load_phase(force_t_s, force_n, width_t_s, width_m, contact_force_n=contact_force_n,
-                            max_width_m=max_width_m,
-                            stopped_s=stopped_s)
+                            stopped_s=stopped_s, max_width_m=max_width_m)
     return align_frames(phase, frame_t_s, n_frames=n_frames)
 
 
