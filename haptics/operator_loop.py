@@ -42,10 +42,11 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime
 from typing import Any, Protocol
 
+from haptics.errors import InputNotConnectedError
 from haptics.operator_link import OperatorView
 from teleop.bus.messages import LabelBody
 from teleop.errors import ComplianceTeleopError
@@ -59,12 +60,15 @@ log = logging.getLogger(__name__)
 RELEASE_FOLLOWS = 3  # follows with enable=False sent at least when the dead-man is let go
 IDLE_TICK_S = 0.01  # the loop's longest wait when not sending follows
 NEXT_WAIT_S = 5.0  # after "next", the longest wait for the grasp left to end and get its final
+RECONNECT_S = 1.0  # a failed input device (unplugged) is opened again at most this often
 
 
 class InputDevice(Protocol):
     """What the loop needs of an operator input device (:mod:`haptics.inputs`)."""
 
     waits_for_robot: bool
+
+    def connect(self) -> Any: ...
 
     def read(self, *, timeout_s: float) -> Any: ...
 
@@ -168,6 +172,7 @@ class OperatorLoop:
         self._shown_over = False  # a status showed the grasp left over (its final in): clear on the next step
         self._waiting = False  # the device waits for the robot node, not heard
         self._input: Any = None
+        self._reconnect_s = -math.inf  # when a failed device was last opened again
         self._target_m: float | None = None
         self._pressed: list[str] = []  # buttons pushed from another thread (press())
         self._to_label: list[tuple[str, Any]] = []  # (grasp id, ObjectLabel) from another thread (label())
@@ -212,11 +217,8 @@ class OperatorLoop:
         if waiting and not self._waiting:
             self._act("waiting for the robot node: the simulated operator squeezes once it is heard")
         self._waiting = waiting
-        try:
-            if self._leaving is None and not waiting:
-                reading = self.device.read(timeout_s=0.0)
-        except ComplianceTeleopError as exc:
-            self._trouble(f"input device: {exc}")
+        if self._leaving is None and not waiting:
+            reading = self._read_device()
         with self._lock:
             pressed, self._pressed = self._pressed, []
             to_label, self._to_label = self._to_label, []
@@ -266,6 +268,29 @@ class OperatorLoop:
         self.status = self._status()
 
     # ------------------------------------------------------------------ pieces
+
+    def _read_device(self) -> Any:
+        """The device's reading. A device that failed (unplugged) is opened again every
+        :data:`RECONNECT_S`; until it reads, its enable reads released with the grip where it was,
+        so a follow grasp pauses (the fingers stop where they are) instead of tripping the watchdog."""
+        try:
+            return self.device.read(timeout_s=0.0)
+        except InputNotConnectedError:
+            now = self.clock()
+            if now - self._reconnect_s >= RECONNECT_S:
+                self._reconnect_s = now
+                try:
+                    self.device.connect()
+                    reading = self.device.read(timeout_s=0.0)
+                    self._act("input device connected again")
+                    if self._problem.startswith("input device:"):
+                        self._problem = ""
+                    return reading
+                except ComplianceTeleopError as exc:
+                    self._trouble(f"input device: {exc}; trying again every {RECONNECT_S:g} s")
+        except ComplianceTeleopError as exc:
+            self._trouble(f"input device: {exc}")
+        return None if self._input is None else replace(self._input, enable=False, buttons=frozenset())
 
     def _new_grasp_id(self) -> str:
         self._count += 1

@@ -10,8 +10,9 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from haptics.errors import InputDeviceError, InputNotConnectedError
 from haptics.operator_link import OperatorLink, OperatorView, Peer
-from haptics.operator_loop import NEXT_WAIT_S, RELEASE_FOLLOWS, OperatorLoop
+from haptics.operator_loop import NEXT_WAIT_S, RECONNECT_S, RELEASE_FOLLOWS, OperatorLoop
 from teleop.bus.messages import DisplayBody, EstimateBody, RobotNoticeBody, RobotStateBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
@@ -40,8 +41,18 @@ class FakeDevice:
         self.enable = False
         self.buttons: set[str] = set()
         self.felt: list[tuple[float, float, float | None]] = []
+        self.plugged, self.connected, self.connects = True, True, 0
+
+    def connect(self):
+        self.connects += 1
+        if not self.plugged:
+            raise InputDeviceError("no gamepad (unplugged)")
+        self.connected = True
+        return self
 
     def read(self, *, timeout_s: float) -> Reading:
+        if not self.connected:
+            raise InputNotConnectedError("read() needs a connected device")
         pressed, self.buttons = frozenset(self.buttons), set()
         return Reading(self.clock(), self.grip, self.enable, None, pressed)
 
@@ -202,6 +213,28 @@ def test_a_grasp_the_robot_refused_to_start_is_forgotten(rig):
     link.view = dataclasses.replace(link.view, phase="ended")
     loop.step()
     assert loop.status.mode == "idle" and loop.status.grasp_id is None
+
+
+def test_an_unplugged_device_pauses_the_follow_grasp_and_is_opened_again(rig):
+    clock, link, device, loop = rig
+    device.grip, device.enable = 0.5, True
+    run_for(clock, loop, 0.2)
+    grasp_id = link.sent[-1][2]["grasp_id"]
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loading")  # the robot runs it
+    device.plugged = device.connected = False
+    sent = len(link.sent)
+    run_for(clock, loop, 2.5)
+    paused = [b for _, kind, b in link.sent[sent:] if kind == "follow"]
+    # The enable reads released: follows go on at the rate without it (no watchdog), the grip kept.
+    assert len(paused) > 2 * RELEASE_FOLLOWS and not any(b["enable"] for b in paused)
+    assert [b["target_width_m"] for b in paused] == pytest.approx([0.04] * len(paused))
+    assert {b["grasp_id"] for b in paused} == {grasp_id}
+    assert device.connects == 3  # at 0, 1 and 2 s: every RECONNECT_S
+    assert "unplugged" in loop.status.problem and f"every {RECONNECT_S:g} s" in loop.status.problem
+    device.plugged = True
+    run_for(clock, loop, RECONNECT_S)
+    assert device.connected and "input device connected again" in loop.status.log and loop.status.problem == ""
+    assert link.sent[-1][2]["enable"] and link.sent[-1][2]["grasp_id"] == grasp_id  # held again: it drives on
 
 
 def test_a_simulated_person_waits_for_the_robot_node_before_squeezing(rig):
