@@ -97,7 +97,8 @@ def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
 
     The latency runs from the last loading frame to the display report of the final estimate; an
     operator's grasp has its final when the operator lets go, seconds after the peak, so it shows
-    none (its provisional estimates follow the squeeze instead: see the felt time).
+    none (its provisional estimates follow the squeeze instead: see the felt time), and a table of
+    operator grasps alone has no latency column.
     """
     header = ("object", "style", "E true (Pa)", "final (Pa)", "state", "display (~Pa)", "felt (dec)", "first est. (ms)",
               "felt 2x (s)", "latency (ms)")
@@ -106,6 +107,8 @@ def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
              _number(None if o.t_first_estimate_s is None else o.t_first_estimate_s * 1e3, ".0f"),
              _number(o.t_felt_within_2x_s, ".2f"),
              _number(o.latency_ms if o.style == "script" else None, ".0f")) for o in outcomes]
+    if not any(o.style == "script" for o in outcomes):
+        header, rows = header[:-1], [row[:-1] for row in rows]
     widths = [max(len(str(r[i])) for r in (header, *rows)) for i in range(len(header))]
     lines = ["  ".join(str(cell).ljust(w) if i == 0 else str(cell).rjust(w)
                        for i, (cell, w) in enumerate(zip(row, widths, strict=True))) for row in (header, *rows)]

@@ -145,6 +145,9 @@ def test_the_live_line_gives_an_operators_grasp_the_time_to_feel_it_not_the_late
     assert line.endswith("first estimate 100 ms, felt within 2x 0.30 s after contact") and "1582" not in line
     operated.display_track = [(1.2, 3e5), (1.3, 1e4)]  # left the factor 2 at the end
     assert view.line(2, operated).endswith("first estimate 100 ms, never felt within 2x")
+    # The table keeps a latency column only while a scripted grasp has one to show.
+    assert closing_table([scripted, operated]).splitlines()[0].split()[-2:] == ["latency", "(ms)"]
+    assert closing_table([operated]).splitlines()[0].split()[-3:] == ["felt", "2x", "(s)"]
 
 
 def test_each_grasp_names_the_model_that_answered_and_the_table_the_models():
