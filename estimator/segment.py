@@ -64,8 +64,7 @@ hold
 Flags
 -----
 ``"cleaned_timestamps"`` non-finite or duplicate samples were dropped or merged;
-``"implausible_width"`` width readings beyond the gripper's opening (``max_width_m``)
-by more than ``WIDTH_SLACK_SHARE`` of it were dropped (a glitch, or not metres);
+``"implausible_width"`` widths outside the gripper's opening were dropped;
 ``"non_monotonic"`` the force drops beyond its noise during loading;
 ``"clipped"`` the force saturates (plateau of identical top readings);
 ``"too_few_samples"`` fewer samples or frames than the methods want;
@@ -372,9 +371,8 @@ def segment_grasp(
         peak frame needs no force sample after it, and frames after it take the
         width at the stop (module notes).
     max_width_m : float, optional
-        The gripper's full opening (m): widths beyond it by more than
-        :data:`WIDTH_SLACK_SHARE` of it either way are dropped and flagged (a
-        glitch, or widths not in metres).
+        The gripper's full opening (m): widths below 0 or above it by more than
+        :data:`WIDTH_SLACK_SHARE` of it are dropped (a glitch, or not metres).
 
     Returns
     -------
