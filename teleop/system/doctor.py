@@ -1,15 +1,16 @@
 """``teleop doctor``: is this rig ready for a session? Every configured device, the bus ports, the calibrations.
 
 Devices (all read at once, for ``--duration-s``): the gripper's width stream, the load cell,
-each finger's camera and the softness display. Each is opened through its configured backend
-and read; the report gives
+each finger's camera, the softness display and the operator's input device (``[operator] input``;
+the keyboard is the console's own and has nothing to open). Each is opened through its configured
+backend and read; the report gives
 
 ``rate_hz``
     readings per second over the span read (the display: none; it answers commands);
 ``latency_ms``
     how old the newest reading is when it reaches this process (receipt time minus its
     timestamp), median over the reads; the display: the round trip of a command (level 0,
-    free) to its status report;
+    free) to its status report; the input device: the read itself (it is read on demand);
 and a problem, with what to do, when a device does not open, sends nothing, reads slower than
 80 % of its configured rate, stamps readings out of order or on another clock (more than 1 s
 from this host's ``time.monotonic()``, the clock of every device timestamp), or a camera's
@@ -145,6 +146,23 @@ def _display_probe(settings: Settings, fix: str) -> _Probe:
     return _Probe("display", display, read, None, where, fix, inspect)
 
 
+def _input_probe(settings: Settings) -> _Probe | Check:
+    from haptics.inputs import input_class, make_input
+    from haptics.settings import operator_settings
+
+    name = operator_settings(settings).input
+    if input_class(name).needs_console:
+        return Check(f"input {name}", True, detail={"note": "the console's own keys: nothing to open"})
+    device = make_input(name, settings)
+
+    def read() -> list[float]:
+        return [device.read(timeout_s=READ_SLICE_S).t_s]
+
+    fix = ("to drive without it, name another in `[operator] input` (or pass `haptics operate --input`)"
+           if name != "sim" else "check [operator]")
+    return _Probe(f"input {name}", device, read, None, f"the {name} input", fix)
+
+
 def _simulated_playback(settings: Settings) -> Any:
     """One simulated grasp to feed the ``sim`` devices, started so that its data flows now."""
     from teleop.devices.playback import GraspPlayback
@@ -191,6 +209,7 @@ def _probes(settings: Settings) -> list[_Probe | Check]:
         ("load cell", lambda: _load_cell_probe(settings, playback, fixes["load cell"])),
         *((f"camera {s.finger}", lambda s=s: _camera_probe(settings, s, playback)) for s in settings.sensors),
         ("display", lambda: _display_probe(settings, fixes["display"])),
+        ("input", lambda: _input_probe(settings)),
     ]
     probes: list[_Probe | Check] = []
     for name, build in builders:
@@ -374,8 +393,8 @@ def _table(report: dict[str, Any]) -> str:
         for c in report[section]:
             expected = c["detail"].get("expected_hz")
             rate = _number(c["rate_hz"], ".1f") + (f" / {expected:g}" if expected and c["rate_hz"] else "")
-            extra = c["detail"].get("endpoint") or (f"{c['detail']['age_days']:g} days old"
-                                                   if "age_days" in c["detail"] else "")
+            extra = c["detail"].get("endpoint") or c["detail"].get("note") or (
+                f"{c['detail']['age_days']:g} days old" if "age_days" in c["detail"] else "")
             lines.append(f"{c['name']:18s} {'yes' if c['ok'] else 'NO':4s} {rate:>16s} "
                          f"{_number(c['latency_ms'], '.1f'):>10s}  {c['problem'] or extra}")
     lines.append("ready for a session" if report["ok"] else "NOT ready: fix the lines marked NO")

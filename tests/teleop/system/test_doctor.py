@@ -15,7 +15,7 @@ from teleop.settings import default_settings_path, load_settings
 from teleop.settings_edit import update_settings_file
 from teleop.system.doctor import check_calibrations, check_endpoints
 
-DEVICES = ["gripper", "load cell", "camera left", "camera right", "display"]
+DEVICES = ["gripper", "load cell", "camera left", "camera right", "display", "input keyboard"]
 
 
 def _closed_port() -> int:
@@ -46,8 +46,10 @@ def test_the_shipped_simulated_rig_is_ready(capsys):
     assert devices["load cell"]["rate_hz"] == pytest.approx(settings.load_cell.sample_rate_hz, rel=0.2)
     assert devices["camera left"]["rate_hz"] == pytest.approx(settings.sensor("left").camera_hz, rel=0.2)
     assert devices["gripper"]["rate_hz"] == pytest.approx(settings.gripper.width_read_hz, rel=0.2)
-    assert all(0 <= d["latency_ms"] < 150 for d in devices.values())
-    assert all(d["detail"]["monotonic"] and d["detail"]["host_clock"] for d in devices.values())
+    read = [d for name, d in devices.items() if name != "input keyboard"]  # the console's keys: nothing to open
+    assert devices["input keyboard"]["detail"]["note"].startswith("the console's own keys")
+    assert all(0 <= d["latency_ms"] < 150 for d in read)
+    assert all(d["detail"]["monotonic"] and d["detail"]["host_clock"] for d in read)
     assert all(c["ok"] for c in report["calibrations"])
     assert all(c["detail"]["age_days"] >= 0 for c in report["calibrations"] if c["name"].startswith("calibration"))
     # the bus ports are free unless something on this machine holds them right now
@@ -73,6 +75,19 @@ def test_unplugged_devices_are_named_with_what_to_do(tmp_path, capsys):
     assert "`camera_source` in [sensors.left]" in devices["camera left"]["problem"]
     assert "no source (set camera_source" in devices["camera right"]["problem"]
     assert all(devices[name]["ok"] for name in ("gripper", "display"))
+
+
+@pytest.mark.parametrize("name", ["gamepad", "sim"])
+def test_the_operators_input_device_is_opened_and_read(tmp_path, capsys, name):
+    absent = tmp_path / "no-such-event"  # a gamepad that is not plugged in
+    path = _copy(tmp_path, {"operator.input": name, "operator.gamepad_path": str(absent)})
+    code, report = _doctor(capsys, "--settings", str(path))
+    device = next(d for d in report["devices"] if d["name"] == f"input {name}")
+    if name == "sim":
+        assert device["ok"] and device["problem"] is None
+    else:  # named, with what to do
+        assert code == 1 and not device["ok"] and f"cannot open gamepad {absent}" in device["problem"]
+        assert device["problem"].endswith("name another in `[operator] input` (or pass `haptics operate --input`)")
 
 
 def test_a_silent_serial_cell_says_no_data_and_the_table_says_not_ready(tmp_path, capsys):
