@@ -35,6 +35,13 @@ def test_help_lists_every_subcommand(prog):
         assert name in result.stdout, f"{prog} --help does not list {name}"
 
 
+@pytest.mark.parametrize("prog", sorted(PACKAGES))
+def test_the_readme_names_every_command(prog):
+    commands = (ROOT / "README.md").read_text().split("## Commands", 1)[1].split("\n## ", 1)[0]
+    listed = next(item for item in commands.split("\n- ") if item.startswith(f"`{prog}`"))
+    assert [name for name in PACKAGES[prog] if f"`{name}`" not in listed] == []
+
+
 def test_teleop_has_the_foundation_commands():
     assert {"settings", "catalogue", "import-dataset"} <= set(teleop.cli.COMMANDS)
 
