@@ -164,6 +164,7 @@ def test_loading_end_marker_waits_for_the_width_at_the_stop_and_a_force_sample_a
     assert events() == ["loading_end"]
 
 
+@pytest.mark.slow  # a whole simulated grasp, live
 def test_the_next_commanded_grasp_stops_on_time_after_the_fingers_opened(rig):
     node, operator, listener, scene = rig
     # Fingers that open slowly (their moves, not the replays, take the gripper's speed) are still
@@ -185,6 +186,7 @@ def test_the_next_commanded_grasp_stops_on_time_after_the_fingers_opened(rig):
     assert -0.02 <= markers[0].t_capture_s - record.events["grasp_done"] - shift < 0.25
 
 
+@pytest.mark.slow  # a whole simulated grasp, live
 def test_a_simulated_grasp_squeezes_to_the_commanded_force(rig):
     node, operator, listener, scene = rig
     operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id="g-soft",

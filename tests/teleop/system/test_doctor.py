@@ -77,6 +77,7 @@ def test_unplugged_devices_are_named_with_what_to_do(tmp_path, capsys):
     assert all(devices[name]["ok"] for name in ("gripper", "display"))
 
 
+@pytest.mark.slow  # a whole doctor run each
 @pytest.mark.parametrize("name", ["gamepad", "sim"])
 def test_the_operators_input_device_is_opened_and_read(tmp_path, capsys, name):
     absent = tmp_path / "no-such-event"  # a gamepad that is not plugged in
