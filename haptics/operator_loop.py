@@ -215,7 +215,7 @@ class OperatorLoop:
         reading = None
         waiting = self.device.waits_for_robot and self.link.view.down("robot node")
         if waiting and not self._waiting:
-            self._act("waiting for the robot node: the simulated operator squeezes once it is heard")
+            self._act("waiting for the robot node: the input device is read once the node is heard")
         self._waiting = waiting
         if self._leaving is None and not waiting:
             reading = self._read_device()
