@@ -65,6 +65,7 @@ Flags
 -----
 ``"cleaned_timestamps"`` non-finite or duplicate samples were dropped or merged;
 ``"implausible_width"`` widths outside the gripper's opening were dropped;
+``"implausible_force"`` forces beyond what the gripper can apply were dropped (a glitch), or refused;
 ``"non_monotonic"`` the force drops beyond its noise during loading;
 ``"clipped"`` the force saturates (plateau of identical top readings);
 ``"too_few_samples"`` fewer samples or frames than the methods want;
@@ -120,6 +121,10 @@ BACKOFF_SHARE = 0.02
 PAUSE_S = 0.15
 # A width reading below 0 or beyond the gripper's opening by more than this share of it is no width.
 WIDTH_SLACK_SHARE = 0.1
+# The gripper stops at its maximum grasp force; a reading beyond this multiple of it (either sign) is no
+# force: up to FORCE_GLITCHES such samples are dropped, more refuse the grasp (not newtons?).
+FORCE_LIMIT_FACTOR = 2.0
+FORCE_GLITCHES = 2
 
 
 @dataclass(frozen=True)
@@ -346,6 +351,7 @@ def segment_grasp(
     n_frames: int,
     stopped_s: float | None = None,
     max_width_m: float | None = None,
+    max_force_n: float | None = None,
 ) -> Segment:
     """Find contact, onset and the loading phase; align force and width with the frames.
 
@@ -373,6 +379,8 @@ def segment_grasp(
     max_width_m : float, optional
         The gripper's full opening (m): widths below 0 or above it by more than
         :data:`WIDTH_SLACK_SHARE` of it are dropped (a glitch, or not metres).
+    max_force_n : float, optional
+        The gripper's maximum grasp force (N): :data:`FORCE_LIMIT_FACTOR` times it bounds a force.
 
     Returns
     -------
@@ -382,7 +390,7 @@ def segment_grasp(
     _check_contact_force(contact_force_n)
     _check_n_frames(n_frames)
     phase = find_load_phase(force_t_s, force_n, width_t_s, width_m, contact_force_n=contact_force_n,
-                            stopped_s=stopped_s, max_width_m=max_width_m)
+                            stopped_s=stopped_s, max_width_m=max_width_m, max_force_n=max_force_n)
     return align_frames(phase, frame_t_s, n_frames=n_frames)
 
 
@@ -395,6 +403,7 @@ def find_load_phase(
     contact_force_n: float,
     stopped_s: float | None = None,
     max_width_m: float | None = None,
+    max_force_n: float | None = None,
 ) -> LoadPhase:
     """The force and width part of :func:`segment_grasp` (same parameters, no frames): contact,
     onset, peak and the loading phase at the force samples' times.
@@ -426,6 +435,17 @@ def find_load_phase(
                                       f"0-{max_width_m:.4g} m opening (from {width[outside].min():.4g} to "
                                       f"{width[outside].max():.4g} m: a glitch, or not in metres?)")
             tw, width = tw[~outside], width[~outside]
+    if max_force_n is not None:
+        limit = FORCE_LIMIT_FACTOR * max_force_n
+        beyond = np.abs(force) > limit
+        told = f"beyond {limit:.4g} N, {FORCE_LIMIT_FACTOR:g} times the gripper's maximum grasp force"
+        if beyond.sum() > FORCE_GLITCHES:
+            return LoadPhase(reason=f"{int(beyond.sum())} force samples ({np.abs(force).max():.4g} N at most) "
+                                    f"{told}: is the load cell's scale (counts_per_n) in newtons?",
+                             flags=(*flags, "implausible_force"), notes=tuple(notes))
+        if beyond.any():
+            flag("implausible_force", f"dropped {int(beyond.sum())} force samples {told} (a glitch)")
+            tf, force = tf[~beyond], force[~beyond]
     if tf.size < 3:
         return LoadPhase(reason=f"too few force samples ({tf.size} usable, need 3)",
                          flags=(*flags, "too_few_samples"), notes=tuple(notes))

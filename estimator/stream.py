@@ -375,7 +375,8 @@ class GraspStream:
             force, width = self._force.samples(), self._width.samples()
             self._phase = find_load_phase(force.t_s, force.value, width.t_s, width.value,
                                           contact_force_n=estimator_settings(self.settings).contact_force_n,
-                                          stopped_s=self._loading_end_s, max_width_m=self.gripper.max_width_m)
+                                          stopped_s=self._loading_end_s, max_width_m=self.gripper.max_width_m,
+                                          max_force_n=self.gripper.target_force_n)
         return self._phase
 
     def loading_complete(self, segment: Segment | None = None) -> bool:

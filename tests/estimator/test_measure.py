@@ -268,6 +268,15 @@ def test_widths_not_in_metres_are_refused_with_the_reason(calibration):
         assert est.state == "insufficient_data" and "outside the gripper's 0-0.08 m opening" in est.reason
 
 
+def test_forces_not_in_newtons_are_refused_with_the_reason(calibration):
+    record = build_record(3e5)
+    f = record.force_n
+    in_grams = replace(record, force_n=Samples(f.t_s, f.value * 1e3 / 9.81))
+    for method in ("no_tactile", "series"):
+        est = estimate_grasp(in_grams, method, settings=SETTINGS, calibration=calibration)
+        assert est.state == "insufficient_data" and "maximum grasp force" in est.reason
+
+
 def test_clipped_force_in_a_record(calibration):
     record = build_record(3e5)
     clipped = Samples(record.force_n.t_s, np.minimum(record.force_n.value, 5.0))

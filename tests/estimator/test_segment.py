@@ -104,6 +104,21 @@ def test_widths_beyond_the_grippers_opening_are_dropped_and_named():
     assert "not in metres?" in in_mm.describe()
 
 
+def test_forces_beyond_what_the_gripper_applies_are_dropped_or_refused():
+    tf, force, tw, width, tc = streams()
+    clean = run(tf, force, tw, width, tc)
+    spiked = force.copy()
+    spiked[len(spiked) // 2] = -1e4  # one bad read (either sign): dropped, nothing else changes
+    seg = segment_grasp(tf, spiked, tw, width, tc, contact_force_n=0.75, n_frames=3, max_force_n=30.0)
+    assert "implausible_force" in seg.flags and "dropped 1 force samples beyond 60 N" in seg.describe()
+    assert seg.frame_force_n == pytest.approx(clean.frame_force_n, abs=0.05)
+    # Forces in grams (a load-cell scale per gram): refused with the reason, not estimated stiffer.
+    grams = segment_grasp(tf, force * 1e3 / 9.81, tw, width, tc, contact_force_n=0.75, n_frames=3, max_force_n=30.0)
+    assert not grams and "implausible_force" in grams.flags and "in newtons?" in grams.reason
+    within = segment_grasp(tf, force, tw, width, tc, contact_force_n=0.75, n_frames=3, max_force_n=PEAK_N / 1.5)
+    assert within and "implausible_force" not in within.flags  # an overshoot past the maximum is a force
+
+
 def test_nan_duplicate_and_unsorted_timestamps_change_nothing():
     tf, force, tw, width, tc = streams()
     clean = run(tf, force, tw, width, tc)
