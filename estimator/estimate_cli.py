@@ -149,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
             estimate, model = estimate_record(record)
         except ComplianceTeleopError as exc:
             failed += 1
-            print(f"estimator estimate: error: {exc}", file=sys.stderr)
+            print(f"estimator estimate: error: {path}: {exc}", file=sys.stderr)
             if args.json:
                 print(json.dumps({"grasp": str(path), "error": str(exc)}), flush=True)
             continue

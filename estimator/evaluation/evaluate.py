@@ -43,7 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from estimator.analytical import METHODS
-from estimator.errors import ModelError
+from estimator.errors import ModelError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.evaluation.metrics import E_MAX_PA, E_MIN_PA, PAPER, point_value, summarise
 from estimator.inference.hybrid import ALL_METHODS, LEARNED_METHODS, HybridEstimator
@@ -219,18 +219,21 @@ def evaluate_record(
     if exclude is not None and label.object_name in exclude:
         return [{"path": str(path), "skipped": f"trained on: {label.object_name}", "object": label.object_name}]
     rows = []
-    if methods:
-        tactile = any(m in TACTILE_METHODS for m in methods)
-        cal = None
-        if tactile:
-            sensor = record.sensor(settings.sensing.finger)
-            cal = _calibration(str(calibration_path(sensor, calibration)))
-        measurements = measure_grasp(record, settings=settings, calibration=cal, tactile=tactile,
-                                     correct_camera_lag=correct_camera_lag, correct_width_lag=correct_width_lag)
-        rows += [result_row(path, label, m, estimate_grasp(measurements, m, settings=settings)) for m in methods]
-    for entry in models:
-        estimator = _hybrid_estimator(entry.model_dir, settings, calibration)
-        rows.append(result_row(path, label, entry.name, estimator.estimate(record, mode=entry.mode)))
+    try:  # frames that do not decode, or not of the sensor's size, are read only here
+        if methods:
+            tactile = any(m in TACTILE_METHODS for m in methods)
+            cal = None
+            if tactile:
+                sensor = record.sensor(settings.sensing.finger)
+                cal = _calibration(str(calibration_path(sensor, calibration)))
+            measurements = measure_grasp(record, settings=settings, calibration=cal, tactile=tactile,
+                                         correct_camera_lag=correct_camera_lag, correct_width_lag=correct_width_lag)
+            rows += [result_row(path, label, m, estimate_grasp(measurements, m, settings=settings)) for m in methods]
+        for entry in models:
+            estimator = _hybrid_estimator(entry.model_dir, settings, calibration)
+            rows.append(result_row(path, label, entry.name, estimator.estimate(record, mode=entry.mode)))
+    except (RecordError, PerceptionError) as exc:
+        return [{"path": str(path), "skipped": f"unreadable: {exc}", "object": label.object_name}]
     return rows
 
 

@@ -473,7 +473,7 @@ def test_estimate_command_reads_folders_and_names_the_records_it_cannot_read(gra
     lines = [json.loads(line) for line in captured.out.strip().splitlines()]
     assert [line["grasp"] for line in lines] == [*map(str, sorted(root.rglob("*.grasp"))), str(bad)]
     assert all(line["state"] for line in lines[:-1]) and "not a grasp record" in lines[-1]["error"]
-    assert captured.err.strip().splitlines() == [f"estimator estimate: error: {lines[-1]['error']}"]
+    assert captured.err.strip().splitlines() == [f"estimator estimate: error: {bad}: {lines[-1]['error']}"]
     # The untimed first estimate changes no answer: each record reads as it does on its own.
     for line in lines[:-1]:
         assert main(["estimate", line["grasp"], *options]) == 0

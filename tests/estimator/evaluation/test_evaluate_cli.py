@@ -137,3 +137,21 @@ def test_skipped_records_are_named_with_their_cause_and_nothing_scored_fails(rec
     assert captured.out == "" and "Traceback" not in captured.err
     assert "no record scored, all 2 skipped (1 unreadable, 1 unlabelled" in captured.err
     assert "broken.grasp: unreadable" in captured.err
+
+
+def test_a_record_whose_frames_do_not_decode_is_skipped_and_named(records, tmp_path, capsys):
+    from dataclasses import replace
+
+    from teleop.record import read_record, write_record
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    good = read_record(records / "stress_ball.grasp")
+    write_record(good, folder / "good.grasp")
+    garbled = tuple(replace(s, encoded=(b"x",) * len(s)) for s in good.frames)
+    write_record(replace(good, frames=garbled), folder / "garbled.grasp")
+    assert main(["evaluate", str(folder), "--methods", "elastic", "--json"]) == 0
+    result = last_json(capsys)
+    assert result["skipped"] == {"unreadable": 1} and sum(result["methods"]["elastic"]["states"].values()) == 1
+    skipped = result["skipped_records"][0]
+    assert skipped["path"] == str(folder / "garbled.grasp") and "does not decode" in skipped["cause"]
