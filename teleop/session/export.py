@@ -75,7 +75,7 @@ from teleop.record import (
     software_version,
     write_record,
 )
-from teleop.session.logfile import LogInfo, LogReader
+from teleop.session.logfile import SETTINGS_ATTACHMENT, LogInfo, LogReader
 from teleop.settings import Settings, resolve_path
 
 __all__ = ["GraspExport", "SessionExport", "export_session", "session_grasps", "session_id"]
@@ -410,6 +410,9 @@ def _grasps(
             "can be read"
         )
     given = settings is not None
+    if not given and SETTINGS_ATTACHMENT not in info.attachments:
+        raise SessionLogError(f"{path}: the log has no {SETTINGS_ATTACHMENT} attachment: pass --settings, "
+                              "the settings TOML the session ran with")
     settings = settings if given else info.settings()
     source = source or info.session.get("source")
     if source not in ("simulated", "hardware"):

@@ -304,7 +304,8 @@ class LogInfo:
         data = self.attachments.get(SETTINGS_ATTACHMENT)
         if data is None:
             raise SessionLogError(
-                f"the log has no {SETTINGS_ATTACHMENT} attachment: pass the settings explicitly"
+                f"the log has no {SETTINGS_ATTACHMENT} attachment (the recorder writes it as the session "
+                "starts: a log cut short before it holds no session)"
             )
         try:
             mapping = json.loads(data.decode("utf-8"))

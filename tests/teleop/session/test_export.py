@@ -149,7 +149,7 @@ def test_a_log_without_settings_needs_them_given(tmp_path):
         writer = Writer(f)
         writer.start()
         writer.finish()
-    with pytest.raises(SessionLogError, match="no settings.json"):
+    with pytest.raises(SessionLogError, match="no settings.json attachment: pass --settings"):
         list(session_grasps(path))
 
 

@@ -201,3 +201,18 @@ def test_recover_refuses_to_overwrite_its_source_and_non_logs(tmp_path, recorded
     with pytest.raises(SessionLogError, match="not an MCAP"):
         recover(junk, tmp_path / "out.mcap")
     assert not (tmp_path / "out.mcap").exists() and not (tmp_path / "out.mcap.partial").exists()
+
+
+def test_the_recover_command_fails_when_it_salvaged_nothing_and_report_says_why(tmp_path, recorded, log_bytes,
+                                                                                 capsys):
+    from teleop.cli import main
+    from teleop.system.report import build_report
+
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(log_bytes[:100])  # the header, before any attachment or message
+    assert main(["recover", str(cut), "--out", str(tmp_path / "fixed.mcap")]) == 1
+    assert "nothing salvaged: the log is cut short before its first message" in capsys.readouterr().err
+    with pytest.raises(SessionLogError, match="the recorder writes it as the session starts") as caught:
+        build_report(tmp_path / "fixed.mcap", tmp_path / "report")
+    assert "explicitly" not in str(caught.value)  # report has no option to pass them
+    assert main(["recover", str(recorded.path), "--out", str(tmp_path / "whole.mcap")]) == 0
