@@ -149,7 +149,8 @@ def run(args: argparse.Namespace) -> int:
             estimate, model = estimate_record(record)
         except ComplianceTeleopError as exc:
             failed += 1
-            print(f"estimator estimate: error: {path}: {exc}", file=sys.stderr)
+            where = "" if str(path) in str(exc) else f"{path}: "
+            print(f"estimator estimate: error: {where}{exc}", file=sys.stderr)
             if args.json:
                 print(json.dumps({"grasp": str(path), "error": str(exc)}), flush=True)
             continue

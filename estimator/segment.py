@@ -85,7 +85,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from estimator.errors import FitError
-from estimator.signals import clean_samples, crossing_time, interpolate, noise_std
+from estimator.signals import clean_samples, crossing_time, interpolate, noise_std, reading_noise
 
 __all__ = [
     "LoadPhase",
@@ -125,6 +125,10 @@ WIDTH_SLACK_SHARE = 0.1
 # force: up to FORCE_GLITCHES such samples are dropped, more refuse the grasp (not newtons?).
 FORCE_LIMIT_FACTOR = 2.0
 FORCE_GLITCHES = 2
+# The least noise a force or width reading is taken to carry (below any load cell or gripper simulated or
+# seen): exact readings would otherwise give bounds at absurd moduli (1e20 Pa) and intervals of zero width.
+MIN_FORCE_NOISE_N = 1e-3
+MIN_WIDTH_NOISE_M = 1e-6
 
 
 @dataclass(frozen=True)
@@ -467,7 +471,8 @@ def find_load_phase(
         force = force - baseline
     representable = np.isfinite(force)  # only absurd readings overflow
     tf, force, quiet = tf[representable], force[representable], quiet[representable]
-    sigma_f = noise_std(force[quiet]) if quiet.sum() >= 5 else noise_std(force)
+    before = force[quiet] if quiet.sum() >= 5 else force
+    sigma_f = noise_std(before)  # as read: a plateau of identical readings is a saturation
     above = np.flatnonzero(force >= contact_force_n)
     if above.size == 0:
         return LoadPhase(
@@ -519,7 +524,7 @@ def find_load_phase(
         onset_t_sigma = 0.0
         flag("misaligned", "the force record starts in contact: onset taken at its first sample")
 
-    sigma_w = noise_std(width)
+    sigma_w = reading_noise(width, floor=MIN_WIDTH_NOISE_M)
     onset_width = float(interpolate(np.array([t_onset]), tw, width)[0])
     onset_width_sigma = _closing_speed(tw, width, t_onset) * onset_t_sigma
     if not np.isfinite(onset_width):
@@ -540,7 +545,7 @@ def find_load_phase(
                              "across a stop of the fingers it cannot see")
 
     fields = dict(
-        force_noise_n=sigma_f, width_noise_m=sigma_w, peak_force_n=peak_force, t_onset_s=t_onset,
+        force_noise_n=reading_noise(before, floor=MIN_FORCE_NOISE_N), width_noise_m=sigma_w, peak_force_n=peak_force, t_onset_s=t_onset,
         t_contact_s=t_contact, t_peak_s=t_peak, onset_width_m=onset_width,
         onset_width_sigma_m=onset_width_sigma, load_t_s=load_t[covered],
         load_force_n=loading[covered], load_width_m=load_w[covered],

@@ -10,7 +10,7 @@ import numpy as np
 
 from estimator.errors import FitError
 
-__all__ = ["clean_samples", "crossing_time", "interpolate", "noise_std"]
+__all__ = ["clean_samples", "crossing_time", "interpolate", "noise_std", "reading_noise"]
 
 
 def clean_samples(t_s: np.ndarray, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -69,6 +69,13 @@ def noise_std(value: np.ndarray) -> float:
         second = np.diff(v, n=2)
         sigma = float(1.4826 * np.median(np.abs(second - np.median(second))) / np.sqrt(6.0))
     return sigma if np.isfinite(sigma) else 0.0
+
+
+def reading_noise(value: np.ndarray, *, floor: float) -> float:
+    """Standard deviation of one reading (same unit as ``value``): :func:`noise_std`, but at least
+    ``floor``, since no reading is exact: identical or noise-free readings would otherwise claim a
+    resolution no sensor has."""
+    return max(noise_std(value), floor)
 
 
 def crossing_time(t: np.ndarray, v: np.ndarray, i: int, level: float) -> float:

@@ -14,6 +14,8 @@ from estimator.lag import estimate_camera_lag, estimate_width_lag
 from estimator.segment import (
     HOLD_FRAMES,
     HOLD_SETTLE_S,
+    MIN_FORCE_NOISE_N,
+    MIN_WIDTH_NOISE_M,
     clean_samples,
     interpolate,
     noise_std,
@@ -117,6 +119,13 @@ def test_forces_beyond_what_the_gripper_applies_are_dropped_or_refused():
     assert not grams and "implausible_force" in grams.flags and "in newtons?" in grams.reason
     within = segment_grasp(tf, force, tw, width, tc, contact_force_n=0.75, n_frames=3, max_force_n=PEAK_N / 1.5)
     assert within and "implausible_force" not in within.flags  # an overshoot past the maximum is a force
+
+
+def test_exact_readings_carry_the_least_noise_a_reading_has():
+    seg = run(*streams())  # noise-free force and width
+    assert seg.force_noise_n == MIN_FORCE_NOISE_N and seg.width_noise_m == MIN_WIDTH_NOISE_M
+    noisy = run(*streams(force_noise=0.05))
+    assert noisy.force_noise_n > 10 * MIN_FORCE_NOISE_N  # measured, the floor far below it
 
 
 def test_nan_duplicate_and_unsorted_timestamps_change_nothing():
