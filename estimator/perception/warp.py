@@ -149,6 +149,9 @@ def warp_and_crop(raw_bgr: np.ndarray, sensor: SensorSettings, *, binning: int =
             f"{raw_bgr.dtype} {raw_bgr.shape}" if isinstance(raw_bgr, np.ndarray)
             else type(raw_bgr).__name__
         )
+        if binning > 1 and isinstance(raw_bgr, np.ndarray) and raw_bgr.ndim >= 2:  # name the frame as captured
+            got += (f", binned from a frame of about {raw_bgr.shape[1] * binning}x{raw_bgr.shape[0] * binning} px "
+                    f"for the sensor's {sensor.raw_width_px}x{sensor.raw_height_px}")
         raise PerceptionError(
             f"raw_bgr: expected a uint8 BGR frame of shape {expected} (sensor {sensor.finger!r}"
             f"{f', binning {binning}' if binning > 1 else ''}), got {got}"

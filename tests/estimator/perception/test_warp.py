@@ -111,6 +111,14 @@ def test_bad_raw_frames_are_refused_by_name(raw):
         warp_and_crop(raw, SensorSettings())
 
 
+def test_a_binned_frame_of_the_wrong_size_is_named_as_captured():
+    sensor = SensorSettings()
+    big = np.zeros((sensor.raw_height_px, sensor.raw_width_px, 3), np.uint8)  # decoded at half size from 2x
+    with pytest.raises(PerceptionError, match=f"a frame of about {2 * sensor.raw_width_px}x{2 * sensor.raw_height_px} px "
+                                              f"for the sensor's {sensor.raw_width_px}x{sensor.raw_height_px}"):
+        warp_and_crop(big, sensor, binning=2)
+
+
 def test_degenerate_corners_are_refused():
     line = SensorSettings(warp_corners_px=((0.0, 0.0), (10.0, 0.0), (20.0, 0.0), (30.0, 0.0)))
     with pytest.raises(PerceptionError, match="warp_corners_px"):
