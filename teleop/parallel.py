@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from functools import partial
@@ -18,8 +19,16 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 
-def _one_thread() -> None:
-    cv2.setNumThreads(1)  # one core per worker: OpenCV would otherwise spread over all of them
+def _start_worker(one_thread: bool) -> None:
+    # Ctrl-C reaches the whole process group: the parent alone handles it (it cancels the queued work);
+    # a worker interrupted mid-task could leave the pool waiting on it.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if one_thread:
+        cv2.setNumThreads(1)  # one core per worker: OpenCV would otherwise spread over all of them
+
+
+def _run_chunk(work: Callable[[T], R], chunk: list[T]) -> list[R]:
+    return [work(item) for item in chunk]
 
 
 def progress_map(work: Callable[[T], R], items: Iterable[T], *, workers: int, desc: str, unit: str = "grasp",
@@ -28,13 +37,25 @@ def progress_map(work: Callable[[T], R], items: Iterable[T], *, workers: int, de
 
     With ``workers`` above 1 the items go to that many processes, in chunks of about an eighth of
     each worker's share; ``work`` and the items must pickle. ``spawn`` starts them fresh instead of
-    forking this one, with OpenCV on one thread in each.
+    forking this one, with OpenCV on one thread in each. An interrupt (Ctrl-C) stops the workers at
+    once.
     """
     items = list(items)
     bar = partial(progress_bar, total=len(items), desc=desc, unit=unit, enabled=progress)
     if workers <= 1:
         return list(bar(map(work, items)))
+    size = max(1, len(items) // (8 * workers))
     # A forked child inherits OpenCV's thread pool mid-state: setting its threads there can hang.
-    context, initializer = (get_context("spawn"), _one_thread) if spawn else (None, None)
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=initializer) as pool:
-        return list(bar(pool.map(work, items, chunksize=max(1, len(items) // (8 * workers)))))
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn") if spawn else None,
+                             initializer=_start_worker, initargs=(spawn,)) as pool:
+        # Chunks as futures of their own, not Executor.map: on an interrupt map cancels the pending ones,
+        # and the pool then fails on them as it finds its workers stopped (Python 3.11).
+        chunks = [pool.submit(_run_chunk, work, items[i : i + size]) for i in range(0, len(items), size)]
+        try:
+            return list(bar(result for chunk in chunks for result in chunk.result()))
+        except BaseException:
+            # Stop the running chunks too (Python 3.14 has terminate_workers()); leaving the block then
+            # does not wait on them: the pool finds its workers gone and fails what is left.
+            for process in list((pool._processes or {}).values()):
+                process.terminate()
+            raise
