@@ -301,12 +301,24 @@ def run(args: argparse.Namespace) -> int:
         specs, recorded_methods = recorded_sources(text, card)
         methods = args.methods if args.methods is not None else recorded_methods
     sources = [load_source(label, path) for label, path in specs]
+    # A method may be missing from some sources (a rig evaluated with one model only), not from all:
+    # such a name is a typo, which the table would otherwise drop without a word.
+    have = dict.fromkeys(name for s in sources for name in s.result["methods"])
+    unknown = [m for m in methods or [] if not _selected(have, [m])]
+    if unknown:
+        where = "--methods" if args.methods is not None else f"{card}: the recorded methods"
+        raise EstimatorError(f"{where} {', '.join(unknown)}: in none of the sources (they have {', '.join(have)})")
     if args.keep and not args.check:
         keep = Path(args.keep)
         slugs = [_slug(s.label) for s in sources]
         if len(set(slugs)) != len(slugs):
             raise EstimatorError(f"--keep: two labels give one file name ({', '.join(slugs)})")
-        keep.mkdir(parents=True, exist_ok=True)
+        try:
+            keep.mkdir(parents=True, exist_ok=True)
+        except FileExistsError:
+            raise EstimatorError(f"--keep {keep}: exists and is not a folder") from None
+        except OSError as exc:
+            raise EstimatorError(f"--keep {keep}: cannot create the folder ({exc.strerror})") from None
         kept = []
         for source, slug in zip(sources, slugs, strict=True):
             path = keep / f"{slug}.json"

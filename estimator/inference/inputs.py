@@ -89,6 +89,7 @@ __all__ = [
     "RIG_FEATURES",
     "RIG_QUANTITIES",
     "MEASUREMENT_VERSION",
+    "SIZE_PX_RANGE",
     "Variant",
     "analytical_features",
     "analytical_floor",
@@ -125,6 +126,21 @@ IMAGES = ("depth", "rgb")
 _VARIANT = re.compile(r"^(depth|rgb)((?:\+(?:markers|fw|analytical))*)$")
 #: A window side outside this range (m) is not a gel pad.
 WINDOW_RANGE_M = (1e-3, 0.2)
+#: The ``size_px`` a model may read, ((min, max) rows, (min, max) cols); the maxima are the
+#: simulated Wedge's 250 x 350 grid. ``estimator build-dataset --size`` refuses the same.
+SIZE_PX_RANGE = ((8, 250), (8, 350))
+
+
+def size_px_ok(rows: int, cols: int) -> bool:
+    """Whether a model may read images of ``rows`` x ``cols`` (:data:`SIZE_PX_RANGE`)."""
+    (row_lo, row_hi), (col_lo, col_hi) = SIZE_PX_RANGE
+    return row_lo <= rows <= row_hi and col_lo <= cols <= col_hi
+
+
+def size_px_range_text() -> str:
+    """:data:`SIZE_PX_RANGE` in words, for error messages."""
+    (row_lo, row_hi), (col_lo, col_hi) = SIZE_PX_RANGE
+    return f"rows {row_lo}..{row_hi} and cols {col_lo}..{col_hi}"
 
 
 def calibration_smoothings(data: Mapping[str, Any]) -> tuple[float, ...]:
@@ -187,8 +203,8 @@ class Variant:
         if not 1 <= int(self.n_frames) <= 64:
             raise ModelError(f"variant n_frames {self.n_frames!r}: expected 1..64")
         rows, cols = (int(v) for v in self.size_px)
-        if not (8 <= rows <= 250 and 8 <= cols <= 350):
-            raise ModelError(f"variant size_px {self.size_px!r}: expected rows 8..250 and cols 8..350")
+        if not size_px_ok(rows, cols):
+            raise ModelError(f"variant size_px {self.size_px!r}: expected {size_px_range_text()}")
         object.__setattr__(self, "n_frames", int(self.n_frames))
         object.__setattr__(self, "size_px", (rows, cols))
         if self.window_m is not None:

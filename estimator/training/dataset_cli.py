@@ -10,6 +10,7 @@ import re
 import sys
 
 from estimator.errors import EstimatorError
+from estimator.inference.inputs import size_px_ok, size_px_range_text
 from estimator.inference.provenance import SPLITS
 from estimator.training.dataset import DEFAULT_FRACTIONS, DatasetOptions, build_dataset
 from teleop.record import find_records
@@ -17,11 +18,15 @@ from teleop.settings import default_settings_path, load_settings
 
 
 def parse_size(text: str) -> tuple[int, int]:
-    """``ROWSxCOLS`` -> (rows, cols)."""
+    """``ROWSxCOLS`` -> (rows, cols), within what a model may read (:data:`~estimator.inference.inputs.SIZE_PX_RANGE`)."""
     match = re.fullmatch(r"(\d+)x(\d+)", text.strip())
     if not match:
         raise argparse.ArgumentTypeError(f"size {text!r}: expected ROWSxCOLS, e.g. 64x88")
-    return int(match.group(1)), int(match.group(2))
+    rows, cols = int(match.group(1)), int(match.group(2))
+    # Refused here, not after a build that training would then refuse.
+    if not size_px_ok(rows, cols):
+        raise argparse.ArgumentTypeError(f"size {text!r}: expected {size_px_range_text()}")
+    return rows, cols
 
 
 def parse_window_mm(text: str) -> tuple[float, float]:

@@ -83,14 +83,20 @@ def pool_models(model_dirs: Sequence[str | Path], data_dir: str | Path, out_dir:
     Raises
     ------
     EstimatorError
-        Fewer than two models, models of other variants, trained on other object splits or on depth
-        of other calibration smoothings than the first, or a dataset that does not fit them.
+        Fewer than two models, a model given more than once, models of other variants, trained on
+        other object splits or on depth of other calibration smoothings than the first, or a dataset
+        that does not fit them.
     ModelError
         A model cannot be read or rebuilt.
     """
     if len(model_dirs) < 2:
         raise EstimatorError(f"pooling needs at least two models, got {len(model_dirs)}")
     model_dirs, data_dir, out_dir = [Path(d) for d in model_dirs], Path(data_dir), Path(out_dir)
+    # A model pooled with itself passes the count but pools nothing; spelled two ways, it is still one model.
+    resolved = [d.resolve() for d in model_dirs]
+    twice = sorted({str(d) for d in resolved if resolved.count(d) > 1})
+    if twice:
+        raise EstimatorError(f"model {twice[0]}: given more than once")
     predictors = [CompliancePredictor(d) for d in model_dirs]
     first = predictors[0]
     for directory, predictor in zip(model_dirs[1:], predictors[1:], strict=True):

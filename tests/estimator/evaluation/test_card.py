@@ -96,6 +96,38 @@ def test_keep_writes_small_copies_the_card_points_at(tmp_path, card):
     assert main(["card", str(card), "--check"]) == 0
 
 
+def test_keep_naming_a_file_is_refused_by_name(tmp_path, card, capsys):
+    source, _ = evaluate_output(tmp_path)
+    keep = tmp_path / "notes.txt"
+    keep.write_text("mine")
+    before = card.read_text()
+    assert main(["card", str(card), "--figures", f"A={source}", "--keep", str(keep)]) == 2
+    assert f"--keep {keep}: exists and is not a folder" in capsys.readouterr().err
+    assert keep.read_text() == "mine" and card.read_text() == before
+
+
+def test_a_method_in_none_of_the_sources_is_refused_by_name(tmp_path, card, capsys):
+    source, _ = evaluate_output(tmp_path)
+    other, _ = evaluate_output(tmp_path, name="other.json")
+    before = card.read_text()
+    assert main(["card", str(card), "--figures", f"A={source}", "--figures", f"B={other}",
+                 "--methods", "hybrid", "nosuch"]) == 2
+    assert "--methods nosuch: in none of the sources (they have series, hybrid)" in capsys.readouterr().err
+    assert card.read_text() == before
+
+
+def test_a_method_some_sources_lack_is_shown_for_those_that_have_it(tmp_path, card):
+    source, _ = evaluate_output(tmp_path)
+    only_hybrid = tmp_path / "hybrid.json"
+    result = json.loads(source.read_text().splitlines()[-1])
+    del result["methods"]["series"]
+    only_hybrid.write_text(json.dumps(result) + "\n")
+    assert main(["card", str(card), "--figures", f"A={source}", "--figures", f"B={only_hybrid}",
+                 "--methods", "hybrid", "series"]) == 0
+    text = card.read_text()
+    assert "| A | series |" in text and "| B | series |" not in text and "| B | hybrid (default) |" in text
+
+
 def test_a_card_without_markers_is_refused(tmp_path, capsys):
     source, _ = evaluate_output(tmp_path)
     card = tmp_path / "card.md"

@@ -12,9 +12,10 @@ import pytest
 
 from estimator.cli import main
 from estimator.errors import EstimatorError, SampleError
-from estimator.inference.inputs import ANALYTICAL_METHODS
+from estimator.inference.inputs import ANALYTICAL_METHODS, Variant
 from estimator.inference.provenance import SPLITS, load_split
 from estimator.training.dataset import split_objects
+from estimator.training.dataset_cli import parse_size
 from estimator.training.samples import load_sample, sample_paths
 from teleop.settings import load_settings
 
@@ -105,6 +106,19 @@ def test_records_of_one_name_in_two_folders_keep_their_own_samples(sim_grasps, t
 def test_build_dataset_refuses_an_empty_directory(tmp_path, capsys):
     assert main(["build-dataset", "--records", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
     assert "no .grasp records" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("size", ["0x88", "4x4", "7x88", "64x7", "251x88", "64x351", "999x999"])
+def test_a_size_training_would_refuse_is_refused_before_building(size, tmp_path, capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["build-dataset", "--records", str(tmp_path), "--out", str(tmp_path / "o"), "--size", size])
+    assert done.value.code == 2 and not (tmp_path / "o").exists()
+    assert f"size '{size}': expected rows 8..250 and cols 8..350" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("size", ["8x8", "250x350"])
+def test_the_extremes_of_the_size_range_are_accepted(size):
+    assert Variant(size_px=parse_size(size)).size_px == tuple(int(v) for v in size.split("x"))
 
 
 # --------------------------------------------------------------------------- every drop has a name

@@ -79,6 +79,17 @@ def test_a_pooled_model_fine_tunes_as_one_network(trained_model, other_seed, syn
     assert not np.allclose(before.predict_logits(inputs), after.predict_logits(inputs), atol=1e-3)
 
 
+def test_a_model_given_twice_is_refused_however_spelled(tmp_path, capsys):
+    model = tmp_path / "model"
+    model.mkdir()
+    (tmp_path / "other").mkdir()
+    out = tmp_path / "pooled"
+    assert main(["pool", "--model", str(model), "--model", str(tmp_path / "other" / ".." / "model"),
+                 "--data", str(tmp_path / "data"), "--out", str(out)]) == 2
+    assert f"model {model.resolve()}: given more than once" in capsys.readouterr().err
+    assert not out.exists()
+
+
 @pytest.mark.slow
 def test_the_command_pools_models(trained_model, other_seed, synthetic_dataset, tmp_path, capsys):
     out = tmp_path / "pooled"
