@@ -35,8 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "and publish a provisional estimate per tactile frame while a grasp loads and a final one when "
         "loading ends; every estimate names the model that made it. Stops on Ctrl-C or SIGTERM. Switches "
         "models between grasps, after loading and checking the new one (the old one stays if it fails): "
-        "`estimator reload --model DIR` (a load_model message on --command) switches to another folder; "
-        "SIGHUP or a reload_model command reads the served folder again; new files copied into it are "
+        "`estimator reload --model DIR` (a load_model message on --control) switches to another folder; "
+        "SIGHUP or a reload_model command reads the served folder again; the service takes both messages "
+        "on --command and --control alike; a new model.onnx and metadata.json copied into the served folder are "
         "taken once both have stopped changing. Run it with OPENBLAS_NUM_THREADS=1 (one core)."
     )
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),

@@ -44,6 +44,7 @@ log's path (for reference only), ``extra["session_id"]`` the session id.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import logging
@@ -517,7 +518,8 @@ def export_session(
     """Write every complete grasp of a session log as ``<out>/<log>_<session id>_<grasp id>.grasp``.
 
     Takes the options of :func:`session_grasps`. Records are written under hidden names and
-    renamed once every grasp of the log is done, so an error leaves no new record behind.
+    renamed once every grasp of the log is done, so an error leaves no new record behind (nor
+    ``out``, where this call created it).
     Returns one :class:`GraspExport` per grasp (``path`` set where a record was written,
     ``reason`` where none could be), with what it learnt about the log (:class:`SessionExport`).
 
@@ -533,20 +535,22 @@ def export_session(
         taken in ``out`` and ``overwrite`` is False (the message names the file).
     """
     path, out = Path(path), Path(out)
+    reader = LogReader(path)  # read first: a log that cannot be read creates no folder
+    info = reader.info()
+    created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SessionLogError(
             f"cannot create the export directory {out}: {exc.strerror or exc}"
         ) from exc
-    reader = LogReader(path)
-    info = reader.info()
     complete, damage = info.complete, info.damage
     sid = session_id(info, path)
     stray: list[str] = []
     results: list[GraspExport] = []
     staged: list[tuple[Path, Path]] = []  # (hidden name, final name)
     names: set[str] = set()
+    done = False
     grasps = _grasps(
         reader, info, settings=settings, catalogue=catalogue, source=source, stray_labels=stray
     )
@@ -571,6 +575,7 @@ def export_session(
             results.append(grasp)
         for hidden, dest in staged:
             hidden.replace(dest)
+        done = True
     except OSError as exc:
         raise SessionLogError(
             f"cannot write the records of {path} into {out}: {exc.strerror or exc}"
@@ -578,6 +583,10 @@ def export_session(
     finally:
         for hidden, _ in staged:
             hidden.unlink(missing_ok=True)
+        if created and not done:
+            # The log's settings and grasps are checked as they are read, after out is made.
+            with contextlib.suppress(OSError):
+                out.rmdir()
     return SessionExport(
         results, session_id=sid, complete=complete, damage=damage, stray_labels=stray
     )

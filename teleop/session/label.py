@@ -22,9 +22,9 @@ writes one ``label`` bus message per row into the log:
   grasp again replaces its label.
 
 Refused, with nothing written: a log cut short (``teleop recover`` first), an unknown column, and
-CSV rows naming a grasp the log does not hold (the error lists the log's grasps), an object that
-is neither in the catalogue nor given a modulus or Shore hardness, or a bad number: every such row
-is named in one error, so that a long CSV is mended in one go.
+CSV rows naming a grasp the log does not hold (the error lists the log's grasps), a grasp another
+row names too, an object that is neither in the catalogue nor given a modulus or Shore hardness,
+or a bad number: every such row is named in one error, so that a long CSV is mended in one go.
 """
 
 from __future__ import annotations
@@ -126,14 +126,15 @@ def read_label_csv(path: str | Path, catalogue: Any = (), *, where: str = "the c
     """The rows of a label CSV, each made a label (:func:`teleop.labels.label_from_fields`).
 
     Columns: ``grasp_id`` and ``object`` (required), ``modulus_pa``, ``shore_a``, ``shore_00``,
-    ``source``, ``detail`` (optional); a header row first; blank rows skipped. ``grasps``: the
-    grasp ids of ``log`` a row may name (None: any).
+    ``source``, ``detail`` (optional); a header row first; blank rows skipped; one row per grasp.
+    ``grasps``: the grasp ids of ``log`` a row may name (None: any).
 
     Raises
     ------
     LabelError
         The file cannot be read, has no rows, lacks a required column or has an unknown one, or
-        rows do not make labels (every such row is named, by file and line).
+        rows do not make labels or name a grasp an earlier row names (every such row is named,
+        by file and line).
     """
     path = Path(path)
     try:
@@ -155,6 +156,7 @@ def read_label_csv(path: str | Path, catalogue: Any = (), *, where: str = "the c
     if unknown:
         raise LabelError(f"{path}: unknown column(s) {', '.join(map(repr, unknown))}; the columns are {', '.join(CSV_COLUMNS)}")
     out, errors, stray = [], [], False
+    first_line: dict[str, int] = {}  # grasp id -> the row that named it first
     for line, row in rows:
         cells = {(k or "").strip(): (v or "").strip() for k, v in row.items() if isinstance(k, str)}
         if None in row:
@@ -171,6 +173,12 @@ def read_label_csv(path: str | Path, catalogue: Any = (), *, where: str = "the c
             errors.append(f"{where_row}: grasp {grasp_id!r} is not in {log}")
             stray = True
             continue
+        # Two labels for one grasp: which one is meant is the writer's to say, not the file order's.
+        if grasp_id in first_line:
+            errors.append(f"{where_row}: grasp {grasp_id!r} is also on line {first_line[grasp_id]}; "
+                          "give each grasp one row")
+            continue
+        first_line[grasp_id] = line
         try:
             label = label_from_fields(
                 cells.get("object", ""),
@@ -280,10 +288,9 @@ def label_session(
     labels = []
     for row in rows:
         grasp = grasps[row.grasp_id]
-        if grasp.labelled and row.grasp_id not in report.relabelled:
+        if grasp.labelled:
             report.relabelled.append(row.grasp_id)
         grasp.log_time_ns += 1
-        grasp.labelled = True
         message = make_message("label", t_capture_s=grasp.t_capture_s, **row.label.body(row.grasp_id))
         message = dataclasses.replace(message, source=LABEL_SOURCE_NAME, seq=seq, t_send_ns=grasp.log_time_ns)
         seq += 1

@@ -30,3 +30,10 @@ def test_the_command_has_a_description(module):
     parser = argparse.ArgumentParser()
     importlib.import_module(module).add_arguments(parser)
     assert parser.description
+
+
+def test_serve_says_reload_sends_on_the_control_endpoint_and_it_listens_on_both():
+    # estimator reload binds bus.control (estimator/reload_cli.py); serve subscribes to command and control.
+    text = " ".join(help_text("estimator.service_cli").split())
+    assert "(a load_model message on --control)" in text and "on --command and --control alike" in text
+    assert "load_model message on --command" not in text

@@ -153,6 +153,27 @@ def test_a_log_without_settings_needs_them_given(tmp_path):
         list(session_grasps(path))
 
 
+def test_a_failed_export_leaves_no_new_folder(tmp_path, capsys):
+    from teleop.cli import main
+
+    out = tmp_path / "new" / "records"
+    assert main(["export", str(tmp_path / "missing.mcap"), "--out", str(out)]) == 2
+    assert "cannot read session log" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+    bare = tmp_path / "bare.mcap"  # readable, but refused once its grasps are read: no settings
+    with bare.open("wb") as f:
+        writer = Writer(f)
+        writer.start()
+        writer.finish()
+    with pytest.raises(SessionLogError, match="no settings.json attachment"):
+        export_session(bare, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    (tmp_path / "mine").mkdir()  # a folder that was there before stays
+    with pytest.raises(SessionLogError, match="no settings.json attachment"):
+        export_session(bare, tmp_path / "mine")
+    assert (tmp_path / "mine").is_dir()
+
+
 def _record_one_grasp(path, frames_for, helpers):
     """Record a one-grasp session in process (open, poll, close); frames by ``frames_for(pub)``."""
     with (

@@ -124,6 +124,7 @@ def test_a_catalogue_can_be_given(log, tmp_path):
         ("grasp_id,object,shore_d\ng0,pad,40\n", "unknown column(s) 'shore_d'"),
         ("grasp_id,object\n", "no label rows"),
         ("grasp_id,object\n,pad\n", "labels.csv:2: the grasp_id is empty"),
+        ("grasp_id,object\ng1,pad_a\ng0,stress_ball\ng1,pad_b\n", "labels.csv:4: grasp 'g1' is also on line 2"),
     ],
 )
 def test_bad_input_is_refused_and_the_log_left_as_it_was(log, tmp_path, text, says):
@@ -143,6 +144,15 @@ def test_every_refused_row_is_named_in_one_error(log, tmp_path):
     assert [line.split(":")[1].split()[0] for line in lines[1:4]] == ["3", "4", "5"]  # the CSV's lines, in order
     assert "grasp 'g7' is not in" in lines[1] and "'blue gel'" in lines[2] and "-3.0" in lines[3]
     assert lines[4].startswith("the log's grasps are g0, g1, g2")
+
+
+def test_a_grasp_named_on_two_rows_is_refused_not_counted_as_relabelled(log, tmp_path, capsys):
+    before = log.read_bytes()
+    csv_path = _csv(tmp_path, "grasp_id,object,modulus_pa\ng0,stress_ball,\ng1,pad,1e6\ng1,pad,2e6\n")
+    assert teleop.cli.main(["label", str(log), "--csv", str(csv_path)]) == 2
+    err = capsys.readouterr().err
+    assert "labels.csv:4: grasp 'g1' is also on line 3; give each grasp one row" in err
+    assert "replaced the labels" not in err and log.read_bytes() == before
 
 
 def test_a_cut_log_is_refused_with_the_way_out(log, tmp_path):
