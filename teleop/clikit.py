@@ -16,8 +16,35 @@ import os
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
-from teleop.errors import ComplianceTeleopError
+from teleop.errors import ComplianceTeleopError, TeleopError
+
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def output_file(option: str, value: str | None, *, suffixes: Sequence[str] = ()) -> Path | None:
+    """The file an output option names, checked before the work that fills it: not a folder, one of
+    ``suffixes`` (when given), and its folder made, so that a long run does not end in an error
+    after its work. None stays None.
+
+    Raises
+    ------
+    TeleopError
+        The path is a folder, has another suffix, or its folder cannot be made (named with ``option``).
+    """
+    if value is None:
+        return None
+    path = Path(value)
+    if path.is_dir():
+        raise TeleopError(f"{option} {value}: is a folder; expected a file name")
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise TeleopError(f"{option} {value}: expected a name ending in {', '.join(suffixes)}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise TeleopError(f"{option} {value}: cannot make its folder {path.parent} ({exc.strerror or exc})") from exc
+    return path
 
 
 @dataclass(frozen=True)

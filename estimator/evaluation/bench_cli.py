@@ -16,6 +16,7 @@ from estimator.errors import EstimatorError
 from estimator.evaluation.bench import bench, configurations, plot
 from estimator.inference.infer import CompliancePredictor, default_model_dir
 from estimator.settings import estimator_settings
+from teleop.clikit import PLOT_SUFFIXES, output_file
 from teleop.record import find_records
 from teleop.settings import default_settings_path, load_settings
 
@@ -60,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     for option, value in (("--repeats", args.repeats), ("--limit", args.limit)):
         if value is not None and value < 1:
             raise EstimatorError(f"{option} {value}: expected at least 1")
+    output_file("--plot", args.plot, suffixes=PLOT_SUFFIXES)
     root = Path(args.dir)
     paths = find_records(root)[: args.limit]
     settings = load_settings(args.settings)

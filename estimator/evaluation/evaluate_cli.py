@@ -38,6 +38,7 @@ from estimator.inference.hybrid import ALL_METHODS, LEARNED_METHODS
 from estimator.inference.infer import load_predictor
 from estimator.inference.provenance import trained_objects
 from haptics.settings import display_range_pa
+from teleop.clikit import PLOT_SUFFIXES, output_file
 from teleop.record import find_records
 from teleop.settings import Settings, default_settings_path, load_settings
 
@@ -217,6 +218,8 @@ def print_skipped(skipped: Sequence[Mapping[str, str]], total: int, *, file: Any
 def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise EstimatorError(f"--workers {args.workers}: expected at least 1")
+    plot_path = output_file("--plot", args.plot, suffixes=PLOT_SUFFIXES)
+    rows_path = output_file("--rows", args.rows, suffixes=(".csv",))
     settings = load_settings(args.settings)
     root = Path(args.dir)
     paths = find_records(root)
@@ -239,10 +242,10 @@ def run(args: argparse.Namespace) -> int:
                              + "; listed above)")
     display_range = display_range_pa(settings)
     summary = ablation_table(rows, methods=methods, models=models, display_range_pa=display_range)
-    if args.plot:
-        plot(rows, list(summary), args.plot, display_range_pa=display_range)
-    if args.rows:
-        write_rows(rows, args.rows, display_range_pa=display_range)
+    if plot_path:
+        plot(rows, list(summary), plot_path, display_range_pa=display_range)
+    if rows_path:
+        write_rows(rows, rows_path, display_range_pa=display_range)
     kept = sorted({r["object"] for r in rows if "method" in r})
     result = {
         "command": shlex.join(getattr(args, "_command_line", None) or ["estimator", "evaluate", str(root)]),

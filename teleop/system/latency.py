@@ -78,6 +78,7 @@ import numpy as np
 
 from estimator.settings import estimator_settings
 from teleop.bus.wire import Message
+from teleop.clikit import PLOT_SUFFIXES, output_file
 from teleop.errors import TeleopError
 from teleop.settings import Settings, load_settings
 from teleop.system.demo import (
@@ -282,6 +283,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.grasps < 1:
         raise TeleopError(f"--grasps {args.grasps}: expected at least 1")
+    output_file("--plot", args.plot, suffixes=PLOT_SUFFIXES)
     plan = scene_plan(args.scene, args.grasps)
     log = sys.stderr
     run_dir, calibration = prepare_run(args, prefix="bench-latency", out=log)

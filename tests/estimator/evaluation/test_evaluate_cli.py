@@ -155,3 +155,18 @@ def test_a_record_whose_frames_do_not_decode_is_skipped_and_named(records, tmp_p
     assert result["skipped"] == {"unreadable": 1} and sum(result["methods"]["elastic"]["states"].values()) == 1
     skipped = result["skipped_records"][0]
     assert skipped["path"] == str(folder / "garbled.grasp") and "does not decode" in skipped["cause"]
+
+
+def test_output_paths_are_checked_before_scoring(records, tmp_path, capsys):
+    # A wrong --plot or --rows used to end a whole evaluation in a traceback, its figures lost.
+    (tmp_path / "taken").mkdir()
+    for option, value, said in (("--plot", "p.xyz", "expected a name ending in .png, .pdf, .svg"),
+                                ("--rows", "rows.txt", "expected a name ending in .csv"),
+                                ("--plot", str(tmp_path / "taken"), "is a folder")):
+        assert main(["evaluate", str(records), "--methods", "no_tactile", option, value, "--json"]) == 2
+        captured = capsys.readouterr()
+        assert said in captured.err and "Traceback" not in captured.err and captured.out == ""
+    plot, rows = tmp_path / "new" / "p.png", tmp_path / "new" / "rows.csv"  # folders made as needed
+    assert main(["evaluate", str(records), "--methods", "no_tactile", "--plot", str(plot), "--rows", str(rows),
+                 "--json"]) == 0
+    assert plot.stat().st_size > 0 and rows.read_text().startswith("record,")
