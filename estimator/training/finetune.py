@@ -208,12 +208,13 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     """
     started = time.perf_counter()
     model_dir, data_dir, out_dir = Path(model_dir), Path(data_dir), Path(out_dir)
+    if out_dir.resolve() == model_dir.resolve():
+        raise EstimatorError(f"out {out_dir}: is the base model; write the fine-tuned one to another folder "
+                             "and compare the two (`estimator compare`)")
     base, variant, data, replayed, recalibrate_on = _prepared(model_dir, data_dir, replay, replay_ratio)
     added = {r["object"] for r in data.rows}
     model, history = _tuned(model_dir, base, variant, data, replayed, config=config, replay_ratio=replay_ratio,
                             progress=progress)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    export_onnx(model, out_dir / "model.onnx", example={n: v[:8] for n, v in data.inputs.items()})
     calibration = _calibration(model, base, variant, recalibrate_on, replay)
     grasps = {(r["object"], Path(r["path"]).name.rsplit("_a", 1)[0]) for r in data.rows}
     new = {
@@ -230,7 +231,19 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
             "config": asdict(config), "seconds": time.perf_counter() - started, "history": history,
         },
     }
-    (out_dir / "metadata.json").write_text(json.dumps(new, indent=1, allow_nan=False))
+    # Both files under other names first, then renamed: a model folder never holds one new file beside
+    # the other's old version (a service watching it takes both once they stop changing).
+    out_dir.mkdir(parents=True, exist_ok=True)
+    staged = {out_dir / ".model.onnx.partial": out_dir / "model.onnx",
+              out_dir / ".metadata.json.partial": out_dir / "metadata.json"}
+    try:
+        export_onnx(model, out_dir / ".model.onnx.partial", example={n: v[:8] for n, v in data.inputs.items()})
+        (out_dir / ".metadata.json.partial").write_text(json.dumps(new, indent=1, allow_nan=False))
+        for partial, final in staged.items():
+            partial.replace(final)
+    finally:
+        for partial in staged:
+            partial.unlink(missing_ok=True)
     return new
 
 

@@ -159,6 +159,17 @@ def test_a_dataset_that_does_not_fit_the_model_is_refused(trained_model, synthet
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("command", [["fine-tune", "--model"], ["train", "--init"]])
+def test_the_base_model_is_never_the_output(command, trained_model, synthetic, tmp_path, capsys):
+    data = synthetic.write_dataset(tmp_path / "d", seed=5)
+    before = {p.name: p.read_bytes() for p in trained_model.iterdir()}
+    spelled_otherwise = trained_model.parent / ".." / trained_model.parent.name / trained_model.name
+    assert main([*command, str(trained_model), "--data", str(data), "--out", str(spelled_otherwise),
+                 "--epochs", "1"]) == 2
+    assert "is the base model; write the fine-tuned one to another folder" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in trained_model.iterdir()} == before
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("command", [["fine-tune", "--model"], ["train", "--init"]])
 def test_the_command_fine_tunes_and_says_how_to_score_it(command, trained_model, synthetic, tmp_path, capsys):
