@@ -467,6 +467,9 @@ def prepare_run(args: argparse.Namespace, *, prefix: str, out: TextIO) -> tuple[
         raise SettingsError(f"{args.settings} names hardware backends; {prefix} runs on the simulated robot: "
                             "use settings whose gripper, load cell and cameras are 'sim'")
     run_dir = Path(args.out) if args.out else Path("runs") / f"{prefix}-{datetime.now(UTC):%Y%m%d-%H%M%S}"
+    earlier = sorted(p.name for p in run_dir.glob("*") if p.suffix in (".log", ".mcap")) if run_dir.is_dir() else []
+    if earlier:  # the processes' logs would be replaced before the recorder refused the session log
+        raise SettingsError(f"--out {run_dir} holds an earlier run ({', '.join(earlier[:3])}): choose another folder")
     run_dir.mkdir(parents=True, exist_ok=True)
     calibration = _configured_calibration(settings)
     if calibration is None:

@@ -34,6 +34,7 @@ from teleop.system.demo import (
     LiveSystem,
     closing_table,
     free_ports,
+    prepare_run,
     scene_plan,
 )
 from teleop.system.demo_table import LiveView
@@ -597,3 +598,11 @@ def test_demo_refuses_settings_other_than_the_scenes_or_with_hardware(tmp_path, 
     assert teleop.cli.main(["bench-latency", "--scene", str(scene), "--settings", str(other),
                             "--out", str(tmp_path)]) == 2
     assert "names hardware backends" in capsys.readouterr().err
+
+
+def test_a_run_into_the_folder_of_an_earlier_one_is_refused_before_anything_is_replaced(tmp_path):
+    (tmp_path / "node.log").write_text("the earlier run's log")
+    args = argparse.Namespace(settings=str(default_settings_path()), scene="quick", out=str(tmp_path))
+    with pytest.raises(SettingsError, match=r"holds an earlier run \(node.log\): choose another folder"):
+        prepare_run(args, prefix="demo", out=io.StringIO())
+    assert (tmp_path / "node.log").read_text() == "the earlier run's log"
