@@ -60,7 +60,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="grasps simulated per object (each in a newly drawn pose and target force)")
     parser.add_argument("--seed", type=int, default=0, metavar="S",
                         help="run seed; with the object name and grasp index it fixes every random draw")
-    parser.add_argument("--out", required=True, metavar="DIR", help="directory for the .grasp records (created)")
+    parser.add_argument("--out", required=True, metavar="DIR",
+                        help="directory for the .grasp records (created), named OBJECT_gINDEX.grasp")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace records of the same names in --out (else they are refused: another seed's "
+                             "grasps would be lost, or mixed with these)")
     parser.add_argument("--workers", type=int, default=1, metavar="K",
                         help="worker processes; the records do not depend on it")
     parser.add_argument("--preview", action="store_true",
@@ -181,6 +185,10 @@ def run(args: argparse.Namespace) -> int:
         raise SettingsError("--vary-gel draws a rig's gel: it needs --randomize-rig")
     jobs = [(obj, i, args.seed, settings, str(out), args.preview, args.randomize_rig, args.vary_gel, args.operator,
              args.vary_contact) for obj in objects for i in range(args.grasps_per_object)]
+    taken = [name for name in (grasp_filename(obj, i) for obj, i, *_ in jobs) if (out / name).exists()]
+    if taken and not args.overwrite:
+        raise SettingsError(f"--out {out}: {len(taken)} of these records exist already ({', '.join(taken[:3])}"
+                            f"{', ...' if len(taken) > 3 else ''}): pass --overwrite to replace them, or another --out")
     workers = min(args.workers, len(jobs))
 
     start = time.perf_counter()

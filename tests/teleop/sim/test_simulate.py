@@ -68,6 +68,19 @@ def test_same_seed_gives_identical_files_whatever_the_workers(tmp_path, catalogu
         assert (tmp_path / "one" / name).read_bytes() != (tmp_path / "other" / name).read_bytes()
 
 
+def test_records_already_in_out_are_refused_unless_overwrite(tmp_path, catalogue, quick_settings, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "oak_block_g000.grasp").write_bytes(b"another seed's grasp")
+    args = ("--objects", str(catalogue), "--only", "oak_block", "--out", str(out), "--settings", str(quick_settings))
+    code, _, stderr = run(capsys, *args)
+    assert code == 2 and "1 of these records exist already (oak_block_g000.grasp): pass --overwrite" in stderr
+    assert (out / "oak_block_g000.grasp").read_bytes() == b"another seed's grasp"
+    code, _, stderr = run(capsys, *args, "--overwrite")
+    assert code == 0, stderr
+    assert read_record(out / "oak_block_g000.grasp").label.object_name == "oak_block"
+
+
 def test_an_object_that_cannot_be_grasped_is_reported(tmp_path, capsys):
     path = tmp_path / "big.toml"
     path.write_text('[[objects]]\nname = "beach ball"\nshape = "sphere"\nmaterial = "plastic"\n'
