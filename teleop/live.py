@@ -26,7 +26,7 @@ from teleop.settings import BusSettings, Settings
 __all__ = ["ENDPOINTS", "JsonLines", "ServiceLoop", "StopSignals", "add_endpoint_arguments", "bus_from_args"]
 
 #: Bus endpoint settings a live process may be told to use instead of the settings file's.
-ENDPOINTS = ("robot_pub", "estimate_pub", "command", "display_pub", "control")
+ENDPOINTS = BusSettings.ENDPOINTS
 
 
 def add_endpoint_arguments(parser: argparse.ArgumentParser, *names: str) -> None:

@@ -40,7 +40,9 @@ from teleop.physics import resolution_limit_pa
 from teleop.settings_fields import Validated, build_settings, spec
 
 __all__ = [
+    "BUS_TRANSPORTS",
     "BusSettings",
+    "Endpoint",
     "GripperSettings",
     "LoadCellSettings",
     "Section",
@@ -53,6 +55,7 @@ __all__ = [
     "default_settings_path",
     "load_settings",
     "package_tables",
+    "parse_endpoint",
     "resolve_path",
     "settings_from_mapping",
     "settings_to_mapping",
@@ -202,9 +205,80 @@ class LoadCellSettings(Validated):
     timeout_s: float = spec(1.0, lo=0.0, hi=60.0, lo_open=True)
 
 
+#: The ZeroMQ transports by how an endpoint names its peer: HOST:PORT (``tcp://SRC;HOST:PORT`` also
+#: names a source address, ``epgm://IFACE;GROUP:PORT`` an interface, ``ws://HOST:PORT/PATH`` a path),
+#: or a path or name of the transport's own. Which of them other hosts reach is
+#: :mod:`teleop.bus.security`'s to say.
+PORT_TRANSPORTS = frozenset({"tcp", "udp", "ws", "wss", "pgm", "epgm", "norm"})
+NAME_TRANSPORTS = frozenset({"inproc", "ipc", "tipc", "vmci"})
+#: The transports a ``[bus]`` endpoint may use: tcp between hosts, ipc between the processes of one
+#: host, inproc within one process. The others carry no pub/sub or need a libzmq built for them.
+BUS_TRANSPORTS = ("tcp", "ipc", "inproc")
+_ENDPOINT_FORMS = "tcp://HOST:PORT, ipc://PATH or inproc://NAME"
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """A ZeroMQ endpoint taken apart (:func:`parse_endpoint`): its ``scheme``, what follows ``://``
+    (``address``), for a HOST:PORT transport its ``hosts`` (a source address or interface first,
+    the peer's last) and its ``port``: None for ``*`` (any free port, for the end that binds) and
+    for a transport without ports."""
+
+    scheme: str
+    address: str
+    hosts: tuple[str, ...] = ()
+    port: int | None = None
+
+    @property
+    def host(self) -> str:
+        """The host bound or connected to ('' for a transport without hosts)."""
+        return self.hosts[-1] if self.hosts else ""
+
+
+def _without_port(source: str) -> str:
+    """A source address without the port it may name (``SRC:PORT``; an IPv6 one in brackets)."""
+    host, colon, port = source.rpartition(":")
+    return host if colon and port.isdigit() and not source.endswith("]") else source
+
+
+def parse_endpoint(endpoint: str) -> Endpoint:
+    """``endpoint`` taken apart: the one reading of endpoint text, for the settings and the bus.
+
+    Raises ValueError saying what is wrong and what was expected (the caller names the endpoint).
+    """
+    scheme, sep, address = endpoint.partition("://")
+    if not sep or scheme not in PORT_TRANSPORTS | NAME_TRANSPORTS:
+        raise ValueError(f"not a ZeroMQ endpoint: expected {_ENDPOINT_FORMS}")
+    if not address:
+        raise ValueError(f"nothing after {scheme}://: expected {_ENDPOINT_FORMS}")
+    if scheme in NAME_TRANSPORTS:
+        return Endpoint(scheme, address)
+    place, colon, port = address.split("/", 1)[0].rpartition(":")  # ws: a path follows the port
+    if not colon or "]" in port:  # "[::1]" alone: the colons are the IPv6 address's
+        raise ValueError(f"no port: expected {scheme}://HOST:PORT")
+    *sources, host = place.split(";")
+    hosts = (*(_without_port(s) for s in sources), host)
+    if not all(hosts):
+        raise ValueError(f"no host: expected {scheme}://HOST:PORT")
+    if port == "*":
+        return Endpoint(scheme, address, hosts)
+    # ZeroMQ itself reads a port modulo 65536 (99999 binds 34463): refuse what it would not say
+    if not (port.isascii() and port.isdigit() and 1 <= int(port) <= 65535):
+        raise ValueError(f"port {port!r}: expected an integer in 1..65535, or * for any free one")
+    return Endpoint(scheme, address, hosts, int(port))
+
+
 @dataclass(frozen=True)
 class BusSettings(Validated):
-    """ZeroMQ endpoints and limits."""
+    """ZeroMQ endpoints and limits.
+
+    Each endpoint is bound by one process and connected to by the others (robot_pub: the robot
+    node; estimate_pub: the estimator; command: the operator; display_pub: the haptic renderer;
+    control: ``estimator reload``), so no two may name the same one.
+    """
+
+    #: The fields that are bus endpoints.
+    ENDPOINTS: ClassVar[tuple[str, ...]] = ("robot_pub", "estimate_pub", "command", "display_pub", "control")
 
     robot_pub: str = spec("tcp://127.0.0.1:5550", doc="robot node publishes grasp data here")
     estimate_pub: str = spec("tcp://127.0.0.1:5551", doc="estimator publishes estimates here")
@@ -216,6 +290,25 @@ class BusSettings(Validated):
     max_message_bytes: int = spec(8 * 1024 * 1024, lo=1024, hi=2**31 - 1)
     keys_dir: str = spec("", doc="CURVE key directory (a relative one: against the settings file's folder); "
                               "required when an endpoint is not loopback")
+
+    def _check(self) -> None:
+        bound: dict[tuple[Any, ...], str] = {}
+        for name in self.ENDPOINTS:
+            value = getattr(self, name)
+            try:
+                endpoint = parse_endpoint(value)
+            except ValueError as exc:
+                raise SettingsError(f"BusSettings.{name} = {value!r}: {exc}") from None
+            if endpoint.scheme not in BUS_TRANSPORTS:
+                raise SettingsError(f"BusSettings.{name} = {value!r}: expected {_ENDPOINT_FORMS}")
+            if endpoint.scheme == "tcp" and endpoint.port is None:
+                continue  # "*": each binds a free port of its own
+            # one socket however written: tcp's host and port (not a source address), ipc's path, inproc's name
+            where = (endpoint.scheme, endpoint.host.lower(), endpoint.port) if endpoint.hosts else (endpoint.scheme, endpoint.address)
+            if where in bound:
+                raise SettingsError(f"BusSettings.{name} = {value!r}: the same endpoint as {bound[where]}, and "
+                                    "each is bound by a process of its own: give each an endpoint of its own")
+            bound[where] = name
 
 
 @dataclass(frozen=True)
@@ -397,7 +490,7 @@ def _build_settings_file(data: Mapping[str, Any], source: Path | None) -> Settin
     if isinstance(own.get("bus"), Mapping):
         own["bus"] = _with_path(own["bus"], "keys_dir", folder)
     built = {"sensors": _build_sensors(own["sensors"], where)} if "sensors" in own else {}
-    settings = build_settings(Settings, own, where, "", built=built)
+    settings = build_settings(Settings, own, where, "", built=built, others=package_tables())
     return dataclasses.replace(settings, tables=tables, source=source)
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import typing
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any, TypeVar
 
 from teleop.errors import SettingsError
@@ -139,10 +139,12 @@ def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
 
 
 def build_settings(cls: type[T], data: Mapping[str, Any], source: str, prefix: str, *,
-                   built: Mapping[str, Any] | None = None) -> T:
+                   built: Mapping[str, Any] | None = None, others: Iterable[str] = ()) -> T:
     """Build the settings dataclass ``cls`` from ``data``; errors name ``source`` and the key.
 
-    ``built`` holds values of keys of ``data`` the caller built itself (e.g. a table of tables).
+    ``built`` holds values of keys of ``data`` the caller built itself (e.g. a table of tables);
+    ``others`` keys the table may also have that others build (the packages' tables at the top
+    level): not in ``data``, but named among the allowed keys when a key is unknown.
     """
     hints = typing.get_type_hints(cls)
     names = {f.name: f for f in dataclasses.fields(cls)  # type: ignore[arg-type]
@@ -150,9 +152,8 @@ def build_settings(cls: type[T], data: Mapping[str, Any], source: str, prefix: s
     unknown = sorted(set(data) - set(names))
     if unknown:
         where = f"[{prefix}]" if prefix else "top level"
-        raise SettingsError(
-            f"{source}: unknown key {unknown[0]!r} in {where}; allowed keys: {', '.join(sorted(names))}"
-        )
+        allowed = ", ".join(sorted({*names, *others}))
+        raise SettingsError(f"{source}: unknown key {unknown[0]!r} in {where}; allowed keys: {allowed}")
     kwargs = {}
     for name, value in data.items():
         key = f"{prefix}.{name}" if prefix else name

@@ -57,7 +57,7 @@ from zmq.auth.thread import ThreadAuthenticator
 from zmq.utils import z85
 
 from teleop.errors import BusError, BusSecurityError
-from teleop.settings import BusSettings
+from teleop.settings import BusSettings, parse_endpoint
 
 __all__ = [
     "AUTHORIZED_DIR",
@@ -89,8 +89,7 @@ SECRET_SUFFIX = ".key_secret"
 CURVE_FRAME_OVERHEAD_BYTES = 33
 
 _LOOPBACK_SCHEMES = frozenset({"inproc", "ipc"})
-_HOST_SCHEMES = frozenset({"tcp", "udp", "ws", "wss"})
-_NETWORK_SCHEMES = frozenset({"pgm", "epgm", "norm", "tipc", "vmci"})
+_NETWORK_SCHEMES = frozenset({"pgm", "epgm", "norm", "tipc", "vmci"})  # multicast, or a fabric of hosts
 _KEY_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 _Z85_KEY_CHARS = 40
 
@@ -115,20 +114,18 @@ def is_loopback(endpoint: str) -> bool:
     """Whether no other host can reach ``endpoint`` (``inproc``, ``ipc``, tcp on loopback).
 
     A tcp endpoint with a source address (``tcp://SRC;DST:PORT``) is loopback only when
-    both are. Raises BusError for text that is not a ZeroMQ endpoint.
+    both are. Raises BusError for text that is not a ZeroMQ endpoint, a port out of range
+    included (:func:`~teleop.settings.parse_endpoint`).
     """
-    scheme, sep, rest = endpoint.partition("://")
-    if not sep or not rest or scheme not in _LOOPBACK_SCHEMES | _HOST_SCHEMES | _NETWORK_SCHEMES:
-        raise BusError(
-            f"{endpoint!r} is not a ZeroMQ endpoint: "
-            "expected tcp://HOST:PORT, ipc://PATH or inproc://NAME"
-        )
-    if scheme in _LOOPBACK_SCHEMES:
+    try:
+        parsed = parse_endpoint(endpoint)
+    except ValueError as exc:
+        raise BusError(f"{endpoint!r}: {exc}") from None
+    if parsed.scheme in _LOOPBACK_SCHEMES:
         return True
-    if scheme in _NETWORK_SCHEMES:
+    if parsed.scheme in _NETWORK_SCHEMES:
         return False
-    address = rest.split("/", 1)[0]  # ws:// endpoints carry a path
-    return all(_host_is_loopback(part.rpartition(":")[0] or part) for part in address.split(";"))
+    return all(_host_is_loopback(host) for host in parsed.hosts)
 
 
 def check_endpoints(endpoints: Iterable[str], security: BusSecurity | None) -> None:

@@ -19,7 +19,8 @@ simulated grasp of the default scene's first object while they are read.
 
 Bus: each endpoint on this host must be free to bind (a port in use is a session still
 running, or another program); an endpoint on another host must answer (a refused connection
-is fine: nothing listens there before the session); endpoints off loopback need CURVE keys.
+is fine: nothing listens there before the session; port ``*`` is any free one, not probed); endpoints
+off loopback need CURVE keys. The settings refuse a malformed endpoint, and two that name one.
 
 Calibrations: each sensor's colour calibration (present, loads, made for the sensor's image
 grid; its age in days), required for the estimator's finger; and the estimator's model.
@@ -32,6 +33,8 @@ from __future__ import annotations
 import argparse
 import errno
 import json
+import math
+import shlex
 import socket
 import time
 from collections.abc import Callable
@@ -39,7 +42,6 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit
 
 import numpy as np
 
@@ -47,10 +49,17 @@ from haptics.settings import display_settings
 from teleop.devices.camera import make_camera
 from teleop.devices.gripper import make_gripper
 from teleop.devices.loadcell import make_load_cell
-from teleop.errors import ComplianceTeleopError, DeviceTimeoutError
+from teleop.errors import BusSecurityError, ComplianceTeleopError, DeviceTimeoutError
 from teleop.live import ENDPOINTS
 from teleop.rig.load_cell_calibration import load_cell_source
-from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
+from teleop.settings import (
+    SensorSettings,
+    Settings,
+    default_settings_path,
+    load_settings,
+    parse_endpoint,
+    resolve_path,
+)
 
 __all__ = ["Check", "check_calibrations", "check_devices", "check_endpoints", "diagnose"]
 
@@ -278,10 +287,10 @@ def check_devices(settings: Settings, *, duration_s: float = 2.0) -> list[Check]
 
 def _endpoint_check(name: str, endpoint: str) -> Check:
     key = f"`bus.{name}`"
-    parts = urlsplit(endpoint)
-    if parts.scheme != "tcp":
+    parts = parse_endpoint(endpoint)  # checked when the settings loaded
+    if parts.scheme != "tcp" or parts.port is None:  # ipc, inproc; "*": any free port will do
         return Check(name, True, detail={"endpoint": endpoint, "probed": False})
-    host, port = parts.hostname or "", parts.port
+    host, port = parts.host.removeprefix("[").removesuffix("]"), parts.port
     probe = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
     probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # a port in TIME_WAIT is free for the session
     try:
@@ -310,19 +319,32 @@ def _reach(host: str, port: int, key: str) -> str | None:
 
 def check_endpoints(settings: Settings) -> list[Check]:
     """Each bus endpoint free (on this host) or answering (elsewhere), and CURVE keys where needed."""
-    from teleop.bus.security import security_from_settings
+    from teleop.bus import security
 
     bus = settings.bus
-    checks = [_endpoint_check(name, getattr(bus, name)) for name in ENDPOINTS]
+    endpoints = [getattr(bus, name) for name in ENDPOINTS]
+    checks = [_endpoint_check(name, endpoint) for name, endpoint in zip(ENDPOINTS, endpoints, strict=True)]
+    # all five: security_from_settings checks three, but the renderer and `estimator reload` refuse theirs too
     try:
-        security_from_settings(bus)
-    except ComplianceTeleopError as exc:
-        checks.append(Check("bus keys", False, problem=f"{exc}: create them with `teleop keys` and set `bus.keys_dir`"))
+        security.check_endpoints(endpoints, security.security_from_settings(bus))
+    except BusSecurityError as exc:  # says what to do itself
+        checks.append(Check("bus keys", False, problem=str(exc)))
     return checks
 
 
 def _age_days(path: Path) -> float:
     return round((time.time() - path.stat().st_mtime) / 86400.0, 1)
+
+
+def _calibrate_todo(sensor: SensorSettings, settings_path: Path) -> str:
+    """How to make ``sensor``'s calibration: the capture of docs/rig.md (ball presses), into the file
+    the settings name (or one beside them, to be named there)."""
+    out = resolve_path(sensor.calibration) if sensor.calibration else settings_path.parent / f"calibration-{sensor.finger}.npz"
+    # --capture needs a new folder for the presses, and the ball's radius (captured presses do not say it)
+    command = ["estimator", "calibrate", "--capture", "--presses", f"runs/presses-{sensor.finger}",
+               "--settings", str(settings_path), "--finger", sensor.finger, "--ball-radius-mm", "2", "--out", str(out)]
+    then = "" if sensor.calibration else f', then set calibration = "{out.name}" in [sensors.{sensor.finger}]'
+    return f"run `{shlex.join(command)}` (--ball-radius-mm: the pressed ball's radius){then}"
 
 
 def check_calibrations(settings: Settings, settings_path: Path) -> list[Check]:
@@ -335,7 +357,7 @@ def check_calibrations(settings: Settings, settings_path: Path) -> list[Check]:
     checks = []
     for sensor in settings.sensors:
         name, needed = f"calibration {sensor.finger}", sensor.finger == settings.sensing.finger
-        todo = (f"run `estimator calibrate --capture --settings {settings_path} --finger {sensor.finger}`")
+        todo = _calibrate_todo(sensor, settings_path)
         if not sensor.calibration:
             checks.append(Check(name, not needed, problem=f"none configured: {todo}" if needed else None))
             continue
@@ -371,13 +393,24 @@ def diagnose(settings_path: Path, *, duration_s: float = 2.0) -> dict[str, Any]:
 # --------------------------------------------------------------------------- command
 
 
+def _seconds(text: str) -> float:
+    """A read time: a finite number > 0 (none would blame every device for sending nothing)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number of seconds > 0")
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = __doc__.replace("``", "")
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("--settings", default=str(default_settings_path()), metavar="FILE",
                         help="settings TOML of the rig (default: the shipped simulated one)")
-    parser.add_argument("--duration-s", type=float, default=2.0, metavar="S",
-                        help="how long every device is read (default: 2.0)")
+    parser.add_argument("--duration-s", type=_seconds, default=2.0, metavar="S",
+                        help="how long every device is read, in seconds > 0 (default: 2.0)")
     parser.add_argument("--json", action="store_true",
                         help='print one JSON object: {"ok", "devices": [{"name", "ok", "rate_hz", "latency_ms", '
                              '"problem", "detail"}...], "endpoints": [...], "calibrations": [...]}')

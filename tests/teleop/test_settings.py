@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
@@ -12,13 +13,16 @@ import pytest
 from estimator.settings import estimator_settings
 from haptics.settings import DisplaySettings, display_settings
 from teleop.errors import SettingsError
+from teleop.live import bus_from_args
 from teleop.scene import load_scene
 from teleop.settings import (
+    BusSettings,
     SensorSettings,
     Settings,
     config_dir,
     default_settings_path,
     load_settings,
+    package_tables,
     resolve_path,
     settings_from_mapping,
     settings_to_mapping,
@@ -70,6 +74,63 @@ def test_unknown_keys_are_named_with_the_allowed_ones(tmp_path):
     assert "'camera'" in message and "top level" in message
     message = error_for(tmp_path, "[sensors.left]\nmodulus = 1.0\n")
     assert "'modulus'" in message and "[sensors.left]" in message and "gel_modulus_pa" in message
+
+
+def test_a_misspelt_table_is_named_with_every_allowed_table_the_packages_own_included(tmp_path):
+    message = error_for(tmp_path, "[displya]\nbackend = 'sim'\n")
+    allowed = message.split("allowed keys: ")[1].split(", ")
+    assert "'displya'" in message and "top level" in message
+    assert {"display", "estimator", "operator"} <= set(allowed) and set(package_tables()) <= set(allowed)
+    assert {"bus", "gripper", "load_cell", "sensing", "sensors", "simulation"} <= set(allowed)
+    assert allowed == sorted(allowed)
+
+
+@pytest.mark.parametrize(
+    ("endpoint", "expected"),
+    [
+        ("tcp://127.0.0.1", "no port: expected tcp://HOST:PORT"),
+        ("tcp://127.0.0.1:abc", "port 'abc': expected an integer in 1..65535"),
+        ("tcp://127.0.0.1:99999", "port '99999': expected an integer in 1..65535"),  # ZeroMQ would bind 34463
+        ("tcp://127.0.0.1:0", "port '0'"),
+        ("tcp://127.0.0.1:", "port ''"),
+        ("tcp://:5550", "no host: expected tcp://HOST:PORT"),
+        ("127.0.0.1:5550", "not a ZeroMQ endpoint: expected tcp://HOST:PORT, ipc://PATH or inproc://NAME"),
+        ("tpc://127.0.0.1:5550", "not a ZeroMQ endpoint"),
+        ("ws://127.0.0.1:5550/bus", "expected tcp://HOST:PORT, ipc://PATH or inproc://NAME"),
+    ],
+)
+def test_a_malformed_bus_endpoint_is_refused_naming_the_key(tmp_path, endpoint, expected):
+    message = error_for(tmp_path, f'[bus]\nestimate_pub = "{endpoint}"\n')
+    assert f"[bus] BusSettings.estimate_pub = {endpoint!r}: {expected}" in message, message
+
+
+@pytest.mark.parametrize(
+    "endpoint",
+    ["tcp://127.0.0.1:6000", "tcp://[::1]:6000", "tcp://robot.lab:6000", "tcp://*:6000", "tcp://127.0.0.1:*",
+     "tcp://127.0.0.1;127.0.0.1:6000", "ipc:///tmp/teleop-robot", "inproc://robot"],
+)
+def test_the_endpoints_the_bus_binds_and_connects_load(endpoint):
+    assert BusSettings(robot_pub=endpoint).robot_pub == endpoint
+
+
+def test_a_command_line_endpoint_is_checked_as_the_files_are():
+    settings = load_settings()
+    args = argparse.Namespace(bus_robot_pub="tcp://127.0.0.1:99999")
+    with pytest.raises(SettingsError, match=r"command-line endpoint: BusSettings.robot_pub = .*port '99999'"):
+        bus_from_args(settings, args)
+
+
+def test_two_endpoints_bound_by_different_processes_may_not_be_one(tmp_path):
+    message = error_for(tmp_path, '[bus]\nrobot_pub = "tcp://127.0.0.1:6000"\nestimate_pub = "tcp://127.0.0.1:6000"\n')
+    assert "[bus] BusSettings.estimate_pub = 'tcp://127.0.0.1:6000': the same endpoint as robot_pub" in message
+    # however the port is written, and whatever the transport
+    with pytest.raises(SettingsError, match="BusSettings.control = 'tcp://127.0.0.1:05552': the same endpoint as command"):
+        BusSettings(control="tcp://127.0.0.1:05552")
+    with pytest.raises(SettingsError, match="BusSettings.display_pub = 'ipc:///tmp/b': the same endpoint as command"):
+        BusSettings(command="ipc:///tmp/b", display_pub="ipc:///tmp/b")
+    # "*": each binds a free port of its own; one port on two hosts is two endpoints
+    BusSettings(command="tcp://127.0.0.1:*", control="tcp://127.0.0.1:*")
+    BusSettings(robot_pub="tcp://10.0.0.1:5550", estimate_pub="tcp://10.0.0.2:5550")
 
 
 @pytest.mark.parametrize(

@@ -130,6 +130,8 @@ def test_a_non_loopback_endpoint_without_keys_refuses_to_start(keys):
     assert security_from_settings(BusSettings()) is None  # all loopback: plain
     with pytest.raises(BusError, match="not a ZeroMQ endpoint"):
         is_loopback("tpc://127.0.0.1:5550")
+    with pytest.raises(BusError, match="port '99999': expected an integer in 1..65535"):
+        is_loopback("tcp://127.0.0.1:99999")  # read as the settings read it: ZeroMQ would bind 34463
 
 
 def test_settings_keys_dir_turns_curve_on(keys):

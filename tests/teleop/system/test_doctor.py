@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
+import shlex
 import shutil
 import socket
 import tty
@@ -11,7 +13,7 @@ import tty
 import pytest
 
 from teleop.cli import main
-from teleop.settings import default_settings_path, load_settings
+from teleop.settings import BusSettings, Settings, default_settings_path, load_settings
 from teleop.settings_edit import update_settings_file
 from teleop.system.doctor import check_calibrations, check_endpoints
 
@@ -34,6 +36,15 @@ def _copy(tmp_path, changes):
     path = tmp_path / "rig.toml"
     shutil.copy(default_settings_path(), path)
     update_settings_file(path, changes)
+    return path
+
+
+def _edited(tmp_path, line, replacement):
+    """The shipped settings with one line replaced, as a tester edits a copy (no check before writing)."""
+    text = default_settings_path().read_text(encoding="utf-8")
+    assert line in text
+    path = tmp_path / "rig.toml"
+    path.write_text(text.replace(line, replacement), encoding="utf-8")
     return path
 
 
@@ -120,14 +131,81 @@ def test_a_port_in_use_and_an_unknown_unkeyed_host_are_problems():
     assert "`bus.robot_pub`" in checks["robot_pub"].problem
     assert not checks["estimate_pub"].ok
     assert "host 'no-such-host.invalid' does not resolve" in checks["estimate_pub"].problem
-    assert not checks["bus keys"].ok and "`teleop keys`" in checks["bus keys"].problem
+    keys = checks["bus keys"]
+    assert not keys.ok and "'tcp://no-such-host.invalid:5551' is reachable from other hosts" in keys.problem
+    assert keys.problem.count("teleop keys") == 1 and keys.problem.endswith("set bus.keys_dir = DIR in the settings TOML")
     assert checks["command"].ok
 
 
-def test_a_missing_calibration_is_a_problem_for_the_estimators_finger(tmp_path):
+def test_every_endpoint_off_loopback_needs_keys_and_any_free_port_is_not_probed():
+    # the processes that bind display_pub and control refuse them without keys, so the doctor does too
+    bus = BusSettings(display_pub="tcp://*:5553", control="tcp://127.0.0.1:*")
+    checks = {c.name: c for c in check_endpoints(Settings(bus=bus))}
+    assert not checks["bus keys"].ok and "'tcp://*:5553' is reachable from other hosts" in checks["bus keys"].problem
+    assert checks["control"].ok and not checks["control"].detail["probed"]
+
+
+@pytest.mark.parametrize(
+    ("endpoint", "expected"),
+    [
+        ("tcp://127.0.0.1", "no port"),
+        ("tcp://127.0.0.1:abc", "port 'abc'"),
+        ("tcp://127.0.0.1:99999", "port '99999'"),
+        ("127.0.0.1:5550", "not a ZeroMQ endpoint"),
+    ],
+)
+def test_a_malformed_endpoint_is_an_error_naming_the_key_not_a_traceback(tmp_path, capsys, endpoint, expected):
+    path = _edited(tmp_path, 'robot_pub = "tcp://127.0.0.1:5550"', f'robot_pub = "{endpoint}"')
+    assert main(["doctor", "--settings", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert f"teleop doctor: error: {path}: [bus] BusSettings.robot_pub = {endpoint!r}: {expected}" in err, err
+    assert "Traceback" not in err and "teleop keys" not in err
+
+
+def test_two_endpoints_one_address_is_an_error_naming_both_not_ready_for_a_session(tmp_path, capsys):
+    path = _edited(tmp_path, 'estimate_pub = "tcp://127.0.0.1:5551"', 'estimate_pub = "tcp://127.0.0.1:5550"')
+    assert main(["doctor", "--settings", str(path)]) == 2
+    captured = capsys.readouterr()
+    assert "ready for a session" not in captured.out
+    assert "BusSettings.estimate_pub = 'tcp://127.0.0.1:5550': the same endpoint as robot_pub" in captured.err
+
+
+@pytest.mark.parametrize("duration", ["0", "-1", "nan", "inf"])
+def test_a_read_time_that_is_not_a_positive_number_is_refused(capsys, duration):
+    with pytest.raises(SystemExit) as info:
+        main(["doctor", f"--duration-s={duration}"])
+    assert info.value.code == 2
+    assert f"argument --duration-s: {duration!r}: expected a number of seconds > 0" in capsys.readouterr().err
+
+
+def _calibrate_args(problem: str, monkeypatch) -> argparse.Namespace:
+    """The command a problem says to run, parsed by the estimator's own command line (not run)."""
+    import estimator.perception.calibrate_cli as calibrate_cli
+    from estimator.cli import main as estimator_main
+
+    command = shlex.split(problem.split("run `", 1)[1].split("`", 1)[0])
+    assert command[:2] == ["estimator", "calibrate"]
+    parsed = []
+    monkeypatch.setattr(calibrate_cli, "run", parsed.append)
+    assert estimator_main(command[1:]) == 0  # argparse exits 2 on a missing or unknown option
+    return parsed[0]
+
+
+def test_a_missing_calibration_is_a_problem_for_the_estimators_finger(tmp_path, monkeypatch):
     path = _copy(tmp_path, {"sensors.left.calibration": "calibration/absent.npz", "sensors.right.calibration": ""})
     checks = {c.name: c for c in check_calibrations(load_settings(path), path)}
     assert not checks["calibration left"].ok
     assert "absent.npz" in checks["calibration left"].problem
-    assert f"estimator calibrate --capture --settings {path} --finger left" in checks["calibration left"].problem
+    args = _calibrate_args(checks["calibration left"].problem, monkeypatch)
+    assert args.capture and args.settings == str(path) and args.finger == "left"
+    assert args.out == str(tmp_path / "calibration" / "absent.npz")  # the file the settings name
+    assert args.presses and args.ball_radius_mm > 0  # a folder to capture into; captured presses state no ball
     assert checks["calibration right"].ok  # not the estimator's finger: nothing needs it
+
+
+def test_no_calibration_at_all_suggests_one_beside_the_settings_and_where_to_name_it(tmp_path, monkeypatch):
+    path = _copy(tmp_path, {"sensors.left.calibration": ""})
+    problem = {c.name: c for c in check_calibrations(load_settings(path), path)}["calibration left"].problem
+    args = _calibrate_args(problem, monkeypatch)
+    assert args.out == str(tmp_path / "calibration-left.npz")
+    assert problem.endswith('then set calibration = "calibration-left.npz" in [sensors.left]')
