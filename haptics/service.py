@@ -94,12 +94,13 @@ class ServiceStats:
     grasp_ends: int = 0
     display_messages: int = 0  # ``display`` messages published, one per report written
     display_failures: int = 0  # reports whose ``display`` message could not be published
+    ignored: int = 0  # estimates of grasps that had ended (late, or replayed after they were shown)
     finals: list[FinalLatency] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         return {"estimates": self.estimates, "bad_messages": self.bad_messages, "grasp_ends": self.grasp_ends,
                 "display_messages": self.display_messages, "display_failures": self.display_failures,
-                "finals": [f.to_json() for f in self.finals]}
+                "ignored": self.ignored, "finals": [f.to_json() for f in self.finals]}
 
 
 class RendererService(ServiceLoop):
@@ -177,7 +178,9 @@ class RendererService(ServiceLoop):
             self._publish_display()  # for a report written on the estimate or the grasp's end
         self.stats.estimates += 1
         self._received[update.grasp_id] = self._received.get(update.grasp_id, 0) + 1
-        if not update.provisional and self.renderer.stats.estimates_ignored == ignored_before:
+        if self.renderer.stats.estimates_ignored != ignored_before:
+            self.stats.ignored += 1
+        elif not update.provisional:
             self._pending = _Pending(update.grasp_id, update, reports_before, self.renderer.target)
             self._check_pending(written_s)
 

@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_foxglove_argument(parser, what="the display messages it publishes")
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (estimates, bad_messages, grasp_ends, display_messages, "
-                             "display_failures, finals) "
+                             "display_failures, ignored: estimates of grasps that had ended, finals) "
                              "as the last stdout line")
 
 
@@ -75,8 +75,10 @@ def run(args: argparse.Namespace) -> int:
             stats = service.run(signals.stop, duration_s=args.duration_s)
     finally:
         display.close()
+    ignored = (f", {stats.ignored} not shown: their grasps had ended (late, or replayed after this renderer "
+               "showed them)") if stats.ignored else ""
     print(f"renderer: {stats.estimates} estimates, {len(stats.finals)} final, {display.reports_written} "
-          f"reports written", file=sys.stderr)
+          f"reports written{ignored}", file=sys.stderr)
     if args.json:
         print(json.dumps(stats.as_dict()))
     return 0

@@ -51,7 +51,7 @@ class ReplayStats:
     sent: int = 0
     topics: Counter[str] = field(default_factory=Counter)
     heartbeats_skipped: int = 0
-    other_sources: int = 0  # messages recorded from publishers not asked for
+    other_sources: Counter[str] = field(default_factory=Counter)  # by publisher: those not asked for
     refused: Counter[str] = field(default_factory=Counter)  # stored messages that did not decode
     log_span_s: float = 0.0  # receive-time span of what was sent
     wall_s: float = 0.0
@@ -62,7 +62,7 @@ class ReplayStats:
             "sent": self.sent,
             "topics": dict(sorted(self.topics.items())),
             "heartbeats_skipped": self.heartbeats_skipped,
-            "other_sources": self.other_sources,
+            "other_sources": dict(sorted(self.other_sources.items())),
             "refused": dict(self.refused),
             "log_span_s": self.log_span_s,
             "wall_s": self.wall_s,
@@ -124,7 +124,7 @@ def replay(
                 stats.heartbeats_skipped += 1
                 continue
             if sources is not None and message.source not in sources:
-                stats.other_sources += 1
+                stats.other_sources[message.source or "?"] += 1
                 continue
             if first_ns is None:
                 first_ns, start_s = logged.log_time_ns, clock()

@@ -95,6 +95,8 @@ def run(args: argparse.Namespace) -> int:
         raise SessionLogError(f"--speed {args.speed}: expected a number > 0")
     if not args.linger_s >= 0:
         raise SessionLogError(f"--linger-s {args.linger_s}: expected a number >= 0")
+    if not args.wait_subscriber_s >= 0:
+        raise SessionLogError(f"--wait-subscriber-s {args.wait_subscriber_s}: expected a number >= 0")
     settings = load_settings(args.settings)
     LogReader(args.log).info()  # a missing or unreadable log is named before the bus is set up
     endpoint = args.endpoint or settings.bus.robot_pub
@@ -123,11 +125,16 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"replayed {stats.sent} messages ({stats.log_span_s:.2f} s recorded) "
         f"in {stats.wall_s:.2f} s on {endpoint}; refused {sum(stats.refused.values())}"
-        + (f"; left out {stats.other_sources} from other publishers" if stats.other_sources else ""),
+        + (f"; left out {sum(stats.other_sources.values())} from other publishers "
+           f"({', '.join(f'{n} from {name}' for name, n in sorted(stats.other_sources.items()))})"
+           if stats.other_sources else ""),
         file=sys.stderr,
     )
     if stats.damage:
         print(f"the log stopped early: {stats.damage}", file=sys.stderr)
     if args.json:
         print(json.dumps({"log": args.log, "endpoint": endpoint, **stats.as_dict()}))
+    if stats.sent == 0:  # a typo in --recorded-from or --topics, most likely
+        print("nothing replayed: no message of the log matches --recorded-from and --topics", file=sys.stderr)
+        return 1
     return 0

@@ -67,6 +67,11 @@ def test_final_estimate_is_rendered_and_its_latency_measured_from_capture(rig):
     estimator.send("grasp_event", t_capture_s=time.monotonic(), event="end", grasp_id="g1")
     step_until(service, lambda: service.stats.grasp_ends == 1)
     assert service.renderer.phase in ("fading", "idle")
+    # The same final again (a session replayed into a renderer that showed it): counted, not shown.
+    estimate(estimator, grasp_id="g1", t_capture_s=captured, e_pa=2e6, provisional=False)
+    step_until(service, lambda: service.stats.estimates == 3)
+    assert service.stats.ignored == 1 and len(service.stats.finals) == 1
+    assert service.stats.as_dict()["ignored"] == 1
 
 
 def test_an_estimate_that_cannot_be_rendered_is_logged_and_skipped(rig, caplog):

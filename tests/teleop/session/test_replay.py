@@ -114,11 +114,11 @@ def test_replay_keeps_only_the_publishers_asked_for(recorded):
     every = [m for m in recorded.sent if m.type != "heartbeat"]  # the synthetic session's are all the robot's
     estimator = _RecordingPublisher(clock)
     stats = replay(recorded.path, estimator, speed=None, recorded_from=["estimator"], clock=clock, sleep=clock.sleep)
-    assert stats.sent == 0 and not estimator.sent and stats.other_sources == len(every)
+    assert stats.sent == 0 and not estimator.sent and stats.other_sources == {"robot": len(every)}
     robot = _RecordingPublisher(clock)
     stats = replay(recorded.path, robot, speed=None, recorded_from=["robot", "estimator"], clock=clock,
                    sleep=clock.sleep)
-    assert stats.sent == len(robot.sent) == len(every) and stats.other_sources == 0
+    assert stats.sent == len(robot.sent) == len(every) and not stats.other_sources
 
 
 def test_replay_refuses_a_bad_speed(recorded):

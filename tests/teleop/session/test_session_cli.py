@@ -64,6 +64,18 @@ def test_replay_command_sends_every_message(recorded, capsys):
     assert summary["sent"] == frames == len(got) and summary["endpoint"] == endpoint
 
 
+def test_a_replay_that_matches_nothing_fails_and_names_the_logs_publishers(recorded, capsys):
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        endpoint = f"tcp://127.0.0.1:{probe.getsockname()[1]}"
+    code = teleop.cli.main(["replay", str(recorded.path), "--endpoint", endpoint, "--as-fast-as-possible",
+                            "--recorded-from", "robto", "--linger-s", "0", "--wait-subscriber-s", "0"])  # robot, mistyped
+    err = capsys.readouterr().err
+    assert code == 1 and "nothing replayed" in err and " from robot)" in err, err
+    assert teleop.cli.main(["replay", str(recorded.path), "--wait-subscriber-s", "nan"]) == 2
+    assert "--wait-subscriber-s nan: expected a number >= 0" in capsys.readouterr().err
+
+
 def test_user_mistakes_are_one_line_errors(recorded, tmp_path, capsys):
     assert teleop.cli.main(["recover", str(recorded.path), "--out", str(recorded.path)]) == 2
     assert "is the log being recovered" in capsys.readouterr().err
