@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import math
 import os
 import sys
 from collections.abc import Mapping, Sequence
@@ -45,6 +46,17 @@ def output_file(option: str, value: str | None, *, suffixes: Sequence[str] = ())
     except OSError as exc:
         raise TeleopError(f"{option} {value}: cannot make its folder {path.parent} ({exc.strerror or exc})") from exc
     return path
+
+
+def positive_number(text: str) -> float:
+    """An argparse type: a finite number > 0 (a time, a rate), refused by argparse with what was expected."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number > 0")
+    return value
 
 
 @dataclass(frozen=True)

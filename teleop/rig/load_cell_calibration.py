@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teleop.clikit import positive_number
 from teleop.devices.loadcell import LoadCell, make_load_cell
 from teleop.errors import DeviceError, DeviceTimeoutError, SettingsError, TeleopError
 from teleop.rig.conclude import conclude, say
@@ -220,11 +221,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mass-g", type=float, action="append", metavar="G",
                         help="a known mass in grams, repeatable, in the order you will place them; runs without "
                              "prompts (see 'How a mass counts as placed'). Default: ask for each mass")
-    parser.add_argument("--average-s", type=float, default=2.0, metavar="S",
+    parser.add_argument("--average-s", type=positive_number, default=2.0, metavar="S",
                         help="seconds of readings averaged per level (default: 2.0)")
     parser.add_argument("--settle-s", type=float, default=1.0, metavar="S",
                         help="with --mass-g: seconds waited after a mass is seen placed (default: 1.0)")
-    parser.add_argument("--place-timeout-s", type=float, default=60.0, metavar="S",
+    parser.add_argument("--place-timeout-s", type=positive_number, default=60.0, metavar="S",
                         help="with --mass-g: longest wait for each mass to be placed (default: 60.0)")
     parser.add_argument("--max-residual-percent", type=float, default=1.0, metavar="P",
                         help="refuse a cell whose fit misses a mass by more than P %% of full scale (default: 1.0)")

@@ -136,6 +136,16 @@ def test_a_mass_never_placed_times_out_naming_what_to_do(serial_rig, capsys):
     assert "no new load within 1 s" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("option", ["--average-s", "--place-timeout-s"])
+@pytest.mark.parametrize("value", ["0", "-1", "nan"])
+def test_times_that_are_not_positive_are_refused_before_reading(option, value, tmp_path, capsys):
+    # --average-s 0 read no level and ended in a "signal wires swapped" refusal.
+    with pytest.raises(SystemExit) as exited:
+        main(["calibrate", "load-cell", "--settings", str(tmp_path / "rig.toml"), option, value])
+    assert exited.value.code == 2
+    assert f"argument {option}: '{value}': expected a number > 0" in capsys.readouterr().err
+
+
 def test_interactive_run_asks_for_each_mass(serial_rig, capsys, monkeypatch):
     path, master = serial_rig
     firmware = FakeFirmware(master, [])
