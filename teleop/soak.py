@@ -6,6 +6,7 @@ simulated camera, :func:`soak_frames`), force batches at 80 Hz and width batches
 on a schedule, for the time asked. A second process consumes them: the session recorder
 (:class:`~teleop.session.recorder.SessionRecorder`, writing a real MCAP log, deleted at the
 end unless ``log_path`` names where to keep it) with a monitor on every stored message.
+However the run ends (Ctrl-C included), the consumer is stopped and the temporary log removed.
 
 Reported (:class:`SoakResult`):
 
@@ -27,7 +28,9 @@ import contextlib
 import multiprocessing
 import os
 import queue
+import signal
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,7 +44,8 @@ from teleop.errors import BusTimeoutError, SettingsError, TeleopError
 from teleop.progress import progress_bar
 from teleop.settings import Settings, default_settings_path, load_settings
 
-__all__ = ["GRASP_RATES_HZ", "LatencyHistogram", "SoakResult", "rss_bytes", "run_soak", "soak_frames"]
+__all__ = ["GRASP_RATES_HZ", "LatencyHistogram", "SoakResult", "check_log_path", "rss_bytes", "run_soak",
+           "soak_frames"]
 
 #: Messages per second of each grasp topic, as the robot node publishes them.
 GRASP_RATES_HZ = {"frame/left": 30.0, "frame/right": 30.0, "force": 80.0, "width": 10.0}
@@ -50,6 +54,7 @@ MAX_DEFAULT_WARMUP_S = 60.0
 RSS_SAMPLE_S = 1.0
 CONSUMER_START_TIMEOUT_S = 30.0
 CONSUMER_STOP_TIMEOUT_S = 60.0
+CONSUMER_QUIT_S = 5.0  # a run cut short gives the consumer this long to close its log before it is killed
 
 
 def rss_bytes(pid: int | str = "self") -> int:
@@ -90,6 +95,28 @@ class LatencyHistogram:
             return None
         index = int(np.searchsorted(np.cumsum(self.counts), q * total))
         return float(self.edges_ms[min(index, len(self.edges_ms) - 1)])
+
+
+def check_log_path(path: str | Path, *, name: str = "session log") -> Path:
+    """``path`` as a :class:`Path` when a new session log can be created there (the consumer process
+    creates it, and its error would come as that process's traceback).
+
+    Raises
+    ------
+    SettingsError
+        ``path`` exists, or its folder does not exist or cannot be written to; the message starts
+        with ``name`` and the path.
+    """
+    path = Path(path)
+    folder = path.parent
+    if os.path.lexists(path):
+        raise SettingsError(f"{name} {path} exists: name a new file")
+    if not folder.is_dir():
+        what = "is not a folder" if folder.exists() else "does not exist"
+        raise SettingsError(f"{name} {path}: its folder {folder} {what}")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise SettingsError(f"{name} {path}: cannot create files in the folder {folder} (permission denied)")
+    return path
 
 
 def soak_frames(settings: Settings, *, count: int = 30, seed: int = 0) -> dict[str, list[bytes]]:
@@ -134,6 +161,7 @@ def _consume(endpoint: str, log_path: str, settings_path: str, warmup_s: float, 
     """The consumer process: record ``endpoint`` into ``log_path`` until ``stop``; results to the queue."""
     from teleop.session.recorder import SessionRecorder
 
+    parent = multiprocessing.parent_process()
     monitor = _Monitor()
     recorder = SessionRecorder(log_path, endpoint, settings=load_settings(settings_path), source="simulated", on_message=monitor)
     rss = {"start": rss_bytes(), "warm": None, "peak": 0}
@@ -142,7 +170,8 @@ def _consume(endpoint: str, log_path: str, settings_path: str, warmup_s: float, 
     try:
         recorder.open()
         ready.set()
-        while not stop.is_set() and not recorder.failed:
+        # A parent that died without stopping this process (SIGKILL) publishes nothing more.
+        while not stop.is_set() and not recorder.failed and (parent is None or parent.is_alive()):
             recorder.poll(0.05)
             now = time.monotonic()
             if now >= next_sample:
@@ -224,7 +253,7 @@ def run_soak(settings: Settings, *, duration_s: float, warmup_s: float | None = 
     Raises
     ------
     SettingsError
-        ``duration_s`` or ``warmup_s`` out of range, or ``log_path`` exists.
+        ``duration_s`` or ``warmup_s`` out of range, or no new file can be created at ``log_path``.
     TeleopError
         The consumer does not start or does not report.
     """
@@ -234,8 +263,8 @@ def run_soak(settings: Settings, *, duration_s: float, warmup_s: float | None = 
         warmup_s = min(MAX_DEFAULT_WARMUP_S, DEFAULT_WARMUP_FRACTION * duration_s)
     if not (np.isfinite(warmup_s) and 0 <= warmup_s < duration_s):
         raise SettingsError(f"warm-up {warmup_s!r} s: expected 0 <= warm-up < the duration {duration_s} s")
-    if log_path is not None and Path(log_path).exists():
-        raise SettingsError(f"session log {log_path} exists: name a new file")
+    if log_path is not None:
+        log_path = check_log_path(log_path)
     frames = soak_frames(settings)
     fingers = [s.finger for s in settings.sensors]
     if sorted(f"frame/{f}" for f in fingers) != sorted(t for t in GRASP_RATES_HZ if t.startswith("frame/")):
@@ -251,8 +280,9 @@ def run_soak(settings: Settings, *, duration_s: float, warmup_s: float | None = 
             target=_consume, name="soak-consumer", daemon=True,
             args=(publisher.endpoint, str(log_path), str(settings_path or default_settings_path()), warmup_s,
                   ready, stop, results))
-        consumer.start()
-        stack.callback(consumer.kill)  # only if something below raised; a no-op after join
+        with _sigint_ignored():
+            consumer.start()
+        stack.callback(_stop_consumer, consumer, stop)  # if something below raised (Ctrl-C too); a no-op after join
         deadline = time.monotonic() + CONSUMER_START_TIMEOUT_S
         while not ready.wait(0.1):
             if not consumer.is_alive() or time.monotonic() > deadline:
@@ -289,6 +319,32 @@ def run_soak(settings: Settings, *, duration_s: float, warmup_s: float | None = 
         log_bytes=recorder["file_bytes"],
         recorder_error=recorder["error"],
     )
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Any:
+    """SIGINT ignored meanwhile (in the main thread; elsewhere a no-op). A process started meanwhile
+    keeps ignoring it: a Ctrl-C at the terminal reaches the whole process group, and the consumer is
+    to be stopped by this process (:func:`_stop_consumer`), its log closed, not cut mid-write."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _stop_consumer(consumer: Any, stop: Any) -> None:
+    """Ask the consumer to close its log and quit; kill it if it does not within ``CONSUMER_QUIT_S``."""
+    stop.set()
+    try:
+        consumer.join(timeout=CONSUMER_QUIT_S)
+    finally:  # a second Ctrl-C during the wait must still not leave it running
+        if consumer.is_alive():
+            consumer.kill()
+            consumer.join(timeout=1.0)
 
 
 def _report(results: Any, consumer: Any) -> dict[str, Any]:

@@ -1,17 +1,21 @@
 """``teleop soak``: a bounded soak test of the grasp data path on loopback (:mod:`teleop.soak`).
 
 ``--json`` prints the :class:`~teleop.soak.SoakResult` as one object on the last stdout line;
-the exit status is 1 when a grasp message was lost or the recorder failed.
+the exit status is 1 when a grasp message was lost or the recorder failed. SIGTERM stops it as
+Ctrl-C does: the consumer process is stopped and the temporary log removed.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import signal
 import sys
+from collections.abc import Iterator
 
 from teleop.settings import default_settings_path, load_settings
-from teleop.soak import MAX_DEFAULT_WARMUP_S, run_soak
+from teleop.soak import MAX_DEFAULT_WARMUP_S, check_log_path, run_soak
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,10 +39,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the last stdout line")
 
 
+@contextlib.contextmanager
+def _sigterm_as_ctrl_c() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt, so :func:`run_soak` cleans up after it as after Ctrl-C (the
+    default action would kill this process alone, leaving the consumer and its temporary log)."""
+
+    def interrupt(signum: int, frame: object) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: a second one must not cut the cleanup short
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.log is not None:
+        check_log_path(args.log, name="--log")  # here, not as a traceback of the consumer process
     settings = load_settings(args.settings)
-    result = run_soak(settings, duration_s=args.minutes * 60.0, warmup_s=args.warmup_s,
-                      settings_path=args.settings, log_path=args.log, progress=True)
+    with _sigterm_as_ctrl_c():
+        result = run_soak(settings, duration_s=args.minutes * 60.0, warmup_s=args.warmup_s,
+                          settings_path=args.settings, log_path=args.log, progress=True)
     print(f"soak: {result.duration_s:.0f} s, {sum(result.sent.values())} grasp messages sent, "
           f"{result.lost_grasp_msgs} lost; latency p50 {result.p50_ms} ms, p99 {result.p99_ms} ms; "
           f"recorder memory {result.rss_warm_mb:.1f} MB after warm-up, {result.rss_end_mb:.1f} MB at the end "

@@ -244,6 +244,14 @@ def capture_to_folder(args: argparse.Namespace) -> Path:
         raise CalibrationError(f"--presses {folder}: with --capture, a new or empty folder to save the presses in")
     settings = load_settings(args.settings)
     sensor = settings.sensor(args.finger or settings.sensing.finger)
+    # A simulated camera only plays grasps back: no ball can be pressed on it, and waiting for its frames
+    # would end in a vague timeout. Worded as `teleop calibrate camera` refuses it (teleop/rig/camera_calibration.py).
+    if sensor.camera_backend == "sim":
+        raise CalibrationError(
+            f"{args.settings}: the camera of [sensors.{sensor.finger}] is simulated (backend 'sim'): it cannot be "
+            f"calibrated by pressing a ball on it; simulate the presses instead (teleop simulate-presses --settings "
+            f"{args.settings} --finger {sensor.finger} --out P.npz, then --presses P.npz without --capture), or "
+            "configure the real camera (camera_backend = 'opencv' and camera_source)")
     try:
         with make_camera(sensor) as camera:
             reference, presses = capture_presses(

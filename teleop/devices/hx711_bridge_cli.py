@@ -2,18 +2,24 @@
 
 The source is a simulated cell (``--fake``) or an Arduino-style serial HX711 bridge
 (``--serial PORT``, pyserial), calibrated and paced by the settings' ``[load_cell]``.
+It serves until ``--duration-s`` passed, Ctrl-C or SIGTERM, then closes the server and (``--json``)
+prints its summary.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import math
 import sys
-import threading
 import time
 
+from teleop.clikit import positive_number
 from teleop.devices.hx711_bridge import FakeHx711, Hx711Bridge, SerialCounts
-from teleop.settings import default_settings_path, load_settings
+from teleop.errors import SettingsError
+from teleop.live import StopSignals
+from teleop.settings import LoadCellSettings, default_settings_path, load_settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,12 +34,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baud", type=int, default=None, help="serial baud rate (default: [load_cell] baud of the settings)")
     parser.add_argument("--force-n", type=float, default=0.0, help="--fake: force the simulated cell feels, N")
     parser.add_argument("--noise-counts", type=float, default=0.0, help="--fake: reading noise (std), counts")
-    parser.add_argument("--duration-s", type=float, default=None, help="stop after this many seconds (default: run until Ctrl+C)")
+    parser.add_argument("--duration-s", type=positive_number, default=None, help="stop after this many seconds (default: run until Ctrl-C or SIGTERM)")
     parser.add_argument("--json", action="store_true", help="on exit, print a JSON summary as the last stdout line")
 
 
+def _checked(args: argparse.Namespace, cell: LoadCellSettings) -> LoadCellSettings:
+    """``cell`` with ``--baud`` applied; every option checked before anything is opened."""
+    if not 0 <= args.port <= 65535:
+        raise SettingsError(f"--port {args.port}: expected a TCP port in 0..65535 (0: any free port)")
+    if not math.isfinite(args.force_n):
+        raise SettingsError(f"--force-n {args.force_n}: expected a finite force in N")
+    if not (math.isfinite(args.noise_counts) and args.noise_counts >= 0):
+        raise SettingsError(f"--noise-counts {args.noise_counts}: expected a number of counts >= 0")
+    if args.baud is None:
+        return cell
+    try:  # the settings' own bounds, so the two cannot disagree
+        return dataclasses.replace(cell, baud=args.baud)
+    except SettingsError as exc:
+        raise SettingsError(f"--baud {args.baud}: {exc}") from None
+
+
 def run(args: argparse.Namespace) -> int:
-    cell = load_settings(args.settings).load_cell
+    cell = _checked(args, load_settings(args.settings).load_cell)
     if args.fake:
         source = FakeHx711(
             counts_per_n=cell.counts_per_n,
@@ -43,15 +65,14 @@ def run(args: argparse.Namespace) -> int:
             noise_counts=args.noise_counts,
         )
     else:
-        source = SerialCounts(args.serial, args.baud or cell.baud)
+        source = SerialCounts(args.serial, cell.baud)
     started = time.monotonic()
     try:
-        with Hx711Bridge(source, host=args.host, port=args.port) as bridge:
+        # Ctrl-C and SIGTERM end the wait as --duration-s does: the server is closed and the summary printed.
+        # The signals are caught until the server is closed, so a second Ctrl-C cannot cut that short.
+        with StopSignals() as signals, Hx711Bridge(source, host=args.host, port=args.port) as bridge:
             print(f"hx711-bridge: serving on {bridge.address}", flush=True)
-            if args.duration_s is None:
-                threading.Event().wait()  # until Ctrl+C
-            else:
-                time.sleep(args.duration_s)
+            signals.stop.wait(args.duration_s)
     finally:
         if isinstance(source, SerialCounts):
             source.close()

@@ -3,6 +3,12 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -45,3 +51,63 @@ def test_latency_histogram_quantiles_are_within_its_resolution():
 def test_bad_soak_options_are_refused_naming_them(duration_s, warmup_s, match):
     with pytest.raises(SettingsError, match=match):
         run_soak(load_settings(), duration_s=duration_s, warmup_s=warmup_s)
+
+
+@pytest.mark.parametrize(("where", "expected"), [
+    ("missing/x.mcap", "its folder {tmp}/missing does not exist"),
+    ("file/x.mcap", "its folder {tmp}/file is not a folder"),
+    ("file", "exists: name a new file"),
+])
+def test_a_log_that_cannot_be_created_is_refused_in_one_line_before_the_consumer_starts(
+        tmp_path, capsys, where, expected):
+    (tmp_path / "file").write_text("taken")
+    log = tmp_path / where
+    assert main(["soak", "--minutes", "0.02", "--log", str(log)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"teleop soak: error: --log {log}{'' if where == 'file' else ':'} {expected.format(tmp=tmp_path)}\n"
+    with pytest.raises(SettingsError, match="does not exist"):  # the function checks it too
+        run_soak(load_settings(), duration_s=1.0, log_path=tmp_path / "missing" / "x.mcap")
+
+
+def _spawned_children(pid: int) -> list[int]:
+    """Processes ``pid`` started with multiprocessing's spawn (the consumer, not its resource tracker)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            parent = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+            command = (stat.parent / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if parent == pid and b"spawn_main" in command:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def _running(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_sigterm_stops_the_soak_as_ctrl_c_does_consumer_and_temporary_log_gone(tmp_path):
+    command = [sys.executable, "-c", "import sys; from teleop.cli import main; sys.exit(main(sys.argv[1:]))",
+               "soak", "--minutes", "0.5"]
+    # The temporary log goes under TMPDIR: here, so that what is left of it can be seen.
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    with subprocess.Popen(command, stderr=subprocess.PIPE, text=True, env=env) as process:
+        try:
+            deadline = time.monotonic() + 15.0
+            while not list(tmp_path.glob("soak-*/soak.mcap")):  # the consumer is recording
+                assert process.poll() is None and time.monotonic() < deadline, "the soak did not start"
+                time.sleep(0.05)
+            consumers = _spawned_children(process.pid)
+            assert len(consumers) == 1, consumers
+            process.send_signal(signal.SIGTERM)
+            err = process.communicate(timeout=5.0)[1]
+        finally:
+            process.kill()
+    assert process.returncode == 130 and err.rstrip().endswith("teleop soak: interrupted"), err
+    assert "Traceback" not in err and "leaked" not in err
+    assert not any(_running(pid) for pid in consumers)
+    assert list(tmp_path.iterdir()) == []

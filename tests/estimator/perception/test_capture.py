@@ -4,6 +4,7 @@ taxim's real GelSight presses, each pressed in and released between no-contact f
 from __future__ import annotations
 
 import json
+import time
 
 import cv2
 import numpy as np
@@ -18,7 +19,7 @@ from estimator.perception.capture import (
     tile_name,
     tile_of,
 )
-from teleop.settings import SensorSettings
+from teleop.settings import SensorSettings, default_settings_path
 
 # One press in each of the 3 x 3 tiles of the 480 x 640 frame (from taxim's touch_center), then three more.
 PRESSES = (22, 19, 17, 10, 0, 15, 12, 3, 13, 5, 27, 40)
@@ -98,6 +99,21 @@ def test_capture_refuses_what_it_cannot_do(tmp_path, capsys, argv, match):
     assert main([*base, *argv]) == 2
     assert match in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("finger", ["left", "right"])
+def test_capture_refuses_a_simulated_camera_plainly_and_at_once(tmp_path, capsys, finger):
+    settings = default_settings_path()  # the shipped simulated rig
+    started = time.monotonic()
+    assert main(["calibrate", "--capture", "--presses", str(tmp_path / "new"), "--settings", str(settings),
+                 "--finger", finger, "--ball-radius-mm", "2", "--out", str(tmp_path / "c.npz")]) == 2
+    assert time.monotonic() - started < 1.5  # not after waiting for a frame (2 s)
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(
+        f"estimator calibrate: error: {settings}: the camera of [sensors.{finger}] is simulated (backend 'sim'): "
+        "it cannot be calibrated")
+    assert f"teleop simulate-presses --settings {settings} --finger {finger} --out P.npz" in err
+    assert not (tmp_path / "new").exists() and not (tmp_path / "c.npz").exists()
 
 
 def test_a_contact_is_a_blob_of_change_and_not_noise_or_the_whole_gel(gelsight_presses):

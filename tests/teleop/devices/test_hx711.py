@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -16,6 +17,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from teleop.cli import main
 from teleop.devices.hx711 import BridgeClock, parse_tcp_address
 from teleop.devices.hx711_bridge import FakeHx711, Hx711Bridge, SerialCounts
 from teleop.devices.hx711_protocol import (
@@ -238,6 +240,50 @@ def test_serial_counts_source_reads_an_arduino_bridge(pty_pair):
         assert time.monotonic() - started >= 0.4
     finally:
         source.close()
+
+
+BRIDGE_COMMAND = [sys.executable, "-c", "import sys; from teleop.cli import main; sys.exit(main(sys.argv[1:]))",
+                  "hx711-bridge"]
+
+
+@pytest.mark.parametrize(("option", "value", "expected"), [
+    ("--port", "70000", "--port 70000: expected a TCP port in 0..65535"),
+    ("--port", "-1", "--port -1: expected a TCP port in 0..65535"),
+    ("--noise-counts", "-3", "--noise-counts -3.0: expected a number of counts >= 0"),
+    ("--baud", "0", "--baud 0: LoadCellSettings.baud = 0: expected a value in [1200, 4000000]"),  # not the default
+    ("--baud", "9600000", "--baud 9600000: LoadCellSettings.baud = 9600000: expected a value in [1200, 4000000]"),
+])
+def test_bridge_command_refuses_bad_options_in_one_line(capsys, option, value, expected):
+    # --duration-s first: an option let through would serve briefly, not hang the test (the last one given counts)
+    assert main(["hx711-bridge", "--fake", "--host", "127.0.0.1", "--port", "0", "--duration-s", "0.1", option, value]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.startswith(f"teleop hx711-bridge: error: {expected}") and captured.err.count("\n") == 1
+    assert "serving" not in captured.out  # refused before the server was opened
+
+
+@pytest.mark.parametrize("value", ["-1", "inf", "0"])
+def test_bridge_command_refuses_a_duration_that_is_not_positive(capsys, value):
+    with pytest.raises(SystemExit) as exited:
+        main(["hx711-bridge", "--fake", "--port", "0", "--duration-s", value])
+    assert exited.value.code == 2 and f"--duration-s: '{value}': expected a number > 0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_bridge_command_stops_cleanly_on_ctrl_c_and_sigterm_with_its_summary(signum):
+    command = [*BRIDGE_COMMAND, "--fake", "--host", "127.0.0.1", "--port", "0", "--json"]
+    with subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as process:
+        try:
+            address = process.stdout.readline().split()[-1]
+            with make_load_cell(LoadCellSettings(backend="tcp", address=address, **CAL)) as cell:
+                cell.read(timeout_s=1.0)  # serving
+            process.send_signal(signum)
+            out, err = process.communicate(timeout=5.0)
+        finally:
+            process.kill()
+    assert process.returncode == 0, err
+    assert "interrupted" not in err and "Traceback" not in err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["address"] == address and summary["readings"] > 0
 
 
 def test_bridge_command_end_to_end():
