@@ -121,6 +121,9 @@ __all__ = [
 FORMAT_NAME = "compliance-teleop.grasp"
 FORMAT_VERSION = 3
 READABLE_VERSIONS = (1, 2, 3)
+# Members every training sample (estimator.training.samples, an .npz written by numpy.savez)
+# holds: enough to recognise one without importing the estimator.
+_SAMPLE_MEMBERS = frozenset({"format.npy", "version.npy", "rgb_diff.npy", "depth_m.npy"})
 # --------------------------------------------------------------------------- writing
 
 
@@ -347,9 +350,10 @@ def read_record(path: str | Path) -> GraspRecord:
     Raises
     ------
     RecordError
-        The file is missing, not a ZIP, of another format or version, or a
-        member or field is missing, damaged or of the wrong type or shape.
-        The message names the file and the member or field.
+        The file is missing, not a ZIP, a training sample (.npz) rather than a
+        record, of another format or version, or a member or field is missing,
+        damaged or of the wrong type or shape. The message names the file and the
+        member or field.
     """
     path = Path(path)
     try:
@@ -360,6 +364,13 @@ def read_record(path: str | Path) -> GraspRecord:
         raise RecordError(f"{path}: not a grasp record (not a readable ZIP archive: {exc})") from exc
     with zf:
         r = _Reader(path, zf)
+        # A training sample is an .npz, a ZIP too: name it rather than call it an incomplete record.
+        sample = _SAMPLE_MEMBERS.issubset(r.names)
+        if "record.json" not in r.names and (sample or path.suffix.lower() == ".npz"):
+            what = ("a training sample (.npz, written by `teleop import-dataset --layout preprocessed` or "
+                    "`estimator build-dataset`)" if sample else "an .npz archive")
+            raise r.fail(f"this is {what}, not a grasp record: expected a .grasp record "
+                         "(`teleop import-dataset --layout raw` writes them from the published dataset)")
         try:
             header = json.loads(r.member("record.json").decode("utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:

@@ -101,8 +101,10 @@ def import_dataset(
 ) -> ImportSummary:
     """Import every grasp (raw) or sample (preprocessed) under ``src`` into ``out``.
 
-    A folder whose files are missing, unreadable, unsafe or inconsistent is skipped
-    with its reason (reported through ``on_skip``) and the import carries on.
+    A folder whose files are missing, unreadable, unsafe, inconsistent or physically
+    impossible (bool or negative forces, widths outside the gripper's range, images not
+    of the published size) is skipped with its reason (reported through ``on_skip``)
+    and the import carries on.
 
     Parameters
     ----------
@@ -115,7 +117,8 @@ def import_dataset(
     objects : path, optional
         Object table (.csv) or catalogue (.toml) giving labels.
     settings : path, optional
-        Settings TOML whose sensors describe the raw videos (default: the shipped one).
+        Settings TOML whose sensors describe the raw videos and whose ``gripper.max_width_m``
+        bounds the widths of both layouts (default: the shipped one).
     fps : float
         Frame rate of the raw videos, Hz.
     on_skip : callable, optional
@@ -136,8 +139,10 @@ def import_dataset(
     src, out = Path(src), Path(out)
     labels = {spec.name: spec for spec in load_catalogue(objects)} if objects is not None else {}
     summary = ImportSummary(layout=layout, source=str(src), out=str(out))
+    loaded = load_settings(settings if settings is not None else default_settings_path())
+    max_width_m = loaded.gripper.max_width_m  # bounds the imported widths, both layouts
     if layout == "raw":
-        sensors = raw_sensors(load_settings(settings if settings is not None else default_settings_path()).sensors)
+        sensors = raw_sensors(loaded.sensors)
         folders = find_raw_grasps(src)
     else:
         folders = find_preprocessed_samples(src)
@@ -147,9 +152,9 @@ def import_dataset(
         try:
             if layout == "raw":
                 item: GraspRecord | TrainingSample = import_raw_grasp(
-                    folder, sensors=sensors, labels=labels, fps=fps)
+                    folder, sensors=sensors, labels=labels, fps=fps, max_width_m=max_width_m)
             else:
-                item = import_preprocessed_sample(folder, labels=labels)
+                item = import_preprocessed_sample(folder, labels=labels, max_width_m=max_width_m)
         except (DatasetError, SampleError) as exc:
             skipped = SkippedItem(str(folder), str(exc))
             summary.skipped.append(skipped)
@@ -195,7 +200,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "object's label; without it nothing is labelled")
     parser.add_argument("--settings", metavar="TOML", default=str(default_settings_path()),
                         help="settings whose sensors (one without markers, one with) describe the raw "
-                             "videos")
+                             "videos and whose gripper.max_width_m bounds the imported widths")
     parser.add_argument("--fps", type=float, default=RAW_FPS,
                         help="frame rate of the raw videos, Hz; frame k is at k / fps seconds")
     parser.add_argument("--json", action="store_true",

@@ -2,9 +2,11 @@
 
 Pickles execute code on load, so every ``.pkl`` of the dataset is read with
 :func:`safe_load_pickle`, which admits numpy arrays and nothing else
-(:func:`load_pickled_array` on top of it checks for a finite numeric array). The
-layouts name their folders ``<key>=<integer>`` (:func:`layout_index`); a folder's
-files are required by name (:func:`layout_member`).
+(:func:`load_pickled_array` on top of it checks for a finite numeric array of the
+expected shape). Forces and widths, in both layouts, must be physically possible
+(:func:`check_forces`, :func:`check_widths`). The layouts name their folders
+``<key>=<integer>`` (:func:`layout_index`); a folder's files are required by name
+(:func:`layout_member`).
 """
 
 from __future__ import annotations
@@ -24,6 +26,10 @@ from numpy._core.numeric import _frombuffer
 from teleop.errors import DatasetError, UnsafePickleError
 
 __all__ = [
+    "FORCE_TOLERANCE_N",
+    "WIDTH_SLACK_M",
+    "check_forces",
+    "check_widths",
     "find_layout_folders",
     "layout_index",
     "layout_member",
@@ -166,24 +172,83 @@ def safe_load_pickle(source: str | os.PathLike[str] | bytes, *, name: str | None
     return value
 
 
-def load_pickled_array(path: str | os.PathLike[str], *, ndim: int | None = None) -> np.ndarray:
+def _shape_text(shape: tuple[int | None, ...]) -> str:
+    return "(" + ", ".join("n" if size is None else str(size) for size in shape) + ("," if len(shape) == 1 else "") + ")"
+
+
+def load_pickled_array(
+    path: str | os.PathLike[str], *, ndim: int | None = None, shape: tuple[int | None, ...] | None = None,
+    what: str = "",
+) -> np.ndarray:
     """A numeric array from a pickle read with :func:`safe_load_pickle` (dtype kept as stored).
+
+    Parameters
+    ----------
+    path : path
+        The pickle.
+    ndim : int, optional
+        Required number of dimensions.
+    shape : tuple of int or None, optional
+        Required shape; a None entry is any size >= 1 (shown as ``n``).
+    what : str
+        What the array holds, for the shape error (e.g. ``"the published 250x350 images"``).
 
     Raises
     ------
     DatasetError
-        The pickle is unsafe or damaged, does not hold a real-valued numeric array,
-        holds non-finite values, or (when ``ndim`` is given) has another number of
-        dimensions. The message names the file.
+        The pickle is unsafe or damaged, does not hold an integer or float array (a bool
+        array is not a measurement), holds non-finite values, or has another number of
+        dimensions or shape. The message names the file and its dtype and shape.
     """
     value = np.asarray(safe_load_pickle(path))
-    if value.dtype.kind not in "biuf":
-        raise DatasetError(f"{path}: expected a numeric array, got dtype {value.dtype}")
+    if value.dtype.kind not in "iuf":
+        raise DatasetError(f"{path}: expected a numeric array (integer or float), got dtype {value.dtype}")
     if ndim is not None and value.ndim != ndim:
-        raise DatasetError(f"{path}: expected a {ndim}-D array, got shape {value.shape}")
+        raise DatasetError(f"{path}: expected a {ndim}-D array, got {value.dtype} shape {value.shape}")
+    if shape is not None and (value.ndim != len(shape) or any(
+            size == 0 or (want is not None and size != want) for size, want in zip(value.shape, shape, strict=True))):
+        detail = f" ({what})" if what else ""
+        raise DatasetError(f"{path}: expected shape {_shape_text(shape)}{detail}, got {value.dtype} {value.shape}")
+    if value.dtype.itemsize > 8:
+        # A long double may hold values no float64 can: they would turn infinite in the cast.
+        with np.errstate(over="ignore"):
+            if not np.all(np.isfinite(value.astype(np.float64))):
+                raise DatasetError(f"{path}: {value.dtype} values beyond the float64 range (or NaN or infinite)")
     if not np.all(np.isfinite(value)):
         raise DatasetError(f"{path}: {np.count_nonzero(~np.isfinite(value))} values are NaN or infinite")
     return value
+
+
+# A tared force reading out of contact sits a little either side of zero (noise, drift); a
+# force below -1 N is a sign or tare error, not noise.
+FORCE_TOLERANCE_N = 1.0
+# A gripper's width reading may overshoot its nominal maximum a little when fully open.
+WIDTH_SLACK_M = 0.005
+
+
+def check_forces(path: str | os.PathLike[str], force_n: np.ndarray) -> None:
+    """Refuse forces (N) that are not >= -:data:`FORCE_TOLERANCE_N`; the message names the file."""
+    low = float(np.min(force_n)) if force_n.size else 0.0
+    if low < -FORCE_TOLERANCE_N:
+        raise DatasetError(
+            f"{path}: forces must be >= 0 N (to a {FORCE_TOLERANCE_N:g} N tolerance for load-cell noise), "
+            f"got {np.count_nonzero(force_n < -FORCE_TOLERANCE_N)} below, the lowest {low:.4g} N (a sign or tare error?)"
+        )
+
+
+def check_widths(path: str | os.PathLike[str], width_m: np.ndarray, max_width_m: float) -> None:
+    """Refuse widths (m) outside 0 to ``max_width_m`` + :data:`WIDTH_SLACK_M`; the message names the file."""
+    if not width_m.size:
+        return
+    low, high = float(np.min(width_m)), float(np.max(width_m))
+    limit = max_width_m + WIDTH_SLACK_M
+    if low < 0 or high > limit:
+        # A width of tens "m" is a width in mm: no gripper opens a metre.
+        hint = "; not in metres?" if high >= 1.0 else ""
+        raise DatasetError(
+            f"{path}: widths must lie within 0 to {limit:.4g} m (gripper.max_width_m {max_width_m:g} m "
+            f"+ {WIDTH_SLACK_M:g} m), got {low:.4g} to {high:.4g}{hint}"
+        )
 
 
 # --------------------------------------------------------------------------- layout folders

@@ -25,8 +25,10 @@ import numpy as np
 from teleop.catalogue import ObjectSpec
 from teleop.errors import DatasetError
 from teleop.record import FrameStream, GraspRecord, Label, Provenance, Samples
-from teleop.settings import SensorSettings
+from teleop.settings import GripperSettings, SensorSettings
 from teleop.system.dataset_files import (
+    check_forces,
+    check_widths,
     find_layout_folders,
     layout_index,
     layout_member,
@@ -117,6 +119,7 @@ def import_raw_grasp(
     sensors: Sequence[SensorSettings],
     labels: Mapping[str, ObjectSpec] | None = None,
     fps: float = RAW_FPS,
+    max_width_m: float | None = None,
 ) -> GraspRecord:
     """One raw-layout grasp folder as a :class:`~teleop.record.GraspRecord`.
 
@@ -131,19 +134,27 @@ def import_raw_grasp(
         Ground truth; objects not in it get a label with the name alone.
     fps : float
         Frame rate, Hz: frame ``k`` and force/width sample ``k`` are at ``k / fps`` s.
+    max_width_m : float, optional
+        The gripper's widest opening, m (default: the default settings' ``gripper.max_width_m``);
+        widths beyond it (plus :data:`~teleop.system.dataset_files.WIDTH_SLACK_M`) are refused.
 
     Raises
     ------
     DatasetError
-        A file is missing, unreadable, unsafe or damaged, or the videos, forces and widths
-        do not have one length; the message names the file.
+        A file is missing, unreadable, unsafe or damaged, the videos, forces and widths
+        do not have one length, a force is below zero (beyond load-cell noise) or a width
+        outside the gripper's range; the message names the file.
     """
     grasp_dir = Path(grasp_dir)
     index = layout_index(grasp_dir, "grasp")
     name = grasp_dir.parent.name
     plain, marked = raw_sensors(sensors)
-    force = load_pickled_array(layout_member(grasp_dir, f"{name}_forces.pkl"), ndim=1)
-    width = load_pickled_array(layout_member(grasp_dir, f"{name}_widths.pkl"), ndim=1)
+    force_path = layout_member(grasp_dir, f"{name}_forces.pkl")
+    width_path = layout_member(grasp_dir, f"{name}_widths.pkl")
+    force = load_pickled_array(force_path, ndim=1)
+    width = load_pickled_array(width_path, ndim=1)
+    check_forces(force_path, force)
+    check_widths(width_path, width, GripperSettings().max_width_m if max_width_m is None else max_width_m)
     streams = []
     for sensor, video_name in ((plain, f"{name}.avi"), (marked, f"{name}_markers.avi")):
         video = layout_member(grasp_dir, video_name)

@@ -168,6 +168,26 @@ def test_missing_member_is_named(record_path, member):
     fails(rebuild(record_path, members), repr(member), "missing")
 
 
+def test_training_sample_is_named_not_called_an_incomplete_record(tmp_path, record_path):
+    from estimator.training.samples import TrainingSample, save_sample
+
+    sample = TrainingSample("apple", 0, 0, np.zeros((3, 4, 5, 3), np.float32), np.zeros((3, 4, 5), np.float32),
+                            np.array([1.0, 2.0, 3.0]), np.array([0.03, 0.03, 0.03]))
+    npz = save_sample(sample, tmp_path / "augmentation=0.npz")
+    for path in (npz, tmp_path / "renamed.grasp"):  # recognised by its members, whatever its name
+        path.write_bytes(npz.read_bytes())
+        message = fails(path, "training sample", "import-dataset --layout preprocessed", "expected a .grasp record",
+                        "--layout raw")
+        assert "incomplete" not in message and "record.json" not in message
+    # Any other .npz is not a record either; a .grasp without record.json is still an incomplete record.
+    other = tmp_path / "other.npz"
+    np.savez(other, a=np.arange(3))
+    assert "incomplete" not in fails(other, "an .npz archive, not a grasp record")
+    members = members_of(record_path)
+    del members["record.json"]
+    assert "training sample" not in fails(rebuild(record_path, members), "'record.json'", "incomplete")
+
+
 def edit_header(path: Path, change) -> Path:
     members = members_of(path)
     header = header_of(members)

@@ -6,7 +6,9 @@ import builtins
 import json
 import os
 import pickle
+import re
 import subprocess
+import warnings
 from pathlib import Path
 
 import cv2
@@ -271,12 +273,18 @@ def test_raw_import_writes_readable_records_and_skips_bad_grasps(tmp_path, objec
     write_pickle(folder / "mismatched_forces.pkl", np.ones(7))
     bad["mismatched"] = "4 frames but 7 forces"
     folder = make_raw_grasp(src, "short_widths", 0)
-    write_pickle(folder / "short_widths_widths.pkl", np.ones(3))
+    write_pickle(folder / "short_widths_widths.pkl", np.full(3, 0.04))
     bad["short_widths"] = "3 widths but 4 forces"
     folder = make_raw_grasp(src, "truncated_video", 0, n=6)
     video = folder / "truncated_video_markers.avi"
     video.write_bytes(video.read_bytes()[: video.stat().st_size // 2])
     bad["truncated_video"] = "truncated_video_markers.avi: truncated video"
+    folder = make_raw_grasp(src, "mm_widths", 0)
+    write_pickle(folder / "mm_widths_widths.pkl", np.linspace(50.0, 46.0, 4))
+    bad["mm_widths"] = "mm_widths_widths.pkl: widths must lie within 0 to 0.085 m"
+    folder = make_raw_grasp(src, "bool_forces", 0)
+    write_pickle(folder / "bool_forces_forces.pkl", np.array([True, True, False, True]))
+    bad["bool_forces"] = "bool_forces_forces.pkl: expected a numeric array (integer or float), got dtype bool"
     folder = make_raw_grasp(src, "malicious", 0)
     marker = tmp_path / "pwned"
     write_pickle(folder / "malicious_widths.pkl", RunsCode(os.system, f"touch {marker}"))
@@ -353,10 +361,10 @@ def test_preprocessed_import_writes_samples_and_skips_bad_ones(tmp_path, object_
     bad = {}
     folder = make_preprocessed(src, "frames_mismatch", 0, 0)
     write_pickle(folder / "forces.pkl", np.ones(4))
-    bad["frames_mismatch"] = "force_n must be float64 with shape (3,)"
+    bad["frames_mismatch"] = "forces.pkl: expected shape (3,) (forces in N, one per frame of RGB.pkl), got float64 (4,)"
     folder = make_preprocessed(src, "flat_depth", 0, 0)
     write_pickle(folder / "depth.pkl", np.zeros((3, 250)))
-    bad["flat_depth"] = "depth.pkl: expected a 3-D array"
+    bad["flat_depth"] = "depth.pkl: expected shape (3, 250, 350)"
     folder = make_preprocessed(src, "no_rgb", 0, 0)
     (folder / "RGB.pkl").unlink()
     bad["no_rgb"] = "RGB.pkl: missing"
@@ -382,6 +390,107 @@ def test_preprocessed_import_writes_samples_and_skips_bad_ones(tmp_path, object_
     mystery = load_sample(out / "mystery" / "grasp=1" / "augmentation=0.npz")
     assert mystery.label_modulus_pa is None and mystery.elastic_estimate_pa is None
     assert mystery.hertz_estar_pa == 1.5e5
+
+
+def replace_member(folder: Path, member: str, value) -> Path:
+    write_pickle(folder / member, value)
+    return folder
+
+
+@pytest.mark.parametrize(
+    ("member", "value", "expected"),
+    [
+        # bool is not a measurement: True would be imported as 1 N.
+        ("forces.pkl", np.array([True, True, False]),
+         ["forces.pkl: expected a numeric array (integer or float), got dtype bool"]),
+        ("forces.pkl", np.array([-3.0, -8.0, -15.0]),
+         ["forces.pkl: forces must be >= 0 N (to a 1 N tolerance", "got 3 below, the lowest -15 N"]),
+        ("widths.pkl", np.array([40.0, 37.0, 34.0]),
+         ["widths.pkl: widths must lie within 0 to 0.085 m (gripper.max_width_m 0.08 m", "got 34 to 40",
+          "not in metres?"]),
+        ("widths.pkl", np.array([0.03, -0.01, 0.02]), ["widths.pkl: widths must lie within 0 to", "got -0.01 to 0.03"]),
+        ("RGB.pkl", np.zeros((3, 10, 10, 3)),
+         ["RGB.pkl: expected shape (n, 250, 350, 3) (BGR difference images of the published 250x350 size), "
+          "got float64 (3, 10, 10, 3)"]),
+        ("depth.pkl", np.zeros((3, 100, 100)),
+         ["depth.pkl: expected shape (3, 250, 350) (depth maps in mm of the published 250x350 size",
+          "got float64 (3, 100, 100)"]),
+        ("RGB_markers.pkl", np.zeros((3, 10, 10, 3)), ["RGB_markers.pkl: expected shape (3, 250, 350, 3)"]),
+        ("depth_markers.pkl", np.zeros((3, 10, 10)), ["depth_markers.pkl: expected shape (3, 250, 350)"]),
+        ("RGB.pkl", np.zeros((0, 250, 350, 3)), ["RGB.pkl: expected shape (n, 250, 350, 3)", "got float64 (0, 250"]),
+        # Finite in float64, beyond float32: refused before the cast, never "non-finite".
+        ("depth.pkl", np.full((3, 250, 350), 1e300),
+         ["depth.pkl: expected depths within +-100 mm, got float64 (3, 250, 350) with values from 1e+300"]),
+        ("RGB.pkl", np.full((3, 250, 350, 3), -1e300),
+         ["RGB.pkl: expected 8-bit difference levels within +-1024, got float64 (3, 250, 350, 3)", "-1e+300"]),
+        ("depth_markers.pkl", np.full((3, 250, 350), 5e38), ["depth_markers.pkl: expected depths within +-100 mm"]),
+    ],
+)
+def test_preprocessed_import_refuses_impossible_samples(tmp_path, member, value, expected):
+    src = tmp_path / "pre"
+    make_preprocessed(src, "good", 0, 0)
+    folder = replace_member(make_preprocessed(src, "bad", 0, 0), member, value)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no raw RuntimeWarning (an overflowing cast) either
+        summary = import_dataset(src, layout="preprocessed", out=tmp_path / "out")
+    assert [Path(p).relative_to(tmp_path / "out").as_posix() for p in summary.imported] == [
+        "good/grasp=0/augmentation=0.npz"]
+    [skipped] = summary.skipped
+    assert skipped.path == str(folder)
+    for part in expected:
+        assert part in skipped.reason, skipped.reason
+    assert str(folder / member) in skipped.reason
+    # Names the file, not the sample's internal fields, and calls no finite value non-finite.
+    assert not re.search(r"\b(depth_m|rgb_diff|force_n|width_m|depth_markers_m)\b|non-finite", skipped.reason)
+
+
+def test_preprocessed_import_keeps_possible_edge_values(tmp_path):
+    folder = make_preprocessed(tmp_path, "apple", 0, 0)
+    # Load-cell noise around zero, a fully open gripper, integer forces and wide difference levels.
+    replace_member(folder, "forces.pkl", np.array([-0.4, 3, 9]))
+    replace_member(folder, "widths.pkl", np.array([0.084, 0.0, 0.0]))
+    replace_member(folder, "RGB.pkl", np.full((3, *IMAGE_SHAPE, 3), -300.0))
+    sample = import_preprocessed_sample(folder)
+    np.testing.assert_array_equal(sample.force_n, [-0.4, 3.0, 9.0])
+    np.testing.assert_array_equal(sample.width_m, [0.084, 0.0, 0.0])
+    assert sample.rgb_diff.min() == -300.0
+
+
+def test_import_widths_are_bounded_by_the_settings_gripper(tmp_path):
+    src = tmp_path / "pre"
+    make_preprocessed(src, "apple", 0, 0)  # widths up to 0.031 m
+    narrow = tmp_path / "narrow.toml"
+    narrow.write_text("[gripper]\nmax_width_m = 0.02\n")
+    summary = import_dataset(src, layout="preprocessed", out=tmp_path / "out", settings=narrow)
+    assert not summary.imported
+    assert "widths must lie within 0 to 0.025 m (gripper.max_width_m 0.02 m" in summary.skipped[0].reason
+    assert "not in metres?" not in summary.skipped[0].reason
+    assert import_dataset(src, layout="preprocessed", out=tmp_path / "out").imported  # shipped: 0.08 m
+
+
+def test_imported_sample_is_not_taken_for_a_damaged_record(tmp_path, capsys):
+    from estimator.cli import main as estimator_main
+
+    src, out = tmp_path / "pre", tmp_path / "out"
+    make_preprocessed(src, "fake_washer_stack", 0, 0)
+    import_dataset(src, layout="preprocessed", out=out)
+    sample = out / "fake_washer_stack" / "grasp=0" / "augmentation=0.npz"
+    assert estimator_main(["estimate", str(sample)]) != 0
+    err = capsys.readouterr().err
+    assert f"{sample}: this is a training sample (.npz, written by `teleop import-dataset --layout preprocessed`" in err
+    assert "expected a .grasp record (`teleop import-dataset --layout raw`" in err
+    assert "incomplete" not in err and "Traceback" not in err
+
+
+def test_import_dataset_command_prints_no_overflow_warning(tmp_path, capsys):
+    src = tmp_path / "pre"
+    make_preprocessed(src, "apple", 0, 0)
+    folder = replace_member(make_preprocessed(src, "huge", 0, 0), "depth.pkl", np.full((3, *IMAGE_SHAPE), 1e300))
+    status = cli.main(["import-dataset", str(src), "--layout", "preprocessed", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert status == 0
+    assert f"skipped {folder}: {folder / 'depth.pkl'}: expected depths within +-100 mm" in err
+    assert "RuntimeWarning" not in err and "non-finite" not in err
 
 
 # --------------------------------------------------------------------------- the command
