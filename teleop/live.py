@@ -11,11 +11,12 @@ the services write one JSON object per grasp to a report file when asked (:class
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import FrameType
 from typing import IO, Any
@@ -23,7 +24,8 @@ from typing import IO, Any
 from teleop.errors import SettingsError
 from teleop.settings import BusSettings, Settings
 
-__all__ = ["ENDPOINTS", "JsonLines", "ServiceLoop", "StopSignals", "add_endpoint_arguments", "bus_from_args"]
+__all__ = ["ENDPOINTS", "JsonLines", "ServiceLoop", "StopSignals", "add_endpoint_arguments", "bus_from_args",
+           "sigterm_as_ctrl_c"]
 
 #: Bus endpoint settings a live process may be told to use instead of the settings file's.
 ENDPOINTS = BusSettings.ENDPOINTS
@@ -72,6 +74,23 @@ class ServiceLoop:
             self.step()
         self.finish()
         return self.stats
+
+
+@contextlib.contextmanager
+def sigterm_as_ctrl_c() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt meanwhile, as Ctrl-C does, so a command cleans up after it (its
+    child processes stopped in order, temporary files removed) instead of dying alone. Only the first:
+    a second one must not cut that clean-up short."""
+
+    def interrupt(signum: int, frame: FrameType | None) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 class StopSignals:

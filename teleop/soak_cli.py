@@ -8,12 +8,10 @@ Ctrl-C does: the consumer process is stopped and the temporary log removed.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
-import signal
 import sys
-from collections.abc import Iterator
 
+from teleop.live import sigterm_as_ctrl_c
 from teleop.settings import default_settings_path, load_settings
 from teleop.soak import MAX_DEFAULT_WARMUP_S, check_log_path, run_soak
 
@@ -39,27 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the last stdout line")
 
 
-@contextlib.contextmanager
-def _sigterm_as_ctrl_c() -> Iterator[None]:
-    """SIGTERM raises KeyboardInterrupt, so :func:`run_soak` cleans up after it as after Ctrl-C (the
-    default action would kill this process alone, leaving the consumer and its temporary log)."""
-
-    def interrupt(signum: int, frame: object) -> None:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: a second one must not cut the cleanup short
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def run(args: argparse.Namespace) -> int:
     if args.log is not None:
         check_log_path(args.log, name="--log")  # here, not as a traceback of the consumer process
     settings = load_settings(args.settings)
-    with _sigterm_as_ctrl_c():
+    with sigterm_as_ctrl_c():
         result = run_soak(settings, duration_s=args.minutes * 60.0, warmup_s=args.warmup_s,
                           settings_path=args.settings, log_path=args.log, progress=True)
     print(f"soak: {result.duration_s:.0f} s, {sum(result.sent.values())} grasp messages sent, "

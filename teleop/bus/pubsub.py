@@ -40,7 +40,8 @@ Pass ``security`` (:class:`~teleop.bus.security.BusSecurity`, e.g. from
 :func:`~teleop.bus.security.security_from_settings`) to run ZeroMQ CURVE: the binding end
 is the server and admits only authorised client keys, the connecting end authenticates
 the server. An endpoint reachable from other hosts refuses to start without it
-(:class:`~teleop.errors.BusSecurityError`). See :mod:`teleop.bus.security`.
+(:class:`~teleop.errors.BusSecurityError`). A refused handshake is logged as a warning on
+both ends, once. See :mod:`teleop.bus.security`.
 :meth:`Publisher.from_settings` and :meth:`Subscriber.from_settings` take the size limit,
 heartbeat period and keys from :class:`~teleop.settings.BusSettings`.
 

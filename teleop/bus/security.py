@@ -18,8 +18,12 @@ one ZAP handler per ZeroMQ context (:class:`zmq.auth.thread.ThreadAuthenticator`
 domain per directory). The socket that connects is the *client*: it has its own key pair
 and trusts only the server public key it was given, so it neither talks to an impostor nor
 is admitted without authorisation. A peer that fails either check gets nothing and
-delivers nothing; it only retries its handshake. The directory is read when a server
-socket is created: authorising or revoking a key takes effect when the servers restart.
+delivers nothing: a client the server refuses gives that endpoint up, one that trusts
+another server key retries. Both ends say so, once: the server logs the refused client's
+public key, the client (watching its socket's monitor) the endpoint that refused it.
+The directory is read when a server socket is created, and a file in it that is not a
+public certificate stops that server from starting; authorising or revoking a key takes
+effect when the servers restart.
 
 Keys directory (``bus.keys_dir``)
 ---------------------------------
@@ -40,6 +44,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import ipaddress
+import itertools
 import logging
 import os
 import re
@@ -55,6 +60,7 @@ import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 from zmq.utils import z85
+from zmq.utils.monitor import recv_monitor_message
 
 from teleop.errors import BusError, BusSecurityError
 from teleop.settings import BusSettings, parse_endpoint
@@ -73,8 +79,10 @@ __all__ = [
     "init_keys",
     "is_loopback",
     "list_keys",
+    "read_authorized",
     "revoke_key",
     "security_from_settings",
+    "serving_keys",
 ]
 
 log = logging.getLogger(__name__)
@@ -92,6 +100,22 @@ _LOOPBACK_SCHEMES = frozenset({"inproc", "ipc"})
 _NETWORK_SCHEMES = frozenset({"pgm", "epgm", "norm", "tipc", "vmci"})  # multicast, or a fabric of hosts
 _KEY_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 _Z85_KEY_CHARS = 40
+_MONITORS = itertools.count()  # numbers the handshake monitors' inproc addresses
+_MAX_REFUSALS_LOGGED = 1000  # refused keys a server names: a flood of keys cannot grow memory
+# What a client's handshake watcher hears (MONITOR_STOPPED: the socket closed).
+_HANDSHAKE_EVENTS = (zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
+                     | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_HANDSHAKE_SUCCEEDED
+                     | zmq.EVENT_MONITOR_STOPPED)
+# Why a handshake failed, and whether libzmq tries again: after a refusal or a protocol error
+# its client gives the endpoint up; after a dropped connection it reconnects.
+_HANDSHAKE_FAILURES = {
+    zmq.EVENT_HANDSHAKE_FAILED_AUTH: ("the server does not authorise this client's key", False),
+    # a server drops a HELLO it cannot open, without a word: it was sealed for another server's key
+    zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL: (
+        "the server dropped the connection: it is not the server whose key this node trusts", True),
+    zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL: ("protocol error: the server may not run CURVE", False),
+}
+_GIVEN_UP = "this client gives the endpoint up: restart it once that is fixed"
 
 
 _FIX_HINT = "run `teleop keys init DIR` and set bus.keys_dir = DIR in the settings TOML"
@@ -252,6 +276,56 @@ class BusSecurity:
         return f"teleop-{digest[:16]}"
 
 
+@dataclass(frozen=True)
+class AuthorizedKey:
+    """One client the servers admit: its name (file stem) and Z85 public key."""
+
+    name: str
+    public_key: str
+
+
+def read_authorized(authorized_dir: Path) -> tuple[AuthorizedKey, ...]:
+    """Every client certificate (``*.key``) in ``authorized_dir``, read and checked, by name.
+
+    Raises
+    ------
+    BusSecurityError
+        The directory is missing, or a file in it is not a public certificate (named): a
+        server handed it would admit no client at all.
+    """
+    if not authorized_dir.is_dir():
+        raise BusSecurityError(
+            f"authorised-keys directory {authorized_dir} does not exist: run `teleop keys init`"
+        )
+    keys = []
+    for path in sorted(authorized_dir.glob(f"*{PUBLIC_SUFFIX}")):
+        try:
+            keys.append(AuthorizedKey(path.stem, _read_public_cert(path).decode("ascii")))
+        except BusSecurityError as exc:
+            raise BusSecurityError(
+                f"{exc}: remove it from {authorized_dir}, or put a client's public certificate "
+                "there with `teleop keys add`"
+            ) from exc
+    return tuple(keys)
+
+
+def serving_keys(security: BusSecurity) -> tuple[AuthorizedKey, ...]:
+    """The clients a CURVE server of ``security`` admits, after checking it can serve at all.
+
+    Raises
+    ------
+    BusSecurityError
+        No server secret certificate (the keys can connect but not bind), or the authorised
+        directory is missing or holds a file that is not a public certificate.
+    """
+    if security.server_secret_key is None:
+        raise BusSecurityError(
+            f"{security.keys_dir} holds no {SERVER_CERT}{SECRET_SUFFIX}: this node can connect "
+            "but not bind; copy the server secret certificate there (mode 0600) to serve"
+        )
+    return read_authorized(security.authorized_dir)
+
+
 def security_from_settings(bus: BusSettings) -> BusSecurity | None:
     """The keys in ``bus.keys_dir`` (None when unset), after checking every bus endpoint.
 
@@ -268,6 +342,28 @@ def security_from_settings(bus: BusSettings) -> BusSecurity | None:
 # --------------------------------------------------------------------------- sockets
 
 
+class _AuthorizedClients:
+    """A ZAP domain's CURVE check: the keys of ``authorized_dir``; names a refused key once."""
+
+    def __init__(self, authorized_dir: Path, keys: Iterable[AuthorizedKey]):
+        self.authorized_dir = authorized_dir
+        self._keys = frozenset(k.public_key.encode("ascii") for k in keys)
+        self._refused: set[bytes] = set()  # touched by the ZAP thread only
+
+    def callback(self, domain: str, client_key: bytes) -> bool:
+        if client_key in self._keys:
+            return True
+        if client_key not in self._refused and len(self._refused) < _MAX_REFUSALS_LOGGED:
+            self._refused.add(client_key)
+            log.warning(
+                "refused a CURVE client with public key %s: it is not authorised in %s; if it "
+                "should join, authorise its client.key with `teleop keys add` and restart this "
+                "node",
+                client_key.decode("ascii", "replace"), self.authorized_dir,
+            )
+        return False
+
+
 class _ZapHandlers:
     """One ThreadAuthenticator per context, shared by its CURVE servers, counted by lease."""
 
@@ -275,13 +371,12 @@ class _ZapHandlers:
         self._lock = threading.Lock()
         self._leases: dict[zmq.Context, tuple[ThreadAuthenticator, int]] = {}
 
-    def lease(self, context: zmq.Context, domain: str, authorized_dir: Path) -> Callable[[], None]:
-        """Start (or share) the context's handler, (re)load ``authorized_dir`` for ``domain``."""
-        if not authorized_dir.is_dir():
-            raise BusSecurityError(
-                f"authorised-keys directory {authorized_dir} does not exist: run `teleop keys init`"
-            )
-        if not any(authorized_dir.glob(f"*{PUBLIC_SUFFIX}")):
+    def lease(
+        self, context: zmq.Context, domain: str, authorized_dir: Path, keys: Iterable[AuthorizedKey]
+    ) -> Callable[[], None]:
+        """Start (or share) the context's handler; admit ``keys`` (of ``authorized_dir``)."""
+        keys = tuple(keys)
+        if not keys:
             log.warning("%s holds no client keys: every client will be refused", authorized_dir)
         with self._lock:
             authenticator, count = self._leases.get(context, (None, 0))
@@ -294,7 +389,11 @@ class _ZapHandlers:
                     raise BusSecurityError(
                         f"cannot start the ZAP handler on this ZeroMQ context: {exc}"
                     ) from exc
-            authenticator.configure_curve(domain=domain, location=str(authorized_dir))
+            # our own reader, not configure_curve's: that one only logs a file it cannot read,
+            # then refuses every client
+            authenticator.configure_curve_callback(
+                domain=domain, credentials_provider=_AuthorizedClients(authorized_dir, keys)
+            )
             self._leases[context] = (authenticator, count + 1)
         released = False
 
@@ -325,6 +424,53 @@ def _nothing() -> None:
     return None
 
 
+def _report_handshakes(monitor: zmq.Socket, keys_dir: Path) -> None:
+    """Warn once per endpoint whose CURVE handshake fails (libzmq says nothing); until the
+    watched socket closes."""
+    warned: set[str] = set()
+    try:
+        while True:
+            event = recv_monitor_message(monitor)
+            kind, endpoint = event["event"], event["endpoint"].decode("utf-8", "replace")
+            if kind == zmq.EVENT_MONITOR_STOPPED:
+                return
+            if kind == zmq.EVENT_HANDSHAKE_SUCCEEDED:
+                if endpoint in warned:
+                    warned.discard(endpoint)
+                    log.info("CURVE handshake with %s now succeeds", endpoint)
+            elif endpoint not in warned:
+                warned.add(endpoint)
+                reason, retried = _HANDSHAKE_FAILURES.get(kind, (f"event {kind}", False))
+                log.warning(
+                    "CURVE handshake with %s refused (%s): check that %s is that server's public "
+                    "certificate and that this client's key (%s) is authorised on the server "
+                    "(`teleop keys add` there, then restart the server); %s",
+                    endpoint,
+                    reason,
+                    keys_dir / f"{SERVER_CERT}{PUBLIC_SUFFIX}",
+                    keys_dir / f"{CLIENT_CERT}{PUBLIC_SUFFIX}",
+                    "retrying" if retried else _GIVEN_UP,
+                )
+    except zmq.ZMQError:  # the context was terminated under it
+        pass
+    finally:
+        monitor.close(linger=0)
+
+
+def _watch_handshakes(socket: zmq.Socket, keys_dir: Path) -> None:
+    """Report ``socket``'s failed handshakes from a thread reading its monitor (closing the
+    socket stops it). Only CURVE clients pay for it: a plain socket has nothing to refuse."""
+    # our own PAIR, not get_monitor_socket's (it hands its one socket to every caller): a
+    # later monitor replaces this one, and this thread then hears MONITOR_STOPPED and ends
+    address = f"inproc://teleop-curve-handshakes-{next(_MONITORS)}"
+    socket.monitor(address, _HANDSHAKE_EVENTS)
+    monitor = socket.context.socket(zmq.PAIR)
+    monitor.connect(address)
+    threading.Thread(
+        target=_report_handshakes, args=(monitor, keys_dir), name="curve-handshakes", daemon=True
+    ).start()
+
+
 def apply_security(
     socket: zmq.Socket, security: BusSecurity | None, *, server: bool
 ) -> Callable[[], None]:
@@ -332,25 +478,24 @@ def apply_security(
 
     Call before binding or connecting. A server leases the context's ZAP handler; the
     returned function gives the lease back and must be called once the socket is closed.
+    A client logs a warning when a server refuses its handshake.
 
     Raises
     ------
     BusSecurityError
-        A server without the server secret key, or keys libzmq refuses.
+        A server without the server secret key or with an unreadable authorised-keys
+        directory (:func:`serving_keys`), or keys libzmq refuses.
     """
     if security is None:
         return _nothing
+    authorized = serving_keys(security) if server else ()
     try:
         if not server:
             socket.curve_serverkey = security.server_public_key
             socket.curve_publickey = security.client_public_key
             socket.curve_secretkey = security.client_secret_key
+            _watch_handshakes(socket, security.keys_dir)
             return _nothing
-        if security.server_secret_key is None:
-            raise BusSecurityError(
-                f"{security.keys_dir} holds no {SERVER_CERT}{SECRET_SUFFIX}: this node can connect "
-                "but not bind; copy the server secret certificate there (mode 0600) to serve"
-            )
         socket.curve_server = True
         socket.curve_publickey = security.server_public_key
         socket.curve_secretkey = security.server_secret_key
@@ -361,18 +506,12 @@ def apply_security(
             f"libzmq refused the CURVE keys from {security.keys_dir}: {exc}"
         ) from exc
     # last, so nothing above can fail while holding a lease; the handler runs before bind
-    return ZAP_HANDLERS.lease(socket.context, security.zap_domain, security.authorized_dir)
+    return ZAP_HANDLERS.lease(
+        socket.context, security.zap_domain, security.authorized_dir, authorized
+    )
 
 
 # --------------------------------------------------------------------------- key management
-
-
-@dataclass(frozen=True)
-class AuthorizedKey:
-    """One client the servers admit: its name (file stem) and Z85 public key."""
-
-    name: str
-    public_key: str
 
 
 @dataclass(frozen=True)
@@ -389,12 +528,7 @@ class KeyListing:
 def list_keys(keys_dir: str | os.PathLike[str]) -> KeyListing:
     """Read and check ``keys_dir``; the public keys it holds and the clients it admits."""
     security = BusSecurity.load(keys_dir)
-    if not security.authorized_dir.is_dir():
-        raise BusSecurityError(f"{security.authorized_dir} does not exist: run `teleop keys init`")
-    authorized = tuple(
-        AuthorizedKey(path.stem, _read_public_cert(path).decode("ascii"))
-        for path in sorted(security.authorized_dir.glob(f"*{PUBLIC_SUFFIX}"))
-    )
+    authorized = read_authorized(security.authorized_dir)
     return KeyListing(
         keys_dir=str(security.keys_dir),
         server_public_key=security.server_public_key.decode("ascii"),

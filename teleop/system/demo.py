@@ -42,6 +42,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import ctypes
+import dataclasses
 import json
 import os
 import signal
@@ -63,10 +64,16 @@ from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SettingsError, TeleopError
-from teleop.live import ENDPOINTS
+from teleop.live import ENDPOINTS, sigterm_as_ctrl_c
 from teleop.scene import load_scene
 from teleop.session.foxglove_live import add_foxglove_argument
-from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
+from teleop.settings import (
+    BusSettings,
+    Settings,
+    default_settings_path,
+    load_settings,
+    resolve_path,
+)
 from teleop.system.demo_table import LiveView, closing_table, models_answered
 from teleop.system.outcome import GraspOutcome, ReportReader
 
@@ -190,6 +197,7 @@ class LiveSystem:
         self.foxglove = foxglove
         self.model = model
         self.endpoints: dict[str, str] = {}
+        self.bus: BusSettings | None = None  # the settings' bus on self.endpoints, once started
         self.children: dict[str, _Child] = {}
         self.commands: Publisher | None = None
         self.events: Subscriber | None = None
@@ -234,17 +242,10 @@ class LiveSystem:
             A child exits or stays silent for ``timeout_s``; the others are stopped.
         """
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        self.endpoints = {name: f"tcp://127.0.0.1:{port}"
-                          for name, port in zip(ENDPOINTS, free_ports(len(ENDPOINTS)), strict=True)}
         settings = load_settings(self.settings_path)
         self.display_range = display_range_pa(settings)
-        bus = settings.bus
         try:
-            self.commands = Publisher(self.endpoints["command"], lossless=True, source="operator",
-                                      max_bytes=bus.max_message_bytes)
-            self.events = Subscriber([self.endpoints[n] for n in ("robot_pub", "estimate_pub", "display_pub")],
-                                     ("grasp_event", "estimate", "force", "display", "model_event"),
-                                     max_bytes=bus.max_message_bytes)
+            self.open_bus(settings)
             lines = self._command_lines()
             env = {**os.environ, **_CHILD_ENV}
             for name in CHILDREN:
@@ -254,6 +255,17 @@ class LiveSystem:
         except BaseException:
             self.stop()
             raise
+
+    def open_bus(self, settings: Settings) -> None:
+        """Free loopback ports for the children, and this process's ends of them: :attr:`commands` and
+        :attr:`events`, with the settings' keys, as the children have them (with ``bus.keys_dir`` set,
+        CURVE runs on loopback too)."""
+        self.endpoints = {name: f"tcp://127.0.0.1:{port}"
+                          for name, port in zip(ENDPOINTS, free_ports(len(ENDPOINTS)), strict=True)}
+        bus = self.bus = dataclasses.replace(settings.bus, **self.endpoints)
+        self.commands = Publisher.from_settings(bus, bus.command, lossless=True, source="operator")
+        self.events = Subscriber.from_settings(bus, [bus.robot_pub, bus.estimate_pub, bus.display_pub],
+                                               ("grasp_event", "estimate", "force", "display", "model_event"))
 
     def _spawn(self, name: str, line: Sequence[str], env: dict[str, str]) -> None:
         package, *args = line
@@ -362,8 +374,8 @@ class LiveSystem:
 
         self.check()
         if self.control is None:  # bound at the first load, then kept: a closed socket frees its port late
-            self.control = Publisher(self.endpoints["control"], lossless=False, source="demo", max_bytes=self.commands.max_bytes)
-        with Subscriber(self.endpoints["estimate_pub"], ("model_event",), max_bytes=self.commands.max_bytes) as answers:
+            self.control = Publisher.from_settings(self.bus, self.bus.control, lossless=False, source="demo")
+        with Subscriber.from_settings(self.bus, self.bus.estimate_pub, ("model_event",)) as answers:
             try:
                 return reload_model(os.path.abspath(path), command=self.control, answers=answers, timeout_s=timeout_s)
             except TeleopError:
@@ -439,16 +451,6 @@ def scene_plan(scene_name: str, n_grasps: int | None = None) -> list[tuple[int, 
     objects = [o for o in scene.objects for _ in range(scene.grasps_per_object)]
     count = len(objects) if n_grasps is None else n_grasps
     return [(i % len(objects), objects[i % len(objects)]) for i in range(count)]
-
-
-@contextlib.contextmanager
-def interrupted_by_sigterm() -> Iterator[None]:
-    """SIGTERM raises KeyboardInterrupt here, as Ctrl-C does, so the children are stopped in order."""
-    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def prepare_run(args: argparse.Namespace, *, prefix: str, out: TextIO) -> tuple[Path, Path]:
@@ -586,7 +588,7 @@ def run(args: argparse.Namespace) -> int:
         host, port = args.foxglove
         print(f"Foxglove live view: ws://{host}:{port}" if port else
               f"Foxglove live view: the port the recorder chose, in {run_dir / 'recorder.log'}", file=sys.stderr)
-    with interrupted_by_sigterm(), system:
+    with sigterm_as_ctrl_c(), system:
         print(f"live system up ({', '.join(f'{n} {c.process.pid}' for n, c in system.children.items())}); "
               f"logs in {run_dir}", file=sys.stderr)
         if args.operator == "sim":

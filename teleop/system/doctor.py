@@ -20,7 +20,10 @@ simulated grasp of the default scene's first object while they are read.
 Bus: each endpoint on this host must be free to bind (a port in use is a session still
 running, or another program); an endpoint on another host must answer (a refused connection
 is fine: nothing listens there before the session; port ``*`` is any free one, not probed); endpoints
-off loopback need CURVE keys. The settings refuse a malformed endpoint, and two that name one.
+off loopback need CURVE keys. Keys (``bus.keys_dir``) must load; where an endpoint is on this host they
+must also serve it, as ``teleop node`` checks: the server secret certificate, and an authorised-keys
+folder that holds client certificates only, one at least. The settings refuse a malformed endpoint,
+and two that name one.
 
 Calibrations: each sensor's colour calibration (present, loads, made for the sensor's image
 grid; its age in days), required for the estimator's finger; and the estimator's model.
@@ -33,7 +36,6 @@ from __future__ import annotations
 import argparse
 import errno
 import json
-import math
 import shlex
 import socket
 import time
@@ -46,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from haptics.settings import display_settings
+from teleop.clikit import positive_number
 from teleop.devices.camera import make_camera
 from teleop.devices.gripper import make_gripper
 from teleop.devices.loadcell import make_load_cell
@@ -288,22 +291,24 @@ def check_devices(settings: Settings, *, duration_s: float = 2.0) -> list[Check]
 def _endpoint_check(name: str, endpoint: str) -> Check:
     key = f"`bus.{name}`"
     parts = parse_endpoint(endpoint)  # checked when the settings loaded
-    if parts.scheme != "tcp" or parts.port is None:  # ipc, inproc; "*": any free port will do
-        return Check(name, True, detail={"endpoint": endpoint, "probed": False})
+    if parts.scheme != "tcp" or parts.port is None:  # ipc, inproc; "*": any free port will do (bound here)
+        return Check(name, True, detail={"endpoint": endpoint, "probed": False, "here": True})
     host, port = parts.host.removeprefix("[").removesuffix("]"), parts.port
     probe = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
     probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # a port in TIME_WAIT is free for the session
+    here = True  # the session binds it on this host (so far as a bind here says)
     try:
         probe.bind(("0.0.0.0" if host == "*" else host, port))
         problem = None
     except socket.gaierror as exc:
-        problem = f"host {host!r} does not resolve ({exc.strerror}): fix {key}"
+        problem, here = f"host {host!r} does not resolve ({exc.strerror}): fix {key}", False
     except OSError as exc:
+        here = exc.errno == errno.EADDRINUSE
         problem = (f"port {port} on {host} is in use (a session still running, or another program): stop it or "
-                   f"choose another port in {key}") if exc.errno == errno.EADDRINUSE else _reach(host, port, key)
+                   f"choose another port in {key}") if here else _reach(host, port, key)
     finally:
         probe.close()
-    return Check(name, problem is None, problem=problem, detail={"endpoint": endpoint, "probed": True})
+    return Check(name, problem is None, problem=problem, detail={"endpoint": endpoint, "probed": True, "here": here})
 
 
 def _reach(host: str, port: int, key: str) -> str | None:
@@ -317,19 +322,37 @@ def _reach(host: str, port: int, key: str) -> str | None:
     return None
 
 
-def check_endpoints(settings: Settings) -> list[Check]:
-    """Each bus endpoint free (on this host) or answering (elsewhere), and CURVE keys where needed."""
+def _keys_check(settings: Settings, endpoints: list[Check]) -> Check | None:
+    """The CURVE keys: needed where they must be, loaded, and able to serve the endpoints bound here."""
     from teleop.bus import security
 
     bus = settings.bus
-    endpoints = [getattr(bus, name) for name in ENDPOINTS]
-    checks = [_endpoint_check(name, endpoint) for name, endpoint in zip(ENDPOINTS, endpoints, strict=True)]
-    # all five: security_from_settings checks three, but the renderer and `estimator reload` refuse theirs too
     try:
-        security.check_endpoints(endpoints, security.security_from_settings(bus))
+        keys = security.security_from_settings(bus)
+        # all five: security_from_settings checks three, but the renderer and `estimator reload` refuse theirs too
+        security.check_endpoints([c.detail["endpoint"] for c in endpoints], keys)
+        if keys is None:
+            return None
+        role = "server and client" if keys.server_secret_key is not None else "client only"
+        detail = {"keys_dir": str(keys.keys_dir), "role": role, "authorized_clients": None,
+                  "note": f"{role}: connects to servers on other hosts"}
+        if any(c.detail["here"] for c in endpoints):  # the node's own check, before it binds
+            clients = security.serving_keys(keys)
+            detail.update(authorized_clients=len(clients), note=f"{role}; {len(clients)} authorised client(s)")
+            if not clients:
+                return Check("bus keys", False, problem=(
+                    f"{keys.authorized_dir} holds no client keys: no client can connect, this host's own "
+                    "processes included; authorise each one's client.key with `teleop keys add`"), detail=detail)
     except BusSecurityError as exc:  # says what to do itself
-        checks.append(Check("bus keys", False, problem=str(exc)))
-    return checks
+        return Check("bus keys", False, problem=str(exc))
+    return Check("bus keys", True, detail=detail)
+
+
+def check_endpoints(settings: Settings) -> list[Check]:
+    """Each bus endpoint free (on this host) or answering (elsewhere), and CURVE keys where needed."""
+    checks = [_endpoint_check(name, getattr(settings.bus, name)) for name in ENDPOINTS]
+    keys = _keys_check(settings, checks)
+    return checks if keys is None else [*checks, keys]
 
 
 def _age_days(path: Path) -> float:
@@ -393,23 +416,12 @@ def diagnose(settings_path: Path, *, duration_s: float = 2.0) -> dict[str, Any]:
 # --------------------------------------------------------------------------- command
 
 
-def _seconds(text: str) -> float:
-    """A read time: a finite number > 0 (none would blame every device for sending nothing)."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a number of seconds > 0")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = __doc__.replace("``", "")
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("--settings", default=str(default_settings_path()), metavar="FILE",
                         help="settings TOML of the rig (default: the shipped simulated one)")
-    parser.add_argument("--duration-s", type=_seconds, default=2.0, metavar="S",
+    parser.add_argument("--duration-s", type=positive_number, default=2.0, metavar="S",
                         help="how long every device is read, in seconds > 0 (default: 2.0)")
     parser.add_argument("--json", action="store_true",
                         help='print one JSON object: {"ok", "devices": [{"name", "ok", "rate_hz", "latency_ms", '

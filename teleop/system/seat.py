@@ -43,10 +43,9 @@ class SimulatedSeat:
 
     def __init__(self, system: LiveSystem, settings: Settings, *, grasps: int):
         self.device = make_input("sim", settings, grasps=grasps)
-        ep = system.endpoints
-        self._subscriber = Subscriber([ep["robot_pub"], ep["estimate_pub"], ep["display_pub"]],
-                                      (*ROBOT_TOPICS, "estimate", "display"),
-                                      max_bytes=settings.bus.max_message_bytes)
+        bus = system.bus  # the live system's endpoints and keys
+        self._subscriber = Subscriber.from_settings(bus, [bus.robot_pub, bus.estimate_pub, bus.display_pub],
+                                                    (*ROBOT_TOPICS, "estimate", "display"))
         self.link = OperatorLink(publisher=system.commands, subscriber=self._subscriber,
                                  heartbeat_s=settings.bus.heartbeat_s)
         self.loop = OperatorLoop(self.link, self.device, settings)

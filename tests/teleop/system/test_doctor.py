@@ -12,10 +12,11 @@ import tty
 
 import pytest
 
+from teleop.bus.security import init_keys
 from teleop.cli import main
 from teleop.settings import BusSettings, Settings, default_settings_path, load_settings
 from teleop.settings_edit import update_settings_file
-from teleop.system.doctor import check_calibrations, check_endpoints
+from teleop.system.doctor import Check, check_calibrations, check_endpoints
 
 DEVICES = ["gripper", "load cell", "camera left", "camera right", "display", "input keyboard"]
 
@@ -145,6 +146,37 @@ def test_every_endpoint_off_loopback_needs_keys_and_any_free_port_is_not_probed(
     assert checks["control"].ok and not checks["control"].detail["probed"]
 
 
+def _keys_line(keys_dir) -> Check:
+    checks = {c.name: c for c in check_endpoints(Settings(bus=BusSettings(keys_dir=str(keys_dir))))}
+    return checks["bus keys"]
+
+
+def test_bus_keys_that_serve_this_hosts_endpoints_say_their_role_and_clients(tmp_path):
+    init_keys(tmp_path / "keys")
+    keys = _keys_line(tmp_path / "keys")
+    assert keys.ok and keys.problem is None
+    assert (keys.detail["role"], keys.detail["authorized_clients"]) == ("server and client", 1)
+    assert keys.detail["note"] == "server and client; 1 authorised client(s)"
+
+
+def test_bus_keys_no_server_would_start_with_are_not_ready(tmp_path):
+    # what `teleop node` refuses (or, before, started with and then admitted no one) is a NO here
+    init_keys(tmp_path / "keys")
+    init_keys(tmp_path / "intruder", server_cert=tmp_path / "keys" / "server.key")
+    keys = _keys_line(tmp_path / "intruder")
+    assert not keys.ok and "holds no server.key_secret: this node can connect but not bind" in keys.problem
+    junk = tmp_path / "keys" / "authorized" / "junk.key"
+    junk.write_text("garbage\n")
+    keys = _keys_line(tmp_path / "keys")
+    assert not keys.ok and f"cannot read CURVE certificate {junk}" in keys.problem
+    assert "teleop keys add" in keys.problem
+    junk.unlink()
+    (tmp_path / "keys" / "authorized" / "client.key").unlink()
+    keys = _keys_line(tmp_path / "keys")
+    assert not keys.ok and "holds no client keys: no client can connect" in keys.problem
+    assert keys.detail["authorized_clients"] == 0
+
+
 @pytest.mark.parametrize(
     ("endpoint", "expected"),
     [
@@ -175,7 +207,7 @@ def test_a_read_time_that_is_not_a_positive_number_is_refused(capsys, duration):
     with pytest.raises(SystemExit) as info:
         main(["doctor", f"--duration-s={duration}"])
     assert info.value.code == 2
-    assert f"argument --duration-s: {duration!r}: expected a number of seconds > 0" in capsys.readouterr().err
+    assert f"argument --duration-s: {duration!r}: expected a number > 0" in capsys.readouterr().err
 
 
 def _calibrate_args(problem: str, monkeypatch) -> argparse.Namespace:
