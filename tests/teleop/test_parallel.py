@@ -33,6 +33,7 @@ def test_workers_map_in_order_forked_or_spawned(spawn):
     assert done.stdout.strip() == str([-i for i in range(40)])
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_the_workers_at_once(tmp_path):
     # Ctrl-C reaches the terminal's whole process group: parent and workers. The parent stops the
     # workers mid-chunk, without waiting on them and without a traceback from the pool's threads.

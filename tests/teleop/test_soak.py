@@ -90,6 +90,7 @@ def _running(pid: int) -> bool:
         return False
 
 
+@pytest.mark.slow
 def test_sigterm_stops_the_soak_as_ctrl_c_does_consumer_and_temporary_log_gone(tmp_path):
     command = [sys.executable, "-c", "import sys; from teleop.cli import main; sys.exit(main(sys.argv[1:]))",
                "soak", "--minutes", "0.5"]

@@ -268,6 +268,7 @@ def test_bridge_command_refuses_a_duration_that_is_not_positive(capsys, value):
     assert exited.value.code == 2 and f"--duration-s: '{value}': expected a number > 0" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_bridge_command_stops_cleanly_on_ctrl_c_and_sigterm_with_its_summary(signum):
     command = [*BRIDGE_COMMAND, "--fake", "--host", "127.0.0.1", "--port", "0", "--json"]

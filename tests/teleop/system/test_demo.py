@@ -370,6 +370,7 @@ def test_endpoint_options_override_the_settings_bus():
         add_endpoint_arguments(parser, "keys_dir")
 
 
+@pytest.mark.slow
 def test_the_demos_and_the_seats_bus_ends_use_the_settings_keys(tmp_path):
     # The children run CURVE when the settings name keys, on loopback too; plain ends would hear none of them.
     init_keys(tmp_path / "keys")
@@ -582,7 +583,6 @@ def test_children_die_with_a_killed_parent(tmp_path):
         from pathlib import Path
         from teleop.system.demo import LiveSystem, simulated_calibration
         from teleop.settings import default_settings_path, load_settings
-from teleop.settings_edit import update_settings_file
         out = Path({str(tmp_path)!r})
         cal = simulated_calibration(load_settings(), out, n_presses=12)
         system = LiveSystem(default_settings_path(), "quick", out / "run", cal, record=False)
