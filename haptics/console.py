@@ -350,7 +350,7 @@ class OperatorConsole(App):
             f"robot  {'-' if robot is None else robot.mode}"
             + (f"  target {_mm(target)}" if target is not None else ""),
             f"force  {_bar(None if view.force_n is None else view.force_n / max_force, 16)} "
-            + ("-" if view.force_n is None else f"{view.force_n:.1f} N"),
+            + ("-" if view.force_n is None else f"{view.force_n:.1f} N".replace("-0.0 N", "0.0 N")),  # noise at rest
             f"width  {_mm(view.width_m)}",
         ]
         given = status.labels.get(view.grasp_id) if view.grasp_id else None

@@ -17,12 +17,20 @@ from haptics.protocol import (
 )
 
 
+def _integer(text: str) -> int:
+    """Decimal or, as PROTOCOL.md writes the report's bytes, hexadecimal (0x1234)."""
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected an integer, decimal or 0x hexadecimal") from None
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--level", type=int, required=True,
+    parser.add_argument("--level", type=_integer, required=True,
                         help="stiffness level, 0 (free) to the display's level_max (<= 65535)")
-    parser.add_argument("--uncertainty", type=int, default=0,
+    parser.add_argument("--uncertainty", type=_integer, default=0,
                         help="interval width in counts of 1/20 decade of E, 0-255")
-    parser.add_argument("--sequence", type=int, default=0, help="sequence number, 0-255")
+    parser.add_argument("--sequence", type=_integer, default=0, help="sequence number, 0-255")
     parser.add_argument("--protocol-version", type=int, choices=PROTOCOL_VERSIONS,
                         default=PROTOCOL_VERSION,
                         help="the display's protocol version (its FEATURE report says it), "

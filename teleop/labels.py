@@ -68,6 +68,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from teleop.errors import TeleopError
+from teleop.physics import E_MAX_PA
 
 if TYPE_CHECKING:  # at run time the bus's messages import this module
     from teleop.bus.messages import LabelBody
@@ -98,6 +99,9 @@ MAX_OBJECT_NAME_CHARS = 128  # the label message's object_name (teleop.bus.wire)
 
 SHORE_SCALES = ("A", "00")
 SHORE_A_RANGE = (10.0, 90.0)
+#: A stated modulus (Pa): no solid is stiffer than diamond (:data:`~teleop.physics.E_MAX_PA`); the softest
+#: a gripper holds are gels of a few kPa, so 1 Pa is a generous floor.
+LABEL_RANGE_PA = (1.0, E_MAX_PA)
 SHORE_00_RANGE = (45.0, 90.0)
 
 #: (Shore A, Shore 00) pairs of the makers' comparison table, A ascending (module notes).
@@ -324,6 +328,9 @@ def modulus_label(name: str, modulus_pa: float, source: str = "datasheet", detai
     value = _number(modulus_pa, "modulus_pa")
     if not value > 0:
         raise LabelError(f"modulus_pa {modulus_pa!r}: expected a number > 0 (Pa)")
+    if not LABEL_RANGE_PA[0] <= value <= LABEL_RANGE_PA[1]:  # a typo'd exponent would train the model on it
+        raise LabelError(f"modulus_pa {modulus_pa!r}: expected {LABEL_RANGE_PA[0]:g} to {LABEL_RANGE_PA[1]:g} Pa "
+                         "(diamond's modulus at most): a unit slip?")
     return ObjectLabel(name, value, source, detail or f"{source}: E {value:.6g} Pa")
 
 

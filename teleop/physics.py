@@ -21,7 +21,13 @@ them as ``lower_bound`` at that limit, and the display renders it as rigid.
 
 from __future__ import annotations
 
-__all__ = ["WEBER_FRACTION", "resolution_limit_pa"]
+__all__ = ["E_MAX_PA", "E_MIN_PA", "WEBER_FRACTION", "resolution_limit_pa"]
+
+#: Young's modulus of the stiffest solid, diamond's, about 1e12 Pa (1.05e12 Pa: Klein and Cardinale,
+#: Diamond and Related Materials 1993): no object labelled or estimated is stiffer.
+E_MAX_PA = 1e12
+#: Below the softest gels and foams a gripper holds (ultrasoft hydrogels are a few kPa).
+E_MIN_PA = 1e3
 
 #: Smallest relative change of an object's compliance a person feels when squeezing it
 #: (Bergmann Tiest and Kappers, IEEE Transactions on Haptics 2009: about 15 %).

@@ -87,6 +87,10 @@ from typing import Any
 
 from estimator.estimate import STATES
 from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_fraction
+from teleop.physics import (  # the physical limits a bound's point value is taken against
+    E_MAX_PA,
+    E_MIN_PA,
+)
 
 __all__ = [
     "E_MAX_PA",
@@ -107,9 +111,6 @@ __all__ = [
     "summarise",
 ]
 
-# Physical limits of Young's modulus, for the point value of a bound (see the module docstring).
-E_MAX_PA = 1e12
-E_MIN_PA = 1e3
 
 #: The felt figure counts a grasp as right when rendered within this factor of the clipped label.
 FELT_WITHIN_FACTOR = 2.0

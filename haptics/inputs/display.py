@@ -69,7 +69,7 @@ class DisplayInput(OperatorInputDevice):
         return cls(display, owned=False, **options)
 
     def __repr__(self) -> str:
-        return f"<DisplayInput {self.display!r}>"
+        return f"<DisplayInput {self.display}>"
 
     def _reset(self) -> None:
         self._latest: Any = None

@@ -54,6 +54,10 @@ def test_encode_prints_the_report(capsys):
     assert main(["encode", "--level", "4660", "--uncertainty", "42", "--sequence", "7",
                  "--rigid", "--stale", "--protocol-version", "1"]) == 0
     assert capsys.readouterr().out.strip() == "01 11 05 34 12 2a 07 39"
+    # PROTOCOL.md writes the level in hex: the same report
+    assert main(["encode", "--level", "0x1234", "--uncertainty", "0x2a", "--sequence", "7",
+                 "--rigid", "--stale", "--protocol-version", "1"]) == 0
+    assert capsys.readouterr().out.strip() == "01 11 05 34 12 2a 07 39"
     assert main(["encode", "--level", "1", "--fading", "--sequence", "128", "--json",
                  "--protocol-version", "1"]) == 0
     assert last_json(capsys)["report_hex"] == "01110801000080ee"

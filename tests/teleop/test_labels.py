@@ -98,6 +98,11 @@ def test_labels_from_the_catalogue_a_reading_or_a_modulus(catalogue):
         ObjectLabel("x", -1.0, "datasheet")
     with pytest.raises(LabelError, match="label source 'guess'"):
         ObjectLabel("x", 1.0, "guess")
+    # A typo'd exponent ("1e30 MPa") would go into the log as the grasp's truth, and into retraining.
+    for absurd in (1e36, 2e12, 0.1):
+        with pytest.raises(LabelError, match="expected 1 to 1e\\+12 Pa \\(diamond's modulus at most\\)"):
+            modulus_label("cork mat", absurd)
+    assert modulus_label("steel", 2e11).modulus_pa == 2e11 and modulus_label("hydrogel", 500.0).modulus_pa == 500.0
 
 
 def test_csv_fields_choose_the_source_and_refuse_conflicts(catalogue):

@@ -131,3 +131,9 @@ def test_by_default_it_owns_a_display_made_from_the_settings(settings):
     with device:
         assert device.display.connected
     assert not device.display.connected
+
+
+def test_the_input_names_its_display_as_the_display_names_itself():
+    from haptics.devices.sim import SimulatedDisplay
+
+    assert repr(DisplayInput(SimulatedDisplay())) == "<DisplayInput simulated display>"  # not "object at 0x..."
