@@ -363,11 +363,13 @@ class EstimatorService(ServiceLoop):
             self.stats.ignored += 1
             log.warning("end of grasp %r, which is not open", grasp_id)
             return
-        if grasp.final is None:
-            self._finish(grasp, received_s, by="grasp_end")
-        self.report.write(self._summary(grasp))  # before the end goes out: readers of both find it
-        self.publisher.send("grasp_event", t_capture_s=t_s, event="end", grasp_id=grasp_id)
-        self._grasp = None
+        try:
+            if grasp.final is None:
+                self._finish(grasp, received_s, by="grasp_end", end_s=t_s)
+            self.report.write(self._summary(grasp))  # before the end goes out: readers of both find it
+            self.publisher.send("grasp_event", t_capture_s=t_s, event="end", grasp_id=grasp_id)
+        finally:  # whatever failed, the next grasp finds none open
+            self._grasp = None
 
     def _loading_end(self, grasp_id: str, t_s: float, received_s: float) -> None:
         grasp = self._grasp
@@ -410,15 +412,20 @@ class EstimatorService(ServiceLoop):
             # Ahead of the final estimate, which then reduces only the peak frame's depth.
             stream.reduce_depths(grasp.model.predictor.variant.size_px, grasp.model.predictor.variant.window_m)
 
-    def _finish(self, grasp: _Grasp, received_s: float, *, by: str, segment: Segment | None = None) -> None:
+    def _finish(self, grasp: _Grasp, received_s: float, *, by: str, segment: Segment | None = None,
+                end_s: float | None = None) -> None:
         """The final estimate: the model's when one is pinned to the grasp, else (or when the
-        model fails) the analytical one."""
+        model fails) the analytical one; stamped with the newest data's time, or for a grasp that
+        sent none the time of its end (``end_s``)."""
         started = time.perf_counter()
         stream = grasp.stream
         segment = stream.segment() if segment is None else segment
         estimate, by_model = self._best_estimate(grasp, segment)
         grasp.final, grasp.final_by, grasp.final_by_model = estimate, by, by_model
-        grasp.final_t_data_s, grasp.loading_frames = stream.last_loading_frame_s(segment), int(segment.frame_t_s.size)
+        t_data_s = stream.last_loading_frame_s(segment)
+        if not math.isfinite(t_data_s) and end_s is not None:
+            t_data_s = end_s
+        grasp.final_t_data_s, grasp.loading_frames = t_data_s, int(segment.frame_t_s.size)
         grasp.final_compute_s = time.perf_counter() - started
         grasp.final_s = self._publish(grasp, estimate, grasp.final_t_data_s, received_s, provisional=False,
                                       by_model=by_model)

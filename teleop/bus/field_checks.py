@@ -90,13 +90,21 @@ class IntegerField:
         return int(value)
 
 
+#: The largest time (s, either sign) a message carries: any clock the bus uses (monotonic since boot,
+#: or the Unix epoch: 1.8e9 s in 2027) stays within it, and in nanoseconds it fits an int64 (9.2e9 s),
+#: as the session log and Foxglove store it. A time beyond it would break those, not just be wrong.
+MAX_TIME_S = 4.0e9
+
+
 @dataclass(frozen=True)
 class NumberField:
-    """A finite number, above ``lo`` (strictly if ``lo_open``) when given; nil if ``nullable``."""
+    """A finite number, above ``lo`` (strictly if ``lo_open``) when given, at most ``max_abs`` in
+    magnitude when given; nil if ``nullable``."""
 
     lo: float | None = None
     lo_open: bool = False
     nullable: bool = False
+    max_abs: float | None = None
 
     @property
     def positive(self) -> bool:
@@ -111,6 +119,8 @@ class NumberField:
         number = float(value)
         if not math.isfinite(number):
             raise MessageRejected("not_finite", f"{where} = {number}: expected a finite number")
+        if self.max_abs is not None and abs(number) > self.max_abs:
+            raise MessageRejected("mistyped_field", f"{where} = {number:.6g}: expected at most {self.max_abs:g} in magnitude")
         lo = self.lo
         if lo is not None and (number <= lo if self.lo_open else number < lo):
             raise MessageRejected("mistyped_field", f"{where} = {number}: expected {'>' if self.lo_open else '>='} {lo}")
@@ -181,6 +191,7 @@ class ArrayField:
     dtypes: tuple[str, ...]
     ndims: tuple[int, ...]
     finite: bool = False
+    max_abs: float | None = None  # float values at most this in magnitude
 
     def coerce(self, value: Any, where: str) -> np.ndarray:
         """Sender side: arrays as given (checked later, never cast); bytes and numbers converted."""
@@ -203,6 +214,9 @@ class ArrayField:
             raise MessageRejected("mistyped_field", f"{where} is {array.ndim}-D: expected {' or '.join(map(str, self.ndims))}-D")
         if self.finite and array.dtype.kind == "f" and not np.isfinite(array).all():
             raise MessageRejected("not_finite", f"{where} holds NaN or infinity")
+        if self.max_abs is not None and array.dtype.kind == "f" and array.size and np.abs(array).max() > self.max_abs:
+            raise MessageRejected("mistyped_field", f"{where} holds {np.abs(array).max():.6g}: expected values at most "
+                                                  f"{self.max_abs:g} in magnitude")
         return array
 
 

@@ -27,6 +27,7 @@ import numpy as np
 from teleop.bus.field_checks import (
     FLAG,
     INTERVAL,
+    MAX_TIME_S,
     ArrayField,
     IntegerField,
     NumberField,
@@ -86,7 +87,7 @@ MODEL_EVENTS = ("loaded", "refused")
 MAX_MODEL_ID_CHARS = 64
 
 # Timestamps stay float64: float32 would round monotonic seconds (~1e5 s) to ~8 ms.
-_TIMES = ArrayField(("<f8",), (1,), finite=True)
+_TIMES = ArrayField(("<f8",), (1,), finite=True, max_abs=MAX_TIME_S)
 _VALUES = ArrayField(("<f8", "<f4"), (1,), finite=True)
 _GRASP = TextField(nullable=True)  # the grasp a message belongs to; nil: none
 _MAGIC = {"jpeg": b"\xff\xd8", "png": b"\x89PNG"}

@@ -65,7 +65,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
-from teleop.bus.field_checks import IntegerField, NumberField, TextField, is_int
+from teleop.bus.field_checks import MAX_TIME_S, IntegerField, NumberField, TextField, is_int
 from teleop.bus.messages import (
     BODIES,
     COMMAND_ACTIONS,
@@ -136,7 +136,7 @@ DTYPES = frozenset(
 )
 
 # The header's checked fields (the sender's identity and clocks), checked alike on both ends.
-_HEADER_FIELDS = {"source": TextField(max_chars=64), "seq": IntegerField(), "t_capture_s": NumberField(),
+_HEADER_FIELDS = {"source": TextField(max_chars=64), "seq": IntegerField(), "t_capture_s": NumberField(max_abs=MAX_TIME_S),
                   "t_send_ns": IntegerField()}
 _HEADER_KEYS = frozenset({"v", "type", *_HEADER_FIELDS, "buffers"})
 

@@ -231,6 +231,24 @@ def test_service_logs_bad_messages_and_carries_on(settings, calibration, records
         rogue.close(linger=0)
 
 
+def test_a_grasp_that_sent_no_data_gets_a_refusal_and_the_next_is_estimated(settings, calibration, records,
+                                                                            tmp_path):
+    # Start then end with nothing between (an operator's g then s): its final had no data time, its
+    # publication failed, and with --report the service then refused every later grasp.
+    rig = Rig(settings, calibration, report=tmp_path / "estimator.jsonl")
+    try:
+        rig.robot.send("grasp_event", t_capture_s=1.0, event="start", grasp_id="empty", object_name=None)
+        rig.robot.send("grasp_event", t_capture_s=1.2, event="end", grasp_id="empty")
+        got = rig.collect("empty")
+        (final,) = [m for m in got if m.type == "estimate" and not m.body["provisional"]]
+        assert final.body["state"] == "insufficient_data" and final.t_capture_s == 1.2
+        rig.send_grasp(records["steel_ball_bearing"], "next")
+        assert any(m.type == "estimate" and not m.body["provisional"] for m in rig.collect("next"))
+        assert rig.service.stats.bad_messages == 0
+    finally:
+        rig.close()
+
+
 # --------------------------------------------------------------------------- the loading end marker
 
 

@@ -12,6 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from teleop.bus.field_checks import MAX_TIME_S
 from teleop.bus.wire import (
     MAX_BODY_BYTES,
     MAX_HEADER_BYTES,
@@ -233,6 +234,19 @@ def test_nan_where_a_finite_number_is_required():
     poisoned = np.frombuffer(force[4], dtype="<f8").copy()
     poisoned[3] = np.nan
     assert _refused([*force[:4], poisoned.tobytes()]) == "not_finite"
+
+
+def test_a_time_no_clock_reaches_is_refused():
+    # 1e19 s overflowed the session log's nanoseconds and crashed the recorder; 1e300 as a grasp's
+    # first sample made every later one "not after the previous one".
+    frames = _frames("estimate_ok")
+    assert _refused(_with_header(frames, t_capture_s=1e19)) == "bad_header"
+    assert _refused(_with_header(frames, t_capture_s=-1.7e308)) == "bad_header"
+    force = _frames()
+    late = np.frombuffer(force[3], dtype="<f8").copy()
+    late[0] = 1e300
+    assert _refused([*force[:3], late.tobytes(), force[4]]) == "mistyped_field"
+    assert decode(force, max_bytes=MAX).t_capture_s < MAX_TIME_S  # a real time passes
 
 
 def test_missing_extra_and_mistyped_fields():
