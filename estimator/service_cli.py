@@ -65,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (messages, bad_messages, ignored, grasps, "
                              "provisional, final, reloads, reload_requests, load_requests, model_refusals, "
-                             "model) as the last stdout line")
+                             "model; wire: what its subscribers refused on the wire, by reason, and their sequence gaps) as the last stdout line")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -106,5 +106,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"estimator: {stats.grasps} grasps, {stats.provisional} provisional and {stats.final} final "
           f"estimates, {stats.bad_messages} bad messages", file=sys.stderr)
     if args.json:
-        print(json.dumps({**stats.as_dict(), "model": None if service.model is None else service.model.model_id}))
+        print(json.dumps({**stats.as_dict(), "model": None if service.model is None else service.model.model_id,
+                          "wire": service.wire_stats()}))
     return 0

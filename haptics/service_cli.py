@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_foxglove_argument(parser, what="the display messages it publishes")
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (estimates, bad_messages, grasp_ends, display_messages, "
-                             "display_failures, ignored: estimates of grasps that had ended, finals) "
+                             "display_failures, ignored: estimates of grasps that had ended, finals; wire: what its subscribers refused on the wire, by reason, and their sequence gaps) "
                              "as the last stdout line")
 
 
@@ -80,5 +80,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"renderer: {stats.estimates} estimates, {len(stats.finals)} final, {display.reports_written} "
           f"reports written{ignored}", file=sys.stderr)
     if args.json:
-        print(json.dumps(stats.as_dict()))
+        print(json.dumps({**stats.as_dict(), "wire": service.wire_stats()}))
     return 0

@@ -67,6 +67,19 @@ class ServiceLoop:
     def finish(self) -> None:
         """What to do once the loop ends (nothing by default)."""
 
+    def wire_stats(self) -> dict[str, Any]:
+        """What the service's subscribers (``subscriber``, ``commands``, where it has them) refused on
+        the wire, by reason, and the sequence gaps they saw: its summary's count of bad messages is of
+        those that decoded."""
+        out: dict[str, Any] = {}
+        for name in ("subscriber", "commands"):
+            sub = getattr(self, name, None)
+            if sub is not None:
+                stats = sub.stats
+                out[name] = {"received": stats.received, "refused": dict(stats.refused), "gaps": stats.gaps,
+                             "missed": stats.missed, "restarts": stats.restarts}
+        return out
+
     def run(self, stop: threading.Event, *, duration_s: float | None = None) -> Any:
         """Serve until ``stop.is_set()`` or ``duration_s`` passed."""
         deadline = None if duration_s is None else self.clock() + duration_s

@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_foxglove_argument(parser, what="what the node publishes (frames, forces, widths, grasp events)")
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (grasps, frames, force_batches, width_batches, "
-                             "bad_commands, device_errors, watchdogs) as the last stdout line")
+                             "bad_commands, device_errors, watchdogs; wire: what its subscribers refused on the wire, by reason, and their sequence gaps) as the last stdout line")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,5 +57,5 @@ def run(args: argparse.Namespace) -> int:
         stats = node.run(signals.stop, duration_s=args.duration_s)
     print(f"robot node: {stats.grasps} grasps, {stats.frames} frames published", file=sys.stderr)
     if args.json:
-        print(json.dumps(stats.as_dict()))
+        print(json.dumps({**stats.as_dict(), "wire": node.wire_stats()}))
     return 0

@@ -156,6 +156,8 @@ def test_every_raw_wire_fault_is_refused_counted_and_logged(live, caplog):
         live.until(lambda: all(live.service.subscriber.stats.refused[r] - refused_before.get(r, 0) == n
                                for r, n in expected.items()), "the refusals")
     assert caplog.text.count("refused a message") == len(RAW_FAULTS)
+    wire = live.service.wire_stats()["subscriber"]  # as the service's --json summary gives them
+    assert all(wire["refused"][r] - refused_before.get(r, 0) == n for r, n in expected.items())
     for detail in ("not valid msgpack", "header version 99", "holds NaN or infinity", "body frame has"):
         assert detail in caplog.text
 
