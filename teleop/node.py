@@ -87,6 +87,7 @@ __all__ = ["COMMAND_TOPICS", "NodeStats", "RobotNode"]
 log = logging.getLogger(__name__)
 
 COMMAND_TOPICS = ("command", "follow")
+START_GRASP_PARAMS = frozenset({"object_index", "target_force_n"})  # what a start_grasp command may set
 REFUSAL_REPEAT_S = 1.0  # the same refusal (action and reason) goes out at most this often
 READ_TIMEOUT_S = 0.05  # device reads wake this often to see whether the node is stopping
 APPROACH_LEAD_S = 0.05  # a replay starts this long before the record's first sample
@@ -300,6 +301,10 @@ class RobotNode(ServiceLoop):
                 self._follower.follow(body.grasp_id, body.target_width_m, body.enable)
             elif action == "start_grasp":
                 params = body.params
+                unknown = sorted(set(params) - START_GRASP_PARAMS)
+                if unknown:  # a misspelt option would otherwise be dropped without a word
+                    raise InvalidCommandError(f"start_grasp params {', '.join(unknown)}: expected only "
+                                              f"{', '.join(sorted(START_GRASP_PARAMS))}")
                 index = params.get("object_index")
                 self.start_grasp(body.grasp_id, object_index=None if index is None else _index(index),
                                  target_force_n=params.get("target_force_n"))

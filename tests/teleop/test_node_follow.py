@@ -174,15 +174,18 @@ def test_commands_that_cannot_be_carried_out_are_refused_on_the_bus(rig):
     node, operator, listener, scene = rig
     wait_prepared(node)
     maximum = scene.settings.gripper.target_force_n
+    operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-typo", params={"hold_s": 1e9})
     operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-hard", params={"target_force_n": 500.0})
     drive(node, operator, lambda t: 0.5, 0.05, grasp_id="g-wide")  # wider than the gripper opens
     drive(node, operator, lambda t: 0.07, 0.1, grasp_id="g-follow")
     operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-during", params={})
     drive(node, operator, lambda t: 0.07, 0.1, grasp_id="g-other")
     refusals = [m.body for m in drain(listener) if m.type == "robot_notice"]
-    assert [(r["action"], r["grasp_id"]) for r in refusals] == [
+    assert [(r["action"], r["grasp_id"]) for r in refusals] == [("start_grasp", "g-typo"),
         ("start_grasp", "g-hard"), ("follow", "g-wide"), ("start_grasp", "g-during"), ("follow", "g-other")]
     assert all(r["event"] == "refused" for r in refusals)
+    assert "start_grasp params hold_s: expected only object_index, target_force_n" in refusals[0]["reason"]
+    refusals = refusals[1:]
     assert f"{maximum}" in refusals[0]["reason"] and "open to" in refusals[1]["reason"]
     assert "in progress" in refusals[2]["reason"] and "g-follow" in refusals[3]["reason"]
     # After the grasp: its id is spent, and a commanded grasp takes no follows.
