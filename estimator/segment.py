@@ -64,8 +64,7 @@ hold
 Flags
 -----
 ``"cleaned_timestamps"`` non-finite or duplicate samples were dropped or merged;
-``"implausible_width"`` widths outside the gripper's opening were dropped;
-``"implausible_force"`` forces beyond what the gripper can apply were dropped (a glitch), or refused;
+``"implausible_width"``, ``"implausible_force"`` readings the gripper cannot make (:mod:`estimator.plausible`);
 ``"non_monotonic"`` the force drops beyond its noise during loading;
 ``"clipped"`` the force saturates (plateau of identical top readings);
 ``"too_few_samples"`` fewer samples or frames than the methods want;
@@ -85,20 +84,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from estimator.errors import FitError
+from estimator.plausible import (
+    MIN_FORCE_NOISE_N,
+    MIN_WIDTH_NOISE_M,
+    implausible_forces,
+    implausible_widths,
+)
 from estimator.signals import clean_samples, crossing_time, interpolate, noise_std, reading_noise
 
-__all__ = [
-    "LoadPhase",
-    "Segment",
-    "align_frames",
-    "clean_samples",
-    "crossing_time",
-    "find_load_phase",
-    "interpolate",
-    "noise_std",
-    "sampling_axis",
-    "segment_grasp",
-]
+__all__ = ["LoadPhase", "Segment", "align_frames", "find_load_phase", "sampling_axis", "segment_grasp"]
 
 BASELINE_GUARD_S = 0.05
 ONSET_SIGMAS = 4.0
@@ -119,16 +113,6 @@ PEAK_FRAME_WINDOW_S = 0.1
 ENVELOPE_TOLERANCE = 0.01
 BACKOFF_SHARE = 0.02
 PAUSE_S = 0.15
-# A width reading below 0 or beyond the gripper's opening by more than this share of it is no width.
-WIDTH_SLACK_SHARE = 0.1
-# The gripper stops at its maximum grasp force; a reading beyond this multiple of it (either sign) is no
-# force: up to FORCE_GLITCHES such samples are dropped, more refuse the grasp (not newtons?).
-FORCE_LIMIT_FACTOR = 2.0
-FORCE_GLITCHES = 2
-# The least noise a force or width reading is taken to carry (below any load cell or gripper simulated or
-# seen): exact readings would otherwise give bounds at absurd moduli (1e20 Pa) and intervals of zero width.
-MIN_FORCE_NOISE_N = 1e-3
-MIN_WIDTH_NOISE_M = 1e-6
 
 
 @dataclass(frozen=True)
@@ -380,11 +364,9 @@ def segment_grasp(
         completed; s): the force holds from the peak until the release, so the
         peak frame needs no force sample after it, and frames after it take the
         width at the stop (module notes).
-    max_width_m : float, optional
-        The gripper's full opening (m): widths below 0 or above it by more than
-        :data:`WIDTH_SLACK_SHARE` of it are dropped (a glitch, or not metres).
-    max_force_n : float, optional
-        The gripper's maximum grasp force (N): :data:`FORCE_LIMIT_FACTOR` times it bounds a force.
+    max_width_m, max_force_n : float, optional
+        The gripper's full opening (m) and maximum grasp force (N): readings beyond what they allow
+        are dropped, or the grasp refused (:mod:`estimator.plausible`).
 
     Returns
     -------
@@ -432,23 +414,16 @@ def find_load_phase(
         flag("cleaned_timestamps", f"dropped or merged {dropped[0]} force and {dropped[1]} width "
                                    "samples: non-finite values or timestamps, or duplicate timestamps")
     if max_width_m is not None:
-        slack = WIDTH_SLACK_SHARE * max_width_m
-        outside = (width < -slack) | (width > max_width_m + slack)
-        if outside.any():
-            flag("implausible_width", f"dropped {int(outside.sum())} width samples outside the gripper's "
-                                      f"0-{max_width_m:.4g} m opening (from {width[outside].min():.4g} to "
-                                      f"{width[outside].max():.4g} m: a glitch, or not in metres?)")
+        outside, note = implausible_widths(width, max_width_m=max_width_m)
+        if note:
+            flag("implausible_width", note)
             tw, width = tw[~outside], width[~outside]
     if max_force_n is not None:
-        limit = FORCE_LIMIT_FACTOR * max_force_n
-        beyond = np.abs(force) > limit
-        told = f"beyond {limit:.4g} N, {FORCE_LIMIT_FACTOR:g} times the gripper's maximum grasp force"
-        if beyond.sum() > FORCE_GLITCHES:
-            return LoadPhase(reason=f"{int(beyond.sum())} force samples ({np.abs(force).max():.4g} N at most) "
-                                    f"{told}: is the load cell's scale (counts_per_n) in newtons?",
-                             flags=(*flags, "implausible_force"), notes=tuple(notes))
-        if beyond.any():
-            flag("implausible_force", f"dropped {int(beyond.sum())} force samples {told} (a glitch)")
+        beyond, note, refused = implausible_forces(force, max_force_n=max_force_n)
+        if refused:
+            return LoadPhase(reason=note, flags=(*flags, "implausible_force"), notes=tuple(notes))
+        if note:
+            flag("implausible_force", note)
             tf, force = tf[~beyond], force[~beyond]
     if tf.size < 3:
         return LoadPhase(reason=f"too few force samples ({tf.size} usable, need 3)",

@@ -44,7 +44,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import ipaddress
-import itertools
 import logging
 import os
 import re
@@ -60,8 +59,8 @@ import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 from zmq.utils import z85
-from zmq.utils.monitor import recv_monitor_message
 
+from teleop.bus.handshakes import watch_handshakes
 from teleop.errors import BusError, BusSecurityError
 from teleop.settings import BusSettings, parse_endpoint
 
@@ -100,22 +99,7 @@ _LOOPBACK_SCHEMES = frozenset({"inproc", "ipc"})
 _NETWORK_SCHEMES = frozenset({"pgm", "epgm", "norm", "tipc", "vmci"})  # multicast, or a fabric of hosts
 _KEY_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 _Z85_KEY_CHARS = 40
-_MONITORS = itertools.count()  # numbers the handshake monitors' inproc addresses
 _MAX_REFUSALS_LOGGED = 1000  # refused keys a server names: a flood of keys cannot grow memory
-# What a client's handshake watcher hears (MONITOR_STOPPED: the socket closed).
-_HANDSHAKE_EVENTS = (zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
-                     | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_HANDSHAKE_SUCCEEDED
-                     | zmq.EVENT_MONITOR_STOPPED)
-# Why a handshake failed, and whether libzmq tries again: after a refusal or a protocol error
-# its client gives the endpoint up; after a dropped connection it reconnects.
-_HANDSHAKE_FAILURES = {
-    zmq.EVENT_HANDSHAKE_FAILED_AUTH: ("the server does not authorise this client's key", False),
-    # a server drops a HELLO it cannot open, without a word: it was sealed for another server's key
-    zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL: (
-        "the server dropped the connection: it is not the server whose key this node trusts", True),
-    zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL: ("protocol error: the server may not run CURVE", False),
-}
-_GIVEN_UP = "this client gives the endpoint up: restart it once that is fixed"
 
 
 _FIX_HINT = "run `teleop keys init DIR` and set bus.keys_dir = DIR in the settings TOML"
@@ -424,53 +408,6 @@ def _nothing() -> None:
     return None
 
 
-def _report_handshakes(monitor: zmq.Socket, keys_dir: Path) -> None:
-    """Warn once per endpoint whose CURVE handshake fails (libzmq says nothing); until the
-    watched socket closes."""
-    warned: set[str] = set()
-    try:
-        while True:
-            event = recv_monitor_message(monitor)
-            kind, endpoint = event["event"], event["endpoint"].decode("utf-8", "replace")
-            if kind == zmq.EVENT_MONITOR_STOPPED:
-                return
-            if kind == zmq.EVENT_HANDSHAKE_SUCCEEDED:
-                if endpoint in warned:
-                    warned.discard(endpoint)
-                    log.info("CURVE handshake with %s now succeeds", endpoint)
-            elif endpoint not in warned:
-                warned.add(endpoint)
-                reason, retried = _HANDSHAKE_FAILURES.get(kind, (f"event {kind}", False))
-                log.warning(
-                    "CURVE handshake with %s refused (%s): check that %s is that server's public "
-                    "certificate and that this client's key (%s) is authorised on the server "
-                    "(`teleop keys add` there, then restart the server); %s",
-                    endpoint,
-                    reason,
-                    keys_dir / f"{SERVER_CERT}{PUBLIC_SUFFIX}",
-                    keys_dir / f"{CLIENT_CERT}{PUBLIC_SUFFIX}",
-                    "retrying" if retried else _GIVEN_UP,
-                )
-    except zmq.ZMQError:  # the context was terminated under it
-        pass
-    finally:
-        monitor.close(linger=0)
-
-
-def _watch_handshakes(socket: zmq.Socket, keys_dir: Path) -> None:
-    """Report ``socket``'s failed handshakes from a thread reading its monitor (closing the
-    socket stops it). Only CURVE clients pay for it: a plain socket has nothing to refuse."""
-    # our own PAIR, not get_monitor_socket's (it hands its one socket to every caller): a
-    # later monitor replaces this one, and this thread then hears MONITOR_STOPPED and ends
-    address = f"inproc://teleop-curve-handshakes-{next(_MONITORS)}"
-    socket.monitor(address, _HANDSHAKE_EVENTS)
-    monitor = socket.context.socket(zmq.PAIR)
-    monitor.connect(address)
-    threading.Thread(
-        target=_report_handshakes, args=(monitor, keys_dir), name="curve-handshakes", daemon=True
-    ).start()
-
-
 def apply_security(
     socket: zmq.Socket, security: BusSecurity | None, *, server: bool
 ) -> Callable[[], None]:
@@ -494,7 +431,8 @@ def apply_security(
             socket.curve_serverkey = security.server_public_key
             socket.curve_publickey = security.client_public_key
             socket.curve_secretkey = security.client_secret_key
-            _watch_handshakes(socket, security.keys_dir)
+            watch_handshakes(socket, server_cert=security.keys_dir / f"{SERVER_CERT}{PUBLIC_SUFFIX}",
+                             client_cert=security.keys_dir / f"{CLIENT_CERT}{PUBLIC_SUFFIX}")
             return _nothing
         socket.curve_server = True
         socket.curve_publickey = security.server_public_key

@@ -541,9 +541,7 @@ def export_session(
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise SessionLogError(
-            f"cannot create the export directory {out}: {exc.strerror or exc}"
-        ) from exc
+        raise SessionLogError(f"cannot create the export directory {out}: {exc.strerror or exc}") from exc
     complete, damage = info.complete, info.damage
     sid = session_id(info, path)
     stray: list[str] = []
@@ -577,9 +575,7 @@ def export_session(
             hidden.replace(dest)
         done = True
     except OSError as exc:
-        raise SessionLogError(
-            f"cannot write the records of {path} into {out}: {exc.strerror or exc}"
-        ) from exc
+        raise SessionLogError(f"cannot write the records of {path} into {out}: {exc.strerror or exc}") from exc
     finally:
         for hidden, _ in staged:
             hidden.unlink(missing_ok=True)
@@ -587,9 +583,7 @@ def export_session(
             # The log's settings and grasps are checked as they are read, after out is made.
             with contextlib.suppress(OSError):
                 out.rmdir()
-    return SessionExport(
-        results, session_id=sid, complete=complete, damage=damage, stray_labels=stray
-    )
+    return SessionExport(results, session_id=sid, complete=complete, damage=damage, stray_labels=stray)
 
 
 def _record_name(log_path: Path, session: str, grasp_id: str, taken: set[str]) -> str:

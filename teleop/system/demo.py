@@ -67,13 +67,7 @@ from teleop.errors import SettingsError, TeleopError
 from teleop.live import ENDPOINTS, sigterm_as_ctrl_c
 from teleop.scene import load_scene
 from teleop.session.foxglove_live import add_foxglove_argument
-from teleop.settings import (
-    BusSettings,
-    Settings,
-    default_settings_path,
-    load_settings,
-    resolve_path,
-)
+from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
 from teleop.system.demo_table import LiveView, closing_table, models_answered
 from teleop.system.outcome import GraspOutcome, ReportReader
 
@@ -197,7 +191,7 @@ class LiveSystem:
         self.foxglove = foxglove
         self.model = model
         self.endpoints: dict[str, str] = {}
-        self.bus: BusSettings | None = None  # the settings' bus on self.endpoints, once started
+        self.bus = None  # the settings' BusSettings on self.endpoints, once started
         self.children: dict[str, _Child] = {}
         self.commands: Publisher | None = None
         self.events: Subscriber | None = None

@@ -11,16 +11,9 @@ from hypothesis import strategies as st
 
 from estimator.errors import FitError
 from estimator.lag import estimate_camera_lag, estimate_width_lag
-from estimator.segment import (
-    HOLD_FRAMES,
-    HOLD_SETTLE_S,
-    MIN_FORCE_NOISE_N,
-    MIN_WIDTH_NOISE_M,
-    clean_samples,
-    interpolate,
-    noise_std,
-    segment_grasp,
-)
+from estimator.plausible import MIN_FORCE_NOISE_N, MIN_WIDTH_NOISE_M
+from estimator.segment import HOLD_FRAMES, HOLD_SETTLE_S, segment_grasp
+from estimator.signals import clean_samples, interpolate, noise_std
 
 T_TOUCH = 0.5  # true first touch (s)
 T_LOAD = 0.3  # touch to peak (s)

@@ -5,21 +5,20 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
-import logging
 import socket
 import stat
 import struct
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import pytest
 import zmq
+from support.bus import delivered, force
 
 import teleop.cli
-from teleop.bus import Message, Publisher, Subscriber
+from teleop.bus import Publisher, Subscriber
 from teleop.bus.pubsub import CONTROL_FRAME_BYTES
 from teleop.bus.security import (
     CURVE_FRAME_OVERHEAD_BYTES,
@@ -42,42 +41,8 @@ LOOPBACK = "tcp://127.0.0.1:*"
 SILENCE_S = 0.4  # how long a refused peer is watched for traffic that must not come
 
 
-@pytest.fixture
-def keys(tmp_path) -> BusSecurity:
-    init_keys(tmp_path / "keys")
-    return BusSecurity.load(tmp_path / "keys")
-
-
-@pytest.fixture
-def stranger(tmp_path, keys) -> BusSecurity:
-    """A node with its own valid keys that knows the bus's server public key (it is public)
-    but whose client key the bus never authorised."""
-    init_keys(tmp_path / "stranger")
-    own = BusSecurity.load(tmp_path / "stranger")
-    return dataclasses.replace(own, server_public_key=keys.server_public_key)
-
-
-def _force(pub: Publisher, i: int) -> None:
-    pub.send("force", t_capture_s=float(i), t_s=[float(i)], value_n=[float(i)])
-
-
-def _delivered(pub: Publisher, *subs: Subscriber, within_s: float) -> Message | None:
-    """Publish while ``subs`` listen, until one of them gets a message: that message, or
-    None after ``within_s``. The subscribers are polled throughout: libzmq hands a SUB's
-    subscriptions to a new or reconnected peer only while its socket is being used."""
-    deadline = time.monotonic() + within_s
-    i = 0
-    while time.monotonic() < deadline:
-        _force(pub, i)
-        i += 1
-        for sub in subs:
-            if (message := sub.recv(timeout_s=0.01)) is not None:
-                return message
-    return None
-
-
 def _nothing_arrives(pub: Publisher, *subs: Subscriber) -> bool:
-    return _delivered(pub, *subs, within_s=SILENCE_S) is None
+    return delivered(pub, *subs, within_s=SILENCE_S) is None
 
 
 # --------------------------------------------------------------------------- endpoints
@@ -163,7 +128,7 @@ def test_only_an_authorised_client_can_subscribe(keys, stranger):
             pub.wait_for_subscriber("force", timeout_s=SILENCE_S)
         with Subscriber(pub.endpoint, ["force"], security=keys) as insider:
             pub.wait_for_subscriber("force", timeout_s=2.0)
-            _force(pub, 7)
+            force(pub, 7)
             got = insider.recv(timeout_s=2.0)
             assert got is not None and got.body["value_n"][0] == 7.0 and got.source == "robot"
             assert _nothing_arrives(pub, *outsiders)
@@ -180,7 +145,7 @@ def test_only_an_authorised_client_can_publish(keys, stranger):
         with Publisher(
             sub.endpoints[0], lossless=False, bind=False, source="robot", security=keys
         ) as pub:
-            got = _delivered(pub, sub, within_s=2.0)
+            got = delivered(pub, sub, within_s=2.0)
             pub.wait_for_subscriber("force", timeout_s=0.05)
     assert got is not None and got.source == "robot"
     assert sub.stats.received >= 1 and "mallory" not in sub.heartbeat.peers()
@@ -206,14 +171,14 @@ def test_a_revoked_key_is_refused_after_restart(tmp_path, keys, stranger):
         Subscriber(endpoint, ["force"], security=stranger) as operator,
         Subscriber(endpoint, ["force"], security=keys) as robot_side,
     ):
-        assert _delivered(pub, operator, within_s=2.0) is not None  # authorised: it works
+        assert delivered(pub, operator, within_s=2.0) is not None  # authorised: it works
         received_before = operator.stats.received
 
         revoke_key(keys.keys_dir, "operator")
         pub.close()
         pub = _rebind(endpoint, keys)  # the restart; both subscribers reconnect by themselves
         try:
-            assert _delivered(pub, robot_side, within_s=3.0) is not None
+            assert delivered(pub, robot_side, within_s=3.0) is not None
             assert _nothing_arrives(pub, operator)
             assert operator.stats.received == received_before
         finally:
@@ -291,7 +256,7 @@ def test_from_settings_takes_the_limit_and_the_keys(keys):
     ):
         assert (pub.max_bytes, pub.heartbeat_s, sub.max_bytes) == (2048, 0.25, 2048)
         assert sub._live().getsockopt(zmq.MAXMSGSIZE) == 2048 + CURVE_FRAME_OVERHEAD_BYTES
-        assert _delivered(pub, sub, within_s=2.0) is not None
+        assert delivered(pub, sub, within_s=2.0) is not None
         assert _nothing_arrives(pub, plain)  # CURVE is on: a client without keys gets nothing
     with pytest.raises(BusSecurityError, match="10.0.0.2"):
         Subscriber.from_settings(BusSettings(command="tcp://10.0.0.2:5552"), "tcp://127.0.0.1:5550")
@@ -311,7 +276,7 @@ def test_a_connect_only_node_joins_an_existing_bus(tmp_path, keys):
         Subscriber(pub.endpoint, ["force"], security=operator) as sub,
     ):
         pub.wait_for_subscriber("force", timeout_s=2.0)
-        _force(pub, 5)
+        force(pub, 5)
         assert sub.recv(timeout_s=2.0).body["value_n"][0] == 5.0
 
 
@@ -335,61 +300,7 @@ def test_a_file_in_authorized_that_is_no_certificate_stops_the_server_naming_it(
         Publisher(LOOPBACK, lossless=False, source="robot", security=keys) as pub,
         Subscriber(pub.endpoint, ["force"], security=keys) as sub,
     ):
-        assert _delivered(pub, sub, within_s=2.0) is not None
-
-
-def _handshake_records(caplog, within_s: float, *wanted: str) -> list[logging.LogRecord]:
-    """The security module's records once every ``wanted`` text is in one (or ``within_s`` passed)."""
-    deadline = time.monotonic() + within_s
-    while True:
-        records = [r for r in caplog.records if r.name == "teleop.bus.security"]
-        found = all(any(w in r.getMessage() for r in records) for w in wanted)
-        if found or time.monotonic() > deadline:
-            return records
-        time.sleep(0.02)
-
-
-def test_a_refused_handshake_is_logged_once_on_both_ends(keys, stranger, caplog):
-    caplog.set_level(logging.INFO, logger="teleop.bus.security")
-    wrong_server = dataclasses.replace(keys, server_public_key=stranger.client_public_key)
-    stranger_key = stranger.client_public_key.decode()
-    with (
-        Publisher(LOOPBACK, lossless=False, source="robot", security=keys) as pub,
-        Subscriber(pub.endpoint, ["force"], security=stranger),
-    ):
-        records = _handshake_records(caplog, 3.0, stranger_key, pub.endpoint)
-        server = [r for r in records if stranger_key in r.getMessage()]
-        client = [r for r in records if f"CURVE handshake with {pub.endpoint} refused" in r.getMessage()]
-        assert [r.levelno for r in server] == [logging.WARNING], records
-        assert "teleop keys add" in server[0].getMessage()
-        assert [r.levelno for r in client] == [logging.WARNING], records
-        assert "does not authorise this client's key" in client[0].getMessage()
-        assert str(stranger.keys_dir / "client.key") in client[0].getMessage()
-        assert "gives the endpoint up: restart it" in client[0].getMessage()  # libzmq gives a refused endpoint up
-        caplog.clear()
-        # a client trusting another server key retries without end: still one warning
-        with Subscriber(pub.endpoint, ["force"], security=wrong_server):
-            time.sleep(0.5)
-        dropped = [r for r in _handshake_records(caplog, 0.0) if r.levelno == logging.WARNING]
-        assert len(dropped) == 1 and "the server dropped the connection" in dropped[0].getMessage()
-        assert dropped[0].getMessage().endswith("retrying")
-
-
-def test_only_curve_clients_watch_their_handshakes_until_they_close(keys):
-    def watchers() -> int:
-        return sum(t.name == "curve-handshakes" for t in threading.enumerate())
-
-    before = watchers()
-    with Publisher(LOOPBACK, lossless=False, source="robot", security=keys) as pub:
-        with Subscriber(pub.endpoint, ["force"]), Publisher(LOOPBACK, lossless=False):
-            assert watchers() == before  # plain sockets and servers: no monitor, no thread
-        with Subscriber(pub.endpoint, ["force"], security=keys) as sub:
-            assert watchers() == before + 1
-            assert _delivered(pub, sub, within_s=2.0) is not None
-    deadline = time.monotonic() + 2.0
-    while watchers() > before and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert watchers() == before
+        assert delivered(pub, sub, within_s=2.0) is not None
 
 
 # --------------------------------------------------------------------------- key files
@@ -561,7 +472,7 @@ def test_an_oversize_frame_is_cut_off_before_allocation_and_the_subscriber_carri
                 # so the subscriber never allocates or waits for the body.
                 assert _dropped_after_header(conn, 2**30, within_s=2.0)
             good.wait_for_subscriber("force", timeout_s=2.0)
-            _force(good, 9)
+            force(good, 9)
             got = sub.recv(timeout_s=2.0)
     assert got is not None and got.body["value_n"][0] == 9.0
     assert not sub.stats.refused  # it never reached the decoder
@@ -589,7 +500,7 @@ def test_a_publisher_cuts_off_an_oversize_frame_from_a_subscriber():
             assert _dropped_after_header(conn, CONTROL_FRAME_BYTES + 1, within_s=2.0)
         with Subscriber(pub.endpoint, ["force"]) as sub:
             pub.wait_for_subscriber("force", timeout_s=2.0)
-            _force(pub, 4)
+            force(pub, 4)
             assert sub.recv(timeout_s=2.0) is not None
 
 

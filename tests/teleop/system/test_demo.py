@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import io
 import json
 import math
@@ -21,19 +20,17 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
+from support.scenes import one_grasp_scene
 
 import teleop.cli
 from estimator.settings import estimator_settings
 from haptics.settings import display_settings
 from teleop.bus.messages import EstimateBody
-from teleop.bus.pubsub import Publisher, Subscriber
-from teleop.bus.security import init_keys
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SettingsError, TeleopError
 from teleop.live import ENDPOINTS, JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.session.logfile import LogReader
 from teleop.settings import default_settings_path, load_settings
-from teleop.settings_edit import update_settings_file
 from teleop.system.demo import (
     LiveSystem,
     closing_table,
@@ -52,7 +49,6 @@ from teleop.system.latency import (
     slowest,
 )
 from teleop.system.outcome import GraspOutcome, ReportReader
-from teleop.system.seat import SimulatedSeat
 
 STEEL = ObjectSpec(name="steel_ball_bearing", shape="sphere", material="metal", modulus_pa=2e11)
 
@@ -84,17 +80,6 @@ def wait_gone(pids, timeout_s: float = 15.0) -> list[int]:
     while (left := live_processes(pids)) and time.monotonic() < deadline:
         time.sleep(0.1)
     return left
-
-
-def one_grasp_scene(tmp_path: Path, obj: str = "steel_ball_bearing") -> Path:
-    """A scene of one short grasp (a steel ball loads within a few frames), or of ``obj``."""
-    path = tmp_path / "scene.toml"
-    path.write_text(textwrap.dedent(f"""
-        description = "one grasp"
-        objects = ["{obj}"]
-        seed = 5
-    """))
-    return path
 
 
 # --------------------------------------------------------------------------- pieces (fast)
@@ -370,39 +355,6 @@ def test_endpoint_options_override_the_settings_bus():
         add_endpoint_arguments(parser, "keys_dir")
 
 
-@pytest.mark.slow
-def test_the_demos_and_the_seats_bus_ends_use_the_settings_keys(tmp_path):
-    # The children run CURVE when the settings name keys, on loopback too; plain ends would hear none of them.
-    init_keys(tmp_path / "keys")
-    shipped = load_settings()
-    settings = dataclasses.replace(shipped, bus=dataclasses.replace(shipped.bus, keys_dir=str(tmp_path / "keys")))
-    system = LiveSystem(default_settings_path(), "quick", tmp_path, tmp_path / "calibration.npz")
-    seat = None
-    try:
-        system.open_bus(settings)
-        bus = system.bus
-        assert (bus.keys_dir, bus.command) == (settings.bus.keys_dir, system.endpoints["command"])
-        seat = SimulatedSeat(system, settings, grasps=1)
-        with (
-            Publisher.from_settings(bus, bus.robot_pub, lossless=False, source="robot") as robot,  # as the node
-            Subscriber.from_settings(bus, bus.command, ("command",)) as node_commands,
-        ):
-            listeners = (system.events, seat._subscriber, node_commands)
-            deadline = time.monotonic() + 5.0
-            while time.monotonic() < deadline and not (
-                    "robot" in system.events.heartbeat.peers() and "robot" in seat._subscriber.heartbeat.peers()
-                    and "operator" in node_commands.heartbeat.peers()):
-                robot.send("heartbeat", t_capture_s=time.monotonic(), interval_s=0.5)
-                system.commands.send("heartbeat", t_capture_s=time.monotonic(), interval_s=0.5)
-                for listener in listeners:
-                    listener.recv(timeout_s=0.01)
-            assert [listener.heartbeat.peers() for listener in listeners] == [["robot"], ["robot"], ["operator"]]
-    finally:
-        if seat is not None:
-            seat._subscriber.close()
-        system.stop()
-
-
 def test_stop_signals_turn_sigterm_into_a_stop_and_sighup_into_a_callback():
     hangups = []
     with StopSignals(on_hangup=lambda: hangups.append(1)) as signals:
@@ -523,25 +475,6 @@ def _check_foxglove_channels(log: Path) -> None:
             jsonschema.validate(json.loads(message.data), json.loads(schema.data))
     assert {"/tactile/left", "/tactile/right", "/events"} <= set(protobuf) and images > 0
     assert {"/force", "/width", "/estimate", "/display"} <= set(json_topics)
-
-
-@pytest.mark.slow
-def test_a_demo_whose_settings_name_keys_runs_curve_end_to_end(tmp_path, capsys):
-    init_keys(tmp_path / "keys")
-    shipped = load_settings()
-    settings = tmp_path / "rig.toml"
-    settings.write_bytes(default_settings_path().read_bytes())
-    update_settings_file(settings, {"bus.keys_dir": str(tmp_path / "keys"),  # the copy's calibrations stay found
-                                    **{f"sensors.{s.finger}.calibration": s.calibration for s in shipped.sensors}})
-    scene = one_grasp_scene(tmp_path)
-    scene.write_text(scene.read_text() + 'settings = "rig.toml"\n')
-    code = teleop.cli.main(["demo", "--scene", str(scene), "--settings", str(settings), "--operator", "script",
-                            "--json", "--no-view", "--out", str(tmp_path / "run")])
-    captured = capsys.readouterr()
-    assert code == 0, captured.err
-    assert [g["state"] for g in json.loads(captured.out.strip().splitlines()[-1])["grasps"]] != ["insufficient_data"]
-    assert not [line for log in (tmp_path / "run").glob("*.log") for line in log.read_text().splitlines()
-                if "CURVE handshake" in line or "refused a CURVE client" in line]
 
 
 @pytest.mark.slow

@@ -1,0 +1,49 @@
+"""What a gripper's force and width readings can be: the ones it cannot produce, and the least
+noise a reading carries. :func:`~estimator.segment.find_load_phase` drops or refuses the first
+and takes the second as its noise floors.
+
+A width below 0 or beyond the gripper's opening by more than :data:`WIDTH_SLACK_SHARE` of it is
+a glitch, or not in metres. The gripper stops at its maximum grasp force, so a force beyond
+:data:`FORCE_LIMIT_FACTOR` times it (either sign) is a glitch, or not in newtons (a load cell
+scaled per gram): up to :data:`FORCE_GLITCHES` such readings are dropped, more refuse the grasp.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["FORCE_GLITCHES", "FORCE_LIMIT_FACTOR", "MIN_FORCE_NOISE_N", "MIN_WIDTH_NOISE_M", "WIDTH_SLACK_SHARE",
+           "implausible_forces", "implausible_widths"]
+
+WIDTH_SLACK_SHARE = 0.1
+FORCE_LIMIT_FACTOR = 2.0
+FORCE_GLITCHES = 2
+# The least noise a force or width reading is taken to carry (below any load cell or gripper simulated or
+# seen): exact readings would otherwise give bounds at absurd moduli (1e20 Pa) and intervals of zero width.
+MIN_FORCE_NOISE_N = 1e-3
+MIN_WIDTH_NOISE_M = 1e-6
+
+
+def implausible_widths(width_m: np.ndarray, *, max_width_m: float) -> tuple[np.ndarray, str]:
+    """The widths (m) no gripper opening ``max_width_m`` reads, as a mask, and a note naming them
+    ('' when there are none)."""
+    slack = WIDTH_SLACK_SHARE * max_width_m
+    outside = (width_m < -slack) | (width_m > max_width_m + slack)
+    if not outside.any():
+        return outside, ""
+    return outside, (f"dropped {int(outside.sum())} width samples outside the gripper's 0-{max_width_m:.4g} m "
+                     f"opening (from {width_m[outside].min():.4g} to {width_m[outside].max():.4g} m: a glitch, "
+                     "or not in metres?)")
+
+
+def implausible_forces(force_n: np.ndarray, *, max_force_n: float) -> tuple[np.ndarray, str, bool]:
+    """The forces (N) a gripper of maximum grasp force ``max_force_n`` cannot apply, as a mask; a
+    note naming them ('' when there are none); and whether they are more than glitches, so that
+    the grasp is refused (the note is then the reason)."""
+    limit = FORCE_LIMIT_FACTOR * max_force_n
+    beyond = np.abs(force_n) > limit
+    told = f"beyond {limit:.4g} N, {FORCE_LIMIT_FACTOR:g} times the gripper's maximum grasp force"
+    if beyond.sum() > FORCE_GLITCHES:
+        return beyond, (f"{int(beyond.sum())} force samples ({np.abs(force_n).max():.4g} N at most) {told}: is the "
+                        "load cell's scale (counts_per_n) in newtons?"), True
+    return beyond, (f"dropped {int(beyond.sum())} force samples {told} (a glitch)" if beyond.any() else ""), False
