@@ -301,7 +301,8 @@ class OperatorConsole(App):
         try:
             label = parse_label(event.value, self.catalogue, where=self.catalogue_name)
         except LabelError as exc:
-            event.input.border_subtitle = str(exc)
+            event.input.border_subtitle = str(exc)  # cut at the line's width: the notices hold it whole
+            self.console_note = f"label {self.labelling} refused: {exc}"
             return
         self.loop.label(self.labelling, label)
         self.console_note = f"label {self.labelling}: {describe_label(label)} sent"

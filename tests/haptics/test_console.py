@@ -275,6 +275,7 @@ def test_l_labels_the_grasp_from_the_catalogue_or_a_shore_reading():
                 # a Shore reading out of range stays on the line with the reason; a good one goes out
                 await pilot.press("l", *"gel pad shore 00 20", "enter")
                 await _until(lambda: "Shore 00 20 is outside 45 to 90" in str(line.border_subtitle), pilot)
+                await _until(lambda: "Shore 00 20 is outside 45 to 90" in app.texts["notice"], pilot)  # whole
                 assert app.labelling == grasp_id and link.kinds().count("label") == 1
                 line.value = ""
                 await pilot.press(*"gel pad shore 00 70", "enter")
