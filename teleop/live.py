@@ -25,7 +25,7 @@ from teleop.errors import SettingsError
 from teleop.settings import BusSettings, Settings
 
 __all__ = ["ENDPOINTS", "JsonLines", "ServiceLoop", "StopSignals", "add_endpoint_arguments", "bus_from_args",
-           "sigterm_as_ctrl_c"]
+           "sigint_ignored", "sigterm_as_ctrl_c"]
 
 #: Bus endpoint settings a live process may be told to use instead of the settings file's.
 ENDPOINTS = BusSettings.ENDPOINTS
@@ -104,6 +104,21 @@ def sigterm_as_ctrl_c() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored meanwhile (in the main thread; elsewhere a no-op). A process started meanwhile
+    keeps ignoring it, from its first instruction: a Ctrl-C at the terminal reaches the whole process
+    group, and such a child is to be stopped by this process (its files closed, not cut mid-write)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 class StopSignals:

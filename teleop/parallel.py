@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import signal
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from functools import partial
@@ -11,6 +10,7 @@ from typing import TypeVar
 
 import cv2
 
+from teleop.live import sigint_ignored
 from teleop.progress import progress_bar
 
 __all__ = ["progress_map"]
@@ -19,12 +19,8 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 
-def _start_worker(one_thread: bool) -> None:
-    # Ctrl-C reaches the whole process group: the parent alone handles it (it cancels the queued work);
-    # a worker interrupted mid-task could leave the pool waiting on it.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if one_thread:
-        cv2.setNumThreads(1)  # one core per worker: OpenCV would otherwise spread over all of them
+def _one_thread() -> None:
+    cv2.setNumThreads(1)  # one core per worker: OpenCV would otherwise spread over all of them
 
 
 def _run_chunk(work: Callable[[T], R], chunk: list[T]) -> list[R]:
@@ -46,11 +42,13 @@ def progress_map(work: Callable[[T], R], items: Iterable[T], *, workers: int, de
         return list(bar(map(work, items)))
     size = max(1, len(items) // (8 * workers))
     # A forked child inherits OpenCV's thread pool mid-state: setting its threads there can hang.
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn") if spawn else None,
-                             initializer=_start_worker, initargs=(spawn,)) as pool:
+    context, initializer = (get_context("spawn"), _one_thread) if spawn else (None, None)
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=initializer) as pool:
         # Chunks as futures of their own, not Executor.map: on an interrupt map cancels the pending ones,
-        # and the pool then fails on them as it finds its workers stopped (Python 3.11).
-        chunks = [pool.submit(_run_chunk, work, items[i : i + size]) for i in range(0, len(items), size)]
+        # and the pool then fails on them as it finds its workers stopped (Python 3.11). The workers start
+        # as the chunks are submitted, ignoring Ctrl-C: this process handles it, and stops them.
+        with sigint_ignored():
+            chunks = [pool.submit(_run_chunk, work, items[i : i + size]) for i in range(0, len(items), size)]
         try:
             return list(bar(result for chunk in chunks for result in chunk.result()))
         except BaseException:

@@ -28,9 +28,7 @@ import contextlib
 import multiprocessing
 import os
 import queue
-import signal
 import tempfile
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,6 +39,7 @@ import numpy as np
 from teleop.bus.pubsub import Publisher
 from teleop.bus.wire import Message
 from teleop.errors import BusTimeoutError, SettingsError, TeleopError
+from teleop.live import sigint_ignored
 from teleop.progress import progress_bar
 from teleop.settings import Settings, default_settings_path, load_settings
 
@@ -280,7 +279,7 @@ def run_soak(settings: Settings, *, duration_s: float, warmup_s: float | None = 
             target=_consume, name="soak-consumer", daemon=True,
             args=(publisher.endpoint, str(log_path), str(settings_path or default_settings_path()), warmup_s,
                   ready, stop, results))
-        with _sigint_ignored():
+        with sigint_ignored():  # the consumer is stopped by this process (_stop_consumer)
             consumer.start()
         stack.callback(_stop_consumer, consumer, stop)  # if something below raised (Ctrl-C too); a no-op after join
         deadline = time.monotonic() + CONSUMER_START_TIMEOUT_S
@@ -319,21 +318,6 @@ def run_soak(settings: Settings, *, duration_s: float, warmup_s: float | None = 
         log_bytes=recorder["file_bytes"],
         recorder_error=recorder["error"],
     )
-
-
-@contextlib.contextmanager
-def _sigint_ignored() -> Any:
-    """SIGINT ignored meanwhile (in the main thread; elsewhere a no-op). A process started meanwhile
-    keeps ignoring it: a Ctrl-C at the terminal reaches the whole process group, and the consumer is
-    to be stopped by this process (:func:`_stop_consumer`), its log closed, not cut mid-write."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 def _stop_consumer(consumer: Any, stop: Any) -> None:
