@@ -268,7 +268,8 @@ def _fit(m: GraspMeasurements, method: str) -> Estimate:
     noise = m.noise
     onset_width = segment.onset_width_m
     if method in ("no_tactile", "elastic") and not (np.isfinite(onset_width) and onset_width > 0):
-        return Estimate.refuse(method, f"no positive width at the contact onset (got {onset_width:.3g} m) "
+        got = f"{onset_width:.3g} m" if np.isfinite(onset_width) else "no width reading"
+        return Estimate.refuse(method, f"no positive width at the contact onset (got {got}) "
                                        "to normalise the strain")
     if method == "no_tactile":
         rows, cols = m.sensor.pad_size_m

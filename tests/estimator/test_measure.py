@@ -268,6 +268,15 @@ def test_widths_not_in_metres_are_refused_with_the_reason(calibration):
         assert est.state == "insufficient_data" and "outside the gripper's 0-0.08 m opening" in est.reason
 
 
+def test_widths_read_only_after_the_onset_refuse_in_words(calibration):
+    record = build_record(3e5)
+    f, w = record.force_n, record.width_m
+    late = w.t_s > f.t_s[np.argmax(f.value > 1.0)]
+    est = estimate_grasp(replace(record, width_m=Samples(w.t_s[late], w.value[late])), "no_tactile",
+                         settings=SETTINGS, calibration=calibration)
+    assert est.state == "insufficient_data" and "got no width reading" in est.reason, est.reason
+
+
 def test_exact_readings_of_a_rigid_object_bound_it_at_a_modulus_a_sensor_resolves(calibration):
     # Noise-free force, and widths that stop exactly at contact: no reading is exact, so the bound
     # rests on the least noise a reading carries, not on a resolution of zero (it was 1e20 Pa).
