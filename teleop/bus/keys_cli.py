@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 from pathlib import Path
 
 from teleop.bus.security import (
@@ -94,9 +95,13 @@ def run(args: argparse.Namespace) -> int:
         if not args.json:
             _print_listing(result)
     else:
+        own_key = list_keys(args.dir).client_public_key
         result = revoke_key(args.dir, args.name)
         if not args.json:
             print(f"revoked {result.name} {result.public_key}; {RESTART_NOTE}")
+        if result.public_key == own_key:
+            print(f"warning: {result.name!r} is this directory's own client key: the processes that use "
+                  f"{args.dir} as bus.keys_dir can no longer connect to its servers", file=sys.stderr)
     if args.json:
         print(json.dumps({"action": args.action, **dataclasses.asdict(result)}))
     return 0

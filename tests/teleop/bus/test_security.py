@@ -395,7 +395,7 @@ def test_keys_command_end_to_end(tmp_path, capsys):
         ("revoke", str(robot), "operator", "--json"),
     ):
         code, out, err = _keys(capsys, *argv)
-        assert code == 0, err
+        assert code == 0 and "warning" not in err, err
         outputs.append(out)
     assert "authorised operator" in outputs[1] and "restart" in outputs[1]
     assert "operator" in outputs[2]
@@ -403,6 +403,8 @@ def test_keys_command_end_to_end(tmp_path, capsys):
     assert [k["name"] for k in listed["authorized"]] == ["client", "operator"]
     assert json.loads(outputs[4].splitlines()[-1])["name"] == "operator"
     assert [k.name for k in list_keys(robot).authorized] == ["client"]
+    code, _, err = _keys(capsys, "revoke", str(robot), "client")
+    assert code == 0 and "warning: 'client' is this directory's own client key" in err
     secrets = _secrets(robot, operator)
     assert len(secrets) == 3  # robot server + client, operator client
     assert not any(s in out for s in secrets for out in outputs)
