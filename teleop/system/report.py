@@ -183,7 +183,8 @@ def _anchor(view: GraspView) -> str:
 
 def _grasp_section(view: GraspView, figures: dict[str, tuple[int, int]], recorded: bool) -> str:
     anchor, final = _anchor(view), view.final
-    facts = [("label E (catalogue)", _pa(view.label_pa) + (" Pa" if view.label_pa else " (no label)")),
+    label = f"{_pa(view.label_pa)} Pa ({view.label_source})" if view.label_pa else f"{DASH} (no label)"
+    facts = [("label E", label),
              ("final estimate", _final_cell(view) + (f" ({final.method})" if final else "")),
              ("interval", _interval_cell(view)),
              ("final state", final.state if final else "no final estimate"),
@@ -220,7 +221,7 @@ def _page(log: Path, info_lines: Sequence[str], views: Sequence[GraspView], figu
         '<p class="meta">' + "<br>".join(_e(line) for line in info_lines) + "</p>",
         "<h2>Summary</h2>", _summary(views, recorded, display_range),
         _figure("predictions.png", figures["predictions.png"], "predictions versus label",
-                "Final estimates against their catalogue labels (log-log); grey: within a factor 2."),
+                "Final estimates against their labels (log-log); grey: within a factor 2."),
         *(_grasp_section(v, figures, recorded) for v in views),
         "</body></html>\n",
     ])

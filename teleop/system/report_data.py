@@ -100,7 +100,8 @@ class GraspView:
     """Everything the report shows of one grasp.
 
     ``record`` (frames, force, width) is held only while the grasp's figures are drawn; ``reason``
-    says why the log gives none. ``label_pa`` and ``start_s`` come from the record.
+    says why the log gives none. ``label_pa``, ``label_source`` and ``start_s`` come from the record,
+    whose label (a ``label`` message's, else the catalogue's) also names the object.
     """
 
     grasp_id: str
@@ -108,6 +109,7 @@ class GraspView:
     record: GraspRecord | None = None
     reason: str = ""
     label_pa: float | None = None
+    label_source: str | None = None
     start_s: float | None = None
     estimates: list[EstimatePoint] = field(default_factory=list)
     display: list[DisplayPoint] = field(default_factory=list)
@@ -119,7 +121,9 @@ class GraspView:
         """Hold the grasp's ``record`` (or the ``reason`` there is none) and what the page keeps of it."""
         self.record, self.reason = record, reason
         if record is not None:
-            self.label_pa = None if record.label is None else record.label.modulus_pa
+            if record.label is not None:
+                self.object_name = record.label.object_name
+                self.label_pa, self.label_source = record.label.modulus_pa, record.label.source
             self.start_s = record.events["grasp_start"]
 
     @property

@@ -177,7 +177,7 @@ def predictions_figure(views: Sequence[GraspView], path: Path) -> tuple[int, int
                     textcoords="offset points", fontsize=7)
     for state, (marker, colour) in STATE_STYLE.items():
         ax.plot([], [], marker, color=colour, mec="k", ls="", label=state)
-    ax.set(xscale="log", yscale="log", xlim=(lo, hi), ylim=(lo, hi), xlabel="label E (Pa, catalogue)",
+    ax.set(xscale="log", yscale="log", xlim=(lo, hi), ylim=(lo, hi), xlabel="label E (Pa)",
            ylabel="final estimate (Pa)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import html
 import os
 import re
@@ -17,12 +18,13 @@ import pytest
 import teleop.cli
 from teleop.bus import Publisher
 from teleop.catalogue import default_catalogue_path, load_catalogue
+from teleop.labels import ObjectLabel
 from teleop.record import GRASP_DONE_EVENT
 from teleop.session import SessionRecorder, session_grasps
 from teleop.session.logfile import LogReader
 from teleop.settings import load_settings
 from teleop.sim.grasp import simulate_grasp
-from teleop.system.report import ReportError, build_report, run_chromium, screenshot
+from teleop.system.report import ReportError, _grasp_section, build_report, run_chromium, screenshot
 from teleop.system.report_data import GraspView, log_calibrations, tactile_moments
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -173,6 +175,18 @@ def test_the_page_shows_every_figure_it_wrote_and_one_summary_row_per_grasp(repo
     assert (duck[6], steel[6]) == ("0.40 of range (~3e+06 Pa)", "nothing for this grasp")
     timeline = {s: cv2.imread(str(report.index.parent / s)).shape[0] for s in sources if "timeline" in s}
     assert timeline["grasp-g-duck-timeline.png"] > timeline["grasp-g-steel-timeline.png"]  # its display panel
+
+
+def test_a_relabelled_grasp_shows_its_label_name_and_source_not_the_start_events():
+    objects = {o.name: o for o in load_catalogue()}
+    record, _ = simulate_grasp(objects["rubber_duck"], settings=load_settings(), rng=np.random.default_rng(3), seed=3)
+    relabelled = dataclasses.replace(record, label=ObjectLabel("my duck", 1.69e6, "durometer"),
+                                     events={**record.events, "grasp_start": record.events["command_grasp"]})
+    view = GraspView("g-duck", object_name="rubber_duck")
+    view.take(relabelled, "")
+    assert (view.object_name, view.label_pa, view.label_source) == ("my duck", 1.69e6, "durometer")
+    section = html.unescape(_grasp_section(view, {}, recorded=True))
+    assert "my duck" in section and "1.69e+06 Pa (durometer)" in section and "rubber_duck" not in section
 
 
 def test_a_log_without_display_messages_says_the_display_was_not_recorded(tmp_path):
