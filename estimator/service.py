@@ -34,7 +34,8 @@ time of the newest loading frame its fit used (for the final one: the last loadi
 object's name in a start event is never read. The per-grasp report (one JSON line per grasp
 to ``report``) says what ended the loading (``final_by``: ``loading_end``, ``settled`` or
 ``grasp_end``), the marker's time, when the final estimate was sent and how long it took to
-compute.
+compute. Its ``time_to_first_estimate_s`` is on the capture clock: the service's clock is mapped
+onto it by the least receive delay seen, so a replay or a node on another host reads right.
 
 A message that cannot be used (a frame that does not decode or has the wrong size, samples
 that are not finite, capture times that go backwards, repeat or jump more than
@@ -150,6 +151,7 @@ class _Grasp:
     t_peak_s: float = math.inf  # of the last segmentation with contact
     t_contact_s: float | None = None
     first_estimate_s: float | None = None  # clock time the first non-refusal estimate went out
+    clock_offset_s: float = math.inf  # least (receive - capture) time seen: the clocks' offset
     provisional_s: list[float] = field(default_factory=list)
     final: Estimate | None = None
     final_s: float | None = None
@@ -317,6 +319,7 @@ class EstimatorService(ServiceLoop):
         if grasp.final is not None:
             return  # the hold and the release: nothing more to estimate
         _check_times(grasp, message)
+        grasp.clock_offset_s = min(grasp.clock_offset_s, received_s - message.t_capture_s)
         stream = grasp.stream
         if message.type == "frame":
             if stream.add_frame(body.finger, message.t_capture_s, body.data, body.encoding):
@@ -468,14 +471,14 @@ class EstimatorService(ServiceLoop):
         return now
 
     def _summary(self, grasp: _Grasp) -> dict[str, Any]:
-        """The grasp's report line; times are seconds on the service's (= the capture) clock."""
+        """The grasp's report line: ``t_*`` on the capture clock, ``*_sent_s`` on the service's."""
         sent = grasp.provisional_s
         contact = grasp.t_contact_s
         return {
             "grasp_id": grasp.grasp_id,
             "t_contact_s": contact,
             "time_to_first_estimate_s": (None if contact is None or grasp.first_estimate_s is None
-                                         else grasp.first_estimate_s - contact),
+                                         else grasp.first_estimate_s - grasp.clock_offset_s - contact),
             "provisional": len(sent),
             "provisional_span_s": sent[-1] - sent[0] if len(sent) > 1 else None,
             "final": None if grasp.final is None else grasp.final.to_json(),

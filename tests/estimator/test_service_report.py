@@ -1,0 +1,38 @@
+"""The estimator service's per-grasp report when the capture clock is not the service's own."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from support.live import METHODS, in_capture_order
+
+from estimator.service import EstimatorService
+from teleop.bus.wire import make_message
+from teleop.live import JsonLines
+
+
+class _Sent:
+    def __init__(self) -> None:
+        self.sent: list[Any] = []
+
+    def send(self, kind: str, *, t_capture_s: float, topic: str | None = None, **body: Any) -> None:
+        self.sent.append(make_message(kind, t_capture_s=t_capture_s, topic=topic, **body))
+
+
+def test_time_to_first_estimate_is_read_on_the_capture_clock(settings, calibration, records, tmp_path):
+    # A replay, or a node on another host: capture times run 1000 s behind the service's clock.
+    offset_s, delay_s = 1000.0, 0.002
+    now = [0.0]
+    service = EstimatorService(settings, calibration=calibration, subscriber=None, publisher=_Sent(),
+                               methods=METHODS, report=JsonLines(tmp_path / "report.jsonl"), clock=lambda: now[0])
+    record = records["stress_ball"]
+    items = [(0.0, "grasp_event", {"event": "start", "object_name": None})] + in_capture_order(record)
+    items.append((float(record.force_n.t_s[-1]), "grasp_event", {"event": "end"}))
+    for t_s, kind, body in items:
+        now[0] = t_s + offset_s + delay_s
+        service.handle(make_message(kind, t_capture_s=t_s, grasp_id="g", **body), received_s=now[0])
+    (report,) = [json.loads(line) for line in (tmp_path / "report.jsonl").read_text().splitlines()]
+    first = next(m for m in service.publisher.sent if m.type == "estimate" and m.body["state"] != "insufficient_data")
+    # Not before the data it rests on was captured; within the grasp's first fraction of a second.
+    assert first.t_capture_s - report["t_contact_s"] <= report["time_to_first_estimate_s"] < 0.5
