@@ -48,40 +48,15 @@ from typing import NamedTuple
 from haptics.errors import ProtocolError
 
 __all__ = [
-    "FAULT_BITS",
-    "FEATURE_LAYOUT",
-    "FLAG_BITS",
-    "GRIP_BUTTON_BITS",
-    "GRIP_FLAG_NO_FORCE",
-    "GRIP_FORCE_COUNTS_PER_N",
-    "GRIP_LAYOUT",
-    "GRIP_POSITION_FULL_SCALE",
-    "INPUT_LAYOUT",
-    "LAYOUTS",
-    "OUTPUT_LAYOUT",
-    "PROTOCOL_VERSION",
-    "PROTOCOL_VERSIONS",
-    "REPORT_DESCRIPTOR",
-    "DESCRIPTOR_ITEMS",
-    "DEVICE_STATES",
-    "UNCERTAINTY_COUNTS_PER_DECADE",
-    "USAGE_PAGE",
-    "DeviceStatus",
-    "DisplayInfo",
-    "Field",
-    "OutputReport",
-    "ReportLayout",
-    "StiffnessCommand",
-    "crc8",
-    "decode_feature_report",
-    "decode_input_report",
-    "decode_output_report",
-    "encode_feature_report",
-    "encode_input_report",
-    "encode_output_report",
-    "descriptor_items",
-    "layout_markdown",
-    "report_descriptor",
+    "FAULT_BITS", "FEATURE_LAYOUT", "FLAG_BITS", "GRIP_BUTTON_BITS", "GRIP_FLAG_NO_FORCE",
+    "GRIP_FORCE_COUNTS_PER_N", "GRIP_LAYOUT", "GRIP_LOST_AFTER_S",
+    "GRIP_POSITION_FULL_SCALE", "INPUT_LAYOUT",
+    "LAYOUTS", "OUTPUT_LAYOUT", "PROTOCOL_VERSION", "PROTOCOL_VERSIONS", "REPORT_DESCRIPTOR",
+    "DESCRIPTOR_ITEMS", "DEVICE_STATES", "DISABLING_FAULTS", "UNCERTAINTY_COUNTS_PER_DECADE",
+    "USAGE_PAGE", "DeviceStatus", "DisplayInfo", "Field", "OutputReport", "ReportLayout",
+    "StiffnessCommand", "crc8", "decode_feature_report", "decode_input_report",
+    "decode_output_report", "encode_feature_report", "encode_input_report", "encode_output_report",
+    "descriptor_items", "layout_markdown", "report_descriptor",
 ]
 
 #: The newest protocol version this host speaks.
@@ -103,6 +78,8 @@ FAULT_BITS = {
     "undervoltage": 3,
     "bad_report": 4,
 }
+#: The faults (bits 0-3) that disable the actuator: the status then says state fault, level 0.
+DISABLING_FAULTS = ("over_temperature", "over_current", "position_error", "undervoltage")
 #: INPUT report device states, by code.
 DEVICE_STATES = ("free", "rendering", "fault", "watchdog")
 #: Bit number of each button in the grip report's buttons byte (version 2); bits 5-7 reserved.
@@ -114,8 +91,16 @@ GRIP_FLAG_NO_FORCE = 0x01
 GRIP_POSITION_FULL_SCALE = 10_000
 #: Grip force counts per newton: 0.01 N per count, so 0 to 655.35 N.
 GRIP_FORCE_COUNTS_PER_N = 100
+#: After this long (s) without a grip report the host takes the grip as lost and the dead-man as
+#: released: five of the longest gaps (20 ms) a display leaves between its grip reports.
+GRIP_LOST_AFTER_S = 0.1
 
 _TYPES = {"u8": ("B", "uint8"), "u16": ("H", "uint16 LE"), "u32": ("I", "uint32 LE")}
+
+
+def _is_version(value: object) -> bool:
+    # An integer, not a float or bool that compares equal to one (1.0 in (1, 2) is True).
+    return not isinstance(value, bool) and isinstance(value, Integral) and value in PROTOCOL_VERSIONS
 
 
 # --------------------------------------------------------------------------- layouts
@@ -243,7 +228,7 @@ def descriptor_items(version: int = PROTOCOL_VERSION) -> tuple[tuple[bytes, str]
     Report counts exclude the report ID byte; report ``n`` of :data:`LAYOUTS` has usage
     ``n + 2``. Version 2 adds the grip report's four items before End Collection.
     """
-    if version not in PROTOCOL_VERSIONS:
+    if not _is_version(version):
         raise ProtocolError(f"descriptor version = {version!r}: expected one of {PROTOCOL_VERSIONS}")
     items = [
         (bytes([0x06, 0x00, 0xFF]), "Usage Page (Vendor Defined 0xFF00)"),
@@ -389,9 +374,10 @@ class DisplayInfo:
         _check_uint("DisplayInfo", "level_max", self.level_max, 16)
         if self.level_max < 1:
             raise ProtocolError("DisplayInfo.level_max = 0: expected at least 1")
-        if len(self.firmware_version) != 2:
+        if not isinstance(self.firmware_version, tuple) or len(self.firmware_version) != 2:
             raise ProtocolError(
-                f"DisplayInfo.firmware_version = {self.firmware_version!r}: expected (major, minor)"
+                f"DisplayInfo.firmware_version = {self.firmware_version!r}: expected a tuple "
+                "(major, minor) of integers in [0, 255]"
             )
         for name, part in zip(("major", "minor"), self.firmware_version, strict=True):
             _check_uint("DisplayInfo", f"firmware_version.{name}", part, 8)
@@ -403,7 +389,7 @@ class DisplayInfo:
                 f"DisplayInfo.max_stiffness_n_per_m = {self.max_stiffness_n_per_m}: below "
                 f"min_stiffness_n_per_m = {self.min_stiffness_n_per_m}"
             )
-        if self.protocol_version not in PROTOCOL_VERSIONS:
+        if not _is_version(self.protocol_version):
             raise ProtocolError(
                 f"DisplayInfo.protocol_version = {self.protocol_version!r}: this host speaks "
                 f"versions {_versions()}"
@@ -437,6 +423,13 @@ class DeviceStatus:
                 f"{', '.join(FAULT_BITS)}"
             )
         _check_uint("DeviceStatus", "sequence", self.sequence, 8)
+        # PROTOCOL.md: while any fault bit 0-3 is set the actuator is disabled (state 2, level 0).
+        disabling = sorted(set(self.faults) & set(DISABLING_FAULTS))
+        if disabling and (self.state != "fault" or self.level != 0):
+            raise ProtocolError(
+                f"DeviceStatus: faults {', '.join(disabling)} disable the actuator, so state must "
+                f"be 'fault' with level 0, got state {self.state!r} with level {self.level}"
+            )
 
 
 # --------------------------------------------------------------------------- encode / decode
@@ -448,18 +441,19 @@ def _pack(layout: ReportLayout, *values: int) -> bytes:
 
 
 def _unpack(layout: ReportLayout, data: bytes) -> tuple[int, ...]:
-    """Check length, report ID and CRC; return the field values between ID and CRC."""
+    """Check report ID, length and CRC; return the field values between ID and CRC."""
     where = f"{layout.kind} report 0x{layout.report_id:02X} ({layout.name})"
     if not isinstance(data, bytes | bytearray | memoryview):
         raise ProtocolError(f"{where}: expected bytes, got {type(data).__name__}")
     data = bytes(data)
+    # The ID first: a foreign report (a grip report from a version-1 display) is named as such.
+    if data and data[0] != layout.report_id:
+        raise ProtocolError(
+            f"{where}: report_id = 0x{data[0]:02X}, expected 0x{layout.report_id:02X}"
+        )
     if len(data) != layout.size:
         raise ProtocolError(
             f"{where}: report length is {len(data)} bytes, expected {layout.size}"
-        )
-    if data[0] != layout.report_id:
-        raise ProtocolError(
-            f"{where}: report_id = 0x{data[0]:02X}, expected 0x{layout.report_id:02X}"
         )
     expected = crc8(data[:-1])
     if data[-1] != expected:
@@ -474,7 +468,7 @@ def _versions() -> str:
 
 
 def _check_version(owner: str, version: object) -> None:
-    if isinstance(version, bool) or version not in PROTOCOL_VERSIONS:
+    if not _is_version(version):
         raise ProtocolError(f"{owner}.version = {version!r}: this host speaks versions {_versions()}")
 
 
@@ -579,7 +573,10 @@ def decode_input_report(data: bytes) -> DeviceStatus:
         )
     _reserved_bits(where, "faults", faults, sum(1 << bit for bit in FAULT_BITS.values()))
     names = frozenset(name for name, bit in FAULT_BITS.items() if faults >> bit & 1)
-    return DeviceStatus(DEVICE_STATES[state], level, names, sequence)
+    try:
+        return DeviceStatus(DEVICE_STATES[state], level, names, sequence)
+    except ProtocolError as exc:
+        raise ProtocolError(f"{where}: {exc}") from None
 
 
 # --------------------------------------------------------------------------- grip (version 2)

@@ -215,15 +215,29 @@ class SoftnessDisplay(abc.ABC):
 
         None for a version-1 display (at once: it has no grip; see :attr:`has_grip`) and when
         no grip report arrives within ``timeout_s`` seconds. Otherwise the newest grip report
-        that arrived since the previous call, with ``buttons`` the union over all of them, so
-        that a press shorter than the caller's polling period is not lost. Status reports read
-        on the way are kept for :meth:`read_status`. A grip report that does not decode raises
-        ProtocolError naming it (the link stays; the reports after it wait for the next call).
+        of :meth:`read_operator_reports`, with ``buttons`` the union over all of them, so that
+        a press shorter than the caller's polling period is not lost (a release and a new
+        press of a held button are: a caller that counts presses takes the reports one by one).
+        """
+        reports = self.read_operator_reports(timeout_s=timeout_s)
+        if not reports:
+            return None
+        pressed = frozenset().union(*(report.buttons for report in reports))
+        return replace(reports[-1], buttons=pressed)
+
+    def read_operator_reports(self, *, timeout_s: float) -> tuple[GripReport, ...]:
+        """Every grip report that arrived since the previous call, oldest first.
+
+        Empty for a version-1 display (at once) and when no grip report arrives within
+        ``timeout_s`` seconds. Status reports read on the way are kept for :meth:`read_status`.
+        A grip report that does not decode raises ProtocolError naming it when it is the first;
+        after good ones, those are returned and the bad one is refused by the next call (the
+        link stays either way).
         """
         self._require_connected("read_operator")
         self._check_timeout("read_operator", timeout_s)
         if not self.has_grip:
-            return None
+            return ()
         if not self._grip_inbox:
             self._read_inputs(timeout_s, until=self._grip_inbox)
         if self._grip_inbox:
@@ -236,13 +250,10 @@ class SoftnessDisplay(abc.ABC):
                 if not reports:
                     self._grip_inbox.popleft()
                     raise
-                break  # return the good ones; the bad one is refused by the next call
+                break
             self._grip_inbox.popleft()
             reports.append(report)
-        if not reports:
-            return None
-        pressed = frozenset().union(*(report.buttons for report in reports))
-        return replace(reports[-1], buttons=pressed)
+        return tuple(reports)
 
     def configure(self, *, watchdog_ms: int) -> DisplayInfo:
         """Set the display's watchdog (0 = off) and return the info read back."""
@@ -276,7 +287,7 @@ class SoftnessDisplay(abc.ABC):
         wait_s = timeout_s
         for _ in range(_MAX_READS):
             data = self._io(self._read_report, wait_s)
-            if data is None:
+            if not data:  # None, or an empty read (no report), as the hid backend takes it
                 return
             is_grip = grip and data[0] == GRIP_LAYOUT.report_id
             (self._grip_inbox if is_grip else self._status_inbox).append(data)

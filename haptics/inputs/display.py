@@ -2,33 +2,37 @@
 
 A version-2 display reports the operator's grip in INPUT reports (:class:`haptics.protocol.GripReport`:
 ``grip`` 0..1, ``force_n`` where it has a force sensor, ``enable``, ``buttons`` held,
-``sequence``), read through :meth:`SoftnessDisplay.read_operator`. A version-1 display has no grip:
-:meth:`DisplayInput.connect` refuses it, naming the version.
+``sequence``), read one by one through :meth:`SoftnessDisplay.read_operator_reports`. A version-1
+display has no grip: :meth:`DisplayInput.connect` refuses it, naming the version.
 
 The display is either given (``display=``, e.g. the one the renderer drives; it is connected
 here if it is not yet, and closed here only then) or made from the ``[display]`` table and owned.
 Each read drains the grip reports that have arrived and keeps the latest; a button counts as
-pressed when a report shows it held and the one before did not, so a press is reported once
-however many reports show it held. Before the first report, and when no report has come for
-``stale_s`` (the display stopped reporting), the enable reads released. A display failure
-(unplugged) raises :class:`~haptics.errors.InputDeviceError` and leaves this device disconnected.
+pressed when a report shows it held and the one before did not, report by report, so a press is
+reported once however many reports show it held, and a release and a new press between two reads
+is a new press. Before the first report, and when no report has come for ``stale_s`` (by default
+:data:`~haptics.protocol.GRIP_LOST_AFTER_S`, 100 ms, after which PROTOCOL.md takes the grip as
+lost), the enable reads released. A display failure (unplugged) raises
+:class:`~haptics.errors.InputDeviceError` and leaves this device disconnected.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from typing import Any, ClassVar, Self
 
 from haptics.errors import DisplayError, InputDeviceError, ProtocolError
 from haptics.inputs.base import OperatorInput, OperatorInputDevice
+from haptics.protocol import GRIP_LOST_AFTER_S
 from haptics.settings import display_settings
 from teleop.operator import BUTTONS
 from teleop.settings import Settings
 
 __all__ = ["DisplayInput"]
 
-#: Reports drained per read at most (a display sends a few hundred a second at most).
+#: Batches of reports drained per read at most (a display sends a few hundred a second at most).
 _MAX_DRAIN = 1024
 
 
@@ -42,25 +46,31 @@ class DisplayInput(OperatorInputDevice):
     owned : bool
         Whether this device owns the display (closes it on close).
     stale_s : float
-        After this long without a grip report the enable reads released (> 0).
+        After this long without a grip report the enable reads released, in s (> 0; default
+        :data:`~haptics.protocol.GRIP_LOST_AFTER_S`, the protocol's).
+    clock : callable
+        Monotonic seconds: the readings' ``t_s`` and the staleness are on it.
     """
 
     name: ClassVar[str] = "display"
 
-    def __init__(self, display: Any, *, owned: bool = False, stale_s: float = 0.5) -> None:
+    def __init__(self, display: Any, *, owned: bool = False, stale_s: float = GRIP_LOST_AFTER_S,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         super().__init__()
-        if not (isinstance(stale_s, int | float) and math.isfinite(stale_s) and stale_s > 0):
+        if isinstance(stale_s, bool) or not (
+                isinstance(stale_s, int | float) and math.isfinite(stale_s) and stale_s > 0):
             raise InputDeviceError(f"stale_s = {stale_s!r}: expected a number of seconds > 0")
         self.display = display
         self._owned = owned
         self._opened_link = False
         self.stale_s = float(stale_s)
+        self._clock = clock
         self._reset()
 
     @classmethod
     def from_settings(cls, settings: Settings, **options: Any) -> Self:
         """Options: ``display`` (a SoftnessDisplay to share; default: one made from ``[display]``
-        and owned), ``stale_s``."""
+        and owned), ``stale_s``, ``clock``."""
         display = options.pop("display", None)
         if display is None:
             from haptics.devices import make_display
@@ -95,8 +105,7 @@ class DisplayInput(OperatorInputDevice):
                                    "(the display input needs protocol version 2; choose another "
                                    "[operator] input)")
         try:  # what arrived before: the hand's state now, but no presses
-            report = self._next_report(0.0)
-            if report is not None:
+            for report in self._next_reports(0.0):
                 self._take(report)
         except BaseException:
             self._close()
@@ -110,9 +119,9 @@ class DisplayInput(OperatorInputDevice):
 
     # ------------------------------------------------------------ reading
 
-    def _next_report(self, timeout_s: float) -> Any:
+    def _next_reports(self, timeout_s: float) -> tuple[Any, ...]:
         try:
-            return self.display.read_operator(timeout_s=timeout_s)
+            return self.display.read_operator_reports(timeout_s=timeout_s)
         except ProtocolError:
             raise  # a malformed report is named by the protocol; the link stays
         except DisplayError as exc:
@@ -123,17 +132,18 @@ class DisplayInput(OperatorInputDevice):
         self._pressed |= held - self._held
         self._held = held
         self._latest = report
-        self._latest_s = time.monotonic()
+        self._latest_s = self._clock()
 
     def _read(self, timeout_s: float) -> OperatorInput:
         # Wait (up to timeout_s) only for the first report ever; then take what has arrived.
-        report = self._next_report(timeout_s if self._latest is None else 0.0)
+        reports = self._next_reports(timeout_s if self._latest is None else 0.0)
         for _ in range(_MAX_DRAIN):
-            if report is None:
+            if not reports:
                 break
-            self._take(report)
-            report = self._next_report(0.0)
-        now = time.monotonic()
+            for report in reports:  # one by one: a release between two presses shows
+                self._take(report)
+            reports = self._next_reports(0.0)
+        now = self._clock()
         pressed, self._pressed = frozenset(self._pressed), set()
         latest = self._latest
         if latest is None:

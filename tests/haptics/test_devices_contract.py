@@ -249,15 +249,26 @@ def test_a_version_1_display_has_no_grip_and_still_renders(rig):
         firmware.set_grip(0.5)  # its firmware has no grip to send
 
 
-def test_a_grip_report_from_a_version_1_display_is_refused_as_ever(rig):
+def test_a_grip_report_from_a_version_1_display_is_refused_as_a_foreign_report(rig):
     firmware = rig.need("firmware")
     if firmware.info.protocol_version != 1:
         pytest.skip("about version-1 displays")
     rig.display.connect()
     firmware.queue_input_report(encode_grip_report(GripReport(0.5, None, True, frozenset(), 0)))
-    with pytest.raises(ProtocolError, match=r"input report 0x03 \(status\): report length is 9 bytes"):
+    with pytest.raises(ProtocolError, match=r"input report 0x03 \(status\): report_id = 0x04, "
+                                            "expected 0x03"):
         rig.display.read_status()
     assert rig.display.connected
+
+
+def test_an_empty_input_report_is_no_report(rig):
+    firmware = rig.need("firmware")
+    display = rig.display
+    display.connect()
+    firmware.queue_input_report(b"")
+    assert display.read_status(timeout_s=0.01) is None
+    assert display.read_operator(timeout_s=0.01) is None
+    assert display.connected
 
 
 def test_the_grip_arrives_as_the_device_sent_it(rig):
@@ -283,6 +294,19 @@ def test_read_operator_returns_the_newest_grip_and_every_press(rig):
     firmware.set_grip(0.4, force_n=5.0)
     report = display.read_operator(timeout_s=0.5)
     assert report == GripReport(0.4, 5.0, True, frozenset({"release", "next"}), 3)
+
+
+def test_read_operator_reports_returns_every_grip_report_oldest_first(rig):
+    firmware = need_grip(rig)
+    display = rig.display
+    display.connect()
+    firmware.set_grip(0.1, buttons={"grasp"})
+    firmware.set_grip(0.2)  # grasp let go ...
+    firmware.set_grip(0.3, buttons={"grasp"})  # ... and pressed again: two presses
+    reports = display.read_operator_reports(timeout_s=0.5)
+    assert [(r.grip, r.buttons, r.sequence) for r in reports] == [
+        (0.1, {"grasp"}, 0), (0.2, frozenset(), 1), (0.3, {"grasp"}, 2)]
+    assert display.read_operator_reports(timeout_s=0.01) == ()
 
 
 def test_status_and_grip_reports_interleave_and_each_reader_gets_its_own(rig):

@@ -282,7 +282,7 @@ GOOD_GRIP = bytes.fromhex(GRIP_GOLDEN[0][1])
     [
         (GOOD_GRIP[:-1], r"input report 0x04 \(grip\): report length is 8 bytes, expected 9"),
         (GOOD_GRIP + b"\x00", r"\(grip\): report length is 10 bytes, expected 9"),
-        (bytes.fromhex(INPUT_GOLDEN[1]), r"\(grip\): report length is 7 bytes"),
+        (bytes.fromhex(INPUT_GOLDEN[1]), r"\(grip\): report_id = 0x03, expected 0x04"),
         (with_crc(bytes.fromhex("03 03 00 c4 09 e2 04 2a")),
          r"\(grip\): report_id = 0x03, expected 0x04"),
         (GOOD_GRIP[:-1] + b"\xc7", r"\(grip\): crc = 0xC7, expected 0xC6"),
@@ -393,6 +393,47 @@ def test_encoder_refuses_a_bad_sequence(sequence):
         encode_output_report(StiffnessCommand(level=1), sequence=sequence)
 
 
+def test_a_grip_report_from_a_version_1_display_is_named_as_a_foreign_report():
+    # PROTOCOL.md: from a version-1 display a 0x04 report is refused like any unknown report.
+    with pytest.raises(ProtocolError, match=r"\(status\): report_id = 0x04, expected 0x03"):
+        decode_input_report(GOOD_GRIP)
+
+
+@pytest.mark.parametrize(
+    ("body", "field"),
+    [
+        ("03 01 64 00 01 07", "faults over_temperature disable the actuator, so state must be "
+                              "'fault' with level 0, got state 'rendering' with level 100"),
+        ("03 00 00 00 02 07", "faults over_current .* got state 'free'"),
+        ("03 02 64 00 08 07", "faults undervoltage .* got state 'fault' with level 100"),
+    ],
+)
+def test_a_status_whose_faults_contradict_its_state_is_refused(body, field):
+    with pytest.raises(ProtocolError, match="input report 0x03: DeviceStatus: " + field):
+        decode_input_report(with_crc(bytes.fromhex(body)))
+    # a malformed-report fault does not disable the actuator; fault bits with state 2, level 0 agree
+    assert decode_input_report(with_crc(bytes.fromhex("03 01 64 00 10 07"))).level == 100
+    assert decode_input_report(with_crc(bytes.fromhex("03 02 00 00 0f 07"))).state == "fault"
+
+
+@pytest.mark.parametrize("version", [2.0, 1.0, True, "2"])
+def test_a_version_must_be_an_integer(version):
+    with pytest.raises(ProtocolError, match=f"DisplayInfo.protocol_version = {version!r}"):
+        DisplayInfo(4095, protocol_version=version)
+    with pytest.raises(ProtocolError, match=f"output report.version = {version!r}"):
+        encode_output_report(StiffnessCommand(level=1), sequence=7, version=version)
+    with pytest.raises(ProtocolError, match=f"decode_output_report.version = {version!r}"):
+        decode_output_report(GOOD_OUTPUT, version=version)
+    with pytest.raises(ProtocolError, match="descriptor version"):
+        report_descriptor(version)
+
+
+@pytest.mark.parametrize("firmware", [5, (1,), (1, 2, 3), [1, 0], "10"])
+def test_a_firmware_version_must_be_a_pair(firmware):
+    with pytest.raises(ProtocolError, match=r"DisplayInfo.firmware_version = .*expected a tuple"):
+        DisplayInfo(4095, firmware_version=firmware)
+
+
 def test_status_fields_are_checked():
     with pytest.raises(ProtocolError, match="state = 'asleep'"):
         DeviceStatus("asleep", 0)
@@ -453,7 +494,14 @@ def test_feature_round_trip(info):
         DeviceStatus,
         state=st.sampled_from(DEVICE_STATES),
         level=st.integers(0, 0xFFFF),
-        faults=st.frozensets(st.sampled_from(sorted(FAULT_BITS))),
+        faults=st.frozensets(st.just("bad_report")),
+        sequence=st.integers(0, 255),
+    )
+    | st.builds(  # a disabling fault: state fault, level 0
+        DeviceStatus,
+        state=st.just("fault"),
+        level=st.just(0),
+        faults=st.frozensets(st.sampled_from(sorted(FAULT_BITS)), min_size=1),
         sequence=st.integers(0, 255),
     )
 )

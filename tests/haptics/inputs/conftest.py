@@ -3,8 +3,8 @@
 No input device exists here, so the gamepad is tested through :class:`FakeEvdevDevice` (the
 interface of ``evdev.InputDevice`` that the backend uses, with the kernel's real codes and event
 type), the display's grip through :class:`FakeGripDisplay` (a ``SoftnessDisplay``'s
-``connect``/``info``/``read_operator``/``close``) and the simulated operator's sequencing through
-:class:`ScriptedOperator` (the real one is tested closed loop in ``test_sim_input.py``).
+``connect``/``info``/``read_operator_reports``/``close``) and the simulated operator's sequencing
+through :class:`ScriptedOperator` (the real one is tested closed loop in ``test_sim_input.py``).
 """
 
 from __future__ import annotations
@@ -117,7 +117,8 @@ class FakeEvdevDevice:
 
 
 class FakeGripDisplay:
-    """A softness display's operator side: ``connect``, ``info.protocol_version``, ``read_operator``."""
+    """A softness display's operator side: ``connect``, ``info.protocol_version``,
+    ``read_operator_reports``."""
 
     def __init__(self, protocol_version: int = 2) -> None:
         self.protocol_version = protocol_version
@@ -140,15 +141,17 @@ class FakeGripDisplay:
         self.connected = False
         self.closes += 1
 
-    def read_operator(self, *, timeout_s: float) -> GripReport | None:
+    def read_operator_reports(self, *, timeout_s: float) -> tuple[GripReport, ...]:
         if not self.connected:
             raise DisplayNotConnectedError("fake display: not connected")
         if self.unplugged:
             self.connected = False
             raise DisplayError("fake display: device disconnected")
         if self.protocol_version < 2:
-            return None
-        return self.reports.popleft() if self.reports else None
+            return ()
+        # Every report since the last call at once, as SoftnessDisplay returns them.
+        reports, self.reports = tuple(self.reports), deque()
+        return reports
 
     def push(self, grip: float, *, force_n: float | None = None, enable: bool = True,
              buttons: tuple[str, ...] = ()) -> None:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import time
+import math
 
 import pytest
 
@@ -10,6 +10,7 @@ from haptics.devices.sim import SimulatedDisplay
 from haptics.errors import InputDeviceError, InputNotConnectedError, ProtocolError
 from haptics.inputs import make_input
 from haptics.inputs.display import DisplayInput
+from haptics.protocol import GRIP_LOST_AFTER_S
 
 
 def test_the_latest_grip_force_and_enable_are_read(make_grip_display):
@@ -80,16 +81,45 @@ def test_an_unplugged_display_is_an_input_device_error(make_grip_display):
 
 def test_a_display_that_stops_reporting_reads_not_enabled(make_grip_display):
     display = make_grip_display()
-    with DisplayInput(display, stale_s=0.05) as device:
+    now = [10.0]
+    with DisplayInput(display, stale_s=0.05, clock=lambda: now[0]) as device:
         display.push(0.4, enable=True)
         assert device.read().enable is True
-        time.sleep(0.08)
+        now[0] += 0.08
         reading = device.read()
-        assert reading.enable is False and reading.grip == 0.4
+        assert reading.enable is False and reading.grip == 0.4 and reading.t_s == 10.08
         display.push(0.4, enable=True)
         assert device.read().enable is True
-    with pytest.raises(InputDeviceError, match="stale_s"):
-        DisplayInput(display, stale_s=0)
+    for bad in (0, -1.0, math.nan, math.inf, True):
+        with pytest.raises(InputDeviceError, match="stale_s"):
+            DisplayInput(display, stale_s=bad)
+
+
+def test_by_default_the_dead_man_is_released_after_the_protocol_s_100_ms(make_grip_display):
+    # PROTOCOL.md: no grip report for 100 ms: take the grip as lost and the dead-man as released.
+    assert GRIP_LOST_AFTER_S == 0.1
+    display = make_grip_display()
+    now = [0.0]
+    with DisplayInput(display, clock=lambda: now[0]) as device:
+        assert device.stale_s == GRIP_LOST_AFTER_S
+        display.push(0.4, enable=True)
+        assert device.read().enable is True
+        now[0] = 0.095
+        assert device.read().enable is True
+        now[0] = 0.105
+        assert device.read().enable is False
+
+
+def test_a_release_and_a_new_press_between_two_reads_is_a_press():
+    display = SimulatedDisplay()  # the real SoftnessDisplay path: every report since the last read
+    with DisplayInput(display) as device:
+        display.firmware.set_grip(0.2, buttons=("grasp",))
+        assert device.read().buttons == {"grasp"}
+        display.firmware.set_grip(0.2, buttons=("grasp",))  # still held: no new press
+        assert device.read().buttons == frozenset()
+        display.firmware.set_grip(0.2)  # let go ...
+        display.firmware.set_grip(0.2, buttons=("grasp",))  # ... and pressed again before a read
+        assert device.read().buttons == {"grasp"}
 
 
 # ------------------------------------------------------------------ the shipped simulated display
