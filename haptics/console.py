@@ -89,14 +89,17 @@ def estimate_line(estimate: EstimateBody | None) -> str:
         return "no estimate yet"
     state = estimate.state
     kind = "provisional" if estimate.provisional else "final"
-    if estimate.E_pa is None:
+    low, high = estimate.interval_pa
+    value = estimate.E_pa
+    if value is None:  # a bound without E_pa: the display renders the interval's bound
+        value = {"lower_bound": low, "upper_bound": high}.get(state)
+    if value is None:
         return f"no modulus ({state.replace('_', ' ')})  {kind}"
     sign = {"lower_bound": ">=", "upper_bound": "<="}.get(state, "=")
-    low, high = estimate.interval_pa
     interval = ""
     if low is not None or high is not None:
         interval = f"  interval [{format_pa(low) if low else '-'}, {format_pa(high) if high else '-'}]"
-    return f"E {sign} {format_pa(estimate.E_pa)}{interval}  {state}  {kind}"
+    return f"E {sign} {format_pa(value)}{interval}  {state}  {kind}"
 
 
 def squeeze_hint(estimate: EstimateBody | None, *, peak_force_n: float | None = None,

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from haptics.errors import ProtocolError
 from haptics.protocol import (
     FLAG_BITS,
     PROTOCOL_VERSION,
@@ -42,7 +43,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print one JSON object (the report's hex and fields) on the last line")
 
 
+#: Each integer option and its largest value (the report's field widths).
+_RANGES = {"level": 0xFFFF, "uncertainty": 255, "sequence": 255}
+
+
 def run(args: argparse.Namespace) -> int:
+    for name, high in _RANGES.items():
+        value = getattr(args, name)
+        if not 0 <= value <= high:
+            raise ProtocolError(f"--{name} {value}: expected an integer in [0, {high}]")
     command = StiffnessCommand(
         level=args.level,
         uncertainty=args.uncertainty,

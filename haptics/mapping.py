@@ -90,7 +90,8 @@ __all__ = [
     "to_command",
 ]
 
-#: Relative tolerance of "at or above the rigid end": a bound equal to the limit after rounding is rigid.
+#: Relative tolerance of "at or above the rigid end" (and "at or below the soft end"): a bound
+#: equal to the limit after rounding is at it.
 RIGID_TOLERANCE = 1e-9
 
 
@@ -147,6 +148,8 @@ class EstimateUpdate:
             raise MappingError(
                 f"estimate state = {self.state!r}: expected one of {', '.join(ESTIMATE_STATES)}"
             )
+        if not isinstance(self.provisional, bool):
+            raise MappingError(f"estimate provisional = {self.provisional!r}: expected True or False")
         if not isinstance(self.t_s, int | float) or not math.isfinite(self.t_s):
             raise MappingError(f"estimate t_s = {self.t_s!r}: expected a finite time in seconds")
         if len(self.interval_pa) != 2:
@@ -194,7 +197,7 @@ class EstimateUpdate:
             interval_pa=tuple(estimate.interval_pa),
             state=estimate.state,
             reason=estimate.reason,
-            provisional=estimate.provisional,
+            provisional=bool(estimate.provisional),  # the bus checked it; it may be numpy's bool
             grasp_id=estimate.grasp_id,
             t_s=t_s,
         )
@@ -302,7 +305,6 @@ def map_estimate(update: EstimateUpdate, *, e_soft_pa: float, e_rigid_pa: float)
       the bound is >= ``e_rigid_pa`` (the estimator's bound at the sensor's resolution
       limit, when that is the rigid end); the interval is open above unless given.
 
-    "At or above" ``e_rigid_pa`` allows a relative :data:`RIGID_TOLERANCE`.
     - ``upper_bound``: E is the bound (E <= bound); rendered at the bound, never
       rigid; the interval is open below unless given.
     - any of these three whose interval spans the whole range (from its soft end or below to
@@ -310,6 +312,9 @@ def map_estimate(update: EstimateUpdate, *, e_soft_pa: float, e_rigid_pa: float)
       estimate's open side states nothing): unknown, as ``insufficient_data``. Such an estimate
       places the object nowhere on the scale; rendering its value (often rigid: the middle of a
       distribution over every modulus) would tell the operator what the estimate does not.
+
+    "At or above" ``e_rigid_pa`` (for the rigid flag and for reaching the rigid end) and "at or
+    below" ``e_soft_pa`` allow a relative :data:`RIGID_TOLERANCE`.
     """
     soft, rigid = _check_range(e_soft_pa, e_rigid_pa)
     if update.state == "insufficient_data":
@@ -320,8 +325,11 @@ def map_estimate(update: EstimateUpdate, *, e_soft_pa: float, e_rigid_pa: float)
         low = e_pa
     if update.state == "upper_bound" and high is None:
         high = e_pa
-    reaches_soft = low <= soft if low is not None else update.state == "upper_bound"
-    reaches_rigid = high >= rigid if high is not None else update.state == "lower_bound"
+    # The same tolerance as the rigid flag's: a bound at an end after rounding reaches it.
+    reaches_soft = (low <= soft * (1 + RIGID_TOLERANCE) if low is not None
+                    else update.state == "upper_bound")
+    reaches_rigid = (high >= rigid * (1 - RIGID_TOLERANCE) if high is not None
+                     else update.state == "lower_bound")
     if reaches_soft and reaches_rigid:
         return _unknown(update, soft, rigid)
     is_rigid = update.state in ("ok", "lower_bound") and e_pa >= rigid * (1 - RIGID_TOLERANCE)

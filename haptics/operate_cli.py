@@ -22,6 +22,7 @@ from haptics.operator_link import OperatorLink
 from haptics.operator_loop import LoopStatus, OperatorLoop
 from haptics.settings import operator_settings
 from teleop.catalogue import default_catalogue_path, load_catalogue
+from teleop.clikit import positive_number
 from teleop.errors import SettingsError
 from teleop.live import StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.settings import default_settings_path, load_settings
@@ -83,7 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--headless", action="store_true",
                         help="no screen: run the loop and print one line per action (the sim input, scripts; "
                              "any input but the keyboard, whose keys the screen reads)")
-    parser.add_argument("--duration-s", type=float, default=None, metavar="S",
+    parser.add_argument("--duration-s", type=positive_number, default=None, metavar="S",
                         help="stop after S seconds (default: until quit, Ctrl-C or SIGTERM)")
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (follows_sent, commands_sent, last grasp, labels given, problem) "

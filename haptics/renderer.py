@@ -10,9 +10,11 @@ a grasp (smoothing toward the latest estimate; *stale* when, after a provisional
 estimate, no estimate came for ``stale_after_s``: the last value is held and
 flagged; a final estimate is the grasp's last and never goes stale) -> *fading* on the
 grasp's end (linear fade to free over ``fade_s``) -> idle. Estimates of a
-grasp that has ended are ignored, so a late estimate cannot re-engage the
-display. A report is written when the command changes, or every
-``keepalive_s`` to feed the display's watchdog.
+grasp that has ended, or that had its final estimate, are ignored, so a late
+estimate cannot re-engage the display. A report is written when the command
+changes, or every ``keepalive_s`` to feed the display's watchdog; a display
+whose ``watchdog_ms`` is not longer than ``keepalive_s`` is refused
+(:class:`~haptics.errors.DisplayError`), since it would go free while holding a value.
 """
 
 from __future__ import annotations
@@ -45,6 +47,8 @@ log = logging.getLogger(__name__)
 
 #: How many ended grasps are remembered to ignore their late estimates.
 _ENDED_MEMORY = 16
+#: The largest level_max a display can state: checks a command before the display is known.
+_LEVEL_MAX = 0xFFFF
 
 
 @dataclass
@@ -154,23 +158,33 @@ class HapticRenderer:
     # ------------------------------------------------------------ inputs
 
     def on_estimate(self, update: EstimateUpdate, now_s: float) -> None:
-        """Take one estimate received at ``now_s``."""
+        """Take one estimate received at ``now_s``.
+
+        An estimate of a grasp that ended, or that already had its final estimate (the grasp's
+        last), is ignored and counted in ``stats.estimates_ignored``. One that cannot be
+        rendered raises before anything of it is taken.
+        """
         self._advance(now_s)
-        if update.grasp_id in self._ended:
+        same_grasp = self._active and update.grasp_id == self._grasp_id
+        if update.grasp_id in self._ended or (same_grasp and not self._expecting):
             self.stats.estimates_ignored += 1
-            log.debug("ignoring an estimate of ended grasp %r", update.grasp_id)
+            log.debug("ignoring an estimate of grasp %r: it ended or had its final estimate",
+                      update.grasp_id)
+            self._output(now_s)  # the command as of now_s, as after any call
             return
-        if not self._active or update.grasp_id != self._grasp_id:
-            if self._active:  # a new grasp implies the old one is over
-                self._ended.append(self._grasp_id)
-            self._grasp_id, self._active, self._release_s = update.grasp_id, True, None
-        self._target = map_estimate(
+        target = map_estimate(
             update, e_soft_pa=self.settings.e_soft_pa, e_rigid_pa=self.settings.e_rigid_pa
         )
         # Flags change at once; the level starts its lag now (at once when smoothing_s is 0).
-        self._shown = smooth(
-            self._shown, self._target, dt_s=0.0, smoothing_s=self.settings.smoothing_s
-        )
+        shown = smooth(self._shown, target, dt_s=0.0, smoothing_s=self.settings.smoothing_s)
+        # Quantise before taking it: one that cannot become a command changes nothing.
+        info = self.display.info
+        to_command(shown, level_max=_LEVEL_MAX if info is None else info.level_max)
+        if not same_grasp:
+            if self._active:  # a new grasp implies the old one is over
+                self._ended.append(self._grasp_id)
+            self._grasp_id, self._active, self._release_s = update.grasp_id, True, None
+        self._target, self._shown = target, shown
         self._last_update_s, self._expecting = now_s, update.provisional
         self._pending_t_s = update.t_s
         self.stats.estimates += 1
@@ -235,6 +249,14 @@ class HapticRenderer:
         info = self.display.info
         if info is None:
             return
+        if info.watchdog_ms and self.settings.keepalive_s * 1e3 >= info.watchdog_ms:
+            # The display would go free between two keep-alives while holding a value.
+            raise DisplayError(
+                f"{self.display}: [display] keepalive_s = {self.settings.keepalive_s:g} s is not "
+                f"shorter than the display's watchdog_ms = {info.watchdog_ms} ms, so the display "
+                "would go free (watchdog) while it holds a value; set keepalive_s below "
+                f"{info.watchdog_ms / 1e3:g} s"
+            )
         self._command = to_command(
             self._shown,
             level_max=info.level_max,

@@ -32,6 +32,7 @@ to ``report``.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
@@ -94,7 +95,7 @@ class ServiceStats:
     grasp_ends: int = 0
     display_messages: int = 0  # ``display`` messages published, one per report written
     display_failures: int = 0  # reports whose ``display`` message could not be published
-    ignored: int = 0  # estimates of grasps that had ended (late, or replayed after they were shown)
+    ignored: int = 0  # estimates of grasps that had ended or had their final (late, or replayed)
     finals: list[FinalLatency] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
@@ -125,8 +126,9 @@ class RendererService(ServiceLoop):
     def __init__(self, renderer: HapticRenderer, *, subscriber: Subscriber, publisher: Publisher | None = None,
                  report: JsonLines | None = None, tick_s: float = 0.01,
                  clock: Callable[[], float] = time.monotonic):
-        if not tick_s > 0:
-            raise HapticsError(f"tick_s = {tick_s!r}: expected a number of seconds > 0")
+        if isinstance(tick_s, bool) or not isinstance(tick_s, int | float) or not (
+                math.isfinite(tick_s) and tick_s > 0):
+            raise HapticsError(f"tick_s = {tick_s!r}: expected a finite number of seconds > 0")
         self.renderer = renderer
         self.subscriber = subscriber
         self.publisher = publisher

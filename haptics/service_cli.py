@@ -18,6 +18,7 @@ from haptics.renderer import HapticRenderer
 from haptics.service import INPUT_TOPICS, RendererService
 from haptics.settings import display_settings
 from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.clikit import positive_number
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.session.foxglove_live import LiveTap, add_foxglove_argument
 from teleop.settings import default_settings_path, load_settings
@@ -36,18 +37,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backend", choices=sorted(BACKENDS), default=None,
                         help="display backend (default: [display] backend of the settings)")
     add_endpoint_arguments(parser, "estimate_pub", "display_pub")
-    parser.add_argument("--tick-s", type=float, default=0.01, metavar="S",
+    parser.add_argument("--tick-s", type=positive_number, default=0.01, metavar="S",
                         help="longest time between renderer updates (smoothing, fading, keep-alive), seconds")
     parser.add_argument("--report", metavar="FILE", default=None,
                         help="append one JSON object per final estimate (grasp_id, state, E_pa, latency_ms, "
                              "estimates_received, and what the display renders for it: display_fraction, rigid, "
                              "unknown, uncertainty_decades, level, level_max) to FILE")
-    parser.add_argument("--duration-s", type=float, default=None, metavar="S",
+    parser.add_argument("--duration-s", type=positive_number, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
     add_foxglove_argument(parser, what="the display messages it publishes")
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (estimates, bad_messages, grasp_ends, display_messages, "
-                             "display_failures, ignored: estimates of grasps that had ended, finals; wire: what its subscribers refused on the wire, by reason, and their sequence gaps) "
+                             "display_failures, ignored: estimates of grasps that had ended or had their final, finals; wire: what its subscribers refused on the wire, by reason, and their sequence gaps) "
                              "as the last stdout line")
 
 
@@ -75,8 +76,8 @@ def run(args: argparse.Namespace) -> int:
             stats = service.run(signals.stop, duration_s=args.duration_s)
     finally:
         display.close()
-    ignored = (f", {stats.ignored} not shown: their grasps had ended (late, or replayed after this renderer "
-               "showed them)") if stats.ignored else ""
+    ignored = (f", {stats.ignored} not shown: their grasps had ended or had their final estimate (late, or "
+               "replayed after this renderer showed them)") if stats.ignored else ""
     print(f"renderer: {stats.estimates} estimates, {len(stats.finals)} final, {display.reports_written} "
           f"reports written{ignored}", file=sys.stderr)
     if args.json:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 
 from haptics.devices import BACKENDS, make_display
 from haptics.errors import HapticsError
@@ -41,8 +42,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Checked before the display is touched: a bad option must not leave a command written.
     if args.e_pa is None and args.state == "ok":
         raise HapticsError("--e-pa: expected Young's modulus in Pa (only --state insufficient_data needs none)")
+    if args.e_pa is not None and not (math.isfinite(args.e_pa) and args.e_pa > 0):
+        raise HapticsError(f"--e-pa {args.e_pa}: expected Young's modulus in Pa, a finite number > 0")
+    if not (math.isfinite(args.timeout_s) and args.timeout_s >= 0):
+        raise HapticsError(f"--timeout-s {args.timeout_s}: expected a finite number of seconds >= 0")
     # The full settings resolve [display] e_rigid_pa = 0 to the sensor's resolution limit.
     settings = display_settings(load_settings(args.settings))
     if args.backend is not None:
@@ -80,5 +86,5 @@ def run(args: argparse.Namespace) -> int:
             "command": dataclasses.asdict(command), "report_hex": report.hex(),
             "status": None if status is None else {**dataclasses.asdict(status),
                                                    "faults": sorted(status.faults)},
-        }))
+        }, allow_nan=False))
     return 0

@@ -71,11 +71,23 @@ def test_encode_prints_the_report(capsys):
 def test_encode_refuses_bad_fields_in_one_line(capsys):
     assert main(["encode", "--level", "70000"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err == (
-        "haptics encode: error: StiffnessCommand.level = 70000: expected an integer in [0, 65535]"
-    )
+    assert err == "haptics encode: error: --level 70000: expected an integer in [0, 65535]"
     assert main(["encode", "--level", "1", "--rigid", "--unknown"]) == 2
     assert "rigid and unknown" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["--level", "-1"], "--level -1: expected an integer in [0, 65535]"),
+        (["--level", "1", "--sequence", "256"], "--sequence 256: expected an integer in [0, 255]"),
+        (["--level", "1", "--sequence", "-1"], "--sequence -1: expected an integer in [0, 255]"),
+        (["--level", "1", "--uncertainty", "0x100"], "--uncertainty 256: expected an integer in [0, 255]"),
+    ],
+)
+def test_encode_names_the_option_and_its_range(options, message, capsys):
+    assert main(["encode", *options]) == 2
+    assert capsys.readouterr().err.strip() == f"haptics encode: error: {message}"
 
 
 def test_try_maps_and_writes_to_the_simulated_display(capsys):
@@ -135,9 +147,40 @@ def test_try_takes_an_explicit_rigid_end_from_the_settings(tmp_path, capsys):
     assert data["e_rigid_pa"] == 1e9 and data["command"]["rigid"] is False
 
 
-def test_try_refuses_a_bad_modulus(capsys):
-    assert main(["try", "--e-pa", "nan"]) == 2
-    assert "E_pa" in capsys.readouterr().err
+@pytest.mark.parametrize("state", ["ok", "lower_bound", "insufficient_data"])
+@pytest.mark.parametrize("e_pa", ["nan", "inf", "-1"])
+def test_try_refuses_a_bad_modulus_in_every_state(state, e_pa, capsys):
+    assert main(["try", "--state", state, "--e-pa", e_pa, "--json"]) == 2
+    captured = capsys.readouterr()
+    assert f"--e-pa {float(e_pa)}: expected Young's modulus in Pa, a finite number > 0" in captured.err
+    assert captured.out == ""  # no JSON, let alone NaN in it
+
+
+@pytest.mark.parametrize("timeout_s", ["-1", "nan", "inf"])
+def test_try_refuses_a_bad_timeout_before_writing_to_the_display(fake_hid, timeout_s, capsys):
+    usb = fake_hid.plug()
+    assert main(["try", "--backend", "hid", "--e-pa", "1e7", "--timeout-s", timeout_s]) == 2
+    assert f"--timeout-s {float(timeout_s)}: expected a finite number of seconds >= 0" in capsys.readouterr().err
+    assert usb.writes == []
+
+
+@pytest.mark.parametrize(
+    ("options", "bad"),
+    [
+        (["serve", "--backend", "sim", "--tick-s", "inf", "--duration-s", "0.5"], "--tick-s: 'inf'"),
+        (["serve", "--backend", "sim", "--tick-s", "0"], "--tick-s: '0'"),
+        (["serve", "--backend", "sim", "--duration-s", "nan"], "--duration-s: 'nan'"),
+        (["serve", "--backend", "sim", "--duration-s", "-1"], "--duration-s: '-1'"),
+        (["operate", "--headless", "--input", "sim", "--duration-s", "nan"], "--duration-s: 'nan'"),
+        (["operate", "--headless", "--input", "sim", "--duration-s", "-1"], "--duration-s: '-1'"),
+        (["operate", "--headless", "--input", "sim", "--duration-s", "inf"], "--duration-s: 'inf'"),
+    ],
+)
+def test_serve_and_operate_refuse_a_bad_time_as_a_usage_error(options, bad, capsys):
+    with pytest.raises(SystemExit) as exited:
+        main(options)
+    assert exited.value.code == 2
+    assert f"argument {bad}: expected a number > 0" in capsys.readouterr().err
 
 
 def test_try_over_hid(fake_hid, capsys):

@@ -11,6 +11,7 @@ import pytest
 
 from haptics.console import OperatorConsole, estimate_line, format_pa, squeeze_hint
 from haptics.inputs.keyboard import KeyboardInput
+from haptics.mapping import EstimateUpdate
 from haptics.operator_link import PEERS, OperatorView, Peer
 from haptics.operator_loop import OperatorLoop
 from teleop.bus.messages import DisplayBody, EstimateBody, RobotNoticeBody, RobotStateBody
@@ -69,6 +70,15 @@ def test_estimates_and_moduli_read_as_people_write_them():
     assert estimate_line(bound) == "E >= 6.75 MPa  interval [6.75 MPa, -]  lower_bound  provisional"
     none = dataclasses.replace(ESTIMATE, state="insufficient_data", E_pa=None, interval_pa=[None, None])
     assert estimate_line(none) == "no modulus (insufficient data)  final"
+
+
+def test_a_bound_without_a_modulus_reads_as_the_bound_the_display_renders():
+    bound = dataclasses.replace(ESTIMATE, state="lower_bound", E_pa=None, interval_pa=[1e6, None])
+    assert estimate_line(bound) == "E >= 1 MPa  interval [1 MPa, -]  lower_bound  final"
+    update = EstimateUpdate.from_estimate(bound, 0.0)
+    assert update.value_pa == 1e6  # what the renderer maps
+    upper = dataclasses.replace(ESTIMATE, state="upper_bound", E_pa=None, interval_pa=[None, 2e4])
+    assert estimate_line(upper) == "E <= 20 kPa  interval [-, 20 kPa]  upper_bound  final"
 
 
 def test_a_final_answer_too_wide_to_place_asks_for_a_firmer_squeeze():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
@@ -150,6 +151,21 @@ def test_an_interval_over_the_whole_range_is_unknown_as_a_refusal():
         assert not map_estimate(update, **RANGE).unknown
 
 
+@pytest.mark.parametrize("rounding", [1 - RIGID_TOLERANCE / 10, 1.0, 1 + RIGID_TOLERANCE / 10])
+def test_a_bound_at_an_end_after_rounding_reaches_that_end(rounding):
+    # The tolerance of the rigid flag holds for "spans the whole range" too: a bound a rounding
+    # away from an end renders as one at the end, not as the opposite extreme.
+    upper = map_estimate(EstimateUpdate(RIGID * rounding, state="upper_bound"), **RANGE)
+    assert upper.unknown and upper.stiffness == 0.0 and not upper.rigid
+    lower = map_estimate(EstimateUpdate(SOFT * rounding, state="lower_bound"), **RANGE)
+    assert lower.unknown and lower.stiffness == 0.0
+    spanning = map_estimate(ok(3e4, (SOFT * rounding, RIGID * rounding)), **RANGE)
+    assert spanning.unknown
+    # a real distance from an end is still placed
+    assert not map_estimate(EstimateUpdate(RIGID * 0.999, state="upper_bound"), **RANGE).unknown
+    assert not map_estimate(EstimateUpdate(SOFT * 1.001, state="lower_bound"), **RANGE).unknown
+
+
 def test_rigid_unknown_and_stiffest_ok_are_distinct_commands():
     commands = {
         state: to_command(map_estimate(update, **RANGE), level_max=4095)
@@ -199,6 +215,8 @@ def test_provisional_is_carried_through():
         ({"e_pa": 1e5, "interval_pa": (1e6, None)}, "outside its interval"),
         ({"e_pa": 1e5, "interval_pa": (1e3,)}, "expected \\(low or None, high or None\\)"),
         ({"e_pa": 1e5, "t_s": math.nan}, "t_s = nan"),
+        ({"e_pa": 1e5, "provisional": 1}, "provisional = 1: expected True or False"),
+        ({"e_pa": 1e5, "provisional": "no"}, "provisional = 'no'"),
     ],
 )
 def test_bad_estimates_are_refused_naming_the_field(kwargs, message):
@@ -228,6 +246,9 @@ def test_from_estimate_reads_the_bus_estimate_and_its_capture_time():
     assert update == EstimateUpdate(2e5, (1e5, 4e5), "ok", "", True, "g-7", 12.5)
     with pytest.raises(MappingError, match="lies outside its interval_pa"):
         EstimateUpdate.from_estimate(dataclasses.replace(estimate, E_pa=9e5), 12.5)
+    # numpy's bool passes the bus's flag check; the update holds Python's
+    numpy_flag = EstimateUpdate.from_estimate(dataclasses.replace(estimate, provisional=np.bool_(False)), 1.0)
+    assert numpy_flag.provisional is False
 
 
 # --------------------------------------------------------------------------- smoothing, fade, stale

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -10,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from haptics.errors import InputDeviceError, InputNotConnectedError
+from haptics.errors import HapticsError, InputDeviceError, InputNotConnectedError
 from haptics.operator_link import OperatorLink, OperatorView, Peer
 from haptics.operator_loop import NEXT_WAIT_S, RECONNECT_S, RELEASE_FOLLOWS, OperatorLoop
 from teleop.bus.messages import DisplayBody, EstimateBody, RobotNoticeBody, RobotStateBody
@@ -363,6 +364,14 @@ def test_force_beyond_the_settings_maximum_is_refused():
         OperatorLoop(FakeLink(clock), FakeDevice(clock), load_settings(), force_n=500.0)
     with pytest.raises(ValueError, match=r"button"):
         OperatorLoop(FakeLink(clock), FakeDevice(clock), load_settings()).press("launch")
+
+
+@pytest.mark.parametrize("duration_s", [math.nan, math.inf, -1.0, "1"])
+def test_a_bad_duration_is_refused_before_the_loop_runs(rig, duration_s):
+    _, link, _, loop = rig
+    with pytest.raises(HapticsError, match=r"duration_s = .*: expected a finite number of seconds >= 0"):
+        loop.run(duration_s=duration_s)
+    assert link.sent == []
 
 
 def test_a_failed_send_is_shown_and_the_loop_goes_on(rig):

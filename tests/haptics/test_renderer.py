@@ -9,10 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from haptics.devices.sim import SimulatedDisplay
-from haptics.errors import MappingError
+from haptics.devices.sim import DisplayFirmware, SimulatedDisplay
+from haptics.errors import DisplayError, MappingError, ProtocolError
 from haptics.mapping import ESTIMATE_STATES, EstimateUpdate, map_estimate, stiffness_fraction
-from haptics.protocol import decode_output_report
+from haptics.protocol import DisplayInfo, decode_output_report
 from haptics.renderer import HapticRenderer
 from haptics.settings import DisplaySettings, display_settings
 from teleop.settings import load_settings
@@ -187,7 +187,7 @@ def test_a_new_grasp_id_ends_the_previous_grasp():
 
 def test_rigid_and_unknown_states_reach_the_display():
     display, renderer = make(replace(SETTINGS, smoothing_s=0.0))
-    renderer.on_estimate(estimate(None, state="insufficient_data"), 0.0)
+    renderer.on_estimate(estimate(None, state="insufficient_data", provisional=True), 0.0)
     assert written(display)[-1].unknown and written(display)[-1].level == 0
     renderer.on_estimate(estimate(5e9, state="lower_bound", interval=(5e9, None)), 0.1)
     rigid = written(display)[-1]
@@ -198,7 +198,7 @@ def test_rigid_and_unknown_states_reach_the_display():
 
 def test_unplug_then_replug_resends_the_last_command_and_resumes():
     display, renderer = make(replace(SETTINGS, smoothing_s=0.0))
-    renderer.on_estimate(estimate(1e6), 0.0)
+    renderer.on_estimate(estimate(1e6, provisional=True), 0.0)
     display.unplug()
     renderer.on_estimate(estimate(1e7), 0.1)  # this write fails: the display is gone
     assert renderer.stats.write_failures == 1 and not display.connected
@@ -286,7 +286,7 @@ def test_with_the_shipped_settings_a_bound_at_the_resolution_limit_is_rigid():
     settings = load_settings()
     display, renderer = make(replace(display_settings(settings), smoothing_s=0.0))
     limit = settings.resolution_limit_pa
-    renderer.on_estimate(estimate(limit, state="lower_bound", interval=(limit, None)), 0.0)
+    renderer.on_estimate(estimate(limit, state="lower_bound", interval=(limit, None), provisional=True), 0.0)
     rigid = written(display)[-1]
     assert rigid.rigid and rigid.level == LEVEL_MAX and rigid.uncertainty == 0
     assert renderer.target.rigid and renderer.target.stiffness == 1.0
@@ -295,3 +295,56 @@ def test_with_the_shipped_settings_a_bound_at_the_resolution_limit_is_rigid():
     bound = written(display)[-1]
     fraction = stiffness_fraction(below, e_soft_pa=display_settings(settings).e_soft_pa, e_rigid_pa=limit)
     assert not bound.rigid and bound.level == round(fraction * LEVEL_MAX) < LEVEL_MAX
+
+
+def test_an_estimate_that_cannot_become_a_command_leaves_the_renderer_as_it_was():
+    with pytest.raises(MappingError, match="provisional = 1: expected True or False"):
+        EstimateUpdate(1e5, grasp_id="A", provisional=1)
+    display, renderer = make()
+    renderer.tick(0.0)
+    bad = estimate(1e5, grasp="A")
+    object.__setattr__(bad, "provisional", 1)  # past the checks, as a careless caller might
+    with pytest.raises(ProtocolError, match="provisional = 1"):
+        renderer.on_estimate(bad, 0.1)
+    assert renderer.phase == "idle" and renderer.grasp_id is None and renderer.stats.estimates == 0
+    assert renderer.tick(0.2).level == 0
+    renderer.on_grasp_end("A", 0.3)
+    renderer.on_estimate(estimate(1e5, grasp="B"), 0.4)
+    assert renderer.grasp_id == "B"
+
+
+def test_a_provisional_estimate_after_the_final_is_ignored():
+    display, renderer = make(replace(SETTINGS, smoothing_s=0.0, stale_after_s=0.5))
+    renderer.on_estimate(estimate(1e6, provisional=True), 0.0)
+    renderer.on_estimate(estimate(1e7), 0.1)  # the final: the grasp's last
+    final = renderer.command
+    renderer.on_estimate(estimate(1e5, provisional=True), 0.2)
+    renderer.on_estimate(estimate(1e4), 0.3)
+    assert renderer.stats.estimates_ignored == 2 and renderer.command == final
+    later = renderer.tick(5.0)
+    assert later == final and not later.stale and renderer.phase == "active"
+    assert not any(c.stale for c in written(display))
+
+
+def test_an_ignored_estimate_leaves_the_command_current():
+    _, renderer = make(replace(SETTINGS, smoothing_s=0.0))
+    renderer.on_estimate(estimate(1e7), 0.0)
+    renderer.on_grasp_end("g1", 0.1)
+    assert renderer.command.fading
+    renderer.on_estimate(estimate(1e7), 1.0)  # late: the fade ended at 0.4
+    assert renderer.phase == "idle" and renderer.stats.estimates_ignored == 1
+    assert renderer.command.level == 0 and renderer.command.flags == 0
+
+
+def test_a_display_whose_watchdog_is_not_longer_than_the_keep_alive_is_refused():
+    display, renderer = make(replace(SETTINGS, keepalive_s=1.0))  # the simulated watchdog: 1000 ms
+    with pytest.raises(DisplayError, match=r"keepalive_s = 1 s is not shorter than the display's "
+                                           r"watchdog_ms = 1000 ms.*below 1 s"):
+        renderer.tick(0.0)
+    with pytest.raises(DisplayError, match="watchdog_ms"):
+        renderer.on_estimate(estimate(1e6), 0.1)
+    assert written(display) == []  # nothing sent that the watchdog would drop
+    _, renderer = make(replace(SETTINGS, keepalive_s=0.999))
+    assert renderer.tick(0.0).level == 0
+    off = SimulatedDisplay(firmware=DisplayFirmware(DisplayInfo(4095, watchdog_ms=0)))
+    assert HapticRenderer(off, replace(SETTINGS, keepalive_s=60.0)).tick(0.0).level == 0  # no watchdog

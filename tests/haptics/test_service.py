@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import time
 
 import pytest
@@ -129,3 +130,10 @@ def test_a_finals_latency_ends_at_the_report_not_at_the_display_message(rig):
     # The display message went out after the report, taking 100 s; the latency does not count it.
     assert "display" in slow.sent
     assert service.stats.finals[0].latency_s < 100.0
+
+
+@pytest.mark.parametrize("tick_s", [0, -0.01, math.inf, math.nan, True, "0.01"])
+def test_a_bad_tick_is_refused_naming_it(tick_s):
+    renderer = HapticRenderer(SimulatedDisplay(), display_settings(load_settings()))
+    with pytest.raises(HapticsError, match=f"tick_s = {tick_s!r}: expected a finite number of seconds > 0"):
+        RendererService(renderer, subscriber=None, tick_s=tick_s)
