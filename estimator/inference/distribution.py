@@ -27,7 +27,8 @@ shown:
   that E is at least that limit reaches ``p_rigid``: the gel cannot tell
   stiffer objects apart, so no number above it is offered; ``p_rigid`` is
   chosen on the validation objects so that these bounds hold at the stated
-  level;
+  level. So is an answer whose calibrated interval (below) lies wholly above
+  the limit while that probability stays under ``p_rigid``;
 * ``upper_bound`` at ``soft_pa`` (the softest label the model was trained on)
   when the median is at or below it;
 * otherwise ``ok``: the interval is ``m -/+ scale * s`` about the median ``m``
@@ -331,10 +332,13 @@ def describe(probs: np.ndarray, *, scale: float, limit_pa: float, soft_pa: float
 
     half = scale * float(spread(probs)[0])
     low_calibrated, high_calibrated = interval(half)
+    if low_calibrated > math.log10(limit_pa):  # no number above the limit is offered, not even its low end
+        return Described("lower_bound", limit_pa, limit_pa, None, p_above)
+    # The interval meets [soft, limit]: it holds the median, above soft_pa, and starts at or below the limit.
     point = hedged_point(probs[0], low=low_calibrated, high=high_calibrated, soft=math.log10(soft_pa),
                          limit=math.log10(limit_pa))
     low, high = interval(half * widen)
-    return Described("ok", 10.0 ** (median if point is None else point), 10.0 ** low, 10.0 ** high, p_above)
+    return Described("ok", 10.0 ** point, 10.0 ** low, 10.0 ** high, p_above)
 
 
 def describe_on_gel(probs: np.ndarray, *, scale: float, limit_pa: float, soft_pa: float, p_rigid: float,

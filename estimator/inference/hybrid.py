@@ -291,9 +291,13 @@ class HybridEstimator:
                       f"{self.predictor.metadata.force_band_at(peak_force_n)}")
         states = ", ".join(f"{e.method} {e.state}" for e in sampled.estimates)
         model = f"{self.predictor.variant.name} model over {self.predictor.variant.n_frames} frames"
-        if said.state == "lower_bound":
-            what = (f"P(E >= the sensor's resolution limit) = {said.p_above_limit:.2f} >= "
-                    f"{self.predictor.metadata.p_rigid_at(peak_force_n):g}: stiffer objects look alike to the gel")
+        p_rigid = self.predictor.metadata.p_rigid_at(peak_force_n)
+        if said.state == "lower_bound" and said.p_above_limit >= p_rigid:
+            what = (f"P(E >= the sensor's resolution limit) = {said.p_above_limit:.2f} >= {p_rigid:g}: stiffer "
+                    "objects look alike to the gel")
+        elif said.state == "lower_bound":
+            what = (f"the {calibrated} lies wholly above the sensor's resolution limit (P(E >= it) = "
+                    f"{said.p_above_limit:.2f} < {p_rigid:g}): stiffer objects look alike to the gel")
         elif said.state == "upper_bound":
             what = "median at or below the softest training label"
         elif fit.notes:
@@ -302,9 +306,14 @@ class HybridEstimator:
         else:
             what = calibrated
         floor_log10, floor_method = self.predictor.floor(sampled)
-        if floor_method is not None:
-            what += (f"; its distribution floored at the {floor_method} lower bound "
-                     f"{10.0 ** floor_log10 / gel_scale(sampled.gel_modulus_pa):.3g} Pa")
+        floor_pa = 10.0 ** floor_log10 / gel_scale(sampled.gel_modulus_pa)
+        if floor_method is not None and said.state != "lower_bound" and said.e_pa < floor_pa:
+            # The floor only weights the mass below it by its leak: a model sure enough stays below it.
+            what += (f"; the {floor_method} lower bound {floor_pa:.3g} Pa weighted the distribution's mass below it "
+                     f"by the floor's leak {self.predictor.metadata.floor_leak:g}, yet the answer lies below that bound: "
+                     "the model's reading outweighs it")
+        elif floor_method is not None:
+            what += f"; its distribution floored at the {floor_method} lower bound {floor_pa:.3g} Pa"
         if fit.notes:
             what += "; outside the training range: " + "; ".join(fit.notes)
         reason = f"{model}; {what}; analytical inputs: {states}"

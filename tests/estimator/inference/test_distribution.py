@@ -212,7 +212,8 @@ def test_no_value_is_hedged_outside_the_display_range():
 
 def test_widening_moves_the_interval_and_not_the_value():
     probs = 0.45 * gaussian(5.9, 0.05) + 0.55 * gaussian(8.0, 0.05)
-    said = {w: describe(probs, scale=0.5, limit_pa=LIMIT_PA, soft_pa=SOFT_PA, p_rigid=0.9, widen=w) for w in (1.0, 3.0)}
+    said = {w: describe(probs, scale=1.5, limit_pa=LIMIT_PA, soft_pa=SOFT_PA, p_rigid=0.9, widen=w) for w in (1.0, 3.0)}
+    assert said[1.0].state == said[3.0].state == "ok"
     assert said[1.0].e_pa == said[3.0].e_pa and said[3.0].low_pa < said[1.0].low_pa
     with pytest.raises(ModelError, match="widen"):
         describe(probs, scale=0.5, limit_pa=LIMIT_PA, soft_pa=SOFT_PA, widen=0.5)
