@@ -153,17 +153,25 @@ def _safe(method: str, build: Callable[[], Estimate]) -> Estimate:
 def _falling_depth(approach: np.ndarray, depth: np.ndarray, noise: MeasurementNoise) -> str:
     """Why the depth series is unusable, or "": the gel's indentation cannot fall while the
     fingers close further (beyond the depth noise). It does when the contact is wider than the
-    pad (the gradients the depth is built from leave the image) or the object slips. Frames
-    where either is not finite are ignored."""
+    pad (the gradients the depth is built from leave the image) or the object slips; the reason
+    says whether the widths closed at all. Frames where either is not finite are ignored."""
     finite = np.isfinite(approach) & np.isfinite(depth)
     order = np.argsort(approach[finite], kind="stable")
     by_approach = depth[finite][order]
     with np.errstate(over="ignore"):  # a drop beyond the float range (inf) is a fall all the same
         drop = float(np.max(np.maximum.accumulate(by_approach) - by_approach, initial=0.0))
-    if drop > 3.0 * math.sqrt(2.0) * noise.depth_m + 1e-12:
-        return (f"the gel's indentation falls by {drop * 1e3:.3g} mm while the approach grows: the "
-                "contact is likely wider than the pad, or the object slips")
-    return ""
+    if not drop > 3.0 * math.sqrt(2.0) * noise.depth_m + 1e-12:
+        return ""
+    fell = f"the gel's indentation falls by {drop * 1e3:.3g} mm"
+    closing = approach[finite]  # in time order: how far the fingers closed over the loading
+    moved = float(closing[-1] - closing[0])
+    if abs(moved) <= 3.0 * noise.approach_m:
+        return (f"{fell} while the widths show no approach over the loading (within their noise): the object "
+                "slips, the contact is wider than the pad, or the width readings do not follow the grasp")
+    if moved < 0:
+        return (f"{fell} where the widths give more approach: they open by {-2e3 * moved:.3g} mm over the loading "
+                "while the force rises, so the width readings do not follow the grasp, or the object slips")
+    return f"{fell} while the approach grows: the contact is likely wider than the pad, or the object slips"
 
 
 def _auto_origin(n: int) -> bool:

@@ -48,6 +48,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -262,13 +263,23 @@ class Calibration:
 def read_npz(path: Path, *, missing: str, kind: str) -> dict[str, np.ndarray]:
     """Every member of the ``.npz`` at ``path`` (no pickles); CalibrationError saying ``missing``
     when there is no file, and that it is not ``kind`` when it cannot be read."""
+    expected = "expected a zip archive of numpy arrays, as numpy.savez writes"
+    try:
+        with open(path, "rb") as file:
+            zipped = file.read(4) == b"PK\x03\x04"
+    except FileNotFoundError as exc:
+        raise CalibrationError(missing) from exc
+    except OSError as exc:
+        raise CalibrationError(f"{path}: not {kind}: {exc}") from exc
+    if not zipped:  # numpy would read it as a pickle, or as one array
+        raise CalibrationError(f"{path}: not {kind}: {expected}, and the file is not one")
     try:
         with np.load(path, allow_pickle=False) as data:
             return {name: data[name] for name in data.files}
-    except FileNotFoundError as exc:
-        raise CalibrationError(missing) from exc
-    except (OSError, ValueError, EOFError) as exc:
-        raise CalibrationError(f"{path}: not {kind}: {exc}") from exc
+    except ValueError as exc:  # an object member: reading it would run pickled code
+        raise CalibrationError(f"{path}: not {kind}: a member holds pickled Python objects ({expected})") from exc
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise CalibrationError(f"{path}: not {kind}: {expected}; this one does not read ({exc})") from exc
 
 
 def load_calibration(path: str | Path) -> Calibration:

@@ -204,6 +204,18 @@ def test_depth_falling_while_closing_is_refused():
         assert not est and "wider than the pad" in est.reason
 
 
+def test_depth_falling_under_still_or_opening_widths_is_not_said_to_grow_with_the_approach():
+    force, approach, depth, a = hertz_series(1e6)
+    still = (np.full_like(approach, approach[-1]), depth[::-1], "widths show no approach over the loading")
+    opening = (approach[::-1], depth, "they open by")  # widths reversed: the gel presses in as they open
+    for closing, indentation, said in (still, opening):
+        for est in (
+            series(closing, indentation, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=NOISY),
+            elastic(force, closing, indentation, a**2 * np.pi, initial_width_m=W0, noise=NOISY),
+        ):
+            assert not est and said in est.reason and "approach grows" not in est.reason
+
+
 def test_depth_sinking_slowly_while_closing_is_refused():
     approach = np.linspace(0.1e-3, 2e-3, 40)
     depth = 0.5e-3 - 0.02 * approach  # falls by 38 um in all: within the noise frame to frame

@@ -92,6 +92,19 @@ def test_load_refuses_other_files(tmp_path):
         load_calibration(tmp_path / "nan.npz")
 
 
+def test_a_file_that_is_no_npz_is_named_as_such_not_by_numpys_pickle_message(tmp_path):
+    (tmp_path / "notes.npz").write_text("calibration notes, not arrays")
+    np.save(tmp_path / "one.npy", np.zeros(3))
+    (tmp_path / "cut.npz").write_bytes(small_calibration().save(tmp_path / "cal.npz").read_bytes()[:60])
+    for name in ("notes.npz", "one.npy", "cut.npz"):
+        with pytest.raises(CalibrationError, match=f"{name}: not a calibration .npz: expected a zip archive") as caught:
+            load_calibration(tmp_path / name)
+        assert "allow_pickle" not in str(caught.value)
+    np.savez(tmp_path / "pickled.npz", lut=np.array([{"a": 1}], dtype=object))
+    with pytest.raises(CalibrationError, match="pickled.npz: not a calibration .npz: a member holds pickled"):
+        load_calibration(tmp_path / "pickled.npz")
+
+
 def test_a_version_1_file_reads_unsmoothed_and_a_version_2_file_needs_its_smoothing(tmp_path):
     path = small_calibration(smoothing_px=1.5).save(tmp_path / "cal.npz")
     with np.load(path) as data:
