@@ -26,12 +26,15 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from estimator.errors import FitError
 from teleop.states import ESTIMATE_STATES as STATES
 
-__all__ = ["STATES", "Estimate", "choose_estimate"]
+if TYPE_CHECKING:
+    from estimator.segment import Segment
+
+__all__ = ["STATES", "Estimate", "StreamEstimate", "choose_estimate"]
 
 
 def _valid_modulus(value: float | None) -> bool:
@@ -168,3 +171,30 @@ def choose_estimate(estimates: Sequence[Estimate]) -> Estimate:
             return estimate
     reasons = "; ".join(f"{e.method}: {e.reason}" for e in estimates)
     return Estimate.refuse(estimates[0].method, f"every method refuses ({reasons})")
+
+
+@dataclass(frozen=True)
+class StreamEstimate:
+    """One estimate of a grasp in progress.
+
+    Attributes
+    ----------
+    estimate : Estimate
+        The published one (:func:`~estimator.estimate.choose_estimate`), stamped with the compute time.
+    estimates : tuple of Estimate
+        Every method asked for, in order.
+    segment : Segment
+        The segmentation it rests on.
+    t_data_s : float
+        Capture time (s, stream clock) of the newest loading frame the fits used; without
+        loading frames, of the newest frame received.
+    loading_frames : int
+        Loading frames the fits used.
+    """
+
+    estimate: Estimate
+    estimates: tuple[Estimate, ...]
+    segment: Segment
+    t_data_s: float
+    loading_frames: int
+

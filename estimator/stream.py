@@ -11,19 +11,18 @@ measurement would recompute:
 
 * each frame of the estimator's finger is decoded and warped onto the depth grid once
   (:func:`~estimator.perception.grid.frame_on_grid`: with ``estimator.depth_binning`` above 1 a
-  JPEG is decoded that many times smaller): live on arrival, offline when first needed;
+  JPEG is decoded that many times smaller): live on arrival, offline when first needed (all of
+  them, once one fails to decode: :meth:`GraspStream.skipping_bad_frames`);
 * depth and contact features of a frame are computed once, against the no-contact reference
   (the median of the last frames before the onset; if later data moves the reference, the
   cached depths are dropped and recomputed); live, every frame since contact at the first
   estimate that sees it (:meth:`GraspStream.measure_frames`), offline only the frames measured;
-* the loading phase in the force and width (:func:`~estimator.segment.find_load_phase`) is
-  found again only when a force or width sample or the loading-end marker came; the frames
-  received are aligned on it (:func:`~estimator.segment.align_frames`) once per phase, frame
-  count and ``n_frames``, so the model's sample of frames at the final estimate reuses the
-  segmentation that found the loading over;
+* the loading phase (:func:`~estimator.segment.find_load_phase`) is found again only when a
+  sample or the loading-end marker came; the frames are aligned on it
+  (:func:`~estimator.segment.align_frames`) once per phase, frame count and ``n_frames``;
 * depth maps are reduced to the model's input size once per frame (:meth:`GraspStream.reduce_depths`
-  between frames: the final estimate then reduces only the frames that came since);
-* on every :meth:`GraspStream.estimate` the analytical fits run again over everything that has
+  between frames: the final estimate reduces only the frames that came since);
+* each :meth:`GraspStream.estimate` runs the analytical fits again over everything that has
   arrived (a few hundred samples and tens of frames: vectorised and cheap).
 
 The rig
@@ -35,59 +34,47 @@ record's timestamps before it is fed (:func:`~estimator.measure.measure_grasp`).
 
 When is loading over?
 ---------------------
-The gripper's grasp command completes when the fingers stop at the target force; the robot
-node then publishes a *loading end* marker with that time, after the width the gripper read
-at the stop and everything captured before it (:mod:`teleop.node`).
-:meth:`GraspStream.mark_loading_end` records it, and from then on
-:meth:`GraspStream.loading_complete` says the loading is over as soon as the first frame
-captured after the peak has come (within a frame period): the segmentation's *peak frame*,
-which shows the peak state (:mod:`estimator.segment`); or, should no frame come,
-``PEAK_FRAME_WINDOW_S`` of force past the peak. The load cell's readings lag the stop (a
-stiff object loads within a few of its samples), so a stop with no contact in the force yet
-ends the grasp as an air grasp only once ``PEAK_FRAME_WINDOW_S`` of force past the stop has
-come.
+When the fingers stop at the target force the robot node publishes a *loading end* marker with
+that time, after the width read at the stop and everything captured before it (:mod:`teleop.node`;
+:meth:`GraspStream.mark_loading_end`). From then on :meth:`GraspStream.loading_complete` says the
+loading is over once the first frame captured after the peak has come: the segmentation's *peak
+frame* (:mod:`estimator.segment`); or, should no frame come, ``PEAK_FRAME_WINDOW_S`` of force past
+the peak. The load cell lags the stop, so a stop with no contact in the force yet ends an air
+grasp only once ``PEAK_FRAME_WINDOW_S`` of force past the stop has come.
 
-Without a marker (recorded grasps and sessions from before it, a gripper whose stop read
-failed) the end is only known in hindsight, as force, width and frames come at their own
-rates (80, 10 and 30 Hz on the rig): loading is over when the segmentation's peak force is
-followed by :data:`LOADING_SETTLED_S` of force samples that stay within the peak tolerance,
-and a width sample and a tactile frame newer than the peak have arrived (so no loading frame
-is still to come and each has widths around it).
+Without a marker (older records and sessions, a gripper whose stop read failed) the end is known
+only in hindsight: loading is over when the peak force is followed by :data:`LOADING_SETTLED_S` of
+force within the peak tolerance, and a width sample and a frame newer than the peak have arrived
+(so no loading frame is still to come and each has widths around it).
 
-A leader-follower grasp (an operator drives the fingers' target width; the estimator service
-learns it from the robot node's ``robot_state`` mode ``following`` and calls
-:meth:`GraspStream.mark_follow`) has no marker and no settled end: the operator may pause, back
-off and squeeze again, so a flat force says nothing. Its loading is over only at the grasp's end
-event; until then every frame gives a provisional estimate, on the loading envelope so far
-(:mod:`estimator.segment`: the segmentation without a stop).
+A leader-follower grasp (``robot_state`` mode ``following``: :meth:`GraspStream.mark_follow`) has
+no marker and no settled end, since the operator may pause, back off and squeeze again: its loading
+is over only at the grasp's end event; until then every frame gives a provisional estimate on the
+loading envelope so far (:mod:`estimator.segment`).
 
-Either way an estimate taken then rests on what has arrived by then: the hold and the release
-(from ``segment.HOLD_SETTLE_S`` after the peak) have not been captured yet. A whole grasp record
-holds them, so its offline measurement can differ from a final taken at the loading end (the width
-noise is estimated over every width sample, the peak searched over the whole force); a grasp whose
-final comes at its end (an operator's) is measured on the same data both ways.
+An estimate taken at the loading end rests on what has arrived by then, without the hold and the
+release; a whole record holds them, so its offline measurement can differ from such a final (the
+width noise is estimated over every width sample, the peak searched over the whole force). A grasp
+whose final comes at its end (an operator's) is measured on the same data both ways.
 
-Which estimate is published
----------------------------
-:func:`~estimator.estimate.choose_estimate` takes the first estimate that is not a refusal, in the order of the
-methods asked for (the order of :data:`~estimator.inference.hybrid.FALLBACK_ORDER` by default),
-so a bound is published when it is all a method can say, and a refusal only when every method
-refuses.
+The estimate published is :func:`~estimator.estimate.choose_estimate`'s: the first that is not a
+refusal, in the order of the methods asked for (:data:`~estimator.inference.hybrid.FALLBACK_ORDER`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from estimator import analytical
 from estimator.errors import FitError, PerceptionError
-from estimator.estimate import Estimate, choose_estimate
+from estimator.estimate import StreamEstimate, choose_estimate
+from estimator.faults import camera_fault, checked_frames, checked_phase
 from estimator.features import ContactFeatures, contact_features
 from estimator.inference.inputs import reduce_images
 from estimator.measurements import (
@@ -106,6 +93,7 @@ from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibratio
 from estimator.received import Frames, Series
 from estimator.segment import PEAK_FRAME_WINDOW_S, LoadPhase, Segment, align_frames, find_load_phase
 from estimator.settings import DEFAULT_METHODS, estimator_settings
+from teleop.errors import RecordError
 from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Provenance
 from teleop.settings import GripperSettings, SensorSettings, Settings
 
@@ -113,32 +101,6 @@ __all__ = ["DEFAULT_METHODS", "LOADING_SETTLED_S", "GraspStream", "StreamEstimat
 
 # Force samples this long after the peak, all within the peak tolerance, end the loading phase.
 LOADING_SETTLED_S = 0.1
-
-
-@dataclass(frozen=True)
-class StreamEstimate:
-    """One estimate of a grasp in progress.
-
-    Attributes
-    ----------
-    estimate : Estimate
-        The published one (:func:`~estimator.estimate.choose_estimate`), stamped with the compute time.
-    estimates : tuple of Estimate
-        Every method asked for, in order.
-    segment : Segment
-        The segmentation it rests on.
-    t_data_s : float
-        Capture time (s, stream clock) of the newest loading frame the fits used; without
-        loading frames, of the newest frame received.
-    loading_frames : int
-        Loading frames the fits used.
-    """
-
-    estimate: Estimate
-    estimates: tuple[Estimate, ...]
-    segment: Segment
-    t_data_s: float
-    loading_frames: int
 
 
 class GraspStream:
@@ -190,6 +152,7 @@ class GraspStream:
         self._width = Series()
         self._frames: dict[str, Frames] = {}
         self._images: dict[int, np.ndarray] = {}  # the estimator finger's frames on the depth grid
+        self._undecodable: dict[int, str] = {}  # a record's frames of that finger skipped -> why (decode_frames)
         self._reference_key: tuple[int, ...] | None = None
         self._reference: np.ndarray | None = None
         self._features: dict[int, ContactFeatures] = {}  # frame position -> features of that frame
@@ -207,11 +170,10 @@ class GraspStream:
         """A stream fed a whole grasp record, on the rig it was captured with (its sensors, and its
         gripper when it carries one, else the settings').
 
-        Samples and frames go in as recorded (a record may hold non-finite or repeated timestamps,
-        which the segmentation skips), the ``grasp_done`` event as the loading-end marker. The
-        estimator finger's frame times are corrected by ``camera_lag_s`` and the width times by
-        ``width_lag_s`` (s, estimated offline: :func:`~estimator.measure.measure_grasp`); the
-        measurements record both.
+        Samples and frames go in as recorded (the segmentation skips non-finite or repeated
+        timestamps), the ``grasp_done`` event as the loading-end marker; the estimator finger's frame
+        times are corrected by ``camera_lag_s`` and the width times by ``width_lag_s`` (s, estimated
+        offline: :func:`~estimator.measure.measure_grasp`), which the measurements record.
 
         Raises
         ------
@@ -364,7 +326,13 @@ class GraspStream:
         key = (n_frames, self.frame_count)
         cached = self._segments.get(key)
         if cached is None:
-            cached = self._segments[key] = align_frames(phase, self._frame_times(), n_frames=n_frames)
+            frame_t = self._frame_times()
+            cached = checked_frames(align_frames(phase, frame_t, n_frames=n_frames), frame_t,
+                                    camera_hz=self.sensor.camera_hz, finger=self.finger)
+            if self._undecodable:  # a live stream drops them
+                cached = dataclasses.replace(cached, notes=(*cached.notes, f"skipped {len(self._undecodable)} frames "
+                                             f"of finger {self.finger!r}: {next(iter(self._undecodable.values()))}"))
+            self._segments[key] = cached
         return cached
 
     def _load_phase(self) -> LoadPhase:
@@ -373,10 +341,12 @@ class GraspStream:
         if self._phase is None:
             self._segments.clear()  # aligned on the phase found before
             force, width = self._force.samples(), self._width.samples()
-            self._phase = find_load_phase(force.t_s, force.value, width.t_s, width.value,
-                                          contact_force_n=estimator_settings(self.settings).contact_force_n,
-                                          stopped_s=self._loading_end_s, max_width_m=self.gripper.max_width_m,
-                                          max_force_n=self.gripper.target_force_n)
+            phase = find_load_phase(force.t_s, force.value, width.t_s, width.value,
+                                    contact_force_n=estimator_settings(self.settings).contact_force_n,
+                                    stopped_s=self._loading_end_s, max_width_m=self.gripper.max_width_m,
+                                    max_force_n=self.gripper.target_force_n)
+            self._phase = checked_phase(phase, force_t_s=force.t_s, width_t_s=width.t_s, width_hz=self.gripper.width_read_hz,
+                                        force_hz=self.settings.load_cell.sample_rate_hz)
         return self._phase
 
     def loading_complete(self, segment: Segment | None = None) -> bool:
@@ -397,7 +367,34 @@ class GraspStream:
                 and self._width.last_t_s >= segment.t_peak_s and frame_after_peak)
 
     def _frame_times(self) -> np.ndarray:
-        return self._frames.get(self.finger, Frames()).times()
+        times = self._frames.get(self.finger, Frames()).times()
+        times[list(self._undecodable)] = np.nan  # the segmentation skips frames without a time
+        return times
+
+    def skipping_bad_frames(self, compute: Callable[[], Any]) -> Any:
+        """``compute()``; run again after :meth:`decode_frames` when a record's frame it needs does not decode."""
+        try:
+            return compute()
+        except (RecordError, PerceptionError):
+            if not self.decode_frames():
+                raise  # not a frame that fails to decode
+            return compute()
+
+    def decode_frames(self) -> bool:
+        """Decode a record's frames of the estimator's finger, as :meth:`add_frame` does live: whether one that does
+        not decode (or has the wrong size) was newly skipped (named in the notes); the error when none decodes."""
+        frames = self._frames.get(self.finger, Frames())
+        count = len(frames.t_s) if frames.source is not None else 0
+        before = len(self._undecodable)
+        for position in sorted(set(range(count)) - self._images.keys() - self._undecodable.keys()):
+            try:
+                self._image(position)
+            except (RecordError, PerceptionError) as exc:
+                self._undecodable[position] = str(exc)
+                self._segments.clear()  # aligned with it
+                if len(self._undecodable) == count:
+                    raise  # not one frame decodes: the record's stream is broken, not a frame of it
+        return len(self._undecodable) > before
 
     # ------------------------------------------------------------------ measurement
 
@@ -435,8 +432,10 @@ class GraspStream:
         FitError
             ``frames`` are not distinct positions of loading frames.
         RecordError, PerceptionError
-            A frame does not decode (a record's, or one received live).
+            A frame of a given ``segment`` does not decode (one taken before :meth:`decode_frames`).
         """
+        if tactile and segment is None:
+            return self.skipping_bad_frames(lambda: self.measurements(self.segment(), frames=frames))
         segment = self.segment() if segment is None else segment
         stiffness = self.gripper.finger_stiffness_n_per_m
 
@@ -469,15 +468,18 @@ class GraspStream:
             return dataclasses.replace(m, tactile_reason=why)
         calibration = self.calibration  # loaded and checked before a frame is decoded
         self._use_reference(segment)
+        loading = [int(i) for i in loading_index]
+        images = [self._image(i) for i in loading]
+        if why := camera_fault(self._reference, images, m.t_s, self.finger):
+            return dataclasses.replace(m, tactile_reason=why)
         # Hold frames enter the fits only with the width lag corrected (measurements._with_hold_point).
         hold_index = segment.hold_index if self.width_lag_s is not None else segment.hold_index[:0]
-        loading = [int(i) for i in loading_index]
         features = ContactFeatures.concatenate([self._frame_features(i, calibration) for i in loading])
         hold = [self._frame_features(int(i), calibration) for i in hold_index]
         return dataclasses.replace(
             m, features=features, depth_m=np.stack([self._depth[i] for i in loading]),
             hold_features=ContactFeatures.concatenate(hold) if hold else None,
-            image_bgr=np.stack([self._image(i) for i in loading]), reference_bgr=self._reference,
+            image_bgr=np.stack(images), reference_bgr=self._reference,
             calibration_smoothing_px=self.calibration_smoothing_px,
         )
 
@@ -536,8 +538,9 @@ class GraspStream:
         Computes depth and features of frames since contact not seen before (:meth:`measure_frames`;
         of all of them when the no-contact reference moved); everything else is cached.
         """
+        if segment is None:
+            return self.skipping_bad_frames(lambda: self.estimate(self.segment()))
         started = time.perf_counter()
-        segment = self.segment() if segment is None else segment
         self.measure_frames(segment)
         measurements = self.measurements(segment)
         estimates = tuple(estimate_measurements(measurements, m) for m in self.methods)

@@ -224,13 +224,14 @@ def sample_stream(
     if shift < 0 or n_frames < 1:
         raise ModelError(f"shift {shift} and n_frames {n_frames}: expected shift >= 0 and n_frames >= 1")
     common = dict(n_frames=n_frames, shift=shift, size_px=size_px, rgb=rgb, window_m=window_m)
-    sampled = _sampled(stream, **common)
+    sampled = stream.skipping_bad_frames(lambda: _sampled(stream, **common))
     if not sampled or not markers:
         return sampled
     other = next((s for s in stream.sensors if s.finger != stream.finger and s.markers), None)
     if other is None:
         return SampledGrasp(reason=f"no finger with markers besides {stream.finger!r} in the record")
-    marker = _sampled(stream.for_finger(other.finger, calibration=calibration_for(other, marker_calibration)), **common)
+    marker_stream = stream.for_finger(other.finger, calibration=calibration_for(other, marker_calibration))
+    marker = marker_stream.skipping_bad_frames(lambda: _sampled(marker_stream, **common))
     if not marker:
         return SampledGrasp(reason=f"marker finger {other.finger!r}: {marker.reason}")
     return replace(sampled, depth_markers_m=marker.depth_m, rgb_diff_markers=marker.rgb_diff)

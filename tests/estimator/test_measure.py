@@ -28,8 +28,6 @@ from estimator.estimate import Estimate
 from estimator.features import ContactFeatures
 from estimator.measure import estimate_grasp, measure_grasp, no_contact_reference
 from estimator.measurements import (
-    REFERENCE_FRAMES,
-    REFERENCE_GUARD_S,
     GraspMeasurements,
     calibration_path,
     median_frame,
@@ -198,7 +196,7 @@ def test_no_tactile_decodes_no_frame(calibration):
                          width_m=record.width_m, provenance=record.provenance)
     est = estimate_grasp(record, "no_tactile", settings=SETTINGS)
     assert est.state == "ok" and est.latency_s > 0
-    with pytest.raises(RecordError, match="does not decode"):
+    with pytest.raises(RecordError, match="does not decode"):  # not one frame decodes: a broken record
         estimate_grasp(record, "series", settings=SETTINGS, calibration=calibration)
 
 
@@ -344,16 +342,13 @@ def only_frames(record, keep):
                        provenance=record.provenance)
 
 
-def test_chosen_frames_are_measured_as_in_the_full_measurement_and_nothing_else_is_decoded(calibration):
+def test_chosen_frames_are_measured_as_in_the_full_measurement(calibration):
     record = build_record(3e5)
     full = measure_grasp(record, settings=SETTINGS, calibration=calibration)
     first = measure_grasp(record, settings=SETTINGS, tactile=False)
     loading = first.segment.frame_index
     frames = np.array([0, loading.size // 2, loading.size - 1])
-    t = record.frames[0].t_s
-    reference = np.flatnonzero(t < first.segment.t_onset_s - REFERENCE_GUARD_S)[-REFERENCE_FRAMES:]
-    kept = only_frames(record, [*reference, *loading[frames]])
-    m = GraspStream.from_record(kept, settings=SETTINGS, calibration=calibration).measurements(frames=frames)
+    m = GraspStream.from_record(record, settings=SETTINGS, calibration=calibration).measurements(frames=frames)
     np.testing.assert_array_equal(m.depth_m, full.depth_m[frames])
     np.testing.assert_array_equal(m.image_bgr, full.image_bgr[frames])
     np.testing.assert_array_equal(m.reference_bgr, full.reference_bgr)
@@ -364,8 +359,30 @@ def test_chosen_frames_are_measured_as_in_the_full_measurement_and_nothing_else_
     for name in ("t_s", "force_n", "width_m", "approach_m"):
         np.testing.assert_array_equal(getattr(m, name), getattr(full, name)[frames])
     assert m.image_bgr.shape == (3, *m.grid.image_shape, 3) and m.image_bgr.dtype == np.uint8
-    with pytest.raises(RecordError, match="does not decode"):  # a frame not kept is needed for all frames
-        GraspStream.from_record(kept, settings=SETTINGS, calibration=calibration).measurements()
+
+
+def test_a_records_frame_that_does_not_decode_is_skipped_as_a_live_stream_drops_it(calibration):
+    record = build_record(3e5)
+    t = record.frames[0].t_s
+    broken = int(measure_grasp(record, settings=SETTINGS, tactile=False).segment.frame_index[1])  # a loading frame
+    damaged = only_frames(record, set(range(t.size)) - {broken})
+    live = GraspStream(settings=SETTINGS, calibration=calibration, sensors=record.sensors)
+    live.add_force(record.force_n.t_s, record.force_n.value)
+    live.add_width(record.width_m.t_s, record.width_m.value)
+    for i, (t_s, data) in enumerate(zip(t, damaged.frames[0].encoded, strict=True)):
+        if i == broken:
+            with pytest.raises(PerceptionError, match="does not decode"):
+                live.add_frame("left", t_s, data, "jpeg")
+        else:
+            live.add_frame("left", t_s, data, "jpeg")
+    offline = GraspStream.from_record(damaged, settings=SETTINGS, calibration=calibration).estimate()
+    live_estimate = live.estimate()
+    assert [(e.method, e.e_pa, e.interval_pa, e.state) for e in offline.estimates] == [
+        (e.method, e.e_pa, e.interval_pa, e.state) for e in live_estimate.estimates]
+    np.testing.assert_array_equal(offline.segment.frame_t_s, live_estimate.segment.frame_t_s)
+    assert t[broken] not in offline.segment.frame_t_s
+    series = estimate_grasp(damaged, "series", settings=SETTINGS, calibration=calibration)
+    assert series.state != "insufficient_data" and "skipped 1 frames of finger 'left': " in series.reason
 
 
 @pytest.mark.parametrize("frames", [[0, 0], [-1], [10_000], [0.5]])

@@ -1,0 +1,73 @@
+"""Sensors that cannot be right (estimator.faults): a dead or frozen camera, timestamps not in
+seconds, a width that never moves or reads zero, on the grasps test_measure builds."""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from estimator.measure import estimate_grasp, measure_grasp
+from teleop.record import FrameStream, Samples
+
+_spec = importlib.util.spec_from_file_location("_measure_grasps", Path(__file__).with_name("test_measure.py"))
+_grasps = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_grasps)
+build_record, calibration, SETTINGS, STEEL = _grasps.build_record, _grasps.calibration, _grasps.SETTINGS, _grasps.STEEL
+
+
+def with_streams(record, *, images=None, frame_scale=1.0, time_scale=1.0, width=None):
+    """``record`` with its frames replaced (``images``: frame index, frame -> image), frame times
+    scaled by ``frame_scale``, every time by ``time_scale``, widths replaced by ``width`` (m)."""
+    s = record.frames[0]
+    frames = s if images is None else FrameStream.from_frames(
+        s.finger, s.t_s, [images(i, s.frame(i)) for i in range(len(s))], encoding="png")
+    frames = replace(frames, t_s=frames.t_s * frame_scale * time_scale)
+    w = record.width_m
+    return replace(record, frames=(frames,), force_n=Samples(record.force_n.t_s * time_scale, record.force_n.value),
+                   width_m=Samples(w.t_s * time_scale, w.value if width is None else np.full(len(w), width)))
+
+
+def test_a_dead_or_frozen_camera_refuses_the_tactile_methods_naming_it(calibration):
+    record = build_record(3e5)
+    contact = measure_grasp(record, settings=SETTINGS, tactile=False).segment.t_contact_s
+    first = record.frames[0].frame(0)
+    dead = {
+        "black": lambda i, image: np.zeros_like(image),
+        "saturated": lambda i, image: np.full_like(image, 255),
+        "bit-identical to its no-contact reference": lambda i, image: first,
+        "loading frame at": lambda i, image: np.zeros_like(image) if record.frames[0].t_s[i] > contact else image,
+    }
+    for seen, images in dead.items():
+        broken = with_streams(record, images=images)
+        for method in ("series", "elastic", "hertz"):
+            est = estimate_grasp(broken, method, settings=SETTINGS, calibration=calibration)
+            assert not est and "camera of finger 'left'" in est.reason and seen in est.reason
+        assert estimate_grasp(broken, "no_tactile", settings=SETTINGS)  # force and width still answer
+    assert estimate_grasp(with_streams(record, images=lambda i, image: image), "series", settings=SETTINGS,
+                          calibration=calibration)  # the same frames, lossless: measured
+
+
+def test_timestamps_not_in_seconds_are_refused_naming_the_stream(calibration):
+    record = build_record(3e5)
+    est = estimate_grasp(with_streams(record, time_scale=1e9), "no_tactile", settings=SETTINGS)
+    assert not est and "force samples come every 1.25e+07 s" in est.reason and "0.0125 s" in est.reason
+    frames_ns = with_streams(record, frame_scale=1e9)
+    est = estimate_grasp(frames_ns, "series", settings=SETTINGS, calibration=calibration)
+    assert not est and est.reason.startswith("tactile frames of finger 'left' come every 3.33e+07 s")
+    assert estimate_grasp(frames_ns, "no_tactile", settings=SETTINGS)
+    assert estimate_grasp(with_streams(record, time_scale=10.0), "no_tactile", settings=SETTINGS)  # slow, not absurd
+
+
+def test_a_width_that_never_moves_or_reads_zero_refuses_the_grasp(calibration):
+    record = build_record(3e5)
+    stuck = with_streams(record, width=record.width_m.value[0])
+    for method in ("no_tactile", "series"):
+        est = estimate_grasp(stuck, method, settings=SETTINGS, calibration=calibration)
+        assert not est and "gripper widths stay within 0 mm of 49.87 mm over the whole record" in est.reason
+        est = estimate_grasp(with_streams(record, width=0.0), method, settings=SETTINGS, calibration=calibration)
+        assert not est and "gripper width 0 m at the contact onset" in est.reason
+    # A rigid object stops the fingers at contact, but they closed onto it first.
+    assert estimate_grasp(build_record(STEEL), "no_tactile", settings=SETTINGS)
