@@ -22,6 +22,7 @@ from estimator.model_slot import ModelSlot, model_log
 from estimator.service import COMMAND_TOPICS, INPUT_TOPICS, EstimatorService, resolve_model_dir
 from estimator.settings import configured_methods
 from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.clikit import positive_number
 from teleop.live import JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.session.foxglove_live import LiveTap, add_foxglove_argument
 from teleop.settings import default_settings_path, load_settings
@@ -59,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--report", metavar="FILE", default=None,
                         help="append one JSON object per grasp (contact time, time to first estimate, "
                              "provisional count, final estimate) to FILE")
-    parser.add_argument("--duration-s", type=float, default=None, metavar="S",
+    parser.add_argument("--duration-s", type=positive_number, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
     add_foxglove_argument(parser, what="the estimates it publishes")
     parser.add_argument("--json", action="store_true",

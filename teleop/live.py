@@ -14,6 +14,7 @@ import argparse
 import contextlib
 import dataclasses
 import json
+import math
 import signal
 import threading
 from collections.abc import Callable, Iterator
@@ -82,6 +83,8 @@ class ServiceLoop:
 
     def run(self, stop: threading.Event, *, duration_s: float | None = None) -> Any:
         """Serve until ``stop.is_set()`` or ``duration_s`` passed."""
+        if duration_s is not None and not 0 <= duration_s < math.inf:  # NaN served not at all, -1 once
+            raise ValueError(f"duration_s = {duration_s!r}: expected a finite number of seconds >= 0, or None")
         deadline = None if duration_s is None else self.clock() + duration_s
         while not stop.is_set() and (deadline is None or self.clock() < deadline):
             self.step()

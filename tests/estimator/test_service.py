@@ -1,12 +1,14 @@
-"""The estimator service's per-grasp report when the capture clock is not the service's own."""
+"""The estimator service: its per-grasp report on a foreign clock, and its command line."""
 
 from __future__ import annotations
 
 import json
 from typing import Any
 
+import pytest
 from support.live import METHODS, in_capture_order
 
+import estimator.cli
 from estimator.service import EstimatorService
 from teleop.bus.wire import make_message
 from teleop.live import JsonLines
@@ -36,3 +38,10 @@ def test_time_to_first_estimate_is_read_on_the_capture_clock(settings, calibrati
     first = next(m for m in service.publisher.sent if m.type == "estimate" and m.body["state"] != "insufficient_data")
     # Not before the data it rests on was captured; within the grasp's first fraction of a second.
     assert first.t_capture_s - report["t_contact_s"] <= report["time_to_first_estimate_s"] < 0.5
+
+
+@pytest.mark.parametrize("value", ["nan", "-1", "0", "inf"])
+def test_serve_refuses_a_duration_that_is_no_positive_time(value, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        estimator.cli.main(["serve", "--duration-s", value])
+    assert exit_info.value.code == 2 and "--duration-s" in capsys.readouterr().err
