@@ -11,6 +11,7 @@ import json
 import sys
 
 from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.clikit import positive_number
 from teleop.live import StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.node import COMMAND_TOPICS, RobotNode
 from teleop.scene import load_scene
@@ -31,9 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="settings TOML (device backends, sensors, gripper, simulation, bus)")
     parser.add_argument("--scene", default="default", metavar="NAME",
                         help="scene whose objects simulated grasps take (name under configs/scenes/ or a "
-                             ".toml path); its settings file is not used, --settings is")
+                             ".toml path); its settings file is not read, --settings is used")
     add_endpoint_arguments(parser, "robot_pub", "command")
-    parser.add_argument("--duration-s", type=float, default=None, metavar="S",
+    parser.add_argument("--duration-s", type=positive_number, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C or SIGTERM)")
     add_foxglove_argument(parser, what="what the node publishes (frames, forces, widths, grasp events)")
     parser.add_argument("--json", action="store_true",

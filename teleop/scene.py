@@ -1,13 +1,14 @@
-"""Scenes: which objects a demo or session grasps, on which backends, estimated how.
+"""Scenes: which objects a demo or session grasps, with which settings.
 
-A scene is one TOML file under ``configs/scenes/`` (or any path): ``catalogue``,
-``objects`` (names in it), ``grasps_per_object``, ``seed``, ``settings``, a
-``[backends]`` table (gripper, camera, load_cell, display) and an
-``[estimator]`` table (``methods``). Relative paths are against the scene file's folder.
+A scene is one TOML file under ``configs/scenes/`` (or any path): ``description``, ``catalogue``,
+``objects`` (names in it, each once), ``grasps_per_object``, ``seed`` and ``settings``. Relative
+paths are against the scene file's folder. A scene runs on simulated hardware (``teleop demo``,
+``teleop node --scene``); the device backends and the estimator's methods are the settings file's.
 """
 
 from __future__ import annotations
 
+import functools
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,15 +20,19 @@ from teleop.settings import Settings, config_dir, default_settings_path, load_se
 __all__ = ["Scene", "current_method", "load_scene", "scene_path"]
 
 SCENE_DIR = config_dir() / "scenes"
-_BACKENDS = {"gripper": ("sim", "franky"), "camera": ("sim", "opencv"),
-             "load_cell": ("sim", "serial", "tcp"), "display": ("sim", "hid")}
-_METHODS = ("no_tactile", "elastic", "hertz", "series", "cnn", "hybrid", "auto")
+_KEYS = ("description", "catalogue", "objects", "grasps_per_object", "seed", "settings")
+# Keys scenes once had, and where what they said is set now.
+_MOVED = {
+    "backends": "the device backends are the settings file's ([sensors.<finger>], [gripper], [load_cell] and "
+                "[display] backend); a scene runs on simulated hardware",
+    "estimator": "the estimate methods are the settings file's [estimator] methods",
+}
 
 
 def current_method(name: str) -> str:
     """``name`` as the estimate method is called now: the series fit was ``split`` until the word was left
-    to the dataset split, and scenes, settings, session logs, datasets and models from before still name
-    it so (here, in the base, as the scenes' method names are: the base cannot import the estimator)."""
+    to the dataset split, and settings, session logs, datasets and models from before still name it so
+    (here, in the base, which every package reads them through)."""
     return "series" if name == "split" else name
 
 
@@ -38,9 +43,13 @@ class Scene:
     objects: tuple[ObjectSpec, ...]
     grasps_per_object: int
     seed: int
-    settings: Settings
-    backends: dict[str, str]
-    methods: tuple[str, ...]
+    settings_path: Path
+
+    @functools.cached_property
+    def settings(self) -> Settings:
+        """The scene's settings file, read when first asked for: ``teleop node --scene`` runs with its own
+        ``--settings`` and never reads it."""
+        return load_settings(self.settings_path)
 
 
 def scene_path(name_or_path: str) -> Path:
@@ -53,24 +62,30 @@ def scene_path(name_or_path: str) -> Path:
 
 def _named_path(data: dict, key: str, scene: Path) -> Path | None:
     """The path the scene names under ``key`` (against the scene file's folder), or None."""
-    return resolve_path(str(data[key]), folder=scene.parent) if key in data else None
+    if key not in data:
+        return None
+    if not isinstance(data[key], str) or not data[key]:
+        raise SettingsError(f"{scene}: {key} must be a file path (a string), got {data[key]!r}")
+    return resolve_path(data[key], folder=scene.parent)
 
 
 def load_scene(name_or_path: str = "default") -> Scene:
-    """Load and validate a scene; errors name the file and the key."""
+    """Load and validate a scene (its settings file is read when first used); errors name the file and the key."""
     path = scene_path(name_or_path)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         known = sorted(p.stem for p in SCENE_DIR.glob("*.toml"))
         raise SettingsError(f"no scene {name_or_path!r} ({path}); scenes here: {', '.join(known)}") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+    except (OSError, ValueError) as exc:  # ValueError: not UTF-8, not TOML, or an integer of over 4300 digits
         raise SettingsError(f"{path}: cannot read scene ({exc})") from exc
-    allowed = {"description", "catalogue", "objects", "grasps_per_object", "seed", "settings",
-               "backends", "estimator"}
-    unknown = sorted(set(data) - allowed)
-    if unknown:
-        raise SettingsError(f"{path}: unknown key {unknown[0]!r}; allowed keys: {', '.join(sorted(allowed))}")
+    for key in data:
+        if key in _MOVED:
+            raise SettingsError(f"{path}: {key!r} is no longer a scene key: {_MOVED[key]}; remove it")
+        if key not in _KEYS:
+            raise SettingsError(f"{path}: unknown key {key!r}; allowed keys: {', '.join(sorted(_KEYS))}")
+    if not isinstance(data.get("description", ""), str):
+        raise SettingsError(f"{path}: description must be a string, got {data['description']!r}")
     catalogue_path = _named_path(data, "catalogue", path) or config_dir() / "objects.toml"
     catalogue = {o.name: o for o in load_catalogue(catalogue_path)}
     names = data.get("objects")
@@ -79,29 +94,20 @@ def load_scene(name_or_path: str = "default") -> Scene:
     missing = [n for n in names if n not in catalogue]
     if missing:
         raise SettingsError(f"{path}: objects {missing} are not in the catalogue")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise SettingsError(f"{path}: objects lists {twice[0]!r} twice: name each object once "
+                            "(grasps_per_object sets how often each is grasped)")
     grasps = data.get("grasps_per_object", 1)
     seed = data.get("seed", 0)
     for key, value, lo in (("grasps_per_object", grasps, 1), ("seed", seed, 0)):
         if isinstance(value, bool) or not isinstance(value, int) or value < lo:
             raise SettingsError(f"{path}: {key} must be an integer >= {lo}, got {value!r}")
-    backends = {**{k: "sim" for k in _BACKENDS}, **data.get("backends", {})}
-    for key, value in backends.items():
-        if key not in _BACKENDS:
-            raise SettingsError(f"{path}: unknown backend family {key!r}; families: {', '.join(_BACKENDS)}")
-        if value not in _BACKENDS[key]:
-            raise SettingsError(f"{path}: backends.{key} = {value!r}: expected one of {_BACKENDS[key]}")
-    estimator = data.get("estimator", {})
-    methods = tuple(current_method(m) for m in estimator.get("methods", ("series",)))
-    bad = [m for m in methods if m not in _METHODS]
-    if bad or not methods:
-        raise SettingsError(f"{path}: estimator.methods {bad or methods}: expected names from {_METHODS}")
     return Scene(
         name=path.stem,
-        description=str(data.get("description", "")),
+        description=data.get("description", ""),
         objects=tuple(catalogue[n] for n in names),
         grasps_per_object=grasps,
         seed=seed,
-        settings=load_settings(_named_path(data, "settings", path) or default_settings_path()),
-        backends=backends,
-        methods=methods,
+        settings_path=_named_path(data, "settings", path) or default_settings_path(),
     )
