@@ -52,7 +52,7 @@ class DisplaySettings(Section):
     fade_s: float = spec(0.3, lo=0.0, hi=10.0)
     stale_after_s: float = spec(1.0, lo=0.0, hi=60.0, lo_open=True)
     keepalive_s: float = spec(0.2, lo=0.0, hi=60.0, lo_open=True,
-                              doc="resend an unchanged command at least this often")
+                              doc="resend an unchanged command at least this often (below the display's watchdog_ms)")
 
     def _check(self) -> None:
         if self.e_rigid_pa and self.e_rigid_pa <= self.e_soft_pa:

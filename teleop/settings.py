@@ -564,6 +564,6 @@ def load_settings(path: str | Path | None = None) -> Settings:
         raise SettingsError(f"cannot read settings file {path}: {exc.strerror or exc}") from exc
     try:
         data = tomllib.loads(raw.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+    except ValueError as exc:  # TOMLDecodeError, UnicodeDecodeError, or an integer of over 4300 digits
         raise SettingsError(f"{path}: not valid TOML: {exc}") from exc
     return settings_from_mapping(data, source=Path(os.path.abspath(path)))

@@ -1,16 +1,18 @@
 """Write calibrated values into a settings TOML file, keeping its comments and layout.
 
-The calibration commands (``teleop calibrate ...``, ``estimator calibrate --capture``) end
-by writing what they measured into the settings file they were given.
-:func:`update_settings_file` changes only the keys it is given (``tomlkit`` keeps every
-comment, blank line and key order of the rest), checks the whole result with
-:func:`~teleop.settings.settings_from_mapping` before anything is written, and replaces the
-file atomically (a temporary file in the same folder, then ``os.replace``): a crash or a
-refused value leaves the old file as it was.
+The calibration commands (``teleop calibrate ...``) end by writing what they measured into
+the settings file they were given. :func:`update_settings_file` changes only the keys it is
+given (``tomlkit`` keeps every comment, blank line and key order of the rest), checks the
+whole result before anything is written (the base's tables with
+:func:`~teleop.settings.settings_from_mapping`, every package's table by its owner, as
+``teleop settings`` does), and replaces the file atomically (a temporary file in the same
+folder, then ``os.replace``; a symlink's target, the link kept): a crash or a refused value
+leaves the old file as it was.
 """
 
 from __future__ import annotations
 
+import importlib.metadata
 import os
 import stat
 import tempfile
@@ -23,7 +25,7 @@ import tomlkit
 from tomlkit.exceptions import TOMLKitError
 
 from teleop.errors import SettingsError
-from teleop.settings import settings_from_mapping
+from teleop.settings import TABLES_GROUP, settings_from_mapping
 
 __all__ = ["SettingChange", "format_changes", "update_settings_file"]
 
@@ -99,7 +101,9 @@ def update_settings_file(path: Path, changes: Mapping[str, Any]) -> list[Setting
         old = table.get(name)
         table[name] = _plain(value)
         records.append(SettingChange(key, None if old is None else _unwrap(old), _plain(value)))
-    settings_from_mapping(document.unwrap(), source=f"{path} (with {', '.join(changes)} changed)")
+    settings = settings_from_mapping(document.unwrap(), source=f"{path} (with {', '.join(changes)} changed)")
+    for entry in importlib.metadata.entry_points(group=TABLES_GROUP):  # the packages' tables, by name only
+        settings.section(entry.load())
     _write_atomically(path, tomlkit.dumps(document))
     return records
 
@@ -109,6 +113,7 @@ def _unwrap(item: Any) -> Any:
 
 
 def _write_atomically(path: Path, text: str) -> None:
+    path = path.resolve()  # a link to the file stays a link: its target is what changes
     mode = stat.S_IMODE(path.stat().st_mode)
     descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:

@@ -130,7 +130,11 @@ def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise SettingsError(f"{source}: {key} must be a number, got {value!r}")
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:  # an integer beyond any float: its digits are no use in the message
+            raise SettingsError(f"{source}: {key} is an integer too large for a number: expected a finite "
+                                "number (below 1.8e308)") from None
     if tp is str:
         if not isinstance(value, str):
             raise SettingsError(f"{source}: {key} must be a string, got {value!r}")

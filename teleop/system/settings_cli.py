@@ -11,6 +11,7 @@ import json
 
 from estimator.settings import estimator_settings
 from haptics.settings import display_settings, operator_settings
+from teleop.errors import SettingsError
 from teleop.settings import default_settings_path, load_settings, settings_to_mapping
 
 
@@ -20,11 +21,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "resolves to as JSON: defaults filled in, paths made absolute against the file's folder, the "
         "display's rigid end set to the sensor's resolution limit where the file leaves it 0."
     )
-    parser.add_argument("path", nargs="?", default=str(default_settings_path()), help="settings TOML file")
+    parser.add_argument("path", nargs="?", default=None, metavar="FILE",
+                        help=f"settings TOML file (default: {default_settings_path()})")
+    # Every other command names its settings file so.
+    parser.add_argument("--settings", metavar="FILE", default=None, help="the same as FILE")
 
 
 def run(args: argparse.Namespace) -> int:
-    settings = load_settings(args.path)
+    if args.path is not None and args.settings is not None:
+        raise SettingsError(f"FILE {args.path} and --settings {args.settings}: name the settings file once")
+    settings = load_settings(args.settings or args.path)
     resolved = (settings.with_section(estimator_settings(settings)).with_section(display_settings(settings))
                 .with_section(operator_settings(settings)))
     print(json.dumps(settings_to_mapping(resolved), indent=2))

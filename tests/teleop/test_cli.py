@@ -71,6 +71,15 @@ def test_settings_prints_the_resolved_settings():
     assert resolved["sensors"]["left"]["gel_modulus_pa"] == 275000.0
 
 
+def test_settings_takes_its_file_as_settings_too_as_every_command_does(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[gripper]\nmax_width_m = -1.0\n")
+    assert teleop.cli.main(["settings", "--settings", str(bad)]) == 2
+    assert f"{bad}: " in capsys.readouterr().err
+    assert teleop.cli.main(["settings", str(bad), "--settings", str(bad)]) == 2
+    assert "name the settings file once" in capsys.readouterr().err
+
+
 def test_a_reader_that_leaves_early_is_no_error_of_the_command():
     # stdout's reader is gone before the command prints (as `haptics protocol | head -1` can be)
     proc = subprocess.Popen([str(BIN / "haptics"), "protocol"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)

@@ -14,7 +14,6 @@ from estimator.settings import estimator_settings
 from haptics.settings import DisplaySettings, display_settings
 from teleop.errors import SettingsError
 from teleop.live import bus_from_args
-from teleop.scene import load_scene
 from teleop.settings import (
     BusSettings,
     SensorSettings,
@@ -151,6 +150,13 @@ def test_wrong_types_are_named(tmp_path, text, expected):
     assert expected in error_for(tmp_path, text)
 
 
+def test_an_integer_too_large_for_a_number_is_refused_naming_the_key(tmp_path):
+    message = error_for(tmp_path, "[gripper]\ntarget_force_n = 1" + "0" * 400 + "\n")
+    assert "gripper.target_force_n is an integer too large for a number" in message
+    # Past Python's 4300-digit limit the TOML reader itself refuses it.
+    assert "not valid TOML" in error_for(tmp_path, "[gripper]\ntarget_force_n = 1" + "0" * 5000 + "\n")
+
+
 @pytest.mark.parametrize(
     ("text", "key", "allowed"),
     [
@@ -222,15 +228,12 @@ def test_each_package_table_is_checked_by_its_owner_naming_the_file_and_key(tmp_
     assert "[sensing] object_poisson" in message
 
 
-def test_settings_and_scenes_naming_the_series_fit_split_still_load(tmp_path):
+def test_settings_naming_the_series_fit_split_still_load(tmp_path):
     # "split" was the series fit's name until the word was left to the dataset split; older
-    # settings files, session logs' settings and scenes say it.
+    # settings files and session logs' settings say it.
     old = write(tmp_path, default_settings_path().read_text().replace('methods = ["series",', 'methods = ["split",'))
     assert '"split"' in old.read_text()
     assert estimator_settings(load_settings(old)).methods == estimator_settings(load_settings()).methods
-    scene = write(tmp_path, f'catalogue = "{config_dir() / "objects.toml"}"\nobjects = ["stress_ball"]\n'
-                            f'settings = "{old}"\n[estimator]\nmethods = ["split", "hertz"]\n', "scene.toml")
-    assert load_scene(str(scene)).methods == ("series", "hertz")
 
 
 def test_sensor_tables(tmp_path):

@@ -67,6 +67,9 @@ def test_missing_keys_and_tables_are_created(tmp_path):
     ({"sensors.left.warp_corners_px": [[1.0, 2.0]]}, "warp_corners_px"),
     ({"counts_per_n": 1.0}, "dotted path"),
     ({"gripper.max_width_m.inner": 1.0}, "is a value, not a table"),
+    # The packages' tables are checked by their owners too, as `teleop settings` checks them.
+    ({"estimator.n_frames": 0}, r"\[estimator\].*n_frames"),
+    ({"display.e_soft_pa": 1e11}, r"\[display\].*e_soft_pa"),
 ])
 def test_an_invalid_result_is_refused_and_the_file_left_untouched(settings_file, changes, match):
     before = settings_file.read_bytes()
@@ -84,3 +87,11 @@ def test_a_file_that_is_not_toml_is_named(tmp_path):
         update_settings_file(path, {"load_cell.tare_counts": 1})
     with pytest.raises(SettingsError, match="cannot read settings file"):
         update_settings_file(tmp_path / "absent.toml", {"load_cell.tare_counts": 1})
+
+
+def test_a_linked_settings_file_is_written_through_the_link(settings_file, tmp_path):
+    link = tmp_path / "current.toml"
+    link.symlink_to(settings_file)
+    update_settings_file(link, {"load_cell.tare_counts": 9})
+    assert link.is_symlink() and link.resolve() == settings_file.resolve()
+    assert load_settings(settings_file).load_cell.tare_counts == 9
