@@ -59,6 +59,18 @@ def positive_number(text: str) -> float:
     return value
 
 
+def non_negative_int(text: str) -> int:
+    """An argparse type: a whole number >= 0 (a seed, a count that may be none), refused by argparse with
+    what was expected (numpy refuses a negative seed only after the work began, with a traceback)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number >= 0")
+    return value
+
+
 @dataclass(frozen=True)
 class Command:
     module: str

@@ -21,6 +21,18 @@ from teleop.record import find_records
 from teleop.settings import default_settings_path, load_settings
 
 
+def _frame_count(text: str) -> int:
+    """An argparse type: a frame count 1..64, the range of the settings' n_frames and of a model's
+    (checked before benching starts, not by the sampler mid-run)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not 1 <= value <= 64:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number of frames in 1..64")
+    return value
+
+
 def _cell(value: float | None, spec: str, width: int) -> str:
     return f"{'-' if value is None else format(value, spec):>{width}}"
 
@@ -36,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dir", metavar="DIR", help="directory searched recursively for labelled .grasp records")
     parser.add_argument("--models", nargs="*", metavar="MODEL_DIR", default=None,
                         help="trained model directories (default: the shipped default model, when present)")
-    parser.add_argument("--frames", type=int, nargs="*", metavar="N", default=None,
+    parser.add_argument("--frames", type=_frame_count, nargs="*", metavar="N", default=None,
                         help="frame counts of the sampled analytical configurations (default: those of the "
                              "models, else the settings' n_frames)")
     parser.add_argument("--binning", type=int, nargs="*", metavar="K", default=[],

@@ -13,6 +13,7 @@ from estimator.errors import EstimatorError
 from estimator.inference.inputs import size_px_ok, size_px_range_text
 from estimator.inference.provenance import SPLITS
 from estimator.training.dataset import DEFAULT_FRACTIONS, DatasetOptions, build_dataset
+from teleop.clikit import non_negative_int
 from teleop.record import find_records
 from teleop.settings import default_settings_path, load_settings
 
@@ -87,7 +88,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--split", type=_fractions, default=DEFAULT_FRACTIONS, metavar="TRAIN,VAL,TEST",
                         help="object fractions of the three splits (default: "
                              f"{','.join(f'{f:g}' for f in DEFAULT_FRACTIONS)})")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the object split")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="seed of the object split")
     parser.add_argument("--workers", type=int, default=1, metavar="W", help="worker processes")
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
                         help="settings TOML (estimator and gripper sections are used)")

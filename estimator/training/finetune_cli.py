@@ -18,6 +18,7 @@ from estimator.inference.provenance import load_split, trained_objects
 from estimator.training.dataset import load_manifest
 from estimator.training.finetune import FINE_TUNE_CONFIG, REPLAY_RATIO, check_by_object, fine_tune
 from estimator.training.train import TrainConfig
+from teleop.clikit import non_negative_int
 from teleop.settings import Settings, load_settings
 
 
@@ -43,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--epochs", type=int, default=FINE_TUNE_CONFIG.epochs, help="epochs (no early stopping)")
     parser.add_argument("--lr", type=float, default=FINE_TUNE_CONFIG.lr, help="AdamW learning rate (cosine decay)")
     parser.add_argument("--batch-size", type=int, default=FINE_TUNE_CONFIG.batch_size, help="samples per step")
-    parser.add_argument("--seed", type=int, default=FINE_TUNE_CONFIG.seed, help="seed of shuffles, flips and jitter")
+    parser.add_argument("--seed", type=non_negative_int, default=FINE_TUNE_CONFIG.seed, help="seed of shuffles, flips and jitter")
     parser.add_argument("--check", action="store_true",
                         help="first, leave one object out: fine-tune without each object in turn and score its "
                              "grasps as the display would render them, base model against fine-tuned, to see "

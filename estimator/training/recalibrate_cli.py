@@ -8,6 +8,7 @@ import json
 from estimator.errors import EstimatorError
 from estimator.inference.infer import band_names, bands_text
 from estimator.training.recalibrate import cross_validate, recalibrate
+from teleop.clikit import non_negative_int
 from teleop.settings import load_settings
 
 _SHOWN = ("temperature", "coverage")
@@ -34,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "grasps under a calibration fitted on the others, and print what those answers score "
                              "(felt error, dangerous misses, coverage per force band): the figures to compare two "
                              "ways of calibrating or describing by, without touching the test objects")
-    parser.add_argument("--seed", type=int, default=0, help="how the val objects are dealt into folds (default 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="how the val objects are dealt into folds (default 0)")
     parser.add_argument("--json", action="store_true", help="print the new and previous calibration (or the "
                                                             "cross-validated figures) as JSON")
 

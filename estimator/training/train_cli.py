@@ -17,6 +17,7 @@ from estimator.training.dataset_cli import parse_size
 from estimator.training.finetune import FINE_TUNE_CONFIG, REPLAY_RATIO
 from estimator.training.finetune_cli import fine_tune_and_report
 from estimator.training.train import TrainConfig, dataset_window, train_model
+from teleop.clikit import non_negative_int
 from teleop.settings import load_settings
 
 DEFAULT_VARIANT = "depth+fw+analytical"
@@ -73,7 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         metavar="DECADES",
                         help="standard deviation of the normal jitter added to log10 of each label at every step: "
                              "the published labels are material-class values, uncertain by about a factor of 2")
-    parser.add_argument("--seed", type=int, default=TrainConfig.seed, help="seed of weights, shuffles and flips")
+    parser.add_argument("--seed", type=non_negative_int, default=TrainConfig.seed, help="seed of weights, shuffles and flips")
     parser.add_argument("--threads", type=int, default=TrainConfig.threads, help="torch CPU threads")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (out, variant, epochs_run, best_epoch, metrics) on the last "

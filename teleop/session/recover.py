@@ -90,6 +90,7 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
                 report,
                 bar,
             )
+        tmp.replace(out)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
         raise SessionLogError(
@@ -98,7 +99,6 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
     except SessionLogError:
         tmp.unlink(missing_ok=True)
         raise
-    tmp.replace(out)
     return report
 
 

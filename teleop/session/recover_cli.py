@@ -6,7 +6,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
+from teleop.clikit import output_file
+from teleop.errors import SessionLogError
 from teleop.session.recover import recover
 
 
@@ -18,6 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out", required=True, metavar="FIXED.mcap", help="complete MCAP file to write"
     )
     parser.add_argument(
+        "--overwrite", action="store_true", help="replace --out if it exists instead of refusing"
+    )
+    parser.add_argument(
         "--json",
         action="store_true",
         help="print one JSON object (source, out, complete, closed_cleanly, damage, messages, "
@@ -27,7 +33,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    report = recover(args.log, args.out, progress=True)
+    out = output_file("--out", args.out)
+    # --out naming the log itself is left to recover(), which says so
+    if out.exists() and not args.overwrite and out.resolve() != Path(args.log).resolve():
+        raise SessionLogError(f"--out {out} exists: choose another name or pass --overwrite")
+    report = recover(args.log, out, progress=True)
     state = "complete" if report.complete else f"cut short ({report.damage})"
     print(
         f"{args.log}: {state}; salvaged {report.messages} messages, "

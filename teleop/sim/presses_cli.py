@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 
+from teleop.clikit import non_negative_int, output_file
 from teleop.settings import default_settings_path, load_settings
 from teleop.sim.optics import OpticsRenderer
 from teleop.sim.presses import simulate_presses, write_presses
@@ -21,12 +22,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ball-radius-mm", type=float, default=2.0, help="radius of the rigid ball (mm)")
     parser.add_argument("--depth-mm", type=float, nargs=2, default=(0.3, 1.0), metavar=("LO", "HI"),
                         help="press depths are drawn uniformly from LO..HI, in mm (default: 0.3 1.0)")
-    parser.add_argument("--seed", type=int, default=0,
+    parser.add_argument("--seed", type=non_negative_int, default=0,
                         help="random seed (camera noise, background dust, press centres and depths)")
     parser.add_argument("--json", action="store_true", help="print one JSON summary as the last line")
 
 
 def run(args: argparse.Namespace) -> int:
+    out = output_file("--out", args.out)  # before the rendering, not after it
     settings = load_settings(args.settings)
     sensor = settings.sensor(args.finger)
     camera_rng, press_rng = np.random.default_rng(args.seed).spawn(2)
@@ -35,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         camera, n=args.n, ball_radius_m=args.ball_radius_mm * 1e-3,
         depth_range_m=(args.depth_mm[0] * 1e-3, args.depth_mm[1] * 1e-3), rng=press_rng, progress=True,
     )
-    path = write_presses(args.out, pack)
+    path = write_presses(out, pack)
     summary = {
         "out": str(path),
         "finger": sensor.finger,

@@ -40,6 +40,7 @@ import time
 from pathlib import Path
 
 from teleop.catalogue import ObjectSpec, default_catalogue_path, load_catalogue
+from teleop.clikit import non_negative_int
 from teleop.errors import SettingsError, SimulationError
 from teleop.parallel import progress_map
 from teleop.record import write_record
@@ -58,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="object catalogue: the project's .toml or the published .csv object table")
     parser.add_argument("--grasps-per-object", type=int, default=1, metavar="N",
                         help="grasps simulated per object (each in a newly drawn pose and target force)")
-    parser.add_argument("--seed", type=int, default=0, metavar="S",
+    parser.add_argument("--seed", type=non_negative_int, default=0, metavar="S",
                         help="run seed; with the object name and grasp index it fixes every random draw")
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="directory for the .grasp records (created), named OBJECT_gINDEX.grasp")
@@ -176,13 +177,13 @@ def run(args: argparse.Namespace) -> int:
                             f"{settings.simulation.gel_model!r} one: drop --gel-model {settings.simulation.gel_model} "
                             "(or simulation.gel_model in the settings) to vary the contact")
     objects = _chosen(load_catalogue(args.objects), args.only, args.objects)[: args.limit_objects]
+    if args.vary_gel and not args.randomize_rig:
+        raise SettingsError("--vary-gel draws a rig's gel: it needs --randomize-rig")
     out = Path(args.out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SettingsError(f"--out {out}: cannot create the directory ({exc.strerror or exc})") from exc
-    if args.vary_gel and not args.randomize_rig:
-        raise SettingsError("--vary-gel draws a rig's gel: it needs --randomize-rig")
     jobs = [(obj, i, args.seed, settings, str(out), args.preview, args.randomize_rig, args.vary_gel, args.operator,
              args.vary_contact) for obj in objects for i in range(args.grasps_per_object)]
     taken = [name for name in (grasp_filename(obj, i) for obj, i, *_ in jobs) if (out / name).exists()]

@@ -88,6 +88,14 @@ def test_bench_refuses_a_count_below_one_by_name(option, tmp_path, capsys):
     assert f"{option} 0: expected at least 1" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("frames", ["0", "-2", "65", "2.5"])
+def test_bench_refuses_a_frame_count_outside_1_to_64_before_benching(frames, tmp_path, capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["bench", str(tmp_path), "--frames", "3", frames])
+    err = capsys.readouterr().err
+    assert done.value.code == 2 and f"--frames: {frames!r}: expected a whole number of frames in 1..64" in err
+
+
 @pytest.mark.parametrize("command", ["build-dataset", "train", "bench"])
 def test_commands_are_registered(command, capsys):
     with pytest.raises(SystemExit) as done:

@@ -116,6 +116,13 @@ def test_a_size_training_would_refuse_is_refused_before_building(size, tmp_path,
     assert f"size '{size}': expected rows 8..250 and cols 8..350" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("command", ["build-dataset", "train", "fine-tune", "recalibrate"])
+def test_a_negative_seed_is_refused_by_argparse_before_any_work(command, capsys):
+    with pytest.raises(SystemExit) as done:
+        main([command, "--seed", "-1"])
+    assert done.value.code == 2 and "--seed: '-1': expected a whole number >= 0" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("size", ["8x8", "250x350"])
 def test_the_extremes_of_the_size_range_are_accepted(size):
     assert Variant(size_px=parse_size(size)).size_px == tuple(int(v) for v in size.split("x"))

@@ -216,3 +216,27 @@ def test_the_recover_command_fails_when_it_salvaged_nothing_and_report_says_why(
         build_report(tmp_path / "fixed.mcap", tmp_path / "report")
     assert "explicitly" not in str(caught.value)  # report has no option to pass them
     assert main(["recover", str(recorded.path), "--out", str(tmp_path / "whole.mcap")]) == 0
+
+
+def test_the_recover_command_checks_out_first_and_replaces_a_file_only_with_overwrite(tmp_path, recorded, capsys):
+    from teleop.cli import main
+
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    assert main(["recover", str(recorded.path), "--out", str(folder)]) == 2
+    assert f"--out {folder}: is a folder; expected a file name" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == [folder] and not any(folder.iterdir())  # no .partial left
+    other = tmp_path / "other.mcap"
+    other.write_bytes(b"precious")
+    assert main(["recover", str(recorded.path), "--out", str(other)]) == 2
+    assert f"--out {other} exists: choose another name or pass --overwrite" in capsys.readouterr().err
+    assert other.read_bytes() == b"precious"
+    assert main(["recover", str(recorded.path), "--out", str(other), "--overwrite"]) == 0
+    reader = LogReader(other)
+    assert len(list(reader.messages())) == len(recorded.sent) and reader.complete
+
+
+def test_recover_into_a_folder_leaves_no_partial_file(tmp_path, recorded):
+    with pytest.raises(SessionLogError, match="cannot write the recovered log"):
+        recover(recorded.path, tmp_path)
+    assert not list(tmp_path.glob("*.partial"))

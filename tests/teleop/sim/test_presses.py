@@ -111,10 +111,20 @@ def test_user_mistakes_are_one_line_errors(tmp_path, capsys, argv, message):
     assert message in err and "Traceback" not in err
 
 
-def test_unwritable_output_is_named(tmp_path, capsys):
-    target = tmp_path / "missing" / "p.npz"
+def test_unwritable_output_is_named_before_anything_is_rendered(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr("teleop.sim.presses_cli.simulate_presses", None)  # called, it would fail otherwise
+    (tmp_path / "afile").write_text("")
+    target = tmp_path / "afile" / "p.npz"
     assert main(["simulate-presses", "--out", str(target), "--n", "1"]) == 2
-    assert str(target) in capsys.readouterr().err
+    assert f"--out {target}: cannot make its folder" in capsys.readouterr().err
+    assert main(["simulate-presses", "--out", str(tmp_path), "--n", "1"]) == 2
+    assert f"--out {tmp_path}: is a folder; expected a file name" in capsys.readouterr().err
+
+
+def test_a_negative_seed_is_refused_by_argparse(tmp_path, capsys):
+    with pytest.raises(SystemExit) as raised:
+        main(["simulate-presses", "--out", str(tmp_path / "x.npz"), "--seed", "-3"])
+    assert raised.value.code == 2 and "'-3': expected a whole number >= 0" in capsys.readouterr().err
 
 
 def test_sphere_cap_geometry():

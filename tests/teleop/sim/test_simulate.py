@@ -128,6 +128,20 @@ def test_bad_arguments_are_one_line_errors(tmp_path, catalogue, capsys, argv, me
     assert len(stderr.strip().splitlines()) == 1
 
 
+def test_vary_gel_without_randomize_rig_is_refused_before_out_is_made(tmp_path, catalogue, capsys):
+    code, _, stderr = run(capsys, "--objects", str(catalogue), "--out", str(tmp_path / "o"), "--vary-gel")
+    assert code == 2 and "--vary-gel draws a rig's gel: it needs --randomize-rig" in stderr
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("seed", ["-1", "1.5", "x"])
+def test_a_seed_that_is_no_whole_number_from_0_is_refused_by_argparse(tmp_path, catalogue, capsys, seed):
+    with pytest.raises(SystemExit) as raised:
+        main(["simulate", "--objects", str(catalogue), "--out", str(tmp_path / "o"), "--seed", seed])
+    assert raised.value.code == 2 and f"--seed: {seed!r}: expected a whole number >= 0" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_unknown_catalogue_format_is_refused(tmp_path, capsys):
     path = tmp_path / "objects.yaml"
     path.write_text("x")
