@@ -6,7 +6,7 @@ Each check triggers only on data no working rig delivers, and says which stream 
   the rig's rate (timestamps in nanoseconds or milliseconds, not seconds) refuses the grasp (force,
   width) or its tactile methods (frames): :func:`checked_phase`, :func:`checked_frames`;
 * a gripper width of 0 m or less at the contact onset (no object fits between closed fingers), or
-  widths that stay within their noise over the whole record of a grasp that starts before contact
+  widths that stay within :data:`STILL_WIDTH_M` over the whole record of a grasp that starts before contact
   (the fingers close onto the object before the force rises, whatever its stiffness), refuses the
   grasp: every estimate rests on the approach the widths give, the model's too;
 * a tactile frame without texture (all black, all saturated: a dead camera or lost light), or
@@ -27,7 +27,7 @@ __all__ = ["RATE_FACTOR", "STILL_WIDTH_M", "TEXTURE_LEVELS", "camera_fault", "ch
            "period_fault"]
 
 RATE_FACTOR = 100.0
-# Widths that move less than this (or eight noise deviations) over a whole record never moved: fingers
+# Widths that move less than this over a whole record never moved: fingers
 # that close onto an object from open travel millimetres.
 STILL_WIDTH_M = 1e-4
 # A frame whose pixels spread less than this (standard deviation, 8-bit levels) shows no gel: a lit
@@ -58,10 +58,11 @@ def _width_fault(phase: LoadPhase) -> str:
     if np.isfinite(onset_width) and onset_width <= 0:
         return (f"gripper width {onset_width:.3g} m at the contact onset: an object between the fingers keeps them "
                 "apart (a dead width sensor, or widths not in metres?)")
-    width, noise = phase.width_m, phase.segment_fields["width_noise_m"]
+    width = phase.width_m
     opens_before = phase.force_t_s[0] < onset_s and phase.width_t_s[0] < onset_s  # quiet force, widths read
     moved = float(np.ptp(width))
-    if not opens_before or moved > max(8.0 * noise, STILL_WIDTH_M):
+    # Not scaled by the width noise: an operator's moving fingers inflate that estimate to millimetres.
+    if not opens_before or moved > STILL_WIDTH_M:
         return ""
     return (f"gripper widths stay within {moved * 1e3:.3g} mm of {float(np.median(width)) * 1e3:.4g} mm over the "
             f"whole record while the force rises from its baseline to {phase.segment_fields['peak_force_n']:.3g} N: "
