@@ -37,6 +37,11 @@ to ``report``) says what ended the loading (``final_by``: ``loading_end``, ``set
 compute. Its ``time_to_first_estimate_s`` is on the capture clock: the service's clock is mapped
 onto it by the least receive delay seen, so a replay or a node on another host reads right.
 
+A *start* while another grasp is open closes that one (its final estimate, report and end go
+out). A *start* of the grasp that is open (a robot node restarted mid-grasp names it again) drops
+what the service had of it, publishing nothing more for it: the final estimate, end and report
+that grasp id gets are the new grasp's.
+
 A message that cannot be used (a frame that does not decode or has the wrong size, samples
 that are not finite, capture times that go backwards, repeat or jump more than
 :data:`MAX_CLOCK_JUMP_S` ahead of the stream's last one, data for a grasp that is not open) is
@@ -346,7 +351,13 @@ class EstimatorService(ServiceLoop):
                 self._finish(grasp, received_s, segment=segment, by=_ended_by(stream))
 
     def _open(self, grasp_id: str, t_s: float, received_s: float) -> None:
-        if self._grasp is not None:
+        if self._grasp is not None and self._grasp.grasp_id == grasp_id:
+            # A robot node restarted mid-grasp starts it again: a final estimate, an end or a report
+            # under this id would be taken for the new grasp's (a renderer would ignore its estimates).
+            log.warning("grasp %r starts again while open (the robot node restarted?): dropping what it had, "
+                        "with no final estimate, end or report for it", grasp_id)
+            self._grasp = None
+        elif self._grasp is not None:
             log.warning("grasp %r starts while %r is open: closing that one", grasp_id, self._grasp.grasp_id)
             self._close(self._grasp.grasp_id, t_s, received_s)
         stream = GraspStream(settings=self.settings, calibration=self.calibration, methods=self.methods,

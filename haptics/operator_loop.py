@@ -21,9 +21,12 @@ the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.
   already does) and, once the robot has ended it and its final estimate is in (an operator's grasp
   gets it only after its end; not awaited when no estimator is alive), clears the view for the next
   object (the device is not read meanwhile, so a simulated operator starts the next grasp only then),
-  ``quit`` ends the loop;
+  ``quit`` ends the loop, letting go of the enable and releasing a follow grasp the robot runs (it
+  ends on that command, not by the watchdog once follows stop);
 * a device that ``waits_for_robot`` (the simulated operator) is not read while the robot node is
   down: it starts squeezing once the node is heard;
+* when the robot node, once heard, goes down, its grasp is forgotten (a node started again runs
+  the next grasp under a new id) and follows are suspended as after ``stop``;
 * after ``stop``, ``release`` or ``next``, and when the robot ends the follow grasp (released,
   the watchdog), no follow goes out until the enable has been let go and held again: a held
   enable never moves the fingers again, nor starts a new grasp, by itself;
@@ -171,6 +174,7 @@ class OperatorLoop:
         self._leaving: tuple[str, float] | None = None  # after "next": (the grasp left, when) until it is over
         self._shown_over = False  # a status showed the grasp left over (its final in): clear on the next step
         self._waiting = False  # the device waits for the robot node, not heard
+        self._robot_up = False  # the robot node was heard alive at the last step
         self._input: Any = None
         self._reconnect_s = -math.inf  # when a failed device was last opened again
         self._target_m: float | None = None
@@ -265,11 +269,19 @@ class OperatorLoop:
         return self.status
 
     def finish(self) -> None:
-        """The dead-man let go on the way out: a follow with enable=False if the loop was driving."""
-        if self._enable or self._release_left:
+        """On the way out: the dead-man let go (a follow with enable=False) if the loop was driving,
+        and a follow grasp the robot runs released, so that it ends on a command, not by the
+        watchdog once follows stop."""
+        grasp_id = self._follow_grasp
+        robot = self.link.view.robot
+        releasing = robot is not None and robot.grasp_id == grasp_id and robot.mode == "releasing"
+        if self._enable or self._release_left or self._follow_live():
             self._send(lambda: self.link.follow(self._target_m or self.max_width_m, enable=False,
-                                                grasp_id=self._follow_grasp))
+                                                grasp_id=grasp_id))
             self._enable, self._release_left = False, 0
+        if grasp_id is not None and not releasing and self._send(lambda: self.link.release(grasp_id)):
+            self._follow_grasp = None
+            self._act(f"release {grasp_id}: the console quits")
         self.status = self._status()
 
     # ------------------------------------------------------------------ pieces
@@ -396,7 +408,10 @@ class OperatorLoop:
         """Forget a grasp's id once the robot says it ended (the next enable starts another) or
         refused to start it; after ``next``, clear the view once a status has shown the grasp left
         over (:func:`_over`: its final is seen before it goes), or after :data:`NEXT_WAIT_S`."""
+        if self._robot_up and self.link.view.down("robot node"):
+            self._robot_lost()
         view = self.link.view
+        self._robot_up = view.alive("robot node")
         if self._leaving is not None:
             grasp_id, since = self._leaving
             if view.grasp_id != grasp_id or self._shown_over or self.clock() - since >= NEXT_WAIT_S:
@@ -414,6 +429,18 @@ class OperatorLoop:
         if (notice is not None and notice.event == "refused" and notice.action == "start_grasp"
                 and notice.grasp_id == self._discrete_grasp):
             self._discrete_grasp = None  # it never started: release and stop name the grasp there is
+
+    def _robot_lost(self) -> None:
+        """The robot node went down (killed, crashed): its grasp went with it. Forget the grasp, so
+        that a node started again never runs a new grasp under its id, and suspend the follows, so
+        that a held enable does not drive that node until it is let go and held again."""
+        view = self.link.view
+        lost = self._follow_grasp or self._discrete_grasp or (view.grasp_id if view.phase != "ended" else None)
+        self._follow_grasp = self._discrete_grasp = None
+        if view.phase in ("loading", "loaded"):
+            self.link.clear()  # no end or final comes for it: "next" need not wait
+        self._act("the robot node is down" + (f": grasp {lost} is lost" if lost else ""))
+        self._suspend()
 
     def _suspend(self) -> None:
         """Send no more follows until the enable is let go and held again."""

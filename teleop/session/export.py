@@ -1,6 +1,7 @@
 """Export: the grasps of a session log as grasp records (``.grasp``), for training and evaluation.
 
-A grasp runs from a ``grasp_event`` *start* to the *end* with the same ``grasp_id``. It
+A grasp runs from a ``grasp_event`` *start* to the *end* with the same ``grasp_id`` from the
+same publisher (``source``: the robot node's; the estimator's forwarded ends do not count). It
 holds the ``frame``, ``force`` and ``width`` messages that name its ``grasp_id``, and
 those that name none but arrive (in receive order) while it is the only grasp open. Each
 keeps its capture times: frame times are the messages' ``t_capture_s``; force and width
@@ -129,6 +130,7 @@ class _OpenGrasp:
     grasp_id: str
     start_s: float
     object_name: str | None
+    source: str  # the publisher of its start: only its loading_end and end count
     frames: dict[str, list[tuple[float, str, np.ndarray]]] = field(
         default_factory=lambda: defaultdict(list)
     )
@@ -226,20 +228,24 @@ class _Assembler:
         body = message.fields
         if message.type == "grasp_event":
             grasp_id = body.grasp_id
+            grasp = self.open.get(grasp_id)
             if body.event == "start":
-                if grasp_id in self.open:
+                if grasp is not None:
                     yield GraspExport(
                         grasp_id, reason="started again before it ended; the first start is dropped"
                     )
-                self.open[grasp_id] = _OpenGrasp(grasp_id, message.t_capture_s, body.object_name)
+                self.open[grasp_id] = _OpenGrasp(grasp_id, message.t_capture_s, body.object_name,
+                                                 message.source)
+            elif grasp is None or message.source != grasp.source:
+                # The estimator forwards ends, and ends a grasp a restarted node started again
+                # before the robot ends the new one: only the start's publisher ends a grasp.
+                if grasp is None and body.event == "end" and grasp_id not in self.ended:
+                    log.warning("%s: grasp %r ends but never started; ignored", self.path, grasp_id)
             elif body.event == "loading_end":  # the grasp goes on
-                if grasp_id in self.open:
-                    self.open[grasp_id].loading_end_s = message.t_capture_s
-            elif grasp_id in self.open:
+                grasp.loading_end_s = message.t_capture_s
+            else:
                 self.ended.add(grasp_id)
                 yield self.build(self.open.pop(grasp_id), message.t_capture_s)
-            elif grasp_id not in self.ended:  # other nodes may announce an end again
-                log.warning("%s: grasp %r ends but never started; ignored", self.path, grasp_id)
         elif message.type in ("frame", "force", "width"):
             grasp_id = body.grasp_id
             if grasp_id is None and len(self.open) == 1:
@@ -395,15 +401,8 @@ def _labels(reader: LogReader) -> dict[str, LabelBody]:
     return labels
 
 
-def _grasps(
-    reader: LogReader,
-    info: LogInfo,
-    *,
-    settings: Settings | None,
-    catalogue: str | Path | None,
-    source: str | None,
-    stray_labels: list[str] | None = None,
-) -> Iterator[GraspExport]:
+def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, catalogue: str | Path | None,
+            source: str | None, stray_labels: list[str] | None = None) -> Iterator[GraspExport]:
     path = reader.path
     if not info.session and not info.complete:  # the metadata precedes every message
         raise SessionLogError(

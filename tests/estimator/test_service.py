@@ -45,3 +45,50 @@ def test_serve_refuses_a_duration_that_is_no_positive_time(value, capsys):
     with pytest.raises(SystemExit) as exit_info:
         estimator.cli.main(["serve", "--duration-s", value])
     assert exit_info.value.code == 2 and "--duration-s" in capsys.readouterr().err
+
+
+def _grasp_items(record, *, end: bool = True) -> list[tuple[float, str, dict]]:
+    items = [(float(record.force_n.t_s[0]) - 0.01, "grasp_event", {"event": "start", "object_name": None}),
+             *in_capture_order(record)]
+    if end:
+        items.append((float(record.force_n.t_s[-1]), "grasp_event", {"event": "end"}))
+    return items
+
+
+def _run(service, items, grasp_id: str) -> None:
+    for t_s, kind, body in items:
+        service.handle(make_message(kind, t_capture_s=t_s, grasp_id=grasp_id, **body), received_s=t_s)
+
+
+def test_a_grasp_started_again_while_open_leaves_the_new_one_alone(settings, calibration, records, tmp_path):
+    # A robot node killed mid-grasp and restarted names the grasp again: nothing of the first may
+    # go out under that id (a final or an end would make a renderer ignore the new grasp's estimates).
+    service = EstimatorService(settings, calibration=calibration, subscriber=None, publisher=_Sent(),
+                               methods=METHODS, report=JsonLines(tmp_path / "report.jsonl"), clock=lambda: 0.0)
+    items = _grasp_items(records["stress_ball"])
+    _run(service, items[: len(items) // 3], "g")  # cut off before its final
+    assert not any(m.type == "grasp_event" or not m.body.get("provisional", True) for m in service.publisher.sent)
+    before = len(service.publisher.sent)
+    _run(service, items, "g")  # the restarted node's grasp: its capture times start again
+    after = service.publisher.sent[before:]
+    assert [m.body["provisional"] for m in after if m.type == "estimate"][-1] is False
+    assert [(m.type, m.body["event"]) for m in service.publisher.sent if m.type == "grasp_event"] == [
+        ("grasp_event", "end")]
+    (report,) = [json.loads(line) for line in (tmp_path / "report.jsonl").read_text().splitlines()]
+    # The report is the new grasp's alone: its provisional estimates, not the first one's as well.
+    provisional = sum(m.type == "estimate" and m.body["provisional"] for m in after)
+    assert report["grasp_id"] == "g" and report["final"] is not None and report["provisional"] == provisional
+    assert service.stats.grasps == 2
+
+
+def test_a_grasp_started_while_another_is_open_closes_that_one(settings, calibration, records, tmp_path):
+    service = EstimatorService(settings, calibration=calibration, subscriber=None, publisher=_Sent(),
+                               methods=METHODS, report=JsonLines(tmp_path / "report.jsonl"), clock=lambda: 0.0)
+    items = _grasp_items(records["stress_ball"])
+    _run(service, items[: len(items) // 3], "a")
+    _run(service, items[:1], "b")
+    ends = [m.body["grasp_id"] for m in service.publisher.sent if m.type == "grasp_event"]
+    finals = [m.body["grasp_id"] for m in service.publisher.sent if m.type == "estimate" and not m.body["provisional"]]
+    assert ends == finals == ["a"]
+    (report,) = [json.loads(line) for line in (tmp_path / "report.jsonl").read_text().splitlines()]
+    assert report["grasp_id"] == "a" and report["final_by"] == "grasp_end"

@@ -565,3 +565,69 @@ def test_follows_go_on_without_the_enable_while_the_robot_runs_the_grasp(rig):
     sent = len(link.sent)
     run_for(clock, loop, 0.5)
     assert len(link.sent) == sent and loop.status.mode == "idle"
+
+
+def _robot(clock: Clock, alive: bool, **view) -> OperatorView:
+    return OperatorView(t_s=clock(), peers=(Peer("robot node", "robot", alive, 0.1),), **view)
+
+
+@pytest.mark.parametrize("waits_for_robot", [False, True])
+def test_a_grasp_is_forgotten_when_the_robot_node_goes_down(rig, waits_for_robot):
+    # The node killed mid-grasp and started again: the held enable must not drive the new node under
+    # the old grasp's id (it would start a grasp of that id, which the estimator and renderer took as
+    # the old one's).
+    clock, link, device, loop = rig
+    device.waits_for_robot, device.grip, device.enable = waits_for_robot, 0.5, True
+    link.view = _robot(clock, True)
+    run_for(clock, loop, 0.1)
+    lost = link.sent[-1][2]["grasp_id"]
+    link.view = _robot(clock, True, grasp_id=lost, phase="loading")
+    run_for(clock, loop, 0.1)
+    link.view = _robot(clock, False, grasp_id=lost, phase="loading")
+    run_for(clock, loop, 0.1)
+    assert f"the robot node is down: grasp {lost} is lost" in loop.status.log and link.cleared == 1
+    assert loop.status.grasp_id is None and "suspended" in loop.status.mode
+    link.view = _robot(clock, True)  # started again
+    sent = len(link.sent)
+    run_for(clock, loop, 0.3)
+    assert not any(b["enable"] or b["grasp_id"] for _, kind, b in link.sent[sent:] if kind == "follow")
+    device.enable = False
+    run_for(clock, loop, 0.05)
+    device.enable = True
+    run_for(clock, loop, 0.05)
+    assert link.sent[-1][2]["enable"] and link.sent[-1][2]["grasp_id"] not in (lost, None)
+
+
+def test_a_robot_node_never_heard_loses_nothing(rig):
+    clock, link, device, loop = rig
+    link.view = _robot(clock, False)
+    device.enable = True
+    run_for(clock, loop, 0.1)
+    assert link.sent[-1][2]["enable"] and loop.status.mode == "follow" and link.cleared == 0
+
+
+def test_quitting_releases_the_follow_grasp_the_robot_runs(rig):
+    # Else follows stop and the robot's watchdog ends the grasp.
+    clock, link, device, loop = rig
+    device.enable, device.grip = True, 0.5
+    run_for(clock, loop, 0.1)
+    grasp_id = link.sent[-1][2]["grasp_id"]
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loading", robot=RobotStateBody(
+        mode="following", grasp_id=grasp_id, target_width_m=0.04, enable=True))
+    device.buttons = {"quit"}
+    loop.run()
+    assert link.sent[-2:] == [(clock(), "follow", {"target_width_m": 0.04, "enable": False, "grasp_id": grasp_id}),
+                              (clock(), "release", {"grasp_id": grasp_id})]
+    assert loop.status.mode == "idle" and "the console quits" in loop.status.last_action
+
+
+def test_quitting_leaves_alone_a_grasp_the_robot_releases_or_none(rig):
+    clock, link, device, loop = rig
+    loop.finish()
+    assert link.sent == []
+    grasp_id = hold_and_let_go(clock, loop, device, link)
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loaded", robot=RobotStateBody(
+        mode="releasing", grasp_id=grasp_id, target_width_m=0.04, enable=False))
+    sent = len(link.sent)
+    loop.finish()
+    assert "release" not in link.kinds()[sent:]

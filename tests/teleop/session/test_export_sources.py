@@ -1,0 +1,58 @@
+"""Export: a grasp's events count from the publisher of its start, not from the estimator's forwarded ends."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from teleop.bus.wire import make_message
+from teleop.session.export import _Assembler
+from teleop.settings import load_settings
+
+
+def _message(source: str, kind: str, at_s: float, **body):
+    return dataclasses.replace(make_message(kind, t_capture_s=at_s, **body), source=source)
+
+
+def _grasp_data(grasp_id: str, t0: float) -> list:
+    image = np.full((20, 30, 3), 7, np.uint8)
+    return [
+        _message("robot", "frame", t0 + 0.1, grasp_id=grasp_id, finger="left", index=0, encoding="raw",
+                 data=image),
+        _message("robot", "force", t0 + 0.2, grasp_id=grasp_id, t_s=[t0 + 0.15, t0 + 0.2], value_n=[1.0, 2.0]),
+        _message("robot", "width", t0 + 0.2, grasp_id=grasp_id, t_s=[t0 + 0.2], value_m=[0.04]),
+    ]
+
+
+def test_a_grasp_a_restarted_node_started_again_ends_at_the_robots_end():
+    # The robot node dies mid-grasp and, restarted, names the grasp again; the estimator's forwarded
+    # end of the first comes before the robot's end of the second, and its own after it.
+    assembler = _Assembler(path=Path("s.mcap"), settings=load_settings(), objects={}, source="simulated",
+                           session_version="0", session="s", labels={}, calibration_files={})
+    messages = [
+        _message("robot", "grasp_event", 1.0, event="start", grasp_id="x"),
+        *_grasp_data("x", 1.0),
+        _message("robot", "grasp_event", 10.0, event="start", grasp_id="x"),
+        _message("estimator", "grasp_event", 10.0, event="end", grasp_id="x"),
+        *_grasp_data("x", 10.0),
+        _message("robot", "grasp_event", 11.0, event="end", grasp_id="x"),
+        _message("estimator", "grasp_event", 11.0, event="end", grasp_id="x"),
+    ]
+    first, second = [grasp for message in messages for grasp in assembler.feed(message)]
+    assert not first and "started again before it ended" in first.reason
+    assert second, second.reason
+    record = second.record
+    assert record.events["grasp_start"] == 10.0 and record.events["grasp_end"] == 11.0
+    assert np.array_equal(record.stream("left").t_s, [10.1])
+    assert not assembler.open and not list(assembler.unfinished())
+
+
+def test_an_end_from_another_publisher_neither_ends_nor_warns(caplog):
+    assembler = _Assembler(path=Path("s.mcap"), settings=load_settings(), objects={}, source="simulated",
+                           session_version="0", session="s", labels={}, calibration_files={})
+    messages = [_message("robot", "grasp_event", 1.0, event="start", grasp_id="x"), *_grasp_data("x", 1.0),
+                _message("estimator", "grasp_event", 2.0, event="end", grasp_id="x")]
+    assert [grasp for message in messages for grasp in assembler.feed(message)] == []
+    assert list(assembler.open) == ["x"] and "never started" not in caplog.text
