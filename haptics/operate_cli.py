@@ -10,11 +10,16 @@ one line per action.
 from __future__ import annotations
 
 import argparse
+import asyncio
 import collections
+import contextlib
 import json
 import logging
+import signal
 import sys
 import textwrap
+from collections.abc import Iterator
+from typing import Any
 
 from haptics.inputs import BACKENDS as INPUT_BACKENDS
 from haptics.inputs import input_class, make_input
@@ -156,7 +161,8 @@ def _run_console(loop: OperatorLoop, name: str, device: object, *, duration_s: f
         root.removeHandler(handler)
     root.addHandler(held)
     try:
-        app.run(mouse=False)
+        with _sigterm_quits(app):
+            app.run(mouse=False)
     finally:
         if app.stop_loop():  # the loop's sockets are this thread's only once its thread has ended
             loop.finish()
@@ -166,6 +172,26 @@ def _run_console(loop: OperatorLoop, name: str, device: object, *, duration_s: f
         for record in held.records:
             root.handle(record)
     return loop.status
+
+
+@contextlib.contextmanager
+def _sigterm_quits(app: Any) -> Iterator[None]:
+    """SIGTERM quits the screen as ``q`` does (the loop lets the enable go and releases its grasp,
+    the terminal leaves the screen, the summary is printed) instead of killing the process mid-screen."""
+
+    def on_sigterm(signum: int, frame: Any) -> None:  # noqa: ARG001
+        try:
+            running = asyncio.get_running_loop()
+        except RuntimeError:  # the screen is not up (yet, or any more): stop as Ctrl-C would
+            raise KeyboardInterrupt from None
+        # The handler interrupts the screen's own thread: its action runs on the screen's loop.
+        running.call_soon_threadsafe(app.action_quit_console)
+
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 class _HeldLog(logging.Handler):

@@ -8,7 +8,9 @@ through the display, with everything drawn once per grasp from its random stream
 
 approach
     From open fingers, after a start delay, at 1-1.5 times its squeezing speed (up to 8 cm/s)
-    until it feels contact (``CONTACT_FORCE_N``).
+    until it feels contact (``CONTACT_FORCE_N``). When the fingers do not follow its grip for
+    ``GIVE_UP_S`` (the robot no longer drives them: its watchdog ended the grasp) or its grip is
+    fully closed that long without contact, it gives up: it releases at once.
 squeeze
     Closing at a drawn speed (``SQUEEZE_SPEED_M_S``, log-uniform around the paper's 3.75 cm/s)
     varied smoothly (a slow sinusoid of drawn depth and rate), slowing down as the felt force
@@ -26,7 +28,8 @@ hold
 release
     :attr:`OperatorCommand.release` is True once (send ``release``); from then on the dead-man is
     let go (``enable`` False: the node opens the fingers) and the hand opens.
-    :attr:`SimulatedOperator.done` once the fingers are open again.
+    :attr:`SimulatedOperator.done` once the fingers are open again, or once its hand has been open
+    for ``GIVE_UP_S`` while they are not (nothing opens them: the grasp had ended).
 
 The operator feels the force ``REACTION_DELAY_S`` late (drawn; a person feels through the
 display 50-100 ms late and reacts on that), so it overshoots its goal on stiff objects as a
@@ -67,6 +70,7 @@ STALL_GAP_M = 0.005  # the fingers this far behind the target (in contact): the 
 STALL_S = 0.15  # stopped this long: as far as it goes
 OPEN_TOLERANCE_M = 0.001
 MAX_SPEED_M_S = 0.09  # the hand never outruns the fingers' follow speed (0.1 m/s)
+GIVE_UP_S = 2.0  # fingers that go nowhere this long: beyond a slow start of the robot's follow grasp
 
 
 @dataclass(frozen=True)
@@ -243,7 +247,9 @@ class SimulatedOperator:
         if self._phase == "approach":
             self._target -= s.approach_speed_m_s * dt
             if felt >= CONTACT_FORCE_N:
-                self._phase = "squeeze"
+                self._phase, self._stalled_since = "squeeze", None
+            elif self._stuck(t_s, self._target <= 0.0 or width_m - self._target >= STALL_GAP_M - 1e-9):
+                self._phase, self._until = "hold", t_s  # gives up: lets go at once
         elif self._phase == "squeeze":
             goal = s.peaks_n[self._squeeze]
             if self._pauses and felt >= self._pauses[0][0] * s.peaks_n[0] and self._squeeze == 0:
@@ -268,16 +274,25 @@ class SimulatedOperator:
             else:
                 self._target += s.squeeze_speed_m_s * dt
         if self._phase == "hold" and t_s >= self._until:
-            self._phase, release, self._released = "open", True, True
+            self._phase, release, self._released, self._stalled_since = "open", True, True, None
         elif self._phase == "open":
             self._target += s.open_speed_m_s * dt
-            if width_m >= self.max_width_m - OPEN_TOLERANCE_M:
+            if width_m >= self.max_width_m - OPEN_TOLERANCE_M or self._stuck(t_s, self._target >= self.max_width_m):
                 self._done = True
         if self._phase in ("squeeze", "pause", "backoff", "hold") and felt >= CONTACT_FORCE_N:
             # The hand cannot lead a stalled grip by more than the gap: it feels the grip stop.
             self._target = max(self._target, width_m - STALL_GAP_M)
         self._target = min(max(self._target, 0.0), self.max_width_m)
         return OperatorCommand(target_width_m=self._target, enable=not self._released, release=release)
+
+    def _stuck(self, t_s: float, stuck: bool) -> bool:
+        """Whether ``stuck`` has held for ``GIVE_UP_S`` (counted afresh whenever it does not)."""
+        if not stuck:
+            self._stalled_since = None
+            return False
+        if self._stalled_since is None:
+            self._stalled_since = t_s
+        return t_s - self._stalled_since >= GIVE_UP_S
 
     def _stalled(self, t_s: float, width_m: float) -> bool:
         """Whether the fingers have not followed the target for ``STALL_S``: as far as it goes."""

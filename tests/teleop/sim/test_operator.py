@@ -9,6 +9,7 @@ import pytest
 
 from teleop.operator import FOLLOW_RATE_HZ
 from teleop.sim.operator import (
+    GIVE_UP_S,
     MIN_PEAK_FORCE_N,
     OperatorCommand,
     OperatorStyle,
@@ -128,3 +129,58 @@ def test_style_is_frozen():
     assert isinstance(style, OperatorStyle)
     with pytest.raises(dataclasses.FrozenInstanceError):
         style.hold_s = 3.0  # type: ignore[misc]
+
+
+def _approach(op: SimulatedOperator, fingers, max_s: float = 30.0) -> list[tuple[float, OperatorCommand]]:
+    """Step ``op`` at the follow rate with no force felt, the fingers at ``fingers(t, target)``,
+    until it is done; (time, command) per step."""
+    steps, dt, target = [], 1.0 / FOLLOW_RATE_HZ, MAX_WIDTH_M
+    for i in range(round(max_s / dt)):
+        t = i * dt
+        command = op.step(t, force_n=0.0, width_m=fingers(t, target))
+        target = command.target_width_m
+        steps.append((t, command))
+        if op.done:
+            break
+    return steps
+
+
+def _one_release(steps: list[tuple[float, OperatorCommand]]) -> float:
+    """When the operator released, checking it released once and let go of the enable for good."""
+    (at,) = [i for i, (_, c) in enumerate(steps) if c.release]
+    assert all(c.enable for _, c in steps[:at]) and not any(c.enable for _, c in steps[at:])
+    return steps[at][0]
+
+
+def test_it_gives_up_an_approach_the_fingers_stop_following():
+    # The robot's watchdog ended the grasp (the console was paused): the fingers stopped short of
+    # the object. It must let go of the enable (the console waits for that), and be done
+    # although nothing opens the fingers again.
+    op = SimulatedOperator(np.random.default_rng(0), max_width_m=MAX_WIDTH_M, max_force_n=MAX_FORCE_N)
+    stopped_s, stopped_at = 0.4 + op.style.start_delay_s, []
+
+    def fingers(t: float, target: float) -> float:
+        if t >= stopped_s and not stopped_at:
+            stopped_at.append(target)
+        return stopped_at[0] if stopped_at else target
+
+    steps = _approach(op, fingers)
+    released_s = _one_release(steps)
+    assert stopped_s + GIVE_UP_S <= released_s <= stopped_s + GIVE_UP_S + 1.0
+    assert op.done and stopped_at[0] < MAX_WIDTH_M - 0.005 and steps[-1][0] >= released_s + GIVE_UP_S
+    assert steps[-1][1].target_width_m == MAX_WIDTH_M  # its hand opened
+
+
+def test_it_gives_up_when_its_grip_closes_on_nothing():
+    op = SimulatedOperator(np.random.default_rng(1), max_width_m=MAX_WIDTH_M, max_force_n=MAX_FORCE_N)
+    steps = _approach(op, lambda t, target: target)  # the fingers follow, and open with its hand
+    released_s = _one_release(steps)
+    closed_s = op.style.start_delay_s + MAX_WIDTH_M / op.style.approach_speed_m_s
+    assert op.done and closed_s + GIVE_UP_S <= released_s <= closed_s + GIVE_UP_S + 0.1
+
+
+def test_a_slow_start_of_the_robot_does_not_make_it_give_up():
+    # The fingers stay open for a second (the robot prepares its grasp), then follow.
+    late = SimulatedOperator(np.random.default_rng(2), max_width_m=MAX_WIDTH_M, max_force_n=MAX_FORCE_N)
+    steps = _approach(late, lambda t, target: MAX_WIDTH_M if t < 0.5 * GIVE_UP_S else target, max_s=0.9 * GIVE_UP_S)
+    assert late.phase == "approach" and all(c.enable and not c.release for _, c in steps)

@@ -1,0 +1,44 @@
+"""``haptics operate`` on screen: SIGTERM quits the console as ``q`` does (:mod:`haptics.operate_cli`)."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import time
+
+import pytest
+
+from haptics.operate_cli import _sigterm_quits
+
+
+class _App:
+    def __init__(self) -> None:
+        self.quits = 0
+
+    def action_quit_console(self) -> None:
+        self.quits += 1
+
+
+def test_sigterm_quits_the_running_screen_and_the_handler_is_restored():
+    app, before = _App(), signal.getsignal(signal.SIGTERM)
+
+    async def screen() -> None:
+        with _sigterm_quits(app):
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(100):  # the handler schedules the quit on this loop
+                if app.quits:
+                    break
+                await asyncio.sleep(0)
+
+    asyncio.run(screen())
+    assert app.quits == 1
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_sigterm_with_no_screen_running_stops_as_ctrl_c_would():
+    app = _App()
+    with pytest.raises(KeyboardInterrupt), _sigterm_quits(app):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0)  # a call: the pending handler runs by then at the latest
+    assert app.quits == 0
