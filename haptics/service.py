@@ -53,6 +53,7 @@ __all__ = ["INPUT_TOPICS", "FinalLatency", "RendererService"]
 log = logging.getLogger(__name__)
 
 INPUT_TOPICS = ("estimate", "grasp_event")
+_COUNTED_GRASPS = 16  # grasps whose estimates are counted at once: more only when their ends were lost
 
 
 @dataclass(frozen=True)
@@ -179,10 +180,13 @@ class RendererService(ServiceLoop):
         finally:
             self._publish_display()  # for a report written on the estimate or the grasp's end
         self.stats.estimates += 1
-        self._received[update.grasp_id] = self._received.get(update.grasp_id, 0) + 1
         if self.renderer.stats.estimates_ignored != ignored_before:
             self.stats.ignored += 1
-        elif not update.provisional:
+            return  # not counted: a late estimate of an ended grasp would keep its count for good
+        self._received[update.grasp_id] = self._received.pop(update.grasp_id, 0) + 1  # the newest last
+        if len(self._received) > _COUNTED_GRASPS:  # grasps whose end never came: the oldest goes
+            del self._received[next(iter(self._received))]
+        if not update.provisional:
             self._pending = _Pending(update.grasp_id, update, reports_before, self.renderer.target)
             self._check_pending(written_s)
 

@@ -34,7 +34,10 @@ from haptics.protocol import (
 from haptics.protocol_grip import GripReport, encode_grip_report
 from haptics.settings import DisplaySettings
 
-__all__ = ["DisplayFirmware", "SimulatedDisplay"]
+__all__ = ["LOG_REPORTS", "DisplayFirmware", "SimulatedDisplay"]
+
+#: How many of the newest reports a simulated display keeps in its ``log``.
+LOG_REPORTS = 10_000
 
 
 class DisplayFirmware:
@@ -162,8 +165,8 @@ class DisplayFirmware:
 class SimulatedDisplay(SoftnessDisplay):
     """A display in memory, speaking the real protocol byte for byte.
 
-    ``log`` holds ``(kind, bytes)`` for every report that crossed the simulated
-    link, kind in ``output``, ``input``, ``feature_get``, ``feature_set``.
+    ``log`` holds ``(kind, bytes)`` for the newest :data:`LOG_REPORTS` reports that crossed
+    the simulated link, kind in ``output``, ``input``, ``feature_get``, ``feature_set``.
     ``unplug()`` makes every I/O fail as a pulled cable would; ``replug()``
     powers the firmware up again. ``protocol_version`` (1 or 2, default 2) is
     the version the simulated device speaks; a version-2 one's grip is set
@@ -180,7 +183,8 @@ class SimulatedDisplay(SoftnessDisplay):
                 f"firmware's {firmware.info.protocol_version}"
             )
         self.firmware = firmware or DisplayFirmware(protocol_version=protocol_version)
-        self.log: list[tuple[str, bytes]] = []
+        # Bounded: the renderer service runs for hours.
+        self.log: deque[tuple[str, bytes]] = deque(maxlen=LOG_REPORTS)
         self.plugged = True
 
     @classmethod

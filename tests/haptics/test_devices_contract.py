@@ -367,3 +367,13 @@ def test_the_grip_comes_back_after_a_replug(rig):
     display.reconnect()
     firmware.set_grip(0.9, force_n=1.5)
     assert display.read_operator(timeout_s=0.5) == GripReport(0.9, 1.5, True, frozenset(), 0)
+
+
+def test_a_simulated_displays_log_keeps_only_the_newest_reports():
+    from haptics.devices.sim import LOG_REPORTS, SimulatedDisplay
+
+    display = SimulatedDisplay()
+    display.connect()
+    for level in range(LOG_REPORTS + 5):
+        display.write_command(StiffnessCommand(level=level % 100))
+    assert len(display.log) == LOG_REPORTS and display.log[-1][0] == "output"

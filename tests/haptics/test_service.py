@@ -137,3 +137,28 @@ def test_a_bad_tick_is_refused_naming_it(tick_s):
     renderer = HapticRenderer(SimulatedDisplay(), display_settings(load_settings()))
     with pytest.raises(HapticsError, match=f"tick_s = {tick_s!r}: expected a finite number of seconds > 0"):
         RendererService(renderer, subscriber=None, tick_s=tick_s)
+
+
+def test_the_estimate_counts_stay_bounded_over_a_long_session():
+    # Late estimates of ended grasps, and grasps whose end was lost (latest-value delivery), must
+    # not grow what the service keeps per grasp.
+    from haptics.service import _COUNTED_GRASPS
+    from teleop.bus.wire import make_message
+
+    service = RendererService(HapticRenderer(SimulatedDisplay(), display_settings(load_settings())),
+                              subscriber=None, clock=lambda: 1.0)
+
+    def send(kind: str, **body) -> None:
+        service.handle(make_message(kind, t_capture_s=0.5, **body))
+
+    for n in range(200):
+        grasp_id = f"g{n}"
+        for provisional in (True, False):
+            send("estimate", grasp_id=grasp_id, method="series", E_pa=1e5, interval_pa=[5e4, 2e5], state="ok",
+                 reason="", provisional=provisional, latency_s=0.001)
+        if n % 2:  # every other grasp's end arrives, followed by a late estimate of it
+            send("grasp_event", event="end", grasp_id=grasp_id)
+            send("estimate", grasp_id=grasp_id, method="series", E_pa=1e5, interval_pa=[5e4, 2e5], state="ok",
+                 reason="", provisional=False, latency_s=0.001)
+    assert len(service._received) <= _COUNTED_GRASPS and service.stats.ignored == 100
+    assert service.stats.finals and {f.estimates_received for f in service.stats.finals} == {2}
