@@ -27,7 +27,7 @@ session's bytes, and the log's chunks are compressed. Images and log lines use t
 protobuf schemas, which the Image and Log panels need.
 
 JSON message fields: ``timestamp`` (``{sec, nsec}``, the capture time, or the sample time
-for sample messages), ``t_capture_s``, every scalar field of the type as sent, plus, for
+for sample messages, on the log's clock: see below), ``t_capture_s``, every scalar field of the type as sent, plus, for
 quantities that must be positive (E), their ``log10_`` form (Foxglove's Plot has no log
 axis and E spans decades). Intervals become ``{low, high, log10_low, log10_high}``. A nil
 value (no E, an open interval side, no grasp) is left out: Foxglove's JSON Schema reader
@@ -35,13 +35,22 @@ takes no nullable types. A type with a ``t_s`` array (force, width) gives one me
 sample with ``t_s`` and the value as numbers, each placed at its own time on the receive
 clock (:attr:`FoxgloveMessage.age_ns`), so the Plot panel draws the true sample spacing.
 Array fields of other types are not shown (the bus channels keep them).
+
+Timestamps: the bus times (``t_capture_s``, ``t_s``) are ``time.monotonic()`` seconds of the
+capturing host; every Foxglove ``timestamp`` (JSON, images, log lines) is that time plus
+``offset_ns`` (:func:`foxglove_messages`), which the session log and the live view set so
+that it is nanoseconds since the Unix epoch, like their log times (Foxglove then shows the
+date and time of day). The ``t_capture_s`` and ``t_s`` fields stay as sent.
+
+:func:`known_channels` lists the channels of every type's default topic, so the live view
+can advertise them all before the first message.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import cache
 from typing import Any
@@ -64,17 +73,30 @@ from teleop.bus.wire import SCHEMAS, Body, Message
 __all__ = [
     "EVENTS_TOPIC",
     "IMAGE_SCHEMA",
+    "FoxgloveChannel",
     "FoxgloveMessage",
     "file_descriptor_set",
     "foxglove_messages",
     "image_topic",
     "json_schema",
+    "known_channels",
 ]
 
 IMAGE_SCHEMA = CompressedImage.DESCRIPTOR.full_name  # "foxglove.CompressedImage"
 EVENTS_TOPIC = "/events"
 JSON_SCHEMA_PREFIX = "compliance_teleop."
 _SAMPLE_TIMES = "t_s"
+
+
+@dataclass(frozen=True)
+class FoxgloveChannel:
+    """Where Foxglove messages go: a topic, its schema and its message encoding."""
+
+    topic: str
+    schema_name: str
+    schema_encoding: str  # "protobuf" or "jsonschema"
+    schema_data: bytes
+    message_encoding: str  # "protobuf" or "json"
 
 
 @dataclass(frozen=True)
@@ -93,6 +115,12 @@ class FoxgloveMessage:
     message_encoding: str  # "protobuf" or "json"
     data: bytes
     age_ns: int = 0
+
+    @property
+    def channel(self) -> FoxgloveChannel:
+        return FoxgloveChannel(
+            self.topic, self.schema_name, self.schema_encoding, self.schema_data, self.message_encoding
+        )
 
 
 def image_topic(finger: str) -> str:
@@ -122,13 +150,14 @@ def _protobuf_schema(message_class: Any) -> bytes:
     return file_descriptor_set(message_class)
 
 
-def _timestamp(t_s: float) -> Timestamp:
-    whole = math.floor(t_s)
-    return Timestamp(seconds=whole, nanos=min(round((t_s - whole) * 1e9), 999_999_999))
+def _timestamp(t_s: float, offset_ns: int) -> Timestamp:
+    # In integer ns: epoch seconds as a float would keep only about a microsecond.
+    seconds, nanos = divmod(round(t_s * 1e9) + offset_ns, 1_000_000_000)
+    return Timestamp(seconds=seconds, nanos=nanos)
 
 
-def _time_json(t_s: float) -> dict[str, int]:
-    stamp = _timestamp(t_s)
+def _time_json(t_s: float, offset_ns: int) -> dict[str, int]:
+    stamp = _timestamp(t_s, offset_ns)
     return {"sec": stamp.seconds, "nsec": stamp.nanos}
 
 
@@ -147,12 +176,12 @@ def _protobuf(topic: str, proto: Any) -> FoxgloveMessage:
 # --------------------------------------------------------------------------- protobuf types
 
 
-def _image(message: Message) -> list[FoxgloveMessage]:
+def _image(message: Message, offset_ns: int) -> list[FoxgloveMessage]:
     frame = message.fields
     if frame.encoding == "raw":  # no compressed bytes to show as they are
         return []
     image = CompressedImage(
-        timestamp=_timestamp(message.t_capture_s),
+        timestamp=_timestamp(message.t_capture_s, offset_ns),
         frame_id=frame.finger,
         data=frame.data.tobytes(),
         format=frame.encoding,
@@ -160,13 +189,13 @@ def _image(message: Message) -> list[FoxgloveMessage]:
     return [_protobuf(image_topic(frame.finger), image)]
 
 
-def _event(message: Message) -> list[FoxgloveMessage]:
+def _event(message: Message, offset_ns: int) -> list[FoxgloveMessage]:
     event = message.fields
     text = f"grasp {event.grasp_id} {event.event}"
     if event.object_name:
         text += f" (object: {event.object_name})"
     line = Log(
-        timestamp=_timestamp(message.t_capture_s),
+        timestamp=_timestamp(message.t_capture_s, offset_ns),
         level=Log.Level.INFO,
         message=text,
         name=message.source or "teleop",
@@ -303,13 +332,13 @@ def _json(topic: str, kind: str, fields: dict[str, Any], age_ns: int = 0) -> Fox
     )
 
 
-def _plain(message: Message) -> list[FoxgloveMessage]:
+def _plain(message: Message, offset_ns: int) -> list[FoxgloveMessage]:
     kind, body = message.type, message.fields
     common = {"t_capture_s": message.t_capture_s, **_json_fields(kind, body)}
     topic = "/" + message.topic
     arrays = SCHEMAS[kind].arrays
     if _SAMPLE_TIMES not in arrays:
-        return [_json(topic, kind, {"timestamp": _time_json(message.t_capture_s), **common})]
+        return [_json(topic, kind, {"timestamp": _time_json(message.t_capture_s, offset_ns), **common})]
     columns = {name: getattr(body, name).tolist() for name in arrays}
     times = columns[_SAMPLE_TIMES]
     newest = max(times)
@@ -317,17 +346,35 @@ def _plain(message: Message) -> list[FoxgloveMessage]:
     for i, t_s in enumerate(times):
         sample = {name: values[i] for name, values in columns.items()}
         age_ns = round((newest - t_s) * 1e9)
-        out.append(_json(topic, kind, {"timestamp": _time_json(t_s), **common, **sample}, age_ns))
+        out.append(_json(topic, kind, {"timestamp": _time_json(t_s, offset_ns), **common, **sample}, age_ns))
     return out
 
 
-_SPECIAL: dict[str, Callable[[Message], list[FoxgloveMessage]]] = {
+_SPECIAL: dict[str, Callable[[Message, int], list[FoxgloveMessage]]] = {
     "frame": _image,
     "grasp_event": _event,
-    "heartbeat": lambda message: [],
+    "heartbeat": lambda message, offset_ns: [],
 }
 
 
-def foxglove_messages(message: Message) -> list[FoxgloveMessage]:
-    """The Foxglove forms of one decoded bus message (none for heartbeats and raw frames)."""
-    return _SPECIAL.get(message.type, _plain)(message)
+def foxglove_messages(message: Message, offset_ns: int = 0) -> list[FoxgloveMessage]:
+    """The Foxglove forms of one decoded bus message (none for heartbeats and raw frames).
+
+    ``offset_ns`` is added to the bus times to make each ``timestamp`` (module notes).
+    """
+    return _SPECIAL.get(message.type, _plain)(message, offset_ns)
+
+
+def known_channels(fingers: Iterable[str] = ()) -> list[FoxgloveChannel]:
+    """The channels :func:`foxglove_messages` puts each bus type's default topic on.
+
+    Tactile images for each of ``fingers``, grasp events, and one JSON channel per other type
+    (``/estimate``, ``/force``, ...); a topic with a suffix (``estimate/extra``) is not listed.
+    """
+    out = [FoxgloveChannel(image_topic(finger), IMAGE_SCHEMA, "protobuf",
+                           _protobuf_schema(CompressedImage), "protobuf") for finger in fingers]
+    out.append(FoxgloveChannel(EVENTS_TOPIC, Log.DESCRIPTOR.full_name, "protobuf", _protobuf_schema(Log),
+                               "protobuf"))
+    out += [FoxgloveChannel(f"/{kind}", f"{JSON_SCHEMA_PREFIX}{kind}", "jsonschema", _json_schema_bytes(kind),
+                            "json") for kind in SCHEMAS if kind not in _SPECIAL]
+    return out

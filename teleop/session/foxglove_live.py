@@ -3,11 +3,17 @@
 :class:`LiveServer` starts a ``foxglove-sdk`` WebSocket server (subprotocol
 ``foxglove.sdk.v1``) in its own SDK context and logs the Foxglove forms of each bus message
 (:mod:`teleop.session.foxglove`, the same conversion the log uses, so the shipped layout
-works on both) on channels created as topics first appear. Message times are the receive
-times the log uses (this host's ``time.monotonic_ns()``). ``teleop record --foxglove``
-serves what it records; ``teleop demo --foxglove`` passes the option to its recorder.
-Clients that fall behind lose the oldest messages (the SDK's per-client backlog), never
-the recording.
+works on both). Every channel of a bus type's default topic
+(:func:`~teleop.session.foxglove.known_channels`) is created as the server starts, so a
+client sees them all in its first ``advertise``: a channel created while a client is
+connected can be refused to that client's ``subscribe`` ("Unknown channel ID", a race in
+foxglove-sdk 0.30), and it would then never see that topic. Other topics (a suffixed bus
+topic, an unexpected finger) get their channel on their first message. Message times are
+log times, nanoseconds since the Unix epoch as in the session log (this host's
+``time.monotonic_ns()`` plus an offset read once at the start), each topic's kept in order.
+``teleop record --foxglove`` serves what it records; ``teleop demo --foxglove`` passes the
+option to its recorder. Clients that fall behind lose the oldest messages (the SDK's
+per-client backlog), never the recording.
 
 :class:`LiveTap` serves what one live service publishes: ``teleop node``, ``estimator
 serve`` and ``haptics serve`` take the same ``--foxglove`` option and tap their own
@@ -24,6 +30,7 @@ import argparse
 import logging
 import sys
 import threading
+import time
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -34,8 +41,13 @@ import foxglove
 from teleop.bus.pubsub import Subscriber
 from teleop.bus.wire import Message, now_ns
 from teleop.errors import BusError
-from teleop.session.foxglove import FoxgloveMessage, foxglove_messages
-from teleop.settings import BusSettings
+from teleop.session.foxglove import (
+    FoxgloveChannel,
+    FoxgloveMessage,
+    foxglove_messages,
+    known_channels,
+)
+from teleop.settings import BusSettings, Settings
 
 __all__ = [
     "DEFAULT_ADDRESS",
@@ -103,6 +115,9 @@ class LiveServer:
         Where to listen (port 0: a free one, see :attr:`url`).
     name : str
         Server name shown by Foxglove.
+    fingers : iterable of str, optional
+        Fingers whose tactile image channels to create at the start; default the default
+        rig's (``left``, ``right``).
 
     Raises
     ------
@@ -111,17 +126,30 @@ class LiveServer:
     """
 
     def __init__(
-        self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, name: str = "compliance-teleop"
+        self,
+        host: str = DEFAULT_HOST,
+        port: int = DEFAULT_PORT,
+        *,
+        name: str = "compliance-teleop",
+        fingers: Iterable[str] | None = None,
     ):
         self._context = foxglove.Context()
+        # Channels before the server: no client can connect before they are all there.
+        self._channels: dict[str, foxglove.Channel] = {}
+        if fingers is None:
+            fingers = [sensor.finger for sensor in Settings().sensors]
+        for channel in known_channels(fingers):
+            self._channel(channel)
+        self._last_ns: dict[str, int] = {}  # topic -> its latest log time
+        self.offset_ns = time.time_ns() - now_ns()  # monotonic receive time -> epoch ns
         try:
             self._server = foxglove.start_server(
                 name=name, host=host, port=port, context=self._context
             )
         except Exception as exc:  # the SDK reports bind failures as plain RuntimeErrors
+            self._close_channels()
             raise BusError(f"cannot serve the Foxglove live view on {host}:{port}: {exc}") from exc
         self.host = host
-        self._channels: dict[str, foxglove.Channel] = {}
 
     @property
     def port(self) -> int:
@@ -132,36 +160,46 @@ class LiveServer:
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"ws://{host}:{self.port}"
 
-    def log(self, converted: Sequence[FoxgloveMessage], received_ns: int) -> None:
-        """Send Foxglove messages of one bus message received at ``received_ns``.
+    def log(self, converted: Sequence[FoxgloveMessage], log_time_ns: int) -> None:
+        """Send Foxglove messages of one bus message whose log time is ``log_time_ns``.
 
-        Has the signature of :class:`~teleop.session.recorder.SessionRecorder`'s
-        ``on_foxglove`` hook.
+        Each goes out at that time less its age, but never before its topic's previous
+        message (a batch's oldest sample can fall before the previous batch's newest when
+        delivery latency varies). Has the signature of
+        :class:`~teleop.session.recorder.SessionRecorder`'s ``on_foxglove`` hook.
         """
         for item in converted:
-            channel = self._channels.get(item.topic)
-            if channel is None:
-                channel = foxglove.Channel(
-                    item.topic,
-                    message_encoding=item.message_encoding,
-                    schema=foxglove.Schema(
-                        name=item.schema_name, encoding=item.schema_encoding, data=item.schema_data
-                    ),
-                    context=self._context,
-                )
-                self._channels[item.topic] = channel
-            channel.log(item.data, log_time=received_ns - item.age_ns)
+            channel = self._channels.get(item.topic) or self._channel(item.channel)
+            at = max(log_time_ns - item.age_ns, self._last_ns.get(item.topic, 0))
+            self._last_ns[item.topic] = at
+            channel.log(item.data, log_time=at)
 
     def log_message(self, message: Message, received_ns: int) -> None:
-        """Send the Foxglove forms of one bus message received at ``received_ns``."""
-        self.log(foxglove_messages(message), received_ns)
+        """Send the Foxglove forms of one bus message received at ``received_ns`` (this
+        host's ``time.monotonic_ns()``)."""
+        self.log(foxglove_messages(message, self.offset_ns), received_ns + self.offset_ns)
 
     def close(self) -> None:
         """Stop serving; calling twice is fine."""
+        self._close_channels()
+        self._server.stop()
+
+    def _channel(self, spec: FoxgloveChannel) -> foxglove.Channel:
+        channel = foxglove.Channel(
+            spec.topic,
+            message_encoding=spec.message_encoding,
+            schema=foxglove.Schema(
+                name=spec.schema_name, encoding=spec.schema_encoding, data=spec.schema_data
+            ),
+            context=self._context,
+        )
+        self._channels[spec.topic] = channel
+        return channel
+
+    def _close_channels(self) -> None:
         for channel in self._channels.values():
             channel.close()
         self._channels.clear()
-        self._server.stop()
 
     def __enter__(self) -> LiveServer:
         return self

@@ -55,22 +55,33 @@ class LogChannels:
     ----------
     writer : mcap.writer.Writer
         Started writer of the log.
+    offset_ns : int
+        Added to this host's ``time.monotonic_ns()`` times (receive, send, capture) to give
+        the log's times, nanoseconds since the Unix epoch (:mod:`teleop.session.logfile`).
     """
 
-    def __init__(self, writer: Writer):
+    def __init__(self, writer: Writer, offset_ns: int = 0):
         self.writer = writer
+        self.offset_ns = offset_ns
         self._schemas: dict[tuple[str, str], int] = {}  # (name, encoding) -> id
         self._channels: dict[str, int] = {}  # topic -> id
+        self._last_ns: dict[str, int] = {}  # Foxglove topic -> its latest log time
 
     def write_foxglove(self, message: Message, received_ns: int) -> list[FoxgloveMessage]:
         """Write the Foxglove forms of ``message`` (call first); returns them."""
-        converted = foxglove_messages(message)
+        converted = foxglove_messages(message, self.offset_ns)
+        log_time_ns = received_ns + self.offset_ns
         for item in converted:
             channel = self._channels.get(item.topic)
             if channel is None:
                 schema = self._schema(item.schema_name, item.schema_encoding, item.schema_data)
                 channel = self._channel(item.topic, item.message_encoding, schema, {})
-            self._add(channel, item.data, message, received_ns - item.age_ns)
+            # A sample is placed at its batch's receive time less its age; when delivery
+            # latency varies that can fall before the previous batch's last sample, and
+            # Foxglove's plots want each topic's times in order.
+            at = max(log_time_ns - item.age_ns, self._last_ns.get(item.topic, 0))
+            self._last_ns[item.topic] = at
+            self._add(channel, item.data, message, at)
         return converted
 
     def write_bus(
@@ -84,7 +95,7 @@ class LogChannels:
             schema = self._schema(name, SCHEMA_ENCODING, schema_data(message.type))
             channel = self._channel(message.topic, MESSAGE_ENCODING, schema, {"type": message.type})
         data = pack_frames(frames, elide_last=elide_image)
-        self._add(channel, data, message, received_ns)
+        self._add(channel, data, message, received_ns + self.offset_ns)
         return len(data)
 
     @staticmethod
@@ -97,7 +108,7 @@ class LogChannels:
             channel,
             log_time=log_time_ns,
             data=data,
-            publish_time=message.t_send_ns,
+            publish_time=message.t_send_ns + self.offset_ns,
             sequence=message.seq % 2**32,
         )
 

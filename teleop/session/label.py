@@ -8,18 +8,20 @@ writes one ``label`` bus message per row into the log:
 
 * the log is copied record by record into a new file next to it (``<log>.partial``): its
   header, schemas, channels, every message (data, log time, publish time and sequence byte for
-  byte, the Foxglove forms included), attachments and metadata; then the labels are added on
-  the ``label`` topic (each after its Foxglove JSON form, as the recorder writes them), and a
-  ``labels`` metadata record says what was added from where. The new file is flushed to disk
+  byte, the Foxglove forms included), attachments and metadata, with the labels added on the
+  ``label`` topic (each after its Foxglove JSON form, as the recorder writes them), and a
+  ``labels`` metadata record saying what was added from where. The new file is flushed to disk
   and moved over the original (``os.replace``: atomic on one file system), so the log is either
   the old one or the new one, never half of each; no backup is kept.
 * Each label is stamped just after its grasp: log time 1 ns after the grasp's last
   ``grasp_event`` (its end) or after the last label the log already holds for it, whichever is
-  later, and the same time as its send time (``publish_time``); ``t_capture_s`` is the grasp
-  event's. It is sent as source :data:`LABEL_SOURCE_NAME`, its ``seq`` following that source's
-  earlier labels in the log. It comes after every earlier message in the file too, so readers
-  that take the last label per grasp (in file or log-time order) take the newest: labelling a
-  grasp again replaces its label.
+  later, and the same time as its send time (``publish_time``; the header's ``t_send_ns`` is
+  that less the log's clock offset, :attr:`~teleop.session.logfile.LogInfo.offset_ns`);
+  ``t_capture_s`` is the grasp event's. It is sent as source :data:`LABEL_SOURCE_NAME`, its
+  ``seq`` following that source's earlier labels in the log. It is written right after that
+  grasp_event or label, so the file stays in receive order (a replay sends each label just
+  after its grasp) and readers that take the last label per grasp (in file or log-time order)
+  take the newest: labelling a grasp again replaces its label.
 
 Refused, with nothing written: a log cut short (``teleop recover`` first), an unknown column, and
 CSV rows naming a grasp the log does not hold (the error lists the log's grasps), a grasp another
@@ -43,6 +45,7 @@ from typing import Any
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
+from teleop.bus.wire import Message as BusMessage
 from teleop.bus.wire import encode, make_message
 from teleop.catalogue import default_catalogue_path, load_catalogue
 from teleop.errors import SessionLogError, SettingsError
@@ -202,11 +205,26 @@ def read_label_csv(path: str | Path, catalogue: Any = (), *, where: str = "the c
     return out
 
 
+_Anchor = tuple[str, int, int]  # a stored bus message: (topic, log time, sequence)
+
+
 @dataclass
 class _Grasp:
     log_time_ns: int = 0  # of its last grasp_event, then of its last label
+    anchor: _Anchor = ("", 0, 0)  # that message: a new label is written right after it
     t_capture_s: float = 0.0
     labelled: bool = False
+
+    def saw(self, topic: str, log_time_ns: int, seq: int) -> None:
+        if log_time_ns >= self.log_time_ns:  # equal times: the later in the file is the newer
+            self.log_time_ns, self.anchor = log_time_ns, (topic, log_time_ns, seq % 2**32)
+
+
+@dataclass(frozen=True)
+class _Label:
+    anchor: _Anchor
+    log_time_ns: int
+    message: BusMessage
 
 
 def _survey(reader: LogReader) -> tuple[dict[str, _Grasp], int]:
@@ -218,11 +236,11 @@ def _survey(reader: LogReader) -> tuple[dict[str, _Grasp], int]:
         grasp_id = message.fields.grasp_id
         if message.type == "grasp_event":
             grasp = grasps.setdefault(grasp_id, _Grasp())
-            grasp.log_time_ns = max(grasp.log_time_ns, logged.log_time_ns)
+            grasp.saw(message.topic, logged.log_time_ns, message.seq)
             grasp.t_capture_s = message.t_capture_s
         elif message.type == "label" and grasp_id in grasps:
             grasp = grasps[grasp_id]
-            grasp.log_time_ns = max(grasp.log_time_ns, logged.log_time_ns)
+            grasp.saw(message.topic, logged.log_time_ns, message.seq)
             grasp.labelled = True
             if message.source == LABEL_SOURCE_NAME:
                 seq = max(seq, message.seq + 1)
@@ -290,17 +308,18 @@ def label_session(
         grasp = grasps[row.grasp_id]
         if grasp.labelled:
             report.relabelled.append(row.grasp_id)
-        grasp.log_time_ns += 1
+        log_time_ns = grasp.log_time_ns + 1
         message = make_message("label", t_capture_s=grasp.t_capture_s, **row.label.body(row.grasp_id))
-        message = dataclasses.replace(message, source=LABEL_SOURCE_NAME, seq=seq, t_send_ns=grasp.log_time_ns)
+        message = dataclasses.replace(message, source=LABEL_SOURCE_NAME, seq=seq,
+                                      t_send_ns=log_time_ns - info.offset_ns)
         seq += 1
-        labels.append((grasp.log_time_ns, message))
+        labels.append(_Label(grasp.anchor, log_time_ns, message))
         report.labels.append(message.fields.as_dict())
     tmp = log.with_name(log.name + ".partial")
     try:
         with tmp.open("wb") as file:
             writer = Writer(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
-            report.messages = _copy_with_labels(reader, writer, labels, csv_path)
+            report.messages = _copy_with_labels(reader, writer, labels, csv_path, info.offset_ns)
             file.flush()
             os.fsync(file.fileno())
         tmp.replace(log)
@@ -314,12 +333,45 @@ def label_session(
     return report
 
 
-def _copy_with_labels(reader: LogReader, writer: Writer, labels: list[tuple[int, Any]], csv_path: Path) -> int:
-    """Copy every record of ``reader``'s log into ``writer``, then add ``labels``; messages copied."""
-    schemas: dict[int, int] = {}
-    channels: dict[int, int] = {}
-    by_topic: dict[str, int] = {}  # topic -> channel id in the copy
-    schema_ids: dict[tuple[str, str], int] = {}  # (name, encoding) -> schema id in the copy
+def _copy_with_labels(reader: LogReader, writer: Writer, labels: list[_Label], csv_path: Path,
+                      offset_ns: int) -> int:
+    """Copy every record of ``reader``'s log into ``writer``, each label right after its anchor;
+    returns the messages copied. ``offset_ns``: the log's clock offset (its Foxglove timestamps')."""
+    schemas: dict[int, int] = {}  # schema id in the log -> in the copy
+    channels: dict[int, int] = {}  # channel id in the log -> in the copy
+    topics: dict[int, str] = {}  # channel id in the log -> topic
+    # What the copy registered, so that a label's schema or channel and the log's are one.
+    copy_schemas: dict[tuple[str, str, bytes], int] = {}
+    copy_channels: dict[tuple[str, str, int], int] = {}
+    pending: dict[_Anchor, list[_Label]] = {}
+    for label in labels:
+        pending.setdefault(label.anchor, []).append(label)
+
+    def schema(name: str, encoding: str, data: bytes) -> int:
+        key = (name, encoding, bytes(data))
+        if key not in copy_schemas:
+            copy_schemas[key] = writer.register_schema(name, encoding, data)
+        return copy_schemas[key]
+
+    def channel(topic: str, encoding: str, schema_id: int, metadata: dict[str, str]) -> int:
+        key = (topic, encoding, schema_id)
+        if key not in copy_channels:
+            copy_channels[key] = writer.register_channel(topic, encoding, schema_id, metadata)
+        return copy_channels[key]
+
+    def add_label(label: _Label) -> None:
+        message, at, sequence = label.message, label.log_time_ns, label.message.seq % 2**32
+        for item in foxglove_messages(message, offset_ns):
+            target = channel(item.topic, item.message_encoding,
+                             schema(item.schema_name, item.schema_encoding, item.schema_data), {})
+            writer.add_message(target, log_time=at - item.age_ns, data=item.data, publish_time=at,
+                               sequence=sequence)
+        name = f"compliance-teleop/{message.type}"
+        target = channel(message.topic, MESSAGE_ENCODING,
+                         schema(name, SCHEMA_ENCODING, schema_data(message.type)), {"type": message.type})
+        writer.add_message(target, log_time=at, data=pack_frames(encode(message)), publish_time=at,
+                           sequence=sequence)
+
     copied = 0
     started = False
     for record in reader.records():
@@ -329,13 +381,11 @@ def _copy_with_labels(reader: LogReader, writer: Writer, labels: list[tuple[int,
         elif not started:
             break
         elif isinstance(record, Schema) and record.id not in schemas:
-            schemas[record.id] = writer.register_schema(record.name, record.encoding, record.data)
-            schema_ids.setdefault((record.name, record.encoding), schemas[record.id])
+            schemas[record.id] = schema(record.name, record.encoding, record.data)
         elif isinstance(record, Channel) and record.id not in channels:
-            channels[record.id] = writer.register_channel(
-                record.topic, record.message_encoding, schemas.get(record.schema_id, 0), dict(record.metadata)
-            )
-            by_topic.setdefault(record.topic, channels[record.id])
+            channels[record.id] = channel(record.topic, record.message_encoding,
+                                          schemas.get(record.schema_id, 0), dict(record.metadata))
+            topics[record.id] = record.topic
         elif isinstance(record, Message):
             if record.channel_id not in channels:
                 continue  # no channel says what it is (never in a log the recorder wrote)
@@ -347,6 +397,8 @@ def _copy_with_labels(reader: LogReader, writer: Writer, labels: list[tuple[int,
                 sequence=record.sequence,
             )
             copied += 1
+            for label in pending.pop((topics[record.channel_id], record.log_time, record.sequence), ()):
+                add_label(label)
         elif isinstance(record, Attachment):
             writer.add_attachment(record.create_time, record.log_time, record.name, record.media_type, record.data)
         elif isinstance(record, Metadata):
@@ -355,35 +407,19 @@ def _copy_with_labels(reader: LogReader, writer: Writer, labels: list[tuple[int,
         raise SessionLogError(
             f"{reader.path} could not be read to its end ({reader.damage or 'no header'}); the log is unchanged"
         )
-
-    def channel(topic: str, encoding: str, schema: tuple[str, str, bytes], metadata: dict[str, str]) -> int:
-        if topic not in by_topic:
-            name, schema_encoding, data = schema
-            if (name, schema_encoding) not in schema_ids:
-                schema_ids[name, schema_encoding] = writer.register_schema(name, schema_encoding, data)
-            by_topic[topic] = writer.register_channel(topic, encoding, schema_ids[name, schema_encoding], metadata)
-        return by_topic[topic]
-
-    for log_time_ns, message in labels:
-        for item in foxglove_messages(message):
-            target = channel(item.topic, item.message_encoding,
-                             (item.schema_name, item.schema_encoding, item.schema_data), {})
-            writer.add_message(target, log_time=log_time_ns - item.age_ns, data=item.data,
-                               publish_time=message.t_send_ns, sequence=message.seq % 2**32)
-        target = channel(message.topic, MESSAGE_ENCODING,
-                         (f"compliance-teleop/{message.type}", SCHEMA_ENCODING, schema_data(message.type)),
-                         {"type": message.type})
-        writer.add_message(target, log_time=log_time_ns, data=pack_frames(encode(message)),
-                           publish_time=message.t_send_ns, sequence=message.seq % 2**32)
+    if pending:  # changed since it was surveyed
+        raise SessionLogError(
+            f"{reader.path} changed while it was labelled (the last event of grasp "
+            f"{next(iter(pending.values()))[0].message.fields.grasp_id} is gone); the log is unchanged"
+        )
     writer.add_metadata(
         LABELS_METADATA,
         {
             "labelled_utc": datetime.now(UTC).isoformat(),
             "software_version": software_version(),
             "csv": str(csv_path),
-            "labels": json.dumps([message.fields.grasp_id for _, message in labels]),
+            "labels": json.dumps([label.message.fields.grasp_id for label in labels]),
         },
     )
     writer.finish()
     return copied
-

@@ -22,16 +22,22 @@ Layout (format :data:`FORMAT_VERSION`)
     ``foxglove.CompressedImage`` message stored immediately before it, with the same
     ``log_time`` and ``sequence``, holds those very bytes as its ``data``; the reader
     puts them back, so it yields the frames exactly as received.
-    ``log_time``: receive time, ``time.monotonic_ns()`` of the recording host.
-    ``publish_time``: the header's ``t_send_ns`` (the sender's ``time.monotonic_ns()``), so on
-    one host ``log_time - publish_time`` is the transit latency. ``sequence``: the header's
-    ``seq`` modulo 2**32.
+    ``log_time``: receive time in ns since the Unix epoch: the recording host's
+    ``time.monotonic_ns()`` plus the session's :data:`TIME_OFFSET_KEY` (its wall clock less
+    its monotonic clock, read once at the start), so times in the log are exact differences
+    of the monotonic clock and Foxglove shows the date and time of day.
+    ``publish_time``: the header's ``t_send_ns`` (the sender's ``time.monotonic_ns()``) plus
+    the same offset, so on one host ``log_time - publish_time`` is the transit latency.
+    ``sequence``: the header's ``seq`` modulo 2**32. The headers and bodies keep their own
+    times (``t_send_ns``, ``t_capture_s``, ``t_s``: monotonic) exactly as sent.
 Foxglove channels (:mod:`teleop.session.foxglove`: what each bus type becomes and why)
     ``/tactile/<finger>`` (``foxglove.CompressedImage``), ``/events`` (``foxglove.Log``), both
     protobuf with a ``FileDescriptorSet`` schema; ``/force``, ``/width``, ``/estimate``,
     ``/display``, ``/command`` as JSON with a JSON Schema. Each is written just before the bus
     message it comes from, with its receive time as ``log_time`` (a force or width sample:
-    minus its age in its batch), the same ``publish_time`` and ``sequence``. Readers of the
+    minus its age in its batch, but never before the topic's previous message), the same
+    ``publish_time`` and ``sequence``; their ``timestamp`` fields are capture or sample
+    times plus the offset. Readers of the
     bus messages skip these channels (all but the image data above).
 ``Attachment``
     :data:`SETTINGS_ATTACHMENT` (the resolved settings as JSON, ``settings_to_mapping``),
@@ -45,6 +51,10 @@ Foxglove channels (:mod:`teleop.session.foxglove`: what each bus type becomes an
     what Foxglove's metadata panel shows) and :data:`END_METADATA` at a clean stop (counts,
     refusals, gaps, the write error if there was one). A log without the latter was not
     closed cleanly.
+
+Logs written before the epoch times have no :data:`TIME_OFFSET_KEY`: their times are the
+monotonic clocks' (:attr:`LogInfo.offset_ns` 0). Readers here use log times only as
+differences (replay pacing, ordering), so they read both.
 
 Format 1 (before the Foxglove channels) had only the bus channels, message encoding
 ``compliance-teleop.multipart/1`` and no flags; :class:`LogReader` reads both.
@@ -73,6 +83,8 @@ from typing import Any
 
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from google.protobuf.message import DecodeError
+from mcap.exceptions import RecordLengthLimitExceeded
+from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Header, McapRecord, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
@@ -95,6 +107,7 @@ __all__ = [
     "SCHEMA_ENCODING",
     "SESSION_METADATA",
     "SETTINGS_ATTACHMENT",
+    "TIME_OFFSET_KEY",
     "LogInfo",
     "LogReader",
     "LoggedMessage",
@@ -116,6 +129,7 @@ SETTINGS_ATTACHMENT = "settings.json"
 SESSION_METADATA = "session"
 RIG_METADATA = "rig"
 END_METADATA = "session_end"
+TIME_OFFSET_KEY = "log_time_offset_ns"  # session metadata: log time = monotonic ns + this
 CHUNK_BYTES = 256 * 1024
 FRAMING = (
     "uint32 LE frame count n, n x uint32 LE frame length, then the frames "
@@ -123,6 +137,8 @@ FRAMING = (
 )
 
 _U32 = struct.Struct("<I")
+_MAGIC = b"\x89MCAP0\r\n"
+_RECORD_START = struct.Struct("<BQ")  # an MCAP record's opcode and length
 MIN_FRAMES, MAX_FRAMES = 3, 3 + MAX_BUFFERS
 ELIDED = 0x1_0000  # flag added to the frame count: the last frame's bytes are stored elsewhere
 
@@ -293,6 +309,23 @@ class LogInfo:
         """The session metadata written at the start (empty if absent)."""
         return self.metadata.get(SESSION_METADATA, {})
 
+    @property
+    def offset_ns(self) -> int:
+        """What the recorder added to its monotonic times to make the log's (0: an older log).
+
+        Raises
+        ------
+        SessionLogError
+            The session metadata's offset is not an integer.
+        """
+        text = self.session.get(TIME_OFFSET_KEY, "0")
+        try:
+            return int(text)
+        except ValueError:
+            raise SessionLogError(
+                f"session metadata {TIME_OFFSET_KEY} = {text!r}: expected an integer"
+            ) from None
+
     def settings(self) -> Settings:
         """The settings the session ran with, from the settings attachment.
 
@@ -358,7 +391,7 @@ class LogReader:
                 f"cannot read session log {self.path}: {exc.strerror or exc}"
             ) from exc
         with file:
-            if file.read(8) != b"\x89MCAP0\r\n":
+            if file.read(len(_MAGIC)) != _MAGIC:
                 raise SessionLogError(
                     f"{self.path} is not an MCAP session log (no MCAP magic at the start)"
                 )
@@ -395,6 +428,20 @@ class LogReader:
                 "without a summary and footer"
             )
         what = type(exc).__name__ + (f": {exc}" if str(exc) else "")
+        if isinstance(exc, RecordLengthLimitExceeded):
+            # The limit is the file's size, so the record is longer than what is left of the
+            # file: refused before it was read, it is one the file ends inside (a cut-short log).
+            start = max(self.good_bytes, len(_MAGIC))  # the first record follows the magic
+            file.seek(start)
+            opcode, length = _RECORD_START.unpack(file.read(_RECORD_START.size))
+            try:
+                kind = Opcode(opcode).name.lower() + " record"
+            except ValueError:
+                kind = f"record of unknown opcode {opcode:#x}"
+            return (
+                f"the file ends inside the record after byte {self.good_bytes} of {size} "
+                f"(a {kind} of {length} bytes starts at byte {start})"
+            )
         if file.tell() >= size:
             return (
                 f"the file ends inside the record after byte {self.good_bytes} of {size} ({what})"

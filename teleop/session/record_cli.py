@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
     bus = settings.bus
     endpoints = args.endpoint or [bus.robot_pub, bus.estimate_pub, bus.command, bus.display_pub]
-    live = None if args.foxglove is None else LiveServer(*args.foxglove)
+    live = None if args.foxglove is None else LiveServer(*args.foxglove, fingers=[s.finger for s in settings.sensors])
     try:
         if live is not None:
             print(f"Foxglove live view: {live.url}", file=sys.stderr, flush=True)

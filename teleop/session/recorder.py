@@ -47,6 +47,7 @@ from teleop.session.logfile import (
     RIG_METADATA,
     SESSION_METADATA,
     SETTINGS_ATTACHMENT,
+    TIME_OFFSET_KEY,
 )
 from teleop.settings import Settings, load_settings, resolve_path, settings_to_mapping
 
@@ -190,8 +191,9 @@ class SessionRecorder:
         Called as ``on_message(message, received_ns)`` after each message is stored (a
         monitor's hook, e.g. ``teleop soak`` measuring latency); keep it quick.
     on_foxglove : callable, optional
-        Called as ``on_foxglove(converted, received_ns)`` with the Foxglove forms of each
-        message stored (e.g. :meth:`teleop.session.foxglove_live.LiveServer.log`).
+        Called as ``on_foxglove(converted, log_time_ns)`` with the Foxglove forms of each
+        message stored and its log time (ns since the Unix epoch, as stored), e.g.
+        :meth:`teleop.session.foxglove_live.LiveServer.log`.
     **subscriber_options
         Passed on to :class:`~teleop.bus.pubsub.Subscriber` (``context``, ...).
     """
@@ -289,14 +291,20 @@ class SessionRecorder:
         self._writer = Writer(
             self._sink, chunk_size=self.chunk_bytes, compression=COMPRESSIONS[self.compression]
         )
-        self._log = LogChannels(self._writer)
+        # One reading of both clocks: log times are monotonic receive times plus this offset.
+        start_wall_ns, start_monotonic_ns = time.time_ns(), now_ns()
+        self._log = LogChannels(self._writer, start_wall_ns - start_monotonic_ns)
         try:
             self._writer.start(
                 PROFILE, f"compliance-teleop {software_version()}; {LIBRARY_IDENTIFIER}"
             )
             for name, media_type, data, create_ns in attachments:
-                self._writer.add_attachment(create_ns, now_ns(), name, media_type, data)
-            self._writer.add_metadata(SESSION_METADATA, self._session_metadata())
+                self._writer.add_attachment(
+                    create_ns or start_wall_ns, now_ns() + self._log.offset_ns, name, media_type, data
+                )
+            self._writer.add_metadata(
+                SESSION_METADATA, self._session_metadata(start_wall_ns, start_monotonic_ns)
+            )
             self._writer.add_metadata(RIG_METADATA, rig_metadata(self.settings))
         except OSError as exc:
             self._close_file()
@@ -418,7 +426,7 @@ class SessionRecorder:
         if self.on_message is not None:
             self.on_message(message, received_ns)
         if self.on_foxglove is not None:
-            self.on_foxglove(converted, received_ns)
+            self.on_foxglove(converted, received_ns + self._log.offset_ns)
         return True
 
     def _flush_chunk(self) -> None:
@@ -491,7 +499,11 @@ class SessionRecorder:
         self._file = None
 
     def _attachments(self) -> list[tuple[str, str, bytes, int]]:
-        """(name, media type, data, create time ns) of all the log carries besides messages."""
+        """(name, media type, data, create time) of all the log carries besides messages.
+
+        Create times are file modification times (ns since the Unix epoch); 0 for what the
+        recorder makes itself (the settings): the session's start time is written instead.
+        """
         settings_json = json.dumps(settings_to_mapping(self.settings), indent=1, sort_keys=True)
         out = [(SETTINGS_ATTACHMENT, "application/json", settings_json.encode("utf-8"), 0)]
         for sensor in self.settings.sensors:
@@ -544,16 +556,19 @@ class SessionRecorder:
                 f"cannot read the {what} to attach, {path}: {exc.strerror or exc}"
             ) from exc
 
-    def _session_metadata(self) -> dict[str, str]:
+    def _session_metadata(self, start_wall_ns: int, start_monotonic_ns: int) -> dict[str, str]:
         return {
             "software_version": software_version(),
             "scene": self.scene,
             "source": self.source,
-            "start_utc": datetime.now(UTC).isoformat(),
-            "start_wall_ns": str(time.time_ns()),
-            "start_monotonic_ns": str(now_ns()),
-            "log_time_clock": "receive time, time.monotonic_ns() of the recording host",
-            "publish_time_clock": "header t_send_ns, time.monotonic_ns() of the sending host",
+            "start_utc": datetime.fromtimestamp(start_wall_ns / 1e9, UTC).isoformat(),
+            "start_wall_ns": str(start_wall_ns),
+            "start_monotonic_ns": str(start_monotonic_ns),
+            TIME_OFFSET_KEY: str(start_wall_ns - start_monotonic_ns),
+            "log_time_clock": "receive time, ns since the Unix epoch: time.monotonic_ns() of the "
+            f"recording host + {TIME_OFFSET_KEY}",
+            "publish_time_clock": f"header t_send_ns + {TIME_OFFSET_KEY} (the sending host's "
+            "time.monotonic_ns(): on the epoch only when it is the recording host)",
             "endpoints": json.dumps(self.endpoints),
             "host": socket.gethostname(),
             "log_format": str(FORMAT_VERSION),

@@ -1,5 +1,5 @@
 """``teleop recover``: every complete message of a log cut short, salvaged into a complete file; exit
-status 1 when there was none to salvage."""
+status 1, and no ``--out`` file, when there was none to salvage."""
 
 from __future__ import annotations
 
@@ -54,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report.as_dict()))
     if report.messages == 0 and not report.complete:
-        print(f"{args.log}: nothing salvaged: the log is cut short before its first message", file=sys.stderr)
+        out.unlink(missing_ok=True)  # a log without a message is no session: leave nothing to mistake for one
+        print(f"{args.log}: nothing salvaged: the log is cut short before its first message; "
+              f"{args.out} not kept", file=sys.stderr)
         return 1
     return 0

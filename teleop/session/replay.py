@@ -83,6 +83,9 @@ def replay(
 ) -> ReplayStats:
     """Publish the messages of a session log on ``publisher``, paced by their receive times.
 
+    Messages go out in file order, which is receive order (``teleop label`` writes each
+    label right after its grasp); one stored out of order goes out at once.
+
     Parameters
     ----------
     path : str or Path
@@ -115,7 +118,8 @@ def replay(
     sources = None if recorded_from is None else frozenset(recorded_from)
     reader = LogReader(Path(path), max_bytes=publisher.max_bytes)
     stats = ReplayStats()
-    first_ns = last_ns = None
+    first_ns = None
+    low_ns = high_ns = 0  # span of the log times sent
     start_s = clock()
     with progress_bar(desc=f"replay {path}", unit="msg", enabled=progress) as bar:
         for logged in reader.messages(topics):
@@ -128,7 +132,10 @@ def replay(
                 continue
             if first_ns is None:
                 first_ns, start_s = logged.log_time_ns, clock()
-            last_ns = logged.log_time_ns
+                low_ns = high_ns = first_ns
+            # The span from the extremes: a message stored out of receive order (labels written
+            # by an older `teleop label` at the end of the file) does not shorten it.
+            low_ns, high_ns = min(low_ns, logged.log_time_ns), max(high_ns, logged.log_time_ns)
             if speed is not None:
                 _wait_until(
                     start_s + (logged.log_time_ns - first_ns) / 1e9 / speed, publisher, clock, sleep
@@ -139,7 +146,7 @@ def replay(
             stats.topics[message.topic] += 1
             bar.update()
     stats.wall_s = clock() - start_s
-    stats.log_span_s = 0.0 if first_ns is None else (last_ns - first_ns) / 1e9
+    stats.log_span_s = (high_ns - low_ns) / 1e9
     stats.refused = Counter(reader.refused)
     stats.damage = reader.damage
     return stats

@@ -25,7 +25,7 @@ from websockets.sync.client import connect
 from teleop.bus import Publisher
 from teleop.bus.wire import make_message
 from teleop.errors import BusError
-from teleop.session.foxglove import foxglove_messages
+from teleop.session.foxglove import foxglove_messages, known_channels
 from teleop.session.foxglove_live import LiveServer, LiveTap, parse_address
 
 TELEOP = Path(sys.executable).parent / "teleop"
@@ -81,6 +81,59 @@ def test_the_server_speaks_the_protocol_and_serves_what_it_is_given():
         opcode, subscription, log_time = struct.unpack_from("<BIQ", data)
         assert (opcode, subscription, log_time) == (1, 7, 12)
         assert data[13:] == image[0].data
+
+
+def test_every_known_channel_is_advertised_before_the_first_message():
+    """A channel made while a client is connected can be refused to its subscribe (foxglove-sdk
+    0.30: "Unknown channel ID"): the server makes them all first, so they come in one advertise."""
+    with (
+        LiveServer("127.0.0.1", 0, fingers=["left", "middle"]) as server,
+        connect(server.url, subprotocols=[SUBPROTOCOL], open_timeout=5) as ws,
+    ):
+        channels = {c["topic"]: c for c in _ops(ws, "advertise")["channels"]}
+        expected = {c.topic: c for c in known_channels(["left", "middle"])}
+        assert set(channels) == set(expected)
+        assert {"/tactile/left", "/tactile/middle", "/events", "/force", "/estimate", "/label"} <= set(channels)
+        for topic, channel in channels.items():
+            assert (channel["schemaName"], channel["encoding"]) == (
+                expected[topic].schema_name, expected[topic].message_encoding)
+        # the conversion puts each type's messages on those very channels
+        force = make_message("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0])
+        assert foxglove_messages(force)[0].channel == expected["/force"]
+        ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+            {"id": i, "channelId": c["id"]} for i, c in enumerate(channels.values())]}))
+        server.log(foxglove_messages(force), 10)
+        with pytest.raises(TimeoutError):  # no status ("Unknown channel ID") nor new advertise
+            _ops(ws, "status", timeout_s=0.2)
+
+
+def test_each_topics_times_never_go_back():
+    """A batch's oldest sample can fall before the previous batch's newest: it is held back."""
+    first = make_message("force", t_capture_s=1.02, t_s=[1.0, 1.01, 1.02], value_n=[1.0, 2.0, 3.0])
+    second = make_message("force", t_capture_s=1.04, t_s=[1.02, 1.03, 1.04], value_n=[4.0, 5.0, 6.0])
+    with (
+        LiveServer("127.0.0.1", 0) as server,
+        connect(server.url, subprotocols=[SUBPROTOCOL], open_timeout=5) as ws,
+    ):
+        force = _advertised(ws, {"/force"})["/force"]
+        ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": force["id"]}]}))
+        data = None
+        for _ in range(50):  # the subscription takes effect asynchronously: log until data comes
+            server.log(foxglove_messages(first), 1_000_000_000)
+            try:
+                data = ws.recv(timeout=0.1)
+            except TimeoutError:
+                continue
+            if isinstance(data, bytes):
+                break
+        assert isinstance(data, bytes), "no message data after subscribing"
+        server.log(foxglove_messages(second), 1_015_000_000)  # 15 ms later: its oldest is 20 ms old
+        times = []
+        while len(times) < 3:
+            data = ws.recv(timeout=5)
+            if isinstance(data, bytes) and json.loads(data[13:])["value_n"] >= 4.0:
+                times.append(struct.unpack_from("<BIQ", data)[2])
+    assert times == [1_000_000_000, 1_005_000_000, 1_015_000_000]
 
 
 def test_bad_addresses_and_taken_ports_are_refused_clearly():

@@ -24,6 +24,7 @@ from teleop.bus.wire import SCHEMAS, encode, make_message
 from teleop.catalogue import default_catalogue_path
 from teleop.session import LogReader, recover
 from teleop.session.foxglove import json_schema
+from teleop.session.foxglove_log import LogChannels
 from teleop.session.logfile import (
     BUS_ENCODINGS,
     FORMAT_VERSION,
@@ -128,14 +129,15 @@ def test_every_foxglove_message_decodes_with_its_declared_schema(session):
 def test_tactile_channels_are_compressed_images_holding_the_camera_bytes(session):
     images = [(c.topic, s.name, d) for s, c, _, d in _decoded(session.path, "/tactile/")]
     sent = [m for m in session.sent if m.type == "frame" and m.body["encoding"] != "raw"]
+    offset = LogReader(session.path).info().offset_ns
     assert len(images) == len(sent)
     for (topic, schema_name, image), message in zip(images, sent, strict=True):
         assert schema_name == "foxglove.CompressedImage"
         assert topic == f"/tactile/{message.body['finger']}" == f"/tactile/{image.frame_id}"
         assert image.format == message.body["encoding"]  # "jpeg" left, "png" right
         assert image.data == message.body["data"].tobytes()  # as the camera sent it
-        stamp = image.timestamp.seconds + image.timestamp.nanos * 1e-9
-        assert stamp == pytest.approx(message.t_capture_s, abs=1e-9)
+        stamp_ns = image.timestamp.seconds * 10**9 + image.timestamp.nanos  # on the log's clock
+        assert stamp_ns == round(message.t_capture_s * 1e9) + offset
     assert {i.format for _, _, i in images} == {"jpeg", "png"}
 
 
@@ -170,15 +172,48 @@ def test_json_messages_carry_the_values_and_their_log10_forms(session):
         else:
             assert got["log10_E_pa"] == pytest.approx(math.log10(message.body["E_pa"]))
         assert got["interval_pa"].get("log10_low") == (None if low is None else pytest.approx(math.log10(low)))
-    # One message per force sample, at its own time: the batch's spacing on the receive clock.
+    # One message per force sample, each at its own time (test_sample_times_are_... below).
     force = [(r.log_time, json.loads(r.data)) for _, c, r in records if c.topic == "/force"]
     values = np.concatenate([m.body["value_n"] for m in session.sent if m.type == "force"])
     assert [f["value_n"] for _, f in force] == pytest.approx(values.astype(float).tolist())
-    batch = force[-3:]  # three samples 10 ms apart, received with the newest
-    assert np.diff([t for t, _ in batch]) == pytest.approx([1e7, 1e7], abs=1)
-    assert [f["t_s"] for _, f in batch] == [300.0, 300.01, 300.02]
+    assert [f["t_s"] for _, f in force[-3:]] == [300.0, 300.01, 300.02]
     received = [r.log_time for _, c, r in records if c.topic == "force"][-1]
-    assert batch[-1][0] == received
+    assert force[-1][0] == received  # the newest sample at the batch's receive time
+    assert [t for t, _ in force] == sorted(t for t, _ in force)
+
+
+class _Writer:
+    """Stands in for an MCAP writer: keeps (channel, log time, publish time) per message."""
+
+    def __init__(self):
+        self.topics: list[str] = []
+        self.messages: list[tuple[str, int, int]] = []
+
+    def register_schema(self, name, encoding, data):
+        return 1
+
+    def register_channel(self, topic, encoding, schema, metadata):
+        self.topics.append(topic)
+        return len(self.topics) - 1
+
+    def add_message(self, channel, *, log_time, data, publish_time, sequence):
+        self.messages.append((self.topics[channel], log_time, publish_time))
+
+
+def test_sample_times_are_the_batch_spacing_and_never_go_back():
+    writer = _Writer()
+    log = LogChannels(writer, offset_ns=10**18)
+    first = make_message("force", t_capture_s=300.02, t_s=[300.0, 300.01, 300.02], value_n=[1.0, 2.0, 3.0])
+    # Received 15 ms after the first: its oldest sample (20 ms before) would fall before the
+    # first batch's newest, as when delivery latency varies.
+    second = make_message("force", t_capture_s=300.04, t_s=[300.02, 300.03, 300.04], value_n=[4.0, 5.0, 6.0])
+    log.write_foxglove(first, 1_000_000_000)
+    log.write_foxglove(second, 1_015_000_000)
+    times = [t - 10**18 for topic, t, _ in writer.messages if topic == "/force"]
+    assert times[:3] == [980_000_000, 990_000_000, 1_000_000_000]  # the batch's spacing
+    assert times[3:] == [1_000_000_000, 1_005_000_000, 1_015_000_000]  # the first held back
+    log.write_bus(second, encode(second), 1_015_000_000, elide_image=False)
+    assert writer.messages[-1] == ("force", 10**18 + 1_015_000_000, 10**18 + second.t_send_ns)
 
 
 def test_jpeg_bytes_are_stored_once_and_the_bus_messages_read_back_byte_exact(session):

@@ -60,9 +60,14 @@ def test_labels_are_added_and_every_original_record_is_kept(recorded, log, tmp_p
     assert [b["grasp_id"] for b in report.labels] == ["g0", "g1"] and report.relabelled == []
     assert report.messages == len(before) and report.grasps == 3
     after = _records(log)
-    # the original messages, byte for byte, in their order; then each label after its JSON form
-    assert after[: len(before)] == before
-    assert [topic for topic, *_ in after[len(before):]] == ["/label", "label", "/label", "label"]
+    # the original messages, byte for byte, in their order; each label (after its JSON form) right
+    # after its grasp's end, so that the file stays in receive order
+    added = [i for i, (topic, *_) in enumerate(after) if topic in ("/label", "label")]
+    assert [r for i, r in enumerate(after) if i not in added] == before
+    assert [after[i][0] for i in added] == ["/label", "label", "/label", "label"]
+    for start, grasp_id in zip(added[::2], ("g0", "g1"), strict=True):
+        end = events[grasp_id]
+        assert after[start - 1][:2] == ("grasp_event", end.log_time_ns) and added[added.index(start) + 1] == start + 1
     info = LogReader(log).info()
     assert info.complete and info.attachments == info_before.attachments
     assert {k: v for k, v in info.metadata.items() if k != LABELS_METADATA} == info_before.metadata
@@ -81,6 +86,7 @@ def test_labels_are_added_and_every_original_record_is_kept(recorded, log, tmp_p
         end = events[grasp_id]
         assert logged.log_time_ns == end.log_time_ns + 1  # stamped just after the grasp's end
         assert logged.publish_time_ns == logged.log_time_ns
+        assert logged.message.t_send_ns == logged.log_time_ns - info.offset_ns  # the monotonic clock, as sent
         assert logged.message.t_capture_s == end.message.t_capture_s
         assert logged.message.source == LABEL_SOURCE_NAME
     assert [m.message.seq for m in labels] == [0, 1]

@@ -6,6 +6,7 @@ import errno
 import io
 import json
 import threading
+import time
 
 import msgpack
 import numpy as np
@@ -38,6 +39,7 @@ def _wire_bytes(message) -> list[bytes]:
 
 
 def test_every_message_is_stored_byte_identical_with_its_times(recorded):
+    offset = LogReader(recorded.path).info().offset_ns
     with recorded.path.open("rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
@@ -63,7 +65,7 @@ def test_every_message_is_stored_byte_identical_with_its_times(recorded):
         elided = image if sent.type == "frame" and sent.body["encoding"] != "raw" else None
         assert elides(record.data) == (elided is not None)
         assert [bytes(f) for f in unpack_frames(record.data, elided=elided)] == _wire_bytes(sent)
-        assert record.publish_time == sent.t_send_ns
+        assert record.publish_time == sent.t_send_ns + offset  # on the log's (epoch) clock
         assert record.sequence == sent.seq
         assert (
             record.log_time >= record.publish_time
@@ -90,6 +92,21 @@ def test_settings_calibration_catalogue_and_scene_are_attached(recorded):
     end = metadata[END_METADATA]
     assert json.loads(end["messages"]) == len(recorded.sent)
     assert json.loads(end["error"]) is None
+
+
+def test_log_times_are_the_wall_clock_the_session_ran_at(recorded):
+    """Log, publish and attachment times are ns since the Unix epoch, not the monotonic clock."""
+    with recorded.path.open("rb") as f:
+        reader = make_reader(f)
+        times = [(r.log_time, r.publish_time) for _, c, r in reader.iter_messages(log_time_order=False)
+                 if c.message_encoding == MESSAGE_ENCODING]  # a force sample may be older than the start
+        attachments = {a.name: (a.create_time, a.log_time) for a in reader.iter_attachments()}
+    info = LogReader(recorded.path).info()
+    start, now = int(info.session["start_wall_ns"]), time.time_ns()
+    assert info.offset_ns == start - int(info.session["start_monotonic_ns"])
+    assert all(start <= t <= now for pair in times for t in pair)
+    assert attachments[SETTINGS_ATTACHMENT][0] == start  # made by the recorder as it started
+    assert all(start <= log_time <= now and 0 < create <= now for create, log_time in attachments.values())
 
 
 def test_chunks_are_small(recorded):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import signal
 import subprocess
@@ -165,6 +166,20 @@ def test_a_log_cut_anywhere_reads_and_recovers_a_prefix(tmp_path, recorded, log_
     assert [m.frames for m in recovered.messages()] == readable and recovered.complete
 
 
+@pytest.mark.parametrize("cut", [200, "attachment"])
+def test_a_log_cut_inside_an_attachment_is_said_to_end_inside_it(tmp_path, log_bytes, cut):
+    if cut == "attachment":  # halfway through the largest one
+        with io.BytesIO(log_bytes) as f:
+            index = max(make_reader(f).get_summary().attachment_indexes, key=lambda a: a.length)
+        cut = index.offset + index.length // 2
+    damaged = tmp_path / "cut.mcap"
+    damaged.write_bytes(log_bytes[:cut])
+    reader = LogReader(damaged)
+    info = reader.info()
+    assert info.damage.startswith(f"the file ends inside the record after byte {reader.good_bytes} of {cut}")
+    assert "attachment record" in info.damage and "damaged" not in info.damage
+
+
 def test_a_damaged_chunk_stops_reading_before_it(tmp_path, recorded, log_bytes):
     with recorded.path.open("rb") as f:
         chunks = make_reader(f).get_summary().chunk_indexes
@@ -212,6 +227,8 @@ def test_the_recover_command_fails_when_it_salvaged_nothing_and_report_says_why(
     cut.write_bytes(log_bytes[:100])  # the header, before any attachment or message
     assert main(["recover", str(cut), "--out", str(tmp_path / "fixed.mcap")]) == 1
     assert "nothing salvaged: the log is cut short before its first message" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap"]  # no --out file, no .partial
+    recover(cut, tmp_path / "fixed.mcap")  # the function still writes what there is
     with pytest.raises(SessionLogError, match="the recorder writes it as the session starts") as caught:
         build_report(tmp_path / "fixed.mcap", tmp_path / "report")
     assert "explicitly" not in str(caught.value)  # report has no option to pass them

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 import msgpack
 import pytest
 from mcap.writer import Writer
@@ -10,6 +12,7 @@ from teleop.bus import Publisher, Subscriber
 from teleop.bus.wire import encode, make_message
 from teleop.errors import SessionLogError
 from teleop.session import LogReader, replay, replay_messages
+from teleop.session.label import label_session
 from teleop.session.logfile import MESSAGE_ENCODING, pack_frames
 
 
@@ -107,6 +110,28 @@ def test_replay_paces_by_the_receive_times(recorded, speed):
         expected = 0.0 if speed is None else (ns - log_ns[0]) / 1e9 / speed
         assert t - 1000.0 == pytest.approx(expected, abs=1e-6)
     assert pub.heartbeats >= len(sent_s)  # heartbeats kept going, also while waiting
+
+
+def test_a_labelled_log_replays_each_label_right_after_its_grasp_over_the_whole_span(recorded, tmp_path):
+    log = tmp_path / "labelled.mcap"
+    shutil.copyfile(recorded.path, log)
+    labels = tmp_path / "labels.csv"
+    labels.write_text("grasp_id,object\ng0,stress_ball\ng1,stress_ball\n", encoding="utf-8")
+    label_session(log, labels)
+    clock = _FakeClock()
+    pub = _RecordingPublisher(clock)
+    stats = replay(log, pub, speed=1.0, topics=("grasp_event", "label"), clock=clock, sleep=clock.sleep)
+    sent = [m for _, m in pub.sent]
+    assert [m.fields.grasp_id for m in sent if m.type == "label"] == ["g0", "g1"]
+    for before, message in zip(sent, sent[1:], strict=False):
+        if message.type == "label":  # right after its grasp's (last) end, not at the end of the replay
+            assert (before.type, before.fields.event, before.fields.grasp_id) == (
+                "grasp_event", "end", message.fields.grasp_id)
+    log_ns = [m.log_time_ns for m in LogReader(log).messages(("grasp_event", "label"))]
+    assert log_ns == sorted(log_ns)
+    assert stats.log_span_s == pytest.approx((log_ns[-1] - log_ns[0]) / 1e9)
+    for (t, _), ns in zip(pub.sent, log_ns, strict=True):  # each on time, the labels too
+        assert t - 1000.0 == pytest.approx((ns - log_ns[0]) / 1e9, abs=1e-6)
 
 
 def test_replay_keeps_only_the_publishers_asked_for(recorded):
