@@ -4,7 +4,8 @@ Each subcommand lives in its own module exposing ``add_arguments(parser)`` and
 ``run(args) -> int``. Modules are imported only when their subcommand runs, so
 ``--help`` is fast and a run never imports what it does not use (torch above all).
 Errors the packages raise on purpose (every one a :class:`~teleop.errors.ComplianceTeleopError`)
-are printed as one line, never a traceback.
+are printed as one line, never a traceback; so is a command's optional extra that is not installed
+(``Command.extra``).
 """
 
 from __future__ import annotations
@@ -71,10 +72,20 @@ def non_negative_int(text: str) -> int:
     return value
 
 
+#: The top-level modules each optional extra of pyproject.toml installs, for the extras commands name.
+EXTRA_MODULES = {"train": frozenset({"torch", "onnx", "onnxscript"})}
+
+
 @dataclass(frozen=True)
 class Command:
     module: str
     help: str
+    extra: str | None = None  # the optional extra its run needs (its --help does not): a key of EXTRA_MODULES
+
+
+def _missing_extra(command: Command, exc: ImportError) -> bool:
+    """Whether ``exc`` is a module of ``command``'s extra not being installed."""
+    return command.extra is not None and (exc.name or "").partition(".")[0] in EXTRA_MODULES[command.extra]
 
 
 class _DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -122,6 +133,13 @@ def run_cli(
         return int(args._run(args) or 0)
     except ComplianceTeleopError as exc:
         print(f"{prog} {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except ImportError as exc:
+        command = commands[args.command]
+        if not _missing_extra(command, exc):
+            raise
+        print(f"{prog} {args.command}: error: needs the '{command.extra}' extra ({exc}): "
+              f"pip install -c constraints.txt -e '.[{command.extra}]'", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{prog} {args.command}: interrupted", file=sys.stderr)

@@ -79,7 +79,7 @@ def described(logits: np.ndarray, calibration: dict[str, Any], gel_scales: np.nd
                floors_log10: np.ndarray | None = None) -> list[Described]:
     """What each distribution says under ``calibration`` (temperature, analytical floor, ``p_rigid`` and
     interval scale per force band, soft_pa, limit_pa) for grasps on gels of ``gel_scales`` with peak
-    forces ``peak_forces_n`` (N) and analytical floors ``floors_log10`` (:attr:`~estimator.training.train.SplitData.floors_log10`),
+    forces ``peak_forces_n`` (N) and analytical floors ``floors_log10`` (:attr:`~estimator.training.splits.SplitData.floors_log10`),
     in their gels' moduli: exactly what the estimator answers
     (:meth:`~estimator.inference.infer.CompliancePredictor.describe`)."""
     probs = probabilities(logits, temperature=calibration["temperature"],
@@ -100,7 +100,7 @@ def fit_conformal(logits: np.ndarray, log10_truth: np.ndarray, *, gel_scales: np
     :func:`~estimator.inference.inputs.gel_scale`, ``peak_forces_n`` its peak grasp force (N),
     ``soft_pa`` the softest training label on the reference gel and ``limit_pa`` the resolution limit
     of the settings the estimator runs with (Pa): each grasp is answered as the estimator would answer
-    it (:func:`described`). ``floors_log10`` (a hybrid model's: :attr:`~estimator.training.train.SplitData.floors_log10`) makes
+    it (:func:`described`). ``floors_log10`` (a hybrid model's: :attr:`~estimator.training.splits.SplitData.floors_log10`) makes
     the analytical lower bounds a floor on the distribution, leaking :data:`FLOOR_LEAK` below it.
 
     The temperature minimises the log score of the censored truths (under the floor, if any). Then,

@@ -15,7 +15,7 @@ from estimator.inference.provenance import SPLITS
 from estimator.training.dataset import DEFAULT_FRACTIONS, DatasetOptions, build_dataset
 from teleop.clikit import non_negative_int
 from teleop.record import find_records
-from teleop.settings import default_settings_path, load_settings
+from teleop.settings import config_dir, default_settings_path, load_settings
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -81,7 +81,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration", metavar="CAL", default=None,
                         help="calibration (.npz) of the estimator's finger for every record; default: "
                              "the one each record carries (`teleop export` puts it inside), else the file "
-                             "its sensor names (a relative name is under configs/)")
+                             f"its sensor names (a relative name is under {config_dir()})")
     parser.add_argument("--marker-calibration", metavar="CAL", default=None,
                         help="calibration of the marker finger (with --markers); default: the file "
                              "its sensor names")

@@ -13,15 +13,16 @@ figure was seen, for about 15 grasps of 5 objects:
 * Batch-norm statistics stay frozen (a few grasps cannot estimate them; the
   rebuilt norms carry the folded ones); every weight trains.
 * AdamW at ``lr`` (3e-4, a seventh of training's), cosine decay over ``epochs``
-  (20) with no early stopping (:data:`FINE_TUNE_CONFIG`), the flips and label
-  jitter of ``estimator train``.
+  (20) with no early stopping (:data:`~estimator.training.recipe.FINE_TUNE_CONFIG`),
+  the flips and label jitter of ``estimator train``.
 * Without ``replay``, the calibration (temperature, rigid probability, interval
   scale) and the hybrid's policy stay the base model's: a few grasps cannot
   recalibrate them.
 * With ``replay`` (a ``build-dataset`` directory of the base model's own
   training data, such as ``make model`` writes), rehearsal keeps what the model
   knew: every epoch trains on the new samples plus ``replay_ratio`` times as
-  many drawn afresh from the replay dataset's train split (1; how it was chosen:
+  many drawn afresh from the replay dataset's train split
+  (:data:`~estimator.training.recipe.REPLAY_RATIO`, 1; how it was chosen:
   ``docs/decisions/0006-fine-tuning-recipe.md``), and the intervals
   are then recalibrated (:func:`~estimator.training.conformal.fit_conformal`) on its
   validation objects that fine-tuning did not train on. Its train objects must
@@ -65,25 +66,15 @@ from estimator.training.conformal import fit_conformal
 from estimator.training.export import export_onnx, network_from_onnx
 from estimator.training.model import ComplianceNet
 from estimator.training.pool import pooled_from_onnx
-from estimator.training.train import (
-    SplitData,
-    TrainConfig,
-    check_dataset_fits,
-    load_split_data,
-    predict,
-    split_metrics,
-    train_epoch,
-)
+from estimator.training.recipe import FINE_TUNE_CONFIG, REPLAY_RATIO, TrainConfig
+from estimator.training.splits import SplitData, check_dataset_fits, load_split_data, split_metrics
+from estimator.training.train import predict, train_epoch
 from teleop.progress import progress_bar
 from teleop.settings import Settings
 
-__all__ = ["FINE_TUNE_CONFIG", "REPLAY_RATIO", "check_by_object", "fine_tune"]
+__all__ = ["check_by_object", "fine_tune"]
 
 log = logging.getLogger(__name__)
-
-FINE_TUNE_CONFIG = TrainConfig(epochs=20, batch_size=16, lr=3e-4)
-#: Replayed base-training samples per new sample in every epoch (module notes).
-REPLAY_RATIO = 1
 
 
 def _joined(parts: list[SplitData]) -> SplitData:

@@ -16,10 +16,9 @@ from estimator.evaluation.compare_cli import print_comparison
 from estimator.evaluation.evaluate_cli import print_skipped
 from estimator.inference.provenance import load_split, trained_objects
 from estimator.training.dataset import load_manifest
-from estimator.training.finetune import FINE_TUNE_CONFIG, REPLAY_RATIO, check_by_object, fine_tune
-from estimator.training.train import TrainConfig
+from estimator.training.recipe import FINE_TUNE_CONFIG, REPLAY_RATIO, TrainConfig
 from teleop.clikit import non_negative_int
-from teleop.settings import Settings, load_settings
+from teleop.settings import Settings, default_settings_path, load_settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -57,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "from a bootstrap over the objects")
     parser.add_argument("--settings", metavar="FILE", default=None,
                         help="with --check or --compare: the new rig's settings TOML, whose resolution limit and "
-                             "display the grasps are scored at (default: the shipped configs/settings.toml)")
+                             f"display the grasps are scored at (default: the shipped {default_settings_path()})")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (out, objects, grasps, samples, seconds; check with --check, "
                              "compare with --compare) on the last stdout line")
@@ -108,6 +107,9 @@ def fine_tune_and_report(model: str, data: str, out: str, *, config: TrainConfig
     ``estimator train --init``, whose option naming the model is ``model_option``); with ``check_settings``,
     first the leave-one-object-out check on that rig; with ``compare`` (a records directory), then the
     comparison with the base model on those records (:func:`estimator.evaluation.compare.compare_models`)."""
+    # Imported here: torch is the 'train' extra, which --help does not need.
+    from estimator.training.finetune import check_by_object, fine_tune
+
     _check_paths(model, data, replay, model_option)
     if compare is not None:
         _records_to_compare(model, data, compare)

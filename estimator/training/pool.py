@@ -35,7 +35,7 @@ from estimator.training.export import (
 )
 from estimator.training.model import ComplianceNet
 from estimator.training.recalibrate import recalibrate
-from estimator.training.train import check_dataset_fits, load_split_data
+from estimator.training.splits import check_dataset_fits, load_split_data
 from teleop.settings import Settings
 
 __all__ = ["PooledNet", "pool_models", "pooled_from_onnx"]

@@ -6,8 +6,7 @@ import argparse
 import json
 
 from estimator.inference.infer import bands_text
-from estimator.training.pool import pool_models
-from teleop.settings import load_settings
+from teleop.settings import default_settings_path, load_settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,11 +21,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="MODEL_DIR", help="directory for the pooled model")
     parser.add_argument("--settings", metavar="FILE", default=None,
                         help="settings TOML whose resolution limit the intervals are calibrated at "
-                             "(default: the shipped configs/settings.toml)")
+                             f"(default: the shipped {default_settings_path()})")
     parser.add_argument("--json", action="store_true", help="print one JSON object (out, members, calibration)")
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported here: torch is the 'train' extra, which --help does not need.
+    from estimator.training.pool import pool_models
+
     meta = pool_models(args.model, args.data, args.out, settings=load_settings(args.settings))
     calibration = meta["calibration"]
     if args.json:

@@ -30,7 +30,7 @@ from estimator.inference.distribution import force_band
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.provenance import load_split
 from estimator.training.conformal import fit_conformal
-from estimator.training.train import (
+from estimator.training.splits import (
     SplitData,
     auto_policy,
     check_dataset_fits,

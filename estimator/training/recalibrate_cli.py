@@ -9,7 +9,7 @@ from estimator.errors import EstimatorError
 from estimator.inference.infer import band_names, bands_text
 from estimator.training.recalibrate import cross_validate, recalibrate
 from teleop.clikit import non_negative_int
-from teleop.settings import load_settings
+from teleop.settings import default_settings_path, load_settings
 
 _SHOWN = ("temperature", "coverage")
 
@@ -29,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", metavar="MODEL_DIR", default=None, help="write the model here instead of in place")
     parser.add_argument("--settings", metavar="FILE", default=None,
                         help="settings TOML whose resolution limit the intervals are calibrated at "
-                             "(default: the shipped configs/settings.toml)")
+                             f"(default: the shipped {default_settings_path()})")
     parser.add_argument("--cross-validate", type=int, nargs="?", const=5, default=None, metavar="FOLDS",
                         help="write nothing: deal the val objects into FOLDS groups (default 5), answer each group's "
                              "grasps under a calibration fitted on the others, and print what those answers score "

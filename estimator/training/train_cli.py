@@ -14,11 +14,11 @@ from estimator.inference.infer import CompliancePredictor, bands_text
 from estimator.inference.inputs import ANALYTICAL_METHODS, Variant
 from estimator.training.dataset import load_manifest
 from estimator.training.dataset_cli import parse_size
-from estimator.training.finetune import FINE_TUNE_CONFIG, REPLAY_RATIO
 from estimator.training.finetune_cli import fine_tune_and_report
-from estimator.training.train import TrainConfig, dataset_window, train_model
+from estimator.training.recipe import FINE_TUNE_CONFIG, REPLAY_RATIO, TrainConfig
+from estimator.training.splits import dataset_window
 from teleop.clikit import non_negative_int
-from teleop.settings import load_settings
+from teleop.settings import default_settings_path, load_settings
 
 DEFAULT_VARIANT = "depth+fw+analytical"
 
@@ -68,7 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--weight-decay", type=float, default=TrainConfig.weight_decay, help="AdamW weight decay")
     parser.add_argument("--settings", metavar="FILE", default=None,
                         help="settings TOML whose estimating sensor's resolution limit the intervals are "
-                             "calibrated at (default: the shipped configs/settings.toml; not with --init, which "
+                             f"calibrated at (default: the shipped {default_settings_path()}; not with --init, which "
                              "keeps the base model's)")
     parser.add_argument("--label-sd", dest="label_sd", type=float, default=TrainConfig.label_sd_decades,
                         metavar="DECADES",
@@ -129,6 +129,9 @@ def _fmt(metrics: dict[str, Any], method: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported here: torch is the 'train' extra, which --help does not need.
+    from estimator.training.train import train_model
+
     if args.init is not None:
         return _fine_tune(args)
     if args.replay is not None or args.replay_ratio is not None:

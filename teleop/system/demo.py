@@ -65,7 +65,7 @@ from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SettingsError, TeleopError
 from teleop.live import ENDPOINTS, sigterm_as_ctrl_c
-from teleop.scene import load_scene
+from teleop.scene import SCENE_DIR, load_scene
 from teleop.session.foxglove_live import add_foxglove_argument
 from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
 from teleop.system.demo_table import LiveView, closing_table, models_answered
@@ -515,11 +515,11 @@ def operated_grasps(system: LiveSystem, plan: Sequence[tuple[int, ObjectSpec]], 
 def add_run_arguments(parser: argparse.ArgumentParser, *, default_scene: str) -> None:
     """Options shared by ``demo`` and ``bench-latency``."""
     parser.add_argument("--scene", default=default_scene, metavar="NAME",
-                        help="scene to grasp: a name under configs/scenes/ (default, quick) or a .toml path")
+                        help=f"scene to grasp: a name under {SCENE_DIR} (default, quick) or a .toml path")
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
                         help="settings TOML every process reads, the one the scene names (the shipped "
-                             "scenes name configs/settings.toml); its bus endpoints are replaced by free "
-                             "loopback ports")
+                             "scenes name the shipped settings, the default); its bus endpoints are replaced by "
+                             "free loopback ports")
     parser.add_argument("--out", metavar="DIR", default=None,
                         help="run directory for the processes' logs and reports and the session log "
                              "(default: runs/<command>-<UTC time>)")

@@ -100,7 +100,8 @@ def synthetic_dataset(tmp_path_factory) -> Path:
 def trained_model(synthetic_dataset, tmp_path_factory) -> Path:
     """A hybrid depth model trained for a few epochs on the synthetic dataset (a few seconds)."""
     from estimator.inference.inputs import Variant
-    from estimator.training.train import TrainConfig, train_model
+    from estimator.training.recipe import TrainConfig
+    from estimator.training.train import train_model
 
     out = tmp_path_factory.mktemp("model")
     variant = Variant.parse("depth+fw+analytical", n_frames=N_FRAMES, size_px=SIZE)

@@ -17,7 +17,8 @@ from teleop.settings import load_settings
 
 
 def _train(dataset, out, variant: str, synthetic):
-    from estimator.training.train import TrainConfig, train_model
+    from estimator.training.recipe import TrainConfig
+    from estimator.training.train import train_model
 
     train_model(dataset, out, variant=Variant.parse(variant, n_frames=synthetic.N_FRAMES, size_px=synthetic.SIZE),
                 config=TrainConfig(epochs=2, patience=2, batch_size=8, seed=3), progress=False)

@@ -15,8 +15,9 @@ from estimator.inference.infer import CompliancePredictor, default_model_dir
 from estimator.inference.inputs import Variant
 from estimator.training.export import network_from_onnx
 from estimator.training.finetune import check_by_object, fine_tune
+from estimator.training.recipe import TrainConfig
 from estimator.training.samples import load_sample, sample_paths, save_sample
-from estimator.training.train import TrainConfig, load_split_data
+from estimator.training.splits import load_split_data
 from teleop.settings import default_settings_path, load_settings
 
 QUICK = TrainConfig(epochs=12, batch_size=8, lr=2e-3, seed=0)

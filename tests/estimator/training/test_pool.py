@@ -16,7 +16,9 @@ from estimator.inference.infer import CompliancePredictor
 from estimator.inference.inputs import Variant
 from estimator.training.finetune import fine_tune
 from estimator.training.pool import pool_models
-from estimator.training.train import TrainConfig, load_split_data, train_model
+from estimator.training.recipe import TrainConfig
+from estimator.training.splits import load_split_data
+from estimator.training.train import train_model
 
 
 @pytest.fixture(scope="module")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -16,7 +18,7 @@ from estimator.inference.inputs import analytical_floor
 from estimator.training import recalibrate as recalibrate_module
 from estimator.training.conformal import described
 from estimator.training.recalibrate import cross_validate, recalibrate
-from estimator.training.train import load_split_data
+from estimator.training.splits import load_split_data
 from teleop.settings import load_settings
 
 
@@ -79,6 +81,31 @@ def test_the_command_writes_a_recalibrated_copy(trained_model, synthetic_dataset
     assert printed["out"] == str(out) and printed["calibration"]["n"] > 0
     assert (out / "model.onnx").read_bytes() == (trained_model / "model.onnx").read_bytes()
     assert json.loads((out / "metadata.json").read_text())["calibration"] == printed["calibration"]
+
+
+# A fresh interpreter where `import torch` finds nothing, as without the 'train' extra (as in tests/estimator/test_help.py).
+WITHOUT_TORCH = """
+import sys
+
+class NoTorch:
+    def find_spec(self, name, path=None, target=None):
+        if name.partition(".")[0] == "torch":
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+
+sys.meta_path.insert(0, NoTorch())
+from estimator.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_recalibrating_needs_no_torch(trained_model, synthetic_dataset, tmp_path):
+    # It refits through onnxruntime: the 'train' extra is not needed.
+    out = tmp_path / "recalibrated"
+    result = subprocess.run([sys.executable, "-c", WITHOUT_TORCH, "recalibrate", "--model", str(trained_model), "--data",
+                             str(synthetic_dataset), "--out", str(out), "--json"],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout.strip().splitlines()[-1])["calibration"]["n"] > 0
 
 
 def test_cross_validation_answers_each_object_under_a_calibration_fitted_without_it(trained_model, synthetic_dataset,

@@ -11,7 +11,9 @@ import pytest
 from estimator.errors import EstimatorError, SampleError
 from estimator.inference.inputs import MEASUREMENT_VERSION, Variant, default_window_m
 from estimator.inference.provenance import load_split
-from estimator.training.train import TrainConfig, load_split_data, rig_range, train_model
+from estimator.training.recipe import TrainConfig
+from estimator.training.splits import load_split_data, rig_range
+from estimator.training.train import train_model
 
 
 @pytest.mark.slow
