@@ -28,7 +28,7 @@ from estimator.perception.capture import add_capture_arguments, capture_to_folde
 from estimator.perception.markers import detect_markers
 from estimator.perception.presses import PressSet, load_presses, split_presses
 from teleop.record import software_version
-from teleop.settings import load_settings
+from teleop.settings import default_settings_path, load_settings
 
 # Two stated values of one quantity (pixel pitch, ball radius) must agree this closely.
 AGREEMENT = 0.01
@@ -52,7 +52,8 @@ def add_press_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--settings", metavar="FILE",
-        help="settings TOML: warp and crop the raw images with this sensor's corners first",
+        help="settings TOML: warp and crop the raw images with this sensor's corners first (without it the "
+             "images are used as they are: no shipped sensor's corners are assumed)",
     )
     parser.add_argument(
         "--finger", metavar="F",
@@ -107,9 +108,12 @@ def prepare_presses(
     elif args.finger:
         raise CalibrationError("--finger needs --settings (the file that describes the sensor)")
     elif presses.frame == "warped_cropped":
+        # Not defaulted to the shipped settings: the calibration would name the shipped sensor (and the
+        # settings' finger) as the one that took the presses, and raw presses would be warped by its corners.
         raise CalibrationError(
             f"{args.presses}: its press circles and pixel pitch are for the warped-and-cropped frame; "
-            "give --settings (and --finger) so the images are warped to match"
+            "give --settings (and --finger) of the sensor that took them so the images are warped to match "
+            f"(the shipped simulated sensors: --settings {default_settings_path()})"
         )
     pitch_mm = _agreeing("mm per px", [
         ("--mm-per-px", args.mm_per_px),

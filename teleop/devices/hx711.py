@@ -26,7 +26,13 @@ from collections import Counter
 from urllib.parse import urlsplit
 
 from teleop.devices.base import SampleQueue
-from teleop.devices.hx711_protocol import LineSplitter, Unreadable, parse_frame, parse_serial_line
+from teleop.devices.hx711_protocol import (
+    LineSplitter,
+    Unreadable,
+    import_pyserial,
+    parse_frame,
+    parse_serial_line,
+)
 from teleop.devices.loadcell import LoadCell
 from teleop.errors import DeviceError
 from teleop.record import Samples
@@ -120,19 +126,19 @@ class SerialHx711(_StreamingHx711):
 
     def __init__(self, settings: LoadCellSettings):
         super().__init__(settings)
+        # On building, as the backend table does for a missing library: `teleop doctor` says so in its row.
+        self._serial = import_pyserial("load cell backend 'serial'")
         self._port = None
 
     def __repr__(self) -> str:
         return f"<SerialHx711 {self.settings.port}>"
 
     def _open_link(self) -> None:
-        import serial
-
         if not self.settings.port:
             raise DeviceError("serial load cell: LoadCellSettings.port is empty; set the serial device path")
         try:
-            self._port = serial.Serial(self.settings.port, self.settings.baud, timeout=0.1)
-        except (serial.SerialException, ValueError) as exc:
+            self._port = self._serial.Serial(self.settings.port, self.settings.baud, timeout=0.1)
+        except (self._serial.SerialException, ValueError) as exc:
             raise DeviceError(f"{self!r}: cannot open the port: {exc}") from exc
 
     def _close_link(self) -> None:
@@ -141,11 +147,9 @@ class SerialHx711(_StreamingHx711):
             self._port = None
 
     def _receive(self) -> bytes:
-        import serial
-
         try:
             return self._port.read(max(1, self._port.in_waiting))
-        except serial.SerialException as exc:
+        except self._serial.SerialException as exc:
             raise DeviceError(str(exc)) from exc
 
     def _sample(self, line: bytes, arrived_s: float) -> tuple[float, int]:

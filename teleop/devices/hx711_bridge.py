@@ -27,6 +27,7 @@ from teleop.devices.hx711_protocol import (
     LineSplitter,
     Unreadable,
     format_frame,
+    import_pyserial,
     parse_serial_line,
 )
 from teleop.errors import DeviceError
@@ -87,8 +88,7 @@ class SerialCounts:
     """Readings from an Arduino-style serial HX711 bridge (serial line protocol); pyserial."""
 
     def __init__(self, port: str, baud: int = 115200):
-        import serial
-
+        serial = import_pyserial("the serial HX711 source (--serial)")
         try:
             self._port = serial.Serial(port, baud, timeout=0.5)
         except (serial.SerialException, ValueError) as exc:

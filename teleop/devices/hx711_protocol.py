@@ -1,4 +1,5 @@
-"""HX711 line protocols, shared by the host backends and the bridge (standard library only).
+"""HX711 line protocols, shared by the host backends and the bridge (standard library only), and
+:func:`import_pyserial`, the library of both sides' serial links.
 
 The HX711 is a 24-bit ADC (10 or 80 samples/s) whose readings are raw signed counts.
 A reading that is not valid raises :class:`Unreadable` with a ``reason``: ``garbage``
@@ -38,6 +39,9 @@ from __future__ import annotations
 import json
 import math
 import re
+from types import ModuleType
+
+from teleop.errors import BackendNotFoundError
 
 __all__ = [
     "COUNTS_MAX",
@@ -47,6 +51,7 @@ __all__ = [
     "LineSplitter",
     "Unreadable",
     "format_frame",
+    "import_pyserial",
     "parse_frame",
     "parse_serial_line",
 ]
@@ -131,3 +136,13 @@ class LineSplitter:
         kept = [line for line in lines if len(line) < self.max_bytes]
         self.overlong += len(lines) - len(kept)
         return kept
+
+
+def import_pyserial(user: str) -> ModuleType:
+    """pyserial (the ``robot`` extra), which ``user`` needs; BackendNotFoundError saying what to install when
+    it is missing, so commands and ``teleop doctor`` report it rather than fail with a traceback."""
+    try:
+        import serial
+    except ImportError as exc:
+        raise BackendNotFoundError(f"{user} cannot be loaded: {exc} (install the 'robot' extra)") from exc
+    return serial

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from estimator.cli import main
+from teleop.settings import default_settings_path
 
 MINI_ARGS = ["--ball-radius-mm", "2", "--mm-per-px", "0.0295"]
 
@@ -111,7 +112,9 @@ def test_stated_values_must_agree(tmp_path, gelsight_presses, capsys):
              mm_per_px=np.array(0.03), frame=np.array("warped_cropped"))
     code = main(["calibrate", "--presses", str(pack), "--ball-radius-mm", "2", "--mm-per-px", "0.0295",
                  "--out", str(tmp_path / "c.npz")])
-    assert code == 2 and "give --settings" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert code == 2 and "give --settings" in err
+    assert f"--settings {default_settings_path()}" in err  # says how to name the shipped sensors
     np.savez(pack, f0=gelsight_presses.reference, imgs=gelsight_presses.images[:2],
              touch_center=gelsight_presses.centers_px[:2], touch_radius=gelsight_presses.radii_px[:2],
              mm_per_px=np.array(0.03))

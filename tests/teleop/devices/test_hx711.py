@@ -31,7 +31,7 @@ from teleop.devices.hx711_protocol import (
     parse_serial_line,
 )
 from teleop.devices.loadcell import make_load_cell
-from teleop.errors import DeviceError
+from teleop.errors import BackendNotFoundError, DeviceError
 from teleop.settings import LoadCellSettings
 
 CAL = {"counts_per_n": 1000.0, "tare_counts": 0, "timeout_s": 1.0}
@@ -147,6 +147,19 @@ def test_serial_port_errors_are_device_errors(tmp_path):
         make_load_cell(LoadCellSettings(backend="serial")).connect()
     with pytest.raises(DeviceError, match="cannot open"):
         make_load_cell(LoadCellSettings(backend="serial", port=str(tmp_path / "ttyNONE"))).connect()
+
+
+def test_serial_links_without_pyserial_say_to_install_the_robot_extra(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "serial", None)  # `import serial` raises ImportError, as when not installed
+    with pytest.raises(BackendNotFoundError, match=r"^load cell backend 'serial' cannot be loaded: .*serial.* "
+                                                   r"\(install the 'robot' extra\)$"):
+        make_load_cell(LoadCellSettings(backend="serial", port="/dev/ttyUSB9"))
+    make_load_cell(LoadCellSettings(backend="tcp", address="tcp://127.0.0.1:9"))  # the tcp backend needs none
+    with pytest.raises(BackendNotFoundError, match=r"--serial.*\(install the 'robot' extra\)"):
+        SerialCounts("/dev/ttyUSB9")
+    assert main(["hx711-bridge", "--serial", "/dev/ttyUSB9", "--duration-s", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("teleop hx711-bridge: error: ") and "'robot' extra" in err and len(err.splitlines()) == 1
 
 
 class _HandServer:

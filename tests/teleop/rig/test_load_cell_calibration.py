@@ -13,6 +13,7 @@ import argparse
 import json
 import os
 import shutil
+import sys
 import threading
 import time
 import tty
@@ -134,6 +135,17 @@ def test_a_mass_never_placed_times_out_naming_what_to_do(serial_rig, capsys):
         firmware.close()
     assert code == 2
     assert "no new load within 1 s" in capsys.readouterr().err
+
+
+def test_a_serial_cell_without_pyserial_is_one_line_naming_the_extra(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "serial", None)  # `import serial` raises ImportError, as when not installed
+    path = tmp_path / "rig.toml"
+    shutil.copy(default_settings_path(), path)
+    update_settings_file(path, {"load_cell.backend": "serial", "load_cell.port": "/dev/ttyUSB9"})
+    assert main(["calibrate", "load-cell", "--settings", str(path), "--mass-g", "100"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("teleop calibrate: error: load cell backend 'serial' cannot be loaded")
+    assert err.rstrip().endswith("(install the 'robot' extra)") and len(err.splitlines()) == 1
 
 
 @pytest.mark.parametrize("option", ["--average-s", "--place-timeout-s"])

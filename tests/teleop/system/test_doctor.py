@@ -8,6 +8,7 @@ import os
 import shlex
 import shutil
 import socket
+import sys
 import tty
 
 import pytest
@@ -117,6 +118,16 @@ def test_a_silent_serial_cell_says_no_data_and_the_table_says_not_ready(tmp_path
     assert code == 1 and "NOT ready" in table
     line = next(ln for ln in table.splitlines() if ln.startswith("load cell"))
     assert f"no data from {port} within 1 s: check the cable and `load_cell.port`" in line
+
+
+def test_a_serial_cell_without_pyserial_is_a_no_row_naming_the_extra(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "serial", None)  # `import serial` raises ImportError, as when not installed
+    path = _copy(tmp_path, {"load_cell.backend": "serial", "load_cell.port": "/dev/ttyUSB9"})
+    code, report = _doctor(capsys, "--settings", str(path))
+    cell = next(d for d in report["devices"] if d["name"] == "load cell")
+    assert code == 1 and not cell["ok"]
+    assert cell["problem"].startswith("cannot be set up: load cell backend 'serial' cannot be loaded")
+    assert cell["problem"].endswith("(install the 'robot' extra)")
 
 
 def test_a_port_in_use_and_an_unknown_unkeyed_host_are_problems():
