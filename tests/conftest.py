@@ -122,10 +122,11 @@ class MjpgServer:
         self.httpd.server_close()
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def franky_sim_robot():
     """A franky-sim robot (MuJoCo) serving the libfranka protocol on a free loopback address; its
-    ``hostname`` is the address, its ``hand_width`` the simulated hand's width (m)."""
+    ``hostname`` is the address, its ``hand_width`` the simulated hand's width (m). Per module: its
+    simulation runs on in the background and slowed later tests (a console test 0.9 s -> 18 s)."""
     try:
         from franky_sim import SimulationServer
         from franky_sim.mujoco_simulator import MujocoSimulator

@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from estimator.measure import estimate_grasp, measure_grasp
 from teleop.catalogue import load_catalogue
@@ -33,6 +34,7 @@ def with_streams(record, *, images=None, frame_scale=1.0, time_scale=1.0, width=
                    width_m=Samples(w.t_s * time_scale, w.value if width is None else np.full(len(w), width)))
 
 
+@pytest.mark.slow
 def test_a_dead_or_frozen_camera_refuses_the_tactile_methods_naming_it(calibration):
     record = build_record(3e5)
     contact = measure_grasp(record, settings=SETTINGS, tactile=False).segment.t_contact_s

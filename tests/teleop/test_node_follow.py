@@ -170,6 +170,7 @@ def test_killing_the_console_stops_the_franky_sim_gripper_within_250_ms(franky_s
             sock.close()
 
 
+@pytest.mark.slow
 def test_commands_that_cannot_be_carried_out_are_refused_on_the_bus(rig):
     node, operator, listener, scene = rig
     wait_prepared(node)

@@ -51,7 +51,7 @@ def make_record() -> Callable[..., GraspRecord]:
     return _make_record
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def franky_sim_host(franky_sim_robot) -> str:
     """The address the franky-sim robot serves the libfranka protocol on (loopback)."""
     return franky_sim_robot.hostname

@@ -300,6 +300,7 @@ def test_bridge_command_stops_cleanly_on_ctrl_c_and_sigterm_with_its_summary(sig
     assert summary["address"] == address and summary["readings"] > 0
 
 
+@pytest.mark.slow
 def test_bridge_command_end_to_end():
     command = [
         sys.executable, "-c", "import sys; from teleop.cli import main; sys.exit(main(sys.argv[1:]))",

@@ -158,6 +158,7 @@ def test_times_that_are_not_positive_are_refused_before_reading(option, value, t
     assert f"argument {option}: '{value}': expected a number > 0" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_interactive_run_asks_for_each_mass(serial_rig, capsys, monkeypatch):
     path, master = serial_rig
     firmware = FakeFirmware(master, [])

@@ -233,6 +233,7 @@ def test_the_rigs_name_calibrations_fitted_for_their_sensors(optics, taxim_calib
         assert calibration.ball_radius_m == BALL_RADIUS_M
 
 
+@pytest.mark.slow
 def test_presses_through_the_gelsight_tables_calibrate_to_the_ball(tmp_path, rig, sensor):
     # As a user would: simulate presses on the rig, calibrate with `estimator calibrate`, then
     # reconstruct the held-out presses: spheres of the ball's radius.

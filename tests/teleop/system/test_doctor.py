@@ -69,6 +69,7 @@ def test_the_shipped_simulated_rig_is_ready(capsys):
     assert report["ok"] == all(e["ok"] for e in report["endpoints"]) and code == (0 if report["ok"] else 1)
 
 
+@pytest.mark.slow
 def test_unplugged_devices_are_named_with_what_to_do(tmp_path, capsys):
     cell_port, camera_port = _closed_port(), _closed_port()
     path = _copy(tmp_path, {
@@ -104,6 +105,7 @@ def test_the_operators_input_device_is_opened_and_read(tmp_path, capsys, name):
         assert device["problem"].endswith("name another in `[operator] input` (or pass `haptics operate --input`)")
 
 
+@pytest.mark.slow
 def test_a_silent_serial_cell_says_no_data_and_the_table_says_not_ready(tmp_path, capsys):
     master, slave = os.openpty()
     tty.setraw(slave)
