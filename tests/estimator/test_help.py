@@ -6,10 +6,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import subprocess
-import sys
 
 import pytest
+from support.extras import estimator_without_torch
 
 from teleop.clikit import _DefaultsHelpFormatter
 
@@ -41,29 +40,9 @@ def test_serve_says_reload_sends_on_the_control_endpoint_and_it_listens_on_both(
     assert "load_model message on --command" not in text
 
 
-# The estimator's command line in a fresh interpreter where `import torch` finds nothing, as without the 'train'
-# extra. (Not sys.modules["torch"] = None: libraries that look for torch there, as scipy does, would break.)
-WITHOUT_TORCH = """
-import sys
-
-class NoTorch:
-    def find_spec(self, name, path=None, target=None):
-        if name.partition(".")[0] == "torch":
-            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
-
-sys.meta_path.insert(0, NoTorch())
-from estimator.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
-
-
-def _without_torch(*argv: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", WITHOUT_TORCH, *argv], capture_output=True, text=True, timeout=120)
-
-
 @pytest.mark.parametrize("command", ["train", "fine-tune", "pool", "recalibrate"])
 def test_the_model_commands_help_needs_no_torch(command):
-    result = _without_torch(command, "--help")
+    result = estimator_without_torch(command, "--help")
     assert result.returncode == 0, result.stderr
     assert f"usage: estimator {command}" in result.stdout
 
@@ -72,7 +51,7 @@ def test_the_model_commands_help_needs_no_torch(command):
                                   ["fine-tune", "--model", "m", "--data", "d", "--out", "o"],
                                   ["pool", "--model", "a", "--model", "b", "--data", "d", "--out", "o"]])
 def test_a_model_command_without_torch_says_to_install_the_train_extra_in_one_line(argv):
-    result = _without_torch(*argv)
+    result = estimator_without_torch(*argv)
     assert result.returncode == 2
     assert result.stderr == (f"estimator {argv[0]}: error: needs the 'train' extra (No module named 'torch'): "
                              "pip install -c constraints.txt -e '.[train]'\n")

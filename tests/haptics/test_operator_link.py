@@ -534,11 +534,16 @@ def test_after_a_stop_or_the_grasps_end_the_enable_must_be_held_anew(rig):
     sent = len(link.sent)
     run_for(clock, loop, 0.3)
     assert len(link.sent) == sent
+    _hold_again(clock, device, loop)
+    assert link.sent[-1][2]["enable"] and link.sent[-1][2]["grasp_id"] not in (grasp_id, None)
+
+
+def _hold_again(clock: Clock, device, loop: OperatorLoop) -> None:
+    """Let go of the enable and hold it again: a new follow grasp starts."""
     device.enable = False
     run_for(clock, loop, 0.05)
     device.enable = True
     run_for(clock, loop, 0.05)
-    assert link.sent[-1][2]["enable"] and link.sent[-1][2]["grasp_id"] not in (grasp_id, None)
 
 
 def test_follows_go_on_without_the_enable_while_the_robot_runs_the_grasp(rig):
@@ -591,10 +596,7 @@ def test_a_grasp_is_forgotten_when_the_robot_node_goes_down(rig, waits_for_robot
     sent = len(link.sent)
     run_for(clock, loop, 0.3)
     assert not any(b["enable"] or b["grasp_id"] for _, kind, b in link.sent[sent:] if kind == "follow")
-    device.enable = False
-    run_for(clock, loop, 0.05)
-    device.enable = True
-    run_for(clock, loop, 0.05)
+    _hold_again(clock, device, loop)
     assert link.sent[-1][2]["enable"] and link.sent[-1][2]["grasp_id"] not in (lost, None)
 
 

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from support.extras import estimator_without_torch
 
 from estimator.cli import main
 from estimator.errors import EstimatorError
@@ -83,27 +82,11 @@ def test_the_command_writes_a_recalibrated_copy(trained_model, synthetic_dataset
     assert json.loads((out / "metadata.json").read_text())["calibration"] == printed["calibration"]
 
 
-# A fresh interpreter where `import torch` finds nothing, as without the 'train' extra (as in tests/estimator/test_help.py).
-WITHOUT_TORCH = """
-import sys
-
-class NoTorch:
-    def find_spec(self, name, path=None, target=None):
-        if name.partition(".")[0] == "torch":
-            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
-
-sys.meta_path.insert(0, NoTorch())
-from estimator.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
-
-
 def test_recalibrating_needs_no_torch(trained_model, synthetic_dataset, tmp_path):
     # It refits through onnxruntime: the 'train' extra is not needed.
     out = tmp_path / "recalibrated"
-    result = subprocess.run([sys.executable, "-c", WITHOUT_TORCH, "recalibrate", "--model", str(trained_model), "--data",
-                             str(synthetic_dataset), "--out", str(out), "--json"],
-                            capture_output=True, text=True, timeout=300)
+    result = estimator_without_torch("recalibrate", "--model", str(trained_model), "--data", str(synthetic_dataset),
+                                     "--out", str(out), "--json")
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout.strip().splitlines()[-1])["calibration"]["n"] > 0
 

@@ -17,6 +17,7 @@ import struct
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -49,6 +50,19 @@ def _advertised(ws, topics: set[str]) -> dict[str, dict]:
     return channels
 
 
+def _first_data(ws, log: Callable[[], None]) -> bytes:
+    """The first message data after a subscribe, which takes effect asynchronously: ``log()`` until some comes."""
+    for _ in range(50):
+        log()
+        try:
+            data = ws.recv(timeout=0.1)
+        except TimeoutError:
+            continue
+        if isinstance(data, bytes):
+            return data
+    raise AssertionError("no message data after subscribing")
+
+
 def test_the_server_speaks_the_protocol_and_serves_what_it_is_given():
     frame = make_message("frame", t_capture_s=1.0, finger="left", index=0, encoding="jpeg", data=JPEG)
     force = make_message("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0])
@@ -68,16 +82,7 @@ def test_the_server_speaks_the_protocol_and_serves_what_it_is_given():
             "json", "jsonschema")
         ws.send(json.dumps({"op": "subscribe",
                             "subscriptions": [{"id": 7, "channelId": channels["/tactile/left"]["id"]}]}))
-        data = None
-        for _ in range(50):  # the subscription takes effect asynchronously: log until data comes
-            server.log(image, 12)
-            try:
-                data = ws.recv(timeout=0.1)
-            except TimeoutError:
-                continue
-            if isinstance(data, bytes):
-                break
-        assert isinstance(data, bytes), "no message data after subscribing"
+        data = _first_data(ws, lambda: server.log(image, 12))
         opcode, subscription, log_time = struct.unpack_from("<BIQ", data)
         assert (opcode, subscription, log_time) == (1, 7, 12)
         assert data[13:] == image[0].data
@@ -117,16 +122,7 @@ def test_each_topics_times_never_go_back():
     ):
         force = _advertised(ws, {"/force"})["/force"]
         ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": force["id"]}]}))
-        data = None
-        for _ in range(50):  # the subscription takes effect asynchronously: log until data comes
-            server.log(foxglove_messages(first), 1_000_000_000)
-            try:
-                data = ws.recv(timeout=0.1)
-            except TimeoutError:
-                continue
-            if isinstance(data, bytes):
-                break
-        assert isinstance(data, bytes), "no message data after subscribing"
+        _first_data(ws, lambda: server.log(foxglove_messages(first), 1_000_000_000))
         server.log(foxglove_messages(second), 1_015_000_000)  # 15 ms later: its oldest is 20 ms old
         times = []
         while len(times) < 3:
