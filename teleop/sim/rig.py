@@ -50,7 +50,7 @@ camera pixel noise       1-4 levels, uniform         around the default 2 levels
 camera rate              25-60 Hz, uniform           USB webcams and Pi cameras; both fingers alike
 load-cell rate           10 or 80 Hz, either         the HX711's two rates (RATE pin)
 width read rate          5-30 Hz, log-uniform        polling budgets of the host
-camera offset            0-60 ms, uniform            USB/MJPG capture latency of the cameras
+camera offset            0-30 ms, uniform            USB/MJPG capture latency of the cameras
 illumination gain        0.7-1.3, uniform            LED current and ageing
 gel (``vary_gel``)       120-400 kPa, log-uniform;   silicones of GelSight-type gels (Shore 00
                          2.5-4.5 mm, uniform         10-40) cast 2.5 to 4.5 mm thick
