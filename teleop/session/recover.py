@@ -27,7 +27,7 @@ from teleop.progress import progress_bar
 from teleop.record import software_version
 from teleop.session.logfile import CHUNK_BYTES, END_METADATA, LogReader, StoredFrames
 
-__all__ = ["RECOVERY_METADATA", "RecoveryReport", "recover"]
+__all__ = ["RECOVERY_METADATA", "RecoveryReport", "check_not_source", "recover"]
 
 RECOVERY_METADATA = "recovery"
 
@@ -55,6 +55,14 @@ class RecoveryReport:
         return out
 
 
+def check_not_source(source: Path, out: Path) -> None:
+    """Refuse an ``out`` that is the log ``source`` itself (:class:`SessionLogError`)."""
+    if out.exists() and source.exists() and out.resolve() == source.resolve():
+        raise SessionLogError(
+            f"--out {out} is the log being recovered: write the recovered log elsewhere"
+        )
+
+
 def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> RecoveryReport:
     """Copy every complete record of the session log ``source`` into a complete MCAP ``out``.
 
@@ -68,10 +76,7 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
         cannot be written.
     """
     source, out = Path(source), Path(out)
-    if out.exists() and source.exists() and out.resolve() == source.resolve():
-        raise SessionLogError(
-            f"--out {out} is the log being recovered: write the recovered log elsewhere"
-        )
+    check_not_source(source, out)
     reader = LogReader(source)
     report = RecoveryReport(
         str(source), str(out), complete=False, closed_cleanly=False, damage=None

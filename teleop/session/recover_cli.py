@@ -10,7 +10,7 @@ from pathlib import Path
 
 from teleop.clikit import output_file
 from teleop.errors import SessionLogError
-from teleop.session.recover import recover
+from teleop.session.recover import check_not_source, recover
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,10 +34,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     out = output_file("--out", args.out)
-    # --out naming the log itself is left to recover(), which says so
-    if out.exists() and not args.overwrite and out.resolve() != Path(args.log).resolve():
+    check_not_source(Path(args.log), out)
+    if out.exists() and not args.overwrite:
         raise SessionLogError(f"--out {out} exists: choose another name or pass --overwrite")
-    report = recover(args.log, out, progress=True)
+    # Staged beside --out: a recovery that salvages nothing must not replace a file already there.
+    staged = out.with_name(f".{out.name}.recovering")
+    report = recover(args.log, staged, progress=True)
+    if report.messages == 0 and not report.complete:
+        staged.unlink(missing_ok=True)
+    else:
+        staged.replace(out)
+    report.out = str(out)
     state = "complete" if report.complete else f"cut short ({report.damage})"
     print(
         f"{args.log}: {state}; salvaged {report.messages} messages, "
@@ -54,8 +61,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report.as_dict()))
     if report.messages == 0 and not report.complete:
-        out.unlink(missing_ok=True)  # a log without a message is no session: leave nothing to mistake for one
         print(f"{args.log}: nothing salvaged: the log is cut short before its first message; "
-              f"{args.out} not kept", file=sys.stderr)
+              f"{args.out} not written", file=sys.stderr)
         return 1
     return 0

@@ -228,6 +228,10 @@ def test_the_recover_command_fails_when_it_salvaged_nothing_and_report_says_why(
     assert main(["recover", str(cut), "--out", str(tmp_path / "fixed.mcap")]) == 1
     assert "nothing salvaged: the log is cut short before its first message" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap"]  # no --out file, no .partial
+    kept = tmp_path / "kept.mcap"
+    kept.write_bytes(b"an earlier recovery")
+    assert main(["recover", str(cut), "--out", str(kept), "--overwrite"]) == 1
+    assert kept.read_bytes() == b"an earlier recovery"  # an empty copy replaces nothing
     recover(cut, tmp_path / "fixed.mcap")  # the function still writes what there is
     with pytest.raises(SessionLogError, match="the recorder writes it as the session starts") as caught:
         build_report(tmp_path / "fixed.mcap", tmp_path / "report")
