@@ -395,7 +395,7 @@ class OperatorConsole(App):
                 f"phase {shown.phase}  {'provisional' if shown.provisional else 'final'}  "
                 f"+/- {shown.uncertainty_decades:.2f} decade",
             ]
-            if view.down("display"):  # what it last rendered stays above: say it is not current
+            if view.down("display"):  # its last rendering is still shown below: say it is not current
                 display.insert(0, "the renderer is down: its last report below is not current (start `haptics serve`)")
         felt = "-" if status.operator_force_n is None else f"{status.operator_force_n:.1f} N"
         operator = [

@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
         Publisher.from_settings(bus, bus.robot_pub, lossless=True, source="robot") as publisher,
         Subscriber.from_settings(bus, bus.command, COMMAND_TOPICS) as commands,
         RobotNode(settings, publisher=publisher, commands=commands, scene=scene) as node,
-        LiveTap(publisher.endpoint, args.foxglove, bus=bus, name="teleop node"),
+        LiveTap(publisher.endpoint, args.foxglove, bus=bus, name="teleop node",
+                fingers=[s.finger for s in settings.sensors]),
         StopSignals() as signals,
     ):
         print(f"robot node: {'simulated' if node.simulated else 'hardware'} devices; data on "

@@ -21,7 +21,7 @@ __all__ = ["Scene", "current_method", "load_scene", "scene_path"]
 
 SCENE_DIR = config_dir() / "scenes"
 _KEYS = ("description", "catalogue", "objects", "grasps_per_object", "seed", "settings")
-# Keys scenes once had, and where what they said is set now.
+# Keys a scene may not have, and where what they would say is set.
 _MOVED = {
     "backends": "the device backends are the settings file's ([sensors.<finger>], [gripper], [load_cell] and "
                 "[display] backend); a scene runs on simulated hardware",

@@ -276,8 +276,10 @@ def read_npz(path: Path, *, missing: str, kind: str) -> dict[str, np.ndarray]:
     try:
         with np.load(path, allow_pickle=False) as data:
             return {name: data[name] for name in data.files}
-    except ValueError as exc:  # an object member: reading it would run pickled code
-        raise CalibrationError(f"{path}: not {kind}: a member holds pickled Python objects ({expected})") from exc
+    except ValueError as exc:
+        if "allow_pickle" in str(exc):  # an object member: reading it would run pickled code
+            raise CalibrationError(f"{path}: not {kind}: a member holds pickled Python objects ({expected})") from exc
+        raise CalibrationError(f"{path}: not {kind}: {expected}; this one does not read ({exc})") from exc
     except (OSError, EOFError, zipfile.BadZipFile) as exc:
         raise CalibrationError(f"{path}: not {kind}: {expected}; this one does not read ({exc})") from exc
 

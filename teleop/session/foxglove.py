@@ -78,6 +78,7 @@ __all__ = [
     "file_descriptor_set",
     "foxglove_messages",
     "image_topic",
+    "in_topic_order",
     "json_schema",
     "known_channels",
 ]
@@ -378,3 +379,13 @@ def known_channels(fingers: Iterable[str] = ()) -> list[FoxgloveChannel]:
     out += [FoxgloveChannel(f"/{kind}", f"{JSON_SCHEMA_PREFIX}{kind}", "jsonschema", _json_schema_bytes(kind),
                             "json") for kind in SCHEMAS if kind not in _SPECIAL]
     return out
+
+
+def in_topic_order(last_ns: dict[str, int], topic: str, at_ns: int) -> int:
+    """``at_ns``, or ``topic``'s previous time in ``last_ns`` when later (which it updates).
+
+    A sample is placed at its batch's receive time less its age; when delivery latency varies that
+    can fall before the previous batch's last sample, and Foxglove's plots want each topic in order.
+    """
+    at_ns = last_ns[topic] = max(at_ns, last_ns.get(topic, 0))
+    return at_ns

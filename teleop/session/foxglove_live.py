@@ -45,6 +45,7 @@ from teleop.session.foxglove import (
     FoxgloveChannel,
     FoxgloveMessage,
     foxglove_messages,
+    in_topic_order,
     known_channels,
 )
 from teleop.settings import BusSettings, Settings
@@ -170,9 +171,7 @@ class LiveServer:
         """
         for item in converted:
             channel = self._channels.get(item.topic) or self._channel(item.channel)
-            at = max(log_time_ns - item.age_ns, self._last_ns.get(item.topic, 0))
-            self._last_ns[item.topic] = at
-            channel.log(item.data, log_time=at)
+            channel.log(item.data, log_time=in_topic_order(self._last_ns, item.topic, log_time_ns - item.age_ns))
 
     def log_message(self, message: Message, received_ns: int) -> None:
         """Send the Foxglove forms of one bus message received at ``received_ns`` (this
@@ -243,6 +242,8 @@ class LiveTap:
         None: a plain loopback subscriber.
     name : str
         Server name shown by Foxglove.
+    fingers : iterable of str, optional
+        The rig's fingers, whose image channels are advertised at once (:class:`LiveServer`).
     max_pending : int
         Messages received but not yet served beyond which the oldest are dropped.
     **subscriber_options
@@ -256,6 +257,7 @@ class LiveTap:
         *,
         bus: BusSettings | None = None,
         name: str = "compliance-teleop",
+        fingers: Iterable[str] | None = None,
         max_pending: int = 1000,
         **subscriber_options: Any,
     ):
@@ -263,6 +265,7 @@ class LiveTap:
         self.address = address
         self.bus = bus
         self.name = name
+        self.fingers = None if fingers is None else list(fingers)
         self.max_pending = max(1, max_pending)
         self.subscriber_options = subscriber_options
         self.stats = LiveTapStats()
@@ -281,7 +284,7 @@ class LiveTap:
         if self.address is None or self.server is not None or self.stats.error:
             return self
         try:
-            self.server = LiveServer(*self.address, name=self.name)
+            self.server = LiveServer(*self.address, name=self.name, fingers=self.fingers)
             subscriber = self._subscribe()
         except Exception as exc:  # noqa: BLE001 - the service must carry on whatever happened
             self._fail(exc)

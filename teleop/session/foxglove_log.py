@@ -14,7 +14,7 @@ from typing import Any
 from mcap.writer import Writer
 
 from teleop.bus.wire import Message
-from teleop.session.foxglove import IMAGE_SCHEMA, FoxgloveMessage, foxglove_messages
+from teleop.session.foxglove import IMAGE_SCHEMA, FoxgloveMessage, foxglove_messages, in_topic_order
 from teleop.session.logfile import MESSAGE_ENCODING, SCHEMA_ENCODING, pack_frames, schema_data
 from teleop.settings import Settings
 
@@ -76,11 +76,7 @@ class LogChannels:
             if channel is None:
                 schema = self._schema(item.schema_name, item.schema_encoding, item.schema_data)
                 channel = self._channel(item.topic, item.message_encoding, schema, {})
-            # A sample is placed at its batch's receive time less its age; when delivery
-            # latency varies that can fall before the previous batch's last sample, and
-            # Foxglove's plots want each topic's times in order.
-            at = max(log_time_ns - item.age_ns, self._last_ns.get(item.topic, 0))
-            self._last_ns[item.topic] = at
+            at = in_topic_order(self._last_ns, item.topic, log_time_ns - item.age_ns)
             self._add(channel, item.data, message, at)
         return converted
 

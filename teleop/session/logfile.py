@@ -52,9 +52,8 @@ Foxglove channels (:mod:`teleop.session.foxglove`: what each bus type becomes an
     refusals, gaps, the write error if there was one). A log without the latter was not
     closed cleanly.
 
-Logs written before the epoch times have no :data:`TIME_OFFSET_KEY`: their times are the
-monotonic clocks' (:attr:`LogInfo.offset_ns` 0). Readers here use log times only as
-differences (replay pacing, ordering), so they read both.
+A log without :data:`TIME_OFFSET_KEY` has the monotonic clock's times (:attr:`LogInfo.offset_ns`
+0). Readers here use log times only as differences (replay pacing, ordering), so they read both.
 
 Format 1 (before the Foxglove channels) had only the bus channels, message encoding
 ``compliance-teleop.multipart/1`` and no flags; :class:`LogReader` reads both.
