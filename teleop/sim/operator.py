@@ -285,22 +285,21 @@ class SimulatedOperator:
         self._target = min(max(self._target, 0.0), self.max_width_m)
         return OperatorCommand(target_width_m=self._target, enable=not self._released, release=release)
 
-    def _stuck(self, t_s: float, stuck: bool) -> bool:
-        """Whether ``stuck`` has held for ``GIVE_UP_S`` (counted afresh whenever it does not)."""
-        if not stuck:
+    def _held_for(self, t_s: float, condition: bool, after_s: float) -> bool:
+        """Whether ``condition`` has held for ``after_s`` (counted afresh whenever it does not)."""
+        if not condition:
             self._stalled_since = None
             return False
         if self._stalled_since is None:
             self._stalled_since = t_s
-        return t_s - self._stalled_since >= GIVE_UP_S
+        return t_s - self._stalled_since >= after_s
+
+    def _stuck(self, t_s: float, stuck: bool) -> bool:
+        """Whether ``stuck`` has held for ``GIVE_UP_S``."""
+        return self._held_for(t_s, stuck, GIVE_UP_S)
 
     def _stalled(self, t_s: float, width_m: float) -> bool:
         """Whether the fingers have not followed the target for ``STALL_S``: as far as it goes."""
         if self._target <= 0.0:
             return True  # the grip is fully closed
-        if width_m - self._target < STALL_GAP_M - 1e-9:
-            self._stalled_since = None
-            return False
-        if self._stalled_since is None:
-            self._stalled_since = t_s
-        return t_s - self._stalled_since >= STALL_S
+        return self._held_for(t_s, width_m - self._target >= STALL_GAP_M - 1e-9, STALL_S)
