@@ -54,6 +54,7 @@ __all__ = [
     "config_dir",
     "default_settings_path",
     "load_settings",
+    "package_sections",
     "package_tables",
     "parse_endpoint",
     "resolve_path",
@@ -354,6 +355,11 @@ def package_tables() -> tuple[str, ...]:
     """The top-level tables the packages above this base registered (:data:`TABLES_GROUP`): the base
     keeps them as read, and each package builds and checks its own (:meth:`Settings.section`)."""
     return tuple(sorted(entry.name for entry in importlib.metadata.entry_points(group=TABLES_GROUP)))
+
+
+def package_sections() -> tuple[type[Section], ...]:
+    """The :class:`Section` classes the packages registered for their tables (imported by name only)."""
+    return tuple(entry.load() for entry in importlib.metadata.entry_points(group=TABLES_GROUP))
 
 S = TypeVar("S", bound="Section")
 

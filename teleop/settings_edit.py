@@ -12,7 +12,6 @@ leaves the old file as it was.
 
 from __future__ import annotations
 
-import importlib.metadata
 import os
 import stat
 import tempfile
@@ -25,7 +24,7 @@ import tomlkit
 from tomlkit.exceptions import TOMLKitError
 
 from teleop.errors import SettingsError
-from teleop.settings import TABLES_GROUP, settings_from_mapping
+from teleop.settings import package_sections, settings_from_mapping
 
 __all__ = ["SettingChange", "format_changes", "update_settings_file"]
 
@@ -102,8 +101,8 @@ def update_settings_file(path: Path, changes: Mapping[str, Any]) -> list[Setting
         table[name] = _plain(value)
         records.append(SettingChange(key, None if old is None else _unwrap(old), _plain(value)))
     settings = settings_from_mapping(document.unwrap(), source=f"{path} (with {', '.join(changes)} changed)")
-    for entry in importlib.metadata.entry_points(group=TABLES_GROUP):  # the packages' tables, by name only
-        settings.section(entry.load())
+    for section in package_sections():
+        settings.section(section)
     _write_atomically(path, tomlkit.dumps(document))
     return records
 
