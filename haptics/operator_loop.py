@@ -53,6 +53,7 @@ from haptics.errors import HapticsError, InputNotConnectedError
 from haptics.operator_link import OperatorView
 from teleop.bus.messages import LabelBody
 from teleop.errors import ComplianceTeleopError
+from teleop.live import check_duration_s
 from teleop.operator import BUTTONS, FOLLOW_RATE_HZ, grip_to_width_m
 from teleop.settings import Settings
 
@@ -249,11 +250,7 @@ class OperatorLoop:
             on_status: Callable[[LoopStatus], None] | None = None) -> LoopStatus:
         """Step until ``quit`` is pressed, ``stop`` is set or ``duration_s`` passed, then :meth:`finish`;
         ``on_status`` sees the status after every step."""
-        if duration_s is not None and (isinstance(duration_s, bool) or not isinstance(duration_s, int | float)
-                                       or not (math.isfinite(duration_s) and duration_s >= 0)):
-            # A NaN deadline is never reached: the loop would never stop.
-            raise HapticsError(f"duration_s = {duration_s!r}: expected a finite number of seconds >= 0 "
-                               "(or None: no limit)")
+        check_duration_s(duration_s, HapticsError)
         deadline = None if duration_s is None else self.clock() + duration_s
         while not self.quit and not (stop is not None and stop.is_set()):
             now = self.clock()

@@ -79,7 +79,7 @@ FAULT_BITS = {
     "bad_report": 4,
 }
 #: The faults (bits 0-3) that disable the actuator: the status then says state fault, level 0.
-DISABLING_FAULTS = ("over_temperature", "over_current", "position_error", "undervoltage")
+DISABLING_FAULTS = tuple(name for name, bit in FAULT_BITS.items() if bit <= 3)
 #: INPUT report device states, by code.
 DEVICE_STATES = ("free", "rendering", "fault", "watchdog")
 #: Bit number of each button in the grip report's buttons byte (version 2); bits 5-7 reserved.

@@ -26,7 +26,7 @@ from teleop.errors import SettingsError
 from teleop.settings import BusSettings, Settings
 
 __all__ = ["ENDPOINTS", "JsonLines", "ServiceLoop", "StopSignals", "add_endpoint_arguments", "bus_from_args",
-           "sigint_ignored", "sigterm_as_ctrl_c"]
+           "check_duration_s", "sigint_ignored", "sigterm_as_ctrl_c"]
 
 #: Bus endpoint settings a live process may be told to use instead of the settings file's.
 ENDPOINTS = BusSettings.ENDPOINTS
@@ -51,6 +51,14 @@ def bus_from_args(settings: Settings, args: argparse.Namespace) -> BusSettings:
         return dataclasses.replace(settings.bus, **given)
     except SettingsError as exc:
         raise SettingsError(f"command-line endpoint: {exc}") from None
+
+
+def check_duration_s(duration_s: Any, error: type[Exception] = ValueError) -> None:
+    """Refuse (``error``) a loop's ``duration_s`` that is not None or a finite number of seconds >= 0:
+    a NaN deadline is never reached, a negative one passes at once."""
+    if duration_s is not None and (isinstance(duration_s, bool) or not isinstance(duration_s, int | float)
+                                   or not 0 <= duration_s < math.inf):
+        raise error(f"duration_s = {duration_s!r}: expected a finite number of seconds >= 0 (or None: no limit)")
 
 
 class ServiceLoop:
@@ -83,8 +91,7 @@ class ServiceLoop:
 
     def run(self, stop: threading.Event, *, duration_s: float | None = None) -> Any:
         """Serve until ``stop.is_set()`` or ``duration_s`` passed."""
-        if duration_s is not None and not 0 <= duration_s < math.inf:  # NaN served not at all, -1 once
-            raise ValueError(f"duration_s = {duration_s!r}: expected a finite number of seconds >= 0, or None")
+        check_duration_s(duration_s)
         deadline = None if duration_s is None else self.clock() + duration_s
         while not stop.is_set() and (deadline is None or self.clock() < deadline):
             self.step()
