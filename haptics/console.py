@@ -50,6 +50,7 @@ from textual.containers import Horizontal
 from textual.suggester import SuggestFromList
 from textual.widgets import Input, Static
 
+from haptics.mapping import rendered_value_pa
 from haptics.operator_loop import LoopStatus, OperatorLoop
 from teleop.bus.messages import EstimateBody
 from teleop.labels import LabelError, describe_label, parse_label
@@ -90,9 +91,7 @@ def estimate_line(estimate: EstimateBody | None) -> str:
     state = estimate.state
     kind = "provisional" if estimate.provisional else "final"
     low, high = estimate.interval_pa
-    value = estimate.E_pa
-    if value is None:  # a bound without E_pa: the display renders the interval's bound
-        value = {"lower_bound": low, "upper_bound": high}.get(state)
+    value = rendered_value_pa(state, estimate.E_pa, (low, high))  # what the display renders
     if value is None:
         return f"no modulus ({state.replace('_', ' ')})  {kind}"
     sign = {"lower_bound": ">=", "upper_bound": "<="}.get(state, "=")

@@ -84,6 +84,7 @@ __all__ = [
     "just_noticeable_steps",
     "map_estimate",
     "modulus_from_fraction",
+    "rendered_value_pa",
     "smooth",
     "smoothing_weight",
     "stiffness_fraction",
@@ -109,6 +110,17 @@ def _non_negative(name: str, value: Any) -> float:
     ):
         raise MappingError(f"{name} = {value!r}: expected a finite number >= 0 (s)")
     return float(value)
+
+
+def rendered_value_pa(state: str, e_pa: float | None, interval_pa: tuple[float | None, float | None]) -> float | None:
+    """The modulus an estimate renders at: ``e_pa``, or for a bound state without one the interval's
+    bound (low for ``lower_bound``, high for ``upper_bound``); None for ``insufficient_data``."""
+    if state == "insufficient_data":
+        return None
+    if e_pa is not None:
+        return e_pa
+    low, high = interval_pa
+    return {"lower_bound": low, "upper_bound": high}.get(state)
 
 
 @dataclass(frozen=True)
@@ -181,12 +193,7 @@ class EstimateUpdate:
         """The modulus to render: ``e_pa``, or for a bound state without one, the
         interval's bound (low for ``lower_bound``, high for ``upper_bound``); None
         for ``insufficient_data``."""
-        if self.state == "insufficient_data":
-            return None
-        if self.e_pa is not None:
-            return self.e_pa
-        low, high = self.interval_pa
-        return {"lower_bound": low, "upper_bound": high}.get(self.state)
+        return rendered_value_pa(self.state, self.e_pa, self.interval_pa)
 
     @classmethod
     def from_estimate(cls, estimate: EstimateBody, t_s: float) -> EstimateUpdate:
