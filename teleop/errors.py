@@ -46,7 +46,12 @@ class DeviceTimeoutError(DeviceError, TimeoutError):
 
 
 class BackendNotFoundError(DeviceError, LookupError):
-    """No backend of that name is registered for the device family."""
+    """No backend of that name is registered for the device family, or it cannot be loaded."""
+
+    @classmethod
+    def missing_robot_extra(cls, what: str, exc: ImportError) -> "BackendNotFoundError":
+        """``what`` cannot be loaded because ``exc``'s library, of the ``robot`` extra, is missing."""
+        return cls(f"{what} cannot be loaded: {exc} (install the 'robot' extra)")
 
 
 class BusError(TeleopError):

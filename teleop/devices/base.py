@@ -48,9 +48,7 @@ def load_backend(family: str, backends: Mapping[str, str], name: str) -> type:
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
-        raise BackendNotFoundError(
-            f"{family} backend {name!r} cannot be loaded: {exc} (install the 'robot' extra)"
-        ) from exc
+        raise BackendNotFoundError.missing_robot_extra(f"{family} backend {name!r}", exc) from exc
     return getattr(module, class_name)
 
 

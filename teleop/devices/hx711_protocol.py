@@ -144,5 +144,5 @@ def import_pyserial(user: str) -> ModuleType:
     try:
         import serial
     except ImportError as exc:
-        raise BackendNotFoundError(f"{user} cannot be loaded: {exc} (install the 'robot' extra)") from exc
+        raise BackendNotFoundError.missing_robot_extra(user, exc) from exc
     return serial
