@@ -106,7 +106,7 @@ def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
              display_cell(o), _number(o.felt_log10_offset, "+.2f"),
              _number(None if o.t_first_estimate_s is None else o.t_first_estimate_s * 1e3, ".0f"),
              _number(o.t_felt_within_2x_s, ".2f"),
-             _number(o.latency_ms if o.style == "script" else None, ".0f")) for o in outcomes]
+             _number(o.latency_ms, ".0f")) for o in outcomes]
     if not any(o.style == "script" for o in outcomes):
         header, rows = header[:-1], [row[:-1] for row in rows]
     widths = [max(len(str(r[i])) for r in (header, *rows)) for i in range(len(header))]

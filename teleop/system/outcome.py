@@ -195,7 +195,12 @@ class GraspOutcome:
 
     @property
     def latency_ms(self) -> float | None:
-        return None if self.renderer_report is None else self.renderer_report.get("latency_ms")
+        """From the last loading frame's capture to the display report of the final (renderer report);
+        None for an operator's grasp, whose final waits seconds after the peak for the hand to let go
+        (its provisional estimates follow the squeeze: see :attr:`t_felt_within_2x_s`)."""
+        if self.renderer_report is None or self.style != "script":
+            return None
+        return self.renderer_report.get("latency_ms")
 
     def to_json(self) -> dict[str, Any]:
         return {"object": self.obj.name, "style": self.style, "operator_style": self.operator_style,

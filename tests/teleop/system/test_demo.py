@@ -139,6 +139,8 @@ def test_the_live_line_gives_an_operators_grasp_the_time_to_feel_it_not_the_late
     # The table keeps a latency column only while a scripted grasp has one to show.
     assert closing_table([scripted, operated]).splitlines()[0].split()[-2:] == ["latency", "(ms)"]
     assert closing_table([operated]).splitlines()[0].split()[-3:] == ["felt", "2x", "(s)"]
+    # Nor does its JSON give the wait for the hand as a latency.
+    assert scripted.to_json()["latency_ms"] == 150.0 and operated.to_json()["latency_ms"] is None
 
 
 def test_each_grasp_names_the_model_that_answered_and_the_table_the_models():
