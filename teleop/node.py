@@ -20,9 +20,12 @@ Grasps are commanded on the bus (``command`` messages on ``bus.command``):
     ``params.target_force_n`` (default ``gripper.target_force_n``), holds ``hold_s`` and
     opens again.
 ``stop``
-    Stop the gripper where it is (a simulated replay plays on to its end).
+    Stop the gripper where it is.
 ``release``
-    Open the gripper (hardware; a simulated replay releases by itself).
+    Open the gripper.
+
+A simulated scripted grasp is the replay of a record simulated whole: it holds and releases by
+itself, and refuses ``stop`` and ``release``.
 ``reload_model``
     Not for the node (the estimator service's); ignored.
 
@@ -266,14 +269,20 @@ class RobotNode(ServiceLoop):
         something), advance the grasp in progress, heartbeat."""
         if self.publisher.heartbeat_if_due(self.clock()):
             self._state = None  # a robot_state goes out with every heartbeat
-        while self.commands is not None and (message := self.commands.recv(timeout_s=0)) is not None:
-            self.handle_command(message)
+        self._take_commands()
         with contextlib.suppress(queue.Empty):
             self._publish(*self._captured.get(timeout=timeout_s))
             while True:
                 self._publish(*self._captured.get_nowait())
+        # A long backlog to publish is not the operator's silence: follows that came meanwhile count
+        # before the watchdog looks.
+        self._take_commands()
         self._advance()
         self._send_state()
+
+    def _take_commands(self) -> None:
+        while self.commands is not None and (message := self.commands.recv(timeout_s=0)) is not None:
+            self.handle_command(message)
 
     @property
     def _devices(self) -> tuple[Any, ...]:
@@ -308,6 +317,9 @@ class RobotNode(ServiceLoop):
                 index = params.get("object_index")
                 self.start_grasp(body.grasp_id, object_index=None if index is None else _index(index),
                                  target_force_n=params.get("target_force_n"))
+            elif action in ("stop", "release") and self._replaying():
+                raise DeviceError(f"grasp {self._grasp.grasp_id!r} is a simulated replay: it holds and releases by "
+                                  f"itself, and a {action} cannot change what it plays")
             elif action == "stop":
                 self.gripper.stop()
                 if self._grasp is not None and self._grasp.follow:
@@ -322,12 +334,16 @@ class RobotNode(ServiceLoop):
             if self._notice("refused", action, grasp_id, str(exc), repeat_s=REFUSAL_REPEAT_S):
                 log.warning("command %s from %s not carried out: %s", action, message.source or "?", exc)
 
+    def _replaying(self) -> bool:
+        """Whether a simulated scripted grasp runs: a replay of a record simulated whole, which
+        neither stops nor releases early (its grasp command completing would mark a false loading end)."""
+        return self.simulated and self._grasp is not None and not self._grasp.follow
+
     def _release(self) -> None:
         grasp = self._grasp
+        self._follower.stopped = False  # the operator took the fingers back from the watchdog
         if grasp is not None and grasp.follow:
             self._follower.release(grasp)
-        elif grasp is not None and self.simulated:
-            log.info("release: a simulated grasp releases by itself")
         elif grasp is None and self.simulated and self._follower.live is None:
             log.info("release: nothing between the simulated fingers")
         else:  # hardware, or an object left between the simulated fingers by a grasp the watchdog ended
@@ -386,6 +402,7 @@ class RobotNode(ServiceLoop):
                                       "the settings' maximum")
         number = self._count
         grasp_id = grasp_id or f"grasp-{number:04d}"
+        self._follower.stopped = False
         if not self.simulated:
             grasp = _Grasp(grasp_id, None, phase="grasping")
             grasp.motion = self.gripper.grasp_async(  # refuses a bad force at once

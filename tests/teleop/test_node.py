@@ -16,6 +16,8 @@ from teleop.scene import load_scene
 from teleop.settings import load_settings
 from teleop.sim.grasp import simulate_grasp
 
+TOPICS = ("frame", "force", "width", "grasp_event", "robot_notice")
+
 
 @pytest.fixture
 def rig():
@@ -23,9 +25,9 @@ def rig():
     robot = Publisher("tcp://127.0.0.1:*", lossless=True, source="robot")
     operator = Publisher("tcp://127.0.0.1:*", lossless=True, source="operator")
     commands = Subscriber(operator.endpoint, ("command",))
-    listener = Subscriber(robot.endpoint, ("frame", "force", "width", "grasp_event"))
+    listener = Subscriber(robot.endpoint, TOPICS)
     node = RobotNode(scene.settings, publisher=robot, commands=commands, scene=scene).connect()
-    robot.wait_for_subscriber("frame", "force", "width", "grasp_event", timeout_s=5.0)
+    robot.wait_for_subscriber(*TOPICS, timeout_s=5.0)
     operator.wait_for_subscriber("command", timeout_s=5.0)
     yield node, operator, listener, scene
     node.close()
@@ -108,11 +110,38 @@ def test_commands_that_cannot_be_carried_out_are_logged(rig, caplog):
         operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="g-w", params={})
         operator.send("command", t_capture_s=0.0, action="stop", grasp_id=None, params={})
         deadline = time.monotonic() + 5.0
-        while node.stats.bad_commands < 3 and time.monotonic() < deadline:
+        while node.stats.bad_commands < 4 and time.monotonic() < deadline:
             node.step()
-    assert node.stats.bad_commands == 3 and node.busy  # g-z runs; g-w came while it did
+    assert node.stats.bad_commands == 4 and node.busy  # g-z runs; g-w and the stop came while it did
     assert "objects 0..2" in caplog.text and "whole number" in caplog.text and "still in progress" in caplog.text
+    assert "'g-z' is a simulated replay" in caplog.text
     run_until_idle(node, grasps=1)
+
+
+def test_a_simulated_replay_refuses_stop_and_release_on_the_bus_and_keeps_its_loading_end(rig):
+    node, operator, listener, scene = rig
+    operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id="g-duck",
+                  params={"object_index": 1.0})
+    deadline = time.monotonic() + 30.0
+    while node._grasp is None or node._grasp.phase == "preparing":
+        assert time.monotonic() < deadline, "the grasp was not simulated in time"
+        node.step()
+    start_s = time.monotonic()
+    for action in ("stop", "release"):
+        operator.send("command", t_capture_s=start_s, action=action, grasp_id="g-duck", params={})
+    run_until_idle(node, grasps=1)
+    got = drain(listener)
+    notices = [m.body for m in got if m.type == "robot_notice"]
+    assert [(n["event"], n["action"]) for n in notices] == [("refused", "stop"), ("refused", "release")]
+    assert all("simulated replay" in n["reason"] for n in notices)
+    # The stop completed no grasp command: the loading ends where the replay's fingers stop (the record's
+    # grasp_done on the replay's clock), not at the stop.
+    record, _ = simulate_grasp(scene.objects[1], settings=scene.settings,
+                               rng=np.random.default_rng(scene.seed * 10_000), seed=scene.seed * 10_000)
+    first = next(m for m in got if m.topic == f"frame/{record.frames[0].finger}")
+    marker = next(m for m in got if m.type == "grasp_event" and m.body["event"] == "loading_end")
+    late_s = marker.t_capture_s - record.events["grasp_done"] - (first.t_capture_s - record.frames[0].t_s[0])
+    assert -0.02 <= late_s < 0.25
 
 
 def test_the_simulated_robot_needs_a_scene():

@@ -115,6 +115,27 @@ def test_enable_released_stops_the_fingers(rig):
     assert states[-1]["enable"] is False and states[-1]["mode"] == "following"
 
 
+def test_follows_that_came_while_the_node_published_a_backlog_count_before_the_watchdog(rig, monkeypatch):
+    node, operator, listener, _ = rig
+    wait_prepared(node)
+    drive(node, operator, lambda t: 0.07, 0.3)
+    publish = node._publish
+
+    def slow(kind, item):
+        if kind != "backlog":
+            return publish(kind, item)
+        time.sleep(WATCHDOG_S)  # the node busy publishing what its devices captured ...
+        operator.send("follow", t_capture_s=time.monotonic(), grasp_id="g-follow", target_width_m=0.07, enable=True)
+        time.sleep(0.5 * WATCHDOG_S)  # ... while the operator's follows keep coming
+
+    monkeypatch.setattr(node, "_publish", slow)
+    node._captured.put(("backlog", None))
+    node.step(timeout_s=0.002)
+    assert node.busy
+    drive(node, operator, lambda t: 0.07, 0.1)
+    assert not [m for m in drain(listener) if m.type == "robot_notice"]
+
+
 def _killed_console_stops_the_fingers(node: RobotNode, operator: Publisher, listener: Subscriber,
                                       closing: Callable[[float], float], still_m: float) -> None:
     """Drive the fingers closing, go silent (the console killed), and check that the fingers stand
@@ -217,6 +238,8 @@ def test_a_release_opens_fingers_the_watchdog_left_closed_and_the_next_grasp_tak
     while node.gripper.read_width()[1] < 0.075:
         assert time.monotonic() < deadline, "the fingers did not open"
         step_for(node, 0.1)
+    # The operator has the fingers back: the node is no longer in the watchdog's stop.
+    assert [m.body["mode"] for m in drain(listener) if m.type == "robot_state"][-1] == "idle"
     # The next follow grasp takes the scene's next object, prepared once it is asked for.
     deadline, starts = time.monotonic() + 30.0, {}
     while "g-second" not in starts:
