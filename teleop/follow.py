@@ -14,7 +14,9 @@ force-capped (:mod:`teleop.operator`). A follow counts only with ``enable`` (the
 * during a follow grasp it moves the fingers' target (:meth:`~teleop.devices.gripper.Gripper.follow`).
   The fingers never exceed the settings' maximum grasp force (``gripper.target_force_n``): the
   simulated physics stalls there; with hardware the node stops closing once the load cell
-  reads it. Reaching it sends a ``robot_notice`` *force_limit*, once per grasp.
+  reads it, and not at all while the load cell is silent (no force for
+  :data:`FORCE_SILENT_S`: a ``robot_notice`` *refused* says so). Reaching it sends a
+  ``robot_notice`` *force_limit*, once per grasp.
 
 A follow without enable stops the fingers where they are. When no follow came for
 :data:`~teleop.operator.WATCHDOG_S`, the node stops the fingers, sends a ``robot_notice``
@@ -44,6 +46,8 @@ if TYPE_CHECKING:
     from teleop.node import RobotNode, _Grasp
 
 __all__ = ["Follower"]
+
+FORCE_SILENT_S = 0.1  # with hardware, the fingers close only on a force this fresh: 8 samples at the HX711's 80 Hz
 
 log = logging.getLogger("teleop.node")  # the node's records, as before the split: its log filters apply
 
@@ -175,7 +179,8 @@ class Follower:
         if grasp.follow:
             self.ended.add(grasp.grasp_id)
         self._let_go()
-        if node.simulated and self.live is None and self.next_live is None:
+        # The object prepared may be another grasp's (a commanded grasp took its number): the next one's is due.
+        if node.simulated and self.live is None and (self.next_live is None or self.next_live[0] != node._count):
             self.prepare_next()
 
     def _let_go(self) -> bool:
@@ -206,11 +211,17 @@ class Follower:
 
     def _drive_fingers(self, grasp: _Grasp) -> None:
         """Move the fingers toward the grasp's target; with hardware, no closer once the load cell
-        reads the maximum force."""
+        reads the maximum force, nor while it is silent (a force it does not read cannot be capped)."""
+        from teleop.node import REFUSAL_REPEAT_S
+
         node = self.node
-        capped = (not node.simulated and node._latest.get("force", 0.0) >= node.settings.gripper.target_force_n
-                  and grasp.target_width_m < node._latest.get("width", math.inf))
-        if capped:
+        closing = not node.simulated and grasp.target_width_m < node._latest.get("width", math.inf)
+        if closing and node.clock() - node._newest_s.get("force", -math.inf) > FORCE_SILENT_S:
+            node.gripper.stop()
+            node._notice("refused", "follow", grasp.grasp_id,
+                         f"the load cell has sent no force for over {FORCE_SILENT_S} s: the fingers close no "
+                         "further until it reads again", repeat_s=REFUSAL_REPEAT_S)
+        elif closing and node._latest.get("force", 0.0) >= node.settings.gripper.target_force_n:
             node.gripper.stop()
             self._force_limit(grasp)
         else:

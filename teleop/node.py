@@ -93,6 +93,7 @@ COMMAND_TOPICS = ("command", "follow")
 START_GRASP_PARAMS = frozenset({"object_index", "target_force_n"})  # what a start_grasp command may set
 REFUSAL_REPEAT_S = 1.0  # the same refusal (action and reason) goes out at most this often
 READ_TIMEOUT_S = 0.05  # device reads wake this often to see whether the node is stopping
+REOPEN_S = 1.0  # a sensor whose reads fail is opened again this often
 APPROACH_LEAD_S = 0.05  # a replay starts this long before the record's first sample
 TAIL_S = 2 * READ_TIMEOUT_S  # after a grasp's last data is due, wait this long for the readers
 
@@ -226,19 +227,24 @@ class RobotNode(ServiceLoop):
     # ------------------------------------------------------------------ readers (one thread each)
 
     def _read_camera(self, camera: TactileCamera) -> None:
-        self._read_forever(camera, lambda: ("frame", camera.read(timeout_s=READ_TIMEOUT_S)))
+        self._read_forever(camera, f"camera/{camera.sensor.finger}",
+                           lambda: ("frame", camera.read(timeout_s=READ_TIMEOUT_S)), reopen=True)
 
     def _read_forces(self, cell: LoadCell) -> None:
-        self._read_forever(cell, lambda: ("force", cell.read(timeout_s=READ_TIMEOUT_S)))
+        self._read_forever(cell, "load_cell", lambda: ("force", cell.read(timeout_s=READ_TIMEOUT_S)), reopen=True)
 
     def _read_widths(self, gripper: Gripper) -> None:
         def read() -> tuple[str, Samples] | None:
             widths = gripper.widths(timeout_s=READ_TIMEOUT_S)
             return ("width", widths) if len(widths) else None
 
-        self._read_forever(gripper, read)
+        self._read_forever(gripper, "gripper", read)
 
-    def _read_forever(self, device: Any, read: Callable[[], tuple[str, Any] | None]) -> None:
+    def _read_forever(self, device: Any, name: str, read: Callable[[], tuple[str, Any] | None], *,
+                      reopen: bool = False) -> None:
+        """Read ``device`` until the node stops. A failure is said once on the bus (and that it
+        reads again); a sensor (``reopen``: a camera or the load cell, which nothing else drives)
+        is opened again every :data:`REOPEN_S` meanwhile, as after a bridge or stream restart."""
         failing = False
         while not self._stop_readers.is_set():
             try:
@@ -248,13 +254,26 @@ class RobotNode(ServiceLoop):
             except DeviceError as exc:
                 if not self._stop_readers.is_set() and not failing:
                     log.warning("%r: read failed: %s", device, exc)
-                    self._captured.put(("device_error", str(exc)))
+                    self._captured.put(("device_error", (name, f"{exc}{'; opening it again' if reopen else ''}")))
                 failing = True
-                self._stop_readers.wait(READ_TIMEOUT_S)
+                if reopen and not self._stop_readers.wait(REOPEN_S):
+                    self._reopen(device)
+                else:
+                    self._stop_readers.wait(READ_TIMEOUT_S)
                 continue
-            failing = False
+            if failing:
+                log.warning("%r: reading again", device)
+                self._captured.put(("device_error", (name, "reading again")))
+                failing = False
             if item is not None:
                 self._captured.put(item)
+
+    def _reopen(self, device: Any) -> None:
+        device.close()
+        try:
+            device.connect()
+        except DeviceError as exc:
+            log.debug("%r: not open again yet: %s", device, exc)
 
     # ------------------------------------------------------------------ loop
 
@@ -558,8 +577,10 @@ class RobotNode(ServiceLoop):
             self._published(kind, float(item.t_s[-1]))
         elif kind == "grasp_stopped":
             self._grasp_stopped(item)
-        else:  # a reader's device error, already logged by the reader
-            self.stats.device_errors += 1
+        else:  # a reader's device failed, or reads again: already logged by the reader
+            name, reason = item
+            self.stats.device_errors += reason != "reading again"
+            self._notice("device", name, None, reason)
 
 
 def _index(value: float) -> int:

@@ -81,7 +81,7 @@ DISPLAY_PHASES = ("idle", "active", "stale", "fading")
 
 # The robot node's modes (robot_state) and the notices it sends (robot_notice).
 ROBOT_MODES = ("idle", "grasping", "holding", "releasing", "following", "stopped")
-ROBOT_NOTICES = ("refused", "watchdog", "force_limit")
+ROBOT_NOTICES = ("refused", "watchdog", "force_limit", "device")
 # What the estimator service says of its model: it serves another now, or it kept the one it had.
 MODEL_EVENTS = ("loaded", "refused")
 MAX_MODEL_ID_CHARS = 64
@@ -480,9 +480,11 @@ class RobotNoticeBody(Body):
     event : str
         One of :data:`ROBOT_NOTICES`: ``refused`` (a command it cannot carry out), ``watchdog``
         (no follow came for :data:`teleop.operator.WATCHDOG_S`: the fingers stopped),
-        ``force_limit`` (the fingers reached the settings' maximum force and close no further).
+        ``force_limit`` (the fingers reached the settings' maximum force and close no further),
+        ``device`` (a device's reads failed, or read again).
     action : str
-        The command's action, or ``follow``.
+        The command's action, ``follow``, or for ``device`` the device (``gripper``,
+        ``load_cell``, ``camera/<finger>``).
     grasp_id : str or None
     reason : str
     """

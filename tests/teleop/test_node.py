@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from teleop.bus.pubsub import Publisher, Subscriber
-from teleop.errors import SimulationError
+from teleop.errors import DeviceError, SimulationError
 from teleop.node import RobotNode
 from teleop.scene import load_scene
 from teleop.settings import load_settings
@@ -226,3 +226,41 @@ def test_a_simulated_grasp_squeezes_to_the_commanded_force(rig):
     # As a gripper's grasp stops at its force: the peak is the command's, within the load cell's noise,
     # not a share of the settings' 30 N drawn by the simulator.
     assert forces.max() == pytest.approx(8.0, abs=0.5)
+
+
+def test_a_sensor_whose_reads_fail_is_opened_again_and_the_bus_hears_it(rig, monkeypatch):
+    node, _, listener, _ = rig
+    monkeypatch.setattr("teleop.node.REOPEN_S", 0.01)
+
+    class Bridge:  # a load cell whose bridge went away, and is back when opened again
+        opened = 0
+
+        def close(self):
+            pass
+
+        def connect(self):
+            self.opened += 1
+
+        def read(self):
+            if not self.opened:
+                raise DeviceError("link failed: the bridge closed the connection")
+            node._stop_readers.set()  # one good read is enough here
+            return ("reading", None)
+
+    cell = Bridge()
+    node._read_forever(cell, "load_cell", cell.read, reopen=True)
+    assert cell.opened == 1
+    items = []
+    while not node._captured.empty():
+        kind, item = node._captured.get()
+        if kind in ("device_error", "reading"):
+            items.append((kind, item))
+            if kind == "device_error":
+                node._publish(kind, item)
+    assert items == [("device_error", ("load_cell", "link failed: the bridge closed the connection; opening it again")),
+                     ("device_error", ("load_cell", "reading again")), ("reading", None)]
+    notices = [m.body for m in drain(listener) if m.type == "robot_notice"]
+    assert [(n["event"], n["action"], n["reason"]) for n in notices] == [
+        ("device", "load_cell", "link failed: the bridge closed the connection; opening it again"),
+        ("device", "load_cell", "reading again")]
+    assert node.stats.device_errors == 1

@@ -2,72 +2,29 @@
 
 from __future__ import annotations
 
-import dataclasses
 import time
-from collections.abc import Callable
 
 import numpy as np
 import pytest
+from support.node_rig import (
+    drain,
+    drive,
+    killed_console_stops_the_fingers,
+    node_rig,
+    step_for,
+    wait_prepared,
+)
 
-from teleop.bus.pubsub import Publisher, Subscriber
-from teleop.node import COMMAND_TOPICS, RobotNode
-from teleop.operator import FOLLOW_RATE_HZ, WATCHDOG_S
-from teleop.scene import load_scene
-
-TOPICS = ("frame", "force", "width", "grasp_event", "robot_state", "robot_notice")
-
-
-def _rig(settings_of: Callable = lambda s: s):
-    scene = load_scene("quick")
-    robot = Publisher("tcp://127.0.0.1:*", lossless=True, source="robot")
-    operator = Publisher("tcp://127.0.0.1:*", lossless=True, source="operator")
-    commands = Subscriber(operator.endpoint, COMMAND_TOPICS)
-    listener = Subscriber(robot.endpoint, TOPICS)
-    node = RobotNode(settings_of(scene.settings), publisher=robot, commands=commands, scene=scene).connect()
-    robot.wait_for_subscriber(*TOPICS, timeout_s=5.0)
-    operator.wait_for_subscriber("command", "follow", timeout_s=5.0)
-    return node, operator, listener, scene, (robot, operator, commands, listener)
+from teleop.operator import WATCHDOG_S
 
 
 @pytest.fixture
 def rig():
-    node, operator, listener, scene, sockets = _rig()
+    node, operator, listener, scene, sockets = node_rig()
     yield node, operator, listener, scene
     node.close()
     for sock in sockets:
         sock.close()
-
-
-def drive(node: RobotNode, operator: Publisher, target: Callable[[float], float], duration_s: float, *,
-          grasp_id: str | None = "g-follow", enable: bool = True) -> float:
-    """Send follows at FOLLOW_RATE_HZ for ``duration_s`` (target width of the time since the start),
-    stepping the node; returns when the last follow went out."""
-    start = next_s = time.monotonic()
-    last = start
-    while (now := time.monotonic()) - start < duration_s:
-        if now >= next_s:
-            operator.send("follow", t_capture_s=now, grasp_id=grasp_id, target_width_m=target(now - start),
-                          enable=enable)
-            last, next_s = now, next_s + 1.0 / FOLLOW_RATE_HZ
-        node.step(timeout_s=0.002)
-    return last
-
-
-def step_for(node: RobotNode, duration_s: float) -> None:
-    end = time.monotonic() + duration_s
-    while time.monotonic() < end:
-        node.step(timeout_s=0.002)
-
-
-def drain(listener: Subscriber) -> list:
-    got = []
-    while (message := listener.recv(timeout_s=0.2)) is not None:
-        got.append(message)
-    return got
-
-
-def wait_prepared(node: RobotNode) -> None:
-    node._next_live[1].result(timeout=30.0)  # the first object, prepared at connect
 
 
 @pytest.mark.slow
@@ -123,7 +80,8 @@ def test_follows_that_came_while_the_node_published_a_backlog_count_before_the_w
 
     def slow(kind, item):
         if kind != "backlog":
-            return publish(kind, item)
+            publish(kind, item)
+            return
         time.sleep(WATCHDOG_S)  # the node busy publishing what its devices captured ...
         operator.send("follow", t_capture_s=time.monotonic(), grasp_id="g-follow", target_width_m=0.07, enable=True)
         time.sleep(0.5 * WATCHDOG_S)  # ... while the operator's follows keep coming
@@ -136,59 +94,11 @@ def test_follows_that_came_while_the_node_published_a_backlog_count_before_the_w
     assert not [m for m in drain(listener) if m.type == "robot_notice"]
 
 
-def _killed_console_stops_the_fingers(node: RobotNode, operator: Publisher, listener: Subscriber,
-                                      closing: Callable[[float], float], still_m: float) -> None:
-    """Drive the fingers closing, go silent (the console killed), and check that the fingers stand
-    still from 250 ms after the last follow, with the watchdog's notice and the grasp's end."""
-    last = drive(node, operator, closing, 0.5)
-    moving_from = node.gripper.read_width()[1]
-    while time.monotonic() < last + 0.25:
-        node.step(timeout_s=0.002)
-    stopped = node.gripper.read_width()[1]
-    step_for(node, 0.35)
-    assert abs(moving_from - stopped) > 1e-3, "the fingers were not moving when the console died"
-    assert node.gripper.read_width()[1] == pytest.approx(stopped, abs=still_m)
-    got = drain(listener)
-    notices = [m for m in got if m.type == "robot_notice"]
-    assert [m.body["event"] for m in notices] == ["watchdog"]
-    assert WATCHDOG_S <= notices[0].t_capture_s - last < 0.25
-    assert [m.body["event"] for m in got if m.type == "grasp_event"] == ["start", "end"]
-    assert [m.body["mode"] for m in got if m.type == "robot_state"][-1] == "stopped"
-    assert not node.busy
-
-
 def test_killing_the_console_stops_the_simulated_gripper_within_250_ms(rig):
     node, operator, listener, _ = rig
     wait_prepared(node)
     # Closing at 40 mm/s: still in the air (the stress ball is 63 mm wide) when the console dies.
-    _killed_console_stops_the_fingers(node, operator, listener, lambda t: 0.08 - 0.04 * (t + 0.1), still_m=1e-4)
-
-
-def test_killing_the_console_stops_the_franky_sim_gripper_within_250_ms(franky_sim_robot, monkeypatch):
-    from teleop.devices.franky_gripper import FOLLOW_STEP_S
-    from teleop.devices.gripper import FOLLOW_SPEED_M_S
-    from teleop.devices.playback import SimulatedLoadCell
-
-    # franky-sim stands in for the hand; the simulated load cell, silent without a grasp, for the
-    # bridge (the node tares a hardware cell when it connects).
-    monkeypatch.setattr(SimulatedLoadCell, "tare", lambda self: 0.0)
-
-    def on_franky(settings):
-        gripper = dataclasses.replace(settings.gripper, backend="franky", host=franky_sim_robot.hostname)
-        return dataclasses.replace(settings, gripper=gripper)
-
-    node, operator, listener, _, sockets = _rig(on_franky)
-    try:
-        assert not node.simulated
-        start = node.gripper.read_width()[1]
-        target = 0.0 if start > 0.04 else 0.08
-        # franky-sim's fingers creep toward the last step's goal: within one step at the follow speed.
-        _killed_console_stops_the_fingers(node, operator, listener, lambda t: target,
-                                          still_m=FOLLOW_SPEED_M_S * FOLLOW_STEP_S)
-    finally:
-        node.close()
-        for sock in sockets:
-            sock.close()
+    killed_console_stops_the_fingers(node, operator, listener, lambda t: 0.08 - 0.04 * (t + 0.1), still_m=1e-4)
 
 
 @pytest.mark.slow
@@ -261,6 +171,7 @@ def test_a_commanded_grasp_leaves_the_fingers_open_for_the_next_objects_follow_g
     step_for(node, 1.0)
     # The replay let go where its record ends; as a hardware release, the fingers then open fully.
     assert node.gripper.read_width()[1] == pytest.approx(scene.settings.gripper.max_width_m, abs=1e-3)
+    assert node._next_live[0] == 1  # the next grasp's object prepared ahead, not the one the commanded grasp skipped
     wait_prepared(node)
     drain(listener)
     drive(node, operator, lambda t: scene.settings.gripper.max_width_m, 0.4, grasp_id="g-next")
