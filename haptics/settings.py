@@ -26,6 +26,7 @@ leaves the table out; a deployment with a gamepad writes for instance::
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from teleop.errors import SettingsError
@@ -128,12 +129,28 @@ class OperatorSettings(Section):
             if code in seen:
                 raise SettingsError(f"OperatorSettings.gamepad_{key} = {code!r}: already gamepad_{seen[code]}")
             seen[code] = key
+        known = _evdev_codes()
+        if known is None:
+            return  # without evdev the gamepad cannot open: nothing to check the names against
+        for key, code in {"trigger": self.gamepad_trigger, **self.gamepad_buttons()}.items():
+            if code not in known:
+                raise SettingsError(f"OperatorSettings.gamepad_{key} = {code!r}: evdev knows no such code (see "
+                                    "evdev.ecodes, or run evtest to see what the pad sends)")
 
     def gamepad_buttons(self) -> dict[str, str]:
         """Button name -> evdev key name for ``"enable"`` and every mapped discrete button."""
         named = {"enable": self.gamepad_enable}
         named.update({b: getattr(self, f"gamepad_{b}") for b in _GAMEPAD_BUTTONS})
         return {b: code for b, code in named.items() if code}
+
+
+def _evdev_codes() -> Mapping[str, int] | None:
+    """evdev's table of code names (a pure table: importing it opens no device); None without evdev."""
+    try:
+        from evdev import ecodes
+    except ImportError:
+        return None
+    return ecodes.ecodes
 
 
 def operator_settings(settings: Settings) -> OperatorSettings:

@@ -28,6 +28,7 @@ import functools
 import importlib.metadata
 import importlib.resources
 import os
+import re
 import tomllib
 import types
 from collections.abc import Mapping
@@ -37,7 +38,7 @@ from typing import Any, ClassVar, TypeVar
 
 from teleop.errors import SettingsError
 from teleop.physics import resolution_limit_pa
-from teleop.settings_fields import Validated, build_settings, spec
+from teleop.settings_fields import Validated, build_settings, spec, tcp_host_port
 
 __all__ = [
     "BUS_TRANSPORTS",
@@ -61,8 +62,6 @@ __all__ = [
     "settings_from_mapping",
     "settings_to_mapping",
 ]
-
-
 
 
 def config_dir() -> Path:
@@ -177,12 +176,19 @@ class SensorSettings(Validated):
                                    gel_compliance_per_pa=self.gel_compliance_per_pa, object_poisson=object_poisson)
 
 
+#: A host name or an IP address (v6 with a zone too): no scheme, port, path or spaces.
+_HOST = re.compile(r"[A-Za-z0-9._:%-]+")
+
+
 @dataclass(frozen=True)
 class GripperSettings(Validated):
     """Parallel gripper motion and grasp parameters."""
 
     backend: str = spec("sim", choices=("sim", "franky"))
     host: str = spec("127.0.0.1", doc="robot controller address (franky)")
+    connect_timeout_s: float = spec(5.0, lo=0.0, hi=60.0, lo_open=True,
+                                    doc="how long connecting may take before the robot counts as not answering "
+                                        "(franky; libfranka's own limit is 60 s)")
     max_width_m: float = spec(0.08, lo=0.0, hi=0.3, lo_open=True)
     closing_speed_m_s: float = spec(0.0375, lo=0.0, hi=0.2, lo_open=True)
     target_force_n: float = spec(30.0, lo=0.0, hi=140.0, lo_open=True)
@@ -190,6 +196,12 @@ class GripperSettings(Validated):
     width_read_hz: float = spec(10.0, lo=0.1, hi=1000.0)
     finger_stiffness_n_per_m: float = spec(2.0e5, lo=0.0, hi=1e9, lo_open=True,
                                            doc="finger bending stiffness, corrected from force")
+
+    def _check(self) -> None:
+        # checked as the file loads, not first when franky connects (libfranka: "Host not found")
+        if not _HOST.fullmatch(self.host):
+            raise SettingsError(f"GripperSettings.host = {self.host!r}: expected the robot controller's host name "
+                                "or IP address, e.g. '172.16.0.2'")
 
 
 @dataclass(frozen=True)
@@ -204,6 +216,12 @@ class LoadCellSettings(Validated):
     baud: int = spec(115200, lo=1200, hi=4_000_000)
     address: str = spec("tcp://127.0.0.1:5601", doc="framed TCP endpoint (tcp backend)")
     timeout_s: float = spec(1.0, lo=0.0, hi=60.0, lo_open=True)
+
+    def _check(self) -> None:
+        # as the file loads, not first when the tcp backend connects
+        if tcp_host_port(self.address) is None:
+            raise SettingsError(f"LoadCellSettings.address = {self.address!r}: expected tcp://HOST:PORT with a port in "
+                                "1..65535, where `teleop hx711-bridge` serves")
 
 
 #: The ZeroMQ transports by how an endpoint names its peer: HOST:PORT (``tcp://SRC;HOST:PORT`` also
@@ -471,7 +489,6 @@ class Settings(Validated):
 
 
 # --------------------------------------------------------------------------- loading
-
 
 
 def _build_settings_file(data: Mapping[str, Any], source: Path | None) -> Settings:

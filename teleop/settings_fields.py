@@ -12,10 +12,11 @@ import math
 import typing
 from collections.abc import Iterable, Mapping
 from typing import Any, TypeVar
+from urllib.parse import urlsplit
 
 from teleop.errors import SettingsError
 
-__all__ = ["Validated", "build_settings", "spec"]
+__all__ = ["Validated", "build_settings", "spec", "tcp_host_port"]
 
 T = TypeVar("T")
 
@@ -168,3 +169,13 @@ def build_settings(cls: type[T], data: Mapping[str, Any], source: str, prefix: s
     except SettingsError as exc:
         where = f"[{prefix}] " if prefix else ""
         raise SettingsError(f"{source}: {where}{exc}") from None
+
+
+def tcp_host_port(address: str) -> tuple[str, int] | None:
+    """``("host", port)`` of ``tcp://host:port`` (port 1..65535); None for anything else."""
+    parts = urlsplit(address)
+    try:
+        port = parts.port
+    except ValueError:  # out of 0..65535
+        return None
+    return (parts.hostname, port) if parts.scheme == "tcp" and parts.hostname and port else None

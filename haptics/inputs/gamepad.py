@@ -37,15 +37,6 @@ from teleop.settings import Settings
 __all__ = ["GamepadInput"]
 
 
-def _code(kind: str, name: str) -> int:
-    """The evdev code called ``name``; InputDeviceError naming the setting when there is none."""
-    code = ecodes.ecodes.get(name)
-    if code is None:
-        raise InputDeviceError(f"[operator] gamepad {kind} = {name!r}: evdev knows no such code "
-                               "(see evdev.ecodes, or run evtest to see what the pad sends)")
-    return code
-
-
 class GamepadInput(OperatorInputDevice):
     """A gamepad through evdev (module notes).
 
@@ -66,10 +57,9 @@ class GamepadInput(OperatorInputDevice):
         self.settings = settings or OperatorSettings()
         self._given = device
         self._device: Any = None
-        self._trigger = _code("trigger", self.settings.gamepad_trigger)
-        self._buttons = {
-            _code(button, name): button for button, name in self.settings.gamepad_buttons().items()
-        }
+        # OperatorSettings refused names evdev does not know
+        self._trigger = ecodes.ecodes[self.settings.gamepad_trigger]
+        self._buttons = {ecodes.ecodes[name]: button for button, name in self.settings.gamepad_buttons().items()}
         self._enable_code = next(c for c, b in self._buttons.items() if b == "enable")
         self._lo, self._hi = 0, 1
         self._value = 0
@@ -131,8 +121,9 @@ class GamepadInput(OperatorInputDevice):
         try:
             return _input_device(path)
         except OSError as exc:
-            hint = " (add yourself to the 'input' group)" if exc.errno in (errno.EACCES, errno.EPERM) else ""
-            raise InputDeviceError(f"cannot open gamepad {path}: {exc.strerror or exc}{hint}") from exc
+            fix = ("add yourself to the 'input' group" if exc.errno in (errno.EACCES, errno.EPERM) else
+                   "plug the pad in and check `[operator] gamepad_path` (evtest lists the devices; '' finds the first pad)")
+            raise InputDeviceError(f"cannot open gamepad {path}: {exc.strerror or exc}: {fix}") from exc
 
     # ------------------------------------------------------------ lifecycle hooks
 

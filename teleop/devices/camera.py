@@ -17,7 +17,7 @@ from teleop.devices.base import Device, check_timeout, load_backend
 from teleop.errors import DeviceError, DeviceTimeoutError
 from teleop.settings import SensorSettings
 
-__all__ = ["BACKENDS", "CameraFrame", "TactileCamera", "make_camera"]
+__all__ = ["BACKENDS", "CameraFrame", "TactileCamera", "make_camera", "opencv_fix"]
 
 BACKENDS = {
     "sim": "teleop.devices.playback:SimulatedCamera",
@@ -98,3 +98,8 @@ class TactileCamera(Device):
 
     def _read(self, timeout_s: float) -> CameraFrame | None:
         raise NotImplementedError
+
+
+def opencv_fix(finger: str) -> str:
+    """What to do when the ``opencv`` camera of ``finger`` does not open or deliver."""
+    return f"check the camera or its stream server and `camera_source` in [sensors.{finger}]"

@@ -1,7 +1,7 @@
 """Franka hand through ``franky`` (PyPI ``franky-control``): the ``franky`` gripper backend.
 
 ``franky.Gripper(host)`` connects to the robot controller (or to ``franky-sim`` on
-loopback). Its calls block; the base class runs them in its command thread for the
+loopback), within ``GripperSettings.connect_timeout_s``. Its calls block; the base class runs them in its command thread for the
 ``*_async`` variants and reads the width in its background reader (about 0.1 s per read
 on a real hand). Every ``franky`` exception is wrapped in
 :class:`~teleop.errors.DeviceError` naming the host.
@@ -20,12 +20,13 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
+from concurrent.futures import Future
 from typing import TypeVar
 
 import franky
 
-from teleop.devices.gripper import Gripper
-from teleop.errors import DeviceError
+from teleop.devices.gripper import FRANKY_FIX, Gripper
+from teleop.errors import DeviceError, DeviceTimeoutError
 
 __all__ = ["FOLLOW_DEADBAND_M", "FOLLOW_STEP_S", "FrankyGripper"]
 
@@ -59,14 +60,38 @@ class FrankyGripper(Gripper):
         try:
             return fn()
         except (franky.Exception, franky.GripperException, RuntimeError) as exc:
-            raise DeviceError(f"franky gripper at {self.settings.host}: {what} failed: {exc}") from exc
+            # a connect error says what to do: every command opening the gripper shows it
+            fix = f": {FRANKY_FIX}" if what == "connect" else ""
+            raise DeviceError(f"franky gripper at {self.settings.host}: {what} failed: {exc}{fix}") from exc
 
     def _open(self) -> None:
-        self._gripper = self._call("connect", lambda: franky.Gripper(self.settings.host))
+        self._gripper = self._connect_within(self.settings.connect_timeout_s)
         self._follow_target = None
         self._follow_stop.clear()
         self._follower = threading.Thread(target=self._follow_forever, name=f"{self!r}-follow", daemon=True)
         self._follower.start()
+
+    def _connect_within(self, timeout_s: float) -> franky.Gripper:
+        """``franky.Gripper(host)``, or DeviceTimeoutError after ``timeout_s``.
+
+        A host that accepts the connection but never answers holds libfranka's handshake for 60 s,
+        in C, where Ctrl-C cannot reach it. So it runs in a daemon thread, abandoned on time-out,
+        and this thread waits on a future: a timed wait Ctrl-C interrupts at once.
+        """
+        connected: Future[franky.Gripper] = Future()
+
+        def connect() -> None:
+            try:
+                connected.set_result(franky.Gripper(self.settings.host))
+            except Exception as exc:  # handed to the waiting thread
+                connected.set_exception(exc)
+
+        threading.Thread(target=connect, name=f"{self!r}-connect", daemon=True).start()
+        try:
+            return self._call("connect", lambda: connected.result(timeout=timeout_s))
+        except TimeoutError:
+            raise DeviceTimeoutError(f"franky gripper at {self.settings.host}: no answer within {timeout_s:g} s "
+                              f"(`gripper.connect_timeout_s`): {FRANKY_FIX}") from None
 
     def _shutdown(self) -> None:
         self._follow_stop.set()

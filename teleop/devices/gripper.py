@@ -34,7 +34,7 @@ from teleop.errors import DeviceError, InvalidCommandError
 from teleop.record import Samples
 from teleop.settings import GripperSettings
 
-__all__ = ["BACKENDS", "FOLLOW_SPEED_M_S", "MAX_FORCE_N", "MAX_SPEED_M_S", "GraspStop", "Gripper", "make_gripper"]
+__all__ = ["BACKENDS", "FOLLOW_SPEED_M_S", "FRANKY_FIX", "MAX_FORCE_N", "MAX_SPEED_M_S", "GraspStop", "Gripper", "make_gripper"]
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +45,7 @@ BACKENDS = {
 MAX_SPEED_M_S = 0.2
 MAX_FORCE_N = 140.0  # the Franka hand's peak grasp force
 FOLLOW_SPEED_M_S = 0.1  # default finger speed while following an operator: faster than a grasp closes
+FRANKY_FIX = "check the robot is on with FCI enabled and `gripper.host`"  # what to do when it does not connect
 
 
 def make_gripper(settings: GripperSettings, *, backend: str | None = None, **options) -> Gripper:

@@ -23,7 +23,6 @@ import socket
 import threading
 import time
 from collections import Counter
-from urllib.parse import urlsplit
 
 from teleop.devices.base import SampleQueue
 from teleop.devices.hx711_protocol import (
@@ -33,10 +32,11 @@ from teleop.devices.hx711_protocol import (
     parse_frame,
     parse_serial_line,
 )
-from teleop.devices.loadcell import LoadCell
+from teleop.devices.loadcell import FIXES, LoadCell
 from teleop.errors import DeviceError
 from teleop.record import Samples
 from teleop.settings import LoadCellSettings
+from teleop.settings_fields import tcp_host_port
 
 __all__ = ["BridgeClock", "SerialHx711", "TcpHx711", "parse_tcp_address"]
 
@@ -139,7 +139,7 @@ class SerialHx711(_StreamingHx711):
         try:
             self._port = self._serial.Serial(self.settings.port, self.settings.baud, timeout=0.1)
         except (self._serial.SerialException, ValueError) as exc:
-            raise DeviceError(f"{self!r}: cannot open the port: {exc}") from exc
+            raise DeviceError(f"{self!r}: cannot open the port: {exc}: {FIXES['serial']}") from exc
 
     def _close_link(self) -> None:
         if self._port is not None:
@@ -158,14 +158,10 @@ class SerialHx711(_StreamingHx711):
 
 def parse_tcp_address(address: str) -> tuple[str, int]:
     """``("host", port)`` from ``tcp://host:port``; DeviceError naming the address otherwise."""
-    parts = urlsplit(address)
-    try:
-        port = parts.port
-    except ValueError:
-        port = None
-    if parts.scheme != "tcp" or not parts.hostname or port is None:
+    host_port = tcp_host_port(address)
+    if host_port is None:
         raise DeviceError(f"load-cell address {address!r}: expected tcp://host:port")
-    return parts.hostname, port
+    return host_port
 
 
 class BridgeClock:
@@ -199,7 +195,7 @@ class TcpHx711(_StreamingHx711):
         try:
             self._socket = socket.create_connection((host, port), timeout=self.settings.timeout_s)
         except OSError as exc:
-            raise DeviceError(f"{self!r}: cannot connect to the bridge: {exc}") from exc
+            raise DeviceError(f"{self!r}: cannot connect to the bridge: {exc}: {FIXES['tcp']}") from exc
         self._socket.settimeout(0.1)
         self._last_seq, self._clock = None, BridgeClock()
 

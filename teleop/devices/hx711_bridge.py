@@ -9,6 +9,9 @@ backend). Sources: :class:`FakeHx711` (a simulated cell, for tests and demos) an
 Any callable returning counts can be served.
 
 A host that stops reading for ``send_timeout_s`` is dropped, so it cannot stall the others.
+When the source fails (a serial device unplugged) the bridge stops serving and closes every
+host's connection, so each sees its link fail rather than silence; :attr:`Hx711Bridge.failure`
+says why, and ``on_failure`` is told at once.
 """
 
 from __future__ import annotations
@@ -89,6 +92,7 @@ class SerialCounts:
 
     def __init__(self, port: str, baud: int = 115200):
         serial = import_pyserial("the serial HX711 source (--serial)")
+        self.port = port
         try:
             self._port = serial.Serial(port, baud, timeout=0.5)
         except (serial.SerialException, ValueError) as exc:
@@ -97,9 +101,14 @@ class SerialCounts:
         self._ready: deque[int] = deque()
 
     def __call__(self) -> int | None:
-        """The next valid reading, or None when the line stayed idle for 0.5 s."""
+        """The next valid reading, or None when the line stayed idle for 0.5 s; DeviceError when the
+        port failed (e.g. the device was unplugged)."""
         while not self._ready:
-            data = self._port.read(max(1, self._port.in_waiting))
+            try:
+                data = self._port.read(max(1, self._port.in_waiting))
+            except OSError as exc:  # pyserial's SerialException is one; in_waiting's ioctl raises a bare one
+                raise DeviceError(f"serial HX711 at {self.port}: the port failed: {exc}: check the cable, then start "
+                                  "the bridge again") from exc
             if not data:
                 return None
             for line in self._lines.feed(data):
@@ -124,6 +133,9 @@ class Hx711Bridge:
         Where to listen; port 0 picks a free one (see :attr:`address`).
     send_timeout_s : float
         A host that takes no data for this long is dropped.
+    on_failure : callable, optional
+        Called with :attr:`failure` from the sending thread when the source fails (without one,
+        the failure is logged).
     """
 
     def __init__(
@@ -133,8 +145,11 @@ class Hx711Bridge:
         host: str = "0.0.0.0",
         port: int = 5601,
         send_timeout_s: float = 1.0,
+        on_failure: Callable[[str], None] | None = None,
     ):
         self.read_counts = read_counts
+        self.on_failure = on_failure
+        self.failure: str | None = None  # why the source failed, once it has
         self.host, self.port = host, port
         self.send_timeout_s = send_timeout_s
         self.sent = 0  # readings taken and framed (sent to however many hosts were there)
@@ -200,14 +215,21 @@ class Hx711Bridge:
                 return
             client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # one reading, one packet
             client.settimeout(self.send_timeout_s)
-            log.info("HX711 bridge: host %s:%d connected", *peer[:2])
             with self._lock:
+                if self._stop.is_set():  # closed, or the source failed, meanwhile: nothing to serve
+                    client.close()
+                    return
                 self._clients.append(client)
+            log.info("HX711 bridge: host %s:%d connected", *peer[:2])
 
     def _serve_forever(self) -> None:
         seq = 0
         while not self._stop.is_set():
-            counts = self.read_counts()
+            try:
+                counts = self.read_counts()
+            except Exception as exc:  # any source's: this thread's end would leave the hosts waiting on silence
+                self._fail(exc)
+                return
             if counts is None:
                 continue
             frame = format_frame(seq, time.monotonic(), counts)
@@ -221,3 +243,16 @@ class Hx711Bridge:
                         log.info("HX711 bridge: dropped a host: %s", exc)
                         client.close()
                         self._clients.remove(client)
+
+    def _fail(self, exc: Exception) -> None:
+        """Stop serving and close every host's connection: each sees its link fail."""
+        self.failure = str(exc) if isinstance(exc, DeviceError) else f"the source failed: {exc!r}"
+        with self._lock:
+            self._stop.set()
+            for client in self._clients:
+                client.close()
+            self._clients.clear()
+        if self.on_failure is None:
+            log.error("HX711 bridge: stopped serving: %s", self.failure)
+        else:  # it reports the failure: said once
+            self.on_failure(self.failure)

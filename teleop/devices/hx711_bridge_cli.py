@@ -3,7 +3,8 @@
 The source is a simulated cell (``--fake``) or an Arduino-style serial HX711 bridge
 (``--serial PORT``, pyserial), calibrated and paced by the settings' ``[load_cell]``.
 It serves until ``--duration-s`` passed, Ctrl-C or SIGTERM, then closes the server and (``--json``)
-prints its summary.
+prints its summary; when the source fails (the serial device went away) it closes every host's
+connection and exits with the error (status 2).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import time
 
 from teleop.clikit import positive_number
 from teleop.devices.hx711_bridge import FakeHx711, Hx711Bridge, SerialCounts
-from teleop.errors import SettingsError
+from teleop.errors import DeviceError, SettingsError
 from teleop.live import StopSignals
 from teleop.settings import LoadCellSettings, default_settings_path, load_settings
 
@@ -70,12 +71,15 @@ def run(args: argparse.Namespace) -> int:
     try:
         # Ctrl-C and SIGTERM end the wait as --duration-s does: the server is closed and the summary printed.
         # The signals are caught until the server is closed, so a second Ctrl-C cannot cut that short.
-        with StopSignals() as signals, Hx711Bridge(source, host=args.host, port=args.port) as bridge:
+        with StopSignals() as signals, Hx711Bridge(source, host=args.host, port=args.port,
+                                                   on_failure=lambda _why: signals.stop.set()) as bridge:
             print(f"hx711-bridge: serving on {bridge.address}", flush=True)
             signals.stop.wait(args.duration_s)
     finally:
         if isinstance(source, SerialCounts):
             source.close()
+    if bridge.failure is not None:
+        raise DeviceError(f"stopped serving {bridge.address}: {bridge.failure}")
     if args.json:
         summary = {"address": bridge.address, "readings": bridge.sent, "seconds": round(time.monotonic() - started, 3)}
         print(json.dumps(summary))

@@ -15,7 +15,7 @@ from teleop.errors import DeviceTimeoutError, InvalidCommandError
 from teleop.record import Samples
 from teleop.settings import LoadCellSettings
 
-__all__ = ["BACKENDS", "LoadCell", "make_load_cell"]
+__all__ = ["BACKENDS", "FIXES", "LoadCell", "make_load_cell"]
 
 BACKENDS = {
     "sim": "teleop.devices.playback:SimulatedLoadCell",
@@ -23,6 +23,10 @@ BACKENDS = {
     "tcp": "teleop.devices.hx711:TcpHx711",
 }
 
+FIXES = {  # what to do when a backend's cell does not open or deliver
+    "serial": "check the cable and `load_cell.port`",
+    "tcp": "check the bridge runs (`teleop hx711-bridge`) and `load_cell.address`",
+}
 TARE_WINDOW_S = 0.25  # default tare: average over this much of the sample stream
 
 

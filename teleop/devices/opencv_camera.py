@@ -20,7 +20,7 @@ import time
 
 import cv2
 
-from teleop.devices.camera import CameraFrame, TactileCamera
+from teleop.devices.camera import CameraFrame, TactileCamera, opencv_fix
 from teleop.errors import DeviceError
 from teleop.settings import SensorSettings
 
@@ -77,6 +77,10 @@ class OpenCVCamera(TactileCamera):
     def __repr__(self) -> str:
         return f"<OpenCVCamera finger={self.sensor.finger!r} source={self.source!r}>"
 
+    def _failed(self, what: str) -> DeviceError:
+        """An open that failed, with the setting to check: every command opening the camera says it."""
+        return DeviceError(f"{self!r}: {what}: {opencv_fix(self.sensor.finger)}")
+
     def _open_capture(self, *, raw: bool) -> cv2.VideoCapture:
         params = [
             cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, OPEN_TIMEOUT_MS,
@@ -92,7 +96,7 @@ class OpenCVCamera(TactileCamera):
                 self.passthrough = bool(capture.set(cv2.CAP_PROP_FORMAT, -1))
         if not capture.isOpened():
             capture.release()
-            raise DeviceError(f"{self!r}: OpenCV cannot open the source")
+            raise self._failed("OpenCV cannot open the source")
         return capture
 
     def _connect(self) -> None:
@@ -101,7 +105,7 @@ class OpenCVCamera(TactileCamera):
         first = self._grab(capture)
         if first is None:
             capture.release()
-            raise DeviceError(f"{self!r}: the source opened but delivered no frame")
+            raise self._failed("the source opened but delivered no frame")
         if self.passthrough and not first[1].startswith(JPEG_SOI):
             # Not an MJPG stream (e.g. H.264): reopen decoding, and encode frames ourselves.
             capture.release()
@@ -110,7 +114,7 @@ class OpenCVCamera(TactileCamera):
             first = self._grab(capture)
             if first is None:
                 capture.release()
-                raise DeviceError(f"{self!r}: the source delivered no decodable frame")
+                raise self._failed("the source delivered no decodable frame")
         self._failure = None
         self._stop.clear()
         self._frames = queue.Queue(maxsize=self._frames.maxsize)

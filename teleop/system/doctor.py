@@ -49,8 +49,9 @@ import numpy as np
 
 from haptics.settings import display_settings
 from teleop.clikit import positive_number
-from teleop.devices.camera import make_camera
-from teleop.devices.gripper import make_gripper
+from teleop.devices.camera import make_camera, opencv_fix
+from teleop.devices.gripper import FRANKY_FIX, make_gripper
+from teleop.devices.loadcell import FIXES as LOAD_CELL_FIXES
 from teleop.devices.loadcell import make_load_cell
 from teleop.errors import BusSecurityError, ComplianceTeleopError, DeviceTimeoutError
 from teleop.live import ENDPOINTS
@@ -100,10 +101,9 @@ class _Probe:
 
 
 def _fixes(settings: Settings) -> dict[str, str]:
-    cell = {"serial": "check the cable and `load_cell.port`",
-            "tcp": "check the bridge runs (`teleop hx711-bridge`) and `load_cell.address`"}
-    return {"gripper": "check the robot is on with FCI enabled and `gripper.host`" if settings.gripper.backend == "franky"
-            else "check [gripper] backend", "load cell": cell.get(settings.load_cell.backend, "check [load_cell]"),
+    # The devices' own open errors end with the same words (_with_fix says them once).
+    return {"gripper": FRANKY_FIX if settings.gripper.backend == "franky" else "check [gripper] backend",
+            "load cell": LOAD_CELL_FIXES.get(settings.load_cell.backend, "check [load_cell]"),
             "display": "check the display's USB cable and `display.vendor_id` / `display.product_id`"
             if display_settings(settings).backend == "hid" else "check [display] backend"}
 
@@ -129,8 +129,7 @@ def _camera_probe(settings: Settings, sensor: Any, playback: Any) -> _Probe:
                                          f"raw_width_px / raw_height_px in [sensors.{sensor.finger}] or the camera's mode")
 
     where = sensor.camera_source or "the simulated camera"
-    key = f"`camera_source` in [sensors.{sensor.finger}]"
-    fix = f"check the camera or its stream server and {key}" if sensor.camera_backend == "opencv" else "check [sensors]"
+    fix = opencv_fix(sensor.finger) if sensor.camera_backend == "opencv" else "check [sensors]"
     return _Probe(f"camera {sensor.finger}", camera, read, sensor.camera_hz, where, fix, inspect)
 
 
@@ -255,13 +254,18 @@ def _judge(probe: _Probe, stamps: list[float], lags: list[float], duration_s: fl
     return Check(probe.name, not problems, rate, latency_ms, "; ".join(problems) or None, detail)
 
 
+def _with_fix(problem: str, fix: str) -> str:
+    """``problem`` and what to do, said once: a device's own error may end with it already."""
+    return problem if problem.endswith(fix) else f"{problem}: {fix}"
+
+
 def _run_probe(probe: _Probe | Check, duration_s: float) -> Check:
     if isinstance(probe, Check):
         return probe
     try:
         probe.device.connect()
     except ComplianceTeleopError as exc:
-        return Check(probe.name, False, problem=f"cannot open: {exc}: {probe.fix}")
+        return Check(probe.name, False, problem=_with_fix(f"cannot open: {exc}", probe.fix))
     stamps: list[float] = []
     lags: list[float] = []
     try:
@@ -272,7 +276,7 @@ def _run_probe(probe: _Probe | Check, duration_s: float) -> Check:
                 lags.append(time.monotonic() - got[-1])
                 stamps += got
     except ComplianceTeleopError as exc:
-        return Check(probe.name, False, problem=f"failed while read: {exc}: {probe.fix}")
+        return Check(probe.name, False, problem=_with_fix(f"failed while read: {exc}", probe.fix))
     finally:
         probe.device.close()
     return _judge(probe, stamps, lags, duration_s)

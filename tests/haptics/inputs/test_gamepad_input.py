@@ -118,11 +118,6 @@ def test_a_device_without_the_trigger_or_a_flat_trigger_is_refused(make_pad):
         GamepadInput(device=make_pad(axes={"ABS_RZ": (7, 7)})).connect()
 
 
-def test_a_code_evdev_does_not_know_is_named():
-    with pytest.raises(InputDeviceError, match="'ABS_NOPE': evdev knows no such code"):
-        GamepadInput(OperatorSettings(gamepad_trigger="ABS_NOPE"))
-
-
 @pytest.fixture
 def bus(monkeypatch):
     """Fake /dev/input: path -> make_pad (or an OSError to raise on open)."""
@@ -178,10 +173,12 @@ def test_the_path_from_the_settings_is_used(bus, with_operator, make_pad):
     with make_input("gamepad", with_operator(gamepad_path=pad.path)) as device:
         pad.key("BTN_TR", 1)
         assert device.read().enable is True
-    with pytest.raises(InputDeviceError, match="cannot open gamepad /dev/input/nope: No such file"):
+    # the setting and what to do, in the error itself: every command says it, not `teleop doctor` alone
+    with pytest.raises(InputDeviceError, match=r"^cannot open gamepad /dev/input/nope: No such file or directory: "
+                                               r"plug the pad in and check `\[operator\] gamepad_path`"):
         make_input("gamepad", with_operator(gamepad_path="/dev/input/nope")).connect()
     bus["/dev/input/locked"] = OSError(errno.EACCES, "Permission denied")
-    with pytest.raises(InputDeviceError, match="Permission denied .*'input' group"):
+    with pytest.raises(InputDeviceError, match="Permission denied: add yourself to the 'input' group$"):
         make_input("gamepad", with_operator(gamepad_path="/dev/input/locked")).connect()
     bus["/dev/input/event9"] = make_pad("/dev/input/event9", "Mouse", axes={"ABS_X": (0, 9)})
     with pytest.raises(InputDeviceError, match="event9 \\(Mouse\\) has no absolute axis ABS_RZ: set"):

@@ -170,7 +170,9 @@ def test_unknown_backend_lists_the_names():
 def test_franky_backend_wraps_connection_errors():
     gripper = make_gripper(GripperSettings(backend="franky", host="127.255.255.254"))
     # nothing serves libfranka there (franky-sim takes the first free loopback address)
-    with pytest.raises(DeviceError, match=r"127\.255\.255\.254.*connect"):
+    # the error says what to do itself: every command opening the gripper shows it
+    with pytest.raises(DeviceError, match=r"127\.255\.255\.254: connect failed: .*: check the robot is on with FCI "
+                                          r"enabled and `gripper\.host`$"):
         gripper.connect()
     assert not gripper.connected
 

@@ -255,6 +255,72 @@ def test_serial_counts_source_reads_an_arduino_bridge(pty_pair):
         source.close()
 
 
+@pytest.fixture
+def unpluggable():
+    """(master fd, device path, unplug) of a pseudo-terminal: unplug() closes the master, as pulling
+    the device's cable ends its port."""
+    import tty
+
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    unplugged = threading.Event()
+
+    def unplug() -> None:
+        if not unplugged.is_set():
+            unplugged.set()
+            os.close(master)
+
+    yield master, os.ttyname(slave), unplug
+    unplug()
+    os.close(slave)
+
+
+def test_a_serial_source_that_goes_away_ends_the_bridge_and_closes_its_hosts(unpluggable):
+    master, port, unplug = unpluggable
+    told = []
+    source = SerialCounts(port)
+    try:
+        with Hx711Bridge(source, host="127.0.0.1", port=0, on_failure=told.append) as bridge:
+            with make_load_cell(LoadCellSettings(backend="tcp", address=bridge.address, **CAL)) as cell:
+                deadline = time.monotonic() + 2.0
+                while bridge.clients == 0 and time.monotonic() < deadline:  # a reading before would go to none
+                    time.sleep(0.01)
+                os.write(master, b"tail\n100\n")
+                assert cell.read(timeout_s=1.0).value.tolist() == [0.1]
+                unplug()
+                # the host sees its link fail, not silence
+                with pytest.raises(DeviceError, match="the bridge closed the connection"):
+                    for _ in range(20):
+                        cell.read(timeout_s=0.1)
+            assert bridge.clients == 0
+    finally:
+        source.close()
+    assert told == [bridge.failure] and bridge.failure.startswith(f"serial HX711 at {port}: the port failed: ")
+
+
+def test_a_source_that_raises_ends_the_bridge_and_is_logged(caplog):
+    def broken() -> int:
+        raise ValueError("no counts")
+
+    with Hx711Bridge(broken, host="127.0.0.1", port=0) as bridge:
+        deadline = time.monotonic() + 2.0
+        while bridge.failure is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert bridge.failure == "the source failed: ValueError('no counts')"
+    assert any("stopped serving: the source failed" in r.message for r in caplog.records if r.levelno == logging.ERROR)
+
+
+def test_bridge_command_exits_with_the_error_when_its_serial_device_goes_away(capsys, unpluggable):
+    _, port, unplug = unpluggable
+    threading.Timer(0.5, unplug).start()
+    started = time.monotonic()
+    assert main(["hx711-bridge", "--serial", port, "--host", "127.0.0.1", "--port", "0", "--duration-s", "5"]) == 2
+    assert time.monotonic() - started < 3.0
+    err = capsys.readouterr().err
+    assert err.startswith("teleop hx711-bridge: error: stopped serving tcp://127.0.0.1:") and len(err.splitlines()) == 1
+    assert f"serial HX711 at {port}: the port failed: " in err
+
+
 BRIDGE_COMMAND = [sys.executable, "-c", "import sys; from teleop.cli import main; sys.exit(main(sys.argv[1:]))",
                   "hx711-bridge"]
 
