@@ -12,7 +12,10 @@ fingers' :class:`~teleop.sim.live.Motor`, and samples them the way the devices d
   width early in the read, plus ``simulation.width_noise_m`` of noise; the host stamps the return;
 * each camera captures at ``camera_hz`` of its own clock from a random phase, imaging the gel at
   the force of the capture instant; the host stamps it ``simulation.camera_offset_s`` later,
-  with jitter.
+  with jitter. Like a real camera's driver, which keeps only the newest frames, a camera that
+  gets to a capture slot more than a period late (a renderer slower than ``camera_hz``) drops
+  the slots overdue and takes the newest one due: a slow renderer lowers the frame rate (the
+  frame index jumps, :meth:`LiveGrasp.frames_dropped` counts) instead of adding latency.
 
 One live grasp is shared by the rig's three ``sim`` devices (``live()`` on each switches them to
 it, as ``replay()`` does to a recorded grasp): the gripper's commands drive the motor; the load
@@ -82,7 +85,8 @@ class LiveGrasp:
         self._cameras = {}
         for sensor in settings.sensors:
             period = 1.0 / (sensor.camera_hz * (1.0 + rng.normal(0.0, CAMERA_RATE_TOLERANCE)))
-            self._cameras[sensor.finger] = [period, now + rng.uniform(0.0, period), 0]  # period, next capture, index
+            # period, next capture, its index, slots dropped
+            self._cameras[sensor.finger] = [period, now + rng.uniform(0.0, period), 0, 0]
 
     def _draw(self, draw: Callable[[np.random.Generator], float]) -> float:
         with self._rng_lock:
@@ -139,10 +143,24 @@ class LiveGrasp:
         """When ``finger``'s next frame reaches the host (clock s, before its jitter)."""
         return self._cameras[finger][1] + self.settings.simulation.camera_offset_s
 
+    def frames_dropped(self, finger: str) -> int:
+        """Capture slots of ``finger`` dropped so far because the camera got to them too late."""
+        return self._cameras[finger][3]
+
     def take_frame(self, finger: str) -> CameraFrame:
-        """``finger``'s next frame, rendered at the force of its capture instant (call once it is due)."""
-        period, capture_s, index = self._cameras[finger]
-        self._cameras[finger] = [period, capture_s + period, index + 1]
+        """``finger``'s next frame, rendered at the force of its capture instant (call once it is due).
+
+        The frame is the newest capture slot due by now: slots the camera got to more than a
+        period late (the last render took longer than a period) are dropped, their indices
+        skipped, as a camera's driver that keeps only the newest frames does. The capture times
+        stay on the camera's grid.
+        """
+        period, capture_s, index, dropped = self._cameras[finger]
+        offset = self.settings.simulation.camera_offset_s
+        late = math.floor((self.clock() - offset - capture_s) / period)  # slots due after this one
+        if late > 0:
+            capture_s, index, dropped = capture_s + late * period, index + late, dropped + late
+        self._cameras[finger] = [period, capture_s + period, index + 1, dropped]
         jitter = self._draw(lambda r: np.clip(r.normal(0.0, CAMERA_JITTER_S), -0.2 * period, 0.2 * period))
-        stamp = capture_s + self.settings.simulation.camera_offset_s + jitter
+        stamp = capture_s + offset + jitter
         return CameraFrame(finger, index, stamp, self.object.frame(finger, self.force_at(capture_s)), "jpeg")

@@ -18,7 +18,8 @@ it falls due, stamped with those shifted times, like hardware would:
   A replay cannot react to commands: ``move()`` during a replay waits for its end. Without
   a replay (or after it) the gripper is kinematic: the width moves at the commanded speed,
   stalling at ``object_width_m`` when an object is given.
-* :class:`SimulatedCamera`: every frame of its finger, in order, each when due.
+* :class:`SimulatedCamera`: every frame of its finger, in order, each when due (a replay's frames
+  are pre-rendered: a reader that fell behind catches up at once, so none is dropped).
 * :class:`SimulatedLoadCell`: every force sample due since the last read.
 
 One playback is shared by all devices of a rig; :meth:`replay` on each device switches
@@ -400,10 +401,13 @@ class _Switched:
 
 class SimulatedCamera(_Switched, TactileCamera):
     """The ``sim`` camera: the frames of its finger from a :class:`GraspPlayback`, or rendered from a
-    :class:`LiveGrasp` as they are captured."""
+    :class:`LiveGrasp` as they are captured. A live camera whose renderer falls more than a period
+    behind drops the capture slots overdue (:meth:`LiveGrasp.take_frame`), counted in
+    :attr:`dropped` as :class:`~teleop.devices.opencv_camera.OpenCVCamera` counts its own."""
 
     def __init__(self, sensor: SensorSettings, *, playback: GraspPlayback | None = None):
         super().__init__(sensor)
+        self.dropped = 0
         self._serve(playback)
 
     def replay(self, playback: GraspPlayback) -> None:
@@ -420,7 +424,10 @@ class SimulatedCamera(_Switched, TactileCamera):
         with self._lock:
             if self._live is not grasp:
                 return None  # switched while the frame was awaited
-            return grasp.take_frame(finger)
+            dropped = grasp.frames_dropped(finger)
+            frame = grasp.take_frame(finger)
+            self.dropped += grasp.frames_dropped(finger) - dropped
+            return frame
 
     def _connect(self) -> None:
         pass
