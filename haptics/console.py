@@ -10,14 +10,20 @@ frozen :class:`~haptics.operator_loop.LoopStatus` ten times a second. Panels:
   width, the force (N, with a bar up to the settings' maximum), the fingers' width, and the label
   the operator gave it;
 * **estimate**: the grasp's newest estimate: E with its interval, its state (a bound reads
-  ``E >= ...``), provisional or final, and the estimator's reason;
+  ``E >= ...``), provisional or final, and the estimator's reason (cut to fit a short terminal),
+  and that it is not current while the estimator is down;
 * **display**: what the softness display renders: the fraction of its range and the modulus it
   stands for, rigid or unknown, the level written of its full scale;
 * **operator**: the input device, the grip as a bar and the target width it asks for, the
   dead-man enable, the mode (follow, discrete grasp, idle), the discrete grasp's force;
-* **notices**: the robot's last notice (a refused command, the watchdog), and what went wrong on
-  this side (a send that failed), with the operator's last actions;
-* the **keys**.
+* **notices**: the robot's last notice (a refused command, the watchdog), the watchdog's kept
+  above a later refusal, and what went wrong on this side (a send that failed), with the
+  operator's last actions;
+* the **keys**, at the bottom. The whole fits an 80x24 terminal.
+
+With the keyboard, the console turns the enable toggle off when the loop suspends the follows
+(after ``next``, the robot's end of the grasp), so the screen shows the toggle as it is and one
+``e`` drives again.
 
 Keys: with ``--input keyboard`` every key goes to the keyboard input device
 (:mod:`haptics.inputs.keyboard`: up/down squeeze and open, e toggles the enable, g r s n q are the
@@ -38,6 +44,7 @@ from __future__ import annotations
 
 import logging
 import math
+import textwrap
 import threading
 from collections.abc import Sequence
 from typing import Any
@@ -67,6 +74,8 @@ FORCE_STEP_N = 1.0
 REFRESH_S = 0.1
 QUIT_GRACE_S = 1.0  # after quit, the loop thread is told to stop if it has not ended by itself
 BAR_CELLS = 24
+PANEL_LINES = 4  # the estimate and display panels' lines on a terminal shorter than TALL_LINES ...
+TALL_LINES = 30  # ... so that an 80x24 one shows every panel and the keys
 #: A final interval wider than this (a factor 10, a third of the display's scale) gets a hint: a
 #: firmer squeeze reads surer (the model card's light-squeeze limit) ...
 WIDE_INTERVAL_DECADES = 1.0
@@ -137,6 +146,25 @@ def _ago(seconds: float | None) -> str:
     return "never heard" if seconds is None else f"heard {seconds:.1f} s ago"
 
 
+def _notice_line(notice: Any, now_s: float, at_s: float | None) -> str:
+    """A robot notice in a line; its grasp's id only where the reason does not name it (room)."""
+    ago = "" if at_s is None else f" ({max(0.0, now_s - at_s):.1f} s ago)"
+    grasp = f" {notice.grasp_id}" if notice.grasp_id and notice.grasp_id not in notice.reason else ""
+    return f"robot {notice.event} {notice.action}{grasp}{ago}: {notice.reason}"
+
+
+def _fit(text: str, width: int, max_lines: int | None) -> str:
+    """``text`` wrapped to ``width`` columns (none when 0: not laid out yet) and cut to ``max_lines``,
+    the last line ending in an ellipsis where cut."""
+    if width <= 0:
+        return text
+    lines = [part for line in text.splitlines() for part in (textwrap.wrap(line, width) or [""])]
+    if max_lines is not None and len(lines) > max_lines:
+        lines = lines[:max_lines]
+        lines[-1] = lines[-1][:width - 1] + "\u2026"
+    return "\n".join(lines)
+
+
 class OperatorConsole(App):
     """The console's screen over a running :class:`OperatorLoop` (module docstring).
 
@@ -165,8 +193,10 @@ class OperatorConsole(App):
     CSS = """
     Screen { layout: vertical; overflow-y: auto; }
     .row { height: auto; width: 100%; }
+    #row3 { height: 1fr; min-height: 6; }
     .panel { border: round $primary; padding: 0 1; height: auto; width: 1fr; }
-    #keys { color: $text-muted; padding: 0 1; height: auto; }
+    #row3 .panel { height: 100%; overflow: hidden hidden; }
+    #keys { color: $text-muted; padding: 0 1; height: auto; dock: bottom; }
     #label { display: none; }
     #label.open { display: block; }
     """
@@ -191,8 +221,10 @@ class OperatorConsole(App):
         self.run_loop = run_loop
         self.exit_status: LoopStatus | None = None
         self.loop_error = ""
-        self.texts: dict[str, str] = {}  # each panel's text as last drawn (for tests and logs)
+        self.texts: dict[str, str] = {}  # each panel's text as last drawn, unwrapped (for tests and logs)
+        self.drawn: dict[str, str] = {}  # each panel's text as drawn: wrapped to its width, maybe cut
         self.console_note = ""  # the console's own last note (a label sent, nothing to label)
+        self._toggled_on = False  # the keyboard's enable toggle as this console's keys left it
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -200,8 +232,8 @@ class OperatorConsole(App):
 
     def compose(self) -> ComposeResult:
         names = [name for name, _ in self.PANELS]
-        for row in (names[0:2], names[2:4], names[4:6]):
-            with Horizontal(classes="row"):
+        for number, row in enumerate((names[0:2], names[2:4], names[4:6]), 1):
+            with Horizontal(classes="row", id=f"row{number}"):
                 for name in row:
                     panel = Static("", id=name, classes="panel", markup=False)
                     panel.border_title = dict(self.PANELS)[name]
@@ -259,6 +291,10 @@ class OperatorConsole(App):
             self.action_quit_console()
             return
         if self.keyboard is not None and self.keyboard.press(key):
+            if key == "e":
+                self._toggled_on = not self._toggled_on
+            elif key in ("r", "s"):  # the keyboard lets go of the enable on these
+                self._toggled_on = False
             return
         character = event.character or ""
         if character in ("+", "=") or key in ("plus", "equals_sign"):
@@ -317,28 +353,39 @@ class OperatorConsole(App):
     # ------------------------------------------------------------------ drawing
 
     def _legend(self) -> str:
+        # Two lines at 80 columns: the panels above must fit a 24-line terminal.
         if self.keyboard is not None:
-            drive = ("keys: up/k squeeze  down/j open  o open fully  e enable on/off (dead-man)  |  "
-                     "g grasp  r release  s stop  n next object  q quit  |  +/- grasp force  l label")
+            drive = "keys: up/k squeeze  down/j open  o open fully  e enable (dead-man) on/off  q quit"
         else:
-            drive = (f"the {self.input_name} input drives grip and enable  |  keys: g grasp  r release  s stop  "
-                     "n next object  q quit  |  +/- grasp force  l label")
-        return (drive + "\ntwo ways to drive: g grasps at the chosen force (discrete); holding the enable "
-                "makes the fingers follow the grip (continuous), letting it go stops them")
+            drive = f"the {self.input_name} input drives grip and enable  |  keys: q quit"
+        return (drive + "\ng grasp  r release  s stop  n clear for the next grasp (next object)  +/- force"
+                "  l label")
 
     def redraw(self) -> None:
         status = self.loop.status
+        self._let_go_toggle(status)
         texts = self.render_status(status)
+        cap = None if self.size.height >= TALL_LINES else PANEL_LINES  # else row 2 would push notices off
         for name, _ in self.PANELS:
-            text = texts[name]
-            if self.texts.get(name) != text:
-                self.query_one(f"#{name}", Static).update(Text(text))
+            panel = self.query_one(f"#{name}", Static)
+            drawn = _fit(texts[name], panel.content_size.width, cap if name in ("estimate", "display") else None)
+            if self.drawn.get(name) != drawn:  # wrapped here, so that a cut line ends in an ellipsis
+                panel.update(Text(drawn))
+                self.drawn[name] = drawn
         self.texts = texts
         ended = status.quit or self._stop.is_set()
         if ended and (self._thread is None or not self._thread.is_alive()):
             status = self.loop.status  # as the loop left it
             self.exit_status = status
             self.exit(status)
+
+    def _let_go_toggle(self, status: LoopStatus) -> None:
+        """Turn the keyboard's enable toggle off when the loop suspended the follows (after next, the
+        watchdog, the robot's end): a terminal has no key release, so the toggle would stay on while
+        the loop waits for it to be let go, and the next e would only let it go."""
+        if self.keyboard is not None and status.suspended and status.held and self._toggled_on:
+            self.keyboard.press("e")
+            self._toggled_on = False
 
     def render_status(self, status: LoopStatus) -> dict[str, str]:
         """Each panel's text for ``status``."""
@@ -365,14 +412,16 @@ class OperatorConsole(App):
         else:
             grasp.append(f"label  - ({LABEL_KEY} names the object)")
         estimate = view.estimate
-        lines = [estimate_line(estimate)]
+        lines = [estimate_line(estimate)]  # in the order kept when the panel is cut to fit
         if estimate is None and view.down("estimator"):
             lines.append("the estimator is down: none will come (start `estimator serve`)")
         if estimate is not None:
-            lines.append(f"{view.estimates} estimate(s) for this grasp, method {estimate.method}")
-            lines.append(f"reason: {estimate.reason}")
+            if view.down("estimator"):
+                lines.insert(0, "the estimator is down: not current")
             if hint := squeeze_hint(estimate, peak_force_n=view.peak_force_n, max_force_n=max_force):
                 lines.append(hint)
+            lines.append(f"{view.estimates} estimate(s) for this grasp, method {estimate.method}")
+            lines.append(f"reason: {estimate.reason}")
         shown = view.display
         if shown is None:
             display = ["nothing rendered yet"]
@@ -397,17 +446,18 @@ class OperatorConsole(App):
             if view.down("display"):  # its last rendering is still shown below: say it is not current
                 display.insert(0, "the renderer is down: its last report below is not current (start `haptics serve`)")
         felt = "-" if status.operator_force_n is None else f"{status.operator_force_n:.1f} N"
-        operator = [
-            f"input  {self.input_name}   mode {status.mode}   enable {'HELD' if status.enable else 'off'}",
-            f"grip   {_bar(status.grip)} {status.grip:.2f} -> target {_mm(status.target_width_m)}",
-            f"grasp force {status.force_n:g} N (max {max_force:g})   hand force {felt}",
-            f"sent   {status.follows_sent} follow, {status.commands_sent} command",
+        operator = [  # short lines: half of an 80-column terminal
+            f"input {self.input_name}   enable {'HELD' if status.held else 'off'}",
+            f"mode {status.mode}",
+            f"grip {_bar(status.grip, 12)} {status.grip:.2f} -> target {_mm(status.target_width_m)}",
+            f"grasp force {status.force_n:g} N (max {max_force:g})  hand {felt}",
+            f"sent {status.follows_sent} follow, {status.commands_sent} command",
         ]
-        notice_lines = []
+        notice_lines = []  # why a grasp stopped first: a refusal that came after it must not hide it
+        if view.ended_by is not None and view.ended_by != view.notice:
+            notice_lines.append(_notice_line(view.ended_by, view.t_s, view.ended_by_t_s))
         if view.notice is not None:
-            n = view.notice
-            ago = "" if view.notice_t_s is None else f" ({max(0.0, view.t_s - view.notice_t_s):.1f} s ago)"
-            notice_lines.append(f"robot {n.event}{ago}: {n.action} {n.grasp_id or ''} - {n.reason}")
+            notice_lines.append(_notice_line(view.notice, view.t_s, view.notice_t_s))
         else:
             notice_lines.append("robot: no notice")
         if self.loop_error:

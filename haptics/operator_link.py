@@ -16,7 +16,10 @@ and every publisher's ``heartbeat``. It keeps the latest of each in an :class:`O
 newest force (N) and width (m), the robot's mode, the grasp's newest estimate with its interval,
 state and reason, what the display renders, the last robot notice, and who is alive: a peer is
 alive when heard from (a heartbeat or any message) within :data:`LIVENESS_PERIODS` of its
-heartbeat periods.
+heartbeat periods. While the robot node, once heard, is not alive its force, width and state are dropped (a
+dead node's last readings are not its fingers' now; a node started again sends its own). The
+last notice that ended a grasp (the watchdog) is kept beside the newest notice until the view is
+cleared, so that a refusal coming after it (a follow sent before the end was heard) does not hide it.
 
 It sends ``follow`` messages (target width, dead-man enable, grasp id), the discrete
 ``command`` actions ``start_grasp`` (``params.target_force_n``), ``stop`` and ``release``, and
@@ -62,6 +65,7 @@ __all__ = [
 #: (what the operator calls it, the ``source`` it publishes as), in display order.
 PEERS = (("robot node", "robot"), ("estimator", "estimator"), ("display", "renderer"))
 ROBOT_TOPICS = ("grasp_event", "force", "width", "robot_state", "robot_notice")
+ENDING_NOTICES = ("watchdog",)  # robot_notice events that say the robot ended a grasp
 LIVENESS_PERIODS = 3.0  # a peer unheard for this many heartbeat periods is shown dead (as Heartbeat.is_alive)
 SEND_TIMEOUT_S = 0.05  # a lossless send waits at most this long for room
 MAX_DRAIN = 500  # messages taken per poll, so a flood cannot starve the loop
@@ -103,6 +107,8 @@ class OperatorView:
     display: DisplayBody | None = None
     notice: RobotNoticeBody | None = None
     notice_t_s: float | None = None
+    ended_by: RobotNoticeBody | None = None  # the last notice that ended a grasp (the watchdog), until cleared
+    ended_by_t_s: float | None = None
     refused: int = 0  # bus messages the subscription refused (malformed, unknown type)
     label: LabelBody | None = None
 
@@ -166,6 +172,7 @@ class OperatorLink:
         self._estimates: dict[str, tuple[EstimateBody, int]] = {}
         self._display: DisplayBody | None = None
         self._notice: tuple[RobotNoticeBody, float] | None = None
+        self._ended_by: tuple[RobotNoticeBody, float] | None = None  # the last notice that ended a grasp
         self._dismissed: set[str] = set()  # grasps cleared from the view: their late messages are ignored
         self._labels: dict[str, LabelBody] = {}  # grasp id -> the last label sent for it
         self.view = self._snapshot()
@@ -245,6 +252,7 @@ class OperatorLink:
         self._grasp_id, self._object_name, self._phase = None, None, "idle"
         self._peak_force_n = None
         self._estimates.clear()
+        self._ended_by = None
         self.view = self._snapshot()
 
     # ------------------------------------------------------------------ receiving
@@ -286,6 +294,8 @@ class OperatorLink:
             self._robot = body
         elif kind == "robot_notice":
             self._notice = (body, self.clock())
+            if body.event in ENDING_NOTICES:
+                self._ended_by = self._notice
         elif kind == "estimate":
             _, count = self._estimates.get(body.grasp_id, (None, 0))
             self._estimates[body.grasp_id] = (body, count + 1)
@@ -309,15 +319,20 @@ class OperatorLink:
 
     def _snapshot(self) -> OperatorView:
         now = self.clock()
+        peers = self._peers(now)
+        if any(p.seen_ago_s is not None and not p.alive for p in peers if p.source == "robot"):
+            self._force_n = self._width_m = self._robot = None  # heard, now dead: its readings are gone
         estimate, count = self._estimates.get(self._grasp_id, (None, 0)) if self._grasp_id else (None, 0)
         if self._grasp_id is None and self._estimates:  # estimates before any grasp event: the newest
             estimate, count = next(reversed(self._estimates.values()))
         notice, notice_t = self._notice if self._notice is not None else (None, None)
+        ended_by, ended_by_t = self._ended_by if self._ended_by is not None else (None, None)
         return OperatorView(
-            t_s=now, peers=self._peers(now), grasp_id=self._grasp_id, object_name=self._object_name,
+            t_s=now, peers=peers, grasp_id=self._grasp_id, object_name=self._object_name,
             phase=self._phase, force_n=self._force_n, peak_force_n=self._peak_force_n, width_m=self._width_m,
             robot=self._robot,
             estimate=estimate, estimates=count, display=self._display, notice=notice, notice_t_s=notice_t,
+            ended_by=ended_by, ended_by_t_s=ended_by_t,
             refused=sum(self.subscriber.stats.refused.values()),
             label=self._labels.get(self._grasp_id) if self._grasp_id is not None else None,
         )

@@ -28,7 +28,7 @@ the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.
 * when the robot node, once heard, goes down, its grasp is forgotten (a node started again runs
   the next grasp under a new id) and follows are suspended as after ``stop``;
 * after ``stop``, ``release`` or ``next``, and when the robot ends the follow grasp (released,
-  the watchdog), no follow goes out until the enable has been let go and held again: a held
+  the watchdog: its ``grasp_event`` end or its ``watchdog`` notice naming the grasp), no follow goes out until the enable has been let go and held again: a held
   enable never moves the fingers again, nor starts a new grasp, by itself;
 * the robot side's force, width and the display's stiffness go back to the device
   (``device.feel``): the simulated operator closes its loop on them.
@@ -106,7 +106,9 @@ class LoopStatus:
 
     view: OperatorView
     grip: float = 0.0
-    enable: bool = False
+    enable: bool = False  # the enable as the loop takes it: held and not suspended
+    held: bool = False  # the device's enable as read (a toggle's state)
+    suspended: bool = False  # follows suspended until the enable is let go and held again
     operator_force_n: float | None = None  # the operator's grip force, where the device measures it
     target_width_m: float | None = None
     mode: str = "idle"  # "idle", "follow" (driving with enable), "discrete" (a commanded grasp under way)
@@ -415,13 +417,15 @@ class OperatorLoop:
                 self._next_object()
                 return
             self._shown_over = _over(view)
-        if view.phase == "ended" and view.grasp_id is not None:
-            if view.grasp_id == self._follow_grasp:
-                self._follow_grasp = None
-                if self._enable:  # a new grasp only once the enable is let go and held again
-                    self._suspend()
-            if view.grasp_id == self._discrete_grasp:
-                self._discrete_grasp = None
+        ended = view.grasp_id if view.phase == "ended" else None
+        # The watchdog's notice names the grasp it ended, even one whose start never came (preparing).
+        stopped = view.ended_by.grasp_id if view.ended_by is not None else None
+        if self._follow_grasp is not None and self._follow_grasp in (ended, stopped):
+            self._follow_grasp = None
+            if self._enable:  # a new grasp only once the enable is let go and held again
+                self._suspend()
+        if ended is not None and ended == self._discrete_grasp:
+            self._discrete_grasp = None
         notice = view.notice
         if (notice is not None and notice.event == "refused" and notice.action == "start_grasp"
                 and notice.grasp_id == self._discrete_grasp):
@@ -493,6 +497,8 @@ class OperatorLoop:
             view=view,
             grip=0.0 if reading is None else float(reading.grip),
             enable=self._enable,
+            held=reading is not None and bool(reading.enable),
+            suspended=self._rearm,
             operator_force_n=None if reading is None else reading.force_n,
             target_width_m=self._target_m,
             mode=mode,

@@ -5,6 +5,13 @@ forwarded ``grasp_event``), feeds :class:`~haptics.renderer.HapticRenderer` (whi
 mapping, smoothing, staleness, fading and the display's reconnection) and ticks it at
 ``tick_s`` between messages. It publishes heartbeats on its own endpoint (``bus.display_pub``).
 
+A grasp's end reaches it only through the estimator, which forwards the robot node's
+``grasp_event`` *end* after the grasp's final estimate (the robot's own end comes before that
+final, which the renderer would then ignore). So when the estimator that sent the estimate
+rendered, once heard with a heartbeat period, goes unheard for three of its periods, the service
+ends the grasp rendered (the display fades to free): no end can come for it, and a final estimate
+never goes stale. A grasp left so is not rendered again; the next grasp is.
+
 What it renders
 ---------------
 Every time the renderer writes a report to the display (a changed command, or a keep-alive
@@ -45,7 +52,7 @@ from haptics.mapping import FREE, EstimateUpdate, Percept, modulus_from_fraction
 from haptics.renderer import HapticRenderer
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
-from teleop.errors import ComplianceTeleopError
+from teleop.errors import BusError, ComplianceTeleopError
 from teleop.live import JsonLines, ServiceLoop
 
 __all__ = ["INPUT_TOPICS", "FinalLatency", "RendererService"]
@@ -142,6 +149,7 @@ class RendererService(ServiceLoop):
         self._reports_published = renderer.stats.reports_sent
         self._last_grasp: Hashable = None  # the grasp active last: the one a fade renders
         self._publish_failing = False
+        self._estimates_from = ""  # the source of the last estimate rendered: whose death ends its grasp
 
     def step(self) -> Message | None:
         """Wait up to ``tick_s`` for a message and handle it; tick the renderer; heartbeat."""
@@ -150,6 +158,7 @@ class RendererService(ServiceLoop):
         message = self.subscriber.recv(timeout_s=self.tick_s)
         if message is not None:
             self.handle(message)
+        self._check_estimator()
         self.renderer.tick(self.clock())
         written_s = self.clock()  # before the display message goes out: the latency ends at the report
         self._publish_display()
@@ -180,6 +189,7 @@ class RendererService(ServiceLoop):
         finally:
             self._publish_display()  # for a report written on the estimate or the grasp's end
         self.stats.estimates += 1
+        self._estimates_from = message.source
         if self.renderer.stats.estimates_ignored != ignored_before:
             self.stats.ignored += 1
             return  # not counted: a late estimate of an ended grasp would keep its count for good
@@ -189,6 +199,27 @@ class RendererService(ServiceLoop):
         if not update.provisional:
             self._pending = _Pending(update.grasp_id, update, reports_before, self.renderer.target)
             self._check_pending(written_s)
+
+    def _check_estimator(self) -> None:
+        """End the grasp rendered when the estimator that sent its estimates is heard dead (module
+        docstring); one never heard with a heartbeat period cannot be judged, and is left alone."""
+        grasp_id = self.renderer.grasp_id
+        if grasp_id is None or self.subscriber is None:
+            return
+        heartbeat = self.subscriber.heartbeat  # on its own clock: it stamped when each peer was heard
+        if heartbeat.last_seen_s(self._estimates_from) is None:  # handed in, not heard (a replay, a test)
+            return
+        try:
+            alive = heartbeat.is_alive(self._estimates_from)
+        except BusError:  # heard, but no heartbeat period announced
+            return
+        if alive:
+            return
+        log.warning("the estimator (%s) is unheard: grasp %s ends here, as its end cannot come",
+                    self._estimates_from or "?", grasp_id)
+        self.renderer.on_grasp_end(grasp_id, self.clock())
+        self._received.pop(grasp_id, None)
+        self._publish_display()
 
     def _display_body(self) -> dict[str, Any]:
         """The body of a ``display`` message for what the renderer shows now (see the module docstring)."""

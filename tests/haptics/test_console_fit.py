@@ -1,0 +1,102 @@
+"""The operator console on an 80x24 terminal, a dead estimator, the watchdog and the keyboard's toggle
+(textual's pilot against a fake link)."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+from haptics.console import OperatorConsole
+from haptics.inputs.keyboard import KeyboardInput
+from haptics.operator_link import OperatorView, Peer
+from haptics.operator_loop import OperatorLoop
+from teleop.bus.messages import EstimateBody, RobotNoticeBody, RobotStateBody
+from teleop.settings import load_settings
+
+ALIVE = (Peer("robot node", "robot", True, 0.1), Peer("estimator", "estimator", False, 4.0),
+         Peer("display", "renderer", True, 0.1))
+REASON = ("loading phase 0.12-0.41 s of the monotone envelope from contact to the peak, back-offs and pauses "
+          "skipped, frames sampled by approach rather than time; the hybrid's CNN and the analytical fits agree")
+
+
+class Link:
+    def __init__(self):
+        self.view = OperatorView(t_s=time.monotonic(), peers=ALIVE)
+        self.sent: list[tuple[str, bool | None, str | None]] = []
+        self.follows_sent = self.commands_sent = 0
+
+    def poll(self, timeout_s: float = 0.0) -> int:
+        time.sleep(timeout_s)
+        return 0
+
+    def follow(self, target_width_m, *, enable, grasp_id=None):
+        self.follows_sent += 1
+        self.sent.append(("follow", enable, grasp_id))
+
+    def start_grasp(self, *, target_force_n, grasp_id=None):
+        self.sent.append(("start_grasp", None, grasp_id))
+
+    def stop(self, grasp_id=None):
+        self.sent.append(("stop", None, grasp_id))
+
+    def release(self, grasp_id=None):
+        self.sent.append(("release", None, grasp_id))
+
+    def clear(self):
+        self.view = OperatorView(t_s=time.monotonic(), peers=ALIVE)
+
+
+async def _until(predicate, pilot, timeout_s: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        await pilot.pause(0.05)
+
+
+def test_at_80x24_the_estimate_notices_and_keys_fit_and_the_toggle_tells_the_truth():
+    link = Link()
+
+    async def session() -> None:
+        with KeyboardInput(grip_step=0.25) as keyboard:
+            loop = OperatorLoop(link, keyboard, load_settings(), force_n=10.0)
+            app = OperatorConsole(loop, input_name="keyboard", keyboard=keyboard)
+            async with app.run_test(size=(80, 24)) as pilot:
+                await pilot.press("up", "up", "e")
+                await _until(lambda: link.follows_sent >= 5, pilot)
+                grasp_id = link.sent[-1][2]
+                watchdog = RobotNoticeBody(event="watchdog", action="follow", grasp_id=grasp_id,
+                                           reason="no follow command for 0.210 s (watchdog 0.2 s): the fingers stopped")
+                refusal = RobotNoticeBody(event="refused", action="follow", grasp_id=grasp_id,
+                                          reason=f"grasp '{grasp_id}' has ended: name a new grasp to start one")
+                now = time.monotonic()
+                link.view = OperatorView(
+                    t_s=now, peers=ALIVE, grasp_id=grasp_id, phase="ended", object_name="silicone_ball",
+                    robot=RobotStateBody(mode="stopped", enable=False), force_n=0.0, width_m=0.03,
+                    estimate=EstimateBody(grasp_id=grasp_id, method="hybrid", E_pa=1.3e5, interval_pa=[6.5e4, 2.6e5],
+                                          state="ok", reason=REASON, provisional=True, latency_s=0.01),
+                    estimates=40, notice=refusal, notice_t_s=now, ended_by=watchdog, ended_by_t_s=now - 0.1)
+                # The robot ended the grasp: the toggle is let go with it, and the screen says so.
+                await _until(lambda: "enable off" in app.texts["input"], pilot)
+                await pilot.pause(0.2)
+                assert "suspended" not in app.texts["input"]
+                # A dead estimator is named where its estimate is.
+                assert "the estimator is down: not current" in app.texts["estimate"]
+                # Everything fits the screen: the notices (the watchdog and the refusal, whole) and the keys.
+                screen = app.screen.region
+                for name in ("estimate", "notice", "keys"):
+                    widget = app.query_one(f"#{name}")
+                    assert screen.contains_region(widget.region), (name, widget.region)
+                notices = " ".join(app.drawn["notice"].split())
+                assert "watchdog" in notices and "the fingers stopped" in notices
+                assert "name a new grasp to start one" in notices
+                assert len(app.drawn["estimate"].splitlines()) <= 4 and app.drawn["estimate"].endswith("\u2026")
+                # One e drives again, under a new grasp.
+                sent = len(link.sent)
+                await pilot.press("e")
+                await _until(lambda: any(e for k, e, _ in link.sent[sent:] if k == "follow"), pilot)
+                await _until(lambda: "enable HELD" in app.texts["input"], pilot)
+                assert link.sent[-1][2] not in (grasp_id, None)
+                await pilot.press("q")
+                await _until(lambda: app.exit_status is not None, pilot)
+
+    asyncio.run(session())

@@ -1,0 +1,72 @@
+"""The operator's link on loopback: what it keeps when the robot node dies, and the notice that ended a grasp."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from haptics.operator_link import OperatorLink
+from teleop.bus.pubsub import Publisher
+from teleop.settings import load_settings
+
+HEARTBEAT_S = 0.05
+
+
+def _wait(predicate, link: OperatorLink, *publishers: Publisher, timeout_s: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate(link.view):
+        assert time.monotonic() < deadline, link.view
+        for publisher in publishers:
+            publisher.heartbeat_if_due()
+        link.poll(0.01)
+
+
+def _robot_link(robot: Publisher) -> OperatorLink:
+    settings = load_settings()
+    bus = dataclasses.replace(settings.bus, command="tcp://127.0.0.1:*", heartbeat_s=HEARTBEAT_S,
+                              robot_pub=robot.endpoint, estimate_pub="tcp://127.0.0.1:1",
+                              display_pub="tcp://127.0.0.1:2")
+    return OperatorLink.from_settings(bus)
+
+
+def _readings(robot: Publisher, force_n: float, width_m: float) -> None:
+    t = time.monotonic()
+    robot.send("force", t_capture_s=t, grasp_id=None, t_s=np.array([t]), value_n=np.array([force_n]))
+    robot.send("width", t_capture_s=t, grasp_id=None, t_s=np.array([t]), value_m=np.array([width_m]))
+    robot.send("robot_state", t_capture_s=t, mode="grasping", grasp_id="g1", target_width_m=None, enable=False)
+
+
+def test_a_dead_robot_nodes_force_width_and_state_are_not_shown():
+    with Publisher("tcp://127.0.0.1:*", lossless=True, source="robot", heartbeat_s=HEARTBEAT_S) as robot, \
+            _robot_link(robot) as link:
+        robot.wait_for_subscriber("force", "width", "robot_state")
+        robot.heartbeat_if_due()
+        _readings(robot, 15.1, 0.02)
+        _wait(lambda v: v.force_n == 15.1 and v.robot is not None and v.width_m == 0.02, link, robot)
+        _wait(lambda v: v.down("robot node"), link)  # the node dies: no heartbeat any more
+        view = link.view
+        assert view.force_n is None and view.width_m is None and view.robot is None
+        # Started again: what it sends now, and nothing of the old node's.
+        t = time.monotonic()
+        robot.send("width", t_capture_s=t, grasp_id=None, t_s=np.array([t]), value_m=np.array([0.08]))
+        _wait(lambda v: v.alive("robot node") and v.width_m == 0.08, link, robot)
+        assert link.view.force_n is None and link.view.robot is None
+
+
+def test_the_notice_that_ended_a_grasp_stays_beside_a_later_refusal():
+    with Publisher("tcp://127.0.0.1:*", lossless=True, source="robot", heartbeat_s=HEARTBEAT_S) as robot, \
+            _robot_link(robot) as link:
+        robot.wait_for_subscriber("robot_notice", "grasp_event")
+        t = time.monotonic()
+        robot.send("grasp_event", t_capture_s=t, event="start", grasp_id="op-1", object_name="duck")
+        robot.send("robot_notice", t_capture_s=t, event="watchdog", action="follow", grasp_id="op-1",
+                   reason="no follow command for 0.210 s (watchdog 0.2 s): the fingers stopped")
+        robot.send("grasp_event", t_capture_s=t, event="end", grasp_id="op-1", object_name="duck")
+        robot.send("robot_notice", t_capture_s=t, event="refused", action="follow", grasp_id="op-1",
+                   reason="grasp 'op-1' has ended: name a new grasp to start one")
+        _wait(lambda v: v.notice is not None and v.notice.event == "refused", link, robot)
+        assert link.view.ended_by.event == "watchdog" and link.view.ended_by_t_s is not None
+        link.clear()  # the next object: the old grasp's end is no longer shown
+        assert link.view.ended_by is None and link.view.notice.event == "refused"

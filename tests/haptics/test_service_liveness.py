@@ -1,0 +1,69 @@
+"""The renderer service ends the grasp it renders when the estimator, which alone forwards grasp ends, dies."""
+
+from __future__ import annotations
+
+import time
+
+from haptics.devices.sim import SimulatedDisplay
+from haptics.renderer import HapticRenderer
+from haptics.service import RendererService
+from haptics.settings import display_settings
+from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.settings import load_settings
+
+HEARTBEAT_S = 0.05
+
+
+def _final(publisher: Publisher, grasp_id: str) -> None:
+    publisher.send("estimate", t_capture_s=time.monotonic(), grasp_id=grasp_id, method="series", E_pa=1e12,
+                   interval_pa=[1e11, None], state="lower_bound", reason="test", provisional=False, latency_s=0.001)
+
+
+def _step_until(service: RendererService, done, timeout_s: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        assert time.monotonic() < deadline, "timed out"
+        service.step()
+
+
+def test_a_final_is_let_go_when_the_estimator_dies_before_forwarding_the_grasps_end():
+    estimator = Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator", heartbeat_s=HEARTBEAT_S)
+    subscriber = Subscriber(estimator.endpoint, ("estimate", "grasp_event"), conflate=True)
+    renderer = HapticRenderer(SimulatedDisplay(), display_settings(load_settings()))
+    service = RendererService(renderer, subscriber=subscriber, tick_s=0.005)
+    try:
+        estimator.wait_for_subscriber("estimate", timeout_s=5.0)
+        estimator.heartbeat_if_due()
+        _final(estimator, "g1")  # rigid: the display holds its stiff end
+        _step_until(service, lambda: renderer.grasp_id == "g1")
+        # Alive and heartbeating: the final stays rendered (it never goes stale).
+        end = time.monotonic() + 4 * HEARTBEAT_S
+        while time.monotonic() < end:
+            estimator.heartbeat_if_due()
+            service.step()
+        assert renderer.phase == "active" and renderer.percept.rigid
+        # The estimator dies (its end of g1 never comes): the display lets go of g1.
+        _step_until(service, lambda: renderer.phase in ("fading", "idle"), timeout_s=1.0)
+        _step_until(service, lambda: renderer.phase == "idle")
+        assert not renderer.percept.rigid and renderer.percept.stiffness == 0
+    finally:
+        for sock in (estimator, subscriber):
+            sock.close()
+
+
+def test_an_estimator_that_never_announced_a_heartbeat_period_is_not_judged():
+    estimator = Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator")
+    subscriber = Subscriber(estimator.endpoint, ("estimate", "grasp_event"), conflate=True)
+    renderer = HapticRenderer(SimulatedDisplay(), display_settings(load_settings()))
+    service = RendererService(renderer, subscriber=subscriber, tick_s=0.005)
+    try:
+        estimator.wait_for_subscriber("estimate", timeout_s=5.0)
+        _final(estimator, "g2")
+        _step_until(service, lambda: renderer.grasp_id == "g2")
+        end = time.monotonic() + 0.3
+        while time.monotonic() < end:
+            service.step()
+        assert renderer.phase == "active"
+    finally:
+        for sock in (estimator, subscriber):
+            sock.close()
