@@ -65,7 +65,7 @@ MODEL_VARIANT ?= depth+fw+analytical
 MODEL_WINDOW_MM ?= 12.98x17.70
 SHIPPED_MODELS := estimator/models/default estimator/models/cnn-depth-fw estimator/models/hybrid-depth-analytical
 model: $(VENV)/.installed-dev
-	rm -rf $(MODEL_RUN)/records $(MODEL_RUN)/dataset
+	rm -rf $(MODEL_RUN)/records $(MODEL_RUN)/dataset $(MODEL_RUN)/seed0 $(MODEL_RUN)/seed1 $(MODEL_RUN)/seed2
 	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --grasps-per-object 12 --seed 1 \
 		--out $(MODEL_RUN)/records/wedge_nominal --workers 2
 	$(BIN)/teleop simulate --objects $(OBJECT_TABLE) --grasps-per-object 6 --seed 2 --randomize-rig --vary-gel \
@@ -77,7 +77,7 @@ model: $(VENV)/.installed-dev
 	$(foreach seed,0 1 2,$(BIN)/estimator train --data $(MODEL_RUN)/dataset --out $(MODEL_RUN)/seed$(seed) \
 		--variant $(MODEL_VARIANT) --seed $(seed) --patience 30 --threads 2 &&) true
 	$(BIN)/estimator pool --model $(MODEL_RUN)/seed0 --model $(MODEL_RUN)/seed1 --model $(MODEL_RUN)/seed2 \
-		--data $(MODEL_RUN)/dataset --out $(MODEL_OUT)
+		--data $(MODEL_RUN)/dataset --out $(MODEL_OUT) --overwrite
 
 # The shipped models on simulated grasps of objects none of them trained on (their test split), after
 # `make model` made the records: the model card's figures. The nominal Wedge rig (runs/evaluate/figures.json),

@@ -65,6 +65,7 @@ from estimator.inference.provenance import SPLITS, load_split
 from estimator.training.conformal import fit_conformal
 from estimator.training.export import export_onnx, network_from_onnx
 from estimator.training.model import ComplianceNet
+from estimator.training.outdir import check_out_dir, make_out_dir
 from estimator.training.pool import pooled_from_onnx
 from estimator.training.recipe import FINE_TUNE_CONFIG, REPLAY_RATIO, TrainConfig
 from estimator.training.splits import SplitData, check_dataset_fits, load_split_data, split_metrics
@@ -72,7 +73,7 @@ from estimator.training.train import predict, train_epoch
 from teleop.progress import progress_bar
 from teleop.settings import Settings
 
-__all__ = ["check_by_object", "fine_tune"]
+__all__ = ["check_by_object", "check_out", "fine_tune"]
 
 log = logging.getLogger(__name__)
 
@@ -178,10 +179,22 @@ def _prepared(model_dir: Path, data_dir: Path, replay: str | Path | None, replay
     return base, variant, data, replayed, recalibrate_on
 
 
+def check_out(model_dir: str | Path, out_dir: str | Path, *, overwrite: bool) -> None:
+    """Refuse an ``out_dir`` that is the base model, even with ``overwrite``, or that
+    :func:`~estimator.training.outdir.check_out_dir` refuses (EstimatorError)."""
+    model_dir, out_dir = Path(model_dir), Path(out_dir)
+    if out_dir.resolve() == model_dir.resolve():
+        raise EstimatorError(f"--out {out_dir}: is the base model; write the fine-tuned one to another folder "
+                             "and compare the two (`estimator compare`)")
+    check_out_dir(out_dir, overwrite=overwrite)
+
+
 def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, *,
               config: TrainConfig = FINE_TUNE_CONFIG, replay: str | Path | None = None,
-              replay_ratio: float = REPLAY_RATIO, progress: bool = True) -> dict[str, Any]:
-    """Fine-tune the model in ``model_dir`` on every sample in ``data_dir``; write it to ``out_dir``.
+              replay_ratio: float = REPLAY_RATIO, progress: bool = True, overwrite: bool = False
+              ) -> dict[str, Any]:
+    """Fine-tune the model in ``model_dir`` on every sample in ``data_dir``; write it to ``out_dir``, which
+    must be new or empty unless ``overwrite`` (:func:`~estimator.training.outdir.check_out_dir`).
 
     ``replay`` names the base model's training dataset to rehearse and recalibrate on, ``replay_ratio``
     (> 0) how many of its samples each epoch adds per new sample (module notes).
@@ -191,17 +204,16 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     Raises
     ------
     EstimatorError
-        The dataset is empty, was measured by other code than the model's training data, or its
-        window, frames or image size differ from the model's; the replay dataset likewise, or it
-        trains on objects the base model did not.
+        ``out_dir`` is the base model, a file or, without ``overwrite``, not empty; the dataset is
+        empty, was measured by other code than the model's training data, or its window, frames or
+        image size differ from the model's; the replay dataset likewise, or it trains on objects the
+        base model did not.
     ModelError
         The model cannot be read or rebuilt.
     """
     started = time.perf_counter()
     model_dir, data_dir, out_dir = Path(model_dir), Path(data_dir), Path(out_dir)
-    if out_dir.resolve() == model_dir.resolve():
-        raise EstimatorError(f"out {out_dir}: is the base model; write the fine-tuned one to another folder "
-                             "and compare the two (`estimator compare`)")
+    check_out(model_dir, out_dir, overwrite=overwrite)
     base, variant, data, replayed, recalibrate_on = _prepared(model_dir, data_dir, replay, replay_ratio)
     added = {r["object"] for r in data.rows}
     model, history = _tuned(model_dir, base, variant, data, replayed, config=config, replay_ratio=replay_ratio,
@@ -224,7 +236,7 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     }
     # Both files under other names first, then renamed: a model folder never holds one new file beside
     # the other's old version (a service watching it takes both once they stop changing).
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_out_dir(out_dir)
     staged = {out_dir / ".model.onnx.partial": out_dir / "model.onnx",
               out_dir / ".metadata.json.partial": out_dir / "metadata.json"}
     try:

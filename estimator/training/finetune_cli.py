@@ -16,6 +16,7 @@ from estimator.evaluation.compare_cli import print_comparison
 from estimator.evaluation.evaluate_cli import print_skipped
 from estimator.inference.provenance import load_split, trained_objects
 from estimator.training.dataset import load_manifest
+from estimator.training.outdir import OVERWRITE_HELP
 from estimator.training.recipe import FINE_TUNE_CONFIG, REPLAY_RATIO, TrainConfig
 from teleop.clikit import non_negative_int
 from teleop.settings import Settings, default_settings_path, load_settings
@@ -34,7 +35,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the model to start from (a folder with metadata.json and model.onnx, e.g. "
                              "estimator/models/default)")
     parser.add_argument("--data", required=True, metavar="DIR", help="directory written by `estimator build-dataset`")
-    parser.add_argument("--out", required=True, metavar="MODEL_DIR", help="directory for the fine-tuned model")
+    parser.add_argument("--out", required=True, metavar="MODEL_DIR",
+                        help="directory for the fine-tuned model (created; must not exist yet, or be empty, "
+                             "unless --overwrite)")
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     parser.add_argument("--replay", metavar="DIR",
                         help="the base model's training dataset (build-dataset directory, as `make model` writes): "
                              "rehearse it while fine-tuning, then recalibrate the intervals on its val objects")
@@ -65,7 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     config = replace(FINE_TUNE_CONFIG, epochs=args.epochs, lr=args.lr, batch_size=args.batch_size, seed=args.seed)
     return fine_tune_and_report(args.model, args.data, args.out, config=config, replay=args.replay,
-                                replay_ratio=args.replay_ratio,
+                                replay_ratio=args.replay_ratio, overwrite=args.overwrite,
                                 check_settings=load_settings(args.settings) if args.check else None,
                                 compare=args.compare,
                                 compare_settings=load_settings(args.settings) if args.compare else None,
@@ -102,15 +106,17 @@ def _records_to_compare(model: str, data: str, records: str) -> frozenset[str]:
 def fine_tune_and_report(model: str, data: str, out: str, *, config: TrainConfig, replay: str | None,
                          replay_ratio: float, check_settings: Settings | None = None, compare: str | None = None,
                          compare_settings: Settings | None = None, as_json: bool = False,
-                         model_option: str = "--model") -> int:
+                         model_option: str = "--model", overwrite: bool = False) -> int:
     """Fine-tune ``model`` on ``data`` into ``out`` and print what happened (``estimator fine-tune``, and
     ``estimator train --init``, whose option naming the model is ``model_option``); with ``check_settings``,
     first the leave-one-object-out check on that rig; with ``compare`` (a records directory), then the
-    comparison with the base model on those records (:func:`estimator.evaluation.compare.compare_models`)."""
+    comparison with the base model on those records (:func:`estimator.evaluation.compare.compare_models`);
+    ``overwrite`` lets ``out`` hold a model already."""
     # Imported here: torch is the 'train' extra, which --help does not need.
-    from estimator.training.finetune import check_by_object, fine_tune
+    from estimator.training.finetune import check_by_object, check_out, fine_tune
 
     _check_paths(model, data, replay, model_option)
+    check_out(model, out, overwrite=overwrite)  # before --check's fine-tunings too
     if compare is not None:
         _records_to_compare(model, data, compare)
     if replay is None:
@@ -121,7 +127,7 @@ def fine_tune_and_report(model: str, data: str, out: str, *, config: TrainConfig
     if check_settings is not None:
         check = check_by_object(model, data, settings=check_settings, config=config, replay=replay,
                                 replay_ratio=replay_ratio)
-    meta = fine_tune(model, data, out, config=config, replay=replay, replay_ratio=replay_ratio)
+    meta = fine_tune(model, data, out, config=config, replay=replay, replay_ratio=replay_ratio, overwrite=overwrite)
     tuned = meta["fine_tuning"]
     summary = {"out": str(out), "objects": tuned["objects"], "grasps": tuned["grasps"],
                "samples": tuned["samples"], "seconds": tuned["seconds"],

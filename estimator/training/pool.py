@@ -34,6 +34,7 @@ from estimator.training.export import (
     onnx_weights,
 )
 from estimator.training.model import ComplianceNet
+from estimator.training.outdir import check_out_dir, make_out_dir
 from estimator.training.recalibrate import recalibrate
 from estimator.training.splits import check_dataset_fits, load_split_data
 from teleop.settings import Settings
@@ -76,14 +77,15 @@ def _provenance(model_dir: Path, predictor: CompliancePredictor) -> dict[str, An
 
 
 def pool_models(model_dirs: Sequence[str | Path], data_dir: str | Path, out_dir: str | Path, *,
-                settings: Settings | None = None) -> dict[str, Any]:
+                settings: Settings | None = None, overwrite: bool = False) -> dict[str, Any]:
     """Pool the models in ``model_dirs`` into ``out_dir``, calibrated on the val objects of ``data_dir``
-    (the dataset they were all trained on); returns the new metadata.
+    (the dataset they were all trained on); returns the new metadata. ``out_dir`` must be new or empty
+    unless ``overwrite`` (:func:`~estimator.training.outdir.check_out_dir`).
 
     Raises
     ------
     EstimatorError
-        Fewer than two models, a model given more than once, models of other variants, trained on
+        ``out_dir`` is a file or, without ``overwrite``, not empty; fewer than two models, a model given more than once, models of other variants, trained on
         other object splits or on depth of other calibration smoothings than the first, or a dataset
         that does not fit them.
     ModelError
@@ -97,6 +99,7 @@ def pool_models(model_dirs: Sequence[str | Path], data_dir: str | Path, out_dir:
     twice = sorted({str(d) for d in resolved if resolved.count(d) > 1})
     if twice:
         raise EstimatorError(f"model {twice[0]}: given more than once")
+    check_out_dir(out_dir, overwrite=overwrite)
     predictors = [CompliancePredictor(d) for d in model_dirs]
     first = predictors[0]
     for directory, predictor in zip(model_dirs[1:], predictors[1:], strict=True):
@@ -119,7 +122,7 @@ def pool_models(model_dirs: Sequence[str | Path], data_dir: str | Path, out_dir:
     example = {n: v[:8] for n, v in val.inputs.items()}
     members = [network_from_onnx(d / "model.onnx", first.variant, check=example) for d in model_dirs]
     pooled = PooledNet(members, [p.metadata.temperature for p in predictors])
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_out_dir(out_dir)
     export_onnx(pooled, out_dir / "model.onnx", example=example)
     metadata = {
         **{k: v for k, v in first.metadata.raw.items() if k != "training"},  # each member's is in "ensemble"

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from estimator.inference.infer import bands_text
+from estimator.training.outdir import OVERWRITE_HELP
 from teleop.settings import default_settings_path, load_settings
 
 
@@ -18,7 +19,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", required=True, action="append", metavar="MODEL_DIR",
                         help="a member (repeat: at least two)")
     parser.add_argument("--data", required=True, metavar="DIR", help="the members' dataset (`estimator build-dataset`)")
-    parser.add_argument("--out", required=True, metavar="MODEL_DIR", help="directory for the pooled model")
+    parser.add_argument("--out", required=True, metavar="MODEL_DIR",
+                        help="directory for the pooled model (created; must not exist yet, or be empty, unless "
+                             "--overwrite)")
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     parser.add_argument("--settings", metavar="FILE", default=None,
                         help="settings TOML whose resolution limit the intervals are calibrated at "
                              f"(default: the shipped {default_settings_path()})")
@@ -29,7 +33,8 @@ def run(args: argparse.Namespace) -> int:
     # Imported here: torch is the 'train' extra, which --help does not need.
     from estimator.training.pool import pool_models
 
-    meta = pool_models(args.model, args.data, args.out, settings=load_settings(args.settings))
+    meta = pool_models(args.model, args.data, args.out, settings=load_settings(args.settings),
+                       overwrite=args.overwrite)
     calibration = meta["calibration"]
     if args.json:
         print(json.dumps({"out": args.out, "members": len(args.model), "calibration": calibration}, allow_nan=False))

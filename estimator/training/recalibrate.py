@@ -30,6 +30,7 @@ from estimator.inference.distribution import force_band
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.provenance import load_split
 from estimator.training.conformal import fit_conformal
+from estimator.training.outdir import check_out_dir, make_out_dir
 from estimator.training.splits import (
     SplitData,
     auto_policy,
@@ -80,10 +81,11 @@ def _fit_conformal_on(predictor: CompliancePredictor, val: SplitData, logits: np
 
 
 def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | Path | None = None,
-                settings: Settings | None = None, record: bool = True) -> dict[str, Any]:
+                settings: Settings | None = None, record: bool = True, overwrite: bool = False) -> dict[str, Any]:
     """Refit the calibration of the model in ``model_dir`` on the val objects of ``data_dir`` and score
     it on the val and test objects; write the metadata to ``out_dir`` (default: in place, with
-    ``model.onnx`` copied there when elsewhere). ``settings`` (default: the shipped ones) give the
+    ``model.onnx`` copied there when elsewhere; elsewhere, it must be new or empty unless ``overwrite``,
+    :func:`~estimator.training.outdir.check_out_dir`). ``settings`` (default: the shipped ones) give the
     resolution limit, as for ``estimator train``. ``record`` keeps when, from what and the calibration it
     replaced under ``recalibrated`` (off for a model whose calibration is its first). Returns the new
     metadata.
@@ -91,13 +93,17 @@ def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | P
     Raises
     ------
     EstimatorError
-        The dataset does not fit the model (measurement version, window, frames, size), has no val
-        samples, or holds val or test objects the model trained on.
+        ``out_dir`` (elsewhere) is a file or, without ``overwrite``, not empty; the dataset does not fit
+        the model (measurement version, window, frames, size), has no val samples, or holds val or test
+        objects the model trained on.
     ModelError
         The model cannot be read.
     """
     model_dir, data_dir = Path(model_dir), Path(data_dir)
     out_dir = model_dir if out_dir is None else Path(out_dir)
+    in_place = out_dir.resolve() == model_dir.resolve()
+    if not in_place:
+        check_out_dir(out_dir, overwrite=overwrite)
     settings = load_settings() if settings is None else settings
     predictor, parts, logits = _load(model_dir, data_dir, ("val", "test"))
     variant, metadata = predictor.variant, dict(predictor.metadata.raw)
@@ -114,8 +120,8 @@ def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | P
         new["recalibrated"] = {"utc": datetime.now(UTC).isoformat(timespec="seconds"), "data": str(data_dir),
                                "settings": str(settings.source) if settings.source else None,
                                "previous": metadata["calibration"]}
-    out_dir.mkdir(parents=True, exist_ok=True)
-    if out_dir.resolve() != model_dir.resolve():
+    if not in_place:
+        make_out_dir(out_dir)
         (out_dir / "model.onnx").write_bytes((model_dir / "model.onnx").read_bytes())
     (out_dir / "metadata.json").write_text(json.dumps(new, indent=1, allow_nan=False))
     return new

@@ -7,6 +7,7 @@ import json
 
 from estimator.errors import EstimatorError
 from estimator.inference.infer import band_names, bands_text
+from estimator.training.outdir import OVERWRITE_HELP
 from estimator.training.recalibrate import cross_validate, recalibrate
 from teleop.clikit import non_negative_int
 from teleop.settings import default_settings_path, load_settings
@@ -26,7 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", required=True, metavar="MODEL_DIR", help="the trained model")
     parser.add_argument("--data", required=True, metavar="DIR",
                         help="the model's dataset (`estimator build-dataset` output; metadata.json data.dir)")
-    parser.add_argument("--out", metavar="MODEL_DIR", default=None, help="write the model here instead of in place")
+    parser.add_argument("--out", metavar="MODEL_DIR", default=None,
+                        help="write the model here instead of in place (created; must not exist yet, or be empty, "
+                             "unless --overwrite)")
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     parser.add_argument("--settings", metavar="FILE", default=None,
                         help="settings TOML whose resolution limit the intervals are calibrated at "
                              f"(default: the shipped {default_settings_path()})")
@@ -56,6 +60,9 @@ def _print_cross_validation(result: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.overwrite and not args.out:
+        raise EstimatorError("--overwrite: replaces a model in --out; without --out the model is recalibrated in "
+                             "place")
     if args.cross_validate is not None:
         if args.out:
             raise EstimatorError("--out: --cross-validate writes nothing; leave --out out")
@@ -66,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             _print_cross_validation(result)
         return 0
-    meta = recalibrate(args.model, args.data, out_dir=args.out, settings=load_settings(args.settings))
+    meta = recalibrate(args.model, args.data, out_dir=args.out, settings=load_settings(args.settings),
+                       overwrite=args.overwrite)
     new, old = meta["calibration"], meta["recalibrated"]["previous"]
     if args.json:
         print(json.dumps({"out": args.out or args.model, "calibration": new, "previous": old}, allow_nan=False))

@@ -63,6 +63,7 @@ from estimator.training.conformal import fit_conformal
 from estimator.training.dataset import load_manifest
 from estimator.training.export import OPSET, export_onnx
 from estimator.training.model import ComplianceNet
+from estimator.training.outdir import check_out_dir, make_out_dir
 from estimator.training.recipe import TrainConfig
 from estimator.training.splits import (
     SplitData,
@@ -199,10 +200,12 @@ def _fit(train: SplitData, val: SplitData, variant: Variant, config: TrainConfig
                  "train_log10_error": _mean_log10_error(train_pred, censor(train.label)),
                  "val_log10_error": _mean_log10_error(val_pred, val_label)}
         history.append(entry)
-        bar.set_postfix(val_loss=f"{val_loss:.3f}", val_err=f"{entry['val_log10_error']:.3f}", best=best[1])
-        if val_loss < best[0]:
+        improved = val_loss < best[0]
+        if improved:
             best = (val_loss, epoch, copy.deepcopy(model.state_dict()))
-        elif epoch - best[1] >= config.patience:
+        # After the update: the bar's best is the epoch kept so far, as the metadata's best_epoch.
+        bar.set_postfix(val_loss=f"{val_loss:.3f}", val_err=f"{entry['val_log10_error']:.3f}", best=best[1])
+        if not improved and epoch - best[1] >= config.patience:
             break
     model.load_state_dict(best[2])
     return Fitted(model.eval(), history, best[1], best[0])
@@ -216,23 +219,27 @@ def train_model(
     config: TrainConfig | None = None,
     settings: Settings | None = None,
     progress: bool = True,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Train ``variant`` on the dataset in ``data_dir``; write the model to ``out_dir``; return its metadata.
 
     ``config`` defaults to :class:`~estimator.training.recipe.TrainConfig`'s defaults. ``settings`` (default: the shipped ones) give the sensor's resolution limit at which the
     intervals are calibrated (:func:`fit_conformal`). The model's input window is the dataset's
     (:func:`dataset_window`; ``variant.window_m``, when given, must equal it); it is written to the
-    metadata as ``variant.window_m``.
+    metadata as ``variant.window_m``. ``out_dir`` must be new or empty unless ``overwrite``
+    (:func:`~estimator.training.outdir.check_out_dir`).
 
     Raises
     ------
     EstimatorError
-        The dataset has no train or no val samples, or does not match the variant.
+        ``out_dir`` is a file or, without ``overwrite``, not empty; the dataset has no train or no val
+        samples, or does not match the variant.
     """
     started = time.perf_counter()
     config = TrainConfig() if config is None else config
     settings = load_settings() if settings is None else settings
     data_dir, out_dir = Path(data_dir), Path(out_dir)
+    check_out_dir(out_dir, overwrite=overwrite)
     manifest = load_manifest(data_dir)
     if manifest.get("measurement_version") != MEASUREMENT_VERSION:
         log.warning("%s was measured by measurement version %s, this code is version %s: the model will learn "
@@ -256,7 +263,7 @@ def train_model(
     fitted = _fit(train, val, variant, config, progress=progress)
     model = fitted.model
     names = list(variant.input_shapes)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_out_dir(out_dir)
     example = {n: val.inputs[n][:8] if len(val) >= 2 else train.inputs[n][:8] for n in names}
     export_onnx(model, out_dir / "model.onnx", example=example)
     val_pred = predict(model, val)

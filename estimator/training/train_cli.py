@@ -15,6 +15,7 @@ from estimator.inference.inputs import ANALYTICAL_METHODS, Variant
 from estimator.training.dataset import load_manifest
 from estimator.training.dataset_cli import parse_size
 from estimator.training.finetune_cli import fine_tune_and_report
+from estimator.training.outdir import OVERWRITE_HELP
 from estimator.training.recipe import FINE_TUNE_CONFIG, REPLAY_RATIO, TrainConfig
 from estimator.training.splits import dataset_window
 from teleop.clikit import non_negative_int
@@ -32,7 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "of `estimator fine-tune`, which also offers a leave-one-object-out --check)."
     )
     parser.add_argument("--data", required=True, metavar="DIR", help="directory written by `estimator build-dataset`")
-    parser.add_argument("--out", required=True, metavar="MODEL_DIR", help="directory for the model (created)")
+    parser.add_argument("--out", required=True, metavar="MODEL_DIR",
+                        help="directory for the model (created; must not exist yet, or be empty, unless --overwrite)")
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     parser.add_argument("--init", metavar="MODEL_DIR", default=None,
                         help="fine-tune this trained model (a shipped one, say) on the few labelled grasps of DIR "
                              "instead of training from scratch: every sample of every split trains, batch-norm "
@@ -109,7 +112,7 @@ def _fine_tune(args: argparse.Namespace) -> int:
                      label_sd_decades=args.label_sd, seed=args.seed, threads=args.threads)
     return fine_tune_and_report(args.init, args.data, args.out, config=config, replay=args.replay,
                                 replay_ratio=_given(args.replay_ratio, REPLAY_RATIO), as_json=args.json,
-                                model_option="--init")
+                                model_option="--init", overwrite=args.overwrite)
 
 
 def _given(value: Any, default: Any) -> Any:
@@ -142,7 +145,8 @@ def run(args: argparse.Namespace) -> int:
                          batch_size=_given(args.batch_size, TrainConfig.batch_size), lr=_given(args.lr, TrainConfig.lr),
                          weight_decay=args.weight_decay, patience=_given(args.patience, TrainConfig.patience),
                          label_sd_decades=args.label_sd, seed=args.seed, threads=args.threads)
-    meta = train_model(args.data, args.out, variant=variant, config=config, settings=load_settings(args.settings))
+    meta = train_model(args.data, args.out, variant=variant, config=config, settings=load_settings(args.settings),
+                       overwrite=args.overwrite)
     training = meta["training"]
     if args.json:
         print(json.dumps({"out": str(args.out), "variant": variant.name, "epochs_run": training["epochs_run"],
