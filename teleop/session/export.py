@@ -2,9 +2,15 @@
 
 A grasp runs from a ``grasp_event`` *start* to the *end* with the same ``grasp_id`` from the
 same publisher (``source``: the robot node's; the estimator's forwarded ends do not count). It
-holds the ``frame``, ``force`` and ``width`` messages that name its ``grasp_id``, and
-those that name none but arrive (in receive order) while it is the only grasp open. Each
-keeps its capture times: frame times are the messages' ``t_capture_s``; force and width
+holds the ``frame``, ``force`` and ``width`` messages that name its ``grasp_id``, and those that
+name none (publishers that do not tag, as in the first session logs) but arrive (in receive order)
+while it is the only grasp open and were captured at or after its start (``t_capture_s``: a
+frame's capture time, a force or width batch's last sample). The robot node tags what it captures
+from a grasp's start on and leaves what it captured before untagged (``teleop/node.py``), so an
+untagged message captured before the start is not the grasp's (a camera that delivers late): it
+is dropped and counted (:attr:`GraspExport.dropped`). No margin before the start is kept: the
+estimator's no-contact reference is the frames before the contact onset, which the gripper
+reaches after the start. Each keeps its capture times: frame times are the messages' ``t_capture_s``; force and width
 samples are the messages' ``t_s``/``value`` arrays, concatenated in receive order. Frames
 stay the bytes the camera produced (``jpeg``/``png``); ``raw`` frames are stored as
 lossless PNG. Events ``grasp_start``/``grasp_end`` are the two grasp events' capture times,
@@ -27,7 +33,11 @@ log's metadata (``20250101T120000.123Z``; a log without it: ``log-`` and 8 hex d
 its first MiB), so two sessions whose grasps have the same ids never share a name, and exporting
 one log again gives the same names. :func:`export_session` refuses to replace an existing file
 unless asked (``overwrite``), and writes nothing under a final name before every record of the
-log is written (records are written under hidden names and renamed at the end).
+log is written (records are written under hidden names and renamed at the end). One session
+exported from two logs (a log cut short, then the log ``teleop recover`` made of it) would hold
+each grasp twice under two names: a record in the folder of the same session id and grasp id
+under another log's name is refused as well, or with ``overwrite`` replaced (removed once the new
+records are in; :mod:`teleop.session.export_names`).
 
 Labels
 ------
@@ -49,7 +59,6 @@ import contextlib
 import dataclasses
 import hashlib
 import logging
-import re
 import tempfile
 from collections import defaultdict
 from collections.abc import Iterator
@@ -73,12 +82,13 @@ from teleop.record import (
     Label,
     Provenance,
     Samples,
-    calibration_copy,
     software_version,
     write_record,
 )
+from teleop.session.export_calibration import carried_calibrations
+from teleop.session.export_names import record_name, same_grasp_records
 from teleop.session.logfile import SETTINGS_ATTACHMENT, LogInfo, LogReader
-from teleop.settings import Settings, resolve_path
+from teleop.settings import Settings
 
 __all__ = ["GraspExport", "SessionExport", "export_session", "session_grasps", "session_id"]
 
@@ -90,6 +100,8 @@ class GraspExport:
     """One grasp of a session: its record, or (falsy) the reason there is none.
 
     ``unlabelled``: for a record without a modulus to train on, why ("" when it has one).
+    ``dropped``: untagged messages captured before the grasp's start, left out (module notes),
+    by stream (``frame/left``, ``force``, ...).
     """
 
     grasp_id: str
@@ -97,6 +109,7 @@ class GraspExport:
     reason: str = ""
     path: Path | None = None  # where export_session wrote it
     unlabelled: str = ""
+    dropped: dict[str, int] = field(default_factory=dict)
 
     def __bool__(self) -> bool:
         return self.record is not None
@@ -114,15 +127,18 @@ class SessionExport(list[GraspExport]):
     damage : str or None
     stray_labels : list of str
         ``label`` messages naming a grasp id the log has no grasp for, one line each.
+    replaced : list of Path
+        Records of the same grasps exported from another log of the session, removed (``overwrite``).
     """
 
     def __init__(self, grasps: list[GraspExport], *, session_id: str, complete: bool, damage: str | None,
-                 stray_labels: list[str]):
+                 stray_labels: list[str], replaced: list[Path]):
         super().__init__(grasps)
         self.session_id = session_id
         self.complete = complete
         self.damage = damage
         self.stray_labels = stray_labels
+        self.replaced = replaced
 
 
 @dataclass
@@ -137,6 +153,7 @@ class _OpenGrasp:
     force: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     width: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     loading_end_s: float | None = None
+    dropped: dict[str, int] = field(default_factory=lambda: defaultdict(int))  # by topic
 
     def add(self, message: Message) -> None:
         body = message.fields
@@ -231,9 +248,8 @@ class _Assembler:
             grasp = self.open.get(grasp_id)
             if body.event == "start":
                 if grasp is not None:
-                    yield GraspExport(
-                        grasp_id, reason="started again before it ended; the first start is dropped"
-                    )
+                    yield GraspExport(grasp_id, reason="started again before it ended; the first start is dropped",
+                                      dropped=dict(grasp.dropped))
                 self.open[grasp_id] = _OpenGrasp(grasp_id, message.t_capture_s, body.object_name,
                                                  message.source)
             elif grasp is None or message.source != grasp.source:
@@ -245,19 +261,25 @@ class _Assembler:
                 grasp.loading_end_s = message.t_capture_s
             else:
                 self.ended.add(grasp_id)
-                yield self.build(self.open.pop(grasp_id), message.t_capture_s)
+                grasp = self.open.pop(grasp_id)
+                yield dataclasses.replace(self.build(grasp, message.t_capture_s), dropped=dict(grasp.dropped))
         elif message.type in ("frame", "force", "width"):
             grasp_id = body.grasp_id
             if grasp_id is None and len(self.open) == 1:
-                grasp_id = next(iter(self.open))
+                grasp = next(iter(self.open.values()))
+                if message.t_capture_s < grasp.start_s:  # captured before the grasp: not its (module notes)
+                    grasp.dropped[message.topic] += 1
+                    return
+                grasp_id = grasp.grasp_id
             if grasp_id in self.open:
                 self.open[grasp_id].add(message)
             else:
                 self.unassigned += 1
 
     def unfinished(self) -> Iterator[GraspExport]:
-        for grasp_id in self.open:
-            yield GraspExport(grasp_id, reason="the log stops before the grasp's end event")
+        for grasp_id, grasp in self.open.items():
+            yield GraspExport(grasp_id, reason="the log stops before the grasp's end event",
+                              dropped=dict(grasp.dropped))
         self.open.clear()
 
     def build(self, grasp: _OpenGrasp, end_s: float) -> GraspExport:
@@ -420,7 +442,7 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
             f"{path}: the session metadata gives source {source!r}; give the source "
             "(simulated or hardware) explicitly"
         )
-    settings, files = _carried_calibrations(info, settings, path, disk_first=given)
+    settings, files = carried_calibrations(info, settings, path, disk_first=given)
     labels = _labels(reader)
     assembler = _Assembler(
         path=path,
@@ -450,60 +472,6 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
             stray_labels.append(line)
 
 
-def _safe_name(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", name)
-
-
-def _carried_calibrations(
-    info: LogInfo, settings: Settings, path: Path, *, disk_first: bool
-) -> tuple[Settings, dict[str, bytes]]:
-    """The calibration file of every sensor that names one, to carry in the records (module notes).
-
-    Returns ``settings`` with each such sensor pointing at a copy of the file
-    (:func:`~teleop.record.calibration_copy`), and finger -> the file's bytes.
-    """
-    sensors, files = [], {}
-    for sensor in settings.sensors:
-        if not sensor.calibration:
-            sensors.append(sensor)
-            continue
-        stored = f"calibration/{sensor.finger}/{Path(sensor.calibration).name}"
-        disk = resolve_path(sensor.calibration)
-
-        def from_disk(disk: Path = disk) -> bytes | None:
-            try:
-                return disk.read_bytes() if disk.is_file() else None
-            except OSError:
-                return None
-
-        def from_log(stored: str = stored) -> bytes | None:
-            return info.attachments.get(stored)
-
-        data = None
-        for source in (from_disk, from_log) if disk_first else (from_log, from_disk):
-            data = source()
-            if data is not None:
-                break
-        if data is None:
-            log.warning(
-                "%s: sensor %r names calibration %s, which is neither stored in the log nor on this "
-                "machine; its records name it without carrying it",
-                path, sensor.finger, sensor.calibration,
-            )
-            sensors.append(sensor)
-            continue
-        try:
-            copy = calibration_copy(data, Path(sensor.calibration).name)
-        except OSError as exc:
-            raise SessionLogError(
-                f"cannot copy the calibration of sensor {sensor.finger!r} to a cache folder: "
-                f"{exc.strerror or exc}"
-            ) from exc
-        files[sensor.finger] = data
-        sensors.append(dataclasses.replace(sensor, calibration=str(copy)))
-    return dataclasses.replace(settings, sensors=tuple(sensors)), files
-
-
 def export_session(
     path: str | Path,
     out: str | Path,
@@ -525,13 +493,15 @@ def export_session(
     Parameters
     ----------
     overwrite : bool
-        Replace records of those names already in ``out`` (default: refuse).
+        Replace records of those names already in ``out``, and remove the records of the same
+        grasps exported from another log of the session (default: refuse).
 
     Raises
     ------
     SessionLogError
         As :func:`session_grasps`; ``out`` cannot be created or written; or a record's name is
-        taken in ``out`` and ``overwrite`` is False (the message names the file).
+        taken in ``out``, or ``out`` holds one of its grasps exported from another log, and
+        ``overwrite`` is False (the message names the files).
     """
     path, out = Path(path), Path(out)
     reader = LogReader(path)  # read first: a log that cannot be read creates no folder
@@ -546,6 +516,7 @@ def export_session(
     stray: list[str] = []
     results: list[GraspExport] = []
     staged: list[tuple[Path, Path]] = []  # (hidden name, final name)
+    replaced: list[Path] = []  # the same grasps' records under another log's name
     names: set[str] = set()
     done = False
     grasps = _grasps(
@@ -554,7 +525,7 @@ def export_session(
     try:
         for grasp in progress_bar(grasps, desc=f"export {path.name}", unit="grasp", enabled=progress):
             if grasp:
-                name = _record_name(path, sid, grasp.grasp_id, names)
+                name = record_name(path, sid, grasp.grasp_id, names)
                 dest = out / name
                 if dest.exists() and not overwrite:
                     raise SessionLogError(
@@ -562,6 +533,16 @@ def export_session(
                         "exported before?): pass --overwrite to replace it, or export into another "
                         "folder; nothing was written"
                     )
+                twins = same_grasp_records(out, path, name, sid, grasp.grasp_id)
+                if twins and not overwrite:
+                    other, origin = twins[0]
+                    raise SessionLogError(
+                        f"{other} holds grasp {grasp.grasp_id!r} of session {sid} already (exported from "
+                        f"{origin}); {path} would write it again as {dest}, and a dataset would count it "
+                        "twice: pass --overwrite to replace it, or export into another folder; nothing "
+                        "was written"
+                    )
+                replaced += [other for other, _ in twins]
                 hidden = write_record(grasp.record, out / f".{name}.exporting")
                 staged.append((hidden, dest))
                 grasp = dataclasses.replace(grasp, path=dest)
@@ -569,9 +550,14 @@ def export_session(
                     log.info("%s: grasp %r has no modulus: %s", path, grasp.grasp_id, grasp.unlabelled)
             else:
                 log.warning("%s: grasp %r not exported: %s", path, grasp.grasp_id, grasp.reason)
+            for topic, count in grasp.dropped.items():
+                log.warning("%s: grasp %r: dropped %d untagged %s message(s) captured before its start",
+                            path, grasp.grasp_id, count, topic)
             results.append(grasp)
         for hidden, dest in staged:
             hidden.replace(dest)
+        for other in replaced:
+            other.unlink(missing_ok=True)
         done = True
     except OSError as exc:
         raise SessionLogError(f"cannot write the records of {path} into {out}: {exc.strerror or exc}") from exc
@@ -582,16 +568,5 @@ def export_session(
             # The log's settings and grasps are checked as they are read, after out is made.
             with contextlib.suppress(OSError):
                 out.rmdir()
-    return SessionExport(results, session_id=sid, complete=complete, damage=damage, stray_labels=stray)
-
-
-def _record_name(log_path: Path, session: str, grasp_id: str, taken: set[str]) -> str:
-    """``<log stem>_<session id>_<grasp id>.grasp``; ``-2``, ``-3``, ... after a grasp id the
-    session used before (a grasp id started again after it ended)."""
-    base = f"{_safe_name(log_path.stem)}_{_safe_name(session)}_{_safe_name(grasp_id)}"
-    name, k = f"{base}.grasp", 1
-    while name in taken:
-        k += 1
-        name = f"{base}-{k}.grasp"
-    taken.add(name)
-    return name
+    return SessionExport(results, session_id=sid, complete=complete, damage=damage, stray_labels=stray,
+                         replaced=replaced)

@@ -14,7 +14,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Write every complete grasp of a session log as a .grasp record named "
         "<log>_<session start>_<grasp id>.grasp, so sessions exported into one folder never "
-        "share a name. Each record carries its sensors' calibration files and the gripper "
+        "share a name, and a grasp already in DIR from another log of the session (a log cut "
+        "short, then recovered) is refused too. Untagged frames, force and width captured before "
+        "a grasp's start are left out of it, and counted. Each record carries its sensors' calibration files and the gripper "
         "settings, so the folder can be moved or shared. Labels come from the log's label "
         "messages (`teleop label`, the operator's console), else from the object catalogue for "
         "grasps whose object the session named. Exits 1 when no record was written."
@@ -26,7 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--overwrite",
         action="store_true",
-        help="replace records of the same names already in DIR (default: refuse, naming the file)",
+        help="replace records of the same names already in DIR, and remove those of the same grasps "
+        "exported from another log of the session (default: refuse, naming the files)",
     )
     parser.add_argument(
         "--settings",
@@ -52,7 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="print one JSON object as the last stdout line: log, out, session_id, complete, "
         "exported (count), records (paths written), written ([{grasp_id, path, object, "
         "modulus_pa, label_source}]), unlabelled ([{grasp_id, path, reason}]: written without a "
-        "modulus), skipped ([{grasp_id, reason}]: not written), stray_labels, error",
+        "modulus), skipped ([{grasp_id, reason}]: not written), dropped ([{grasp_id, stream, count}]: "
+        "untagged messages captured before the grasp's start, left out), stray_labels, replaced (paths "
+        "of the same grasps from another log, removed by --overwrite), error",
     )
 
 
@@ -87,6 +92,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"skipped grasp {item['grasp_id']}: {item['reason']}", file=sys.stderr)
     for item in unlabelled:
         print(f"no modulus for grasp {item['grasp_id']} ({item['path']}): {item['reason']}",
+              file=sys.stderr)
+    dropped = [{"grasp_id": r.grasp_id, "stream": stream, "count": count}
+               for r in results for stream, count in r.dropped.items()]
+    for item in dropped:
+        print(f"dropped {item['count']} {item['stream']} message(s) of grasp {item['grasp_id']}: captured "
+              "before the grasp's start without a grasp id (a camera or sensor that delivers late?)",
+              file=sys.stderr)
+    for other in results.replaced:
+        print(f"removed {other}: the same grasp, exported from another log of the session (--overwrite)",
               file=sys.stderr)
     for line in results.stray_labels:
         print(f"unused label: {line}", file=sys.stderr)
@@ -127,7 +141,9 @@ def run(args: argparse.Namespace) -> int:
                     ],
                     "unlabelled": unlabelled,
                     "skipped": skipped,
+                    "dropped": dropped,
                     "stray_labels": results.stray_labels,
+                    "replaced": [str(p) for p in results.replaced],
                     "error": error,
                 }
             )

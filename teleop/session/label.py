@@ -23,6 +23,10 @@ writes one ``label`` bus message per row into the log:
   after its grasp) and readers that take the last label per grasp (in file or log-time order)
   take the newest: labelling a grasp again replaces its label.
 
+A grasp never ended (no ``end`` event from the publisher of its start: a log ``teleop recover``
+salvaged, a robot stopped mid-grasp) is labelled all the same but named in
+:attr:`LabelReport.unended`: ``teleop export`` skips it, so its label is not used.
+
 Refused, with nothing written: a log cut short (``teleop recover`` first), an unknown column, and
 CSV rows naming a grasp the log does not hold (the error lists the log's grasps), a grasp another
 row names too, an object that is neither in the catalogue nor given a modulus or Shore hardness,
@@ -96,6 +100,7 @@ class LabelReport:
     csv: str
     labels: list[dict[str, Any]] = field(default_factory=list)  # each label's body, as written
     relabelled: list[str] = field(default_factory=list)  # grasps that had a label before
+    unended: list[str] = field(default_factory=list)  # labelled grasps without an end: export skips them
     messages: int = 0  # messages of the original kept (bus and Foxglove)
     grasps: int = 0  # grasps in the log
 
@@ -214,6 +219,8 @@ class _Grasp:
     anchor: _Anchor = ("", 0, 0)  # that message: a new label is written right after it
     t_capture_s: float = 0.0
     labelled: bool = False
+    started_by: str | None = None  # the publisher of its last start: only its end ends it (as export)
+    ended: bool = False  # once: export then writes a record of this grasp id, which takes the label
 
     def saw(self, topic: str, log_time_ns: int, seq: int) -> None:
         if log_time_ns >= self.log_time_ns:  # equal times: the later in the file is the newer
@@ -238,6 +245,10 @@ def _survey(reader: LogReader) -> tuple[dict[str, _Grasp], int]:
             grasp = grasps.setdefault(grasp_id, _Grasp())
             grasp.saw(message.topic, logged.log_time_ns, message.seq)
             grasp.t_capture_s = message.t_capture_s
+            if message.fields.event == "start":
+                grasp.started_by = message.source
+            elif message.fields.event == "end" and message.source == grasp.started_by:
+                grasp.ended = True
         elif message.type == "label" and grasp_id in grasps:
             grasp = grasps[grasp_id]
             grasp.saw(message.topic, logged.log_time_ns, message.seq)
@@ -308,6 +319,8 @@ def label_session(
         grasp = grasps[row.grasp_id]
         if grasp.labelled:
             report.relabelled.append(row.grasp_id)
+        if not grasp.ended:
+            report.unended.append(row.grasp_id)
         log_time_ns = grasp.log_time_ns + 1
         message = make_message("label", t_capture_s=grasp.t_capture_s, **row.label.body(row.grasp_id))
         message = dataclasses.replace(message, source=LABEL_SOURCE_NAME, seq=seq,

@@ -45,7 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--json",
         action="store_true",
         help="print one JSON object (log, csv, labels: [{grasp_id, object_name, modulus_pa, source, detail}], "
-        "relabelled: [grasp ids], messages, grasps) as the last stdout line",
+        "relabelled: [grasp ids], unended: [labelled grasp ids without an end event, which export skips], "
+        "messages, grasps) as the last stdout line",
     )
 
 
@@ -59,6 +60,9 @@ def run(args: argparse.Namespace) -> int:
     for label in (LabelBody(**body) for body in report.labels):
         modulus = "the catalogue's" if label.modulus_pa is None else f"{label.modulus_pa:.4g} Pa"
         print(f"  {label.grasp_id}: {label.object_name}, E {modulus} ({label.source})", file=sys.stderr)
+    for grasp_id in report.unended:
+        print(f"warning: grasp {grasp_id} has no end event in {args.log}: `teleop export` skips it, "
+              "so its label is not used", file=sys.stderr)
     if args.json:
         print(json.dumps(report.as_dict()))
     return 0

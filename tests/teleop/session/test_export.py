@@ -398,6 +398,45 @@ def test_an_export_never_replaces_a_record_unless_asked(recorded, tmp_path, caps
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no staged file left
 
 
+def test_one_session_exported_from_two_logs_keeps_each_grasp_once(recorded, tmp_path, capsys):
+    # A log cut short is exported, then the log `teleop recover` made of it (another file name, the
+    # same session): its grasps are in the folder already.
+    from teleop.cli import main
+
+    out = tmp_path / "records"
+    first = export_session(recorded.path, out)
+    before = _checksums(out)
+    fixed = tmp_path / "fixed.mcap"
+    fixed.write_bytes(recorded.path.read_bytes())
+    with pytest.raises(SessionLogError, match="--overwrite") as info:
+        export_session(fixed, out)
+    taken = next(r.path for r in first if r)
+    assert str(taken) in str(info.value) and f"fixed_{first.session_id}_" in str(info.value)
+    assert _checksums(out) == before and sorted(p.name for p in out.iterdir()) == sorted(before)
+    assert main(["export", str(fixed), "--out", str(out)]) == 2
+    assert "count it twice" in capsys.readouterr().err
+    again = export_session(fixed, out, overwrite=True)
+    assert sorted(p.name for p in out.iterdir()) == sorted(r.path.name for r in again if r)
+    assert sorted(again.replaced) == sorted(r.path for r in first if r)
+    assert all(p.name.startswith("fixed_") for p in out.iterdir())
+
+
+def test_export_names_untagged_data_captured_before_a_grasp_it_dropped(session_settings, helpers, tmp_path,
+                                                                       capsys):
+    from teleop.cli import main
+
+    def late_frames(pub):  # captured in g0, sent while g2 (the last, never ended) is open
+        return [pub.send("frame", t_capture_s=100.0 + k / 30, finger="right", index=k, encoding="png",
+                         data=helpers.jpeg(np.random.default_rng(k), ".png")) for k in range(3)]
+
+    path = _record_session(tmp_path / "late.mcap", helpers, session_settings, then=late_frames)
+    assert main(["export", str(path), "--out", str(tmp_path / "records"), "--json"]) == 0
+    captured = capsys.readouterr()
+    report = json.loads(captured.out.strip().splitlines()[-1])
+    assert report["dropped"] == [{"grasp_id": "g2", "stream": "frame/right", "count": 3}]
+    assert "dropped 3 frame/right message(s) of grasp g2" in captured.err
+
+
 def test_export_json_says_what_was_written_and_what_was_skipped(recorded, tmp_path, capsys):
     from teleop.cli import main
 

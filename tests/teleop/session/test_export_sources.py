@@ -56,3 +56,28 @@ def test_an_end_from_another_publisher_neither_ends_nor_warns(caplog):
                 _message("estimator", "grasp_event", 2.0, event="end", grasp_id="x")]
     assert [grasp for message in messages for grasp in assembler.feed(message)] == []
     assert list(assembler.open) == ["x"] and "never started" not in caplog.text
+
+
+def test_untagged_data_captured_before_the_start_is_dropped_and_counted():
+    # A camera that delivers late: right frames captured before x started arrive, untagged, while x is
+    # the only grasp open; the node leaves untagged only what it captured before the start.
+    assembler = _Assembler(path=Path("s.mcap"), settings=load_settings(), objects={}, source="simulated",
+                           session_version="0", session="s", labels={}, calibration_files={})
+    image = np.full((20, 30, 3), 7, np.uint8)
+
+    def right(at_s):
+        return _message("robot", "frame", at_s, grasp_id=None, finger="right", index=0, encoding="raw", data=image)
+
+    messages = [
+        _message("robot", "grasp_event", 10.0, event="start", grasp_id="x"),
+        right(2.0), right(9.99),  # before the start: not x's
+        _message("robot", "force", 9.95, t_s=[9.9, 9.95], value_n=[0.0, 0.0]),
+        right(10.0), right(10.2),  # at and after the start: x's
+        *_grasp_data("x", 10.0),
+        _message("robot", "grasp_event", 11.0, event="end", grasp_id="x"),
+    ]
+    (grasp,) = [grasp for message in messages for grasp in assembler.feed(message)]
+    assert grasp, grasp.reason
+    assert np.array_equal(grasp.record.stream("right").t_s, [10.0, 10.2])
+    assert np.array_equal(grasp.record.force_n.t_s, [10.15, 10.2])
+    assert grasp.dropped == {"frame/right": 2, "force": 1}

@@ -169,6 +169,16 @@ def test_a_cut_log_is_refused_with_the_way_out(log, tmp_path):
     assert log.read_bytes() == data[: len(data) // 2]
 
 
+def test_a_grasp_that_never_ended_is_labelled_with_a_warning_that_export_skips_it(log, tmp_path, capsys):
+    csv_path = _csv(tmp_path, "grasp_id,object\ng0,stress_ball\ng2,stress_ball\n")
+    assert teleop.cli.main(["label", str(log), "--csv", str(csv_path), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out.strip().splitlines()[-1])["unended"] == ["g2"]
+    assert "warning: grasp g2 has no end event" in captured.err and "export` skips it" in captured.err
+    assert "grasp g0 has no end" not in captured.err
+    assert sorted(_last_per_grasp(_labels(log))) == ["g0", "g2"]  # written all the same
+
+
 def test_the_command(log, tmp_path, capsys):
     csv_path = _csv(tmp_path, "grasp_id,object,shore_a\ng0,stress_ball,\ng1,pad,40\n")
     assert teleop.cli.main(["label", str(log), "--csv", str(csv_path), "--json"]) == 0
