@@ -233,6 +233,11 @@ def _probes(settings: Settings) -> list[_Probe | Check]:
 
 def _judge(probe: _Probe, stamps: list[float], lags: list[float], duration_s: float) -> Check:
     if not stamps:
+        skipped = getattr(probe.device, "skipped", {})  # a load cell's unreadable lines, by reason
+        if sum(skipped.values()):  # it sends, but nothing readable: not the cable
+            return Check(probe.name, False, problem=f"no valid reading from {probe.where} within {duration_s:g} s, "
+                         f"{sum(skipped.values())} unreadable skipped ({', '.join(sorted(skipped))}): check what it "
+                         "sends, and for a serial cell its baud rate (`load_cell.baud`)")
         return Check(probe.name, False, problem=f"no data from {probe.where} within {duration_s:g} s: {probe.fix}")
     t = np.asarray(stamps)
     span = float(t[-1] - t[0])

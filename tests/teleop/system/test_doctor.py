@@ -9,6 +9,7 @@ import shlex
 import shutil
 import socket
 import sys
+import threading
 import tty
 
 import pytest
@@ -120,6 +121,32 @@ def test_a_silent_serial_cell_says_no_data_and_the_table_says_not_ready(tmp_path
     assert code == 1 and "NOT ready" in table
     line = next(ln for ln in table.splitlines() if ln.startswith("load cell"))
     assert f"no data from {port} within 1 s: check the cable and `load_cell.port`" in line
+
+
+@pytest.mark.slow
+def test_a_serial_cell_sending_garbage_is_not_told_to_check_its_cable(tmp_path, capsys):
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    port = os.ttyname(slave)
+    done = threading.Event()
+
+    def babble():  # what a wrong baud rate or another sketch looks like
+        while not done.wait(0.02):
+            os.write(master, b"HX711 ready?\n")
+
+    sender = threading.Thread(target=babble, daemon=True)
+    sender.start()
+    try:
+        path = _copy(tmp_path, {"load_cell.backend": "serial", "load_cell.port": port})
+        code = main(["doctor", "--settings", str(path), "--duration-s", "1"])
+    finally:
+        done.set()
+        sender.join()
+        os.close(master)
+        os.close(slave)
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("load cell"))
+    assert code == 1 and f"no valid reading from {port} within 1 s" in line and "unreadable skipped" in line
+    assert "`load_cell.baud`" in line and "cable" not in line
 
 
 def test_a_serial_cell_without_pyserial_is_a_no_row_naming_the_extra(tmp_path, capsys, monkeypatch):
