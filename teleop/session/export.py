@@ -423,6 +423,21 @@ def _labels(reader: LogReader) -> dict[str, LabelBody]:
     return labels
 
 
+def _warn_other_sensors(path: Path, *, ran: Settings, given: Settings) -> None:
+    """Warn when the given settings' sensors are not those the session ran with (its records would
+    claim another sensor: another model, serial or optics is estimated differently)."""
+    ran_by = {s.finger: s for s in ran.sensors}
+    for sensor in given.sensors:
+        other = ran_by.get(sensor.finger)
+        keys = ("model", "optics", "serial")
+        differ = [k for k in keys if other is not None and getattr(other, k) != getattr(sensor, k)]
+        if differ:
+            log.warning("%s: the session ran finger %r with %s; the given settings say %s: its records will "
+                        "carry the given sensor", path, sensor.finger,
+                        ", ".join(f"{k} {getattr(other, k)!r}" for k in differ),
+                        ", ".join(f"{k} {getattr(sensor, k)!r}" for k in differ))
+
+
 def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, catalogue: str | Path | None,
             source: str | None, stray_labels: list[str] | None = None) -> Iterator[GraspExport]:
     path = reader.path
@@ -435,6 +450,8 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
     if not given and SETTINGS_ATTACHMENT not in info.attachments:
         raise SessionLogError(f"{path}: the log has no {SETTINGS_ATTACHMENT} attachment: pass --settings, "
                               "the settings TOML the session ran with")
+    if given and SETTINGS_ATTACHMENT in info.attachments:
+        _warn_other_sensors(path, ran=info.settings(), given=settings)
     settings = settings if given else info.settings()
     source = source or info.session.get("source")
     if source not in ("simulated", "hardware"):
