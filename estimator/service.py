@@ -35,7 +35,8 @@ object's name in a start event is never read. The per-grasp report (one JSON lin
 to ``report``) says what ended the loading (``final_by``: ``loading_end``, ``settled`` or
 ``grasp_end``), the marker's time, when the final estimate was sent and how long it took to
 compute. Its ``time_to_first_estimate_s`` is on the capture clock: the service's clock is mapped
-onto it by the least receive delay seen, so a replay or a node on another host reads right.
+onto it by the least receive delay seen up to the first estimate, so a replay (at any speed: its
+capture clock runs at its own rate) or a node on another host reads right.
 
 A *start* while another grasp is open closes that one (its final estimate, report and end go
 out). A *start* of the grasp that is open (a robot node restarted mid-grasp names it again) drops
@@ -155,7 +156,8 @@ class _Grasp:
     seen_contact: bool = False
     t_peak_s: float = math.inf  # of the last segmentation with contact
     t_contact_s: float | None = None
-    first_estimate_s: float | None = None  # clock time the first non-refusal estimate went out
+    first_estimate_s: float | None = None  # clock time the first non-refusal estimate went out ...
+    first_offset_s: float = math.inf  # ... and clock_offset_s then (a replay's clock runs at its own speed)
     clock_offset_s: float = math.inf  # least (receive - capture) time seen: the clocks' offset
     provisional_s: list[float] = field(default_factory=list)
     final: Estimate | None = None
@@ -473,7 +475,7 @@ class EstimatorService(ServiceLoop):
             model=grasp.model_id if by_model else None,
         )
         if estimate and grasp.first_estimate_s is None:
-            grasp.first_estimate_s = now
+            grasp.first_estimate_s, grasp.first_offset_s = now, grasp.clock_offset_s
         if provisional:
             grasp.provisional_s.append(now)
             self.stats.provisional += 1
@@ -489,7 +491,7 @@ class EstimatorService(ServiceLoop):
             "grasp_id": grasp.grasp_id,
             "t_contact_s": contact,
             "time_to_first_estimate_s": (None if contact is None or grasp.first_estimate_s is None
-                                         else grasp.first_estimate_s - grasp.clock_offset_s - contact),
+                                         else grasp.first_estimate_s - grasp.first_offset_s - contact),
             "provisional": len(sent),
             "provisional_span_s": sent[-1] - sent[0] if len(sent) > 1 else None,
             "final": None if grasp.final is None else grasp.final.to_json(),

@@ -22,8 +22,10 @@ class _Sent:
         self.sent.append(make_message(kind, t_capture_s=t_capture_s, topic=topic, **body))
 
 
-def test_time_to_first_estimate_is_read_on_the_capture_clock(settings, calibration, records, tmp_path):
-    # A replay, or a node on another host: capture times run 1000 s behind the service's clock.
+@pytest.mark.parametrize("speed", [1.0, 4.0])
+def test_time_to_first_estimate_is_read_on_the_capture_clock(settings, calibration, records, tmp_path, speed):
+    # A replay (at 1x or 4x: `teleop replay --speed`), or a node on another host: capture times run
+    # 1000 s behind the service's clock.
     offset_s, delay_s = 1000.0, 0.002
     now = [0.0]
     service = EstimatorService(settings, calibration=calibration, subscriber=None, publisher=_Sent(),
@@ -32,7 +34,7 @@ def test_time_to_first_estimate_is_read_on_the_capture_clock(settings, calibrati
     items = [(0.0, "grasp_event", {"event": "start", "object_name": None})] + in_capture_order(record)
     items.append((float(record.force_n.t_s[-1]), "grasp_event", {"event": "end"}))
     for t_s, kind, body in items:
-        now[0] = t_s + offset_s + delay_s
+        now[0] = t_s / speed + offset_s + delay_s
         service.handle(make_message(kind, t_capture_s=t_s, grasp_id="g", **body), received_s=now[0])
     (report,) = [json.loads(line) for line in (tmp_path / "report.jsonl").read_text().splitlines()]
     first = next(m for m in service.publisher.sent if m.type == "estimate" and m.body["state"] != "insufficient_data")
