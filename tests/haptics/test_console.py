@@ -8,52 +8,15 @@ import json
 import time
 
 import pytest
+from support.operator_fakes import NOBODY, ConsoleLink, until
 
 from haptics.console import OperatorConsole, estimate_line, format_pa, squeeze_hint
 from haptics.inputs.keyboard import KeyboardInput
 from haptics.mapping import EstimateUpdate
-from haptics.operator_link import PEERS, OperatorView, Peer
+from haptics.operator_link import OperatorView, Peer
 from haptics.operator_loop import OperatorLoop
 from teleop.bus.messages import DisplayBody, EstimateBody, RobotNoticeBody, RobotStateBody
 from teleop.settings import load_settings
-
-NOBODY = tuple(Peer(name, source, False, None) for name, source in PEERS)
-
-
-class FakeLink:
-    def __init__(self):
-        self.view = OperatorView(t_s=time.monotonic(), peers=NOBODY)
-        self.sent: list[tuple[str, dict]] = []
-        self.follows_sent = self.commands_sent = 0
-
-    def poll(self, timeout_s: float = 0.0) -> int:
-        time.sleep(timeout_s)
-        return 0
-
-    def follow(self, target_width_m, *, enable, grasp_id=None):
-        self.follows_sent += 1
-        self.sent.append(("follow", {"target_width_m": target_width_m, "enable": enable, "grasp_id": grasp_id}))
-
-    def _command(self, action, **body):
-        self.commands_sent += 1
-        self.sent.append((action, body))
-
-    def start_grasp(self, *, target_force_n, grasp_id=None):
-        self._command("start_grasp", target_force_n=target_force_n, grasp_id=grasp_id)
-
-    def stop(self, grasp_id=None):
-        self._command("stop", grasp_id=grasp_id)
-
-    def release(self, grasp_id=None):
-        self._command("release", grasp_id=grasp_id)
-
-    def clear(self):
-        self._command("clear")
-        self.view = OperatorView(t_s=time.monotonic())
-
-    def kinds(self) -> list[str]:
-        return [kind for kind, _ in self.sent]
-
 
 ESTIMATE = EstimateBody(grasp_id="g", method="hybrid", E_pa=3.6e6, interval_pa=[2.0e6, 6.0e6], state="ok",
                         reason="loading phase 0.12-0.41 s (the first squeeze)", provisional=False, latency_s=0.01)
@@ -95,23 +58,16 @@ def test_a_final_answer_too_wide_to_place_asks_for_a_firmer_squeeze():
     assert squeeze_hint(wide, peak_force_n=29.0, max_force_n=30.0) is None
 
 
-async def _until(predicate, pilot, timeout_s: float = 5.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "timed out"
-        await pilot.pause(0.05)
-
-
 def test_a_session_with_the_keyboard_in_the_console():
     settings = load_settings()
-    link = FakeLink()
+    link = ConsoleLink()
 
     async def session() -> OperatorConsole:
         with KeyboardInput(grip_step=0.25) as keyboard:
             loop = OperatorLoop(link, keyboard, settings, force_n=10.0)
             app = OperatorConsole(loop, input_name="keyboard", keyboard=keyboard)
             async with app.run_test(size=(120, 40)) as pilot:
-                await _until(lambda: "DOWN  robot node" in app.texts.get("alive", ""), pilot)
+                await until(lambda: "DOWN  robot node" in app.texts.get("alive", ""), pilot)
                 assert "no estimate yet" in app.texts["estimate"] and "up/k squeeze" in str(
                     app.query_one("#keys").render())
                 # Nothing running but the console: it says why no estimate and no rendering will come.
@@ -119,7 +75,7 @@ def test_a_session_with_the_keyboard_in_the_console():
                 assert "the renderer is down" in app.texts["display"]
                 # a discrete grasp at the chosen force, raised by one newton with "+"
                 await pilot.press("plus", "g")
-                await _until(lambda: "start_grasp" in link.kinds(), pilot)
+                await until(lambda: "start_grasp" in link.kinds(), pilot)
                 assert link.sent[-1][1]["target_force_n"] == 11.0
                 grasp_id = link.sent[-1][1]["grasp_id"]
                 peers = (Peer("robot node", "robot", True, 0.1), Peer("estimator", "estimator", True, 0.2),
@@ -132,7 +88,7 @@ def test_a_session_with_the_keyboard_in_the_console():
                                          notice=RobotNoticeBody(event="refused", action="follow", grasp_id=grasp_id,
                                                                 reason="a discrete grasp is under way"),
                                          notice_t_s=time.monotonic())
-                await _until(lambda: "E = 3.6 MPa" in app.texts["estimate"], pilot)
+                await until(lambda: "E = 3.6 MPa" in app.texts["estimate"], pilot)
                 texts = app.texts
                 assert "UP    robot node" in texts["alive"] and "DOWN  display" in texts["alive"]
                 assert "is down" not in texts["estimate"]  # an estimate came
@@ -144,19 +100,19 @@ def test_a_session_with_the_keyboard_in_the_console():
                 assert "refused" in texts["notice"] and "a discrete grasp is under way" in texts["notice"]
                 assert "mode discrete" in texts["input"]
                 await pilot.press("r")
-                await _until(lambda: link.kinds()[-1] == "release", pilot)
+                await until(lambda: link.kinds()[-1] == "release", pilot)
                 assert link.sent[-1][1]["grasp_id"] == grasp_id
                 # leader-follower: squeeze two steps, hold the enable: follows at the grip's width
                 link.view = dataclasses.replace(link.view, phase="ended")
                 await pilot.press("up", "up", "e")
-                await _until(lambda: link.follows_sent >= 10, pilot)
+                await until(lambda: link.follows_sent >= 10, pilot)
                 follow = link.sent[-1][1]
                 assert follow["enable"] and follow["target_width_m"] == pytest.approx(0.04)
                 assert "enable HELD" in app.texts["input"] and "mode follow" in app.texts["input"]
                 await pilot.press("e")  # let go
-                await _until(lambda: link.sent[-1][1].get("enable") is False, pilot)
+                await until(lambda: link.sent[-1][1].get("enable") is False, pilot)
                 await pilot.press("n", "q")
-                await _until(lambda: app.exit_status is not None, pilot)
+                await until(lambda: app.exit_status is not None, pilot)
         return app
 
     app = asyncio.run(session())
@@ -166,7 +122,7 @@ def test_a_session_with_the_keyboard_in_the_console():
 
 def test_other_inputs_still_take_the_buttons_and_q_or_ctrl_c_quits():
     settings = load_settings()
-    link = FakeLink()
+    link = ConsoleLink()
 
     class Still:
         """An input device nobody touches."""
@@ -186,19 +142,19 @@ def test_other_inputs_still_take_the_buttons_and_q_or_ctrl_c_quits():
         app = OperatorConsole(loop, input_name="gamepad")
         async with app.run_test(size=(100, 30)) as pilot:
             await pilot.press("g", "s")
-            await _until(lambda: link.kinds() == ["start_grasp", "stop"], pilot)
+            await until(lambda: link.kinds() == ["start_grasp", "stop"], pilot)
             assert "gamepad input drives grip and enable" in str(app.query_one("#keys").render())
             await pilot.press("q")
-            await _until(lambda: app.exit_status is not None, pilot)
+            await until(lambda: app.exit_status is not None, pilot)
         return app
 
     assert asyncio.run(session()).exit_status.quit
 
     async def interrupted() -> OperatorConsole:
-        app = OperatorConsole(OperatorLoop(FakeLink(), Still(), settings), input_name="gamepad")
+        app = OperatorConsole(OperatorLoop(ConsoleLink(), Still(), settings), input_name="gamepad")
         async with app.run_test(size=(80, 24)) as pilot:
             await pilot.press("ctrl+c")
-            await _until(lambda: app.exit_status is not None, pilot)
+            await until(lambda: app.exit_status is not None, pilot)
         return app
 
     assert asyncio.run(interrupted()).exit_status.quit
@@ -239,7 +195,7 @@ def test_operate_refuses_a_force_beyond_the_maximum_a_missing_terminal_and_headl
 # --------------------------------------------------------------------------- labels
 
 
-class LabellingLink(FakeLink):
+class LabellingLink(ConsoleLink):
     def label(self, grasp_id, object_name, *, modulus_pa=None, source, detail=""):
         self._command("label", grasp_id=grasp_id, object_name=object_name, modulus_pa=modulus_pa, source=source,
                       detail=detail)
@@ -260,50 +216,50 @@ def test_l_labels_the_grasp_from_the_catalogue_or_a_shore_reading():
             app = OperatorConsole(loop, input_name="keyboard", keyboard=keyboard, catalogue=catalogue,
                                   catalogue_name="objects.toml")
             async with app.run_test(size=(120, 44)) as pilot:
-                await _until(lambda: "label  - (l names the object)" in app.texts.get("grasp", ""), pilot)
+                await until(lambda: "label  - (l names the object)" in app.texts.get("grasp", ""), pilot)
                 await pilot.press("l")  # nothing grasped yet: nothing to label
-                await _until(lambda: "no grasp to label yet" in app.texts["notice"], pilot)
+                await until(lambda: "no grasp to label yet" in app.texts["notice"], pilot)
                 assert app.labelling is None
                 await pilot.press("g")
-                await _until(lambda: "start_grasp" in link.kinds(), pilot)
+                await until(lambda: "start_grasp" in link.kinds(), pilot)
                 grasp_id = link.sent[-1][1]["grasp_id"]
                 link.view = OperatorView(t_s=time.monotonic(), peers=NOBODY, grasp_id=grasp_id, phase="loaded")
-                await _until(lambda: loop.status.label_grasp_id == grasp_id, pilot)
+                await until(lambda: loop.status.label_grasp_id == grasp_id, pilot)
                 # the catalogue's name, typed in part and completed with the suggestion; letters that are
                 # keys (g grasp, r release, e enable, q quit) go to the line, not to the robot
                 await pilot.press("l")
                 line = app.query_one("#label")
                 assert app.labelling == grasp_id and line.has_focus and grasp_id in line.border_title
                 await pilot.press(*"stress_b")
-                await _until(lambda: line._suggestion == "stress_ball", pilot)
+                await until(lambda: line._suggestion == "stress_ball", pilot)
                 await pilot.press("right", "enter")
-                await _until(lambda: "label" in link.kinds(), pilot)
+                await until(lambda: "label" in link.kinds(), pilot)
                 kind, body = link.sent[-1]
                 assert body["grasp_id"] == grasp_id and body["object_name"] == "stress_ball"
                 assert body["modulus_pa"] == 4.0e4 and body["source"] == "catalogue"
                 assert link.kinds().count("start_grasp") == 1 and "release" not in link.kinds()
                 assert not keyboard.read(timeout_s=0).enable and app.labelling is None
-                await _until(lambda: "stress_ball  E 40 kPa  (catalogue)" in app.texts["grasp"], pilot)
+                await until(lambda: "stress_ball  E 40 kPa  (catalogue)" in app.texts["grasp"], pilot)
                 # a Shore reading out of range stays on the line with the reason; a good one goes out
                 await pilot.press("l", *"gel pad shore 00 20", "enter")
-                await _until(lambda: "Shore 00 20 is outside 45 to 90" in str(line.border_subtitle), pilot)
-                await _until(lambda: "Shore 00 20 is outside 45 to 90" in app.texts["notice"], pilot)  # whole
+                await until(lambda: "Shore 00 20 is outside 45 to 90" in str(line.border_subtitle), pilot)
+                await until(lambda: "Shore 00 20 is outside 45 to 90" in app.texts["notice"], pilot)  # whole
                 assert app.labelling == grasp_id and link.kinds().count("label") == 1
                 line.value = ""
                 await pilot.press(*"gel pad shore 00 70", "enter")
-                await _until(lambda: link.kinds().count("label") == 2, pilot)
+                await until(lambda: link.kinds().count("label") == 2, pilot)
                 body = link.sent[-1][1]
                 assert body["source"] == "durometer" and "Shore 00 70" in body["detail"]
                 assert body["modulus_pa"] == pytest.approx(shore_to_modulus_pa(70, "00"))
-                await _until(lambda: "gel pad  E 732 kPa  (durometer)" in app.texts["grasp"], pilot)
+                await until(lambda: "gel pad  E 732 kPa  (durometer)" in app.texts["grasp"], pilot)
                 # after "next" the last grasp is still the one labelled; escape closes the line unsent
                 await pilot.press("n")
-                await _until(lambda: "clear" in link.kinds(), pilot)
+                await until(lambda: "clear" in link.kinds(), pilot)
                 await pilot.press("l", "x", "escape")
                 assert app.labelling is None and link.kinds().count("label") == 2
-                await _until(lambda: f"label  {grasp_id}: gel pad  E 732 kPa" in app.texts["grasp"], pilot)
+                await until(lambda: f"label  {grasp_id}: gel pad  E 732 kPa" in app.texts["grasp"], pilot)
                 await pilot.press("q")
-                await _until(lambda: app.exit_status is not None, pilot)
+                await until(lambda: app.exit_status is not None, pilot)
         return app
 
     app = asyncio.run(session())

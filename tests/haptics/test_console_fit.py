@@ -6,6 +6,8 @@ from __future__ import annotations
 import asyncio
 import time
 
+from support.operator_fakes import ConsoleLink, until
+
 from haptics.console import OperatorConsole
 from haptics.inputs.keyboard import KeyboardInput
 from haptics.operator_link import OperatorView, Peer
@@ -19,42 +21,8 @@ REASON = ("loading phase 0.12-0.41 s of the monotone envelope from contact to th
           "skipped, frames sampled by approach rather than time; the hybrid's CNN and the analytical fits agree")
 
 
-class Link:
-    def __init__(self):
-        self.view = OperatorView(t_s=time.monotonic(), peers=ALIVE)
-        self.sent: list[tuple[str, bool | None, str | None]] = []
-        self.follows_sent = self.commands_sent = 0
-
-    def poll(self, timeout_s: float = 0.0) -> int:
-        time.sleep(timeout_s)
-        return 0
-
-    def follow(self, target_width_m, *, enable, grasp_id=None):
-        self.follows_sent += 1
-        self.sent.append(("follow", enable, grasp_id))
-
-    def start_grasp(self, *, target_force_n, grasp_id=None):
-        self.sent.append(("start_grasp", None, grasp_id))
-
-    def stop(self, grasp_id=None):
-        self.sent.append(("stop", None, grasp_id))
-
-    def release(self, grasp_id=None):
-        self.sent.append(("release", None, grasp_id))
-
-    def clear(self):
-        self.view = OperatorView(t_s=time.monotonic(), peers=ALIVE)
-
-
-async def _until(predicate, pilot, timeout_s: float = 5.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "timed out"
-        await pilot.pause(0.05)
-
-
 def test_at_80x24_the_estimate_notices_and_keys_fit_and_the_toggle_tells_the_truth():
-    link = Link()
+    link = ConsoleLink(ALIVE)
 
     async def session() -> None:
         with KeyboardInput(grip_step=0.25) as keyboard:
@@ -62,8 +30,8 @@ def test_at_80x24_the_estimate_notices_and_keys_fit_and_the_toggle_tells_the_tru
             app = OperatorConsole(loop, input_name="keyboard", keyboard=keyboard)
             async with app.run_test(size=(80, 24)) as pilot:
                 await pilot.press("up", "up", "e")
-                await _until(lambda: link.follows_sent >= 5, pilot)
-                grasp_id = link.sent[-1][2]
+                await until(lambda: link.follows_sent >= 5, pilot)
+                grasp_id = link.sent[-1][1]["grasp_id"]
                 watchdog = RobotNoticeBody(event="watchdog", action="follow", grasp_id=grasp_id,
                                            reason="no follow command for 0.210 s (watchdog 0.2 s): the fingers stopped")
                 refusal = RobotNoticeBody(event="refused", action="follow", grasp_id=grasp_id,
@@ -76,7 +44,7 @@ def test_at_80x24_the_estimate_notices_and_keys_fit_and_the_toggle_tells_the_tru
                                           state="ok", reason=REASON, provisional=True, latency_s=0.01),
                     estimates=40, notice=refusal, notice_t_s=now, ended_by=watchdog, ended_by_t_s=now - 0.1)
                 # The robot ended the grasp: the toggle is let go with it, and the screen says so.
-                await _until(lambda: "enable off" in app.texts["input"], pilot)
+                await until(lambda: "enable off" in app.texts["input"], pilot)
                 await pilot.pause(0.2)
                 assert "suspended" not in app.texts["input"]
                 # A dead estimator is named where its estimate is.
@@ -93,10 +61,10 @@ def test_at_80x24_the_estimate_notices_and_keys_fit_and_the_toggle_tells_the_tru
                 # One e drives again, under a new grasp.
                 sent = len(link.sent)
                 await pilot.press("e")
-                await _until(lambda: any(e for k, e, _ in link.sent[sent:] if k == "follow"), pilot)
-                await _until(lambda: "enable HELD" in app.texts["input"], pilot)
-                assert link.sent[-1][2] not in (grasp_id, None)
+                await until(lambda: any(b["enable"] for k, b in link.sent[sent:] if k == "follow"), pilot)
+                await until(lambda: "enable HELD" in app.texts["input"], pilot)
+                assert link.sent[-1][1]["grasp_id"] not in (grasp_id, None)
                 await pilot.press("q")
-                await _until(lambda: app.exit_status is not None, pilot)
+                await until(lambda: app.exit_status is not None, pilot)
 
     asyncio.run(session())

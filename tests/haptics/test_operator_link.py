@@ -6,101 +6,17 @@ from __future__ import annotations
 import dataclasses
 import math
 import threading
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from support.operator_fakes import Clock, FakeDevice, FakeLink
 
-from haptics.errors import HapticsError, InputDeviceError, InputNotConnectedError
+from haptics.errors import HapticsError
 from haptics.operator_link import OperatorView, Peer
 from haptics.operator_loop import NEXT_WAIT_S, RECONNECT_S, RELEASE_FOLLOWS, OperatorLoop
 from teleop.bus.messages import DisplayBody, EstimateBody, RobotNoticeBody, RobotStateBody
 from teleop.operator import FOLLOW_RATE_HZ
 from teleop.settings import load_settings
-
-
-@dataclass(frozen=True)
-class Reading:
-    """An operator input reading (the fields of haptics.inputs.OperatorInput)."""
-
-    t_s: float
-    grip: float = 0.0
-    enable: bool = False
-    force_n: float | None = None
-    buttons: frozenset[str] = frozenset()
-
-
-class FakeDevice:
-    waits_for_robot = False
-
-    def __init__(self, clock):
-        self.clock = clock
-        self.grip = 0.0
-        self.enable = False
-        self.buttons: set[str] = set()
-        self.felt: list[tuple[float, float, float | None]] = []
-        self.plugged, self.connected, self.connects = True, True, 0
-
-    def connect(self):
-        self.connects += 1
-        if not self.plugged:
-            raise InputDeviceError("no gamepad (unplugged)")
-        self.connected = True
-        return self
-
-    def read(self, *, timeout_s: float) -> Reading:
-        if not self.connected:
-            raise InputNotConnectedError("read() needs a connected device")
-        pressed, self.buttons = frozenset(self.buttons), set()
-        return Reading(self.clock(), self.grip, self.enable, None, pressed)
-
-    def feel(self, *, force_n: float, width_m: float, stiffness: float | None) -> None:
-        self.felt.append((force_n, width_m, stiffness))
-
-
-class FakeLink:
-    """Records what the loop sends, with the fake clock's time."""
-
-    def __init__(self, clock):
-        self.clock = clock
-        self.view = OperatorView(t_s=0.0)
-        self.sent: list[tuple[float, str, dict]] = []
-        self.cleared = 0
-
-    def poll(self, timeout_s: float = 0.0) -> int:
-        return 0
-
-    def follow(self, target_width_m, *, enable, grasp_id=None):
-        self.sent.append((self.clock(), "follow", {"target_width_m": target_width_m, "enable": enable,
-                                                   "grasp_id": grasp_id}))
-
-    def start_grasp(self, *, target_force_n, grasp_id=None):
-        self.sent.append((self.clock(), "start_grasp", {"target_force_n": target_force_n, "grasp_id": grasp_id}))
-
-    def stop(self, grasp_id=None):
-        self.sent.append((self.clock(), "stop", {"grasp_id": grasp_id}))
-
-    def release(self, grasp_id=None):
-        self.sent.append((self.clock(), "release", {"grasp_id": grasp_id}))
-
-    def clear(self):
-        self.cleared += 1
-        self.view = OperatorView(t_s=self.clock())
-
-    def label(self, grasp_id, object_name, *, modulus_pa=None, source, detail=""):
-        self.sent.append((self.clock(), "label", {"grasp_id": grasp_id, "object_name": object_name,
-                                                  "modulus_pa": modulus_pa, "source": source, "detail": detail}))
-
-    def kinds(self) -> list[str]:
-        return [kind for _, kind, _ in self.sent]
-
-
-class Clock:
-    def __init__(self):
-        self.t = 100.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 @pytest.fixture

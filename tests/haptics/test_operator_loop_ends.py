@@ -3,71 +3,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from support.operator_fakes import Clock, FakeDevice, FakeLink
 
 from haptics.operator_link import OperatorView
 from haptics.operator_loop import OperatorLoop
 from teleop.bus.messages import RobotNoticeBody
 from teleop.settings import load_settings
-
-
-@dataclass(frozen=True)
-class Reading:
-    t_s: float
-    grip: float = 0.0
-    enable: bool = False
-    force_n: float | None = None
-    buttons: frozenset[str] = frozenset()
-
-
-class Clock:
-    def __init__(self):
-        self.t = 100.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
-class Device:
-    """A toggle enable, as the keyboard's."""
-
-    waits_for_robot = False
-
-    def __init__(self, clock):
-        self.clock, self.grip, self.enable, self.buttons = clock, 0.5, False, set()
-
-    def connect(self):
-        return self
-
-    def read(self, *, timeout_s: float) -> Reading:
-        pressed, self.buttons = frozenset(self.buttons), set()
-        return Reading(self.clock(), self.grip, self.enable, None, pressed)
-
-    def feel(self, **_) -> None:
-        pass
-
-
-class Link:
-    def __init__(self, clock):
-        self.clock, self.view, self.sent = clock, OperatorView(t_s=0.0), []
-
-    def poll(self, timeout_s: float = 0.0) -> int:
-        return 0
-
-    def follow(self, target_width_m, *, enable, grasp_id=None):
-        self.sent.append(("follow", enable, grasp_id))
-
-    def start_grasp(self, *, target_force_n, grasp_id=None):
-        self.sent.append(("start_grasp", True, grasp_id))
-
-    def stop(self, grasp_id=None):
-        self.sent.append(("stop", False, grasp_id))
-
-    def release(self, grasp_id=None):
-        self.sent.append(("release", False, grasp_id))
-
-    def clear(self):
-        self.view = OperatorView(t_s=self.clock())
 
 
 def _run(clock: Clock, loop: OperatorLoop, seconds: float) -> None:
@@ -79,7 +20,8 @@ def _run(clock: Clock, loop: OperatorLoop, seconds: float) -> None:
 
 def _rig():
     clock = Clock()
-    link, device = Link(clock), Device(clock)
+    link, device = FakeLink(clock), FakeDevice(clock)
+    device.grip = 0.5
     return clock, link, device, OperatorLoop(link, device, load_settings(), clock=clock)
 
 
@@ -89,7 +31,7 @@ def test_the_watchdogs_notice_ends_the_follow_grasp_it_names():
     clock, link, device, loop = _rig()
     device.enable = True
     _run(clock, loop, 0.1)
-    grasp_id = link.sent[-1][2]
+    grasp_id = link.sent[-1][2]["grasp_id"]
     watchdog = RobotNoticeBody(event="watchdog", action="follow", grasp_id=grasp_id,
                                reason="no follow command for 0.210 s (watchdog 0.2 s): the fingers stopped")
     link.view = OperatorView(t_s=clock(), notice=watchdog, notice_t_s=clock(), ended_by=watchdog,
@@ -104,4 +46,5 @@ def test_the_watchdogs_notice_ends_the_follow_grasp_it_names():
     assert not loop.status.suspended and not loop.status.held
     device.enable = True
     _run(clock, loop, 0.05)
-    assert link.sent[-1][:2] == ("follow", True) and link.sent[-1][2] not in (grasp_id, None)
+    kind, body = link.sent[-1][1:]
+    assert kind == "follow" and body["enable"] and body["grasp_id"] not in (grasp_id, None)
