@@ -21,7 +21,7 @@ Inputs (1-D, one value per loading frame, in time order; SI units):
 ``area_m2``, ``contact_radius_m``
     Contact area (m^2) and radius (m) measured on the tactile image.
 
-Intervals (about 95 %) combine the fit's residual scatter (Student t on its
+Intervals (about 95 % for what they include) combine the fit's residual scatter (Student t on its
 degrees of freedom) with the measurement resolution propagated through the
 fit (:class:`~estimator.linefit.MeasurementNoise`: force noise, width noise, depth resolution,
 pixel pitch, and two errors shared by all frames: the depth reconstruction's
@@ -30,6 +30,9 @@ even a fit through exact points reports the resolution it rests on. Fits
 through at least 3 points have an intercept, so an error in the onset (where
 approach and strain are zero) shifts the line without tilting it; with 1 or 2
 points they pass through the onset instead, and carry its uncertainty.
+They leave out the error of the contact mechanics each fit assumes, often the larger one, so
+they hold less often than 95 %: `estimator evaluate` reports how often for each method (the
+model card's tables). Only a learned model's intervals are calibrated to a level.
 
 The depth-based methods refuse a series whose gel indentation falls while
 the approach grows (beyond the depth noise): the sign of a contact wider

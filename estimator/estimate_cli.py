@@ -31,7 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Estimate the grasped object's Young's modulus from each .grasp record given, in order. States: ok (E with "
         "an interval: 90 % for a learned model, as its model card and metadata.json calibration.level "
-        "state; about 95 % for the analytical fits), lower_bound (stiffer than the data resolve, e.g. "
+        "state; for the analytical fits, the fit's own uncertainty, without the error of the contact "
+        "mechanics it assumes, so it holds less often: estimator evaluate says how often), lower_bound (stiffer than the data resolve, e.g. "
         "metal: E_pa is the bound), upper_bound (softer than resolved), insufficient_data (a refusal "
         "with its reason; exit status is still 0). A record that cannot be read or measured is named "
         "with the cause on stderr and the others are still estimated; the exit status is then 2. Each "
