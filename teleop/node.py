@@ -107,6 +107,7 @@ class NodeStats:
     bad_commands: int = 0
     device_errors: int = 0
     watchdogs: int = 0
+    frames_dropped: int = 0  # by the cameras: captured, never read (a reader behind)
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
@@ -565,6 +566,7 @@ class RobotNode(ServiceLoop):
             self.publisher.send("frame", t_capture_s=item.t_s, finger=item.finger, grasp_id=self._grasp_of(item.t_s),
                                 index=item.index, encoding=item.encoding, data=item.encoded)
             self.stats.frames += 1
+            self.stats.frames_dropped = sum(camera.dropped for camera in self.cameras)
         elif kind in ("force", "width"):
             self._latest[kind] = float(item.value[-1])
             values = {"value_n" if kind == "force" else "value_m": item.value}

@@ -39,7 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_foxglove_argument(parser, what="what the node publishes (frames, forces, widths, grasp events)")
     parser.add_argument("--json", action="store_true",
                         help="on exit print one JSON object (grasps, frames, force_batches, width_batches, "
-                             "bad_commands, device_errors, watchdogs; wire: what its subscribers refused on the wire, by reason, and their sequence gaps) as the last stdout line")
+                             "bad_commands, device_errors, watchdogs, frames_dropped (by the cameras: captured, "
+                             "never read); wire: what its subscribers refused on the wire, by reason, and their "
+                             "sequence gaps) as the last stdout line")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -67,13 +67,18 @@ class CameraFrame:
 
 
 class TactileCamera(Device):
-    """The camera of one tactile sensor. Backends implement ``_connect``, ``_close``, ``_read``."""
+    """The camera of one tactile sensor. Backends implement ``_connect``, ``_close``, ``_read``.
+
+    ``dropped`` counts the frames captured but never read: a reader that fell behind loses the
+    oldest (frame indices then jump), as a camera driver does.
+    """
 
     family = "camera"
 
     def __init__(self, sensor: SensorSettings):
         super().__init__()
         self.sensor = sensor
+        self.dropped = 0
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} finger={self.sensor.finger!r}>"

@@ -66,7 +66,6 @@ class OpenCVCamera(TactileCamera):
             raise DeviceError(f"camera of finger {sensor.finger!r}: no source (set camera_source to an index or a URL)")
         self.jpeg_quality = jpeg_quality
         self.read_timeout_s = read_timeout_s
-        self.dropped = 0
         self.passthrough = False  # True while the stream's own JPEG bytes are kept
         self._frames: queue.Queue[CameraFrame] = queue.Queue(maxsize=queue_frames)
         self._stop = threading.Event()

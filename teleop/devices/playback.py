@@ -407,7 +407,6 @@ class SimulatedCamera(_Switched, TactileCamera):
 
     def __init__(self, sensor: SensorSettings, *, playback: GraspPlayback | None = None):
         super().__init__(sensor)
-        self.dropped = 0
         self._serve(playback)
 
     def replay(self, playback: GraspPlayback) -> None:
