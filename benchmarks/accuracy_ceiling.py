@@ -28,6 +28,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from scriptkit import run_script
 
 from teleop.catalogue import read_object_table
 
@@ -60,7 +61,10 @@ def ceiling(log10_e: np.ndarray, limit_log10_pa: float) -> dict[str, float]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--objects", type=Path, default=DEFAULT_TABLE, help="published object table (CSV)")
-    args = parser.parse_args()
+    return run_script(parser, report)
+
+
+def report(args: argparse.Namespace) -> None:
     objects = read_object_table(args.objects)
     log10_e = np.log10([o.modulus_pa for o in objects])
     print(f"{len(objects)} labelled objects from {args.objects}")
@@ -70,7 +74,6 @@ def main() -> int:
         print(f"{10 ** limit:8.0e} {c['unresolved']:>10}  {c['mean_error']:>10.3f} ({c['within_10x_at_median']:5.1%} within,"
               f" 1e{c['median']:.2f})  {c['within_10x']:>9.1%} (mean {c['mean_error_at_best_within']:.3f}, "
               f"1e{c['best_within']:.2f})")
-    return 0
 
 
 if __name__ == "__main__":

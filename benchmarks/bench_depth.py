@@ -33,6 +33,7 @@ from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
+from scriptkit import run_script  # noqa: E402
 
 from estimator.perception import (  # noqa: E402
     detect_markers,
@@ -42,6 +43,7 @@ from estimator.perception import (  # noqa: E402
     poisson_depth,
     reconstruct_depth,
 )
+from teleop.clikit import positive_int  # noqa: E402
 
 WINDOW = (slice(115, 365), slice(145, 495))  # rows, cols: 250 x 350 around the image centre
 PITCH_M, BALL_M = 0.0295e-3, 2.0e-3
@@ -72,8 +74,11 @@ def timed(fn, repeats: int) -> np.ndarray:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--repeats", type=int, default=500, help="timed calls per stage")
-    args = parser.parse_args()
+    parser.add_argument("--repeats", type=positive_int, default=500, help="timed calls per stage")
+    return run_script(parser, measure)
+
+
+def measure(args: argparse.Namespace) -> None:
     cv2.setNumThreads(1)
 
     spec = importlib.util.find_spec("taxim")
@@ -114,7 +119,6 @@ def main() -> int:
         results[name.strip()] = {"median_ms": float(np.median(times)), "p90_ms": float(np.percentile(times, 90))}
         print(f"{name:38s} median {np.median(times):7.3f} ms   p90 {np.percentile(times, 90):7.3f} ms")
     print(json.dumps(results))
-    return 0
 
 
 if __name__ == "__main__":

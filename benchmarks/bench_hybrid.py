@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python benchmarks/bench_hybrid.py RECORDS_DIR [--model DIR] [--calibration CAL]
-        [--repeats 5] [--limit K]
+        [--repeats 5] [--limit K] [--no-width-lag]
 
 Prints the figures of ``estimator bench`` (every configuration's median latency
 from decoded frames to E, its error over the labelled records, the Pareto
@@ -44,9 +44,11 @@ from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from scriptkit import run_script  # noqa: E402
 
 from estimator.analytical import METHODS  # noqa: E402
 from estimator.evaluation.bench import bench, configurations, one_core, timed  # noqa: E402
+from estimator.evaluation.bench_cli import cell  # noqa: E402
 from estimator.features import contact_features  # noqa: E402
 from estimator.inference.hybrid import HybridEstimator  # noqa: E402
 from estimator.inference.infer import CompliancePredictor, default_model_dir  # noqa: E402
@@ -57,7 +59,8 @@ from estimator.perception.depth import reconstruct_depth  # noqa: E402
 from estimator.perception.grid import grid_calibration, to_grid  # noqa: E402
 from estimator.perception.markers import detect_markers  # noqa: E402
 from estimator.settings import estimator_settings  # noqa: E402
-from teleop.record import read_record  # noqa: E402
+from teleop.clikit import positive_int  # noqa: E402
+from teleop.record import find_records, read_record  # noqa: E402
 from teleop.settings import load_settings  # noqa: E402
 
 STAGES = ("segment", "reference", "warp", "depth", "features", "fits", "encode", "network", "sample")
@@ -109,27 +112,35 @@ def stages(paths, *, settings, predictor, calibration, repeats):
     return {"grasps": len(times["sample"]), **{name: float(np.median(t)) for name, t in times.items()}}
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("records", type=Path, help="directory of labelled .grasp records")
     parser.add_argument("--model", type=Path, default=default_model_dir(), help="model directory")
     parser.add_argument("--calibration", default=None, help="calibration for every record (default: the sensor's)")
-    parser.add_argument("--repeats", type=int, default=5, help="timed runs per grasp and configuration")
-    parser.add_argument("--limit", type=int, default=None, help="only the first K records")
-    args = parser.parse_args()
+    parser.add_argument("--repeats", type=positive_int, default=5, help="timed runs per grasp and configuration")
+    parser.add_argument("--limit", type=positive_int, default=None, help="only the first K records")
+    parser.add_argument("--no-width-lag", dest="width_lag", action="store_false",
+                        help="as estimator bench --no-width-lag: the analytical methods take the widths' times "
+                             "as stamped")
+    return run_script(parser, measure)
+
+
+def measure(args: argparse.Namespace) -> None:
     settings = load_settings()
-    paths = sorted(args.records.rglob("*.grasp"))[: args.limit]
+    paths = find_records(args.records)[: args.limit]
     predictor = CompliancePredictor(args.model, threads=1)
     configs = configurations(settings=settings, calibration=args.calibration,
-                             frames=[predictor.variant.n_frames], models=[predictor])
+                             frames=[predictor.variant.n_frames], models=[predictor],
+                             correct_width_lag=args.width_lag)
     result = bench(paths, settings=settings, configs=configs, repeats=args.repeats)
     print(f"{platform.processor() or platform.machine()}, {result['labelled']} labelled grasps, "
           f"{args.repeats} timed runs each, pinned to one core: {result['one_core']}")
-    print(f"{'configuration':<44} {'p50 ms':>8} {'p90 ms':>8} {'log10 err':>9} {'within10x':>9}  pareto")
+    print(f"{'configuration':<44} {'p50 ms':>8} {'p90 ms':>8} {'felt err':>8} {'felt2x':>6} {'log10 err':>9} "
+          f"{'within10x':>9} {'refused':>7}  pareto")
     for c in sorted(result["configs"], key=lambda c: c["latency_ms_p50"]):
-        err = "-" if c["log10_error"] is None else f"{c['log10_error']:.2f}"
-        within = "-" if c["within_10x"] is None else f"{c['within_10x']:.0%}"
-        print(f"{c['name']:<44} {c['latency_ms_p50']:>8.2f} {c['latency_ms_p90']:>8.2f} {err:>9} {within:>9}  "
+        cells = [cell(c["felt_log10_error"], ".3f", 8), cell(c["felt_within_2x"], ".0%", 6),
+                 cell(c["log10_error"], ".2f", 9), cell(c["within_10x"], ".0%", 9)]
+        print(f"{c['name']:<44} {c['latency_ms_p50']:>8.2f} {c['latency_ms_p90']:>8.2f} {' '.join(cells)} {c['refusals']:>7}  "
               f"{'*' if c['pareto'] else ''}")
     parts = stages(paths, settings=settings, predictor=predictor, calibration=args.calibration,
                    repeats=args.repeats)
@@ -138,4 +149,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -33,11 +33,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scriptkit import run_script
 
 from haptics.inputs.base import OperatorInput
 from haptics.operator_link import OperatorLink
 from haptics.operator_loop import OperatorLoop
 from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.clikit import positive_number
 from teleop.node import COMMAND_TOPICS, RobotNode
 from teleop.operator import grip_to_width_m
 from teleop.scene import load_scene
@@ -129,12 +131,15 @@ def _fmt(value: float | None, unit: str, digits: int) -> str:
     return "-" if value is None else f"{value:.{digits}f} {unit}"
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seconds", type=float, default=10.0, help="how long the operator's loop drives (part 1)")
+    parser.add_argument("--seconds", type=positive_number, default=10.0, help="how long the operator's loop drives (part 1)")
     parser.add_argument("--scene", default="default", help="scene of the operator-driven grasps (part 2)")
     parser.add_argument("--json", action="store_true", help="print all figures as one JSON object last")
-    args = parser.parse_args()
+    return run_script(parser, measure)
+
+
+def measure(args: argparse.Namespace) -> None:
     logging.getLogger("teleop.node").setLevel(logging.ERROR)  # "stopping during grasp": the sweep's end
     command = input_to_command(args.scene, args.seconds)
     print(f"operator input -> gripper command (loopback, {command['matched']} of {command['commands']} "
@@ -148,4 +153,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -20,7 +20,9 @@ import time
 
 import cv2
 import numpy as np
+from scriptkit import run_script
 
+from teleop.clikit import positive_int
 from teleop.settings import load_settings
 from teleop.sim.optics import OpticsRenderer
 from teleop.sim.presses import sphere_press_height
@@ -52,15 +54,18 @@ def timed(function, repeats: int, clock=time.perf_counter) -> tuple[float, float
     return float(np.median(samples) * 1e3), float(np.percentile(samples, 90) * 1e3)
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--repeats", type=int, default=300, help="timed calls per stage and scenario")
-    parser.add_argument("--threads", type=int, default=1, help="OpenCV threads (1: per-core figures)")
+    parser.add_argument("--repeats", type=positive_int, default=300, help="timed calls per stage and scenario")
+    parser.add_argument("--threads", type=positive_int, default=1, help="OpenCV threads (1: per-core figures)")
     parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
                         help="wall: elapsed time; cpu: this thread's CPU time (steadier on a busy "
                              "machine; equals wall time per core when OpenCV runs one thread)")
     parser.add_argument("--json", action="store_true", help="print all figures as one JSON object last")
-    args = parser.parse_args()
+    return run_script(parser, measure)
+
+
+def measure(args: argparse.Namespace) -> None:
     clock = time.perf_counter if args.clock == "wall" else time.thread_time
     cv2.setNumThreads(args.threads)
     settings = load_settings()
@@ -101,4 +106,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

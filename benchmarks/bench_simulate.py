@@ -23,8 +23,10 @@ import time
 
 import cv2
 import numpy as np
+from scriptkit import run_script
 
 from teleop.catalogue import ObjectSpec
+from teleop.clikit import positive_int
 from teleop.settings import load_settings
 from teleop.sim.grasp import load_curve, simulate_grasp
 
@@ -37,11 +39,14 @@ OBJECTS = (
 )
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--grasps", type=int, default=3, help="timed grasps per object (after one warm-up grasp)")
+    parser.add_argument("--grasps", type=positive_int, default=3, help="timed grasps per object (after one warm-up grasp)")
     parser.add_argument("--json", action="store_true", help="print all figures as one JSON object last")
-    args = parser.parse_args()
+    return run_script(parser, measure)
+
+
+def measure(args: argparse.Namespace) -> None:
     cv2.setNumThreads(1)
     settings = load_settings()
     sensors = {s.finger: s for s in settings.sensors}
@@ -79,4 +84,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

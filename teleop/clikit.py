@@ -72,6 +72,17 @@ def non_negative_int(text: str) -> int:
     return value
 
 
+def positive_int(text: str) -> int:
+    """An argparse type: a whole number >= 1 (a count of runs or grasps: none of them has no median)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number >= 1")
+    return value
+
+
 #: The top-level modules each optional extra of pyproject.toml installs, for the extras commands name.
 EXTRA_MODULES = {"train": frozenset({"torch", "onnx", "onnxscript"})}
 

@@ -8,7 +8,8 @@ Configurations
 ``<method>@<N>f``
     An analytical method over ``N`` frames sampled across the loading phase
     (:func:`~estimator.inference.sampling.sample_grasp`, depth for those frames
-    only; the four fits run together, so these share their cost).
+    only; the four fits run together, so these share their cost). The widths' times are taken
+    as stamped, as the hybrid samples its analytical inputs (the sampler corrects no lag).
 ``<method>/bin<K>`` (for each ``binning`` K)
     An analytical method over every loading frame with depth measured on the image grid binned
     by K instead of the settings' ``estimator.depth_binning`` (:mod:`estimator.perception.grid`;
@@ -28,7 +29,9 @@ reference from the frames before the onset, which ``reference_ms_p50``
 reports alone (a live estimator can build it before contact).
 
 Error is scored as ``estimator evaluate`` scores it, over the labelled records
-given: ``felt_log10_error`` the mean |log10 error| of what the softness display
+given (the analytical methods over all loading frames, binned or not, with each record's
+width lag estimated and corrected, as ``evaluate`` does unless ``--no-width-lag``; the
+estimate is part of their latency): ``felt_log10_error`` the mean |log10 error| of what the softness display
 renders against the label clipped to the display's range (the error the operator
 feels; the frontier's error), ``felt_within_2x`` the share within a factor 2,
 ``log10_error`` the paper's mean |log10 E_hat - log10 E| of the estimates that
@@ -93,9 +96,12 @@ class BenchConfig:
 def configurations(
     *, settings: Settings, calibration: str | None, frames: Sequence[int], models: Sequence[CompliancePredictor],
     binning: Sequence[int] = (),
+    correct_width_lag: bool = True,
 ) -> list[BenchConfig]:
     """Every analytical method on all loading frames and on each of ``frames``, the tactile ones on each
-    ``binning`` of the depth grid, and every model with ``auto``.
+    ``binning`` of the depth grid, and every model with ``auto``. ``correct_width_lag``: the methods over
+    all loading frames correct each record's width lag (:func:`~estimator.measure.measure_grasp`), as
+    :func:`~estimator.evaluation.evaluate.evaluate_record` does by default.
 
     Raises SettingsError for a binning the estimator finger's grid does not take."""
     finger = settings.sensing.finger
@@ -107,7 +113,8 @@ def configurations(
         return calibration_for(record.sensor(finger), calibration)
 
     def analytical(method: str) -> Callable[[GraspRecord], Estimate]:
-        return lambda record: estimate_grasp(record, method, settings=settings, calibration=calibrated(record))
+        return lambda record: estimate_grasp(record, method, settings=settings, calibration=calibrated(record),
+                                             correct_width_lag=correct_width_lag)
 
     def sampled(method: str, n: int) -> Callable[[GraspRecord], Estimate]:
         def run(record: GraspRecord) -> Estimate:
@@ -116,7 +123,8 @@ def configurations(
         return run
 
     def binned(method: str, k: int) -> Callable[[GraspRecord], Estimate]:
-        return lambda record: estimate_grasp(record, method, settings=rebinned[k], calibration=calibrated(record))
+        return lambda record: estimate_grasp(record, method, settings=rebinned[k], calibration=calibrated(record),
+                                             correct_width_lag=correct_width_lag)
 
     configs = [BenchConfig(m, "analytical", m, None, None, analytical(m), own) for m in METHODS]
     configs += [BenchConfig(f"{m}/bin{k}", "analytical", m, None, None, binned(m, k), k)

@@ -33,7 +33,8 @@ def _frame_count(text: str) -> int:
     return value
 
 
-def _cell(value: float | None, spec: str, width: int) -> str:
+def cell(value: float | None, spec: str, width: int) -> str:
+    """A table cell: ``value`` formatted by ``spec``, or "-" for None, right-aligned to ``width``."""
     return f"{'-' if value is None else format(value, spec):>{width}}"
 
 
@@ -61,6 +62,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--limit", type=int, default=None, metavar="K", help="bench only the first K records")
     parser.add_argument("--calibration", metavar="CAL", default=None,
                         help="calibration (.npz) for every record; default: the file each record's sensor names")
+    parser.add_argument("--no-width-lag", dest="width_lag", action="store_false",
+                        help="do not estimate and correct how late each record's widths are stamped (analytical "
+                             "methods over all loading frames), as estimator evaluate --no-width-lag; by default "
+                             "they are scored as estimator evaluate scores them")
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()), help="settings TOML")
     parser.add_argument("--plot", metavar="PNG", default=None, help="write latency (log x) against error with the frontier")
     parser.add_argument("--json", action="store_true",
@@ -85,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     if frames is None:
         frames = sorted({m.variant.n_frames for m in models}) or [estimator_settings(settings).n_frames]
     configs = configurations(settings=settings, calibration=args.calibration, frames=frames, models=models,
-                             binning=args.binning)
+                             binning=args.binning, correct_width_lag=args.width_lag)
     result = {"dir": str(root), **bench(paths, settings=settings, configs=configs, repeats=args.repeats),
               "models": [{"dir": str(m.model_dir), "variant": m.variant.name,
                           "measurement_code_matches": m.measurement_code_matches} for m in models],
@@ -104,8 +109,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{'configuration':<44} {'p50 ms':>8} {'felt err':>8} {'felt2x':>6} {'log10 err':>9} {'within10x':>9} "
           f"{'refused':>7}  pareto")
     for c in sorted(result["configs"], key=lambda c: c["latency_ms_p50"]):
-        cells = [_cell(c["felt_log10_error"], ".3f", 8), _cell(c["felt_within_2x"], ".0%", 6),
-                 _cell(c["log10_error"], ".2f", 9), _cell(c["within_10x"], ".0%", 9)]
+        cells = [cell(c["felt_log10_error"], ".3f", 8), cell(c["felt_within_2x"], ".0%", 6),
+                 cell(c["log10_error"], ".2f", 9), cell(c["within_10x"], ".0%", 9)]
         print(f"{c['name']:<44} {c['latency_ms_p50']:>8.2f} {' '.join(cells)} {c['refusals']:>7}  "
               f"{'*' if c['pareto'] else ''}")
     return 0

@@ -169,10 +169,12 @@ def _models(args: argparse.Namespace, settings: Settings) -> list[ModelMethod]:
     twice = sorted({str(d) for d in resolved if resolved.count(d) > 1})
     if twice:
         raise EstimatorError(f"--model {twice[0]}: given more than once")
-    models = model_methods([_predictor(str(d)) for d in dirs], methods=learned)
+    predictors = [_predictor(str(d)) for d in dirs]
+    models = model_methods(predictors, methods=learned)
     missing = [m for m in learned if args.methods is not None and not any(e.method == m for e in models)]
     if missing:
-        kinds = ", ".join(f"{e.variant.name} ({e.method})" for e in models if e.method != "auto") or "none"
+        # Every model loaded (the shipped default when none was given), not only those of the methods asked for.
+        kinds = ", ".join(f"{p.variant.name} ({p.variant.method}) in {p.model_dir}" for p in predictors)
         raise EstimatorError(f"--methods {' '.join(missing)}: no model given has it (cnn needs a model trained "
                              f"without analytical inputs, hybrid and auto one with them; models: {kinds}); "
                              "add one with --model DIR")

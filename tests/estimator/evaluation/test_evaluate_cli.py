@@ -170,3 +170,15 @@ def test_output_paths_are_checked_before_scoring(records, tmp_path, capsys):
     assert main(["evaluate", str(records), "--methods", "no_tactile", "--plot", str(plot), "--rows", str(rows),
                  "--json"]) == 0
     assert plot.stat().st_size > 0 and rows.read_text().startswith("record,")
+
+
+def test_a_learned_method_no_loaded_model_has_names_the_models_loaded(tmp_path, capsys):
+    # Without --model the shipped default is loaded: the error said "models: none".
+    from estimator.inference.infer import CompliancePredictor, default_model_dir
+
+    (tmp_path / "found.grasp").write_bytes(b"")  # the models are checked before any record is read
+    assert main(["evaluate", str(tmp_path), "--methods", "cnn"]) == 2
+    err = capsys.readouterr().err
+    variant = CompliancePredictor(default_model_dir()).variant
+    assert variant.method != "cnn" and "models: none" not in err
+    assert f"models: {variant.name} ({variant.method}) in {default_model_dir()}" in err
