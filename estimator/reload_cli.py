@@ -26,6 +26,8 @@ import sys
 import time
 import uuid
 
+import zmq
+
 from estimator.errors import ModelError
 from teleop.bus.messages import ModelEventBody
 from teleop.bus.pubsub import Publisher, Subscriber
@@ -93,13 +95,20 @@ def reload_model(path: str, *, command: Publisher, answers: Subscriber, timeout_
 
 
 def _control_publisher(bus: BusSettings) -> Publisher:
-    """Bind the control endpoint, waiting up to :data:`BIND_WAIT_S` for a reload that just ended."""
+    """Bind the control endpoint, waiting up to :data:`BIND_WAIT_S` for a reload that just ended.
+
+    Only the endpoint in use is waited for and blamed on another reload; any other error (the keys,
+    the endpoint's text) is raised as it is, at once.
+    """
     deadline = time.monotonic() + BIND_WAIT_S
     while True:
         try:
             return Publisher.from_settings(bus, bus.control, lossless=False,
                                            source=f"reload-{os.getpid()}")  # its own: seq from 0
         except BusError as exc:
+            cause = exc.__cause__
+            if not (isinstance(cause, zmq.ZMQError) and cause.errno == zmq.EADDRINUSE):
+                raise
             if time.monotonic() < deadline:
                 time.sleep(0.05)
                 continue

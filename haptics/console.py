@@ -18,7 +18,8 @@ frozen :class:`~haptics.operator_loop.LoopStatus` ten times a second. Panels:
   dead-man enable, the mode (follow, discrete grasp, idle), the discrete grasp's force;
 * **notices**: the robot's last notice (a refused command, the watchdog), the watchdog's kept
   above a later refusal, and what went wrong on this side (a send that failed), with the
-  operator's last actions;
+  operator's last actions, then the last warning logged (a refused CURVE handshake, say: the
+  log itself is held until the screen closes);
 * the **keys**, at the bottom. The whole fits an 80x24 terminal.
 
 With the keyboard, the console turns the enable toggle off when the loop suspends the follows
@@ -224,6 +225,7 @@ class OperatorConsole(App):
         self.texts: dict[str, str] = {}  # each panel's text as last drawn, unwrapped (for tests and logs)
         self.drawn: dict[str, str] = {}  # each panel's text as drawn: wrapped to its width, maybe cut
         self.console_note = ""  # the console's own last note (a label sent, nothing to label)
+        self.log_note = ""  # the last warning logged while the screen holds the log (set from any thread)
         self._toggled_on = False  # the keyboard's enable toggle as this console's keys left it
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -469,5 +471,7 @@ class OperatorConsole(App):
         if view.refused:
             notice_lines.append(f"{view.refused} bus message(s) refused (see the log)")
         notice_lines.append("last: " + ("  |  ".join(status.log[-3:]) or "-"))
+        if self.log_note:  # last: a long one is cut by the panel, not the lines above
+            notice_lines.append(self.log_note)
         return {"alive": alive, "grasp": "\n".join(grasp), "estimate": "\n".join(lines),
                 "display": "\n".join(display), "input": "\n".join(operator), "notice": "\n".join(notice_lines)}

@@ -154,7 +154,7 @@ def _run_console(loop: OperatorLoop, name: str, device: object, *, duration_s: f
     app = OperatorConsole(loop, input_name=name, keyboard=keyboard, duration_s=duration_s, catalogue=catalogue,
                           catalogue_name=catalogue_name)
     # Log lines written to the terminal would tear the screen: held while it runs, printed after.
-    held = _HeldLog()
+    held = _HeldLog(app)
     root = logging.getLogger()
     handlers = root.handlers[:]
     for handler in handlers:
@@ -195,14 +195,18 @@ def _sigterm_quits(app: Any) -> Iterator[None]:
 
 
 class _HeldLog(logging.Handler):
-    """Keeps the last :data:`HELD_LOG_RECORDS` log records while the screen runs."""
+    """Keeps the last :data:`HELD_LOG_RECORDS` log records while the screen runs, and shows the last
+    warning on ``app``'s screen (``log_note``): a refused handshake must not wait for the quit."""
 
-    def __init__(self) -> None:
+    def __init__(self, app: Any) -> None:
         super().__init__()
+        self.app = app
         self.records: collections.deque[logging.LogRecord] = collections.deque(maxlen=HELD_LOG_RECORDS)
 
     def emit(self, record: logging.LogRecord) -> None:
         self.records.append(record)
+        if record.levelno >= logging.WARNING:
+            self.app.log_note = f"{record.levelname.lower()}: {record.getMessage()}"
 
 
 def _run_headless(loop: OperatorLoop, name: str, *, duration_s: float | None) -> LoopStatus:

@@ -28,10 +28,13 @@ _EVENTS = (zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAI
 # its client gives the endpoint up; after a dropped connection it reconnects.
 _FAILURES = {
     zmq.EVENT_HANDSHAKE_FAILED_AUTH: ("the server does not authorise this client's key", False),
-    # a server drops a HELLO it cannot open, without a word: it was sealed for another server's key
+    # a server drops a HELLO it cannot open, without a word: it was sealed for another server's key;
+    # a server that runs no CURVE may drop it too
     zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL: (
-        "the server dropped the connection: it is not the server whose key this node trusts", True),
-    zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL: ("protocol error: the server may not run CURVE", False),
+        "the server dropped the connection: it is not the server whose key this node trusts, or it runs "
+        "no CURVE (set bus.keys_dir on its host)", True),
+    zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL: (
+        "protocol error: the server may run no CURVE (set bus.keys_dir on its host)", False),
 }
 _GIVEN_UP = "this client gives the endpoint up: restart it once that is fixed"
 

@@ -1,14 +1,8 @@
 """``teleop keys``: create, authorise, list and revoke the bus's CURVE keys.
 
 Only public keys are ever printed. Layout of a keys directory and how the bus uses it:
-:mod:`teleop.bus.security`. A typical setup::
-
-    teleop keys init /etc/teleop/keys          # server + client pairs, client authorised
-    # then set bus.keys_dir = "/etc/teleop/keys" in the settings TOML
-
-    # a second host that only connects: its own client, trusting the robot's server key
-    teleop keys init ~/keys --server-cert server.key     # on the operator host
-    teleop keys add /etc/teleop/keys client.key --name operator   # on the robot host
+:mod:`teleop.bus.security`. How to set up one host and two: :data:`SETUP`, which ``teleop keys
+--help`` prints.
 """
 
 from __future__ import annotations
@@ -30,8 +24,30 @@ from teleop.bus.security import (
 
 RESTART_NOTE = "restart the bus servers (the binding nodes) for the change to take effect"
 
+SETUP = """\
+one host:
+  teleop keys init /etc/teleop/keys          # server + client pairs, client authorised
+  # then set bus.keys_dir = "/etc/teleop/keys" in the settings TOML
+
+two hosts (robot host R: robot node; operator host O: console, estimator, renderer). Every
+process binds an endpoint, and all of them serve with the one server key pair, so both hosts
+need its secret certificate and each admits the other's client key:
+  teleop keys init /etc/teleop/keys                           # on R
+  # copy R's server.key and server.key_secret to O (e.g. scp -p), then on O:
+  teleop keys init ~/keys --server-cert server.key
+  install -m600 server.key_secret ~/keys/                     # O binds too
+  teleop keys add ~/keys r-client.key --name robot            # on O: R's client.key
+  teleop keys add /etc/teleop/keys o-client.key --name operator   # on R: O's client.key
+  # set bus.keys_dir on both hosts; restart R's robot node after the add there
+
+a host that binds nothing (one that runs only teleop record): init --server-cert alone, then
+`teleop keys add` its client.key on every host that binds.
+"""
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.epilog = SETUP
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     actions = parser.add_subparsers(
         dest="action", metavar="ACTION", title="actions", help="what to do with the keys directory"
     )
@@ -45,8 +61,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     init.add_argument(
         "--server-cert",
         metavar="CERT",
-        help="join an existing bus: trust this server public certificate instead "
-        "of creating a server key pair (the node can then connect, not bind)",
+        help="join an existing bus: trust this server public certificate instead of creating a "
+        "server key pair; to bind too (any host running the robot node, console, estimator or "
+        "renderer), also install that server's server.key_secret in DIR with mode 0600 "
+        "(see `teleop keys --help`)",
     )
     add = actions.add_parser("add", help="authorise a client's public certificate")
     add.add_argument("dir", metavar="DIR", help="keys directory made by `teleop keys init`")

@@ -28,8 +28,10 @@ message refreshes its source in :class:`Heartbeat`, on the receiver's own monoto
 
 Refusals
 --------
-A subscriber that meets a message :func:`~teleop.bus.wire.decode` refuses logs the reason,
-counts it in ``stats.refused`` and carries on. A single frame larger than ``max_bytes``
+A subscriber that meets a message :func:`~teleop.bus.wire.decode` refuses counts it in
+``stats.refused`` by reason and carries on. It logs the first refusal of each reason (the
+sender its header names, the rule broken, what to do) and then a count at the 10th, 100th,
+1000th ... of that reason, so a peer on another wire version cannot flood the log. A single frame larger than ``max_bytes``
 never reaches decode: ZeroMQ (``ZMQ_MAXMSGSIZE``) drops that connection first, before
 allocating it, and the publisher reconnects. A publisher likewise accepts from its
 subscribers only frames up to :data:`CONTROL_FRAME_BYTES` (subscriptions, handshakes).
@@ -41,7 +43,7 @@ Pass ``security`` (:class:`~teleop.bus.security.BusSecurity`, e.g. from
 is the server and admits only authorised client keys, the connecting end authenticates
 the server. An endpoint reachable from other hosts refuses to start without it
 (:class:`~teleop.errors.BusSecurityError`). A refused handshake is logged as a warning on
-both ends, once. See :mod:`teleop.bus.security`.
+both ends, once, when both run CURVE (one end without keys: :mod:`teleop.bus.security`).
 :meth:`Publisher.from_settings` and :meth:`Subscriber.from_settings` take the size limit,
 heartbeat period and keys from :class:`~teleop.settings.BusSettings`.
 
@@ -67,7 +69,7 @@ from teleop.bus.security import (
     check_endpoints,
     security_from_settings,
 )
-from teleop.bus.wire import Message, decode, encode, make_message, now_ns
+from teleop.bus.wire import Message, claimed_source, decode, encode, make_message, now_ns
 from teleop.errors import BusError, BusTimeoutError, MessageRejected
 from teleop.settings import BusSettings
 
@@ -91,6 +93,13 @@ HEARTBEAT_TOPIC = "heartbeat"
 # Largest frame a publisher reads from its subscribers: subscriptions (a topic prefix,
 # at most wire.MAX_TOPIC_BYTES long) and handshake commands (a CURVE INITIATE is ~300 B).
 CONTROL_FRAME_BYTES = 4096
+# What to do about a refused message, by reason (the rest: a sender that breaks the wire format).
+_REFUSAL_FIXES = {
+    "unknown_version": "run the same software version on every host of the bus",
+    "unknown_type": "the sender may run a newer software version: run the same one on every host of the bus",
+    "oversize": "raise bus.max_message_bytes to the sender's, on every host, or send less",
+}
+_REFUSAL_FIX = "the sender breaks the bus wire format: a bug in it, or a program that is no bus node on this endpoint"
 
 
 def _ms(seconds: float | None) -> int:
@@ -168,12 +177,16 @@ class _Socket:
         """CURVE on ``socket`` before it binds or connects (see :mod:`teleop.bus.security`)."""
         self._release_security = apply_security(socket, security, server=server)
 
-    def _abandon(self, socket: zmq.Socket, exc: Exception, what: str) -> BusError:
-        """Close a socket whose setup failed; the error to raise for ``exc``."""
+    def _abandon(self, socket: zmq.Socket, exc: Exception, what: str, setting: str = "") -> BusError:
+        """Close a socket whose setup failed; the error to raise for ``exc`` (``setting``: the
+        settings key naming the endpoint, for the fix of one in use)."""
         socket.close(linger=0)
         self._release_security()
         if isinstance(exc, BusError):
             return exc
+        if isinstance(exc, zmq.ZMQError) and exc.errno == zmq.EADDRINUSE:
+            return BusError(f"{what}: {exc}: another process (a session still running?) holds it: stop it "
+                            f"or choose another port" + (f" in {setting}" if setting else ""))
         return BusError(f"{what}: {exc}")
 
     def __enter__(self):
@@ -211,6 +224,9 @@ class Publisher(_Socket):
     security : BusSecurity, optional
         CURVE keys: the publisher is the CURVE server when it binds, a client when it
         connects. Required when ``endpoint`` is not loopback.
+    setting : str
+        The settings key that names ``endpoint`` (``bus.robot_pub``), for the fix an endpoint
+        in use is told with; :meth:`from_settings` fills it in.
 
     Raises
     ------
@@ -233,6 +249,7 @@ class Publisher(_Socket):
         high_water_mark: int | None = None,
         context: zmq.Context | None = None,
         security: BusSecurity | None = None,
+        setting: str = "",
     ):
         self.lossless = lossless
         self.source = source
@@ -259,7 +276,7 @@ class Publisher(_Socket):
             self.endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT) if bind else endpoint
         except (zmq.ZMQError, BusError) as exc:
             what = f"cannot {'bind' if bind else 'connect'} publisher on {endpoint!r}"
-            raise self._abandon(socket, exc, what) from exc
+            raise self._abandon(socket, exc, what, setting) from exc
         self._socket = socket
 
     @classmethod
@@ -271,12 +288,14 @@ class Publisher(_Socket):
         ``options`` are the remaining constructor arguments (``source``, ``bind``, ...).
         Raises BusSecurityError when any bus endpoint needs keys that are not configured.
         """
+        names = [f"bus.{name}" for name in bus.ENDPOINTS if getattr(bus, name) == endpoint]
         return cls(
             endpoint,
             lossless=lossless,
             max_bytes=bus.max_message_bytes,
             heartbeat_s=bus.heartbeat_s,
             security=security_from_settings(bus),
+            setting=names[0] if names else "",
             **options,
         )
 
@@ -492,8 +511,7 @@ class Subscriber(_Socket):
         try:
             message = decode(frames, max_bytes=self.max_bytes)
         except MessageRejected as exc:
-            self.stats.refused[exc.reason] += 1
-            log.warning("refused a message from %s: %s", self.endpoint_text, exc)
+            self._refused(exc, frames)
             return None
         self.stats.received += 1
         self._check_sequence(message)
@@ -502,6 +520,19 @@ class Subscriber(_Socket):
             return None
         self.heartbeat.saw(message.source)
         return message
+
+    def _refused(self, exc: MessageRejected, frames: list[zmq.Frame]) -> None:
+        """Count a refusal; log the first of its reason, then a count at every power of ten."""
+        self.stats.refused[exc.reason] += 1
+        count = self.stats.refused[exc.reason]
+        source = claimed_source(frames)
+        sender = (f"source {source!r}" if source is not None else "a sender that names none") + (
+            f" on {self.endpoints[0]}" if len(self.endpoints) == 1 else f" (one of {self.endpoint_text})")
+        if count == 1:
+            log.warning("refused a message from %s: %s: %s; further %s refusals are counted, not each logged",
+                        sender, exc, _REFUSAL_FIXES.get(exc.reason, _REFUSAL_FIX), exc.reason)
+        elif count == 10 ** (len(str(count)) - 1):  # 10, 100, 1000, ...
+            log.warning("refused %d messages for %s so far, the last from %s", count, exc.reason, sender)
 
     def _check_sequence(self, message: Message) -> None:
         key = (message.source, message.topic)

@@ -19,8 +19,10 @@ domain per directory). The socket that connects is the *client*: it has its own 
 and trusts only the server public key it was given, so it neither talks to an impostor nor
 is admitted without authorisation. A peer that fails either check gets nothing and
 delivers nothing: a client the server refuses gives that endpoint up, one that trusts
-another server key retries. Both ends say so, once: the server logs the refused client's
-public key, the client (watching its socket's monitor) the endpoint that refused it.
+another server key retries. When both ends run CURVE, both say so, once: the server logs the refused client's
+public key, the client (watching its socket's monitor) the endpoint that refused it. When only
+one end has keys, only a CURVE client says it (the server may run no CURVE); a client without
+keys facing a CURVE server hears nothing and neither end says why: set ``bus.keys_dir`` on every host.
 The directory is read when a server socket is created, and a file in it that is not a
 public certificate stops that server from starting; authorising or revoking a key takes
 effect when the servers restart.
@@ -30,7 +32,8 @@ Keys directory (``bus.keys_dir``)
 Made by ``teleop keys init DIR`` (see :mod:`teleop.bus.keys_cli`)::
 
     DIR/server.key         server public certificate (every client of the bus needs it)
-    DIR/server.key_secret  server secret certificate, mode 0600 (only nodes that bind)
+    DIR/server.key_secret  server secret certificate, mode 0600 (every host that binds:
+                           the one pair, copied to each; ``teleop keys --help``)
     DIR/client.key         this node's client public certificate
     DIR/client.key_secret  this node's client secret certificate, mode 0600
     DIR/authorized/*.key   public certificates of the clients the servers admit
@@ -233,6 +236,9 @@ class BusSecurity:
             A certificate is missing, malformed, mismatched or readable by other users.
         """
         directory = Path(keys_dir)
+        if directory.exists() and not directory.is_dir():
+            raise BusSecurityError(f"CURVE keys directory {directory} is a file, not a directory: set "
+                                   "bus.keys_dir to the directory `teleop keys init DIR` made")
         if not directory.is_dir():
             raise BusSecurityError(f"CURVE keys directory {directory} does not exist: {_FIX_HINT}")
         server_public = _read_public_cert(directory / f"{SERVER_CERT}{PUBLIC_SUFFIX}")
@@ -305,7 +311,8 @@ def serving_keys(security: BusSecurity) -> tuple[AuthorizedKey, ...]:
     if security.server_secret_key is None:
         raise BusSecurityError(
             f"{security.keys_dir} holds no {SERVER_CERT}{SECRET_SUFFIX}: this node can connect "
-            "but not bind; copy the server secret certificate there (mode 0600) to serve"
+            "but not bind; to serve, install the bus's server.key_secret there with mode 0600 (the "
+            "two-host setup: `teleop keys --help`)"
         )
     return read_authorized(security.authorized_dir)
 

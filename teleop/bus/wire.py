@@ -101,6 +101,7 @@ __all__ = [
     "SCHEMA_VERSION",
     "Body",
     "Message",
+    "claimed_source",
     "decode",
     "default_topic",
     "encode",
@@ -114,6 +115,8 @@ MAX_HEADER_BYTES = 4096
 MAX_BODY_BYTES = 64 * 1024
 MAX_BUFFERS = 8
 MAX_NDIM = 4
+MAX_SOURCE_SHOWN = 64  # characters of a refused message's claimed source that a log line shows
+
 REJECT_REASONS = (
     "frame_count",  # fewer than 3 frames, or more buffers than MAX_BUFFERS
     "oversize",  # the whole message, the topic, the header or the body is too large
@@ -417,6 +420,21 @@ def decode(frames: Sequence[Any], *, max_bytes: int) -> Message:
         seq=int(header["seq"]),
         t_send_ns=int(header["t_send_ns"]),
     )
+
+
+def claimed_source(frames: Sequence[Any]) -> str | None:
+    """The ``source`` a refused message's header names, for saying who sent it; None when the
+    header cannot be read within the limits or names no source. Never raises.
+
+    Only what the sender claims: on a CURVE bus, a sender the server admitted.
+    """
+    try:
+        if len(frames) < 2 or _frame_bytes(frames[1]).nbytes > MAX_HEADER_BYTES:
+            return None
+        source = _unpack(_frame_bytes(frames[1]), "header").get("source")
+    except MessageRejected:
+        return None
+    return source[:MAX_SOURCE_SHOWN] if isinstance(source, str) and source else None
 
 
 def now_ns() -> int:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import json
+import logging
+import threading
 import time
 
 import pytest
@@ -158,6 +160,31 @@ def test_other_inputs_still_take_the_buttons_and_q_or_ctrl_c_quits():
         return app
 
     assert asyncio.run(interrupted()).exit_status.quit
+
+
+def test_a_warning_logged_while_the_screen_runs_shows_in_the_notices():
+    from haptics.operate_cli import _HeldLog
+
+    refused = "CURVE handshake with tcp://127.0.0.2:6650 refused (the server does not authorise this client's key)"
+
+    async def session() -> OperatorConsole:
+        with KeyboardInput() as keyboard:
+            app = OperatorConsole(OperatorLoop(ConsoleLink(), keyboard, load_settings()), input_name="keyboard",
+                                  keyboard=keyboard)
+            held = _HeldLog(app)
+            async with app.run_test(size=(120, 40)) as pilot:
+                held.handle(logging.LogRecord("teleop.bus.handshakes", logging.INFO, "", 0, "heard", (), None))
+                # the handshake watcher logs from its own thread
+                threading.Thread(target=held.handle, args=(logging.LogRecord(
+                    "teleop.bus.handshakes", logging.WARNING, "", 0, "%s", (refused,), None),)).start()
+                await until(lambda: refused in app.texts.get("notice", ""), pilot)
+                assert "heard" not in app.texts["notice"]  # info stays in the held log alone
+                await pilot.press("q")
+                await until(lambda: app.exit_status is not None, pilot)
+        assert [r.getMessage() for r in held.records] == ["heard", refused]  # still printed after the quit
+        return app
+
+    assert asyncio.run(session()).exit_status.quit
 
 
 # --------------------------------------------------------------------------- the command

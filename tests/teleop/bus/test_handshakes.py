@@ -49,6 +49,7 @@ def test_a_refused_handshake_is_logged_once_on_both_ends(keys, stranger, caplog)
             time.sleep(0.5)
         dropped = [r for r in _handshake_records(caplog, 0.0) if r.levelno == logging.WARNING]
         assert len(dropped) == 1 and "the server dropped the connection" in dropped[0].getMessage()
+        assert "or it runs no CURVE (set bus.keys_dir on its host)" in dropped[0].getMessage()
         assert dropped[0].getMessage().endswith("retrying")
 
 

@@ -13,6 +13,7 @@ import zmq
 from teleop.bus import Heartbeat, Publisher, Subscriber
 from teleop.bus.wire import encode, make_message
 from teleop.errors import BusError, BusTimeoutError
+from teleop.settings import BusSettings
 
 _names = itertools.count()
 
@@ -145,6 +146,38 @@ def test_receiver_logs_refusals_and_carries_on(caplog):
     assert sum("refused a message" in r.message for r in caplog.records) == len(bad)
 
 
+def test_a_peer_on_another_wire_version_is_named_once_with_the_fix_then_counted(caplog):
+    raw = zmq.Context.instance().socket(zmq.PUB)
+    raw.setsockopt(zmq.LINGER, 0)
+    raw.bind("inproc://bus-test-v2-peer")
+    force = [bytes(f) for f in encode(make_message("force", t_capture_s=0.0, t_s=[0.0], value_n=[1.0]))]
+    header = {**msgpack.unpackb(force[1]), "v": 2, "source": "robot-v2"}
+    newer = [force[0], msgpack.packb(header), *force[2:]]
+    try:
+        with Subscriber(["inproc://bus-test-v2-peer", "inproc://bus-test-elsewhere"], ["force"]) as sub:
+            deadline = time.monotonic() + 2.0
+            while not sub.stats.refused and time.monotonic() < deadline:  # until subscribed
+                raw.send_multipart(newer)
+                sub.recv(timeout_s=0.01)
+            caplog.clear()
+            sub.stats.refused.clear()
+            for _ in range(120):
+                raw.send_multipart(newer)
+            while sub.recv(timeout_s=0.1) is not None or sum(sub.stats.refused.values()) < 120:
+                pass
+    finally:
+        raw.close()
+    lines = [r.getMessage() for r in caplog.records if "refused" in r.getMessage()]
+    assert sub.stats.refused["unknown_version"] == 120
+    first, *summaries = lines
+    assert "source 'robot-v2'" in first and "header version 2" in first
+    assert "run the same software version on every host" in first
+    assert summaries == ["refused 10 messages for unknown_version so far, the last from source 'robot-v2' "
+                         "(one of inproc://bus-test-v2-peer, inproc://bus-test-elsewhere)",
+                         "refused 100 messages for unknown_version so far, the last from source 'robot-v2' "
+                         "(one of inproc://bus-test-v2-peer, inproc://bus-test-elsewhere)"]
+
+
 def test_heartbeats_detect_a_dead_peer(endpoint):
     pub = Publisher(endpoint, lossless=False, source="robot", heartbeat_s=0.05)
     with Subscriber(pub.endpoint, ["estimate"]) as sub:
@@ -207,3 +240,12 @@ def test_errors_name_the_endpoint():
     sub.close()
     with pytest.raises(BusError, match="closed"):
         sub.recv(timeout_s=0.0)
+
+
+def test_an_endpoint_in_use_says_how_to_free_it_and_which_setting_names_it():
+    with Publisher("tcp://127.0.0.1:*", lossless=True) as holder:
+        with pytest.raises(BusError, match=r"holds it: stop it or choose another port$"):
+            Publisher(holder.endpoint, lossless=True)
+        bus = BusSettings(robot_pub=holder.endpoint)
+        with pytest.raises(BusError, match=r"a session still running\?.* choose another port in bus.robot_pub$"):
+            Publisher.from_settings(bus, bus.robot_pub, lossless=True)

@@ -428,6 +428,12 @@ def test_keys_command_errors_are_one_line(tmp_path):
     assert len(lines) == 1 and "does not exist" in lines[0] and "teleop keys init" in lines[0]
 
 
+def test_a_keys_dir_that_is_a_file_is_called_a_file(tmp_path):
+    (tmp_path / "settings.toml").write_text("")
+    with pytest.raises(BusSecurityError, match="settings.toml is a file, not a directory: set bus.keys_dir"):
+        BusSecurity.load(tmp_path / "settings.toml")
+
+
 # --------------------------------------------------------------------------- size limits
 
 
