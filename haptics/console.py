@@ -76,7 +76,7 @@ REFRESH_S = 0.1
 QUIT_GRACE_S = 1.0  # after quit, the loop thread is told to stop if it has not ended by itself
 BAR_CELLS = 24
 PANEL_LINES = 4  # the estimate and display panels' lines on a terminal shorter than TALL_LINES ...
-TALL_LINES = 30  # ... so that an 80x24 one shows every panel and the keys
+TALL_LINES = 50  # ... so that the operator and notices panels stay on screen below a long reason
 #: A final interval wider than this (a factor 10, a third of the display's scale) gets a hint: a
 #: firmer squeeze reads surer (the model card's light-squeeze limit) ...
 WIDE_INTERVAL_DECADES = 1.0
@@ -224,7 +224,8 @@ class OperatorConsole(App):
         self.loop_error = ""
         self.texts: dict[str, str] = {}  # each panel's text as last drawn, unwrapped (for tests and logs)
         self.drawn: dict[str, str] = {}  # each panel's text as drawn: wrapped to its width, maybe cut
-        self.console_note = ""  # the console's own last note (a label sent, nothing to label)
+        self.console_note = ""  # the console's own last note (a label sent, nothing to label) ...
+        self._note_grasp: str | None = None  # ... and the grasp shown then: a new grasp's view drops it
         self.log_note = ""  # the last warning logged while the screen holds the log (set from any thread)
         self._toggled_on = False  # the keyboard's enable toggle as this console's keys left it
         self._stop = threading.Event()
@@ -314,7 +315,7 @@ class OperatorConsole(App):
         grasp_id = self.loop.status.label_grasp_id
         line = self.query_one("#label", Input)
         if grasp_id is None:
-            self.console_note = "no grasp to label yet: grasp first, then l"
+            self._note("no grasp to label yet: grasp first, then l")
             self.redraw()
             return False
         self.labelling = grasp_id
@@ -325,6 +326,9 @@ class OperatorConsole(App):
         line.add_class("open")
         line.focus()
         return True
+
+    def _note(self, text: str) -> None:
+        self.console_note, self._note_grasp = text, self.loop.status.view.grasp_id
 
     def close_label(self) -> None:
         line = self.query_one("#label", Input)
@@ -342,10 +346,10 @@ class OperatorConsole(App):
             label = parse_label(event.value, self.catalogue, where=self.catalogue_name)
         except LabelError as exc:
             event.input.border_subtitle = str(exc)  # cut at the line's width: the notices hold it whole
-            self.console_note = f"label {self.labelling} refused: {exc}"
+            self._note(f"label {self.labelling} refused: {exc}")
             return
         self.loop.label(self.labelling, label)
-        self.console_note = f"label {self.labelling}: {describe_label(label)} sent"
+        self._note(f"label {self.labelling}: {describe_label(label)} sent")
         self.close_label()
 
     def action_quit_console(self) -> None:
@@ -357,11 +361,10 @@ class OperatorConsole(App):
     def _legend(self) -> str:
         # Two lines at 80 columns: the panels above must fit a 24-line terminal.
         if self.keyboard is not None:
-            drive = "keys: up/k squeeze  down/j open  o open fully  e enable (dead-man) on/off  q quit"
+            drive = "keys: up/k squeeze  down/j open  o open fully  e enable (dead-man)  q quit"
         else:
             drive = f"the {self.input_name} input drives grip and enable  |  keys: q quit"
-        return (drive + "\ng grasp  r release  s stop  n clear for the next grasp (next object)  +/- force"
-                "  l label")
+        return drive + "\ng grasp  r release  s stop  n next (clears the view)  +/- grasp force  l label"
 
     def redraw(self) -> None:
         status = self.loop.status
@@ -420,6 +423,8 @@ class OperatorConsole(App):
         if estimate is not None:
             if view.down("estimator"):
                 lines.insert(0, "the estimator is down: not current")
+            elif view.estimate_orphaned:  # a restarted estimator does not go on with an earlier one's grasp
+                lines.insert(0, "from an estimator that died since: not current, and no final will come")
             if hint := squeeze_hint(estimate, peak_force_n=view.peak_force_n, max_force_n=max_force):
                 lines.append(hint)
             lines.append(f"{view.estimates} estimate(s) for this grasp, method {estimate.method}")
@@ -437,21 +442,21 @@ class OperatorConsole(App):
                 what = "RIGID (at or beyond the sensor's resolution limit)"
             elif shown.phase == "idle":
                 what = "free (idle)"
+            elif shown.phase == "fading":  # the level falls to free: no modulus stands for it
+                what = "fading to free (the grasp ended)"
             else:
                 what = f"stiffness {shown.stiffness:.2f} of range = E {format_pa(shown.E_pa)}"
-            display = [
-                f"{what}{level}",
-                f"{_bar(view.stiffness)}",
-                f"phase {shown.phase}  {'provisional' if shown.provisional else 'final'}  "
-                f"+/- {shown.uncertainty_decades:.2f} decade",
-            ]
+            display = [f"{what}{level}", f"{_bar(view.stiffness)}"]
+            if shown.phase in ("active", "stale"):
+                display.append(f"phase {shown.phase}  {'provisional' if shown.provisional else 'final'}  "
+                               f"+/- {shown.uncertainty_decades:.2f} decade")
             if view.down("display"):  # its last rendering is still shown below: say it is not current
                 display.insert(0, "the renderer is down: its last report below is not current (start `haptics serve`)")
         felt = "-" if status.operator_force_n is None else f"{status.operator_force_n:.1f} N"
         operator = [  # short lines: half of an 80-column terminal
             f"input {self.input_name}   enable {'HELD' if status.held else 'off'}",
             f"mode {status.mode}",
-            f"grip {_bar(status.grip, 12)} {status.grip:.2f} -> target {_mm(status.target_width_m)}",
+            f"grip {_bar(status.grip, 8)} {status.grip:.2f} -> {_mm(status.target_width_m)}",
             f"grasp force {status.force_n:g} N (max {max_force:g})  hand {felt}",
             f"sent {status.follows_sent} follow, {status.commands_sent} command",
         ]
@@ -466,7 +471,7 @@ class OperatorConsole(App):
             notice_lines.append(self.loop_error + " (q quits)")
         if status.problem:
             notice_lines.append(f"problem: {status.problem}")
-        if self.console_note:
+        if self.console_note and view.grasp_id in (None, self._note_grasp):
             notice_lines.append(self.console_note)
         if view.refused:
             notice_lines.append(f"{view.refused} bus message(s) refused (see the log)")

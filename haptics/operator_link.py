@@ -104,6 +104,7 @@ class OperatorView:
     robot: RobotStateBody | None = None
     estimate: EstimateBody | None = None
     estimates: int = 0  # estimates received for the current grasp
+    estimate_orphaned: bool = False  # the estimate's estimator was heard dead since it came (none newer came)
     display: DisplayBody | None = None
     notice: RobotNoticeBody | None = None
     notice_t_s: float | None = None
@@ -173,6 +174,7 @@ class OperatorLink:
         self._display: DisplayBody | None = None
         self._notice: tuple[RobotNoticeBody, float] | None = None
         self._ended_by: tuple[RobotNoticeBody, float] | None = None  # the last notice that ended a grasp
+        self._orphaned: set[str] = set()  # grasps whose last estimate came from an estimator heard dead since
         self._dismissed: set[str] = set()  # grasps cleared from the view: their late messages are ignored
         self._labels: dict[str, LabelBody] = {}  # grasp id -> the last label sent for it
         self.view = self._snapshot()
@@ -252,7 +254,8 @@ class OperatorLink:
         self._grasp_id, self._object_name, self._phase = None, None, "idle"
         self._peak_force_n = None
         self._estimates.clear()
-        self._ended_by = None
+        self._orphaned.clear()
+        self._notice = self._ended_by = None  # the last grasp's notices go with it
         self.view = self._snapshot()
 
     # ------------------------------------------------------------------ receiving
@@ -297,6 +300,7 @@ class OperatorLink:
             if body.event in ENDING_NOTICES:
                 self._ended_by = self._notice
         elif kind == "estimate":
+            self._orphaned.discard(body.grasp_id)
             _, count = self._estimates.get(body.grasp_id, (None, 0))
             self._estimates[body.grasp_id] = (body, count + 1)
         elif kind == "display":
@@ -322,6 +326,8 @@ class OperatorLink:
         peers = self._peers(now)
         if any(p.seen_ago_s is not None and not p.alive for p in peers if p.source == "robot"):
             self._force_n = self._width_m = self._robot = None  # heard, now dead: its readings are gone
+        if any(p.seen_ago_s is not None and not p.alive for p in peers if p.source == "estimator"):
+            self._orphaned.update(self._estimates)  # a restarted estimator does not go on with them
         estimate, count = self._estimates.get(self._grasp_id, (None, 0)) if self._grasp_id else (None, 0)
         if self._grasp_id is None and self._estimates:  # estimates before any grasp event: the newest
             estimate, count = next(reversed(self._estimates.values()))
@@ -332,6 +338,7 @@ class OperatorLink:
             phase=self._phase, force_n=self._force_n, peak_force_n=self._peak_force_n, width_m=self._width_m,
             robot=self._robot,
             estimate=estimate, estimates=count, display=self._display, notice=notice, notice_t_s=notice_t,
+            estimate_orphaned=estimate is not None and estimate.grasp_id in self._orphaned,
             ended_by=ended_by, ended_by_t_s=ended_by_t,
             refused=sum(self.subscriber.stats.refused.values()),
             label=self._labels.get(self._grasp_id) if self._grasp_id is not None else None,

@@ -224,8 +224,10 @@ class OperatorLoop:
         if waiting and not self._waiting:
             self._act("waiting for the robot node: the input device is read once the node is heard")
         self._waiting = waiting
-        if self._leaving is None and not waiting:
+        if not waiting:
             reading = self._read_device()
+        if reading is not None and self._leaving is not None:
+            reading = self._read_while_leaving(reading)
         with self._lock:
             pressed, self._pressed = self._pressed, []
             to_label, self._to_label = self._to_label, []
@@ -307,6 +309,19 @@ class OperatorLoop:
         except ComplianceTeleopError as exc:
             self._trouble(f"input device: {exc}")
         return None if self._input is None else replace(self._input, enable=False, buttons=frozenset())
+
+    def _read_while_leaving(self, reading: Any) -> None:
+        """After ``next``, while the last grasp ends: the device is read, so that its keys do not pile
+        up and act seconds later, but drives nothing. An enable held now counts only once let go
+        and held again; of its buttons only quit acts."""
+        self._input = reading
+        if reading.enable and not self._rearm:
+            self._rearm = True
+            self._act("enable held while the last grasp ends: let it go and hold it again for the next object")
+        if "quit" in reading.buttons:
+            self._button("quit")
+        elif reading.buttons:
+            self._act(f"{', '.join(sorted(reading.buttons))} pressed while the last grasp ends: not taken, press again")
 
     def _new_grasp_id(self) -> str:
         self._count += 1

@@ -155,6 +155,11 @@ class HapticRenderer:
         """The grasp being rendered, or None."""
         return self._grasp_id if self._active else None
 
+    @property
+    def has_final(self) -> bool:
+        """Whether the grasp being rendered had its final estimate (only its end is due)."""
+        return self._active and not self._expecting
+
     # ------------------------------------------------------------ inputs
 
     def on_estimate(self, update: EstimateUpdate, now_s: float) -> None:

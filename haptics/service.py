@@ -7,10 +7,11 @@ mapping, smoothing, staleness, fading and the display's reconnection) and ticks 
 
 A grasp's end reaches it only through the estimator, which forwards the robot node's
 ``grasp_event`` *end* after the grasp's final estimate (the robot's own end comes before that
-final, which the renderer would then ignore). So when the estimator that sent the estimate
-rendered, once heard with a heartbeat period, goes unheard for three of its periods, the service
-ends the grasp rendered (the display fades to free): no end can come for it, and a final estimate
-never goes stale. A grasp left so is not rendered again; the next grasp is.
+final, which the renderer would then ignore). So when a grasp's final estimate is rendered and the
+estimator that sent it, once heard with a heartbeat period, goes unheard for three of its periods,
+the service ends the grasp (the display fades to free): no end can come for it, and a final
+estimate never goes stale. A grasp still loading goes stale instead, held until its estimator
+is back (the renderer's rules).
 
 What it renders
 ---------------
@@ -201,10 +202,10 @@ class RendererService(ServiceLoop):
             self._check_pending(written_s)
 
     def _check_estimator(self) -> None:
-        """End the grasp rendered when the estimator that sent its estimates is heard dead (module
+        """End the grasp rendered, its final in, when the estimator that sent it is heard dead (module
         docstring); one never heard with a heartbeat period cannot be judged, and is left alone."""
         grasp_id = self.renderer.grasp_id
-        if grasp_id is None or self.subscriber is None:
+        if grasp_id is None or not self.renderer.has_final or self.subscriber is None:
             return
         heartbeat = self.subscriber.heartbeat  # on its own clock: it stamped when each peer was heard
         if heartbeat.last_seen_s(self._estimates_from) is None:  # handed in, not heard (a replay, a test)

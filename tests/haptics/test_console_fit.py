@@ -54,6 +54,12 @@ def test_at_80x24_the_estimate_notices_and_keys_fit_and_the_toggle_tells_the_tru
                 for name in ("estimate", "notice", "keys"):
                     widget = app.query_one(f"#{name}")
                     assert screen.contains_region(widget.region), (name, widget.region)
+                # ... and the text in them: every line of the operator's panel (the grasp force +/- sets),
+                # the keys within 80 columns.
+                panel = app.query_one("#input")
+                assert len(app.drawn["input"].splitlines()) <= panel.content_size.height, app.drawn["input"]
+                assert "grasp force 10 N" in app.drawn["input"]
+                assert all(len(line) <= 78 for line in app.query_one("#keys").render().plain.splitlines())
                 notices = " ".join(app.drawn["notice"].split())
                 assert "watchdog" in notices and "the fingers stopped" in notices
                 assert "name a new grasp to start one" in notices
@@ -64,6 +70,32 @@ def test_at_80x24_the_estimate_notices_and_keys_fit_and_the_toggle_tells_the_tru
                 await until(lambda: any(b["enable"] for k, b in link.sent[sent:] if k == "follow"), pilot)
                 await until(lambda: "enable HELD" in app.texts["input"], pilot)
                 assert link.sent[-1][1]["grasp_id"] not in (grasp_id, None)
+                await pilot.press("q")
+                await until(lambda: app.exit_status is not None, pilot)
+
+    asyncio.run(session())
+
+
+def test_a_long_reason_leaves_the_operator_and_notices_on_a_100x32_screen():
+    idle = (Peer("robot node", "robot", True, 0.1), Peer("estimator", "estimator", True, 0.1),
+            Peer("display", "renderer", True, 0.1))
+    link = ConsoleLink(idle)
+
+    async def session() -> None:
+        with KeyboardInput() as keyboard:
+            app = OperatorConsole(OperatorLoop(link, keyboard, load_settings()), input_name="keyboard",
+                                  keyboard=keyboard)
+            async with app.run_test(size=(100, 32)) as pilot:
+                link.view = OperatorView(
+                    t_s=time.monotonic(), peers=idle, grasp_id="op-1", phase="loading",
+                    estimate=EstimateBody(grasp_id="op-1", method="hybrid", E_pa=1.3e5, interval_pa=[6.5e4, 2.6e5],
+                                          state="ok", reason=" ".join([REASON] * 4), provisional=True, latency_s=0.01),
+                    estimates=3)
+                await until(lambda: "reason" in app.texts.get("estimate", ""), pilot)
+                await pilot.pause(0.2)
+                screen = app.screen.region
+                for name in ("input", "notice", "keys"):
+                    assert screen.contains_region(app.query_one(f"#{name}").region), name
                 await pilot.press("q")
                 await until(lambda: app.exit_status is not None, pilot)
 

@@ -142,7 +142,7 @@ def test_a_follow_session_in_tmux(tmux, live):
     estimate appears; r releases (and lets the enable go), q quits."""
     _start_console(tmux, live, "--input", "keyboard")
     tmux("send-keys", "-t", "operate", *["k"] * 16)  # grip 0.8: a 16 mm target, past the 25 mm ball
-    tmux.wait_for(lambda t: "0.80 -> target 16.0 mm" in t, "the grip squeezed", 10, live)
+    tmux.wait_for(lambda t: "0.80 -> 16.0 mm" in t, "the grip squeezed", 10, live)
     tmux("send-keys", "-t", "operate", "e")
     pane = tmux.wait_for(lambda t: "robot  following" in t and ESTIMATE.search(t), "an estimate while following",
                          60, live)

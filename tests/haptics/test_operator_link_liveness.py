@@ -1,4 +1,5 @@
-"""The operator's link on loopback: what it keeps when the robot node dies, and the notice that ended a grasp."""
+"""The operator's link on loopback: what it keeps when the robot node or the estimator dies, and the notice that
+ended a grasp."""
 
 from __future__ import annotations
 
@@ -68,5 +69,31 @@ def test_the_notice_that_ended_a_grasp_stays_beside_a_later_refusal():
                    reason="grasp 'op-1' has ended: name a new grasp to start one")
         _wait(lambda v: v.notice is not None and v.notice.event == "refused", link, robot)
         assert link.view.ended_by.event == "watchdog" and link.view.ended_by_t_s is not None
-        link.clear()  # the next object: the old grasp's end is no longer shown
-        assert link.view.ended_by is None and link.view.notice.event == "refused"
+        link.clear()  # the next object: the old grasp's notices are no longer shown
+        assert link.view.ended_by is None and link.view.notice is None
+
+
+def test_an_estimate_from_an_estimator_that_died_since_is_not_current():
+    settings = load_settings()
+    with Publisher("tcp://127.0.0.1:*", lossless=True, source="estimator", heartbeat_s=HEARTBEAT_S) as estimator:
+        bus = dataclasses.replace(settings.bus, command="tcp://127.0.0.1:*", heartbeat_s=HEARTBEAT_S,
+                                  robot_pub="tcp://127.0.0.1:1", estimate_pub=estimator.endpoint,
+                                  display_pub="tcp://127.0.0.1:2")
+        with OperatorLink.from_settings(bus) as link:
+            estimator.wait_for_subscriber("estimate")
+
+            def estimate(e_pa: float) -> None:
+                estimator.send("estimate", t_capture_s=time.monotonic(), grasp_id="op-1", method="hybrid", E_pa=e_pa,
+                               interval_pa=[e_pa / 2, e_pa * 2], state="ok", reason="", provisional=True,
+                               latency_s=0.01)
+
+            estimator.heartbeat_if_due()
+            estimate(4.5e4)
+            _wait(lambda v: v.estimate is not None, link, estimator)
+            assert not link.view.estimate_orphaned
+            _wait(lambda v: v.down("estimator"), link)  # it dies mid-grasp ...
+            _wait(lambda v: v.alive("estimator"), link, estimator)  # ... and is started again
+            assert link.view.estimate.E_pa == 4.5e4 and link.view.estimate_orphaned  # not its grasp: no final
+            estimate(5e4)  # it does go on with the grasp after all
+            _wait(lambda v: v.estimate.E_pa == 5e4, link, estimator)
+            assert not link.view.estimate_orphaned

@@ -6,7 +6,7 @@ from __future__ import annotations
 from support.operator_fakes import Clock, FakeDevice, FakeLink
 
 from haptics.operator_link import OperatorView
-from haptics.operator_loop import OperatorLoop
+from haptics.operator_loop import NEXT_WAIT_S, OperatorLoop
 from teleop.bus.messages import RobotNoticeBody
 from teleop.settings import load_settings
 
@@ -48,3 +48,21 @@ def test_the_watchdogs_notice_ends_the_follow_grasp_it_names():
     _run(clock, loop, 0.05)
     kind, body = link.sent[-1][1:]
     assert kind == "follow" and body["enable"] and body["grasp_id"] not in (grasp_id, None)
+
+
+def test_an_enable_held_while_the_last_grasp_ends_waits_to_be_held_anew():
+    # After next, the loop waits up to NEXT_WAIT_S for the grasp left to end. An enable pressed
+    # meanwhile must not start the fingers seconds later, when the wait is over, by itself.
+    clock, link, device, loop = _rig()
+    link.view = OperatorView(t_s=clock(), grasp_id="g-left", phase="loading")  # it never ends: say its node died
+    device.buttons = {"next"}
+    _run(clock, loop, 0.05)
+    device.enable, device.grip = True, 0.8  # the operator takes the next object at once
+    _run(clock, loop, NEXT_WAIT_S + 0.5)
+    assert link.cleared == 1 and loop.status.held and loop.status.suspended
+    assert not [body for _, kind, body in link.sent if kind == "follow" and body["enable"]]
+    device.enable = False  # let go and hold again: now it drives
+    _run(clock, loop, 0.05)
+    device.enable = True
+    _run(clock, loop, 0.05)
+    assert [body for _, kind, body in link.sent if kind == "follow" and body["enable"]]
