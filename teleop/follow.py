@@ -117,18 +117,18 @@ class Follower:
 
         node = self.node
         number = node._count
-        grasp_id = grasp_id or f"grasp-{number:04d}"
+        grasp_id = node._grasp_id(grasp_id)
         if grasp_id in self.ended:
             raise DeviceError(f"grasp {grasp_id!r} has ended: name a new grasp to start one")
-        node._count += 1
         self.stopped = False
         grasp = node._grasp = _Grasp(grasp_id, None, follow=True, phase="following")
         if not node.simulated:
+            node._count += 1
             node._announce("start")
-        elif not self._let_go():  # the object is still between the fingers: grasp it again
+        elif not self._let_go():  # the object is still between the fingers: grasp it again (no new object)
             grasp.object_name = self.live.object.name
             node._announce("start")
-        else:
+        else:  # the next object, taken once it is live (_go_live)
             if self.next_live is None or self.next_live[0] != number:
                 self.prepare_next(number)
             grasp.phase, grasp.prepared = "preparing", self.next_live[1]
@@ -156,6 +156,9 @@ class Follower:
 
         node = self.node
         self.next_live = None
+        # Its object taken now: a grasp the watchdog ended while it was prepared took none, and one
+        # that cannot be simulated is skipped.
+        node._count += 1
         try:
             obj, rng = grasp.prepared.result()
         except SimulationError as exc:

@@ -55,6 +55,7 @@ of the node's mode, grasp, target width or enable, and with every heartbeat.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import logging
 import math
 import queue
@@ -177,7 +178,8 @@ class RobotNode(ServiceLoop):
         self._readers: list[threading.Thread] = []
         self._simulator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="simulate")
         self._grasp: _Grasp | None = None
-        self._count = 0
+        self._count = 0  # grasps that took the scene's next object: its index and seed
+        self._ids = itertools.count()  # for grasps started without an id
         # Capture time of the newest sample published per stream ("width", "force"): the marker waits on them.
         self._newest_s: dict[str, float] = {}
         self._latest: dict[str, float] = {}  # the newest force (N) and width (m) published
@@ -421,7 +423,7 @@ class RobotNode(ServiceLoop):
             raise InvalidCommandError(f"target_force_n = {target_force_n}: expected a force in (0, {maximum}] N, "
                                       "the settings' maximum")
         number = self._count
-        grasp_id = grasp_id or f"grasp-{number:04d}"
+        grasp_id = self._grasp_id(grasp_id)
         self._follower.stopped = False
         if not self.simulated:
             grasp = _Grasp(grasp_id, None, phase="grasping")
@@ -442,6 +444,10 @@ class RobotNode(ServiceLoop):
         self._grasp.prepared = self._simulator.submit(self._simulate, obj, seed, target_force_n)
         log.info("grasp %s: simulating %s (seed %d)", grasp_id, obj.name, seed)
         return grasp_id
+
+    def _grasp_id(self, given: str | None) -> str:
+        """``given``, or for a grasp started without one ``grasp-<n>``."""
+        return given or f"grasp-{next(self._ids):04d}"
 
     def _simulate(self, obj: Any, seed: int, force_n: float | None) -> GraspRecord:
         from teleop.sim.grasp import simulate_grasp

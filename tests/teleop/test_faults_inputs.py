@@ -155,7 +155,8 @@ def test_every_raw_wire_fault_is_refused_counted_and_logged(live, caplog):
             expected[reason] = expected.get(reason, 0) + 1
         live.until(lambda: all(live.service.subscriber.stats.refused[r] - refused_before.get(r, 0) == n
                                for r, n in expected.items()), "the refusals")
-    assert caplog.text.count("refused a message") == len(RAW_FAULTS)
+    # Each reason said once (with its sender and what to do), then counted: a flood cannot flood the log.
+    assert caplog.text.count("refused a message") == len(expected)
     wire = live.service.wire_stats()["subscriber"]  # as the service's --json summary gives them
     assert all(wire["refused"][r] - refused_before.get(r, 0) == n for r, n in expected.items())
     for detail in ("not valid msgpack", "header version 99", "holds NaN or infinity", "body frame has"):

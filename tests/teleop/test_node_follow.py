@@ -161,6 +161,24 @@ def test_a_release_opens_fingers_the_watchdog_left_closed_and_the_next_grasp_tak
 
 
 @pytest.mark.slow
+def test_grasping_again_what_the_watchdog_left_between_the_fingers_takes_no_new_object(rig):
+    node, operator, listener, scene = rig
+    wait_prepared(node)
+    drive(node, operator, lambda t: max(0.0, 0.08 * (1.0 - 1.5 * t)), 1.0, grasp_id="g-first")
+    step_for(node, 0.4)  # the watchdog: the fingers stay closed on the stress ball
+    drive(node, operator, lambda t: 0.0, 0.3, grasp_id="g-again")
+    operator.send("command", t_capture_s=time.monotonic(), action="release", grasp_id="g-again", params={})
+    deadline, starts = time.monotonic() + 30.0, {}
+    while "g-next" not in starts:
+        assert time.monotonic() < deadline, "the next grasp did not start"
+        drive(node, operator, lambda t: 0.08, 0.3, grasp_id="g-next")
+        starts |= {m.body["grasp_id"]: m.body["object_name"] for m in drain(listener)
+                   if m.type == "grasp_event" and m.body["event"] == "start"}
+    # The scene's objects in turn: the one grasped again took no turn of its own.
+    assert [starts[g] for g in ("g-first", "g-again", "g-next")] == [scene.objects[0].name] * 2 + [scene.objects[1].name]
+
+
+@pytest.mark.slow
 def test_a_commanded_grasp_leaves_the_fingers_open_for_the_next_objects_follow_grasp(rig):
     node, operator, listener, scene = rig
     operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id="g-script", params={})

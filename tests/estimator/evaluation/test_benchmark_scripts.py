@@ -5,6 +5,7 @@ They used to print nan with exit status 0 (``--grasps 0``, ``--repeats 0``) or e
 from __future__ import annotations
 
 import importlib.util
+import logging
 from pathlib import Path
 
 import pytest
@@ -27,7 +28,14 @@ def run(monkeypatch):
         monkeypatch.setattr("sys.argv", [str(BENCHMARKS / f"{name}.py"), *argv])
         return module.main()
 
-    return main
+    # A script sets its loggers' levels for its process (bench_operator quiets the node's): not for the
+    # tests after this one, whose log captures would come out empty.
+    levels = {name: logger.level for name, logger in logging.root.manager.loggerDict.items()
+              if isinstance(logger, logging.Logger)}
+    yield main
+    for name, logger in logging.root.manager.loggerDict.items():
+        if isinstance(logger, logging.Logger):
+            logger.setLevel(levels.get(name, logging.NOTSET))
 
 
 @pytest.mark.parametrize(("name", "argv", "expected"), [
