@@ -311,13 +311,12 @@ class OperatorLoop:
         return None if self._input is None else replace(self._input, enable=False, buttons=frozenset())
 
     def _read_while_leaving(self, reading: Any) -> None:
-        """After ``next``, while the last grasp ends: the device is read, so that its keys do not pile
-        up and act seconds later, but drives nothing. An enable held now counts only once let go
-        and held again; of its buttons only quit acts."""
+        """After ``next``, while the last grasp ends: the device is read, so that the status shows
+        its grip and enable as they are (an enable held now drives once that grasp is over, as the
+        status says), but drives nothing yet; of its buttons only quit acts."""
+        if reading.enable and not (self._input is not None and self._input.enable):
+            self._act("enable held: the next grasp starts once the last one has ended")
         self._input = reading
-        if reading.enable and not self._rearm:
-            self._rearm = True
-            self._act("enable held while the last grasp ends: let it go and hold it again for the next object")
         if "quit" in reading.buttons:
             self._button("quit")
         elif reading.buttons:

@@ -50,19 +50,18 @@ def test_the_watchdogs_notice_ends_the_follow_grasp_it_names():
     assert kind == "follow" and body["enable"] and body["grasp_id"] not in (grasp_id, None)
 
 
-def test_an_enable_held_while_the_last_grasp_ends_waits_to_be_held_anew():
-    # After next, the loop waits up to NEXT_WAIT_S for the grasp left to end. An enable pressed
-    # meanwhile must not start the fingers seconds later, when the wait is over, by itself.
+def test_an_enable_held_while_the_last_grasp_ends_shows_and_drives_once_it_is_over():
+    # After next, the loop waits up to NEXT_WAIT_S for the grasp left to end. The device is read
+    # meanwhile: the status shows the enable and grip as they are (the keys do not pile up unseen),
+    # and the enable drives once that grasp is over, not before.
     clock, link, device, loop = _rig()
     link.view = OperatorView(t_s=clock(), grasp_id="g-left", phase="loading")  # it never ends: say its node died
     device.buttons = {"next"}
     _run(clock, loop, 0.05)
     device.enable, device.grip = True, 0.8  # the operator takes the next object at once
-    _run(clock, loop, NEXT_WAIT_S + 0.5)
-    assert link.cleared == 1 and loop.status.held and loop.status.suspended
+    _run(clock, loop, 1.0)
+    assert loop.status.held and loop.status.grip == 0.8 and link.cleared == 0
+    assert loop.status.last_action == "enable held: the next grasp starts once the last one has ended"
     assert not [body for _, kind, body in link.sent if kind == "follow" and body["enable"]]
-    device.enable = False  # let go and hold again: now it drives
-    _run(clock, loop, 0.05)
-    device.enable = True
-    _run(clock, loop, 0.05)
-    assert [body for _, kind, body in link.sent if kind == "follow" and body["enable"]]
+    _run(clock, loop, NEXT_WAIT_S)
+    assert link.cleared == 1 and [body for _, kind, body in link.sent if kind == "follow" and body["enable"]]
