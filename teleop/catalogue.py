@@ -173,8 +173,9 @@ def read_object_table(path: str | Path, *, skip_unlabelled: bool = True) -> tupl
     """Read the published object table (CSV with ``Label``, ``Shape``, ``Material``, ``Modulus [Pa]``).
 
     Rows whose modulus is zero or empty are unlabelled: skipped by default,
-    an error with ``skip_unlabelled=False``. A ``Radius [m]`` makes a sphere's
-    or cylinder's size known.
+    an error with ``skip_unlabelled=False``. A negative, nan or infinite
+    modulus, or a row that ends before one of those four columns, is an error
+    naming the file and line. A ``Radius [m]`` makes a sphere's or cylinder's size known.
     """
     path = Path(path)
     required = ("Label", "Shape", "Material", "Modulus [Pa]")
@@ -197,7 +198,12 @@ def read_object_table(path: str | Path, *, skip_unlabelled: bool = True) -> tupl
     objects = []
     for line, row in enumerate(rows, start=2):
         where = f"{path}:{line}"
-        # Short rows leave None in the missing columns.
+        # A short row leaves None in the columns it lacks; only trailing optional ones may be left out,
+        # else a cut row would pass for an unlabelled one.
+        short = [col for col in required if row[col] is None]
+        if short:
+            raise SettingsError(f"{where}: the row ends before column {short[0]!r}; expected cells for "
+                                f"{', '.join(required)} at least")
         cell = {key: (value or "").strip() for key, value in row.items() if isinstance(key, str)}
         if not cell["Label"]:
             raise SettingsError(f"{where}: the Label column is empty")
@@ -206,10 +212,14 @@ def read_object_table(path: str | Path, *, skip_unlabelled: bool = True) -> tupl
             modulus = float(text) if text else 0.0
         except ValueError:
             raise SettingsError(f"{where}: Modulus [Pa] {text!r} is not a number") from None
-        if modulus <= 0 or not math.isfinite(modulus):
+        if modulus == 0:
             if skip_unlabelled:
                 continue
-            raise SettingsError(f"{where}: object {cell['Label']!r} has no usable Modulus [Pa] ({text!r})")
+            raise SettingsError(f"{where}: object {cell['Label']!r} has no usable Modulus [Pa] ({text!r}): "
+                                "it is unlabelled")
+        if modulus < 0 or not math.isfinite(modulus):
+            raise SettingsError(f"{where}: object {cell['Label']!r}: Modulus [Pa] {text!r} is not a modulus; "
+                                "expected a finite number > 0 (or 0 or empty for an unlabelled object)")
         shape = normalise_shape(cell["Shape"], where=where)
         radius_text = cell.get("Radius [m]", "")
         size = None

@@ -7,23 +7,43 @@ processes and whichever objects are simulated beside it. With a randomized rig
 contact mechanics (:mod:`teleop.sim.mechanics`) come from a stream of their own
 (:func:`mechanics_rng`, fixed by the same three), so that with and without them a grasp
 has the same rig, pose, operator and noise. Each grasp is written to
-``<object>_g<index>.grasp`` (:func:`grasp_filename`). ``teleop simulate`` simulates and
-writes them.
+``<object>_g<index>.grasp`` (:func:`grasp_filename`); objects whose names give the same file
+name are refused (:func:`check_filenames`). ``teleop simulate`` simulates and writes them.
 """
 
 from __future__ import annotations
 
 import re
 import zlib
+from collections.abc import Iterable
 
 import numpy as np
 
 from teleop.catalogue import ObjectSpec
+from teleop.errors import SettingsError
+
+
+def _stem(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name)
 
 
 def grasp_filename(obj: ObjectSpec, index: int) -> str:
     """``<object>_g<index>.grasp`` with the name made safe for any file system."""
-    return f"{re.sub(r'[^A-Za-z0-9._-]+', '_', obj.name)}_g{index:03d}.grasp"
+    return f"{_stem(obj.name)}_g{index:03d}.grasp"
+
+
+def check_filenames(objects: Iterable[ObjectSpec], where: str) -> None:
+    """Refuse objects whose records would share a file name (:func:`grasp_filename`), which one
+    would overwrite the other's; names differing only in case count as one, as on case-insensitive
+    file systems."""
+    seen: dict[str, str] = {}
+    for obj in objects:
+        key = _stem(obj.name).casefold()
+        if key in seen:
+            raise SettingsError(f"{where}: objects {seen[key]!r} and {obj.name!r} would both be written to "
+                                f"{_stem(obj.name)}_g<index>.grasp: rename one (file names keep only "
+                                "letters, digits, '.', '_' and '-')")
+        seen[key] = obj.name
 
 
 def grasp_rng(seed: int, obj: ObjectSpec, index: int) -> np.random.Generator:

@@ -44,12 +44,12 @@ from teleop.clikit import non_negative_int
 from teleop.errors import SettingsError, SimulationError
 from teleop.parallel import progress_map
 from teleop.record import write_record
-from teleop.settings import Settings, load_settings
+from teleop.settings import Settings, default_settings_path, load_settings
 from teleop.sim.grasp import OPERATORS, simulate_grasp
 from teleop.sim.mechanics import draw_mechanics
 from teleop.sim.preview import write_preview
 from teleop.sim.rig import draw as draw_rig
-from teleop.sim.simulate import grasp_filename, grasp_rng, mechanics_rng
+from teleop.sim.simulate import check_filenames, grasp_filename, grasp_rng, mechanics_rng
 
 log = logging.getLogger(__name__)
 
@@ -64,8 +64,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="directory for the .grasp records (created), named OBJECT_gINDEX.grasp")
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace records of the same names in --out (else they are refused: another seed's "
-                             "grasps would be lost, or mixed with these)")
+                        help="replace records (and their .png previews) of the same names in --out; a preview "
+                             "not made again is removed (else they are refused: another seed's grasps would be "
+                             "lost, or mixed with these)")
     parser.add_argument("--workers", type=int, default=1, metavar="K",
                         help="worker processes; the records do not depend on it")
     parser.add_argument("--preview", action="store_true",
@@ -97,8 +98,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--target-force-n", type=float, default=None, metavar="N",
                         help="the grasps' force ceiling in N instead of the settings' gripper.target_force_n: a "
                              "scripted grasp squeezes to 40-100 %% of it, the simulated operator at most to it "
-                             "(e.g. 12 for light grasps of 4.8-12 N); not with --randomize-rig, which draws "
-                             "each rig's own")
+                             "(e.g. 12 for light grasps of 4.8-12 N); the records keep it in provenance.extra"
+                             "[\"target_force_n\"]; not with --randomize-rig, which draws each rig's own")
     parser.add_argument("--vary-gel", action="store_true",
                         help="with --randomize-rig: also draw each rig's datasheet gel (120-400 kPa, 2.5-4.5 mm), "
                              "as other GelSight-type sensors have; the records carry it")
@@ -128,9 +129,9 @@ def _chosen(objects: list[ObjectSpec], names: list[str] | None, where: str) -> l
     return [o for o in objects if o.name in set(names)]
 
 
-def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bool, str, bool]) -> dict:
+def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bool, str, bool, float | None]) -> dict:
     """Simulate and write one grasp (runs in a worker); failures come back as a reason."""
-    obj, index, seed, settings, out, preview, randomize_rig, vary_gel, operator, vary_contact = job
+    obj, index, seed, settings, out, preview, randomize_rig, vary_gel, operator, vary_contact, target_force_n = job
     path = Path(out) / grasp_filename(obj, index)
     rng = grasp_rng(seed, obj, index)
     mechanics = draw_mechanics(mechanics_rng(seed, obj, index)) if vary_contact else None
@@ -146,9 +147,17 @@ def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bo
                                            mechanics=mechanics)
     except SimulationError as exc:
         return {"object": obj.name, "grasp": index, "error": str(exc)}
+    if target_force_n is not None:
+        # The record keeps no gripper settings: without this a lowered ceiling's record reads as a nominal one.
+        provenance = dataclasses.replace(record.provenance,
+                                         extra={**record.provenance.extra, "target_force_n": target_force_n})
+        record = dataclasses.replace(record, provenance=provenance)
     write_record(record, path)
     if preview:
         write_preview(record, truth, path.with_suffix(".png"))
+    else:
+        # An earlier run's sheet (only there with --overwrite) would pass for this record's.
+        path.with_suffix(".png").unlink(missing_ok=True)
     return {"object": obj.name, "grasp": index, "path": str(path), "model": record.provenance.model}
 
 
@@ -160,6 +169,9 @@ def run(args: argparse.Namespace) -> int:
     if args.limit_objects is not None and args.limit_objects < 1:
         raise SettingsError(f"--limit-objects {args.limit_objects}: expected 1 or more")
     settings = load_settings(args.settings)
+    if len(settings.sensors) != 2:
+        raise SettingsError(f"{args.settings or default_settings_path()}: the grasp simulator needs exactly two "
+                            f"sensors (one per finger); the settings have {[s.finger for s in settings.sensors]}")
     if args.gel_model is not None:
         settings = dataclasses.replace(
             settings, simulation=dataclasses.replace(settings.simulation, gel_model=args.gel_model))
@@ -177,6 +189,7 @@ def run(args: argparse.Namespace) -> int:
                             f"{settings.simulation.gel_model!r} one: drop --gel-model {settings.simulation.gel_model} "
                             "(or simulation.gel_model in the settings) to vary the contact")
     objects = _chosen(load_catalogue(args.objects), args.only, args.objects)[: args.limit_objects]
+    check_filenames(objects, args.objects)
     if args.vary_gel and not args.randomize_rig:
         raise SettingsError("--vary-gel draws a rig's gel: it needs --randomize-rig")
     out = Path(args.out)
@@ -185,8 +198,11 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise SettingsError(f"--out {out}: cannot create the directory ({exc.strerror or exc})") from exc
     jobs = [(obj, i, args.seed, settings, str(out), args.preview, args.randomize_rig, args.vary_gel, args.operator,
-             args.vary_contact) for obj in objects for i in range(args.grasps_per_object)]
-    taken = [name for name in (grasp_filename(obj, i) for obj, i, *_ in jobs) if (out / name).exists()]
+             args.vary_contact, args.target_force_n) for obj in objects for i in range(args.grasps_per_object)]
+    # A preview is part of its record: a leftover one would be taken for the new record's.
+    names = [grasp_filename(obj, i) for obj, i, *_ in jobs]
+    taken = [name for record in names for name in (record, record.removesuffix(".grasp") + ".png")
+             if (out / name).exists()]
     if taken and not args.overwrite:
         raise SettingsError(f"--out {out}: {len(taken)} of these records exist already ({', '.join(taken[:3])}"
                             f"{', ...' if len(taken) > 3 else ''}): pass --overwrite to replace them, or another --out")

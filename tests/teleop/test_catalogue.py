@@ -170,12 +170,29 @@ def test_malformed_object_table(tmp_path, rows, expected):
 
 
 def test_object_table_short_rows_and_unlabelled_rows(tmp_path):
-    # A short row (no Radius, no Notes) is fine; one without a modulus is unlabelled.
-    path = write(tmp_path, "table.csv", HEADER + "1,ball,Sphere,Rubber,1e5\n2,cup,Cylinder,Plastic\n")
+    # A short row (no Radius, no Notes) is fine; one with an empty or zero modulus is unlabelled.
+    path = write(tmp_path, "table.csv", HEADER + "1,ball,Sphere,Rubber,1e5\n2,cup,Cylinder,Plastic,\n3,mug,Box,Glass,0\n")
     (ball,) = read_object_table(path)
     assert (ball.name, ball.modulus_pa, ball.size_m, ball.source) == ("ball", 1e5, None, "")
     with pytest.raises(SettingsError, match=r":3: object 'cup' has no usable Modulus"):
         read_object_table(path, skip_unlabelled=False)
+
+
+@pytest.mark.parametrize(
+    ("row", "expected"),
+    [
+        ("2,obj2,Sphere,Rubber,-5.6E+05,,\n", ":3: object 'obj2': Modulus [Pa] '-5.6E+05' is not a modulus; expected a finite number > 0"),
+        ("2,obj2,Sphere,Rubber,nan,,\n", ":3: object 'obj2': Modulus [Pa] 'nan' is not a modulus"),
+        ("2,obj2,Sphere,Rubber,-inf,,\n", ":3: object 'obj2': Modulus [Pa] '-inf' is not a modulus"),
+        ("2,obj2,Sphere\n", ":3: the row ends before column 'Material'; expected cells for Label, Shape, Material, Modulus [Pa]"),
+        ("2,obj2,Sphere,Rubber\n", ":3: the row ends before column 'Modulus [Pa]'"),
+    ],
+)
+def test_a_bad_modulus_or_a_cut_row_is_refused_not_skipped_as_unlabelled(tmp_path, row, expected):
+    path = write(tmp_path, "table.csv", HEADER + "1,ball,Sphere,Rubber,1e5,,\n" + row)
+    with pytest.raises(SettingsError) as info:
+        read_object_table(path)
+    assert str(path) + expected in str(info.value), str(info.value)
 
 
 def test_object_table_file_errors(tmp_path):

@@ -9,6 +9,7 @@ import pytest
 from teleop.catalogue import load_catalogue
 from teleop.cli import main
 from teleop.record import read_record
+from teleop.settings import default_settings_path
 
 OAK = """
 [[objects]]
@@ -170,3 +171,48 @@ def test_help_explains_every_option(capsys):
     for words in ("teleop.sim.mechanics.ContactSpread", "Poisson's ratio 0.3-0.5", "x0.6-1.5", "friction",
                   "held-out half-space gel", "provenance only"):
         assert words in vary, words
+
+
+def test_objects_whose_records_would_share_a_file_name_are_refused_before_out_is_made(tmp_path, capsys):
+    path = tmp_path / "coll.toml"
+    path.write_text("".join(f'[[objects]]\nname = "{name}"\nshape = "box"\nmaterial = "foam"\nmodulus_pa = 1e5\n'
+                            for name in ("foam cube", "foam_cube")))
+    code, _, stderr = run(capsys, "--objects", str(path), "--out", str(tmp_path / "o"))
+    assert code == 2 and "objects 'foam cube' and 'foam_cube' would both be written to foam_cube_g<index>.grasp" in stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_settings_without_two_sensors_are_refused_before_out_is_made(tmp_path, catalogue, capsys):
+    text = default_settings_path().read_text()
+    start = text.index("[sensors.right]")
+    end = text.index("\n[", start + 1)
+    settings = tmp_path / "one_sensor.toml"
+    settings.write_text(text[:start] + text[end:])
+    code, _, stderr = run(capsys, "--objects", str(catalogue), "--out", str(tmp_path / "o"),
+                          "--settings", str(settings))
+    assert code == 2 and f"{settings}: the grasp simulator needs exactly two sensors" in stderr
+    assert len(stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
+
+
+def test_a_preview_in_out_is_taken_like_its_record(tmp_path, catalogue, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "oak_block_g000.png").write_bytes(b"another seed's sheet")
+    code, _, stderr = run(capsys, "--objects", str(catalogue), "--only", "oak_block", "--out", str(out))
+    assert code == 2 and "1 of these records exist already (oak_block_g000.png): pass --overwrite" in stderr
+    assert (out / "oak_block_g000.png").read_bytes() == b"another seed's sheet"
+
+
+def test_overwrite_removes_the_stale_preview_and_target_force_is_recorded(tmp_path, catalogue, quick_settings, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "oak_block_g000.png").write_bytes(b"another seed's sheet")
+    args = ("--objects", str(catalogue), "--only", "oak_block", "--out", str(out), "--settings", str(quick_settings),
+            "--overwrite")
+    code, _, stderr = run(capsys, *args)
+    assert code == 0, stderr
+    assert not (out / "oak_block_g000.png").exists()
+    assert "target_force_n" not in read_record(out / "oak_block_g000.grasp").provenance.extra
+    code, _, stderr = run(capsys, *args, "--target-force-n", "12")
+    assert code == 0, stderr
+    assert read_record(out / "oak_block_g000.grasp").provenance.extra["target_force_n"] == 12.0
