@@ -10,6 +10,7 @@ the measurement of one frame against it (:func:`measure_frame`).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +27,8 @@ from estimator.perception.grid import DepthGrid, depth_grid
 from estimator.perception.markers import detect_markers
 from estimator.segment import Segment
 from teleop.settings import SensorSettings, resolve_path
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "REFERENCE_FRAMES",
@@ -193,7 +196,10 @@ def resolve_calibration(sensor: SensorSettings, calibration: Calibration | str |
 
 
 def check_calibration_fits(cal: Calibration, sensor: SensorSettings) -> None:
-    """Raise CalibrationError unless ``cal`` was made for ``sensor``'s image grid."""
+    """Raise CalibrationError unless ``cal`` was made for ``sensor``'s image grid; warn (once per
+    pair) when it names another sensor (model, finger, serial) than ``sensor``, as another sensor's
+    colours read as other slopes even on the same grid."""
+    _check_calibration_sensor(cal, sensor)
     if tuple(cal.image_shape) != tuple(sensor.image_shape):
         raise CalibrationError(
             f"the calibration is for {cal.image_shape} images; sensor {sensor.finger!r} gives "
@@ -204,6 +210,23 @@ def check_calibration_fits(cal: Calibration, sensor: SensorSettings) -> None:
             f"the calibration's pixel pitch {cal.pixel_pitch_m:.4g} m differs from sensor "
             f"{sensor.finger!r}'s {sensor.pixel_pitch_m:.4g} m"
         )
+
+
+def _check_calibration_sensor(cal: Calibration, sensor: SensorSettings) -> None:
+    """Compare the sensor ``cal`` records it was fitted on (when it records one) with ``sensor``; an
+    identity either side leaves unstated (no serial, a calibration fitted without --settings) is not
+    compared. A warning, not a refusal: a lab may calibrate one sensor and use it on its twin."""
+    made_for = cal.provenance.get("sensor") or {}
+    differ = tuple(f"{key} {made_for[key]!r} (this sensor: {getattr(sensor, key)!r})"
+                   for key in ("model", "finger", "serial")
+                   if made_for.get(key) and getattr(sensor, key) and made_for[key] != getattr(sensor, key))
+    if differ and differ not in _WARNED:  # once per pair: an evaluation loads it for every record
+        _WARNED.add(differ)
+        log.warning("the calibration was made for another sensor than %s %r: %s; its colours may read as other "
+                    "slopes here", sensor.model, sensor.serial or sensor.finger, ", ".join(differ))
+
+
+_WARNED: set[tuple[str, ...]] = set()
 
 
 def median_frame(frames: np.ndarray) -> np.ndarray:

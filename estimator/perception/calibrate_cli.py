@@ -17,6 +17,9 @@ import argparse
 import json
 import math
 import sys
+from pathlib import Path
+
+import numpy as np
 
 from estimator.errors import CalibrationError
 from estimator.perception.calibration_fit import (
@@ -26,6 +29,7 @@ from estimator.perception.calibration_fit import (
 )
 from estimator.perception.capture import add_capture_arguments, capture_to_folder
 from estimator.perception.markers import detect_markers
+from estimator.perception.press_circles import VISIBLE_CHANGE, change_inside_circle
 from estimator.perception.presses import PressSet, load_presses, split_presses
 from teleop.record import software_version
 from teleop.settings import default_settings_path, load_settings
@@ -132,6 +136,16 @@ def prepare_presses(
     if detect:
         # A contact circle is smaller than the ball; cap the seeds below it.
         presses = presses.with_detected_circles(max_radius_px=0.9 * ball_mm / pitch_mm, progress=True)
+    else:
+        too_big = np.flatnonzero(presses.radii_px >= ball_mm / pitch_mm)
+        if too_big.size:
+            i = int(too_big[0])
+            raise CalibrationError(
+                f"{args.presses}: press {i}'s recorded contact radius of {presses.radii_px[i]:.1f} px (and "
+                f"{too_big.size - 1} more) is not smaller than the ball's {ball_mm / pitch_mm:.1f} px "
+                f"({ball_mm:g} mm at {pitch_mm:g} mm/px): check --ball-radius-mm and --mm-per-px (or the "
+                "file's ball_radius_mm and mm_per_px)"
+            )
     record = {
         "presses": str(args.presses),
         "presses_sha256": presses.sha256,
@@ -150,6 +164,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_press_arguments(parser)
     parser.add_argument("--out", required=True, metavar="CAL", help="calibration file to write (.npz)")
     parser.add_argument(
+        "--overwrite", action="store_true",
+        help="replace an existing --out (else it is refused: a calibration in use would be lost); "
+             "--out is never the --presses file",
+    )
+    parser.add_argument(
         "--train-fraction", type=float, default=0.5,
         help="share of the presses to calibrate on, spread evenly (0.5: every other press); "
              "recorded in the file so `estimator reconstruct` checks the rest",
@@ -158,7 +177,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--bins", type=int, default=48, help="bins per colour channel of the lookup table")
     parser.add_argument(
         "--tiles", type=int, nargs=2, default=(3, 3), metavar=("ROWS", "COLS"),
-        help="position tiles with a table each (light falls differently across the pad) (default: 3 3)",
+        help="position tiles with a table each (light falls differently across the pad); each tile spans at "
+             "least the ball's radius (default: 3 3)",
     )
     parser.add_argument(
         "--refine-passes", type=int, default=1,
@@ -189,11 +209,53 @@ def _flat_weight(text: str) -> float | None:
     return value
 
 
+def _checked_out(args: argparse.Namespace) -> Path:
+    """``--out``, refused before any work when writing it would lose a file: the presses it is fitted
+    from (even with --overwrite), or an existing file without --overwrite."""
+    out = Path(args.out)
+    if out.is_dir():
+        raise CalibrationError(f"--out {out}: is a folder; expected a calibration file name (.npz)")
+    if out.resolve() == Path(args.presses).resolve():
+        raise CalibrationError(f"--out {out}: is the --presses file; the calibration would replace the presses "
+                               "it is fitted from: give another --out")
+    if out.exists() and not args.overwrite:
+        raise CalibrationError(f"--out {out}: exists already: pass --overwrite to replace it, or another --out")
+    return out
+
+
+def _check_tiles(tiles: tuple[int, int], shape: tuple[int, int], ball_px: float) -> None:
+    """Refuse tiles smaller than the ball's radius: a tile's table would see no whole press, and
+    each tile's table is bins**3 entries (250 x 350 tiles of 48 bins would need 72 GiB)."""
+    most = tuple(max(1, int(side // ball_px)) for side in shape)
+    if not all(1 <= t <= m for t, m in zip(tiles, most, strict=True)):
+        raise CalibrationError(
+            f"--tiles {tiles[0]} {tiles[1]}: expected 1 to {most[0]} rows and 1 to {most[1]} columns, so that each "
+            f"tile of the {shape[0]}x{shape[1]} px images spans at least the ball's radius ({ball_px:.1f} px)"
+        )
+
+
+def _check_presses_visible(source: str, presses: PressSet, indices) -> None:
+    """Refuse presses whose image does not change inside their circle (the no-contact frame again, a
+    circle off the press): fitted on, they teach the table that a pressed ball is flat gel."""
+    blank = [(int(i), change_inside_circle(presses.images[i], presses.reference, presses.centers_px[i],
+                                           presses.radii_px[i])) for i in indices]
+    blank = [(i, peak) for i, peak in blank if peak < VISIBLE_CHANGE]
+    if blank:
+        listed = ", ".join(f"{i} ({peak:.3f})" for i, peak in blank[:5]) + (", ..." if len(blank) > 5 else "")
+        raise CalibrationError(
+            f"{source}: {len(blank)} of the {len(indices)} presses to calibrate on show no press inside their "
+            f"circle (press index, largest relative colour change; expected at least {VISIBLE_CHANGE}): {listed}"
+        )
+
+
 def run(args: argparse.Namespace) -> int:
+    out = _checked_out(args)
     if args.capture:
         capture_to_folder(args)
     presses, pitch_m, ball_m, record = prepare_presses(args)
+    _check_tiles(tuple(args.tiles), presses.reference.shape[:2], ball_m / pitch_m)
     train = split_presses(len(presses), args.train_fraction)
+    _check_presses_visible(args.presses, presses, train)
     record.update({
         "train_fraction": args.train_fraction,
         "train_indices": train.tolist(),
@@ -210,7 +272,7 @@ def run(args: argparse.Namespace) -> int:
         marker_masks=masks,
         provenance=record, progress=True,
     )
-    path = calibration.save(args.out)
+    path = calibration.save(out)
     refined = sum(calibration.provenance["circles_refined"])
     summary = {
         "out": str(path),

@@ -19,12 +19,15 @@ import scipy.ndimage
 from estimator.errors import CalibrationError
 from estimator.perception.calibration import _check_image
 
-__all__ = ["PressRings", "detect_press_circle", "press_rings"]
+__all__ = ["VISIBLE_CHANGE", "PressRings", "change_inside_circle", "detect_press_circle", "press_rings"]
+
+# The smallest largest relative colour change that counts as a visible press (real presses: 0.45 and up).
+VISIBLE_CHANGE = 0.1
 
 
 def detect_press_circle(
     image: np.ndarray, reference: np.ndarray, *, blur_px: float = 2.0, threshold: float = 0.5,
-    min_change: float = 0.1, max_radius_px: float | None = None,
+    min_change: float = VISIBLE_CHANGE, max_radius_px: float | None = None,
 ) -> tuple[tuple[float, float], float]:
     """Find the pressed circle in a ball-press image from its colour change.
 
@@ -84,6 +87,16 @@ def _change_magnitude(image: np.ndarray, reference: np.ndarray, blur_px: float) 
     return np.linalg.norm(change / np.maximum(background, 1.0), axis=2)
 
 
+def change_inside_circle(image: np.ndarray, reference: np.ndarray, center_px: tuple[float, float],
+                         radius_px: float, *, blur_px: float = 2.0) -> float:
+    """The largest relative colour change of ``image`` against ``reference`` within the circle (0 when
+    the circle covers no pixel): below ``VISIBLE_CHANGE``, the circle holds no press."""
+    magnitude = _change_magnitude(image, reference, blur_px)
+    rows, cols = np.ogrid[: magnitude.shape[0], : magnitude.shape[1]]
+    inside = (cols - center_px[0]) ** 2 + (rows - center_px[1]) ** 2 <= radius_px**2
+    return float(magnitude[inside].max()) if inside.any() else 0.0
+
+
 class PressRings(NamedTuple):
     """Rings of one ball press measured from its colour change, pixels from its centre."""
 
@@ -96,7 +109,7 @@ class PressRings(NamedTuple):
 
 def press_rings(
     image: np.ndarray, reference: np.ndarray, center_px: Sequence[float], *, max_radius_px: float,
-    blur_px: float = 2.0, flat_fraction: float = 0.1, min_change: float = 0.1,
+    blur_px: float = 2.0, flat_fraction: float = 0.1, min_change: float = VISIBLE_CHANGE,
     marker_mask: np.ndarray | None = None,
 ) -> PressRings:
     """Contact and flat-gel radii of a ball press around a known centre, from the images alone.

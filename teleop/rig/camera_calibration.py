@@ -106,6 +106,19 @@ def _default_png(settings_path: Path, finger: str) -> Path:
     return settings_path.with_name(f"{settings_path.stem}-{finger}-corners.png")
 
 
+def _declared_size(frame: np.ndarray, sensor: SensorSettings, settings_path: Path) -> np.ndarray:
+    """``frame``, refused unless it is the raw size the settings declare: corners found in a frame of
+    another size lie outside the frame the warp is given, or at other pixels."""
+    height, width = frame.shape[:2]
+    if (height, width) != (sensor.raw_height_px, sensor.raw_width_px):
+        raise TeleopError(
+            f"{settings_path}: the camera of [sensors.{sensor.finger}] gives {width}x{height} px frames, but "
+            f"raw_width_px x raw_height_px = {sensor.raw_width_px}x{sensor.raw_height_px}: set them to the "
+            "camera's frame size (or set the camera to give that size); nothing was written"
+        )
+    return frame
+
+
 def _corners(reference: np.ndarray, sensor: SensorSettings, png: Path) -> CornerFit:
     fit = find_gel_corners(reference, warped_size_px=(sensor.warped_width_px, sensor.warped_height_px))
     if not cv2.imwrite(str(png), draw_corners(reference, fit)):
@@ -155,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
     with make_camera(sensor) as camera:
         if sensor.model != "mini":
             png = Path(args.out_png) if args.out_png else _default_png(path, sensor.finger)
-            fit = _corners(no_contact_frame(camera), sensor, png)
+            fit = _corners(_declared_size(no_contact_frame(camera), sensor, path), sensor, png)
             report["corners"] = {**_jsonable(fit), "overlay_png": str(png)}
             if fit:
                 changes[f"{key}.warp_corners_px"] = fit.as_settings()

@@ -8,6 +8,7 @@ import json
 import numpy as np
 
 from teleop.clikit import non_negative_int, output_file
+from teleop.errors import TeleopError
 from teleop.settings import default_settings_path, load_settings
 from teleop.sim.optics import OpticsRenderer
 from teleop.sim.presses import simulate_presses, write_presses
@@ -16,6 +17,9 @@ from teleop.sim.presses import simulate_presses, write_presses
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, default=argparse.SUPPRESS,
                         help="output .npz file (taxim dataPack layout)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing --out (else it is refused: presses a calibration was fitted "
+                             "from would be lost)")
     parser.add_argument("--settings", default=str(default_settings_path()), help="settings TOML file")
     parser.add_argument("--finger", default="left", help="which finger's sensor to simulate")
     parser.add_argument("--n", type=int, default=48, help="number of presses")
@@ -29,6 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     out = output_file("--out", args.out)  # before the rendering, not after it
+    if out.exists() and not args.overwrite:
+        raise TeleopError(f"--out {out}: exists already: pass --overwrite to replace it, or another --out")
     settings = load_settings(args.settings)
     sensor = settings.sensor(args.finger)
     camera_rng, press_rng = np.random.default_rng(args.seed).spawn(2)

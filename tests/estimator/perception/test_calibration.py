@@ -32,6 +32,42 @@ def small_calibration(**changes):
     return Calibration(**{**fields, **changes})
 
 
+# --------------------------------------------------------------------------- the sensor it is for
+
+
+def test_another_sensors_calibration_is_named_once(caplog, monkeypatch):
+    from estimator.measurements import check_calibration_fits
+    from teleop.settings import default_settings_path, load_settings
+
+    sensor = load_settings(default_settings_path()).sensor("left")
+    assert sensor.model == "wedge" and sensor.serial
+
+    def cal(**made_for):
+        return small_calibration(image_shape=sensor.image_shape, pixel_pitch_m=sensor.pixel_pitch_m,
+                                 provenance={"sensor": {"finger": "left", "model": "wedge", "serial": sensor.serial,
+                                                        **made_for}})
+
+    monkeypatch.setattr("estimator.measurements._WARNED", set())
+    with caplog.at_level("WARNING"):
+        check_calibration_fits(cal(model="mini"), sensor)
+        check_calibration_fits(cal(serial="sim-gelsight-left"), sensor)
+        check_calibration_fits(cal(serial="sim-gelsight-left"), sensor)  # said once: a record after another
+        check_calibration_fits(cal(finger="right"), sensor)
+    assert [r.getMessage().split(": ", 1)[1] for r in caplog.records] == [
+        "model 'mini' (this sensor: 'wedge'); its colours may read as other slopes here",
+        f"serial 'sim-gelsight-left' (this sensor: {sensor.serial!r}); its colours may read as other slopes here",
+        "finger 'right' (this sensor: 'left'); its colours may read as other slopes here",
+    ]
+    caplog.clear()
+    with caplog.at_level("WARNING"):  # the same sensor, or one either side does not name, passes quietly
+        check_calibration_fits(cal(), sensor)
+        check_calibration_fits(cal(serial=""), sensor)
+        check_calibration_fits(cal(), dataclasses.replace(sensor, serial=""))
+        check_calibration_fits(small_calibration(image_shape=sensor.image_shape,
+                                                 pixel_pitch_m=sensor.pixel_pitch_m), sensor)
+    assert not caplog.records
+
+
 # --------------------------------------------------------------------------- the file
 
 

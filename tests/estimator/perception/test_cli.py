@@ -91,7 +91,11 @@ def test_settings_warp_the_raw_presses_first(tmp_path, gelsight_presses, capsys)
     (["--mm-per-px", "0.0295"], "ball radius unknown"),
     (["--ball-radius-mm", "-2", "--mm-per-px", "0.0295"], "expected a positive number"),
     (["--ball-radius-mm", "2", "--mm-per-px", "0.0295", "--finger", "left"], "--finger needs --settings"),
-    (["--ball-radius-mm", "0.5", "--mm-per-px", "0.0295"], "not smaller than the ball"),
+    (["--ball-radius-mm", "0.5", "--mm-per-px", "0.0295"], "press 0's recorded contact radius"),
+    (["--ball-radius-mm", "0.5", "--mm-per-px", "0.0295"], "check --ball-radius-mm and --mm-per-px"),
+    (["--ball-radius-mm", "2", "--mm-per-px", "0.0295", "--tiles", "250", "350"],
+     "--tiles 250 350: expected 1 to 7 rows and 1 to 9 columns"),
+    (["--ball-radius-mm", "2", "--mm-per-px", "0.0295", "--tiles", "0", "3"], "--tiles 0 3: expected 1 to"),
     (["--ball-radius-mm", "2", "--mm-per-px", "0.0295", "--train-fraction", "0"], "train_fraction"),
 ])
 def test_user_mistakes_are_one_line_errors(tmp_path, gelsight_presses, capsys, extra, message):
@@ -103,6 +107,37 @@ def test_user_mistakes_are_one_line_errors(tmp_path, gelsight_presses, capsys, e
     assert code == 2
     assert message in err and "Traceback" not in err
     assert len(err.strip().splitlines()[-1]) > 0
+
+
+def test_an_existing_out_or_the_presses_are_never_replaced_unasked(tmp_path, gelsight_presses, capsys):
+    pack, out = tmp_path / "pack.npz", tmp_path / "c.npz"
+    np.savez(pack, f0=gelsight_presses.reference, imgs=gelsight_presses.images[:2],
+             touch_center=gelsight_presses.centers_px[:2], touch_radius=gelsight_presses.radii_px[:2])
+    presses = pack.read_bytes()
+    argv = ["calibrate", "--presses", str(pack), *MINI_ARGS, "--refine-passes", "0"]
+    for extra in ([], ["--overwrite"]):
+        assert main([*argv, "--out", str(pack), *extra]) == 2
+        assert f"--out {pack}: is the --presses file" in capsys.readouterr().err
+    assert pack.read_bytes() == presses
+    out.write_bytes(b"a calibration in use")
+    assert main([*argv, "--out", str(out)]) == 2
+    assert f"--out {out}: exists already: pass --overwrite" in capsys.readouterr().err
+    assert out.read_bytes() == b"a calibration in use"
+    assert main([*argv, "--out", str(out), "--overwrite"]) == 0
+    with np.load(out) as data:
+        assert "lut" in data.files
+
+
+def test_presses_showing_no_press_are_refused_by_index(tmp_path, gelsight_presses, capsys):
+    pack, out = tmp_path / "pack.npz", tmp_path / "c.npz"
+    images = gelsight_presses.images[:4].copy()
+    images[2] = gelsight_presses.reference  # the no-contact frame under a recorded circle
+    np.savez(pack, f0=gelsight_presses.reference, imgs=images,
+             touch_center=gelsight_presses.centers_px[:4], touch_radius=gelsight_presses.radii_px[:4])
+    assert main(["calibrate", "--presses", str(pack), *MINI_ARGS, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{pack}: 1 of the 2 presses to calibrate on show no press inside their circle" in err
+    assert "expected at least 0.1): 2 (0.000)" in err and not out.exists()
 
 
 def test_stated_values_must_agree(tmp_path, gelsight_presses, capsys):

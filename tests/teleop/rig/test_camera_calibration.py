@@ -104,6 +104,18 @@ def test_a_frame_without_a_gel_is_refused_and_nothing_written(tmp_path, mjpg_ser
     assert (tmp_path / "rig-left-corners.png").is_file()  # the overlay shows what was seen
 
 
+def test_a_frame_of_another_size_than_the_settings_is_refused_and_nothing_written(tmp_path, mjpg_server,
+                                                                                   capsys):
+    sensor = wedge()
+    frame = cv2.resize(decode(renderer(sensor).capture(np.zeros(sensor.image_shape))), (960, 720))
+    path = write_settings(tmp_path, mjpg_server([cv2.imencode(".jpg", frame)[1].tobytes()] * 20, fps=FPS).url)
+    before = path.read_text()
+    assert main(["calibrate", "camera", "--settings", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "gives 960x720 px frames, but raw_width_px x raw_height_px = 640x480" in err
+    assert path.read_text() == before and not (tmp_path / "rig-left-corners.png").exists()
+
+
 def test_a_gel_off_the_frame_faint_or_with_a_bent_side_is_refused_an_occluded_edge_is_not():
     sensor = wedge()
     frame = renderer(sensor).render(np.zeros(sensor.image_shape))

@@ -121,6 +121,19 @@ def test_unwritable_output_is_named_before_anything_is_rendered(tmp_path, capsys
     assert f"--out {tmp_path}: is a folder; expected a file name" in capsys.readouterr().err
 
 
+def test_an_existing_out_is_kept_unless_overwrite(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "p.npz"
+    out.write_bytes(b"presses a calibration was fitted from")
+    monkeypatch.setattr("teleop.sim.presses_cli.simulate_presses", None)  # refused before any rendering
+    assert main(["simulate-presses", "--out", str(out), "--n", "1"]) == 2
+    assert f"--out {out}: exists already: pass --overwrite" in capsys.readouterr().err
+    assert out.read_bytes() == b"presses a calibration was fitted from"
+    monkeypatch.undo()
+    assert main(["simulate-presses", "--out", str(out), "--n", "1", "--overwrite"]) == 0
+    with np.load(out) as pack:
+        assert len(pack["imgs"]) == 1
+
+
 def test_a_negative_seed_is_refused_by_argparse(tmp_path, capsys):
     with pytest.raises(SystemExit) as raised:
         main(["simulate-presses", "--out", str(tmp_path / "x.npz"), "--seed", "-3"])
