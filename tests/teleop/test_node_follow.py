@@ -151,13 +151,20 @@ def test_a_release_opens_fingers_the_watchdog_left_closed_and_the_next_grasp_tak
     # The operator has the fingers back: the node is no longer in the watchdog's stop.
     assert [m.body["mode"] for m in drain(listener) if m.type == "robot_state"][-1] == "idle"
     # The next follow grasp takes the scene's next object, prepared once it is asked for.
+    starts = _drive_until_started(node, operator, listener, "g-second")
+    assert starts["g-second"] == scene.objects[1].name != scene.objects[0].name
+
+
+def _drive_until_started(node, operator, listener, grasp_id: str) -> dict[str, str]:
+    """Follow with the fingers open until ``grasp_id`` starts (its object prepared first); the objects of
+    the grasps that started meanwhile, by grasp id."""
     deadline, starts = time.monotonic() + 30.0, {}
-    while "g-second" not in starts:
-        assert time.monotonic() < deadline, "the second grasp did not start"
-        drive(node, operator, lambda t: 0.08, 0.3, grasp_id="g-second")
+    while grasp_id not in starts:
+        assert time.monotonic() < deadline, f"grasp {grasp_id} did not start"
+        drive(node, operator, lambda t: 0.08, 0.3, grasp_id=grasp_id)
         starts |= {m.body["grasp_id"]: m.body["object_name"] for m in drain(listener)
                    if m.type == "grasp_event" and m.body["event"] == "start"}
-    assert starts["g-second"] == scene.objects[1].name != scene.objects[0].name
+    return starts
 
 
 @pytest.mark.slow
@@ -168,12 +175,7 @@ def test_grasping_again_what_the_watchdog_left_between_the_fingers_takes_no_new_
     step_for(node, 0.4)  # the watchdog: the fingers stay closed on the stress ball
     drive(node, operator, lambda t: 0.0, 0.3, grasp_id="g-again")
     operator.send("command", t_capture_s=time.monotonic(), action="release", grasp_id="g-again", params={})
-    deadline, starts = time.monotonic() + 30.0, {}
-    while "g-next" not in starts:
-        assert time.monotonic() < deadline, "the next grasp did not start"
-        drive(node, operator, lambda t: 0.08, 0.3, grasp_id="g-next")
-        starts |= {m.body["grasp_id"]: m.body["object_name"] for m in drain(listener)
-                   if m.type == "grasp_event" and m.body["event"] == "start"}
+    starts = _drive_until_started(node, operator, listener, "g-next")
     # The scene's objects in turn: the one grasped again took no turn of its own.
     assert [starts[g] for g in ("g-first", "g-again", "g-next")] == [scene.objects[0].name] * 2 + [scene.objects[1].name]
 
