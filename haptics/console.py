@@ -227,7 +227,6 @@ class OperatorConsole(App):
         self.console_note = ""  # the console's own last note (a label sent, nothing to label) ...
         self._note_grasp: str | None = None  # ... and the grasp shown then: a new grasp's view drops it
         self.log_note = ""  # the last warning logged while the screen holds the log (set from any thread)
-        self._toggled_on = False  # the keyboard's enable toggle as this console's keys left it
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -294,10 +293,6 @@ class OperatorConsole(App):
             self.action_quit_console()
             return
         if self.keyboard is not None and self.keyboard.press(key):
-            if key == "e":
-                self._toggled_on = not self._toggled_on
-            elif key in ("r", "s"):  # the keyboard lets go of the enable on these
-                self._toggled_on = False
             return
         character = event.character or ""
         if character in ("+", "=") or key in ("plus", "equals_sign"):
@@ -388,9 +383,8 @@ class OperatorConsole(App):
         """Turn the keyboard's enable toggle off when the loop suspended the follows (after next, the
         watchdog, the robot's end): a terminal has no key release, so the toggle would stay on while
         the loop waits for it to be let go, and the next e would only let it go."""
-        if self.keyboard is not None and status.suspended and status.held and self._toggled_on:
-            self.keyboard.press("e")
-            self._toggled_on = False
+        if self.keyboard is not None and status.suspended and status.held:
+            self.keyboard.let_go()
 
     def render_status(self, status: LoopStatus) -> dict[str, str]:
         """Each panel's text for ``status``."""

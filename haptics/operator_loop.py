@@ -20,7 +20,9 @@ the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.
   ``stop`` stops them where they are, ``next`` ends the grasp shown (releasing it unless the robot
   already does) and, once the robot has ended it and its final estimate is in (an operator's grasp
   gets it only after its end; not awaited when no estimator is alive), clears the view for the next
-  object (the device is not read meanwhile, so a simulated operator starts the next grasp only then),
+  object (meanwhile the device is read but drives nothing, and of its buttons only quit acts: an
+  enable held then drives once the view is cleared, so a simulated operator starts the next grasp
+  only then),
   ``quit`` ends the loop, letting go of the enable and releasing a follow grasp the robot runs (it
   ends on that command, not by the watchdog once follows stop);
 * a device that ``waits_for_robot`` (the simulated operator) is not read while the robot node is
@@ -227,7 +229,8 @@ class OperatorLoop:
         if not waiting:
             reading = self._read_device()
         if reading is not None and self._leaving is not None:
-            reading = self._read_while_leaving(reading)
+            self._read_while_leaving(reading)
+            reading = None  # drives nothing until the view is cleared
         with self._lock:
             pressed, self._pressed = self._pressed, []
             to_label, self._to_label = self._to_label, []

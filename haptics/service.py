@@ -190,10 +190,10 @@ class RendererService(ServiceLoop):
         finally:
             self._publish_display()  # for a report written on the estimate or the grasp's end
         self.stats.estimates += 1
-        self._estimates_from = message.source
         if self.renderer.stats.estimates_ignored != ignored_before:
             self.stats.ignored += 1
             return  # not counted: a late estimate of an ended grasp would keep its count for good
+        self._estimates_from = message.source
         self._received[update.grasp_id] = self._received.pop(update.grasp_id, 0) + 1  # the newest last
         if len(self._received) > _COUNTED_GRASPS:  # grasps whose end never came: the oldest goes
             del self._received[next(iter(self._received))]

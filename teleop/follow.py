@@ -123,7 +123,6 @@ class Follower:
         self.stopped = False
         grasp = node._grasp = _Grasp(grasp_id, None, follow=True, phase="following")
         if not node.simulated:
-            node._count += 1
             node._announce("start")
         elif not self._let_go():  # the object is still between the fingers: grasp it again (no new object)
             grasp.object_name = self.live.object.name

@@ -178,7 +178,7 @@ class RobotNode(ServiceLoop):
         self._readers: list[threading.Thread] = []
         self._simulator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="simulate")
         self._grasp: _Grasp | None = None
-        self._count = 0  # grasps that took the scene's next object: its index and seed
+        self._count = 0  # simulated grasps that took the scene's next object: its index and seed
         self._ids = itertools.count()  # for grasps started without an id
         # Capture time of the newest sample published per stream ("width", "force"): the marker waits on them.
         self._newest_s: dict[str, float] = {}
@@ -277,14 +277,17 @@ class RobotNode(ServiceLoop):
             device.connect()
         except DeviceError as exc:
             log.debug("%r: not open again yet: %s", device, exc)
+        if self._stop_readers.is_set():  # the node closed while it opened (a camera may take seconds)
+            device.close()
 
     # ------------------------------------------------------------------ loop
 
     def finish(self) -> None:
-        """A grasp under way when the loop stops ends here."""
+        """A grasp under way when the loop stops ends here; the stats take the frames the cameras dropped."""
         if self._grasp is not None and math.isfinite(self._grasp.started_s):
             log.warning("stopping during grasp %s: it ends here", self._grasp.grasp_id)
             self._end()
+        self.stats.frames_dropped = sum(camera.dropped for camera in self.cameras)
 
     def step(self, timeout_s: float = 0.005) -> None:
         """Take commands, publish what the devices captured (waiting up to ``timeout_s`` for
@@ -429,7 +432,6 @@ class RobotNode(ServiceLoop):
             grasp = _Grasp(grasp_id, None, phase="grasping")
             grasp.motion = self.gripper.grasp_async(  # refuses a bad force at once
                 0.0, force_n=target_force_n, epsilon_outer_m=self.settings.gripper.max_width_m)
-            self._count += 1
             self._grasp = grasp
             self._announce("start")
             self._watch_grasp_command(grasp)
@@ -572,7 +574,6 @@ class RobotNode(ServiceLoop):
             self.publisher.send("frame", t_capture_s=item.t_s, finger=item.finger, grasp_id=self._grasp_of(item.t_s),
                                 index=item.index, encoding=item.encoding, data=item.encoded)
             self.stats.frames += 1
-            self.stats.frames_dropped = sum(camera.dropped for camera in self.cameras)
         elif kind in ("force", "width"):
             self._latest[kind] = float(item.value[-1])
             values = {"value_n" if kind == "force" else "value_m": item.value}

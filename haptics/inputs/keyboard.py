@@ -132,6 +132,12 @@ class KeyboardInput(OperatorInputDevice):
                 return False
             return True
 
+    def let_go(self) -> None:
+        """Turn the enable toggle off: the console's answer when the loop waits for the enable to be
+        let go (a terminal reports no key release, so the toggle would stay on)."""
+        with self._lock:
+            self._enable = False
+
     def _read(self, timeout_s: float) -> OperatorInput:  # noqa: ARG002 - keys are pushed: never waits
         pressed, self._pressed = frozenset(self._pressed), set()
         return OperatorInput(t_s=self._clock(), grip=self._grip, enable=self._enable, force_n=None,

@@ -568,7 +568,7 @@ def export_session(
             else:
                 log.warning("%s: grasp %r not exported: %s", path, grasp.grasp_id, grasp.reason)
             for topic, count in grasp.dropped.items():
-                log.warning("%s: grasp %r: dropped %d untagged %s message(s) captured before its start",
+                log.info("%s: grasp %r: dropped %d untagged %s message(s) captured before its start",
                             path, grasp.grasp_id, count, topic)
             results.append(grasp)
         for hidden, dest in staged:

@@ -67,6 +67,7 @@ def test_commanded_grasp_goes_out_as_the_devices_capture_it(rig):
         assert [m.body["data"].tobytes() for m in frames] == list(stream.encoded)  # the camera's bytes, as is
         assert [m.body["index"] for m in frames] == list(range(len(stream)))
         shifts.append(np.array([m.t_capture_s for m in frames]) - stream.t_s)
+    node.finish()
     assert node.stats.frames_dropped == 0  # a replay's frames are all read
     forces = [m for m in got if m.type == "force"]
     assert np.array_equal(np.concatenate([m.body["value_n"] for m in forces]), record.force_n.value)

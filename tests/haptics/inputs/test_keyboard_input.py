@@ -61,6 +61,14 @@ def test_e_toggles_the_enable(keys):
     assert keys.read().enable is False
 
 
+def test_let_go_turns_the_toggle_off_and_one_e_holds_it_again(keys):
+    keys.press("e")
+    keys.let_go()  # the console's, when the loop waits for the enable to be let go
+    assert keys.read().enable is False
+    keys.press("e")
+    assert keys.read().enable is True
+
+
 def test_release_lets_go_and_stop_drops_the_enable(keys):
     keys.press("e")
     for _ in range(10):
