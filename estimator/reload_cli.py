@@ -26,12 +26,10 @@ import sys
 import time
 import uuid
 
-import zmq
-
 from estimator.errors import ModelError
 from teleop.bus.messages import ModelEventBody
 from teleop.bus.pubsub import Publisher, Subscriber
-from teleop.errors import BusError, TeleopError
+from teleop.errors import BusAddressInUseError, BusError, TeleopError
 from teleop.live import add_endpoint_arguments, bus_from_args
 from teleop.settings import BusSettings, default_settings_path, load_settings
 
@@ -105,10 +103,7 @@ def _control_publisher(bus: BusSettings) -> Publisher:
         try:
             return Publisher.from_settings(bus, bus.control, lossless=False,
                                            source=f"reload-{os.getpid()}")  # its own: seq from 0
-        except BusError as exc:
-            cause = exc.__cause__
-            if not (isinstance(cause, zmq.ZMQError) and cause.errno == zmq.EADDRINUSE):
-                raise
+        except BusAddressInUseError as exc:
             if time.monotonic() < deadline:
                 time.sleep(0.05)
                 continue

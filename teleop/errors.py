@@ -83,5 +83,9 @@ class BusSecurityError(BusError):
     """A bus endpoint lacks the CURVE keys it needs, or the keys cannot be used."""
 
 
+class BusAddressInUseError(BusError):
+    """A bus endpoint cannot be bound: another process holds its address."""
+
+
 class SessionLogError(TeleopError, ValueError):
     """A session log (MCAP) cannot be written, read, replayed, exported or recovered."""

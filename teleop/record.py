@@ -112,6 +112,7 @@ __all__ = [
     "calibration_copy",
     "decode_image",
     "find_records",
+    "safe_name",
     "read_record",
     "reduce_image",
     "software_version",
@@ -323,6 +324,12 @@ class _Reader:
         if t.shape != v.shape:
             raise self.fail(f"{name}: {t.shape[0]} timestamps but {v.shape[0]} values")
         return Samples(t, v)
+
+
+def safe_name(name: str) -> str:
+    """``name`` fit for a record's file name on any file system: runs of anything but letters,
+    digits, '.', '_' and '-' become one '_'."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name)
 
 
 def find_records(root: str | Path, *, name: str = "") -> list[Path]:

@@ -70,7 +70,7 @@ from teleop.bus.security import (
     security_from_settings,
 )
 from teleop.bus.wire import Message, claimed_source, decode, encode, make_message, now_ns
-from teleop.errors import BusError, BusTimeoutError, MessageRejected
+from teleop.errors import BusAddressInUseError, BusError, BusTimeoutError, MessageRejected
 from teleop.settings import BusSettings
 
 __all__ = [
@@ -185,8 +185,8 @@ class _Socket:
         if isinstance(exc, BusError):
             return exc
         if isinstance(exc, zmq.ZMQError) and exc.errno == zmq.EADDRINUSE:
-            return BusError(f"{what}: {exc}: another process (a session still running?) holds it: stop it "
-                            f"or choose another port" + (f" in {setting}" if setting else ""))
+            return BusAddressInUseError(f"{what}: {exc}: another process (a session still running?) holds it: "
+                                        f"stop it or choose another port" + (f" in {setting}" if setting else ""))
         return BusError(f"{what}: {exc}")
 
     def __enter__(self):

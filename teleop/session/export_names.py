@@ -12,21 +12,18 @@ whose provenance names the same session id and grasp id.
 from __future__ import annotations
 
 import json
-import re
 import zipfile
 from pathlib import Path
 
+from teleop.record import safe_name
+
 __all__ = ["record_name", "same_grasp_records"]
-
-
-def _safe_name(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", name)
 
 
 def record_name(log_path: Path, session: str, grasp_id: str, taken: set[str]) -> str:
     """``<log stem>_<session id>_<grasp id>.grasp``; ``-2``, ``-3``, ... after a grasp id the
     session used before (a grasp id started again after it ended)."""
-    base = f"{_safe_name(log_path.stem)}_{_safe_name(session)}_{_safe_name(grasp_id)}"
+    base = f"{safe_name(log_path.stem)}_{safe_name(session)}_{safe_name(grasp_id)}"
     name, k = f"{base}.grasp", 1
     while name in taken:
         k += 1
@@ -50,7 +47,7 @@ def _provenance(path: Path) -> dict:
 def same_grasp_records(out: Path, log_path: Path, name: str, session: str, grasp_id: str) -> list[tuple[Path, str]]:
     """The records in ``out`` other than ``name`` that hold the same grasp of the same session
     (``name`` as :func:`record_name` gave it for ``log_path``), each with the log it came from."""
-    key = name[len(_safe_name(log_path.stem)):]  # "_<session id>_<grasp id>[-k].grasp"
+    key = name[len(safe_name(log_path.stem)):]  # "_<session id>_<grasp id>[-k].grasp"
     found = []
     for path in sorted(out.glob(f"*{key}")):
         if path.name == name or not path.is_file():

@@ -13,7 +13,6 @@ name are refused (:func:`check_filenames`). ``teleop simulate`` simulates and wr
 
 from __future__ import annotations
 
-import re
 import zlib
 from collections.abc import Iterable
 
@@ -21,15 +20,12 @@ import numpy as np
 
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SettingsError
-
-
-def _stem(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", name)
+from teleop.record import safe_name
 
 
 def grasp_filename(obj: ObjectSpec, index: int) -> str:
     """``<object>_g<index>.grasp`` with the name made safe for any file system."""
-    return f"{_stem(obj.name)}_g{index:03d}.grasp"
+    return f"{safe_name(obj.name)}_g{index:03d}.grasp"
 
 
 def check_filenames(objects: Iterable[ObjectSpec], where: str) -> None:
@@ -38,10 +34,10 @@ def check_filenames(objects: Iterable[ObjectSpec], where: str) -> None:
     file systems."""
     seen: dict[str, str] = {}
     for obj in objects:
-        key = _stem(obj.name).casefold()
+        key = safe_name(obj.name).casefold()
         if key in seen:
             raise SettingsError(f"{where}: objects {seen[key]!r} and {obj.name!r} would both be written to "
-                                f"{_stem(obj.name)}_g<index>.grasp: rename one (file names keep only "
+                                f"{safe_name(obj.name)}_g<index>.grasp: rename one (file names keep only "
                                 "letters, digits, '.', '_' and '-')")
         seen[key] = obj.name
 
