@@ -535,6 +535,7 @@ def export_session(
     staged: list[tuple[Path, Path]] = []  # (hidden name, final name)
     replaced: list[Path] = []  # the same grasps' records under another log's name
     names: set[str] = set()
+    records = sorted(out.glob("*.grasp"))  # as they were before this export: whose grasps it may repeat
     done = False
     grasps = _grasps(
         reader, info, settings=settings, catalogue=catalogue, source=source, stray_labels=stray
@@ -550,7 +551,7 @@ def export_session(
                         "exported before?): pass --overwrite to replace it, or export into another "
                         "folder; nothing was written"
                     )
-                twins = same_grasp_records(out, path, name, sid, grasp.grasp_id)
+                twins = same_grasp_records(records, path, name, sid, grasp.grasp_id)
                 if twins and not overwrite:
                     other, origin = twins[0]
                     raise SessionLogError(

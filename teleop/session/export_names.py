@@ -44,13 +44,15 @@ def _provenance(path: Path) -> dict:
     return extra if isinstance(extra, dict) else {}
 
 
-def same_grasp_records(out: Path, log_path: Path, name: str, session: str, grasp_id: str) -> list[tuple[Path, str]]:
-    """The records in ``out`` other than ``name`` that hold the same grasp of the same session
-    (``name`` as :func:`record_name` gave it for ``log_path``), each with the log it came from."""
+def same_grasp_records(records: list[Path], log_path: Path, name: str, session: str,
+                       grasp_id: str) -> list[tuple[Path, str]]:
+    """Of ``records`` (the export folder's, listed once per export), those other than ``name`` that hold
+    the same grasp of the same session (``name`` as :func:`record_name` gave it for ``log_path``), each
+    with the log it came from."""
     key = name[len(safe_name(log_path.stem)):]  # "_<session id>_<grasp id>[-k].grasp"
     found = []
-    for path in sorted(out.glob(f"*{key}")):
-        if path.name == name or not path.is_file():
+    for path in records:
+        if path.name == name or not path.name.endswith(key) or not path.is_file():
             continue
         extra = _provenance(path)
         if extra.get("session_id") == session and extra.get("grasp_id") == grasp_id:
