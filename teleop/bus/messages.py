@@ -131,7 +131,7 @@ class FrameBody(Body):
     encoding : {"jpeg", "png", "raw"}
     data : numpy.ndarray
         The image as captured: for jpeg and png the file's bytes, uint8 1-D; for raw,
-        H x W x 3 BGR, uint8 or uint16.
+        H x W x 3 BGR (H, W >= 1), uint8 or uint16.
     """
 
     kind: ClassVar[str] = "frame"
@@ -142,11 +142,14 @@ class FrameBody(Body):
     data: np.ndarray = array(ArrayField(("|u1", "<u2"), (1, 3)))
 
     def cross_check(self) -> None:
-        """Refuse data that is not what the encoding says."""
+        """Refuse data that is not what the encoding says, or an empty image."""
         data, encoding = self.data, self.encoding
         if encoding == "raw":
             if data.ndim != 3 or data.shape[2] != 3:
                 raise MessageRejected("mistyped_field", f"raw frame data has shape {data.shape}: expected H x W x 3")
+            if data.size == 0:
+                raise MessageRejected("mistyped_field", f"frame.data is empty (shape {data.shape}): a raw image "
+                                                        "needs H and W >= 1")
         elif data.ndim != 1 or data.dtype != np.uint8 or data[: len(_MAGIC[encoding])].tobytes() != _MAGIC[encoding]:
             raise MessageRejected("mistyped_field", f"frame data is not a 1-D {encoding} byte string")
 

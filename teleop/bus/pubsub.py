@@ -9,7 +9,9 @@ dropped silently. Both ends queue :data:`LOSSLESS_HWM` messages (about a minute 
 two-camera grasp stream), so a subscriber that falls briefly behind loses nothing.
 Every message carries a per-topic sequence number; a subscriber that sees a jump counts
 a gap and logs how many messages it missed, and one that sees the number fall (the sender
-restarted; what it had in flight cannot be counted) counts a restart and logs it. A PUB
+restarted; what it had in flight cannot be counted) counts a restart and logs it. Both are
+logged as refusals are (below), by message type, so a replayed or duplicated stream cannot
+flood the log. A PUB
 socket has nowhere to deliver before a subscriber has subscribed: call
 :meth:`Publisher.wait_for_subscriber` first.
 
@@ -47,6 +49,13 @@ both ends, once, when both run CURVE (one end without keys: :mod:`teleop.bus.sec
 :meth:`Publisher.from_settings` and :meth:`Subscriber.from_settings` take the size limit,
 heartbeat period and keys from :class:`~teleop.settings.BusSettings`.
 
+Memory
+------
+A subscriber remembers per source (its heartbeat), per source and topic (its sequence) and
+per topic (the latest message, when conflating) at most :data:`MAX_TRACKED` entries each,
+forgetting the longest unheard beyond that, so a sender that makes up a name per message
+cannot fill the memory.
+
 Sockets are not thread-safe: use each Publisher and Subscriber from one thread.
 """
 
@@ -78,6 +87,8 @@ __all__ = [
     "DEFAULT_MAX_BYTES",
     "LATEST_HWM",
     "LOSSLESS_HWM",
+    "MAX_TRACKED",
+    "is_decade",
     "Heartbeat",
     "Publisher",
     "Subscriber",
@@ -100,14 +111,46 @@ _REFUSAL_FIXES = {
     "oversize": "raise bus.max_message_bytes to the sender's, on every host, or send less",
 }
 _REFUSAL_FIX = "the sender breaks the bus wire format: a bug in it, or a program that is no bus node on this endpoint"
+# Sources, (source, topic) pairs or topics a subscriber remembers (see Memory above): a real bus
+# has a handful of nodes sending a few dozen topics.
+MAX_TRACKED = 1024
 
 
 def _ms(seconds: float | None) -> int:
     return -1 if seconds is None else max(0, round(seconds * 1000))
 
 
+def is_decade(count: int) -> bool:
+    """Whether the ``count``-th of a repeated event is logged: the 1st, 10th, 100th, ..."""
+    return count == 10 ** (len(str(count)) - 1)
+
+
+class _Recent(OrderedDict):
+    """A map of the :data:`MAX_TRACKED` keys set most recently; setting one more forgets the oldest.
+
+    ``what`` names the keys in the warning logged when the first is forgotten.
+    """
+
+    def __init__(self, what: str):
+        super().__init__()
+        self._what = what
+        self._forgetting = False
+
+    def __setitem__(self, key: Any, value: Any) -> None:
+        super().__setitem__(key, value)
+        self.move_to_end(key)
+        if len(self) > MAX_TRACKED:
+            oldest, _ = self.popitem(last=False)
+            if not self._forgetting:
+                self._forgetting = True
+                log.warning("more than %d %s: forgetting the longest unheard from now on, first %r "
+                            "(a sender that makes up names?)", MAX_TRACKED, self._what, oldest)
+
+
 class Heartbeat:
     """When each peer was last heard from, on this process's monotonic clock.
+
+    It remembers the :data:`MAX_TRACKED` peers heard from most recently.
 
     Parameters
     ----------
@@ -117,22 +160,23 @@ class Heartbeat:
 
     def __init__(self, *, clock: Callable[[], float] = time.monotonic):
         self._clock = clock
-        self._last_s: dict[str, float] = {}
-        self._interval_s: dict[str, float] = {}
+        # source -> (clock time last heard from, the period it last announced or None)
+        self._peers: _Recent = _Recent("peers heard from")
 
     def saw(self, source: str, *, interval_s: float | None = None, now_s: float | None = None) -> None:
         """Record that ``source`` was heard from (``interval_s``: the period it announced)."""
-        self._last_s[source] = self._clock() if now_s is None else now_s
-        if interval_s is not None:
-            self._interval_s[source] = interval_s
+        if interval_s is None and source in self._peers:
+            interval_s = self._peers[source][1]
+        self._peers[source] = (self._clock() if now_s is None else now_s, interval_s)
 
     def last_seen_s(self, source: str) -> float | None:
         """Clock time ``source`` was last heard from, or None if never."""
-        return self._last_s.get(source)
+        seen = self._peers.get(source)
+        return None if seen is None else seen[0]
 
     def peers(self) -> list[str]:
-        """Every source heard from so far."""
-        return sorted(self._last_s)
+        """Every source heard from so far (the :data:`MAX_TRACKED` most recent)."""
+        return sorted(self._peers)
 
     def is_alive(self, source: str, *, timeout_s: float | None = None, now_s: float | None = None) -> bool:
         """Whether ``source`` was heard from within ``timeout_s``.
@@ -140,13 +184,13 @@ class Heartbeat:
         The default timeout is three of the peer's announced heartbeat periods; a peer
         never heard from, or heard from without announcing a period, needs ``timeout_s``.
         """
-        last = self._last_s.get(source)
-        if last is None:
+        if source not in self._peers:
             return False
+        last, interval_s = self._peers[source]
         if timeout_s is None:
-            if source not in self._interval_s:
+            if interval_s is None:
                 raise BusError(f"peer {source!r} announced no heartbeat period: pass timeout_s")
-            timeout_s = 3.0 * self._interval_s[source]
+            timeout_s = 3.0 * interval_s
         now = self._clock() if now_s is None else now_s
         return now - last <= timeout_s
 
@@ -427,8 +471,12 @@ class Subscriber(_Socket):
         self.max_bytes = max_bytes
         self.stats = SubscriberStats()
         self.heartbeat = Heartbeat()
-        self._last_seq: dict[tuple[str, str], int] = {}
-        self._latest: OrderedDict[str, Message] = OrderedDict()
+        self._last_seq: _Recent = _Recent("(source, topic) pairs sequence-checked")
+        # Restarts and gaps by message type, for logging: a bounded set, so a node's restart is
+        # logged for each of its topics, yet made-up sources or topics cannot flood the log.
+        self._restarts: Counter[str] = Counter()
+        self._gaps: Counter[str] = Counter()
+        self._latest: _Recent = _Recent("topics with a message waiting to be read")
         self._socket = None
         check_endpoints(self.endpoints, security)
         socket = (context or zmq.Context.instance()).socket(zmq.SUB)
@@ -504,8 +552,7 @@ class Subscriber(_Socket):
 
     def _keep_latest(self, message: Message | None) -> None:
         if message is not None:
-            self._latest.pop(message.topic, None)  # re-insert at the end: newest last
-            self._latest[message.topic] = message
+            self._latest[message.topic] = message  # moves to the end: newest last
 
     def _accept(self, frames: list[zmq.Frame]) -> Message | None:
         try:
@@ -531,7 +578,7 @@ class Subscriber(_Socket):
         if count == 1:
             log.warning("refused a message from %s: %s: %s; further %s refusals are counted, not each logged",
                         sender, exc, _REFUSAL_FIXES.get(exc.reason, _REFUSAL_FIX), exc.reason)
-        elif count == 10 ** (len(str(count)) - 1):  # 10, 100, 1000, ...
+        elif is_decade(count):
             log.warning("refused %d messages for %s so far, the last from %s", count, exc.reason, sender)
 
     def _check_sequence(self, message: Message) -> None:
@@ -543,10 +590,17 @@ class Subscriber(_Socket):
         if message.seq <= last:
             # What the old sender had in flight when it died cannot be counted: say so.
             self.stats.restarts += 1
-            log.warning("%s restarted topic %r at seq %d (was %d): messages in flight then may be lost",
-                        message.source, message.topic, message.seq, last)
+            self._restarts[message.type] += 1
+            if is_decade(self._restarts[message.type]):
+                log.warning("%s restarted topic %r at seq %d (was %d): messages in flight then may be lost "
+                            "(restart %d of %s seen; logged at the 1st, 10th, 100th ...)", message.source,
+                            message.topic, message.seq, last, self._restarts[message.type], message.type)
             return
         missed = message.seq - last - 1
         self.stats.gaps += 1
         self.stats.missed += missed
-        log.warning("missed %d message(s) of %r from %s before seq %d", missed, message.topic, message.source, message.seq)
+        self._gaps[message.type] += 1
+        if is_decade(self._gaps[message.type]):
+            log.warning("missed %d message(s) of %r from %s before seq %d (gap %d of %s seen; logged at the 1st, "
+                        "10th, 100th ...)", missed, message.topic, message.source, message.seq,
+                        self._gaps[message.type], message.type)

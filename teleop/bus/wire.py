@@ -7,7 +7,8 @@ Every message is one multipart ZeroMQ message::
     [topic, header, body, *buffers]
 
 ``topic`` (UTF-8, at most 256 bytes)
-    The message type, optionally followed by ``/`` and a qualifier (``frame/left``).
+    The message type, optionally followed by ``/`` and a qualifier (``frame/left``), which
+    must be what the body says (a frame's ``finger``).
     Subscribers filter on it by prefix, so a subscription to ``frame`` gets both fingers.
 ``header`` (msgpack map, at most 4 KiB), exactly these keys:
 
@@ -64,6 +65,7 @@ from typing import Any
 
 import msgpack
 import numpy as np
+from msgpack.exceptions import StackError
 
 from teleop.bus.field_checks import MAX_TIME_S, IntegerField, NumberField, TextField, is_int
 from teleop.bus.messages import (
@@ -123,12 +125,12 @@ REJECT_REASONS = (
     "corrupt",  # header or body is not a msgpack map within the limits, or topic not UTF-8
     "unknown_version",
     "unknown_type",
-    "bad_header",  # header keys missing, extra or mistyped; topic not of the type
+    "bad_header",  # header keys missing, extra or mistyped; topic not of the type, or its qualifier not the body's
     "missing_field",
     "extra_field",
     "mistyped_field",  # wrong type, out of range, not an allowed choice, wrong dtype/ndim
     "not_finite",  # NaN or infinity where a finite number is required
-    "bad_buffer",  # buffer list does not match the frames, or size != dtype x shape
+    "bad_buffer",  # buffer list does not match the frames, size != dtype x shape, or sizes no message carries
 )
 
 # Numeric dtypes an array may travel as; anything else (objects, structured) is refused.
@@ -167,9 +169,14 @@ def _check_body(kind: str, body: Mapping[str, Any], arrays: Mapping[str, np.ndar
 # --------------------------------------------------------------------------- message
 
 
+# The body field a type's topic names after a "/" (frame/left): topic and body must agree.
+_TOPIC_QUALIFIERS = {"frame": "finger"}
+
+
 def default_topic(kind: str, body: Mapping[str, Any]) -> str:
     """``frame/<finger>`` for frames, the type name for everything else."""
-    return f"frame/{body['finger']}" if kind == "frame" else kind
+    qualifier = _TOPIC_QUALIFIERS.get(kind)
+    return kind if qualifier is None else f"{kind}/{body[qualifier]}"
 
 
 @dataclass(frozen=True)
@@ -273,6 +280,7 @@ def encode(message: Message, *, max_bytes: int | None = None) -> list[bytes | me
     arrays = {name: body[name] for name in schema.arrays}
     topic = message.topic or default_topic(message.type, body)
     _check_topic(topic, message.type)
+    _check_qualifier(topic, message.type, body)
     header = {
         "v": SCHEMA_VERSION,
         "type": message.type,
@@ -322,6 +330,15 @@ def _check_topic(topic: str, kind: str) -> None:
         raise MessageRejected("bad_header", f"topic {topic!r} does not belong to type {kind!r}")
 
 
+def _check_qualifier(topic: str, kind: str, body: Mapping[str, Any]) -> None:
+    """Refuse a topic whose qualifier (``frame/left``) is not what the body says (``finger``):
+    subscribers filter on the topic, readers go by the body."""
+    field = _TOPIC_QUALIFIERS.get(kind)
+    qualifier = topic[len(kind) + 1:]
+    if field is not None and qualifier and qualifier != body[field]:
+        raise MessageRejected("bad_header", f"topic {topic!r} names {qualifier!r}, but {kind}.{field} is {body[field]!r}")
+
+
 def _unpack(data: memoryview, what: str) -> dict[str, Any]:
     try:
         value = msgpack.unpackb(
@@ -335,7 +352,9 @@ def _unpack(data: memoryview, what: str) -> dict[str, Any]:
             max_ext_len=0,
         )
     except Exception as exc:  # msgpack raises a zoo of types on bad input; all mean "corrupt"
-        raise MessageRejected("corrupt", f"{what} is not valid msgpack within the limits ({exc})") from exc
+        # StackError says nothing of itself; others name the problem, some only by their type.
+        problem = "nested too deep" if isinstance(exc, StackError) else (str(exc) or type(exc).__name__)
+        raise MessageRejected("corrupt", f"{what} is not valid msgpack within the limits ({problem})") from exc
     if not isinstance(value, dict):
         raise MessageRejected("corrupt", f"{what} is a {type(value).__name__}, expected a map")
     return value
@@ -362,8 +381,8 @@ def _check_header(header: dict[str, Any], n_buffers: int) -> dict[str, Any]:
     return header
 
 
-def _buffer_array(entry: Any, frame: memoryview, kind: str, seen: set[str]) -> tuple[str, np.ndarray]:
-    """One header buffer entry ``[field, dtype, shape]`` over its frame, size checked first."""
+def _buffer_array(entry: Any, frame: memoryview, kind: str, seen: set[str], max_bytes: int) -> tuple[str, np.ndarray]:
+    """One header buffer entry ``[field, dtype, shape]`` over its frame, sizes checked first."""
     if not (isinstance(entry, list) and len(entry) == 3):
         raise MessageRejected("bad_buffer", f"buffer entry {entry!r}: expected [field, dtype, shape]")
     name, dtype, shape = entry
@@ -374,6 +393,12 @@ def _buffer_array(entry: Any, frame: memoryview, kind: str, seen: set[str]) -> t
         raise MessageRejected("bad_buffer", f"buffer {name!r} has dtype {dtype!r}, not a plain numeric dtype")
     if not (isinstance(shape, list) and len(shape) <= MAX_NDIM and all(is_int(s) and s >= 0 for s in shape)):
         raise MessageRejected("bad_buffer", f"buffer {name!r} has shape {shape!r}: expected up to {MAX_NDIM} sizes >= 0")
+    # A size 0 makes the byte count 0 whatever the other sizes, yet numpy refuses to shape even an
+    # empty array past its address space: bound them as if each 0 were 1.
+    span = math.prod(max(s, 1) for s in shape) * np.dtype(dtype).itemsize
+    if span > max_bytes:
+        raise MessageRejected("bad_buffer", f"buffer {name!r} has shape {shape}: {dtype} sizes that span {span} bytes "
+                                            f"(a 0 taken as 1), more than a message carries ({max_bytes})")
     expected = math.prod(shape) * np.dtype(dtype).itemsize
     if expected != frame.nbytes:
         raise MessageRejected("bad_buffer", f"buffer {name!r}: {dtype} x {shape} needs {expected} bytes, frame has {frame.nbytes}")
@@ -406,11 +431,12 @@ def decode(frames: Sequence[Any], *, max_bytes: int) -> Message:
     kind = header["type"]
     _check_topic(topic, kind)
     seen: set[str] = set()
-    arrays = dict(_buffer_array(e, v, kind, seen) for e, v in zip(header["buffers"], views[3:], strict=True))
+    arrays = dict(_buffer_array(e, v, kind, seen, max_bytes) for e, v in zip(header["buffers"], views[3:], strict=True))
     missing = sorted(set(SCHEMAS[kind].arrays) - seen)
     if missing:
         raise MessageRejected("bad_buffer", f"{kind} lacks buffer(s) {', '.join(missing)}")
     body = _check_body(kind, _unpack(views[2], "body"), arrays)
+    _check_qualifier(topic, kind, body)
     return Message(
         type=kind,
         body=body,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import time
 
@@ -11,6 +12,7 @@ import pytest
 import zmq
 
 from teleop.bus import Heartbeat, Publisher, Subscriber
+from teleop.bus.pubsub import MAX_TRACKED
 from teleop.bus.wire import encode, make_message
 from teleop.errors import BusError, BusTimeoutError
 from teleop.settings import BusSettings
@@ -176,6 +178,63 @@ def test_a_peer_on_another_wire_version_is_named_once_with_the_fix_then_counted(
                          "(one of inproc://bus-test-v2-peer, inproc://bus-test-elsewhere)",
                          "refused 100 messages for unknown_version so far, the last from source 'robot-v2' "
                          "(one of inproc://bus-test-v2-peer, inproc://bus-test-elsewhere)"]
+
+
+def _frames(message, *, source: str = "robot", seq: int = 0) -> list[bytes]:
+    return [bytes(f) for f in encode(dataclasses.replace(message, source=source, seq=seq))]
+
+
+def test_a_replayed_message_is_counted_every_time_but_logged_at_decades(caplog):
+    force = _frames(make_message("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0]), seq=5)
+    with Subscriber(f"inproc://bus-test-{next(_names)}", ["force"]) as sub:
+        for _ in range(1000):
+            sub._accept(force)
+        restarts = [r.getMessage() for r in caplog.records if "restarted" in r.getMessage()]
+        assert sub.stats.restarts == 999
+        assert len(restarts) == 3  # the 1st, 10th and 100th
+        assert "restarted topic 'force' at seq 5 (was 5)" in restarts[0] and "restart 100 of force" in restarts[-1]
+        caplog.clear()
+        for seq in [7, 5] * 100:  # two senders under one name: a gap, then a fall, over and over
+            sub._accept(_frames(make_message("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0]), seq=seq))
+        assert len([r for r in caplog.records if "missed" in r.getMessage()]) == 3  # the 1st, 10th and 100th gap
+        assert len([r for r in caplog.records if "restarted" in r.getMessage()]) == 1  # the 1000th restart
+        caplog.clear()
+        beat = make_message("heartbeat", t_capture_s=1.0, interval_s=1.0)
+        for seq in (3, 0):  # the node restarts: its heartbeat's restart is its type's first, logged
+            sub._accept(_frames(beat, seq=seq))
+    assert (sub.stats.gaps, sub.stats.missed, sub.stats.restarts) == (100, 100, 1100)
+    assert "restarted topic 'heartbeat' at seq 0 (was 3)" in caplog.text
+
+
+def test_made_up_sources_and_topics_are_forgotten_but_real_peers_kept(caplog):
+    beat = make_message("heartbeat", t_capture_s=1.0, interval_s=60.0)
+    force = make_message("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0])
+    seq = itertools.count()
+    with Subscriber(f"inproc://bus-test-{next(_names)}") as sub:
+        for i in range(3 * MAX_TRACKED):
+            sub._accept(_frames(dataclasses.replace(beat, topic=f"heartbeat/{i}"), source=f"made-up-{i}"))
+            if i % 100 == 0:
+                n = next(seq)
+                sub._accept(_frames(beat, seq=n))
+                sub._accept(_frames(force, seq=n))
+        assert len(sub.heartbeat.peers()) == MAX_TRACKED and len(sub._last_seq) == MAX_TRACKED
+        assert sub.heartbeat.is_alive("robot")  # its announced period still known
+        sub._accept(_frames(force, seq=next(seq) + 1))  # a gap after its last seq: still remembered
+    assert (sub.stats.gaps, sub.stats.missed, sub.stats.restarts) == (1, 1, 0)
+    forgetting = [r.getMessage() for r in caplog.records if "forgetting" in r.getMessage()]
+    assert len(forgetting) == 2  # once for the peers, once for the sequences
+    assert any(f"more than {MAX_TRACKED} peers heard from" in line for line in forgetting)
+
+
+def test_a_conflated_subscriber_keeps_a_bounded_number_of_topics():
+    with Subscriber(f"inproc://bus-test-{next(_names)}", conflate=True) as sub:
+        for i in range(2 * MAX_TRACKED):
+            message = make_message("estimate", t_capture_s=1.0, topic=f"estimate/{i}", grasp_id="g", method="m",
+                                   E_pa=1e5, interval_pa=[None, None], state="ok", reason="", provisional=False,
+                                   latency_s=0.0)
+            sub._keep_latest(sub._accept(_frames(message, source=f"made-up-{i}")))
+    assert len(sub._latest) == MAX_TRACKED
+    assert next(iter(sub._latest)) == f"estimate/{MAX_TRACKED}"  # the oldest forgotten first
 
 
 def test_heartbeats_detect_a_dead_peer(endpoint):

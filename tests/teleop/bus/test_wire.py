@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 
 import cv2
@@ -275,6 +276,51 @@ def test_frame_data_must_be_what_its_encoding_says():
     assert _refused(png_claim) == "mistyped_field"
 
 
+def _refusal(frames, *, max_bytes: int = MAX) -> MessageRejected:
+    with pytest.raises(MessageRejected) as info:
+        decode(frames, max_bytes=max_bytes)
+    return info.value
+
+
+@pytest.mark.parametrize("shape", [[0, 2**64 - 1], [0, 2**63], [2**40, 0, 2**40]])
+def test_an_empty_buffer_of_sizes_no_message_carries_is_refused(shape):
+    # A 0 made the byte count match the empty frame; numpy's reshape then raised a bare ValueError
+    # that no subscriber caught.
+    frames = _with_header(_frames(), buffers=[["t_s", "<f8", shape], ["value_n", "<f8", [9]]])
+    refusal = _refusal([*frames[:3], b"", frames[4]])
+    assert refusal.reason == "bad_buffer"
+    assert "'t_s'" in refusal.detail and str(shape) in refusal.detail
+
+
+def test_an_empty_raw_image_is_refused_by_sender_and_receiver():
+    empty = dict(t_capture_s=1.0, finger="left", index=0, encoding="raw")
+    for shape in [(0, 4, 3), (4, 0, 3), (0, 0, 3)]:
+        with pytest.raises(MessageRejected, match=r"frame\.data is empty") as info:
+            make_message("frame", data=np.zeros(shape, np.uint8), **empty)
+        assert info.value.reason == "mistyped_field"
+    frames = _with_header(_frames("frame_raw_u8"), buffers=[["data", "|u1", [0, 0, 3]]])
+    refusal = _refusal([*frames[:3], b""])
+    assert refusal.reason == "mistyped_field" and "frame.data is empty" in refusal.detail
+
+
+def test_the_topic_names_the_finger_the_body_names():
+    frames = _frames("frame_jpeg")  # finger "left"
+    refusal = _refusal([b"frame/right", *frames[1:]])
+    assert refusal.reason == "bad_header"
+    assert "'frame/right'" in refusal.detail and "frame.finger is 'left'" in refusal.detail
+    assert _refused([b"frame/left/more", *frames[1:]]) == "bad_header"
+    assert decode([b"frame", *frames[1:]], max_bytes=MAX).fields.finger == "left"  # no qualifier: nothing to disagree
+    with pytest.raises(MessageRejected, match="frame.finger is 'left'"):
+        encode(_stamp(dataclasses.replace(EXAMPLES["frame_jpeg"], topic="frame/right")))
+
+
+def test_a_body_nested_too_deep_is_refused_saying_so():
+    frames = _frames()
+    refusal = _refusal([*frames[:2], b"\x81\xa1a" * 20000 + b"\xc0", *frames[3:]])
+    assert refusal.reason == "corrupt"
+    assert refusal.detail == "body is not valid msgpack within the limits (nested too deep)"
+
+
 def test_estimate_states_are_consistent():
     base = dict(grasp_id="g", method="series", interval_pa=[None, None], reason="", provisional=False, latency_s=0.0)
     with pytest.raises(MessageRejected, match="no E_pa"):
@@ -397,6 +443,17 @@ FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCh
 def test_decode_of_random_bytes_raises_only_bus_errors(frames):
     with contextlib.suppress(BusError):
         decode(frames, max_bytes=4096)
+
+
+_sizes = st.integers(0, 3) | st.integers(2**20, 2**64 - 1)
+
+
+@FUZZ
+@given(st.lists(_sizes, max_size=4), st.lists(_sizes, max_size=4), st.binary(max_size=64))
+def test_decode_of_hostile_buffer_shapes_raises_only_refusals(t_shape, value_shape, data):
+    frames = _with_header(_frames(), buffers=[["t_s", "<f8", t_shape], ["value_n", "<f8", value_shape]])
+    with contextlib.suppress(MessageRejected):
+        decode([*frames[:3], data, data], max_bytes=MAX)
 
 
 _msgpack_values = st.recursive(
