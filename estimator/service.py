@@ -43,10 +43,12 @@ out). A *start* of the grasp that is open (a robot node restarted mid-grasp name
 what the service had of it, publishing nothing more for it: the final estimate, end and report
 that grasp id gets are the new grasp's.
 
-A message that cannot be used (a frame that does not decode or has the wrong size, samples
+A message that cannot be used (a frame that does not decode or declares the wrong size, samples
 that are not finite, capture times that go backwards, repeat or jump more than
-:data:`MAX_CLOCK_JUMP_S` ahead of the stream's last one, data for a grasp that is not open) is
-logged and counted, and the service carries on; so are the refusals of the bus itself (:class:`~teleop.bus.pubsub.Subscriber`).
+:data:`MAX_CLOCK_JUMP_S` ahead of the stream's last one, a topic's first capture times more than
+that from the grasp's newest (its start's or another topic's), data for a grasp that is not open) is
+counted and skipped, and the service carries on: the first of each kind (its topic, and the error's
+reason or class) is logged, then a count at every power of ten. So are the refusals of the bus itself (:class:`~teleop.bus.pubsub.Subscriber`).
 
 Models
 ------
@@ -61,10 +63,11 @@ The service is meant to run on one core: start it with ``OPENBLAS_NUM_THREADS=1`
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import time
-from collections import OrderedDict
+from collections import Counter, OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -79,7 +82,7 @@ from estimator.perception.calibration import Calibration
 from estimator.segment import Segment
 from estimator.settings import estimator_settings
 from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream
-from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.bus.pubsub import Publisher, Subscriber, is_decade
 from teleop.bus.wire import Message
 from teleop.errors import TeleopError
 from teleop.live import JsonLines, ServiceLoop
@@ -150,6 +153,7 @@ class _Grasp:
 
     grasp_id: str
     stream: GraspStream
+    t_start_s: float  # the start event's capture time
     model: Any  # the HybridEstimator pinned at the grasp's start, or None
     model_id: str | None = None  # its id
     model_dir: str | None = None  # its folder
@@ -219,6 +223,7 @@ class EstimatorService(ServiceLoop):
         self._following: str | None = None  # the grasp the robot last said it follows an operator in
         # load_model requests taken: None while the candidate is being checked, then its answer.
         self._requests: OrderedDict[str, ModelEvent | None] = OrderedDict()
+        self._bad: Counter[tuple[str, str]] = Counter()  # bad messages by topic and reason
 
     # ------------------------------------------------------------------ loop
 
@@ -239,14 +244,28 @@ class EstimatorService(ServiceLoop):
         return message
 
     def handle(self, message: Message, *, received_s: float) -> None:
-        """Handle one message; a message that cannot be used is logged and counted."""
+        """Handle one message; a message that cannot be used is counted, and logged as the module
+        docstring says."""
         self.stats.messages += 1
         try:
             self._dispatch(message, received_s)
         except _BAD_INPUT as exc:
             self.stats.bad_messages += 1
-            log.warning("bad %s message from %s (seq %d), skipped: %s", message.topic, message.source or "?",
-                        message.seq, exc)
+            self._log_bad(message, exc)
+
+    def _log_bad(self, message: Message, exc: Exception) -> None:
+        """Log the first bad message of its topic and reason, then a count at every power of ten: one
+        broken sender must not flood the log with a line per message."""
+        reason = getattr(exc, "reason", None) or type(exc).__name__
+        self._bad[message.topic, reason] += 1
+        count = self._bad[message.topic, reason]
+        sender = f"{message.source or '?'} (seq {message.seq})"
+        if count == 1:
+            log.warning("bad %s message from %s, skipped: %s; further ones of %s are counted, not each logged",
+                        message.topic, sender, exc, reason)
+        elif is_decade(count):  # the 10th, 100th, ... as the bus logs its refusals
+            log.warning("%d bad %s messages of %s skipped so far, the last from %s: %s", count, message.topic,
+                        reason, sender, exc)
 
     def handle_command(self, message: Message) -> None:
         """Take one operator message: ``load_model`` asks for another model, a ``command`` with
@@ -366,7 +385,7 @@ class EstimatorService(ServiceLoop):
                              grasp_id=grasp_id)
         slot = self.model
         model = None if slot is None else slot.estimator
-        self._grasp = _Grasp(grasp_id=grasp_id, stream=stream, model=model,
+        self._grasp = _Grasp(grasp_id=grasp_id, stream=stream, t_start_s=t_s, model=model,
                              model_id=None if model is None else slot.model_id,
                              model_dir=None if model is None else str(slot.model_dir))
         if self._following is not None and self._following == grasp_id:
@@ -517,16 +536,37 @@ def _ended_by(stream: GraspStream) -> str:
     return "loading_end" if stream.loading_end_s is not None else "settled"
 
 
+class _ClockError(PerceptionError):
+    """Capture times no clock gives; ``reason`` (``out_of_order``, ``clock_jump`` or
+    ``far_from_grasp``) keys the log's counts."""
+
+    def __init__(self, reason: str, text: str):
+        super().__init__(text)
+        self.reason = reason
+
+
 def _check_times(grasp: _Grasp, message: Message) -> None:
-    """Raise PerceptionError unless the message's capture times go strictly forward from the
-    topic's last ones without a jump of more than MAX_CLOCK_JUMP_S; then remember the newest."""
+    """Raise _ClockError (a PerceptionError) unless the message's capture times go strictly forward
+    from the topic's last ones without a jump of more than MAX_CLOCK_JUMP_S, or, for the topic's
+    first, lie within MAX_CLOCK_JUMP_S of the grasp's newest capture time (its start's or another
+    topic's last); then remember the newest."""
     times = [message.t_capture_s] if message.type == "frame" else message.fields.t_s.tolist()
-    last = grasp.last_t_s.get(message.topic, -math.inf)
-    steps = [b - a for a, b in zip([last, *times], times, strict=False)]
+    last = grasp.last_t_s.get(message.topic)
     where = f"grasp {grasp.grasp_id!r} {message.topic} capture times {times[0]:.6f}..{times[-1]:.6f} s"
-    if min(steps) <= 0:
-        raise PerceptionError(f"{where}: not after the previous one ({last:.6f} s): out of order or repeated")
-    if math.isfinite(last) and max(steps) > MAX_CLOCK_JUMP_S:
-        raise PerceptionError(f"{where}: jump {max(steps):.3g} s past the previous one ({last:.6f} s), "
-                              f"more than {MAX_CLOCK_JUMP_S:g} s: the capture clock is broken")
+    if last is None:
+        # One clock stamps a grasp's start and data: a first time far from them is a broken stamp, and
+        # taken as the topic's last it would make every genuine one after it look broken.
+        newest = max([grasp.t_start_s, *grasp.last_t_s.values()])
+        if abs(times[0] - newest) > MAX_CLOCK_JUMP_S:
+            raise _ClockError("far_from_grasp", f"{where}: {times[0] - newest:+.3g} s from the grasp's newest "
+                                                f"capture time ({newest:.6f} s: its start or another topic's), "
+                                                f"more than {MAX_CLOCK_JUMP_S:g} s: the capture clock is broken")
+    previous = [] if last is None else [last]
+    steps = [b - a for a, b in itertools.pairwise([*previous, *times])]
+    after = "" if last is None else f" ({last:.6f} s)"
+    if steps and min(steps) <= 0:
+        raise _ClockError("out_of_order", f"{where}: not after the previous one{after}: out of order or repeated")
+    if steps and max(steps) > MAX_CLOCK_JUMP_S:
+        raise _ClockError("clock_jump", f"{where}: jump {max(steps):.3g} s past the previous one{after}, "
+                                        f"more than {MAX_CLOCK_JUMP_S:g} s: the capture clock is broken")
     grasp.last_t_s[message.topic] = times[-1]

@@ -34,7 +34,9 @@ on the same host in the demo; across hosts the figure is meaningless), and what 
 renders for it: the percept the estimate maps to (``display_fraction`` of the display's range,
 1 = the stiff end, the ``rigid`` and ``unknown`` flags, the interval's width in decades) and its
 ``level`` of ``level_max``, the level the display settles on. One JSON object per final estimate goes
-to ``report``.
+to ``report``. A latency outside :data:`PLAUSIBLE_LATENCY_S` is no latency (a capture time on
+another clock, or a broken one): it is logged (the first, then a count at every power of ten),
+counted (``unmeasured``) and left out, as null; the estimate is rendered all the same.
 """
 
 from __future__ import annotations
@@ -51,29 +53,32 @@ import zmq
 from haptics.errors import HapticsError
 from haptics.mapping import FREE, EstimateUpdate, Percept, modulus_from_fraction, to_command
 from haptics.renderer import HapticRenderer
-from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.bus.pubsub import Publisher, Subscriber, is_decade
 from teleop.bus.wire import Message
 from teleop.errors import BusError, ComplianceTeleopError
 from teleop.live import JsonLines, ServiceLoop
 
-__all__ = ["INPUT_TOPICS", "FinalLatency", "RendererService"]
+__all__ = ["INPUT_TOPICS", "PLAUSIBLE_LATENCY_S", "FinalLatency", "RendererService"]
 
 log = logging.getLogger(__name__)
 
 INPUT_TOPICS = ("estimate", "grasp_event")
 _COUNTED_GRASPS = 16  # grasps whose estimates are counted at once: more only when their ends were lost
+# Capture to report (s) on one host's monotonic clock: a camera stamps at most 1 s late
+# (sensors' camera_latency_s), and no final comes an hour after its last loading frame.
+PLAUSIBLE_LATENCY_S = (-1.0, 3600.0)
 
 
 @dataclass(frozen=True)
 class FinalLatency:
-    """A final estimate as the display got it: latency from the last loading frame to the report,
-    and what the display renders for it (``percept``; ``level`` of ``level_max``, None before a
-    display was connected)."""
+    """A final estimate as the display got it: latency from the last loading frame to the report
+    (None when not measured: module docstring), and what the display renders for it (``percept``;
+    ``level`` of ``level_max``, None before a display was connected)."""
 
     grasp_id: str
     state: str
     e_pa: float | None
-    latency_s: float
+    latency_s: float | None
     estimates_received: int
     percept: Percept = FREE
     level: int | None = None
@@ -81,7 +86,8 @@ class FinalLatency:
 
     def to_json(self) -> dict[str, Any]:
         return {"grasp_id": self.grasp_id, "state": self.state, "E_pa": self.e_pa,
-                "latency_ms": self.latency_s * 1e3, "estimates_received": self.estimates_received,
+                "latency_ms": None if self.latency_s is None else self.latency_s * 1e3,
+                "estimates_received": self.estimates_received,
                 "display_fraction": self.percept.stiffness, "rigid": self.percept.rigid,
                 "unknown": self.percept.unknown, "uncertainty_decades": self.percept.uncertainty_decades,
                 "level": self.level, "level_max": self.level_max}
@@ -105,12 +111,14 @@ class ServiceStats:
     display_messages: int = 0  # ``display`` messages published, one per report written
     display_failures: int = 0  # reports whose ``display`` message could not be published
     ignored: int = 0  # estimates of grasps that had ended or had their final (late, or replayed)
+    unmeasured: int = 0  # finals whose latency was left out: outside PLAUSIBLE_LATENCY_S
     finals: list[FinalLatency] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         return {"estimates": self.estimates, "bad_messages": self.bad_messages, "grasp_ends": self.grasp_ends,
                 "display_messages": self.display_messages, "display_failures": self.display_failures,
-                "ignored": self.ignored, "finals": [f.to_json() for f in self.finals]}
+                "ignored": self.ignored, "unmeasured": self.unmeasured,
+                "finals": [f.to_json() for f in self.finals]}
 
 
 class RendererService(ServiceLoop):
@@ -277,8 +285,23 @@ class RendererService(ServiceLoop):
         info = self.renderer.display.info
         level_max = None if info is None else info.level_max
         level = None if level_max is None else to_command(pending.percept, level_max=level_max).level
+        latency_s = written_s - update.t_s
+        low, high = PLAUSIBLE_LATENCY_S
+        if not low <= latency_s <= high:
+            # Not refused: the value is sound and already shown; only its capture time cannot be read here.
+            self.stats.unmeasured += 1
+            count = self.stats.unmeasured
+            if count == 1:
+                log.warning("grasp %s: final estimate captured at %.6f s, a latency of %.3g s on this clock, "
+                            "outside %g..%g s: a capture time on another clock or a broken one; its latency is "
+                            "left out, and further ones are counted, not each logged", pending.grasp_id,
+                            update.t_s, latency_s, low, high)
+            elif is_decade(count):  # the 10th, 100th, ... as the bus logs its refusals
+                log.warning("%d final estimates' latencies left out so far (outside %g..%g s), the last grasp %s's "
+                            "(%.3g s)", count, low, high, pending.grasp_id, latency_s)
+            latency_s = None
         final = FinalLatency(grasp_id=str(pending.grasp_id), state=update.state, e_pa=update.value_pa,
-                             latency_s=written_s - update.t_s,
+                             latency_s=latency_s,
                              estimates_received=self._received.get(pending.grasp_id, 0),
                              percept=pending.percept, level=level, level_max=level_max)
         self.stats.finals.append(final)

@@ -6,6 +6,7 @@ documents the format byte by byte) and re-exports every name here.
 
 from __future__ import annotations
 
+import io
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -13,6 +14,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from teleop.errors import RecordError
 from teleop.labels import LABEL_SOURCES
@@ -53,15 +55,30 @@ def reduce_image(image: np.ndarray, reduce: int) -> np.ndarray:
     return cv2.resize(image, (cols // reduce, rows // reduce), interpolation=cv2.INTER_AREA)
 
 
-def decode_image(data: bytes | np.ndarray, *, reduce: int = 1) -> np.ndarray | None:
+def decode_image(data: bytes | np.ndarray, *, reduce: int = 1,
+                 shape: tuple[int, int] | None = None) -> np.ndarray | None:
     """A JPEG or PNG image as uint8 H x W x 3 BGR, ``reduce`` times smaller on each side; None when the
     bytes do not decode.
 
     Reductions of 2, 4 and 8 are decoded at that size (for PNG, the same as averaging the decoded
     image over blocks; for JPEG, within a few levels of it); others decode the full image and
     average it (:func:`reduce_image`, which raises ValueError when they do not divide its sides).
+
+    ``shape``: the (rows, cols) the image must have, checked in its header before anything is
+    decoded (ValueError naming both sizes otherwise): a few bytes may declare an image of gigabytes.
     """
     buffer = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes | bytearray) else np.asarray(data)
+    if shape is not None:
+        rows, cols = shape
+        try:
+            declared = _declared_size(buffer)
+        except Image.DecompressionBombError as exc:  # Pillow's own limit, far above any frame's size
+            raise ValueError(f"image refused before decoding, expected {cols}x{rows} px: {exc}") from exc
+        if declared is None:
+            return None
+        if declared != (cols, rows):
+            raise ValueError(f"image declares {declared[0]}x{declared[1]} px, expected {cols}x{rows} px: "
+                             "refused before decoding")
     try:
         image = cv2.imdecode(buffer, _DECODE_REDUCED.get(reduce, cv2.IMREAD_COLOR))
     except cv2.error:  # an empty or malformed buffer
@@ -69,6 +86,16 @@ def decode_image(data: bytes | np.ndarray, *, reduce: int = 1) -> np.ndarray | N
     if image is None or reduce in _DECODE_REDUCED:
         return image
     return reduce_image(image, reduce)
+
+
+def _declared_size(buffer: np.ndarray) -> tuple[int, int] | None:
+    """(width, height) the JPEG or PNG header in ``buffer`` declares, read without decoding; None
+    when it has none. Raises Image.DecompressionBombError for a size above Pillow's limit."""
+    try:
+        with Image.open(io.BytesIO(buffer), formats=("JPEG", "PNG")) as image:
+            return image.size
+    except OSError:  # no JPEG or PNG header, or a broken one (UnidentifiedImageError is one)
+        return None
 
 
 def software_version() -> str:

@@ -127,8 +127,9 @@ def frame_on_grid(data: bytes | np.ndarray, encoding: str, sensor: SensorSetting
     Raises
     ------
     PerceptionError
-        Unknown encoding, bytes that do not decode, a raw image that is not uint8 BGR or not of
-        the sensor's raw size.
+        Unknown encoding, bytes that do not decode or declare another size than the sensor's raw
+        frame (refused before decoding), a raw image that is not uint8 BGR or not of the sensor's
+        raw size.
     """
     if encoding == "raw":
         image = raw_frame(data, where=where)
@@ -138,7 +139,8 @@ def frame_on_grid(data: bytes | np.ndarray, encoding: str, sensor: SensorSetting
             raise PerceptionError(f"{where}: {exc}") from exc
     elif encoding in ("jpeg", "png"):
         try:
-            image = decode_image(data, reduce=binning)
+            # The sensor's size, checked in the header before decoding: a few bytes may declare gigabytes.
+            image = decode_image(data, reduce=binning, shape=(sensor.raw_height_px, sensor.raw_width_px))
         except ValueError as exc:
             raise PerceptionError(f"{where}: {exc}") from exc
         if image is None:

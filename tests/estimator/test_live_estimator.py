@@ -112,7 +112,7 @@ def test_stream_refuses_bad_frames_and_samples_without_keeping_them(settings, ca
     with pytest.raises(PerceptionError, match="does not decode"):
         stream.add_frame("left", 1.1, good[:2] + b"\x00" * 64, "jpeg")
     small = cv2.imencode(".jpg", np.zeros((48, 64, 3), np.uint8))[1].tobytes()
-    with pytest.raises(PerceptionError, match="raw_bgr"):  # decodes, but is not the sensor's frame size
+    with pytest.raises(PerceptionError, match="declares 64x48 px, expected 640x480 px"):  # not the sensor's size
         stream.add_frame("left", 1.2, small, "jpeg")
     with pytest.raises(PerceptionError, match="raw after jpeg frames"):
         stream.add_frame("left", 1.25, np.zeros((480, 640, 3), np.uint8), "raw")

@@ -162,3 +162,23 @@ def test_the_estimate_counts_stay_bounded_over_a_long_session():
                  reason="", provisional=False, latency_s=0.001)
     assert len(service._received) <= _COUNTED_GRASPS and service.stats.ignored == 100
     assert service.stats.finals and {f.estimates_received for f in service.stats.finals} == {2}
+
+
+@pytest.mark.parametrize("t_capture_s", [3.9e9, -3.9e9])  # far in this clock's future, or its past
+def test_a_final_stamped_off_this_clock_is_rendered_its_latency_left_out_and_logged_sparingly(
+        rig, caplog, t_capture_s):
+    service, estimator, display, report_path = rig
+    with caplog.at_level(logging.WARNING, logger="haptics.service"):
+        for i in range(12):
+            estimate(estimator, grasp_id=f"g{i}", t_capture_s=t_capture_s, e_pa=2e6, provisional=False)
+            step_until(service, lambda n=i + 1: len(service.stats.finals) == n)
+            assert not display.rendered_command.provisional and display.rendered_command.level > 0  # shown
+            estimator.send("grasp_event", t_capture_s=time.monotonic(), event="end", grasp_id=f"g{i}")
+            step_until(service, lambda n=i + 1: service.stats.grasp_ends == n)
+    assert [f.latency_s for f in service.stats.finals] == [None] * 12
+    assert [json.loads(line)["latency_ms"] for line in report_path.read_text().splitlines()] == [None] * 12
+    assert service.stats.unmeasured == 12 and service.stats.bad_messages == 0
+    lines = [r.getMessage() for r in caplog.records if r.name == "haptics.service"]
+    assert len(lines) == 2, lines  # the first, then the tenth
+    assert "grasp g0: final estimate captured at" in lines[0] and "latency is left out" in lines[0]
+    assert lines[1].startswith("10 final estimates' latencies left out so far")
