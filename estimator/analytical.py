@@ -49,6 +49,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from functools import lru_cache
+from numbers import Real
 
 import numpy as np
 from scipy import special
@@ -100,16 +101,27 @@ def _frames(method: str, **arrays: np.ndarray) -> tuple[dict[str, np.ndarray], n
     return out, finite
 
 
-def _positive(method: str, **scalars: float) -> None:
+def _real(value: object) -> bool:
+    """Whether ``value`` is one real number (a numpy scalar too; a bool is no measurement)."""
+    return isinstance(value, Real) and not isinstance(value, bool)
+
+
+def _positive(method: str, **scalars: float) -> tuple[float, ...]:
+    """The scalars as Python floats (a float32 would otherwise carry its precision into the fit)."""
     for name, value in scalars.items():
-        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-            raise FitError(f"{method}: {name} must be a finite value > 0, got {value!r}")
+        if not (_real(value) and math.isfinite(value) and value > 0):
+            raise FitError(f"{method}: {name} must be a finite real number > 0, got {value!r}")
+    return tuple(float(value) for value in scalars.values())
+
+
+def _poisson_ratio(method: str, name: str, poisson: float) -> None:
+    if not (_real(poisson) and math.isfinite(poisson) and 0.0 <= poisson <= 0.5):
+        raise FitError(f"{method}: {name} must be a real number in [0, 0.5], got {poisson!r}")
 
 
 def _poisson_factor(method: str, poisson: float) -> float:
-    if not (math.isfinite(poisson) and 0.0 <= poisson <= 0.5):
-        raise FitError(f"{method}: object_poisson must be in [0, 0.5], got {poisson!r}")
-    return 1.0 - poisson**2
+    _poisson_ratio(method, "object_poisson", poisson)
+    return 1.0 - float(poisson) ** 2
 
 
 def _modulus(method: str, k: float, k_lo: float, k_hi: float, *, factor: float, basis: str) -> Estimate:
@@ -231,7 +243,7 @@ def no_tactile(
     noise : MeasurementNoise
     """
     method = "no_tactile"
-    _positive(method, initial_width_m=initial_width_m, pad_area_m2=pad_area_m2)
+    initial_width_m, pad_area_m2 = _positive(method, initial_width_m=initial_width_m, pad_area_m2=pad_area_m2)
     s, ok = _frames(method, force_n=force_n, approach_m=approach_m)
     if not ok.any():
         return Estimate.refuse(method, "no loading sample with finite force and width")
@@ -278,7 +290,7 @@ def elastic(
         overstates the stress, so it is reported as an upper bound.
     """
     method = "elastic"
-    _positive(method, initial_width_m=initial_width_m)
+    (initial_width_m,) = _positive(method, initial_width_m=initial_width_m)
     s, ok = _frames(method, force_n=force_n, approach_m=approach_m, depth_m=depth_m, area_m2=area_m2)
     ok &= s["area_m2"] > 0
     if not ok.any():
@@ -358,7 +370,7 @@ def hertz(
         resting on them alone is reported as a lower bound.
     """
     method = "hertz"
-    _positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
+    (gel_compliance_per_pa,) = _positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
     factor = _poisson_factor(method, object_poisson)
     s, ok = _frames(method, force_n=force_n, approach_m=approach_m, depth_m=depth_m,
                     contact_radius_m=contact_radius_m)
@@ -447,9 +459,8 @@ def gel_layer_factor(
     ndarray
         ``eta`` in (0, 1], the shape of ``contact_radius_m``.
     """
-    _positive("gel_layer_factor", gel_thickness_m=gel_thickness_m)
-    if not (math.isfinite(gel_poisson) and 0.0 <= gel_poisson <= 0.5):
-        raise FitError(f"gel_layer_factor: gel_poisson must be in [0, 0.5], got {gel_poisson!r}")
+    (gel_thickness_m,) = _positive("gel_layer_factor", gel_thickness_m=gel_thickness_m)
+    _poisson_ratio("gel_layer_factor", "gel_poisson", gel_poisson)
     ratio, table = _layer_table(round(float(gel_poisson), 6))
     a = np.asarray(contact_radius_m, dtype=np.float64) / gel_thickness_m
     # Beyond the table the factor falls as h / a (confined compression of the layer).
@@ -533,7 +544,7 @@ def series(
         Fingertip separation at onset (m), for the bulk compression.
     """
     method = "series"
-    _positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
+    (gel_compliance_per_pa,) = _positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
     factor = _poisson_factor(method, object_poisson)
     n = np.size(approach_m)
     layered = contact_radius_m is not None and gel_thickness_m is not None and gel_poisson is not None
@@ -548,7 +559,7 @@ def series(
         return Estimate.refuse(method, why)
     k_gel = gel_compliance_per_pa
     if bulk:
-        _positive(method, initial_width_m=initial_width_m)
+        (initial_width_m,) = _positive(method, initial_width_m=initial_width_m)
         bulk_per_pa = 3.0 * np.maximum(s["force_n"][ok], 0.0) / (math.pi * initial_width_m * factor)
     else:
         bulk_per_pa = np.zeros(depth.shape)

@@ -20,7 +20,9 @@ Two regions are measured in each frame:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from numbers import Real
 
 import cv2
 import numpy as np
@@ -149,6 +151,11 @@ def _paraboloid_curvature(depth: np.ndarray, cap: np.ndarray) -> np.ndarray:
     return (np.linalg.pinv(normal) @ rhs[:, :, None])[:, 3, 0]
 
 
+def _finite_real(value: object) -> bool:
+    """Whether ``value`` is one finite real number (a numpy scalar too, a bool not)."""
+    return isinstance(value, Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def _scale(rows: int, cols: int) -> float:
     """Length unit (pixels) of the paraboloid's coordinates: keeps its normal equations well conditioned."""
     return max(rows, cols) / 2.0
@@ -183,23 +190,29 @@ def contact_features(
     Raises
     ------
     PerceptionError
-        ``depth_m`` is not a finite float (n, H, W) array, or an option is not
-        finite and positive.
+        ``depth_m`` is not a finite float (n, H, W) array with H, W >= 1, an
+        option is not a finite real number > 0 (``smooth_px`` >= 0), or the
+        pixel pitch is so large that the image's area in m^2 overflows.
     """
     depth = np.asarray(depth_m)
-    if depth.ndim != 3 or depth.dtype not in (np.float32, np.float64):
+    if depth.ndim != 3 or depth.dtype not in (np.float32, np.float64) or 0 in depth.shape[1:]:
         raise PerceptionError(
-            f"depth_m: expected a float32 or float64 (n, H, W) stack of depth maps, got {depth.dtype} {depth.shape}"
+            f"depth_m: expected a float32 or float64 (n, H, W) stack of depth maps with H, W >= 1, "
+            f"got {depth.dtype} {depth.shape}"
         )
     if not np.all(np.isfinite(depth)):
         raise PerceptionError("depth_m: contains NaN or infinite values")
     for name, value in (("pixel_pitch_m", pixel_pitch_m), ("contact_threshold_m", contact_threshold_m)):
-        if not (np.isfinite(value) and value > 0):
-            raise PerceptionError(f"{name}: expected a finite value > 0, got {value}")
-    if not (np.isfinite(smooth_px) and smooth_px >= 0):
-        raise PerceptionError(f"smooth_px: expected a finite value >= 0, got {smooth_px}")
+        if not (_finite_real(value) and value > 0):
+            raise PerceptionError(f"{name}: expected a finite real number > 0, got {value!r}")
+    if not (_finite_real(smooth_px) and smooth_px >= 0):
+        raise PerceptionError(f"smooth_px: expected a finite real number >= 0, got {smooth_px!r}")
 
     n, rows, cols = depth.shape
+    extent = max(rows, cols) * pixel_pitch_m
+    if not math.isfinite(extent * extent):  # the areas and the cap's curvature square lengths in metres
+        raise PerceptionError(f"pixel_pitch_m: {pixel_pitch_m!r} m is too large: a {rows} x {cols} image's "
+                              "area in m^2 overflows")
     if smooth_px > 0 and depth.size:
         depth = _gaussian(depth, smooth_px)
     flat = depth.reshape(n, rows * cols)

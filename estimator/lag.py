@@ -9,13 +9,27 @@ late widths are stamped from where the fingers stop against the force peak
 
 from __future__ import annotations
 
+import math
+from numbers import Real
+
 import numpy as np
 
 from estimator.errors import FitError
+from estimator.plausible import MIN_WIDTH_NOISE_M
 from estimator.segment import ONSET_SIGMAS
-from estimator.signals import clean_samples, crossing_time
+from estimator.signals import clean_samples, crossing_time, reading_noise
 
 __all__ = ["estimate_camera_lag", "estimate_width_lag"]
+
+# Hinge times one width-lag search may try: the default searches 301.
+MAX_HINGES = 100_000
+
+
+def _positive_option(name: str, value: object) -> float:
+    """``value`` as a float when it is a finite real number > 0, else a FitError naming it."""
+    if not (isinstance(value, Real) and not isinstance(value, bool) and math.isfinite(value) and value > 0):
+        raise FitError(f"estimate_width_lag: {name} must be a finite number > 0, got {value!r}")
+    return float(value)
 
 
 def estimate_camera_lag(
@@ -107,17 +121,36 @@ def estimate_width_lag(
     Returns
     -------
     float or None
-        The lag (s); None when the trace has too few samples on either side
-        of the stop, does not close before it, or the best hinge lies at the
-        edge of the search range.
+        The lag (s); None when the stop time is not finite, the trace has too
+        few samples on either side of the stop, does not close before it
+        (its fitted closing speed is within ``ONSET_SIGMAS`` standard errors
+        of zero), or the best hinge lies at the edge of the search range.
+
+    Raises
+    ------
+    FitError
+        The samples are not 1-D of one length, ``t_stop_s`` is not a real
+        number, an option is not a finite number > 0, or ``step_s`` is too
+        fine for ``max_lag_s`` (more than ``MAX_HINGES`` hinge times).
     """
+    if not (isinstance(t_stop_s, Real) and not isinstance(t_stop_s, bool)):
+        raise FitError(f"estimate_width_lag: t_stop_s must be a real number of seconds, got {t_stop_s!r}")
+    max_lag_s = _positive_option("max_lag_s", max_lag_s)
+    step_s = _positive_option("step_s", step_s)
+    if speed_m_s is not None:
+        _positive_option("speed_m_s", speed_m_s)
+    if 2.0 * max_lag_s / step_s > MAX_HINGES:
+        raise FitError(f"estimate_width_lag: step_s = {step_s!r} s is too fine for max_lag_s = {max_lag_s!r} s "
+                       f"(at most {MAX_HINGES} hinge times)")
     t, w = clean_samples(width_t_s, width_m)
+    if not math.isfinite(t_stop_s):
+        return None
     near = (t >= t_stop_s - 1.0) & (t <= t_stop_s + 1.0)
     t, w = t[near], w[near]
     hinges = np.arange(t_stop_s - max_lag_s, t_stop_s + max_lag_s + step_s / 2, step_s)
     before = (t[None, :] < hinges[:, None]).sum(axis=1)
     usable = (before >= 3) & (t.size - before >= 2)
-    if not usable.any() or not np.isfinite(t_stop_s):
+    if not usable.any():
         return None
     # w = w_stop + v * min(t - hinge, 0): linear least squares in (w_stop, v) for every hinge.
     x = np.minimum(t[None, :] - hinges[:, None], 0.0)
@@ -126,11 +159,19 @@ def estimate_width_lag(
     sxx, sxy = (x * x).sum(axis=1), x @ w
     det = n * sxx - sx**2
     with np.errstate(invalid="ignore", divide="ignore"):
-        speed = (n * sxy - sx * sy) / det if speed_m_s is None else np.full(hinges.shape, -float(speed_m_s))
+        fitted = (n * sxy - sx * sy) / det
+        speed = fitted if speed_m_s is None else np.full(hinges.shape, -float(speed_m_s))
         offset = (sy - speed * sx) / n
         residual = ((w[None, :] - offset[:, None] - speed[:, None] * x) ** 2).sum(axis=1)
     residual = np.where(usable & (det > 0) & (speed < 0), residual, np.inf)  # closing: width falls
     best = int(np.argmin(residual))
     if not np.isfinite(residual[best]) or best in (0, hinges.size - 1):
+        return None
+    # The trace must close beyond its noise: a flat or noisy one still fits some tiny negative speed.
+    # The fitted speed's standard error uses the robust reading noise, not the fit's residual, which
+    # a hinge that fits a real grasp imperfectly (or the commanded speed) inflates; real closings
+    # clear ONSET_SIGMAS by far (simulated grasps: >= 15 standard errors).
+    standard_error = reading_noise(w, floor=MIN_WIDTH_NOISE_M) / math.sqrt(det[best] / n)
+    if not -fitted[best] > ONSET_SIGMAS * standard_error:
         return None
     return float(hinges[best] - t_stop_s)

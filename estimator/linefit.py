@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from numbers import Real
 
 import numpy as np
 from scipy import special
@@ -54,8 +55,11 @@ class MeasurementNoise:
     def __post_init__(self) -> None:
         for name in ("force_n", "width_m", "depth_m", "length_m", "depth_scale", "onset_width_m"):
             value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise FitError(f"MeasurementNoise.{name}: expected a finite value >= 0, got {value}")
+            # A numpy scalar is a number too (kept as a float: a float32 would carry its precision into
+            # the fits); a bool is no standard deviation.
+            if not (isinstance(value, Real) and not isinstance(value, bool) and math.isfinite(value) and value >= 0):
+                raise FitError(f"MeasurementNoise.{name}: expected a finite real number >= 0, got {value!r}")
+            object.__setattr__(self, name, float(value))
 
     @property
     def approach_m(self) -> float:

@@ -230,7 +230,11 @@ def interval_score(probs: np.ndarray, log10_truth: np.ndarray) -> np.ndarray:
 def conformal_scale(scores: np.ndarray, level: float) -> float:
     """Split-conformal scale: the ``ceil((n + 1) level) / n`` empirical quantile of the validation
     scores (:func:`interval_score`), so that a new grasp's interval of that many spreads about its
-    median holds its truth with probability at least ``level``; infinite when there are too few."""
+    median holds its truth with probability at least ``level`` (0 < level <= 1); infinite when there
+    are too few (always at level 1, which calibration asks for when the bounds leave the ``ok``
+    intervals everything to hold). A ModelError for any other level."""
+    if not 0.0 < level <= 1.0:  # also NaN; a level of 0 would pick the largest score, not none
+        raise ModelError(f"conformal_scale: level must be in (0, 1], got {level!r}")
     scores = np.sort(np.asarray(scores, dtype=np.float64))
     n = scores.size
     rank = math.ceil((n + 1) * level)
@@ -247,10 +251,16 @@ def force_band(peak_force_n: float | np.ndarray, edges_n: tuple[float, ...]) -> 
 def fit_temperature(logits: np.ndarray, log10_truth: np.ndarray, *, log_weights: np.ndarray | None = None
                     ) -> float:
     """The temperature minimising the log score (bin negative log likelihood) of the truths under
-    :func:`probabilities`, in [0.25, 8]; fitted on validation objects."""
+    :func:`probabilities`, in [0.25, 8]; fitted on validation objects. A ModelError when a truth is
+    not finite (it has no bin)."""
     logits = np.asarray(logits, dtype=np.float64)
     weights = 0.0 if log_weights is None else log_weights
-    index = bin_index(log10_truth)
+    truth = np.asarray(log10_truth, dtype=np.float64)
+    if not np.isfinite(truth).all():
+        bad = np.flatnonzero(~np.isfinite(truth.ravel()))
+        raise ModelError(f"fit_temperature: log10_truth must be finite, got {truth.ravel()[bad[:5]].tolist()} "
+                         f"at {bad[:5].tolist()} ({bad.size} in all)")
+    index = bin_index(truth)
 
     def nll(log_t: float) -> float:
         scaled = log_softmax(logits / math.exp(log_t) + weights, axis=-1)
@@ -310,6 +320,12 @@ def describe(probs: np.ndarray, *, scale: float, limit_pa: float, soft_pa: float
     widen : float
         Factor (>= 1) on the interval for a grasp outside what the model was trained on. The value
         is sought within the interval before widening, so widening moves only the interval's ends.
+
+    Raises
+    ------
+    ModelError
+        An option is out of its range, or ``probs`` is not N_BINS finite probabilities >= 0
+        with a positive sum.
     """
     if not (0.0 < scale < math.inf and 0.0 < p_rigid < 1.0 and 1.0 <= widen < math.inf) or not (
             0.0 < soft_pa < limit_pa <= CENSOR_PA):
@@ -317,6 +333,10 @@ def describe(probs: np.ndarray, *, scale: float, limit_pa: float, soft_pa: float
                          f"limit_pa <= {CENSOR_PA:g}, got scale {scale}, p_rigid {p_rigid}, widen {widen}, soft_pa "
                          f"{soft_pa}, limit_pa {limit_pa}")
     probs = np.asarray(probs, dtype=np.float64)[None]
+    # Not a distribution (NaN logits, every bin zero): its quantiles would be NaN.
+    if probs.shape != (1, N_BINS) or not (np.isfinite(probs).all() and probs.min() >= 0.0 and probs.sum() > 0.0):
+        raise ModelError(f"describe: probs must be {N_BINS} finite probabilities >= 0 with a positive sum, got "
+                         f"shape {probs.shape[1:]}, sum {float(np.sum(probs))!r}")
     median = float(quantile(probs, 0.5)[0])
     p_above = float(1.0 - cdf_at(probs, math.log10(limit_pa))[0])
     if p_above >= p_rigid:

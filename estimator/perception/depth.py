@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from numbers import Real
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -38,6 +39,11 @@ if TYPE_CHECKING:
     from estimator.perception.calibration import Calibration
 
 __all__ = ["SphereFit", "fit_sphere", "poisson_depth", "reconstruct_depth"]
+
+
+def _finite_real(value: object) -> bool:
+    """Whether ``value`` is one finite real number (a numpy scalar too, a bool not)."""
+    return isinstance(value, Real) and not isinstance(value, bool) and math.isfinite(value)
 
 
 @functools.lru_cache(maxsize=16)
@@ -105,7 +111,8 @@ def poisson_depth(gx: np.ndarray, gy: np.ndarray, *, pixel_pitch_m: float) -> np
     ------
     PerceptionError
         Shapes or dtypes differ, the arrays are not 2-D floats, a value is not
-        finite, or the pixel pitch is not a positive number.
+        finite, the pixel pitch is not a positive number, or the gradients are
+        so large that the depth overflows.
     """
     for name, arr in (("gx", gx), ("gy", gy)):
         if not isinstance(arr, np.ndarray) or arr.ndim != 2 or arr.dtype.kind != "f":
@@ -117,15 +124,21 @@ def poisson_depth(gx: np.ndarray, gy: np.ndarray, *, pixel_pitch_m: float) -> np
         )
     if min(gx.shape) < 3:
         raise PerceptionError(f"gx: expected at least 3 x 3 pixels, got {gx.shape}")
-    if not (isinstance(pixel_pitch_m, int | float) and math.isfinite(pixel_pitch_m) and pixel_pitch_m > 0):
+    if not (_finite_real(pixel_pitch_m) and pixel_pitch_m > 0):
         raise PerceptionError(f"pixel_pitch_m: expected a positive number of metres, got {pixel_pitch_m!r}")
     divergence = _central_divergence(gx, gy)
-    # Every gradient value enters the divergence, so one check covers both (and overflow).
-    if not np.isfinite(divergence).all():
-        raise PerceptionError("gx/gy: gradients contain NaN or infinite values")
     spectrum = scipy.fft.dstn(divergence, type=2, workers=1, overwrite_x=True)
-    spectrum *= _inverse_eigenvalues(gx.shape, gx.dtype, 0.5 * float(pixel_pitch_m))
-    return scipy.fft.idstn(spectrum, type=2, workers=1, overwrite_x=True)
+    with np.errstate(over="ignore", invalid="ignore"):  # refused below, as a whole
+        spectrum *= _inverse_eigenvalues(gx.shape, gx.dtype, 0.5 * float(pixel_pitch_m))
+    depth = scipy.fft.idstn(spectrum, type=2, workers=1, overwrite_x=True)
+    # One check of the result, on the hot path: every output of the two transforms sums every
+    # divergence value, which sums every gradient value, so a NaN or infinite gradient leaves no
+    # output finite; finite gradients near the float range (float32's sooner) can overflow too.
+    if not np.isfinite(depth).all():
+        if not (np.isfinite(gx).all() and np.isfinite(gy).all()):
+            raise PerceptionError("gx/gy: gradients contain NaN or infinite values")
+        raise PerceptionError(f"gx/gy: gradients too large to integrate in {gx.dtype}: the depth overflows")
+    return depth
 
 
 def reconstruct_depth(
@@ -251,32 +264,51 @@ def fit_sphere(
     Parameters
     ----------
     depth : ndarray
-        2-D float depth map, metres, positive into the gel.
+        2-D float depth map (at least 3 x 3 pixels), metres, positive into the gel.
     pixel_pitch_m : float
-        Gel surface per pixel, metres.
+        Gel surface per pixel, metres (> 0).
     center_px : (float, float), optional
         Where to look for the indentation, ``(x, y)`` pixels; default: the
         deepest point of the smoothed map.
     min_depth_m : float
-        Shallower indentations are reported as no contact.
+        Shallower indentations are reported as no contact (m, finite).
     smooth_px : float
-        Gaussian sigma (pixels) used to find the peak and the contact circle;
-        the sphere itself is fitted to the unsmoothed depth.
+        Gaussian sigma (pixels, >= 0) used to find the peak and the contact
+        circle; the sphere itself is fitted to the unsmoothed depth.
 
     Returns
     -------
     SphereFit
         Falsy with a reason when there is no indentation, the contact circle
-        is too small, or the fit does not converge to a finite sphere.
+        is too small, the depth is too large for the fit's arithmetic, or the
+        fit does not converge to a finite sphere.
+
+    Raises
+    ------
+    PerceptionError
+        ``depth`` is not a 2-D float array of at least 3 x 3 pixels, or an
+        option is not a finite number in its range.
     """
     if not isinstance(depth, np.ndarray) or depth.ndim != 2 or depth.dtype.kind != "f":
         got = f"{depth.dtype} {depth.shape}" if isinstance(depth, np.ndarray) else type(depth).__name__
         raise PerceptionError(f"depth: expected a 2-D float array in metres, got {got}")
-    if not (math.isfinite(pixel_pitch_m) and pixel_pitch_m > 0):
+    if min(depth.shape) < 3:
+        raise PerceptionError(f"depth: expected at least 3 x 3 pixels, got {depth.shape}")
+    if not (_finite_real(pixel_pitch_m) and pixel_pitch_m > 0):
         raise PerceptionError(f"pixel_pitch_m: expected a positive number of metres, got {pixel_pitch_m!r}")
+    if not _finite_real(min_depth_m):
+        raise PerceptionError(f"min_depth_m: expected a finite number of metres, got {min_depth_m!r}")
+    if not (_finite_real(smooth_px) and smooth_px >= 0):
+        raise PerceptionError(f"smooth_px: expected a finite number of pixels >= 0, got {smooth_px!r}")
     if not np.isfinite(depth).all():
         return SphereFit(ok=False, reason="depth contains NaN or infinite values")
-    depth_px = depth.astype(np.float64) / pixel_pitch_m
+    with np.errstate(over="ignore"):
+        depth_px = depth.astype(np.float64) / pixel_pitch_m
+        largest = float(np.max(np.abs(depth_px)))
+    # The fit squares depths in pixels, up to twice the largest (the cap, the sphere's radius).
+    if not math.isfinite(4.0 * largest * largest):
+        return SphereFit(ok=False, reason=f"depth too large to fit: its largest value, {largest:.3g} px, "
+                                               "overflows when squared")
     smooth = scipy.ndimage.gaussian_filter(depth_px, smooth_px)
     if center_px is None:
         row, col = np.unravel_index(int(np.argmax(smooth)), smooth.shape)
@@ -329,12 +361,18 @@ def fit_sphere(
         if not (0 <= center[0] < cols and 0 <= center[1] < rows):
             return SphereFit(ok=False, reason=f"fitted centre {tuple(center)} lies outside the image")
     cx, cy, radius, offset = (float(v) for v in fit.x)
-    return SphereFit(
-        ok=True,
-        center_px=(cx, cy),
-        radius_m=abs(radius) * pixel_pitch_m,
-        contact_radius_m=contact_px * pixel_pitch_m,
-        apex_depth_m=(abs(radius) - offset) * pixel_pitch_m,
-        rms_residual_m=float(np.sqrt(np.mean(fit.fun**2))) * pixel_pitch_m,
-        n_pixels=n_pixels,
-    )
+    with np.errstate(over="ignore"):
+        result = SphereFit(
+            ok=True,
+            center_px=(cx, cy),
+            radius_m=abs(radius) * pixel_pitch_m,
+            contact_radius_m=contact_px * pixel_pitch_m,
+            apex_depth_m=(abs(radius) - offset) * pixel_pitch_m,
+            rms_residual_m=float(np.sqrt(np.mean(fit.fun**2))) * pixel_pitch_m,
+            n_pixels=n_pixels,
+        )
+    # Pixels times a large pitch can leave the float range.
+    if not all(math.isfinite(v) for v in (result.radius_m, result.contact_radius_m, result.apex_depth_m,
+                                          result.rms_residual_m)):
+        return SphereFit(ok=False, reason="the fitted sphere in metres is beyond the float range")
+    return result

@@ -275,6 +275,38 @@ def test_mismatched_series_are_refused_naming_the_method():
         no_tactile(np.zeros(3), np.zeros(3), initial_width_m=-1.0, pad_area_m2=1.0)
 
 
+def test_numpy_scalar_options_count_as_the_numbers_they_hold():
+    force, approach, _ = uniaxial_series(1e6)
+    plain = no_tactile(force, approach, initial_width_m=float(np.float32(W0)), pad_area_m2=1.0, noise=NOISY)
+    assert no_tactile(force, approach, initial_width_m=np.float32(W0), pad_area_m2=np.int64(1),
+                      noise=NOISY) == plain
+    f, ap, d, a = hertz_series(1e6)
+    assert hertz(f, ap, d, a, gel_compliance_per_pa=np.float64(K_GEL), object_poisson=np.float32(0.5),
+                 noise=RESOLUTION) == hertz(f, ap, d, a, gel_compliance_per_pa=K_GEL, object_poisson=0.5,
+                                            noise=RESOLUTION)
+    assert np.array_equal(gel_layer_factor(a, gel_thickness_m=np.float32(3e-3), gel_poisson=np.float64(0.48)),
+                          gel_layer_factor(a, gel_thickness_m=float(np.float32(3e-3)), gel_poisson=0.48))
+    noise = MeasurementNoise(width_m=np.float32(2e-5), force_n=np.int64(0))
+    assert type(noise.approach_m) is float and noise.force_n == 0
+
+
+@pytest.mark.parametrize("bad", [None, "0.04", True, float("nan")])
+def test_options_that_are_not_real_numbers_are_refused_by_name(bad):
+    f, ap, d, a = hertz_series(1e6)
+    with pytest.raises(FitError, match="initial_width_m"):
+        no_tactile(f, ap, initial_width_m=bad, pad_area_m2=1.0)
+    with pytest.raises(FitError, match="object_poisson"):
+        hertz(f, ap, d, a, gel_compliance_per_pa=K_GEL, object_poisson=bad)
+    with pytest.raises(FitError, match="gel_compliance_per_pa"):
+        series(ap, d, gel_compliance_per_pa=bad, object_poisson=NU)
+    with pytest.raises(FitError, match="gel_poisson"):
+        gel_layer_factor(a, gel_thickness_m=3e-3, gel_poisson=bad)
+    with pytest.raises(FitError, match="gel_thickness_m"):
+        gel_layer_factor(a, gel_thickness_m=bad, gel_poisson=0.48)
+    with pytest.raises(FitError, match="MeasurementNoise.depth_m"):
+        MeasurementNoise(depth_m=bad)
+
+
 # --------------------------------------------------------------------------- geometry hard cases
 
 

@@ -123,6 +123,8 @@ def test_depth_noise_at_the_resolution_does_not_make_contact():
         (np.zeros((10, 10), dtype=np.float32), "stack"),
         (np.zeros((1, 10, 10), dtype=np.uint8), "float"),
         (np.full((1, 4, 4), np.nan, dtype=np.float32), "NaN"),
+        (np.zeros((1, 0, 10), dtype=np.float32), "H, W >= 1"),
+        (np.zeros((2, 10, 0)), "H, W >= 1"),
     ],
 )
 def test_bad_depth_is_refused_naming_it(depth, match):
@@ -133,6 +135,19 @@ def test_bad_depth_is_refused_naming_it(depth, match):
 def test_bad_options_are_refused():
     with pytest.raises(PerceptionError, match="pixel_pitch_m"):
         contact_features(np.zeros((1, 4, 4)), pixel_pitch_m=0.0, contact_threshold_m=THRESHOLD)
+
+
+@pytest.mark.parametrize(("options", "named"), [
+    ({"pixel_pitch_m": None}, "pixel_pitch_m"),
+    ({"pixel_pitch_m": "1e-4"}, "pixel_pitch_m"),
+    ({"pixel_pitch_m": 1e200}, "pixel_pitch_m"),  # its square, the pixel area, overflows
+    ({"contact_threshold_m": None}, "contact_threshold_m"),
+    ({"smooth_px": None}, "smooth_px"),
+])
+def test_options_that_are_not_usable_numbers_are_refused_by_name(options, named):
+    depth = hertz_gel_depth(0.5e-3, 10e-3, shape=(40, 50))[None]
+    with pytest.raises(PerceptionError, match=named):
+        contact_features(depth, **{"pixel_pitch_m": PITCH, "contact_threshold_m": THRESHOLD, **options})
 
 
 @settings(max_examples=40, deadline=None)

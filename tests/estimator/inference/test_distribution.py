@@ -73,6 +73,20 @@ def test_conformal_scale_is_the_finite_sample_quantile():
     assert conformal_scale(scores, 0.5) == pytest.approx(0.5)  # rank 5
     assert conformal_scale(scores[:5], 0.9) == math.inf  # too few to promise 90 %
     assert conformal_scale(np.array([]), 0.9) == math.inf
+    assert conformal_scale(scores, 1.0) == math.inf  # no finite sample promises every truth
+
+
+@pytest.mark.parametrize("level", [0.0, -0.1, 1.5, float("nan")])
+def test_conformal_scale_refuses_a_level_outside_zero_to_one(level):
+    with pytest.raises(ModelError, match="level"):
+        conformal_scale(np.arange(10.0), level)
+
+
+def test_temperature_refuses_truths_without_a_bin():
+    with pytest.raises(ModelError, match="log10_truth"):
+        fit_temperature(np.zeros((3, N_BINS)), np.array([np.nan, 1.0, 2.0]))
+    with pytest.raises(ModelError, match="log10_truth"):
+        fit_temperature(np.zeros((2, N_BINS)), np.array([5.0, np.inf]))
 
 
 def test_temperature_widens_an_overconfident_model_and_intervals_then_cover():
@@ -126,6 +140,13 @@ def test_describe_refuses_meaningless_arguments():
         describe(gaussian(6, 1), scale=1.645, limit_pa=LIMIT_PA, soft_pa=SOFT_PA, p_rigid=1.0)
     with pytest.raises(ModelError, match="temperature"):
         probabilities(np.zeros((1, N_BINS)), temperature=0.0)
+
+
+@pytest.mark.parametrize("probs", [np.zeros(N_BINS), np.full(N_BINS, np.nan), -gaussian(6, 1),
+                                   gaussian(6, 1)[:10]])
+def test_describe_refuses_what_is_no_distribution(probs):
+    with pytest.raises(ModelError, match="probs"):
+        describe(probs, scale=1.5, limit_pa=1e8, soft_pa=1e3)
 
 
 def test_the_training_loss_is_lowest_at_the_truth():

@@ -155,3 +155,35 @@ def test_sphere_fit_reports_no_contact_as_a_falsy_result():
 def test_sphere_fit_refuses_a_non_depth_input():
     with pytest.raises(PerceptionError, match="depth"):
         fit_sphere(np.zeros((5, 5), np.uint8), pixel_pitch_m=PITCH)
+
+
+def test_gradients_whose_depth_overflows_are_refused():
+    huge = np.random.default_rng(0).normal(size=(50, 50)) * 1e306  # finite, but their sums are not
+    with pytest.raises(PerceptionError, match="overflows"):
+        poisson_depth(huge, np.zeros((50, 50)), pixel_pitch_m=PITCH)
+    with pytest.raises(PerceptionError, match="float32"):
+        poisson_depth((huge * 1e-270).astype(np.float32), np.zeros((50, 50), np.float32), pixel_pitch_m=PITCH)
+
+
+@pytest.mark.parametrize(("depth", "options", "named"), [
+    (np.zeros((0, 5)), {}, "depth"),
+    (np.full((1, 1), 1e-3), {}, "depth"),
+    (np.zeros((2, 40)), {}, "depth"),
+    (bump(), {"pixel_pitch_m": None}, "pixel_pitch_m"),
+    (bump(), {"pixel_pitch_m": "1e-4"}, "pixel_pitch_m"),
+    (bump(), {"smooth_px": float("nan")}, "smooth_px"),
+    (bump(), {"smooth_px": -1.0}, "smooth_px"),
+    (bump(), {"smooth_px": None}, "smooth_px"),
+    (bump(), {"min_depth_m": float("nan")}, "min_depth_m"),
+])
+def test_sphere_fit_refuses_maps_too_small_and_bad_options_by_name(depth, options, named):
+    with pytest.raises(PerceptionError, match=named):
+        fit_sphere(depth, **{"pixel_pitch_m": PITCH, **options})
+
+
+def test_sphere_fit_of_numbers_beyond_the_float_range_is_a_falsy_result():
+    fit = fit_sphere(bump() * 1e300, pixel_pitch_m=PITCH)
+    assert not fit and "too large" in fit.reason
+    fit = fit_sphere(bump() * 1e300, pixel_pitch_m=1e306)  # the sphere in metres overflows
+    assert not fit and "float range" in fit.reason
+    assert fit_sphere(bump(), pixel_pitch_m=np.float32(PITCH))  # a numpy scalar pitch is a number
