@@ -36,6 +36,7 @@ __all__ = [
     "TACTILE_METHODS",
     "GraspMeasurements",
     "calibration_path",
+    "calibration_sensor_mismatch",
     "check_calibration_fits",
     "check_method",
     "estimate_measurements",
@@ -212,21 +213,30 @@ def check_calibration_fits(cal: Calibration, sensor: SensorSettings) -> None:
         )
 
 
-def _check_calibration_sensor(cal: Calibration, sensor: SensorSettings) -> None:
-    """Compare the sensor ``cal`` records it was fitted on (when it records one) with ``sensor``; an
-    identity either side leaves unstated (no serial, a calibration fitted without --settings) is not
-    compared. A warning, not a refusal: a lab may calibrate one sensor and use it on its twin."""
+def calibration_sensor_mismatch(cal: Calibration, sensor: SensorSettings) -> str | None:
+    """How the sensor ``cal`` records it was fitted on (when it records one) differs from ``sensor``,
+    or None. An identity either side leaves unstated (no serial, a calibration fitted without
+    --settings) is not compared."""
     made_for = cal.provenance.get("sensor") or {}
-    differ = tuple(f"{key} {made_for[key]!r} (this sensor: {getattr(sensor, key)!r})"
-                   for key in ("model", "finger", "serial")
-                   if made_for.get(key) and getattr(sensor, key) and made_for[key] != getattr(sensor, key))
-    if differ and differ not in _WARNED:  # once per pair: an evaluation loads it for every record
-        _WARNED.add(differ)
-        log.warning("the calibration was made for another sensor than %s %r: %s; its colours may read as other "
-                    "slopes here", sensor.model, sensor.serial or sensor.finger, ", ".join(differ))
+    differ = [f"{key} {made_for[key]!r} (this sensor: {getattr(sensor, key)!r})"
+              for key in ("model", "finger", "serial")
+              if made_for.get(key) and getattr(sensor, key) and made_for[key] != getattr(sensor, key)]
+    if not differ:
+        return None
+    return (f"the calibration was made for another sensor than {sensor.model} "
+            f"{sensor.serial or sensor.finger!r}: {', '.join(differ)}")
 
 
-_WARNED: set[tuple[str, ...]] = set()
+def _check_calibration_sensor(cal: Calibration, sensor: SensorSettings) -> None:
+    """Warn when ``cal`` was made for another sensor (:func:`calibration_sensor_mismatch`). A warning,
+    not a refusal: a lab may calibrate one sensor and use it on its twin."""
+    mismatch = calibration_sensor_mismatch(cal, sensor)
+    if mismatch and mismatch not in _WARNED:  # once per pair: an evaluation loads it for every record
+        _WARNED.add(mismatch)
+        log.warning("%s; its colours may read as other slopes here", mismatch)
+
+
+_WARNED: set[str] = set()
 
 
 def median_frame(frames: np.ndarray) -> np.ndarray:

@@ -41,6 +41,7 @@ __all__ = [
     "Scene",
     "draw_pose",
     "make_scene",
+    "narrowest_width",
     "object_size",
     "object_texture",
     "scaled_size",
@@ -212,7 +213,7 @@ def _hull_points(obj: ObjectSpec, size: tuple[float, float, float]) -> np.ndarra
     return np.concatenate([np.column_stack([ring, np.full(len(ring), z)]) for z in (-size[2] / 2, size[2] / 2)])
 
 
-def _narrowest_width(obj: ObjectSpec, size: tuple[float, float, float]) -> float:
+def narrowest_width(obj: ObjectSpec, size: tuple[float, float, float]) -> float:
     """The object's smallest extent (m) over the body axes and 256 other directions."""
     directions = np.concatenate([np.eye(3), _directions(256)])
     return float(np.ptp(_hull_points(obj, size) @ directions.T, axis=0).min())
@@ -237,8 +238,8 @@ def scaled_size(obj: ObjectSpec, size: tuple[float, float, float], factors: tupl
         scaled = (size[0] * fx, size[1] * fx, size[2] * fz)
     else:
         scaled = (size[0] * fx, size[1] * fy, size[2] * fz)
-    bound = max(_narrowest_width(obj, size), FIT_MARGIN**2 * max_width_m)
-    width = _narrowest_width(obj, scaled)
+    bound = max(narrowest_width(obj, size), FIT_MARGIN**2 * max_width_m)
+    width = narrowest_width(obj, scaled)
     return scaled if width <= bound else tuple(s * bound / width for s in scaled)
 
 

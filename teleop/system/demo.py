@@ -65,7 +65,7 @@ from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SettingsError, TeleopError
 from teleop.live import ENDPOINTS, sigterm_as_ctrl_c
-from teleop.scene import SCENE_DIR, load_scene
+from teleop.scene import SCENE_DIR, Scene, load_scene, scene_path
 from teleop.session.foxglove_live import add_foxglove_argument
 from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
 from teleop.system.demo_table import LiveView, closing_table, models_answered
@@ -447,21 +447,43 @@ def scene_plan(scene_name: str, n_grasps: int | None = None) -> list[tuple[int, 
     return [(i % len(objects), objects[i % len(objects)]) for i in range(count)]
 
 
+def check_objects_fit(scene: Scene, settings: Settings) -> None:
+    """Raise SettingsError naming the scene's objects too wide for the open gripper: the simulated
+    node would fail each of their grasps, seen only in its log."""
+    # The node's own test (teleop.sim.shapes.draw_pose): some orientation narrower than the margin.
+    from teleop.sim.shapes import FIT_MARGIN, narrowest_width, object_size
+
+    opening = settings.gripper.max_width_m
+    widths = {obj.name: narrowest_width(obj, object_size(obj)) for obj in scene.objects}
+    wide = [f"{name!r} ({width:.3g} m)" for name, width in widths.items() if width >= FIT_MARGIN * opening]
+    if wide:
+        raise SettingsError(
+            f"scene {scene.name!r}: objects {', '.join(wide)} are, at their narrowest, wider than fingers open to "
+            f"gripper.max_width_m = {opening:g} m take (less {1 - FIT_MARGIN:.0%} to spare: under "
+            f"{FIT_MARGIN * opening:.3g} m): raise gripper.max_width_m or leave them out of the scene")
+
+
 def prepare_run(args: argparse.Namespace, *, prefix: str, out: TextIO) -> tuple[Path, Path]:
     """The run directory (made) and the calibration to use (fitted there when none is configured).
 
-    Raises SettingsError when the settings are not the scene's, or name hardware backends: the
-    live system runs here on the simulated robot.
+    Raises SettingsError when the settings are not the scene's, name hardware backends (the live
+    system runs here on the simulated robot), or open the gripper too little for the scene's objects.
     """
     from teleop.session.recorder import session_source
 
     settings = load_settings(args.settings)
-    if load_scene(args.scene).settings != settings:
-        raise SettingsError(f"scene {args.scene!r} names other settings than --settings {args.settings}: "
-                            "pass its settings file with --settings")
+    scene = load_scene(args.scene)
+    if scene.settings != settings:
+        where = scene_path(args.scene)
+        raise SettingsError(
+            f"scene {args.scene!r} names other settings than --settings {args.settings}: {where} names "
+            f"{scene.settings_path} (its `settings` key; the shipped settings without one): pass --settings "
+            f"{scene.settings_path}, or to run the scene on {args.settings}, set settings = "
+            f"\"{Path(args.settings).absolute()}\" in {where} (or a copy of it)")
     if session_source(settings) != "simulated":
         raise SettingsError(f"{args.settings} names hardware backends; {prefix} runs on the simulated robot: "
                             "use settings whose gripper, load cell and cameras are 'sim'")
+    check_objects_fit(scene, settings)
     run_dir = Path(args.out) if args.out else Path("runs") / f"{prefix}-{datetime.now(UTC):%Y%m%d-%H%M%S}"
     earlier = sorted(p.name for p in run_dir.glob("*") if p.suffix in (".log", ".mcap")) if run_dir.is_dir() else []
     if earlier:  # the processes' logs would be replaced before the recorder refused the session log

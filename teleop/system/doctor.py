@@ -26,9 +26,11 @@ folder that holds client certificates only, one at least. The settings refuse a 
 and two that name one.
 
 Calibrations: each sensor's colour calibration (present, loads, made for the sensor's image
-grid; its age in days), required for the estimator's finger; and the estimator's model.
+grid; its age in days), required for the estimator's finger; and the estimator's model. A
+calibration made for another sensor (its model, finger or serial) is a warning, saying which; the
+estimator's finger holding another finger's file of these settings (a swap) is a problem.
 
-Exit status 0 when everything a session needs is right, 1 otherwise.
+Exit status 0 when everything a session needs is right (warnings or not), 1 otherwise.
 """
 
 from __future__ import annotations
@@ -74,7 +76,8 @@ READ_SLICE_S = 0.2  # each read waits at most this long, so a silent device is n
 
 @dataclass
 class Check:
-    """One line of the report: a device, a bus endpoint or a calibration file."""
+    """One line of the report: a device, a bus endpoint or a calibration file. ``warning``: something
+    to look at that does not stop a session (``ok`` stays true)."""
 
     name: str
     ok: bool
@@ -82,6 +85,7 @@ class Check:
     latency_ms: float | None = None
     problem: str | None = None
     detail: dict[str, Any] = field(default_factory=dict)
+    warning: str | None = None
 
 
 # --------------------------------------------------------------------------- devices
@@ -382,7 +386,7 @@ def _calibrate_todo(sensor: SensorSettings, settings_path: Path) -> str:
 def check_calibrations(settings: Settings, settings_path: Path) -> list[Check]:
     """Each sensor's colour calibration and the estimator's model: present, loadable, their age."""
     from estimator.errors import EstimatorError
-    from estimator.measurements import check_calibration_fits
+    from estimator.measurements import calibration_sensor_mismatch, check_calibration_fits
     from estimator.perception.calibration import load_calibration
     from estimator.service import resolve_model_dir
 
@@ -396,8 +400,21 @@ def check_calibrations(settings: Settings, settings_path: Path) -> list[Check]:
         path = resolve_path(sensor.calibration)
         detail = {"path": str(path)}
         try:
-            check_calibration_fits(load_calibration(path), sensor)
-            checks.append(Check(name, True, detail={**detail, "age_days": _age_days(path)}))
+            calibration = load_calibration(path)
+            check_calibration_fits(calibration, sensor)
+            mismatch = calibration_sensor_mismatch(calibration, sensor)
+            fix = f"name this sensor's own file in [sensors.{sensor.finger}] calibration"
+            owner = next((other.finger for other in settings.sensors if other is not sensor
+                          and calibration_sensor_mismatch(calibration, other) is None), None)
+            # Another sensor's colours read as other slopes: on the estimator's finger, wrong moduli that
+            # nothing downstream notices. The file of another sensor of this rig is a swap, a mistake: not
+            # ready. One of a sensor not in these settings may be this one's twin, which a lab may use
+            # knowingly (the estimator runs on it, warning): a warning, as the estimator has it.
+            if mismatch and owner is not None and needed:
+                checks.append(Check(name, False, problem=f"{mismatch}; it is [sensors.{owner}]'s: {fix}", detail=detail))
+                continue
+            warning = mismatch and f"{mismatch}: {fix}"
+            checks.append(Check(name, True, detail={**detail, "age_days": _age_days(path)}, warning=warning))
         except EstimatorError as exc:
             checks.append(Check(name, False, problem=f"{exc}: {todo}", detail=detail))
     model_dir = resolve_model_dir(None, settings)
@@ -434,7 +451,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="how long every device is read, in seconds > 0 (default: 2.0)")
     parser.add_argument("--json", action="store_true",
                         help='print one JSON object: {"ok", "devices": [{"name", "ok", "rate_hz", "latency_ms", '
-                             '"problem", "detail"}...], "endpoints": [...], "calibrations": [...]}')
+                             '"problem", "detail", "warning"}...], "endpoints": [...], "calibrations": [...]}')
 
 
 def _number(value: float | None, digits: str) -> str:
@@ -449,9 +466,12 @@ def _table(report: dict[str, Any]) -> str:
             rate = _number(c["rate_hz"], ".1f") + (f" / {expected:g}" if expected and c["rate_hz"] else "")
             extra = c["detail"].get("endpoint") or c["detail"].get("note") or (
                 f"{c['detail']['age_days']:g} days old" if "age_days" in c["detail"] else "")
-            lines.append(f"{c['name']:18s} {'yes' if c['ok'] else 'NO':4s} {rate:>16s} "
-                         f"{_number(c['latency_ms'], '.1f'):>10s}  {c['problem'] or extra}")
-    lines.append("ready for a session" if report["ok"] else "NOT ready: fix the lines marked NO")
+            verdict = "NO" if not c["ok"] else "warn" if c["warning"] else "yes"
+            lines.append(f"{c['name']:18s} {verdict:4s} {rate:>16s} "
+                         f"{_number(c['latency_ms'], '.1f'):>10s}  {c['problem'] or c['warning'] or extra}")
+    warned = any(c["warning"] for section in ("devices", "endpoints", "calibrations") for c in report[section])
+    lines.append("NOT ready: fix the lines marked NO" if not report["ok"] else
+                 "ready for a session; see the lines marked warn" if warned else "ready for a session")
     return "\n".join(lines)
 
 
