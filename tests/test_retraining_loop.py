@@ -14,11 +14,12 @@ import pytest
 import estimator.cli
 import teleop.cli
 from estimator.inference.infer import default_model_dir, model_id
+from estimator.measurements import calibration_path
 from teleop.record import read_record
 from teleop.scene import load_scene
 from teleop.session.logfile import LogReader
 from teleop.settings import default_settings_path, load_settings
-from teleop.system.demo import LiveSystem, simulated_calibration
+from teleop.system.demo import LiveSystem
 
 OBJECTS_A = ["stress_ball", "vinyl_eraser", "hdpe_bottle_cap"]
 OBJECTS_B = ["kitchen_sponge", "silicone_puck_shore10a", "oak_block"]
@@ -106,7 +107,7 @@ def test_the_loop_from_two_sessions_to_a_served_model(tmp_path, capsys):
 
     # Serve: a running system switches to the candidate without a restart; the log names who answered.
     settings = load_settings()
-    calibration = simulated_calibration(settings, tmp_path)
+    calibration = calibration_path(settings.sensor(settings.sensing.finger))  # the one the demo sessions used
     base_id, candidate_id = model_id(default_model_dir()), model_id(candidate)
     system = LiveSystem(default_settings_path(), str(tmp_path / "b.toml"), tmp_path / "served", calibration,
                         model=default_model_dir())

@@ -387,14 +387,12 @@ def test_a_second_sigterm_during_the_first_ones_handling_does_not_deadlock():
 
 
 @pytest.mark.slow
-def test_demo_runs_the_quick_scene_end_to_end(tmp_path, capsys):
+def test_demo_runs_the_quick_scene_end_to_end(quick_demo_script, tmp_path):
     from estimator.inference.infer import model_id
 
-    code = teleop.cli.main(["demo", "--scene", "quick", "--operator", "script", "--json", "--no-view",
-                            "--out", str(tmp_path), "--model", "estimator/models/default"])
-    out = capsys.readouterr().out.strip().splitlines()
-    assert code == 0
-    result = json.loads(out[-1])
+    run = quick_demo_script
+    assert run.code == 0, run.err
+    out, result = run.out, run.result
     served = model_id("estimator/models/default")
     assert {g["model"] for g in result["grasps"]} <= {served, None} and result["models"].get(served, 0) >= 1
     assert any(line.startswith(f"model: {served} (") for line in out)
@@ -416,7 +414,7 @@ def test_demo_runs_the_quick_scene_end_to_end(tmp_path, capsys):
         assert (grasp["E_final_pa"] is None) == (grasp["state"] == "insufficient_data")
         assert grasp["E_final_pa"] is None or grasp["E_final_pa"] > 0
         assert 0 < grasp["latency_ms"] < 2000 and 0 < grasp["t_first_estimate_s"] < 2
-    assert any(line.startswith("object") for line in out) and f"session log: {tmp_path / 'session.mcap'}" in out
+    assert any(line.startswith("object") for line in out) and f"session log: {run.folder / 'session.mcap'}" in out
     header = next(line for line in out if line.startswith("object"))
     assert "display" in header and "state" in header
     topics = {m.message.topic for m in LogReader(Path(result["session_log"])).messages(None)}
@@ -429,12 +427,10 @@ def test_demo_runs_the_quick_scene_end_to_end(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_the_simulated_operator_grasps_the_quick_scene_leader_follower(tmp_path, capsys):
-    code = teleop.cli.main(["demo", "--scene", "quick", "--json", "--no-view", "--out", str(tmp_path)])
-    captured = capsys.readouterr()
-    assert code == 0, "\n".join([captured.err, *(f"--- {log.name}:\n{_log_tail(log)}" for log in sorted(tmp_path.glob("*.log")))])
-    out = captured.out.strip().splitlines()
-    result = json.loads(out[-1])
+def test_the_simulated_operator_grasps_the_quick_scene_leader_follower(quick_demo_sim):
+    run = quick_demo_sim
+    assert run.code == 0, "\n".join([run.err, *(f"--- {log.name}:\n{_log_tail(log)}" for log in sorted(run.folder.glob("*.log")))])
+    out, result = run.out, run.result
     assert result["operator"] == "sim"  # the default
     grasps = {g["object"]: g for g in result["grasps"]}
     assert list(grasps) == ["stress_ball", "rubber_duck", "steel_ball_bearing"]

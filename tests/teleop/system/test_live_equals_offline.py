@@ -37,11 +37,10 @@ def _as_sent(reason: str) -> str:
 
 
 @pytest.mark.slow
-def test_estimator_estimate_on_the_exported_records_gives_each_live_final_exactly(tmp_path, capsys):
-    model = default_model_dir()
-    assert teleop.cli.main(["demo", "--scene", "quick", "--json", "--no-view", "--out", str(tmp_path / "run"),
-                            "--model", str(model)]) == 0
-    run = _last_json(capsys)
+def test_estimator_estimate_on_the_exported_records_gives_each_live_final_exactly(quick_demo_sim, tmp_path, capsys):
+    model = default_model_dir()  # what the demo serves by default
+    assert quick_demo_sim.code == 0, quick_demo_sim.err
+    run = quick_demo_sim.result
     assert {g["style"] for g in run["grasps"]} == {"operator"}
     log = Path(run["session_log"])
     finals = {m.message.body["grasp_id"]: m.message.body for m in LogReader(log).messages(("estimate",))

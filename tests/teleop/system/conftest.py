@@ -1,0 +1,49 @@
+"""One run of ``teleop demo`` on the quick scene per operator, shared by the slow tests that read it.
+
+A run takes 10-20 s of processes on a 2-core machine; the tests only read what it printed and wrote
+(each writes its own reports and exports into its own ``tmp_path``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+import teleop.cli
+
+
+@dataclass(frozen=True)
+class DemoRun:
+    code: int
+    out: list[str]
+    err: str
+    folder: Path
+
+    @property
+    def result(self) -> dict:
+        """The ``--json`` line, the last one printed."""
+        return json.loads(self.out[-1])
+
+
+def _demo(folder: Path, *options: str) -> DemoRun:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = teleop.cli.main(["demo", "--scene", "quick", "--json", "--no-view", "--out", str(folder), *options])
+    return DemoRun(code, out.getvalue().strip().splitlines(), err.getvalue(), folder)
+
+
+@pytest.fixture(scope="session")
+def quick_demo_script(tmp_path_factory) -> DemoRun:
+    """The scripted grasps, served the shipped default model named by its path."""
+    return _demo(tmp_path_factory.mktemp("demo-script"), "--operator", "script", "--model", "estimator/models/default")
+
+
+@pytest.fixture(scope="session")
+def quick_demo_sim(tmp_path_factory) -> DemoRun:
+    """The defaults: the simulated operator, the default model."""
+    return _demo(tmp_path_factory.mktemp("demo-sim"))
