@@ -42,11 +42,22 @@ def output_file(option: str, value: str | None, *, suffixes: Sequence[str] = ())
         raise TeleopError(f"{option} {value}: is a folder; expected a file name")
     if suffixes and path.suffix.lower() not in suffixes:
         raise TeleopError(f"{option} {value}: expected a name ending in {', '.join(suffixes)}")
+    blocker = file_in_the_way(path.parent)
+    if blocker is not None:
+        raise TeleopError(f"{option} {value}: {blocker} is not a directory; expected a folder there (or nothing)")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise TeleopError(f"{option} {value}: cannot make its folder {path.parent} ({exc.strerror or exc})") from exc
     return path
+
+
+def file_in_the_way(folder: Path) -> Path | None:
+    """The first of ``folder`` and its parents that exists, when it is not a folder: what makes
+    ``folder.mkdir(parents=True)`` fail with an error ("File exists", "Not a directory") that does not
+    name it. None when nothing is in the way."""
+    existing = next((p for p in (folder, *folder.parents) if p.exists()), None)
+    return existing if existing is not None and not existing.is_dir() else None
 
 
 def positive_number(text: str) -> float:

@@ -370,6 +370,12 @@ def read_record(path: str | Path) -> GraspRecord:
     except (zipfile.BadZipFile, OSError, EOFError) as exc:
         raise RecordError(f"{path}: not a grasp record (not a readable ZIP archive: {exc})") from exc
     with zf:
+        # A record is written from its first byte. A file cut short loses its end-of-archive record,
+        # and zipfile then opens the last one it finds: that of an archive stored inside (the
+        # calibration .npz), which starts further in.
+        if min((info.header_offset for info in zf.infolist()), default=0) != 0:
+            raise RecordError(f"{path}: not a readable grasp record: the file is truncated or damaged (its "
+                              "end-of-archive record is missing; the one found belongs to an archive stored in it)")
         r = _Reader(path, zf)
         # A training sample is an .npz, a ZIP too: name it rather than call it an incomplete record.
         sample = _SAMPLE_MEMBERS.issubset(r.names)

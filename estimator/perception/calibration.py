@@ -313,12 +313,34 @@ def load_calibration(path: str | Path) -> Calibration:
     try:
         return Calibration(
             lut=members["lut"],
-            image_shape=tuple(int(v) for v in members["image_shape"]),
-            pixel_pitch_m=float(members["pixel_pitch_m"]),
-            ball_radius_m=float(members["ball_radius_m"]),
-            relative_range=float(members["relative_range"]),
-            smoothing_px=float(members.get("smoothing_px", 0.0)),
+            image_shape=_image_shape(members["image_shape"]),
+            pixel_pitch_m=_scalar("pixel_pitch_m", members["pixel_pitch_m"]),
+            ball_radius_m=_scalar("ball_radius_m", members["ball_radius_m"]),
+            relative_range=_scalar("relative_range", members["relative_range"]),
+            smoothing_px=_scalar("smoothing_px", members.get("smoothing_px", np.float64(0.0)), what="a scalar float >= 0"),
             provenance=meta.get("provenance", {}),
         )
     except (CalibrationError, TypeError, ValueError) as exc:
         raise CalibrationError(f"{path}: {exc}") from exc
+
+
+def _kind(value: np.ndarray) -> str:
+    """How a member that is not what was expected looks, for the message."""
+    return f"a {value.ndim}-D array of {value.dtype}" if value.ndim else f"a scalar of {value.dtype} ({value!s:.20})"
+
+
+def _scalar(name: str, value: np.ndarray, *, what: str = "a positive scalar float") -> float:
+    """A number member as :meth:`Calibration.save` writes it: one real number (a 0-D array).
+
+    float() itself would say "only 0-dimensional arrays ..." or "could not convert string ...",
+    naming neither the member nor what it should hold."""
+    if value.ndim != 0 or value.dtype.kind not in "iuf":
+        raise CalibrationError(f"{name}: expected {what}, got {_kind(value)}")
+    return float(value)
+
+
+def _image_shape(value: np.ndarray) -> tuple[int, ...]:
+    """Member ``image_shape`` as :meth:`Calibration.save` writes it: whole numbers (rows, cols)."""
+    if value.ndim != 1 or value.dtype.kind not in "iu":
+        raise CalibrationError(f"image_shape: expected whole numbers (rows, cols), got {_kind(value)}")
+    return tuple(int(v) for v in value)

@@ -63,6 +63,7 @@ from estimator.inference.sampling import sample_grasp
 from estimator.measurements import calibration_path
 from estimator.settings import estimator_settings
 from estimator.training.samples import TrainingSample, save_sample
+from teleop.clikit import file_in_the_way
 from teleop.errors import RecordError
 from teleop.parallel import progress_map
 from teleop.record import GraspRecord, read_record
@@ -318,7 +319,9 @@ def build_dataset(
         tmp = out.parent / f".{out.name}.{os.getpid()}-{secrets.token_hex(4)}.partial"
         tmp.mkdir()
     except OSError as exc:
-        raise EstimatorError(f"cannot create a folder beside --out {out}: {exc.strerror or exc}") from exc
+        blocking = file_in_the_way(out.parent)
+        why = f"{blocking} is not a directory" if blocking is not None else exc.strerror or exc
+        raise EstimatorError(f"cannot create a folder beside --out {out}: {why}") from exc
     try:
         manifest = _write(jobs, tmp, settings=settings, options=options, workers=workers, progress=progress,
                           skipped=skipped, split=split, seed=seed, fractions=fractions, n_records=len(records),

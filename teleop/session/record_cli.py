@@ -2,6 +2,8 @@
 
 Stops after --duration-s, or on Ctrl-C / SIGTERM, and then writes the log's summary and
 footer. A recorder killed outright leaves a log without them: ``teleop recover`` fixes it.
+A write error (a full disk) stops the recording, not the session: the command then exits with
+status 3 (:data:`~teleop.session.recorder.RECORDING_STOPPED_STATUS`), its last line saying why.
 With ``--foxglove`` it also serves what it records live to Foxglove.
 """
 
@@ -19,7 +21,12 @@ from teleop.catalogue import default_catalogue_path
 from teleop.errors import SessionLogError
 from teleop.session.foxglove_live import LiveServer, add_foxglove_argument
 from teleop.session.logfile import CHUNK_BYTES
-from teleop.session.recorder import COMPRESSIONS, RecorderStats, SessionRecorder
+from teleop.session.recorder import (
+    COMPRESSIONS,
+    RECORDING_STOPPED_STATUS,
+    RecorderStats,
+    SessionRecorder,
+)
 from teleop.settings import load_settings
 
 
@@ -134,10 +141,13 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"out": str(out), **stats.as_dict()}))
     if stats.error:
-        raise SessionLogError(
-            f"{stats.error}; the log is readable up to there: "
-            f"`teleop recover {out} --out FIXED.mcap`"
+        # The last line: `teleop demo` shows it as the reason its session log is partial.
+        print(
+            f"recording stopped: {stats.error}; the log is readable up to there: "
+            f"`teleop recover {out} --out FIXED.mcap`",
+            file=sys.stderr,
         )
+        return RECORDING_STOPPED_STATUS
     return 0
 
 

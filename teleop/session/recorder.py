@@ -10,7 +10,9 @@ can also go to a live view as they are written (``on_foxglove``).
 Write failures (a full disk, a removed drive) never stop the session: the recorder logs
 one clear error, cuts the file back to the end of its last complete record (so everything
 already written stays readable), closes its subscription (so lossless publishers never
-wait for it) and stops. ``teleop recover`` then turns the log into a complete file.
+wait for it) and stops; ``teleop record`` then exits with :data:`RECORDING_STOPPED_STATUS`, which
+``teleop demo`` takes as "the session carries on without a recorder". ``teleop recover`` then turns
+the log into a complete file.
 """
 
 from __future__ import annotations
@@ -51,9 +53,13 @@ from teleop.session.logfile import (
 )
 from teleop.settings import Settings, load_settings, resolve_path, settings_to_mapping
 
-__all__ = ["COMPRESSIONS", "RecorderStats", "SessionRecorder", "session_source"]
+__all__ = ["COMPRESSIONS", "RECORDING_STOPPED_STATUS", "RecorderStats", "SessionRecorder", "session_source"]
 
 log = logging.getLogger(__name__)
+
+# `teleop record`'s exit status after a write error stopped the recording: not 2 (a setup error),
+# so that whoever runs it can tell "the session carries on, its log is partial" from a failure.
+RECORDING_STOPPED_STATUS = 3
 
 COMPRESSIONS = {
     "zstd": CompressionType.ZSTD,

@@ -16,7 +16,9 @@ This process is the operator: it publishes ``command`` messages and listens to g
 estimates. Each child runs in its own session (a Ctrl-C here stops them in order: node,
 estimator, renderer, recorder, so the log gets everything) and is told by the kernel to stop
 when this process dies (``PR_SET_PDEATHSIG`` on Linux), so none outlives it; a child that exits
-early stops the demo with the tail of its log; SIGTERM stops the demo as Ctrl-C does. Children
+early stops the demo with the tail of its log, except a recorder whose recording a write error
+stopped (a full disk: :data:`~teleop.session.recorder.RECORDING_STOPPED_STATUS`): the demo says so
+and carries on, and its closing output calls the session log partial; SIGTERM stops the demo as Ctrl-C does. Children
 run with one BLAS thread each and with progress bars off or rare (``TQDM_DISABLE``,
 ``TQDM_MININTERVAL``).
 
@@ -63,10 +65,12 @@ from teleop.bus.messages import ModelEventBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
+from teleop.clikit import file_in_the_way
 from teleop.errors import SettingsError, TeleopError
 from teleop.live import ENDPOINTS, sigterm_as_ctrl_c
 from teleop.scene import SCENE_DIR, Scene, load_scene, scene_path
 from teleop.session.foxglove_live import add_foxglove_argument
+from teleop.session.recorder import RECORDING_STOPPED_STATUS
 from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
 from teleop.system.demo_table import LiveView, closing_table, models_answered
 from teleop.system.outcome import GraspOutcome, ReportReader
@@ -202,6 +206,7 @@ class LiveSystem:
         self._followed: set[str] = set()  # grasps followed to their end
         self._later: list[Message] = []  # messages of a grasp that started while another was followed
         self.model_events: list[ModelEventBody] = []  # what the estimator said of its model, as heard
+        self.recording_stopped: str | None = None  # why the recorder stopped early, when it did
 
     @property
     def session_log(self) -> Path | None:
@@ -288,12 +293,23 @@ class LiveSystem:
             self.events.recv(timeout_s=end - time.monotonic())
 
     def check(self) -> None:
-        """Raise TeleopError, with the tail of its log, if a child has exited."""
+        """Raise TeleopError, with the tail of its log, if a child has exited; a recorder that stopped
+        recording on a write error is noted in :attr:`recording_stopped` (and said on stderr) instead:
+        the session goes on without it."""
         for child in self.children.values():
             code = child.process.poll()
-            if code is not None:
-                raise TeleopError(f"{child.name} exited with status {code}; the end of {child.log_path}:\n"
-                                  f"{child.tail()}")
+            if code is None:
+                continue
+            if child.name == "recorder" and code == RECORDING_STOPPED_STATUS:
+                if self.recording_stopped is None:
+                    # The recorder's last line says why (teleop.session.record_cli).
+                    last = child.tail().splitlines()[-1:] or ["no reason in its log"]
+                    self.recording_stopped = last[0].removeprefix("recording stopped: ")
+                    print(f"recording stopped: {self.recording_stopped}; the session log holds what came before",
+                          file=sys.stderr)
+                continue
+            raise TeleopError(f"{child.name} exited with status {code}; the end of {child.log_path}:\n"
+                              f"{child.tail()}")
 
     def stop(self) -> dict[str, int | None]:
         """Stop every child (node first, recorder last), killing one that does not stop in time.
@@ -488,7 +504,14 @@ def prepare_run(args: argparse.Namespace, *, prefix: str, out: TextIO) -> tuple[
     earlier = sorted(p.name for p in run_dir.glob("*") if p.suffix in (".log", ".mcap")) if run_dir.is_dir() else []
     if earlier:  # the processes' logs would be replaced before the recorder refused the session log
         raise SettingsError(f"--out {run_dir} holds an earlier run ({', '.join(earlier[:3])}): choose another folder")
-    run_dir.mkdir(parents=True, exist_ok=True)
+    blocker = file_in_the_way(run_dir)
+    if blocker is not None:
+        raise SettingsError(f"--out {run_dir}: {blocker} is not a directory; expected a folder for the run "
+                            "(new or empty)")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SettingsError(f"--out {run_dir}: cannot make the folder ({exc.strerror or exc})") from exc
     calibration = _configured_calibration(settings)
     if calibration is None:
         started = time.monotonic()
@@ -612,10 +635,12 @@ def run(args: argparse.Namespace) -> int:
         else:
             outcomes = list(run_grasps(system, plan, view, prefix=scene.name))
     print(closing_table(outcomes))
-    print(f"session log: {system.session_log}")
+    partial = "" if system.recording_stopped is None else f" (partial: recording stopped: {system.recording_stopped})"
+    print(f"session log: {system.session_log}{partial}")
     if args.json:
         print(json.dumps({"scene": scene.name, "operator": args.operator, "grasps": [o.to_json() for o in outcomes],
                           "models": models_answered(outcomes),
-                          "session_log": str(system.session_log), "run_dir": str(run_dir),
+                          "session_log": str(system.session_log), "recording_stopped": system.recording_stopped,
+                          "run_dir": str(run_dir),
                           "wall_s": time.monotonic() - started}, allow_nan=False))
     return 0

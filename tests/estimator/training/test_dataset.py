@@ -226,3 +226,11 @@ def test_an_out_folder_with_files_in_it_or_a_missing_calibration_is_refused(sim_
                  "--calibration", str(tmp_path / "typo.npz")]) == 2
     assert f"--calibration {tmp_path / 'typo.npz'}: no such calibration file" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
+
+
+def test_an_out_folder_under_a_plain_file_names_that_file(sim_grasps, tmp_path, capsys):
+    records, _ = sim_grasps
+    (tmp_path / "afile").write_text("not a folder")
+    assert main(["build-dataset", "--records", str(records), "--out", str(tmp_path / "afile" / "ds")]) == 2
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'afile'} is not a directory" in err and "File exists" not in err
