@@ -153,6 +153,7 @@ class _OpenGrasp:
     force: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     width: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     loading_end_s: float | None = None
+    start_log_ns: int | None = None  # log time of its start event
     dropped: dict[str, int] = field(default_factory=lambda: defaultdict(int))  # by topic
 
     def add(self, message: Message) -> None:
@@ -228,6 +229,7 @@ class _Assembler:
         session: str,
         labels: dict[str, LabelBody],
         calibration_files: dict[str, bytes],
+        reader: LogReader | None = None,
     ):
         self.path = path
         self.settings = settings
@@ -237,11 +239,19 @@ class _Assembler:
         self.session = session
         self.labels = labels
         self.calibration_files = calibration_files
+        self.reader = reader  # its damage and lost chunks, as read so far
         self.open: dict[str, _OpenGrasp] = {}
         self.ended: set[str] = set()
         self.unassigned = 0
 
-    def feed(self, message: Message) -> Iterator[GraspExport]:
+    def _lost(self, start_ns: int | None, end_ns: int) -> str:
+        """The lost chunks that may have held messages logged between ``start_ns`` (None: the
+        start of the log) and ``end_ns``, as text ("" if none)."""
+        lost = [] if self.reader is None else self.reader.lost
+        return "; ".join(str(c) for c in lost if c.overlaps(start_ns or 0, end_ns))
+
+    def feed(self, message: Message, log_time_ns: int | None = None) -> Iterator[GraspExport]:
+        """The grasps ``message`` (logged at ``log_time_ns``: to tell what damage lost) ends."""
         body = message.fields
         if message.type == "grasp_event":
             grasp_id = body.grasp_id
@@ -251,17 +261,27 @@ class _Assembler:
                     yield GraspExport(grasp_id, reason="started again before it ended; the first start is dropped",
                                       dropped=dict(grasp.dropped))
                 self.open[grasp_id] = _OpenGrasp(grasp_id, message.t_capture_s, body.object_name,
-                                                 message.source)
+                                                 message.source, start_log_ns=log_time_ns)
             elif grasp is None or message.source != grasp.source:
                 # The estimator forwards ends, and ends a grasp a restarted node started again
                 # before the robot ends the new one: only the start's publisher ends a grasp.
                 if grasp is None and body.event == "end" and grasp_id not in self.ended:
-                    log.warning("%s: grasp %r ends but never started; ignored", self.path, grasp_id)
+                    lost = "" if log_time_ns is None else self._lost(None, log_time_ns)
+                    if lost:  # its start was in a chunk damage lost
+                        self.ended.add(grasp_id)
+                        yield GraspExport(grasp_id, reason=f"its start event is lost: the log is damaged ({lost})")
+                    else:
+                        log.warning("%s: grasp %r ends but never started; ignored", self.path, grasp_id)
             elif body.event == "loading_end":  # the grasp goes on
                 grasp.loading_end_s = message.t_capture_s
             else:
                 self.ended.add(grasp_id)
                 grasp = self.open.pop(grasp_id)
+                lost = "" if log_time_ns is None else self._lost(grasp.start_log_ns, log_time_ns)
+                if lost:
+                    yield GraspExport(grasp_id, reason=f"part of its data is lost: the log is damaged ({lost})",
+                                      dropped=dict(grasp.dropped))
+                    return
                 yield dataclasses.replace(self.build(grasp, message.t_capture_s), dropped=dict(grasp.dropped))
         elif message.type in ("frame", "force", "width"):
             grasp_id = body.grasp_id
@@ -277,9 +297,15 @@ class _Assembler:
                 self.unassigned += 1
 
     def unfinished(self) -> Iterator[GraspExport]:
+        reader = self.reader
         for grasp_id, grasp in self.open.items():
-            yield GraspExport(grasp_id, reason="the log stops before the grasp's end event",
-                              dropped=dict(grasp.dropped))
+            reason = "the log stops before the grasp's end event"
+            lost = self._lost(grasp.start_log_ns, 2**64)
+            if lost:
+                reason = f"its end event is lost: the log is damaged ({lost})"
+            elif reader is not None and reader.stopped and reader.damage:
+                reason = f"the log stops at damage before the grasp's end event ({reader.damage})"
+            yield GraspExport(grasp_id, reason=reason, dropped=dict(grasp.dropped))
         self.open.clear()
 
     def build(self, grasp: _OpenGrasp, end_s: float) -> GraspExport:
@@ -470,10 +496,11 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
         session=session_id(info, path),
         labels=labels,
         calibration_files=files,
+        reader=reader,
     )
     seen = set()
     for logged in reader.messages(("grasp_event", "frame", "force", "width")):
-        for grasp in assembler.feed(logged.message):
+        for grasp in assembler.feed(logged.message, logged.log_time_ns):
             seen.add(grasp.grasp_id)
             yield grasp
     for grasp in assembler.unfinished():
@@ -528,7 +555,7 @@ def export_session(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SessionLogError(f"cannot create the export directory {out}: {exc.strerror or exc}") from exc
-    complete, damage = info.complete, info.damage
+    complete, damage = info.complete, info.damage  # info() checks every chunk: damage anywhere counts
     sid = session_id(info, path)
     stray: list[str] = []
     results: list[GraspExport] = []

@@ -106,9 +106,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"unused label: {line}", file=sys.stderr)
     error = None
     if not results.complete:
-        cut = f"{args.log} is cut short ({results.damage})"
+        cut = f"{args.log} is cut short or damaged ({results.damage})"
         if written:
-            print(f"note: {cut}; grasps after the cut are lost. `teleop recover` writes the "
+            print(f"note: {cut}; grasps in what is lost are skipped (above). `teleop recover` writes the "
                   "readable part as a complete log", file=sys.stderr)
         else:
             error = f"no grasp record exported: {cut}; {_recover_hint(args.log)}"

@@ -63,7 +63,10 @@ Chunks are small (:data:`CHUNK_BYTES`) and closed at least every ``flush_interva
 complete, so a recorder killed outright loses at most the chunk it had open. Such a log
 has no summary or footer: :class:`LogReader` reads it front to back with mcap's
 non-seeking reader and stops, cleanly, at the first incomplete or damaged record;
-``teleop recover`` rewrites the readable part as a complete file.
+``teleop recover`` rewrites the readable part as a complete file. In a log whose summary
+and footer are intact, a damaged record (a chunk whose checksum or compression fails) is
+skipped instead: reading goes on at the next record the summary's indexes point to, and
+:attr:`LogReader.lost` lists the chunks skipped, with their log times.
 
 Nothing read back is trusted: every stored message goes through
 :func:`teleop.bus.wire.decode` (sizes, msgpack limits, schemas) before anyone sees it.
@@ -84,8 +87,10 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from google.protobuf.message import DecodeError
 from mcap.exceptions import RecordLengthLimitExceeded
 from mcap.opcode import Opcode
+from mcap.reader import SeekingReader
 from mcap.records import Attachment, Channel, Header, McapRecord, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
+from mcap.summary import Summary
 
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES
 from teleop.bus.wire import MAX_BUFFERS, SCHEMA_VERSION, SCHEMAS, decode
@@ -110,6 +115,7 @@ __all__ = [
     "LogInfo",
     "LogReader",
     "LoggedMessage",
+    "LostChunk",
     "StoredFrames",
     "elides",
     "pack_frames",
@@ -300,8 +306,8 @@ class LogInfo:
     profile: str
     attachments: dict[str, bytes]
     metadata: dict[str, dict[str, str]]
-    complete: bool  # the footer was reached
-    damage: str | None  # why reading stopped before the footer, if it did
+    complete: bool  # the footer was reached and nothing was damaged
+    damage: str | None  # what was damaged (where, and what was skipped), if anything
 
     @property
     def session(self) -> dict[str, str]:
@@ -348,13 +354,36 @@ class LogInfo:
         return settings_from_mapping(mapping, source=f"attachment {SETTINGS_ATTACHMENT}")
 
 
+@dataclass(frozen=True)
+class LostChunk:
+    """A chunk skipped because it (or the record before it) is damaged: its bytes and log times."""
+
+    start_byte: int
+    end_byte: int
+    start_ns: int  # log time of its first message
+    end_ns: int  # ... and of its last
+
+    def overlaps(self, start_ns: int, end_ns: int) -> bool:
+        """Whether messages logged between ``start_ns`` and ``end_ns`` may have been in it."""
+        return self.start_ns <= end_ns and start_ns <= self.end_ns
+
+    def __str__(self) -> str:
+        return (
+            f"the chunk at bytes {self.start_byte} to {self.end_byte} is damaged "
+            f"(messages logged from {self.start_ns} to {self.end_ns} ns lost)"
+        )
+
+
 @dataclass
 class LogReader:
     """Reads a session log front to back, whether or not it was closed cleanly.
 
     Uses mcap's non-seeking :class:`~mcap.stream_reader.StreamReader` with CRC checks, so a
     log cut short by a crash or a full disk reads up to its last complete record; reading
-    stops there, :attr:`damage` says why, and :attr:`good_bytes` how far it got.
+    stops there (:attr:`stopped`), :attr:`damage` says why, and :attr:`good_bytes` how far it
+    got. Damage in a log with an intact summary skips the damaged chunks (:attr:`lost`) and
+    reads on (:meth:`records`); :attr:`damage` says what and where, and :attr:`complete` is
+    False.
 
     Parameters
     ----------
@@ -370,19 +399,30 @@ class LogReader:
     complete: bool = False
     good_bytes: int = 0
     refused: Counter[str] = field(default_factory=Counter)
+    lost: list[LostChunk] = field(default_factory=list)  # chunks skipped for damage
+    stopped: bool = False  # reading stopped at damage (nothing after it could be read)
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
 
     def records(self, *, emit_chunks: bool = False) -> Iterator[McapRecord]:
-        """Every record up to the footer or the first damaged one (chunks opened unless asked).
+        """Every readable record up to the footer (chunks opened unless asked).
+
+        At a damaged record, reading goes on at the next record the file's summary indexes
+        (a chunk, attachment or metadata record) when the summary and footer are intact; the
+        chunks skipped are in :attr:`lost`, and the summary's schemas and channels are
+        yielded again before reading on (a skipped chunk may have held the first of them).
+        Without an intact summary (a log cut short) reading stops at the damage.
+        :attr:`damage` says what was damaged and where; :attr:`complete` is True only when
+        the footer was reached and nothing was skipped.
 
         Raises
         ------
         SessionLogError
             The file cannot be opened, or does not start like an MCAP file.
         """
-        self.damage, self.complete, self.good_bytes = None, False, 0
+        self.damage, self.complete, self.good_bytes, self.stopped = None, False, 0, False
+        self.lost.clear()
         try:
             file = self.path.open("rb")
         except OSError as exc:
@@ -397,27 +437,95 @@ class LogReader:
             file.seek(0)
             # No complete record is longer than the file: a larger length field is damage.
             limit = max(self.path.stat().st_size, 1)
-            stream = StreamReader(
-                file, emit_chunks=emit_chunks, validate_crcs=True, record_size_limit=limit
-            ).records
+            damages: list[str] = []
+            summary: Summary | None = None
+            summary_read = False
+            skip_magic = False
             while True:
-                try:
-                    record = next(stream)
-                except StopIteration:  # the footer and the closing magic were read
-                    self.complete, self.good_bytes = True, file.tell()
-                    return
-                except Exception as exc:  # any parse failure means the bytes from here are unusable
-                    self.damage = self._describe(exc, file)
+                stream = StreamReader(
+                    file,
+                    skip_magic=skip_magic,
+                    emit_chunks=emit_chunks,
+                    validate_crcs=True,
+                    record_size_limit=limit,
+                ).records
+                while True:
+                    try:
+                        record = next(stream)
+                    except StopIteration:  # the footer and the closing magic were read
+                        self.complete, self.good_bytes = not damages, file.tell()
+                        return
+                    except Exception as exc:  # any parse failure: the bytes from here are unusable
+                        what = self._describe(exc, file)
+                        break
+                    # Records inside a chunk come once the whole chunk has been read.
+                    self.good_bytes = file.tell()
+                    yield record
+                if not summary_read:
+                    summary, summary_read = self._summary(file), True
+                resume = self._resume_at(summary, self.good_bytes)
+                if summary is None or resume is None:
+                    self.stopped = True
+                    damages.append(what)
+                    self.damage = "; ".join(damages)
                     log.warning(
-                        "%s: stopped reading at byte %d: %s",
-                        self.path,
-                        self.good_bytes,
-                        self.damage,
+                        "%s: stopped reading at byte %d: %s", self.path, self.good_bytes, what
                     )
                     return
-                # Records inside a chunk come once the whole chunk has been read.
-                self.good_bytes = file.tell()
-                yield record
+                what += self._skip(summary, self.good_bytes, resume)
+                damages.append(what)
+                self.damage = "; ".join(damages)
+                log.warning("%s: %s", self.path, what)
+                yield from summary.schemas.values()
+                yield from summary.channels.values()
+                file.seek(resume)
+                skip_magic = True
+
+    def _summary(self, file: Any) -> Summary | None:
+        """The file's summary (chunk indexes, schemas, channels), if it and the footer are intact."""
+        try:
+            file.seek(0)  # the reader checks the magic where the file stands
+            summary = SeekingReader(
+                file, validate_crcs=True, record_size_limit=max(self.path.stat().st_size, 1)
+            ).get_summary()
+        except Exception:  # no footer (cut short) or a damaged summary: nothing to go on with
+            return None
+        if summary is None or not summary.chunk_indexes:
+            return None
+        return summary
+
+    @staticmethod
+    def _resume_at(summary: Summary | None, damaged_at: int) -> int | None:
+        """The first record the summary indexes after byte ``damaged_at`` (None: none)."""
+        if summary is None:
+            return None
+        starts = [c.chunk_start_offset for c in summary.chunk_indexes]
+        starts += [a.offset for a in summary.attachment_indexes]
+        starts += [m.offset for m in summary.metadata_indexes]
+        later = [s for s in starts if s > damaged_at]
+        return min(later, default=None)
+
+    def _skip(self, summary: Summary, start: int, end: int) -> str:
+        """Note the chunks between bytes ``start`` and ``end`` as lost; what was skipped, as text."""
+        chunks = [c for c in summary.chunk_indexes if start <= c.chunk_start_offset < end]
+        for chunk in chunks:
+            self.lost.append(
+                LostChunk(
+                    chunk.chunk_start_offset,
+                    chunk.chunk_start_offset + chunk.chunk_length,
+                    chunk.message_start_time,
+                    chunk.message_end_time,
+                )
+            )
+        times = ""
+        if chunks:
+            first = min(c.message_start_time for c in chunks)
+            last = max(c.message_end_time for c in chunks)
+            times = f", messages logged from {first} to {last} ns"
+        return (
+            f"; skipped bytes {start} to {end} ({len(chunks)} chunk(s) lost{times}) "
+            "and read on from there"
+        )
 
     def _describe(self, exc: Exception, file: Any) -> str:
         size = self.path.stat().st_size
@@ -448,9 +556,13 @@ class LogReader:
         return f"damaged record after byte {self.good_bytes} of {size} ({what})"
 
     def info(self) -> LogInfo:
-        """Profile, attachments and metadata (one pass that leaves chunks closed)."""
+        """Profile, attachments and metadata, and whether the log is whole.
+
+        One pass that opens the chunks, so their checksums and compression are checked and
+        :attr:`LogInfo.damage` includes damage inside them.
+        """
         profile, attachments, metadata = "", {}, {}
-        for record in self.records(emit_chunks=True):
+        for record in self.records():
             if isinstance(record, Header):
                 profile = record.profile
             elif isinstance(record, Attachment):

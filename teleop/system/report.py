@@ -297,7 +297,8 @@ def build_report(
                  "1 for fingers with markers); display messages "
                  + ("recorded" if recorded else "not recorded (the log has none)")]
         if info.damage:
-            lines.append(f"the log is damaged; read up to the damage: {info.damage}")
+            lines.append(f"the log is damaged: {info.damage}; grasps in the damaged part are missing or skipped. "
+                         f"`teleop recover {log} --out FIXED.mcap` rewrites the readable part as a complete log")
         index = out / "index.html"
         index.write_text(_page(log, lines, views, figures, recorded, display_range_pa(settings)), encoding="utf-8")
     except OSError as exc:

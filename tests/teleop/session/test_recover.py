@@ -180,7 +180,7 @@ def test_a_log_cut_inside_an_attachment_is_said_to_end_inside_it(tmp_path, log_b
     assert "attachment record" in info.damage and "damaged" not in info.damage
 
 
-def test_a_damaged_chunk_stops_reading_before_it(tmp_path, recorded, log_bytes):
+def test_a_damaged_chunk_is_skipped_and_reading_goes_on_after_it(tmp_path, recorded, log_bytes):
     with recorded.path.open("rb") as f:
         chunks = make_reader(f).get_summary().chunk_indexes
     target = chunks[len(chunks) // 2]
@@ -192,11 +192,16 @@ def test_a_damaged_chunk_stops_reading_before_it(tmp_path, recorded, log_bytes):
     damaged.write_bytes(bytes(data))
     reader = LogReader(damaged)
     readable = list(reader.messages())
-    assert "damaged record" in reader.damage and not reader.complete
-    assert reader.good_bytes <= target.chunk_start_offset
+    assert "damaged record" in reader.damage and not reader.complete and not reader.stopped
+    assert f"after byte {target.chunk_start_offset} " in reader.damage
+    assert [c.start_byte for c in reader.lost] == [target.chunk_start_offset]
+    assert reader.good_bytes == len(log_bytes)  # the summary is intact: read on to the footer
     assert 0 < len(readable) < len(recorded.sent)
+    assert [m.frames for m in readable][-1] == [m.frames for m in LogReader(recorded.path).messages()][-1]
     report = recover(damaged, tmp_path / "fixed.mcap")
-    assert report.messages == len(readable)
+    assert report.messages - report.undecodable == len(readable) and not report.complete
+    recovered = LogReader(tmp_path / "fixed.mcap")
+    assert [m.frames for m in recovered.messages()] == [m.frames for m in readable] and recovered.complete
 
 
 def test_recovering_a_complete_log_copies_it_whole(tmp_path, recorded):

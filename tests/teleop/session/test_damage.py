@@ -1,0 +1,92 @@
+"""A session log damaged in the middle: the damage is said, with where, and what is after it is read."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from teleop.session import LogReader, export_session, session_grasps
+from teleop.system.report import build_report
+
+TELEOP = Path(sys.executable).parent / "teleop"
+
+
+@pytest.fixture(scope="module")
+def damaged(recorded, tmp_path_factory):
+    """The recorded session with a chunk inside grasp g0 (before g1 starts) zeroed in its middle."""
+    events = {(m.message.fields.grasp_id, m.message.fields.event): m.log_time_ns
+              for m in LogReader(recorded.path).messages(("grasp_event",))}
+    with recorded.path.open("rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    inside = [c for c in chunks if events["g0", "start"] < c.message_start_time
+              and c.message_end_time < events["g1", "start"]]
+    if not inside:
+        pytest.skip("the recording put no chunk strictly inside grasp g0")
+    target = inside[0]
+    data = bytearray(recorded.path.read_bytes())
+    middle = target.chunk_start_offset + target.chunk_length // 2
+    data[middle : middle + 200] = bytes(200)
+    path = tmp_path_factory.mktemp("damaged") / "zeroed.mcap"
+    path.write_bytes(bytes(data))
+    return path, target
+
+
+def test_info_says_a_damaged_middle_chunk_is_damaged_and_where(damaged):
+    path, target = damaged
+    info = LogReader(path).info()
+    assert not info.complete and info.damage
+    assert f"after byte {target.chunk_start_offset} " in info.damage
+    assert f"skipped bytes {target.chunk_start_offset} to" in info.damage
+
+
+def test_reading_goes_on_after_a_damaged_chunk_when_the_summary_is_intact(recorded, damaged):
+    path, target = damaged
+    whole = [m.log_time_ns for m in LogReader(recorded.path).messages()]
+    reader = LogReader(path)
+    read = [m.log_time_ns for m in reader.messages()]
+    assert not reader.complete and reader.damage
+    assert [(c.start_byte, c.start_ns, c.end_ns) for c in reader.lost] == [
+        (target.chunk_start_offset, target.message_start_time, target.message_end_time)]
+    lost = [t for t in whole if target.message_start_time <= t <= target.message_end_time]
+    assert lost and read == sorted(read)  # still in log-time order
+    assert set(read) == set(whole) - set(lost)  # every message outside the damaged chunk is there
+    assert max(read) == max(whole)
+
+
+def test_export_keeps_the_grasps_after_the_damage_and_says_why_the_damaged_one_is_skipped(
+    damaged, recorded, tmp_path
+):
+    path, target = damaged
+    results = export_session(path, tmp_path / "out")
+    by_id = {g.grasp_id: g for g in results}
+    assert not results.complete and f"byte {target.chunk_start_offset}" in results.damage
+    assert not by_id["g0"] and "damaged" in by_id["g0"].reason
+    assert f"bytes {target.chunk_start_offset} to" in by_id["g0"].reason
+    assert by_id["g1"] and by_id["g1"].path.exists()
+    whole = {g.grasp_id: g for g in session_grasps(recorded.path)}
+    got, want = by_id["g1"].record, whole["g1"].record
+    assert got.force_n.t_s.tolist() == want.force_n.t_s.tolist() and got.events == want.events
+    assert [len(s.t_s) for s in got.frames] == [len(s.t_s) for s in want.frames]
+    assert not by_id["g2"] and by_id["g2"].reason == whole["g2"].reason  # never ended, as in the whole log
+
+
+def test_the_export_command_says_the_log_is_damaged_and_incomplete(damaged, tmp_path):
+    path, target = damaged
+    result = subprocess.run([str(TELEOP), "export", str(path), "--out", str(tmp_path / "out"), "--json"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout.strip().splitlines()[-1])
+    assert summary["complete"] is False
+    assert f"byte {target.chunk_start_offset}" in result.stderr and "teleop recover" in result.stderr
+
+
+def test_the_report_says_the_log_is_damaged_where_and_what_to_do(damaged, tmp_path):
+    path, target = damaged
+    page = build_report(path, tmp_path / "report").index.read_text(encoding="utf-8")
+    assert "the log is damaged" in page and f"byte {target.chunk_start_offset}" in page
+    assert "teleop recover" in page
