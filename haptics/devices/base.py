@@ -20,10 +20,11 @@ from __future__ import annotations
 import abc
 import logging
 import math
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, replace
-from typing import Any, Self
+from typing import Any, ClassVar, Self
 
 from haptics.errors import DisplayError, DisplayNotConnectedError, ProtocolError
 from haptics.protocol import (
@@ -59,10 +60,24 @@ class SoftnessDisplay(abc.ABC):
     :class:`~haptics.errors.DisplayError` and leaves the display disconnected;
     :meth:`reconnect` (driven by :class:`Reconnector`) brings it back and
     resends the last command.
+
+    Thread-safe: a :meth:`close` from another thread ends a read in flight within
+    :attr:`read_slice_s` (it raises DisplayNotConnectedError) and never releases the device
+    under a backend call.
     """
+
+    #: Longest wait asked of one ``_read_report`` call (None where the backend never waits):
+    #: a close() from another thread ends a read within it.
+    read_slice_s: ClassVar[float | None] = 0.05
 
     def __init__(self) -> None:
         self._connected = False
+        #: Why it is not connected: "never", "closed" or "failed" (an I/O failure, e.g. an unplug).
+        self._down = "never"
+        # Held by every backend call and by the release of the device, so that a close()
+        # from another thread waits for the call in flight (a read waits one slice at most).
+        self._lock = threading.RLock()
+        self._state_lock = threading.Lock()
         self._info: DisplayInfo | None = None
         self._sequence = 0
         self._last_command: StiffnessCommand | None = None
@@ -93,7 +108,8 @@ class SoftnessDisplay(abc.ABC):
 
     @abc.abstractmethod
     def _read_report(self, timeout_s: float) -> bytes | None:
-        """One INPUT report, or None when none arrives within ``timeout_s``."""
+        """One INPUT report, or None when none arrives within ``timeout_s`` (at most
+        :attr:`read_slice_s`)."""
 
     @abc.abstractmethod
     def _get_feature(self) -> bytes:
@@ -131,25 +147,28 @@ class SoftnessDisplay(abc.ABC):
 
     def connect(self) -> DisplayInfo:
         """Open the device and read its info; a no-op when already connected."""
-        if self._connected:
-            return self._info
-        self._open()
-        self._status_inbox.clear()
-        self._grip_inbox.clear()
-        try:
-            self._info = self._fetch_info()
-        except BaseException:
-            self._close()
-            raise
-        self._connected = True
+        with self._lock:
+            if self._connected:
+                return self._info
+            self._open()
+            self._status_inbox.clear()
+            self._grip_inbox.clear()
+            try:
+                self._info = self._fetch_info()
+            except BaseException:
+                self._close()
+                raise
+            self._connected = True
         log.info("%s connected: %s", self, self._info)
         return self._info
 
     def close(self) -> None:
-        """Release the device; safe to call twice."""
-        if self._connected:
-            self._connected = False
-            self._close()
+        """Release the device; safe to call twice, and from another thread than a read's."""
+        # The flag first, outside the lock: a read in flight holds the lock and checks the
+        # flag between slices, so it ends and lets the device go.
+        if self._mark_down("closed"):
+            with self._lock:
+                self._close()
 
     def __enter__(self) -> Self:
         self.connect()
@@ -194,7 +213,7 @@ class SoftnessDisplay(abc.ABC):
         report = encode_output_report(
             command, sequence=self._sequence, version=self._info.protocol_version
         )
-        self._io(self._write_report, report)
+        self._call("write_command", self._write_report, report)
         self._sequence = (self._sequence + 1) % 256
         self.reports_written += 1
         return report
@@ -207,7 +226,7 @@ class SoftnessDisplay(abc.ABC):
         self._require_connected("read_status")
         self._check_timeout("read_status", timeout_s)
         if not self._status_inbox:
-            self._read_inputs(timeout_s, until=self._status_inbox)
+            self._read_inputs("read_status", timeout_s, until=self._status_inbox)
         return decode_input_report(self._status_inbox.popleft()) if self._status_inbox else None
 
     def read_operator(self, *, timeout_s: float) -> GripReport | None:
@@ -239,9 +258,9 @@ class SoftnessDisplay(abc.ABC):
         if not self.has_grip:
             return ()
         if not self._grip_inbox:
-            self._read_inputs(timeout_s, until=self._grip_inbox)
+            self._read_inputs("read_operator", timeout_s, until=self._grip_inbox)
         if self._grip_inbox:
-            self._read_inputs(0.0, until=None)  # and whatever else is already there
+            self._read_inputs("read_operator", 0.0, until=None)  # and whatever else is already there
         reports: list[GripReport] = []
         while self._grip_inbox:
             try:
@@ -257,10 +276,11 @@ class SoftnessDisplay(abc.ABC):
 
     def configure(self, *, watchdog_ms: int) -> DisplayInfo:
         """Set the display's watchdog (0 = off) and return the info read back."""
-        self._require_connected("configure")
-        report = encode_feature_report(replace(self._info, watchdog_ms=watchdog_ms))
-        self._io(self._set_feature, report)
-        info = self._fetch_info()
+        with self._lock:  # the write and the read back, with no close() between
+            self._require_connected("configure")
+            report = encode_feature_report(replace(self._info, watchdog_ms=watchdog_ms))
+            self._io(self._set_feature, report)
+            info = self._fetch_info()
         if info.watchdog_ms != watchdog_ms:
             raise DisplayError(
                 f"{self} kept watchdog_ms = {info.watchdog_ms} after being asked for {watchdog_ms}"
@@ -271,10 +291,11 @@ class SoftnessDisplay(abc.ABC):
     # ------------------------------------------------------------ helpers
 
     def _check_timeout(self, what: str, timeout_s: float) -> None:
-        if not (isinstance(timeout_s, int | float) and math.isfinite(timeout_s) and timeout_s >= 0):
+        if isinstance(timeout_s, bool) or not (
+                isinstance(timeout_s, int | float) and math.isfinite(timeout_s) and timeout_s >= 0):
             raise DisplayError(f"{what} timeout_s = {timeout_s!r}: expected a number >= 0")
 
-    def _read_inputs(self, timeout_s: float, *, until: deque[bytes] | None) -> None:
+    def _read_inputs(self, what: str, timeout_s: float, *, until: deque[bytes] | None) -> None:
         """Read INPUT reports into the inboxes, sorted by report ID.
 
         Stops as soon as a report lands in ``until``, waiting up to ``timeout_s`` in all;
@@ -284,31 +305,52 @@ class SoftnessDisplay(abc.ABC):
         """
         deadline = time.monotonic() + timeout_s
         grip = self.has_grip
-        wait_s = timeout_s
-        for _ in range(_MAX_READS):
-            data = self._io(self._read_report, wait_s)
+        reads = 0
+        while reads < _MAX_READS:
+            left_s = 0.0 if until is None else max(0.0, deadline - time.monotonic())
+            wait_s = left_s if self.read_slice_s is None else min(left_s, self.read_slice_s)
+            data = self._call(what, self._read_report, wait_s)
             if not data:  # None, or an empty read (no report), as the hid backend takes it
-                return
+                if wait_s >= left_s:
+                    return
+                continue
+            reads += 1
             is_grip = grip and data[0] == GRIP_LAYOUT.report_id
             (self._grip_inbox if is_grip else self._status_inbox).append(data)
             if until:
                 return
-            wait_s = 0.0 if until is None else max(0.0, deadline - time.monotonic())
 
     def _require_connected(self, what: str) -> None:
         if not self._connected:
-            raise DisplayNotConnectedError(
-                f"{self}: {what}() needs a connected display; call connect() (or reconnect() "
-                "after an unplug) first"
-            )
+            state = {
+                "never": "it was never connected; call connect() first",
+                "closed": "it was closed; call connect() again",
+                "failed": "its link failed (unplugged?); call reconnect()",
+            }[self._down]
+            raise DisplayNotConnectedError(f"{self}: {what}() needs a connected display; {state}")
+
+    def _mark_down(self, why: str) -> bool:
+        """Mark the display not connected, for ``why``; True when it was connected."""
+        with self._state_lock:
+            was, self._connected = self._connected, False
+            if was:
+                self._down = why
+        return was
+
+    def _call(self, what: str, hook, *args):
+        """Run a backend I/O hook on a connected display (a close() from another thread may
+        have come since the caller checked)."""
+        with self._lock:
+            self._require_connected(what)
+            return self._io(hook, *args)
 
     def _io(self, hook, *args):
-        """Run a backend I/O hook; a failure means the link is gone: mark it disconnected."""
+        """Run a backend I/O hook (the caller holds the lock); a failure means the link is gone:
+        mark it disconnected."""
         try:
             return hook(*args)
         except DisplayError:
-            if self._connected:
-                self._connected = False
+            if self._mark_down("failed"):
                 self._close()
             raise
 

@@ -7,7 +7,9 @@ Every vendor ``OSError`` / ``ValueError`` becomes a
 :class:`~haptics.errors.DisplayError` (``raise ... from``), which the base
 class takes as an unplug. Status reports and a version-2 display's grip
 reports both arrive through ``read()`` on the one interrupt IN endpoint; the
-base class sorts them by report ID.
+base class sorts them by report ID, and asks each ``read()`` for one short slice of
+its wait (hidapi takes the timeout as a C int of milliseconds, and its handle must
+not be closed under a read in flight).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from types import ModuleType
 from typing import Any, Self
 
 from haptics.devices.base import SoftnessDisplay
-from haptics.errors import DisplayError
+from haptics.errors import DisplayBackendNotFoundError, DisplayError
 from haptics.protocol import FEATURE_LAYOUT, USAGE_PAGE
 from haptics.settings import DisplaySettings
 
@@ -29,11 +31,11 @@ _READ_SIZE = 64
 
 
 def import_hid() -> ModuleType:
-    """The ``hid`` module of hidapi, or a DisplayError saying how to get it."""
+    """The ``hid`` module of hidapi, or a DisplayBackendNotFoundError saying how to get it."""
     try:
         return importlib.import_module("hid")
     except ImportError as exc:
-        raise DisplayError(
+        raise DisplayBackendNotFoundError(
             f"the HID backend needs hidapi (`pip install hidapi`, then `import hid`): {exc}"
         ) from exc
 

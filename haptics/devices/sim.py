@@ -173,6 +173,9 @@ class SimulatedDisplay(SoftnessDisplay):
     with :meth:`set_grip` and read with :meth:`read_operator`.
     """
 
+    # Its reports are queued by the writes that make them: a read never waits, so never slices.
+    read_slice_s = None
+
     def __init__(
         self, *, firmware: DisplayFirmware | None = None, protocol_version: int | None = None
     ) -> None:

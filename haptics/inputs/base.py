@@ -31,7 +31,9 @@ imported by the gamepad backend alone.
 previous read, each press once. It never waits longer than ``timeout_s``; backends whose state
 is always known (keyboard, gamepad, sim) return at once, and before a device has reported
 anything the state is the safe one: grip open, enable released. Every method is thread-safe
-(a console thread pushes keys while the link thread reads).
+(a console thread pushes keys while the link thread reads), and a ``close()`` from another
+thread ends a pending read at once: a backend that waits checks :attr:`connected` between short
+waits, and the read raises :class:`~haptics.errors.InputNotConnectedError`.
 """
 
 from __future__ import annotations
@@ -134,6 +136,7 @@ class OperatorInputDevice(abc.ABC):
         self._connected = False
         self._was_closed = False
         self._lock = threading.RLock()
+        self._state_lock = threading.Lock()
 
     # ------------------------------------------------------------ backend hooks
 
@@ -177,10 +180,10 @@ class OperatorInputDevice(abc.ABC):
 
     def close(self) -> None:
         """Release the device; safe to call twice, and on a device never connected."""
-        with self._lock:
-            if self._connected:
-                self._connected = False
-                self._was_closed = True
+        # The flag first, outside the lock: a read waiting in another thread holds the lock and
+        # sees the flag at its next short wait, so it ends and lets the device go.
+        if self._mark_closed():
+            with self._lock:
                 self._close()
 
     def __enter__(self) -> Self:
@@ -202,7 +205,8 @@ class OperatorInputDevice(abc.ABC):
         Raises
         ------
         InputNotConnectedError
-            Not connected (never, closed, or after a failure).
+            Not connected (never, closed, or after a failure), or closed by another thread while
+            waiting.
         OperatorInputError
             ``timeout_s`` is not a number >= 0.
         InputDeviceError
@@ -236,14 +240,20 @@ class OperatorInputDevice(abc.ABC):
                      else "is not connected; call connect() (or use it in a with block) first")
             raise InputNotConnectedError(f"{self!r}: {what}() needs a connected {self.family} device; it {state}")
 
+    def _mark_closed(self) -> bool:
+        """Mark the device not connected; True when it was (the caller then releases it)."""
+        with self._state_lock:
+            was, self._connected = self._connected, False
+            if was:
+                self._was_closed = True
+        return was
+
     def _io(self, hook: Callable[..., Any], *args: Any) -> Any:
         """Run a backend hook; a device failure means the device is gone: mark it disconnected."""
         try:
             return hook(*args)
         except InputDeviceError:
-            if self._connected:
-                self._connected = False
-                self._was_closed = True
+            if self._mark_closed():
                 self._close()
             raise
 

@@ -34,6 +34,8 @@ __all__ = ["DisplayInput"]
 
 #: Batches of reports drained per read at most (a display sends a few hundred a second at most).
 _MAX_DRAIN = 1024
+#: Longest single wait for the display: a close() from another thread ends a read within it.
+_WAIT_SLICE_S = 0.05
 
 
 class DisplayInput(OperatorInputDevice):
@@ -134,9 +136,20 @@ class DisplayInput(OperatorInputDevice):
         self._latest = report
         self._latest_s = self._clock()
 
+    def _wait_for_reports(self, timeout_s: float) -> tuple[Any, ...]:
+        """The reports that arrive within ``timeout_s``, waited for in short slices so that a
+        close() from another thread ends the wait (InputNotConnectedError)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            left_s = max(0.0, deadline - time.monotonic())
+            reports = self._next_reports(min(left_s, _WAIT_SLICE_S))
+            if reports or left_s <= _WAIT_SLICE_S:
+                return reports
+            self._require_connected("read")
+
     def _read(self, timeout_s: float) -> OperatorInput:
         # Wait (up to timeout_s) only for the first report ever; then take what has arrived.
-        reports = self._next_reports(timeout_s if self._latest is None else 0.0)
+        reports = self._wait_for_reports(timeout_s if self._latest is None else 0.0)
         for _ in range(_MAX_DRAIN):
             if not reports:
                 break

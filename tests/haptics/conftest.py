@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 import types
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -24,6 +25,9 @@ from haptics.devices.sim import DisplayFirmware, SimulatedDisplay
 from haptics.protocol import USAGE_PAGE
 from haptics.settings import DisplaySettings, display_settings
 from teleop.settings import load_settings
+
+#: hidapi's read() takes its timeout as a C int.
+C_INT_MAX = 2**31 - 1
 
 
 @dataclass
@@ -79,9 +83,15 @@ class FakeHidDevice:
         return len(data)
 
     def read(self, max_length: int, timeout_ms: int = 0) -> list[int]:
+        """As hidapi's: waits up to ``timeout_ms`` for a report, which must fit a C int."""
         usb = self._live()
+        if abs(timeout_ms) > C_INT_MAX:
+            raise OverflowError("value too large to convert to int")
         usb.read_timeouts_ms.append(timeout_ms)
-        report = usb.firmware.next_input_report()
+        deadline = time.monotonic() + timeout_ms / 1000
+        while (report := usb.firmware.next_input_report()) is None and time.monotonic() < deadline:
+            time.sleep(0.002)
+        self._live()  # a handle closed under the read fails it, as hidapi's may
         return [] if report is None else list(report[:max_length])
 
     def get_feature_report(self, report_num: int, max_length: int) -> list[int]:

@@ -7,6 +7,7 @@ display renders through the same code path, and only a version-2 one serves a gr
 from __future__ import annotations
 
 import pytest
+from support.threads import close_during_read
 
 from haptics.devices import Reconnector
 from haptics.errors import DisplayError, DisplayNotConnectedError, ProtocolError
@@ -39,6 +40,23 @@ def test_use_before_connect_is_refused(rig):
         display.read_status()
     with pytest.raises(DisplayNotConnectedError):
         display.configure(watchdog_ms=100)
+
+
+def test_not_connected_says_whether_never_connected_closed_or_unplugged(rig):
+    display = rig.display
+    with pytest.raises(DisplayNotConnectedError, match=r"read_status\(\) .*never connected"):
+        display.read_status()
+    display.connect()
+    display.close()
+    with pytest.raises(DisplayNotConnectedError, match=r"write_command\(\) .*was closed"):
+        display.write_command(StiffnessCommand(level=1))
+    unplug = rig.need("unplug")
+    display.connect()
+    unplug()
+    with pytest.raises(DisplayError):
+        display.write_command(StiffnessCommand(level=1))
+    with pytest.raises(DisplayNotConnectedError, match=r"read_status\(\) .*failed .*reconnect\(\)"):
+        display.read_status()
 
 
 def test_connect_reads_device_info_and_is_idempotent(rig):
@@ -133,6 +151,30 @@ def test_read_status_returns_none_when_nothing_arrives(rig):
     while firmware.next_input_report() is not None:
         pass
     assert rig.display.read_status(timeout_s=0.01) is None
+
+
+def test_close_from_another_thread_ends_a_pending_read_at_once(rig):
+    firmware = rig.need("firmware")
+    display = rig.display
+    display.connect()
+    while firmware.next_input_report() is not None:
+        pass
+    ended = close_during_read(lambda: display.read_status(timeout_s=3.0), display.close, errors=DisplayError)
+    assert ended.close_s < 1.0 and ended.ended_s < 1.0
+    assert ended.outcome is None or isinstance(ended.outcome, DisplayNotConnectedError), ended.outcome
+    assert not display.connected
+
+
+def test_a_huge_timeout_is_taken_and_a_bool_one_refused(rig):
+    display = rig.display
+    display.connect()
+    report = display.write_command(StiffnessCommand(level=2))
+    # A report is there: the read returns it however long it was allowed to wait.
+    assert status_for(display, decode_output_report(report).sequence, timeout_s=3e6).level == 2
+    for read in (display.read_status, display.read_operator):
+        with pytest.raises(DisplayError, match="timeout_s = True"):
+            read(timeout_s=True)
+    assert display.connected
 
 
 def test_a_garbled_status_report_is_a_protocol_error_and_the_link_stays(rig):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import errno
 import itertools
+import threading
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -118,7 +119,7 @@ class FakeEvdevDevice:
 
 class FakeGripDisplay:
     """A softness display's operator side: ``connect``, ``info.protocol_version``,
-    ``read_operator_reports``."""
+    ``read_operator_reports`` (which waits up to its timeout for a report, as the real one does)."""
 
     def __init__(self, protocol_version: int = 2) -> None:
         self.protocol_version = protocol_version
@@ -128,6 +129,7 @@ class FakeGripDisplay:
         self.unplugged = False
         self.connects = self.closes = 0
         self._sequence = 0
+        self._pushed = threading.Condition()
 
     def connect(self):
         if self.unplugged:
@@ -149,13 +151,17 @@ class FakeGripDisplay:
             raise DisplayError("fake display: device disconnected")
         if self.protocol_version < 2:
             return ()
-        # Every report since the last call at once, as SoftnessDisplay returns them.
-        reports, self.reports = tuple(self.reports), deque()
+        with self._pushed:
+            self._pushed.wait_for(lambda: self.reports, timeout=timeout_s)
+            # Every report since the last call at once, as SoftnessDisplay returns them.
+            reports, self.reports = tuple(self.reports), deque()
         return reports
 
     def push(self, grip: float, *, force_n: float | None = None, enable: bool = True,
              buttons: tuple[str, ...] = ()) -> None:
-        self.reports.append(GripReport(grip, force_n, enable, frozenset(buttons), self._sequence))
+        with self._pushed:
+            self.reports.append(GripReport(grip, force_n, enable, frozenset(buttons), self._sequence))
+            self._pushed.notify_all()
         self._sequence = (self._sequence + 1) % 256
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import pytest
+from support.threads import close_during_read
 
 from haptics.devices.sim import SimulatedDisplay
 from haptics.errors import InputDeviceError, InputNotConnectedError, ProtocolError
@@ -167,3 +168,15 @@ def test_the_input_names_its_display_as_the_display_names_itself():
     from haptics.devices.sim import SimulatedDisplay
 
     assert repr(DisplayInput(SimulatedDisplay())) == "<DisplayInput simulated display>"  # not "object at 0x..."
+
+
+def test_close_from_another_thread_ends_a_read_on_an_owned_hid_display(fake_hid):
+    from haptics.devices.hid import HidDisplay
+    from haptics.settings import DisplaySettings
+
+    fake_hid.plug()
+    device = DisplayInput(HidDisplay.from_settings(DisplaySettings()), owned=True).connect()
+    ended = close_during_read(lambda: device.read(timeout_s=3.0), device.close, errors=InputNotConnectedError)
+    assert ended.close_s < 1.0 and ended.ended_s < 1.0
+    assert isinstance(ended.outcome, InputNotConnectedError) and "closed" in str(ended.outcome), ended.outcome
+    assert not device.connected and not device.display.connected

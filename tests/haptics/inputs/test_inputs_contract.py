@@ -7,6 +7,7 @@ import math
 import time
 
 import pytest
+from support.threads import close_during_read
 
 from haptics.errors import InputBackendNotFoundError, InputNotConnectedError, OperatorInputError
 from haptics.inputs import BACKENDS, OperatorInput, input_class, make_input
@@ -103,6 +104,14 @@ def test_a_read_never_waits_longer_than_its_timeout(input_rig):
     for _ in range(3):
         device.read(timeout_s=0.02)
     assert time.monotonic() - start < 0.5
+
+
+def test_close_from_another_thread_ends_a_pending_read_at_once(input_rig):
+    device = input_rig.device.connect()
+    ended = close_during_read(lambda: device.read(timeout_s=3.0), device.close, errors=InputNotConnectedError)
+    assert ended.close_s < 1.0 and ended.ended_s < 1.0
+    assert isinstance(ended.outcome, OperatorInput | InputNotConnectedError), ended.outcome
+    assert not device.connected
 
 
 def test_closed_and_connected_again_it_starts_safe(input_rig):
