@@ -17,7 +17,10 @@ newest force (N) and width (m), the robot's mode, the grasp's newest estimate wi
 state and reason, what the display renders, the last robot notice, and who is alive: a peer is
 alive when heard from (a heartbeat or any message) within :data:`LIVENESS_PERIODS` of its
 heartbeat periods. While the robot node, once heard, is not alive its force, width and state are dropped (a
-dead node's last readings are not its fingers' now; a node started again sends its own). The
+dead node's last readings are not its fingers' now; a node started again sends its own). A node started
+again faster than that (killed and restarted within three heartbeats) is told by its messages'
+sequence: a new process numbers each topic from 0 again, so a robot topic whose ``seq`` falls is a
+new node; the view counts these in ``robot_restarts`` and drops the old node's readings then too. The
 last notice that ended a grasp (the watchdog) is kept beside the newest notice until the view is
 cleared, so that a refusal coming after it (a follow sent before the end was heard) does not hide it.
 
@@ -111,6 +114,7 @@ class OperatorView:
     ended_by: RobotNoticeBody | None = None  # the last notice that ended a grasp (the watchdog), until cleared
     ended_by_t_s: float | None = None
     refused: int = 0  # bus messages the subscription refused (malformed, unknown type)
+    robot_restarts: int = 0  # times a robot topic's seq fell: the robot node was started again (a new process)
     label: LabelBody | None = None
 
     def peer(self, name: str) -> Peer | None:
@@ -177,6 +181,8 @@ class OperatorLink:
         self._orphaned: set[str] = set()  # grasps whose last estimate came from an estimator heard dead since
         self._dismissed: set[str] = set()  # grasps cleared from the view: their late messages are ignored
         self._labels: dict[str, LabelBody] = {}  # grasp id -> the last label sent for it
+        self._robot_seq: dict[str, int] = {}  # robot topic -> the last seq heard on it (this node process)
+        self.robot_restarts = 0  # robot nodes heard started again (a topic's seq fell)
         self.view = self._snapshot()
 
     @classmethod
@@ -267,6 +273,7 @@ class OperatorLink:
         taken = 0
         message = self.subscriber.recv(timeout_s=timeout_s)
         while message is not None:
+            self._check_restart(message)
             self.handle(message)
             taken += 1
             if taken >= MAX_DRAIN:
@@ -274,6 +281,20 @@ class OperatorLink:
             message = self.subscriber.recv(timeout_s=0)
         self.view = self._snapshot()
         return taken
+
+    def _check_restart(self, message: Message) -> None:
+        """Count a robot node started again: a robot topic's ``seq`` fell (a new process numbers each
+        topic from 0; the node sends a ``robot_state`` with every heartbeat, so a restart is heard
+        within one). Heard however fast the node came back, unlike its liveness. The old node's
+        readings are dropped, and its other topics' numbers forgotten: one restart counts once."""
+        if message.source != "robot" or message.topic not in ROBOT_TOPICS:
+            return
+        last = self._robot_seq.get(message.topic)
+        if last is not None and message.seq <= last:
+            self.robot_restarts += 1
+            self._robot_seq.clear()
+            self._force_n = self._width_m = self._robot = None  # the old node's: not its fingers' now
+        self._robot_seq[message.topic] = message.seq
 
     def handle(self, message: Message) -> None:
         """Keep what ``message`` says (called by :meth:`poll`; public for tests and replays)."""
@@ -340,6 +361,6 @@ class OperatorLink:
             estimate=estimate, estimates=count, display=self._display, notice=notice, notice_t_s=notice_t,
             estimate_orphaned=estimate is not None and estimate.grasp_id in self._orphaned,
             ended_by=ended_by, ended_by_t_s=ended_by_t,
-            refused=sum(self.subscriber.stats.refused.values()),
+            refused=sum(self.subscriber.stats.refused.values()), robot_restarts=self.robot_restarts,
             label=self._labels.get(self._grasp_id) if self._grasp_id is not None else None,
         )

@@ -28,7 +28,10 @@ the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.
 * a device that ``waits_for_robot`` (the simulated operator) is not read while the robot node is
   down: it starts squeezing once the node is heard;
 * when the robot node, once heard, goes down, its grasp is forgotten (a node started again runs
-  the next grasp under a new id) and follows are suspended as after ``stop``;
+  the next grasp under a new id) and follows are suspended as after ``stop``; so too when the link
+  hears the node started again without having seen it down (``OperatorView.robot_restarts``: a
+  node killed and restarted within three heartbeats), so that a held enable does not drive the new
+  node under the old grasp's id;
 * after ``stop``, ``release`` or ``next``, and when the robot ends the follow grasp (released,
   the watchdog: its ``grasp_event`` end or its ``watchdog`` notice naming the grasp), no follow goes out until the enable has been let go and held again: a held
   enable never moves the fingers again, nor starts a new grasp, by itself;
@@ -180,6 +183,7 @@ class OperatorLoop:
         self._shown_over = False  # a status showed the grasp left over (its final in): clear on the next step
         self._waiting = False  # the device waits for the robot node, not heard
         self._robot_up = False  # the robot node was heard alive at the last step
+        self._robot_restarts = 0  # the link's count of robot node restarts at the last step
         self._input: Any = None
         self._reconnect_s = -math.inf  # when a failed device was last opened again
         self._target_m: float | None = None
@@ -424,8 +428,12 @@ class OperatorLoop:
         """Forget a grasp's id once the robot says it ended (the next enable starts another) or
         refused to start it; after ``next``, clear the view once a status has shown the grasp left
         over (:func:`_over`: its final is seen before it goes), or after :data:`NEXT_WAIT_S`."""
-        if self._robot_up and self.link.view.down("robot node"):
+        view = self.link.view
+        if self._robot_up and view.down("robot node"):
             self._robot_lost()
+        elif self._robot_up and view.robot_restarts != self._robot_restarts:
+            self._robot_lost(restarted=True)  # started again before it was seen down
+        self._robot_restarts = view.robot_restarts
         view = self.link.view
         self._robot_up = view.alive("robot node")
         if self._leaving is not None:
@@ -448,16 +456,18 @@ class OperatorLoop:
                 and notice.grasp_id == self._discrete_grasp):
             self._discrete_grasp = None  # it never started: release and stop name the grasp there is
 
-    def _robot_lost(self) -> None:
-        """The robot node went down (killed, crashed): its grasp went with it. Forget the grasp, so
-        that a node started again never runs a new grasp under its id, and suspend the follows, so
-        that a held enable does not drive that node until it is let go and held again."""
+    def _robot_lost(self, *, restarted: bool = False) -> None:
+        """The robot node went down (killed, crashed; ``restarted``: and was already heard started
+        again): its grasp went with it. Forget the grasp, so that a node started again never runs a
+        new grasp under its id, and suspend the follows, so that a held enable does not drive that
+        node until it is let go and held again."""
         view = self.link.view
         lost = self._follow_grasp or self._discrete_grasp or (view.grasp_id if view.phase != "ended" else None)
         self._follow_grasp = self._discrete_grasp = None
         if view.phase in ("loading", "loaded"):
             self.link.clear()  # no end or final comes for it: "next" need not wait
-        self._act("the robot node is down" + (f": grasp {lost} is lost" if lost else ""))
+        what = "the robot node restarted" if restarted else "the robot node is down"
+        self._act(what + (f": grasp {lost} is lost" if lost else ""))
         self._suspend()
 
     def _suspend(self) -> None:
