@@ -12,18 +12,22 @@ force-capped (:mod:`teleop.operator`). A follow counts only with ``enable`` (the
   between the closed fingers (a grasp ended by the watchdog) is grasped again, unless a
   ``release`` opened them meanwhile (the object then leaves, and the scene's next one comes);
 * during a follow grasp it moves the fingers' target (:meth:`~teleop.devices.gripper.Gripper.follow`).
+  It must name that grasp: a follow naming another grasp or none (another operator's) is refused
+  and counts for nothing, neither moving the fingers nor keeping the grasp from the watchdog.
   The fingers never exceed the settings' maximum grasp force (``gripper.target_force_n``): the
   simulated physics stalls there; with hardware the node stops closing once the load cell
   reads it, and not at all while the load cell is silent (no force for
   :data:`FORCE_SILENT_S`: a ``robot_notice`` *refused* says so). Reaching it sends a
   ``robot_notice`` *force_limit*, once per grasp.
 
-A follow without enable stops the fingers where they are. When no follow came for
+A follow without enable stops the fingers where they are (while the grasp is preparing: it
+clears the target, so going live moves nothing). When no follow came for
 :data:`~teleop.operator.WATCHDOG_S`, the node stops the fingers, sends a ``robot_notice``
 *watchdog* and ends the grasp (mode *stopped*). ``release`` ends a follow grasp: the fingers
 open, then the grasp ends; with no grasp open it opens fingers the watchdog left closed on an
-object. ``stop`` stops the fingers and ignores further follows until ``release`` (or the
-watchdog) ends the grasp.
+object; a grasp still preparing is cancelled instead (a ``robot_notice`` *refused* says the
+fingers had nothing to open). ``stop`` stops the fingers and ignores further follows until
+``release`` (or the watchdog) ends the grasp; a grasp still preparing then never goes live.
 
 A follow that cannot be carried out (during a scripted grasp, naming another grasp, beyond the
 gripper's width, ...) raises; the node answers it with a ``robot_notice`` *refused*
@@ -73,25 +77,30 @@ class Follower:
     # ------------------------------------------------------------------ commands
 
     def follow(self, grasp_id: str | None, target_width_m: float, enable: bool) -> None:
-        """One follow message (module docstring); raises what makes it refused."""
+        """One follow message (module docstring); raises what makes it refused, before it changes
+        anything: a refused follow neither feeds the watchdog nor sets the enable."""
         node = self.node
-        self.last_follow_s = node.clock()
-        self.enable = enable
         grasp = node._grasp
         if grasp is not None and not grasp.follow:
             raise DeviceError(f"grasp {grasp.grasp_id!r} is a commanded grasp: the fingers cannot follow until it ends")
-        if grasp is not None and grasp_id is not None and grasp_id != grasp.grasp_id:
+        # Another operator's follows, or follows naming no grasp, must not steer nor keep alive this one.
+        if grasp is not None and grasp_id is None:
+            raise DeviceError(f"grasp {grasp.grasp_id!r} is in progress: a follow must name it")
+        if grasp is not None and grasp_id != grasp.grasp_id:
             raise DeviceError(f"grasp {grasp.grasp_id!r} is in progress, not {grasp_id!r}")
-        if not enable:
-            if grasp is not None and grasp.phase == "following" and grasp.target_width_m is not None:
-                node.gripper.stop()
-                grasp.target_width_m = None
-            return
         max_width = node.settings.gripper.max_width_m
-        if target_width_m > max_width:
+        if enable and target_width_m > max_width:
             raise InvalidCommandError(f"target_width_m = {target_width_m}: the fingers open to {max_width} m at most")
-        if grasp is None:
+        if enable and grasp is None:
             grasp = self._start(grasp_id)
+        self.last_follow_s = node.clock()
+        self.enable = enable
+        if not enable:
+            if grasp is not None and grasp.phase in ("preparing", "following") and grasp.target_width_m is not None:
+                if grasp.phase == "following":  # preparing: the fingers are not the grasp's yet
+                    node.gripper.stop()
+                grasp.target_width_m = None  # nor does going live drive it
+            return
         if grasp.phase not in ("preparing", "following"):
             return  # stopped or releasing: the operator's targets no longer move the fingers
         grasp.target_width_m = target_width_m
@@ -99,15 +108,22 @@ class Follower:
             self._drive_fingers(grasp)
 
     def stop(self, grasp: _Grasp) -> None:
-        """``stop`` during a follow grasp: further follows are ignored until it ends."""
-        if grasp.phase == "following":
+        """``stop`` during a follow grasp: further follows are ignored until it ends; one still
+        preparing never goes live."""
+        if grasp.phase in ("preparing", "following"):
             grasp.phase = "stopped"
 
     def release(self, grasp: _Grasp) -> None:
-        """``release`` of a follow grasp: the fingers open, then the grasp ends."""
+        """``release`` of a follow grasp: the fingers open, then the grasp ends; one that never
+        went live is cancelled (it took no object, and the fingers have nothing to open)."""
         node = self.node
-        if grasp.phase not in ("following", "stopped"):
+        if grasp.phase not in ("preparing", "following", "stopped"):
             raise DeviceError(f"follow grasp {grasp.grasp_id!r} is {grasp.phase}: nothing to release")
+        if not _went_live(grasp):
+            node._grasp = None
+            node._notice("refused", "release", grasp.grasp_id,
+                         f"follow grasp {grasp.grasp_id!r} had not started: cancelled, the fingers have nothing to open")
+            return
         node.gripper.stop()
         grasp.phase = "releasing"
         grasp.motion = node.gripper.move_async(node.settings.gripper.max_width_m)
@@ -246,8 +262,13 @@ class Follower:
         node._notice("watchdog", "follow", grasp.grasp_id,
                      f"no follow command for {silent_s:.3f} s (watchdog {WATCHDOG_S} s): the fingers stopped")
         self.enable = False
-        if grasp.phase == "preparing":
+        if not _went_live(grasp):
             node._grasp = None
         else:
             node._end()
         self.stopped = True
+
+
+def _went_live(grasp: _Grasp) -> bool:
+    """Whether the grasp's start event went out: one that never went live has no end either."""
+    return grasp.started_s < math.inf

@@ -20,9 +20,12 @@ Grasps are commanded on the bus (``command`` messages on ``bus.command``):
     ``params.target_force_n`` (default ``gripper.target_force_n``), holds ``hold_s`` and
     opens again.
 ``stop``
-    Stop the gripper where it is.
+    Stop the gripper where it is, whatever grasp it names (or none): stopping is always safe,
+    so anyone's stop wins.
 ``release``
-    Open the gripper.
+    Open the gripper. A release naming another grasp than the one in progress is refused (it
+    would open the fingers on someone else's object); one naming none releases whatever is in
+    progress.
 
 A simulated scripted grasp is the replay of a record simulated whole: it holds and releases by
 itself, and refuses ``stop`` and ``release``.
@@ -350,7 +353,7 @@ class RobotNode(ServiceLoop):
                 if self._grasp is not None and self._grasp.follow:
                     self._follower.stop(self._grasp)
             elif action == "release":
-                self._release()
+                self._release(body.grasp_id)
             else:
                 log.debug("command %s is not for the robot node", action)
         except TeleopError as exc:
@@ -364,8 +367,10 @@ class RobotNode(ServiceLoop):
         neither stops nor releases early (its grasp command completing would mark a false loading end)."""
         return self.simulated and self._grasp is not None and not self._grasp.follow
 
-    def _release(self) -> None:
+    def _release(self, grasp_id: str | None) -> None:
         grasp = self._grasp
+        if grasp is not None and grasp_id is not None and grasp_id != grasp.grasp_id:
+            raise DeviceError(f"grasp {grasp.grasp_id!r} is in progress, not {grasp_id!r}")
         self._follower.stopped = False  # the operator took the fingers back from the watchdog
         if grasp is not None and grasp.follow:
             self._follower.release(grasp)
