@@ -38,8 +38,9 @@ was trained.
 -------------
 Per grasp, the cheapest answer whose expected error fits the budget:
 
-1. The grasp cannot be sampled (no usable loading frame): the force/width-only
-   ``no_tactile`` fit, which needs no frame.
+1. The grasp cannot be sampled (no usable loading frame): a refusal that says what the
+   force/width-only ``no_tactile`` fit reads (it cannot tell a soft object from a rigid one
+   pressed into the gel, so it is never rendered).
 2. The series-compliance fit is ``ok`` with an interval at most
    ``AutoPolicy.max_series_interval_decades`` wide, over at least
    ``MIN_SERIES_FRAMES`` distinct frames: that estimate, and the network is
@@ -51,7 +52,7 @@ Per grasp, the cheapest answer whose expected error fits the budget:
    default 0.5 decade.
 3. Otherwise the model. If the model fails or refuses the grasp (its sensor's grid
    outside the model's range), the first analytical estimate that is not a refusal, in
-   the order series, hertz, elastic, no_tactile.
+   the order series, hertz, elastic (no_tactile's, as in 1, only said).
 
 The result's method is ``"auto"`` and its reason says which branch answered.
 """
@@ -236,8 +237,8 @@ class HybridEstimator:
 
         The model's view of the grasp (:func:`~estimator.inference.sampling.sample_stream`) from the
         stream's finger and calibration, and the other finger's for a marker variant; a grasp that
-        cannot be sampled gets, in ``auto`` mode, the force/width-only ``no_tactile`` fit over the
-        stream's measurements, else a refusal with its reason.
+        cannot be sampled gets a refusal with its reason (in ``auto`` mode saying what the
+        force/width-only ``no_tactile`` fit reads over the stream's measurements).
 
         Parameters
         ----------
@@ -255,7 +256,7 @@ class HybridEstimator:
         if not sampled and mode == "auto":
             fallback = estimate_measurements(stream.measurements(tactile=False), "no_tactile")
             why = "" if sampled.reason in fallback.reason else f" ({sampled.reason})"  # said once
-            result = _as("auto", fallback, f"no tactile sample{why}: force and width only")
+            result = _as_fallback(fallback, f"no tactile sample{why}: force and width only")
         else:
             result = self.estimate_sampled(sampled, mode=mode)
         return result.with_latency(time.perf_counter() - started)
@@ -339,7 +340,18 @@ def _without_model(method: str, mode: str, by_method: Mapping[str, Estimate], wh
     fallback = next((by_method[m] for m in FALLBACK_ORDER if by_method.get(m)), None)
     if fallback is None:
         return Estimate.refuse(method, f"{why}; and every analytical method refuses")
-    return _as("auto", fallback, why)
+    return _as_fallback(fallback, why)
+
+
+def _as_fallback(estimate: Estimate, why: str) -> Estimate:
+    """An analytical ``estimate`` as ``auto``'s answer, except ``no_tactile``'s: force and width alone
+    cannot tell a soft object from a rigid one pressed into the gel (a steel ball reads 0.3-0.5 MPa
+    on the nominal rig, ``ok``), so its reading is said in a refusal, never rendered."""
+    answer = _as("auto", estimate, why)
+    if estimate.method != "no_tactile" or not estimate:
+        return answer
+    return Estimate.refuse("auto", f"{answer.reason}; not rendered: force and width alone read a rigid "
+                                   f"object pressed into the gel as soft (it reads {estimate.e_pa:.3g} Pa)")
 
 
 def _as(method: str, estimate: Estimate, why: str) -> Estimate:

@@ -328,6 +328,24 @@ def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_c
     assert not sample_stream(empty, n_frames=3, size_px=None) and sample_stream(empty, n_frames=3, size_px=None).reason
 
 
+def test_a_rigid_object_seen_by_force_and_width_alone_is_said_not_rendered(settings, calibration, records):
+    # With no tactile frame (a dead camera, or one too slow for the loading), force and width read the
+    # steel ball as soft, ok (the gel's own compliance): auto says the reading in a refusal.
+    from estimator.inference.hybrid import HybridEstimator
+    from estimator.inference.infer import CompliancePredictor, default_model_dir
+    from estimator.measurements import estimate_measurements
+
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    for t, kind, body in in_capture_order(records["steel_ball_bearing"]):
+        if kind != "frame":
+            feed(stream, kind, body, t)
+    alone = estimate_measurements(stream.measurements(tactile=False), "no_tactile")
+    assert alone.state == "ok" and alone.e_pa < 1e7  # what it would have rendered: a rigid ball, soft
+    model = HybridEstimator(CompliancePredictor(default_model_dir()), settings=settings, calibration=calibration)
+    said = model.estimate_stream(stream, mode="auto")
+    assert not said and f"reads {alone.e_pa:.3g} Pa" in said.reason
+
+
 def test_a_model_answers_from_the_stream_as_from_the_record_of_it(settings, calibration, records):
     # The service's model never measures through a record: a grasp that can be sampled, one whose
     # frames were lost from the contact on (auto: force and width only), and a marker variant's
@@ -348,8 +366,8 @@ def test_a_model_answers_from_the_stream_as_from_the_record_of_it(settings, cali
     for stream in (full, lost):
         for mode in ("auto", "model"):
             assert same(model.estimate_stream(stream, mode=mode), model.estimate(stream.to_record(), mode=mode))
-    said = model.estimate_stream(lost, mode="auto")
-    assert said and "no tactile sample" in said.reason and "no_tactile" in said.reason
+    said = model.estimate_stream(lost, mode="auto")  # force and width alone: said, not rendered
+    assert not said and "no tactile sample" in said.reason and "no_tactile" in said.reason and "reads" in said.reason
     assert not model.estimate_stream(lost, mode="model")
     options = dict(n_frames=3, size_px=(32, 44), markers=True, rgb=True)
     from_stream = sample_stream(full, **options)
