@@ -52,10 +52,12 @@ def load_backend(family: str, backends: Mapping[str, str], name: str) -> type:
     return getattr(module, class_name)
 
 
-def check_timeout(timeout_s: float) -> float:
-    """``timeout_s`` if it is a finite number > 0; InvalidCommandError otherwise."""
-    if not (isinstance(timeout_s, int | float) and 0 < timeout_s < float("inf")):
-        raise InvalidCommandError(f"timeout_s = {timeout_s!r}: expected a finite number of seconds > 0")
+def check_timeout(timeout_s: float, *, poll: bool = False) -> float:
+    """``timeout_s`` if it is a finite number > 0 (>= 0 with ``poll``); InvalidCommandError otherwise."""
+    number = isinstance(timeout_s, int | float) and not isinstance(timeout_s, bool)  # True is no duration
+    if not (number and (timeout_s >= 0 if poll else timeout_s > 0) and timeout_s < float("inf")):
+        bound = ">= 0" if poll else "> 0"
+        raise InvalidCommandError(f"timeout_s = {timeout_s!r}: expected a finite number of seconds {bound}")
     return float(timeout_s)
 
 
@@ -119,13 +121,21 @@ class SampleQueue:
 
     A reader thread :meth:`put` s samples as they arrive; the device's user takes all
     of them at once with :meth:`take`. When ``maxlen`` is reached the oldest samples
-    are dropped and counted in :attr:`dropped`.
+    are dropped and counted in :attr:`dropped`. :meth:`close` says no more will come:
+    it wakes a waiting :meth:`take`, and later takes no longer wait.
     """
 
     def __init__(self, maxlen: int = 100_000):
         self._items: deque[tuple[float, float]] = deque(maxlen=maxlen)
         self._ready = threading.Condition()
+        self._closed = False
         self.dropped = 0
+
+    def close(self) -> None:
+        """End the stream (device closed, link failed): takes return what is queued at once."""
+        with self._ready:
+            self._closed = True
+            self._ready.notify_all()
 
     def put(self, t_s: float, value: float) -> None:
         with self._ready:
@@ -134,14 +144,15 @@ class SampleQueue:
             self._items.append((t_s, value))
             self._ready.notify_all()
 
-    def take(self, timeout_s: float | None = 0.0) -> Samples:
-        """Every queued sample (oldest first), waiting up to ``timeout_s`` for at least one.
+    def take(self, timeout_s: float = 0.0) -> Samples:
+        """Every queued sample (oldest first), waiting up to ``timeout_s`` (0: not at all) for at least one.
 
-        Returns empty Samples when none arrived in time.
+        Returns empty Samples when none arrived in time or the queue was closed.
         """
+        timeout_s = check_timeout(timeout_s, poll=True)
         with self._ready:
             if timeout_s:
-                self._ready.wait_for(lambda: bool(self._items), timeout=timeout_s)
+                self._ready.wait_for(lambda: bool(self._items) or self._closed, timeout=timeout_s)
             items = list(self._items)
             self._items.clear()
         if not items:

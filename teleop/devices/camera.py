@@ -96,6 +96,7 @@ class TactileCamera(Device):
         self._require_connected()
         frame = self._read(check_timeout(timeout_s))
         if frame is None:
+            self._require_connected()  # closed while waiting
             raise DeviceTimeoutError(f"{self!r}: no frame within {timeout_s} s")
         if self.sensor.camera_latency_s:  # onto the load cell's clock, as calibrated
             return dataclasses.replace(frame, t_s=frame.t_s - self.sensor.camera_latency_s)

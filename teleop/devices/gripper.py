@@ -29,7 +29,7 @@ import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
-from teleop.devices.base import Device, SampleQueue, load_backend
+from teleop.devices.base import Device, SampleQueue, check_timeout, load_backend
 from teleop.errors import DeviceError, InvalidCommandError
 from teleop.record import Samples
 from teleop.settings import GripperSettings
@@ -111,6 +111,8 @@ class Gripper(Device):
 
     def _connect(self) -> None:
         self._open()
+        self._width_queue = SampleQueue()  # widths and stops of an earlier connection are stale
+        self._last_stop = None
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"{type(self).__name__}-command")
         self._reader_stop.clear()
         self._reader = threading.Thread(target=self._read_widths_forever, name=f"{type(self).__name__}-width", daemon=True)
@@ -118,6 +120,7 @@ class Gripper(Device):
 
     def _close(self) -> None:
         self._reader_stop.set()
+        self._width_queue.close()  # wake a widths() waiting in another thread
         if self._reader is not None:
             self._reader.join(timeout=5.0)
         if self._executor is not None:
@@ -212,10 +215,14 @@ class Gripper(Device):
     def widths(self, *, timeout_s: float = 0.0) -> Samples:
         """Width samples (t_s, m) the background reader took since the last call.
 
-        Waits up to ``timeout_s`` for at least one; empty Samples if none came.
+        Waits up to ``timeout_s`` (0: not at all) for at least one; empty Samples if none came.
+        DeviceNotConnectedError if the gripper is closed meanwhile.
         """
         self._require_connected()
-        return self._width_queue.take(timeout_s)
+        samples = self._width_queue.take(check_timeout(timeout_s, poll=True))
+        if not len(samples):
+            self._require_connected()  # woken by close(), not by a sample
+        return samples
 
     # ------------------------------------------------------------------ internals
 

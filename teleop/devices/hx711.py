@@ -66,6 +66,7 @@ class _StreamingHx711(LoadCell):
 
     def _close(self) -> None:
         self._stop.set()
+        self._queue.close()  # wake a read waiting in another thread
         if self._reader is not None:
             self._reader.join(timeout=2.0)
         self._close_link()
@@ -79,6 +80,7 @@ class _StreamingHx711(LoadCell):
                 if not self._stop.is_set():
                     self._failure = f"{self!r}: link failed: {exc}"
                     log.warning(self._failure)
+                    self._queue.close()  # a waiting read hears of the failure now, not at its timeout
                 return
             arrived = time.monotonic()
             overlong = lines.overlong

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import random
+import select
 import socket
 import threading
 import time
@@ -230,6 +231,7 @@ class Hx711Bridge:
             except Exception as exc:  # any source's: this thread's end would leave the hosts waiting on silence
                 self._fail(exc)
                 return
+            self._drop_departed()
             if counts is None:
                 continue
             frame = format_frame(seq, time.monotonic(), counts)
@@ -243,6 +245,21 @@ class Hx711Bridge:
                         log.info("HX711 bridge: dropped a host: %s", exc)
                         client.close()
                         self._clients.remove(client)
+
+    def _drop_departed(self) -> None:
+        """Close the connections of hosts that left, even while nothing is sent: hosts never
+        send, so a readable socket has reached EOF or failed."""
+        with self._lock:
+            readable, _, _ = select.select(self._clients, [], [], 0)
+            for client in readable:
+                try:
+                    if client.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT):
+                        continue  # a host that talks is still there
+                except OSError:
+                    pass
+                log.info("HX711 bridge: a host left")
+                client.close()
+                self._clients.remove(client)
 
     def _fail(self, exc: Exception) -> None:
         """Stop serving and close every host's connection: each sees its link fail."""

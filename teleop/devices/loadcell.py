@@ -66,6 +66,7 @@ class LoadCell(Device):
         timeout = check_timeout(self.settings.timeout_s if timeout_s is None else timeout_s)
         samples = self._take_raw(timeout)
         if len(samples) == 0:
+            self._require_connected()  # closed while waiting
             raise DeviceTimeoutError(f"{self!r}: no force sample within {timeout} s")
         return Samples(samples.t_s, samples.value - self.offset_n)
 
@@ -84,6 +85,7 @@ class LoadCell(Device):
         while sum(len(b) for b in batches) < n:
             batch = self._take_raw(timeout)
             if not len(batch):
+                self._require_connected()  # closed while waiting
                 raise DeviceTimeoutError(f"{self!r}: tare got no force sample within {timeout} s")
             batches.append(batch)
         t = np.concatenate([b.t_s for b in batches])
@@ -91,6 +93,10 @@ class LoadCell(Device):
         self.offset_n = float(raw[:n].mean())
         self._leftover = Samples(t[n:], raw[n:])  # later samples belong to the next read
         return self.offset_n
+
+    def close(self) -> None:
+        super().close()
+        self._leftover = Samples(np.zeros(0), np.zeros(0))  # a reconnected cell starts afresh
 
     def _take_raw(self, timeout_s: float) -> Samples:
         if not len(self._leftover):

@@ -176,5 +176,5 @@ class OpenCVCamera(TactileCamera):
             except queue.Empty:
                 if self._failure is not None:
                     raise DeviceError(self._failure) from None
-                if time.monotonic() >= deadline:
+                if self._stop.is_set() or time.monotonic() >= deadline:  # closed meanwhile, or timed out
                     return None

@@ -382,6 +382,7 @@ class _Switched:
 
     def _serve(self, playback: GraspPlayback | None) -> None:
         self._lock = threading.Lock()
+        self._closed = threading.Event()  # set by close(): a waiting read returns at once
         self._playback: GraspPlayback | None = None
         self._live: LiveGrasp | None = None
         self._next = 0
@@ -397,6 +398,23 @@ class _Switched:
         """Serve ``grasp``'s data as it is captured (None: silence)."""
         with self._lock:
             self._playback, self._live = None, grasp
+
+    def _connect(self) -> None:
+        self._closed.clear()
+
+    def _close(self) -> None:
+        self._closed.set()
+
+    def _idle_until(self, deadline: float) -> None:
+        """Nothing to hand out: wait as a silent device would, until ``deadline`` or close()."""
+        self._closed.wait(max(0.0, deadline - time.monotonic()))
+
+    def _started_by(self, playback: GraspPlayback, deadline: float) -> bool:
+        """Whether ``playback`` starts before ``deadline``; False as soon as close() is called."""
+        while not playback.wait_started(min(0.05, max(0.0, deadline - time.monotonic()))):  # slices: close() is seen
+            if self._closed.is_set() or time.monotonic() >= deadline:
+                return False
+        return True
 
 
 class SimulatedCamera(_Switched, TactileCamera):
@@ -417,9 +435,10 @@ class SimulatedCamera(_Switched, TactileCamera):
         finger = self.sensor.finger
         due = grasp.next_frame_s(finger)
         if due > deadline:
-            time.sleep(max(0.0, deadline - time.monotonic()))
+            self._idle_until(deadline)
             return None
-        _wait_until(due, time.monotonic)
+        if not _wait_until(due, time.monotonic, self._closed):
+            return None
         with self._lock:
             if self._live is not grasp:
                 return None  # switched while the frame was awaited
@@ -427,12 +446,6 @@ class SimulatedCamera(_Switched, TactileCamera):
             frame = grasp.take_frame(finger)
             self.dropped += grasp.frames_dropped(finger) - dropped
             return frame
-
-    def _connect(self) -> None:
-        pass
-
-    def _close(self) -> None:
-        pass
 
     def _read(self, timeout_s: float) -> CameraFrame | None:
         deadline = time.monotonic() + timeout_s
@@ -443,14 +456,15 @@ class SimulatedCamera(_Switched, TactileCamera):
         finger = self.sensor.finger
         if (
             playback is None
-            or not playback.wait_started(timeout_s)
+            or not self._started_by(playback, deadline)
             or index >= playback.frame_count(finger)
             or not _due_before(playback, playback.frame_due_s(finger, index), deadline)
         ):
-            time.sleep(max(0.0, deadline - time.monotonic()))  # nothing to show: a silent camera
+            self._idle_until(deadline)  # nothing to show: a silent camera
             return None
         due = playback.frame_due_s(finger, index)
-        _wait_until(due, playback.clock)
+        if not _wait_until(due, playback.clock, self._closed):
+            return None
         with self._lock:
             if self._playback is not playback or self._next != index:
                 return None  # another replay began while this frame was awaited
@@ -470,8 +484,8 @@ class SimulatedLoadCell(_Switched, LoadCell):
     def _take_live(self, grasp: LiveGrasp, deadline: float) -> Samples:
         """The readings of ``grasp`` that arrived, waiting for the next one up to ``deadline``."""
         for waited in (False, True):
-            if waited:
-                _wait_until(min(grasp.next_reading_s(), deadline), time.monotonic)
+            if waited and not _wait_until(min(grasp.next_reading_s(), deadline), time.monotonic, self._closed):
+                break
             with self._lock:
                 if self._live is not grasp:  # switched meanwhile
                     return Samples(np.zeros(0), np.zeros(0))
@@ -480,19 +494,13 @@ class SimulatedLoadCell(_Switched, LoadCell):
                 break
         return due
 
-    def _connect(self) -> None:
-        pass
-
-    def _close(self) -> None:
-        pass
-
     def _take(self, timeout_s: float) -> Samples:
         deadline = time.monotonic() + timeout_s
         with self._lock:
             playback, live = self._playback, self._live
         if live is not None:
             return self._take_live(live, deadline)
-        if playback is not None and playback.wait_started(timeout_s):
+        if playback is not None and self._started_by(playback, deadline):
             index, due = self._take_due(playback)
             if len(due):
                 return due
@@ -500,9 +508,10 @@ class SimulatedLoadCell(_Switched, LoadCell):
             if index < len(forces):
                 next_due = float(playback.live_time(forces.t_s[index]))
                 if _due_before(playback, next_due, deadline):
-                    _wait_until(next_due, playback.clock)
+                    if not _wait_until(next_due, playback.clock, self._closed):
+                        return Samples(np.zeros(0), np.zeros(0))
                     return self._take_due(playback)[1]
-        time.sleep(max(0.0, deadline - time.monotonic()))  # nothing due in time: a silent cell
+        self._idle_until(deadline)  # nothing due in time: a silent cell
         return Samples(np.zeros(0), np.zeros(0))
 
     def _take_due(self, playback: GraspPlayback) -> tuple[int, Samples]:

@@ -19,7 +19,8 @@ class CloseDuringRead:
 def close_during_read(read: Callable[[], Any], close: Callable[[], None], *,
                       errors: type[BaseException] | tuple[type[BaseException], ...],
                       waiting_s: float = 0.1) -> CloseDuringRead:
-    """Start ``read`` in a thread, call ``close`` once it waits (``waiting_s``), and say how both ended."""
+    """Start ``read`` in a thread, call ``close`` (or whatever should end the read: a cut link) once it
+    waits (``waiting_s``), and say how both ended."""
     outcome: dict[str, Any] = {}
 
     def reader_thread() -> None:

@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from teleop.devices.base import Device, SampleQueue, load_backend
-from teleop.errors import BackendNotFoundError, DeviceError
+from teleop.devices.base import Device, SampleQueue, check_timeout, load_backend
+from teleop.errors import BackendNotFoundError, DeviceError, InvalidCommandError
 
 
 class Counting(Device):
@@ -54,3 +54,26 @@ def test_sample_queue_hands_out_batches_and_counts_what_it_dropped():
     started = time.monotonic()
     assert queue.take(timeout_s=2.0).value.tolist() == [50.0]  # woken by the put, not the timeout
     assert time.monotonic() - started < 1.0
+
+
+def test_closing_a_sample_queue_wakes_a_waiting_take_and_later_takes_do_not_wait():
+    queue = SampleQueue()
+    threading.Timer(0.1, queue.close).start()
+    started = time.monotonic()
+    assert len(queue.take(timeout_s=3.0)) == 0
+    assert time.monotonic() - started < 1.0
+    queue.put(1.0, 10.0)  # what was queued still comes out
+    assert queue.take(timeout_s=3.0).value.tolist() == [10.0]
+    started = time.monotonic()
+    assert len(queue.take(timeout_s=3.0)) == 0 and time.monotonic() - started < 0.5
+
+
+@pytest.mark.parametrize("timeout", [-1.0, float("nan"), float("inf"), True, "1"])
+def test_timeouts_must_be_finite_non_negative_numbers(timeout):
+    with pytest.raises(InvalidCommandError, match="timeout_s"):
+        SampleQueue().take(timeout_s=timeout)
+    with pytest.raises(InvalidCommandError, match="timeout_s"):
+        check_timeout(timeout)
+    with pytest.raises(InvalidCommandError, match="timeout_s = 0"):
+        check_timeout(0)
+    assert check_timeout(0, poll=True) == 0.0 and check_timeout(2) == 2.0

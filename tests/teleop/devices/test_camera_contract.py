@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import pytest
+from support.threads import close_during_read
 
 from teleop.devices.camera import BACKENDS, TactileCamera, make_camera
 from teleop.devices.playback import GraspPlayback
@@ -90,9 +91,21 @@ def test_a_silent_source_times_out(rig):
 
 def test_bad_timeouts_are_refused(rig):
     with rig.camera:
-        for timeout in (0.0, -1.0, float("nan")):
+        for timeout in (0.0, -1.0, float("nan"), True):
             with pytest.raises(DeviceError, match="timeout_s"):
                 rig.camera.read(timeout_s=timeout)
+
+
+def test_close_wakes_a_read_waiting_in_another_thread(rig):
+    if rig.expected is None:
+        pytest.skip("a real camera does not fall silent on request")
+    with rig.camera:
+        rig.start()
+        for _ in range(N_FRAMES):
+            rig.camera.read(timeout_s=2.0)
+        ended = close_during_read(lambda: rig.camera.read(timeout_s=3.0), rig.camera.close, errors=DeviceError,
+                                  waiting_s=0.2)
+    assert isinstance(ended.outcome, DeviceNotConnectedError) and ended.ended_s < 0.5
 
 
 # --------------------------------------------------------------------------- backend specifics

@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+from support.threads import close_during_read
 
 from teleop.devices.gripper import BACKENDS, Gripper, make_gripper
 from teleop.devices.playback import GraspPlayback, SimulatedGripper
@@ -281,3 +282,34 @@ def test_a_width_read_is_stamped_when_it_returns_as_the_training_records_are():
         t_s, _ = gripper.read_width()
         after = time.monotonic()
     assert before + 0.05 <= t_s <= after
+
+
+def test_close_wakes_a_widths_call_waiting_in_another_thread(gripper):
+    # A slow reader: after its first read at connect, the queue stays empty for 3 s.
+    with make_gripper(dataclasses.replace(gripper.settings, width_read_hz=0.3)) as slow:
+        slow.widths(timeout_s=1.0)
+        ended = close_during_read(lambda: slow.widths(timeout_s=3.0), slow.close, errors=DeviceError, waiting_s=0.2)
+    assert isinstance(ended.outcome, DeviceNotConnectedError) and ended.ended_s < 0.5
+
+
+@pytest.mark.parametrize("timeout", [-1.0, math.inf, math.nan, True])
+def test_bad_widths_timeouts_are_refused(gripper, timeout):
+    with gripper:
+        started = time.monotonic()
+        with pytest.raises(InvalidCommandError, match="timeout_s"):
+            gripper.widths(timeout_s=timeout)
+        assert time.monotonic() - started < 0.5
+        assert isinstance(gripper.widths(timeout_s=0), type(gripper.widths()))  # 0 polls
+
+
+def test_a_reconnected_gripper_forgets_the_last_connections_widths_and_stop(gripper):
+    with gripper:
+        assert gripper.move(0.04, speed_m_s=SPEED)
+        gripper.grasp(0.03, speed_m_s=SPEED, force_n=10.0)
+        assert gripper.last_stop is not None
+        time.sleep(0.1)  # the reader queues a few more
+    reopened = time.monotonic()
+    with gripper:
+        assert gripper.last_stop is None
+        samples = gripper.widths(timeout_s=1.0)
+    assert len(samples) and samples.t_s.min() >= reopened

@@ -384,3 +384,17 @@ def test_bridge_command_end_to_end():
     assert len(forces) >= 1 and set(forces) == {2.5}  # 105000 counts / 42000 counts per N
     summary = json.loads(rest.strip().splitlines()[-1])
     assert summary["address"] == address and summary["readings"] > 10
+
+
+def test_the_bridge_lets_go_of_hosts_that_left_while_the_source_was_silent():
+    def silent() -> None:
+        time.sleep(0.01)  # a source with nothing to report
+
+    with Hx711Bridge(silent, host="127.0.0.1", port=0) as bridge:
+        for _ in range(5):
+            with make_load_cell(LoadCellSettings(backend="tcp", address=bridge.address, timeout_s=1.0)):
+                pass
+        deadline = time.monotonic() + 1.0
+        while bridge.clients and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert bridge.clients == 0

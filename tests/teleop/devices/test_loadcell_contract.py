@@ -10,12 +10,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from support.threads import close_during_read
 
 from teleop.devices.hx711_bridge import Hx711Bridge
 from teleop.devices.loadcell import BACKENDS, LoadCell, make_load_cell
 from teleop.devices.playback import GraspPlayback
 from teleop.errors import (
     BackendNotFoundError,
+    DeviceError,
     DeviceNotConnectedError,
     DeviceTimeoutError,
     InvalidCommandError,
@@ -41,6 +43,7 @@ class Rig:
     cell: LoadCell
     expected: np.ndarray | None  # the forces the source emits, None for real hardware
     start: Callable[[], None] = lambda: None
+    cut: Callable[[], None] | None = None  # break the link under the cell, None where there is none
 
 
 class ScriptedCounts:
@@ -81,7 +84,7 @@ def rig(request, make_record, hardware_env):
         lines = [b"23\r\n"] + [b"%d\r\n" % c for c in counts]  # opened mid-line: "23" ends a reading
         writer = threading.Thread(target=_write_paced, args=(master, lines), daemon=True)
         cell = make_load_cell(LoadCellSettings(backend="serial", port=port, **CALIBRATION))
-        rig = Rig(cell, _newtons(counts), writer.start)
+        rig = Rig(cell, _newtons(counts), writer.start, lambda: os.close(master))
         cleanup.append(lambda: writer.join(timeout=2.0) if writer.is_alive() else None)
     elif request.param == "tcp":
         source = ScriptedCounts(_counts())
@@ -95,7 +98,7 @@ def rig(request, make_record, hardware_env):
                 time.sleep(0.005)
             source.release.set()
 
-        rig = Rig(cell, _newtons(source.counts), start)
+        rig = Rig(cell, _newtons(source.counts), start, bridge.close)
     else:
         port = hardware_env("COMPLIANCE_TELEOP_HX711_PORT")
         rig = Rig(make_load_cell(LoadCellSettings(backend="serial", port=port, timeout_s=1.0)), None)
@@ -158,6 +161,40 @@ def test_a_silent_source_times_out(rig):
         with pytest.raises(DeviceTimeoutError, match="no force sample within 0.2 s"):
             rig.cell.read(timeout_s=0.2)
         assert time.monotonic() - started >= 0.19
+
+
+def test_close_wakes_a_read_waiting_in_another_thread(rig):
+    if rig.expected is None:
+        pytest.skip("a real cell does not fall silent on request")
+    with rig.cell:
+        rig.start()
+        _collect(rig.cell, N)
+        ended = close_during_read(lambda: rig.cell.read(timeout_s=3.0), rig.cell.close, errors=DeviceError,
+                                  waiting_s=0.2)
+    assert isinstance(ended.outcome, DeviceNotConnectedError) and ended.ended_s < 0.5
+
+
+def test_a_link_that_fails_wakes_a_waiting_read(rig):
+    if rig.cut is None:
+        pytest.skip("this backend has no link to cut")
+    with rig.cell:
+        rig.start()
+        _collect(rig.cell, N)
+        ended = close_during_read(lambda: rig.cell.read(timeout_s=3.0), rig.cut, errors=DeviceError, waiting_s=0.2)
+    error = ended.outcome
+    assert isinstance(error, DeviceError) and not isinstance(error, DeviceTimeoutError | DeviceNotConnectedError)
+    assert "link failed" in str(error) and ended.ended_s < 0.5
+
+
+def test_a_reconnected_cell_hands_out_nothing_from_before_the_close(make_record):
+    record = make_record(duration_s=N / RATE_HZ, force_hz=RATE_HZ)
+    playback = GraspPlayback(record)
+    cell = make_load_cell(LoadCellSettings(**CALIBRATION), playback=playback)
+    playback.start(t0_s=time.monotonic() - 10.0)  # every sample is due at once: tare leaves N - 1 over
+    with cell:
+        cell.tare(n_samples=1)
+    with cell, pytest.raises(DeviceTimeoutError):
+        cell.read(timeout_s=0.2)
 
 
 def test_unknown_backend_lists_the_names():
