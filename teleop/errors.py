@@ -49,9 +49,11 @@ class BackendNotFoundError(DeviceError, LookupError):
     """No backend of that name is registered for the device family, or it cannot be loaded."""
 
     @classmethod
-    def missing_robot_extra(cls, what: str, exc: ImportError) -> "BackendNotFoundError":
-        """``what`` cannot be loaded because ``exc``'s library, of the ``robot`` extra, is missing."""
-        return cls(f"{what} cannot be loaded: {exc} (install the 'robot' extra)")
+    def missing_library(cls, what: str, exc: ImportError, *, install: str | None = None) -> "BackendNotFoundError":
+        """``what`` cannot be loaded because ``exc``'s library is missing; ``install`` says what
+        provides it (None: the ``robot`` extra, which holds the hardware libraries)."""
+        hint = install or "the 'robot' extra"
+        return cls(f"{what} cannot be loaded: {exc} (install {hint})")
 
 
 class BusError(TeleopError):

@@ -66,6 +66,8 @@ BACKENDS = {
     "display": "haptics.inputs.display:DisplayInput",
     "sim": "haptics.inputs.sim:SimulatedInput",
 }
+# What provides a backend's library: evdev is a dependency of the project on Linux only.
+_INSTALL = {"gamepad": "evdev, a dependency of the project on Linux only: pip install evdev"}
 
 
 def _finite(where: str, value: object) -> float:
@@ -261,7 +263,7 @@ class OperatorInputDevice(abc.ABC):
 def input_class(name: str) -> type[OperatorInputDevice]:
     """The operator input class registered as ``name``; the error lists the names there are."""
     try:
-        return load_backend("operator input", BACKENDS, name)
+        return load_backend("operator input", BACKENDS, name, install=_INSTALL)
     except BackendNotFoundError as exc:
         raise InputBackendNotFoundError(str(exc)) from exc
 

@@ -31,14 +31,18 @@ from teleop.record import Samples
 __all__ = ["Device", "SampleQueue", "check_timeout", "load_backend"]
 
 
-def load_backend(family: str, backends: Mapping[str, str], name: str) -> type:
+def load_backend(family: str, backends: Mapping[str, str], name: str, *,
+                 install: Mapping[str, str] | None = None) -> type:
     """Import the class registered as ``name`` in ``backends`` (``"module:Class"``).
+
+    ``install`` says, per backend, what provides a library it needs when that is not the
+    ``robot`` extra (the hardware libraries).
 
     Raises
     ------
     BackendNotFoundError
         ``name`` is not in the table (the message lists the names there are), or its
-        module or a library it needs cannot be imported.
+        module or a library it needs cannot be imported (the message says what to install).
     """
     if name not in backends:
         raise BackendNotFoundError(
@@ -48,7 +52,8 @@ def load_backend(family: str, backends: Mapping[str, str], name: str) -> type:
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
-        raise BackendNotFoundError.missing_robot_extra(f"{family} backend {name!r}", exc) from exc
+        raise BackendNotFoundError.missing_library(f"{family} backend {name!r}", exc,
+                                                   install=(install or {}).get(name)) from exc
     return getattr(module, class_name)
 
 

@@ -144,5 +144,5 @@ def import_pyserial(user: str) -> ModuleType:
     try:
         import serial
     except ImportError as exc:
-        raise BackendNotFoundError.missing_robot_extra(user, exc) from exc
+        raise BackendNotFoundError.missing_library(user, exc) from exc
     return serial

@@ -156,3 +156,14 @@ def test_make_input_builds_each_backend_unconnected(settings, input_rig):
     assert type(device) is type(input_rig.device) and not device.connected
     with device:
         assert isinstance(device.read(timeout_s=0.0), OperatorInput)
+
+
+def test_a_gamepad_without_evdev_names_evdev_to_install(monkeypatch):
+    import sys
+
+    from haptics.inputs import input_class
+
+    monkeypatch.setitem(sys.modules, "evdev", None)  # an import of evdev fails, as where it is missing
+    monkeypatch.delitem(sys.modules, "haptics.inputs.gamepad", raising=False)
+    with pytest.raises(InputBackendNotFoundError, match=r"\(install evdev, a dependency of the project on Linux only"):
+        input_class("gamepad")
