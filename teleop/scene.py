@@ -41,6 +41,7 @@ class Scene:
     name: str
     description: str
     objects: tuple[ObjectSpec, ...]
+    catalogue_path: Path  # the objects' catalogue: a session of the scene is labelled from it
     grasps_per_object: int
     seed: int
     settings_path: Path
@@ -107,6 +108,7 @@ def load_scene(name_or_path: str = "default") -> Scene:
         name=path.stem,
         description=data.get("description", ""),
         objects=tuple(catalogue[n] for n in names),
+        catalogue_path=catalogue_path,
         grasps_per_object=grasps,
         seed=seed,
         settings_path=_named_path(data, "settings", path) or default_settings_path(),

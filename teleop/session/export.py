@@ -44,8 +44,9 @@ Labels
 A grasp is labelled by the last ``label`` message the log holds for its ``grasp_id`` (written at
 capture by the operator's console, or after the fact by ``teleop label``): its object, its modulus
 (nil: the catalogue's modulus of that object, source ``catalogue``), source and detail; material
-and shape come from the catalogue when the object is in it. A grasp without a ``label`` message,
-whose start event names its object (simulated sessions), is labelled from the catalogue stored in
+and shape come from the catalogue when the object is in it, else from the catalogues ``teleop
+label`` took labels from (attached as ``label_catalogue-<n>``, :mod:`teleop.session.label`). A
+grasp without a ``label`` message, whose start event names its object (simulated sessions), is labelled from the catalogue stored in
 the log (or the one given), source ``catalogue``. Otherwise the record has no label. A record
 exported without a modulus says why (:attr:`GraspExport.unlabelled`).
 
@@ -87,6 +88,7 @@ from teleop.record import (
 )
 from teleop.session.export_calibration import carried_calibrations
 from teleop.session.export_names import record_name, same_grasp_records
+from teleop.session.label import label_catalogues
 from teleop.session.logfile import SETTINGS_ATTACHMENT, LogInfo, LogReader
 from teleop.settings import Settings
 
@@ -202,17 +204,30 @@ def _frame_stream(
     )
 
 
+def _attached_objects(name: str, data: bytes) -> dict[str, ObjectSpec]:
+    """Objects by name of the catalogue attached to the log as ``name``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / name
+        path.write_bytes(data)
+        return {obj.name: obj for obj in load_catalogue(path)}
+
+
 def _load_objects(info: LogInfo, catalogue: str | Path | None) -> dict[str, ObjectSpec]:
     """Objects by name: from ``catalogue``, else from the catalogue stored in the log, else none."""
     if catalogue is not None:
         return {obj.name: obj for obj in load_catalogue(catalogue)}
     for name, data in info.attachments.items():
         if name in ("catalogue.toml", "catalogue.csv"):
-            with tempfile.TemporaryDirectory() as tmp:
-                path = Path(tmp) / name
-                path.write_bytes(data)
-                return {obj.name: obj for obj in load_catalogue(path)}
+            return _attached_objects(name, data)
     return {}
+
+
+def _label_objects(info: LogInfo) -> dict[str, ObjectSpec]:
+    """Objects by name of the catalogues ``teleop label`` attached (the later one's of a name in two)."""
+    objects: dict[str, ObjectSpec] = {}
+    for name in label_catalogues(info.attachments):
+        objects.update(_attached_objects(name, info.attachments[name]))
+    return objects
 
 
 class _Assembler:
@@ -230,10 +245,12 @@ class _Assembler:
         labels: dict[str, LabelBody],
         calibration_files: dict[str, bytes],
         reader: LogReader | None = None,
+        label_objects: dict[str, ObjectSpec] | None = None,  # of the catalogues `teleop label` attached
     ):
         self.path = path
         self.settings = settings
         self.objects = objects
+        self.label_objects = label_objects or {}
         self.source = source
         self.session_version = session_version
         self.session = session
@@ -373,7 +390,9 @@ class _Assembler:
                 object_name=obj.name, modulus_pa=obj.modulus_pa, material=obj.material, shape=obj.shape
             ), ""
         name, modulus, source, detail = given.object_name, given.modulus_pa, given.source, given.detail
-        obj = self.objects.get(name)
+        # A label holds no material or shape: the log's catalogue (or --objects) has them, else the one
+        # `teleop label --catalogue` took the label from.
+        obj = self.objects.get(name) or self.label_objects.get(name)
         material, shape = (obj.material, obj.shape) if obj is not None else ("", "")
         if modulus is None:
             if obj is None:
@@ -491,6 +510,7 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
         path=path,
         settings=settings,
         objects=_load_objects(info, catalogue),
+        label_objects=_label_objects(info),
         source=source,
         session_version=info.session.get("software_version", "0+unknown"),
         session=session_id(info, path),

@@ -10,7 +10,10 @@ writes one ``label`` bus message per row into the log:
   header, schemas, channels, every message (data, log time, publish time and sequence byte for
   byte, the Foxglove forms included), attachments and metadata, with the labels added on the
   ``label`` topic (each after its Foxglove JSON form, as the recorder writes them), and a
-  ``labels`` metadata record saying what was added from where. The new file is flushed to disk
+  ``labels`` metadata record saying what was added from where. A catalogue the labels came from
+  other than the log's own (``--catalogue``, or the shipped one for a log without) is attached
+  as ``label_catalogue-<n>.toml`` (or ``.csv``), unless the log holds it already: a label names
+  its object and modulus, and ``teleop export`` takes the object's material and shape from there. The new file is flushed to disk
   and moved over the original (``os.replace``: atomic on one file system), so the log is either
   the old one or the new one, never half of each; no backup is kept.
 * Each label is stamped just after its grasp: log time 1 ns after the grasp's last
@@ -39,7 +42,9 @@ import csv
 import dataclasses
 import json
 import os
+import re
 import tempfile
+import time
 from collections.abc import Collection
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -68,15 +73,18 @@ from teleop.session.logfile import (
 __all__ = [
     "CSV_COLUMNS",
     "LABELS_METADATA",
+    "LABEL_CATALOGUE",
     "LABEL_SOURCE_NAME",
     "GraspLabel",
     "LabelReport",
+    "label_catalogues",
     "label_session",
     "read_label_csv",
 ]
 
 LABEL_SOURCE_NAME = "teleop label"  # the header source of labels written after the fact
 LABELS_METADATA = "labels"
+LABEL_CATALOGUE = "label_catalogue"  # attachments label_catalogue-<n>.toml/.csv: catalogues labels came from
 REQUIRED_COLUMNS = ("grasp_id", "object")
 CSV_COLUMNS = (*REQUIRED_COLUMNS, "modulus_pa", "shore_a", "shore_00", "source", "detail")
 _LISTED_GRASPS = 30  # grasp ids named in an error before "..."
@@ -108,25 +116,37 @@ class LabelReport:
         return dict(self.__dict__)
 
 
-def _catalogue_objects(catalogue: str | Path | None, attachments: dict[str, bytes]) -> tuple[tuple, str]:
-    """The catalogue's entries and its name for errors: ``catalogue``, else the log's, else the shipped."""
-    if catalogue is not None:
-        path = Path(catalogue)
-        return load_catalogue(path), str(path)
-    for name in ("catalogue.toml", "catalogue.csv"):
-        if name in attachments:
-            with tempfile.TemporaryDirectory() as folder:
-                path = Path(folder) / name
-                path.write_bytes(attachments[name])
-                try:
-                    objects = load_catalogue(path)
-                except SettingsError as exc:
-                    raise SettingsError(
-                        f"the log's {name} attachment: {str(exc).replace(str(path), name)}"
-                    ) from None
-            return objects, f"the log's {name}"
-    path = default_catalogue_path()
-    return load_catalogue(path), str(path)
+def label_catalogues(attachments: dict[str, bytes]) -> list[str]:
+    """The names of the catalogues ``teleop label`` attached to a log, oldest first."""
+    numbered = ((re.fullmatch(rf"{LABEL_CATALOGUE}-(\d+)\.(toml|csv)", name), name) for name in attachments)
+    return [name for _, name in sorted((int(match[1]), name) for match, name in numbered if match)]
+
+
+def _catalogue_objects(catalogue: str | Path | None, attachments: dict[str, bytes]
+                       ) -> tuple[tuple, str, tuple[str, bytes] | None]:
+    """The catalogue's entries, its name for errors, and the attachment to add: ``catalogue``, else the
+    log's, else the shipped. A label keeps only the object's name and modulus, so a catalogue other
+    than the log's goes into the log too: export takes the object's material and shape from it."""
+    if catalogue is None:
+        for name in ("catalogue.toml", "catalogue.csv"):
+            if name in attachments:
+                with tempfile.TemporaryDirectory() as folder:
+                    path = Path(folder) / name
+                    path.write_bytes(attachments[name])
+                    try:
+                        objects = load_catalogue(path)
+                    except SettingsError as exc:
+                        raise SettingsError(
+                            f"the log's {name} attachment: {str(exc).replace(str(path), name)}"
+                        ) from None
+                return objects, f"the log's {name}", None
+    path = default_catalogue_path() if catalogue is None else Path(catalogue)
+    objects = load_catalogue(path)
+    data = path.read_bytes()
+    earlier = label_catalogues(attachments)
+    if any(attachments[name] == data for name in earlier):
+        return objects, str(path), None
+    return objects, str(path), (f"{LABEL_CATALOGUE}-{len(earlier) + 1}{path.suffix.lower()}", data)
 
 
 def read_label_csv(path: str | Path, catalogue: Any = (), *, where: str = "the catalogue",
@@ -310,7 +330,7 @@ def label_session(
             f"{log} is cut short ({info.damage}): make it a complete file first with "
             f"`teleop recover {log} --out FIXED.mcap`, then label FIXED.mcap"
         )
-    objects, where = _catalogue_objects(catalogue, info.attachments)
+    objects, where, attachment = _catalogue_objects(catalogue, info.attachments)
     grasps, seq = _survey(reader)
     rows = read_label_csv(csv_path, objects, where=where, grasps=grasps, log=str(log))
     report = LabelReport(str(log), str(csv_path), grasps=len(grasps))
@@ -332,7 +352,7 @@ def label_session(
     try:
         with tmp.open("wb") as file:
             writer = Writer(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
-            report.messages = _copy_with_labels(reader, writer, labels, csv_path, info.offset_ns)
+            report.messages = _copy_with_labels(reader, writer, labels, csv_path, info.offset_ns, attachment)
             file.flush()
             os.fsync(file.fileno())
         tmp.replace(log)
@@ -347,9 +367,10 @@ def label_session(
 
 
 def _copy_with_labels(reader: LogReader, writer: Writer, labels: list[_Label], csv_path: Path,
-                      offset_ns: int) -> int:
-    """Copy every record of ``reader``'s log into ``writer``, each label right after its anchor;
-    returns the messages copied. ``offset_ns``: the log's clock offset (its Foxglove timestamps')."""
+                      offset_ns: int, attachment: tuple[str, bytes] | None) -> int:
+    """Copy every record of ``reader``'s log into ``writer``, each label right after its anchor, and
+    add ``attachment`` (name, data) if any; returns the messages copied. ``offset_ns``: the log's
+    clock offset (its Foxglove timestamps')."""
     schemas: dict[int, int] = {}  # schema id in the log -> in the copy
     channels: dict[int, int] = {}  # channel id in the log -> in the copy
     topics: dict[int, str] = {}  # channel id in the log -> topic
@@ -416,6 +437,10 @@ def _copy_with_labels(reader: LogReader, writer: Writer, labels: list[_Label], c
             writer.add_attachment(record.create_time, record.log_time, record.name, record.media_type, record.data)
         elif isinstance(record, Metadata):
             writer.add_metadata(record.name, dict(record.metadata))
+    if attachment is not None:
+        name, data = attachment
+        now_ns = time.time_ns()
+        writer.add_attachment(now_ns, now_ns + offset_ns, name, "text/plain", data)
     if not started or not reader.complete:  # changed since it was read
         raise SessionLogError(
             f"{reader.path} could not be read to its end ({reader.damage or 'no header'}); the log is unchanged"

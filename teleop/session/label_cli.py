@@ -38,7 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--catalogue",
         metavar="PATH",
         default=None,
-        help="object catalogue (.toml or .csv) for objects given without a modulus "
+        help="object catalogue (.toml or .csv) for objects given without a modulus, and for the material "
+        "and shape of every labelled object; attached to the log unless it holds it already "
         "(default: the catalogue attached to the log, else the shipped configs/objects.toml)",
     )
     parser.add_argument(

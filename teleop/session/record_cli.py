@@ -19,6 +19,7 @@ from pathlib import Path
 from teleop.bus.security import security_from_settings
 from teleop.catalogue import default_catalogue_path
 from teleop.errors import SessionLogError
+from teleop.scene import load_scene
 from teleop.session.foxglove_live import LiveServer, add_foxglove_argument
 from teleop.session.logfile import CHUNK_BYTES
 from teleop.session.recorder import (
@@ -72,8 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--objects",
         metavar="PATH",
-        default=str(default_catalogue_path()),
-        help="object catalogue attached to the log, so `teleop export` can label grasps",
+        default=None,
+        help="object catalogue attached to the log, so `teleop export` can label grasps "
+        "(default: the --scene's catalogue, else the shipped configs/objects.toml)",
     )
     parser.add_argument(
         "--chunk-kib",
@@ -120,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
             settings=settings,
             scene=args.scene,
             source=None if args.source == "auto" else args.source,
-            catalogue=args.objects,
+            catalogue=_catalogue(args),
             chunk_bytes=args.chunk_kib * 1024,
             flush_interval_s=args.flush_interval_s,
             compression=args.compression,
@@ -149,6 +151,14 @@ def run(args: argparse.Namespace) -> int:
         )
         return RECORDING_STOPPED_STATUS
     return 0
+
+
+def _catalogue(args: argparse.Namespace) -> Path:
+    """The catalogue to attach: the one the session's objects come from (``teleop demo`` and
+    ``bench-latency`` start the recorder with their --scene alone), so export labels them by it."""
+    if args.objects is not None:
+        return Path(args.objects)
+    return load_scene(args.scene).catalogue_path if args.scene else default_catalogue_path()
 
 
 def _record_until_stopped(recorder: SessionRecorder, duration_s: float | None) -> RecorderStats:

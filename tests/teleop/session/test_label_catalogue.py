@@ -1,0 +1,50 @@
+"""Labels from a catalogue other than the log's keep that catalogue's material and shape on export."""
+
+from __future__ import annotations
+
+import shutil
+
+import teleop.cli
+from teleop.session import LogReader, session_grasps
+from teleop.session.label import label_session
+
+LAB = '[[objects]]\nname = "lab_gel"\nshape = "box"\nmaterial = "rubber"\nmodulus_pa = 7.5e4\n'
+SHOP = '[[objects]]\nname = "shop_cork"\nshape = "cylinder"\nmaterial = "cork"\nmodulus_pa = 1.2e7\n'
+
+
+def _labels_of(log):
+    return {g.grasp_id: g.record.label for g in session_grasps(log) if g.record is not None}
+
+
+def test_an_object_only_in_the_label_catalogue_exports_with_its_material_and_shape(recorded, tmp_path):
+    log = tmp_path / "session.mcap"
+    shutil.copyfile(recorded.path, log)
+    (tmp_path / "lab.toml").write_text(LAB, encoding="utf-8")
+    (tmp_path / "labels.csv").write_text("grasp_id,object\ng1,lab_gel\n", encoding="utf-8")
+
+    assert teleop.cli.main(["label", str(log), "--csv", str(tmp_path / "labels.csv"),
+                            "--catalogue", str(tmp_path / "lab.toml")]) == 0
+
+    label = _labels_of(log)["g1"]
+    assert (label.object_name, label.modulus_pa, label.material, label.shape, label.source) == (
+        "lab_gel", 7.5e4, "rubber", "box", "catalogue")
+
+
+def test_each_label_catalogue_is_attached_once_and_every_one_is_used(recorded, tmp_path):
+    log = tmp_path / "session.mcap"
+    shutil.copyfile(recorded.path, log)
+    before = LogReader(log).info().attachments
+    for name, text in (("lab.toml", LAB), ("shop.toml", SHOP), ("g0.csv", "grasp_id,object\ng0,lab_gel\n"),
+                       ("g1.csv", "grasp_id,object\ng1,shop_cork\n"), ("ball.csv", "grasp_id,object\ng0,stress_ball\n")):
+        (tmp_path / name).write_text(text, encoding="utf-8")
+
+    label_session(log, tmp_path / "g0.csv", catalogue=tmp_path / "lab.toml")
+    label_session(log, tmp_path / "g1.csv", catalogue=tmp_path / "shop.toml")
+    label_session(log, tmp_path / "g0.csv", catalogue=tmp_path / "lab.toml")  # attached already
+    label_session(log, tmp_path / "ball.csv")  # the log's own catalogue: nothing to attach
+
+    added = {k: v for k, v in LogReader(log).info().attachments.items() if k not in before}
+    assert added == {"label_catalogue-1.toml": LAB.encode(), "label_catalogue-2.toml": SHOP.encode()}
+    labels = _labels_of(log)
+    assert (labels["g0"].material, labels["g0"].shape) == ("foam", "sphere")  # relabelled: stress_ball, the log's
+    assert (labels["g1"].material, labels["g1"].shape) == ("cork", "cylinder")
