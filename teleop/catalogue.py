@@ -22,10 +22,12 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from teleop.bus.messages import SCHEMAS
 from teleop.errors import SettingsError
 from teleop.settings import config_dir
 
 __all__ = [
+    "MAX_NAME_CHARS",
     "SHAPES",
     "ObjectSpec",
     "default_catalogue_path",
@@ -35,6 +37,10 @@ __all__ = [
 ]
 
 SHAPES = ("sphere", "cylinder", "box", "hex_prism", "irregular")
+
+# An object's name travels in bus messages (grasp_event, label) whose schemas cap its length; a
+# catalogue name over the smallest cap would pass here and be refused mid-run (or by `teleop label`).
+MAX_NAME_CHARS = min(SCHEMAS[kind].fields["object_name"].max_chars for kind in ("grasp_event", "label"))
 _SHAPE_ALIASES = {
     "sphere": "sphere",
     "cylinder": "cylinder",
@@ -58,6 +64,7 @@ class ObjectSpec:
     Parameters
     ----------
     name : str
+        1 to :data:`MAX_NAME_CHARS` characters, no leading or trailing whitespace.
     shape : str
         One of :data:`SHAPES`.
     material : str
@@ -85,6 +92,14 @@ class ObjectSpec:
     source: str = ""
 
     def __post_init__(self) -> None:
+        if not self.name:
+            raise ValueError(f"object name is empty: expected 1 to {MAX_NAME_CHARS} characters")
+        if self.name != self.name.strip():
+            # The CSV table strips its cells; a padded TOML name would be a different object there.
+            raise ValueError(f"object {self.name!r}: the name starts or ends with whitespace; remove it")
+        if len(self.name) > MAX_NAME_CHARS:
+            raise ValueError(f"object {_short(self.name)}: the name has {len(self.name)} characters, at most "
+                             f"{MAX_NAME_CHARS} (the bus's label message carries no more)")
         if self.shape not in SHAPES:
             raise ValueError(f"object {self.name!r}: shape {self.shape!r} is not one of {SHAPES}")
         if not (math.isfinite(self.modulus_pa) and self.modulus_pa > 0):
@@ -97,6 +112,11 @@ class ObjectSpec:
             raise ValueError(f"object {self.name!r}: size_m must be three extents in (0, 1) m, got {self.size_m}")
         if not (math.isfinite(self.texture_m) and 0 <= self.texture_m < 1e-3):
             raise ValueError(f"object {self.name!r}: texture_m must be in [0, 1e-3) m, got {self.texture_m}")
+
+
+def _short(name: str, keep: int = 40) -> str:
+    """``name`` quoted, cut to its first ``keep`` characters when longer (for errors)."""
+    return repr(name) if len(name) <= keep else f"{name[:keep]!r}..."
 
 
 def normalise_shape(raw: str, *, where: str) -> str:
@@ -125,7 +145,8 @@ def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
     """Read the project's TOML catalogue; errors name the file, the object and the key."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        # utf-8-sig: editors on Windows save a byte-order mark, which tomllib refuses.
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except OSError as exc:
         raise SettingsError(f"cannot read catalogue {path}: {exc.strerror or exc}") from exc
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
@@ -144,7 +165,7 @@ def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
         if unknown:
             raise SettingsError(f"{where}: unknown key {unknown[0]!r}; allowed keys: {', '.join(sorted(allowed))}")
         name = _typed(table, "name", (str,), "a string", where)
-        where = f"{where} ({name})"
+        where = f"{where} ({name if len(name) <= 40 else name[:40] + '...'})"
         size = _typed(table, "size_m", (list,), "an array of three extents in m", where, default=[])
         if not all(isinstance(s, number) and not isinstance(s, bool) for s in size):
             raise SettingsError(f"{where}: size_m must hold numbers (m), got {size!r}")
@@ -180,7 +201,8 @@ def read_object_table(path: str | Path, *, skip_unlabelled: bool = True) -> tupl
     path = Path(path)
     required = ("Label", "Shape", "Material", "Modulus [Pa]")
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
+        # utf-8-sig: a spreadsheet's "CSV UTF-8" export starts with a byte-order mark, else glued to "Label".
+        with path.open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
             rows = list(reader)
             columns = reader.fieldnames or []

@@ -7,10 +7,14 @@ never share a name; but one session can be exported from two logs (a log cut sho
 the folder twice, under two names, and count twice in a dataset. :func:`same_grasp_records` finds
 those: the records in the folder whose name ends in the same ``_<session id>_<grasp id>.grasp`` and
 whose provenance names the same session id and grasp id.
+
+A log stem too long for the name to fit a file system's 255-byte limit is cut, and a short hash of
+the whole stem put after it, so that the name stays within the limit and apart from other logs'.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import zipfile
 from pathlib import Path
@@ -20,10 +24,35 @@ from teleop.record import safe_name
 __all__ = ["record_name", "same_grasp_records"]
 
 
+# A file name's limit in bytes (ext4, XFS, btrfs, APFS; NTFS's 255 UTF-16 units are no fewer).
+_NAME_MAX_BYTES = 255
+# Room kept after the grasp id for "-<k>" and the suffix, so every k shares one cut stem.
+_SUFFIX_ROOM = len("-999.grasp")
+_HASH_CHARS = 10
+
+
+def _log_part(log_path: Path, session: str, grasp_id: str) -> str:
+    """The log stem as the start of a record's name: :func:`safe_name` of it, or when that would
+    push the name past :data:`_NAME_MAX_BYTES`, its start and ``-`` and a hash of the whole stem."""
+    stem = safe_name(log_path.stem)
+    tail = f"_{safe_name(session)}_{safe_name(grasp_id)}"
+    room = _NAME_MAX_BYTES - _SUFFIX_ROOM - len(tail.encode())
+    if len(stem.encode()) <= room:
+        return stem
+    # The hash keeps apart logs whose long stems differ only past the cut (surrogateescape: a
+    # Linux file name need not be UTF-8).
+    digest = hashlib.sha256(log_path.stem.encode("utf-8", "surrogateescape")).hexdigest()[:_HASH_CHARS]
+    keep = max(room - len(digest) - 1, 0)
+    # Cut in bytes, never inside a character.
+    cut = stem.encode()[:keep].decode("utf-8", "ignore")
+    return f"{cut}-{digest}" if cut else digest
+
+
 def record_name(log_path: Path, session: str, grasp_id: str, taken: set[str]) -> str:
     """``<log stem>_<session id>_<grasp id>.grasp``; ``-2``, ``-3``, ... after a grasp id the
-    session used before (a grasp id started again after it ended)."""
-    base = f"{safe_name(log_path.stem)}_{safe_name(session)}_{safe_name(grasp_id)}"
+    session used before (a grasp id started again after it ended). A stem too long for the name
+    to fit in 255 bytes is cut and a hash of it added (:func:`_log_part`)."""
+    base = f"{_log_part(log_path, session, grasp_id)}_{safe_name(session)}_{safe_name(grasp_id)}"
     name, k = f"{base}.grasp", 1
     while name in taken:
         k += 1
@@ -49,7 +78,7 @@ def same_grasp_records(records: list[Path], log_path: Path, name: str, session: 
     """Of ``records`` (the export folder's, listed once per export), those other than ``name`` that hold
     the same grasp of the same session (``name`` as :func:`record_name` gave it for ``log_path``), each
     with the log it came from."""
-    key = name[len(safe_name(log_path.stem)):]  # "_<session id>_<grasp id>[-k].grasp"
+    key = name[len(_log_part(log_path, session, grasp_id)):]  # "_<session id>_<grasp id>[-k].grasp"
     found = []
     for path in records:
         if path.name == name or not path.name.endswith(key) or not path.is_file():

@@ -201,8 +201,16 @@ def run(args: argparse.Namespace) -> int:
              args.vary_contact, args.target_force_n) for obj in objects for i in range(args.grasps_per_object)]
     # A preview is part of its record: a leftover one would be taken for the new record's.
     names = [grasp_filename(obj, i) for obj, i, *_ in jobs]
-    taken = [name for record in names for name in (record, record.removesuffix(".grasp") + ".png")
-             if (out / name).exists()]
+    taken = []
+    for record in names:
+        for name in (record, record.removesuffix(".grasp") + ".png"):
+            try:
+                if (out / name).exists():
+                    taken.append(name)
+            except OSError as exc:
+                # E.g. a name over the file system's limit: say so before any grasp is simulated.
+                raise SettingsError(f"--out {out}: cannot use the record file name {name!r} there "
+                                    f"({exc.strerror or exc}); shorten the object's name in {args.objects}") from exc
     if taken and not args.overwrite:
         raise SettingsError(f"--out {out}: {len(taken)} of these records exist already ({', '.join(taken[:3])}"
                             f"{', ...' if len(taken) > 3 else ''}): pass --overwrite to replace them, or another --out")
