@@ -80,10 +80,14 @@ def reload_model(path: str, *, command: Publisher, answers: Subscriber, timeout_
     while True:
         now = time.monotonic()
         if now >= deadline:
-            heard = "heard" if answers.heartbeat.is_alive("estimator") else "did not hear"
-            raise TeleopError(f"no answer to load_model {path} (request {request}) within {timeout_s:g} s: this "
-                              f"{heard} the estimator service on {answers.endpoint_text}; is it running there, "
-                              f"and subscribed to {command.endpoint}?")
+            if answers.heartbeat.is_alive("estimator"):
+                why = (f"the estimator service on {answers.endpoint_text} is running: it switches models between "
+                       "grasps, so a grasp still open holds its answer back (wait, or raise --timeout-s), unless it "
+                       f"is not subscribed to {command.endpoint}")
+            else:
+                why = (f"this did not hear the estimator service on {answers.endpoint_text}; is it running there, "
+                       f"and subscribed to {command.endpoint}?")
+            raise TeleopError(f"no answer to load_model {path} (request {request}) within {timeout_s:g} s: {why}")
         if now >= next_send:
             command.send("load_model", t_capture_s=now, path=path, request=request)
             next_send = now + RESEND_S

@@ -41,7 +41,8 @@ capture clock runs at its own rate) or a node on another host reads right.
 A *start* while another grasp is open closes that one (its final estimate, report and end go
 out). A *start* of the grasp that is open (a robot node restarted mid-grasp names it again) drops
 what the service had of it, publishing nothing more for it: the final estimate, end and report
-that grasp id gets are the new grasp's.
+that grasp id gets are the new grasp's. A grasp whose robot node, once heard, misses three of its
+heartbeat periods is closed as by its end: no end would come, and a model switch waits for it.
 
 A message that cannot be used (a frame that does not decode or declares the wrong size, samples
 that are not finite, capture times that go backwards, repeat or jump more than
@@ -75,7 +76,7 @@ from typing import Any
 
 import cv2
 
-from estimator.errors import EstimatorError, PerceptionError
+from estimator.errors import EstimatorError, ModelError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.model_slot import ModelEvent, ModelSlot, _cut, model_log
 from estimator.perception.calibration import Calibration
@@ -84,7 +85,7 @@ from estimator.settings import estimator_settings
 from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream
 from teleop.bus.pubsub import Publisher, Subscriber, is_decade
 from teleop.bus.wire import Message
-from teleop.errors import TeleopError
+from teleop.errors import BusError, TeleopError
 from teleop.live import JsonLines, ServiceLoop
 from teleop.settings import Settings, resolve_path
 
@@ -107,13 +108,15 @@ _BAD_INPUT = (EstimatorError, TeleopError, ValueError, cv2.error)
 
 
 def resolve_model_dir(option: str | None, settings: Settings) -> Path | None:
-    """The model directory to serve: ``option`` ("none": no model), else ``estimator.model_path``
-    (relative to ``configs/``; a ``model.onnx`` names its directory), else the shipped default
-    model when it exists, else None."""
+    """The model directory to serve: ``option`` ("none": no model; an empty name is refused), else
+    ``estimator.model_path`` (relative to ``configs/``; a ``model.onnx`` names its directory), else
+    the shipped default model when it exists, else None."""
     from estimator.inference.infer import default_model_dir
 
     if option == "none":
         return None
+    if option is not None and not option.strip():
+        raise ModelError(f"--model {option!r}: expected a model folder (or none), got an empty name")
     if option:
         path = Path(option)
     elif estimator_settings(settings).model_path:
@@ -154,6 +157,7 @@ class _Grasp:
     grasp_id: str
     stream: GraspStream
     t_start_s: float  # the start event's capture time
+    source: str | None  # the robot node that started it (its heartbeat says whether it lives)
     model: Any  # the HybridEstimator pinned at the grasp's start, or None
     model_id: str | None = None  # its id
     model_dir: str | None = None  # its folder
@@ -237,11 +241,29 @@ class EstimatorService(ServiceLoop):
         message = self.subscriber.recv(timeout_s=timeout_s)
         if message is not None:
             self.handle(message, received_s=self.clock())
+        grasp = self._grasp
+        if grasp is not None and self._robot_silent(grasp):
+            # No end will come: closed on what came, its final and end go out, and a model switch
+            # waiting for the grasp to end can take place.
+            log.warning("grasp %r: its robot node %r has gone silent: closing it on what came",
+                        grasp.grasp_id, grasp.source)
+            self._close(grasp.grasp_id, max([grasp.t_start_s, *grasp.last_t_s.values()]), self.clock())
         if self.model is not None:
             event = self.model.poll(idle=self._grasp is None)
             if event is not None:
                 self._model_event(event)
         return message
+
+    def _robot_silent(self, grasp: _Grasp) -> bool:
+        """Whether the robot node that started ``grasp``, once heard, has missed three of its
+        heartbeat periods."""
+        heartbeat = self.subscriber.heartbeat
+        if grasp.source is None or heartbeat.last_seen_s(grasp.source) is None:
+            return False
+        try:
+            return not heartbeat.is_alive(grasp.source)
+        except BusError:  # it announced no heartbeat period
+            return False
 
     def handle(self, message: Message, *, received_s: float) -> None:
         """Handle one message; a message that cannot be used is counted, and logged as the module
@@ -323,7 +345,7 @@ class EstimatorService(ServiceLoop):
         body = message.fields
         if message.type == "grasp_event":
             if body.event == "start":
-                self._open(body.grasp_id, message.t_capture_s, received_s)
+                self._open(body.grasp_id, message.t_capture_s, received_s, source=message.source)
             elif body.event == "loading_end":
                 self._loading_end(body.grasp_id, message.t_capture_s, received_s)
             else:
@@ -371,7 +393,7 @@ class EstimatorService(ServiceLoop):
             if stream.loading_complete(segment):
                 self._finish(grasp, received_s, segment=segment, by=_ended_by(stream))
 
-    def _open(self, grasp_id: str, t_s: float, received_s: float) -> None:
+    def _open(self, grasp_id: str, t_s: float, received_s: float, *, source: str | None) -> None:
         if self._grasp is not None and self._grasp.grasp_id == grasp_id:
             # A robot node restarted mid-grasp starts it again: a final estimate, an end or a report
             # under this id would be taken for the new grasp's (a renderer would ignore its estimates).
@@ -385,7 +407,7 @@ class EstimatorService(ServiceLoop):
                              grasp_id=grasp_id)
         slot = self.model
         model = None if slot is None else slot.estimator
-        self._grasp = _Grasp(grasp_id=grasp_id, stream=stream, t_start_s=t_s, model=model,
+        self._grasp = _Grasp(grasp_id=grasp_id, stream=stream, t_start_s=t_s, source=source, model=model,
                              model_id=None if model is None else slot.model_id,
                              model_dir=None if model is None else str(slot.model_dir))
         if self._following is not None and self._following == grasp_id:

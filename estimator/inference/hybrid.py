@@ -59,6 +59,7 @@ The result's method is ``"auto"`` and its reason says which branch answered.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -87,6 +88,8 @@ from teleop.record import GraspRecord
 from teleop.settings import Settings
 
 __all__ = ["ALL_METHODS", "FALLBACK_ORDER", "LEARNED_METHODS", "MIN_SERIES_FRAMES", "MODES", "RIG_WIDENING", "AutoPolicy", "HybridEstimator", "rig_notes"]
+
+log = logging.getLogger(__name__)
 
 #: The learned methods: a model's own (``hybrid``, with analytical inputs; ``cnn``, without) and ``auto``.
 LEARNED_METHODS = ("cnn", "hybrid", "auto")
@@ -284,6 +287,9 @@ class HybridEstimator:
         try:
             probs = self.predictor.predict_distribution([sampled])[0]
         except ModelError as exc:
+            # A served model that fails on live grasps (yet passed its reference grasp) must be heard of.
+            log.warning("the model gives no estimate (%s); %s", exc,
+                        "an analytical estimate answers" if mode == "auto" else "refused")
             return _without_model(method, mode, by_method, f"the model gives no estimate: {exc}")
         peak_force_n = float(np.max(sampled.force_n))
         said = self.predictor.describe(probs, limit_pa=self.settings.resolution_limit_pa, peak_force_n=peak_force_n,

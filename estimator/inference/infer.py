@@ -118,7 +118,8 @@ def model_files(model_dir: str | Path) -> list[Path]:
     if missing:
         raise ModelError(f"{folder} is not a model folder: it has no {' and no '.join(missing)} (a model folder "
                          f"holds {' and '.join(MODEL_FILES)}, as `estimator train` writes them)")
-    return [folder / "metadata.json", *sorted(folder.glob("*.onnx"))]
+    # Regular files only: a named pipe or a folder ending in .onnx would block or fail the hash.
+    return [folder / "metadata.json", *sorted(p for p in folder.glob("*.onnx") if p.is_file())]
 
 
 def _model_folder(model_dir: str | Path) -> Path:

@@ -78,6 +78,9 @@ def test_model_id_names_the_folder_and_the_contents_of_its_files(tmp_path):
     assert model_id(copy) == ident  # a copy is the same model
     (folder / "notes.txt").write_text("not part of the model")
     assert model_id(folder) == ident
+    (folder / "old.onnx").mkdir()  # not a file (nor would a named pipe be): not read, not hashed
+    assert model_id(folder) == ident
+    (folder / "old.onnx").rmdir()
     metadata = (folder / "metadata.json").read_text()
     (folder / "metadata.json").write_text(metadata.replace('"temperature": 1.0', '"temperature": 1.5'))
     assert model_id(folder) not in (ident, model_id(copy))  # the metadata changed

@@ -94,3 +94,56 @@ def test_a_grasp_started_while_another_is_open_closes_that_one(settings, calibra
     assert ends == finals == ["a"]
     (report,) = [json.loads(line) for line in (tmp_path / "report.jsonl").read_text().splitlines()]
     assert report["grasp_id"] == "a" and report["final_by"] == "grasp_end"
+
+
+class _Silent:
+    """A subscriber that heard the robot node once and now hears nothing."""
+
+    def __init__(self, clock) -> None:
+        from teleop.bus.pubsub import Heartbeat
+
+        self.heartbeat = Heartbeat(clock=clock)
+
+    def recv(self, timeout_s: float) -> None:
+        return None
+
+
+class _Beating(_Sent):
+    def heartbeat_if_due(self, now_s: float) -> None:
+        pass
+
+
+def test_a_grasp_whose_robot_node_went_silent_is_closed_on_what_came(settings, calibration, records):
+    # The node died mid-grasp: no end will come. Closed once it misses three heartbeats, its final and
+    # end go out (and a model switch waiting for the grasp to end can take place).
+    import dataclasses
+
+    now = [0.0]
+    subscriber = _Silent(clock=lambda: now[0])
+    service = EstimatorService(settings, calibration=calibration, subscriber=subscriber, publisher=_Beating(),
+                               methods=METHODS, clock=lambda: now[0])
+    items = _grasp_items(records["stress_ball"], end=False)
+    subscriber.heartbeat.saw("robot", interval_s=0.5, now_s=items[0][0])
+    for t_s, kind, body in items:
+        now[0] = t_s
+        message = make_message(kind, t_capture_s=t_s, grasp_id="g", **body)
+        service.handle(dataclasses.replace(message, source="robot"), received_s=t_s)
+        subscriber.heartbeat.saw("robot", interval_s=0.5, now_s=t_s)
+    service.step(timeout_s=0)
+    assert service._grasp is not None  # still heard: the grasp stays open
+    now[0] += 1.6  # three periods and a bit
+    service.step(timeout_s=0)
+    assert service._grasp is None
+    sent = service.publisher.sent
+    assert [m.body["event"] for m in sent if m.type == "grasp_event"] == ["end"]
+    assert any(m.type == "estimate" and not m.body["provisional"] for m in sent)
+
+
+def test_an_empty_model_name_is_refused_not_taken_for_the_default(settings):
+    from estimator.errors import ModelError
+    from estimator.service import resolve_model_dir
+
+    for name in ("", "  "):
+        with pytest.raises(ModelError, match="empty name"):
+            resolve_model_dir(name, settings)
+    assert resolve_model_dir("none", settings) is None and resolve_model_dir(None, settings) is not None

@@ -108,11 +108,13 @@ def test_an_unsampled_grasp_is_refused_with_its_reason(trained_model):
         assert result.state == "insufficient_data" and "no tactile frame" in result.reason and not result
 
 
-def test_a_non_finite_model_output_is_never_returned(trained_model, synthetic):
+def test_a_non_finite_model_output_is_never_returned(trained_model, synthetic, caplog):
     hybrid = HybridEstimator(CompliancePredictor(trained_model), settings=SETTINGS, policy=AutoPolicy(0.0))
     broken = dataclasses.replace(_sampled(synthetic, "rubber_a"), depth_m=np.full((3, 16, 22), np.nan, np.float32))
-    refused = hybrid.estimate_sampled(broken, mode="model")
+    with caplog.at_level("WARNING", logger="estimator.inference.hybrid"):
+        refused = hybrid.estimate_sampled(broken, mode="model")
     assert refused.state == "insufficient_data" and "not finite" in refused.reason
+    assert "the model gives no estimate" in caplog.text  # a served model failing on live grasps is heard of
     fallback = hybrid.estimate_sampled(broken, mode="auto")  # the series estimate, relabelled
     assert fallback.method == "auto" and fallback.state == "ok" and fallback.reason.startswith("series: the model")
     all_refused = dataclasses.replace(broken, estimates=REFUSALS)
