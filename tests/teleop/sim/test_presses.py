@@ -116,7 +116,7 @@ def test_unwritable_output_is_named_before_anything_is_rendered(tmp_path, capsys
     (tmp_path / "afile").write_text("")
     target = tmp_path / "afile" / "p.npz"
     assert main(["simulate-presses", "--out", str(target), "--n", "1"]) == 2
-    assert f"--out {target}: cannot make its folder" in capsys.readouterr().err
+    assert f"--out {target}: {tmp_path / 'afile'} is not a directory" in capsys.readouterr().err
     assert main(["simulate-presses", "--out", str(tmp_path), "--n", "1"]) == 2
     assert f"--out {tmp_path}: is a folder; expected a file name" in capsys.readouterr().err
 
