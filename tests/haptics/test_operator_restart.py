@@ -91,15 +91,21 @@ def _robot(clock: Clock, restarts: int = 0, **view) -> OperatorView:
                         **view)
 
 
-def test_a_robot_node_restarted_within_three_heartbeats_is_not_driven_by_the_held_enable():
-    # Killed mid-grasp and started again at once: never seen down. The held enable must not drive the
-    # new node, and not under the old grasp's id.
-    clock = Clock()
+def _driving(clock: Clock) -> tuple[FakeLink, FakeDevice, OperatorLoop]:
+    """A console whose enable is held half-squeezed, driving a live robot node for 0.1 s."""
     link, device = FakeLink(clock), FakeDevice(clock)
     loop = OperatorLoop(link, device, load_settings(), clock=clock)
     device.grip, device.enable = 0.5, True
     link.view = _robot(clock)
     _run(clock, loop, 0.1)
+    return link, device, loop
+
+
+def test_a_robot_node_restarted_within_three_heartbeats_is_not_driven_by_the_held_enable():
+    # Killed mid-grasp and started again at once: never seen down. The held enable must not drive the
+    # new node, and not under the old grasp's id.
+    clock = Clock()
+    link, device, loop = _driving(clock)
     lost = link.sent[-1][2]["grasp_id"]
     link.view = _robot(clock, grasp_id=lost, phase="loading")
     _run(clock, loop, 0.1)
@@ -125,11 +131,7 @@ def test_a_restart_heard_after_the_node_was_seen_down_is_not_lost_twice():
     # Seen down (three heartbeats), then the new node's first message shows its restart too: the
     # enable held anew while it was down drives it, as before.
     clock = Clock()
-    link, device = FakeLink(clock), FakeDevice(clock)
-    loop = OperatorLoop(link, device, load_settings(), clock=clock)
-    device.grip, device.enable = 0.5, True
-    link.view = _robot(clock)
-    _run(clock, loop, 0.1)
+    link, device, loop = _driving(clock)
     link.view = dataclasses.replace(_robot(clock), peers=(Peer("robot node", "robot", False, 2.0),))
     _run(clock, loop, 0.1)
     assert "suspended" in loop.status.mode

@@ -43,13 +43,16 @@ def go_live(node, grasp_id: str, width_m: float) -> None:
     assert node._grasp.phase == "following"
 
 
-def hold_preparation(node) -> Callable[[], None]:
-    """Keep the next follow grasp preparing until the returned function is called (the object ready)."""
+def preparing(node, grasp_id: str) -> tuple[Callable[[], None], float]:
+    """Start follow grasp ``grasp_id`` (enabled, closing) and keep it preparing until the returned
+    function is called (the object ready); and the fingers' open width (m)."""
     wait_prepared(node)
     number, prepared = node._next_live
     pending: Future = Future()
     node._follower.next_live = (number, pending)
-    return lambda: pending.set_result(prepared.result())
+    open_m = node.gripper.read_width()[1]
+    follow(node, grasp_id, 0.0)
+    return lambda: pending.set_result(prepared.result()), open_m
 
 
 def notices(listener) -> list[dict]:
@@ -106,9 +109,7 @@ def test_a_release_naming_another_grasp_is_refused_and_anyones_stop_wins(rig):
 
 def test_a_stop_while_the_grasp_prepares_keeps_it_from_going_live(rig):
     node, listener = rig
-    ready = hold_preparation(node)
-    open_m = node.gripper.read_width()[1]
-    follow(node, "G2", 0.0)
+    ready, open_m = preparing(node, "G2")
     command(node, "stop", "G2")
     ready()
     for _ in range(5):  # follows go on: ignored, as after a stop while following
@@ -127,9 +128,7 @@ def test_a_stop_while_the_grasp_prepares_keeps_it_from_going_live(rig):
 
 def test_a_release_while_the_grasp_prepares_cancels_it(rig):
     node, listener = rig
-    ready = hold_preparation(node)
-    open_m = node.gripper.read_width()[1]
-    follow(node, "H2", 0.0)
+    ready, open_m = preparing(node, "H2")
     command(node, "release", "H2")
     assert not node.busy
     ready()
@@ -142,9 +141,7 @@ def test_a_release_while_the_grasp_prepares_cancels_it(rig):
 
 def test_letting_go_of_the_enable_while_the_grasp_prepares_clears_its_target(rig):
     node, _ = rig
-    ready = hold_preparation(node)
-    open_m = node.gripper.read_width()[1]
-    follow(node, "J2", 0.0)
+    ready, open_m = preparing(node, "J2")
     follow(node, "J2", 0.0, enable=False)
     assert node._grasp.target_width_m is None
     ready()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import http.server
 import socketserver
@@ -78,15 +79,21 @@ def test_frames_arrive_in_order_as_captured_and_stamped_on_arrival(rig):
         assert {f.encoding for f in frames} == {"jpeg"}
 
 
-def test_a_silent_source_times_out(rig):
+@contextlib.contextmanager
+def _fallen_silent(rig):
+    """The camera connected and its recording read out: it sends nothing more."""
     if rig.expected is None:
         pytest.skip("a real camera does not fall silent on request")
     with rig.camera:
         rig.start()
         for _ in range(N_FRAMES):
             rig.camera.read(timeout_s=2.0)
-        with pytest.raises(DeviceTimeoutError, match="no frame within 0.2 s"):
-            rig.camera.read(timeout_s=0.2)
+        yield rig.camera
+
+
+def test_a_silent_source_times_out(rig):
+    with _fallen_silent(rig) as camera, pytest.raises(DeviceTimeoutError, match="no frame within 0.2 s"):
+        camera.read(timeout_s=0.2)
 
 
 def test_bad_timeouts_are_refused(rig):
@@ -97,14 +104,8 @@ def test_bad_timeouts_are_refused(rig):
 
 
 def test_close_wakes_a_read_waiting_in_another_thread(rig):
-    if rig.expected is None:
-        pytest.skip("a real camera does not fall silent on request")
-    with rig.camera:
-        rig.start()
-        for _ in range(N_FRAMES):
-            rig.camera.read(timeout_s=2.0)
-        ended = close_during_read(lambda: rig.camera.read(timeout_s=3.0), rig.camera.close, errors=DeviceError,
-                                  waiting_s=0.2)
+    with _fallen_silent(rig) as camera:
+        ended = close_during_read(lambda: camera.read(timeout_s=3.0), camera.close, errors=DeviceError, waiting_s=0.2)
     assert isinstance(ended.outcome, DeviceNotConnectedError) and ended.ended_s < 0.5
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import time
@@ -151,36 +152,35 @@ def test_tare_zeroes_with_the_samples_it_saw_and_keeps_the_rest(rig):
         rig.cell.connect().tare(n_samples=0)
 
 
-def test_a_silent_source_times_out(rig):
-    if rig.expected is None:
-        pytest.skip("a real cell does not fall silent on request")
+@contextlib.contextmanager
+def _read_out(rig, *, skip_unless: object, why: str):
+    """The cell connected and its recording read out: it sends nothing more (skipped when
+    ``skip_unless`` is None, saying ``why``)."""
+    if skip_unless is None:
+        pytest.skip(why)
     with rig.cell:
         rig.start()
         _collect(rig.cell, N)
+        yield rig.cell
+
+
+def test_a_silent_source_times_out(rig):
+    with _read_out(rig, skip_unless=rig.expected, why="a real cell does not fall silent on request") as cell:
         started = time.monotonic()
         with pytest.raises(DeviceTimeoutError, match="no force sample within 0.2 s"):
-            rig.cell.read(timeout_s=0.2)
+            cell.read(timeout_s=0.2)
         assert time.monotonic() - started >= 0.19
 
 
 def test_close_wakes_a_read_waiting_in_another_thread(rig):
-    if rig.expected is None:
-        pytest.skip("a real cell does not fall silent on request")
-    with rig.cell:
-        rig.start()
-        _collect(rig.cell, N)
-        ended = close_during_read(lambda: rig.cell.read(timeout_s=3.0), rig.cell.close, errors=DeviceError,
-                                  waiting_s=0.2)
+    with _read_out(rig, skip_unless=rig.expected, why="a real cell does not fall silent on request") as cell:
+        ended = close_during_read(lambda: cell.read(timeout_s=3.0), cell.close, errors=DeviceError, waiting_s=0.2)
     assert isinstance(ended.outcome, DeviceNotConnectedError) and ended.ended_s < 0.5
 
 
 def test_a_link_that_fails_wakes_a_waiting_read(rig):
-    if rig.cut is None:
-        pytest.skip("this backend has no link to cut")
-    with rig.cell:
-        rig.start()
-        _collect(rig.cell, N)
-        ended = close_during_read(lambda: rig.cell.read(timeout_s=3.0), rig.cut, errors=DeviceError, waiting_s=0.2)
+    with _read_out(rig, skip_unless=rig.cut, why="this backend has no link to cut") as cell:
+        ended = close_during_read(lambda: cell.read(timeout_s=3.0), rig.cut, errors=DeviceError, waiting_s=0.2)
     error = ended.outcome
     assert isinstance(error, DeviceError) and not isinstance(error, DeviceTimeoutError | DeviceNotConnectedError)
     assert "link failed" in str(error) and ended.ended_s < 0.5
