@@ -11,11 +11,14 @@ are printed as one line, never a traceback; so is a command's optional extra tha
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import math
 import os
+import signal
 import sys
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -121,6 +124,28 @@ class _DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
+def _sigterm_as_ctrl_c() -> contextlib.AbstractContextManager[None]:
+    """SIGTERM raises KeyboardInterrupt while a command runs, as Ctrl-C does, so every command stops
+    through the same clean-up (its pool workers stopped, its temporary files removed) and says it was
+    interrupted, instead of dying alone. The services that stop on SIGTERM (:class:`~teleop.live.StopSignals`)
+    replace this handler while they serve. Only in the main thread (signal handlers can be set there
+    alone: a command run from another thread keeps the process's handling)."""
+    if threading.current_thread() is not threading.main_thread():
+        return contextlib.nullcontext()
+    from teleop.live import sigterm_as_ctrl_c  # here: `--help` need not import it
+
+    return sigterm_as_ctrl_c()
+
+
+def _ignore_late_ctrl_c() -> None:
+    """Once the command returned, a Ctrl-C no longer interrupts anything: ignored, lest it kill the
+    process during the interpreter's shutdown (joining threads, closing pools) with no word, after
+    complete work. Only for a run from the real command line (``argv`` not given), in the main
+    thread: a caller that runs commands in-process keeps its Ctrl-C."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def run_cli(
     prog: str,
     description: str,
@@ -128,6 +153,7 @@ def run_cli(
     argv: Sequence[str] | None = None,
 ) -> int:
     """Parse ``argv``, import the chosen subcommand's module and run it."""
+    argv_given = argv
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = argparse.ArgumentParser(  # the module docstring, without its reStructuredText literals
         prog=prog, description=description.replace("``", ""), formatter_class=argparse.RawDescriptionHelpFormatter
@@ -152,7 +178,12 @@ def run_cli(
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
     try:
-        return int(args._run(args) or 0)
+        with _sigterm_as_ctrl_c():
+            try:
+                return int(args._run(args) or 0)
+            finally:
+                if argv_given is None:
+                    _ignore_late_ctrl_c()
     except ComplianceTeleopError as exc:
         print(f"{prog} {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -192,22 +192,27 @@ def write_record(record: GraspRecord, path: str | Path) -> Path:
         **({"calibration_files": files} if files else {}),
     }
     tmp = path.with_name(path.name + ".partial")
-    with zipfile.ZipFile(tmp, "w") as zf:
-        zf.writestr(_member("record.json", zipfile.ZIP_DEFLATED), json.dumps(header, indent=1, allow_nan=False))
-        for name, samples in (("force", record.force_n), ("width", record.width_m)):
-            unit = "n" if name == "force" else "m"
-            zf.writestr(_member(f"{name}/t_s.npy", zipfile.ZIP_DEFLATED), _npy_bytes(samples.t_s))
-            zf.writestr(_member(f"{name}/value_{unit}.npy", zipfile.ZIP_DEFLATED), _npy_bytes(samples.value))
-        for stream in record.frames:
-            zf.writestr(_member(f"frames/{stream.finger}/t_s.npy", zipfile.ZIP_DEFLATED), _npy_bytes(stream.t_s))
-            ext = ENCODINGS[stream.encoding]
-            for i, data in enumerate(stream.encoded):
-                zf.writestr(_member(f"frames/{stream.finger}/{i:06d}{ext}", zipfile.ZIP_STORED), data)
-        for name, array in record.calibration.items():
-            zf.writestr(_member(f"calibration/{name}.npy", zipfile.ZIP_DEFLATED), _npy_bytes(np.asarray(array)))
-        for finger, member in files.items():
-            zf.writestr(_member(member, zipfile.ZIP_STORED), bytes(record.calibration_files[finger]))
-    tmp.replace(path)
+    try:
+        with zipfile.ZipFile(tmp, "w") as zf:
+            zf.writestr(_member("record.json", zipfile.ZIP_DEFLATED), json.dumps(header, indent=1, allow_nan=False))
+            for name, samples in (("force", record.force_n), ("width", record.width_m)):
+                unit = "n" if name == "force" else "m"
+                zf.writestr(_member(f"{name}/t_s.npy", zipfile.ZIP_DEFLATED), _npy_bytes(samples.t_s))
+                zf.writestr(_member(f"{name}/value_{unit}.npy", zipfile.ZIP_DEFLATED), _npy_bytes(samples.value))
+            for stream in record.frames:
+                zf.writestr(_member(f"frames/{stream.finger}/t_s.npy", zipfile.ZIP_DEFLATED), _npy_bytes(stream.t_s))
+                ext = ENCODINGS[stream.encoding]
+                for i, data in enumerate(stream.encoded):
+                    zf.writestr(_member(f"frames/{stream.finger}/{i:06d}{ext}", zipfile.ZIP_STORED), data)
+            for name, array in record.calibration.items():
+                zf.writestr(_member(f"calibration/{name}.npy", zipfile.ZIP_DEFLATED), _npy_bytes(np.asarray(array)))
+            for finger, member in files.items():
+                zf.writestr(_member(member, zipfile.ZIP_STORED), bytes(record.calibration_files[finger]))
+        tmp.replace(path)
+    except BaseException:
+        # Interrupted (Ctrl-C, a stopped worker) or failed: no temporary left beside the records.
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 

@@ -101,7 +101,7 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
         raise SessionLogError(
             f"cannot write the recovered log {out}: {exc.strerror or exc}"
         ) from exc
-    except SessionLogError:
+    except BaseException:  # SessionLogError, or interrupted (Ctrl-C, SIGTERM): no temporary left behind
         tmp.unlink(missing_ok=True)
         raise
     return report
