@@ -49,6 +49,7 @@ import functools
 import json
 import math
 import zipfile
+import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,6 +59,7 @@ import cv2
 import numpy as np
 
 from estimator.errors import CalibrationError, PerceptionError
+from teleop.staging import staged
 
 __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "READABLE_VERSIONS", "Calibration", "load_calibration", "lut_index"]
 
@@ -244,7 +246,9 @@ class Calibration:
         path = Path(path)
         meta = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "provenance": dict(self.provenance)}
         try:
-            with path.open("wb") as fh:
+            # Written under a staged name and renamed over ``path`` once complete: an interrupted
+            # save leaves the calibration there as it was.
+            with staged(path) as partial, partial.open("wb") as fh:
                 np.savez_compressed(
                     fh,
                     lut=self.lut,
@@ -280,7 +284,7 @@ def read_npz(path: Path, *, missing: str, kind: str) -> dict[str, np.ndarray]:
         if "allow_pickle" in str(exc):  # an object member: reading it would run pickled code
             raise CalibrationError(f"{path}: not {kind}: a member holds pickled Python objects ({expected})") from exc
         raise CalibrationError(f"{path}: not {kind}: {expected}; this one does not read ({exc})") from exc
-    except (OSError, EOFError, zipfile.BadZipFile) as exc:
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:  # zlib: a damaged compressed member
         raise CalibrationError(f"{path}: not {kind}: {expected}; this one does not read ({exc})") from exc
 
 

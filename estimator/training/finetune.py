@@ -65,13 +65,14 @@ from estimator.inference.provenance import SPLITS, load_split
 from estimator.training.conformal import fit_conformal
 from estimator.training.export import export_onnx, network_from_onnx
 from estimator.training.model import ComplianceNet
-from estimator.training.outdir import check_out_dir, make_out_dir
+from estimator.training.outdir import check_out_dir
 from estimator.training.pool import pooled_from_onnx
 from estimator.training.recipe import FINE_TUNE_CONFIG, REPLAY_RATIO, TrainConfig
 from estimator.training.splits import SplitData, check_dataset_fits, load_split_data, split_metrics
 from estimator.training.train import predict, train_epoch
 from teleop.progress import progress_bar
 from teleop.settings import Settings
+from teleop.staging import staged
 
 __all__ = ["check_by_object", "check_out", "fine_tune"]
 
@@ -234,19 +235,14 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
             "config": asdict(config), "seconds": time.perf_counter() - started, "history": history,
         },
     }
-    # Both files under other names first, then renamed: a model folder never holds one new file beside
-    # the other's old version (a service watching it takes both once they stop changing).
-    make_out_dir(out_dir)
-    staged = {out_dir / ".model.onnx.partial": out_dir / "model.onnx",
-              out_dir / ".metadata.json.partial": out_dir / "metadata.json"}
-    try:
-        export_onnx(model, out_dir / ".model.onnx.partial", example={n: v[:8] for n, v in data.inputs.items()})
-        (out_dir / ".metadata.json.partial").write_text(json.dumps(new, indent=1, allow_nan=False))
-        for partial, final in staged.items():
-            partial.replace(final)
-    finally:
-        for partial in staged:
-            partial.unlink(missing_ok=True)
+    # Both files under staged names first, renamed back to back only once both are complete: an
+    # interrupted run leaves the earlier model, and its training curve, as they were. The curve
+    # (of the earlier network) goes only after the new model is in place.
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with staged(out_dir / "model.onnx", out_dir / "metadata.json") as (model_path, metadata_path):
+        export_onnx(model, model_path, example={n: v[:8] for n, v in data.inputs.items()})
+        metadata_path.write_text(json.dumps(new, indent=1, allow_nan=False))
+    (out_dir / "training_curve.png").unlink(missing_ok=True)
     return new
 
 

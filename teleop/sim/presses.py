@@ -28,6 +28,7 @@ import numpy as np
 from teleop.errors import SimulationError
 from teleop.progress import progress_bar
 from teleop.sim.optics import OpticsRenderer
+from teleop.staging import staged
 
 __all__ = ["contact_radius_m", "simulate_presses", "sphere_press_height", "write_presses"]
 
@@ -132,7 +133,9 @@ def write_presses(path: str | Path, pack: dict[str, np.ndarray]) -> Path:
     """Write ``pack`` to exactly ``path`` as a compressed .npz (no pickled objects)."""
     path = Path(path)
     try:
-        with path.open("wb") as stream:
+        # Under a staged name, renamed over ``path`` once complete: an interrupted write leaves
+        # the presses file there as it was.
+        with staged(path) as partial, partial.open("wb") as stream:
             np.savez_compressed(stream, **pack)
     except OSError as exc:
         raise SimulationError(f"cannot write presses file {path}: {exc.strerror or exc}") from exc

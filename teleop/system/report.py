@@ -42,6 +42,7 @@ from teleop.errors import SessionLogError, TeleopError
 from teleop.progress import progress_bar
 from teleop.session.export import session_grasps
 from teleop.session.logfile import LogReader
+from teleop.staging import staged_dir
 from teleop.system.demo_table import felt_line
 from teleop.system.report_data import GraspView, grasp_messages, log_calibrations, tactile_moments
 from teleop.system.report_figures import predictions_figure, tactile_figure, timeline_figure
@@ -267,43 +268,47 @@ def build_report(
         raise ReportError(f"cannot create the report directory {out}: {exc.strerror or exc}") from exc
     views, figures = [], {}
     grasps = session_grasps(log, catalogue=catalogue)
+    # Drawn in a folder beside ``out`` and swapped in for it only once index.html is written (the
+    # files of ``out`` this report does not rewrite are carried over): an interrupted run leaves
+    # the earlier report, page and figures, as it was.
     try:
-        for grasp in progress_bar(grasps, desc=f"report {log.name}", unit="grasp", total=len(messages),
-                          enabled=progress):
-            view = messages.pop(grasp.grasp_id, None) or GraspView(grasp.grasp_id)
-            view.take(grasp.record, grasp.reason)
-            views.append(view)
-            if view.record is None:
-                continue
-            tactile_moments(view, settings=settings, calibrations=calibrations)
-            anchor = _anchor(view)
-            if view.moments:
-                figures[f"{anchor}-tactile.png"] = tactile_figure(view, out / f"{anchor}-tactile.png")
-            figures[f"{anchor}-timeline.png"] = timeline_figure(view, out / f"{anchor}-timeline.png",
-                                                                display_recorded=recorded)
-            view.record, view.moments = None, []  # drawn: a long session's frames need not stay in memory
-        if not views:
-            raise SessionLogError(f"{log}: no grasp in the log (no grasp_event start message): nothing to report")
-        for view in messages.values():  # estimates or renderings of grasps the log never started
-            view.reason = "the log has no grasp_event start for this grasp id"
-            views.append(view)
-        figures["predictions.png"] = predictions_figure(views, out / "predictions.png")
-        session = info.session
-        lines = [f"log {log.resolve()}",
-                 f"scene {session.get('scene') or '-'}, {session.get('source', 'unknown source')}, "
-                 f"recorded {session.get('start_utc', 'at an unknown time')} with compliance-teleop "
-                 f"{session.get('software_version', '?')} on {session.get('host', '?')}",
-                 f"{len(views)} grasps; depth on the estimator's grid (binning {estimator_settings(settings).depth_binning}, "
-                 "1 for fingers with markers); display messages "
-                 + ("recorded" if recorded else "not recorded (the log has none)")]
-        if info.damage:
-            lines.append(f"the log is damaged: {info.damage}; grasps in the damaged part are missing or skipped. "
-                         f"`teleop recover {log} --out FIXED.mcap` rewrites the readable part as a complete log")
-        index = out / "index.html"
-        index.write_text(_page(log, lines, views, figures, recorded, display_range_pa(settings)), encoding="utf-8")
+        with staged_dir(out) as folder:
+            for grasp in progress_bar(grasps, desc=f"report {log.name}", unit="grasp", total=len(messages),
+                              enabled=progress):
+                view = messages.pop(grasp.grasp_id, None) or GraspView(grasp.grasp_id)
+                view.take(grasp.record, grasp.reason)
+                views.append(view)
+                if view.record is None:
+                    continue
+                tactile_moments(view, settings=settings, calibrations=calibrations)
+                anchor = _anchor(view)
+                if view.moments:
+                    figures[f"{anchor}-tactile.png"] = tactile_figure(view, folder / f"{anchor}-tactile.png")
+                figures[f"{anchor}-timeline.png"] = timeline_figure(view, folder / f"{anchor}-timeline.png",
+                                                                    display_recorded=recorded)
+                view.record, view.moments = None, []  # drawn: a long session's frames need not stay in memory
+            if not views:
+                raise SessionLogError(f"{log}: no grasp in the log (no grasp_event start message): nothing to report")
+            for view in messages.values():  # estimates or renderings of grasps the log never started
+                view.reason = "the log has no grasp_event start for this grasp id"
+                views.append(view)
+            figures["predictions.png"] = predictions_figure(views, folder / "predictions.png")
+            session = info.session
+            lines = [f"log {log.resolve()}",
+                     f"scene {session.get('scene') or '-'}, {session.get('source', 'unknown source')}, "
+                     f"recorded {session.get('start_utc', 'at an unknown time')} with compliance-teleop "
+                     f"{session.get('software_version', '?')} on {session.get('host', '?')}",
+                     f"{len(views)} grasps; depth on the estimator's grid (binning {estimator_settings(settings).depth_binning}, "
+                     "1 for fingers with markers); display messages "
+                     + ("recorded" if recorded else "not recorded (the log has none)")]
+            if info.damage:
+                lines.append(f"the log is damaged: {info.damage}; grasps in the damaged part are missing or skipped. "
+                             f"`teleop recover {log} --out FIXED.mcap` rewrites the readable part as a complete log")
+            index = folder / "index.html"
+            index.write_text(_page(log, lines, views, figures, recorded, display_range_pa(settings)), encoding="utf-8")
     except OSError as exc:
         raise ReportError(f"cannot write the report into {out}: {exc.strerror or exc}") from exc
-    return Report(index, figures, views)
+    return Report(out / "index.html", figures, views)
 
 
 # --------------------------------------------------------------------------- chromium
