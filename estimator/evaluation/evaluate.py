@@ -297,10 +297,11 @@ def evaluate_records(
 
 
 def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], path: str | Path, *,
-         display_range_pa: tuple[float, float] | None = None) -> None:
+         display_range_pa: tuple[float, float] | None = None, image_format: str | None = None) -> None:
     """Predictions against truth, log-log, one panel per method with the one-decade band and
     its figures; bounds drawn as triangles; the display's range (``display_range_pa``) as dashed
-    lines, with the felt figures."""
+    lines, with the felt figures. ``image_format`` (``png``, ``svg``...): by default the one
+    ``path``'s suffix names."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -347,5 +348,5 @@ def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], path: str | Pat
     axes.flat[0].legend(handles=legend, loc="upper left", fontsize=6)
     fig.suptitle("Young's modulus: estimate vs label (triangles: bounds; band: one decade)", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, format=image_format)  # the format: a staged path's name does not say it
     plt.close(fig)

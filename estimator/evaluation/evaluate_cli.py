@@ -11,6 +11,7 @@ object on the last stdout line. ``--rows FILE.csv`` writes every scored grasp
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import os
@@ -41,6 +42,7 @@ from haptics.settings import display_range_pa
 from teleop.clikit import PLOT_SUFFIXES, output_file
 from teleop.record import find_records
 from teleop.settings import Settings, default_settings_path, load_settings
+from teleop.staging import staged
 
 __all__ = ["ROW_COLUMNS", "add_arguments", "fmt_value", "print_skipped", "run", "skipped_records", "unseen_by", "write_rows"]
 
@@ -244,10 +246,13 @@ def run(args: argparse.Namespace) -> int:
                              + "; listed above)")
     display_range = display_range_pa(settings)
     summary = ablation_table(rows, methods=methods, models=models, display_range_pa=display_range)
-    if plot_path:
-        plot(rows, list(summary), plot_path, display_range_pa=display_range)
-    if rows_path:
-        write_rows(rows, rows_path, display_range_pa=display_range)
+    # Written beside their names and renamed in place at the end: an interrupt keeps the earlier ones.
+    with contextlib.ExitStack() as outputs:
+        if plot_path:
+            plot(rows, list(summary), outputs.enter_context(staged(plot_path)), display_range_pa=display_range,
+                 image_format=plot_path.suffix.lstrip("."))
+        if rows_path:
+            write_rows(rows, outputs.enter_context(staged(rows_path)), display_range_pa=display_range)
     kept = sorted({r["object"] for r in rows if "method" in r})
     result = {
         "command": shlex.join(getattr(args, "_command_line", None) or ["estimator", "evaluate", str(root)]),

@@ -182,3 +182,21 @@ def test_a_learned_method_no_loaded_model_has_names_the_models_loaded(tmp_path, 
     variant = CompliancePredictor(default_model_dir()).variant
     assert variant.method != "cnn" and "models: none" not in err
     assert f"models: {variant.name} ({variant.method}) in {default_model_dir()}" in err
+
+
+def test_an_interrupted_evaluate_keeps_the_earlier_rows_and_plot(records, tmp_path, capsys, monkeypatch):
+    import estimator.evaluation.evaluate_cli as evaluate_cli
+
+    rows, png = tmp_path / "rows.csv", tmp_path / "p.png"
+    options = ["evaluate", str(records), "--methods", "no_tactile", "--rows", str(rows), "--plot", str(png)]
+    assert main(options) == 0
+    before = rows.read_bytes(), png.read_bytes()
+    capsys.readouterr()
+
+    def interrupted(*args, **kwargs):  # Ctrl-C while the rows are written, after the plot
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(evaluate_cli, "write_rows", interrupted)
+    assert main(options) == 130
+    assert (rows.read_bytes(), png.read_bytes()) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.png", "rows.csv"]  # no temporary left
