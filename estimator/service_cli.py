@@ -90,13 +90,14 @@ def run(args: argparse.Namespace) -> int:
         if slot is not None:
             slot.request_reload()
 
+    # The signals first: handled until the sockets have closed, so a second one cannot cut that short.
     with (
+        StopSignals(on_hangup=hangup) as signals,
         Subscriber.from_settings(bus, bus.robot_pub, INPUT_TOPICS) as subscriber,
         Subscriber.from_settings(bus, [bus.command, bus.control], COMMAND_TOPICS) as commands,
         Publisher.from_settings(bus, bus.estimate_pub, lossless=False, source="estimator") as publisher,
         JsonLines(args.report) as report,
         LiveTap(publisher.endpoint, args.foxglove, bus=bus, name="estimator serve"),
-        StopSignals(on_hangup=hangup) as signals,
     ):
         service = EstimatorService(settings, calibration=calibration, subscriber=subscriber, publisher=publisher,
                                    methods=methods, model=model, report=report, commands=commands)

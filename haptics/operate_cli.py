@@ -27,7 +27,7 @@ from haptics.operator_link import OperatorLink
 from haptics.operator_loop import LoopStatus, OperatorLoop
 from haptics.settings import operator_settings
 from teleop.catalogue import default_catalogue_path, load_catalogue
-from teleop.clikit import positive_number
+from teleop.clikit import hangup_ignored, positive_number
 from teleop.errors import SettingsError
 from teleop.live import StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.settings import default_settings_path, load_settings
@@ -176,8 +176,11 @@ def _run_console(loop: OperatorLoop, name: str, device: object, *, duration_s: f
 
 @contextlib.contextmanager
 def _sigterm_quits(app: Any) -> Iterator[None]:
-    """SIGTERM quits the screen as ``q`` does (the loop lets the enable go and releases its grasp,
-    the terminal leaves the screen, the summary is printed) instead of killing the process mid-screen."""
+    """SIGTERM and SIGHUP (the terminal hung up: an SSH drop, tmux kill-session; unless ignored, as
+    under ``nohup``) quit the screen as ``q`` does (the loop lets the enable go and releases its grasp,
+    the terminal leaves the screen, the summary is printed) instead of killing the process mid-screen
+    with the fingers squeezing."""
+    wanted = [signal.SIGTERM] + ([] if hangup_ignored() else [signal.SIGHUP])
 
     def on_sigterm(signum: int, frame: Any) -> None:  # noqa: ARG001
         try:
@@ -187,11 +190,12 @@ def _sigterm_quits(app: Any) -> Iterator[None]:
         # The handler interrupts the screen's own thread: its action runs on the screen's loop.
         running.call_soon_threadsafe(app.action_quit_console)
 
-    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    previous = {signum: signal.signal(signum, on_sigterm) for signum in wanted}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 class _HeldLog(logging.Handler):

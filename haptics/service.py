@@ -50,7 +50,7 @@ from typing import Any
 
 import zmq
 
-from haptics.errors import HapticsError
+from haptics.errors import DisplayError, HapticsError
 from haptics.mapping import FREE, EstimateUpdate, Percept, modulus_from_fraction, to_command
 from haptics.renderer import HapticRenderer
 from teleop.bus.pubsub import Publisher, Subscriber, is_decade
@@ -173,6 +173,39 @@ class RendererService(ServiceLoop):
         self._publish_display()
         self._check_pending(written_s)
         return message
+
+    def finish(self) -> None:
+        """Before the service stops (a stop signal, the duration over): set the display free.
+
+        A renderer stopped mid-grasp (or mid-fade) last wrote a stiffness, which the display would
+        hold until its own watchdog (or for ever, one with none); so the free command (level 0, as
+        the idle renderer writes) goes to the display, and the matching ``display`` message (idle,
+        no grasp) on the bus. A display that is not connected, or whose write fails, is left alone
+        (logged): nothing more can reach it."""
+        renderer, display = self.renderer, self.renderer.display
+        info = display.info
+        if info is None or not display.connected:
+            return
+        free = to_command(FREE, level_max=int(info.level_max))
+        if renderer.phase == "idle" and display.last_command in (None, free):
+            return
+        try:
+            display.write_command(free)
+        except (DisplayError, OSError) as exc:
+            log.warning("%s: not set free on stopping: %s", display, exc)
+            return
+        if self.publisher is None:
+            return
+        body = {"grasp_id": None, "phase": "idle", "stiffness": 0.0, "uncertainty_decades": 0.0, "rigid": False,
+                "unknown": False, "provisional": False, "E_pa": None, "level": int(free.level),
+                "level_max": int(info.level_max)}
+        try:
+            self.publisher.send("display", t_capture_s=self.clock(), **body)
+        except (ComplianceTeleopError, zmq.ZMQError) as exc:
+            self.stats.display_failures += 1
+            log.warning("display message (free, on stopping) not published: %s", exc)
+            return
+        self.stats.display_messages += 1
 
     def handle(self, message: Message) -> None:
         """Take one estimate or grasp event; one that cannot be rendered is logged and skipped."""

@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(latest value) and drive the display, publishing heartbeats and one 'display' message per "
         "report written (what the display renders, as numbers) on the display endpoint. Records the "
         "latency from the last loading frame's capture to the display report for every final "
-        "estimate. Stops on Ctrl-C or SIGTERM."
+        "estimate. Stops on Ctrl-C, SIGTERM or SIGHUP, setting the display free first."
     )
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
                         help="settings TOML ([display] mapping and backend, [bus] endpoints)")
@@ -60,22 +60,24 @@ def run(args: argparse.Namespace) -> int:
     bus = bus_from_args(settings, args)
     display = make_display(rendering)
     renderer = HapticRenderer(display, rendering)
-    try:
-        with (
-            Subscriber.from_settings(bus, bus.estimate_pub, INPUT_TOPICS, conflate=True) as subscriber,
-            Publisher.from_settings(bus, bus.display_pub, lossless=False, source="renderer") as publisher,
-            JsonLines(args.report) as report,
-            LiveTap(publisher.endpoint, args.foxglove, bus=bus, name="haptics serve"),
-            StopSignals() as signals,
-        ):
-            service = RendererService(renderer, subscriber=subscriber, publisher=publisher, report=report,
-                                      tick_s=args.tick_s)
-            print(f"renderer: {display} from estimates on {bus.estimate_pub}, heartbeat and display messages on "
-                  f"{publisher.endpoint}",
-                  file=sys.stderr)
-            stats = service.run(signals.stop, duration_s=args.duration_s)
-    finally:
-        display.close()
+    # The signals first: handled until the display has been set free and closed, so a second one
+    # cannot cut that short (StopSignals ignores it).
+    with StopSignals() as signals:
+        try:
+            with (
+                Subscriber.from_settings(bus, bus.estimate_pub, INPUT_TOPICS, conflate=True) as subscriber,
+                Publisher.from_settings(bus, bus.display_pub, lossless=False, source="renderer") as publisher,
+                JsonLines(args.report) as report,
+                LiveTap(publisher.endpoint, args.foxglove, bus=bus, name="haptics serve"),
+            ):
+                service = RendererService(renderer, subscriber=subscriber, publisher=publisher, report=report,
+                                          tick_s=args.tick_s)
+                print(f"renderer: {display} from estimates on {bus.estimate_pub}, heartbeat and display messages "
+                      f"on {publisher.endpoint}",
+                      file=sys.stderr)
+                stats = service.run(signals.stop, duration_s=args.duration_s)
+        finally:
+            display.close()
     ignored = (f", {stats.ignored} not shown: their grasps had ended or had their final estimate (late, or "
                "replayed after this renderer showed them)") if stats.ignored else ""
     print(f"renderer: {stats.estimates} estimates, {len(stats.finals)} final, {display.reports_written} "

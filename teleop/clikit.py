@@ -19,9 +19,10 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from types import FrameType
 
 from teleop.errors import ComplianceTeleopError, TeleopError
 
@@ -124,17 +125,32 @@ class _DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
-def _sigterm_as_ctrl_c() -> contextlib.AbstractContextManager[None]:
-    """SIGTERM raises KeyboardInterrupt while a command runs, as Ctrl-C does, so every command stops
-    through the same clean-up (its pool workers stopped, its temporary files removed) and says it was
-    interrupted, instead of dying alone. The services that stop on SIGTERM (:class:`~teleop.live.StopSignals`)
-    replace this handler while they serve. Only in the main thread (signal handlers can be set there
-    alone: a command run from another thread keeps the process's handling)."""
-    if threading.current_thread() is not threading.main_thread():
-        return contextlib.nullcontext()
-    from teleop.live import sigterm_as_ctrl_c  # here: `--help` need not import it
+def hangup_ignored() -> bool:
+    """SIGHUP is ignored now (``nohup``, a parent's choice): a process keeps it so, not stopping on it."""
+    return signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
 
-    return sigterm_as_ctrl_c()
+
+@contextlib.contextmanager
+def sigterm_as_ctrl_c() -> Iterator[None]:
+    """SIGTERM and SIGHUP (a closed terminal; unless ignored, as under ``nohup``) raise KeyboardInterrupt
+    meanwhile, as Ctrl-C does, so a command cleans up after it (its pool workers or child processes
+    stopped, temporary files removed) and says it was interrupted, instead of dying alone. Only the
+    first: a second one must not cut that clean-up short. :func:`run_cli` runs every command so (in
+    the main thread); the services that stop on them (:class:`~teleop.live.StopSignals`) replace it
+    while they serve."""
+    wanted = [signal.SIGTERM] + ([] if hangup_ignored() else [signal.SIGHUP])
+
+    def interrupt(signum: int, frame: FrameType | None) -> None:
+        for sig in wanted:
+            signal.signal(sig, signal.SIG_IGN)
+        raise KeyboardInterrupt
+
+    previous = {signum: signal.signal(signum, interrupt) for signum in wanted}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 def _ignore_late_ctrl_c() -> None:
@@ -178,7 +194,7 @@ def run_cli(
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
     try:
-        with _sigterm_as_ctrl_c():
+        with sigterm_as_ctrl_c() if threading.current_thread() is threading.main_thread() else contextlib.nullcontext():
             try:
                 return int(args._run(args) or 0)
             finally:

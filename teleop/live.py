@@ -4,7 +4,8 @@ The live system is four long-running commands on the bus: ``teleop node`` (robot
 ``estimator serve``, ``haptics serve`` and ``teleop record``; ``teleop demo`` starts them as
 separate processes. Each takes its endpoints from the settings' ``[bus]`` table, overridable
 on the command line (:func:`add_endpoint_arguments`, :func:`bus_from_args`); each serves in
-one loop (:class:`ServiceLoop`) and stops cleanly on SIGINT or SIGTERM (:class:`StopSignals`);
+one loop (:class:`ServiceLoop`) and stops cleanly on SIGINT or SIGTERM, and on SIGHUP unless it has
+something to reload on it (:class:`StopSignals`);
 the services write one JSON object per grasp to a report file when asked (:class:`JsonLines`).
 """
 
@@ -22,11 +23,12 @@ from pathlib import Path
 from types import FrameType
 from typing import IO, Any
 
+from teleop.clikit import hangup_ignored
 from teleop.errors import SettingsError
 from teleop.settings import BusSettings, Settings
 
 __all__ = ["ENDPOINTS", "JsonLines", "ServiceLoop", "StopSignals", "add_endpoint_arguments", "bus_from_args",
-           "check_duration_s", "sigint_ignored", "sigterm_as_ctrl_c"]
+           "check_duration_s", "sigint_ignored"]
 
 #: Bus endpoint settings a live process may be told to use instead of the settings file's.
 ENDPOINTS = BusSettings.ENDPOINTS
@@ -100,23 +102,6 @@ class ServiceLoop:
 
 
 @contextlib.contextmanager
-def sigterm_as_ctrl_c() -> Iterator[None]:
-    """SIGTERM raises KeyboardInterrupt meanwhile, as Ctrl-C does, so a command cleans up after it (its
-    child processes stopped in order, temporary files removed) instead of dying alone. Only the first:
-    a second one must not cut that clean-up short."""
-
-    def interrupt(signum: int, frame: FrameType | None) -> None:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
-@contextlib.contextmanager
 def sigint_ignored() -> Iterator[None]:
     """SIGINT ignored meanwhile (in the main thread; elsewhere a no-op). A process started meanwhile
     keeps ignoring it, from its first instruction: a Ctrl-C at the terminal reaches the whole process
@@ -132,10 +117,14 @@ def sigint_ignored() -> Iterator[None]:
 
 
 class StopSignals:
-    """SIGINT and SIGTERM set :attr:`stop` instead of killing the process (main thread only).
+    """SIGINT, SIGTERM and SIGHUP set :attr:`stop` instead of killing the process (main thread only).
 
-    ``on_hangup`` (optional) is called on SIGHUP: the services use it to reload what they
-    read from files. The previous handlers are restored on exit.
+    ``on_hangup`` (optional) is called on SIGHUP instead: the services with something to reload
+    (what they read from files) use it. Without it SIGHUP (a closed terminal, an SSH drop) stops the
+    process as SIGTERM does, unless SIGHUP was ignored on entry (``nohup``): then it stays ignored.
+    Once stopping, further stop signals are ignored: enter this before the services it stops and
+    leave it after they closed, so a second signal cannot cut their closing short. The previous
+    handlers are restored on exit.
     """
 
     def __init__(self, *, on_hangup: Callable[[], None] | None = None):
@@ -155,7 +144,8 @@ class StopSignals:
             self.stop.set()
 
     def __enter__(self) -> StopSignals:
-        wanted = [signal.SIGINT, signal.SIGTERM] + ([signal.SIGHUP] if self.on_hangup else [])
+        hangup = self.on_hangup is not None or not hangup_ignored()
+        wanted = [signal.SIGINT, signal.SIGTERM] + ([signal.SIGHUP] if hangup else [])
         for signum in wanted:
             self._previous[signum] = signal.signal(signum, self._handle)
         return self

@@ -1,4 +1,4 @@
-"""``teleop node``: run the robot node (:mod:`teleop.node`) on the bus until Ctrl-C or SIGTERM.
+"""``teleop node``: run the robot node (:mod:`teleop.node`) on the bus until Ctrl-C, SIGTERM or SIGHUP.
 
 With ``--foxglove`` it also serves what it publishes live to Foxglove
 (:class:`~teleop.session.foxglove_live.LiveTap`).
@@ -48,13 +48,15 @@ def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
     bus = bus_from_args(settings, args)
     scene = load_scene(args.scene)
+    # The signals first: they are handled until the node and its sockets have closed, so a second one
+    # cannot cut that closing short (StopSignals ignores it).
     with (
+        StopSignals() as signals,
         Publisher.from_settings(bus, bus.robot_pub, lossless=True, source="robot") as publisher,
         Subscriber.from_settings(bus, bus.command, COMMAND_TOPICS) as commands,
         RobotNode(settings, publisher=publisher, commands=commands, scene=scene) as node,
         LiveTap(publisher.endpoint, args.foxglove, bus=bus, name="teleop node",
                 fingers=[s.finger for s in settings.sensors]),
-        StopSignals() as signals,
     ):
         print(f"robot node: {'simulated' if node.simulated else 'hardware'} devices; data on "
               f"{publisher.endpoint}, commands from {bus.command}", file=sys.stderr)

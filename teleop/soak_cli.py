@@ -11,7 +11,6 @@ import argparse
 import json
 import sys
 
-from teleop.live import sigterm_as_ctrl_c
 from teleop.settings import default_settings_path, load_settings
 from teleop.soak import MAX_DEFAULT_WARMUP_S, check_log_path, run_soak
 
@@ -41,9 +40,8 @@ def run(args: argparse.Namespace) -> int:
     if args.log is not None:
         check_log_path(args.log, name="--log")  # here, not as a traceback of the consumer process
     settings = load_settings(args.settings)
-    with sigterm_as_ctrl_c():
-        result = run_soak(settings, duration_s=args.minutes * 60.0, warmup_s=args.warmup_s,
-                          settings_path=args.settings, log_path=args.log, progress=True)
+    result = run_soak(settings, duration_s=args.minutes * 60.0, warmup_s=args.warmup_s,
+                      settings_path=args.settings, log_path=args.log, progress=True)
     print(f"soak: {result.duration_s:.0f} s, {sum(result.sent.values())} grasp messages sent, "
           f"{result.lost_grasp_msgs} lost; latency p50 {result.p50_ms} ms, p99 {result.p99_ms} ms; "
           f"recorder memory {result.rss_warm_mb:.1f} MB after warm-up, {result.rss_end_mb:.1f} MB at the end "

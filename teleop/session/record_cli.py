@@ -1,6 +1,6 @@
 """``teleop record``: record every bus message of a session into an MCAP log.
 
-Stops after --duration-s, or on Ctrl-C / SIGTERM, and then writes the log's summary and
+Stops after --duration-s, or on Ctrl-C / SIGTERM / SIGHUP, and then writes the log's summary and
 footer. A recorder killed outright leaves a log without them: ``teleop recover`` fixes it.
 A write error (a full disk) stops the recording, not the session: the command then exits with
 status 3 (:data:`~teleop.session.recorder.RECORDING_STOPPED_STATUS`), its last line saying why.
@@ -18,6 +18,7 @@ from pathlib import Path
 
 from teleop.bus.security import security_from_settings
 from teleop.catalogue import default_catalogue_path
+from teleop.clikit import hangup_ignored
 from teleop.errors import SessionLogError
 from teleop.scene import load_scene
 from teleop.session.foxglove_live import LiveServer, add_foxglove_argument
@@ -162,11 +163,11 @@ def _catalogue(args: argparse.Namespace) -> Path:
 
 
 def _record_until_stopped(recorder: SessionRecorder, duration_s: float | None) -> RecorderStats:
-    """Run ``recorder`` until ``duration_s`` passed or Ctrl-C / SIGTERM."""
+    """Run ``recorder`` until ``duration_s`` passed or Ctrl-C / SIGTERM / SIGHUP (its terminal closed;
+    unless ignored, as under ``nohup``): each stops it, and the log gets its summary and footer."""
     stop = threading.Event()
-    previous = {
-        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
-    }
+    signals = (signal.SIGINT, signal.SIGTERM) + (() if hangup_ignored() else (signal.SIGHUP,))
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in signals}
     try:
         return recorder.run(duration_s=duration_s, stop=stop, progress=True)
     finally:

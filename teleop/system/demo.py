@@ -18,8 +18,9 @@ estimator, renderer, recorder, so the log gets everything) and is told by the ke
 when this process dies (``PR_SET_PDEATHSIG`` on Linux), so none outlives it; a child that exits
 early stops the demo with the tail of its log, except a recorder whose recording a write error
 stopped (a full disk: :data:`~teleop.session.recorder.RECORDING_STOPPED_STATUS`): the demo says so
-and carries on, and its closing output calls the session log partial; SIGTERM stops the demo as Ctrl-C does. Children
-run with one BLAS thread each and with progress bars off or rare (``TQDM_DISABLE``,
+and carries on, and its closing output calls the session log partial; SIGTERM and SIGHUP (its
+terminal closed) stop the demo as Ctrl-C does, and a second Ctrl-C does not cut that ordered stop
+short. Children run with one BLAS thread each and with progress bars off or rare (``TQDM_DISABLE``,
 ``TQDM_MININTERVAL``).
 
 The estimator's sensor needs a colour-to-gradient calibration. When the settings name none (or
@@ -67,7 +68,7 @@ from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
 from teleop.clikit import file_in_the_way
 from teleop.errors import SettingsError, TeleopError
-from teleop.live import ENDPOINTS, sigterm_as_ctrl_c
+from teleop.live import ENDPOINTS, sigint_ignored
 from teleop.scene import SCENE_DIR, Scene, load_scene, scene_path
 from teleop.session.foxglove_live import add_foxglove_argument
 from teleop.session.recorder import RECORDING_STOPPED_STATUS
@@ -339,7 +340,8 @@ class LiveSystem:
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        self.stop()
+        with sigint_ignored():  # a second Ctrl-C must not cut the ordered stop short
+            self.stop()
 
     # ------------------------------------------------------------------ operating
 
@@ -627,7 +629,7 @@ def run(args: argparse.Namespace) -> int:
         host, port = args.foxglove
         print(f"Foxglove live view: ws://{host}:{port}" if port else
               f"Foxglove live view: the port the recorder chose, in {run_dir / 'recorder.log'}", file=sys.stderr)
-    with sigterm_as_ctrl_c(), system:
+    with system:
         print(f"live system up ({', '.join(f'{n} {c.process.pid}' for n, c in system.children.items())}); "
               f"logs in {run_dir}", file=sys.stderr)
         if args.operator == "sim":

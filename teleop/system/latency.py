@@ -80,7 +80,6 @@ from estimator.settings import estimator_settings
 from teleop.bus.wire import Message
 from teleop.clikit import PLOT_SUFFIXES, output_file
 from teleop.errors import TeleopError
-from teleop.live import sigterm_as_ctrl_c
 from teleop.settings import Settings, load_settings
 from teleop.system.demo import (
     LiveSystem,
@@ -299,7 +298,7 @@ def run(args: argparse.Namespace) -> int:
     started = time.monotonic()
     view = LiveView(log, len(plan))
     system = LiveSystem(Path(args.settings), args.scene, run_dir, calibration, record=args.record)
-    with sigterm_as_ctrl_c(), system:
+    with system:
         outcomes = list(run_grasps(system, plan, view, "bench", on_message=watch))
     wall_s = time.monotonic() - started
     baseline_after = frame_baseline_ms(settings, baseline_calibration)

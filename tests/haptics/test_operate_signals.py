@@ -42,3 +42,37 @@ def test_sigterm_with_no_screen_running_stops_as_ctrl_c_would():
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(0)  # a call: the pending handler runs by then at the latest
     assert app.quits == 0
+
+
+def test_sighup_quits_the_running_screen_as_sigterm_does():
+    # A hung-up terminal (an SSH drop, tmux kill-session) mid-grasp: the loop must release the grasp, not
+    # die with the fingers squeezing. In a child: on the old handling SIGHUP killed the process.
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent("""
+        import asyncio, os, signal
+        from haptics.operate_cli import _sigterm_quits
+
+        class App:
+            quits = 0
+            def action_quit_console(self):
+                App.quits += 1
+
+        before = signal.getsignal(signal.SIGHUP)
+
+        async def screen():
+            with _sigterm_quits(App()):
+                os.kill(os.getpid(), signal.SIGHUP)
+                for _ in range(100):
+                    if App.quits:
+                        break
+                    await asyncio.sleep(0)
+
+        asyncio.run(screen())
+        assert App.quits == 1 and signal.getsignal(signal.SIGHUP) is before
+        print("quit")
+    """)
+    done = subprocess.run([sys.executable, "-c", script], timeout=60, capture_output=True, text=True)
+    assert done.returncode == 0 and "quit" in done.stdout, done.stderr
