@@ -441,6 +441,7 @@ class LogReader:
             summary: Summary | None = None
             summary_read = False
             skip_magic = False
+            resumed_at = -1  # where reading last went on after damage
             while True:
                 stream = StreamReader(
                     file,
@@ -463,7 +464,9 @@ class LogReader:
                     yield record
                 if not summary_read:
                     summary, summary_read = self._summary(file), True
-                resume = self._resume_at(summary, self.good_bytes)
+                # Past the last resume too: a damaged record there reads nothing, and good_bytes stays put.
+                damaged_at = max(self.good_bytes, resumed_at)
+                resume = self._resume_at(summary, damaged_at)
                 if summary is None or resume is None:
                     self.stopped = True
                     damages.append(what)
@@ -472,14 +475,14 @@ class LogReader:
                         "%s: stopped reading at byte %d: %s", self.path, self.good_bytes, what
                     )
                     return
-                what += self._skip(summary, self.good_bytes, resume)
+                what += self._skip(summary, damaged_at, resume)
                 damages.append(what)
                 self.damage = "; ".join(damages)
                 log.warning("%s: %s", self.path, what)
                 yield from summary.schemas.values()
                 yield from summary.channels.values()
                 file.seek(resume)
-                skip_magic = True
+                resumed_at, skip_magic = resume, True
 
     def _summary(self, file: Any) -> Summary | None:
         """The file's summary (chunk indexes, schemas, channels), if it and the footer are intact."""

@@ -90,3 +90,20 @@ def test_the_report_says_the_log_is_damaged_where_and_what_to_do(damaged, tmp_pa
     page = build_report(path, tmp_path / "report").index.read_text(encoding="utf-8")
     assert "the log is damaged" in page and f"byte {target.chunk_start_offset}" in page
     assert "teleop recover" in page
+
+
+def test_two_damaged_chunks_in_a_row_are_both_skipped_and_reading_ends(recorded, tmp_path):
+    # Damage across a chunk boundary: the chunk where reading goes on is damaged too.
+    with recorded.path.open("rb") as f:
+        chunks = sorted(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    first, second = chunks[2], chunks[3]
+    data = bytearray(recorded.path.read_bytes())
+    for chunk in (first, second):
+        middle = chunk.chunk_start_offset + chunk.chunk_length // 2
+        data[middle : middle + 200] = bytes(200)
+    path = tmp_path / "two.mcap"
+    path.write_bytes(bytes(data))
+    reader = LogReader(path)
+    read = list(reader.messages())
+    assert [c.start_byte for c in reader.lost] == [first.chunk_start_offset, second.chunk_start_offset]
+    assert read and not reader.complete
