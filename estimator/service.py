@@ -242,7 +242,9 @@ class EstimatorService(ServiceLoop):
         if message is not None:
             self.handle(message, received_s=self.clock())
         grasp = self._grasp
-        if grasp is not None and self._robot_silent(grasp):
+        # Only with nothing queued: heard-from times are when messages were taken, so a slow step
+        # (a final estimate, a model's first run) would make a node that is sending look silent.
+        if message is None and grasp is not None and self._robot_silent(grasp):
             # No end will come: closed on what came, its final and end go out, and a model switch
             # waiting for the grasp to end can take place.
             log.warning("grasp %r: its robot node %r has gone silent: closing it on what came",

@@ -72,24 +72,18 @@ class EstimatorSettings(Section):
 
     def resolved(self, settings: Settings) -> EstimatorSettings:
         """Checked against the estimating finger's sensor (its image grid divides by the binning) and
-        the gripper's target force (grasps reach the contact force)."""
-        # Imported here: the simulator takes 0.3 s to import, which every reader of these settings would pay.
-        from teleop.sim.grasp import TARGET_FORCE_FRACTION
-
+        the gripper's target force (a commanded grasp reaches the contact force)."""
         problem = depth_binning_problem(self.depth_binning, settings.sensor(settings.sensing.finger))
         if problem:
             raise SettingsError(f"EstimatorSettings.depth_binning = {self.depth_binning}: {problem}")
         # The segmenter starts a grasp's loading phase where its force first reaches contact_force_n
-        # and refuses a grasp that never does. target_force_n is only the ceiling: grasps squeeze to
-        # TARGET_FORCE_FRACTION of it (an operator as lightly), so the lightest must still pass contact.
-        lowest = TARGET_FORCE_FRACTION[0]
+        # and refuses a grasp that never does: a commanded grasp, squeezing to the target, must pass it.
         target = settings.gripper.target_force_n
-        if lowest * target <= self.contact_force_n:
+        if target <= self.contact_force_n:
             raise SettingsError(
-                f"gripper.target_force_n = {target:g} N is not comfortably above estimator.contact_force_n = "
-                f"{self.contact_force_n:g} N: expected more than {1 / lowest:g} x it ({self.contact_force_n / lowest:g} N), "
-                f"as grasps squeeze to as little as {lowest:.0%} of the target and one that never reaches "
-                "contact_force_n gives no estimate; raise gripper.target_force_n or lower estimator.contact_force_n")
+                f"gripper.target_force_n = {target:g} N is not above estimator.contact_force_n = "
+                f"{self.contact_force_n:g} N: a grasp that never reaches the contact force gives no estimate; "
+                "raise gripper.target_force_n or lower estimator.contact_force_n")
         return self
 
 

@@ -81,7 +81,8 @@ def progress_map(work: Callable[[T], R], items: Iterable[T], *, workers: int, de
         return list(bar(map(work, items)))
     size = max(1, len(items) // (8 * workers))
     # A forked child inherits OpenCV's thread pool mid-state: setting its threads there can hang.
-    context = get_context("spawn") if spawn else None
+    # Named, not the default: from Python 3.14 that is forkserver, whose workers are not this process's children.
+    context = get_context("spawn" if spawn else "fork")
     with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker,
                              initargs=(os.getpid(), spawn)) as pool:
         # Chunks as futures of their own, not Executor.map: on an interrupt map cancels the pending ones,

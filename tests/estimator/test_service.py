@@ -97,15 +97,16 @@ def test_a_grasp_started_while_another_is_open_closes_that_one(settings, calibra
 
 
 class _Silent:
-    """A subscriber that heard the robot node once and now hears nothing."""
+    """A subscriber that heard the robot node once and now hears nothing but what is ``queued``."""
 
     def __init__(self, clock) -> None:
         from teleop.bus.pubsub import Heartbeat
 
         self.heartbeat = Heartbeat(clock=clock)
+        self.queued: list = []
 
-    def recv(self, timeout_s: float) -> None:
-        return None
+    def recv(self, timeout_s: float):
+        return self.queued.pop(0) if self.queued else None
 
 
 class _Beating(_Sent):
@@ -132,6 +133,11 @@ def test_a_grasp_whose_robot_node_went_silent_is_closed_on_what_came(settings, c
     service.step(timeout_s=0)
     assert service._grasp is not None  # still heard: the grasp stays open
     now[0] += 1.6  # three periods and a bit
+    late = make_message("width", t_capture_s=items[-1][0] + 0.01, grasp_id="g", t_s=[items[-1][0] + 0.01],
+                        value_m=[0.05])
+    subscriber.queued.append(dataclasses.replace(late, source="robot"))
+    service.step(timeout_s=0)
+    assert service._grasp is not None  # a message was still queued: busy, not silent
     service.step(timeout_s=0)
     assert service._grasp is None
     sent = service.publisher.sent
