@@ -102,18 +102,21 @@ class ServiceLoop:
 
 
 @contextlib.contextmanager
-def sigint_ignored() -> Iterator[None]:
+def sigint_ignored(*, stop_signals: bool = False) -> Iterator[None]:
     """SIGINT ignored meanwhile (in the main thread; elsewhere a no-op). A process started meanwhile
     keeps ignoring it, from its first instruction: a Ctrl-C at the terminal reaches the whole process
-    group, and such a child is to be stopped by this process (its files closed, not cut mid-write)."""
+    group, and such a child is to be stopped by this process (its files closed, not cut mid-write).
+    With ``stop_signals`` SIGTERM and SIGHUP too: a stop under way is not to be cut short by another."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    ignored = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP) if stop_signals else (signal.SIGINT,)
+    previous = {signum: signal.signal(signum, signal.SIG_IGN) for signum in ignored}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 class StopSignals:

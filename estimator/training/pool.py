@@ -38,6 +38,7 @@ from estimator.training.outdir import check_out_dir, make_out_dir
 from estimator.training.recalibrate import recalibrate
 from estimator.training.splits import check_dataset_fits, load_split_data
 from teleop.settings import Settings
+from teleop.staging import staged_dir
 
 __all__ = ["PooledNet", "pool_models", "pooled_from_onnx"]
 
@@ -122,14 +123,18 @@ def pool_models(model_dirs: Sequence[str | Path], data_dir: str | Path, out_dir:
     example = {n: v[:8] for n, v in val.inputs.items()}
     members = [network_from_onnx(d / "model.onnx", first.variant, check=example) for d in model_dirs]
     pooled = PooledNet(members, [p.metadata.temperature for p in predictors])
-    make_out_dir(out_dir)
-    export_onnx(pooled, out_dir / "model.onnx", example=example)
     metadata = {
         **{k: v for k, v in first.metadata.raw.items() if k != "training"},  # each member's is in "ensemble"
         "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "ensemble": {"members": [_provenance(d, p) for d, p in zip(model_dirs, predictors, strict=True)],
                      "pool": "linear: log mean of the members' temperature-scaled bin probabilities"},
     }
-    (out_dir / "metadata.json").write_text(json.dumps(metadata, indent=1, allow_nan=False))
-    # The calibration in the file so far is the first member's, which recalibrate() reads the model by.
-    return recalibrate(out_dir, data_dir, settings=settings, record=False)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    # Built beside and swapped in whole: an interrupt leaves the folder's earlier model as it was.
+    with staged_dir(out_dir) as build:
+        export_onnx(pooled, build / "model.onnx", example=example)
+        (build / "metadata.json").write_text(json.dumps(metadata, indent=1, allow_nan=False))
+        # The calibration in the file so far is the first member's, which recalibrate() reads the model by.
+        result = recalibrate(build, data_dir, settings=settings, record=False)
+    make_out_dir(out_dir)  # an earlier model's curve, carried over, would describe another network
+    return result

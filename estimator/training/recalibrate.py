@@ -41,6 +41,7 @@ from estimator.training.splits import (
 )
 from haptics.settings import display_range_pa
 from teleop.settings import Settings, load_settings
+from teleop.staging import staged
 
 __all__ = ["cross_validate", "recalibrate"]
 
@@ -120,10 +121,14 @@ def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | P
         new["recalibrated"] = {"utc": datetime.now(UTC).isoformat(timespec="seconds"), "data": str(data_dir),
                                "settings": str(settings.source) if settings.source else None,
                                "previous": metadata["calibration"]}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    # Written beside and renamed in together: an interrupt leaves the folder's earlier model whole.
+    with staged(out_dir / "model.onnx", out_dir / "metadata.json") as (model_tmp, metadata_tmp):
+        if not in_place:
+            model_tmp.write_bytes((model_dir / "model.onnx").read_bytes())
+        metadata_tmp.write_text(json.dumps(new, indent=1, allow_nan=False))
     if not in_place:
-        make_out_dir(out_dir)
-        (out_dir / "model.onnx").write_bytes((model_dir / "model.onnx").read_bytes())
-    (out_dir / "metadata.json").write_text(json.dumps(new, indent=1, allow_nan=False))
+        make_out_dir(out_dir)  # an earlier model's curve would describe another network
     return new
 
 

@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable
 from typing import Any, ClassVar, Self
 
+from haptics.devices.base import SoftnessDisplay
 from haptics.errors import DisplayError, InputDeviceError, ProtocolError
 from haptics.inputs.base import OperatorInput, OperatorInputDevice
 from haptics.protocol import GRIP_LOST_AFTER_S
@@ -35,7 +36,7 @@ __all__ = ["DisplayInput"]
 #: Batches of reports drained per read at most (a display sends a few hundred a second at most).
 _MAX_DRAIN = 1024
 #: Longest single wait for the display: a close() from another thread ends a read within it.
-_WAIT_SLICE_S = 0.05
+_WAIT_SLICE_S = SoftnessDisplay.read_slice_s
 
 
 class DisplayInput(OperatorInputDevice):

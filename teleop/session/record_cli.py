@@ -25,6 +25,7 @@ from teleop.session.foxglove_live import LiveServer, add_foxglove_argument
 from teleop.session.logfile import CHUNK_BYTES
 from teleop.session.recorder import (
     COMPRESSIONS,
+    RECORDING_STOPPED,
     RECORDING_STOPPED_STATUS,
     RecorderStats,
     SessionRecorder,
@@ -146,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
     if stats.error:
         # The last line: `teleop demo` shows it as the reason its session log is partial.
         print(
-            f"recording stopped: {stats.error}; the log is readable up to there: "
+            f"{RECORDING_STOPPED}{stats.error}; the log is readable up to there: "
             f"`teleop recover {out} --out FIXED.mcap`",
             file=sys.stderr,
         )

@@ -53,13 +53,15 @@ from teleop.session.logfile import (
 )
 from teleop.settings import Settings, load_settings, resolve_path, settings_to_mapping
 
-__all__ = ["COMPRESSIONS", "RECORDING_STOPPED_STATUS", "RecorderStats", "SessionRecorder", "session_source"]
+__all__ = ["COMPRESSIONS", "RECORDING_STOPPED", "RECORDING_STOPPED_STATUS", "RecorderStats", "SessionRecorder", "session_source"]
 
 log = logging.getLogger(__name__)
 
 # `teleop record`'s exit status after a write error stopped the recording: not 2 (a setup error),
 # so that whoever runs it can tell "the session carries on, its log is partial" from a failure.
 RECORDING_STOPPED_STATUS = 3
+# How its last line begins, saying why; `teleop demo` reads the reason from there.
+RECORDING_STOPPED = "recording stopped: "
 
 COMPRESSIONS = {
     "zstd": CompressionType.ZSTD,

@@ -19,7 +19,7 @@ when this process dies (``PR_SET_PDEATHSIG`` on Linux), so none outlives it; a c
 early stops the demo with the tail of its log, except a recorder whose recording a write error
 stopped (a full disk: :data:`~teleop.session.recorder.RECORDING_STOPPED_STATUS`): the demo says so
 and carries on, and its closing output calls the session log partial; SIGTERM and SIGHUP (its
-terminal closed) stop the demo as Ctrl-C does, and a second Ctrl-C does not cut that ordered stop
+terminal closed) stop the demo as Ctrl-C does, and a second stop signal does not cut that ordered stop
 short. Children run with one BLAS thread each and with progress bars off or rare (``TQDM_DISABLE``,
 ``TQDM_MININTERVAL``).
 
@@ -71,7 +71,7 @@ from teleop.errors import SettingsError, TeleopError
 from teleop.live import ENDPOINTS, sigint_ignored
 from teleop.scene import SCENE_DIR, Scene, load_scene, scene_path
 from teleop.session.foxglove_live import add_foxglove_argument
-from teleop.session.recorder import RECORDING_STOPPED_STATUS
+from teleop.session.recorder import RECORDING_STOPPED, RECORDING_STOPPED_STATUS
 from teleop.settings import Settings, default_settings_path, load_settings, resolve_path
 from teleop.system.demo_table import LiveView, closing_table, models_answered
 from teleop.system.outcome import GraspOutcome, ReportReader
@@ -305,7 +305,7 @@ class LiveSystem:
                 if self.recording_stopped is None:
                     # The recorder's last line says why (teleop.session.record_cli).
                     last = child.tail().splitlines()[-1:] or ["no reason in its log"]
-                    self.recording_stopped = last[0].removeprefix("recording stopped: ")
+                    self.recording_stopped = last[0].removeprefix(RECORDING_STOPPED)
                     print(f"recording stopped: {self.recording_stopped}; the session log holds what came before",
                           file=sys.stderr)
                 continue
@@ -340,7 +340,7 @@ class LiveSystem:
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        with sigint_ignored():  # a second Ctrl-C must not cut the ordered stop short
+        with sigint_ignored(stop_signals=True):  # a second Ctrl-C, SIGTERM or SIGHUP must not cut the ordered stop short
             self.stop()
 
     # ------------------------------------------------------------------ operating
