@@ -15,7 +15,6 @@ import collections
 import contextlib
 import json
 import logging
-import signal
 import sys
 import textwrap
 from collections.abc import Iterator
@@ -27,7 +26,7 @@ from haptics.operator_link import OperatorLink
 from haptics.operator_loop import LoopStatus, OperatorLoop
 from haptics.settings import operator_settings
 from teleop.catalogue import default_catalogue_path, load_catalogue
-from teleop.clikit import hangup_ignored, positive_number
+from teleop.clikit import on_stop_signals, positive_number
 from teleop.errors import SettingsError
 from teleop.live import StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.settings import default_settings_path, load_settings
@@ -180,8 +179,6 @@ def _sigterm_quits(app: Any) -> Iterator[None]:
     under ``nohup``) quit the screen as ``q`` does (the loop lets the enable go and releases its grasp,
     the terminal leaves the screen, the summary is printed) instead of killing the process mid-screen
     with the fingers squeezing."""
-    wanted = [signal.SIGTERM] + ([] if hangup_ignored() else [signal.SIGHUP])
-
     def on_sigterm(signum: int, frame: Any) -> None:  # noqa: ARG001
         try:
             running = asyncio.get_running_loop()
@@ -190,12 +187,8 @@ def _sigterm_quits(app: Any) -> Iterator[None]:
         # The handler interrupts the screen's own thread: its action runs on the screen's loop.
         running.call_soon_threadsafe(app.action_quit_console)
 
-    previous = {signum: signal.signal(signum, on_sigterm) for signum in wanted}
-    try:
+    with on_stop_signals(on_sigterm):
         yield
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
 
 
 class _HeldLog(logging.Handler):

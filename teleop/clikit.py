@@ -19,10 +19,11 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 from teleop.errors import ComplianceTeleopError, TeleopError
 
@@ -138,19 +139,27 @@ def sigterm_as_ctrl_c() -> Iterator[None]:
     first: a second one must not cut that clean-up short. :func:`run_cli` runs every command so (in
     the main thread); the services that stop on them (:class:`~teleop.live.StopSignals`) replace it
     while they serve."""
-    wanted = [signal.SIGTERM] + ([] if hangup_ignored() else [signal.SIGHUP])
-
     def interrupt(signum: int, frame: FrameType | None) -> None:
-        for sig in wanted:
-            signal.signal(sig, signal.SIG_IGN)
+        for sig in (signal.SIGTERM, signal.SIGHUP):
+            if signal.getsignal(sig) is interrupt:
+                signal.signal(sig, signal.SIG_IGN)
         raise KeyboardInterrupt
 
-    previous = {signum: signal.signal(signum, interrupt) for signum in wanted}
+    with on_stop_signals(interrupt):
+        yield
+
+
+@contextlib.contextmanager
+def on_stop_signals(handler: Callable[[int, FrameType | None], Any]) -> Iterator[None]:
+    """``handler`` for SIGTERM, and for SIGHUP unless it is ignored (``nohup``), meanwhile; the
+    previous handlers restored after."""
+    wanted = [signal.SIGTERM] + ([] if hangup_ignored() else [signal.SIGHUP])
+    previous = {signum: signal.signal(signum, handler) for signum in wanted}
     try:
         yield
     finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+        for signum, before in previous.items():
+            signal.signal(signum, before)
 
 
 def _ignore_late_ctrl_c() -> None:

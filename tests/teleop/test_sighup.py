@@ -89,6 +89,12 @@ _FAKE_SERVICES = """
             closed.append(type(self).__name__)
         def close(self): self.__exit__()
         def wire_stats(self): return {}
+
+    class Stopping(Ctx):  # a service that is sent the first stop signal while it serves
+        def run(self, stop, duration_s=None):
+            os.kill(os.getpid(), signal.SIGTERM)
+            assert stop.wait(5)
+            return Stats()
 """
 
 
@@ -98,13 +104,8 @@ def test_a_second_sigterm_while_the_node_closes_does_not_cut_its_closing_short()
     class Stats:
         grasps, frames = 0, 0
         def as_dict(self): return {}
-    class Node(Ctx):
-        def run(self, stop, duration_s=None):
-            os.kill(os.getpid(), signal.SIGTERM)  # the first
-            assert stop.wait(5)
-            return Stats()
     cli.Publisher = cli.Subscriber = cli.LiveTap = Ctx
-    cli.RobotNode = Node
+    cli.RobotNode = Stopping
     parser = argparse.ArgumentParser(); cli.add_arguments(parser)
     assert cli.run(parser.parse_args([])) == 0
     print("closed", len(closed))
@@ -121,15 +122,10 @@ def test_a_second_sigterm_while_the_renderer_closes_does_not_cut_its_closing_sho
         def as_dict(self): return {}
     class Display(Ctx):
         reports_written = 0
-    class Service(Ctx):
-        def run(self, stop, duration_s=None):
-            os.kill(os.getpid(), signal.SIGTERM)  # the first
-            assert stop.wait(5)
-            return Stats()
     cli.Publisher = cli.Subscriber = cli.LiveTap = Ctx
     cli.make_display = lambda rendering: Display()
     cli.HapticRenderer = lambda display, rendering: None
-    cli.RendererService = Service
+    cli.RendererService = Stopping
     parser = argparse.ArgumentParser(); cli.add_arguments(parser)
     assert cli.run(parser.parse_args(["--backend", "sim"])) == 0
     print("closed", len(closed))
