@@ -34,7 +34,7 @@ def _stop_worker(signum: int, frame: FrameType | None) -> None:
     """A worker's SIGTERM (from the parent stopping the pool, or from the kernel as the parent died):
     inside the work, KeyboardInterrupt, so that the work cleans up after itself (a record's temporary
     file removed) before :func:`_run_chunk` ends the process; elsewhere, the process ends at once."""
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second one is not to cut that clean-up short
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one (the parent's death after its stop) must not cut the clean-up short
     if _working:
         raise KeyboardInterrupt
     os._exit(128 + signum)

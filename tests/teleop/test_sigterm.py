@@ -66,7 +66,14 @@ def _start(tmp_path: Path, workers: int) -> tuple[subprocess.Popen, set[int]]:
     script.write_text(COMMAND)
     child = subprocess.Popen([sys.executable, str(script), str(tmp_path), "sleep", str(workers)],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    pids = {int(child.stdout.readline().split()[1]) for _ in range(max(workers, 1))}
+    pids: set[int] = set()
+    while len(pids) < max(workers, 1):
+        line = child.stdout.readline()
+        if not line:
+            child.kill()
+            raise AssertionError(f"the command ended before its workers started: {child.stderr.read()}")
+        if line.startswith("worker "):
+            pids.add(int(line.split()[1]))
     return child, pids
 
 
