@@ -48,21 +48,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from functools import lru_cache
-from numbers import Real
 
 import numpy as np
-from scipy import special
 
 from estimator.errors import FitError
 from estimator.estimate import Estimate
+from estimator.fit_inputs import poisson_ratio, positive
+from estimator.gel_layer import gel_layer_factor
 from estimator.linefit import MeasurementNoise, fit_line
 
 __all__ = [
     "METHODS",
     "approach_per_finger",
     "elastic",
-    "gel_layer_factor",
     "hertz",
     "no_tactile",
     "series",
@@ -101,26 +99,8 @@ def _frames(method: str, **arrays: np.ndarray) -> tuple[dict[str, np.ndarray], n
     return out, finite
 
 
-def _real(value: object) -> bool:
-    """Whether ``value`` is one real number (a numpy scalar too; a bool is no measurement)."""
-    return isinstance(value, Real) and not isinstance(value, bool)
-
-
-def _positive(method: str, **scalars: float) -> tuple[float, ...]:
-    """The scalars as Python floats (a float32 would otherwise carry its precision into the fit)."""
-    for name, value in scalars.items():
-        if not (_real(value) and math.isfinite(value) and value > 0):
-            raise FitError(f"{method}: {name} must be a finite real number > 0, got {value!r}")
-    return tuple(float(value) for value in scalars.values())
-
-
-def _poisson_ratio(method: str, name: str, poisson: float) -> None:
-    if not (_real(poisson) and math.isfinite(poisson) and 0.0 <= poisson <= 0.5):
-        raise FitError(f"{method}: {name} must be a real number in [0, 0.5], got {poisson!r}")
-
-
 def _poisson_factor(method: str, poisson: float) -> float:
-    _poisson_ratio(method, "object_poisson", poisson)
+    poisson_ratio(method, "object_poisson", poisson)
     return 1.0 - float(poisson) ** 2
 
 
@@ -243,7 +223,7 @@ def no_tactile(
     noise : MeasurementNoise
     """
     method = "no_tactile"
-    initial_width_m, pad_area_m2 = _positive(method, initial_width_m=initial_width_m, pad_area_m2=pad_area_m2)
+    initial_width_m, pad_area_m2 = positive(method, initial_width_m=initial_width_m, pad_area_m2=pad_area_m2)
     s, ok = _frames(method, force_n=force_n, approach_m=approach_m)
     if not ok.any():
         return Estimate.refuse(method, "no loading sample with finite force and width")
@@ -290,7 +270,7 @@ def elastic(
         overstates the stress, so it is reported as an upper bound.
     """
     method = "elastic"
-    (initial_width_m,) = _positive(method, initial_width_m=initial_width_m)
+    (initial_width_m,) = positive(method, initial_width_m=initial_width_m)
     s, ok = _frames(method, force_n=force_n, approach_m=approach_m, depth_m=depth_m, area_m2=area_m2)
     ok &= s["area_m2"] > 0
     if not ok.any():
@@ -370,7 +350,7 @@ def hertz(
         resting on them alone is reported as a lower bound.
     """
     method = "hertz"
-    (gel_compliance_per_pa,) = _positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
+    (gel_compliance_per_pa,) = positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
     factor = _poisson_factor(method, object_poisson)
     s, ok = _frames(method, force_n=force_n, approach_m=approach_m, depth_m=depth_m,
                     contact_radius_m=contact_radius_m)
@@ -421,71 +401,6 @@ def hertz(
     return _safe(method, build)
 
 
-def gel_layer_factor(
-    contact_radius_m: np.ndarray | float, *, gel_thickness_m: float, gel_poisson: float
-) -> np.ndarray:
-    """The gel's centre compliance under a contact of radius ``a``, relative to a half-space's.
-
-    The gel is a layer of thickness ``h`` bonded to a rigid backing. For a
-    pressure wave of wavenumber ``q`` its surface compliance is the half-space's
-    times (Chen & Engel, Int. J. Solids Struct. 8 (1972) 1257)::
-
-        S(x) = (kappa sinh 2x - 2x) / (kappa cosh 2x + 2x^2 + (1 + kappa^2) / 2),
-        x = q h, kappa = 3 - 4 nu.
-
-    Under the Hertz pressure ``p0 sqrt(1 - r^2/a^2)`` (Hankel transform
-    ``2 pi p0 a^2 j1(qa) / (qa)``) the centre displacement is
-    ``u(0) = (k / pi) int S(qh) p~(q) dq``, so the factor is
-
-        eta(a / h) = (4 / pi) int_0^inf S(x h / a) j1(x) / x dx,
-
-    1 for ``a << h`` (a half-space), falling steeply once the contact is wider
-    than the layer is thick (a 3 mm gel with nu = 0.48 under a 6 mm contact
-    is about 6.5 times stiffer than a half-space) and like ``h / a`` (confined
-    compression) far beyond. Tabulated once per Poisson's ratio for
-    ``a / h <= 20``, interpolated.
-
-    Parameters
-    ----------
-    contact_radius_m : array_like
-        Contact radius ``a`` (m, >= 0; NaN gives NaN).
-    gel_thickness_m : float
-        ``h`` (m, > 0).
-    gel_poisson : float
-        The gel's Poisson's ratio in [0, 0.5].
-
-    Returns
-    -------
-    ndarray
-        ``eta`` in (0, 1], the shape of ``contact_radius_m``.
-    """
-    (gel_thickness_m,) = _positive("gel_layer_factor", gel_thickness_m=gel_thickness_m)
-    _poisson_ratio("gel_layer_factor", "gel_poisson", gel_poisson)
-    ratio, table = _layer_table(round(float(gel_poisson), 6))
-    a = np.asarray(contact_radius_m, dtype=np.float64) / gel_thickness_m
-    # Beyond the table the factor falls as h / a (confined compression of the layer).
-    tail = table[-1] * ratio[-1] / np.maximum(a, ratio[-1])
-    return np.where(a > ratio[-1], tail, np.interp(a, ratio, table))
-
-
-@lru_cache(maxsize=4)
-def _layer_table(poisson: float) -> tuple[np.ndarray, np.ndarray]:
-    """eta on a grid of a / h from 0 to 20 (see :func:`gel_layer_factor`)."""
-    kappa = 3.0 - 4.0 * poisson
-    x = np.linspace(1e-6, 80.0, 40001)
-    j1_over_x = special.spherical_jn(1, x) / x
-    ratio = np.concatenate([[0.0], np.geomspace(1e-3, 20.0, 200)])
-    qh = x[None, :] / np.maximum(ratio[1:, None], 1e-12)
-    e2 = np.exp(-2.0 * qh)
-    e4 = e2 * e2
-    s = (kappa * (1.0 - e4) - 4.0 * qh * e2) / (kappa * (1.0 + e4) + (4.0 * qh * qh + 1.0 + kappa**2) * e2)
-    # 1 - (4/pi) int (1 - S) j1(x)/x dx: the integrand vanishes where S -> 1, so the grid can end.
-    eta = 1.0 - 4.0 / math.pi * np.trapezoid((1.0 - s) * j1_over_x, x, axis=1)
-    table = np.concatenate([[1.0], np.clip(eta, 1e-12, 1.0)])
-    table.flags.writeable = False
-    return ratio, table
-
-
 def series(
     approach_m: np.ndarray,
     depth_m: np.ndarray,
@@ -505,7 +420,7 @@ def series(
     pressure, so at the first-contact point the object's displacement is
     ``k_object / k_sensor`` times what the gel would show if it were a
     half-space. The gel is a thin bonded layer, whose centre compliance is
-    ``eta(a/h) k_sensor`` (:func:`gel_layer_factor`, from the measured contact
+    ``eta(a/h) k_sensor`` (:func:`~estimator.gel_layer.gel_layer_factor`, from the measured contact
     radius ``a``; ``eta = 1`` when no radius or thickness is given), so the
     per-finger approach is
 
@@ -544,7 +459,7 @@ def series(
         Fingertip separation at onset (m), for the bulk compression.
     """
     method = "series"
-    (gel_compliance_per_pa,) = _positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
+    (gel_compliance_per_pa,) = positive(method, gel_compliance_per_pa=gel_compliance_per_pa)
     factor = _poisson_factor(method, object_poisson)
     n = np.size(approach_m)
     layered = contact_radius_m is not None and gel_thickness_m is not None and gel_poisson is not None
@@ -559,7 +474,7 @@ def series(
         return Estimate.refuse(method, why)
     k_gel = gel_compliance_per_pa
     if bulk:
-        (initial_width_m,) = _positive(method, initial_width_m=initial_width_m)
+        (initial_width_m,) = positive(method, initial_width_m=initial_width_m)
         bulk_per_pa = 3.0 * np.maximum(s["force_n"][ok], 0.0) / (math.pi * initial_width_m * factor)
     else:
         bulk_per_pa = np.zeros(depth.shape)

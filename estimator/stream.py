@@ -71,7 +71,7 @@ from typing import Any
 
 import numpy as np
 
-from estimator import analytical
+from estimator import analytical, gel_layer
 from estimator.errors import FitError, PerceptionError
 from estimator.estimate import StreamEstimate, choose_estimate
 from estimator.faults import camera_fault, checked_frames, checked_phase
@@ -246,8 +246,8 @@ class GraspStream:
         depth = reconstruct_depth(flat, flat, self.calibration)
         contact_features(depth[None], pixel_pitch_m=self.grid.pixel_pitch_m,
                          contact_threshold_m=self.grid.contact_threshold_m)
-        analytical.gel_layer_factor(0.0, gel_thickness_m=self.sensor.gel_thickness_m,
-                                    gel_poisson=self.sensor.gel_poisson)
+        gel_layer.gel_layer_factor(0.0, gel_thickness_m=self.sensor.gel_thickness_m,
+                                   gel_poisson=self.sensor.gel_poisson)
 
     # ------------------------------------------------------------------ input
 

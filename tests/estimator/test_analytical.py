@@ -14,12 +14,12 @@ from hypothesis.extra import numpy as hnp
 from estimator.analytical import (
     approach_per_finger,
     elastic,
-    gel_layer_factor,
     hertz,
     no_tactile,
     series,
 )
 from estimator.errors import FitError
+from estimator.gel_layer import gel_layer_factor
 from estimator.linefit import MeasurementNoise, fit_line
 
 PITCH = 1e-3 / 11
