@@ -25,8 +25,9 @@ Liveness
 A publisher sends a ``heartbeat`` message whenever :meth:`Publisher.heartbeat_if_due` finds
 ``heartbeat_s`` passed since the last one, whatever else it sends, so a subscriber of any
 topic hears it (every Subscriber also subscribes to ``heartbeat``). Every accepted
-message refreshes its source in :class:`Heartbeat`, on the receiver's own monotonic clock;
-:meth:`Heartbeat.is_alive` says whether a peer was heard from recently.
+message refreshes its source in :class:`~teleop.bus.peers.Heartbeat`, on the receiver's own
+monotonic clock; :meth:`~teleop.bus.peers.Heartbeat.is_alive` says whether a peer was heard
+from recently.
 
 Refusals
 --------
@@ -52,8 +53,9 @@ heartbeat period and keys from :class:`~teleop.settings.BusSettings`.
 Memory
 ------
 A subscriber remembers per source (its heartbeat), per source and topic (its sequence) and
-per topic (the latest message, when conflating) at most :data:`MAX_TRACKED` entries each,
-forgetting the longest unheard beyond that, so a sender that makes up a name per message
+per topic (the latest message, when conflating) at most
+:data:`~teleop.bus.peers.MAX_TRACKED` entries each, forgetting the longest unheard beyond
+that (:class:`~teleop.bus.peers.Recent`), so a sender that makes up a name per message
 cannot fill the memory.
 
 Sockets are not thread-safe: use each Publisher and Subscriber from one thread.
@@ -64,13 +66,14 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from collections import Counter, OrderedDict
+from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
 import zmq
 
+from teleop.bus.peers import Heartbeat, Recent
 from teleop.bus.security import (
     CURVE_FRAME_OVERHEAD_BYTES,
     BusSecurity,
@@ -87,9 +90,7 @@ __all__ = [
     "DEFAULT_MAX_BYTES",
     "LATEST_HWM",
     "LOSSLESS_HWM",
-    "MAX_TRACKED",
     "is_decade",
-    "Heartbeat",
     "Publisher",
     "Subscriber",
     "SubscriberStats",
@@ -111,9 +112,6 @@ _REFUSAL_FIXES = {
     "oversize": "raise bus.max_message_bytes to the sender's, on every host, or send less",
 }
 _REFUSAL_FIX = "the sender breaks the bus wire format: a bug in it, or a program that is no bus node on this endpoint"
-# Sources, (source, topic) pairs or topics a subscriber remembers (see Memory above): a real bus
-# has a handful of nodes sending a few dozen topics.
-MAX_TRACKED = 1024
 
 
 def _ms(seconds: float | None) -> int:
@@ -123,76 +121,6 @@ def _ms(seconds: float | None) -> int:
 def is_decade(count: int) -> bool:
     """Whether the ``count``-th of a repeated event is logged: the 1st, 10th, 100th, ..."""
     return count == 10 ** (len(str(count)) - 1)
-
-
-class _Recent(OrderedDict):
-    """A map of the :data:`MAX_TRACKED` keys set most recently; setting one more forgets the oldest.
-
-    ``what`` names the keys in the warning logged when the first is forgotten.
-    """
-
-    def __init__(self, what: str):
-        super().__init__()
-        self._what = what
-        self._forgetting = False
-
-    def __setitem__(self, key: Any, value: Any) -> None:
-        super().__setitem__(key, value)
-        self.move_to_end(key)
-        if len(self) > MAX_TRACKED:
-            oldest, _ = self.popitem(last=False)
-            if not self._forgetting:
-                self._forgetting = True
-                log.warning("more than %d %s: forgetting the longest unheard from now on, first %r "
-                            "(a sender that makes up names?)", MAX_TRACKED, self._what, oldest)
-
-
-class Heartbeat:
-    """When each peer was last heard from, on this process's monotonic clock.
-
-    It remembers the :data:`MAX_TRACKED` peers heard from most recently.
-
-    Parameters
-    ----------
-    clock : callable, optional
-        Seconds on a monotonic clock; ``time.monotonic`` by default.
-    """
-
-    def __init__(self, *, clock: Callable[[], float] = time.monotonic):
-        self._clock = clock
-        # source -> (clock time last heard from, the period it last announced or None)
-        self._peers: _Recent = _Recent("peers heard from")
-
-    def saw(self, source: str, *, interval_s: float | None = None, now_s: float | None = None) -> None:
-        """Record that ``source`` was heard from (``interval_s``: the period it announced)."""
-        if interval_s is None and source in self._peers:
-            interval_s = self._peers[source][1]
-        self._peers[source] = (self._clock() if now_s is None else now_s, interval_s)
-
-    def last_seen_s(self, source: str) -> float | None:
-        """Clock time ``source`` was last heard from, or None if never."""
-        seen = self._peers.get(source)
-        return None if seen is None else seen[0]
-
-    def peers(self) -> list[str]:
-        """Every source heard from so far (the :data:`MAX_TRACKED` most recent)."""
-        return sorted(self._peers)
-
-    def is_alive(self, source: str, *, timeout_s: float | None = None, now_s: float | None = None) -> bool:
-        """Whether ``source`` was heard from within ``timeout_s``.
-
-        The default timeout is three of the peer's announced heartbeat periods; a peer
-        never heard from, or heard from without announcing a period, needs ``timeout_s``.
-        """
-        if source not in self._peers:
-            return False
-        last, interval_s = self._peers[source]
-        if timeout_s is None:
-            if interval_s is None:
-                raise BusError(f"peer {source!r} announced no heartbeat period: pass timeout_s")
-            timeout_s = 3.0 * interval_s
-        now = self._clock() if now_s is None else now_s
-        return now - last <= timeout_s
 
 
 class _Socket:
@@ -471,12 +399,12 @@ class Subscriber(_Socket):
         self.max_bytes = max_bytes
         self.stats = SubscriberStats()
         self.heartbeat = Heartbeat()
-        self._last_seq: _Recent = _Recent("(source, topic) pairs sequence-checked")
+        self._last_seq: Recent = Recent("(source, topic) pairs sequence-checked")
         # Restarts and gaps by message type, for logging: a bounded set, so a node's restart is
         # logged for each of its topics, yet made-up sources or topics cannot flood the log.
         self._restarts: Counter[str] = Counter()
         self._gaps: Counter[str] = Counter()
-        self._latest: _Recent = _Recent("topics with a message waiting to be read")
+        self._latest: Recent = Recent("topics with a message waiting to be read")
         self._socket = None
         check_endpoints(self.endpoints, security)
         socket = (context or zmq.Context.instance()).socket(zmq.SUB)

@@ -100,7 +100,7 @@ class _Silent:
     """A subscriber that heard the robot node once and now hears nothing but what is ``queued``."""
 
     def __init__(self, clock) -> None:
-        from teleop.bus.pubsub import Heartbeat
+        from teleop.bus.peers import Heartbeat
 
         self.heartbeat = Heartbeat(clock=clock)
         self.queued: list = []

@@ -11,7 +11,8 @@ from support.operator_fakes import Clock, FakeDevice, FakeLink
 
 from haptics.operator_link import OperatorLink, OperatorView, Peer
 from haptics.operator_loop import OperatorLoop
-from teleop.bus.pubsub import Heartbeat, SubscriberStats
+from teleop.bus.peers import Heartbeat
+from teleop.bus.pubsub import SubscriberStats
 from teleop.bus.wire import make_message
 from teleop.settings import load_settings
 

@@ -12,7 +12,7 @@ import pytest
 import zmq
 
 from teleop.bus import Heartbeat, Publisher, Subscriber
-from teleop.bus.pubsub import MAX_TRACKED
+from teleop.bus.peers import MAX_TRACKED
 from teleop.bus.wire import encode, make_message
 from teleop.errors import BusError, BusTimeoutError
 from teleop.settings import BusSettings
