@@ -53,7 +53,7 @@ __all__ = ["Follower"]
 
 FORCE_SILENT_S = 0.1  # with hardware, the fingers close only on a force this fresh: 8 samples at the HX711's 80 Hz
 
-log = logging.getLogger("teleop.node")  # the node's records, as before the split: its log filters apply
+log = logging.getLogger("teleop.node")  # the node's own logger, so filters on the node see the follower
 
 
 class Follower:

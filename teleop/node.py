@@ -2,9 +2,9 @@
 
 The node opens the gripper, one tactile camera per sensor and the load cell through their
 device families (:mod:`teleop.devices`, backends from the settings), reads each in its own
-thread and publishes everything they capture, losslessly, with its capture timestamps
-(``time.monotonic()`` of this host): ``frame/<finger>`` (the camera's JPEG bytes as a buffer,
-never re-encoded), ``force`` and ``width`` sample batches. Data captured during a grasp names
+thread (:mod:`teleop.node_devices`) and publishes everything they capture, losslessly, with its
+capture timestamps (``time.monotonic()`` of this host): ``frame/<finger>`` (the camera's JPEG
+bytes as a buffer, never re-encoded), ``force`` and ``width`` sample batches. Data captured during a grasp names
 the grasp; the rest names none.
 
 Grasps are commanded on the bus (``command`` messages on ``bus.command``):
@@ -62,7 +62,6 @@ import itertools
 import logging
 import math
 import queue
-import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -78,14 +77,14 @@ from teleop.devices.gripper import GraspStop, Gripper, make_gripper
 from teleop.devices.loadcell import LoadCell, make_load_cell
 from teleop.errors import (
     DeviceError,
-    DeviceTimeoutError,
     InvalidCommandError,
     SimulationError,
     TeleopError,
 )
 from teleop.follow import Follower
 from teleop.live import ServiceLoop
-from teleop.record import GraspRecord, Samples
+from teleop.node_devices import READ_TIMEOUT_S, NodeDevices
+from teleop.record import GraspRecord
 from teleop.scene import Scene
 from teleop.settings import Settings
 
@@ -96,8 +95,6 @@ log = logging.getLogger(__name__)
 COMMAND_TOPICS = ("command", "follow")
 START_GRASP_PARAMS = frozenset({"object_index", "target_force_n"})  # what a start_grasp command may set
 REFUSAL_REPEAT_S = 1.0  # the same refusal (action and reason) goes out at most this often
-READ_TIMEOUT_S = 0.05  # device reads wake this often to see whether the node is stopping
-REOPEN_S = 1.0  # a sensor whose reads fail is opened again this often
 APPROACH_LEAD_S = 0.05  # a replay starts this long before the record's first sample
 TAIL_S = 2 * READ_TIMEOUT_S  # after a grasp's last data is due, wait this long for the readers
 
@@ -176,9 +173,8 @@ class RobotNode(ServiceLoop):
         self.gripper: Gripper = make_gripper(settings.gripper)
         self.cameras: list[TactileCamera] = [make_camera(s) for s in settings.sensors]
         self.load_cell: LoadCell = make_load_cell(settings.load_cell)
-        self._captured: queue.Queue[tuple[str, Any]] = queue.Queue()
-        self._stop_readers = threading.Event()
-        self._readers: list[threading.Thread] = []
+        self._captured: queue.Queue[tuple[str, Any]] = queue.Queue()  # the readers' captures, grasp wake-ups
+        self._io = NodeDevices(self.gripper, self.cameras, self.load_cell, self._captured)
         self._simulator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="simulate")
         self._grasp: _Grasp | None = None
         self._count = 0  # simulated grasps that took the scene's next object: its index and seed
@@ -194,94 +190,22 @@ class RobotNode(ServiceLoop):
 
     def connect(self) -> RobotNode:
         """Connect the devices and start one reader thread per device."""
-        devices = [self.gripper, *self.cameras, self.load_cell]
-        try:
-            for device in devices:
-                device.connect()
-            if not self.simulated:
-                self.load_cell.tare()  # at rest: nothing is grasped yet
-        except BaseException:
-            for device in devices:
-                device.close()
-            raise
-        readers = [(f"camera-{c.sensor.finger}", self._read_camera, c) for c in self.cameras]
-        readers += [("load-cell", self._read_forces, self.load_cell), ("gripper", self._read_widths, self.gripper)]
-        for name, target, device in readers:
-            thread = threading.Thread(target=target, args=(device,), name=name, daemon=True)
-            thread.start()
-            self._readers.append(thread)
+        self._io.connect(tare=not self.simulated)
         if self.simulated:
             self._follower.prepare_next()
         return self
 
     def close(self) -> None:
         """Stop the readers and release the devices; calling twice is fine."""
-        self._stop_readers.set()
-        for thread in self._readers:
-            thread.join(timeout=2.0)
-        self._readers.clear()
+        self._io.stop()
         self._simulator.shutdown(wait=False, cancel_futures=True)
-        for device in self._devices:
-            device.close()
+        self._io.close()
 
     def __enter__(self) -> RobotNode:
         return self.connect()
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
-
-    # ------------------------------------------------------------------ readers (one thread each)
-
-    def _read_camera(self, camera: TactileCamera) -> None:
-        self._read_forever(camera, f"camera/{camera.sensor.finger}",
-                           lambda: ("frame", camera.read(timeout_s=READ_TIMEOUT_S)), reopen=True)
-
-    def _read_forces(self, cell: LoadCell) -> None:
-        self._read_forever(cell, "load_cell", lambda: ("force", cell.read(timeout_s=READ_TIMEOUT_S)), reopen=True)
-
-    def _read_widths(self, gripper: Gripper) -> None:
-        def read() -> tuple[str, Samples] | None:
-            widths = gripper.widths(timeout_s=READ_TIMEOUT_S)
-            return ("width", widths) if len(widths) else None
-
-        self._read_forever(gripper, "gripper", read)
-
-    def _read_forever(self, device: Any, name: str, read: Callable[[], tuple[str, Any] | None], *,
-                      reopen: bool = False) -> None:
-        """Read ``device`` until the node stops. A failure is said once on the bus (and that it
-        reads again); a sensor (``reopen``: a camera or the load cell, which nothing else drives)
-        is opened again every :data:`REOPEN_S` meanwhile, as after a bridge or stream restart."""
-        failing = False
-        while not self._stop_readers.is_set():
-            try:
-                item = read()
-            except DeviceTimeoutError:
-                continue
-            except DeviceError as exc:
-                if not self._stop_readers.is_set() and not failing:
-                    log.warning("%r: read failed: %s", device, exc)
-                    self._captured.put(("device_error", (name, f"{exc}{'; opening it again' if reopen else ''}")))
-                failing = True
-                if reopen and not self._stop_readers.wait(REOPEN_S):
-                    self._reopen(device)
-                else:
-                    self._stop_readers.wait(READ_TIMEOUT_S)
-                continue
-            if failing:
-                log.warning("%r: reading again", device)
-                self._captured.put(("device_error", (name, "reading again")))
-                failing = False
-            if item is not None:
-                self._captured.put(item)
-
-    def _reopen(self, device: Any) -> None:
-        device.close()
-        try:
-            device.connect()
-        except DeviceError as exc:
-            log.debug("%r: not open again yet: %s", device, exc)
-        if self._stop_readers.is_set():  # the node closed while it opened (a camera may take seconds)
-            device.close()
 
     # ------------------------------------------------------------------ loop
 

@@ -232,7 +232,7 @@ def test_a_simulated_grasp_squeezes_to_the_commanded_force(rig):
 
 def test_a_sensor_whose_reads_fail_is_opened_again_and_the_bus_hears_it(rig, monkeypatch):
     node, _, listener, _ = rig
-    monkeypatch.setattr("teleop.node.REOPEN_S", 0.01)
+    monkeypatch.setattr("teleop.node_devices.REOPEN_S", 0.01)
 
     class Bridge:  # a load cell whose bridge went away, and is back when opened again
         opened = 0
@@ -246,11 +246,11 @@ def test_a_sensor_whose_reads_fail_is_opened_again_and_the_bus_hears_it(rig, mon
         def read(self):
             if not self.opened:
                 raise DeviceError("link failed: the bridge closed the connection")
-            node._stop_readers.set()  # one good read is enough here
+            node._io._stop.set()  # one good read is enough here
             return ("reading", None)
 
     cell = Bridge()
-    node._read_forever(cell, "load_cell", cell.read, reopen=True)
+    node._io._read_forever(cell, "load_cell", cell.read, reopen=True)
     assert cell.opened == 1
     items = []
     while not node._captured.empty():
