@@ -15,7 +15,8 @@ from mcap.writer import Writer
 
 from teleop.bus.wire import Message
 from teleop.session.foxglove import IMAGE_SCHEMA, FoxgloveMessage, foxglove_messages, in_topic_order
-from teleop.session.logfile import MESSAGE_ENCODING, SCHEMA_ENCODING, pack_frames, schema_data
+from teleop.session.logfile import MESSAGE_ENCODING, SCHEMA_ENCODING, schema_data
+from teleop.session.logframes import pack_frames
 from teleop.settings import Settings
 
 __all__ = ["LogChannels", "rig_metadata"]

@@ -66,9 +66,9 @@ from teleop.session.logfile import (
     MESSAGE_ENCODING,
     SCHEMA_ENCODING,
     LogReader,
-    pack_frames,
     schema_data,
 )
+from teleop.session.logframes import pack_frames
 
 __all__ = [
     "CSV_COLUMNS",

@@ -12,15 +12,16 @@ Layout (format :data:`FORMAT_VERSION`)
     message encoding :data:`MESSAGE_ENCODING`, metadata ``{"type": <message type>}``.
 ``Message`` (one per bus message, in the order the recorder received them)
     ``data``: the message's ZeroMQ frames ``[topic, header, body, *buffers]`` exactly as
-    received, never re-encoded, in this container (all integers little-endian uint32)::
+    received, never re-encoded, in this container (all integers little-endian uint32;
+    :mod:`teleop.session.logframes` packs and unpacks it)::
 
         n + flags | len(frame 0) | ... | len(frame n-1) | frame 0 | ... | frame n-1
 
     with ``3 <= n <= 3 + MAX_BUFFERS`` and the lengths summing to the rest of the data.
-    ``flags`` is 0, or :data:`ELIDED` for a JPEG or PNG ``frame`` message: its last frame
-    (the image bytes) is then listed with its length but not stored here, because the
-    ``foxglove.CompressedImage`` message stored immediately before it, with the same
-    ``log_time`` and ``sequence``, holds those very bytes as its ``data``; the reader
+    ``flags`` is 0, or :data:`~teleop.session.logframes.ELIDED` for a JPEG or PNG ``frame``
+    message: its last frame (the image bytes) is then listed with its length but not stored
+    here, because the ``foxglove.CompressedImage`` message stored immediately before it, with
+    the same ``log_time`` and ``sequence``, holds those very bytes as its ``data``; the reader
     puts them back, so it yields the frames exactly as received.
     ``log_time``: receive time in ns since the Unix epoch: the recording host's
     ``time.monotonic_ns()`` plus the session's :data:`TIME_OFFSET_KEY` (its wall clock less
@@ -78,7 +79,7 @@ import json
 import logging
 import struct
 from collections import Counter
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -93,16 +94,16 @@ from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
 
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES
-from teleop.bus.wire import MAX_BUFFERS, SCHEMA_VERSION, SCHEMAS, decode
+from teleop.bus.wire import SCHEMA_VERSION, SCHEMAS, decode
 from teleop.bus.wire import Message as BusMessage
 from teleop.errors import MessageRejected, SessionLogError
 from teleop.session.foxglove import IMAGE_SCHEMA
+from teleop.session.logframes import FRAMING, elides, unpack_frames
 from teleop.settings import Settings, settings_from_mapping
 
 __all__ = [
     "BUS_ENCODINGS",
     "CHUNK_BYTES",
-    "ELIDED",
     "END_METADATA",
     "FORMAT_VERSION",
     "MESSAGE_ENCODING",
@@ -117,10 +118,7 @@ __all__ = [
     "LoggedMessage",
     "LostChunk",
     "StoredFrames",
-    "elides",
-    "pack_frames",
     "schema_data",
-    "unpack_frames",
 ]
 
 log = logging.getLogger(__name__)
@@ -136,87 +134,8 @@ RIG_METADATA = "rig"
 END_METADATA = "session_end"
 TIME_OFFSET_KEY = "log_time_offset_ns"  # session metadata: log time = monotonic ns + this
 CHUNK_BYTES = 256 * 1024
-FRAMING = (
-    "uint32 LE frame count n, n x uint32 LE frame length, then the frames "
-    "[topic, header, body, *buffers] back to back, exactly as received from ZeroMQ"
-)
-
-_U32 = struct.Struct("<I")
 _MAGIC = b"\x89MCAP0\r\n"
 _RECORD_START = struct.Struct("<BQ")  # an MCAP record's opcode and length
-MIN_FRAMES, MAX_FRAMES = 3, 3 + MAX_BUFFERS
-ELIDED = 0x1_0000  # flag added to the frame count: the last frame's bytes are stored elsewhere
-
-
-def pack_frames(frames: Sequence[Any], *, elide_last: bool = False) -> bytes:
-    """One message's frames (bytes, memoryviews or ``zmq.Frame``) in the log's container.
-
-    ``elide_last``: list the last frame's length but leave its bytes out (they are stored
-    in the image message written just before, see the module docstring).
-    """
-    views = [memoryview(getattr(f, "buffer", f)).cast("B") for f in frames]
-    count = len(views) + (ELIDED if elide_last else 0)
-    lengths = struct.pack(f"<{len(views) + 1}I", count, *(v.nbytes for v in views))
-    return b"".join([lengths, *(views[:-1] if elide_last else views)])
-
-
-def elides(data: bytes | memoryview) -> bool:
-    """Whether the container ``data`` leaves its last frame's bytes out."""
-    return len(data) >= _U32.size and bool(_U32.unpack_from(data)[0] & ELIDED)
-
-
-def unpack_frames(
-    data: bytes | memoryview, *, elided: bytes | memoryview | None = None
-) -> list[memoryview]:
-    """The frames in a container written by :func:`pack_frames`, as views over ``data``.
-
-    ``elided``: the bytes of the last frame when the container leaves them out.
-
-    Raises
-    ------
-    MessageRejected
-        (reason ``corrupt`` or ``frame_count``) the container is not well formed, or it
-        leaves the last frame out and ``elided`` is missing or of another length.
-    """
-    view = memoryview(data).cast("B")
-    if view.nbytes < _U32.size:
-        raise MessageRejected("corrupt", f"stored message has {view.nbytes} bytes, no frame count")
-    (word,) = _U32.unpack_from(view)
-    count, flags = word & (ELIDED - 1), word & ~(ELIDED - 1)
-    if flags not in (0, ELIDED):
-        raise MessageRejected("corrupt", f"stored message has unknown flags {flags:#x}")
-    if not MIN_FRAMES <= count <= MAX_FRAMES:
-        raise MessageRejected(
-            "frame_count", f"stored message has {count} frames, expected 3 to {MAX_FRAMES}"
-        )
-    start = _U32.size * (count + 1)
-    if view.nbytes < start:
-        raise MessageRejected("corrupt", f"stored message ends inside its {count} frame lengths")
-    lengths = struct.unpack_from(f"<{count}I", view, _U32.size)
-    stored = lengths[:-1] if flags else lengths
-    if start + sum(stored) != view.nbytes:
-        raise MessageRejected(
-            "corrupt",
-            f"stored frame lengths add up to {start + sum(stored)} bytes, "
-            f"the message has {view.nbytes}",
-        )
-    frames = []
-    for length in stored:
-        frames.append(view[start : start + length])
-        start += length
-    if flags:
-        if elided is None:
-            raise MessageRejected(
-                "corrupt", "stored frame data is elided and its image message was not found"
-            )
-        image = memoryview(elided).cast("B")
-        if image.nbytes != lengths[-1]:
-            raise MessageRejected(
-                "corrupt",
-                f"elided frame has {lengths[-1]} bytes, its image message {image.nbytes}",
-            )
-        frames.append(image)
-    return frames
 
 
 def schema_data(kind: str) -> bytes:

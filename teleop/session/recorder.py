@@ -43,7 +43,6 @@ from teleop.session.logfile import (
     CHUNK_BYTES,
     END_METADATA,
     FORMAT_VERSION,
-    FRAMING,
     MESSAGE_ENCODING,
     PROFILE,
     RIG_METADATA,
@@ -51,6 +50,7 @@ from teleop.session.logfile import (
     SETTINGS_ATTACHMENT,
     TIME_OFFSET_KEY,
 )
+from teleop.session.logframes import FRAMING
 from teleop.settings import Settings, load_settings, resolve_path, settings_to_mapping
 
 __all__ = ["COMPRESSIONS", "RECORDING_STOPPED", "RECORDING_STOPPED_STATUS", "RecorderStats", "SessionRecorder", "session_source"]

@@ -31,9 +31,8 @@ from teleop.session.logfile import (
     MESSAGE_ENCODING,
     RIG_METADATA,
     SESSION_METADATA,
-    elides,
-    pack_frames,
 )
+from teleop.session.logframes import elides, pack_frames
 from teleop.settings import config_dir
 
 

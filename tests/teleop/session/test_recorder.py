@@ -26,10 +26,8 @@ from teleop.session.logfile import (
     SCHEMA_ENCODING,
     SESSION_METADATA,
     SETTINGS_ATTACHMENT,
-    elides,
-    pack_frames,
-    unpack_frames,
 )
+from teleop.session.logframes import elides, pack_frames, unpack_frames
 from teleop.settings import settings_from_mapping
 
 

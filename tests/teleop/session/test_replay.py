@@ -13,7 +13,8 @@ from teleop.bus.wire import encode, make_message
 from teleop.errors import SessionLogError
 from teleop.session import LogReader, replay, replay_messages
 from teleop.session.label import label_session
-from teleop.session.logfile import MESSAGE_ENCODING, pack_frames
+from teleop.session.logfile import MESSAGE_ENCODING
+from teleop.session.logframes import pack_frames
 
 
 def _same(a, b, helpers) -> bool:
