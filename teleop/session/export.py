@@ -60,35 +60,29 @@ import contextlib
 import dataclasses
 import hashlib
 import logging
-import tempfile
-from collections import defaultdict
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-import cv2
-import numpy as np
-
 from teleop.bus.messages import LabelBody
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES
 from teleop.bus.wire import Message
-from teleop.catalogue import ObjectSpec, load_catalogue
+from teleop.catalogue import ObjectSpec
 from teleop.errors import SessionLogError
 from teleop.progress import progress_bar
 from teleop.record import (
     GRASP_DONE_EVENT,
-    FrameStream,
     GraspRecord,
     Label,
     Provenance,
-    Samples,
     software_version,
     write_record,
 )
 from teleop.session.export_calibration import carried_calibrations
 from teleop.session.export_names import record_name, same_grasp_records
-from teleop.session.label import label_catalogues
+from teleop.session.export_objects import catalogue_objects, label_catalogue_objects
+from teleop.session.export_streams import OpenGrasp, concatenated_samples, frame_stream
 from teleop.session.logfile import SETTINGS_ATTACHMENT, LogInfo, LogReader
 from teleop.settings import Settings
 
@@ -143,93 +137,6 @@ class SessionExport(list[GraspExport]):
         self.replaced = replaced
 
 
-@dataclass
-class _OpenGrasp:
-    grasp_id: str
-    start_s: float
-    object_name: str | None
-    source: str  # the publisher of its start: only its loading_end and end count
-    frames: dict[str, list[tuple[float, str, np.ndarray]]] = field(
-        default_factory=lambda: defaultdict(list)
-    )
-    force: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
-    width: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
-    loading_end_s: float | None = None
-    start_log_ns: int | None = None  # log time of its start event
-    dropped: dict[str, int] = field(default_factory=lambda: defaultdict(int))  # by topic
-
-    def add(self, message: Message) -> None:
-        body = message.fields
-        if message.type == "frame":
-            data = body.data if body.encoding == "raw" else body.data.tobytes()
-            self.frames[body.finger].append((message.t_capture_s, body.encoding, data))
-        elif message.type == "force":
-            self.force.append((body.t_s, body.value_n))
-        else:
-            self.width.append((body.t_s, body.value_m))
-
-
-def _samples(parts: list[tuple[np.ndarray, np.ndarray]]) -> Samples:
-    return Samples(np.concatenate([t for t, _ in parts]), np.concatenate([v for _, v in parts]))
-
-
-def _frame_stream(
-    finger: str, frames: list[tuple[float, str, np.ndarray | bytes]]
-) -> FrameStream | str:
-    """The frames of one finger as a FrameStream, or the reason they cannot be one."""
-    t_s = [t for t, _, _ in frames]
-    encodings = {encoding for _, encoding, _ in frames}
-    if len(encodings) > 1:
-        return (
-            f"finger {finger!r} sent frames in several encodings ({', '.join(sorted(encodings))})"
-        )
-    encoding = encodings.pop()
-    if encoding == "raw":
-        data = [d for _, _, d in frames]
-        if any(d.dtype != np.uint8 for d in data):
-            return (
-                f"finger {finger!r} sent 16-bit raw frames; a grasp record holds 8-bit BGR frames"
-            )
-        return FrameStream.from_frames(finger, t_s, data, encoding="png")
-    encoded = [d for _, _, d in frames]
-    first = cv2.imdecode(np.frombuffer(encoded[0], dtype=np.uint8), cv2.IMREAD_COLOR)
-    if first is None:
-        return f"finger {finger!r}: the first {encoding} frame does not decode"
-    return FrameStream(
-        finger=finger,
-        t_s=np.asarray(t_s),
-        encoded=tuple(encoded),
-        encoding=encoding,
-        shape=tuple(first.shape),
-    )
-
-
-def _attached_objects(name: str, data: bytes) -> dict[str, ObjectSpec]:
-    """Objects by name of the catalogue attached to the log as ``name``."""
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / name
-        path.write_bytes(data)
-        return {obj.name: obj for obj in load_catalogue(path)}
-
-
-def _load_objects(info: LogInfo, catalogue: str | Path | None) -> dict[str, ObjectSpec]:
-    """Objects by name: from ``catalogue``, else from the catalogue stored in the log, else none."""
-    if catalogue is not None:
-        return {obj.name: obj for obj in load_catalogue(catalogue)}
-    for name, data in info.attachments.items():
-        if name in ("catalogue.toml", "catalogue.csv"):
-            return _attached_objects(name, data)
-    return {}
-
-
-def _label_objects(info: LogInfo) -> dict[str, ObjectSpec]:
-    """Objects by name of the catalogues ``teleop label`` attached (the later one's of a name in two)."""
-    objects: dict[str, ObjectSpec] = {}
-    for name in label_catalogues(info.attachments):
-        objects.update(_attached_objects(name, info.attachments[name]))
-    return objects
-
-
 class _Assembler:
     """Turns the message stream of a session into grasps."""
 
@@ -257,7 +164,7 @@ class _Assembler:
         self.labels = labels
         self.calibration_files = calibration_files
         self.reader = reader  # its damage and lost chunks, as read so far
-        self.open: dict[str, _OpenGrasp] = {}
+        self.open: dict[str, OpenGrasp] = {}
         self.ended: set[str] = set()
         self.unassigned = 0
 
@@ -277,7 +184,7 @@ class _Assembler:
                 if grasp is not None:
                     yield GraspExport(grasp_id, reason="started again before it ended; the first start is dropped",
                                       dropped=dict(grasp.dropped))
-                self.open[grasp_id] = _OpenGrasp(grasp_id, message.t_capture_s, body.object_name,
+                self.open[grasp_id] = OpenGrasp(grasp_id, message.t_capture_s, body.object_name,
                                                  message.source, start_log_ns=log_time_ns)
             elif grasp is None or message.source != grasp.source:
                 # The estimator forwards ends, and ends a grasp a restarted node started again
@@ -325,7 +232,7 @@ class _Assembler:
             yield GraspExport(grasp_id, reason=reason, dropped=dict(grasp.dropped))
         self.open.clear()
 
-    def build(self, grasp: _OpenGrasp, end_s: float) -> GraspExport:
+    def build(self, grasp: OpenGrasp, end_s: float) -> GraspExport:
         gid = grasp.grasp_id
         if not grasp.frames:
             return GraspExport(gid, reason="no tactile frames during the grasp")
@@ -341,7 +248,7 @@ class _Assembler:
                     gid,
                     reason=f"frames from finger {finger!r}, which the settings have no sensor on",
                 )
-            stream = _frame_stream(finger, frames)
+            stream = frame_stream(finger, frames)
             if isinstance(stream, str):
                 return GraspExport(gid, reason=stream)
             streams.append(stream)
@@ -350,8 +257,8 @@ class _Assembler:
             sensors=self.settings.sensors,
             gripper=self.settings.gripper,
             frames=tuple(streams),
-            force_n=_samples(grasp.force),
-            width_m=_samples(grasp.width),
+            force_n=concatenated_samples(grasp.force),
+            width_m=concatenated_samples(grasp.width),
             provenance=Provenance(
                 source=self.source,
                 software_version=self.session_version,
@@ -509,8 +416,8 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
     assembler = _Assembler(
         path=path,
         settings=settings,
-        objects=_load_objects(info, catalogue),
-        label_objects=_label_objects(info),
+        objects=catalogue_objects(info, catalogue),
+        label_objects=label_catalogue_objects(info),
         source=source,
         session_version=info.session.get("software_version", "0+unknown"),
         session=session_id(info, path),

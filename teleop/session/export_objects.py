@@ -1,0 +1,43 @@
+"""The catalogue objects an export labels grasps from (:mod:`teleop.session.export`, "Labels").
+
+By name: the objects of the catalogue given (``--objects``) or stored in the log
+(:func:`catalogue_objects`), and those of the catalogues ``teleop label`` took labels from and
+attached to the log (:func:`label_catalogue_objects`, :mod:`teleop.session.label`).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+from teleop.catalogue import ObjectSpec, load_catalogue
+from teleop.session.label import label_catalogues
+from teleop.session.logfile import LogInfo
+
+__all__ = ["catalogue_objects", "label_catalogue_objects"]
+
+
+def _attached_objects(name: str, data: bytes) -> dict[str, ObjectSpec]:
+    """Objects by name of the catalogue attached to the log as ``name``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / name
+        path.write_bytes(data)
+        return {obj.name: obj for obj in load_catalogue(path)}
+
+
+def catalogue_objects(info: LogInfo, catalogue: str | Path | None) -> dict[str, ObjectSpec]:
+    """Objects by name: from ``catalogue``, else from the catalogue stored in the log, else none."""
+    if catalogue is not None:
+        return {obj.name: obj for obj in load_catalogue(catalogue)}
+    for name, data in info.attachments.items():
+        if name in ("catalogue.toml", "catalogue.csv"):
+            return _attached_objects(name, data)
+    return {}
+
+
+def label_catalogue_objects(info: LogInfo) -> dict[str, ObjectSpec]:
+    """Objects by name of the catalogues ``teleop label`` attached (the later one's of a name in two)."""
+    objects: dict[str, ObjectSpec] = {}
+    for name in label_catalogues(info.attachments):
+        objects.update(_attached_objects(name, info.attachments[name]))
+    return objects
