@@ -142,12 +142,20 @@ def test_follow_returns_at_once_and_the_fingers_go_to_the_latest_target(gripper)
         assert gripper.stop()
 
 
+def _moved(gripper: Gripper, start: float, *, by_m: float, timeout_s: float = 5.0) -> None:
+    """Wait until the width is ``by_m`` (m) away from ``start``."""
+    deadline = time.monotonic() + timeout_s
+    while abs(gripper.read_width()[1] - start) <= by_m:
+        assert time.monotonic() < deadline, f"the fingers did not move {by_m} m in {timeout_s} s"
+        time.sleep(0.01)
+
+
 def test_stop_ends_a_follow_within_one_step_and_a_move_works_after(gripper):
     with gripper:
         start = gripper.read_width()[1]
         target = 0.005 if start > 0.04 else 0.075
         gripper.follow(target, speed_m_s=SPEED)
-        time.sleep(0.3)
+        _moved(gripper, start, by_m=3e-3)  # stop on the way, however slowly this machine runs
         assert gripper.stop()
         time.sleep(0.25)  # a step in flight ends within this
         held = gripper.read_width()[1]
