@@ -21,7 +21,8 @@ import dataclasses
 import cv2
 import numpy as np
 
-from estimator.segment import LoadPhase, Segment
+from estimator.load_phase import LoadPhase
+from estimator.segment import Segment
 
 __all__ = ["RATE_FACTOR", "STILL_WIDTH_M", "TEXTURE_LEVELS", "camera_fault", "checked_frames", "checked_phase",
            "period_fault"]

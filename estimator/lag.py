@@ -4,7 +4,7 @@ A camera stamps frames on its own clock and a gripper stamps a width read when t
 both run late against the load cell. :func:`estimate_camera_lag` finds the camera's lag from when
 the tactile image starts to change against the force onset; :func:`estimate_width_lag` finds how
 late widths are stamped from where the fingers stop against the force peak
-(:mod:`estimator.segment` gives both events).
+(:mod:`estimator.load_phase` and :mod:`estimator.segment` give them).
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from numbers import Real
 import numpy as np
 
 from estimator.errors import FitError
+from estimator.load_phase import ONSET_SIGMAS
 from estimator.plausible import MIN_WIDTH_NOISE_M
-from estimator.segment import ONSET_SIGMAS
 from estimator.signals import clean_samples, crossing_time, reading_noise
 
 __all__ = ["estimate_camera_lag", "estimate_width_lag"]

@@ -1,5 +1,5 @@
 """What a gripper's force and width readings can be: the ones it cannot produce, and the least
-noise a reading carries. :func:`~estimator.segment.find_load_phase` drops or refuses the first
+noise a reading carries. :func:`~estimator.load_phase.find_load_phase` drops or refuses the first
 and takes the second as its noise floors.
 
 A width below 0 or beyond the gripper's opening by more than :data:`WIDTH_SLACK_SHARE` of it is

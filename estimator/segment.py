@@ -1,46 +1,14 @@
-"""Grasp segmentation: contact, loading phase, frame selection and stream alignment.
+"""Grasp segmentation: the tactile frames aligned on a grasp's loading phase (found by
+:mod:`estimator.load_phase`, whose notes define onset, contact, loading phase and envelope):
+the loading frames, the peak frame, the hold frames, and the frames sampled from them.
 
-Each stream of a grasp (load-cell force, gripper width, tactile frames) keeps
-its own timestamps on one clock. Nothing here matches samples by index: force
-and width are interpolated at the times where they are needed, on cleaned
-samples (non-finite values and timestamps dropped, sorted, duplicate
-timestamps merged into their mean), and never extrapolated.
+Each stream of a grasp (load-cell force, gripper width, tactile frames) keeps its own
+timestamps on one clock. Nothing here matches samples by index: force and width are
+interpolated at the frames' capture times, never extrapolated; frames with a non-finite
+timestamp are skipped, and a duplicate timestamp keeps its first frame.
 
 Terms
 -----
-baseline
-    The load cell's reading before contact (a tare offset), subtracted from
-    every force.
-onset
-    The time the force leaves its baseline noise: the first moment of
-    contact, from which the approach and the strain are measured. It is
-    interpolated between the last quiet force sample and the next, as if the
-    force rose linearly between them; a stiff object's force jumps within that
-    period, so the onset is known only to within it: uniformly, a standard
-    deviation of period / sqrt(12), which the gripper's closing speed turns into
-    ``onset_width_sigma_m``.
-contact
-    ``t = 0`` of the paper: the first time the force reaches
-    ``EstimatorSettings.contact_force_n`` (0.75 N).
-loading phase
-    From contact to peak force: the first sample within three noise deviations
-    (or 1 %) of the maximum, so that a noisy or creeping hold phase does not
-    count as loading. A
-    saturated load cell (a plateau of identical readings at the top) ends it
-    where the plateau starts.
-loading envelope
-    A grasp whose gripper reported no stop (``stopped_s`` None: an operator drove the fingers'
-    target, or the stop is unknown) may close at a varying speed, pause, back off and squeeze
-    again before its peak. Its loading phase is the monotone *loading envelope*: from contact to
-    the peak, the samples and frames at a running maximum of the force (within
-    ``ENVELOPE_TOLERANCE`` of the maximum so far, or three noise deviations); backing off and
-    re-squeezing below the previous maximum are skipped (their states repeat those of the way
-    up), and pauses on the way up leave frames of one state. Its frames are sampled
-    equidistantly in approach (the width's closure since contact) rather than in time
-    (``Segment.sample_by``): at the paper's constant closing speed the two coincide, so the
-    models see the distribution they were trained on. ``Segment.loading`` says which loading
-    phase was used and what was skipped, for the estimate's reason. A grasp with a reported stop
-    (the paper's scripted grasp) keeps the whole loading phase, sampled in time.
 loading frames
     The frames captured during the loading phase (on its envelope when it has one), and the
     *peak frame*: the
@@ -63,17 +31,8 @@ hold
 
 Flags
 -----
-``"cleaned_timestamps"`` non-finite or duplicate samples were dropped or merged;
-``"implausible_width"``, ``"implausible_force"`` readings the gripper cannot make (:mod:`estimator.plausible`);
-``"non_monotonic"`` the force drops beyond its noise during loading;
-``"clipped"`` the force saturates (plateau of identical top readings);
-``"too_few_samples"`` fewer samples or frames than the methods want;
-``"misaligned"`` the streams do not cover each other's times (frames or widths
-missing over part of the loading phase);
-``"width_unread"`` no width reading falls between the onset and the peak (a stiff
-object loads faster than the gripper reports its width): the approach is
-interpolated between a reading while the fingers closed and one after they
-stopped, which assumes they kept closing; the true approach is smaller.
+``Segment.flags`` are the loading phase's (:mod:`estimator.load_phase`), plus ``"too_few_samples"``
+and ``"misaligned"`` when too few frames fall in the loading phase or widths miss some of them.
 """
 
 from __future__ import annotations
@@ -84,20 +43,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from estimator.errors import FitError
-from estimator.plausible import (
-    MIN_FORCE_NOISE_N,
-    MIN_WIDTH_NOISE_M,
-    implausible_forces,
-    implausible_widths,
-)
-from estimator.signals import clean_samples, crossing_time, interpolate, noise_std, reading_noise
+from estimator.load_phase import ENVELOPE_TOLERANCE, LoadPhase, check_contact_force, find_load_phase
+from estimator.signals import interpolate
 
-__all__ = ["LoadPhase", "Segment", "align_frames", "find_load_phase", "sampling_axis", "segment_grasp"]
+__all__ = ["Segment", "align_frames", "sampling_axis", "segment_grasp"]
 
-BASELINE_GUARD_S = 0.05
-ONSET_SIGMAS = 4.0
-MIN_CLIP_RUN = 3
-PEAK_TOLERANCE = 0.01  # loading ends within this share of the peak force
 # Hold frames: the gripper holds still at the peak force before it releases. Gripper widths are read
 # with about 0.1 s latency and stamped on return, so the first reads after the stop still show the
 # fingers closing; hold frames start this long after the peak. The hold ends where the force falls
@@ -107,12 +57,6 @@ HOLD_TOLERANCE = 0.05
 HOLD_FRAMES = 3
 # The peak frame comes within this time after the peak (three frame periods at 30 Hz), before the hold.
 PEAK_FRAME_WINDOW_S = 0.1
-# Loading envelope (module notes): a sample or frame is on it within this share of the running maximum
-# (or three noise deviations); a fall below the maximum by BACKOFF_SHARE (or five deviations) is a
-# back-off; the maximum rising by no more than the tolerance for PAUSE_S or longer is a pause.
-ENVELOPE_TOLERANCE = 0.01
-BACKOFF_SHARE = 0.02
-PAUSE_S = 0.15
 
 
 @dataclass(frozen=True)
@@ -137,7 +81,7 @@ class Segment:
     t_contact_s: float = float("nan")
     t_peak_s: float = float("nan")
     onset_width_m: float = float("nan")
-    # How far the gripper closes while the onset may fall (module notes), as a standard deviation (m).
+    # How far the gripper closes while the onset may fall (:mod:`estimator.load_phase`), as a standard deviation (m).
     onset_width_sigma_m: float = 0.0
     # Loading phase at the force samples' own times (for methods that need no frames).
     load_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -156,7 +100,7 @@ class Segment:
     sample_by: str = "time"
     # The reported width at contact (m), where approach sampling starts.
     contact_width_m: float = float("nan")
-    # Which loading phase was used and why, when it is a loading envelope (module notes); else empty.
+    # Which loading phase was used and why, when it is a loading envelope (:mod:`estimator.load_phase`); else empty.
     loading: str = ""
     # Hold frames (up to HOLD_FRAMES, spread over the hold at the peak force): indices into the
     # record's frame stream and the force and width at their times.
@@ -172,14 +116,6 @@ class Segment:
         """Flags and their details, and the loading envelope when there is one, as one line, for an
         estimate's reason."""
         return "; ".join(n for n in (*self.notes, self.loading) if n)
-
-
-def _closing_speed(t_s: np.ndarray, width_m: np.ndarray, before_s: float) -> float:
-    """How fast the width closes (m/s) over the last two width samples at or before ``before_s``
-    (the first two when fewer precede it)."""
-    last = max(int(np.searchsorted(t_s, before_s, side="right")) - 1, 1)
-    dt = float(t_s[last]) - float(t_s[last - 1])  # Python floats: a gap beyond the float range is inf, silently
-    return abs(float(width_m[last]) - float(width_m[last - 1])) / dt if dt > 0 else 0.0
 
 
 def _frames_in_phase(frame_t_s: np.ndarray, t_start: float, t_end: float) -> tuple[np.ndarray, np.ndarray]:
@@ -200,7 +136,7 @@ def _equidistant(frame_t: np.ndarray, t_start: float, t_end: float, n: int) -> n
 
 def _on_envelope(index: np.ndarray, frame_t: np.ndarray, tf: np.ndarray, force: np.ndarray, *, contact: int,
                  peak: int, sigma_f: float) -> tuple[np.ndarray, np.ndarray]:
-    """The frames (indices, times) of the loading phase whose force lies on its envelope (module notes)."""
+    """The frames (indices, times) of the loading phase whose force lies on its envelope (:mod:`estimator.load_phase`)."""
     top = np.maximum.accumulate(force[contact : peak + 1])
     before = np.searchsorted(tf[contact : peak + 1], frame_t, side="right") - 1
     top_at = np.where(before >= 0, top[np.maximum(before, 0)], 0.0)
@@ -248,40 +184,6 @@ def _hold_frames(
     return dict(hold_index=index, hold_t_s=t, hold_force_n=f, hold_width_m=w)
 
 
-def _envelope(t: np.ndarray, loading: np.ndarray, sigma_f: float) -> tuple[np.ndarray, int, float, float]:
-    """The loading envelope of the loading samples ``loading`` at times ``t`` (module notes).
-
-    Returns the mask of samples on it, the number of back-offs, the seconds spent backing off and
-    re-squeezing, and the seconds paused on the way up.
-    """
-    top = np.maximum.accumulate(loading)
-    tolerance = np.maximum(3.0 * sigma_f, ENVELOPE_TOLERANCE * top)
-    on = loading >= top - tolerance
-    fallen = loading < top - np.maximum(5.0 * sigma_f, BACKOFF_SHARE * top)
-    backoffs = int(np.count_nonzero(np.diff(np.concatenate([[False], fallen]).astype(np.int8)) == 1))
-    off = ~on
-    skipped_s = float(np.sum(np.diff(t)[off[1:] | off[:-1]])) if t.size > 1 else 0.0
-    paused_s, anchor = 0.0, 0
-    for i in range(1, loading.size):
-        if top[i] > top[anchor] + tolerance[anchor]:
-            if t[i] - t[anchor] >= PAUSE_S and not fallen[anchor:i].any():
-                paused_s += float(t[i] - t[anchor])
-            anchor = i
-    return on, backoffs, skipped_s, paused_s
-
-
-def _describe_envelope(*, duration_s: float, peak_force_n: float, backoffs: int, skipped_s: float,
-                       paused_s: float) -> str:
-    """``Segment.loading``: which loading phase was used and why."""
-    parts = [f"loading: the envelope over {duration_s:.2f} s from contact to the {peak_force_n:.3g} N peak"]
-    if backoffs:
-        parts.append(f"{backoffs} back-off{'s' if backoffs > 1 else ''} and re-squeeze skipped ({skipped_s:.2f} s)")
-    if paused_s > 0:
-        parts.append(f"paused {paused_s:.2f} s")
-    parts.append("frames sampled by approach (no gripper stop reported, as when an operator drives the fingers)")
-    return ", ".join(parts)
-
-
 def sampling_axis(segment: Segment) -> tuple[np.ndarray, float]:
     """Where each loading frame lies on the axis its sample is spread over, and where contact lies
     on it: capture time (s) from the contact time, or (``sample_by == "approach"``) the reported
@@ -289,38 +191,6 @@ def sampling_axis(segment: Segment) -> tuple[np.ndarray, float]:
     if segment.sample_by == "approach":
         return segment.contact_width_m - segment.frame_width_m, 0.0
     return segment.frame_t_s, segment.t_contact_s
-
-
-@dataclass(frozen=True)
-class LoadPhase:
-    """What :func:`segment_grasp` finds in the force and width streams alone, before any frame
-    is aligned on it (:func:`find_load_phase`); :func:`align_frames` aligns a frame set on it.
-
-    Falsy, with ``reason``, when there is no usable loading phase. The arrays are the cleaned
-    samples (force baseline-subtracted); ``peak`` indexes the peak force sample in them.
-    """
-
-    reason: str
-    flags: tuple[str, ...] = ()
-    notes: tuple[str, ...] = ()
-    force_baseline_n: float = 0.0
-    segment_fields: dict = field(default_factory=dict)  # the Segment fields that need no frames
-    force_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    force_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    width_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    width_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    peak: int = 0
-    stopped_s: float | None = None
-    contact: int = 0  # index of the first sample at contact force
-    envelope: bool = False  # the loading phase is the loading envelope (module notes)
-
-    def __bool__(self) -> bool:
-        return not self.reason
-
-
-def _check_contact_force(contact_force_n: float) -> None:
-    if not (np.isfinite(contact_force_n) and contact_force_n > 0):
-        raise FitError(f"contact_force_n: expected a finite value > 0, got {contact_force_n}")
 
 
 def _check_n_frames(n_frames: int) -> None:
@@ -343,7 +213,7 @@ def segment_grasp(
 ) -> Segment:
     """Find contact, onset and the loading phase; align force and width with the frames.
 
-    :func:`find_load_phase` on the force and width, then :func:`align_frames` on the frames.
+    :func:`~estimator.load_phase.find_load_phase` on the force and width, then :func:`align_frames` on the frames.
 
     Parameters
     ----------
@@ -373,162 +243,11 @@ def segment_grasp(
     Segment
         Falsy, with a reason, when there is no usable loading phase.
     """
-    _check_contact_force(contact_force_n)
+    check_contact_force(contact_force_n)
     _check_n_frames(n_frames)
     phase = find_load_phase(force_t_s, force_n, width_t_s, width_m, contact_force_n=contact_force_n,
                             stopped_s=stopped_s, max_width_m=max_width_m, max_force_n=max_force_n)
     return align_frames(phase, frame_t_s, n_frames=n_frames)
-
-
-def find_load_phase(
-    force_t_s: np.ndarray,
-    force_n: np.ndarray,
-    width_t_s: np.ndarray,
-    width_m: np.ndarray,
-    *,
-    contact_force_n: float,
-    stopped_s: float | None = None,
-    max_width_m: float | None = None,
-    max_force_n: float | None = None,
-) -> LoadPhase:
-    """The force and width part of :func:`segment_grasp` (same parameters, no frames): contact,
-    onset, peak and the loading phase at the force samples' times.
-
-    A live estimator aligns each new frame set on it (:func:`align_frames`) without finding the
-    phase again while no force or width sample came.
-    """
-    _check_contact_force(contact_force_n)
-    flags: list[str] = []
-    notes: list[str] = []
-    stopped = stopped_s is not None and bool(np.isfinite(stopped_s))
-
-    def flag(name: str, note: str) -> None:
-        if name not in flags:
-            flags.append(name)
-        notes.append(note)
-
-    tf, force = clean_samples(force_t_s, force_n)
-    tw, width = clean_samples(width_t_s, width_m)
-    dropped = (np.size(force_t_s) - tf.size, np.size(width_t_s) - tw.size)
-    if any(dropped):
-        flag("cleaned_timestamps", f"dropped or merged {dropped[0]} force and {dropped[1]} width "
-                                   "samples: non-finite values or timestamps, or duplicate timestamps")
-    if max_width_m is not None:
-        outside, note = implausible_widths(width, max_width_m=max_width_m)
-        if note:
-            flag("implausible_width", note)
-            tw, width = tw[~outside], width[~outside]
-    if max_force_n is not None:
-        beyond, note, refused = implausible_forces(force, max_force_n=max_force_n)
-        if refused:
-            return LoadPhase(reason=note, flags=(*flags, "implausible_force"), notes=tuple(notes))
-        if note:
-            flag("implausible_force", note)
-            tf, force = tf[~beyond], force[~beyond]
-    if tf.size < 3:
-        return LoadPhase(reason=f"too few force samples ({tf.size} usable, need 3)",
-                         flags=(*flags, "too_few_samples"), notes=tuple(notes))
-    if tw.size < 2:
-        return LoadPhase(reason=f"too few width samples ({tw.size} usable, need 2)",
-                         flags=(*flags, "too_few_samples"), notes=tuple(notes))
-
-    # Baseline: the load cell's reading well before the force first nears contact.
-    above = np.flatnonzero(force >= contact_force_n)
-    if above.size == 0:
-        return LoadPhase(
-            reason=f"no contact: the force peaks at {force.max():.3g} N, below "
-                   f"contact_force_n = {contact_force_n:g} N",
-            flags=tuple(flags), notes=tuple(notes),
-        )
-    quiet = tf <= tf[above[0]] - BASELINE_GUARD_S
-    baseline = float(np.median(force[quiet])) if quiet.sum() >= 3 else 0.0
-    with np.errstate(over="ignore"):
-        force = force - baseline
-    representable = np.isfinite(force)  # only absurd readings overflow
-    tf, force, quiet = tf[representable], force[representable], quiet[representable]
-    before = force[quiet] if quiet.sum() >= 5 else force
-    sigma_f = noise_std(before)  # as read: a plateau of identical readings is a saturation
-    above = np.flatnonzero(force >= contact_force_n)
-    if above.size == 0:
-        return LoadPhase(
-            reason=f"no contact: the force peaks at {force.max():.3g} N above its baseline "
-                   f"{baseline:.3g} N, below contact_force_n = {contact_force_n:g} N",
-            flags=tuple(flags), notes=tuple(notes), force_baseline_n=baseline,
-        )
-    contact = int(above[0])
-    t_contact = crossing_time(tf, force, contact - 1, contact_force_n) if contact > 0 else float(tf[0])
-
-    # Peak: the first sample within the noise (or 1 %) of the maximum after contact, so that noise
-    # or a slow creep on the hold phase does not stretch the loading phase over it; a saturation
-    # plateau (identical top readings) ends it where the plateau starts.
-    top = contact + int(np.argmax(force[contact:]))
-    run = top
-    while run + 1 < force.size and force[run + 1] == force[top]:
-        run += 1
-    if run - top + 1 >= MIN_CLIP_RUN and sigma_f > 0:
-        flag("clipped", f"force saturates at {force[top] + baseline:.4g} N for {run - top + 1} samples; "
-                        "loading ends where the plateau starts")
-    if "clipped" in flags:
-        peak = top
-    else:
-        near_top = force[top] - max(3.0 * sigma_f, PEAK_TOLERANCE * force[top])
-        peak = contact + int(np.argmax(force[contact : top + 1] >= near_top))
-    peak_force = float(force[peak])
-
-    loading = force[contact : peak + 1]
-    load_t = tf[contact : peak + 1]
-    on_envelope = np.ones(loading.shape, dtype=bool)
-    envelope_note = ""
-    drop = float(np.max(np.maximum.accumulate(loading) - loading))
-    if drop > max(5.0 * sigma_f, 0.02 * peak_force):
-        flag("non_monotonic", f"force drops by {drop:.3g} N during loading (noise {sigma_f:.2g} N)")
-    if not stopped:  # no stop reported: the loading envelope (module notes)
-        on_envelope, backoffs, skipped_s, paused_s = _envelope(load_t, loading, sigma_f)
-        envelope_note = _describe_envelope(duration_s=float(tf[peak]) - t_contact, peak_force_n=peak_force,
-                                           backoffs=backoffs, skipped_s=skipped_s, paused_s=paused_s)
-
-    # Onset: where the force last left its baseline noise before contact.
-    onset_level = min(max(ONSET_SIGMAS * sigma_f, 0.02 * contact_force_n), 0.5 * contact_force_n)
-    below = np.flatnonzero(force[:contact] <= onset_level)
-    if below.size:
-        last_quiet = int(below[-1])
-        t_onset = min(crossing_time(tf, force, last_quiet, onset_level), t_contact)
-        onset_t_sigma = (float(tf[last_quiet + 1]) - float(tf[last_quiet])) / math.sqrt(12.0)
-    else:
-        t_onset = float(tf[0])
-        onset_t_sigma = 0.0
-        flag("misaligned", "the force record starts in contact: onset taken at its first sample")
-
-    sigma_w = reading_noise(width, floor=MIN_WIDTH_NOISE_M)
-    onset_width = float(interpolate(np.array([t_onset]), tw, width)[0])
-    onset_width_sigma = _closing_speed(tw, width, t_onset) * onset_t_sigma
-    if not np.isfinite(onset_width):
-        flag("misaligned", f"no width sample around the contact onset at {t_onset:.3f} s "
-                           f"(widths span {tw[0]:.3f}..{tw[-1]:.3f} s)")
-
-    t_peak = float(tf[peak])
-    loading, load_t = loading[on_envelope], load_t[on_envelope]
-    load_w = interpolate(np.minimum(load_t, stopped_s) if stopped else load_t, tw, width)
-    covered = np.isfinite(load_w)
-    if not covered.all():
-        flag("misaligned", f"widths (span {tw[0]:.3f}..{tw[-1]:.3f} s) miss "
-                           f"{int((~covered).sum())} of {load_t.size} loading force samples")
-    if load_t.size < 2:
-        flag("too_few_samples", "the loading phase holds a single force sample")
-    if not np.any((tw > t_onset) & (tw <= t_peak)):
-        flag("width_unread", "no width was read from the onset to the peak: the approach is interpolated "
-                             "across a stop of the fingers it cannot see")
-
-    fields = dict(
-        force_noise_n=reading_noise(before, floor=MIN_FORCE_NOISE_N), width_noise_m=sigma_w, peak_force_n=peak_force, t_onset_s=t_onset,
-        t_contact_s=t_contact, t_peak_s=t_peak, onset_width_m=onset_width,
-        onset_width_sigma_m=onset_width_sigma, load_t_s=load_t[covered],
-        load_force_n=loading[covered], load_width_m=load_w[covered],
-        contact_width_m=float(interpolate(np.array([t_contact]), tw, width)[0]), loading=envelope_note,
-    )
-    return LoadPhase(reason="", flags=tuple(flags), notes=tuple(notes), force_baseline_n=baseline,
-                     segment_fields=fields, force_t_s=tf, force_n=force, width_t_s=tw, width_m=width,
-                     peak=peak, stopped_s=stopped_s if stopped else None, contact=contact, envelope=not stopped)
 
 
 def align_frames(phase: LoadPhase, frame_t_s: np.ndarray, *, n_frames: int) -> Segment:
