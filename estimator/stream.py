@@ -9,19 +9,18 @@ learned model's input is sampled from: :func:`~estimator.inference.sampling.samp
 given the same data the live estimate and the offline one are the same floats. It keeps what a
 measurement would recompute:
 
-* each frame of the estimator's finger is decoded and warped onto the depth grid once
-  (:func:`~estimator.perception.grid.frame_on_grid`: with ``estimator.depth_binning`` above 1 a
-  JPEG is decoded that many times smaller): live on arrival, offline when first needed (all of
-  them, once one fails to decode: :meth:`GraspStream.skipping_bad_frames`);
-* depth and contact features of a frame are computed once, against the no-contact reference
-  (the median of the last frames before the onset; if later data moves the reference, the
-  cached depths are dropped and recomputed); live, every frame since contact at the first
+* each frame of the estimator's finger is decoded and warped onto the depth grid once (with
+  ``estimator.depth_binning`` above 1 a JPEG is decoded that many times smaller), its depth and
+  contact features computed once against the no-contact reference, and its depth reduced to the
+  model's input size once (:class:`~estimator.frame_perception.FramePerception`). Frames are decoded
+  live on arrival, offline when first needed (all of them, once one fails to decode:
+  :meth:`GraspStream.skipping_bad_frames`); measured live, every frame since contact at the first
   estimate that sees it (:meth:`GraspStream.measure_frames`), offline only the frames measured;
-* the loading phase (:func:`~estimator.segment.find_load_phase`) is found again only when a
+  reduced live between frames (:meth:`GraspStream.reduce_depths`: the final estimate reduces only
+  the frames that came since);
+* the loading phase (:func:`~estimator.load_phase.find_load_phase`) is found again only when a
   sample or the loading-end marker came; the frames are aligned on it
   (:func:`~estimator.segment.align_frames`) once per phase, frame count and ``n_frames``;
-* depth maps are reduced to the model's input size once per frame (:meth:`GraspStream.reduce_depths`
-  between frames: the final estimate reduces only the frames that came since);
 * each :meth:`GraspStream.estimate` runs the analytical fits again over everything that has
   arrived (a few hundred samples and tens of frames: vectorised and cheap).
 
@@ -50,7 +49,7 @@ force within the peak tolerance, and a width sample and a frame newer than the p
 A leader-follower grasp (``robot_state`` mode ``following``: :meth:`GraspStream.mark_follow`) has
 no marker and no settled end, since the operator may pause, back off and squeeze again: its loading
 is over only at the grasp's end event; until then every frame gives a provisional estimate on the
-loading envelope so far (:mod:`estimator.segment`).
+loading envelope so far (:mod:`estimator.load_phase`).
 
 An estimate taken at the loading end rests on what has arrived by then, without the hold and the
 release; a whole record holds them, so its offline measurement can differ from such a final (the
@@ -74,24 +73,21 @@ import numpy as np
 from estimator import analytical, gel_layer
 from estimator.errors import FitError, PerceptionError
 from estimator.estimate import StreamEstimate, choose_estimate
-from estimator.faults import camera_fault, checked_frames, checked_phase
-from estimator.features import ContactFeatures, contact_features
-from estimator.inference.inputs import reduce_images
+from estimator.faults import checked_frames, checked_phase
+from estimator.features import contact_features
+from estimator.frame_perception import FramePerception
+from estimator.load_phase import LoadPhase, find_load_phase
 from estimator.measurements import (
-    REFERENCE_GUARD_S,
     GraspMeasurements,
     check_calibration_fits,
     estimate_measurements,
-    measure_frame,
-    median_frame,
-    reference_indices,
     resolve_calibration,
 )
 from estimator.perception.calibration import Calibration
 from estimator.perception.depth import reconstruct_depth
 from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration
 from estimator.received import Frames, Series
-from estimator.segment import PEAK_FRAME_WINDOW_S, LoadPhase, Segment, align_frames, find_load_phase
+from estimator.segment import PEAK_FRAME_WINDOW_S, Segment, align_frames
 from estimator.settings import DEFAULT_METHODS, estimator_settings
 from teleop.errors import RecordError
 from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Provenance
@@ -151,13 +147,10 @@ class GraspStream:
         self._force = Series()
         self._width = Series()
         self._frames: dict[str, Frames] = {}
-        self._images: dict[int, np.ndarray] = {}  # the estimator finger's frames on the depth grid
-        self._undecodable: dict[int, str] = {}  # a record's frames of that finger skipped -> why (decode_frames)
-        self._reference_key: tuple[int, ...] | None = None
-        self._reference: np.ndarray | None = None
-        self._features: dict[int, ContactFeatures] = {}  # frame position -> features of that frame
-        self._depth: dict[int, np.ndarray] = {}  # frame position -> its depth (m)
-        self._reduced: dict[tuple, np.ndarray] = {}  # (position, size, window) -> reduced depth
+        # The estimator finger's frames on the depth grid (those of a record that do not decode), the
+        # no-contact reference, depths and features.
+        self._perception = FramePerception(finger=self.finger, sensor=self.sensor, binning=self.binning,
+                                           grid=self.grid, grasp_id=grasp_id)
         self._phase: LoadPhase | None = None  # of the force and width so far; None: find it again
         self._segments: dict[tuple[int, int], Segment] = {}  # (n_frames, frames received) -> on self._phase
         self._loading_end_s: float | None = None
@@ -284,7 +277,7 @@ class GraspStream:
         sensor = self._sensor(finger, PerceptionError, where)
         frames.check(t_s, encoding, where=where)
         if finger == self.finger:
-            self._images[len(frames.t_s)] = frame_on_grid(data, encoding, sensor, binning=self.binning, where=where)
+            self._perception.images[len(frames.t_s)] = frame_on_grid(data, encoding, sensor, binning=self.binning, where=where)
         frames.add(t_s, data, encoding, where=where)
         self._frames[finger] = frames
         return finger == self.finger
@@ -329,9 +322,9 @@ class GraspStream:
             frame_t = self._frame_times()
             cached = checked_frames(align_frames(phase, frame_t, n_frames=n_frames), frame_t,
                                     camera_hz=self.sensor.camera_hz, finger=self.finger)
-            if self._undecodable:  # a live stream drops them
-                cached = dataclasses.replace(cached, notes=(*cached.notes, f"skipped {len(self._undecodable)} frames "
-                                             f"of finger {self.finger!r}: {next(iter(self._undecodable.values()))}"))
+            if skipped := self._perception.undecodable:  # a live stream drops them
+                cached = dataclasses.replace(cached, notes=(*cached.notes, f"skipped {len(skipped)} frames "
+                                             f"of finger {self.finger!r}: {next(iter(skipped.values()))}"))
             self._segments[key] = cached
         return cached
 
@@ -367,9 +360,7 @@ class GraspStream:
                 and self._width.last_t_s >= segment.t_peak_s and frame_after_peak)
 
     def _frame_times(self) -> np.ndarray:
-        times = self._frames.get(self.finger, Frames()).times()
-        times[list(self._undecodable)] = np.nan  # the segmentation skips frames without a time
-        return times
+        return self._perception.times(self._frames.get(self.finger, Frames()))
 
     def skipping_bad_frames(self, compute: Callable[[], Any]) -> Any:
         """``compute()``; run again after :meth:`decode_frames` when a record's frame it needs does not decode."""
@@ -383,18 +374,10 @@ class GraspStream:
     def decode_frames(self) -> bool:
         """Decode a record's frames of the estimator's finger, as :meth:`add_frame` does live: whether one that does
         not decode (or has the wrong size) was newly skipped (named in the notes); the error when none decodes."""
-        frames = self._frames.get(self.finger, Frames())
-        count = len(frames.t_s) if frames.source is not None else 0
-        before = len(self._undecodable)
-        for position in sorted(set(range(count)) - self._images.keys() - self._undecodable.keys()):
-            try:
-                self._image(position)
-            except (RecordError, PerceptionError) as exc:
-                self._undecodable[position] = str(exc)
-                self._segments.clear()  # aligned with it
-                if len(self._undecodable) == count:
-                    raise  # not one frame decodes: the record's stream is broken, not a frame of it
-        return len(self._undecodable) > before
+        try:
+            return self._perception.decode(self._frames.get(self.finger, Frames()))
+        finally:
+            self._segments.clear()  # aligned with the frames skipped before
 
     # ------------------------------------------------------------------ measurement
 
@@ -463,25 +446,15 @@ class GraspStream:
             m = dataclasses.replace(m, t_s=m.t_s[frames], force_n=m.force_n[frames], width_m=m.width_m[frames],
                                     approach_m=m.approach_m[frames])
             loading_index = loading_index[frames]
-        why = segment.reason or segment.frame_reason or self._reference_reason(segment)
+        perception = self._perception
+        why = segment.reason or segment.frame_reason or perception.reference_reason(frame_t := self._frame_times(), segment)
         if why:
             return dataclasses.replace(m, tactile_reason=why)
         calibration = self.calibration  # loaded and checked before a frame is decoded
-        self._use_reference(segment)
-        loading = [int(i) for i in loading_index]
-        images = [self._image(i) for i in loading]
-        if why := camera_fault(self._reference, images, m.t_s, self.finger):
-            return dataclasses.replace(m, tactile_reason=why)
         # Hold frames enter the fits only with the width lag corrected (measurements._with_hold_point).
         hold_index = segment.hold_index if self.width_lag_s is not None else segment.hold_index[:0]
-        features = ContactFeatures.concatenate([self._frame_features(i, calibration) for i in loading])
-        hold = [self._frame_features(int(i), calibration) for i in hold_index]
-        return dataclasses.replace(
-            m, features=features, depth_m=np.stack([self._depth[i] for i in loading]),
-            hold_features=ContactFeatures.concatenate(hold) if hold else None,
-            image_bgr=np.stack(images), reference_bgr=self._reference,
-            calibration_smoothing_px=self.calibration_smoothing_px,
-        )
+        return perception.measured(m, self._frames[self.finger], frame_t, segment, loading_index, hold_index,
+                                   calibration, calibration_smoothing_px=self.calibration_smoothing_px)
 
     def measure_frames(self, segment: Segment | None = None) -> None:
         """Compute the depth and features of every frame since contact not measured yet (live), ahead
@@ -489,46 +462,14 @@ class GraspStream:
         burst of frames waits for the next width sample (e.g. when the force shows the contact only
         after the frames came)."""
         segment = self.segment() if segment is None else segment
-        if segment.reason or self._reference_reason(segment):
+        perception = self._perception
+        if segment.reason or perception.reference_reason(frame_t := self._frame_times(), segment):
             return
         calibration = self.calibration
-        self._use_reference(segment)
-        for position in np.flatnonzero(self._frame_times() >= segment.t_contact_s):
-            self._frame_features(int(position), calibration)
-
-    def _reference_index(self, segment: Segment) -> np.ndarray:
-        """The frames the no-contact reference is the median of: the last ones before the onset."""
-        return reference_indices(self._frame_times(), segment.t_onset_s - REFERENCE_GUARD_S)
-
-    def _reference_reason(self, segment: Segment) -> str:
-        return "" if self._reference_index(segment).size else (
-            f"no tactile frame before the contact onset at {segment.t_onset_s:.3f} s to serve as the no-contact reference")
-
-    def _use_reference(self, segment: Segment) -> None:
-        key = tuple(int(i) for i in self._reference_index(segment))
-        if key != self._reference_key:
-            self._reference = median_frame(np.stack([self._image(i) for i in key]))
-            self._reference_key = key
-            self._features.clear()
-            self._depth.clear()
-            self._reduced.clear()
-
-    def _image(self, position: int) -> np.ndarray:
-        """Frame ``position`` of the estimator's finger on the depth grid, decoded once."""
-        image = self._images.get(position)
-        if image is None:
-            where = f"grasp {self.grasp_id!r} frame {position} of finger {self.finger!r}"
-            image = self._images[position] = self._frames[self.finger].on_grid(position, self.sensor,
-                                                                              binning=self.binning, where=where)
-        return image
-
-    def _frame_features(self, position: int, calibration: Calibration) -> ContactFeatures:
-        cached = self._features.get(position)
-        if cached is None:
-            depth, cached = measure_frame(self._image(position), self._reference, calibration, self.grid)
-            self._features[position] = cached
-            self._depth[position] = depth
-        return cached
+        frames = self._frames[self.finger]
+        perception.use_reference(frames, frame_t, segment)
+        for position in np.flatnonzero(frame_t >= segment.t_contact_s):
+            perception.features(frames, int(position), calibration)
 
     # ------------------------------------------------------------------ estimation
 
@@ -563,23 +504,14 @@ class GraspStream:
     def reduce_depths(self, size_px: tuple[int, int] | None, window_m: tuple[float, float] | None = None) -> None:
         """Reduce every depth computed so far to ``size_px`` now, as :meth:`reduced_depths` will
         (between frames, so the final estimate reduces only the frames that came since)."""
-        for position in self._depth:
-            self._reduced_depth(position, size_px, window_m)
+        self._perception.reduce_depths(size_px, window_m)
 
     def reduced_depths(self, positions: np.ndarray, size_px: tuple[int, int] | None,
                        window_m: tuple[float, float] | None = None) -> np.ndarray:
         """Depth of the frames at ``positions`` (frames received; measured by the last
         :meth:`measurements`) reduced to the model's input (:func:`~estimator.inference.inputs.reduce_images`),
         float32 (n, rows, cols); each frame is reduced once per size and window."""
-        return np.stack([self._reduced_depth(int(i), size_px, window_m) for i in positions])
-
-    def _reduced_depth(self, position: int, size_px: tuple[int, int] | None,
-                       window_m: tuple[float, float] | None = None) -> np.ndarray:
-        key = (position, size_px, window_m)
-        if key not in self._reduced:
-            self._reduced[key] = reduce_images(self._depth[position][None], size_px, pitch_m=self.grid.pixel_pitch_m,
-                                               window_m=window_m)[0]
-        return self._reduced[key]
+        return self._perception.reduced_depths(positions, size_px, window_m)
 
     # ------------------------------------------------------------------ export
 

@@ -280,7 +280,7 @@ def feed_to_peak_frame(stream: GraspStream, record: GraspRecord, stop_s: float,
 
 def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_comes_from_the_cache(
         settings, calibration, records, monkeypatch):
-    import estimator.stream
+    import estimator.frame_perception
     from estimator.inference.hybrid import HybridEstimator
     from estimator.inference.infer import CompliancePredictor, default_model_dir
     from estimator.inference.sampling import sample_grasp, sample_stream
@@ -308,7 +308,7 @@ def test_loading_end_marker_ends_loading_at_the_peak_frame_and_the_model_input_c
     record = stream.to_record()
     stream.measure_frames(segment)  # as the final estimate finds them: every frame since contact measured
     with monkeypatch.context() as patched:  # the model's input from the cache: no frame is measured again
-        patched.setattr(estimator.stream, "measure_frame", lambda *a, **k: pytest.fail("a frame measured again"))
+        patched.setattr(estimator.frame_perception, "measure_frame", lambda *a, **k: pytest.fail("a frame measured again"))
         from_cache = {n: sample_stream(stream, n_frames=n, size_px=size) for n, size in ((3, (64, 88)), (5, None))}
     for n_frames, size_px in ((3, (64, 88)), (5, None)):
         cached = from_cache[n_frames]
