@@ -66,7 +66,7 @@ def settings():
 def calibration(settings, tmp_path_factory):
     """A calibration of the simulated left sensor from 16 simulated ball presses."""
     from estimator.perception.calibration import load_calibration
-    from teleop.system.demo import simulated_calibration
+    from teleop.system.live_system import simulated_calibration
 
     return load_calibration(simulated_calibration(settings, tmp_path_factory.mktemp("cal"), n_presses=16))
 

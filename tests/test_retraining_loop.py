@@ -19,7 +19,7 @@ from teleop.record import read_record
 from teleop.scene import load_scene
 from teleop.session.logfile import LogReader
 from teleop.settings import default_settings_path, load_settings
-from teleop.system.demo import LiveSystem
+from teleop.system.live_system import LiveSystem
 
 OBJECTS_A = ["stress_ball", "vinyl_eraser", "hdpe_bottle_cap"]
 OBJECTS_B = ["kitchen_sponge", "silicone_puck_shore10a", "oak_block"]

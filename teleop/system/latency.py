@@ -1,6 +1,6 @@
 """``teleop bench-latency``: how fast the live system shows a grasp's estimate on the display.
 
-Runs the live system (:class:`~teleop.system.demo.LiveSystem`: robot node on simulated hardware,
+Runs the live system (:class:`~teleop.system.live_system.LiveSystem`: robot node on simulated hardware,
 estimator service, haptic renderer on the simulated display; no session recorder unless
 ``--record``) on loopback for ``--grasps`` grasps of a scene's objects in turn, and reports:
 
@@ -82,13 +82,13 @@ from teleop.clikit import PLOT_SUFFIXES, output_file
 from teleop.errors import TeleopError
 from teleop.settings import Settings, load_settings
 from teleop.system.demo import (
-    LiveSystem,
     LiveView,
     add_run_arguments,
     prepare_run,
     run_grasps,
     scene_plan,
 )
+from teleop.system.live_system import LiveSystem
 from teleop.system.outcome import GraspOutcome
 
 if TYPE_CHECKING:

@@ -6,7 +6,7 @@ operator's loop (:class:`haptics.operator_loop.OperatorLoop`) reads the simulate
 feels) and drives the robot node leader-follower over the live system's ``command`` endpoint,
 sending ``follow`` at the follow rate while its dead-man is held, ``release`` when it is done with
 an object and going on to the next. The demo's main thread only listens (:meth:`LiveSystem.operated_grasp
-<teleop.system.demo.LiveSystem.operated_grasp>`); the command publisher is the seat's alone.
+<teleop.system.live_system.LiveSystem.operated_grasp>`); the command publisher is the seat's alone.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from teleop.bus.pubsub import Subscriber
 from teleop.settings import Settings
 
 if TYPE_CHECKING:
-    from teleop.system.demo import LiveSystem
+    from teleop.system.live_system import LiveSystem
 
 __all__ = ["SimulatedSeat"]
 

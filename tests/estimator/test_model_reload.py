@@ -306,7 +306,7 @@ def test_estimator_reload_switches_a_running_service_and_says_why_it_refuses(set
                                                                               tmp_path, capsys):
     import estimator.cli
     from estimator.inference.infer import model_id
-    from teleop.system.demo import free_ports
+    from teleop.system.live_system import free_ports
 
     write_tiny_model(tmp_path / "a", 5.55)
     second_e = write_tiny_model(tmp_path / "b", 4.25)

@@ -191,7 +191,7 @@ def test_a_warning_logged_while_the_screen_runs_shows_in_the_notices():
 
 
 def _endpoints() -> list[str]:
-    from teleop.system.demo import free_ports
+    from teleop.system.live_system import free_ports
 
     names = ("--robot-pub", "--estimate-pub", "--command", "--display-pub")
     return [a for name, port in zip(names, free_ports(4), strict=True) for a in (name, f"tcp://127.0.0.1:{port}")]

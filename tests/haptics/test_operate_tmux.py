@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from teleop.settings import default_settings_path, load_settings
-from teleop.system.demo import LiveSystem, simulated_calibration
+from teleop.system.live_system import LiveSystem, simulated_calibration
 
 ESTIMATE = re.compile(r"E (=|>=|<=) [0-9.]+ [kMG]?Pa")
 COMMAND_REBIND_S = 0.3  # the demo's command publisher is closed: its port is free again after this

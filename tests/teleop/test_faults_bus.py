@@ -30,7 +30,7 @@ from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.errors import BusTimeoutError
 from teleop.settings import load_settings
 from teleop.soak import rss_bytes
-from teleop.system.demo import free_ports
+from teleop.system.live_system import free_ports
 
 
 def test_recv_with_zero_timeout_takes_what_is_queued_without_waiting():

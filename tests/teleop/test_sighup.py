@@ -160,7 +160,7 @@ def test_sighup_stops_the_record_command_and_its_log_gets_its_footer(tmp_path):
 
 
 def test_the_demos_ordered_stop_is_not_cut_short_by_a_second_ctrl_c():
-    from teleop.system.demo import LiveSystem
+    from teleop.system.live_system import LiveSystem
 
     system = LiveSystem.__new__(LiveSystem)
     seen = []

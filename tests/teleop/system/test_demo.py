@@ -32,9 +32,7 @@ from teleop.live import ENDPOINTS, JsonLines, StopSignals, add_endpoint_argument
 from teleop.session.logfile import LogReader
 from teleop.settings import default_settings_path, load_settings
 from teleop.system.demo import (
-    LiveSystem,
     closing_table,
-    free_ports,
     prepare_run,
     scene_plan,
 )
@@ -48,6 +46,7 @@ from teleop.system.latency import (
     plot,
     slowest,
 )
+from teleop.system.live_system import LiveSystem, free_ports
 from teleop.system.outcome import GraspOutcome, ReportReader
 
 STEEL = ObjectSpec(name="steel_ball_bearing", shape="sphere", material="metal", modulus_pa=2e11)
@@ -478,7 +477,7 @@ def _check_foxglove_channels(log: Path) -> None:
 @pytest.mark.slow
 def test_a_crashed_child_stops_the_run_and_leaves_no_process(tmp_path):
     settings = load_settings()
-    from teleop.system.demo import simulated_calibration
+    from teleop.system.live_system import simulated_calibration
 
     calibration = simulated_calibration(settings, tmp_path, n_presses=12)
     system = LiveSystem(default_settings_path(), str(one_grasp_scene(tmp_path)), tmp_path / "run", calibration,
@@ -512,7 +511,7 @@ def test_children_die_with_a_killed_parent(tmp_path):
     script = textwrap.dedent(f"""
         import json, sys, time
         from pathlib import Path
-        from teleop.system.demo import LiveSystem, simulated_calibration
+        from teleop.system.live_system import LiveSystem, simulated_calibration
         from teleop.settings import default_settings_path, load_settings
         out = Path({str(tmp_path)!r})
         cal = simulated_calibration(load_settings(), out, n_presses=12)

@@ -11,7 +11,7 @@ from teleop.live import ENDPOINTS
 from teleop.scene import load_scene
 from teleop.session import LogReader
 from teleop.settings import default_settings_path
-from teleop.system.demo import LiveSystem
+from teleop.system.live_system import LiveSystem
 
 TELEOP = Path(sys.executable).parent / "teleop"
 BALL = 'name = "stress_ball"\nshape = "sphere"\nmaterial = "foam"\nmodulus_pa = 4.0e4'

@@ -13,7 +13,7 @@ import teleop.cli
 from teleop.errors import TeleopError
 from teleop.session import record_cli
 from teleop.session.recorder import RECORDING_STOPPED_STATUS, RecorderStats
-from teleop.system.demo import LiveSystem, _Child
+from teleop.system.live_system import LiveSystem, _Child
 
 
 @pytest.mark.parametrize("command", ["demo", "bench-latency"])

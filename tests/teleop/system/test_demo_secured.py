@@ -14,7 +14,7 @@ from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.security import init_keys
 from teleop.settings import default_settings_path, load_settings
 from teleop.settings_edit import update_settings_file
-from teleop.system.demo import LiveSystem
+from teleop.system.live_system import LiveSystem
 from teleop.system.seat import SimulatedSeat
 
 
