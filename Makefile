@@ -9,6 +9,9 @@ BIN := $(VENV)/bin
 PIP := $(BIN)/python -m pip
 CONSTRAINTS := constraints.txt
 PYTEST_ARGS ?=
+# Test processes (pytest-xdist): most tests wait on sockets, subprocesses and clocks, so two workers
+# halve the wall time on 2 cores. PYTEST_WORKERS=0 runs in one process.
+PYTEST_WORKERS ?= 2
 
 .PHONY: demo test check lint browser tmux install install-dev model evaluate cross-sensor cross-contact replay fine-tune operator-eval clean
 
@@ -46,11 +49,11 @@ tmux:
 		else echo "no tmux: install it with sudo apt-get install -y tmux"; fi; }
 
 test: lint browser tmux
-	$(BIN)/python -m pytest $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadgroup $(PYTEST_ARGS)
 
 # While working: lint and the tests not marked slow.
 check: lint
-	$(BIN)/python -m pytest -m "not slow" $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadgroup -m "not slow" $(PYTEST_ARGS)
 
 # Retrain the default model from scratch: the model card's recipe (simulation, dataset, three trainings and
 # their pool; the parts' measured times, about 134 minutes added up, are in the model card's Recipe).
