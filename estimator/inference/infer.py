@@ -38,7 +38,7 @@ the pair it runs even while the files are being replaced.
     What it scored on val and test objects, how and on what it was trained;
     ``data.measurement_version`` is the :data:`~estimator.inference.inputs.MEASUREMENT_VERSION`
     its inputs were measured with, ``data.depth_binning`` the depth grid
-    (:attr:`~teleop.settings.EstimatorSettings.depth_binning`), and ``reference``
+    (:attr:`~estimator.settings.EstimatorSettings.depth_binning`), and ``reference``
     its inputs on the fixed reference record (:mod:`estimator.inference.reference`).
 """
 

@@ -1,6 +1,6 @@
 """The grid depth is measured on: a sensor's warped-and-cropped image grid, or that grid binned.
 
-With :attr:`~teleop.settings.EstimatorSettings.depth_binning` K > 1 the estimator measures
+With :attr:`~estimator.settings.EstimatorSettings.depth_binning` K > 1 the estimator measures
 depth on the image grid averaged over K x K px blocks: a frame is decoded K times smaller
 (:func:`~teleop.record.decode_image`; a JPEG at that size), warped straight onto the binned
 grid (:func:`~estimator.perception.warp.warp_and_crop` with ``binning``), and its depth is
