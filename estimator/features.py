@@ -181,7 +181,7 @@ def contact_features(
     smooth_px : float, optional
         Standard deviation (pixels) of the Gaussian applied before measuring,
         so that single-pixel noise moves neither the peak nor the contact
-        edge. 0 disables it.
+        edge. 0 disables it; at most ``max(H, W)``.
 
     Returns
     -------
@@ -191,7 +191,8 @@ def contact_features(
     ------
     PerceptionError
         ``depth_m`` is not a finite float (n, H, W) array with H, W >= 1, an
-        option is not a finite real number > 0 (``smooth_px`` >= 0), or the
+        option is not a finite real number > 0 (``smooth_px`` >= 0 and at
+        most the image's larger side), or the
         pixel pitch is so large that the image's area in m^2 overflows.
     """
     depth = np.asarray(depth_m)
@@ -209,6 +210,9 @@ def contact_features(
         raise PerceptionError(f"smooth_px: expected a finite real number >= 0, got {smooth_px!r}")
 
     n, rows, cols = depth.shape
+    if smooth_px > max(rows, cols):  # wider than the image; its kernel would outgrow OpenCV's int sizes
+        raise PerceptionError(f"smooth_px: expected at most the image's larger side, {max(rows, cols)} px, "
+                              f"got {smooth_px!r}")
     extent = max(rows, cols) * pixel_pitch_m
     if not math.isfinite(extent * extent):  # the areas and the cap's curvature square lengths in metres
         raise PerceptionError(f"pixel_pitch_m: {pixel_pitch_m!r} m is too large: a {rows} x {cols} image's "

@@ -361,6 +361,9 @@ def fit_calibration(
         current = Calibration(lut, shape, pixel_pitch_m, ball_radius_m, relative_range, float(smoothing_px))
         for i, press in enumerate(press_list):
             bar.update()
+            x, y = used_centers[i]
+            if not (-1.0 < x < shape[1] and -1.0 < y < shape[0]):
+                continue  # a press centred off the image (fit_sphere refuses it): keep the circle given
             depth = reconstruct_depth(press, reference, current, marker_mask=masks[i])
             fit = fit_sphere(depth, pixel_pitch_m=pixel_pitch_m, center_px=tuple(used_centers[i]))
             if not fit or math.dist(fit.center_px, centers[i]) > radii[i]:

@@ -268,13 +268,16 @@ def fit_sphere(
     pixel_pitch_m : float
         Gel surface per pixel, metres (> 0).
     center_px : (float, float), optional
-        Where to look for the indentation, ``(x, y)`` pixels; default: the
-        deepest point of the smoothed map.
+        Where to look for the indentation, ``(x, y)`` pixels, on the image:
+        ``-1 < x < W`` and ``-1 < y < H`` (a centre farther out has no pixel
+        within 1 px, so no contact circle); default: the deepest point of the
+        smoothed map.
     min_depth_m : float
         Shallower indentations are reported as no contact (m, finite).
     smooth_px : float
-        Gaussian sigma (pixels, >= 0) used to find the peak and the contact
-        circle; the sphere itself is fitted to the unsmoothed depth.
+        Gaussian sigma (pixels, >= 0, at most ``max(H, W)``) used to find the
+        peak and the contact circle; the sphere itself is fitted to the
+        unsmoothed depth.
 
     Returns
     -------
@@ -287,7 +290,8 @@ def fit_sphere(
     ------
     PerceptionError
         ``depth`` is not a 2-D float array of at least 3 x 3 pixels, or an
-        option is not a finite number in its range.
+        option is not a finite number in its range (``center_px`` off the
+        image, ``smooth_px`` wider than the image).
     """
     if not isinstance(depth, np.ndarray) or depth.ndim != 2 or depth.dtype.kind != "f":
         got = f"{depth.dtype} {depth.shape}" if isinstance(depth, np.ndarray) else type(depth).__name__
@@ -300,6 +304,17 @@ def fit_sphere(
         raise PerceptionError(f"min_depth_m: expected a finite number of metres, got {min_depth_m!r}")
     if not (_finite_real(smooth_px) and smooth_px >= 0):
         raise PerceptionError(f"smooth_px: expected a finite number of pixels >= 0, got {smooth_px!r}")
+    rows, cols = depth.shape
+    if smooth_px > max(rows, cols):  # wider than the image; its kernel would outgrow memory
+        raise PerceptionError(f"smooth_px: expected at most the image's larger side, {max(rows, cols)} px, "
+                              f"got {smooth_px!r}")
+    if center_px is not None:
+        center = np.asarray(center_px, dtype=np.float64)
+        if center.shape != (2,) or not np.isfinite(center).all():
+            raise PerceptionError(f"center_px: expected finite (x, y) pixels, got {center_px!r}")
+        if not (-1.0 < center[0] < cols and -1.0 < center[1] < rows):
+            raise PerceptionError(f"center_px: expected (x, y) on the {rows} x {cols} image, -1 < x < {cols} "
+                                  f"and -1 < y < {rows}, got {center_px!r}")
     if not np.isfinite(depth).all():
         return SphereFit(ok=False, reason="depth contains NaN or infinite values")
     with np.errstate(over="ignore"):
@@ -313,11 +328,6 @@ def fit_sphere(
     if center_px is None:
         row, col = np.unravel_index(int(np.argmax(smooth)), smooth.shape)
         center = np.array([col, row], dtype=np.float64)
-    else:
-        center = np.asarray(center_px, dtype=np.float64)
-        if center.shape != (2,) or not np.isfinite(center).all():
-            raise PerceptionError(f"center_px: expected finite (x, y) pixels, got {center_px!r}")
-    rows, cols = depth.shape
     yy, xx = np.indices((rows, cols), dtype=np.float32)
     slope = np.hypot(*np.gradient(smooth))
     fit = None

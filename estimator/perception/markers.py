@@ -8,6 +8,8 @@ mask therefore covers the dots of both images.
 
 from __future__ import annotations
 
+from numbers import Integral, Real
+
 import cv2
 import numpy as np
 
@@ -15,13 +17,28 @@ from estimator.errors import PerceptionError
 
 __all__ = ["detect_markers", "inpaint_markers"]
 
+# Sizes in pixels are bounded by the image's larger side, or by this (the default dot size) on
+# smaller images: a dot or a rim cannot be wider than the image, and OpenCV's kernels grow with
+# the square of the size.
+_MIN_SIZE_LIMIT_PX = 11
+
 
 def _check_bgr(name: str, image: np.ndarray, shape: tuple[int, ...] | None = None) -> None:
     if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
         got = f"{image.dtype} {image.shape}" if isinstance(image, np.ndarray) else type(image).__name__
         raise PerceptionError(f"{name}: expected a uint8 BGR image (H, W, 3), got {got}")
+    if 0 in image.shape[:2]:
+        raise PerceptionError(f"{name}: expected a uint8 BGR image (H, W, 3) with H, W >= 1, got {image.shape}")
     if shape is not None and image.shape != shape:
         raise PerceptionError(f"{name}: expected shape {shape}, got {image.shape}")
+
+
+def _size_px(name: str, value: object, *, lowest: int, limit: int) -> int:
+    """``value`` as an int in ``[lowest, limit]`` (a numpy integer too, a bool not), else PerceptionError."""
+    if not (isinstance(value, Integral) and not isinstance(value, bool) and lowest <= value <= limit):
+        raise PerceptionError(f"{name}: expected an integer number of pixels in [{lowest}, {limit}] "
+                              f"(at most the image's larger side, or {_MIN_SIZE_LIMIT_PX}), got {value!r}")
+    return int(value)
 
 
 def _dark_dots(image: np.ndarray, kernel: np.ndarray, min_darkness: float, max_diameter_px: int) -> np.ndarray:
@@ -62,25 +79,32 @@ def detect_markers(
     frame, reference : ndarray
         uint8 BGR, same shape (H, W, 3), same pixel frame.
     max_diameter_px : int
-        Largest dot diameter, pixels; darker features wider than this are kept.
+        Largest dot diameter, pixels (>= 1); darker features wider than this are kept.
     min_darkness : float
         Relative darkening, in (0, 1), that marks a dot pixel.
     dilate_px : int
-        Grow the mask by this many pixels to cover the dots' soft rims.
+        Grow the mask by this many pixels (>= 0) to cover the dots' soft rims.
+
+    Both sizes are at most ``max(H, W)`` (or 11 when the image is smaller).
 
     Returns
     -------
     ndarray of bool
         Shape (H, W); True where either image shows a dot.
+
+    Raises
+    ------
+    PerceptionError
+        An image is not a non-empty uint8 BGR image, the shapes differ, or an
+        option is not a number in its range.
     """
     _check_bgr("frame", frame)
     _check_bgr("reference", reference, frame.shape)
-    if not (isinstance(max_diameter_px, int) and max_diameter_px >= 1):
-        raise PerceptionError(f"max_diameter_px: expected a positive integer, got {max_diameter_px!r}")
-    if not 0.0 < min_darkness < 1.0:
-        raise PerceptionError(f"min_darkness: expected a value in (0, 1), got {min_darkness!r}")
-    if not (isinstance(dilate_px, int) and dilate_px >= 0):
-        raise PerceptionError(f"dilate_px: expected a non-negative integer, got {dilate_px!r}")
+    limit = max(frame.shape[0], frame.shape[1], _MIN_SIZE_LIMIT_PX)
+    max_diameter_px = _size_px("max_diameter_px", max_diameter_px, lowest=1, limit=limit)
+    if not (isinstance(min_darkness, Real) and not isinstance(min_darkness, bool) and 0.0 < min_darkness < 1.0):
+        raise PerceptionError(f"min_darkness: expected a number in (0, 1), got {min_darkness!r}")
+    dilate_px = _size_px("dilate_px", dilate_px, lowest=0, limit=limit)
     size = max_diameter_px + 2 - max_diameter_px % 2  # odd, wider than a dot
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
     mask = (_dark_dots(frame, kernel, min_darkness, max_diameter_px)
@@ -97,7 +121,8 @@ def inpaint_markers(frame: np.ndarray, mask: np.ndarray, *, radius_px: float = 2
     Parameters
     ----------
     frame : ndarray
-        uint8 BGR (H, W, 3), or a single-channel uint8 or float32 (H, W) image.
+        uint8 BGR (H, W, 3), or a single-channel uint8 or float32 (H, W) image;
+        H, W >= 1.
     mask : ndarray of bool
         Shape (H, W); True where to fill.
     radius_px : float
@@ -116,6 +141,8 @@ def inpaint_markers(frame: np.ndarray, mask: np.ndarray, *, radius_px: float = 2
         raise PerceptionError(
             f"frame: expected uint8 BGR (H, W, 3) or a uint8/float32 (H, W) image, got {got}"
         )
+    if 0 in frame.shape[:2]:
+        raise PerceptionError(f"frame: expected an image with H, W >= 1, got shape {frame.shape}")
     if not isinstance(mask, np.ndarray) or mask.dtype != bool or mask.shape != frame.shape[:2]:
         got = f"{mask.dtype} {mask.shape}" if isinstance(mask, np.ndarray) else type(mask).__name__
         raise PerceptionError(f"mask: expected a bool array of shape {frame.shape[:2]}, got {got}")

@@ -143,6 +143,8 @@ def test_bad_options_are_refused():
     ({"pixel_pitch_m": 1e200}, "pixel_pitch_m"),  # its square, the pixel area, overflows
     ({"contact_threshold_m": None}, "contact_threshold_m"),
     ({"smooth_px": None}, "smooth_px"),
+    ({"smooth_px": 1e9}, "smooth_px"),  # its kernel would overflow OpenCV's int sizes
+    ({"smooth_px": 51.0}, "smooth_px"),  # wider than the 40 x 50 image
 ])
 def test_options_that_are_not_usable_numbers_are_refused_by_name(options, named):
     depth = hertz_gel_depth(0.5e-3, 10e-3, shape=(40, 50))[None]
@@ -177,3 +179,9 @@ def test_smoothing_and_cap_fit_match_their_direct_definitions():
     design = np.stack([np.ones_like(x), x, y, x**2 + y**2], axis=1)
     c3 = np.linalg.lstsq(design, smooth[rows, cols].astype(np.float64), rcond=None)[0][3]
     assert f.curvature_radius_m[0] == pytest.approx(-1 / (2 * c3), rel=1e-6)
+
+
+def test_smoothing_as_wide_as_the_image_is_taken():
+    depth = hertz_gel_depth(0.5e-3, 10e-3, shape=(40, 50))[None]
+    f = contact_features(depth, pixel_pitch_m=PITCH, contact_threshold_m=THRESHOLD, smooth_px=50.0)
+    assert np.isfinite(f.peak_depth_m).all()

@@ -242,6 +242,16 @@ def test_bad_inputs_are_refused_by_name(few, change, match):
                         args.pop("radii_px"), **args)
 
 
+def test_a_press_centred_off_the_image_keeps_its_circle_through_refinement(few):
+    reference, presses, centers, radii = few
+    centers = np.array(centers, dtype=np.float64)
+    centers[1] = (-radii[1] / 2, centers[1][1])  # half its circle still on the image
+    calibration = fit_calibration(reference, list(presses), centers, radii, ball_radius_m=BALL,
+                                  pixel_pitch_m=PITCH, refine_passes=1)
+    assert calibration.provenance["press_centers_px"][1] == pytest.approx(centers[1], abs=0.01)
+    assert calibration.provenance["circles_refined"][1] is False
+
+
 def test_provenance_records_the_circles_used(gelsight_calibration):
     record = gelsight_calibration.provenance
     assert len(record["press_centers_px"]) == len(record["press_radii_px"]) == 24
