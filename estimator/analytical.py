@@ -53,7 +53,7 @@ import numpy as np
 
 from estimator.errors import FitError
 from estimator.estimate import Estimate
-from estimator.fit_inputs import poisson_ratio, positive
+from estimator.fit_inputs import poisson_ratio, positive, real_array
 from estimator.gel_layer import gel_layer_factor
 from estimator.linefit import MeasurementNoise, fit_line
 
@@ -82,7 +82,8 @@ def approach_per_finger(
     separation is ``width + F / k``. The approach is half its decrease from the
     width at onset (where the force is zero).
     """
-    tip = np.asarray(width_m, dtype=np.float64) + np.asarray(force_n, dtype=np.float64) / finger_stiffness_n_per_m
+    width = real_array("approach_per_finger", "width_m", width_m)
+    tip = width + real_array("approach_per_finger", "force_n", force_n) / finger_stiffness_n_per_m
     return (onset_width_m - tip) / 2.0
 
 
@@ -91,7 +92,7 @@ def approach_per_finger(
 
 def _frames(method: str, **arrays: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Arrays as float64 1-D of one length, and the mask of frames where all are finite."""
-    out = {name: np.asarray(a, dtype=np.float64) for name, a in arrays.items()}
+    out = {name: real_array(method, name, a) for name, a in arrays.items()}
     lengths = {name: a.shape for name, a in out.items()}
     if any(a.ndim != 1 for a in out.values()) or len(set(lengths.values())) > 1:
         raise FitError(f"{method}: inputs must be 1-D series of one length, got shapes {lengths}")

@@ -25,11 +25,17 @@ __all__ = ["estimate_camera_lag", "estimate_width_lag"]
 MAX_HINGES = 100_000
 
 
-def _positive_option(name: str, value: object) -> float:
+def _positive_option(name: str, value: object, method: str = "estimate_width_lag") -> float:
     """``value`` as a float when it is a finite real number > 0, else a FitError naming it."""
     if not (isinstance(value, Real) and not isinstance(value, bool) and math.isfinite(value) and value > 0):
-        raise FitError(f"estimate_width_lag: {name} must be a finite number > 0, got {value!r}")
+        raise FitError(f"{method}: {name} must be a finite number > 0, got {value!r}")
     return float(value)
+
+
+def _time_option(name: str, value: object, method: str) -> None:
+    """A FitError naming ``value`` unless it is a real number (of seconds; not a bool)."""
+    if not (isinstance(value, Real) and not isinstance(value, bool)):
+        raise FitError(f"{method}: {name} must be a real number of seconds, got {value!r}")
 
 
 def estimate_camera_lag(
@@ -51,7 +57,8 @@ def estimate_camera_lag(
     Parameters
     ----------
     frame_t_s : ndarray, shape (f,)
-        Frame times (s), increasing.
+        Frame times (s), in any order (non-finite samples are dropped, duplicate times merged, as
+        :func:`~estimator.signals.clean_samples` does).
     tactile_change : ndarray, shape (f,)
         Change of each frame against the no-contact reference (any unit).
     t_onset_s : float
@@ -65,13 +72,16 @@ def estimate_camera_lag(
     float or None
         The lag (s), or None when there are too few no-contact frames or the
         change never leaves its noise within ``max_lag_s`` of the onset.
+
+    Raises
+    ------
+    FitError
+        The samples are not 1-D real series of one length, ``t_onset_s`` is not
+        a real number, or ``max_lag_s`` is not a finite number > 0.
     """
-    t = np.asarray(frame_t_s, dtype=np.float64)
-    change = np.asarray(tactile_change, dtype=np.float64)
-    if t.shape != change.shape or t.ndim != 1:
-        raise FitError(f"frame_t_s and tactile_change must be 1-D of one length, got {t.shape} and {change.shape}")
-    keep = np.isfinite(t) & np.isfinite(change)
-    t, change = t[keep], change[keep]
+    _time_option("t_onset_s", t_onset_s, "estimate_camera_lag")
+    max_lag_s = _positive_option("max_lag_s", max_lag_s, "estimate_camera_lag")
+    t, change = clean_samples(frame_t_s, tactile_change, names=("frame_t_s", "tactile_change"))
     quiet = t < t_onset_s - max_lag_s
     if quiet.sum() < 3:
         return None
@@ -133,8 +143,7 @@ def estimate_width_lag(
         number, an option is not a finite number > 0, or ``step_s`` is too
         fine for ``max_lag_s`` (more than ``MAX_HINGES`` hinge times).
     """
-    if not (isinstance(t_stop_s, Real) and not isinstance(t_stop_s, bool)):
-        raise FitError(f"estimate_width_lag: t_stop_s must be a real number of seconds, got {t_stop_s!r}")
+    _time_option("t_stop_s", t_stop_s, "estimate_width_lag")
     max_lag_s = _positive_option("max_lag_s", max_lag_s)
     step_s = _positive_option("step_s", step_s)
     if speed_m_s is not None:
@@ -142,7 +151,7 @@ def estimate_width_lag(
     if 2.0 * max_lag_s / step_s > MAX_HINGES:
         raise FitError(f"estimate_width_lag: step_s = {step_s!r} s is too fine for max_lag_s = {max_lag_s!r} s "
                        f"(at most {MAX_HINGES} hinge times)")
-    t, w = clean_samples(width_t_s, width_m)
+    t, w = clean_samples(width_t_s, width_m, names=("width_t_s", "width_m"))
     if not math.isfinite(t_stop_s):
         return None
     near = (t >= t_stop_s - 1.0) & (t <= t_stop_s + 1.0)

@@ -17,6 +17,7 @@ import numpy as np
 from scipy import special
 
 from estimator.errors import FitError
+from estimator.fit_inputs import real_array
 
 __all__ = ["CONFIDENCE", "LineFit", "MeasurementNoise", "fit_line"]
 
@@ -111,8 +112,36 @@ def fit_line(
     caused by each error in ``systematic_y``, an error shared by all points
     (e.g. a depth scale error: one standard deviation per point, fully
     correlated; independent of the others), all in units of ``y``. Returns
-    None when the slope is undetermined (no spread in ``x``).
+    None when the slope is undetermined (no spread in ``x``) or not
+    representable (values so large that the sums overflow).
+
+    Raises
+    ------
+    FitError
+        ``x``, ``y``, ``sigma_y`` or an error in ``systematic_y`` is not a 1-D
+        real series of the length of ``x``.
     """
+    x = real_array("fit_line", "x", x)
+    if x.ndim != 1:
+        raise FitError(f"fit_line: x must be a 1-D series, got shape {x.shape}")
+    y = _like_x(x, "y", y)
+    sigma_y = _like_x(x, "sigma_y", sigma_y)
+    systematic_y = [_like_x(x, f"systematic_y[{i}]", shared) for i, shared in enumerate(systematic_y)]
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        return _fit_line(x, y, sigma_y, through_origin=through_origin, systematic_y=systematic_y)
+
+
+def _like_x(x: np.ndarray, name: str, values: object) -> np.ndarray:
+    """``values`` as a float64 series of the shape of ``x``, else a FitError naming them."""
+    array = real_array("fit_line", name, values)
+    if array.shape != x.shape:
+        raise FitError(f"fit_line: {name} must have the shape of x {x.shape}, got {array.shape}")
+    return array
+
+
+def _fit_line(x: np.ndarray, y: np.ndarray, sigma_y: np.ndarray, *, through_origin: bool,
+              systematic_y: Sequence[np.ndarray]) -> LineFit | None:
+    """:func:`fit_line` on checked series."""
     n = x.size
     if n == 0 or (not through_origin and n < 2):
         return None

@@ -65,6 +65,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from estimator.errors import FitError
+from estimator.fit_inputs import is_real
 from estimator.plausible import (
     MIN_FORCE_NOISE_N,
     MIN_WIDTH_NOISE_M,
@@ -159,8 +160,19 @@ class LoadPhase:
 
 def check_contact_force(contact_force_n: float) -> None:
     """Raise :class:`FitError` unless ``contact_force_n`` is a finite force above zero."""
-    if not (np.isfinite(contact_force_n) and contact_force_n > 0):
-        raise FitError(f"contact_force_n: expected a finite value > 0, got {contact_force_n}")
+    if not (is_real(contact_force_n) and math.isfinite(contact_force_n) and contact_force_n > 0):
+        raise FitError(f"contact_force_n: expected a finite real number > 0, got {contact_force_n!r}")
+
+
+def _check_options(stopped_s: object, max_width_m: object, max_force_n: object) -> None:
+    """Raise :class:`FitError` naming the first option of :func:`find_load_phase` that is not
+    as documented: ``stopped_s`` None or a real number (not finite: no stop), the limits None or
+    finite real numbers > 0."""
+    if stopped_s is not None and not is_real(stopped_s):
+        raise FitError(f"stopped_s: expected None or a real number of seconds, got {stopped_s!r}")
+    for name, value in (("max_width_m", max_width_m), ("max_force_n", max_force_n)):
+        if value is not None and not (is_real(value) and math.isfinite(value) and value > 0):
+            raise FitError(f"{name}: expected None or a finite real number > 0, got {value!r}")
 
 
 def find_load_phase(
@@ -181,6 +193,7 @@ def find_load_phase(
     without finding the phase again while no force or width sample came.
     """
     check_contact_force(contact_force_n)
+    _check_options(stopped_s, max_width_m, max_force_n)
     flags: list[str] = []
     notes: list[str] = []
     stopped = stopped_s is not None and bool(np.isfinite(stopped_s))
@@ -190,8 +203,8 @@ def find_load_phase(
             flags.append(name)
         notes.append(note)
 
-    tf, force = clean_samples(force_t_s, force_n)
-    tw, width = clean_samples(width_t_s, width_m)
+    tf, force = clean_samples(force_t_s, force_n, names=("force_t_s", "force_n"))
+    tw, width = clean_samples(width_t_s, width_m, names=("width_t_s", "width_m"))
     dropped = (np.size(force_t_s) - tf.size, np.size(width_t_s) - tw.size)
     if any(dropped):
         flag("cleaned_timestamps", f"dropped or merged {dropped[0]} force and {dropped[1]} width "

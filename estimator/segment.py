@@ -39,10 +39,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from numbers import Integral
 
 import numpy as np
 
 from estimator.errors import FitError
+from estimator.fit_inputs import real_array
 from estimator.load_phase import ENVELOPE_TOLERANCE, LoadPhase, check_contact_force, find_load_phase
 from estimator.signals import interpolate
 
@@ -57,6 +59,9 @@ HOLD_TOLERANCE = 0.05
 HOLD_FRAMES = 3
 # The peak frame comes within this time after the peak (three frame periods at 30 Hz), before the hold.
 PEAK_FRAME_WINDOW_S = 0.1
+# The most frames a sample may ask for: far above any model's or setting's (EstimatorSettings.n_frames: 1..64),
+# far below a sample too large to allocate.
+MAX_N_FRAMES = 10_000
 
 
 @dataclass(frozen=True)
@@ -194,8 +199,16 @@ def sampling_axis(segment: Segment) -> tuple[np.ndarray, float]:
 
 
 def _check_n_frames(n_frames: int) -> None:
-    if n_frames < 1:
-        raise FitError(f"n_frames: expected at least 1, got {n_frames}")
+    if not (isinstance(n_frames, Integral) and not isinstance(n_frames, bool) and 1 <= n_frames <= MAX_N_FRAMES):
+        raise FitError(f"n_frames: expected an integer from 1 to {MAX_N_FRAMES}, got {n_frames!r}")
+
+
+def _frame_times(frame_t_s: np.ndarray) -> np.ndarray:
+    """The frames' capture times as a 1-D float64 array, else a FitError naming them."""
+    t = real_array("align_frames", "frame_t_s", frame_t_s)
+    if t.ndim != 1:
+        raise FitError(f"align_frames: frame_t_s must be a 1-D series of capture times, got shape {t.shape}")
+    return t
 
 
 def segment_grasp(
@@ -245,6 +258,7 @@ def segment_grasp(
     """
     check_contact_force(contact_force_n)
     _check_n_frames(n_frames)
+    frame_t_s = _frame_times(frame_t_s)
     phase = find_load_phase(force_t_s, force_n, width_t_s, width_m, contact_force_n=contact_force_n,
                             stopped_s=stopped_s, max_width_m=max_width_m, max_force_n=max_force_n)
     return align_frames(phase, frame_t_s, n_frames=n_frames)
@@ -255,6 +269,7 @@ def align_frames(phase: LoadPhase, frame_t_s: np.ndarray, *, n_frames: int) -> S
     loading frames (the peak frame last), the hold frames and the equidistant sample
     (:func:`segment_grasp`'s frame part; ``frame_t_s`` and ``n_frames`` as there)."""
     _check_n_frames(n_frames)
+    frame_t_s = _frame_times(frame_t_s)
     if not phase:
         return Segment(reason=phase.reason, flags=phase.flags, notes=phase.notes,
                        force_baseline_n=phase.force_baseline_n)

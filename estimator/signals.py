@@ -9,17 +9,21 @@ from __future__ import annotations
 import numpy as np
 
 from estimator.errors import FitError
+from estimator.fit_inputs import real_array
 
 __all__ = ["clean_samples", "crossing_time", "interpolate", "noise_std", "reading_noise"]
 
 
-def clean_samples(t_s: np.ndarray, value: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def clean_samples(t_s: np.ndarray, value: np.ndarray, *,
+                  names: tuple[str, str] = ("t_s", "value")) -> tuple[np.ndarray, np.ndarray]:
     """Finite samples sorted by time, duplicate timestamps merged into their mean value.
 
     Parameters
     ----------
     t_s, value : array_like, shape (n,)
         Sample times (s) and values (any unit).
+    names : (str, str)
+        What the caller calls them, for the error.
 
     Returns
     -------
@@ -29,12 +33,12 @@ def clean_samples(t_s: np.ndarray, value: np.ndarray) -> tuple[np.ndarray, np.nd
     Raises
     ------
     FitError
-        The arrays are not 1-D of one length.
+        The arrays are not 1-D of one length, or not of real numbers (integers or floats).
     """
-    t = np.asarray(t_s, dtype=np.float64)
-    v = np.asarray(value, dtype=np.float64)
+    t = real_array("samples", names[0], t_s)
+    v = real_array("samples", names[1], value)
     if t.ndim != 1 or t.shape != v.shape:
-        raise FitError(f"samples: t_s and value must be 1-D of one length, got {t.shape} and {v.shape}")
+        raise FitError(f"samples: {names[0]} and {names[1]} must be 1-D of one length, got {t.shape} and {v.shape}")
     keep = np.isfinite(t) & np.isfinite(v)
     t, v = t[keep], v[keep]
     unique_t, inverse, counts = np.unique(t, return_inverse=True, return_counts=True)
