@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 import secrets
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -65,11 +65,12 @@ def staged(*paths: str | Path) -> Iterator[Path | tuple[Path, ...]]:
             temporary.unlink(missing_ok=True)
 
 
-def _carry(old: Path, new: Path) -> None:
-    """Link (or copy) into ``new`` every entry of ``old`` that ``new`` does not hold; ``old`` keeps them."""
+def _carry(old: Path, new: Path, drop: Callable[[str], bool] | None = None) -> None:
+    """Link (or copy) into ``new`` every entry of ``old`` that ``new`` does not hold and ``drop``
+    (given the entry's name) does not reject; ``old`` keeps them."""
     for entry in old.iterdir():
         target = new / entry.name
-        if target.exists() or target.is_symlink():
+        if target.exists() or target.is_symlink() or (drop is not None and drop(entry.name)):
             continue
         if entry.is_dir() and not entry.is_symlink():
             shutil.copytree(entry, target, symlinks=True, copy_function=_link_or_copy)
@@ -88,13 +89,17 @@ def _link_or_copy(source: str | Path, target: str | Path) -> None:
 
 
 @contextmanager
-def staged_dir(path: str | Path) -> Iterator[Path]:
+def staged_dir(path: str | Path, *, drop: Callable[[str], bool] | None = None) -> Iterator[Path]:
     """A temporary folder beside ``path``, swapped in for it when the block ends without an exception.
 
     Parameters
     ----------
     path : str or Path
         The destination folder; it may exist (its parent must).
+    drop : callable, optional
+        Given the name of an entry of the existing ``path`` that the block did not rewrite, true
+        when that entry must not be carried over (an earlier run's output this run did not
+        write again, such as another log's figures); default: every entry is carried.
 
     Yields
     ------
@@ -103,8 +108,8 @@ def staged_dir(path: str | Path) -> Iterator[Path]:
 
     Notes
     -----
-    On success, when ``path`` exists, the entries of it the block did not write are carried into
-    the new folder (hard links, or copies where links fail: the old folder keeps them), then
+    On success, when ``path`` exists, the entries of it the block did not write (and ``drop``
+    does not reject) are carried into the new folder (hard links, or copies where links fail: the old folder keeps them), then
     ``path`` is renamed aside, the new folder renamed to ``path`` and the old one removed. Between
     those two renames (microseconds) ``path`` does not exist; a reader never sees old and new
     files mixed. When ``path`` holds the working folder, the new entries are instead renamed into
@@ -119,10 +124,17 @@ def staged_dir(path: str | Path) -> Iterator[Path]:
         if path.is_dir() and (Path.cwd() == path or path in Path.cwd().parents):
             # Renaming the working folder would leave this process in a removed one: move the
             # entries over instead, in the order they were written (a page written last goes last).
+            written = {entry.name for entry in temporary.iterdir()}
             for entry in sorted(temporary.iterdir(), key=lambda p: p.stat().st_mtime_ns):
                 os.replace(entry, path / entry.name)
+            for entry in list(path.iterdir()) if drop is not None else ():
+                if entry.name not in written and drop(entry.name):
+                    if entry.is_dir() and not entry.is_symlink():
+                        shutil.rmtree(entry, ignore_errors=True)
+                    else:
+                        entry.unlink(missing_ok=True)
         elif path.is_dir():
-            _carry(path, temporary)
+            _carry(path, temporary, drop)
             aside = partial_path(path)
             os.rename(path, aside)
             try:

@@ -56,3 +56,27 @@ def test_a_new_staged_folder_is_created(tmp_path):
     with staged_dir(tmp_path / "new") as folder:
         (folder / "x").write_text("x")
     assert (tmp_path / "new" / "x").read_text() == "x"
+
+
+def test_a_staged_folder_drops_the_entries_it_is_told_to(tmp_path):
+    """An earlier run's outputs this run did not write again are not carried over; other files are."""
+    out = tmp_path / "report"
+    out.mkdir()
+    for name in ("index.html", "grasp-old-timeline.png", "mine.txt"):
+        (out / name).write_text("old")
+    with staged_dir(out, drop=lambda name: name.startswith("grasp-")) as folder:
+        (folder / "index.html").write_text("new page")
+        (folder / "grasp-new-timeline.png").write_text("new")
+    assert sorted(p.name for p in out.iterdir()) == ["grasp-new-timeline.png", "index.html", "mine.txt"]
+    assert (out / "index.html").read_text() == "new page" and (out / "mine.txt").read_text() == "old"
+
+
+def test_a_staged_working_folder_drops_the_entries_it_is_told_to(tmp_path, monkeypatch):
+    out = tmp_path / "report"
+    out.mkdir()
+    for name in ("index.html", "grasp-old-timeline.png", "mine.txt"):
+        (out / name).write_text("old")
+    monkeypatch.chdir(out)
+    with staged_dir(out, drop=lambda name: name.startswith("grasp-")) as folder:
+        (folder / "index.html").write_text("new page")
+    assert sorted(p.name for p in out.iterdir()) == ["index.html", "mine.txt"]

@@ -10,6 +10,9 @@ whose provenance names the same session id and grasp id.
 
 A log stem too long for the name to fit a file system's 255-byte limit is cut, and a short hash of
 the whole stem put after it, so that the name stays within the limit and apart from other logs'.
+A grasp id (up to 256 characters on the wire) or session id longer than :data:`_ID_MAX_BYTES` is cut
+the same way: its start, ``-`` and a short hash of the whole id. The limit counts the hidden name
+``.<name>.exporting`` the export writes first, which is 11 bytes longer.
 """
 
 from __future__ import annotations
@@ -24,35 +27,50 @@ from teleop.record import safe_name
 __all__ = ["record_name", "same_grasp_records"]
 
 
-# A file name's limit in bytes (ext4, XFS, btrfs, APFS; NTFS's 255 UTF-16 units are no fewer).
-_NAME_MAX_BYTES = 255
+# A file name's limit in bytes (ext4, XFS, btrfs, APFS; NTFS's 255 UTF-16 units are no fewer), less
+# the 11 bytes the export's hidden name ``.<name>.exporting`` adds while the record is written.
+_NAME_MAX_BYTES = 255 - len("..exporting")
+# The most bytes a grasp id or session id takes in a name; a longer one is cut and hashed.
+_ID_MAX_BYTES = 80
 # Room kept after the grasp id for "-<k>" and the suffix, so every k shares one cut stem.
 _SUFFIX_ROOM = len("-999.grasp")
 _HASH_CHARS = 10
+
+
+def _cut(text: str, safe: str, room: int) -> str:
+    """``safe`` (the file-name form of ``text``) cut to ``room`` bytes with ``-`` and a hash of
+    ``text`` at its end (surrogateescape: a Linux file name need not be UTF-8)."""
+    digest = hashlib.sha256(text.encode("utf-8", "surrogateescape")).hexdigest()[:_HASH_CHARS]
+    keep = max(room - len(digest) - 1, 0)
+    cut = safe.encode()[:keep].decode("utf-8", "ignore")  # cut in bytes, never inside a character
+    return f"{cut}-{digest}" if cut else digest
+
+
+def _id_part(value: str) -> str:
+    """:func:`safe_name` of a grasp id or session id, or when longer than :data:`_ID_MAX_BYTES`
+    its start and ``-`` and a hash of the whole id."""
+    safe = safe_name(value)
+    return safe if len(safe.encode()) <= _ID_MAX_BYTES else _cut(value, safe, _ID_MAX_BYTES)
 
 
 def _log_part(log_path: Path, session: str, grasp_id: str) -> str:
     """The log stem as the start of a record's name: :func:`safe_name` of it, or when that would
     push the name past :data:`_NAME_MAX_BYTES`, its start and ``-`` and a hash of the whole stem."""
     stem = safe_name(log_path.stem)
-    tail = f"_{safe_name(session)}_{safe_name(grasp_id)}"
+    tail = f"_{_id_part(session)}_{_id_part(grasp_id)}"
     room = _NAME_MAX_BYTES - _SUFFIX_ROOM - len(tail.encode())
     if len(stem.encode()) <= room:
         return stem
-    # The hash keeps apart logs whose long stems differ only past the cut (surrogateescape: a
-    # Linux file name need not be UTF-8).
-    digest = hashlib.sha256(log_path.stem.encode("utf-8", "surrogateescape")).hexdigest()[:_HASH_CHARS]
-    keep = max(room - len(digest) - 1, 0)
-    # Cut in bytes, never inside a character.
-    cut = stem.encode()[:keep].decode("utf-8", "ignore")
-    return f"{cut}-{digest}" if cut else digest
+    # The hash keeps apart logs whose long stems differ only past the cut.
+    return _cut(log_path.stem, stem, room)
 
 
 def record_name(log_path: Path, session: str, grasp_id: str, taken: set[str]) -> str:
     """``<log stem>_<session id>_<grasp id>.grasp``; ``-2``, ``-3``, ... after a grasp id the
     session used before (a grasp id started again after it ended). A stem too long for the name
-    to fit in 255 bytes is cut and a hash of it added (:func:`_log_part`)."""
-    base = f"{_log_part(log_path, session, grasp_id)}_{safe_name(session)}_{safe_name(grasp_id)}"
+    to fit in 255 bytes is cut and a hash of it added (:func:`_log_part`), and so is a grasp id or
+    session id longer than :data:`_ID_MAX_BYTES` (:func:`_id_part`)."""
+    base = f"{_log_part(log_path, session, grasp_id)}_{_id_part(session)}_{_id_part(grasp_id)}"
     name, k = f"{base}.grasp", 1
     while name in taken:
         k += 1

@@ -22,6 +22,7 @@ rows below the content cut off), so the report can be checked or shared as one p
 from __future__ import annotations
 
 import argparse
+import hashlib
 import html
 import logging
 import re
@@ -35,19 +36,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from estimator.evaluation.metrics import felt_log10_error, felt_pa
+from estimator.evaluation.metrics import felt_log10_offset, felt_pa
 from estimator.settings import estimator_settings
 from haptics.settings import display_range_pa
 from teleop.errors import SessionLogError, TeleopError
 from teleop.progress import progress_bar
 from teleop.session.export import session_grasps
 from teleop.session.logfile import LogReader
-from teleop.staging import staged_dir
+from teleop.staging import staged, staged_dir
 from teleop.system.demo_table import felt_line
 from teleop.system.report_data import GraspView, grasp_messages, log_calibrations, tactile_moments
 from teleop.system.report_figures import predictions_figure, tactile_figure, timeline_figure
 
-__all__ = ["Report", "ReportError", "build_report", "find_chromium", "run_chromium", "screenshot"]
+__all__ = ["Report", "ReportError", "build_report", "check_screenshot_path", "find_chromium", "run_chromium",
+           "screenshot"]
 
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
@@ -55,6 +57,11 @@ CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-back
 MAX_SCREENSHOT_PX = 32000  # the tallest window tried (Chromium 150 renders it whole, ~10 s); a longer page is cut
 _BOUND = {"lower_bound": "\u2265 ", "upper_bound": "\u2264 "}
 DASH, INFINITY = "\u2013", "\u221e"
+# The files a report writes into its folder: an earlier report's are not kept beside a new one.
+_OWN_FILE = re.compile(r"index\.html|predictions\.png|grasp-.*\.png")
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+# A grasp's anchor (and the start of its figures' names) keeps at most this many characters of its id.
+_ANCHOR_CHARS = 64
 
 
 log = logging.getLogger(__name__)
@@ -71,6 +78,7 @@ class Report:
     index: Path
     figures: dict[str, tuple[int, int]]
     views: list[GraspView]
+    log: Path | None = None
 
 
 # --------------------------------------------------------------------------- cells
@@ -126,7 +134,8 @@ def _felt_cell(view: GraspView, display_range: tuple[float, float]) -> str:
     felt = _felt_pa(view, display_range)
     if felt is None:
         return "shown unknown"
-    return f"{felt_log10_error(felt, view.label_pa, display_range_pa=display_range):.2f}"
+    # signed, as `teleop demo`'s table prints it: negative = felt softer than the label (+ 0.0: no "-0.00")
+    return format(round(felt_log10_offset(felt, view.label_pa, display_range_pa=display_range), 2) + 0.0, "+.2f")
 
 
 def _felt_line(views: Sequence[GraspView], display_range: tuple[float, float]) -> str:
@@ -169,7 +178,7 @@ def _summary(views: Sequence[GraspView], recorded: bool, display_range: tuple[fl
     for v in views:
         final = v.final
         cells = (f'<a href="#{_e(_anchor(v))}">{_e(v.grasp_id)}</a>', _e(v.object_name or DASH),
-                 _e(_pa(v.label_pa)), _e(_final_cell(v)), _e(_interval_cell(v)),
+                 _e(DASH if v.label_pa is None else f"{_pa(v.label_pa)} Pa"), _e(_final_cell(v)), _e(_interval_cell(v)),
                  _e(final.state if final else DASH), _e(_display_cell(v, recorded)), _e(_felt_cell(v, display_range)))
         rows.append("<tr>" + "".join(
             f'<td class="num">{c}</td>' if i in (2, 3, 7) else f"<td>{c}</td>" for i, c in enumerate(cells)
@@ -179,7 +188,16 @@ def _summary(views: Sequence[GraspView], recorded: bool, display_range: tuple[fl
 
 
 def _anchor(view: GraspView) -> str:
-    return "grasp-" + re.sub(r"[^A-Za-z0-9_-]+", "_", view.grasp_id)
+    """``grasp-<id>``, the page's anchor of a grasp and the start of its figures' names. An id that
+    is not all ASCII letters, digits, ``_`` and ``-``, or longer than :data:`_ANCHOR_CHARS`, has the
+    rest replaced by ``_``, is cut, and gets ``.`` and a short hash of the whole id (``.`` never
+    stays in a cleaned id), so that distinct ids (``a.1``, ``a 1``, ``a_1``) never share one."""
+    grasp_id = view.grasp_id
+    clean = re.sub(r"[^A-Za-z0-9_-]+", "_", grasp_id)
+    if clean == grasp_id and len(clean) <= _ANCHOR_CHARS:
+        return f"grasp-{clean}"
+    digest = hashlib.sha256(grasp_id.encode("utf-8", "surrogateescape")).hexdigest()[:10]
+    return f"grasp-{clean[:_ANCHOR_CHARS]}.{digest}"
 
 
 def _grasp_section(view: GraspView, figures: dict[str, tuple[int, int]], recorded: bool) -> str:
@@ -220,7 +238,12 @@ def _page(log: Path, info_lines: Sequence[str], views: Sequence[GraspView], figu
         f"<title>Grasp report: {_e(log.name)}</title><style>{_CSS}</style></head><body>",
         f"<h1>Grasp report: {_e(log.name)}</h1>",
         '<p class="meta">' + "<br>".join(_e(line) for line in info_lines) + "</p>",
-        "<h2>Summary</h2>", _summary(views, recorded, display_range),
+        "<h2>Summary</h2>",
+        '<p class="meta">The estimates are the live session\'s final estimates, as the estimator published '
+        "them during the session (`estimator estimate` on the exported records may differ). Felt error: "
+        "decades from the label (clipped to the display's range) to what the display rendered; negative: "
+        "felt softer than the label.</p>",
+        _summary(views, recorded, display_range),
         _figure("predictions.png", figures["predictions.png"], "predictions versus label",
                 "Final estimates against their labels (log-log); grey: within a factor 2."),
         *(_grasp_section(v, figures, recorded) for v in views),
@@ -262,17 +285,19 @@ def build_report(
     settings = info.settings()
     messages, recorded = grasp_messages(reader)
     calibrations = log_calibrations(info, settings)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ReportError(f"cannot create the report directory {out}: {exc.strerror or exc}") from exc
+    if out.exists() and not out.is_dir():
+        raise ReportError(f"--out {out}: is a file; expected a folder for the report (made if missing)")
     views, figures = [], {}
     grasps = session_grasps(log, catalogue=catalogue)
     # Drawn in a folder beside ``out`` and swapped in for it only once index.html is written (the
-    # files of ``out`` this report does not rewrite are carried over): an interrupted run leaves
-    # the earlier report, page and figures, as it was.
+    # files of ``out`` this report does not rewrite are carried over, except an earlier report's
+    # page and figures): an interrupted or failed run leaves the earlier report as it was, and
+    # no empty ``out`` (nor its parents) where there was none.
+    made = _missing_folders(out.parent)
     try:
-        with staged_dir(out) as folder:
+        for folder in reversed(made):
+            folder.mkdir()
+        with staged_dir(out, drop=lambda name: _OWN_FILE.fullmatch(name) is not None) as folder:
             for grasp in progress_bar(grasps, desc=f"report {log.name}", unit="grasp", total=len(messages),
                               enabled=progress):
                 view = messages.pop(grasp.grasp_id, None) or GraspView(grasp.grasp_id)
@@ -306,9 +331,25 @@ def build_report(
                              f"`teleop recover {log} --out FIXED.mcap` rewrites the readable part as a complete log")
             index = folder / "index.html"
             index.write_text(_page(log, lines, views, figures, recorded, display_range_pa(settings)), encoding="utf-8")
-    except OSError as exc:
-        raise ReportError(f"cannot write the report into {out}: {exc.strerror or exc}") from exc
-    return Report(out / "index.html", figures, views)
+    except BaseException as exc:
+        for folder in made:  # innermost first; only the ones still empty
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+        if isinstance(exc, OSError):
+            raise ReportError(f"cannot write the report into {out}: {exc.strerror or exc}") from exc
+        raise
+    return Report(out / "index.html", figures, views, log)
+
+
+def _missing_folders(path: Path) -> list[Path]:
+    """``path`` and its ancestors that do not exist, innermost first."""
+    missing = []
+    while not path.exists() and not path.is_symlink() and path != path.parent:
+        missing.append(path)
+        path = path.parent
+    return missing
 
 
 # --------------------------------------------------------------------------- chromium
@@ -351,28 +392,79 @@ def _page_height_px(report: Report, width_px: int) -> int:
     return int(min(MAX_SCREENSHOT_PX, 1.2 * figures + 900 + 500 * len(report.views)))
 
 
-def screenshot(report: Report, png: str | Path, *, width_px: int = 1400, chromium: str | None = None) -> Path:
-    """Render ``report``'s page in headless Chromium into ``png``: the whole page (up to
-    :data:`MAX_SCREENSHOT_PX` tall) at ``width_px``, the blank rows below it cut off.
+def check_screenshot_path(png: str | Path, *, log: str | Path | None = None, out: str | Path | None = None,
+                          figures: Sequence[str] = ()) -> Path:
+    """``png`` resolved, once it is fit for a screenshot: not the session ``log``, not a folder, not
+    under a file, not an existing file other than a PNG, and not one of the report's own files in
+    ``out`` (index.html, predictions.png, grasp-*.png, ``figures``).
 
     Raises
     ------
     ReportError
-        As :func:`run_chromium`, or Chromium wrote no image.
+        Naming --screenshot and what was expected.
     """
+    given = png
     png = Path(png).resolve()
-    png.parent.mkdir(parents=True, exist_ok=True)
-    png.unlink(missing_ok=True)
+    expected = "expected a new or existing .png file outside the report's own files"
+    if log is not None and png.exists() and Path(log).exists() and png.samefile(log):
+        raise ReportError(f"--screenshot {given}: is the session log being reported; {expected}")
+    if png.is_dir():
+        raise ReportError(f"--screenshot {given}: is a folder; {expected}")
+    ancestor = png.parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise ReportError(f"--screenshot {given}: {ancestor} is a file, not a folder; {expected}")
+    if out is not None and png.parent == Path(out).resolve() and (
+            _OWN_FILE.fullmatch(png.name) or png.name in figures):
+        raise ReportError(f"--screenshot {given}: is one of the report's own files in {out}; {expected}")
+    if png.exists():
+        try:
+            with png.open("rb") as file:
+                head = file.read(len(_PNG_MAGIC))
+        except OSError as exc:
+            raise ReportError(f"--screenshot {given}: cannot be read ({exc.strerror or exc}); {expected}") from exc
+        if head != _PNG_MAGIC:
+            raise ReportError(f"--screenshot {given}: exists and is not a PNG image (it is left as it is); "
+                              f"{expected}")
+    return png
+
+
+def screenshot(report: Report, png: str | Path, *, width_px: int = 1400, chromium: str | None = None) -> Path:
+    """Render ``report``'s page in headless Chromium into ``png``: the whole page (up to
+    :data:`MAX_SCREENSHOT_PX` tall) at ``width_px``, the blank rows below it cut off.
+
+    Chromium writes into a temporary folder; ``png`` is replaced only once that reads back as an
+    image (an earlier screenshot stays as it was when Chromium fails).
+
+    Raises
+    ------
+    ReportError
+        ``png`` is not fit for a screenshot (:func:`check_screenshot_path`), as :func:`run_chromium`,
+        or Chromium wrote no image.
+    """
+    png = check_screenshot_path(png, log=report.log, out=report.index.parent, figures=list(report.figures))
     height = _page_height_px(report, width_px)
     if height == MAX_SCREENSHOT_PX:
         log.warning("the page may be taller than the screenshot's %d px: its end is cut off", height)
-    run_chromium(report.index, f"--screenshot={png}", f"--window-size={width_px},{height}", chromium=chromium)
-    image = cv2.imread(str(png), cv2.IMREAD_COLOR)
+    with tempfile.TemporaryDirectory(prefix="teleop-report-screenshot-") as folder:
+        shot = Path(folder) / "page.png"
+        run_chromium(report.index, f"--screenshot={shot}", f"--window-size={width_px},{height}", chromium=chromium)
+        image = cv2.imread(str(shot), cv2.IMREAD_COLOR)
     if image is None:
-        raise ReportError(f"headless Chromium wrote no readable screenshot at {png}")
+        raise ReportError(f"headless Chromium wrote no readable screenshot for {png} (left as it was)")
     rows = np.flatnonzero((image != image[-1:, :]).any(axis=(1, 2)))  # rows unlike the blank bottom one
     if rows.size and rows[-1] + 40 < image.shape[0]:
-        cv2.imwrite(str(png), image[: rows[-1] + 40])
+        image = image[: rows[-1] + 40]
+    ok, encoded = cv2.imencode(".png", image)
+    if not ok:
+        raise ReportError(f"cannot encode the screenshot for {png}")
+    try:
+        png.parent.mkdir(parents=True, exist_ok=True)
+        with staged(png) as temporary:
+            temporary.write_bytes(encoded.tobytes())
+    except OSError as exc:
+        raise ReportError(f"--screenshot {png}: cannot be written: {exc.strerror or exc}") from exc
     return png
 
 
@@ -396,13 +488,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--objects", metavar="PATH", default=None,
                         help="object catalogue for the labels (default: the catalogue stored in the log)")
     parser.add_argument("--screenshot", metavar="PNG", default=None,
-                        help="also render the page with headless Chromium into this PNG (whole page)")
+                        help="also render the page with headless Chromium into this PNG (whole page); it may "
+                             "replace an earlier PNG, never the log, another file or the report's own files")
     parser.add_argument("--width", type=int, default=1400, metavar="PX", help="screenshot width in pixels")
 
 
 def run(args: argparse.Namespace) -> int:
     if args.width < 400:
         raise ReportError(f"--width {args.width}: expected at least 400 px")
+    if args.screenshot:  # before the report is drawn: a bad path fails at once
+        check_screenshot_path(args.screenshot, log=args.log, out=args.out)
     report = build_report(args.log, args.out, catalogue=args.objects, progress=True)
     print(f"report: {report.index} ({len(report.views)} grasps, {len(report.figures)} figures)")
     if args.screenshot:

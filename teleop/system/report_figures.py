@@ -4,6 +4,9 @@ Per grasp, a tactile sheet (each finger's frame before contact, mid-loading and 
 force, with the depth reconstructed from it) and a timeline (force, width, the estimates with
 their intervals against the label, and what the display rendered, on one time axis); for the
 session, the final estimates against their labels.
+
+Text from the log (grasp ids, object names) is drawn with ``parse_math=False``: a ``$`` in it is
+a dollar sign, not the start of matplotlib's mathtext.
 """
 
 from __future__ import annotations
@@ -55,7 +58,7 @@ def tactile_figure(view: GraspView, path: Path) -> tuple[int, int]:
             row_axes.append(ax)
             ax.imshow(moment.image_bgr[..., ::-1])
             ax.set_title(f"{finger}: {moment.name}\nt = {moment.t_s - view.t0_s:+.2f} s, "
-                         f"F = {round(moment.force_n, 2) + 0.0:.2f} N", fontsize=8)
+                         f"F = {round(moment.force_n, 2) + 0.0:.2f} N", fontsize=8, parse_math=False)
             ax.axis("off")
             ax = fig.add_subplot(grid[row, 2 * col + 1])
             row_axes.append(ax)
@@ -68,7 +71,7 @@ def tactile_figure(view: GraspView, path: Path) -> tuple[int, int]:
         if shown is not None:
             fig.colorbar(shown, ax=row_axes, fraction=0.02, pad=0.01, label="depth (mm)")
     fig.suptitle(f"grasp {view.grasp_id}: tactile frames (warped and cropped) and reconstructed depth",
-                 fontsize=9)
+                 fontsize=9, parse_math=False)
     return _save(fig, path)
 
 
@@ -151,7 +154,7 @@ def timeline_figure(view: GraspView, path: Path, *, display_recorded: bool) -> t
     stop = ("dashed purple = gripper reported loading done" if GRASP_DONE_EVENT in record.events
             else "no gripper stop reported (an operator's grasp)")
     axes[0].set_title(f"grasp {view.grasp_id}: shaded = loading phase (onset to peak force); dotted = the "
-                      f"tactile frames shown; {stop}", fontsize=8)
+                      f"tactile frames shown; {stop}", fontsize=8, parse_math=False)
     axes[-1].set_xlabel("time since the grasp's start event (s)")
     return _save(fig, path)
 
@@ -174,7 +177,7 @@ def predictions_figure(views: Sequence[GraspView], path: Path) -> tuple[int, int
         ax.vlines(v.label_pa, low, high, color=colour, lw=1.5, alpha=0.6)
         ax.plot(v.label_pa, final.e_pa, marker, color=colour, ms=8, mec="k")
         ax.annotate(v.object_name or v.grasp_id, (v.label_pa, final.e_pa), xytext=(5, 4),
-                    textcoords="offset points", fontsize=7)
+                    textcoords="offset points", fontsize=7, parse_math=False)
     for state, (marker, colour) in STATE_STYLE.items():
         ax.plot([], [], marker, color=colour, mec="k", ls="", label=state)
     ax.set(xscale="log", yscale="log", xlim=(lo, hi), ylim=(lo, hi), xlabel="label E (Pa)",
