@@ -104,6 +104,12 @@ def _positive_finite(name: str, value: Any) -> float:
     return float(value)
 
 
+def _finite(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise MappingError(f"{name} = {value!r}: expected a finite number (s)")
+    return float(value)
+
+
 def _non_negative(name: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not (
         math.isfinite(value) and value >= 0
@@ -244,7 +250,9 @@ def stiffness_fraction(e_pa: float, *, e_soft_pa: float, e_rigid_pa: float) -> f
     """
     soft, rigid = _check_range(e_soft_pa, e_rigid_pa)
     e_pa = _positive_finite("e_pa", e_pa)
-    fraction = math.log(e_pa / soft) / math.log(rigid / soft)
+    # Differences of logs, not the log of a ratio: a denormal e_pa (1e-320) would make
+    # e_pa / soft underflow to 0 and the log fail; its fraction is 0 (clamped) instead.
+    fraction = (math.log(e_pa) - math.log(soft)) / (math.log(rigid) - math.log(soft))
     return min(1.0, max(0.0, fraction))
 
 
@@ -294,12 +302,12 @@ def interval_decades(
     high = rigid if high_pa is None else min(rigid, max(soft, _positive_finite("high_pa", high_pa)))
     if low > high:
         raise MappingError(f"interval [{low_pa!r}, {high_pa!r}]: low above high")
-    return math.log10(high / low)
+    return math.log10(high) - math.log10(low)
 
 
 def _unknown(update: EstimateUpdate, soft: float, rigid: float) -> Percept:
     """Nothing placed: free, the whole range as uncertainty."""
-    return Percept(stiffness=0.0, uncertainty_decades=math.log10(rigid / soft), unknown=True,
+    return Percept(stiffness=0.0, uncertainty_decades=math.log10(rigid) - math.log10(soft), unknown=True,
                    provisional=update.provisional)
 
 
@@ -359,7 +367,7 @@ def just_noticeable_steps(
         math.isfinite(weber_fraction) and weber_fraction > 0
     ):
         raise MappingError(f"weber_fraction = {weber_fraction!r}: expected a finite number > 0")
-    return math.log(rigid / soft) / math.log1p(weber_fraction)
+    return (math.log(rigid) - math.log(soft)) / math.log1p(weber_fraction)
 
 
 def smoothing_weight(dt_s: float, *, smoothing_s: float) -> float:
@@ -405,7 +413,20 @@ def fade(percept: Percept, *, gain: float) -> Percept:
 
 
 def is_stale(last_update_s: float, now_s: float, *, stale_after_s: float) -> bool:
-    """True when no update arrived for ``stale_after_s`` seconds or more."""
+    """True when no update arrived for ``stale_after_s`` seconds or more.
+
+    ``last_update_s`` may be ``-inf``: no update ever (stale).
+
+    Raises
+    ------
+    MappingError
+        ``now_s`` is not a finite number, ``last_update_s`` is neither finite nor ``-inf``,
+        ``stale_after_s`` is not a finite number >= 0, or ``now_s`` is before ``last_update_s``.
+    """
+    if last_update_s != -math.inf:
+        last_update_s = _finite("last_update_s", last_update_s)
+    now_s = _finite("now_s", now_s)
+    stale_after_s = _non_negative("stale_after_s", stale_after_s)
     if now_s < last_update_s:
         raise MappingError(f"now_s = {now_s!r}: before the last update at {last_update_s!r}")
     return now_s - last_update_s >= stale_after_s

@@ -19,7 +19,7 @@ leaves the table out; a deployment with a gamepad writes for instance::
     gamepad_stop = "BTN_WEST"
     gamepad_next = "BTN_NORTH"
     gamepad_quit = "BTN_SELECT"
-    keyboard_grip_step = 0.05       # grip change per up/down key press
+    keyboard_grip_step = 0.05       # grip change per up/down key press, 0.001 .. 1
     sim_seed = 0                    # the simulated operator's seed
 """
 
@@ -33,8 +33,12 @@ from teleop.errors import SettingsError
 from teleop.settings import Section, Settings
 from teleop.settings_fields import spec
 
-__all__ = ["INPUT_BACKENDS", "DisplaySettings", "OperatorSettings", "display_range_pa", "display_settings",
-           "operator_settings"]
+__all__ = ["INPUT_BACKENDS", "KEYBOARD_GRIP_STEP_MIN", "DisplaySettings", "OperatorSettings", "display_range_pa",
+           "display_settings", "operator_settings"]
+
+#: The smallest keyboard grip step: a thousandth of the grip range. A smaller step would take
+#: thousands of key presses to move the grip at all noticeably (and rounds away entirely near 1e-9).
+KEYBOARD_GRIP_STEP_MIN = 1e-3
 
 
 @dataclass(frozen=True)
@@ -111,7 +115,8 @@ class OperatorSettings(Section):
     gamepad_stop: str = spec("BTN_WEST", doc="button: stop the fingers; '': unmapped")
     gamepad_next: str = spec("BTN_NORTH", doc="button: next object; '': unmapped")
     gamepad_quit: str = spec("BTN_SELECT", doc="button: quit; '': unmapped")
-    keyboard_grip_step: float = spec(0.05, lo=0.0, hi=1.0, lo_open=True, doc="grip change per up/down key")
+    keyboard_grip_step: float = spec(0.05, lo=KEYBOARD_GRIP_STEP_MIN, hi=1.0,
+                                     doc="grip change per up/down key, a fraction of the grip range")
     sim_seed: int = spec(0, lo=0, hi=2**63 - 1, doc="seed of the simulated operator")
 
     def _check(self) -> None:

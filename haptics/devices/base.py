@@ -221,13 +221,23 @@ class SoftnessDisplay(abc.ABC):
     def read_status(self, *, timeout_s: float = 0.0) -> DeviceStatus | None:
         """The next status report, or None when none arrives within ``timeout_s`` seconds.
 
-        A report that does not decode raises ProtocolError (the link stays up).
+        A report that does not decode, or whose ``level`` is above this display's ``level_max``
+        (PROTOCOL.md: out of range), raises ProtocolError naming the report and the field; the
+        report is dropped and the link stays up.
         """
         self._require_connected("read_status")
         self._check_timeout("read_status", timeout_s)
         if not self._status_inbox:
             self._read_inputs("read_status", timeout_s, until=self._status_inbox)
-        return decode_input_report(self._status_inbox.popleft()) if self._status_inbox else None
+        if not self._status_inbox:
+            return None
+        status = decode_input_report(self._status_inbox.popleft())
+        if status.level > self._info.level_max:
+            raise ProtocolError(
+                f"input report 0x03: level = {status.level}, expected 0-{self._info.level_max} "
+                "(this display's level_max)"
+            )
+        return status
 
     def read_operator(self, *, timeout_s: float) -> GripReport | None:
         """The operator's grip on the display's handle, or None.

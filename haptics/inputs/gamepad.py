@@ -15,8 +15,11 @@ The device is ``gamepad_path`` or, when that is empty, the first event device (i
 permission on that node (usually membership of the ``input`` group). A pad unplugged while in
 use raises :class:`~haptics.errors.InputDeviceError` on the next read and leaves the device
 disconnected; ``connect()`` finds it again. The state is read at connect (trigger position,
-held buttons) and after the kernel reports dropped events (``SYN_DROPPED``), so a read never
-waits. ``force_n`` is None: a trigger measures no force.
+held buttons) and after the kernel reports dropped events (``SYN_DROPPED``; the events up to and
+including the next ``SYN_REPORT`` are dropped, as the kernel's documentation says), so a read never
+waits. A trigger range with ``max <= min`` (at connect or after such a resync) raises
+:class:`~haptics.errors.InputDeviceError` and leaves the device disconnected. ``force_n`` is None:
+a trigger measures no force.
 """
 
 from __future__ import annotations
@@ -63,6 +66,7 @@ class GamepadInput(OperatorInputDevice):
         self._enable_code = next(c for c, b in self._buttons.items() if b == "enable")
         self._lo, self._hi = 0, 1
         self._value = 0
+        self._dropping = False  # after SYN_DROPPED, until the next SYN_REPORT: events are dropped
         self._held: set[str] = set()
         self._pressed: set[str] = set()
 
@@ -140,14 +144,11 @@ class GamepadInput(OperatorInputDevice):
             self._device = self._find()
         try:
             self._drain()  # events from before: the state read next already holds them
+            self._dropping = False
             self._sync()
         except InputDeviceError:
             self._close()
             raise
-        if self._hi <= self._lo:
-            self._close()
-            raise InputDeviceError(f"{self!r}: trigger {self.settings.gamepad_trigger} reports the range "
-                                   f"{self._lo}..{self._hi}: expected max > min")
         self._pressed.clear()
 
     def _close(self) -> None:
@@ -163,10 +164,18 @@ class GamepadInput(OperatorInputDevice):
             active = set(self._device.active_keys())
         except OSError as exc:
             raise self._gone(exc) from exc
+        self._check_range(info.min, info.max)
         self._lo, self._hi, self._value = info.min, info.max, info.value
         held = {button for code, button in self._buttons.items() if code in active}
         self._pressed |= held - self._held
         self._held = held
+
+    def _check_range(self, lo: int, hi: int) -> None:
+        """Refuse a trigger range the grip cannot be scaled by (at connect and after a resync)."""
+        if not hi > lo:
+            raise InputDeviceError(f"{self!r}: trigger {self.settings.gamepad_trigger} reports the range "
+                                   f"{lo}..{hi}: expected max > min (a flat or inverted axis cannot give "
+                                   "a grip); check the pad, or set [operator] gamepad_trigger to another axis")
 
     def _drain(self) -> None:
         for _ in range(4096):
@@ -191,7 +200,14 @@ class GamepadInput(OperatorInputDevice):
                 raise self._gone(exc) from exc
             if event is None:
                 break
-            if event.type == ecodes.EV_ABS and event.code == self._trigger:
+            if event.type == ecodes.EV_SYN and event.code == ecodes.SYN_DROPPED:
+                # Events were lost: the kernel's rule is to drop every event up to and including
+                # the next SYN_REPORT (a partial packet), then read the state again.
+                self._dropping = resync = True
+            elif self._dropping:
+                if event.type == ecodes.EV_SYN and event.code == ecodes.SYN_REPORT:
+                    self._dropping, resync = False, True  # the state is whole again: read it
+            elif event.type == ecodes.EV_ABS and event.code == self._trigger:
                 self._value = event.value
             elif event.type == ecodes.EV_KEY and event.code in self._buttons:
                 button = self._buttons[event.code]
@@ -200,8 +216,6 @@ class GamepadInput(OperatorInputDevice):
                     self._held.add(button)
                 elif event.value == 0:
                     self._held.discard(button)
-            elif event.type == ecodes.EV_SYN and event.code == ecodes.SYN_DROPPED:
-                resync = True  # events were lost: the state must be read again
         if resync:
             self._sync()
         grip = min(max((self._value - self._lo) / (self._hi - self._lo), 0.0), 1.0)

@@ -32,7 +32,7 @@ from typing import Any, ClassVar, Self
 
 from haptics.errors import OperatorInputError
 from haptics.inputs.base import OperatorInput, OperatorInputDevice
-from haptics.settings import operator_settings
+from haptics.settings import KEYBOARD_GRIP_STEP_MIN, operator_settings
 from teleop.settings import Settings
 
 __all__ = ["KEYS", "KeyboardInput"]
@@ -59,7 +59,8 @@ class KeyboardInput(OperatorInputDevice):
     Parameters
     ----------
     grip_step : float
-        Grip change per up/down key, in (0, 1]; settable later as :attr:`grip_step`.
+        Grip change per up/down key, in [0.001, 1] (:data:`~haptics.settings.KEYBOARD_GRIP_STEP_MIN`:
+        a smaller step would leave the grip unusable); settable later as :attr:`grip_step`.
     clock : callable
         Seconds for :attr:`OperatorInput.t_s` (``time.monotonic``).
     """
@@ -81,13 +82,14 @@ class KeyboardInput(OperatorInputDevice):
 
     @property
     def grip_step(self) -> float:
-        """Grip change per up/down key, in (0, 1]."""
+        """Grip change per up/down key, in [0.001, 1]."""
         return self._grip_step
 
     @grip_step.setter
     def grip_step(self, value: float) -> None:
-        if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value <= 1:
-            raise OperatorInputError(f"grip_step = {value!r}: expected a value in (0, 1]")
+        if isinstance(value, bool) or not isinstance(value, int | float) or not KEYBOARD_GRIP_STEP_MIN <= value <= 1:
+            raise OperatorInputError(f"grip_step = {value!r}: expected a value in [{KEYBOARD_GRIP_STEP_MIN}, 1] "
+                                     "(a fraction of the grip range per up/down key)")
         self._grip_step = float(value)
 
     def _reset(self) -> None:

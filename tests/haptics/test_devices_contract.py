@@ -16,6 +16,7 @@ from haptics.protocol import (
     DeviceStatus,
     StiffnessCommand,
     decode_output_report,
+    encode_input_report,
     encode_output_report,
 )
 from haptics.protocol_grip import GripReport, encode_grip_report
@@ -187,6 +188,18 @@ def test_a_garbled_status_report_is_a_protocol_error_and_the_link_stays(rig):
     with pytest.raises(ProtocolError, match="crc"):
         display.read_status()
     assert display.connected
+
+
+def test_a_status_level_above_level_max_is_refused_naming_the_report_and_field(rig):
+    firmware = rig.need("firmware")
+    display = rig.display
+    level_max = display.connect().level_max
+    firmware.queue_input_report(encode_input_report(DeviceStatus("rendering", level_max + 1, frozenset(), 0)))
+    firmware.queue_input_report(encode_input_report(DeviceStatus("rendering", level_max, frozenset(), 0)))
+    with pytest.raises(ProtocolError, match=rf"input report 0x03: level = {level_max + 1}, expected 0-{level_max}"):
+        display.read_status(timeout_s=0.5)
+    assert display.connected
+    assert display.read_status(timeout_s=0.5).level == level_max  # the next one is taken
 
 
 def test_faults_are_reported(rig):

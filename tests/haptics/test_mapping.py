@@ -316,6 +316,38 @@ def test_staleness_starts_at_stale_after_s():
     assert is_stale(10.0, 11.0, stale_after_s=1.0)
     with pytest.raises(MappingError, match="before the last update"):
         is_stale(10.0, 9.0, stale_after_s=1.0)
+    assert is_stale(-math.inf, 11.0, stale_after_s=1.0)  # never updated
+
+
+@pytest.mark.parametrize(("last", "now", "after", "match"), [
+    (math.nan, 1e9, 0.5, "last_update_s = nan"),
+    (math.inf, 1e9, 0.5, "last_update_s = inf"),
+    (0.0, math.nan, 0.5, "now_s = nan"),
+    (0.0, math.inf, 0.5, "now_s = inf"),
+    (0.0, 1e9, math.nan, "stale_after_s = nan"),
+    (0.0, 1e9, -1.0, "stale_after_s = -1.0"),
+    (0.0, 1e9, "1", "stale_after_s = '1'"),
+    (True, 1e9, 0.5, "last_update_s = True"),
+])
+def test_staleness_refuses_bad_arguments_by_name(last, now, after, match):
+    with pytest.raises(MappingError, match=match):
+        is_stale(last, now, stale_after_s=after)
+
+
+@pytest.mark.parametrize("e_pa", [1e-320, 5e-324, 2.2e-308])
+def test_a_denormal_modulus_is_at_the_soft_end(e_pa):
+    assert stiffness_fraction(e_pa, e_soft_pa=5e3, e_rigid_pa=6.75e6) == 0.0
+    percept = map_estimate(EstimateUpdate(e_pa=e_pa), e_soft_pa=5e3, e_rigid_pa=6.75e6)
+    assert percept.stiffness == 0.0 and not percept.rigid
+    assert to_command(percept, level_max=4095).level == 0
+
+
+def test_a_range_spanning_the_whole_float_range_maps_without_error():
+    soft, rigid = 5e-324, 1.7e308
+    assert stiffness_fraction(1.0, e_soft_pa=soft, e_rigid_pa=rigid) == pytest.approx(
+        (math.log(1.0) - math.log(soft)) / (math.log(rigid) - math.log(soft)))
+    assert math.isfinite(interval_decades(None, None, e_soft_pa=soft, e_rigid_pa=rigid))
+    assert math.isfinite(just_noticeable_steps(soft, rigid))
 
 
 # --------------------------------------------------------------------------- quantisation

@@ -91,6 +91,49 @@ def test_dropped_events_make_it_read_the_state_again(make_pad):
         assert reading.buttons == {"stop"}
 
 
+def test_events_after_dropped_events_are_dropped_up_to_the_next_report(make_pad):
+    pad = make_pad()
+    with GamepadInput(device=pad) as device:
+        pad.drop()
+        # The rest of a partial packet: the state (read again) has neither of them.
+        pad.key("BTN_SOUTH", 1, report=False)
+        pad._event(gamepad_module.ecodes.EV_KEY, gamepad_module.ecodes.BTN_SOUTH, 1)
+        pad._event(gamepad_module.ecodes.EV_ABS, gamepad_module.ecodes.ABS_RZ, 255)
+        pad.key("BTN_SOUTH", 0, report=False)
+        pad.syn()
+        pad.tap("BTN_EAST")  # after the SYN_REPORT: taken
+        reading = device.read()
+        assert reading.buttons == {"release"} and reading.grip == 0.0
+
+
+def test_dropped_events_across_reads_are_dropped_until_the_report(make_pad):
+    pad = make_pad()
+    with GamepadInput(device=pad) as device:
+        pad.drop()
+        assert device.read().buttons == frozenset()
+        pad._event(gamepad_module.ecodes.EV_KEY, gamepad_module.ecodes.BTN_NORTH, 1)  # still the lost packet
+        pad.syn()
+        pad.tap("BTN_WEST")
+        assert device.read().buttons == {"stop"}
+
+
+@pytest.mark.parametrize(("lo", "hi"), [(0, 0), (255, 0)])
+def test_a_flat_or_inverted_range_after_a_resync_disconnects_the_pad(lo, hi, make_pad):
+    pad = make_pad()
+    device = GamepadInput(device=pad).connect()
+    code = gamepad_module.ecodes.ABS_RZ
+    pad.axes[code] = pad.axes[code]._replace(min=lo, max=hi)
+    pad.drop()
+    with pytest.raises(InputDeviceError, match=rf"trigger ABS_RZ reports the range {lo}..{hi}: expected max > min"):
+        device.read()
+    assert not device.connected
+    with pytest.raises(InputNotConnectedError):
+        device.read()
+    pad.axes[code] = pad.axes[code]._replace(min=0, max=255, value=51)
+    assert device.connect().read().grip == pytest.approx(0.2)
+    device.close()
+
+
 def test_unplugged_it_says_so_and_is_disconnected(make_pad):
     pad = make_pad()
     device = GamepadInput(device=pad).connect()
@@ -116,6 +159,8 @@ def test_a_device_without_the_trigger_or_a_flat_trigger_is_refused(make_pad):
         GamepadInput(device=make_pad(keys=("BTN_SOUTH",))).connect()
     with pytest.raises(InputDeviceError, match="range 7..7"):
         GamepadInput(device=make_pad(axes={"ABS_RZ": (7, 7)})).connect()
+    with pytest.raises(InputDeviceError, match="range 255..0: expected max > min"):
+        GamepadInput(device=make_pad(axes={"ABS_RZ": (255, 0)})).connect()
 
 
 @pytest.fixture

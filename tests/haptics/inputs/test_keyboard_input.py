@@ -46,10 +46,21 @@ def test_the_step_is_settable_and_checked(keys):
     keys.press("up")
     keys.press("up")
     assert keys.read().grip == pytest.approx(0.5)
-    for bad in (0, -0.1, 1.5, float("nan"), True):
+    for bad in (0, -0.1, 1.5, float("nan"), True, 1e-10, 0.0009):
         with pytest.raises(OperatorInputError, match="grip_step"):
             keys.grip_step = bad
     assert keys.grip_step == 0.25
+
+
+def test_the_smallest_step_still_moves_the_grip(keys):
+    keys.grip_step = 1e-3
+    keys.press("up")
+    assert keys.read().grip == pytest.approx(1e-3)
+    for _ in range(999):
+        keys.press("up")
+    assert keys.read().grip == pytest.approx(1.0)
+    with pytest.raises(OperatorInputError, match=r"grip_step = 1e-10: expected a value in \[0.001, 1\]"):
+        keys.grip_step = 1e-10
 
 
 def test_e_toggles_the_enable(keys):

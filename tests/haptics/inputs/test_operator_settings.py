@@ -39,7 +39,8 @@ def test_the_input_named_in_the_settings_is_opened(with_operator):
     ({"gamepad_trigger": "ABS_NOPE"}, r"gamepad_trigger = 'ABS_NOPE': evdev knows no such code"),
     ({"gamepad_grasp": "BTN_NOPE"}, r"gamepad_grasp = 'BTN_NOPE': evdev knows no such code"),
     ({"gamepad_enable": "KEY_NOPE"}, r"gamepad_enable = 'KEY_NOPE': evdev knows no such code"),
-    ({"keyboard_grip_step": 0.0}, r"keyboard_grip_step = 0.0: expected a value in \(0.0, 1.0\]"),
+    ({"keyboard_grip_step": 0.0}, r"keyboard_grip_step = 0.0: expected a value in \[0.001, 1.0\]"),
+    ({"keyboard_grip_step": 1e-10}, r"keyboard_grip_step = 1e-10: expected a value in \[0.001, 1.0\]"),
     ({"keyboard_grip_step": 1.5}, r"keyboard_grip_step"),
     ({"sim_seed": -1}, r"sim_seed = -1"),
 ])
