@@ -171,22 +171,15 @@ def _ignore_late_ctrl_c() -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def run_cli(
-    prog: str,
-    description: str,
-    commands: Mapping[str, Command],
-    argv: Sequence[str] | None = None,
-) -> int:
-    """Parse ``argv``, import the chosen subcommand's module and run it."""
-    argv_given = argv
-    argv = list(sys.argv[1:] if argv is None else argv)
+def _parsed(prog: str, description: str, commands: Mapping[str, Command], argv: list[str],
+            chosen: str | None) -> argparse.Namespace:
+    """``argv`` parsed, with the ``chosen`` subcommand's module imported for its options; logging set up."""
     parser = argparse.ArgumentParser(  # the module docstring, without its reStructuredText literals
         prog=prog, description=description.replace("``", ""), formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (repeatable)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
     sub.required = True
-    chosen = next((a for a in argv if not a.startswith("-")), None)
     for name, command in commands.items():
         p = sub.add_parser(
             name, help=command.help, description=command.help,
@@ -202,6 +195,24 @@ def run_cli(
         level=logging.WARNING - 10 * min(args.verbose, 2),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    return args
+
+
+def run_cli(
+    prog: str,
+    description: str,
+    commands: Mapping[str, Command],
+    argv: Sequence[str] | None = None,
+) -> int:
+    """Parse ``argv``, import the chosen subcommand's module and run it."""
+    argv_given = argv
+    argv = list(sys.argv[1:] if argv is None else argv)
+    chosen = next((a for a in argv if not a.startswith("-")), None)
+    try:
+        args = _parsed(prog, description, commands, argv, chosen)
+    except KeyboardInterrupt:  # while the command's module imports (numpy, scipy, cv2: seconds)
+        print(f"{prog}{'' if chosen is None else ' ' + chosen}: interrupted", file=sys.stderr)
+        return 130
     try:
         with sigterm_as_ctrl_c() if threading.current_thread() is threading.main_thread() else contextlib.nullcontext():
             try:

@@ -149,6 +149,32 @@ class SensorSettings(Validated):
                 f"SensorSettings.crop_px = {self.crop_px}: crops the whole "
                 f"{self.warped_width_px}x{self.warped_height_px} warped image away"
             )
+        if self.model == "wedge":  # a flat sensor ("mini") is not warped: its corners are not read
+            self._check_corners()
+
+    def _check_corners(self) -> None:
+        """The mirror corners lie in the raw frame (its edges included) and, in their order (top-left,
+        top-right, bottom-left, bottom-right), outline a convex quadrilateral: not one that crosses
+        itself (two corners swapped) or bends inward, whose warp folds the image."""
+        corners = self.warp_corners_px
+        where = f"SensorSettings.warp_corners_px = {[list(c) for c in corners]}"
+        for name, (x, y) in zip(("top-left", "top-right", "bottom-left", "bottom-right"), corners, strict=True):
+            if not (0.0 <= x <= self.raw_width_px and 0.0 <= y <= self.raw_height_px):
+                raise SettingsError(
+                    f"{where}: the {name} corner ({x:g}, {y:g}) is outside the {self.raw_width_px}x"
+                    f"{self.raw_height_px} raw frame: expected x in [0, {self.raw_width_px}] and y in "
+                    f"[0, {self.raw_height_px}] (raw_width_px x raw_height_px)"
+                )
+        top_left, top_right, bottom_left, bottom_right = corners
+        outline = (top_left, top_right, bottom_right, bottom_left)  # walked round: clockwise on screen
+        for i in range(4):
+            (ax, ay), (bx, by), (cx, cy) = outline[i], outline[(i + 1) % 4], outline[(i + 2) % 4]
+            if (bx - ax) * (cy - by) - (by - ay) * (cx - bx) <= 0.0:
+                raise SettingsError(
+                    f"{where}: expected the corners in the order top-left, top-right, bottom-left, "
+                    "bottom-right of a convex quadrilateral; these cross, bend inward or lie on a line "
+                    "(two corners swapped?)"
+                )
 
     @property
     def image_shape(self) -> tuple[int, int]:
@@ -202,6 +228,17 @@ class GripperSettings(Validated):
         if not _HOST.fullmatch(self.host):
             raise SettingsError(f"GripperSettings.host = {self.host!r}: expected the robot controller's host name "
                                 "or IP address, e.g. '172.16.0.2'")
+        # N/mm typed as N/m (200 for 2e5): at the grasp force the fingers would bend open further than
+        # the gripper opens, and the width correction (F / stiffness) would swamp the width measured
+        bend_m = self.target_force_n / self.finger_stiffness_n_per_m
+        if bend_m >= self.max_width_m:
+            raise SettingsError(
+                f"GripperSettings.finger_stiffness_n_per_m = {self.finger_stiffness_n_per_m!r}: at target_force_n = "
+                f"{self.target_force_n:g} N the fingers would bend {bend_m * 1e3:.4g} mm, not less than max_width_m = "
+                f"{self.max_width_m * 1e3:g} mm: expected a stiffness in N/m above "
+                f"{self.target_force_n / self.max_width_m:.4g} (a value in N/mm is 1000x too small: "
+                f"{self.finger_stiffness_n_per_m:g} N/mm is {self.finger_stiffness_n_per_m * 1e3:g} N/m)"
+            )
 
 
 @dataclass(frozen=True)
@@ -586,7 +623,7 @@ def load_settings(path: str | Path | None = None) -> Settings:
     except OSError as exc:
         raise SettingsError(f"cannot read settings file {path}: {exc.strerror or exc}") from exc
     try:
-        data = tomllib.loads(raw.decode("utf-8"))
+        data = tomllib.loads(raw.decode("utf-8-sig"))  # a byte-order mark (some Windows editors) is no statement
     except ValueError as exc:  # TOMLDecodeError, UnicodeDecodeError, or an integer of over 4300 digits
         raise SettingsError(f"{path}: not valid TOML: {exc}") from exc
     return settings_from_mapping(data, source=Path(os.path.abspath(path)))

@@ -13,6 +13,7 @@ leaves the old file as it was.
 from __future__ import annotations
 
 import os
+import re
 import stat
 import tempfile
 from collections.abc import Iterable, Mapping
@@ -87,11 +88,14 @@ def update_settings_file(path: Path, changes: Mapping[str, Any]) -> list[Setting
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        # as written: CRLF line ends stay CRLF (tomlkit keeps them), a byte-order mark is kept aside
+        with open(path, encoding="utf-8", newline="") as handle:
+            text = handle.read()
     except (OSError, UnicodeDecodeError) as exc:
         raise SettingsError(f"cannot read settings file {path}: {getattr(exc, 'strerror', None) or exc}") from exc
+    bom = "\ufeff" if text.startswith("\ufeff") else ""
     try:
-        document = tomlkit.parse(text)
+        document = tomlkit.parse(text[len(bom):])
     except TOMLKitError as exc:
         raise SettingsError(f"{path}: not valid TOML: {exc}") from exc
     records = []
@@ -103,7 +107,10 @@ def update_settings_file(path: Path, changes: Mapping[str, Any]) -> list[Setting
     settings = settings_from_mapping(document.unwrap(), source=f"{path} (with {', '.join(changes)} changed)")
     for section in package_sections():
         settings.section(section)
-    _write_atomically(path, tomlkit.dumps(document))
+    out = tomlkit.dumps(document)
+    if "\r\n" in text:  # the lines tomlkit adds (a new table) end as the file's do
+        out = re.sub(r"(?<!\r)\n", "\r\n", out)
+    _write_atomically(path, bom + out)
     return records
 
 
@@ -116,7 +123,7 @@ def _write_atomically(path: Path, text: str) -> None:
     mode = stat.S_IMODE(path.stat().st_mode)
     descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with open(descriptor, "w", encoding="utf-8") as handle:
+        with open(descriptor, "w", encoding="utf-8", newline="") as handle:  # line ends as the text has them
             handle.write(text)
             handle.flush()
             os.fsync(handle.fileno())

@@ -32,7 +32,7 @@ from estimator.perception.markers import detect_markers
 from estimator.perception.press_circles import VISIBLE_CHANGE, change_inside_circle
 from estimator.perception.presses import PressSet, load_presses, split_presses
 from teleop.record import software_version
-from teleop.settings import default_settings_path, load_settings
+from teleop.settings import SensorSettings, default_settings_path, load_settings
 
 # Two stated values of one quantity (pixel pitch, ball radius) must agree this closely.
 AGREEMENT = 0.01
@@ -90,6 +90,17 @@ def _agreeing(name: str, candidates: list[tuple[str, float | None]]) -> float | 
     return stated[0][1] if stated else None
 
 
+def chosen_sensor(args: argparse.Namespace) -> SensorSettings | None:
+    """The sensor ``--settings`` and ``--finger`` name (the settings' sensing.finger by default), or None
+    without --settings. Raises CalibrationError for --finger without --settings."""
+    if args.settings:
+        settings = load_settings(args.settings)
+        return settings.sensor(args.finger or settings.sensing.finger)
+    if args.finger:
+        raise CalibrationError("--finger needs --settings (the file that describes the sensor)")
+    return None
+
+
 def prepare_presses(
     args: argparse.Namespace, *, stated_mm_per_px: tuple[str, float] | None = None,
 ) -> tuple[PressSet, float, float, dict]:
@@ -104,13 +115,9 @@ def prepare_presses(
     detect = args.circles == "detected" or (args.circles == "auto" and presses.circles != "recorded")
     if not detect and presses.circles != "recorded":
         raise CalibrationError(f"--circles recorded: {args.presses} records no press circles")
-    sensor = None
-    if args.settings:
-        settings = load_settings(args.settings)
-        sensor = settings.sensor(args.finger or settings.sensing.finger)
+    sensor = chosen_sensor(args)
+    if sensor is not None:
         presses = presses.in_sensor_frame(sensor, progress=True)
-    elif args.finger:
-        raise CalibrationError("--finger needs --settings (the file that describes the sensor)")
     elif presses.frame == "warped_cropped":
         # Not defaulted to the shipped settings: the calibration would name the shipped sensor (and the
         # settings' finger) as the one that took the presses, and raw presses would be warped by its corners.

@@ -18,7 +18,8 @@ import sys
 import numpy as np
 
 from estimator.errors import CalibrationError
-from estimator.perception.calibrate_cli import add_press_arguments, prepare_presses
+from estimator.measurements import calibration_sensor_mismatch
+from estimator.perception.calibrate_cli import add_press_arguments, chosen_sensor, prepare_presses
 from estimator.perception.calibration import load_calibration
 from estimator.perception.depth import fit_sphere, reconstruct_depth
 from estimator.perception.markers import detect_markers
@@ -43,6 +44,11 @@ def run(args: argparse.Namespace) -> int:
     presses, _, ball_m, record = prepare_presses(
         args, stated_mm_per_px=(f"{args.calibration} (pixel_pitch_m)", calibration.pixel_pitch_m * 1e3)
     )
+    sensor = chosen_sensor(args)
+    mismatch = None if sensor is None else calibration_sensor_mismatch(calibration, sensor)
+    if mismatch:  # as `teleop doctor` warns: another sensor's colours read as other slopes here
+        print(f"warning: {mismatch}: the presses are scored against another sensor's calibration; give "
+              f"[sensors.{sensor.finger}]'s own --calibration, or the --finger it was made for", file=sys.stderr)
     if presses.reference.shape[:2] != calibration.image_shape:
         raise CalibrationError(
             f"{args.presses}: images are {presses.reference.shape[:2]} px, the calibration is for "

@@ -298,6 +298,9 @@ def test_construction_validates_too():
         Settings(sensors=(SensorSettings(finger="left"), SensorSettings(finger="left")))
 
 
+CORNERS = ((1.0, 2.0), (600.5, 3.0), (4.0, 470.0), (630.0, 460.25))  # not the shipped ones, in the frame
+
+
 def test_round_trip_through_a_mapping():
     shipped = load_settings()
     mapping = settings_to_mapping(shipped)
@@ -308,11 +311,11 @@ def test_round_trip_through_a_mapping():
         shipped,
         gripper=dataclasses.replace(shipped.gripper, hold_s=2.0),
         simulation=dataclasses.replace(shipped.simulation, jpeg_quality=75),
-        sensors=(dataclasses.replace(shipped.sensors[0], warp_corners_px=((1.0, 2.0),) * 4),),
+        sensors=(dataclasses.replace(shipped.sensors[0], warp_corners_px=CORNERS),),
     )
     back = settings_from_mapping(settings_to_mapping(changed))
     assert back == changed and back != shipped
-    assert back.sensors[0].warp_corners_px == ((1.0, 2.0),) * 4
+    assert back.sensors[0].warp_corners_px == CORNERS
     assert all(math.isfinite(v) for v in back.sensors[0].warp_corners_px[0])
 
 
@@ -381,3 +384,51 @@ def test_the_shipped_configs_are_found_and_relative_paths_resolve_against_their_
     for path in [default_settings_path(), *sorted((shipped / "rigs").glob("*.toml"))]:
         for sensor in load_settings(path).sensors:
             assert Path(sensor.calibration).is_absolute() and Path(sensor.calibration).is_file(), path
+
+
+@pytest.mark.parametrize("corners, expected", [
+    ("[[46, 87], [439, 121], [52, 425], [4460, 3680]]", "the bottom-right corner (4460, 3680) is outside the 640x480 raw frame"),
+    ("[[-3, 87], [439, 121], [52, 425], [446, 368]]", "the top-left corner (-3, 87) is outside"),
+    ("[[46, 87], [439, 121], [446, 368], [52, 425]]", "expected the corners in the order top-left, top-right, "
+                                                      "bottom-left, bottom-right of a convex quadrilateral"),
+    ("[[439, 121], [46, 87], [446, 368], [52, 425]]", "convex quadrilateral"),  # mirrored: left and right swapped
+    ("[[0, 0], [100, 0], [0, 100], [20, 20]]", "convex quadrilateral"),  # the bottom-right bent inward
+    ("[[0, 0], [100, 0], [200, 0], [300, 0]]", "convex quadrilateral"),  # on one line
+])
+def test_wedge_warp_corners_must_lie_in_the_raw_frame_in_their_documented_order(tmp_path, corners, expected):
+    for finger in ("left", "right"):
+        message = error_for(tmp_path, f"[sensors.{finger}]\nwarp_corners_px = {corners}\n")
+        assert f"[sensors.{finger}] SensorSettings.warp_corners_px" in message and expected in message, message
+    # the raw frame's own corners (the shipped GelSight rigs), edges included
+    path = write(tmp_path, "[sensors.left]\nraw_width_px = 320\nraw_height_px = 240\n"
+                           "warp_corners_px = [[0, 0], [320, 0], [0, 240], [320, 240]]\n")
+    assert load_all(path).sensor("left").warp_corners_px[3] == (320.0, 240.0)
+    message = error_for(tmp_path, "[sensors.left]\nraw_width_px = 320\nraw_height_px = 240\n")  # 640x480 corners
+    assert "outside the 320x240 raw frame" in message
+    # a flat sensor is not warped: its corners are not read
+    path = write(tmp_path, '[sensors.left]\nmodel = "mini"\nwarp_corners_px = [[0, 0], [5000, 0], [0, 1], [1, 1]]\n')
+    assert load_all(path).sensor("left").model == "mini"
+
+
+def test_every_shipped_settings_file_loads():
+    files = [default_settings_path(), *sorted((default_settings_path().parent / "rigs").glob("*.toml"))]
+    assert len(files) >= 3
+    for path in files:
+        load_all(path)
+
+
+def test_a_finger_stiffness_in_n_per_mm_is_refused_saying_so(tmp_path):
+    message = error_for(tmp_path, "[gripper]\nfinger_stiffness_n_per_m = 200.0\n")
+    assert "GripperSettings.finger_stiffness_n_per_m = 200.0" in message
+    assert "bend 150 mm" in message and "max_width_m = 80 mm" in message
+    assert "200 N/mm is 200000 N/m" in message
+    # what a grasp bends is the force over the stiffness: a softer finger is fine at a smaller force
+    path = write(tmp_path, "[gripper]\nfinger_stiffness_n_per_m = 200.0\ntarget_force_n = 10.0\n")
+    assert load_all(path).gripper.finger_stiffness_n_per_m == 200.0
+
+
+def test_a_settings_file_with_a_byte_order_mark_loads(tmp_path):
+    plain, path = tmp_path / "plain.toml", tmp_path / "bom.toml"  # one folder: the same paths resolved
+    plain.write_bytes(default_settings_path().read_bytes())
+    path.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    assert load_all(path) == load_all(plain)

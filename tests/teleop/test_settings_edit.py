@@ -95,3 +95,27 @@ def test_a_linked_settings_file_is_written_through_the_link(settings_file, tmp_p
     update_settings_file(link, {"load_cell.tare_counts": 9})
     assert link.is_symlink() and link.resolve() == settings_file.resolve()
     assert load_settings(settings_file).load_cell.tare_counts == 9
+
+
+def test_crlf_line_ends_are_kept_and_only_the_changed_key_differs(settings_file):
+    before = settings_file.read_bytes().replace(b"\r\n", b"\n").replace(b"\n", b"\r\n")
+    settings_file.write_bytes(before)
+    update_settings_file(settings_file, {"gripper.finger_stiffness_n_per_m": 123456.0})
+    after = settings_file.read_bytes()
+    changed = [(a, b) for a, b in zip(before.split(b"\r\n"), after.split(b"\r\n"), strict=True) if a != b]
+    assert changed == [(b"finger_stiffness_n_per_m = 200000.0", b"finger_stiffness_n_per_m = 123456.0")]
+    # a table the file lacks is added with the file's line ends too
+    update_settings_file(settings_file, {"sensors.third.camera_latency_s": 0.01})
+    text = settings_file.read_bytes()
+    assert b"[sensors.third]\r\ncamera_latency_s = 0.01\r\n" in text and text.count(b"\n") == text.count(b"\r\n")
+
+
+def test_a_byte_order_mark_is_read_and_kept(settings_file):
+    before = b"\xef\xbb\xbf" + settings_file.read_bytes()
+    settings_file.write_bytes(before)
+    changes = update_settings_file(settings_file, {"gripper.finger_stiffness_n_per_m": 123456.0})
+    assert changes == [SettingChange("gripper.finger_stiffness_n_per_m", 200000.0, 123456.0)]
+    after = settings_file.read_bytes()
+    assert after.startswith(b"\xef\xbb\xbf#") and after.count(b"\xef\xbb\xbf") == 1
+    assert after == before.replace(b"finger_stiffness_n_per_m = 200000.0", b"finger_stiffness_n_per_m = 123456.0")
+    assert load_settings(settings_file).gripper.finger_stiffness_n_per_m == 123456.0

@@ -10,6 +10,7 @@ import pytest
 
 from estimator.errors import PerceptionError
 from estimator.perception import warp_and_crop, warp_maps, warp_matrix, warp_points
+from teleop.errors import SettingsError
 from teleop.settings import SensorSettings
 
 
@@ -120,6 +121,10 @@ def test_a_binned_frame_of_the_wrong_size_is_named_as_captured():
 
 
 def test_degenerate_corners_are_refused():
-    line = SensorSettings(warp_corners_px=((0.0, 0.0), (10.0, 0.0), (20.0, 0.0), (30.0, 0.0)))
+    corners = ((0.0, 0.0), (10.0, 0.0), (20.0, 0.0), (30.0, 0.0))
+    with pytest.raises(SettingsError, match="warp_corners_px"):  # the settings refuse them first
+        SensorSettings(warp_corners_px=corners)
+    line = SensorSettings()
+    object.__setattr__(line, "warp_corners_px", corners)  # past the settings: warp_matrix's own check
     with pytest.raises(PerceptionError, match="warp_corners_px"):
         warp_matrix(line)
