@@ -273,7 +273,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "without --figures: those the block records; otherwise every method of each source)")
     parser.add_argument("--keep", metavar="DIR", default=None,
                         help="also write a small copy of each source (its figures, command and scope, without "
-                             "the per-record lists) into DIR as LABEL.json, and point the card at the copies")
+                             "the per-record lists) into DIR as LABEL.json, and point the card at the copies. "
+                             "A LABEL.json already there is replaced only when it is a source this card's block "
+                             "records (its own copy) or holds the same copy already; any other (another card's "
+                             "copy, say) is refused, naming it, and nothing is written, unless --overwrite")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="with --keep: replace LABEL.json files in DIR that this card does not record")
     parser.add_argument("--check", action="store_true",
                         help="write nothing; exit with status 1 when the card's block differs from what its "
                              "sources give, naming each figure that differs")
@@ -287,6 +292,31 @@ def _figure_specs(specs: Sequence[str]) -> list[tuple[str, Path]]:
             raise EstimatorError(f"--figures {spec!r}: expected LABEL=PATH")
         out.append((label, Path(path)))
     return out
+
+
+def _own_sources(text: str, card: Path) -> set[Path]:
+    """The source files the card's block records (none when it records none yet)."""
+    try:
+        specs, _ = recorded_sources(text, card)
+    except EstimatorError:
+        return set()
+    return {path.resolve() for _, path in specs}
+
+
+def _check_kept(copies: Mapping[Path, str], own: set[Path], keep: Path) -> None:
+    """Refuse (before anything is written) a ``--keep`` copy that would replace a different file the card
+    does not record: another card's copy, or anything else of the user's."""
+    for path, copy in copies.items():
+        if not path.exists() or path.resolve() in own:
+            continue
+        try:
+            same = path.read_text(encoding="utf-8") == copy
+        except (OSError, UnicodeDecodeError):
+            same = False
+        if not same:
+            raise EstimatorError(f"--keep {keep}: {path} exists, differs from this source's copy and is not a source "
+                                 "this card records (another card's copy?); keep into another folder, or pass "
+                                 "--overwrite to replace it; nothing was written")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -308,6 +338,8 @@ def run(args: argparse.Namespace) -> int:
     if unknown:
         where = "--methods" if args.methods is not None else f"{card}: the recorded methods"
         raise EstimatorError(f"{where} {', '.join(unknown)}: in none of the sources (they have {', '.join(have)})")
+    if getattr(args, "overwrite", False) and not args.keep:
+        raise EstimatorError("--overwrite: replaces files --keep DIR would write; give --keep DIR, or leave it out")
     if args.keep and not args.check:
         keep = Path(args.keep)
         slugs = [_slug(s.label) for s in sources]
@@ -319,10 +351,13 @@ def run(args: argparse.Namespace) -> int:
             raise EstimatorError(f"--keep {keep}: exists and is not a folder") from None
         except OSError as exc:
             raise EstimatorError(f"--keep {keep}: cannot create the folder ({exc.strerror})") from None
+        copies = {keep / f"{slug}.json": json.dumps(kept_copy(source, methods), indent=1, allow_nan=False) + "\n"
+                  for source, slug in zip(sources, slugs, strict=True)}
+        if not getattr(args, "overwrite", False):
+            _check_kept(copies, _own_sources(text, card), keep)
         kept = []
-        for source, slug in zip(sources, slugs, strict=True):
-            path = keep / f"{slug}.json"
-            path.write_text(json.dumps(kept_copy(source, methods), indent=1, allow_nan=False) + "\n", encoding="utf-8")
+        for source, (path, copy) in zip(sources, copies.items(), strict=True):
+            path.write_text(copy, encoding="utf-8")
             kept.append(load_source(source.label, path))
         sources = kept
     block = render_block(sources, card=card, methods=methods)

@@ -228,14 +228,20 @@ class Variant:
     @classmethod
     def parse(cls, text: str, *, n_frames: int = 3, size_px: tuple[int, int] = (64, 88),
               window_m: tuple[float, float] | None = None) -> Variant:
-        """``IMAGE[+markers][+fw][+analytical]``, e.g. ``depth+fw+analytical`` or ``rgb+markers``."""
+        """``IMAGE[+markers][+fw][+analytical]``, e.g. ``depth+fw+analytical`` or ``rgb+markers``: the parts
+        in any order, each at most once (ModelError otherwise)."""
         match = _VARIANT.match(text.strip())
         if not match:
             raise ModelError(
                 f"variant {text!r}: expected depth or rgb followed by any of +markers, +fw, "
                 "+analytical (e.g. depth+fw+analytical)"
             )
-        flags = set(filter(None, match.group(2).split("+")))
+        parts = [p for p in match.group(2).split("+") if p]
+        twice = sorted({p for p in parts if parts.count(p) > 1})
+        if twice:
+            raise ModelError(f"variant {text!r}: {', '.join('+' + p for p in twice)} given more than once; name "
+                             "each part once (e.g. depth+fw+analytical)")
+        flags = set(parts)
         return cls(image=match.group(1), markers="markers" in flags, force_width="fw" in flags,
                    analytical="analytical" in flags, n_frames=n_frames, size_px=size_px, window_m=window_m)
 

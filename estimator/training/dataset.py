@@ -33,13 +33,24 @@ error (or an interrupt) removes it, so ``OUT`` is either a whole dataset or abse
 that gives no sample is in the manifest's ``skipped`` list with its path, a ``cause`` (one of
 :data:`SKIP_CAUSES`) and a ``reason`` that says what to do about it: unreadable; unlabelled (no
 label, or no modulus); no sensor on the settings' finger; a calibration it names that does not
-exist; no usable loading phase (or too few loading frames); its measurement failed. A build that
-gives no sample at all raises :class:`~estimator.errors.EstimatorError` listing them.
+exist; no usable loading phase (or too few loading frames); its measurement failed; a duplicate (a
+byte-identical copy of a record met earlier in path order, e.g. one export copied into two folders:
+the reason names the copy kept, so a grasp is never counted twice). A build that gives no sample at all
+raises :class:`~estimator.errors.EstimatorError` listing them.
+
+Object names become folder and file names with every run of characters other than letters, digits,
+``.``, ``_`` and ``-`` replaced by ``_``; labels that would become the same name (``"vinyl eraser"``,
+``"vinyl/eraser"``, ``"vinyl_eraser"``) are refused before anything is built, naming each label and a
+record of it, so no sample overwrites another's. A build whose val or test split ends up without samples
+(too few objects for ``fractions``) logs a warning naming the split, and the manifest lists it under
+``warnings``.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import logging
 import math
 import os
 import re
@@ -82,7 +93,9 @@ DATASET_FORMAT = "compliance-teleop.dataset"
 DEFAULT_FRACTIONS = (0.7, 0.15, 0.15)
 #: Why a record gave no sample (the ``cause`` of each entry in the manifest's ``skipped``).
 SKIP_CAUSES = ("unreadable", "unlabelled", "no sensor", "calibration missing", "no usable loading phase",
-               "measurement failed")
+               "measurement failed", "duplicate")
+
+log = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------- split
@@ -163,6 +176,37 @@ def _safe_name(name: str) -> str:
 
 def _skip(path: Path, cause: str, reason: str) -> dict[str, Any]:
     return {"path": str(path), "cause": cause, "skipped": reason}
+
+
+def _content_hash(path: Path) -> str | None:
+    """The SHA-256 of a record's bytes (None: unreadable, left to the record check to report)."""
+    digest = hashlib.sha256()
+    try:
+        with path.open("rb") as f:
+            for block in iter(partial(f.read, 1 << 20), b""):
+                digest.update(block)
+    except OSError:
+        return None
+    return digest.hexdigest()
+
+
+def _name_collisions(labels: Mapping[Path, tuple[str, str]]) -> EstimatorError | None:
+    """An error naming the labels that become one file name (None: every name stays apart)."""
+    by_file: dict[str, dict[str, Path]] = defaultdict(dict)
+    for path in sorted(labels):
+        name = labels[path][0]
+        by_file[_safe_name(name)].setdefault(name, path)
+    clashes = {safe: names for safe, names in sorted(by_file.items()) if len(names) > 1}
+    if not clashes:
+        return None
+    lines = "\n".join(
+        f"  {', '.join(f'{name!r} ({path})' for name, path in sorted(names.items()))} -> {safe!r}"
+        for safe, names in clashes.items())
+    return EstimatorError(
+        "--records: object labels that differ only in characters other than letters, digits, '.', '_' and '-' "
+        f"would be written to the same sample files, and one would overwrite the other:\n{lines}\n"
+        "relabel them (`teleop label`, then export again) to one name if they are one object, or to names "
+        "that differ in letters or digits if not; nothing was built")
 
 
 def _calibration_problem(record: GraspRecord, finger: str, override: str | None, option: str) -> str | None:
@@ -296,14 +340,25 @@ def build_dataset(
     finger = settings.sensing.finger
     labels: dict[Path, tuple[str, str]] = {}
     skipped: list[dict[str, Any]] = []
-    for path in records:
-        checked = _check_record(Path(path), finger=finger, options=options)
+    first_of: dict[str, Path] = {}
+    for path in sorted(Path(p) for p in records):
+        digest = _content_hash(path)
+        if digest is not None and digest in first_of:
+            skipped.append(_skip(path, "duplicate", f"duplicate of {first_of[digest]} (the same bytes; that "
+                                                    "copy is used, this one is not counted again)"))
+            continue
+        if digest is not None:
+            first_of[digest] = path
+        checked = _check_record(path, finger=finger, options=options)
         if isinstance(checked, dict):
             skipped.append(checked)
         else:
-            labels[Path(path)] = checked
+            labels[path] = checked
     if not labels:
         raise _nothing_made([_skipped_entry(s) for s in skipped], len(records))
+    collision = _name_collisions(labels)
+    if collision is not None:
+        raise collision
     split = split_objects(dict(labels.values()), seed=seed, fractions=fractions)
     split_of = {name: s for s, names in split.items() for name in names}
     grasp_index: dict[str, int] = Counter()
@@ -357,6 +412,17 @@ def _write(jobs: list[tuple[Path, int, str]], out: Path, *, settings: Settings, 
     if not any(r.get("samples") for r in rows):
         raise _nothing_made(skipped, n_records)
     counts = {s: sum(len(r.get("samples", ())) for r in rows if r.get("split") == s) for s in SPLITS}
+    warnings = []
+    for s in ("val", "test"):
+        if not counts[s]:
+            n_objects = len({r["object"] for r in rows if r.get("samples")})
+            warnings.append(
+                f"split {s!r} has no samples ({len(split[s])} of {n_objects} objects with samples, fractions "
+                f"{list(fractions)}): "
+                + ("`estimator train` refuses a dataset without val samples" if s == "val" else
+                   "evaluation and calibration have no held-out test samples")
+                + "; add records of more objects, or change --split TRAIN,VAL,TEST")
+            log.warning("%s", warnings[-1])
     (out / "split.json").write_text(json.dumps(
         {"seed": seed, "fractions": list(fractions), "stratified_by": "material", **split}, indent=1))
     manifest = {
@@ -371,6 +437,7 @@ def _write(jobs: list[tuple[Path, int, str]], out: Path, *, settings: Settings, 
         "samples": counts, "objects": {s: len(v) for s, v in split.items()},
         "used": [{k: r[k] for k in ("path", "object", "split", "samples")} for r in rows if r.get("samples")],
         "skipped": skipped, "skipped_reasons": dict(Counter(s["cause"] for s in skipped)),
+        "warnings": warnings,
         "seconds": time.perf_counter() - started,
     }
     (out / "dataset.json").write_text(json.dumps(manifest, indent=1))

@@ -70,6 +70,13 @@ def pooled_from_onnx(path: str | Path, variant: Variant, temperatures: Sequence[
     return check_rebuilt(PooledNet(members, temperatures), path, check)
 
 
+def _variant_text(variant: Variant) -> str:
+    """A variant as a person reads it: its name, frames, image size and window."""
+    window = "" if variant.window_m is None else (
+        f", a {variant.window_m[0] * 1e3:.3g} x {variant.window_m[1] * 1e3:.3g} mm window")
+    return f"{variant.name} ({variant.n_frames} frames of {variant.size_px[0]}x{variant.size_px[1]} px{window})"
+
+
 def _provenance(model_dir: Path, predictor: CompliancePredictor) -> dict[str, Any]:
     """Where a member came from: its directory then, when and how it was trained (its ``training``,
     with the learning curve), and its temperature."""
@@ -105,7 +112,8 @@ def pool_models(model_dirs: Sequence[str | Path], data_dir: str | Path, out_dir:
     first = predictors[0]
     for directory, predictor in zip(model_dirs[1:], predictors[1:], strict=True):
         if predictor.variant != first.variant:
-            raise EstimatorError(f"{directory}: variant {predictor.variant}, the first model's is {first.variant}")
+            raise EstimatorError(f"--model {directory}: reads {_variant_text(predictor.variant)}, the first --model "
+                                 f"{model_dirs[0]} reads {_variant_text(first.variant)}: pool models of one variant")
         if (predictor.metadata.raw.get("data") or {}).get("objects") != (first.metadata.raw.get("data") or {}).get("objects"):
             raise EstimatorError(f"{directory} was trained on another split of objects than {model_dirs[0]}: "
                                  "pool models trained on one dataset")

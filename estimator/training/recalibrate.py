@@ -6,8 +6,10 @@ scale; and ``auto``'s split threshold) is fitted anew, with this code's rules fo
 says, and the model's ``metrics`` on its val and test objects are scored again: a change to how
 answers are described or calibrated needs no retraining. The dataset is a ``build-dataset``
 directory of the model's own data (``metadata.json`` ``data.dir``); its val and test objects must
-be objects the model never trained on. ``recalibrated`` in the metadata says when, from what, and
-keeps the calibration it replaced.
+be objects the model never trained on, except that the val and test objects a fine-tuning trained on
+(``fine_tuning.objects`` in its metadata, which fine-tuning moves to train) are left out, as
+fine-tuning's own recalibration leaves them out. ``recalibrated`` in the metadata says when, from what,
+which objects were left out (``left_out``), and keeps the calibration it replaced.
 
 :func:`cross_validate` (``estimator recalibrate --cross-validate``) says what such a calibration
 scores on objects it was not fitted on, from the val objects alone (k folds by object): the figures
@@ -56,22 +58,35 @@ def _logits(predictor: CompliancePredictor, data: SplitData) -> np.ndarray:
 
 
 def _load(model_dir: Path, data_dir: Path, splits: tuple[str, ...]
-          ) -> tuple[CompliancePredictor, dict[str, SplitData], dict[str, np.ndarray]]:
+          ) -> tuple[CompliancePredictor, dict[str, SplitData], dict[str, np.ndarray], list[str]]:
     """The model, the live samples of ``splits`` of its own dataset and its logits for them, after the
-    checks of :func:`recalibrate`."""
+    checks of :func:`recalibrate`, and the val or test objects left out because fine-tuning trained on
+    them (module notes)."""
     predictor = CompliancePredictor(model_dir)
     metadata = predictor.metadata.raw
     check_dataset_fits(data_dir, predictor.variant, metadata.get("data") or {})
     trained_on = set(((metadata.get("data") or {}).get("objects") or {}).get("train") or [])
+    tuning = metadata.get("fine_tuning") or {}
+    added = set(tuning.get("objects") or [])
     split = load_split(data_dir / "split.json")
-    seen = sorted(trained_on & (set(split["val"]) | set(split["test"])))
-    if seen:
-        raise EstimatorError(f"{data_dir}: val or test objects the model trained on ({', '.join(seen[:5])}"
-                             f"{', ...' if len(seen) > 5 else ''}): use the dataset the model was trained on")
-    parts = {name: part.live() for name, part in load_split_data(data_dir, predictor.variant, splits).items()}
+    seen = trained_on & (set(split["val"]) | set(split["test"]))
+    unexplained = sorted(seen - added)
+    if unexplained:
+        hint = ("use the dataset the model was trained on" if not tuning else
+                f"the model was fine-tuned (on {tuning.get('data')}), which moves only its own objects "
+                f"({', '.join(sorted(added)) or 'none'}) to train: use the dataset its base model was trained on")
+        raise EstimatorError(f"{data_dir}: val or test objects the model trained on ({', '.join(unexplained[:5])}"
+                             f"{', ...' if len(unexplained) > 5 else ''}): {hint}")
+    dropped = sorted(seen)
+    parts = {}
+    for name, part in load_split_data(data_dir, predictor.variant, splits).items():
+        part = part.live()
+        parts[name] = part.subset(np.array([r["object"] not in seen for r in part.rows], dtype=bool))
     if not len(parts["val"]):
-        raise EstimatorError(f"{data_dir}: no val samples to calibrate on")
-    return predictor, parts, {name: _logits(predictor, part) for name, part in parts.items()}
+        why = (f" once the objects its fine-tuning trained on ({', '.join(dropped)}) are left out" if dropped
+               else "")
+        raise EstimatorError(f"{data_dir}: no val samples to calibrate on{why}")
+    return predictor, parts, {name: _logits(predictor, part) for name, part in parts.items()}, dropped
 
 
 def _fit_conformal_on(predictor: CompliancePredictor, val: SplitData, logits: np.ndarray,
@@ -106,7 +121,7 @@ def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | P
     if not in_place:
         check_out_dir(out_dir, overwrite=overwrite)
     settings = load_settings() if settings is None else settings
-    predictor, parts, logits = _load(model_dir, data_dir, ("val", "test"))
+    predictor, parts, logits, dropped = _load(model_dir, data_dir, ("val", "test"))
     variant, metadata = predictor.variant, dict(predictor.metadata.raw)
     val = parts["val"]
     calibration = _fit_conformal_on(predictor, val, logits["val"], settings)
@@ -120,7 +135,7 @@ def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | P
     if record:
         new["recalibrated"] = {"utc": datetime.now(UTC).isoformat(timespec="seconds"), "data": str(data_dir),
                                "settings": str(settings.source) if settings.source else None,
-                               "previous": metadata["calibration"]}
+                               "previous": metadata["calibration"], "left_out": dropped}
     out_dir.mkdir(parents=True, exist_ok=True)
     # Written beside and renamed in together: an interrupt leaves the folder's earlier model whole.
     with staged(out_dir / "model.onnx", out_dir / "metadata.json") as (model_tmp, metadata_tmp):
@@ -150,12 +165,15 @@ def cross_validate(model_dir: str | Path, data_dir: str | Path, *, folds: int = 
         As :func:`recalibrate`, or ``folds`` is not from 2 to the number of val objects.
     """
     settings = load_settings() if settings is None else settings
-    predictor, parts, logits = _load(Path(model_dir), Path(data_dir), ("val",))
+    predictor, parts, logits, _ = _load(Path(model_dir), Path(data_dir), ("val",))
     val, val_logits = parts["val"], logits["val"]
     objects = np.array([r["object"] for r in val.rows])
     names = sorted(set(objects))
     if not 2 <= folds <= len(names):
-        raise EstimatorError(f"folds: expected 2 to {len(names)} (the val objects of {data_dir}), got {folds}")
+        default = "; 5 is the number --cross-validate takes without FOLDS" if folds == 5 else ""
+        raise EstimatorError(f"--cross-validate FOLDS {folds}: expected 2 to {len(names)} (the number of val objects "
+                             f"of {data_dir}: every fold needs one){default}"
+                             + ("; cross-validation needs at least 2 val objects" if len(names) < 2 else ""))
     order = np.random.default_rng(seed).permutation(len(names))
     fold_of = {names[i]: k % folds for k, i in enumerate(order)}
     fold = np.array([fold_of[o] for o in objects])

@@ -27,12 +27,17 @@ class TrainConfig:
     threads: int = 1
 
     def __post_init__(self) -> None:
+        # Named as the commands' options (``--epochs`` for ``epochs``, ...): every field is one.
         if not (math.isfinite(self.label_sd_decades) and self.label_sd_decades >= 0):
-            raise EstimatorError(f"label_sd_decades {self.label_sd_decades!r}: expected a finite value >= 0")
-        if min(self.epochs, self.batch_size, self.patience, self.threads) < 1:
-            raise EstimatorError("epochs, batch_size, patience and threads must each be >= 1")
-        if not (self.lr > 0 and self.weight_decay >= 0):
-            raise EstimatorError(f"lr {self.lr} must be > 0 and weight_decay {self.weight_decay} >= 0")
+            raise EstimatorError(f"--label-sd {self.label_sd_decades!r}: expected a finite value >= 0")
+        for option, value in (("--epochs", self.epochs), ("--batch-size", self.batch_size),
+                              ("--patience", self.patience), ("--threads", self.threads)):
+            if value < 1:
+                raise EstimatorError(f"{option} {value!r}: expected a whole number >= 1")
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise EstimatorError(f"--lr {self.lr!r}: expected a finite value > 0")
+        if not (math.isfinite(self.weight_decay) and self.weight_decay >= 0):
+            raise EstimatorError(f"--weight-decay {self.weight_decay!r}: expected a finite value >= 0")
 
 
 #: Fine-tuning's recipe (:mod:`estimator.training.finetune`, whose notes say why).

@@ -103,7 +103,7 @@ def _fine_tune(args: argparse.Namespace) -> int:
                              "the base model's resolution limit)")
     if args.variant is not None:
         variant = CompliancePredictor(args.init).variant
-        if args.variant != variant.name:
+        if Variant.parse(args.variant).name != variant.name:  # the parts, in any order
             raise EstimatorError(f"--variant {args.variant}: the model of --init {args.init} reads {variant.name}")
     _variant(args, load_manifest(args.data))  # --frames and --size must fit the dataset
     config = replace(FINE_TUNE_CONFIG, epochs=_given(args.epochs, FINE_TUNE_CONFIG.epochs),

@@ -140,3 +140,26 @@ def test_the_shipped_card_matches_the_json_it_came_from(capsys):
     assert main(["card", str(SHIPPED_CARD), "--check"]) == 0, capsys.readouterr().err
     sources, _ = recorded_sources(SHIPPED_CARD.read_text(), SHIPPED_CARD)
     assert sources and all(path.is_file() and path.stat().st_size < 16_000 for _, path in sources)
+
+
+def test_keep_refuses_to_replace_another_cards_copy_unless_overwrite(tmp_path, card, capsys):
+    # Two cards keeping into one folder under one label: the second must not change what the first points at.
+    first_source, _ = evaluate_output(tmp_path, name="a.json")
+    second_source, _ = evaluate_output(tmp_path, name="b.json", shift=3.0)
+    other = tmp_path / "other.md"
+    other.write_text(f"# other\n{BEGIN}\n{END}\n")
+    keep = tmp_path / "kept"
+    assert main(["card", str(card), "--figures", f"Sim={first_source}", "--keep", str(keep)]) == 0
+    kept = (keep / "sim.json").read_bytes()
+    assert main(["card", str(other), "--figures", f"Sim={second_source}", "--keep", str(keep)]) == 2
+    err = capsys.readouterr().err
+    assert f"{keep / 'sim.json'} exists" in err and "--overwrite" in err
+    assert (keep / "sim.json").read_bytes() == kept and BEGIN + "\n" + END in other.read_text()
+    assert main(["card", str(card), "--check"]) == 0
+    # The same copy again is no change; the card's own copy may be written again; --overwrite replaces.
+    assert main(["card", str(other), "--figures", f"Sim={first_source}", "--keep", str(keep)]) == 0
+    assert main(["card", str(card), "--keep", str(keep)]) == 0
+    assert main(["card", str(other), "--figures", f"Sim={second_source}", "--keep", str(keep), "--overwrite"]) == 0
+    assert (keep / "sim.json").read_bytes() != kept
+    assert main(["card", str(card), "--overwrite"]) == 2
+    assert "--overwrite: replaces files --keep DIR would write" in capsys.readouterr().err

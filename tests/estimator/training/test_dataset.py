@@ -91,10 +91,17 @@ def test_build_dataset_from_records_never_leaks_an_object(sim_grasps, tmp_path, 
 def test_records_of_one_name_in_two_folders_keep_their_own_samples(sim_grasps, tmp_path, capsys):
     # Runs on several rigs name their records alike (<object>_g000.grasp in each run's folder).
     records, calibration = sim_grasps
+    import dataclasses
+
+    from teleop.record import read_record, write_record
+
     first = sorted(records.glob("*.grasp"))[0]
     (tmp_path / "recs" / "run_b").mkdir(parents=True)
     shutil.copy(first, tmp_path / "recs" / first.name)
-    shutil.copy(first, tmp_path / "recs" / "run_b" / first.name)
+    # Another grasp (not a byte copy of this one, which would be a duplicate) under the same file name.
+    record = read_record(first)
+    provenance = dataclasses.replace(record.provenance, seed=(record.provenance.seed or 0) + 1)
+    write_record(dataclasses.replace(record, provenance=provenance), tmp_path / "recs" / "run_b" / first.name)
     out = tmp_path / "ds"
     assert main(["build-dataset", "--records", str(tmp_path / "recs"), "--out", str(out), "--calibration",
                  str(calibration), "--size", "32x44", "--shifts", "1", "--json"]) == 0
@@ -234,3 +241,61 @@ def test_an_out_folder_under_a_plain_file_names_that_file(sim_grasps, tmp_path, 
     assert main(["build-dataset", "--records", str(records), "--out", str(tmp_path / "afile" / "ds")]) == 2
     err = capsys.readouterr().err
     assert f"{tmp_path / 'afile'} is not a directory" in err and "File exists" not in err
+
+
+def test_labels_that_become_one_file_name_are_refused_before_building(sim_grasps, tmp_path, capsys):
+    import dataclasses
+
+    from teleop.record import read_record, write_record
+
+    records, calibration = sim_grasps
+    paths = sorted(records.glob("*.grasp"))
+    folder = tmp_path / "recs"
+    folder.mkdir()
+    shutil.copy(paths[0], folder / paths[0].name)
+    name = read_record(paths[0]).label.object_name
+    spelled = name.replace("_", " ")
+    assert spelled != name
+    other = read_record(paths[1])
+    write_record(dataclasses.replace(other, label=dataclasses.replace(other.label, object_name=spelled)),
+                 folder / "other.grasp")
+    out = tmp_path / "ds"
+    assert main(["build-dataset", "--records", str(folder), "--out", str(out), "--calibration", str(calibration),
+                 "--size", "32x44", "--shifts", "1"]) == 2
+    err = capsys.readouterr().err
+    assert f"{name!r} ({folder / paths[0].name})" in err and f"{spelled!r} ({folder / 'other.grasp'})" in err
+    assert "--records" in err and "nothing was built" in err
+    assert not out.exists() and not list(tmp_path.glob(".ds*"))
+
+
+def test_a_record_copied_into_two_folders_is_counted_once(sim_grasps, tmp_path, capsys):
+    records, calibration = sim_grasps
+    paths = sorted(records.glob("*.grasp"))
+    for folder in ("a", "b"):
+        (tmp_path / "recs" / folder).mkdir(parents=True)
+        shutil.copy(paths[0], tmp_path / "recs" / folder / paths[0].name)
+    shutil.copy(paths[1], tmp_path / "recs" / "a" / paths[1].name)
+    out = tmp_path / "ds"
+    assert main(["build-dataset", "--records", str(tmp_path / "recs"), "--out", str(out), "--calibration",
+                 str(calibration), "--size", "32x44", "--shifts", "1", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["grasps_used"] == 2 and sum(summary["samples"].values()) == 2
+    kept, copy = (str(tmp_path / "recs" / f / paths[0].name) for f in ("a", "b"))
+    assert summary["skipped"] == [{"path": copy, "cause": "duplicate", "reason": summary["skipped"][0]["reason"]}]
+    assert summary["skipped"][0]["reason"].startswith(f"duplicate of {kept}")
+    assert summary["skipped_reasons"] == {"duplicate": 1}
+
+
+def test_a_split_left_without_val_or_test_samples_is_warned_about_at_build_time(sim_grasps, tmp_path, caplog):
+    from estimator.training.dataset import DatasetOptions, build_dataset
+
+    records, calibration = sim_grasps
+    with caplog.at_level("WARNING", logger="estimator.training.dataset"):
+        manifest = build_dataset([sorted(records.glob("*.grasp"))[0]], tmp_path / "ds", settings=load_settings(),
+                                 options=DatasetOptions(shifts=1, size_px=(32, 44), calibration=str(calibration)),
+                                 progress=False)
+    assert manifest["samples"]["val"] == manifest["samples"]["test"] == 0
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    for split in ("val", "test"):
+        assert any(m.startswith(f"split {split!r} has no samples") and "--split" in m for m in warned), warned
+    assert len(manifest["warnings"]) == 2

@@ -223,3 +223,16 @@ def test_replay_without_init_is_refused(tmp_path, capsys):
     assert main(["train", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "m"),
                  "--replay", str(tmp_path)]) == 2
     assert "need --init MODEL_DIR" in capsys.readouterr().err
+
+
+def test_train_with_init_takes_the_models_variant_spelled_in_any_order(tmp_path, capsys):
+    # The shipped default reads depth+fw+analytical: another order of its parts is that variant, so the
+    # refusal that follows is the missing dataset's, not --variant's.
+    args = ["train", "--init", str(default_model_dir()), "--data", str(tmp_path / "none"),
+            "--out", str(tmp_path / "m"), "--variant", "depth+analytical+fw"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "--variant" not in err and str(tmp_path / "none") in err
+    assert main([*args[:-1], "depth+fw+analytical+fw"]) == 2
+    assert "+fw given more than once" in capsys.readouterr().err
+    assert not (tmp_path / "m").exists()

@@ -119,8 +119,50 @@ def test_cross_validation_answers_each_object_under_a_calibration_fitted_without
 
 def test_cross_validation_needs_two_folds_to_one_per_val_object(trained_model, synthetic_dataset):
     for folds in (1, 10_000):
-        with pytest.raises(EstimatorError, match="folds: expected 2 to"):
+        with pytest.raises(EstimatorError, match=f"--cross-validate FOLDS {folds}: expected 2 to"):
             cross_validate(trained_model, synthetic_dataset, folds=folds)
+
+
+def test_too_many_folds_names_the_option_and_that_five_is_its_default(trained_model, synthetic_dataset):
+    n_val = len(json.loads((synthetic_dataset / "split.json").read_text())["val"])
+    assert n_val < 5
+    with pytest.raises(EstimatorError, match=rf"--cross-validate FOLDS 5: expected 2 to {n_val} .*5 is the number "
+                                             "--cross-validate takes without FOLDS"):
+        cross_validate(trained_model, synthetic_dataset, folds=5)
+
+
+def _as_fine_tuned(trained_model, tmp_path, moved):
+    """A copy of the model whose metadata says fine-tuning trained it on ``moved`` (as fine-tune writes it)."""
+    from estimator.training.finetune import _objects_after
+
+    model = tmp_path / "tuned"
+    shutil.copytree(trained_model, model)
+    meta = json.loads((model / "metadata.json").read_text())
+    meta["data"]["objects"] = _objects_after(meta["data"]["objects"], set(moved))
+    meta["fine_tuning"] = {"base": str(trained_model), "data": "more-grasps", "objects": sorted(moved)}
+    (model / "metadata.json").write_text(json.dumps(meta))
+    return model
+
+
+def test_a_fine_tuned_model_recalibrates_on_its_base_dataset_leaving_out_what_it_trained_on(
+        trained_model, synthetic_dataset, tmp_path):
+    split = json.loads((synthetic_dataset / "split.json").read_text())
+    moved = [split["val"][0], split["test"][0]]
+    model = _as_fine_tuned(trained_model, tmp_path, moved)
+    meta = recalibrate(model, synthetic_dataset, out_dir=tmp_path / "out")
+    assert meta["recalibrated"]["left_out"] == sorted(moved)
+    assert meta["metrics"]["val"]["objects"] == len(split["val"]) - 1
+    assert meta["metrics"]["test"]["objects"] == len(split["test"]) - 1
+    assert cross_validate(model, synthetic_dataset, folds=2)["objects"] == len(split["val"]) - 1
+
+
+def test_a_fine_tuned_model_on_a_dataset_it_did_not_come_from_names_the_fine_tuning(
+        trained_model, synthetic, tmp_path):
+    other = synthetic.write_dataset(tmp_path / "other", seed=5)
+    model = _as_fine_tuned(trained_model, tmp_path, [])
+    with pytest.raises(EstimatorError, match="the model was fine-tuned .*more-grasps.*base model"):
+        recalibrate(model, other, out_dir=tmp_path / "out")
+    assert not (tmp_path / "out").exists()
 
 
 def test_the_command_cross_validates_without_writing(trained_model, synthetic_dataset, tmp_path, capsys):

@@ -95,5 +95,20 @@ def test_mismatched_variant_or_empty_split_is_refused(synthetic, tmp_path):
     with pytest.raises(EstimatorError, match="0 val samples"):
         train_model(plain, tmp_path / "m", variant=Variant.parse("depth", n_frames=3, size_px=(16, 22)),
                     progress=False)
-    with pytest.raises(EstimatorError, match="label_sd_decades"):
+    with pytest.raises(EstimatorError, match="--label-sd -0.1: expected a finite value >= 0"):
         TrainConfig(label_sd_decades=-0.1)
+
+
+@pytest.mark.parametrize(("field", "option"), [("epochs", "--epochs"), ("patience", "--patience"),
+                                               ("batch_size", "--batch-size"), ("threads", "--threads")])
+def test_a_recipe_count_below_one_names_its_option_and_value(field, option):
+    with pytest.raises(EstimatorError, match=f"^{option} 0: expected a whole number >= 1$"):
+        TrainConfig(**{field: 0})
+
+
+def test_a_variant_naming_a_part_twice_is_refused():
+    from estimator.errors import ModelError
+
+    with pytest.raises(ModelError, match=r"'rgb\+fw\+analytical\+fw': \+fw given more than once"):
+        Variant.parse("rgb+fw+analytical+fw")
+    assert Variant.parse("depth+analytical+fw") == Variant.parse("depth+fw+analytical")
