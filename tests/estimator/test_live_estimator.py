@@ -6,12 +6,11 @@ import dataclasses
 import json
 import logging
 import math
-import time
 
 import cv2
 import numpy as np
 import pytest
-import zmq
+from support.bus import raw_publisher, wait_subscribed
 from support.live import METHODS, Rig, expected_final, feed, in_capture_order, same
 
 from estimator.errors import CalibrationError, FitError, PerceptionError
@@ -203,12 +202,10 @@ def test_service_streams_provisional_estimates_per_frame_and_one_final_per_grasp
 
 
 def test_service_logs_bad_messages_and_carries_on(settings, calibration, records, caplog):
-    context = zmq.Context.instance()
-    rogue = context.socket(zmq.PUB)
-    port = rogue.bind_to_random_port("tcp://127.0.0.1")
-    rig = Rig(settings, calibration, extra_endpoint=f"tcp://127.0.0.1:{port}")
+    rogue, rogue_endpoint = raw_publisher()
+    rig = Rig(settings, calibration, extra_endpoint=rogue_endpoint)
     try:
-        time.sleep(0.3)  # the service's subscription reaches the rogue publisher
+        wait_subscribed(rogue, "frame")  # the service's subscription reached the rogue publisher
         with caplog.at_level(logging.WARNING):
             rogue.send_multipart([b"frame/left", b"\xc1 not msgpack", b"{}"])
             record = records["steel_ball_bearing"]

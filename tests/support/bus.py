@@ -1,8 +1,10 @@
-"""Bus helpers for tests: publish until a subscriber hears."""
+"""Bus helpers for tests: publish until a subscriber hears; a raw publisher that knows when it is heard."""
 
 from __future__ import annotations
 
 import time
+
+import zmq
 
 from teleop.bus import Message, Publisher, Subscriber
 
@@ -24,3 +26,26 @@ def delivered(pub: Publisher, *subs: Subscriber, within_s: float) -> Message | N
             if (message := sub.recv(timeout_s=0.01)) is not None:
                 return message
     return None
+
+
+def raw_publisher(endpoint: str = "tcp://127.0.0.1:*") -> tuple[zmq.Socket, str]:
+    """A raw ZeroMQ publisher bound to ``endpoint`` (a rogue peer, sending whatever frames a test
+    wants) and the endpoint it took. An XPUB, not a PUB: it hears the subscriptions, so a test can
+    wait for them (:func:`wait_subscribed`) instead of sleeping for the slow joiner."""
+    socket = zmq.Context.instance().socket(zmq.XPUB)
+    socket.setsockopt(zmq.LINGER, 0)
+    socket.bind(endpoint)
+    return socket, socket.getsockopt_string(zmq.LAST_ENDPOINT)
+
+
+def wait_subscribed(raw: zmq.Socket, *topics: str, timeout_s: float = 5.0) -> None:
+    """Block until a subscription to each of ``topics`` has reached ``raw`` (from
+    :func:`raw_publisher`): from then on, what it sends on them is delivered."""
+    missing = {topic.encode("utf-8") for topic in topics}
+    deadline = time.monotonic() + timeout_s
+    while missing:
+        left_ms = int((deadline - time.monotonic()) * 1000)
+        assert left_ms > 0 and raw.poll(left_ms), f"no subscription to {sorted(missing)} within {timeout_s} s"
+        frame = raw.recv()
+        if frame[:1] == b"\x01":  # a subscription (b"\x00" starts an unsubscription)
+            missing.discard(frame[1:])

@@ -63,10 +63,15 @@ def wait_prepared(node: RobotNode) -> None:
 def killed_console_stops_the_fingers(node: RobotNode, operator: Publisher, listener: Subscriber,
                                      closing: Callable[[float], float], still_m: float) -> None:
     """Drive the fingers closing, go silent (the console killed), and check that the fingers stand
-    still from 250 ms after the last follow, with the watchdog's notice and the grasp's end."""
+    still from the watchdog's stop on (due 200 ms after the last follow), with the watchdog's notice
+    and the grasp's end."""
+    watchdogs = node.stats.watchdogs
     last = drive(node, operator, closing, 0.5)
     moving_from = node.gripper.read_width()[1]
-    while time.monotonic() < last + 0.25:
+    # Step until the watchdog stopped the fingers, however slowly this machine runs (the notice's
+    # stamp below says how soon that was); the width read then is where they stopped.
+    while node.stats.watchdogs == watchdogs:
+        assert time.monotonic() < last + 5.0, "no watchdog within 5 s of the last follow"
         node.step(timeout_s=0.002)
     stopped = node.gripper.read_width()[1]
     step_for(node, 0.35)
@@ -75,7 +80,9 @@ def killed_console_stops_the_fingers(node: RobotNode, operator: Publisher, liste
     got = drain(listener)
     notices = [m for m in got if m.type == "robot_notice"]
     assert [m.body["event"] for m in notices] == ["watchdog"]
-    assert WATCHDOG_S <= notices[0].t_capture_s - last < 0.25
+    # Not before the watchdog's time; after it by at most one late node step. 150 ms rather than the
+    # 50 ms an idle machine needs: a loaded one (two test workers on two cores) delays a step that much.
+    assert WATCHDOG_S <= notices[0].t_capture_s - last < WATCHDOG_S + 0.15
     assert [m.body["event"] for m in got if m.type == "grasp_event"] == ["start", "end"]
     assert [m.body["mode"] for m in got if m.type == "robot_state"][-1] == "stopped"
     assert not node.busy

@@ -41,8 +41,18 @@ def test_recv_with_zero_timeout_takes_what_is_queued_without_waiting():
         assert time.monotonic() - started < 1.0  # a recv that waited would wait for ever
         for i in range(3):
             pub.send("force", t_capture_s=float(i), t_s=[float(i)], value_n=[1.0])
-        time.sleep(0.2)  # in the subscriber's queue now
-        got = [sub.recv(timeout_s=0) for _ in range(4)]
+        # Look without waiting until all three are taken, however slowly they arrive; then nothing is left.
+        got = []
+        deadline = time.monotonic() + 5.0
+        while len(got) < 3 and time.monotonic() < deadline:
+            looked = time.monotonic()
+            message = sub.recv(timeout_s=0)
+            assert time.monotonic() - looked < 1.0  # a look, not a wait
+            if message is None:
+                time.sleep(0.01)
+            else:
+                got.append(message)
+        got.append(sub.recv(timeout_s=0))
     assert [m.seq for m in got[:3]] == [0, 1, 2] and got[3] is None
 
 
@@ -109,9 +119,11 @@ def test_estimator_killed_and_restarted_renderer_holds_flags_stale_and_resumes()
         restarted = time.monotonic()
         run_until(lambda: service.stats.estimates > received, 15.0)  # process start (imports) + reconnect
         first = time.monotonic()
-        run_until(lambda: service.renderer.phase == "active", 1.0)
+        # Active again at once: the first fresh estimate's step does it (milliseconds when idle). 2 s
+        # rather than 1 s allows only for a loaded machine (two test workers on two cores) descheduling us.
+        run_until(lambda: service.renderer.phase == "active", 2.0)
         assert not service.renderer.command.stale
-        assert time.monotonic() - first < 1.0, f"resumed {time.monotonic() - restarted:.2f} s after the restart"
+        assert time.monotonic() - first < 2.0, f"resumed {time.monotonic() - restarted:.2f} s after the restart"
     finally:
         kill(peer)
         subscriber.close()

@@ -14,10 +14,10 @@ from collections.abc import Iterator
 import msgpack
 import numpy as np
 import pytest
-import zmq
 from hypothesis import HealthCheck, given
 from hypothesis import settings as hyp_settings
 from hypothesis import strategies as st
+from support.bus import raw_publisher, wait_subscribed
 from support.live import in_capture_order
 
 from estimator.errors import EstimatorError
@@ -50,11 +50,10 @@ class LiveEstimator:
     def __init__(self, settings, calibration):
         self.robot = Publisher("tcp://127.0.0.1:*", lossless=True, source="robot")
         self.operator = Publisher("tcp://127.0.0.1:*", lossless=True, source="operator")
-        self.rogue = zmq.Context.instance().socket(zmq.PUB)
-        rogue_port = self.rogue.bind_to_random_port("tcp://127.0.0.1")
+        self.rogue, rogue_endpoint = raw_publisher()
         self.service = EstimatorService(
             settings, calibration=calibration, methods=METHODS,
-            subscriber=Subscriber([self.robot.endpoint, f"tcp://127.0.0.1:{rogue_port}"],
+            subscriber=Subscriber([self.robot.endpoint, rogue_endpoint],
                                   ("frame", "force", "width", "grasp_event")),
             publisher=Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator", high_water_mark=10_000),
             commands=Subscriber(self.operator.endpoint, ("command",)), poll_s=0.01,
@@ -75,7 +74,11 @@ class LiveEstimator:
         deadline = time.monotonic() + 5.0
         while "estimator" not in self.estimates.heartbeat.peers() and time.monotonic() < deadline:
             self.estimates.recv(timeout_s=0.05)
-        time.sleep(0.3)  # the subscription reaches the rogue socket (a PUB cannot be waited on)
+        # The renderer's subscription reached the estimator's publisher too: it heard a heartbeat (the
+        # subscriber's last topic, sorted after "estimate" and "grasp_event").
+        self.until(lambda: self.renderer.subscriber.heartbeat.last_seen_s("estimator") is not None,
+                   "the renderer to hear the estimator", timeout_s=5.0)
+        wait_subscribed(self.rogue, "frame", "force", "width", "grasp_event")  # the rogue socket is heard
 
     def until(self, done, what: str, timeout_s: float = 10.0) -> None:
         deadline = time.monotonic() + timeout_s

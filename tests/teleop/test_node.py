@@ -83,9 +83,10 @@ def test_commanded_grasp_goes_out_as_the_devices_capture_it(rig):
     assert [m.body["event"] for m in events] == ["start", "loading_end", "end"]
     marker = events[1]
     # The stop is stamped when the grasp call returns: never before the record's stop, late only by this
-    # host's scheduling (a stalled VM has made it 74 ms), and long before the 0.5 s hold ends.
+    # host's scheduling (a stalled VM has made it 74 ms; 0.45 s allows a loaded CI machine), and still
+    # before the 0.5 s hold ends.
     late_s = marker.t_capture_s - record.events["grasp_done"] - shifts[0]
-    assert -0.02 <= late_s < 0.25
+    assert -0.02 <= late_s < 0.45
     # ... and the width it read then is the record's next read, handed out early with its recorded
     # stamp: the widths are the record's, in time order, the stop's read published before the marker.
     width_messages = [m for m in got if m.type == "width"]
@@ -143,7 +144,7 @@ def test_a_simulated_replay_refuses_stop_and_release_on_the_bus_and_keeps_its_lo
     first = next(m for m in got if m.topic == f"frame/{record.frames[0].finger}")
     marker = next(m for m in got if m.type == "grasp_event" and m.body["event"] == "loading_end")
     late_s = marker.t_capture_s - record.events["grasp_done"] - (first.t_capture_s - record.frames[0].t_s[0])
-    assert -0.02 <= late_s < 0.25
+    assert -0.02 <= late_s < 0.45  # late by scheduling only (a loaded machine's), still before the 0.5 s hold ends
 
 
 def test_the_simulated_robot_needs_a_scene():
@@ -214,7 +215,8 @@ def test_the_next_commanded_grasp_stops_on_time_after_the_fingers_opened(rig):
     shift = forces[0].body["t_s"][0] - record.force_n.t_s[0]
     markers = [m for m in got if m.type == "grasp_event" and m.body["event"] == "loading_end"]
     assert len(markers) == 1
-    assert -0.02 <= markers[0].t_capture_s - record.events["grasp_done"] - shift < 0.25
+    # Late by scheduling only (a loaded machine's), still before the 0.5 s hold ends.
+    assert -0.02 <= markers[0].t_capture_s - record.events["grasp_done"] - shift < 0.45
 
 
 @pytest.mark.slow  # a whole simulated grasp, live

@@ -145,8 +145,13 @@ def test_sighup_stops_the_record_command_and_its_log_gets_its_footer(tmp_path):
                                  "--endpoint", pub.endpoint, "--scene", "quick", "--flush-interval-s", "0.05"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
-            pub.wait_for_subscriber("", timeout_s=30.0)  # the recorder is up
-            time.sleep(1.0)  # and recording (its signal handling set, just after its sockets)
+            # The recorder is up and recording: it sets its signal handling, then creates the log and
+            # subscribes (SessionRecorder.run opens it), so both say the handler is in place.
+            pub.wait_for_subscriber("", timeout_s=30.0)
+            deadline = time.monotonic() + 30.0
+            while not path.exists():
+                assert time.monotonic() < deadline and proc.poll() is None, "the recorder created no log"
+                time.sleep(0.02)
             proc.send_signal(signal.SIGHUP)  # its terminal closed
             _, err = proc.communicate(timeout=20)
         finally:

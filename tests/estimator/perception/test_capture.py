@@ -102,12 +102,16 @@ def test_capture_refuses_what_it_cannot_do(tmp_path, capsys, argv, match):
 
 
 @pytest.mark.parametrize("finger", ["left", "right"])
-def test_capture_refuses_a_simulated_camera_plainly_and_at_once(tmp_path, capsys, finger):
+def test_capture_refuses_a_simulated_camera_plainly_and_at_once(tmp_path, capsys, finger, monkeypatch):
     settings = default_settings_path()  # the shipped simulated rig
+    # A frame read waits 30 s here (2 s as shipped): far beyond what a loaded machine takes to start
+    # the command and refuse, so the bound below cannot mistake one for the other.
+    monkeypatch.setattr("teleop.rig.camera_calibration.READ_TIMEOUT_S", 30.0)
+    monkeypatch.setattr("estimator.perception.capture.READ_TIMEOUT_S", 30.0)
     started = time.monotonic()
     assert main(["calibrate", "--capture", "--presses", str(tmp_path / "new"), "--settings", str(settings),
                  "--finger", finger, "--ball-radius-mm", "2", "--out", str(tmp_path / "c.npz")]) == 2
-    assert time.monotonic() - started < 1.5  # not after waiting for a frame (2 s)
+    assert time.monotonic() - started < 10.0  # not after waiting for a frame (30 s)
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith(
         f"estimator calibrate: error: {settings}: the camera of [sensors.{finger}] is simulated (backend 'sim'): "

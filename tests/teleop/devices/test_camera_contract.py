@@ -106,7 +106,8 @@ def test_bad_timeouts_are_refused(rig):
 def test_close_wakes_a_read_waiting_in_another_thread(rig):
     with _fallen_silent(rig) as camera:
         ended = close_during_read(lambda: camera.read(timeout_s=3.0), camera.close, errors=DeviceError, waiting_s=0.2)
-    assert isinstance(ended.outcome, DeviceNotConnectedError) and ended.ended_s < 0.5
+    # Woken by close(), not by the 3 s timeout: bounded well below it, as a loaded machine is slow.
+    assert isinstance(ended.outcome, DeviceNotConnectedError) and ended.ended_s < 2.0
 
 
 # --------------------------------------------------------------------------- backend specifics

@@ -115,7 +115,7 @@ def test_bad_commands_are_refused_before_anything_moves(gripper, command, name):
         assert gripper.read_width()[1] == pytest.approx(before, abs=1e-3)
 
 
-def _settle(gripper: Gripper, *, timeout_s: float = 5.0, still_m: float = 1e-4) -> float:
+def _still(gripper: Gripper, *, timeout_s: float = 5.0, still_m: float = 1e-4) -> float:
     """The width once two reads 0.15 s apart agree within ``still_m`` (m)."""
     deadline = time.monotonic() + timeout_s
     last = gripper.read_width()[1]
@@ -128,6 +128,28 @@ def _settle(gripper: Gripper, *, timeout_s: float = 5.0, still_m: float = 1e-4) 
     raise AssertionError(f"the fingers did not settle within {timeout_s} s")
 
 
+def _settle(gripper: Gripper, target: float, *, near_m: float = 2e-3, timeout_s: float = 5.0,
+            still_m: float = 1e-4) -> float:
+    """The width once it is within ``near_m`` of ``target`` and two reads 0.15 s apart agree within
+    ``still_m``; the last width read if that does not happen within ``timeout_s``.
+
+    Stillness alone is not enough: on a loaded machine franky-sim's thread stalls for longer than
+    0.15 s, and fingers still on their way look settled.
+    """
+    deadline = time.monotonic() + timeout_s
+    now = gripper.read_width()[1]
+    while time.monotonic() < deadline:
+        if abs(now - target) <= near_m:
+            time.sleep(0.15)
+            last, now = now, gripper.read_width()[1]
+            if abs(now - last) < still_m and abs(now - target) <= near_m:
+                return now
+        else:
+            time.sleep(0.01)
+            now = gripper.read_width()[1]
+    return now  # the caller's assertion shows where the fingers went instead
+
+
 def test_follow_returns_at_once_and_the_fingers_go_to_the_latest_target(gripper):
     with gripper:
         start = gripper.read_width()[1]
@@ -136,9 +158,9 @@ def test_follow_returns_at_once_and_the_fingers_go_to_the_latest_target(gripper)
         # Non-blocking: it returned long before the 10 mm move at SPEED (0.2 s) ended.
         assert abs(gripper.read_width()[1] - first) > 2e-3
         gripper.follow(first + 0.004, speed_m_s=SPEED)  # a new target supersedes the last
-        assert _settle(gripper) == pytest.approx(first + 0.004, abs=2e-3)
+        assert _settle(gripper, first + 0.004) == pytest.approx(first + 0.004, abs=2e-3)
         gripper.follow(first - 0.004, speed_m_s=SPEED)
-        assert _settle(gripper) == pytest.approx(first - 0.004, abs=2e-3)
+        assert _settle(gripper, first - 0.004) == pytest.approx(first - 0.004, abs=2e-3)
         assert gripper.stop()
 
 
@@ -157,8 +179,7 @@ def test_stop_ends_a_follow_within_one_step_and_a_move_works_after(gripper):
         gripper.follow(target, speed_m_s=SPEED)
         _moved(gripper, start, by_m=3e-3)  # stop on the way, however slowly this machine runs
         assert gripper.stop()
-        time.sleep(0.25)  # a step in flight ends within this
-        held = gripper.read_width()[1]
+        held = _still(gripper)  # a step in flight ends, however slowly this machine runs
         time.sleep(0.3)
         # Stopped: franky-sim's fingers creep on toward the last step's goal, within one step.
         assert gripper.read_width()[1] == pytest.approx(held, abs=STEP_M)
@@ -198,13 +219,14 @@ def test_sim_grasp_stalls_on_an_object_and_judges_the_tolerance():
 def test_sim_stop_interrupts_a_move():
     with SimulatedGripper(GripperSettings(max_width_m=0.08)) as gripper:
         future = gripper.move_async(0.0, speed_m_s=0.01)  # 8 s of travel
-        time.sleep(0.2)
+        _moved(gripper, 0.08, by_m=1e-3)  # on its way
         assert gripper.stop()
-        assert future.result(timeout=1.0) is False
+        assert future.result(timeout=5.0) is False
         held = gripper.read_width()[1]
         time.sleep(0.1)
         assert gripper.read_width()[1] == held
-        assert 0.07 < held < 0.08
+        # Stopped on the way: a loaded machine may take a few seconds to stop it, not the 8 s to the end.
+        assert 0.02 < held < 0.08 - 1e-3
 
 
 def test_sim_follow_stalls_on_an_object_and_supersedes_a_move():
@@ -212,8 +234,11 @@ def test_sim_follow_stalls_on_an_object_and_supersedes_a_move():
         moving = gripper.move_async(0.07, speed_m_s=0.01)
         time.sleep(0.05)
         gripper.follow(0.03, speed_m_s=0.2)
-        assert moving.result(timeout=1.0) is False  # interrupted by the follow
-        time.sleep(0.25)
+        assert moving.result(timeout=5.0) is False  # interrupted by the follow
+        deadline = time.monotonic() + 5.0  # 0.1 s of travel at 0.2 m/s, on a loaded machine seconds
+        while gripper.read_width()[1] > 0.05 + 1e-6 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.1)  # had the object not stopped them, the fingers would go on to 0.03
         assert gripper.read_width()[1] == pytest.approx(0.05)  # the object stops the fingers
 
 
@@ -297,7 +322,8 @@ def test_close_wakes_a_widths_call_waiting_in_another_thread(gripper):
     with make_gripper(dataclasses.replace(gripper.settings, width_read_hz=0.3)) as slow:
         slow.widths(timeout_s=1.0)
         ended = close_during_read(lambda: slow.widths(timeout_s=3.0), slow.close, errors=DeviceError, waiting_s=0.2)
-    assert isinstance(ended.outcome, DeviceNotConnectedError) and ended.ended_s < 0.5
+    # Woken by close(), not by the 3 s timeout: bounded well below it, as a loaded machine is slow.
+    assert isinstance(ended.outcome, DeviceNotConnectedError) and ended.ended_s < 2.0
 
 
 @pytest.mark.parametrize("timeout", [-1.0, math.inf, math.nan, True])

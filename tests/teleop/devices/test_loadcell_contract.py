@@ -175,7 +175,8 @@ def test_a_silent_source_times_out(rig):
 def test_close_wakes_a_read_waiting_in_another_thread(rig):
     with _read_out(rig, skip_unless=rig.expected, why="a real cell does not fall silent on request") as cell:
         ended = close_during_read(lambda: cell.read(timeout_s=3.0), cell.close, errors=DeviceError, waiting_s=0.2)
-    assert isinstance(ended.outcome, DeviceNotConnectedError) and ended.ended_s < 0.5
+    # Woken by close(), not by the 3 s timeout: bounded well below it, as a loaded machine is slow.
+    assert isinstance(ended.outcome, DeviceNotConnectedError) and ended.ended_s < 2.0
 
 
 def test_a_link_that_fails_wakes_a_waiting_read(rig):
@@ -183,7 +184,7 @@ def test_a_link_that_fails_wakes_a_waiting_read(rig):
         ended = close_during_read(lambda: cell.read(timeout_s=3.0), rig.cut, errors=DeviceError, waiting_s=0.2)
     error = ended.outcome
     assert isinstance(error, DeviceError) and not isinstance(error, DeviceTimeoutError | DeviceNotConnectedError)
-    assert "link failed" in str(error) and ended.ended_s < 0.5
+    assert "link failed" in str(error) and ended.ended_s < 2.0  # well below the 3 s timeout: woken by the cut
 
 
 def test_a_reconnected_cell_hands_out_nothing_from_before_the_close(make_record):
