@@ -17,7 +17,7 @@ display renders for the estimate (``felt_log10_error``, ``felt_within_2x``,
 ``dangerous_misses``: against the label clipped to the display's range, with the
 display's own mapping), the intervals (``interval_level``, the nominal coverage a
 learned model states; ``interval_coverage``; ``interval_width_decades_median``, widths as
-the display shows them), the same over the soft objects the display scales (``soft_n``,
+the display shows them), the same over the soft objects the display scales (``soft_n``, ``soft_refused``,
 ``soft_felt_log10_error``, ``soft_felt_within_2x``, ``soft_interval_coverage``,
 ``soft_interval_width_decades_median``: labels at or below 3 MPa),
 ``states``, ``per_material``, ``per_shape`` and ``paper`` (the paper's figure

@@ -93,15 +93,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "point_log10_error and point_within_10x count it with the geometric middle of the bound and "
         "the physical limit on its open side (1e12 Pa above a lower bound, 1e3 Pa below an upper "
         "bound); ok_only holds the figures over ok estimates alone; refusals (insufficient_data) count "
-        "as missing: left out of n and the errors, reported in states. What the softness display "
+        "as missing: left out of every figure but states and soft_refused (of n, the errors and shares, "
+        "rigid_shown_rigid, coverage and the width medians). What the softness display "
         "renders (its own mapping, over the settings' display range [e_soft_pa, e_rigid_pa]) is scored "
         "against the label clipped to that range: felt_log10_error, felt_within_2x (share within a "
-        "factor 2), dangerous_misses (a rigid object, label >= 100 MPa, felt below 1 MPa, or a soft one, "
-        "label <= 1 MPa, felt at or above 10 MPa, i.e. rigid where the rigid end is below 10 MPa), "
-        "rigid_shown_rigid (share of the rigid objects' grasps rendered rigid); "
-        "interval_level is the coverage a model states for its intervals, "
+        "factor 2), dangerous_misses (a rigid object, label >= 100 MPa, felt below the lower of 1 MPa and "
+        "the display's rigid end, or a soft one, label <= 1 MPa, felt at or above the lower of 10 MPa and "
+        "the display's rigid end), rigid_shown_rigid (share of the rigid objects' grasps rendered rigid); "
+        "shown_unknown counts the estimates whose interval spans the display's whole range: shown as "
+        "unknown, they are left out of the felt figures and dangerous_misses (which are over n minus "
+        "shown_unknown) but stay in rigid_shown_rigid as not rigid and in the width medians at the whole "
+        "range's width; interval_level is the coverage a model states for its intervals, "
         "interval_width_decades_median the median interval width in decades as the display shows it "
-        "(soft_...: over labels below 3 MPa). Unreadable and unlabelled records (and with --unseen-by, "
+        "(soft_...: over labels at or below 3 MPa; soft_n counts those grasps' estimates, soft_refused "
+        "their refusals). Unreadable and unlabelled records (and with --unseen-by, "
         "records of objects a model trained on) are skipped and listed by name with the cause; a run that "
         "scores no record exits with status 2."
     )
@@ -296,16 +301,18 @@ def _print_table(result: Mapping[str, Any], root: Path) -> None:
               f"{fmt_value(m['interval_coverage'], '8.1%')}  {paper_text:<9} {states}")
     soft, rigid = result["display_range_pa"]
     print()
-    print(f"on the display (range {soft:.3g} to {rigid:.3g} Pa, labels clipped to it): felt err = mean |log10 "
-          "felt - log10 label|; felt2x = share felt within 2x; danger = rigid (>= 100 MPa) felt below 1 MPa "
-          "or soft (<= 1 MPa) felt at or above 10 MPa (or rigid); unknown = estimates whose interval spans "
-          "the whole range, shown as unknown and left out of felt err, felt2x and danger; rigid = share of "
-          "rigid objects' grasps "
-          "rendered rigid; level = interval coverage the method "
-          "states, coverage = share of intervals holding the label; width = median interval width in "
-          "decades as shown; soft: the same over labels at or below 3 MPa, the objects the display scales")
+    print(f"on the display (range {soft:.3g} to {rigid:.3g} Pa, labels clipped to it): n = estimates counted "
+          "(refusals left out of every figure here); felt err = mean |log10 felt - log10 label|; felt2x = "
+          "share felt within 2x; danger = rigid (>= 100 MPa) felt below the lower of 1 MPa and the rigid "
+          "end, or soft (<= 1 MPa) felt at or above the lower of 10 MPa and the rigid end; unknown = "
+          "estimates whose interval spans the whole range, shown as unknown: felt err, felt2x and danger are "
+          "over the placed estimates (n minus unknown), the rest over all n; rigid = share of rigid "
+          "objects' grasps rendered rigid (unknown counts as not rigid); level = interval coverage the "
+          "method states, coverage = share of intervals holding the label; width = median interval width "
+          "in decades as shown (unknown at the whole range); soft: the same over labels at or below 3 MPa, "
+          "the objects the display scales: soft n counted, refused = soft grasps refused, left out")
     print(f"{'method':<{width}} {'n':>4} {'felt err':>8} {'felt2x':>7} {'danger':>6} {'unknown':>7} {'rigid':>6} {'level':>6} "
-          f"{'coverage':>8} {'width':>6} | {'soft n':>6} {'felt err':>8} {'felt2x':>7} {'coverage':>8} {'width':>6}")
+          f"{'coverage':>8} {'width':>6} | {'soft n':>6} {'refused':>7} {'felt err':>8} {'felt2x':>7} {'coverage':>8} {'width':>6}")
     for method, m in result["methods"].items():
         danger = "-" if m["dangerous_misses"] is None else str(m["dangerous_misses"])
         print(f"{method:<{width}} {m['n']:>4} {fmt_value(m['felt_log10_error'], '8.2f')} "
@@ -313,7 +320,7 @@ def _print_table(result: Mapping[str, Any], root: Path) -> None:
               f"{fmt_value(m['rigid_shown_rigid'], '6.1%')} "
               f"{fmt_value(m['interval_level'], '6.0%')} "
               f"{fmt_value(m['interval_coverage'], '8.1%')} {fmt_value(m['interval_width_decades_median'], '6.2f')} | "
-              f"{m['soft_n']:>6} {fmt_value(m['soft_felt_log10_error'], '8.2f')} {fmt_value(m['soft_felt_within_2x'], '7.1%')} "
+              f"{m['soft_n']:>6} {m['soft_refused']:>7} {fmt_value(m['soft_felt_log10_error'], '8.2f')} {fmt_value(m['soft_felt_within_2x'], '7.1%')} "
               f"{fmt_value(m['soft_interval_coverage'], '8.1%')} {fmt_value(m['soft_interval_width_decades_median'], '6.2f')}")
     for method, m in result["methods"].items():
         if "answered_by" in m:

@@ -3,7 +3,12 @@
 A scored row (:func:`estimator.evaluation.evaluate.result_row`) holds one method's estimate of
 one labelled grasp: ``state``, ``e_pa``, ``low_pa``, ``high_pa`` and the label
 ``truth_pa``, ``material`` and ``shape``. Refusals (``insufficient_data``) are
-missing: left out of every error and share, counted in ``states``.
+missing: left out of every figure but ``states`` and ``soft_refused`` (of ``n``, the errors and
+shares, ``rigid_shown_rigid``, the coverage and the width medians). An estimate the display shows
+as unknown (``shown_unknown``) is counted: left out only of the felt figures and the dangerous
+misses, it stays in ``rigid_shown_rigid`` as not rigid and in the width medians at the width of
+the display's whole range. So the felt figures are over the placed estimates (``n`` minus
+``shown_unknown``), every other share over the ``n`` counted ones.
 
 Per method :func:`summarise` gives
 
@@ -36,37 +41,45 @@ Per method :func:`summarise` gives
     and the dangerous misses (not of ``rigid_shown_rigid``: a rigid object shown unknown is
     not shown rigid);
 ``felt_within_2x``
-    share with that felt error ``<= log10(2)`` (:data:`FELT_WITHIN_FACTOR`);
+    share with that felt error ``<= log10(2)`` (:data:`FELT_WITHIN_FACTOR`), plus 1e-9 decade of
+    slack: a rendered modulus goes through the display's log scale and back, and float rounding
+    must not turn one rendered at exactly 2x into a miss;
 ``dangerous_misses``
     how many a person would misjudge badly (:func:`dangerous_miss`): a rigid object
-    (label ``>=`` :data:`RIGID_TRUTH_PA` = 100 MPa) rendered below
-    :data:`RIGID_FELT_BELOW_PA` = 1 MPa, or a soft one (label ``<=``
-    :data:`SOFT_TRUTH_PA` = 1 MPa) rendered at or above :data:`SOFT_FELT_FROM_PA` =
-    10 MPa. A display whose rigid end is below 10 MPa (the default: the sensor's
-    resolution limit, about 6.8 MPa) cannot render 10 MPa, so there the soft miss is
-    a soft object rendered rigid, ``E_felt >= min(10 MPa, e_rigid_pa)``; likewise the
-    rigid miss is ``E_felt < min(1 MPa, e_rigid_pa)``;
+    (label ``>=`` :data:`RIGID_TRUTH_PA` = 100 MPa) felt below the lower of
+    :data:`RIGID_FELT_BELOW_PA` = 1 MPa and the display's rigid end, or a soft one (label
+    ``<=`` :data:`SOFT_TRUTH_PA` = 1 MPa) felt at or above the lower of
+    :data:`SOFT_FELT_FROM_PA` = 10 MPa and the display's rigid end: ``E_felt < min(1 MPa,
+    e_rigid_pa)`` or ``E_felt >= min(10 MPa, e_rigid_pa)``. A display whose rigid end is
+    below 10 MPa (the default: the sensor's resolution limit, about 6.8 MPa) cannot render
+    10 MPa, so there the soft miss is a soft object rendered at the rigid end;
 ``rigid_shown_rigid``
-    share of the rigid objects' grasps (label ``>=`` :data:`RIGID_TRUTH_PA`) the
-    display renders rigid (its rigid flag: at the rigid end); None when there are none;
+    share of the counted rigid objects' grasps (label ``>=`` :data:`RIGID_TRUTH_PA`;
+    refusals left out, one shown unknown counted as not rigid) the display renders rigid (its
+    rigid flag: at the rigid end); None when there are none;
 ``interval_level``
     the nominal coverage the method states for its intervals (a learned model's,
     from its metadata; None for the analytical methods and for old models);
 ``interval_coverage``
     share whose interval (open side included) contains the label;
 ``interval_width_decades_median``
-    median width in decades of the interval as the display shows it
-    (:func:`~haptics.mapping.interval_decades` as :func:`~haptics.mapping.map_estimate`
+    median width in decades of the interval as the display shows it, over the counted
+    estimates (:func:`~haptics.mapping.interval_decades` as :func:`~haptics.mapping.map_estimate`
     reads the estimate: clipped to the display's range, an open side reaching the
-    range's end);
+    range's end; one shown unknown at the width of the whole range; refusals left out);
 ``soft_n``, ``soft_felt_log10_error``, ``soft_felt_within_2x``, ``soft_interval_coverage``, ``soft_interval_width_decades_median``
     the counted grasps, felt error, share felt within 2x, interval coverage and median
     width over the objects at or below :data:`SOFT_SUBSET_MAX_PA` = 3 MPa: the objects
     the display can scale (its rigid end is the sensor's resolution limit, about 6.8 MPa),
     where rigid objects rendered rigid at zero error do not hide the misses (None when
-    there are none);
+    there are none). As overall: refusals left out of all of them, the felt figures over
+    the placed ones (``soft_n`` minus those shown unknown);
+``soft_refused``
+    how many of those objects' grasps the method refused (not in ``soft_n``): the soft
+    figures rest on ``soft_n`` of ``soft_n + soft_refused`` grasps;
 ``states``
-    how many of each state, refusals included;
+    how many of each state, refusals included (the only figure besides ``soft_refused`` that
+    counts them);
 ``per_material``, ``per_shape``
     the same metrics (all but ``interval_level``) per label material and shape;
 ``paper``
@@ -125,7 +138,8 @@ SOFT_FELT_FROM_PA = 1e7
 #: The soft objects' figures: labels at or below this (Pa), the objects the display can scale.
 SOFT_SUBSET_MAX_PA = 3e6
 
-# Float slack for the within-2x share: a rendered value goes through the log scale and back.
+# Float slack for the within-2x share: a rendered value goes through the log scale and back, and
+# one rendered at exactly 2x must not read as a miss by rounding.
 _TOLERANCE_DECADES = 1e-9
 
 # The paper's unseen-object figures (ablation table): mean |log10 error| and share within one
@@ -212,10 +226,11 @@ def felt_within(error_decades: float) -> bool:
 def dangerous_miss(truth_pa: float, felt: float, *, e_rigid_pa: float) -> bool:
     """Whether rendering ``felt`` (Pa) for an object of modulus ``truth_pa`` is a dangerous miss.
 
-    A rigid object (``truth_pa >= RIGID_TRUTH_PA``) felt below ``min(RIGID_FELT_BELOW_PA,
-    e_rigid_pa)``, or a soft one (``truth_pa <= SOFT_TRUTH_PA``) felt at or above
-    ``min(SOFT_FELT_FROM_PA, e_rigid_pa)``: on a display whose rigid end is below 10 MPa,
-    "at or above 10 MPa" means rendered rigid.
+    A rigid object (``truth_pa >= RIGID_TRUTH_PA``) felt below the lower of 1 MPa and the
+    display's rigid end (``min(RIGID_FELT_BELOW_PA, e_rigid_pa)``), or a soft one (``truth_pa <=
+    SOFT_TRUTH_PA``) felt at or above the lower of 10 MPa and the display's rigid end
+    (``min(SOFT_FELT_FROM_PA, e_rigid_pa)``): on a display whose rigid end is below 10 MPa, a
+    soft object rendered at the rigid end.
     """
     if truth_pa >= RIGID_TRUTH_PA and felt < min(RIGID_FELT_BELOW_PA, e_rigid_pa):
         return True
@@ -309,6 +324,7 @@ def _metrics(rows: Iterable[dict[str, Any]], *,
         **_felt_metrics(counted, display_range_pa),
         "interval_coverage": _mean(covered),
         "soft_n": len(soft_covered),
+        "soft_refused": sum(r["state"] == "insufficient_data" and _soft(r) for r in rows),
         "soft_interval_coverage": _mean(soft_covered),
         "states": {s: states.get(s, 0) for s in STATES},
     }

@@ -53,7 +53,7 @@ def _print_cross_validation(result: dict) -> None:
     print(f"dangerous       {m['dangerous_misses']}; rigid shown rigid "
           f"{'-' if rigid is None else f'{100 * rigid:.1f} %'}")
     print(f"coverage        {100 * m['interval_coverage']:.1f} % at the stated {100 * level:.0f} %; median width "
-          f"{'-' if soft_width is None else f'{soft_width:.2f} decade'} below 3 MPa")
+          f"{'-' if soft_width is None else f'{soft_width:.2f} decade'} at or below 3 MPa")
     bands = band_names(tuple(result["force_band_edges_n"]))
     for label, n, cover in zip(bands, result["band_n"], result["band_coverage"], strict=True):
         print(f"  {label:14s} {n:5d} grasps, coverage {'-' if cover is None else f'{100 * cover:.1f} %'}")

@@ -17,7 +17,8 @@ from teleop.settings import default_settings_path, load_settings, settings_to_ma
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
-        "Check a settings file (every table: the rig's, [estimator] and [display]) and print what it "
+        "Check a settings file (every table: the rig's, [estimator], [display] and the optional [operator]) "
+        "and print what it "
         "resolves to as JSON: defaults filled in, paths made absolute against the file's folder, the "
         "display's rigid end set to the sensor's resolution limit where the file leaves it 0."
     )

@@ -49,7 +49,7 @@ def test_evaluate_writes_rows_and_scores_what_the_display_renders(records, tmp_p
     m = result["methods"]["no_tactile"]
     for key in ("felt_log10_error", "felt_within_2x", "dangerous_misses", "interval_level", "interval_coverage",
                 "interval_width_decades_median", "soft_interval_width_decades_median", "soft_felt_log10_error",
-                "soft_felt_within_2x", "soft_interval_coverage", "soft_n"):
+                "soft_felt_within_2x", "soft_interval_coverage", "soft_n", "soft_refused"):
         assert key in m
     assert m["interval_level"] is None
 
@@ -94,7 +94,7 @@ def test_the_table_shows_the_felt_block(records, capsys):
     for column in ("felt err", "felt2x", "danger", "level", "coverage", "width", "soft n"):
         assert column in second
     # The soft objects' block repeats the display's figures after the bar.
-    assert second.split("|")[1].split() == ["soft", "n", "felt", "err", "felt2x", "coverage", "width"]
+    assert second.split("|")[1].split() == ["soft", "n", "refused", "felt", "err", "felt2x", "coverage", "width"]
     assert lines[headers[1] + 1].startswith("no_tactile") and lines[headers[1] + 2].startswith("hertz")
     assert any("on the display" in line for line in lines)
 

@@ -150,10 +150,22 @@ def test_soft_objects_are_scored_on_their_own():
             row(5e4, "insufficient_data")]
     m = one(rows)
     assert m["soft_n"] == 2 and m["soft_felt_within_2x"] == 0.5
+    assert m["soft_refused"] == 1  # the refused foam: not in soft_n
     assert m["soft_felt_log10_error"] == pytest.approx(math.log10(4) / 2)
     assert m["felt_log10_error"] == pytest.approx(math.log10(4) / 3)  # the rigid grasp dilutes the overall
     assert m["soft_interval_coverage"] == 0.5  # the foam's interval misses it
     assert one(rows[2:])["soft_felt_log10_error"] is None and one(rows[2:])["soft_interval_coverage"] is None
+
+
+def test_soft_refusals_are_counted_beside_soft_n():
+    # Refused: two soft grasps (one at exactly 3 MPa) and a rigid one; only the soft ones are soft_refused.
+    rows = [row(1e4, "ok", 1e4, 5e3, 2e4), row(1e5, "insufficient_data"), row(SOFT_SUBSET_MAX_PA, "insufficient_data"),
+            row(2e11, "insufficient_data"), row(1.01 * SOFT_SUBSET_MAX_PA, "insufficient_data")]
+    m = one(rows)
+    assert m["soft_n"] == 1 and m["soft_refused"] == 2
+    assert m["states"]["insufficient_data"] == 4
+    assert one(rows[1:2])["soft_n"] == 0 and one(rows[1:2])["soft_refused"] == 1
+    assert one([])["soft_refused"] == 0
 
 
 def test_felt_figures_per_material_and_only_with_a_display_range():
