@@ -12,6 +12,14 @@ Two formats are read:
 
 Shapes are normalised to ``sphere``, ``cylinder``, ``box``, ``hex_prism`` and
 ``irregular``; materials to lower case.
+
+Sizes: the table's ``Radius [m]`` gives a sphere's or cylinder's diameter and nothing else, so a
+cylinder from the table is taken as long as it is wide (size ``(d, d, d)``); give its length in a
+TOML catalogue's ``size_m`` where it matters. The simulator takes a cylinder as round and a hex
+prism as regular: their cross-section is ``size_m[0]`` (the diameter, or the width across flats),
+so a TOML ``size_m[1]`` that says otherwise (a cylinder's not equal to its diameter, a hex prism's
+across corners not ``size_m[0] / cos 30``, within :data:`SECTION_TOLERANCE`) is refused rather
+than ignored.
 """
 
 from __future__ import annotations
@@ -37,6 +45,9 @@ __all__ = [
 ]
 
 SHAPES = ("sphere", "cylinder", "box", "hex_prism", "irregular")
+#: The relative slack of a TOML cylinder's or hex prism's ``size_m[1]`` against the one its
+#: ``size_m[0]`` implies (module notes): enough for extents rounded to 0.1 mm.
+SECTION_TOLERANCE = 0.02
 
 # An object's name travels in bus messages (grasp_event, label) whose schemas cap its length; a
 # catalogue name over the smallest cap would pass here and be refused mid-run (or by `teleop label`).
@@ -169,6 +180,7 @@ def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
         size = _typed(table, "size_m", (list,), "an array of three extents in m", where, default=[])
         if not all(isinstance(s, number) and not isinstance(s, bool) for s in size):
             raise SettingsError(f"{where}: size_m must hold numbers (m), got {size!r}")
+        _check_section(table.get("shape"), size, where)
         try:
             objects.append(
                 ObjectSpec(
@@ -190,13 +202,32 @@ def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
     return tuple(objects)
 
 
-def read_object_table(path: str | Path, *, skip_unlabelled: bool = True) -> tuple[ObjectSpec, ...]:
+def _check_section(shape: object, size: list, where: str) -> None:
+    """Refuse a cylinder's or hex prism's ``size_m[1]`` that the simulator would ignore (module notes)."""
+    if not isinstance(shape, str) or len(size) != 3 or not all(s > 0 for s in size):
+        return  # ObjectSpec and normalise_shape say what is wrong
+    kind = _SHAPE_ALIASES.get(shape.strip().lower())
+    if kind not in ("cylinder", "hex_prism"):
+        return
+    expected = size[0] if kind == "cylinder" else size[0] / math.cos(math.radians(30.0))
+    if abs(size[1] - expected) > SECTION_TOLERANCE * expected:
+        what = ("a cylinder is round: size_m[1] is its diameter, as size_m[0]" if kind == "cylinder" else
+                "a hex prism is regular: size_m[1] is its width across corners, size_m[0] / cos 30")
+        raise SettingsError(f"{where}: size_m {list(size)!r}: {what}, expected {expected:.4g} m, got "
+                            f"{size[1]:g} m (size_m is [{'diameter, diameter' if kind == 'cylinder' else 'across flats, across corners'}"
+                            ", length])")
+
+
+def read_object_table(path: str | Path, *, skip_unlabelled: bool = True,
+                      unlabelled: list[str] | None = None) -> tuple[ObjectSpec, ...]:
     """Read the published object table (CSV with ``Label``, ``Shape``, ``Material``, ``Modulus [Pa]``).
 
-    Rows whose modulus is zero or empty are unlabelled: skipped by default,
-    an error with ``skip_unlabelled=False``. A negative, nan or infinite
-    modulus, or a row that ends before one of those four columns, is an error
-    naming the file and line. A ``Radius [m]`` makes a sphere's or cylinder's size known.
+    Rows whose modulus is zero or empty are unlabelled: skipped by default (their labels are
+    appended to ``unlabelled`` when given), an error with ``skip_unlabelled=False``; a table whose
+    every row is unlabelled is an error. A negative, nan or infinite modulus, a row that ends
+    before one of those four columns, or a header naming a column twice is an error naming the
+    file (and line). A ``Radius [m]`` makes a sphere's size known, and a cylinder's as
+    ``(d, d, d)``: its length is taken as its diameter (module notes).
     """
     path = Path(path)
     required = ("Label", "Shape", "Material", "Modulus [Pa]")
@@ -210,14 +241,22 @@ def read_object_table(path: str | Path, *, skip_unlabelled: bool = True) -> tupl
         raise SettingsError(f"cannot read object table {path}: {exc.strerror or exc}") from exc
     except (UnicodeDecodeError, csv.Error) as exc:
         raise SettingsError(f"{path}: not a readable UTF-8 CSV table ({exc})") from exc
+    twice = sorted({col for col in columns if col and columns.count(col) > 1})
+    if twice:
+        # csv.DictReader keeps the last of the two cells: an empty one would hide every row's value.
+        raise SettingsError(f"{path}: the CSV header names column {twice[0]!r} {columns.count(twice[0])} times; "
+                            "expected each column once: remove or rename the copies")
     missing = [col for col in required if col not in columns]
     if missing:
+        hint = ("; the header holds ';': expected a comma-separated table (re-export it with ',' as the "
+                "delimiter)" if any(";" in (col or "") for col in columns) else "")
         raise SettingsError(
-            f"{path}: expected a CSV header with columns {', '.join(required)}; missing {', '.join(missing)}"
+            f"{path}: expected a CSV header with columns {', '.join(required)}; missing {', '.join(missing)}{hint}"
         )
     if not rows:
         raise SettingsError(f"{path}: the object table has a header but no rows")
     objects = []
+    skipped = []
     for line, row in enumerate(rows, start=2):
         where = f"{path}:{line}"
         # A short row leaves None in the columns it lacks; only trailing optional ones may be left out,
@@ -236,6 +275,7 @@ def read_object_table(path: str | Path, *, skip_unlabelled: bool = True) -> tupl
             raise SettingsError(f"{where}: Modulus [Pa] {text!r} is not a number") from None
         if modulus == 0:
             if skip_unlabelled:
+                skipped.append(cell["Label"])
                 continue
             raise SettingsError(f"{where}: object {cell['Label']!r} has no usable Modulus [Pa] ({text!r}): "
                                 "it is unlabelled")
@@ -264,15 +304,21 @@ def read_object_table(path: str | Path, *, skip_unlabelled: bool = True) -> tupl
             )
         except ValueError as exc:
             raise SettingsError(f"{where}: {exc}") from exc
+    if not objects:
+        raise SettingsError(f"{path}: every one of its {len(rows)} rows is unlabelled (Modulus [Pa] empty or 0): "
+                            "expected at least one object with a modulus")
     _check_unique(objects, path)
+    if unlabelled is not None:
+        unlabelled.extend(skipped)
     return tuple(objects)
 
 
-def load_catalogue(path: str | Path | None = None) -> tuple[ObjectSpec, ...]:
-    """Read either catalogue format, chosen by suffix (``.toml`` or ``.csv``)."""
+def load_catalogue(path: str | Path | None = None, *, unlabelled: list[str] | None = None) -> tuple[ObjectSpec, ...]:
+    """Read either catalogue format, chosen by suffix (``.toml`` or ``.csv``); a CSV table's rows
+    skipped as unlabelled are appended to ``unlabelled`` when given (a TOML catalogue has none)."""
     path = Path(path) if path is not None else default_catalogue_path()
     if path.suffix.lower() == ".csv":
-        return read_object_table(path)
+        return read_object_table(path, unlabelled=unlabelled)
     if path.suffix.lower() == ".toml":
         return read_toml_catalogue(path)
     raise SettingsError(f"{path}: unknown catalogue format; expected a .toml catalogue or a .csv object table")

@@ -103,6 +103,7 @@ DENSIFICATION_STRAIN = {"foam": 0.8, "food": 0.6}
 DEFAULT_DENSIFICATION_STRAIN = 0.5
 MOTION_DELAY_S = (0.02, 0.08)  # command to motion start
 HOST_DELAY_S = (0.0, 0.05)  # grasp done to release command, beyond hold_s
+FINGERS_MET_M = 1e-6  # a width this close to zero: the fingers met (an object too small to grasp)
 RECORD_FORCE_N = 0.2  # the host's touch threshold for keeping a record
 PRE_ROLL_S = 0.2
 PRE_ROLL_READINGS = 8  # at least this many load-cell readings before the touch: a 10 Hz cell needs 0.8 s
@@ -493,7 +494,8 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
     ------
     SimulationError
         The settings do not have two sensors, the object does not fit the
-        gripper, or a contact solve failed.
+        gripper, the fingers closed on each other before the force target (an
+        object too small to grasp), or a contact solve failed.
     """
     if operator not in OPERATORS:
         raise SimulationError(f"operator {operator!r}: expected one of {', '.join(OPERATORS)}")
@@ -535,6 +537,11 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
         target = float(motion.force_n.max())
     t, force, motor_width = motion.t_s, motion.force_n, motion.motor_width_m
     release_s = motion.release_s
+    if float(curve.closure_m[-1]) >= scene.extent_m and float(motor_width.min()) <= FINGERS_MET_M:
+        # The fingers met before the force cap: the grasp only touched the object, whatever its label says.
+        raise SimulationError(f"object {obj.name!r} is too small to grasp: {scene.extent_m * 1e3:.3g} mm wide here, "
+                              f"the fingers closed on each other at {float(force.max()):.3g} N, short of the "
+                              f"{curve.force_n[-1]:.3g} N force cap")
 
     # What the host keeps: from just before its load cell reads a touch to just after it reads the release.
     readings = load_cell_readings(t, force, load_cell=settings.load_cell, sim=sim, rng=rng,

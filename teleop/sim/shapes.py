@@ -317,8 +317,10 @@ def draw_pose(obj: ObjectSpec, size: tuple[float, float, float], *, rng: np.rand
                            for extent in (pad_m[1], pad_m[0]))  # (y: pad width, z: pad height)
             return Pose(rotation=rotation, offset_m=offset)
     raise SimulationError(
-        f"object {obj.name!r} ({obj.shape}, size {tuple(round(s, 4) for s in size)} m) does not fit "
-        f"between fingers open to {max_width_m} m in any orientation"
+        f"object {obj.name!r} ({obj.shape}, size {tuple(round(s, 4) for s in size)} m, "
+        f"{narrowest_width(obj, size):.3g} m across at its narrowest) does not fit between fingers open to "
+        f"{max_width_m} m in any orientation drawn: a grasp needs it under {FIT_MARGIN:g} x {max_width_m:g} = "
+        f"{limit:.4g} m along the squeeze, tilt included"
     )
 
 

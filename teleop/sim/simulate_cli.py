@@ -27,6 +27,18 @@ its own (:func:`~teleop.sim.simulate.mechanics_rng`: the rig, pose and operator 
 the grasp without it); the drawn values go to ``provenance.extra["mechanics"]``, never to
 what an estimator reads. The gel is never drawn as a half-space, the contact model held out
 for testing: --vary-contact with --gel-model half-space is refused.
+
+--target-force-n is refused where the estimator could not read the records it gives:
+
+* at or below the contact force (the settings' ``[estimator] contact_force_n``, read from the file
+  as written: ``teleop`` does not import ``estimator``; :data:`DEFAULT_CONTACT_FORCE_N` when the file
+  sets none), where a grasp never reaches contact;
+* above :data:`FORCE_LIMIT_FACTOR` x the settings' ``[gripper] target_force_n``: the records carry no
+  gripper settings, so the estimator reads them with those of its settings, and refuses a grasp
+  whose force goes beyond that factor times the gripper's maximum force.
+
+A grasp whose fingers close on each other before the force target (an object too small to
+grasp) fails, and with --overwrite no earlier file of its name is left behind.
 """
 
 from __future__ import annotations
@@ -35,6 +47,8 @@ import argparse
 import dataclasses
 import json
 import logging
+import math
+import re
 import sys
 import time
 from pathlib import Path
@@ -43,15 +57,22 @@ from teleop.catalogue import ObjectSpec, default_catalogue_path, load_catalogue
 from teleop.clikit import non_negative_int
 from teleop.errors import SettingsError, SimulationError
 from teleop.parallel import progress_map
-from teleop.record import write_record
+from teleop.record import safe_name, write_record
 from teleop.settings import Settings, default_settings_path, load_settings
-from teleop.sim.grasp import OPERATORS, simulate_grasp
+from teleop.sim.grasp import OPERATORS, TARGET_FORCE_FRACTION, simulate_grasp
 from teleop.sim.mechanics import draw_mechanics
 from teleop.sim.preview import write_preview
 from teleop.sim.rig import draw as draw_rig
 from teleop.sim.simulate import check_filenames, grasp_filename, grasp_rng, mechanics_rng
 
 log = logging.getLogger(__name__)
+
+#: ``estimator.settings.EstimatorSettings.contact_force_n``'s default (N): the force the estimator takes
+#: for first contact. ``teleop`` may not import ``estimator``, so it is mirrored here (a test compares).
+DEFAULT_CONTACT_FORCE_N = 0.75
+#: ``estimator.plausible.FORCE_LIMIT_FACTOR``, mirrored likewise: the estimator refuses a grasp whose
+#: force goes beyond this many times the gripper's maximum grasp force (its settings' target_force_n).
+FORCE_LIMIT_FACTOR = 2.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -64,9 +85,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="directory for the .grasp records (created), named OBJECT_gINDEX.grasp")
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace records (and their .png previews) of the same names in --out; a preview "
-                             "not made again is removed (else they are refused: another seed's grasps would be "
-                             "lost, or mixed with these)")
+                        help="first remove the simulated objects' earlier records in --out (OBJECT_gINDEX.grasp "
+                             "and their .png previews, whatever their index; other objects' files are kept), then "
+                             "simulate; a preview not made again is not left behind (without it such records are "
+                             "refused: another seed's grasps would be lost, or mixed with these)")
     parser.add_argument("--workers", type=int, default=1, metavar="K",
                         help="worker processes; the records do not depend on it")
     parser.add_argument("--preview", action="store_true",
@@ -99,7 +121,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the grasps' force ceiling in N instead of the settings' gripper.target_force_n: a "
                              "scripted grasp squeezes to 40-100 %% of it, the simulated operator at most to it "
                              "(e.g. 12 for light grasps of 4.8-12 N); the records keep it in provenance.extra"
-                             "[\"target_force_n\"]; not with --randomize-rig, which draws each rig's own")
+                             "[\"target_force_n\"]; not with --randomize-rig, which draws each rig's own; refused at or below the "
+                             "estimator's contact force (the settings' estimator.contact_force_n, 0.75 N by "
+                             "default) and above 2 x the settings' gripper.target_force_n (the most the estimator "
+                             "reads with those settings)")
     parser.add_argument("--vary-gel", action="store_true",
                         help="with --randomize-rig: also draw each rig's datasheet gel (120-400 kPa, 2.5-4.5 mm), "
                              "as other GelSight-type sensors have; the records carry it")
@@ -117,6 +142,50 @@ def _names(text: str) -> list[str]:
     if not names:
         raise argparse.ArgumentTypeError(f"{text!r}: expected comma-separated object names")
     return names
+
+
+def _earlier_files(out: Path, objects: list[ObjectSpec]) -> list[str]:
+    """The files in ``out`` that are records (``<object>_g<index>.grasp``) or previews (``.png``) of
+    ``objects``, whatever their index, sorted."""
+    patterns = [re.compile(re.escape(safe_name(obj.name)) + r"_g\d{3,}\.(?:grasp|png)") for obj in objects]
+    try:
+        names = sorted(p.name for p in out.iterdir())
+    except OSError as exc:
+        raise SettingsError(f"--out {out}: cannot list the directory ({exc.strerror or exc})") from exc
+    return [name for name in names if any(p.fullmatch(name) for p in patterns)]
+
+
+def _contact_force_n(settings: Settings) -> float:
+    """The settings file's ``[estimator] contact_force_n`` as written (a finite number > 0), else the
+    estimator's default (:data:`DEFAULT_CONTACT_FORCE_N`)."""
+    value = settings.tables.get("estimator", {}).get("contact_force_n")
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0:
+        return float(value)
+    return DEFAULT_CONTACT_FORCE_N
+
+
+def _check_target_force(target_force_n: float, settings: Settings, settings_path: str | None) -> None:
+    """Refuse a --target-force-n whose records the estimator, with the same settings, refuses or cannot
+    read (module notes); warn when some scripted grasps may stay below the contact force."""
+    where = settings_path or default_settings_path()
+    contact = _contact_force_n(settings)
+    if target_force_n <= contact:
+        raise SettingsError(f"--target-force-n {target_force_n:g}: expected more than the estimator's contact "
+                            f"force, estimator.contact_force_n = {contact:g} N in {where}: the fingers would "
+                            "never reach contact and the records give no estimate")
+    limit = FORCE_LIMIT_FACTOR * settings.gripper.target_force_n
+    if target_force_n > limit:
+        raise SettingsError(f"--target-force-n {target_force_n:g}: the estimator refuses grasps whose force goes "
+                            f"beyond {FORCE_LIMIT_FACTOR:g} x gripper.target_force_n = {limit:g} N of the settings it "
+                            f"runs with ({where}: target_force_n = {settings.gripper.target_force_n:g} N), and the "
+                            f"records carry no gripper settings of their own: use at most {limit:g} N, or raise "
+                            f"[gripper] target_force_n (to {target_force_n / FORCE_LIMIT_FACTOR:g} N or more) in "
+                            "the settings used to simulate and to estimate")
+    if TARGET_FORCE_FRACTION[0] * target_force_n <= contact:
+        print(f"teleop simulate: warning: --target-force-n {target_force_n:g}: scripted grasps squeeze to "
+              f"{TARGET_FORCE_FRACTION[0]:.0%}-{TARGET_FORCE_FRACTION[1]:.0%} of it, so some may stay below the "
+              f"estimator's contact force ({contact:g} N, estimator.contact_force_n) and give no estimate",
+              file=sys.stderr)
 
 
 def _chosen(objects: list[ObjectSpec], names: list[str] | None, where: str) -> list[ObjectSpec]:
@@ -146,6 +215,9 @@ def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bo
             record, truth = simulate_grasp(obj, settings=settings, rng=rng, seed=seed, operator=operator,
                                            mechanics=mechanics)
     except SimulationError as exc:
+        # No earlier run's file of this name may pass for this grasp's (run() removed them with --overwrite).
+        path.unlink(missing_ok=True)
+        path.with_suffix(".png").unlink(missing_ok=True)
         return {"object": obj.name, "grasp": index, "error": str(exc)}
     if target_force_n is not None:
         # The record keeps no gripper settings: without this a lowered ceiling's record reads as a nominal one.
@@ -183,6 +255,7 @@ def run(args: argparse.Namespace) -> int:
             gripper = dataclasses.replace(settings.gripper, target_force_n=args.target_force_n)
         except SettingsError as exc:
             raise SettingsError(f"--target-force-n {args.target_force_n:g}: {exc}") from exc
+        _check_target_force(args.target_force_n, settings, args.settings)
         settings = dataclasses.replace(settings, gripper=gripper)
     if args.vary_contact and settings.simulation.gel_model != "layer":
         raise SettingsError(f"--vary-contact draws the gel's contact model and never the held-out "
@@ -211,9 +284,18 @@ def run(args: argparse.Namespace) -> int:
                 # E.g. a name over the file system's limit: say so before any grasp is simulated.
                 raise SettingsError(f"--out {out}: cannot use the record file name {name!r} there "
                                     f"({exc.strerror or exc}); shorten the object's name in {args.objects}") from exc
+    # Other grasps of these objects (another run's, with more grasps or after a failed one) would mix with these.
+    earlier = _earlier_files(out, objects)
+    taken += [name for name in earlier if name not in taken]
     if taken and not args.overwrite:
         raise SettingsError(f"--out {out}: {len(taken)} of these records exist already ({', '.join(taken[:3])}"
                             f"{', ...' if len(taken) > 3 else ''}): pass --overwrite to replace them, or another --out")
+    for name in earlier:  # with --overwrite: this run's objects only, never another object's files
+        try:
+            (out / name).unlink(missing_ok=True)
+        except OSError as exc:
+            raise SettingsError(f"--out {out}: cannot remove the earlier record {name!r} for --overwrite "
+                                f"({exc.strerror or exc})") from exc
     workers = min(args.workers, len(jobs))
 
     start = time.perf_counter()

@@ -1,0 +1,162 @@
+"""``teleop simulate``: --overwrite leaves no other run's records, --target-force-n within what the
+estimator reads, objects too small or too wide to grasp."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from teleop.catalogue import ObjectSpec
+from teleop.cli import main
+from teleop.errors import SettingsError, SimulationError
+from teleop.settings import default_settings_path, load_settings
+from teleop.sim import simulate_cli
+from teleop.sim.grasp import simulate_grasp
+from teleop.sim.simulate import grasp_rng
+
+OAK = """
+[[objects]]
+name = "oak_block"
+shape = "box"
+material = "wood"
+modulus_pa = 1.1e10
+"""
+
+BEACH_BALL = """
+[[objects]]
+name = "beach ball"
+shape = "sphere"
+material = "plastic"
+modulus_pa = 1e7
+size_m = [0.3, 0.3, 0.3]
+"""
+
+TINY = """
+[[objects]]
+name = "tiny_1mm"
+shape = "sphere"
+material = "metal"
+modulus_pa = 2e11
+size_m = [0.001, 0.001, 0.001]
+"""
+
+
+@pytest.fixture
+def catalogue(tmp_path, ball_toml):
+    path = tmp_path / "objects.toml"
+    path.write_text(ball_toml + OAK + BEACH_BALL + TINY)
+    return path
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(["simulate", *argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_overwrite_removes_this_objects_earlier_grasps_and_keeps_other_objects(tmp_path, catalogue, quick_settings,
+                                                                              capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    for name in ("oak_block_g000.grasp", "oak_block_g001.grasp", "oak_block_g001.png", "oak_block_g1000.grasp"):
+        (out / name).write_bytes(b"an earlier seed's grasp")
+    others = ("small_rubber_ball_g000.grasp", "small_rubber_ball_g001.png", "oak_block_notes.grasp",
+              "oak_block_g001_g000.grasp")  # the last: an object named "oak_block_g001"
+    for name in others:
+        (out / name).write_bytes(b"not this run's")
+    code, _, stderr = run(capsys, "--objects", str(catalogue), "--only", "oak_block", "--out", str(out),
+                          "--settings", str(quick_settings), "--overwrite")
+    assert code == 0, stderr
+    assert sorted(p.name for p in out.iterdir()) == sorted(["oak_block_g000.grasp", *others])
+    assert (out / "oak_block_g000.grasp").read_bytes() != b"an earlier seed's grasp"
+    assert all((out / name).read_bytes() == b"not this run's" for name in others)
+
+
+def test_a_failed_grasp_leaves_no_earlier_file_of_its_name_with_overwrite(tmp_path, catalogue, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "beach_ball_g000.grasp").write_bytes(b"an earlier catalogue's grasp")
+    (out / "beach_ball_g000.png").write_bytes(b"its sheet")
+    code, stdout, stderr = run(capsys, "--objects", str(catalogue), "--only", "beach ball", "--out", str(out),
+                               "--overwrite", "--json")
+    assert code == 1 and "beach ball grasp 0" in stderr
+    assert json.loads(stdout.strip().splitlines()[-1])["grasps"] == 0
+    assert list(out.iterdir()) == []
+
+
+def test_an_earlier_grasp_of_another_index_is_refused_without_overwrite(tmp_path, catalogue, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "oak_block_g001.grasp").write_bytes(b"an earlier seed's grasp")
+    code, _, stderr = run(capsys, "--objects", str(catalogue), "--only", "oak_block", "--out", str(out))
+    assert code == 2 and "1 of these records exist already (oak_block_g001.grasp): pass --overwrite" in stderr
+    assert [p.name for p in out.iterdir()] == ["oak_block_g001.grasp"]
+
+
+def test_the_mirrored_estimator_constants_match_the_estimator():
+    from estimator.plausible import FORCE_LIMIT_FACTOR
+    from estimator.settings import EstimatorSettings
+
+    assert simulate_cli.FORCE_LIMIT_FACTOR == FORCE_LIMIT_FACTOR
+    assert EstimatorSettings().contact_force_n == simulate_cli.DEFAULT_CONTACT_FORCE_N
+
+
+@pytest.mark.parametrize("force, message", [
+    ("61", "--target-force-n 61: the estimator refuses grasps whose force goes beyond 2 x gripper.target_force_n "
+           "= 60 N"),
+    ("140", "raise [gripper] target_force_n (to 70 N or more) in the settings used to simulate and to estimate"),
+    ("0.75", "--target-force-n 0.75: expected more than the estimator's contact force, "
+             "estimator.contact_force_n = 0.75 N"),
+    ("0.1", "the fingers would never reach contact"),
+])
+def test_a_target_force_the_estimator_cannot_read_is_refused(tmp_path, catalogue, capsys, force, message):
+    code, _, stderr = run(capsys, "--objects", str(catalogue), "--out", str(tmp_path / "o"), "--target-force-n", force)
+    assert code == 2 and message in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_target_force_bounds_follow_the_settings_file(tmp_path, capsys):
+    text = default_settings_path().read_text()
+    text = text.replace("contact_force_n = 0.75", "contact_force_n = 0.3")
+    text = text.replace("target_force_n = 30.0", "target_force_n = 80.0")
+    path = tmp_path / "settings.toml"
+    path.write_text(text)
+    settings = load_settings(path)
+    assert settings.gripper.target_force_n == 80.0 and settings.tables["estimator"]["contact_force_n"] == 0.3
+    simulate_cli._check_target_force(140.0, settings, str(path))  # under 2 x 80 N
+    simulate_cli._check_target_force(0.5, settings, str(path))  # above 0.3 N: only warned of
+    assert "some may stay below the estimator's contact force (0.3 N" in capsys.readouterr().err
+    with pytest.raises(SettingsError, match="beyond 2 x gripper.target_force_n = 160 N"):
+        simulate_cli._check_target_force(161.0, settings, str(path))
+    with pytest.raises(SettingsError, match="estimator.contact_force_n = 0.3 N"):
+        simulate_cli._check_target_force(0.3, settings, str(path))
+
+
+def test_an_object_too_small_to_grasp_is_a_failed_grasp(tmp_path, catalogue, quick_settings, capsys):
+    obj = ObjectSpec(name="tiny_1mm", shape="sphere", material="metal", modulus_pa=2e11,
+                     size_m=(0.001, 0.001, 0.001))
+    with pytest.raises(SimulationError, match="'tiny_1mm' is too small to grasp: .* the fingers closed on each other"):
+        simulate_grasp(obj, settings=load_settings(quick_settings), rng=grasp_rng(0, obj, 0), seed=0)
+    out = tmp_path / "o"
+    code, stdout, stderr = run(capsys, "--objects", str(catalogue), "--only", "tiny_1mm", "--out", str(out),
+                               "--settings", str(quick_settings), "--json")
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert code == 1 and summary["grasps"] == 0 and "too small to grasp" in summary["failed"][0]["reason"]
+    assert list(out.glob("*.grasp")) == []
+
+
+def test_a_too_wide_object_is_told_the_real_limit(tmp_path, catalogue, capsys):
+    code, stdout, _ = run(capsys, "--objects", str(catalogue), "--only", "beach ball", "--out", str(tmp_path / "o"),
+                          "--json")
+    reason = json.loads(stdout.strip().splitlines()[-1])["failed"][0]["reason"]
+    assert code == 1 and "does not fit" in reason
+    assert "0.298 m across at its narrowest" in reason and "under 0.95 x 0.08 = 0.076 m" in reason, reason
+
+
+def test_grasps_that_reach_their_target_are_kept(tmp_path, ball_toml, quick_settings):
+    # The too-small check leaves an ordinary grasp alone: the fingers stop short of each other.
+    obj = ObjectSpec(name="ball", shape="sphere", material="rubber", modulus_pa=8e5, size_m=(0.02, 0.02, 0.02))
+    record, truth = simulate_grasp(obj, settings=load_settings(quick_settings), rng=grasp_rng(0, obj, 0), seed=0)
+    assert float(np.min(truth.motor_width_m)) > 1e-3 and truth.force_n.max() >= 0.99 * truth.target_force_n
