@@ -206,6 +206,9 @@ class SensorSettings(Validated):
 _HOST = re.compile(r"[A-Za-z0-9._:%-]+")
 
 
+MIN_FINGER_STIFFNESS_N_PER_M = 1e3  # 1 N/mm: far below any real finger, far above a value typed in N/mm
+
+
 @dataclass(frozen=True)
 class GripperSettings(Validated):
     """Parallel gripper motion and grasp parameters."""
@@ -228,16 +231,14 @@ class GripperSettings(Validated):
         if not _HOST.fullmatch(self.host):
             raise SettingsError(f"GripperSettings.host = {self.host!r}: expected the robot controller's host name "
                                 "or IP address, e.g. '172.16.0.2'")
-        # N/mm typed as N/m (200 for 2e5): at the grasp force the fingers would bend open further than
-        # the gripper opens, and the width correction (F / stiffness) would swamp the width measured
-        bend_m = self.target_force_n / self.finger_stiffness_n_per_m
-        if bend_m >= self.max_width_m:
+        # N/mm typed as N/m (200 for 2e5): fingers with a gel pad are 2e4-5e5 N/m; below 1 N/mm the width
+        # correction (F / stiffness) would be centimetres at a few newtons, swamping the width measured
+        if self.finger_stiffness_n_per_m < MIN_FINGER_STIFFNESS_N_PER_M:
             raise SettingsError(
-                f"GripperSettings.finger_stiffness_n_per_m = {self.finger_stiffness_n_per_m!r}: at target_force_n = "
-                f"{self.target_force_n:g} N the fingers would bend {bend_m * 1e3:.4g} mm, not less than max_width_m = "
-                f"{self.max_width_m * 1e3:g} mm: expected a stiffness in N/m above "
-                f"{self.target_force_n / self.max_width_m:.4g} (a value in N/mm is 1000x too small: "
-                f"{self.finger_stiffness_n_per_m:g} N/mm is {self.finger_stiffness_n_per_m * 1e3:g} N/m)"
+                f"GripperSettings.finger_stiffness_n_per_m = {self.finger_stiffness_n_per_m!r}: expected at least "
+                f"{MIN_FINGER_STIFFNESS_N_PER_M:g} N/m (fingers with a gel pad are 2e4-5e5 N/m); a value in N/mm "
+                f"is 1000x too small: {self.finger_stiffness_n_per_m:g} N/mm is "
+                f"{self.finger_stiffness_n_per_m * 1e3:g} N/m"
             )
 
 

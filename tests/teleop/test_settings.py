@@ -418,13 +418,12 @@ def test_every_shipped_settings_file_loads():
 
 
 def test_a_finger_stiffness_in_n_per_mm_is_refused_saying_so(tmp_path):
-    message = error_for(tmp_path, "[gripper]\nfinger_stiffness_n_per_m = 200.0\n")
-    assert "GripperSettings.finger_stiffness_n_per_m = 200.0" in message
-    assert "bend 150 mm" in message and "max_width_m = 80 mm" in message
-    assert "200 N/mm is 200000 N/m" in message
-    # what a grasp bends is the force over the stiffness: a softer finger is fine at a smaller force
-    path = write(tmp_path, "[gripper]\nfinger_stiffness_n_per_m = 200.0\ntarget_force_n = 10.0\n")
-    assert load_all(path).gripper.finger_stiffness_n_per_m == 200.0
+    for force in ("", "target_force_n = 10.0\n"):  # whatever the grasp force
+        message = error_for(tmp_path, f"[gripper]\nfinger_stiffness_n_per_m = 200.0\n{force}")
+        assert "GripperSettings.finger_stiffness_n_per_m = 200.0" in message
+        assert "expected at least 1000 N/m" in message and "200 N/mm is 200000 N/m" in message
+    path = write(tmp_path, "[gripper]\nfinger_stiffness_n_per_m = 2.0e4\n")  # the softest fingers drawn
+    assert load_all(path).gripper.finger_stiffness_n_per_m == 2.0e4
 
 
 def test_a_settings_file_with_a_byte_order_mark_loads(tmp_path):
