@@ -1,4 +1,4 @@
-"""One simulated grasp: gripper motion, mechanics, sensors, frames, record.
+"""One simulated grasp: load curve, sensors, frames, record (motion: :mod:`teleop.sim.motion`).
 
 The fingers close symmetrically from ``max_width_m`` at ``closing_speed_m_s``.
 From first touch, the motor's closure c (the reported width's drop below the
@@ -40,14 +40,15 @@ Operator-driven grasps (``operator="sim"``, ``teleop simulate --operator sim``) 
 scripted motion by a :class:`~teleop.sim.operator.SimulatedOperator` closed loop, as the robot
 node runs a leader-follower grasp: the operator commands a target width at
 ``teleop.operator.FOLLOW_RATE_HZ`` from the force it feels (the true force; it feels it late),
-the commands reach the gripper ``FOLLOW_LATENCY_S`` later, and the fingers follow the target at
-up to ``FOLLOW_SPEED_M_S``, force-capped at ``gripper.target_force_n`` (the load curve is solved
-up to that cap; the gripper stalls there). When the operator releases, the fingers open as after
-a scripted grasp. Everything downstream (load cell, width readings, frames, record window) is as
-for scripted grasps; the record has no ``grasp_done`` event (there is no discrete stop), its
-provenance says ``style="operator"`` and keeps the operator's drawn style in
-``extra["operator"]``. The pose, scene and finger stiffness are drawn as for a scripted grasp
-first, so the same random stream gives the same object placement in both styles.
+the commands reach the gripper :data:`~teleop.sim.motion.FOLLOW_LATENCY_S` later, and the fingers
+follow the target at up to :data:`~teleop.sim.motion.FOLLOW_SPEED_M_S`, force-capped at
+``gripper.target_force_n`` (the load curve is solved up to that cap; the gripper stalls there).
+When the operator releases, the fingers open as after a scripted grasp. Everything downstream
+(load cell, width readings, frames, record window) is as for scripted grasps; the record has no
+``grasp_done`` event (there is no discrete stop), its provenance says ``style="operator"`` and
+keeps the operator's drawn style in ``extra["operator"]``. The pose, scene and finger stiffness
+are drawn as for a scripted grasp first, so the same random stream gives the same object
+placement in both styles.
 
 Nothing of this module's internals goes into the record except the provenance
 (source, seed, model); :class:`GraspTruth` carries them for previews and tests.
@@ -67,9 +68,8 @@ import numpy as np
 
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SimulationError
-from teleop.operator import FOLLOW_RATE_HZ
-from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Label, Provenance, Samples
-from teleop.settings import GripperSettings, SensorSettings, Settings
+from teleop.record import FrameStream, GraspRecord, Label, Provenance, Samples
+from teleop.settings import SensorSettings, Settings
 from teleop.sim.contact import (
     Body,
     ContactSolution,
@@ -81,6 +81,7 @@ from teleop.sim.contact import (
     solve_contact,
 )
 from teleop.sim.mechanics import ContactMechanics
+from teleop.sim.motion import operator_motion, scripted_motion
 from teleop.sim.operator import SimulatedOperator
 from teleop.sim.optics import OpticsRenderer
 from teleop.sim.sensors import camera_times, gripper_width_readings, load_cell_readings
@@ -101,18 +102,12 @@ TARGET_FORCE_FRACTION = (0.4, 1.0)  # of GripperSettings.target_force_n, per gra
 FINGER_STIFFNESS_SD = 0.1  # log-normal spread of the true finger stiffness around the setting
 DENSIFICATION_STRAIN = {"foam": 0.8, "food": 0.6}
 DEFAULT_DENSIFICATION_STRAIN = 0.5
-MOTION_DELAY_S = (0.02, 0.08)  # command to motion start
-HOST_DELAY_S = (0.0, 0.05)  # grasp done to release command, beyond hold_s
 FINGERS_MET_M = 1e-6  # a width this close to zero: the fingers met (an object too small to grasp)
 RECORD_FORCE_N = 0.2  # the host's touch threshold for keeping a record
 PRE_ROLL_S = 0.2
 PRE_ROLL_READINGS = 8  # at least this many load-cell readings before the touch: a 10 Hz cell needs 0.8 s
 POST_ROLL_S = 0.1
-TIME_STEP_S = 1e-3
 OPERATORS = ("script", "sim")  # who drives the fingers: the scripted grasp or the simulated operator
-FOLLOW_SPEED_M_S = 0.1  # the fingers follow an operator's target width at up to this speed
-FOLLOW_LATENCY_S = (0.005, 0.03)  # operator command to the gripper (bus and controller), uniform
-MAX_OPERATOR_S = 120.0  # an operator grasp that has not finished by then is a simulation error
 LOAD_LEVELS = 12
 MIN_LEVEL_FORCE_N = 0.05
 SOLVER_TOLERANCE = 1e-3
@@ -361,102 +356,6 @@ def _to_image(field_grid: np.ndarray, sensor: SensorSettings, grid_px: int) -> n
     return up[r0:r0 + rows, c0:c0 + cols]
 
 
-def _motion(t: np.ndarray, *, start_s: float, from_m: float, speed_m_s: float, sign: float) -> np.ndarray:
-    return from_m + sign * speed_m_s * np.clip(t - start_s, 0.0, None)
-
-
-@dataclass(frozen=True)
-class _Motion:
-    """The fingers' true motion on the fine grid and the times the record and truth need."""
-
-    t_s: np.ndarray
-    motor_width_m: np.ndarray
-    force_n: np.ndarray
-    touch_s: float
-    stall_s: float
-    release_s: float
-    lost_s: float  # the fingers have left the object
-    events: dict[str, float]
-
-
-def _scripted_motion(curve: LoadCurve, scene: Scene, gripper: GripperSettings,
-                     rng: np.random.Generator) -> _Motion:
-    """The paper's grasp: close at the closing speed until the force target stalls the fingers,
-    hold ``hold_s``, release and open at the same speed."""
-    speed = gripper.closing_speed_m_s
-    command_s = 0.0
-    move_s = command_s + rng.uniform(*MOTION_DELAY_S)
-    touch_s = move_s + (gripper.max_width_m - scene.extent_m) / speed
-    stall_closure = min(float(curve.closure_m[-1]), scene.extent_m)  # the fingers cannot pass each other
-    stall_s = touch_s + stall_closure / speed
-    release_s = stall_s + gripper.hold_s + rng.uniform(*HOST_DELAY_S)
-    open_s = release_s + rng.uniform(*MOTION_DELAY_S)
-    lost_s = open_s + stall_closure / speed
-    t = np.arange(touch_s - 2.0, lost_s + 2.0, TIME_STEP_S)
-    closing = np.minimum(_motion(t, start_s=move_s, from_m=gripper.max_width_m, speed_m_s=speed, sign=-1.0),
-                         gripper.max_width_m)
-    stall_width = scene.extent_m - stall_closure
-    motor_width = np.where(t < open_s, np.maximum(closing, stall_width),
-                           np.minimum(_motion(t, start_s=open_s, from_m=stall_width, speed_m_s=speed, sign=1.0),
-                                      gripper.max_width_m))
-    force = curve.force_at(scene.extent_m - motor_width)
-    return _Motion(t, motor_width, force, touch_s, stall_s, release_s, lost_s,
-                   {"command_grasp": command_s, GRASP_DONE_EVENT: stall_s, "command_release": release_s})
-
-
-def _operator_motion(curve: LoadCurve, scene: Scene, gripper: GripperSettings, operator: SimulatedOperator,
-                     rng: np.random.Generator) -> _Motion:
-    """A leader-follower grasp (module notes): the operator commands a target width at
-    FOLLOW_RATE_HZ from the force it feels; the fingers follow at up to FOLLOW_SPEED_M_S,
-    stalled by the force cap (the curve's top) and by each other; after the release they open at
-    the closing speed."""
-    dt = TIME_STEP_S
-    every = max(round(1.0 / (FOLLOW_RATE_HZ * dt)), 1)
-    latency = max(round(rng.uniform(*FOLLOW_LATENCY_S) / dt), 1)
-    open_delay = rng.uniform(*MOTION_DELAY_S)
-    stall_width = scene.extent_m - min(float(curve.closure_m[-1]), scene.extent_m)
-    open_m, step_m = gripper.max_width_m, FOLLOW_SPEED_M_S * dt
-    width, target, release_s, done_s = open_m, open_m, None, None
-    pending: list[tuple[int, float]] = []  # (step it reaches the gripper, target width)
-    widths = []
-    for i in range(round(MAX_OPERATOR_S / dt)):
-        t_s = i * dt
-        command = None
-        if i % every == 0:
-            force = float(curve.force_at(np.array(scene.extent_m - width)))
-            command = operator.step(t_s, force_n=force, width_m=width)
-            if command.release and release_s is None:
-                release_s = t_s
-            elif command.enable and release_s is None:
-                pending.append((i + latency, command.target_width_m))
-        while pending and pending[0][0] <= i:
-            target = pending.pop(0)[1]
-        if release_s is None:
-            width = max(width + min(max(target - width, -step_m), step_m), stall_width)
-        elif t_s >= release_s + open_delay:
-            width = min(width + gripper.closing_speed_m_s * dt, open_m)
-        widths.append(width)
-        if command is not None and operator.done:
-            done_s = t_s
-            break
-    if done_s is None:
-        raise SimulationError(f"the simulated operator had not finished its grasp after {MAX_OPERATOR_S:g} s "
-                              f"({operator.style.describe()})")
-    t = np.arange(-2.0, done_s + 2.0, dt)[: len(widths) + round(4.0 / dt)]
-    motor_width = np.full(t.shape, open_m)
-    begin = round(2.0 / dt)
-    motor_width[begin : begin + len(widths)] = widths
-    tail = motor_width[begin + len(widths):]  # the fingers finish opening
-    tail[:] = np.minimum(widths[-1] + gripper.closing_speed_m_s * dt * np.arange(1, tail.size + 1), open_m)
-    force = curve.force_at(scene.extent_m - motor_width)
-    touched = np.flatnonzero(force > 0)
-    touch_s = float(t[touched[0]]) if touched.size else float(t[begin])
-    stall_s = float(t[int(np.argmax(force))])
-    lost_s = float(t[touched[-1]]) if touched.size else done_s
-    return _Motion(t, motor_width, force, touch_s, stall_s, release_s, lost_s,
-                   {"command_grasp": 0.0, "command_release": release_s})
-
-
 def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Generator,
                    seed: int | None = None, background: dict[str, np.ndarray] | None = None,
                    operator: str = "script", mechanics: ContactMechanics | None = None,
@@ -531,9 +430,9 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
                        max_force_n=target if driver is None else gripper.target_force_n,
                        finger_stiffness_n_per_m=stiffness, size=size, gel_model=sim.gel_model, mechanics=mechanics)
     if driver is None:
-        motion = _scripted_motion(curve, scene, gripper, rng)
+        motion = scripted_motion(curve, scene, gripper, rng)
     else:
-        motion = _operator_motion(curve, scene, gripper, driver, rng)
+        motion = operator_motion(curve, scene, gripper, driver, rng)
         target = float(motion.force_n.max())
     t, force, motor_width = motion.t_s, motion.force_n, motion.motor_width_m
     release_s = motion.release_s
