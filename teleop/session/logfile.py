@@ -63,11 +63,11 @@ Chunks are small (:data:`CHUNK_BYTES`) and closed at least every ``flush_interva
 (the recorder's option), and every chunk goes to the operating system as soon as it is
 complete, so a recorder killed outright loses at most the chunk it had open. Such a log
 has no summary or footer: :class:`LogReader` reads it front to back with mcap's
-non-seeking reader and stops, cleanly, at the first incomplete or damaged record;
-``teleop recover`` rewrites the readable part as a complete file. In a log whose summary
-and footer are intact, a damaged record (a chunk whose checksum or compression fails) is
-skipped instead: reading goes on at the next record the summary's indexes point to, and
-:attr:`LogReader.lost` lists the chunks skipped, with their log times.
+non-seeking reader up to its last complete record; ``teleop recover`` rewrites the
+readable part as a complete file. A damaged record is skipped and reading goes on: at the
+next record the summary's indexes point to when the summary and footer are intact, else
+right after the damaged record when its length is sane, else at the next intact chunk
+found further on; :attr:`LogReader.lost` lists what was skipped, with its log times.
 
 Nothing read back is trusted: every stored message goes through
 :func:`teleop.bus.wire.decode` (sizes, msgpack limits, schemas) before anyone sees it.
@@ -80,13 +80,12 @@ import logging
 import struct
 from collections import Counter
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from google.protobuf.message import DecodeError
-from mcap.exceptions import RecordLengthLimitExceeded
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
 from mcap.records import Attachment, Channel, Header, McapRecord, Message, Metadata, Schema
@@ -99,6 +98,14 @@ from teleop.bus.wire import Message as BusMessage
 from teleop.errors import MessageRejected, SessionLogError
 from teleop.session.foxglove import IMAGE_SCHEMA
 from teleop.session.logframes import FRAMING, elides, unpack_frames
+from teleop.session.logscan import (
+    OPCODES,
+    UNKNOWN_NS,
+    check_format,
+    next_chunk,
+    record_head,
+    record_name,
+)
 from teleop.settings import Settings, settings_from_mapping
 
 __all__ = [
@@ -280,17 +287,21 @@ class LostChunk:
     start_byte: int
     end_byte: int
     start_ns: int  # log time of its first message
-    end_ns: int  # ... and of its last
+    end_ns: int  # ... and of its last (UNKNOWN_NS: no message read after it)
+    kind: str = "chunk"  # or what else was skipped (a log without summary: bytes not read)
 
     def overlaps(self, start_ns: int, end_ns: int) -> bool:
         """Whether messages logged between ``start_ns`` and ``end_ns`` may have been in it."""
         return self.start_ns <= end_ns and start_ns <= self.end_ns
 
     def __str__(self) -> str:
-        return (
-            f"the chunk at bytes {self.start_byte} to {self.end_byte} is damaged "
-            f"(messages logged from {self.start_ns} to {self.end_ns} ns lost)"
-        )
+        if self.kind == "chunk":
+            times = f"messages logged from {self.start_ns} to {self.end_ns} ns lost"
+        elif self.end_ns == UNKNOWN_NS:
+            times = f"messages logged after {self.start_ns} ns lost"
+        else:
+            times = f"messages logged between {self.start_ns} and {self.end_ns} ns lost"
+        return f"the {self.kind} at bytes {self.start_byte} to {self.end_byte} is damaged ({times})"
 
 
 @dataclass
@@ -320,6 +331,8 @@ class LogReader:
     refused: Counter[str] = field(default_factory=Counter)
     lost: list[LostChunk] = field(default_factory=list)  # chunks skipped for damage
     stopped: bool = False  # reading stopped at damage (nothing after it could be read)
+    cut: bool = False  # ... because the file ends inside a record, or without its footer
+    damaged: bool = False  # a record was damaged (not only cut short by the file's end)
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -341,6 +354,7 @@ class LogReader:
             The file cannot be opened, or does not start like an MCAP file.
         """
         self.damage, self.complete, self.good_bytes, self.stopped = None, False, 0, False
+        self.cut = self.damaged = False
         self.lost.clear()
         try:
             file = self.path.open("rb")
@@ -355,19 +369,20 @@ class LogReader:
                 )
             file.seek(0)
             # No complete record is longer than the file: a larger length field is damage.
-            limit = max(self.path.stat().st_size, 1)
+            size = self.path.stat().st_size
             damages: list[str] = []
             summary: Summary | None = None
             summary_read = False
             skip_magic = False
             resumed_at = -1  # where reading last went on after damage
+            last_ns, pending = 0, None  # the latest message's log time; a skip not yet followed by one
             while True:
                 stream = StreamReader(
                     file,
                     skip_magic=skip_magic,
                     emit_chunks=emit_chunks,
                     validate_crcs=True,
-                    record_size_limit=limit,
+                    record_size_limit=max(size, 1),
                 ).records
                 while True:
                     try:
@@ -376,30 +391,48 @@ class LogReader:
                         self.complete, self.good_bytes = not damages, file.tell()
                         return
                     except Exception as exc:  # any parse failure: the bytes from here are unusable
-                        what = self._describe(exc, file)
+                        failure = exc
                         break
                     # Records inside a chunk come once the whole chunk has been read.
                     self.good_bytes = file.tell()
+                    if isinstance(record, Message):
+                        last_ns = record.log_time
+                        if pending is not None:  # the messages lost lie before this one
+                            self.lost[pending] = replace(self.lost[pending], end_ns=last_ns)
+                            pending = None
+                    elif isinstance(record, Metadata) and record.name == SESSION_METADATA:
+                        check_format(self.path, record.metadata, FORMAT_VERSION)
                     yield record
                 if not summary_read:
                     summary, summary_read = self._summary(file), True
                 # Past the last resume too: a damaged record there reads nothing, and good_bytes stays put.
-                damaged_at = max(self.good_bytes, resumed_at)
-                resume = self._resume_at(summary, damaged_at)
-                if summary is None or resume is None:
-                    self.stopped = True
-                    damages.append(what)
-                    self.damage = "; ".join(damages)
-                    log.warning(
-                        "%s: stopped reading at byte %d: %s", self.path, self.good_bytes, what
-                    )
-                    return
-                what += self._skip(summary, damaged_at, resume)
+                damaged_at = max(self.good_bytes, resumed_at, len(_MAGIC))
+                what = self._describe(
+                    failure, file, damaged_at, size, None if summary is None else "the file has its footer"
+                )
+                if summary is not None:
+                    resume = self._resume_at(summary, damaged_at)
+                    if resume is not None:
+                        what += self._skip(summary, damaged_at, resume)
+                else:
+                    resume, skipped = self._read_on(file, damaged_at, size, last_ns)
+                    if resume is not None:
+                        if what.startswith("the file ends inside"):  # an intact chunk follows: damage
+                            what = self._describe(failure, file, damaged_at, size, "an intact chunk follows")
+                        what += skipped
+                        if self.lost and self.lost[-1].start_byte == damaged_at:
+                            pending = len(self.lost) - 1
                 damages.append(what)
                 self.damage = "; ".join(damages)
+                self.damaged = self.damaged or not what.startswith("the file ends")
+                if resume is None:
+                    self.stopped, self.cut = True, what.startswith("the file ends")
+                    log.warning("%s: stopped reading at byte %d: %s", self.path, self.good_bytes, what)
+                    return
                 log.warning("%s: %s", self.path, what)
-                yield from summary.schemas.values()
-                yield from summary.channels.values()
+                if summary is not None:
+                    yield from summary.schemas.values()
+                    yield from summary.channels.values()
                 file.seek(resume)
                 resumed_at, skip_magic = resume, True
 
@@ -444,38 +477,67 @@ class LogReader:
             first = min(c.message_start_time for c in chunks)
             last = max(c.message_end_time for c in chunks)
             times = f", messages logged from {first} to {last} ns"
+        named = [f"attachment {a.name!r}" for a in summary.attachment_indexes if start <= a.offset < end]
+        named += [f"metadata {m.name!r}" for m in summary.metadata_indexes if start <= m.offset < end]
+        also = f"; lost: {', '.join(named)}" if named else ""
         return (
-            f"; skipped bytes {start} to {end} ({len(chunks)} chunk(s) lost{times}) "
+            f"; skipped bytes {start} to {end} ({len(chunks)} chunk(s) lost{times}{also}) "
             "and read on from there"
         )
 
-    def _describe(self, exc: Exception, file: Any) -> str:
-        size = self.path.stat().st_size
+    def _read_on(self, file: Any, start: int, size: int, last_ns: int) -> tuple[int | None, str]:
+        """Where to read on after the damaged record at byte ``start`` of a log without summary
+        (None: nowhere), and what is skipped, as text; a skipped chunk or region goes in :attr:`lost`."""
+        head = record_head(file, start)
+        if head is not None and head[0] in OPCODES and start + 9 + head[1] <= size:
+            end = start + 9 + head[1]
+            after = record_head(file, end)  # the record after it must look like one
+            if end == size or (after is not None and after[0] in OPCODES and after[1] <= size):
+                kind = Opcode(head[0]).name.lower()
+                lost = f": {kind}{record_name(file, start, head[0])} lost"
+                if head[0] in (Opcode.CHUNK, Opcode.MESSAGE):
+                    self.lost.append(LostChunk(start, end, last_ns, UNKNOWN_NS, kind))
+                    lost = ": the messages in it lost"
+                return end, f"; skipped it (bytes {start} to {end}{lost}) and read on"
+        found = next_chunk(file, start + 1, size)
+        if found is None:
+            return None, ""
+        self.lost.append(LostChunk(start, found, last_ns, UNKNOWN_NS, "unreadable part"))
+        return found, (
+            f"; skipped bytes {start} to {found} (unreadable: whatever they held is lost) "
+            "and read on at the next intact chunk"
+        )
+
+    def _describe(self, exc: Exception, file: Any, start: int, size: int, uncut: str | None) -> str:
+        """What is wrong with the record at byte ``start`` (``uncut``: why the file is not cut short)."""
         if self.good_bytes == size:
             return (
                 f"the file ends after its last complete record (byte {size}) "
                 "without a summary and footer"
             )
         what = type(exc).__name__ + (f": {exc}" if str(exc) else "")
-        if isinstance(exc, RecordLengthLimitExceeded):
-            # The limit is the file's size, so the record is longer than what is left of the
-            # file: refused before it was read, it is one the file ends inside (a cut-short log).
-            start = max(self.good_bytes, len(_MAGIC))  # the first record follows the magic
-            file.seek(start)
-            opcode, length = _RECORD_START.unpack(file.read(_RECORD_START.size))
+        head = record_head(file, start)
+        if head is None:
+            kind = "record"
+        else:
             try:
-                kind = Opcode(opcode).name.lower() + " record"
+                kind = Opcode(head[0]).name.lower() + " record"
             except ValueError:
-                kind = f"record of unknown opcode {opcode:#x}"
+                kind = f"record of unknown opcode {head[0]:#x}"
+            kind += record_name(file, start, head[0])
+        kind = ("an " if kind[0] in "aeiou" else "a ") + kind
+        if head is None or start + 9 + head[1] > size:
+            length = "" if head is None else f" of {head[1]} bytes"
+            if uncut is None:  # really cut short, unless a later chunk shows it is damage (_read_on)
+                return (
+                    f"the file ends inside the record after byte {start} of {size} "
+                    f"({kind}{length} starts at byte {start})"
+                )
             return (
-                f"the file ends inside the record after byte {self.good_bytes} of {size} "
-                f"(a {kind} of {length} bytes starts at byte {start})"
+                f"damaged record after byte {start} of {size} ({kind} whose length{length} runs "
+                f"past the end of the file, though {uncut})"
             )
-        if file.tell() >= size:
-            return (
-                f"the file ends inside the record after byte {self.good_bytes} of {size} ({what})"
-            )
-        return f"damaged record after byte {self.good_bytes} of {size} ({what})"
+        return f"damaged record after byte {start} of {size} ({kind} of {head[1]} bytes: {what})"
 
     def info(self) -> LogInfo:
         """Profile, attachments and metadata, and whether the log is whole.
@@ -527,10 +589,8 @@ class LogReader:
                 self.refused[exc.reason] += 1
                 log.warning(
                     "%s: skipped a stored message (channel %d, log time %d ns): %s",
-                    self.path,
-                    record.channel_id,
-                    record.log_time,
-                    exc,
+                    self.path, record.channel_id, record.log_time, exc,
                 )
                 continue
             yield LoggedMessage(record.log_time, record.publish_time, tuple(frames), message)
+

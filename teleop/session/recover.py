@@ -1,7 +1,8 @@
 """Recovery: a session log cut short (recorder killed, disk full) rewritten as a complete MCAP file.
 
-The damaged log is read front to back with mcap's non-seeking reader (CRCs checked) up to
-its first incomplete or damaged record; every complete record before it (header, schemas,
+The damaged log is read front to back with mcap's non-seeking reader (CRCs checked), past
+damaged records where it can (:class:`~teleop.session.logfile.LogReader`), up to its last
+complete record; every complete record read (header, schemas,
 channels, messages, attachments, metadata) is copied unchanged, message data byte for
 byte, into a new file with a summary, indexes and footer. A ``recovery`` metadata record
 says what was salvaged from where.
@@ -40,13 +41,15 @@ class RecoveryReport:
     out: str
     complete: bool  # the source had its footer: nothing was missing
     closed_cleanly: bool  # the source has the recorder's end-of-session metadata
-    damage: str | None  # where and why reading the source stopped
+    damage: str | None  # what was damaged or cut short, where, and what was skipped
+    damaged: bool = False  # a record was damaged (skipped, or reading stopped there)
+    cut_short: bool = False  # the source ends inside a record or without its footer
     messages: int = 0  # bus messages (Foxglove channels are copied, not counted)
     topics: Counter[str] = field(default_factory=Counter)
     undecodable: int = 0  # complete messages kept verbatim that are not valid bus messages
     attachments: list[str] = field(default_factory=list)
     metadata: list[str] = field(default_factory=list)
-    salvaged_bytes: int = 0  # bytes of the source up to the end of its last complete record
+    salvaged_bytes: int = 0  # where the last complete record read ends (damage before it skipped)
     source_bytes: int = 0
 
     def as_dict(self) -> dict[str, Any]:
@@ -162,7 +165,7 @@ def _copy(reader: LogReader, writer: Writer, report: RecoveryReport, bar: tqdm) 
             f"{reader.path} has no readable MCAP header record: nothing to recover"
         )
     report.complete = reader.complete
-    report.damage = reader.damage
+    report.damage, report.damaged, report.cut_short = reader.damage, reader.damaged, reader.cut
     report.closed_cleanly = END_METADATA in report.metadata
     report.salvaged_bytes = reader.good_bytes
     report.source_bytes = reader.path.stat().st_size

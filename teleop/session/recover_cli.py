@@ -1,5 +1,5 @@
-"""``teleop recover``: every complete message of a log cut short, salvaged into a complete file; exit
-status 1, and no ``--out`` file, when there was none to salvage."""
+"""``teleop recover``: every complete message of a log cut short or damaged, salvaged into a complete
+file; exit status 1, and no ``--out`` file, when there was none to salvage."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 from teleop.clikit import output_file
 from teleop.errors import SessionLogError
-from teleop.session.recover import check_not_source, recover
+from teleop.session.recover import RecoveryReport, check_not_source, recover
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--json",
         action="store_true",
-        help="print one JSON object (source, out, complete, closed_cleanly, damage, messages, "
+        help="print one JSON object (source, out, complete, closed_cleanly, damage, damaged, "
+        "cut_short, messages, "
         "topics, undecodable, attachments, metadata, salvaged_bytes, source_bytes) as the "
         "last stdout line",
     )
@@ -45,11 +46,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         staged.replace(out)
     report.out = str(out)
-    state = "complete" if report.complete else f"cut short ({report.damage})"
     print(
-        f"{args.log}: {state}; salvaged {report.messages} messages, "
-        f"{len(report.attachments)} attachments, "
-        f"{report.salvaged_bytes} of {report.source_bytes} bytes into {args.out}",
+        f"{args.log}: {_state(report)}; salvaged {report.messages} messages, "
+        f"{len(report.attachments)} attachments, read to byte {report.salvaged_bytes} of "
+        f"{report.source_bytes}" + (" past the damage" if report.damaged else "") + f", into {args.out}",
         file=sys.stderr,
     )
     if report.undecodable:
@@ -61,7 +61,19 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report.as_dict()))
     if report.messages == 0 and not report.complete:
-        print(f"{args.log}: nothing salvaged: the log is cut short before its first message; "
-              f"{args.out} not written", file=sys.stderr)
+        why = (
+            "no message of the log could be read (see the damage above)"
+            if report.damaged
+            else "the log is cut short before its first message"
+        )
+        print(f"{args.log}: nothing salvaged: {why}; {args.out} not written", file=sys.stderr)
         return 1
     return 0
+
+
+def _state(report: RecoveryReport) -> str:
+    """The source's state, as what happened: complete, damaged, cut short (and where)."""
+    if report.complete:
+        return "complete"
+    said = [word for word, yes in (("damaged", report.damaged), ("cut short", report.cut_short)) if yes]
+    return f"{' and '.join(said) or 'incomplete'} ({report.damage})"

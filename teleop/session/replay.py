@@ -55,7 +55,8 @@ class ReplayStats:
     refused: Counter[str] = field(default_factory=Counter)  # stored messages that did not decode
     log_span_s: float = 0.0  # receive-time span of what was sent
     wall_s: float = 0.0
-    damage: str | None = None  # why reading stopped before the end of the log
+    damage: str | None = None  # what was damaged or cut short in the log, and what was skipped
+    stopped: bool = False  # reading stopped there: nothing after it was replayed
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -67,6 +68,7 @@ class ReplayStats:
             "log_span_s": self.log_span_s,
             "wall_s": self.wall_s,
             "damage": self.damage,
+            "stopped": self.stopped,
         }
 
 
@@ -148,7 +150,7 @@ def replay(
     stats.wall_s = clock() - start_s
     stats.log_span_s = (high_ns - low_ns) / 1e9
     stats.refused = Counter(reader.refused)
-    stats.damage = reader.damage
+    stats.damage, stats.stopped = reader.damage, reader.stopped
     return stats
 
 

@@ -10,8 +10,12 @@ import time
 from teleop.bus.pubsub import Publisher
 from teleop.errors import SessionLogError
 from teleop.session.logfile import LogReader
-from teleop.session.replay import replay
+from teleop.session.replay import ReplayStats, replay
 from teleop.settings import load_settings
+
+MIN_SPEED = 1e-3  # --speed: a thousand times slower than recorded at most
+MAX_WAIT_S = 86400.0  # --wait-subscriber-s: a day
+MAX_LINGER_S = 3600.0  # --linger-s: an hour
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=1.0,
         metavar="X",
-        help="replay X times as fast as recorded (paced by the receive times)",
+        help=f"replay X times as fast as recorded (paced by the receive times; X >= {MIN_SPEED:g})",
     )
     pace.add_argument(
         "--as-fast-as-possible",
@@ -72,31 +76,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=5.0,
         metavar="S",
-        help="wait up to S seconds for a bus subscriber to connect before sending (0: do not wait)",
+        help=f"wait up to S seconds (at most {MAX_WAIT_S:g}) for a bus subscriber to connect before "
+        "sending (0: do not wait)",
     )
     parser.add_argument(
         "--linger-s",
         type=float,
         default=1.0,
         metavar="S",
-        help="keep the endpoint open S seconds after the last message, so queued messages "
-        "reach slow subscribers before it closes",
+        help=f"keep the endpoint open S seconds (at most {MAX_LINGER_S:g}) after the last message, so "
+        "queued messages reach slow subscribers before it closes",
     )
     parser.add_argument(
         "--json",
         action="store_true",
         help="print one JSON object (log, endpoint, sent, topics, heartbeats_skipped, other_sources, "
-        "refused, log_span_s, wall_s, damage) as the last stdout line",
+        "refused, log_span_s, wall_s, damage, stopped) as the last stdout line",
     )
 
 
 def run(args: argparse.Namespace) -> int:
-    if not args.as_fast_as_possible and not args.speed > 0:
-        raise SessionLogError(f"--speed {args.speed}: expected a number > 0")
-    if not args.linger_s >= 0:
-        raise SessionLogError(f"--linger-s {args.linger_s}: expected a number >= 0")
-    if not args.wait_subscriber_s >= 0:
-        raise SessionLogError(f"--wait-subscriber-s {args.wait_subscriber_s}: expected a number >= 0")
+    if not args.as_fast_as_possible and not args.speed >= MIN_SPEED:
+        raise SessionLogError(
+            f"--speed {args.speed}: expected a number >= {MIN_SPEED:g} (slower would take "
+            "thousands of times the recording's length)"
+        )
+    for option, value, most in (
+        ("--linger-s", args.linger_s, MAX_LINGER_S),
+        ("--wait-subscriber-s", args.wait_subscriber_s, MAX_WAIT_S),
+    ):
+        if not 0 <= value <= most:
+            raise SessionLogError(f"{option} {value}: expected a number >= 0 (seconds, at most {most:g})")
     settings = load_settings(args.settings)
     LogReader(args.log).info()  # a missing or unreadable log is named before the bus is set up
     endpoint = args.endpoint or settings.bus.robot_pub
@@ -131,10 +141,26 @@ def run(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     if stats.damage:
-        print(f"the log stopped early: {stats.damage}", file=sys.stderr)
+        said = "the log stops early" if stats.stopped else "the log is damaged; replay read on past it"
+        print(f"{said}: {stats.damage}", file=sys.stderr)
     if args.json:
         print(json.dumps({"log": args.log, "endpoint": endpoint, **stats.as_dict()}))
-    if stats.sent == 0:  # a typo in --recorded-from or --topics, most likely
-        print("nothing replayed: no message of the log matches --recorded-from and --topics", file=sys.stderr)
+    if stats.sent == 0:
+        print(f"nothing replayed: {_why_nothing(args, stats)}", file=sys.stderr)
         return 1
     return 0
+
+
+def _why_nothing(args: argparse.Namespace, stats: ReplayStats) -> str:
+    """Why a replay sent nothing, as what happened."""
+    filtered = args.topics is not None or args.recorded_from is not None
+    if filtered and (stats.other_sources or not stats.damage):  # a typo, most likely
+        return "no message of the log matches --recorded-from and --topics"
+    refused = sum(stats.refused.values())
+    if refused or stats.heartbeats_skipped:
+        return (
+            f"the log holds no readable message to replay ({refused} stored messages do not decode, "
+            f"{stats.heartbeats_skipped} heartbeats are never replayed)"
+        )
+    where = f" ({stats.damage})" if stats.damage else ""
+    return f"the log holds no readable message{where}"

@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from tqdm import tqdm
 
 from estimator.errors import SampleError
@@ -41,6 +40,8 @@ from teleop.record import GraspRecord, write_record
 from teleop.settings import default_settings_path, load_settings
 from teleop.system.dataset_preprocessed import find_preprocessed_samples, import_preprocessed_sample
 from teleop.system.dataset_raw import RAW_FPS, find_raw_grasps, import_raw_grasp, raw_sensors
+
+MIN_FPS, MAX_FPS = 0.1, 10000.0  # a plausible camera frame rate, Hz
 
 __all__ = [
     "LAYOUTS",
@@ -134,8 +135,8 @@ def import_dataset(
     """
     if layout not in LAYOUTS:
         raise DatasetError(f"layout {layout!r}: expected one of {', '.join(LAYOUTS)}")
-    if not (np.isfinite(fps) and fps > 0):
-        raise DatasetError(f"fps = {fps}: expected a frame rate > 0 Hz")
+    if not MIN_FPS <= fps <= MAX_FPS:
+        raise DatasetError(f"fps = {fps}: expected a frame rate from {MIN_FPS:g} to {MAX_FPS:g} Hz")
     src, out = Path(src), Path(out)
     labels = {spec.name: spec for spec in load_catalogue(objects)} if objects is not None else {}
     summary = ImportSummary(layout=layout, source=str(src), out=str(out))
@@ -202,7 +203,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="settings whose sensors (one without markers, one with) describe the raw "
                              "videos and whose gripper.max_width_m bounds the imported widths")
     parser.add_argument("--fps", type=float, default=RAW_FPS,
-                        help="frame rate of the raw videos, Hz; frame k is at k / fps seconds")
+                        help=f"frame rate of the raw videos, Hz ({MIN_FPS:g} to {MAX_FPS:g}); frame k is at k / fps seconds")
     parser.add_argument("--json", action="store_true",
                         help="print the summary as one JSON object on the last stdout line")
 

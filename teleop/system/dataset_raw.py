@@ -167,7 +167,10 @@ def import_raw_grasp(
                 f"{video}: {len(packets)} frames but {force.shape[0]} forces in {name}_forces.pkl "
                 "(expected one per frame)"
             )
-        t_s = np.arange(len(packets)) / fps
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            t_s = np.arange(len(packets)) / fps
+        if not (np.all(np.isfinite(t_s)) and np.all(np.diff(t_s) > 0)):
+            raise DatasetError(f"{video}: fps = {fps} gives frame times that are not finite and increasing")
         streams.append(FrameStream(sensor.finger, t_s, packets, encoding="jpeg", shape=shape))
     if width.shape != force.shape:
         raise DatasetError(

@@ -522,3 +522,18 @@ def test_import_dataset_command_fails_when_nothing_imports(tmp_path, capsys):
     status = cli.main(["import-dataset", str(tmp_path / "absent"), "--layout", "raw", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert status == 2 and "not a directory" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("fps", [1e-320, 0.01, 1e6, float("inf"), float("nan"), 0.0])
+def test_import_refuses_an_implausible_frame_rate(tmp_path, fps):
+    src = tmp_path / "raw"
+    make_raw_grasp(src, "apple", 0, n=3)
+    with pytest.raises(DatasetError, match=r"fps = .*: expected a frame rate from 0.1 to 10000 Hz"):
+        import_dataset(src, layout="raw", out=tmp_path / "out", fps=fps)
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*.grasp"))
+
+
+def test_raw_grasp_refuses_frame_times_that_are_not_finite_and_increasing(tmp_path):
+    folder = make_raw_grasp(tmp_path / "raw", "apple", 0, n=3)
+    with pytest.raises(DatasetError, match="not finite and increasing"):
+        import_raw_grasp(folder, sensors=load_settings().sensors, labels={}, fps=1e-320)
