@@ -72,6 +72,9 @@ def print_comparison(result: Mapping[str, Any], *, file: Any = None) -> None:
               f"{fmt_value(m['rigid_shown_rigid'], '6.1%')} {fmt_value(m['answered'], '8.1%')} "
               f"{fmt_value(m['interval_coverage'], '8.1%')} {fmt_value(m['interval_width_decades_median'], '6.2f')} "
               f"{fmt_value(m['soft_interval_width_decades_median'], '10.2f')}  {m['model']}", file=file)
+    if not any(result[role].get("soft_n") for role in ("base", "candidate")):
+        print("note: no soft object (label at or below 3 MPa) among them: the display's scale, where models "
+              "differ, is not tested; add held-out soft objects", file=file)
     print(result["verdict"], file=file)
 
 

@@ -421,7 +421,8 @@ def _write(jobs: list[tuple[Path, int, str]], out: Path, *, settings: Settings, 
                 f"{list(fractions)}): "
                 + ("`estimator train` refuses a dataset without val samples" if s == "val" else
                    "evaluation and calibration have no held-out test samples")
-                + "; add records of more objects, or change --split TRAIN,VAL,TEST")
+                + "; add records of more objects, or change --split TRAIN,VAL,TEST (`estimator fine-tune` "
+                  "trains on every split: nothing to do for it)")
             log.warning("%s", warnings[-1])
     (out / "split.json").write_text(json.dumps(
         {"seed": seed, "fractions": list(fractions), "stratified_by": "material", **split}, indent=1))

@@ -16,6 +16,7 @@ from estimator.evaluation.compare import (
     felt_difference,
     verdict,
 )
+from estimator.evaluation.compare_cli import print_comparison
 from teleop.settings import load_settings
 
 DISPLAY = (1e3, 1e7)
@@ -178,3 +179,13 @@ def _write_grasp_of(obj, name, path, settings):
 
     record, _ = simulate_grasp(obj, settings=settings, rng=np.random.default_rng(0), seed=0)
     write_record(replace(record, label=replace(record.label, object_name=name)), path)
+
+
+@pytest.mark.parametrize("soft_n, noted", [(0, True), (2, False)])
+def test_a_comparison_without_soft_objects_says_it_cannot_test_the_scale(capsys, soft_n, noted):
+    row = {"n": 3, "felt_log10_error": 0.0, "felt_within_2x": 1.0, "dangerous_misses": 0, "rigid_shown_rigid": 1.0,
+           "answered": 1.0, "interval_coverage": 1.0, "interval_width_decades_median": 0.1,
+           "soft_interval_width_decades_median": None, "model": "m", "soft_n": soft_n}
+    print_comparison({"grasps": 3, "n_objects": 3, "records": 3, "mode": "auto", "base": row, "candidate": row,
+                      "verdict": "undecided"})
+    assert ("no soft object (label at or below 3 MPa)" in capsys.readouterr().out) is noted
