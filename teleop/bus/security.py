@@ -64,8 +64,9 @@ from zmq.auth.thread import ThreadAuthenticator
 from zmq.utils import z85
 
 from teleop.bus.handshakes import watch_handshakes
+from teleop.endpoints import parse_endpoint
 from teleop.errors import BusError, BusSecurityError
-from teleop.settings import BusSettings, parse_endpoint
+from teleop.settings import BusSettings
 
 __all__ = [
     "AUTHORIZED_DIR",
@@ -126,7 +127,7 @@ def is_loopback(endpoint: str) -> bool:
 
     A tcp endpoint with a source address (``tcp://SRC;DST:PORT``) is loopback only when
     both are. Raises BusError for text that is not a ZeroMQ endpoint, a port out of range
-    included (:func:`~teleop.settings.parse_endpoint`).
+    included (:func:`~teleop.endpoints.parse_endpoint`).
     """
     try:
         parsed = parse_endpoint(endpoint)

@@ -55,6 +55,7 @@ from teleop.devices.camera import make_camera, opencv_fix
 from teleop.devices.gripper import FRANKY_FIX, make_gripper
 from teleop.devices.loadcell import FIXES as LOAD_CELL_FIXES
 from teleop.devices.loadcell import make_load_cell
+from teleop.endpoints import parse_endpoint
 from teleop.errors import BusSecurityError, ComplianceTeleopError, DeviceTimeoutError
 from teleop.live import ENDPOINTS
 from teleop.rig.load_cell_calibration import load_cell_source
@@ -63,7 +64,6 @@ from teleop.settings import (
     Settings,
     default_settings_path,
     load_settings,
-    parse_endpoint,
     resolve_path,
 )
 
