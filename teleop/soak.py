@@ -48,6 +48,7 @@ __all__ = ["GRASP_RATES_HZ", "LatencyHistogram", "SoakResult", "check_log_path",
 
 #: Messages per second of each grasp topic, as the robot node publishes them.
 GRASP_RATES_HZ = {"frame/left": 30.0, "frame/right": 30.0, "force": 80.0, "width": 10.0}
+MIN_DURATION_S = 1.0 / min(GRASP_RATES_HZ.values())  # every topic sends at least once
 DEFAULT_WARMUP_FRACTION = 0.2
 MAX_DEFAULT_WARMUP_S = 60.0
 RSS_SAMPLE_S = 1.0
@@ -93,7 +94,8 @@ class LatencyHistogram:
         if total == 0:
             return None
         index = int(np.searchsorted(np.cumsum(self.counts), q * total))
-        return float(self.edges_ms[min(index, len(self.edges_ms) - 1)])
+        # a bin's upper edge, but never above the largest value seen (the top bin's edge can be)
+        return min(float(self.edges_ms[min(index, len(self.edges_ms) - 1)]), self.max_ms)
 
 
 def check_log_path(path: str | Path, *, name: str = "session log") -> Path:
@@ -256,8 +258,9 @@ def run_soak(settings: Settings, *, duration_s: float, warmup_s: float | None = 
     TeleopError
         The consumer does not start or does not report.
     """
-    if not (np.isfinite(duration_s) and duration_s > 0):
-        raise SettingsError(f"soak duration {duration_s!r} s: expected a finite number > 0")
+    if not (np.isfinite(duration_s) and duration_s >= MIN_DURATION_S):
+        raise SettingsError(f"soak duration {duration_s!r} s: expected a finite number of at least {MIN_DURATION_S:g} s "
+                            "(one period of the slowest topic)")
     if warmup_s is None:
         warmup_s = min(MAX_DEFAULT_WARMUP_S, DEFAULT_WARMUP_FRACTION * duration_s)
     if not (np.isfinite(warmup_s) and 0 <= warmup_s < duration_s):
@@ -294,6 +297,7 @@ def run_soak(settings: Settings, *, duration_s: float, warmup_s: float | None = 
         consumer.join(timeout=CONSUMER_STOP_TIMEOUT_S)
     histogram = LatencyHistogram()
     histogram.counts[:] = report["latency_counts"]
+    histogram.max_ms = report["max_ms"]
     received = report["received"]
     recorder = report["recorder"]
     mb = 1 / 2**20
@@ -370,6 +374,7 @@ def _publish(publisher: Publisher, frames: dict[str, list[bytes]], duration_s: f
             due[k] += period_s[k]
             if (whole_s := int(time.monotonic() - start)) > bar.n:
                 bar.update(whole_s - bar.n)
+        bar.update(bar.total - bar.n)  # the last whole second may not have passed: the run is done
     return sent, timeouts, time.monotonic() - start
 
 

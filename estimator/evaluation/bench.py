@@ -72,7 +72,7 @@ from estimator.measurements import TACTILE_METHODS
 from estimator.perception.calibration import Calibration
 from estimator.settings import estimator_settings
 from haptics.settings import display_range_pa
-from teleop.errors import RecordError
+from teleop.errors import RecordError, SettingsError
 from teleop.progress import progress_bar
 from teleop.record import GraspRecord, read_record
 from teleop.settings import Settings
@@ -106,7 +106,12 @@ def configurations(
     Raises SettingsError for a binning the estimator finger's grid does not take."""
     finger = settings.sensing.finger
     # A bad factor fails here, before any record is read.
-    rebinned = {k: settings.with_section(replace(estimator_settings(settings), depth_binning=k)) for k in binning}
+    rebinned = {}
+    for k in binning:
+        try:
+            rebinned[k] = settings.with_section(replace(estimator_settings(settings), depth_binning=k))
+        except SettingsError as exc:  # the settings name their file, but the factor is the caller's
+            raise SettingsError(f"binning {k} (--binning), refused as the depth binning: {exc}") from exc
     own = estimator_settings(settings).depth_binning
 
     def calibrated(record: GraspRecord) -> Calibration:

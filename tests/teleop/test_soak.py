@@ -44,10 +44,14 @@ def test_latency_histogram_quantiles_are_within_its_resolution():
         assert exact <= histogram.quantile_ms(q) <= exact * 1.011
     assert histogram.count == 5000 and histogram.max_ms == values.max()
     assert LatencyHistogram().quantile_ms(0.5) is None
+    one = LatencyHistogram()
+    one.add(0.437)  # a bin's upper edge lies above it: a quantile never says more than the largest value
+    assert one.quantile_ms(0.5) == one.quantile_ms(0.99) == one.max_ms == 0.437
 
 
 @pytest.mark.parametrize(("duration_s", "warmup_s", "match"), [
-    (0.0, None, "duration"), (float("nan"), None, "duration"), (5.0, 5.0, "warm-up"), (5.0, -1.0, "warm-up")])
+    (0.0, None, "duration"), (float("nan"), None, "duration"), (6e-8, None, "at least 0.1 s"), (5.0, 5.0, "warm-up"),
+    (5.0, -1.0, "warm-up")])
 def test_bad_soak_options_are_refused_naming_them(duration_s, warmup_s, match):
     with pytest.raises(SettingsError, match=match):
         run_soak(load_settings(), duration_s=duration_s, warmup_s=warmup_s)

@@ -92,7 +92,7 @@ def test_the_binned_estimate_is_close_to_the_full_grid_one(sim_grasps):
                 assert abs(math.log10(coarse.e_pa / full.e_pa)) < 0.1, (path.name, method)
                 compared += 1
     assert compared >= 4
-    with pytest.raises(SettingsError, match="depth_binning = 3"):
+    with pytest.raises(SettingsError, match=r"binning 3 \(--binning\), refused as the depth binning: .*depth_binning = 3"):
         configurations(settings=settings, calibration=str(calibration), frames=[3], models=[], binning=[3])
 
 
