@@ -20,7 +20,8 @@ frozen :class:`~haptics.operator_loop.LoopStatus` ten times a second. Panels:
   above a later refusal, and what went wrong on this side (a send that failed), with the
   operator's last actions, then the last warning logged (a refused CURVE handshake, say: the
   log itself is held until the screen closes);
-* the **keys**, at the bottom. The whole fits an 80x24 terminal.
+* the **keys**, at the bottom. The whole fits an 80x24 terminal; in a smaller one, where panels
+  are cut off, a line at the top says so and shows the dead-man enable and the mode.
 
 With the keyboard, the console turns the enable toggle off when the loop suspends the follows
 (after ``next``, the robot's end of the grasp), so the screen shows the toggle as it is and one
@@ -63,7 +64,7 @@ from haptics.operator_loop import LoopStatus, OperatorLoop
 from teleop.bus.messages import EstimateBody
 from teleop.labels import LabelError, describe_label, parse_label
 
-__all__ = ["CONSOLE_BUTTON_KEYS", "OperatorConsole", "estimate_line", "format_pa"]
+__all__ = ["CONSOLE_BUTTON_KEYS", "MIN_SIZE", "OperatorConsole", "estimate_line", "format_pa", "small_terminal_line"]
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +74,7 @@ LABEL_KEY = "l"
 LABEL_PLACEHOLDER = "object name (right arrow takes the suggestion), NAME shore A 40, NAME shore 00 60 or NAME 12 MPa"
 FORCE_STEP_N = 1.0
 REFRESH_S = 0.1
+MIN_SIZE = (80, 24)  # the terminal the whole layout fits; under it a line at the top keeps the enable shown
 QUIT_GRACE_S = 1.0  # after quit, the loop thread is told to stop if it has not ended by itself
 BAR_CELLS = 24
 PANEL_LINES = 4  # the estimate and display panels' lines on a terminal shorter than TALL_LINES ...
@@ -198,6 +200,8 @@ class OperatorConsole(App):
     .panel { border: round $primary; padding: 0 1; height: auto; width: 1fr; }
     #row3 .panel { height: 100%; overflow: hidden hidden; }
     #keys { color: $text-muted; padding: 0 1; height: auto; dock: bottom; }
+    #small { dock: top; height: auto; display: none; background: $error; color: $text; text-style: bold; }
+    #small.open { display: block; }
     #label { display: none; }
     #label.open { display: block; }
     """
@@ -226,6 +230,7 @@ class OperatorConsole(App):
         self.drawn: dict[str, str] = {}  # each panel's text as drawn: wrapped to its width, maybe cut
         self.console_note = ""  # the console's own last note (a label sent, nothing to label) ...
         self._note_grasp: str | None = None  # ... and the grasp shown then: a new grasp's view drops it
+        self.small_line = ""  # the line shown at the top of a terminal under MIN_SIZE ("" when it fits)
         self.log_note = ""  # the last warning logged while the screen holds the log (set from any thread)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -233,6 +238,7 @@ class OperatorConsole(App):
     # ------------------------------------------------------------------ layout
 
     def compose(self) -> ComposeResult:
+        yield Static("", id="small", markup=False)  # shown only in a terminal under MIN_SIZE
         names = [name for name, _ in self.PANELS]
         for number, row in enumerate((names[0:2], names[2:4], names[4:6]), 1):
             with Horizontal(classes="row", id=f"row{number}"):
@@ -359,11 +365,28 @@ class OperatorConsole(App):
             drive = "keys: up/k squeeze  down/j open  o open fully  e enable (dead-man)  q quit"
         else:
             drive = f"the {self.input_name} input drives grip and enable  |  keys: q quit"
-        return drive + "\ng grasp  r release  s stop  n next (clears the view)  +/- grasp force  l label"
+        return drive + "\ng grasp  r release  s stop  n next (ends the grasp)  +/- grasp force  l label"
+
+    def on_resize(self, event: events.Resize) -> None:
+        self._show_small(self.loop.status)
+
+    def _show_small(self, status: LoopStatus) -> None:
+        """In a terminal under :data:`MIN_SIZE` the panels do not all fit (the operator panel, with the
+        enable, is cut off first): a line at the top, that nothing hides, says so with the enable and
+        the mode."""
+        banner = self.query_one("#small", Static)
+        width, height = self.size
+        small = width < MIN_SIZE[0] or height < MIN_SIZE[1]
+        text = small_terminal_line(status, width, height) if small else ""
+        if self.small_line != text:
+            banner.update(Text(text))
+            self.small_line = text
+        banner.set_class(small, "open")
 
     def redraw(self) -> None:
         status = self.loop.status
         self._let_go_toggle(status)
+        self._show_small(status)
         texts = self.render_status(status)
         cap = None if self.size.height >= TALL_LINES else PANEL_LINES  # else row 2 would push notices off
         for name, _ in self.PANELS:
@@ -474,3 +497,11 @@ class OperatorConsole(App):
             notice_lines.append(self.log_note)
         return {"alive": alive, "grasp": "\n".join(grasp), "estimate": "\n".join(lines),
                 "display": "\n".join(display), "input": "\n".join(operator), "notice": "\n".join(notice_lines)}
+
+
+def small_terminal_line(status: LoopStatus, width: int, height: int) -> str:
+    """The line shown at the top of a terminal under :data:`MIN_SIZE`: the enable and mode first, so
+    that a narrow terminal, wrapping it, still shows them at the top."""
+    grasp = f", grasp {status.grasp_id}" if status.grasp_id else ""
+    return (f"enable {'HELD' if status.held else 'off'}, mode {status.mode}{grasp} | terminal {width}x{height}: "
+            f"{MIN_SIZE[0]}x{MIN_SIZE[1]} needed, panels are cut off")

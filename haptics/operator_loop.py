@@ -18,13 +18,15 @@ the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.
   ``label`` on its next step;
 * buttons: ``grasp`` starts a discrete grasp at the chosen force, ``release`` opens the fingers,
   ``stop`` stops them where they are, ``next`` ends the grasp shown (releasing it unless the robot
-  already does) and, once the robot has ended it and its final estimate is in (an operator's grasp
+  already does; refused, with a notice, while a discrete grasp of this loop is in progress that
+  the view does not show yet: the operator releases it or waits for its end first)
+  and, once the robot has ended it and its final estimate is in (an operator's grasp
   gets it only after its end; not awaited when no estimator is alive), clears the view for the next
   object (meanwhile the device is read but drives nothing, and of its buttons only quit acts: an
   enable held then drives once the view is cleared, so a simulated operator starts the next grasp
   only then),
   ``quit`` ends the loop, letting go of the enable and releasing a follow grasp the robot runs (it
-  ends on that command, not by the watchdog once follows stop);
+  ends on that command, not by the watchdog once follows stop) and a discrete grasp in progress;
 * a device that ``waits_for_robot`` (the simulated operator) is not read while the robot node is
   down: it starts squeezing once the node is heard;
 * when the robot node, once heard, goes down, its grasp is forgotten (a node started again runs
@@ -279,10 +281,11 @@ class OperatorLoop:
     def finish(self) -> None:
         """On the way out: the dead-man let go (a follow with enable=False) if the loop was driving,
         and a follow grasp the robot runs released, so that it ends on a command, not by the
-        watchdog once follows stop."""
+        watchdog once follows stop; a discrete grasp in progress is released too (as ``release``
+        does), unless the robot already releases it."""
         grasp_id = self._follow_grasp
         robot = self.link.view.robot
-        releasing = robot is not None and robot.grasp_id == grasp_id and robot.mode == "releasing"
+        releasing = _releasing(robot, grasp_id)
         if self._enable or self._release_left or self._follow_live():
             self._send(lambda: self.link.follow(self._target_m or self.max_width_m, enable=False,
                                                 grasp_id=grasp_id))
@@ -290,6 +293,11 @@ class OperatorLoop:
         if grasp_id is not None and not releasing and self._send(lambda: self.link.release(grasp_id)):
             self._follow_grasp = None
             self._act(f"release {grasp_id}: the console quits")
+        discrete = self._discrete_grasp  # a discrete grasp in progress: the release `r` sends
+        if (discrete is not None and discrete != grasp_id and not _releasing(robot, discrete)
+                and self._send(lambda: self.link.release(discrete))):
+            self._discrete_grasp = None
+            self._act(f"release {discrete}: the console quits")
         self.status = self._status()
 
     # ------------------------------------------------------------------ pieces
@@ -351,6 +359,12 @@ class OperatorLoop:
             self._suspend()
         elif button == "next":
             self._suspend()
+            if self._discrete_grasp is not None and view.grasp_id != self._discrete_grasp:
+                # Not shown yet (the robot prepares it): clearing the view would hide a grasp the
+                # robot runs, and its start would bring it back.
+                self._act(f"next refused: grasp {self._discrete_grasp} is in progress: release it (r) "
+                          "or wait for it to end, then press n again")
+                return
             if view.grasp_id is None or _over(view):
                 self._next_object()
                 return
@@ -359,7 +373,11 @@ class OperatorLoop:
                                           or robot.mode != "releasing"):
                 self._send(lambda: self.link.release(view.grasp_id))
             self._leaving = (view.grasp_id, self.clock())
-            self._act(f"next object: once {view.grasp_id} ends and its final estimate is in")
+            if view.alive("estimator"):
+                self._act(f"next object: once {view.grasp_id} ends and its final estimate is in")
+            else:
+                self._act(f"next object: once {view.grasp_id} ends (the estimator is down: no final "
+                          "estimate will come)")
         elif button == "quit":
             self.quit = True
             self._act("quit")
@@ -419,10 +437,14 @@ class OperatorLoop:
         return view.grasp_id == self._follow_grasp and view.phase in ("loading", "loaded")
 
     def _next_object(self) -> None:
+        view = self.link.view
+        no_final = (view.grasp_id is not None and view.phase == "ended" and not view.alive("estimator")
+                    and (view.estimate is None or view.estimate.provisional))
         self._leaving, self._shown_over = None, False
         self.link.clear()
         self._follow_grasp = self._discrete_grasp = None
-        self._act("next object: ready")
+        self._act(f"next object: ready ({view.grasp_id}'s final estimate did not come: the estimator is down)"
+                  if no_final else "next object: ready")
 
     def _track(self) -> None:
         """Forget a grasp's id once the robot says it ended (the next enable starts another) or
@@ -441,7 +463,7 @@ class OperatorLoop:
             if view.grasp_id != grasp_id or self._shown_over or self.clock() - since >= NEXT_WAIT_S:
                 self._next_object()
                 return
-            self._shown_over = _over(view)
+            self._shown_over = _over(view)  # with the estimator down, ended is over: no final awaited
         ended = view.grasp_id if view.phase == "ended" else None
         # The watchdog's notice names the grasp it ended, even one whose start never came (preparing).
         stopped = view.ended_by.grasp_id if view.ended_by is not None else None
@@ -449,7 +471,7 @@ class OperatorLoop:
             self._follow_grasp = None
             if self._enable:  # a new grasp only once the enable is let go and held again
                 self._suspend()
-        if ended is not None and ended == self._discrete_grasp:
+        if self._discrete_grasp is not None and self._discrete_grasp in (ended, stopped):
             self._discrete_grasp = None
         notice = view.notice
         if (notice is not None and notice.event == "refused" and notice.action == "start_grasp"
@@ -540,6 +562,11 @@ class OperatorLoop:
             label_grasp_id=self._last_grasp,
             labels=self._labels,
         )
+
+
+def _releasing(robot: Any, grasp_id: str | None) -> bool:
+    """Whether the robot's state says it releases grasp ``grasp_id`` already."""
+    return robot is not None and robot.grasp_id == grasp_id and robot.mode == "releasing"
 
 
 def _over(view: OperatorView) -> bool:

@@ -1,0 +1,45 @@
+"""The operator console in a terminal smaller than its layout (80x24): a line at the top keeps the
+dead-man enable and the mode in sight (textual's pilot against a fake link)."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+from support.operator_fakes import ConsoleLink, until
+
+from haptics.console import OperatorConsole
+from haptics.inputs.keyboard import KeyboardInput
+from haptics.operator_loop import OperatorLoop
+from teleop.settings import load_settings
+
+
+@pytest.mark.parametrize("size", [(60, 20), (40, 12), (80, 24)])
+def test_a_small_terminal_shows_the_enable_and_mode_on_a_line_at_the_top(size):
+    link = ConsoleLink()
+
+    async def session() -> None:
+        with KeyboardInput(grip_step=0.25) as keyboard:
+            loop = OperatorLoop(link, keyboard, load_settings(), force_n=10.0)
+            app = OperatorConsole(loop, input_name="keyboard", keyboard=keyboard)
+            async with app.run_test(size=size) as pilot:
+                await pilot.pause(0.2)
+                banner = app.query_one("#small")
+                if size == (80, 24):  # the layout fits: no line
+                    assert not banner.display and app.small_line == ""
+                    await pilot.press("q")
+                    await until(lambda: app.exit_status is not None, pilot)
+                    return
+                await until(lambda: "enable off" in app.small_line, pilot)
+                width, height = size
+                assert f"terminal {width}x{height}: 80x24 needed" in app.small_line and "mode idle" in app.small_line
+                assert banner.display and banner.region.y == 0 and banner.region.height >= 1
+                assert app.screen.region.contains_region(banner.region)
+                await pilot.press("e")  # the dead-man toggled on: the line says so
+                await until(lambda: "enable HELD, mode follow" in app.small_line, pilot)
+                await pilot.press("e")
+                await until(lambda: "enable off" in app.small_line, pilot)
+                await pilot.press("q")
+                await until(lambda: app.exit_status is not None, pilot)
+
+    asyncio.run(session())

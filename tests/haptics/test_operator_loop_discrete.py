@@ -1,0 +1,96 @@
+"""The operator's loop with a discrete grasp in progress on quit and next, and next with the estimator
+down (against a fake link and device; the rest of the loop: test_operator_link.py)."""
+
+from __future__ import annotations
+
+from support.operator_fakes import Clock, FakeDevice, FakeLink
+
+from haptics.operator_link import OperatorView, Peer
+from haptics.operator_loop import OperatorLoop
+from teleop.bus.messages import RobotStateBody
+from teleop.settings import load_settings
+
+ESTIMATOR_DOWN = (Peer("robot node", "robot", True, 0.1), Peer("estimator", "estimator", False, 4.0))
+
+
+def _rig():
+    clock = Clock()
+    link, device = FakeLink(clock), FakeDevice(clock)
+    device.grip = 0.5
+    return clock, link, device, OperatorLoop(link, device, load_settings(), clock=clock)
+
+
+def _press(loop: OperatorLoop, clock: Clock, button: str) -> None:
+    loop.press(button)
+    loop.step()
+    clock.t += 0.001
+
+
+def test_quit_releases_a_discrete_grasp_in_progress():
+    clock, link, device, loop = _rig()
+    _press(loop, clock, "grasp")
+    grasp_id = loop.status.grasp_id
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loaded",
+                             robot=RobotStateBody(mode="holding", grasp_id=grasp_id, enable=False))
+    loop.step()
+    _press(loop, clock, "quit")
+    loop.finish()
+    assert link.sent[-1][1:] == ("release", {"grasp_id": grasp_id})
+    assert loop.status.last_action == f"release {grasp_id}: the console quits" and loop.status.grasp_id is None
+
+
+def test_quit_sends_no_second_release_for_a_discrete_grasp_the_robot_already_releases():
+    clock, link, device, loop = _rig()
+    _press(loop, clock, "grasp")
+    grasp_id = loop.status.grasp_id
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loaded",
+                             robot=RobotStateBody(mode="releasing", grasp_id=grasp_id, enable=False))
+    _press(loop, clock, "quit")
+    loop.finish()
+    assert "release" not in link.kinds()
+
+
+def test_next_during_a_discrete_grasp_not_shown_yet_is_refused_and_clears_nothing():
+    clock, link, device, loop = _rig()
+    _press(loop, clock, "grasp")
+    grasp_id = loop.status.grasp_id
+    # The robot is still preparing it: the view shows nothing yet (or the last grasp, over).
+    for view in (OperatorView(t_s=clock()), OperatorView(t_s=clock(), grasp_id="op-old", phase="ended")):
+        link.view = view
+        sent = len(link.sent)
+        _press(loop, clock, "next")
+        assert link.cleared == 0 and link.sent[sent:] == []
+        assert loop.status.grasp_id == grasp_id and loop.status.mode == "discrete"
+        assert loop.status.last_action.startswith(f"next refused: grasp {grasp_id} is in progress")
+        assert "release it (r)" in loop.status.last_action
+    # Shown, next releases it and waits for its end (test_operator_link.py); once it has ended, clears the view.
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="ended")
+    loop.step()
+    _press(loop, clock, "next")
+    assert link.cleared == 1 and loop.status.grasp_id is None
+
+
+def test_next_with_the_estimator_down_does_not_wait_for_a_final_and_says_so():
+    clock, link, device, loop = _rig()
+    device.enable = True
+    for _ in range(30):
+        loop.step()
+        clock.t += 0.002
+    grasp_id = loop.status.grasp_id
+    device.enable = False
+    link.view = OperatorView(t_s=clock(), peers=ESTIMATOR_DOWN, grasp_id=grasp_id, phase="loading")
+    loop.step()
+    _press(loop, clock, "next")
+    assert "release" in link.kinds() and link.cleared == 0
+    assert "final estimate is in" not in loop.status.last_action
+    assert "the estimator is down: no final estimate will come" in loop.status.last_action
+    # The robot ends the grasp: shown ended once, then cleared (no final awaited), and the keys are taken again.
+    link.view = OperatorView(t_s=clock(), peers=ESTIMATOR_DOWN, grasp_id=grasp_id, phase="ended")
+    assert loop.step().view.phase == "ended" and link.cleared == 0
+    loop.step()
+    assert link.cleared == 1
+    assert loop.status.last_action == (f"next object: ready ({grasp_id}'s final estimate did not come: "
+                                       "the estimator is down)")
+    device.buttons = {"grasp"}
+    loop.step()
+    assert link.kinds()[-1] == "start_grasp"
