@@ -34,7 +34,7 @@ from estimator.measurements import (
 from estimator.perception.calibration import Calibration
 from estimator.perception.grid import to_grid
 from estimator.segment import Segment
-from estimator.stream import GraspStream
+from estimator.stream import GraspStream, check_inputs
 from teleop.record import GRASP_DONE_EVENT, GraspRecord
 from teleop.settings import Settings
 
@@ -172,10 +172,12 @@ def measure_grasp(
         A tactile measurement was asked for and no calibration can be loaded,
         or it was made for another image shape or pixel pitch.
     FitError
-        The record has no sensor or no frames on the settings' finger.
+        The record has no sensor or no frames on the settings' finger; ``record`` is not a
+        GraspRecord or ``settings`` not Settings.
     RecordError
         A frame does not decode.
     """
+    check_inputs(record, settings=settings)
     camera_lag, width_lag = _clock_lags(record, settings=settings, camera=correct_camera_lag,
                                         width=correct_width_lag)
     stream = GraspStream.from_record(record, settings=settings, calibration=calibration, camera_lag_s=camera_lag,

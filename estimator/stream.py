@@ -99,6 +99,17 @@ __all__ = ["DEFAULT_METHODS", "LOADING_SETTLED_S", "GraspStream", "StreamEstimat
 LOADING_SETTLED_S = 0.1
 
 
+_NO_RECORD = object()
+
+
+def check_inputs(record: Any = _NO_RECORD, *, settings: Any) -> None:
+    """FitError unless ``record`` is a GraspRecord (when given) and ``settings`` is Settings."""
+    if record is not _NO_RECORD and not isinstance(record, GraspRecord):
+        raise FitError(f"record: expected a GraspRecord (teleop.record.read_record), got {type(record).__name__}")
+    if not isinstance(settings, Settings):
+        raise FitError(f"settings: expected Settings (teleop.settings.load_settings), got {type(settings).__name__}")
+
+
 class GraspStream:
     """The measurement and the live estimate of one grasp from its streams (see the module docstring).
 
@@ -127,6 +138,9 @@ class GraspStream:
     def __init__(self, *, settings: Settings, calibration: Calibration | str | Path | None,
                  methods: Sequence[str] = DEFAULT_METHODS, grasp_id: str = "",
                  sensors: Sequence[SensorSettings] | None = None, gripper: GripperSettings | None = None):
+        check_inputs(settings=settings)
+        if isinstance(methods, (str, bytes)):
+            raise FitError(f"methods: expected a sequence of method names, got the str {methods!r}")
         unknown = [m for m in methods if m not in analytical.METHODS]
         if unknown or not methods:
             raise FitError(f"methods {list(methods)}: expected some of {', '.join(analytical.METHODS)}")
@@ -171,8 +185,10 @@ class GraspStream:
         Raises
         ------
         FitError
-            The record has no sensor or no frames on the settings' finger.
+            The record has no sensor or no frames on the settings' finger; ``record`` is not a
+            GraspRecord or ``settings`` not Settings.
         """
+        check_inputs(record, settings=settings)
         finger = settings.sensing.finger
         try:
             record.sensor(finger)

@@ -331,6 +331,12 @@ def map_estimate(update: EstimateUpdate, *, e_soft_pa: float, e_rigid_pa: float)
     "At or above" ``e_rigid_pa`` (for the rigid flag and for reaching the rigid end) and "at or
     below" ``e_soft_pa`` allow a relative :data:`RIGID_TOLERANCE`.
     """
+    if not isinstance(update, EstimateUpdate):
+        raise MappingError(
+            f"update: expected an EstimateUpdate, got {type(update).__name__}; build one with "
+            "EstimateUpdate.from_estimate(body, t_s) from a bus estimate body, or "
+            "EstimateUpdate(e_pa=..., interval_pa=..., state=...) from an estimator Estimate's fields"
+        )
     soft, rigid = _check_range(e_soft_pa, e_rigid_pa)
     if update.state == "insufficient_data":
         return _unknown(update, soft, rigid)

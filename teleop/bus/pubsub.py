@@ -223,6 +223,8 @@ class Publisher(_Socket):
         security: BusSecurity | None = None,
         setting: str = "",
     ):
+        if not isinstance(lossless, bool):
+            raise BusError(f"lossless = {lossless!r}: expected True or False")
         self.lossless = lossless
         self.source = source
         self.max_bytes = max_bytes
@@ -393,6 +395,11 @@ class Subscriber(_Socket):
         bind: bool = False,
         security: BusSecurity | None = None,
     ):
+        if isinstance(topics, str | bytes) or not isinstance(topics, Iterable):
+            what = f"the str {topics!r}" if isinstance(topics, str) else repr(topics)
+            raise BusError(f"topics: expected a sequence of topic names, got {what}")
+        if not isinstance(endpoints, str | Iterable):
+            raise BusError(f"endpoints: expected an endpoint or a sequence of endpoints, got {endpoints!r}")
         self.endpoints = [endpoints] if isinstance(endpoints, str) else list(endpoints)
         self.topics = sorted({*topics, HEARTBEAT_TOPIC})
         self.conflate = conflate

@@ -60,6 +60,7 @@ import dataclasses
 import functools
 import json
 import math
+import numbers
 import zlib
 from dataclasses import dataclass, field
 
@@ -394,8 +395,19 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
     SimulationError
         The settings do not have two sensors, the object does not fit the
         gripper, the fingers closed on each other before the force target (an
-        object too small to grasp), or a contact solve failed.
+        object too small to grasp), or a contact solve failed; ``obj`` is not an ObjectSpec,
+        ``settings`` not Settings, ``rng`` not a numpy Generator or ``force_n`` not a finite
+        number > 0.
     """
+    if not isinstance(obj, ObjectSpec):
+        raise SimulationError(f"obj: expected an ObjectSpec (teleop.catalogue.load_catalogue), got {type(obj).__name__}")
+    if not isinstance(settings, Settings):
+        raise SimulationError(f"settings: expected Settings (teleop.settings.load_settings), got {type(settings).__name__}")
+    if not isinstance(rng, np.random.Generator):
+        raise SimulationError(f"rng: expected a numpy Generator (numpy.random.default_rng(seed)), got {rng!r}")
+    if force_n is not None and (isinstance(force_n, bool) or not isinstance(force_n, numbers.Real)
+                                or not math.isfinite(force_n) or force_n <= 0):
+        raise SimulationError(f"force_n = {force_n!r}: expected None or a finite number > 0 (N)")
     if operator not in OPERATORS:
         raise SimulationError(f"operator {operator!r}: expected one of {', '.join(OPERATORS)}")
     if len(settings.sensors) != 2:

@@ -450,3 +450,17 @@ def test_one_just_noticeable_step_is_about_one_uncertainty_count():
     # An interval one Weber fraction wide, inside the range, quantises to one count (1/20 decade).
     percept = map_estimate(ok(1e5, (1e5, 1.15e5)), **shipped_range())
     assert to_command(percept, level_max=4095).uncertainty == 1
+
+
+@pytest.mark.parametrize("update", [None, {"e_pa": 1e5}])
+def test_map_estimate_requires_an_estimate_update(update):
+    with pytest.raises(MappingError, match=r"update: expected an EstimateUpdate, got .*EstimateUpdate\.from_estimate"):
+        map_estimate(update, e_soft_pa=1e3, e_rigid_pa=1e6)
+
+
+def test_map_estimate_refuses_an_estimator_estimate():
+    from estimator.estimate import Estimate
+
+    estimate = Estimate(method="series", e_pa=1e5, interval_pa=(5e4, 2e5), state="ok")
+    with pytest.raises(MappingError, match="update: expected an EstimateUpdate, got Estimate"):
+        map_estimate(estimate, e_soft_pa=1e3, e_rigid_pa=1e6)

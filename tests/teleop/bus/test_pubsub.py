@@ -316,3 +316,22 @@ def test_an_endpoint_in_use_says_how_to_free_it_and_which_setting_names_it():
         bus = BusSettings(robot_pub=holder.endpoint)
         with pytest.raises(BusError, match=r"a session still running\?.* choose another port in bus.robot_pub$"):
             Publisher.from_settings(bus, bus.robot_pub, lossless=True)
+
+
+@pytest.mark.parametrize("topics", ["estimate", None])
+def test_subscriber_refuses_topics_that_are_not_a_sequence_of_names(topics):
+    # A str would be split into one-letter prefixes ('e', 's', ...) and subscribe to the wrong topics.
+    with pytest.raises(BusError, match="topics: expected a sequence of topic names, got " + (
+            "the str 'estimate'" if topics else "None")):
+        Subscriber("inproc://bus-test-topics", topics)
+
+
+def test_subscriber_refuses_no_endpoint():
+    with pytest.raises(BusError, match="endpoints: expected an endpoint or a sequence of endpoints, got None"):
+        Subscriber(None)
+
+
+@pytest.mark.parametrize("lossless", ["no", "0", 0, 1, None])
+def test_publisher_lossless_must_be_a_bool(lossless):
+    with pytest.raises(BusError, match=r"lossless = .*: expected True or False"):
+        Publisher(f"inproc://bus-test-{next(_names)}", lossless=lossless)

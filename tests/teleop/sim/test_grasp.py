@@ -220,3 +220,20 @@ def test_an_operator_grasp_round_trips_with_its_style(operated, tmp_path):
 def test_an_unknown_operator_is_refused(settings):
     with pytest.raises(SimulationError, match="operator 'person'"):
         simulate_grasp(STEEL, settings=settings, rng=np.random.default_rng(0), operator="person")
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"obj": "steel_ball"}, r"obj: expected an ObjectSpec .*got str"),
+    ({"settings": None}, r"settings: expected Settings .*got NoneType"),
+    ({"rng": 0}, r"rng: expected a numpy Generator .*got 0"),
+    ({"force_n": -1.0}, r"force_n = -1\.0: expected None or a finite number > 0 \(N\)"),
+    ({"force_n": 0.0}, r"force_n = 0\.0: expected"),
+    ({"force_n": float("nan")}, r"force_n = nan: expected"),
+    ({"force_n": True}, r"force_n = True: expected"),
+    ({"force_n": "5"}, r"force_n = '5': expected"),
+])
+def test_simulate_grasp_refuses_misused_arguments(settings, kwargs, message):
+    arguments = {"obj": STEEL, "settings": settings, "rng": np.random.default_rng(0)} | kwargs
+    obj = arguments.pop("obj")
+    with pytest.raises(SimulationError, match=message):
+        simulate_grasp(obj, **arguments)
