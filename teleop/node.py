@@ -53,6 +53,12 @@ follow during a scripted grasp or beyond the gripper's width, ...) is logged and
 ``robot_notice`` *refused* with the reason (the same refusal at most once per
 :data:`REFUSAL_REPEAT_S`), and the node carries on. A ``robot_state`` goes out on every change
 of the node's mode, grasp, target width or enable, and with every heartbeat.
+
+A gripper command that fails (the gripper's link down: its grasp command, or a release, move or
+stop the node gives by itself) is answered with a ``robot_notice`` *device* (action ``gripper``)
+with the reason, the grasp in progress ends at once (its *end* goes out; a failed grasp command
+never reports *holding*), and the node carries on; commands the gripper cannot carry out meanwhile
+are refused.
 """
 
 from __future__ import annotations
@@ -190,7 +196,8 @@ class RobotNode(ServiceLoop):
 
     def connect(self) -> RobotNode:
         """Connect the devices and start one reader thread per device."""
-        self._io.connect(tare=not self.simulated)
+        # Only a hardware cell is tared: a simulated one sends nothing outside a simulated grasp.
+        self._io.connect(tare=self.settings.load_cell.backend != "sim")
         if self.simulated:
             self._follower.prepare_next()
         return self
@@ -229,7 +236,10 @@ class RobotNode(ServiceLoop):
         # A long backlog to publish is not the operator's silence: follows that came meanwhile count
         # before the watchdog looks.
         self._take_commands()
-        self._advance()
+        try:
+            self._advance()
+        except DeviceError as exc:  # a gripper command failed (the link down): the node carries on
+            self._gripper_failed(exc)
         self._send_state()
 
     def _take_commands(self) -> None:
@@ -398,6 +408,8 @@ class RobotNode(ServiceLoop):
         if grasp.phase == "preparing" and grasp.prepared.done():
             self._play(grasp)
         elif grasp.phase == "grasping" and grasp.motion.done():
+            if not grasp.motion.cancelled() and grasp.motion.exception() is not None:
+                raise grasp.motion.exception()  # the grasp command failed: nothing is held
             grasp.phase, grasp.phase_until_s = "holding", now + self.settings.gripper.hold_s
         elif grasp.phase == "holding" and now >= grasp.phase_until_s:
             grasp.phase, grasp.motion = "releasing", self.gripper.move_async(self.settings.gripper.max_width_m)
@@ -447,11 +459,28 @@ class RobotNode(ServiceLoop):
             return
         if future.exception() is not None:
             log.warning("grasp %s: the grasp command failed: %s", grasp.grasp_id, future.exception())
+            if not self._replaying():  # a replay holds and releases by itself
+                self._gripper_failed(future.exception())
             return
         grasp.stop = self.gripper.last_stop
         if grasp.stop is None:
             log.warning("grasp %s: no width read when the fingers stopped: no loading-end marker", grasp.grasp_id)
         self._mark_loading_end()
+
+    def _gripper_failed(self, exc: BaseException) -> None:
+        """A gripper command failed: a ``robot_notice`` *device* says so, and the grasp in
+        progress ends here (a later command the gripper cannot carry out is refused)."""
+        grasp = self._grasp
+        self.stats.device_errors += 1
+        log.error("the gripper command failed%s: %s", "" if grasp is None else f" (grasp {grasp.grasp_id})", exc)
+        self._notice("device", "gripper", None if grasp is None else grasp.grasp_id,
+                     f"the gripper command failed: {exc}", repeat_s=REFUSAL_REPEAT_S)
+        if grasp is None:
+            return
+        if math.isfinite(grasp.started_s):
+            self._end()
+        else:  # never started: nothing on the bus to end
+            self._grasp = None
 
     def _mark_loading_end(self) -> None:
         """The loading-end marker, once the width read at the stop and a force sample captured at

@@ -1,7 +1,7 @@
 """The robot node's devices: connect them, read each in its own thread, close them.
 
 :class:`NodeDevices` takes the node's gripper, tactile cameras and load cell, connects them
-(taring the load cell with hardware) and reads each in its own thread until closed, putting what
+(taring a hardware load cell) and reads each in its own thread until closed, putting what
 they capture on the node's queue as ``(kind, item)``: ``("frame", frame)`` from each camera,
 ``("force", samples)`` from the load cell, ``("width", samples)`` from the gripper, and
 ``("device_error", (name, reason))`` once when a device's reads fail and once when it reads

@@ -9,10 +9,13 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
+from concurrent.futures import Future
 
 import numpy as np
+import pytest
 from support.node_rig import drain, drive, killed_console_stops_the_fingers, node_rig, step_for
 
+from teleop.errors import DeviceError
 from teleop.record import Samples
 
 
@@ -29,11 +32,9 @@ def _at_rest(cell, timeout_s: float) -> Samples:
     return Samples(np.array([time.monotonic()]), np.zeros(1))
 
 
-def test_a_silent_load_cell_stops_the_franky_sim_fingers_closing(franky_sim_robot, monkeypatch):
-    from teleop.devices.playback import SimulatedLoadCell
-
-    # The simulated load cell, silent without a grasp, stands in for a hardware cell gone silent.
-    monkeypatch.setattr(SimulatedLoadCell, "tare", lambda self: 0.0)
+def test_a_silent_load_cell_stops_the_franky_sim_fingers_closing(franky_sim_robot):
+    # The simulated load cell, silent without a grasp, stands in for a hardware cell gone silent; the
+    # node does not tare it (it would wait for a force it never sends and refuse to start).
     node, operator, listener, _, sockets = node_rig(_on_franky(franky_sim_robot))
     try:
         start = node.gripper.read_width()[1]
@@ -54,9 +55,7 @@ def test_killing_the_console_stops_the_franky_sim_gripper_within_250_ms(franky_s
     from teleop.devices.playback import SimulatedLoadCell
 
     # franky-sim stands in for the hand; the simulated load cell for the bridge, streaming no force at
-    # rest as a hardware cell does (the node tares it when it connects, and closes the fingers only on
-    # fresh forces).
-    monkeypatch.setattr(SimulatedLoadCell, "tare", lambda self: 0.0)
+    # rest as a hardware cell does (the node closes the fingers only on fresh forces).
     monkeypatch.setattr(SimulatedLoadCell, "_take", _at_rest)
 
     node, operator, listener, _, sockets = node_rig(_on_franky(franky_sim_robot))
@@ -68,6 +67,93 @@ def test_killing_the_console_stops_the_franky_sim_gripper_within_250_ms(franky_s
         # franky-sim's fingers creep toward the last step's goal: within one step at the follow speed.
         killed_console_stops_the_fingers(node, operator, listener, lambda t: target,
                                           still_m=FOLLOW_SPEED_M_S * FOLLOW_STEP_S)
+    finally:
+        node.close()
+        for sock in sockets:
+            sock.close()
+
+
+def _link_down(*args, **kwargs):
+    raise DeviceError("franky gripper at 127.0.0.1: max_width read failed: Net Exception")
+
+
+def _failed(*args, **kwargs) -> Future:
+    future = Future()
+    future.set_exception(DeviceError("franky gripper at 127.0.0.1: grasp failed: Net Exception"))
+    return future
+
+
+def _done(*args, **kwargs) -> Future:
+    future = Future()
+    future.set_result(True)
+    return future
+
+
+def _start_grasp(operator, grasp_id: str) -> None:
+    operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id=grasp_id, params={})
+
+
+def _step_until_ended(node, listener, grasp_id: str, within_s: float) -> list:
+    """Step the node (each step must return) until the grasp's end went out; what the bus heard."""
+    got, end = [], time.monotonic() + within_s
+    while time.monotonic() < end:
+        node.step(timeout_s=0.002)
+        while (message := listener.recv(timeout_s=0)) is not None:
+            got.append(message)
+        if any(m.type == "grasp_event" and m.body["event"] == "end" and m.body["grasp_id"] == grasp_id for m in got):
+            return got
+    pytest.fail(f"grasp {grasp_id} did not end within {within_s} s: heard {[m.type for m in got]}")
+
+
+def test_a_grasp_command_failing_on_franky_sim_ends_the_grasp_and_keeps_the_node_up(franky_sim_robot,
+                                                                                    monkeypatch):
+    # The link to franky-sim dies during the grasp: its command fails, and the gripper's commands
+    # raise from then on (franky cannot read the hand's maximum width).
+    node, operator, listener, _, sockets = node_rig(_on_franky(franky_sim_robot))
+    try:
+        monkeypatch.setattr(node.gripper, "grasp_async", _failed)
+        monkeypatch.setattr(node.gripper, "move_async", _link_down)
+        drain(listener)
+        _start_grasp(operator, "g-lost")
+        got = _step_until_ended(node, listener, "g-lost", node.settings.gripper.hold_s + 2.0)
+        step_for(node, 0.1)  # the node carries on
+        got += drain(listener)
+        assert not [m for m in got if m.type == "robot_state" and m.body["mode"] == "holding"]
+        notices = [m.body for m in got if m.type == "robot_notice"]
+        assert any(n["event"] == "device" and n["action"] == "gripper" and n["grasp_id"] == "g-lost"
+                   and "gripper command failed" in n["reason"] and "Net Exception" in n["reason"] for n in notices)
+        events = [m.body["event"] for m in got if m.type == "grasp_event" and m.body["grasp_id"] == "g-lost"]
+        assert events == ["start", "end"]
+        assert not node.busy
+        # The gripper still down: a new grasp is refused, with the reason, and the node stays up.
+        monkeypatch.setattr(node.gripper, "grasp_async", _link_down)
+        _start_grasp(operator, "g-again")
+        step_for(node, 0.2)
+        notices = [m.body for m in drain(listener) if m.type == "robot_notice"]
+        assert any(n["event"] == "refused" and n["action"] == "start_grasp" and "Net Exception" in n["reason"]
+                   for n in notices)
+    finally:
+        node.close()
+        for sock in sockets:
+            sock.close()
+
+
+def test_a_release_failing_on_franky_sim_after_the_hold_ends_the_grasp_and_keeps_the_node_up(franky_sim_robot,
+                                                                                             monkeypatch):
+    node, operator, listener, _, sockets = node_rig(_on_franky(franky_sim_robot))
+    try:
+        monkeypatch.setattr(node.gripper, "grasp_async", _done)  # the fingers closed; then the link dies
+        monkeypatch.setattr(node.gripper, "move_async", _link_down)
+        drain(listener)
+        _start_grasp(operator, "g-held")
+        got = _step_until_ended(node, listener, "g-held", node.settings.gripper.hold_s + 2.0)
+        step_for(node, 0.1)
+        got += drain(listener)
+        notices = [m.body for m in got if m.type == "robot_notice"]
+        assert any(n["event"] == "device" and n["action"] == "gripper" and n["grasp_id"] == "g-held"
+                   and "max_width read failed" in n["reason"] for n in notices)
+        assert not node.busy
+        assert [m.body["mode"] for m in got if m.type == "robot_state"][-1] == "idle"
     finally:
         node.close()
         for sock in sockets:
