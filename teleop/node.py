@@ -477,6 +477,7 @@ class RobotNode(ServiceLoop):
                      f"the gripper command failed: {exc}", repeat_s=REFUSAL_REPEAT_S)
         if grasp is None:
             return
+        grasp.grasp_command = None  # handled here: its queued wake-up (drained by _end) does nothing
         if math.isfinite(grasp.started_s):
             self._end()
         else:  # never started: nothing on the bus to end

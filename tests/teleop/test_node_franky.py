@@ -158,3 +158,28 @@ def test_a_release_failing_on_franky_sim_after_the_hold_ends_the_grasp_and_keeps
         node.close()
         for sock in sockets:
             sock.close()
+
+
+def test_a_failure_handled_while_its_wake_up_is_queued_ends_the_grasp_once(franky_sim_robot, monkeypatch):
+    # The grasp command fails between the node's draining of its queue and its advancing of the grasp:
+    # the failure is handled there while the command's wake-up still waits in the queue.
+    node, operator, listener, _, sockets = node_rig(_on_franky(franky_sim_robot))
+    try:
+        pending = Future()
+        monkeypatch.setattr(node.gripper, "grasp_async", lambda *args, **kwargs: pending)
+        drain(listener)
+        _start_grasp(operator, "g-late")
+        end = time.monotonic() + 5.0
+        while node._grasp is None or node._grasp.phase != "grasping":
+            assert time.monotonic() < end, "the grasp did not start"
+            node.step(timeout_s=0.002)
+        pending.set_exception(DeviceError("franky gripper at 127.0.0.1: grasp failed: Net Exception"))
+        node._gripper_failed(pending.exception())  # as step() does when _advance raises it
+        step_for(node, 0.1)
+        events = [m.body["event"] for m in drain(listener)
+                  if m.type == "grasp_event" and m.body["grasp_id"] == "g-late"]
+        assert events == ["start", "end"] and not node.busy
+    finally:
+        node.close()
+        for sock in sockets:
+            sock.close()
