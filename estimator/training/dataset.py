@@ -178,6 +178,14 @@ def _skip(path: Path, cause: str, reason: str) -> dict[str, Any]:
     return {"path": str(path), "cause": cause, "skipped": reason}
 
 
+def _size(path: Path) -> int | None:
+    """A record's size in bytes (None: unreadable, left to the record check to report)."""
+    try:
+        return path.stat().st_size
+    except OSError:
+        return None
+
+
 def _content_hash(path: Path) -> str | None:
     """The SHA-256 of a record's bytes (None: unreadable, left to the record check to report)."""
     digest = hashlib.sha256()
@@ -341,8 +349,11 @@ def build_dataset(
     labels: dict[Path, tuple[str, str]] = {}
     skipped: list[dict[str, Any]] = []
     first_of: dict[str, Path] = {}
-    for path in sorted(Path(p) for p in records):
-        digest = _content_hash(path)
+    paths = sorted(Path(p) for p in records)
+    sizes = Counter(_size(path) for path in paths)
+    for path in paths:
+        # a copy has its original's size: only a record sharing its size with another is read twice
+        digest = _content_hash(path) if sizes[_size(path)] > 1 else None
         if digest is not None and digest in first_of:
             skipped.append(_skip(path, "duplicate", f"duplicate of {first_of[digest]} (the same bytes; that "
                                                     "copy is used, this one is not counted again)"))

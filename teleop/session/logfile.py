@@ -77,7 +77,6 @@ from __future__ import annotations
 
 import json
 import logging
-import struct
 from collections import Counter
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
@@ -142,7 +141,6 @@ END_METADATA = "session_end"
 TIME_OFFSET_KEY = "log_time_offset_ns"  # session metadata: log time = monotonic ns + this
 CHUNK_BYTES = 256 * 1024
 _MAGIC = b"\x89MCAP0\r\n"
-_RECORD_START = struct.Struct("<BQ")  # an MCAP record's opcode and length
 
 
 def schema_data(kind: str) -> bytes:
