@@ -26,12 +26,18 @@ def _press(loop: OperatorLoop, clock: Clock, button: str) -> None:
     clock.t += 0.001
 
 
-def test_quit_releases_a_discrete_grasp_in_progress():
-    clock, link, device, loop = _rig()
+def _discrete_grasp_loaded(robot_mode: str) -> tuple[Clock, FakeLink, OperatorLoop, str]:
+    """A discrete grasp pressed and shown loaded, the robot in ``robot_mode``."""
+    clock, link, _, loop = _rig()
     _press(loop, clock, "grasp")
     grasp_id = loop.status.grasp_id
     link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loaded",
-                             robot=RobotStateBody(mode="holding", grasp_id=grasp_id, enable=False))
+                             robot=RobotStateBody(mode=robot_mode, grasp_id=grasp_id, enable=False))
+    return clock, link, loop, grasp_id
+
+
+def test_quit_releases_a_discrete_grasp_in_progress():
+    clock, link, loop, grasp_id = _discrete_grasp_loaded("holding")
     loop.step()
     _press(loop, clock, "quit")
     loop.finish()
@@ -40,11 +46,7 @@ def test_quit_releases_a_discrete_grasp_in_progress():
 
 
 def test_quit_sends_no_second_release_for_a_discrete_grasp_the_robot_already_releases():
-    clock, link, device, loop = _rig()
-    _press(loop, clock, "grasp")
-    grasp_id = loop.status.grasp_id
-    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loaded",
-                             robot=RobotStateBody(mode="releasing", grasp_id=grasp_id, enable=False))
+    clock, link, loop, _ = _discrete_grasp_loaded("releasing")
     _press(loop, clock, "quit")
     loop.finish()
     assert "release" not in link.kinds()

@@ -43,7 +43,7 @@ def test_ctrl_c_stops_the_workers_at_once(tmp_path):
         from teleop.parallel import progress_map
 
         def slow(i):
-            print("worker", os.getpid(), flush=True)
+            os.write(1, f"worker {os.getpid()}\\n".encode())  # one write: workers share the pipe
             time.sleep(30)
 
         if __name__ == "__main__":

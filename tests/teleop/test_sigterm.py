@@ -23,7 +23,7 @@ from teleop.parallel import progress_map
 OUT = Path(sys.argv[1])
 
 def slow(i):
-    print("worker", os.getpid(), flush=True)
+    os.write(1, f"worker {os.getpid()}\\n".encode())  # one write: workers share the pipe
     time.sleep(30)
 
 def add_arguments(parser):
@@ -34,7 +34,7 @@ def run(args):
         if args.workers:
             progress_map(slow, range(8), workers=args.workers, desc="t", progress=False)
         else:
-            print("worker", os.getpid(), flush=True)
+            os.write(1, f"worker {os.getpid()}\\n".encode())  # one write: workers share the pipe
             time.sleep(30)
     finally:
         (OUT / "cleaned").write_text("")
