@@ -24,9 +24,15 @@ $(VENV)/.installed-run: $(BIN)/python pyproject.toml $(CONSTRAINTS)
 	$(PIP) install --quiet -c $(CONSTRAINTS) -e .
 	touch $@
 
-$(VENV)/.installed-dev: $(BIN)/python pyproject.toml $(CONSTRAINTS)
-	$(PIP) install --quiet -c $(CONSTRAINTS) -e '.[robot,train,dev]'
+# What `make check` runs needs neither the train extra's torch nor robot-sim's franky-sim (1.3 GB between
+# them, half the install's time): its tests marked train or robot_sim are left to `make test`.
+$(VENV)/.installed-check: $(BIN)/python pyproject.toml $(CONSTRAINTS)
+	$(PIP) install --quiet -c $(CONSTRAINTS) -e '.[robot,dev]'
 	touch $@ $(VENV)/.installed-run
+
+$(VENV)/.installed-dev: $(BIN)/python pyproject.toml $(CONSTRAINTS)
+	$(PIP) install --quiet -c $(CONSTRAINTS) -e '.[robot,robot-sim,train,dev]'
+	touch $@ $(VENV)/.installed-check $(VENV)/.installed-run
 
 install: $(VENV)/.installed-run
 install-dev: $(VENV)/.installed-dev
@@ -34,7 +40,7 @@ install-dev: $(VENV)/.installed-dev
 demo: $(VENV)/.installed-run
 	$(BIN)/teleop demo --operator sim
 
-lint: $(VENV)/.installed-dev
+lint: $(VENV)/.installed-check
 	$(BIN)/ruff check .
 
 # Headless Chromium, for the report's browser test and `teleop report --screenshot`: installed when missing
@@ -48,12 +54,12 @@ tmux:
 	@command -v tmux >/dev/null || { if [ "$$(id -u)" = 0 ]; then apt-get update -q && apt-get install -y -q tmux; \
 		else echo "no tmux: install it with sudo apt-get install -y tmux"; fi; }
 
-test: lint browser tmux
+test: $(VENV)/.installed-dev lint browser tmux
 	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadgroup $(PYTEST_ARGS)
 
-# While working: lint and the tests not marked slow.
+# While working: lint and the tests not marked slow, train or robot_sim.
 check: lint
-	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadgroup -m "not slow" $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadgroup -m "not slow and not train and not robot_sim" $(PYTEST_ARGS)
 
 # Retrain the default model from scratch: the model card's recipe (simulation, dataset, three trainings and
 # their pool; the parts' measured times, about 134 minutes added up, are in the model card's Recipe).

@@ -35,6 +35,7 @@ def _interrupt_writing(path, *args, **kwargs):
 
 
 @pytest.mark.slow
+@pytest.mark.train
 def test_interrupted_train_overwrite_keeps_the_earlier_model(synthetic_dataset, tmp_path, monkeypatch):
     import estimator.training.train as train
 

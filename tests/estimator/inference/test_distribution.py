@@ -149,6 +149,7 @@ def test_describe_refuses_what_is_no_distribution(probs):
         describe(probs, scale=1.5, limit_pa=1e8, soft_pa=1e3)
 
 
+@pytest.mark.train
 def test_the_training_loss_is_lowest_at_the_truth():
     torch = pytest.importorskip("torch")
     from estimator.training.train import NLL_WEIGHT, distribution_loss

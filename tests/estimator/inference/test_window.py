@@ -275,6 +275,7 @@ def test_the_window_round_trips_through_the_metadata(trained_model, tmp_path, ca
             CompliancePredictor(dest)
 
 
+@pytest.mark.train
 def test_a_dataset_records_its_window_and_a_model_must_read_it(synthetic, tmp_path):
     from estimator.training.dataset_cli import parse_window_mm
     from estimator.training.splits import dataset_window

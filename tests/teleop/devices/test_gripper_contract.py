@@ -24,7 +24,8 @@ SPEED = 0.05  # m/s, franky-sim's finger speed limit
 STEP_M = SPEED * 0.02  # one franky follow step at SPEED (teleop.devices.franky_gripper.FOLLOW_STEP_S), m
 
 
-@pytest.fixture(params=["sim", "franky", pytest.param("hardware", marks=pytest.mark.hardware)])
+@pytest.fixture(params=["sim", pytest.param("franky", marks=pytest.mark.robot_sim),
+                        pytest.param("hardware", marks=pytest.mark.hardware)])
 def gripper(request, hardware_env) -> Gripper:
     if request.param == "sim":
         settings = GripperSettings(backend="sim", width_read_hz=20.0)
