@@ -38,12 +38,19 @@ byte-identical copy of a record met earlier in path order, e.g. one export copie
 the reason names the copy kept, so a grasp is never counted twice). A build that gives no sample at all
 raises :class:`~estimator.errors.EstimatorError` listing them.
 
-Object names become folder and file names with every run of characters other than letters, digits,
-``.``, ``_`` and ``-`` replaced by ``_``; labels that would become the same name (``"vinyl eraser"``,
-``"vinyl/eraser"``, ``"vinyl_eraser"``) are refused before anything is built, naming each label and a
-record of it, so no sample overwrites another's. A build whose val or test split ends up without samples
-(too few objects for ``fractions``) logs a warning naming the split, and the manifest lists it under
-``warnings``.
+Object names become folder and file names (:func:`object_file_name`): a name of letters, digits, ``.``,
+``_`` and ``-`` only (every catalogue name) is used as it is; any other (``"vinyl eraser"``, ``"海绵"``,
+``"café"``, ``".."``) gets a readable form with a hash of the whole name after a ``+``, so every object
+has a folder of its own inside its split and no sample overwrites another's.
+
+Warnings
+--------
+Each is logged and listed in the manifest's ``warnings``; none stops the build:
+
+* an object labelled with moduli that differ by more than :data:`MODULUS_SPREAD` (e.g. one export that
+  says 1 MPa and another 40 kPa), naming the object, its moduli and the records of each: the network
+  is trained on every label as given, so relabel the wrong ones with `teleop label`;
+* a val or test split left without samples (too few objects for ``fractions``).
 """
 
 from __future__ import annotations
@@ -86,6 +93,7 @@ __all__ = [
     "DatasetOptions",
     "build_dataset",
     "load_manifest",
+    "object_file_name",
     "split_objects",
 ]
 
@@ -94,6 +102,8 @@ DEFAULT_FRACTIONS = (0.7, 0.15, 0.15)
 #: Why a record gave no sample (the ``cause`` of each entry in the manifest's ``skipped``).
 SKIP_CAUSES = ("unreadable", "unlabelled", "no sensor", "calibration missing", "no usable loading phase",
                "measurement failed", "duplicate")
+#: Largest ratio between the moduli one object is labelled with before the build warns about it.
+MODULUS_SPREAD = 2.0
 
 log = logging.getLogger(__name__)
 
@@ -170,8 +180,20 @@ class DatasetOptions:
     marker_calibration: str | None = None
 
 
-def _safe_name(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", name)
+def object_file_name(name: str) -> str:
+    """The folder and file name of the samples of the object ``name``; distinct for distinct names.
+
+    A name of letters, digits, ``.``, ``_`` and ``-`` only, and not made of dots alone, is used as it
+    is (so datasets of catalogue names keep their layout). Any other name has every run of other
+    characters replaced by ``_``, leading dots dropped (``"."`` and ``".."`` are not folders of their
+    own; a leading dot would hide one) and ``+`` and 16 hex digits of the SHA-256 of its UTF-8 appended:
+    ``"café"`` -> ``"caf_+…"``, ``"海绵"`` -> ``"_+…"``. No name of the first kind contains ``+``, so the
+    two kinds never meet, and two names of the second kind meet only if their hashes do.
+    """
+    if re.fullmatch(r"[A-Za-z0-9._-]+", name) and name.strip("."):
+        return name
+    readable = re.sub(r"[^A-Za-z0-9._-]+", "_", name).lstrip(".")
+    return f"{readable}+{hashlib.sha256(name.encode()).hexdigest()[:16]}"
 
 
 def _skip(path: Path, cause: str, reason: str) -> dict[str, Any]:
@@ -198,25 +220,6 @@ def _content_hash(path: Path) -> str | None:
     return digest.hexdigest()
 
 
-def _name_collisions(labels: Mapping[Path, tuple[str, str]]) -> EstimatorError | None:
-    """An error naming the labels that become one file name (None: every name stays apart)."""
-    by_file: dict[str, dict[str, Path]] = defaultdict(dict)
-    for path in sorted(labels):
-        name = labels[path][0]
-        by_file[_safe_name(name)].setdefault(name, path)
-    clashes = {safe: names for safe, names in sorted(by_file.items()) if len(names) > 1}
-    if not clashes:
-        return None
-    lines = "\n".join(
-        f"  {', '.join(f'{name!r} ({path})' for name, path in sorted(names.items()))} -> {safe!r}"
-        for safe, names in clashes.items())
-    return EstimatorError(
-        "--records: object labels that differ only in characters other than letters, digits, '.', '_' and '-' "
-        f"would be written to the same sample files, and one would overwrite the other:\n{lines}\n"
-        "relabel them (`teleop label`, then export again) to one name if they are one object, or to names "
-        "that differ in letters or digits if not; nothing was built")
-
-
 def _calibration_problem(record: GraspRecord, finger: str, override: str | None, option: str) -> str | None:
     """Why the calibration of ``finger`` of ``record`` cannot be used (None: it can)."""
     if override is not None:
@@ -233,8 +236,9 @@ def _calibration_problem(record: GraspRecord, finger: str, override: str | None,
     return None
 
 
-def _check_record(path: Path, *, finger: str, options: DatasetOptions) -> tuple[str, str] | dict[str, Any]:
-    """(object, material) of a record samples can be made of, or why it cannot be used (a skipped row)."""
+def _check_record(path: Path, *, finger: str,
+                  options: DatasetOptions) -> tuple[str, str, float] | dict[str, Any]:
+    """(object, material, modulus) of a record samples can be made of, or why it cannot be used (a skipped row)."""
     try:
         record = read_record(path)
     except RecordError as exc:
@@ -257,7 +261,7 @@ def _check_record(path: Path, *, finger: str, options: DatasetOptions) -> tuple[
             problem = _calibration_problem(record, other, options.marker_calibration, "--marker-calibration")
     if problem is not None:
         return _skip(path, "calibration missing", problem)
-    return label.object_name, label.material or ""
+    return label.object_name, label.material or "", label.modulus_pa
 
 
 def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: DatasetOptions,
@@ -294,7 +298,7 @@ def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: 
         )
         # Named by the object's grasp index, not the record's name: records of one object from
         # several runs (rigs, sensors) may share a file name in different folders.
-        object_dir = _safe_name(label.object_name)
+        object_dir = object_file_name(label.object_name)
         relative = Path(split) / object_dir / f"{object_dir}_g{grasp:04d}_a{shift}.npz"
         (out / relative).parent.mkdir(parents=True, exist_ok=True)
         save_sample(sample, out / relative)
@@ -305,6 +309,27 @@ def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: 
         row["cause"] = "no usable loading phase"
         row["skipped"] = f"no usable loading phase: {reasons[0]}"
     return row
+
+
+def _modulus_warnings(labels: Mapping[Path, tuple[str, str, float]]) -> list[str]:
+    """A warning per object whose labelled moduli differ by more than :data:`MODULUS_SPREAD`."""
+    records: dict[str, dict[float, list[Path]]] = defaultdict(lambda: defaultdict(list))
+    for path in sorted(labels):
+        name, _, modulus = labels[path]
+        records[name][modulus].append(path)
+    warnings = []
+    for name, by_modulus in sorted(records.items()):
+        low, high = min(by_modulus), max(by_modulus)
+        if high <= MODULUS_SPREAD * low:
+            continue
+        moduli = "; ".join(f"{modulus:g} Pa in {', '.join(map(str, paths))}"
+                           for modulus, paths in sorted(by_modulus.items()))
+        warnings.append(
+            f"object {name!r} is labelled with moduli {high / low:.3g} times apart (more than "
+            f"{MODULUS_SPREAD:g}x): {moduli}; all are trained on as given: if one object, relabel the wrong "
+            "records (`teleop label`, then export again); if different objects, give them different names")
+        log.warning("%s", warnings[-1])
+    return warnings
 
 
 def _nothing_made(skipped: list[dict[str, Any]], n_records: int) -> EstimatorError:
@@ -328,7 +353,8 @@ def build_dataset(
 
     ``out`` appears whole or not at all (module notes). The manifest's ``skipped`` lists every
     record that gave no sample (``path``, ``cause``, ``reason``), ``used`` the others (``path``,
-    ``object``, ``split``, ``samples``: paths relative to ``out``).
+    ``object``, ``split``, ``samples``: paths relative to ``out``), ``warnings`` what was logged as
+    a warning (module notes).
 
     Raises
     ------
@@ -346,7 +372,7 @@ def build_dataset(
             raise EstimatorError(f"{option} {given}: no such calibration file")
     started = time.perf_counter()
     finger = settings.sensing.finger
-    labels: dict[Path, tuple[str, str]] = {}
+    labels: dict[Path, tuple[str, str, float]] = {}
     skipped: list[dict[str, Any]] = []
     first_of: dict[str, Path] = {}
     paths = sorted(Path(p) for p in records)
@@ -367,10 +393,9 @@ def build_dataset(
             labels[path] = checked
     if not labels:
         raise _nothing_made([_skipped_entry(s) for s in skipped], len(records))
-    collision = _name_collisions(labels)
-    if collision is not None:
-        raise collision
-    split = split_objects(dict(labels.values()), seed=seed, fractions=fractions)
+    warnings = _modulus_warnings(labels)
+    split = split_objects({name: material for name, material, _ in labels.values()}, seed=seed,
+                          fractions=fractions)
     split_of = {name: s for s, names in split.items() for name in names}
     grasp_index: dict[str, int] = Counter()
     jobs = []
@@ -391,7 +416,7 @@ def build_dataset(
     try:
         manifest = _write(jobs, tmp, settings=settings, options=options, workers=workers, progress=progress,
                           skipped=skipped, split=split, seed=seed, fractions=fractions, n_records=len(records),
-                          started=started)
+                          warnings=warnings, started=started)
         try:
             if out.exists():
                 out.rmdir()  # empty (checked above): the dataset takes its place
@@ -414,8 +439,9 @@ def _skipped_entry(row: dict[str, Any]) -> dict[str, Any]:
 
 def _write(jobs: list[tuple[Path, int, str]], out: Path, *, settings: Settings, options: DatasetOptions,
            workers: int, progress: bool, skipped: list[dict[str, Any]], split: dict[str, list[str]], seed: int,
-           fractions: Sequence[float], n_records: int, started: float) -> dict[str, Any]:
-    """Write the samples, split and manifest of ``jobs`` into ``out``; return the manifest."""
+           fractions: Sequence[float], n_records: int, warnings: list[str], started: float) -> dict[str, Any]:
+    """Write the samples, split and manifest of ``jobs`` into ``out``; return the manifest (with
+    ``warnings``, logged already, and those of the splits)."""
     work = partial(_record_samples, settings=settings, options=options, out=out)
     rows = progress_map(work, jobs, workers=workers, desc="build-dataset", progress=progress)
     skipped = [_skipped_entry(s) for s in skipped] + [_skipped_entry(r) for r in rows if "skipped" in r]
@@ -423,7 +449,7 @@ def _write(jobs: list[tuple[Path, int, str]], out: Path, *, settings: Settings, 
     if not any(r.get("samples") for r in rows):
         raise _nothing_made(skipped, n_records)
     counts = {s: sum(len(r.get("samples", ())) for r in rows if r.get("split") == s) for s in SPLITS}
-    warnings = []
+    warnings = list(warnings)
     for s in ("val", "test"):
         if not counts[s]:
             n_objects = len({r["object"] for r in rows if r.get("samples")})

@@ -243,29 +243,83 @@ def test_an_out_folder_under_a_plain_file_names_that_file(sim_grasps, tmp_path, 
     assert f"{tmp_path / 'afile'} is not a directory" in err and "File exists" not in err
 
 
-def test_labels_that_become_one_file_name_are_refused_before_building(sim_grasps, tmp_path, capsys):
+def _relabelled(sim_grasps, folder, names_and_moduli):
+    """Simulated records (the fixture's, in turn) relabelled ``(object, modulus or None: its own)``, in
+    ``folder`` as ``r<i>.grasp``; returns their paths."""
     import dataclasses
 
     from teleop.record import read_record, write_record
 
-    records, calibration = sim_grasps
-    paths = sorted(records.glob("*.grasp"))
+    records, _ = sim_grasps
+    sources = sorted(records.glob("*.grasp"))
+    folder.mkdir(parents=True)
+    paths = []
+    for i, (name, modulus) in enumerate(names_and_moduli):
+        record = read_record(sources[i % len(sources)])
+        label = dataclasses.replace(record.label, object_name=name,
+                                    modulus_pa=record.label.modulus_pa if modulus is None else modulus)
+        paths.append(write_record(dataclasses.replace(record, label=label), folder / f"r{i}.grasp"))
+    return paths
+
+
+def test_object_file_names_keep_safe_names_and_set_every_other_apart():
+    from estimator.training.dataset import object_file_name
+
+    for name in ("silicone_ball_shore00_30", "stress_ball", "rubber_duck", "a.b-c", ".hidden"):
+        assert object_file_name(name) == name  # datasets of these keep their layout
+    others = ["海绵", "软球", "钢球", "café", "cafè", "vinyl eraser", "vinyl/eraser", "..", ".", "...", "_"]
+    files = [object_file_name(name) for name in others]
+    assert len(set(files)) == len(others), files
+    assert files[3].startswith("caf_+") and files[5].startswith("vinyl_eraser+")
+    for file in files:
+        assert "/" not in file and file.strip(".") and not file.startswith("."), file
+
+
+def test_objects_named_in_any_script_get_folders_of_their_own(sim_grasps, tmp_path, capsys):
+    names = ["海绵", "软球", "钢球", "café", "cafè", "vinyl eraser", "vinyl_eraser"]
     folder = tmp_path / "recs"
-    folder.mkdir()
-    shutil.copy(paths[0], folder / paths[0].name)
-    name = read_record(paths[0]).label.object_name
-    spelled = name.replace("_", " ")
-    assert spelled != name
-    other = read_record(paths[1])
-    write_record(dataclasses.replace(other, label=dataclasses.replace(other.label, object_name=spelled)),
-                 folder / "other.grasp")
+    _relabelled(sim_grasps, folder, [(name, None) for name in names])
     out = tmp_path / "ds"
-    assert main(["build-dataset", "--records", str(folder), "--out", str(out), "--calibration", str(calibration),
-                 "--size", "32x44", "--shifts", "1"]) == 2
-    err = capsys.readouterr().err
-    assert f"{name!r} ({folder / paths[0].name})" in err and f"{spelled!r} ({folder / 'other.grasp'})" in err
-    assert "--records" in err and "nothing was built" in err
-    assert not out.exists() and not list(tmp_path.glob(".ds*"))
+    assert main(["build-dataset", "--records", str(folder), "--out", str(out), "--calibration",
+                 str(sim_grasps[1]), "--size", "32x44", "--shifts", "1", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    on_disk = {load_sample(p).object_name: p.parent for s in SPLITS if (out / s).is_dir()
+               for p in sample_paths(out / s)}
+    assert sorted(on_disk) == sorted(names) and len(set(on_disk.values())) == len(names)
+    assert summary["grasps_used"] == sum(summary["samples"].values()) == len(names)
+    assert on_disk["vinyl_eraser"].name == "vinyl_eraser"
+
+
+def test_objects_named_with_dots_only_stay_inside_their_split(sim_grasps, tmp_path):
+    from estimator.training.dataset import DatasetOptions, build_dataset
+    from estimator.training.splits import load_split_data
+
+    paths = _relabelled(sim_grasps, tmp_path / "recs", [("..", None), (".", None)])
+    out = tmp_path / "ds"
+    manifest = build_dataset(paths, out, settings=load_settings(), progress=False, fractions=(1.0, 0.0, 0.0),
+                             options=DatasetOptions(shifts=1, size_px=(32, 44), calibration=str(sim_grasps[1])))
+    assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "split.json", "train"]
+    for used in manifest["used"]:
+        for sample in used["samples"]:
+            assert (out / sample).resolve().parent.parent == (out / "train").resolve(), sample
+    data = load_split_data(out, Variant.parse("depth", n_frames=3, size_px=(32, 44)), ("train",))
+    assert sorted(r["object"] for r in data["train"].rows) == [".", ".."]
+
+
+def test_one_object_labelled_with_far_apart_moduli_is_warned_about(sim_grasps, tmp_path, caplog):
+    from estimator.training.dataset import DatasetOptions, build_dataset
+
+    paths = _relabelled(sim_grasps, tmp_path / "recs", [("stress_ball", 1e6), ("stress_ball", 4e4),
+                                                         ("sponge", 3e4), ("sponge", 5e4)])
+    with caplog.at_level("WARNING", logger="estimator.training.dataset"):
+        manifest = build_dataset(paths, tmp_path / "ds", settings=load_settings(), progress=False,
+                                 options=DatasetOptions(shifts=1, size_px=(32, 44), calibration=str(sim_grasps[1])))
+    assert manifest["grasps_used"] == 4  # a warning, not a refusal
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    spread = [w for w in manifest["warnings"] if "moduli" in w]
+    assert len(spread) == 1 and spread[0] in warned  # sponge's 3e4 and 5e4 are within a factor of 2
+    assert spread[0].startswith("object 'stress_ball'")
+    assert f"40000 Pa in {paths[1]}" in spread[0] and f"1e+06 Pa in {paths[0]}" in spread[0]
 
 
 def test_a_record_copied_into_two_folders_is_counted_once(sim_grasps, tmp_path, capsys):
