@@ -38,8 +38,8 @@ def gel_layer_factor(
         eta(a / h) = (4 / pi) int_0^inf S(x h / a) j1(x) / x dx,
 
     1 for ``a << h`` (a half-space), falling steeply once the contact is wider
-    than the layer is thick (a 3 mm gel with nu = 0.48 under a 6 mm contact
-    is about 6.5 times stiffer than a half-space) and like ``h / a`` (confined
+    than the layer is thick (a 3 mm gel with nu = 0.48 under a contact of 6 mm
+    radius is about 6.5 times stiffer than a half-space) and like ``h / a`` (confined
     compression) far beyond. Tabulated once per Poisson's ratio for
     ``a / h <= 20``, interpolated.
 

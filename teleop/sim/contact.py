@@ -545,8 +545,10 @@ def layer_stiffening(contact_radius_m: float, *, gel: Body, obj: Body) -> float:
     For a contact small against the layer (a << h) the layer removes a nearly
     uniform displacement F k_gel I / (pi h), I = integral_0^inf (1 - S(x)) dx, from
     the half-space solution; relative to the Hertz approach a^2 / R that is
-    (4 / (3 pi)) (k_gel / (k_gel + k_obj)) I a / h. (At nu = 0.5 this is the
-    1.133 a/h term of Dimitriadis et al., Biophys. J. 82 (2002) 2798, at fixed approach.)
+    (4 / (3 pi)) (k_gel / (k_gel + k_obj)) I a / h. (At nu = 0.5 and a rigid object
+    this is 0.751 a/h; as F ~ approach^1.5, the force at fixed approach rises by 1.5
+    times that, 1.127 a/h: the 1.133 a/h term of Dimitriadis et al., Biophys. J. 82
+    (2002) 2798.)
     S is the gel's own (its ``base_slip``). Zero for a half-space gel.
     """
     if gel.thickness_m is None:
