@@ -5,9 +5,10 @@
 they capture on the node's queue as ``(kind, item)``: ``("frame", frame)`` from each camera,
 ``("force", samples)`` from the load cell, ``("width", samples)`` from the gripper, and
 ``("device_error", (name, reason))`` once when a device's reads fail and once when it reads
-again. A sensor whose reads fail (a camera or the load cell, which nothing else drives) is
-opened again every :data:`REOPEN_S` meanwhile, as after a bridge or stream restart. The node
-(:mod:`teleop.node`) publishes the queue.
+again. A device whose reads fail is opened again every :data:`REOPEN_S` meanwhile, as after a
+bridge, stream or robot restart: a camera or the load cell at once (nothing else drives them), the
+gripper only while it stays down (:attr:`~teleop.devices.gripper.Gripper.link_error`), since
+reopening it ends the command it runs. The node (:mod:`teleop.node`) publishes the queue.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ __all__ = ["READ_TIMEOUT_S", "REOPEN_S", "NodeDevices"]
 log = logging.getLogger("teleop.node")  # the node's own logger, so filters on the node see the readers
 
 READ_TIMEOUT_S = 0.05  # device reads wake this often to see whether the node is stopping
-REOPEN_S = 1.0  # a sensor whose reads fail is opened again this often
+REOPEN_S = 1.0  # a device whose reads fail is opened again this often
 
 
 class NodeDevices:
@@ -89,13 +90,13 @@ class NodeDevices:
             widths = gripper.widths(timeout_s=READ_TIMEOUT_S)
             return ("width", widths) if len(widths) else None
 
-        self._read_forever(gripper, "gripper", read)
+        self._read_forever(gripper, "gripper", read, reopen=lambda: gripper.link_error is not None)
 
     def _read_forever(self, device: Any, name: str, read: Callable[[], tuple[str, Any] | None], *,
-                      reopen: bool = False) -> None:
+                      reopen: bool | Callable[[], bool]) -> None:
         """Read ``device`` until the node stops. A failure is said once on the bus (and that it
-        reads again); a sensor (``reopen``: a camera or the load cell, which nothing else drives)
-        is opened again every :data:`REOPEN_S` meanwhile, as after a bridge or stream restart."""
+        reads again); meanwhile the device is opened again every :data:`REOPEN_S` (``reopen``
+        True, or a callable saying whether it still needs it)."""
         failing = False
         while not self._stop.is_set():
             try:
@@ -105,12 +106,10 @@ class NodeDevices:
             except DeviceError as exc:
                 if not self._stop.is_set() and not failing:
                     log.warning("%r: read failed: %s", device, exc)
-                    self.captured.put(("device_error", (name, f"{exc}{'; opening it again' if reopen else ''}")))
+                    self.captured.put(("device_error", (name, f"{exc}; opening it again")))
                 failing = True
-                if reopen and not self._stop.wait(REOPEN_S):
+                if not self._stop.wait(REOPEN_S) and (reopen() if callable(reopen) else reopen):
                     self._reopen(device)
-                else:
-                    self._stop.wait(READ_TIMEOUT_S)
                 continue
             if failing:
                 log.warning("%r: reading again", device)

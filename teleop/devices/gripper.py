@@ -8,6 +8,11 @@ estimator's lag model (:mod:`teleop.sim.sensors`, :mod:`estimator.lag`), whateve
 call the value comes from. :meth:`Gripper.widths` hands out everything read since the last
 call. The gripper measures no force.
 
+A width read that fails leaves the gripper *down* (:attr:`Gripper.link_error` says why) until
+one succeeds: meanwhile :meth:`Gripper.widths` raises that failure, and every command is refused
+with it at once rather than blocking on a dead link. The hand's widest opening is read once per
+connection, at :meth:`~teleop.devices.base.Device.connect`.
+
 A grasp command completes when the fingers stop: at the target force, or where they were
 stopped. That moment ends the loading of the object, so the gripper then reads its width at
 once (the fingers are still, so the read is the width from the stop on) and queues it with
@@ -106,16 +111,29 @@ class Gripper(Device):
         self._reader: threading.Thread | None = None
         self._reader_stop = threading.Event()
         self._executor: ThreadPoolExecutor | None = None
+        self._max_width_m = 0.0  # read at connect: a connected hand's opening does not change
+        self._link_error: str | None = None
 
     # ------------------------------------------------------------------ lifecycle
 
     def _connect(self) -> None:
-        self._open()
+        try:
+            self._open()
+            try:
+                self._max_width_m = float(self._max_width())
+            except BaseException:
+                self._shutdown()
+                raise
+        except DeviceError as exc:
+            self._link_error = str(exc)  # still down: commands say why
+            raise
+        self._link_error = None
         self._width_queue = SampleQueue()  # widths and stops of an earlier connection are stale
         self._last_stop = None
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"{type(self).__name__}-command")
-        self._reader_stop.clear()
-        self._reader = threading.Thread(target=self._read_widths_forever, name=f"{type(self).__name__}-width", daemon=True)
+        self._reader_stop = threading.Event()  # per connection: a reader left in a slow read still stops
+        self._reader = threading.Thread(target=self._read_widths_forever, args=(self._reader_stop,),
+                                        name=f"{type(self).__name__}-width", daemon=True)
         self._reader.start()
 
     def _close(self) -> None:
@@ -133,7 +151,12 @@ class Gripper(Device):
     def max_width_m(self) -> float:
         """Widest opening (m), as the gripper reports it."""
         self._require_connected()
-        return float(self._max_width())
+        return self._max_width_m
+
+    @property
+    def link_error(self) -> str | None:
+        """Why the gripper is down: the last width read, or connect, failed with this; None while it reads."""
+        return self._link_error
 
     @property
     def last_stop(self) -> GraspStop | None:
@@ -216,7 +239,8 @@ class Gripper(Device):
         """Width samples (t_s, m) the background reader took since the last call.
 
         Waits up to ``timeout_s`` (0: not at all) for at least one; empty Samples if none came.
-        DeviceNotConnectedError if the gripper is closed meanwhile.
+        DeviceNotConnectedError if the gripper is closed meanwhile; DeviceError with the failure
+        while it is down (:attr:`link_error`).
         """
         self._require_connected()
         samples = self._width_queue.take(check_timeout(timeout_s, poll=True))
@@ -227,7 +251,7 @@ class Gripper(Device):
     # ------------------------------------------------------------------ internals
 
     def _motion_args(self, width_m: float, speed_m_s: float | None) -> tuple[float, float]:
-        width = _finite("width_m", width_m, 0.0, self._max_width())
+        width = _finite("width_m", width_m, 0.0, self._max_width_m)
         speed = _finite(
             "speed_m_s", self.settings.closing_speed_m_s if speed_m_s is None else speed_m_s, 0.0, MAX_SPEED_M_S, lo_open=True
         )
@@ -273,23 +297,29 @@ class Gripper(Device):
         unless the backend has its own timestamps."""
         return [self._timed_read()]
 
-    def _read_widths_forever(self) -> None:
+    def _require_connected(self) -> None:
+        if self._link_error is not None:
+            raise DeviceError(f"{self!r} is down until a width read succeeds: {self._link_error}")
+        super()._require_connected()
+
+    def _read_widths_forever(self, stop: threading.Event) -> None:
         period = 1.0 / self.settings.width_read_hz
         next_s = time.monotonic()
-        failing = False
-        while not self._reader_stop.is_set():
+        while not stop.is_set():
             try:
                 with self._width_lock:
                     for t_s, width in self._poll_widths():
                         self._width_queue.put(t_s, width)
-                failing = False
-            except DeviceError as exc:  # keep polling: a dropped read must not end the stream
-                if not failing:
+                self._link_error = None
+            except DeviceError as exc:  # keep polling: the link may come back
+                if stop.is_set():
+                    return  # closed during the read: not a failure
+                if self._link_error is None:
                     log.warning("%r: width read failed: %s", self, exc)
-                failing = True
+                self._link_error = str(exc)
             now = time.monotonic()
             next_s = max(next_s + period, now)  # after a slow read, resume the period from now
-            self._reader_stop.wait(next_s - now)
+            stop.wait(next_s - now)
 
     # ------------------------------------------------------------------ backend hooks
 

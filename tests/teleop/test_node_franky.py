@@ -183,3 +183,41 @@ def test_a_failure_handled_while_its_wake_up_is_queued_ends_the_grasp_once(frank
         node.close()
         for sock in sockets:
             sock.close()
+
+
+class _DeadLink:
+    """What a ``franky.Gripper`` does once its robot went away: every call fails."""
+
+    def __getattr__(self, name: str):
+        import franky
+
+        raise franky.Exception("Net Exception")
+
+
+def test_a_franky_sim_link_lost_while_idle_is_said_once_and_the_gripper_is_opened_again(franky_sim_robot,
+                                                                                        monkeypatch):
+    from teleop import node_devices
+
+    monkeypatch.setattr(node_devices, "REOPEN_S", 0.2)
+    node, operator, listener, _, sockets = node_rig(_on_franky(franky_sim_robot))
+    try:
+        step_for(node, 0.3)
+        drain(listener)
+        node.gripper._gripper = _DeadLink()  # the robot went away; franky-sim, still up, takes it back
+        got, end = [], time.monotonic() + 15.0
+        while not any(m.type == "robot_notice" and m.body["reason"] == "reading again" for m in got):
+            assert time.monotonic() < end, f"heard {[m.body for m in got if m.type == 'robot_notice']}"
+            node.step(timeout_s=0.002)
+            got.extend(iter(lambda: listener.recv(timeout_s=0), None))
+        step_for(node, 0.5)
+        got += drain(listener)
+        notices = [m.body for m in got if m.type == "robot_notice" and m.body["action"] == "gripper"]
+        assert [n["event"] for n in notices] == ["device", "device"]  # once, then that it reads again
+        assert "Net Exception" in notices[0]["reason"] and notices[1]["reason"] == "reading again"
+        back = next(i for i, m in enumerate(got) if m.type == "robot_notice" and m.body["reason"] == "reading again")
+        assert any(m.type == "width" for m in got[back:])  # the width stream is back
+        assert node.gripper.read_width()[1] > 0.0
+    finally:
+        node.close()
+        for sock in sockets:
+            sock.close()
