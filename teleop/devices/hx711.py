@@ -6,6 +6,12 @@ not valid (partial or overlong lines, garbage, counts out of range or at a rail)
 logged (a warning the first time per reason), counted in ``skipped`` and skipped. Serial
 readings are stamped on arrival.
 
+A cell that gives no valid reading for :data:`STALL_S` (the first one after connecting may take
+the cell's ``timeout_s``, as a tare waits for it) is down: a read that finds nothing then raises
+:class:`~teleop.errors.DeviceError` saying why (silent, or what its readings were skipped for,
+e.g. counts at a rail: saturated) rather than :class:`~teleop.errors.DeviceTimeoutError`, until a
+valid reading comes.
+
 Framed TCP readings carry the bridge's sampling time. The host maps it to its own clock
 as ``t_s = t_bridge_s + offset``, where ``offset`` is the smallest ``arrival - t_bridge_s``
 seen on the connection: the least-delayed frame bounds the clock offset best, so once one
@@ -38,9 +44,12 @@ from teleop.record import Samples
 from teleop.settings import LoadCellSettings
 from teleop.settings_fields import tcp_host_port
 
-__all__ = ["BridgeClock", "SerialHx711", "TcpHx711", "parse_tcp_address"]
+__all__ = ["STALL_S", "BridgeClock", "SerialHx711", "TcpHx711", "parse_tcp_address"]
 
 log = logging.getLogger(__name__)
+
+STALL_S = 0.5  # no valid reading for this long and the cell is down: 40 periods at 80 Hz, 5 at 10 Hz
+_SKIPPED = {"out_of_range": "saturated or out of range"}  # how a skip reason reads in a notice
 
 
 class _StreamingHx711(LoadCell):
@@ -55,10 +64,15 @@ class _StreamingHx711(LoadCell):
         self._stop = threading.Event()
         self._reader: threading.Thread | None = None
         self._failure: str | None = None
+        self._valid_s: float | None = None  # when the last valid reading arrived; None: none yet
+        self._connected_s = 0.0
+        self._skipped_since = 0  # readings skipped since the last valid one
+        self._last_skip = ""  # the last one's reason and detail
 
     def _connect(self) -> None:
         self._open_link()
         self._failure = None
+        self._connected_s, self._valid_s, self._skipped_since = time.monotonic(), None, 0
         self._stop.clear()
         self._queue = SampleQueue()
         self._reader = threading.Thread(target=self._read_forever, name=repr(self), daemon=True)
@@ -90,6 +104,7 @@ class _StreamingHx711(LoadCell):
                 except Unreadable as exc:
                     self._skip(exc.reason, str(exc))
                     continue
+                self._valid_s, self._skipped_since = arrived, 0
                 self._queue.put(t_s, float(self.counts_to_force_n(counts)))
             for _ in range(lines.overlong - overlong):
                 self._skip("overlong", f"a line longer than {lines.max_bytes} bytes")
@@ -98,13 +113,28 @@ class _StreamingHx711(LoadCell):
         # Warn once per reason, then quietly count: a noisy line must not flood the log.
         level = logging.WARNING if not self.skipped[reason] else logging.DEBUG
         self.skipped[reason] += 1
+        self._skipped_since += 1
+        self._last_skip = f"{_SKIPPED.get(reason, reason)}: {detail}"
         log.log(level, "%r: skipped a reading (%s): %s", self, reason, detail)
 
     def _take(self, timeout_s: float) -> Samples:
         samples = self._queue.take(timeout_s)
         if not len(samples) and self._failure is not None:
             raise DeviceError(self._failure)
+        if not len(samples) and not self._stop.is_set() and (stalled := self._stalled()):
+            raise DeviceError(stalled)
         return samples
+
+    def _stalled(self) -> str | None:
+        """Why the cell is down when no valid reading came for too long (module docstring); None otherwise."""
+        since = self._connected_s if self._valid_s is None else self._valid_s
+        allowed = max(STALL_S, self.settings.timeout_s) if self._valid_s is None else STALL_S
+        quiet_s = time.monotonic() - since
+        if quiet_s < allowed:
+            return None
+        skipped = self._skipped_since
+        why = f"{skipped} readings skipped (the last: {self._last_skip})" if skipped else "silent: nothing arrived"
+        return f"{self!r}: no valid reading for {quiet_s:.1f} s: {why}"
 
     # link hooks
     def _open_link(self) -> None:
