@@ -58,7 +58,7 @@ from teleop.bus.wire import Message
 from teleop.errors import BusError, ComplianceTeleopError
 from teleop.live import JsonLines, ServiceLoop
 
-__all__ = ["INPUT_TOPICS", "PLAUSIBLE_LATENCY_S", "FinalLatency", "RendererService"]
+__all__ = ["INPUT_TOPICS", "PLAUSIBLE_LATENCY_S", "FinalLatency", "RendererService", "check_tick_s"]
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +67,27 @@ _COUNTED_GRASPS = 16  # grasps whose estimates are counted at once: more only wh
 # Capture to report (s) on one host's monotonic clock: a camera stamps at most 1 s late
 # (sensors' camera_latency_s), and no final comes an hour after its last loading frame.
 PLAUSIBLE_LATENCY_S = (-1.0, 3600.0)
+
+
+def check_tick_s(tick_s: float, *, keepalive_s: float, heartbeat_s: float | None, name: str = "tick_s =") -> None:
+    """Refuse a tick longer than the shortest period the service must keep between two messages:
+    the display's keep-alive (``[display] keepalive_s``) and, when it publishes, its heartbeat
+    (``[bus] heartbeat_s``). A longer wait for a message would starve them (the display's watchdog
+    setting it free, subscribers taking the renderer for dead) and overrun a run's duration.
+
+    Raises
+    ------
+    HapticsError
+        ``tick_s`` is longer (named with ``name``, and the settings it must keep).
+    """
+    periods = {"[display] keepalive_s": keepalive_s}
+    if heartbeat_s is not None:
+        periods["[bus] heartbeat_s"] = heartbeat_s
+    longest = min(periods.values())
+    if tick_s > longest:
+        kept = ", ".join(f"{key} = {value:g} s" for key, value in periods.items())
+        raise HapticsError(f"{name} {tick_s:g}: longer than a period the renderer must keep ({kept}); "
+                           f"expected at most {longest:g} s")
 
 
 @dataclass(frozen=True)
@@ -135,7 +156,8 @@ class RendererService(ServiceLoop):
     report : JsonLines, optional
         Receives one JSON object per final estimate.
     tick_s : float
-        Longest time between renderer ticks (smoothing, fading, keep-alive).
+        Longest time between renderer ticks (smoothing, fading, keep-alive): at most the display's
+        ``keepalive_s`` and the publisher's ``heartbeat_s`` (:func:`check_tick_s`).
     clock : callable
         Monotonic seconds, the clock the robot stamps captures with.
     """
@@ -146,6 +168,8 @@ class RendererService(ServiceLoop):
         if isinstance(tick_s, bool) or not isinstance(tick_s, int | float) or not (
                 math.isfinite(tick_s) and tick_s > 0):
             raise HapticsError(f"tick_s = {tick_s!r}: expected a finite number of seconds > 0")
+        check_tick_s(tick_s, keepalive_s=renderer.settings.keepalive_s,
+                     heartbeat_s=None if publisher is None else publisher.heartbeat_s)
         self.renderer = renderer
         self.subscriber = subscriber
         self.publisher = publisher

@@ -15,7 +15,7 @@ import sys
 
 from haptics.devices import BACKENDS, make_display
 from haptics.renderer import HapticRenderer
-from haptics.service import INPUT_TOPICS, RendererService
+from haptics.service import INPUT_TOPICS, RendererService, check_tick_s
 from haptics.settings import display_settings
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.clikit import positive_number
@@ -38,7 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="display backend (default: [display] backend of the settings)")
     add_endpoint_arguments(parser, "estimate_pub", "display_pub")
     parser.add_argument("--tick-s", type=positive_number, default=0.01, metavar="S",
-                        help="longest time between renderer updates (smoothing, fading, keep-alive), seconds")
+                        help="longest time between renderer updates (smoothing, fading, keep-alive), seconds; at "
+                             "most [display] keepalive_s and [bus] heartbeat_s of the settings")
     parser.add_argument("--report", metavar="FILE", default=None,
                         help="append one JSON object per final estimate (grasp_id, state, E_pa, latency_ms, "
                              "estimates_received, and what the display renders for it: display_fraction, rigid, "
@@ -58,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
     if args.backend is not None:
         rendering = dataclasses.replace(rendering, backend=args.backend)
     bus = bus_from_args(settings, args)
+    check_tick_s(args.tick_s, keepalive_s=rendering.keepalive_s, heartbeat_s=bus.heartbeat_s, name="--tick-s")
     display = make_display(rendering)
     renderer = HapticRenderer(display, rendering)
     # The signals first: handled until the display has been set free and closed, so a second one

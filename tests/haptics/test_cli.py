@@ -10,6 +10,7 @@ import pytest
 from haptics.cli import COMMANDS, main
 from haptics.mapping import stiffness_fraction
 from haptics.protocol import REPORT_DESCRIPTOR, decode_output_report
+from haptics.settings import display_settings
 from teleop.settings import default_settings_path, load_settings
 
 
@@ -120,9 +121,9 @@ def test_try_insufficient_data_and_rigid(capsys):
     assert data["command"]["rigid"] is True and data["level"] == data["level_max"]
     # An ok estimate whose interval spans the display's whole range is shown unknown, and says why.
     assert main(["try", "--e-pa", "1e5", "--low-pa", "100", "--high-pa", "1e9", "--json"]) == 0
-    out = capsys.readouterr().out
-    assert "spans the display's whole range" in out
-    assert json.loads(out.strip().splitlines()[-1])["command"]["unknown"] is True
+    captured = capsys.readouterr()
+    assert "spans the display's whole range" in captured.err
+    assert json.loads(captured.out)["command"]["unknown"] is True
 
 
 def test_try_renders_a_bound_at_the_resolution_limit_rigid_and_one_below_at_its_bound(capsys):
@@ -135,7 +136,7 @@ def test_try_renders_a_bound_at_the_resolution_limit_rigid_and_one_below_at_its_
     assert main(["try", "--state", "lower_bound", "--e-pa", repr(below), "--json"]) == 0
     data = last_json(capsys)
     assert data["command"]["rigid"] is False and data["level"] < data["level_max"]
-    assert data["stiffness"] == pytest.approx(stiffness_fraction(below, e_soft_pa=5e3, e_rigid_pa=limit))
+    assert data["display_fraction"] == pytest.approx(stiffness_fraction(below, e_soft_pa=5e3, e_rigid_pa=limit))
 
 
 def test_try_takes_an_explicit_rigid_end_from_the_settings(tmp_path, capsys):
@@ -183,6 +184,19 @@ def test_serve_and_operate_refuse_a_bad_time_as_a_usage_error(options, bad, caps
     assert f"argument {bad}: expected a number > 0" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("tick_s", ["5", "1e9"])
+def test_serve_refuses_a_tick_longer_than_the_keepalive_and_heartbeat_it_keeps(tick_s, capsys):
+    # A longer wait for a message would starve the display's keep-alive and the heartbeat (1e9 s
+    # overflowed zmq_poll, a traceback): refused before anything opens, naming the option and the settings.
+    settings = load_settings()
+    assert main(["serve", "--backend", "sim", "--duration-s", "0.1", "--tick-s", tick_s]) == 2
+    err = capsys.readouterr().err
+    assert f"--tick-s {float(tick_s):g}: longer than a period the renderer must keep" in err
+    assert f"[display] keepalive_s = {display_settings(settings).keepalive_s:g} s" in err
+    assert f"[bus] heartbeat_s = {settings.bus.heartbeat_s:g} s" in err
+    assert "Traceback" not in err
+
+
 def test_try_over_hid(fake_hid, capsys):
     usb = fake_hid.plug()
     assert main(["try", "--backend", "hid", "--e-pa", "1e7", "--json"]) == 0
@@ -198,9 +212,9 @@ def test_try_over_hid_with_nothing_plugged_in(fake_hid, capsys):
 
 def test_devices_says_when_none_are_plugged_in(fake_hid, capsys):
     assert main(["devices", "--json"]) == 0
-    out = capsys.readouterr().out
-    assert "no softness display 1209:5EF7 is plugged in" in out
-    assert json.loads(out.strip().splitlines()[-1])["count"] == 0
+    captured = capsys.readouterr()
+    assert "no softness display 1209:5EF7 is plugged in" in captured.err
+    assert json.loads(captured.out)["count"] == 0
 
 
 def test_devices_lists_what_is_plugged_in(fake_hid, capsys):

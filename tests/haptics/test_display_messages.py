@@ -183,6 +183,8 @@ def test_unknown_fading_and_idle(rigs):
 class _BrokenPublisher:
     """Heartbeats go out; every ``display`` message fails as a stuck bus would."""
 
+    heartbeat_s = 0.5
+
     def __init__(self):
         self.attempts = 0
 

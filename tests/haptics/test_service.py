@@ -139,6 +139,17 @@ def test_a_bad_tick_is_refused_naming_it(tick_s):
         RendererService(renderer, subscriber=None, tick_s=tick_s)
 
 
+def test_a_tick_longer_than_the_keepalive_or_the_heartbeat_is_refused_naming_them():
+    settings = display_settings(load_settings())
+    renderer = HapticRenderer(SimulatedDisplay(), settings)
+    with pytest.raises(HapticsError, match=r"tick_s = 1: .*\[display\] keepalive_s = 0.2 s\); expected at most 0.2 s"):
+        RendererService(renderer, subscriber=None, tick_s=1.0)
+    with Publisher("tcp://127.0.0.1:*", lossless=False, source="renderer", heartbeat_s=0.1) as publisher:
+        with pytest.raises(HapticsError, match=r"\[bus\] heartbeat_s = 0.1 s\); expected at most 0.1 s"):
+            RendererService(renderer, subscriber=None, publisher=publisher, tick_s=0.15)
+        RendererService(renderer, subscriber=None, publisher=publisher, tick_s=0.1)  # the period itself: kept
+
+
 def test_the_estimate_counts_stay_bounded_over_a_long_session():
     # Late estimates of ended grasps, and grasps whose end was lost (latest-value delivery), must
     # not grow what the service keeps per grasp.
