@@ -17,9 +17,9 @@ import threading
 from pathlib import Path
 
 from teleop.bus.security import security_from_settings
-from teleop.catalogue import default_catalogue_path
+from teleop.catalogue import default_catalogue_path, load_catalogue
 from teleop.clikit import hangup_ignored
-from teleop.errors import SessionLogError
+from teleop.errors import SessionLogError, SettingsError
 from teleop.scene import load_scene
 from teleop.session.foxglove_live import LiveServer, add_foxglove_argument
 from teleop.session.logfile import CHUNK_BYTES
@@ -159,6 +159,10 @@ def _catalogue(args: argparse.Namespace) -> Path:
     """The catalogue to attach: the one the session's objects come from (``teleop demo`` and
     ``bench-latency`` start the recorder with their --scene alone), so export labels them by it."""
     if args.objects is not None:
+        try:
+            load_catalogue(args.objects)  # before the recording, not by its export
+        except SettingsError as exc:
+            raise SettingsError(f"--objects: {exc}") from exc
         return Path(args.objects)
     return load_scene(args.scene).catalogue_path if args.scene else default_catalogue_path()
 

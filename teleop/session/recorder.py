@@ -33,6 +33,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES, Subscriber
 from teleop.bus.wire import Message, decode, now_ns
+from teleop.catalogue import load_catalogue
 from teleop.errors import BusError, SessionLogError
 from teleop.progress import progress_bar
 from teleop.record import software_version
@@ -186,7 +187,8 @@ class SessionRecorder:
     source : {"simulated", "hardware"}, optional
         What produced the data; default from the settings' backends (:func:`session_source`).
     catalogue : str or Path, optional
-        Object catalogue to attach, so exported grasps can be labelled.
+        Object catalogue to attach, so exported grasps can be labelled; one that does not load
+        (:func:`~teleop.catalogue.load_catalogue`) is refused.
     chunk_bytes : int
         MCAP chunk size; a killed recorder loses at most one chunk.
     flush_interval_s : float
@@ -244,6 +246,8 @@ class SessionRecorder:
         )
         self.scene = scene
         self.catalogue = Path(catalogue) if catalogue is not None else None
+        if self.catalogue is not None:
+            load_catalogue(self.catalogue)  # refused now, naming it, not by the export of the log
         self.chunk_bytes = chunk_bytes
         self.flush_interval_s = flush_interval_s
         self.compression = compression

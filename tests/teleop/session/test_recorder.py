@@ -5,6 +5,7 @@ from __future__ import annotations
 import errno
 import io
 import json
+import re
 import threading
 import time
 
@@ -17,7 +18,7 @@ from mcap.reader import make_reader
 
 from teleop.bus import Publisher, Subscriber
 from teleop.bus.wire import encode
-from teleop.errors import BusError, MessageRejected, SessionLogError
+from teleop.errors import BusError, MessageRejected, SessionLogError, SettingsError
 from teleop.session import LogReader, SessionRecorder, recover, session_source
 from teleop.session.foxglove import IMAGE_SCHEMA
 from teleop.session.logfile import (
@@ -174,10 +175,21 @@ def test_bad_options_are_refused_naming_them(tmp_path):
         SessionRecorder(tmp_path / "x.mcap", "tcp://127.0.0.1:1", source="robot")
     with pytest.raises(SessionLogError, match="cannot create session log"):
         SessionRecorder(tmp_path / "no" / "such" / "dir.mcap", "tcp://127.0.0.1:1").open()
-    with pytest.raises(SessionLogError, match="cannot read the catalogue"):
-        SessionRecorder(
-            tmp_path / "x.mcap", "tcp://127.0.0.1:1", catalogue=tmp_path / "absent.toml"
-        ).open()
+    with pytest.raises(SettingsError, match="cannot read catalogue .*absent.toml"):
+        SessionRecorder(tmp_path / "x.mcap", "tcp://127.0.0.1:1", catalogue=tmp_path / "absent.toml")
+
+
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [("[[objects]\nname = ", "not valid TOML"), ("", "expected one or more [[objects]] tables")],
+)
+def test_a_catalogue_that_does_not_load_is_refused_before_recording_naming_it(tmp_path, text, problem):
+    # It was attached as it was, and only `teleop export` failed on it, naming a temporary file.
+    catalogue = tmp_path / "objects.toml"
+    catalogue.write_text(text, encoding="utf-8")
+    with pytest.raises(SettingsError, match=f"{catalogue}: {re.escape(problem)}"):
+        SessionRecorder(tmp_path / "x.mcap", "tcp://127.0.0.1:1", catalogue=catalogue)
+    assert not (tmp_path / "x.mcap").exists()
 
 
 class DiskThatFills(io.RawIOBase):

@@ -83,3 +83,15 @@ def test_user_mistakes_are_one_line_errors(recorded, tmp_path, capsys):
     assert "cannot read session log" in capsys.readouterr().err
     assert teleop.cli.main(["replay", str(recorded.path), "--speed", "-1"]) == 2
     assert "--speed -1" in capsys.readouterr().err
+
+
+def test_record_refuses_a_catalogue_that_does_not_load_before_recording(tmp_path, capsys):
+    # It recorded with rc 0; only `teleop export` failed later, naming a temporary file.
+    catalogue = tmp_path / "objects.toml"
+    catalogue.write_text("[[objects]\nname = ", encoding="utf-8")
+    out = tmp_path / "session.mcap"
+    code = teleop.cli.main(["record", "--out", str(out), "--duration-s", "0.2", "--objects", str(catalogue),
+                            "--endpoint", "tcp://127.0.0.1:1"])
+    err = capsys.readouterr().err
+    assert code == 2 and not out.exists()
+    assert f"teleop record: error: --objects: {catalogue}: not valid TOML" in err
