@@ -29,6 +29,7 @@ import uuid
 from estimator.errors import ModelError
 from teleop.bus.messages import ModelEventBody
 from teleop.bus.pubsub import Publisher, Subscriber
+from teleop.clikit import positive_number
 from teleop.errors import BusAddressInUseError, BusError, TeleopError
 from teleop.live import add_endpoint_arguments, bus_from_args
 from teleop.settings import BusSettings, default_settings_path, load_settings
@@ -55,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
                         help="settings TOML whose [bus] endpoints the service uses")
     add_endpoint_arguments(parser, "control", "estimate_pub")
-    parser.add_argument("--timeout-s", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
+    parser.add_argument("--timeout-s", type=positive_number, default=DEFAULT_TIMEOUT_S, metavar="S",
                         help="how long to wait for the service's answer; it answers after the grasp open "
                              "now, if any, has ended")
     parser.add_argument("--json", action="store_true",
@@ -117,8 +118,6 @@ def _control_publisher(bus: BusSettings) -> Publisher:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.timeout_s <= 0:
-        raise TeleopError(f"--timeout-s {args.timeout_s:g}: expected a time > 0")
     settings = load_settings(args.settings)
     bus = bus_from_args(settings, args)
     if not args.model.strip():
