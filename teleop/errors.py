@@ -45,6 +45,10 @@ class DeviceTimeoutError(DeviceError, TimeoutError):
     """A device did not answer within its timeout."""
 
 
+class DeviceStalledError(DeviceError):
+    """A connected device has given no valid data for longer than it may (silent, or only garbage)."""
+
+
 class BackendNotFoundError(DeviceError, LookupError):
     """No backend of that name is registered for the device family, or it cannot be loaded."""
 

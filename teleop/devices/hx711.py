@@ -8,7 +8,7 @@ readings are stamped on arrival.
 
 A cell that gives no valid reading for :data:`STALL_S` (the first one after connecting may take
 the cell's ``timeout_s``, as a tare waits for it) is down: a read that finds nothing then raises
-:class:`~teleop.errors.DeviceError` saying why (silent, or what its readings were skipped for,
+:class:`~teleop.errors.DeviceStalledError` saying why (silent, or what its readings were skipped for,
 e.g. counts at a rail: saturated) rather than :class:`~teleop.errors.DeviceTimeoutError`, until a
 valid reading comes.
 
@@ -39,7 +39,7 @@ from teleop.devices.hx711_protocol import (
     parse_serial_line,
 )
 from teleop.devices.loadcell import FIXES, LoadCell
-from teleop.errors import DeviceError
+from teleop.errors import DeviceError, DeviceStalledError
 from teleop.record import Samples
 from teleop.settings import LoadCellSettings
 from teleop.settings_fields import tcp_host_port
@@ -122,7 +122,7 @@ class _StreamingHx711(LoadCell):
         if not len(samples) and self._failure is not None:
             raise DeviceError(self._failure)
         if not len(samples) and not self._stop.is_set() and (stalled := self._stalled()):
-            raise DeviceError(stalled)
+            raise DeviceStalledError(stalled)
         return samples
 
     def _stalled(self) -> str | None:

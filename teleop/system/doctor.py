@@ -1,6 +1,7 @@
 """``teleop doctor``: is this rig ready for a session? Every configured device, the bus ports, the calibrations.
 
-Devices (all read at once, for ``--duration-s``): the gripper's width stream, the load cell,
+Devices (all read at once, for ``--duration-s``, at least three periods of the slowest configured
+device, so that a healthy one shows its rate): the gripper's width stream, the load cell,
 each finger's camera, the softness display and the operator's input device (``[operator] input``;
 the keyboard is the console's own and has nothing to open). Each is opened through its configured
 backend and read; the report gives
@@ -56,7 +57,13 @@ from teleop.devices.gripper import FRANKY_FIX, make_gripper
 from teleop.devices.loadcell import FIXES as LOAD_CELL_FIXES
 from teleop.devices.loadcell import make_load_cell
 from teleop.endpoints import parse_endpoint
-from teleop.errors import BusSecurityError, ComplianceTeleopError, DeviceTimeoutError
+from teleop.errors import (
+    BusSecurityError,
+    ComplianceTeleopError,
+    DeviceStalledError,
+    DeviceTimeoutError,
+    TeleopError,
+)
 from teleop.live import ENDPOINTS
 from teleop.rig.load_cell_calibration import load_cell_source
 from teleop.settings import (
@@ -67,11 +74,13 @@ from teleop.settings import (
     resolve_path,
 )
 
-__all__ = ["Check", "check_calibrations", "check_devices", "check_endpoints", "diagnose"]
+__all__ = ["Check", "check_calibrations", "check_devices", "check_duration", "check_endpoints", "diagnose",
+           "shortest_duration_s"]
 
 RATE_TOLERANCE = 0.8  # a device reading below this fraction of its configured rate is a problem
 MAX_CLOCK_OFFSET_S = 1.0  # readings stamped further than this from the host's clock are on another clock
 READ_SLICE_S = 0.2  # each read waits at most this long, so a silent device is noticed
+RATE_PERIODS = 3  # a rate is judged over at least this many periods of the slowest configured device
 
 
 @dataclass
@@ -206,7 +215,7 @@ def _load_cell_probe(settings: Settings, playback: Any, fix: str) -> _Probe:
     def read() -> list[float]:
         try:
             return cell.read(timeout_s=READ_SLICE_S).t_s.tolist()
-        except DeviceTimeoutError:
+        except (DeviceTimeoutError, DeviceStalledError):  # no reading: judged over the whole read
             return []
 
     where = load_cell_source(settings.load_cell).split(" (")[0]
@@ -291,8 +300,35 @@ def _run_probe(probe: _Probe | Check, duration_s: float) -> Check:
     return _judge(probe, stamps, lags, duration_s)
 
 
+def shortest_duration_s(settings: Settings) -> tuple[float, str]:
+    """The shortest read in which a healthy rig shows each configured rate: :data:`RATE_PERIODS`
+    periods of the slowest configured device; and that device's setting, said (``key = rate Hz``)."""
+    rates = {"[gripper] width_read_hz": settings.gripper.width_read_hz,
+             "[load_cell] sample_rate_hz": settings.load_cell.sample_rate_hz,
+             **{f"[sensors.{s.finger}] camera_hz": s.camera_hz for s in settings.sensors}}
+    slowest = min(rates, key=rates.__getitem__)
+    return RATE_PERIODS / rates[slowest], f"{slowest} = {rates[slowest]:g} Hz"
+
+
+def check_duration(settings: Settings, duration_s: float, *, name: str = "duration_s =") -> None:
+    """Refuse a read too short to judge the configured rates (:func:`shortest_duration_s`): it
+    would fail healthy devices as slow, with wrong advice.
+
+    Raises
+    ------
+    TeleopError
+        ``duration_s`` is shorter (named with ``name``, with the minimum and why).
+    """
+    shortest, slowest = shortest_duration_s(settings)
+    if not duration_s >= shortest:
+        raise TeleopError(f"{name} {duration_s:g}: too short to judge the devices' rates; expected at least "
+                          f"{shortest:g} s, {RATE_PERIODS} periods of the slowest configured device ({slowest})")
+
+
 def check_devices(settings: Settings, *, duration_s: float = 2.0) -> list[Check]:
-    """Open and read every configured device at once for ``duration_s``; one Check each."""
+    """Open and read every configured device at once for ``duration_s`` (at least
+    :func:`shortest_duration_s`: :func:`check_duration`); one Check each."""
+    check_duration(settings, duration_s)
     probes = _probes(settings)
     with ThreadPoolExecutor(max_workers=len(probes), thread_name_prefix="doctor") as pool:
         return list(pool.map(lambda p: _run_probe(p, duration_s), probes))
@@ -448,7 +484,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--settings", default=str(default_settings_path()), metavar="FILE",
                         help="settings TOML of the rig (default: the shipped simulated one)")
     parser.add_argument("--duration-s", type=positive_number, default=2.0, metavar="S",
-                        help="how long every device is read, in seconds > 0 (default: 2.0)")
+                        help="how long every device is read, in seconds (default: 2.0); at least "
+                             f"{RATE_PERIODS} periods of the slowest configured device, to judge its rate")
     parser.add_argument("--json", action="store_true",
                         help='print one JSON object: {"ok", "devices": [{"name", "ok", "rate_hz", "latency_ms", '
                              '"problem", "detail", "warning"}...], "endpoints": [...], "calibrations": [...]}')
@@ -476,6 +513,7 @@ def _table(report: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_duration(load_settings(args.settings), args.duration_s, name="--duration-s")
     report = diagnose(Path(args.settings), duration_s=args.duration_s)
     print(json.dumps(report) if args.json else _table(report))
     return 0 if report["ok"] else 1

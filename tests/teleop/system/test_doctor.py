@@ -16,9 +16,10 @@ import pytest
 
 from teleop.bus.security import init_keys
 from teleop.cli import main
+from teleop.errors import ComplianceTeleopError
 from teleop.settings import BusSettings, Settings, default_settings_path, load_settings
 from teleop.settings_edit import update_settings_file
-from teleop.system.doctor import Check, check_calibrations, check_endpoints
+from teleop.system.doctor import Check, check_calibrations, check_devices, check_endpoints
 
 DEVICES = ["gripper", "load cell", "camera left", "camera right", "display", "input keyboard"]
 
@@ -240,6 +241,23 @@ def test_two_endpoints_one_address_is_an_error_naming_both_not_ready_for_a_sessi
     captured = capsys.readouterr()
     assert "ready for a session" not in captured.out
     assert "BusSettings.estimate_pub = 'tcp://127.0.0.1:5550': the same endpoint as robot_pub" in captured.err
+
+
+@pytest.mark.parametrize("duration", ["0.05", "1e-9", "0.29"])
+def test_a_read_too_short_to_show_the_configured_rates_is_refused_saying_the_minimum(capsys, duration):
+    # 0.05 s failed healthy devices ("reads at 0 Hz ... check [gripper] backend"); 1e-9 s failed them all.
+    assert main(["doctor", f"--duration-s={duration}"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""  # nothing read, no report
+    assert (f"--duration-s {float(duration):g}: too short to judge the devices' rates; expected at least 0.3 s, "
+            "3 periods of the slowest configured device ([gripper] width_read_hz = 10 Hz)") in captured.err
+
+
+def test_the_shortest_read_follows_the_slowest_configured_device(tmp_path, capsys):
+    path = _copy(tmp_path, {"gripper.width_read_hz": 100.0})
+    with pytest.raises(ComplianceTeleopError, match=r"duration_s = 0.05: .* at least 0.1 s, 3 periods of the "
+                                                    r"slowest configured device \(\[sensors.left\] camera_hz = 30 Hz\)"):
+        check_devices(load_settings(path), duration_s=0.05)
 
 
 @pytest.mark.parametrize("duration", ["0", "-1", "nan", "inf"])

@@ -34,7 +34,7 @@ def test_swapped_calibrations_are_named_and_the_estimators_finger_is_not_ready(t
     assert right.ok and right.problem is None
     assert "serial 'sim-wedge-left' (this sensor: 'sim-wedge-right')" in right.warning
 
-    assert main(["doctor", "--settings", str(path), "--duration-s", "0.2"]) == 1
+    assert main(["doctor", "--settings", str(path), "--duration-s", "0.3"]) == 1
     rows = {line[:18].strip(): line for line in capsys.readouterr().out.splitlines()}
     assert rows["calibration left"].split()[2] == "NO" and "it is [sensors.right]'s" in rows["calibration left"]
     assert rows["calibration right"].split()[2] == "warn" and "'sim-wedge-left'" in rows["calibration right"]
@@ -44,7 +44,7 @@ def test_another_sensors_calibration_is_a_warning_in_the_table_and_the_json(tmp_
     # Made for a sensor not in these settings (its twin, say): the estimator runs on it, warning.
     path = _rig(tmp_path, {"sensors.left.calibration": _file("right"),
                            "sensors.right.serial": "twin-right", "sensors.right.calibration": ""})
-    assert main(["doctor", "--json", "--settings", str(path), "--duration-s", "0.2"]) in (0, 1)
+    assert main(["doctor", "--json", "--settings", str(path), "--duration-s", "0.3"]) in (0, 1)
     report = json.loads(capsys.readouterr().out)
     left = {c["name"]: c for c in report["calibrations"]}["calibration left"]
     assert left["ok"] and left["problem"] is None
@@ -52,7 +52,7 @@ def test_another_sensors_calibration_is_a_warning_in_the_table_and_the_json(tmp_
     assert "serial 'sim-wedge-right' (this sensor: 'sim-wedge-left')" in left["warning"]
     assert left["warning"].endswith("name this sensor's own file in [sensors.left] calibration")
 
-    main(["doctor", "--settings", str(path), "--duration-s", "0.2"])
+    main(["doctor", "--settings", str(path), "--duration-s", "0.3"])
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if line.startswith("calibration left"))
     assert row.split()[2] == "warn" and "serial 'sim-wedge-right'" in row
