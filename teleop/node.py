@@ -50,7 +50,7 @@ not read its width at the stop (nor for follow grasps: no grasp command stops th
 
 A command that cannot be carried out (a start_grasp during a grasp or above the maximum force, a
 follow during a scripted grasp or beyond the gripper's width, ...) is logged and answered with a
-``robot_notice`` *refused* with the reason (the same refusal at most once per
+``robot_notice`` *refused* with the reason (the same refusal of the same grasp at most once per
 :data:`REFUSAL_REPEAT_S`), and the node carries on. A ``robot_state`` goes out on every change
 of the node's mode, grasp, target width or enable, and with every heartbeat.
 
@@ -189,7 +189,7 @@ class RobotNode(ServiceLoop):
         self._newest_s: dict[str, float] = {}
         self._latest: dict[str, float] = {}  # the newest force (N) and width (m) published
         self._follower = Follower(self)  # follow grasps (teleop.follow)
-        self._refused: dict[tuple[str, str], float] = {}  # when each refusal last went out
+        self._refused: dict[tuple[str, str | None, str], float] = {}  # when each refusal last went out
         self._state: tuple | None = None  # the last robot_state sent
 
     # ------------------------------------------------------------------ lifecycle
@@ -316,12 +316,15 @@ class RobotNode(ServiceLoop):
     # ------------------------------------------------------------------ notices and state
 
     def _notice(self, event: str, action: str, grasp_id: str | None, reason: str, *, repeat_s: float = 0.0) -> bool:
-        """Send a robot_notice unless the same one went out less than ``repeat_s`` ago; True if sent."""
+        """Send a robot_notice unless the same one (action, grasp and reason) went out less than
+        ``repeat_s`` ago; True if sent. A notice naming another grasp always goes out: the operator's
+        console clears its pending grasp only on a refusal naming that grasp."""
         now = self.clock()
-        if now - self._refused.get((action, reason), -math.inf) < repeat_s:
+        key = (action, grasp_id, reason)
+        if now - self._refused.get(key, -math.inf) < repeat_s:
             return False
-        self._refused = {key: t for key, t in self._refused.items() if now - t < REFUSAL_REPEAT_S}
-        self._refused[(action, reason)] = now
+        self._refused = {k: t for k, t in self._refused.items() if now - t < REFUSAL_REPEAT_S}
+        self._refused[key] = now
         self.publisher.send("robot_notice", t_capture_s=now, event=event, action=action, grasp_id=grasp_id,
                             reason=reason)
         return True

@@ -147,6 +147,28 @@ def test_a_simulated_replay_refuses_stop_and_release_on_the_bus_and_keeps_its_lo
     assert -0.02 <= late_s < 0.45  # late by scheduling only (a loaded machine's), still before the 0.5 s hold ends
 
 
+def test_a_refusal_naming_another_grasp_goes_out_even_with_the_same_reason(rig):
+    # The operator's console clears its pending grasp only on a refusal naming that grasp: the
+    # refusal of gC must not be taken for a repeat of gB's (same reason, "'g-a' is still in progress").
+    node, operator, listener, _ = rig
+    operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id="g-a",
+                  params={"object_index": 1.0})
+    deadline = time.monotonic() + 30.0
+    while node._grasp is None:
+        assert time.monotonic() < deadline, "the grasp did not start in time"
+        node.step()
+    for grasp_id in ("g-b", "g-c", "g-b"):  # the second g-b: a repeat, at most once a REFUSAL_REPEAT_S
+        operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id=grasp_id,
+                      params={"object_index": 0.0})
+    while node.stats.bad_commands < 3:
+        assert time.monotonic() < deadline, "the commands were not refused in time"
+        node.step()
+    run_until_idle(node, grasps=1)
+    refused = [m.body for m in drain(listener) if m.type == "robot_notice" and m.body["event"] == "refused"]
+    assert [n["grasp_id"] for n in refused] == ["g-b", "g-c"]
+    assert all("'g-a' is still in progress" in n["reason"] for n in refused)
+
+
 def test_the_simulated_robot_needs_a_scene():
     settings = load_settings()
     with Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as robot, \
