@@ -11,6 +11,7 @@ import tempfile
 from pathlib import Path
 
 from teleop.catalogue import ObjectSpec, load_catalogue
+from teleop.errors import SettingsError
 from teleop.session.label import label_catalogues
 from teleop.session.logfile import LogInfo
 
@@ -18,11 +19,15 @@ __all__ = ["catalogue_objects", "label_catalogue_objects"]
 
 
 def _attached_objects(name: str, data: bytes) -> dict[str, ObjectSpec]:
-    """Objects by name of the catalogue attached to the log as ``name``."""
+    """Objects by name of the catalogue attached to the log as ``name``; a SettingsError naming the
+    attachment (not the temporary file it is read from) when it does not load."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / name
         path.write_bytes(data)
-        return {obj.name: obj for obj in load_catalogue(path)}
+        try:
+            return {obj.name: obj for obj in load_catalogue(path)}
+        except SettingsError as exc:
+            raise SettingsError(str(exc).replace(str(path), f"the log's attached {name}")) from exc
 
 
 def catalogue_objects(info: LogInfo, catalogue: str | Path | None) -> dict[str, ObjectSpec]:
