@@ -27,7 +27,10 @@ figure was seen, for about 15 grasps of 5 objects:
   are then recalibrated (:func:`~estimator.training.conformal.fit_conformal`) on its
   validation objects that fine-tuning did not train on. Its train objects must
   be the base model's train objects, so that nothing the base model held out
-  is trained on.
+  is trained on, and its val and test objects ones the base model never trained
+  on, but for those an earlier fine-tuning did, which are left out as ``estimator
+  recalibrate`` leaves them out (:func:`~estimator.training.recalibrate.trained_held_out`,
+  checked before any training).
 
 Whether fine-tuning pays off on a rig can be told from its own grasps before any test
 (:func:`check_by_object`, ``estimator fine-tune --check``): each object is left out in turn, the
@@ -38,9 +41,14 @@ The fine-tuned model's metadata lists the fine-tuning objects among its train
 objects (and no longer among its val or test objects) and in ``fine_tuning.objects``,
 so ``estimator evaluate --unseen-by`` scores it on objects it never saw
 (:func:`~estimator.inference.provenance.trained_objects`); ``fine_tuning`` says from what
-and how it was made. Whether it is better than the base model on a lab's own
-labelled records of other objects is :func:`estimator.evaluation.compare.compare_models`
-(``estimator fine-tune --compare RECORDS``, or ``estimator compare`` afterwards).
+(absolute paths of the base model, the data and the replay dataset) and how it was made (``config``,
+whose ``patience`` is null: no early stopping), and ``fine_tuning.earlier`` keeps the steps that
+made the base model, earliest first, so a model fine-tuned twice still names every object any step
+trained on (:func:`~estimator.training.recalibrate.fine_tuned_objects`). With ``replay`` the base
+model's ``recalibrated`` record is dropped: its calibration is no longer the one in use. Whether
+it is better than the base model on a lab's own labelled records of other objects is
+:func:`estimator.evaluation.compare.compare_models` (``estimator fine-tune --compare RECORDS``, or
+``estimator compare`` afterwards).
 """
 
 from __future__ import annotations
@@ -67,6 +75,7 @@ from estimator.training.export import export_onnx, network_from_onnx
 from estimator.training.model import ComplianceNet
 from estimator.training.outdir import check_out_dir
 from estimator.training.pool import pooled_from_onnx
+from estimator.training.recalibrate import trained_held_out
 from estimator.training.recipe import FINE_TUNE_CONFIG, REPLAY_RATIO, TrainConfig
 from estimator.training.splits import SplitData, check_dataset_fits, load_split_data, split_metrics
 from estimator.training.train import predict, train_epoch
@@ -89,7 +98,10 @@ def _joined(parts: list[SplitData]) -> SplitData:
 
 def _replay_data(replay_dir: Path, variant: Variant, base: dict[str, Any], added: set[str]
                  ) -> tuple[SplitData, SplitData]:
-    """The replay dataset's train split and the live samples of its val objects not in ``added``."""
+    """The replay dataset's train split and the live samples of its val objects to recalibrate on: those
+    neither in ``added`` nor trained on by an earlier fine-tuning
+    (:func:`~estimator.training.recalibrate.trained_held_out`, which refuses val or test objects the base
+    model trained on otherwise)."""
     check_dataset_fits(replay_dir, variant, base.get("data") or {})
     trained_on = set(((base.get("data") or {}).get("objects") or {}).get("train") or [])
     split = load_split(replay_dir / "split.json")
@@ -97,9 +109,10 @@ def _replay_data(replay_dir: Path, variant: Variant, base: dict[str, Any], added
     if foreign:
         raise EstimatorError(f"{replay_dir}: train objects the base model did not train on ({', '.join(foreign[:5])}"
                              f"{', ...' if len(foreign) > 5 else ''}): replay the base model's own training data")
+    left_out = {*trained_held_out(base, replay_dir), *added}
     parts = load_split_data(replay_dir, variant, ("train", "val"))
     val = parts["val"].live()
-    val = val.subset(np.array([r["object"] not in added for r in val.rows], dtype=bool))
+    val = val.subset(np.array([r["object"] not in left_out for r in val.rows], dtype=bool))
     if not len(parts["train"]) or not len(val):
         raise EstimatorError(f"{replay_dir}: {len(parts['train'])} train and {len(val)} val samples to replay and "
                              "recalibrate on; both are needed")
@@ -117,6 +130,14 @@ def _objects_after(base: dict[str, Any], added: set[str]) -> dict[str, list[str]
     objects = {name: [o for o in base.get(name, []) if o not in added] for name in SPLITS}
     objects["train"] = sorted({*objects["train"], *added})
     return objects
+
+
+def _lineage(base: dict[str, Any]) -> list[dict[str, Any]]:
+    """The fine-tuning steps that made the base model, earliest first: what ``fine_tuning.earlier`` keeps."""
+    tuning = base.get("fine_tuning")
+    if not tuning:
+        return []
+    return [*(tuning.get("earlier") or []), {k: v for k, v in tuning.items() if k != "earlier"}]
 
 
 def _tuned(model_dir: Path, base: dict[str, Any], variant: Variant, data: SplitData, replayed: SplitData | None, *,
@@ -160,7 +181,7 @@ def _calibration(model: ComplianceNet, base: dict[str, Any], variant: Variant, r
                             floors_log10=recalibrate_on.floors_for(variant),
                             soft_pa=calibration["soft_pa"],
                             limit_pa=calibration["limit_pa"], level=calibration["level"]),
-            "chosen_on": f"val of {replay}"}
+            "chosen_on": f"val of {Path(replay).resolve()}"}
 
 
 def _prepared(model_dir: Path, data_dir: Path, replay: str | Path | None, replay_ratio: float
@@ -208,7 +229,8 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
         ``out_dir`` is the base model, a file or, without ``overwrite``, not empty; the dataset is
         empty, was measured by other code than the model's training data, or its window, frames or
         image size differ from the model's; the replay dataset likewise, or it trains on objects the
-        base model did not.
+        base model did not, or its val or test objects include ones the base model trained on (but
+        for an earlier fine-tuning's), or it leaves no val samples to recalibrate on.
     ModelError
         The model cannot be read or rebuilt.
     """
@@ -228,13 +250,16 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
         "metrics": {},  # the base model's figures no longer describe this one: score it with `evaluate`
         "data": {**base["data"], "objects": _objects_after(base["data"].get("objects") or {}, added)},
         "fine_tuning": {
-            "base": str(model_dir), "base_created_utc": base.get("created_utc"), "data": str(data_dir),
-            "objects": sorted(added), "grasps": len(grasps), "samples": len(data),
+            "base": str(model_dir.resolve()), "base_created_utc": base.get("created_utc"),
+            "data": str(data_dir.resolve()), "objects": sorted(added), "grasps": len(grasps), "samples": len(data),
             "split_of_data": {k: sorted(v) for k, v in load_split(data_dir / "split.json").items()},
-            "replay": None if replay is None else {"data": str(replay), "ratio": replay_ratio},
-            "config": asdict(config), "seconds": time.perf_counter() - started, "history": history,
+            "replay": None if replay is None else {"data": str(Path(replay).resolve()), "ratio": replay_ratio},
+            "config": {**asdict(config), "patience": None},  # no early stopping: every epoch runs
+            "seconds": time.perf_counter() - started, "history": history, "earlier": _lineage(base),
         },
     }
+    if replay is not None:  # the base's record of how its calibration was fitted: this one was fitted here
+        new.pop("recalibrated", None)
     # Both files under staged names first, renamed back to back only once both are complete: an
     # interrupted run leaves the earlier model, and its training curve, as they were. The curve
     # (of the earlier network) goes only after the new model is in place.

@@ -25,8 +25,8 @@ from teleop.settings import Settings, default_settings_path, load_settings
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Fine-tune a trained model on a few labelled grasps of a new rig (a build-dataset directory made with "
-        "the model's --window; every sample of every split trains). Batch-norm statistics and the interval "
-        "calibration stay the base model's. Writes OUT/model.onnx and metadata.json, whose train objects "
+        "the model's --window; every sample of every split trains). Batch-norm statistics and (without --replay) "
+        "the interval calibration stay the base model's. Writes OUT/model.onnx and metadata.json, whose train objects "
         "include the fine-tuning objects, so `estimator evaluate --unseen-by OUT` keeps them out. With "
         "--compare RECORDS, the new model is then compared with the base on the labelled records of objects "
         "neither trained on (as `estimator compare`), and the verdict printed: base, candidate or undecided."

@@ -6,9 +6,10 @@ scale; and ``auto``'s split threshold) is fitted anew, with this code's rules fo
 says, and the model's ``metrics`` on its val and test objects are scored again: a change to how
 answers are described or calibrated needs no retraining. The dataset is a ``build-dataset``
 directory of the model's own data (``metadata.json`` ``data.dir``); its val and test objects must
-be objects the model never trained on, except that the val and test objects a fine-tuning trained on
-(``fine_tuning.objects`` in its metadata, which fine-tuning moves to train) are left out, as
-fine-tuning's own recalibration leaves them out. ``recalibrated`` in the metadata says when, from what,
+be objects the model never trained on, except that the val and test objects any of its fine-tuning
+steps trained on (:func:`fine_tuned_objects`: ``fine_tuning.objects`` in its metadata, and those of
+``fine_tuning.earlier``; fine-tuning moves them to train) are left out (:func:`trained_held_out`,
+whose rule fine-tuning's own recalibration on ``--replay`` follows too). ``recalibrated`` in the metadata says when, from what,
 which objects were left out (``left_out``), and keeps the calibration it replaced.
 
 :func:`cross_validate` (``estimator recalibrate --cross-validate``) says what such a calibration
@@ -45,7 +46,7 @@ from haptics.settings import display_range_pa
 from teleop.settings import Settings, load_settings
 from teleop.staging import staged
 
-__all__ = ["cross_validate", "recalibrate"]
+__all__ = ["cross_validate", "fine_tuned_objects", "recalibrate", "trained_held_out"]
 
 _BATCH = 256
 
@@ -57,27 +58,72 @@ def _logits(predictor: CompliancePredictor, data: SplitData) -> np.ndarray:
     return np.concatenate(chunks) if chunks else np.zeros((0, 0), np.float32)
 
 
+def fine_tuned_objects(metadata: dict[str, Any]) -> set[str]:
+    """Every object the fine-tuning steps that made a model trained on: ``fine_tuning.objects`` of its
+    last step and of each earlier one (``fine_tuning.earlier``, :func:`~estimator.training.finetune.fine_tune`).
+
+    Parameters
+    ----------
+    metadata : dict
+        The model's ``metadata.json``.
+
+    Returns
+    -------
+    set of str
+        The objects' names (empty for a model that was not fine-tuned).
+    """
+    tuning = metadata.get("fine_tuning") or {}
+    return {str(name) for step in [*(tuning.get("earlier") or []), tuning] for name in step.get("objects") or []}
+
+
+def trained_held_out(metadata: dict[str, Any], data_dir: Path) -> list[str]:
+    """The val and test objects of the dataset in ``data_dir`` that the model of ``metadata`` trained on
+    because a fine-tuning step did (module notes): what calibrating on that dataset leaves out.
+
+    Parameters
+    ----------
+    metadata : dict
+        The model's ``metadata.json`` (its ``data.objects.train`` and ``fine_tuning``).
+    data_dir : Path
+        A ``build-dataset`` directory (its ``split.json``).
+
+    Returns
+    -------
+    list of str
+        Those objects' names, sorted.
+
+    Raises
+    ------
+    EstimatorError
+        The dataset's val or test objects include others the model trained on (named): it is not the
+        dataset the model, or its base model, was trained on.
+    """
+    trained_on = set(((metadata.get("data") or {}).get("objects") or {}).get("train") or [])
+    tuning = metadata.get("fine_tuning") or {}
+    added = fine_tuned_objects(metadata)
+    split = load_split(data_dir / "split.json")
+    seen = trained_on & (set(split["val"]) | set(split["test"]))
+    unexplained = sorted(seen - added)
+    if unexplained:
+        steps = [*(tuning.get("earlier") or []), tuning]
+        hint = ("use the dataset the model was trained on" if not tuning else
+                f"the model was fine-tuned (on {', '.join(str(step.get('data')) for step in steps)}), which moves "
+                f"only its own objects ({', '.join(sorted(added)) or 'none'}) to train: use the dataset its base "
+                "model was trained on")
+        raise EstimatorError(f"{data_dir}: val or test objects the model trained on ({', '.join(unexplained[:5])}"
+                             f"{', ...' if len(unexplained) > 5 else ''}): {hint}")
+    return sorted(seen)
+
+
 def _load(model_dir: Path, data_dir: Path, splits: tuple[str, ...]
           ) -> tuple[CompliancePredictor, dict[str, SplitData], dict[str, np.ndarray], list[str]]:
     """The model, the live samples of ``splits`` of its own dataset and its logits for them, after the
     checks of :func:`recalibrate`, and the val or test objects left out because fine-tuning trained on
     them (module notes)."""
     predictor = CompliancePredictor(model_dir)
-    metadata = predictor.metadata.raw
-    check_dataset_fits(data_dir, predictor.variant, metadata.get("data") or {})
-    trained_on = set(((metadata.get("data") or {}).get("objects") or {}).get("train") or [])
-    tuning = metadata.get("fine_tuning") or {}
-    added = set(tuning.get("objects") or [])
-    split = load_split(data_dir / "split.json")
-    seen = trained_on & (set(split["val"]) | set(split["test"]))
-    unexplained = sorted(seen - added)
-    if unexplained:
-        hint = ("use the dataset the model was trained on" if not tuning else
-                f"the model was fine-tuned (on {tuning.get('data')}), which moves only its own objects "
-                f"({', '.join(sorted(added)) or 'none'}) to train: use the dataset its base model was trained on")
-        raise EstimatorError(f"{data_dir}: val or test objects the model trained on ({', '.join(unexplained[:5])}"
-                             f"{', ...' if len(unexplained) > 5 else ''}): {hint}")
-    dropped = sorted(seen)
+    check_dataset_fits(data_dir, predictor.variant, predictor.metadata.raw.get("data") or {})
+    dropped = trained_held_out(predictor.metadata.raw, data_dir)
+    seen = set(dropped)
     parts = {}
     for name, part in load_split_data(data_dir, predictor.variant, splits).items():
         part = part.live()

@@ -156,6 +156,20 @@ def test_a_fine_tuned_model_recalibrates_on_its_base_dataset_leaving_out_what_it
     assert cross_validate(model, synthetic_dataset, folds=2)["objects"] == len(split["val"]) - 1
 
 
+def test_a_model_fine_tuned_twice_leaves_out_what_every_step_trained_on(trained_model, synthetic_dataset, tmp_path):
+    split = json.loads((synthetic_dataset / "split.json").read_text())
+    model = _as_fine_tuned(trained_model, tmp_path, [split["val"][0], split["test"][0]])
+    meta = json.loads((model / "metadata.json").read_text())
+    # The second step's own record names its objects; the first step's, under `earlier`, the other.
+    meta["fine_tuning"] = {"base": "once-tuned", "data": "more-grasps", "objects": [split["test"][0]],
+                           "earlier": [{"base": str(trained_model), "data": "first-grasps",
+                                        "objects": [split["val"][0]]}]}
+    (model / "metadata.json").write_text(json.dumps(meta))
+    meta = recalibrate(model, synthetic_dataset, out_dir=tmp_path / "out")
+    assert meta["recalibrated"]["left_out"] == sorted([split["val"][0], split["test"][0]])
+    assert meta["metrics"]["val"]["objects"] == len(split["val"]) - 1
+
+
 def test_a_fine_tuned_model_on_a_dataset_it_did_not_come_from_names_the_fine_tuning(
         trained_model, synthetic, tmp_path):
     other = synthetic.write_dataset(tmp_path / "other", seed=5)
