@@ -35,9 +35,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "mechanics it assumes, so it holds less often: estimator evaluate says how often), lower_bound (stiffer than the data resolve, e.g. "
         "metal: E_pa is the bound), upper_bound (softer than resolved), insufficient_data (a refusal "
         "with its reason; exit status is still 0). A record that cannot be read or measured is named "
-        "with the cause on stderr and the others are still estimated; the exit status is then 2. Each "
-        "latency is the estimate's own: the first record is estimated once untimed, which loads the "
-        "calibration and fills the caches, as the live service does when it starts."
+        "with the cause on stderr and the others are still estimated, as is a folder with no record in "
+        "it; the exit status is then 2. Each latency is the estimate's own: the first record is "
+        "estimated once untimed, which loads the calibration and fills the caches, as the live service "
+        "does when it starts."
     )
     parser.add_argument("grasps", metavar="GRASP", nargs="+",
                         help="grasp records (.grasp files), or folders searched recursively for them "
@@ -83,7 +84,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--json", action="store_true",
         help="print one JSON object per record, one a line (grasp: its path, E_pa, interval_pa [low, "
              "high] with null for an open side, state, reason, latency_ms, and model: the learned "
-             "model's id, null for an analytical method; for a record that failed, grasp and error)",
+             "model's id, null for an analytical method; for a record that failed, or a folder with no record, "
+             "grasp and error)",
     )
 
 
@@ -91,19 +93,20 @@ def _pa(value: float | None) -> str:
     return "-" if value is None else f"{value:.3g} Pa"
 
 
-def grasp_paths(arguments: list[str]) -> list[Path]:
-    """The records the arguments name: files as given, folders' ``.grasp`` files sorted by path;
-    EstimatorError for a folder without one."""
-    paths: list[Path] = []
+def grasp_paths(arguments: list[str]) -> list[tuple[Path, EstimatorError | None]]:
+    """The records the arguments name, each with None: files as given, folders' ``.grasp`` files sorted
+    by path; a folder without one is named with its EstimatorError, to be reported as an unreadable
+    record is while the others are still estimated."""
+    paths: list[tuple[Path, EstimatorError | None]] = []
     for argument in arguments:
         path = Path(argument)
         if path.is_dir():
             found = sorted(path.rglob("*.grasp"))
             if not found:
-                raise EstimatorError(f"{path}: a folder with no .grasp record in it")
-            paths += found
+                paths.append((path, EstimatorError(f"{path}: a folder with no .grasp record in it")))
+            paths += [(record, None) for record in found]
         else:
-            paths.append(path)
+            paths.append((path, None))
     return paths
 
 
@@ -141,8 +144,10 @@ def run(args: argparse.Namespace) -> int:
     name_each = len(args.grasps) > 1 or Path(args.grasps[0]).is_dir()
     warm = False
     failed = 0
-    for path in paths:
+    for path, unreadable in paths:
         try:
+            if unreadable is not None:
+                raise unreadable
             record = read_record(path)
             if not warm:
                 estimate_record(record)  # untimed: the calibration and the caches, loaded once

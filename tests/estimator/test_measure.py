@@ -526,6 +526,23 @@ def test_estimate_command_reads_folders_and_names_the_records_it_cannot_read(gra
     assert "no .grasp record" in capsys.readouterr().err
 
 
+def test_estimate_command_names_an_empty_folder_as_it_does_a_missing_record_and_estimates_the_others(
+        grasp_dir, capsys, tmp_path):
+    root, cal = grasp_dir
+    empty, missing = tmp_path / "empty", tmp_path / "missing.grasp"
+    empty.mkdir()
+    assert main(["estimate", "--method", "series", "--calibration", str(cal), "--json",
+                 str(root / "ball_rubber.grasp"), str(empty), str(missing)]) == 2
+    captured = capsys.readouterr()
+    good, folder, absent = (json.loads(line) for line in captured.out.strip().splitlines())
+    assert good["grasp"] == str(root / "ball_rubber.grasp") and good["state"] == "ok"
+    assert folder == {"grasp": str(empty), "error": f"{empty}: a folder with no .grasp record in it"}
+    assert absent["grasp"] == str(missing) and "no such grasp record" in absent["error"]
+    errors = captured.err.strip().splitlines()
+    assert len(errors) == 2 and all(e.startswith("estimator estimate: error: ") for e in errors)
+    assert errors[0].count(str(empty)) == 1
+
+
 def test_estimate_command_answers_as_the_live_service_by_default(grasp_dir, capsys):
     root, cal = grasp_dir
     assert main(["estimate", str(root / "ball_rubber.grasp"), "--calibration", str(cal), "--json"]) == 0
