@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from haptics.devices.hid import list_hid_displays
 from haptics.settings import display_settings
@@ -37,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--product-id", type=_usb_id, default=None,
                         help="USB product ID to search, e.g. 0x5EF7 (overrides the settings)")
     parser.add_argument("--json", action="store_true",
-                        help="print one JSON object (the devices found) on the last line")
+                        help="print one JSON object (the devices found) on stdout, the listing as text on stderr")
 
 
 def _plain(value: object) -> object:
@@ -52,18 +53,21 @@ def run(args: argparse.Namespace) -> int:
         {key: _plain(d.get(key)) for key in _KEYS}
         for d in list_hid_displays(vendor_id, product_id)
     ]
+    out = sys.stderr if args.json else sys.stdout  # with --json, stdout is the JSON alone
     if not found:
         print(
             f"no softness display {vendor_id:04X}:{product_id:04X} is plugged in "
             "(hid.enumerate found none: check the cable and, on Linux, read/write access "
-            "to /dev/hidraw*)"
+            "to /dev/hidraw*)",
+            file=out,
         )
     for d in found:
         print(
             f"{d['path']}  {d['vendor_id']:04X}:{d['product_id']:04X}  "
             f"serial {d['serial_number']!r}  "
             f"{d['manufacturer_string'] or '?'} / {d['product_string'] or '?'}  "
-            f"usage page 0x{d['usage_page'] or 0:04X}"
+            f"usage page 0x{d['usage_page'] or 0:04X}",
+            file=out,
         )
     if args.json:
         print(json.dumps({"vendor_id": vendor_id, "product_id": product_id, "count": len(found),

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from haptics.errors import ProtocolError
 from haptics.protocol import (
@@ -40,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         parser.add_argument(f"--{flag}", action="store_true", help=f"set the {flag} flag "
                             f"(bit {FLAG_BITS[flag]} of the flags byte)")
     parser.add_argument("--json", action="store_true",
-                        help="print one JSON object (the report's hex and fields) on the last line")
+                        help="print one JSON object (the report's hex and fields) on stdout, the spaced hex on stderr")
 
 
 #: Each integer option and its largest value (the report's field widths).
@@ -58,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         **{flag: getattr(args, flag) for flag in FLAG_BITS},
     )
     report = encode_output_report(command, sequence=args.sequence, version=args.protocol_version)
-    print(report.hex(" "))
+    print(report.hex(" "), file=sys.stderr if args.json else sys.stdout)  # with --json, stdout is the JSON alone
     if args.json:
         print(json.dumps({"report_hex": report.hex(), "length": len(report), "level": command.level,
                           "uncertainty": command.uncertainty, "flags": command.flags,

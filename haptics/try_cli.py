@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import json
 import math
+import sys
 
 from haptics.devices import BACKENDS, make_display
 from haptics.errors import HapticsError
@@ -38,7 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timeout-s", type=float, default=0.2,
                         help="how long to wait for the display's status report, in seconds")
     parser.add_argument("--json", action="store_true",
-                        help="print one JSON object (mapping, report, status) on the last line")
+                        help="print one JSON object (mapping, report, status) on stdout, the text on stderr; "
+                             "E_pa is null for insufficient_data, display_fraction is the fraction of the "
+                             "display's range rendered (0 free, 1 rigid)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -65,23 +68,26 @@ def run(args: argparse.Namespace) -> int:
         where = str(display)
     flags = [name for name in ("rigid", "unknown", "provisional") if getattr(command, name)]
     steps = just_noticeable_steps(settings.e_soft_pa, settings.e_rigid_pa)
+    out = sys.stderr if args.json else sys.stdout  # with --json, stdout is the JSON alone
     print(f"E {args.e_pa} Pa ({args.state}) -> {percept.stiffness:.3f} of the range "
           f"{settings.e_soft_pa:.3g}..{settings.e_rigid_pa:.3g} Pa ({steps:.0f} just-noticeable steps), "
           f"level {command.level}/{display.info.level_max}, uncertainty "
-          f"{percept.uncertainty_decades:.2f} decades, flags: {', '.join(flags) or 'none'}")
+          f"{percept.uncertainty_decades:.2f} decades, flags: {', '.join(flags) or 'none'}", file=out)
     if percept.unknown and args.state != "insufficient_data":
-        print("unknown: the interval spans the display's whole range, so it places the object nowhere")
-    print(f"wrote to {where}: {report.hex(' ')}")
+        print("unknown: the interval spans the display's whole range, so it places the object nowhere", file=out)
+    print(f"wrote to {where}: {report.hex(' ')}", file=out)
     if status is None:
-        print(f"no status report within {args.timeout_s} s")
+        print(f"no status report within {args.timeout_s} s", file=out)
     else:
         print(f"display status: {status.state}, level {status.level}, faults "
-              f"{', '.join(sorted(status.faults)) or 'none'}, sequence echo {status.sequence}")
+              f"{', '.join(sorted(status.faults)) or 'none'}, sequence echo {status.sequence}", file=out)
     if args.json:
         print(json.dumps({
-            "backend": settings.backend, "display": where, "e_pa": args.e_pa, "state": args.state,
+            "backend": settings.backend, "display": where, "state": args.state,
+            # As estimate and the renderer say it; a refusal carries no modulus.
+            "E_pa": None if args.state == "insufficient_data" else args.e_pa,
             "e_soft_pa": settings.e_soft_pa, "e_rigid_pa": settings.e_rigid_pa, "just_noticeable_steps": steps,
-            "stiffness": percept.stiffness, "uncertainty_decades": percept.uncertainty_decades,
+            "display_fraction": percept.stiffness, "uncertainty_decades": percept.uncertainty_decades,
             "level": command.level, "level_max": display.info.level_max,
             "command": dataclasses.asdict(command), "report_hex": report.hex(),
             "status": None if status is None else {**dataclasses.asdict(status),

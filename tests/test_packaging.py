@@ -155,8 +155,8 @@ def test_installed_wheel_runs_the_demo_outside_the_checkout(installed):
     run = _demo(bin_dir, env, elsewhere, elsewhere / "run")
     said = run.stdout + run.stderr
     assert run.returncode == 0, said
-    last = json.loads(run.stdout.strip().splitlines()[-1])
+    last = json.loads(run.stdout)  # with --json, all of stdout
     assert last["scene"] == "quick" and len(last["grasps"]) == 3
     assert Path(last["session_log"]).is_file()
     assert Path(last["session_log"]).is_relative_to(elsewhere)
-    assert "session log:" in run.stdout and "steel_ball_bearing" in run.stdout  # the closing table
+    assert "session log:" in run.stderr and "steel_ball_bearing" in run.stderr  # the closing table

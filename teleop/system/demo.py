@@ -12,9 +12,9 @@ the file is missing) one is fitted at start on simulated ball presses of that se
 
 Results per grasp: the true E (catalogue), the final estimate, its state and interval, what the
 display rendered for it (renderer report: the fraction of the display's range, 1 = rigid, i.e. at
-or beyond the sensor's resolution limit), the error in decades (of the estimate; the table shows the
-rendering's), the time from contact to the first estimate that is not a refusal (estimator report),
-and the latency from the last loading frame's capture to the display report that showed the final
+or beyond the sensor's resolution limit, or unknown: the display goes free), the signed offset in
+decades (of the estimate; the table shows the rendering's), the time from contact to the first
+estimate that is not a refusal (estimator report), and the latency from the last loading frame's capture to the display report that showed the final
 estimate (renderer report). All on this host's monotonic clock; and the learned model that made the
 final estimate (``model``: its :func:`~estimator.inference.infer.model_id`, none for an analytical
 estimate). The live lines and the closing table are in :mod:`teleop.system.demo_table`.
@@ -173,7 +173,8 @@ def add_run_arguments(parser: argparse.ArgumentParser, *, default_scene: str) ->
     parser.add_argument("--out", metavar="DIR", default=None,
                         help="run directory for the processes' logs and reports and the session log "
                              "(default: runs/<command>-<UTC time>)")
-    parser.add_argument("--json", action="store_true", help="print one JSON object as the last stdout line")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object on stdout, alone: the text goes to stderr")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -225,8 +226,9 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     plan = scene_plan(args.scene)
     model = checked_model(args.model)
-    run_dir, calibration = prepare_run(args, prefix="demo", out=sys.stderr if args.json else sys.stdout)
-    view = LiveView(sys.stdout, len(plan), enabled=not args.no_view)
+    text = sys.stderr if args.json else sys.stdout  # under --json stdout is the JSON alone
+    run_dir, calibration = prepare_run(args, prefix="demo", out=text)
+    view = LiveView(text, len(plan), enabled=not args.no_view)
     system = LiveSystem(Path(args.settings), args.scene, run_dir, calibration, foxglove=args.foxglove, model=model)
     if args.foxglove is not None:
         host, port = args.foxglove
@@ -239,9 +241,9 @@ def run(args: argparse.Namespace) -> int:
             outcomes = list(operated_grasps(system, plan, view, load_settings(args.settings)))
         else:
             outcomes = list(run_grasps(system, plan, view, prefix=scene.name))
-    print(closing_table(outcomes))
+    print(closing_table(outcomes), file=text)
     partial = "" if system.recording_stopped is None else f" (partial: recording stopped: {system.recording_stopped})"
-    print(f"session log: {system.session_log}{partial}")
+    print(f"session log: {system.session_log}{partial}", file=text)
     if args.json:
         print(json.dumps({"scene": scene.name, "operator": args.operator, "grasps": [o.to_json() for o in outcomes],
                           "models": models_answered(outcomes),

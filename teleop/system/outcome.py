@@ -135,8 +135,11 @@ class GraspOutcome:
 
     @property
     def display_fraction(self) -> float | None:
-        """Fraction of the display's range rendered for the final estimate: 0 free, 1 rigid."""
-        return None if self.rendered is None else self.rendered.stiffness
+        """Fraction of the display's range rendered for the final estimate: 0 free, 1 rigid; None without
+        a rendering, or when the display showed the modulus as unknown (it goes free, placing the object
+        nowhere: not the softest)."""
+        rendered = self.rendered
+        return None if rendered is None or rendered.unknown else rendered.stiffness
 
     @property
     def display_e_pa(self) -> float | None:
@@ -148,7 +151,8 @@ class GraspOutcome:
         return modulus_from_fraction(fraction, e_soft_pa=soft, e_rigid_pa=rigid)
 
     @property
-    def log10_error(self) -> float | None:
+    def log10_offset(self) -> float | None:
+        """Decades from the label to the final estimate, signed (negative: estimated softer than it is)."""
         e = self.e_final_pa
         return None if e is None else math.log10(e / self.obj.modulus_pa)
 
@@ -158,7 +162,7 @@ class GraspOutcome:
         object rendered rigid is exact; negative: felt softer than it is); None without a rendering or a
         range, or when the display showed the modulus as unknown (a refusal, or an interval over its whole range)."""
         felt = self.display_e_pa
-        if felt is None or self.rendered.unknown:
+        if felt is None:
             return None
         return felt_log10_offset(felt, self.obj.modulus_pa, display_range_pa=self.display_range)
 
@@ -203,10 +207,16 @@ class GraspOutcome:
         return self.renderer_report.get("latency_ms")
 
     def to_json(self) -> dict[str, Any]:
+        """The grasp as ``teleop demo --json`` gives it. What the display rendered: ``display_unknown``
+        (no modulus shown: the display goes free, and ``display_fraction`` is null), ``display_rigid``
+        and ``display_fraction`` (0 free, 1 rigid); all null without a rendering."""
+        rendered = self.rendered
         return {"object": self.obj.name, "style": self.style, "operator_style": self.operator_style,
                 "E_true_pa": self.obj.modulus_pa, "E_final_pa": self.e_final_pa,
-                "log10_error": self.log10_error, "t_first_estimate_s": self.t_first_estimate_s,
+                "log10_offset": self.log10_offset, "t_first_estimate_s": self.t_first_estimate_s,
                 "latency_ms": self.latency_ms, "state": self.state, "interval_pa": self.interval_pa,
                 "display_fraction": self.display_fraction,
-                "felt_log10_error": self.felt_log10_error, "t_felt_within_2x_s": self.t_felt_within_2x_s,
-                "model": self.model}
+                "display_rigid": None if rendered is None else rendered.rigid,
+                "display_unknown": None if rendered is None else rendered.unknown,
+                "felt_log10_offset": self.felt_log10_offset, "felt_log10_error": self.felt_log10_error,
+                "t_felt_within_2x_s": self.t_felt_within_2x_s, "model": self.model}

@@ -26,8 +26,13 @@ class DemoRun:
 
     @property
     def result(self) -> dict:
-        """The ``--json`` line, the last one printed."""
-        return json.loads(self.out[-1])
+        """The ``--json`` object: all of stdout."""
+        return json.loads("\n".join(self.out))
+
+    @property
+    def text(self) -> list[str]:
+        """What it showed (the closing table and the session log's path): stderr under ``--json``."""
+        return self.err.splitlines()
 
 
 def _demo(folder: Path, *options: str) -> DemoRun:

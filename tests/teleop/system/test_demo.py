@@ -106,10 +106,11 @@ def test_outcomes_give_the_closing_table_and_json():
     lost = outcome("foam", 5e3, None, None, None)
     # Without a display range or a renderer report of it, what the display rendered is unknown here.
     assert good.to_json() == {"object": "duck", "style": "script", "operator_style": "", "E_true_pa": 1e6, "E_final_pa": 1e7,
-                              "log10_error": 1.0, "t_first_estimate_s": 0.1, "latency_ms": 150.0, "state": "ok",
-                              "interval_pa": [None, None], "display_fraction": None, "felt_log10_error": None,
+                              "log10_offset": 1.0, "t_first_estimate_s": 0.1, "latency_ms": 150.0, "state": "ok",
+                              "interval_pa": [None, None], "display_fraction": None, "display_rigid": None,
+                              "display_unknown": None, "felt_log10_offset": None, "felt_log10_error": None,
                               "t_felt_within_2x_s": None, "model": None}
-    assert bound.log10_error == pytest.approx(-2.0) and lost.log10_error is None and lost.state == "none"
+    assert bound.log10_offset == pytest.approx(-2.0) and lost.log10_offset is None and lost.state == "none"
     assert lost.to_json()["interval_pa"] is None and lost.to_json()["display_fraction"] is None
     table = closing_table([good, bound, lost]).splitlines()
     assert table[0].split()[:4] == ["object", "style", "E", "true"] and set(table[1]) <= {"-", " "}
@@ -197,7 +198,11 @@ def test_outcomes_show_what_the_display_rendered():
     assert duck_json["interval_pa"] == [5e5, 1.3e6]
     assert duck_json["display_fraction"] == pytest.approx(math.log(8e5 / soft) / math.log(limit / soft))
     assert duck.display_e_pa == pytest.approx(8e5) and not duck.rendered.rigid
-    assert lost_json["display_fraction"] == 0.0 and lost.rendered.unknown
+    assert lost.rendered.unknown and lost.rendered.stiffness == 0.0  # the display goes free...
+    # ...which the JSON does not pass off as rendered free, the softest: it says unknown.
+    assert (lost_json["display_fraction"], lost_json["display_unknown"], lost_json["display_rigid"]) == (None, True, False)
+    assert (steel_json["display_unknown"], steel_json["display_rigid"]) == (False, True)
+    assert (duck_json["display_unknown"], duck_json["display_rigid"]) == (False, False)
     # The renderer's report of what it rendered wins over mapping the final here.
     duck.renderer_report = {"latency_ms": 150.0, "display_fraction": 0.5, "rigid": False, "unknown": False}
     assert duck.to_json()["display_fraction"] == 0.5
@@ -215,6 +220,11 @@ def test_outcomes_show_what_the_display_rendered():
     # rendered rigid, is exact.
     assert duck.felt_log10_offset == pytest.approx(math.log10(math.sqrt(soft * limit) / 1e6))
     assert duck.felt_log10_offset < 0
+    # The JSON carries the signed offset the table shows beside its size.
+    duck_json, lost_json = duck.to_json(), lost.to_json()
+    assert duck_json["felt_log10_offset"] == duck.felt_log10_offset
+    assert duck_json["felt_log10_error"] == abs(duck.felt_log10_offset)
+    assert lost_json["felt_log10_offset"] is None and lost_json["felt_log10_error"] is None
     assert table[2].split()[7] == "+0.00" and table[3].split()[7] == f"{duck.felt_log10_offset:+.2f}"
     within = int(steel.felt_log10_error <= math.log10(2)) + int(duck.felt_log10_error <= math.log10(2))
     assert table[-2] == (f"felt (display against the label on its range): mean error "
@@ -391,7 +401,8 @@ def test_demo_runs_the_quick_scene_end_to_end(quick_demo_script, tmp_path):
 
     run = quick_demo_script
     assert run.code == 0, run.err
-    out, result = run.out, run.result
+    assert len(run.out) == 1  # stdout is the JSON alone
+    out, result = run.text, run.result
     served = model_id("estimator/models/default")
     assert {g["model"] for g in result["grasps"]} <= {served, None} and result["models"].get(served, 0) >= 1
     assert any(line.startswith(f"model: {served} (") for line in out)
@@ -399,17 +410,18 @@ def test_demo_runs_the_quick_scene_end_to_end(quick_demo_script, tmp_path):
     assert [g["object"] for g in result["grasps"]] == ["stress_ball", "rubber_duck", "steel_ball_bearing"]
     limit = load_settings().resolution_limit_pa
     for grasp in result["grasps"]:
-        assert set(grasp) == {"object", "style", "operator_style", "E_true_pa", "E_final_pa", "log10_error", "t_first_estimate_s",
-                              "latency_ms", "state", "interval_pa", "display_fraction", "felt_log10_error",
+        assert set(grasp) == {"object", "style", "operator_style", "E_true_pa", "E_final_pa", "log10_offset",
+                              "t_first_estimate_s", "latency_ms", "state", "interval_pa", "display_fraction",
+                              "display_rigid", "display_unknown", "felt_log10_offset", "felt_log10_error",
                               "t_felt_within_2x_s", "model"}
         assert grasp["state"] in ("ok", "lower_bound", "upper_bound", "insufficient_data")
         low, high = grasp["interval_pa"]
         assert low is None or high is None or low <= high
-        assert 0.0 <= grasp["display_fraction"] <= 1.0
+        assert grasp["display_unknown"] or 0.0 <= grasp["display_fraction"] <= 1.0
         if grasp["state"] == "lower_bound" and grasp["E_final_pa"] >= limit * (1 - 1e-9):
-            assert grasp["display_fraction"] == 1.0  # at the sensor's resolution limit: rigid
+            assert grasp["display_fraction"] == 1.0 and grasp["display_rigid"]  # at the resolution limit: rigid
         if grasp["state"] == "insufficient_data":
-            assert grasp["display_fraction"] == 0.0
+            assert grasp["display_unknown"] and grasp["display_fraction"] is None
         assert (grasp["E_final_pa"] is None) == (grasp["state"] == "insufficient_data")
         assert grasp["E_final_pa"] is None or grasp["E_final_pa"] > 0
         assert 0 < grasp["latency_ms"] < 2000 and 0 < grasp["t_first_estimate_s"] < 2
@@ -429,7 +441,7 @@ def test_demo_runs_the_quick_scene_end_to_end(quick_demo_script, tmp_path):
 def test_the_simulated_operator_grasps_the_quick_scene_leader_follower(quick_demo_sim):
     run = quick_demo_sim
     assert run.code == 0, "\n".join([run.err, *(f"--- {log.name}:\n{_log_tail(log)}" for log in sorted(run.folder.glob("*.log")))])
-    out, result = run.out, run.result
+    out, result = run.text, run.result
     assert result["operator"] == "sim"  # the default
     grasps = {g["object"]: g for g in result["grasps"]}
     assert list(grasps) == ["stress_ball", "rubber_duck", "steel_ball_bearing"]
