@@ -254,15 +254,17 @@ def bench(
 
 
 def plot(result: dict[str, Any], path: str | Path) -> None:
-    """Latency (log x) against error per configuration, the Pareto frontier joined."""
+    """Latency (log x, plain milliseconds) against error per configuration, the Pareto frontier
+    joined; the legend outside the axes, every point's label inside them."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     # Frontier points last, so a dominated configuration drawn at the same place does not hide one.
     points = sorted((c for c in result["configs"] if c["felt_log10_error"] is not None), key=lambda c: c["pareto"])
-    fig, ax = plt.subplots(figsize=(9, 5.5))
+    fig, ax = plt.subplots(figsize=(11, 5.5))
     frontier = sorted((c for c in points if c["pareto"]), key=lambda c: c["latency_ms_p50"])
     if len(frontier) > 1:
         ax.step([c["latency_ms_p50"] for c in frontier], [c["felt_log10_error"] for c in frontier], where="post",
@@ -274,18 +276,53 @@ def plot(result: dict[str, Any], path: str | Path) -> None:
                                   fontsize=7, xytext=(5, 2), textcoords="offset points", va="center"))
     ax.scatter([], [], color="C3", label="on the frontier (latency, error, refusals)")
     ax.scatter([], [], color="C0", label="dominated")
-    ax.legend(loc="lower left")
+    # Outside the axes: inside, wherever it went, it could cover the best (lowest) configurations.
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8)
+    where = result.get("dir")
     ax.set(xscale="log", xlabel="latency per grasp, median (ms, one core, from decoded frames)",
            ylabel="felt error: mean |log10 E_felt - log10 E| on the display (decades)",
-           title=f"{result['labelled']} labelled grasps")
+           title=f"Estimator configurations: latency against felt error, {result['labelled']} labelled grasps"
+                 + (f"\nrecords: {where}" if where else ""))
+    # Plain milliseconds (1, 2, 5, 10, 20, 50...), not only the powers of ten the data may not reach.
+    ax.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: "" if v < -1e-9 else f"{v:g}"))  # no negative error
     if points:
         latencies = [c["latency_ms_p50"] for c in points]
-        ax.set_xlim(min(latencies) / 1.5, max(latencies) * 6)  # room for the labels on the right
+        ax.set_xlim(min(latencies) / 1.5, max(latencies) * 1.5)
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    _separate_labels(fig, labels)
+    _place_labels(fig, ax, labels)
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _place_labels(fig: Any, ax: Any, labels: list[Any]) -> None:
+    """Keep the point labels inside the axes: a label that would cross the right spine goes on its
+    point's left; the labels are separated (:func:`_separate_labels`) and the y limits widened until
+    none crosses the bottom or top spine."""
+    if not labels:
+        return
+    renderer = fig.canvas.get_renderer()
+    box = ax.get_window_extent(renderer)
+    for label in labels:
+        if label.get_window_extent(renderer).x1 > box.x1:
+            label.xyann = (-5, 2)
+            label.set_horizontalalignment("right")
+    start = [label.xyann for label in labels]
+    for _ in range(8):
+        for label, xy in zip(labels, start, strict=True):
+            label.xyann = xy
+        _separate_labels(fig, labels)
+        boxes = [label.get_window_extent(renderer) for label in labels]
+        below = box.y0 + 2 - min(b.y0 for b in boxes)
+        above = max(b.y1 for b in boxes) - (box.y1 - 2)
+        if below <= 0 and above <= 0:
+            return
+        y0, y1 = ax.get_ylim()
+        per_px = (y1 - y0) / box.height
+        ax.set_ylim(y0 - max(below, 0.0) * 1.2 * per_px, y1 + max(above, 0.0) * 1.2 * per_px)
 
 
 def _separate_labels(fig: Any, labels: list[Any]) -> None:

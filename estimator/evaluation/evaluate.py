@@ -35,6 +35,7 @@ importers.
 from __future__ import annotations
 
 import math
+import os
 from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -333,9 +334,9 @@ def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], path: str | Pat
                 xs, ys = zip(*pts, strict=True)
                 ax.scatter(xs, ys, s=14, marker=marker, color=color, alpha=0.7)
         m = summary[method]
-        figures = (f"err {m['log10_error']:.2f}, {m['within_10x']:.0%} in 10x" if m["n"] else "no estimate")
+        figures = (f"err {m['log10_error']:.2f} decades, {m['within_10x']:.0%} in 10x" if m["n"] else "no estimate")
         if m["n"] and m.get("felt_log10_error") is not None:
-            figures += f"; felt {m['felt_log10_error']:.2f}, {m['felt_within_2x']:.0%} in 2x"
+            figures += f"\nfelt err {m['felt_log10_error']:.2f} decades, {m['felt_within_2x']:.0%} in 2x"
         ax.set_title(f"{method}\n{figures} (n={m['n']})", fontsize=8)
         ax.set(xscale="log", yscale="log", xlim=line, ylim=line)
         ax.tick_params(labelsize=7)
@@ -346,7 +347,19 @@ def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], path: str | Pat
     for ax in axes[:, 0]:
         ax.set_ylabel("estimated E (Pa)", fontsize=8)
     axes.flat[0].legend(handles=legend, loc="upper left", fontsize=6)
-    fig.suptitle("Young's modulus: estimate vs label (triangles: bounds; band: one decade)", fontsize=9)
+    where = _records_dir([r["path"] for r in rows if r.get("path")])
+    fig.suptitle("Young's modulus: estimate vs label (triangles: bounds; band: one decade)"
+                 + (f"\nrecords: {where}" if where else ""), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120, format=image_format)  # the format: a staged path's name does not say it
     plt.close(fig)
+
+
+def _records_dir(paths: Sequence[str]) -> str | None:
+    """The directory the scored records lie in (the deepest one holding them all), None without one."""
+    if not paths:
+        return None
+    try:
+        return os.path.commonpath([os.path.dirname(os.path.abspath(p)) for p in paths])
+    except ValueError:  # paths on different drives
+        return None

@@ -156,13 +156,18 @@ def _plot(fitted: Fitted, path: Path) -> None:
     fig, (ax_loss, ax_err) = plt.subplots(1, 2, figsize=(10, 4))
     ax_loss.plot(epochs, [h["train_loss"] for h in history], label="train")
     ax_loss.plot(epochs, [h["val_loss"] for h in history], label="val")
-    ax_loss.set(xlabel="epoch", ylabel="CRPS + log score (decades)", yscale="log", title="loss")
+    variant = getattr(getattr(fitted.model, "variant", None), "name", None) or "model"
+    # Linear: the loss moves by less than a decade. Its two terms have different units: the CRPS
+    # in decades of E, the log score of the label's bin in nats (distribution_loss).
+    ax_loss.set(xlabel="epoch", ylabel=f"CRPS (decades) + {NLL_WEIGHT:g} x log score (nats)",
+                title=f"{variant}: training loss")
     ax_err.plot(epochs, [h["train_log10_error"] for h in history], label="train")
     ax_err.plot(epochs, [h["val_log10_error"] for h in history], label="val")
     for ax in (ax_loss, ax_err):
         ax.axvline(fitted.best_epoch, color="0.5", ls="--", lw=1, label="kept")
         ax.legend()
-    ax_err.set(xlabel="epoch", ylabel="mean |median - log10 E|", title="error (decades, E censored at 100 MPa)")
+    ax_err.set(xlabel="epoch", ylabel="mean |median - log10 E| (decades)",
+               title=f"{variant}: error (E censored at 100 MPa)")
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")  # the staged name does not end in .png
     plt.close(fig)

@@ -249,7 +249,10 @@ def plot(summary: dict[str, Any], path: str | Path) -> None:
     for i in np.flatnonzero(total > top):
         ax.annotate(f"{total[i]:.0f}", (x[i], top), ha="center", va="top", fontsize=8)
     ax.set_ylim(0, top)
-    ax.set_xticks(x, [r["object"] for r in rows], rotation=70, ha="right", fontsize=7)
+    # The grasp id as the text output prints it, so a repeated object is told apart and matched.
+    ax.set_xticks(x, [f"{r['grasp_id']} {r['object']}" for r in rows], rotation=70, ha="right",
+                  rotation_mode="anchor", fontsize=7)
+    ax.set_xlabel("grasp (id and object, in run order)")
     ax.set_ylabel("last loading frame -> HID report (ms)")
     ax.set_title(f"{len(rows)} grasps: p50 {summary['p50_ms']:.1f} ms, p99 {summary['p99_ms']:.1f} ms")
     ax.legend(fontsize=7, loc="upper left")

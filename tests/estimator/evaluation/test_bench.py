@@ -177,3 +177,76 @@ def test_the_hybrid_benchmark_script_runs_its_stages_on_the_depth_grid(sim_grasp
     stages = out.strip().splitlines()[-1]
     assert stages.startswith("hybrid stages over ") and "depth " in stages and "network " in stages
     assert not stages.startswith("hybrid stages over 0 ")
+
+
+def _drawn_bench_figure(monkeypatch, tmp_path, result):
+    """The figure :func:`estimator.evaluation.bench.plot` draws, kept open to be read."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from estimator.evaluation.bench import plot
+
+    monkeypatch.setattr(plt, "close", lambda *args, **kwargs: None)
+    plot(result, tmp_path / "bench.png")
+    return plt.gcf()
+
+
+BENCH_RESULT = {
+    "dir": "/data/bench_records", "labelled": 3,
+    "configs": [
+        {"name": name, "latency_ms_p50": ms, "felt_log10_error": err, "refusals": refused, "pareto": pareto}
+        for name, ms, err, refused, pareto in [
+            ("no_tactile", 2.9, 0.72, 0, True), ("series@3f", 3.4, 0.44, 0, False),
+            ("series", 17.0, 0.42, 0, False), ("hertz", 20.0, 1.33, 1, False),
+            ("hybrid[depth+fw+analytical 3f 64x88]", 3.2, 0.10, 0, True),
+            ("auto[depth+fw+analytical 3f 64x88]", 3.1, 0.10, 0, True),
+            ("auto[depth+fw+analytical 3f 16x22]", 3.3, 0.11, 0, False),
+        ]
+    ],
+}
+
+
+def test_bench_plot_keeps_points_and_labels_clear_of_the_legend(monkeypatch, tmp_path):
+    import matplotlib.pyplot as plt
+
+    fig = _drawn_bench_figure(monkeypatch, tmp_path, BENCH_RESULT)
+    ax = fig.axes[0]
+    renderer = fig.canvas.get_renderer()
+    legend = ax.get_legend().get_window_extent(renderer)
+    points = ax.transData.transform([(c["latency_ms_p50"], c["felt_log10_error"]) for c in BENCH_RESULT["configs"]])
+    assert not any(legend.contains(x, y) for x, y in points)
+    for label in ax.texts:
+        assert not label.get_window_extent(renderer).overlaps(legend), label.get_text()
+    plt.close(fig)
+
+
+def test_bench_plot_keeps_every_point_label_inside_the_axes(monkeypatch, tmp_path):
+    import matplotlib.pyplot as plt
+
+    fig = _drawn_bench_figure(monkeypatch, tmp_path, BENCH_RESULT)
+    ax = fig.axes[0]
+    renderer = fig.canvas.get_renderer()
+    frame = ax.get_window_extent(renderer)
+    labels = [t for t in ax.texts if "refused" in t.get_text()]
+    assert len(labels) == len(BENCH_RESULT["configs"])
+    for label in labels:
+        box = label.get_window_extent(renderer)
+        assert frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1, (
+            label.get_text(), box, frame)
+    plt.close(fig)
+
+
+def test_bench_plot_labels_plain_milliseconds_with_a_modest_margin_and_names_the_records(monkeypatch, tmp_path):
+    import matplotlib.pyplot as plt
+
+    fig = _drawn_bench_figure(monkeypatch, tmp_path, BENCH_RESULT)
+    ax = fig.axes[0]
+    fig.canvas.draw()
+    lo, hi = ax.get_xlim()
+    shown = {t.get_text() for t in ax.get_xticklabels() if lo <= t.get_position()[0] <= hi and t.get_text()}
+    assert {"5", "10", "20"} <= shown, shown  # 2.9-20 ms: more than the powers of ten
+    assert hi <= 20.0 * 2.0  # no wasted right part
+    assert "/data/bench_records" in ax.get_title() and "latency" in ax.get_title()
+    plt.close(fig)

@@ -221,3 +221,22 @@ def test_plot_draws_one_panel_per_method(tmp_path):
          ["series", "hertz", "no_tactile", "auto"], four)
     small, big = matplotlib.image.imread(one), matplotlib.image.imread(four)
     assert big.shape[0] > small.shape[0] * 1.5 and big.shape[1] > small.shape[1] * 2.5  # a 2 x 3 grid
+
+
+def test_plot_gives_the_panel_errors_in_decades_and_names_the_records_directory(tmp_path, monkeypatch):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    monkeypatch.setattr(plt, "close", lambda *args, **kwargs: None)
+    rows = [{**r, "path": f"/data/eval_records/g{i:03d}.grasp"} for i, r in enumerate(ROWS)]
+    plot(rows, ["series", "hertz"], tmp_path / "eval.png", display_range_pa=(5e3, 6.75e6))
+    fig = plt.gcf()
+    titles = [ax.get_title() for ax in fig.axes if ax.get_visible()]
+    for title in titles:
+        assert "err " in title and "decades" in title, title
+    series = next(t for t in titles if t.startswith("series"))
+    assert "felt err" in series and series.count("decades") == 2, series
+    assert "/data/eval_records" in fig._suptitle.get_text()
+    plt.close(fig)

@@ -112,3 +112,26 @@ def test_a_variant_naming_a_part_twice_is_refused():
     with pytest.raises(ModelError, match=r"'rgb\+fw\+analytical\+fw': \+fw given more than once"):
         Variant.parse("rgb+fw+analytical+fw")
     assert Variant.parse("depth+analytical+fw") == Variant.parse("depth+fw+analytical")
+
+
+def test_training_curve_has_a_linear_loss_axis_an_honest_loss_unit_and_names_the_variant(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from estimator.training.train import Fitted, _plot
+
+    history = [{"epoch": e, "train_loss": 0.7 - 0.05 * e, "val_loss": 0.72 - 0.04 * e,
+                "train_log10_error": 0.5 - 0.03 * e, "val_log10_error": 0.55 - 0.02 * e} for e in range(1, 9)]
+    model = SimpleNamespace(variant=SimpleNamespace(name="depth+fw 3f 64x88"))
+    monkeypatch.setattr(plt, "close", lambda *args, **kwargs: None)
+    _plot(Fitted(model=model, history=history, best_epoch=6, best_val_loss=0.48), tmp_path / "curve.png")
+    ax_loss, ax_err = plt.gcf().axes
+    assert ax_loss.get_yscale() == "linear"  # 0.3-0.7: less than a decade
+    assert "(decades)" not in ax_loss.get_ylabel().replace("CRPS (decades)", "")  # the sum is not in decades
+    assert "nats" in ax_loss.get_ylabel()
+    assert all("depth+fw 3f 64x88" in ax.get_title() for ax in (ax_loss, ax_err))
+    plt.close(plt.gcf())
