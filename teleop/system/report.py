@@ -317,7 +317,8 @@ def build_report(
             for view in messages.values():  # estimates or renderings of grasps the log never started
                 view.reason = "the log has no grasp_event start for this grasp id"
                 views.append(view)
-            figures["predictions.png"] = predictions_figure(views, folder / "predictions.png")
+            figures["predictions.png"] = predictions_figure(views, folder / "predictions.png", session=log.name,
+                                                            display_range_pa=display_range_pa(settings))
             session = info.session
             lines = [f"log {log.resolve()}",
                      f"scene {session.get('scene') or '-'}, {session.get('source', 'unknown source')}, "
