@@ -12,28 +12,24 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import pytest
+from support.extras import TRAIN_MODULES
 
 REPO = Path(__file__).resolve().parent.parent
 SHARED = REPO.parent / "shared"
 
 
 # What needs an extra that `make check` does not install is marked with it (check leaves those tests out):
-# the tests using these fixtures, and these modules, which import the train extra (torch) at their top and
+# the tests using these fixtures, and the modules that import the train extra (torch) at their top, which
 # are not collected without it.
 _EXTRA_FIXTURES = {"trained_model": "train", "cnn_model": "train", "franky_sim_robot": "robot_sim"}
-_TRAIN_MODULES = frozenset({
-    "estimator/inference/test_export_infer.py", "estimator/inference/test_hybrid.py",
-    "estimator/training/test_finetune.py", "estimator/training/test_model.py",
-    "estimator/training/test_model_out.py", "estimator/training/test_pool.py", "estimator/training/test_train.py",
-})
-collect_ignore = [] if importlib.util.find_spec("torch") else sorted(_TRAIN_MODULES)
+collect_ignore = [] if importlib.util.find_spec("torch") else sorted(TRAIN_MODULES)
 
 
 def pytest_collection_modifyitems(items) -> None:
     tests = Path(__file__).parent
     for item in items:
         markers = {_EXTRA_FIXTURES[name] for name in _EXTRA_FIXTURES.keys() & set(getattr(item, "fixturenames", ()))}
-        if item.path.relative_to(tests).as_posix() in _TRAIN_MODULES:
+        if item.path.relative_to(tests).as_posix() in TRAIN_MODULES:
             markers.add("train")
         for marker in markers:
             item.add_marker(marker)

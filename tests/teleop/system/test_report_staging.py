@@ -26,7 +26,7 @@ def test_an_interrupted_report_leaves_the_earlier_page_and_figures(tmp_path, mon
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     (out / "notes.txt").write_text("mine")
 
-    def interrupted(views, path):
+    def interrupted(views, path, **options):
         Path(path).write_bytes(b"half a figure")
         raise KeyboardInterrupt
 
