@@ -30,6 +30,9 @@ from teleop.settings import (
 )
 from teleop.sim.grasp import simulate_grasp
 
+# One worker builds the module's lab (calibration, records) once: its tests need not wait for it twice.
+pytestmark = pytest.mark.xdist_group("foreign_sensor_lab")
+
 PITCH_M = 2.95e-5  # taxim's GelSight Mini: 0.0295 mm per raw px
 # The lab's fingers, softer than the shipped settings' (what --settings tells evaluate).
 FINGERS_N_PER_M = 8.0e4

@@ -560,6 +560,7 @@ def test_estimate_command_errors_are_one_line(grasp_dir, capsys):
     assert "no such grasp record" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_evaluate_command_summarises_every_method(grasp_dir, capsys, tmp_path):
     root, cal = grasp_dir
     png = tmp_path / "pred.png"

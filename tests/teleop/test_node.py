@@ -49,6 +49,7 @@ def drain(listener: Subscriber) -> list:
     return got
 
 
+@pytest.mark.slow
 def test_commanded_grasp_goes_out_as_the_devices_capture_it(rig):
     node, operator, listener, scene = rig
     operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id="g-steel",
@@ -121,6 +122,7 @@ def test_commands_that_cannot_be_carried_out_are_logged(rig, caplog):
     run_until_idle(node, grasps=1)
 
 
+@pytest.mark.slow
 def test_a_simulated_replay_refuses_stop_and_release_on_the_bus_and_keeps_its_loading_end(rig):
     node, operator, listener, scene = rig
     operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id="g-duck",
@@ -147,6 +149,7 @@ def test_a_simulated_replay_refuses_stop_and_release_on_the_bus_and_keeps_its_lo
     assert -0.02 <= late_s < 0.45  # late by scheduling only (a loaded machine's), still before the 0.5 s hold ends
 
 
+@pytest.mark.slow
 def test_a_refusal_naming_another_grasp_goes_out_even_with_the_same_reason(rig):
     # The operator's console clears its pending grasp only on a refusal naming that grasp: the
     # refusal of gC must not be taken for a repeat of gB's (same reason, "'g-a' is still in progress").

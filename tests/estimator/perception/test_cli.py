@@ -48,6 +48,7 @@ def test_a_smoothing_calibration_says_which_models_refuse_it(tmp_path, taxim_pac
     assert "smooths the colours" not in err
 
 
+@pytest.mark.slow
 def test_folder_of_images_calibrates_on_detected_circles(tmp_path, gelsight_presses, capsys):
     folder = tmp_path / "presses"
     folder.mkdir()

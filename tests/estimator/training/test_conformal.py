@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from estimator.inference.distribution import EDGES_LOG10
 from estimator.training.conformal import (
@@ -49,6 +50,7 @@ def test_the_conformal_step_picks_the_rigid_threshold_and_a_scale_that_hold_on_t
     assert cal["coverage"] >= 0.9
 
 
+@pytest.mark.slow
 def test_each_force_band_gets_the_interval_scale_that_holds_there():
     rng = np.random.default_rng(2)
     n = 600

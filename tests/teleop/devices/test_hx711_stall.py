@@ -98,6 +98,7 @@ def test_a_cell_without_valid_readings_is_down_saying_why_until_one_comes(bridge
                 continue
 
 
+@pytest.mark.slow
 def test_a_saturated_cell_is_said_once_on_the_bus_and_that_it_reads_again(bridge, monkeypatch):
     monkeypatch.setattr(node_devices, "REOPEN_S", 0.2)
     feeder, port = bridge

@@ -206,6 +206,7 @@ def test_a_grasp_with_drawn_mechanics_keeps_its_rig_and_pose_and_refuses_the_hal
 
 @pytest.mark.parametrize("extra", [[], ["--operator", "sim", "--randomize-rig", "--vary-gel"]],
                          ids=["scripted", "operator on a drawn rig"])
+@pytest.mark.slow
 def test_a_varied_record_is_valid_and_its_provenance_holds_the_drawn_mechanics(tmp_path, catalogue, extra, simulate_cli):
     (obj,) = load_catalogue(catalogue)
     path = simulate_cli(tmp_path / "varied", "--vary-contact", *extra, seed=SEED)

@@ -150,6 +150,7 @@ def test_a_serial_cell_sending_garbage_is_not_told_to_check_its_cable(tmp_path, 
     assert "`load_cell.baud`" in line and "cable" not in line
 
 
+@pytest.mark.slow
 def test_a_serial_cell_without_pyserial_is_a_no_row_naming_the_extra(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "serial", None)  # `import serial` raises ImportError, as when not installed
     path = _copy(tmp_path, {"load_cell.backend": "serial", "load_cell.port": "/dev/ttyUSB9"})

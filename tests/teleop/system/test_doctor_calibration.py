@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import shutil
 
+import pytest
+
 from teleop.cli import main
 from teleop.settings import config_dir, default_settings_path, load_settings
 from teleop.settings_edit import update_settings_file
@@ -40,6 +42,7 @@ def test_swapped_calibrations_are_named_and_the_estimators_finger_is_not_ready(t
     assert rows["calibration right"].split()[2] == "warn" and "'sim-wedge-left'" in rows["calibration right"]
 
 
+@pytest.mark.slow
 def test_another_sensors_calibration_is_a_warning_in_the_table_and_the_json(tmp_path, capsys):
     # Made for a sensor not in these settings (its twin, say): the estimator runs on it, warning.
     path = _rig(tmp_path, {"sensors.left.calibration": _file("right"),

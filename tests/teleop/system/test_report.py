@@ -238,6 +238,7 @@ def test_the_command_refuses_a_missing_or_corrupt_log_in_one_line(tmp_path, caps
     assert exit_.value.code == 0 and "--screenshot" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_a_screenshot_without_chromium_is_a_clear_error(report, tmp_path, monkeypatch):
     monkeypatch.setenv("PATH", str(tmp_path))  # no browser on it
     with pytest.raises(ReportError, match="no Chromium found.*apt-get install -y chromium"):
