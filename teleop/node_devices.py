@@ -90,7 +90,7 @@ class NodeDevices:
             widths = gripper.widths(timeout_s=READ_TIMEOUT_S)
             return ("width", widths) if len(widths) else None
 
-        self._read_forever(gripper, "gripper", read, reopen=lambda: gripper.link_error is not None)
+        self._read_forever(gripper, "gripper", read, reopen=lambda: gripper.link_error is not None or not gripper.connected)
 
     def _read_forever(self, device: Any, name: str, read: Callable[[], tuple[str, Any] | None], *,
                       reopen: bool | Callable[[], bool]) -> None:

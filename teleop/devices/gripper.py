@@ -8,8 +8,9 @@ estimator's lag model (:mod:`teleop.sim.sensors`, :mod:`estimator.lag`), whateve
 call the value comes from. :meth:`Gripper.widths` hands out everything read since the last
 call. The gripper measures no force.
 
-A width read that fails leaves the gripper *down* (:attr:`Gripper.link_error` says why) until
-one succeeds: meanwhile :meth:`Gripper.widths` raises that failure, and every command is refused
+Width reads failing for :data:`LINK_DOWN_S` in a row (one dropped read is not enough) leave the
+gripper *down* (:attr:`Gripper.link_error` says why) until one succeeds: meanwhile
+:meth:`Gripper.widths` raises that failure, and every command but :meth:`Gripper.stop` is refused
 with it at once rather than blocking on a dead link. The hand's widest opening is read once per
 connection, at :meth:`~teleop.devices.base.Device.connect`.
 
@@ -31,15 +32,18 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 from teleop.devices.base import Device, SampleQueue, check_timeout, load_backend
-from teleop.errors import DeviceError, InvalidCommandError
+from teleop.errors import DeviceError, DeviceNotConnectedError, InvalidCommandError
 from teleop.record import Samples
 from teleop.settings import GripperSettings
 
-__all__ = ["BACKENDS", "FOLLOW_SPEED_M_S", "FRANKY_FIX", "MAX_FORCE_N", "MAX_SPEED_M_S", "GraspStop", "Gripper", "make_gripper"]
+__all__ = ["BACKENDS", "FOLLOW_SPEED_M_S", "FRANKY_FIX", "LINK_DOWN_S", "MAX_FORCE_N", "MAX_SPEED_M_S", "GraspStop", "Gripper",
+           "make_gripper"]
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +54,7 @@ BACKENDS = {
 MAX_SPEED_M_S = 0.2
 MAX_FORCE_N = 140.0  # the Franka hand's peak grasp force
 FOLLOW_SPEED_M_S = 0.1  # default finger speed while following an operator: faster than a grasp closes
+LINK_DOWN_S = 0.5  # width reads failing this long in a row and the gripper is down (module docstring)
 FRANKY_FIX = "check the robot is on with FCI enabled and `gripper.host`"  # what to do when it does not connect
 
 
@@ -167,7 +172,7 @@ class Gripper(Device):
     @property
     def is_grasped(self) -> bool:
         """Whether the last grasp holds an object within its tolerance."""
-        self._require_connected()
+        self._require_up()
         return bool(self._is_grasped())
 
     def move(self, width_m: float, *, speed_m_s: float | None = None) -> bool:
@@ -175,7 +180,7 @@ class Gripper(Device):
 
         Returns True when the width was reached, False when stopped or failed.
         """
-        self._require_connected()
+        self._require_up()
         return bool(self._move(*self._motion_args(width_m, speed_m_s)))
 
     def grasp(
@@ -192,14 +197,14 @@ class Gripper(Device):
         Returns True when the fingers stopped within ``[width_m - epsilon_inner_m,
         width_m + epsilon_outer_m]``. Speed and force default to the settings.
         """
-        self._require_connected()
+        self._require_up()
         return self._grasp_until_stop(self._grasp_args(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m))
 
     def move_async(self, width_m: float, *, speed_m_s: float | None = None) -> Future[bool]:
         """:meth:`move` in the command thread; bad arguments are refused here, at once."""
-        self._require_connected()
+        self._require_up()
         args = self._motion_args(width_m, speed_m_s)
-        return self._executor.submit(lambda: bool(self._move(*args)))
+        return self._submit(lambda: bool(self._move(*args)))
 
     def grasp_async(
         self,
@@ -211,9 +216,9 @@ class Gripper(Device):
         epsilon_outer_m: float = 0.005,
     ) -> Future[bool]:
         """:meth:`grasp` in the command thread; bad arguments are refused here, at once."""
-        self._require_connected()
+        self._require_up()
         args = self._grasp_args(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m)
-        return self._executor.submit(self._grasp_until_stop, args)
+        return self._submit(self._grasp_until_stop, args)
 
     def follow(self, width_m: float, *, speed_m_s: float | None = None) -> None:
         """Set the fingers' target width ``width_m`` (m) and return at once.
@@ -222,7 +227,7 @@ class Gripper(Device):
         :data:`FOLLOW_SPEED_M_S`) and hold it, until :meth:`stop` or another command. A running
         move or grasp is superseded. Arguments are checked as :meth:`move` checks them.
         """
-        self._require_connected()
+        self._require_up()
         self._follow(*self._motion_args(width_m, FOLLOW_SPEED_M_S if speed_m_s is None else speed_m_s))
 
     def stop(self) -> bool:
@@ -232,7 +237,7 @@ class Gripper(Device):
 
     def read_width(self) -> tuple[float, float]:
         """One width read now: ``(t_s, width_m)``, stamped when the read returns (slow on franky)."""
-        self._require_connected()
+        self._require_up()
         return self._timed_read()
 
     def widths(self, *, timeout_s: float = 0.0) -> Samples:
@@ -242,13 +247,19 @@ class Gripper(Device):
         DeviceNotConnectedError if the gripper is closed meanwhile; DeviceError with the failure
         while it is down (:attr:`link_error`).
         """
-        self._require_connected()
+        self._require_up()
         samples = self._width_queue.take(check_timeout(timeout_s, poll=True))
         if not len(samples):
             self._require_connected()  # woken by close(), not by a sample
         return samples
 
     # ------------------------------------------------------------------ internals
+
+    def _submit(self, call: Callable[..., bool], *args: Any) -> Future[bool]:
+        try:
+            return self._executor.submit(call, *args)
+        except RuntimeError as exc:  # closed meanwhile (the node reopening a gripper that was down)
+            raise DeviceNotConnectedError(f"{self!r} was closed while the command was given") from exc
 
     def _motion_args(self, width_m: float, speed_m_s: float | None) -> tuple[float, float]:
         width = _finite("width_m", width_m, 0.0, self._max_width_m)
@@ -297,26 +308,36 @@ class Gripper(Device):
         unless the backend has its own timestamps."""
         return [self._timed_read()]
 
-    def _require_connected(self) -> None:
+    def _require_up(self) -> None:
+        """Refuse a command at once while the gripper is down (:attr:`link_error`); :meth:`stop` is
+        never refused for it: it may still reach the fingers. Down and closed (a failed reopen), it
+        says why it is down."""
         if self._link_error is not None:
             raise DeviceError(f"{self!r} is down until a width read succeeds: {self._link_error}")
-        super()._require_connected()
+        self._require_connected()
 
     def _read_widths_forever(self, stop: threading.Event) -> None:
         period = 1.0 / self.settings.width_read_hz
         next_s = time.monotonic()
+        failing_since: float | None = None  # when the first of the failed reads in a row began
         while not stop.is_set():
+            started = time.monotonic()
             try:
                 with self._width_lock:
-                    for t_s, width in self._poll_widths():
+                    readings = self._poll_widths()
+                    if stop.is_set():
+                        return  # closed during the read: its widths belong to no connection now
+                    for t_s, width in readings:
                         self._width_queue.put(t_s, width)
-                self._link_error = None
+                failing_since, self._link_error = None, None
             except DeviceError as exc:  # keep polling: the link may come back
                 if stop.is_set():
                     return  # closed during the read: not a failure
-                if self._link_error is None:
+                if failing_since is None:
                     log.warning("%r: width read failed: %s", self, exc)
-                self._link_error = str(exc)
+                    failing_since = started
+                if time.monotonic() - failing_since >= LINK_DOWN_S:  # not one dropped read: down
+                    self._link_error = str(exc)
             now = time.monotonic()
             next_s = max(next_s + period, now)  # after a slow read, resume the period from now
             stop.wait(next_s - now)

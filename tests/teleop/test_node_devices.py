@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 
 from teleop import node_devices
+from teleop.devices import gripper as gripper_module
 from teleop.devices.gripper import Gripper
 from teleop.devices.loadcell import make_load_cell
 from teleop.errors import DeviceError
@@ -34,6 +35,7 @@ class LinkGripper(Gripper):
         self.up.set()
         self.opens = 0
         self.max_width_reads = 0
+        self.stops = 0
 
     def _link(self) -> None:
         if not self.up.is_set():
@@ -55,6 +57,7 @@ class LinkGripper(Gripper):
         pass
 
     def _stop(self) -> bool:
+        self.stops += 1
         self._link()
         return True
 
@@ -145,8 +148,25 @@ def test_the_max_width_is_read_once_per_connection_and_a_down_gripper_refuses_at
     gripper.up.clear()
     _wait_for(captured, lambda item: item[0] == "device_error", 3.0)
     started = time.monotonic()
-    for action in (lambda: gripper.move_async(0.04), lambda: gripper.grasp_async(0.0), gripper.stop,
+    for action in (lambda: gripper.move_async(0.04), lambda: gripper.grasp_async(0.0),
                    lambda: gripper.follow(0.04)):
         with pytest.raises(DeviceError, match="Net Exception"):
             action()
-    assert time.monotonic() - started < 0.5  # no blocking call on the dead link in the caller's thread
+    assert time.monotonic() - started < 1.0  # no blocking call (1 s here) on the dead link in the caller's thread
+
+
+def test_a_dropped_read_leaves_the_gripper_up_and_a_stop_always_goes_to_the_fingers(monkeypatch):
+    monkeypatch.setattr(gripper_module, "LINK_DOWN_S", 1.0)
+    with LinkGripper(GripperSettings(width_read_hz=50.0)) as gripper:
+        gripper.up.clear()
+        time.sleep(0.1)  # a few failed reads at 50 Hz: not down yet
+        assert gripper.link_error is None
+        end = time.monotonic() + 5.0
+        while gripper.link_error is None:  # failing for LINK_DOWN_S: down
+            assert time.monotonic() < end, "the gripper never went down"
+            time.sleep(0.02)
+        with pytest.raises(DeviceError, match="is down"):
+            gripper.move_async(0.04)
+        with pytest.raises(DeviceError, match="Net Exception"):  # the backend's own failure: it was tried
+            gripper.stop()
+        assert gripper.stops == 1
