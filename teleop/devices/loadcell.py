@@ -59,6 +59,8 @@ class LoadCell(Device):
         ------
         DeviceTimeoutError
             No sample arrived within the timeout.
+        DeviceStalledError
+            A streaming cell has given no valid reading for too long (:mod:`teleop.devices.hx711`).
         DeviceError
             The link failed or closed.
         """

@@ -39,7 +39,13 @@ import numpy as np
 
 from teleop.clikit import positive_number
 from teleop.devices.loadcell import LoadCell, make_load_cell
-from teleop.errors import DeviceError, DeviceTimeoutError, SettingsError, TeleopError
+from teleop.errors import (
+    DeviceError,
+    DeviceStalledError,
+    DeviceTimeoutError,
+    SettingsError,
+    TeleopError,
+)
 from teleop.rig.conclude import conclude, say
 from teleop.settings import LoadCellSettings, load_settings
 
@@ -184,11 +190,13 @@ def _read(cell: LoadCell) -> np.ndarray:
     except DeviceTimeoutError as exc:
         raise DeviceTimeoutError(f"load cell: no reading from {load_cell_source(cell.settings)} within "
                                  f"{cell.settings.timeout_s} s: check the cable, the bridge and the setting") from exc
+    except DeviceStalledError as exc:
+        raise DeviceStalledError(f"load cell: {exc}: check the cable, the bridge and the setting") from exc
 
 
 def read_level(cell: LoadCell, mass_g: float, *, duration_s: float) -> Level:
     """Mean and std of the raw counts read for ``duration_s`` (what came before is dropped)."""
-    cell.read(timeout_s=cell.settings.timeout_s)  # readings from before this level
+    _read(cell)  # readings from before this level
     chunks, end = [], time.monotonic() + duration_s
     while time.monotonic() < end or not chunks:
         chunks.append(_read(cell))

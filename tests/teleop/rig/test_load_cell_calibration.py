@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from teleop.cli import main
+from teleop.errors import DeviceStalledError
 from teleop.rig import load_cell_calibration
 from teleop.rig.load_cell_calibration import G_M_S2, Level, fit_load_cell
 from teleop.settings import default_settings_path, load_settings
@@ -205,3 +206,14 @@ def test_a_linear_cell_fits_exactly():
                                                                                                 strict=True)])
     assert fit and fit.counts_per_n == pytest.approx(4e4) and fit.residual_n == pytest.approx(0.0, abs=1e-9)
     assert fit.full_scale_n == pytest.approx(5 * G_M_S2)
+
+
+def test_a_stalled_cell_during_a_level_says_what_to_check():
+    class Stalled:
+        settings = load_settings(default_settings_path()).load_cell
+
+        def read(self, timeout_s=None):
+            raise DeviceStalledError("<SerialHx711 /dev/ttyUSB0>: no valid reading for 0.5 s: silent: nothing arrived")
+
+    with pytest.raises(DeviceStalledError, match="silent: nothing arrived: check the cable, the bridge and the setting"):
+        load_cell_calibration.read_level(Stalled(), 100.0, duration_s=0.01)
