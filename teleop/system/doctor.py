@@ -39,6 +39,7 @@ from __future__ import annotations
 import argparse
 import errno
 import json
+import math
 import shlex
 import socket
 import time
@@ -302,12 +303,14 @@ def _run_probe(probe: _Probe | Check, duration_s: float) -> Check:
 
 def shortest_duration_s(settings: Settings) -> tuple[float, str]:
     """The shortest read in which a healthy rig shows each configured rate: :data:`RATE_PERIODS`
-    periods of the slowest configured device; and that device's setting, said (``key = rate Hz``)."""
+    periods of the slowest configured device, rounded up to 10 ms (so the figure said is one a
+    user can type); and that device's setting, said (``key = rate Hz``)."""
     rates = {"[gripper] width_read_hz": settings.gripper.width_read_hz,
              "[load_cell] sample_rate_hz": settings.load_cell.sample_rate_hz,
              **{f"[sensors.{s.finger}] camera_hz": s.camera_hz for s in settings.sensors}}
     slowest = min(rates, key=rates.__getitem__)
-    return RATE_PERIODS / rates[slowest], f"{slowest} = {rates[slowest]:g} Hz"
+    shortest_cs = math.ceil(round(100.0 * RATE_PERIODS / rates[slowest], 9))  # round(): 3 / 10 is 0.3, not 0.31
+    return shortest_cs / 100.0, f"{slowest} = {rates[slowest]:g} Hz"
 
 
 def check_duration(settings: Settings, duration_s: float, *, name: str = "duration_s =") -> None:

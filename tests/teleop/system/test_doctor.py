@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shlex
 import shutil
 import socket
@@ -19,7 +20,13 @@ from teleop.cli import main
 from teleop.errors import ComplianceTeleopError
 from teleop.settings import BusSettings, Settings, default_settings_path, load_settings
 from teleop.settings_edit import update_settings_file
-from teleop.system.doctor import Check, check_calibrations, check_devices, check_endpoints
+from teleop.system.doctor import (
+    Check,
+    check_calibrations,
+    check_devices,
+    check_duration,
+    check_endpoints,
+)
 
 DEVICES = ["gripper", "load cell", "camera left", "camera right", "display", "input keyboard"]
 
@@ -259,6 +266,14 @@ def test_the_shortest_read_follows_the_slowest_configured_device(tmp_path, capsy
     with pytest.raises(ComplianceTeleopError, match=r"duration_s = 0.05: .* at least 0.1 s, 3 periods of the "
                                                     r"slowest configured device \(\[sensors.left\] camera_hz = 30 Hz\)"):
         check_devices(load_settings(path), duration_s=0.05)
+
+
+def test_the_shortest_read_said_is_one_that_is_accepted(tmp_path):
+    path = _copy(tmp_path, {"gripper.width_read_hz": 7.0})  # 3 periods: 0.4286 s
+    with pytest.raises(ComplianceTeleopError, match=r"at least 0.43 s") as caught:
+        check_duration(load_settings(path), 0.4)
+    said = float(re.search(r"at least ([0-9.]+) s", str(caught.value)).group(1))
+    check_duration(load_settings(path), said)  # no error
 
 
 @pytest.mark.parametrize("duration", ["0", "-1", "nan", "inf"])
