@@ -38,10 +38,11 @@ byte-identical copy of a record met earlier in path order, e.g. one export copie
 the reason names the copy kept, so a grasp is never counted twice). A build that gives no sample at all
 raises :class:`~estimator.errors.EstimatorError` listing them.
 
-Object names become folder and file names (:func:`object_file_name`): a name of letters, digits, ``.``,
-``_`` and ``-`` only (every catalogue name) is used as it is; any other (``"vinyl eraser"``, ``"海绵"``,
-``"café"``, ``".."``) gets a readable form with a hash of the whole name after a ``+``, so every object
-has a folder of its own inside its split and no sample overwrites another's.
+Object names become folder and file names (:func:`object_file_name`): a name of lower-case letters,
+digits, ``.``, ``_`` and ``-`` only (most catalogue names) is used as it is; any other (``"vinyl eraser"``,
+``"海绵"``, ``"café"``, ``".."``, ``"Ball"``) gets a readable form with a hash of the whole name after a
+``+``, so every object has a folder of its own inside its split and no sample overwrites another's, on
+file systems that ignore case too.
 
 Warnings
 --------
@@ -183,14 +184,15 @@ class DatasetOptions:
 def object_file_name(name: str) -> str:
     """The folder and file name of the samples of the object ``name``; distinct for distinct names.
 
-    A name of letters, digits, ``.``, ``_`` and ``-`` only, and not made of dots alone, is used as it
-    is (so datasets of catalogue names keep their layout). Any other name has every run of other
-    characters replaced by ``_``, leading dots dropped (``"."`` and ``".."`` are not folders of their
+    A name of lower-case letters, digits, ``.``, ``_`` and ``-`` only, and not made of dots alone, is
+    used as it is. Any other name has every run of characters other than letters, digits, ``.``, ``_``
+    and ``-`` replaced by ``_``, leading dots dropped (``"."`` and ``".."`` are not folders of their
     own; a leading dot would hide one) and ``+`` and 16 hex digits of the SHA-256 of its UTF-8 appended:
-    ``"café"`` -> ``"caf_+…"``, ``"海绵"`` -> ``"_+…"``. No name of the first kind contains ``+``, so the
-    two kinds never meet, and two names of the second kind meet only if their hashes do.
+    ``"café"`` -> ``"caf_+…"``, ``"海绵"`` -> ``"_+…"``, ``"Ball"`` -> ``"Ball+…"``. No name of the first
+    kind contains ``+`` or a capital, so the two kinds never meet, even where case is ignored ("Ball"
+    and "ball"), and two names of the second kind meet only if their hashes do.
     """
-    if re.fullmatch(r"[A-Za-z0-9._-]+", name) and name.strip("."):
+    if re.fullmatch(r"[a-z0-9._-]+", name) and name.strip("."):
         return name
     readable = re.sub(r"[^A-Za-z0-9._-]+", "_", name).lstrip(".")
     return f"{readable}+{hashlib.sha256(name.encode()).hexdigest()[:16]}"

@@ -273,6 +273,8 @@ def test_object_file_names_keep_safe_names_and_set_every_other_apart():
     assert files[3].startswith("caf_+") and files[5].startswith("vinyl_eraser+")
     for file in files:
         assert "/" not in file and file.strip(".") and not file.startswith("."), file
+    cased = [object_file_name(name) for name in ("ball", "Ball", "BALL")]  # apart where case is ignored
+    assert cased[0] == "ball" and len({file.casefold() for file in cased}) == 3, cased
 
 
 def test_objects_named_in_any_script_get_folders_of_their_own(sim_grasps, tmp_path, capsys):
