@@ -30,9 +30,10 @@ $(VENV)/.installed-check: $(BIN)/python pyproject.toml $(CONSTRAINTS)
 	$(PIP) install --quiet -c $(CONSTRAINTS) -e '.[robot,dev]'
 	touch $@ $(VENV)/.installed-run
 
-$(VENV)/.installed-dev: $(BIN)/python pyproject.toml $(CONSTRAINTS)
+# After check's install, not beside it (make -j): the two would write one .venv at once.
+$(VENV)/.installed-dev: $(VENV)/.installed-check
 	$(PIP) install --quiet -c $(CONSTRAINTS) -e '.[robot,robot-sim,train,dev]'
-	touch $@ $(VENV)/.installed-check $(VENV)/.installed-run
+	touch $@
 
 install: $(VENV)/.installed-run
 install-dev: $(VENV)/.installed-dev
