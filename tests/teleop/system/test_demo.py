@@ -20,12 +20,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
+from support.outcomes import outcome
 from support.scenes import one_grasp_scene
 
 import teleop.cli
-from estimator.settings import estimator_settings
 from haptics.settings import display_settings
-from teleop.bus.messages import EstimateBody
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SettingsError, TeleopError
 from teleop.live import ENDPOINTS, JsonLines, StopSignals, add_endpoint_arguments, bus_from_args
@@ -37,17 +36,8 @@ from teleop.system.demo import (
     scene_plan,
 )
 from teleop.system.demo_table import LiveView
-from teleop.system.latency import (
-    BASELINE_PRESS_DEPTH_M,
-    baseline_figures,
-    baseline_press,
-    frame_baseline_ms,
-    latency_summary,
-    plot,
-    slowest,
-)
 from teleop.system.live_system import LiveSystem, free_ports
-from teleop.system.outcome import GraspOutcome, ReportReader
+from teleop.system.outcome import ReportReader
 
 STEEL = ObjectSpec(name="steel_ball_bearing", shape="sphere", material="metal", modulus_pa=2e11)
 
@@ -82,22 +72,6 @@ def wait_gone(pids, timeout_s: float = 15.0) -> list[int]:
 
 
 # --------------------------------------------------------------------------- pieces (fast)
-
-
-# What a final estimate says besides the fields a test gives (an estimate left without "model" is
-# one from before the field: it reads as None).
-FINAL = {"grasp_id": "g", "method": "auto", "interval_pa": [None, None], "reason": "", "provisional": False,
-         "latency_s": 0.0}
-
-
-def outcome(name: str, e_true: float, final: dict | None, first_s: float | None, latency_ms: float | None,
-            display_range: tuple[float, float] | None = None, **report) -> GraspOutcome:
-    o = GraspOutcome("g", ObjectSpec(name=name, shape="sphere", material="rubber", modulus_pa=e_true),
-                     display_range=display_range)
-    o.final = None if final is None else EstimateBody(**{**FINAL, **final})
-    o.estimator_report = {"time_to_first_estimate_s": first_s, **report}
-    o.renderer_report = None if latency_ms is None else {"latency_ms": latency_ms}
-    return o
 
 
 def test_outcomes_give_the_closing_table_and_json():
@@ -250,87 +224,6 @@ def test_time_to_feel_within_a_factor_2_counts_from_contact_until_the_display_st
     assert duck.t_felt_within_2x_s == pytest.approx(0.4)
     duck.observe(message("display", 11.0, phase="active", unknown=True, E_pa=None))
     assert duck.t_felt_within_2x_s is None  # it ended unknown: never settled
-
-
-def test_latency_summary_splits_decision_and_delivery():
-    o1 = outcome("a", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 150.0, final_sent_s=10.14, t_last_loading_frame_s=10.0,
-                 provisional_span_s=0.5, provisional=16)
-    o2 = outcome("b", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 110.0, final_sent_s=20.1, t_last_loading_frame_s=20.0,
-                 provisional_span_s=None, provisional=1)
-    summary = latency_summary([o1, o2], [0.01, 0.02, 0.03])
-    assert summary["p50_ms"] == pytest.approx(130.0) and summary["finals_measured"] == 2
-    assert summary["provisional_hz"] == pytest.approx(15 / 0.5)
-    assert summary["decision_p50_ms"] == pytest.approx(120.0) and summary["delivery_p50_ms"] == pytest.approx(10.0)
-    assert summary["compute_p50_ms"] == pytest.approx(20.0)
-    assert summary["loading_end_to_report_p50_ms"] is None and summary["finals_by"] == {}
-    assert latency_summary([], [])["p99_ms"] is None
-
-
-def test_latency_summary_relates_marker_grasps_to_the_loading_end():
-    # The fingers stopped at 9.98 s; the peak frame came at 10.0 s; the report 30 ms later.
-    marked = outcome("a", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 30.0, final_sent_s=10.029,
-                     t_last_loading_frame_s=10.0, t_loading_end_s=9.98, final_by="loading_end",
-                     final_compute_s=0.004, provisional_span_s=0.5, provisional=16)
-    settled = outcome("b", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 150.0, final_sent_s=20.14,
-                      t_last_loading_frame_s=20.0, t_loading_end_s=None, final_by="settled",
-                      final_compute_s=0.006, provisional_span_s=None, provisional=1)
-    summary = latency_summary([marked, settled], [])
-    assert summary["p50_ms"] == pytest.approx(90.0) and summary["finals_by"] == {"loading_end": 1, "settled": 1}
-    assert summary["peak_frame_after_stop_p50_ms"] == pytest.approx(20.0)  # the marker grasp alone
-    assert summary["loading_end_to_report_p99_ms"] == pytest.approx(50.0)
-    assert summary["decision_p50_ms"] == pytest.approx((29.0 + 140.0) / 2)
-    assert summary["final_compute_p99_ms"] == pytest.approx(5.98)
-
-
-def test_latency_summary_keeps_each_grasp_and_names_the_slowest_with_where_the_time_went(tmp_path):
-    fast = outcome("duck", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 12.0, final_sent_s=10.010,
-                   t_last_loading_frame_s=10.0, final_by="loading_end", t_loading_end_s=9.99,
-                   final_compute_s=0.006, provisional_span_s=0.5, provisional=16)
-    slow = outcome("oak", 1e10, {"E_pa": 1e9, "state": "ok"}, 0.1, 160.0, final_sent_s=20.158,
-                   t_last_loading_frame_s=20.0, final_by="loading_end", t_loading_end_s=20.02,
-                   final_compute_s=0.008, provisional_span_s=0.5, provisional=16)
-    lost = outcome("foam", 5e3, None, None, None, provisional_span_s=0.5, provisional=11)
-    summary = latency_summary([fast, slow, lost], [])
-    assert [r["object"] for r in summary["per_grasp"]] == ["duck", "oak"]  # measured grasps, run order
-    row = summary["per_grasp"][1]
-    assert row["decision_ms"] == pytest.approx(158.0) and row["final_compute_ms"] == pytest.approx(8.0)
-    assert row["delivery_ms"] == pytest.approx(2.0) and row["final_by"] == "loading_end"
-    assert summary["provisional_hz"] == pytest.approx(40 / 1.5)  # the unmeasured grasp's estimates count too
-    lines = slowest(summary, count=1)
-    assert len(lines) == 1 and "oak" in lines[0]
-    assert "160.0 ms = 150.0 before the final computation + 8.0 computing it + 2.0 delivery" in lines[0]
-    png = tmp_path / "latency.png"
-    plot(summary, png)
-    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    with pytest.raises(TeleopError, match="no grasp has a measured final"):
-        plot(latency_summary([lost], []), tmp_path / "none.png")
-
-
-def test_the_frame_baseline_times_the_perception_of_a_press_the_estimator_sees():
-    from estimator.measurements import measure_frame, resolve_calibration
-    from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration
-
-    settings = load_settings(default_settings_path())
-    sensor, binning = settings.sensor(settings.sensing.finger), estimator_settings(settings).depth_binning
-    calibration = resolve_calibration(sensor, None)
-    pressed, untouched = baseline_press(settings)
-    frame, reference = (frame_on_grid(data, "jpeg", sensor, binning=binning) for data in (pressed, untouched))
-    _, features = measure_frame(frame, reference, grid_calibration(calibration, binning),
-                                depth_grid(sensor, binning))
-    # The timed frame is a real contact: its depth is the press's, within the simulator's optics.
-    assert features.peak_depth_m[0] == pytest.approx(BASELINE_PRESS_DEPTH_M, rel=0.5)
-    assert not features.touches_edge[0]
-    times = frame_baseline_ms(settings, calibration, repeats=3)
-    assert len(times) == 3 and all(0 < t < 10_000 for t in times)
-    with pytest.raises(TeleopError, match="repeats 0"):
-        frame_baseline_ms(settings, calibration, repeats=0)
-
-
-def test_baseline_figures_are_the_medians_before_after_and_of_both():
-    figures = baseline_figures([4.0, 5.0, 9.0], [6.0, 7.0, 8.0])
-    assert figures == {"frame_baseline_ms": 6.5, "frame_baseline_before_ms": 5.0, "frame_baseline_after_ms": 7.0}
-    with pytest.raises(TeleopError, match="before and after"):
-        baseline_figures([], [1.0])
 
 
 def test_report_reader_takes_complete_lines_only(tmp_path):
