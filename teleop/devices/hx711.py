@@ -73,9 +73,10 @@ class _StreamingHx711(LoadCell):
         self._open_link()
         self._failure = None
         self._connected_s, self._valid_s, self._skipped_since = time.monotonic(), None, 0
-        self._stop.clear()
-        self._queue = SampleQueue()
-        self._reader = threading.Thread(target=self._read_forever, name=repr(self), daemon=True)
+        # Per connection: a reader the last close left in a slow receive stops, and writes only its own queue.
+        self._stop, self._queue = threading.Event(), SampleQueue()
+        self._reader = threading.Thread(target=self._read_forever, args=(self._stop, self._queue), name=repr(self),
+                                        daemon=True)
         self._reader.start()
 
     def _close(self) -> None:
@@ -85,17 +86,19 @@ class _StreamingHx711(LoadCell):
             self._reader.join(timeout=2.0)
         self._close_link()
 
-    def _read_forever(self) -> None:
+    def _read_forever(self, stop: threading.Event, queue: SampleQueue) -> None:
         lines = LineSplitter(skip_first=self.skip_first_line)
-        while not self._stop.is_set():
+        while not stop.is_set():
             try:
                 data = self._receive()
             except (OSError, DeviceError) as exc:
-                if not self._stop.is_set():
+                if not stop.is_set():
                     self._failure = f"{self!r}: link failed: {exc}"
                     log.warning(self._failure)
-                    self._queue.close()  # a waiting read hears of the failure now, not at its timeout
+                    queue.close()  # a waiting read hears of the failure now, not at its timeout
                 return
+            if stop.is_set():
+                return  # closed during the receive: its bytes belong to no connection now
             arrived = time.monotonic()
             overlong = lines.overlong
             for line in lines.feed(data):
@@ -105,7 +108,7 @@ class _StreamingHx711(LoadCell):
                     self._skip(exc.reason, str(exc))
                     continue
                 self._valid_s, self._skipped_since = arrived, 0
-                self._queue.put(t_s, float(self.counts_to_force_n(counts)))
+                queue.put(t_s, float(self.counts_to_force_n(counts)))
             for _ in range(lines.overlong - overlong):
                 self._skip("overlong", f"a line longer than {lines.max_bytes} bytes")
 

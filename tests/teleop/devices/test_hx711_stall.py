@@ -120,3 +120,41 @@ def test_a_saturated_cell_is_said_once_on_the_bus_and_that_it_reads_again(bridge
     finally:
         devices.stop()
         devices.close()
+
+
+@pytest.mark.slow
+def test_a_reader_left_in_a_slow_receive_by_close_writes_nothing_into_the_next_connection():
+    from teleop.devices.hx711 import SerialHx711
+
+    class Stuck(SerialHx711):
+        """Its first connection's receive hangs past close()'s wait, then returns a reading."""
+
+        def __init__(self, settings):
+            super().__init__(settings)
+            self.release, self.connections = threading.Event(), 0
+
+        def _open_link(self) -> None:
+            self.connections += 1
+
+        def _close_link(self) -> None:
+            pass
+
+        def _receive(self) -> bytes:
+            if self.connections == 1:
+                self.release.wait(10.0)
+                return b"777000\n777000\n777000\n"  # 777 N: the old connection's, late
+            time.sleep(0.01)
+            return b""
+
+    cell = Stuck(LoadCellSettings(backend="serial", port="/dev/null", **CAL))
+    cell.connect()
+    cell.close()  # the reader is still in its receive after close's 2 s wait
+    cell.connect()
+    cell.release.set()
+    time.sleep(0.2)
+    try:
+        late = cell.read(timeout_s=0.3)
+    except DeviceError:  # stalled: nothing valid arrived on this connection, as it should be
+        late = None
+    assert late is None or not len(late), late
+    cell.close()
