@@ -228,7 +228,8 @@ def run_cli(
         if not _missing_extra(command, exc):
             raise
         print(f"{prog} {args.command}: error: needs the '{command.extra}' extra ({exc}): "
-              f"pip install -c constraints.txt -e '.[{command.extra}]'", file=sys.stderr)
+              f"pip install 'compliance-teleop[{command.extra}]' (in a checkout: "
+              f"pip install -c constraints.txt -e '.[{command.extra}]')", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{prog} {args.command}: interrupted", file=sys.stderr)

@@ -238,7 +238,7 @@ class ModelMetadata:
         data = _series_renamed(data)
         if data.get("version") != MODEL_VERSION:
             raise ModelError(f"{source}: metadata version {data.get('version')!r}, this software reads "
-                             f"{MODEL_VERSION}; retrain the model (`make model`)")
+                             f"{MODEL_VERSION}; retrain the model (`estimator train`, the 'train' extra; in a checkout `make model`, the model card's recipe)")
         try:
             spec = data["variant"]
             window = spec.get("window_m")

@@ -56,4 +56,5 @@ def test_a_model_command_without_torch_says_to_install_the_train_extra_in_one_li
     result = estimator_without_torch(*argv)
     assert result.returncode == 2
     assert result.stderr == (f"estimator {argv[0]}: error: needs the 'train' extra (No module named 'torch'): "
-                             "pip install -c constraints.txt -e '.[train]'\n")
+                             "pip install 'compliance-teleop[train]' (in a checkout: "
+                             "pip install -c constraints.txt -e '.[train]')\n")

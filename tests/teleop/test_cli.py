@@ -115,7 +115,8 @@ def test_a_command_whose_extra_is_missing_says_what_to_install_in_one_line(monke
     _command_module(monkeypatch, "fit_cli", "torch")
     assert run_cli("prog", "doc", {"fit": Command("fit_cli", "fit a model", extra="train")}, ["fit"]) == 2
     assert capsys.readouterr().err == ("prog fit: error: needs the 'train' extra (import of torch halted; None in "
-                                       "sys.modules): pip install -c constraints.txt -e '.[train]'\n")
+                                       "sys.modules): pip install 'compliance-teleop[train]' (in a checkout: "
+                                       "pip install -c constraints.txt -e '.[train]')\n")
 
 
 def test_a_missing_module_that_is_not_the_commands_extra_stays_a_traceback(monkeypatch):
