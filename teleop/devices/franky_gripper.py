@@ -21,7 +21,7 @@ import logging
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import franky
 
@@ -101,15 +101,24 @@ class FrankyGripper(Gripper):
         # franky has no close(): dropping the object closes its connection.
         self._gripper = None
 
+    def _hand(self) -> Any:
+        """The franky gripper; DeviceError once close() dropped it (a command can race a reopen)."""
+        gripper = self._gripper
+        if gripper is None:
+            raise DeviceError(f"franky gripper at {self.settings.host} is closed")
+        return gripper
+
     def _move(self, width_m: float, speed_m_s: float) -> bool:
         with self._command_lock:
-            return self._call(f"move to {width_m} m", lambda: self._gripper.move(width_m, speed_m_s))
+            hand = self._hand()
+            return self._call(f"move to {width_m} m", lambda: hand.move(width_m, speed_m_s))
 
     def _grasp(self, width_m: float, speed_m_s: float, force_n: float, epsilon_inner_m: float, epsilon_outer_m: float) -> bool:
         with self._command_lock:
+            hand = self._hand()
             return self._call(
                 f"grasp at {width_m} m",
-                lambda: self._gripper.grasp(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m),
+                lambda: hand.grasp(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m),
             )
 
     def _follow(self, width_m: float, speed_m_s: float) -> None:
@@ -122,7 +131,8 @@ class FrankyGripper(Gripper):
             self._follow_target = None
             if self._stepping:
                 return True  # the step in flight ends by itself; no further one goes out
-        return self._call("stop", lambda: self._gripper.stop())
+        hand = self._hand()
+        return self._call("stop", lambda: hand.stop())
 
     def _follow_forever(self) -> None:
         """The follower thread: short moves toward the latest target (module docstring)."""
@@ -147,7 +157,8 @@ class FrankyGripper(Gripper):
                             continue
                         self._stepping = True
                     try:
-                        self._call(f"follow step to {goal} m", lambda g=goal, v=speed: self._gripper.move(g, v))
+                        hand = self._hand()
+                        self._call(f"follow step to {goal} m", lambda g=goal, v=speed, h=hand: h.move(g, v))
                     finally:
                         self._stepping = False
             except DeviceError as exc:
@@ -156,13 +167,13 @@ class FrankyGripper(Gripper):
                 self._follow_stop.wait(IDLE_WAKE_S)
 
     def _read_width(self) -> float:
-        gripper = self._gripper
-        if gripper is None:  # the reader thread can race close()
-            raise DeviceError(f"franky gripper at {self.settings.host} is closed")
-        return self._call("width read", lambda: gripper.width)
+        hand = self._hand()  # the reader thread can race close()
+        return self._call("width read", lambda: hand.width)
 
     def _max_width(self) -> float:
-        return self._call("max_width read", lambda: self._gripper.max_width)
+        hand = self._hand()
+        return self._call("max_width read", lambda: hand.max_width)
 
     def _is_grasped(self) -> bool:
-        return self._call("is_grasped read", lambda: self._gripper.is_grasped)
+        hand = self._hand()
+        return self._call("is_grasped read", lambda: hand.is_grasped)

@@ -8,7 +8,8 @@ estimator's lag model (:mod:`teleop.sim.sensors`, :mod:`estimator.lag`), whateve
 call the value comes from. :meth:`Gripper.widths` hands out everything read since the last
 call. The gripper measures no force.
 
-Width reads failing for :data:`LINK_DOWN_S` in a row (one dropped read is not enough) leave the
+Width reads failing for :data:`LINK_DOWN_S` in a row (two failures at least: one dropped read,
+however slow, is not enough) leave the
 gripper *down* (:attr:`Gripper.link_error` says why) until one succeeds: meanwhile
 :meth:`Gripper.widths` raises that failure, and every command but :meth:`Gripper.stop` is refused
 with it at once rather than blocking on a dead link. The hand's widest opening is read once per
@@ -137,7 +138,7 @@ class Gripper(Device):
         self._last_stop = None
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"{type(self).__name__}-command")
         self._reader_stop = threading.Event()  # per connection: a reader left in a slow read still stops
-        self._reader = threading.Thread(target=self._read_widths_forever, args=(self._reader_stop,),
+        self._reader = threading.Thread(target=self._read_widths_forever, args=(self._reader_stop, self._width_queue),
                                         name=f"{type(self).__name__}-width", daemon=True)
         self._reader.start()
 
@@ -316,10 +317,11 @@ class Gripper(Device):
             raise DeviceError(f"{self!r} is down until a width read succeeds: {self._link_error}")
         self._require_connected()
 
-    def _read_widths_forever(self, stop: threading.Event) -> None:
+    def _read_widths_forever(self, stop: threading.Event, queue: SampleQueue) -> None:
         period = 1.0 / self.settings.width_read_hz
         next_s = time.monotonic()
         failing_since: float | None = None  # when the first of the failed reads in a row began
+        failures = 0
         while not stop.is_set():
             started = time.monotonic()
             try:
@@ -328,15 +330,19 @@ class Gripper(Device):
                     if stop.is_set():
                         return  # closed during the read: its widths belong to no connection now
                     for t_s, width in readings:
-                        self._width_queue.put(t_s, width)
-                failing_since, self._link_error = None, None
+                        queue.put(t_s, width)
+                failing_since, failures = None, 0
+                if not stop.is_set():
+                    self._link_error = None
             except DeviceError as exc:  # keep polling: the link may come back
                 if stop.is_set():
                     return  # closed during the read: not a failure
                 if failing_since is None:
                     log.warning("%r: width read failed: %s", self, exc)
                     failing_since = started
-                if time.monotonic() - failing_since >= LINK_DOWN_S:  # not one dropped read: down
+                failures += 1
+                # Down after a second failure, LINK_DOWN_S on: not one dropped (or one slow) read.
+                if failures >= 2 and time.monotonic() - failing_since >= LINK_DOWN_S and not stop.is_set():
                     self._link_error = str(exc)
             now = time.monotonic()
             next_s = max(next_s + period, now)  # after a slow read, resume the period from now

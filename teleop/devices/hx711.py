@@ -102,6 +102,8 @@ class _StreamingHx711(LoadCell):
             arrived = time.monotonic()
             overlong = lines.overlong
             for line in lines.feed(data):
+                if stop.is_set():
+                    return  # closed meanwhile: what is left belongs to no connection
                 try:
                     t_s, counts = self._sample(line, arrived)
                 except Unreadable as exc:

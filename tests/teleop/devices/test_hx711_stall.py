@@ -148,10 +148,11 @@ def test_a_reader_left_in_a_slow_receive_by_close_writes_nothing_into_the_next_c
 
     cell = Stuck(LoadCellSettings(backend="serial", port="/dev/null", **CAL))
     cell.connect()
+    old = cell._reader
     cell.close()  # the reader is still in its receive after close's 2 s wait
     cell.connect()
     cell.release.set()
-    time.sleep(0.2)
+    old.join(5.0)  # it has done whatever it does with its late bytes
     try:
         late = cell.read(timeout_s=0.3)
     except DeviceError:  # stalled: nothing valid arrived on this connection, as it should be
