@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from pathlib import Path
 
 from estimator.settings import estimator_settings
 from haptics.settings import display_settings, operator_settings
@@ -31,8 +33,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.path is not None and args.settings is not None:
         raise SettingsError(f"FILE {args.path} and --settings {args.settings}: name the settings file once")
-    settings = load_settings(args.settings or args.path)
+    path = args.settings or args.path
+    settings = load_settings(path)
     resolved = (settings.with_section(estimator_settings(settings)).with_section(display_settings(settings))
                 .with_section(operator_settings(settings)))
     print(json.dumps(settings_to_mapping(resolved), indent=2))
+    folder = Path(path or default_settings_path()).resolve().parent
+    for sensor in settings.sensors:  # valid settings, but a session would lack the file: say so now
+        if sensor.calibration and not Path(sensor.calibration).is_file():
+            print(f"teleop settings: warning: [sensors.{sensor.finger}] calibration {sensor.calibration}: no such "
+                  f"file (a relative path resolves against {folder}); make it with `estimator calibrate`",
+                  file=sys.stderr)
     return 0

@@ -19,6 +19,7 @@ import haptics.cli
 import teleop.cli
 from teleop.clikit import EXTRA_MODULES, Command, _DefaultsHelpFormatter, run_cli
 from teleop.scene import SCENE_DIR
+from teleop.settings import CONFIG_DIR
 
 BIN = Path(sys.executable).parent
 PACKAGES = {"teleop": teleop.cli.COMMANDS, "estimator": estimator.cli.COMMANDS, "haptics": haptics.cli.COMMANDS}
@@ -71,6 +72,16 @@ def test_settings_prints_the_resolved_settings():
     assert result.returncode == 0, result.stderr
     resolved = json.loads(result.stdout)
     assert resolved["sensors"]["left"]["gel_modulus_pa"] == 275000.0
+
+
+def test_settings_warns_of_a_calibration_file_that_does_not_exist(tmp_path, capsys):
+    rig = tmp_path / "rig.toml"
+    rig.write_text((CONFIG_DIR / "settings.toml").read_text())  # outside configs/: its relative paths miss
+    assert teleop.cli.main(["settings", str(rig)]) == 0
+    err = capsys.readouterr().err
+    assert f"[sensors.left] calibration {tmp_path / 'calibration'}" in err and "no such file" in err
+    assert f"resolves against {tmp_path}" in err
+    assert teleop.cli.main(["settings"]) == 0 and "warning" not in capsys.readouterr().err  # the shipped ones exist
 
 
 def test_settings_takes_its_file_as_settings_too_as_every_command_does(tmp_path, capsys):
