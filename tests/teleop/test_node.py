@@ -42,6 +42,17 @@ def run_until_idle(node: RobotNode, grasps: int, timeout_s: float = 30.0) -> Non
         node.step()
 
 
+def start_grasp(node: RobotNode, operator: Publisher, grasp_id: str, *, simulated: bool = False) -> None:
+    """Command a grasp of the scene's second object and step the node until it has started (and, with
+    ``simulated``, until its replay was simulated and runs)."""
+    operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id=grasp_id,
+                  params={"object_index": 1.0})
+    deadline = time.monotonic() + 30.0
+    while node._grasp is None or (simulated and node._grasp.phase == "preparing"):
+        assert time.monotonic() < deadline, f"grasp {grasp_id!r} did not start in time"
+        node.step()
+
+
 def drain(listener: Subscriber) -> list:
     got = []
     while (message := listener.recv(timeout_s=0.2)) is not None:
@@ -125,12 +136,7 @@ def test_commands_that_cannot_be_carried_out_are_logged(rig, caplog):
 @pytest.mark.slow
 def test_a_simulated_replay_refuses_stop_and_release_on_the_bus_and_keeps_its_loading_end(rig):
     node, operator, listener, scene = rig
-    operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id="g-duck",
-                  params={"object_index": 1.0})
-    deadline = time.monotonic() + 30.0
-    while node._grasp is None or node._grasp.phase == "preparing":
-        assert time.monotonic() < deadline, "the grasp was not simulated in time"
-        node.step()
+    start_grasp(node, operator, "g-duck", simulated=True)
     start_s = time.monotonic()
     for action in ("stop", "release"):
         operator.send("command", t_capture_s=start_s, action=action, grasp_id="g-duck", params={})
@@ -154,12 +160,8 @@ def test_a_refusal_naming_another_grasp_goes_out_even_with_the_same_reason(rig):
     # The operator's console clears its pending grasp only on a refusal naming that grasp: the
     # refusal of gC must not be taken for a repeat of gB's (same reason, "'g-a' is still in progress").
     node, operator, listener, _ = rig
-    operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id="g-a",
-                  params={"object_index": 1.0})
+    start_grasp(node, operator, "g-a")
     deadline = time.monotonic() + 30.0
-    while node._grasp is None:
-        assert time.monotonic() < deadline, "the grasp did not start in time"
-        node.step()
     for grasp_id in ("g-b", "g-c", "g-b"):  # the second g-b: a repeat, at most once a REFUSAL_REPEAT_S
         operator.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id=grasp_id,
                       params={"object_index": 0.0})

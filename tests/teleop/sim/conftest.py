@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from support.catalogue_toml import object_toml
 
 from teleop.cli import main
 from teleop.settings import default_settings_path, load_settings
@@ -11,14 +12,7 @@ from teleop.settings import default_settings_path, load_settings
 @pytest.fixture
 def ball_toml() -> str:
     """A catalogue (TOML text) of one small rubber ball."""
-    return """
-[[objects]]
-name = "small rubber ball"
-shape = "sphere"
-material = "rubber"
-modulus_pa = 8.0e5
-size_m = [0.02, 0.02, 0.02]
-"""
+    return object_toml("small rubber ball", "sphere", "rubber", 8.0e5, size_m=[0.02, 0.02, 0.02])
 
 
 @pytest.fixture

@@ -5,20 +5,14 @@ from __future__ import annotations
 import json
 
 import pytest
+from support.catalogue_toml import object_toml
 
 from teleop.catalogue import load_catalogue
 from teleop.cli import main
 from teleop.record import read_record
 from teleop.settings import default_settings_path
 
-OAK = """
-[[objects]]
-name = "oak_block"
-shape = "box"
-material = "wood"
-modulus_pa = 1.1e10
-texture_m = 3e-5
-"""
+OAK = object_toml("oak_block", "box", "wood", 1.1e10, texture_m=3e-5)
 
 
 @pytest.fixture
@@ -192,15 +186,6 @@ def test_settings_without_two_sensors_are_refused_before_out_is_made(tmp_path, c
                           "--settings", str(settings))
     assert code == 2 and f"{settings}: the grasp simulator needs exactly two sensors" in stderr
     assert len(stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
-
-
-def test_a_preview_in_out_is_taken_like_its_record(tmp_path, catalogue, capsys):
-    out = tmp_path / "o"
-    out.mkdir()
-    (out / "oak_block_g000.png").write_bytes(b"another seed's sheet")
-    code, _, stderr = run(capsys, "--objects", str(catalogue), "--only", "oak_block", "--out", str(out))
-    assert code == 2 and "1 of these records exist already (oak_block_g000.png): pass --overwrite" in stderr
-    assert (out / "oak_block_g000.png").read_bytes() == b"another seed's sheet"
 
 
 def test_overwrite_removes_the_stale_preview_and_target_force_is_recorded(tmp_path, catalogue, quick_settings, capsys):

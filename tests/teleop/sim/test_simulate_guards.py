@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from support.catalogue_toml import object_toml
 
 from teleop.catalogue import ObjectSpec
 from teleop.cli import main
@@ -16,31 +17,9 @@ from teleop.sim import simulate_cli
 from teleop.sim.grasp import simulate_grasp
 from teleop.sim.simulate import grasp_rng
 
-OAK = """
-[[objects]]
-name = "oak_block"
-shape = "box"
-material = "wood"
-modulus_pa = 1.1e10
-"""
-
-BEACH_BALL = """
-[[objects]]
-name = "beach ball"
-shape = "sphere"
-material = "plastic"
-modulus_pa = 1e7
-size_m = [0.3, 0.3, 0.3]
-"""
-
-TINY = """
-[[objects]]
-name = "tiny_1mm"
-shape = "sphere"
-material = "metal"
-modulus_pa = 2e11
-size_m = [0.001, 0.001, 0.001]
-"""
+OAK = object_toml("oak_block", "box", "wood", 1.1e10)
+BEACH_BALL = object_toml("beach ball", "sphere", "plastic", 1e7, size_m=[0.3, 0.3, 0.3])
+TINY = object_toml("tiny_1mm", "sphere", "metal", 2e11, size_m=[0.001, 0.001, 0.001])
 
 
 @pytest.fixture
@@ -86,13 +65,16 @@ def test_a_failed_grasp_leaves_no_earlier_file_of_its_name_with_overwrite(tmp_pa
     assert list(out.iterdir()) == []
 
 
-def test_an_earlier_grasp_of_another_index_is_refused_without_overwrite(tmp_path, catalogue, capsys):
+@pytest.mark.parametrize("name", ["oak_block_g001.grasp", "oak_block_g000.png"],
+                         ids=["a grasp of another index", "a preview, taken like its record"])
+def test_an_earlier_file_of_the_object_is_refused_without_overwrite(tmp_path, catalogue, capsys, name):
     out = tmp_path / "o"
     out.mkdir()
-    (out / "oak_block_g001.grasp").write_bytes(b"an earlier seed's grasp")
+    (out / name).write_bytes(b"an earlier seed's file")
     code, _, stderr = run(capsys, "--objects", str(catalogue), "--only", "oak_block", "--out", str(out))
-    assert code == 2 and "1 of these records exist already (oak_block_g001.grasp): pass --overwrite" in stderr
-    assert [p.name for p in out.iterdir()] == ["oak_block_g001.grasp"]
+    assert code == 2 and f"1 of these records exist already ({name}): pass --overwrite" in stderr
+    assert [p.name for p in out.iterdir()] == [name]
+    assert (out / name).read_bytes() == b"an earlier seed's file"
 
 
 def test_the_mirrored_estimator_constants_match_the_estimator():
