@@ -13,8 +13,9 @@ an operator operates. Copying new files into the folder the service serves works
 once both files have stopped changing.
 
 Until the service's subscription to the control endpoint has connected, a message sent there is
-lost; so the request is sent again every :data:`RESEND_S` until answered: the service loads a
-request once and answers a repeat with the answer it gave.
+lost; so the first request waits for a subscriber to ``load_model``, and :data:`JOIN_S` more for
+the other peers (a recorder), then is sent again every :data:`RESEND_S` until answered: the
+service loads a request once and answers a repeat with the answer it gave.
 """
 
 from __future__ import annotations
@@ -30,13 +31,16 @@ from estimator.errors import ModelError
 from teleop.bus.messages import ModelEventBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.clikit import positive_number
-from teleop.errors import BusAddressInUseError, BusError, TeleopError
+from teleop.errors import BusAddressInUseError, BusError, BusTimeoutError, TeleopError
 from teleop.live import add_endpoint_arguments, bus_from_args
 from teleop.settings import BusSettings, default_settings_path, load_settings
 
-__all__ = ["RESEND_S", "reload_model"]
+__all__ = ["JOIN_S", "RESEND_S", "reload_model"]
 
 RESEND_S = 0.5
+# Peers reconnect to a freshly bound endpoint every 0.1 s (ZeroMQ's default): once the service has
+# subscribed, this long lets a recorder subscribe too, so the request itself is on the record.
+JOIN_S = 0.3
 DEFAULT_TIMEOUT_S = 30.0
 # A reload that just ended lets go of the control port a moment after its socket closed.
 BIND_WAIT_S = 2.0
@@ -77,19 +81,27 @@ def reload_model(path: str, *, command: Publisher, answers: Subscriber, timeout_
     """
     request = request or f"reload-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     deadline = time.monotonic() + timeout_s
-    next_send = 0.0
+    next_send = None  # first when a subscriber to load_model is heard, and JOIN_S later
     while True:
         now = time.monotonic()
         if now >= deadline:
-            if answers.heartbeat.is_alive("estimator"):
+            if next_send is None:
+                why = (f"nothing subscribed to load_model on {command.endpoint}: is the estimator service running, "
+                       f"with that --control endpoint (and --estimate-pub {answers.endpoint_text})?")
+            elif answers.heartbeat.is_alive("estimator"):
                 why = (f"the estimator service on {answers.endpoint_text} is running: it switches models between "
-                       "grasps, so a grasp still open holds its answer back (wait, or raise --timeout-s), unless it "
-                       f"is not subscribed to {command.endpoint}")
+                       "grasps, so a grasp still open holds its answer back (wait, or raise --timeout-s)")
             else:
-                why = (f"this did not hear the estimator service on {answers.endpoint_text}; is it running there, "
-                       f"and subscribed to {command.endpoint}?")
+                why = (f"this did not hear the estimator service on {answers.endpoint_text}; is that its "
+                       "--estimate-pub endpoint, and is it running?")
             raise TeleopError(f"no answer to load_model {path} (request {request}) within {timeout_s:g} s: {why}")
-        if now >= next_send:
+        if next_send is None:
+            try:
+                command.wait_for_subscriber("load_model", timeout_s=0.005)  # reads the subscriptions queued
+                next_send = now + JOIN_S
+            except BusTimeoutError:
+                pass  # none yet: listen for the service's heartbeat meanwhile
+        if next_send is not None and now >= next_send:
             command.send("load_model", t_capture_s=now, path=path, request=request)
             next_send = now + RESEND_S
         message = answers.recv(timeout_s=min(0.05, max(0.0, deadline - now)))

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import threading
 import time
 
 import pytest
 
 from estimator import reload_cli
 from estimator.cli import main
-from teleop.bus import Publisher
+from teleop.bus import Publisher, Subscriber
 from teleop.bus.security import init_keys
 from teleop.errors import BusSecurityError, TeleopError
 from teleop.settings import BusSettings
@@ -44,3 +45,40 @@ def test_a_timeout_that_is_no_finite_time_is_a_usage_error_before_anything_waits
         main(["reload", "--model", str(tmp_path), "--timeout-s", timeout_s])
     assert exited.value.code == 2
     assert f"argument --timeout-s: {timeout_s!r}: expected a number > 0" in capsys.readouterr().err
+
+
+def test_the_request_waits_for_the_services_subscription_and_the_recorders(monkeypatch):
+    # On a freshly bound control endpoint the first request went before anyone had subscribed and was
+    # lost; and a service answering before a recorder joined left the request off the session's record.
+    monkeypatch.setattr(reload_cli, "RESEND_S", 60.0)  # one send, or no answer in time
+    monkeypatch.setattr(reload_cli, "JOIN_S", 1.0)
+    heard: list = []
+    with Publisher("tcp://127.0.0.1:*", lossless=False) as control, \
+            Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator") as service_pub, \
+            Subscriber(service_pub.endpoint, ("model_event",)) as answers:
+
+        def peers_join_late_then_serve():
+            time.sleep(0.2)
+            with Subscriber(control.endpoint, ("load_model",)) as service:
+                time.sleep(0.2)
+                with Subscriber(control.endpoint, ("",)) as recorder:
+                    message = service.recv(timeout_s=8.0)
+                    service_pub.wait_for_subscriber("model_event")
+                    service_pub.send("model_event", t_capture_s=0.0, event="loaded", request=message.fields.request,
+                                     model="m", path=message.fields.path, reason="")
+                    heard.append(recorder.recv(timeout_s=2.0))
+
+        thread = threading.Thread(target=peers_join_late_then_serve, daemon=True)
+        thread.start()
+        answer = reload_cli.reload_model("/models/b", command=control, answers=answers, timeout_s=8.0)
+        thread.join(timeout=5.0)
+    assert answer.event == "loaded" and control.sent == 1
+    assert heard[0] is not None and heard[0].type == "load_model" and heard[0].fields.request == answer.request
+
+
+def test_no_subscriber_on_the_control_endpoint_is_said(tmp_path):
+    with Publisher("tcp://127.0.0.1:*", lossless=False) as control, \
+            Subscriber("tcp://127.0.0.1:1", ("model_event",)) as answers, \
+            pytest.raises(TeleopError, match="nothing subscribed to load_model on tcp://127.0.0.1:") as caught:
+        reload_cli.reload_model("/models/b", command=control, answers=answers, timeout_s=0.3)
+    assert control.sent == 0 and "--estimate-pub tcp://127.0.0.1:1" in str(caught.value)
