@@ -5,7 +5,8 @@ sends ``follow`` at 50 Hz and must not wait for the screen); the screen redraws 
 frozen :class:`~haptics.operator_loop.LoopStatus` ten times a second. Panels:
 
 * **live system**: whether the robot node, the estimator and the display's renderer are alive
-  (heard from within three heartbeat periods) and when each was last heard;
+  (heard from within three heartbeat periods) and when each was last heard; WAIT for a robot node
+  heard whose subscription to the console's commands has not arrived (they are refused meanwhile);
 * **grasp**: its id and object, its phase (loading, loaded, ended), the robot's mode and target
   width, the force (N, with a bar up to the settings' maximum), the fingers' width, and the label
   the operator gave it;
@@ -147,6 +148,13 @@ def _mm(width_m: float | None) -> str:
 
 def _ago(seconds: float | None) -> str:
     return "never heard" if seconds is None else f"heard {seconds:.1f} s ago"
+
+
+def _peer_line(peer: Any) -> str:
+    """UP, DOWN, or WAIT for a robot node heard alive whose subscription to our commands is not open yet."""
+    if peer.alive and peer.subscribed is False:
+        return f"WAIT  {peer.name:<11} not subscribed yet"  # heard: its ago is not the news
+    return f"{'UP  ' if peer.alive else 'DOWN'}  {peer.name:<11} {_ago(peer.seen_ago_s)}"
 
 
 def _notice_line(notice: Any, now_s: float, at_s: float | None) -> str:
@@ -413,7 +421,7 @@ class OperatorConsole(App):
         """Each panel's text for ``status``."""
         view = status.view
         max_force = self.loop.settings.gripper.target_force_n
-        alive = "\n".join(f"{'UP  ' if p.alive else 'DOWN'}  {p.name:<11} {_ago(p.seen_ago_s)}" for p in view.peers)
+        alive = "\n".join(_peer_line(p) for p in view.peers)
         robot = view.robot
         target = None if robot is None else robot.target_width_m
         grasp = [

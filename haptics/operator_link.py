@@ -32,6 +32,9 @@ topic of ``bus.command``) and ``teleop export`` takes as the grasp's label. The
 command publisher is lossless (commands are never dropped silently) with a short send timeout
 (:data:`SEND_TIMEOUT_S`), so a robot that stops reading cannot stall the operator's loop; a send
 that fails raises, and :class:`~haptics.operator_loop.OperatorLoop` shows it instead of stopping.
+A ``follow`` or ``command`` is refused the same way while the robot node's subscription has not
+reached the command endpoint (it is down or still connecting): sent then, it would reach no one.
+The view's robot peer says whether it has (``Peer.subscribed``).
 
 The loop that drives the gripper from an input device over this link is
 :class:`~haptics.operator_loop.OperatorLoop` (:mod:`haptics.operator_loop`).
@@ -54,6 +57,7 @@ from teleop.bus.messages import (
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.errors import BusError
+from teleop.node import COMMAND_TOPICS as NODE_COMMAND_TOPICS
 from teleop.settings import BusSettings
 
 __all__ = [
@@ -82,6 +86,7 @@ class Peer:
     source: str  # the ``source`` it publishes as
     alive: bool
     seen_ago_s: float | None  # seconds since last heard from; None: never
+    subscribed: bool | None = None  # the robot node: its subscription reached our commands; None: not asked
 
 
 @dataclass(frozen=True)
@@ -215,14 +220,27 @@ class OperatorLink:
 
     # ------------------------------------------------------------------ sending
 
+    def robot_subscribed(self) -> bool:
+        """Whether the robot node's subscription to our commands is open (a send before is lost)."""
+        return all(self.publisher.subscriptions(topic) for topic in NODE_COMMAND_TOPICS)
+
+    def _check_robot_subscribed(self, what: str) -> None:
+        if not self.robot_subscribed():
+            raise BusError(f"the robot node has not subscribed to {self.publisher.endpoint} yet (it is down, or "
+                           f"still connecting): a {what} now would reach no one")
+
     def follow(self, target_width_m: float, *, enable: bool, grasp_id: str | None = None) -> None:
-        """Send one ``follow``: the fingers' target width (m), the dead-man enable and the grasp's id."""
+        """Send one ``follow``: the fingers' target width (m), the dead-man enable and the grasp's id.
+        BusError when the robot node is not subscribed (:meth:`robot_subscribed`)."""
+        self._check_robot_subscribed("follow")
         self.publisher.send("follow", t_capture_s=self.clock(), grasp_id=grasp_id,
                             target_width_m=float(target_width_m), enable=bool(enable))
         self.follows_sent += 1
 
     def command(self, action: str, *, grasp_id: str | None = None, **params: float) -> None:
-        """Send one ``command`` (``start_grasp``, ``stop``, ``release``) with numeric ``params``."""
+        """Send one ``command`` (``start_grasp``, ``stop``, ``release``) with numeric ``params``.
+        BusError when the robot node is not subscribed (:meth:`robot_subscribed`)."""
+        self._check_robot_subscribed(action)
         self.publisher.send("command", t_capture_s=self.clock(), action=action, grasp_id=grasp_id,
                             params={k: float(v) for k, v in params.items()})
         self.commands_sent += 1
@@ -339,7 +357,8 @@ class OperatorLink:
                 alive = heartbeat.is_alive(source, now_s=now)
             except BusError:  # heard from, but no period announced yet: the bus's
                 alive = heartbeat.is_alive(source, timeout_s=LIVENESS_PERIODS * self.heartbeat_s, now_s=now)
-            peers.append(Peer(name, source, alive, max(0.0, now - last)))
+            subscribed = self.robot_subscribed() if source == "robot" else None
+            peers.append(Peer(name, source, alive, max(0.0, now - last), subscribed))
         return tuple(peers)
 
     def _snapshot(self) -> OperatorView:

@@ -383,10 +383,10 @@ class OperatorLoop:
             self._act("quit")
 
     def _robot_down(self) -> str:
-        """What to add to a command's log line when the link hears the robot node dead: it is sent,
-        as the node may just be starting, but nothing moves until the node runs."""
+        """What to add to a command's log line when the link hears the robot node dead: the link sent
+        it, so the node's subscription is open (a stalled node reads it when it runs again)."""
         down = self.link.view.down("robot node")
-        return " (the robot node is down: nothing moves until `teleop node` runs)" if down else ""
+        return " (the robot node is not heard: nothing moves until it runs again)" if down else ""
 
     def _send_label(self, grasp_id: str, label: Any) -> None:
         sent = self._send(lambda: self.link.label(grasp_id, label.object_name, modulus_pa=label.modulus_pa,

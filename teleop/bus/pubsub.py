@@ -331,10 +331,21 @@ class Publisher(_Socket):
             if remaining <= 0 or not socket.poll(_ms(remaining)):
                 names = ", ".join(repr(m.decode()) for m in missing)
                 raise BusTimeoutError(f"{self.endpoint}: no subscriber for {names} within {timeout_s} s")
-            event = socket.recv()
-            # XPUB delivers b"\x01<prefix>" for a subscription and b"\x00<prefix>" for its end.
-            if event[:1] in (b"\x00", b"\x01"):
-                self._subscriptions[event[1:]] += 1 if event[:1] == b"\x01" else -1
+            self._take_subscription(socket.recv())
+
+    def subscriptions(self, prefix: str) -> int:
+        """How many subscriptions to exactly ``prefix`` are open now (a subscriber to a shorter
+        prefix is not counted); reads those that arrived, without waiting."""
+        socket = self._live()
+        while socket.poll(0):
+            self._take_subscription(socket.recv())
+        return max(0, self._subscriptions[prefix.encode("utf-8")])
+
+    def _take_subscription(self, event: bytes) -> None:
+        # XPUB delivers b"\x01<prefix>" for a subscription and b"\x00<prefix>" for its end (a
+        # subscriber that closes or goes away ends each of its own).
+        if event[:1] in (b"\x00", b"\x01"):
+            self._subscriptions[event[1:]] += 1 if event[:1] == b"\x01" else -1
 
 
 @dataclass

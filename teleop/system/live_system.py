@@ -54,6 +54,7 @@ from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
 from teleop.errors import TeleopError
 from teleop.live import ENDPOINTS, sigint_ignored
+from teleop.node import COMMAND_TOPICS as NODE_COMMAND_TOPICS
 from teleop.session.recorder import RECORDING_STOPPED, RECORDING_STOPPED_STATUS
 from teleop.settings import Settings, load_settings, resolve_path
 from teleop.system.outcome import GraspOutcome, ReportReader
@@ -263,17 +264,23 @@ class LiveSystem:
     def _wait_ready(self, timeout_s: float) -> None:
         deadline = time.monotonic() + timeout_s
         wanted = {"robot", "estimator", "renderer"}
-        while not wanted <= set(self.events.heartbeat.peers()) or (
-                self.record and not self.session_log.exists()):
+        while missing := [*sorted(wanted - set(self.events.heartbeat.peers())), *self._deaf()]:
             self.check()
             if time.monotonic() >= deadline:
-                missing = sorted(wanted - set(self.events.heartbeat.peers()))
-                raise TeleopError(f"live system not up within {timeout_s:g} s: no heartbeat from "
-                                  f"{', '.join(missing) or 'nobody missing'}; logs in {self.run_dir}")
+                raise TeleopError(f"live system not up within {timeout_s:g} s: nothing from "
+                                  f"{', '.join(missing)}; logs in {self.run_dir}")
             self.events.recv(timeout_s=0.1)
         end = time.monotonic() + SETTLE_S
         while time.monotonic() < end:
             self.events.recv(timeout_s=end - time.monotonic())
+
+    def _deaf(self) -> list[str]:
+        """Who has not subscribed to :attr:`commands` yet: what is sent there before is lost to them (the
+        first grasp's command to the node; to the recorder, the session's first messages)."""
+        deaf = [] if all(self.commands.subscriptions(t) for t in NODE_COMMAND_TOPICS) else ["the node's commands"]
+        if self.record and not self.commands.subscriptions(""):  # the recorder takes every topic
+            deaf.append("the recorder")
+        return deaf
 
     def check(self) -> None:
         """Raise TeleopError, with the tail of its log, if a child has exited; a recorder that stopped

@@ -43,3 +43,24 @@ def test_a_small_terminal_shows_the_enable_and_mode_on_a_line_at_the_top(size):
                 await until(lambda: app.exit_status is not None, pilot)
 
     asyncio.run(session())
+
+
+def test_a_robot_node_heard_but_not_yet_hearing_the_console_is_shown_waiting_and_fits():
+    from haptics.operator_link import Peer
+
+    link = ConsoleLink((Peer("robot node", "robot", True, 0.1, subscribed=False),
+                        Peer("estimator", "estimator", True, 0.2), Peer("display", "renderer", True, 0.3)))
+
+    async def session() -> None:
+        with KeyboardInput(grip_step=0.25) as keyboard:
+            loop = OperatorLoop(link, keyboard, load_settings(), force_n=10.0)
+            app = OperatorConsole(loop, input_name="keyboard", keyboard=keyboard)
+            async with app.run_test(size=(80, 24)) as pilot:
+                await until(lambda: "WAIT  robot node" in app.texts.get("alive", ""), pilot)
+                assert "not subscribed yet" in app.texts["alive"] and "UP    estimator" in app.texts["alive"]
+                panel = app.query_one("#alive")
+                assert all(len(line) <= panel.content_region.width for line in app.texts["alive"].splitlines())
+                await pilot.press("q")
+                await until(lambda: app.exit_status is not None, pilot)
+
+    asyncio.run(session())

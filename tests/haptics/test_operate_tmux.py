@@ -106,8 +106,7 @@ def live(tmp_path):
 def _start_console(tmux: Tmux, system: LiveSystem, *options: str) -> None:
     tmux("new-session", "-d", "-s", "operate", "-x", "120", "-y", "40", _operate_command(system, *options))
     tmux.wait_for(lambda t: re.search(r"UP\s+robot node", t) and re.search(r"UP\s+estimator", t)
-                  and re.search(r"UP\s+display", t), "live system shown alive", 30, system)
-    time.sleep(1.0)  # the node's command subscription reaches the console's publisher
+                  and re.search(r"UP\s+display", t), "live system shown alive", 30, system)  # UP: it hears us
 
 
 def _quit_cleanly(tmux: Tmux, system: LiveSystem) -> None:

@@ -15,6 +15,7 @@ from haptics.errors import HapticsError
 from haptics.operator_link import OperatorView, Peer
 from haptics.operator_loop import NEXT_WAIT_S, RECONNECT_S, RELEASE_FOLLOWS, OperatorLoop
 from teleop.bus.messages import DisplayBody, EstimateBody, RobotNoticeBody, RobotStateBody
+from teleop.errors import BusError
 from teleop.operator import FOLLOW_RATE_HZ
 from teleop.settings import load_settings
 
@@ -100,14 +101,30 @@ def test_buttons_become_commands(rig):
     assert loop.run(duration_s=5.0).quit
 
 
-def test_a_command_while_the_robot_node_is_down_says_that_nothing_moves(rig):
+def test_a_command_while_the_robot_node_is_not_heard_says_that_nothing_moves(rig):
     clock, link, device, loop = rig
     for alive in (False, True):
         link.view = OperatorView(t_s=clock(), peers=(Peer("robot node", "robot", alive, None if not alive else 0.1),))
         device.buttons = {"grasp"}
         loop.step()
-        assert link.kinds()[-1] == "start_grasp"  # sent all the same: the node may be starting
-        assert ("robot node is down" in loop.status.log[-1]) == (not alive)
+        assert link.kinds()[-1] == "start_grasp"  # the link sent it: its subscription is open
+        assert ("robot node is not heard" in loop.status.log[-1]) == (not alive)
+
+
+def test_a_grasp_the_link_refused_to_send_is_not_waited_on(rig, monkeypatch):
+    clock, link, device, loop = rig
+
+    def refused(**kwargs):
+        raise BusError("the robot node has not subscribed to tcp://127.0.0.1:5 yet (it is down, or still "
+                       "connecting): a start_grasp now would reach no one")
+
+    monkeypatch.setattr(link, "start_grasp", refused)
+    device.buttons = {"grasp"}
+    loop.step()
+    assert loop.status.log[-1].startswith("not sent: the robot node has not subscribed")
+    device.buttons = {"next"}  # no grasp in progress: the next object is not refused
+    loop.step()
+    assert "next object: ready" in loop.status.log[-1]
 
 
 def test_a_grasp_the_robot_refused_to_start_is_forgotten(rig):

@@ -12,7 +12,8 @@ import pytest
 from haptics.operator_link import OperatorLink
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
-from teleop.errors import MessageRejected
+from teleop.errors import BusError, MessageRejected
+from teleop.node import COMMAND_TOPICS
 from teleop.settings import load_settings
 
 
@@ -41,6 +42,8 @@ def test_the_link_keeps_the_latest_of_each_and_who_is_alive():
                 publisher.heartbeat_if_due()
             _wait(lambda v: all(p.alive for p in v.peers), link)
             assert link.view.phase == "idle" and link.view.grasp_id is None
+            # heard, but no node subscribed to the link's commands: the console shows it waiting
+            assert [p.subscribed for p in link.view.peers] == [False, None, None]
             t = time.monotonic()
             robot.send("grasp_event", t_capture_s=t, event="start", grasp_id="g1", object_name="duck")
             robot.send("force", t_capture_s=t, grasp_id="g1", t_s=np.array([t, t]), value_n=np.array([1.0, 2.5]))
@@ -84,18 +87,27 @@ def test_the_link_keeps_the_latest_of_each_and_who_is_alive():
             assert link.view.alive("robot node") and link.view.alive("display") and not link.view.alive("estimator")
 
 
-def test_the_link_sends_follows_and_commands():
+def test_the_link_sends_follows_and_commands_once_the_robot_node_hears_them():
     settings = load_settings()
     bus = dataclasses.replace(settings.bus, command="tcp://127.0.0.1:*")
-    with (
-        OperatorLink.from_settings(bus) as link,
-        Subscriber(link.publisher.endpoint, ("follow", "command")) as robot,
-    ):
-        link.publisher.wait_for_subscriber("follow", "command")
-        link.follow(0.05, enable=True, grasp_id="g1")
-        link.start_grasp(target_force_n=10.0, grasp_id="g2")
-        link.release("g2")
-        got = [robot.recv(timeout_s=2.0) for _ in range(3)]
+    with OperatorLink.from_settings(bus) as link:
+        # Sent before the node's subscription arrived, a grasp was lost while the console waited on it.
+        with Subscriber(link.publisher.endpoint, ("",)) as recorder:
+            link.publisher.wait_for_subscriber("")
+            with pytest.raises(BusError, match=f"robot node has not subscribed to {link.publisher.endpoint}"):
+                link.start_grasp(target_force_n=10.0, grasp_id="g0")
+            with pytest.raises(BusError, match="a follow now would reach no one"):
+                link.follow(0.05, enable=True, grasp_id="g0")
+            assert recorder.recv(timeout_s=0.2) is None and link.commands_sent == link.follows_sent == 0
+        with Subscriber(link.publisher.endpoint, COMMAND_TOPICS) as robot:
+            deadline = time.monotonic() + 5.0
+            while not link.robot_subscribed():
+                assert time.monotonic() < deadline, "the node's subscription never arrived"
+                time.sleep(0.01)
+            link.follow(0.05, enable=True, grasp_id="g1")
+            link.start_grasp(target_force_n=10.0, grasp_id="g2")
+            link.release("g2")
+            got = [robot.recv(timeout_s=2.0) for _ in range(3)]
     assert [m.type for m in got] == ["follow", "command", "command"]
     assert dict(got[0].body) == {"grasp_id": "g1", "target_width_m": 0.05, "enable": True}
     assert got[1].body["action"] == "start_grasp" and got[1].body["params"] == {"target_force_n": 10.0}

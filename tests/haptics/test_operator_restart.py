@@ -40,6 +40,9 @@ class _Publisher:
     def heartbeat_if_due(self, now_s: float | None = None) -> bool:
         return False
 
+    def subscriptions(self, prefix: str) -> int:
+        return 1  # the node's subscription is open
+
     def close(self) -> None:
         pass
 

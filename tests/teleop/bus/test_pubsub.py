@@ -335,3 +335,20 @@ def test_subscriber_refuses_no_endpoint():
 def test_publisher_lossless_must_be_a_bool(lossless):
     with pytest.raises(BusError, match=r"lossless = .*: expected True or False"):
         Publisher(f"inproc://bus-test-{next(_names)}", lossless=lossless)
+
+
+def test_subscriptions_count_exact_prefixes_and_end_with_their_subscriber(endpoint):
+    def until(count: int, prefix: str, pub: Publisher) -> int:
+        deadline = time.monotonic() + 5.0
+        while (n := pub.subscriptions(prefix)) != count and time.monotonic() < deadline:
+            time.sleep(0.01)
+        return n
+
+    with Publisher(endpoint, lossless=True) as pub:
+        assert pub.subscriptions("follow") == 0
+        with Subscriber(pub.endpoint, ["command", "follow"]):
+            with Subscriber(pub.endpoint, [""]):
+                assert until(1, "", pub) == 1 and until(1, "follow", pub) == 1
+                assert pub.subscriptions("follow") == 1  # the empty prefix is its own
+            assert until(0, "", pub) == 0 and pub.subscriptions("follow") == 1
+        assert until(0, "follow", pub) == 0 and pub.subscriptions("command") == 0
