@@ -105,11 +105,11 @@ def test_estimator_killed_and_restarted_renderer_holds_flags_stale_and_resumes()
 
         run_until(lambda: service.stats.estimates >= 10, 15.0)
         assert service.renderer.phase == "active"
+        killed = time.monotonic()  # before the kill: the last estimate came before it, or was queued by then
         kill(peer)
-        killed = time.monotonic()
-        received = service.stats.estimates
         run_until(lambda: service.renderer.phase == "stale", rendering.stale_after_s + 2.0)
         assert time.monotonic() - killed >= rendering.stale_after_s - 0.1  # not before its time
+        received = service.stats.estimates  # with any the dead peer had queued
         held = service.renderer.percept
         run_until(lambda: time.monotonic() - killed > rendering.stale_after_s + 0.5, 5.0)
         assert service.renderer.phase == "stale" and service.renderer.command.stale
