@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 
+from teleop.errors import ComplianceTeleopError
 from teleop.session.export import export_session
 from teleop.settings import load_settings
 
@@ -57,7 +58,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "modulus_pa, label_source}]), unlabelled ([{grasp_id, path, reason}]: written without a "
         "modulus), skipped ([{grasp_id, reason}]: not written), dropped ([{grasp_id, stream, count}]: "
         "untagged messages captured before the grasp's start, left out), stray_labels, replaced (paths "
-        "of the same grasps from another log, removed by --overwrite), error",
+        "of the same grasps from another log, removed by --overwrite), error (null, or the message; an error "
+        "that stops the export early leaves what it did not learn null)",
     )
 
 
@@ -65,17 +67,34 @@ def _recover_hint(log: str) -> str:
     return f"run `teleop recover {log} --out FIXED.mcap` first and export FIXED.mcap"
 
 
+#: The keys of the --json object, in order; an error raised before anything is known (a log that does
+#: not read, records already in DIR) leaves all but log, out and error null.
+_JSON_KEYS = ("log", "out", "session_id", "complete", "exported", "records", "written", "unlabelled",
+              "skipped", "dropped", "stray_labels", "replaced", "error")
+
+
+def _print_json(args: argparse.Namespace, error: str | None, **known: object) -> None:
+    summary = dict.fromkeys(_JSON_KEYS)
+    summary.update(log=args.log, out=args.out, **known, error=error)
+    print(json.dumps(summary), flush=True)
+
+
 def run(args: argparse.Namespace) -> int:
-    settings = load_settings(args.settings) if args.settings else None
-    results = export_session(
-        args.log,
-        args.out,
-        settings=settings,
-        catalogue=args.objects,
-        source=args.source,
-        overwrite=args.overwrite,
-        progress=True,
-    )
+    try:
+        settings = load_settings(args.settings) if args.settings else None
+        results = export_session(
+            args.log,
+            args.out,
+            settings=settings,
+            catalogue=args.objects,
+            source=args.source,
+            overwrite=args.overwrite,
+            progress=True,
+        )
+    except ComplianceTeleopError as exc:
+        if args.json:  # the error line on stderr and exit status 2 stay run_cli's
+            _print_json(args, str(exc))
+        raise
     written = [r for r in results if r]
     skipped = [{"grasp_id": r.grasp_id, "reason": r.reason} for r in results if not r]
     unlabelled = [
@@ -120,32 +139,27 @@ def run(args: argparse.Namespace) -> int:
     if error:
         print(f"teleop export: error: {error}", file=sys.stderr)
     if args.json:
-        print(
-            json.dumps(
+        _print_json(
+            args,
+            error,
+            session_id=results.session_id,
+            complete=results.complete,
+            exported=len(written),
+            records=[str(r.path) for r in written],
+            written=[
                 {
-                    "log": args.log,
-                    "out": args.out,
-                    "session_id": results.session_id,
-                    "complete": results.complete,
-                    "exported": len(written),
-                    "records": [str(r.path) for r in written],
-                    "written": [
-                        {
-                            "grasp_id": r.grasp_id,
-                            "path": str(r.path),
-                            "object": r.record.label.object_name if r.record.label else None,
-                            "modulus_pa": r.record.label.modulus_pa if r.record.label else None,
-                            "label_source": r.record.label.source if r.record.label else None,
-                        }
-                        for r in written
-                    ],
-                    "unlabelled": unlabelled,
-                    "skipped": skipped,
-                    "dropped": dropped,
-                    "stray_labels": results.stray_labels,
-                    "replaced": [str(p) for p in results.replaced],
-                    "error": error,
+                    "grasp_id": r.grasp_id,
+                    "path": str(r.path),
+                    "object": r.record.label.object_name if r.record.label else None,
+                    "modulus_pa": r.record.label.modulus_pa if r.record.label else None,
+                    "label_source": r.record.label.source if r.record.label else None,
                 }
-            )
+                for r in written
+            ],
+            unlabelled=unlabelled,
+            skipped=skipped,
+            dropped=dropped,
+            stray_labels=results.stray_labels,
+            replaced=[str(p) for p in results.replaced],
         )
     return 1 if error else 0
