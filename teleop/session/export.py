@@ -24,7 +24,10 @@ file goes inside every record (``GraspRecord.calibration_files``, record format 
 the log's ``calibration/<finger>/<file>`` attachment, else from the file the sensor names when it
 exists on this machine (given settings look at that file first). So does the gripper
 (``record.gripper``: the finger stiffness, closing speed and target force the session ran with).
-An exported record depends on no file outside it: a folder of them can be moved or shared.
+An exported record depends on no file outside it: a folder of them can be moved or shared. An
+attachment the records would be built from (settings, calibration, catalogue) whose CRC-32 fails is
+never used: the export is refused, naming it (given settings whose sensor's file is on this machine
+take that file instead).
 
 Names
 -----
@@ -83,8 +86,9 @@ from teleop.session.export_calibration import carried_calibrations
 from teleop.session.export_names import record_name, same_grasp_records
 from teleop.session.export_objects import catalogue_objects, label_catalogue_objects
 from teleop.session.export_streams import OpenGrasp, concatenated_samples, frame_stream
+from teleop.session.label import label_catalogues
 from teleop.session.logfile import SETTINGS_ATTACHMENT, LogInfo, LogReader
-from teleop.settings import Settings
+from teleop.settings import Settings, resolve_path
 
 __all__ = ["GraspExport", "SessionExport", "export_session", "session_grasps", "session_id"]
 
@@ -119,7 +123,8 @@ class SessionExport(list[GraspExport]):
     session_id : str
         The session's id in the record names (:func:`session_id`).
     complete : bool
-        The log was read to its end (False: cut short, :attr:`damage` says where).
+        The log was read to its end and nothing of it is lost (False: cut short or damaged, or a
+        recovered log whose source lost data; :attr:`damage` says where).
     damage : str or None
     stray_labels : list of str
         ``label`` messages naming a grasp id the log has no grasp for, one line each.
@@ -338,7 +343,8 @@ def session_grasps(
     ------
     SessionLogError
         The log cannot be read, holds no settings (and none were given), or does not say
-        whether it is simulated or hardware (and ``source`` was not given).
+        whether it is simulated or hardware (and ``source`` was not given), or an attachment
+        the records would be built from is damaged.
     """
     reader = LogReader(Path(path), max_bytes=max_bytes)
     info = reader.info()
@@ -390,6 +396,33 @@ def _warn_other_sensors(path: Path, *, ran: Settings, given: Settings) -> None:
                         ", ".join(f"{k} {getattr(sensor, k)!r}" for k in differ))
 
 
+def _attachments_used(info: LogInfo, settings: Settings, *, given: bool,
+                      catalogue: str | Path | None) -> dict[str, str]:
+    """The attachments the records would be built from (calibrations, catalogues), each with what to
+    pass instead of it (module notes: given settings take a calibration from disk first)."""
+    used = {}
+    for sensor in settings.sensors:
+        if sensor.calibration and not (given and resolve_path(sensor.calibration).is_file()):
+            used[f"calibration/{sensor.finger}/{Path(sensor.calibration).name}"] = (
+                f"pass --settings whose sensor {sensor.finger!r} names an intact copy of its "
+                "calibration file")
+    if catalogue is None:
+        used |= {name: "pass --objects CATALOGUE" for name in ("catalogue.toml", "catalogue.csv")}
+    return used | {name: "label its grasps again with `teleop label`"
+                   for name in label_catalogues(dict.fromkeys(info.damaged_attachments, b""))}
+
+
+def _refuse_damaged(path: Path, info: LogInfo, used: dict[str, str]) -> None:
+    """Refuse a log whose attachment in ``used`` (name -> what to do instead) is damaged: its records
+    would carry, or be labelled from, what the damage left (:class:`SessionLogError`)."""
+    for name, instead in used.items():
+        if name in info.damaged_attachments:
+            raise SessionLogError(
+                f"{path}: {info.damaged_attachments[name]}: the records cannot be built from it; "
+                f"{instead}; nothing was written"
+            )
+
+
 def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, catalogue: str | Path | None,
             source: str | None, stray_labels: list[str] | None = None) -> Iterator[GraspExport]:
     path = reader.path
@@ -399,6 +432,9 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
             "can be read"
         )
     given = settings is not None
+    if not given:
+        _refuse_damaged(path, info, {SETTINGS_ATTACHMENT: "pass --settings, the settings TOML the "
+                                                          "session ran with"})
     if not given and SETTINGS_ATTACHMENT not in info.attachments:
         raise SessionLogError(f"{path}: the log has no {SETTINGS_ATTACHMENT} attachment: pass --settings, "
                               "the settings TOML the session ran with")
@@ -411,6 +447,7 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
             f"{path}: the session metadata gives source {source!r}; give the source "
             "(simulated or hardware) explicitly"
         )
+    _refuse_damaged(path, info, _attachments_used(info, settings, given=given, catalogue=catalogue))
     settings, files = carried_calibrations(info, settings, path, disk_first=given)
     labels = _labels(reader)
     assembler = _Assembler(
@@ -482,7 +519,8 @@ def export_session(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SessionLogError(f"cannot create the export directory {out}: {exc.strerror or exc}") from exc
-    complete, damage = info.complete, info.damage  # info() checks every chunk: damage anywhere counts
+    # info() checks every chunk and attachment: damage anywhere counts, and so do losses before a recovery.
+    complete, damage = info.complete and info.damage is None, info.damage
     sid = session_id(info, path)
     stray: list[str] = []
     results: list[GraspExport] = []

@@ -70,7 +70,8 @@ right after the damaged record when its length is sane, else at the next intact 
 found further on; :attr:`LogReader.lost` lists what was skipped, with its log times.
 
 Nothing read back is trusted: every stored message goes through
-:func:`teleop.bus.wire.decode` (sizes, msgpack limits, schemas) before anyone sees it.
+:func:`teleop.bus.wire.decode` (sizes, msgpack limits, schemas) before anyone sees it, and every
+attachment's CRC-32 is checked (mcap's reader checks those of chunks only).
 """
 
 from __future__ import annotations
@@ -96,6 +97,15 @@ from teleop.bus.wire import SCHEMA_VERSION, SCHEMAS, decode
 from teleop.bus.wire import Message as BusMessage
 from teleop.errors import MessageRejected, SessionLogError
 from teleop.session.foxglove import IMAGE_SCHEMA
+from teleop.session.logdamage import (
+    RECOVERY_METADATA,
+    DamagedAttachment,
+    LostChunk,
+    check_attachment,
+    describe,
+    recorded_losses,
+    recovery_metadata,
+)
 from teleop.session.logframes import FRAMING, elides, unpack_frames
 from teleop.session.logscan import (
     OPCODES,
@@ -225,13 +235,18 @@ class LoggedMessage:
 
 @dataclass(frozen=True)
 class LogInfo:
-    """Everything in a log but its messages."""
+    """Everything in a log but its messages.
+
+    ``attachments`` holds the intact attachments only; ``damaged_attachments`` says, by name,
+    what is wrong with each of the others (their checksum fails).
+    """
 
     profile: str
     attachments: dict[str, bytes]
     metadata: dict[str, dict[str, str]]
-    complete: bool  # the footer was reached and nothing was damaged
-    damage: str | None  # what was damaged (where, and what was skipped), if anything
+    complete: bool  # as LogReader.complete: the footer was reached and nothing in the file is damaged
+    damage: str | None  # what was damaged (where, and what was skipped) or lost before recovery
+    damaged_attachments: dict[str, str] = field(default_factory=dict)
 
     @property
     def session(self) -> dict[str, str]:
@@ -261,9 +276,14 @@ class LogInfo:
         Raises
         ------
         SessionLogError
-            The log has no settings attachment, or it does not hold valid settings.
+            The log has no settings attachment, it is damaged, or it does not hold valid settings.
         """
         data = self.attachments.get(SETTINGS_ATTACHMENT)
+        if SETTINGS_ATTACHMENT in self.damaged_attachments:
+            raise SessionLogError(
+                f"{self.damaged_attachments[SETTINGS_ATTACHMENT]}: the settings the session ran with "
+                "cannot be trusted"
+            )
         if data is None:
             raise SessionLogError(
                 f"the log has no {SETTINGS_ATTACHMENT} attachment (the recorder writes it as the session "
@@ -278,30 +298,6 @@ class LogInfo:
         return settings_from_mapping(mapping, source=f"attachment {SETTINGS_ATTACHMENT}")
 
 
-@dataclass(frozen=True)
-class LostChunk:
-    """A chunk skipped because it (or the record before it) is damaged: its bytes and log times."""
-
-    start_byte: int
-    end_byte: int
-    start_ns: int  # log time of its first message
-    end_ns: int  # ... and of its last (UNKNOWN_NS: no message read after it)
-    kind: str = "chunk"  # or what else was skipped (a log without summary: bytes not read)
-
-    def overlaps(self, start_ns: int, end_ns: int) -> bool:
-        """Whether messages logged between ``start_ns`` and ``end_ns`` may have been in it."""
-        return self.start_ns <= end_ns and start_ns <= self.end_ns
-
-    def __str__(self) -> str:
-        if self.kind == "chunk":
-            times = f"messages logged from {self.start_ns} to {self.end_ns} ns lost"
-        elif self.end_ns == UNKNOWN_NS:
-            times = f"messages logged after {self.start_ns} ns lost"
-        else:
-            times = f"messages logged between {self.start_ns} and {self.end_ns} ns lost"
-        return f"the {self.kind} at bytes {self.start_byte} to {self.end_byte} is damaged ({times})"
-
-
 @dataclass
 class LogReader:
     """Reads a session log front to back, whether or not it was closed cleanly.
@@ -311,7 +307,9 @@ class LogReader:
     stops there (:attr:`stopped`), :attr:`damage` says why, and :attr:`good_bytes` how far it
     got. Damage in a log with an intact summary skips the damaged chunks (:attr:`lost`) and
     reads on (:meth:`records`); :attr:`damage` says what and where, and :attr:`complete` is
-    False.
+    False. An attachment whose CRC-32 fails is damage too. A log ``teleop recover`` wrote has
+    the parts lost from its source in :attr:`lost` and :attr:`damage` as well (from its
+    recovery metadata, :mod:`teleop.session.logdamage`), though the file itself is complete.
 
     Parameters
     ----------
@@ -327,7 +325,7 @@ class LogReader:
     complete: bool = False
     good_bytes: int = 0
     refused: Counter[str] = field(default_factory=Counter)
-    lost: list[LostChunk] = field(default_factory=list)  # chunks skipped for damage
+    lost: list[LostChunk] = field(default_factory=list)  # skipped for damage, or lost before recovery
     stopped: bool = False  # reading stopped at damage (nothing after it could be read)
     cut: bool = False  # ... because the file ends inside a record, or without its footer
     damaged: bool = False  # a record was damaged (not only cut short by the file's end)
@@ -343,8 +341,12 @@ class LogReader:
         chunks skipped are in :attr:`lost`, and the summary's schemas and channels are
         yielded again before reading on (a skipped chunk may have held the first of them).
         Without an intact summary (a log cut short) reading stops at the damage.
-        :attr:`damage` says what was damaged and where; :attr:`complete` is True only when
-        the footer was reached and nothing was skipped.
+        An attachment whose CRC-32 fails is yielded as a
+        :class:`~teleop.session.logdamage.DamagedAttachment`. :attr:`damage` says what was
+        damaged and where, and what was lost before a recovery; :attr:`complete` is True only
+        when the footer was reached and nothing in the file is damaged. The parts lost before
+        a recovery are in :attr:`lost` before the first message is yielded (the recovery
+        metadata, at the file's end, is read first through the summary when it is intact).
 
         Raises
         ------
@@ -365,12 +367,13 @@ class LogReader:
                 raise SessionLogError(
                     f"{self.path} is not an MCAP session log (no MCAP magic at the start)"
                 )
-            file.seek(0)
             # No complete record is longer than the file: a larger length field is damage.
             size = self.path.stat().st_size
-            damages: list[str] = []
-            summary: Summary | None = None
-            summary_read = False
+            damages: list[str] = []  # in this file
+            summary = self._summary(file)
+            for metadata in recovery_metadata(file, summary, size):
+                self._take_losses(metadata, damages)
+            file.seek(0)
             skip_magic = False
             resumed_at = -1  # where reading last went on after damage
             last_ns, pending = 0, None  # the latest message's log time; a skip not yet followed by one
@@ -387,6 +390,7 @@ class LogReader:
                         record = next(stream)
                     except StopIteration:  # the footer and the closing magic were read
                         self.complete, self.good_bytes = not damages, file.tell()
+                        self._say(damages)
                         return
                     except Exception as exc:  # any parse failure: the bytes from here are unusable
                         failure = exc
@@ -400,13 +404,21 @@ class LogReader:
                             pending = None
                     elif isinstance(record, Metadata) and record.name == SESSION_METADATA:
                         check_format(self.path, record.metadata, FORMAT_VERSION)
+                    elif isinstance(record, Metadata) and record.name == RECOVERY_METADATA:
+                        self._take_losses(record.metadata, damages)  # unless the summary gave them
+                    elif isinstance(record, Attachment):
+                        record = check_attachment(file, record, self.good_bytes)
+                        if isinstance(record, DamagedAttachment):
+                            damages.append(str(record))
+                            self.damaged = True
+                            self._say(damages)
+                            log.warning("%s: %s", self.path, record)
                     yield record
-                if not summary_read:
-                    summary, summary_read = self._summary(file), True
                 # Past the last resume too: a damaged record there reads nothing, and good_bytes stays put.
                 damaged_at = max(self.good_bytes, resumed_at, len(_MAGIC))
-                what = self._describe(
-                    failure, file, damaged_at, size, None if summary is None else "the file has its footer"
+                what = describe(
+                    failure, file, damaged_at, size, self.good_bytes,
+                    None if summary is None else "the file has its footer",
                 )
                 if summary is not None:
                     resume = self._resume_at(summary, damaged_at)
@@ -416,12 +428,14 @@ class LogReader:
                     resume, skipped = self._read_on(file, damaged_at, size, last_ns)
                     if resume is not None:
                         if what.startswith("the file ends inside"):  # an intact chunk follows: damage
-                            what = self._describe(failure, file, damaged_at, size, "an intact chunk follows")
+                            what = describe(
+                                failure, file, damaged_at, size, self.good_bytes, "an intact chunk follows"
+                            )
                         what += skipped
-                        if self.lost and self.lost[-1].start_byte == damaged_at:
+                        if self.lost and not self.lost[-1].lost_in and self.lost[-1].start_byte == damaged_at:
                             pending = len(self.lost) - 1
                 damages.append(what)
-                self.damage = "; ".join(damages)
+                self._say(damages)
                 self.damaged = self.damaged or not what.startswith("the file ends")
                 if resume is None:
                     self.stopped, self.cut = True, what.startswith("the file ends")
@@ -433,6 +447,18 @@ class LogReader:
                     yield from summary.channels.values()
                 file.seek(resume)
                 resumed_at, skip_magic = resume, True
+
+    def _say(self, damages: list[str]) -> None:
+        """Set :attr:`damage`: the parts lost before recovery, then ``damages`` (this file's)."""
+        said = [str(c) for c in self.lost if c.lost_in] + damages
+        self.damage = "; ".join(said) or None
+
+    def _take_losses(self, metadata: dict[str, str], damages: list[str]) -> None:
+        """Add the parts the recovery metadata ``metadata`` lists as lost to :attr:`lost` (once)."""
+        for chunk in recorded_losses(metadata, self.path):
+            if chunk not in self.lost:
+                self.lost.append(chunk)
+        self._say(damages)
 
     def _summary(self, file: Any) -> Summary | None:
         """The file's summary (chunk indexes, schemas, channels), if it and the footer are intact."""
@@ -506,52 +532,25 @@ class LogReader:
             "and read on at the next intact chunk"
         )
 
-    def _describe(self, exc: Exception, file: Any, start: int, size: int, uncut: str | None) -> str:
-        """What is wrong with the record at byte ``start`` (``uncut``: why the file is not cut short)."""
-        if self.good_bytes == size:
-            return (
-                f"the file ends after its last complete record (byte {size}) "
-                "without a summary and footer"
-            )
-        what = type(exc).__name__ + (f": {exc}" if str(exc) else "")
-        head = record_head(file, start)
-        if head is None:
-            kind = "record"
-        else:
-            try:
-                kind = Opcode(head[0]).name.lower() + " record"
-            except ValueError:
-                kind = f"record of unknown opcode {head[0]:#x}"
-            kind += record_name(file, start, head[0])
-        kind = ("an " if kind[0] in "aeiou" else "a ") + kind
-        if head is None or start + 9 + head[1] > size:
-            length = "" if head is None else f" of {head[1]} bytes"
-            if uncut is None:  # really cut short, unless a later chunk shows it is damage (_read_on)
-                return (
-                    f"the file ends inside the record after byte {start} of {size} "
-                    f"({kind}{length} starts at byte {start})"
-                )
-            return (
-                f"damaged record after byte {start} of {size} ({kind} whose length{length} runs "
-                f"past the end of the file, though {uncut})"
-            )
-        return f"damaged record after byte {start} of {size} ({kind} of {head[1]} bytes: {what})"
-
     def info(self) -> LogInfo:
         """Profile, attachments and metadata, and whether the log is whole.
 
         One pass that opens the chunks, so their checksums and compression are checked and
-        :attr:`LogInfo.damage` includes damage inside them.
+        :attr:`LogInfo.damage` includes damage inside them (and in attachments).
         """
-        profile, attachments, metadata = "", {}, {}
+        profile, attachments, metadata, damaged = "", {}, {}, {}
         for record in self.records():
             if isinstance(record, Header):
                 profile = record.profile
+            elif isinstance(record, DamagedAttachment):  # kept out of attachments: none may use it unawares
+                damaged[record.name] = str(record)
+                attachments.pop(record.name, None)
             elif isinstance(record, Attachment):
                 attachments[record.name] = bytes(record.data)
+                damaged.pop(record.name, None)
             elif isinstance(record, Metadata):
                 metadata[record.name] = dict(record.metadata)
-        return LogInfo(profile, attachments, metadata, self.complete, self.damage)
+        return LogInfo(profile, attachments, metadata, self.complete, self.damage, damaged)
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[LoggedMessage]:
         """Stored bus messages, decoded and checked, in the order they were received.

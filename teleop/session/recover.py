@@ -5,12 +5,18 @@ damaged records where it can (:class:`~teleop.session.logfile.LogReader`), up to
 complete record; every complete record read (header, schemas,
 channels, messages, attachments, metadata) is copied unchanged, message data byte for
 byte, into a new file with a summary, indexes and footer. A ``recovery`` metadata record
-says what was salvaged from where.
+says what was salvaged from where, and lists the parts lost (``lost``: those of the source,
+with its byte offsets and the log times of what they held, and those the source had lost
+before when it was itself recovered), so readers of the copy take them as lost
+(:mod:`teleop.session.logdamage`). An attachment whose CRC-32 fails is copied with its stored
+CRC-32, not a fresh one, so the copy's readers find the damage too; it is named in
+``damaged_attachments``.
 """
 
 from __future__ import annotations
 
 import json
+import struct
 from collections import Counter
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -26,11 +32,10 @@ from teleop.bus.wire import decode
 from teleop.errors import MessageRejected, SessionLogError
 from teleop.progress import progress_bar
 from teleop.record import software_version
+from teleop.session.logdamage import RECOVERY_METADATA, DamagedAttachment
 from teleop.session.logfile import CHUNK_BYTES, END_METADATA, LogReader, StoredFrames
 
 __all__ = ["RECOVERY_METADATA", "RecoveryReport", "check_not_source", "recover"]
-
-RECOVERY_METADATA = "recovery"
 
 
 @dataclass
@@ -48,9 +53,11 @@ class RecoveryReport:
     topics: Counter[str] = field(default_factory=Counter)
     undecodable: int = 0  # complete messages kept verbatim that are not valid bus messages
     attachments: list[str] = field(default_factory=list)
+    damaged_attachments: list[str] = field(default_factory=list)  # copied with their stored CRC-32
     metadata: list[str] = field(default_factory=list)
     salvaged_bytes: int = 0  # where the last complete record read ends (damage before it skipped)
     source_bytes: int = 0
+    lost: list[dict[str, Any]] = field(default_factory=list)  # LostChunk.as_mapping of each part lost
 
     def as_dict(self) -> dict[str, Any]:
         out = {k: v for k, v in self.__dict__.items() if k != "topics"}
@@ -94,7 +101,7 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
         ):
             _copy(
                 reader,
-                Writer(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD),
+                _Writer(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD),
                 report,
                 bar,
             )
@@ -110,7 +117,25 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
     return report
 
 
-def _copy(reader: LogReader, writer: Writer, report: RecoveryReport, bar: tqdm) -> None:
+class _Writer(Writer):
+    """mcap's writer, which can also copy an attachment with the CRC-32 it was stored with."""
+
+    def __init__(self, output: Any, **options: Any):
+        super().__init__(output, **options)
+        self._file = output
+
+    def add_damaged_attachment(self, record: DamagedAttachment) -> None:
+        """Write ``record`` with its stored CRC-32 in place of the one computed afresh (the writer
+        writes each attachment out at once: its record ends where the file stands)."""
+        self.add_attachment(record.create_time, record.log_time, record.name, record.media_type, record.data)
+        end = self._file.tell()
+        self._file.seek(end - 4)
+        self._file.write(struct.pack("<I", record.stored_crc))
+        self._file.seek(end)
+
+
+def _copy(reader: LogReader, writer: _Writer, report: RecoveryReport, bar: tqdm) -> None:
+    """Copy what ``reader`` reads through ``writer``, noting it in ``report``."""
     schemas: dict[int, int] = {}  # source id -> id in the copy (the summary repeats them)
     channels: dict[int, tuple[int, str]] = {}
     stored = StoredFrames()  # puts elided image data back, to check each bus message decodes
@@ -153,9 +178,13 @@ def _copy(reader: LogReader, writer: Writer, report: RecoveryReport, bar: tqdm) 
             report.topics[topic] += 1
             report.undecodable += not _decodes(stored, record)
         elif isinstance(record, Attachment):
-            writer.add_attachment(
-                record.create_time, record.log_time, record.name, record.media_type, record.data
-            )
+            if isinstance(record, DamagedAttachment):
+                writer.add_damaged_attachment(record)
+                report.damaged_attachments.append(record.name)
+            else:
+                writer.add_attachment(
+                    record.create_time, record.log_time, record.name, record.media_type, record.data
+                )
             report.attachments.append(record.name)
         elif isinstance(record, Metadata):
             writer.add_metadata(record.name, dict(record.metadata))
@@ -169,6 +198,7 @@ def _copy(reader: LogReader, writer: Writer, report: RecoveryReport, bar: tqdm) 
     report.closed_cleanly = END_METADATA in report.metadata
     report.salvaged_bytes = reader.good_bytes
     report.source_bytes = reader.path.stat().st_size
+    report.lost = [chunk.as_mapping(reader.path.resolve()) for chunk in reader.lost]
     writer.add_metadata(
         RECOVERY_METADATA,
         {

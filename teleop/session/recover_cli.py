@@ -28,8 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="print one JSON object (source, out, complete, closed_cleanly, damage, damaged, "
         "cut_short, messages, "
-        "topics, undecodable, attachments, metadata, salvaged_bytes, source_bytes) as the "
-        "last stdout line",
+        "topics, undecodable, attachments, damaged_attachments, metadata, salvaged_bytes, "
+        "source_bytes, lost) as the last stdout line",
     )
 
 
@@ -52,6 +52,12 @@ def run(args: argparse.Namespace) -> int:
         f"{report.source_bytes}" + (" past the damage" if report.damaged else "") + f", into {args.out}",
         file=sys.stderr,
     )
+    if report.damaged_attachments:
+        print(
+            f"damaged attachments copied as they are, with their stored CRC-32 (so readers of "
+            f"{args.out} see the damage too): {', '.join(report.damaged_attachments)}",
+            file=sys.stderr,
+        )
     if report.undecodable:
         print(
             f"{report.undecodable} salvaged messages are not valid bus messages "
@@ -73,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _state(report: RecoveryReport) -> str:
     """The source's state, as what happened: complete, damaged, cut short (and where)."""
-    if report.complete:
-        return "complete"
+    if report.complete:  # a recovered log's earlier losses are still lost
+        return "complete" + (f" (though {report.damage})" if report.damage else "")
     said = [word for word, yes in (("damaged", report.damaged), ("cut short", report.cut_short)) if yes]
     return f"{' and '.join(said) or 'incomplete'} ({report.damage})"

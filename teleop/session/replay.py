@@ -55,7 +55,7 @@ class ReplayStats:
     refused: Counter[str] = field(default_factory=Counter)  # stored messages that did not decode
     log_span_s: float = 0.0  # receive-time span of what was sent
     wall_s: float = 0.0
-    damage: str | None = None  # what was damaged or cut short in the log, and what was skipped
+    damage: str | None = None  # what was damaged or cut short in the log, skipped, or lost before recovery
     stopped: bool = False  # reading stopped there: nothing after it was replayed
 
     def as_dict(self) -> dict[str, Any]:

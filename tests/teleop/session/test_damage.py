@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from teleop.session import LogReader, export_session, session_grasps
+from teleop.session import LogReader, export_session, recover, replay, session_grasps
 from teleop.system.report import build_report
 
 TELEOP = Path(sys.executable).parent / "teleop"
@@ -107,3 +107,73 @@ def test_two_damaged_chunks_in_a_row_are_both_skipped_and_reading_ends(recorded,
     read = list(reader.messages())
     assert [c.start_byte for c in reader.lost] == [first.chunk_start_offset, second.chunk_start_offset]
     assert read and not reader.complete
+
+
+class _Sink:
+    """Stands in for a Publisher: takes every message, sends nothing."""
+
+    max_bytes = 8 * 1024 * 1024
+    heartbeat_s = 1.0
+
+    def publish(self, message):
+        return message
+
+    def heartbeat_if_due(self, now_s=None):
+        return False
+
+
+@pytest.fixture(scope="module")
+def recovered(damaged, tmp_path_factory):
+    """The damaged log recovered (a complete file that lacks the damaged chunk's messages), and the report."""
+    path, _ = damaged
+    out = tmp_path_factory.mktemp("recovered") / "fixed.mcap"
+    return out, recover(path, out)
+
+
+def test_a_recovered_log_reads_the_parts_its_source_lost_as_lost(damaged, recovered):
+    path, target = damaged
+    recovered, report = recovered
+    assert [(c["start_byte"], c["lost_in"]) for c in report.lost] == [
+        (target.chunk_start_offset, str(path.resolve()))]  # in its recovery metadata
+    reader = LogReader(recovered)
+    records = reader.records()
+    next(records)  # the header: the recovery metadata, at the end, is taken before it
+    records.close()
+    assert [(c.start_ns, c.end_ns, c.lost_in) for c in reader.lost] == [
+        (target.message_start_time, target.message_end_time, str(path.resolve()))]
+    info = reader.info()
+    assert info.complete  # the file itself is whole (it can be labelled) ...
+    assert "lost before recovery" in info.damage and f"bytes {target.chunk_start_offset} to" in info.damage
+
+
+def test_export_of_a_recovered_log_skips_the_grasp_its_source_lost_part_of(damaged, recovered, tmp_path):
+    path, target = damaged
+    results = export_session(recovered[0], tmp_path / "out")
+    by_id = {g.grasp_id: g for g in results}
+    assert not results.complete and "lost before recovery" in results.damage
+    assert not by_id["g0"] and by_id["g0"].reason.startswith("part of its data is lost")
+    assert "lost before recovery" in by_id["g0"].reason and str(path.resolve()) in by_id["g0"].reason
+    assert by_id["g1"] and by_id["g1"].path.exists()
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [by_id["g1"].path.name]
+
+
+def test_replay_and_report_of_a_recovered_log_say_what_its_source_lost(damaged, recovered, tmp_path):
+    path, target = damaged
+    recovered, _ = recovered
+    stats = replay(recovered, _Sink(), speed=None)
+    assert stats.damage and "lost before recovery" in stats.damage and not stats.stopped
+    page = build_report(recovered, tmp_path / "report").index.read_text(encoding="utf-8")
+    assert "lost before recovery" in page and f"bytes {target.chunk_start_offset} to" in page
+
+
+def test_a_log_recovered_twice_keeps_the_first_losses_once(damaged, recovered, tmp_path):
+    path, target = damaged
+    twice = tmp_path / "twice.mcap"
+    report = recover(recovered[0], twice)
+    assert report.complete and "lost before recovery" in report.damage  # whole file, earlier losses
+    assert [c["lost_in"] for c in report.lost] == [str(path.resolve())]
+    reader = LogReader(twice)
+    reader.info()  # two recovery metadata records list the same part
+    assert [(c.start_byte, c.lost_in) for c in reader.lost] == [(target.chunk_start_offset, str(path.resolve()))]
+    by_id = {g.grasp_id: g for g in export_session(twice, tmp_path / "out")}
+    assert not by_id["g0"] and "lost before recovery" in by_id["g0"].reason and by_id["g1"]

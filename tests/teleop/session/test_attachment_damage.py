@@ -1,0 +1,86 @@
+"""An attachment whose bytes changed (its CRC-32 fails) is damage: said, refused by export, and copied
+by recover with its stored CRC-32, so the copy's readers see the damage too."""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from mcap.records import Attachment
+
+from teleop.cli import main
+from teleop.errors import SessionLogError
+from teleop.session import LogReader, export_session, recover
+from teleop.session.logfile import SETTINGS_ATTACHMENT
+from teleop.session.recover import RECOVERY_METADATA
+
+
+def _damage_attachment(source: Path, out: Path, prefix: str) -> tuple[Path, str, bytes]:
+    """``source`` with one byte in the middle of the data of the first attachment named ``prefix...`` flipped:
+    the copy, the attachment's name and its damaged data."""
+    with source.open("rb") as f:
+        index = next(a for a in make_reader(f).get_summary().attachment_indexes if a.name.startswith(prefix))
+    data = bytearray(source.read_bytes())
+    at = index.offset + 9 + 16  # opcode, length, log and create times
+    at += 4 + struct.unpack_from("<I", data, at)[0]  # the name
+    at += 4 + struct.unpack_from("<I", data, at)[0]  # the media type
+    size = struct.unpack_from("<Q", data, at)[0]
+    start = at + 8
+    data[start + size // 2] ^= 0xFF
+    out.write_bytes(bytes(data))
+    return out, index.name, bytes(data[start : start + size])
+
+
+@pytest.fixture
+def damaged_calibration(recorded, tmp_path):
+    return _damage_attachment(recorded.path, tmp_path / "calibration.mcap", "calibration/left/")
+
+
+def test_a_damaged_attachment_is_damage_and_kept_out_of_the_attachments(damaged_calibration):
+    path, name, _ = damaged_calibration
+    reader = LogReader(path)
+    info = reader.info()
+    assert not info.complete and reader.damaged and not reader.stopped
+    assert f"attachment {name!r} at bytes " in info.damage and "CRC-32" in info.damage
+    assert name not in info.attachments and name in info.damaged_attachments
+    assert SETTINGS_ATTACHMENT in info.attachments  # the others are intact
+
+
+def test_export_refuses_a_log_whose_calibration_attachment_is_damaged(damaged_calibration, tmp_path):
+    path, name, _ = damaged_calibration
+    with pytest.raises(SessionLogError, match="damaged") as caught:
+        export_session(path, tmp_path / "out")
+    assert str(path) in str(caught.value) and repr(name) in str(caught.value)
+    assert not (tmp_path / "out").exists()
+
+
+def test_recover_copies_a_damaged_attachment_with_its_stored_crc_and_says_so(damaged_calibration, tmp_path,
+                                                                             capsys):
+    path, name, data = damaged_calibration
+    fixed = tmp_path / "fixed.mcap"
+    report = recover(path, fixed)
+    assert not report.complete and report.damaged and report.damaged_attachments == [name]
+    with fixed.open("rb") as f:
+        metadata = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    assert json.loads(metadata[RECOVERY_METADATA]["damaged_attachments"]) == [name]
+    reader = LogReader(fixed)
+    info = reader.info()
+    assert not info.complete and name in info.damaged_attachments  # the copy's CRC is not a fresh one
+    records = [r for r in reader.records() if isinstance(r, Attachment) and r.name == name]
+    assert [bytes(r.data) for r in records] == [data]  # nothing of it lost
+    assert main(["recover", str(path), "--out", str(tmp_path / "cli.mcap")]) == 0
+    err = capsys.readouterr().err
+    assert "complete" not in err and f"damaged (attachment {name!r}" in err and "stored CRC-32" in err
+
+
+def test_a_damaged_settings_attachment_is_named_when_the_settings_are_read(recorded, tmp_path):
+    path, name, _ = _damage_attachment(recorded.path, tmp_path / "settings.mcap", SETTINGS_ATTACHMENT)
+    info = LogReader(path).info()
+    with pytest.raises(SessionLogError, match=f"attachment '{name}' at bytes .* is damaged"):
+        info.settings()
+    with pytest.raises(SessionLogError, match="pass --settings") as caught:
+        export_session(path, tmp_path / "out")
+    assert str(path) in str(caught.value) and repr(name) in str(caught.value)
