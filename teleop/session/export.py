@@ -126,6 +126,9 @@ class SessionExport(list[GraspExport]):
         The log was read to its end and nothing of it is lost (False: cut short or damaged, or a
         recovered log whose source lost data; :attr:`damage` says where).
     damage : str or None
+    file_complete : bool
+        The file itself was read to its end without damage: ``teleop recover`` has nothing to mend
+        (a recovered log's earlier losses stay lost).
     stray_labels : list of str
         ``label`` messages naming a grasp id the log has no grasp for, one line each.
     replaced : list of Path
@@ -133,11 +136,12 @@ class SessionExport(list[GraspExport]):
     """
 
     def __init__(self, grasps: list[GraspExport], *, session_id: str, complete: bool, damage: str | None,
-                 stray_labels: list[str], replaced: list[Path]):
+                 file_complete: bool, stray_labels: list[str], replaced: list[Path]):
         super().__init__(grasps)
         self.session_id = session_id
         self.complete = complete
         self.damage = damage
+        self.file_complete = file_complete
         self.stray_labels = stray_labels
         self.replaced = replaced
 
@@ -578,5 +582,5 @@ def export_session(
             # The log's settings and grasps are checked as they are read, after out is made.
             with contextlib.suppress(OSError):
                 out.rmdir()
-    return SessionExport(results, session_id=sid, complete=complete, damage=damage, stray_labels=stray,
-                         replaced=replaced)
+    return SessionExport(results, session_id=sid, complete=complete, damage=damage, file_complete=info.complete,
+                         stray_labels=stray, replaced=replaced)

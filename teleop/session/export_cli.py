@@ -126,11 +126,12 @@ def run(args: argparse.Namespace) -> int:
     error = None
     if not results.complete:
         cut = f"{args.log} is cut short or damaged ({results.damage})"
+        recover = "" if results.file_complete else _recover_hint(args.log)  # a recovered log: nothing to mend
         if written:
-            print(f"note: {cut}; grasps in what is lost are skipped (above). `teleop recover` writes the "
-                  "readable part as a complete log", file=sys.stderr)
+            print(f"note: {cut}; grasps in what is lost are skipped (above)" + (f"; {recover}" if recover else ""),
+                  file=sys.stderr)
         else:
-            error = f"no grasp record exported: {cut}; {_recover_hint(args.log)}"
+            error = f"no grasp record exported: {cut}" + (f"; {recover}" if recover else "")
     elif not written:
         error = (
             f"no grasp record exported: {args.log} holds no complete grasp"

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
+import teleop.cli
 from teleop.session import LogReader, export_session, recover, replay, session_grasps
 from teleop.system.report import build_report
 
@@ -146,7 +147,7 @@ def test_a_recovered_log_reads_the_parts_its_source_lost_as_lost(damaged, recove
     assert "lost before recovery" in info.damage and f"bytes {target.chunk_start_offset} to" in info.damage
 
 
-def test_export_of_a_recovered_log_skips_the_grasp_its_source_lost_part_of(damaged, recovered, tmp_path):
+def test_export_of_a_recovered_log_skips_the_grasp_its_source_lost_part_of(damaged, recovered, tmp_path, capsys):
     path, target = damaged
     results = export_session(recovered[0], tmp_path / "out")
     by_id = {g.grasp_id: g for g in results}
@@ -155,6 +156,10 @@ def test_export_of_a_recovered_log_skips_the_grasp_its_source_lost_part_of(damag
     assert "lost before recovery" in by_id["g0"].reason and str(path.resolve()) in by_id["g0"].reason
     assert by_id["g1"] and by_id["g1"].path.exists()
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [by_id["g1"].path.name]
+    assert results.file_complete  # nothing left for `teleop recover` to mend ...
+    assert teleop.cli.main(["export", str(recovered[0]), "--out", str(tmp_path / "again")]) == 0
+    note = capsys.readouterr().err
+    assert "lost before recovery" in note and "FIXED.mcap" not in note  # ... so it is not advised
 
 
 def test_replay_and_report_of_a_recovered_log_say_what_its_source_lost(damaged, recovered, tmp_path):
@@ -164,6 +169,7 @@ def test_replay_and_report_of_a_recovered_log_say_what_its_source_lost(damaged, 
     assert stats.damage and "lost before recovery" in stats.damage and not stats.stopped
     page = build_report(recovered, tmp_path / "report").index.read_text(encoding="utf-8")
     assert "lost before recovery" in page and f"bytes {target.chunk_start_offset} to" in page
+    assert "FIXED.mcap" not in page  # the file is whole: recovering it again mends nothing
 
 
 def test_a_log_recovered_twice_keeps_the_first_losses_once(damaged, recovered, tmp_path):
