@@ -63,6 +63,7 @@ import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 from zmq.utils import z85
 
+from teleop.bus.cert_access import CertificateAccessError, access_error, is_dir, load_certificate
 from teleop.bus.handshakes import watch_handshakes
 from teleop.endpoints import parse_endpoint
 from teleop.errors import BusError, BusSecurityError
@@ -183,10 +184,7 @@ def _check_z85(key: bytes, path: Path, which: str) -> bytes:
 
 def _read_public_cert(path: Path) -> bytes:
     """The public key of a public certificate; refuses a file that holds a secret key."""
-    try:
-        public, secret = zmq.auth.load_certificate(path)
-    except (OSError, ValueError) as exc:
-        raise BusSecurityError(f"cannot read CURVE certificate {path}: {exc}") from exc
+    public, secret = load_certificate(path, "CURVE certificate")
     if secret is not None:
         raise BusSecurityError(
             f"{path} holds a secret key: pass the public certificate (.key), never the .key_secret"
@@ -196,10 +194,10 @@ def _read_public_cert(path: Path) -> bytes:
 
 def _read_secret_cert(path: Path, public_key: bytes) -> bytes:
     """The secret key of ``path``, after checking only its owner can read it."""
+    public, secret = load_certificate(path, "CURVE secret certificate")
     try:
         mode = stat.S_IMODE(path.stat().st_mode)
-        public, secret = zmq.auth.load_certificate(path)
-    except (OSError, ValueError) as exc:
+    except OSError as exc:
         raise BusSecurityError(f"cannot read CURVE secret certificate {path}: {exc}") from exc
     if mode & 0o077:
         raise BusSecurityError(
@@ -237,10 +235,11 @@ class BusSecurity:
             A certificate is missing, malformed, mismatched or readable by other users.
         """
         directory = Path(keys_dir)
-        if directory.exists() and not directory.is_dir():
+        found = is_dir(directory, "CURVE keys directory")
+        if not found and directory.exists():
             raise BusSecurityError(f"CURVE keys directory {directory} is a file, not a directory: set "
                                    "bus.keys_dir to the directory `teleop keys init DIR` made")
-        if not directory.is_dir():
+        if not found:
             raise BusSecurityError(f"CURVE keys directory {directory} does not exist: {_FIX_HINT}")
         server_public = _read_public_cert(directory / f"{SERVER_CERT}{PUBLIC_SUFFIX}")
         client_public = _read_public_cert(directory / f"{CLIENT_CERT}{PUBLIC_SUFFIX}")
@@ -284,14 +283,20 @@ def read_authorized(authorized_dir: Path) -> tuple[AuthorizedKey, ...]:
         The directory is missing, or a file in it is not a public certificate (named): a
         server handed it would admit no client at all.
     """
-    if not authorized_dir.is_dir():
+    if not is_dir(authorized_dir, "authorised-keys directory"):
         raise BusSecurityError(
             f"authorised-keys directory {authorized_dir} does not exist: run `teleop keys init`"
         )
+    try:  # glob would take a directory it may not list for an empty one
+        os.listdir(authorized_dir)
+    except OSError as exc:
+        raise access_error(authorized_dir, "authorised-keys directory", exc) from exc
     keys = []
     for path in sorted(authorized_dir.glob(f"*{PUBLIC_SUFFIX}")):
         try:
             keys.append(AuthorizedKey(path.stem, _read_public_cert(path).decode("ascii")))
+        except CertificateAccessError:
+            raise  # a permission problem, not a file to remove
         except BusSecurityError as exc:
             raise BusSecurityError(
                 f"{exc}: remove it from {authorized_dir}, or put a client's public certificate "
@@ -502,16 +507,13 @@ def init_keys(
     """
     directory = Path(keys_dir)
     server_public = None if server_cert is None else _read_public_cert(Path(server_cert))
-    existing = [
-        p
-        for p in (
-            directory / f"{n}{s}"
-            for n in (SERVER_CERT, CLIENT_CERT)
-            for s in (PUBLIC_SUFFIX, SECRET_SUFFIX)
-        )
-        if p.exists()
-    ]
-    if existing or (directory / AUTHORIZED_DIR).exists():
+    try:
+        names = (f"{n}{s}" for n in (SERVER_CERT, CLIENT_CERT) for s in (PUBLIC_SUFFIX, SECRET_SUFFIX))
+        existing = [p for p in (directory / name for name in names) if p.exists()]
+        has_authorized = (directory / AUTHORIZED_DIR).exists()
+    except OSError as exc:  # a folder on the way this user may not search
+        raise access_error(directory, "CURVE keys directory", exc) from exc
+    if existing or has_authorized:
         found = ", ".join(p.name for p in existing) or AUTHORIZED_DIR
         raise BusSecurityError(
             f"{directory} already holds CURVE keys ({found}): "

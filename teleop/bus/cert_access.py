@@ -1,0 +1,81 @@
+"""Reading CURVE certificates and keys folders, with the operating system's reason when one cannot be.
+
+pyzmq calls a certificate it cannot see (missing, or in a folder this user may not search) an
+"Invalid certificate file"; these open it first, so a permission problem is said as one, naming
+the folder or file that blocks it, its owner and what to do (:mod:`teleop.bus.security`).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import stat
+from pathlib import Path
+
+import zmq.auth
+
+from teleop.errors import BusSecurityError
+
+__all__ = ["CertificateAccessError", "access_error", "is_dir", "load_certificate"]
+
+
+class CertificateAccessError(BusSecurityError):
+    """A certificate or keys folder this process may not read, or that does not exist."""
+
+
+def _user_name(uid: int) -> str:
+    try:
+        import pwd
+
+        return pwd.getpwuid(uid).pw_name
+    except (ImportError, KeyError):
+        return f"uid {uid}"
+
+
+def access_error(path: Path, what: str, exc: OSError) -> BusSecurityError:
+    """Why ``path`` cannot be opened, in words: missing, or not readable by this user."""
+    if exc.errno in (errno.ENOENT, errno.ENOTDIR):
+        return CertificateAccessError(f"cannot read {what} {path}: it does not exist")
+    if exc.errno not in (errno.EACCES, errno.EPERM):
+        return BusSecurityError(f"cannot read {what} {path}: {exc}")
+    user = _user_name(os.geteuid()) if hasattr(os, "geteuid") else "this user"
+    blocked, kind = path, "file"
+    for folder in reversed(path.absolute().parents):  # the first folder we may not search
+        if not os.access(folder, os.X_OK):
+            blocked, kind = folder, "folder"
+            break
+    try:
+        info = os.stat(blocked)
+        owner = _user_name(info.st_uid)
+        detail = (f"{kind} {blocked} (owner {owner}, mode {stat.S_IMODE(info.st_mode):04o}) "
+                  f"is not readable by {user}")
+        fix = f"run as the user that owns the keys ({owner}), or let {user} read {blocked}"
+    except OSError:
+        detail = f"{path} or a folder above it is not readable by {user}"
+        fix = f"run as the user that owns the keys, or let {user} read it"
+    return CertificateAccessError(
+        f"cannot read {what} {path}: permission denied: {detail}: {fix}"
+    )
+
+
+def load_certificate(path: Path, what: str) -> tuple[bytes, bytes | None]:
+    """``zmq.auth.load_certificate``, saying why a file that cannot be opened cannot be."""
+    try:
+        with open(path, "rb"):
+            pass
+    except OSError as exc:
+        raise access_error(path, what, exc) from exc
+    try:
+        return zmq.auth.load_certificate(path)
+    except (OSError, ValueError) as exc:
+        raise BusSecurityError(f"cannot read {what} {path}: {exc}") from exc
+
+
+def is_dir(path: Path, what: str) -> bool:
+    """Whether ``path`` is a directory (False: missing); refuses one this user cannot reach."""
+    try:
+        return stat.S_ISDIR(os.stat(path).st_mode)
+    except OSError as exc:
+        if exc.errno in (errno.ENOENT, errno.ENOTDIR):
+            return False
+        raise access_error(path, what, exc) from exc

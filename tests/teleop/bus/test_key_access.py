@@ -1,0 +1,105 @@
+"""Certificates and keys folders this user may not read, or that are missing: said as such, not as
+invalid certificates (:mod:`teleop.bus.cert_access`)."""
+
+from __future__ import annotations
+
+import builtins
+import errno
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+from teleop.bus.security import (
+    BusSecurity,
+    authorize_key,
+    init_keys,
+    list_keys,
+    security_from_settings,
+)
+from teleop.errors import BusSecurityError
+from teleop.settings import BusSettings
+
+
+def _unsearchable(monkeypatch, folder: Path) -> None:
+    """Make ``folder`` behave as a directory this user may not search (mode 0700, another
+    owner): what lies inside can neither be stat'ed nor opened. Simulated, as root ignores
+    permission bits."""
+    inside = str(folder.absolute()) + os.sep
+
+    def refused(path) -> bool:
+        return isinstance(path, (str, os.PathLike)) and os.path.abspath(os.fspath(path)).startswith(inside)
+
+    real_stat, real_open = os.stat, builtins.open
+
+    def stat_(path, *args, **kwargs):
+        if refused(path):
+            raise PermissionError(errno.EACCES, "Permission denied", os.fspath(path))
+        return real_stat(path, *args, **kwargs)
+
+    def open_(path, *args, **kwargs):
+        if refused(path):
+            raise PermissionError(errno.EACCES, "Permission denied", os.fspath(path))
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(os, "stat", stat_)
+    monkeypatch.setattr(builtins, "open", open_)
+
+
+def _says_permission(message: str, path: Path) -> None:
+    assert "Invalid certificate file" not in message
+    assert f"cannot read CURVE certificate {path}: permission denied" in message
+    assert "run as the user that owns the keys" in message and "or let " in message
+
+
+def test_keys_this_user_may_not_read_are_called_unreadable_not_invalid(tmp_path, keys, stranger, monkeypatch):
+    # pyzmq calls a certificate it cannot see "Invalid certificate file"
+    settings = BusSettings(robot_pub="tcp://*:5550", keys_dir=str(keys.keys_dir))
+    _unsearchable(monkeypatch, keys.keys_dir)
+    for read in (
+        lambda: list_keys(keys.keys_dir),  # teleop keys list
+        lambda: authorize_key(keys.keys_dir, stranger.keys_dir / "client.key", name="op"),  # keys add
+        lambda: security_from_settings(settings),  # every service started with bus.keys_dir
+    ):
+        with pytest.raises(BusSecurityError) as info:
+            read()
+        _says_permission(str(info.value), keys.keys_dir / "server.key")
+    monkeypatch.undo()
+    _unsearchable(monkeypatch, stranger.keys_dir)  # keys add CERT: the certificate to admit
+    with pytest.raises(BusSecurityError) as info:
+        authorize_key(keys.keys_dir, stranger.keys_dir / "client.key", name="op")
+    _says_permission(str(info.value), stranger.keys_dir / "client.key")
+
+
+def test_a_missing_certificate_is_called_missing(tmp_path, keys):
+    absent = tmp_path / "absent.key"
+    with pytest.raises(BusSecurityError, match=f"cannot read CURVE certificate {absent}: it does not exist"):
+        authorize_key(keys.keys_dir, absent)
+    (keys.keys_dir / "client.key").unlink()
+    with pytest.raises(BusSecurityError, match="client.key: it does not exist"):
+        BusSecurity.load(keys.keys_dir)
+
+
+@pytest.mark.skipif(
+    not hasattr(os, "geteuid") or os.geteuid() != 0 or shutil.which("setpriv") is None,
+    reason="runs `teleop keys` as another user: needs root and setpriv",
+)
+def test_keys_command_as_another_user_says_permission_denied():
+    outer = Path(tempfile.mkdtemp(prefix="teleop-keys-"))
+    try:
+        outer.chmod(0o755)  # the keys directory itself stays 0700, owned by root
+        init_keys(outer / "k1")
+        result = subprocess.run(
+            ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups",
+             str(Path(sys.executable).parent / "teleop"), "keys", "list", str(outer / "k1")],
+            capture_output=True, text=True, timeout=60,
+        )
+    finally:
+        shutil.rmtree(outer)
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+    _says_permission(result.stderr, outer / "k1" / "server.key")
+    assert f"folder {outer / 'k1'} (owner root, mode 0700)" in result.stderr
