@@ -65,14 +65,28 @@ def file_in_the_way(folder: Path) -> Path | None:
     return existing if existing is not None and not existing.is_dir() else None
 
 
+def _finite(text: str) -> float:
+    """``text`` as a float; nan when it is none."""
+    try:
+        return float(text)
+    except ValueError:
+        return math.nan
+
+
 def positive_number(text: str) -> float:
     """An argparse type: a finite number > 0 (a time, a rate), refused by argparse with what was expected."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
+    value = _finite(text)
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"{text!r}: expected a number > 0")
+    return value
+
+
+def non_negative_number(text: str) -> float:
+    """An argparse type: a finite number >= 0 (a wait that may be none), refused by argparse with what was
+    expected (``time.sleep`` refuses a negative, nan or infinite one only once the work is under way)."""
+    value = _finite(text)
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number >= 0")
     return value
 
 

@@ -27,7 +27,7 @@ from tomlkit.exceptions import TOMLKitError
 from teleop.errors import SettingsError
 from teleop.settings import package_sections, settings_from_mapping
 
-__all__ = ["SettingChange", "format_changes", "update_settings_file"]
+__all__ = ["SettingChange", "check_writable", "format_changes", "update_settings_file"]
 
 
 @dataclass(frozen=True)
@@ -82,9 +82,10 @@ def update_settings_file(path: Path, changes: Mapping[str, Any]) -> list[Setting
     Raises
     ------
     SettingsError
-        The file cannot be read or is not TOML, a key is not a dotted path, or the file with
-        the changes would not be valid settings (the message is the settings check's); the
-        file is then left untouched.
+        The file cannot be read or is not TOML, a key is not a dotted path, the file with
+        the changes would not be valid settings (the message is the settings check's), or it
+        cannot be written (:func:`check_writable`; the message lists the values not written);
+        the file is then left untouched.
     """
     path = Path(path)
     try:
@@ -110,8 +111,36 @@ def update_settings_file(path: Path, changes: Mapping[str, Any]) -> list[Setting
     out = tomlkit.dumps(document)
     if "\r\n" in text:  # the lines tomlkit adds (a new table) end as the file's do
         out = re.sub(r"(?<!\r)\n", "\r\n", out)
-    _write_atomically(path, bom + out)
+    try:
+        _write_atomically(path, bom + out)
+    except SettingsError as exc:  # the values may be a long measurement's: said, so they can be typed in
+        written = ", ".join(f"{c.key} = {_show(c.new)}" for c in records)
+        raise SettingsError(f"{exc}; values not written: {written}") from exc
     return records
+
+
+def check_writable(path: str | Path) -> None:
+    """Raise SettingsError unless the settings file at ``path`` (a link's target) can be rewritten: the
+    calibration commands call it before they measure, so that a long run does not end unable to
+    write its result.
+
+    A file with no write permission bit is refused as read-only, as editors do, even for root (who
+    could write it); so is a file the user cannot write, or one whose folder they cannot write, since
+    the file is replaced by a new one written there.
+    """
+    target = Path(path).resolve()
+    try:
+        mode = target.stat().st_mode
+    except OSError as exc:
+        raise SettingsError(f"cannot write settings file {path}: {exc.strerror or exc}") from exc
+    if not mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH):
+        raise SettingsError(f"settings file {path} is read-only (mode {stat.S_IMODE(mode):o}): make it writable "
+                            "(chmod u+w) to have calibrated values written into it")
+    if not os.access(target, os.W_OK):
+        raise SettingsError(f"cannot write settings file {path}: permission denied")
+    if not os.access(target.parent, os.W_OK | os.X_OK):
+        raise SettingsError(f"cannot write settings file {path}: permission denied to its folder {target.parent}, "
+                            "where its new version is written before it replaces the file")
 
 
 def _unwrap(item: Any) -> Any:
@@ -119,10 +148,12 @@ def _unwrap(item: Any) -> Any:
 
 
 def _write_atomically(path: Path, text: str) -> None:
+    check_writable(path)
     path = path.resolve()  # a link to the file stays a link: its target is what changes
     mode = stat.S_IMODE(path.stat().st_mode)
-    descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    temporary = None
     try:
+        descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
         with open(descriptor, "w", encoding="utf-8", newline="") as handle:  # line ends as the text has them
             handle.write(text)
             handle.flush()
@@ -130,7 +161,8 @@ def _write_atomically(path: Path, text: str) -> None:
         os.chmod(temporary, mode)
         os.replace(temporary, path)
     except OSError as exc:
-        Path(temporary).unlink(missing_ok=True)
+        if temporary is not None:
+            Path(temporary).unlink(missing_ok=True)
         raise SettingsError(f"cannot write settings file {path}: {exc.strerror or exc}") from exc
 
 

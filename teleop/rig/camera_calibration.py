@@ -34,6 +34,7 @@ from teleop.rig.camera_latency import LatencyFit, image_change, measure_latency
 from teleop.rig.conclude import conclude, say
 from teleop.rig.gel_corners import CornerFit, draw_corners, find_gel_corners
 from teleop.settings import SensorSettings, Settings, load_settings
+from teleop.settings_edit import check_writable
 
 __all__ = ["add_arguments", "no_contact_frame", "record_tap", "run"]
 
@@ -160,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
     if sensor.model == "mini" and not args.latency:
         raise TeleopError(f"finger {sensor.finger!r} is a flat sensor (model = 'mini'): it has no mirror corners; "
                           "give --latency to measure its camera's latency")
+    check_writable(path)  # before the camera is read: a run that cannot write its result is refused now
     key = f"sensors.{sensor.finger}"
     report: dict = {"finger": sensor.finger}
     refused: list[str] = []

@@ -34,12 +34,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teleop.clikit import non_negative_number, positive_number
 from teleop.devices.gripper import Gripper, make_gripper
 from teleop.devices.loadcell import LoadCell, make_load_cell
 from teleop.errors import DeviceError, InvalidCommandError, SettingsError
 from teleop.rig.conclude import conclude
 from teleop.rig.load_cell_calibration import load_cell_source
 from teleop.settings import Settings, load_settings
+from teleop.settings_edit import check_writable
 
 __all__ = ["Squeeze", "StiffnessFit", "fit_finger_stiffness", "squeeze_reference"]
 
@@ -220,11 +222,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--levels", type=int, default=4, metavar="N", help="forces per sweep (default: 4)")
     parser.add_argument("--max-force-n", type=float, default=None, metavar="F",
                         help="largest squeeze force in N (default: gripper.target_force_n)")
-    parser.add_argument("--settle-s", type=float, default=0.3, metavar="S",
+    parser.add_argument("--settle-s", type=non_negative_number, default=0.3, metavar="S",
                         help="wait after each grasp stops before reading (default: 0.3)")
-    parser.add_argument("--average-s", type=float, default=0.5, metavar="S",
+    parser.add_argument("--average-s", type=positive_number, default=0.5, metavar="S",
                         help="seconds of force and width readings averaged per squeeze (default: 0.5)")
-    parser.add_argument("--max-se-percent", type=float, default=5.0, metavar="P",
+    parser.add_argument("--max-se-percent", type=positive_number, default=5.0, metavar="P",
                         help="refuse a stiffness whose standard error is above P %% of it (default: 5.0)")
     parser.add_argument("--json", action="store_true",
                         help="print the result as one JSON object (fit, squeezes, changes) on stdout")
@@ -249,6 +251,7 @@ def _check(args: argparse.Namespace, settings: Settings) -> tuple[float, list[fl
 def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
     width_m, forces = _check(args, settings)
+    check_writable(args.settings)
     gripper, cell = make_gripper(settings.gripper), make_load_cell(settings.load_cell)
     try:
         gripper.connect()

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teleop.clikit import positive_number
+from teleop.clikit import non_negative_number, positive_number
 from teleop.devices.loadcell import LoadCell, make_load_cell
 from teleop.errors import (
     DeviceError,
@@ -48,6 +48,7 @@ from teleop.errors import (
 )
 from teleop.rig.conclude import conclude, say
 from teleop.settings import LoadCellSettings, load_settings
+from teleop.settings_edit import check_writable
 
 __all__ = ["G_M_S2", "Level", "LoadCellFit", "fit_load_cell", "load_cell_source", "read_level", "wait_for_level"]
 
@@ -226,18 +227,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--settings", required=True, metavar="FILE",
                         help="settings TOML of the rig: the cell is read through its [load_cell] backend, and "
                              "load_cell.tare_counts and load_cell.counts_per_n are written back into it")
-    parser.add_argument("--mass-g", type=float, action="append", metavar="G",
+    parser.add_argument("--mass-g", type=positive_number, action="append", metavar="G",
                         help="a known mass in grams, repeatable, in the order you will place them; runs without "
                              "prompts (see 'How a mass counts as placed'). Default: ask for each mass")
     parser.add_argument("--average-s", type=positive_number, default=2.0, metavar="S",
                         help="seconds of readings averaged per level (default: 2.0)")
-    parser.add_argument("--settle-s", type=float, default=1.0, metavar="S",
+    parser.add_argument("--settle-s", type=non_negative_number, default=1.0, metavar="S",
                         help="with --mass-g: seconds waited after a mass is seen placed (default: 1.0)")
     parser.add_argument("--place-timeout-s", type=positive_number, default=60.0, metavar="S",
                         help="with --mass-g: longest wait for each mass to be placed (default: 60.0)")
-    parser.add_argument("--max-residual-percent", type=float, default=1.0, metavar="P",
+    parser.add_argument("--max-residual-percent", type=positive_number, default=1.0, metavar="P",
                         help="refuse a cell whose fit misses a mass by more than P %% of full scale (default: 1.0)")
-    parser.add_argument("--max-noise-percent", type=float, default=0.5, metavar="P",
+    parser.add_argument("--max-noise-percent", type=positive_number, default=0.5, metavar="P",
                         help="refuse a cell whose readings scatter (std) by more than P %% of full scale "
                              "(default: 0.5)")
     parser.add_argument("--json", action="store_true",
@@ -255,8 +256,8 @@ def _interactive_levels(cell: LoadCell, args: argparse.Namespace, ask: Callable[
         except ValueError:
             say(f"not a mass in grams: {answer!r}")
             continue
-        if not mass_g > 0:
-            say("the mass must be > 0 g")
+        if not (math.isfinite(mass_g) and mass_g > 0):  # an infinite mass fitted NaN
+            say(f"not a finite mass > 0 g: {answer!r}")
             continue
         levels.append(read_level(cell, mass_g, duration_s=args.average_s))
         say(f"{mass_g:g} g: {levels[-1].mean_counts:.1f} counts")
@@ -283,10 +284,9 @@ def _measure(cell: LoadCell, args: argparse.Namespace, ask: Callable[[str], str]
 
 def run(args: argparse.Namespace, *, ask: Callable[[str], str] = input) -> int:
     settings = load_settings(args.settings)
-    if args.mass_g is not None and any(not m > 0 for m in args.mass_g):
-        raise SettingsError(f"--mass-g {args.mass_g}: every mass must be > 0 g")
     if args.mass_g is None and not sys.stdin.isatty():
         raise SettingsError("no --mass-g given and no terminal to ask in: give the masses with --mass-g")
+    check_writable(args.settings)
     cell = connect_counts_cell(settings.load_cell)
     try:
         tare, levels = _measure(cell, args, ask)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import shutil
+import stat
+import tempfile
 
 import numpy as np
 import pytest
@@ -119,3 +121,39 @@ def test_a_byte_order_mark_is_read_and_kept(settings_file):
     assert after.startswith(b"\xef\xbb\xbf#") and after.count(b"\xef\xbb\xbf") == 1
     assert after == before.replace(b"finger_stiffness_n_per_m = 200000.0", b"finger_stiffness_n_per_m = 123456.0")
     assert load_settings(settings_file).gripper.finger_stiffness_n_per_m == 123456.0
+
+
+def test_a_read_only_file_is_refused_and_left_untouched(settings_file):
+    # It was rewritten (os.replace does not ask the file's mode); refused by its mode bits, so for root too.
+    settings_file.chmod(0o444)
+    before = settings_file.read_bytes()
+    with pytest.raises(SettingsError, match=r"rig.toml is read-only \(mode 444\).*; values not written: "
+                                            r"load_cell.tare_counts = 5$"):
+        update_settings_file(settings_file, {"load_cell.tare_counts": 5})
+    assert settings_file.read_bytes() == before and stat.S_IMODE(settings_file.stat().st_mode) == 0o444
+    assert [p.name for p in settings_file.parent.iterdir()] == ["rig.toml"]
+
+
+def test_a_temporary_file_that_cannot_be_made_is_a_settings_error_with_the_values(settings_file, monkeypatch):
+    # A folder the user cannot write: mkstemp's PermissionError escaped as a traceback (root is let in, so faked).
+    def refuse(**_kwargs):
+        raise PermissionError(13, "Permission denied", str(settings_file.parent / ".rig.toml.x.tmp"))
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    before = settings_file.read_bytes()
+    with pytest.raises(SettingsError, match=r"cannot write settings file .*rig.toml: Permission denied; "
+                                            r"values not written: load_cell.counts_per_n = 41873.2$"):
+        update_settings_file(settings_file, {"load_cell.counts_per_n": 41873.2})
+    assert settings_file.read_bytes() == before
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into any folder: nothing to refuse")
+def test_a_folder_that_cannot_be_written_is_refused(settings_file):
+    settings_file.parent.chmod(0o555)
+    before = settings_file.read_bytes()
+    try:
+        with pytest.raises(SettingsError, match="rig.toml: permission denied to its folder"):
+            update_settings_file(settings_file, {"load_cell.tare_counts": 5})
+    finally:
+        settings_file.parent.chmod(0o755)
+    assert settings_file.read_bytes() == before

@@ -21,6 +21,7 @@ import pytest
 
 from teleop.cli import main
 from teleop.devices.hx711_bridge import FakeHx711
+from teleop.rig import camera_calibration
 from teleop.rig.camera_latency import image_change, measure_latency
 from teleop.rig.gel_corners import draw_corners, find_gel_corners
 from teleop.settings import SensorSettings, SimulationSettings, default_settings_path, load_settings
@@ -232,3 +233,11 @@ def test_latency_is_refused_without_a_tap_or_when_the_signals_disagree():
 def test_image_change_is_the_mean_absolute_difference_to_the_gel_at_rest():
     rest = np.full((4, 4, 3), 100, np.uint8)
     assert image_change([rest + 2, rest, rest - 3], rest).tolist() == [2.0, 0.0, 3.0]
+
+
+def test_a_read_only_settings_file_is_refused_before_the_camera_is_read(tmp_path, capsys, monkeypatch):
+    path = write_settings(tmp_path, "http://127.0.0.1:1/stream.mjpg")
+    path.chmod(0o444)
+    monkeypatch.setattr(camera_calibration, "make_camera", lambda sensor: pytest.fail("the camera was read"))
+    assert main(["calibrate", "camera", "--settings", str(path)]) == 2
+    assert f"error: settings file {path} is read-only (mode 444)" in capsys.readouterr().err

@@ -27,6 +27,7 @@ import pytest
 
 from teleop.cli import main
 from teleop.devices.hx711_bridge import FakeHx711, Hx711Bridge
+from teleop.rig import gripper_calibration
 from teleop.rig.gripper_calibration import Squeeze, fit_finger_stiffness
 from teleop.settings import default_settings_path, load_settings
 from teleop.settings_edit import update_settings_file
@@ -91,3 +92,42 @@ def test_fit_recovers_an_exact_line_per_repeat_too():
 def test_refusals_say_why(squeezes, object_width_m, start):
     fit = fit_finger_stiffness(squeezes, object_width_m=object_width_m)
     assert not fit and fit.reason.startswith(start), fit.reason
+
+
+@pytest.fixture
+def rig_file(tmp_path, monkeypatch):
+    """(settings file with a tcp load cell, the grippers made): a refusal must come before the first."""
+    path = tmp_path / "rig.toml"
+    shutil.copy(default_settings_path(), path)
+    update_settings_file(path, {"load_cell.backend": "tcp"})
+    made = []
+
+    def make_gripper(settings):
+        made.append(settings)
+        raise AssertionError("a gripper was made")
+
+    monkeypatch.setattr(gripper_calibration, "make_gripper", make_gripper)
+    return path, made
+
+
+@pytest.mark.parametrize("option, value, expected", [
+    ("--settle-s", "-1", "expected a number >= 0"),  # time.sleep's traceback with the reference in the fingers
+    ("--settle-s", "nan", "expected a number >= 0"),
+    ("--average-s", "-1", "expected a number > 0"),  # accepted
+    ("--average-s", "nan", "expected a number > 0"),
+    ("--max-se-percent", "nan", "expected a number > 0"),  # switched the check off
+    ("--max-se-percent", "-1", "expected a number > 0"),
+])
+def test_bad_numbers_are_refused_before_the_gripper_moves(option, value, expected, rig_file, capsys):
+    path, made = rig_file
+    with pytest.raises(SystemExit) as exited:
+        main(["calibrate", "gripper", "--settings", str(path), "--object-width-mm", "50", option, value])
+    assert exited.value.code == 2 and not made
+    assert f"argument {option}: '{value}': {expected}" in capsys.readouterr().err
+
+
+def test_a_read_only_settings_file_is_refused_before_the_gripper_moves(rig_file, capsys):
+    path, made = rig_file
+    path.chmod(0o444)
+    assert main(["calibrate", "gripper", "--settings", str(path), "--object-width-mm", "50"]) == 2
+    assert f"error: settings file {path} is read-only (mode 444)" in capsys.readouterr().err and not made

@@ -217,3 +217,85 @@ def test_a_stalled_cell_during_a_level_says_what_to_check():
 
     with pytest.raises(DeviceStalledError, match="silent: nothing arrived: check the cable, the bridge and the setting"):
         load_cell_calibration.read_level(Stalled(), 100.0, duration_s=0.01)
+
+
+@pytest.fixture
+def no_cell(monkeypatch):
+    """The cell's connections: a refusal must come before the first (before anyone tares or places a mass)."""
+    connected = []
+
+    def connect(settings):
+        connected.append(settings)
+        raise AssertionError("the load cell was connected to")
+
+    monkeypatch.setattr(load_cell_calibration, "connect_counts_cell", connect)
+    return connected
+
+
+@pytest.mark.parametrize("option, value, expected", [
+    ("--mass-g", "inf", "expected a number > 0"),  # passed the mass check, waited for the mass, fitted NaN
+    ("--mass-g", "nan", "expected a number > 0"),
+    ("--mass-g", "-5", "expected a number > 0"),
+    ("--settle-s", "-1", "expected a number >= 0"),  # time.sleep's traceback after the masses were placed
+    ("--settle-s", "nan", "expected a number >= 0"),
+    ("--settle-s", "inf", "expected a number >= 0"),
+    ("--max-residual-percent", "nan", "expected a number > 0"),  # silently switched the check off
+    ("--max-residual-percent", "-1", "expected a number > 0"),  # refused every cell
+    ("--max-noise-percent", "nan", "expected a number > 0"),
+    ("--max-noise-percent", "-1", "expected a number > 0"),
+])
+def test_bad_numbers_are_refused_before_the_cell_is_read(option, value, expected, tmp_path, capsys, no_cell):
+    path = tmp_path / "rig.toml"
+    shutil.copy(default_settings_path(), path)
+    argv = ["calibrate", "load-cell", "--settings", str(path), option, value]
+    if option != "--mass-g":
+        argv += ["--mass-g", "100"]
+    with pytest.raises(SystemExit) as exited:
+        main(argv)
+    assert exited.value.code == 2 and not no_cell
+    assert f"argument {option}: '{value}': {expected}" in capsys.readouterr().err
+
+
+def test_a_settle_time_of_zero_is_accepted(tmp_path, no_cell):
+    path = tmp_path / "rig.toml"
+    shutil.copy(default_settings_path(), path)
+    with pytest.raises(AssertionError, match="the load cell was connected to"):
+        main(["calibrate", "load-cell", "--settings", str(path), "--mass-g", "100", "--settle-s", "0"])
+
+
+def test_a_read_only_settings_file_is_refused_before_the_cell_is_read(tmp_path, capsys, no_cell):
+    # It was rewritten anyway (os.replace does not ask the file's mode), root or not.
+    path = tmp_path / "rig.toml"
+    shutil.copy(default_settings_path(), path)
+    path.chmod(0o444)
+    before = path.read_bytes()
+    assert main(["calibrate", "load-cell", "--settings", str(path), "--mass-g", "100"]) == 2
+    err = capsys.readouterr().err
+    assert f"error: settings file {path} is read-only (mode 444)" in err and len(err.splitlines()) == 1
+    assert not no_cell and path.read_bytes() == before
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into any folder: nothing to refuse")
+def test_a_settings_folder_that_cannot_be_written_is_refused_before_the_cell_is_read(tmp_path, capsys, no_cell):
+    # The whole measurement ran, then the temporary file could not be made: a PermissionError traceback.
+    folder = tmp_path / "rig"
+    folder.mkdir()
+    path = folder / "rig.toml"
+    shutil.copy(default_settings_path(), path)
+    folder.chmod(0o555)
+    try:
+        assert main(["calibrate", "load-cell", "--settings", str(path), "--mass-g", "100"]) == 2
+    finally:
+        folder.chmod(0o755)
+    assert f"error: cannot write settings file {path}: permission denied to its folder" in capsys.readouterr().err
+    assert not no_cell
+
+
+@pytest.mark.parametrize("answer", ["inf", "nan", "0"])
+def test_an_interactive_mass_that_is_not_finite_and_positive_is_asked_again(answer, capsys, monkeypatch):
+    read = []
+    monkeypatch.setattr(load_cell_calibration, "read_level", lambda *a, **k: read.append(a))
+    answers = iter([answer, ""])
+    assert load_cell_calibration._interactive_levels(None, argparse.Namespace(average_s=0.5),
+                                                     lambda _prompt: next(answers)) == []
+    assert not read and f"not a finite mass > 0 g: {answer!r}" in capsys.readouterr().err
