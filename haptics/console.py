@@ -76,6 +76,7 @@ LABEL_PLACEHOLDER = "object name (right arrow takes the suggestion), NAME shore 
 FORCE_STEP_N = 1.0
 REFRESH_S = 0.1
 MIN_SIZE = (80, 24)  # the terminal the whole layout fits; under it a line at the top keeps the enable shown
+MIN_KEYS_HEIGHT = 10  # rows under which the keys' legend is hidden, leaving them to that line
 QUIT_GRACE_S = 1.0  # after quit, the loop thread is told to stop if it has not ended by itself
 BAR_CELLS = 24
 PANEL_LINES = 4  # the estimate and display panels' lines on a terminal shorter than TALL_LINES ...
@@ -390,6 +391,8 @@ class OperatorConsole(App):
             banner.update(Text(text))
             self.small_line = text
         banner.set_class(small, "open")
+        # Docked at the bottom, the keys' legend would take the rows of a very short terminal before the line.
+        self.query_one("#keys", Static).display = height >= MIN_KEYS_HEIGHT
 
     def redraw(self) -> None:
         status = self.loop.status

@@ -14,7 +14,7 @@ from haptics.operator_loop import OperatorLoop
 from teleop.settings import load_settings
 
 
-@pytest.mark.parametrize("size", [(60, 20), (40, 12), (80, 24)])
+@pytest.mark.parametrize("size", [(60, 20), (40, 12), (20, 5), (80, 24)])
 def test_a_small_terminal_shows_the_enable_and_mode_on_a_line_at_the_top(size):
     link = ConsoleLink()
 
@@ -35,6 +35,7 @@ def test_a_small_terminal_shows_the_enable_and_mode_on_a_line_at_the_top(size):
                 assert f"terminal {width}x{height}: 80x24 needed" in app.small_line and "mode idle" in app.small_line
                 assert banner.display and banner.region.y == 0 and banner.region.height >= 1
                 assert app.screen.region.contains_region(banner.region)
+                assert app.screen.get_widget_at(0, 0)[0] is banner  # on top: the keys' legend does not cover it
                 await pilot.press("e")  # the dead-man toggled on: the line says so
                 await until(lambda: "enable HELD, mode follow" in app.small_line, pilot)
                 await pilot.press("e")
