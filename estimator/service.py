@@ -42,7 +42,10 @@ A *start* while another grasp is open closes that one (its final estimate, repor
 out). A *start* of the grasp that is open (a robot node restarted mid-grasp names it again) drops
 what the service had of it, publishing nothing more for it: the final estimate, end and report
 that grasp id gets are the new grasp's. A grasp whose robot node, once heard, misses three of its
-heartbeat periods is closed as by its end: no end would come, and a model switch waits for it.
+heartbeat periods is closed as by its end: no end would come, and a model switch waits for it. The
+end of a grasp whose start the service never saw (it started mid-grasp) gets a refusal as its final
+(``insufficient_data``, the reason saying so), a report and its end; that of a grasp it closed
+already is logged and dropped.
 
 A message that cannot be used (a frame that does not decode or declares the wrong size, samples
 that are not finite, capture times that go backwards, repeat or jump more than
@@ -64,11 +67,10 @@ The service is meant to run on one core: start it with ``OPENBLAS_NUM_THREADS=1`
 
 from __future__ import annotations
 
-import itertools
 import logging
 import math
 import time
-from collections import Counter, OrderedDict
+from collections import Counter, OrderedDict, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -76,7 +78,8 @@ from typing import Any
 
 import cv2
 
-from estimator.errors import EstimatorError, ModelError, PerceptionError
+from estimator.capture_times import MAX_CLOCK_JUMP_S, check_times
+from estimator.errors import EstimatorError, ModelError
 from estimator.estimate import Estimate
 from estimator.model_slot import ModelEvent, ModelSlot, _cut, model_log
 from estimator.perception.calibration import Calibration
@@ -99,10 +102,10 @@ INPUT_TOPICS = ("frame", "force", "width", "grasp_event", "robot_state")
 COMMAND_TOPICS = ("command", "load_model")
 # load_model requests remembered, so a repeated one is answered again and not loaded twice.
 REMEMBERED_REQUESTS = 64
+# Grasps closed, remembered so that a late or repeated end is not taken for one of a grasp never seen.
+REMEMBERED_GRASPS = 16
 # A force batch reaching this share of the contact force may show the contact: segment then.
 CONTACT_HINT = 0.5
-# Capture clocks are monotonic: a time this far past the stream's last one is a broken clock.
-MAX_CLOCK_JUMP_S = 10.0
 # A bad message is one of these; anything else is a bug and ends the service.
 _BAD_INPUT = (EstimatorError, TeleopError, ValueError, cv2.error)
 
@@ -224,6 +227,7 @@ class EstimatorService(ServiceLoop):
         self.poll_s = poll_s
         self.stats = ServiceStats()
         self._grasp: _Grasp | None = None
+        self._closed: deque[str] = deque(maxlen=REMEMBERED_GRASPS)
         self._following: str | None = None  # the grasp the robot last said it follows an operator in
         # load_model requests taken: None while the candidate is being checked, then its answer.
         self._requests: OrderedDict[str, ModelEvent | None] = OrderedDict()
@@ -368,7 +372,7 @@ class EstimatorService(ServiceLoop):
             return
         if grasp.final is not None:
             return  # the hold and the release: nothing more to estimate
-        _check_times(grasp, message)
+        check_times(grasp, message)
         grasp.clock_offset_s = min(grasp.clock_offset_s, received_s - message.t_capture_s)
         stream = grasp.stream
         if message.type == "frame":
@@ -420,15 +424,38 @@ class EstimatorService(ServiceLoop):
         grasp = self._grasp
         if grasp is None or grasp.grasp_id != grasp_id:
             self.stats.ignored += 1
-            log.warning("end of grasp %r, which is not open", grasp_id)
+            if grasp_id in self._closed:  # its final and end went out already
+                log.warning("end of grasp %r, which was closed already", grasp_id)
+            else:
+                self._end_unseen(grasp_id, t_s, received_s)
             return
         try:
             if grasp.final is None:
                 self._finish(grasp, received_s, by="grasp_end", end_s=t_s)
-            self.report.write(self._summary(grasp))  # before the end goes out: readers of both find it
-            self.publisher.send("grasp_event", t_capture_s=t_s, event="end", grasp_id=grasp_id)
+            self._send_end(grasp, t_s)
         finally:  # whatever failed, the next grasp finds none open
             self._grasp = None
+            self._closed.append(grasp_id)
+
+    def _end_unseen(self, grasp_id: str, t_s: float, received_s: float) -> None:
+        """The end of a grasp whose start this service never saw (it started mid-grasp): a refusal
+        as its final, then its report and end, or the renderer, which learns of ends only from
+        here, would hold the grasp's last estimate from the service before."""
+        log.warning("end of grasp %r, whose start this service never saw (it started after the grasp "
+                    "began): refusing an estimate", grasp_id)
+        stream = GraspStream(settings=self.settings, calibration=self.calibration, methods=self.methods,
+                             grasp_id=grasp_id)
+        grasp = _Grasp(grasp_id=grasp_id, stream=stream, t_start_s=t_s, source=None, model=None)
+        grasp.final = Estimate.refuse(self.methods[0], "the estimator service started after this grasp "
+                                                       "began: it has none of the grasp's data")
+        grasp.final_by, grasp.final_t_data_s = "grasp_end", t_s
+        grasp.final_s = self._publish(grasp, grasp.final, t_s, received_s, provisional=False, by_model=False)
+        self._closed.append(grasp_id)
+        self._send_end(grasp, t_s)
+
+    def _send_end(self, grasp: _Grasp, t_s: float) -> None:
+        self.report.write(self._summary(grasp))  # before the end goes out: readers of both find it
+        self.publisher.send("grasp_event", t_capture_s=t_s, event="end", grasp_id=grasp.grasp_id)
 
     def _loading_end(self, grasp_id: str, t_s: float, received_s: float) -> None:
         grasp = self._grasp
@@ -558,39 +585,3 @@ def _reads_stream_depths(variant: Any) -> bool:
 def _ended_by(stream: GraspStream) -> str:
     """What told the loading is over: the robot's marker, or the data alone (module docstring)."""
     return "loading_end" if stream.loading_end_s is not None else "settled"
-
-
-class _ClockError(PerceptionError):
-    """Capture times no clock gives; ``reason`` (``out_of_order``, ``clock_jump`` or
-    ``far_from_grasp``) keys the log's counts."""
-
-    def __init__(self, reason: str, text: str):
-        super().__init__(text)
-        self.reason = reason
-
-
-def _check_times(grasp: _Grasp, message: Message) -> None:
-    """Raise _ClockError (a PerceptionError) unless the message's capture times go strictly forward
-    from the topic's last ones without a jump of more than MAX_CLOCK_JUMP_S, or, for the topic's
-    first, lie within MAX_CLOCK_JUMP_S of the grasp's newest capture time (its start's or another
-    topic's last); then remember the newest."""
-    times = [message.t_capture_s] if message.type == "frame" else message.fields.t_s.tolist()
-    last = grasp.last_t_s.get(message.topic)
-    where = f"grasp {grasp.grasp_id!r} {message.topic} capture times {times[0]:.6f}..{times[-1]:.6f} s"
-    if last is None:
-        # One clock stamps a grasp's start and data: a first time far from them is a broken stamp, and
-        # taken as the topic's last it would make every genuine one after it look broken.
-        newest = max([grasp.t_start_s, *grasp.last_t_s.values()])
-        if abs(times[0] - newest) > MAX_CLOCK_JUMP_S:
-            raise _ClockError("far_from_grasp", f"{where}: {times[0] - newest:+.3g} s from the grasp's newest "
-                                                f"capture time ({newest:.6f} s: its start or another topic's), "
-                                                f"more than {MAX_CLOCK_JUMP_S:g} s: the capture clock is broken")
-    previous = [] if last is None else [last]
-    steps = [b - a for a, b in itertools.pairwise([*previous, *times])]
-    after = "" if last is None else f" ({last:.6f} s)"
-    if steps and min(steps) <= 0:
-        raise _ClockError("out_of_order", f"{where}: not after the previous one{after}: out of order or repeated")
-    if steps and max(steps) > MAX_CLOCK_JUMP_S:
-        raise _ClockError("clock_jump", f"{where}: jump {max(steps):.3g} s past the previous one{after}, "
-                                        f"more than {MAX_CLOCK_JUMP_S:g} s: the capture clock is broken")
-    grasp.last_t_s[message.topic] = times[-1]

@@ -11,7 +11,8 @@ final, which the renderer would then ignore). So when a grasp's final estimate i
 estimator that sent it, once heard with a heartbeat period, goes unheard for three of its periods,
 the service ends the grasp (the display fades to free): no end can come for it, and a final
 estimate never goes stale. A grasp still loading goes stale instead, held until its estimator
-is back (the renderer's rules).
+is back (the renderer's rules); one restarted mid-grasp refuses the grasp at its end (a final with
+no estimate) and forwards that end, so the display fades as after any grasp.
 
 What it renders
 ---------------
