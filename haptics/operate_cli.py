@@ -38,7 +38,9 @@ Two ways to drive the gripper:
 
   discrete grasp   g closes the fingers on the object until the grasp force (--force, changed
                    live with + and -, never above the settings' gripper.target_force_n), holds
-                   and opens again; r releases, s stops the fingers where they are.
+                   and opens again; r releases, s stops the fingers where they are. On the
+                   simulated gripper a discrete grasp replays a grasp simulated whole: it holds
+                   and opens by itself, and the robot node refuses r and s until it has ended.
   leader-follower  while the dead-man enable is held, the fingers' target width follows the
                    grip (grip 0 = fully open, 1 = closed), 50 commands a second; the fingers stop
                    closing at the settings' maximum force. Let go of the enable and the fingers

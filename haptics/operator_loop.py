@@ -16,7 +16,8 @@ the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.
   watchdog ends it when the console dies (follows stop arriving);
 * :meth:`OperatorLoop.label` (any thread) names the object of a grasp; the loop sends the
   ``label`` on its next step;
-* buttons: ``grasp`` starts a discrete grasp at the chosen force, ``release`` opens the fingers,
+* buttons: ``grasp`` starts a discrete grasp at the chosen force (one the robot refuses, as while
+  another runs, is forgotten and the one running stays tracked), ``release`` opens the fingers,
   ``stop`` stops them where they are, ``next`` ends the grasp shown (releasing it unless the robot
   already does; refused, with a notice, while a discrete grasp of this loop is in progress that
   the view does not show yet: the operator releases it or waits for its end first)
@@ -54,6 +55,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from datetime import datetime
+from functools import partial
 from typing import Any, Protocol
 
 from haptics.errors import HapticsError, InputNotConnectedError
@@ -180,7 +182,9 @@ class OperatorLoop:
         self._next_follow_s = -math.inf
         self._follow_grasp: str | None = None  # the follow grasp's id, until it ends
         self._rearm = False  # follows suspended until the enable is let go and held again
-        self._discrete_grasp: str | None = None
+        # Discrete grasps commanded and not known over, oldest first: a grasp pressed while one runs
+        # is refused by the robot, and the one running must stay tracked (quit releases it).
+        self._discrete: list[str] = []
         self._leaving: tuple[str, float] | None = None  # after "next": (the grasp left, when) until it is over
         self._shown_over = False  # a status showed the grasp left over (its final in): clear on the next step
         self._waiting = False  # the device waits for the robot node, not heard
@@ -252,6 +256,7 @@ class OperatorLoop:
             self._send_label(grasp_id, label)
         try:
             self.link.poll(timeout_s)
+            self._resolved("bus:")
         except ComplianceTeleopError as exc:
             self._trouble(f"bus: {exc}")
         self._track()
@@ -281,8 +286,9 @@ class OperatorLoop:
     def finish(self) -> None:
         """On the way out: the dead-man let go (a follow with enable=False) if the loop was driving,
         and a follow grasp the robot runs released, so that it ends on a command, not by the
-        watchdog once follows stop; a discrete grasp in progress is released too (as ``release``
-        does), unless the robot already releases it."""
+        watchdog once follows stop; each discrete grasp that may be in progress (one running, one
+        pressed since and not answered yet) is released too (as ``release`` does), unless the robot
+        already releases it."""
         grasp_id = self._follow_grasp
         robot = self.link.view.robot
         releasing = _releasing(robot, grasp_id)
@@ -293,11 +299,11 @@ class OperatorLoop:
         if grasp_id is not None and not releasing and self._send(lambda: self.link.release(grasp_id)):
             self._follow_grasp = None
             self._act(f"release {grasp_id}: the console quits")
-        discrete = self._discrete_grasp  # a discrete grasp in progress: the release `r` sends
-        if (discrete is not None and discrete != grasp_id and not _releasing(robot, discrete)
-                and self._send(lambda: self.link.release(discrete))):
-            self._discrete_grasp = None
-            self._act(f"release {discrete}: the console quits")
+        for discrete in list(self._discrete):  # each discrete grasp that may be in progress: the release `r` sends
+            if (discrete != grasp_id and not _releasing(robot, discrete)
+                    and self._send(partial(self.link.release, discrete))):
+                self._discrete.remove(discrete)
+                self._act(f"release {discrete}: the console quits")
         self.status = self._status()
 
     # ------------------------------------------------------------------ pieces
@@ -316,8 +322,7 @@ class OperatorLoop:
                     self.device.connect()
                     reading = self.device.read(timeout_s=0.0)
                     self._act("input device connected again")
-                    if self._problem.startswith("input device:"):
-                        self._problem = ""
+                    self._resolved("input device:")
                     return reading
                 except ComplianceTeleopError as exc:
                     self._trouble(f"input device: {exc}; trying again every {RECONNECT_S:g} s")
@@ -337,6 +342,11 @@ class OperatorLoop:
         elif reading.buttons:
             self._act(f"{', '.join(sorted(reading.buttons))} pressed while the last grasp ends: not taken, press again")
 
+    @property
+    def _discrete_grasp(self) -> str | None:
+        """The discrete grasp commanded last and not known over."""
+        return self._discrete[-1] if self._discrete else None
+
     def _new_grasp_id(self) -> str:
         self._count += 1
         return f"op-{self._session}-{self._count:03d}"
@@ -347,7 +357,7 @@ class OperatorLoop:
         if button == "grasp":
             grasp_id = self._new_grasp_id()
             if self._send(lambda: self.link.start_grasp(target_force_n=self.force_n, grasp_id=grasp_id)):
-                self._discrete_grasp = grasp_id
+                self._discrete.append(grasp_id)
                 self._act(f"grasp {grasp_id} at {self.force_n:g} N{self._robot_down()}")
         elif button == "release":
             if self._send(lambda: self.link.release(current)):
@@ -442,7 +452,7 @@ class OperatorLoop:
                     and (view.estimate is None or view.estimate.provisional))
         self._leaving, self._shown_over = None, False
         self.link.clear()
-        self._follow_grasp = self._discrete_grasp = None
+        self._follow_grasp, self._discrete = None, []
         self._act(f"next object: ready ({view.grasp_id}'s final estimate did not come: the estimator is down)"
                   if no_final else "next object: ready")
 
@@ -471,12 +481,13 @@ class OperatorLoop:
             self._follow_grasp = None
             if self._enable:  # a new grasp only once the enable is let go and held again
                 self._suspend()
-        if self._discrete_grasp is not None and self._discrete_grasp in (ended, stopped):
-            self._discrete_grasp = None
         notice = view.notice
-        if (notice is not None and notice.event == "refused" and notice.action == "start_grasp"
-                and notice.grasp_id == self._discrete_grasp):
-            self._discrete_grasp = None  # it never started: release and stop name the grasp there is
+        # A refused start never ran: release and stop name the grasp there is (an earlier one runs on).
+        refused = (notice.grasp_id if notice is not None and notice.event == "refused"
+                   and notice.action == "start_grasp" else None)
+        if view.grasp_id in self._discrete:  # the robot runs one grasp at a time: those before are over
+            del self._discrete[:self._discrete.index(view.grasp_id)]
+        self._discrete = [g for g in self._discrete if g not in (ended, stopped, refused)]
 
     def _robot_lost(self, *, restarted: bool = False) -> None:
         """The robot node went down (killed, crashed; ``restarted``: and was already heard started
@@ -485,7 +496,7 @@ class OperatorLoop:
         node until it is let go and held again."""
         view = self.link.view
         lost = self._follow_grasp or self._discrete_grasp or (view.grasp_id if view.phase != "ended" else None)
-        self._follow_grasp = self._discrete_grasp = None
+        self._follow_grasp, self._discrete = None, []
         if view.phase in ("loading", "loaded"):
             self.link.clear()  # no end or final comes for it: "next" need not wait
         what = "the robot node restarted" if restarted else "the robot node is down"
@@ -513,6 +524,7 @@ class OperatorLoop:
         except ComplianceTeleopError as exc:
             self._trouble(f"not sent: {exc}")
             return False
+        self._resolved("not sent:")
         return True
 
     def _act(self, what: str) -> None:
@@ -525,6 +537,11 @@ class OperatorLoop:
             log.warning("%s", what)
             self._log = [*self._log[-19:], what]
         self._problem = what
+
+    def _resolved(self, kind: str) -> None:
+        """A problem of ``kind`` (its prefix) no longer holds: the status stops showing it (the log keeps it)."""
+        if self._problem.startswith(kind):
+            self._problem = ""
 
     def _status(self) -> LoopStatus:
         reading = self._input

@@ -322,6 +322,34 @@ def test_a_failed_send_is_shown_and_the_loop_goes_on(rig):
     assert link.kinds() == ["stop"]
 
 
+def test_a_problem_that_no_longer_holds_is_cleared_and_the_log_keeps_it(rig, monkeypatch):
+    clock, link, device, loop = rig
+    not_subscribed = BusError("the robot node has not subscribed to tcp://127.0.0.1:5 yet (it is down, or still "
+                              "connecting): a follow now would reach no one")
+
+    def refused(*args, **kwargs):
+        raise not_subscribed
+
+    def bad_poll(timeout_s=0.0):
+        raise BusError("bad message")
+
+    for send in ("start_grasp", "follow"):
+        monkeypatch.setattr(link, send, refused)
+    device.buttons, device.enable = {"grasp"}, True
+    run_for(clock, loop, 0.1)
+    assert loop.status.problem.startswith("not sent: the robot node has not subscribed") and link.sent == []
+    monkeypatch.undo()  # the robot node comes up: the follows reach it
+    run_for(clock, loop, 0.1)
+    assert link.kinds()[-1] == "follow" and loop.status.problem == ""
+    assert f"not sent: {not_subscribed}" in loop.status.log
+    monkeypatch.setattr(link, "poll", bad_poll)
+    loop.step()
+    assert loop.status.problem == "bus: bad message"
+    monkeypatch.undo()
+    loop.step()
+    assert loop.status.problem == "" and "bus: bad message" in loop.status.log
+
+
 def test_the_loop_runs_in_a_thread_and_stops(rig):
     clock, link, device, loop = rig
     real = OperatorLoop(link, device, load_settings())

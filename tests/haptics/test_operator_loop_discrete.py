@@ -3,11 +3,13 @@ down (against a fake link and device; the rest of the loop: test_operator_link.p
 
 from __future__ import annotations
 
+import dataclasses
+
 from support.operator_fakes import Clock, FakeDevice, FakeLink
 
 from haptics.operator_link import OperatorView, Peer
 from haptics.operator_loop import OperatorLoop
-from teleop.bus.messages import RobotStateBody
+from teleop.bus.messages import RobotNoticeBody, RobotStateBody
 from teleop.settings import load_settings
 
 ESTIMATOR_DOWN = (Peer("robot node", "robot", True, 0.1), Peer("estimator", "estimator", False, 4.0))
@@ -96,3 +98,49 @@ def test_next_with_the_estimator_down_does_not_wait_for_a_final_and_says_so():
     device.buttons = {"grasp"}
     loop.step()
     assert link.kinds()[-1] == "start_grasp"
+
+
+def _refuse_start(link: FakeLink, clock: Clock, grasp_id: str, running: str) -> None:
+    link.view = dataclasses.replace(link.view, notice=RobotNoticeBody(
+        event="refused", action="start_grasp", grasp_id=grasp_id, reason=f"grasp {running!r} is still in progress"),
+        notice_t_s=clock())
+
+
+def test_a_second_grasp_the_robot_refuses_leaves_the_running_one_tracked_and_quit_releases_it():
+    clock, link, loop, running = _discrete_grasp_loaded("holding")
+    loop.step()
+    _press(loop, clock, "grasp")
+    refused = link.sent[-1][2]["grasp_id"]
+    assert link.kinds()[-1] == "start_grasp" and refused != running
+    _refuse_start(link, clock, refused, running)
+    loop.step()
+    assert loop.status.mode == "discrete" and loop.status.grasp_id == running
+    _press(loop, clock, "quit")
+    loop.finish()
+    assert link.sent[-1][1:] == ("release", {"grasp_id": running})
+    assert loop.status.last_action == f"release {running}: the console quits" and loop.status.mode == "idle"
+
+
+def test_quit_before_the_robot_answers_a_second_grasp_releases_the_running_one_too():
+    clock, link, loop, running = _discrete_grasp_loaded("holding")
+    loop.step()
+    _press(loop, clock, "grasp")
+    pending = link.sent[-1][2]["grasp_id"]
+    _press(loop, clock, "quit")
+    loop.finish()
+    assert [body["grasp_id"] for _, kind, body in link.sent if kind == "release"] == [running, pending]
+
+
+def test_a_grasp_the_robot_starts_after_another_leaves_only_it_to_release():
+    clock, link, loop, first = _discrete_grasp_loaded("holding")
+    loop.step()
+    _press(loop, clock, "grasp")  # the first one's end went unseen: the robot starts the second
+    second = link.sent[-1][2]["grasp_id"]
+    link.view = OperatorView(t_s=clock(), grasp_id=second, phase="loading",
+                             robot=RobotStateBody(mode="grasping", grasp_id=second, enable=False))
+    loop.step()
+    _refuse_start(link, clock, "op-other", second)  # a refusal of another grasp changes nothing
+    loop.step()
+    _press(loop, clock, "quit")
+    loop.finish()
+    assert [body["grasp_id"] for _, kind, body in link.sent if kind == "release"] == [second]
