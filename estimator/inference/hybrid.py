@@ -72,6 +72,7 @@ import numpy as np
 from estimator.analytical import METHODS
 from estimator.errors import ModelError
 from estimator.estimate import Estimate
+from estimator.inference.distribution import Described
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.inputs import RIG_QUANTITIES, distinct_frames, gel_scale, smoothings_text
 from estimator.inference.sampling import (
@@ -313,14 +314,9 @@ class HybridEstimator:
         else:
             what = calibrated
         floor_log10, floor_method = self.predictor.floor(sampled)
-        floor_pa = 10.0 ** floor_log10 / gel_scale(sampled.gel_modulus_pa)
-        if floor_method is not None and said.state != "lower_bound" and said.e_pa < floor_pa:
-            # The floor only weights the mass below it by its leak: a model sure enough stays below it.
-            what += (f"; the {floor_method} lower bound {floor_pa:.3g} Pa weighted the distribution's mass below it "
-                     f"by the floor's leak {self.predictor.metadata.floor_leak:g}, yet the answer lies below that bound: "
-                     "the model's reading outweighs it")
-        elif floor_method is not None:
-            what += f"; its distribution floored at the {floor_method} lower bound {floor_pa:.3g} Pa"
+        if floor_method is not None:
+            what += _floor_said(said, floor_method, 10.0 ** floor_log10 / gel_scale(sampled.gel_modulus_pa),
+                                self.predictor.metadata.floor_leak)
         if fit.notes:
             what += "; outside the training range: " + "; ".join(fit.notes)
         reason = f"{model}; {what}; analytical inputs: {states}"
@@ -331,6 +327,31 @@ class HybridEstimator:
         if mode == "auto":
             reason = "model: " + reason
         return Estimate(method, said.e_pa, (said.low_pa, said.high_pa), said.state, reason)
+
+
+def _floor_said(said: Described, method: str, floor_pa: float, leak: float) -> str:
+    """What the reason says of the analytical floor ``floor_pa`` (Pa, the measuring gel's) of ``method``.
+
+    The floor is soft: it weights the distribution's mass below it by ``leak`` (the share of such bounds
+    that fail), while the interval is calibrated about the median (:func:`~estimator.inference.distribution.describe`)
+    and is not cut at the floor: cutting it would drop the truth on the grasps whose bound fails (a foam
+    earplug grasped fast, another contact model), below the stated level. So the reason says the
+    distribution was floored there only where the interval lies at or above the floor, and otherwise
+    says the bound was weighed and that the interval or the answer reaches below it.
+    """
+    weighted = f"; the {method} lower bound {floor_pa:.3g} Pa weighted the distribution's mass below it by the floor's leak {leak:g}"
+    if said.state != "lower_bound" and said.e_pa < floor_pa:
+        # A model sure enough stays below it.
+        return f"{weighted}, yet the answer lies below that bound: the model's reading outweighs it"
+    # Said to 3 digits: a floor that rounds up past the interval's low end is not said to hold there.
+    if said.low_pa is not None and said.low_pa >= float(f"{floor_pa:.3g}"):
+        return f"; its distribution floored at the {method} lower bound {floor_pa:.3g} Pa"
+    if said.state == "lower_bound":  # a floor above the resolution limit: no number above it is offered
+        return f"{weighted}; it lies above the sensor's resolution limit, where the bound is stated"
+    if said.low_pa is None:
+        return f"{weighted}; the interval is open below, as an {said.state.replace('_', ' ')} is"
+    return (f"{weighted}; the interval, calibrated about the median, still reaches below that bound (to "
+            f"{said.low_pa:.3g} Pa): such bounds fail on some grasps, so it is not cut there")
 
 
 def _check_mode(mode: str) -> None:
