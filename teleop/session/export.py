@@ -87,8 +87,8 @@ from teleop.session.export_names import record_name, same_grasp_records
 from teleop.session.export_objects import catalogue_objects, label_catalogue_objects
 from teleop.session.export_streams import OpenGrasp, concatenated_samples, frame_stream
 from teleop.session.label import label_catalogues
-from teleop.session.logfile import SETTINGS_ATTACHMENT, LogInfo, LogReader
-from teleop.settings import Settings, resolve_path
+from teleop.session.logfile import CATALOGUE_ATTACHMENTS, SETTINGS_ATTACHMENT, LogInfo, LogReader
+from teleop.settings import Settings
 
 __all__ = ["GraspExport", "SessionExport", "export_session", "session_grasps", "session_id"]
 
@@ -126,9 +126,9 @@ class SessionExport(list[GraspExport]):
         The log was read to its end and nothing of it is lost (False: cut short or damaged, or a
         recovered log whose source lost data; :attr:`damage` says where).
     damage : str or None
-    file_complete : bool
-        The file itself was read to its end without damage: ``teleop recover`` has nothing to mend
-        (a recovered log's earlier losses stay lost).
+    mendable : bool
+        ``teleop recover`` would make a whole file of more of the log (:attr:`LogReader.mendable`): not
+        so for a recovered log's earlier losses, nor a damaged attachment.
     stray_labels : list of str
         ``label`` messages naming a grasp id the log has no grasp for, one line each.
     replaced : list of Path
@@ -136,12 +136,12 @@ class SessionExport(list[GraspExport]):
     """
 
     def __init__(self, grasps: list[GraspExport], *, session_id: str, complete: bool, damage: str | None,
-                 file_complete: bool, stray_labels: list[str], replaced: list[Path]):
+                 mendable: bool, stray_labels: list[str], replaced: list[Path]):
         super().__init__(grasps)
         self.session_id = session_id
         self.complete = complete
         self.damage = damage
-        self.file_complete = file_complete
+        self.mendable = mendable
         self.stray_labels = stray_labels
         self.replaced = replaced
 
@@ -400,18 +400,10 @@ def _warn_other_sensors(path: Path, *, ran: Settings, given: Settings) -> None:
                         ", ".join(f"{k} {getattr(sensor, k)!r}" for k in differ))
 
 
-def _attachments_used(info: LogInfo, settings: Settings, *, given: bool,
-                      catalogue: str | Path | None) -> dict[str, str]:
-    """The attachments the records would be built from (calibrations, catalogues), each with what to
-    pass instead of it (module notes: given settings take a calibration from disk first)."""
-    used = {}
-    for sensor in settings.sensors:
-        if sensor.calibration and not (given and resolve_path(sensor.calibration).is_file()):
-            used[f"calibration/{sensor.finger}/{Path(sensor.calibration).name}"] = (
-                f"pass --settings whose sensor {sensor.finger!r} names an intact copy of its "
-                "calibration file")
-    if catalogue is None:
-        used |= {name: "pass --objects CATALOGUE" for name in ("catalogue.toml", "catalogue.csv")}
+def _catalogues_used(info: LogInfo, catalogue: str | Path | None) -> dict[str, str]:
+    """The catalogue attachments the records' labels would come from, each with what to do instead
+    (a calibration's are checked where it is taken, :func:`carried_calibrations`)."""
+    used = {} if catalogue is not None else {name: "pass --objects CATALOGUE" for name in CATALOGUE_ATTACHMENTS}
     return used | {name: "label its grasps again with `teleop label`"
                    for name in label_catalogues(dict.fromkeys(info.damaged_attachments, b""))}
 
@@ -451,7 +443,7 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
             f"{path}: the session metadata gives source {source!r}; give the source "
             "(simulated or hardware) explicitly"
         )
-    _refuse_damaged(path, info, _attachments_used(info, settings, given=given, catalogue=catalogue))
+    _refuse_damaged(path, info, _catalogues_used(info, catalogue))
     settings, files = carried_calibrations(info, settings, path, disk_first=given)
     labels = _labels(reader)
     assembler = _Assembler(
@@ -582,5 +574,5 @@ def export_session(
             # The log's settings and grasps are checked as they are read, after out is made.
             with contextlib.suppress(OSError):
                 out.rmdir()
-    return SessionExport(results, session_id=sid, complete=complete, damage=damage, file_complete=info.complete,
+    return SessionExport(results, session_id=sid, complete=complete, damage=damage, mendable=info.mendable,
                          stray_labels=stray, replaced=replaced)

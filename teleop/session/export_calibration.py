@@ -38,7 +38,12 @@ def carried_calibrations(
             except OSError:
                 return None
 
-        def from_log(stored: str = stored) -> bytes | None:
+        def from_log(stored: str = stored, finger: str = sensor.finger) -> bytes | None:
+            if stored in info.damaged_attachments:  # never carried into records
+                raise SessionLogError(
+                    f"{path}: {info.damaged_attachments[stored]}: the records cannot be built from it; pass "
+                    f"--settings whose sensor {finger!r} names an intact copy of its calibration file; "
+                    "nothing was written")
             return info.attachments.get(stored)
 
         data = None

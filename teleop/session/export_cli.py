@@ -53,8 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--json",
         action="store_true",
-        help="print one JSON object as the last stdout line: log, out, session_id, complete, "
-        "exported (count), records (paths written), written ([{grasp_id, path, object, "
+        help="print one JSON object on stdout: log, out, session_id, complete (nothing of the log is "
+        "lost), mendable (`teleop recover` would make a whole file of more of it), exported (count), records (paths written), written ([{grasp_id, path, object, "
         "modulus_pa, label_source}]), unlabelled ([{grasp_id, path, reason}]: written without a "
         "modulus), skipped ([{grasp_id, reason}]: not written), dropped ([{grasp_id, stream, count}]: "
         "untagged messages captured before the grasp's start, left out), stray_labels, replaced (paths "
@@ -69,7 +69,7 @@ def _recover_hint(log: str) -> str:
 
 #: The keys of the --json object, in order; an error raised before anything is known (a log that does
 #: not read, records already in DIR) leaves all but log, out and error null.
-_JSON_KEYS = ("log", "out", "session_id", "complete", "exported", "records", "written", "unlabelled",
+_JSON_KEYS = ("log", "out", "session_id", "complete", "mendable", "exported", "records", "written", "unlabelled",
               "skipped", "dropped", "stray_labels", "replaced", "error")
 
 
@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     error = None
     if not results.complete:
         cut = f"{args.log} is cut short or damaged ({results.damage})"
-        recover = "" if results.file_complete else _recover_hint(args.log)  # a recovered log: nothing to mend
+        recover = _recover_hint(args.log) if results.mendable else ""  # not for earlier losses or an attachment
         if written:
             print(f"note: {cut}; grasps in what is lost are skipped (above)" + (f"; {recover}" if recover else ""),
                   file=sys.stderr)
@@ -145,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
             error,
             session_id=results.session_id,
             complete=results.complete,
+            mendable=results.mendable,
             exported=len(written),
             records=[str(r.path) for r in written],
             written=[

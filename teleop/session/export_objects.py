@@ -13,7 +13,7 @@ from pathlib import Path
 from teleop.catalogue import ObjectSpec, load_catalogue
 from teleop.errors import SettingsError
 from teleop.session.label import label_catalogues
-from teleop.session.logfile import LogInfo
+from teleop.session.logfile import CATALOGUE_ATTACHMENTS, LogInfo
 
 __all__ = ["catalogue_objects", "label_catalogue_objects"]
 
@@ -35,7 +35,7 @@ def catalogue_objects(info: LogInfo, catalogue: str | Path | None) -> dict[str, 
     if catalogue is not None:
         return {obj.name: obj for obj in load_catalogue(catalogue)}
     for name, data in info.attachments.items():
-        if name in ("catalogue.toml", "catalogue.csv"):
+        if name in CATALOGUE_ATTACHMENTS:
             return _attached_objects(name, data)
     return {}
 

@@ -61,7 +61,9 @@ from teleop.errors import SessionLogError, SettingsError
 from teleop.labels import LabelError, ObjectLabel, label_from_fields
 from teleop.record import software_version
 from teleop.session.foxglove import foxglove_messages
+from teleop.session.logdamage import DamagedAttachment, DamageKeepingWriter
 from teleop.session.logfile import (
+    CATALOGUE_ATTACHMENTS,
     CHUNK_BYTES,
     MESSAGE_ENCODING,
     SCHEMA_ENCODING,
@@ -128,7 +130,7 @@ def _catalogue_objects(catalogue: str | Path | None, attachments: dict[str, byte
     log's, else the shipped. A label keeps only the object's name and modulus, so a catalogue other
     than the log's goes into the log too: export takes the object's material and shape from it."""
     if catalogue is None:
-        for name in ("catalogue.toml", "catalogue.csv"):
+        for name in CATALOGUE_ATTACHMENTS:
             if name in attachments:
                 with tempfile.TemporaryDirectory() as folder:
                     path = Path(folder) / name
@@ -275,12 +277,14 @@ def _survey(reader: LogReader) -> tuple[dict[str, _Grasp], int]:
             grasp.labelled = True
             if message.source == LABEL_SOURCE_NAME:
                 seq = max(seq, message.seq + 1)
-    if not reader.complete:
-        raise SessionLogError(
-            f"{reader.path} is cut short ({reader.damage}): make it a complete file first with "
-            f"`teleop recover {reader.path} --out FIXED.mcap`, then label FIXED.mcap"
-        )
+    if reader.mendable:
+        raise SessionLogError(_cut_short(reader.path, reader.damage))
     return grasps, seq
+
+
+def _cut_short(log: Path, damage: str | None) -> str:
+    return (f"{log} is cut short or damaged ({damage}): make it a complete file first with "
+            f"`teleop recover {log} --out FIXED.mcap`, then label FIXED.mcap")
 
 
 def _each_row(errors: list[str]) -> str:
@@ -325,11 +329,11 @@ def label_session(
     log, csv_path = Path(log), Path(csv_path)
     reader = LogReader(log)
     info = reader.info()
-    if not info.complete:
-        raise SessionLogError(
-            f"{log} is cut short ({info.damage}): make it a complete file first with "
-            f"`teleop recover {log} --out FIXED.mcap`, then label FIXED.mcap"
-        )
+    if info.mendable:  # a damaged attachment is not: it is copied as it is, its damage kept
+        raise SessionLogError(_cut_short(log, info.damage))
+    if catalogue is None and (damaged := [n for n in CATALOGUE_ATTACHMENTS if n in info.damaged_attachments]):
+        raise SessionLogError(f"{log}: {info.damaged_attachments[damaged[0]]}: the log's catalogue cannot be "
+                              "trusted; pass --objects CATALOGUE")
     objects, where, attachment = _catalogue_objects(catalogue, info.attachments)
     grasps, seq = _survey(reader)
     rows = read_label_csv(csv_path, objects, where=where, grasps=grasps, log=str(log))
@@ -351,7 +355,7 @@ def label_session(
     tmp = log.with_name(log.name + ".partial")
     try:
         with tmp.open("wb") as file:
-            writer = Writer(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+            writer = DamageKeepingWriter(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
             report.messages = _copy_with_labels(reader, writer, labels, csv_path, info.offset_ns, attachment)
             file.flush()
             os.fsync(file.fileno())
@@ -433,6 +437,8 @@ def _copy_with_labels(reader: LogReader, writer: Writer, labels: list[_Label], c
             copied += 1
             for label in pending.pop((topics[record.channel_id], record.log_time, record.sequence), ()):
                 add_label(label)
+        elif isinstance(record, DamagedAttachment):  # copied as stored: its damage stays found
+            writer.add_damaged_attachment(record)
         elif isinstance(record, Attachment):
             writer.add_attachment(record.create_time, record.log_time, record.name, record.media_type, record.data)
         elif isinstance(record, Metadata):
@@ -441,7 +447,7 @@ def _copy_with_labels(reader: LogReader, writer: Writer, labels: list[_Label], c
         name, data = attachment
         now_ns = time.time_ns()
         writer.add_attachment(now_ns, now_ns + offset_ns, name, "text/plain", data)
-    if not started or not reader.complete:  # changed since it was read
+    if not started or reader.mendable:  # changed since it was read
         raise SessionLogError(
             f"{reader.path} could not be read to its end ({reader.damage or 'no header'}); the log is unchanged"
         )

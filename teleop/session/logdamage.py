@@ -32,12 +32,14 @@ from mcap.opcode import Opcode
 from mcap.records import Attachment, Metadata
 from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
+from mcap.writer import Writer
 
 from teleop.errors import SessionLogError
 from teleop.session.logscan import UNKNOWN_NS, record_head, record_name
 
 __all__ = [
     "RECOVERY_METADATA",
+    "DamageKeepingWriter",
     "DamagedAttachment",
     "LostChunk",
     "check_attachment",
@@ -117,6 +119,24 @@ def recorded_losses(metadata: dict[str, str], path: Path) -> list[LostChunk]:
                                   f"{expected}")
         lost.append(LostChunk(**entry))
     return lost
+
+
+class DamageKeepingWriter(Writer):
+    """mcap's writer, which can also copy a damaged attachment with the CRC-32 it was stored with, so
+    that readers of the copy find the damage too (``teleop recover``, ``teleop label``)."""
+
+    def __init__(self, output: Any, **options: Any):
+        super().__init__(output, **options)
+        self._file = output
+
+    def add_damaged_attachment(self, record: DamagedAttachment) -> None:
+        """Write ``record`` with its stored CRC-32 in place of the one computed afresh (the writer
+        writes each attachment out at once: its record ends where the file stands)."""
+        self.add_attachment(record.create_time, record.log_time, record.name, record.media_type, record.data)
+        end = self._file.tell()
+        self._file.seek(end - 4)
+        self._file.write(struct.pack("<I", record.stored_crc))
+        self._file.seek(end)
 
 
 @dataclass

@@ -145,6 +145,7 @@ MESSAGE_ENCODING = f"compliance-teleop.multipart/{FORMAT_VERSION}"
 BUS_ENCODINGS = ("compliance-teleop.multipart/1", MESSAGE_ENCODING)  # channels of bus messages
 SCHEMA_ENCODING = "compliance-teleop.wire/1"
 SETTINGS_ATTACHMENT = "settings.json"
+CATALOGUE_ATTACHMENTS = ("catalogue.toml", "catalogue.csv")  # the recorder's --objects, as it attaches it
 SESSION_METADATA = "session"
 RIG_METADATA = "rig"
 END_METADATA = "session_end"
@@ -247,6 +248,7 @@ class LogInfo:
     complete: bool  # as LogReader.complete: the footer was reached and nothing in the file is damaged
     damage: str | None  # what was damaged (where, and what was skipped) or lost before recovery
     damaged_attachments: dict[str, str] = field(default_factory=dict)
+    mendable: bool = False  # as LogReader.mendable
 
     @property
     def session(self) -> dict[str, str]:
@@ -448,6 +450,11 @@ class LogReader:
                 file.seek(resume)
                 resumed_at, skip_magic = resume, True
 
+    @property
+    def mendable(self) -> bool:
+        """Whether ``teleop recover`` makes a whole file of more of it (cut short, or parts skipped)."""
+        return self.stopped or self.cut or any(not c.lost_in for c in self.lost)
+
     def _say(self, damages: list[str]) -> None:
         """Set :attr:`damage`: the parts lost before recovery, then ``damages`` (this file's)."""
         said = [str(c) for c in self.lost if c.lost_in] + damages
@@ -550,7 +557,7 @@ class LogReader:
                 damaged.pop(record.name, None)
             elif isinstance(record, Metadata):
                 metadata[record.name] = dict(record.metadata)
-        return LogInfo(profile, attachments, metadata, self.complete, self.damage, damaged)
+        return LogInfo(profile, attachments, metadata, self.complete, self.damage, damaged, self.mendable)
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[LoggedMessage]:
         """Stored bus messages, decoded and checked, in the order they were received.

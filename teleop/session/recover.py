@@ -16,7 +16,6 @@ CRC-32, not a fresh one, so the copy's readers find the damage too; it is named 
 from __future__ import annotations
 
 import json
-import struct
 from collections import Counter
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -24,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType
 from tqdm import tqdm
 
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES
@@ -32,7 +31,7 @@ from teleop.bus.wire import decode
 from teleop.errors import MessageRejected, SessionLogError
 from teleop.progress import progress_bar
 from teleop.record import software_version
-from teleop.session.logdamage import RECOVERY_METADATA, DamagedAttachment
+from teleop.session.logdamage import RECOVERY_METADATA, DamagedAttachment, DamageKeepingWriter
 from teleop.session.logfile import CHUNK_BYTES, END_METADATA, LogReader, StoredFrames
 
 __all__ = ["RECOVERY_METADATA", "RecoveryReport", "check_not_source", "recover"]
@@ -101,7 +100,7 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
         ):
             _copy(
                 reader,
-                _Writer(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD),
+                DamageKeepingWriter(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD),
                 report,
                 bar,
             )
@@ -117,24 +116,7 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
     return report
 
 
-class _Writer(Writer):
-    """mcap's writer, which can also copy an attachment with the CRC-32 it was stored with."""
-
-    def __init__(self, output: Any, **options: Any):
-        super().__init__(output, **options)
-        self._file = output
-
-    def add_damaged_attachment(self, record: DamagedAttachment) -> None:
-        """Write ``record`` with its stored CRC-32 in place of the one computed afresh (the writer
-        writes each attachment out at once: its record ends where the file stands)."""
-        self.add_attachment(record.create_time, record.log_time, record.name, record.media_type, record.data)
-        end = self._file.tell()
-        self._file.seek(end - 4)
-        self._file.write(struct.pack("<I", record.stored_crc))
-        self._file.seek(end)
-
-
-def _copy(reader: LogReader, writer: _Writer, report: RecoveryReport, bar: tqdm) -> None:
+def _copy(reader: LogReader, writer: DamageKeepingWriter, report: RecoveryReport, bar: tqdm) -> None:
     """Copy what ``reader`` reads through ``writer``, noting it in ``report``."""
     schemas: dict[int, int] = {}  # source id -> id in the copy (the summary repeats them)
     channels: dict[int, tuple[int, str]] = {}

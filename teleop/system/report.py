@@ -327,10 +327,10 @@ def build_report(
                      f"{len(views)} grasps; depth on the estimator's grid (binning {estimator_settings(settings).depth_binning}, "
                      "1 for fingers with markers); display messages "
                      + ("recorded" if recorded else "not recorded (the log has none)")]
-            if info.damage:  # a recovered log's earlier losses are damage too, which recover cannot mend
+            if info.damage:  # a recovered log's earlier losses, or a damaged attachment: recover cannot mend those
                 lines.append(f"the log is damaged: {info.damage}; grasps in the damaged part are missing or skipped"
-                             + ("" if info.complete else f". `teleop recover {log} --out FIXED.mcap` rewrites the "
-                                                         "readable part as a complete log"))
+                             + (f". `teleop recover {log} --out FIXED.mcap` rewrites the readable part as a "
+                                "complete log" if info.mendable else ""))
             index = folder / "index.html"
             index.write_text(_page(log, lines, views, figures, recorded, display_range_pa(settings)), encoding="utf-8")
     except BaseException as exc:

@@ -11,11 +11,14 @@ import pytest
 from mcap.reader import make_reader
 from mcap.records import Attachment
 
+from teleop.catalogue import default_catalogue_path
 from teleop.cli import main
 from teleop.errors import SessionLogError
 from teleop.session import LogReader, export_session, recover
+from teleop.session.label import label_session
 from teleop.session.logfile import SETTINGS_ATTACHMENT
 from teleop.session.recover import RECOVERY_METADATA
+from teleop.settings import default_settings_path
 
 
 def _damage_attachment(source: Path, out: Path, prefix: str) -> tuple[Path, str, bytes]:
@@ -84,3 +87,32 @@ def test_a_damaged_settings_attachment_is_named_when_the_settings_are_read(recor
     with pytest.raises(SessionLogError, match="pass --settings") as caught:
         export_session(path, tmp_path / "out")
     assert str(path) in str(caught.value) and repr(name) in str(caught.value)
+
+
+def test_a_log_with_a_damaged_attachment_is_labelled_and_keeps_its_damage(damaged_calibration, tmp_path):
+    # A damaged attachment made the log "cut short" to label, which advised a recover that keeps it.
+    path, name, _ = damaged_calibration
+    (tmp_path / "labels.csv").write_text("grasp_id,object\ng0,stress_ball\n")
+    report = label_session(path, tmp_path / "labels.csv")
+    assert [label["grasp_id"] for label in report.labels] == ["g0"]
+    info = LogReader(path).info()
+    assert name in info.damaged_attachments and not info.mendable  # copied as stored: still found damaged
+
+
+def test_a_damaged_catalogue_attachment_is_named_to_label_and_passed_over_with_objects(recorded, tmp_path):
+    path, name, _ = _damage_attachment(recorded.path, tmp_path / "catalogue.mcap", "catalogue.")
+    (tmp_path / "labels.csv").write_text("grasp_id,object\ng0,stress_ball\n")
+    with pytest.raises(SessionLogError, match="pass --objects CATALOGUE") as caught:
+        label_session(path, tmp_path / "labels.csv")
+    assert repr(name) in str(caught.value) and "teleop recover" not in str(caught.value)
+    assert label_session(path, tmp_path / "labels.csv", catalogue=default_catalogue_path()).labels
+
+
+def test_export_of_a_log_whose_damage_recover_cannot_mend_does_not_advise_it(damaged_calibration, tmp_path, capsys):
+    path, name, _ = damaged_calibration
+    out = tmp_path / "out"
+    code = main(["export", str(path), "--out", str(out), "--settings", str(default_settings_path()), "--json"])
+    captured = capsys.readouterr()
+    report = json.loads(captured.out)
+    assert code == 0 and report["exported"] and report["complete"] is False and report["mendable"] is False
+    assert repr(name) in captured.err and "FIXED.mcap" not in captured.err

@@ -156,7 +156,7 @@ def test_export_of_a_recovered_log_skips_the_grasp_its_source_lost_part_of(damag
     assert "lost before recovery" in by_id["g0"].reason and str(path.resolve()) in by_id["g0"].reason
     assert by_id["g1"] and by_id["g1"].path.exists()
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [by_id["g1"].path.name]
-    assert results.file_complete  # nothing left for `teleop recover` to mend ...
+    assert not results.mendable  # nothing left for `teleop recover` to mend ...
     assert teleop.cli.main(["export", str(recovered[0]), "--out", str(tmp_path / "again")]) == 0
     note = capsys.readouterr().err
     assert "lost before recovery" in note and "FIXED.mcap" not in note  # ... so it is not advised
