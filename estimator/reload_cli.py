@@ -13,8 +13,9 @@ an operator operates. Copying new files into the folder the service serves works
 once both files have stopped changing.
 
 Until the service's subscription to the control endpoint has connected, a message sent there is
-lost; so the first request waits for a subscriber to ``load_model``, and :data:`JOIN_S` more for
-the other peers (a recorder), then is sent again every :data:`RESEND_S` until answered: the
+lost; so the first request waits for the service's subscription to ``load_model`` (a recorder's, to
+every topic, does not count), and :data:`JOIN_S` more for the other peers (a recorder), then is
+sent again every :data:`RESEND_S` until answered: the
 service loads a request once and answers a repeat with the answer it gave.
 """
 
@@ -31,7 +32,7 @@ from estimator.errors import ModelError
 from teleop.bus.messages import ModelEventBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.clikit import positive_number
-from teleop.errors import BusAddressInUseError, BusError, BusTimeoutError, TeleopError
+from teleop.errors import BusAddressInUseError, BusError, TeleopError
 from teleop.live import add_endpoint_arguments, bus_from_args
 from teleop.settings import BusSettings, default_settings_path, load_settings
 
@@ -95,12 +96,8 @@ def reload_model(path: str, *, command: Publisher, answers: Subscriber, timeout_
                 why = (f"this did not hear the estimator service on {answers.endpoint_text}; is that its "
                        "--estimate-pub endpoint, and is it running?")
             raise TeleopError(f"no answer to load_model {path} (request {request}) within {timeout_s:g} s: {why}")
-        if next_send is None:
-            try:
-                command.wait_for_subscriber("load_model", timeout_s=0.005)  # reads the subscriptions queued
-                next_send = now + JOIN_S
-            except BusTimeoutError:
-                pass  # none yet: listen for the service's heartbeat meanwhile
+        if next_send is None and command.subscriptions("load_model"):  # the service's (a recorder's is "")
+            next_send = now + JOIN_S
         if next_send is not None and now >= next_send:
             command.send("load_model", t_capture_s=now, path=path, request=request)
             next_send = now + RESEND_S

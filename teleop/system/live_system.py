@@ -278,7 +278,8 @@ class LiveSystem:
         """Who has not subscribed to :attr:`commands` yet: what is sent there before is lost to them (the
         first grasp's command to the node; to the recorder, the session's first messages)."""
         deaf = [] if all(self.commands.subscriptions(t) for t in NODE_COMMAND_TOPICS) else ["the node's commands"]
-        if self.record and not self.commands.subscriptions(""):  # the recorder takes every topic
+        # The recorder takes every topic; one that stopped recording is not waited for (check()).
+        if self.record and self.recording_stopped is None and not self.commands.subscriptions(""):
             deaf.append("the recorder")
         return deaf
 

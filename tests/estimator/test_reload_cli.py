@@ -76,9 +76,12 @@ def test_the_request_waits_for_the_services_subscription_and_the_recorders(monke
     assert heard[0] is not None and heard[0].type == "load_model" and heard[0].fields.request == answer.request
 
 
-def test_no_subscriber_on_the_control_endpoint_is_said(tmp_path):
+def test_no_service_on_the_control_endpoint_is_said_a_recorder_there_is_not_one(tmp_path):
     with Publisher("tcp://127.0.0.1:*", lossless=False) as control, \
-            Subscriber("tcp://127.0.0.1:1", ("model_event",)) as answers, \
-            pytest.raises(TeleopError, match="nothing subscribed to load_model on tcp://127.0.0.1:") as caught:
-        reload_cli.reload_model("/models/b", command=control, answers=answers, timeout_s=0.3)
+            Subscriber(control.endpoint, ("",)) as recorder, \
+            Subscriber("tcp://127.0.0.1:1", ("model_event",)) as answers:
+        control.wait_for_subscriber("")
+        with pytest.raises(TeleopError, match="nothing subscribed to load_model on tcp://127.0.0.1:") as caught:
+            reload_cli.reload_model("/models/b", command=control, answers=answers, timeout_s=0.5)
+        assert recorder.recv(timeout_s=0) is None
     assert control.sent == 0 and "--estimate-pub tcp://127.0.0.1:1" in str(caught.value)
