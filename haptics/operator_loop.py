@@ -61,7 +61,7 @@ from typing import Any, Protocol
 from haptics.errors import HapticsError, InputNotConnectedError
 from haptics.operator_link import OperatorView
 from teleop.bus.messages import LabelBody
-from teleop.errors import ComplianceTeleopError
+from teleop.errors import BusError, ComplianceTeleopError, MessageRejected
 from teleop.live import check_duration_s
 from teleop.operator import BUTTONS, FOLLOW_RATE_HZ, grip_to_width_m
 from teleop.settings import Settings
@@ -74,6 +74,7 @@ RELEASE_FOLLOWS = 3  # follows with enable=False sent at least when the dead-man
 IDLE_TICK_S = 0.01  # the loop's longest wait when not sending follows
 NEXT_WAIT_S = 5.0  # after "next", the longest wait for the grasp left to end and get its final
 RECONNECT_S = 1.0  # a failed input device (unplugged) is opened again at most this often
+_UNSENT_ON_THE_BUS = "not sent (bus): "  # a send the link refused or could not make; the next one made mends it
 
 
 class InputDevice(Protocol):
@@ -393,8 +394,8 @@ class OperatorLoop:
             self._act("quit")
 
     def _robot_down(self) -> str:
-        """What to add to a command's log line when the link hears the robot node dead: the link sent
-        it, so the node's subscription is open (a stalled node reads it when it runs again)."""
+        """What to add to a command's log line when the link hears the robot node dead: a command the
+        link sends reaches the node's subscription, and a stalled node reads it when it runs again."""
         down = self.link.view.down("robot node")
         return " (the robot node is not heard: nothing moves until it runs again)" if down else ""
 
@@ -521,10 +522,11 @@ class OperatorLoop:
     def _send(self, send: Callable[[], None]) -> bool:
         try:
             send()
-        except ComplianceTeleopError as exc:
-            self._trouble(f"not sent: {exc}")
+        except ComplianceTeleopError as exc:  # the link's failure is mended by any send that goes through,
+            bus = isinstance(exc, BusError) and not isinstance(exc, MessageRejected)  # not a label's bad fields
+            self._trouble(f"{_UNSENT_ON_THE_BUS if bus else 'not sent: '}{exc}")
             return False
-        self._resolved("not sent:")
+        self._resolved(_UNSENT_ON_THE_BUS)
         return True
 
     def _act(self, what: str) -> None:

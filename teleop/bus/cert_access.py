@@ -20,7 +20,7 @@ __all__ = ["CertificateAccessError", "access_error", "is_dir", "load_certificate
 
 
 class CertificateAccessError(BusSecurityError):
-    """A certificate or keys folder this process may not read, or that does not exist."""
+    """A certificate or keys folder this process may not read (its permissions, not its contents)."""
 
 
 def _user_name(uid: int) -> str:
@@ -35,7 +35,7 @@ def _user_name(uid: int) -> str:
 def access_error(path: Path, what: str, exc: OSError) -> BusSecurityError:
     """Why ``path`` cannot be opened, in words: missing, or not readable by this user."""
     if exc.errno in (errno.ENOENT, errno.ENOTDIR):
-        return CertificateAccessError(f"cannot read {what} {path}: it does not exist")
+        return BusSecurityError(f"cannot read {what} {path}: it does not exist")  # a dangling link: remove it
     if exc.errno not in (errno.EACCES, errno.EPERM):
         return BusSecurityError(f"cannot read {what} {path}: {exc}")
     user = _user_name(os.geteuid()) if hasattr(os, "geteuid") else "this user"

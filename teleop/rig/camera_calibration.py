@@ -26,6 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from teleop.clikit import positive_number
 from teleop.devices.camera import CameraFrame, TactileCamera, make_camera
 from teleop.devices.loadcell import LoadCell, make_load_cell
 from teleop.errors import DeviceTimeoutError, TeleopError
@@ -58,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: <settings folder>/<settings name>-<finger>-corners.png)")
     parser.add_argument("--latency", action="store_true",
                         help="also measure the camera's latency against the load cell: tap the gel when asked")
-    parser.add_argument("--duration-s", type=float, default=5.0, metavar="S",
+    parser.add_argument("--duration-s", type=positive_number, default=5.0, metavar="S",
                         help="with --latency: seconds of frames and force recorded around the tap (default: 5.0)")
     parser.add_argument("--json", action="store_true",
                         help="print the result as one JSON object (corners, latency, changes) on stdout")
@@ -149,8 +150,6 @@ def _latency(camera: TactileCamera, settings: Settings, duration_s: float) -> La
 
 
 def run(args: argparse.Namespace) -> int:
-    if not args.duration_s > 0:
-        raise TeleopError(f"--duration-s {args.duration_s}: expected a positive number of seconds")
     path = Path(args.settings)
     settings = load_settings(path)
     sensor = settings.sensor(args.finger or settings.sensing.finger)

@@ -15,7 +15,8 @@ from haptics.errors import HapticsError
 from haptics.operator_link import OperatorView, Peer
 from haptics.operator_loop import NEXT_WAIT_S, RECONNECT_S, RELEASE_FOLLOWS, OperatorLoop
 from teleop.bus.messages import DisplayBody, EstimateBody, RobotNoticeBody, RobotStateBody
-from teleop.errors import BusError
+from teleop.errors import BusError, MessageRejected
+from teleop.labels import ObjectLabel
 from teleop.operator import FOLLOW_RATE_HZ
 from teleop.settings import load_settings
 
@@ -121,7 +122,7 @@ def test_a_grasp_the_link_refused_to_send_is_not_waited_on(rig, monkeypatch):
     monkeypatch.setattr(link, "start_grasp", refused)
     device.buttons = {"grasp"}
     loop.step()
-    assert loop.status.log[-1].startswith("not sent: the robot node has not subscribed")
+    assert loop.status.log[-1].startswith("not sent (bus): the robot node has not subscribed")
     device.buttons = {"next"}  # no grasp in progress: the next object is not refused
     loop.step()
     assert "next object: ready" in loop.status.log[-1]
@@ -337,11 +338,11 @@ def test_a_problem_that_no_longer_holds_is_cleared_and_the_log_keeps_it(rig, mon
         monkeypatch.setattr(link, send, refused)
     device.buttons, device.enable = {"grasp"}, True
     run_for(clock, loop, 0.1)
-    assert loop.status.problem.startswith("not sent: the robot node has not subscribed") and link.sent == []
+    assert loop.status.problem.startswith("not sent (bus): the robot node has not subscribed") and link.sent == []
     monkeypatch.undo()  # the robot node comes up: the follows reach it
     run_for(clock, loop, 0.1)
     assert link.kinds()[-1] == "follow" and loop.status.problem == ""
-    assert f"not sent: {not_subscribed}" in loop.status.log
+    assert f"not sent (bus): {not_subscribed}" in loop.status.log
     monkeypatch.setattr(link, "poll", bad_poll)
     loop.step()
     assert loop.status.problem == "bus: bad message"
@@ -481,3 +482,18 @@ def test_quitting_leaves_alone_a_grasp_the_robot_releases_or_none(rig):
     sent = len(link.sent)
     loop.finish()
     assert "release" not in link.kinds()[sent:]
+
+
+def test_a_label_refused_for_its_fields_stays_said_while_follows_go_through(rig, monkeypatch):
+    # Any send that went through cleared every "not sent" problem: a follow 50 ms later hid a bad label.
+    clock, link, device, loop = rig
+
+    def rejected(*args, **kwargs):
+        raise MessageRejected("too_long", "label detail is 300 characters, more than 256")
+
+    monkeypatch.setattr(link, "label", rejected)
+    loop.label("op-1", ObjectLabel("stress_ball", None, "catalogue", ""))
+    device.enable = True
+    run_for(clock, loop, 0.2)
+    assert link.kinds()[-1] == "follow"
+    assert loop.status.problem == "not sent: too_long: label detail is 300 characters, more than 256"

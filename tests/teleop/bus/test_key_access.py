@@ -103,3 +103,9 @@ def test_keys_command_as_another_user_says_permission_denied():
     assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
     _says_permission(result.stderr, outer / "k1" / "server.key")
     assert f"folder {outer / 'k1'} (owner root, mode 0700)" in result.stderr
+
+
+def test_a_dangling_key_in_the_authorised_folder_is_to_be_removed(keys, tmp_path):
+    (keys.keys_dir / "authorized" / "gone.key").symlink_to(tmp_path / "nowhere.key")
+    with pytest.raises(BusSecurityError, match="it does not exist: remove it from"):
+        list_keys(keys.keys_dir)

@@ -241,3 +241,13 @@ def test_a_read_only_settings_file_is_refused_before_the_camera_is_read(tmp_path
     monkeypatch.setattr(camera_calibration, "make_camera", lambda sensor: pytest.fail("the camera was read"))
     assert main(["calibrate", "camera", "--settings", str(path)]) == 2
     assert f"error: settings file {path} is read-only (mode 444)" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("duration_s", ["inf", "nan", "0"])
+def test_a_duration_that_is_no_finite_time_is_refused_before_the_camera_is_read(duration_s, tmp_path, capsys,
+                                                                                monkeypatch):
+    monkeypatch.setattr(camera_calibration, "make_camera", lambda sensor: pytest.fail("the camera was read"))
+    with pytest.raises(SystemExit) as exited:
+        main(["calibrate", "camera", "--settings", str(write_settings(tmp_path, "http://127.0.0.1:1/x.mjpg")),
+              "--latency", "--duration-s", duration_s])
+    assert exited.value.code == 2 and f"--duration-s: {duration_s!r}: expected a number > 0" in capsys.readouterr().err
