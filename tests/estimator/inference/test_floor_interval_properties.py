@@ -10,59 +10,21 @@ from __future__ import annotations
 
 import math
 import re
-from types import SimpleNamespace
 
-import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from scipy.stats import norm
+from support.hybrid_stand_in import SETTINGS, gaussian, stand_in_answer
 
 from estimator.estimate import Estimate
-from estimator.inference.distribution import EDGES_LOG10, describe_on_gel
-from estimator.inference.hybrid import HybridEstimator
-from estimator.inference.sampling import SampledGrasp
-from estimator.settings import estimator_settings
-from teleop.settings import Settings
 
-SETTINGS = Settings()
-SOFT_PA = 3.5e3
 # What a reason says of a floor, and of a ceiling should one ever name one.
 FLOORED = re.compile(r"floored at the (\w+) lower bound ([0-9.e+-]+) Pa")
 CEILED = re.compile(r"(?:capped|ceiled|ceiling) at (?:the (\w+) upper bound )?([0-9.e+-]+) Pa")
 
 
-def gaussian(mean: float, sd: float) -> np.ndarray:
-    return np.diff(norm.cdf(EDGES_LOG10, mean, sd))
-
-
-class StandInPredictor:
-    """The parts of a CompliancePredictor the hybrid's answer reads: a fixed distribution and floor."""
-
-    def __init__(self, probs: np.ndarray, floor: tuple[float, str | None], scale: float, p_rigid: float):
-        self.probs, self._floor, self.scale, self.p_rigid = probs, floor, scale, p_rigid
-        self.variant = SimpleNamespace(method="hybrid", name="stand-in", n_frames=3, window_m=None)
-        self.depth_binning = estimator_settings(SETTINGS).depth_binning
-        self.metadata = SimpleNamespace(raw={}, floor_leak=0.01, p_rigid_at=lambda _f: p_rigid,
-                                        force_band_at=lambda _f: "at any force")
-        self.interval_level, self.rig_range, self.calibration_smoothing_px = 0.9, {}, (0.0,)
-
-    def predict_distribution(self, _items):
-        return [self.probs]
-
-    def floor(self, _item):
-        return self._floor
-
-    def describe(self, probs, *, limit_pa, peak_force_n, widen=1.0, gel_scale=1.0):
-        return describe_on_gel(probs, scale=self.scale, limit_pa=limit_pa, soft_pa=SOFT_PA, p_rigid=self.p_rigid,
-                               gel_scale=gel_scale, widen=widen)
-
-
-def answer(probs: np.ndarray, floor_log10: float, method: str, *, scale: float = 1.6, p_rigid: float = 0.5,
+def answer(probs, floor_log10: float, method: str, *, scale: float = 1.6, p_rigid: float = 0.5,
            gel_modulus_pa: float | None = None) -> Estimate:
-    bound = Estimate.at_least(method, 10.0 ** floor_log10, "stand-in")
-    sampled = SampledGrasp(estimates=(bound,), force_n=np.array([1.0, 5.0, 10.0]), gel_modulus_pa=gel_modulus_pa)
-    predictor = StandInPredictor(probs, (floor_log10, method), scale, p_rigid)
-    return HybridEstimator(predictor, settings=SETTINGS).estimate_sampled(sampled)
+    return stand_in_answer(probs, (floor_log10, method), scale=scale, p_rigid=p_rigid, gel_modulus_pa=gel_modulus_pa)
 
 
 def assert_interval_respects_what_the_reason_names(est: Estimate) -> None:
