@@ -175,6 +175,7 @@ class _Assembler:
         self.reader = reader  # its damage and lost chunks, as read so far
         self.open: dict[str, OpenGrasp] = {}
         self.ended: set[str] = set()
+        self.ended_by_others: dict[str, str] = {}  # open grasp -> who else ended it (the estimator, its node silent)
         self.unassigned = 0
 
     def _lost(self, start_ns: int | None, end_ns: int) -> str:
@@ -198,6 +199,8 @@ class _Assembler:
             elif grasp is None or message.source != grasp.source:
                 # The estimator forwards ends, and ends a grasp a restarted node started again
                 # before the robot ends the new one: only the start's publisher ends a grasp.
+                if grasp is not None and body.event == "end":
+                    self.ended_by_others[grasp_id] = message.source or "another publisher"
                 if grasp is None and body.event == "end" and grasp_id not in self.ended:
                     lost = "" if log_time_ns is None else self._lost(None, log_time_ns)
                     if lost:  # its start was in a chunk damage lost
@@ -233,6 +236,9 @@ class _Assembler:
         reader = self.reader
         for grasp_id, grasp in self.open.items():
             reason = "the log stops before the grasp's end event"
+            if grasp_id in self.ended_by_others:  # the log goes on: its node restarted or went silent
+                reason = (f"its publisher {grasp.source!r} never ended it (the {self.ended_by_others[grasp_id]} "
+                          "did: the robot node restarted or went silent during the grasp)")
             lost = self._lost(grasp.start_log_ns, 2**64)
             if lost:
                 reason = f"its end event is lost: the log is damaged ({lost})"

@@ -56,6 +56,11 @@ def test_an_end_from_another_publisher_neither_ends_nor_warns(caplog):
                 _message("estimator", "grasp_event", 2.0, event="end", grasp_id="x")]
     assert [grasp for message in messages for grasp in assembler.feed(message)] == []
     assert list(assembler.open) == ["x"] and "never started" not in caplog.text
+    # Its node went silent: the log goes on, so "the log stops before the grasp's end" would be untrue.
+    (unfinished,) = assembler.unfinished()
+    assert not unfinished and unfinished.reason == (
+        "its publisher 'robot' never ended it (the estimator did: the robot node restarted or went silent "
+        "during the grasp)")
 
 
 def test_untagged_data_captured_before_the_start_is_dropped_and_counted():
