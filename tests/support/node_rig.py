@@ -81,7 +81,9 @@ def killed_console_stops_the_fingers(node: RobotNode, operator: Publisher, liste
     # simulation) had not reached the last follow's target, so the stop had fingers to hold.
     assert abs(moving_from - stopped) > 1e-3 or short_of_target_m > 1e-3, \
         "the fingers were not moving when the console died"
-    assert node.gripper.read_width()[1] == pytest.approx(stopped, abs=still_m)
+    after = node.gripper.read_width()[1]
+    assert after == pytest.approx(stopped, abs=still_m), \
+        f"the fingers moved {abs(after - stopped) * 1e3:.2f} mm after the stop (at most {still_m * 1e3:.2f} mm)"
     got = drain(listener)
     notices = [m for m in got if m.type == "robot_notice"]
     assert [m.body["event"] for m in notices] == ["watchdog"]

@@ -64,9 +64,11 @@ def test_killing_the_console_stops_the_franky_sim_gripper_within_250_ms(franky_s
         step_for(node, 0.2)  # the load cell heard
         start = node.gripper.read_width()[1]
         target = 0.0 if start > 0.04 else 0.08
-        # franky-sim's fingers creep toward the last step's goal: within one step at the follow speed.
+        # franky-sim's fingers creep on to the last step's goal: the step in flight, plus what they still
+        # lagged behind the step before (franky-sim answers a move once its fingers barely move, short of
+        # its goal; under load they lag more): within two steps at the follow speed.
         killed_console_stops_the_fingers(node, operator, listener, lambda t: target,
-                                          still_m=FOLLOW_SPEED_M_S * FOLLOW_STEP_S)
+                                          still_m=2 * FOLLOW_SPEED_M_S * FOLLOW_STEP_S)
     finally:
         node.close()
         for sock in sockets:
