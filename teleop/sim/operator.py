@@ -21,7 +21,9 @@ pauses
     Sometimes it stops closing for a while on the way up (at a drawn share of the goal).
 back-offs
     Sometimes it reaches a first peak, opens until the felt force falls to a drawn share of it,
-    and squeezes again, to a higher or a lower peak.
+    and squeezes again, to a higher or a lower peak. When its hand has been open for
+    ``GIVE_UP_S`` and the force has not fallen (the fingers no longer follow: the watchdog ended
+    the grasp), it lets go at once.
 hold
     At the last peak it holds its grip still for a drawn time, or (sometimes) never holds
     still: it lets go at once.
@@ -271,6 +273,8 @@ class SimulatedOperator:
                 self._squeeze += 1
                 self._stalled_since = None
                 self._phase = "squeeze"
+            elif self._stuck(t_s, self._target >= self.max_width_m):  # its hand open, the force stays: the
+                self._phase, self._until = "hold", t_s  # fingers no longer follow (the watchdog ended the grasp)
             else:
                 self._target += s.squeeze_speed_m_s * dt
         if self._phase == "hold" and t_s >= self._until:

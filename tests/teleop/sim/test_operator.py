@@ -184,3 +184,25 @@ def test_a_slow_start_of_the_robot_does_not_make_it_give_up():
     late = SimulatedOperator(np.random.default_rng(2), max_width_m=MAX_WIDTH_M, max_force_n=MAX_FORCE_N)
     steps = _approach(late, lambda t, target: MAX_WIDTH_M if t < 0.5 * GIVE_UP_S else target, max_s=0.9 * GIVE_UP_S)
     assert late.phase == "approach" and all(c.enable and not c.release for _, c in steps)
+
+
+def test_it_gives_up_a_back_off_the_fingers_no_longer_follow():
+    # The demo stalled: the robot's watchdog stopped the fingers at the first peak, and the hand,
+    # backing off, waited for a force that could no longer fall; the demo's next grasp never came.
+    seed = next(s for s in range(100) if len(draw_style(np.random.default_rng(s), max_force_n=MAX_FORCE_N)
+                                            .backoff_to) == 1)
+    op = SimulatedOperator(np.random.default_rng(seed), max_width_m=MAX_WIDTH_M, max_force_n=MAX_FORCE_N)
+    dt, steps, backoff_s, width, force = 1.0 / FOLLOW_RATE_HZ, [], None, MAX_WIDTH_M, 0.0
+    for i in range(round(60.0 / dt)):
+        t = i * dt
+        if backoff_s is None and op.phase == "backoff":
+            backoff_s = t  # the fingers stop here, and the force with them, however the hand opens
+        steps.append((t, command := op.step(t, force_n=force, width_m=width)))
+        if backoff_s is None:  # the fingers follow onto a spring 4 cm wide
+            width = command.target_width_m
+            force = min(1000.0 * max(0.04 - width, 0.0), MAX_FORCE_N)
+        if op.done:
+            break
+    released_s = _one_release(steps)
+    assert backoff_s is not None and op.done
+    assert backoff_s + GIVE_UP_S <= released_s <= backoff_s + GIVE_UP_S + MAX_WIDTH_M / op.style.squeeze_speed_m_s
