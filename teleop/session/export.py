@@ -86,8 +86,8 @@ from teleop.session.export_calibration import carried_calibrations
 from teleop.session.export_names import record_name, same_grasp_records
 from teleop.session.export_objects import catalogue_objects, label_catalogue_objects
 from teleop.session.export_streams import OpenGrasp, concatenated_samples, frame_stream
-from teleop.session.label import label_catalogues
-from teleop.session.logfile import CATALOGUE_ATTACHMENTS, SETTINGS_ATTACHMENT, LogInfo, LogReader
+from teleop.session.logdamage import intact_attachment
+from teleop.session.logfile import SETTINGS_ATTACHMENT, LogInfo, LogReader
 from teleop.settings import Settings
 
 __all__ = ["GraspExport", "SessionExport", "export_session", "session_grasps", "session_id"]
@@ -406,25 +406,6 @@ def _warn_other_sensors(path: Path, *, ran: Settings, given: Settings) -> None:
                         ", ".join(f"{k} {getattr(sensor, k)!r}" for k in differ))
 
 
-def _catalogues_used(info: LogInfo, catalogue: str | Path | None) -> dict[str, str]:
-    """The catalogue attachments the records' labels would come from, each with what to do instead
-    (a calibration's are checked where it is taken, :func:`carried_calibrations`)."""
-    used = {} if catalogue is not None else {name: "pass --objects CATALOGUE" for name in CATALOGUE_ATTACHMENTS}
-    return used | {name: "label its grasps again with `teleop label`"
-                   for name in label_catalogues(dict.fromkeys(info.damaged_attachments, b""))}
-
-
-def _refuse_damaged(path: Path, info: LogInfo, used: dict[str, str]) -> None:
-    """Refuse a log whose attachment in ``used`` (name -> what to do instead) is damaged: its records
-    would carry, or be labelled from, what the damage left (:class:`SessionLogError`)."""
-    for name, instead in used.items():
-        if name in info.damaged_attachments:
-            raise SessionLogError(
-                f"{path}: {info.damaged_attachments[name]}: the records cannot be built from it; "
-                f"{instead}; nothing was written"
-            )
-
-
 def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, catalogue: str | Path | None,
             source: str | None, stray_labels: list[str] | None = None) -> Iterator[GraspExport]:
     path = reader.path
@@ -434,10 +415,8 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
             "can be read"
         )
     given = settings is not None
-    if not given:
-        _refuse_damaged(path, info, {SETTINGS_ATTACHMENT: "pass --settings, the settings TOML the "
-                                                          "session ran with"})
-    if not given and SETTINGS_ATTACHMENT not in info.attachments:
+    if not given and intact_attachment(info, SETTINGS_ATTACHMENT, log=path, instead="pass --settings, the settings "
+                                       "TOML the session ran with") is None:
         raise SessionLogError(f"{path}: the log has no {SETTINGS_ATTACHMENT} attachment: pass --settings, "
                               "the settings TOML the session ran with")
     if given and SETTINGS_ATTACHMENT in info.attachments:
@@ -449,14 +428,14 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
             f"{path}: the session metadata gives source {source!r}; give the source "
             "(simulated or hardware) explicitly"
         )
-    _refuse_damaged(path, info, _catalogues_used(info, catalogue))
+    objects, label_objects = catalogue_objects(info, catalogue, log=path), label_catalogue_objects(info, log=path)
     settings, files = carried_calibrations(info, settings, path, disk_first=given)
     labels = _labels(reader)
     assembler = _Assembler(
         path=path,
         settings=settings,
-        objects=catalogue_objects(info, catalogue),
-        label_objects=label_catalogue_objects(info),
+        objects=objects,
+        label_objects=label_objects,
         source=source,
         session_version=info.session.get("software_version", "0+unknown"),
         session=session_id(info, path),

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from teleop.errors import SessionLogError
 from teleop.record import calibration_copy
+from teleop.session.logdamage import intact_attachment
 from teleop.session.logfile import LogInfo
 from teleop.settings import Settings, resolve_path
 
@@ -39,12 +40,8 @@ def carried_calibrations(
                 return None
 
         def from_log(stored: str = stored, finger: str = sensor.finger) -> bytes | None:
-            if stored in info.damaged_attachments:  # never carried into records
-                raise SessionLogError(
-                    f"{path}: {info.damaged_attachments[stored]}: the records cannot be built from it; pass "
-                    f"--settings whose sensor {finger!r} names an intact copy of its calibration file; "
-                    "nothing was written")
-            return info.attachments.get(stored)
+            return intact_attachment(info, stored, log=path, instead=f"pass --settings whose sensor {finger!r} "
+                                     "names an intact copy of its calibration file")
 
         data = None
         for source in (from_disk, from_log) if disk_first else (from_log, from_disk):

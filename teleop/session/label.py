@@ -61,7 +61,7 @@ from teleop.errors import SessionLogError, SettingsError
 from teleop.labels import LabelError, ObjectLabel, label_from_fields
 from teleop.record import software_version
 from teleop.session.foxglove import foxglove_messages
-from teleop.session.logdamage import DamagedAttachment, DamageKeepingWriter
+from teleop.session.logdamage import DamagedAttachment, DamageKeepingWriter, intact_attachment
 from teleop.session.logfile import (
     CATALOGUE_ATTACHMENTS,
     CHUNK_BYTES,
@@ -331,9 +331,8 @@ def label_session(
     info = reader.info()
     if info.mendable:  # a damaged attachment is not: it is copied as it is, its damage kept
         raise SessionLogError(_cut_short(log, info.damage))
-    if catalogue is None and (damaged := [n for n in CATALOGUE_ATTACHMENTS if n in info.damaged_attachments]):
-        raise SessionLogError(f"{log}: {info.damaged_attachments[damaged[0]]}: the log's catalogue cannot be "
-                              "trusted; pass --objects CATALOGUE")
+    for name in CATALOGUE_ATTACHMENTS if catalogue is None else ():  # the one the labels would check
+        intact_attachment(info, name, log=log, instead="pass --objects CATALOGUE")
     objects, where, attachment = _catalogue_objects(catalogue, info.attachments)
     grasps, seq = _survey(reader)
     rows = read_label_csv(csv_path, objects, where=where, grasps=grasps, log=str(log))

@@ -44,6 +44,7 @@ __all__ = [
     "LostChunk",
     "check_attachment",
     "describe",
+    "intact_attachment",
     "recorded_losses",
     "recovery_metadata",
 ]
@@ -151,6 +152,16 @@ class DamagedAttachment(Attachment):
     def __str__(self) -> str:
         return (f"attachment {self.name!r} at bytes {self.start_byte} to {self.end_byte} is damaged "
                 f"(its contents' CRC-32 {self.crc:#010x} is not the stored {self.stored_crc:#010x})")
+
+
+def intact_attachment(info: Any, name: str, *, log: Path, instead: str) -> bytes | None:
+    """The attachment ``name`` of ``info`` (the :class:`~teleop.session.logfile.LogInfo` of log
+    ``log``), None when the log has none; SessionLogError naming its damage and ``instead`` (what to
+    do) when its CRC-32 failed: nothing is built from what the damage left."""
+    if name in info.damaged_attachments:
+        raise SessionLogError(f"{log}: {info.damaged_attachments[name]}: nothing can be built from it; "
+                              f"{instead}; nothing was written")
+    return info.attachments.get(name)
 
 
 def check_attachment(file: Any, record: Attachment, end: int) -> Attachment:
