@@ -9,9 +9,9 @@ Phases: *idle* (free, nothing to render) -> *active* on the first estimate of
 a grasp (smoothing toward the latest estimate; *stale* when, after a provisional
 estimate, no estimate came for ``stale_after_s``: the last value is held and
 flagged; a final estimate is the grasp's last and never goes stale) -> *fading* on the
-grasp's end (linear fade to free over ``fade_s``) -> idle. Estimates of a
-grasp that has ended, or that had its final estimate, are ignored, so a late
-estimate cannot re-engage the display. A report is written when the command
+grasp's end, or on :meth:`HapticRenderer.release` (linear fade to free over ``fade_s``)
+-> idle. Estimates of a grasp that has ended, or that had its final estimate, are
+ignored, so a late estimate cannot re-engage the display. A report is written when the command
 changes, or every ``keepalive_s`` to feed the display's watchdog; a display
 whose ``watchdog_ms`` is not longer than ``keepalive_s`` is refused
 (:class:`~haptics.errors.DisplayError`), since it would go free while holding a value.
@@ -201,9 +201,16 @@ class HapticRenderer:
         if grasp_id not in self._ended:
             self._ended.append(grasp_id)
         if self._active and grasp_id == self._grasp_id:
-            self._active = False
-            self._release_s, self._released, self._target = now_s, self._shown, FREE
-            self._fade_to(now_s)
+            self._fade_out(now_s)
+        self._output(now_s)
+
+    def release(self, now_s: float) -> None:
+        """Fade to free at ``now_s`` what is rendered, without ending its grasp: when no one vouches
+        for the value held any more (its estimator is gone), though the grasp may go on. A later
+        estimate of that grasp engages the display again, as a new grasp's would."""
+        self._advance(now_s)
+        if self._active:
+            self._fade_out(now_s)
         self._output(now_s)
 
     def tick(self, now_s: float) -> StiffnessCommand | None:
@@ -238,6 +245,11 @@ class HapticRenderer:
             )
         elif self._release_s is not None:
             self._fade_to(now_s)
+
+    def _fade_out(self, now_s: float) -> None:
+        self._active = False
+        self._release_s, self._released, self._target = now_s, self._shown, FREE
+        self._fade_to(now_s)
 
     def _fade_to(self, now_s: float) -> None:
         gain = fade_gain(now_s - self._release_s, fade_s=self.settings.fade_s)

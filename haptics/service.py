@@ -7,12 +7,13 @@ mapping, smoothing, staleness, fading and the display's reconnection) and ticks 
 
 A grasp's end reaches it only through the estimator, which forwards the robot node's
 ``grasp_event`` *end* after the grasp's final estimate (the robot's own end comes before that
-final, which the renderer would then ignore). So when a grasp's final estimate is rendered and the
-estimator that sent it, once heard with a heartbeat period, goes unheard for three of its periods,
-the service ends the grasp (the display fades to free): no end can come for it, and a final
-estimate never goes stale. A grasp still loading goes stale instead, held until its estimator
-is back (the renderer's rules); one restarted mid-grasp refuses the grasp at its end (a final with
-no estimate) and forwards that end, so the display fades as after any grasp.
+final, which the renderer would then ignore). So when the estimator that sent the estimate rendered, once
+heard with a heartbeat period, goes unheard for three of its periods, the display fades to free:
+no one vouches for the value held, which would otherwise press on the operator's next grasp. A
+grasp that had its final estimate ends there (no end can come for it). One still loading is only
+released: should its estimator be heard again (it was starved, not gone), its next estimate
+engages the display again; one restarted mid-grasp refuses the grasp at its end (a final with no
+estimate) and forwards that end, as after any grasp.
 
 What it renders
 ---------------
@@ -268,10 +269,11 @@ class RendererService(ServiceLoop):
             self._check_pending(written_s)
 
     def _check_estimator(self) -> None:
-        """End the grasp rendered, its final in, when the estimator that sent it is heard dead (module
-        docstring); one never heard with a heartbeat period cannot be judged, and is left alone."""
+        """Set the display free when the estimator that sent what it renders is heard dead, ending the
+        grasp if its final was in (module docstring); one never heard with a heartbeat period cannot
+        be judged, and is left alone."""
         grasp_id = self.renderer.grasp_id
-        if grasp_id is None or not self.renderer.has_final or self.subscriber is None:
+        if grasp_id is None or self.subscriber is None:
             return
         heartbeat = self.subscriber.heartbeat  # on its own clock: it stamped when each peer was heard
         if heartbeat.last_seen_s(self._estimates_from) is None:  # handed in, not heard (a replay, a test)
@@ -282,10 +284,15 @@ class RendererService(ServiceLoop):
             return
         if alive:
             return
-        log.warning("the estimator (%s) is unheard: grasp %s ends here, as its end cannot come",
-                    self._estimates_from or "?", grasp_id)
-        self.renderer.on_grasp_end(grasp_id, self.clock())
-        self._received.pop(grasp_id, None)
+        if self.renderer.has_final:
+            log.warning("the estimator (%s) is unheard: grasp %s ends here, as its end cannot come",
+                        self._estimates_from or "?", grasp_id)
+            self.renderer.on_grasp_end(grasp_id, self.clock())
+            self._received.pop(grasp_id, None)
+        else:
+            log.warning("the estimator (%s) is unheard mid-grasp: the display is set free until it renders "
+                        "grasp %s again", self._estimates_from or "?", grasp_id)
+            self.renderer.release(self.clock())
         self._publish_display()
 
     def _display_body(self) -> dict[str, Any]:

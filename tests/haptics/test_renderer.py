@@ -154,6 +154,19 @@ def test_grasp_end_fades_to_free_and_ignores_late_estimates():
     assert renderer.tick(0.5).level == 0
 
 
+def test_release_fades_a_stale_value_to_free_but_lets_its_grasp_engage_again():
+    display, renderer = make(replace(SETTINGS, smoothing_s=0.0))
+    renderer.tick(0.0)
+    renderer.on_estimate(estimate(1e8, provisional=True), 0.0)
+    assert renderer.tick(1.5).stale  # no estimate for stale_after_s: held, flagged
+    renderer.release(1.5)
+    assert renderer.phase == "fading" and written(display)[-1].fading and not written(display)[-1].stale
+    assert renderer.tick(1.9).level == 0 and renderer.phase == "idle"
+    renderer.on_estimate(estimate(1e8, provisional=True), 2.0)  # the same grasp, its estimator back
+    assert renderer.phase == "active" and renderer.grasp_id == "g1" and renderer.stats.estimates_ignored == 0
+    assert renderer.tick(2.0).level == target_level(1e8)
+
+
 def test_fade_levels_fall_monotonically():
     _, renderer = make()
     renderer.tick(0.0)

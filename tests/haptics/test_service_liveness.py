@@ -1,4 +1,6 @@
-"""The renderer service ends the grasp it renders when the estimator, which alone forwards grasp ends, dies."""
+"""The renderer service lets go of what it renders when the estimator, which alone forwards grasp ends,
+dies: a grasp that had its final ends; one still loading is released, and engages again if the
+estimator is heard again."""
 
 from __future__ import annotations
 
@@ -14,9 +16,10 @@ from teleop.settings import load_settings
 HEARTBEAT_S = 0.05
 
 
-def _final(publisher: Publisher, grasp_id: str) -> None:
+def _final(publisher: Publisher, grasp_id: str, *, provisional: bool = False) -> None:
     publisher.send("estimate", t_capture_s=time.monotonic(), grasp_id=grasp_id, method="series", E_pa=1e12,
-                   interval_pa=[1e11, None], state="lower_bound", reason="test", provisional=False, latency_s=0.001)
+                   interval_pa=[1e11, None], state="lower_bound", reason="test", provisional=provisional,
+                   latency_s=0.001)
 
 
 def _step_until(service: RendererService, done, timeout_s: float = 5.0) -> None:
@@ -64,6 +67,30 @@ def test_an_estimator_that_never_announced_a_heartbeat_period_is_not_judged():
         while time.monotonic() < end:
             service.step()
         assert renderer.phase == "active"
+    finally:
+        for sock in (estimator, subscriber):
+            sock.close()
+
+
+def test_a_loading_grasp_is_released_when_its_estimator_dies_and_engages_again_when_it_is_back():
+    estimator = Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator", heartbeat_s=HEARTBEAT_S)
+    subscriber = Subscriber(estimator.endpoint, ("estimate", "grasp_event"), conflate=True)
+    renderer = HapticRenderer(SimulatedDisplay(), display_settings(load_settings()))
+    service = RendererService(renderer, subscriber=subscriber, tick_s=0.005)
+    try:
+        estimator.wait_for_subscriber("estimate", timeout_s=5.0)
+        estimator.heartbeat_if_due()
+        _final(estimator, "g3", provisional=True)  # rigid, still loading
+        _step_until(service, lambda: renderer.grasp_id == "g3")
+        assert renderer.percept.rigid and not renderer.has_final
+        # The estimator dies mid-grasp: the stiff end is not held over the operator's next grasp.
+        _step_until(service, lambda: renderer.phase == "idle", timeout_s=2.0)
+        assert renderer.percept.stiffness == 0 and renderer.display.last_command.level == 0
+        # It was only starved: heard again, its next estimate of g3 is rendered (g3 did not end).
+        estimator.heartbeat_if_due()
+        _final(estimator, "g3", provisional=True)
+        _step_until(service, lambda: renderer.grasp_id == "g3")
+        assert renderer.percept.rigid
     finally:
         for sock in (estimator, subscriber):
             sock.close()

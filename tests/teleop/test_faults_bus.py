@@ -88,7 +88,7 @@ def kill(process: subprocess.Popen) -> None:
 
 
 @pytest.mark.slow
-def test_estimator_killed_and_restarted_renderer_holds_flags_stale_and_resumes():
+def test_estimator_killed_and_restarted_renderer_lets_go_and_resumes():
     """The estimator's endpoint goes silent mid-grasp (SIGKILL) and comes back on the same port."""
     rendering = display_settings(load_settings())
     endpoint = f"tcp://127.0.0.1:{free_ports(1)[0]}"
@@ -104,16 +104,15 @@ def test_estimator_killed_and_restarted_renderer_holds_flags_stale_and_resumes()
                 service.step()
 
         run_until(lambda: service.stats.estimates >= 10, 15.0)
-        assert service.renderer.phase == "active"
-        killed = time.monotonic()  # before the kill: the last estimate came before it, or was queued by then
+        assert service.renderer.phase == "active" and service.renderer.percept.stiffness > 0
+        killed = time.monotonic()
         kill(peer)
-        run_until(lambda: service.renderer.phase == "stale", rendering.stale_after_s + 2.0)
-        assert time.monotonic() - killed >= rendering.stale_after_s - 0.1  # not before its time
+        # Unheard for three heartbeat periods (0.3 s), no one vouches for the value: the display goes free.
+        run_until(lambda: service.renderer.phase == "idle", 3.0)
+        assert time.monotonic() - killed >= 0.15  # not before the estimator could be judged dead
         received = service.stats.estimates  # with any the dead peer had queued
-        held = service.renderer.percept
         run_until(lambda: time.monotonic() - killed > rendering.stale_after_s + 0.5, 5.0)
-        assert service.renderer.phase == "stale" and service.renderer.command.stale
-        assert service.renderer.percept == held  # the last safe value, held
+        assert service.renderer.phase == "idle" and service.renderer.command.level == 0
         assert service.stats.estimates == received
         peer = start_peer(endpoint, "estimate", "estimator")
         restarted = time.monotonic()
