@@ -44,6 +44,10 @@ at least as fast, at least as accurate and refuses no more grasps, and better in
 one of the three: the error is over the grasps a configuration answers, so one
 that refuses the hard grasps (no loading frame to sample) must not dominate one
 that answers them (``auto``, with its force/width fallback).
+
+The records not benched are listed under ``skipped_records``, each ``{"path", "cause"}`` with the
+cause ``estimator evaluate`` gives (``unreadable: ...`` or ``unlabelled: ...``), and counted by
+cause under ``skipped``; with none left to bench, :class:`NothingToBench` carries that list.
 """
 
 from __future__ import annotations
@@ -51,6 +55,7 @@ from __future__ import annotations
 import contextlib
 import os
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -77,7 +82,7 @@ from teleop.progress import progress_bar
 from teleop.record import GraspRecord, read_record
 from teleop.settings import Settings
 
-__all__ = ["BenchConfig", "bench", "configurations", "pareto_front"]
+__all__ = ["BenchConfig", "NothingToBench", "bench", "configurations", "pareto_front"]
 
 
 @dataclass(frozen=True)
@@ -91,6 +96,19 @@ class BenchConfig:
     size_px: tuple[int, int] | None
     run: Callable[[GraspRecord], Estimate]
     binning: int
+
+
+class NothingToBench(EstimatorError):
+    """No labelled, readable record among those given; ``skipped``: each one ``{"path", "cause"}``."""
+
+    def __init__(self, message: str, skipped: Sequence[dict[str, str]]) -> None:
+        super().__init__(message)
+        self.skipped = list(skipped)
+
+
+def skip_counts(skipped: Sequence[dict[str, str]]) -> dict[str, int]:
+    """Skipped records counted by the kind of their cause (``unreadable``, ``unlabelled``), most first."""
+    return dict(Counter(entry["cause"].split(":")[0] for entry in skipped).most_common())
 
 
 def configurations(
@@ -204,21 +222,25 @@ def bench(
     repeats: int = 5,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Time and score ``configs`` over the labelled records in ``paths`` (module notes)."""
+    """Time and score ``configs`` over the labelled records in ``paths`` (module notes).
+
+    Raises NothingToBench when none of ``paths`` is readable and labelled (its message counts
+    the causes; its ``skipped`` names each record and its cause)."""
     rows: list[dict[str, Any]] = []
     latency: dict[str, list[float]] = {c.name: [] for c in configs}
     reference: list[float] = []
-    skipped = 0
+    skipped: list[dict[str, str]] = []
     with one_core() as pinned:
         for path in progress_bar(paths, desc="bench", unit="grasp", enabled=progress):
             try:
                 record = read_record(path)
-            except RecordError:
-                skipped += 1
+            except RecordError as exc:
+                skipped.append({"path": str(path), "cause": f"unreadable: {exc}"})
                 continue
             label = record.label
             if label is None or label.modulus_pa is None:
-                skipped += 1
+                cause = "unlabelled: no label" if label is None else f"unlabelled: {label.object_name} has no modulus"
+                skipped.append({"path": str(path), "cause": cause})
                 continue
             by_binning = {k: decoded(record, reduce=k) for k in sorted({c.binning for c in configs})}
             ref_ms = _reference_ms(by_binning[estimator_settings(settings).depth_binning], settings, repeats)
@@ -229,7 +251,10 @@ def bench(
                 latency[config.name].append(ms)
                 rows.append(result_row(path, label, config.name, estimate))
     if not rows:
-        raise EstimatorError("no labelled, readable .grasp record to bench")
+        counts = ", ".join(f"{n} {cause}" for cause, n in skip_counts(skipped).items())
+        raise NothingToBench(f"no labelled, readable .grasp record to bench: {len(skipped)} of {len(paths)} "
+                             "records skipped"
+                             + (f" ({counts})" if counts else ""), skipped)
     summary = summarise(rows, [c.name for c in configs],
                         display_range_pa=display_range_pa(settings))
     out = []
@@ -249,7 +274,8 @@ def bench(
     objectives = [(c["latency_ms_p50"], c["felt_log10_error"], c["refusals"]) for c in out]
     for entry, flag in zip(out, pareto_front(objectives), strict=True):
         entry["pareto"] = flag
-    return {"records": len(paths), "labelled": len(paths) - skipped, "repeats": repeats, "one_core": pinned,
+    return {"records": len(paths), "labelled": len(paths) - len(skipped),
+            "skipped": skip_counts(skipped), "skipped_records": skipped, "repeats": repeats, "one_core": pinned,
             "reference_ms_p50": float(np.median(reference)) if reference else None, "configs": out}
 
 

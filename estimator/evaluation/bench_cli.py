@@ -4,16 +4,22 @@ Besides :func:`~estimator.evaluation.bench.bench`'s figures, the result (``--jso
 each model with ``measurement_code_matches``: whether this code measures grasps as the code
 that built its training data did (when not, its figures are those of a model fed inputs it
 was not trained on).
+
+The records skipped (unreadable or unlabelled) are named with their cause as ``estimator evaluate``
+names them: listed under the header (on stderr with ``--json``, so stdout stays one JSON object), and
+before the error when none is left to bench.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from estimator.errors import EstimatorError
-from estimator.evaluation.bench import bench, configurations, plot
+from estimator.evaluation.bench import NothingToBench, bench, configurations, plot
+from estimator.evaluation.evaluate_cli import print_skipped
 from estimator.inference.infer import CompliancePredictor, default_model_dir
 from estimator.settings import estimator_settings
 from teleop.clikit import PLOT_SUFFIXES, output_file
@@ -91,13 +97,19 @@ def run(args: argparse.Namespace) -> int:
         frames = sorted({m.variant.n_frames for m in models}) or [estimator_settings(settings).n_frames]
     configs = configurations(settings=settings, calibration=args.calibration, frames=frames, models=models,
                              binning=args.binning, correct_width_lag=args.width_lag)
-    result = {"dir": str(root), **bench(paths, settings=settings, configs=configs, repeats=args.repeats),
+    try:
+        benched = bench(paths, settings=settings, configs=configs, repeats=args.repeats)
+    except NothingToBench as exc:
+        print_skipped(exc.skipped, len(paths), file=sys.stderr)
+        raise EstimatorError(f"{root}: {exc}" + ("; listed above" if exc.skipped else "")) from exc
+    result = {"dir": str(root), **benched,
               "models": [{"dir": str(m.model_dir), "variant": m.variant.name,
                           "measurement_code_matches": m.measurement_code_matches} for m in models],
               "plot": args.plot}
     if args.plot:
         plot(result, args.plot)
     if args.json:
+        print_skipped(result["skipped_records"], result["records"], file=sys.stderr)
         print(json.dumps(result, allow_nan=False))
         return 0
     for m in result["models"]:
@@ -106,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
     ref = result["reference_ms_p50"]
     print(f"{result['labelled']} labelled grasps, {args.repeats} timed runs each, one core: {result['one_core']}; "
           f"no-contact reference alone {'-' if ref is None else f'{ref:.1f}'} ms")
+    print_skipped(result["skipped_records"], result["records"])
     print(f"{'configuration':<44} {'p50 ms':>8} {'felt err':>8} {'felt2x':>6} {'log10 err':>9} {'within10x':>9} "
           f"{'refused':>7}  pareto")
     for c in sorted(result["configs"], key=lambda c: c["latency_ms_p50"]):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -70,6 +71,57 @@ def test_bench_corrects_the_width_lag_unless_told_not_to_as_evaluate(tmp_path, m
     for extra in ([], ["--no-width-lag"]):
         assert main(["bench", str(tmp_path), "--models", *extra]) == 2
     assert asked == [True, False] and "no labelled, readable .grasp record" in capsys.readouterr().err
+
+
+def _mixed_records(folder, *, good: bool):
+    """In ``folder``: a labelled grape (when ``good``), an unlabelled copy, a text file and a truncated
+    record, all named .grasp; returns the unlabelled, text and truncated paths."""
+    settings = load_settings()
+    grape = next(o for o in load_catalogue() if o.name == "grape")
+    record, _ = simulate_grasp(grape, settings=settings, rng=np.random.default_rng(0))
+    folder.mkdir(parents=True, exist_ok=True)
+    whole = write_record(record, folder / "good.grasp").read_bytes()
+    if not good:
+        (folder / "good.grasp").unlink()
+    unlabelled = write_record(dataclasses.replace(record, label=None), folder / "nolabel.grasp")
+    (folder / "text.grasp").write_text("garbage\n")
+    (folder / "trunc.grasp").write_bytes(whole[:1000])
+    return [unlabelled, folder / "text.grasp", folder / "trunc.grasp"]
+
+
+def test_bench_names_every_record_it_skips_and_why_as_evaluate(tmp_path, monkeypatch, capsys):
+    # It skipped unreadable and unlabelled records counting them only; evaluate names each with its cause.
+    bad = _mixed_records(tmp_path / "recs", good=True)
+    every = bench_cli.configurations
+    monkeypatch.setattr(bench_cli, "configurations",  # one cheap configuration: the skipping is under test
+                        lambda **kw: [c for c in every(**kw) if c.name == "no_tactile"])
+    assert main(["bench", str(tmp_path / "recs"), "--models", "--repeats", "1", "--json"]) == 0
+    out, err = capsys.readouterr()
+    [line] = out.strip().splitlines()  # stdout stays one JSON object
+    result = json.loads(line)
+    settings = load_settings()
+    said = {str(p): evaluate_record(p, settings=settings, methods=[], calibration=None)[0]["skipped"] for p in bad}
+    assert result["skipped_records"] == [{"path": path, "cause": cause} for path, cause in said.items()]
+    assert said[str(bad[0])] == "unlabelled: no label" and said[str(bad[1])].startswith("unreadable: ")
+    assert (result["records"], result["labelled"]) == (4, 1)
+    assert result["skipped"] == {"unreadable": 2, "unlabelled": 1}
+    assert "skipped 3 of 4 records:" in err
+    for path, cause in said.items():
+        assert f"  {path}: {cause}" in err
+
+
+def test_bench_with_no_record_left_names_the_folder_and_each_cause(tmp_path, capsys):
+    # It failed with "no labelled, readable .grasp record to bench", naming neither the folder nor a cause.
+    folder = tmp_path / "recs"
+    bad = _mixed_records(folder, good=False)
+    assert main(["bench", str(folder), "--models", "--repeats", "1", "--json"]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert (f"{folder}: no labelled, readable .grasp record to bench: 3 of 3 records skipped "
+            "(2 unreadable, 1 unlabelled)") in err
+    assert "skipped 3 of 3 records:" in err
+    assert f"  {bad[0]}: unlabelled: no label" in err
+    assert all(f"  {p}: unreadable: " in err for p in bad[1:])
 
 
 @pytest.mark.slow
