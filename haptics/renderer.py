@@ -12,9 +12,11 @@ flagged; a final estimate is the grasp's last and never goes stale) -> *fading* 
 grasp's end, or on :meth:`HapticRenderer.release` (linear fade to free over ``fade_s``)
 -> idle. Estimates of a grasp that has ended, or that had its final estimate, are
 ignored, so a late estimate cannot re-engage the display. A report is written when the command
-changes, or every ``keepalive_s`` to feed the display's watchdog; a display
-whose ``watchdog_ms`` is not longer than ``keepalive_s`` is refused
-(:class:`~haptics.errors.DisplayError`), since it would go free while holding a value.
+changes, or every ``keepalive_s`` to feed the display's watchdog. A display whose
+``watchdog_ms`` is nonzero and not longer than ``keepalive_s`` would go free while holding a
+value: on connect and reconnect the renderer sets its watchdog (:meth:`SoftnessDisplay.configure`)
+to :func:`watchdog_for` ``keepalive_s`` and logs it at warning; a display that refuses is
+disconnected and retried later with the reconnection backoff, never an error out of a call.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ from haptics.mapping import (
 from haptics.protocol import StiffnessCommand
 from haptics.settings import DisplaySettings
 
-__all__ = ["HapticRenderer", "RendererStats"]
+__all__ = ["HapticRenderer", "RendererStats", "watchdog_for"]
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +51,19 @@ log = logging.getLogger(__name__)
 _ENDED_MEMORY = 16
 #: The largest level_max a display can state: checks a command before the display is known.
 _LEVEL_MAX = 0xFFFF
+#: The largest watchdog_ms the FEATURE report carries (uint16).
+_WATCHDOG_MAX_MS = 0xFFFF
+
+
+def watchdog_for(keepalive_s: float) -> int:
+    """The ``watchdog_ms`` set on a display whose watchdog is not longer than ``keepalive_s``.
+
+    Twice the keep-alive (rounded up to a whole ms): one late or lost keep-alive does not free the
+    display, and a host that is gone frees it soon. At most 65535 ms, the field's limit, which is
+    still above any keepalive_s the settings allow (at most 60 s).
+    """
+    twice_ms = math.ceil(round(2e3 * keepalive_s, 6))  # the rounding drops float noise (0.2 * 2e3)
+    return min(_WATCHDOG_MAX_MS, twice_ms)
 
 
 @dataclass
@@ -109,7 +124,8 @@ class HapticRenderer:
         self.display = display
         self.settings = settings
         self.stats = RendererStats()
-        self._reconnector = Reconnector(display, reconnect_initial_s, reconnect_max_s)
+        self._reconnector = Reconnector(display, reconnect_initial_s, reconnect_max_s,
+                                        accept=self._fit_watchdog)
         self._grasp_id: Hashable = None
         self._active = False
         self._ended: deque[Hashable] = deque(maxlen=_ENDED_MEMORY)
@@ -257,8 +273,33 @@ class HapticRenderer:
         if gain == 0:
             self._release_s = None
 
+    def _fit_watchdog(self) -> None:
+        """Give the connected display a watchdog longer than ``keepalive_s`` if it has a shorter
+        one (it would go free between two keep-alives while holding a value); DisplayError when
+        the display cannot be so configured."""
+        info = self.display.info
+        keepalive_s = self.settings.keepalive_s
+        if info is None or not info.watchdog_ms or keepalive_s * 1e3 < info.watchdog_ms:
+            return
+        wanted_ms = watchdog_for(keepalive_s)
+        try:
+            self.display.configure(watchdog_ms=wanted_ms)
+        except DisplayError as exc:
+            raise DisplayError(
+                f"its watchdog_ms = {info.watchdog_ms} ms is not longer than [display] keepalive_s = "
+                f"{keepalive_s:g} s and setting it to {wanted_ms} ms failed ({exc}); not using it"
+            ) from exc
+        log.warning("%s: watchdog_ms = %d ms was not longer than [display] keepalive_s = %g s (it would "
+                    "go free while holding a value): set it to %d ms",
+                    self.display, info.watchdog_ms, keepalive_s, wanted_ms)
+
     def _output(self, now_s: float) -> None:
         was_connected = self.display.connected
+        if was_connected:  # connected by someone else: the Reconnector's accept did not see it
+            try:
+                self._fit_watchdog()
+            except DisplayError as exc:
+                self._reconnector.reject(now_s, exc)
         if self._reconnector.poll(now_s) and not was_connected:
             self.stats.connects += 1
             # reconnect() resent the display's last command: that is what it shows now.
@@ -266,14 +307,6 @@ class HapticRenderer:
         info = self.display.info
         if info is None:
             return
-        if info.watchdog_ms and self.settings.keepalive_s * 1e3 >= info.watchdog_ms:
-            # The display would go free between two keep-alives while holding a value.
-            raise DisplayError(
-                f"{self.display}: [display] keepalive_s = {self.settings.keepalive_s:g} s is not "
-                f"shorter than the display's watchdog_ms = {info.watchdog_ms} ms, so the display "
-                "would go free (watchdog) while it holds a value; set keepalive_s below "
-                f"{info.watchdog_ms / 1e3:g} s"
-            )
         self._command = to_command(
             self._shown,
             level_max=info.level_max,

@@ -40,7 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="how long to wait for the display's status report, in seconds")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (mapping, report, status) on stdout, the text on stderr; "
-                             "E_pa is null for insufficient_data, display_fraction is the fraction of the "
+                             "E_pa is the modulus rendered (for a bound state without --e-pa, its bound), null for "
+                             "insufficient_data; display_fraction is the fraction of the "
                              "display's range rendered (0 free, 1 rigid)")
 
 
@@ -69,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     flags = [name for name in ("rigid", "unknown", "provisional") if getattr(command, name)]
     steps = just_noticeable_steps(settings.e_soft_pa, settings.e_rigid_pa)
     out = sys.stderr if args.json else sys.stdout  # with --json, stdout is the JSON alone
-    print(f"E {args.e_pa} Pa ({args.state}) -> {percept.stiffness:.3f} of the range "
+    print(f"E {update.value_pa} Pa ({args.state}) -> {percept.stiffness:.3f} of the range "
           f"{settings.e_soft_pa:.3g}..{settings.e_rigid_pa:.3g} Pa ({steps:.0f} just-noticeable steps), "
           f"level {command.level}/{display.info.level_max}, uncertainty "
           f"{percept.uncertainty_decades:.2f} decades, flags: {', '.join(flags) or 'none'}", file=out)
@@ -84,8 +85,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({
             "backend": settings.backend, "display": where, "state": args.state,
-            # As estimate and the renderer say it; a refusal carries no modulus.
-            "E_pa": None if args.state == "insufficient_data" else args.e_pa,
+            # As estimate and the renderer say it: the modulus rendered (for a bound state without
+            # --e-pa, the bound of --low-pa / --high-pa); a refusal carries none.
+            "E_pa": update.value_pa,
             "e_soft_pa": settings.e_soft_pa, "e_rigid_pa": settings.e_rigid_pa, "just_noticeable_steps": steps,
             "display_fraction": percept.stiffness, "uncertainty_decades": percept.uncertainty_decades,
             "level": command.level, "level_max": display.info.level_max,

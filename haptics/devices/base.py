@@ -23,6 +23,7 @@ import math
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Self
 
@@ -39,6 +40,7 @@ from haptics.protocol import (
 )
 from haptics.protocol_grip import GripReport, decode_grip_report
 from haptics.settings import DisplaySettings
+from teleop.bus.pubsub import is_decade
 
 __all__ = ["Reconnector", "SoftnessDisplay"]
 
@@ -381,6 +383,13 @@ class Reconnector:
     No sleeping and no threads: call :meth:`poll` with the current time as often
     as convenient; it attempts at most once per backoff step, doubling the wait
     from ``initial_s`` up to ``max_s`` after each failure.
+
+    ``accept``, when given, is called after each reconnect: a DisplayError from it means the
+    display came back but cannot be used; it is closed and that counts as a failed attempt.
+    :meth:`reject` does the same for a display found unusable outside :meth:`poll`.
+    The first failure of a run is logged at warning, then only the 10th, 100th, ... in a row,
+    so that a display left unplugged does not flood the log; its return after failures is
+    logged once at info.
     """
 
     display: SoftnessDisplay
@@ -388,6 +397,7 @@ class Reconnector:
     max_s: float = 2.0
     failures: int = 0
     next_attempt_s: float = -math.inf
+    accept: Callable[[], None] | None = None
 
     def poll(self, now_s: float) -> bool:
         """True when the display is connected after this call."""
@@ -397,13 +407,25 @@ class Reconnector:
             return False
         try:
             self.display.reconnect()
+            if self.accept is not None:
+                self.accept()
         except DisplayError as exc:
-            self.failures += 1
-            # The exponent is capped so that a display left unplugged for hours cannot overflow.
-            delay_s = min(self.max_s, self.initial_s * 2.0 ** min(self.failures - 1, 60))
-            self.next_attempt_s = now_s + delay_s
-            log.warning("%s: reconnect failed (%s); next try in %.3g s", self.display, exc, delay_s)
+            self.reject(now_s, exc)
             return False
+        if self.failures:
+            log.info("%s: back after %d failed reconnect attempt(s)", self.display, self.failures)
         self.failures = 0
         self.next_attempt_s = -math.inf
         return True
+
+    def reject(self, now_s: float, exc: DisplayError) -> None:
+        """Count a failed attempt at ``now_s`` for ``exc``: close the display (it may be connected
+        but unusable) and put the next attempt off by the backoff."""
+        self.display.close()
+        self.failures += 1
+        # The exponent is capped so that a display left unplugged for hours cannot overflow.
+        delay_s = min(self.max_s, self.initial_s * 2.0 ** min(self.failures - 1, 60))
+        self.next_attempt_s = now_s + delay_s
+        if is_decade(self.failures):
+            log.warning("%s: reconnect failed (%s); next try in %.3g s (failure %d in a row; logged "
+                        "at the 1st, 10th, 100th, ...)", self.display, exc, delay_s, self.failures)

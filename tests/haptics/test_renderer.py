@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from haptics.devices.sim import DisplayFirmware, SimulatedDisplay
-from haptics.errors import DisplayError, MappingError, ProtocolError
+from haptics.errors import MappingError, ProtocolError
 from haptics.mapping import ESTIMATE_STATES, EstimateUpdate, map_estimate, stiffness_fraction
 from haptics.protocol import DisplayInfo, decode_output_report
 from haptics.renderer import HapticRenderer
@@ -349,15 +349,20 @@ def test_an_ignored_estimate_leaves_the_command_current():
     assert renderer.command.level == 0 and renderer.command.flags == 0
 
 
-def test_a_display_whose_watchdog_is_not_longer_than_the_keep_alive_is_refused():
+def test_a_display_whose_watchdog_is_not_longer_than_the_keep_alive_gets_a_longer_one(caplog):
     display, renderer = make(replace(SETTINGS, keepalive_s=1.0))  # the simulated watchdog: 1000 ms
-    with pytest.raises(DisplayError, match=r"keepalive_s = 1 s is not shorter than the display's "
-                                           r"watchdog_ms = 1000 ms.*below 1 s"):
-        renderer.tick(0.0)
-    with pytest.raises(DisplayError, match="watchdog_ms"):
+    with caplog.at_level("WARNING", logger="haptics.renderer"):
+        assert renderer.tick(0.0).level == 0  # no refusal: the display is used
         renderer.on_estimate(estimate(1e6), 0.1)
-    assert written(display) == []  # nothing sent that the watchdog would drop
-    _, renderer = make(replace(SETTINGS, keepalive_s=0.999))
-    assert renderer.tick(0.0).level == 0
+        run_ticks(renderer, 0.1, 3.0, step_s=0.1)
+    assert display.info.watchdog_ms == display.firmware.info.watchdog_ms == 2000  # twice the keep-alive
+    assert written(display)[-1].level == target_level(1e6) and display.firmware.state == "rendering"
+    (record,) = caplog.records  # once, naming the display and both values
+    assert record.levelname == "WARNING" and "simulated display" in record.getMessage()
+    assert "watchdog_ms = 1000 ms" in record.getMessage() and "keepalive_s = 1 s" in record.getMessage()
+    assert "set it to 2000 ms" in record.getMessage()
+    display, renderer = make(replace(SETTINGS, keepalive_s=0.999))
+    assert renderer.tick(0.0).level == 0 and display.info.watchdog_ms == 1000  # longer already: kept
     off = SimulatedDisplay(firmware=DisplayFirmware(DisplayInfo(4095, watchdog_ms=0)))
     assert HapticRenderer(off, replace(SETTINGS, keepalive_s=60.0)).tick(0.0).level == 0  # no watchdog
+    assert off.info.watchdog_ms == 0  # off stays off

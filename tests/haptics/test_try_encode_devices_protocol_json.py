@@ -36,3 +36,16 @@ def test_try_names_the_modulus_and_fraction_as_estimate_and_the_renderer_do(caps
     assert main(["try", "--backend", "sim", "--state", "insufficient_data", "--e-pa", "2e5", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["E_pa"] is None and data["display_fraction"] == 0.0 and data["command"]["unknown"] is True
+
+
+@pytest.mark.parametrize(("options", "e_pa"), [
+    (["--state", "lower_bound", "--low-pa", "1e5"], 1e5),
+    (["--state", "upper_bound", "--high-pa", "3e4"], 3e4),
+    (["--state", "lower_bound", "--e-pa", "2e5", "--low-pa", "1e5"], 2e5),
+])
+def test_try_gives_the_modulus_rendered_for_a_bound_from_the_interval(options, e_pa, capsys):
+    assert main(["try", "--backend", "sim", *options, "--json"]) == 0
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)
+    assert data["E_pa"] == e_pa and 0.0 < data["display_fraction"] < 1.0
+    assert f"E {e_pa} Pa ({data['state']})" in captured.err  # the text line says it too, not "E None"
