@@ -23,9 +23,21 @@ every ``keepalive_s``), the service publishes one ``display`` message on that en
 the renderer's phase, the percept as numbers (``stiffness`` as a fraction of the display's
 range, ``uncertainty_decades``, the ``rigid``, ``unknown`` and ``provisional`` flags), the
 modulus the stiffness stands for on the display's range (``E_pa``, nil when free or
-unknown) and the ``level`` written of ``level_max``. ``t_capture_s`` is the time of the
-write on the service's clock. A session log therefore holds what the operator felt. A
-message that cannot be published is logged and dropped: publishing never stops rendering.
+unknown) and the ``level`` written of ``level_max``, and what the display itself says it
+does: ``device_state`` and ``device_faults`` from its latest status report (nil before one was
+read since it connected), so a display whose actuator a fault disabled reads ``fault`` (level 0
+in truth) whatever level was written. ``t_capture_s`` is the time of the write on the service's
+clock. A session log therefore holds what the operator felt. A message that cannot be published
+is logged and dropped: publishing never stops rendering.
+
+Device status
+-------------
+After every renderer call the service takes, without waiting, the status reports the display
+sent since (haptics/PROTOCOL.md, INPUT report 0x03). A change of its trouble (a ``fault`` or
+``watchdog`` state, or fault bits) is logged once, as a warning, and so is its clearing; a
+report that does not decode is logged (the first, then a count at every power of ten) and
+skipped, the link kept. A display that is not connected has no status (nil again until its next
+report after a reconnect).
 
 Latency
 -------
@@ -38,7 +50,11 @@ renders for it: the percept the estimate maps to (``display_fraction`` of the di
 ``level`` of ``level_max``, the level the display settles on. One JSON object per final estimate goes
 to ``report``. A latency outside :data:`PLAUSIBLE_LATENCY_S` is no latency (a capture time on
 another clock, or a broken one): it is logged (the first, then a count at every power of ten),
-counted (``unmeasured``) and left out, as null; the estimate is rendered all the same.
+counted (``unmeasured``) and left out, as null; the estimate is rendered all the same. A final
+estimate whose grasp stops being rendered (its end, a release, another grasp's estimate) before
+any report was written after it (the display was not connected) was never shown: it is logged
+and reported as not shown, ``latency_ms`` and ``level`` null (``display_fraction`` and the flags
+still say what it maps to), with the estimates its grasp had by then.
 """
 
 from __future__ import annotations
@@ -52,8 +68,9 @@ from typing import Any
 
 import zmq
 
-from haptics.errors import DisplayError, HapticsError
+from haptics.errors import DisplayError, DisplayNotConnectedError, HapticsError, ProtocolError
 from haptics.mapping import FREE, EstimateUpdate, Percept, modulus_from_fraction, to_command
+from haptics.protocol import FAULT_BITS, DeviceStatus, StiffnessCommand
 from haptics.renderer import HapticRenderer
 from teleop.bus.pubsub import Publisher, Subscriber, is_decade
 from teleop.bus.wire import Message
@@ -69,6 +86,8 @@ _COUNTED_GRASPS = 16  # grasps whose estimates are counted at once: more only wh
 # Capture to report (s) on one host's monotonic clock: a camera stamps at most 1 s late
 # (sensors' camera_latency_s), and no final comes an hour after its last loading frame.
 PLAUSIBLE_LATENCY_S = (-1.0, 3600.0)
+_STATUS_READS = 64  # most status reports taken at once: the display sends one per report written
+_TROUBLE_STATES = ("fault", "watchdog")  # device states logged (haptics/PROTOCOL.md)
 
 
 def check_tick_s(tick_s: float, *, keepalive_s: float, heartbeat_s: float | None, name: str = "tick_s =") -> None:
@@ -95,8 +114,9 @@ def check_tick_s(tick_s: float, *, keepalive_s: float, heartbeat_s: float | None
 @dataclass(frozen=True)
 class FinalLatency:
     """A final estimate as the display got it: latency from the last loading frame to the report
-    (None when not measured: module docstring), and what the display renders for it (``percept``;
-    ``level`` of ``level_max``, None before a display was connected)."""
+    (None when not measured or never shown: module docstring), and what the display renders for it
+    (``percept``; ``level`` of ``level_max``, None before a display was connected and when the final
+    was never shown)."""
 
     grasp_id: str
     state: str
@@ -124,6 +144,7 @@ class _Pending:
     update: EstimateUpdate
     reports_before: int
     percept: Percept
+    estimates_received: int  # its grasp's, the final included: the count goes with the grasp's end
 
 
 @dataclass
@@ -185,6 +206,10 @@ class RendererService(ServiceLoop):
         self._last_grasp: Hashable = None  # the grasp active last: the one a fade renders
         self._publish_failing = False
         self._estimates_from = ""  # the source of the last estimate rendered: whose death ends its grasp
+        self._device_status: DeviceStatus | None = None  # the display's latest status report
+        self._trouble_said: tuple[str, frozenset[str]] | None = None  # the device trouble logged last
+        self._bad_status = 0  # status reports that did not decode
+        self._written: StiffnessCommand | None = None  # the command of the last report written
 
     def step(self) -> Message | None:
         """Wait up to ``tick_s`` for a message and handle it; tick the renderer; heartbeat."""
@@ -210,9 +235,18 @@ class RendererService(ServiceLoop):
         (logged): nothing more can reach it."""
         renderer, display = self.renderer, self.renderer.display
         info = display.info
-        if info is None or not display.connected:
+        if info is None:
             return
         free = to_command(FREE, level_max=int(info.level_max))
+        if not display.connected:
+            last = self._written or display.last_command
+            if last is not None and (last.level > 0 or last.rigid):
+                watchdog = f"watchdog_ms = {info.watchdog_ms}" if info.watchdog_ms else "it has none"
+                log.warning("%s: not connected on stopping, so not set free: it may hold the last level written, "
+                            "%d of %d, until its own watchdog (%s)", display, last.level, info.level_max, watchdog)
+            else:
+                log.info("%s: not connected on stopping, so not set free (the last level written was 0)", display)
+            return
         if renderer.phase == "idle" and display.last_command in (None, free):
             return
         try:
@@ -220,11 +254,12 @@ class RendererService(ServiceLoop):
         except (DisplayError, OSError) as exc:
             log.warning("%s: not set free on stopping: %s", display, exc)
             return
+        self._read_status()  # its answer to the free command
         if self.publisher is None:
             return
         body = {"grasp_id": None, "phase": "idle", "stiffness": 0.0, "uncertainty_decades": 0.0, "rigid": False,
                 "unknown": False, "provisional": False, "E_pa": None, "level": int(free.level),
-                "level_max": int(info.level_max)}
+                "level_max": int(info.level_max), **self._device_fields()}
         try:
             self.publisher.send("display", t_capture_s=self.clock(), **body)
         except (ComplianceTeleopError, zmq.ZMQError) as exc:
@@ -241,6 +276,7 @@ class RendererService(ServiceLoop):
                 if event.event == "end":
                     self.renderer.on_grasp_end(event.grasp_id, self.clock())
                     self.stats.grasp_ends += 1
+                    self._check_pending(self.clock())  # a final never shown is recorded so now
                     self._received.pop(event.grasp_id, None)
                 return
             if message.type != "estimate":
@@ -257,6 +293,7 @@ class RendererService(ServiceLoop):
         finally:
             self._publish_display()  # for a report written on the estimate or the grasp's end
         self.stats.estimates += 1
+        self._check_pending(written_s)  # before another grasp's final takes its place
         if self.renderer.stats.estimates_ignored != ignored_before:
             self.stats.ignored += 1
             return  # not counted: a late estimate of an ended grasp would keep its count for good
@@ -265,7 +302,8 @@ class RendererService(ServiceLoop):
         if len(self._received) > _COUNTED_GRASPS:  # grasps whose end never came: the oldest goes
             del self._received[next(iter(self._received))]
         if not update.provisional:
-            self._pending = _Pending(update.grasp_id, update, reports_before, self.renderer.target)
+            self._pending = _Pending(update.grasp_id, update, reports_before, self.renderer.target,
+                                     self._received[update.grasp_id])
             self._check_pending(written_s)
 
     def _check_estimator(self) -> None:
@@ -310,21 +348,72 @@ class RendererService(ServiceLoop):
         return {"grasp_id": None if grasp_id is None else str(grasp_id), "phase": phase,
                 "stiffness": float(percept.stiffness), "uncertainty_decades": float(percept.uncertainty_decades),
                 "rigid": bool(percept.rigid), "unknown": bool(percept.unknown),
-                "provisional": bool(percept.provisional), "E_pa": e_pa, "level": level, "level_max": level_max}
+                "provisional": bool(percept.provisional), "E_pa": e_pa, "level": level, "level_max": level_max,
+                **self._device_fields()}
+
+    def _device_fields(self) -> dict[str, str | None]:
+        """``device_state`` and ``device_faults`` of a ``display`` message: the latest status's."""
+        status = self._device_status
+        if status is None:
+            return {"device_state": None, "device_faults": None}
+        return {"device_state": status.state,
+                "device_faults": ",".join(name for name in FAULT_BITS if name in status.faults)}
+
+    def _read_status(self) -> None:
+        """Take the status reports the display sent since the last call, without waiting; log a change of
+        its trouble (module docstring). A report that does not decode is logged and skipped."""
+        display = self.renderer.display
+        for _ in range(_STATUS_READS):
+            if not display.connected:
+                self._device_status = None  # until its next report says what it does
+                return
+            try:
+                status = display.read_status(timeout_s=0)
+            except ProtocolError as exc:
+                self._bad_status += 1
+                if self._bad_status == 1:
+                    log.warning("%s: a status report skipped: %s; further ones are counted, not each logged",
+                                display, exc)
+                elif is_decade(self._bad_status):
+                    log.warning("%s: %d status reports skipped so far, the last: %s", display, self._bad_status, exc)
+                continue
+            except DisplayNotConnectedError:  # closed meanwhile
+                self._device_status = None
+                return
+            except DisplayError as exc:  # the link failed: the renderer reconnects it
+                log.warning("%s: status read failed (%s); reconnecting", display, exc)
+                self._device_status = None
+                return
+            if status is None:
+                return
+            self._device_status = status
+            trouble = (status.state, status.faults) if (
+                status.state in _TROUBLE_STATES or status.faults) else None
+            if trouble != self._trouble_said:
+                if trouble is not None:
+                    faults = ", ".join(name for name in FAULT_BITS if name in status.faults) or "none"
+                    log.warning("%s reports state %s, level %d, faults: %s", display, status.state, status.level,
+                                faults)
+                else:
+                    log.info("%s reports state %s again, no faults (was %s)", display, status.state,
+                                self._trouble_said[0])
+                self._trouble_said = trouble
 
     def _publish_display(self) -> None:
         """Publish one ``display`` message if the renderer wrote a report since the last one.
 
         Called right after each renderer call, so the renderer's state is what that report
-        carried. A failure is logged (once per run of failures) and counted; it never
-        reaches the rendering.
+        carried; the display's status reports are taken first (:meth:`_read_status`). A failure
+        is logged (once per run of failures) and counted; it never reaches the rendering.
         """
+        self._read_status()
         if self.renderer.grasp_id is not None:
             self._last_grasp = self.renderer.grasp_id
         sent = self.renderer.stats.reports_sent
         if sent == self._reports_published:
             return
         self._reports_published = sent
+        self._written = self.renderer.command
         if self.publisher is None:
             return
         try:
@@ -342,13 +431,23 @@ class RendererService(ServiceLoop):
 
     def _check_pending(self, written_s: float) -> None:
         """Record the pending final estimate's latency once a report went out after it (``written_s``:
-        the clock just after the renderer call that may have written it)."""
+        the clock just after the renderer call that may have written it), or as never shown once its
+        grasp is no longer rendered with none gone out (module docstring)."""
         pending = self._pending
-        if pending is None or self.renderer.stats.reports_sent == pending.reports_before:
+        if pending is None:
+            return
+        shown = self.renderer.grasp_id == pending.grasp_id
+        if shown and self.renderer.stats.reports_sent == pending.reports_before:
             return
         update = pending.update
         info = self.renderer.display.info
         level_max = None if info is None else info.level_max
+        if not shown:
+            log.warning("grasp %s: its final estimate (E %s Pa, %s) was never shown: no report reached the display "
+                        "(%s) before the grasp was no longer rendered", pending.grasp_id, update.value_pa,
+                        update.state, "connected" if self.renderer.display.connected else "not connected")
+            self._record(pending, latency_s=None, level=None, level_max=level_max)
+            return
         level = None if level_max is None else to_command(pending.percept, level_max=level_max).level
         latency_s = written_s - update.t_s
         low, high = PLAUSIBLE_LATENCY_S
@@ -365,9 +464,14 @@ class RendererService(ServiceLoop):
                 log.warning("%d final estimates' latencies left out so far (outside %g..%g s), the last grasp %s's "
                             "(%.3g s)", count, low, high, pending.grasp_id, latency_s)
             latency_s = None
+        self._record(pending, latency_s=latency_s, level=level, level_max=level_max)
+
+    def _record(self, pending: _Pending, *, latency_s: float | None, level: int | None,
+                level_max: int | None) -> None:
+        """Report the pending final estimate, and forget it."""
+        update = pending.update
         final = FinalLatency(grasp_id=str(pending.grasp_id), state=update.state, e_pa=update.value_pa,
-                             latency_s=latency_s,
-                             estimates_received=self._received.get(pending.grasp_id, 0),
+                             latency_s=latency_s, estimates_received=pending.estimates_received,
                              percept=pending.percept, level=level, level_max=level_max)
         self.stats.finals.append(final)
         self.report.write(final.to_json())

@@ -44,6 +44,8 @@ from teleop.states import ESTIMATE_STATES
 __all__ = [
     "BODIES",
     "COMMAND_ACTIONS",
+    "DISPLAY_DEVICE_STATES",
+    "DISPLAY_FAULTS",
     "DISPLAY_PHASES",
     "ESTIMATE_STATES",
     "MAX_MODEL_ID_CHARS",
@@ -78,6 +80,10 @@ COMMAND_ACTIONS = ("start_grasp", "stop", "release", "reload_model")
 
 # The haptic renderer's phases (haptics.renderer.HapticRenderer.phase).
 DISPLAY_PHASES = ("idle", "active", "stale", "fading")
+# The softness display's own states and fault names, as its status reports give them
+# (haptics/PROTOCOL.md, INPUT report 0x03: haptics.protocol.DEVICE_STATES and FAULT_BITS, in bit order).
+DISPLAY_DEVICE_STATES = ("free", "rendering", "fault", "watchdog")
+DISPLAY_FAULTS = ("over_temperature", "over_current", "position_error", "undervoltage", "bad_report")
 
 # The robot node's modes (robot_state) and the notices it sends (robot_notice).
 ROBOT_MODES = ("idle", "grasping", "holding", "releasing", "following", "stopped")
@@ -395,6 +401,14 @@ class DisplayBody(Body):
         The quantised level written (>= 0, <= ``level_max``; needs ``level_max``).
     level_max : int or None
         The display's full scale (>= 1).
+    device_state : str or None
+        What the display itself said last in its status report (one of
+        :data:`DISPLAY_DEVICE_STATES`): ``fault`` (its actuator disabled, level 0) or ``watchdog``
+        (it went free) whatever ``level`` was written. Nil when no status was read from it since it
+        connected. It came after the type: a message without it (an older session log) reads as nil.
+    device_faults : str or None
+        The faults that status set, names of :data:`DISPLAY_FAULTS` in that order, comma-separated;
+        ``""`` for none. Nil exactly when ``device_state`` is (it came after the type too).
     """
 
     kind: ClassVar[str] = "display"
@@ -408,10 +422,13 @@ class DisplayBody(Body):
     E_pa: float | None = scalar(NumberField(lo=0.0, lo_open=True, nullable=True))
     level: int | None = scalar(IntegerField(lo=0, nullable=True))
     level_max: int | None = scalar(IntegerField(lo=1, nullable=True))
+    device_state: str | None = scalar(TextField(choices=DISPLAY_DEVICE_STATES, nullable=True), added_later=True)
+    device_faults: str | None = scalar(TextField(nullable=True, max_chars=128), added_later=True)
 
     def cross_check(self) -> None:
         """Refuse a stiffness above 1, rigid with unknown, a modulus that does not match the
-        stiffness, or a level without or above its full scale."""
+        stiffness, a level without or above its full scale, or device faults without a device
+        state (or the other way round) or naming no fault of :data:`DISPLAY_FAULTS`."""
         if self.stiffness > 1.0:
             raise MessageRejected("mistyped_field", f"display.stiffness = {self.stiffness}: expected <= 1")
         if self.rigid and self.unknown:
@@ -428,6 +445,14 @@ class DisplayBody(Body):
             raise MessageRejected("mistyped_field", f"display.level = {level} without a level_max")
         if level is not None and level > level_max:
             raise MessageRejected("mistyped_field", f"display.level = {level}: above level_max = {level_max}")
+        if (self.device_state is None) != (self.device_faults is None):
+            raise MessageRejected("mistyped_field", "display.device_state and device_faults must be both given or "
+                                                    f"both nil ({self.device_state!r}, {self.device_faults!r})")
+        names = self.device_faults.split(",") if self.device_faults else []
+        unknown = [name for name in names if name not in DISPLAY_FAULTS]
+        if unknown:
+            raise MessageRejected("mistyped_field", f"display.device_faults names {unknown}: expected names from "
+                                                    f"{', '.join(DISPLAY_FAULTS)}, comma-separated")
 
 
 @_body

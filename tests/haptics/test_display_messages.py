@@ -10,6 +10,7 @@ import pytest
 
 from haptics.devices.sim import SimulatedDisplay
 from haptics.mapping import stiffness_fraction
+from haptics.protocol import DEVICE_STATES, FAULT_BITS
 from haptics.renderer import HapticRenderer
 from haptics.service import RendererService
 from haptics.settings import display_settings
@@ -233,3 +234,49 @@ def test_no_publisher_no_messages():
         subscriber.close()
     assert service.renderer.stats.reports_sent >= 1  # keep-alive
     assert service.stats.display_messages == service.stats.display_failures == 0
+
+
+def test_the_display_says_what_the_device_reports_and_its_faults_are_logged_once(rigs, caplog):
+    from teleop.bus.messages import DISPLAY_DEVICE_STATES, DISPLAY_FAULTS
+
+    assert DEVICE_STATES == DISPLAY_DEVICE_STATES and tuple(FAULT_BITS) == DISPLAY_FAULTS  # one vocabulary
+    rig = rigs(smoothing_s=0.0)
+    service = rig.service
+    firmware = service.renderer.display.firmware
+    estimate(rig.estimator, grasp_id="g5", e_pa=2e6, provisional=False)
+    step_until(service, lambda: service.stats.finals)
+    run_for(service, 0.1)
+    rendering = rig.received()[-1].fields
+    assert (rendering.device_state, rendering.device_faults) == ("rendering", "") and rendering.level > 0
+    with caplog.at_level(logging.INFO, logger="haptics.service"):
+        firmware.inject_fault("over_temperature")  # the actuator goes free: state fault, level 0
+        run_for(service, 0.5)  # keep-alive reports; the display answers each with its status
+        faulted = [m.fields for m in rig.received()]
+        firmware.faults.discard("over_temperature")
+        run_for(service, 0.5)
+        cleared = rig.received()[-1].fields
+    assert len(faulted) >= 2 and all(f.device_state == "fault" for f in faulted[1:])
+    last = faulted[-1]
+    assert last.device_faults == "over_temperature" and last.level == rendering.level  # written, not rendered
+    assert last.phase == "active" and last.grasp_id == "g5"
+    said = [r for r in caplog.records if r.name == "haptics.service"]
+    assert [r.levelno for r in said] == [logging.WARNING, logging.INFO], [r.getMessage() for r in said]
+    assert "reports state fault, level 0, faults: over_temperature" in said[0].getMessage()
+    assert "reports state rendering again, no faults (was fault)" in said[1].getMessage()
+    assert (cleared.device_state, cleared.device_faults) == ("rendering", "")
+
+
+def test_a_status_report_that_does_not_decode_is_logged_and_skipped(rigs, caplog):
+    rig = rigs(smoothing_s=0.0)
+    service = rig.service
+    display = service.renderer.display
+    estimate(rig.estimator, grasp_id="g6", e_pa=2e5, provisional=False)
+    step_until(service, lambda: service.stats.finals)
+    with caplog.at_level(logging.WARNING, logger="haptics.service"):
+        for _ in range(3):
+            display.firmware.queue_input_report(b"\x03\x07\x00\x00\x00\x00\x00")  # state 7, a bad CRC
+            run_for(service, 0.25)
+    assert display.connected and display.rendered_command.level > 0  # the link and the rendering stay
+    said = [r.getMessage() for r in caplog.records if r.name == "haptics.service"]
+    assert len(said) == 1 and "a status report skipped" in said[0], said
+    assert rig.received()[-1].fields.device_state == "rendering"  # the good reports after it are read

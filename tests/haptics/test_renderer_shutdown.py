@@ -3,6 +3,7 @@ stopped mid-grasp must not leave the display holding a stiffness until its own w
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 
@@ -73,3 +74,22 @@ def test_an_idle_renderer_writes_nothing_more_on_stopping(rig):
     service.run(_stopped())
     assert display.reports_written == written
     assert all(m.phase == "idle" for m in _displays(listener))
+
+
+def test_a_renderer_stopped_with_the_display_unplugged_says_it_may_hold_the_last_level(rig, caplog):
+    service, estimator, display, _ = rig
+    estimator.send("estimate", t_capture_s=time.monotonic(), grasp_id="g1", method="series", E_pa=2e6,
+                   interval_pa=[1e6, 4e6], state="ok", reason="test", provisional=False, latency_s=0.001)
+    deadline = time.monotonic() + 5.0
+    while not (display.rendered_command is not None and display.rendered_command.level > 0):
+        assert time.monotonic() < deadline, "the estimate was never rendered"
+        service.step()
+    held = display.rendered_command.level
+    display.unplug()
+    service.step()
+    with caplog.at_level(logging.WARNING, logger="haptics.service"):
+        service.run(_stopped())
+    assert display.rendered_command.level == held  # nothing could reach it
+    (said,) = [r.getMessage() for r in caplog.records if r.name == "haptics.service"]
+    assert said.startswith(f"{display}: not connected on stopping, so not set free")
+    assert f"the last level written, {held} of {display.info.level_max}" in said

@@ -193,3 +193,51 @@ def test_a_final_stamped_off_this_clock_is_rendered_its_latency_left_out_and_log
     assert len(lines) == 2, lines  # the first, then the tenth
     assert "grasp g0: final estimate captured at" in lines[0] and "latency is left out" in lines[0]
     assert lines[1].startswith("10 final estimates' latencies left out so far")
+
+
+def run_for(service: RendererService, seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        service.step()
+
+
+def test_a_final_that_arrives_while_the_display_is_unplugged_is_reported_as_not_shown(rig, caplog):
+    service, estimator, display, report_path = rig
+    estimate(estimator, grasp_id="g1", t_capture_s=time.monotonic(), e_pa=1e5, provisional=True)
+    step_until(service, lambda: service.stats.estimates == 1)
+    display.unplug()
+    with caplog.at_level(logging.WARNING, logger="haptics.service"):
+        estimate(estimator, grasp_id="g1", t_capture_s=time.monotonic(), e_pa=2e6, provisional=False)
+        step_until(service, lambda: service.stats.estimates == 2)
+        run_for(service, 0.2)
+        assert not service.stats.finals  # not shown yet: it may be, should the display come back
+        estimator.send("grasp_event", t_capture_s=time.monotonic(), event="end", grasp_id="g1")
+        step_until(service, lambda: service.stats.grasp_ends == 1)
+    # Recorded at the grasp's end, not on the first report written after the replug (level 0).
+    assert len(service.stats.finals) == 1
+    final = service.stats.finals[0]
+    assert final.latency_s is None and final.level is None and final.estimates_received == 2
+    assert "g1: its final estimate" in caplog.text and "never shown" in caplog.text
+    display.replug()
+    step_until(service, lambda: display.connected)
+    run_for(service, 0.3)
+    assert display.rendered_command.level == 0 and len(service.stats.finals) == 1
+    (line,) = report_path.read_text().splitlines()
+    report = json.loads(line)
+    assert report["latency_ms"] is None and report["level"] is None and report["estimates_received"] == 2
+    assert report["E_pa"] == 2e6 and report["level_max"] == display.info.level_max
+
+
+def test_a_final_shown_once_the_display_is_back_is_measured_to_that_report(rig):
+    service, estimator, display, _ = rig
+    display.unplug()
+    captured = time.monotonic()
+    estimate(estimator, grasp_id="g2", t_capture_s=captured, e_pa=2e6, provisional=False)
+    step_until(service, lambda: service.stats.estimates == 1)
+    run_for(service, 0.1)
+    display.replug()
+    step_until(service, lambda: service.stats.finals)
+    final = service.stats.finals[0]
+    assert final.level > 0 and final.estimates_received == 1  # the level it settles on
+    assert display.rendered_command.level > 0 and not display.rendered_command.provisional
+    assert 0.1 <= final.latency_s <= time.monotonic() - captured

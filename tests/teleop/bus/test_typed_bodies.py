@@ -76,6 +76,31 @@ def test_a_field_left_out_reads_as_nil():
     assert got.fields.model is None and got.fields.E_pa == 2e5
 
 
+DISPLAY = {"grasp_id": "g1", "phase": "active", "stiffness": 0.5, "uncertainty_decades": 0.3, "rigid": False,
+           "unknown": False, "provisional": False, "E_pa": 2e5, "level": 2048, "level_max": 4095}
+
+
+def test_a_display_message_says_what_the_device_reported_and_older_ones_read_as_nil():
+    said = _round_trip(make_message("display", t_capture_s=1.0, **DISPLAY, device_state="fault",
+                                    device_faults="over_temperature,bad_report"))
+    assert said.fields.device_state == "fault" and said.fields.device_faults == "over_temperature,bad_report"
+    assert make_message("display", t_capture_s=1.0, **DISPLAY, device_state="rendering",
+                        device_faults="").fields.device_faults == ""
+    old = encode(make_message("display", t_capture_s=1.0, **DISPLAY))  # a session log from before the fields
+    body = msgpack.unpackb(bytes(old[2]))
+    del body["device_state"], body["device_faults"]
+    got = decode([bytes(old[0]), bytes(old[1]), msgpack.packb(body)], max_bytes=MAX)
+    assert got.fields.device_state is None and got.fields.device_faults is None and got.fields.level == 2048
+    schema = json_schema("display")["properties"]
+    assert schema["device_state"]["enum"] == ["free", "rendering", "fault", "watchdog"]
+    for bad, match in [({"device_state": "melted", "device_faults": ""}, "device_state = 'melted'"),
+                       ({"device_state": "fault", "device_faults": "fire"}, r"device_faults names \['fire'\]"),
+                       ({"device_state": "fault"}, "both given or both nil"),
+                       ({"device_faults": ""}, "both given or both nil")]:
+        with pytest.raises(MessageRejected, match=match):
+            make_message("display", t_capture_s=1.0, **DISPLAY, **bad)
+
+
 def test_unknown_types_and_hand_built_bodies_are_refused_by_name():
     with pytest.raises(MessageRejected, match="unknown_type"):
         make_message("telemetry", t_capture_s=0.0, x=1)
@@ -121,7 +146,9 @@ def test_the_derived_checks_keep_the_old_rules():
         make_message("estimate", t_capture_s=0.0, **{**ESTIMATE, "E_pa": None})
     with pytest.raises(MessageRejected, match=r"t_s \(2,\) and value_n \(1,\)"):
         make_message("force", t_capture_s=0.0, t_s=[1.0, 2.0], value_n=[1.0])
-    assert SCHEMAS["display"].nullable == {"grasp_id", "E_pa", "level", "level_max"}
+    assert SCHEMAS["display"].nullable == {"grasp_id", "E_pa", "level", "level_max", "device_state",
+                                           "device_faults"}
+    assert SCHEMAS["display"].optional == {"device_state", "device_faults"}  # older logs lack them
     assert SCHEMAS["command"].rule is None and SCHEMAS["frame"].rule is not None
     assert make_message("command", t_capture_s=0.0, action="stop", params={}).fields == CommandBody(
         action="stop", params={})  # the grasp left out: nil
