@@ -62,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--calibration", metavar="CAL", default=None,
         help="colour-to-gradient calibration (.npz); default: the file the record's sensor names "
-             "(relative to configs/)",
+             "(as the record's settings resolved it)",
     )
     parser.add_argument(
         "--settings", metavar="FILE", default=str(default_settings_path()),

@@ -165,7 +165,8 @@ class GraspMeasurements:
 def calibration_path(sensor: SensorSettings, override: str | Path | None = None) -> Path:
     """The calibration file to use: ``override`` if given, else the one the sensor names.
 
-    A relative path in ``SensorSettings.calibration`` is under ``configs/``.
+    A relative path in ``SensorSettings.calibration`` is resolved by
+    :func:`~teleop.settings.resolve_path` (against the settings file's folder when loaded).
 
     Raises
     ------

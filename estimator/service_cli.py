@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="settings TOML (sensors, estimator, gripper, bus)")
     parser.add_argument("--calibration", metavar="CAL", default=None,
                         help="colour-to-gradient calibration (.npz) of the estimator's finger; default: "
-                             "the file its sensor names (relative to configs/)")
+                             "the file its sensor names (a relative path against the settings file's folder)")
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=None, metavar="METHOD",
                         help="analytical methods in order of preference; the first that does not refuse "
                              f"is published (default: [estimator] methods of the settings; choices: {', '.join(METHODS)})")

@@ -140,7 +140,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "empty cell is none (an open interval side; no estimate for a refusal)")
     parser.add_argument("--calibration", metavar="CAL", default=None,
                         help="calibration (.npz) for every record; default: the file each record's "
-                             "sensor names (relative to configs/)")
+                             "sensor names (as the record's settings resolved it)")
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
                         help="settings TOML (estimator and gripper sections are used, and the display's "
                              "range e_soft_pa..e_rigid_pa for the felt figures)")
