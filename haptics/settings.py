@@ -141,6 +141,17 @@ class OperatorSettings(Section):
             if code not in known:
                 raise SettingsError(f"OperatorSettings.gamepad_{key} = {code!r}: evdev knows no such code (see "
                                     "evdev.ecodes, or run evtest to see what the pad sends)")
+        # Two names of one code (BTN_Y and BTN_WEST are both 308) would be one physical button.
+        # The trigger is an EV_ABS axis, the buttons EV_KEY keys: only the buttons share a code space.
+        by_code: dict[int, tuple[str, str]] = {}
+        for key, name in self.gamepad_buttons().items():
+            code = known[name]
+            if code in by_code:
+                other_key, other_name = by_code[code]
+                raise SettingsError(f"OperatorSettings.gamepad_{key} = {name!r}: the same evdev code {code} as "
+                                    f"gamepad_{other_key} = {other_name!r} (two names of one button); "
+                                    "map each to its own button")
+            by_code[code] = (key, name)
 
     def gamepad_buttons(self) -> dict[str, str]:
         """Button name -> evdev key name for ``"enable"`` and every mapped discrete button."""

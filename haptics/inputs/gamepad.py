@@ -62,7 +62,15 @@ class GamepadInput(OperatorInputDevice):
         self._device: Any = None
         # OperatorSettings refused names evdev does not know
         self._trigger = ecodes.ecodes[self.settings.gamepad_trigger]
-        self._buttons = {ecodes.ecodes[name]: button for button, name in self.settings.gamepad_buttons().items()}
+        self._buttons: dict[int, str] = {}
+        for button, name in self.settings.gamepad_buttons().items():
+            code = ecodes.ecodes[name]
+            if code in self._buttons:  # two names of one code (settings checked without evdev)
+                other = self._buttons[code]
+                raise InputDeviceError(
+                    f"gamepad buttons {other} ({self.settings.gamepad_buttons()[other]}) and {button} ({name}) "
+                    f"are the same evdev code {code}: set [operator] gamepad_{button} to another button")
+            self._buttons[code] = button
         self._enable_code = next(c for c, b in self._buttons.items() if b == "enable")
         self._lo, self._hi = 0, 1
         self._value = 0

@@ -38,6 +38,20 @@ def test_another_trigger_and_enable_from_the_settings(make_pad):
         assert (reading.grip, reading.enable, reading.buttons) == (pytest.approx(0.2), True, {"grasp"})
 
 
+@pytest.mark.parametrize(("keys", "match"), [
+    ({"gamepad_enable": "BTN_Y"}, r"enable \(BTN_Y\) and stop \(BTN_WEST\) are the same evdev code 308"),
+    ({"gamepad_next": "BTN_A"}, r"grasp \(BTN_SOUTH\) and next \(BTN_A\) are the same evdev code 304"),
+])
+def test_two_names_of_one_code_are_refused_not_remapped(keys, match, monkeypatch, make_pad):
+    import haptics.settings as settings_module
+
+    # without evdev the settings check names only (it cannot see codes): the pad must still refuse
+    monkeypatch.setattr(settings_module, "_evdev_codes", lambda: None)
+    settings = OperatorSettings(**keys)
+    with pytest.raises(InputDeviceError, match=match):
+        GamepadInput(settings, device=make_pad())
+
+
 def test_the_state_at_connect_is_read_and_held_buttons_are_no_presses(make_pad):
     pad = make_pad()
     pad.move("ABS_RZ", 128, report=False)

@@ -49,6 +49,26 @@ def test_bad_values_are_named(keys, match):
         OperatorSettings(**keys)
 
 
+@pytest.mark.parametrize(("keys", "match"), [
+    # BTN_Y is BTN_WEST (308, the stop button); BTN_A is BTN_SOUTH (304, grasp); KEY_ and BTN_ share codes
+    ({"gamepad_enable": "BTN_Y"},
+     r"gamepad_stop = 'BTN_WEST': the same evdev code 308 as gamepad_enable = 'BTN_Y'"),
+    ({"gamepad_next": "BTN_A"},
+     r"gamepad_next = 'BTN_A': the same evdev code 304 as gamepad_grasp = 'BTN_SOUTH'"),
+    ({"gamepad_quit": "BTN_GAMEPAD"},
+     r"gamepad_quit = 'BTN_GAMEPAD': the same evdev code 304 as gamepad_grasp = 'BTN_SOUTH'"),
+])
+def test_two_names_of_one_button_code_are_refused(keys, match):
+    with pytest.raises(SettingsError, match=match):
+        OperatorSettings(**keys)
+
+
+def test_aliases_of_unmapped_or_distinct_buttons_are_accepted():
+    # BTN_Y (308) is fine once BTN_WEST is not mapped elsewhere
+    assert OperatorSettings(gamepad_enable="BTN_Y", gamepad_stop="").gamepad_buttons()["enable"] == "BTN_Y"
+    assert OperatorSettings(gamepad_grasp="BTN_A", gamepad_next="BTN_Y", gamepad_stop="BTN_X").gamepad_stop == "BTN_X"
+
+
 def test_an_unmapped_button_is_left_out():
     assert "quit" not in OperatorSettings(gamepad_quit="").gamepad_buttons()
 
