@@ -99,13 +99,15 @@ def import_dataset(
     fps: float = RAW_FPS,
     on_skip: Callable[[SkippedItem], None] | None = None,
     progress: bool = False,
+    overwrite: bool = False,
 ) -> ImportSummary:
     """Import every grasp (raw) or sample (preprocessed) under ``src`` into ``out``.
 
     A folder whose files are missing, unreadable, unsafe, inconsistent or physically
     impossible (bool or negative forces, widths outside the gripper's range, images not
     of the published size) is skipped with its reason (reported through ``on_skip``)
-    and the import carries on.
+    and the import carries on. Records or samples already in ``out`` under the names this
+    import would write are refused before anything is read or written, unless ``overwrite``.
 
     Parameters
     ----------
@@ -126,12 +128,15 @@ def import_dataset(
         Called with each :class:`SkippedItem` as it happens.
     progress : bool
         Show a progress bar on stderr (:func:`teleop.progress.progress_bar`).
+    overwrite : bool
+        Replace the files in ``out`` this import writes again instead of refusing them.
 
     Raises
     ------
     DatasetError
         ``layout`` is unknown, ``src`` holds no folder of that layout, the settings lack the
-        sensors the raw layout needs, or an output cannot be written.
+        sensors the raw layout needs, ``out`` already holds some of the outputs and
+        ``overwrite`` is False (nothing is written then), or an output cannot be written.
     """
     if layout not in LAYOUTS:
         raise DatasetError(f"layout {layout!r}: expected one of {', '.join(LAYOUTS)}")
@@ -147,6 +152,7 @@ def import_dataset(
         folders = find_raw_grasps(src)
     else:
         folders = find_preprocessed_samples(src)
+    _refuse_existing([_destination(out, folder.relative_to(src), layout) for folder in folders], out, overwrite)
     for folder in progress_bar(folders, desc=f"import {layout}", unit="grasp" if layout == "raw" else "sample",
                        enabled=progress):
         relative = folder.relative_to(src)
@@ -164,12 +170,12 @@ def import_dataset(
             continue
         try:
             if isinstance(item, GraspRecord):
-                dest = out / relative.parent / f"{relative.name}.grasp"
+                dest = _destination(out, relative, layout)
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 write_record(item, dest)
                 summary.labelled += int(item.label is not None and item.label.modulus_pa is not None)
             else:
-                dest = out / relative.parent / f"{relative.name}.npz"
+                dest = _destination(out, relative, layout)
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 save_sample(item, dest)
                 summary.labelled += int(item.label_modulus_pa is not None)
@@ -178,6 +184,28 @@ def import_dataset(
             raise DatasetError(f"cannot write {dest}: {exc.strerror or exc}") from exc
         summary.imported.append(str(dest))
     return summary
+
+
+def _destination(out: Path, relative: Path, layout: str) -> Path:
+    """Where the grasp (raw) or sample (preprocessed) of the input folder ``relative`` is written."""
+    return out / relative.parent / f"{relative.name}{'.grasp' if layout == 'raw' else '.npz'}"
+
+
+def _refuse_existing(destinations: list[Path], out: Path, overwrite: bool) -> None:
+    """Raise unless none of ``destinations`` exists or ``overwrite``: an earlier import's (labelled) outputs stay."""
+    if overwrite:
+        return
+    taken = []
+    for dest in destinations:
+        try:
+            if dest.exists():
+                taken.append(dest.relative_to(out).as_posix())
+        except OSError as exc:
+            raise DatasetError(f"--out {out}: cannot use {dest} ({exc.strerror or exc})") from exc
+    if taken:
+        raise DatasetError(f"--out {out}: {len(taken)} of this import's {len(destinations)} outputs exist already "
+                           f"({', '.join(taken[:3])}{', ...' if len(taken) > 3 else ''}): pass --overwrite to "
+                           "replace them, or another --out; nothing was imported")
 
 
 # --------------------------------------------------------------------------- command
@@ -204,6 +232,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "videos and whose gripper.max_width_m bounds the imported widths")
     parser.add_argument("--fps", type=float, default=RAW_FPS,
                         help=f"frame rate of the raw videos, Hz ({MIN_FPS:g} to {MAX_FPS:g}); frame k is at k / fps seconds")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the records or samples already in --out under the names this import "
+                             "writes (without it the import refuses them and writes nothing); other files "
+                             "in --out are kept")
     parser.add_argument("--json", action="store_true",
                         help="print the summary as one JSON object on the last stdout line")
 
@@ -214,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
 
     summary = import_dataset(
         args.src, layout=args.layout, out=args.out, objects=args.objects, settings=args.settings,
-        fps=args.fps, on_skip=report, progress=True,
+        fps=args.fps, on_skip=report, progress=True, overwrite=args.overwrite,
     )
     what = "grasp records" if args.layout == "raw" else "training samples"
     if args.json:

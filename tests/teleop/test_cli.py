@@ -109,7 +109,7 @@ def test_unknown_subcommand_is_a_usage_error():
 def test_import_dataset_help_explains_every_option():
     result = run_script("teleop", "import-dataset", "--help")
     assert result.returncode == 0, result.stderr
-    for option in ("--layout", "--out", "--objects", "--settings", "--fps", "--json", "{raw,preprocessed}"):
+    for option in ("--layout", "--out", "--objects", "--settings", "--fps", "--overwrite", "--json", "{raw,preprocessed}"):
         assert option in result.stdout
 
 

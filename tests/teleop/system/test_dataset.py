@@ -329,6 +329,26 @@ def test_import_refuses_a_source_without_the_layout(tmp_path):
         import_dataset(tmp_path / "src", layout="video", out=tmp_path / "out")
 
 
+def test_raw_import_refuses_records_already_in_out_unless_overwrite(tmp_path, object_table):
+    first, second, out = tmp_path / "first", tmp_path / "second", tmp_path / "out"
+    make_raw_grasp(first, "apple", 0, n=2)
+    make_raw_grasp(second, "apple", 0, n=2)
+    make_raw_grasp(second, "apple", 1, n=2)  # new: still not written when the import is refused
+    assert import_dataset(first, layout="raw", out=out, objects=object_table).labelled == 1
+
+    with pytest.raises(DatasetError) as refused:
+        import_dataset(second, layout="raw", out=out)  # no --objects: it would drop the label
+    message = str(refused.value)
+    assert f"--out {out}" in message and "1 of this import's 2 outputs exist already" in message
+    assert "apple/grasp=0.grasp" in message and "pass --overwrite" in message
+    assert read_record(out / "apple" / "grasp=0.grasp").label.modulus_pa == pytest.approx(3.25e6)
+    assert not (out / "apple" / "grasp=1.grasp").exists()
+
+    summary = import_dataset(second, layout="raw", out=out, overwrite=True)
+    assert len(summary.imported) == 2 and summary.labelled == 0
+    assert read_record(out / "apple" / "grasp=0.grasp").label.modulus_pa is None
+
+
 # --------------------------------------------------------------------------- preprocessed layout
 
 
@@ -522,6 +542,30 @@ def test_import_dataset_command_fails_when_nothing_imports(tmp_path, capsys):
     status = cli.main(["import-dataset", str(tmp_path / "absent"), "--layout", "raw", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert status == 2 and "not a directory" in err and "Traceback" not in err
+
+
+def test_import_dataset_command_refuses_samples_already_in_out_unless_overwrite(tmp_path, object_table, capsys):
+    first, second, out = tmp_path / "first", tmp_path / "second", tmp_path / "out"
+    for root in (first, second):
+        for aug in range(5):
+            make_preprocessed(root, "apple", 0, aug)
+    command = ["import-dataset", "--layout", "preprocessed", "--out", str(out)]
+    assert cli.main([*command, str(first), "--objects", str(object_table)]) == 0
+    sample = out / "apple" / "grasp=0" / "augmentation=0.npz"
+    before = sample.read_bytes()
+    capsys.readouterr()
+
+    status = cli.main([*command, str(second)])
+    captured = capsys.readouterr()
+    assert status == 2 and "Traceback" not in captured.err
+    assert f"--out {out}: 5 of this import's 5 outputs exist already" in captured.err
+    assert "apple/grasp=0/augmentation=0.npz, apple/grasp=0/augmentation=1.npz, " in captured.err
+    assert ", ..." in captured.err and "pass --overwrite" in captured.err and "imported" not in captured.out
+    assert sample.read_bytes() == before and load_sample(sample).label_modulus_pa == pytest.approx(3.25e6)
+
+    assert cli.main([*command, str(second), "--overwrite"]) == 0
+    assert "imported 5 training samples" in capsys.readouterr().out
+    assert load_sample(sample).label_modulus_pa is None
 
 
 @pytest.mark.parametrize("fps", [1e-320, 0.01, 1e6, float("inf"), float("nan"), 0.0])
