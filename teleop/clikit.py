@@ -38,13 +38,17 @@ def output_file(option: str, value: str | None, *, suffixes: Sequence[str] = ())
     Raises
     ------
     TeleopError
-        The path is a folder, has another suffix, or its folder cannot be made (named with ``option``).
+        The path is a folder or ends in a path separator, has another suffix, or its folder cannot be
+        made (named with ``option``).
     """
     if value is None:
         return None
     path = Path(value)
     if path.is_dir():
         raise TeleopError(f"{option} {value}: is a folder; expected a file name")
+    if value.endswith(tuple(sep for sep in (os.sep, os.altsep) if sep)):
+        # Path() drops the separator: the file would take the folder's name.
+        raise TeleopError(f"{option} {value}: names a folder (it ends in {value[-1]}); expected a file name")
     if suffixes and path.suffix.lower() not in suffixes:
         raise TeleopError(f"{option} {value}: expected a name ending in {', '.join(suffixes)}")
     blocker = file_in_the_way(path.parent)

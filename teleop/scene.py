@@ -9,8 +9,9 @@ paths are against the scene file's folder. A scene runs on simulated hardware (`
 from __future__ import annotations
 
 import functools
+import json
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from teleop.catalogue import ObjectSpec, load_catalogue
@@ -45,12 +46,19 @@ class Scene:
     grasps_per_object: int
     seed: int
     settings_path: Path
+    #: Where the settings path was named (``<scene.toml>: settings = "..."``), for the errors reading it.
+    settings_named: str = field(default="", compare=False)
 
     @functools.cached_property
     def settings(self) -> Settings:
         """The scene's settings file, read when first asked for: ``teleop node --scene`` runs with its own
-        ``--settings`` and never reads it."""
-        return load_settings(self.settings_path)
+        ``--settings`` and never reads it. Its errors name the scene file and key that named it."""
+        try:
+            return load_settings(self.settings_path)
+        except SettingsError as exc:
+            if not self.settings_named:
+                raise
+            raise SettingsError(_named_in(self.settings_named, self.settings_path, exc)) from exc
 
 
 def scene_path(name_or_path: str) -> Path:
@@ -68,6 +76,17 @@ def _named_path(data: dict, key: str, scene: Path) -> Path | None:
     if not isinstance(data[key], str) or not data[key]:
         raise SettingsError(f"{scene}: {key} must be a file path (a string), got {data[key]!r}")
     return resolve_path(data[key], folder=scene.parent)
+
+
+def _naming(data: dict, key: str, scene: Path) -> str:
+    """``<scene>: key = "value"``: where a scene names a file (empty when it names none)."""
+    return f"{scene}: {key} = {json.dumps(data[key])}" if key in data else ""
+
+
+def _named_in(naming: str, path: Path, exc: Exception) -> str:
+    """``exc``'s message after ``naming``, with the path it resolved to unless the message names it."""
+    message = str(exc)
+    return f"{naming}{'' if str(path) in message else f' (resolved to {path})'}: {message}"
 
 
 def load_scene(name_or_path: str = "default") -> Scene:
@@ -88,13 +107,18 @@ def load_scene(name_or_path: str = "default") -> Scene:
     if not isinstance(data.get("description", ""), str):
         raise SettingsError(f"{path}: description must be a string, got {data['description']!r}")
     catalogue_path = _named_path(data, "catalogue", path) or config_dir() / "objects.toml"
-    catalogue = {o.name: o for o in load_catalogue(catalogue_path)}
+    try:
+        catalogue = {o.name: o for o in load_catalogue(catalogue_path)}
+    except SettingsError as exc:
+        if "catalogue" not in data:
+            raise SettingsError(f"{path}: the shipped catalogue (the scene names no catalogue): {exc}") from exc
+        raise SettingsError(_named_in(_naming(data, "catalogue", path), catalogue_path, exc)) from exc
     names = data.get("objects")
     if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
         raise SettingsError(f"{path}: objects must be a non-empty array of object names")
     missing = [n for n in names if n not in catalogue]
     if missing:
-        raise SettingsError(f"{path}: objects {missing} are not in the catalogue")
+        raise SettingsError(f"{path}: objects {missing} are not in the catalogue {catalogue_path}")
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise SettingsError(f"{path}: objects lists {twice[0]!r} twice: name each object once "
@@ -112,4 +136,5 @@ def load_scene(name_or_path: str = "default") -> Scene:
         grasps_per_object=grasps,
         seed=seed,
         settings_path=_named_path(data, "settings", path) or default_settings_path(),
+        settings_named=_naming(data, "settings", path),
     )

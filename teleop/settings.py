@@ -563,3 +563,12 @@ def load_settings(path: str | Path | None = None) -> Settings:
     except ValueError as exc:  # TOMLDecodeError, UnicodeDecodeError, or an integer of over 4300 digits
         raise SettingsError(f"{path}: not valid TOML: {exc}") from exc
     return settings_from_mapping(data, source=Path(os.path.abspath(path)))
+
+
+def missing_calibrations(settings: Settings, path: str | Path | None = None) -> list[str]:
+    """Why each sensor's calibration file, named in ``settings`` (loaded from ``path``; None: the
+    shipped file), is missing: valid settings, but the estimator refuses their sensor's frames."""
+    folder = Path(path or default_settings_path()).resolve().parent
+    return [f"[sensors.{sensor.finger}] calibration {sensor.calibration}: no such file (a relative path "
+            f"resolves against {folder}); make it with `estimator calibrate`"
+            for sensor in settings.sensors if sensor.calibration and not Path(sensor.calibration).is_file()]

@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = output_file("--out", args.out)  # before the rendering, not after it
+    out = output_file("--out", args.out, suffixes=(".npz",))  # before the rendering, not after it
     if out.exists() and not args.overwrite:
         raise TeleopError(f"--out {out}: exists already: pass --overwrite to replace it, or another --out")
     settings = load_settings(args.settings)

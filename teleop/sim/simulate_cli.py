@@ -39,6 +39,15 @@ for testing: --vary-contact with --gel-model half-space is refused.
 
 A grasp whose fingers close on each other before the force target (an object too small to
 grasp) fails, and with --overwrite no earlier file of its name is left behind.
+
+A worker that dies (killed, out of memory) or an unexpected error in a grasp (not the simulator's
+:class:`~teleop.errors.SimulationError`: a bug, a full disk) ends the run with an error that says what
+failed, how many records were written and how to finish. The records written stay: each is written
+whole (its preview first, then the record under a temporary name, renamed), and a dead worker's
+temporaries and previews without their record are removed.
+
+A sensor calibration file named in the settings that does not exist is warned of, not refused: the
+records are raw frames, which ``estimator estimate`` reads once that file is made.
 """
 
 from __future__ import annotations
@@ -49,8 +58,10 @@ import json
 import logging
 import math
 import re
+import shlex
 import sys
 import time
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from teleop.catalogue import ObjectSpec, default_catalogue_path, load_catalogue
@@ -58,7 +69,7 @@ from teleop.clikit import non_negative_int
 from teleop.errors import SettingsError, SimulationError
 from teleop.parallel import progress_map
 from teleop.record import safe_name, write_record
-from teleop.settings import Settings, default_settings_path, load_settings
+from teleop.settings import Settings, default_settings_path, load_settings, missing_calibrations
 from teleop.sim.grasp import OPERATORS, TARGET_FORCE_FRACTION, simulate_grasp
 from teleop.sim.mechanics import draw_mechanics
 from teleop.sim.preview import write_preview
@@ -137,6 +148,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "to the records' provenance only")
 
 
+class _GraspCrashed(Exception):
+    """An unexpected error (not a :class:`SimulationError`) simulating or writing one grasp: it ends the
+    run. Its arguments are all it holds, so that it comes back from a worker process whole."""
+
+    def __init__(self, name: str, index: int, reason: str) -> None:
+        super().__init__(name, index, reason)
+        self.name, self.index, self.reason = name, index, reason
+
+
 def _names(text: str) -> list[str]:
     names = [n.strip() for n in text.split(",") if n.strip()]
     if not names:
@@ -188,6 +208,42 @@ def _check_target_force(target_force_n: float, settings: Settings, settings_path
               file=sys.stderr)
 
 
+def _warn_missing_calibration(settings: Settings, settings_path: str | None) -> None:
+    """Warn (as ``teleop settings`` does) of each sensor calibration file the settings name that does not
+    exist: the estimator refuses the records until it does, but they are raw data that it can serve."""
+    for missing in missing_calibrations(settings, settings_path):
+        print(f"teleop simulate: warning: {missing}: the records are simulated all the same (raw frames), but "
+              "`estimator estimate` refuses them with these settings until the file exists", file=sys.stderr)
+
+
+def _stopped(exc: BaseException, out: Path, jobs: list[tuple]) -> str:
+    """What to say when a worker died or a grasp failed unexpectedly: what failed, what was written and
+    how to finish. A dead worker's leftovers (a record's temporary, a preview without its record) are
+    removed first, so that only whole records stay."""
+    if isinstance(exc, _GraspCrashed):
+        what = f"{exc.name} grasp {exc.index}: unexpected error: {exc.reason} (-v shows where)"
+    else:
+        what = "a worker process died (killed? out of memory?)"
+    done, missing = 0, []
+    for obj, index, *_ in jobs:
+        path = out / grasp_filename(obj, index)
+        for leftover in (path.with_name(path.name + ".partial"), path.with_name(path.stem + ".partial.png")):
+            leftover.unlink(missing_ok=True)
+        if path.exists():
+            done += 1
+        else:
+            path.with_suffix(".png").unlink(missing_ok=True)
+            if obj.name not in missing:
+                missing.append(obj.name)
+    written = f"{done} of {len(jobs)} records were written to {out}"
+    if not missing:
+        return f"{what}; {written}: all of them, each whole"
+    hint = "" if isinstance(exc, _GraspCrashed) else " and fewer --workers if memory ran short"
+    return (f"{what}; the run stopped: {written} (each whole), the rest not: to finish, run the same command "
+            f"with --only {shlex.quote(','.join(missing))} --overwrite{hint} (--overwrite replaces those objects' "
+            "records of this run: the same --seed gives the same records)")
+
+
 def _chosen(objects: list[ObjectSpec], names: list[str] | None, where: str) -> list[ObjectSpec]:
     """The objects named in ``names`` (all when None), in catalogue order."""
     if names is None:
@@ -199,7 +255,16 @@ def _chosen(objects: list[ObjectSpec], names: list[str] | None, where: str) -> l
 
 
 def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bool, str, bool, float | None]) -> dict:
-    """Simulate and write one grasp (runs in a worker); failures come back as a reason."""
+    """Simulate and write one grasp (runs in a worker); the simulator's failures come back as a reason,
+    any other error is raised as :class:`_GraspCrashed`, naming the grasp."""
+    try:
+        return _simulate_and_write(job)
+    except Exception as exc:
+        obj, index = job[0], job[1]
+        raise _GraspCrashed(obj.name, index, f"{type(exc).__name__}: {exc}") from exc
+
+
+def _simulate_and_write(job: tuple) -> dict:
     obj, index, seed, settings, out, preview, randomize_rig, vary_gel, operator, vary_contact, target_force_n = job
     path = Path(out) / grasp_filename(obj, index)
     rng = grasp_rng(seed, obj, index)
@@ -224,12 +289,19 @@ def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bo
         provenance = dataclasses.replace(record.provenance,
                                          extra={**record.provenance.extra, "target_force_n": target_force_n})
         record = dataclasses.replace(record, provenance=provenance)
-    write_record(record, path)
     if preview:
-        write_preview(record, truth, path.with_suffix(".png"))
+        # Whole before its record (a record's preview is part of it), under a name no record takes.
+        sheet = path.with_name(path.stem + ".partial.png")
+        try:
+            write_preview(record, truth, sheet)
+            sheet.replace(path.with_suffix(".png"))
+        except BaseException:
+            sheet.unlink(missing_ok=True)
+            raise
     else:
         # An earlier run's sheet (only there with --overwrite) would pass for this record's.
         path.with_suffix(".png").unlink(missing_ok=True)
+    write_record(record, path)
     return {"object": obj.name, "grasp": index, "path": str(path), "model": record.provenance.model}
 
 
@@ -297,9 +369,14 @@ def run(args: argparse.Namespace) -> int:
             raise SettingsError(f"--out {out}: cannot remove the earlier record {name!r} for --overwrite "
                                 f"({exc.strerror or exc})") from exc
     workers = min(args.workers, len(jobs))
+    _warn_missing_calibration(settings, args.settings)  # once every refusal is past
 
     start = time.perf_counter()
-    results = progress_map(_simulate_one, jobs, workers=workers, desc="simulate", spawn=True)
+    try:
+        results = progress_map(_simulate_one, jobs, workers=workers, desc="simulate", spawn=True)
+    except (BrokenProcessPool, _GraspCrashed) as exc:
+        log.info("the run stopped on", exc_info=exc)
+        raise SimulationError(_stopped(exc, out, jobs)) from exc
     seconds = time.perf_counter() - start
 
     failed = [r for r in results if "error" in r]

@@ -9,12 +9,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 from estimator.settings import estimator_settings
 from haptics.settings import display_settings, operator_settings
 from teleop.errors import SettingsError
-from teleop.settings import default_settings_path, load_settings, settings_to_mapping
+from teleop.settings import (
+    default_settings_path,
+    load_settings,
+    missing_calibrations,
+    settings_to_mapping,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,10 +42,6 @@ def run(args: argparse.Namespace) -> int:
     resolved = (settings.with_section(estimator_settings(settings)).with_section(display_settings(settings))
                 .with_section(operator_settings(settings)))
     print(json.dumps(settings_to_mapping(resolved), indent=2))
-    folder = Path(path or default_settings_path()).resolve().parent
-    for sensor in settings.sensors:  # valid settings, but a session would lack the file: say so now
-        if sensor.calibration and not Path(sensor.calibration).is_file():
-            print(f"teleop settings: warning: [sensors.{sensor.finger}] calibration {sensor.calibration}: no such "
-                  f"file (a relative path resolves against {folder}); make it with `estimator calibrate`",
-                  file=sys.stderr)
+    for missing in missing_calibrations(settings, path):  # valid settings, but a session would lack the file
+        print(f"teleop settings: warning: {missing}", file=sys.stderr)
     return 0

@@ -56,6 +56,33 @@ def test_an_object_named_twice_is_refused_naming_it(tmp_path):
         load_scene(str(path))
 
 
+def test_a_missing_catalogue_is_named_with_the_scene_file_and_key(tmp_path):
+    path = scene_file(tmp_path, 'catalogue = "nosuch.toml"\n')
+    with pytest.raises(SettingsError) as raised:
+        load_scene(str(path))
+    assert str(raised.value).startswith(f'{path}: catalogue = "nosuch.toml": cannot read catalogue '
+                                        f'{tmp_path / "nosuch.toml"}')
+
+
+def test_objects_not_in_the_catalogue_name_the_catalogue(tmp_path):
+    catalogue = tmp_path / "objects.toml"
+    catalogue.write_text('[[objects]]\nname = "a"\nshape = "sphere"\nmaterial = "rubber"\nmodulus_pa = 1e6\n'
+                         'size_m = [0.03, 0.03, 0.03]\n', encoding="utf-8")
+    path = scene_file(tmp_path, 'catalogue = "objects.toml"\n', objects='["a", "b"]')
+    with pytest.raises(SettingsError) as raised:
+        load_scene(str(path))
+    assert str(raised.value) == f"{path}: objects ['b'] are not in the catalogue {catalogue}"
+
+
+def test_a_missing_settings_file_is_named_with_the_scene_file_and_key(tmp_path):
+    path = scene_file(tmp_path, 'settings = "nosuch.toml"\n')
+    scene = load_scene(str(path))
+    with pytest.raises(SettingsError) as raised:
+        _ = scene.settings
+    assert str(raised.value).startswith(f'{path}: settings = "nosuch.toml": ')
+    assert str(tmp_path / "nosuch.toml") in str(raised.value)
+
+
 def test_the_scenes_settings_are_read_when_first_used(tmp_path):
     path = scene_file(tmp_path, 'settings = "absent.toml"\n')
     scene = load_scene(str(path))

@@ -17,8 +17,10 @@ def ball_toml() -> str:
 
 @pytest.fixture
 def quick_settings(tmp_path):
-    """The shipped settings with 10 Hz cameras (a third of the frames to render)."""
+    """The shipped settings with 10 Hz cameras (a third of the frames to render), calibrations and all."""
     text = default_settings_path().read_text().replace("camera_hz = 30.0", "camera_hz = 10.0")
+    # The shipped calibration files, not files beside this copy (teleop simulate warns of missing ones).
+    text = text.replace('calibration = "calibration/', f'calibration = "{default_settings_path().parent}/calibration/')
     text = text.replace("[sensors.right]", "[sensors.right]\ncamera_hz = 10.0")
     path = tmp_path / "settings.toml"
     path.write_text(text)

@@ -159,3 +159,16 @@ def test_pure_function_refuses_presses_deeper_than_the_gel():
     with pytest.raises(SimulationError, match="deeper than the gel"):
         simulate_presses(camera, n=1, ball_radius_m=10e-3, depth_range_m=(1e-3, 4e-3),
                          rng=np.random.default_rng(0))
+
+
+@pytest.mark.parametrize(("name", "message"), [
+    ("prdir/", "names a folder (it ends in /); expected a file name"),
+    ("p.npz/", "names a folder (it ends in /); expected a file name"),
+    ("p.txt", "expected a name ending in .npz"),
+], ids=["a folder to be", "an .npz folder to be", "another suffix"])
+def test_an_out_that_is_no_npz_file_is_refused_before_rendering(tmp_path, capsys, monkeypatch, name, message):
+    monkeypatch.setattr("teleop.sim.presses_cli.simulate_presses", None)  # called, it would fail otherwise
+    value = f"{tmp_path}/{name}"
+    assert main(["simulate-presses", "--out", value, "--n", "1"]) == 2
+    assert f"--out {value}: {message}" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

@@ -4,6 +4,11 @@ estimator reads, objects too small or too wide to grasp."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+import textwrap
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -142,3 +147,86 @@ def test_grasps_that_reach_their_target_are_kept(tmp_path, ball_toml, quick_sett
     obj = ObjectSpec(name="ball", shape="sphere", material="rubber", modulus_pa=8e5, size_m=(0.02, 0.02, 0.02))
     record, truth = simulate_grasp(obj, settings=load_settings(quick_settings), rng=grasp_rng(0, obj, 0), seed=0)
     assert float(np.min(truth.motor_width_m)) > 1e-3 and truth.force_n.max() >= 0.99 * truth.target_force_n
+
+
+def test_an_unexpected_error_in_a_grasp_ends_the_run_naming_it_and_keeps_the_records_written(
+        tmp_path, catalogue, quick_settings, capsys, monkeypatch):
+    def simulate(obj, **kwargs):
+        if obj.name == "oak_block":
+            raise RuntimeError("boom")
+        return simulate_grasp(obj, **kwargs)
+
+    monkeypatch.setattr(simulate_cli, "simulate_grasp", simulate)
+    out = tmp_path / "o"
+    code, stdout, stderr = run(capsys, "--objects", str(catalogue), "--only", "small rubber ball,oak_block", "--out",
+                               str(out), "--settings", str(quick_settings), "--json")
+    assert code == 2 and stdout == "" and "Traceback" not in stderr
+    assert (f"teleop simulate: error: oak_block grasp 0: unexpected error: RuntimeError: boom (-v shows where); the "
+            f"run stopped: 1 of 2 records were written to {out} (each whole), the rest not: to finish, run the same "
+            "command with --only oak_block --overwrite (") in stderr
+    assert [p.name for p in out.iterdir()] == ["small_rubber_ball_g000.grasp"]
+
+
+def test_a_dead_worker_ends_the_run_with_what_was_written_and_no_leftovers(
+        tmp_path, catalogue, quick_settings, capsys, monkeypatch):
+    def dies_after_the_first(work, jobs, **kwargs):
+        work(jobs[0])  # written whole
+        obj, index, _, _, out, *_ = jobs[1]  # killed mid-write
+        Path(out, simulate_cli.grasp_filename(obj, index) + ".partial").write_bytes(b"half a record")
+        Path(out, simulate_cli.grasp_filename(obj, index).replace(".grasp", ".png")).write_bytes(b"a sheet")
+        raise BrokenProcessPool("A process in the process pool was terminated abruptly")
+
+    monkeypatch.setattr(simulate_cli, "progress_map", dies_after_the_first)
+    out = tmp_path / "o"
+    code, stdout, stderr = run(capsys, "--objects", str(catalogue), "--only", "small rubber ball,oak_block", "--out",
+                               str(out), "--settings", str(quick_settings), "--workers", "2", "--json")
+    assert code == 2 and stdout == "" and "Traceback" not in stderr
+    assert ("teleop simulate: error: a worker process died (killed? out of memory?); the run stopped: 1 of 2 "
+            f"records were written to {out} (each whole), the rest not: to finish, run the same command with --only "
+            "oak_block --overwrite and fewer --workers if memory ran short") in stderr
+    assert [p.name for p in out.iterdir()] == ["small_rubber_ball_g000.grasp"]
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_run_is_one_error_line(tmp_path, catalogue, quick_settings):
+    # A worker of the spawned pool dies as under the OOM killer: no traceback, exit 2, no temporaries.
+    script = tmp_path / "crash.py"
+    script.write_text(textwrap.dedent(f"""
+        import os, sys
+        from teleop.cli import main
+        from teleop.sim import simulate_cli
+
+        original = simulate_cli._simulate_one
+
+        def dies_on_oak(job):
+            if job[0].name == "oak_block":
+                os._exit(9)
+            return original(job)
+
+        if __name__ == "__main__":
+            simulate_cli._simulate_one = dies_on_oak
+            sys.exit(main(["simulate", "--objects", {str(catalogue)!r}, "--only", "small rubber ball,oak_block",
+                           "--out", {str(tmp_path / "o")!r}, "--settings", {str(quick_settings)!r},
+                           "--workers", "2", "--json"]))
+    """))
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and done.stdout == "" and "Traceback" not in done.stderr, done.stderr
+    assert "error: a worker process died (killed? out of memory?); the run stopped: " in done.stderr
+    assert "oak_block" in done.stderr.rsplit("--only", 1)[1]
+    assert {p.suffix for p in (tmp_path / "o").iterdir()} <= {".grasp"}
+
+
+def test_a_missing_calibration_file_is_warned_of_once_and_the_records_written(tmp_path, catalogue, quick_settings,
+                                                                             capsys):
+    settings = tmp_path / "nocal.toml"
+    settings.write_text(quick_settings.read_text().replace("sim-wedge-left.npz", "nosuch.npz", 1))
+    out = tmp_path / "o"
+    code, _, stderr = run(capsys, "--objects", str(catalogue), "--only", "small rubber ball", "--out", str(out),
+                          "--settings", str(settings))
+    assert code == 0, stderr
+    missing = Path(load_settings(settings).sensor("left").calibration)
+    assert stderr.count("warning") == 1
+    assert (f"teleop simulate: warning: [sensors.left] calibration {missing}: no such file (a relative path "
+            f"resolves against {tmp_path}); make it with `estimator calibrate`: the records are simulated all the "
+            "same") in stderr
+    assert [p.name for p in out.iterdir()] == ["small_rubber_ball_g000.grasp"]
