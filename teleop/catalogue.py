@@ -11,7 +11,11 @@ Two formats are read:
   ``../shared/seed/dataset_objects_and_compliance.csv``.
 
 Shapes are normalised to ``sphere``, ``cylinder``, ``box``, ``hex_prism`` and
-``irregular``; materials to lower case.
+``irregular``; materials are stripped and lower-cased. A TOML catalogue's material must be one of
+:data:`MATERIALS` (the simulator's tables look materials up and fall back to defaults, so a typo
+would silently change the physics); the published table's materials are kept as they are (a table
+the project does not own: every one it holds today is in :data:`MATERIALS`). A TOML catalogue holds
+``[[objects]]`` tables and nothing else: a misspelt ``[[object]]`` would drop objects silently.
 
 Sizes: the table's ``Radius [m]`` gives a sphere's or cylinder's diameter and nothing else, so a
 cylinder from the table is taken as long as it is wide (size ``(d, d, d)``); give its length in a
@@ -19,7 +23,7 @@ TOML catalogue's ``size_m`` where it matters. The simulator takes a cylinder as 
 prism as regular: their cross-section is ``size_m[0]`` (the diameter, or the width across flats),
 so a TOML ``size_m[1]`` that says otherwise (a cylinder's not equal to its diameter, a hex prism's
 across corners not ``size_m[0] / cos 30``, within :data:`SECTION_TOLERANCE`) is refused rather
-than ignored.
+than ignored; so is a sphere whose three extents are not equal (the simulator reads ``size_m[0]``).
 """
 
 from __future__ import annotations
@@ -32,10 +36,13 @@ from pathlib import Path
 
 from teleop.bus.messages import SCHEMAS
 from teleop.errors import SettingsError
+from teleop.physics import E_MAX_PA
 from teleop.settings import config_dir
 
 __all__ = [
+    "MATERIALS",
     "MAX_NAME_CHARS",
+    "MODULUS_RANGE_PA",
     "SHAPES",
     "ObjectSpec",
     "default_catalogue_path",
@@ -45,6 +52,14 @@ __all__ = [
 ]
 
 SHAPES = ("sphere", "cylinder", "box", "hex_prism", "irregular")
+#: The material classes a TOML catalogue may name: those of configs/objects.toml, of the published
+#: object table (which adds ceramic and paper) and of the simulator's per-material tables
+#: (teleop.sim.shapes.TEXTURE_BY_MATERIAL_M, teleop.sim.grasp.DENSIFICATION_STRAIN).
+MATERIALS = ("rubber", "foam", "plastic", "wood", "metal", "glass", "food", "ceramic", "paper")
+#: A plausible Young's modulus, Pa. No solid is stiffer than diamond (E_MAX_PA, about 1e12 Pa); the
+#: softest objects a gripper holds are gels of a few kPa, so 1 Pa is a generous floor. Below it the
+#: simulator's scripted squeeze has no finite length (an exponent typo such as 1e-20 would crash it).
+MODULUS_RANGE_PA = (1.0, E_MAX_PA)
 #: The relative slack of a TOML cylinder's or hex prism's ``size_m[1]`` against the one its
 #: ``size_m[0]`` implies (module notes): enough for extents rounded to 0.1 mm.
 SECTION_TOLERANCE = 0.02
@@ -79,9 +94,10 @@ class ObjectSpec:
     shape : str
         One of :data:`SHAPES`.
     material : str
-        Lower-case material class (rubber, foam, plastic, wood, metal, glass, food, ...).
+        Lower-case material class: one of :data:`MATERIALS` from a TOML catalogue; the published
+        table's as it has it.
     modulus_pa : float
-        Young's modulus, Pa; finite and > 0.
+        Young's modulus, Pa, within :data:`MODULUS_RANGE_PA`.
     poisson : float
         Poisson's ratio in [0, 0.5].
     size_m : (float, float, float) or None
@@ -115,6 +131,10 @@ class ObjectSpec:
             raise ValueError(f"object {self.name!r}: shape {self.shape!r} is not one of {SHAPES}")
         if not (math.isfinite(self.modulus_pa) and self.modulus_pa > 0):
             raise ValueError(f"object {self.name!r}: modulus_pa must be finite and > 0, got {self.modulus_pa}")
+        low, high = MODULUS_RANGE_PA
+        if not low <= self.modulus_pa <= high:
+            raise ValueError(f"object {self.name!r}: modulus_pa {self.modulus_pa:g} is outside the plausible "
+                             f"range {low:g} to {high:g} Pa (1 Pa: softer than any gel; {high:g} Pa: diamond)")
         if not 0.0 <= self.poisson <= 0.5:
             raise ValueError(f"object {self.name!r}: poisson must be in [0, 0.5], got {self.poisson}")
         if self.size_m is not None and (
@@ -162,6 +182,10 @@ def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
         raise SettingsError(f"cannot read catalogue {path}: {exc.strerror or exc}") from exc
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise SettingsError(f"{path}: not valid TOML: {exc}") from exc
+    extra = sorted(set(data) - {"objects"})
+    if extra:
+        raise SettingsError(f"{path}: unknown top-level key or table {extra[0]!r}; a catalogue holds only "
+                            "[[objects]] tables (one per object)")
     tables = data.get("objects")
     if not isinstance(tables, list) or not tables:
         raise SettingsError(f"{path}: expected one or more [[objects]] tables")
@@ -186,7 +210,7 @@ def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
                 ObjectSpec(
                     name=name,
                     shape=normalise_shape(_typed(table, "shape", (str,), "a string", where), where=where),
-                    material=_typed(table, "material", (str,), "a string", where).lower(),
+                    material=_material(_typed(table, "material", (str,), "a string", where), where),
                     modulus_pa=float(_typed(table, "modulus_pa", number, "a number (Pa)", where)),
                     poisson=float(_typed(table, "poisson", number, "a number", where, default=0.4)),
                     size_m=tuple(float(s) for s in size) if "size_m" in table else None,
@@ -202,11 +226,26 @@ def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
     return tuple(objects)
 
 
+def _material(raw: str, where: str) -> str:
+    """``raw`` stripped and lower-cased when it is one of :data:`MATERIALS`; else SettingsError."""
+    material = raw.strip().lower()
+    if material not in MATERIALS:
+        raise SettingsError(f"{where}: material {raw!r} is not one of {', '.join(MATERIALS)} (the simulator "
+                            "takes its texture and densification from the material)")
+    return material
+
+
 def _check_section(shape: object, size: list, where: str) -> None:
-    """Refuse a cylinder's or hex prism's ``size_m[1]`` that the simulator would ignore (module notes)."""
+    """Refuse a sphere's, cylinder's or hex prism's extents that the simulator would ignore (module notes)."""
     if not isinstance(shape, str) or len(size) != 3 or not all(s > 0 for s in size):
         return  # ObjectSpec and normalise_shape say what is wrong
     kind = _SHAPE_ALIASES.get(shape.strip().lower())
+    if kind == "sphere":
+        if any(abs(s - size[0]) > SECTION_TOLERANCE * size[0] for s in size[1:]):
+            raise SettingsError(f"{where}: size_m {list(size)!r}: a sphere's three extents are its diameter, "
+                                f"expected [{size[0]:g}, {size[0]:g}, {size[0]:g}] m (the simulator reads "
+                                "size_m[0] only)")
+        return
     if kind not in ("cylinder", "hex_prism"):
         return
     expected = size[0] if kind == "cylinder" else size[0] / math.cos(math.radians(30.0))
@@ -282,6 +321,9 @@ def read_object_table(path: str | Path, *, skip_unlabelled: bool = True,
         if modulus < 0 or not math.isfinite(modulus):
             raise SettingsError(f"{where}: object {cell['Label']!r}: Modulus [Pa] {text!r} is not a modulus; "
                                 "expected a finite number > 0 (or 0 or empty for an unlabelled object)")
+        if not MODULUS_RANGE_PA[0] <= modulus <= MODULUS_RANGE_PA[1]:
+            raise SettingsError(f"{where}: object {cell['Label']!r}: Modulus [Pa] {text!r} is outside the "
+                                f"plausible range {MODULUS_RANGE_PA[0]:g} to {MODULUS_RANGE_PA[1]:g} Pa")
         shape = normalise_shape(cell["Shape"], where=where)
         radius_text = cell.get("Radius [m]", "")
         size = None
@@ -296,7 +338,7 @@ def read_object_table(path: str | Path, *, skip_unlabelled: bool = True,
                 ObjectSpec(
                     name=cell["Label"],
                     shape=shape,
-                    material=cell["Material"].lower(),
+                    material=cell["Material"].lower(),  # kept, not checked against MATERIALS (module notes)
                     modulus_pa=modulus,
                     size_m=size,
                     source=cell.get("Notes", ""),

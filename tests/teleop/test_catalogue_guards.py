@@ -1,5 +1,5 @@
-"""Object catalogues: tables that would silently lose objects, extents the simulator would ignore,
-and the listing's count of unlabelled rows."""
+"""Object catalogues: tables that would silently lose objects, extents, materials and moduli the
+simulator would ignore or choke on, and the listing's count of unlabelled rows."""
 
 from __future__ import annotations
 
@@ -10,6 +10,10 @@ import pytest
 from teleop import cli
 from teleop.catalogue import load_catalogue, read_object_table, read_toml_catalogue
 from teleop.errors import SettingsError
+
+# teleop.catalogue.MATERIALS and MODULUS_RANGE_PA, spelt out: the errors must list them.
+MATERIALS = ("rubber", "foam", "plastic", "wood", "metal", "glass", "food", "ceramic", "paper")
+MODULUS_RANGE_PA = (1.0, 1e12)
 
 
 def test_a_column_named_twice_is_refused(tmp_path):
@@ -77,3 +81,83 @@ def test_catalogue_help_tells_how_sizes_are_read(capsys):
         cli.main(["catalogue", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "a cylinder's diameter and length alike (d, d, d)" in text and "rows of a CSV table" in text
+
+
+def _one_object(tmp_path, *, material="rubber", modulus="1e5", shape="sphere", size="[0.03, 0.03, 0.03]",
+                extra=""):
+    path = tmp_path / "objects.toml"
+    path.write_text(f'[[objects]]\nname = "ball"\nshape = "{shape}"\nmaterial = "{material}"\n'
+                    f"modulus_pa = {modulus}\nsize_m = {size}\n{extra}", encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize("material", ["fome", "rubber ball", "", "cork"])
+def test_a_material_the_simulator_does_not_know_is_refused(tmp_path, material):
+    path = _one_object(tmp_path, material=material)
+    with pytest.raises(SettingsError) as info:
+        read_toml_catalogue(path)
+    text = str(info.value)
+    assert f"{path}: objects[0] (ball): material {material!r} is not one of " in text, text
+    assert all(m in text for m in MATERIALS), text
+
+
+def test_a_padded_or_capitalised_material_is_read_as_the_known_one(tmp_path):
+    (obj,) = read_toml_catalogue(_one_object(tmp_path, material=" Foam "))
+    assert obj.material == "foam"
+
+
+def test_the_materials_cover_the_simulator_and_the_published_table(object_table):
+    from teleop import catalogue
+    from teleop.sim.grasp import DENSIFICATION_STRAIN
+    from teleop.sim.shapes import TEXTURE_BY_MATERIAL_M
+
+    assert catalogue.MATERIALS == MATERIALS and catalogue.MODULUS_RANGE_PA == MODULUS_RANGE_PA
+    assert set(TEXTURE_BY_MATERIAL_M) == set(MATERIALS)  # every material has its own texture
+    assert set(DENSIFICATION_STRAIN) <= set(MATERIALS)
+    assert {o.material for o in read_object_table(object_table)} <= set(MATERIALS)
+    assert {o.material for o in load_catalogue()} <= set(MATERIALS)
+
+
+def test_an_unknown_top_level_table_is_refused(tmp_path):
+    path = _one_object(tmp_path, extra='\n[[object]]\nname = "lost"\nshape = "box"\nmaterial = "wood"\n'
+                                         "modulus_pa = 1e10\n")
+    with pytest.raises(SettingsError, match=r"objects.toml: unknown top-level key or table 'object'"):
+        read_toml_catalogue(path)
+    path.write_text('title = "mine"\n' + path.read_text(encoding="utf-8").split("\n[[object]]")[0], encoding="utf-8")
+    with pytest.raises(SettingsError, match=r"objects.toml: unknown top-level key or table 'title'"):
+        read_toml_catalogue(path)
+
+
+@pytest.mark.parametrize("modulus", ["1e-20", "0.5", "2e12"])
+def test_an_implausible_modulus_is_refused(tmp_path, modulus):
+    path = _one_object(tmp_path, modulus=modulus)
+    with pytest.raises(SettingsError) as info:
+        read_toml_catalogue(path)
+    text = str(info.value)
+    assert f"{path}: objects[0] (ball)" in text and "modulus_pa" in text, text
+    assert f"outside the plausible range {MODULUS_RANGE_PA[0]:g} to {MODULUS_RANGE_PA[1]:g} Pa" in text, text
+
+
+def test_an_implausible_table_modulus_is_refused(tmp_path):
+    path = tmp_path / "t.csv"
+    path.write_text("Label,Shape,Material,Modulus [Pa]\nA,Sphere,Rubber,1e6\nB,Box,Foam,1e-20\n")
+    with pytest.raises(SettingsError, match=r"t.csv:3: object 'B': Modulus \[Pa\] '1e-20' is outside the plausible"):
+        read_object_table(path)
+
+
+def test_the_shipped_moduli_are_plausible(object_table):
+    low, high = MODULUS_RANGE_PA
+    for obj in (*load_catalogue(), *read_object_table(object_table)):
+        assert low <= obj.modulus_pa <= high, obj.name
+
+
+def test_a_sphere_whose_extents_differ_is_refused(tmp_path):
+    path = _one_object(tmp_path, size="[0.02, 0.06, 0.06]")
+    with pytest.raises(SettingsError) as info:
+        read_toml_catalogue(path)
+    text = str(info.value)
+    assert f"{path}: objects[0] (ball): size_m [0.02, 0.06, 0.06]: a sphere's three extents are its diameter" in text
+    assert "expected [0.02, 0.02, 0.02] m" in text, text
+    # Rounded to 0.1 mm, within SECTION_TOLERANCE: read.
+    (obj,) = read_toml_catalogue(_one_object(tmp_path, size="[0.0300, 0.0301, 0.0299]"))
+    assert obj.size_m == (0.03, 0.0301, 0.0299)
