@@ -38,8 +38,13 @@ the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.
 * after ``stop``, ``release`` or ``next``, and when the robot ends the follow grasp (released,
   the watchdog: its ``grasp_event`` end or its ``watchdog`` notice naming the grasp), no follow goes out until the enable has been let go and held again: a held
   enable never moves the fingers again, nor starts a new grasp, by itself;
+* so too when the loop starts (an enable already held does not drive until it has been let go),
+  and after a gap in the device (:mod:`haptics.operator_device`): a read that failed (unplugged:
+  the enable reads let go, and the device is opened again every :data:`RECONNECT_S`), the device
+  opened again, a reading it marks ``lost`` (the display's grip not heard): what the hand did
+  meanwhile does not drive until the enable has been read let go and held again;
 * the robot side's force, width and the display's stiffness go back to the device
-  (``device.feel``): the simulated operator closes its loop on them.
+  (``device.feel``, not while it is disconnected): the simulated operator closes its loop on them.
 
 A follow grasp takes a new grasp id when enable is first held after the previous grasp ended;
 a discrete grasp takes one per ``grasp`` press. Ids are ``op-<HHMMSS>-<n>``, unique within a
@@ -53,12 +58,13 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from datetime import datetime
 from functools import partial
 from typing import Any, Protocol
 
-from haptics.errors import HapticsError, InputNotConnectedError
+from haptics.errors import HapticsError
+from haptics.operator_device import RECONNECT_S, DeviceReader
 from haptics.operator_link import OperatorView
 from teleop.bus.messages import LabelBody
 from teleop.errors import BusError, ComplianceTeleopError, MessageRejected
@@ -66,14 +72,13 @@ from teleop.live import check_duration_s
 from teleop.operator import BUTTONS, FOLLOW_RATE_HZ, grip_to_width_m
 from teleop.settings import Settings
 
-__all__ = ["RELEASE_FOLLOWS", "LoopStatus", "OperatorLoop"]
+__all__ = ["RECONNECT_S", "RELEASE_FOLLOWS", "LoopStatus", "OperatorLoop"]
 
 log = logging.getLogger(__name__)
 
 RELEASE_FOLLOWS = 3  # follows with enable=False sent at least when the dead-man is let go
 IDLE_TICK_S = 0.01  # the loop's longest wait when not sending follows
 NEXT_WAIT_S = 5.0  # after "next", the longest wait for the grasp left to end and get its final
-RECONNECT_S = 1.0  # a failed input device (unplugged) is opened again at most this often
 _UNSENT_ON_THE_BUS = "not sent (bus): "  # a send the link refused or could not make; the next one made mends it
 
 
@@ -118,7 +123,7 @@ class LoopStatus:
     grip: float = 0.0
     enable: bool = False  # the enable as the loop takes it: held and not suspended
     held: bool = False  # the device's enable as read (a toggle's state)
-    suspended: bool = False  # follows suspended until the enable is let go and held again
+    suspended: bool = False  # the enable is held but drives nothing until it is let go and held again
     operator_force_n: float | None = None  # the operator's grip force, where the device measures it
     target_width_m: float | None = None
     mode: str = "idle"  # "idle", "follow" (driving with enable), "discrete" (a commanded grasp under way)
@@ -182,7 +187,7 @@ class OperatorLoop:
         self._release_left = 0  # enable=False follows still to send
         self._next_follow_s = -math.inf
         self._follow_grasp: str | None = None  # the follow grasp's id, until it ends
-        self._rearm = False  # follows suspended until the enable is let go and held again
+        self._rearm = True  # follows suspended until the enable is let go and held again: so at the start
         # Discrete grasps commanded and not known over, oldest first: a grasp pressed while one runs
         # is refused by the robot, and the one running must stay tracked (quit releases it).
         self._discrete: list[str] = []
@@ -192,7 +197,7 @@ class OperatorLoop:
         self._robot_up = False  # the robot node was heard alive at the last step
         self._robot_restarts = 0  # the link's count of robot node restarts at the last step
         self._input: Any = None
-        self._reconnect_s = -math.inf  # when a failed device was last opened again
+        self._reader = DeviceReader(device, clock, act=self._act, trouble=self._trouble, resolved=self._resolved)
         self._target_m: float | None = None
         self._pressed: list[str] = []  # buttons pushed from another thread (press())
         self._to_label: list[tuple[str, Any]] = []  # (grasp id, ObjectLabel) from another thread (label())
@@ -232,13 +237,15 @@ class OperatorLoop:
     def step(self, timeout_s: float = 0.0) -> LoopStatus:
         """Read the device, act on its buttons, send ``follow`` when due, take what the bus
         brought (waiting up to ``timeout_s``), feed the robot's state back; the new status."""
-        reading = None
+        reading, gap = None, False
         waiting = self.device.waits_for_robot and self.link.view.down("robot node")
         if waiting and not self._waiting:
             self._act("waiting for the robot node: the input device is read once the node is heard")
         self._waiting = waiting
         if not waiting:
-            reading = self._read_device()
+            reading, gap = self._reader.read(self._input)
+        if gap:
+            self._input_gap()
         if reading is not None and self._leaving is not None:
             self._read_while_leaving(reading)
             reading = None  # drives nothing until the view is cleared
@@ -250,7 +257,7 @@ class OperatorLoop:
             pressed = [*pressed, *(b for b in BUTTONS if b in reading.buttons)]
             # The grip and enable first: a release pressed as the enable is let go goes out after
             # the follow that lets it go.
-            self._drive(reading)
+            self._drive(reading, gap)
         for button in pressed:
             self._button(button)
         for grasp_id, label in to_label:
@@ -308,28 +315,6 @@ class OperatorLoop:
         self.status = self._status()
 
     # ------------------------------------------------------------------ pieces
-
-    def _read_device(self) -> Any:
-        """The device's reading. A device that failed (unplugged) is opened again every
-        :data:`RECONNECT_S`; until it reads, its enable reads released with the grip where it was,
-        so a follow grasp pauses (the fingers stop where they are) instead of tripping the watchdog."""
-        try:
-            return self.device.read(timeout_s=0.0)
-        except InputNotConnectedError:
-            now = self.clock()
-            if now - self._reconnect_s >= RECONNECT_S:
-                self._reconnect_s = now
-                try:
-                    self.device.connect()
-                    reading = self.device.read(timeout_s=0.0)
-                    self._act("input device connected again")
-                    self._resolved("input device:")
-                    return reading
-                except ComplianceTeleopError as exc:
-                    self._trouble(f"input device: {exc}; trying again every {RECONNECT_S:g} s")
-        except ComplianceTeleopError as exc:
-            self._trouble(f"input device: {exc}")
-        return None if self._input is None else replace(self._input, enable=False, buttons=frozenset())
 
     def _read_while_leaving(self, reading: Any) -> None:
         """After ``next``, while the last grasp ends: the device is read, so that the status shows
@@ -407,13 +392,13 @@ class OperatorLoop:
             value = "the catalogue's E" if label.modulus_pa is None else f"E {label.modulus_pa:.3g} Pa"
             self._act(f"label {grasp_id}: {label.object_name}, {value} ({label.source})")
 
-    def _drive(self, reading: Any) -> None:
+    def _drive(self, reading: Any, gap: bool = False) -> None:
         now = self.clock()
         self._target_m = grip_to_width_m(reading.grip, max_width_m=self.max_width_m)
         held = bool(reading.enable)
-        if self._rearm and not held:
+        if self._rearm and not held and not gap:  # let go as read, not for want of a reading
             self._rearm = False
-        enable = held and not self._rearm  # after a stop or release: not until held anew
+        enable = held and not self._rearm  # after a stop, release or gap: not until held anew
         if enable and not self._enable:
             if self._follow_grasp is None:
                 self._follow_grasp = self._new_grasp_id()
@@ -510,14 +495,18 @@ class OperatorLoop:
             self._rearm = True
             self._act("let go of the enable to drive again")
 
+    def _input_gap(self) -> None:
+        """The device was not heard (failed, opened again, its reading lost): the enable counts as let
+        go, and drives again only once it has been read let go and held again."""
+        if self._enable and not self._rearm:
+            self._act("input device not heard: the enable counts as let go; let go of it and hold it again")
+        self._rearm = True
+
     def _feel(self) -> None:
         view = self.link.view
-        try:
-            self.device.feel(force_n=view.force_n if view.force_n is not None else 0.0,
-                             width_m=view.width_m if view.width_m is not None else self.max_width_m,
-                             stiffness=view.stiffness)
-        except ComplianceTeleopError as exc:
-            self._trouble(f"input device: {exc}")
+        self._reader.feel(force_n=view.force_n if view.force_n is not None else 0.0,
+                          width_m=view.width_m if view.width_m is not None else self.max_width_m,
+                          stiffness=view.stiffness)
 
     def _send(self, send: Callable[[], None]) -> bool:
         try:
@@ -551,7 +540,8 @@ class OperatorLoop:
         current = self._follow_grasp or self._discrete_grasp or view.grasp_id
         if current is not None:
             self._last_grasp = current
-        if self._rearm:
+        held = reading is not None and bool(reading.enable)
+        if self._rearm and held:
             mode = "follow suspended (let go of the enable)"
         elif self._enable:
             mode = "follow"
@@ -565,8 +555,8 @@ class OperatorLoop:
             view=view,
             grip=0.0 if reading is None else float(reading.grip),
             enable=self._enable,
-            held=reading is not None and bool(reading.enable),
-            suspended=self._rearm,
+            held=held,
+            suspended=self._rearm and held,
             operator_force_n=None if reading is None else reading.force_n,
             target_width_m=self._target_m,
             mode=mode,

@@ -93,6 +93,10 @@ class OperatorInput:
         The operator's grip force (N) where the device measures it, else None.
     buttons : frozenset of str
         The buttons of :data:`teleop.operator.BUTTONS` pressed since the previous read.
+    lost : bool
+        Whether the device's state is not heard (the display's grip reports stopped, or none came
+        yet): the enable then reads released, and the operator's loop takes it as let go, to be
+        read let go and held again before it drives (a hand that held it all along drives nothing).
     """
 
     t_s: float
@@ -100,6 +104,7 @@ class OperatorInput:
     enable: bool
     force_n: float | None = None
     buttons: frozenset[str] = frozenset()
+    lost: bool = False
 
     def __post_init__(self) -> None:
         _finite("OperatorInput.t_s", self.t_s)
@@ -107,6 +112,8 @@ class OperatorInput:
             raise OperatorInputError(f"OperatorInput.grip = {self.grip!r}: expected a value in [0, 1]")
         if not isinstance(self.enable, bool):
             raise OperatorInputError(f"OperatorInput.enable = {self.enable!r}: expected True or False")
+        if not isinstance(self.lost, bool):
+            raise OperatorInputError(f"OperatorInput.lost = {self.lost!r}: expected True or False")
         if self.force_n is not None:
             _finite("OperatorInput.force_n", self.force_n)
         if not isinstance(self.buttons, frozenset):

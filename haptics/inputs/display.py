@@ -12,7 +12,8 @@ pressed when a report shows it held and the one before did not, report by report
 reported once however many reports show it held, and a release and a new press between two reads
 is a new press. Before the first report, and when no report has come for ``stale_s`` (by default
 :data:`~haptics.protocol.GRIP_LOST_AFTER_S`, 100 ms, after which PROTOCOL.md takes the grip as
-lost), the enable reads released. A display failure (unplugged) raises
+lost), the enable reads released and the reading is marked ``lost``
+(:attr:`~haptics.inputs.base.OperatorInput.lost`). A display failure (unplugged) raises
 :class:`~haptics.errors.InputDeviceError` and leaves this device disconnected.
 """
 
@@ -161,11 +162,11 @@ class DisplayInput(OperatorInputDevice):
         pressed, self._pressed = frozenset(self._pressed), set()
         latest = self._latest
         if latest is None:
-            return OperatorInput(t_s=now, grip=0.0, enable=False, force_n=None, buttons=pressed)
+            return OperatorInput(t_s=now, grip=0.0, enable=False, force_n=None, buttons=pressed, lost=True)
         fresh = now - self._latest_s <= self.stale_s
         grip = float(latest.grip)
         if not math.isfinite(grip):
             raise InputDeviceError(f"{self!r}: the display reported grip = {grip!r}")
         force = None if latest.force_n is None else float(latest.force_n)
         return OperatorInput(t_s=now, grip=min(max(grip, 0.0), 1.0), enable=bool(latest.enable) and fresh,
-                             force_n=force, buttons=pressed)
+                             force_n=force, buttons=pressed, lost=not fresh)

@@ -6,6 +6,11 @@ grasp's number, so grasp *k* of a seed is the same whatever came before. The ope
 loop on what it feels: :meth:`~haptics.inputs.base.OperatorInputDevice.feel` gives it the
 robot side's force and finger width (until the first ``feel`` it feels nothing, fingers open).
 
+The first read after ``connect()`` reports the hand idle, the enable released: a person sits
+down before pressing the dead-man, and an operator's loop drives only an enable it has seen let go
+(:mod:`haptics.operator_loop`). The first grasp's operator starts on the read after it
+(``starts_released=False``: on that first read).
+
 Sequence of one grasp, as :meth:`read` reports it (``t_s`` of the operator counts from the
 grasp's first read, so a caller may hold off reading until the next object is ready):
 
@@ -56,6 +61,9 @@ class SimulatedInput(OperatorInputDevice):
         ``operator_factory(rng, max_width_m=..., max_force_n=...)`` -> an operator with
         ``step(t_s, *, force_n, width_m)`` returning ``target_width_m``, ``enable`` and ``release``,
         and ``done``; default :class:`teleop.sim.operator.SimulatedOperator` (tests pass scripted ones).
+    starts_released : bool
+        Whether the first read after ``connect()`` reports the hand idle, the enable released (module
+        notes); False: the first grasp's operator starts on it.
     """
 
     name: ClassVar[str] = "sim"
@@ -70,6 +78,7 @@ class SimulatedInput(OperatorInputDevice):
         grasps: int | None = None,
         clock: Callable[[], float] = time.monotonic,
         operator_factory: Callable[..., Any] | None = None,
+        starts_released: bool = True,
     ) -> None:
         super().__init__()
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
@@ -82,12 +91,13 @@ class SimulatedInput(OperatorInputDevice):
         self.grasps = grasps
         self._clock = clock
         self._factory = operator_factory or _simulated_operator
+        self.starts_released = bool(starts_released)
         self._restart()
 
     @classmethod
     def from_settings(cls, settings: Settings, **options: Any) -> Self:
         """Options: ``seed`` (default ``[operator] sim_seed``), ``grasps``, ``clock``,
-        ``operator_factory``; the width and force come from ``[gripper]``."""
+        ``operator_factory``, ``starts_released``; the width and force come from ``[gripper]``."""
         options.setdefault("seed", operator_settings(settings).sim_seed)
         options.setdefault("max_width_m", settings.gripper.max_width_m)
         options.setdefault("max_force_n", settings.gripper.target_force_n)
@@ -116,6 +126,7 @@ class SimulatedInput(OperatorInputDevice):
         self._force_n = 0.0
         self._width_m = float(self.max_width_m)
         self._finished = False
+        self._seated = not self.starts_released  # the first read (the hand idle, the enable released) was made
 
     def _open(self) -> None:
         self._restart()
@@ -131,7 +142,8 @@ class SimulatedInput(OperatorInputDevice):
     def _read(self, timeout_s: float) -> OperatorInput:  # noqa: ARG002 - simulated: never waits
         now = self._clock()
         idle = OperatorInput(t_s=now, grip=0.0, enable=False, force_n=self._force_n)
-        if self._finished:
+        if self._finished or not self._seated:
+            self._seated = True
             return idle
         if self._operator is None or self._operator.done:
             rng = np.random.default_rng([self.seed, self._index])

@@ -26,6 +26,7 @@ def rig():
     clock = Clock()
     link, device = FakeLink(clock), FakeDevice(clock)
     loop = OperatorLoop(link, device, load_settings(), force_n=12.0, clock=clock)
+    loop.step()  # the operator sits down, the enable let go: the loop drives only an enable read let go first
     return clock, link, device, loop
 
 
@@ -164,10 +165,20 @@ def test_an_unplugged_device_pauses_the_follow_grasp_and_is_opened_again(rig):
     assert {b["grasp_id"] for b in paused} == {grasp_id}
     assert device.connects == 3  # at 0, 1 and 2 s: every RECONNECT_S
     assert "unplugged" in loop.status.problem and f"every {RECONNECT_S:g} s" in loop.status.problem
-    device.plugged = True
+    assert not any("feel()" in line for line in loop.status.log)  # not fed back while disconnected
+    device.grip, device.plugged = 1.0, True  # the hand squeezed on while it was unplugged
+    sent = len(link.sent)
     run_for(clock, loop, RECONNECT_S)
     assert device.connected and "input device connected again" in loop.status.log and loop.status.problem == ""
-    assert link.sent[-1][2]["enable"] and link.sent[-1][2]["grasp_id"] == grasp_id  # held again: it drives on
+    # Held all along: that is no fresh press. Follows go on without the enable, the grasp paused.
+    back = [b for _, kind, b in link.sent[sent:] if kind == "follow"]
+    assert back and not any(b["enable"] for b in back) and {b["grasp_id"] for b in back} == {grasp_id}
+    assert loop.status.suspended and loop.status.held
+    device.enable = False
+    run_for(clock, loop, 0.05)
+    device.enable = True  # let go and held again: it drives on, where the grip is now
+    run_for(clock, loop, 0.05)
+    assert link.sent[-1][2] == {"target_width_m": 0.0, "enable": True, "grasp_id": grasp_id}
 
 
 def test_a_simulated_person_waits_for_the_robot_node_before_squeezing(rig):
@@ -497,3 +508,17 @@ def test_a_label_refused_for_its_fields_stays_said_while_follows_go_through(rig,
     run_for(clock, loop, 0.2)
     assert link.kinds()[-1] == "follow"
     assert loop.status.problem == "not sent: too_long: label detail is 300 characters, more than 256"
+
+
+def test_a_device_opened_again_at_once_does_not_drive_the_enable_it_reads_held(rig):
+    # A device failed (in feel, say) and is opened again on the next read: no reading was missed, but
+    # the hand was not heard in between. The enable it reads held drives only once let go and held again.
+    clock, link, device, loop = rig
+    device.grip, device.enable = 0.5, True
+    run_for(clock, loop, 0.1)
+    device.connected = False
+    sent = len(link.sent)
+    run_for(clock, loop, 0.1)
+    assert device.connects == 1 and "input device connected again" in loop.status.log
+    assert not any(b["enable"] for _, kind, b in link.sent[sent:] if kind == "follow")
+    assert loop.status.suspended and loop.status.held

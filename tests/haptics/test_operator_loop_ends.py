@@ -22,7 +22,9 @@ def _rig():
     clock = Clock()
     link, device = FakeLink(clock), FakeDevice(clock)
     device.grip = 0.5
-    return clock, link, device, OperatorLoop(link, device, load_settings(), clock=clock)
+    loop = OperatorLoop(link, device, load_settings(), clock=clock)
+    loop.step()  # the enable read let go once: the loop starts armed off
+    return clock, link, device, loop
 
 
 def test_the_watchdogs_notice_ends_the_follow_grasp_it_names():

@@ -99,6 +99,7 @@ def _driving(clock: Clock) -> tuple[FakeLink, FakeDevice, OperatorLoop]:
     """A console whose enable is held half-squeezed, driving a live robot node for 0.1 s."""
     link, device = FakeLink(clock), FakeDevice(clock)
     loop = OperatorLoop(link, device, load_settings(), clock=clock)
+    loop.step()  # the enable read let go once: the loop starts armed off
     device.grip, device.enable = 0.5, True
     link.view = _robot(clock)
     _run(clock, loop, 0.1)

@@ -281,7 +281,10 @@ def sim_rig() -> InputRig:
         operators.append(ScriptedOperator(controls, rng, **kwargs))
         return operators[-1]
 
-    device = SimulatedInput(seed=3, max_width_m=0.08, max_force_n=30.0, operator_factory=factory)
+    # The contract's hand is at the device already: its first read is the script's (test_sim_input.py
+    # tests the default, an idle first read).
+    device = SimulatedInput(seed=3, max_width_m=0.08, max_force_n=30.0, operator_factory=factory,
+                            starts_released=False)
 
     def set_grip(grip: float) -> None:
         controls.target_width_m = 0.08 * (1 - grip)

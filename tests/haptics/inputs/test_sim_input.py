@@ -135,9 +135,27 @@ def test_connect_starts_over_and_the_seed_comes_from_the_settings(settings, with
     assert make_input("sim", settings, seed=9).seed == 9
     with device:
         device.read()
+        device.read()
         assert device.operator is not None
     with device:
         assert device.operator is None and device.grasps_done == 0
+
+
+def test_the_first_read_after_connect_has_the_enable_released_then_the_operator_holds_it():
+    # A person sits down before pressing the dead-man: an operator's loop drives only an enable it
+    # has read let go first, so the simulated operator's first read after connect() is idle.
+    device, clock = sim(4)
+    for _ in range(2):  # and again after connecting again
+        with device:
+            next(clock)
+            first = device.read()
+            assert (first.grip, first.enable, first.buttons) == (0.0, False, frozenset())
+            assert device.operator is None
+            next(clock)
+            assert device.read().enable and device.operator is not None
+    device, clock = sim(4, starts_released=False)
+    with device:
+        assert device.read().enable
 
 
 @pytest.mark.parametrize(("options", "match"), [({"seed": -1}, "seed"), ({"seed": 1.5}, "seed"),
