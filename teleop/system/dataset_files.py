@@ -3,7 +3,10 @@
 Pickles execute code on load, so every ``.pkl`` of the dataset is read with
 :func:`safe_load_pickle`, which admits numpy arrays and nothing else
 (:func:`load_pickled_array` on top of it checks for a finite numeric array of the
-expected shape). Forces and widths, in both layouts, must be physically possible
+expected shape). Lists, tuples and dicts around the arrays are walked once each and
+bounded (:data:`MAX_PICKLE_DEPTH` and the other ``MAX_PICKLE_*`` budgets), so a small
+pickle of shared references cannot make the check or ``np.asarray`` run or allocate
+without end. Forces and widths, in both layouts, must be physically possible
 (:func:`check_forces`, :func:`check_widths`). The layouts name their folders
 ``<key>=<integer>`` (:func:`layout_index`); a folder's files are required by name
 (:func:`layout_member`).
@@ -27,6 +30,10 @@ from teleop.errors import DatasetError, UnsafePickleError
 
 __all__ = [
     "FORCE_TOLERANCE_N",
+    "MAX_PICKLE_BYTES",
+    "MAX_PICKLE_DEPTH",
+    "MAX_PICKLE_ELEMENTS",
+    "MAX_PICKLE_ITEMS",
     "WIDTH_SLACK_M",
     "check_forces",
     "check_widths",
@@ -110,20 +117,103 @@ class _ArrayUnpickler(pickle.Unpickler):
         raise UnsafePickleError(f"{self.name}: refused persistent id {pid!r}: only numpy arrays are admitted")
 
 
-def _check_plain(value: Any, name: str) -> None:
-    """Refuse anything but numeric/string arrays, numpy scalars and plain data holding them."""
+# The published pickles hold bare arrays (a published estimate at most a number or a short list
+# of them), so these budgets on the lists, tuples and dicts around the arrays sit far above any
+# legitimate file, and far below what a few hundred bytes of pickle could otherwise make the
+# check, or ``np.asarray`` in :func:`load_pickled_array`, do through shared (memo) references.
+MAX_PICKLE_DEPTH = 32
+"""Containers nested in one another (an array in a list is 1 level)."""
+MAX_PICKLE_ITEMS = 1_000_000
+"""Items walked by the check: each container is walked once, each reference to it counts."""
+MAX_PICKLE_ELEMENTS = 1 << 27
+"""Array elements, scalars and containers counted at every reference: what ``np.asarray`` builds."""
+MAX_PICKLE_BYTES = 1 << 30
+"""Those elements at the widest item size among them: what ``np.asarray`` would allocate."""
+
+# A Python number as numpy would hold it (complex128 at most).
+_NUMBER_ITEMSIZE = 16
+_END = object()
+
+
+def _leaf_size(value: Any, name: str) -> tuple[int, int]:
+    """(elements, item size in bytes) of anything but a container; refuses what is not admitted."""
     if isinstance(value, np.ndarray | np.generic):
         if value.dtype.hasobject:
             raise UnsafePickleError(f"{name}: refused an object array: only plain numpy arrays are admitted")
-    elif isinstance(value, list | tuple):
-        for item in value:
-            _check_plain(item, name)
-    elif isinstance(value, dict):
-        for key, item in value.items():
-            _check_plain(key, name)
-            _check_plain(item, name)
-    elif not (value is None or isinstance(value, bool | int | float | complex | str | bytes)):
-        raise UnsafePickleError(f"{name}: refused a {type(value).__name__}: only numpy arrays are admitted")
+        return int(value.size), value.dtype.itemsize
+    if isinstance(value, str):
+        return 1, 4 * len(value)  # numpy holds text as UCS-4
+    if isinstance(value, bytes):
+        return 1, len(value)
+    if value is None or isinstance(value, bool | int | float | complex):
+        return 1, _NUMBER_ITEMSIZE
+    raise UnsafePickleError(f"{name}: refused a {type(value).__name__}: only numpy arrays are admitted")
+
+
+def _children(container: list | tuple | dict) -> Any:
+    if isinstance(container, dict):
+        return (part for pair in container.items() for part in pair)
+    return iter(container)
+
+
+def _check_plain(value: Any, name: str) -> None:
+    """Refuse anything but numeric/string arrays, numpy scalars and plain data holding them.
+
+    Walks without recursion, each container once however often it is referenced, and
+    refuses containers nested beyond :data:`MAX_PICKLE_DEPTH`, more than
+    :data:`MAX_PICKLE_ITEMS` items, a container holding itself, and containers whose
+    contents counted at every reference exceed :data:`MAX_PICKLE_ELEMENTS` or
+    :data:`MAX_PICKLE_BYTES` (a bare array is what the file holds, and is not limited).
+    """
+    if not isinstance(value, list | tuple | dict):
+        _leaf_size(value, name)
+        return
+    expected = "only numpy arrays, in at most small lists, tuples or dicts, are admitted"
+    # id -> (elements counted at every reference, widest item size, nesting levels); the
+    # objects stay alive inside ``value``, so their ids are not reused during the walk.
+    finished: dict[int, tuple[int, int, int]] = {}
+    open_ids = {id(value)}
+    # Per open container: the container, its children, and [elements, item size, levels below].
+    stack: list[tuple[Any, Any, list[int]]] = [(value, _children(value), [1, 0, 0])]
+    items = 0
+
+    def add(total: list[int], elements: int, itemsize: int, levels: int) -> None:
+        total[0] += elements
+        total[1] = max(total[1], itemsize)
+        total[2] = max(total[2], levels)
+        if total[0] > MAX_PICKLE_ELEMENTS or total[0] * total[1] > MAX_PICKLE_BYTES:
+            raise UnsafePickleError(
+                f"{name}: refused containers holding over {MAX_PICKLE_ELEMENTS} elements or "
+                f"{MAX_PICKLE_BYTES} bytes counted at every (shared) reference: {expected}"
+            )
+
+    while stack:
+        container, children, total = stack[-1]
+        child = next(children, _END)
+        if child is _END:
+            stack.pop()
+            open_ids.discard(id(container))
+            done = (total[0], total[1], total[2] + 1)
+            if done[2] > MAX_PICKLE_DEPTH:
+                raise UnsafePickleError(f"{name}: refused containers nested over {MAX_PICKLE_DEPTH} deep: {expected}")
+            finished[id(container)] = done
+            if stack:
+                add(stack[-1][2], *done)
+            continue
+        items += 1
+        if items > MAX_PICKLE_ITEMS:
+            raise UnsafePickleError(f"{name}: refused containers of over {MAX_PICKLE_ITEMS} items: {expected}")
+        if not isinstance(child, list | tuple | dict):
+            add(total, *_leaf_size(child, name), 0)
+        elif id(child) in finished:
+            add(total, *finished[id(child)])
+        elif id(child) in open_ids:
+            raise UnsafePickleError(f"{name}: refused a {type(child).__name__} that holds itself: {expected}")
+        elif len(stack) >= MAX_PICKLE_DEPTH:
+            raise UnsafePickleError(f"{name}: refused containers nested over {MAX_PICKLE_DEPTH} deep: {expected}")
+        else:
+            open_ids.add(id(child))
+            stack.append((child, _children(child), [1, 0, 0]))
 
 
 def safe_load_pickle(source: str | os.PathLike[str] | bytes, *, name: str | None = None) -> Any:
@@ -146,8 +236,11 @@ def safe_load_pickle(source: str | os.PathLike[str] | bytes, *, name: str | None
     Raises
     ------
     UnsafePickleError
-        The pickle names a global other than the admitted ones, or builds an object
-        array; the message names the file and what was refused.
+        The pickle names a global other than the admitted ones, builds an object array,
+        or builds lists, tuples or dicts around its arrays beyond the budgets of
+        :func:`_check_plain` (nested too deep, too many items, holding themselves, or too
+        large counted at every shared reference); the message names the file and what
+        was refused.
     DatasetError
         The file cannot be read, or is not a complete, valid pickle.
     """

@@ -8,6 +8,7 @@ import os
 import pickle
 import re
 import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -207,6 +208,88 @@ def test_damaged_or_missing_pickles_raise_dataset_errors(tmp_path):
     write_pickle(path, np.zeros((2, 2)))
     with pytest.raises(DatasetError, match="1-D"):
         load_pickled_array(path, ndim=1)
+
+
+def shared_list_pickle(depth: int, fan: int) -> bytes:
+    """A protocol-2 pickle of ``depth`` nested lists, each holding ``fan`` memo references to
+    the one below: a few hundred bytes that stand for fan**depth lists if walked as a tree."""
+    out = bytearray(b"\x80\x02]q\x00")  # EMPTY_LIST, BINPUT 0
+    for level in range(1, depth + 1):
+        # EMPTY_LIST MARK (BINGET level-1)*fan APPENDS BINPUT level POP
+        out += b"](" + (b"h" + bytes([level - 1])) * fan + b"eq" + bytes([level]) + b"0"
+    return bytes(out + b"h" + bytes([depth]) + b".")
+
+
+# load_pickled_array(argv[1]) in a child process limited to 2 GiB of address space, so that
+# a pickle that walks or allocates without end fails the test instead of hanging the suite.
+_GUARDED_LOAD = """
+import resource, sys
+resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))
+from teleop.errors import DatasetError
+from teleop.system.dataset_files import load_pickled_array
+try:
+    load_pickled_array(sys.argv[1])
+except DatasetError as exc:
+    print("refused:", exc)
+else:
+    print("loaded")
+"""
+
+
+@pytest.mark.parametrize(
+    ("build", "refused"),
+    [
+        # 40 levels of two shared references: 2**40 lists, 408 bytes.
+        (lambda: shared_list_pickle(40, 2), "nested over 32 deep"),
+        # Within the depth budget, but 2**31 lists counted at every reference.
+        (lambda: shared_list_pickle(30, 2), "every (shared) reference"),
+        # One 1 MiB array referenced 2048 times: np.asarray would build 2 GiB.
+        (lambda: pickle.dumps([np.zeros(1 << 17)] * 2048, protocol=4), "every (shared) reference"),
+    ],
+    ids=["dag-40-deep", "dag-2**31-lists", "shared-array"],
+)
+def test_pickle_of_shared_references_is_refused_quickly(tmp_path, build, refused):
+    path = tmp_path / "forces.pkl"
+    path.write_bytes(build())
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    try:
+        done = subprocess.run([sys.executable, "-c", _GUARDED_LOAD, str(path)], capture_output=True, text=True,
+                              timeout=20, cwd=Path(__file__).resolve().parents[3], env=env)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"{path.name} ({path.stat().st_size} bytes) still loading after 20 s", pytrace=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.startswith(f"refused: {path}: refused") and refused in done.stdout, done.stdout
+
+
+def test_deep_huge_or_self_holding_containers_are_refused_by_name():
+    # 200,000 nested lists (400 kB): a clear error, not a RecursionError.
+    n = 200_000
+    with pytest.raises(UnsafePickleError, match=r"deep\.pkl: refused containers nested over 32 deep"):
+        safe_load_pickle(b"\x80\x02" + b"(" * n + b"l" * n + b".", name="deep.pkl")
+    # A list or dict that holds itself (through the memo).
+    with pytest.raises(UnsafePickleError, match=r"loop\.pkl: refused a list that holds itself"):
+        safe_load_pickle(b"\x80\x02]q\x00h\x00a.", name="loop.pkl")
+    with pytest.raises(UnsafePickleError, match=r"loop\.pkl: refused a dict that holds itself"):
+        safe_load_pickle(b"\x80\x02}q\x00K\x01h\x00s.", name="loop.pkl")
+    # Over a million items.
+    with pytest.raises(UnsafePickleError, match=r"many\.pkl: refused containers of over 1000000 items"):
+        safe_load_pickle(pickle.dumps([None] * 1_000_001), name="many.pkl")
+
+
+def test_shared_and_nested_arrays_within_the_budgets_still_load(tmp_path):
+    array = np.arange(6.0)
+    value = safe_load_pickle(pickle.dumps({"a": array, "b": (array, [array])}))
+    assert np.array_equal(value["b"][1][0], array) and value["a"] is value["b"][0]
+    shared = safe_load_pickle(shared_list_pickle(20, 2))  # 2**21 lists as a tree, 21 levels
+    assert len(shared) == 2 and shared[0] is shared[1]
+    deepest = safe_load_pickle(shared_list_pickle(31, 1))  # 32 levels, the most admitted
+    expected: list = []
+    for _ in range(31):
+        expected = [expected]
+    assert deepest == expected
+    path = tmp_path / "forces.pkl"
+    write_pickle(path, [array] * 3)
+    assert load_pickled_array(path, shape=(3, 6)).sum() == 3 * array.sum()
 
 
 # --------------------------------------------------------------------------- raw layout
