@@ -59,7 +59,8 @@ and every frame byte for byte.
 
 A reader that meets a damaged or incomplete file raises
 :class:`~teleop.errors.RecordError` naming the file, the member or field, and
-what was expected.
+what was expected; one whose member, or whole, would inflate far beyond what a record holds (a ZIP
+bomb) is refused before or while it is read (limits in ``_Reader``'s notes).
 """
 
 from __future__ import annotations
@@ -283,6 +284,37 @@ def calibration_copy(data: bytes, name: str) -> Path:
 # --------------------------------------------------------------------------- reading
 
 
+# Sizes a member may inflate to, checked before it is read and again while it is read (a ZIP header
+# may lie): a few kilobytes of a hostile archive may inflate to gigabytes. Each is far above what a
+# record legitimately holds, so no real record is refused.
+_MIB = 1024 * 1024
+# record.json: the sensors', gripper's and label's settings, events and per-finger counts, a few KB
+# whatever the grasp's length; 16 MiB is over a thousand times that.
+_MAX_HEADER_BYTES = 16 * _MIB
+# A frame: the largest raw frame the sensor settings allow (raw_width_px, raw_height_px <= 4096) is
+# 48 MiB of BGR pixels, and its PNG or JPEG at most a little more; four times that.
+_MAX_FRAME_BYTES = 4 * 4096 * 4096 * 3
+# .npy arrays: a timestamp or sample array of an hour-long grasp at the fastest rates the settings
+# allow (camera 240 Hz, width 1000 Hz) is under 30 MB of float64, a calibration array (a no-contact
+# frame of the largest sensor, even as float32) under 200 MiB; a sensor's calibration file (default
+# table 8 MiB unpacked, under 1 MB as stored) likewise.
+_MAX_ARRAY_BYTES = 256 * _MIB
+# The whole archive: frames and calibration files are stored, not compressed, so a record inflates to
+# about its own size on disk plus what its deflated header and arrays add, a few MB (tens for the
+# longest grasps); 1 GiB more than the file's size is tens of times that.
+_MAX_INFLATION_BYTES = 1024 * _MIB
+_CHUNK_BYTES = _MIB
+
+
+def _member_limit(name: str) -> int:
+    """The most bytes member ``name`` may hold (notes above)."""
+    if name == "record.json":
+        return _MAX_HEADER_BYTES
+    if name.startswith("frames/") and not name.endswith(".npy"):
+        return _MAX_FRAME_BYTES
+    return _MAX_ARRAY_BYTES
+
+
 class _Reader:
     """Reads members of one archive, turning every failure into a RecordError naming it."""
 
@@ -290,6 +322,17 @@ class _Reader:
         self.path = path
         self.zf = zf
         self.names = set(zf.namelist())
+        try:
+            size = path.stat().st_size
+        except OSError:
+            size = 0
+        self.budget = size + _MAX_INFLATION_BYTES  # bytes all members together may still inflate to
+        declared = sum(info.file_size for info in zf.infolist())
+        if declared > self.budget:
+            big = max(zf.infolist(), key=lambda info: info.file_size)
+            raise self.fail(f"the archive's members declare {declared} bytes in all (member {big.filename!r} "
+                            f"{big.file_size}), more than the limit of {self.budget} bytes (its {size} bytes "
+                            f"plus {_MAX_INFLATION_BYTES}): refused before reading (a damaged or hostile record)")
 
     def fail(self, what: str) -> RecordError:
         return RecordError(f"{self.path}: {what}")
@@ -297,10 +340,23 @@ class _Reader:
     def member(self, name: str) -> bytes:
         if name not in self.names:
             raise self.fail(f"member {name!r} is missing; the record is incomplete")
+        limit = min(_member_limit(name), self.budget)
+        declared = self.zf.getinfo(name).file_size
+        if declared > limit:
+            raise self.fail(f"member {name!r} declares {declared} bytes, more than the limit of {limit} bytes: "
+                            "refused before reading (a damaged or hostile record)")
+        data = bytearray()
         try:
-            return self.zf.read(name)
+            with self.zf.open(name) as file:  # in chunks, stopping past the limit: the size declared may lie
+                while len(data) <= limit and (chunk := file.read(min(_CHUNK_BYTES, limit + 1 - len(data)))):
+                    data += chunk
         except (zipfile.BadZipFile, zlib.error, OSError, EOFError, ValueError) as exc:
             raise self.fail(f"member {name!r} is damaged ({exc})") from exc
+        if len(data) > limit:
+            raise self.fail(f"member {name!r} holds more than the limit of {limit} bytes (it declares "
+                            f"{declared}): refused (a damaged or hostile record)")
+        self.budget -= len(data)
+        return bytes(data)
 
     def array(self, name: str, *, dtype: Any, ndim: int) -> np.ndarray:
         try:

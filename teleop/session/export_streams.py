@@ -5,7 +5,9 @@
 its ``force`` and ``width`` sample batches. :func:`frame_stream` makes one finger's frames a
 :class:`~teleop.record.FrameStream` (``raw`` frames as lossless PNG; ``jpeg``/``png`` kept as
 the camera produced them), and :func:`concatenated_samples` the batches one
-:class:`~teleop.record.Samples`, in receive order.
+:class:`~teleop.record.Samples`, in receive order. The first encoded frame is decoded (for the
+stream's shape) only once its header declares a size no larger than any sensor's: a few bytes of a
+corrupt or hostile log may declare an image of gigabytes.
 """
 
 from __future__ import annotations
@@ -13,13 +15,17 @@ from __future__ import annotations
 from collections import defaultdict
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
+from PIL import Image
 
 from teleop.bus.wire import Message
-from teleop.record import FrameStream, Samples
+from teleop.grasp_data import _declared_size
+from teleop.record import FrameStream, Samples, decode_image
 
 __all__ = ["OpenGrasp", "concatenated_samples", "frame_stream"]
+
+# The largest raw frame side any sensor's settings allow (SensorSettings raw_width_px, raw_height_px).
+_MAX_SIDE_PX = 4096
 
 
 @dataclass
@@ -75,7 +81,10 @@ def frame_stream(
             )
         return FrameStream.from_frames(finger, t_s, data, encoding="png")
     encoded = [d for _, _, d in frames]
-    first = cv2.imdecode(np.frombuffer(encoded[0], dtype=np.uint8), cv2.IMREAD_COLOR)
+    try:
+        first = _first_frame(encoded[0])
+    except ValueError as exc:
+        return f"finger {finger!r}: the first {encoding} frame is refused: {exc}"
     if first is None:
         return f"finger {finger!r}: the first {encoding} frame does not decode"
     return FrameStream(
@@ -85,3 +94,20 @@ def frame_stream(
         encoding=encoding,
         shape=tuple(first.shape),
     )
+
+
+def _first_frame(data: np.ndarray | bytes) -> np.ndarray | None:
+    """``data`` decoded (None when it does not decode) once its header declares at most the largest
+    frame a sensor allows; ValueError saying why otherwise."""
+    buffer = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes | bytearray) else np.asarray(data)
+    try:
+        declared = _declared_size(buffer)
+    except Image.DecompressionBombError as exc:  # Pillow's own limit, far above any frame's size
+        raise ValueError(f"{exc}; refused before decoding") from exc
+    if declared is None:
+        return None  # no JPEG or PNG header
+    cols, rows = declared
+    if max(rows, cols) > _MAX_SIDE_PX:
+        raise ValueError(f"image declares {cols}x{rows} px, more than the largest frame a sensor allows "
+                         f"({_MAX_SIDE_PX}x{_MAX_SIDE_PX} px): refused before decoding")
+    return decode_image(buffer, shape=(rows, cols))

@@ -38,10 +38,10 @@ from estimator.perception.grid import grid_calibration, to_grid
 from estimator.perception.markers import detect_markers
 from estimator.segment import Segment
 from estimator.settings import depth_binning_problem, estimator_settings
-from teleop.errors import ComplianceTeleopError
-from teleop.record import GraspRecord
+from teleop.errors import ComplianceTeleopError, RecordError
+from teleop.record import FrameStream, GraspRecord, decode_image
 from teleop.session.logfile import LogInfo, LogReader
-from teleop.settings import Settings
+from teleop.settings import SensorSettings, Settings
 
 __all__ = [
     "MOMENTS",
@@ -270,7 +270,7 @@ def _finger_moments(
         reference = no_contact_reference(record, finger, segment, binning=binning)
     force, out = record.force_n, []
     for name, index in zip(MOMENTS, _moment_indices(stream.t_s, segment, reference_index), strict=True):
-        image = to_grid(stream.frame(index, reduce=binning), sensor, binning=binning)
+        image = to_grid(_frame(stream, index, sensor, binning), sensor, binning=binning)
         depth = None
         if reference is not None:
             mask = detect_markers(image, reference) if measured.grid.markers else None
@@ -278,3 +278,17 @@ def _finger_moments(
         t = float(stream.t_s[index])
         out.append(TactileMoment(finger, name, t, float(np.interp(t, force.t_s, force.value)), image, depth))
     return out
+
+
+def _frame(stream: FrameStream, index: int, sensor: SensorSettings, binning: int) -> np.ndarray:
+    """Frame ``index`` of ``stream``, ``binning`` times smaller on each side, decoded only once its
+    header declares ``sensor``'s raw frame size: a few bytes of a corrupt or hostile log may declare
+    an image of gigabytes. RecordError naming the frame otherwise, or when it does not decode."""
+    where = f"finger {stream.finger!r} frame {index}"
+    try:
+        image = decode_image(stream.encoded[index], reduce=binning, shape=(sensor.raw_height_px, sensor.raw_width_px))
+    except ValueError as exc:
+        raise RecordError(f"{where}: {exc}") from exc
+    if image is None:
+        raise RecordError(f"{where}: {stream.encoding} data does not decode")
+    return image

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import teleop.record
 from teleop.errors import RecordError
 from teleop.record import (
     FORMAT_NAME,
@@ -419,3 +421,63 @@ def test_calibration_files_errors_are_named(tmp_path):
 
     with pytest.raises(ValueError, match="calibration file for finger 'thumb'"):
         dataclasses.replace(record, calibration_files={"thumb": b""})
+
+
+# --------------------------------------------------------------------------- size limits (ZIP bombs)
+
+
+def deflated(path: Path, members: dict[str, bytes]) -> Path:
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    return path
+
+
+@pytest.fixture
+def header_bomb(tmp_path, record_path) -> tuple[Path, int]:
+    """A record whose record.json (still valid JSON) inflates from a few KB to 300 KB of spaces; its size."""
+    members = members_of(record_path)
+    members["record.json"] += b" " * 300_000
+    path = deflated(tmp_path / "bomb.grasp", members)
+    assert path.stat().st_size < 50_000
+    return path, len(members["record.json"])
+
+
+def test_a_header_inflating_past_its_limit_is_refused_before_it_is_read(header_bomb, monkeypatch):
+    path, size = header_bomb
+    read_record(path)  # under the shipped limits it is a record
+    monkeypatch.setattr(teleop.record, "_MAX_HEADER_BYTES", 100_000, raising=False)  # absent: no limit
+    opened = []
+    monkeypatch.setattr(zipfile.ZipFile, "open", lambda self, name, *a, **k: opened.append(name) or 1 / 0)
+    fails(path, "member 'record.json' declares", f"{size} bytes", "limit of 100000 bytes")
+    assert opened == []
+
+
+def test_a_header_understating_its_size_is_not_read_past_it(header_bomb, monkeypatch):
+    """A lying size header: the central directory says 1000 bytes, the data inflates to 300 KB."""
+    path, size = header_bomb
+    data = bytearray(path.read_bytes())
+    entry = int.from_bytes(data[-6:-2], "little")  # the central directory; record.json is its first entry
+    assert data[entry:entry + 4] == b"PK\x01\x02" and data[entry + 46:entry + 57] == b"record.json"
+    assert int.from_bytes(data[entry + 24:entry + 28], "little") == size
+    data[entry + 24:entry + 28] = (1000).to_bytes(4, "little")
+    path.write_bytes(data)
+    monkeypatch.setattr(teleop.record, "_MAX_HEADER_BYTES", 100_000, raising=False)  # absent: no limit
+    fails(path, "member 'record.json'")
+
+
+def test_a_frame_past_its_limit_is_refused(record_path, monkeypatch):
+    monkeypatch.setattr(teleop.record, "_MAX_FRAME_BYTES", 1000, raising=False)  # absent: no limit
+    message = fails(record_path, "limit of 1000 bytes")
+    assert re.search(r"member 'frames/\w+/000000\.png' declares \d{4} bytes", message), message
+
+
+def test_an_archive_inflating_past_its_total_is_refused_before_any_member_is_read(tmp_path, record_path,
+                                                                                   monkeypatch):
+    members = members_of(record_path)
+    members["force/t_s.npy"] = members["force/value_n.npy"] = npy(np.zeros(400_000))  # 3.2 MB each, deflated ~3 KB
+    path = deflated(tmp_path / "big.grasp", members)
+    assert len(read_record(path).force_n.t_s) == 400_000  # under the shipped limits it is a record
+    monkeypatch.setattr(teleop.record, "_MAX_INFLATION_BYTES", 1_000_000, raising=False)  # absent: no limit
+    message = fails(path, "the archive's members declare", "more than the limit of", "refused before reading")
+    assert re.search(r"member 'force/(t_s|value_n)\.npy' 3200128\)", message), message

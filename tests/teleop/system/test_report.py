@@ -8,6 +8,7 @@ import os
 import re
 import threading
 import time
+import zlib
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -223,6 +224,42 @@ def test_depth_comes_from_the_logs_calibration_and_shows_the_steel_ball_at_the_p
     tactile_moments(bare, settings=settings, calibrations={"left": "no calibration in the log"})
     assert {m.depth_m is None for m in bare.moments} == {True} and len(bare.moments) == 6
     assert any("no calibration in the log" in note for note in bare.notes)
+
+
+
+def _png_declaring(width: int, height: int) -> bytes:
+    """A PNG of a few dozen bytes whose header declares ``width`` x ``height`` pixels."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
+
+    header = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 2, 0, 0, 0])
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 64))
+            + chunk(b"IEND", b""))
+
+
+def test_a_frame_declaring_a_huge_image_is_noted_and_never_decoded(session_log, monkeypatch):
+    """A corrupt or hostile log's frame whose header declares 8000x8000 px (192 MB to decode): the
+    finger is noted as the report notes frames that do not decode, the other finger is shown."""
+    settings = LogReader(session_log).info().settings()
+    grasp = next(g for g in session_grasps(session_log) if g.grasp_id == "g-steel")
+    bomb = _png_declaring(8000, 8000)
+    left, right = grasp.record.frames
+    left = dataclasses.replace(left, encoded=(bomb,) * len(left.encoded))
+    imdecode = cv2.imdecode
+
+    def guarded(buffer, flags):
+        if np.asarray(buffer).tobytes() == bomb:
+            pytest.fail("decoded a frame declaring 8000x8000 px")
+        return imdecode(buffer, flags)
+
+    monkeypatch.setattr(cv2, "imdecode", guarded)
+    view = GraspView("g-steel")
+    view.take(dataclasses.replace(grasp.record, frames=(left, right)), grasp.reason)
+    tactile_moments(view, settings=settings, calibrations={f: "no calibration in the log" for f in ("left", "right")})
+    sensor = next(s for s in settings.sensors if s.finger == left.finger)
+    assert any(f"finger {left.finger!r} frame" in note and "declares 8000x8000 px, expected "
+               f"{sensor.raw_width_px}x{sensor.raw_height_px} px" in note for note in view.notes), view.notes
+    assert {m.finger for m in view.moments} == {right.finger} and len(view.moments) == 3
 
 
 def test_the_command_refuses_a_missing_or_corrupt_log_in_one_line(tmp_path, capsys):
