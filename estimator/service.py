@@ -51,8 +51,8 @@ A message that cannot be used (a frame that does not decode or declares the wron
 that are not finite, capture times that go backwards, repeat or jump more than
 :data:`MAX_CLOCK_JUMP_S` ahead of the stream's last one, a topic's first capture times more than
 that from the grasp's newest (its start's or another topic's), data for a grasp that is not open) is
-counted and skipped, and the service carries on: the first of each kind (its topic, and the error's
-reason or class) is logged, then a count at every power of ten. So are the refusals of the bus itself (:class:`~teleop.bus.pubsub.Subscriber`).
+counted and skipped, and the service carries on: the first of each kind (its message type, and the
+error's reason or class) is logged, then a count at every power of ten. So are the refusals of the bus itself (:class:`~teleop.bus.pubsub.Subscriber`).
 
 Models
 ------
@@ -70,7 +70,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections import Counter, OrderedDict, deque
+from collections import OrderedDict, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -79,13 +79,14 @@ from typing import Any
 import cv2
 
 from estimator.capture_times import MAX_CLOCK_JUMP_S, check_times
-from estimator.errors import EstimatorError, ModelError
+from estimator.errors import EstimatorError, ModelError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.model_slot import ModelEvent, ModelSlot, _cut, model_log
 from estimator.perception.calibration import Calibration
 from estimator.segment import Segment
 from estimator.settings import estimator_settings
 from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream
+from teleop.bus.peers import Recent
 from teleop.bus.pubsub import Publisher, Subscriber, is_decade
 from teleop.bus.wire import Message
 from teleop.errors import BusError, TeleopError
@@ -231,7 +232,8 @@ class EstimatorService(ServiceLoop):
         self._following: str | None = None  # the grasp the robot last said it follows an operator in
         # load_model requests taken: None while the candidate is being checked, then its answer.
         self._requests: OrderedDict[str, ModelEvent | None] = OrderedDict()
-        self._bad: Counter[tuple[str, str]] = Counter()  # bad messages by topic and reason
+        # Bad messages by type and reason (never the topic: the sender's to choose), the most recent kept.
+        self._bad: Recent = Recent("kinds of bad message")
 
     # ------------------------------------------------------------------ loop
 
@@ -282,17 +284,17 @@ class EstimatorService(ServiceLoop):
             self._log_bad(message, exc)
 
     def _log_bad(self, message: Message, exc: Exception) -> None:
-        """Log the first bad message of its topic and reason, then a count at every power of ten: one
+        """Log the first bad message of its type and reason, then a count at every power of ten: one
         broken sender must not flood the log with a line per message."""
         reason = getattr(exc, "reason", None) or type(exc).__name__
-        self._bad[message.topic, reason] += 1
-        count = self._bad[message.topic, reason]
+        key = (message.type, reason)
+        count = self._bad[key] = self._bad.get(key, 0) + 1
         sender = f"{message.source or '?'} (seq {message.seq})"
         if count == 1:
             log.warning("bad %s message from %s, skipped: %s; further ones of %s are counted, not each logged",
                         message.topic, sender, exc, reason)
         elif is_decade(count):  # the 10th, 100th, ... as the bus logs its refusals
-            log.warning("%d bad %s messages of %s skipped so far, the last from %s: %s", count, message.topic,
+            log.warning("%d bad %s messages of %s skipped so far, the last from %s: %s", count, message.type,
                         reason, sender, exc)
 
     def handle_command(self, message: Message) -> None:
@@ -372,6 +374,12 @@ class EstimatorService(ServiceLoop):
             return
         if grasp.final is not None:
             return  # the hold and the release: nothing more to estimate
+        if message.type == "frame" and body.finger not in {s.finger for s in grasp.stream.sensors}:
+            # Before the capture times are remembered by topic: a made-up finger must not add one.
+            exc = PerceptionError(f"grasp {grasp.grasp_id!r} {message.topic}: no sensor on finger {body.finger!r}: "
+                                  f"the rig has {[s.finger for s in grasp.stream.sensors]}")
+            exc.reason = "unknown_finger"  # a kind of its own in the log's counts
+            raise exc
         check_times(grasp, message)
         grasp.clock_offset_s = min(grasp.clock_offset_s, received_s - message.t_capture_s)
         stream = grasp.stream

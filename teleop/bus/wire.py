@@ -7,8 +7,10 @@ Every message is one multipart ZeroMQ message::
     [topic, header, body, *buffers]
 
 ``topic`` (UTF-8, at most 256 bytes)
-    The message type, optionally followed by ``/`` and a qualifier (``frame/left``), which
-    must be what the body says (a frame's ``finger``).
+    The message type; for a type that declares a qualifier (only ``frame``: its ``finger``),
+    optionally followed by ``/`` and the qualifier (``frame/left``), which must be what the
+    body says. Any other ``/`` suffix is refused: a topic a sender could make up would grow
+    every receiver's per-topic tables and log lines.
     Subscribers filter on it by prefix, so a subscription to ``frame`` gets both fingers.
 ``header`` (msgpack map, at most 4 KiB), exactly these keys:
 
@@ -125,7 +127,8 @@ REJECT_REASONS = (
     "corrupt",  # header or body is not a msgpack map within the limits, or topic not UTF-8
     "unknown_version",
     "unknown_type",
-    "bad_header",  # header keys missing, extra or mistyped; topic not of the type, or its qualifier not the body's
+    "bad_header",  # header keys missing, extra or mistyped; topic not of the type, a qualifier on a type that
+    # declares none, or a qualifier not the body's
     "missing_field",
     "extra_field",
     "mistyped_field",  # wrong type, out of range, not an allowed choice, wrong dtype/ndim
@@ -169,7 +172,8 @@ def _check_body(kind: str, body: Mapping[str, Any], arrays: Mapping[str, np.ndar
 # --------------------------------------------------------------------------- message
 
 
-# The body field a type's topic names after a "/" (frame/left): topic and body must agree.
+# The body field a type's topic names after a "/" (frame/left): topic and body must agree. The
+# topics of every other type are their type's name alone.
 _TOPIC_QUALIFIERS = {"frame": "finger"}
 
 
@@ -326,16 +330,23 @@ def _check_sizes(frames: Sequence[Any], max_bytes: int | None) -> None:
 
 
 def _check_topic(topic: str, kind: str) -> None:
-    if topic != kind and not topic.startswith(kind + "/"):
+    """Refuse a topic not of type ``kind``, or qualified (``force/x``) though the type declares no
+    qualifier: before the body is read, so a made-up topic costs its receiver nothing more."""
+    if topic == kind:
+        return
+    if not topic.startswith(kind + "/"):
         raise MessageRejected("bad_header", f"topic {topic!r} does not belong to type {kind!r}")
+    if kind not in _TOPIC_QUALIFIERS:
+        raise MessageRejected("bad_header", f"topic {topic!r} has a qualifier, but {kind} declares none: "
+                                            f"its topic is {kind!r}")
 
 
 def _check_qualifier(topic: str, kind: str, body: Mapping[str, Any]) -> None:
     """Refuse a topic whose qualifier (``frame/left``) is not what the body says (``finger``):
-    subscribers filter on the topic, readers go by the body."""
+    subscribers filter on the topic, readers go by the body. ``frame`` alone names no finger."""
     field = _TOPIC_QUALIFIERS.get(kind)
     qualifier = topic[len(kind) + 1:]
-    if field is not None and qualifier and qualifier != body[field]:
+    if field is not None and topic != kind and qualifier != body[field]:
         raise MessageRejected("bad_header", f"topic {topic!r} names {qualifier!r}, but {kind}.{field} is {body[field]!r}")
 
 

@@ -114,3 +114,28 @@ def test_a_repeated_bad_message_is_logged_once_then_at_powers_of_ten_and_each_co
     assert len(lines) == 2, lines
     assert "not after the previous one" in lines[0] and "counted, not each logged" in lines[0]
     assert lines[1].startswith("10 bad force messages of out_of_order skipped so far, the last from ? (seq 10)")
+
+
+def test_bad_messages_on_made_up_topics_log_a_bounded_number_of_lines(settings, calibration, tmp_path, caplog):
+    """The log's counts go by message type and reason, never by the topic a sender chooses: a stream of
+    bad messages each on its own topic (a hand-built force/<n>, as the wire now refuses, or a frame of
+    a made-up finger, which it cannot) logs the first of each kind, then a count at powers of ten."""
+    service = _service(settings, calibration, tmp_path)
+    _handle(service, "grasp_event", 1.0, {"event": "start", "object_name": None})
+    n = 1500
+    with caplog.at_level(logging.WARNING, logger="estimator.service"):
+        for i in range(n):  # a broken capture clock, each on a topic of its own
+            force = make_message("force", t_capture_s=1e5, grasp_id="g", t_s=[1e5], value_n=[1.0])
+            service.handle(dataclasses.replace(force, topic=f"force/{i:0200d}", seq=i), received_s=1.0)
+        for i in range(n):  # capture times a clock gives, each from a finger the rig lacks
+            frame = make_message("frame", t_capture_s=1.1 + i * 1e-4, grasp_id="g", finger=f"made-up-{i}",
+                                 index=0, encoding="jpeg", data=_huge_jpeg(16))
+            service.handle(dataclasses.replace(frame, seq=i), received_s=1.1)
+    assert service.stats.bad_messages == 2 * n
+    lines = [r.getMessage() for r in caplog.records if r.name == "estimator.service"]
+    assert len(lines) == 8, lines  # each kind: the 1st, 10th, 100th and 1000th
+    assert "further ones of far_from_grasp are counted" in lines[0]
+    assert any(line.startswith("1000 bad frame messages of unknown_finger") for line in lines)
+    assert len(service._bad) == 2
+    # No made-up finger's frame is remembered by its topic: the grasp knows only the rig's topics.
+    assert not any(topic.startswith("frame/made-up") for topic in service._grasp.last_t_s)

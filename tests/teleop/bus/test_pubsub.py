@@ -220,7 +220,10 @@ def test_made_up_sources_and_topics_are_forgotten_but_real_peers_kept(caplog):
     seq = itertools.count()
     with Subscriber(f"inproc://bus-test-{next(_names)}") as sub:
         for i in range(3 * MAX_TRACKED):
-            sub._accept(_frames(dataclasses.replace(beat, topic=f"heartbeat/{i}"), source=f"made-up-{i}"))
+            # A frame's topic names its finger, whatever the sender calls it: the one topic it can make up.
+            made_up = beat if i % 2 else make_message("frame", t_capture_s=1.0, finger=f"f{i}", index=0,
+                                                      encoding="raw", data=np.zeros((1, 1, 3), np.uint8))
+            sub._accept(_frames(made_up, source=f"made-up-{i}"))
             if i % 100 == 0:
                 n = next(seq)
                 sub._accept(_frames(beat, seq=n))
@@ -237,12 +240,12 @@ def test_made_up_sources_and_topics_are_forgotten_but_real_peers_kept(caplog):
 def test_a_conflated_subscriber_keeps_a_bounded_number_of_topics():
     with Subscriber(f"inproc://bus-test-{next(_names)}", conflate=True) as sub:
         for i in range(2 * MAX_TRACKED):
-            message = make_message("estimate", t_capture_s=1.0, topic=f"estimate/{i}", grasp_id="g", method="m",
-                                   E_pa=1e5, interval_pa=[None, None], state="ok", reason="", provisional=False,
-                                   latency_s=0.0)
+            # Only a frame's topic carries a qualifier (its finger), so made-up topics are made-up fingers.
+            message = make_message("frame", t_capture_s=1.0, finger=f"f{i}", index=0, encoding="raw",
+                                   data=np.zeros((1, 1, 3), np.uint8))
             sub._keep_latest(sub._accept(_frames(message, source=f"made-up-{i}")))
     assert len(sub._latest) == MAX_TRACKED
-    assert next(iter(sub._latest)) == f"estimate/{MAX_TRACKED}"  # the oldest forgotten first
+    assert next(iter(sub._latest)) == f"frame/f{MAX_TRACKED}"  # the oldest forgotten first
 
 
 def test_heartbeats_detect_a_dead_peer(endpoint):

@@ -314,6 +314,29 @@ def test_the_topic_names_the_finger_the_body_names():
         encode(_stamp(dataclasses.replace(EXAMPLES["frame_jpeg"], topic="frame/right")))
 
 
+@pytest.mark.parametrize("name", ["force_f8", "width", "estimate_ok", "heartbeat", "grasp_start", "command"])
+def test_a_made_up_qualifier_on_a_type_that_declares_none_is_refused(name):
+    """Only ``frame`` names a body field in its topic: any other ``<type>/...`` is the sender's own
+    invention, and each would be one more entry in its receivers' per-topic tables and logs."""
+    kind = EXAMPLES[name].type
+    frames = _frames(name)
+    assert decode([kind.encode(), *frames[1:]], max_bytes=MAX).topic == kind
+    for topic in (f"{kind}/{7:0200d}", f"{kind}/left", f"{kind}/"):
+        refusal = _refusal([topic.encode(), *frames[1:]])
+        assert refusal.reason == "bad_header"
+        assert f"has a qualifier, but {kind} declares none: its topic is {kind!r}" in refusal.detail
+    with pytest.raises(MessageRejected, match=f"but {kind} declares none") as info:
+        encode(_stamp(dataclasses.replace(EXAMPLES[name], topic=f"{kind}/extra")))
+    assert info.value.reason == "bad_header"
+
+
+def test_a_frame_topic_names_its_finger_or_nothing():
+    frames = _frames("frame_jpeg")  # finger "left"
+    assert decode([b"frame/left", *frames[1:]], max_bytes=MAX).topic == "frame/left"
+    refusal = _refusal([b"frame/", *frames[1:]])  # an empty qualifier is not the finger either
+    assert refusal.reason == "bad_header" and "names '', but frame.finger is 'left'" in refusal.detail
+
+
 def test_a_body_nested_too_deep_is_refused_saying_so():
     frames = _frames()
     refusal = _refusal([*frames[:2], b"\x81\xa1a" * 20000 + b"\xc0", *frames[3:]])
