@@ -4,7 +4,8 @@ Live, each batch and frame comes from the bus and is checked as it is added (:me
 :meth:`~estimator.stream.GraspStream.add_frame`). Offline, a grasp record's streams are taken
 whole, as recorded (:meth:`Series.of`, :meth:`Frames.of_record`): a record may hold samples and
 frames with non-finite or repeated timestamps, which the segmentation skips
-(:mod:`estimator.segment`).
+(:mod:`estimator.segment`), as it skips a frame captured no later than an earlier one of its
+finger, live and offline alike.
 """
 
 from __future__ import annotations

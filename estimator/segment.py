@@ -5,7 +5,8 @@ the loading frames, the peak frame, the hold frames, and the frames sampled from
 Each stream of a grasp (load-cell force, gripper width, tactile frames) keeps its own
 timestamps on one clock. Nothing here matches samples by index: force and width are
 interpolated at the frames' capture times, never extrapolated; frames with a non-finite
-timestamp are skipped, and a duplicate timestamp keeps its first frame.
+timestamp are skipped, and so is a frame whose capture time is not after an earlier frame's
+(:func:`unplaced_frames`: out of order or duplicated, it cannot be placed; the notes count them).
 
 Terms
 -----
@@ -32,7 +33,8 @@ hold
 Flags
 -----
 ``Segment.flags`` are the loading phase's (:mod:`estimator.load_phase`), plus ``"too_few_samples"``
-and ``"misaligned"`` when too few frames fall in the loading phase or widths miss some of them.
+and ``"misaligned"`` when too few frames fall in the loading phase or widths miss some of them, and
+``"cleaned_timestamps"`` when frames were dropped whose capture time is not after an earlier frame's.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from estimator.fit_inputs import real_array
 from estimator.load_phase import ENVELOPE_TOLERANCE, LoadPhase, check_contact_force, find_load_phase
 from estimator.signals import interpolate
 
-__all__ = ["Segment", "align_frames", "sampling_axis", "segment_grasp"]
+__all__ = ["Segment", "align_frames", "frames_in_capture_order", "sampling_axis", "segment_grasp", "unplaced_frames"]
 
 # Hold frames: the gripper holds still at the peak force before it releases. Gripper widths are read
 # with about 0.1 s latency and stamped on return, so the first reads after the stop still show the
@@ -121,6 +123,32 @@ class Segment:
         """Flags and their details, and the loading envelope when there is one, as one line, for an
         estimate's reason."""
         return "; ".join(n for n in (*self.notes, self.loading) if n)
+
+
+def unplaced_frames(frame_t_s: np.ndarray) -> np.ndarray:
+    """Which frames (capture times ``frame_t_s``, in the order they were captured: a record's, or as
+    they arrived) cannot be placed: a finite time not after every earlier frame's finite time (out of
+    order or duplicated). The frames kept then go strictly forward in time; a non-finite time is
+    neither one (it is skipped) nor moves the time the next frame must be after."""
+    t = np.asarray(frame_t_s, dtype=np.float64)
+    if t.size < 2:
+        return np.zeros(t.shape, dtype=bool)
+    finite = np.where(np.isfinite(t), t, -np.inf)
+    latest = np.concatenate([[-np.inf], np.maximum.accumulate(finite)[:-1]])
+    return np.isfinite(t) & (t <= latest)
+
+
+def frames_in_capture_order(frame_t_s: np.ndarray, finger: str | None = None) -> tuple[np.ndarray, str]:
+    """``frame_t_s`` with NaN for the frames that cannot be placed (:func:`unplaced_frames`), and a
+    note counting them ('' when none), naming ``finger`` when given."""
+    t = np.asarray(frame_t_s, dtype=np.float64)
+    unplaced = unplaced_frames(t)
+    count = int(unplaced.sum())
+    if not count:
+        return t, ""
+    of = f" of finger {finger!r}" if finger is not None else ""
+    return np.where(unplaced, np.nan, t), (f"dropped {count} tactile frames{of} whose capture time is not after "
+                                           "the previous frame's (out of order or duplicated)")
 
 
 def _frames_in_phase(frame_t_s: np.ndarray, t_start: float, t_end: float) -> tuple[np.ndarray, np.ndarray]:
@@ -223,6 +251,7 @@ def segment_grasp(
     stopped_s: float | None = None,
     max_width_m: float | None = None,
     max_force_n: float | None = None,
+    finger: str | None = None,
 ) -> Segment:
     """Find contact, onset and the loading phase; align force and width with the frames.
 
@@ -235,9 +264,9 @@ def segment_grasp(
     width_t_s, width_m : array_like, shape (m,)
         Gripper width samples: time (s) and width (m).
     frame_t_s : array_like, shape (f,)
-        Capture time (s) of each tactile frame, as recorded (may hold NaN or
-        duplicate times; such frames are skipped, a duplicate keeps its first
-        frame).
+        Capture time (s) of each tactile frame, as recorded (may hold NaN, or
+        times out of order or duplicated: such frames are skipped, and those not
+        after an earlier frame's time counted in the notes).
     contact_force_n : float
         Force that defines first contact (N).
     n_frames : int
@@ -250,6 +279,8 @@ def segment_grasp(
     max_width_m, max_force_n : float, optional
         The gripper's full opening (m) and maximum grasp force (N): readings beyond what they allow
         are dropped, or the grasp refused (:mod:`estimator.plausible`).
+    finger : str, optional
+        The frames' finger, named in the notes.
 
     Returns
     -------
@@ -261,24 +292,27 @@ def segment_grasp(
     frame_t_s = _frame_times(frame_t_s)
     phase = find_load_phase(force_t_s, force_n, width_t_s, width_m, contact_force_n=contact_force_n,
                             stopped_s=stopped_s, max_width_m=max_width_m, max_force_n=max_force_n)
-    return align_frames(phase, frame_t_s, n_frames=n_frames)
+    return align_frames(phase, frame_t_s, n_frames=n_frames, finger=finger)
 
 
-def align_frames(phase: LoadPhase, frame_t_s: np.ndarray, *, n_frames: int) -> Segment:
+def align_frames(phase: LoadPhase, frame_t_s: np.ndarray, *, n_frames: int, finger: str | None = None) -> Segment:
     """The segmentation of a grasp with frames at ``frame_t_s`` on its loading ``phase``: the
     loading frames (the peak frame last), the hold frames and the equidistant sample
-    (:func:`segment_grasp`'s frame part; ``frame_t_s`` and ``n_frames`` as there)."""
+    (:func:`segment_grasp`'s frame part; ``frame_t_s``, ``n_frames`` and ``finger`` as there)."""
     _check_n_frames(n_frames)
-    frame_t_s = _frame_times(frame_t_s)
-    if not phase:
-        return Segment(reason=phase.reason, flags=phase.flags, notes=phase.notes,
-                       force_baseline_n=phase.force_baseline_n)
+    frame_t_s, unplaced = frames_in_capture_order(_frame_times(frame_t_s), finger)
     flags, notes = list(phase.flags), list(phase.notes)
 
     def flag(name: str, note: str) -> None:
         if name not in flags:
             flags.append(name)
         notes.append(note)
+
+    if unplaced:
+        flag("cleaned_timestamps", unplaced)  # as the force path says of its samples (estimator.load_phase)
+    if not phase:
+        return Segment(reason=phase.reason, flags=tuple(flags), notes=tuple(notes),
+                       force_baseline_n=phase.force_baseline_n)
 
     tf, force, tw, width, peak = phase.force_t_s, phase.force_n, phase.width_t_s, phase.width_m, phase.peak
     stopped, stopped_s = phase.stopped_s is not None, phase.stopped_s

@@ -87,7 +87,7 @@ from estimator.perception.calibration import Calibration
 from estimator.perception.depth import reconstruct_depth
 from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration
 from estimator.received import Frames, Series
-from estimator.segment import PEAK_FRAME_WINDOW_S, Segment, align_frames
+from estimator.segment import PEAK_FRAME_WINDOW_S, Segment, align_frames, frames_in_capture_order
 from estimator.settings import DEFAULT_METHODS, estimator_settings
 from teleop.errors import RecordError
 from teleop.record import GRASP_DONE_EVENT, FrameStream, GraspRecord, Provenance
@@ -178,9 +178,10 @@ class GraspStream:
         gripper when it carries one, else the settings').
 
         Samples and frames go in as recorded (the segmentation skips non-finite or repeated
-        timestamps), the ``grasp_done`` event as the loading-end marker; the estimator finger's frame
-        times are corrected by ``camera_lag_s`` and the width times by ``width_lag_s`` (s, estimated
-        offline: :func:`~estimator.measure.measure_grasp`), which the measurements record.
+        timestamps, and frames captured no later than an earlier frame, as live), the
+        ``grasp_done`` event as the loading-end marker; the estimator finger's frame times are
+        corrected by ``camera_lag_s`` and the width times by ``width_lag_s`` (s, estimated offline:
+        :func:`~estimator.measure.measure_grasp`), which the measurements record.
 
         Raises
         ------
@@ -286,7 +287,9 @@ class GraspStream:
         The estimator's frames are decoded and warped onto the depth grid here, once; other fingers'
         frames are kept as they came. Raises PerceptionError (the frame is not kept) for an
         estimator frame that does not decode or has the wrong size, a finger without a sensor, a
-        non-finite time or an encoding other than the finger's earlier ones.
+        non-finite time or an encoding other than the finger's earlier ones. A frame captured no later
+        than an earlier one of its finger (out of order or duplicated) is kept as it came, and skipped by
+        the segmentation, whose notes count it (:func:`~estimator.segment.unplaced_frames`), as offline.
         """
         frames = self._frames.get(finger, Frames())
         where = f"grasp {self.grasp_id!r} frame {len(frames.t_s)} of finger {finger!r}"
@@ -335,8 +338,9 @@ class GraspStream:
         key = (n_frames, self.frame_count)
         cached = self._segments.get(key)
         if cached is None:
-            frame_t = self._frame_times()
-            cached = checked_frames(align_frames(phase, frame_t, n_frames=n_frames), frame_t,
+            received_t = self._perception.times(self._frames.get(self.finger, Frames()))
+            frame_t = self._frame_times()  # align_frames drops and counts the frames it cannot place
+            cached = checked_frames(align_frames(phase, received_t, n_frames=n_frames, finger=self.finger), frame_t,
                                     camera_hz=self.sensor.camera_hz, finger=self.finger)
             if skipped := self._perception.undecodable:  # a live stream drops them
                 cached = dataclasses.replace(cached, notes=(*cached.notes, f"skipped {len(skipped)} frames "
@@ -376,7 +380,9 @@ class GraspStream:
                 and self._width.last_t_s >= segment.t_peak_s and frame_after_peak)
 
     def _frame_times(self) -> np.ndarray:
-        return self._perception.times(self._frames.get(self.finger, Frames()))
+        """Capture times of the estimator finger's frames in the order they came, NaN for those skipped: that
+        do not decode, or whose time is not after an earlier frame's (:func:`~estimator.segment.unplaced_frames`)."""
+        return frames_in_capture_order(self._perception.times(self._frames.get(self.finger, Frames())))[0]
 
     def skipping_bad_frames(self, compute: Callable[[], Any]) -> Any:
         """``compute()``; run again after :meth:`decode_frames` when a record's frame it needs does not decode."""

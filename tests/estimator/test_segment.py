@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from estimator.errors import FitError
 from estimator.lag import estimate_camera_lag, estimate_width_lag
 from estimator.plausible import MIN_FORCE_NOISE_N, MIN_WIDTH_NOISE_M
-from estimator.segment import HOLD_FRAMES, HOLD_SETTLE_S, segment_grasp
+from estimator.segment import HOLD_FRAMES, HOLD_SETTLE_S, segment_grasp, unplaced_frames
 from estimator.signals import clean_samples, interpolate, noise_std
 
 T_TOUCH = 0.5  # true first touch (s)
@@ -139,6 +139,23 @@ def test_nan_duplicate_and_unsorted_timestamps_change_nothing():
     assert seg.frame_t_s == pytest.approx(clean.frame_t_s)
     # Frame indices point into the stream as recorded (shifted by the inserted NaN frame).
     assert np.all(tc2[seg.frame_index] == seg.frame_t_s)
+
+
+def test_frames_not_after_an_earlier_frame_are_dropped_and_counted():
+    t = np.array([0.0, 1.0, 3.0, 2.0, 3.0, np.nan, 4.0, 0.5, 5.0])
+    assert unplaced_frames(t).tolist() == [False, False, False, True, True, False, False, True, False]
+    assert not unplaced_frames(t[:1]).any() and not unplaced_frames([np.nan, 1.0, 2.0]).any()
+    tf, force, tw, width, tc = streams()
+    clean = run(tf, force, tw, width, tc)
+    i = int(clean.frame_index[len(clean.frame_index) // 2])
+    late = np.concatenate([np.delete(tc, i), tc[i : i + 1], tc[i + 1 : i + 2]])  # frame i last, then a repeat
+    seg = segment_grasp(tf, force, tw, width, late, contact_force_n=0.75, n_frames=3, finger="left")
+    removed = run(tf, force, tw, width, np.delete(tc, i))
+    assert "cleaned_timestamps" in seg.flags and "cleaned_timestamps" not in removed.flags
+    assert seg.notes == (*removed.notes, "dropped 2 tactile frames of finger 'left' whose capture time is not "
+                         "after the previous frame's (out of order or duplicated)")
+    assert seg.frame_t_s.tolist() == removed.frame_t_s.tolist() and seg.sample.tolist() == removed.sample.tolist()
+    assert seg.frame_index.tolist() == removed.frame_index.tolist()
 
 
 def test_duplicate_timestamps_are_merged_into_their_mean():
