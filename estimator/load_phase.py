@@ -45,7 +45,9 @@ loading envelope
 Flags
 -----
 ``"cleaned_timestamps"`` non-finite or duplicate samples were dropped or merged;
-``"implausible_width"``, ``"implausible_force"`` readings the gripper cannot make (:mod:`estimator.plausible`);
+``"implausible_width"``, ``"implausible_force"`` readings the gripper cannot make, a load cell
+read with its sign reversed (:mod:`estimator.plausible`), or widths that open over the loading
+while the force rises (the grasp is refused);
 ``"non_monotonic"`` the force drops beyond its noise during loading;
 ``"clipped"`` the force saturates (plateau of identical top readings);
 ``"too_few_samples"`` fewer samples or frames than the methods want;
@@ -71,6 +73,7 @@ from estimator.plausible import (
     MIN_WIDTH_NOISE_M,
     implausible_forces,
     implausible_widths,
+    reversed_force,
 )
 from estimator.signals import clean_samples, crossing_time, interpolate, noise_std, reading_noise
 
@@ -94,6 +97,21 @@ def _closing_speed(t_s: np.ndarray, width_m: np.ndarray, before_s: float) -> flo
     last = max(int(np.searchsorted(t_s, before_s, side="right")) - 1, 1)
     dt = float(t_s[last]) - float(t_s[last - 1])  # Python floats: a gap beyond the float range is inf, silently
     return abs(float(width_m[last]) - float(width_m[last - 1])) / dt if dt > 0 else 0.0
+
+
+def _opening_widths(force_n: np.ndarray, width_m: np.ndarray, *, sigma_f: float, sigma_w: float) -> str:
+    """Why the loading's widths cannot be a grasp's, or '': they open (first to last sample, beyond
+    the noise of two readings) while the force rises. A grasp closes the fingers as it squeezes; a
+    rigid object stops them, and their bending under the force only closes the motor further."""
+    if width_m.size < 2:
+        return ""
+    opened, rose = float(width_m[-1] - width_m[0]), float(force_n[-1] - force_n[0])
+    limit = 3.0 * math.sqrt(2.0) * sigma_w
+    if not (opened > limit and rose > 3.0 * math.sqrt(2.0) * sigma_f):
+        return ""
+    return (f"the widths open by {opened * 1e3:.3g} mm over the loading while the force rises by {rose:.3g} N "
+            f"(beyond their noise {limit * 1e3:.2g} mm): a grasp closes the fingers as it squeezes, so the width "
+            "readings do not follow the grasp")
 
 
 def _envelope(t: np.ndarray, loading: np.ndarray, sigma_f: float) -> tuple[np.ndarray, int, float, float]:
@@ -230,6 +248,8 @@ def find_load_phase(
 
     # Baseline: the load cell's reading well before the force first nears contact.
     above = np.flatnonzero(force >= contact_force_n)
+    if why := reversed_force(force, contact_force_n=contact_force_n):
+        return LoadPhase(reason=why, flags=(*flags, "implausible_force"), notes=tuple(notes))
     if above.size == 0:
         return LoadPhase(
             reason=f"no contact: the force peaks at {force.max():.3g} N, below "
@@ -245,6 +265,9 @@ def find_load_phase(
     before = force[quiet] if quiet.sum() >= 5 else force
     sigma_f = noise_std(before)  # as read: a plateau of identical readings is a saturation
     above = np.flatnonzero(force >= contact_force_n)
+    if above.size == 0 and (why := reversed_force(force, contact_force_n=contact_force_n)):
+        return LoadPhase(reason=f"{why} (above its baseline {baseline:.3g} N)", flags=(*flags, "implausible_force"),
+                         notes=tuple(notes), force_baseline_n=baseline)
     if above.size == 0:
         return LoadPhase(
             reason=f"no contact: the force peaks at {force.max():.3g} N above its baseline "
@@ -309,6 +332,9 @@ def find_load_phase(
     if not covered.all():
         flag("misaligned", f"widths (span {tw[0]:.3f}..{tw[-1]:.3f} s) miss "
                            f"{int((~covered).sum())} of {load_t.size} loading force samples")
+    if why := _opening_widths(loading[covered], load_w[covered], sigma_f=reading_noise(before, floor=MIN_FORCE_NOISE_N),
+                              sigma_w=sigma_w):
+        return LoadPhase(reason=why, flags=(*flags, "implausible_width"), notes=tuple(notes), force_baseline_n=baseline)
     if load_t.size < 2:
         flag("too_few_samples", "the loading phase holds a single force sample")
     if not np.any((tw > t_onset) & (tw <= t_peak)):

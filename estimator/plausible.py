@@ -6,6 +6,8 @@ A width below 0 or beyond the gripper's opening by more than :data:`WIDTH_SLACK_
 a glitch, or not in metres. The gripper stops at its maximum grasp force, so a force beyond
 :data:`FORCE_LIMIT_FACTOR` times it (either sign) is a glitch, or not in newtons (a load cell
 scaled per gram): up to :data:`FORCE_GLITCHES` such readings are dropped, more refuse the grasp.
+A force that never reaches the contact force but falls beyond it below zero is a load cell read
+with its sign reversed (:func:`reversed_force`), not a grasp without contact.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["FORCE_GLITCHES", "FORCE_LIMIT_FACTOR", "MIN_FORCE_NOISE_N", "MIN_WIDTH_NOISE_M", "WIDTH_SLACK_SHARE",
-           "implausible_forces", "implausible_widths"]
+           "implausible_forces", "implausible_widths", "reversed_force"]
 
 WIDTH_SLACK_SHARE = 0.1
 FORCE_LIMIT_FACTOR = 2.0
@@ -47,3 +49,13 @@ def implausible_forces(force_n: np.ndarray, *, max_force_n: float) -> tuple[np.n
         return beyond, (f"{int(beyond.sum())} force samples ({np.abs(force_n).max():.4g} N at most) {told}: is the "
                         "load cell's scale (counts_per_n) in newtons?"), True
     return beyond, (f"dropped {int(beyond.sum())} force samples {told} (a glitch)" if beyond.any() else ""), False
+
+
+def reversed_force(force_n: np.ndarray, *, contact_force_n: float) -> str:
+    """Why the forces (N) read as a load cell with its sign reversed, or '': they fall below
+    ``-contact_force_n`` and never rise to ``contact_force_n``. Non-finite forces are ignored."""
+    finite = force_n[np.isfinite(force_n)]
+    if finite.size == 0 or finite.max() >= contact_force_n or not finite.min() <= -contact_force_n:
+        return ""
+    return (f"the force falls to {finite.min():.3g} N and never rises to contact_force_n = {contact_force_n:g} N "
+            f"(it peaks at {finite.max():.3g} N): is the load cell's sign reversed?")

@@ -86,3 +86,29 @@ def test_an_operators_moving_fingers_are_not_a_stuck_width_sensor(object_table):
     record, _ = simulate_grasp(obj, settings=SETTINGS, rng=grasp_rng(6, obj, 1), seed=6, operator="sim")
     est = estimate_grasp(record, "no_tactile", settings=SETTINGS)
     assert "stay within" not in est.reason, est.reason
+
+
+def test_widths_that_open_while_the_force_rises_are_refused_not_a_bound(calibration):
+    record = build_record(3e5)
+    w = record.width_m
+    mirrored = replace(record, width_m=Samples(w.t_s, 2 * w.value[0] - w.value))  # the fingers open as they squeeze
+    for method in ("no_tactile", "series"):  # no_tactile read them as a lower bound far above the truth
+        est = estimate_grasp(mirrored, method, settings=SETTINGS, calibration=calibration)
+        assert not est and "the widths open by" in est.reason and "do not follow the grasp" in est.reason
+        assert "stiffer than resolved" not in est.reason
+    assert estimate_grasp(record, "no_tactile", settings=SETTINGS).state == "ok"
+    assert estimate_grasp(build_record(STEEL), "no_tactile", settings=SETTINGS)  # a stiff object still answers
+
+
+def test_a_load_cell_with_its_sign_reversed_is_named_not_read_as_no_contact(calibration):
+    record = build_record(3e5)
+    f = record.force_n
+    reversed_sign = replace(record, force_n=Samples(f.t_s, -f.value))
+    for method in ("no_tactile", "series"):
+        est = estimate_grasp(reversed_sign, method, settings=SETTINGS, calibration=calibration)
+        assert not est and "is the load cell's sign reversed?" in est.reason and "no contact" not in est.reason
+        assert "never rises to contact_force_n = 0.75 N" in est.reason
+    # A grasp of air stays one: its force stays in its noise on both sides.
+    air = replace(record, force_n=Samples(f.t_s, f.value * 0.01))
+    est = estimate_grasp(air, "no_tactile", settings=SETTINGS)
+    assert not est and est.reason.startswith("no contact") and "sign" not in est.reason
