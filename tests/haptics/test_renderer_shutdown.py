@@ -42,6 +42,16 @@ def _displays(listener: Subscriber, timeout_s: float = 0.3) -> list:
     return out
 
 
+def _render_2_mpa(service, estimator, display, *, provisional: bool) -> None:
+    """Send an estimate of 2 MPa and step the service until the display renders it."""
+    estimator.send("estimate", t_capture_s=time.monotonic(), grasp_id="g1", method="series", E_pa=2e6,
+                   interval_pa=[1e6, 4e6], state="ok", reason="test", provisional=provisional, latency_s=0.001)
+    deadline = time.monotonic() + 5.0
+    while not (display.rendered_command is not None and display.rendered_command.level > 0):
+        assert time.monotonic() < deadline, "the estimate was never rendered"
+        service.step()
+
+
 def _stopped() -> threading.Event:
     stop = threading.Event()
     stop.set()
@@ -50,12 +60,7 @@ def _stopped() -> threading.Event:
 
 def test_a_renderer_stopped_mid_grasp_sets_the_display_free_and_says_so(rig):
     service, estimator, display, listener = rig
-    estimator.send("estimate", t_capture_s=time.monotonic(), grasp_id="g1", method="series", E_pa=2e6,
-                   interval_pa=[1e6, 4e6], state="ok", reason="test", provisional=True, latency_s=0.001)
-    deadline = time.monotonic() + 5.0
-    while not (display.rendered_command is not None and display.rendered_command.level > 0):
-        assert time.monotonic() < deadline, "the estimate was never rendered"
-        service.step()
+    _render_2_mpa(service, estimator, display, provisional=True)
     assert service.renderer.phase in ("active", "stale")
     _displays(listener)  # what was published while rendering
 
@@ -78,12 +83,7 @@ def test_an_idle_renderer_writes_nothing_more_on_stopping(rig):
 
 def test_a_renderer_stopped_with_the_display_unplugged_says_it_may_hold_the_last_level(rig, caplog):
     service, estimator, display, _ = rig
-    estimator.send("estimate", t_capture_s=time.monotonic(), grasp_id="g1", method="series", E_pa=2e6,
-                   interval_pa=[1e6, 4e6], state="ok", reason="test", provisional=False, latency_s=0.001)
-    deadline = time.monotonic() + 5.0
-    while not (display.rendered_command is not None and display.rendered_command.level > 0):
-        assert time.monotonic() < deadline, "the estimate was never rendered"
-        service.step()
+    _render_2_mpa(service, estimator, display, provisional=False)
     held = display.rendered_command.level
     display.unplug()
     service.step()

@@ -5,6 +5,8 @@ estimator is heard again."""
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from haptics.devices.sim import SimulatedDisplay
 from haptics.renderer import HapticRenderer
@@ -22,6 +24,21 @@ def _final(publisher: Publisher, grasp_id: str, *, provisional: bool = False) ->
                    latency_s=0.001)
 
 
+@contextmanager
+def _rig(heartbeat_s: float = HEARTBEAT_S) -> Iterator[tuple[Publisher, RendererService]]:
+    """An estimator's publisher (heartbeat period ``heartbeat_s``, announced only by its heartbeats) and a
+    renderer service subscribed to it."""
+    estimator = Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator", heartbeat_s=heartbeat_s)
+    subscriber = Subscriber(estimator.endpoint, ("estimate", "grasp_event"), conflate=True)
+    renderer = HapticRenderer(SimulatedDisplay(), display_settings(load_settings()))
+    try:
+        estimator.wait_for_subscriber("estimate", timeout_s=5.0)
+        yield estimator, RendererService(renderer, subscriber=subscriber, tick_s=0.005)
+    finally:
+        for sock in (estimator, subscriber):
+            sock.close()
+
+
 def _step_until(service: RendererService, done, timeout_s: float = 5.0) -> None:
     deadline = time.monotonic() + timeout_s
     while not done():
@@ -30,12 +47,8 @@ def _step_until(service: RendererService, done, timeout_s: float = 5.0) -> None:
 
 
 def test_a_final_is_let_go_when_the_estimator_dies_before_forwarding_the_grasps_end():
-    estimator = Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator", heartbeat_s=HEARTBEAT_S)
-    subscriber = Subscriber(estimator.endpoint, ("estimate", "grasp_event"), conflate=True)
-    renderer = HapticRenderer(SimulatedDisplay(), display_settings(load_settings()))
-    service = RendererService(renderer, subscriber=subscriber, tick_s=0.005)
-    try:
-        estimator.wait_for_subscriber("estimate", timeout_s=5.0)
+    with _rig() as (estimator, service):
+        renderer = service.renderer
         estimator.heartbeat_if_due()
         _final(estimator, "g1")  # rigid: the display holds its stiff end
         _step_until(service, lambda: renderer.grasp_id == "g1")
@@ -49,36 +62,22 @@ def test_a_final_is_let_go_when_the_estimator_dies_before_forwarding_the_grasps_
         _step_until(service, lambda: renderer.phase in ("fading", "idle"), timeout_s=1.0)
         _step_until(service, lambda: renderer.phase == "idle")
         assert not renderer.percept.rigid and renderer.percept.stiffness == 0
-    finally:
-        for sock in (estimator, subscriber):
-            sock.close()
 
 
 def test_an_estimator_that_never_announced_a_heartbeat_period_is_not_judged():
-    estimator = Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator")
-    subscriber = Subscriber(estimator.endpoint, ("estimate", "grasp_event"), conflate=True)
-    renderer = HapticRenderer(SimulatedDisplay(), display_settings(load_settings()))
-    service = RendererService(renderer, subscriber=subscriber, tick_s=0.005)
-    try:
-        estimator.wait_for_subscriber("estimate", timeout_s=5.0)
+    with _rig(heartbeat_s=0.5) as (estimator, service):  # never sends a heartbeat
+        renderer = service.renderer
         _final(estimator, "g2")
         _step_until(service, lambda: renderer.grasp_id == "g2")
         end = time.monotonic() + 0.3
         while time.monotonic() < end:
             service.step()
         assert renderer.phase == "active"
-    finally:
-        for sock in (estimator, subscriber):
-            sock.close()
 
 
 def test_a_loading_grasp_is_released_when_its_estimator_dies_and_engages_again_when_it_is_back():
-    estimator = Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator", heartbeat_s=HEARTBEAT_S)
-    subscriber = Subscriber(estimator.endpoint, ("estimate", "grasp_event"), conflate=True)
-    renderer = HapticRenderer(SimulatedDisplay(), display_settings(load_settings()))
-    service = RendererService(renderer, subscriber=subscriber, tick_s=0.005)
-    try:
-        estimator.wait_for_subscriber("estimate", timeout_s=5.0)
+    with _rig() as (estimator, service):
+        renderer = service.renderer
         estimator.heartbeat_if_due()
         _final(estimator, "g3", provisional=True)  # rigid, still loading
         _step_until(service, lambda: renderer.grasp_id == "g3")
@@ -91,6 +90,3 @@ def test_a_loading_grasp_is_released_when_its_estimator_dies_and_engages_again_w
         _final(estimator, "g3", provisional=True)
         _step_until(service, lambda: renderer.grasp_id == "g3")
         assert renderer.percept.rigid
-    finally:
-        for sock in (estimator, subscriber):
-            sock.close()

@@ -7,13 +7,13 @@ import hashlib
 import json
 import time
 import zipfile
-import zlib
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 from mcap.writer import Writer
+from support.images import png_declaring
 
 from teleop.bus import Publisher
 from teleop.catalogue import default_catalogue_path, load_catalogue
@@ -597,20 +597,10 @@ def test_settings_given_to_the_export_carry_the_calibration_they_name(recorded, 
     assert record.calibration_files["left"] == newer.read_bytes()
 
 
-def _png_declaring(width: int, height: int) -> bytes:
-    """A PNG of a few dozen bytes whose header declares ``width`` x ``height`` pixels."""
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
-
-    header = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 2, 0, 0, 0])
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 64))
-            + chunk(b"IEND", b""))
-
-
 @pytest.mark.parametrize("side", [8000, 60000])
 def test_a_frame_declaring_a_huge_image_is_refused_before_it_is_decoded(monkeypatch, side):
     """A few bytes of a corrupt or hostile log may declare gigabytes: no grasp, a reason, nothing decoded."""
-    bomb = _png_declaring(side, side)
+    bomb = png_declaring(side, side)
     imdecode = cv2.imdecode
 
     def guarded(buffer, flags):

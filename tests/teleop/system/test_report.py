@@ -8,13 +8,13 @@ import os
 import re
 import threading
 import time
-import zlib
 from html.parser import HTMLParser
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from support.images import png_declaring
 
 import teleop.cli
 from teleop.bus import Publisher
@@ -226,23 +226,12 @@ def test_depth_comes_from_the_logs_calibration_and_shows_the_steel_ball_at_the_p
     assert any("no calibration in the log" in note for note in bare.notes)
 
 
-
-def _png_declaring(width: int, height: int) -> bytes:
-    """A PNG of a few dozen bytes whose header declares ``width`` x ``height`` pixels."""
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
-
-    header = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 2, 0, 0, 0])
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 64))
-            + chunk(b"IEND", b""))
-
-
 def test_a_frame_declaring_a_huge_image_is_noted_and_never_decoded(session_log, monkeypatch):
     """A corrupt or hostile log's frame whose header declares 8000x8000 px (192 MB to decode): the
     finger is noted as the report notes frames that do not decode, the other finger is shown."""
     settings = LogReader(session_log).info().settings()
     grasp = next(g for g in session_grasps(session_log) if g.grasp_id == "g-steel")
-    bomb = _png_declaring(8000, 8000)
+    bomb = png_declaring(8000, 8000)
     left, right = grasp.record.frames
     left = dataclasses.replace(left, encoded=(bomb,) * len(left.encoded))
     imdecode = cv2.imdecode
