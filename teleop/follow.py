@@ -5,7 +5,7 @@ about :data:`~teleop.operator.FOLLOW_RATE_HZ`): the fingers follow the message's
 force-capped (:mod:`teleop.operator`). A follow counts only with ``enable`` (the dead-man) held:
 
 * while idle, it starts a *follow grasp* (``grasp_id`` names it, default ``grasp-<n>``; a grasp
-  that has ended is not started again). With the simulated backends the node simulates the
+  that has ended, one of the last :data:`ENDED_KEPT`, is not started again). With the simulated backends the node simulates the
   scene's next object live (:mod:`teleop.sim.live`, prepared ahead in its simulator thread: at
   start for the first object, after each grasp for the next; the fingers may move once it is
   ready) and the simulated devices sample it (:mod:`teleop.devices.live_sim`); an object still
@@ -53,6 +53,13 @@ __all__ = ["Follower"]
 
 FORCE_SILENT_S = 0.1  # with hardware, the fingers close only on a force this fresh: 8 samples at the HX711's 80 Hz
 
+# Follow grasps remembered as ended. A follow naming one is refused rather than starting it again:
+# the follows a console sends for its grasp after the watchdog or a release ended it (until its
+# operator lets go of the enable), and those still in flight. Only the last few grasps' follows
+# can still come, so this many ids (each at most the bus's 256 characters) are ample; the ids
+# are the senders', and a sender making up new ones must not grow the node without end.
+ENDED_KEPT = 1024
+
 log = logging.getLogger("teleop.node")  # the node's own logger, so filters on the node see the follower
 
 
@@ -61,8 +68,8 @@ class Follower:
 
     Holds the live object between the simulated fingers (``live``), the next one being prepared
     (``next_live``: its grasp number and the future of (LiveObject, rng)), when the operator's last
-    follow came, the operator's enable, whether the watchdog stopped the node and the follow
-    grasps that ended.
+    follow came, the operator's enable, whether the watchdog stopped the node and the last
+    :data:`ENDED_KEPT` follow grasps that ended.
     """
 
     def __init__(self, node: RobotNode):
@@ -72,7 +79,8 @@ class Follower:
         self.last_follow_s = -math.inf
         self.enable = False
         self.stopped = False  # mode "stopped" while no grasp runs: after the watchdog
-        self.ended: set[str] = set()  # follow grasps that ended: never started again
+        # The last ENDED_KEPT follow grasps that ended, oldest first: never started again.
+        self.ended: dict[str, None] = {}
 
     # ------------------------------------------------------------------ commands
 
@@ -195,7 +203,9 @@ class Follower:
         """A grasp ended: an object the fingers let go leaves them; the next one is prepared."""
         node = self.node
         if grasp.follow:
-            self.ended.add(grasp.grasp_id)
+            self.ended[grasp.grasp_id] = None
+            if len(self.ended) > ENDED_KEPT:
+                del self.ended[next(iter(self.ended))]
         self._let_go()
         # The object prepared may be another grasp's (a commanded grasp took its number): the next one's is due.
         if node.simulated and self.live is None and (self.next_live is None or self.next_live[0] != node._count):

@@ -50,9 +50,12 @@ not read its width at the stop (nor for follow grasps: no grasp command stops th
 
 A command that cannot be carried out (a start_grasp during a grasp or above the maximum force, a
 follow during a scripted grasp or beyond the gripper's width, ...) is logged and answered with a
-``robot_notice`` *refused* with the reason (the same refusal of the same grasp at most once per
-:data:`REFUSAL_REPEAT_S`), and the node carries on. A ``robot_state`` goes out on every change
-of the node's mode, grasp, target width or enable, and with every heartbeat.
+``robot_notice`` *refused* with the reason, and the node carries on. A sender's values must not
+flood the log or the bus (:mod:`teleop.node_refusals`): the first refusal of a kind (the action and
+its reason without the values) is logged, then the 10th, 100th, ... with their count; the same
+refusal of the same grasp goes out at most once per :data:`REFUSAL_REPEAT_S`, and at most
+:data:`~teleop.node_refusals.NOTICES_PER_KIND` of a kind per :data:`REFUSAL_REPEAT_S`. A
+``robot_state`` goes out on every change of the node's mode, grasp, target width or enable, and with every heartbeat.
 
 A gripper command that fails (the gripper's link down: its grasp command, or a release, move or
 stop the node gives by itself) is answered with a ``robot_notice`` *device* (action ``gripper``)
@@ -90,6 +93,7 @@ from teleop.errors import (
 from teleop.follow import Follower
 from teleop.live import ServiceLoop
 from teleop.node_devices import READ_TIMEOUT_S, NodeDevices
+from teleop.node_refusals import REFUSAL_REPEAT_S, Refusals
 from teleop.record import GraspRecord
 from teleop.scene import Scene
 from teleop.settings import Settings
@@ -100,7 +104,6 @@ log = logging.getLogger(__name__)
 
 COMMAND_TOPICS = ("command", "follow")
 START_GRASP_PARAMS = frozenset({"object_index", "target_force_n"})  # what a start_grasp command may set
-REFUSAL_REPEAT_S = 1.0  # the same refusal (action and reason) goes out at most this often
 APPROACH_LEAD_S = 0.05  # a replay starts this long before the record's first sample
 TAIL_S = 2 * READ_TIMEOUT_S  # after a grasp's last data is due, wait this long for the readers
 
@@ -189,7 +192,7 @@ class RobotNode(ServiceLoop):
         self._newest_s: dict[str, float] = {}
         self._latest: dict[str, float] = {}  # the newest force (N) and width (m) published
         self._follower = Follower(self)  # follow grasps (teleop.follow)
-        self._refused: dict[tuple[str, str | None, str], float] = {}  # when each refusal last went out
+        self._refusals = Refusals()  # what was refused: which refusals are logged and said
         self._state: tuple | None = None  # the last robot_state sent
 
     # ------------------------------------------------------------------ lifecycle
@@ -293,8 +296,11 @@ class RobotNode(ServiceLoop):
         except TeleopError as exc:
             self.stats.bad_commands += 1
             grasp_id = body.grasp_id or (self._grasp.grasp_id if self._grasp is not None else None)
-            if self._notice("refused", action, grasp_id, str(exc), repeat_s=REFUSAL_REPEAT_S):
-                log.warning("command %s from %s not carried out: %s", action, message.source or "?", exc)
+            kind = self._refusals.kind(action, exc)
+            if count := self._refusals.refused(kind):
+                log.warning("command %s from %s not carried out: %s%s", action, message.source or "?", exc,
+                            "" if count == 1 else f" ({count} refusals like it so far)")
+            self._notice("refused", action, grasp_id, str(exc), repeat_s=REFUSAL_REPEAT_S, kind=kind)
 
     def _replaying(self) -> bool:
         """Whether a simulated scripted grasp runs: a replay of a record simulated whole, which
@@ -315,16 +321,15 @@ class RobotNode(ServiceLoop):
 
     # ------------------------------------------------------------------ notices and state
 
-    def _notice(self, event: str, action: str, grasp_id: str | None, reason: str, *, repeat_s: float = 0.0) -> bool:
+    def _notice(self, event: str, action: str, grasp_id: str | None, reason: str, *, repeat_s: float = 0.0,
+                kind: tuple[str, str, str] | None = None) -> bool:
         """Send a robot_notice unless the same one (action, grasp and reason) went out less than
-        ``repeat_s`` ago; True if sent. A notice naming another grasp always goes out: the operator's
-        console clears its pending grasp only on a refusal naming that grasp."""
+        ``repeat_s`` ago, or ``kind`` had its share of notices (:mod:`teleop.node_refusals`); True if
+        sent. A notice naming another grasp is not a repeat: the operator's console clears its
+        pending grasp only on a refusal naming that grasp."""
         now = self.clock()
-        key = (action, grasp_id, reason)
-        if now - self._refused.get(key, -math.inf) < repeat_s:
+        if not self._refusals.may_send(action, grasp_id, reason, now, repeat_s=repeat_s, kind=kind):
             return False
-        self._refused = {k: t for k, t in self._refused.items() if now - t < REFUSAL_REPEAT_S}
-        self._refused[key] = now
         self.publisher.send("robot_notice", t_capture_s=now, event=event, action=action, grasp_id=grasp_id,
                             reason=reason)
         return True
