@@ -14,7 +14,8 @@ frame          ``/tactile/<finger>``            ``foxglove.CompressedImage`` (pr
 grasp_event    ``/events``                      ``foxglove.Log`` (protobuf), e.g. "grasp g1
                                                 start (object: aluminium block)"
 heartbeat      (none)
-force, width   ``/force``, ``/width``           JSON, one message per sample
+force, width   ``/force``, ``/width``           JSON, one message per sample (at most
+                                                :data:`MAX_SAMPLE_MESSAGES` per batch)
 anything else  ``/<bus topic>``                 JSON: ``estimate``, ``display``, ``command``...
 =============  ===============================  ==========================================
 
@@ -34,7 +35,11 @@ value (no E, an open interval side, no grasp) is left out: Foxglove's JSON Schem
 takes no nullable types. A type with a ``t_s`` array (force, width) gives one message per
 sample with ``t_s`` and the value as numbers, each placed at its own time on the receive
 clock (:attr:`FoxgloveMessage.age_ns`), so the Plot panel draws the true sample spacing.
-Array fields of other types are not shown (the bus channels keep them).
+A batch of more than :data:`MAX_SAMPLE_MESSAGES` samples (real ones hold a few; the wire
+takes half a million) is decimated: it gives that many messages, the samples at evenly spaced
+indices, its first and last included, so one bus message costs a bounded number of Foxglove
+messages; its bus channel keeps every sample. Array fields of other types are not shown (the
+bus channels keep them).
 
 Timestamps: the bus times (``t_capture_s``, ``t_s``) are ``time.monotonic()`` seconds of the
 capturing host; every Foxglove ``timestamp`` (JSON, images, log lines) is that time plus
@@ -55,6 +60,7 @@ from dataclasses import dataclass
 from functools import cache
 from typing import Any
 
+import numpy as np
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from google.protobuf.descriptor_pb2 import FileDescriptorSet
@@ -75,6 +81,7 @@ __all__ = [
     "IMAGE_SCHEMA",
     "FoxgloveChannel",
     "FoxgloveMessage",
+    "MAX_SAMPLE_MESSAGES",
     "file_descriptor_set",
     "foxglove_messages",
     "image_topic",
@@ -87,6 +94,9 @@ IMAGE_SCHEMA = CompressedImage.DESCRIPTOR.full_name  # "foxglove.CompressedImage
 EVENTS_TOPIC = "/events"
 JSON_SCHEMA_PREFIX = "compliance_teleop."
 _SAMPLE_TIMES = "t_s"
+# Most JSON messages one force or width batch gives (module notes): real batches hold a few samples,
+# a stalled reader's a few seconds' worth (the load cell reads at 80 Hz); more are decimated.
+MAX_SAMPLE_MESSAGES = 256
 
 
 @dataclass(frozen=True)
@@ -340,12 +350,16 @@ def _plain(message: Message, offset_ns: int) -> list[FoxgloveMessage]:
     arrays = SCHEMAS[kind].arrays
     if _SAMPLE_TIMES not in arrays:
         return [_json(topic, kind, {"timestamp": _time_json(message.t_capture_s, offset_ns), **common})]
-    columns = {name: getattr(body, name).tolist() for name in arrays}
+    columns = {name: np.asarray(getattr(body, name)) for name in arrays}
     times = columns[_SAMPLE_TIMES]
-    newest = max(times)
+    newest = float(times.max()) if times.size else 0.0
+    if times.size > MAX_SAMPLE_MESSAGES:  # evenly spaced indices, the first and last included
+        picked = np.unique(np.linspace(0, times.size - 1, MAX_SAMPLE_MESSAGES).round().astype(np.intp))
+        columns = {name: values[picked] for name, values in columns.items()}
+    rows = {name: values.tolist() for name, values in columns.items()}
     out = []
-    for i, t_s in enumerate(times):
-        sample = {name: values[i] for name, values in columns.items()}
+    for i, t_s in enumerate(rows[_SAMPLE_TIMES]):
+        sample = {name: values[i] for name, values in rows.items()}
         age_ns = round((newest - t_s) * 1e9)
         out.append(_json(topic, kind, {"timestamp": _time_json(t_s, offset_ns), **common, **sample}, age_ns))
     return out

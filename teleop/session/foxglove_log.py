@@ -4,11 +4,18 @@ The layout (and why a JPEG's bytes are stored once, in its ``foxglove.Compressed
 is documented in :mod:`teleop.session.logfile`; the conversion is
 :mod:`teleop.session.foxglove`'s. :class:`LogChannels` registers schemas and channels on
 first use and writes; :func:`rig_metadata` is the rig summary for Foxglove's metadata panel.
+
+A log holds at most :data:`MAX_CHANNELS` channels (bus and Foxglove topics together): the wire
+takes any topic ``frame/<finger>``, and a sender making up fingers would otherwise grow the
+log's (and its writer's) channels without bound. A real session has a few dozen; a message
+that would need a channel past the cap is not written (:meth:`LogChannels.admits`), unless its
+topic is one of the ``reserved`` (each type's own and the settings' fingers' frames), which
+made-up topics therefore never crowd out.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 from mcap.writer import Writer
@@ -19,7 +26,11 @@ from teleop.session.logfile import MESSAGE_ENCODING, SCHEMA_ENCODING, schema_dat
 from teleop.session.logframes import pack_frames
 from teleop.settings import Settings
 
-__all__ = ["LogChannels", "rig_metadata"]
+__all__ = ["MAX_CHANNELS", "LogChannels", "rig_metadata"]
+
+# Most channels one log holds: a session has one per bus topic (a frame topic per finger, force,
+# width, estimate, ...) plus its Foxglove forms', a few dozen in all.
+MAX_CHANNELS = 256
 
 _SENSOR_METADATA = (
     "model",
@@ -59,18 +70,41 @@ class LogChannels:
     offset_ns : int
         Added to this host's ``time.monotonic_ns()`` times (receive, send, capture) to give
         the log's times, nanoseconds since the Unix epoch (:mod:`teleop.session.logfile`).
+    max_channels : int
+        Most channels registered (module notes); :meth:`admits` says whether a message fits.
+    reserved : iterable of str
+        Bus topics admitted past the cap (with their Foxglove forms' channels).
     """
 
-    def __init__(self, writer: Writer, offset_ns: int = 0):
+    def __init__(
+        self, writer: Writer, offset_ns: int = 0, max_channels: int = MAX_CHANNELS, reserved: Iterable[str] = ()
+    ):
         self.writer = writer
         self.offset_ns = offset_ns
+        self.max_channels = max_channels
+        self.reserved = frozenset(reserved)
         self._schemas: dict[tuple[str, str], int] = {}  # (name, encoding) -> id
         self._channels: dict[str, int] = {}  # topic -> id
         self._last_ns: dict[str, int] = {}  # Foxglove topic -> its latest log time
 
-    def write_foxglove(self, message: Message, received_ns: int) -> list[FoxgloveMessage]:
-        """Write the Foxglove forms of ``message`` (call first); returns them."""
-        converted = foxglove_messages(message, self.offset_ns)
+    def convert(self, message: Message) -> list[FoxgloveMessage]:
+        """The Foxglove forms of ``message``, on this log's clock."""
+        return foxglove_messages(message, self.offset_ns)
+
+    def admits(self, message: Message, converted: Sequence[FoxgloveMessage]) -> bool:
+        """Whether the channels ``message`` and its Foxglove forms need fit under the cap (or its
+        topic is reserved)."""
+        if message.topic in self.reserved:
+            return True
+        new = {message.topic, *(item.topic for item in converted)} - self._channels.keys()
+        return len(self._channels) + len(new) <= self.max_channels
+
+    def write_foxglove(
+        self, message: Message, received_ns: int, converted: Sequence[FoxgloveMessage] | None = None
+    ) -> list[FoxgloveMessage]:
+        """Write the Foxglove forms of ``message`` (call first; ``converted`` when already made
+        by :meth:`convert`); returns them."""
+        converted = self.convert(message) if converted is None else list(converted)
         log_time_ns = received_ns + self.offset_ns
         for item in converted:
             channel = self._channels.get(item.topic)

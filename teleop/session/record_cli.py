@@ -136,10 +136,11 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if live is not None:
             live.close()
+    reasons = ", ".join(f"{n} {reason}" for reason, n in sorted(stats.refused.items()))
     print(
         f"recorded {stats.messages} messages ({stats.file_bytes / 1e6:.1f} MB) "
         f"from {', '.join(endpoints)} into {out}; "
-        f"refused {sum(stats.refused.values())}, missed {stats.missed}",
+        f"refused {sum(stats.refused.values())}{f' ({reasons})' if reasons else ''}, missed {stats.missed}",
         file=sys.stderr,
     )
     if args.json:

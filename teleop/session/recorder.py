@@ -5,7 +5,9 @@ every topic of the endpoints it is given (non-conflating, so nothing a lossless 
 sends is dropped), checks each message with :func:`teleop.bus.wire.decode` (as every
 subscriber does: a refused message is counted, never stored) and stores its frames
 verbatim, each after its Foxglove-decodable forms (:mod:`teleop.session.foxglove`), which
-can also go to a live view as they are written (``on_foxglove``).
+can also go to a live view as they are written (``on_foxglove``). A message on a new topic past
+the log's channel cap (:data:`~teleop.session.foxglove_log.MAX_CHANNELS`: made-up fingers'
+``frame/<finger>``; each type's own topic and the settings' fingers' frames always fit) is refused too, counted under :data:`TOO_MANY_TOPICS`.
 
 Write failures (a full disk, a removed drive) never stop the session: the recorder logs
 one clear error, cuts the file back to the end of its last complete record (so everything
@@ -31,8 +33,8 @@ from typing import IO, Any
 import zmq
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
-from teleop.bus.pubsub import DEFAULT_MAX_BYTES, Subscriber
-from teleop.bus.wire import Message, decode, now_ns
+from teleop.bus.pubsub import DEFAULT_MAX_BYTES, Subscriber, is_decade
+from teleop.bus.wire import SCHEMAS, Message, decode, default_topic, now_ns
 from teleop.catalogue import load_catalogue
 from teleop.errors import BusError, SessionLogError
 from teleop.progress import progress_bar
@@ -54,7 +56,8 @@ from teleop.session.logfile import (
 from teleop.session.logframes import FRAMING
 from teleop.settings import Settings, load_settings, resolve_path, settings_to_mapping
 
-__all__ = ["COMPRESSIONS", "RECORDING_STOPPED", "RECORDING_STOPPED_STATUS", "RecorderStats", "SessionRecorder", "session_source"]
+__all__ = ["COMPRESSIONS", "RECORDING_STOPPED", "RECORDING_STOPPED_STATUS", "TOO_MANY_TOPICS", "RecorderStats",
+           "SessionRecorder", "session_source"]
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +66,10 @@ log = logging.getLogger(__name__)
 RECORDING_STOPPED_STATUS = 3
 # How its last line begins, saying why; `teleop demo` reads the reason from there.
 RECORDING_STOPPED = "recording stopped: "
+# The refusal reason (RecorderStats.refused) of a message whose new topic the log's channel cap left out.
+TOO_MANY_TOPICS = "too_many_topics"
+# How long closing goes on storing what is already queued: a stop is honoured though a flood is queued.
+PENDING_S = 5.0
 
 COMPRESSIONS = {
     "zstd": CompressionType.ZSTD,
@@ -148,7 +155,7 @@ class RecorderStats:
     message_bytes: int = 0  # stored message data, framing and Foxglove forms included
     file_bytes: int = 0
     topics: Counter[str] = field(default_factory=Counter)
-    refused: Counter[str] = field(default_factory=Counter)  # by wire reject reason
+    refused: Counter[str] = field(default_factory=Counter)  # by wire reject reason, or TOO_MANY_TOPICS
     gaps: int = 0
     missed: int = 0
     error: str | None = None  # the write error that stopped recording
@@ -305,7 +312,8 @@ class SessionRecorder:
         )
         # One reading of both clocks: log times are monotonic receive times plus this offset.
         start_wall_ns, start_monotonic_ns = time.time_ns(), now_ns()
-        self._log = LogChannels(self._writer, start_wall_ns - start_monotonic_ns)
+        reserved = {*SCHEMAS, *(default_topic("frame", {"finger": s.finger}) for s in self.settings.sensors)}
+        self._log = LogChannels(self._writer, start_wall_ns - start_monotonic_ns, reserved=reserved)
         try:
             self._writer.start(
                 PROFILE, f"compliance-teleop {software_version()}; {LIBRARY_IDENTIFIER}"
@@ -341,7 +349,7 @@ class SessionRecorder:
     def close(self) -> RecorderStats:
         """Write the log's summary and footer and unsubscribe; calling twice is fine."""
         if self._state == "open":
-            self._receive_pending()
+            self._receive_pending(time.monotonic() + PENDING_S)
             self._guarded(self._finish)
         self._stop_receiving()
         self._close_file()
@@ -398,11 +406,14 @@ class SessionRecorder:
             self.close()
         return self.stats
 
-    def _receive_pending(self) -> None:
-        """Store everything already queued on this side of the socket, without waiting."""
+    def _receive_pending(self, deadline: float) -> None:
+        """Store what is already queued on this side of the socket, without waiting, until ``deadline``."""
         while self._state == "open":
             self._drain()
             if self._state != "open":
+                break
+            if time.monotonic() > deadline:
+                log.warning("stopped with messages still queued after %.0f s of storing them: not recorded", PENDING_S)
                 break
             if self._subscriber.recv(timeout_s=0) is None and not self._subscriber.captured:
                 break
@@ -418,8 +429,17 @@ class SessionRecorder:
     def _store(self, received_ns: int, frames: list[zmq.Frame]) -> bool:
         # The subscriber accepted these frames: decoding them again cannot fail.
         message = decode(frames, max_bytes=self.max_bytes)
+        converted = self._log.convert(message)
+        if not self._log.admits(message, converted):
+            self.stats.refused[TOO_MANY_TOPICS] += 1
+            count = self.stats.refused[TOO_MANY_TOPICS]
+            if is_decade(count):
+                log.warning("refused %d message(s) on new topics (the latest %r from %r): the log holds at most "
+                            "%d channels; further ones are counted", count, message.topic, message.source,
+                            self._log.max_channels)
+            return False
         before = self._sink.position
-        converted = self._log.write_foxglove(message, received_ns)
+        converted = self._log.write_foxglove(message, received_ns, converted)
         between = self._sink.position
         size = self._log.write_bus(
             message, frames, received_ns, elide_image=LogChannels.carries_image(converted)
@@ -492,8 +512,8 @@ class SessionRecorder:
 
     def _sync_stats(self) -> None:
         if self._subscriber is not None:
-            seen = self._subscriber.stats
-            self.stats.refused = Counter(seen.refused)
+            seen, over = self._subscriber.stats, self.stats.refused[TOO_MANY_TOPICS]
+            self.stats.refused = Counter(seen.refused) + Counter({TOO_MANY_TOPICS: over})
             self.stats.gaps, self.stats.missed = seen.gaps, seen.missed
 
     def _stop_receiving(self) -> None:
@@ -523,14 +543,8 @@ class SessionRecorder:
                 continue
             path = resolve_path(sensor.calibration)
             try:
-                out.append(
-                    (
-                        f"calibration/{sensor.finger}/{path.name}",
-                        "application/octet-stream",
-                        path.read_bytes(),
-                        path.stat().st_mtime_ns,
-                    )
-                )
+                out.append((f"calibration/{sensor.finger}/{path.name}", "application/octet-stream",
+                            path.read_bytes(), path.stat().st_mtime_ns))
             except OSError as exc:
                 log.warning(
                     "calibration of finger %r not attached: %s: %s",
@@ -549,14 +563,7 @@ class SessionRecorder:
             )
         if self.scene:
             path = scene_path(self.scene)
-            out.append(
-                (
-                    "scene.toml",
-                    "application/toml",
-                    self._read(path, "scene"),
-                    path.stat().st_mtime_ns,
-                )
-            )
+            out.append(("scene.toml", "application/toml", self._read(path, "scene"), path.stat().st_mtime_ns))
         return out
 
     @staticmethod
