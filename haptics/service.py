@@ -54,7 +54,12 @@ counted (``unmeasured``) and left out, as null; the estimate is rendered all the
 estimate whose grasp stops being rendered (its end, a release, another grasp's estimate) before
 any report was written after it (the display was not connected) was never shown: it is logged
 and reported as not shown, ``latency_ms`` and ``level`` null (``display_fraction`` and the flags
-still say what it maps to), with the estimates its grasp had by then.
+still say what it maps to), with the estimates its grasp had by then; the first is logged, then a
+count at every power of ten (``not_shown``). ``stats.finals`` keeps the last :data:`KEPT_FINALS`
+finals (``stats.final_estimates`` counts them all); the report has each one.
+
+An estimate the renderer cannot take (the wire accepted it, the mapping does not) is skipped and
+counted (``bad_messages``); the first is logged, then a count at every power of ten.
 """
 
 from __future__ import annotations
@@ -62,6 +67,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections import deque
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from typing import Any
@@ -77,7 +83,7 @@ from teleop.bus.wire import Message
 from teleop.errors import BusError, ComplianceTeleopError
 from teleop.live import JsonLines, ServiceLoop
 
-__all__ = ["INPUT_TOPICS", "PLAUSIBLE_LATENCY_S", "FinalLatency", "RendererService", "check_tick_s"]
+__all__ = ["INPUT_TOPICS", "KEPT_FINALS", "PLAUSIBLE_LATENCY_S", "FinalLatency", "RendererService", "check_tick_s"]
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +92,9 @@ _COUNTED_GRASPS = 16  # grasps whose estimates are counted at once: more only wh
 # Capture to report (s) on one host's monotonic clock: a camera stamps at most 1 s late
 # (sensors' camera_latency_s), and no final comes an hour after its last loading frame.
 PLAUSIBLE_LATENCY_S = (-1.0, 3600.0)
+#: Finals kept in ``stats.finals`` (and the ``--json`` summary's ``finals``): the last ones; a long run's
+#: report has each, and ``stats.final_estimates`` counts them all.
+KEPT_FINALS = 1000
 _STATUS_READS = 64  # most status reports taken at once: the display sends one per report written
 _TROUBLE_STATES = ("fault", "watchdog")  # device states logged (haptics/PROTOCOL.md)
 
@@ -156,13 +165,18 @@ class ServiceStats:
     display_failures: int = 0  # reports whose ``display`` message could not be published
     ignored: int = 0  # estimates of grasps that had ended or had their final (late, or replayed)
     unmeasured: int = 0  # finals whose latency was left out: outside PLAUSIBLE_LATENCY_S
-    finals: list[FinalLatency] = field(default_factory=list)
+    not_shown: int = 0  # finals never shown: their grasps were no longer rendered before a report went out
+    final_estimates: int = 0  # finals recorded (reported), all of them
+    #: The last :data:`KEPT_FINALS` finals recorded, the oldest first (the report has each one).
+    finals: deque[FinalLatency] = field(default_factory=lambda: deque(maxlen=KEPT_FINALS))
 
     def as_dict(self) -> dict[str, Any]:
+        """The counts, and ``finals``: the last :data:`KEPT_FINALS` finals (``final_estimates`` counts them all;
+        the service's ``report`` has each one)."""
         return {"estimates": self.estimates, "bad_messages": self.bad_messages, "grasp_ends": self.grasp_ends,
                 "display_messages": self.display_messages, "display_failures": self.display_failures,
-                "ignored": self.ignored, "unmeasured": self.unmeasured,
-                "finals": [f.to_json() for f in self.finals]}
+                "ignored": self.ignored, "unmeasured": self.unmeasured, "not_shown": self.not_shown,
+                "final_estimates": self.final_estimates, "finals": [f.to_json() for f in self.finals]}
 
 
 class RendererService(ServiceLoop):
@@ -288,7 +302,13 @@ class RendererService(ServiceLoop):
             written_s = self.clock()
         except HapticsError as exc:
             self.stats.bad_messages += 1
-            log.warning("estimate from %s (seq %d) not rendered: %s", message.source or "?", message.seq, exc)
+            count = self.stats.bad_messages
+            if count == 1:
+                log.warning("estimate from %s (seq %d) not rendered: %s; further ones are counted, not each "
+                            "logged", message.source or "?", message.seq, exc)
+            elif is_decade(count):  # the 10th, 100th, ... as the bus logs its refusals
+                log.warning("%d estimates not rendered so far, the last from %s (seq %d): %s", count,
+                            message.source or "?", message.seq, exc)
             return
         finally:
             self._publish_display()  # for a report written on the estimate or the grasp's end
@@ -443,9 +463,16 @@ class RendererService(ServiceLoop):
         info = self.renderer.display.info
         level_max = None if info is None else info.level_max
         if not shown:
-            log.warning("grasp %s: its final estimate (E %s Pa, %s) was never shown: no report reached the display "
-                        "(%s) before the grasp was no longer rendered", pending.grasp_id, update.value_pa,
-                        update.state, "connected" if self.renderer.display.connected else "not connected")
+            self.stats.not_shown += 1
+            count, connected = self.stats.not_shown, "connected" if self.renderer.display.connected else "not connected"
+            if count == 1:
+                log.warning("grasp %s: its final estimate (E %s Pa, %s) was never shown: no report reached the "
+                            "display (%s) before the grasp was no longer rendered; further ones are counted, not "
+                            "each logged", pending.grasp_id, update.value_pa, update.state, connected)
+            elif is_decade(count):
+                log.warning("%d final estimates never shown so far (no report reached the display before their "
+                            "grasps were no longer rendered), the last grasp %s's (display %s)", count,
+                            pending.grasp_id, connected)
             self._record(pending, latency_s=None, level=None, level_max=level_max)
             return
         level = None if level_max is None else to_command(pending.percept, level_max=level_max).level
@@ -473,6 +500,7 @@ class RendererService(ServiceLoop):
         final = FinalLatency(grasp_id=str(pending.grasp_id), state=update.state, e_pa=update.value_pa,
                              latency_s=latency_s, estimates_received=pending.estimates_received,
                              percept=pending.percept, level=level, level_max=level_max)
-        self.stats.finals.append(final)
+        self.stats.finals.append(final)  # the oldest beyond KEPT_FINALS goes
+        self.stats.final_estimates += 1
         self.report.write(final.to_json())
         self._pending = None

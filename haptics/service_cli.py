@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
             display.close()
     ignored = (f", {stats.ignored} not shown: their grasps had ended or had their final estimate (late, or "
                "replayed after this renderer showed them)") if stats.ignored else ""
-    print(f"renderer: {stats.estimates} estimates, {len(stats.finals)} final, {display.reports_written} "
+    print(f"renderer: {stats.estimates} estimates, {stats.final_estimates} final, {display.reports_written} "
           f"reports written{ignored}", file=sys.stderr)
     if args.json:
         print(json.dumps({**stats.as_dict(), "wire": service.wire_stats()}))

@@ -48,6 +48,7 @@ __all__ = [
     "DISPLAY_FAULTS",
     "DISPLAY_PHASES",
     "ESTIMATE_STATES",
+    "INTERVAL_TOLERANCE",
     "MAX_MODEL_ID_CHARS",
     "MAX_PARAMS",
     "MAX_STR_CHARS",
@@ -228,6 +229,11 @@ class GraspEventBody(Body):
     object_name: str | None = scalar(TextField(nullable=True))
 
 
+#: Relative tolerance of an estimate's "E_pa within its interval_pa": the estimator may round the bound
+#: and the value differently. The renderer's (haptics.mapping.EstimateUpdate) is the same.
+INTERVAL_TOLERANCE = 1e-9
+
+
 @_body
 class EstimateBody(Body):
     """``estimate``: the estimator's modulus for a grasp, provisional while it loads, then final.
@@ -265,11 +271,17 @@ class EstimateBody(Body):
     model: str | None = scalar(TextField(max_chars=MAX_MODEL_ID_CHARS, nullable=True), added_later=True)
 
     def cross_check(self) -> None:
-        """Refuse an ``ok`` without a modulus, or an ``insufficient_data`` with one."""
+        """Refuse an ``ok`` without a modulus, an ``insufficient_data`` with one, or a modulus outside
+        its own interval (beyond a relative :data:`INTERVAL_TOLERANCE`, as the renderer reads it)."""
         if self.state == "ok" and self.E_pa is None:
             raise MessageRejected("mistyped_field", "estimate with state 'ok' has no E_pa")
         if self.state == "insufficient_data" and self.E_pa is not None:
             raise MessageRejected("mistyped_field", "estimate with state 'insufficient_data' carries an E_pa")
+        e_pa, (low, high) = self.E_pa, self.interval_pa
+        if e_pa is not None and ((low is not None and e_pa < low * (1 - INTERVAL_TOLERANCE)) or (
+                high is not None and e_pa > high * (1 + INTERVAL_TOLERANCE))):
+            raise MessageRejected("mistyped_field",
+                                  f"estimate E_pa = {e_pa} lies outside its interval_pa [{low}, {high}]")
 
 
 @_body

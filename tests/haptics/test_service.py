@@ -78,11 +78,11 @@ def test_final_estimate_is_rendered_and_its_latency_measured_from_capture(rig):
 def test_an_estimate_that_cannot_be_rendered_is_logged_and_skipped(rig, caplog):
     service, estimator, display, _ = rig
     with caplog.at_level(logging.WARNING):
-        # Valid on the wire, but its value lies outside its own interval.
-        estimate(estimator, grasp_id="g2", t_capture_s=time.monotonic(), e_pa=1e6, provisional=True,
-                 interval=[1e7, 1e8])
+        # Valid on the wire, but a bound with no value and no bound in its interval has nothing to render.
+        estimate(estimator, grasp_id="g2", t_capture_s=time.monotonic(), e_pa=None, provisional=True,
+                 state="lower_bound", interval=[None, None])
         step_until(service, lambda: service.stats.bad_messages == 1)
-    assert "not rendered" in caplog.text and "outside its interval" in caplog.text
+    assert "not rendered" in caplog.text and "a bound may come from interval_pa" in caplog.text
     estimate(estimator, grasp_id="g2", t_capture_s=time.monotonic(), e_pa=3e4, provisional=False)
     step_until(service, lambda: service.stats.finals)
     assert service.stats.finals[0].e_pa == 3e4 and not display.rendered_command.provisional
@@ -241,3 +241,58 @@ def test_a_final_shown_once_the_display_is_back_is_measured_to_that_report(rig):
     assert final.level > 0 and final.estimates_received == 1  # the level it settles on
     assert display.rendered_command.level > 0 and not display.rendered_command.provisional
     assert 0.1 <= final.latency_s <= time.monotonic() - captured
+
+
+def _unplugged_service(monkeypatch=None, kept: int | None = None):
+    from haptics import service as service_module
+
+    if kept is not None:
+        monkeypatch.setattr(service_module, "KEPT_FINALS", kept)
+    display = SimulatedDisplay()
+    display.unplug()  # no report reaches it: every final is never shown
+    return RendererService(HapticRenderer(display, display_settings(load_settings())), subscriber=None,
+                           clock=lambda: 1.0)
+
+
+def _send(service: RendererService, kind: str, seq: int = 0, **body) -> None:
+    import dataclasses
+
+    from teleop.bus.wire import make_message
+
+    message = dataclasses.replace(make_message(kind, t_capture_s=0.5, **body), source="estimator", seq=seq)
+    service.handle(message)
+
+
+def test_estimates_that_cannot_be_rendered_are_counted_and_logged_sparingly(caplog):
+    service = _unplugged_service()
+    with caplog.at_level(logging.WARNING, logger="haptics.service"):
+        for seq in range(120):
+            _send(service, "estimate", seq=seq, grasp_id="g", method="series", E_pa=None, interval_pa=[None, None],
+                  state="lower_bound", reason="", provisional=True, latency_s=0.0)
+    assert service.stats.bad_messages == 120 and service.stats.estimates == 0
+    lines = [r.getMessage() for r in caplog.records if r.name == "haptics.service"]
+    assert len(lines) == 3, lines  # the first, then the 10th and the 100th
+    assert lines[0].startswith("estimate from estimator (seq 0) not rendered:") and "counted" in lines[0]
+    assert lines[1].startswith("10 estimates not rendered so far, the last from estimator (seq 9)")
+    assert lines[2].startswith("100 estimates not rendered so far")
+
+
+def test_finals_never_shown_are_logged_sparingly_and_only_the_last_ones_are_kept(monkeypatch, caplog, tmp_path):
+    from haptics.service import KEPT_FINALS
+
+    assert KEPT_FINALS == 1000  # as the docs say (``haptics serve --json``)
+    service = _unplugged_service(monkeypatch, kept=10)
+    with caplog.at_level(logging.WARNING, logger="haptics.service"):
+        for n in range(25):
+            _send(service, "estimate", seq=n, grasp_id=f"g{n}", method="series", E_pa=1e5, interval_pa=[5e4, 2e5],
+                  state="ok", reason="", provisional=False, latency_s=0.0)
+        _send(service, "grasp_event", seq=25, event="end", grasp_id="g24")
+    stats = service.stats
+    assert stats.final_estimates == stats.not_shown == 25
+    assert [f.grasp_id for f in stats.finals] == [f"g{n}" for n in range(15, 25)]  # the last 10
+    summary = stats.as_dict()
+    assert summary["final_estimates"] == summary["not_shown"] == 25 and len(summary["finals"]) == 10
+    lines = [r.getMessage() for r in caplog.records if r.name == "haptics.service"]
+    assert len(lines) == 2, lines  # the first, then the 10th
+    assert lines[0].startswith("grasp g0: its final estimate") and "never shown" in lines[0]
+    assert lines[1].startswith("10 final estimates never shown so far")

@@ -271,3 +271,45 @@ def test_no_module_outside_the_wire_module_reads_a_body_by_string_key():
             reads += body_reads(path.read_text(encoding="utf-8"), where)
     assert not reads, ("bus bodies read by string key (read message.fields.<name> instead; a JSON "
                        f"report takes message.fields.as_dict()): {', '.join(reads)}")
+
+
+# --------------------------------------------------------------------------- an estimate's interval
+
+_TOL = 1e-9  # the renderer's relative tolerance (haptics.mapping.EstimateUpdate)
+
+
+@pytest.mark.parametrize(("state", "e_pa", "interval", "ok"), [
+    ("ok", 2e5, [1e5, 4e5], True),
+    ("ok", 1e5 * (1 - _TOL / 2), [1e5, 4e5], True),  # a bound rounded differently from the value
+    ("ok", 4e5 * (1 + _TOL / 2), [1e5, 4e5], True),
+    ("ok", 5e5, [1e3, 2e3], False),  # above its interval
+    ("ok", 1e5 * (1 - 1e-6), [1e5, 4e5], False),  # below it
+    ("ok", 1e300, [1e-300, None], True),  # one side open
+    ("lower_bound", 3e5, [3e5, None], True),  # a bound: E is the interval's closed side
+    ("lower_bound", 1e5, [3e5, None], False),
+    ("upper_bound", 3e5, [None, 3e5], True),
+    ("upper_bound", 4e5, [None, 3e5], False),
+    ("lower_bound", None, [3e5, None], True),  # the bound read from the interval
+    ("insufficient_data", None, [None, None], True),
+])
+def test_an_estimate_outside_its_own_interval_is_refused_on_the_wire_as_the_renderer_would(state, e_pa, interval,
+                                                                                            ok):
+    from haptics.errors import MappingError
+    from haptics.mapping import EstimateUpdate
+
+    body = {**ESTIMATE, "state": state, "E_pa": e_pa, "interval_pa": interval}
+    try:
+        EstimateUpdate(e_pa, tuple(interval), state)
+        rendered = True
+    except MappingError:
+        rendered = False
+    assert rendered == ok  # the wire's rule is the renderer's
+    if ok:
+        assert _round_trip(make_message("estimate", t_capture_s=1.0, **body)).fields.E_pa == e_pa
+        return
+    with pytest.raises(MessageRejected, match=r"mistyped_field: .*lies outside its interval_pa"):
+        make_message("estimate", t_capture_s=1.0, **body)
+    # ... and so is one a sender put on the wire by hand: the receiver refuses it.
+    topic, header, _, *rest = encode(make_message("estimate", t_capture_s=1.0, **ESTIMATE))
+    with pytest.raises(MessageRejected, match=r"mistyped_field: .*lies outside its interval_pa"):
+        decode([bytes(topic), bytes(header), msgpack.packb(body), *map(bytes, rest)], max_bytes=MAX)
