@@ -3,10 +3,12 @@
 :class:`DeviceReader` serves :class:`haptics.operator_loop.OperatorLoop`. Each read says whether it
 comes after a gap, a time in which the hand was not heard:
 
-* a read that fails (an unplugged gamepad or display raises ``InputDeviceError`` and is left
-  disconnected) gives the last reading with the enable released and no buttons, the grip where it
-  was, so that a follow grasp pauses (the fingers stop where they are) instead of tripping the
-  robot's watchdog; the device is opened again at most every :data:`RECONNECT_S`;
+* a read that fails and leaves the device disconnected (an unplugged gamepad or display raises
+  ``InputDeviceError``) gives the last reading with the enable released and no buttons, the grip
+  where it was, so that a follow grasp pauses (the fingers stop where they are) instead of tripping
+  the robot's watchdog; the device is opened again at most every :data:`RECONNECT_S`. A read that
+  fails with the device still connected (one malformed report) is that released reading too, but no
+  gap: the enable held at the next read drives again;
 * the first reading after the device was opened again;
 * a reading the device marks ``lost`` (:attr:`haptics.inputs.base.OperatorInput.lost`: the
   display's grip reports stopped for longer than the protocol allows).
@@ -72,6 +74,9 @@ class DeviceReader:
                     self._trouble(f"input device: {exc}; trying again every {RECONNECT_S:g} s")
         except ComplianceTeleopError as exc:
             self._trouble(f"input device: {exc}")
+            # A device still connected read one bad report (the link stays): one read let go, no gap.
+            gap = not getattr(self.device, "connected", False)
+            return (None if last is None else replace(last, enable=False, buttons=frozenset())), gap
         return (None if last is None else replace(last, enable=False, buttons=frozenset())), True
 
     def feel(self, *, force_n: float, width_m: float, stiffness: float | None) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 from support.operator_fakes import Clock, FakeLink
 
+from haptics.errors import ProtocolError
 from haptics.inputs.display import DisplayInput
 from haptics.inputs.gamepad import GamepadInput
 from haptics.inputs.sim import SimulatedInput
@@ -111,6 +112,28 @@ def test_a_display_whose_grip_reports_stop_drives_again_only_once_the_enable_is_
     _run(clock, loop, 0.05, lambda: display.push(0.9, enable=False))
     _run(clock, loop, 0.05, lambda: display.push(0.9))
     assert _enabled(link, sent)[0]["target_width_m"] == pytest.approx(0.008)
+
+
+def test_one_malformed_grip_report_is_no_gap_the_held_enable_drives_on(make_grip_display):
+    clock = Clock()
+    display = make_grip_display()
+    link = FakeLink(clock)
+    loop = OperatorLoop(link, DisplayInput(display, clock=clock).connect(), load_settings(), clock=clock)
+    _run(clock, loop, 0.05, lambda: display.push(0.0, enable=False))
+    _run(clock, loop, 0.2, lambda: display.push(0.2))
+    link.view = OperatorView(t_s=clock(), grasp_id=link.sent[-1][2]["grasp_id"], phase="loading")
+    reports, failed = display.read_operator_reports, []
+
+    def one_bad_report(*, timeout_s):
+        if not failed:
+            failed.append(True)
+            raise ProtocolError("grip report: bad checksum")  # the protocol names it; the link stays
+        return reports(timeout_s=timeout_s)
+
+    display.read_operator_reports = one_bad_report
+    sent = len(link.sent)
+    _run(clock, loop, 0.2, lambda: display.push(0.3))  # the operator squeezes on, the enable held
+    assert failed and _enabled(link, sent) and not loop.status.suspended
 
 
 def test_before_its_first_grip_report_a_display_is_not_heard_so_its_first_held_report_does_not_drive(
