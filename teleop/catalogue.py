@@ -172,8 +172,14 @@ def _typed(table: dict, key: str, kinds: tuple[type, ...], what: str, where: str
     return value
 
 
-def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
-    """Read the project's TOML catalogue; errors name the file, the object and the key."""
+def read_toml_catalogue(path: str | Path, *, recorded: bool = False) -> tuple[ObjectSpec, ...]:
+    """Read the project's TOML catalogue; errors name the file, the object and the key.
+
+    ``recorded``: a catalogue a session log holds, read for its labels (names, materials, shapes,
+    moduli): the checks the simulator needs (a material of :data:`MATERIALS`, nothing but
+    ``[[objects]]``, extents that agree with the shape) are left out, so a log recorded before them
+    still reads.
+    """
     path = Path(path)
     try:
         # utf-8-sig: editors on Windows save a byte-order mark, which tomllib refuses.
@@ -183,7 +189,7 @@ def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise SettingsError(f"{path}: not valid TOML: {exc}") from exc
     extra = sorted(set(data) - {"objects"})
-    if extra:
+    if extra and not recorded:
         raise SettingsError(f"{path}: unknown top-level key or table {extra[0]!r}; a catalogue holds only "
                             "[[objects]] tables (one per object)")
     tables = data.get("objects")
@@ -204,13 +210,15 @@ def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
         size = _typed(table, "size_m", (list,), "an array of three extents in m", where, default=[])
         if not all(isinstance(s, number) and not isinstance(s, bool) for s in size):
             raise SettingsError(f"{where}: size_m must hold numbers (m), got {size!r}")
-        _check_section(table.get("shape"), size, where)
+        if not recorded:
+            _check_section(table.get("shape"), size, where)
         try:
             objects.append(
                 ObjectSpec(
                     name=name,
                     shape=normalise_shape(_typed(table, "shape", (str,), "a string", where), where=where),
-                    material=_material(_typed(table, "material", (str,), "a string", where), where),
+                    material=_material(_typed(table, "material", (str,), "a string", where), where,
+                                       known=not recorded),
                     modulus_pa=float(_typed(table, "modulus_pa", number, "a number (Pa)", where)),
                     poisson=float(_typed(table, "poisson", number, "a number", where, default=0.4)),
                     size_m=tuple(float(s) for s in size) if "size_m" in table else None,
@@ -226,10 +234,10 @@ def read_toml_catalogue(path: str | Path) -> tuple[ObjectSpec, ...]:
     return tuple(objects)
 
 
-def _material(raw: str, where: str) -> str:
-    """``raw`` stripped and lower-cased when it is one of :data:`MATERIALS`; else SettingsError."""
+def _material(raw: str, where: str, *, known: bool) -> str:
+    """``raw`` stripped and lower-cased; SettingsError when ``known`` and it is not one of :data:`MATERIALS`."""
     material = raw.strip().lower()
-    if material not in MATERIALS:
+    if known and material not in MATERIALS:
         raise SettingsError(f"{where}: material {raw!r} is not one of {', '.join(MATERIALS)} (the simulator "
                             "takes its texture and densification from the material)")
     return material
@@ -355,14 +363,16 @@ def read_object_table(path: str | Path, *, skip_unlabelled: bool = True,
     return tuple(objects)
 
 
-def load_catalogue(path: str | Path | None = None, *, unlabelled: list[str] | None = None) -> tuple[ObjectSpec, ...]:
+def load_catalogue(path: str | Path | None = None, *, unlabelled: list[str] | None = None,
+                   recorded: bool = False) -> tuple[ObjectSpec, ...]:
     """Read either catalogue format, chosen by suffix (``.toml`` or ``.csv``); a CSV table's rows
-    skipped as unlabelled are appended to ``unlabelled`` when given (a TOML catalogue has none)."""
+    skipped as unlabelled are appended to ``unlabelled`` when given (a TOML catalogue has none).
+    ``recorded``: one a session log holds (:func:`read_toml_catalogue`)."""
     path = Path(path) if path is not None else default_catalogue_path()
     if path.suffix.lower() == ".csv":
         return read_object_table(path, unlabelled=unlabelled)
     if path.suffix.lower() == ".toml":
-        return read_toml_catalogue(path)
+        return read_toml_catalogue(path, recorded=recorded)
     raise SettingsError(f"{path}: unknown catalogue format; expected a .toml catalogue or a .csv object table")
 
 

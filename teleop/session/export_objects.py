@@ -26,7 +26,7 @@ def _attached_objects(name: str, data: bytes) -> dict[str, ObjectSpec]:
         path = Path(tmp) / name
         path.write_bytes(data)
         try:
-            return {obj.name: obj for obj in load_catalogue(path)}
+            return {obj.name: obj for obj in load_catalogue(path, recorded=True)}
         except SettingsError as exc:
             raise SettingsError(str(exc).replace(str(path), f"the log's attached {name}")) from exc
 

@@ -136,7 +136,7 @@ def _catalogue_objects(catalogue: str | Path | None, attachments: dict[str, byte
                     path = Path(folder) / name
                     path.write_bytes(attachments[name])
                     try:
-                        objects = load_catalogue(path)
+                        objects = load_catalogue(path, recorded=True)
                     except SettingsError as exc:
                         raise SettingsError(
                             f"the log's {name} attachment: {str(exc).replace(str(path), name)}"

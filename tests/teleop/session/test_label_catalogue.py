@@ -48,3 +48,20 @@ def test_each_label_catalogue_is_attached_once_and_every_one_is_used(recorded, t
     labels = _labels_of(log)
     assert (labels["g0"].material, labels["g0"].shape) == ("foam", "sphere")  # relabelled: stress_ball, the log's
     assert (labels["g1"].material, labels["g1"].shape) == ("wood", "cylinder")
+
+
+def test_a_catalogue_recorded_before_the_simulators_checks_still_reads_for_export_and_label(tmp_path):
+    """A log's catalogue was accepted when it was recorded: export and label take its names, materials
+    and shapes, though it names a material the simulator has no model for, or holds another key."""
+    from types import SimpleNamespace
+
+    from teleop.session.export_objects import catalogue_objects
+    from teleop.session.label import _catalogue_objects
+
+    old = (b'title = "lab objects"\n[[objects]]\nname = "gel_pad"\nshape = "sphere"\nmaterial = "Silicone "\n'
+           b'modulus_pa = 2e4\nsize_m = [0.02, 0.03, 0.02]\n')
+    info = SimpleNamespace(attachments={"catalogue.toml": old}, damaged_attachments={})
+    (gel,) = catalogue_objects(info, None, log=tmp_path / "session.mcap").values()
+    assert (gel.name, gel.material, gel.shape, gel.modulus_pa) == ("gel_pad", "silicone", "sphere", 2e4)
+    objects, where, attach = _catalogue_objects(None, {"catalogue.toml": old})
+    assert [o.name for o in objects] == ["gel_pad"] and attach is None
