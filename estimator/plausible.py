@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["FORCE_GLITCHES", "FORCE_LIMIT_FACTOR", "MIN_FORCE_NOISE_N", "MIN_WIDTH_NOISE_M", "WIDTH_SLACK_SHARE",
-           "implausible_forces", "implausible_widths", "reversed_force"]
+__all__ = ["FORCE_GLITCHES", "FORCE_LIMIT_FACTOR", "MIN_FORCE_NOISE_N", "MIN_WIDTH_NOISE_M", "REST_SAMPLES",
+           "WIDTH_SLACK_SHARE", "implausible_forces", "implausible_widths", "reversed_force"]
 
 WIDTH_SLACK_SHARE = 0.1
 FORCE_LIMIT_FACTOR = 2.0
@@ -24,6 +24,7 @@ FORCE_GLITCHES = 2
 # seen): exact readings would otherwise give bounds at absurd moduli (1e20 Pa) and intervals of zero width.
 MIN_FORCE_NOISE_N = 1e-3
 MIN_WIDTH_NOISE_M = 1e-6
+REST_SAMPLES = 10  # the first force samples of a grasp, taken before contact: the cell's reading at rest
 
 
 def implausible_widths(width_m: np.ndarray, *, max_width_m: float) -> tuple[np.ndarray, str]:
@@ -52,10 +53,15 @@ def implausible_forces(force_n: np.ndarray, *, max_force_n: float) -> tuple[np.n
 
 
 def reversed_force(force_n: np.ndarray, *, contact_force_n: float) -> str:
-    """Why the forces (N) read as a load cell with its sign reversed, or '': they fall below
-    ``-contact_force_n`` and never rise to ``contact_force_n``. Non-finite forces are ignored."""
+    """Why the forces (N) read as a load cell with its sign reversed, or '': from their reading at rest
+    (the median of the first :data:`REST_SAMPLES`), they fall by ``contact_force_n`` or more and never
+    rise by as much. A cell offset at rest (untared) is no reversed one. Non-finite forces are ignored."""
     finite = force_n[np.isfinite(force_n)]
-    if finite.size == 0 or finite.max() >= contact_force_n or not finite.min() <= -contact_force_n:
+    if finite.size == 0:
         return ""
-    return (f"the force falls to {finite.min():.3g} N and never rises to contact_force_n = {contact_force_n:g} N "
-            f"(it peaks at {finite.max():.3g} N): is the load cell's sign reversed?")
+    rest = float(np.median(finite[:REST_SAMPLES]))
+    if finite.max() - rest >= contact_force_n or not finite.min() - rest <= -contact_force_n:
+        return ""
+    return (f"the force falls to {finite.min():.3g} N from {rest:.3g} N at rest and never rises by "
+            f"contact_force_n = {contact_force_n:g} N (it peaks at {finite.max():.3g} N): is the load cell's "
+            "sign reversed?")

@@ -107,8 +107,12 @@ def test_a_load_cell_with_its_sign_reversed_is_named_not_read_as_no_contact(cali
     for method in ("no_tactile", "series"):
         est = estimate_grasp(reversed_sign, method, settings=SETTINGS, calibration=calibration)
         assert not est and "is the load cell's sign reversed?" in est.reason and "no contact" not in est.reason
-        assert "never rises to contact_force_n = 0.75 N" in est.reason
+        assert "never rises by contact_force_n = 0.75 N" in est.reason
     # A grasp of air stays one: its force stays in its noise on both sides.
     air = replace(record, force_n=Samples(f.t_s, f.value * 0.01))
     est = estimate_grasp(air, "no_tactile", settings=SETTINGS)
     assert not est and est.reason.startswith("no contact") and "sign" not in est.reason
+    # A cell offset at rest (untared) whose squeeze stays below contact is no reversed one.
+    offset = replace(record, force_n=Samples(f.t_s, f.value * 0.01 - 2.0))
+    est = estimate_grasp(offset, "no_tactile", settings=SETTINGS)
+    assert not est and "sign" not in est.reason
