@@ -4,7 +4,8 @@ console's rate while the node steps, and what the bus heard."""
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import pytest
 
@@ -26,6 +27,18 @@ def node_rig(settings_of: Callable = lambda s: s):
     robot.wait_for_subscriber(*TOPICS, timeout_s=5.0)
     operator.wait_for_subscriber("command", "follow", timeout_s=5.0)
     return node, operator, listener, scene, (robot, operator, commands, listener)
+
+
+@contextmanager
+def running_node() -> Iterator[tuple[RobotNode, Publisher, Subscriber, object]]:
+    """:func:`node_rig` as ``(node, operator, listener, scene)``, closed on leaving."""
+    node, operator, listener, scene, sockets = node_rig()
+    try:
+        yield node, operator, listener, scene
+    finally:
+        node.close()
+        for sock in sockets:
+            sock.close()
 
 
 def drive(node: RobotNode, operator: Publisher, target: Callable[[float], float], duration_s: float, *,

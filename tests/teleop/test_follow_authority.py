@@ -9,7 +9,7 @@ from collections.abc import Callable
 from concurrent.futures import Future
 
 import pytest
-from support.node_rig import drain, node_rig, step_for, wait_prepared
+from support.node_rig import drain, running_node, step_for, wait_prepared
 
 from teleop.bus.wire import make_message
 from teleop.operator import WATCHDOG_S
@@ -17,11 +17,8 @@ from teleop.operator import WATCHDOG_S
 
 @pytest.fixture
 def rig():
-    node, operator, listener, scene, sockets = node_rig()
-    yield node, listener
-    node.close()
-    for sock in sockets:
-        sock.close()
+    with running_node() as (node, _, listener, _scene):
+        yield node, listener
 
 
 def follow(node, grasp_id: str | None, width_m: float, *, enable: bool = True) -> None:

@@ -10,7 +10,7 @@ from support.node_rig import (
     drain,
     drive,
     killed_console_stops_the_fingers,
-    node_rig,
+    running_node,
     step_for,
     wait_prepared,
 )
@@ -20,11 +20,8 @@ from teleop.operator import WATCHDOG_S
 
 @pytest.fixture
 def rig():
-    node, operator, listener, scene, sockets = node_rig()
-    yield node, operator, listener, scene
-    node.close()
-    for sock in sockets:
-        sock.close()
+    with running_node() as rig:
+        yield rig
 
 
 @pytest.mark.slow

@@ -6,7 +6,7 @@ import logging
 import time
 
 import pytest
-from support.node_rig import drain, node_rig
+from support.node_rig import drain, running_node
 
 import teleop.follow as follow
 from teleop.node import _Grasp
@@ -14,11 +14,8 @@ from teleop.node import _Grasp
 
 @pytest.fixture
 def rig():
-    node, operator, listener, scene, sockets = node_rig()
-    yield node, operator, listener, scene
-    node.close()
-    for sock in sockets:
-        sock.close()
+    with running_node() as rig:
+        yield rig
 
 
 def _step_until_refused(node, count: int) -> None:

@@ -94,16 +94,21 @@ def test_an_enable_held_when_the_loop_starts_drives_only_once_let_go_and_held_ag
     assert _enabled(link, 0)[0]["target_width_m"] == 0.0
 
 
-def test_a_display_whose_grip_reports_stop_drives_again_only_once_the_enable_is_held_anew(make_grip_display):
+def _driving_display(make_grip_display) -> tuple[Clock, FakeLink, object, OperatorLoop]:
+    """A display input driving a follow grasp at grip 0.2, the robot running it."""
     clock = Clock()
     display = make_grip_display()
     link = FakeLink(clock)
     loop = OperatorLoop(link, DisplayInput(display, clock=clock).connect(), load_settings(), clock=clock)
     _run(clock, loop, 0.05, lambda: display.push(0.0, enable=False))
     _run(clock, loop, 0.2, lambda: display.push(0.2))
-    grasp_id = link.sent[-1][2]["grasp_id"]
     assert link.sent[-1][2]["enable"]
-    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loading")
+    link.view = OperatorView(t_s=clock(), grasp_id=link.sent[-1][2]["grasp_id"], phase="loading")
+    return clock, link, display, loop
+
+
+def test_a_display_whose_grip_reports_stop_drives_again_only_once_the_enable_is_held_anew(make_grip_display):
+    clock, link, display, loop = _driving_display(make_grip_display)
     _run(clock, loop, 0.3)  # no report for 0.3 s: the grip is lost (100 ms), the enable reads let go
     assert not link.sent[-1][2]["enable"]
     sent = len(link.sent)
@@ -115,13 +120,7 @@ def test_a_display_whose_grip_reports_stop_drives_again_only_once_the_enable_is_
 
 
 def test_one_malformed_grip_report_is_no_gap_the_held_enable_drives_on(make_grip_display):
-    clock = Clock()
-    display = make_grip_display()
-    link = FakeLink(clock)
-    loop = OperatorLoop(link, DisplayInput(display, clock=clock).connect(), load_settings(), clock=clock)
-    _run(clock, loop, 0.05, lambda: display.push(0.0, enable=False))
-    _run(clock, loop, 0.2, lambda: display.push(0.2))
-    link.view = OperatorView(t_s=clock(), grasp_id=link.sent[-1][2]["grasp_id"], phase="loading")
+    clock, link, display, loop = _driving_display(make_grip_display)
     reports, failed = display.read_operator_reports, []
 
     def one_bad_report(*, timeout_s):
