@@ -118,7 +118,7 @@ def test_a_second_sigterm_while_the_renderer_closes_does_not_cut_its_closing_sho
     done = _script(_FAKE_SERVICES + """
     import haptics.service_cli as cli
     class Stats:
-        estimates, finals, ignored = 0, [], 0
+        estimates, finals, final_estimates, ignored = 0, [], 0, 0
         def as_dict(self): return {}
     class Display(Ctx):
         reports_written = 0
