@@ -303,7 +303,6 @@ _MAX_ARRAY_BYTES = 256 * _MIB
 # about its own size on disk plus what its deflated header and arrays add, a few MB (tens for the
 # longest grasps); 1 GiB more than the file's size is tens of times that.
 _MAX_INFLATION_BYTES = 1024 * _MIB
-_CHUNK_BYTES = _MIB
 
 
 def _member_limit(name: str) -> int:
@@ -345,18 +344,16 @@ class _Reader:
         if declared > limit:
             raise self.fail(f"member {name!r} declares {declared} bytes, more than the limit of {limit} bytes: "
                             "refused before reading (a damaged or hostile record)")
-        data = bytearray()
         try:
-            with self.zf.open(name) as file:  # in chunks, stopping past the limit: the size declared may lie
-                while len(data) <= limit and (chunk := file.read(min(_CHUNK_BYTES, limit + 1 - len(data)))):
-                    data += chunk
+            with self.zf.open(name) as file:  # at most one byte past the limit: the size declared may lie
+                data = file.read(limit + 1)
         except (zipfile.BadZipFile, zlib.error, OSError, EOFError, ValueError) as exc:
             raise self.fail(f"member {name!r} is damaged ({exc})") from exc
         if len(data) > limit:
             raise self.fail(f"member {name!r} holds more than the limit of {limit} bytes (it declares "
                             f"{declared}): refused (a damaged or hostile record)")
         self.budget -= len(data)
-        return bytes(data)
+        return data
 
     def array(self, name: str, *, dtype: Any, ndim: int) -> np.ndarray:
         try:
