@@ -265,9 +265,6 @@ def find_load_phase(
     before = force[quiet] if quiet.sum() >= 5 else force
     sigma_f = noise_std(before)  # as read: a plateau of identical readings is a saturation
     above = np.flatnonzero(force >= contact_force_n)
-    if above.size == 0 and (why := reversed_force(force, contact_force_n=contact_force_n)):
-        return LoadPhase(reason=f"{why} (above its baseline {baseline:.3g} N)", flags=(*flags, "implausible_force"),
-                         notes=tuple(notes), force_baseline_n=baseline)
     if above.size == 0:
         return LoadPhase(
             reason=f"no contact: the force peaks at {force.max():.3g} N above its baseline "
