@@ -7,8 +7,9 @@ comes after a gap, a time in which the hand was not heard:
   ``InputDeviceError``) gives the last reading with the enable released and no buttons, the grip
   where it was, so that a follow grasp pauses (the fingers stop where they are) instead of tripping
   the robot's watchdog; the device is opened again at most every :data:`RECONNECT_S`. A read that
-  fails with the device still connected (one malformed report) is that released reading too, but no
-  gap: the enable held at the next read drives again;
+  fails with the device still connected (one malformed report) is that released reading too, marked
+  ``lost``, but no gap: an enable driving before drives again at the next read, and a suspended one
+  stays suspended (the let-go was not read);
 * the first reading after the device was opened again;
 * a reading the device marks ``lost`` (:attr:`haptics.inputs.base.OperatorInput.lost`: the
   display's grip reports stopped for longer than the protocol allows).
@@ -74,9 +75,10 @@ class DeviceReader:
                     self._trouble(f"input device: {exc}; trying again every {RECONNECT_S:g} s")
         except ComplianceTeleopError as exc:
             self._trouble(f"input device: {exc}")
-            # A device still connected read one bad report (the link stays): one read let go, no gap.
-            gap = not getattr(self.device, "connected", False)
-            return (None if last is None else replace(last, enable=False, buttons=frozenset())), gap
+            # A device still connected read one bad report (the link stays): the enable is not heard for
+            # one read (``lost``: it pauses, and is no let-go that re-arms a suspended enable), no gap.
+            if getattr(self.device, "connected", False):
+                return (None if last is None else replace(last, enable=False, buttons=frozenset(), lost=True)), False
         return (None if last is None else replace(last, enable=False, buttons=frozenset())), True
 
     def feel(self, *, force_n: float, width_m: float, stiffness: float | None) -> None:

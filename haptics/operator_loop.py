@@ -396,7 +396,7 @@ class OperatorLoop:
         now = self.clock()
         self._target_m = grip_to_width_m(reading.grip, max_width_m=self.max_width_m)
         held = bool(reading.enable)
-        if self._rearm and not held and not gap:  # let go as read, not for want of a reading
+        if self._rearm and not held and not gap and not getattr(reading, "lost", False):  # let go as read
             self._rearm = False
         enable = held and not self._rearm  # after a stop, release or gap: not until held anew
         if enable and not self._enable:

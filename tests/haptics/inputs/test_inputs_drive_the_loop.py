@@ -135,6 +135,25 @@ def test_one_malformed_grip_report_is_no_gap_the_held_enable_drives_on(make_grip
     assert failed and _enabled(link, sent) and not loop.status.suspended
 
 
+def test_one_malformed_grip_report_is_no_let_go_of_a_suspended_enable(make_grip_display):
+    clock, link, display, loop = _driving_display(make_grip_display)
+    loop.press("stop")  # suspended: the enable, held all along, drives nothing until let go
+    _run(clock, loop, 0.1, lambda: display.push(0.2))
+    assert loop.status.suspended
+    reports, failed = display.read_operator_reports, []
+
+    def one_bad_report(*, timeout_s):
+        if not failed:
+            failed.append(True)
+            raise ProtocolError("grip report: bad checksum")
+        return reports(timeout_s=timeout_s)
+
+    display.read_operator_reports = one_bad_report
+    sent = len(link.sent)
+    _run(clock, loop, 0.2, lambda: display.push(0.3))  # the enable held throughout, never let go
+    assert failed and not _enabled(link, sent) and loop.status.suspended
+
+
 def test_before_its_first_grip_report_a_display_is_not_heard_so_its_first_held_report_does_not_drive(
         make_grip_display):
     clock = Clock()
