@@ -55,11 +55,14 @@ def implausible_forces(force_n: np.ndarray, *, max_force_n: float) -> tuple[np.n
 def reversed_force(force_n: np.ndarray, *, contact_force_n: float) -> str:
     """Why the forces (N) read as a load cell with its sign reversed, or '': from their reading at rest
     (the median of the first :data:`REST_SAMPLES`), they fall by ``contact_force_n`` or more and never
-    rise by as much. A cell offset at rest (untared) is no reversed one. Non-finite forces are ignored."""
+    rise by as much. A cell offset at rest (untared) is no reversed one, nor is a record that starts in
+    contact (its first samples at or above ``contact_force_n``). Non-finite forces are ignored."""
     finite = force_n[np.isfinite(force_n)]
     if finite.size == 0:
         return ""
     rest = float(np.median(finite[:REST_SAMPLES]))
+    if rest >= contact_force_n:
+        return ""  # the record starts in contact: no reading at rest to fall from
     if finite.max() - rest >= contact_force_n or not finite.min() - rest <= -contact_force_n:
         return ""
     return (f"the force falls to {finite.min():.3g} N from {rest:.3g} N at rest and never rises by "

@@ -116,3 +116,9 @@ def test_a_load_cell_with_its_sign_reversed_is_named_not_read_as_no_contact(cali
     offset = replace(record, force_n=Samples(f.t_s, f.value * 0.01 - 2.0))
     est = estimate_grasp(offset, "no_tactile", settings=SETTINGS)
     assert not est and "sign" not in est.reason
+    # Nor is a record that starts in contact, its first samples at the squeeze's force.
+    from estimator.plausible import reversed_force
+
+    squeezed = np.argmax(f.value >= 0.98 * f.value.max())  # the record starts at the hold
+    released = np.concatenate([f.value[squeezed:], np.linspace(f.value[-1], 0.0, 20)])  # and let go
+    assert not reversed_force(released, contact_force_n=0.75)
