@@ -28,7 +28,7 @@ from teleop.bus.pubsub import is_decade
 __all__ = ["MAX_KINDS", "MAX_RECENT", "NOTICES_PER_KIND", "REFUSAL_REPEAT_S", "Refusals"]
 
 REFUSAL_REPEAT_S = 1.0  # the same refusal (action, grasp and reason) goes out at most this often
-NOTICES_PER_KIND = 5  # robot_notices of one kind of refusal per REFUSAL_REPEAT_S window, at most
+NOTICES_PER_KIND = 20  # robot_notices of one kind per REFUSAL_REPEAT_S window: above a console's bursts
 MAX_KINDS = 64  # kinds of refusal told apart; further ones share one per action and error class
 MAX_RECENT = 1024  # notices remembered to hold back their repeats (more within a window: the oldest forgotten)
 

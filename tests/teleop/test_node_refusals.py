@@ -6,10 +6,11 @@ import logging
 import time
 
 import pytest
-from support.node_rig import drain, running_node
+from support.node_rig import drain, running_node, step_for
 
 import teleop.follow as follow
 from teleop.node import _Grasp
+from teleop.node_refusals import NOTICES_PER_KIND
 
 
 @pytest.fixture
@@ -57,7 +58,7 @@ def test_refusals_with_made_up_values_log_and_notice_a_bounded_number_while_an_o
     assert any("object_index" in r.getMessage() for r in flooded)
     assert any("the fingers open to" in r.getMessage() for r in flooded)
     assert any("(1000 refusals like it so far)" in r.getMessage() for r in flooded)
-    assert 2 <= len(notices) <= 2 * 5  # NOTICES_PER_KIND of each kind in the flood's one second
+    assert 2 <= len(notices) <= 2 * NOTICES_PER_KIND  # of each kind in the flood's one second
     assert {n["event"] for n in notices} == {"refused"}
     assert {n["action"] for n in notices} == {"start_grasp", "follow"}
     legit = [(n["grasp_id"], n["action"]) for n in heard if n["event"] == "refused"]
@@ -77,7 +78,7 @@ def test_the_refusal_bookkeeping_stays_bounded():
         sent += refusals.may_send("start_grasp", f"g{i}", f"reason {i}", now=i * 1e-4, repeat_s=1.0, kind=kind)
     assert len(refusals._kinds) <= MAX_KINDS + 1
     assert len(refusals._recent) <= MAX_RECENT
-    assert sent <= 5 * (MAX_KINDS + 1)
+    assert sent <= NOTICES_PER_KIND * (MAX_KINDS + 1)
     # A second on, the same refusal goes out again, and the repeats within it do not.
     assert refusals.may_send("stop", "g", "r", now=10.0, repeat_s=1.0)
     assert not refusals.may_send("stop", "g", "r", now=10.5, repeat_s=1.0)
@@ -94,3 +95,17 @@ def test_the_follow_grasps_remembered_as_ended_are_bounded(rig):
     assert f"made-up-{kept + 199}" in node._follower.ended
     with pytest.raises(follow.DeviceError, match="has ended"):
         node._follower.follow(f"made-up-{kept + 199}", 0.05, True)
+
+
+def test_a_consoles_burst_of_refused_grasps_is_each_said(rig):
+    """A console clears a grasp it pressed only when the robot's refusal names it: a burst of presses
+    while one grasp runs (one kind of refusal, well under a flood) gets every notice."""
+    node, operator, listener, _ = rig
+    operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id="op-s-001", params={})
+    step_for(node, 0.3)
+    for i in range(2, 12):
+        operator.send("command", t_capture_s=0.0, action="start_grasp", grasp_id=f"op-s-{i:03d}", params={})
+    _step_until_refused(node, 10)
+    refused = {m.body["grasp_id"] for m in drain(listener) if m.type == "robot_notice"
+               and m.body["event"] == "refused"}
+    assert refused == {f"op-s-{i:03d}" for i in range(2, 12)}
