@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from estimator.errors import EstimatorError
+from teleop.staging import staged
 
 __all__ = ["BEGIN", "COLUMNS", "END", "SHIPPED_CARD", "Source", "add_arguments", "check_block", "kept_copy", "load_source", "render_block",
            "recorded_sources", "replace_block", "run", "table_rows"]
@@ -203,8 +204,19 @@ def recorded_sources(text: str, card: Path) -> tuple[list[tuple[str, Path]], lis
     for line in block.splitlines():
         found = _SOURCES.match(line.strip())
         if found:
-            recorded = json.loads(found.group(1))
-            return ([(label, card.parent / path) for label, path in recorded["figures"]], recorded["methods"])
+            try:
+                recorded = json.loads(found.group(1))
+                figures = [(str(label), card.parent / str(path)) for label, path in recorded["figures"]]
+                methods = recorded["methods"]
+                if not isinstance(methods, list) or not all(isinstance(m, str) for m in methods):
+                    raise TypeError("'methods' is not a list of names")
+            except (ValueError, KeyError, TypeError) as exc:
+                detail = f"no {exc}" if isinstance(exc, KeyError) else str(exc)
+                raise EstimatorError(
+                    f"{card}: its '<!-- figures:sources ... -->' line is not a JSON object with 'figures' "
+                    f"([label, path] pairs) and 'methods' (a list of names) ({detail}); write the block again "
+                    "with --figures LABEL=PATH") from None
+            return figures, methods
     raise EstimatorError(f"{card}: its figures block records no sources; give them with --figures LABEL=PATH")
 
 
@@ -319,12 +331,27 @@ def _check_kept(copies: Mapping[Path, str], own: set[Path], keep: Path) -> None:
                                  "--overwrite to replace it; nothing was written")
 
 
+def _write_all(files: Mapping[Path, str], card: Path) -> None:
+    """Write ``files`` (the card last) each beside its destination and rename them into place only once
+    all are complete: on a failure none is touched."""
+    try:
+        with staged(*files) as temporaries:
+            for temporary, content in zip(temporaries if len(files) > 1 else [temporaries], files.values(),
+                                          strict=True):
+                temporary.write_text(content, encoding="utf-8")
+    except OSError as exc:
+        raise EstimatorError(f"{card}: cannot write the model card ({exc.strerror or exc}); "
+                             "the card and any --keep copies were left as they were") from None
+
+
 def run(args: argparse.Namespace) -> int:
     card = Path(args.card)
     try:
         text = card.read_text(encoding="utf-8")
     except OSError as exc:
         raise EstimatorError(f"{card}: cannot read the model card ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise EstimatorError(f"{card}: not a UTF-8 text model card (byte {exc.start}: {exc.reason})") from None
     if args.figures:
         specs, methods = _figure_specs(args.figures), args.methods
     else:
@@ -340,26 +367,22 @@ def run(args: argparse.Namespace) -> int:
         raise EstimatorError(f"{where} {', '.join(unknown)}: in none of the sources (they have {', '.join(have)})")
     if getattr(args, "overwrite", False) and not args.keep:
         raise EstimatorError("--overwrite: replaces files --keep DIR would write; give --keep DIR, or leave it out")
+    table_rows(sources, methods)  # every source has a row to show, named by the user's path; before anything is written
+    copies: dict[Path, str] = {}
     if args.keep and not args.check:
         keep = Path(args.keep)
         slugs = [_slug(s.label) for s in sources]
         if len(set(slugs)) != len(slugs):
             raise EstimatorError(f"--keep: two labels give one file name ({', '.join(slugs)})")
-        try:
-            keep.mkdir(parents=True, exist_ok=True)
-        except FileExistsError:
-            raise EstimatorError(f"--keep {keep}: exists and is not a folder") from None
-        except OSError as exc:
-            raise EstimatorError(f"--keep {keep}: cannot create the folder ({exc.strerror})") from None
+        if keep.exists() and not keep.is_dir():
+            raise EstimatorError(f"--keep {keep}: exists and is not a folder")
         copies = {keep / f"{slug}.json": json.dumps(kept_copy(source, methods), indent=1, allow_nan=False) + "\n"
                   for source, slug in zip(sources, slugs, strict=True)}
         if not getattr(args, "overwrite", False):
             _check_kept(copies, _own_sources(text, card), keep)
-        kept = []
-        for source, (path, copy) in zip(sources, copies.items(), strict=True):
-            path.write_text(copy, encoding="utf-8")
-            kept.append(load_source(source.label, path))
-        sources = kept
+        # The card points at the copies: its table is rendered from them as they will be read back.
+        sources = [Source(source.label, path, json.loads(copy))
+                   for source, (path, copy) in zip(sources, copies.items(), strict=True)]
     block = render_block(sources, card=card, methods=methods)
     if args.check:
         _, current, _ = _split(text, card)
@@ -372,6 +395,15 @@ def run(args: argparse.Namespace) -> int:
             return 1
         print(f"{card}: the figures table matches its {len(sources)} sources")
         return 0
-    card.write_text(replace_block(text, block, card=card), encoding="utf-8")
+    new_text = replace_block(text, block, card=card)
+    if copies:
+        keep = Path(args.keep)
+        try:
+            keep.mkdir(parents=True, exist_ok=True)
+        except FileExistsError:
+            raise EstimatorError(f"--keep {keep}: exists and is not a folder") from None
+        except OSError as exc:
+            raise EstimatorError(f"--keep {keep}: cannot create the folder ({exc.strerror})") from None
+    _write_all({**copies, card: new_text}, card)
     print(f"{card}: figures table written from {len(sources)} sources")
     return 0

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import errno
 import json
+from pathlib import Path
 
 import pytest
 
@@ -163,3 +165,53 @@ def test_keep_refuses_to_replace_another_cards_copy_unless_overwrite(tmp_path, c
     assert (keep / "sim.json").read_bytes() != kept
     assert main(["card", str(card), "--overwrite"]) == 2
     assert "--overwrite: replaces files --keep DIR would write" in capsys.readouterr().err
+
+
+def test_a_write_that_fails_midway_leaves_the_card_whole(tmp_path, card, capsys, monkeypatch):
+    source, _ = evaluate_output(tmp_path)
+    card.write_text(card.read_text() + "Padding.\n" * 4000)  # a card long enough to be cut short
+    before = card.read_bytes()
+    real_write_text = Path.write_text
+
+    def write_half_then_fail(self, data, *args, **kwargs):  # as a full disk or `ulimit -f` does
+        real_write_text(self, data[: len(data) // 2], *args, **kwargs)
+        raise OSError(errno.EFBIG, "File too large", str(self))
+
+    monkeypatch.setattr(Path, "write_text", write_half_then_fail)
+    assert main(["card", str(card), "--figures", f"A={source}"]) == 2
+    monkeypatch.undo()
+    assert f"{card}: cannot write the model card" in capsys.readouterr().err
+    assert card.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["MODEL_CARD.md", "figures.json"]  # no temporary left
+
+
+@pytest.mark.parametrize("corrupt", [
+    lambda data: data.replace(b'<!-- figures:sources {"figures": [[', b'<!-- figures:sources {"figures": [[['),
+    lambda data: data.replace(b'<!-- figures:sources {"figures"', b'<!-- figures:sources {"figurez"'),
+    lambda data: data + b"\xff",
+], ids=["broken-json", "missing-key", "not-utf8"])
+def test_check_on_a_malformed_card_is_an_error_naming_it_not_a_difference(tmp_path, card, capsys, corrupt):
+    source, _ = evaluate_output(tmp_path)
+    assert main(["card", str(card), "--figures", f"A={source}"]) == 0
+    broken = corrupt(card.read_bytes())
+    assert broken != card.read_bytes()
+    card.write_bytes(broken)
+    capsys.readouterr()
+    assert main(["card", str(card), "--check"]) == 2  # an error (2), not "the table differs" (1)
+    assert f"{card}: " in capsys.readouterr().err
+    assert card.read_bytes() == broken
+
+
+def test_keep_writes_nothing_when_a_source_has_none_of_the_methods(tmp_path, card, capsys):
+    source, _ = evaluate_output(tmp_path)
+    only_hybrid = tmp_path / "hybrid.json"
+    result = json.loads(source.read_text().splitlines()[-1])
+    del result["methods"]["series"]
+    only_hybrid.write_text(json.dumps(result) + "\n")
+    keep = tmp_path / "kept"
+    before = card.read_bytes()
+    assert main(["card", str(card), "--figures", f"A={source}", "--figures", f"B={only_hybrid}",
+                 "--methods", "series", "--keep", str(keep)]) == 2
+    err = capsys.readouterr().err
+    assert f"{only_hybrid}: none of the methods series" in err and str(keep) not in err  # the user's file, not a copy
+    assert not keep.exists() and card.read_bytes() == before
