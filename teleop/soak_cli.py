@@ -9,10 +9,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 
+from teleop.errors import SettingsError
 from teleop.settings import default_settings_path, load_settings
-from teleop.soak import MAX_DEFAULT_WARMUP_S, check_log_path, run_soak
+from teleop.soak import MAX_DEFAULT_WARMUP_S, MIN_DURATION_S, check_log_path, run_soak
+
+MIN_MINUTES = MIN_DURATION_S / 60.0  # --minutes: every topic sends at least once
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "warm-up and the send-to-receive latency."
     )
     parser.add_argument("--minutes", type=float, required=True, metavar="M",
-                        help="how long to publish, in minutes (e.g. 0.05 for a 3 s check, 10 for a soak)")
+                        help="how long to publish, in minutes (e.g. 0.05 for a 3 s check, 10 for a soak; at "
+                             f"least {MIN_MINUTES:.2g}, {MIN_DURATION_S:g} s)")
     parser.add_argument("--warmup-s", type=float, default=None, metavar="S",
                         help="seconds after the consumer starts at which its memory is first taken "
                              f"(default: a fifth of the run, at most {MAX_DEFAULT_WARMUP_S:g} s)")
@@ -37,6 +42,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not (math.isfinite(args.minutes) and args.minutes >= MIN_MINUTES):
+        finite = "" if math.isfinite(args.minutes) else "a finite number of "
+        raise SettingsError(f"--minutes {args.minutes:g}: expected {finite}at least {MIN_MINUTES:.2g} "
+                            f"({MIN_DURATION_S:g} s)")
     if args.log is not None:
         check_log_path(args.log, name="--log")  # here, not as a traceback of the consumer process
     settings = load_settings(args.settings)

@@ -8,7 +8,7 @@ import sys
 import time
 
 from teleop.bus.pubsub import Publisher
-from teleop.errors import SessionLogError
+from teleop.errors import BusAddressInUseError, BusTimeoutError, SessionLogError
 from teleop.session.logfile import LogReader
 from teleop.session.replay import ReplayStats, replay
 from teleop.settings import load_settings
@@ -38,7 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--endpoint",
         default=None,
         metavar="ENDPOINT",
-        help="endpoint to bind and publish on; default: the settings' bus.robot_pub",
+        help="endpoint to bind and publish on (e.g. tcp://127.0.0.1:5560 when the default one is in use); "
+        "default: the settings' bus.robot_pub",
     )
     parser.add_argument(
         "--settings",
@@ -77,7 +78,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=5.0,
         metavar="S",
         help=f"wait up to S seconds (at most {MAX_WAIT_S:g}) for a bus subscriber to connect before "
-        "sending (0: do not wait)",
+        "sending; none within S seconds is an error (nothing is sent). 0: do not wait, replay even to "
+        "nobody",
     )
     parser.add_argument(
         "--linger-s",
@@ -111,13 +113,22 @@ def run(args: argparse.Namespace) -> int:
     LogReader(args.log).info()  # a missing or unreadable log is named before the bus is set up
     endpoint = args.endpoint or settings.bus.robot_pub
     # the settings' size limit, heartbeat period and CURVE keys
-    with Publisher.from_settings(
-        settings.bus, endpoint, lossless=True, source=args.source
-    ) as publisher:
-        if (
-            args.wait_subscriber_s > 0
-        ):  # every bus Subscriber subscribes to heartbeats, whatever else it wants
-            publisher.wait_for_subscriber("heartbeat", timeout_s=args.wait_subscriber_s)
+    try:
+        publisher = Publisher.from_settings(settings.bus, endpoint, lossless=True, source=args.source)
+    except BusAddressInUseError as exc:
+        raise BusAddressInUseError(
+            f"{exc}; or replay on another endpoint with --endpoint (default: the settings' bus.robot_pub)"
+        ) from exc
+    with publisher:
+        if args.wait_subscriber_s > 0:  # every bus Subscriber subscribes to heartbeats, whatever else it wants
+            try:
+                publisher.wait_for_subscriber("heartbeat", timeout_s=args.wait_subscriber_s)
+            except BusTimeoutError as exc:
+                raise BusTimeoutError(
+                    f"--wait-subscriber-s {args.wait_subscriber_s:g}: no subscriber connected to "
+                    f"{publisher.endpoint} within {args.wait_subscriber_s:g} s; start one, or pass "
+                    "--wait-subscriber-s 0 to replay to nobody"
+                ) from exc
         stats = replay(
             args.log,
             publisher,

@@ -81,6 +81,7 @@ from teleop.bus.wire import Message
 from teleop.clikit import PLOT_SUFFIXES, output_file
 from teleop.errors import TeleopError
 from teleop.settings import Settings, load_settings
+from teleop.staging import staged
 from teleop.system.demo import (
     LiveView,
     add_run_arguments,
@@ -257,8 +258,12 @@ def plot(summary: dict[str, Any], path: str | Path) -> None:
     ax.set_title(f"{len(rows)} grasps: p50 {summary['p50_ms']:.1f} ms, p99 {summary['p99_ms']:.1f} ms")
     ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    try:
+        # Written beside ``path`` and renamed over it once complete: a failed write leaves no truncated PNG.
+        with staged(path) as temporary:
+            fig.savefig(temporary, dpi=120, format=Path(path).suffix.lstrip(".").lower() or "png")
+    finally:
+        plt.close(fig)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -340,9 +345,15 @@ def run(args: argparse.Namespace) -> int:
     if summary["per_grasp"]:
         say("slowest grasps:")
         say("\n".join(slowest(summary)))
+    if args.json:  # the results first: a plot that cannot be drawn or written loses none of them
+        print(json.dumps(summary, allow_nan=False), flush=True)
     if args.plot:
-        plot(summary, args.plot)
+        try:
+            plot(summary, args.plot)
+        except (OSError, TeleopError) as exc:
+            why = exc.strerror or exc if isinstance(exc, OSError) else exc
+            print(f"teleop bench-latency: error: --plot {args.plot}: {why} (the results above stand; "
+                  "no plot written)", file=sys.stderr)
+            return 2
         say(f"plot: {args.plot}")
-    if args.json:
-        print(json.dumps(summary, allow_nan=False))
     return 0

@@ -39,13 +39,19 @@ import numpy as np
 from estimator.evaluation.metrics import felt_log10_offset, felt_pa
 from estimator.settings import estimator_settings
 from haptics.settings import display_range_pa
-from teleop.errors import SessionLogError, TeleopError
+from teleop.errors import SessionLogError
 from teleop.progress import progress_bar
 from teleop.session.export import session_grasps
 from teleop.session.logfile import LogReader
 from teleop.staging import staged, staged_dir
 from teleop.system.demo_table import felt_line
-from teleop.system.report_data import GraspView, grasp_messages, log_calibrations, tactile_moments
+from teleop.system.report_data import (
+    GraspView,
+    ReportError,
+    grasp_messages,
+    log_calibrations,
+    tactile_moments,
+)
 from teleop.system.report_figures import predictions_figure, tactile_figure, timeline_figure
 
 __all__ = ["Report", "ReportError", "build_report", "check_screenshot_path", "find_chromium", "run_chromium",
@@ -57,18 +63,17 @@ CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-back
 MAX_SCREENSHOT_PX = 32000  # the tallest window tried (Chromium 150 renders it whole, ~10 s); a longer page is cut
 _BOUND = {"lower_bound": "\u2265 ", "upper_bound": "\u2264 "}
 DASH, INFINITY = "\u2013", "\u221e"
-# The files a report writes into its folder: an earlier report's are not kept beside a new one.
+# The names of the files a report writes into its folder (a screenshot is never one of them). An
+# earlier report's figures are not kept beside a new one: only those its index.html shows go.
 _OWN_FILE = re.compile(r"index\.html|predictions\.png|grasp-.*\.png")
+_PAGE_TITLE = "<title>Grasp report: "
+_IMG_SRC = re.compile(r'<img src="([^"]*)"')
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 # A grasp's anchor (and the start of its figures' names) keeps at most this many characters of its id.
 _ANCHOR_CHARS = 64
 
 
 log = logging.getLogger(__name__)
-
-
-class ReportError(TeleopError):
-    """A report cannot be written, or its page cannot be rendered (no Chromium, Chromium failed)."""
 
 
 @dataclass(frozen=True)
@@ -264,7 +269,8 @@ def build_report(
     log : str or Path
         A session log (MCAP) written by ``teleop record`` or ``teleop demo``.
     out : str or Path
-        Directory for ``index.html`` and its PNGs; files of the same names are replaced.
+        Directory for ``index.html`` and its PNGs; files of the same names are replaced, and the
+        figures an earlier report's ``index.html`` there showed are removed; other files stay.
     catalogue : str or Path, optional
         Object catalogue for the labels; default: the one stored in the log.
     progress : bool
@@ -290,14 +296,15 @@ def build_report(
     views, figures = [], {}
     grasps = session_grasps(log, catalogue=catalogue)
     # Drawn in a folder beside ``out`` and swapped in for it only once index.html is written (the
-    # files of ``out`` this report does not rewrite are carried over, except an earlier report's
-    # page and figures): an interrupted or failed run leaves the earlier report as it was, and
+    # files of ``out`` this report does not rewrite are carried over, except the figures the earlier
+    # report's page showed): an interrupted or failed run leaves the earlier report as it was, and
     # no empty ``out`` (nor its parents) where there was none.
     made = _missing_folders(out.parent)
     try:
         for folder in reversed(made):
             folder.mkdir()
-        with staged_dir(out, drop=lambda name: _OWN_FILE.fullmatch(name) is not None) as folder:
+        earlier = _earlier_figures(out)
+        with staged_dir(out, drop=earlier.__contains__) as folder:
             for grasp in progress_bar(grasps, desc=f"report {log.name}", unit="grasp", total=len(messages),
                               enabled=progress):
                 view = messages.pop(grasp.grasp_id, None) or GraspView(grasp.grasp_id)
@@ -343,6 +350,20 @@ def build_report(
             raise ReportError(f"cannot write the report into {out}: {exc.strerror or exc}") from exc
         raise
     return Report(out / "index.html", figures, views, log)
+
+
+def _earlier_figures(out: Path) -> frozenset[str]:
+    """The figures an earlier report wrote into ``out``: the report's own names (predictions.png,
+    grasp-*.png) that ``out/index.html``, when it is a report's page, shows. Other files (a user's
+    ``grasp-notes.png`` beside the report) are none of them."""
+    try:
+        page = (out / "index.html").read_text(encoding="utf-8", errors="replace")
+    except OSError:  # none, or unreadable: nothing is known to be an earlier report's
+        return frozenset()
+    if _PAGE_TITLE not in page:
+        return frozenset()
+    names = (html.unescape(src) for src in _IMG_SRC.findall(page))
+    return frozenset(n for n in names if "/" not in n and n != "index.html" and _OWN_FILE.fullmatch(n))
 
 
 def _missing_folders(path: Path) -> list[Path]:
@@ -486,7 +507,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "any browser, or add --screenshot for one PNG of it (needs Chromium)."
     )
     parser.add_argument("log", metavar="LOG", help="session log (.mcap) written by `teleop record` or `teleop demo`")
-    parser.add_argument("--out", required=True, metavar="DIR", help="directory for index.html and its PNGs (created)")
+    parser.add_argument("--out", required=True, metavar="DIR",
+                        help="directory for index.html and its PNGs (created); replaces an earlier report there "
+                             "(its index.html and the figures that page shows), keeps every other file")
     parser.add_argument("--objects", metavar="PATH", default=None,
                         help="object catalogue for the labels (default: the catalogue stored in the log)")
     parser.add_argument("--screenshot", metavar="PNG", default=None,

@@ -18,6 +18,7 @@ truth.
 from __future__ import annotations
 
 import dataclasses
+import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,7 +39,7 @@ from estimator.perception.grid import grid_calibration, to_grid
 from estimator.perception.markers import detect_markers
 from estimator.segment import Segment
 from estimator.settings import depth_binning_problem, estimator_settings
-from teleop.errors import ComplianceTeleopError, RecordError
+from teleop.errors import ComplianceTeleopError, RecordError, TeleopError
 from teleop.record import FrameStream, GraspRecord, decode_image
 from teleop.session.logfile import LogInfo, LogReader
 from teleop.settings import SensorSettings, Settings
@@ -48,6 +49,7 @@ __all__ = [
     "DisplayPoint",
     "EstimatePoint",
     "GraspView",
+    "ReportError",
     "TactileMoment",
     "grasp_messages",
     "log_calibrations",
@@ -55,6 +57,10 @@ __all__ = [
 ]
 
 MOMENTS = ("before contact", "mid-loading", "peak force")
+
+
+class ReportError(TeleopError):
+    """A report cannot be written, or its page cannot be rendered (no Chromium, Chromium failed)."""
 
 
 @dataclass(frozen=True)
@@ -180,7 +186,10 @@ def grasp_messages(reader: LogReader) -> tuple[dict[str, GraspView], bool]:
 
 def log_calibrations(info: LogInfo, settings: Settings) -> dict[str, Calibration | str]:
     """Each finger's calibration as the log stores it (``calibration/<finger>/<file>``), checked
-    against the finger's sensor; or, for a finger without a usable one, why (a sentence)."""
+    against the finger's sensor; or, for a finger without a usable one, why (a sentence).
+
+    Each is read back from a temporary folder (:func:`tempfile.mkdtemp`); ReportError when it cannot
+    be written there (a full disk, a file size limit), naming that folder."""
     out: dict[str, Calibration | str] = {}
     for sensor in settings.sensors:
         name = f"calibration/{sensor.finger}/{Path(sensor.calibration).name}"
@@ -188,15 +197,26 @@ def log_calibrations(info: LogInfo, settings: Settings) -> dict[str, Calibration
         if data is None:
             out[sensor.finger] = f"the log carries no calibration for finger {sensor.finger!r}"
             continue
-        with tempfile.TemporaryDirectory() as tmp:
+        try:
+            tmp = tempfile.mkdtemp(prefix="teleop-report-calibration-")
+        except OSError as exc:
+            raise ReportError(f"cannot make a temporary folder for the log's calibration {name} (in "
+                              f"{tempfile.gettempdir()}): {exc.strerror or exc}") from exc
+        try:
             path = Path(tmp) / Path(name).name
-            path.write_bytes(data)
+            try:
+                path.write_bytes(data)
+            except OSError as exc:
+                raise ReportError(f"cannot write the log's calibration {name} into the temporary folder {tmp}: "
+                                  f"{exc.strerror or exc} (set TMPDIR to a folder with room)") from exc
             try:
                 calibration = load_calibration(path)
                 check_calibration_fits(calibration, sensor)
             except EstimatorError as exc:
                 out[sensor.finger] = f"attachment {name}: {exc}"
                 continue
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
         out[sensor.finger] = calibration
     return out
 

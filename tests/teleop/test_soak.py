@@ -116,3 +116,13 @@ def test_sigterm_stops_the_soak_as_ctrl_c_does_consumer_and_temporary_log_gone(t
     assert "Traceback" not in err and "leaked" not in err
     assert not any(_running(pid) for pid in consumers)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(("minutes", "expected"), [
+    ("0", "--minutes 0: expected at least 0.0017 (0.1 s)"),
+    ("-1", "--minutes -1: expected at least 0.0017 (0.1 s)"),
+    ("nan", "--minutes nan: expected a finite number of at least 0.0017 (0.1 s)"),
+])
+def test_a_bad_minutes_is_refused_naming_the_option_in_its_unit(capsys, minutes, expected):
+    assert main(["soak", "--minutes", minutes]) == 2
+    assert capsys.readouterr().err == f"teleop soak: error: {expected}\n"

@@ -95,3 +95,38 @@ def test_record_refuses_a_catalogue_that_does_not_load_before_recording(tmp_path
     err = capsys.readouterr().err
     assert code == 2 and not out.exists()
     assert f"teleop record: error: --objects: {catalogue}: not valid TOML" in err
+
+
+def _free_endpoint() -> str:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return f"tcp://127.0.0.1:{probe.getsockname()[1]}"
+
+
+def test_a_replay_nobody_listens_to_names_wait_subscriber_s_and_how_to_replay_anyway(recorded, capsys):
+    endpoint = _free_endpoint()
+    code = teleop.cli.main(["replay", str(recorded.path), "--endpoint", endpoint, "--wait-subscriber-s", "0.2",
+                            "--linger-s", "0", "--json"])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == ""
+    assert err == (f"teleop replay: error: --wait-subscriber-s 0.2: no subscriber connected to {endpoint} within "
+                   "0.2 s; start one, or pass --wait-subscriber-s 0 to replay to nobody\n")
+
+
+def test_replay_help_says_no_subscriber_is_an_error_and_an_endpoint_in_use_names_endpoint(recorded, capsys):
+    import argparse
+
+    from teleop.session.replay_cli import add_arguments
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    helptext = " ".join(parser.format_help().split())
+    assert "none within S seconds is an error" in helptext
+    endpoint = _free_endpoint()
+    with socket.socket() as holder:  # the port is taken by another process's socket
+        holder.bind(("127.0.0.1", int(endpoint.rsplit(":", 1)[1])))
+        holder.listen()
+        code = teleop.cli.main(["replay", str(recorded.path), "--endpoint", endpoint, "--wait-subscriber-s", "0",
+                                "--linger-s", "0"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Address already in use" in err and "--endpoint" in err, err

@@ -114,12 +114,50 @@ def test_the_felt_error_is_signed_and_label_e_has_its_unit(odd_report):
 def test_a_second_report_does_not_keep_another_reports_figures(small_log, tmp_path):
     out = tmp_path / "report"
     out.mkdir()
-    for name in ("grasp-other-log-timeline.png", "grasp-other-log-tactile.png", "index.html"):
+    for name in ("grasp-other-log-timeline.png", "grasp-other-log-tactile.png", "predictions.png"):
         (out / name).write_bytes(b"another log's report")
+    (out / "index.html").write_text(_earlier_page("grasp-other-log-timeline.png", "grasp-other-log-tactile.png",
+                                                  "predictions.png"), encoding="utf-8")
     (out / "notes.txt").write_text("mine")
     build_report(small_log, out)
     assert sorted(p.name for p in out.iterdir()) == ["index.html", "notes.txt", "predictions.png"]
     assert (out / "notes.txt").read_text() == "mine"
+
+
+def _earlier_page(*figures: str) -> str:
+    """An earlier report's index.html (of another log) showing ``figures``."""
+    images = "".join(report_module._figure(name, (10, 10), name, name) for name in figures)
+    return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>Grasp report: other.mcap</title>'
+            f"</head><body>{images}</body></html>")
+
+
+def test_a_report_keeps_the_users_files_that_merely_look_like_its_figures(small_log, tmp_path, capsys):
+    out = tmp_path / "report"
+    out.mkdir()
+    (out / "grasp-notes.png").write_bytes(b"the user's own picture")
+    (out / "grasp-old-timeline.png").write_bytes(b"an earlier report's figure")
+    (out / "index.html").write_text(_earlier_page("grasp-old-timeline.png"), encoding="utf-8")
+    build_report(small_log, out)
+    assert sorted(p.name for p in out.iterdir()) == ["grasp-notes.png", "index.html", "predictions.png"]
+    assert (out / "grasp-notes.png").read_bytes() == b"the user's own picture"
+    build_report(small_log, out)  # again, over its own report
+    assert sorted(p.name for p in out.iterdir()) == ["grasp-notes.png", "index.html", "predictions.png"]
+    with pytest.raises(SystemExit):
+        teleop.cli.main(["report", "--help"])
+    assert "keeps every other file" in " ".join(capsys.readouterr().out.split())
+
+
+def test_a_calibration_that_cannot_be_written_to_a_temporary_folder_is_a_report_error(small_log, tmp_path,
+                                                                                       monkeypatch):
+    import errno
+
+    def file_too_large(self, data):
+        raise OSError(errno.EFBIG, "File too large")
+
+    monkeypatch.setattr(Path, "write_bytes", file_too_large)
+    with pytest.raises(ReportError, match="calibration .* temporary folder .*teleop-report-calibration-.*File too large"):
+        build_report(small_log, tmp_path / "report")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_failed_report_leaves_no_empty_folder(small_log, tmp_path):
