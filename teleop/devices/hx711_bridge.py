@@ -8,7 +8,11 @@ backend). Sources: :class:`FakeHx711` (a simulated cell, for tests and demos) an
 :class:`SerialCounts` (an Arduino-style HX711 bridge, re-served framed over the network).
 Any callable returning counts can be served.
 
-A host that stops reading for ``send_timeout_s`` is dropped, so it cannot stall the others.
+Sending never blocks on one host: each host's socket is non-blocking with its own output
+buffer, and a host that stops reading (its buffer holds data older than ``send_timeout_s``, or
+more than ``max_buffered_bytes``) is dropped, so it cannot stall the others. At most
+``max_clients`` hosts are served (a rig has a handful; the cap keeps a connection flood from
+exhausting file descriptors), further connections are refused with a log line.
 When the source fails (a serial device unplugged) the bridge stops serving and closes every
 host's connection, so each sees its link fail rather than silence; :attr:`Hx711Bridge.failure`
 says why, and ``on_failure`` is told at once.
@@ -16,9 +20,9 @@ says why, and ``on_failure`` is told at once.
 
 from __future__ import annotations
 
+import errno
 import logging
 import random
-import select
 import socket
 import threading
 import time
@@ -39,6 +43,15 @@ from teleop.errors import DeviceError
 __all__ = ["FakeHx711", "Hx711Bridge", "SerialCounts"]
 
 log = logging.getLogger(__name__)
+
+SKIP_BUDGET_S = 0.1  # SerialCounts returns None after this long of only skipped lines: the loop keeps control
+
+
+def _is_decade(count: int) -> bool:
+    """Whether the ``count``-th of a repeated event is logged: the 1st, 10th, 100th, ... (as
+    :func:`teleop.bus.pubsub.is_decade`; not imported, as that module needs zmq and this one runs
+    on the standard library alone)."""
+    return count == 10 ** (len(str(count)) - 1)
 
 
 class FakeHx711:
@@ -100,11 +113,16 @@ class SerialCounts:
             raise DeviceError(f"serial HX711 at {port}: cannot open the port: {exc}") from exc
         self._lines = LineSplitter(skip_first=True)
         self._ready: deque[int] = deque()
+        self.skipped: dict[str, int] = {}  # lines skipped, by reason
 
     def __call__(self) -> int | None:
-        """The next valid reading, or None when the line stayed idle for 0.5 s; DeviceError when the
-        port failed (e.g. the device was unplugged)."""
+        """The next valid reading, or None when the line stayed idle for 0.5 s or carried only
+        skipped lines for :data:`SKIP_BUDGET_S`; DeviceError when the port failed (e.g. the device
+        was unplugged)."""
+        give_up_s = time.monotonic() + SKIP_BUDGET_S
         while not self._ready:
+            if time.monotonic() >= give_up_s:
+                return None  # garbage only so far: let the bridge loop check its hosts and stop
             try:
                 data = self._port.read(max(1, self._port.in_waiting))
             except OSError as exc:  # pyserial's SerialException is one; in_waiting's ioctl raises a bare one
@@ -116,11 +134,44 @@ class SerialCounts:
                 try:
                     self._ready.append(parse_serial_line(line))
                 except Unreadable as exc:
-                    log.debug("serial HX711: skipped (%s): %s", exc.reason, exc)
+                    n = self.skipped[exc.reason] = self.skipped.get(exc.reason, 0) + 1
+                    if _is_decade(n):
+                        log.warning("serial HX711 at %s: skipped a line (%s, %d so far): %s", self.port, exc.reason, n, exc)
         return self._ready.popleft()
 
     def close(self) -> None:
         self._port.close()
+
+
+class _Host:
+    """One connected host: its non-blocking socket and the bytes not yet taken by it."""
+
+    def __init__(self, sock: socket.socket, peer: str):
+        self.sock, self.peer = sock, peer
+        self.out = bytearray()
+        self.behind_since_s: float | None = None  # when data began waiting for it, if it does
+
+    def flush(self, now_s: float) -> None:
+        """Send what the socket takes now; OSError when the host is gone."""
+        if self.out:
+            try:
+                sent = self.sock.send(self.out)
+            except (BlockingIOError, InterruptedError):
+                sent = 0
+            del self.out[:sent]
+        if not self.out:
+            self.behind_since_s = None
+        elif self.behind_since_s is None:
+            self.behind_since_s = now_s
+
+    def departed(self) -> bool:
+        """Whether the host left: hosts never send, so a readable socket has reached EOF or failed."""
+        try:
+            return not self.sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT)  # data: a host that talks is there
+        except (BlockingIOError, InterruptedError):
+            return False
+        except OSError:
+            return True
 
 
 class Hx711Bridge:
@@ -133,7 +184,11 @@ class Hx711Bridge:
     host, port : str, int
         Where to listen; port 0 picks a free one (see :attr:`address`).
     send_timeout_s : float
-        A host that takes no data for this long is dropped.
+        A host that has left data untaken for this long is dropped.
+    max_buffered_bytes : int
+        A host with more than this many bytes untaken is dropped.
+    max_clients : int
+        Hosts served at once; further connections are refused (closed at once, logged).
     on_failure : callable, optional
         Called with :attr:`failure` from the sending thread when the source fails (without one,
         the failure is logged).
@@ -146,6 +201,8 @@ class Hx711Bridge:
         host: str = "0.0.0.0",
         port: int = 5601,
         send_timeout_s: float = 1.0,
+        max_buffered_bytes: int = 64 * 1024,
+        max_clients: int = 64,
         on_failure: Callable[[str], None] | None = None,
     ):
         self.read_counts = read_counts
@@ -153,9 +210,13 @@ class Hx711Bridge:
         self.failure: str | None = None  # why the source failed, once it has
         self.host, self.port = host, port
         self.send_timeout_s = send_timeout_s
+        self.max_buffered_bytes = max_buffered_bytes
+        self.max_clients = max_clients
         self.sent = 0  # readings taken and framed (sent to however many hosts were there)
+        self.refused = 0  # connections refused: max_clients were served
+        self.accept_errors = 0  # accept() failures (e.g. out of file descriptors), each retried
         self._server: socket.socket | None = None
-        self._clients: list[socket.socket] = []
+        self._clients: list[_Host] = []
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -180,7 +241,7 @@ class Hx711Bridge:
         self.port = server.getsockname()[1]
         self._stop.clear()
         self._threads = [
-            threading.Thread(target=self._accept_forever, name="hx711-bridge-accept", daemon=True),
+            threading.Thread(target=self._accept_forever, args=(server,), name="hx711-bridge-accept", daemon=True),
             threading.Thread(target=self._serve_forever, name="hx711-bridge-send", daemon=True),
         ]
         for thread in self._threads:
@@ -197,7 +258,7 @@ class Hx711Bridge:
             self._server = None
         with self._lock:
             for client in self._clients:
-                client.close()
+                client.sock.close()
             self._clients.clear()
 
     def __enter__(self) -> Hx711Bridge:
@@ -206,60 +267,84 @@ class Hx711Bridge:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _accept_forever(self) -> None:
+    def _accept_forever(self, server: socket.socket) -> None:
         while not self._stop.is_set():
             try:
-                client, peer = self._server.accept()
+                client, peer = server.accept()
             except TimeoutError:
                 continue
-            except OSError:
-                return
-            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # one reading, one packet
-            client.settimeout(self.send_timeout_s)
+            except OSError as exc:
+                if self._stop.is_set() or server.fileno() == -1:
+                    return  # closed: nothing more to accept
+                # e.g. EMFILE, out of file descriptors: the listening socket is fine, so keep accepting
+                self.accept_errors += 1
+                if _is_decade(self.accept_errors):
+                    log.warning("HX711 bridge: cannot accept a host (%d so far), retrying: %s", self.accept_errors, exc)
+                time.sleep(0.1 if exc.errno in (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM) else 0.01)
+                continue
+            where = f"{peer[0]}:{peer[1]}"
+            try:
+                client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # one reading, one packet
+                client.setblocking(False)  # never wait on one host: see _Host.flush
+            except OSError:  # gone already
+                client.close()
+                continue
             with self._lock:
                 if self._stop.is_set():  # closed, or the source failed, meanwhile: nothing to serve
                     client.close()
                     return
-                self._clients.append(client)
-            log.info("HX711 bridge: host %s:%d connected", *peer[:2])
+                full = len(self._clients) >= self.max_clients
+                if not full:
+                    self._clients.append(_Host(client, where))
+            if full:
+                self.refused += 1  # counted before the host can see the refusal
+                client.close()
+                if _is_decade(self.refused):
+                    log.warning("HX711 bridge: refused host %s: already serving %d hosts (%d refused so far)",
+                                where, self.max_clients, self.refused)
+                continue
+            log.info("HX711 bridge: host %s connected", where)
 
     def _serve_forever(self) -> None:
         seq = 0
         while not self._stop.is_set():
-            try:
+            try:  # any failure, the source's or the loop's: this thread's end would leave the hosts on silence
                 counts = self.read_counts()
-            except Exception as exc:  # any source's: this thread's end would leave the hosts waiting on silence
+                frame = None
+                if counts is not None:
+                    frame = format_frame(seq, time.monotonic(), counts)
+                    seq += 1
+                    self.sent += 1
+                self._send(frame)
+            except Exception as exc:
                 self._fail(exc)
                 return
-            self._drop_departed()
-            if counts is None:
-                continue
-            frame = format_frame(seq, time.monotonic(), counts)
-            seq += 1
-            self.sent += 1
-            with self._lock:
-                for client in list(self._clients):
-                    try:
-                        client.sendall(frame)
-                    except OSError as exc:  # gone or stalled: drop it, serve the rest
-                        log.info("HX711 bridge: dropped a host: %s", exc)
-                        client.close()
-                        self._clients.remove(client)
 
-    def _drop_departed(self) -> None:
-        """Close the connections of hosts that left, even while nothing is sent: hosts never
-        send, so a readable socket has reached EOF or failed."""
+    def _send(self, frame: bytes | None) -> None:
+        """Queue ``frame`` (if any) for every host and send what each takes now; drop hosts that
+        left, failed, or fell behind (see the class's parameters)."""
+        now_s = time.monotonic()
         with self._lock:
-            readable, _, _ = select.select(self._clients, [], [], 0)
-            for client in readable:
-                try:
-                    if client.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT):
-                        continue  # a host that talks is still there
-                except OSError:
-                    pass
-                log.info("HX711 bridge: a host left")
-                client.close()
-                self._clients.remove(client)
+            for client in list(self._clients):
+                why = None
+                if client.departed():
+                    why = "it left"
+                else:
+                    if frame is not None:
+                        client.out += frame
+                    try:
+                        client.flush(now_s)
+                    except OSError as exc:
+                        why = f"the connection failed: {exc}"
+                    else:
+                        if len(client.out) > self.max_buffered_bytes:
+                            why = f"it fell behind by more than {self.max_buffered_bytes} bytes"
+                        elif client.behind_since_s is not None and now_s - client.behind_since_s > self.send_timeout_s:
+                            why = f"it took no data for {self.send_timeout_s:g} s"
+                if why is not None:
+                    log.info("HX711 bridge: dropped host %s: %s", client.peer, why)
+                    client.sock.close()
+                    self._clients.remove(client)
 
     def _fail(self, exc: Exception) -> None:
         """Stop serving and close every host's connection: each sees its link fail."""
@@ -267,7 +352,7 @@ class Hx711Bridge:
         with self._lock:
             self._stop.set()
             for client in self._clients:
-                client.close()
+                client.sock.close()
             self._clients.clear()
         if self.on_failure is None:
             log.error("HX711 bridge: stopped serving: %s", self.failure)

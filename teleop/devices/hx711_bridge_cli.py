@@ -22,6 +22,8 @@ from teleop.errors import DeviceError, SettingsError
 from teleop.live import StopSignals
 from teleop.settings import LoadCellSettings, default_settings_path, load_settings
 
+NOISE_COUNTS_MAX = 2**23  # beyond the HX711's range: every reading would saturate (or overflow, near 1e308)
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     source = parser.add_mutually_exclusive_group(required=True)
@@ -45,8 +47,9 @@ def _checked(args: argparse.Namespace, cell: LoadCellSettings) -> LoadCellSettin
         raise SettingsError(f"--port {args.port}: expected a TCP port in 0..65535 (0: any free port)")
     if not math.isfinite(args.force_n):
         raise SettingsError(f"--force-n {args.force_n}: expected a finite force in N")
-    if not (math.isfinite(args.noise_counts) and args.noise_counts >= 0):
-        raise SettingsError(f"--noise-counts {args.noise_counts}: expected a number of counts >= 0")
+    if not (math.isfinite(args.noise_counts) and 0 <= args.noise_counts <= NOISE_COUNTS_MAX):
+        raise SettingsError(f"--noise-counts {args.noise_counts}: expected a number of counts >= 0 and "
+                            f"<= {NOISE_COUNTS_MAX} (the HX711's whole 24-bit range)")
     if args.baud is None:
         return cell
     try:  # the settings' own bounds, so the two cannot disagree
