@@ -17,8 +17,14 @@ as ``t_s = t_bridge_s + offset``, where ``offset`` is the smallest ``arrival - t
 seen on the connection: the least-delayed frame bounds the clock offset best, so once one
 quick frame has arrived, network jitter and batching no longer move the timestamps. (Until
 then they are arrival times: a burst right after connecting is stamped as it arrives.
-Clock drift between hosts, ~50 ppm, is ignored: ~3 ms a minute.) Sequence jumps are
-counted in ``gaps`` and ``missed``.
+Clock drift between hosts, ~50 ppm, is ignored: ~3 ms a minute.) A frame whose
+``t_bridge_s`` goes back from the last accepted one's, or would lower the offset by more
+than :data:`CLOCK_MARGIN_S` at once, cannot be a sampling time of that clock: it is skipped
+as ``implausible``, so one bogus time cannot shift every later timestamp. When
+:data:`CLOCK_RESYNC_FRAMES` frames in a row are skipped yet agree with one another (the
+first frame's time was the bogus one, or the bridge's clock jumped), the clock starts over
+from them. Each connection starts a new clock: a restarted bridge's clock starts afresh.
+Sequence jumps are counted in ``gaps`` and ``missed``.
 """
 
 from __future__ import annotations
@@ -44,12 +50,16 @@ from teleop.record import Samples
 from teleop.settings import LoadCellSettings
 from teleop.settings_fields import tcp_host_port
 
-__all__ = ["STALL_S", "BridgeClock", "SerialHx711", "TcpHx711", "parse_tcp_address"]
+__all__ = ["CLOCK_MARGIN_S", "CLOCK_RESYNC_FRAMES", "STALL_S", "BridgeClock", "SerialHx711", "TcpHx711", "parse_tcp_address"]
 
 log = logging.getLogger(__name__)
 
 STALL_S = 0.5  # no valid reading for this long and the cell is down: 40 periods at 80 Hz, 5 at 10 Hz
-_SKIPPED = {"out_of_range": "saturated or out of range"}  # how a skip reason reads in a notice
+# Network delay and bridge clock jitter are milliseconds, and a delayed frame raises the offset, never
+# lowers it: a frame lowering it by seconds at once carries a bogus time (or the bridge's clock jumped).
+CLOCK_MARGIN_S = 2.0
+CLOCK_RESYNC_FRAMES = 4  # that many skipped frames agreeing with one another restart the clock: 0.4 s at 10 Hz
+_SKIPPED = {"out_of_range": "saturated or out of range", "implausible": "implausible bridge time"}
 
 
 class _StreamingHx711(LoadCell):
@@ -202,15 +212,43 @@ def parse_tcp_address(address: str) -> tuple[str, int]:
 
 
 class BridgeClock:
-    """Maps bridge sampling times to this host's clock by the least-delayed frame (see above)."""
+    """Maps bridge sampling times to this host's clock by the least-delayed frame, refusing
+    implausible times (see above)."""
 
     def __init__(self) -> None:
         self.offset_s = math.inf
+        self.last_t_bridge_s: float | None = None  # the last accepted frame's
+        self._run: list[tuple[float, float]] = []  # (t_bridge_s, offset) of the skipped frames in a row
 
     def to_host(self, t_bridge_s: float, arrived_s: float) -> float:
-        """Host time of a reading taken at ``t_bridge_s`` that arrived at ``arrived_s``."""
-        self.offset_s = min(self.offset_s, arrived_s - t_bridge_s)
+        """Host time of a reading taken at ``t_bridge_s`` that arrived at ``arrived_s``; Unreadable
+        (``implausible``) for a time this clock cannot have given."""
+        offset_s = arrived_s - t_bridge_s
+        why = self._implausible(t_bridge_s, offset_s)
+        if why is None:
+            self._run = []
+            self.offset_s = min(self.offset_s, offset_s)
+            self.last_t_bridge_s = t_bridge_s
+            return t_bridge_s + self.offset_s
+        run = self._run
+        if run and (t_bridge_s < run[-1][0] or abs(offset_s - min(o for _, o in run)) > CLOCK_MARGIN_S):
+            run.clear()  # not the same clock as the frames skipped before it
+        run.append((t_bridge_s, offset_s))
+        if len(run) < CLOCK_RESYNC_FRAMES:
+            raise Unreadable("implausible", why)
+        log.warning("bridge clock: %d frames in a row disagree with it but agree with one another: starting over",
+                    len(run))
+        self.offset_s, self.last_t_bridge_s, self._run = min(o for _, o in run), t_bridge_s, []
         return t_bridge_s + self.offset_s
+
+    def _implausible(self, t_bridge_s: float, offset_s: float) -> str | None:
+        if self.last_t_bridge_s is None:
+            return None
+        if t_bridge_s < self.last_t_bridge_s:
+            return f"t_bridge_s {t_bridge_s!r} goes back from the last reading's {self.last_t_bridge_s!r}"
+        if offset_s < self.offset_s - CLOCK_MARGIN_S:
+            return f"t_bridge_s {t_bridge_s!r} would move the clock by {self.offset_s - offset_s:.6g} s"
+        return None
 
 
 class TcpHx711(_StreamingHx711):
@@ -234,7 +272,7 @@ class TcpHx711(_StreamingHx711):
         except OSError as exc:
             raise DeviceError(f"{self!r}: cannot connect to the bridge: {exc}: {FIXES['tcp']}") from exc
         self._socket.settimeout(0.1)
-        self._last_seq, self._clock = None, BridgeClock()
+        self._last_seq, self._clock = None, BridgeClock()  # a new connection, maybe a restarted bridge: a new clock
 
     def _close_link(self) -> None:
         if self._socket is not None:
@@ -256,6 +294,6 @@ class TcpHx711(_StreamingHx711):
             self.gaps += 1
             self.missed += max(0, seq - self._last_seq - 1)
             log.warning("%r: readings %d..%d lost", self, self._last_seq + 1, seq - 1)
-        self._last_seq = seq
+        self._last_seq = seq  # the reading arrived, even when its time is refused below
         return self._clock.to_host(t_bridge_s, arrived_s), counts
 

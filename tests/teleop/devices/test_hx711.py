@@ -18,7 +18,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from teleop.cli import main
-from teleop.devices.hx711 import BridgeClock, parse_tcp_address
+from teleop.devices.hx711 import CLOCK_RESYNC_FRAMES, BridgeClock, parse_tcp_address
 from teleop.devices.hx711_bridge import FakeHx711, Hx711Bridge, SerialCounts
 from teleop.devices.hx711_protocol import (
     COUNTS_MAX,
@@ -116,6 +116,29 @@ def test_bridge_clock_follows_the_least_delayed_frame():
     assert clock.offset_s == pytest.approx(100.002)
 
 
+def test_bridge_clock_refuses_a_time_going_back_or_moving_it_by_seconds():
+    clock = BridgeClock()
+    assert clock.to_host(10.0, 100.005) == pytest.approx(100.005)
+    with pytest.raises(Unreadable, match="goes back") as back:
+        clock.to_host(9.0, 100.02)
+    with pytest.raises(Unreadable, match="move the clock") as jump:
+        clock.to_host(1e15, 100.03)  # a bogus far-future time
+    assert back.value.reason == jump.value.reason == "implausible"
+    assert clock.to_host(10.0375, 100.045) == pytest.approx(100.0425)  # the clock is as it was
+    assert clock.offset_s == pytest.approx(90.005)
+
+
+def test_bridge_clock_starts_over_when_frames_agree_with_one_another_not_with_it():
+    clock = BridgeClock()
+    assert clock.to_host(1e15, 100.0) == pytest.approx(100.0)  # the very first time is bogus
+    for i in range(1, CLOCK_RESYNC_FRAMES):
+        with pytest.raises(Unreadable):
+            clock.to_host(5.0 + i * 0.0125, 100.002 + i * 0.0125)
+    i = CLOCK_RESYNC_FRAMES
+    assert clock.to_host(5.0 + i * 0.0125, 100.002 + i * 0.0125) == pytest.approx(100.002 + i * 0.0125)
+    assert clock.to_host(5.1, 100.104) == pytest.approx(100.102)
+
+
 @pytest.mark.parametrize("address", ["127.0.0.1:5601", "tcp://:5601", "tcp://host", "udp://h:1", "tcp://h:99999"])
 def test_bad_tcp_addresses_are_named(address):
     with pytest.raises(DeviceError, match="tcp://host:port"):
@@ -208,6 +231,65 @@ def test_tcp_link_counts_gaps_skips_garbage_and_reports_a_closed_bridge():
     assert samples.value.tolist() == [1.0, 2.0, 3.0, 4.0]
     # one burst: each frame is the least delayed so far, so each is stamped on arrival
     assert np.all(np.diff(samples.t_s) >= 0)
+
+
+def _frames(t0: float, seqs, counts: int = 1000) -> bytes:
+    return b"".join(format_frame(seq, t0 + seq * 0.0125, counts) for seq in seqs)
+
+
+def _read_at_least(cell, n: int):
+    samples = cell.read(timeout_s=1.0)
+    while len(samples) < n:
+        more = cell.read(timeout_s=1.0)
+        samples = type(samples)(np.r_[samples.t_s, more.t_s], np.r_[samples.value, more.value])
+    return samples
+
+
+def test_tcp_link_skips_a_frame_with_a_bogus_time_and_keeps_host_clock_times(caplog):
+    payload = b"".join([_frames(10.0, range(3)), format_frame(3, 1e15, 1000), _frames(10.0, range(4, 8)),
+                        format_frame(8, 5.0, 1000), _frames(10.0, range(9, 12))])  # 8 goes back
+    server = _HandServer(payload)
+    before = time.monotonic()
+    try:
+        with caplog.at_level(logging.WARNING), make_load_cell(
+            LoadCellSettings(backend="tcp", address=server.address, **CAL)
+        ) as cell:
+            samples = _read_at_least(cell, 10)
+            after = time.monotonic()
+            assert dict(cell.skipped) == {"implausible": 2}
+    finally:
+        server.close()
+    assert len(samples) == 10
+    assert before <= samples.t_s.min() and samples.t_s.max() <= after
+    assert np.all(np.diff(samples.t_s) >= 0)
+    assert sum("skipped a reading (implausible)" in r.getMessage() for r in caplog.records) == 1  # once per reason
+
+
+def test_tcp_link_reconnects_to_a_restarted_bridge_with_a_new_clock():
+    server = socket.create_server(("127.0.0.1", 0))
+    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+
+    def serve():
+        for t0 in (5000.0, 0.5):  # the bridge restarted: its clock starts near zero again
+            client, _ = server.accept()
+            with client:
+                client.sendall(_frames(t0, range(5)))
+                time.sleep(0.5)
+
+    threading.Thread(target=serve, daemon=True).start()
+    cell = make_load_cell(LoadCellSettings(backend="tcp", address=address, **CAL))
+    try:
+        stamps = []
+        for _ in range(2):
+            before = time.monotonic()
+            with cell:
+                samples = _read_at_least(cell, 5)
+                assert not cell.skipped
+            stamps.append((before, samples.t_s))
+    finally:
+        server.close()
+    for before, t_s in stamps:
+        assert len(t_s) == 5 and before <= t_s.min() and t_s.max() <= time.monotonic()
 
 
 def test_tcp_connection_refused_is_a_device_error():
