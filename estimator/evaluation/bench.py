@@ -67,7 +67,7 @@ import numpy as np
 from estimator.analytical import METHODS
 from estimator.errors import EstimatorError
 from estimator.estimate import Estimate
-from estimator.evaluation.evaluate import answered_by, result_row
+from estimator.evaluation.evaluate import answered_by, cause_kind, result_row, unlabelled
 from estimator.evaluation.metrics import summarise
 from estimator.inference.hybrid import HybridEstimator
 from estimator.inference.infer import CompliancePredictor
@@ -108,7 +108,7 @@ class NothingToBench(EstimatorError):
 
 def skip_counts(skipped: Sequence[dict[str, str]]) -> dict[str, int]:
     """Skipped records counted by the kind of their cause (``unreadable``, ``unlabelled``), most first."""
-    return dict(Counter(entry["cause"].split(":")[0] for entry in skipped).most_common())
+    return dict(Counter(cause_kind(entry["cause"]) for entry in skipped).most_common())
 
 
 def configurations(
@@ -237,11 +237,10 @@ def bench(
             except RecordError as exc:
                 skipped.append({"path": str(path), "cause": f"unreadable: {exc}"})
                 continue
-            label = record.label
-            if label is None or label.modulus_pa is None:
-                cause = "unlabelled: no label" if label is None else f"unlabelled: {label.object_name} has no modulus"
+            if cause := unlabelled(record):
                 skipped.append({"path": str(path), "cause": cause})
                 continue
+            label = record.label
             by_binning = {k: decoded(record, reduce=k) for k in sorted({c.binning for c in configs})}
             ref_ms = _reference_ms(by_binning[estimator_settings(settings).depth_binning], settings, repeats)
             if ref_ms is not None:

@@ -55,7 +55,7 @@ from estimator.measurements import TACTILE_METHODS, calibration_path
 from estimator.perception.calibration import Calibration, load_calibration
 from teleop.errors import RecordError
 from teleop.parallel import progress_map
-from teleop.record import Label, read_record
+from teleop.record import GraspRecord, Label, read_record
 from teleop.settings import Settings
 
 __all__ = [
@@ -66,6 +66,7 @@ __all__ = [
     "ablation_order",
     "ablation_table",
     "answered_by",
+    "cause_kind",
     "evaluate_records",
     "model_methods",
     "plot",
@@ -73,6 +74,7 @@ __all__ = [
     "result_row",
     "skip_cause",
     "summarise",
+    "unlabelled",
 ]
 
 ANALYTICAL_INPUTS = {m: "F, w" if m not in TACTILE_METHODS else "depth, F, w" for m in METHODS}
@@ -189,7 +191,20 @@ def answered_by(rows: Iterable[dict[str, Any]], method: str) -> dict[str, int]:
 
 def skip_cause(row: dict[str, Any]) -> str:
     """The kind of a skipped row's cause: ``unreadable``, ``unlabelled`` or ``trained on``."""
-    return row["skipped"].split(":")[0]
+    return cause_kind(row["skipped"])
+
+
+def cause_kind(cause: str) -> str:
+    """The kind of a cause of skipping a record, the words before its colon (``unreadable: ...``)."""
+    return cause.split(":")[0]
+
+
+def unlabelled(record: GraspRecord) -> str:
+    """Why ``record`` has no modulus to score against (``unlabelled: ...``), or '' when it has one."""
+    label = record.label
+    if label is None:
+        return "unlabelled: no label"
+    return f"unlabelled: {label.object_name} has no modulus" if label.modulus_pa is None else ""
 
 
 def evaluate_record(
@@ -212,11 +227,8 @@ def evaluate_record(
     except RecordError as exc:
         return [{"path": str(path), "skipped": f"unreadable: {exc}"}]
     label = record.label
-    if label is None:
-        return [{"path": str(path), "skipped": "unlabelled: no label"}]
-    if label.modulus_pa is None:
-        return [{"path": str(path), "skipped": f"unlabelled: {label.object_name} has no modulus",
-                 "object": label.object_name}]
+    if cause := unlabelled(record):
+        return [{"path": str(path), "skipped": cause, **({} if label is None else {"object": label.object_name})}]
     if exclude is not None and label.object_name in exclude:
         return [{"path": str(path), "skipped": f"trained on: {label.object_name}", "object": label.object_name}]
     rows = []
