@@ -50,12 +50,13 @@ def progress_map(work: Callable[[T], R], items: Iterable[T], *, workers: int, de
     # Named, not the default: from Python 3.14 that is forkserver.
     context = get_context("spawn" if spawn else "fork")
     with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker, initargs=(spawn,)) as pool:
-        # Chunks as futures of their own, not Executor.map: on an interrupt map cancels the pending ones,
-        # and the pool then fails on them as it finds its workers stopped (Python 3.11). The workers start
-        # as the chunks are submitted, ignoring Ctrl-C: this process handles it, and stops them.
-        with sigint_ignored():
-            chunks = [pool.submit(_run_chunk, work, items[i : i + size]) for i in range(0, len(items), size)]
         try:
+            # Chunks as futures of their own, not Executor.map: on an interrupt map cancels the pending
+            # ones, and the pool then fails on them as it finds its workers stopped (Python 3.11). The
+            # workers start as the chunks are submitted, ignoring Ctrl-C: this process handles it, and
+            # stops them, a SIGTERM that lands while chunks are still being submitted included.
+            with sigint_ignored():
+                chunks = [pool.submit(_run_chunk, work, items[i : i + size]) for i in range(0, len(items), size)]
             return list(bar(result for chunk in chunks for result in chunk.result()))
         except BaseException:
             # Stop the running chunks too (Python 3.14 has terminate_workers()); leaving the block then

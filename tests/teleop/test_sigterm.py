@@ -18,9 +18,17 @@ COMMAND = """
 import os, sys, time
 from pathlib import Path
 from teleop.clikit import Command, run_cli
+import teleop.parallel
 from teleop.parallel import progress_map
 
 OUT = Path(sys.argv[1])
+if os.environ.get("SLEEPER_SLOW_SUBMIT"):  # a main thread descheduled after its first chunk: a SIGTERM lands mid-submission
+    class SlowSubmit(teleop.parallel.ProcessPoolExecutor):
+        def submit(self, *args, **kwargs):
+            future = super().submit(*args, **kwargs)
+            time.sleep(2)
+            return future
+    teleop.parallel.ProcessPoolExecutor = SlowSubmit
 
 def slow(i):
     os.write(1, f"worker {os.getpid()}\\n".encode())  # one write: workers share the pipe
@@ -55,10 +63,11 @@ def _alive(pid: int) -> bool:
         return False
 
 
-def _start(tmp_path: Path, workers: int) -> tuple[subprocess.Popen, set[int]]:
+def _start(tmp_path: Path, workers: int, *, slow_submit: bool = False) -> tuple[subprocess.Popen, set[int]]:
     script = tmp_path / "sleeper.py"
     script.write_text(COMMAND)
-    child = subprocess.Popen([sys.executable, str(script), str(tmp_path), "sleep", str(workers)],
+    env = {**os.environ, "SLEEPER_SLOW_SUBMIT": "1" if slow_submit else ""}
+    child = subprocess.Popen([sys.executable, str(script), str(tmp_path), "sleep", str(workers)], env=env,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     pids: set[int] = set()
     while len(pids) < max(workers, 1):
@@ -78,9 +87,9 @@ def _wait_gone(pids: set[int], timeout_s: float = 5.0) -> set[int]:
     return left
 
 
-@pytest.mark.parametrize("workers", [0, 2])
-def test_sigterm_is_a_ctrl_c_for_every_command_and_its_workers(tmp_path, workers):
-    child, pids = _start(tmp_path, workers)
+@pytest.mark.parametrize(("workers", "slow_submit"), [(0, False), (2, False), (2, True)])
+def test_sigterm_is_a_ctrl_c_for_every_command_and_its_workers(tmp_path, workers, slow_submit):
+    child, pids = _start(tmp_path, workers, slow_submit=slow_submit)
     child.send_signal(signal.SIGTERM)  # to the command alone, as a service manager or `kill` does
     try:
         _, err = child.communicate(timeout=10)
