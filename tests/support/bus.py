@@ -8,6 +8,10 @@ import zmq
 
 from teleop.bus import Message, Publisher, Subscriber
 
+#: How long a test waits for a delivery it expects: it returns at the first message, so this is only
+#: how long a loaded machine may take (a CURVE handshake beside a full test run took over 2 s).
+HEARD_WITHIN_S = 15.0
+
 
 def force(pub: Publisher, i: int) -> None:
     pub.send("force", t_capture_s=float(i), t_s=[float(i)], value_n=[float(i)])

@@ -7,7 +7,7 @@ import logging
 import threading
 import time
 
-from support.bus import delivered
+from support.bus import HEARD_WITHIN_S, delivered
 
 from teleop.bus import Publisher, Subscriber
 
@@ -64,7 +64,7 @@ def test_only_curve_clients_watch_their_handshakes_until_they_close(keys):
             assert watchers() == before  # plain sockets and servers: no monitor, no thread
         with Subscriber(pub.endpoint, ["force"], security=keys) as sub:
             assert watchers() == before + 1
-            assert delivered(pub, sub, within_s=2.0) is not None
+            assert delivered(pub, sub, within_s=HEARD_WITHIN_S) is not None
     deadline = time.monotonic() + 2.0
     while watchers() > before and time.monotonic() < deadline:
         time.sleep(0.02)

@@ -7,7 +7,7 @@ import shlex
 import shutil
 import subprocess
 
-from support.bus import delivered
+from support.bus import HEARD_WITHIN_S, delivered
 
 from teleop.bus import Publisher, Subscriber
 from teleop.bus.keys_cli import SETUP
@@ -49,4 +49,4 @@ def test_the_two_host_setup_gives_both_hosts_keys_that_bind_and_admit_each_other
         for server, client in ((r_keys, o_keys), (o_keys, r_keys)):
             publisher = stack.enter_context(Publisher("tcp://127.0.0.1:*", lossless=False, security=server))
             subscriber = stack.enter_context(Subscriber(publisher.endpoint, ("force",), security=client))
-            assert delivered(publisher, subscriber, within_s=3.0) is not None
+            assert delivered(publisher, subscriber, within_s=HEARD_WITHIN_S) is not None

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 import zmq
-from support.bus import delivered, force
+from support.bus import HEARD_WITHIN_S, delivered, force
 
 import teleop.cli
 from teleop.bus import Publisher, Subscriber
@@ -145,7 +145,7 @@ def test_only_an_authorised_client_can_publish(keys, stranger):
         with Publisher(
             sub.endpoints[0], lossless=False, bind=False, source="robot", security=keys
         ) as pub:
-            got = delivered(pub, sub, within_s=2.0)
+            got = delivered(pub, sub, within_s=HEARD_WITHIN_S)
             pub.wait_for_subscriber("force", timeout_s=0.05)
     assert got is not None and got.source == "robot"
     assert sub.stats.received >= 1 and "mallory" not in sub.heartbeat.peers()
@@ -171,14 +171,14 @@ def test_a_revoked_key_is_refused_after_restart(tmp_path, keys, stranger):
         Subscriber(endpoint, ["force"], security=stranger) as operator,
         Subscriber(endpoint, ["force"], security=keys) as robot_side,
     ):
-        assert delivered(pub, operator, within_s=2.0) is not None  # authorised: it works
+        assert delivered(pub, operator, within_s=HEARD_WITHIN_S) is not None  # authorised: it works
         received_before = operator.stats.received
 
         revoke_key(keys.keys_dir, "operator")
         pub.close()
         pub = _rebind(endpoint, keys)  # the restart; both subscribers reconnect by themselves
         try:
-            assert delivered(pub, robot_side, within_s=3.0) is not None
+            assert delivered(pub, robot_side, within_s=HEARD_WITHIN_S) is not None
             assert _nothing_arrives(pub, operator)
             assert operator.stats.received == received_before
         finally:
@@ -256,7 +256,7 @@ def test_from_settings_takes_the_limit_and_the_keys(keys):
     ):
         assert (pub.max_bytes, pub.heartbeat_s, sub.max_bytes) == (2048, 0.25, 2048)
         assert sub._live().getsockopt(zmq.MAXMSGSIZE) == 2048 + CURVE_FRAME_OVERHEAD_BYTES
-        assert delivered(pub, sub, within_s=2.0) is not None
+        assert delivered(pub, sub, within_s=HEARD_WITHIN_S) is not None
         assert _nothing_arrives(pub, plain)  # CURVE is on: a client without keys gets nothing
     with pytest.raises(BusSecurityError, match="10.0.0.2"):
         Subscriber.from_settings(BusSettings(command="tcp://10.0.0.2:5552"), "tcp://127.0.0.1:5550")
@@ -300,7 +300,7 @@ def test_a_file_in_authorized_that_is_no_certificate_stops_the_server_naming_it(
         Publisher(LOOPBACK, lossless=False, source="robot", security=keys) as pub,
         Subscriber(pub.endpoint, ["force"], security=keys) as sub,
     ):
-        assert delivered(pub, sub, within_s=2.0) is not None
+        assert delivered(pub, sub, within_s=HEARD_WITHIN_S) is not None
 
 
 # --------------------------------------------------------------------------- key files
