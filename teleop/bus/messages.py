@@ -271,10 +271,15 @@ class EstimateBody(Body):
     model: str | None = scalar(TextField(max_chars=MAX_MODEL_ID_CHARS, nullable=True), added_later=True)
 
     def cross_check(self) -> None:
-        """Refuse an ``ok`` without a modulus, an ``insufficient_data`` with one, or a modulus outside
-        its own interval (beyond a relative :data:`INTERVAL_TOLERANCE`, as the renderer reads it)."""
+        """Refuse an ``ok`` without a modulus, a bound state with neither a modulus nor its bound, an
+        ``insufficient_data`` with a modulus, or a modulus outside its own interval (beyond a relative
+        :data:`INTERVAL_TOLERANCE`): the renderer reads them so."""
         if self.state == "ok" and self.E_pa is None:
             raise MessageRejected("mistyped_field", "estimate with state 'ok' has no E_pa")
+        bound_side = {"lower_bound": 0, "upper_bound": 1}.get(self.state)
+        if bound_side is not None and self.E_pa is None and self.interval_pa[bound_side] is None:
+            raise MessageRejected("mistyped_field", f"estimate with state {self.state!r} has neither E_pa nor "
+                                                    f"its bound in interval_pa {self.interval_pa}")
         if self.state == "insufficient_data" and self.E_pa is not None:
             raise MessageRejected("mistyped_field", "estimate with state 'insufficient_data' carries an E_pa")
         e_pa, (low, high) = self.E_pa, self.interval_pa

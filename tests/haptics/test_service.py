@@ -8,6 +8,7 @@ import math
 import time
 
 import pytest
+from support.bus import admit_a_bound_without_its_bound
 
 from haptics.devices.sim import SimulatedDisplay
 from haptics.errors import HapticsError
@@ -75,10 +76,10 @@ def test_final_estimate_is_rendered_and_its_latency_measured_from_capture(rig):
     assert service.stats.as_dict()["ignored"] == 1
 
 
-def test_an_estimate_that_cannot_be_rendered_is_logged_and_skipped(rig, caplog):
+def test_an_estimate_that_cannot_be_rendered_is_logged_and_skipped(rig, caplog, monkeypatch):
     service, estimator, display, _ = rig
+    admit_a_bound_without_its_bound(monkeypatch)
     with caplog.at_level(logging.WARNING):
-        # Valid on the wire, but a bound with no value and no bound in its interval has nothing to render.
         estimate(estimator, grasp_id="g2", t_capture_s=time.monotonic(), e_pa=None, provisional=True,
                  state="lower_bound", interval=[None, None])
         step_until(service, lambda: service.stats.bad_messages == 1)
@@ -263,8 +264,9 @@ def _send(service: RendererService, kind: str, seq: int = 0, **body) -> None:
     service.handle(message)
 
 
-def test_estimates_that_cannot_be_rendered_are_counted_and_logged_sparingly(caplog):
+def test_estimates_that_cannot_be_rendered_are_counted_and_logged_sparingly(caplog, monkeypatch):
     service = _unplugged_service()
+    admit_a_bound_without_its_bound(monkeypatch)
     with caplog.at_level(logging.WARNING, logger="haptics.service"):
         for seq in range(120):
             _send(service, "estimate", seq=seq, grasp_id="g", method="series", E_pa=None, interval_pa=[None, None],

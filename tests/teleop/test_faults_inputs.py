@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given
 from hypothesis import settings as hyp_settings
 from hypothesis import strategies as st
-from support.bus import raw_publisher, wait_subscribed
+from support.bus import admit_a_bound_without_its_bound, raw_publisher, wait_subscribed
 from support.live import in_capture_order
 
 from estimator.errors import EstimatorError
@@ -210,10 +210,10 @@ def test_bad_content_is_refused_and_a_good_grasp_is_still_estimated(live, record
     live.until(lambda: any(f.grasp_id == grasp_id for f in live.renderer.stats.finals), "the renderer's final")
 
 
-def test_renderer_refuses_an_unrenderable_estimate_and_carries_on(live, caplog):
+def test_renderer_refuses_an_unrenderable_estimate_and_carries_on(live, caplog, monkeypatch):
     before = live.renderer.stats.bad_messages
+    admit_a_bound_without_its_bound(monkeypatch)
     with caplog.at_level(logging.WARNING):
-        # Valid on the wire, but a bound with no value and no bound in its interval has nothing to render.
         live.service.publisher.send("estimate", t_capture_s=time.monotonic(), grasp_id="g-r", method="series",
                                     E_pa=None, interval_pa=[None, None], state="lower_bound", reason="injected",
                                     provisional=True, latency_s=0.0)

@@ -278,6 +278,20 @@ def test_no_module_outside_the_wire_module_reads_a_body_by_string_key():
 _TOL = 1e-9  # the renderer's relative tolerance (haptics.mapping.EstimateUpdate)
 
 
+@pytest.mark.parametrize(("state", "interval"), [
+    ("lower_bound", [None, None]), ("lower_bound", [None, 3e5]), ("upper_bound", [3e5, None]),
+])
+def test_a_bound_state_without_its_bound_is_refused_on_the_wire_as_the_renderer_would(state, interval):
+    from haptics.errors import MappingError
+    from haptics.mapping import EstimateUpdate
+
+    with pytest.raises(MappingError):
+        EstimateUpdate(None, tuple(interval), state)
+    with pytest.raises(MessageRejected, match=rf"mistyped_field: estimate with state '{state}' has neither E_pa"):
+        make_message("estimate", t_capture_s=1.0, **{**ESTIMATE, "state": state, "E_pa": None,
+                                                    "interval_pa": interval})
+
+
 @pytest.mark.parametrize(("state", "e_pa", "interval", "ok"), [
     ("ok", 2e5, [1e5, 4e5], True),
     ("ok", 1e5 * (1 - _TOL / 2), [1e5, 4e5], True),  # a bound rounded differently from the value
