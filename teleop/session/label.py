@@ -444,8 +444,8 @@ def _copy_with_labels(reader: LogReader, writer: Writer, labels: list[_Label], c
             writer.add_metadata(record.name, dict(record.metadata))
     if attachment is not None:
         name, data = attachment
-        now_ns = time.time_ns()
-        writer.add_attachment(now_ns, now_ns + offset_ns, name, "text/plain", data)
+        now_ns = time.time_ns()  # a log time is wall time already (monotonic plus the log's offset)
+        writer.add_attachment(now_ns, now_ns, name, "text/plain", data)
     if not started or reader.mendable:  # changed since it was read
         raise SessionLogError(
             f"{reader.path} could not be read to its end ({reader.damage or 'no header'}); the log is unchanged"

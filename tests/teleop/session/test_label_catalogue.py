@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+import time
 
 import teleop.cli
 from teleop.session import LogReader, session_grasps
@@ -65,3 +66,21 @@ def test_a_catalogue_recorded_before_the_simulators_checks_still_reads_for_expor
     assert (gel.name, gel.material, gel.shape, gel.modulus_pa) == ("gel_pad", "silicone", "sphere", 2e4)
     objects, where, attach = _catalogue_objects(None, {"catalogue.toml": old})
     assert [o.name for o in objects] == ["gel_pad"] and attach is None
+
+
+def test_an_attached_label_catalogue_is_stamped_with_the_log_s_own_time_base(recorded, tmp_path):
+    from mcap.reader import make_reader
+
+    log = tmp_path / "session.mcap"
+    shutil.copyfile(recorded.path, log)
+    (tmp_path / "lab.toml").write_text(LAB, encoding="utf-8")
+    (tmp_path / "labels.csv").write_text("grasp_id,object\ng1,lab_gel\n", encoding="utf-8")
+    before_ns = time.time_ns()
+    label_session(log, tmp_path / "labels.csv", catalogue=tmp_path / "lab.toml")
+    with open(log, "rb") as f:
+        reader = make_reader(f)
+        attached = [a for a in reader.iter_attachments() if a.name == "label_catalogue-1.toml"]
+        last_message_ns = max(m.log_time for _, _, m in reader.iter_messages())
+    assert len(attached) == 1
+    # the time it was attached, in the log's time base: after the recording, not decades ahead
+    assert last_message_ns <= attached[0].log_time and before_ns <= attached[0].log_time <= time.time_ns()
