@@ -30,15 +30,24 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from teleop.errors import SettingsError
+from teleop.physics import WEBER_FRACTION
 from teleop.settings import Section, Settings
 from teleop.settings_fields import spec
 
-__all__ = ["INPUT_BACKENDS", "KEYBOARD_GRIP_STEP_MIN", "DisplaySettings", "OperatorSettings", "display_range_pa",
-           "display_settings", "operator_settings"]
+__all__ = ["INPUT_BACKENDS", "KEYBOARD_GRIP_STEP_MIN", "MIN_DISPLAY_STEPS", "DisplaySettings", "OperatorSettings",
+           "display_range_pa", "display_settings", "operator_settings"]
+
+#: The fewest just-noticeable steps of E (:data:`~teleop.physics.WEBER_FRACTION` each) the display's
+#: range must span: a narrower one renders next to everything at one end, soft or rigid.
+MIN_DISPLAY_STEPS = 2
 
 #: The smallest keyboard grip step: a thousandth of the grip range. A smaller step would take
 #: thousands of key presses to move the grip at all noticeably (and rounds away entirely near 1e-9).
 KEYBOARD_GRIP_STEP_MIN = 1e-3
+
+
+_MIN_RANGE_RATIO = (1.0 + WEBER_FRACTION) ** MIN_DISPLAY_STEPS  # e_rigid_pa / e_soft_pa at least
+_LIMIT_ROUNDING = 1e-3  # a rigid end written as the limit, rounded to 4 digits, is the limit
 
 
 @dataclass(frozen=True)
@@ -60,20 +69,28 @@ class DisplaySettings(Section):
                               doc="resend an unchanged command at least this often (below the display's watchdog_ms)")
 
     def _check(self) -> None:
-        if self.e_rigid_pa and self.e_rigid_pa <= self.e_soft_pa:
+        if self.e_rigid_pa and self.e_rigid_pa < self.e_soft_pa * _MIN_RANGE_RATIO:
             raise SettingsError(
-                f"DisplaySettings.e_rigid_pa = {self.e_rigid_pa}: expected a value above "
-                f"e_soft_pa = {self.e_soft_pa}"
+                f"DisplaySettings.e_rigid_pa = {self.e_rigid_pa}: expected a value at least "
+                f"{self.e_soft_pa * _MIN_RANGE_RATIO:.6g} Pa, {MIN_DISPLAY_STEPS} just-noticeable steps "
+                f"({WEBER_FRACTION:.0%} each) above e_soft_pa = {self.e_soft_pa}"
             )
 
     def resolved(self, settings: Settings) -> DisplaySettings:
-        """The rigid end set: 0 becomes ``settings``' resolution limit."""
+        """The rigid end set: 0 becomes ``settings``' resolution limit; one above that limit is refused
+        (no estimate goes past the limit, so nothing would ever be rendered rigid)."""
+        limit = settings.resolution_limit_pa
+        if self.e_rigid_pa > limit * (1 + _LIMIT_ROUNDING):
+            raise SettingsError(f"DisplaySettings.e_rigid_pa = {self.e_rigid_pa}: expected at most the sensor's "
+                                f"resolution limit {limit:.4g} Pa (no estimate goes beyond it, so no object would "
+                                "feel rigid), or 0 for that limit")
         if self.e_rigid_pa:
             return self
-        limit = settings.resolution_limit_pa
-        if limit <= self.e_soft_pa:
-            raise SettingsError(f"DisplaySettings.e_soft_pa = {self.e_soft_pa}: expected a value below the "
-                                f"sensor's resolution limit {limit:.4g} Pa (the display's rigid end)")
+        if limit < self.e_soft_pa * _MIN_RANGE_RATIO:
+            raise SettingsError(f"DisplaySettings.e_soft_pa = {self.e_soft_pa}: expected a value at most "
+                                f"{limit / _MIN_RANGE_RATIO:.4g} Pa, {MIN_DISPLAY_STEPS} just-noticeable steps "
+                                f"({WEBER_FRACTION:.0%} each) below the sensor's resolution limit {limit:.4g} Pa "
+                                "(the display's rigid end, e_rigid_pa = 0)")
         return dataclasses.replace(self, e_rigid_pa=limit)
 
 

@@ -8,7 +8,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["BUS_TRANSPORTS", "ENDPOINT_FORMS", "NAME_TRANSPORTS", "PORT_TRANSPORTS", "Endpoint", "parse_endpoint"]
+__all__ = [
+    "BUS_TRANSPORTS",
+    "ENDPOINT_FORMS",
+    "NAME_TRANSPORTS",
+    "PORT_TRANSPORTS",
+    "WILDCARD_HOSTS",
+    "Endpoint",
+    "parse_endpoint",
+    "same_socket",
+]
 
 #: The ZeroMQ transports by how an endpoint names its peer: HOST:PORT (``tcp://SRC;HOST:PORT`` also
 #: names a source address, ``epgm://IFACE;GROUP:PORT`` an interface, ``ws://HOST:PORT/PATH`` a path),
@@ -20,6 +29,8 @@ NAME_TRANSPORTS = frozenset({"inproc", "ipc", "tipc", "vmci"})
 #: host, inproc within one process. The others carry no pub/sub or need a libzmq built for them.
 BUS_TRANSPORTS = ("tcp", "ipc", "inproc")
 ENDPOINT_FORMS = "tcp://HOST:PORT, ipc://PATH or inproc://NAME"
+#: Hosts that bind every interface: such an endpoint holds its port on every address of the host.
+WILDCARD_HOSTS = frozenset({"*", "0.0.0.0", "::"})
 
 
 @dataclass(frozen=True)
@@ -71,3 +82,25 @@ def parse_endpoint(endpoint: str) -> Endpoint:
     if not (port.isascii() and port.isdigit() and 1 <= int(port) <= 65535):
         raise ValueError(f"port {port!r}: expected an integer in 1..65535, or * for any free one")
     return Endpoint(scheme, address, hosts, int(port))
+
+
+def _bound_host(host: str) -> str:
+    """``host`` as the address it binds: without IPv6 brackets, lower case, ``localhost`` as
+    127.0.0.1 (the one name read without a DNS lookup, which a settings file must not wait on)."""
+    host = host.removeprefix("[").removesuffix("]").lower()
+    return "127.0.0.1" if host == "localhost" else host
+
+
+def same_socket(a: Endpoint, b: Endpoint) -> bool:
+    """Whether binding ``a`` and ``b`` would need the same socket: a HOST:PORT transport's same port
+    on the same host (a wildcard host is every one of them; a source address is not bound), or
+    the same path or name of a transport without ports. A port of ``*`` (any free one) clashes
+    with nothing."""
+    if a.scheme != b.scheme:
+        return False
+    if not a.hosts:
+        return a.address == b.address
+    if a.port is None or a.port != b.port:
+        return False
+    hosts = {_bound_host(a.host), _bound_host(b.host)}
+    return len(hosts) == 1 or bool(hosts & WILDCARD_HOSTS)

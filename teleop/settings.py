@@ -13,7 +13,8 @@ Each package owns its tables. This base owns the rig's: ``[sensors.<finger>]``, 
 own table by name in the ``compliance_teleop.settings_tables`` entry-point group (pyproject.toml:
 ``[estimator]``, ``[display]``, ``[operator]``); the base keeps such tables as read, and their
 owners build, check and complete them (:meth:`Settings.section`), so the base names and imports
-none of them. A relative path in a file resolves against the file's folder (:func:`resolve_path`).
+none of them. A relative path in a file resolves against the file's folder (:func:`resolve_path`;
+through a symbolic link, the folder of the file it points to: :func:`settings_folder`).
 
 All quantities are SI (m, N, Pa, s, Hz) unless the name says otherwise.
 
@@ -26,7 +27,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import importlib.metadata
-import importlib.resources
 import os
 import re
 import tomllib
@@ -36,13 +36,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
-from teleop.endpoints import BUS_TRANSPORTS, ENDPOINT_FORMS, parse_endpoint
+from teleop.endpoints import BUS_TRANSPORTS, ENDPOINT_FORMS, Endpoint, parse_endpoint, same_socket
 from teleop.errors import SettingsError
 from teleop.physics import resolution_limit_pa
 from teleop.settings_fields import Validated, build_settings, spec, tcp_host_port
+from teleop.settings_paths import (
+    CONFIG_DIR,
+    config_dir,
+    default_settings_path,
+    resolve_path,
+    settings_folder,
+)
 
 __all__ = [
     "BusSettings",
+    "CONFIG_DIR",
     "GripperSettings",
     "LoadCellSettings",
     "Section",
@@ -57,44 +65,15 @@ __all__ = [
     "package_sections",
     "package_tables",
     "resolve_path",
+    "settings_folder",
     "settings_from_mapping",
     "settings_to_mapping",
 ]
 
 
-def config_dir() -> Path:
-    """The folder of the shipped configs (``configs/``: settings, rigs, scenes, catalogue, calibrations).
-
-    An installed wheel carries it as package data in ``teleop/_configs`` (``pyproject.toml`` maps
-    the package ``teleop._configs`` onto the top-level ``configs/`` folder); a source checkout,
-    editable installs included, has it beside the packages.
-    """
-    shipped = importlib.resources.files("teleop") / "_configs"
-    if isinstance(shipped, Path) and shipped.is_dir():
-        return shipped
-    return Path(__file__).resolve().parent.parent / "configs"
-
-
-#: :func:`config_dir` when this module was imported.
-CONFIG_DIR = config_dir()
-
-
-def resolve_path(value: str | os.PathLike[str], *, folder: Path | None = None) -> Path:
-    """Where a path named in a settings or scene file points (``SensorSettings.calibration``,
-    ``SimulationSettings.background``, ``BusSettings.keys_dir``, the estimator's ``model_path``, a
-    scene's ``settings`` and ``catalogue``): an absolute path as it is, a relative one against ``folder``, the folder of the
-    file that names it. Loading a file resolves its paths, so settings and the records made with
-    them carry absolute ones; ``folder`` None (a path from settings built in code, or from a record
-    of an older version) means :func:`config_dir`."""
-    path = Path(value)
-    if path.is_absolute():
-        return path
-    return Path(os.path.normpath((config_dir() if folder is None else folder) / path))  # no "a/../"
-
-
-def default_settings_path() -> Path:
-    """Path of the settings file shipped in ``configs/`` (simulated hardware)."""
-    return config_dir() / "settings.toml"
+#: Room a frame message needs besides its image: topic, header and body (the wire format caps them
+#: at 68 KiB together; a frame's are well under 1 KiB).
+FRAME_HEADER_MARGIN_BYTES = 64 * 1024
 
 
 @dataclass(frozen=True)
@@ -181,6 +160,13 @@ class SensorSettings(Validated):
         if self.model == "mini":
             return (self.raw_height_px, self.raw_width_px)
         return (self.warped_height_px - 2 * self.crop_px, self.warped_width_px - 2 * self.crop_px)
+
+    @property
+    def frame_message_bytes(self) -> int:
+        """The largest bus message carrying one of this sensor's frames: its raw image uncompressed
+        (an encoded frame, noisy JPEG at quality 100 included, stays below it) and the message's
+        header."""
+        return self.raw_width_px * self.raw_height_px * 3 + FRAME_HEADER_MARGIN_BYTES
 
     @property
     def pad_size_m(self) -> tuple[float, float]:
@@ -279,12 +265,14 @@ class BusSettings(Validated):
     control: str = spec("tcp://127.0.0.1:5554", doc="one-off tools (estimator reload) send here while an "
                                                     "operator holds the command endpoint")
     heartbeat_s: float = spec(0.5, lo=0.0, hi=60.0, lo_open=True)
-    max_message_bytes: int = spec(8 * 1024 * 1024, lo=1024, hi=2**31 - 1)
+    max_message_bytes: int = spec(8 * 1024 * 1024, lo=1024, hi=2**31 - 1,
+                                  doc="largest bus message; at least each sensor's frame message "
+                                      "(SensorSettings.frame_message_bytes)")
     keys_dir: str = spec("", doc="CURVE key directory (a relative one: against the settings file's folder); "
                               "required when an endpoint is not loopback")
 
     def _check(self) -> None:
-        bound: dict[tuple[Any, ...], str] = {}
+        bound: dict[str, Endpoint] = {}
         for name in self.ENDPOINTS:
             value = getattr(self, name)
             try:
@@ -293,14 +281,13 @@ class BusSettings(Validated):
                 raise SettingsError(f"BusSettings.{name} = {value!r}: {exc}") from None
             if endpoint.scheme not in BUS_TRANSPORTS:
                 raise SettingsError(f"BusSettings.{name} = {value!r}: expected {ENDPOINT_FORMS}")
-            if endpoint.scheme == "tcp" and endpoint.port is None:
-                continue  # "*": each binds a free port of its own
-            # one socket however written: tcp's host and port (not a source address), ipc's path, inproc's name
-            where = (endpoint.scheme, endpoint.host.lower(), endpoint.port) if endpoint.hosts else (endpoint.scheme, endpoint.address)
-            if where in bound:
-                raise SettingsError(f"BusSettings.{name} = {value!r}: the same endpoint as {bound[where]}, and "
-                                    "each is bound by a process of its own: give each an endpoint of its own")
-            bound[where] = name
+            for other, taken in bound.items():
+                if same_socket(endpoint, taken):
+                    # localhost is 127.0.0.1, and a wildcard host holds its port on every address
+                    raise SettingsError(f"BusSettings.{name} = {value!r}: the same endpoint as {other} "
+                                        f"({getattr(self, other)!r}), and each is bound by a process of its own: "
+                                        "give each an endpoint of its own")
+            bound[name] = endpoint
 
 
 @dataclass(frozen=True)
@@ -402,10 +389,34 @@ class Settings(Validated):
         if self.sensing.finger not in fingers:
             raise SettingsError(f"SensingSettings.finger = {self.sensing.finger!r}: expected a finger with a "
                                 f"sensor, one of {fingers}")
+        self._check_bus_keys()
+        for sensor in self.sensors:
+            needed = sensor.frame_message_bytes
+            if needed > self.bus.max_message_bytes:
+                raise SettingsError(
+                    f"BusSettings.max_message_bytes = {self.bus.max_message_bytes}: too small for a frame of "
+                    f"[sensors.{sensor.finger}] ({sensor.raw_width_px}x{sensor.raw_height_px} px): expected at "
+                    f"least {needed} bytes"
+                )
         unknown = sorted(set(self.tables) - set(package_tables()))
         if unknown:
             raise SettingsError(f"Settings.tables names {unknown[0]!r}: expected some of "
                                 f"{', '.join(package_tables()) or 'none (is the project installed?)'}")
+
+    def _check_bus_keys(self) -> None:
+        """Keys where the bus needs them: each process refuses, as it starts, an endpoint other hosts
+        reach without ``keys_dir``; a file that names one is refused as it loads. (A lone
+        :class:`BusSettings` is not: command-line endpoints replace a file's, and a socket checks its own.)"""
+        from teleop.bus.security import is_loopback  # here: teleop.bus imports this module
+
+        if self.bus.keys_dir:
+            return
+        for name in BusSettings.ENDPOINTS:
+            value = getattr(self.bus, name)
+            if not is_loopback(value):
+                raise SettingsError(f"BusSettings.{name} = {value!r}: other hosts can reach it, so the bus runs "
+                                    "CURVE there and needs BusSettings.keys_dir: run `teleop keys init DIR` and set "
+                                    "keys_dir = DIR in [bus] (or bind a loopback address)")
 
     def __hash__(self) -> int:  # the packages' tables are plain dicts: hash a frozen copy
         own = tuple(getattr(self, f.name) for f in dataclasses.fields(self) if f.metadata.get("key", True))
@@ -413,9 +424,8 @@ class Settings(Validated):
 
     @property
     def folder(self) -> Path:
-        """Where relative paths of these settings point from: the settings file's folder, or
-        :func:`config_dir` for settings built in code."""
-        return config_dir() if self.source is None else self.source.parent
+        """Where relative paths of these settings point from (:func:`settings_folder`)."""
+        return settings_folder(self.source)
 
     @property
     def resolution_limit_pa(self) -> float:
@@ -477,7 +487,7 @@ def _build_settings_file(data: Mapping[str, Any], source: Path | None) -> Settin
             raise SettingsError(f"{where}: [{name}] must be a table, got {type(table).__name__}")
         tables[name] = dict(table)
     own = {k: v for k, v in data.items() if k not in package_tables()}
-    folder = config_dir() if source is None else source.parent
+    folder = settings_folder(source)
     sensors = own.get("sensors")
     if isinstance(sensors, Mapping):
         own["sensors"] = {finger: _with_path(table, "calibration", folder) for finger, table in sensors.items()}
@@ -567,8 +577,13 @@ def load_settings(path: str | Path | None = None) -> Settings:
 
 def missing_calibrations(settings: Settings, path: str | Path | None = None) -> list[str]:
     """Why each sensor's calibration file, named in ``settings`` (loaded from ``path``; None: the
-    shipped file), is missing: valid settings, but the estimator refuses their sensor's frames."""
-    folder = Path(path or default_settings_path()).resolve().parent
-    return [f"[sensors.{sensor.finger}] calibration {sensor.calibration}: no such file (a relative path "
-            f"resolves against {folder}); make it with `estimator calibrate`"
-            for sensor in settings.sensors if sensor.calibration and not Path(sensor.calibration).is_file()]
+    shipped file), is missing, or why the estimating finger's is (none named): valid settings, but
+    the estimator refuses their sensor's frames."""
+    folder = settings_folder(Path(path or default_settings_path()))
+    estimating = settings.sensor(settings.sensing.finger)
+    unnamed = [] if estimating.calibration else [
+        f"[sensors.{estimating.finger}] calibration: none named, and [sensing] finger = "
+        f"{estimating.finger!r} estimates; make one with `estimator calibrate` and name it there"]
+    return unnamed + [f"[sensors.{sensor.finger}] calibration {sensor.calibration}: no such file (a relative path "
+                      f"resolves against {folder}); make it with `estimator calibrate`"
+                      for sensor in settings.sensors if sensor.calibration and not Path(sensor.calibration).is_file()]

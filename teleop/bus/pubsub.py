@@ -292,7 +292,14 @@ class Publisher(_Socket):
         sent = dataclasses.replace(
             message, topic=topic, source=self.source, seq=self._seq[topic], t_send_ns=now_ns()
         )
-        frames = encode(sent, max_bytes=self.max_bytes)
+        try:
+            frames = encode(sent, max_bytes=self.max_bytes)
+        except MessageRejected as exc:
+            if exc.reason != "oversize":
+                raise
+            # the sender's own limit: say which setting it is, not the receivers' fix
+            raise MessageRejected("oversize", f"{self.endpoint}: {topic!r} {exc.detail} (bus.max_message_bytes): "
+                                              "raise bus.max_message_bytes on every host, or send less") from None
         try:
             socket.send_multipart(frames, copy=False, flags=0 if self.lossless else zmq.NOBLOCK)
         except zmq.Again as exc:

@@ -64,6 +64,7 @@ __all__ = [
     "LiveSystem",
     "configured_calibration",
     "free_ports",
+    "grasp_timeout_s",
     "simulated_calibration",
 ]
 
@@ -71,7 +72,8 @@ CHILDREN = ("recorder", "renderer", "estimator", "node")  # start order; stopped
 STOP_TIMEOUT_S = 10.0
 START_TIMEOUT_S = 60.0
 SETTLE_S = 0.5  # after every peer is heard: subscriptions reconnect every 0.1 s
-GRASP_TIMEOUT_S = 60.0
+GRASP_TIMEOUT_S = 60.0  # the least any grasp is given, however quick the gripper
+GRASP_MARGIN_S = 30.0  # a grasp's time besides closing and holding: opening, the estimate, the reports
 REPORT_TIMEOUT_S = 3.0
 CALIBRATION_PRESSES = 24
 LOG_TAIL_LINES = 15
@@ -80,6 +82,15 @@ _PR_SET_PDEATHSIG = 1
 _CHILD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "TQDM_DISABLE": "1",
               "TQDM_MININTERVAL": "60"}
 _ENTRY = "import sys; from {package}.cli import main; sys.exit(main())"
+
+
+def grasp_timeout_s(settings: Settings) -> float:
+    """How long one grasp under ``settings`` may take before it counts as stuck (s): closing from the
+    widest opening at the closing speed, the hold, and :data:`GRASP_MARGIN_S`; at least
+    :data:`GRASP_TIMEOUT_S`."""
+    gripper = settings.gripper
+    closing_s = gripper.max_width_m / gripper.closing_speed_m_s
+    return max(GRASP_TIMEOUT_S, closing_s + gripper.hold_s + GRASP_MARGIN_S)
 
 
 def free_ports(n: int) -> list[int]:
@@ -187,6 +198,7 @@ class LiveSystem:
         self.estimator_reports = ReportReader(run_dir / "estimator.jsonl")
         self.renderer_reports = ReportReader(run_dir / "renderer.jsonl")
         self.display_range: tuple[float, float] | None = None  # (e_soft_pa, e_rigid_pa), known once started
+        self.grasp_timeout_s = GRASP_TIMEOUT_S  # the settings' (grasp_timeout_s), known once started
         self._followed: set[str] = set()  # grasps followed to their end
         self._later: list[Message] = []  # messages of a grasp that started while another was followed
         self.model_events: list[ModelEventBody] = []  # what the estimator said of its model, as heard
@@ -227,6 +239,7 @@ class LiveSystem:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         settings = load_settings(self.settings_path)
         self.display_range = display_range_pa(settings)
+        self.grasp_timeout_s = grasp_timeout_s(settings)
         try:
             self.open_bus(settings)
             lines = self._command_lines()
@@ -338,11 +351,11 @@ class LiveSystem:
     def grasp(self, grasp_id: str, object_index: int, obj: ObjectSpec, *,
               on_update: Callable[[GraspOutcome], None] | None = None,
               on_message: Callable[[Message], None] | None = None,
-              timeout_s: float = GRASP_TIMEOUT_S) -> GraspOutcome:
+              timeout_s: float | None = None) -> GraspOutcome:
         """Command one grasp of scene object ``object_index`` and follow it to the reports.
 
         ``on_update`` sees the outcome after each of the grasp's messages, ``on_message`` each
-        of its messages.
+        of its messages. ``timeout_s`` None: the settings' :func:`grasp_timeout_s`.
 
         Raises
         ------
@@ -352,16 +365,17 @@ class LiveSystem:
         self.commands.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id=grasp_id,
                            params={"object_index": float(object_index)})
         return self._follow(GraspOutcome(grasp_id, obj, display_range=self.display_range), on_update=on_update,
-                            on_message=on_message, timeout_s=timeout_s)
+                            on_message=on_message, timeout_s=timeout_s or self.grasp_timeout_s)
 
     def operated_grasp(self, obj: ObjectSpec, *, on_update: Callable[[GraspOutcome], None] | None = None,
                        on_message: Callable[[Message], None] | None = None,
-                       timeout_s: float = GRASP_TIMEOUT_S) -> GraspOutcome:
+                       timeout_s: float | None = None) -> GraspOutcome:
         """Follow the next grasp an operator makes (:mod:`teleop.system.seat`) to the reports: the first
         grasp the robot starts after those already followed; ``obj`` is the object it should grasp.
         Arguments and errors as :meth:`grasp`."""
         outcome = GraspOutcome(None, obj, style="operator", display_range=self.display_range)
-        return self._follow(outcome, on_update=on_update, on_message=on_message, timeout_s=timeout_s)
+        return self._follow(outcome, on_update=on_update, on_message=on_message,
+                            timeout_s=timeout_s or self.grasp_timeout_s)
 
     def load_model(self, path: str | Path, *, timeout_s: float = 30.0) -> ModelEventBody:
         """Switch the running estimator to the model in ``path``, as ``estimator reload`` does; the body
