@@ -6,6 +6,14 @@ whole, as recorded (:meth:`Series.of`, :meth:`Frames.of_record`): a record may h
 frames with non-finite or repeated timestamps, which the segmentation skips
 (:mod:`estimator.segment`), as it skips a frame captured no later than an earlier one of its
 finger, live and offline alike.
+
+A grasp keeps at most :data:`MAX_GRASP_FRAMES` frames of each finger, the first that came: live, later
+ones are checked and counted but not kept; offline, a record's later ones are counted and never decoded.
+An operator may hold an object for minutes, and each frame kept costs its bytes and, on the estimator's
+finger, its decoded image, depth and reduced depth: about 0.26 MB a frame of both fingers at the shipped
+settings (66 kB, 88 kB and 23 kB, and 80 kB of JPEG), about three times that at ``depth_binning`` 1.
+Without the cap a long hold would grow the service without bound; with it a grasp's frames take at most
+about 470 MB at the shipped settings.
 """
 
 from __future__ import annotations
@@ -20,7 +28,11 @@ from estimator.perception.grid import ENCODINGS, frame_on_grid, raw_frame, to_gr
 from teleop.record import FrameStream, Samples
 from teleop.settings import SensorSettings
 
-__all__ = ["Frames", "Series"]
+__all__ = ["MAX_GRASP_FRAMES", "Frames", "Series"]
+
+# Frames of one finger a grasp keeps: 60 s at 30 Hz, over ten times the longest of 40 simulated operator's
+# grasps (156 frames) and a scripted one (a few seconds). Bounds a grasp's frames (module notes).
+MAX_GRASP_FRAMES = 1800
 
 
 @dataclass
@@ -70,19 +82,28 @@ class Frames:
 
     ``source`` is the record's frame stream they came from offline (it decodes them, and holds
     them decoded when the record was: :class:`~estimator.inference.sampling.DecodedFrameStream`);
-    None live.
+    None live. ``not_kept`` counts the frames that came once :data:`MAX_GRASP_FRAMES` were kept.
     """
 
     t_s: list[float] = field(default_factory=list)
     encoded: list[bytes] = field(default_factory=list)
     encoding: str | None = None
     source: FrameStream | None = None
+    not_kept: int = 0
 
     @classmethod
     def of_record(cls, stream: FrameStream, *, shift_s: float | None = None) -> Frames:
-        """A record's frame stream as recorded, its times earlier by ``shift_s`` (s) when given."""
+        """A record's frame stream as recorded, its times earlier by ``shift_s`` (s) when given: its
+        first :data:`MAX_GRASP_FRAMES` frames, the others counted (``not_kept``), as live."""
         t = stream.t_s if shift_s is None else stream.t_s - shift_s
-        return cls([float(x) for x in t], list(stream.encoded), stream.encoding, stream)
+        kept = t[:MAX_GRASP_FRAMES]
+        return cls([float(x) for x in kept], list(stream.encoded[:MAX_GRASP_FRAMES]), stream.encoding, stream,
+                   not_kept=len(t) - len(kept))
+
+    @property
+    def full(self) -> bool:
+        """Whether :data:`MAX_GRASP_FRAMES` frames are kept: later ones are only counted."""
+        return len(self.t_s) >= MAX_GRASP_FRAMES
 
     def check(self, t_s: float, encoding: str, *, where: str) -> None:
         """Raise PerceptionError naming ``where`` unless a frame captured at ``t_s`` in ``encoding``
@@ -118,4 +139,4 @@ class Frames:
         return frame_on_grid(self.encoded[index], self.encoding or "jpeg", sensor, binning=binning, where=where)
 
     def copy(self) -> Frames:
-        return Frames(list(self.t_s), list(self.encoded), self.encoding, self.source)
+        return Frames(list(self.t_s), list(self.encoded), self.encoding, self.source, self.not_kept)

@@ -83,6 +83,7 @@ from estimator.errors import EstimatorError, ModelError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.model_slot import ModelEvent, ModelSlot, _cut, model_log
 from estimator.perception.calibration import Calibration
+from estimator.received import MAX_GRASP_FRAMES
 from estimator.segment import Segment
 from estimator.settings import estimator_settings
 from estimator.stream import DEFAULT_METHODS, LOADING_SETTLED_S, GraspStream
@@ -386,6 +387,9 @@ class EstimatorService(ServiceLoop):
         if message.type == "frame":
             if stream.add_frame(body.finger, message.t_capture_s, body.data, body.encoding):
                 self._on_frame(grasp, received_s)
+            elif stream.frames_not_kept(body.finger) == 1:  # once per grasp and finger, not per frame
+                log.warning("grasp %r: frames of finger %r past the first %d are counted, not kept: its estimates "
+                            "rest on those", grasp.grasp_id, body.finger, MAX_GRASP_FRAMES)
             return
         if message.type == "force":
             stream.add_force(body.t_s, body.value_n)

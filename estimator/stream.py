@@ -24,6 +24,10 @@ measurement would recompute:
 * each :meth:`GraspStream.estimate` runs the analytical fits again over everything that has
   arrived (a few hundred samples and tens of frames: vectorised and cheap).
 
+A grasp keeps the first :data:`~estimator.received.MAX_GRASP_FRAMES` frames of each finger (60 s at
+30 Hz; at most about 470 MB at the shipped settings), live and offline alike: later ones are counted,
+not kept (an operator may hold an object for minutes), and the estimates' notes say how many.
+
 The rig
 -------
 A grasp is measured on the sensors and the gripper it was captured with: a record's own (its
@@ -86,7 +90,7 @@ from estimator.measurements import (
 from estimator.perception.calibration import Calibration
 from estimator.perception.depth import reconstruct_depth
 from estimator.perception.grid import depth_grid, frame_on_grid, grid_calibration
-from estimator.received import Frames, Series
+from estimator.received import MAX_GRASP_FRAMES, Frames, Series
 from estimator.segment import PEAK_FRAME_WINDOW_S, Segment, align_frames, frames_in_capture_order
 from estimator.settings import DEFAULT_METHODS, estimator_settings
 from teleop.errors import RecordError
@@ -166,7 +170,7 @@ class GraspStream:
         self._perception = FramePerception(finger=self.finger, sensor=self.sensor, binning=self.binning,
                                            grid=self.grid, grasp_id=grasp_id)
         self._phase: LoadPhase | None = None  # of the force and width so far; None: find it again
-        self._segments: dict[tuple[int, int], Segment] = {}  # (n_frames, frames received) -> on self._phase
+        self._segments: dict[tuple[int, int, int], Segment] = {}  # (n_frames, frames kept, not kept) -> on self._phase
         self._loading_end_s: float | None = None
         self._follow = False
 
@@ -282,24 +286,33 @@ class GraspStream:
         self._phase = None
 
     def add_frame(self, finger: str, t_s: float, data: np.ndarray | bytes, encoding: str) -> bool:
-        """One tactile frame as captured; True when it is the estimator's finger.
+        """One tactile frame as captured; True when it is the estimator's finger's and was kept.
 
         The estimator's frames are decoded and warped onto the depth grid here, once; other fingers'
-        frames are kept as they came. Raises PerceptionError (the frame is not kept) for an
+        frames are kept as they came. Once :data:`~estimator.received.MAX_GRASP_FRAMES` of a finger
+        are kept, its later frames are checked and counted (:meth:`frames_not_kept`), not kept or
+        decoded. Raises PerceptionError (the frame is not kept) for an
         estimator frame that does not decode or has the wrong size, a finger without a sensor, a
         non-finite time or an encoding other than the finger's earlier ones. A frame captured no later
         than an earlier one of its finger (out of order or duplicated) is kept as it came, and skipped by
         the segmentation, whose notes count it (:func:`~estimator.segment.unplaced_frames`), as offline.
         """
         frames = self._frames.get(finger, Frames())
-        where = f"grasp {self.grasp_id!r} frame {len(frames.t_s)} of finger {finger!r}"
+        where = f"grasp {self.grasp_id!r} frame {len(frames.t_s) + frames.not_kept} of finger {finger!r}"
         sensor = self._sensor(finger, PerceptionError, where)
         frames.check(t_s, encoding, where=where)
+        if frames.full:  # a long hold would grow the service without bound (estimator.received)
+            frames.not_kept += 1
+            return False
         if finger == self.finger:
             self._perception.images[len(frames.t_s)] = frame_on_grid(data, encoding, sensor, binning=self.binning, where=where)
         frames.add(t_s, data, encoding, where=where)
         self._frames[finger] = frames
         return finger == self.finger
+
+    def frames_not_kept(self, finger: str) -> int:
+        """Frames of ``finger`` that came once :data:`~estimator.received.MAX_GRASP_FRAMES` were kept."""
+        return self._frames.get(finger, Frames()).not_kept
 
     def mark_loading_end(self, t_s: float) -> None:
         """The loading end marker: the gripper's fingers stopped at ``t_s`` (s, capture clock).
@@ -334,8 +347,8 @@ class GraspStream:
         sampled at ``n_frames`` (default ``estimator.n_frames``)."""
         n_frames = estimator_settings(self.settings).n_frames if n_frames is None else n_frames
         phase = self._load_phase()
-        # Frames are only ever appended: their count names the frame times aligned.
-        key = (n_frames, self.frame_count)
+        # Frames are only ever appended: their count names the frame times aligned (and the notes).
+        key = (n_frames, self.frame_count, not_kept := self.frames_not_kept(self.finger))
         cached = self._segments.get(key)
         if cached is None:
             received_t = self._perception.times(self._frames.get(self.finger, Frames()))
@@ -345,6 +358,10 @@ class GraspStream:
             if skipped := self._perception.undecodable:  # a live stream drops them
                 cached = dataclasses.replace(cached, notes=(*cached.notes, f"skipped {len(skipped)} frames "
                                              f"of finger {self.finger!r}: {next(iter(skipped.values()))}"))
+            if not_kept:
+                cached = dataclasses.replace(cached, notes=(*cached.notes, f"{not_kept} frames of finger "
+                                             f"{self.finger!r} after its first {MAX_GRASP_FRAMES} not kept "
+                                             f"(a grasp keeps at most {MAX_GRASP_FRAMES})"))
             self._segments[key] = cached
         return cached
 
