@@ -9,9 +9,11 @@ Each check triggers only on data no working rig delivers, and says which stream 
   widths that stay within :data:`STILL_WIDTH_M` over the whole record of a grasp that starts before contact
   (the fingers close onto the object before the force rises, whatever its stiffness), refuses the
   grasp: every estimate rests on the approach the widths give, the model's too;
-* a tactile frame without texture (all black, all saturated: a dead camera or lost light), or
+* a tactile frame without texture (all black, all saturated: a dead camera or lost light),
   loading frames all bit-identical to the no-contact reference (a frozen camera: a live camera's
-  noise alone changes every frame), refuses the tactile methods: :func:`camera_fault`.
+  noise alone changes every frame), or loading frames that all differ from the reference over
+  most of their pixels by more than :data:`STILL_GEL_LEVELS` (pixel noise: outside a contact the
+  gel does not change) refuses the tactile methods: :func:`camera_fault`.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import numpy as np
 from estimator.load_phase import LoadPhase
 from estimator.segment import Segment
 
-__all__ = ["RATE_FACTOR", "STILL_WIDTH_M", "TEXTURE_LEVELS", "camera_fault", "checked_frames", "checked_phase",
+__all__ = ["RATE_FACTOR", "STILL_GEL_LEVELS", "STILL_WIDTH_M", "TEXTURE_LEVELS", "camera_fault", "checked_frames", "checked_phase",
            "period_fault"]
 
 RATE_FACTOR = 100.0
@@ -34,6 +36,10 @@ STILL_WIDTH_M = 1e-4
 # A frame whose pixels spread less than this (standard deviation, 8-bit levels) shows no gel: a lit
 # gel's shading alone spreads them by tens of levels.
 TEXTURE_LEVELS = 2.0
+# A loading frame whose median pixel differs from the no-contact reference by more than this (8-bit
+# levels) is not of a gel: at least the frame nearest the onset shows the gel still outside a small
+# contact, within the camera's noise (a level or two; pure pixel noise differs by tens).
+STILL_GEL_LEVELS = 10
 
 
 def period_fault(t_s: np.ndarray, rate_hz: float, what: str) -> str:
@@ -104,4 +110,17 @@ def camera_fault(reference: np.ndarray, frames: list[np.ndarray], frame_t_s: np.
     if frames and all(np.array_equal(f, reference) for f in frames):
         return (f"every loading frame of {camera} is bit-identical to its no-contact reference: a frozen camera "
                 "(a live one's noise alone changes every frame)")
+    # The first loading frame, nearest the onset, mostly clears it: the others are counted only for noise.
+    if frames and all(_changed_share(f, reference) > 0.5 for f in frames):
+        least = min(_changed_share(f, reference) for f in frames)
+        return (f"every loading frame of {camera} differs from its no-contact reference by more than "
+                f"{STILL_GEL_LEVELS} levels in {least:.0%} or more of its pixel values: pixel noise, not a gel "
+                "(outside a contact the gel stays as in the reference)")
     return ""
+
+
+def _changed_share(image: np.ndarray, reference: np.ndarray) -> float:
+    """Share of the values of ``image`` more than :data:`STILL_GEL_LEVELS` off ``reference`` (over
+    half: the median change is above it); counted, not sorted: it runs per estimate."""
+    changed = cv2.absdiff(image, reference) > STILL_GEL_LEVELS
+    return np.count_nonzero(changed) / changed.size

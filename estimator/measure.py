@@ -32,21 +32,46 @@ from estimator.measurements import (
     reference_indices,
 )
 from estimator.perception.calibration import Calibration
-from estimator.perception.grid import to_grid
+from estimator.perception.grid import decode_frame, to_grid
 from estimator.segment import Segment
 from estimator.stream import GraspStream, check_inputs
+from teleop.errors import RecordError
 from teleop.record import GRASP_DONE_EVENT, GraspRecord
-from teleop.settings import Settings
+from teleop.settings import SensorSettings, Settings
 
-__all__ = ["estimate_grasp", "measure_grasp", "no_contact_reference", "reference_frame"]
+__all__ = ["estimate_grasp", "finger_sensor", "measure_grasp", "no_contact_reference", "reference_frame"]
 
 # Camera-lag search: frames this long before the onset form the no-contact baseline.
 MAX_CAMERA_LAG_S = 0.25
 
 
+def finger_sensor(record: GraspRecord, finger: str) -> SensorSettings:
+    """The sensor of ``record`` on ``finger`` (``SensingSettings.finger``), which has frames there.
+
+    Raises
+    ------
+    RecordError
+        The record has no sensor or no frames on ``finger``: a problem of that record, which a
+        batch skips (another record may have both).
+    """
+    try:
+        sensor = record.sensor(finger)
+        record.stream(finger)
+    except KeyError as exc:
+        raise RecordError(f"SensingSettings.finger = {finger!r}: {exc.args[0]}") from exc
+    return sensor
+
+
 def _decode(record: GraspRecord, finger: str, index: np.ndarray, *, reduce: int = 1) -> np.ndarray:
-    """Frames ``index`` of ``finger`` as uint8 (n, H, W, 3) BGR as captured, decoded ``reduce`` times smaller."""
-    return record.stream(finger).frames((int(i) for i in index), reduce=reduce)
+    """Frames ``index`` of ``finger`` as uint8 (n, H, W, 3) BGR as captured, decoded ``reduce`` times smaller
+    (:func:`~estimator.perception.grid.decode_frame`: PerceptionError naming the frame for one that does
+    not decode or declares another size than the sensor's raw frame)."""
+    sensor, stream = record.sensor(finger), record.stream(finger)
+    frames = [decode_frame(stream.encoded[i], stream.encoding, sensor, binning=reduce,
+                           where=f"finger {finger!r} frame {i}") for i in (int(i) for i in index)]
+    if not frames:
+        return np.zeros((0, sensor.raw_height_px // reduce, sensor.raw_width_px // reduce, 3), dtype=np.uint8)
+    return np.stack(frames)
 
 
 def _on_grid(record: GraspRecord, finger: str, index: np.ndarray, binning: int) -> np.ndarray:
@@ -174,8 +199,8 @@ def measure_grasp(
     FitError
         The record has no sensor or no frames on the settings' finger; ``record`` is not a
         GraspRecord or ``settings`` not Settings.
-    RecordError
-        A frame does not decode.
+    RecordError, PerceptionError
+        A frame does not decode, or is not of the sensor's raw size.
     """
     check_inputs(record, settings=settings)
     camera_lag, width_lag = _clock_lags(record, settings=settings, camera=correct_camera_lag,

@@ -205,7 +205,7 @@ def check_calibration_fits(cal: Calibration, sensor: SensorSettings) -> None:
     if tuple(cal.image_shape) != tuple(sensor.image_shape):
         raise CalibrationError(
             f"the calibration is for {cal.image_shape} images; sensor {sensor.finger!r} gives "
-            f"{sensor.image_shape} (warped and cropped)"
+            f"{sensor.image_shape}{' (warped and cropped)' if sensor.model == 'wedge' else ''}"
         )
     if not np.isclose(cal.pixel_pitch_m, sensor.pixel_pitch_m, rtol=0.01):
         raise CalibrationError(

@@ -135,7 +135,10 @@ class Frames:
         (:func:`~estimator.perception.grid.frame_on_grid`). Raises RecordError (a record's
         frame) or PerceptionError (one received live) for a frame that does not decode."""
         if self.source is not None:
-            return to_grid(self.source.frame(index, reduce=binning), sensor, binning=binning)
+            try:
+                return to_grid(self.source.frame(index, reduce=binning), sensor, binning=binning)
+            except PerceptionError as exc:
+                raise PerceptionError(f"{where}: {exc}") from exc
         return frame_on_grid(self.encoded[index], self.encoding or "jpeg", sensor, binning=binning, where=where)
 
     def copy(self) -> Frames:

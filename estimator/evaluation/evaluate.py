@@ -50,7 +50,7 @@ from estimator.evaluation.metrics import E_MAX_PA, E_MIN_PA, PAPER, point_value,
 from estimator.inference.hybrid import ALL_METHODS, LEARNED_METHODS, HybridEstimator
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.inputs import Variant
-from estimator.measure import estimate_grasp, measure_grasp
+from estimator.measure import estimate_grasp, finger_sensor, measure_grasp
 from estimator.measurements import TACTILE_METHODS, calibration_path
 from estimator.perception.calibration import Calibration, load_calibration
 from teleop.errors import RecordError
@@ -233,11 +233,13 @@ def evaluate_record(
         return [{"path": str(path), "skipped": f"trained on: {label.object_name}", "object": label.object_name}]
     rows = []
     try:  # frames that do not decode, or not of the sensor's size, are read only here
+        # A record without the settings' finger is skipped here: the fits' FitError would also
+        # stand for a bug, which must not pass for one record's problem.
+        sensor = finger_sensor(record, settings.sensing.finger)
         if methods:
             tactile = any(m in TACTILE_METHODS for m in methods)
             cal = None
             if tactile:
-                sensor = record.sensor(settings.sensing.finger)
                 cal = _calibration(str(calibration_path(sensor, calibration)))
             measurements = measure_grasp(record, settings=settings, calibration=cal, tactile=tactile,
                                          correct_camera_lag=correct_camera_lag, correct_width_lag=correct_width_lag)

@@ -20,8 +20,9 @@ cannot be sampled, or a model output that is not finite, gives a refusal with
 its reason.
 
 A grasp whose rig (gel modulus and thickness, finger stiffness: the record's settings) lies
-outside the rigs the model was trained on (its ``data.rig_range``) has its interval widened
-:data:`RIG_WIDENING` times, and its reason says which quantity and by how much.
+outside the rigs the model was trained on (its ``data.rig_range``, give or take
+:data:`RIG_RANGE_TOLERANCE`) has its interval widened :data:`RIG_WIDENING` times, and its reason
+says which quantity and by how much.
 
 The images are resampled onto the model's input window (:mod:`estimator.inference.inputs`,
 "Input window"), and :func:`~estimator.inference.sampling.sampled_input_range` says whether the
@@ -88,7 +89,7 @@ from estimator.stream import GraspStream
 from teleop.record import GraspRecord
 from teleop.settings import Settings
 
-__all__ = ["ALL_METHODS", "FALLBACK_ORDER", "LEARNED_METHODS", "MIN_SERIES_FRAMES", "MODES", "RIG_WIDENING", "AutoPolicy", "HybridEstimator", "rig_notes"]
+__all__ = ["ALL_METHODS", "FALLBACK_ORDER", "LEARNED_METHODS", "MIN_SERIES_FRAMES", "MODES", "RIG_RANGE_TOLERANCE", "RIG_WIDENING", "AutoPolicy", "HybridEstimator", "rig_notes"]
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +103,9 @@ FALLBACK_ORDER = ("series", "hertz", "elastic", "no_tactile")
 DEFAULT_SERIES_INTERVAL_DECADES = 0.5
 #: Factor on the interval of a grasp whose rig lies outside the trained ones (as the window's widening).
 RIG_WIDENING = 1.5
+# Relative slack around a model's rig range: it records the extremes of the rigs drawn for training,
+# which fall short of the range they were drawn from (120-400 kPa) by a fraction of a percent.
+RIG_RANGE_TOLERANCE = 0.01
 # How a reason names each of inputs.RIG_QUANTITIES: label, factor from SI, unit.
 _RIG_LABELS = {"gel_modulus_pa": ("gel modulus", 1e-3, "kPa"), "gel_thickness_m": ("gel thickness", 1e3, "mm"),
                "finger_stiffness_n_per_m": ("finger stiffness", 1e-3, "kN/m")}
@@ -109,14 +113,19 @@ _RIG_LABELS = {"gel_modulus_pa": ("gel modulus", 1e-3, "kPa"), "gel_thickness_m"
 
 def rig_notes(sampled: SampledGrasp, rig_range: Mapping[str, Sequence[float]]) -> tuple[str, ...]:
     """Why ``sampled``'s rig lies outside ``rig_range`` (a model's ``data.rig_range``), one note per
-    quantity; empty when it lies inside, or where either side does not record the quantity."""
+    quantity; empty when it lies inside, :data:`RIG_RANGE_TOLERANCE` included, or where either side does
+    not record the quantity."""
     notes = []
     for name in RIG_QUANTITIES:
         label, scale, unit = _RIG_LABELS[name]
         value, bounds = getattr(sampled, name), rig_range.get(name)
-        if value is not None and bounds is not None and not bounds[0] <= value <= bounds[1]:
+        if value is None or bounds is None:
+            continue
+        low, high = bounds[0] * (1 - RIG_RANGE_TOLERANCE), bounds[1] * (1 + RIG_RANGE_TOLERANCE)
+        if not low <= value <= high:
+            # Printed to 4 digits: a value more than the tolerance off a bound never prints as that bound.
             notes.append(f"{label} {value * scale:.4g} {unit} outside the {bounds[0] * scale:.4g}-"
-                         f"{bounds[1] * scale:.4g} {unit} trained on")
+                         f"{bounds[1] * scale:.4g} {unit} trained on (give or take {RIG_RANGE_TOLERANCE:.0%})")
     return tuple(notes)
 
 

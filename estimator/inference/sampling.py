@@ -30,6 +30,7 @@ from estimator.errors import ModelError
 from estimator.estimate import Estimate
 from estimator.inference.inputs import ANALYTICAL_METHODS, Variant, reduce_images
 from estimator.inference.window import InputRange, input_range
+from estimator.measure import finger_sensor
 from estimator.measurements import GraspMeasurements, calibration_path, estimate_measurements
 from estimator.perception.calibration import Calibration, load_calibration
 from estimator.segment import Segment, sampling_axis
@@ -277,9 +278,12 @@ def record_stream(record: GraspRecord, *, settings: Settings,
                   calibration: Calibration | str | Path | None) -> GraspStream:
     """``record`` fed through a :class:`~estimator.stream.GraspStream` for sampling: its finger's
     calibration loaded at once (once per process), on its full grid when the record's sensor has
-    markers (their dots are found there only)."""
-    finger = settings.sensing.finger
-    sensor = record.sensor(finger)
+    markers (their dots are found there only).
+
+    Raises RecordError when ``record`` has no sensor or no frames on the settings' finger
+    (:func:`~estimator.measure.finger_sensor`).
+    """
+    sensor = finger_sensor(record, settings.sensing.finger)
     cal = calibration_for(sensor, calibration)
     est = estimator_settings(settings)
     if sensor.markers and est.depth_binning != 1:

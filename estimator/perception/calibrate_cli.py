@@ -29,7 +29,7 @@ from estimator.perception.calibration_fit import (
 )
 from estimator.perception.capture import add_capture_arguments, capture_to_folder
 from estimator.perception.markers import detect_markers
-from estimator.perception.press_circles import VISIBLE_CHANGE, change_inside_circle
+from estimator.perception.press_circles import VISIBLE_CHANGE, change_inside_circle, clipped_presses
 from estimator.perception.presses import PressSet, load_presses, split_presses
 from teleop.record import software_version
 from teleop.settings import SensorSettings, default_settings_path, load_settings
@@ -242,8 +242,12 @@ def _check_tiles(tiles: tuple[int, int], shape: tuple[int, int], ball_px: float)
 
 
 def _check_presses_visible(source: str, presses: PressSet, indices) -> None:
-    """Refuse presses whose image does not change inside their circle (the no-contact frame again, a
-    circle off the press): fitted on, they teach the table that a pressed ball is flat gel."""
+    """Refuse presses clipped over most of the image (overexposed or dark: :func:`clipped_presses`, by
+    their index in the file; fit_calibration refuses a no-contact frame so clipped), and presses whose
+    image does not change inside their circle (the no-contact frame again, a circle off the press):
+    fitted on, they teach the table wrong colours, or that a pressed ball is flat gel."""
+    if clipped := clipped_presses(presses.images[indices], indices):
+        raise CalibrationError(f"{source}: {clipped}")
     blank = [(int(i), change_inside_circle(presses.images[i], presses.reference, presses.centers_px[i],
                                            presses.radii_px[i])) for i in indices]
     blank = [(i, peak) for i, peak in blank if peak < VISIBLE_CHANGE]

@@ -93,7 +93,13 @@ import scipy.ndimage
 from estimator.errors import CalibrationError
 from estimator.perception.calibration import Calibration, _check_image, _tile_offsets, lut_index
 from estimator.perception.depth import fit_sphere, reconstruct_depth
-from estimator.perception.press_circles import PressRings, press_rings
+from estimator.perception.press_circles import (
+    CLIPPED_SHARE,
+    PressRings,
+    clipped_presses,
+    clipped_share,
+    press_rings,
+)
 from teleop.progress import progress_bar
 
 __all__ = ["DEFAULT_FLAT_WEIGHT", "DEFAULT_SMOOTHING_PX", "fit_calibration"]
@@ -199,6 +205,11 @@ def _validate_presses(
     for i, press in enumerate(press_list):
         _check_image(f"presses[{i}]", press, shape, CalibrationError)
     n = len(press_list)
+    if (share := clipped_share(reference)) > CLIPPED_SHARE:
+        raise CalibrationError(f"reference: a channel clipped at 0 or 255 in {share:.0%} of its pixels (expected at "
+                               f"most {CLIPPED_SHARE:.0%}): overexposed or dark")
+    if clipped := clipped_presses(press_list, range(n)):
+        raise CalibrationError(f"presses: {clipped}")
     centers = np.asarray(centers_px, dtype=np.float64)
     radii = np.asarray(radii_px, dtype=np.float64)
     if centers.shape != (n, 2):
@@ -299,8 +310,9 @@ def fit_calibration(
     ------
     CalibrationError
         An input has the wrong type, shape or dtype, the press list is empty,
-        a radius is not positive or not below the ball's, or an option is out
-        of range; the message names the input.
+        a radius is not positive or not below the ball's, the reference or a
+        press is clipped at 0 or 255 over most of its pixels (listed by index),
+        or an option is out of range; the message names the input.
     """
     for name, value in (("ball_radius_m", ball_radius_m), ("pixel_pitch_m", pixel_pitch_m),
                         ("relative_range", relative_range), ("inside_fraction", inside_fraction),

@@ -1,4 +1,4 @@
-"""The grid depth is measured on: a sensor's warped-and-cropped image grid, or that grid binned.
+"""The grid depth is measured on: a sensor's image grid (a Wedge's warped and cropped), or that grid binned.
 
 With :attr:`~estimator.settings.EstimatorSettings.depth_binning` K > 1 the estimator measures
 depth on the image grid averaged over K x K px blocks: a frame is decoded K times smaller
@@ -22,11 +22,11 @@ import numpy as np
 
 from estimator.errors import PerceptionError
 from estimator.perception.calibration import Calibration
-from estimator.perception.warp import check_binning, warp_and_crop
+from estimator.perception.warp import check_binning, check_raw_frame, warp_and_crop
 from teleop.record import decode_image, reduce_image
 from teleop.settings import SensorSettings
 
-__all__ = ["ENCODINGS", "DepthGrid", "depth_grid", "frame_on_grid", "grid_calibration", "raw_frame", "to_grid"]
+__all__ = ["ENCODINGS", "DepthGrid", "decode_frame", "depth_grid", "frame_on_grid", "grid_calibration", "raw_frame", "to_grid"]
 
 # How a captured frame may come: encoded as the camera gave it, or as a raw BGR image.
 ENCODINGS = ("jpeg", "png", "raw")
@@ -94,10 +94,14 @@ def to_grid(image: np.ndarray, sensor: SensorSettings, *, binning: int) -> np.nd
     """A raw frame of ``sensor`` decoded ``binning`` times smaller, on the depth grid: warped and cropped
     for a Wedge (:func:`~estimator.perception.warp.warp_and_crop`), as it is otherwise.
 
-    Returns uint8 ``sensor.image_shape // binning + (3,)`` BGR for a Wedge. Raises PerceptionError
-    as :func:`~estimator.perception.warp.warp_and_crop` does.
+    Returns uint8 ``sensor.image_shape // binning + (3,)`` BGR. Raises PerceptionError when ``image``
+    is not a uint8 BGR frame of the sensor's raw size over ``binning``
+    (:func:`~estimator.perception.warp.check_raw_frame`), as :func:`~estimator.perception.warp.warp_and_crop` does.
     """
-    return warp_and_crop(image, sensor, binning=binning) if sensor.model == "wedge" else image
+    if sensor.model == "wedge":
+        return warp_and_crop(image, sensor, binning=binning)
+    check_raw_frame(image, sensor, binning=binning, name="image")
+    return image
 
 
 def raw_frame(data: bytes | np.ndarray, *, where: str = "frame") -> np.ndarray:
@@ -109,10 +113,9 @@ def raw_frame(data: bytes | np.ndarray, *, where: str = "frame") -> np.ndarray:
     return image
 
 
-def frame_on_grid(data: bytes | np.ndarray, encoding: str, sensor: SensorSettings, *, binning: int,
-                  where: str = "frame") -> np.ndarray:
-    """One captured frame of ``sensor`` on the depth grid: decoded ``binning`` times smaller, then
-    :func:`to_grid`.
+def decode_frame(data: bytes | np.ndarray, encoding: str, sensor: SensorSettings, *, binning: int,
+                 where: str = "frame") -> np.ndarray:
+    """One captured frame of ``sensor`` decoded ``binning`` times smaller, as captured (uint8 BGR).
 
     Parameters
     ----------
@@ -128,25 +131,36 @@ def frame_on_grid(data: bytes | np.ndarray, encoding: str, sensor: SensorSetting
     ------
     PerceptionError
         Unknown encoding, bytes that do not decode or declare another size than the sensor's raw
-        frame (refused before decoding), a raw image that is not uint8 BGR or not of the sensor's
-        raw size.
+        frame (refused before decoding), a raw image that is not uint8 BGR.
     """
     if encoding == "raw":
         image = raw_frame(data, where=where)
         try:
-            image = reduce_image(image, binning)
+            return reduce_image(image, binning)
         except ValueError as exc:
             raise PerceptionError(f"{where}: {exc}") from exc
-    elif encoding in ("jpeg", "png"):
-        try:
-            # The sensor's size, checked in the header before decoding: a few bytes may declare gigabytes.
-            image = decode_image(data, reduce=binning, shape=(sensor.raw_height_px, sensor.raw_width_px))
-        except ValueError as exc:
-            raise PerceptionError(f"{where}: {exc}") from exc
-        if image is None:
-            raise PerceptionError(f"{where}: {encoding} data does not decode")
-    else:
+    if encoding not in ("jpeg", "png"):
         raise PerceptionError(f"{where}: encoding {encoding!r}, expected one of {', '.join(ENCODINGS)}")
+    try:
+        # The sensor's size, checked in the header before decoding: a few bytes may declare gigabytes.
+        image = decode_image(data, reduce=binning, shape=(sensor.raw_height_px, sensor.raw_width_px))
+    except ValueError as exc:
+        raise PerceptionError(f"{where}: {exc}") from exc
+    if image is None:
+        raise PerceptionError(f"{where}: {encoding} data does not decode")
+    return image
+
+
+def frame_on_grid(data: bytes | np.ndarray, encoding: str, sensor: SensorSettings, *, binning: int,
+                  where: str = "frame") -> np.ndarray:
+    """One captured frame of ``sensor`` on the depth grid: :func:`decode_frame`, then :func:`to_grid`.
+
+    Raises
+    ------
+    PerceptionError
+        As :func:`decode_frame`, or a raw image not of the sensor's raw size.
+    """
+    image = decode_frame(data, encoding, sensor, binning=binning, where=where)
     try:
         return to_grid(image, sensor, binning=binning)
     except PerceptionError as exc:

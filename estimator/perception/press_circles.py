@@ -19,10 +19,14 @@ import scipy.ndimage
 from estimator.errors import CalibrationError
 from estimator.perception.calibration import _check_image
 
-__all__ = ["VISIBLE_CHANGE", "PressRings", "change_inside_circle", "detect_press_circle", "press_rings"]
+__all__ = ["CLIPPED_SHARE", "VISIBLE_CHANGE", "PressRings", "change_inside_circle", "clipped_presses",
+           "clipped_share", "detect_press_circle", "press_rings"]
 
 # The smallest largest relative colour change that counts as a visible press (real presses: 0.45 and up).
 VISIBLE_CHANGE = 0.1
+# An image with a channel clipped at 0 or 255 over more than this share of its pixels shows no gel's
+# colours there (overexposed or dark: real presses clip none); a table fitted on it reads every press wrong.
+CLIPPED_SHARE = 0.5
 
 
 def detect_press_circle(
@@ -95,6 +99,25 @@ def change_inside_circle(image: np.ndarray, reference: np.ndarray, center_px: tu
     rows, cols = np.ogrid[: magnitude.shape[0], : magnitude.shape[1]]
     inside = (cols - center_px[0]) ** 2 + (rows - center_px[1]) ** 2 <= radius_px**2
     return float(magnitude[inside].max()) if inside.any() else 0.0
+
+
+def clipped_share(image: np.ndarray) -> float:
+    """Share of the pixels of uint8 BGR ``image`` with a channel clipped at 0 or 255."""
+    clipped = ((image == 0) | (image == 255)).any(axis=-1)
+    return float(np.count_nonzero(clipped)) / clipped.size
+
+
+def clipped_presses(images: Sequence[np.ndarray], indices: Sequence[int]) -> str:
+    """Why presses ``images`` (numbered ``indices``) cannot calibrate: those with a channel clipped over
+    more than :data:`CLIPPED_SHARE` of their pixels, each as ``index (share)``; '' when none is."""
+    clipped = [(int(i), share) for i, image in zip(indices, images, strict=True)
+               if (share := clipped_share(image)) > CLIPPED_SHARE]
+    if not clipped:
+        return ""
+    listed = ", ".join(f"{i} ({share:.0%})" for i, share in clipped[:5]) + (", ..." if len(clipped) > 5 else "")
+    return (f"{len(clipped)} of the {len(indices)} presses to calibrate on are clipped at 0 or 255 over most of "
+            f"the image, overexposed or dark (press index, share of pixels with a channel clipped; expected at "
+            f"most {CLIPPED_SHARE:.0%}): {listed}")
 
 
 class PressRings(NamedTuple):

@@ -32,7 +32,7 @@ from teleop.errors import SettingsError
 from teleop.geometry import raw_to_grid_matrix
 from teleop.settings import SensorSettings
 
-__all__ = ["check_binning", "warp_and_crop", "warp_maps", "warp_matrix", "warp_points"]
+__all__ = ["check_binning", "check_raw_frame", "warp_and_crop", "warp_maps", "warp_matrix", "warp_points"]
 
 
 def warp_matrix(sensor: SensorSettings) -> np.ndarray:
@@ -71,6 +71,20 @@ def check_binning(sensor: SensorSettings | None, binning: int, *,
     problem = depth_binning_problem(binning, sensor, grid_shape=grid_shape)
     if problem:
         raise PerceptionError(f"binning {binning!r}: {problem}")
+
+
+def check_raw_frame(image: object, sensor: SensorSettings, *, binning: int, name: str) -> None:
+    """PerceptionError naming ``name`` unless ``image`` is a uint8 BGR frame of ``sensor``'s raw size
+    decoded ``binning`` times smaller; the message gives the size the frame was captured at."""
+    expected = (sensor.raw_height_px // binning, sensor.raw_width_px // binning, 3)
+    if isinstance(image, np.ndarray) and image.dtype == np.uint8 and image.shape == expected:
+        return
+    got = f"{image.dtype} {image.shape}" if isinstance(image, np.ndarray) else type(image).__name__
+    if binning > 1 and isinstance(image, np.ndarray) and image.ndim >= 2:  # name the frame as captured
+        got += (f", binned from a frame of about {image.shape[1] * binning}x{image.shape[0] * binning} px "
+                f"for the sensor's {sensor.raw_width_px}x{sensor.raw_height_px}")
+    raise PerceptionError(f"{name}: expected a uint8 BGR frame of shape {expected} (sensor {sensor.finger!r}"
+                          f"{f', binning {binning}' if binning > 1 else ''}), got {got}")
 
 
 @functools.lru_cache(maxsize=32)
@@ -143,19 +157,7 @@ def warp_and_crop(raw_bgr: np.ndarray, sensor: SensorSettings, *, binning: int =
         ``binning`` does not divide it.
     """
     xy, fraction = warp_maps(sensor, binning)
-    expected = (sensor.raw_height_px // binning, sensor.raw_width_px // binning, 3)
-    if not isinstance(raw_bgr, np.ndarray) or raw_bgr.dtype != np.uint8 or raw_bgr.shape != expected:
-        got = (
-            f"{raw_bgr.dtype} {raw_bgr.shape}" if isinstance(raw_bgr, np.ndarray)
-            else type(raw_bgr).__name__
-        )
-        if binning > 1 and isinstance(raw_bgr, np.ndarray) and raw_bgr.ndim >= 2:  # name the frame as captured
-            got += (f", binned from a frame of about {raw_bgr.shape[1] * binning}x{raw_bgr.shape[0] * binning} px "
-                    f"for the sensor's {sensor.raw_width_px}x{sensor.raw_height_px}")
-        raise PerceptionError(
-            f"raw_bgr: expected a uint8 BGR frame of shape {expected} (sensor {sensor.finger!r}"
-            f"{f', binning {binning}' if binning > 1 else ''}), got {got}"
-        )
+    check_raw_frame(raw_bgr, sensor, binning=binning, name="raw_bgr")
     return cv2.remap(raw_bgr, xy, fraction, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
