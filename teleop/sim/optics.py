@@ -11,7 +11,8 @@ Rendering
 The surface change is shaded onto the raw no-contact background, scaled by
 ``sim.illumination_gain`` (LED current and ageing: 1 as calibrated). Each raw
 pixel of the pad is shaded from the slopes at the point of the warped image it sees
-(through the mirror-corner homography); outside the pad's raw footprint the frame is
+(through :func:`~teleop.sim.camera_geometry.pad_view`: a Wedge's mirror-corner
+homography, a flat sensor's identity); outside the pad's raw footprint the frame is
 the background, untouched.
 
 For speed, the shading is looked up per pixel with ``cv2.remap`` in a table over
@@ -43,7 +44,13 @@ from scipy.special import ndtri
 
 from teleop.errors import SimulationError
 from teleop.settings import SensorSettings, SimulationSettings, resolve_path
-from teleop.sim.camera_geometry import raw_footprint, read_only, sample_warped, warped_coordinates
+from teleop.sim.camera_geometry import (
+    pad_view,
+    raw_footprint,
+    read_only,
+    sample_warped,
+    warped_coordinates,
+)
 from teleop.sim.wedge_optics import (
     REFLECTANCE_STEP,
     SLOPE_LIMIT,
@@ -88,7 +95,8 @@ def _marker_pattern(sensor: SensorSettings) -> np.ndarray:
     """Coverage (0..1, float32 (H, W)) of the printed marker dots at rest on the warped image."""
     x, y = warped_coordinates(sensor)
     spacing = MARKER_SPACING_M / sensor.pixel_pitch_m
-    offset = np.array([sensor.warped_width_px, sensor.warped_height_px]) % spacing / 2
+    view = pad_view(sensor)
+    offset = np.array([view.width_px, view.height_px]) % spacing / 2
     dx = (x - offset[0] + spacing / 2) % spacing - spacing / 2
     dy = (y - offset[1] + spacing / 2) % spacing - spacing / 2
     radius = MARKER_RADIUS_M / sensor.pixel_pitch_m
@@ -144,7 +152,8 @@ class _Series:
         padded_heights = {k: camera._padded(heights[k]) for k in used}
         padded_shears = {} if shears is None or not sensor.markers else {
             k: camera._padded(shears[k]) for k in used}
-        moved = np.zeros((sensor.warped_height_px, sensor.warped_width_px), bool)
+        view = pad_view(sensor)
+        moved = np.zeros((view.height_px, view.width_px), bool)
         for k in used:
             moved |= padded_heights[k] != 0
             if k in padded_shears:
@@ -201,7 +210,7 @@ class OpticsRenderer:
     Parameters
     ----------
     sensor : SensorSettings
-        Geometry (raw size, mirror corners, warp, crop, pixel pitch) and markers.
+        Geometry (raw size, pixel pitch and, for a Wedge, mirror corners, warp and crop) and markers.
     sim : SimulationSettings
         ``camera_noise`` (pixel noise s.d., 8-bit levels), ``jpeg_quality`` and,
         when ``background`` is None, ``background`` (PNG path; relative paths are
@@ -308,7 +317,7 @@ class OpticsRenderer:
 
     def _padded(self, field: np.ndarray) -> np.ndarray:
         """Grid field -> full warped image; the gel beyond the crop continues the edge values."""
-        c = self.sensor.crop_px
+        c = pad_view(self.sensor).crop_px
         return cv2.copyMakeBorder(field, c, c, c, c, cv2.BORDER_REPLICATE)
 
     def _series(self, height_m, shear_m, used: np.ndarray, *, batch: bool) -> _Series:

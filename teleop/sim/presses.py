@@ -7,7 +7,8 @@ the reference). The file (:func:`write_presses`, ``np.savez_compressed``, no pic
 
 ``f0``            uint8 (480, 640, 3): the no-contact raw frame (camera noise, JPEG).
 ``imgs``          uint8 (n, 480, 640, 3): raw frames of the presses (noise, JPEG).
-``touch_center``  float64 (n, 2): press centres [x, y] in px of the WARPED-AND-CROPPED grid.
+``touch_center``  float64 (n, 2): press centres [x, y] in px of the WARPED-AND-CROPPED grid
+                  (``sensor.image_shape``; a flat sensor's, ``model = "mini"``, is its raw frame).
 ``touch_radius``  int64 (n,): contact radius in grid px, rounded (as in taxim).
 ``names``         unicode (n + 1,): ``frame_0.jpg`` (f0), ``frame_1.jpg`` ... (the presses).
 ``img_size``      int64 (3,): raw frame shape.
@@ -97,6 +98,13 @@ def simulate_presses(camera: OpticsRenderer, *, n: int, ball_radius_m: float,
         raise SimulationError(
             f"depth range up to {hi * 1e3:g} mm: deeper than the gel ({sensor.gel_thickness_m * 1e3:g} mm)"
         )
+    raw_shape = (sensor.raw_height_px, sensor.raw_width_px, 3)
+    try:  # before any rendering: an absurd n fails at once, not after hours
+        imgs = np.empty((n, *raw_shape), dtype=np.uint8)
+    except (MemoryError, ValueError) as exc:  # ValueError: more bytes than numpy can index
+        raise SimulationError(
+            f"n = {n}: {n} presses of {raw_shape[1]}x{raw_shape[0]} px frames do not fit in memory"
+        ) from exc
     rows, cols = sensor.image_shape
     pitch = sensor.pixel_pitch_m
     depths = rng.uniform(lo, hi, n)
@@ -110,7 +118,6 @@ def simulate_presses(camera: OpticsRenderer, *, n: int, ball_radius_m: float,
     centres = np.column_stack([rng.uniform(reach, cols - 1 - reach), rng.uniform(reach, rows - 1 - reach)])
 
     f0 = _decode(camera.capture(np.zeros(sensor.image_shape)))
-    imgs = np.empty((n, *f0.shape), dtype=np.uint8)
     for i in progress_bar(range(n), desc="presses", unit="press", enabled=progress):
         height = sphere_press_height(sensor.image_shape, center_px=tuple(centres[i]),
                                      ball_radius_m=ball_radius_m, depth_m=depths[i], pixel_pitch_m=pitch)

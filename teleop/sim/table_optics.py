@@ -9,12 +9,13 @@ located without being imported (importing it pulls in torch or jax).
 
 Frames
 ------
-As in :mod:`teleop.sim.camera_geometry`: heights arrive on the sensor's *grid* (the warped
-and cropped image, ``sensor.image_shape``, x right, y down, pixels of
+As in :mod:`teleop.sim.camera_geometry`: heights arrive on the sensor's *grid* (the image
+the estimator sees, ``sensor.image_shape``, x right, y down, pixels of
 ``sensor.pixel_pitch_m``), frames leave as the *raw* camera image. These sensors
-look straight at the gel (no mirror): their settings give the identity warp
-(``warp_corners_px`` at the raw corners, warped size = raw size) and a small
-``crop_px``, though any warp works. The tables are in raw pixels of the
+look straight at the gel (no mirror): ``model = "mini"`` renders the raw frame as the
+grid, or a ``"wedge"`` model's settings give the identity warp (``warp_corners_px``
+at the raw corners, warped size = raw size) and a small ``crop_px``, though any warp
+works (:func:`~teleop.sim.camera_geometry.pad_view`). The tables are in raw pixels of the
 recording, so the raw frame must have the recording's size (``params.json``:
 480 x 640 for both).
 
@@ -69,7 +70,7 @@ import numpy as np
 
 from teleop.errors import SimulationError
 from teleop.settings import SensorSettings, SimulationSettings, resolve_path
-from teleop.sim.camera_geometry import read_only
+from teleop.sim.camera_geometry import pad_view, read_only
 from teleop.sim.optics import OpticsRenderer, load_background
 from teleop.sim.wedge_optics import REFLECTANCE_STEP
 
@@ -289,7 +290,7 @@ class TableCamera(OpticsRenderer):
         super().__init__(sensor, sim=sim, rng=rng, background=background)
         # Slopes in the Wedge's reflectance-map units (the marker flow relies on them), with no
         # offset; the height is blurred by the real sensor's blur, from raw to warped px.
-        blur = tables.blur_px * sensor.warped_width_px / sensor.raw_width_px
+        blur = tables.blur_px * pad_view(sensor).width_px / sensor.raw_width_px
         gaussian = cv2.getGaussianKernel(2 * math.ceil(4 * blur) + 1, blur)[:, 0]
         to_slope = 1.0 / (sensor.pixel_pitch_m * REFLECTANCE_STEP)
         self._slope_kernels = (

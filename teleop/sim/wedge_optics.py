@@ -13,7 +13,7 @@ it by ``sim.illumination_gain`` and adds it to the raw no-contact background.
 
 :func:`procedural_background` draws a Wedge-like raw no-contact frame when no
 recorded one is configured. The gain fields are on the warped image
-(:mod:`teleop.sim.camera_geometry`); all of it is deterministic per sensor, and the
+(:func:`~teleop.sim.camera_geometry.pad_view`); all of it is deterministic per sensor, and the
 cached arrays are read-only.
 """
 
@@ -25,9 +25,8 @@ import zlib
 import cv2
 import numpy as np
 
-from teleop.geometry import raw_to_warped_matrix
 from teleop.settings import SensorSettings
-from teleop.sim.camera_geometry import read_only, warped_coordinates
+from teleop.sim.camera_geometry import pad_view, read_only, warped_coordinates
 
 __all__ = [
     "REFLECTANCE_STEP",
@@ -67,23 +66,24 @@ def _sensor_seed(sensor: SensorSettings) -> int:
 def _smooth_gain(sensor: SensorSettings, *, amplitude: float) -> np.ndarray:
     """A smooth multiplicative field 1 +- ``amplitude`` across the warped image, fixed per sensor."""
     knots = np.random.default_rng(_sensor_seed(sensor)).uniform(-1.0, 1.0, (4, 5)).astype(np.float32)
-    field = cv2.resize(knots, (sensor.warped_width_px, sensor.warped_height_px),
-                       interpolation=cv2.INTER_CUBIC)
+    view = pad_view(sensor)
+    field = cv2.resize(knots, (view.width_px, view.height_px), interpolation=cv2.INTER_CUBIC)
     return 1.0 + amplitude * np.clip(field, -1.0, 1.0)
 
 
 def _vignette(sensor: SensorSettings) -> np.ndarray:
     """Radial fall-off of the whole pad's brightness (1 at the centre), float32 (H, W)."""
     x, y = warped_coordinates(sensor)
-    u = 2.0 * x / (sensor.warped_width_px - 1) - 1.0
-    v = 2.0 * y / (sensor.warped_height_px - 1) - 1.0
+    view = pad_view(sensor)
+    u = 2.0 * x / (view.width_px - 1) - 1.0
+    v = 2.0 * y / (view.height_px - 1) - 1.0
     return (1.0 - 0.32 * u**2 - 0.12 * v**2).astype(np.float32)
 
 
 def _edge_distances(sensor: SensorSettings) -> np.ndarray:
     """Distance (warped px) from the edge each light enters by: left, top, bottom. (3, H, W)."""
     x, y = warped_coordinates(sensor)
-    return np.stack([x, y, sensor.warped_height_px - 1 - y])
+    return np.stack([x, y, pad_view(sensor).height_px - 1 - y])
 
 
 @functools.lru_cache(maxsize=8)
@@ -96,8 +96,8 @@ def channel_gain(sensor: SensorSettings) -> np.ndarray:
     small leaks into other channels follow that field too, which saves a colour
     transform per frame).
     """
-    extent = np.array([sensor.warped_width_px, sensor.warped_height_px, sensor.warped_height_px],
-                      dtype=np.float32)[:, None, None]
+    view = pad_view(sensor)
+    extent = np.array([view.width_px, view.height_px, view.height_px], dtype=np.float32)[:, None, None]
     fade = 0.6 + 0.4 * np.exp(-_edge_distances(sensor) / (0.5 * extent))
     irradiance = fade * _smooth_gain(sensor, amplitude=0.08) * _vignette(sensor)
     dominant = np.argmax(LIGHT_BGR, axis=1)
@@ -131,7 +131,8 @@ def reflectance_map() -> np.ndarray:
 @functools.lru_cache(maxsize=8)
 def _lit_housing(sensor: SensorSettings) -> np.ndarray:
     """The deterministic part of :func:`procedural_background`, float32 raw BGR, lens-blurred."""
-    ww, wh = sensor.warped_width_px, sensor.warped_height_px
+    view = pad_view(sensor)
+    ww, wh = view.width_px, view.height_px
     distance = _edge_distances(sensor)
     pad = np.empty((wh, ww, 3), dtype=np.float32)
     pad[:] = np.array([145.0, 132.0, 110.0], dtype=np.float32)  # BGR of the real pad centre
@@ -146,7 +147,7 @@ def _lit_housing(sensor: SensorSettings) -> np.ndarray:
     pad[..., 2] *= 1.0 - 0.3 * np.exp(-distance[0] / 8.0)
 
     size = (sensor.raw_width_px, sensor.raw_height_px)
-    to_raw = np.linalg.inv(raw_to_warped_matrix(sensor))
+    to_raw = np.linalg.inv(view.raw_to_warped)
     pad_raw = cv2.warpPerspective(pad, to_raw, size, flags=cv2.INTER_LINEAR)
     inside = cv2.warpPerspective(np.ones((wh, ww), np.float32), to_raw, size, flags=cv2.INTER_LINEAR)
 
@@ -154,18 +155,19 @@ def _lit_housing(sensor: SensorSettings) -> np.ndarray:
     depth = np.linspace(0.0, 1.0, sensor.raw_height_px, dtype=np.float32)[:, None, None]
     frame = np.array([8.0, 8.0, 4.0], np.float32) + np.array([20.0, 9.0, 7.0], np.float32) * depth**2
     frame = np.broadcast_to(frame, (sensor.raw_height_px, sensor.raw_width_px, 3)).copy()
-    corners = np.array(sensor.warp_corners_px, dtype=np.float32)
-    gap = 0.1 * (corners[1, 0] - corners[0, 0])
-    mirror = np.array(
-        [corners[1] + (gap, -0.3 * gap), (sensor.raw_width_px + gap, corners[1, 1] - 3 * gap),
-         corners[3] + (gap, 0.3 * gap), (sensor.raw_width_px + gap, corners[3, 1] + 3 * gap)],
-        dtype=np.float32,
-    )
-    src = np.array([[0, 0], [ww, 0], [0, wh], [ww, wh]], dtype=np.float32)
-    to_mirror = cv2.getPerspectiveTransform(src, mirror)
-    mirror_raw = cv2.warpPerspective(0.55 * pad, to_mirror, size, flags=cv2.INTER_LINEAR)
-    mirror_in = cv2.warpPerspective(np.ones((wh, ww), np.float32), to_mirror, size)
-    frame += (mirror_raw - frame) * mirror_in[..., None]
+    if view.mirrored:  # a flat sensor has no mirror (and its corners are not read)
+        corners = np.array(sensor.warp_corners_px, dtype=np.float32)
+        gap = 0.1 * (corners[1, 0] - corners[0, 0])
+        mirror = np.array(
+            [corners[1] + (gap, -0.3 * gap), (sensor.raw_width_px + gap, corners[1, 1] - 3 * gap),
+             corners[3] + (gap, 0.3 * gap), (sensor.raw_width_px + gap, corners[3, 1] + 3 * gap)],
+            dtype=np.float32,
+        )
+        src = np.array([[0, 0], [ww, 0], [0, wh], [ww, wh]], dtype=np.float32)
+        to_mirror = cv2.getPerspectiveTransform(src, mirror)
+        mirror_raw = cv2.warpPerspective(0.55 * pad, to_mirror, size, flags=cv2.INTER_LINEAR)
+        mirror_in = cv2.warpPerspective(np.ones((wh, ww), np.float32), to_mirror, size)
+        frame += (mirror_raw - frame) * mirror_in[..., None]
     frame += (pad_raw - frame) * inside[..., None]
     return read_only(cv2.GaussianBlur(frame, (0, 0), LENS_BLUR_PX))  # softens the pad's border
 
@@ -173,7 +175,7 @@ def _lit_housing(sensor: SensorSettings) -> np.ndarray:
 def procedural_background(sensor: SensorSettings, *, rng: np.random.Generator) -> np.ndarray:
     """A Wedge-like raw no-contact frame, uint8 BGR (raw_height_px, raw_width_px, 3).
 
-    The pad (the raw footprint of the warped image) is a bright bluish-grey with
+    The pad (the raw footprint of the warped image; a flat sensor's whole frame) is a bright bluish-grey with
     a vignette, a green glow along its left edge, red along the top and blue
     along the bottom, as in the real Wedge frames; the sensor's uneven
     illumination is fixed per sensor (seeded from its model, finger and serial).
@@ -182,9 +184,9 @@ def procedural_background(sensor: SensorSettings, *, rng: np.random.Generator) -
     """
     # Dust specks: single bright pixels on the gel, spread by the lens blur.
     n_specks = int(rng.integers(8, 20))
-    on_gel = np.column_stack([rng.uniform(0, sensor.warped_width_px, n_specks),
-                              rng.uniform(0, sensor.warped_height_px, n_specks)])
-    raw_xy = cv2.perspectiveTransform(on_gel[:, None], np.linalg.inv(raw_to_warped_matrix(sensor)))[:, 0]
+    view = pad_view(sensor)
+    on_gel = np.column_stack([rng.uniform(0, view.width_px, n_specks), rng.uniform(0, view.height_px, n_specks)])
+    raw_xy = cv2.perspectiveTransform(on_gel[:, None], np.linalg.inv(view.raw_to_warped))[:, 0]
     cols = np.clip(np.rint(raw_xy[:, 0]).astype(int), 0, sensor.raw_width_px - 1)
     rows = np.clip(np.rint(raw_xy[:, 1]).astype(int), 0, sensor.raw_height_px - 1)
     specks = np.zeros((sensor.raw_height_px, sensor.raw_width_px), np.float32)

@@ -102,6 +102,7 @@ def test_same_seed_same_file_contents(tmp_path):
         (["--depth-mm", "0.5", "0.2"], "depth range"),
         (["--ball-radius-mm", "30", "--depth-mm", "2.5", "2.9"], "does not fit"),
         (["--n", "0"], "at least one press"),
+        (["--n", str(10**20)], "do not fit in memory"),
         (["--finger", "thumb"], "no sensor on finger"),
     ],
 )
