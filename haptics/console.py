@@ -2,7 +2,7 @@
 
 It runs over SSH and in tmux, with the keyboard alone. The loop runs in its own thread (it
 sends ``follow`` at 50 Hz and must not wait for the screen); the screen redraws from the loop's
-frozen :class:`~haptics.operator_loop.LoopStatus` ten times a second. Panels:
+frozen :class:`~haptics.operator_status.LoopStatus` ten times a second. Panels:
 
 * **live system**: whether the robot node, the estimator and the display's renderer are alive
   (heard from within three heartbeat periods) and when each was last heard; WAIT for a robot node
@@ -34,11 +34,12 @@ buttons). With the other inputs the device drives the grip and enable, and g r s
 as the buttons from the keyboard. Always: ``+``/``-`` change the discrete grasp's force by 1 N
 (up to the settings' maximum), ctrl+c and ctrl+q quit, and ``l`` labels a grasp.
 
-Labelling: ``l`` opens a line under the panels for the grasp shown (after ``n``, the last one):
-type the object's catalogue name (the right arrow takes the suggestion), or a name with a Shore
-reading (``blue gel shore 00 60``, ``pad shore A 40``) or a stated modulus (``cork mat 12 MPa``,
-``... measured``), as :func:`teleop.labels.parse_label` reads them; enter sends the ``label`` (the
-loop publishes it on ``bus.command``, where ``teleop record`` logs it), escape closes the line.
+Labelling: ``l`` opens a line under the panels, in place of the keys' legend, for the grasp shown
+(after ``n``, the last one): type the object's catalogue name (the right arrow takes the
+suggestion), or a name with a Shore reading (``blue gel shore 00 60``, ``pad shore A 40``) or a
+stated modulus (``cork mat 12 MPa``, ``... measured``), as :func:`teleop.labels.parse_label` reads
+them; enter sends the ``label`` (the loop publishes it on ``bus.command``, where ``teleop record``
+logs it), escape closes the line.
 A reading out of range or an unknown name is shown on the line, which stays open. While it is
 open, keys go to the line, not to the keyboard input device (ctrl+c still quits).
 """
@@ -212,7 +213,7 @@ class OperatorConsole(App):
     #small { dock: top; height: auto; display: none; background: $error; color: $text; text-style: bold; }
     #small.open { display: block; }
     #label { display: none; }
-    #label.open { display: block; }
+    #label.open { display: block; dock: bottom; height: 3; }
     """
     BINDINGS = [
         Binding("ctrl+c", "quit_console", "Quit", priority=True, show=False),
@@ -335,6 +336,7 @@ class OperatorConsole(App):
         line.disabled = False
         line.add_class("open")
         line.focus()
+        self._show_small(self.loop.status)  # the keys' legend gives the line its rows
         return True
 
     def _note(self, text: str) -> None:
@@ -391,8 +393,9 @@ class OperatorConsole(App):
             banner.update(Text(text))
             self.small_line = text
         banner.set_class(small, "open")
-        # Docked at the bottom, the keys' legend would take the rows of a very short terminal before the line.
-        self.query_one("#keys", Static).display = height >= MIN_KEYS_HEIGHT
+        # Docked at the bottom, the keys' legend would take the rows of a very short terminal before the
+        # line; the label line takes its place (at 80x24 both would push the typed text off the screen).
+        self.query_one("#keys", Static).display = height >= MIN_KEYS_HEIGHT and self.labelling is None
 
     def redraw(self) -> None:
         status = self.loop.status

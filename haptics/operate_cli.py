@@ -138,13 +138,21 @@ def run(args: argparse.Namespace) -> int:
     print(f"operator: {status.follows_sent} follow and {status.commands_sent} command message(s) sent"
           + (f"; last problem: {status.problem}" if status.problem else ""), file=sys.stderr)
     if args.json:
-        view = status.view
-        print(json.dumps({"input": name, "follows_sent": status.follows_sent, "commands_sent": status.commands_sent,
-                          "grasp_id": view.grasp_id, "phase": view.phase,
-                          "estimate": None if view.estimate is None else view.estimate.as_dict(),
-                          "labels": {grasp_id: body.as_dict() for grasp_id, body in status.labels.items()},
-                          "problem": status.problem or None}, allow_nan=False))
+        print(json.dumps(summary(name, status), allow_nan=False))
     return 0
+
+
+def summary(name: str, status: LoopStatus) -> dict[str, Any]:
+    """What ``--json`` prints on exit: the messages sent, the last grasp (the one shown, else the last
+    one ``next`` cleared: its id, phase and final estimate), the labels given and the last problem."""
+    view = status.view
+    if view.grasp_id is None and status.last_ended is not None:
+        view = status.last_ended
+    return {"input": name, "follows_sent": status.follows_sent, "commands_sent": status.commands_sent,
+            "grasp_id": view.grasp_id, "phase": view.phase,
+            "estimate": None if view.estimate is None else view.estimate.as_dict(),
+            "labels": {grasp_id: body.as_dict() for grasp_id, body in status.labels.items()},
+            "problem": status.problem or None}
 
 
 def _run_console(loop: OperatorLoop, name: str, device: object, *, duration_s: float | None,

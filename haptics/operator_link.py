@@ -23,6 +23,8 @@ sequence: a new process numbers each topic from 0 again, so a robot topic whose 
 new node; the view counts these in ``robot_restarts`` and drops the old node's readings then too. The
 last notice that ended a grasp (the watchdog) is kept beside the newest notice until the view is
 cleared, so that a refusal coming after it (a follow sent before the end was heard) does not hide it.
+So are the ids of the last :data:`REFUSED_STARTS_KEPT` ``start_grasp`` commands the robot refused
+(``refused_starts``): a refusal followed by another notice within one poll is not lost to the loop.
 
 It sends ``follow`` messages (target width, dead-man enable, grasp id), the discrete
 ``command`` actions ``start_grasp`` (``params.target_force_n``), ``stop`` and ``release``, and
@@ -42,6 +44,7 @@ The loop that drives the gripper from an input device over this link is
 
 from __future__ import annotations
 
+import collections
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -76,6 +79,7 @@ ENDING_NOTICES = ("watchdog",)  # robot_notice events that say the robot ended a
 LIVENESS_PERIODS = 3.0  # a peer unheard for this many heartbeat periods is shown dead (as Heartbeat.is_alive)
 SEND_TIMEOUT_S = 0.05  # a lossless send waits at most this long for room
 MAX_DRAIN = 500  # messages taken per poll, so a flood cannot starve the loop
+REFUSED_STARTS_KEPT = 32  # refused start_grasp ids kept: far more than an operator presses between two polls
 
 
 @dataclass(frozen=True)
@@ -120,6 +124,7 @@ class OperatorView:
     ended_by_t_s: float | None = None
     refused: int = 0  # bus messages the subscription refused (malformed, unknown type)
     robot_restarts: int = 0  # times a robot topic's seq fell: the robot node was started again (a new process)
+    refused_starts: tuple[str, ...] = ()  # the last start_grasp ids the robot refused, oldest first
     label: LabelBody | None = None
 
     def peer(self, name: str) -> Peer | None:
@@ -188,6 +193,7 @@ class OperatorLink:
         self._labels: dict[str, LabelBody] = {}  # grasp id -> the last label sent for it
         self._robot_seq: dict[str, int] = {}  # robot topic -> the last seq heard on it (this node process)
         self.robot_restarts = 0  # robot nodes heard started again (a topic's seq fell)
+        self._refused_starts: collections.deque[str] = collections.deque(maxlen=REFUSED_STARTS_KEPT)
         self.view = self._snapshot()
 
     @classmethod
@@ -338,6 +344,8 @@ class OperatorLink:
             self._notice = (body, self.clock())
             if body.event in ENDING_NOTICES:
                 self._ended_by = self._notice
+            elif body.event == "refused" and body.action == "start_grasp" and body.grasp_id is not None:
+                self._refused_starts.append(body.grasp_id)
         elif kind == "estimate":
             self._orphaned.discard(body.grasp_id)
             _, count = self._estimates.get(body.grasp_id, (None, 0))
@@ -381,5 +389,6 @@ class OperatorLink:
             estimate_orphaned=estimate is not None and estimate.grasp_id in self._orphaned,
             ended_by=ended_by, ended_by_t_s=ended_by_t,
             refused=sum(self.subscriber.stats.refused.values()), robot_restarts=self.robot_restarts,
+            refused_starts=tuple(self._refused_starts),
             label=self._labels.get(self._grasp_id) if self._grasp_id is not None else None,
         )

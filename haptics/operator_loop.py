@@ -4,7 +4,9 @@ The link is :class:`haptics.operator_link.OperatorLink` (the operator's side of 
 there) or anything with its sending methods, ``poll`` and ``view``.
 
 :class:`OperatorLoop` reads an operator input device (:mod:`haptics.inputs`) and turns it into
-the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.step`):
+the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.step`; what it needs
+of both and the status it shows: :mod:`haptics.operator_status`; the grasps it tracks:
+:mod:`haptics.operator_grasps`):
 
 * the grip (0 open .. 1 squeezed) sets the fingers' target width,
   :func:`teleop.operator.grip_to_width_m` over ``gripper.max_width_m``;
@@ -29,12 +31,16 @@ the link's messages, ``follow``, ``command`` and ``label`` (:meth:`OperatorLoop.
   ``quit`` ends the loop, letting go of the enable and releasing a follow grasp the robot runs (it
   ends on that command, not by the watchdog once follows stop) and a discrete grasp in progress;
 * a device that ``waits_for_robot`` (the simulated operator) is not read while the robot node is
-  down: it starts squeezing once the node is heard;
+  down or has not subscribed to the commands: it starts squeezing once the node hears them;
 * when the robot node, once heard, goes down, its grasp is forgotten (a node started again runs
   the next grasp under a new id) and follows are suspended as after ``stop``; so too when the link
   hears the node started again without having seen it down (``OperatorView.robot_restarts``: a
   node killed and restarted within three heartbeats), so that a held enable does not drive the new
-  node under the old grasp's id;
+  node under the old grasp's id; the follows letting go of the enable name the grasp lost (a node that
+  took it refuses follows naming none);
+* an enable first held while the robot node is down or has not subscribed to the commands drives
+  nothing, then or once the node is heard, until it has been let go and held again: the operator
+  holds it anew knowing the node is there;
 * after ``stop``, ``release`` or ``next``, and when the robot ends the follow grasp (released,
   the watchdog: its ``grasp_event`` end or its ``watchdog`` notice naming the grasp), no follow goes out until the enable has been let go and held again: a held
   enable never moves the fingers again, nor starts a new grasp, by itself;
@@ -57,15 +63,16 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from datetime import datetime
 from functools import partial
-from typing import Any, Protocol
+from typing import Any
 
 from haptics.errors import HapticsError
 from haptics.operator_device import RECONNECT_S, DeviceReader
-from haptics.operator_link import OperatorView
+from haptics.operator_grasps import DiscreteGrasps, over, releasing, unreachable
+from haptics.operator_link import LIVENESS_PERIODS, OperatorView
+from haptics.operator_status import InputDevice, Link, LoopStatus
 from teleop.bus.messages import LabelBody
 from teleop.errors import BusError, ComplianceTeleopError, MessageRejected
 from teleop.live import check_duration_s
@@ -80,63 +87,6 @@ RELEASE_FOLLOWS = 3  # follows with enable=False sent at least when the dead-man
 IDLE_TICK_S = 0.01  # the loop's longest wait when not sending follows
 NEXT_WAIT_S = 5.0  # after "next", the longest wait for the grasp left to end and get its final
 _UNSENT_ON_THE_BUS = "not sent (bus): "  # a send the link refused or could not make; the next one made mends it
-
-
-class InputDevice(Protocol):
-    """What the loop needs of an operator input device (:mod:`haptics.inputs`)."""
-
-    waits_for_robot: bool
-
-    def connect(self) -> Any: ...
-
-    def read(self, *, timeout_s: float) -> Any: ...
-
-    def feel(self, *, force_n: float, width_m: float, stiffness: float | None) -> None: ...
-
-
-class Link(Protocol):
-    """What the loop needs of a link: :class:`~haptics.operator_link.OperatorLink` or a test's fake."""
-
-    view: OperatorView
-
-    def poll(self, timeout_s: float = 0.0) -> int: ...
-
-    def follow(self, target_width_m: float, *, enable: bool, grasp_id: str | None = None) -> None: ...
-
-    def start_grasp(self, *, target_force_n: float, grasp_id: str | None = None) -> None: ...
-
-    def stop(self, grasp_id: str | None = None) -> None: ...
-
-    def release(self, grasp_id: str | None = None) -> None: ...
-
-    def clear(self) -> None: ...
-
-    def label(self, grasp_id: str, object_name: str, *, modulus_pa: float | None = None, source: str,
-              detail: str = "") -> None: ...
-
-
-@dataclass(frozen=True)
-class LoopStatus:
-    """The loop's state for a user interface (a frozen snapshot, safe to read from any thread)."""
-
-    view: OperatorView
-    grip: float = 0.0
-    enable: bool = False  # the enable as the loop takes it: held and not suspended
-    held: bool = False  # the device's enable as read (a toggle's state)
-    suspended: bool = False  # the enable is held but drives nothing until it is let go and held again
-    operator_force_n: float | None = None  # the operator's grip force, where the device measures it
-    target_width_m: float | None = None
-    mode: str = "idle"  # "idle", "follow" (driving with enable), "discrete" (a commanded grasp under way)
-    grasp_id: str | None = None  # the grasp the loop drives or commanded last
-    force_n: float = 0.0  # the discrete grasp's force
-    last_action: str = ""  # what the operator did last, in words
-    problem: str = ""  # the last thing that went wrong (a send or read that failed), in words
-    follows_sent: int = 0
-    commands_sent: int = 0
-    quit: bool = False
-    log: tuple[str, ...] = field(default_factory=tuple)
-    label_grasp_id: str | None = None  # the grasp a label would name now: the current one, else the last
-    labels: Mapping[str, LabelBody] = field(default_factory=dict)  # grasp id -> the label body sent, this session
 
 
 class OperatorLoop:
@@ -188,14 +138,17 @@ class OperatorLoop:
         self._next_follow_s = -math.inf
         self._follow_grasp: str | None = None  # the follow grasp's id, until it ends
         self._rearm = True  # follows suspended until the enable is let go and held again: so at the start
-        # Discrete grasps commanded and not known over, oldest first: a grasp pressed while one runs
-        # is refused by the robot, and the one running must stay tracked (quit releases it).
-        self._discrete: list[str] = []
+        # A robot state comes with every heartbeat, and a node unheard for LIVENESS_PERIODS of them is down.
+        self._discrete = DiscreteGrasps(settle_s=(LIVENESS_PERIODS + 1) * settings.bus.heartbeat_s)
+        self._lost_follow: str | None = None  # the follow grasp the robot node took down: let-go follows name it
+        self._ended_blind: str | None = None  # a grasp seen ended while no estimator was alive: no final comes
+        self._last_ended: OperatorView | None = None  # the last grasp "next" cleared, for the summary
         self._leaving: tuple[str, float] | None = None  # after "next": (the grasp left, when) until it is over
         self._shown_over = False  # a status showed the grasp left over (its final in): clear on the next step
         self._waiting = False  # the device waits for the robot node, not heard
         self._robot_up = False  # the robot node was heard alive at the last step
         self._robot_restarts = 0  # the link's count of robot node restarts at the last step
+        self._unreachable = False  # the robot node was down or not subscribed at the last step
         self._input: Any = None
         self._reader = DeviceReader(device, clock, act=self._act, trouble=self._trouble, resolved=self._resolved)
         self._target_m: float | None = None
@@ -238,7 +191,8 @@ class OperatorLoop:
         """Read the device, act on its buttons, send ``follow`` when due, take what the bus
         brought (waiting up to ``timeout_s``), feed the robot's state back; the new status."""
         reading, gap = None, False
-        waiting = self.device.waits_for_robot and self.link.view.down("robot node")
+        # Not before the node hears our commands: an enable it held before would drive nothing (_drive).
+        waiting = self.device.waits_for_robot and unreachable(self.link.view)
         if waiting and not self._waiting:
             self._act("waiting for the robot node: the input device is read once the node is heard")
         self._waiting = waiting
@@ -299,16 +253,17 @@ class OperatorLoop:
         already releases it."""
         grasp_id = self._follow_grasp
         robot = self.link.view.robot
-        releasing = _releasing(robot, grasp_id)
+        released = releasing(robot, grasp_id)
         if self._enable or self._release_left or self._follow_live():
+            let_go = grasp_id or self._lost_follow
             self._send(lambda: self.link.follow(self._target_m or self.max_width_m, enable=False,
-                                                grasp_id=grasp_id))
+                                                grasp_id=let_go))
             self._enable, self._release_left = False, 0
-        if grasp_id is not None and not releasing and self._send(lambda: self.link.release(grasp_id)):
+        if grasp_id is not None and not released and self._send(lambda: self.link.release(grasp_id)):
             self._follow_grasp = None
             self._act(f"release {grasp_id}: the console quits")
-        for discrete in list(self._discrete):  # each discrete grasp that may be in progress: the release `r` sends
-            if (discrete != grasp_id and not _releasing(robot, discrete)
+        for discrete in self._discrete:  # each discrete grasp that may be in progress: the release `r` sends
+            if (discrete != grasp_id and not releasing(robot, discrete)
                     and self._send(partial(self.link.release, discrete))):
                 self._discrete.remove(discrete)
                 self._act(f"release {discrete}: the console quits")
@@ -331,7 +286,7 @@ class OperatorLoop:
     @property
     def _discrete_grasp(self) -> str | None:
         """The discrete grasp commanded last and not known over."""
-        return self._discrete[-1] if self._discrete else None
+        return self._discrete.latest
 
     def _new_grasp_id(self) -> str:
         self._count += 1
@@ -343,7 +298,7 @@ class OperatorLoop:
         if button == "grasp":
             grasp_id = self._new_grasp_id()
             if self._send(lambda: self.link.start_grasp(target_force_n=self.force_n, grasp_id=grasp_id)):
-                self._discrete.append(grasp_id)
+                self._discrete.add(grasp_id, self.clock())
                 self._act(f"grasp {grasp_id} at {self.force_n:g} N{self._robot_down()}")
         elif button == "release":
             if self._send(lambda: self.link.release(current)):
@@ -361,7 +316,7 @@ class OperatorLoop:
                 self._act(f"next refused: grasp {self._discrete_grasp} is in progress: release it (r) "
                           "or wait for it to end, then press n again")
                 return
-            if view.grasp_id is None or _over(view):
+            if view.grasp_id is None or over(view, self._ended_blind):
                 self._next_object()
                 return
             robot = view.robot
@@ -399,7 +354,13 @@ class OperatorLoop:
         if self._rearm and not held and not gap and not getattr(reading, "lost", False):  # let go as read
             self._rearm = False
         enable = held and not self._rearm  # after a stop, release or gap: not until held anew
+        if enable and not self._enable and unreachable(self.link.view):
+            # Held now, it would drive the node the moment it is heard, the operator unaware: held anew then.
+            self._rearm, enable = True, False
+            self._act("enable held while the robot node is down or not subscribed: let go of it and hold it "
+                      "again once the node is heard")
         if enable and not self._enable:
+            self._lost_follow = None
             if self._follow_grasp is None:
                 self._follow_grasp = self._new_grasp_id()
                 self._act(f"follow {self._follow_grasp}: enable held{self._robot_down()}")
@@ -413,7 +374,7 @@ class OperatorLoop:
         if not (enable or self._release_left or self._follow_live()) or now < self._next_follow_s:
             return
         target = self._target_m
-        grasp_id = self._follow_grasp
+        grasp_id = self._follow_grasp or self._lost_follow  # after a loss: the let-go follows
         self._send(lambda: self.link.follow(target, enable=enable, grasp_id=grasp_id))
         if not enable and self._release_left:
             self._release_left -= 1
@@ -437,15 +398,18 @@ class OperatorLoop:
         no_final = (view.grasp_id is not None and view.phase == "ended" and not view.alive("estimator")
                     and (view.estimate is None or view.estimate.provisional))
         self._leaving, self._shown_over = None, False
+        if view.grasp_id is not None:
+            self._last_ended = view
         self.link.clear()
-        self._follow_grasp, self._discrete = None, []
+        self._follow_grasp = None
+        self._discrete.clear()
         self._act(f"next object: ready ({view.grasp_id}'s final estimate did not come: the estimator is down)"
                   if no_final else "next object: ready")
 
     def _track(self) -> None:
         """Forget a grasp's id once the robot says it ended (the next enable starts another) or
         refused to start it; after ``next``, clear the view once a status has shown the grasp left
-        over (:func:`_over`: its final is seen before it goes), or after :data:`NEXT_WAIT_S`."""
+        over (:func:`~haptics.operator_grasps.over`: its final is seen before it goes), or after :data:`NEXT_WAIT_S`."""
         view = self.link.view
         if self._robot_up and view.down("robot node"):
             self._robot_lost()
@@ -454,12 +418,22 @@ class OperatorLoop:
         self._robot_restarts = view.robot_restarts
         view = self.link.view
         self._robot_up = view.alive("robot node")
+        if self._unreachable and not unreachable(view):
+            self._resolved(_UNSENT_ON_THE_BUS)  # the node's subscription is back: what it refused is past
+        elif not self._unreachable and unreachable(view) and self._enable and not self._rearm:
+            # Its subscription goes before its liveness: a node killed and started again at once
+            # would otherwise take the held enable's follows before its restart is heard.
+            self._act("the robot node no longer hears the console")
+            self._suspend()
+        self._unreachable = unreachable(view)
+        if view.phase == "ended" and not view.alive("estimator"):
+            self._ended_blind = view.grasp_id
         if self._leaving is not None:
             grasp_id, since = self._leaving
             if view.grasp_id != grasp_id or self._shown_over or self.clock() - since >= NEXT_WAIT_S:
                 self._next_object()
                 return
-            self._shown_over = _over(view)  # with the estimator down, ended is over: no final awaited
+            self._shown_over = over(view, self._ended_blind)  # with the estimator down, ended is over
         ended = view.grasp_id if view.phase == "ended" else None
         # The watchdog's notice names the grasp it ended, even one whose start never came (preparing).
         stopped = view.ended_by.grasp_id if view.ended_by is not None else None
@@ -467,13 +441,7 @@ class OperatorLoop:
             self._follow_grasp = None
             if self._enable:  # a new grasp only once the enable is let go and held again
                 self._suspend()
-        notice = view.notice
-        # A refused start never ran: release and stop name the grasp there is (an earlier one runs on).
-        refused = (notice.grasp_id if notice is not None and notice.event == "refused"
-                   and notice.action == "start_grasp" else None)
-        if view.grasp_id in self._discrete:  # the robot runs one grasp at a time: those before are over
-            del self._discrete[:self._discrete.index(view.grasp_id)]
-        self._discrete = [g for g in self._discrete if g not in (ended, stopped, refused)]
+        self._discrete.update(view, (ended, stopped), self.clock())
 
     def _robot_lost(self, *, restarted: bool = False) -> None:
         """The robot node went down (killed, crashed; ``restarted``: and was already heard started
@@ -482,7 +450,9 @@ class OperatorLoop:
         node until it is let go and held again."""
         view = self.link.view
         lost = self._follow_grasp or self._discrete_grasp or (view.grasp_id if view.phase != "ended" else None)
-        self._follow_grasp, self._discrete = None, []
+        self._lost_follow = self._follow_grasp or self._lost_follow  # a node that took it refuses follows naming none
+        self._follow_grasp = None
+        self._discrete.clear()
         if view.phase in ("loading", "loaded"):
             self.link.clear()  # no end or final comes for it: "next" need not wait
         what = "the robot node restarted" if restarted else "the robot node is down"
@@ -570,18 +540,6 @@ class OperatorLoop:
             log=tuple(self._log),
             label_grasp_id=self._last_grasp,
             labels=self._labels,
+            last_ended=self._last_ended,
         )
 
-
-def _releasing(robot: Any, grasp_id: str | None) -> bool:
-    """Whether the robot's state says it releases grasp ``grasp_id`` already."""
-    return robot is not None and robot.grasp_id == grasp_id and robot.mode == "releasing"
-
-
-def _over(view: OperatorView) -> bool:
-    """Whether the grasp shown is over for the operator: ended, with its final estimate in unless no
-    estimator is alive to send one."""
-    if view.phase != "ended":
-        return False
-    final = view.estimate is not None and not view.estimate.provisional
-    return final or not view.alive("estimator")

@@ -138,7 +138,8 @@ def test_a_grasp_the_robot_refused_to_start_is_forgotten(rig):
     refused = link.sent[-1][2]["grasp_id"]
     assert link.kinds()[-1] == "start_grasp" and loop.status.mode == "discrete"
     link.view = dataclasses.replace(link.view, notice=RobotNoticeBody(
-        event="refused", action="start_grasp", grasp_id=refused, reason=f"grasp {grasp_id!r} is still in progress"))
+        event="refused", action="start_grasp", grasp_id=refused, reason=f"grasp {grasp_id!r} is still in progress"),
+        refused_starts=(refused,))
     loop.step()
     assert loop.status.mode != "discrete" and loop.status.grasp_id == grasp_id
     device.buttons = {"release"}
@@ -461,10 +462,14 @@ def test_a_grasp_is_forgotten_when_the_robot_node_goes_down(rig, waits_for_robot
 
 
 def test_a_robot_node_never_heard_loses_nothing(rig):
+    # Nothing to lose; an enable held meanwhile drives only once held anew with the node heard.
     clock, link, device, loop = rig
     link.view = _robot(clock, False)
     device.enable = True
     run_for(clock, loop, 0.1)
+    assert not link.sent and "suspended" in loop.status.mode and link.cleared == 0
+    link.view = _robot(clock, True)
+    _hold_again(clock, device, loop)
     assert link.sent[-1][2]["enable"] and loop.status.mode == "follow" and link.cleared == 0
 
 

@@ -105,7 +105,7 @@ def test_next_with_the_estimator_down_does_not_wait_for_a_final_and_says_so():
 def _refuse_start(link: FakeLink, clock: Clock, grasp_id: str, running: str) -> None:
     link.view = dataclasses.replace(link.view, notice=RobotNoticeBody(
         event="refused", action="start_grasp", grasp_id=grasp_id, reason=f"grasp {running!r} is still in progress"),
-        notice_t_s=clock())
+        notice_t_s=clock(), refused_starts=(*link.view.refused_starts, grasp_id))
 
 
 def test_a_second_grasp_the_robot_refuses_leaves_the_running_one_tracked_and_quit_releases_it():
