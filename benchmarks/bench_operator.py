@@ -45,11 +45,13 @@ from teleop.operator import grip_to_width_m
 from teleop.scene import load_scene
 
 SWEEP_GRIP = (0.0, 0.15)  # the fingers move through free air, well before any scene object
+LET_GO_SHARE = 0.05  # of each sweep, at its start, with the enable let go
 
 
 class SweepInput:
-    """A scripted operator input: enable held, the grip sweeping SWEEP_GRIP back and forth; every
-    reading's time and target width are kept."""
+    """A scripted operator input: the grip sweeping SWEEP_GRIP back and forth, the enable held but at
+    the start of each sweep (the loop drives only an enable let go and held again once the robot node
+    is heard); every reading's time and target width are kept."""
 
     waits_for_robot = False
 
@@ -64,7 +66,7 @@ class SweepInput:
         phase = ((now - self._start) / self.period_s) % 1.0
         grip = SWEEP_GRIP[0] + (SWEEP_GRIP[1] - SWEEP_GRIP[0]) * (1.0 - abs(2.0 * phase - 1.0))
         self.readings.append((now, grip_to_width_m(grip, max_width_m=self.max_width_m)))
-        return OperatorInput(t_s=now, grip=grip, enable=True)
+        return OperatorInput(t_s=now, grip=grip, enable=phase >= LET_GO_SHARE)
 
     def feel(self, *, force_n: float, width_m: float, stiffness: float | None = None) -> None:
         pass

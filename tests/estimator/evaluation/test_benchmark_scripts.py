@@ -64,3 +64,14 @@ def test_the_projects_errors_are_one_line_with_status_2(run, name, argv, expecte
     assert run(name, argv) == 2
     err = capsys.readouterr().err
     assert err.startswith(expected) and err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_the_operator_benchmark_drives_the_gripper_it_times(monkeypatch):
+    """Its scripted input lets the enable go as the loop needs before driving (it drove nothing once the
+    loop started with the enable suspended, and the benchmark printed no figure)."""
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    spec = importlib.util.spec_from_file_location("benchmark_bench_operator_part1", BENCHMARKS / "bench_operator.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    figures = module.input_to_command("quick", 3.0)
+    assert figures["commands"] > 10 and figures["matched"] > 10 and figures["p50_ms"] > 0
