@@ -18,6 +18,10 @@ from teleop.scene import SCENE_DIR, load_scene
 from teleop.session.foxglove_live import LiveTap, add_foxglove_argument
 from teleop.settings import default_settings_path, load_settings
 
+# How long a robot data send waits for a subscriber whose queue (a minute of the stream) is full
+# before skipping it: the node's loop stands still meanwhile, once per stall.
+STALLED_AFTER_S = 0.1
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
@@ -52,7 +56,9 @@ def run(args: argparse.Namespace) -> int:
     # cannot cut that closing short (StopSignals ignores it).
     with (
         StopSignals() as signals,
-        Publisher.from_settings(bus, bus.robot_pub, lossless=True, source="robot") as publisher,
+        # skip_stalled: one observer that stops reading (a recorder stopped with Ctrl-Z) must not stop the robot
+        Publisher.from_settings(bus, bus.robot_pub, lossless=True, source="robot", skip_stalled=True,
+                                send_timeout_s=STALLED_AFTER_S) as publisher,
         Subscriber.from_settings(bus, bus.command, COMMAND_TOPICS) as commands,
         RobotNode(settings, publisher=publisher, commands=commands, scene=scene) as node,
         LiveTap(publisher.endpoint, args.foxglove, bus=bus, name="teleop node",

@@ -6,7 +6,13 @@ Two delivery modes
 socket with ``XPUB_NODROP``: when a subscriber's queue is full a send blocks for up to
 ``send_timeout_s`` and then raises :class:`~teleop.errors.BusTimeoutError`; nothing is
 dropped silently. Both ends queue :data:`LOSSLESS_HWM` messages (about a minute of a
-two-camera grasp stream), so a subscriber that falls briefly behind loses nothing.
+two-camera grasp stream), so a subscriber that falls briefly behind loses nothing. A process
+that must not stop for one observer (the robot node: a recorder stopped with Ctrl-Z killed it
+after three minutes) publishes with ``skip_stalled``: a send that finds no room in time goes to
+every other subscriber instead of raising, and the stalled one misses it (libzmq leaves its queue
+out of later sends until it drains, then delivers to it losslessly again: the send waits only once
+per stall); the stalled one counts the gap when it reads again, and the publisher counts the
+skips (:attr:`Publisher.stalled_skips`) and logs them as refusals are logged.
 Every message carries a per-topic sequence number; a subscriber that sees a jump counts
 a gap and logs how many messages it missed, and one that sees the number fall (the sender
 restarted; what it had in flight cannot be counted) counts a restart and logs it. Both are
@@ -187,6 +193,9 @@ class Publisher(_Socket):
         Largest message this publisher will send (receivers apply their own limit).
     send_timeout_s : float
         How long a lossless send may wait for room before raising BusTimeoutError.
+    skip_stalled : bool
+        Lossless only: a send that found no room in time goes to the other subscribers instead of
+        raising (see the module docstring).
     heartbeat_s : float
         Heartbeat period for :meth:`heartbeat_if_due`.
     high_water_mark : int, optional
@@ -217,6 +226,7 @@ class Publisher(_Socket):
         source: str = "",
         max_bytes: int = DEFAULT_MAX_BYTES,
         send_timeout_s: float = 1.0,
+        skip_stalled: bool = False,
         heartbeat_s: float = 0.5,
         high_water_mark: int | None = None,
         context: zmq.Context | None = None,
@@ -226,6 +236,8 @@ class Publisher(_Socket):
         if not isinstance(lossless, bool):
             raise BusError(f"lossless = {lossless!r}: expected True or False")
         self.lossless = lossless
+        self.skip_stalled = skip_stalled
+        self.stalled_skips = 0  # sends that found a subscriber stalled and went to the others (skip_stalled)
         self.source = source
         self.max_bytes = max_bytes
         self.heartbeat_s = heartbeat_s
@@ -305,13 +317,28 @@ class Publisher(_Socket):
         except zmq.Again as exc:
             if not self.lossless:  # a full latest-value queue: dropping is the contract
                 return sent
-            raise BusTimeoutError(
-                f"{self.endpoint}: no room for {topic!r} seq {sent.seq} within {self.send_timeout_s} s "
-                "(a subscriber is not keeping up)"
-            ) from exc
+            if not self.skip_stalled:
+                raise BusTimeoutError(
+                    f"{self.endpoint}: no room for {topic!r} seq {sent.seq} within {self.send_timeout_s} s "
+                    "(a subscriber is not keeping up)"
+                ) from exc
+            self._send_past_stalled(socket, frames, topic, sent.seq)
         self._seq[topic] += 1
         self.sent += 1
         return sent
+
+    def _send_past_stalled(self, socket: zmq.Socket, frames: list, topic: str, seq: int) -> None:
+        """Send ``frames`` to every subscriber with room: the full one misses it (module docstring)."""
+        socket.setsockopt(zmq.XPUB_NODROP, 0)
+        try:
+            socket.send_multipart(frames, copy=False, flags=zmq.NOBLOCK)  # dropping, it never waits
+        finally:
+            socket.setsockopt(zmq.XPUB_NODROP, 1)
+        self.stalled_skips += 1
+        if is_decade(self.stalled_skips):
+            log.warning("%s: a subscriber stalled (no room for %r seq %d within %s s): sent to the others, that "
+                        "one misses it and sees the gap; %d such sends so far (logged at the 1st, 10th, 100th ...)",
+                        self.endpoint, topic, seq, self.send_timeout_s, self.stalled_skips)
 
     def heartbeat_if_due(self, now_s: float | None = None) -> bool:
         """Send a heartbeat if ``heartbeat_s`` passed since the last one; True if sent."""

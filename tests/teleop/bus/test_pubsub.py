@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import logging
+import threading
 import time
 
 import msgpack
 import numpy as np
 import pytest
 import zmq
-from support.bus import raw_publisher, wait_subscribed
+from support.bus import HEARD_WITHIN_S, delivered, raw_publisher, wait_subscribed
 
 from teleop.bus import Heartbeat, Publisher, Subscriber
 from teleop.bus.peers import MAX_TRACKED
@@ -74,6 +76,40 @@ def test_lossless_send_blocks_then_times_out_instead_of_dropping():
         pub.send("frame", t_capture_s=0.0, finger="left", index=sent, encoding="raw", data=image)
         assert sub.recv(timeout_s=1.0).seq == sent
     assert sub.stats.gaps == 0
+
+
+def test_a_stalled_subscriber_is_skipped_when_asked_and_the_others_get_everything(caplog):
+    """The robot node's publisher: one subscriber that stops reading (a recorder stopped with Ctrl-Z)
+    misses messages and sees the gap; the others lose nothing, and the sender never raises."""
+    image = np.zeros((300, 400, 3), dtype=np.uint8)  # large enough that kernel buffers fill too
+    with (
+        Publisher("tcp://127.0.0.1:*", lossless=True, source="robot", high_water_mark=50, send_timeout_s=0.05,
+                  skip_stalled=True) as pub,
+        Subscriber(pub.endpoint, ["frame", "force"], high_water_mark=5) as stalled,
+        Subscriber(pub.endpoint, ["frame", "force"]) as healthy,
+    ):
+        assert delivered(pub, stalled, within_s=HEARD_WITHIN_S) and delivered(pub, healthy, within_s=HEARD_WITHIN_S)
+        _drain(stalled, timeout_s=0.05)  # then it stops reading
+        _drain(healthy, timeout_s=0.05)
+        got, n, done = [], 300, threading.Event()
+        reader = threading.Thread(target=lambda: [got.extend(_drain(healthy, timeout_s=0.01))
+                                                  for _ in iter(done.is_set, True)])
+        reader.start()
+        with caplog.at_level(logging.WARNING, logger="teleop.bus.pubsub"):
+            for i in range(n):
+                pub.send("frame", t_capture_s=float(i), finger="left", index=i, encoding="raw", data=image)
+        deadline = time.monotonic() + HEARD_WITHIN_S
+        while len([m for m in got if m.type == "frame"]) < n and time.monotonic() < deadline:
+            time.sleep(0.05)
+        done.set()
+        reader.join()
+        got += _drain(healthy)
+        assert pub.stalled_skips >= 1 and "a subscriber stalled" in caplog.text
+        assert [m.body["index"] for m in got if m.type == "frame"] == list(range(n))
+        late = [m for m in _drain(stalled) if m.type == "frame"]  # its queue: what it had room for
+        pub.send("frame", t_capture_s=float(n), finger="left", index=n, encoding="raw", data=image)
+        late += [m for m in _drain(stalled) if m.type == "frame"]  # once drained, it is sent to again
+        assert 0 < len(late) < n and late[-1].body["index"] == n and stalled.stats.gaps == 1
 
 
 def test_subscriber_detects_and_reports_gaps():
