@@ -5,35 +5,24 @@ from __future__ import annotations
 
 import dataclasses
 
-from support.operator_fakes import Clock, FakeDevice, FakeLink
+from support.operator_fakes import (
+    Clock,
+    FakeLink,
+    loop_rig,
+    press,
+)
 
 from haptics.operator_link import OperatorView, Peer
 from haptics.operator_loop import OperatorLoop
 from teleop.bus.messages import RobotNoticeBody, RobotStateBody
-from teleop.settings import load_settings
 
 ESTIMATOR_DOWN = (Peer("robot node", "robot", True, 0.1), Peer("estimator", "estimator", False, 4.0))
 
 
-def _rig():
-    clock = Clock()
-    link, device = FakeLink(clock), FakeDevice(clock)
-    device.grip = 0.5
-    loop = OperatorLoop(link, device, load_settings(), clock=clock)
-    loop.step()  # the enable read let go once: the loop starts armed off
-    return clock, link, device, loop
-
-
-def _press(loop: OperatorLoop, clock: Clock, button: str) -> None:
-    loop.press(button)
-    loop.step()
-    clock.t += 0.001
-
-
 def _discrete_grasp_loaded(robot_mode: str) -> tuple[Clock, FakeLink, OperatorLoop, str]:
     """A discrete grasp pressed and shown loaded, the robot in ``robot_mode``."""
-    clock, link, _, loop = _rig()
-    _press(loop, clock, "grasp")
+    clock, link, _, loop = loop_rig(grip=0.5)
+    press(loop, clock, "grasp")
     grasp_id = loop.status.grasp_id
     link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loaded",
                              robot=RobotStateBody(mode=robot_mode, grasp_id=grasp_id, enable=False))
@@ -43,7 +32,7 @@ def _discrete_grasp_loaded(robot_mode: str) -> tuple[Clock, FakeLink, OperatorLo
 def test_quit_releases_a_discrete_grasp_in_progress():
     clock, link, loop, grasp_id = _discrete_grasp_loaded("holding")
     loop.step()
-    _press(loop, clock, "quit")
+    press(loop, clock, "quit")
     loop.finish()
     assert link.sent[-1][1:] == ("release", {"grasp_id": grasp_id})
     assert loop.status.last_action == f"release {grasp_id}: the console quits" and loop.status.grasp_id is None
@@ -51,20 +40,20 @@ def test_quit_releases_a_discrete_grasp_in_progress():
 
 def test_quit_sends_no_second_release_for_a_discrete_grasp_the_robot_already_releases():
     clock, link, loop, _ = _discrete_grasp_loaded("releasing")
-    _press(loop, clock, "quit")
+    press(loop, clock, "quit")
     loop.finish()
     assert "release" not in link.kinds()
 
 
 def test_next_during_a_discrete_grasp_not_shown_yet_is_refused_and_clears_nothing():
-    clock, link, device, loop = _rig()
-    _press(loop, clock, "grasp")
+    clock, link, device, loop = loop_rig(grip=0.5)
+    press(loop, clock, "grasp")
     grasp_id = loop.status.grasp_id
     # The robot is still preparing it: the view shows nothing yet (or the last grasp, over).
     for view in (OperatorView(t_s=clock()), OperatorView(t_s=clock(), grasp_id="op-old", phase="ended")):
         link.view = view
         sent = len(link.sent)
-        _press(loop, clock, "next")
+        press(loop, clock, "next")
         assert link.cleared == 0 and link.sent[sent:] == []
         assert loop.status.grasp_id == grasp_id and loop.status.mode == "discrete"
         assert loop.status.last_action.startswith(f"next refused: grasp {grasp_id} is in progress")
@@ -72,12 +61,12 @@ def test_next_during_a_discrete_grasp_not_shown_yet_is_refused_and_clears_nothin
     # Shown, next releases it and waits for its end (test_operator_link.py); once it has ended, clears the view.
     link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="ended")
     loop.step()
-    _press(loop, clock, "next")
+    press(loop, clock, "next")
     assert link.cleared == 1 and loop.status.grasp_id is None
 
 
 def test_next_with_the_estimator_down_does_not_wait_for_a_final_and_says_so():
-    clock, link, device, loop = _rig()
+    clock, link, device, loop = loop_rig(grip=0.5)
     device.enable = True
     for _ in range(30):
         loop.step()
@@ -86,7 +75,7 @@ def test_next_with_the_estimator_down_does_not_wait_for_a_final_and_says_so():
     device.enable = False
     link.view = OperatorView(t_s=clock(), peers=ESTIMATOR_DOWN, grasp_id=grasp_id, phase="loading")
     loop.step()
-    _press(loop, clock, "next")
+    press(loop, clock, "next")
     assert "release" in link.kinds() and link.cleared == 0
     assert "final estimate is in" not in loop.status.last_action
     assert "the estimator is down: no final estimate will come" in loop.status.last_action
@@ -111,13 +100,13 @@ def _refuse_start(link: FakeLink, clock: Clock, grasp_id: str, running: str) -> 
 def test_a_second_grasp_the_robot_refuses_leaves_the_running_one_tracked_and_quit_releases_it():
     clock, link, loop, running = _discrete_grasp_loaded("holding")
     loop.step()
-    _press(loop, clock, "grasp")
+    press(loop, clock, "grasp")
     refused = link.sent[-1][2]["grasp_id"]
     assert link.kinds()[-1] == "start_grasp" and refused != running
     _refuse_start(link, clock, refused, running)
     loop.step()
     assert loop.status.mode == "discrete" and loop.status.grasp_id == running
-    _press(loop, clock, "quit")
+    press(loop, clock, "quit")
     loop.finish()
     assert link.sent[-1][1:] == ("release", {"grasp_id": running})
     assert loop.status.last_action == f"release {running}: the console quits" and loop.status.mode == "idle"
@@ -126,9 +115,9 @@ def test_a_second_grasp_the_robot_refuses_leaves_the_running_one_tracked_and_qui
 def test_quit_before_the_robot_answers_a_second_grasp_releases_the_running_one_too():
     clock, link, loop, running = _discrete_grasp_loaded("holding")
     loop.step()
-    _press(loop, clock, "grasp")
+    press(loop, clock, "grasp")
     pending = link.sent[-1][2]["grasp_id"]
-    _press(loop, clock, "quit")
+    press(loop, clock, "quit")
     loop.finish()
     assert [body["grasp_id"] for _, kind, body in link.sent if kind == "release"] == [running, pending]
 
@@ -136,13 +125,13 @@ def test_quit_before_the_robot_answers_a_second_grasp_releases_the_running_one_t
 def test_a_grasp_the_robot_starts_after_another_leaves_only_it_to_release():
     clock, link, loop, first = _discrete_grasp_loaded("holding")
     loop.step()
-    _press(loop, clock, "grasp")  # the first one's end went unseen: the robot starts the second
+    press(loop, clock, "grasp")  # the first one's end went unseen: the robot starts the second
     second = link.sent[-1][2]["grasp_id"]
     link.view = OperatorView(t_s=clock(), grasp_id=second, phase="loading",
                              robot=RobotStateBody(mode="grasping", grasp_id=second, enable=False))
     loop.step()
     _refuse_start(link, clock, "op-other", second)  # a refusal of another grasp changes nothing
     loop.step()
-    _press(loop, clock, "quit")
+    press(loop, clock, "quit")
     loop.finish()
     assert [body["grasp_id"] for _, kind, body in link.sent if kind == "release"] == [second]

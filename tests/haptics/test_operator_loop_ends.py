@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
-from support.operator_fakes import Clock, FakeDevice, FakeLink
+from support.operator_fakes import (
+    Clock,
+    loop_rig,
+)
 
 from haptics.operator_link import OperatorView
 from haptics.operator_loop import NEXT_WAIT_S, OperatorLoop
 from teleop.bus.messages import RobotNoticeBody
-from teleop.settings import load_settings
 
 
 def _run(clock: Clock, loop: OperatorLoop, seconds: float) -> None:
@@ -18,19 +20,10 @@ def _run(clock: Clock, loop: OperatorLoop, seconds: float) -> None:
         clock.t += 0.001
 
 
-def _rig():
-    clock = Clock()
-    link, device = FakeLink(clock), FakeDevice(clock)
-    device.grip = 0.5
-    loop = OperatorLoop(link, device, load_settings(), clock=clock)
-    loop.step()  # the enable read let go once: the loop starts armed off
-    return clock, link, device, loop
-
-
 def test_the_watchdogs_notice_ends_the_follow_grasp_it_names():
     # The watchdog ended the grasp before its start was announced (the node was preparing the
     # object): no grasp_event end comes, only the notice. The console must not go on driving it.
-    clock, link, device, loop = _rig()
+    clock, link, device, loop = loop_rig(grip=0.5)
     device.enable = True
     _run(clock, loop, 0.1)
     grasp_id = link.sent[-1][2]["grasp_id"]
@@ -56,7 +49,7 @@ def test_an_enable_held_while_the_last_grasp_ends_shows_and_drives_once_it_is_ov
     # After next, the loop waits up to NEXT_WAIT_S for the grasp left to end. The device is read
     # meanwhile: the status shows the enable and grip as they are (the keys do not pile up unseen),
     # and the enable drives once that grasp is over, not before.
-    clock, link, device, loop = _rig()
+    clock, link, device, loop = loop_rig(grip=0.5)
     link.view = OperatorView(t_s=clock(), grasp_id="g-left", phase="loading")  # it never ends: say its node died
     device.buttons = {"next"}
     _run(clock, loop, 0.05)

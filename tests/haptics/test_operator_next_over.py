@@ -4,13 +4,14 @@ link and device."""
 
 from __future__ import annotations
 
-from support.operator_fakes import Clock, FakeDevice, FakeLink
+from support.operator_fakes import (
+    loop_rig,
+    press,
+)
 
 from haptics.operate_cli import summary
 from haptics.operator_link import OperatorView, Peer
-from haptics.operator_loop import OperatorLoop
 from teleop.bus.messages import EstimateBody
-from teleop.settings import load_settings
 
 ALIVE = (Peer("robot node", "robot", True, 0.1, True), Peer("estimator", "estimator", True, 0.1))
 ESTIMATOR_DOWN = (Peer("robot node", "robot", True, 0.1, True), Peer("estimator", "estimator", False, 4.0))
@@ -21,28 +22,14 @@ def _estimate(grasp_id: str, provisional: bool) -> EstimateBody:
                         reason="loading phase", provisional=provisional, latency_s=0.01)
 
 
-def _rig():
-    clock = Clock()
-    link, device = FakeLink(clock), FakeDevice(clock)
-    loop = OperatorLoop(link, device, load_settings(), clock=clock)
-    loop.step()
-    return clock, link, loop
-
-
-def _press(loop: OperatorLoop, clock: Clock, button: str) -> None:
-    loop.press(button)
-    loop.step()
-    clock.t += 0.001
-
-
 def test_the_summary_names_the_last_grasp_next_cleared_with_its_final_estimate():
-    clock, link, loop = _rig()
-    _press(loop, clock, "grasp")
+    clock, link, _, loop = loop_rig()
+    press(loop, clock, "grasp")
     grasp_id = loop.status.grasp_id
     link.view = OperatorView(t_s=clock(), peers=ALIVE, grasp_id=grasp_id, phase="ended",
                              estimate=_estimate(grasp_id, provisional=False))
     loop.step()
-    _press(loop, clock, "next")
+    press(loop, clock, "next")
     assert link.cleared == 1 and loop.status.view.grasp_id is None
     shown = summary("sim", loop.status)
     assert shown["grasp_id"] == grasp_id and shown["phase"] == "ended"
@@ -55,8 +42,8 @@ def test_the_summary_names_the_last_grasp_next_cleared_with_its_final_estimate()
 
 def test_next_does_not_wait_for_the_final_of_a_grasp_that_ended_while_the_estimator_was_down():
     # g; the estimator killed; the grasp ends; the estimator started again; n clears at once.
-    clock, link, loop = _rig()
-    _press(loop, clock, "grasp")
+    clock, link, _, loop = loop_rig()
+    press(loop, clock, "grasp")
     grasp_id = loop.status.grasp_id
     link.view = OperatorView(t_s=clock(), peers=ESTIMATOR_DOWN, grasp_id=grasp_id, phase="ended",
                              estimate=_estimate(grasp_id, provisional=True))
@@ -65,18 +52,18 @@ def test_next_does_not_wait_for_the_final_of_a_grasp_that_ended_while_the_estima
     link.view = OperatorView(t_s=clock(), peers=ALIVE, grasp_id=grasp_id, phase="ended",
                              estimate=_estimate(grasp_id, provisional=True), estimate_orphaned=True)
     loop.step()
-    _press(loop, clock, "next")
+    press(loop, clock, "next")
     assert link.cleared == 1 and loop.status.last_action.startswith("next object: ready")
-    _press(loop, clock, "grasp")
+    press(loop, clock, "grasp")
     assert link.kinds()[-1] == "start_grasp"
 
 
 def test_next_still_waits_for_the_final_of_a_grasp_that_ended_with_the_estimator_alive():
-    clock, link, loop = _rig()
-    _press(loop, clock, "grasp")
+    clock, link, _, loop = loop_rig()
+    press(loop, clock, "grasp")
     grasp_id = loop.status.grasp_id
     link.view = OperatorView(t_s=clock(), peers=ALIVE, grasp_id=grasp_id, phase="ended",
                              estimate=_estimate(grasp_id, provisional=True))
     loop.step()
-    _press(loop, clock, "next")
+    press(loop, clock, "next")
     assert link.cleared == 0 and "its final estimate is in" in loop.status.last_action

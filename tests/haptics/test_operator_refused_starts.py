@@ -6,39 +6,19 @@ from __future__ import annotations
 
 import dataclasses
 
-from support.operator_fakes import Clock, FakeDevice, FakeLink
+from support.operator_fakes import (
+    Clock,
+    FakeLink,
+    QueuedSubscriber,
+    SubscribedPublisher,
+    loop_rig,
+    press,
+)
 
 from haptics.operator_link import OperatorLink, OperatorView
 from haptics.operator_loop import OperatorLoop
 from teleop.bus.messages import RobotNoticeBody, RobotStateBody
-from teleop.bus.peers import Heartbeat
-from teleop.bus.pubsub import SubscriberStats
 from teleop.bus.wire import make_message
-from teleop.settings import load_settings
-
-
-class _Subscriber:
-    """Hands out queued messages as the bus subscriber does."""
-
-    def __init__(self, clock: Clock):
-        self.heartbeat = Heartbeat(clock=clock)
-        self.stats = SubscriberStats()
-        self.queue: list = []
-
-    def recv(self, timeout_s: float | None = None):
-        if not self.queue:
-            return None
-        message = self.queue.pop(0)
-        self.heartbeat.saw(message.source, interval_s=0.5)
-        return message
-
-
-class _Publisher:
-    def heartbeat_if_due(self, now_s: float | None = None) -> bool:
-        return False
-
-    def subscriptions(self, prefix: str) -> int:
-        return 1
 
 
 def _notice(seq: int, action: str, grasp_id: str):
@@ -49,8 +29,8 @@ def _notice(seq: int, action: str, grasp_id: str):
 
 def test_the_link_keeps_every_refused_start_of_a_poll_not_only_the_newest_notice():
     clock = Clock()
-    subscriber = _Subscriber(clock)
-    link = OperatorLink(publisher=_Publisher(), subscriber=subscriber, clock=clock)
+    subscriber = QueuedSubscriber(clock)
+    link = OperatorLink(publisher=SubscribedPublisher(), subscriber=subscriber, clock=clock)
     subscriber.queue += [_notice(0, "start_grasp", "op-2"), _notice(1, "stop", "op-2")]
     link.poll()
     assert link.view.notice.action == "stop" and link.view.refused_starts == ("op-2",)
@@ -59,24 +39,9 @@ def test_the_link_keeps_every_refused_start_of_a_poll_not_only_the_newest_notice
     assert len(link.view.refused_starts) == 32 and link.view.refused_starts[-1] == "op-59"  # bounded
 
 
-def _rig():
-    clock = Clock()
-    link, device = FakeLink(clock), FakeDevice(clock)
-    loop = OperatorLoop(link, device, load_settings(), clock=clock)
-    loop.step()
-    return clock, link, loop
-
-
-def _press(loop: OperatorLoop, clock: Clock, button: str) -> str:
-    loop.press(button)
-    loop.step()
-    clock.t += 0.001
-    return loop.status.grasp_id
-
-
 def _running(clock: Clock, link: FakeLink, loop: OperatorLoop) -> str:
     """A discrete grasp pressed and shown held by the robot."""
-    running = _press(loop, clock, "grasp")
+    running = press(loop, clock, "grasp")
     link.view = OperatorView(t_s=clock(), grasp_id=running, phase="loaded",
                              robot=RobotStateBody(mode="holding", grasp_id=running, enable=False))
     loop.step()
@@ -89,7 +54,7 @@ def _ended(clock: Clock, link: FakeLink, running: str, **view) -> None:
 
 
 def test_a_start_refused_then_another_notice_in_the_same_poll_is_forgotten():
-    clock, link, loop = _rig()
+    clock, link, _, loop = loop_rig()
     running = _running(clock, link, loop)
     loop.press("grasp")
     loop.press("stop")  # g s in one tick: both refused, the stop's notice last
@@ -103,14 +68,14 @@ def test_a_start_refused_then_another_notice_in_the_same_poll_is_forgotten():
     _ended(clock, link, running, estimate=None)
     loop.step()
     assert loop.status.mode == "idle" and loop.status.grasp_id is None
-    _press(loop, clock, "next")
+    press(loop, clock, "next")
     assert link.cleared == 1 and "next refused" not in loop.status.last_action
 
 
 def test_a_start_whose_refusal_never_came_goes_once_the_robot_has_moved_on():
-    clock, link, loop = _rig()
+    clock, link, _, loop = loop_rig()
     running = _running(clock, link, loop)
-    lost = _press(loop, clock, "grasp")  # refused, its notice lost
+    lost = press(loop, clock, "grasp")  # refused, its notice lost
     assert loop.status.grasp_id == lost
     clock.t += 0.5
     loop.step()  # the robot's state still names the running one: too soon to tell
@@ -119,14 +84,14 @@ def test_a_start_whose_refusal_never_came_goes_once_the_robot_has_moved_on():
     clock.t += 2.0
     loop.step()
     assert loop.status.mode == "idle" and loop.status.grasp_id is None
-    _press(loop, clock, "next")
+    press(loop, clock, "next")
     assert link.cleared == 1
 
 
 def test_a_grasp_the_robot_prepares_stays_tracked():
     # Named in the robot's state before any grasp event (the simulation takes a while): in progress.
-    clock, link, loop = _rig()
-    preparing = _press(loop, clock, "grasp")
+    clock, link, _, loop = loop_rig()
+    preparing = press(loop, clock, "grasp")
     link.view = OperatorView(t_s=clock(), robot=RobotStateBody(mode="grasping", grasp_id=preparing, enable=False))
     clock.t += 5.0
     loop.step()

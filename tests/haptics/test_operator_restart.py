@@ -7,44 +7,18 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from support.operator_fakes import Clock, FakeDevice, FakeLink
+from support.operator_fakes import (
+    Clock,
+    FakeDevice,
+    FakeLink,
+    QueuedSubscriber,
+    SubscribedPublisher,
+)
 
 from haptics.operator_link import OperatorLink, OperatorView, Peer
 from haptics.operator_loop import OperatorLoop
-from teleop.bus.peers import Heartbeat
-from teleop.bus.pubsub import SubscriberStats
 from teleop.bus.wire import make_message
 from teleop.settings import load_settings
-
-
-class _Subscriber:
-    """Hands out queued messages as the bus subscriber does: each refreshes its source's liveness."""
-
-    def __init__(self, clock: Clock):
-        self.heartbeat = Heartbeat(clock=clock)
-        self.stats = SubscriberStats()
-        self.queue: list = []
-
-    def recv(self, timeout_s: float | None = None):
-        if not self.queue:
-            return None
-        message = self.queue.pop(0)
-        self.heartbeat.saw(message.source, interval_s=0.5)
-        return message
-
-    def close(self) -> None:
-        pass
-
-
-class _Publisher:
-    def heartbeat_if_due(self, now_s: float | None = None) -> bool:
-        return False
-
-    def subscriptions(self, prefix: str) -> int:
-        return 1  # the node's subscription is open
-
-    def close(self) -> None:
-        pass
 
 
 def _state(seq: int, grasp_id: str | None, mode: str = "following", topic: str = "robot_state"):
@@ -55,8 +29,8 @@ def _state(seq: int, grasp_id: str | None, mode: str = "following", topic: str =
 
 def test_the_link_hears_a_robot_node_started_again_by_its_falling_sequence():
     clock = Clock()
-    subscriber = _Subscriber(clock)
-    link = OperatorLink(publisher=_Publisher(), subscriber=subscriber, clock=clock)
+    subscriber = QueuedSubscriber(clock)
+    link = OperatorLink(publisher=SubscribedPublisher(), subscriber=subscriber, clock=clock)
     for seq in range(10):  # the first node: a robot_state with every heartbeat
         subscriber.queue.append(_state(seq, "op-1"))
         link.poll()

@@ -5,12 +5,14 @@ test_operator_restart.py and test_operator_link.py)."""
 from __future__ import annotations
 
 import pytest
-from support.operator_fakes import Clock, FakeDevice, FakeLink
+from support.operator_fakes import (
+    Clock,
+    loop_rig,
+)
 
 from haptics.operator_link import OperatorView, Peer
 from haptics.operator_loop import OperatorLoop
 from teleop.errors import BusError
-from teleop.settings import load_settings
 
 NOT_SUBSCRIBED = "the robot node has not subscribed to tcp://127.0.0.1:5 yet (it is down, or still connecting)"
 
@@ -26,14 +28,6 @@ def _node(clock: Clock, alive: bool, subscribed: bool | None, seen_ago_s: float 
     return OperatorView(t_s=clock(), peers=(Peer("robot node", "robot", alive, seen_ago_s, subscribed),))
 
 
-def _rig():
-    clock = Clock()
-    link, device = FakeLink(clock), FakeDevice(clock)
-    loop = OperatorLoop(link, device, load_settings(), clock=clock)
-    loop.step()  # the enable read let go once: the loop starts armed off
-    return clock, link, device, loop
-
-
 @pytest.mark.parametrize("alive, subscribed, seen_ago_s", [(False, None, None), (False, None, 4.0),
                                                            (True, False, 0.1)],
                          ids=["never heard", "heard dead", "heard, not subscribed"])
@@ -41,7 +35,7 @@ def test_an_enable_held_while_the_robot_node_is_down_never_drives_it_when_it_com
                                                                                       seen_ago_s):
     # The keyboard's e and a squeeze while the node is down: when it starts, nothing moves it until the
     # enable has been let go and held again.
-    clock, link, device, loop = _rig()
+    clock, link, device, loop = loop_rig()
     link.view = _node(clock, alive, subscribed, seen_ago_s)
     device.enable, device.grip = True, 0.9
     _run(clock, loop, 0.2)
@@ -59,7 +53,7 @@ def test_an_enable_held_while_the_robot_node_is_down_never_drives_it_when_it_com
 
 
 def test_a_bus_problem_goes_once_the_robot_node_is_subscribed_again():
-    clock, link, device, loop = _rig()
+    clock, link, device, loop = loop_rig()
     link.view = _node(clock, False, False, 4.0)
 
     def refused(**kwargs):
@@ -80,7 +74,7 @@ def test_a_bus_problem_goes_once_the_robot_node_is_subscribed_again():
 def test_a_held_enable_is_suspended_when_the_robot_node_stops_hearing_the_console():
     # Killed: its subscription goes at once, its liveness only after three heartbeats. Started again
     # meanwhile, it must not take the held enable's follows.
-    clock, link, device, loop = _rig()
+    clock, link, device, loop = loop_rig()
     link.view = _node(clock, True, True)
     device.enable, device.grip = True, 0.5
     _run(clock, loop, 0.1)

@@ -1,5 +1,6 @@
 """Fakes of the operator's side for tests: an input device and a bus link for the operator's loop
-on a fake clock, a link for the console on the real clock, and a wait for textual's pilot."""
+on a fake clock (and the loop on them, :func:`loop_rig`), the bus sockets under a real link, a link
+for the console on the real clock, and a wait for textual's pilot."""
 
 from __future__ import annotations
 
@@ -8,6 +9,10 @@ from dataclasses import dataclass
 
 from haptics.errors import InputDeviceError, InputNotConnectedError
 from haptics.operator_link import PEERS, OperatorView, Peer
+from haptics.operator_loop import OperatorLoop
+from teleop.bus.peers import Heartbeat
+from teleop.bus.pubsub import SubscriberStats
+from teleop.settings import load_settings
 
 NOBODY = tuple(Peer(name, source, False, None) for name, source in PEERS)
 
@@ -94,6 +99,57 @@ class Clock:
 
     def __call__(self) -> float:
         return self.t
+
+
+def loop_rig(*, grip: float = 0.0) -> tuple[Clock, FakeLink, FakeDevice, OperatorLoop]:
+    """An operator loop on a fake link and device (grip at ``grip``), stepped once: the enable read let
+    go, so the loop starts armed off."""
+    clock = Clock()
+    link, device = FakeLink(clock), FakeDevice(clock)
+    device.grip = grip
+    loop = OperatorLoop(link, device, load_settings(), clock=clock)
+    loop.step()
+    return clock, link, device, loop
+
+
+def press(loop: OperatorLoop, clock: Clock, button: str) -> str | None:
+    """Press ``button`` and step the loop (then a millisecond passes): the grasp the loop names now."""
+    loop.press(button)
+    loop.step()
+    clock.t += 0.001
+    return loop.status.grasp_id
+
+
+class QueuedSubscriber:
+    """A bus subscriber handing out ``queue``'s messages: each refreshes its source's liveness."""
+
+    def __init__(self, clock: Clock):
+        self.heartbeat = Heartbeat(clock=clock)
+        self.stats = SubscriberStats()
+        self.queue: list = []
+
+    def recv(self, timeout_s: float | None = None):
+        if not self.queue:
+            return None
+        message = self.queue.pop(0)
+        self.heartbeat.saw(message.source, interval_s=0.5)
+        return message
+
+    def close(self) -> None:
+        pass
+
+
+class SubscribedPublisher:
+    """A bus publisher whose every topic has its subscriber (the robot node's, open)."""
+
+    def heartbeat_if_due(self, now_s: float | None = None) -> bool:
+        return False
+
+    def subscriptions(self, prefix: str) -> int:
+        return 1
+
+    def close(self) -> None:
+        pass
 
 
 class ConsoleLink:
