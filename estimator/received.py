@@ -9,6 +9,8 @@ finger, live and offline alike.
 
 A grasp keeps at most :data:`MAX_GRASP_FRAMES` frames of each finger, the first that came: live, later
 ones are checked and counted but not kept; offline, a record's later ones are counted and never decoded.
+A frame refused live (it does not decode, or has a bad time or encoding) takes its place among the first
+all the same, as it does in the record it is in (offline it is skipped later), so both keep the same frames.
 An operator may hold an object for minutes, and each frame kept costs its bytes and, on the estimator's
 finger, its decoded image, depth and reduced depth: about 0.26 MB a frame of both fingers at the shipped
 settings (66 kB, 88 kB and 23 kB, and 80 kB of JPEG), about three times that at ``depth_binning`` 1.
@@ -82,7 +84,8 @@ class Frames:
 
     ``source`` is the record's frame stream they came from offline (it decodes them, and holds
     them decoded when the record was: :class:`~estimator.inference.sampling.DecodedFrameStream`);
-    None live. ``not_kept`` counts the frames that came once :data:`MAX_GRASP_FRAMES` were kept.
+    None live. ``refused`` counts the frames refused live before :data:`MAX_GRASP_FRAMES` had come, and
+    ``not_kept`` the frames, refused or not, that came after.
     """
 
     t_s: list[float] = field(default_factory=list)
@@ -90,6 +93,7 @@ class Frames:
     encoding: str | None = None
     source: FrameStream | None = None
     not_kept: int = 0
+    refused: int = 0
 
     @classmethod
     def of_record(cls, stream: FrameStream, *, shift_s: float | None = None) -> Frames:
@@ -101,9 +105,22 @@ class Frames:
                    not_kept=len(t) - len(kept))
 
     @property
+    def arrived(self) -> int:
+        """Frames that came: kept, refused and not kept (a frame's index in the record it is in)."""
+        return len(self.t_s) + self.refused + self.not_kept
+
+    @property
     def full(self) -> bool:
-        """Whether :data:`MAX_GRASP_FRAMES` frames are kept: later ones are only counted."""
-        return len(self.t_s) >= MAX_GRASP_FRAMES
+        """Whether :data:`MAX_GRASP_FRAMES` frames came (refused ones included): later ones are only counted."""
+        return len(self.t_s) + self.refused >= MAX_GRASP_FRAMES
+
+    def count_refused(self) -> None:
+        """Count a frame refused live, where a record would hold it: among the first :data:`MAX_GRASP_FRAMES`
+        or past them."""
+        if self.full:
+            self.not_kept += 1
+        else:
+            self.refused += 1
 
     def check(self, t_s: float, encoding: str, *, where: str) -> None:
         """Raise PerceptionError naming ``where`` unless a frame captured at ``t_s`` in ``encoding``
@@ -142,4 +159,4 @@ class Frames:
         return frame_on_grid(self.encoded[index], self.encoding or "jpeg", sensor, binning=binning, where=where)
 
     def copy(self) -> Frames:
-        return Frames(list(self.t_s), list(self.encoded), self.encoding, self.source, self.not_kept)
+        return Frames(list(self.t_s), list(self.encoded), self.encoding, self.source, self.not_kept, self.refused)

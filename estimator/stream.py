@@ -289,25 +289,31 @@ class GraspStream:
         """One tactile frame as captured; True when it is the estimator's finger's and was kept.
 
         The estimator's frames are decoded and warped onto the depth grid here, once; other fingers'
-        frames are kept as they came. Once :data:`~estimator.received.MAX_GRASP_FRAMES` of a finger
-        are kept, its later frames are checked and counted (:meth:`frames_not_kept`), not kept or
+        frames are kept as they came. Once :data:`~estimator.received.MAX_GRASP_FRAMES` frames of a
+        finger came, its later frames are checked and counted (:meth:`frames_not_kept`), not kept or
         decoded. Raises PerceptionError (the frame is not kept) for an
         estimator frame that does not decode or has the wrong size, a finger without a sensor, a
-        non-finite time or an encoding other than the finger's earlier ones. A frame captured no later
+        non-finite time or an encoding other than the finger's earlier ones. Such a frame still counts
+        toward the cap, as in the record it is in (one of a finger without a sensor excepted: a record
+        has none), and errors name a frame by its index there. A frame captured no later
         than an earlier one of its finger (out of order or duplicated) is kept as it came, and skipped by
         the segmentation, whose notes count it (:func:`~estimator.segment.unplaced_frames`), as offline.
         """
         frames = self._frames.get(finger, Frames())
-        where = f"grasp {self.grasp_id!r} frame {len(frames.t_s) + frames.not_kept} of finger {finger!r}"
+        where = f"grasp {self.grasp_id!r} frame {frames.arrived} of finger {finger!r}"
         sensor = self._sensor(finger, PerceptionError, where)
-        frames.check(t_s, encoding, where=where)
-        if frames.full:  # a long hold would grow the service without bound (estimator.received)
-            frames.not_kept += 1
-            return False
-        if finger == self.finger:
-            self._perception.images[len(frames.t_s)] = frame_on_grid(data, encoding, sensor, binning=self.binning, where=where)
-        frames.add(t_s, data, encoding, where=where)
         self._frames[finger] = frames
+        try:
+            frames.check(t_s, encoding, where=where)
+            if frames.full:  # a long hold would grow the service without bound (estimator.received)
+                frames.not_kept += 1
+                return False
+            if finger == self.finger:
+                self._perception.images[len(frames.t_s)] = frame_on_grid(data, encoding, sensor, binning=self.binning, where=where)
+            frames.add(t_s, data, encoding, where=where)
+        except PerceptionError:
+            frames.count_refused()  # its record holds it: offline it takes a place among the first kept
+            raise
         return finger == self.finger
 
     def frames_not_kept(self, finger: str) -> int:
@@ -560,7 +566,7 @@ class GraspStream:
         fingers = {s.finger for s in self.sensors}
         streams = tuple(
             FrameStream(finger, f.times(), tuple(f.encoded), f.encoding or "jpeg")
-            for finger, f in self._frames.items() if finger in fingers
+            for finger, f in self._frames.items() if finger in fingers and f.t_s  # not one of refused frames only
         )
         force, width = self._force.samples(), self._width.samples()
         return GraspRecord(

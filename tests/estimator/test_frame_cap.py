@@ -56,8 +56,8 @@ def test_a_long_grasp_keeps_the_first_frames_and_counts_the_rest(settings, calib
     assert len(stream._perception.images) == cap  # decoded only while kept
     assert [len(s.t_s) for s in stream.to_record().frames] == [cap, cap]
     with pytest.raises(PerceptionError, match=f"frame {cap + extra} of finger 'left': capture time nan"):
-        stream.add_frame("left", float("nan"), jpeg, "jpeg")  # still checked
-    assert stream.frames_not_kept("left") == extra
+        stream.add_frame("left", float("nan"), jpeg, "jpeg")  # still checked, and counted as a record holds it
+    assert stream.frames_not_kept("left") == extra + 1
 
 
 def test_past_the_cap_live_and_offline_estimate_the_frames_kept_and_say_so(settings, calibration, operator_grasp, cap):
@@ -79,6 +79,34 @@ def test_past_the_cap_live_and_offline_estimate_the_frames_kept_and_say_so(setti
     for a, b in zip(final.estimates, truncated.estimates, strict=True):
         assert note(20, cap) in a.reason and note(20, cap) not in b.reason
         assert (a.method, a.state, a.e_pa, a.interval_pa) == (b.method, b.state, b.e_pa, b.interval_pa)
+
+
+def test_a_frame_refused_live_takes_its_place_as_in_its_record(settings, calibration, operator_grasp, cap):
+    # Refused live, each is in the record offline measures, among its first frames or past them.
+    refusals = {("left", 5): "does not decode", ("right", 2): "encoding", ("left", cap + 3): "time"}
+    left = operator_grasp.stream("left")
+    garbled = dataclasses.replace(left, encoded=(*left.encoded[:5], b"not a jpeg", *left.encoded[6:]))
+    record = dataclasses.replace(operator_grasp, frames=tuple(garbled if s.finger == "left" else s
+                                                              for s in operator_grasp.frames))
+    live = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    live.mark_follow()
+    refused = []
+    for t, kind, body in in_capture_order(record):
+        how = refusals.get((body.get("finger"), body.get("index")))
+        body = {**body, "encoding": "png"} if how == "encoding" else body
+        try:
+            feed(live, kind, body, float("nan") if how == "time" else t)
+        except PerceptionError as exc:
+            refused.append(str(exc))
+    assert refused == [f"grasp '' frame {i} of finger {f!r}: {why}" for f, i, why in (
+        ("right", 2, "png after jpeg frames"), ("left", 5, "jpeg data does not decode"),
+        ("left", cap + 3, "capture time nan is not finite"))]  # named by their index in the record
+    offline = GraspStream.from_record(record, settings=settings, calibration=calibration, methods=METHODS)
+    for finger in ("left", "right"):
+        assert live.frames_not_kept(finger) == offline.frames_not_kept(finger) == len(record.stream(finger).t_s) - cap
+    final, measured = live.estimate().estimates, offline.estimate().estimates
+    assert any(e.state == "ok" for e in final) and all(note(20, cap) in e.reason for e in final)
+    assert all(same(a, b) for a, b in zip(final, measured, strict=True))
 
 
 def test_the_service_says_once_that_a_grasp_keeps_no_more_frames(rig, settings, calibration, operator_grasp, cap,
