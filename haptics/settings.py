@@ -35,7 +35,7 @@ from teleop.settings import Section, Settings
 from teleop.settings_fields import spec
 
 __all__ = ["INPUT_BACKENDS", "KEYBOARD_GRIP_STEP_MIN", "MIN_DISPLAY_STEPS", "DisplaySettings", "OperatorSettings",
-           "display_range_pa", "display_settings", "operator_settings"]
+           "display_range_pa", "display_settings", "display_warnings", "operator_settings"]
 
 #: The fewest just-noticeable steps of E (:data:`~teleop.physics.WEBER_FRACTION` each) the display's
 #: range must span: a narrower one renders next to everything at one end, soft or rigid.
@@ -77,21 +77,27 @@ class DisplaySettings(Section):
             )
 
     def resolved(self, settings: Settings) -> DisplaySettings:
-        """The rigid end set: 0 becomes ``settings``' resolution limit; one above that limit is refused
-        (no estimate goes past the limit, so nothing would ever be rendered rigid)."""
-        limit = settings.resolution_limit_pa
-        if self.e_rigid_pa > limit * (1 + _LIMIT_ROUNDING):
-            raise SettingsError(f"DisplaySettings.e_rigid_pa = {self.e_rigid_pa}: expected at most the sensor's "
-                                f"resolution limit {limit:.4g} Pa (no estimate goes beyond it, so no object would "
-                                "feel rigid), or 0 for that limit")
+        """The rigid end set: 0 becomes ``settings``' resolution limit."""
         if self.e_rigid_pa:
             return self
+        limit = settings.resolution_limit_pa
         if limit < self.e_soft_pa * _MIN_RANGE_RATIO:
             raise SettingsError(f"DisplaySettings.e_soft_pa = {self.e_soft_pa}: expected a value at most "
                                 f"{limit / _MIN_RANGE_RATIO:.4g} Pa, {MIN_DISPLAY_STEPS} just-noticeable steps "
                                 f"({WEBER_FRACTION:.0%} each) below the sensor's resolution limit {limit:.4g} Pa "
                                 "(the display's rigid end, e_rigid_pa = 0)")
         return dataclasses.replace(self, e_rigid_pa=limit)
+
+
+def display_warnings(settings: Settings) -> list[str]:
+    """What in ``settings``' display table is valid but defeats the display: a rigid end above the
+    sensor's resolution limit, which no estimate reaches (estimates stop at the limit), so that no
+    object is ever felt rigid. (Not refused: session logs recorded with one must still read.)"""
+    rigid, limit = display_settings(settings).e_rigid_pa, settings.resolution_limit_pa
+    if rigid <= limit * (1 + _LIMIT_ROUNDING):
+        return []
+    return [f"[display] e_rigid_pa = {rigid:.4g} Pa is above the sensor's resolution limit {limit:.4g} Pa: no "
+            "estimate goes beyond the limit, so no object will feel rigid; set it at most that, or 0 for the limit"]
 
 
 def display_settings(settings: Settings) -> DisplaySettings:

@@ -71,11 +71,6 @@ __all__ = [
 ]
 
 
-#: Room a frame message needs besides its image: topic, header and body (the wire format caps them
-#: at 68 KiB together; a frame's are well under 1 KiB).
-FRAME_HEADER_MARGIN_BYTES = 64 * 1024
-
-
 @dataclass(frozen=True)
 class SensorSettings(Validated):
     """One GelSight-style tactile sensor: camera geometry, warp and gel."""
@@ -160,13 +155,6 @@ class SensorSettings(Validated):
         if self.model == "mini":
             return (self.raw_height_px, self.raw_width_px)
         return (self.warped_height_px - 2 * self.crop_px, self.warped_width_px - 2 * self.crop_px)
-
-    @property
-    def frame_message_bytes(self) -> int:
-        """The largest bus message carrying one of this sensor's frames: its raw image uncompressed
-        (an encoded frame, noisy JPEG at quality 100 included, stays below it) and the message's
-        header."""
-        return self.raw_width_px * self.raw_height_px * 3 + FRAME_HEADER_MARGIN_BYTES
 
     @property
     def pad_size_m(self) -> tuple[float, float]:
@@ -265,9 +253,7 @@ class BusSettings(Validated):
     control: str = spec("tcp://127.0.0.1:5554", doc="one-off tools (estimator reload) send here while an "
                                                     "operator holds the command endpoint")
     heartbeat_s: float = spec(0.5, lo=0.0, hi=60.0, lo_open=True)
-    max_message_bytes: int = spec(8 * 1024 * 1024, lo=1024, hi=2**31 - 1,
-                                  doc="largest bus message; at least each sensor's frame message "
-                                      "(SensorSettings.frame_message_bytes)")
+    max_message_bytes: int = spec(8 * 1024 * 1024, lo=1024, hi=2**31 - 1)
     keys_dir: str = spec("", doc="CURVE key directory (a relative one: against the settings file's folder); "
                               "required when an endpoint is not loopback")
 
@@ -389,34 +375,10 @@ class Settings(Validated):
         if self.sensing.finger not in fingers:
             raise SettingsError(f"SensingSettings.finger = {self.sensing.finger!r}: expected a finger with a "
                                 f"sensor, one of {fingers}")
-        self._check_bus_keys()
-        for sensor in self.sensors:
-            needed = sensor.frame_message_bytes
-            if needed > self.bus.max_message_bytes:
-                raise SettingsError(
-                    f"BusSettings.max_message_bytes = {self.bus.max_message_bytes}: too small for a frame of "
-                    f"[sensors.{sensor.finger}] ({sensor.raw_width_px}x{sensor.raw_height_px} px): expected at "
-                    f"least {needed} bytes"
-                )
         unknown = sorted(set(self.tables) - set(package_tables()))
         if unknown:
             raise SettingsError(f"Settings.tables names {unknown[0]!r}: expected some of "
                                 f"{', '.join(package_tables()) or 'none (is the project installed?)'}")
-
-    def _check_bus_keys(self) -> None:
-        """Keys where the bus needs them: each process refuses, as it starts, an endpoint other hosts
-        reach without ``keys_dir``; a file that names one is refused as it loads. (A lone
-        :class:`BusSettings` is not: command-line endpoints replace a file's, and a socket checks its own.)"""
-        from teleop.bus.security import is_loopback  # here: teleop.bus imports this module
-
-        if self.bus.keys_dir:
-            return
-        for name in BusSettings.ENDPOINTS:
-            value = getattr(self.bus, name)
-            if not is_loopback(value):
-                raise SettingsError(f"BusSettings.{name} = {value!r}: other hosts can reach it, so the bus runs "
-                                    "CURVE there and needs BusSettings.keys_dir: run `teleop keys init DIR` and set "
-                                    "keys_dir = DIR in [bus] (or bind a loopback address)")
 
     def __hash__(self) -> int:  # the packages' tables are plain dicts: hash a frozen copy
         own = tuple(getattr(self, f.name) for f in dataclasses.fields(self) if f.metadata.get("key", True))

@@ -11,9 +11,12 @@ import json
 import sys
 
 from estimator.settings import estimator_settings
-from haptics.settings import display_settings, operator_settings
-from teleop.errors import SettingsError
+from haptics.settings import display_settings, display_warnings, operator_settings
+from teleop.bus.security import check_endpoints
+from teleop.errors import BusSecurityError, SettingsError
 from teleop.settings import (
+    BusSettings,
+    Settings,
     default_settings_path,
     load_settings,
     missing_calibrations,
@@ -42,6 +45,20 @@ def run(args: argparse.Namespace) -> int:
     resolved = (settings.with_section(estimator_settings(settings)).with_section(display_settings(settings))
                 .with_section(operator_settings(settings)))
     print(json.dumps(settings_to_mapping(resolved), indent=2))
-    for missing in missing_calibrations(settings, path):  # valid settings, but a session would lack the file
-        print(f"teleop settings: warning: {missing}", file=sys.stderr)
+    # Valid settings, but a session would lack a file, a process would refuse its endpoint, or the display
+    # could not show what it should.
+    for warning in (*missing_calibrations(settings, path), *_bus_key_warnings(settings), *display_warnings(settings)):
+        print(f"teleop settings: warning: {warning}", file=sys.stderr)
     return 0
+
+
+def _bus_key_warnings(settings: Settings) -> list[str]:
+    """An endpoint other hosts reach without ``keys_dir``: each process refuses it as it starts (not
+    the file: a command line may give loopback endpoints instead)."""
+    if settings.bus.keys_dir:
+        return []
+    try:
+        check_endpoints([getattr(settings.bus, name) for name in BusSettings.ENDPOINTS], None)
+    except BusSecurityError as exc:
+        return [f"[bus] {exc}"]
+    return []

@@ -335,9 +335,9 @@ def test_the_shipped_rigid_end_is_the_sensors_resolution_limit():
 
 
 def test_an_explicit_rigid_end_overrides_the_resolution_limit(tmp_path):
-    text = default_settings_path().read_text().replace("e_soft_pa = 5000.0", "e_soft_pa = 5000.0\ne_rigid_pa = 5.0e6")
+    text = default_settings_path().read_text().replace("e_soft_pa = 5000.0", "e_soft_pa = 5000.0\ne_rigid_pa = 1.0e9")
     settings = load_settings(write(tmp_path, text))
-    assert display_settings(settings).e_rigid_pa == 5e6 and settings.resolution_limit_pa > 5e6
+    assert display_settings(settings).e_rigid_pa == 1e9 and settings.resolution_limit_pa < 1e9
 
 
 def test_a_soft_end_above_the_resolution_limit_is_refused_naming_e_soft_pa(tmp_path):

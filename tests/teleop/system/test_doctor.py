@@ -17,7 +17,7 @@ import pytest
 
 from teleop.bus.security import init_keys
 from teleop.cli import main
-from teleop.errors import ComplianceTeleopError, SettingsError
+from teleop.errors import ComplianceTeleopError
 from teleop.settings import BusSettings, Settings, default_settings_path, load_settings
 from teleop.settings_edit import update_settings_file
 from teleop.system.doctor import (
@@ -168,14 +168,12 @@ def test_a_serial_cell_without_pyserial_is_a_no_row_naming_the_extra(tmp_path, c
     assert cell["problem"].endswith("(install the 'robot' extra)")
 
 
-def test_a_port_in_use_and_an_unknown_host_are_problems(tmp_path):
-    init_keys(tmp_path / "keys")  # a host other hosts reach needs keys, or the settings are refused
+def test_a_port_in_use_and_an_unknown_unkeyed_host_are_problems():
     holder = socket.create_server(("127.0.0.1", 0))
     try:
         port = holder.getsockname()[1]
         settings = load_settings(default_settings_path())
-        bus = settings.bus.__class__(robot_pub=f"tcp://127.0.0.1:{port}", estimate_pub="tcp://no-such-host.invalid:5551",
-                                     keys_dir=str(tmp_path / "keys"))
+        bus = settings.bus.__class__(robot_pub=f"tcp://127.0.0.1:{port}", estimate_pub="tcp://no-such-host.invalid:5551")
         checks = {c.name: c for c in check_endpoints(settings.__class__(bus=bus))}
     finally:
         holder.close()
@@ -183,14 +181,17 @@ def test_a_port_in_use_and_an_unknown_host_are_problems(tmp_path):
     assert "`bus.robot_pub`" in checks["robot_pub"].problem
     assert not checks["estimate_pub"].ok
     assert "host 'no-such-host.invalid' does not resolve" in checks["estimate_pub"].problem
+    keys = checks["bus keys"]
+    assert not keys.ok and "'tcp://no-such-host.invalid:5551' is reachable from other hosts" in keys.problem
+    assert keys.problem.count("teleop keys") == 1 and keys.problem.endswith("set bus.keys_dir = DIR in the settings TOML")
     assert checks["command"].ok
 
 
 def test_every_endpoint_off_loopback_needs_keys_and_any_free_port_is_not_probed():
-    # the processes that bind display_pub and control refuse them without keys, so the settings do too
-    with pytest.raises(SettingsError, match=r"BusSettings.display_pub = 'tcp://\*:5553': other hosts .*keys_dir"):
-        Settings(bus=BusSettings(display_pub="tcp://*:5553"))
-    checks = {c.name: c for c in check_endpoints(Settings(bus=BusSettings(control="tcp://127.0.0.1:*")))}
+    # the processes that bind display_pub and control refuse them without keys, so the doctor does too
+    bus = BusSettings(display_pub="tcp://*:5553", control="tcp://127.0.0.1:*")
+    checks = {c.name: c for c in check_endpoints(Settings(bus=bus))}
+    assert not checks["bus keys"].ok and "'tcp://*:5553' is reachable from other hosts" in checks["bus keys"].problem
     assert checks["control"].ok and not checks["control"].detail["probed"]
 
 
