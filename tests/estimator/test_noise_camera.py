@@ -1,8 +1,10 @@
 """A camera that gives pixel noise, not a gel (estimator.faults.camera_fault): refused like a dead
-one, while frames of a gel with the camera's noise and a growing contact are measured."""
+one, while frames of a gel with the camera's noise (up to the settings' most), a growing contact or
+another exposure are measured."""
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 from pathlib import Path
 
@@ -10,6 +12,10 @@ import numpy as np
 
 from estimator.faults import camera_fault
 from estimator.measure import estimate_grasp
+from teleop.catalogue import load_catalogue
+from teleop.settings import CONFIG_DIR, load_settings
+from teleop.sim.grasp import simulate_grasp
+from teleop.sim.simulate import grasp_rng
 
 _spec = importlib.util.spec_from_file_location("_broken_sensors", Path(__file__).with_name("test_broken_sensors.py"))
 _broken = importlib.util.module_from_spec(_spec)
@@ -50,6 +56,14 @@ def test_pixel_noise_is_refused_and_a_noisy_gel_pressed_over_half_its_pad_is_not
     assert "pixel noise" in camera_fault(reference, noise[:4], t, "left")
 
 
+def test_an_exposure_shift_or_gain_is_not_pixel_noise():
+    rng = np.random.default_rng(2)
+    t = np.arange(4) * 0.04
+    reference, frames = gel_frames(rng)
+    for exposed in (lambda f: f.astype(int) + 12, lambda f: f.astype(int) - 12, lambda f: 1.3 * f):
+        assert camera_fault(reference, [np.clip(exposed(f), 0, 255).astype(np.uint8) for f in frames], t, "left") == ""
+
+
 def test_a_record_of_pixel_noise_frames_refuses_the_tactile_methods(calibration):
     record = build_record(3e5)
     rng = np.random.default_rng(1)
@@ -59,3 +73,14 @@ def test_a_record_of_pixel_noise_frames_refuses_the_tactile_methods(calibration)
         assert not est and "pixel noise" in est.reason and "camera of finger 'left'" in est.reason
     assert estimate_grasp(with_streams(record, images=lambda i, image: image), "series", settings=SETTINGS,
                           calibration=calibration)
+
+
+def test_a_simulated_grasp_at_the_most_camera_noise_the_settings_allow_is_measured():
+    # camera_noise 50, the settings' most: over half the pixel values move by over 10 levels, once refused as noise.
+    settings = load_settings()
+    noisy = dataclasses.replace(settings, simulation=dataclasses.replace(settings.simulation, camera_noise=50.0))
+    puck = next(o for o in load_catalogue(CONFIG_DIR / "objects.toml") if o.name == "silicone_puck_shore10a")
+    record, _ = simulate_grasp(puck, settings=noisy, rng=grasp_rng(0, puck, 0), seed=0)
+    est = estimate_grasp(record, "series", settings=settings,
+                         calibration=CONFIG_DIR / "calibration" / "sim-wedge-left.npz")
+    assert est.state == "ok", est.reason
