@@ -15,7 +15,8 @@ writes one ``label`` bus message per row into the log:
   as ``label_catalogue-<n>.toml`` (or ``.csv``), unless the log holds it already: a label names
   its object and modulus, and ``teleop export`` takes the object's material and shape from there. The new file is flushed to disk
   and moved over the original (``os.replace``: atomic on one file system), so the log is either
-  the old one or the new one, never half of each; no backup is kept.
+  the old one or the new one, never half of each; no backup is kept. The log's lock
+  (:mod:`teleop.session.recordfile`) is held meanwhile: a log a recorder is still writing is refused.
 * Each label is stamped just after its grasp: log time 1 ns after the grasp's last
   ``grasp_event`` (its end) or after the last label the log already holds for it, whichever is
   later, and the same time as its send time (``publish_time``; the header's ``t_send_ns`` is
@@ -71,6 +72,7 @@ from teleop.session.logfile import (
     schema_data,
 )
 from teleop.session.logframes import pack_frames
+from teleop.session.recordfile import holding
 
 __all__ = [
     "CSV_COLUMNS",
@@ -319,14 +321,20 @@ def label_session(
     Raises
     ------
     SessionLogError
-        The log cannot be read, is not a session log, is cut short, or the new log cannot be
-        written (the original is then left as it was).
+        The log cannot be read, is not a session log, is cut short, is held by a recorder still
+        writing it, or the new log cannot be written (the original is then left as it was).
     LabelError
         The CSV is bad, names a grasp not in the log, or an object without a modulus.
     SettingsError
         The catalogue cannot be read.
     """
-    log, csv_path = Path(log), Path(csv_path)
+    log = Path(log)
+    # Its lock, held to the rename: a recorder still writing it would lose all it writes after.
+    with holding(log, "wait until that recorder has stopped, then label the log"):
+        return _label_session(log, Path(csv_path), catalogue)
+
+
+def _label_session(log: Path, csv_path: Path, catalogue: str | Path | None) -> LabelReport:
     reader = LogReader(log)
     info = reader.info()
     if info.mendable:  # a damaged attachment is not: it is copied as it is, its damage kept

@@ -5,6 +5,8 @@ footer. A recorder killed outright leaves a log without them: ``teleop recover``
 A write error (a full disk) stops the recording, not the session: the command then exits with
 status 3 (:data:`~teleop.session.recorder.RECORDING_STOPPED_STATUS`), its last line saying why.
 With ``--foxglove`` it also serves what it records live to Foxglove.
+An --out that another recorder is still writing is refused, --overwrite or not
+(:mod:`teleop.session.recordfile`).
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from teleop.settings import load_settings
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="FILE.mcap", help="session log to create")
     parser.add_argument(
-        "--overwrite", action="store_true", help="replace --out if it exists instead of refusing"
+        "--overwrite", action="store_true", help="replace --out if it exists instead of refusing (never one another recorder is writing)"
     )
     parser.add_argument(
         "--settings",
@@ -101,14 +103,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--json",
         action="store_true",
         help="print one JSON object (out, messages, saved_messages, message_bytes, file_bytes, "
-        "topics, refused, gaps, missed, error) as the last stdout line",
+        "topics, refused, gaps, missed, not_stored, error) as the last stdout line",
     )
 
 
 def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
-    if out.exists() and not args.overwrite:
-        raise SessionLogError(f"--out {out} exists: choose another name or pass --overwrite")
     if args.duration_s is not None and not args.duration_s > 0:
         raise SessionLogError(f"--duration-s {args.duration_s}: expected a number > 0")
     settings = load_settings(args.settings)
@@ -131,6 +131,7 @@ def run(args: argparse.Namespace) -> int:
             max_bytes=settings.bus.max_message_bytes,
             security=security_from_settings(settings.bus),
             on_foxglove=None if live is None else live.log,
+            overwrite=args.overwrite,
         )
         stats = _record_until_stopped(recorder, args.duration_s)
     finally:
@@ -140,7 +141,9 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"recorded {stats.messages} messages ({stats.file_bytes / 1e6:.1f} MB) "
         f"from {', '.join(endpoints)} into {out}; "
-        f"refused {sum(stats.refused.values())}{f' ({reasons})' if reasons else ''}, missed {stats.missed}",
+        f"refused {sum(stats.refused.values())}{f' ({reasons})' if reasons else ''}, missed {stats.missed}"
+        + (f", not stored {stats.not_stored} (still queued when the stop gave up storing them)"
+           if stats.not_stored else ""),
         file=sys.stderr,
     )
     if args.json:

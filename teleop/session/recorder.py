@@ -15,6 +15,9 @@ already written stays readable), closes its subscription (so lossless publishers
 wait for it) and stops; ``teleop record`` then exits with :data:`RECORDING_STOPPED_STATUS`, which
 ``teleop demo`` takes as "the session carries on without a recorder". ``teleop recover`` then turns
 the log into a complete file.
+
+The recorder holds its log's lock while it records (:mod:`teleop.session.recordfile`): a second
+recorder on the same file is refused, ``--overwrite`` or not, and cannot damage the first one's log.
 """
 
 from __future__ import annotations
@@ -54,6 +57,7 @@ from teleop.session.logfile import (
     TIME_OFFSET_KEY,
 )
 from teleop.session.logframes import FRAMING
+from teleop.session.recordfile import LogSink, create_log
 from teleop.settings import Settings, load_settings, resolve_path, settings_to_mapping
 
 __all__ = ["COMPRESSIONS", "RECORDING_STOPPED", "RECORDING_STOPPED_STATUS", "TOO_MANY_TOPICS", "RecorderStats",
@@ -70,6 +74,8 @@ RECORDING_STOPPED = "recording stopped: "
 TOO_MANY_TOPICS = "too_many_topics"
 # How long closing goes on storing what is already queued: a stop is honoured though a flood is queued.
 PENDING_S = 5.0
+# How long it then goes on counting, not storing, what is still queued (RecorderStats.not_stored).
+UNSTORED_COUNT_S = 1.0
 
 COMPRESSIONS = {
     "zstd": CompressionType.ZSTD,
@@ -104,48 +110,6 @@ class _CapturingSubscriber(Subscriber):
         return message
 
 
-class _Sink:
-    """The file under the MCAP writer.
-
-    Each write goes to the operating system at once (no user-space buffer that a SIGKILL
-    would lose), and the offset where the last complete write ended is kept, so the bytes a
-    failed write left behind can be cut off again. The MCAP writer writes whole records per
-    call, so that offset is always a record boundary.
-    """
-
-    def __init__(self, file: IO[bytes]):
-        self.file = file
-        try:
-            self.position = file.tell()
-        except (OSError, AttributeError):
-            self.position = 0
-
-    def write(self, data: bytes) -> int:
-        view = memoryview(data).cast("B")
-        done = 0
-        while done < view.nbytes:  # a raw file may take part of a write
-            n = self.file.write(view[done:])
-            done = view.nbytes if n is None else done + n
-        self.file.flush()
-        self.position += view.nbytes
-        return view.nbytes
-
-    def tell(self) -> int:
-        return self.position
-
-    def flush(self) -> None:
-        self.file.flush()
-
-    def cut_back(self) -> bool:
-        """Truncate to the end of the last complete write; False if the file cannot be truncated."""
-        try:
-            self.file.truncate(self.position)
-        except (OSError, AttributeError, ValueError) as exc:
-            log.warning("could not cut the log back to byte %d: %s", self.position, exc)
-            return False
-        return True
-
-
 @dataclass
 class RecorderStats:
     """What a recorder stored and what it saw."""
@@ -157,7 +121,8 @@ class RecorderStats:
     topics: Counter[str] = field(default_factory=Counter)
     refused: Counter[str] = field(default_factory=Counter)  # by wire reject reason, or TOO_MANY_TOPICS
     gaps: int = 0
-    missed: int = 0
+    missed: int = 0  # messages the publishers sent that never arrived (sequence gaps)
+    not_stored: int = 0  # messages that arrived but were still queued when a stop gave up storing them
     error: str | None = None  # the write error that stopped recording
 
     def as_dict(self) -> dict[str, Any]:
@@ -170,6 +135,7 @@ class RecorderStats:
             "refused": dict(self.refused),
             "gaps": self.gaps,
             "missed": self.missed,
+            "not_stored": self.not_stored,
             "error": self.error,
         }
 
@@ -184,7 +150,7 @@ class SessionRecorder:
     Parameters
     ----------
     out : str, Path or binary file object
-        The ``.mcap`` file to create, or an open binary stream to write to (left open).
+        The ``.mcap`` file to create, or an open binary stream to write to (left open, not locked).
     endpoints : str or iterable of str
         Publisher endpoints to subscribe to (every topic).
     settings : Settings, optional
@@ -211,6 +177,9 @@ class SessionRecorder:
         Called as ``on_foxglove(converted, log_time_ns)`` with the Foxglove forms of each
         message stored and its log time (ns since the Unix epoch, as stored), e.g.
         :meth:`teleop.session.foxglove_live.LiveServer.log`.
+    overwrite : bool
+        Replace an existing ``out`` file (False: refuse it); either way a file another recorder
+        is writing is refused (:func:`~teleop.session.recordfile.create_log`).
     **subscriber_options
         Passed on to :class:`~teleop.bus.pubsub.Subscriber` (``context``, ...).
     """
@@ -230,6 +199,7 @@ class SessionRecorder:
         max_bytes: int = DEFAULT_MAX_BYTES,
         on_message: Callable[[Message, int], None] | None = None,
         on_foxglove: Callable[[Sequence[FoxgloveMessage], int], None] | None = None,
+        overwrite: bool = True,
         **subscriber_options: Any,
     ):
         self.endpoints = [endpoints] if isinstance(endpoints, str) else list(endpoints)
@@ -261,11 +231,12 @@ class SessionRecorder:
         self.max_bytes = max_bytes
         self.on_message = on_message
         self.on_foxglove = on_foxglove
+        self.overwrite = overwrite
         self.subscriber_options = subscriber_options
         self.stats = RecorderStats()
         self._file: IO[bytes] | None = None
         self._owns_file = False
-        self._sink: _Sink | None = None
+        self._sink: LogSink | None = None
         self._writer: Writer | None = None
         self._log: LogChannels | None = None
         self._subscriber: _CapturingSubscriber | None = None
@@ -285,8 +256,8 @@ class SessionRecorder:
         Raises
         ------
         SessionLogError
-            The log cannot be created or its start cannot be written, or the recorder
-            was already closed.
+            The log cannot be created (it exists and ``overwrite`` is False, or another
+            recorder holds it) or its start cannot be written, or the recorder was already closed.
         BusError
             The subscription cannot be set up (bad endpoint, missing CURVE keys); the
             log is then removed again.
@@ -297,16 +268,11 @@ class SessionRecorder:
             return self
         attachments = self._attachments()  # read inputs before creating anything
         if isinstance(self.out, Path):
-            try:
-                self._file = self.out.open("wb", buffering=0)
-            except OSError as exc:
-                raise SessionLogError(
-                    f"cannot create session log {self.out}: {exc.strerror or exc}"
-                ) from exc
+            self._file = create_log(self.out, overwrite=self.overwrite)
             self._owns_file = True
         else:
             self._file = self.out
-        self._sink = _Sink(self._file)
+        self._sink = LogSink(self._file)
         self._writer = Writer(
             self._sink, chunk_size=self.chunk_bytes, compression=COMPRESSIONS[self.compression]
         )
@@ -337,9 +303,9 @@ class SessionRecorder:
                 self.endpoints, ("",), max_bytes=self.max_bytes, **self.subscriber_options
             )
         except BusError:
-            self._close_file()
-            if self._owns_file:  # nothing was recorded into it
+            if self._owns_file:  # nothing was recorded into it; removed while it is still locked
                 self.out.unlink(missing_ok=True)
+            self._close_file()
             self._state = "closed"
             raise
         self._state = "open"
@@ -413,10 +379,22 @@ class SessionRecorder:
             if self._state != "open":
                 break
             if time.monotonic() > deadline:
-                log.warning("stopped with messages still queued after %.0f s of storing them: not recorded", PENDING_S)
+                self._count_unstored(time.monotonic() + UNSTORED_COUNT_S)
                 break
             if self._subscriber.recv(timeout_s=0) is None and not self._subscriber.captured:
                 break
+
+    def _count_unstored(self, deadline: float) -> None:
+        """Count, without storing, what is still queued until ``deadline``: what the stop loses, in the stats."""
+        captured = self._subscriber.captured
+        while True:
+            self.stats.not_stored += len(captured)
+            captured.clear()
+            more = time.monotonic() > deadline
+            if more or (self._subscriber.recv(timeout_s=0) is None and not captured):
+                break
+        log.warning("stopped with %d message(s) still queued after %.0f s of storing them: not recorded%s",
+                    self.stats.not_stored, PENDING_S, " (and more still queued, not counted)" if more else "")
 
     def _drain(self) -> int:
         stored = 0

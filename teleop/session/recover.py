@@ -10,7 +10,9 @@ with its byte offsets and the log times of what they held, and those the source 
 before when it was itself recovered), so readers of the copy take them as lost
 (:mod:`teleop.session.logdamage`). An attachment whose CRC-32 fails is copied with its stored
 CRC-32, not a fresh one, so the copy's readers find the damage too; it is named in
-``damaged_attachments``.
+``damaged_attachments``. Bytes after the footer of a source otherwise complete are not read, but
+counted (``trailing_bytes``): such a file is what two writers on one log leave, its footer the
+last one's.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from teleop.progress import progress_bar
 from teleop.record import software_version
 from teleop.session.logdamage import RECOVERY_METADATA, DamagedAttachment, DamageKeepingWriter
 from teleop.session.logfile import CHUNK_BYTES, END_METADATA, LogReader, StoredFrames
+from teleop.session.recordfile import refuse_if_held
 
 __all__ = ["RECOVERY_METADATA", "RecoveryReport", "check_not_source", "recover"]
 
@@ -56,6 +59,7 @@ class RecoveryReport:
     metadata: list[str] = field(default_factory=list)
     salvaged_bytes: int = 0  # where the last complete record read ends (damage before it skipped)
     source_bytes: int = 0
+    trailing_bytes: int = 0  # bytes after the footer of a complete source (not read): another writer's
     lost: list[dict[str, Any]] = field(default_factory=list)  # LostChunk.as_mapping of each part lost
 
     def as_dict(self) -> dict[str, Any]:
@@ -81,11 +85,12 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
     Raises
     ------
     SessionLogError
-        ``out`` is ``source``, ``source`` is not an MCAP file or has no header, or ``out``
-        cannot be written.
+        ``out`` is ``source`` or a log a recorder is writing, ``source`` is not an MCAP file or
+        has no header, or ``out`` cannot be written.
     """
     source, out = Path(source), Path(out)
     check_not_source(source, out)
+    refuse_if_held(out, "write the recovered log elsewhere")
     reader = LogReader(source)
     report = RecoveryReport(
         str(source), str(out), complete=False, closed_cleanly=False, damage=None
@@ -180,6 +185,8 @@ def _copy(reader: LogReader, writer: DamageKeepingWriter, report: RecoveryReport
     report.closed_cleanly = END_METADATA in report.metadata
     report.salvaged_bytes = reader.good_bytes
     report.source_bytes = reader.path.stat().st_size
+    if reader.complete:
+        report.trailing_bytes = report.source_bytes - reader.good_bytes
     report.lost = [chunk.as_mapping(reader.path.resolve()) for chunk in reader.lost]
     writer.add_metadata(
         RECOVERY_METADATA,

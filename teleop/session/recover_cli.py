@@ -10,6 +10,7 @@ from pathlib import Path
 
 from teleop.clikit import output_file
 from teleop.errors import SessionLogError
+from teleop.session.recordfile import held_by, refuse_if_held
 from teleop.session.recover import RecoveryReport, check_not_source, recover
 
 
@@ -29,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="print one JSON object (source, out, complete, closed_cleanly, damage, damaged, "
         "cut_short, messages, "
         "topics, undecodable, attachments, damaged_attachments, metadata, salvaged_bytes, "
-        "source_bytes, lost) as the last stdout line",
+        "source_bytes, trailing_bytes, lost) as the last stdout line",
     )
 
 
@@ -38,6 +39,10 @@ def run(args: argparse.Namespace) -> int:
     check_not_source(Path(args.log), out)
     if out.exists() and not args.overwrite:
         raise SessionLogError(f"--out {out} exists: choose another name or pass --overwrite")
+    refuse_if_held(out, "write the recovered log elsewhere")
+    if (pid := held_by(args.log)) is not None:
+        print(f"warning: {args.log} is held by another process{f' (PID {pid})' if pid else ''}, a recorder "
+              "still writing it: what is salvaged is what it has written so far", file=sys.stderr)
     # Staged beside --out: a recovery that salvages nothing must not replace a file already there.
     staged = out.with_name(f".{out.name}.recovering")
     report = recover(args.log, staged, progress=True)
@@ -79,6 +84,10 @@ def run(args: argparse.Namespace) -> int:
 
 def _state(report: RecoveryReport) -> str:
     """The source's state, as what happened: complete, damaged, cut short (and where)."""
+    if report.complete and report.trailing_bytes:
+        return (f"complete up to its footer at byte {report.source_bytes - report.trailing_bytes}, but "
+                f"{report.trailing_bytes} bytes of trailing data follow it, not read (another writer's: "
+                "two recorders on one file?)" + (f"; {report.damage}" if report.damage else ""))
     if report.complete:  # a recovered log's earlier losses are still lost
         return "complete" + (f" (though {report.damage})" if report.damage else "")
     said = [word for word, yes in (("damaged", report.damaged), ("cut short", report.cut_short)) if yes]
