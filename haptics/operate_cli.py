@@ -127,13 +127,14 @@ def run(args: argparse.Namespace) -> int:
         raise SettingsError("haptics operate needs a terminal for its screen; run it in one (or in tmux), "
                             "or pass --headless")
     catalogue = () if args.headless else load_catalogue(args.objects)
-    device = make_input(name, settings)
-    with device, OperatorLink.from_settings(bus) as link:
+    # held before the link connects: a refused handshake is said then, and must reach the notices
+    holding = contextlib.nullcontext() if args.headless else _held_log()
+    with holding as held, make_input(name, settings) as device, OperatorLink.from_settings(bus) as link:
         loop = OperatorLoop(link, device, settings, force_n=args.force)
-        if args.headless:
+        if held is None:
             status = _run_headless(loop, name, duration_s=args.duration_s)
         else:
-            status = _run_console(loop, name, device, duration_s=args.duration_s, catalogue=catalogue,
+            status = _run_console(loop, name, device, held, duration_s=args.duration_s, catalogue=catalogue,
                                   catalogue_name=args.objects)
     print(f"operator: {status.follows_sent} follow and {status.commands_sent} command message(s) sent"
           + (f"; last problem: {status.problem}" if status.problem else ""), file=sys.stderr)
@@ -155,32 +156,42 @@ def summary(name: str, status: LoopStatus) -> dict[str, Any]:
             "problem": status.problem or None}
 
 
-def _run_console(loop: OperatorLoop, name: str, device: object, *, duration_s: float | None,
+def _run_console(loop: OperatorLoop, name: str, device: object, held: _HeldLog, *, duration_s: float | None,
                  catalogue: tuple = (), catalogue_name: str = "the catalogue") -> LoopStatus:
     from haptics.console import OperatorConsole
 
     keyboard = device if getattr(device, "name", "") == "keyboard" else None
     app = OperatorConsole(loop, input_name=name, keyboard=keyboard, duration_s=duration_s, catalogue=catalogue,
                           catalogue_name=catalogue_name)
-    # Log lines written to the terminal would tear the screen: held while it runs, printed after.
-    held = _HeldLog(app)
-    root = logging.getLogger()
-    handlers = root.handlers[:]
-    for handler in handlers:
-        root.removeHandler(handler)
-    root.addHandler(held)
+    held.attach(app)
     try:
         with _sigterm_quits(app):
             app.run(mouse=False)
     finally:
         if app.stop_loop():  # the loop's sockets are this thread's only once its thread has ended
             loop.finish()
+    return loop.status
+
+
+@contextlib.contextmanager
+def _held_log() -> Iterator[_HeldLog]:
+    """Log lines written to the terminal would tear the screen: the root logger's records are held
+    from here on (the screen shows the last warning once :meth:`_HeldLog.attach` gives it one), and
+    printed when the block ends."""
+    held = _HeldLog()
+    root = logging.getLogger()
+    handlers = root.handlers[:]
+    for handler in handlers:
+        root.removeHandler(handler)
+    root.addHandler(held)
+    try:
+        yield held
+    finally:
         root.removeHandler(held)
         for handler in handlers:
             root.addHandler(handler)
         for record in held.records:
             root.handle(record)
-    return loop.status
 
 
 @contextlib.contextmanager
@@ -203,17 +214,26 @@ def _sigterm_quits(app: Any) -> Iterator[None]:
 
 class _HeldLog(logging.Handler):
     """Keeps the last :data:`HELD_LOG_RECORDS` log records while the screen runs, and shows the last
-    warning on ``app``'s screen (``log_note``): a refused handshake must not wait for the quit."""
+    warning on ``app``'s screen (``log_note``): a refused handshake must not wait for the quit. One
+    logged before the screen exists (as the sockets connect) is shown once it is attached."""
 
-    def __init__(self, app: Any) -> None:
+    def __init__(self, app: Any = None) -> None:
         super().__init__()
         self.app = app
+        self.note = ""  # the last warning
         self.records: collections.deque[logging.LogRecord] = collections.deque(maxlen=HELD_LOG_RECORDS)
+
+    def attach(self, app: Any) -> None:
+        """Show the last warning so far, and each one after, on ``app``'s screen."""
+        self.app = app
+        app.log_note = self.note
 
     def emit(self, record: logging.LogRecord) -> None:
         self.records.append(record)
         if record.levelno >= logging.WARNING:
-            self.app.log_note = f"{record.levelname.lower()}: {record.getMessage()}"
+            self.note = f"{record.levelname.lower()}: {record.getMessage()}"
+            if self.app is not None:
+                self.app.log_note = self.note
 
 
 def _run_headless(loop: OperatorLoop, name: str, *, duration_s: float | None) -> LoopStatus:

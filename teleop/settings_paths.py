@@ -33,11 +33,11 @@ CONFIG_DIR = config_dir()
 def resolve_path(value: str | os.PathLike[str], *, folder: Path | None = None) -> Path:
     """Where a path named in a settings or scene file points (``SensorSettings.calibration``,
     ``SimulationSettings.background``, ``BusSettings.keys_dir``, the estimator's ``model_path``, a
-    scene's ``settings`` and ``catalogue``): an absolute path as it is, a relative one against ``folder``, the folder of the
-    file that names it. Loading a file resolves its paths, so settings and the records made with
+    scene's ``settings`` and ``catalogue``): ``~`` expanded to the home folder, an absolute path as it is, a
+    relative one against ``folder``, the folder of the file that names it. Loading a file resolves its paths, so settings and the records made with
     them carry absolute ones; ``folder`` None (a path from settings built in code, or from a record
     of an older version) means :func:`config_dir`."""
-    path = Path(value)
+    path = Path(os.path.expanduser(value))  # ~/keys, as `teleop keys --help` writes it; an unknown ~user stays
     if path.is_absolute():
         return path
     return Path(os.path.normpath((config_dir() if folder is None else folder) / path))  # no "a/../"

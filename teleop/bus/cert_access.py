@@ -1,5 +1,9 @@
 """Reading CURVE certificates and keys folders, with the operating system's reason when one cannot be.
 
+A keys folder, its ``authorized/`` folder and a public certificate used in place must be writable by
+their owner alone (:func:`check_owner_writes`): another local user who may write them could authorise
+their own key or swap the server's public key, as ssh refuses such files.
+
 pyzmq calls a certificate it cannot see (missing, or in a folder this user may not search) an
 "Invalid certificate file"; these open it first, so a permission problem is said as one, naming
 the folder or file that blocks it, its owner and what to do (:mod:`teleop.bus.security`).
@@ -9,6 +13,7 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
 import stat
 from pathlib import Path
 
@@ -16,11 +21,14 @@ import zmq.auth
 
 from teleop.errors import BusSecurityError
 
-__all__ = ["CertificateAccessError", "access_error", "is_dir", "load_certificate"]
+__all__ = ["CertificateAccessError", "access_error", "check_owner_writes", "copy_public", "is_dir", "load_certificate"]
+
+PUBLIC_MODE = 0o644  # a public certificate: anyone may read it, its owner alone write it
 
 
 class CertificateAccessError(BusSecurityError):
-    """A certificate or keys folder this process may not read (its permissions, not its contents)."""
+    """A certificate or keys folder this process may not read, or others may write (its permissions, not
+    its contents)."""
 
 
 def _user_name(uid: int) -> str:
@@ -79,3 +87,22 @@ def is_dir(path: Path, what: str) -> bool:
         if exc.errno in (errno.ENOENT, errno.ENOTDIR):
             return False
         raise access_error(path, what, exc) from exc
+
+
+def check_owner_writes(path: Path, what: str) -> None:
+    """Refuse ``path`` when its group or other users may write it, naming the chmod that fixes it."""
+    try:
+        mode = stat.S_IMODE(os.stat(path).st_mode)
+    except OSError as exc:
+        raise access_error(path, what, exc) from exc
+    if mode & 0o022:
+        raise CertificateAccessError(
+            f"{what} {path} is writable by other users (mode {mode:04o}): any of them could authorise their "
+            f"own key or replace a public key; run chmod go-w {path}"
+        )
+
+
+def copy_public(source: Path | str, target: Path) -> None:
+    """Copy a public certificate to ``target``, writable by its owner alone whatever the umask."""
+    shutil.copyfile(source, target)
+    os.chmod(target, PUBLIC_MODE)

@@ -1,80 +1,174 @@
-"""A CURVE client's failed handshakes, said once per endpoint (libzmq itself says nothing).
+"""A bus socket's failed handshakes, said once per endpoint and outcome; endpoints libzmq gave up, reconnected.
 
-A client the server refuses gives that endpoint up (libzmq 4.3.5); one that trusts another
-server's key retries. :func:`watch_handshakes` reads the socket's monitor in a thread and warns
-once per endpoint that refused it, naming the certificates to check; only CURVE clients pay for
-it (:func:`teleop.bus.security.apply_security`).
+libzmq itself says nothing when a handshake fails. :func:`watch_handshakes` reads a socket's monitor
+in a thread and warns once per endpoint and outcome: on a CURVE client, a server that refuses its key
+or that is not the server whose key it trusts; on every socket, keyed or not, server or client, a peer
+whose security mechanism differs (one end has keys, the other none), so both ends say it.
+
+A connecting socket whose handshake was refused or broke the protocol is given up by libzmq
+(4.3.5) for good, so a right peer bound later is never heard. The watch notes that endpoint, and
+the socket's own thread (ZeroMQ sockets are not thread-safe) reconnects it every
+:data:`RECONNECT_S` (:meth:`HandshakeWatch.reconnect_due`) until a handshake succeeds.
 """
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import logging
 import threading
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import zmq
 from zmq.utils.monitor import recv_monitor_message
 
-__all__ = ["watch_handshakes"]
+from teleop.errors import BusError
+
+__all__ = ["RECONNECT_S", "HandshakeWatch", "watch_handshakes"]
 
 log = logging.getLogger(__name__)
 
+RECONNECT_S = 3.0  # how often a connecting socket retries an endpoint libzmq gave up
 _MONITORS = itertools.count()  # numbers the monitors' inproc addresses
-# What the watcher hears (MONITOR_STOPPED: the socket closed).
-_EVENTS = (zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
-           | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_MONITOR_STOPPED)
-# Why a handshake failed, and whether libzmq tries again: after a refusal or a protocol error
-# its client gives the endpoint up; after a dropped connection it reconnects.
-_FAILURES = {
-    zmq.EVENT_HANDSHAKE_FAILED_AUTH: ("the server does not authorise this client's key", False),
-    # a server drops a HELLO it cannot open, without a word: it was sealed for another server's key;
-    # a server that runs no CURVE may drop it too
-    zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL: (
-        "the server dropped the connection: it is not the server whose key this node trusts, or it runs "
-        "no CURVE (set bus.keys_dir on its host)", True),
-    zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL: (
-        "protocol error: the server may run no CURVE (set bus.keys_dir on its host)", False),
-}
-_GIVEN_UP = "this client gives the endpoint up: restart it once that is fixed"
+_MISMATCH = zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH  # one end runs CURVE, the other none
+# What a watcher hears (MONITOR_STOPPED: the socket closed). A server says only a mechanism mismatch:
+# its ZAP handler names a refused key itself (teleop.bus.security), a client a wrong server key.
+_CLIENT_EVENTS = (zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
+                  | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_MONITOR_STOPPED)
+_SERVER_EVENTS = zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_MONITOR_STOPPED
+# after these a libzmq client gives the endpoint up; after a dropped connection it retries itself
+_GIVES_UP = (zmq.EVENT_HANDSHAKE_FAILED_AUTH, zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL)
+_RECONNECTING = f"reconnecting every {RECONNECT_S:g} s"
+_KEYS_HELP = "`teleop keys --help`"
 
 
-def _report(monitor: zmq.Socket, server_cert: Path, client_cert: Path) -> None:
-    """Warn once per endpoint whose handshake fails, until the watched socket closes."""
-    warned: set[str] = set()
+@dataclass(frozen=True)
+class _Side:
+    """This end of the socket: whether it binds, and its keys folder (None: no CURVE)."""
+
+    server: bool
+    keys_dir: Path | None
+
+
+def _fix(side: _Side) -> str:
+    """How to end a mechanism mismatch, from this end."""
+    if side.keys_dir is None:
+        return (f"set bus.keys_dir in this process's settings (a forgotten --settings?) to the bus's keys "
+                f"folder (`teleop keys init`, {_KEYS_HELP})")
+    return (f"set bus.keys_dir in that peer's settings (a forgotten --settings?) to a copy of this bus's keys "
+            f"({side.keys_dir}; {_KEYS_HELP})")
+
+
+def _mismatch(endpoint: str, side: _Side) -> str:
+    peer = f"a peer on {endpoint}" if side.server else f"the peer at {endpoint}"  # a server's is its own address
+    if side.keys_dir is None:
+        return f"{peer} runs CURVE and this process runs none: {_fix(side)}"
+    return f"{peer} runs no CURVE and this process does (keys {side.keys_dir}): {_fix(side)}"
+
+
+def _warning(kind: int, value: int, endpoint: str, side: _Side) -> str:
+    """What to say about a failed handshake on ``endpoint``, the fix included."""
+    retry = "" if side.server else f"; {_RECONNECTING}"
+    if kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
+        if value == _MISMATCH:
+            return f"handshake on {endpoint} failed: {_mismatch(endpoint, side)}{retry}"
+        return (f"handshake on {endpoint} failed (protocol error {value:#x}): run the same software version "
+                f"and the same bus keys on both ends{retry}")
+    if side.keys_dir is None:  # a CURVE server that saw the mismatch first drops the connection
+        return (f"handshake on {endpoint} failed (the peer dropped the connection): it may run CURVE, and this "
+                f"process runs none: {_fix(side)}")
+    if kind == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
+        return (f"CURVE handshake with {endpoint} refused (the server does not authorise this client's key): "
+                f"authorise {side.keys_dir / 'client.key'} on the server (`teleop keys add` there, then restart "
+                f"the server){retry}")
+    # a server drops a HELLO it cannot open, without a word: it was sealed for another server's key (read
+    # once, at start); one without CURVE may drop it too, and libzmq retries either
+    return (f"CURVE handshake with {endpoint} refused (the server dropped the connection: it runs no CURVE (set "
+            f"bus.keys_dir in its settings), or it is not the server whose key this process trusts): check that "
+            f"{side.keys_dir / 'server.key'} is that server's public certificate; fix server.key, then restart "
+            "this process")
+
+
+class HandshakeWatch:
+    """The endpoints a socket's monitor thread saw libzmq give up, for the socket's own thread to reconnect."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._due: dict[str, float] = {}  # endpoint given up -> when to reconnect it (monotonic)
+
+    def gave_up(self, endpoint: str) -> None:
+        with self._lock:
+            self._due.setdefault(endpoint, time.monotonic() + RECONNECT_S)
+
+    def next_due_s(self) -> float | None:
+        """Seconds until the next reconnect is due; None when no endpoint is given up."""
+        if not self._due:  # the usual case, without taking the lock
+            return None
+        with self._lock:
+            return max(0.0, min(self._due.values()) - time.monotonic()) if self._due else None
+
+    def reconnect_due(self, socket: zmq.Socket) -> None:
+        """Reconnect each given-up endpoint whose time has come: call from ``socket``'s own thread.
+
+        Raises BusError when libzmq refuses to connect the endpoint again."""
+        if not self._due:
+            return
+        now = time.monotonic()
+        with self._lock:
+            due = [endpoint for endpoint, at in self._due.items() if at <= now]
+            for endpoint in due:
+                del self._due[endpoint]
+        for endpoint in due:
+            with contextlib.suppress(zmq.ZMQError):  # libzmq forgot it already: connecting is all it takes
+                socket.disconnect(endpoint)
+            try:
+                socket.connect(endpoint)
+            except zmq.ZMQError as exc:
+                raise BusError(f"cannot reconnect {endpoint} after a failed handshake: {exc}") from exc
+
+
+def _report(monitor: zmq.Socket, side: _Side, watch: HandshakeWatch) -> None:
+    """Warn once per endpoint and outcome, note what libzmq gave up, until the watched socket closes."""
+    warned: set[tuple[str, int, int]] = set()  # (endpoint, event, value): a few per endpoint at most
     try:
         while True:
             event = recv_monitor_message(monitor)
-            kind, endpoint = event["event"], event["endpoint"].decode("utf-8", "replace")
+            kind, value = event["event"], event["value"]
+            endpoint = event["endpoint"].decode("utf-8", "replace")
             if kind == zmq.EVENT_MONITOR_STOPPED:
                 return
             if kind == zmq.EVENT_HANDSHAKE_SUCCEEDED:
-                if endpoint in warned:
-                    warned.discard(endpoint)
-                    log.info("CURVE handshake with %s now succeeds", endpoint)
-            elif endpoint not in warned:
-                warned.add(endpoint)
-                reason, retried = _FAILURES.get(kind, (f"event {kind}", False))
-                log.warning(
-                    "CURVE handshake with %s refused (%s): check that %s is that server's public "
-                    "certificate and that this client's key (%s) is authorised on the server "
-                    "(`teleop keys add` there, then restart the server); %s",
-                    endpoint, reason, server_cert, client_cert, "retrying" if retried else _GIVEN_UP,
-                )
+                if any(seen[0] == endpoint for seen in warned):
+                    warned = {seen for seen in warned if seen[0] != endpoint}
+                    log.info("handshake with %s now succeeds", endpoint)
+                continue
+            if side.server and value != _MISMATCH:
+                continue  # a client with another server's key: it says so itself
+            if not side.server and kind in _GIVES_UP:
+                watch.gave_up(endpoint)
+            outcome = (endpoint, kind, value if kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL else 0)
+            if outcome not in warned:
+                warned.add(outcome)
+                log.warning("%s", _warning(kind, value, endpoint, side))
     except zmq.ZMQError:  # the context was terminated under it
         pass
     finally:
         monitor.close(linger=0)
 
 
-def watch_handshakes(socket: zmq.Socket, *, server_cert: Path, client_cert: Path) -> None:
-    """Report ``socket``'s failed handshakes from a thread reading its monitor (closing the
-    socket stops it); the warning names the certificates (public ``.key`` files) to check."""
+def watch_handshakes(socket: zmq.Socket, keys_dir: Path | None, *, server: bool) -> HandshakeWatch:
+    """Report ``socket``'s failed handshakes from a thread reading its monitor (closing the socket
+    stops it); call before it binds or connects. ``keys_dir``: its CURVE keys folder (None: no CURVE).
+    A connecting socket's user calls :meth:`HandshakeWatch.reconnect_due` from its own thread."""
     # our own PAIR, not get_monitor_socket's (it hands its one socket to every caller): a
     # later monitor replaces this one, and this thread then hears MONITOR_STOPPED and ends
-    address = f"inproc://teleop-curve-handshakes-{next(_MONITORS)}"
-    socket.monitor(address, _EVENTS)
+    address = f"inproc://teleop-handshakes-{next(_MONITORS)}"
+    socket.monitor(address, _SERVER_EVENTS if server else _CLIENT_EVENTS)
     monitor = socket.context.socket(zmq.PAIR)
     monitor.connect(address)
-    threading.Thread(target=_report, args=(monitor, server_cert, client_cert), name="curve-handshakes",
+    watch = HandshakeWatch()
+    threading.Thread(target=_report, args=(monitor, _Side(server, keys_dir), watch), name="bus-handshakes",
                      daemon=True).start()
+    return watch

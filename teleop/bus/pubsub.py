@@ -51,8 +51,8 @@ Pass ``security`` (:class:`~teleop.bus.security.BusSecurity`, e.g. from
 :func:`~teleop.bus.security.security_from_settings`) to run ZeroMQ CURVE: the binding end
 is the server and admits only authorised client keys, the connecting end authenticates
 the server. An endpoint reachable from other hosts refuses to start without it
-(:class:`~teleop.errors.BusSecurityError`). A refused handshake is logged as a warning on
-both ends, once, when both run CURVE (one end without keys: :mod:`teleop.bus.security`).
+(:class:`~teleop.errors.BusSecurityError`). A failed handshake is logged once per endpoint and
+outcome, and an endpoint a connecting socket gave up is reconnected (:mod:`teleop.bus.handshakes`).
 :meth:`Publisher.from_settings` and :meth:`Subscriber.from_settings` take the size limit,
 heartbeat period and keys from :class:`~teleop.settings.BusSettings`.
 
@@ -79,6 +79,7 @@ from typing import Any
 
 import zmq
 
+from teleop.bus.handshakes import HandshakeWatch, watch_handshakes
 from teleop.bus.peers import Heartbeat, Recent
 from teleop.bus.security import (
     CURVE_FRAME_OVERHEAD_BYTES,
@@ -134,10 +135,13 @@ class _Socket:
 
     _socket: zmq.Socket | None
     _release_security: Callable[[], None] = staticmethod(lambda: None)  # set by _secure
+    _handshakes: HandshakeWatch | None = None  # set by _secure
 
     def _live(self) -> zmq.Socket:
         if self._socket is None:
             raise BusError(f"{type(self).__name__} on {self.endpoint_text} is closed")
+        if self._handshakes is not None:  # here, on the socket's own thread: sockets are not thread-safe
+            self._handshakes.reconnect_due(self._socket)
         return self._socket
 
     @property
@@ -152,8 +156,11 @@ class _Socket:
             self._release_security()  # after close: the ZAP handler outlives the socket
 
     def _secure(self, socket: zmq.Socket, security: BusSecurity | None, *, server: bool) -> None:
-        """CURVE on ``socket`` before it binds or connects (see :mod:`teleop.bus.security`)."""
+        """CURVE on ``socket`` before it binds or connects (see :mod:`teleop.bus.security`), and its
+        handshakes watched (:mod:`teleop.bus.handshakes`): a failure is logged, and an endpoint libzmq
+        gave up is reconnected when the socket is next used."""
         self._release_security = apply_security(socket, security, server=server)
+        self._handshakes = watch_handshakes(socket, None if security is None else security.keys_dir, server=server)
 
     def _abandon(self, socket: zmq.Socket, exc: Exception, what: str, setting: str = "") -> BusError:
         """Close a socket whose setup failed; the error to raise for ``exc`` (``setting``: the
@@ -523,7 +530,14 @@ class Subscriber(_Socket):
             if looked and remaining is not None and remaining <= 0:
                 return None
             looked = True
-            if not socket.poll(_ms(None if remaining is None else max(0.0, remaining))):
+            wait = None if remaining is None else max(0.0, remaining)
+            # an endpoint libzmq gave up is reconnected by _live, from this thread: wake for it
+            retry_in = None if self._handshakes is None else self._handshakes.next_due_s()
+            if retry_in is not None and (wait is None or retry_in < wait):
+                if not socket.poll(_ms(retry_in)):
+                    self._live()
+                    continue
+            elif not socket.poll(_ms(wait)):
                 return None
             if not self.conflate:
                 message = self._accept(socket.recv_multipart(copy=False))

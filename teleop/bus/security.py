@@ -18,11 +18,10 @@ one ZAP handler per ZeroMQ context (:class:`zmq.auth.thread.ThreadAuthenticator`
 domain per directory). The socket that connects is the *client*: it has its own key pair
 and trusts only the server public key it was given, so it neither talks to an impostor nor
 is admitted without authorisation. A peer that fails either check gets nothing and
-delivers nothing: a client the server refuses gives that endpoint up, one that trusts
-another server key retries. When both ends run CURVE, both say so, once: the server logs the refused client's
-public key, the client (watching its socket's monitor) the endpoint that refused it. When only
-one end has keys, only a CURVE client says it (the server may run no CURVE); a client without
-keys facing a CURVE server hears nothing and neither end says why: set ``bus.keys_dir`` on every host.
+delivers nothing. When both ends run CURVE, both say so, once: the server logs the refused client's
+public key, the client the endpoint that refused it. When only one end has keys, both ends say
+that the mechanisms differ (:mod:`teleop.bus.handshakes`, which also reconnects an endpoint a
+client gave up): set ``bus.keys_dir`` on every host.
 The directory is read when a server socket is created, and a file in it that is not a
 public certificate stops that server from starting; authorising or revoking a key takes
 effect when the servers restart.
@@ -39,7 +38,7 @@ Made by ``teleop keys init DIR`` (see :mod:`teleop.bus.keys_cli`)::
     DIR/authorized/*.key   public certificates of the clients the servers admit
 
 Certificates are the czmq/pyzmq text format (:func:`zmq.auth.create_certificates`).
-A secret certificate readable by other users is refused, as ssh refuses such keys.
+A secret certificate other users may read is refused, as ssh refuses such keys; so are folders and public certificates they may write.
 """
 
 from __future__ import annotations
@@ -63,8 +62,8 @@ import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 from zmq.utils import z85
 
+from teleop.bus import cert_access
 from teleop.bus.cert_access import CertificateAccessError, access_error, is_dir, load_certificate
-from teleop.bus.handshakes import watch_handshakes
 from teleop.endpoints import parse_endpoint
 from teleop.errors import BusError, BusSecurityError
 from teleop.settings import BusSettings
@@ -182,9 +181,11 @@ def _check_z85(key: bytes, path: Path, which: str) -> bytes:
     return key
 
 
-def _read_public_cert(path: Path) -> bytes:
-    """The public key of a public certificate; refuses a file that holds a secret key."""
+def _read_public_cert(path: Path, *, in_place: bool = True) -> bytes:
+    """A public certificate's key; refuses a secret one, or one used ``in_place`` that others may write."""
     public, secret = load_certificate(path, "CURVE certificate")
+    if in_place:
+        cert_access.check_owner_writes(path, "CURVE certificate")
     if secret is not None:
         raise BusSecurityError(
             f"{path} holds a secret key: pass the public certificate (.key), never the .key_secret"
@@ -241,6 +242,7 @@ class BusSecurity:
                                    "bus.keys_dir to the directory `teleop keys init DIR` made")
         if not found:
             raise BusSecurityError(f"CURVE keys directory {directory} does not exist: {_FIX_HINT}")
+        cert_access.check_owner_writes(directory, "CURVE keys directory")
         server_public = _read_public_cert(directory / f"{SERVER_CERT}{PUBLIC_SUFFIX}")
         client_public = _read_public_cert(directory / f"{CLIENT_CERT}{PUBLIC_SUFFIX}")
         server_secret_path = directory / f"{SERVER_CERT}{SECRET_SUFFIX}"
@@ -291,6 +293,7 @@ def read_authorized(authorized_dir: Path) -> tuple[AuthorizedKey, ...]:
         os.listdir(authorized_dir)
     except OSError as exc:
         raise access_error(authorized_dir, "authorised-keys directory", exc) from exc
+    cert_access.check_owner_writes(authorized_dir, "authorised-keys directory")
     keys = []
     for path in sorted(authorized_dir.glob(f"*{PUBLIC_SUFFIX}")):
         try:
@@ -428,7 +431,6 @@ def apply_security(
 
     Call before binding or connecting. A server leases the context's ZAP handler; the
     returned function gives the lease back and must be called once the socket is closed.
-    A client logs a warning when a server refuses its handshake.
 
     Raises
     ------
@@ -444,8 +446,6 @@ def apply_security(
             socket.curve_serverkey = security.server_public_key
             socket.curve_publickey = security.client_public_key
             socket.curve_secretkey = security.client_secret_key
-            watch_handshakes(socket, server_cert=security.keys_dir / f"{SERVER_CERT}{PUBLIC_SUFFIX}",
-                             client_cert=security.keys_dir / f"{CLIENT_CERT}{PUBLIC_SUFFIX}")
             return _nothing
         socket.curve_server = True
         socket.curve_publickey = security.server_public_key
@@ -506,7 +506,7 @@ def init_keys(
         ``keys_dir`` already holds keys, or ``server_cert`` is not a public certificate.
     """
     directory = Path(keys_dir)
-    server_public = None if server_cert is None else _read_public_cert(Path(server_cert))
+    server_public = None if server_cert is None else _read_public_cert(Path(server_cert), in_place=False)
     try:
         names = (f"{n}{s}" for n in (SERVER_CERT, CLIENT_CERT) for s in (PUBLIC_SUFFIX, SECRET_SUFFIX))
         existing = [p for p in (directory / name for name in names) if p.exists()]
@@ -533,9 +533,9 @@ def init_keys(
         finally:
             shutil.rmtree(staging, ignore_errors=True)
         if server_cert is not None:
-            shutil.copyfile(server_cert, directory / f"{SERVER_CERT}{PUBLIC_SUFFIX}")
+            cert_access.copy_public(server_cert, directory / f"{SERVER_CERT}{PUBLIC_SUFFIX}")
         (directory / AUTHORIZED_DIR).mkdir(mode=0o755)
-        shutil.copyfile(
+        cert_access.copy_public(
             directory / f"{CLIENT_CERT}{PUBLIC_SUFFIX}",
             directory / AUTHORIZED_DIR / f"{CLIENT_CERT}{PUBLIC_SUFFIX}",
         )
@@ -559,7 +559,7 @@ def authorize_key(
     """
     cert = Path(cert)
     name = _check_name(cert.stem if name is None else name)
-    public = _read_public_cert(cert).decode("ascii")
+    public = _read_public_cert(cert, in_place=False).decode("ascii")
     listing = list_keys(keys_dir)
     for known in listing.authorized:
         if known.name == name:
@@ -570,7 +570,7 @@ def authorize_key(
             raise BusSecurityError(f"{cert} is already authorised in {keys_dir} as {known.name!r}")
     target = Path(keys_dir) / AUTHORIZED_DIR / f"{name}{PUBLIC_SUFFIX}"
     try:
-        shutil.copyfile(cert, target)
+        cert_access.copy_public(cert, target)
     except OSError as exc:
         raise BusSecurityError(f"cannot write {target}: {exc}") from exc
     return AuthorizedKey(name, public)

@@ -39,6 +39,7 @@ from typing import Any
 import foxglove
 
 from teleop.bus.pubsub import Subscriber
+from teleop.bus.security import is_loopback
 from teleop.bus.wire import Message, now_ns
 from teleop.errors import BusError
 from teleop.session.foxglove import (
@@ -124,6 +125,9 @@ class LiveServer:
     ------
     BusError
         The server cannot start (the port is taken, the host is not this machine's).
+
+    A host other hosts can reach (``0.0.0.0``, a LAN address) is served with a warning: the view is
+    neither encrypted nor authenticated.
     """
 
     def __init__(
@@ -151,6 +155,12 @@ class LiveServer:
             self._close_channels()
             raise BusError(f"cannot serve the Foxglove live view on {host}:{port}: {exc}") from exc
         self.host = host
+        if not is_loopback(f"tcp://[{host}]:*" if ":" in host else f"tcp://{host}:*"):
+            # the bus refuses such an endpoint without CURVE keys; this view has none to run
+            log.warning("the Foxglove live view %s is reachable from other hosts, unencrypted and without "
+                        "authentication (the bus's CURVE keys do not cover it): anyone on the network can watch the "
+                        "bus's data; serve it on 127.0.0.1 and reach it through an SSH tunnel (ssh -L %d:127.0.0.1:%d "
+                        "THIS-HOST) unless this network is trusted", self.url, self.port, self.port)
 
     @property
     def port(self) -> int:

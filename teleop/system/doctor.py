@@ -395,6 +395,15 @@ def _keys_check(settings: Settings, endpoints: list[Check]) -> Check | None:
                 return Check("bus keys", False, problem=(
                     f"{keys.authorized_dir} holds no client keys: no client can connect, this host's own "
                     "processes included; authorise each one's client.key with `teleop keys add`"), detail=detail)
+            if keys.client_public_key.decode("ascii") not in {c.public_key for c in clients}:
+                own = keys.keys_dir / f"{security.CLIENT_CERT}{security.PUBLIC_SUFFIX}"
+                unauthorised = f"this host's client key {own} is not authorised in {keys.authorized_dir}"
+                if all(c.detail["here"] for c in endpoints):  # every peer is this host's: they refuse each other
+                    return Check("bus keys", False, problem=(
+                        f"{unauthorised}, and every endpoint is bound on this host: its processes refuse each "
+                        f"other; run `teleop keys add {keys.keys_dir} {own}`, then restart the servers"),
+                        detail=detail)
+                detail["note"] += f"; {unauthorised}: this host's own processes cannot connect to what it binds"
     except BusSecurityError as exc:  # says what to do itself
         return Check("bus keys", False, problem=str(exc))
     return Check("bus keys", True, detail=detail)

@@ -1,0 +1,112 @@
+"""One end without keys: both ends say the mechanisms differ, and a keyed subscriber whose endpoint an
+unkeyed publisher held hears the keyed one bound there afterwards (teleop.bus.handshakes)."""
+
+from __future__ import annotations
+
+import logging
+import struct
+import threading
+import time
+
+import pytest
+import zmq
+from support.bus import HEARD_WITHIN_S, delivered
+
+from teleop.bus import Publisher, Subscriber
+
+LOOPBACK = "tcp://127.0.0.1:*"
+RECONNECT_S = 3.0  # teleop.bus.handshakes.RECONNECT_S
+CLIENT_SAYS = "runs no CURVE and this process does"
+UNKEYED_SAYS = "runs CURVE and this process runs none"
+
+
+@pytest.fixture
+def handshake_log(caplog):
+    caplog.set_level(logging.INFO, logger="teleop.bus.handshakes")
+    return caplog
+
+
+def _warnings(caplog, *wanted: str, within_s: float = HEARD_WITHIN_S) -> list[str]:
+    """The handshake warnings once each ``wanted`` text is in one (or ``within_s`` passed)."""
+    deadline = time.monotonic() + within_s
+    while True:
+        texts = [r.getMessage() for r in caplog.records
+                 if r.name == "teleop.bus.handshakes" and r.levelno == logging.WARNING]
+        if all(any(w in t for t in texts) for w in wanted) or time.monotonic() > deadline:
+            return texts
+        time.sleep(0.02)
+
+
+def _bind_again(endpoint: str, keys) -> Publisher:
+    """A keyed publisher on ``endpoint`` once the closed one's listener is gone (libzmq closes it
+    on its I/O thread)."""
+    deadline = time.monotonic() + HEARD_WITHIN_S
+    while True:
+        try:
+            return Publisher(endpoint, lossless=False, source="console", security=keys)
+        except Exception:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+
+
+def test_a_keyed_subscriber_hears_a_keyed_publisher_bound_after_an_unkeyed_one_left(keys, handshake_log):
+    unkeyed = Publisher(LOOPBACK, lossless=False, source="console")  # a console started without keys
+    endpoint = unkeyed.endpoint
+    with Subscriber(endpoint, ["force"], security=keys) as sub:
+        _warnings(handshake_log, endpoint)  # the keyed subscriber met it (libzmq gives the endpoint up)
+        sub.recv(timeout_s=RECONNECT_S + 0.5)  # it reconnects meanwhile, and meets the mismatch again
+        unkeyed.close()
+        with _bind_again(endpoint, keys) as keyed:
+            assert delivered(keyed, sub, within_s=HEARD_WITHIN_S + RECONNECT_S) is not None
+    texts = _warnings(handshake_log, CLIENT_SAYS, UNKEYED_SAYS)
+    client = [t for t in texts if CLIENT_SAYS in t]
+    assert len(client) == 1, texts  # said once, however often it reconnected
+    assert f"the peer at {endpoint}" in client[0] and "bus.keys_dir" in client[0]
+    assert client[0].endswith(f"reconnecting every {RECONNECT_S:g} s")
+    server = [t for t in texts if UNKEYED_SAYS in t]
+    assert server and f"a peer on {endpoint}" in server[0] and "teleop keys init" in server[0], texts
+
+
+def test_an_unkeyed_subscriber_and_a_keyed_publisher_both_say_the_mechanisms_differ(keys, handshake_log):
+    with (
+        Publisher(LOOPBACK, lossless=False, source="robot", security=keys) as pub,
+        Subscriber(pub.endpoint, ["force"]) as sub,  # e.g. `teleop record` without --settings
+    ):
+        assert delivered(pub, sub, within_s=1.0) is None
+        texts = _warnings(handshake_log, CLIENT_SAYS, UNKEYED_SAYS)
+    keyed = [t for t in texts if CLIENT_SAYS in t]
+    assert keyed and f"a peer on {pub.endpoint}" in keyed[0] and str(keys.keys_dir) in keyed[0], texts
+    unkeyed = [t for t in texts if UNKEYED_SAYS in t]
+    assert unkeyed and f"the peer at {pub.endpoint}" in unkeyed[0] and "set bus.keys_dir" in unkeyed[0], texts
+    assert len(keyed) == 1 and len(unkeyed) == 1  # once per endpoint and outcome, however often it retries
+
+
+def _event(monitor: zmq.Socket, kind: int, value: int, endpoint: str) -> None:
+    monitor.send_multipart([struct.pack("=HI", kind, value), endpoint.encode()])
+
+
+def test_a_give_up_after_a_retried_failure_is_said_too_and_the_endpoint_is_due_for_reconnecting(handshake_log):
+    from teleop.bus import handshakes
+    from teleop.bus.handshakes import HandshakeWatch, _report, _Side
+
+    assert handshakes.RECONNECT_S == RECONNECT_S  # what the live tests wait for
+    context = zmq.Context.instance()
+    feed, monitor = context.socket(zmq.PAIR), context.socket(zmq.PAIR)
+    feed.bind("inproc://test-handshake-events")
+    monitor.connect("inproc://test-handshake-events")
+    watch = HandshakeWatch()
+    reader = threading.Thread(target=_report, args=(monitor, _Side(server=False, keys_dir=None), watch))
+    reader.start()
+    endpoint = "tcp://127.0.0.1:1"
+    try:
+        _event(feed, zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL, 0, endpoint)  # libzmq retries this one
+        _event(feed, zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL, zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH, endpoint)
+        _event(feed, zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL, zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH, endpoint)
+    finally:
+        _event(feed, zmq.EVENT_MONITOR_STOPPED, 0, "")
+        reader.join(timeout=HEARD_WITHIN_S)
+        feed.close(linger=0)
+    texts = _warnings(handshake_log, within_s=0)
+    assert len(texts) == 2 and "dropped the connection" in texts[0] and UNKEYED_SAYS in texts[1], texts
+    assert 0 < watch.next_due_s() <= RECONNECT_S  # given up: the socket's thread reconnects it
