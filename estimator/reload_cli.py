@@ -9,7 +9,11 @@ service answered within ``--timeout-s`` (or the folder or the endpoints are unus
 
 The service listens for commands on ``bus.command`` (the operator's: a console or ``teleop
 demo`` holds it) and on ``bus.control``, which this command binds while it runs, so it works while
-an operator operates. Copying new files into the folder the service serves works too: it switches
+an operator operates. Every estimator service subscribed to ``bus.control`` takes the request and
+switches (or refuses) on its own, but only the one on ``bus.estimate_pub`` is heard answering: the
+answer says how many took it (``services``, counted by their subscriptions to ``load_model``), so a
+second service (one serving another model for a side-by-side comparison) is never switched
+unawares; give each service its own ``--control`` to switch one alone. Copying new files into the folder the service serves works too: it switches
 once both files have stopped changing.
 
 Until the service's subscription to the control endpoint has connected, a message sent there is
@@ -36,7 +40,7 @@ from teleop.errors import BusAddressInUseError, BusError, TeleopError
 from teleop.live import add_endpoint_arguments, bus_from_args
 from teleop.settings import BusSettings, default_settings_path, load_settings
 
-__all__ = ["JOIN_S", "RESEND_S", "reload_model"]
+__all__ = ["JOIN_S", "RESEND_S", "reload_model", "services_reached"]
 
 RESEND_S = 0.5
 # Peers reconnect to a freshly bound endpoint every 0.1 s (ZeroMQ's default): once the service has
@@ -53,7 +57,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "model: it loads and checks the model while it serves, switches between grasps and answers; the "
         "model in use stays when the new one fails. Exit status 0 when loaded, 1 when refused (the reason "
         "is printed), 2 when no service answered. Sends on the control endpoint, so an operator console "
-        "may hold the command endpoint meanwhile."
+        "may hold the command endpoint meanwhile. Every estimator service on the control endpoint switches "
+        "(the answer counts them: services); give each service its own --control to switch one alone."
     )
     parser.add_argument("--model", metavar="DIR", required=True,
                         help="the model folder (model.onnx and metadata.json) on the service's host; a "
@@ -65,8 +70,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="how long to wait for the service's answer; it answers after the grasp open "
                              "now, if any, has ended")
     parser.add_argument("--json", action="store_true",
-                        help="print the answer as one JSON object (event, request, model, path, reason) as "
-                             "the last stdout line")
+                        help="print the answer as one JSON object (event, request, model, path, reason, and "
+                             "services: how many estimator services took the request) as the last stdout line")
 
 
 def reload_model(path: str, *, command: Publisher, answers: Subscriber, timeout_s: float = DEFAULT_TIMEOUT_S,
@@ -106,6 +111,12 @@ def reload_model(path: str, *, command: Publisher, answers: Subscriber, timeout_
             return message.fields
 
 
+def services_reached(command: Publisher) -> int:
+    """How many estimator services subscribe to ``load_model`` on ``command`` now: each takes a request
+    sent there (a recorder, subscribed to every topic, is not counted)."""
+    return command.subscriptions("load_model")
+
+
 def _control_publisher(bus: BusSettings) -> Publisher:
     """Bind the control endpoint, waiting up to :data:`BIND_WAIT_S` for a reload that just ended.
 
@@ -138,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
         raise TeleopError(f"cannot listen to the estimator service on {bus.estimate_pub}: {exc}") from exc
     with answers, _control_publisher(bus) as command:
         answer = reload_model(path, command=command, answers=answers, timeout_s=args.timeout_s)
+        services = max(1, services_reached(command))  # the one that answered, gone since, still took it
     loaded = answer.event == "loaded"
     if loaded:
         print(f"estimator reload: the service serves {answer.model} ({answer.path}) from its next grasp on",
@@ -145,6 +157,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"estimator reload: refused {answer.path}: {answer.reason}; the service keeps "
               f"{answer.model or 'no model'}", file=sys.stderr)
+    if services > 1:
+        print(f"estimator reload: {services} estimator services subscribe to {bus.control}: every one took this "
+              f"load_model and switches (or refuses) on its own; only the one on {bus.estimate_pub} answered here "
+              "(see the others' logs); give each service its own --control to switch one alone", file=sys.stderr)
     if args.json:
-        print(json.dumps(answer.as_dict()))
+        print(json.dumps({**answer.as_dict(), "services": services}))
     return 0 if loaded else 1

@@ -153,9 +153,12 @@ def _ago(seconds: float | None) -> str:
 
 
 def _peer_line(peer: Any) -> str:
-    """UP, DOWN, or WAIT for a robot node heard alive whose subscription to our commands is not open yet."""
+    """UP, DOWN, WAIT for a robot node heard alive whose subscription to our commands is not open yet, or
+    MANY while more than one robot node subscribes (driving refused)."""
     if peer.alive and peer.subscribed is False:
         return f"WAIT  {peer.name:<11} not subscribed yet"  # heard: its ago is not the news
+    if peer.alive and (peer.nodes or 0) > 1:
+        return f"MANY  {peer.nodes} robot nodes subscribe"
     return f"{'UP  ' if peer.alive else 'DOWN'}  {peer.name:<11} {_ago(peer.seen_ago_s)}"
 
 

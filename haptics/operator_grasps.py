@@ -1,7 +1,8 @@
 """What the operator's loop (:mod:`haptics.operator_loop`) knows of grasps from the robot's side.
 
 :class:`DiscreteGrasps` tracks the discrete grasps the loop commanded and does not know over; the
-functions say whether the robot node can be driven (:func:`unreachable`), whether the robot releases
+functions say whether the robot node can be driven (:func:`unreachable`; why not, when more than one
+robot node subscribes to the commands: :func:`crowded`), whether the robot releases
 a grasp already (:func:`releasing`) and whether the grasp shown is over for the operator
 (:func:`over`).
 """
@@ -13,7 +14,9 @@ from typing import Any
 
 from haptics.operator_link import OperatorView
 
-__all__ = ["DiscreteGrasps", "over", "releasing", "unreachable"]
+CROWDED = "driving refused: "  # how the notice of :func:`crowded` begins
+
+__all__ = ["CROWDED", "DiscreteGrasps", "crowded", "over", "releasing", "unreachable"]
 
 
 class DiscreteGrasps:
@@ -76,9 +79,21 @@ class DiscreteGrasps:
 
 def unreachable(view: OperatorView) -> bool:
     """Whether the link hears the robot node down, or not subscribed to the commands: a follow now
-    would reach no one, and one held until it is heard would drive it unawares."""
+    would reach no one, and one held until it is heard would drive it unawares; or more than one
+    robot node subscribed (:func:`crowded`): the others would move unwatched, and one held until
+    they go would drive the one left unawares."""
     peer = view.peer("robot node")
-    return peer is not None and (not peer.alive or peer.subscribed is False)
+    return peer is not None and (not peer.alive or peer.subscribed is False or (peer.nodes or 0) > 1)
+
+
+def crowded(view: OperatorView) -> str:
+    """The notice, while more than one robot node subscribes to the commands, that driving is
+    refused; "" while at most one does."""
+    peer = view.peer("robot node")
+    if peer is None or (peer.nodes or 0) < 2:
+        return ""
+    return (f"{CROWDED}{peer.nodes} robot nodes subscribe to the commands: each would move; stop all but one "
+            "(a node on another bus.robot_pub still takes bus.command), then let go of the enable and hold it again")
 
 
 def releasing(robot: Any, grasp_id: str | None) -> bool:

@@ -36,7 +36,10 @@ command publisher is lossless (commands are never dropped silently) with a short
 that fails raises, and :class:`~haptics.operator_loop.OperatorLoop` shows it instead of stopping.
 A ``follow`` or ``command`` is refused the same way while the robot node's subscription has not
 reached the command endpoint (it is down or still connecting): sent then, it would reach no one.
-The view's robot peer says whether it has (``Peer.subscribed``).
+The view's robot peer says whether it has (``Peer.subscribed``), and how many robot nodes subscribe
+(``Peer.nodes``, :meth:`OperatorLink.robot_nodes`): a second node on another ``bus.robot_pub`` takes
+every command too, a gripper nobody watches or records, so while more than one does a
+``start_grasp`` or a follow with the enable is refused (those that stop the fingers still go).
 
 The loop that drives the gripper from an input device over this link is
 :class:`~haptics.operator_loop.OperatorLoop` (:mod:`haptics.operator_loop`).
@@ -79,6 +82,9 @@ ENDING_NOTICES = ("watchdog",)  # robot_notice events that say the robot ended a
 LIVENESS_PERIODS = 3.0  # a peer unheard for this many heartbeat periods is shown dead (as Heartbeat.is_alive)
 SEND_TIMEOUT_S = 0.05  # a lossless send waits at most this long for room
 MAX_DRAIN = 500  # messages taken per poll, so a flood cannot starve the loop
+# The command topic only a robot node subscribes to ("command" is the estimator's too, the recorder takes ""):
+# its subscriptions count the robot nodes.
+ROBOT_ONLY_TOPIC = "follow"
 REFUSED_STARTS_KEPT = 32  # refused start_grasp ids kept: far more than an operator presses between two polls
 
 
@@ -91,6 +97,7 @@ class Peer:
     alive: bool
     seen_ago_s: float | None  # seconds since last heard from; None: never
     subscribed: bool | None = None  # the robot node: its subscription reached our commands; None: not asked
+    nodes: int | None = None  # the robot node: how many robot nodes subscribe to our commands; None: not asked
 
 
 @dataclass(frozen=True)
@@ -230,23 +237,33 @@ class OperatorLink:
         """Whether the robot node's subscription to our commands is open (a send before is lost)."""
         return all(self.publisher.subscriptions(topic) for topic in NODE_COMMAND_TOPICS)
 
-    def _check_robot_subscribed(self, what: str) -> None:
+    def robot_nodes(self) -> int:
+        """How many robot nodes subscribe to our commands now (the estimator and recorder not counted)."""
+        return self.publisher.subscriptions(ROBOT_ONLY_TOPIC)
+
+    def _check_robot_subscribed(self, what: str, *, drives: bool) -> None:
         if not self.robot_subscribed():
             raise BusError(f"the robot node has not subscribed to {self.publisher.endpoint} yet (it is down, or "
                            f"still connecting): a {what} now would reach no one")
+        if drives and (nodes := self.robot_nodes()) > 1:
+            raise BusError(f"{nodes} robot nodes subscribe to the commands on {self.publisher.endpoint}: a {what} "
+                           "now would drive every one; stop all but one (each node on its own bus.robot_pub "
+                           "still takes bus.command)")
 
     def follow(self, target_width_m: float, *, enable: bool, grasp_id: str | None = None) -> None:
         """Send one ``follow``: the fingers' target width (m), the dead-man enable and the grasp's id.
-        BusError when the robot node is not subscribed (:meth:`robot_subscribed`)."""
-        self._check_robot_subscribed("follow")
+        BusError when the robot node is not subscribed (:meth:`robot_subscribed`), or with ``enable``
+        when more than one is (:meth:`robot_nodes`)."""
+        self._check_robot_subscribed("follow", drives=enable)
         self.publisher.send("follow", t_capture_s=self.clock(), grasp_id=grasp_id,
                             target_width_m=float(target_width_m), enable=bool(enable))
         self.follows_sent += 1
 
     def command(self, action: str, *, grasp_id: str | None = None, **params: float) -> None:
         """Send one ``command`` (``start_grasp``, ``stop``, ``release``) with numeric ``params``.
-        BusError when the robot node is not subscribed (:meth:`robot_subscribed`)."""
-        self._check_robot_subscribed(action)
+        BusError when the robot node is not subscribed (:meth:`robot_subscribed`), or for a
+        ``start_grasp`` when more than one is (:meth:`robot_nodes`)."""
+        self._check_robot_subscribed(action, drives=action == "start_grasp")
         self.publisher.send("command", t_capture_s=self.clock(), action=action, grasp_id=grasp_id,
                             params={k: float(v) for k, v in params.items()})
         self.commands_sent += 1
@@ -365,8 +382,8 @@ class OperatorLink:
                 alive = heartbeat.is_alive(source, now_s=now)
             except BusError:  # heard from, but no period announced yet: the bus's
                 alive = heartbeat.is_alive(source, timeout_s=LIVENESS_PERIODS * self.heartbeat_s, now_s=now)
-            subscribed = self.robot_subscribed() if source == "robot" else None
-            peers.append(Peer(name, source, alive, max(0.0, now - last), subscribed))
+            subscribed, nodes = (self.robot_subscribed(), self.robot_nodes()) if source == "robot" else (None, None)
+            peers.append(Peer(name, source, alive, max(0.0, now - last), subscribed, nodes))
         return tuple(peers)
 
     def _snapshot(self) -> OperatorView:

@@ -40,7 +40,9 @@ of both and the status it shows: :mod:`haptics.operator_status`; the grasps it t
   took it refuses follows naming none);
 * an enable first held while the robot node is down or has not subscribed to the commands drives
   nothing, then or once the node is heard, until it has been let go and held again: the operator
-  holds it anew knowing the node is there;
+  holds it anew knowing the node is there; so too while more than one robot node subscribes (a node
+  on another ``robot_pub``: it would move unwatched): the status's problem says so, ``grasp`` is
+  refused, and a held enable is suspended;
 * after ``stop``, ``release`` or ``next``, and when the robot ends the follow grasp (released,
   the watchdog: its ``grasp_event`` end or its ``watchdog`` notice naming the grasp), no follow goes out until the enable has been let go and held again: a held
   enable never moves the fingers again, nor starts a new grasp, by itself;
@@ -70,7 +72,7 @@ from typing import Any
 
 from haptics.errors import HapticsError
 from haptics.operator_device import RECONNECT_S, DeviceReader
-from haptics.operator_grasps import DiscreteGrasps, over, releasing, unreachable
+from haptics.operator_grasps import CROWDED, DiscreteGrasps, crowded, over, releasing, unreachable
 from haptics.operator_link import LIVENESS_PERIODS, OperatorView
 from haptics.operator_status import InputDevice, Link, LoopStatus
 from teleop.bus.messages import LabelBody
@@ -149,6 +151,7 @@ class OperatorLoop:
         self._robot_up = False  # the robot node was heard alive at the last step
         self._robot_restarts = 0  # the link's count of robot node restarts at the last step
         self._unreachable = False  # the robot node was down or not subscribed at the last step
+        self._crowded = ""  # the notice while more than one robot node subscribed at the last step
         self._input: Any = None
         self._reader = DeviceReader(device, clock, act=self._act, trouble=self._trouble, resolved=self._resolved)
         self._target_m: float | None = None
@@ -194,7 +197,8 @@ class OperatorLoop:
         # Not before the node hears our commands: an enable it held before would drive nothing (_drive).
         waiting = self.device.waits_for_robot and unreachable(self.link.view)
         if waiting and not self._waiting:
-            self._act("waiting for the robot node: the input device is read once the node is heard")
+            self._act("waiting for the robot node: the input device is read once the node is heard"
+                      + (" alone" if crowded(self.link.view) else ""))
         self._waiting = waiting
         if not waiting:
             reading, gap = self._reader.read(self._input)
@@ -357,7 +361,9 @@ class OperatorLoop:
         if enable and not self._enable and unreachable(self.link.view):
             # Held now, it would drive the node the moment it is heard, the operator unaware: held anew then.
             self._rearm, enable = True, False
-            self._act("enable held while the robot node is down or not subscribed: let go of it and hold it "
+            self._act("enable held while more than one robot node subscribes: let go of it and hold it again "
+                      "once one remains" if crowded(self.link.view) else
+                      "enable held while the robot node is down or not subscribed: let go of it and hold it "
                       "again once the node is heard")
         if enable and not self._enable:
             self._lost_follow = None
@@ -418,12 +424,20 @@ class OperatorLoop:
         self._robot_restarts = view.robot_restarts
         view = self.link.view
         self._robot_up = view.alive("robot node")
+        if self._crowded != (now_crowded := crowded(view)):
+            if now_crowded:
+                self._trouble(now_crowded)
+            else:
+                self._resolved(CROWDED)
+                self._act("no more than one robot node subscribes to the commands now")
+            self._crowded = now_crowded
         if self._unreachable and not unreachable(view):
             self._resolved(_UNSENT_ON_THE_BUS)  # the node's subscription is back: what it refused is past
         elif not self._unreachable and unreachable(view) and self._enable and not self._rearm:
             # Its subscription goes before its liveness: a node killed and started again at once
             # would otherwise take the held enable's follows before its restart is heard.
-            self._act("the robot node no longer hears the console")
+            self._act("more than one robot node hears the console" if now_crowded
+                      else "the robot node no longer hears the console")
             self._suspend()
         self._unreachable = unreachable(view)
         if view.phase == "ended" and not view.alive("estimator"):

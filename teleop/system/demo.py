@@ -23,6 +23,7 @@ estimate). The live lines and the closing table are in :mod:`teleop.system.demo_
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -58,6 +59,8 @@ __all__ = [
     "scene_plan",
 ]
 
+RUN_NAME_TRIES = 100  # default run folders tried in one second: far more runs than are started at once
+
 
 def scene_plan(scene_name: str, n_grasps: int | None = None) -> list[tuple[int, ObjectSpec]]:
     """(object index, object) of each grasp: the scene's objects repeated ``grasps_per_object``
@@ -84,6 +87,36 @@ def check_objects_fit(scene: Scene, settings: Settings) -> None:
             f"{FIT_MARGIN * opening:.3g} m): raise gripper.max_width_m or leave them out of the scene")
 
 
+def _check_out(run_dir: Path) -> None:
+    """Make the folder ``--out`` names, refusing one that holds an earlier run or is in the way."""
+    earlier = sorted(p.name for p in run_dir.glob("*") if p.suffix in (".log", ".mcap")) if run_dir.is_dir() else []
+    if earlier:  # the processes' logs would be replaced before the recorder refused the session log
+        raise SettingsError(f"--out {run_dir} holds an earlier run ({', '.join(earlier[:3])}): choose another folder")
+    blocker = file_in_the_way(run_dir)
+    if blocker is not None:
+        raise SettingsError(f"--out {run_dir}: {blocker} is not a directory; expected a folder for the run "
+                            "(new or empty)")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SettingsError(f"--out {run_dir}: cannot make the folder ({exc.strerror or exc})") from exc
+
+
+def _new_run_dir(base: Path) -> Path:
+    """A folder made anew (never one another run made) named ``base``, or ``base-2``, ``base-3``, ...
+    when other runs started in the same second took those first."""
+    try:
+        base.parent.mkdir(parents=True, exist_ok=True)
+        for n in range(1, RUN_NAME_TRIES + 1):
+            run_dir = base if n == 1 else base.with_name(f"{base.name}-{n}")
+            with contextlib.suppress(FileExistsError):
+                run_dir.mkdir()  # exclusive: two runs never share a folder
+                return run_dir
+    except OSError as exc:
+        raise SettingsError(f"cannot make the run folder {base} ({exc.strerror or exc}): pass --out DIR") from exc
+    raise SettingsError(f"{base} and {base.name}-2 .. -{RUN_NAME_TRIES} exist already: pass --out DIR")
+
+
 def prepare_run(args: argparse.Namespace, *, prefix: str, out: TextIO) -> tuple[Path, Path]:
     """The run directory (made) and the calibration to use (fitted there when none is configured).
 
@@ -105,18 +138,11 @@ def prepare_run(args: argparse.Namespace, *, prefix: str, out: TextIO) -> tuple[
         raise SettingsError(f"{args.settings} names hardware backends; {prefix} runs on the simulated robot: "
                             "use settings whose gripper, load cell and cameras are 'sim'")
     check_objects_fit(scene, settings)
-    run_dir = Path(args.out) if args.out else Path("runs") / f"{prefix}-{datetime.now(UTC):%Y%m%d-%H%M%S}"
-    earlier = sorted(p.name for p in run_dir.glob("*") if p.suffix in (".log", ".mcap")) if run_dir.is_dir() else []
-    if earlier:  # the processes' logs would be replaced before the recorder refused the session log
-        raise SettingsError(f"--out {run_dir} holds an earlier run ({', '.join(earlier[:3])}): choose another folder")
-    blocker = file_in_the_way(run_dir)
-    if blocker is not None:
-        raise SettingsError(f"--out {run_dir}: {blocker} is not a directory; expected a folder for the run "
-                            "(new or empty)")
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SettingsError(f"--out {run_dir}: cannot make the folder ({exc.strerror or exc})") from exc
+    if args.out:
+        run_dir = Path(args.out)
+        _check_out(run_dir)
+    else:
+        run_dir = _new_run_dir(Path("runs") / f"{prefix}-{datetime.now(UTC):%Y%m%d-%H%M%S}")
     calibration = configured_calibration(settings)
     if calibration is None:
         started = time.monotonic()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import socket
 import threading
 import time
 
@@ -85,3 +87,33 @@ def test_no_service_on_the_control_endpoint_is_said_a_recorder_there_is_not_one(
             reload_cli.reload_model("/models/b", command=control, answers=answers, timeout_s=0.5)
         assert recorder.recv(timeout_s=0) is None
     assert control.sent == 0 and "--estimate-pub tcp://127.0.0.1:1" in str(caught.value)
+
+
+def test_the_answer_says_how_many_services_took_the_request(tmp_path, capsys):
+    # A second service on the control endpoint (serving another model, side by side) switched too,
+    # and the answer named only the one on the estimate endpoint.
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        control = f"tcp://127.0.0.1:{probe.getsockname()[1]}"
+    took: list = []
+    with Publisher("tcp://127.0.0.1:*", lossless=False, source="estimator") as service_pub, \
+            Subscriber(control, ("load_model",)) as service, Subscriber(control, ("load_model",)) as other, \
+            Subscriber(control, ("",)):  # a recorder: no service
+
+        def serve():
+            message = service.recv(timeout_s=8.0)
+            took.append(other.recv(timeout_s=2.0))
+            service_pub.wait_for_subscriber("model_event")
+            service_pub.send("model_event", t_capture_s=0.0, event="loaded", request=message.fields.request,
+                             model="m", path=message.fields.path, reason="")
+
+        thread = threading.Thread(target=serve, daemon=True)
+        thread.start()
+        code = main(["reload", "--model", str(tmp_path), "--control", control,
+                     "--estimate-pub", service_pub.endpoint, "--timeout-s", "8", "--json"])
+        thread.join(timeout=5.0)
+    out, err = capsys.readouterr()
+    assert code == 0 and took[0] is not None and took[0].type == "load_model"
+    assert json.loads(out.splitlines()[-1])["services"] == 2
+    assert f"2 estimator services subscribe to {control}: every one took this load_model" in err
+    assert "give each service its own --control" in err

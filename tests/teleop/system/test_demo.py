@@ -12,6 +12,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from datetime import datetime
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -498,3 +499,19 @@ def test_a_run_into_the_folder_of_an_earlier_one_is_refused_before_anything_is_r
     with pytest.raises(SettingsError, match=r"holds an earlier run \(node.log\): choose another folder"):
         prepare_run(args, prefix="demo", out=io.StringIO())
     assert (tmp_path / "node.log").read_text() == "the earlier run's log"
+
+
+def test_runs_started_in_the_same_second_without_out_each_get_a_folder_of_their_own(tmp_path, monkeypatch):
+    # The second of two demos started at once was refused: "--out runs/demo-... holds an earlier run",
+    # though no --out was passed.
+    monkeypatch.chdir(tmp_path)
+    now = SimpleNamespace(now=lambda tz: datetime(2026, 11, 30, tzinfo=tz))  # every run in the same second
+    monkeypatch.setattr("teleop.system.demo.datetime", now)
+    args = argparse.Namespace(settings=str(default_settings_path()), scene="quick", out=None)
+    first, _ = prepare_run(args, prefix="demo", out=io.StringIO())
+    (first / "node.log").write_text("the first run's log")
+    second, _ = prepare_run(args, prefix="demo", out=io.StringIO())
+    third, _ = prepare_run(args, prefix="demo", out=io.StringIO())
+    assert [p.name for p in (first, second, third)] == ["demo-20261130-000000", "demo-20261130-000000-2",
+                                                        "demo-20261130-000000-3"]
+    assert (first / "node.log").read_text() == "the first run's log"
