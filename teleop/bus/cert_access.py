@@ -102,6 +102,13 @@ def check_owner_writes(path: Path, what: str) -> None:
         )
 
 
+def make_private_dir(directory: Path) -> None:
+    """Create ``directory`` (mode 0700), or take group's and others' write bits off one that exists
+    (``mkdir ~/keys`` under a 002 umask makes it 0775): :func:`check_owner_writes` refuses it else."""
+    directory.mkdir(mode=0o700, parents=True, exist_ok=True)
+    os.chmod(directory, stat.S_IMODE(directory.stat().st_mode) & ~0o022)
+
+
 def copy_public(source: Path | str, target: Path) -> None:
     """Copy a public certificate to ``target``, writable by its owner alone whatever the umask."""
     shutil.copyfile(source, target)

@@ -520,7 +520,7 @@ def init_keys(
             "choose a new directory; keys are never overwritten"
         )
     try:
-        directory.mkdir(mode=0o700, parents=True, exist_ok=True)
+        cert_access.make_private_dir(directory)
         staging = Path(tempfile.mkdtemp(prefix=".keys-", dir=directory))  # mode 0700
         try:
             names = (CLIENT_CERT,) if server_public is not None else (CLIENT_CERT, SERVER_CERT)

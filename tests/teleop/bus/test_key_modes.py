@@ -40,6 +40,7 @@ def test_an_authorized_folder_or_key_others_may_write_is_refused(tmp_path, relat
 def test_keys_made_and_authorised_under_a_group_umask_are_accepted(tmp_path):
     previous = os.umask(0o002)  # a user-private-group umask: files come out group-writable
     try:
+        (tmp_path / "server").mkdir()  # made first, as `mkdir ~/keys; teleop keys init ~/keys`: mode 0775
         init_keys(tmp_path / "server")
         init_keys(tmp_path / "laptop", server_cert=tmp_path / "server" / "server.key")
         incoming = tmp_path / "incoming.key"  # as received: its mode is not ours to judge, the copy's is
