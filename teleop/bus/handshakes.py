@@ -132,6 +132,7 @@ class HandshakeWatch:
 def _report(monitor: zmq.Socket, side: _Side, watch: HandshakeWatch) -> None:
     """Warn once per endpoint and outcome, note what libzmq gave up, until the watched socket closes."""
     warned: set[tuple[str, int, int]] = set()  # (endpoint, event, value): a few per endpoint at most
+    dropped: dict[str, int] = {}  # endpoint -> connections dropped mid-greeting since its last handshake
     try:
         while True:
             event = recv_monitor_message(monitor)
@@ -140,10 +141,17 @@ def _report(monitor: zmq.Socket, side: _Side, watch: HandshakeWatch) -> None:
             if kind == zmq.EVENT_MONITOR_STOPPED:
                 return
             if kind == zmq.EVENT_HANDSHAKE_SUCCEEDED:
+                dropped.pop(endpoint, None)
                 if any(seen[0] == endpoint for seen in warned):
                     warned = {seen for seen in warned if seen[0] != endpoint}
                     log.info("handshake with %s now succeeds", endpoint)
                 continue
+            if kind == zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL and side.keys_dir is None:
+                # A peer exiting mid-greeting drops one connection; a CURVE server drops every retry.
+                dropped[endpoint] = dropped.get(endpoint, 0) + 1
+                if dropped[endpoint] < 2:
+                    log.debug("handshake on %s: the peer dropped the connection", endpoint)
+                    continue
             if side.server and value != _MISMATCH:
                 continue  # a client with another server's key: it says so itself
             if not side.server and kind in _GIVES_UP:
