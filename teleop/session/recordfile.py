@@ -17,6 +17,7 @@ Written bytes go to the operating system at once (:class:`LogSink`), so a SIGKIL
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import os
 import time
@@ -37,6 +38,8 @@ log = logging.getLogger(__name__)
 
 # How long a recorder tries to lock its log: long beside a check's instant, short beside a recording.
 LOCK_GRACE_S = 0.5
+_NO_LOCKS = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS}  # flock refused by the file system, not held
+_unlockable = False  # set once flock was refused so: said once, then not tried again
 
 
 class LogSink:
@@ -130,7 +133,7 @@ def held_by(path: str | Path) -> int | None:
     except OSError:  # absent or unreadable: nothing to take it from
         return None
     try:
-        if _try_lock(fd):
+        if _lock_within(fd, LOCK_GRACE_S):  # another check may hold it for an instant
             return None
         return _holder_pid(os.fstat(fd)) or 0
     finally:
@@ -152,7 +155,7 @@ def holding(path: str | Path, what_to_do: str) -> Iterator[None]:
         yield
         return
     try:
-        if not _try_lock(fd):
+        if not _lock_within(fd, LOCK_GRACE_S):
             raise SessionLogError(_held_text(path, what_to_do))
         yield
     finally:
@@ -170,12 +173,20 @@ def _lock_within(fd: int, grace_s: float) -> bool:
 
 
 def _try_lock(fd: int) -> bool:
-    if fcntl is None:
+    """Whether ``fd``'s lock was free (and is now this process's); True where locks are not to be had."""
+    global _unlockable
+    if fcntl is None or _unlockable:
         return True
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         return False
+    except OSError as exc:
+        if exc.errno not in _NO_LOCKS:
+            raise
+        # A file system without flock (some network mounts): record as before, unguarded.
+        _unlockable = True
+        log.warning("session logs cannot be locked here (%s): two writers of one log are not refused", exc)
     return True
 
 

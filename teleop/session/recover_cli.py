@@ -10,7 +10,7 @@ from pathlib import Path
 
 from teleop.clikit import output_file
 from teleop.errors import SessionLogError
-from teleop.session.recordfile import held_by, refuse_if_held
+from teleop.session.recordfile import held_by, holding, refuse_if_held
 from teleop.session.recover import RecoveryReport, check_not_source, recover
 
 
@@ -49,7 +49,12 @@ def run(args: argparse.Namespace) -> int:
     if report.messages == 0 and not report.complete:
         staged.unlink(missing_ok=True)
     else:
-        staged.replace(out)
+        try:
+            with holding(out, "write the recovered log elsewhere"):  # a recorder started meanwhile keeps its log
+                staged.replace(out)
+        except SessionLogError:
+            staged.unlink(missing_ok=True)
+            raise
     report.out = str(out)
     print(
         f"{args.log}: {_state(report)}; salvaged {report.messages} messages, "

@@ -82,6 +82,44 @@ def test_label_and_recover_refuse_a_log_being_recorded(first, recorded, tmp_path
     assert _complete(first.out) and LogReader(first.out).info().session  # still the recorder's own log
 
 
+def test_recover_never_renames_over_a_log_a_recorder_took_while_it_read(recorded, tmp_path, monkeypatch, capsys):
+    """Checked as it starts, and held across the rename: a recorder that started in between keeps its log."""
+    from teleop.session import recover_cli
+
+    out, taken = tmp_path / "out.mcap", []
+    out.write_bytes(b"an older recovery")
+
+    def slow_recover(*args, **kwargs):  # a long recovery, during which a recorder takes --out
+        report = recover(*args, **kwargs)
+        taken.append(SessionRecorder(out, QUIET, overwrite=True).open())
+        return report
+
+    monkeypatch.setattr(recover_cli, "recover", slow_recover)
+    try:
+        assert main(["recover", str(recorded.path), "--out", str(out), "--overwrite"]) == 2
+        assert "held by another process" in capsys.readouterr().err
+    finally:
+        for recorder in taken:
+            recorder.close()
+    assert _complete(out) and LogReader(out).info().session  # the recorder's own log, whole
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["out.mcap"]  # and no staged recovery left behind
+
+
+def test_a_file_system_without_locks_records_unguarded_and_says_so(tmp_path, monkeypatch, caplog):
+    import errno
+
+    from teleop.session import recordfile
+
+    def no_flock(fd, operation):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(recordfile, "_unlockable", False)
+    monkeypatch.setattr(recordfile.fcntl, "flock", no_flock)
+    with SessionRecorder(tmp_path / "nfs.mcap", QUIET):
+        pass
+    assert _complete(tmp_path / "nfs.mcap") and "cannot be locked here" in caplog.text
+
+
 def test_recover_tells_the_bytes_after_a_footer(recorded, tmp_path, capsys):
     doubled = tmp_path / "doubled.mcap"
     shutil.copyfile(recorded.path, doubled)
