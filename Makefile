@@ -13,20 +13,37 @@ PYTEST_ARGS ?=
 # halve the wall time on 2 cores. PYTEST_WORKERS=0 runs in one process.
 PYTEST_WORKERS ?= 2
 
-.PHONY: demo test check lint browser tmux install install-dev model evaluate cross-sensor cross-contact replay fine-tune operator-eval clean
+.PHONY: help demo test check lint browser tmux install install-dev model evaluate cross-sensor cross-contact replay fine-tune operator-eval clean
+.DEFAULT_GOAL := help
+.DELETE_ON_ERROR:
 
-$(BIN)/python:
-	$(PYTHON) -m venv $(VENV)
-	$(PIP) install --quiet --upgrade pip
+help:
+	@echo "make demo    run the main job on the built-in simulated hardware (installs what it needs into .venv)"
+	@echo "make test    lint and run the whole test suite"
+	@echo "make check   lint and run the tests not marked slow, train or robot_sim (while working)"
+	@echo "make clean   remove .venv and the tools' caches"
+	@echo "Also: install, install-dev, model, evaluate, cross-sensor, cross-contact, replay, fine-tune, operator-eval"
+	@echo "(the README says what each does). PYTHON=/path/to/python3.11 picks the interpreter."
+
+# A .venv whose Python is older than 3.11 or has no pip (a venv cut short: killed, or python3-venv
+# missing) is made again; a stamp, not the interpreter's link, says it is done.
+$(VENV)/.created:
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null || { \
+		echo "make: Python 3.11 or later is needed, and PYTHON=$(PYTHON) is not that: install python3.11" \
+			"(e.g. sudo apt-get install python3.11 python3.11-venv) or set PYTHON=/path/to/python3.11" >&2; exit 1; }
+	@if ! $(BIN)/python -c 'import sys, pip; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then \
+		echo "creating $(VENV) with $(PYTHON)"; rm -rf $(VENV) && $(PYTHON) -m venv $(VENV) && \
+		$(PIP) install --quiet --upgrade pip; fi
+	touch $@
 
 # Stamps record what was installed; they go stale when the project metadata changes.
-$(VENV)/.installed-run: $(BIN)/python pyproject.toml $(CONSTRAINTS)
+$(VENV)/.installed-run: $(VENV)/.created pyproject.toml $(CONSTRAINTS)
 	$(PIP) install --quiet -c $(CONSTRAINTS) -e .
 	touch $@
 
 # What `make check` runs needs neither the train extra's torch nor robot-sim's franky-sim (1.3 GB between
 # them, half the install's time): its tests marked train or robot_sim are left to `make test`.
-$(VENV)/.installed-check: $(BIN)/python pyproject.toml $(CONSTRAINTS)
+$(VENV)/.installed-check: $(VENV)/.created pyproject.toml $(CONSTRAINTS)
 	$(PIP) install --quiet -c $(CONSTRAINTS) -e '.[robot,dev]'
 	touch $@ $(VENV)/.installed-run
 
