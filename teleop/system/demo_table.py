@@ -25,6 +25,11 @@ def _pa(value: float | None) -> str:
     return "-" if value is None else f"{value:.3g}"
 
 
+def _modulus(state: str, e_pa: float | None, unit: str = "") -> str:
+    """An estimate's modulus with its state's mark (``>=1e+06``); "none" without one (a refusal)."""
+    return "none" if e_pa is None else f"{_STATE_MARK[state]}{_pa(e_pa)}{unit}"
+
+
 def _number(value: float | None, fmt: str) -> str:
     return "-" if value is None else format(value, fmt)
 
@@ -63,7 +68,7 @@ class LiveView:
                 return f"{head} {'grasping' if outcome.started else 'simulating'}"
             kind = "provisional" if latest.provisional else "final"
             return (f"{head} {outcome.estimates:3d} estimates, {kind} "
-                    f"{_STATE_MARK[latest.state]}{_pa(latest.E_pa)} Pa ({latest.state})")
+                    f"{_modulus(latest.state, latest.E_pa, ' Pa')} ({latest.state})")
         felt = outcome.felt_log10_offset
         first = outcome.t_first_estimate_s
         # As in the closing table: an operator's final waits for the hand to let go, so its latency
@@ -71,8 +76,8 @@ class LiveView:
         settled = outcome.t_felt_within_2x_s
         timing = (f"latency {_number(outcome.latency_ms, '.0f')} ms" if outcome.style == "script" else
                   "never felt within 2x" if settled is None else f"felt within 2x {settled:.2f} s after contact")
-        return (f"{head} E {_pa(outcome.obj.modulus_pa)} Pa -> {_STATE_MARK[outcome.state]}"
-                f"{_pa(outcome.e_final_pa)} Pa ({outcome.state}), display {display_cell(outcome)}, "
+        return (f"{head} E {_pa(outcome.obj.modulus_pa)} Pa -> {_modulus(outcome.state, outcome.e_final_pa, ' Pa')} "
+                f"({outcome.state}), display {display_cell(outcome)}, "
                 f"felt {_number(felt, '+.2f')} dec, "
                 f"first estimate {_number(None if first is None else first * 1e3, '.0f')} ms, {timing}")
 
@@ -102,7 +107,7 @@ def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
     """
     header = ("object", "style", "E true (Pa)", "final (Pa)", "state", "display (~Pa)", "felt (dec)", "first est. (ms)",
               "felt 2x (s)", "latency (ms)")
-    rows = [(o.obj.name, o.style, _pa(o.obj.modulus_pa), f"{_STATE_MARK[o.state]}{_pa(o.e_final_pa)}", o.state,
+    rows = [(o.obj.name, o.style, _pa(o.obj.modulus_pa), _modulus(o.state, o.e_final_pa), o.state,
              display_cell(o), _number(o.felt_log10_offset, "+.2f"),
              _number(None if o.t_first_estimate_s is None else o.t_first_estimate_s * 1e3, ".0f"),
              _number(o.t_felt_within_2x_s, ".2f"),

@@ -92,7 +92,7 @@ def test_outcomes_give_the_closing_table_and_json():
     # Without a rendering there is no felt error: the estimate's own -2 decades are not shown as one.
     assert ">=2e+09" in table[3] and "lower_bound" in table[3] and "120" in table[3]
     assert table[3].split()[5:7] == ["-", "-"] and "-2.00" not in table[3]
-    assert table[4].split()[1:] == ["script", "5e+03", "?-", "none", "-", "-", "-", "-", "-"]
+    assert table[4].split()[1:] == ["script", "5e+03", "none", "none", "-", "-", "-", "-", "-"]  # no final: not "?-"
     assert table[-2] == "the display rendered none of 3 grasps"
     assert table[-1] == "model: none (analytical estimates, 2 of 3 finals)"
 
