@@ -246,9 +246,10 @@ class OperatorLink:
             raise BusError(f"the robot node has not subscribed to {self.publisher.endpoint} yet (it is down, or "
                            f"still connecting): a {what} now would reach no one")
         if drives and (nodes := self.robot_nodes()) > 1:
-            raise BusError(f"{nodes} robot nodes subscribe to the commands on {self.publisher.endpoint}: a {what} "
-                           "now would drive every one; stop all but one (each node on its own bus.robot_pub "
-                           "still takes bus.command)")
+            # the fix first: an 80-column console cuts the line's end
+            raise BusError(f"{nodes} robot nodes subscribe to the commands: stop all but one (a {what} now would "
+                           f"drive every one; a node on its own bus.robot_pub still takes bus.command, "
+                           f"{self.publisher.endpoint})")
 
     def follow(self, target_width_m: float, *, enable: bool, grasp_id: str | None = None) -> None:
         """Send one ``follow``: the fingers' target width (m), the dead-man enable and the grasp's id.

@@ -113,7 +113,8 @@ def create_log(path: Path, *, overwrite: bool) -> IO[bytes]:
         if not _lock_within(fd, LOCK_GRACE_S):
             raise SessionLogError(_held_text(path, "stop it first, or record into another file"))
         if not _same_file(fd, path):  # replaced (`teleop label`) or removed between open and lock
-            raise SessionLogError(f"session log {path} was replaced while it was being opened: run again")
+            raise SessionLogError(f"session log {path} was replaced while it was being opened (`teleop label` "
+                                  "rewrote it?): run again")
         os.ftruncate(fd, 0)
         return os.fdopen(fd, "wb", buffering=0)
     except OSError as exc:

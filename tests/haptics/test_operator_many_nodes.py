@@ -41,7 +41,7 @@ def test_the_link_counts_robot_nodes_only_and_refuses_to_drive_more_than_one():
             link.start_grasp(target_force_n=10.0, grasp_id="g1")
             with Subscriber(endpoint, COMMAND_TOPICS):  # a second node, on another robot_pub
                 _until(lambda: link.publisher.subscriptions("follow") == 2, "the second node never subscribed")
-                with pytest.raises(BusError, match="2 robot nodes subscribe to the commands on .*stop all but one"):
+                with pytest.raises(BusError, match="2 robot nodes subscribe to the commands: stop all but one"):
                     link.start_grasp(target_force_n=10.0, grasp_id="g2")
                 with pytest.raises(BusError, match="2 robot nodes subscribe"):
                     link.follow(0.05, enable=True, grasp_id="g2")
