@@ -23,7 +23,9 @@ force-capped (:mod:`teleop.operator`). A follow counts only with ``enable`` (the
 A follow without enable stops the fingers where they are (while the grasp is preparing: it
 clears the target, so going live moves nothing). When no follow came for
 :data:`~teleop.operator.WATCHDOG_S`, the node stops the fingers, sends a ``robot_notice``
-*watchdog* and ends the grasp (mode *stopped*). ``release`` ends a follow grasp: the fingers
+*watchdog* and ends the grasp (mode *stopped*); so too when the node itself did not look for
+commands for that long (stopped, starved of CPU): the follows that queued meanwhile are refused,
+not taken in one go. ``release`` ends a follow grasp: the fingers
 open, then the grasp ends; with no grasp open it opens fingers the watchdog left closed on an
 object; a grasp still preparing is cancelled instead (a ``robot_notice`` *refused* says the
 fingers had nothing to open). ``stop`` stops the fingers and ignores further follows until
@@ -59,6 +61,8 @@ FORCE_SILENT_S = 0.1  # with hardware, the fingers close only on a force this fr
 # can still come, so this many ids (each at most the bus's 256 characters) are ample; the ids
 # are the senders', and a sender making up new ones must not grow the node without end.
 ENDED_KEPT = 1024
+
+WATCHED = ("preparing", "following", "stopped")  # the follow grasp's phases the watchdog ends
 
 log = logging.getLogger("teleop.node")  # the node's own logger, so filters on the node see the follower
 
@@ -203,13 +207,16 @@ class Follower:
         """A grasp ended: an object the fingers let go leaves them; the next one is prepared."""
         node = self.node
         if grasp.follow:
-            self.ended[grasp.grasp_id] = None
-            if len(self.ended) > ENDED_KEPT:
-                del self.ended[next(iter(self.ended))]
+            self._record_ended(grasp)
         self._let_go()
         # The object prepared may be another grasp's (a commanded grasp took its number): the next one's is due.
         if node.simulated and self.live is None and (self.next_live is None or self.next_live[0] != node._count):
             self.prepare_next()
+
+    def _record_ended(self, grasp: _Grasp) -> None:
+        self.ended[grasp.grasp_id] = None
+        if len(self.ended) > ENDED_KEPT:
+            del self.ended[next(iter(self.ended))]
 
     def _let_go(self) -> bool:
         """Whether no live object is between the fingers: one they no longer press (let go, or opened
@@ -226,7 +233,7 @@ class Follower:
     def advance(self, grasp: _Grasp, now: float) -> bool:
         """Advance a follow grasp (watchdog, going live, force limit); False when nothing of
         this applies (the node's own progress then does)."""
-        if grasp.phase in ("preparing", "following", "stopped") and now - self.last_follow_s > WATCHDOG_S:
+        if grasp.phase in WATCHED and now - self.last_follow_s > WATCHDOG_S:
             self._watchdog(grasp)
         elif grasp.phase == "preparing" and grasp.prepared.done():
             self._go_live(grasp)
@@ -262,17 +269,26 @@ class Follower:
                               f"the fingers reached the maximum force {self.node.settings.gripper.target_force_n} N "
                               "and close no further")
 
-    def _watchdog(self, grasp: _Grasp) -> None:
-        """No follow came for WATCHDOG_S: stop the fingers and end the grasp."""
+    def stalled(self, stalled_s: float) -> None:
+        """The node did not look for commands for ``stalled_s`` (over WATCHDOG_S: stopped, starved of
+        CPU): the watchdog ends a follow grasp before the follows queued meanwhile move the fingers
+        in one go (they name a grasp that ended, and are refused)."""
+        grasp = self.node._grasp
+        if grasp is not None and grasp.follow and grasp.phase in WATCHED:
+            self._watchdog(grasp, f"the robot node itself stalled for {stalled_s:.3f} s")
+
+    def _watchdog(self, grasp: _Grasp, why: str | None = None) -> None:
+        """No follow came for WATCHDOG_S (or ``why``): stop the fingers and end the grasp."""
         node = self.node
         node.gripper.stop()
         node.stats.watchdogs += 1
-        silent_s = node.clock() - self.last_follow_s
-        log.warning("grasp %s: no follow for %.3f s: fingers stopped", grasp.grasp_id, silent_s)
-        node._notice("watchdog", "follow", grasp.grasp_id,
-                     f"no follow command for {silent_s:.3f} s (watchdog {WATCHDOG_S} s): the fingers stopped")
+        why = why or f"no follow command for {node.clock() - self.last_follow_s:.3f} s"
+        log.warning("grasp %s: %s: fingers stopped", grasp.grasp_id, why)
+        node._notice("watchdog", "follow", grasp.grasp_id, f"{why} (watchdog {WATCHDOG_S} s): the fingers stopped")
         self.enable = False
         if not _went_live(grasp):
+            # No end goes out for it, but its console's stale follows must not start it again.
+            self._record_ended(grasp)
             node._grasp = None
         else:
             node._end()

@@ -94,6 +94,7 @@ from teleop.follow import Follower
 from teleop.live import ServiceLoop
 from teleop.node_devices import READ_TIMEOUT_S, NodeDevices
 from teleop.node_refusals import REFUSAL_REPEAT_S, Refusals
+from teleop.operator import WATCHDOG_S
 from teleop.record import GraspRecord
 from teleop.scene import Scene
 from teleop.settings import Settings
@@ -194,6 +195,7 @@ class RobotNode(ServiceLoop):
         self._follower = Follower(self)  # follow grasps (teleop.follow)
         self._refusals = Refusals()  # what was refused: which refusals are logged and said
         self._state: tuple | None = None  # the last robot_state sent
+        self._looked_s = math.inf  # when the node last looked for commands (inf: not yet)
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -235,9 +237,10 @@ class RobotNode(ServiceLoop):
         with contextlib.suppress(queue.Empty):
             self._publish(*self._captured.get(timeout=timeout_s))
             while True:
+                # A long backlog to publish is neither the operator's silence nor the node stalled:
+                # follows that came meanwhile count before the watchdog looks.
+                self._take_commands()
                 self._publish(*self._captured.get_nowait())
-        # A long backlog to publish is not the operator's silence: follows that came meanwhile count
-        # before the watchdog looks.
         self._take_commands()
         try:
             self._advance()
@@ -246,7 +249,18 @@ class RobotNode(ServiceLoop):
         self._send_state()
 
     def _take_commands(self) -> None:
-        while self.commands is not None and (message := self.commands.recv(timeout_s=0)) is not None:
+        """Take the commands that came. A node that did not look for them for over WATCHDOG_S
+        stalled: the watchdog goes first (:meth:`teleop.follow.Follower.stalled`)."""
+        while self.commands is not None:
+            now = self.clock()
+            if now - self._looked_s > WATCHDOG_S:
+                try:
+                    self._follower.stalled(now - self._looked_s)
+                except DeviceError as exc:
+                    self._gripper_failed(exc)
+            self._looked_s = now
+            if (message := self.commands.recv(timeout_s=0)) is None:
+                return
             self.handle_command(message)
 
     @property

@@ -150,3 +150,21 @@ def test_letting_go_of_the_enable_while_the_grasp_prepares_clears_its_target(rig
         step_for(node, 0.01)
     assert node._grasp.phase == "following" and node._grasp.target_width_m is None
     assert node.gripper.read_width()[1] == pytest.approx(open_m, abs=1e-4)
+
+
+def test_a_grasp_the_watchdog_ended_while_it_prepared_is_not_started_again_by_its_stale_follows(rig):
+    node, listener = rig
+    ready, open_m = preparing(node, "W2")
+    node._follower.last_follow_s -= 2 * WATCHDOG_S  # the operator silent (no wall clock waited)
+    node.step(timeout_s=0.002)
+    assert not node.busy
+    ready()
+    for _ in range(5):  # the console's follows still in flight, the enable held: refused
+        follow(node, "W2", 0.0)
+        step_for(node, 0.01)
+    assert not node.busy and node.gripper.read_width()[1] == pytest.approx(open_m, abs=1e-4)
+    got = drain(listener)
+    assert not [m for m in got if m.type == "grasp_event"]
+    said = [m.body for m in got if m.type == "robot_notice"]
+    assert [(n["event"], n["grasp_id"]) for n in said] == [("watchdog", "W2"), ("refused", "W2")]
+    assert "grasp 'W2' has ended: name a new grasp" in said[1]["reason"]

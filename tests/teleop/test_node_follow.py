@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import time
 
 import numpy as np
@@ -69,26 +70,60 @@ def test_enable_released_stops_the_fingers(rig):
     assert states[-1]["enable"] is False and states[-1]["mode"] == "following"
 
 
+def shifted_clock(node, monkeypatch) -> list[float]:
+    """The node's clock ahead of the wall clock by the returned list's one item, which the test
+    moves on: a node stalled, or slow, without waiting for it."""
+    ahead = [0.0]
+    clock = node.clock
+    monkeypatch.setattr(node, "clock", lambda: clock() + ahead[0])
+    return ahead
+
+
 def test_follows_that_came_while_the_node_published_a_backlog_count_before_the_watchdog(rig, monkeypatch):
     node, operator, listener, _ = rig
     wait_prepared(node)
     drive(node, operator, lambda t: 0.07, 0.3)
+    ahead = shifted_clock(node, monkeypatch)
     publish = node._publish
 
     def slow(kind, item):
         if kind != "backlog":
             publish(kind, item)
             return
-        time.sleep(WATCHDOG_S)  # the node busy publishing what its devices captured ...
+        ahead[0] += 0.4 * WATCHDOG_S  # the node busy publishing what its devices captured ...
         operator.send("follow", t_capture_s=time.monotonic(), grasp_id="g-follow", target_width_m=0.07, enable=True)
-        time.sleep(0.5 * WATCHDOG_S)  # ... while the operator's follows keep coming
+        time.sleep(0.01)  # ... while the operator's follows keep coming (on their way)
 
     monkeypatch.setattr(node, "_publish", slow)
-    node._captured.put(("backlog", None))
+    for _ in range(5):  # twice the watchdog's time in all: neither the operator's silence nor a stall
+        node._captured.put(("backlog", None))
     node.step(timeout_s=0.002)
     assert node.busy
     drive(node, operator, lambda t: 0.07, 0.1)
     assert not [m for m in drain(listener) if m.type == "robot_notice"]
+
+
+def test_a_node_that_stalled_stops_the_fingers_and_refuses_the_follows_that_queued_meanwhile(rig, monkeypatch):
+    node, operator, listener, _ = rig
+    wait_prepared(node)
+    drive(node, operator, lambda t: 0.07, 0.3)
+    drain(listener)
+    ahead = shifted_clock(node, monkeypatch)
+    # The node stopped (SIGSTOP, a starved CPU) for 1.5 watchdogs while the operator kept closing.
+    for width in np.linspace(0.065, 0.03, 10):
+        operator.send("follow", t_capture_s=time.monotonic(), grasp_id="g-follow", target_width_m=width, enable=True)
+    time.sleep(0.05)  # the follows on their way
+    ahead[0] += 1.5 * WATCHDOG_S
+    step_for(node, 0.1)
+    assert not node.busy and node._follower.stopped
+    assert node.gripper.read_width()[1] > 0.069  # not driven toward the backlog's 65 .. 30 mm
+    said = [m.body for m in drain(listener) if m.type == "robot_notice"]
+    assert said[0]["event"] == "watchdog" and said[0]["grasp_id"] == "g-follow"
+    stalled = re.fullmatch(r"the robot node itself stalled for ([\d.]+) s \(watchdog 0.2 s\): the fingers stopped",
+                           said[0]["reason"])
+    assert stalled and float(stalled[1]) >= 1.5 * WATCHDOG_S
+    assert {(n["event"], n["grasp_id"]) for n in said[1:]} == {("refused", "g-follow")}
+    assert "grasp 'g-follow' has ended" in said[1]["reason"]
 
 
 def test_killing_the_console_stops_the_simulated_gripper_within_250_ms(rig):
@@ -159,8 +194,10 @@ def _drive_until_started(node, operator, listener, grasp_id: str) -> dict[str, s
     while grasp_id not in starts:
         assert time.monotonic() < deadline, f"grasp {grasp_id} did not start"
         drive(node, operator, lambda t: 0.08, 0.3, grasp_id=grasp_id)
-        starts |= {m.body["grasp_id"]: m.body["object_name"] for m in drain(listener)
-                   if m.type == "grasp_event" and m.body["event"] == "start"}
+        # What came so far, not drain's wait: the node not stepping that long would have stalled.
+        while (m := listener.recv(timeout_s=0)) is not None:
+            if m.type == "grasp_event" and m.body["event"] == "start":
+                starts[m.body["grasp_id"]] = m.body["object_name"]
     return starts
 
 
