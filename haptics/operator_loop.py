@@ -147,7 +147,7 @@ class OperatorLoop:
         self._last_ended: OperatorView | None = None  # the last grasp "next" cleared, for the summary
         self._leaving: tuple[str, float] | None = None  # after "next": (the grasp left, when) until it is over
         self._shown_over = False  # a status showed the grasp left over (its final in): clear on the next step
-        self._waiting = False  # the device waits for the robot node, not heard
+        self._waiting: bool | None = None  # waiting for the robot node: whether for a second one to go; None: not
         self._robot_up = False  # the robot node was heard alive at the last step
         self._robot_restarts = 0  # the link's count of robot node restarts at the last step
         self._unreachable = False  # the robot node was down or not subscribed at the last step
@@ -196,10 +196,12 @@ class OperatorLoop:
         reading, gap = None, False
         # Not before the node hears our commands: an enable it held before would drive nothing (_drive).
         waiting = self.device.waits_for_robot and unreachable(self.link.view)
-        if waiting and not self._waiting:
+        # Said again when why changes: a second node is seen after the wait began, or is gone.
+        why = bool(crowded(self.link.view)) if waiting else None
+        if waiting and why != self._waiting:
             self._act("waiting for the robot node: the input device is read once the node is heard"
-                      + (" alone" if crowded(self.link.view) else ""))
-        self._waiting = waiting
+                      + (" alone" if why else ""))
+        self._waiting = why
         if not waiting:
             reading, gap = self._reader.read(self._input)
         if gap:

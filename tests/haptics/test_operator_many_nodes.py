@@ -8,7 +8,7 @@ import dataclasses
 import time
 
 import pytest
-from support.operator_fakes import Clock, loop_rig
+from support.operator_fakes import NOBODY, Clock, loop_rig
 
 from estimator.service import COMMAND_TOPICS as ESTIMATOR_COMMAND_TOPICS
 from haptics.console import _peer_line
@@ -105,3 +105,15 @@ def test_the_console_shows_more_than_one_robot_node():
     line = _peer_line(Peer("robot node", "robot", True, 0.1, True, 3))
     assert line.startswith("MANY") and "3 robot nodes subscribe" in line
     assert _peer_line(Peer("robot node", "robot", True, 0.1, True, 1)).startswith("UP")
+
+
+def test_a_device_waiting_for_the_robot_node_says_so_again_when_a_second_node_is_seen():
+    # The headless simulated operator: its one status line said only "waiting", though the node was heard.
+    clock, link, device, loop = loop_rig()
+    device.waits_for_robot = True
+    link.view = OperatorView(t_s=clock(), peers=NOBODY)  # no node heard yet
+    _run(clock, loop, 0.05)
+    link.view = _view(clock, 2)  # heard, and a second one: waits on, now for that one to go
+    _run(clock, loop, 0.05)
+    waits = [line for line in loop.status.log if "waiting for the robot node" in line]
+    assert len(waits) == 2 and not waits[0].endswith("alone") and waits[1].endswith("heard alone"), waits
