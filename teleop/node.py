@@ -262,6 +262,7 @@ class RobotNode(ServiceLoop):
             if (message := self.commands.recv(timeout_s=0)) is None:
                 return
             self.handle_command(message)
+            self._looked_s = self.clock()  # a command's own gripper call (a stop) is no stall of the node
 
     @property
     def _devices(self) -> tuple[Any, ...]:

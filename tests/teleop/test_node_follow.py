@@ -126,6 +126,31 @@ def test_a_node_that_stalled_stops_the_fingers_and_refuses_the_follows_that_queu
     assert "grasp 'g-follow' has ended" in said[1]["reason"]
 
 
+def test_a_slow_gripper_stop_in_a_command_is_no_stall_of_the_node(rig, monkeypatch):
+    # Letting go of the enable stops the fingers; a stop that takes longer than the watchdog is the
+    # gripper's time, not the node's: the follow grasp is paused, not ended.
+    node, operator, listener, _ = rig
+    wait_prepared(node)
+    drive(node, operator, lambda t: 0.07, 0.3)
+    while listener.recv(timeout_s=0) is not None:  # not drain's wait: the node not stepping would stall
+        pass
+    ahead = shifted_clock(node, monkeypatch)
+    stop = node.gripper.stop
+
+    def slow_stop():  # the console's let-go follows keep coming while it blocks
+        ahead[0] += 1.5 * WATCHDOG_S
+        for _ in range(3):
+            operator.send("follow", t_capture_s=time.monotonic(), grasp_id="g-follow", target_width_m=0.07,
+                          enable=False)
+        time.sleep(0.05)
+        stop()
+
+    monkeypatch.setattr(node.gripper, "stop", slow_stop)
+    drive(node, operator, lambda t: 0.07, 0.2, enable=False)  # let go, and the console keeps saying so
+    said = [m.body for m in drain(listener) if m.type == "robot_notice"]
+    assert node.busy and not any(n["event"] == "watchdog" for n in said), said
+
+
 def test_killing_the_console_stops_the_simulated_gripper_within_250_ms(rig):
     node, operator, listener, _ = rig
     wait_prepared(node)
