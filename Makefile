@@ -28,10 +28,11 @@ help:
 # A .venv whose Python is older than 3.11 or has no pip (a venv cut short: killed, or python3-venv
 # missing) is made again; a stamp, not the interpreter's link, says it is done.
 $(VENV)/.created:
-	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null || { \
-		echo "make: Python 3.11 or later is needed, and PYTHON=$(PYTHON) is not that: install python3.11" \
-			"(e.g. sudo apt-get install python3.11 python3.11-venv) or set PYTHON=/path/to/python3.11" >&2; exit 1; }
 	@if ! $(BIN)/python -c 'import sys, pip; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then \
+		$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null || { \
+			echo "make: Python 3.11 or later is needed, and PYTHON=$(PYTHON) is not that: install python3.11" \
+				"(e.g. sudo apt-get install python3.11 python3.11-venv) or set PYTHON=/path/to/python3.11" >&2; \
+			exit 1; }; \
 		echo "creating $(VENV) with $(PYTHON)"; rm -rf $(VENV) && $(PYTHON) -m venv $(VENV) && \
 		$(PIP) install --quiet --upgrade pip; fi
 	touch $@
