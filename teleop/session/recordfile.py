@@ -39,7 +39,7 @@ log = logging.getLogger(__name__)
 # How long a recorder tries to lock its log: long beside a check's instant, short beside a recording.
 LOCK_GRACE_S = 0.5
 _NO_LOCKS = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS}  # flock refused by the file system, not held
-_unlockable = False  # set once flock was refused so: said once, then not tried again
+_unlockable: set[int] = set()  # file systems (st_dev) whose flock was refused so: said once, not tried again
 
 
 class LogSink:
@@ -134,7 +134,7 @@ def held_by(path: str | Path) -> int | None:
     except OSError:  # absent or unreadable: nothing to take it from
         return None
     try:
-        if _lock_within(fd, LOCK_GRACE_S):  # another check may hold it for an instant
+        if _lock_within(fd, LOCK_GRACE_S, shared=True):  # another check may hold it for an instant
             return None
         return _holder_pid(os.fstat(fd)) or 0
     finally:
@@ -156,38 +156,40 @@ def holding(path: str | Path, what_to_do: str) -> Iterator[None]:
         yield
         return
     try:
-        if not _lock_within(fd, LOCK_GRACE_S):
+        if not _lock_within(fd, LOCK_GRACE_S, shared=True):
             raise SessionLogError(_held_text(path, what_to_do))
         yield
     finally:
         os.close(fd)
 
 
-def _lock_within(fd: int, grace_s: float) -> bool:
-    """Lock, trying again for ``grace_s``: another process's check (:func:`held_by`) holds it for an instant."""
+def _lock_within(fd: int, grace_s: float, *, shared: bool = False) -> bool:
+    """Lock, trying again for ``grace_s``: another process's check (:func:`held_by`) holds it for an instant.
+    ``shared``: a check or a rewrite on a read-only descriptor (NFS grants those only a shared lock),
+    which a recorder's exclusive one still excludes."""
     deadline = time.monotonic() + grace_s
-    while not _try_lock(fd):
+    while not _try_lock(fd, shared):
         if time.monotonic() > deadline:
             return False
         time.sleep(0.01)
     return True
 
 
-def _try_lock(fd: int) -> bool:
+def _try_lock(fd: int, shared: bool = False) -> bool:
     """Whether ``fd``'s lock was free (and is now this process's); True where locks are not to be had."""
-    global _unlockable
-    if fcntl is None or _unlockable:
+    if fcntl is None or (device := os.fstat(fd).st_dev) in _unlockable:
         return True
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
     except BlockingIOError:
         return False
     except OSError as exc:
         if exc.errno not in _NO_LOCKS:
             raise
         # A file system without flock (some network mounts): record as before, unguarded.
-        _unlockable = True
-        log.warning("session logs cannot be locked here (%s): two writers of one log are not refused", exc)
+        _unlockable.add(device)
+        log.warning("session logs cannot be locked on this file system (%s): two writers of one log are not "
+                    "refused", exc)
     return True
 
 

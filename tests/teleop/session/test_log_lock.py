@@ -113,11 +113,11 @@ def test_a_file_system_without_locks_records_unguarded_and_says_so(tmp_path, mon
     def no_flock(fd, operation):
         raise OSError(errno.ENOLCK, "No locks available")
 
-    monkeypatch.setattr(recordfile, "_unlockable", False)
+    monkeypatch.setattr(recordfile, "_unlockable", set())
     monkeypatch.setattr(recordfile.fcntl, "flock", no_flock)
     with SessionRecorder(tmp_path / "nfs.mcap", QUIET):
         pass
-    assert _complete(tmp_path / "nfs.mcap") and "cannot be locked here" in caplog.text
+    assert _complete(tmp_path / "nfs.mcap") and "cannot be locked on this file system" in caplog.text
 
 
 def test_recover_tells_the_bytes_after_a_footer(recorded, tmp_path, capsys):
@@ -153,3 +153,27 @@ def test_messages_still_queued_when_a_stop_gives_up_are_counted(tmp_path, monkey
     assert stats.messages == 0 and stats.not_stored == subscriber.stats.received >= 20
     assert stats.as_dict()["not_stored"] == stats.not_stored
     assert json.loads(LogReader(path).info().metadata["session_end"]["not_stored"]) == stats.not_stored
+
+
+def test_checks_take_a_shared_lock_as_nfs_grants_read_only_files(recorded, tmp_path, monkeypatch):
+    """NFS emulates flock with byte-range locks: an exclusive one needs a file open for writing."""
+    import errno
+    import fcntl
+
+    from teleop.session import recordfile
+
+    flock = fcntl.flock
+
+    def nfs_flock(fd, operation):
+        if operation & fcntl.LOCK_EX and fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_ACCMODE == os.O_RDONLY:
+            raise OSError(errno.EBADF, "Bad file descriptor")
+        return flock(fd, operation)
+
+    monkeypatch.setattr(recordfile.fcntl, "flock", nfs_flock)
+    log = tmp_path / "session.mcap"
+    shutil.copyfile(recorded.path, log)
+    assert recordfile.held_by(log) is None
+    (tmp_path / "labels.csv").write_text("grasp_id,object\ng0,stress_ball\n", encoding="utf-8")
+    label_session(log, tmp_path / "labels.csv")  # holds the log's lock while it rewrites it
+    with SessionRecorder(tmp_path / "new.mcap", QUIET) as recorder:  # a recorder's lock is exclusive
+        assert recordfile.held_by(recorder.out) == os.getpid()
