@@ -9,6 +9,7 @@ import importlib.util
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from estimator.faults import camera_fault
 from estimator.measure import estimate_grasp
@@ -64,6 +65,7 @@ def test_an_exposure_shift_or_gain_is_not_pixel_noise():
         assert camera_fault(reference, [np.clip(exposed(f), 0, 255).astype(np.uint8) for f in frames], t, "left") == ""
 
 
+@pytest.mark.slow
 def test_a_record_of_pixel_noise_frames_refuses_the_tactile_methods(calibration):
     record = build_record(3e5)
     rng = np.random.default_rng(1)

@@ -66,6 +66,7 @@ def test_the_projects_errors_are_one_line_with_status_2(run, name, argv, expecte
     assert err.startswith(expected) and err.count("\n") == 1 and "Traceback" not in err
 
 
+@pytest.mark.slow
 def test_the_operator_benchmark_drives_the_gripper_it_times(monkeypatch):
     """Its scripted input lets the enable go as the loop needs before driving (it drove nothing once the
     loop started with the enable suspended, and the benchmark printed no figure)."""

@@ -50,6 +50,7 @@ def _bind_again(endpoint: str, keys) -> Publisher:
             time.sleep(0.05)
 
 
+@pytest.mark.slow
 def test_a_keyed_subscriber_hears_a_keyed_publisher_bound_after_an_unkeyed_one_left(keys, handshake_log):
     unkeyed = Publisher(LOOPBACK, lossless=False, source="console")  # a console started without keys
     endpoint = unkeyed.endpoint

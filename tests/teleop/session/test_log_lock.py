@@ -47,6 +47,7 @@ def test_a_second_recorder_on_a_log_being_recorded_is_refused_naming_the_holder(
     assert _complete(first.out)  # the first recorder's log is whole: nothing truncated or written over it
 
 
+@pytest.mark.slow
 def test_the_record_command_with_overwrite_is_refused_on_a_log_being_recorded(first):
     result = subprocess.run(
         [str(TELEOP), "record", "--out", str(first.out), "--overwrite", "--duration-s", "0.1",
