@@ -60,6 +60,7 @@ def test_a_long_grasp_keeps_the_first_frames_and_counts_the_rest(settings, calib
     assert stream.frames_not_kept("left") == extra + 1
 
 
+@pytest.mark.slow
 def test_past_the_cap_live_and_offline_estimate_the_frames_kept_and_say_so(settings, calibration, operator_grasp, cap):
     live = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
     live.mark_follow()

@@ -33,6 +33,7 @@ def folder(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["auto", "series"])
 def test_estimate_names_a_record_without_the_finger_and_estimates_the_rest(folder, method, capsys):
     bad, good = folder / "rightonly.grasp", folder / "good.grasp"

@@ -69,6 +69,7 @@ def test_a_keyed_subscriber_hears_a_keyed_publisher_bound_after_an_unkeyed_one_l
     assert server and f"a peer on {endpoint}" in server[0] and "teleop keys init" in server[0], texts
 
 
+@pytest.mark.slow
 def test_an_unkeyed_subscriber_and_a_keyed_publisher_both_say_the_mechanisms_differ(keys, handshake_log):
     with (
         Publisher(LOOPBACK, lossless=False, source="robot", security=keys) as pub,

@@ -71,6 +71,7 @@ def test_a_recorder_without_overwrite_never_replaces_a_file(tmp_path):
     assert _complete(path)
 
 
+@pytest.mark.slow
 def test_label_and_recover_refuse_a_log_being_recorded(first, recorded, tmp_path):
     csv_path = tmp_path / "labels.csv"
     csv_path.write_text("grasp_id,object\ng0,stress_ball\n", encoding="utf-8")
@@ -83,6 +84,7 @@ def test_label_and_recover_refuse_a_log_being_recorded(first, recorded, tmp_path
     assert _complete(first.out) and LogReader(first.out).info().session  # still the recorder's own log
 
 
+@pytest.mark.slow
 def test_recover_never_renames_over_a_log_a_recorder_took_while_it_read(recorded, tmp_path, monkeypatch, capsys):
     """Checked as it starts, and held across the rename: a recorder that started in between keeps its log."""
     from teleop.session import recover_cli
