@@ -34,7 +34,8 @@ def _number(value: float | None, fmt: str) -> str:
     return "-" if value is None else format(value, fmt)
 
 
-_STATE_MARK = {"ok": "", "lower_bound": ">=", "upper_bound": "<=", "insufficient_data": "?", "none": "?"}
+# The states that carry a modulus (a refusal and a grasp without a final have none: _modulus).
+_STATE_MARK = {"ok": "", "lower_bound": ">=", "upper_bound": "<="}
 
 
 def display_cell(outcome: GraspOutcome) -> str:
