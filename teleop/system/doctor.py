@@ -66,6 +66,7 @@ from teleop.errors import (
     TeleopError,
 )
 from teleop.live import ENDPOINTS
+from teleop.operator import FOLLOW_RATE_HZ
 from teleop.rig.load_cell_calibration import load_cell_source
 from teleop.settings import (
     SensorSettings,
@@ -181,6 +182,7 @@ def _input_probe(settings: Settings) -> _Probe | Check:
     device = make_input(name, settings)
 
     def read() -> list[float]:
+        time.sleep(1.0 / FOLLOW_RATE_HZ)  # read on demand, as often as the console does: a spin starves the others
         return [device.read(timeout_s=READ_SLICE_S).t_s]
 
     fix = ("to drive without it, name another in `[operator] input` (or pass `haptics operate --input`)"
@@ -258,7 +260,8 @@ def _judge(probe: _Probe, stamps: list[float], lags: list[float], duration_s: fl
     rate = (t.size - 1) / span if t.size > 1 and span > 0 and probe.expected_hz else None
     latency_ms = 1e3 * float(np.median(lags))
     detail = {"readings": int(t.size), "expected_hz": probe.expected_hz, "monotonic": bool(np.all(np.diff(t) >= 0)),
-              "host_clock": bool(max(abs(x) for x in lags) <= MAX_CLOCK_OFFSET_S)}
+              # the least delayed reading: a stall of this process delays readings, it never stamps them off
+              "host_clock": bool(abs(min(lags)) <= MAX_CLOCK_OFFSET_S)}
     problems = []
     if probe.expected_hz and (rate is None or rate < RATE_TOLERANCE * probe.expected_hz):
         problems.append(f"reads at {rate or 0:.3g} Hz, configured {probe.expected_hz:g} Hz: {probe.fix}, and that "
@@ -266,7 +269,7 @@ def _judge(probe: _Probe, stamps: list[float], lags: list[float], duration_s: fl
     if not detail["monotonic"]:
         problems.append("timestamps go backwards: the device or its bridge restamps readings; update its firmware")
     if not detail["host_clock"]:
-        problems.append(f"timestamps are {max(lags, key=abs):+.3g} s from this host's monotonic clock: stamp on "
+        problems.append(f"timestamps are {min(lags):+.3g} s from this host's monotonic clock: stamp on "
                         "arrival, or map the device clock to the host's (as the tcp load cell does)")
     if probe.inspect is not None and (found := probe.inspect()):
         problems.append(found)

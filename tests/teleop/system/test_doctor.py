@@ -11,6 +11,7 @@ import shutil
 import socket
 import sys
 import threading
+import time
 import tty
 
 import pytest
@@ -18,10 +19,13 @@ import pytest
 from teleop.bus.security import init_keys
 from teleop.cli import main
 from teleop.errors import ComplianceTeleopError
+from teleop.operator import FOLLOW_RATE_HZ
 from teleop.settings import BusSettings, Settings, default_settings_path, load_settings
 from teleop.settings_edit import update_settings_file
 from teleop.system.doctor import (
     Check,
+    _judge,  # the verdict on readings, without reading a device
+    _Probe,
     check_calibrations,
     check_devices,
     check_duration,
@@ -109,9 +113,31 @@ def test_the_operators_input_device_is_opened_and_read(tmp_path, capsys, name):
     device = next(d for d in report["devices"] if d["name"] == f"input {name}")
     if name == "sim":
         assert device["ok"] and device["problem"] is None
+        # read as often as the console reads it, not in a spin that starves the other devices' reads
+        assert device["detail"]["readings"] <= FOLLOW_RATE_HZ * 1.0 + 1
     else:  # named, with what to do
         assert code == 1 and not device["ok"] and f"cannot open gamepad {absent}" in device["problem"]
         assert device["problem"].endswith("name another in `[operator] input` (or pass `haptics operate --input`)")
+
+
+def _judged(lags_s: list[float]) -> Check:
+    """A device read at 50 Hz on this host's clock, whose readings reached this process ``lags_s`` late."""
+    now = time.monotonic()
+    stamps = [now + 0.02 * i for i in range(len(lags_s))]
+    probe = _Probe("load cell", object(), list, 50.0, "the cell", "check it")
+    return _judge(probe, stamps, lags_s, 0.02 * len(lags_s))
+
+
+def test_a_stalled_read_is_not_taken_for_a_device_on_another_clock():
+    check = _judged([0.001] * 30 + [1.6] + [0.001] * 30)  # this process stalled 1.6 s once (a loaded host)
+    assert check.ok and check.detail["host_clock"] and check.problem is None
+
+
+@pytest.mark.parametrize("offset_s", [5.0, -3.0])  # stamped in the past, or in the future, every time
+def test_a_device_stamping_on_another_clock_is_named(offset_s):
+    check = _judged([offset_s + 0.001 * (i % 3) for i in range(40)])
+    assert not check.ok and not check.detail["host_clock"]
+    assert f"timestamps are {offset_s:+.3g} s from this host's monotonic clock" in check.problem
 
 
 @pytest.mark.slow
