@@ -24,7 +24,8 @@ new node; the view counts these in ``robot_restarts`` and drops the old node's r
 last notice that ended a grasp (the watchdog) is kept beside the newest notice until the view is
 cleared, so that a refusal coming after it (a follow sent before the end was heard) does not hide it.
 So are the ids of the last :data:`REFUSED_STARTS_KEPT` ``start_grasp`` commands the robot refused
-(``refused_starts``): a refusal followed by another notice within one poll is not lost to the loop.
+(``refused_starts``), and the grasp ids of as many refused follows (``refused_follows``): a refusal
+followed by another notice within one poll is not lost to the loop.
 
 It sends ``follow`` messages (target width, dead-man enable, grasp id), the discrete
 ``command`` actions ``start_grasp`` (``params.target_force_n``), ``stop`` and ``release``, and
@@ -132,6 +133,7 @@ class OperatorView:
     refused: int = 0  # bus messages the subscription refused (malformed, unknown type)
     robot_restarts: int = 0  # times a robot topic's seq fell: the robot node was started again (a new process)
     refused_starts: tuple[str, ...] = ()  # the last start_grasp ids the robot refused, oldest first
+    refused_follows: tuple[str, ...] = ()  # the grasp ids of the last follows the robot refused, oldest first
     label: LabelBody | None = None
 
     def peer(self, name: str) -> Peer | None:
@@ -201,6 +203,7 @@ class OperatorLink:
         self._robot_seq: dict[str, int] = {}  # robot topic -> the last seq heard on it (this node process)
         self.robot_restarts = 0  # robot nodes heard started again (a topic's seq fell)
         self._refused_starts: collections.deque[str] = collections.deque(maxlen=REFUSED_STARTS_KEPT)
+        self._refused_follows: collections.deque[str] = collections.deque(maxlen=REFUSED_STARTS_KEPT)
         self.view = self._snapshot()
 
     @classmethod
@@ -364,6 +367,8 @@ class OperatorLink:
                 self._ended_by = self._notice
             elif body.event == "refused" and body.action == "start_grasp" and body.grasp_id is not None:
                 self._refused_starts.append(body.grasp_id)
+            elif body.event == "refused" and body.action == "follow" and body.grasp_id is not None:
+                self._refused_follows.append(body.grasp_id)
         elif kind == "estimate":
             self._orphaned.discard(body.grasp_id)
             _, count = self._estimates.get(body.grasp_id, (None, 0))
@@ -407,6 +412,6 @@ class OperatorLink:
             estimate_orphaned=estimate is not None and estimate.grasp_id in self._orphaned,
             ended_by=ended_by, ended_by_t_s=ended_by_t,
             refused=sum(self.subscriber.stats.refused.values()), robot_restarts=self.robot_restarts,
-            refused_starts=tuple(self._refused_starts),
+            refused_starts=tuple(self._refused_starts), refused_follows=tuple(self._refused_follows),
             label=self._labels.get(self._grasp_id) if self._grasp_id is not None else None,
         )

@@ -43,8 +43,10 @@ of both and the status it shows: :mod:`haptics.operator_status`; the grasps it t
   holds it anew knowing the node is there; so too while more than one robot node subscribes (a node
   on another ``robot_pub``: it would move unwatched): the status's problem says so, ``grasp`` is
   refused, and a held enable is suspended;
-* after ``stop``, ``release`` or ``next``, and when the robot ends the follow grasp (released,
-  the watchdog: its ``grasp_event`` end or its ``watchdog`` notice naming the grasp), no follow goes out until the enable has been let go and held again: a held
+* after ``stop``, ``release`` or ``next``, when the robot ends the follow grasp (released,
+  the watchdog: its ``grasp_event`` end or its ``watchdog`` notice naming the grasp), and when it
+  refuses a follow naming the grasp while it does not run it (its end went unheard, or another
+  grasp runs), no follow goes out until the enable has been let go and held again: a held
   enable never moves the fingers again, nor starts a new grasp, by itself;
 * so too when the loop starts (an enable already held does not drive until it has been let go),
   and after a gap in the device (:mod:`haptics.operator_device`): a read that failed (unplugged:
@@ -453,7 +455,13 @@ class OperatorLoop:
         ended = view.grasp_id if view.phase == "ended" else None
         # The watchdog's notice names the grasp it ended, even one whose start never came (preparing).
         stopped = view.ended_by.grasp_id if view.ended_by is not None else None
-        if self._follow_grasp is not None and self._follow_grasp in (ended, stopped):
+        # A follow refused naming this grasp while the robot does not run it: it ended unheard (its
+        # end or watchdog notice lost), or another grasp runs; it will not start under this id.
+        refused = self._follow_grasp if self._follow_grasp in view.refused_follows and not self._follow_live() else None
+        if self._follow_grasp is not None and self._follow_grasp in (ended, stopped, refused):
+            if refused is not None:
+                self._act(f"follow {refused} refused by the robot: {view.notice.reason}" if view.notice is not None
+                          and view.notice.grasp_id == refused else f"follow {refused} refused by the robot")
             self._follow_grasp = None
             if self._enable:  # a new grasp only once the enable is let go and held again
                 self._suspend()

@@ -60,3 +60,51 @@ def test_an_enable_held_while_the_last_grasp_ends_shows_and_drives_once_it_is_ov
     assert not [body for _, kind, body in link.sent if kind == "follow" and body["enable"]]
     _run(clock, loop, NEXT_WAIT_S)
     assert link.cleared == 1 and [body for _, kind, body in link.sent if kind == "follow" and body["enable"]]
+
+
+def _held_follow(clock: Clock, loop: OperatorLoop, device, link) -> str:
+    device.enable = True
+    _run(clock, loop, 0.1)
+    return link.sent[-1][2]["grasp_id"]
+
+
+def test_a_follow_refused_for_a_grasp_the_robot_does_not_run_ends_it_on_the_console():
+    # The watchdog ended the grasp while it was prepared and its notice was lost (a slow joiner, a
+    # dropped message): the robot refuses each follow naming it. A device notice came after the
+    # refusal in the same poll. The console must not drive that id for good: held anew, a new grasp.
+    clock, link, device, loop = loop_rig(grip=0.5)
+    grasp_id = _held_follow(clock, loop, device, link)
+    device_notice = RobotNoticeBody(event="device", action="load_cell", grasp_id=None, reason="read again")
+    link.view = OperatorView(t_s=clock(), notice=device_notice, notice_t_s=clock(), refused_follows=(grasp_id,))
+    _run(clock, loop, 0.05)
+    sent = len(link.sent)
+    _run(clock, loop, 0.5)
+    assert link.sent[sent:] == [] and loop.status.grasp_id is None and loop.status.suspended
+    assert f"follow {grasp_id} refused by the robot" in loop.status.log
+    device.enable = False
+    _run(clock, loop, 0.05)
+    device.enable = True
+    _run(clock, loop, 0.05)
+    kind, body = link.sent[-1][1:]
+    assert kind == "follow" and body["enable"] and body["grasp_id"] not in (grasp_id, None)
+    again = body["grasp_id"]  # refused too (this time the refusal is the newest notice): it says why
+    refusal = RobotNoticeBody(event="refused", action="follow", grasp_id=again,
+                              reason=f"grasp {again!r} has ended: name a new grasp to start one")
+    link.view = OperatorView(t_s=clock(), notice=refusal, notice_t_s=clock(), refused_follows=(grasp_id, again))
+    _run(clock, loop, 0.05)
+    assert f"follow {again} refused by the robot: {refusal.reason}" in loop.status.log
+
+
+def test_a_refused_follow_of_the_grasp_the_robot_runs_keeps_it():
+    # With hardware, a silent load cell refuses closing follows during the grasp: it goes on.
+    clock, link, device, loop = loop_rig(grip=0.5)
+    grasp_id = _held_follow(clock, loop, device, link)
+    silent = RobotNoticeBody(event="refused", action="follow", grasp_id=grasp_id,
+                             reason="the load cell has sent no force for over 0.1 s: ...")
+    link.view = OperatorView(t_s=clock(), grasp_id=grasp_id, phase="loading", notice=silent, notice_t_s=clock(),
+                             refused_follows=(grasp_id,))
+    sent = len(link.sent)
+    _run(clock, loop, 0.1)
+    follows = [body for _, kind, body in link.sent[sent:] if kind == "follow"]
+    assert follows and all(b["enable"] and b["grasp_id"] == grasp_id for b in follows)
+    assert loop.status.grasp_id == grasp_id and not loop.status.suspended

@@ -39,6 +39,16 @@ def test_the_link_keeps_every_refused_start_of_a_poll_not_only_the_newest_notice
     assert len(link.view.refused_starts) == 32 and link.view.refused_starts[-1] == "op-59"  # bounded
 
 
+def test_the_link_keeps_every_refused_follow_of_a_poll_apart_from_the_refused_starts():
+    clock = Clock()
+    subscriber = QueuedSubscriber(clock)
+    link = OperatorLink(publisher=SubscribedPublisher(), subscriber=subscriber, clock=clock)
+    subscriber.queue += [_notice(0, "follow", "op-3"), _notice(1, "stop", "op-3")]
+    link.poll()
+    assert link.view.notice.action == "stop" and link.view.refused_follows == ("op-3",)
+    assert link.view.refused_starts == ()
+
+
 def _running(clock: Clock, link: FakeLink, loop: OperatorLoop) -> str:
     """A discrete grasp pressed and shown held by the robot."""
     running = press(loop, clock, "grasp")
