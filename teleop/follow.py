@@ -207,14 +207,15 @@ class Follower:
         """A grasp ended: an object the fingers let go leaves them; the next one is prepared."""
         node = self.node
         if grasp.follow:
-            self._record_ended(grasp)
+            self.record_ended(grasp.grasp_id)
         self._let_go()
         # The object prepared may be another grasp's (a commanded grasp took its number): the next one's is due.
         if node.simulated and self.live is None and (self.next_live is None or self.next_live[0] != node._count):
             self.prepare_next()
 
-    def _record_ended(self, grasp: _Grasp) -> None:
-        self.ended[grasp.grasp_id] = None
+    def record_ended(self, grasp_id: str) -> None:
+        """Follows naming ``grasp_id`` no longer start a grasp (:data:`ENDED_KEPT`)."""
+        self.ended[grasp_id] = None
         if len(self.ended) > ENDED_KEPT:
             del self.ended[next(iter(self.ended))]
 
@@ -288,7 +289,7 @@ class Follower:
         self.enable = False
         if not _went_live(grasp):
             # No end goes out for it, but its console's stale follows must not start it again.
-            self._record_ended(grasp)
+            self.record_ended(grasp.grasp_id)
             node._grasp = None
         else:
             node._end()

@@ -503,8 +503,10 @@ class RobotNode(ServiceLoop):
         grasp.grasp_command = None  # handled here: its queued wake-up (drained by _end) does nothing
         if math.isfinite(grasp.started_s):
             self._end()
-        else:  # never started: nothing on the bus to end
+        else:  # never started: nothing on the bus to end, but its console's follows must not start it again
             self._grasp = None
+            if grasp.follow:
+                self._follower.record_ended(grasp.grasp_id)
 
     def _mark_loading_end(self) -> None:
         """The loading-end marker, once the width read at the stop and a force sample captured at

@@ -12,6 +12,7 @@ import pytest
 from support.node_rig import drain, running_node, step_for, wait_prepared
 
 from teleop.bus.wire import make_message
+from teleop.errors import DeviceError
 from teleop.operator import WATCHDOG_S
 
 
@@ -168,3 +169,24 @@ def test_a_grasp_the_watchdog_ended_while_it_prepared_is_not_started_again_by_it
     said = [m.body for m in got if m.type == "robot_notice"]
     assert [(n["event"], n["grasp_id"]) for n in said] == [("watchdog", "W2"), ("refused", "W2")]
     assert "grasp 'W2' has ended: name a new grasp" in said[1]["reason"]
+
+
+def test_a_grasp_the_gripper_failed_while_it_prepared_is_not_started_again_by_its_stale_follows(rig, monkeypatch):
+    node, listener = rig
+    ready, open_m = preparing(node, "G2")
+
+    def link_down():
+        raise DeviceError("franky: the gripper's link is down")
+
+    monkeypatch.setattr(node.gripper, "read_width", link_down)  # going live reads the fingers' width
+    ready()
+    step_for(node, 0.05)
+    assert not node.busy
+    monkeypatch.undo()  # the link back: a follow still naming the failed grasp must not start it
+    for _ in range(5):
+        follow(node, "G2", 0.0)
+        step_for(node, 0.01)
+    assert not node.busy and node.gripper.read_width()[1] == pytest.approx(open_m, abs=1e-4)
+    said = notices(listener)
+    assert [(n["event"], n["grasp_id"]) for n in said] == [("device", "G2"), ("refused", "G2")]
+    assert "grasp 'G2' has ended: name a new grasp" in said[1]["reason"]
