@@ -16,9 +16,11 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["BUTTONS", "FOLLOW_RATE_HZ", "WATCHDOG_S", "grip_to_width_m", "width_to_grip"]
+__all__ = ["BUTTONS", "FOLLOW_RATE_HZ", "FOLLOW_SPEED_M_S", "WATCHDOG_S", "grip_to_width_m", "width_to_grip"]
 
 FOLLOW_RATE_HZ = 50.0
+# The fingers follow an operator's target at up to this speed (m/s): faster than a grasp closes.
+FOLLOW_SPEED_M_S = 0.1
 WATCHDOG_S = 0.2
 # Discrete operator buttons, as every input backend names them.
 BUTTONS = ("grasp", "release", "stop", "next", "quit")

@@ -23,7 +23,7 @@ time and that reading (:class:`GraspStop`) for the robot node's loading-end mark
 
 Leader-follower teleoperation drives the fingers with :meth:`Gripper.follow`: it sets the
 fingers' target width and returns at once; the backend moves them toward the latest target
-(by default at :data:`FOLLOW_SPEED_M_S`) until :meth:`Gripper.stop`, which ends the following
+(by default at :data:`~teleop.operator.FOLLOW_SPEED_M_S`) until :meth:`Gripper.stop`, which ends the following
 within one of the backend's control steps.
 """
 
@@ -40,6 +40,7 @@ from typing import Any
 
 from teleop.devices.base import Device, SampleQueue, check_timeout, load_backend
 from teleop.errors import DeviceError, DeviceNotConnectedError, InvalidCommandError
+from teleop.operator import FOLLOW_SPEED_M_S
 from teleop.record import Samples
 from teleop.settings import GripperSettings
 
@@ -54,7 +55,6 @@ BACKENDS = {
 }
 MAX_SPEED_M_S = 0.2
 MAX_FORCE_N = 140.0  # the Franka hand's peak grasp force
-FOLLOW_SPEED_M_S = 0.1  # default finger speed while following an operator: faster than a grasp closes
 LINK_DOWN_S = 0.5  # width reads failing this long in a row and the gripper is down (module docstring)
 FRANKY_FIX = "check the robot is on with FCI enabled and `gripper.host`"  # what to do when it does not connect
 
@@ -225,7 +225,7 @@ class Gripper(Device):
         """Set the fingers' target width ``width_m`` (m) and return at once.
 
         The fingers move toward the latest target at up to ``speed_m_s`` (m/s, default
-        :data:`FOLLOW_SPEED_M_S`) and hold it, until :meth:`stop` or another command. A running
+        :data:`~teleop.operator.FOLLOW_SPEED_M_S`) and hold it, until :meth:`stop` or another command. A running
         move or grasp is superseded. Arguments are checked as :meth:`move` checks them.
         """
         self._require_up()

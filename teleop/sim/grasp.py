@@ -41,7 +41,7 @@ scripted motion by a :class:`~teleop.sim.operator.SimulatedOperator` closed loop
 node runs a leader-follower grasp: the operator commands a target width at
 ``teleop.operator.FOLLOW_RATE_HZ`` from the force it feels (the true force; it feels it late),
 the commands reach the gripper :data:`~teleop.sim.motion.FOLLOW_LATENCY_S` later, and the fingers
-follow the target at up to :data:`~teleop.sim.motion.FOLLOW_SPEED_M_S`, force-capped at
+follow the target at up to :data:`~teleop.operator.FOLLOW_SPEED_M_S`, force-capped at
 ``gripper.target_force_n`` (the load curve is solved up to that cap; the gripper stalls there).
 When the operator releases, the fingers open as after a scripted grasp. Everything downstream
 (load cell, width readings, frames, record window) is as for scripted grasps; the record has no

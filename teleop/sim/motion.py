@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from teleop.errors import SimulationError
-from teleop.operator import FOLLOW_RATE_HZ
+from teleop.operator import FOLLOW_RATE_HZ, FOLLOW_SPEED_M_S
 from teleop.record import GRASP_DONE_EVENT
 from teleop.settings import GripperSettings
 from teleop.sim.operator import SimulatedOperator
@@ -24,7 +24,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     "FOLLOW_LATENCY_S",
-    "FOLLOW_SPEED_M_S",
     "HOST_DELAY_S",
     "MAX_OPERATOR_S",
     "MOTION_DELAY_S",
@@ -37,7 +36,6 @@ __all__ = [
 MOTION_DELAY_S = (0.02, 0.08)  # command to motion start
 HOST_DELAY_S = (0.0, 0.05)  # grasp done to release command, beyond hold_s
 TIME_STEP_S = 1e-3
-FOLLOW_SPEED_M_S = 0.1  # the fingers follow an operator's target width at up to this speed
 FOLLOW_LATENCY_S = (0.005, 0.03)  # operator command to the gripper (bus and controller), uniform
 MAX_OPERATOR_S = 120.0  # an operator grasp that has not finished by then is a simulation error
 

@@ -10,12 +10,11 @@ import pytest
 from haptics.errors import OperatorInputError
 from haptics.inputs import make_input
 from haptics.inputs.sim import SimulatedInput
-from teleop.operator import grip_to_width_m
+from teleop.operator import FOLLOW_SPEED_M_S, grip_to_width_m
 
 DT_S = 0.02  # the operator side's follow period (50 Hz)
 MAX_WIDTH_M = 0.08
 MAX_FORCE_N = 30.0
-FOLLOW_SPEED_M_S = 0.1
 
 
 class SpringGripper:

@@ -9,11 +9,11 @@ import pytest
 
 from teleop.catalogue import ObjectSpec
 from teleop.errors import SimulationError
+from teleop.operator import FOLLOW_SPEED_M_S
 from teleop.record import GRASP_DONE_EVENT, read_record, write_record
 from teleop.settings import load_settings
 from teleop.sim.contact import hertz_sphere
 from teleop.sim.grasp import simulate_grasp
-from teleop.sim.motion import FOLLOW_SPEED_M_S
 
 STEEL = ObjectSpec(name="steel_ball", shape="sphere", material="metal", modulus_pa=2.0e11, size_m=(0.025,) * 3)
 FOAM = ObjectSpec(name="foam_block", shape="box", material="foam", modulus_pa=5.0e3, size_m=(0.04, 0.05, 0.03))

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from teleop.operator import FOLLOW_RATE_HZ
+from teleop.operator import FOLLOW_RATE_HZ, FOLLOW_SPEED_M_S
 from teleop.sim.operator import (
     GIVE_UP_S,
     MIN_PEAK_FORCE_N,
@@ -19,7 +19,6 @@ from teleop.sim.operator import (
 
 MAX_WIDTH_M = 0.08
 MAX_FORCE_N = 30.0
-FOLLOW_SPEED_M_S = 0.1
 
 
 def drive(seed: int, *, stiffness_n_per_m: float, extent_m: float = 0.04, max_s: float = 40.0,
