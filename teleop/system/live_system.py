@@ -267,8 +267,10 @@ class LiveSystem:
         package, *args = line
         log_path = self.run_dir / f"{name}.log"
         with log_path.open("wb") as log_file:
+            # -P: without it -c puts the working folder first on sys.path, and a user's estimator.py
+            # there would run instead of the package.
             process = subprocess.Popen(
-                [sys.executable, "-c", _ENTRY.format(package=package), *args],
+                [sys.executable, "-P", "-c", _ENTRY.format(package=package), *args],
                 stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT, env=env,
                 start_new_session=True, preexec_fn=_die_with_parent,
             )
