@@ -68,6 +68,7 @@ __all__ = [
     "settings_folder",
     "settings_from_mapping",
     "settings_to_mapping",
+    "shipped_calibration_hint",
 ]
 
 
@@ -547,5 +548,24 @@ def missing_calibrations(settings: Settings, path: str | Path | None = None) -> 
         f"[sensors.{estimating.finger}] calibration: none named, and [sensing] finger = "
         f"{estimating.finger!r} estimates; make one with `estimator calibrate` and name it there"]
     return unnamed + [f"[sensors.{sensor.finger}] calibration {sensor.calibration}: no such file (a relative path "
-                      f"resolves against {folder}); make it with `estimator calibrate`"
+                      f"resolves against {folder}); {_make_calibration(sensor)}"
                       for sensor in settings.sensors if sensor.calibration and not Path(sensor.calibration).is_file()]
+
+
+def _make_calibration(sensor: SensorSettings) -> str:
+    hint = shipped_calibration_hint(sensor)
+    return "make it with `estimator calibrate`" if hint is None else f"{hint}, or make your own with `estimator calibrate`"
+
+
+def shipped_calibration_hint(sensor: SensorSettings) -> str | None:
+    """Where ``sensor``'s missing calibration file is shipped (``config_dir()/calibration``, by its file
+    name): "the shipped one is PATH: point [sensors.FINGER] calibration at it"; None when the file is
+    there, none is named, or none of that name is shipped. A copy of the shipped settings elsewhere
+    names the simulated sensors' files relative to the copy's folder: they need no capture."""
+    path = Path(sensor.calibration)
+    if not sensor.calibration or path.is_file():
+        return None
+    shipped = config_dir() / "calibration" / path.name
+    if not shipped.is_file():
+        return None
+    return f"the shipped one is {shipped}: point [sensors.{sensor.finger}] calibration at it"

@@ -27,9 +27,11 @@ folder that holds client certificates only, one at least. The settings refuse a 
 and two that name one.
 
 Calibrations: each sensor's colour calibration (present, loads, made for the sensor's image
-grid; its age in days), required for the estimator's finger; and the estimator's model. A
+grid; its age in days), required for the estimator's finger; and the estimator's model (its age). An
+age is from the creation time the file records, else from the file's time (a copy's is the copy's). A
 calibration made for another sensor (its model, finger or serial) is a warning, saying which; the
-estimator's finger holding another finger's file of these settings (a swap) is a problem.
+estimator's finger holding another finger's file of these settings (a swap) is a problem. A missing
+calibration whose name a shipped one has (a copied settings file's relative path) is pointed at it.
 
 Exit status 0 when everything a session needs is right (warnings or not), 1 otherwise.
 """
@@ -46,6 +48,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -74,6 +77,7 @@ from teleop.settings import (
     default_settings_path,
     load_settings,
     resolve_path,
+    shipped_calibration_hint,
 )
 
 __all__ = ["Check", "check_calibrations", "check_devices", "check_duration", "check_endpoints", "diagnose",
@@ -419,8 +423,16 @@ def check_endpoints(settings: Settings) -> list[Check]:
     return checks if keys is None else [*checks, keys]
 
 
-def _age_days(path: Path) -> float:
-    return round((time.time() - path.stat().st_mtime) / 86400.0, 1)
+def _age_days(created_utc: Any, path: Path) -> float:
+    """Days since ``created_utc`` (ISO 8601, as calibrations and models record it), else since ``path``
+    was last written: a copied or installed file's is the day of the copy, not of the fit."""
+    try:
+        created = datetime.fromisoformat(created_utc)
+    except (TypeError, ValueError):
+        created_s = path.stat().st_mtime
+    else:
+        created_s = (created if created.tzinfo else created.replace(tzinfo=UTC)).timestamp()
+    return round((time.time() - created_s) / 86400.0, 1)
 
 
 def _calibrate_todo(sensor: SensorSettings, settings_path: Path) -> str:
@@ -431,12 +443,15 @@ def _calibrate_todo(sensor: SensorSettings, settings_path: Path) -> str:
     command = ["estimator", "calibrate", "--capture", "--presses", f"runs/presses-{sensor.finger}",
                "--settings", str(settings_path), "--finger", sensor.finger, "--ball-radius-mm", "2", "--out", str(out)]
     then = "" if sensor.calibration else f', then set calibration = "{out.name}" in [sensors.{sensor.finger}]'
-    return f"run `{shlex.join(command)}` (--ball-radius-mm: the pressed ball's radius){then}"
+    todo = f"run `{shlex.join(command)}` (--ball-radius-mm: the pressed ball's radius){then}"
+    hint = shipped_calibration_hint(sensor)
+    return todo if hint is None else f"{hint}, or make your own: {todo}"
 
 
 def check_calibrations(settings: Settings, settings_path: Path) -> list[Check]:
     """Each sensor's colour calibration and the estimator's model: present, loadable, their age."""
     from estimator.errors import EstimatorError
+    from estimator.inference.infer import read_metadata
     from estimator.measurements import calibration_sensor_mismatch, check_calibration_fits
     from estimator.perception.calibration import load_calibration
     from estimator.service import resolve_model_dir
@@ -465,7 +480,8 @@ def check_calibrations(settings: Settings, settings_path: Path) -> list[Check]:
                 checks.append(Check(name, False, problem=f"{mismatch}; it is [sensors.{owner}]'s: {fix}", detail=detail))
                 continue
             warning = mismatch and f"{mismatch}: {fix}"
-            checks.append(Check(name, True, detail={**detail, "age_days": _age_days(path)}, warning=warning))
+            age_days = _age_days(calibration.provenance.get("created_utc"), path)
+            checks.append(Check(name, True, detail={**detail, "age_days": age_days}, warning=warning))
         except EstimatorError as exc:
             checks.append(Check(name, False, problem=f"{exc}: {todo}", detail=detail))
     model_dir = resolve_model_dir(None, settings)
@@ -475,7 +491,15 @@ def check_calibrations(settings: Settings, settings_path: Path) -> list[Check]:
         checks.append(Check("model", False, problem=f"{model_dir} lacks model.onnx or metadata.json: fix "
                                                     "`estimator.model_path` or train one", detail={"path": str(model_dir)}))
     else:
-        checks.append(Check("model", True, detail={"path": str(model_dir), "age_days": _age_days(model_dir / "model.onnx")}))
+        try:
+            metadata = read_metadata(model_dir)[1]
+        except EstimatorError as exc:
+            checks.append(Check("model", False, problem=f"{exc}: fix `estimator.model_path` or train one",
+                                detail={"path": str(model_dir)}))
+        else:
+            created = metadata.get("created_utc") if isinstance(metadata, dict) else None
+            checks.append(Check("model", True, detail={"path": str(model_dir),
+                                                       "age_days": _age_days(created, model_dir / "model.onnx")}))
     return checks
 
 
