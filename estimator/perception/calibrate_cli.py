@@ -31,6 +31,7 @@ from estimator.perception.capture import add_capture_arguments, capture_to_folde
 from estimator.perception.markers import detect_markers
 from estimator.perception.press_circles import VISIBLE_CHANGE, change_inside_circle, clipped_presses
 from estimator.perception.presses import PressSet, load_presses, split_presses
+from teleop.clikit import output_file
 from teleop.record import software_version
 from teleop.settings import SensorSettings, default_settings_path, load_settings
 
@@ -218,7 +219,8 @@ def _flat_weight(text: str) -> float | None:
 
 def _checked_out(args: argparse.Namespace) -> Path:
     """``--out``, refused before any work when writing it would lose a file: the presses it is fitted
-    from (even with --overwrite), or an existing file without --overwrite."""
+    from (even with --overwrite), or an existing file without --overwrite; its folder made, as every
+    command's output file (:func:`~teleop.clikit.output_file`), or refused when it cannot be."""
     out = Path(args.out)
     if out.is_dir():
         raise CalibrationError(f"--out {out}: is a folder; expected a calibration file name (.npz)")
@@ -227,7 +229,8 @@ def _checked_out(args: argparse.Namespace) -> Path:
                                "it is fitted from: give another --out")
     if out.exists() and not args.overwrite:
         raise CalibrationError(f"--out {out}: exists already: pass --overwrite to replace it, or another --out")
-    return out
+    # Now, not at the save: a folder that cannot be made would fail after the fit (and every capture).
+    return output_file("--out", args.out)
 
 
 def _check_tiles(tiles: tuple[int, int], shape: tuple[int, int], ball_px: float) -> None:
