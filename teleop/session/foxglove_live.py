@@ -49,7 +49,7 @@ from teleop.session.foxglove import (
     in_topic_order,
     known_channels,
 )
-from teleop.settings import BusSettings, Settings
+from teleop.settings import BusSettings, Settings, config_dir
 
 __all__ = [
     "DEFAULT_ADDRESS",
@@ -103,8 +103,8 @@ def add_foxglove_argument(parser: argparse.ArgumentParser, *, what: str) -> None
         metavar="[HOST:]PORT",
         help=f"serve {what} live to Foxglove over its WebSocket protocol on HOST:PORT "
         f"(alone: {DEFAULT_ADDRESS}; PORT 0: any free port); open it in Foxglove with "
-        "'Open connection' > 'Foxglove WebSocket' and ws://HOST:PORT, and import "
-        "configs/foxglove/layout.json",
+        f"'Open connection' > 'Foxglove WebSocket' and ws://HOST:PORT, and import "
+        f"{config_dir() / 'foxglove' / 'layout.json'}",
     )
 
 
