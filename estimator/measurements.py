@@ -26,6 +26,7 @@ from estimator.perception.depth import reconstruct_depth
 from estimator.perception.grid import DepthGrid, depth_grid
 from estimator.perception.markers import detect_markers
 from estimator.segment import Segment
+from teleop.record import GraspRecord
 from teleop.settings import SensorSettings, resolve_path
 
 log = logging.getLogger(__name__)
@@ -36,6 +37,7 @@ __all__ = [
     "TACTILE_METHODS",
     "GraspMeasurements",
     "calibration_path",
+    "calibration_problem",
     "calibration_sensor_mismatch",
     "check_calibration_fits",
     "check_method",
@@ -182,6 +184,40 @@ def calibration_path(sensor: SensorSettings, override: str | Path | None = None)
             "--calibration"
         )
     return resolve_path(sensor.calibration)
+
+
+def calibration_problem(record: GraspRecord, finger: str, override: str | None, option: str) -> str | None:
+    """Why the calibration of ``finger`` of ``record`` cannot be used (None: it can).
+
+    ``estimator evaluate``, ``compare`` and ``build-dataset`` skip such a record with this reason.
+
+    Parameters
+    ----------
+    record : GraspRecord
+    finger : str
+        A finger ``record`` has a sensor on.
+    override : str or None
+        The calibration given for every record (``option``'s value); when given, the record's own is not read.
+    option : str
+        The command-line option that gives ``override`` (named in the reason: ``--calibration``).
+
+    Returns
+    -------
+    str or None
+        The reason, naming the missing file and ``option``; None when the record names a file that exists.
+    """
+    if override is not None:
+        return None
+    sensor: SensorSettings = record.sensor(finger)
+    if not sensor.calibration:
+        return (f"its sensor on finger {finger!r} names no calibration file: pass {option} CAL "
+                "(a calibration of that sensor from `estimator calibrate`)")
+    path = calibration_path(sensor)
+    if not path.is_file():
+        return (f"it names calibration {path} for finger {finger!r}, which does not exist: export its session "
+                f"again with `teleop export` (exported records carry their calibration inside), put the file "
+                f"there, or pass {option} CAL")
+    return None
 
 
 def resolve_calibration(sensor: SensorSettings, calibration: Calibration | str | Path | None) -> Calibration:

@@ -36,6 +36,7 @@ the same verdict for the model it has just made.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -83,7 +84,8 @@ ROLES = ("base", "candidate")
 
 
 class NothingToCompare(EstimatorError):
-    """No labelled record is of an object neither model trained on; ``skipped`` lists every record's cause."""
+    """No record can be scored (none readable, labelled, with its calibration and of an object neither model
+    trained on); ``skipped`` lists every record's cause."""
 
     def __init__(self, message: str, skipped: list[dict[str, str]]):
         super().__init__(message)
@@ -276,7 +278,7 @@ def compare_models(
     Raises
     ------
     NothingToCompare
-        No labelled record is of an object neither model trained on.
+        No record can be scored: the message counts the causes, ``skipped`` names each record's.
     ModelError
         A model directory is missing or unreadable.
     EstimatorError
@@ -304,11 +306,12 @@ def compare_models(
     scored = sorted({r["path"] for r in rows if "method" in r})
     if not scored:
         where = records if isinstance(records, str | Path) else f"{len(paths)} records"
+        causes = Counter(skip_cause(r) for r in rows if "skipped" in r)
+        said = {"trained on": "of objects they trained on"}
         raise NothingToCompare(
-            f"{where}: no labelled record of an object neither model trained on ({len(paths)} records, "
-            f"{sum(1 for s in skipped if 'trained on' in s['cause'])} of objects they trained on, "
-            f"{sum(1 for s in skipped if 'trained on' not in s['cause'])} unreadable or unlabelled); "
-            "compare on grasps of other objects", skipped)
+            f"{where}: no labelled record of an object neither model trained on ({len(paths)} records: "
+            + ", ".join(f"{n} {said.get(cause, cause)}" for cause, n in causes.most_common())
+            + ("; compare on grasps of other objects" if "trained on" in causes else "") + ")", skipped)
     display_range = display_range_pa(settings)
     summary = summarise(rows, list(ROLES), display_range_pa=display_range,
                         interval_levels={m.name: m.interval_level for m in methods})

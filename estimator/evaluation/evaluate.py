@@ -44,14 +44,14 @@ from pathlib import Path
 from typing import Any
 
 from estimator.analytical import METHODS
-from estimator.errors import ModelError, PerceptionError
+from estimator.errors import CalibrationError, ModelError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.evaluation.metrics import E_MAX_PA, E_MIN_PA, PAPER, point_value, summarise
 from estimator.inference.hybrid import ALL_METHODS, LEARNED_METHODS, HybridEstimator
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.inputs import Variant
 from estimator.measure import estimate_grasp, finger_sensor, measure_grasp
-from estimator.measurements import TACTILE_METHODS, calibration_path
+from estimator.measurements import TACTILE_METHODS, calibration_path, calibration_problem
 from estimator.perception.calibration import Calibration, load_calibration
 from teleop.errors import RecordError
 from teleop.parallel import progress_map
@@ -190,7 +190,8 @@ def answered_by(rows: Iterable[dict[str, Any]], method: str) -> dict[str, int]:
 
 
 def skip_cause(row: dict[str, Any]) -> str:
-    """The kind of a skipped row's cause: ``unreadable``, ``unlabelled`` or ``trained on``."""
+    """The kind of a skipped row's cause: ``unreadable``, ``unlabelled``, ``calibration missing``,
+    ``calibration unusable`` or ``trained on``."""
     return cause_kind(row["skipped"])
 
 
@@ -220,8 +221,16 @@ def evaluate_record(
 ) -> list[dict[str, Any]]:
     """One row per method (analytical ``methods``, then ``models``) for a labelled record; one
     row without a method for a skipped one, whose ``skipped`` says why: ``unreadable: ...``,
-    ``unlabelled`` (no label, or no modulus), or ``trained on: OBJECT`` (its object is in
-    ``exclude``, the objects a model trained on: :func:`~estimator.inference.provenance.trained_objects`)."""
+    ``unlabelled`` (no label, or no modulus), ``calibration missing: ...`` (a calibration file the
+    record names is absent: :func:`~estimator.measurements.calibration_problem`), ``calibration unusable: ...`` (one it names
+    does not load), or ``trained on: OBJECT`` (its object is in ``exclude``, the objects a model
+    trained on: :func:`~estimator.inference.provenance.trained_objects`).
+
+    Raises
+    ------
+    CalibrationError
+        ``calibration`` (given for every record) cannot be used: the run's problem, not one record's.
+    """
     try:
         record = read_record(path)
     except RecordError as exc:
@@ -249,6 +258,12 @@ def evaluate_record(
             rows.append(result_row(path, label, entry.name, estimator.estimate(record, mode=entry.mode)))
     except (RecordError, PerceptionError) as exc:
         return [{"path": str(path), "skipped": f"unreadable: {exc}", "object": label.object_name}]
+    except CalibrationError as exc:
+        problem = calibration_problem(record, settings.sensing.finger, calibration, "--calibration")
+        if problem is None and calibration is not None:
+            raise  # the file --calibration gives serves every record: the run stops on it
+        cause = f"calibration missing: {problem}" if problem else f"calibration unusable: {exc}"
+        return [{"path": str(path), "skipped": cause, "object": label.object_name}]
     return rows
 
 

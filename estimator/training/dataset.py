@@ -79,14 +79,14 @@ from estimator.errors import EstimatorError, SampleError
 from estimator.inference.inputs import MEASUREMENT_VERSION, RIG_QUANTITIES
 from estimator.inference.provenance import SPLITS
 from estimator.inference.sampling import sample_grasp
-from estimator.measurements import calibration_path
+from estimator.measurements import calibration_problem
 from estimator.settings import estimator_settings
 from estimator.training.samples import TrainingSample, save_sample
 from teleop.clikit import file_in_the_way
 from teleop.errors import RecordError
 from teleop.parallel import progress_map
-from teleop.record import GraspRecord, read_record
-from teleop.settings import SensorSettings, Settings
+from teleop.record import read_record
+from teleop.settings import Settings
 
 __all__ = [
     "DATASET_FORMAT",
@@ -222,22 +222,6 @@ def _content_hash(path: Path) -> str | None:
     return digest.hexdigest()
 
 
-def _calibration_problem(record: GraspRecord, finger: str, override: str | None, option: str) -> str | None:
-    """Why the calibration of ``finger`` of ``record`` cannot be used (None: it can)."""
-    if override is not None:
-        return None
-    sensor: SensorSettings = record.sensor(finger)
-    if not sensor.calibration:
-        return (f"its sensor on finger {finger!r} names no calibration file: pass {option} CAL "
-                "(a calibration of that sensor from `estimator calibrate`)")
-    path = calibration_path(sensor)
-    if not path.is_file():
-        return (f"it names calibration {path} for finger {finger!r}, which does not exist: export its session "
-                f"again with `teleop export` (exported records carry their calibration inside), put the file "
-                f"there, or pass {option} CAL")
-    return None
-
-
 def _check_record(path: Path, *, finger: str,
                   options: DatasetOptions) -> tuple[str, str, float] | dict[str, Any]:
     """(object, material, modulus) of a record samples can be made of, or why it cannot be used (a skipped row)."""
@@ -256,11 +240,11 @@ def _check_record(path: Path, *, finger: str,
     if finger not in fingers:
         return _skip(path, "no sensor", f"no sensor on finger {finger!r} (the settings' sensing.finger); the "
                                         f"record has {', '.join(fingers)}: pass the --settings of its rig")
-    problem = _calibration_problem(record, finger, options.calibration, "--calibration")
+    problem = calibration_problem(record, finger, options.calibration, "--calibration")
     if problem is None and options.markers:
         other = next((s.finger for s in record.sensors if s.finger != finger and s.markers), None)
         if other is not None:
-            problem = _calibration_problem(record, other, options.marker_calibration, "--marker-calibration")
+            problem = calibration_problem(record, other, options.marker_calibration, "--marker-calibration")
     if problem is not None:
         return _skip(path, "calibration missing", problem)
     return label.object_name, label.material or "", label.modulus_pa
