@@ -29,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="print one JSON object (source, out, complete, closed_cleanly, damage, damaged, "
         "cut_short, messages, "
-        "topics, undecodable, attachments, damaged_attachments, metadata, salvaged_bytes, "
+        "topics, undecodable, dropped, rebuilt_channels, attachments, damaged_attachments, metadata, salvaged_bytes, "
         "source_bytes, trailing_bytes, lost) as the last stdout line",
     )
 
@@ -68,10 +68,22 @@ def run(args: argparse.Namespace) -> int:
             f"{args.out} see the damage too): {', '.join(report.damaged_attachments)}",
             file=sys.stderr,
         )
+    if report.rebuilt_channels:
+        print(
+            f"channels rebuilt from their messages (their records were lost with the damage): "
+            f"{', '.join(report.rebuilt_channels)}",
+            file=sys.stderr,
+        )
     if report.undecodable:
         print(
             f"{report.undecodable} salvaged messages are not valid bus messages "
             "(kept verbatim; readers skip them)",
+            file=sys.stderr,
+        )
+    if report.dropped:
+        print(
+            f"{report.dropped} messages dropped: their channel's record was lost with the damage and "
+            "they are neither bus messages nor the Foxglove forms of one",
             file=sys.stderr,
         )
     if args.json:
