@@ -452,7 +452,8 @@ class SessionRecorder:
             {
                 "stop_utc": datetime.now(UTC).isoformat(),
                 "stop_monotonic_ns": str(now_ns()),
-                **{key: json.dumps(value) for key, value in self.stats.as_dict().items()},
+                # not file_bytes: the file's size is known only once the summary and footer after this are written
+                **{key: json.dumps(value) for key, value in self.stats.as_dict().items() if key != "file_bytes"},
             },
         )
         self._writer.finish()

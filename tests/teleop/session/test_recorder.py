@@ -93,6 +93,13 @@ def test_settings_calibration_catalogue_and_scene_are_attached(recorded):
     assert json.loads(end["error"]) is None
 
 
+def test_the_end_metadata_leaves_out_the_file_size_it_cannot_know_yet(recorded):
+    """It is written before the summary and footer: a size there would be false (it said 0)."""
+    end = LogReader(recorded.path).info().metadata[END_METADATA]
+    assert "file_bytes" not in end and json.loads(end["messages"]) == recorded.stats.messages
+    assert recorded.stats.file_bytes == recorded.path.stat().st_size  # the stats (`--json`) have it
+
+
 def test_log_times_are_the_wall_clock_the_session_ran_at(recorded):
     """Log, publish and attachment times are ns since the Unix epoch, not the monotonic clock."""
     with recorded.path.open("rb") as f:
