@@ -155,6 +155,11 @@ def _member(name: str, compression: int) -> zipfile.ZipInfo:
     return info
 
 
+def partial_path(path: Path) -> Path:
+    """The temporary name :func:`write_record` writes the record ``path`` under, then renames."""
+    return path.with_name(path.name + ".partial")
+
+
 def write_record(record: GraspRecord, path: str | Path) -> Path:
     """Write ``record`` to ``path`` (a ``.grasp`` ZIP); returns the path.
 
@@ -192,7 +197,7 @@ def write_record(record: GraspRecord, path: str | Path) -> Path:
         "calibration": sorted(record.calibration),
         **({"calibration_files": files} if files else {}),
     }
-    tmp = path.with_name(path.name + ".partial")
+    tmp = partial_path(path)
     try:
         with zipfile.ZipFile(tmp, "w") as zf:
             zf.writestr(_member("record.json", zipfile.ZIP_DEFLATED), json.dumps(header, indent=1, allow_nan=False))

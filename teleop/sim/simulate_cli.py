@@ -44,7 +44,8 @@ A worker that dies (killed, out of memory) or an unexpected error in a grasp (no
 :class:`~teleop.errors.SimulationError`: a bug, a full disk) ends the run with an error that says what
 failed, how many records were written and how to finish. The records written stay: each is written
 whole (its preview first, then the record under a temporary name, renamed), and a dead worker's
-temporaries and previews without their record are removed.
+temporaries and previews without their record are removed; so are those of the workers an interrupt
+(Ctrl-C, SIGTERM) stopped mid-write.
 
 A sensor calibration file named in the settings that does not exist is warned of, not refused: the
 records are raw frames, which ``estimator estimate`` reads once that file is made.
@@ -68,7 +69,7 @@ from teleop.catalogue import ObjectSpec, default_catalogue_path, load_catalogue
 from teleop.clikit import non_negative_int
 from teleop.errors import SettingsError, SimulationError
 from teleop.parallel import progress_map
-from teleop.record import safe_name, write_record
+from teleop.record import partial_path, safe_name, write_record
 from teleop.settings import Settings, default_settings_path, load_settings, missing_calibrations
 from teleop.sim.grasp import OPERATORS, TARGET_FORCE_FRACTION, simulate_grasp
 from teleop.sim.mechanics import draw_mechanics
@@ -216,6 +217,26 @@ def _warn_missing_calibration(settings: Settings, settings_path: str | None) -> 
               "`estimator estimate` refuses them with these settings until the file exists", file=sys.stderr)
 
 
+def _remove_leftovers(out: Path, jobs: list[tuple]) -> list[tuple[ObjectSpec, int]]:
+    """Remove what a worker stopped mid-grasp leaves in ``out`` (a record's temporary, a preview's, a
+    preview without its record), so that only whole records stay; returns the (object, index) of the
+    jobs without a record."""
+    unwritten = []
+    for obj, index, *_ in jobs:
+        path = out / grasp_filename(obj, index)
+        partial_path(path).unlink(missing_ok=True)
+        _partial_preview(path).unlink(missing_ok=True)
+        if not path.exists():
+            path.with_suffix(".png").unlink(missing_ok=True)
+            unwritten.append((obj, index))
+    return unwritten
+
+
+def _partial_preview(path: Path) -> Path:
+    """The temporary name of the record ``path``'s preview, a name no record takes."""
+    return path.with_name(path.stem + ".partial.png")
+
+
 def _stopped(exc: BaseException, out: Path, jobs: list[tuple]) -> str:
     """What to say when a worker died or a grasp failed unexpectedly: what failed, what was written and
     how to finish. A dead worker's leftovers (a record's temporary, a preview without its record) are
@@ -224,18 +245,9 @@ def _stopped(exc: BaseException, out: Path, jobs: list[tuple]) -> str:
         what = f"{exc.name} grasp {exc.index}: unexpected error: {exc.reason} (-v shows where)"
     else:
         what = "a worker process died (killed? out of memory?)"
-    done, missing = 0, []
-    for obj, index, *_ in jobs:
-        path = out / grasp_filename(obj, index)
-        for leftover in (path.with_name(path.name + ".partial"), path.with_name(path.stem + ".partial.png")):
-            leftover.unlink(missing_ok=True)
-        if path.exists():
-            done += 1
-        else:
-            path.with_suffix(".png").unlink(missing_ok=True)
-            if obj.name not in missing:
-                missing.append(obj.name)
-    written = f"{done} of {len(jobs)} records were written to {out}"
+    unwritten = _remove_leftovers(out, jobs)
+    missing = list(dict.fromkeys(obj.name for obj, _ in unwritten))
+    written = f"{len(jobs) - len(unwritten)} of {len(jobs)} records were written to {out}"
     if not missing:
         return f"{what}; {written}: all of them, each whole"
     hint = "" if isinstance(exc, _GraspCrashed) else " and fewer --workers if memory ran short"
@@ -291,7 +303,7 @@ def _simulate_and_write(job: tuple) -> dict:
         record = dataclasses.replace(record, provenance=provenance)
     if preview:
         # Whole before its record (a record's preview is part of it), under a name no record takes.
-        sheet = path.with_name(path.stem + ".partial.png")
+        sheet = _partial_preview(path)
         try:
             write_preview(record, truth, sheet)
             sheet.replace(path.with_suffix(".png"))
@@ -377,6 +389,11 @@ def run(args: argparse.Namespace) -> int:
     except (BrokenProcessPool, _GraspCrashed) as exc:
         log.info("the run stopped on", exc_info=exc)
         raise SimulationError(_stopped(exc, out, jobs)) from exc
+    except KeyboardInterrupt:
+        # Ctrl-C or SIGTERM: the pool's workers were stopped at once, mid-write perhaps, with no
+        # clean-up of their own (progress_map has joined them: nothing writes here any more).
+        _remove_leftovers(out, jobs)
+        raise
     seconds = time.perf_counter() - start
 
     failed = [r for r in results if "error" in r]

@@ -4,9 +4,11 @@ estimator reads, objects too small or too wide to grasp."""
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import textwrap
+import time
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
@@ -16,6 +18,7 @@ from support.catalogue_toml import object_toml
 
 from teleop.catalogue import ObjectSpec
 from teleop.cli import main
+from teleop.clikit import Terminated
 from teleop.errors import SettingsError, SimulationError
 from teleop.settings import default_settings_path, load_settings
 from teleop.sim import simulate_cli
@@ -185,6 +188,61 @@ def test_a_dead_worker_ends_the_run_with_what_was_written_and_no_leftovers(
             f"records were written to {out} (each whole), the rest not: to finish, run the same command with --only "
             "oak_block --overwrite and fewer --workers if memory ran short") in stderr
     assert [p.name for p in out.iterdir()] == ["small_rubber_ball_g000.grasp"]
+
+
+@pytest.mark.parametrize(("signum", "status", "said"), [(signal.SIGINT, 130, "interrupted"),
+                                                      (signal.SIGTERM, 143, "terminated")])
+def test_an_interrupted_run_leaves_no_temporary_of_its_stopped_workers(
+        tmp_path, catalogue, quick_settings, capsys, monkeypatch, signum, status, said):
+    def stopped_mid_write(work, jobs, **kwargs):
+        work(jobs[0])  # written whole
+        obj, index, _, _, out, *_ = jobs[1]  # its worker stopped mid-write: no clean-up of its own ran
+        name = simulate_cli.grasp_filename(obj, index)
+        Path(out, name + ".partial").write_bytes(b"half a record")
+        Path(out, name.replace(".grasp", ".partial.png")).write_bytes(b"half a sheet")
+        raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
+
+    monkeypatch.setattr(simulate_cli, "progress_map", stopped_mid_write)
+    out = tmp_path / "o"
+    code, stdout, stderr = run(capsys, "--objects", str(catalogue), "--only", "small rubber ball,oak_block", "--out",
+                               str(out), "--settings", str(quick_settings), "--workers", "2")
+    assert (code, stdout, stderr) == (status, "", f"teleop simulate: {said}\n")
+    assert [p.name for p in out.iterdir()] == ["small_rubber_ball_g000.grasp"]
+
+
+@pytest.mark.slow
+def test_sigterm_while_a_worker_writes_leaves_no_temporary(tmp_path, catalogue, quick_settings):
+    # A real spawned pool, its worker inside a record's write when the command is terminated.
+    script = tmp_path / "stalled.py"
+    script.write_text(textwrap.dedent(f"""
+        import sys, time
+        from pathlib import Path
+        from teleop.cli import main
+        from teleop.sim import simulate_cli
+
+        def stalls_mid_write(job):
+            obj, index, _, _, out, *_ = job
+            Path(out, simulate_cli.grasp_filename(obj, index) + ".partial").write_bytes(b"half a record")
+            time.sleep(60)
+
+        if __name__ == "__main__":
+            simulate_cli._simulate_one = stalls_mid_write
+            sys.exit(main(["simulate", "--objects", {str(catalogue)!r}, "--only", "small rubber ball,oak_block",
+                           "--out", {str(tmp_path / "o")!r}, "--settings", {str(quick_settings)!r},
+                           "--workers", "2"]))
+    """))
+    child = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not list((tmp_path / "o").glob("*.partial")):
+            assert child.poll() is None and time.monotonic() < deadline, child.communicate()[1]
+            time.sleep(0.02)
+        child.send_signal(signal.SIGTERM)  # to the command alone, as a service manager does
+        _, err = child.communicate(timeout=20)
+    finally:
+        child.kill()
+    assert child.returncode == 143 and err.rstrip().endswith("teleop simulate: terminated"), err
+    assert list((tmp_path / "o").iterdir()) == []
 
 
 @pytest.mark.slow
