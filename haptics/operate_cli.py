@@ -26,7 +26,7 @@ from haptics.operator_link import OperatorLink
 from haptics.operator_loop import LoopStatus, OperatorLoop
 from haptics.settings import operator_settings
 from teleop.catalogue import default_catalogue_path, load_catalogue
-from teleop.clikit import on_stop_signals, positive_number
+from teleop.clikit import Terminated, on_stop_signals, positive_number
 from teleop.errors import SettingsError
 from teleop.live import StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.settings import default_settings_path, load_settings
@@ -203,8 +203,8 @@ def _sigterm_quits(app: Any) -> Iterator[None]:
     def on_sigterm(signum: int, frame: Any) -> None:  # noqa: ARG001
         try:
             running = asyncio.get_running_loop()
-        except RuntimeError:  # the screen is not up (yet, or any more): stop as Ctrl-C would
-            raise KeyboardInterrupt from None
+        except RuntimeError:  # the screen is not up (yet, or any more): stop as Ctrl-C would, saying why
+            raise Terminated(signum) from None
         # The handler interrupts the screen's own thread: its action runs on the screen's loop.
         running.call_soon_threadsafe(app.action_quit_console)
 

@@ -149,19 +149,54 @@ def hangup_ignored() -> bool:
     return signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
 
 
+class Terminated(KeyboardInterrupt):
+    """A stop signal other than Ctrl-C (SIGTERM, SIGHUP), raised as a KeyboardInterrupt so that whatever
+    cleans up after a Ctrl-C cleans up after it too; it keeps its signal for the exit status (a
+    supervisor reads 130 as a Ctrl-C at the terminal, 143 as its own SIGTERM)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+#: What a command that a signal stopped says it was.
+_STOPPED_BY = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated", signal.SIGHUP: "hung up"}
+
+
+def _stopped(what: str, exc: KeyboardInterrupt) -> int:
+    """Say on stderr that ``what`` was stopped by ``exc``'s signal, as ``<what>: interrupted`` (Ctrl-C),
+    ``terminated`` (SIGTERM) or ``hung up`` (SIGHUP).
+
+    Parameters
+    ----------
+    what
+        The command stopped: ``prog`` or ``prog command``.
+    exc
+        The interrupt: a plain KeyboardInterrupt is a Ctrl-C, a :class:`Terminated` names its signal.
+
+    Returns
+    -------
+    int
+        The exit status a shell gives a process that signal ends: 128 + its number.
+    """
+    signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
+    print(f"{what}: {_STOPPED_BY[signum]}", file=sys.stderr)
+    return 128 + signum
+
+
 @contextlib.contextmanager
 def sigterm_as_ctrl_c() -> Iterator[None]:
-    """SIGTERM and SIGHUP (a closed terminal; unless ignored, as under ``nohup``) raise KeyboardInterrupt
-    meanwhile, as Ctrl-C does, so a command cleans up after it (its pool workers or child processes
-    stopped, temporary files removed) and says it was interrupted, instead of dying alone. Only the
-    first: a second one must not cut that clean-up short. :func:`run_cli` runs every command so (in
-    the main thread); the services that stop on them (:class:`~teleop.live.StopSignals`) replace it
-    while they serve."""
+    """SIGTERM and SIGHUP (a closed terminal; unless ignored, as under ``nohup``) raise :class:`Terminated`
+    (a KeyboardInterrupt) meanwhile, as Ctrl-C does, so a command cleans up after it (its pool workers or
+    child processes stopped, temporary files removed) and says it was terminated, instead of dying
+    alone. Only the first: a second one must not cut that clean-up short. :func:`run_cli` runs every
+    command so (in the main thread); the services that stop on them (:class:`~teleop.live.StopSignals`)
+    replace it while they serve."""
     def interrupt(signum: int, frame: FrameType | None) -> None:
         for sig in (signal.SIGTERM, signal.SIGHUP):
             if signal.getsignal(sig) is interrupt:
                 signal.signal(sig, signal.SIG_IGN)
-        raise KeyboardInterrupt
+        raise Terminated(signum)
 
     with on_stop_signals(interrupt):
         yield
@@ -228,9 +263,8 @@ def run_cli(
     chosen = next((a for a in argv if not a.startswith("-")), None)
     try:
         args = _parsed(prog, description, commands, argv, chosen)
-    except KeyboardInterrupt:  # while the command's module imports (numpy, scipy, cv2: seconds)
-        print(f"{prog}{'' if chosen is None else ' ' + chosen}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:  # while the command's module imports (numpy, scipy, cv2: seconds)
+        return _stopped(f"{prog}{'' if chosen is None else ' ' + chosen}", exc)
     try:
         with sigterm_as_ctrl_c() if threading.current_thread() is threading.main_thread() else contextlib.nullcontext():
             try:
@@ -249,9 +283,8 @@ def run_cli(
               f"pip install 'compliance-teleop[{command.extra}]' (in a checkout: "
               f"pip install -c constraints.txt -e '.[{command.extra}]')", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"{prog} {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP (sigterm_as_ctrl_c)
+        return _stopped(f"{prog} {args.command}", exc)
     except BrokenPipeError:
         # The reader left (`| head`): not this command's error. Python would complain again when it
         # flushes stdout at exit, so that goes to /dev/null.

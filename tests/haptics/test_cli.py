@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from haptics.cli import COMMANDS, main
+from haptics.cli import commands, main
 from haptics.mapping import stiffness_fraction
 from haptics.protocol import REPORT_DESCRIPTOR, decode_output_report
 from haptics.settings import display_settings
@@ -18,7 +18,7 @@ def last_json(capsys) -> dict:
     return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("name", sorted(COMMANDS))
+@pytest.mark.parametrize("name", sorted(commands()))
 def test_help_runs(name, capsys):
     with pytest.raises(SystemExit) as exited:
         main([name, "--help"])

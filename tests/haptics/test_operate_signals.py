@@ -10,6 +10,7 @@ import time
 import pytest
 
 from haptics.operate_cli import _sigterm_quits
+from teleop.clikit import Terminated
 
 
 class _App:
@@ -36,12 +37,13 @@ def test_sigterm_quits_the_running_screen_and_the_handler_is_restored():
     assert signal.getsignal(signal.SIGTERM) is before
 
 
-def test_sigterm_with_no_screen_running_stops_as_ctrl_c_would():
+def test_sigterm_with_no_screen_running_stops_as_ctrl_c_would_saying_it_was_terminated():
     app = _App()
-    with pytest.raises(KeyboardInterrupt), _sigterm_quits(app):
+    with pytest.raises(Terminated) as stopped, _sigterm_quits(app):
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(0)  # a call: the pending handler runs by then at the latest
     assert app.quits == 0
+    assert isinstance(stopped.value, KeyboardInterrupt) and stopped.value.signum == signal.SIGTERM  # status 143
 
 
 def test_sighup_quits_the_running_screen_as_sigterm_does():

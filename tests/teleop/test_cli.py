@@ -22,7 +22,7 @@ from teleop.scene import SCENE_DIR
 from teleop.settings import CONFIG_DIR
 
 BIN = Path(sys.executable).parent
-PACKAGES = {"teleop": teleop.cli.COMMANDS, "estimator": estimator.cli.COMMANDS, "haptics": haptics.cli.COMMANDS}
+PACKAGES = {"teleop": teleop.cli.commands(), "estimator": estimator.cli.commands(), "haptics": haptics.cli.commands()}
 
 
 def run_script(*argv: str) -> subprocess.CompletedProcess:
@@ -46,7 +46,7 @@ def test_the_readme_names_every_command(prog):
 
 
 def test_teleop_has_the_foundation_commands():
-    assert {"settings", "catalogue", "import-dataset"} <= set(teleop.cli.COMMANDS)
+    assert {"settings", "catalogue", "import-dataset"} <= set(teleop.cli.commands())
 
 
 def test_settings_on_a_bad_file_is_one_line_without_traceback(tmp_path):

@@ -1,5 +1,6 @@
-"""SIGTERM stops every command as Ctrl-C does (its clean-up run, "interrupted", exit 130), pool workers
-included; a Ctrl-C after the command returned is ignored."""
+"""SIGTERM stops every command as Ctrl-C does (its clean-up run, pool workers included), but says it
+was terminated, with exit status 143 (128 + SIGTERM; a Ctrl-C's is 130); a Ctrl-C after the command
+returned is ignored, and one while the command line starts is one line too."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import subprocess
 import sys
 import textwrap
 import time
+import types
 from pathlib import Path
 
 import pytest
@@ -88,7 +90,7 @@ def _wait_gone(pids: set[int], timeout_s: float = 5.0) -> set[int]:
 
 
 @pytest.mark.parametrize(("workers", "slow_submit"), [(0, False), (2, False), (2, True)])
-def test_sigterm_is_a_ctrl_c_for_every_command_and_its_workers(tmp_path, workers, slow_submit):
+def test_sigterm_cleans_up_as_a_ctrl_c_for_every_command_and_its_workers_and_says_terminated(tmp_path, workers, slow_submit):
     child, pids = _start(tmp_path, workers, slow_submit=slow_submit)
     child.send_signal(signal.SIGTERM)  # to the command alone, as a service manager or `kill` does
     try:
@@ -98,8 +100,8 @@ def test_sigterm_is_a_ctrl_c_for_every_command_and_its_workers(tmp_path, workers
     left = _wait_gone(pids - {child.pid})
     for pid in left:
         os.kill(pid, signal.SIGKILL)
-    assert child.returncode == 130, err
-    assert "sleeper sleep: interrupted" in err and "Traceback" not in err
+    assert child.returncode == 143, err
+    assert err.rstrip().endswith("sleeper sleep: terminated") and "Traceback" not in err
     assert (tmp_path / "cleaned").exists()
     assert not left, "pool workers outlived the command"
 
@@ -108,14 +110,55 @@ def test_ctrl_c_is_ignored_once_a_command_line_run_returned(tmp_path):
     script = textwrap.dedent("""
         import signal, sys
         from teleop.clikit import run_cli
-        from teleop.cli import COMMANDS
+        from teleop.cli import commands
         before = signal.getsignal(signal.SIGINT)
-        assert run_cli("teleop", "", COMMANDS, ["settings"]) == 0  # in-process: the caller's Ctrl-C kept
+        assert run_cli("teleop", "", commands(), ["settings"]) == 0  # in-process: the caller's Ctrl-C kept
         assert signal.getsignal(signal.SIGINT) is before
         sys.argv = ["teleop", "settings"]
-        assert run_cli("teleop", "", COMMANDS) == 0  # the command line's: exiting now, Ctrl-C ignored
+        assert run_cli("teleop", "", commands()) == 0  # the command line's: exiting now, Ctrl-C ignored
         print(signal.getsignal(signal.SIGINT) is signal.SIG_IGN)
     """)
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().splitlines()[-1] == "True"
+
+
+@pytest.mark.parametrize(("signum", "status", "said"), [(signal.SIGINT, 130, "interrupted"),
+                                                      (signal.SIGTERM, 143, "terminated"),
+                                                      (signal.SIGHUP, 129, "hung up")])
+def test_the_exit_status_names_the_stop_signal(monkeypatch, capsys, signum, status, said):
+    from teleop.clikit import Command, hangup_ignored, run_cli
+
+    if signum == signal.SIGHUP and hangup_ignored():
+        pytest.skip("SIGHUP is ignored here (nohup): the commands keep it so")
+    command = types.ModuleType("stopped_command")
+    command.add_arguments = lambda parser: None
+    command.run = lambda args: signal.raise_signal(signum) or time.sleep(5)
+    monkeypatch.setitem(sys.modules, "stopped_command", command)
+    before = signal.getsignal(signal.SIGTERM)
+    assert run_cli("sleeper", "", {"stop": Command("stopped_command", "stop")}, ["stop"]) == status
+    assert capsys.readouterr().err == f"sleeper stop: {said}\n"
+    assert signal.getsignal(signal.SIGTERM) == before  # the command's handler put back
+
+
+# The console script's own lines (pyproject.toml's [project.scripts]): its package's cli module is imported
+# before main() runs. The Ctrl-C is raised while teleop.clikit imports, as a finder for it would.
+STARTUP = """
+import sys
+
+class CtrlC:
+    def find_spec(self, name, path=None, target=None):
+        if name == "teleop.clikit":
+            raise KeyboardInterrupt
+
+sys.meta_path.insert(0, CtrlC())
+from {package}.cli import main
+sys.exit(main(["--help"]))
+"""
+
+
+@pytest.mark.parametrize("package", ["teleop", "estimator", "haptics"])
+def test_a_ctrl_c_while_the_command_line_starts_is_one_line_and_130(package):
+    done = subprocess.run([sys.executable, "-c", STARTUP.format(package=package)], capture_output=True, text=True,
+                          timeout=60)
+    assert (done.returncode, done.stdout, done.stderr) == (130, "", f"{package}: interrupted\n")

@@ -112,7 +112,7 @@ def test_sigterm_stops_the_soak_as_ctrl_c_does_consumer_and_temporary_log_gone(t
             err = process.communicate(timeout=5.0)[1]
         finally:
             process.kill()
-    assert process.returncode == 130 and err.rstrip().endswith("teleop soak: interrupted"), err
+    assert process.returncode == 143 and err.rstrip().endswith("teleop soak: terminated"), err
     assert "Traceback" not in err and "leaked" not in err
     assert not any(_running(pid) for pid in consumers)
     assert list(tmp_path.iterdir()) == []
