@@ -41,6 +41,7 @@ Beside the graph, each live process's command module is imported in a fresh inte
 from __future__ import annotations
 
 import ast
+import functools
 import json
 import subprocess
 import sys
@@ -152,6 +153,12 @@ def collect_imports(root: Path, packages: Iterable[str] = PACKAGES, of: Iterable
     return sorted(found, key=lambda i: (i.path, i.line, i.target))
 
 
+@functools.cache
+def project_imports(of: tuple[str, ...] | None = None) -> tuple[Import, ...]:
+    """:func:`collect_imports` of the project, parsed once per worker for all the tests that read it."""
+    return tuple(collect_imports(REPO, of=of))
+
+
 # ---------------------------------------------------------------------------- the rules
 
 
@@ -237,27 +244,27 @@ def _report(title: str, problems: list[str]) -> str:
 def test_the_project_has_the_modules_the_rules_speak_of():
     files = module_files(REPO)
     assert {"teleop.system", "teleop.system.demo", "teleop.clikit", "estimator.errors", "haptics.errors"} <= set(files)
-    assert len(collect_imports(REPO)) > 50
+    assert len(project_imports()) > 50
 
 
 def test_the_shared_base_imports_neither_estimator_nor_haptics():
-    bad = [f"{imp}" for imp in collect_imports(REPO)
+    bad = [f"{imp}" for imp in project_imports()
            if layer(imp.module) == "teleop" and layer(imp.target) in ("estimator", "haptics")]
     assert not bad, _report("the shared base (teleop outside teleop.system) imports", bad)
 
 
 def test_every_import_across_packages_is_an_allowed_one():
-    bad = layering_violations(collect_imports(REPO))
+    bad = layering_violations(project_imports())
     assert not bad, _report("imports across layers that the layering does not allow", bad)
 
 
 def test_no_import_cycle_between_the_packages():
-    cycles = package_cycles(collect_imports(REPO))
+    cycles = package_cycles(project_imports())
     assert not cycles, _report("import cycles between the packages", cycles)
 
 
 def test_the_estimators_layers_by_lifecycle():
-    imports = collect_imports(REPO)
+    imports = project_imports()
     layers = {estimator_layer(imp.module) for imp in imports}
     assert {"runtime", "training", "evaluation"} <= layers
     bad = estimator_violations(imports)
@@ -265,9 +272,9 @@ def test_the_estimators_layers_by_lifecycle():
 
 
 def test_the_estimator_run_time_imports_no_training_or_plotting_library():
-    bad = [f"{imp}" for imp in collect_imports(REPO, of=NOT_AT_RUN_TIME) if estimator_layer(imp.module) == "runtime"]
+    bad = [f"{imp}" for imp in project_imports(tuple(NOT_AT_RUN_TIME)) if estimator_layer(imp.module) == "runtime"]
     assert not bad, _report("the estimator's run time imports", bad)
-    assert collect_imports(REPO, of=("torch",)), "the training imports torch: the check reads third-party imports"
+    assert project_imports(("torch",)), "the training imports torch: the check reads third-party imports"
 
 
 def test_the_cli_kit_catches_one_error_base():
@@ -277,7 +284,7 @@ def test_the_cli_kit_catches_one_error_base():
 
     for error in (TeleopError, EstimatorError, HapticsError, SampleError, MappingError, MessageRejected):
         assert issubclass(error, ComplianceTeleopError), error
-    kit = [imp for imp in collect_imports(REPO) if imp.module == "teleop.clikit"]
+    kit = [imp for imp in project_imports() if imp.module == "teleop.clikit"]
     assert {imp.target for imp in kit} == {"teleop.errors"}, [str(i) for i in kit]
 
 
