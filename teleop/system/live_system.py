@@ -81,7 +81,16 @@ _PR_SET_PDEATHSIG = 1
 # One BLAS thread per child; progress bars (which a log file does not need) off or rare.
 _CHILD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "TQDM_DISABLE": "1",
               "TQDM_MININTERVAL": "60"}
-_ENTRY = "import sys; from {package}.cli import main; sys.exit(main())"
+# The child imports the packages from where this process did (not from its working folder, which
+# `-c` would put first on sys.path: a user's estimator.py there would run): the same code as the parent.
+_ENTRY = "import sys; sys.path.insert(0, {root!r}); from {package}.cli import main; sys.exit(main())"
+
+
+def package_root() -> Path:
+    """The folder this process imported the project's packages from (a checkout, or site-packages)."""
+    import teleop
+
+    return Path(teleop.__file__).resolve().parents[1]
 
 
 def grasp_timeout_s(settings: Settings) -> float:
@@ -267,10 +276,8 @@ class LiveSystem:
         package, *args = line
         log_path = self.run_dir / f"{name}.log"
         with log_path.open("wb") as log_file:
-            # -P: without it -c puts the working folder first on sys.path, and a user's estimator.py
-            # there would run instead of the package.
-            process = subprocess.Popen(
-                [sys.executable, "-P", "-c", _ENTRY.format(package=package), *args],
+            process = subprocess.Popen(  # -P: no working folder on sys.path (_ENTRY)
+                [sys.executable, "-P", "-c", _ENTRY.format(root=str(package_root()), package=package), *args],
                 stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT, env=env,
                 start_new_session=True, preexec_fn=_die_with_parent,
             )
