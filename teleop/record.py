@@ -59,8 +59,9 @@ and every frame byte for byte.
 
 A reader that meets a damaged or incomplete file raises
 :class:`~teleop.errors.RecordError` naming the file, the member or field, and
-what was expected; one whose member, or whole, would inflate far beyond what a record holds (a ZIP
-bomb) is refused before or while it is read (limits in ``_Reader``'s notes).
+what was expected (the header's values are checked in :mod:`teleop.record_header`); one whose
+member, or whole, would inflate far beyond what a record holds (a ZIP bomb) is refused before or
+while it is read (limits in ``_Reader``'s notes).
 """
 
 from __future__ import annotations
@@ -81,7 +82,8 @@ from typing import Any
 
 import numpy as np
 
-from teleop.errors import RecordError, SettingsError
+from teleop import record_header
+from teleop.errors import RecordError
 from teleop.grasp_data import (
     ENCODINGS,
     GRASP_DONE_EVENT,
@@ -95,8 +97,7 @@ from teleop.grasp_data import (
     reduce_image,
     software_version,
 )
-from teleop.settings import GripperSettings, SensorSettings, settings_to_mapping
-from teleop.settings_fields import build_settings
+from teleop.settings import SensorSettings, settings_to_mapping
 
 __all__ = [
     "FORMAT_NAME",
@@ -371,16 +372,6 @@ class _Reader:
             raise self.fail(f"member {name!r}: expected {ndim}-D {np.dtype(dtype)}, got {array.ndim}-D {array.dtype}")
         return array
 
-    def field(self, mapping: Mapping[str, Any], key: str, kind: type | tuple[type, ...], where: str) -> Any:
-        if not isinstance(mapping, Mapping) or key not in mapping:
-            raise self.fail(f"record.json: {where}.{key} is missing")
-        value = mapping[key]
-        kinds = kind if isinstance(kind, tuple) else (kind,)
-        if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
-            names = " or ".join(k.__name__ for k in kinds)
-            raise self.fail(f"record.json: {where}.{key} must be {names}, got {value!r}")
-        return value
-
     def samples(self, name: str, unit: str) -> Samples:
         t = self.array(f"{name}/t_s.npy", dtype=np.float64, ndim=1)
         v = self.array(f"{name}/value_{unit}.npy", dtype=np.float64, ndim=1)
@@ -453,20 +444,15 @@ def read_record(path: str | Path) -> GraspRecord:
             raise r.fail(f"record.json is not valid JSON ({exc})") from exc
         if not isinstance(header, dict):
             raise r.fail("record.json: expected a JSON object at the top")
-        fmt = r.field(header, "format", str, "header")
+        fmt = record_header.field(path, header, "format", str, "header")
         if fmt != FORMAT_NAME:
             raise r.fail(f"record.json: format is {fmt!r}, expected {FORMAT_NAME!r}")
-        version = r.field(header, "version", int, "header")
+        version = record_header.field(path, header, "version", int, "header")
         if version not in READABLE_VERSIONS:
             raise r.fail(f"record.json: version {version} is not supported (this software reads versions "
                          f"{' and '.join(map(str, READABLE_VERSIONS))})")
 
-        sensors = []
-        for i, table in enumerate(r.field(header, "sensors", list, "header")):
-            try:
-                sensors.append(_sensor_from_json(table))
-            except (SettingsError, TypeError, ValueError) as exc:
-                raise r.fail(f"record.json: sensors[{i}] is invalid ({exc})") from exc
+        sensors = record_header.sensors(path, header)
         calibration_files = _calibration_files(r, header, version)
         for i, sensor in enumerate(sensors):
             if sensor.finger in calibration_files:
@@ -479,65 +465,19 @@ def read_record(path: str | Path) -> GraspRecord:
                 sensors[i] = dataclasses.replace(sensor, calibration=str(copy))
 
         frames = []
-        for finger, info in r.field(header, "fingers", dict, "header").items():
-            where = f"fingers.{finger}"
-            encoding = r.field(info, "encoding", str, where)
-            if encoding not in ENCODINGS:
-                raise r.fail(f"record.json: {where}.encoding {encoding!r} is not one of {sorted(ENCODINGS)}")
-            count = r.field(info, "count", int, where)
+        for finger, info in record_header.field(path, header, "fingers", dict, "header").items():
+            encoding, count, quality, shape = record_header.frame_info(path, finger, info)
             t = r.array(f"frames/{finger}/t_s.npy", dtype=np.float64, ndim=1)
             if t.shape[0] != count:
                 raise r.fail(f"frames/{finger}/t_s.npy has {t.shape[0]} timestamps, header says {count} frames")
             encoded = tuple(r.member(f"frames/{finger}/{i:06d}{ENCODINGS[encoding]}") for i in range(count))
-            shape = info.get("shape")
-            quality = info.get("jpeg_quality")
-            try:
-                frames.append(
-                    FrameStream(
-                        finger=finger,
-                        t_s=t,
-                        encoded=encoded,
-                        encoding=encoding,
-                        jpeg_quality=quality,
-                        shape=tuple(shape) if shape else None,
-                    )
-                )
-            except (TypeError, ValueError) as exc:
-                raise r.fail(f"record.json: {where} is invalid ({exc})") from exc
-
-        gripper = None
-        if header.get("gripper") is not None:
-            try:
-                gripper = _gripper_from_json(header["gripper"])
-            except (SettingsError, TypeError, ValueError) as exc:
-                raise r.fail(f"record.json: gripper is invalid ({exc})") from exc
-
-        label = None
-        if header.get("label") is not None:
-            lab = header["label"]
-            try:
-                label = Label(
-                    object_name=r.field(lab, "object_name", str, "label"),
-                    modulus_pa=lab.get("modulus_pa"),
-                    material=lab.get("material", ""),
-                    shape=lab.get("shape", ""),
-                    extra=lab.get("extra", {}),
-                    source=lab.get("source", "catalogue"),
-                    detail=lab.get("detail", ""),
-                )
-            except (TypeError, ValueError) as exc:
-                raise r.fail(f"record.json: label is invalid ({exc})") from exc
-        prov = r.field(header, "provenance", dict, "header")
-        if version == 1 and "style" in prov:
-            raise r.fail("record.json: provenance.style is a version-2 field, but the record says version 1")
-        try:
-            provenance = Provenance(**prov)
-        except (TypeError, ValueError) as exc:
-            raise r.fail(f"record.json: provenance is invalid ({exc})") from exc
-        events = r.field(header, "events", dict, "header")
-        for key, value in events.items():
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise r.fail(f"record.json: events.{key} must be a time in seconds, got {value!r}")
+            # frame_info and the count check above make every check FrameStream makes: it refuses none.
+            frames.append(FrameStream(finger=finger, t_s=t, encoded=encoded, encoding=encoding,
+                                      jpeg_quality=quality, shape=shape))
+        gripper = record_header.gripper(path, header)
+        label = record_header.label(path, header)
+        provenance = record_header.provenance(path, header, version)
+        events = record_header.events(path, header)
         calibration = {}
         for name in header.get("calibration", []):
             member = f"calibration/{name}.npy"
@@ -547,15 +487,18 @@ def read_record(path: str | Path) -> GraspRecord:
                 raise
             except Exception as exc:
                 raise r.fail(f"member {member!r} is not a readable .npy array ({exc})") from exc
+        # Read outside the try below: their RecordErrors (ValueErrors) already name the file.
+        force_n = r.samples("force", "n")
+        width_m = r.samples("width", "m")
         try:
             return GraspRecord(
                 sensors=tuple(sensors),
                 frames=tuple(frames),
-                force_n=r.samples("force", "n"),
-                width_m=r.samples("width", "m"),
+                force_n=force_n,
+                width_m=width_m,
                 provenance=provenance,
                 label=label,
-                events={k: float(v) for k, v in events.items()},
+                events=events,
                 calibration=calibration,
                 gripper=gripper,
                 calibration_files={finger: data for finger, (_, data) in calibration_files.items()},
@@ -570,7 +513,7 @@ def _calibration_files(r: _Reader, header: Mapping[str, Any], version: int) -> d
         return {}
     if version < 3:
         raise r.fail(f"record.json: calibration_files is a version-3 field, but the record says version {version}")
-    files = r.field(header, "calibration_files", dict, "header")
+    files = record_header.field(r.path, header, "calibration_files", dict, "header")
     fingers = {table.get("finger") for table in header["sensors"] if isinstance(table, Mapping)}
     out = {}
     for finger, member in files.items():
@@ -581,16 +524,3 @@ def _calibration_files(r: _Reader, header: Mapping[str, Any], version: int) -> d
             raise r.fail(f"record.json: calibration_files.{finger}: the record has no sensor on finger {finger!r}")
         out[finger] = (member, r.member(member))
     return out
-
-
-def _sensor_from_json(table: Mapping[str, Any]) -> SensorSettings:
-    if not isinstance(table, Mapping):
-        raise TypeError(f"expected a table of sensor settings, got {table!r}")
-    # The settings loader's checks apply to the sensors stored in records too.
-    return build_settings(SensorSettings, table, "record.json", "sensors")
-
-
-def _gripper_from_json(table: Mapping[str, Any]) -> GripperSettings:
-    if not isinstance(table, Mapping):
-        raise TypeError(f"expected a table of gripper settings, got {table!r}")
-    return build_settings(GripperSettings, table, "record.json", "gripper")

@@ -125,7 +125,7 @@ def fails(path: Path, *expected: str) -> str:
     with pytest.raises(RecordError) as info:
         read_record(path)
     message = str(info.value)
-    assert str(path) in message, message
+    assert message.startswith(f"{path}: ") and f"{path}: {path}" not in message, message  # not named twice
     for part in expected:
         assert part in message, message
     return message
@@ -222,10 +222,10 @@ def test_invalid_json_and_header_fields(record_path):
         (lambda h: h["fingers"]["left"].update(encoding="gif"), "fingers.left.encoding 'gif'"),
         (lambda h: h["fingers"]["left"].pop("count"), "fingers.left.count is missing"),
         (lambda h: h["fingers"]["left"].update(count=5), "header says 5 frames"),
-        (lambda h: h["fingers"]["left"].update(shape=7), "fingers.left is invalid"),
+        (lambda h: h["fingers"]["left"].update(shape=7), "fingers.left.shape must be [rows, columns, 3]"),
         (lambda h: h["fingers"].update(middle=h["fingers"]["left"]), "'frames/middle/t_s.npy'"),
         (lambda h: h["label"].update(modulus_pa=-3.0), "label is invalid"),
-        (lambda h: h["label"].update(modulus_pa="soft"), "label is invalid"),
+        (lambda h: h["label"].update(modulus_pa="soft"), "label.modulus_pa must be a number (Pa) or null, got 'soft'"),
         (lambda h: h["label"].pop("object_name"), "label.object_name is missing"),
         (lambda h: h.update(label=["duck"]), "label.object_name is missing"),
         (lambda h: h["provenance"].update(source="dreamt"), "provenance is invalid"),
@@ -238,6 +238,36 @@ def test_invalid_json_and_header_fields(record_path):
 )
 def test_bad_header_fields_are_named(record_path, change, expected):
     fails(edit_header(record_path, change), expected)
+
+
+@pytest.mark.parametrize(
+    ("change", "expected"),
+    [
+        (lambda h: h["events"].update(grasp_done=float("nan")), "events.grasp_done must be a time in seconds"),
+        (lambda h: h["events"].update(contact=float("inf")), "events.contact must be a time in seconds"),
+        (lambda h: h["events"].update(contact=10**400), "events.contact must be a time in seconds"),
+        (lambda h: h["label"].update(modulus_pa=True), "label.modulus_pa must be a number (Pa) or null, got True"),
+        (lambda h: h["sensors"].append(dict(h["sensors"][0])),
+         "sensors[2].finger 'left' is also sensors[0]'s: expected one sensor per finger"),
+        *[(lambda h, v=v: h["fingers"]["left"].update(shape=v),
+           f"fingers.left.shape must be [rows, columns, 3] (positive integers: frames decode to H x W x 3 BGR) "
+           f"or null, got {v!r}")
+          for v in ("abc", [24, 32], [24, 0, 3], [24, 32.0, 3], [24, 32, True], [24, 32, 4])],
+        *[(lambda h, v=v: h["fingers"]["left"].update(jpeg_quality=v),
+           f"fingers.left.jpeg_quality must be an integer from 1 to 100 or null, got {v!r}")
+          for v in ("high", 0, 101, 85.0, True)],
+    ],
+)
+def test_header_values_outside_the_format_are_refused(record_path, change, expected):
+    """Values the writer never writes (a NaN time, a bool for a number, ...) are named, not read as others."""
+    fails(edit_header(record_path, change), "record.json: " + expected)
+
+
+def test_the_header_values_the_writer_writes_read_back(tmp_path):
+    jpeg = read_record(write_record(make_record("jpeg"), tmp_path / "jpeg.grasp"))
+    assert {s.jpeg_quality for s in jpeg.frames} == {85} and {s.shape for s in jpeg.frames} == {(24, 32, 3)}
+    empty = read_record(write_record(make_record("png", n_frames=0), tmp_path / "empty.grasp"))
+    assert {(s.jpeg_quality, s.shape) for s in empty.frames} == {(None, None)}
 
 
 def test_nan_label_modulus_is_refused(record_path):
