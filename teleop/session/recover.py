@@ -11,7 +11,7 @@ before when it was itself recovered), so readers of the copy take them as lost
 (:mod:`teleop.session.logdamage`). An attachment whose CRC-32 fails is copied with its stored
 CRC-32, not a fresh one, so the copy's readers find the damage too; it is named in
 ``damaged_attachments``. A message whose channel record was lost with a damaged chunk (a killed
-recorder's log has no summary to repeat it) is kept when it tells what it is: a bus message
+recorder's log has no summary to repeat it), or whose schema record was, is kept when it tells what it is: a bus message
 carries its topic and type, so its channel is registered again as the recorder registers it
 (:class:`~teleop.session.foxglove_log.LogChannels`), and the messages on lost channels right
 before it with its publish time and sequence, as many as its Foxglove forms
@@ -140,6 +140,7 @@ def _copy(reader: LogReader, writer: DamageKeepingWriter, report: RecoveryReport
     schemas: dict[int, int] = {}  # source id -> id in the copy (the summary repeats them)
     channels: dict[int, tuple[int, str]] = {}
     stored = StoredFrames()  # puts elided image data back, to check each bus message decodes
+    orphans: dict[int, Channel] = {}  # channel records whose schema record was lost, by source id
     lost = _LostChannels(writer, stored, channels, report)
     started = False
     for record in reader.records():
@@ -153,14 +154,10 @@ def _copy(reader: LogReader, writer: DamageKeepingWriter, report: RecoveryReport
             stored.add(record)
             schemas[record.id] = writer.register_schema(record.name, record.encoding, record.data)
         elif isinstance(record, Channel) and record.id not in channels:
-            stored.add(record)
-            copy = writer.register_channel(
-                record.topic,
-                record.message_encoding,
-                schemas.get(record.schema_id, 0),
-                dict(record.metadata),
-            )
-            channels[record.id] = (copy, record.topic)
+            if record.schema_id in (0, *schemas):
+                _register(writer, stored, channels, schemas, record)
+            else:  # its schema record a damaged chunk took: rebuilt from its messages, schema and all
+                orphans[record.id] = record
         elif isinstance(record, Message):
             if record.channel_id in channels and not stored.is_bus(record):
                 _write(writer, channels[record.channel_id][0], record)
@@ -168,10 +165,14 @@ def _copy(reader: LogReader, writer: DamageKeepingWriter, report: RecoveryReport
                 continue
             message = lost.decode(record)
             if record.channel_id not in channels:
-                if message is None:
+                orphan = orphans.get(record.channel_id)
+                if message is None and (orphan is None or orphan.topic.startswith("/")):
                     lost.hold(record)  # perhaps a Foxglove form of the bus message next
                     continue
-                lost.rebuild_bus(record, message)
+                if message is None:  # a bus message that does not decode: kept verbatim, as on a known channel
+                    _register(writer, stored, channels, schemas, orphans.pop(record.channel_id))
+                else:
+                    lost.rebuild_bus(record, message)
             lost.place_forms(record, message)
             channel, topic = channels[record.channel_id]
             _write(writer, channel, record)
@@ -217,6 +218,20 @@ def _copy(reader: LogReader, writer: DamageKeepingWriter, report: RecoveryReport
         },
     )
     writer.finish()
+
+
+def _register(
+    writer: DamageKeepingWriter,
+    stored: StoredFrames,
+    channels: dict[int, tuple[int, str]],
+    schemas: dict[int, int],
+    record: Channel,
+) -> None:
+    """Register the source's channel ``record`` in the copy (its schema's copy, or none if that was lost)."""
+    stored.add(record)
+    copy = writer.register_channel(record.topic, record.message_encoding, schemas.get(record.schema_id, 0),
+                                   dict(record.metadata))
+    channels[record.id] = (copy, record.topic)
 
 
 def _write(writer: DamageKeepingWriter, channel: int, record: Message) -> None:

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
+from mcap.records import Message
+from mcap.stream_reader import StreamReader, breakup_chunk
 
 import teleop.cli
 from teleop.session import LogReader, export_session, recover, replay, session_grasps
@@ -45,18 +47,30 @@ def test_info_says_a_damaged_middle_chunk_is_damaged_and_where(damaged):
     assert f"skipped bytes {target.chunk_start_offset} to" in info.damage
 
 
+def _held(path: Path, index) -> tuple[set[tuple[int, int]], set[tuple[int, int]]]:
+    """The (log time, sequence) of the bus messages and of the Foxglove forms the chunk at ``index`` holds."""
+    with path.open("rb") as f:
+        topics = {c.id: c.topic for c in make_reader(f).get_summary().channels.values()}
+        f.seek(index.chunk_start_offset)
+        chunk = next(StreamReader(f, skip_magic=True, emit_chunks=True).records)
+    held = [(topics[r.channel_id], (r.log_time, r.sequence)) for r in breakup_chunk(chunk) if isinstance(r, Message)]
+    return {key for topic, key in held if not topic.startswith("/")}, {key for topic, key in held if topic.startswith("/")}
+
+
 def test_reading_goes_on_after_a_damaged_chunk_when_the_summary_is_intact(recorded, damaged):
     path, target = damaged
-    whole = [m.log_time_ns for m in LogReader(recorded.path).messages()]
+    whole = [(m.message.topic, (m.log_time_ns, m.message.seq)) for m in LogReader(recorded.path).messages()]
     reader = LogReader(path)
-    read = [m.log_time_ns for m in reader.messages()]
+    read = [(m.log_time_ns, m.message.seq) for m in reader.messages()]
     assert not reader.complete and reader.damage
     assert [(c.start_byte, c.start_ns, c.end_ns) for c in reader.lost] == [
         (target.chunk_start_offset, target.message_start_time, target.message_end_time)]
-    lost = [t for t in whole if target.message_start_time <= t <= target.message_end_time]
+    bus, forms = _held(recorded.path, target)
+    # the chunk's messages, and the frames whose image (stored just before them) it holds
+    lost = [key for topic, key in whole if key in bus or (topic.startswith("frame/") and key in forms)]
     assert lost and read == sorted(read)  # still in log-time order
-    assert set(read) == set(whole) - set(lost)  # every message outside the damaged chunk is there
-    assert max(read) == max(whole)
+    assert set(read) == {key for _, key in whole} - set(lost)  # every message outside the damaged chunk is there
+    assert max(read) == max(key for _, key in whole)
 
 
 def test_export_keeps_the_grasps_after_the_damage_and_says_why_the_damaged_one_is_skipped(
