@@ -17,10 +17,10 @@ Layout (format :data:`FORMAT_VERSION`)
 
         n + flags | len(frame 0) | ... | len(frame n-1) | frame 0 | ... | frame n-1
 
-    with ``3 <= n <= 3 + MAX_BUFFERS`` and the lengths summing to the rest of the data.
-    ``flags`` is 0, or :data:`~teleop.session.logframes.ELIDED` for a JPEG or PNG ``frame``
-    message: its last frame (the image bytes) is then listed with its length but not stored
-    here, because the ``foxglove.CompressedImage`` message stored immediately before it, with
+    with ``3 <= n <= 3 + MAX_BUFFERS`` and the stored frames filling the rest of the data.
+    ``flags`` is 0, or :data:`~teleop.session.logframes.ELIDED` (``0x10000``, bit 16) for a
+    JPEG or PNG ``frame`` message: its last frame (the image bytes) is listed with its length
+    but not stored here, as the ``foxglove.CompressedImage`` message stored right before it, with
     the same ``log_time`` and ``sequence``, holds those very bytes as its ``data``; the reader
     puts them back, so it yields the frames exactly as received.
     ``log_time``: receive time in ns since the Unix epoch: the recording host's

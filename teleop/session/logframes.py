@@ -2,7 +2,7 @@
 
 One message's ZeroMQ frames ``[topic, header, body, *buffers]`` packed back to back behind
 their count and lengths, the last frame's bytes optionally elided (stored in the image message
-before it); the layout is in :mod:`teleop.session.logfile`'s docstring.
+before it); :data:`FRAMING` states the layout, as written into each log.
 """
 
 from __future__ import annotations
@@ -16,14 +16,19 @@ from teleop.errors import MessageRejected
 
 __all__ = ["ELIDED", "FRAMING", "MAX_FRAMES", "MIN_FRAMES", "elides", "pack_frames", "unpack_frames"]
 
-FRAMING = (
-    "uint32 LE frame count n, n x uint32 LE frame length, then the frames "
-    "[topic, header, body, *buffers] back to back, exactly as received from ZeroMQ"
-)
-
 _U32 = struct.Struct("<I")
 MIN_FRAMES, MAX_FRAMES = 3, 3 + MAX_BUFFERS
 ELIDED = 0x1_0000  # flag added to the frame count: the last frame's bytes are stored elsewhere
+
+# Written into every log (schemas, session metadata): an outside reader's only guide.
+FRAMING = (
+    "uint32 LE word w, then n x uint32 LE frame length, then the frames "
+    "[topic, header, body, *buffers] back to back, exactly as received from ZeroMQ; "
+    f"n = w & {ELIDED - 1:#x} is the frame count ({MIN_FRAMES} to {MAX_FRAMES}) and w & {ELIDED:#x} "
+    f"(bit 16, the only flag) marks the last frame as elided: its length is listed but its bytes "
+    "are not stored here, they are the data field of the foxglove.CompressedImage message stored "
+    "immediately before this one with the same log_time and sequence"
+)
 
 
 def pack_frames(frames: Sequence[Any], *, elide_last: bool = False) -> bytes:
