@@ -164,7 +164,7 @@ def load_presses(path: str | Path, *, progress: bool = False) -> PressSet:
     """Read ball presses from a taxim-style dataPack ``.npz`` or a folder of images.
 
     ``.npz`` members: ``f0`` (no-contact frame), ``imgs`` (N, H, W, 3) uint8,
-    ``touch_center`` (N, 2) ``(x, y)`` px, ``touch_radius`` (N,) px; optional
+    ``touch_center`` (N, 2) finite ``(x, y)`` px, ``touch_radius`` (N,) positive px; optional
     ``frame`` (``"raw"`` default, or ``"warped_cropped"``) and ``mm_per_px``.
     A folder holds one no-contact image named ``f0*``, ``ref*`` or
     ``background*`` and the press images (any other image file, sorted by
@@ -176,7 +176,9 @@ def load_presses(path: str | Path, *, progress: bool = False) -> PressSet:
     ------
     CalibrationError
         The path is missing or unreadable, a member or the reference image is
-        missing, or shapes and dtypes do not fit; the message names the file.
+        missing, shapes and dtypes do not fit, a ``touch_center`` is not finite
+        or a ``touch_radius`` not positive and finite; the message names the
+        file and the member.
     """
     path = Path(path)
     if path.is_dir():
@@ -203,14 +205,34 @@ def load_presses(path: str | Path, *, progress: bool = False) -> PressSet:
                 raise CalibrationError(f"{path}: {name} is not a number") from exc
             if not (math.isfinite(stated[name]) and stated[name] > 0):
                 raise CalibrationError(f"{path}: {name} = {stated[name]!r}: expected a positive number")
-    centers = np.asarray(members["touch_center"], dtype=np.float64)
-    radii = np.asarray(members["touch_radius"], dtype=np.float64)
+    centers, radii = (_numbers(path, name, members[name]) for name in ("touch_center", "touch_radius"))
     if centers.shape != (len(images), 2) or radii.shape != (len(images),):
         raise CalibrationError(
             f"{path}: touch_center {centers.shape} / touch_radius {radii.shape} do not match {len(images)} images"
         )
+    # Checked here, where the file and member can be named: later stages see only "radii_px".
+    bad = np.flatnonzero(~np.isfinite(centers).all(axis=1))
+    if bad.size:
+        raise CalibrationError(
+            f"{path}: touch_center: press {bad[0]} is {centers[bad[0]].tolist()} ({bad.size} of {len(centers)} "
+            "not finite): expected finite (x, y) pixel centres"
+        )
+    bad = np.flatnonzero(~(np.isfinite(radii) & (radii > 0)))
+    if bad.size:
+        raise CalibrationError(
+            f"{path}: touch_radius: press {bad[0]} is {radii[bad[0]]!r} ({bad.size} of {len(radii)} "
+            "not positive and finite): expected positive contact radii in pixels"
+        )
     return PressSet(reference, images, centers, radii, "recorded", frame, stated.get("mm_per_px"),
                     stated.get("ball_radius_mm"), str(path), _fingerprint(reference, images))
+
+
+def _numbers(path: Path, name: str, value: np.ndarray) -> np.ndarray:
+    """The press file's member ``name`` as float64, or an error naming both."""
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"{path}: {name}: expected numbers (pixels), got {value.dtype}") from exc
 
 
 def _load_folder(path: Path, progress: bool) -> PressSet:
