@@ -54,7 +54,16 @@ the log (or the one given), source ``catalogue``. Otherwise the record has no la
 exported without a modulus says why (:attr:`GraspExport.unlabelled`).
 
 Provenance: source ``simulated`` or ``hardware`` as the session says, ``extra["session"]`` the
-log's path (for reference only), ``extra["session_id"]`` the session id.
+log's path (for reference only), ``extra["session_id"]`` the session id. Style ``operator`` for a
+leader-follower grasp (the robot node's ``robot_state`` says mode ``following`` for its id, as the
+estimator service marks one live), else ``script``.
+
+Refused messages
+----------------
+A stored message the reader refuses (corrupt, an unknown wire version: :attr:`LogReader.refused`)
+is counted by reason (:attr:`SessionExport.refused`). One received while grasps were open may have
+been theirs: their records are still written, with the count (:attr:`GraspExport.refused`,
+``extra["refused_messages"]``), and the export is not complete.
 """
 
 from __future__ import annotations
@@ -102,6 +111,8 @@ class GraspExport:
     ``unlabelled``: for a record without a modulus to train on, why ("" when it has one).
     ``dropped``: untagged messages captured before the grasp's start, left out (module notes),
     by stream (``frame/left``, ``force``, ...).
+    ``refused``: stored messages received while the grasp was open that the reader refused (module
+    notes): its record may miss data.
     """
 
     grasp_id: str
@@ -110,6 +121,7 @@ class GraspExport:
     path: Path | None = None  # where export_session wrote it
     unlabelled: str = ""
     dropped: dict[str, int] = field(default_factory=dict)
+    refused: int = 0
 
     def __bool__(self) -> bool:
         return self.record is not None
@@ -124,8 +136,13 @@ class SessionExport(list[GraspExport]):
         The session's id in the record names (:func:`session_id`).
     complete : bool
         The log was read to its end and nothing of it is lost (False: cut short or damaged, or a
-        recovered log whose source lost data; :attr:`damage` says where).
+        recovered log whose source lost data, :attr:`damage` says where; or stored messages were
+        refused, :attr:`refused`).
     damage : str or None
+    refused : dict of str to int
+        Stored messages the export read that the reader refused, by reason (module notes).
+    read : int
+        Grasp event, frame, force and width messages read (not refused).
     mendable : bool
         ``teleop recover`` would make a whole file of more of the log (:attr:`LogReader.mendable`): not
         so for a recovered log's earlier losses, nor a damaged attachment.
@@ -136,11 +153,12 @@ class SessionExport(list[GraspExport]):
     """
 
     def __init__(self, grasps: list[GraspExport], *, session_id: str, complete: bool, damage: str | None,
-                 mendable: bool, stray_labels: list[str], replaced: list[Path]):
+                 refused: dict[str, int], read: int, mendable: bool, stray_labels: list[str], replaced: list[Path]):
         super().__init__(grasps)
         self.session_id = session_id
         self.complete = complete
         self.damage = damage
+        self.refused, self.read = refused, read
         self.mendable = mendable
         self.stray_labels = stray_labels
         self.replaced = replaced
@@ -162,6 +180,7 @@ class _Assembler:
         calibration_files: dict[str, bytes],
         reader: LogReader | None = None,
         label_objects: dict[str, ObjectSpec] | None = None,  # of the catalogues `teleop label` attached
+        followed: frozenset[str] = frozenset(),  # leader-follower grasps (_log_notes)
     ):
         self.path = path
         self.settings = settings
@@ -177,6 +196,16 @@ class _Assembler:
         self.ended: set[str] = set()
         self.ended_by_others: dict[str, str] = {}  # open grasp -> who else ended it (the estimator, its node silent)
         self.unassigned = 0
+        self.followed = followed
+        self.refused: dict[str, int] = {}  # open grasp -> refused messages received while it was open
+        self.refused_total = 0  # the reader's count when last looked at
+
+    def note_refused(self, total: int) -> None:
+        """The reader has refused ``total`` messages so far: those since the last look were received
+        while the open grasps were open, so may have been theirs."""
+        for grasp_id in self.open:
+            self.refused[grasp_id] += total - self.refused_total
+        self.refused_total = total
 
     def _lost(self, start_ns: int | None, end_ns: int) -> str:
         """The lost chunks that may have held messages logged between ``start_ns`` (None: the
@@ -193,7 +222,8 @@ class _Assembler:
             if body.event == "start":
                 if grasp is not None:
                     yield GraspExport(grasp_id, reason="started again before it ended; the first start is dropped",
-                                      dropped=dict(grasp.dropped))
+                                      dropped=dict(grasp.dropped), refused=self.refused[grasp_id])
+                self.refused[grasp_id] = 0
                 self.open[grasp_id] = OpenGrasp(grasp_id, message.t_capture_s, body.object_name,
                                                  message.source, start_log_ns=log_time_ns)
             elif grasp is None or message.source != grasp.source:
@@ -212,13 +242,14 @@ class _Assembler:
                 grasp.loading_end_s = message.t_capture_s
             else:
                 self.ended.add(grasp_id)
-                grasp = self.open.pop(grasp_id)
+                grasp, refused = self.open.pop(grasp_id), self.refused.pop(grasp_id)
                 lost = "" if log_time_ns is None else self._lost(grasp.start_log_ns, log_time_ns)
                 if lost:
                     yield GraspExport(grasp_id, reason=f"part of its data is lost: the log is damaged ({lost})",
-                                      dropped=dict(grasp.dropped))
+                                      dropped=dict(grasp.dropped), refused=refused)
                     return
-                yield dataclasses.replace(self.build(grasp, message.t_capture_s), dropped=dict(grasp.dropped))
+                yield dataclasses.replace(self.build(grasp, message.t_capture_s, refused), dropped=dict(grasp.dropped),
+                                          refused=refused)
         elif message.type in ("frame", "force", "width"):
             grasp_id = body.grasp_id
             if grasp_id is None and len(self.open) == 1:
@@ -244,25 +275,21 @@ class _Assembler:
                 reason = f"its end event is lost: the log is damaged ({lost})"
             elif reader is not None and reader.stopped and reader.damage:
                 reason = f"the log stops at damage before the grasp's end event ({reader.damage})"
-            yield GraspExport(grasp_id, reason=reason, dropped=dict(grasp.dropped))
+            yield GraspExport(grasp_id, reason=reason, dropped=dict(grasp.dropped), refused=self.refused[grasp_id])
         self.open.clear()
+        self.refused.clear()
 
-    def build(self, grasp: OpenGrasp, end_s: float) -> GraspExport:
+    def build(self, grasp: OpenGrasp, end_s: float, refused: int = 0) -> GraspExport:
         gid = grasp.grasp_id
         if not grasp.frames:
             return GraspExport(gid, reason="no tactile frames during the grasp")
         if not grasp.force or not grasp.width:
-            return GraspExport(
-                gid, reason=f"no {'force' if not grasp.force else 'width'} samples during the grasp"
-            )
+            return GraspExport(gid, reason=f"no {'force' if not grasp.force else 'width'} samples during the grasp")
         fingers = {s.finger for s in self.settings.sensors}
         streams = []
         for finger, frames in sorted(grasp.frames.items()):
             if finger not in fingers:
-                return GraspExport(
-                    gid,
-                    reason=f"frames from finger {finger!r}, which the settings have no sensor on",
-                )
+                return GraspExport(gid, reason=f"frames from finger {finger!r}, which the settings have no sensor on")
             stream = frame_stream(finger, frames)
             if isinstance(stream, str):
                 return GraspExport(gid, reason=stream)
@@ -284,7 +311,9 @@ class _Assembler:
                     "session_id": self.session,
                     "grasp_id": gid,
                     "exported_by": software_version(),
+                    **({"refused_messages": refused} if refused else {}),
                 },
+                style="operator" if gid in self.followed else "script",
             ),
             label=label,
             events={"grasp_start": grasp.start_s, "grasp_end": end_s,
@@ -381,14 +410,25 @@ def session_id(info: LogInfo, path: str | Path) -> str:
     return f"log-{hashlib.sha256(head).hexdigest()[:8]}"
 
 
-def _labels(reader: LogReader) -> dict[str, LabelBody]:
-    """The last ``label`` message body per grasp id (topic ``label``)."""
-    labels = {}
-    for logged in reader.messages(("label",)):
+def _log_notes(reader: LogReader) -> tuple[dict[str, LabelBody], frozenset[str]]:
+    """The last ``label`` message body per grasp id, and the ids of the leader-follower grasps: those a
+    ``robot_state`` of mode ``following`` names (the fact estimator.service marks a follow grasp by)."""
+    labels, followed = {}, set()
+    for logged in reader.messages(("label", "robot_state")):
+        body = logged.message.fields
         if logged.message.type == "label":
-            label = logged.message.fields
-            labels[label.grasp_id] = label
-    return labels
+            labels[body.grasp_id] = body
+        elif logged.message.type == "robot_state" and body.mode == "following" and body.grasp_id is not None:
+            followed.add(body.grasp_id)
+    return labels, frozenset(followed)
+
+
+@dataclass
+class _Found:
+    """What reading a log's grasps learnt besides them, for :class:`SessionExport`."""
+
+    stray_labels: list[str] = field(default_factory=list)
+    read: int = 0  # grasp messages decoded
 
 
 def _warn_other_sensors(path: Path, *, ran: Settings, given: Settings) -> None:
@@ -407,7 +447,7 @@ def _warn_other_sensors(path: Path, *, ran: Settings, given: Settings) -> None:
 
 
 def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, catalogue: str | Path | None,
-            source: str | None, stray_labels: list[str] | None = None) -> Iterator[GraspExport]:
+            source: str | None, found: _Found | None = None) -> Iterator[GraspExport]:
     path = reader.path
     if not info.session and not info.complete:  # the metadata precedes every message
         raise SessionLogError(
@@ -430,24 +470,22 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
         )
     objects, label_objects = catalogue_objects(info, catalogue, log=path), label_catalogue_objects(info, log=path)
     settings, files = carried_calibrations(info, settings, path, disk_first=given)
-    labels = _labels(reader)
+    labels, followed = _log_notes(reader)
+    found = found or _Found()
     assembler = _Assembler(
-        path=path,
-        settings=settings,
-        objects=objects,
-        label_objects=label_objects,
-        source=source,
-        session_version=info.session.get("software_version", "0+unknown"),
-        session=session_id(info, path),
-        labels=labels,
-        calibration_files=files,
-        reader=reader,
+        path=path, settings=settings, objects=objects, label_objects=label_objects, source=source,
+        session_version=info.session.get("software_version", "0+unknown"), session=session_id(info, path),
+        labels=labels, calibration_files=files, reader=reader, followed=followed,
     )
+    assembler.refused_total = sum(reader.refused.values())  # the notes' messages: no grasp's
     seen = set()
     for logged in reader.messages(("grasp_event", "frame", "force", "width")):
+        found.read += 1
+        assembler.note_refused(sum(reader.refused.values()))
         for grasp in assembler.feed(logged.message, logged.log_time_ns):
             seen.add(grasp.grasp_id)
             yield grasp
+    assembler.note_refused(sum(reader.refused.values()))  # after the last message read
     for grasp in assembler.unfinished():
         seen.add(grasp.grasp_id)
         yield grasp
@@ -457,8 +495,7 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
         line = (f"a label names grasp {grasp_id!r} (object {labels[grasp_id].object_name!r}), "
                 "but the log has no grasp of that id")
         log.warning("%s: %s", path, line)
-        if stray_labels is not None:
-            stray_labels.append(line)
+        found.stray_labels.append(line)
 
 
 def export_session(
@@ -500,19 +537,15 @@ def export_session(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SessionLogError(f"cannot create the export directory {out}: {exc.strerror or exc}") from exc
-    # info() checks every chunk and attachment: damage anywhere counts, and so do losses before a recovery.
-    complete, damage = info.complete and info.damage is None, info.damage
     sid = session_id(info, path)
-    stray: list[str] = []
+    found = _Found()
     results: list[GraspExport] = []
     staged: list[tuple[Path, Path]] = []  # (hidden name, final name)
     replaced: list[Path] = []  # the same grasps' records under another log's name
     names: set[str] = set()
     records = sorted(out.glob("*.grasp"))  # as they were before this export: whose grasps it may repeat
     done = False
-    grasps = _grasps(
-        reader, info, settings=settings, catalogue=catalogue, source=source, stray_labels=stray
-    )
+    grasps = _grasps(reader, info, settings=settings, catalogue=catalogue, source=source, found=found)
     try:
         for grasp in progress_bar(grasps, desc=f"export {path.name}", unit="grasp", enabled=progress):
             if grasp:
@@ -559,5 +592,9 @@ def export_session(
             # The log's settings and grasps are checked as they are read, after out is made.
             with contextlib.suppress(OSError):
                 out.rmdir()
-    return SessionExport(results, session_id=sid, complete=complete, damage=damage, mendable=info.mendable,
-                         stray_labels=stray, replaced=replaced)
+    # info() checks every chunk and attachment: damage anywhere counts, and so do losses before a recovery.
+    refused = dict(reader.refused)
+    complete = info.complete and info.damage is None and not refused
+    return SessionExport(results, session_id=sid, complete=complete, damage=info.damage, refused=refused,
+                         read=found.read, mendable=info.mendable, stray_labels=found.stray_labels,
+                         replaced=replaced)

@@ -17,7 +17,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "<log>_<session start>_<grasp id>.grasp, so sessions exported into one folder never "
         "share a name, and a grasp already in DIR from another log of the session (a log cut "
         "short, then recovered) is refused too. Untagged frames, force and width captured before "
-        "a grasp's start are left out of it, and counted. Each record carries its sensors' calibration files and the gripper "
+        "a grasp's start are left out of it, and counted; stored messages the log reader refuses (corrupt, "
+        "an unknown wire version) are counted, and records of grasps they may have belonged to flagged. Each record carries its sensors' calibration files and the gripper "
         "settings, so the folder can be moved or shared. Labels come from the log's label "
         "messages (`teleop label`, the operator's console), else from the object catalogue for "
         "grasps whose object the session named. Exits 1 when no record was written."
@@ -54,8 +55,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--json",
         action="store_true",
         help="print one JSON object on stdout: log, out, session_id, complete (nothing of the log is "
-        "lost), mendable (`teleop recover` would make a whole file of more of it), exported (count), records (paths written), written ([{grasp_id, path, object, "
-        "modulus_pa, label_source}]), unlabelled ([{grasp_id, path, reason}]: written without a "
+        "lost: not cut short or damaged, no message refused), refused ({reason: count}: stored messages "
+        "refused), mendable (`teleop recover` would make a whole file of more of it), exported (count), records (paths written), written ([{grasp_id, path, object, "
+        "modulus_pa, label_source, complete, refused}]: complete false when refused messages, received "
+        "while the grasp was open, may have been its), unlabelled ([{grasp_id, path, reason}]: written without a "
         "modulus), skipped ([{grasp_id, reason}]: not written), dropped ([{grasp_id, stream, count}]: "
         "untagged messages captured before the grasp's start, left out), stray_labels, replaced (paths "
         "of the same grasps from another log, removed by --overwrite), error (null, or the message; an error "
@@ -69,7 +72,7 @@ def _recover_hint(log: str) -> str:
 
 #: The keys of the --json object, in order; an error raised before anything is known (a log that does
 #: not read, records already in DIR) leaves all but log, out and error null.
-_JSON_KEYS = ("log", "out", "session_id", "complete", "mendable", "exported", "records", "written", "unlabelled",
+_JSON_KEYS = ("log", "out", "session_id", "complete", "refused", "mendable", "exported", "records", "written", "unlabelled",
               "skipped", "dropped", "stray_labels", "replaced", "error")
 
 
@@ -102,13 +105,20 @@ def run(args: argparse.Namespace) -> int:
         for r in written
         if r.unlabelled
     ]
+    reasons = ", ".join(f"{n} {reason}" for reason, n in sorted(results.refused.items()))
+    refused = f"{sum(results.refused.values())} stored messages refused ({reasons})" if reasons else ""
     print(
         f"exported {len(written)} grasp records of session {results.session_id} into {args.out}; "
-        f"{len(skipped)} grasps skipped, {len(unlabelled)} records without a modulus",
+        f"{len(skipped)} grasps skipped, {len(unlabelled)} records without a modulus"
+        + (f"; {refused}, {sum(1 for r in written if r.refused)} records may miss data" if refused else ""),
         file=sys.stderr,
     )
     for item in skipped:
         print(f"skipped grasp {item['grasp_id']}: {item['reason']}", file=sys.stderr)
+    for r in written:
+        if r.refused:
+            print(f"incomplete grasp {r.grasp_id} ({r.path}): {r.refused} stored message(s) received while it "
+                  "was open were refused; its record may miss data", file=sys.stderr)
     for item in unlabelled:
         print(f"no modulus for grasp {item['grasp_id']} ({item['path']}): {item['reason']}",
               file=sys.stderr)
@@ -124,12 +134,20 @@ def run(args: argparse.Namespace) -> int:
     for line in results.stray_labels:
         print(f"unused label: {line}", file=sys.stderr)
     error = None
-    if not results.complete:
-        cut = f"{args.log} is cut short or damaged ({results.damage})"
+    if refused and not results.read:  # nothing to find grasps in: say why, not "no grasp_event"
+        error = (f"no grasp record exported: no grasp event, frame, force or width message of {args.log} "
+                 f"could be read: {refused}")
+    elif not results.complete:
+        lost = []
+        if results.damage is not None or not refused:  # else the refusals alone make it incomplete
+            lost.append(f"{args.log} is cut short or damaged ({results.damage})")
+        if refused:
+            lost.append(refused)
+        cut = "; ".join(lost)
         recover = _recover_hint(args.log) if results.mendable else ""  # not for earlier losses or an attachment
         if written:
-            print(f"note: {cut}; grasps in what is lost are skipped (above)" + (f"; {recover}" if recover else ""),
-                  file=sys.stderr)
+            print(f"note: {cut}; grasps in what is lost are skipped or flagged (above)"
+                  + (f"; {recover}" if recover else ""), file=sys.stderr)
         else:
             error = f"no grasp record exported: {cut}" + (f"; {recover}" if recover else "")
     elif not written:
@@ -145,6 +163,7 @@ def run(args: argparse.Namespace) -> int:
             error,
             session_id=results.session_id,
             complete=results.complete,
+            refused=results.refused,
             mendable=results.mendable,
             exported=len(written),
             records=[str(r.path) for r in written],
@@ -155,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
                     "object": r.record.label.object_name if r.record.label else None,
                     "modulus_pa": r.record.label.modulus_pa if r.record.label else None,
                     "label_source": r.record.label.source if r.record.label else None,
+                    "complete": not r.refused,
+                    "refused": r.refused,
                 }
                 for r in written
             ],

@@ -6,7 +6,7 @@ import json
 
 import teleop.cli
 
-KEYS = {"log", "out", "session_id", "complete", "mendable", "exported", "records", "written", "unlabelled", "skipped",
+KEYS = {"log", "out", "session_id", "complete", "refused", "mendable", "exported", "records", "written", "unlabelled", "skipped",
         "dropped", "stray_labels", "replaced", "error"}
 
 
