@@ -13,8 +13,10 @@ are pinned to one (OpenMP, MKL, OpenBLAS, OpenCV; scipy.fft runs with
 of the marker path for reference: the same frame and reference with dark dots
 drawn on a 16 px grid, as the simulated marker gel (the reference's dots 3 px
 away from the frame's), their
-detection, and reconstruction with them masked and inpainted. Target: the
-whole reconstruction (no markers) in 2 ms or less.
+detection, and reconstruction with them masked and inpainted; each median also
+in frame baselines (``bl``, :class:`scriptkit.Baseline`, timed before and after
+the stages on the same one thread). Target: the whole reconstruction (no
+markers) in 2 ms or less.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from scriptkit import run_script  # noqa: E402
+from scriptkit import Baseline, run_script  # noqa: E402
 
 from estimator.perception import (  # noqa: E402
     detect_markers,
@@ -113,12 +115,19 @@ def measure(args: argparse.Namespace) -> None:
     print(f"frame {frame.shape[0]}x{frame.shape[1]} (press {held_out[0]}, calibrated on {len(train)} presses; "
           f"fitted sphere {sphere.radius_m * 1e3:.3f} mm), {args.repeats} repeats, one thread, "
           f"{platform.processor() or platform.machine()}; marker mask covers {marker_mask.mean():.1%}")
+    baseline = Baseline()
+    baseline.time()
+    times = {name: timed(fn, args.repeats) for name, fn in stages.items()}
+    baseline.time()
+    print(baseline.line())
     results = {}
-    for name, fn in stages.items():
-        times = timed(fn, args.repeats)
-        results[name.strip()] = {"median_ms": float(np.median(times)), "p90_ms": float(np.percentile(times, 90))}
-        print(f"{name:38s} median {np.median(times):7.3f} ms   p90 {np.percentile(times, 90):7.3f} ms")
-    print(json.dumps(results))
+    for name, t in times.items():
+        median = float(np.median(t))
+        results[name.strip()] = {"median_ms": median, "p90_ms": float(np.percentile(t, 90)),
+                                 "median_in_baselines": baseline.ratio(median)}
+        print(f"{name:38s} median {median:7.3f} ms ({baseline.ratio(median):5.2f} bl)   "
+              f"p90 {np.percentile(t, 90):7.3f} ms")
+    print(json.dumps({**baseline.figures(), **results}))
 
 
 if __name__ == "__main__":

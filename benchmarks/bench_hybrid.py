@@ -27,6 +27,11 @@ per-grasp median time, over the grasps it can sample:
 ``sample``
     all of :func:`~estimator.inference.sampling.sample_grasp` (segment to fits) as the hybrid runs it.
 
+The stages are timed on the records ``estimator bench`` benched (readable and labelled); when the
+hybrid refuses every one of their grasps there is nothing to time: the script says so, status 2.
+Each figure is also given in frame baselines (``bl``, :class:`scriptkit.Baseline`, timed before the
+bench and after the stages): the table's p50, and every stage.
+
 BLAS and OpenMP are limited to one thread before numpy loads, and the process
 is pinned to one CPU with OpenCV single-threaded.
 """
@@ -44,7 +49,7 @@ from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-from scriptkit import run_script  # noqa: E402
+from scriptkit import Baseline, BenchmarkError, run_script  # noqa: E402
 
 from estimator.analytical import METHODS  # noqa: E402
 from estimator.evaluation.bench import bench, configurations, one_core, timed  # noqa: E402
@@ -96,7 +101,9 @@ def stage_runs(record, sampled, *, settings, predictor, calibration):
 
 
 def stages(paths, *, settings, predictor, calibration, repeats):
-    """Median per-grasp times (ms) of the hybrid's stages (module notes) over the records it can sample."""
+    """Median per-grasp times (ms) of the hybrid's stages (module notes) over the records it can sample.
+
+    Raises BenchmarkError when it can sample none (every grasp refused): there is nothing to time."""
     hybrid = HybridEstimator(predictor, settings=settings, calibration=calibration)
     times = {name: [] for name in STAGES}
     with one_core():
@@ -109,6 +116,10 @@ def stages(paths, *, settings, predictor, calibration, repeats):
             for name, run in runs.items():
                 times[name].append(timed(lambda _, run=run: run(), record, repeats)[1])
             times["sample"].append(sample_ms)
+    if not times["sample"]:
+        folder = os.path.commonpath([Path(p).parent for p in paths]) if paths else "no records"
+        raise BenchmarkError(f"{folder}: the hybrid refused every grasp benched ({len(paths)} of {len(paths)}: "
+                             "too little data to sample): no stage to time")
     return {"grasps": len(times["sample"]), **{name: float(np.median(t)) for name, t in times.items()}}
 
 
@@ -132,20 +143,27 @@ def measure(args: argparse.Namespace) -> None:
     configs = configurations(settings=settings, calibration=args.calibration,
                              frames=[predictor.variant.n_frames], models=[predictor],
                              correct_width_lag=args.width_lag)
+    baseline = Baseline()
+    with one_core():  # as the bench and the stages run
+        baseline.time()
     result = bench(paths, settings=settings, configs=configs, repeats=args.repeats)
+    skipped = {entry["path"] for entry in result["skipped_records"]}  # unreadable or unlabelled: not benched
+    parts = stages([p for p in paths if str(p) not in skipped], settings=settings, predictor=predictor,
+                   calibration=args.calibration, repeats=args.repeats)
+    with one_core():
+        baseline.time()
     print(f"{platform.processor() or platform.machine()}, {result['labelled']} labelled grasps, "
           f"{args.repeats} timed runs each, pinned to one core: {result['one_core']}")
-    print(f"{'configuration':<44} {'p50 ms':>8} {'p90 ms':>8} {'felt err':>8} {'felt2x':>6} {'log10 err':>9} "
-          f"{'within10x':>9} {'refused':>7}  pareto")
+    print(baseline.line())
+    print(f"{'configuration':<44} {'p50 ms':>8} {'p50 bl':>7} {'p90 ms':>8} {'felt err':>8} {'felt2x':>6} "
+          f"{'log10 err':>9} {'within10x':>9} {'refused':>7}  pareto")
     for c in sorted(result["configs"], key=lambda c: c["latency_ms_p50"]):
         cells = [cell(c["felt_log10_error"], ".3f", 8), cell(c["felt_within_2x"], ".0%", 6),
                  cell(c["log10_error"], ".2f", 9), cell(c["within_10x"], ".0%", 9)]
-        print(f"{c['name']:<44} {c['latency_ms_p50']:>8.2f} {c['latency_ms_p90']:>8.2f} {' '.join(cells)} {c['refusals']:>7}  "
-              f"{'*' if c['pareto'] else ''}")
-    parts = stages(paths, settings=settings, predictor=predictor, calibration=args.calibration,
-                   repeats=args.repeats)
-    print(f"hybrid stages over {parts['grasps']} grasps (median ms per grasp): "
-          + ", ".join(f"{name} {parts[name]:.2f}" for name in STAGES))
+        print(f"{c['name']:<44} {c['latency_ms_p50']:>8.2f} {baseline.ratio(c['latency_ms_p50']):>7.2f} "
+              f"{c['latency_ms_p90']:>8.2f} {' '.join(cells)} {c['refusals']:>7}  {'*' if c['pareto'] else ''}")
+    print(f"hybrid stages over {parts['grasps']} grasps (median ms per grasp, and bl): "
+          + ", ".join(f"{name} {parts[name]:.2f} ({baseline.ratio(parts[name]):.2f})" for name in STAGES))
 
 
 if __name__ == "__main__":

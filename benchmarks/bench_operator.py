@@ -8,7 +8,10 @@ Usage::
    reads a scripted input device whose grip sweeps the fingers' free travel at the follow rate, and
    sends ``follow`` over ZeroMQ on loopback to a robot node on the simulated rig in another thread;
    the figure is the time from the input reading (its ``t_s``) to the node's call of
-   ``gripper.follow`` with that reading's target width, matched by width. Printed as p50 and p99.
+   ``gripper.follow`` with that reading's target width, matched by width. The sweep starts once the
+   loop hears the robot node, so all of ``--seconds`` drives it. Printed as p50 and p99, in ms and
+   in frame baselines (:class:`scriptkit.Baseline`, timed before and after this part); a run that
+   matched no command is an error.
 2. **Contact to the display within a factor 2**, on operator-driven grasps: ``teleop demo
    --operator sim`` on ``--scene`` (its processes on loopback; the simulated operator squeezes every
    object), and per grasp the time from the load cell first reading the contact force until every
@@ -18,6 +21,7 @@ Usage::
    converges in 0.24 s.
 
 Both on this host's monotonic clock. Run on an otherwise idle machine: the figures move with its load.
+Ctrl-C or SIGTERM stop the demo of part 2 too, and remove its files.
 """
 
 from __future__ import annotations
@@ -25,7 +29,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import subprocess
 import sys
 import tempfile
 import threading
@@ -33,7 +36,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scriptkit import run_script
+from scriptkit import Baseline, BenchmarkError, run_child, run_script
 
 from haptics.inputs.base import OperatorInput
 from haptics.operator_link import OperatorLink
@@ -50,19 +53,24 @@ LET_GO_SHARE = 0.05  # of each sweep, at its start, with the enable let go
 
 class SweepInput:
     """A scripted operator input: the grip sweeping SWEEP_GRIP back and forth, the enable held but at
-    the start of each sweep (the loop drives only an enable let go and held again once the robot node
-    is heard); every reading's time and target width are kept."""
+    the start of each sweep; every reading's time and target width are kept.
 
-    waits_for_robot = False
+    The loop reads it only once the robot node is heard (``waits_for_robot``), and its sweep starts at
+    that first reading with the enable let go: the loop drives only an enable let go and held again
+    once the node is heard, and one held from before would drive nothing until the next sweep."""
+
+    waits_for_robot = True
 
     def __init__(self, max_width_m: float, period_s: float = 2.0):
         self.max_width_m = max_width_m
         self.period_s = period_s
         self.readings: list[tuple[float, float]] = []  # (t_s, target width m)
-        self._start = time.monotonic()
+        self._start: float | None = None  # the first reading's time
 
     def read(self, *, timeout_s: float = 0.0) -> OperatorInput:
         now = time.monotonic()
+        if self._start is None:
+            self._start = now
         phase = ((now - self._start) / self.period_s) % 1.0
         grip = SWEEP_GRIP[0] + (SWEEP_GRIP[1] - SWEEP_GRIP[0]) * (1.0 - abs(2.0 * phase - 1.0))
         self.readings.append((now, grip_to_width_m(grip, max_width_m=self.max_width_m)))
@@ -73,7 +81,9 @@ class SweepInput:
 
 
 def input_to_command(scene_name: str, seconds: float) -> dict[str, float | int | None]:
-    """Part 1 (module docstring): p50 and p99 (ms) of input reading -> gripper.follow."""
+    """Part 1 (module docstring): p50 and p99 (ms) of input reading -> gripper.follow.
+
+    Raises BenchmarkError when no command was matched to a reading: there is no figure to give."""
     scene = load_scene(scene_name)
     settings = scene.settings
     robot = Publisher("tcp://127.0.0.1:*", lossless=True, source="robot")
@@ -106,10 +116,12 @@ def input_to_command(scene_name: str, seconds: float) -> dict[str, float | int |
             sock.close()
     sent = dict((round(w, 9), t) for t, w in reversed(device.readings))  # a width's first reading
     latencies = [t_call - sent[round(w, 9)] for t_call, w in calls if round(w, 9) in sent]
+    if not latencies:
+        raise BenchmarkError(f"--seconds {seconds:g}: no gripper command matched to an input reading "
+                             f"({len(calls)} commands, {len(device.readings)} readings): nothing to time")
     ms = np.array(latencies) * 1e3
     return {"commands": len(calls), "matched": len(latencies),
-            "p50_ms": float(np.percentile(ms, 50)) if ms.size else None,
-            "p99_ms": float(np.percentile(ms, 99)) if ms.size else None}
+            "p50_ms": float(np.percentile(ms, 50)), "p99_ms": float(np.percentile(ms, 99))}
 
 
 def contact_to_felt(scene_name: str) -> dict[str, float | int | None]:
@@ -118,7 +130,7 @@ def contact_to_felt(scene_name: str) -> dict[str, float | int | None]:
         line = [sys.executable, "-c", "import sys; from teleop.cli import main; sys.exit(main())", "demo",
                 "--operator", "sim", "--scene", scene_name,
                 "--json", "--no-view", "--out", str(Path(out) / "demo")]
-        done = subprocess.run(line, capture_output=True, text=True, check=False)
+        done = run_child(line)
     if done.returncode != 0:
         raise SystemExit(f"teleop demo failed ({done.returncode}):\n{done.stderr[-3000:]}")
     result = json.loads(done.stdout.strip().splitlines()[-1])
@@ -143,15 +155,21 @@ def main() -> int:
 
 def measure(args: argparse.Namespace) -> None:
     logging.getLogger("teleop.node").setLevel(logging.ERROR)  # "stopping during grasp": the sweep's end
+    baseline = Baseline()
+    baseline.time()
     command = input_to_command(args.scene, args.seconds)
+    baseline.time()
+    command |= {f"{q}_in_baselines": baseline.ratio(command[f"{q}_ms"]) for q in ("p50", "p99")}
+    print(baseline.line())
     print(f"operator input -> gripper command (loopback, {command['matched']} of {command['commands']} "
-          f"commands matched): p50 {_fmt(command['p50_ms'], 'ms', 1)}, p99 {_fmt(command['p99_ms'], 'ms', 1)}")
+          f"commands matched): p50 {command['p50_ms']:.1f} ms ({command['p50_in_baselines']:.2f} bl), "
+          f"p99 {command['p99_ms']:.1f} ms ({command['p99_in_baselines']:.2f} bl)")
     felt = contact_to_felt(args.scene)
     print(f"contact -> display stays within a factor 2 ({felt['settled']} of {felt['grasps']} operator grasps "
           f"settled): median {_fmt(felt['median_s'], 's', 2)}, p90 {_fmt(felt['p90_s'], 's', 2)} "
           "(the paper's online estimator: 0.24 s)")
     if args.json:
-        print(json.dumps({"input_to_command": command, "contact_to_felt_within_2x": felt}))
+        print(json.dumps({**baseline.figures(), "input_to_command": command, "contact_to_felt_within_2x": felt}))
 
 
 if __name__ == "__main__":

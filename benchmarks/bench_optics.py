@@ -7,8 +7,10 @@ Usage::
 Prints the median and 90th percentile (ms) of building a camera (a simulated
 grasp builds one per finger) and, per stage, of rendering height maps from no
 contact to a contact over the whole pad, on the left (no markers) and right
-(markers) sensors of the shipped settings. ``--threads 1`` (the default) pins
-OpenCV to one thread, so the figures are per core.
+(markers) sensors of the shipped settings; under each row, its medians in
+frame baselines (``bl``, :class:`scriptkit.Baseline`, timed before and after
+the stages under the same threads, in wall time). ``--threads 1`` (the default)
+pins OpenCV to one thread, so the figures are per core.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import time
 
 import cv2
 import numpy as np
-from scriptkit import run_script
+from scriptkit import Baseline, run_script
 
 from teleop.clikit import positive_int
 from teleop.settings import load_settings
@@ -69,24 +71,21 @@ def measure(args: argparse.Namespace) -> None:
     clock = time.perf_counter if args.clock == "wall" else time.thread_time
     cv2.setNumThreads(args.threads)
     settings = load_settings()
+    baseline = Baseline()
+    baseline.time()
     results = []
-    print(f"{platform.processor() or platform.machine()}, OpenCV {cv2.__version__}, "
-          f"{cv2.getNumThreads()} thread(s), {args.repeats} repeats, {args.clock} clock; median / p90 in ms")
-    print(f"{'sensor':<14}{'height map':<26}{'contact':>8}{'render':>14}{'noise':>14}{'jpeg':>14}{'capture':>14}")
     for finger in ("left", "right"):
         sensor = settings.sensor(finger)
         camera = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(0))
-        label = f"{finger}{' (markers)' if sensor.markers else ''}"
         setup = timed(lambda s=sensor: OpticsRenderer(s, sim=settings.simulation,
                                                      rng=np.random.default_rng(1)),
                       max(args.repeats // 10, 5), clock)
         results.append({"sensor": finger, "markers": sensor.markers, "setup_ms": setup})
-        print(f"{label:<14}{'new camera (procedural background)':<48}{setup[0]:>8.2f} /{setup[1]:>4.1f}")
         for name, height in scenarios(sensor).items():
             frame = camera.render(height)
             noisy = camera.add_noise(frame)
             quality = [cv2.IMWRITE_JPEG_QUALITY, settings.simulation.jpeg_quality]
-            row = {
+            results.append({
                 "sensor": finger,
                 "markers": sensor.markers,
                 "height_map": name,
@@ -95,15 +94,28 @@ def measure(args: argparse.Namespace) -> None:
                 "noise_ms": timed(lambda f=frame, c=camera: c.add_noise(f), args.repeats, clock),
                 "jpeg_ms": timed(lambda f=noisy, q=quality: cv2.imencode(".jpg", f, q), args.repeats, clock),
                 "capture_ms": timed(lambda h=height, c=camera: c.capture(h), args.repeats, clock),
-            }
-            results.append(row)
-            cells = "".join(f"{row[k][0]:>8.2f} /{row[k][1]:>4.1f}"
-                            for k in ("render_ms", "noise_ms", "jpeg_ms", "capture_ms"))
-            print(f"{label:<14}{name:<26}{row['contact_fraction']:>8.0%}{cells}")
+            })
+    baseline.time()
+    print(f"{platform.processor() or platform.machine()}, OpenCV {cv2.__version__}, "
+          f"{cv2.getNumThreads()} thread(s), {args.repeats} repeats, {args.clock} clock; median / p90 in ms")
+    print(baseline.line())
+    print(f"{'sensor':<14}{'height map':<26}{'contact':>8}{'render':>14}{'noise':>14}{'jpeg':>14}{'capture':>14}")
+    for row in results:
+        label = f"{row['sensor']}{' (markers)' if row['markers'] else ''}"
+        stages = [k for k in ("setup_ms", "render_ms", "noise_ms", "jpeg_ms", "capture_ms") if k in row]
+        row |= {f"{k[:-3]}_median_in_baselines": baseline.ratio(row[k][0]) for k in stages}
+        if "setup_ms" in row:
+            setup = row["setup_ms"]
+            print(f"{label:<14}{'new camera (procedural background)':<48}{setup[0]:>8.2f} /{setup[1]:>4.1f}"
+                  f"{row['setup_median_in_baselines']:>8.2f} bl")
+            continue
+        cells = "".join(f"{row[k][0]:>8.2f} /{row[k][1]:>4.1f}" for k in stages)
+        ratios = "".join(f"{row[k[:-3] + '_median_in_baselines']:>11.2f} bl" for k in stages)
+        print(f"{label:<14}{row['height_map']:<26}{row['contact_fraction']:>8.0%}{cells}")
+        print(f"{'':<48}{ratios}")
     if args.json:
-        print(json.dumps({"threads": cv2.getNumThreads(), "repeats": args.repeats, "clock": args.clock,
-                          "results": results}))
-
+        print(json.dumps({**baseline.figures(), "threads": cv2.getNumThreads(), "repeats": args.repeats,
+                          "clock": args.clock, "results": results}))
 
 if __name__ == "__main__":
     raise SystemExit(main())

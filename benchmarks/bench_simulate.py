@@ -11,7 +11,10 @@ time: the figure per core even when other work shares the machine; wall time
 beside it), the frames rendered per grasp (both fingers, all of the record:
 approach, loading, hold, release) and the median CPU time of the contact
 mechanics alone; then the median over objects of grasps per second per core.
-Nothing is written to disk.
+Each CPU time is also given in frame baselines (``bl``, :class:`scriptkit.Baseline`,
+timed before and after the grasps on the same one thread, in wall time: alike for
+one thread on an idle core). Medians
+only: a few grasps per object give no meaningful tail. Nothing is written to disk.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import time
 
 import cv2
 import numpy as np
-from scriptkit import run_script
+from scriptkit import Baseline, run_script
 
 from teleop.catalogue import ObjectSpec
 from teleop.clikit import positive_int
@@ -51,7 +54,8 @@ def measure(args: argparse.Namespace) -> None:
     settings = load_settings()
     sensors = {s.finger: s for s in settings.sensors}
     simulate_grasp(OBJECTS[0], settings=settings, rng=np.random.default_rng(0))  # warm caches and imports
-
+    baseline = Baseline()
+    baseline.time()
     rows = []
     for obj in OBJECTS:
         seconds, wall, mechanics, frames = [], [], [], []
@@ -72,15 +76,22 @@ def measure(args: argparse.Namespace) -> None:
             "frames_per_grasp": float(np.median(frames)), "mechanics_cpu_s": float(np.median(mechanics)),
             "grasps_per_s": 1.0 / float(np.median(seconds)),
         })
-        r = rows[-1]
-        print(f"{obj.name:24s} {obj.material:8s} {r['cpu_s_per_grasp']:6.3f} s/grasp (wall {r['wall_s_per_grasp']:6.3f})"
-              f"  {r['frames_per_grasp']:4.0f} frames  mechanics {r['mechanics_cpu_s']:6.3f} s"
-              f"  -> {r['grasps_per_s']:5.2f} grasps/s")
+    baseline.time()
+    print(baseline.line())
+    for r in rows:
+        r["cpu_per_grasp_in_baselines"] = baseline.ratio(r["cpu_s_per_grasp"] * 1e3)
+        r["mechanics_cpu_in_baselines"] = baseline.ratio(r["mechanics_cpu_s"] * 1e3)
+        print(f"{r['object']:24s} {r['material']:8s} {r['cpu_s_per_grasp']:6.3f} s/grasp "
+              f"({r['cpu_per_grasp_in_baselines']:5.0f} bl; wall {r['wall_s_per_grasp']:6.3f})"
+              f"  {r['frames_per_grasp']:4.0f} frames  mechanics {r['mechanics_cpu_s']:6.3f} s "
+              f"({r['mechanics_cpu_in_baselines']:4.0f} bl)  -> {r['grasps_per_s']:5.2f} grasps/s")
     overall = float(np.median([r["grasps_per_s"] for r in rows]))
-    print(f"median over objects: {overall:.2f} grasps/s/core ({platform.processor() or platform.machine()}, "
-          f"{args.grasps} grasps per object)")
+    per_grasp = baseline.ratio(1e3 / overall)
+    print(f"median over objects: {overall:.2f} grasps/s/core, one grasp per {per_grasp:.0f} bl "
+          f"({platform.processor() or platform.machine()}, {args.grasps} grasps per object)")
     if args.json:
-        print(json.dumps({"grasps_per_s_per_core": overall, "objects": rows}))
+        print(json.dumps({**baseline.figures(), "grasps_per_s_per_core": overall,
+                          "baselines_per_grasp": per_grasp, "objects": rows}))
 
 
 if __name__ == "__main__":

@@ -163,7 +163,7 @@ class Terminated(KeyboardInterrupt):
 _STOPPED_BY = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated", signal.SIGHUP: "hung up"}
 
 
-def _stopped(what: str, exc: KeyboardInterrupt) -> int:
+def say_stopped(what: str, exc: KeyboardInterrupt) -> int:
     """Say on stderr that ``what`` was stopped by ``exc``'s signal, as ``<what>: interrupted`` (Ctrl-C),
     ``terminated`` (SIGTERM) or ``hung up`` (SIGHUP).
 
@@ -264,7 +264,7 @@ def run_cli(
     try:
         args = _parsed(prog, description, commands, argv, chosen)
     except KeyboardInterrupt as exc:  # while the command's module imports (numpy, scipy, cv2: seconds)
-        return _stopped(f"{prog}{'' if chosen is None else ' ' + chosen}", exc)
+        return say_stopped(f"{prog}{'' if chosen is None else ' ' + chosen}", exc)
     try:
         with sigterm_as_ctrl_c() if threading.current_thread() is threading.main_thread() else contextlib.nullcontext():
             try:
@@ -284,7 +284,7 @@ def run_cli(
               f"pip install -c constraints.txt -e '.[{command.extra}]')", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP (sigterm_as_ctrl_c)
-        return _stopped(f"{prog} {args.command}", exc)
+        return say_stopped(f"{prog} {args.command}", exc)
     except BrokenPipeError:
         # The reader left (`| head`): not this command's error. Python would complain again when it
         # flushes stdout at exit, so that goes to /dev/null.
