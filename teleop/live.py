@@ -15,7 +15,9 @@ import argparse
 import contextlib
 import dataclasses
 import json
+import logging
 import math
+import os
 import signal
 import threading
 from collections.abc import Callable, Iterator
@@ -26,6 +28,8 @@ from typing import IO, Any
 from teleop.clikit import hangup_ignored
 from teleop.errors import SettingsError
 from teleop.settings import BusSettings, Settings
+
+log = logging.getLogger(__name__)
 
 __all__ = ["ENDPOINTS", "JsonLines", "ServiceLoop", "StopSignals", "add_endpoint_arguments", "bus_from_args",
            "check_duration_s", "sigint_ignored"]
@@ -162,7 +166,10 @@ class StopSignals:
 class JsonLines:
     """A report file with one JSON object per line, each flushed as it is written.
 
-    ``path`` None makes every :meth:`write` a no-op, so callers need no branches.
+    ``path`` None makes every :meth:`write` a no-op, so callers need no branches. A write that
+    fails (a full disk) is logged once and ends the reporting, not the service: the report is a
+    by-product, and a service that died of it would take the live session down with it. The
+    records written before stay, whole.
     """
 
     def __init__(self, path: str | Path | None):
@@ -176,13 +183,27 @@ class JsonLines:
 
     def write(self, record: dict[str, Any]) -> None:
         if self._file is not None:
-            self._file.write(json.dumps(record, allow_nan=False) + "\n")
-            self._file.flush()
+            line = json.dumps(record, allow_nan=False) + "\n"
+            start = self._file.tell() if self._file.seekable() else None  # None: a pipe, nothing to cut
+            try:
+                self._file.write(line)
+                self._file.flush()
+            except OSError as exc:
+                log.error("report %s: %s: reporting stopped, the service carries on", self.path,
+                          exc.strerror or exc)
+                self.close()
+                # Cut the part of the line that got written: a run appending to this report later
+                # would glue its first record to it.
+                if start is not None:
+                    with contextlib.suppress(OSError):
+                        os.truncate(self.path, start)
 
     def close(self) -> None:
         if self._file is not None:
-            self._file.close()
-            self._file = None
+            file, self._file = self._file, None
+            # Every write was flushed: all closing can fail on is a write's leftover, whose failure was logged.
+            with contextlib.suppress(OSError):
+                file.close()
 
     def __enter__(self) -> JsonLines:
         return self

@@ -16,8 +16,9 @@ This process is the operator: it publishes ``command`` messages and listens to g
 estimates. Each child runs in its own session (a Ctrl-C here stops them in order: node,
 estimator, renderer, recorder, so the log gets everything) and is told by the kernel to stop
 when this process dies (``PR_SET_PDEATHSIG`` on Linux), so none outlives it; a child that exits
-early stops the system with the tail of its log, except a recorder whose recording a write error
-stopped (a full disk: :data:`~teleop.session.recorder.RECORDING_STOPPED_STATUS`): that is said and
+early stops the system with the tail of its log (with an empty log: its folder's free space), except
+a recorder whose recording a write error stopped (a full disk:
+:data:`~teleop.session.recorder.RECORDING_STOPPED_STATUS`): that is said and
 noted (:attr:`LiveSystem.recording_stopped`) and the session carries on; SIGTERM and SIGHUP stop it
 as Ctrl-C does, and a second stop signal does not cut that ordered stop short. Children run with one
 BLAS thread each and with progress bars off or rare (``TQDM_DISABLE``, ``TQDM_MININTERVAL``).
@@ -35,6 +36,7 @@ import contextlib
 import ctypes
 import dataclasses
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -167,6 +169,16 @@ class _Child:
             return "(no log)"
         return "\n".join(lines[-LOG_TAIL_LINES:])
 
+    def why_silent(self) -> str:
+        """What an empty log suggests: the child's messages go to its log, so on a full or read-only
+        folder the error that stopped it was lost with them."""
+        folder = self.log_path.parent
+        try:
+            free = f"free: {shutil.disk_usage(folder).free / 1e6:.0f} MB"
+        except OSError as exc:
+            free = f"free space unknown: {exc.strerror or exc}"
+        return f"its log {self.log_path} is empty: is {folder} full or unwritable? ({free})"
+
 
 class LiveSystem:
     """The live system's processes on loopback, and this process as their operator.
@@ -275,7 +287,12 @@ class LiveSystem:
     def _spawn(self, name: str, line: Sequence[str], env: dict[str, str]) -> None:
         package, *args = line
         log_path = self.run_dir / f"{name}.log"
-        with log_path.open("wb") as log_file:
+        try:
+            log_file = log_path.open("wb")
+        except OSError as exc:  # a read-only or full file system
+            raise TeleopError(f"--out {self.run_dir}: cannot write {log_path.name} ({exc.strerror or exc}); "
+                              f"choose a writable folder with --out") from exc
+        with log_file:
             process = subprocess.Popen(  # -P: no working folder on sys.path (_ENTRY)
                 [sys.executable, "-P", "-c", _ENTRY.format(root=str(package_root()), package=package), *args],
                 stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT, env=env,
@@ -321,8 +338,9 @@ class LiveSystem:
                     print(f"recording stopped: {self.recording_stopped}; the session log holds what came before",
                           file=sys.stderr)
                 continue
-            raise TeleopError(f"{child.name} exited with status {code}; the end of {child.log_path}:\n"
-                              f"{child.tail()}")
+            tail = child.tail()
+            raise TeleopError(f"{child.name} exited with status {code}; the end of {child.log_path}:\n{tail}"
+                              if tail else f"{child.name} exited with status {code}; {child.why_silent()}")
 
     def stop(self) -> dict[str, int | None]:
         """Stop every child (node first, recorder last), killing one that does not stop in time.
