@@ -138,9 +138,11 @@ def run(args: argparse.Namespace) -> int:
         if live is not None:
             live.close()
     reasons = ", ".join(f"{n} {reason}" for reason, n in sorted(stats.refused.items()))
+    # After a write error only the chunks written before it hold messages: the open one's never reached the file.
+    stored = stats.saved_messages if stats.error else stats.messages
+    lost = f", and lost {stats.messages - stored} with the chunk that could not be written" if stored < stats.messages else ""
     print(
-        f"recorded {stats.messages} messages ({stats.file_bytes / 1e6:.1f} MB) "
-        f"from {', '.join(endpoints)} into {out}; "
+        f"recorded {stored} messages ({stats.file_bytes / 1e6:.1f} MB) from {', '.join(endpoints)} into {out}{lost}; "
         f"refused {sum(stats.refused.values())}{f' ({reasons})' if reasons else ''}, missed {stats.missed}"
         + (f", not stored {stats.not_stored} (still queued when the stop gave up storing them)"
            if stats.not_stored else ""),

@@ -257,7 +257,8 @@ class SessionRecorder:
         ------
         SessionLogError
             The log cannot be created (it exists and ``overwrite`` is False, or another
-            recorder holds it) or its start cannot be written, or the recorder was already closed.
+            recorder holds it) or its start cannot be written (the log is then removed again), or
+            the recorder was already closed.
         BusError
             The subscription cannot be set up (bad endpoint, missing CURVE keys); the
             log is then removed again.
@@ -293,8 +294,7 @@ class SessionRecorder:
             )
             self._writer.add_metadata(RIG_METADATA, rig_metadata(self.settings))
         except OSError as exc:
-            self._close_file()
-            self._state = "closed"
+            self._discard_log()
             raise SessionLogError(
                 f"cannot write the start of session log {self.name}: {exc.strerror or exc}"
             ) from exc
@@ -303,10 +303,7 @@ class SessionRecorder:
                 self.endpoints, ("",), max_bytes=self.max_bytes, **self.subscriber_options
             )
         except BusError:
-            if self._owns_file:  # nothing was recorded into it; removed while it is still locked
-                self.out.unlink(missing_ok=True)
-            self._close_file()
-            self._state = "closed"
+            self._discard_log()
             raise
         self._state = "open"
         log.info("recording %s from %s into %s", self.source, ", ".join(self.endpoints), self.name)
@@ -500,6 +497,17 @@ class SessionRecorder:
             self._sync_stats()
             self._subscriber.close()  # a closed peer is one no lossless publisher waits for
             self._subscriber = None
+
+    def _discard_log(self) -> None:
+        """Close the log :meth:`open` failed to start and remove it when created here: it holds no
+        message, and left behind it would refuse the next ``--out`` of its name and read as no MCAP log."""
+        if self._owns_file:  # removed while it is still locked
+            try:
+                self.out.unlink(missing_ok=True)
+            except OSError as exc:
+                log.warning("cannot remove the unstarted session log %s: %s", self.name, exc.strerror or exc)
+        self._close_file()
+        self._state = "closed"
 
     def _close_file(self) -> None:
         if self._file is not None and self._owns_file:

@@ -23,6 +23,7 @@ on one log leave, its footer the last one's.
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections import Counter
 from dataclasses import dataclass, field
@@ -125,14 +126,21 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
             )
         tmp.replace(out)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
+        _remove(tmp)
         raise SessionLogError(
             f"cannot write the recovered log {out}: {exc.strerror or exc}"
         ) from exc
     except BaseException:  # SessionLogError, or interrupted (Ctrl-C, SIGTERM): no temporary left behind
-        tmp.unlink(missing_ok=True)
+        _remove(tmp)
         raise
     return report
+
+
+def _remove(tmp: Path) -> None:
+    """Remove the temporary ``tmp`` if it is there; a failure (a read-only file system raises EROFS even
+    for a missing file) must not hide the error that stopped the recovery."""
+    with contextlib.suppress(OSError):
+        tmp.unlink(missing_ok=True)
 
 
 def _copy(reader: LogReader, writer: DamageKeepingWriter, report: RecoveryReport, bar: tqdm) -> None:

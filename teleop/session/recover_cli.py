@@ -45,7 +45,10 @@ def run(args: argparse.Namespace) -> int:
               "still writing it: what is salvaged is what it has written so far", file=sys.stderr)
     # Staged beside --out: a recovery that salvages nothing must not replace a file already there.
     staged = out.with_name(f".{out.name}.recovering")
-    report = recover(args.log, staged, progress=True)
+    try:
+        report = recover(args.log, staged, progress=True)
+    except SessionLogError as exc:  # the staged name is this command's detail: say the --out asked for
+        raise SessionLogError(str(exc).replace(str(staged), str(out))) from exc
     if report.messages == 0 and not report.complete:
         staged.unlink(missing_ok=True)
     else:

@@ -40,8 +40,9 @@ for testing: --vary-contact with --gel-model half-space is refused.
 A grasp whose fingers close on each other before the force target (an object too small to
 grasp) fails, and with --overwrite no earlier file of its name is left behind.
 
-A worker that dies (killed, out of memory) or an unexpected error in a grasp (not the simulator's
-:class:`~teleop.errors.SimulationError`: a bug, a full disk) ends the run with an error that says what
+A worker that dies (killed, out of memory), a record or preview that cannot be written (a full disk:
+the error names the file) or an unexpected error in a grasp (not the simulator's
+:class:`~teleop.errors.SimulationError`: a bug) ends the run with an error that says what
 failed, how many records were written and how to finish. The records written stay: each is written
 whole (its preview first, then the record under a temporary name, renamed), and a dead worker's
 temporaries and previews without their record are removed; so are those of the workers an interrupt
@@ -54,6 +55,7 @@ records are raw frames, which ``estimator estimate`` reads once that file is mad
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import logging
@@ -62,6 +64,7 @@ import re
 import shlex
 import sys
 import time
+from collections.abc import Iterator
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
@@ -150,8 +153,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 class _GraspCrashed(Exception):
-    """An unexpected error (not a :class:`SimulationError`) simulating or writing one grasp: it ends the
-    run. Its arguments are all it holds, so that it comes back from a worker process whole."""
+    """An error (not a :class:`SimulationError`) simulating or writing one grasp, ``reason`` saying what: it
+    ends the run. Its arguments are all it holds, so that it comes back from a worker process whole."""
 
     def __init__(self, name: str, index: int, reason: str) -> None:
         super().__init__(name, index, reason)
@@ -242,7 +245,7 @@ def _stopped(exc: BaseException, out: Path, jobs: list[tuple]) -> str:
     how to finish. A dead worker's leftovers (a record's temporary, a preview without its record) are
     removed first, so that only whole records stay."""
     if isinstance(exc, _GraspCrashed):
-        what = f"{exc.name} grasp {exc.index}: unexpected error: {exc.reason} (-v shows where)"
+        what = f"{exc.name} grasp {exc.index}: {exc.reason} (-v shows where)"
     else:
         what = "a worker process died (killed? out of memory?)"
     unwritten = _remove_leftovers(out, jobs)
@@ -271,9 +274,21 @@ def _simulate_one(job: tuple[ObjectSpec, int, int, Settings, str, bool, bool, bo
     any other error is raised as :class:`_GraspCrashed`, naming the grasp."""
     try:
         return _simulate_and_write(job)
+    except _GraspCrashed:
+        raise
     except Exception as exc:
         obj, index = job[0], job[1]
-        raise _GraspCrashed(obj.name, index, f"{type(exc).__name__}: {exc}") from exc
+        raise _GraspCrashed(obj.name, index, f"unexpected error: {type(exc).__name__}: {exc}") from exc
+
+
+@contextlib.contextmanager
+def _writing(obj: ObjectSpec, index: int, path: Path) -> Iterator[None]:
+    """Raise a failed write (a full disk) as the grasp's :class:`_GraspCrashed`, naming the file ``path``:
+    the OS error alone does not."""
+    try:
+        yield
+    except OSError as exc:
+        raise _GraspCrashed(obj.name, index, f"cannot write {path}: {exc.strerror or exc}") from exc
 
 
 def _simulate_and_write(job: tuple) -> dict:
@@ -301,19 +316,21 @@ def _simulate_and_write(job: tuple) -> dict:
         provenance = dataclasses.replace(record.provenance,
                                          extra={**record.provenance.extra, "target_force_n": target_force_n})
         record = dataclasses.replace(record, provenance=provenance)
-    if preview:
-        # Whole before its record (a record's preview is part of it), under a name no record takes.
-        sheet = _partial_preview(path)
-        try:
-            write_preview(record, truth, sheet)
-            sheet.replace(path.with_suffix(".png"))
-        except BaseException:
-            sheet.unlink(missing_ok=True)
-            raise
-    else:
-        # An earlier run's sheet (only there with --overwrite) would pass for this record's.
-        path.with_suffix(".png").unlink(missing_ok=True)
-    write_record(record, path)
+    with _writing(obj, index, path.with_suffix(".png")):
+        if preview:
+            # Whole before its record (a record's preview is part of it), under a name no record takes.
+            sheet = _partial_preview(path)
+            try:
+                write_preview(record, truth, sheet)
+                sheet.replace(path.with_suffix(".png"))
+            except BaseException:
+                sheet.unlink(missing_ok=True)
+                raise
+        else:
+            # An earlier run's sheet (only there with --overwrite) would pass for this record's.
+            path.with_suffix(".png").unlink(missing_ok=True)
+    with _writing(obj, index, path):
+        write_record(record, path)
     return {"object": obj.name, "grasp": index, "path": str(path), "model": record.provenance.model}
 
 

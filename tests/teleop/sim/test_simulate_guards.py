@@ -3,12 +3,14 @@ estimator reads, objects too small or too wide to grasp."""
 
 from __future__ import annotations
 
+import errno
 import json
 import signal
 import subprocess
 import sys
 import textwrap
 import time
+import zipfile
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
@@ -168,6 +170,22 @@ def test_an_unexpected_error_in_a_grasp_ends_the_run_naming_it_and_keeps_the_rec
             f"run stopped: 1 of 2 records were written to {out} (each whole), the rest not: to finish, run the same "
             "command with --only oak_block --overwrite (") in stderr
     assert [p.name for p in out.iterdir()] == ["small_rubber_ball_g000.grasp"]
+
+
+def test_a_full_disk_ends_the_run_naming_the_record_it_could_not_write(
+        tmp_path, catalogue, quick_settings, capsys, monkeypatch):
+    def disk_full(self, *args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(zipfile.ZipFile, "writestr", disk_full)
+    out = tmp_path / "o"
+    code, stdout, stderr = run(capsys, "--objects", str(catalogue), "--only", "small rubber ball", "--out", str(out),
+                               "--settings", str(quick_settings), "--json")
+    assert code == 2 and stdout == "" and "Traceback" not in stderr
+    # Not "unexpected error: OSError: [Errno 28] No space left on device", which named no file.
+    assert (f"teleop simulate: error: small rubber ball grasp 0: cannot write {out / 'small_rubber_ball_g000.grasp'}: "
+            "No space left on device (-v shows where); the run stopped: 0 of 1 records were written") in stderr
+    assert list(out.iterdir()) == []
 
 
 def test_a_dead_worker_ends_the_run_with_what_was_written_and_no_leftovers(
