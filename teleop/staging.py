@@ -14,6 +14,7 @@ format, since the temporary's name ends in ``.partial``.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import secrets
 import shutil
@@ -51,7 +52,8 @@ def staged(*paths: str | Path) -> Iterator[Path | tuple[Path, ...]]:
     to back after all are complete (a destination whose temporary the block did not write is left
     as it is). Put last the file a reader looks at first. On any exception, KeyboardInterrupt
     included, every temporary is removed and no destination is touched (unless the exception
-    came during the renames themselves, after the first ones).
+    came during the renames themselves, after the first ones). A temporary that cannot be removed
+    (a read-only file system) stays: the block's own error is the one raised.
     """
     destinations = [Path(p) for p in paths]
     temporaries = [partial_path(p) for p in destinations]
@@ -62,7 +64,10 @@ def staged(*paths: str | Path) -> Iterator[Path | tuple[Path, ...]]:
                 os.replace(temporary, destination)
     finally:
         for temporary in temporaries:
-            temporary.unlink(missing_ok=True)
+            # A read-only file system refuses even a missing file's unlink (EROFS): that must not
+            # replace the error that brought us here.
+            with contextlib.suppress(OSError):
+                temporary.unlink(missing_ok=True)
 
 
 def _carry(old: Path, new: Path, drop: Callable[[str], bool] | None = None) -> None:

@@ -50,6 +50,8 @@ def export_onnx(model: ComplianceNet, path: str | Path, *, example: Mapping[str,
     ------
     ModelError
         The export fails or the exported graph disagrees with torch.
+    OSError
+        ``path`` cannot be written (a full or read-only disk).
     """
     path = Path(path)
     model = model.eval()
@@ -66,6 +68,8 @@ def export_onnx(model: ComplianceNet, path: str | Path, *, example: Mapping[str,
                 dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False,
             )
             program.save(str(path))
+    except OSError:
+        raise  # writing failed (a full or read-only disk), not the export: the caller names the folder
     except Exception as exc:  # the exporter raises many unrelated types
         raise ModelError(f"ONNX export of variant {model.variant.name} failed: {exc}") from exc
     worst = max_disagreement(model, path, example)

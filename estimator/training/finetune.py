@@ -73,7 +73,7 @@ from estimator.inference.provenance import SPLITS, load_split
 from estimator.training.conformal import fit_conformal
 from estimator.training.export import export_onnx, network_from_onnx
 from estimator.training.model import ComplianceNet
-from estimator.training.outdir import check_out_dir
+from estimator.training.outdir import check_out_dir, model_write_error
 from estimator.training.pool import pooled_from_onnx
 from estimator.training.recalibrate import trained_held_out
 from estimator.training.recipe import FINE_TUNE_CONFIG, REPLAY_RATIO, TrainConfig
@@ -263,11 +263,14 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
     # Both files under staged names first, renamed back to back only once both are complete: an
     # interrupted run leaves the earlier model, and its training curve, as they were. The curve
     # (of the earlier network) goes only after the new model is in place.
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with staged(out_dir / "model.onnx", out_dir / "metadata.json") as (model_path, metadata_path):
-        export_onnx(model, model_path, example={n: v[:8] for n, v in data.inputs.items()})
-        metadata_path.write_text(json.dumps(new, indent=1, allow_nan=False))
-    (out_dir / "training_curve.png").unlink(missing_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        with staged(out_dir / "model.onnx", out_dir / "metadata.json") as (model_path, metadata_path):
+            export_onnx(model, model_path, example={n: v[:8] for n, v in data.inputs.items()})
+            metadata_path.write_text(json.dumps(new, indent=1, allow_nan=False))
+        (out_dir / "training_curve.png").unlink(missing_ok=True)
+    except OSError as exc:  # a full or read-only disk
+        raise model_write_error(out_dir, exc) from exc
     return new
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from estimator.errors import EstimatorError
 
-__all__ = ["OVERWRITE_HELP", "check_out_dir", "make_out_dir"]
+__all__ = ["OVERWRITE_HELP", "check_out_dir", "make_out_dir", "model_write_error"]
 
 OVERWRITE_HELP = ("write into a non-empty --out: replace the model.onnx and metadata.json there (and remove an "
                   "earlier training_curve.png; other files stay) instead of refusing. A service watching that "
@@ -41,3 +41,11 @@ def make_out_dir(out_dir: Path) -> None:
     another network (a command that plots one writes it anew)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "training_curve.png").unlink(missing_ok=True)
+
+
+def model_write_error(out_dir: Path, exc: OSError) -> EstimatorError:
+    """The error a model command raises when writing its model into ``out_dir`` fails with ``exc``
+    (a full or read-only disk): it names the folder and the reason. The writes are staged
+    (:func:`~teleop.staging.staged`), so the model there before is whole."""
+    return EstimatorError(f"cannot write the model into {out_dir}: {exc.strerror or exc}; "
+                          "the earlier model there is kept (free space or choose another --out)")

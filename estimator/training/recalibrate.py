@@ -33,7 +33,7 @@ from estimator.inference.distribution import force_band
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.provenance import load_split
 from estimator.training.conformal import fit_conformal
-from estimator.training.outdir import check_out_dir, make_out_dir
+from estimator.training.outdir import check_out_dir, make_out_dir, model_write_error
 from estimator.training.splits import (
     SplitData,
     auto_policy,
@@ -157,7 +157,8 @@ def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | P
     EstimatorError
         ``out_dir`` (elsewhere) is a file or, without ``overwrite``, not empty; the dataset does not fit
         the model (measurement version, window, frames, size), has no val samples, or holds val or test
-        objects the model trained on.
+        objects the model trained on; the model cannot be written into ``out_dir`` (a full or
+        read-only disk; :func:`~estimator.training.outdir.model_write_error`).
     ModelError
         The model cannot be read.
     """
@@ -182,12 +183,15 @@ def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | P
         new["recalibrated"] = {"utc": datetime.now(UTC).isoformat(timespec="seconds"), "data": str(data_dir),
                                "settings": str(settings.source) if settings.source else None,
                                "previous": metadata["calibration"], "left_out": dropped}
-    out_dir.mkdir(parents=True, exist_ok=True)
     # Written beside and renamed in together: an interrupt leaves the folder's earlier model whole.
-    with staged(out_dir / "model.onnx", out_dir / "metadata.json") as (model_tmp, metadata_tmp):
-        if not in_place:
-            model_tmp.write_bytes((model_dir / "model.onnx").read_bytes())
-        metadata_tmp.write_text(json.dumps(new, indent=1, allow_nan=False))
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        with staged(out_dir / "model.onnx", out_dir / "metadata.json") as (model_tmp, metadata_tmp):
+            if not in_place:
+                model_tmp.write_bytes((model_dir / "model.onnx").read_bytes())
+            metadata_tmp.write_text(json.dumps(new, indent=1, allow_nan=False))
+    except OSError as exc:
+        raise model_write_error(out_dir, exc) from exc
     if not in_place:
         make_out_dir(out_dir)  # an earlier model's curve would describe another network
     return new

@@ -63,7 +63,7 @@ from estimator.training.conformal import fit_conformal
 from estimator.training.dataset import load_manifest
 from estimator.training.export import OPSET, export_onnx
 from estimator.training.model import ComplianceNet
-from estimator.training.outdir import check_out_dir
+from estimator.training.outdir import check_out_dir, model_write_error
 from estimator.training.recipe import TrainConfig
 from estimator.training.splits import (
     SplitData,
@@ -239,7 +239,8 @@ def train_model(
     ------
     EstimatorError
         ``out_dir`` is a file or, without ``overwrite``, not empty; the dataset has no train or no val
-        samples, or does not match the variant.
+        samples, or does not match the variant; the model cannot be written into ``out_dir`` (a full
+        or read-only disk; :func:`~estimator.training.outdir.model_write_error`).
     """
     started = time.perf_counter()
     config = TrainConfig() if config is None else config
@@ -269,49 +270,54 @@ def train_model(
     fitted = _fit(train, val, variant, config, progress=progress)
     model = fitted.model
     names = list(variant.input_shapes)
-    out_dir.mkdir(parents=True, exist_ok=True)  # an earlier curve stays until the new one replaces it
-    # Every file under a staged name first, renamed into place together at the end (the curve, then
-    # model.onnx and metadata.json back to back): an interrupted run leaves the earlier model, curve
-    # included, as it was. A watcher can at most see, for the microseconds between the last two
-    # renames, the new model.onnx beside the old metadata.json; it takes the folder up once both
-    # stop changing (estimator.model_slot).
-    with staged(out_dir / "training_curve.png", out_dir / "model.onnx", out_dir / "metadata.json") as (
-            curve_path, model_path, metadata_path):
-        example = {n: val.inputs[n][:8] if len(val) >= 2 else train.inputs[n][:8] for n in names}
-        export_onnx(model, model_path, example=example)
-        val_pred = predict(model, val)
-        # In the reference gel's moduli, as the network's labels.
-        soft_pa = float(min(r["truth_pa"] * r["gel_scale"] for r in train.rows))
-        calibration = fit_conformal(val_pred, val.label, gel_scales=val.gel_scales, peak_forces_n=val.peak_forces_n,
-                                    floors_log10=val.floors_for(variant), soft_pa=soft_pa,
-                                    limit_pa=settings.resolution_limit_pa)
-        metadata = {
-            "format": MODEL_FORMAT,
-            "version": MODEL_VERSION,
-            "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
-            "variant": {"name": variant.name, "n_frames": variant.n_frames, "size_px": list(variant.size_px),
-                        "window_m": list(variant.window_m), "method": variant.method},
-            "inputs": {n: [None, *s] for n, s in variant.input_shapes.items()},
-            "output": "log10_e_logits",
-            "scales": current_scales(),
-            "calibration": calibration,
-            "reference": {"record": REFERENCE_RECORD.name,
-                          "inputs": summarise_inputs(reference_inputs(variant, settings=settings))},
-            "auto": auto_policy(val, val_pred),
-            "metrics": {name: split_metrics(part, predict(model, part), variant.method, calibration, settings)
-                        for name, part in (("val", val), ("test", data["test"].live()))},
-            "training": {**asdict(config), "epochs_run": len(fitted.history), "best_epoch": fitted.best_epoch,
-                         "best_val_loss": fitted.best_val_loss, "seconds": time.perf_counter() - started,
-                         "parameters": sum(p.numel() for p in model.parameters()), "torch": torch.__version__,
-                         "opset": OPSET, "history": fitted.history},
-            "data": {"dir": str(data_dir), **{k: manifest.get(k) for k in (
-                "n_frames", "shifts", "size_px", "window_m", "markers", "finger", "depth_binning", "samples", "records",
-                "grasps_used", "measurement_version", "calibration_smoothing_px")},
-                "rig_range": rig_range(train.rows),
-                # Names, not counts: `estimator evaluate --unseen-by` keeps the records of the test objects.
-                "objects": {name: sorted(objects) for name, objects in load_split(data_dir / "split.json").items()},
-                "split_seed": json.loads((data_dir / "split.json").read_text()).get("seed")},
-        }
-        metadata_path.write_text(json.dumps(metadata, indent=1, allow_nan=False))
-        _plot(fitted, curve_path)
+    example = {n: val.inputs[n][:8] if len(val) >= 2 else train.inputs[n][:8] for n in names}
+    val_pred = predict(model, val)
+    # In the reference gel's moduli, as the network's labels.
+    soft_pa = float(min(r["truth_pa"] * r["gel_scale"] for r in train.rows))
+    calibration = fit_conformal(val_pred, val.label, gel_scales=val.gel_scales, peak_forces_n=val.peak_forces_n,
+                                floors_log10=val.floors_for(variant), soft_pa=soft_pa,
+                                limit_pa=settings.resolution_limit_pa)
+    metadata = {
+        "format": MODEL_FORMAT,
+        "version": MODEL_VERSION,
+        "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
+        "variant": {"name": variant.name, "n_frames": variant.n_frames, "size_px": list(variant.size_px),
+                    "window_m": list(variant.window_m), "method": variant.method},
+        "inputs": {n: [None, *s] for n, s in variant.input_shapes.items()},
+        "output": "log10_e_logits",
+        "scales": current_scales(),
+        "calibration": calibration,
+        "reference": {"record": REFERENCE_RECORD.name,
+                      "inputs": summarise_inputs(reference_inputs(variant, settings=settings))},
+        "auto": auto_policy(val, val_pred),
+        "metrics": {name: split_metrics(part, predict(model, part), variant.method, calibration, settings)
+                    for name, part in (("val", val), ("test", data["test"].live()))},
+        "training": {**asdict(config), "epochs_run": len(fitted.history), "best_epoch": fitted.best_epoch,
+                     "best_val_loss": fitted.best_val_loss, "seconds": time.perf_counter() - started,
+                     "parameters": sum(p.numel() for p in model.parameters()), "torch": torch.__version__,
+                     "opset": OPSET, "history": fitted.history},
+        "data": {"dir": str(data_dir), **{k: manifest.get(k) for k in (
+            "n_frames", "shifts", "size_px", "window_m", "markers", "finger", "depth_binning", "samples", "records",
+            "grasps_used", "measurement_version", "calibration_smoothing_px")},
+            "rig_range": rig_range(train.rows),
+            # Names, not counts: `estimator evaluate --unseen-by` keeps the records of the test objects.
+            "objects": {name: sorted(objects) for name, objects in load_split(data_dir / "split.json").items()},
+            "split_seed": json.loads((data_dir / "split.json").read_text()).get("seed")},
+    }
+    # An OSError here is the disk (full, read-only), not the model: say which folder, and that the
+    # earlier model there is whole.
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)  # an earlier curve stays until the new one replaces it
+        # Every file under a staged name first, renamed into place together at the end (the curve, then
+        # model.onnx and metadata.json back to back): an interrupted run leaves the earlier model, curve
+        # included, as it was. A watcher can at most see, for the microseconds between the last two
+        # renames, the new model.onnx beside the old metadata.json; it takes the folder up once both
+        # stop changing (estimator.model_slot).
+        with staged(out_dir / "training_curve.png", out_dir / "model.onnx", out_dir / "metadata.json") as (
+                curve_path, model_path, metadata_path):
+            export_onnx(model, model_path, example=example)
+            metadata_path.write_text(json.dumps(metadata, indent=1, allow_nan=False))
+            _plot(fitted, curve_path)
+    except OSError as exc:
+        raise model_write_error(out_dir, exc) from exc
     return metadata

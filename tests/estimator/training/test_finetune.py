@@ -236,3 +236,18 @@ def test_train_with_init_takes_the_models_variant_spelled_in_any_order(tmp_path,
     assert main([*args[:-1], "depth+fw+analytical+fw"]) == 2
     assert "+fw given more than once" in capsys.readouterr().err
     assert not (tmp_path / "m").exists()
+
+
+def test_a_full_disk_while_fine_tuning_names_the_folder(trained_model, synthetic, tmp_path, monkeypatch):
+    import errno
+
+    from estimator.training import finetune as finetune_module
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(finetune_module, "export_onnx", full)
+    data = synthetic.write_dataset(tmp_path / "d", seed=3)
+    with pytest.raises(EstimatorError, match="cannot write the model into .*tuned: No space left on device"):
+        fine_tune(trained_model, data, tmp_path / "tuned", config=TrainConfig(epochs=1, batch_size=8, seed=0),
+                  progress=False)

@@ -102,3 +102,17 @@ def test_the_command_pools_models(trained_model, other_seed, synthetic_dataset, 
     printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert printed["out"] == str(out) and printed["members"] == 2 and printed["calibration"]["n"] > 0
     assert {p.name for p in out.iterdir()} == {"model.onnx", "metadata.json"}
+
+
+def test_a_full_disk_while_pooling_names_the_folder(trained_model, other_seed, synthetic_dataset, tmp_path, monkeypatch):
+    import errno
+
+    from estimator.training import pool as pool_module
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(pool_module, "export_onnx", full)
+    with pytest.raises(EstimatorError, match="cannot write the model into .*pooled: No space left on device"):
+        pool_models([trained_model, other_seed], synthetic_dataset, tmp_path / "pooled")
+    assert not (tmp_path / "pooled").exists() and not list(tmp_path.glob(".*"))  # nothing half-made left
