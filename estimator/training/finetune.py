@@ -268,9 +268,9 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
         with staged(out_dir / "model.onnx", out_dir / "metadata.json") as (model_path, metadata_path):
             export_onnx(model, model_path, example={n: v[:8] for n, v in data.inputs.items()})
             metadata_path.write_text(json.dumps(new, indent=1, allow_nan=False))
-        (out_dir / "training_curve.png").unlink(missing_ok=True)
     except OSError as exc:  # a full or read-only disk
         raise model_write_error(out_dir, exc) from exc
+    (out_dir / "training_curve.png").unlink(missing_ok=True)
     return new
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from estimator.errors import EstimatorError
 
-__all__ = ["OVERWRITE_HELP", "check_out_dir", "make_out_dir", "model_write_error"]
+__all__ = ["OVERWRITE_HELP", "ModelWriteError", "check_out_dir", "make_out_dir", "model_write_error"]
 
 OVERWRITE_HELP = ("write into a non-empty --out: replace the model.onnx and metadata.json there (and remove an "
                   "earlier training_curve.png; other files stay) instead of refusing. A service watching that "
@@ -43,9 +43,17 @@ def make_out_dir(out_dir: Path) -> None:
     (out_dir / "training_curve.png").unlink(missing_ok=True)
 
 
-def model_write_error(out_dir: Path, exc: OSError) -> EstimatorError:
+class ModelWriteError(EstimatorError):
+    """Writing a model into a folder failed (a full or read-only disk); ``cause`` is the OS error."""
+
+    def __init__(self, message: str, cause: OSError):
+        super().__init__(message)
+        self.cause = cause
+
+
+def model_write_error(out_dir: Path, exc: OSError) -> ModelWriteError:
     """The error a model command raises when writing its model into ``out_dir`` fails with ``exc``
     (a full or read-only disk): it names the folder and the reason. The writes are staged
     (:func:`~teleop.staging.staged`), so the model there before is whole."""
-    return EstimatorError(f"cannot write the model into {out_dir}: {exc.strerror or exc}; "
-                          "the earlier model there is kept (free space or choose another --out)")
+    return ModelWriteError(f"cannot write the model into {out_dir}: {exc.strerror or exc}; "
+                           "the earlier model there is kept (free space or choose another --out)", exc)

@@ -34,7 +34,12 @@ from estimator.training.export import (
     onnx_weights,
 )
 from estimator.training.model import ComplianceNet
-from estimator.training.outdir import check_out_dir, make_out_dir, model_write_error
+from estimator.training.outdir import (
+    ModelWriteError,
+    check_out_dir,
+    make_out_dir,
+    model_write_error,
+)
 from estimator.training.recalibrate import recalibrate
 from estimator.training.splits import check_dataset_fits, load_split_data
 from teleop.settings import Settings
@@ -139,13 +144,16 @@ def pool_models(model_dirs: Sequence[str | Path], data_dir: str | Path, out_dir:
     }
     # Built beside and swapped in whole: an interrupt leaves the folder's earlier model as it was.
     try:
-        out_dir.parent.mkdir(parents=True, exist_ok=True)
-        with staged_dir(out_dir) as build:
-            export_onnx(pooled, build / "model.onnx", example=example)
-            (build / "metadata.json").write_text(json.dumps(metadata, indent=1, allow_nan=False))
-            # The calibration in the file so far is the first member's, which recalibrate() reads the model by.
-            result = recalibrate(build, data_dir, settings=settings, record=False)
-        make_out_dir(out_dir)  # an earlier model's curve, carried over, would describe another network
-    except OSError as exc:  # a full or read-only disk
-        raise model_write_error(out_dir, exc) from exc
+        try:
+            out_dir.parent.mkdir(parents=True, exist_ok=True)
+            with staged_dir(out_dir) as build:
+                export_onnx(pooled, build / "model.onnx", example=example)
+                (build / "metadata.json").write_text(json.dumps(metadata, indent=1, allow_nan=False))
+                # The calibration in the file so far is the first member's, which recalibrate() reads the model by.
+                result = recalibrate(build, data_dir, settings=settings, record=False)
+        except OSError as exc:  # a full or read-only disk (recalibrate's own reads name their files)
+            raise model_write_error(out_dir, exc) from exc
+    except ModelWriteError as exc:  # recalibrate's writes name the hidden build folder: said of out_dir
+        raise model_write_error(out_dir, exc.cause) from exc
+    make_out_dir(out_dir)  # an earlier model's curve, carried over, would describe another network
     return result

@@ -183,12 +183,13 @@ def recalibrate(model_dir: str | Path, data_dir: str | Path, *, out_dir: str | P
         new["recalibrated"] = {"utc": datetime.now(UTC).isoformat(timespec="seconds"), "data": str(data_dir),
                                "settings": str(settings.source) if settings.source else None,
                                "previous": metadata["calibration"], "left_out": dropped}
+    network = None if in_place else (model_dir / "model.onnx").read_bytes()  # a read: not the write's error
     # Written beside and renamed in together: an interrupt leaves the folder's earlier model whole.
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         with staged(out_dir / "model.onnx", out_dir / "metadata.json") as (model_tmp, metadata_tmp):
-            if not in_place:
-                model_tmp.write_bytes((model_dir / "model.onnx").read_bytes())
+            if network is not None:
+                model_tmp.write_bytes(network)
             metadata_tmp.write_text(json.dumps(new, indent=1, allow_nan=False))
     except OSError as exc:
         raise model_write_error(out_dir, exc) from exc

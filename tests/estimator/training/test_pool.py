@@ -116,3 +116,25 @@ def test_a_full_disk_while_pooling_names_the_folder(trained_model, other_seed, s
     with pytest.raises(EstimatorError, match="cannot write the model into .*pooled: No space left on device"):
         pool_models([trained_model, other_seed], synthetic_dataset, tmp_path / "pooled")
     assert not (tmp_path / "pooled").exists() and not list(tmp_path.glob(".*"))  # nothing half-made left
+
+
+def test_a_full_disk_while_the_pool_is_recalibrated_names_out_not_the_hidden_build(
+        trained_model, other_seed, synthetic_dataset, tmp_path, monkeypatch):
+    import errno
+    import pathlib
+
+    write_text = pathlib.Path.write_text
+    calls = []
+
+    def filling(self, *args, **kwargs):
+        calls.append(self)
+        if len(calls) >= 2:  # the pool's own metadata is written; recalibrate's then meets a full disk
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return write_text(self, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "write_text", filling)
+    out = tmp_path / "pooled"
+    with pytest.raises(EstimatorError) as raised:
+        pool_models([trained_model, other_seed], synthetic_dataset, out)
+    assert str(raised.value).startswith(f"cannot write the model into {out}: No space left on device")
+    assert not out.exists() and not list(tmp_path.glob(".*"))
