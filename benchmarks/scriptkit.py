@@ -63,7 +63,7 @@ def run_child(line: Sequence[str]) -> subprocess.CompletedProcess:
     The child runs in a session of its own, so a Ctrl-C at the terminal reaches this process alone;
     an interrupt here (Ctrl-C, SIGTERM under :func:`run_script`) sends the child one SIGTERM (the
     project's commands then stop as on Ctrl-C, children and all), waits :data:`CHILD_STOP_S` for it,
-    kills it past that, and raises on.
+    kills it past that (or on a second interrupt meanwhile), and raises on.
     """
     with subprocess.Popen(line, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                           start_new_session=True) as child:
@@ -74,7 +74,10 @@ def run_child(line: Sequence[str]) -> subprocess.CompletedProcess:
             try:
                 child.communicate(timeout=CHILD_STOP_S)
             except subprocess.TimeoutExpired:
-                child.kill()
+                pass
+            finally:  # past the wait, or a second interrupt cut it short: its own session hears no Ctrl-C
+                if child.poll() is None:
+                    child.kill()
             raise
     return subprocess.CompletedProcess(line, child.returncode, out, err)
 

@@ -169,7 +169,8 @@ class JsonLines:
     ``path`` None makes every :meth:`write` a no-op, so callers need no branches. A write that
     fails (a full disk) is logged once and ends the reporting, not the service: the report is a
     by-product, and a service that died of it would take the live session down with it. The
-    records written before stay, whole.
+    records written before stay, whole; a report opened on a line such a failure cut short starts
+    on a new line.
     """
 
     def __init__(self, path: str | Path | None):
@@ -178,25 +179,20 @@ class JsonLines:
         if self.path is not None:
             try:
                 self._file = self.path.open("a", encoding="utf-8")
+                if _ends_mid_line(self.path):  # (never cut back: another writer may append to it too)
+                    self._file.write("\n")
             except OSError as exc:
                 raise SettingsError(f"cannot open report file {self.path}: {exc.strerror or exc}") from exc
 
     def write(self, record: dict[str, Any]) -> None:
         if self._file is not None:
-            line = json.dumps(record, allow_nan=False) + "\n"
-            start = self._file.tell() if self._file.seekable() else None  # None: a pipe, nothing to cut
             try:
-                self._file.write(line)
+                self._file.write(json.dumps(record, allow_nan=False) + "\n")
                 self._file.flush()
             except OSError as exc:
                 log.error("report %s: %s: reporting stopped, the service carries on", self.path,
                           exc.strerror or exc)
                 self.close()
-                # Cut the part of the line that got written: a run appending to this report later
-                # would glue its first record to it.
-                if start is not None:
-                    with contextlib.suppress(OSError):
-                        os.truncate(self.path, start)
 
     def close(self) -> None:
         if self._file is not None:
@@ -210,3 +206,13 @@ class JsonLines:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def _ends_mid_line(path: Path) -> bool:
+    """Whether the file at ``path`` ends without a newline (a write a full disk cut short); a pipe or
+    an empty file does not."""
+    with path.open("rb") as file:
+        if not file.seekable() or file.seek(0, os.SEEK_END) == 0:
+            return False
+        file.seek(-1, os.SEEK_END)
+        return file.read(1) != b"\n"

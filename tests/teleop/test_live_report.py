@@ -20,12 +20,6 @@ class _FillingDisk:
         self.file = file
         self.writes = 0
 
-    def seekable(self):
-        return self.file.seekable()
-
-    def tell(self):
-        return self.file.tell()
-
     def write(self, text):
         self.writes += 1
         self.file.write(text[: len(text) // 2])
@@ -54,11 +48,24 @@ def test_a_report_on_a_full_disk_stops_reporting_with_one_error_and_the_service_
     assert len(errors) == 1, errors
     assert str(path) in errors[0] and "No space left on device" in errors[0] and "carries on" in errors[0]
     assert disk.writes == 1  # g3 was not tried: the file was dropped after g2
-    # g1 is kept whole, and g2's half line is cut: a later run's appended record starts on a line of its own.
-    assert path.read_text() == '{"grasp_id": "g1"}\n'
+    # g1 is kept whole, and a later run's appended record starts on a line of its own, after g2's half
+    # (not cut back: another writer may have appended meanwhile).
+    lines = path.read_text().splitlines()
+    assert json.loads(lines[0]) == {"grasp_id": "g1"} and len(lines) == 2
     with JsonLines(path) as later:
         later.write({"grasp_id": "g4"})
-    assert [json.loads(line) for line in path.read_text().splitlines()] == [{"grasp_id": "g1"}, {"grasp_id": "g4"}]
+    assert path.read_text().splitlines() == [*lines, '{"grasp_id": "g4"}']
+
+
+def test_another_writers_records_are_never_cut(tmp_path):
+    path = tmp_path / "shared.jsonl"
+    ours = JsonLines(path)
+    ours.write({"grasp_id": "g1"})
+    with JsonLines(path) as theirs:  # a second service given the same report
+        theirs.write({"grasp_id": "t1"})
+    ours._file = _FillingDisk(ours._file)
+    ours.write({"grasp_id": "g2"})
+    assert path.read_text().startswith('{"grasp_id": "g1"}\n{"grasp_id": "t1"}\n')
 
 
 def test_a_report_to_a_pipe_is_written_though_a_pipe_cannot_tell_its_position(tmp_path):
