@@ -10,7 +10,8 @@ import sys
 TRAIN_MODULES = frozenset({
     "estimator/inference/test_export_infer.py", "estimator/inference/test_hybrid.py",
     "estimator/training/test_finetune.py", "estimator/training/test_finetune_lineage.py",
-    "estimator/training/test_model.py", "estimator/training/test_model_out.py", "estimator/training/test_pool.py",
+    "estimator/training/test_model.py", "estimator/training/test_model_out.py",
+    "estimator/training/test_model_write_errors.py", "estimator/training/test_pool.py",
     "estimator/training/test_train.py",
 })
 
