@@ -146,7 +146,7 @@ def measure(args: argparse.Namespace) -> None:
     baseline = Baseline()
     with one_core():  # as the bench and the stages run
         baseline.time()
-    result = bench(paths, settings=settings, configs=configs, repeats=args.repeats)
+    result = bench(paths, settings=settings, configs=configs, calibration=args.calibration, repeats=args.repeats)
     skipped = {entry["path"] for entry in result["skipped_records"]}  # unreadable or unlabelled: not benched
     parts = stages([p for p in paths if str(p) not in skipped], settings=settings, predictor=predictor,
                    calibration=args.calibration, repeats=args.repeats)

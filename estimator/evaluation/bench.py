@@ -45,8 +45,9 @@ one of the three: the error is over the grasps a configuration answers, so one
 that refuses the hard grasps (no loading frame to sample) must not dominate one
 that answers them (``auto``, with its force/width fallback).
 
-The records not benched are listed under ``skipped_records``, each ``{"path", "cause"}`` with the
-cause ``estimator evaluate`` gives (``unreadable: ...`` or ``unlabelled: ...``), and counted by
+The records not benched (unreadable, unlabelled, or naming a calibration file that is gone) are
+listed under ``skipped_records``, each ``{"path", "cause"}`` with the
+cause ``estimator evaluate`` gives (``unreadable: ...``, ``unlabelled: ...``, ``calibration missing: ...``), and counted by
 cause under ``skipped``; with none left to bench, :class:`NothingToBench` carries that list.
 """
 
@@ -73,7 +74,7 @@ from estimator.inference.hybrid import HybridEstimator
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.sampling import calibration_for, decoded, sample_grasp
 from estimator.measure import estimate_grasp, measure_grasp, no_contact_reference
-from estimator.measurements import TACTILE_METHODS
+from estimator.measurements import TACTILE_METHODS, calibration_problem
 from estimator.perception.calibration import Calibration
 from estimator.settings import estimator_settings
 from haptics.settings import display_range_pa
@@ -219,10 +220,13 @@ def bench(
     *,
     settings: Settings,
     configs: Sequence[BenchConfig],
+    calibration: str | None = None,
     repeats: int = 5,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Time and score ``configs`` over the labelled records in ``paths`` (module notes).
+    """Time and score ``configs`` over the labelled records in ``paths`` (module notes); a record
+    whose own calibration file is gone (``calibration``, the one the configs were given for every
+    record, None) is skipped, as ``estimator evaluate`` skips it.
 
     Raises NothingToBench when none of ``paths`` is readable and labelled (its message counts
     the causes; its ``skipped`` names each record and its cause)."""
@@ -237,7 +241,10 @@ def bench(
             except RecordError as exc:
                 skipped.append({"path": str(path), "cause": f"unreadable: {exc}"})
                 continue
-            if cause := unlabelled(record):
+            finger = settings.sensing.finger
+            problem = (calibration_problem(record, finger, calibration, "--calibration")
+                       if finger in {s.finger for s in record.sensors} else None)  # off-finger: the run says
+            if cause := unlabelled(record) or (problem and f"calibration missing: {problem}"):
                 skipped.append({"path": str(path), "cause": cause})
                 continue
             label = record.label

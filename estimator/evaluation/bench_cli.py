@@ -98,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
     configs = configurations(settings=settings, calibration=args.calibration, frames=frames, models=models,
                              binning=args.binning, correct_width_lag=args.width_lag)
     try:
-        benched = bench(paths, settings=settings, configs=configs, repeats=args.repeats)
+        benched = bench(paths, settings=settings, configs=configs, calibration=args.calibration,
+                    repeats=args.repeats)
     except NothingToBench as exc:
         print_skipped(exc.skipped, len(paths), file=sys.stderr)
         raise EstimatorError(f"{root}: {exc}" + ("; listed above" if exc.skipped else "")) from exc

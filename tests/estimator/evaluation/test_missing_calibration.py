@@ -106,3 +106,14 @@ def test_compare_skips_a_record_whose_calibration_is_gone_and_compares_on_the_re
     assert main(["compare", str(alone), "--base", str(DEFAULT_MODEL), "--candidate", str(candidate)]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and f"{alone / 'moved.grasp'}: calibration missing: " in err
+
+
+def test_bench_skips_a_record_whose_calibration_is_gone_and_benches_the_rest(folder, capsys):
+    records, missing = folder
+    assert main(["bench", str(records), "--repeats", "1", "--json"]) == 0
+    result = last_json(capsys)
+    assert result["records"] == 2 and result["labelled"] == 1
+    assert result["skipped"] == {"calibration missing": 1}
+    (entry,) = result["skipped_records"]
+    assert entry["path"] == str(records / "moved.grasp") and str(missing) in entry["cause"]
+    assert "--calibration CAL" in entry["cause"]
