@@ -70,7 +70,13 @@ def drain(listener: Subscriber) -> list:
 
 
 def wait_prepared(node: RobotNode) -> None:
-    node._next_live[1].result(timeout=30.0)  # the first object, prepared at connect
+    """Step the node until the first object (prepared at connect) is ready: a node left unstepped
+    that long would take it for a stall of its own, and its watchdog would end the next grasp."""
+    prepared, deadline = node._next_live[1], time.monotonic() + 30.0
+    while not prepared.done():
+        assert time.monotonic() < deadline, "the first object was not prepared within 30 s"
+        node.step(timeout_s=0.002)
+    prepared.result()
 
 
 def killed_console_stops_the_fingers(node: RobotNode, operator: Publisher, listener: Subscriber,
