@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import sys
 from typing import TYPE_CHECKING
+
+from teleop.cli_start import start
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -11,7 +12,7 @@ if TYPE_CHECKING:
     from teleop.clikit import Command
 
 # Nothing else is imported here: the console script imports this module before main() runs, and a
-# Ctrl-C meanwhile would end in a traceback. teleop.clikit is imported in main(), under its guard.
+# Ctrl-C meanwhile would end in a traceback. teleop.clikit is imported by start(), under its guard.
 
 
 def commands() -> dict[str, Command]:
@@ -42,11 +43,4 @@ def commands() -> dict[str, Command]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    try:
-        from teleop.clikit import run_cli
-
-        table = commands()
-    except KeyboardInterrupt:  # a Ctrl-C while the command line's framework imports
-        print("teleop: interrupted", file=sys.stderr)
-        return 130
-    return run_cli("teleop", __doc__, table, argv)
+    return start("teleop", __doc__, commands, argv)
