@@ -22,13 +22,19 @@ def _estimate(grasp_id: str, provisional: bool) -> EstimateBody:
                         reason="loading phase", provisional=provisional, latency_s=0.01)
 
 
-def test_the_summary_names_the_last_grasp_next_cleared_with_its_final_estimate():
+def _ended(peers, *, provisional: bool):
+    """A discrete grasp pressed and shown ended with its estimate (final or not); the loop stepped once."""
     clock, link, _, loop = loop_rig()
     press(loop, clock, "grasp")
     grasp_id = loop.status.grasp_id
-    link.view = OperatorView(t_s=clock(), peers=ALIVE, grasp_id=grasp_id, phase="ended",
-                             estimate=_estimate(grasp_id, provisional=False))
+    link.view = OperatorView(t_s=clock(), peers=peers, grasp_id=grasp_id, phase="ended",
+                             estimate=_estimate(grasp_id, provisional=provisional))
     loop.step()
+    return clock, link, loop, grasp_id
+
+
+def test_the_summary_names_the_last_grasp_next_cleared_with_its_final_estimate():
+    clock, link, loop, grasp_id = _ended(ALIVE, provisional=False)
     press(loop, clock, "next")
     assert link.cleared == 1 and loop.status.view.grasp_id is None
     shown = summary("sim", loop.status)
@@ -42,12 +48,7 @@ def test_the_summary_names_the_last_grasp_next_cleared_with_its_final_estimate()
 
 def test_next_does_not_wait_for_the_final_of_a_grasp_that_ended_while_the_estimator_was_down():
     # g; the estimator killed; the grasp ends; the estimator started again; n clears at once.
-    clock, link, _, loop = loop_rig()
-    press(loop, clock, "grasp")
-    grasp_id = loop.status.grasp_id
-    link.view = OperatorView(t_s=clock(), peers=ESTIMATOR_DOWN, grasp_id=grasp_id, phase="ended",
-                             estimate=_estimate(grasp_id, provisional=True))
-    loop.step()
+    clock, link, loop, grasp_id = _ended(ESTIMATOR_DOWN, provisional=True)
     clock.t += 3.0
     link.view = OperatorView(t_s=clock(), peers=ALIVE, grasp_id=grasp_id, phase="ended",
                              estimate=_estimate(grasp_id, provisional=True), estimate_orphaned=True)
@@ -59,11 +60,6 @@ def test_next_does_not_wait_for_the_final_of_a_grasp_that_ended_while_the_estima
 
 
 def test_next_still_waits_for_the_final_of_a_grasp_that_ended_with_the_estimator_alive():
-    clock, link, _, loop = loop_rig()
-    press(loop, clock, "grasp")
-    grasp_id = loop.status.grasp_id
-    link.view = OperatorView(t_s=clock(), peers=ALIVE, grasp_id=grasp_id, phase="ended",
-                             estimate=_estimate(grasp_id, provisional=True))
-    loop.step()
+    clock, link, loop, _ = _ended(ALIVE, provisional=True)
     press(loop, clock, "next")
     assert link.cleared == 0 and "its final estimate is in" in loop.status.last_action

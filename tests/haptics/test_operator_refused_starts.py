@@ -27,10 +27,14 @@ def _notice(seq: int, action: str, grasp_id: str):
     return dataclasses.replace(message, source="robot", topic="robot_notice", seq=seq)
 
 
-def test_the_link_keeps_every_refused_start_of_a_poll_not_only_the_newest_notice():
+def _link() -> tuple[OperatorLink, QueuedSubscriber]:
     clock = Clock()
     subscriber = QueuedSubscriber(clock)
-    link = OperatorLink(publisher=SubscribedPublisher(), subscriber=subscriber, clock=clock)
+    return OperatorLink(publisher=SubscribedPublisher(), subscriber=subscriber, clock=clock), subscriber
+
+
+def test_the_link_keeps_every_refused_start_of_a_poll_not_only_the_newest_notice():
+    link, subscriber = _link()
     subscriber.queue += [_notice(0, "start_grasp", "op-2"), _notice(1, "stop", "op-2")]
     link.poll()
     assert link.view.notice.action == "stop" and link.view.refused_starts == ("op-2",)
@@ -40,9 +44,7 @@ def test_the_link_keeps_every_refused_start_of_a_poll_not_only_the_newest_notice
 
 
 def test_the_link_keeps_every_refused_follow_of_a_poll_apart_from_the_refused_starts():
-    clock = Clock()
-    subscriber = QueuedSubscriber(clock)
-    link = OperatorLink(publisher=SubscribedPublisher(), subscriber=subscriber, clock=clock)
+    link, subscriber = _link()
     subscriber.queue += [_notice(0, "follow", "op-3"), _notice(1, "stop", "op-3")]
     link.poll()
     assert link.view.notice.action == "stop" and link.view.refused_follows == ("op-3",)
