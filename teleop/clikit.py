@@ -69,6 +69,13 @@ def file_in_the_way(folder: Path) -> Path | None:
     return existing if existing is not None and not existing.is_dir() else None
 
 
+def help_literal(value: object) -> str:
+    """``value`` as text to put verbatim in an argparse help string: every ``%`` doubled, since argparse
+    %-formats help strings (``%(default)s``) and a path with a ``%`` in it (the install folder's)
+    would break or garble ``--help``."""
+    return str(value).replace("%", "%%")
+
+
 def _finite(text: str) -> float:
     """``text`` as a float; nan when it is none."""
     try:

@@ -11,7 +11,7 @@ import json
 import sys
 
 from teleop.bus.pubsub import Publisher, Subscriber
-from teleop.clikit import positive_number
+from teleop.clikit import help_literal, positive_number
 from teleop.live import StopSignals, add_endpoint_arguments, bus_from_args
 from teleop.node import COMMAND_TOPICS, RobotNode
 from teleop.scene import SCENE_DIR, load_scene
@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
                         help="settings TOML (device backends, sensors, gripper, simulation, bus)")
     parser.add_argument("--scene", default="default", metavar="NAME",
-                        help=f"scene whose objects simulated grasps take (a name under {SCENE_DIR} or a "
+                        help=f"scene whose objects simulated grasps take (a name under {help_literal(SCENE_DIR)} or a "
                              ".toml path); its settings file is not read, --settings is used")
     add_endpoint_arguments(parser, "robot_pub", "command")
     parser.add_argument("--duration-s", type=positive_number, default=None, metavar="S",

@@ -13,7 +13,7 @@ from estimator.errors import EstimatorError
 from estimator.inference.inputs import size_px_ok, size_px_range_text
 from estimator.inference.provenance import SPLITS
 from estimator.training.dataset import DEFAULT_FRACTIONS, DatasetOptions, build_dataset
-from teleop.clikit import non_negative_int
+from teleop.clikit import help_literal, non_negative_int
 from teleop.record import find_records
 from teleop.settings import config_dir, default_settings_path, load_settings
 
@@ -81,7 +81,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration", metavar="CAL", default=None,
                         help="calibration (.npz) of the estimator's finger for every record; default: "
                              "the one each record carries (`teleop export` puts it inside), else the file "
-                             f"its sensor names (a relative name is under {config_dir()})")
+                             f"its sensor names (a relative name is under {help_literal(config_dir())})")
     parser.add_argument("--marker-calibration", metavar="CAL", default=None,
                         help="calibration of the marker finger (with --markers); default: the file "
                              "its sensor names")

@@ -18,7 +18,7 @@ from estimator.inference.provenance import load_split, trained_objects
 from estimator.training.dataset import load_manifest
 from estimator.training.outdir import OVERWRITE_HELP
 from estimator.training.recipe import FINE_TUNE_CONFIG, REPLAY_RATIO, TrainConfig
-from teleop.clikit import non_negative_int
+from teleop.clikit import help_literal, non_negative_int
 from teleop.settings import Settings, default_settings_path, load_settings
 
 
@@ -60,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "from a bootstrap over the objects")
     parser.add_argument("--settings", metavar="FILE", default=None,
                         help="with --check or --compare: the new rig's settings TOML, whose resolution limit and "
-                             f"display the grasps are scored at (default: the shipped {default_settings_path()})")
+                             f"display the grasps are scored at (default: the shipped {help_literal(default_settings_path())})")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (out, objects, grasps, samples, seconds; check with --check, "
                              "compare with --compare) on the last stdout line")

@@ -7,6 +7,7 @@ import json
 
 from estimator.inference.infer import bands_text
 from estimator.training.outdir import OVERWRITE_HELP
+from teleop.clikit import help_literal
 from teleop.settings import default_settings_path, load_settings
 
 
@@ -25,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     parser.add_argument("--settings", metavar="FILE", default=None,
                         help="settings TOML whose resolution limit the intervals are calibrated at "
-                             f"(default: the shipped {default_settings_path()})")
+                             f"(default: the shipped {help_literal(default_settings_path())})")
     parser.add_argument("--json", action="store_true", help="print one JSON object (out, members, calibration)")
 
 

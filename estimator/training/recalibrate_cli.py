@@ -9,7 +9,7 @@ from estimator.errors import EstimatorError
 from estimator.inference.infer import band_names, bands_text
 from estimator.training.outdir import OVERWRITE_HELP
 from estimator.training.recalibrate import cross_validate, recalibrate
-from teleop.clikit import non_negative_int
+from teleop.clikit import help_literal, non_negative_int
 from teleop.settings import default_settings_path, load_settings
 
 _SHOWN = ("temperature", "coverage")
@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     parser.add_argument("--settings", metavar="FILE", default=None,
                         help="settings TOML whose resolution limit the intervals are calibrated at "
-                             f"(default: the shipped {default_settings_path()})")
+                             f"(default: the shipped {help_literal(default_settings_path())})")
     parser.add_argument("--cross-validate", type=int, nargs="?", const=5, default=None, metavar="FOLDS",
                         help="write nothing: deal the val objects into FOLDS groups (default 5), answer each group's "
                              "grasps under a calibration fitted on the others, and print what those answers score "

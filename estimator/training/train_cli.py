@@ -18,7 +18,7 @@ from estimator.training.finetune_cli import fine_tune_and_report
 from estimator.training.outdir import OVERWRITE_HELP
 from estimator.training.recipe import FINE_TUNE_CONFIG, REPLAY_RATIO, TrainConfig
 from estimator.training.splits import dataset_window
-from teleop.clikit import non_negative_int
+from teleop.clikit import help_literal, non_negative_int
 from teleop.settings import default_settings_path, load_settings
 
 DEFAULT_VARIANT = "depth+fw+analytical"
@@ -71,7 +71,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--weight-decay", type=float, default=TrainConfig.weight_decay, help="AdamW weight decay")
     parser.add_argument("--settings", metavar="FILE", default=None,
                         help="settings TOML whose estimating sensor's resolution limit the intervals are "
-                             f"calibrated at (default: the shipped {default_settings_path()}; not with --init, which "
+                             f"calibrated at (default: the shipped {help_literal(default_settings_path())}; not with --init, which "
                              "keeps the base model's)")
     parser.add_argument("--label-sd", dest="label_sd", type=float, default=TrainConfig.label_sd_decades,
                         metavar="DECADES",

@@ -41,6 +41,7 @@ import foxglove
 from teleop.bus.pubsub import Subscriber
 from teleop.bus.security import is_loopback
 from teleop.bus.wire import Message, now_ns
+from teleop.clikit import help_literal
 from teleop.errors import BusError
 from teleop.session.foxglove import (
     FoxgloveChannel,
@@ -104,7 +105,7 @@ def add_foxglove_argument(parser: argparse.ArgumentParser, *, what: str) -> None
         help=f"serve {what} live to Foxglove over its WebSocket protocol on HOST:PORT "
         f"(alone: {DEFAULT_ADDRESS}; PORT 0: any free port); open it in Foxglove with "
         f"'Open connection' > 'Foxglove WebSocket' and ws://HOST:PORT, and import "
-        f"{config_dir() / 'foxglove' / 'layout.json'}",
+        f"{help_literal(config_dir() / 'foxglove' / 'layout.json')}",
     )
 
 

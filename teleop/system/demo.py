@@ -34,7 +34,7 @@ from typing import TextIO
 
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
-from teleop.clikit import file_in_the_way
+from teleop.clikit import file_in_the_way, help_literal
 from teleop.errors import SettingsError
 from teleop.scene import SCENE_DIR, Scene, load_scene, scene_path
 from teleop.session.foxglove_live import add_foxglove_argument
@@ -191,7 +191,7 @@ def operated_grasps(system: LiveSystem, plan: Sequence[tuple[int, ObjectSpec]], 
 def add_run_arguments(parser: argparse.ArgumentParser, *, default_scene: str) -> None:
     """Options shared by ``demo`` and ``bench-latency``."""
     parser.add_argument("--scene", default=default_scene, metavar="NAME",
-                        help=f"scene to grasp: a name under {SCENE_DIR} (default, quick) or a .toml path")
+                        help=f"scene to grasp: a name under {help_literal(SCENE_DIR)} (default, quick) or a .toml path")
     parser.add_argument("--settings", metavar="FILE", default=str(default_settings_path()),
                         help="settings TOML every process reads, the one the scene names (the shipped "
                              "scenes name the shipped settings, the default); its bus endpoints are replaced by "

@@ -13,6 +13,7 @@ import sys
 from estimator.settings import estimator_settings
 from haptics.settings import display_settings, display_warnings, operator_settings
 from teleop.bus.security import check_endpoints
+from teleop.clikit import help_literal
 from teleop.errors import BusSecurityError, SettingsError
 from teleop.settings import (
     BusSettings,
@@ -32,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "display's rigid end set to the sensor's resolution limit where the file leaves it 0."
     )
     parser.add_argument("path", nargs="?", default=None, metavar="FILE",
-                        help=f"settings TOML file (default: {default_settings_path()})")
+                        help=f"settings TOML file (default: {help_literal(default_settings_path())})")
     # Every other command names its settings file so.
     parser.add_argument("--settings", metavar="FILE", default=None, help="the same as FILE")
 
