@@ -28,7 +28,8 @@ and two that name one.
 
 Calibrations: each sensor's colour calibration (present, loads, made for the sensor's image
 grid; its age in days), required for the estimator's finger; and the estimator's model (its age). An
-age is from the creation time the file records, else from the file's time (a copy's is the copy's). A
+age is from the creation time the file records, else from the file's time (a copy's is the copy's); one
+later than this host's clock is a warning, with no age: the clock or the file's stamp is wrong. A
 calibration made for another sensor (its model, finger or serial) is a warning, saying which; the
 estimator's finger holding another finger's file of these settings (a swap) is a problem. A missing
 calibration whose name a shipped one has (a copied settings file's relative path) is pointed at it.
@@ -87,6 +88,7 @@ RATE_TOLERANCE = 0.8  # a device reading below this fraction of its configured r
 MAX_CLOCK_OFFSET_S = 1.0  # readings stamped further than this from the host's clock are on another clock
 READ_SLICE_S = 0.2  # each read waits at most this long, so a silent device is noticed
 RATE_PERIODS = 3  # a rate is judged over at least this many periods of the slowest configured device
+FUTURE_STAMP_S = 60.0  # a file stamped later than this ahead of the host's clock: one of them is wrong
 
 
 @dataclass
@@ -423,16 +425,35 @@ def check_endpoints(settings: Settings) -> list[Check]:
     return checks if keys is None else [*checks, keys]
 
 
-def _age_days(created_utc: Any, path: Path) -> float:
-    """Days since ``created_utc`` (ISO 8601, as calibrations and models record it), else since ``path``
-    was last written: a copied or installed file's is the day of the copy, not of the fit."""
+def _utc_text(t_s: float) -> str:
+    """The POSIX time ``t_s`` as ISO 8601 UTC, to the second."""
+    return datetime.fromtimestamp(t_s, UTC).isoformat(timespec="seconds")
+
+
+def _age(created_utc: Any, path: Path) -> tuple[dict[str, float], str | None]:
+    """The age of a calibration or model file: days since ``created_utc`` (ISO 8601, as calibrations
+    and models record it), else since ``path`` was last written (a copied or installed file's is the
+    day of the copy, not of the fit).
+
+    Returns
+    -------
+    detail : dict
+        ``{"age_days": days}``; empty when the file is stamped in the future.
+    warning : str or None
+        For a stamp more than ``FUTURE_STAMP_S`` ahead of this host's clock: the stamp, the clock, and
+        that one of them is wrong (not a negative age).
+    """
     try:
         created = datetime.fromisoformat(created_utc)
     except (TypeError, ValueError):
-        created_s = path.stat().st_mtime
+        created_s, stamp = path.stat().st_mtime, "its file time"
     else:
-        created_s = (created if created.tzinfo else created.replace(tzinfo=UTC)).timestamp()
-    return round((time.time() - created_s) / 86400.0, 1)
+        created_s, stamp = (created if created.tzinfo else created.replace(tzinfo=UTC)).timestamp(), "created_utc"
+    now_s = time.time()
+    if created_s - now_s > FUTURE_STAMP_S:
+        return {}, (f"stamped in the future ({stamp} {_utc_text(created_s)}, this host's clock "
+                    f"{_utc_text(now_s)}): the clock or the file's stamp is wrong")
+    return {"age_days": round(max(now_s - created_s, 0.0) / 86400.0, 1)}, None
 
 
 def _calibrate_todo(sensor: SensorSettings, settings_path: Path) -> str:
@@ -479,9 +500,9 @@ def check_calibrations(settings: Settings, settings_path: Path) -> list[Check]:
             if mismatch and owner is not None and needed:
                 checks.append(Check(name, False, problem=f"{mismatch}; it is [sensors.{owner}]'s: {fix}", detail=detail))
                 continue
-            warning = mismatch and f"{mismatch}: {fix}"
-            age_days = _age_days(calibration.provenance.get("created_utc"), path)
-            checks.append(Check(name, True, detail={**detail, "age_days": age_days}, warning=warning))
+            age, stamp_warning = _age(calibration.provenance.get("created_utc"), path)
+            warning = "; ".join(w for w in (mismatch and f"{mismatch}: {fix}", stamp_warning) if w) or None
+            checks.append(Check(name, True, detail={**detail, **age}, warning=warning))
         except EstimatorError as exc:
             checks.append(Check(name, False, problem=f"{exc}: {todo}", detail=detail))
     model_dir = resolve_model_dir(None, settings)
@@ -498,8 +519,8 @@ def check_calibrations(settings: Settings, settings_path: Path) -> list[Check]:
                                 detail={"path": str(model_dir)}))
         else:
             created = metadata.get("created_utc") if isinstance(metadata, dict) else None
-            checks.append(Check("model", True, detail={"path": str(model_dir),
-                                                       "age_days": _age_days(created, model_dir / "model.onnx")}))
+            age, warning = _age(created, model_dir / "model.onnx")
+            checks.append(Check("model", True, detail={"path": str(model_dir), **age}, warning=warning))
     return checks
 
 
