@@ -94,12 +94,16 @@ def to_grid(image: np.ndarray, sensor: SensorSettings, *, binning: int) -> np.nd
     """A raw frame of ``sensor`` decoded ``binning`` times smaller, on the depth grid: warped and cropped
     for a Wedge (:func:`~estimator.perception.warp.warp_and_crop`), as it is otherwise.
 
-    Returns uint8 ``sensor.image_shape // binning + (3,)`` BGR. Raises PerceptionError when ``image``
-    is not a uint8 BGR frame of the sensor's raw size over ``binning``
-    (:func:`~estimator.perception.warp.check_raw_frame`), as :func:`~estimator.perception.warp.warp_and_crop` does.
+    Returns uint8 ``sensor.image_shape // binning + (3,)`` BGR. Raises PerceptionError, as
+    :func:`~estimator.perception.warp.warp_and_crop` does, when ``binning`` is not one for the sensor
+    (:func:`~estimator.perception.warp.check_binning`: it divides both sides of its image grid and raw
+    frame) or ``image`` is not a uint8 BGR frame of the sensor's raw size over ``binning``
+    (:func:`~estimator.perception.warp.check_raw_frame`).
     """
     if sensor.model == "wedge":
         return warp_and_crop(image, sensor, binning=binning)
+    # A side binning does not divide is rounded when decoded smaller: not the grid's K x K px blocks.
+    check_binning(sensor, binning)
     check_raw_frame(image, sensor, binning=binning, name="image")
     return image
 
@@ -130,9 +134,14 @@ def decode_frame(data: bytes | np.ndarray, encoding: str, sensor: SensorSettings
     Raises
     ------
     PerceptionError
-        Unknown encoding, bytes that do not decode or declare another size than the sensor's raw
-        frame (refused before decoding), a raw image that is not uint8 BGR.
+        ``binning`` does not divide both sides of the sensor's raw frame, unknown encoding, bytes that
+        do not decode or declare another size than the sensor's raw frame (refused before decoding),
+        a raw image that is not uint8 BGR.
     """
+    try:  # a JPEG or PNG decoded smaller rounds a side binning does not divide: not K x K px blocks
+        check_binning(None, binning, grid_shape=(sensor.raw_height_px, sensor.raw_width_px))
+    except PerceptionError as exc:
+        raise PerceptionError(f"{where}: {exc} (the raw frame of finger {sensor.finger!r})") from exc
     if encoding == "raw":
         image = raw_frame(data, where=where)
         try:
