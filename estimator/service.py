@@ -14,7 +14,7 @@ endpoint. Per grasp (from a ``grasp_event`` *start* to its *end*):
   peak (the peak frame, which shows the object under the full force: a stiff object loads
   between two frames), at once if that frame came before the marker; without a marker, when
   the data show the end; or at the grasp's end if that comes first. A leader-follower grasp
-  (the robot's ``robot_state`` says ``following`` for it: an operator drives the fingers) gets
+  (:meth:`~teleop.bus.messages.RobotStateBody.followed_grasp`: an operator drives the fingers) gets
   provisional estimates for every frame while the operator squeezes, and its final one at the
   grasp's end (:meth:`~estimator.stream.GraspStream.mark_follow`); with a model loaded, its
   provisional estimates are the model's over the loading so far (the operator feels the answer
@@ -361,7 +361,7 @@ class EstimatorService(ServiceLoop):
                 self._close(body.grasp_id, message.t_capture_s, received_s)
             return
         if message.type == "robot_state":
-            self._following = body.grasp_id if body.mode == "following" else self._following
+            self._following = body.followed_grasp() or self._following  # kept over other modes
             if self._grasp is not None and self._following == self._grasp.grasp_id:
                 self._grasp.stream.mark_follow()
             return

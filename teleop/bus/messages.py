@@ -514,6 +514,18 @@ class RobotStateBody(Body):
     target_width_m: float | None = scalar(NumberField(lo=0.0, nullable=True))
     enable: bool = scalar(FLAG)
 
+    def followed_grasp(self) -> str | None:
+        """The grasp an operator drives the fingers in, as this state says: the one place that
+        tells a leader-follower grasp from a scripted one.
+
+        Returns
+        -------
+        str or None
+            :attr:`grasp_id` when :attr:`mode` is ``following``, else None (the node moves the
+            fingers itself, or none).
+        """
+        return self.grasp_id if self.mode == "following" else None
+
 
 @_body
 class RobotNoticeBody(Body):

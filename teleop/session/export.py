@@ -55,7 +55,7 @@ exported without a modulus says why (:attr:`GraspExport.unlabelled`).
 
 Provenance: source ``simulated`` or ``hardware`` as the session says, ``extra["session"]`` the
 log's path (for reference only), ``extra["session_id"]`` the session id. Style ``operator`` for a
-leader-follower grasp (the robot node's ``robot_state`` says mode ``following`` for its id, as the
+leader-follower grasp (:meth:`~teleop.bus.messages.RobotStateBody.followed_grasp`, as the
 estimator service marks one live), else ``script``.
 
 Refused messages
@@ -412,14 +412,14 @@ def session_id(info: LogInfo, path: str | Path) -> str:
 
 def _log_notes(reader: LogReader) -> tuple[dict[str, LabelBody], frozenset[str]]:
     """The last ``label`` message body per grasp id, and the ids of the leader-follower grasps: those a
-    ``robot_state`` of mode ``following`` names (the fact estimator.service marks a follow grasp by)."""
+    ``robot_state`` follows (:meth:`~teleop.bus.messages.RobotStateBody.followed_grasp`)."""
     labels, followed = {}, set()
     for logged in reader.messages(("label", "robot_state")):
         body = logged.message.fields
         if logged.message.type == "label":
             labels[body.grasp_id] = body
-        elif logged.message.type == "robot_state" and body.mode == "following" and body.grasp_id is not None:
-            followed.add(body.grasp_id)
+        elif logged.message.type == "robot_state" and (grasp_id := body.followed_grasp()) is not None:
+            followed.add(grasp_id)
     return labels, frozenset(followed)
 
 
