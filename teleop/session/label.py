@@ -15,8 +15,9 @@ writes one ``label`` bus message per row into the log:
   as ``label_catalogue-<n>.toml`` (or ``.csv``), unless the log holds it already: a label names
   its object and modulus, and ``teleop export`` takes the object's material and shape from there. The new file is flushed to disk
   and moved over the original (``os.replace``: atomic on one file system), so the log is either
-  the old one or the new one, never half of each; no backup is kept. The log's lock
-  (:mod:`teleop.session.recordfile`) is held meanwhile: a log a recorder is still writing is refused.
+  the old one or the new one, never half of each; no backup is kept. The log's lock and the
+  ``.partial``'s are held meanwhile (:func:`~teleop.session.recordfile.rewriting`): a log a recorder
+  is still writing, or another ``teleop label`` or ``teleop recover --out`` is rewriting, is refused.
 * Each label is stamped just after its grasp: log time 1 ns after the grasp's last
   ``grasp_event`` (its end) or after the last label the log already holds for it, whichever is
   later, and the same time as its send time (``publish_time``; the header's ``t_send_ns`` is
@@ -72,7 +73,7 @@ from teleop.session.logfile import (
     schema_data,
 )
 from teleop.session.logframes import pack_frames
-from teleop.session.recordfile import holding
+from teleop.session.recordfile import rewriting
 
 __all__ = [
     "CSV_COLUMNS",
@@ -329,12 +330,13 @@ def label_session(
         The catalogue cannot be read.
     """
     log = Path(log)
-    # Its lock, held to the rename: a recorder still writing it would lose all it writes after.
-    with holding(log, "wait until that recorder has stopped, then label the log"):
-        return _label_session(log, Path(csv_path), catalogue)
+    # Held to the rename, the log read only once held: a recorder still writing it would lose all it
+    # writes after, and of two rewrites at once the later would drop the other's labels.
+    with rewriting(log, "wait until it has stopped, then label the log") as tmp:
+        return _label_session(log, tmp, Path(csv_path), catalogue)
 
 
-def _label_session(log: Path, csv_path: Path, catalogue: str | Path | None) -> LabelReport:
+def _label_session(log: Path, tmp: Path, csv_path: Path, catalogue: str | Path | None) -> LabelReport:
     reader = LogReader(log)
     info = reader.info()
     if info.mendable:  # a damaged attachment is not: it is copied as it is, its damage kept
@@ -359,7 +361,6 @@ def _label_session(log: Path, csv_path: Path, catalogue: str | Path | None) -> L
         seq += 1
         labels.append(_Label(grasp.anchor, log_time_ns, message))
         report.labels.append(message.fields.as_dict())
-    tmp = log.with_name(log.name + ".partial")
     try:
         with tmp.open("wb") as file:
             writer = DamageKeepingWriter(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
@@ -367,13 +368,9 @@ def _label_session(log: Path, csv_path: Path, catalogue: str | Path | None) -> L
             file.flush()
             os.fsync(file.fileno())
         tmp.replace(log)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
+    except OSError as exc:  # rewriting() removes the partial copy
         raise SessionLogError(f"cannot write the labelled log next to {log}: {exc.strerror or exc}; "
                               "the log is unchanged") from exc
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return report
 
 

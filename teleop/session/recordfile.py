@@ -8,6 +8,12 @@ nothing. A second recorder, ``teleop label`` (which holds the lock while it rewr
 ``teleop recover --out`` (which would rename a file over it) are refused while the lock is held,
 naming the process that holds it where the system says (``/proc/locks``, Linux).
 
+A rewrite of a log (``teleop label``, ``teleop recover --out``: :func:`rewriting`) is written to
+``<log>.partial`` and moved over the log; it holds that file's lock, exclusively, until then. The
+log's own lock is no token for it: a rewrite takes it shared (NFS grants a read-only file no
+other), and two rewrites at once would write one ``.partial``, the later one's log dropping the
+earlier one's changes. So a second rewrite is refused too, as a recorder on the log is.
+
 Locks are advisory: they guard against this package's own writers, not against other programs.
 Where ``fcntl`` is missing (Windows) nothing is locked, as before.
 
@@ -32,7 +38,7 @@ try:
 except ImportError:  # Windows: no advisory locks
     fcntl = None
 
-__all__ = ["LogSink", "create_log", "held_by", "holding", "refuse_if_held"]
+__all__ = ["LogSink", "create_log", "held_by", "holding", "refuse_if_held", "rewrite_path", "rewriting"]
 
 log = logging.getLogger(__name__)
 
@@ -126,19 +132,21 @@ def create_log(path: Path, *, overwrite: bool) -> IO[bytes]:
 
 
 def held_by(path: str | Path) -> int | None:
-    """Whether another open file holds the lock of ``path``: its holder's PID, 0 where unknown; None if not held."""
+    """Whether another open file holds the lock of ``path`` or of its rewrite (:func:`rewrite_path`): its
+    holder's PID, 0 where unknown; None if neither is held."""
     if fcntl is None:
         return None
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
-    except OSError:  # absent or unreadable: nothing to take it from
-        return None
-    try:
-        if _lock_within(fd, LOCK_GRACE_S, shared=True):  # another check may hold it for an instant
-            return None
-        return _holder_pid(os.fstat(fd)) or 0
-    finally:
-        os.close(fd)  # also drops the lock just taken
+    for locked in (path, rewrite_path(path)):
+        try:
+            fd = os.open(locked, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+        except OSError:  # absent or unreadable: nothing to take it from
+            continue
+        try:
+            if not _lock_within(fd, LOCK_GRACE_S, shared=True):  # another check may hold it for an instant
+                return _holder_pid(os.fstat(fd)) or 0
+        finally:
+            os.close(fd)  # also drops the lock just taken
+    return None
 
 
 def refuse_if_held(path: str | Path, what_to_do: str) -> None:
@@ -160,6 +168,53 @@ def holding(path: str | Path, what_to_do: str) -> Iterator[None]:
             raise SessionLogError(_held_text(path, what_to_do))
         yield
     finally:
+        os.close(fd)
+
+
+def rewrite_path(path: str | Path) -> Path:
+    """Where a rewrite of the log ``path`` is written before it is moved over it: ``<path>.partial``."""
+    path = Path(path)
+    return path.with_name(path.name + ".partial")
+
+
+@contextlib.contextmanager
+def rewriting(path: str | Path, what_to_do: str) -> Iterator[Path]:
+    """Rewrite the log ``path`` in the block: yields :func:`rewrite_path`, exclusively locked, for the new
+    log to be written into and moved over ``path``; ``path``'s lock is held meanwhile (:func:`holding`).
+
+    A ``.partial`` a killed rewrite left is taken over. What of it is still there after the block (a
+    rewrite that failed, or a rename done by other means) is removed.
+
+    Raises
+    ------
+    SessionLogError
+        Another process rewrites ``path`` (``teleop label``, ``teleop recover --out``) or records
+        it (as :func:`refuse_if_held`, saying ``what_to_do``), or the ``.partial`` cannot be created.
+    """
+    tmp = rewrite_path(path)
+    deadline = time.monotonic() + LOCK_GRACE_S
+    while True:
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o666)
+        except OSError as exc:
+            raise SessionLogError(f"cannot write {tmp}, the rewrite of session log {path}: "
+                                  f"{exc.strerror or exc}") from exc
+        if not _lock_within(fd, max(deadline - time.monotonic(), 0.0)):
+            os.close(fd)
+            raise SessionLogError(_held_text(path, what_to_do))
+        if _same_file(fd, tmp):
+            break
+        # The rewrite before this one moved it over the log (or removed it) as it ended: a fresh one.
+        os.close(fd)
+        if time.monotonic() > deadline:
+            raise SessionLogError(_held_text(path, what_to_do))
+    try:
+        with holding(path, what_to_do):
+            yield tmp
+    finally:
+        with contextlib.suppress(OSError):  # must not hide the error that ended the block
+            if _same_file(fd, tmp):  # still the one locked: nobody else's
+                tmp.unlink()
         os.close(fd)
 
 
@@ -206,7 +261,7 @@ def _held_text(path: str | Path, what_to_do: str) -> str:
     pid = held_by(path)
     by = f" (PID {pid})" if pid else ""
     return (f"session log {path} is held by another process{by}, a recorder still writing it or "
-            f"`teleop label` rewriting it: {what_to_do}")
+            f"`teleop label` or `teleop recover --out` rewriting it: {what_to_do}")
 
 
 def _holder_pid(stat: os.stat_result) -> int | None:

@@ -23,7 +23,6 @@ on one log leave, its footer the last one's.
 
 from __future__ import annotations
 
-import contextlib
 import json
 from collections import Counter
 from dataclasses import dataclass, field
@@ -48,7 +47,7 @@ from teleop.session.foxglove_log import LogChannels
 from teleop.session.logdamage import RECOVERY_METADATA, DamagedAttachment, DamageKeepingWriter
 from teleop.session.logfile import CHUNK_BYTES, END_METADATA, LogReader, StoredFrames
 from teleop.session.logframes import unpack_frames
-from teleop.session.recordfile import refuse_if_held
+from teleop.session.recordfile import rewriting
 
 __all__ = ["RECOVERY_METADATA", "RecoveryReport", "check_not_source", "recover"]
 
@@ -95,52 +94,41 @@ def recover(source: str | Path, out: str | Path, *, progress: bool = False) -> R
     """Copy every complete record of the session log ``source`` into a complete MCAP ``out``.
 
     Works on complete logs too (the copy is then whole). ``out`` is written under a
-    temporary name and renamed when done.
+    temporary name and renamed when done (:func:`~teleop.session.recordfile.rewriting`).
 
     Raises
     ------
     SessionLogError
-        ``out`` is ``source`` or a log a recorder is writing, ``source`` is not an MCAP file or
-        has no header, or ``out`` cannot be written.
+        ``out`` is ``source`` or a log a recorder is writing or another process rewrites,
+        ``source`` is not an MCAP file or has no header, or ``out`` cannot be written.
     """
     source, out = Path(source), Path(out)
     check_not_source(source, out)
-    refuse_if_held(out, "write the recovered log elsewhere")
-    reader = LogReader(source)
-    report = RecoveryReport(
-        str(source), str(out), complete=False, closed_cleanly=False, damage=None
-    )
-    tmp = out.with_name(out.name + ".partial")
-    try:
-        with (
-            tmp.open("wb") as file,
-            progress_bar(
-                desc=f"recover {source.name}", unit="B", unit_scale=True, enabled=progress
-            ) as bar,
-        ):
-            _copy(
-                reader,
-                DamageKeepingWriter(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD),
-                report,
-                bar,
-            )
-        tmp.replace(out)
-    except OSError as exc:
-        _remove(tmp)
-        raise SessionLogError(
-            f"cannot write the recovered log {out}: {exc.strerror or exc}"
-        ) from exc
-    except BaseException:  # SessionLogError, or interrupted (Ctrl-C, SIGTERM): no temporary left behind
-        _remove(tmp)
-        raise
+    # Held to the rename, and removed if left (an error, or interrupted: Ctrl-C, SIGTERM).
+    with rewriting(out, "write the recovered log elsewhere") as tmp:
+        reader = LogReader(source)
+        report = RecoveryReport(
+            str(source), str(out), complete=False, closed_cleanly=False, damage=None
+        )
+        try:
+            with (
+                tmp.open("wb") as file,
+                progress_bar(
+                    desc=f"recover {source.name}", unit="B", unit_scale=True, enabled=progress
+                ) as bar,
+            ):
+                _copy(
+                    reader,
+                    DamageKeepingWriter(file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD),
+                    report,
+                    bar,
+                )
+            tmp.replace(out)
+        except OSError as exc:
+            raise SessionLogError(
+                f"cannot write the recovered log {out}: {exc.strerror or exc}"
+            ) from exc
     return report
-
-
-def _remove(tmp: Path) -> None:
-    """Remove the temporary ``tmp`` if it is there; a failure (a read-only file system raises EROFS even
-    for a missing file) must not hide the error that stopped the recovery."""
-    with contextlib.suppress(OSError):
-        tmp.unlink(missing_ok=True)
 
 
 def _copy(reader: LogReader, writer: DamageKeepingWriter, report: RecoveryReport, bar: tqdm) -> None:

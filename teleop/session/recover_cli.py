@@ -10,7 +10,7 @@ from pathlib import Path
 
 from teleop.clikit import output_file
 from teleop.errors import SessionLogError
-from teleop.session.recordfile import held_by, holding, refuse_if_held
+from teleop.session.recordfile import held_by, refuse_if_held, rewriting
 from teleop.session.recover import RecoveryReport, check_not_source, recover
 
 
@@ -42,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
     refuse_if_held(out, "write the recovered log elsewhere")
     if (pid := held_by(args.log)) is not None:
         print(f"warning: {args.log} is held by another process{f' (PID {pid})' if pid else ''}, a recorder "
-              "still writing it: what is salvaged is what it has written so far", file=sys.stderr)
+              "still writing it or `teleop label` rewriting it: what is salvaged is what the log holds now",
+              file=sys.stderr)
     # Staged beside --out: a recovery that salvages nothing must not replace a file already there.
     staged = out.with_name(f".{out.name}.recovering")
     try:
@@ -53,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
         staged.unlink(missing_ok=True)
     else:
         try:
-            with holding(out, "write the recovered log elsewhere"):  # a recorder started meanwhile keeps its log
+            # A recorder or a rewrite (`teleop label`) that took --out meanwhile keeps it.
+            with rewriting(out, "write the recovered log elsewhere"):
                 staged.replace(out)
         except SessionLogError:
             staged.unlink(missing_ok=True)
