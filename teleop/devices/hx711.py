@@ -35,6 +35,7 @@ import socket
 import threading
 import time
 from collections import Counter
+from dataclasses import dataclass, replace
 
 from teleop.devices.base import SampleQueue
 from teleop.devices.hx711_protocol import (
@@ -62,6 +63,18 @@ CLOCK_RESYNC_FRAMES = 4  # that many skipped frames agreeing with one another re
 _SKIPPED = {"out_of_range": "saturated or out of range", "implausible": "implausible bridge time"}
 
 
+@dataclass(frozen=True)
+class _Quiet:
+    """Since when a cell has given no valid reading and what it skipped meanwhile: one value the reader
+    thread replaces whole, so a read in another thread never sees a skip counted without its reason, or
+    a valid reading's time with the skips before it."""
+
+    since_s: float  # the last valid reading's arrival; before the first, the connection's start
+    valid: bool = False  # whether a valid reading came on this connection
+    skipped: int = 0  # readings skipped since then
+    last_skip: str = ""  # the last one's reason and detail
+
+
 class _StreamingHx711(LoadCell):
     """A reader thread turning a byte stream into force samples; links implement the rest."""
 
@@ -74,15 +87,15 @@ class _StreamingHx711(LoadCell):
         self._stop = threading.Event()
         self._reader: threading.Thread | None = None
         self._failure: str | None = None
-        self._valid_s: float | None = None  # when the last valid reading arrived; None: none yet
-        self._connected_s = 0.0
-        self._skipped_since = 0  # readings skipped since the last valid one
-        self._last_skip = ""  # the last one's reason and detail
+        self._quiet = _Quiet(0.0)
+        # Held by the reader thread to check its connection is current and update the stall state as one step.
+        self._lock = threading.Lock()
 
     def _connect(self) -> None:
         self._open_link()
         self._failure = None
-        self._connected_s, self._valid_s, self._skipped_since = time.monotonic(), None, 0
+        with self._lock:
+            self._quiet = _Quiet(time.monotonic())
         # Per connection: a reader the last close left in a slow receive stops, and writes only its own queue.
         self._stop, self._queue = threading.Event(), SampleQueue()
         self._reader = threading.Thread(target=self._read_forever, args=(self._stop, self._queue), name=repr(self),
@@ -117,20 +130,26 @@ class _StreamingHx711(LoadCell):
                 try:
                     t_s, counts = self._sample(line, arrived)
                 except Unreadable as exc:
-                    self._skip(exc.reason, str(exc))
+                    self._skip(stop, exc.reason, str(exc))
                     continue
-                self._valid_s, self._skipped_since = arrived, 0
+                with self._lock:
+                    if stop.is_set():
+                        return
+                    self._quiet = _Quiet(arrived, valid=True)
                 queue.put(t_s, float(self.counts_to_force_n(counts)))
             for _ in range(lines.overlong - overlong):
-                self._skip("overlong", f"a line longer than {lines.max_bytes} bytes")
+                self._skip(stop, "overlong", f"a line longer than {lines.max_bytes} bytes")
 
-    def _skip(self, reason: str, detail: str) -> None:
+    def _skip(self, stop: threading.Event, reason: str, detail: str) -> None:
+        with self._lock:
+            if stop.is_set():  # a reader the last close left behind: the next connection's state is not its own
+                return
+            first = not self.skipped[reason]
+            self.skipped[reason] += 1
+            quiet = self._quiet
+            self._quiet = replace(quiet, skipped=quiet.skipped + 1, last_skip=f"{_SKIPPED.get(reason, reason)}: {detail}")
         # Warn once per reason, then quietly count: a noisy line must not flood the log.
-        level = logging.WARNING if not self.skipped[reason] else logging.DEBUG
-        self.skipped[reason] += 1
-        self._skipped_since += 1
-        self._last_skip = f"{_SKIPPED.get(reason, reason)}: {detail}"
-        log.log(level, "%r: skipped a reading (%s): %s", self, reason, detail)
+        log.log(logging.WARNING if first else logging.DEBUG, "%r: skipped a reading (%s): %s", self, reason, detail)
 
     def _take(self, timeout_s: float) -> Samples:
         samples = self._queue.take(timeout_s)
@@ -142,13 +161,13 @@ class _StreamingHx711(LoadCell):
 
     def _stalled(self) -> str | None:
         """Why the cell is down when no valid reading came for too long (module docstring); None otherwise."""
-        since = self._connected_s if self._valid_s is None else self._valid_s
-        allowed = max(STALL_S, self.settings.timeout_s) if self._valid_s is None else STALL_S
-        quiet_s = time.monotonic() - since
+        quiet = self._quiet  # one snapshot: the reader thread may replace it meanwhile
+        allowed = STALL_S if quiet.valid else max(STALL_S, self.settings.timeout_s)
+        quiet_s = time.monotonic() - quiet.since_s
         if quiet_s < allowed:
             return None
-        skipped = self._skipped_since
-        why = f"{skipped} readings skipped (the last: {self._last_skip})" if skipped else "silent: nothing arrived"
+        why = (f"{quiet.skipped} readings skipped (the last: {quiet.last_skip})" if quiet.skipped
+               else "silent: nothing arrived")
         return f"{self!r}: no valid reading for {quiet_s:.1f} s: {why}"
 
     # link hooks
