@@ -83,9 +83,9 @@ def update_settings_file(path: Path, changes: Mapping[str, Any]) -> list[Setting
     ------
     SettingsError
         The file cannot be read or is not TOML, a key is not a dotted path, the file with
-        the changes would not be valid settings (the message is the settings check's), or it
-        cannot be written (:func:`check_writable`; the message lists the values not written);
-        the file is then left untouched.
+        the changes would not be valid settings (the message is the settings check's, with the
+        keys changed), or it cannot be written (:func:`check_writable`; the message lists the
+        values not written); the file is then left untouched.
     """
     path = Path(path)
     try:
@@ -105,9 +105,13 @@ def update_settings_file(path: Path, changes: Mapping[str, Any]) -> list[Setting
         old = table.get(name)
         table[name] = _plain(value)
         records.append(SettingChange(key, None if old is None else _unwrap(old), _plain(value)))
-    settings = settings_from_mapping(document.unwrap(), source=f"{path} (with {', '.join(changes)} changed)")
-    for section in package_sections():
-        settings.section(section)
+    try:
+        # Named as load_settings names it, so relative paths resolve against the folder the next load uses.
+        settings = settings_from_mapping(document.unwrap(), source=Path(os.path.abspath(path)))
+        for section in package_sections():
+            settings.section(section)
+    except SettingsError as exc:
+        raise SettingsError(f"{exc} (with {', '.join(changes)} changed; not written)") from exc
     out = tomlkit.dumps(document)
     if "\r\n" in text:  # the lines tomlkit adds (a new table) end as the file's do
         out = re.sub(r"(?<!\r)\n", "\r\n", out)

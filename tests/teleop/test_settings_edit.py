@@ -157,3 +157,34 @@ def test_a_folder_that_cannot_be_written_is_refused(settings_file):
     finally:
         settings_file.parent.chmod(0o755)
     assert settings_file.read_bytes() == before
+
+
+def test_a_linked_file_is_checked_against_the_folder_loading_resolves_it_from(tmp_path, monkeypatch):
+    """Relative paths in a file reached through a link resolve against its target's folder on loading:
+    the edit checks its result against that folder too, not the link's."""
+    import teleop.settings_edit as settings_edit
+
+    target, here = tmp_path / "rigs" / "settings.toml", tmp_path / "session" / "settings.toml"
+    target.parent.mkdir()
+    here.parent.mkdir()
+    shutil.copy(default_settings_path(), target)
+    here.symlink_to(target)
+    checked = []
+    build = settings_edit.settings_from_mapping
+
+    def spy(data, *, source=None):
+        settings = build(data, source=source)
+        checked.append(settings)
+        return settings
+
+    monkeypatch.setattr(settings_edit, "settings_from_mapping", spy)
+    update_settings_file(here, {"load_cell.tare_counts": 9})
+    loaded = load_settings(here)
+    assert [s.folder for s in checked] == [loaded.folder] == [target.parent]
+    assert checked[0].sensor("left").calibration == loaded.sensor("left").calibration
+
+
+def test_a_refused_edit_names_the_file_and_the_keys_changed(settings_file):
+    with pytest.raises(SettingsError) as info:
+        update_settings_file(settings_file, {"load_cell.counts_per_n": -5.0})
+    assert str(settings_file) in str(info.value) and "load_cell.counts_per_n changed" in str(info.value)
