@@ -186,10 +186,13 @@ def calibration_path(sensor: SensorSettings, override: str | Path | None = None)
     return resolve_path(sensor.calibration)
 
 
-def calibration_problem(record: GraspRecord, finger: str, override: str | None, option: str) -> str | None:
-    """Why the calibration of ``finger`` of ``record`` cannot be used (None: it can).
+def calibration_problem(record: GraspRecord, finger: str, override: str | None, option: str | None, *,
+                        markers: bool = False, marker_override: str | None = None,
+                        marker_option: str | None = None) -> str | None:
+    """Why a calibration of ``record`` the estimate reads cannot be used (None: they can): that of
+    ``finger`` and, with ``markers``, that of the other finger with markers (the marker finger).
 
-    ``estimator evaluate``, ``compare`` and ``build-dataset`` skip such a record with this reason.
+    ``estimator evaluate``, ``compare``, ``bench`` and ``build-dataset`` skip such a record with this reason.
 
     Parameters
     ----------
@@ -198,25 +201,44 @@ def calibration_problem(record: GraspRecord, finger: str, override: str | None, 
         A finger ``record`` has a sensor on.
     override : str or None
         The calibration given for every record (``option``'s value); when given, the record's own is not read.
-    option : str
-        The command-line option that gives ``override`` (named in the reason: ``--calibration``).
+    option : str or None
+        The command-line option that gives ``override`` (named in the reason: ``--calibration``); None
+        where the command has none.
+    markers : bool
+        Also the marker finger's calibration (a model variant with markers reads it); a record
+        without a marker finger has none to check.
+    marker_override, marker_option
+        As ``override`` and ``option``, for the marker finger.
 
     Returns
     -------
     str or None
-        The reason, naming the missing file and ``option``; None when the record names a file that exists.
+        The reason, naming the finger, the missing file and the option that would give one; None
+        when the record names files that exist.
     """
+    problem = _finger_calibration_problem(record, finger, override, option)
+    if problem is None and markers:
+        other = next((s.finger for s in record.sensors if s.finger != finger and s.markers), None)
+        if other is not None:
+            problem = _finger_calibration_problem(record, other, marker_override, marker_option)
+    return problem
+
+
+def _finger_calibration_problem(record: GraspRecord, finger: str, override: str | None,
+                                option: str | None) -> str | None:
+    """:func:`calibration_problem` of one finger."""
     if override is not None:
         return None
     sensor: SensorSettings = record.sensor(finger)
     if not sensor.calibration:
-        return (f"its sensor on finger {finger!r} names no calibration file: pass {option} CAL "
-                "(a calibration of that sensor from `estimator calibrate`)")
+        remedy = (f"pass {option} CAL (a calibration of that sensor from `estimator calibrate`)" if option else
+                  "export its session again with `teleop export` and settings that name one for that finger")
+        return f"its sensor on finger {finger!r} names no calibration file: {remedy}"
     path = calibration_path(sensor)
     if not path.is_file():
         return (f"it names calibration {path} for finger {finger!r}, which does not exist: export its session "
-                f"again with `teleop export` (exported records carry their calibration inside), put the file "
-                f"there, or pass {option} CAL")
+                f"again with `teleop export` (exported records carry their calibration inside)"
+                + (f", put the file there, or pass {option} CAL" if option else ", or put the file there"))
     return None
 
 

@@ -21,7 +21,8 @@ SHARED = REPO.parent / "shared"
 # What needs an extra that `make check` does not install is marked with it (check leaves those tests out):
 # the tests using these fixtures, and the modules that import the train extra (torch) at their top, which
 # are not collected without it.
-_EXTRA_FIXTURES = {"trained_model": "train", "cnn_model": "train", "franky_sim_robot": "robot_sim"}
+_EXTRA_FIXTURES = {"trained_model": "train", "cnn_model": "train", "marker_model": "train",
+                   "franky_sim_robot": "robot_sim"}
 collect_ignore = [] if importlib.util.find_spec("torch") else sorted(TRAIN_MODULES)
 
 

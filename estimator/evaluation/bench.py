@@ -68,13 +68,19 @@ import numpy as np
 from estimator.analytical import METHODS
 from estimator.errors import EstimatorError
 from estimator.estimate import Estimate
-from estimator.evaluation.evaluate import answered_by, cause_kind, result_row, unlabelled
+from estimator.evaluation.evaluate import (
+    answered_by,
+    cause_kind,
+    missing_calibration,
+    result_row,
+    unlabelled,
+)
 from estimator.evaluation.metrics import summarise
 from estimator.inference.hybrid import HybridEstimator
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.sampling import calibration_for, decoded, sample_grasp
 from estimator.measure import estimate_grasp, measure_grasp, no_contact_reference
-from estimator.measurements import TACTILE_METHODS, calibration_problem
+from estimator.measurements import TACTILE_METHODS
 from estimator.perception.calibration import Calibration
 from estimator.settings import estimator_settings
 from haptics.settings import display_range_pa
@@ -88,7 +94,8 @@ __all__ = ["BenchConfig", "NothingToBench", "bench", "configurations", "pareto_f
 
 @dataclass(frozen=True)
 class BenchConfig:
-    """One configuration: a name and a function from a record decoded ``binning`` times smaller to an estimate."""
+    """One configuration: a name and a function from a record decoded ``binning`` times smaller to an
+    estimate; ``markers``: it also reads the marker finger (a model variant with markers)."""
 
     name: str
     kind: str  # "analytical", "sampled", "model" or "auto"
@@ -97,6 +104,7 @@ class BenchConfig:
     size_px: tuple[int, int] | None
     run: Callable[[GraspRecord], Estimate]
     binning: int
+    markers: bool = False
 
 
 class NothingToBench(EstimatorError):
@@ -161,7 +169,8 @@ def configurations(
         label = f"[{v.name} {v.n_frames}f {v.size_px[0]}x{v.size_px[1]}]"
         for mode, kind, method in (("model", "model", v.method), ("auto", "auto", "auto")):
             configs.append(BenchConfig(f"{method}{label}", kind, method, v.n_frames, v.size_px,
-                                       lambda record, e=estimator, m=mode: e.estimate(record, mode=m), own))
+                                       lambda record, e=estimator, m=mode: e.estimate(record, mode=m), own,
+                                       v.markers))
     return configs
 
 
@@ -225,8 +234,9 @@ def bench(
     progress: bool = True,
 ) -> dict[str, Any]:
     """Time and score ``configs`` over the labelled records in ``paths`` (module notes); a record
-    whose own calibration file is gone (``calibration``, the one the configs were given for every
-    record, None) is skipped, as ``estimator evaluate`` skips it.
+    whose own calibration file is gone (unless ``calibration``, the one the configs were given for
+    every record, serves it), or the marker finger's where a config reads it, is skipped, as
+    ``estimator evaluate`` skips it (:func:`~estimator.evaluation.evaluate.missing_calibration`).
 
     Raises NothingToBench when none of ``paths`` is readable and labelled (its message counts
     the causes; its ``skipped`` names each record and its cause)."""
@@ -234,6 +244,7 @@ def bench(
     latency: dict[str, list[float]] = {c.name: [] for c in configs}
     reference: list[float] = []
     skipped: list[dict[str, str]] = []
+    markers = any(c.markers for c in configs)
     with one_core() as pinned:
         for path in progress_bar(paths, desc="bench", unit="grasp", enabled=progress):
             try:
@@ -242,9 +253,9 @@ def bench(
                 skipped.append({"path": str(path), "cause": f"unreadable: {exc}"})
                 continue
             finger = settings.sensing.finger
-            problem = (calibration_problem(record, finger, calibration, "--calibration")
-                       if finger in {s.finger for s in record.sensors} else None)  # off-finger: the run says
-            if cause := unlabelled(record) or (problem and f"calibration missing: {problem}"):
+            missing = (missing_calibration(record, finger, calibration, markers=markers)
+                       if finger in {s.finger for s in record.sensors} else "")  # off-finger: the run says
+            if cause := unlabelled(record) or missing:
                 skipped.append({"path": str(path), "cause": cause})
                 continue
             label = record.label

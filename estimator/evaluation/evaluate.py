@@ -208,6 +208,15 @@ def unlabelled(record: GraspRecord) -> str:
     return f"unlabelled: {label.object_name} has no modulus" if label.modulus_pa is None else ""
 
 
+def missing_calibration(record: GraspRecord, finger: str, calibration: str | None, *, markers: bool) -> str:
+    """Why a calibration file ``record``'s estimate reads is gone (``calibration missing: ...``), or '':
+    that of ``finger`` unless ``calibration`` (``--calibration``) serves every record, and with
+    ``markers`` (a model variant with markers) the marker finger's own
+    (:func:`~estimator.measurements.calibration_problem`)."""
+    problem = calibration_problem(record, finger, calibration, "--calibration", markers=markers)
+    return f"calibration missing: {problem}" if problem else ""
+
+
 def evaluate_record(
     path: Path,
     *,
@@ -222,9 +231,10 @@ def evaluate_record(
     """One row per method (analytical ``methods``, then ``models``) for a labelled record; one
     row without a method for a skipped one, whose ``skipped`` says why: ``unreadable: ...``,
     ``unlabelled`` (no label, or no modulus), ``calibration missing: ...`` (a calibration file the
-    record names is absent: :func:`~estimator.measurements.calibration_problem`), ``calibration unusable: ...`` (one it names
-    does not load), or ``trained on: OBJECT`` (its object is in ``exclude``, the objects a model
-    trained on: :func:`~estimator.inference.provenance.trained_objects`).
+    record names is absent, the marker finger's included for a model with markers:
+    :func:`missing_calibration`), ``calibration unusable: ...`` (one it names does not load), or
+    ``trained on: OBJECT`` (its object is in ``exclude``, the objects a model trained on:
+    :func:`~estimator.inference.provenance.trained_objects`).
 
     Raises
     ------
@@ -259,10 +269,11 @@ def evaluate_record(
     except (RecordError, PerceptionError) as exc:
         return [{"path": str(path), "skipped": f"unreadable: {exc}", "object": label.object_name}]
     except CalibrationError as exc:
-        problem = calibration_problem(record, settings.sensing.finger, calibration, "--calibration")
-        if problem is None and calibration is not None:
+        missing = missing_calibration(record, settings.sensing.finger, calibration,
+                                      markers=any(e.variant.markers for e in models))
+        if not missing and calibration is not None:
             raise  # the file --calibration gives serves every record: the run stops on it
-        cause = f"calibration missing: {problem}" if problem else f"calibration unusable: {exc}"
+        cause = missing or f"calibration unusable: {exc}"
         return [{"path": str(path), "skipped": cause, "object": label.object_name}]
     return rows
 
