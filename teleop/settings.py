@@ -62,6 +62,7 @@ __all__ = [
     "config_dir",
     "default_settings_path",
     "load_settings",
+    "migrated",
     "package_sections",
     "package_tables",
     "resolve_path",
@@ -334,8 +335,9 @@ class Section(Validated):
 
     ``TABLE`` names its table in the settings file, ``PATHS`` its fields holding file paths
     (resolved like every path of the file, :func:`resolve_path`), ``MOVED`` keys that moved to
-    another table (key -> where it is now, said when a file still has it). :meth:`resolved` completes and
-    checks it against the whole settings (rules across tables); the default has none.
+    another table (key -> where it is now, ``"[table] key"``: said when a file still has it, and where
+    :func:`migrated` carries it). :meth:`resolved` completes and checks it against the whole settings
+    (rules across tables); the default has none.
     """
 
     TABLE: ClassVar[str] = ""
@@ -496,6 +498,32 @@ def settings_from_mapping(data: Mapping[str, Any], *, source: str | Path | None 
     """Build validated :class:`Settings` from a TOML-shaped mapping; ``source`` is the file it was
     read from (relative paths resolve against its folder), or None (against :func:`config_dir`)."""
     return _build_settings_file(data, None if source is None else Path(source))
+
+
+#: A :attr:`Section.MOVED` value: where the key is now, ``"[table] key"``.
+_MOVED_TO = re.compile(r"\[(\w+)\] (\w+)")
+
+
+def migrated(data: Mapping[str, Any]) -> dict[str, Any]:
+    """``data`` (TOML-shaped) with the packages' moved keys (:attr:`Section.MOVED`) carried to where they
+    are now, unless that table sets them itself: for settings that record what ran (a session log's),
+    which nobody edits. A settings file the user edits is refused instead (:meth:`Settings.section`)."""
+    out = dict(data)
+    for cls in package_sections():
+        table = out.get(cls.TABLE)
+        if not isinstance(table, Mapping) or not cls.MOVED.keys() & table.keys():
+            continue
+        table = out[cls.TABLE] = dict(table)
+        for key in sorted(cls.MOVED.keys() & table.keys()):
+            match = _MOVED_TO.fullmatch(cls.MOVED[key])
+            if match is None:
+                raise SettingsError(f"{cls.__name__}.MOVED[{key!r}] = {cls.MOVED[key]!r}: expected "
+                                    "'[table] key'")
+            value, (name, new_key) = table.pop(key), match.groups()
+            target = out.get(name, {})
+            if isinstance(target, Mapping):  # else building names the table that is not one
+                out[name] = {new_key: value, **target}
+    return out
 
 
 def settings_to_mapping(settings: Any) -> dict[str, Any]:

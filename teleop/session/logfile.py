@@ -115,7 +115,7 @@ from teleop.session.logscan import (
     record_head,
     record_name,
 )
-from teleop.settings import Settings, settings_from_mapping
+from teleop.settings import Settings, migrated, settings_from_mapping
 
 __all__ = [
     "BUS_ENCODINGS",
@@ -297,7 +297,7 @@ class LogInfo:
             raise SessionLogError(f"attachment {SETTINGS_ATTACHMENT} is not JSON ({exc})") from exc
         if not isinstance(mapping, dict):
             raise SessionLogError(f"attachment {SETTINGS_ATTACHMENT} is not a JSON object")
-        return settings_from_mapping(mapping, source=f"attachment {SETTINGS_ATTACHMENT}")
+        return settings_from_mapping(migrated(mapping), source=f"attachment {SETTINGS_ATTACHMENT}")
 
 
 @dataclass
