@@ -15,11 +15,12 @@ from collections.abc import Callable
 from pathlib import Path
 
 from estimator.analytical import METHODS
-from estimator.errors import EstimatorError
+from estimator.errors import CalibrationError, EstimatorError
 from estimator.estimate import Estimate
 from estimator.inference.hybrid import ALL_METHODS, HybridEstimator
 from estimator.inference.infer import load_predictor
 from estimator.measure import estimate_grasp
+from estimator.measurements import calibration_problem
 from teleop.errors import ComplianceTeleopError
 from teleop.record import GraspRecord, read_record
 from teleop.settings import Settings, default_settings_path, load_settings
@@ -125,15 +126,35 @@ def learned_estimator(args: argparse.Namespace, settings: Settings) -> Estimator
                              "inputs (--model DIR)")
     estimator = HybridEstimator(predictor, settings=settings, calibration=args.calibration)
     mode = "auto" if args.method == "auto" else "model"
-    return lambda record: (estimator.estimate(record, mode=mode), predictor.model_id)
+    return explained(lambda record: (estimator.estimate(record, mode=mode), predictor.model_id), args, settings,
+                     markers=variant.markers)
 
 
 def analytical_estimator(args: argparse.Namespace, settings: Settings) -> Estimator:
     """The analytical method ``args.method``'s estimate of a record (no model: None)."""
     if args.model is not None:
         raise EstimatorError(f"--model: applies to hybrid, cnn and auto, not {args.method}")
-    return lambda record: (estimate_grasp(record, args.method, settings=settings, calibration=args.calibration,
-                                          correct_camera_lag=args.camera_lag, correct_width_lag=args.width_lag), None)
+    return explained(lambda record: (estimate_grasp(record, args.method, settings=settings,
+                                                    calibration=args.calibration, correct_camera_lag=args.camera_lag,
+                                                    correct_width_lag=args.width_lag), None), args, settings)
+
+
+def explained(estimate_record: Estimator, args: argparse.Namespace, settings: Settings, *,
+              markers: bool = False) -> Estimator:
+    """``estimate_record`` whose CalibrationError for a calibration file the record names and that is
+    gone says what to do, as ``estimator evaluate`` does
+    (:func:`~estimator.measurements.calibration_problem`): that of the settings' finger unless
+    ``--calibration`` gives one, and with ``markers`` (a model reading them) the marker finger's."""
+    def estimate(record: GraspRecord) -> tuple[Estimate, str | None]:
+        try:
+            return estimate_record(record)
+        except CalibrationError as exc:
+            problem = calibration_problem(record, settings.sensing.finger, args.calibration, "--calibration",
+                                          markers=markers)
+            if problem is None:
+                raise
+            raise CalibrationError(f"calibration missing: {problem}") from exc
+    return estimate
 
 
 def run(args: argparse.Namespace) -> int:
