@@ -35,8 +35,11 @@ loading envelope
     the peak, the samples and frames at a running maximum of the force (within
     ``ENVELOPE_TOLERANCE`` of the maximum so far, or three noise deviations); backing off and
     re-squeezing below the previous maximum are skipped (their states repeat those of the way
-    up), and pauses on the way up leave frames of one state. Its frames are sampled
-    equidistantly in approach (the width's closure since contact) rather than in time
+    up), and pauses on the way up leave frames of one state. The description names a back-off only
+    for a sustained fall beyond the noise, faster than the fingers standing still let an object
+    relax, and a pause only where the force stays in one band of its rise far longer than in the
+    bands around it: a slow steady close is not paused, and a long still hold is one pause. Its
+    frames are sampled equidistantly in approach (the width's closure since contact) rather than in time
     (``Segment.sample_by``): at the paper's constant closing speed the two coincide, so the
     models see the distribution they were trained on. ``Segment.loading`` says which loading
     phase was used and what was skipped, for the estimate's reason. A grasp with a reported stop
@@ -84,11 +87,16 @@ ONSET_SIGMAS = 4.0
 MIN_CLIP_RUN = 3
 PEAK_TOLERANCE = 0.01  # loading ends within this share of the peak force
 # Loading envelope (module notes): a sample or frame is on it within this share of the running maximum
-# (or three noise deviations); a fall below the maximum by BACKOFF_SHARE (or five deviations) is a
-# back-off; the maximum rising by no more than the tolerance for PAUSE_S or longer is a pause.
+# (or three noise deviations). On the force averaged over SMOOTH_SAMPLES samples, a fall below its
+# maximum by BACKOFF_SHARE (or five deviations) is a back-off, and the maximum staying within one band
+# of the peak's ENVELOPE_TOLERANCE (or three deviations) for PAUSE_S or longer, and PAUSE_FACTOR times
+# as long as in the PAUSE_BANDS bands on either side, is a pause: a slow steady close is not one.
 ENVELOPE_TOLERANCE = 0.01
 BACKOFF_SHARE = 0.02
+SMOOTH_SAMPLES = 5
 PAUSE_S = 0.15
+PAUSE_FACTOR = 4.0
+PAUSE_BANDS = 3  # the bands on either side that give the loading rate a band's dwell is judged against
 
 
 def _closing_speed(t_s: np.ndarray, width_m: np.ndarray, before_s: float) -> float:
@@ -114,6 +122,13 @@ def _opening_widths(force_n: np.ndarray, width_m: np.ndarray, *, sigma_f: float,
             "readings do not follow the grasp")
 
 
+def _smoothed(value: np.ndarray) -> np.ndarray:
+    """``value`` averaged over ``SMOOTH_SAMPLES`` centred samples (fewer at the ends): single noise
+    samples no longer stand out, and a monotone force stays monotone."""
+    window = np.ones(min(SMOOTH_SAMPLES, value.size))
+    return np.convolve(value, window, "same") / np.convolve(np.ones(value.size), window, "same")
+
+
 def _envelope(t: np.ndarray, loading: np.ndarray, sigma_f: float) -> tuple[np.ndarray, int, float, float]:
     """The loading envelope of the loading samples ``loading`` at times ``t`` (module notes).
 
@@ -121,18 +136,47 @@ def _envelope(t: np.ndarray, loading: np.ndarray, sigma_f: float) -> tuple[np.nd
     re-squeezing, and the seconds paused on the way up.
     """
     top = np.maximum.accumulate(loading)
-    tolerance = np.maximum(3.0 * sigma_f, ENVELOPE_TOLERANCE * top)
-    on = loading >= top - tolerance
-    fallen = loading < top - np.maximum(5.0 * sigma_f, BACKOFF_SHARE * top)
-    backoffs = int(np.count_nonzero(np.diff(np.concatenate([[False], fallen]).astype(np.int8)) == 1))
-    off = ~on
-    skipped_s = float(np.sum(np.diff(t)[off[1:] | off[:-1]])) if t.size > 1 else 0.0
-    paused_s, anchor = 0.0, 0
-    for i in range(1, loading.size):
-        if top[i] > top[anchor] + tolerance[anchor]:
-            if t[i] - t[anchor] >= PAUSE_S and not fallen[anchor:i].any():
-                paused_s += float(t[i] - t[anchor])
-            anchor = i
+    on = loading >= top - np.maximum(3.0 * sigma_f, ENVELOPE_TOLERANCE * top)
+    if t.size < 2:
+        return on, 0, 0.0, 0.0
+    # Back-offs and pauses are judged on the smoothed force against the noise the loading itself
+    # shows (a load cell may read noisier under load), so that noise extremes over a long still
+    # hold neither raise the running maximum nor fall below it.
+    scale = float(np.max(np.abs(loading)))  # in its units, sums of forces near the float range stay finite
+    force, sigma = loading / scale, max(sigma_f, noise_std(loading)) / scale
+    smooth = _smoothed(force)
+    rise = np.maximum.accumulate(smooth)
+    below = smooth < rise - np.maximum(3.0 * sigma, ENVELOPE_TOLERANCE * rise)
+    fallen = smooth < rise - np.maximum(5.0 * sigma, BACKOFF_SHARE * rise)
+    edges = np.diff(np.concatenate([[0], below.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # runs below[start:end]
+    # A back-off is a sustained fall beyond the noise, not a dip within it, and faster than the
+    # loading's mean rate over PAUSE_FACTOR: a slower one is the object relaxing while the fingers
+    # hold still.
+    slowest = (rise[-1] - rise[0]) / (t[-1] - t[0]) / PAUSE_FACTOR
+    backing = np.zeros(t.size, dtype=bool)
+    backoffs = 0
+    for start, end in zip(starts, ends, strict=True):
+        if not fallen[start:end].any():
+            continue
+        first, last_on = start + int(np.argmax(fallen[start:end])), start - 1  # rise[0] == smooth[0]: start > 0
+        fell = (rise[first] - smooth[first]) - (rise[last_on] - smooth[last_on])
+        if fell >= slowest * (t[first] - t[last_on]):
+            backing[start:end] = True
+            backoffs += 1
+    dt = np.diff(t)
+    # Each interval between samples belongs to the band of the envelope's rise where it starts; a
+    # band the force stays in far longer than in the bands around it (the grasp's own loading rate
+    # there, however it stiffens) is a pause.
+    step = max(3.0 * sigma, ENVELOPE_TOLERANCE * float(force.max()))
+    band = ((rise[:-1] - rise[0]) // step).astype(np.int64)
+    dwell = np.bincount(band, weights=np.where(backing[:-1], 0.0, dt))
+    around = np.lib.stride_tricks.sliding_window_view(
+        np.concatenate([np.full(PAUSE_BANDS, np.nan), dwell, np.full(PAUSE_BANDS, np.nan)]), 2 * PAUSE_BANDS + 1).copy()
+    around[:, PAUSE_BANDS] = np.nan  # the band itself
+    usual = np.nanmedian(around, axis=1) if dwell.size > 1 else np.zeros(1)
+    skipped_s = float(np.sum(dt[backing[:-1]]))
+    paused_s = float(np.sum(dwell[dwell >= np.maximum(PAUSE_S, PAUSE_FACTOR * usual)]))
     return on, backoffs, skipped_s, paused_s
 
 
