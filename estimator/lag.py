@@ -19,10 +19,15 @@ from estimator.load_phase import ONSET_SIGMAS
 from estimator.plausible import MIN_WIDTH_NOISE_M
 from estimator.signals import clean_samples, crossing_time, reading_noise
 
-__all__ = ["estimate_camera_lag", "estimate_width_lag"]
+__all__ = ["WIDTH_LAG_SLACK_S", "estimate_camera_lag", "estimate_width_lag"]
 
-# Hinge times one width-lag search may try: the default searches 301.
+# Hinge times one width-lag search may try: the default searches 161.
 MAX_HINGES = 100_000
+# A width stamped when its read returns is late, never early, so the width lag lies in [0, max_lag_s]. The
+# search reaches this far below 0 so that a zero lag, fitted a little early through the reads' noise, is no
+# edge of the search: it counts as 0. A best hinge earlier still means the fingers stopped before the force
+# peaked (an operator's grasp), which no stamping lag explains.
+WIDTH_LAG_SLACK_S = 0.02
 
 
 def _positive_option(name: str, value: object, method: str = "estimate_width_lag") -> float:
@@ -113,6 +118,12 @@ def estimate_width_lag(
     closing at a constant speed, then still; the lag is the hinge time minus
     ``t_stop_s``. Subtract it from the width times.
 
+    The lag is searched in ``[0, max_lag_s]`` only, the lags a stamp taken late
+    can have, and ``WIDTH_LAG_SLACK_S`` below: a best hinge up to that much
+    before the stop is a zero lag fitted through noise and gives 0. A best hinge
+    at either end of the search (e.g. fingers that stop well before the force
+    peaks, as an operator's may) gives None, not a lag the fit cannot place.
+
     Parameters
     ----------
     width_t_s, width_m : ndarray, shape (m,)
@@ -120,7 +131,7 @@ def estimate_width_lag(
     t_stop_s : float
         When the force peaks (s).
     max_lag_s : float
-        Largest lag considered either way (s).
+        Largest lag considered (s).
     step_s : float
         Resolution of the hinge-time search (s).
     speed_m_s : float, optional
@@ -134,7 +145,7 @@ def estimate_width_lag(
         The lag (s); None when the stop time is not finite, the trace has too
         few samples on either side of the stop, does not close before it
         (its fitted closing speed is within ``ONSET_SIGMAS`` standard errors
-        of zero), or the best hinge lies at the edge of the search range.
+        of zero), or the best hinge lies at an end of the search range.
 
     Raises
     ------
@@ -148,7 +159,7 @@ def estimate_width_lag(
     step_s = _positive_option("step_s", step_s)
     if speed_m_s is not None:
         _positive_option("speed_m_s", speed_m_s)
-    if 2.0 * max_lag_s / step_s > MAX_HINGES:
+    if (max_lag_s + WIDTH_LAG_SLACK_S) / step_s > MAX_HINGES:
         raise FitError(f"estimate_width_lag: step_s = {step_s!r} s is too fine for max_lag_s = {max_lag_s!r} s "
                        f"(at most {MAX_HINGES} hinge times)")
     t, w = clean_samples(width_t_s, width_m, names=("width_t_s", "width_m"))
@@ -156,7 +167,8 @@ def estimate_width_lag(
         return None
     near = (t >= t_stop_s - 1.0) & (t <= t_stop_s + 1.0)
     t, w = t[near], w[near]
-    hinges = np.arange(t_stop_s - max_lag_s, t_stop_s + max_lag_s + step_s / 2, step_s)
+    lags = step_s * np.arange(-math.ceil(WIDTH_LAG_SLACK_S / step_s), round(max_lag_s / step_s) + 1)
+    hinges = t_stop_s + lags
     before = (t[None, :] < hinges[:, None]).sum(axis=1)
     usable = (before >= 3) & (t.size - before >= 2)
     if not usable.any():
@@ -183,4 +195,4 @@ def estimate_width_lag(
     standard_error = reading_noise(w, floor=MIN_WIDTH_NOISE_M) / math.sqrt(det[best] / n)
     if not -fitted[best] > ONSET_SIGMAS * standard_error:
         return None
-    return float(hinges[best] - t_stop_s)
+    return max(float(lags[best]), 0.0)

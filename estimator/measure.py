@@ -182,7 +182,9 @@ def measure_grasp(
     correct_width_lag : bool
         Estimate how late the widths are stamped from when the fingers stop
         against the force peak, and shift the width times by it (a host that
-        stamps a gripper read when it returns is late by about one read).
+        stamps a gripper read when it returns is late by about one read); only
+        a lag >= 0 is found (:func:`~estimator.lag.estimate_width_lag`), so
+        fingers that stop before the force peaks keep their width times.
 
     Returns
     -------
