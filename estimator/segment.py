@@ -336,7 +336,8 @@ def align_frames(phase: LoadPhase, frame_t_s: np.ndarray, *, n_frames: int, fing
         name = "too_few_samples" if overlap else "misaligned"
         why = (f"no tactile frame within the loading phase {t_contact:.3f}..{t_peak:.3f} s or within "
                f"{PEAK_FRAME_WINDOW_S:g} s after it (frames: {span})")
-        flag(name, why)
+        if name not in flags:  # why is frame_reason's alone: a refusal says it before the notes (Segment.describe)
+            flags.append(name)
         return Segment(flags=tuple(flags), notes=tuple(notes), frame_reason=why, **common)
 
     state_t = np.minimum(frame_t, t_peak)  # the peak frame shows the state at the peak
