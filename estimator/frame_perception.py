@@ -65,6 +65,22 @@ class FramePerception:
             image = self.images[position] = frames.on_grid(position, self.sensor, binning=self.binning, where=where)
         return image
 
+    def drop_first(self) -> None:
+        """Forget the first frame (the stream dropped it: :meth:`~estimator.received.Frames.make_room`): the
+        others' positions move down by one, and the reference goes when it was among its frames."""
+        self.images = {i - 1: image for i, image in self.images.items() if i}
+        self.undecodable = {i - 1: why for i, why in self.undecodable.items() if i}
+        if self._reference_key is not None and 0 in self._reference_key:
+            self.reference, self._reference_key = None, None
+            self._features.clear()
+            self.depth.clear()
+            self._reduced.clear()
+        elif self._reference_key is not None:
+            self._reference_key = tuple(i - 1 for i in self._reference_key)
+        self._features = {i - 1: f for i, f in self._features.items() if i}
+        self.depth = {i - 1: depth for i, depth in self.depth.items() if i}
+        self._reduced = {(key[0] - 1, *key[1:]): depth for key, depth in self._reduced.items() if key[0]}
+
     def times(self, frames: Frames) -> np.ndarray:
         """Capture times of ``frames``, NaN for those that do not decode (the segmentation skips them)."""
         times = frames.times()

@@ -7,10 +7,16 @@ frames with non-finite or repeated timestamps, which the segmentation skips
 (:mod:`estimator.segment`), as it skips a frame captured no later than an earlier one of its
 finger, live and offline alike.
 
-A grasp keeps at most :data:`MAX_GRASP_FRAMES` frames of each finger, the first that came: live, later
-ones are checked and counted but not kept; offline, a record's later ones are counted and never decoded.
-A frame refused live (it does not decode, or has a bad time or encoding) takes its place among the first
-all the same, as it does in the record it is in (offline it is skipped later), so both keep the same frames.
+A grasp keeps at most :data:`MAX_GRASP_FRAMES` frames of each finger, the first that came from shortly before
+its contact onset: once that many came, the oldest is dropped to make room for each new one while it was captured
+before the contact onset (:meth:`Frames.make_room`), as long as :data:`PRE_CONTACT_FRAMES` frames from before the
+onset stay for the no-contact reference; past that, later ones are checked and counted but not kept (offline, a
+record's are counted and never decoded). So an operator holding the dead-man for minutes before touching the
+object still has the contact measured. Live, the onset is the one in the force that has come when a frame does;
+offline, the record's: the same as long as the force shows the contact before a frame captured about
+``MAX_GRASP_FRAMES`` frames later comes. A frame refused live (it does not decode, or has a bad time or
+encoding) takes its place among those kept all the same, as it does in the record it is in (offline it is
+skipped later), so both keep the same frames.
 An operator may hold an object for minutes, and each frame kept costs its bytes and, on the estimator's
 finger, its decoded image, depth and reduced depth: about 0.26 MB a frame of both fingers at the shipped
 settings (66 kB, 88 kB and 23 kB, and 80 kB of JPEG), about three times that at ``depth_binning`` 1.
@@ -20,21 +26,26 @@ about 470 MB at the shipped settings.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from estimator.errors import PerceptionError
+from estimator.measurements import REFERENCE_FRAMES
 from estimator.perception.grid import ENCODINGS, frame_on_grid, raw_frame, to_grid
 from teleop.record import FrameStream, Samples
 from teleop.settings import SensorSettings
 
-__all__ = ["MAX_GRASP_FRAMES", "Frames", "Series"]
+__all__ = ["MAX_GRASP_FRAMES", "PRE_CONTACT_FRAMES", "Frames", "Series"]
 
 # Frames of one finger a grasp keeps: 60 s at 30 Hz, over ten times the longest of 40 simulated operator's
 # grasps (156 frames) and a scripted one (a few seconds). Bounds a grasp's frames (module notes).
 MAX_GRASP_FRAMES = 1800
+# Frames from before the no-contact reference's cut a grasp past MAX_GRASP_FRAMES keeps: the reference's
+# REFERENCE_FRAMES, and a second's more at 30 Hz should the onset found move earlier.
+PRE_CONTACT_FRAMES = max(30, REFERENCE_FRAMES)
 
 
 @dataclass
@@ -84,8 +95,9 @@ class Frames:
 
     ``source`` is the record's frame stream they came from offline (it decodes them, and holds
     them decoded when the record was: :class:`~estimator.inference.sampling.DecodedFrameStream`);
-    None live. ``refused`` counts the frames refused live before :data:`MAX_GRASP_FRAMES` had come, and
-    ``not_kept`` the frames, refused or not, that came after.
+    None live. ``dropped`` counts the first frames, refused or not, dropped to make room (:meth:`make_room`);
+    ``refused`` holds the arrival index and capture time of each frame refused live that takes a place among
+    those kept, and ``not_kept`` counts the frames, refused or not, that came once no room was made.
     """
 
     t_s: list[float] = field(default_factory=list)
@@ -93,34 +105,68 @@ class Frames:
     encoding: str | None = None
     source: FrameStream | None = None
     not_kept: int = 0
-    refused: int = 0
+    refused: list[tuple[int, float]] = field(default_factory=list)
+    dropped: int = 0
 
     @classmethod
-    def of_record(cls, stream: FrameStream, *, shift_s: float | None = None) -> Frames:
-        """A record's frame stream as recorded, its times earlier by ``shift_s`` (s) when given: its
-        first :data:`MAX_GRASP_FRAMES` frames, the others counted (``not_kept``), as live."""
-        t = stream.t_s if shift_s is None else stream.t_s - shift_s
-        kept = t[:MAX_GRASP_FRAMES]
-        return cls([float(x) for x in kept], list(stream.encoded[:MAX_GRASP_FRAMES]), stream.encoding, stream,
-                   not_kept=len(t) - len(kept))
+    def of_record(cls, stream: FrameStream, *, shift_s: float | None = None, keep_from_s: float = np.inf) -> Frames:
+        """A record's frame stream as recorded, its times earlier by ``shift_s`` (s) when given: the
+        :data:`MAX_GRASP_FRAMES` frames live would keep, as if each came in turn with the no-contact
+        reference's cut at ``keep_from_s`` (s: :meth:`make_room`), the others counted (``dropped``, ``not_kept``)."""
+        t = np.asarray(stream.t_s if shift_s is None else stream.t_s - shift_s, dtype=np.float64)
+        before = np.concatenate([[0], np.cumsum(t < keep_from_s)])  # frames before the cut, up to each
+        first = 0
+        for new in range(MAX_GRASP_FRAMES, len(t)):  # frames first..new-1 kept when frame new comes
+            if not Frames._room(t[first], int(before[new] - before[first]), keep_from_s):
+                break
+            first += 1
+        last = first + min(len(t), MAX_GRASP_FRAMES)
+        return cls([float(x) for x in t[first:last]], list(stream.encoded[first:last]), stream.encoding, stream,
+                   not_kept=len(t) - last, dropped=first)
+
+    @staticmethod
+    def _room(oldest_t_s: float, count_before: int, keep_from_s: float) -> bool:
+        """Whether the oldest frame kept, captured at ``oldest_t_s``, can be dropped with ``count_before`` frames
+        kept captured before the no-contact reference's cut at ``keep_from_s`` (it among them)."""
+        return not oldest_t_s >= keep_from_s and count_before > PRE_CONTACT_FRAMES
 
     @property
     def arrived(self) -> int:
-        """Frames that came: kept, refused and not kept (a frame's index in the record it is in)."""
-        return len(self.t_s) + self.refused + self.not_kept
+        """Frames that came: kept, refused, dropped and not kept (a frame's index in the record it is in)."""
+        return len(self.t_s) + len(self.refused) + self.dropped + self.not_kept
 
     @property
     def full(self) -> bool:
-        """Whether :data:`MAX_GRASP_FRAMES` frames came (refused ones included): later ones are only counted."""
-        return len(self.t_s) + self.refused >= MAX_GRASP_FRAMES
+        """Whether :data:`MAX_GRASP_FRAMES` frames are kept (refused ones included): a later one makes room
+        (:meth:`make_room`) or is only counted."""
+        return len(self.t_s) + len(self.refused) >= MAX_GRASP_FRAMES
 
-    def count_refused(self) -> None:
-        """Count a frame refused live, where a record would hold it: among the first :data:`MAX_GRASP_FRAMES`
-        or past them."""
+    def make_room(self, keep_from_s: Callable[[], float]) -> bool:
+        """Once :attr:`full`, drop the oldest frame (``dropped``) for a new one: whether it was dropped. It is
+        while no frame was counted not kept, it was captured before ``keep_from_s()`` (s, the no-contact
+        reference's cut before the contact onset; infinite before contact) or at no finite time, and more than
+        :data:`PRE_CONTACT_FRAMES` frames kept were."""
+        if not self.full or self.not_kept:  # frames past those kept stay past them
+            return False
+        cut_s = keep_from_s()
+        refused = bool(self.refused) and self.refused[0][0] == self.dropped  # the oldest frame was refused
+        times = np.array([*self.t_s, *(t for _, t in self.refused)])
+        if not self._room(self.refused[0][1] if refused else self.t_s[0], int(np.sum(times < cut_s)), cut_s):
+            return False
+        if refused:
+            self.refused.pop(0)
+        else:
+            del self.t_s[0], self.encoded[0]
+        self.dropped += 1
+        return True
+
+    def count_refused(self, t_s: float) -> None:
+        """Count a frame captured at ``t_s`` refused live where a record would hold it: among those kept
+        (room made by :meth:`make_room` first) or past them."""
         if self.full:
             self.not_kept += 1
         else:
-            self.refused += 1
+            self.refused.append((self.arrived, float(t_s)))
 
     def check(self, t_s: float, encoding: str, *, where: str) -> None:
         """Raise PerceptionError naming ``where`` unless a frame captured at ``t_s`` in ``encoding``
@@ -153,10 +199,11 @@ class Frames:
         frame) or PerceptionError (one received live) for a frame that does not decode."""
         if self.source is not None:
             try:
-                return to_grid(self.source.frame(index, reduce=binning), sensor, binning=binning)
+                return to_grid(self.source.frame(self.dropped + index, reduce=binning), sensor, binning=binning)
             except PerceptionError as exc:
                 raise PerceptionError(f"{where}: {exc}") from exc
         return frame_on_grid(self.encoded[index], self.encoding or "jpeg", sensor, binning=binning, where=where)
 
     def copy(self) -> Frames:
-        return Frames(list(self.t_s), list(self.encoded), self.encoding, self.source, self.not_kept, self.refused)
+        return Frames(list(self.t_s), list(self.encoded), self.encoding, self.source, self.not_kept, list(self.refused),
+                      self.dropped)

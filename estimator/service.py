@@ -388,7 +388,7 @@ class EstimatorService(ServiceLoop):
             if stream.add_frame(body.finger, message.t_capture_s, body.data, body.encoding):
                 self._on_frame(grasp, received_s)
             elif stream.frames_not_kept(body.finger) == 1:  # once per grasp and finger, not per frame
-                log.warning("grasp %r: frames of finger %r past the first %d are counted, not kept: its estimates "
+                log.warning("grasp %r: frames of finger %r past the %d kept are counted, not kept: its estimates "
                             "rest on those", grasp.grasp_id, body.finger, MAX_GRASP_FRAMES)
             return
         if message.type == "force":

@@ -24,9 +24,10 @@ measurement would recompute:
 * each :meth:`GraspStream.estimate` runs the analytical fits again over everything that has
   arrived (a few hundred samples and tens of frames: vectorised and cheap).
 
-A grasp keeps the first :data:`~estimator.received.MAX_GRASP_FRAMES` frames of each finger (60 s at
-30 Hz; at most about 470 MB at the shipped settings), live and offline alike: later ones are counted,
-not kept (an operator may hold an object for minutes), and the estimates' notes say how many.
+A grasp keeps at most :data:`~estimator.received.MAX_GRASP_FRAMES` frames of each finger (60 s at
+30 Hz; at most about 470 MB at the shipped settings), live and offline alike: the first from shortly before
+the contact onset (:mod:`estimator.received`); others are counted, not kept (an operator may hold an
+object, or the dead-man before touching one, for minutes), and the estimates' notes say how many.
 
 The rig
 -------
@@ -82,6 +83,7 @@ from estimator.features import contact_features
 from estimator.frame_perception import FramePerception
 from estimator.load_phase import LoadPhase, find_load_phase
 from estimator.measurements import (
+    REFERENCE_GUARD_S,
     GraspMeasurements,
     check_calibration_fits,
     estimate_measurements,
@@ -205,9 +207,10 @@ class GraspStream:
         stream.camera_lag_s, stream.width_lag_s = camera_lag_s, width_lag_s
         stream._force = Series.of(record.force_n)
         stream._width = Series.of(record.width_m, shift_s=width_lag_s)
-        stream._frames = {s.finger: Frames.of_record(s, shift_s=camera_lag_s if s.finger == finger else None)
-                          for s in record.frames}
         stream._loading_end_s = record.events.get(GRASP_DONE_EVENT)
+        cut_s = stream._keep_from_s() if any(len(s.t_s) > MAX_GRASP_FRAMES for s in record.frames) else np.inf
+        stream._frames = {s.finger: Frames.of_record(s, shift_s=camera_lag_s if s.finger == finger else None,
+                                                     keep_from_s=cut_s) for s in record.frames}
         return stream
 
     def for_finger(self, finger: str, *, calibration: Calibration | str | Path | None) -> GraspStream:
@@ -267,7 +270,7 @@ class GraspStream:
 
     @property
     def frame_count(self) -> int:
-        """Frames of the estimator's finger received."""
+        """Frames of the estimator's finger kept."""
         return len(self._frames.get(self.finger, Frames()).t_s)
 
     @property
@@ -290,8 +293,9 @@ class GraspStream:
 
         The estimator's frames are decoded and warped onto the depth grid here, once; other fingers'
         frames are kept as they came. Once :data:`~estimator.received.MAX_GRASP_FRAMES` frames of a
-        finger came, its later frames are checked and counted (:meth:`frames_not_kept`), not kept or
-        decoded. Raises PerceptionError (the frame is not kept) for an
+        finger were kept, the oldest is dropped for a new one while it is from before the contact onset
+        (:meth:`~estimator.received.Frames.make_room`); once none is, later frames are checked and counted
+        (:meth:`frames_not_kept`), not kept or decoded. Raises PerceptionError (the frame is not kept) for an
         estimator frame that does not decode or has the wrong size, a finger without a sensor, a
         non-finite time or an encoding other than the finger's earlier ones. Such a frame still counts
         toward the cap, as in the record it is in (one of a finger without a sensor excepted: a record
@@ -303,6 +307,9 @@ class GraspStream:
         where = f"grasp {self.grasp_id!r} frame {frames.arrived} of finger {finger!r}"
         sensor = self._sensor(finger, PerceptionError, where)
         self._frames[finger] = frames
+        kept = len(frames.t_s)  # room is made first, as for the frame in a record (estimator.received)
+        if frames.make_room(self._keep_from_s) and len(frames.t_s) < kept and finger == self.finger:
+            self._perception.drop_first()
         try:
             frames.check(t_s, encoding, where=where)
             if frames.full:  # a long hold would grow the service without bound (estimator.received)
@@ -312,13 +319,21 @@ class GraspStream:
                 self._perception.images[len(frames.t_s)] = frame_on_grid(data, encoding, sensor, binning=self.binning, where=where)
             frames.add(t_s, data, encoding, where=where)
         except PerceptionError:
-            frames.count_refused()  # its record holds it: offline it takes a place among the first kept
+            frames.count_refused(t_s)  # its record holds it: offline it takes a place among those kept
             raise
         return finger == self.finger
 
     def frames_not_kept(self, finger: str) -> int:
-        """Frames of ``finger`` that came once :data:`~estimator.received.MAX_GRASP_FRAMES` were kept."""
+        """Frames of ``finger`` that came once :data:`~estimator.received.MAX_GRASP_FRAMES` were kept and
+        no room was made (the first ones dropped from before contact are not among them)."""
         return self._frames.get(finger, Frames()).not_kept
+
+    def _keep_from_s(self) -> float:
+        """Capture time (s) from which frames are needed: the no-contact reference's cut before the contact
+        onset in the force so far (:meth:`~estimator.frame_perception.FramePerception.reference_index`);
+        infinite before contact."""
+        phase = self._load_phase()
+        return phase.segment_fields["t_onset_s"] - REFERENCE_GUARD_S if phase else np.inf
 
     def mark_loading_end(self, t_s: float) -> None:
         """The loading end marker: the gripper's fingers stopped at ``t_s`` (s, capture clock).
@@ -353,21 +368,26 @@ class GraspStream:
         sampled at ``n_frames`` (default ``estimator.n_frames``)."""
         n_frames = estimator_settings(self.settings).n_frames if n_frames is None else n_frames
         phase = self._load_phase()
-        # Frames are only ever appended: their count names the frame times aligned (and the notes).
-        key = (n_frames, self.frame_count, not_kept := self.frames_not_kept(self.finger))
+        # Frames are appended, the first dropped: their counts name the frame times aligned (and the notes).
+        frames = self._frames.get(self.finger, Frames())
+        key = (n_frames, len(frames.t_s), not_kept := frames.not_kept, dropped := frames.dropped)
         cached = self._segments.get(key)
         if cached is None:
-            received_t = self._perception.times(self._frames.get(self.finger, Frames()))
+            received_t = self._perception.times(frames)
             frame_t = self._frame_times()  # align_frames drops and counts the frames it cannot place
             cached = checked_frames(align_frames(phase, received_t, n_frames=n_frames, finger=self.finger), frame_t,
                                     camera_hz=self.sensor.camera_hz, finger=self.finger)
             if skipped := self._perception.undecodable:  # a live stream drops them
                 cached = dataclasses.replace(cached, notes=(*cached.notes, f"skipped {len(skipped)} frames "
                                              f"of finger {self.finger!r}: {next(iter(skipped.values()))}"))
+            cap = f"(a grasp keeps at most {MAX_GRASP_FRAMES})"
+            if dropped:
+                cached = dataclasses.replace(cached, notes=(*cached.notes, f"its first {dropped} frames of finger "
+                                             f"{self.finger!r}, from before contact, not kept {cap}"))
             if not_kept:
                 cached = dataclasses.replace(cached, notes=(*cached.notes, f"{not_kept} frames of finger "
-                                             f"{self.finger!r} after its first {MAX_GRASP_FRAMES} not kept "
-                                             f"(a grasp keeps at most {MAX_GRASP_FRAMES})"))
+                                             f"{self.finger!r} after its first {dropped + MAX_GRASP_FRAMES} not "
+                                             f"kept {cap}"))
             self._segments[key] = cached
         return cached
 

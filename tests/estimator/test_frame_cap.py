@@ -1,6 +1,7 @@
 """A grasp keeps at most ``MAX_GRASP_FRAMES`` frames of each finger (an operator may hold an object for
-minutes): later ones are counted, not kept; the estimates rest on the frames kept and say how many were
-not; offline, a record's frames past the cap are treated as live; the service logs it once per grasp."""
+minutes): once in contact, later ones are counted, not kept (before contact: test_frame_cap_precontact);
+the estimates rest on the frames kept and say how many were not; offline, a record's frames past the cap
+are treated as live; the service logs it once per grasp."""
 
 from __future__ import annotations
 
@@ -49,6 +50,8 @@ def test_a_long_grasp_keeps_the_first_frames_and_counts_the_rest(settings, calib
     image = np.full((sensor.raw_height_px, sensor.raw_width_px, 3), 128, dtype=np.uint8)
     jpeg = cv2.imencode(".jpg", image)[1].tobytes()
     stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    stream.add_force(np.array([0.0, 0.01, 0.02]), np.array([1.0, 2.0, 3.0]))  # in contact from the first frame
+    stream.add_width(np.array([0.0, 0.02]), np.array([0.05, 0.049]))
     cap, extra = received.MAX_GRASP_FRAMES, 7
     kept = [stream.add_frame(finger, i / 30.0, jpeg, "jpeg") for i in range(cap + extra) for finger in ("left", "right")]
     assert kept == [True, False] * cap + [False, False] * extra  # only a kept frame of the estimator's finger is news
@@ -118,7 +121,7 @@ def test_the_service_says_once_that_a_grasp_keeps_no_more_frames(rig, settings, 
         rig.send_grasp(operator_grasp, "g-long")
         estimates = [m for m in rig.collect("g-long") if m.type == "estimate"]
     said = [r.getMessage() for r in caplog.records if "counted, not kept" in r.getMessage()]
-    assert said == [f"grasp 'g-long': frames of finger {f!r} past the first {cap} are counted, not kept: its "
+    assert said == [f"grasp 'g-long': frames of finger {f!r} past the {cap} kept are counted, not kept: its "
                     "estimates rest on those" for f in ("left", "right")]  # once per finger, not per frame
     assert [m.body["provisional"] for m in estimates].count(False) == 1 and not estimates[-1].body["provisional"]
     report = json.loads((tmp_path / "estimator.jsonl").read_text().splitlines()[-1])
