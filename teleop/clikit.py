@@ -5,7 +5,8 @@ Each subcommand lives in its own module exposing ``add_arguments(parser)`` and
 ``--help`` is fast and a run never imports what it does not use (torch above all).
 Errors the packages raise on purpose (every one a :class:`~teleop.errors.ComplianceTeleopError`)
 are printed as one line, never a traceback; so is a command's optional extra that is not installed
-(``Command.extra``).
+(``Command.extra``). From the command line, standard output writes what its encoding cannot as
+backslash escapes (as standard error does), and a failing write to it (a full disk) is one line too.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import io
 import logging
 import math
 import os
@@ -231,6 +233,51 @@ def _ignore_late_ctrl_c() -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+class StandardOutputError(OSError):
+    """A write to standard output failed (a full disk, an I/O error); its errno and strerror are the
+    system's. A reader that left stays a BrokenPipeError."""
+
+
+class _StandardOutputFile(io.FileIO):
+    """Standard output's file descriptor, whose failing writes raise :class:`StandardOutputError`:
+    told apart so from a failing write to any other file, which stays the error it is."""
+
+    def write(self, data: Any) -> int | None:
+        try:
+            return super().write(data)
+        except (BlockingIOError, BrokenPipeError):
+            raise
+        except OSError as exc:
+            raise StandardOutputError(exc.errno, exc.strerror) from exc
+
+
+def _check_standard_output() -> None:
+    """Replace the interpreter's ``sys.stdout`` by one on the same descriptor, with the same encoding
+    and buffering, that writes what its encoding cannot as backslash escapes and raises
+    :class:`StandardOutputError` when a write fails. Nothing when ``sys.stdout`` is not the
+    interpreter's own (a caller's capture) or has no descriptor."""
+    out = sys.stdout
+    if out is not sys.__stdout__ or not isinstance(out, io.TextIOWrapper):
+        return
+    try:
+        fd = out.fileno()
+        out.flush()
+    except (OSError, ValueError):  # no descriptor, or already failing: left as it is
+        return
+    raw = _StandardOutputFile(fd, "w", closefd=False)
+    binary = raw if isinstance(out.buffer, io.FileIO) else io.BufferedWriter(raw)  # python -u: unbuffered
+    sys.stdout = io.TextIOWrapper(binary, encoding=out.encoding, errors="backslashreplace",
+                                  line_buffering=out.line_buffering, write_through=out.write_through)
+
+
+def _discard_standard_output() -> None:
+    """Standard output on the null device from now on: what it still buffers would fail again when
+    Python flushes it at exit, with a traceback."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+
+
 def _parsed(prog: str, description: str, commands: Mapping[str, Command], argv: list[str],
             chosen: str | None) -> argparse.Namespace:
     """``argv`` parsed, with the ``chosen`` subcommand's module imported for its options; logging set up."""
@@ -264,8 +311,11 @@ def run_cli(
     commands: Mapping[str, Command],
     argv: Sequence[str] | None = None,
 ) -> int:
-    """Parse ``argv``, import the chosen subcommand's module and run it."""
+    """Parse ``argv``, import the chosen subcommand's module and run it. From the command line
+    (``argv`` None) standard output is checked (:class:`StandardOutputError`) meanwhile."""
     argv_given = argv
+    if argv_given is None:
+        _check_standard_output()
     argv = list(sys.argv[1:] if argv is None else argv)
     chosen = next((a for a in argv if not a.startswith("-")), None)
     try:
@@ -275,7 +325,9 @@ def run_cli(
     try:
         with sigterm_as_ctrl_c() if threading.current_thread() is threading.main_thread() else contextlib.nullcontext():
             try:
-                return int(args._run(args) or 0)
+                status = int(args._run(args) or 0)
+                sys.stdout.flush()  # here, where a failure is told as the command's, not at the exit
+                return status
             finally:
                 if argv_given is None:
                     _ignore_late_ctrl_c()
@@ -293,7 +345,10 @@ def run_cli(
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP (sigterm_as_ctrl_c)
         return say_stopped(f"{prog} {args.command}", exc)
     except BrokenPipeError:
-        # The reader left (`| head`): not this command's error. Python would complain again when it
-        # flushes stdout at exit, so that goes to /dev/null.
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        # The reader left (`| head`): not this command's error.
+        _discard_standard_output()
         return 1
+    except StandardOutputError as exc:  # a write to stdout, not to another file (_StandardOutputFile)
+        _discard_standard_output()
+        print(f"{prog} {args.command}: error: cannot write standard output: {exc.strerror or exc}", file=sys.stderr)
+        return 2
