@@ -235,7 +235,10 @@ class Hx711Bridge:
         try:
             server = socket.create_server((self.host, self.port))
         except OSError as exc:
-            raise DeviceError(f"HX711 bridge cannot listen on {self.address}: {exc}") from exc
+            fix = (": another program (a bridge still running?) holds the port: stop it or choose another "
+                   "(teleop hx711-bridge --port PORT, or --port 0 for any free one)"
+                   if exc.errno == errno.EADDRINUSE else "")
+            raise DeviceError(f"HX711 bridge cannot listen on {self.address}: {exc}{fix}") from exc
         server.settimeout(0.2)
         self._server = server
         self.port = server.getsockname()[1]

@@ -27,7 +27,9 @@ error and stops; the service carries on without it.
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
+import os
 import sys
 import threading
 import time
@@ -154,7 +156,11 @@ class LiveServer:
             )
         except Exception as exc:  # the SDK reports bind failures as plain RuntimeErrors
             self._close_channels()
-            raise BusError(f"cannot serve the Foxglove live view on {host}:{port}: {exc}") from exc
+            # no errno on them: the message holds the system's words for it
+            fix = (": another program (a session still running?) holds the port: stop it or choose another "
+                   "(--foxglove PORT, or --foxglove 0 for any free one)"
+                   if os.strerror(errno.EADDRINUSE) in str(exc) else "")
+            raise BusError(f"cannot serve the Foxglove live view on {host}:{port}: {exc}{fix}") from exc
         self.host = host
         if not is_loopback(f"tcp://[{host}]:*" if ":" in host else f"tcp://{host}:*"):
             # the bus refuses such an endpoint without CURVE keys; this view has none to run

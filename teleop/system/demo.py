@@ -256,11 +256,11 @@ def run(args: argparse.Namespace) -> int:
     run_dir, calibration = prepare_run(args, prefix="demo", out=text)
     view = LiveView(text, len(plan), enabled=not args.no_view)
     system = LiveSystem(Path(args.settings), args.scene, run_dir, calibration, foxglove=args.foxglove, model=model)
-    if args.foxglove is not None:
-        host, port = args.foxglove
-        print(f"Foxglove live view: ws://{host}:{port}" if port else
-              f"Foxglove live view: the port the recorder chose, in {run_dir / 'recorder.log'}", file=sys.stderr)
     with system:
+        if args.foxglove is not None:  # once the recorder is up: serving it, not failing to bind its port
+            host, port = args.foxglove
+            print(f"Foxglove live view: ws://{host}:{port}" if port else
+                  f"Foxglove live view: the port the recorder chose, in {run_dir / 'recorder.log'}", file=sys.stderr)
         print(f"live system up ({', '.join(f'{n} {c.process.pid}' for n, c in system.children.items())}); "
               f"logs in {run_dir}", file=sys.stderr)
         if args.operator == "sim":
