@@ -21,6 +21,7 @@ the folder layout ``estimator calibrate --presses`` reads (:func:`~estimator.per
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 import time
 from collections.abc import Callable
@@ -247,10 +248,13 @@ def capture_to_folder(args: argparse.Namespace) -> Path:
     # A simulated camera only plays grasps back: no ball can be pressed on it, and waiting for its frames
     # would end in a vague timeout. Worded as `teleop calibrate camera` refuses it (teleop/rig/camera_calibration.py).
     if sensor.camera_backend == "sim":
+        # quoted: the command is to be pasted into a shell, and a settings path may hold spaces
+        simulate = shlex.join(["teleop", "simulate-presses", "--settings", str(args.settings),
+                               "--finger", sensor.finger])
         raise CalibrationError(
             f"{args.settings}: the camera of [sensors.{sensor.finger}] is simulated (backend 'sim'): it cannot be "
-            f"calibrated by pressing a ball on it; simulate the presses instead (teleop simulate-presses --settings "
-            f"{args.settings} --finger {sensor.finger} --out P.npz, then --presses P.npz without --capture), or "
+            f"calibrated by pressing a ball on it; simulate the presses instead ({simulate} --out P.npz, then "
+            "--presses P.npz without --capture), or "
             "configure the real camera (camera_backend = 'opencv' and camera_source)")
     try:
         with make_camera(sensor) as camera:
