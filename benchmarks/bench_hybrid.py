@@ -79,7 +79,7 @@ def stage_runs(record, sampled, *, settings, predictor, calibration):
     binning, sensor, grid, reference = m.depth_binning, m.sensor, m.grid, m.reference_bgr
     cal = grid_calibration(calibration_for(record.sensor(finger), calibration), binning)
     positions = np.searchsorted(m.segment.frame_t_s, m.t_s)  # the sampled loading frames
-    raw = [record.stream(finger).frame(int(i), reduce=binning) for i in m.segment.frame_index[positions]]
+    raw = [record.stream(finger).frame(int(i), reduce=binning) for i in m.segment.frame_index[positions] + m.frames_dropped]
     batch = encode(variant, [sampled])
 
     def depth():

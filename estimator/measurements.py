@@ -106,6 +106,9 @@ class GraspMeasurements:
         The colour smoothing (Gaussian sigma, px of the calibration's images) of the calibration
         the depth was reconstructed with (a learned model reads depth only as it was trained);
         None without depth.
+    frames_dropped : int
+        Frames of ``finger`` dropped before those kept (:meth:`~estimator.received.Frames.make_room`):
+        a :attr:`segment`'s frame position plus this is the frame's index in its record's stream.
     """
 
     finger: str
@@ -129,6 +132,7 @@ class GraspMeasurements:
     image_bgr: np.ndarray | None = None
     reference_bgr: np.ndarray | None = None
     calibration_smoothing_px: float | None = None
+    frames_dropped: int = 0
 
     @property
     def grid(self) -> DepthGrid:

@@ -498,7 +498,7 @@ class GraspStream:
             approach_m=approach(segment.frame_width_m, segment.frame_force_n), camera_lag_s=self.camera_lag_s,
             width_lag_s=self.width_lag_s, hold_force_n=segment.hold_force_n,
             hold_approach_m=approach(segment.hold_width_m, segment.hold_force_n), depth_binning=self.binning,
-        )
+            frames_dropped=self._frames.get(self.finger, Frames()).dropped)
         if not tactile:
             return m
         loading_index = segment.frame_index

@@ -231,12 +231,13 @@ def _finger_settings(settings: Settings, finger: str) -> Settings:
     return on_finger.with_section(dataclasses.replace(estimator_settings(settings), depth_binning=binning))
 
 
-def _moment_indices(t_s: np.ndarray, segment: Segment, reference: np.ndarray) -> list[int]:
+def _moment_indices(t_s: np.ndarray, segment: Segment, reference: np.ndarray, *, dropped: int) -> list[int]:
     """Frames before contact (the reference's last), halfway through the loading phase and at the
     peak force (the estimator's peak frame, the last loading frame; the frame nearest the peak
-    when no frame falls in the loading phase)."""
+    when no frame falls in the loading phase); ``dropped``: the frames the stream dropped before
+    those its segment indexes (:attr:`~estimator.measurements.GraspMeasurements.frames_dropped`)."""
     mid_t = 0.5 * (segment.t_onset_s + segment.t_peak_s)
-    loading = segment.frame_index
+    loading = segment.frame_index + dropped
     candidates = loading if loading.size else np.arange(t_s.size)
     mid = int(candidates[np.argmin(np.abs(t_s[candidates] - mid_t))])
     peak = int(loading[-1]) if loading.size else int(np.argmin(np.abs(t_s - segment.t_peak_s)))
@@ -289,7 +290,7 @@ def _finger_moments(
         calibration = grid_calibration(calibration, binning)
         reference = no_contact_reference(record, finger, segment, binning=binning)
     force, out = record.force_n, []
-    for name, index in zip(MOMENTS, _moment_indices(stream.t_s, segment, reference_index), strict=True):
+    for name, index in zip(MOMENTS, _moment_indices(stream.t_s, segment, reference_index, dropped=measured.frames_dropped), strict=True):
         image = to_grid(_frame(stream, index, sensor, binning), sensor, binning=binning)
         depth = None
         if reference is not None:

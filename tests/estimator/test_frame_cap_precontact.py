@@ -92,3 +92,18 @@ def test_an_ordinary_grasp_keeps_every_frame(settings, records):
     record = records["steel_ball_bearing"]
     stream = GraspStream.from_record(record, settings=settings, calibration=None, methods=METHODS)
     assert stream.frame_count == len(record.stream("left").t_s) and not stream._frames["left"].dropped
+
+
+def test_the_report_shows_the_loading_frames_of_a_grasp_with_dropped_frames(settings, records, cap):
+    """``teleop report``'s moments are the record's frames: a segment's positions count from the first kept."""
+    from teleop.system.report_data import GraspView, tactile_moments
+
+    def moments(record):
+        view = GraspView("g")
+        view.record = record
+        tactile_moments(view, settings=settings, calibrations={f: "no depth here" for f in ("left", "right")})
+        return {(m.finger, m.name): (m.t_s, m.force_n) for m in view.moments}
+
+    plain, long = moments(records["stress_ball"]), moments(prepended(records["stress_ball"], 2.0 * cap / 30))
+    for key in (("left", "mid-loading"), ("left", "peak force")):
+        assert long[key] == pytest.approx(plain[key], abs=1e-9), key
