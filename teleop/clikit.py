@@ -12,6 +12,7 @@ backslash escapes (as standard error does), and a failing write to it (a full di
 from __future__ import annotations
 
 import argparse
+import codecs
 import contextlib
 import importlib
 import io
@@ -251,9 +252,23 @@ class _StandardOutputFile(io.FileIO):
             raise StandardOutputError(exc.errno, exc.strerror) from exc
 
 
+def _write_unwritable(error: UnicodeError) -> tuple[str | bytes, int]:
+    """A codec error handler: a path's undecodable bytes (``os.fsdecode``'s surrogates) as they were,
+    anything else the encoding cannot write as backslash escapes."""
+    try:
+        return codecs.lookup_error("surrogateescape")(error)
+    except UnicodeError:
+        return codecs.lookup_error("backslashreplace")(error)
+
+
+_UNWRITABLE = "teleop-unwritable"
+codecs.register_error(_UNWRITABLE, _write_unwritable)
+
+
 def _check_standard_output() -> None:
-    """Replace the interpreter's ``sys.stdout`` by one on the same descriptor, with the same encoding
-    and buffering, that writes what its encoding cannot as backslash escapes and raises
+    """Replace the interpreter's ``sys.stdout`` (and ``sys.__stdout__``, lest the two interleave out of
+    order) by one on the same descriptor, with the same encoding and buffering, that writes what its
+    encoding cannot as backslash escapes (a path's undecodable bytes as they were) and raises
     :class:`StandardOutputError` when a write fails. Nothing when ``sys.stdout`` is not the
     interpreter's own (a caller's capture) or has no descriptor."""
     out = sys.stdout
@@ -266,8 +281,8 @@ def _check_standard_output() -> None:
         return
     raw = _StandardOutputFile(fd, "w", closefd=False)
     binary = raw if isinstance(out.buffer, io.FileIO) else io.BufferedWriter(raw)  # python -u: unbuffered
-    sys.stdout = io.TextIOWrapper(binary, encoding=out.encoding, errors="backslashreplace",
-                                  line_buffering=out.line_buffering, write_through=out.write_through)
+    sys.stdout = sys.__stdout__ = io.TextIOWrapper(binary, encoding=out.encoding, errors=_UNWRITABLE,
+                                                   line_buffering=out.line_buffering, write_through=out.write_through)
 
 
 def _discard_standard_output() -> None:

@@ -28,6 +28,10 @@ COMMAND = textwrap.dedent('''
             print([stream.isatty() for stream in (sys.stdin, sys.stdout, sys.stderr)], file=sys.stderr)
         elif args.what == "unicode":
             print("\u03c3 = F/A \u00b1 4.4e-09")
+        elif args.what == "undecodable-path":
+            print(os.fsdecode(b"/data/caf\\xe9.grasp"))
+            print("via __stdout__", file=sys.__stdout__)
+            print("last")
         elif args.what.startswith("lines"):
             for i in range(int(args.what[5:])):
                 print(f"line {i}")
@@ -76,3 +80,9 @@ def test_a_full_disk_behind_another_file_is_not_called_standard_output_s(tmp_pat
     proc = speaker(tmp_path, "other-file", "/dev/full", capture_output=True, text=True)
     assert proc.returncode == 1 and "standard output" not in proc.stderr
     assert "OSError: [Errno 28] No space left on device" in proc.stderr
+
+
+def test_utf8_mode_writes_an_undecodable_path_back_as_its_bytes_in_order(tmp_path):
+    proc = speaker(tmp_path, "undecodable-path", env={"PYTHONUTF8": "1"}, capture_output=True)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout == b"/data/caf\xe9.grasp\nvia __stdout__\nlast\n"
