@@ -97,6 +97,7 @@ SMOOTH_SAMPLES = 5
 PAUSE_S = 0.15
 PAUSE_FACTOR = 4.0
 PAUSE_BANDS = 3  # the bands on either side that give the loading rate a band's dwell is judged against
+MAX_BANDS = 1000  # bands of the rise a pause is looked for in: bounds their count on any data
 
 
 def _closing_speed(t_s: np.ndarray, width_m: np.ndarray, before_s: float) -> float:
@@ -142,7 +143,7 @@ def _envelope(t: np.ndarray, loading: np.ndarray, sigma_f: float) -> tuple[np.nd
     # Back-offs and pauses are judged on the smoothed force against the noise the loading itself
     # shows (a load cell may read noisier under load), so that noise extremes over a long still
     # hold neither raise the running maximum nor fall below it.
-    scale = float(np.max(np.abs(loading)))  # in its units, sums of forces near the float range stay finite
+    scale = float(np.max(np.abs(loading))) or 1.0  # in its units, sums of forces near the float range stay finite
     force, sigma = loading / scale, max(sigma_f, noise_std(loading)) / scale
     smooth = _smoothed(force)
     rise = np.maximum.accumulate(smooth)
@@ -168,8 +169,9 @@ def _envelope(t: np.ndarray, loading: np.ndarray, sigma_f: float) -> tuple[np.nd
     # Each interval between samples belongs to the band of the envelope's rise where it starts; a
     # band the force stays in far longer than in the bands around it (the grasp's own loading rate
     # there, however it stiffens) is a pause.
-    step = max(3.0 * sigma, ENVELOPE_TOLERANCE * float(force.max()))
-    band = ((rise[:-1] - rise[0]) // step).astype(np.int64)
+    # At most MAX_BANDS bands, however far the noise floor lies below the rise.
+    step = max(3.0 * sigma, ENVELOPE_TOLERANCE * float(force.max()), float(rise[-1] - rise[0]) / MAX_BANDS)
+    band = ((rise[:-1] - rise[0]) // step).astype(np.int64) if step > 0 else np.zeros(t.size - 1, dtype=np.int64)
     dwell = np.bincount(band, weights=np.where(backing[:-1], 0.0, dt))
     around = np.lib.stride_tricks.sliding_window_view(
         np.concatenate([np.full(PAUSE_BANDS, np.nan), dwell, np.full(PAUSE_BANDS, np.nan)]), 2 * PAUSE_BANDS + 1).copy()
