@@ -6,11 +6,10 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import pytest
+from support.gone_calibration import records_with_a_gone_calibration
 
 from estimator.cli import main
 from estimator.evaluation.bench import bench, configurations
@@ -37,23 +36,8 @@ def marker_model(synthetic_dataset, synthetic, tmp_path_factory) -> Path:
 def folder(tmp_path_factory) -> tuple[Path, Path]:
     """(records folder, the missing calibration): a good record and one whose marker finger names a
     calibration that is gone (the estimating finger's is there)."""
-    from teleop.catalogue import load_catalogue
-    from teleop.record import write_record
-    from teleop.settings import CONFIG_DIR
-    from teleop.sim.grasp import simulate_grasp
-
-    out = tmp_path_factory.mktemp("marker_calibration_gone")
-    settings = load_settings()
-    stress_ball = next(o for o in load_catalogue(CONFIG_DIR / "objects.toml") if o.name == "stress_ball")
-    missing = out / "gone" / "marker-calibration.npz"
-    (out / "records").mkdir()
-    for i, name in enumerate(("kept", "moved")):
-        record, _ = simulate_grasp(stress_ball, settings=settings, rng=np.random.default_rng(30 + i), seed=30 + i)
-        if name == "moved":
-            record = replace(record, sensors=tuple(replace(s, calibration=str(missing)) if s.markers else s
-                                                   for s in record.sensors))
-        write_record(record, out / "records" / f"{name}.grasp")
-    return out / "records", missing
+    return records_with_a_gone_calibration(tmp_path_factory.mktemp("marker_calibration_gone"), seed=30,
+                                           sensors=lambda s: s.markers)
 
 
 def marker_finger(record) -> str:

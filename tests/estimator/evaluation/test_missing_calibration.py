@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import pytest
+from support.gone_calibration import records_with_a_gone_calibration
 
 from estimator.cli import main
 from estimator.evaluation.compare import NothingToCompare, compare_models
@@ -27,23 +26,7 @@ def folder(tmp_path_factory) -> tuple[Path, Path]:
 
     Objects are renamed so that the shipped model did not train on them (``compare`` scores them).
     """
-    from teleop.catalogue import load_catalogue
-    from teleop.record import write_record
-    from teleop.settings import CONFIG_DIR
-    from teleop.sim.grasp import simulate_grasp
-
-    out = tmp_path_factory.mktemp("calibration_gone")
-    settings = load_settings()
-    stress_ball = next(o for o in load_catalogue(CONFIG_DIR / "objects.toml") if o.name == "stress_ball")
-    missing = out / "gone" / "calibration.npz"
-    (out / "records").mkdir()
-    for i, name in enumerate(("kept", "moved")):
-        record, _ = simulate_grasp(stress_ball, settings=settings, rng=np.random.default_rng(20 + i), seed=20 + i)
-        record = replace(record, label=replace(record.label, object_name=f"unseen_{name}"))
-        if name == "moved":
-            record = replace(record, sensors=tuple(replace(s, calibration=str(missing)) for s in record.sensors))
-        write_record(record, out / "records" / f"{name}.grasp")
-    return out / "records", missing
+    return records_with_a_gone_calibration(tmp_path_factory.mktemp("calibration_gone"), seed=20, rename=True)
 
 
 def last_json(capsys) -> dict:

@@ -7,7 +7,6 @@ import json
 import os
 import re
 import shlex
-import shutil
 import socket
 import sys
 import threading
@@ -15,13 +14,13 @@ import time
 import tty
 
 import pytest
+from support.rig_settings import rig_settings
 
 from teleop.bus.security import init_keys
 from teleop.cli import main
 from teleop.errors import ComplianceTeleopError
 from teleop.operator import FOLLOW_RATE_HZ
 from teleop.settings import BusSettings, Settings, default_settings_path, load_settings
-from teleop.settings_edit import update_settings_file
 from teleop.system.doctor import (
     Check,
     _judge,  # the verdict on readings, without reading a device
@@ -45,13 +44,6 @@ def _closed_port() -> int:
 def _doctor(capsys, *argv: str) -> tuple[int, dict]:
     code = main(["doctor", "--json", "--duration-s", "1", *argv])
     return code, json.loads(capsys.readouterr().out)
-
-
-def _copy(tmp_path, changes):
-    path = tmp_path / "rig.toml"
-    shutil.copy(default_settings_path(), path)
-    update_settings_file(path, changes)
-    return path
 
 
 def _edited(tmp_path, line, replacement):
@@ -85,7 +77,7 @@ def test_the_shipped_simulated_rig_is_ready(capsys):
 @pytest.mark.slow
 def test_unplugged_devices_are_named_with_what_to_do(tmp_path, capsys):
     cell_port, camera_port = _closed_port(), _closed_port()
-    path = _copy(tmp_path, {
+    path = rig_settings(tmp_path, {
         "load_cell.backend": "tcp", "load_cell.address": f"tcp://127.0.0.1:{cell_port}",
         "sensors.left.camera_backend": "opencv", "sensors.left.camera_source": f"http://127.0.0.1:{camera_port}/",
         "sensors.right.camera_backend": "opencv",  # and no source at all
@@ -108,7 +100,7 @@ def test_unplugged_devices_are_named_with_what_to_do(tmp_path, capsys):
 @pytest.mark.parametrize("name", ["gamepad", "sim"])
 def test_the_operators_input_device_is_opened_and_read(tmp_path, capsys, name):
     absent = tmp_path / "no-such-event"  # a gamepad that is not plugged in
-    path = _copy(tmp_path, {"operator.input": name, "operator.gamepad_path": str(absent)})
+    path = rig_settings(tmp_path, {"operator.input": name, "operator.gamepad_path": str(absent)})
     code, report = _doctor(capsys, "--settings", str(path))
     device = next(d for d in report["devices"] if d["name"] == f"input {name}")
     if name == "sim":
@@ -146,7 +138,7 @@ def test_a_silent_serial_cell_says_no_data_and_the_table_says_not_ready(tmp_path
     tty.setraw(slave)
     port = os.ttyname(slave)
     try:
-        path = _copy(tmp_path, {"load_cell.backend": "serial", "load_cell.port": port})
+        path = rig_settings(tmp_path, {"load_cell.backend": "serial", "load_cell.port": port})
         code = main(["doctor", "--settings", str(path), "--duration-s", "1"])
     finally:
         os.close(master)
@@ -171,7 +163,7 @@ def test_a_serial_cell_sending_garbage_is_not_told_to_check_its_cable(tmp_path, 
     sender = threading.Thread(target=babble, daemon=True)
     sender.start()
     try:
-        path = _copy(tmp_path, {"load_cell.backend": "serial", "load_cell.port": port})
+        path = rig_settings(tmp_path, {"load_cell.backend": "serial", "load_cell.port": port})
         code = main(["doctor", "--settings", str(path), "--duration-s", "1"])
     finally:
         done.set()
@@ -186,7 +178,7 @@ def test_a_serial_cell_sending_garbage_is_not_told_to_check_its_cable(tmp_path, 
 @pytest.mark.slow
 def test_a_serial_cell_without_pyserial_is_a_no_row_naming_the_extra(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "serial", None)  # `import serial` raises ImportError, as when not installed
-    path = _copy(tmp_path, {"load_cell.backend": "serial", "load_cell.port": "/dev/ttyUSB9"})
+    path = rig_settings(tmp_path, {"load_cell.backend": "serial", "load_cell.port": "/dev/ttyUSB9"})
     code, report = _doctor(capsys, "--settings", str(path))
     cell = next(d for d in report["devices"] if d["name"] == "load cell")
     assert code == 1 and not cell["ok"]
@@ -288,14 +280,14 @@ def test_a_read_too_short_to_show_the_configured_rates_is_refused_saying_the_min
 
 
 def test_the_shortest_read_follows_the_slowest_configured_device(tmp_path, capsys):
-    path = _copy(tmp_path, {"gripper.width_read_hz": 100.0})
+    path = rig_settings(tmp_path, {"gripper.width_read_hz": 100.0})
     with pytest.raises(ComplianceTeleopError, match=r"duration_s = 0.05: .* at least 0.1 s, 3 periods of the "
                                                     r"slowest configured device \(\[sensors.left\] camera_hz = 30 Hz\)"):
         check_devices(load_settings(path), duration_s=0.05)
 
 
 def test_the_shortest_read_said_is_one_that_is_accepted(tmp_path):
-    path = _copy(tmp_path, {"gripper.width_read_hz": 7.0})  # 3 periods: 0.4286 s
+    path = rig_settings(tmp_path, {"gripper.width_read_hz": 7.0})  # 3 periods: 0.4286 s
     with pytest.raises(ComplianceTeleopError, match=r"at least 0.43 s") as caught:
         check_duration(load_settings(path), 0.4)
     said = float(re.search(r"at least ([0-9.]+) s", str(caught.value)).group(1))
@@ -324,7 +316,7 @@ def _calibrate_args(problem: str, monkeypatch) -> argparse.Namespace:
 
 
 def test_a_missing_calibration_is_a_problem_for_the_estimators_finger(tmp_path, monkeypatch):
-    path = _copy(tmp_path, {"sensors.left.calibration": "calibration/absent.npz", "sensors.right.calibration": ""})
+    path = rig_settings(tmp_path, {"sensors.left.calibration": "calibration/absent.npz", "sensors.right.calibration": ""})
     checks = {c.name: c for c in check_calibrations(load_settings(path), path)}
     assert not checks["calibration left"].ok
     assert "absent.npz" in checks["calibration left"].problem
@@ -336,7 +328,7 @@ def test_a_missing_calibration_is_a_problem_for_the_estimators_finger(tmp_path, 
 
 
 def test_no_calibration_at_all_suggests_one_beside_the_settings_and_where_to_name_it(tmp_path, monkeypatch):
-    path = _copy(tmp_path, {"sensors.left.calibration": ""})
+    path = rig_settings(tmp_path, {"sensors.left.calibration": ""})
     problem = {c.name: c for c in check_calibrations(load_settings(path), path)}["calibration left"].problem
     args = _calibrate_args(problem, monkeypatch)
     assert args.out == str(tmp_path / "calibration-left.npz")

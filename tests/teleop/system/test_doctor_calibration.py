@@ -11,19 +11,12 @@ import time
 from datetime import UTC, datetime, timedelta
 
 import pytest
+from support.rig_settings import rig_settings
 
 from estimator.perception.calibration import load_calibration
 from teleop.cli import main
 from teleop.settings import config_dir, default_settings_path, load_settings
-from teleop.settings_edit import update_settings_file
 from teleop.system.doctor import check_calibrations
-
-
-def _rig(tmp_path, changes):
-    path = tmp_path / "rig.toml"
-    shutil.copy(default_settings_path(), path)
-    update_settings_file(path, changes)
-    return path
 
 
 def _file(finger):
@@ -31,7 +24,7 @@ def _file(finger):
 
 
 def test_swapped_calibrations_are_named_and_the_estimators_finger_is_not_ready(tmp_path, capsys):
-    path = _rig(tmp_path, {"sensors.left.calibration": _file("right"), "sensors.right.calibration": _file("left")})
+    path = rig_settings(tmp_path, {"sensors.left.calibration": _file("right"), "sensors.right.calibration": _file("left")})
     checks = {c.name: c for c in check_calibrations(load_settings(path), path)}
     left, right = checks["calibration left"], checks["calibration right"]
     # the estimator's finger reads with the right sensor's colours: wrong slopes, so not ready
@@ -51,7 +44,7 @@ def test_swapped_calibrations_are_named_and_the_estimators_finger_is_not_ready(t
 @pytest.mark.slow
 def test_another_sensors_calibration_is_a_warning_in_the_table_and_the_json(tmp_path, capsys):
     # Made for a sensor not in these settings (its twin, say): the estimator runs on it, warning.
-    path = _rig(tmp_path, {"sensors.left.calibration": _file("right"),
+    path = rig_settings(tmp_path, {"sensors.left.calibration": _file("right"),
                            "sensors.right.serial": "twin-right", "sensors.right.calibration": ""})
     assert main(["doctor", "--json", "--settings", str(path), "--duration-s", "0.3"]) in (0, 1)
     report = json.loads(capsys.readouterr().out)
@@ -95,7 +88,7 @@ def _ages(path):
 
 def test_a_calibrations_age_is_its_recorded_creation_not_its_files(tmp_path):
     # An installed wheel's (or a copied) calibration was "0 days old": the file's time is the copy's.
-    path = _rig(tmp_path, {"sensors.left.calibration": _calibration_copy(tmp_path, "left", _days_ago(30)),
+    path = rig_settings(tmp_path, {"sensors.left.calibration": _calibration_copy(tmp_path, "left", _days_ago(30)),
                            "sensors.right.calibration": _calibration_copy(tmp_path, "right", None)})
     old = time.time() - 10 * DAY_S
     os.utime(tmp_path / "right.npz", (old, old))
@@ -112,7 +105,7 @@ def test_a_models_age_is_its_recorded_creation_else_its_files(tmp_path, metadata
     (model / "metadata.json").write_text(json.dumps(metadata))
     old = time.time() - 5 * DAY_S
     os.utime(model / "model.onnx", (old, old))
-    path = _rig(tmp_path, {"estimator.model_path": str(model)})
+    path = rig_settings(tmp_path, {"estimator.model_path": str(model)})
     assert _ages(path)["model"] == pytest.approx(days, abs=0.11)
 
 
@@ -121,7 +114,7 @@ def test_a_model_whose_metadata_is_not_json_is_a_problem_naming_it(tmp_path):
     model.mkdir()
     (model / "model.onnx").write_bytes(b"")
     (model / "metadata.json").write_text("{not json")
-    path = _rig(tmp_path, {"estimator.model_path": str(model)})
+    path = rig_settings(tmp_path, {"estimator.model_path": str(model)})
     check = {c.name: c for c in check_calibrations(load_settings(path), path)}["model"]
     assert not check.ok
     assert f"{model / 'metadata.json'}: not a readable model metadata file" in check.problem
@@ -144,6 +137,6 @@ def test_a_copied_settings_file_is_pointed_at_the_shipped_calibrations(tmp_path)
 
 
 def test_a_missing_calibration_no_shipped_one_is_named_as_is_not_pointed_at_one(tmp_path):
-    path = _rig(tmp_path, {"sensors.left.calibration": "calibration/absent.npz"})
+    path = rig_settings(tmp_path, {"sensors.left.calibration": "calibration/absent.npz"})
     problem = {c.name: c for c in check_calibrations(load_settings(path), path)}["calibration left"].problem
     assert "shipped" not in problem and "run `estimator calibrate" in problem

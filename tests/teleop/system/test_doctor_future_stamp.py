@@ -6,26 +6,18 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import shutil
 import time
 from datetime import UTC, datetime, timedelta
 
 import pytest
+from support.rig_settings import rig_settings
 
 from estimator.perception.calibration import load_calibration
-from teleop.settings import config_dir, default_settings_path, load_settings
-from teleop.settings_edit import update_settings_file
+from teleop.settings import config_dir, load_settings
 from teleop.system.doctor import _table, check_calibrations
 
 DAY_S = 86400.0
 FUTURE = (datetime.now(UTC) + timedelta(days=400)).isoformat(timespec="seconds")
-
-
-def _rig(tmp_path, changes):
-    path = tmp_path / "rig.toml"
-    shutil.copy(default_settings_path(), path)
-    update_settings_file(path, changes)
-    return path
 
 
 def _calibration_stamped(tmp_path, finger, created_utc):
@@ -46,7 +38,7 @@ def _assert_future(check, stamp):
 
 
 def test_a_calibration_created_in_the_future_is_a_warning_not_a_negative_age(tmp_path):
-    path = _rig(tmp_path, {"sensors.left.calibration": _calibration_stamped(tmp_path, "left", FUTURE),
+    path = rig_settings(tmp_path, {"sensors.left.calibration": _calibration_stamped(tmp_path, "left", FUTURE),
                            "sensors.right.calibration": str(config_dir() / "calibration" / "sim-wedge-right.npz")})
     checks = _checks(path)
     _assert_future(checks["calibration left"], f"created_utc {FUTURE}")
@@ -64,13 +56,13 @@ def test_a_model_stamped_in_the_future_is_a_warning_not_a_negative_age(tmp_path,
     (model / "metadata.json").write_text(json.dumps(metadata))
     later = time.time() + 3 * DAY_S  # the file's time, where no creation is recorded
     os.utime(model / "model.onnx", (later, later))
-    check = _checks(_rig(tmp_path, {"estimator.model_path": str(model)}))["model"]
+    check = _checks(rig_settings(tmp_path, {"estimator.model_path": str(model)}))["model"]
     _assert_future(check, f"created_utc {FUTURE}" if metadata else "its file time")
 
 
 def test_a_stamp_within_a_minute_ahead_is_age_zero(tmp_path):
     soon = (datetime.now(UTC) + timedelta(seconds=20)).isoformat(timespec="seconds")
-    path = _rig(tmp_path, {"sensors.left.calibration": _calibration_stamped(tmp_path, "left", soon)})
+    path = rig_settings(tmp_path, {"sensors.left.calibration": _calibration_stamped(tmp_path, "left", soon)})
     left = _checks(path)["calibration left"]
     assert left.detail["age_days"] == 0.0 and left.warning is None
 
