@@ -19,7 +19,13 @@ from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_
 from teleop.bus.messages import EstimateBody
 from teleop.catalogue import ObjectSpec
 
-__all__ = ["GraspOutcome", "ReportReader"]
+__all__ = ["GraspOutcome", "ReportReader", "display_felt_pa"]
+
+
+def display_felt_pa(e_pa: float | None, *, unknown: bool, e_soft_pa: float | None) -> float | None:
+    """The modulus a ``display`` message renders, as the operator feels it: its ``E_pa``; the display's
+    soft end ``e_soft_pa`` when it has none (stiffness 0: free); None when it showed the modulus unknown."""
+    return None if unknown else (e_pa if e_pa is not None else e_soft_pa)
 
 
 class ReportReader:
@@ -91,8 +97,8 @@ class GraspOutcome:
                 self.t_contact_s = float(body.t_s[reached[0]])
         elif message.type == "display" and body.phase == "active":  # not the fade after the grasp
             soft_end = self.display_range[0] if self.display_range else None
-            e_pa = None if body.unknown else (body.E_pa if body.E_pa is not None else soft_end)
-            self.display_track.append((message.t_capture_s, e_pa))
+            self.display_track.append((message.t_capture_s, display_felt_pa(body.E_pa, unknown=body.unknown,
+                                                                            e_soft_pa=soft_end)))
 
     @property
     def done(self) -> bool:

@@ -45,6 +45,7 @@ from teleop.session.export import session_grasps
 from teleop.session.logfile import LogReader
 from teleop.staging import staged, staged_dir
 from teleop.system.demo_table import felt_line
+from teleop.system.outcome import display_felt_pa
 from teleop.system.report_data import (
     GraspView,
     ReportError,
@@ -123,9 +124,16 @@ def _display_cell(view: GraspView, recorded: bool) -> str:
     return f"{d.stiffness:.2f} of range" + ("" if d.e_pa is None else f" (~{_pa(d.e_pa)} Pa)")
 
 
-def _felt_pa(view: GraspView, display_range: tuple[float, float]) -> float | None:
-    """The modulus the display renders for the final estimate, by its own mapping (as ``estimator
-    evaluate`` scores it); None without a final estimate, for a refusal and when shown unknown."""
+def _felt_pa(view: GraspView, recorded: bool, display_range: tuple[float, float]) -> float | None:
+    """The modulus the operator felt for the grasp. With the display recorded: what it rendered
+    (:attr:`GraspView.rendered`, read as ``teleop demo`` reads it); None when it rendered nothing for
+    the grasp or showed the modulus unknown. Without: the display's mapping of the final estimate
+    (as ``estimator evaluate`` scores it); None without a final estimate, for a refusal and when
+    shown unknown."""
+    if recorded:
+        rendered = view.rendered
+        return None if rendered is None else display_felt_pa(rendered.e_pa, unknown=rendered.unknown,
+                                                             e_soft_pa=display_range[0])
     final = view.final
     if final is None or final.e_pa is None:
         return None
@@ -133,21 +141,28 @@ def _felt_pa(view: GraspView, display_range: tuple[float, float]) -> float | Non
     return felt_pa(row, display_range_pa=display_range)
 
 
-def _felt_cell(view: GraspView, display_range: tuple[float, float]) -> str:
-    if view.final is None or view.final.e_pa is None or not view.label_pa:
+def _felt_cell(view: GraspView, recorded: bool, display_range: tuple[float, float]) -> str:
+    if not view.label_pa:
         return DASH
-    felt = _felt_pa(view, display_range)
+    if recorded and view.rendered is None:
+        return "not rendered"
+    if not recorded and (view.final is None or view.final.e_pa is None):
+        return DASH
+    felt = _felt_pa(view, recorded, display_range)
     if felt is None:
         return "shown unknown"
     # signed, as `teleop demo`'s table prints it: negative = felt softer than the label (+ 0.0: no "-0.00")
     return format(round(felt_log10_offset(felt, view.label_pa, display_range_pa=display_range), 2) + 0.0, "+.2f")
 
 
-def _felt_line(views: Sequence[GraspView], display_range: tuple[float, float]) -> str:
-    """What the operator felt over the labelled grasps: the demo's closing line."""
+def _felt_line(views: Sequence[GraspView], recorded: bool, display_range: tuple[float, float]) -> str:
+    """What the operator felt over the labelled grasps: the demo's closing line; without the display
+    recorded, it says the felt errors are the mapping's of the final estimates."""
     labelled = [v for v in views if v.label_pa]
-    felt = [(v.label_pa, f) for v in labelled if (f := _felt_pa(v, display_range)) is not None]
+    felt = [(v.label_pa, f) for v in labelled if (f := _felt_pa(v, recorded, display_range)) is not None]
     line = felt_line(felt, display_range, grasps=len(labelled))
+    if not recorded:
+        line += "; the log has no display messages: felt as the display's mapping renders the final estimates"
     return f"<p>{_e(line[:1].upper() + line[1:])}.</p>" if labelled else ""
 
 
@@ -184,12 +199,13 @@ def _summary(views: Sequence[GraspView], recorded: bool, display_range: tuple[fl
         final = v.final
         cells = (f'<a href="#{_e(_anchor(v))}">{_e(v.grasp_id)}</a>', _e(v.object_name or DASH),
                  _e(DASH if v.label_pa is None else f"{_pa(v.label_pa)} Pa"), _e(_final_cell(v)), _e(_interval_cell(v)),
-                 _e(final.state if final else DASH), _e(_display_cell(v, recorded)), _e(_felt_cell(v, display_range)))
+                 _e(final.state if final else DASH), _e(_display_cell(v, recorded)),
+                 _e(_felt_cell(v, recorded, display_range)))
         rows.append("<tr>" + "".join(
             f'<td class="num">{c}</td>' if i in (2, 3, 7) else f"<td>{c}</td>" for i, c in enumerate(cells)
         ) + "</tr>")
     return ('<table class="summary"><thead><tr>' + "".join(f"<th>{_e(h)}</th>" for h in head)
-            + "</tr></thead><tbody>" + "".join(rows) + "</tbody></table>" + _felt_line(views, display_range))
+            + "</tr></thead><tbody>" + "".join(rows) + "</tbody></table>" + _felt_line(views, recorded, display_range))
 
 
 def _anchor(view: GraspView) -> str:
@@ -246,8 +262,9 @@ def _page(log: Path, info_lines: Sequence[str], views: Sequence[GraspView], figu
         "<h2>Summary</h2>",
         '<p class="meta">The estimates are the live session\'s final estimates, as the estimator published '
         "them during the session (`estimator estimate` on the exported records may differ). Felt error: "
-        "decades from the label (clipped to the display's range) to what the display rendered; negative: "
-        "felt softer than the label.</p>",
+        "decades from the label (clipped to the display's range) to what the display rendered"
+        + ("" if recorded else " (not recorded: its mapping of the final estimate)")
+        + "; negative: felt softer than the label.</p>",
         _summary(views, recorded, display_range),
         _figure("predictions.png", figures["predictions.png"], "predictions versus label",
                 "Final estimates against their labels (log-log); grey: within a factor 2."),
