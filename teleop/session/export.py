@@ -267,12 +267,11 @@ class _Assembler:
         reader = self.reader
         for grasp_id, grasp in self.open.items():
             reason = "the log stops before the grasp's end event"
-            if grasp_id in self.ended_by_others:  # the log goes on: its node restarted or went silent
+            if lost := self._lost(grasp.start_log_ns, 2**64):
+                reason = f"its end event is lost: the log is damaged ({lost})"
+            elif grasp_id in self.ended_by_others:  # the log goes on: its node restarted or went silent
                 reason = (f"its publisher {grasp.source!r} never ended it (the {self.ended_by_others[grasp_id]} "
                           "did: the robot node restarted or went silent during the grasp)")
-            lost = self._lost(grasp.start_log_ns, 2**64)
-            if lost:
-                reason = f"its end event is lost: the log is damaged ({lost})"
             elif reader is not None and reader.stopped and reader.damage:
                 reason = f"the log stops at damage before the grasp's end event ({reader.damage})"
             yield GraspExport(grasp_id, reason=reason, dropped=dict(grasp.dropped), refused=self.refused[grasp_id])

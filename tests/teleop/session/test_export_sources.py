@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -86,3 +87,19 @@ def test_untagged_data_captured_before_the_start_is_dropped_and_counted():
     assert np.array_equal(grasp.record.stream("right").t_s, [10.0, 10.2])
     assert np.array_equal(grasp.record.force_n.t_s, [10.15, 10.2])
     assert grasp.dropped == {"frame/right": 2, "force": 1}
+
+
+def test_a_grasp_the_estimator_ended_in_a_log_cut_short_is_not_blamed_on_the_damage():
+    # The robot node restarted mid-grasp (the estimator ended it) and, later, the recorder was killed:
+    # the log stops at damage, but after the grasp the estimator ended; one it did not end is the damage's.
+    cut = SimpleNamespace(stopped=True, damage="the file ends inside a chunk", lost=[])
+    assembler = _Assembler(path=Path("s.mcap"), settings=load_settings(), objects={}, source="simulated",
+                           session_version="0", session="s", labels={}, calibration_files={}, reader=cut)
+    messages = [_message("robot", "grasp_event", 1.0, event="start", grasp_id="x"), *_grasp_data("x", 1.0),
+                _message("estimator", "grasp_event", 2.0, event="end", grasp_id="x"),
+                _message("robot", "grasp_event", 3.0, event="start", grasp_id="y"), *_grasp_data("y", 3.0)]
+    assert [grasp for message in messages for grasp in assembler.feed(message)] == []
+    x, y = assembler.unfinished()
+    assert x.reason == ("its publisher 'robot' never ended it (the estimator did: the robot node restarted or "
+                        "went silent during the grasp)")
+    assert y.reason == "the log stops at damage before the grasp's end event (the file ends inside a chunk)"
