@@ -21,6 +21,7 @@ says) and compares it with the stored one (0: none stored).
 from __future__ import annotations
 
 import json
+import os
 import struct
 import zlib
 from collections.abc import Iterator
@@ -200,13 +201,17 @@ def recovery_metadata(file: Any, summary: Summary | None, size: int) -> Iterator
 
 
 def describe(exc: Exception, file: Any, start: int, size: int, good_bytes: int, uncut: str | None) -> str:
-    """What is wrong with the record at byte ``start`` of ``file`` (``size`` bytes, read without
-    fault up to ``good_bytes``); ``exc``: the failure reading it; ``uncut``: why the file is not
-    cut short (None: nothing says so)."""
+    """What is wrong with the record at byte ``start`` of ``file`` (``size`` bytes when it was opened,
+    read without fault up to ``good_bytes``); ``exc``: the failure reading it; ``uncut``: why the file
+    is not cut short (None: nothing says so). A file that grew while it was read (a log still being
+    written) is described as it was read, with its size now and a word that it grew."""
+    now = _size_now(file, size)
+    grew = "" if now == size else (f"; the file grew from {size} to {now} bytes while it was read: "
+                                   "it is still being written")
     if good_bytes == size:
         return (
             f"the file ends after its last complete record (byte {size}) "
-            "without a summary and footer"
+            "without a summary and footer" + grew
         )
     what = type(exc).__name__ + (f": {exc}" if str(exc) else "")
     head = record_head(file, start)
@@ -223,11 +228,20 @@ def describe(exc: Exception, file: Any, start: int, size: int, good_bytes: int, 
         length = "" if head is None else f" of {head[1]} bytes"
         if uncut is None:  # really cut short, unless a later chunk shows it is damage (LogReader._read_on)
             return (
-                f"the file ends inside the record after byte {start} of {size} "
-                f"({kind}{length} starts at byte {start})"
+                f"the file ends inside the record after byte {start} of {now} "
+                f"({kind}{length} starts at byte {start}){grew}"
             )
         return (
-            f"damaged record after byte {start} of {size} ({kind} whose length{length} runs "
-            f"past the end of the file, though {uncut})"
+            f"damaged record after byte {start} of {now} ({kind} whose length{length} runs "
+            f"past the end of the file, though {uncut}){grew}"
         )
-    return f"damaged record after byte {start} of {size} ({kind} of {head[1]} bytes: {what})"
+    return f"damaged record after byte {start} of {now} ({kind} of {head[1]} bytes: {what}){grew}"
+
+
+def _size_now(file: Any, size: int) -> int:
+    """The size of ``file`` now (a log still being written grows while it is read); ``size`` for a
+    file object that has no file on disk."""
+    try:
+        return os.fstat(file.fileno()).st_size
+    except (AttributeError, OSError, ValueError):  # an in-memory file: no descriptor
+        return size
