@@ -14,7 +14,8 @@ frozen :class:`~haptics.operator_status.LoopStatus` ten times a second. Panels:
   ``E >= ...``), provisional or final, and the estimator's reason (cut to fit a short terminal),
   and that it is not current while the estimator is down;
 * **display**: what the softness display renders: the fraction of its range and the modulus it
-  stands for, rigid or unknown, the level written of its full scale;
+  stands for, rigid or unknown, the level written of its full scale, and how many decades wide the
+  estimate's interval is on the display's range (its whole width, not a +/-);
 * **operator**: the input device, the grip as a bar and the target width it asks for, the
   dead-man enable, the mode (follow, discrete grasp, idle), the discrete grasp's force;
 * **notices**: the robot's last notice (a refused command, the watchdog), the watchdog's kept
@@ -65,8 +66,9 @@ from haptics.mapping import rendered_value_pa
 from haptics.operator_loop import LoopStatus, OperatorLoop
 from teleop.bus.messages import EstimateBody
 from teleop.labels import LabelError, describe_label, parse_label
+from teleop.units import format_pa
 
-__all__ = ["CONSOLE_BUTTON_KEYS", "MIN_SIZE", "OperatorConsole", "estimate_line", "format_pa", "small_terminal_line"]
+__all__ = ["CONSOLE_BUTTON_KEYS", "MIN_SIZE", "OperatorConsole", "estimate_line", "small_terminal_line"]
 
 log = logging.getLogger(__name__)
 
@@ -87,16 +89,6 @@ TALL_LINES = 50  # ... so that the operator and notices panels stay on screen be
 WIDE_INTERVAL_DECADES = 1.0
 #: ... unless the grasp already reached this share of the settings' maximum force.
 FULL_SQUEEZE = 0.9
-
-
-def format_pa(value: float | None) -> str:
-    """A modulus for people: ``3.6 MPa``, ``9 kPa``, ``200 GPa``; ``-`` for None."""
-    if value is None or not math.isfinite(value):
-        return "-"
-    for scale, unit in ((1e9, "GPa"), (1e6, "MPa"), (1e3, "kPa")):
-        if value >= scale:
-            return f"{value / scale:.3g} {unit}"
-    return f"{value:.3g} Pa"
 
 
 def estimate_line(estimate: EstimateBody | None) -> str:
@@ -483,7 +475,7 @@ class OperatorConsole(App):
             display = [f"{what}{level}", f"{_bar(view.stiffness)}"]
             if shown.phase in ("active", "stale"):
                 display.append(f"phase {shown.phase}  {'provisional' if shown.provisional else 'final'}  "
-                               f"+/- {shown.uncertainty_decades:.2f} decade")
+                               f"interval {shown.uncertainty_decades:.2f} decades wide")
             if view.down("display"):  # its last rendering is still shown below: say it is not current
                 display.insert(0, "the renderer is down: its last report below is not current (start `haptics serve`)")
         felt = "-" if status.operator_force_n is None else f"{status.operator_force_n:.1f} N"

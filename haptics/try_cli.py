@@ -19,6 +19,7 @@ from haptics.mapping import (
 )
 from haptics.settings import display_settings
 from teleop.settings import load_settings
+from teleop.units import format_pa
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -70,8 +71,9 @@ def run(args: argparse.Namespace) -> int:
     flags = [name for name in ("rigid", "unknown", "provisional") if getattr(command, name)]
     steps = just_noticeable_steps(settings.e_soft_pa, settings.e_rigid_pa)
     out = sys.stderr if args.json else sys.stdout  # with --json, stdout is the JSON alone
-    print(f"E {update.value_pa} Pa ({args.state}) -> {percept.stiffness:.3f} of the range "
-          f"{settings.e_soft_pa:.3g}..{settings.e_rigid_pa:.3g} Pa ({steps:.0f} just-noticeable steps), "
+    modulus = "no modulus" if update.value_pa is None else f"E {format_pa(update.value_pa)}"
+    print(f"{modulus} ({args.state}) -> {percept.stiffness:.3f} of the range "
+          f"{format_pa(settings.e_soft_pa)}..{format_pa(settings.e_rigid_pa)} ({steps:.0f} just-noticeable steps), "
           f"level {command.level}/{display.info.level_max}, uncertainty "
           f"{percept.uncertainty_decades:.2f} decades, flags: {', '.join(flags) or 'none'}", file=out)
     if percept.unknown and args.state != "insufficient_data":

@@ -69,6 +69,7 @@ from typing import TYPE_CHECKING, Any
 
 from teleop.errors import TeleopError
 from teleop.physics import E_MAX_PA
+from teleop.units import format_pa
 
 if TYPE_CHECKING:  # at run time the bus's messages import this module
     from teleop.bus.messages import LabelBody
@@ -254,15 +255,8 @@ def describe_label(label: ObjectLabel | LabelBody) -> str:
     """A label (as given, or the body of a ``label`` message) in one line for people:
     ``stress_ball  E 40 kPa  (catalogue)``."""
     modulus = label.modulus_pa
-    value = "E from the catalogue" if modulus is None else f"E {_format_pa(modulus)}"
+    value = "E from the catalogue" if modulus is None else f"E {format_pa(modulus)}"
     return f"{label.object_name}  {value}  ({label.source})"
-
-
-def _format_pa(value: float) -> str:
-    for scale, unit in ((1e9, "GPa"), (1e6, "MPa"), (1e3, "kPa")):
-        if value >= scale:
-            return f"{value / scale:.3g} {unit}"
-    return f"{value:.3g} Pa"
 
 
 def _by_name(catalogue: Iterable[Any]) -> dict[str, Any]:

@@ -12,6 +12,7 @@ from haptics.mapping import stiffness_fraction
 from haptics.protocol import REPORT_DESCRIPTOR, decode_output_report
 from haptics.settings import display_settings
 from teleop.settings import default_settings_path, load_settings
+from teleop.units import format_pa
 
 
 def last_json(capsys) -> dict:
@@ -106,6 +107,13 @@ def test_try_maps_and_writes_to_the_simulated_display(capsys):
     assert report.command.level == expected
     assert report.command.uncertainty == round(20 * 0.6020599913)  # log10(4e5 / 1e5)
     assert data["status"] == {"state": "rendering", "level": expected, "faults": [], "sequence": 0}
+
+
+def test_try_says_the_modulus_and_the_range_to_three_figures(capsys):
+    assert main(["try", "--backend", "sim", "--e-pa", "30316.129536967757"]) == 0
+    line = capsys.readouterr().out.splitlines()[0]
+    rigid_end = format_pa(load_settings().resolution_limit_pa)  # the shipped range's stiff end
+    assert line.startswith("E 30.3 kPa (ok) -> ") and f"of the range 5 kPa..{rigid_end} (" in line
 
 
 def test_try_without_a_modulus_names_the_option(capsys):

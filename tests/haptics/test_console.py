@@ -12,7 +12,7 @@ import time
 import pytest
 from support.operator_fakes import NOBODY, ConsoleLink, until
 
-from haptics.console import OperatorConsole, estimate_line, format_pa, squeeze_hint
+from haptics.console import OperatorConsole, estimate_line, squeeze_hint
 from haptics.inputs.keyboard import KeyboardInput
 from haptics.mapping import EstimateUpdate
 from haptics.operator_link import OperatorView, Peer
@@ -27,12 +27,12 @@ DISPLAY = DisplayBody(grasp_id="g", phase="active", stiffness=0.87, uncertainty_
 
 
 def test_estimates_and_moduli_read_as_people_write_them():
-    assert format_pa(3.6e6) == "3.6 MPa" and format_pa(9e3) == "9 kPa" and format_pa(2e11) == "200 GPa"
-    assert format_pa(None) == "-" and format_pa(12.0) == "12 Pa"
     assert estimate_line(None) == "no estimate yet"
     assert estimate_line(ESTIMATE) == "E = 3.6 MPa  interval [2 MPa, 6 MPa]  ok  final"
     bound = dataclasses.replace(ESTIMATE, state="lower_bound", E_pa=6.75e6, interval_pa=[6.75e6, None], provisional=True)
     assert estimate_line(bound) == "E >= 6.75 MPa  interval [6.75 MPa, -]  lower_bound  provisional"
+    steel = dataclasses.replace(ESTIMATE, E_pa=2e11, interval_pa=[9.9996e8, 1e12])  # the model's cap: 1 TPa
+    assert estimate_line(steel) == "E = 200 GPa  interval [1 GPa, 1 TPa]  ok  final"
     none = dataclasses.replace(ESTIMATE, state="insufficient_data", E_pa=None, interval_pa=[None, None])
     assert estimate_line(none) == "no modulus (insufficient data)  final"
 
@@ -99,6 +99,8 @@ def test_a_session_with_the_keyboard_in_the_console():
                 assert "rubber_duck" in texts["grasp"] and "31.2 mm" in texts["grasp"] and "11.0 N" in texts["grasp"]
                 assert "loading phase 0.12-0.41 s" in texts["estimate"] and "7 estimate(s)" in texts["estimate"]
                 assert "stiffness 0.87 of range" in texts["display"] and "level 55/63" in texts["display"]
+                # uncertainty_decades is the interval's whole width: not a +/- (which would read twice as wide)
+                assert "interval 0.30 decades wide" in texts["display"] and "+/-" not in texts["display"]
                 assert "refused" in texts["notice"] and "a discrete grasp is under way" in texts["notice"]
                 assert "mode discrete" in texts["input"]
                 await pilot.press("r")

@@ -9,6 +9,7 @@ import json
 import pytest
 
 from haptics.cli import main
+from teleop.units import format_pa
 
 
 @pytest.mark.parametrize("options", [
@@ -34,8 +35,10 @@ def test_try_names_the_modulus_and_fraction_as_estimate_and_the_renderer_do(caps
     assert "e_pa" not in data and "stiffness" not in data
     # A refusal carries no modulus, even when one was given (estimator estimate gives E_pa null).
     assert main(["try", "--backend", "sim", "--state", "insufficient_data", "--e-pa", "2e5", "--json"]) == 0
-    data = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)
     assert data["E_pa"] is None and data["display_fraction"] == 0.0 and data["command"]["unknown"] is True
+    assert captured.err.startswith("no modulus (insufficient_data) -> ")  # not "E None Pa"
 
 
 @pytest.mark.parametrize(("options", "e_pa"), [
@@ -48,4 +51,4 @@ def test_try_gives_the_modulus_rendered_for_a_bound_from_the_interval(options, e
     captured = capsys.readouterr()
     data = json.loads(captured.out)
     assert data["E_pa"] == e_pa and 0.0 < data["display_fraction"] < 1.0
-    assert f"E {e_pa} Pa ({data['state']})" in captured.err  # the text line says it too, not "E None"
+    assert f"E {format_pa(e_pa)} ({data['state']})" in captured.err  # the text line says it too, not "E None"

@@ -91,6 +91,7 @@ def test_labels_from_the_catalogue_a_reading_or_a_modulus(catalogue):
     assert label.body("g1") == {"grasp_id": "g1", "object_name": "gel pad", "modulus_pa": label.modulus_pa,
                                 "source": "durometer", "detail": label.detail}
     assert describe_label(catalogue_label("stress_ball", catalogue)) == "stress_ball  E 40 kPa  (catalogue)"
+    assert describe_label(modulus_label("pad", 999_600.0)) == "pad  E 1 MPa  (datasheet)"  # not "1e+03 kPa"
     assert set(LABEL_SOURCES) == {"catalogue", "durometer", "datasheet", "measured"}
     with pytest.raises(LabelError, match="'stres_ball' is not in objects.toml \\(did you mean stress_ball"):
         catalogue_label("stres_ball", catalogue, where="objects.toml")
