@@ -18,7 +18,8 @@ import numpy as np
 if TYPE_CHECKING:
     from teleop.system.outcome import GraspOutcome
 
-__all__ = ["LiveView", "closing_table", "display_cell", "felt_line", "felt_summary", "models_answered", "models_line"]
+__all__ = ["LiveView", "closing_table", "display_cell", "felt_line", "felt_summary", "models_answered", "models_line",
+           "rigid_pa"]
 
 
 def _pa(value: float | None) -> str:
@@ -38,6 +39,13 @@ def _number(value: float | None, fmt: str) -> str:
 _STATE_MARK = {"ok": "", "lower_bound": ">=", "upper_bound": "<="}
 
 
+def rigid_pa(display_range: tuple[float, float] | None) -> float | None:
+    """The modulus a rigid rendering is shown and felt at: the rigid end of the display's range
+    ``display_range`` (e_soft_pa, e_rigid_pa), whatever modulus the estimate carried (a bound, at or
+    beyond it) or a rendering still ramping up to it says; None without a range."""
+    return None if display_range is None else display_range[1]
+
+
 def display_cell(outcome: GraspOutcome) -> str:
     """What the display rendered for the final estimate: ``rigid >=E``, ``unknown``, or the fraction of
     the display's range and the modulus it stands for (``0.62 ~2.1e+05``); ``-`` without a final."""
@@ -47,7 +55,8 @@ def display_cell(outcome: GraspOutcome) -> str:
     if rendered.unknown:
         return "unknown"
     if rendered.rigid:
-        return "rigid" if outcome.display_range is None else f"rigid >={_pa(outcome.display_range[1])}"
+        rigid_end = rigid_pa(outcome.display_range)
+        return "rigid" if rigid_end is None else f"rigid >={_pa(rigid_end)}"
     cell = f"{rendered.stiffness:.2f}"
     return cell if outcome.display_range is None else f"{cell} ~{_pa(outcome.display_e_pa)}"
 

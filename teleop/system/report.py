@@ -44,7 +44,7 @@ from teleop.progress import progress_bar
 from teleop.session.export import session_grasps
 from teleop.session.logfile import LogReader
 from teleop.staging import staged, staged_dir
-from teleop.system.demo_table import felt_line
+from teleop.system.demo_table import felt_line, rigid_pa
 from teleop.system.outcome import display_felt_pa
 from teleop.system.report_data import (
     GraspView,
@@ -109,9 +109,11 @@ def _interval_cell(view: GraspView) -> str:
     return f"[{'0' if low is None else _pa(low)}, {INFINITY if high is None else _pa(high)}] Pa"
 
 
-def _display_cell(view: GraspView, recorded: bool) -> str:
-    """What the display settled on for the grasp: ``unknown (free)``, ``rigid``, or the fraction of
-    its range with the modulus it stands for; ``not recorded`` for a log without display messages."""
+def _display_cell(view: GraspView, recorded: bool, display_range: tuple[float, float]) -> str:
+    """What the display settled on for the grasp: ``unknown (free)``, ``rigid`` at the rigid end of
+    its range ``display_range`` (as ``teleop demo`` shows it: :func:`~teleop.system.demo_table.rigid_pa`),
+    or the fraction of its range with the modulus it stands for; ``not recorded`` for a log without
+    display messages."""
     if not recorded:
         return "not recorded"
     d = view.rendered
@@ -120,20 +122,23 @@ def _display_cell(view: GraspView, recorded: bool) -> str:
     if d.unknown:
         return "unknown (free)"
     if d.rigid:
-        return "rigid" + ("" if d.e_pa is None else f" (\u2265 {_pa(d.e_pa)} Pa)")
+        return f"rigid (\u2265 {_pa(rigid_pa(display_range))} Pa)"
     return f"{d.stiffness:.2f} of range" + ("" if d.e_pa is None else f" (~{_pa(d.e_pa)} Pa)")
 
 
 def _felt_pa(view: GraspView, recorded: bool, display_range: tuple[float, float]) -> float | None:
     """The modulus the operator felt for the grasp. With the display recorded: what it rendered
-    (:attr:`GraspView.rendered`, read as ``teleop demo`` reads it); None when it rendered nothing for
-    the grasp or showed the modulus unknown. Without: the display's mapping of the final estimate
-    (as ``estimator evaluate`` scores it); None without a final estimate, for a refusal and when
-    shown unknown."""
+    (:attr:`GraspView.rendered`, read as ``teleop demo`` reads it: a rigid rendering at the rigid end
+    of ``display_range``); None when it rendered nothing for the grasp or showed the modulus unknown.
+    Without: the display's mapping of the final estimate (as ``estimator evaluate`` scores it); None
+    without a final estimate, for a refusal and when shown unknown."""
     if recorded:
         rendered = view.rendered
-        return None if rendered is None else display_felt_pa(rendered.e_pa, unknown=rendered.unknown,
-                                                             e_soft_pa=display_range[0])
+        if rendered is None:
+            return None
+        if rendered.rigid and not rendered.unknown:  # its last message may still be ramping up to the end
+            return rigid_pa(display_range)
+        return display_felt_pa(rendered.e_pa, unknown=rendered.unknown, e_soft_pa=display_range[0])
     final = view.final
     if final is None or final.e_pa is None:
         return None
@@ -199,7 +204,7 @@ def _summary(views: Sequence[GraspView], recorded: bool, display_range: tuple[fl
         final = v.final
         cells = (f'<a href="#{_e(_anchor(v))}">{_e(v.grasp_id)}</a>', _e(v.object_name or DASH),
                  _e(DASH if v.label_pa is None else f"{_pa(v.label_pa)} Pa"), _e(_final_cell(v)), _e(_interval_cell(v)),
-                 _e(final.state if final else DASH), _e(_display_cell(v, recorded)),
+                 _e(final.state if final else DASH), _e(_display_cell(v, recorded, display_range)),
                  _e(_felt_cell(v, recorded, display_range)))
         rows.append("<tr>" + "".join(
             f'<td class="num">{c}</td>' if i in (2, 3, 7) else f"<td>{c}</td>" for i, c in enumerate(cells)
@@ -221,7 +226,8 @@ def _anchor(view: GraspView) -> str:
     return f"grasp-{clean[:_ANCHOR_CHARS]}.{digest}"
 
 
-def _grasp_section(view: GraspView, figures: dict[str, tuple[int, int]], recorded: bool) -> str:
+def _grasp_section(view: GraspView, figures: dict[str, tuple[int, int]], recorded: bool,
+                   display_range: tuple[float, float]) -> str:
     anchor, final = _anchor(view), view.final
     label = f"{_pa(view.label_pa)} Pa ({view.label_source})" if view.label_pa else f"{DASH} (no label)"
     facts = [("label E", label),
@@ -229,7 +235,7 @@ def _grasp_section(view: GraspView, figures: dict[str, tuple[int, int]], recorde
              ("interval", _interval_cell(view)),
              ("final state", final.state if final else "no final estimate"),
              ("reason", final.reason if final else DASH),
-             ("display rendered", _display_cell(view, recorded)),
+             ("display rendered", _display_cell(view, recorded, display_range)),
              ("estimates", f"{len(view.estimates)} ({sum(e.provisional for e in view.estimates)} provisional)")]
     parts = [f'<section id="{_e(anchor)}"><h2>Grasp {_e(view.grasp_id)}: {_e(view.object_name or "unnamed")}</h2>',
              '<table class="facts">' + "".join(
@@ -245,7 +251,7 @@ def _grasp_section(view: GraspView, figures: dict[str, tuple[int, int]], recorde
     if f"{anchor}-timeline.png" in figures:
         shown = ("What the display rendered: the bottom panel (fraction of its range) and the orange step "
                  "in the estimate panel (the modulus that fraction stands for)." if view.display
-                 else "What the display rendered: " + _display_cell(view, recorded) + ".")
+                 else "What the display rendered: " + _display_cell(view, recorded, display_range) + ".")
         parts.append(_figure(f"{anchor}-timeline.png", figures[f"{anchor}-timeline.png"], "force, width, estimates",
                              "Force and width; provisional (small) and final (large) estimates with their "
                              "intervals on a log scale against the label (dashed). " + shown))
@@ -268,7 +274,7 @@ def _page(log: Path, info_lines: Sequence[str], views: Sequence[GraspView], figu
         _summary(views, recorded, display_range),
         _figure("predictions.png", figures["predictions.png"], "predictions versus label",
                 "Final estimates against their labels (log-log); grey: within a factor 2."),
-        *(_grasp_section(v, figures, recorded) for v in views),
+        *(_grasp_section(v, figures, recorded, display_range) for v in views),
         "</body></html>\n",
     ])
 

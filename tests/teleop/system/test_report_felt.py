@@ -1,5 +1,6 @@
 """``teleop report``'s felt error: what the display rendered for each grasp, as ``teleop demo`` scores
-it; a grasp it rendered nothing for is not rendered, however good its final estimate."""
+it; a grasp it rendered nothing for is not rendered, however good its final estimate; a rigid rendering
+is shown and felt at the display range's rigid end."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ import numpy as np
 from teleop.catalogue import load_catalogue
 from teleop.settings import load_settings
 from teleop.sim.grasp import simulate_grasp
-from teleop.system.report import build_report
+from teleop.system.report import _display_cell, _felt_pa, build_report
+from teleop.system.report_data import DisplayPoint, GraspView
 
 _spec = importlib.util.spec_from_file_location("_report_tests", Path(__file__).with_name("test_report.py"))
 _report_tests = importlib.util.module_from_spec(_spec)
@@ -51,3 +53,14 @@ def test_without_display_messages_the_felt_error_is_the_mappings_and_says_so(tmp
     assert [row[6:] for row in rows.values()] == [["not recorded", offset]] * 2
     assert ("2 of 2 within a factor 2, 0 dangerous misses; the log has no display messages: felt as the "
             "display's mapping renders the final estimates.") in text
+
+
+def test_a_rigid_rendering_still_ramping_when_the_grasp_ends_is_shown_and_felt_at_the_rigid_end():
+    """The renderer's last active message of a rigid grasp may be mid-ramp (stiffness 0.9992, E 6.716e6
+    Pa): the report shows and scores the rigid end, as the demo's table does (``rigid >=6.75e+06``)."""
+    display_range = (5e3, 6.75e6)
+    view = GraspView("g-steel", label_pa=2e11)
+    view.display = [DisplayPoint(1.0, "active", 0.9992, 6.716e6, True, False, False),
+                    DisplayPoint(1.5, "fading", 0.4, None, False, False, False)]
+    assert _display_cell(view, True, display_range) == "rigid (\u2265 6.75e+06 Pa)"
+    assert _felt_pa(view, True, display_range) == 6.75e6  # exact for a steel ball: +0.00 decades
