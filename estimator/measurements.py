@@ -33,8 +33,10 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "REFERENCE_FRAMES",
+    "FIT_READS",
     "REFERENCE_GUARD_S",
     "TACTILE_METHODS",
+    "FitReads",
     "GraspMeasurements",
     "calibration_path",
     "calibration_problem",
@@ -48,8 +50,37 @@ __all__ = [
     "resolve_calibration",
 ]
 
+
+@dataclass(frozen=True)
+class FitReads:
+    """What one analytical fit reads from a grasp (its row of :data:`FIT_READS`).
+
+    Attributes
+    ----------
+    depth : bool
+        Tactile frames (depth, contact features): measured only for such a fit.
+    onset_width : bool
+        A positive width at the contact onset, which normalises its strain: refused without one.
+    approach : bool
+        Its strain rests on the approach the gripper's widths give: an ok fit is a lower bound when
+        no width was read during the loading.
+    """
+
+    depth: bool
+    onset_width: bool
+    approach: bool
+
+
+#: What each analytical method (:data:`~estimator.analytical.METHODS`) reads: a new fit gets its row
+#: here and its branch in ``_fit``.
+FIT_READS = {
+    "no_tactile": FitReads(depth=False, onset_width=True, approach=True),
+    "elastic": FitReads(depth=True, onset_width=True, approach=True),
+    "hertz": FitReads(depth=True, onset_width=False, approach=False),
+    "series": FitReads(depth=True, onset_width=False, approach=True),
+}
 #: The methods that read depth (the others need no tactile frame).
-TACTILE_METHODS = ("elastic", "hertz", "series")
+TACTILE_METHODS = tuple(method for method, reads in FIT_READS.items() if reads.depth)
 # No-contact frames: those ending this long before the force onset, the last few of them.
 REFERENCE_GUARD_S = 0.1
 REFERENCE_FRAMES = 5
@@ -342,13 +373,9 @@ def measure_frame(frame: np.ndarray, reference: np.ndarray, calibration: Calibra
 # --------------------------------------------------------------------------- estimation
 
 
-#: Methods whose strain rests on the approach the gripper's widths give.
-APPROACH_METHODS = ("no_tactile", "elastic", "series")
-
-
 def _run(m: GraspMeasurements, method: str) -> Estimate:
     result = _fit(m, method)
-    if result.state == "ok" and method in APPROACH_METHODS and "width_unread" in m.segment.flags:
+    if result.state == "ok" and FIT_READS[method].approach and "width_unread" in m.segment.flags:
         # The interpolated approach assumes the fingers kept closing; they may have stopped, so the
         # object is at most as compliant as the fit says: its stiffer end is not resolved.
         low, _ = result.interval_pa
@@ -361,21 +388,22 @@ def _fit(m: GraspMeasurements, method: str) -> Estimate:
     segment = m.segment
     if not segment:
         return Estimate.refuse(method, segment.reason)
+    reads = FIT_READS[method]
     noise = m.noise
     onset_width = segment.onset_width_m
-    if method in ("no_tactile", "elastic") and not (np.isfinite(onset_width) and onset_width > 0):
+    if reads.onset_width and not (np.isfinite(onset_width) and onset_width > 0):
         got = f"{onset_width:.3g} m" if np.isfinite(onset_width) else "no width reading"
         return Estimate.refuse(method, f"no positive width at the contact onset (got {got}) "
                                        "to normalise the strain")
+    if reads.depth:
+        if m.features is None:
+            return Estimate.refuse(method, m.tactile_reason or "tactile features were not measured")
+        force, approach, f = _with_hold_point(m, m.features)
     if method == "no_tactile":
         rows, cols = m.sensor.pad_size_m
         return analytical.no_tactile(segment.load_force_n, m.approach_at_force_samples(),
                                      initial_width_m=onset_width, pad_area_m2=rows * cols, noise=noise)
-    f = m.features
-    if f is None:
-        return Estimate.refuse(method, m.tactile_reason or "tactile features were not measured")
     k_gel = m.sensor.gel_compliance_per_pa
-    force, approach, f = _with_hold_point(m, f)
     if method == "series":
         width = onset_width if np.isfinite(onset_width) and onset_width > 0 else None
         return analytical.series(approach, f.peak_depth_m, gel_compliance_per_pa=k_gel,
@@ -387,9 +415,12 @@ def _fit(m: GraspMeasurements, method: str) -> Estimate:
         return analytical.hertz(force, approach, f.peak_depth_m, f.cap_radius_m,
                                 gel_compliance_per_pa=k_gel, object_poisson=m.object_poisson,
                                 noise=noise, truncated=f.cap_touches_edge)
-    return analytical.elastic(force, approach, f.peak_depth_m, f.area_m2,
-                              initial_width_m=onset_width, noise=noise,
-                              truncated=f.touches_edge)
+    if method == "elastic":
+        return analytical.elastic(force, approach, f.peak_depth_m, f.area_m2,
+                                  initial_width_m=onset_width, noise=noise,
+                                  truncated=f.touches_edge)
+    raise FitError(f"method {method!r} has no branch in _fit of estimator/measurements.py: expected one "
+                   "that runs its fit")
 
 
 def _with_hold_point(m: GraspMeasurements, f: ContactFeatures) -> tuple[np.ndarray, np.ndarray, ContactFeatures]:
@@ -417,9 +448,13 @@ def _with_hold_point(m: GraspMeasurements, f: ContactFeatures) -> tuple[np.ndarr
 
 
 def check_method(method: str) -> None:
-    """Raise FitError unless ``method`` is an analytical method (:data:`~estimator.analytical.METHODS`)."""
+    """Raise FitError unless ``method`` is an analytical method (:data:`~estimator.analytical.METHODS`)
+    with its row in :data:`FIT_READS`."""
     if method not in analytical.METHODS:
         raise FitError(f"method {method!r}: expected one of {', '.join(analytical.METHODS)}")
+    if method not in FIT_READS:
+        raise FitError(f"method {method!r} has no row in FIT_READS of estimator/measurements.py: expected "
+                       "what it reads from a grasp (and its branch in _fit)")
 
 
 def estimate_measurements(m: GraspMeasurements, method: str) -> Estimate:
@@ -438,7 +473,7 @@ def estimate_measurements(m: GraspMeasurements, method: str) -> Estimate:
     Raises
     ------
     FitError
-        An unknown method.
+        An unknown method, or one without its row in :data:`FIT_READS` or its branch in ``_fit``.
     """
     check_method(method)
     result = _run(m, method)
