@@ -20,8 +20,8 @@ the pair it runs even while the files are being replaced.
 ``inputs``
     Input name -> shape with ``null`` for the batch axis; ``output``: the output's name.
 ``scales``
-    The input and output scales it was trained with (checked against this code's),
-    the output's log10 E bins among them.
+    The input and output scales it was trained with (checked against this code's; the
+    ``analytical_methods`` only for a model that reads them), the output's log10 E bins among them.
 ``calibration``
     Fitted on the validation objects: ``temperature`` (divides the logits), ``floor``
     (``{"methods", "leak"}``: the analytical methods whose lower bounds floor a hybrid's
@@ -199,6 +199,27 @@ def current_scales() -> dict[str, Any]:
     }
 
 
+def _scales_differ(scales: Any, *, analytical: bool) -> str:
+    """How a model's ``scales`` (its metadata's) differ from :func:`current_scales`, in words: each
+    differing key with both values; empty when none does.
+
+    ``analytical_methods`` counts only for a model that reads the analytical fits (``analytical``,
+    its variant's): which fits there are changes none of a CNN's inputs.
+    """
+    if not isinstance(scales, Mapping):
+        return f"expected a table of scales, got {scales!r}"
+    current = current_scales()
+    keys = [*current, *(key for key in scales if key not in current)]
+    if not analytical:
+        keys.remove("analytical_methods")
+
+    def shown(table: Mapping[str, Any], key: str) -> str:
+        return repr(table[key]) if key in table else "absent"
+
+    return ", ".join(f"{key} {shown(scales, key)} (this code: {shown(current, key)})" for key in keys
+                     if (key in scales, scales.get(key)) != (key in current, current.get(key)))
+
+
 @dataclass(frozen=True)
 class ModelMetadata:
     """The checked content of a model's ``metadata.json`` (module notes)."""
@@ -260,9 +281,10 @@ class ModelMetadata:
             raise ModelError(f"{source}: calibration {cal}: expected temperature > 0, 0 < level < 1, "
                              "soft_pa > 0, rising force_band_edges_n, one interval scale > 0 and one "
                              "0 < p_rigid < 1 per force band and a floor of analytical methods leaking 0-1")
-        if data.get("scales") != current_scales():
-            raise ModelError(f"{source}: trained with input scales {data.get('scales')}, this code uses "
-                             f"{current_scales()}; retrain the model")
+        differ = _scales_differ(data.get("scales"), analytical=variant.analytical)
+        if differ:
+            raise ModelError(f"{source}: trained with input scales that differ from this code's: {differ}; "
+                             "retrain the model")
         if variant.window_m is None:
             variant = replace(variant, window_m=default_window_m())
             log.info("%s: no variant.window_m (a model from before the key): it reads the pad of the sensor the "
