@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from typing import TYPE_CHECKING
 
 from teleop.cli_start import start
@@ -44,3 +45,7 @@ def commands() -> dict[str, Command]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     return start("teleop", __doc__, commands, argv)
+
+
+if __name__ == "__main__":  # `python -m teleop.cli`, as the console script runs main()
+    sys.exit(main())
