@@ -84,6 +84,7 @@ from teleop.bus.wire import Message
 from teleop.devices.camera import TactileCamera, make_camera
 from teleop.devices.gripper import GraspStop, Gripper, make_gripper
 from teleop.devices.loadcell import LoadCell, make_load_cell
+from teleop.devices.simulated import robot_is_simulated
 from teleop.errors import (
     DeviceError,
     InvalidCommandError,
@@ -174,8 +175,7 @@ class RobotNode(ServiceLoop):
         self.commands = commands
         self.scene = scene
         self.clock = clock
-        self.simulated = (settings.gripper.backend == "sim" and settings.load_cell.backend == "sim"
-                          and all(s.camera_backend == "sim" for s in settings.sensors))
+        self.simulated = robot_is_simulated(settings)
         if self.simulated and scene is None:
             raise SimulationError("the simulated robot needs a scene to know what to grasp")
         self.objects = () if scene is None else tuple(o for o in scene.objects for _ in range(scene.grasps_per_object))
@@ -202,7 +202,7 @@ class RobotNode(ServiceLoop):
     def connect(self) -> RobotNode:
         """Connect the devices and start one reader thread per device."""
         # Only a hardware cell is tared: a simulated one sends nothing outside a simulated grasp.
-        self._io.connect(tare=self.settings.load_cell.backend != "sim")
+        self._io.connect(tare=not self.load_cell.simulated)
         if self.simulated:
             self._follower.prepare_next()
         return self

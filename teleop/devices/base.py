@@ -4,7 +4,8 @@ A device is built unconnected, opened with :meth:`Device.connect` (or ``with``),
 and closed with :meth:`Device.close`; using it while not connected raises
 :class:`~teleop.errors.DeviceNotConnectedError`. Backends are named in a per-family
 table of ``"module:Class"`` strings and imported only when opened, so the simulated
-backend never imports vendor libraries.
+backend never imports vendor libraries. A backend class says whether it simulates its device
+(:attr:`Device.simulated`); :mod:`teleop.devices.simulated` asks it by backend name.
 
 All device timestamps are seconds of ``time.monotonic()`` on the host that reads the
 device, the clock the bus and the grasp records of live sessions use.
@@ -16,7 +17,7 @@ import importlib
 import threading
 from collections import deque
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -74,6 +75,8 @@ class Device:
     """
 
     family = "device"
+    #: Whether the backend simulates its device (fed by a simulated grasp) rather than drive hardware.
+    simulated: ClassVar[bool] = False
 
     def __init__(self) -> None:
         self._connected = False

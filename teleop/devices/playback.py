@@ -187,6 +187,8 @@ class SimulatedGripper(Gripper):
         Width of an object between the fingers for kinematic grasps (None: nothing there).
     """
 
+    simulated = True
+
     def __init__(self, settings: GripperSettings, *, playback: GraspPlayback | None = None, object_width_m: float | None = None):
         super().__init__(settings)
         self.object_width_m = object_width_m
@@ -423,6 +425,8 @@ class SimulatedCamera(_Switched, TactileCamera):
     behind drops the capture slots overdue (:meth:`LiveGrasp.take_frame`), counted in
     :attr:`dropped` as :class:`~teleop.devices.opencv_camera.OpenCVCamera` counts its own."""
 
+    simulated = True
+
     def __init__(self, sensor: SensorSettings, *, playback: GraspPlayback | None = None):
         super().__init__(sensor)
         self._serve(playback)
@@ -476,6 +480,8 @@ class SimulatedCamera(_Switched, TactileCamera):
 class SimulatedLoadCell(_Switched, LoadCell):
     """The ``sim`` load cell: the force samples of a :class:`GraspPlayback`, in newtons as recorded,
     or the readings of a :class:`LiveGrasp` as they arrive."""
+
+    simulated = True
 
     def __init__(self, settings: LoadCellSettings, *, playback: GraspPlayback | None = None):
         super().__init__(settings)

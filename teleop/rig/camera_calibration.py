@@ -29,6 +29,7 @@ import numpy as np
 from teleop.clikit import positive_number
 from teleop.devices.camera import CameraFrame, TactileCamera, make_camera
 from teleop.devices.loadcell import LoadCell, make_load_cell
+from teleop.devices.simulated import is_simulated
 from teleop.errors import DeviceTimeoutError, TeleopError
 from teleop.record import Samples
 from teleop.rig.camera_latency import LatencyFit, image_change, measure_latency
@@ -153,9 +154,11 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.settings)
     settings = load_settings(path)
     sensor = settings.sensor(args.finger or settings.sensing.finger)
-    if sensor.camera_backend == "sim" or (args.latency and settings.load_cell.backend == "sim"):
+    camera_simulated = is_simulated("camera", sensor.camera_backend)
+    if camera_simulated or (args.latency and is_simulated("load cell", settings.load_cell.backend)):
+        backend = sensor.camera_backend if camera_simulated else settings.load_cell.backend
         raise TeleopError(f"{path}: the camera of [sensors.{sensor.finger}]{' or the load cell' if args.latency else ''} "
-                          "is simulated (backend 'sim'): its constants are set, not measured; configure the real "
+                          f"is simulated (backend {backend!r}): its constants are set, not measured; configure the real "
                           "devices (camera_backend = 'opencv' and camera_source; [load_cell] backend and port)")
     if sensor.model == "mini" and not args.latency:
         raise TeleopError(f"finger {sensor.finger!r} is a flat sensor (model = 'mini'): it has no mirror corners; "

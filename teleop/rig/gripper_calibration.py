@@ -37,6 +37,7 @@ import numpy as np
 from teleop.clikit import non_negative_number, positive_number
 from teleop.devices.gripper import Gripper, make_gripper
 from teleop.devices.loadcell import LoadCell, make_load_cell
+from teleop.devices.simulated import is_simulated
 from teleop.errors import DeviceError, InvalidCommandError, SettingsError
 from teleop.rig.conclude import conclude
 from teleop.rig.load_cell_calibration import load_cell_source
@@ -233,9 +234,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check(args: argparse.Namespace, settings: Settings) -> tuple[float, list[float]]:
-    if settings.load_cell.backend == "sim":
-        raise SettingsError("load_cell.backend = 'sim' only replays simulated grasps and cannot feel this squeeze: "
-                            "calibrate with the rig's cell ('serial' or 'tcp')")
+    if is_simulated("load cell", settings.load_cell.backend):
+        raise SettingsError(f"load_cell.backend = {settings.load_cell.backend!r} is simulated: it only replays "
+                            "simulated grasps and cannot feel this squeeze: calibrate with the rig's cell ('serial' or 'tcp')")
     width_m = args.object_width_mm * 1e-3
     if not 0 < width_m < settings.gripper.max_width_m:
         raise InvalidCommandError(f"--object-width-mm {args.object_width_mm:g}: expected a width between 0 and the "

@@ -39,6 +39,7 @@ import numpy as np
 
 from teleop.clikit import non_negative_number, positive_number
 from teleop.devices.loadcell import LoadCell, make_load_cell
+from teleop.devices.simulated import is_simulated
 from teleop.errors import (
     DeviceError,
     DeviceStalledError,
@@ -175,9 +176,9 @@ def load_cell_source(settings: LoadCellSettings) -> str:
 
 def connect_counts_cell(settings: LoadCellSettings) -> LoadCell:
     """The configured cell, connected, reading raw counts (no calibration applied)."""
-    if settings.backend == "sim":
-        raise SettingsError("load_cell.backend = 'sim' delivers newtons, not counts: nothing to calibrate; "
-                            "set the backend to 'serial' or 'tcp'")
+    if is_simulated("load cell", settings.backend):
+        raise SettingsError(f"load_cell.backend = {settings.backend!r} is simulated and delivers newtons, not counts: "
+                            "nothing to calibrate; set the backend to 'serial' or 'tcp'")
     cell = make_load_cell(dataclasses.replace(settings, counts_per_n=1.0, tare_counts=0))
     try:
         return cell.connect()

@@ -39,6 +39,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES, Subscriber, is_decade
 from teleop.bus.wire import SCHEMAS, Message, decode, default_topic, now_ns
 from teleop.catalogue import load_catalogue
+from teleop.devices.simulated import robot_is_simulated
 from teleop.errors import BusError, SessionLogError
 from teleop.progress import progress_bar
 from teleop.record import software_version
@@ -85,13 +86,8 @@ COMPRESSIONS = {
 
 
 def session_source(settings: Settings) -> str:
-    """``"simulated"`` when every device backend is the simulator, else ``"hardware"``."""
-    simulated = (
-        settings.gripper.backend == "sim"
-        and settings.load_cell.backend == "sim"
-        and all(s.camera_backend == "sim" for s in settings.sensors)
-    )
-    return "simulated" if simulated else "hardware"
+    """``"simulated"`` when every device backend is simulated (:func:`robot_is_simulated`), else ``"hardware"``."""
+    return "simulated" if robot_is_simulated(settings) else "hardware"
 
 
 class _CapturingSubscriber(Subscriber):

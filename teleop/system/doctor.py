@@ -15,8 +15,9 @@ backend and read; the report gives
 and a problem, with what to do, when a device does not open, sends nothing, reads slower than
 80 % of its configured rate, stamps readings out of order or on another clock (more than 1 s
 from this host's ``time.monotonic()``, the clock of every device timestamp), or a camera's
-frames are not the size the settings say. Simulated devices (backend ``sim``) are fed one
-simulated grasp of the default scene's first object while they are read.
+frames are not the size the settings say. Simulated devices (a backend whose class is
+``simulated``, such as ``sim``) are fed one simulated grasp of the default scene's first object
+while they are read.
 
 Bus: each endpoint on this host must be free to bind (a port in use is a session still
 running, or another program); an endpoint on another host must answer (a refused connection
@@ -61,6 +62,7 @@ from teleop.devices.camera import make_camera, opencv_fix
 from teleop.devices.gripper import FRANKY_FIX, make_gripper
 from teleop.devices.loadcell import FIXES as LOAD_CELL_FIXES
 from teleop.devices.loadcell import make_load_cell
+from teleop.devices.simulated import is_simulated
 from teleop.endpoints import parse_endpoint
 from teleop.errors import (
     BusSecurityError,
@@ -130,7 +132,7 @@ def _fixes(settings: Settings) -> dict[str, str]:
 
 
 def _camera_probe(settings: Settings, sensor: Any, playback: Any) -> _Probe:
-    options = {"playback": playback} if sensor.camera_backend == "sim" else {}
+    options = {"playback": playback} if is_simulated("camera", sensor.camera_backend) else {}
     camera = make_camera(sensor, **options)
     first: list[Any] = []
 
@@ -211,7 +213,7 @@ def _simulated_playback(settings: Settings) -> Any:
 
 
 def _gripper_probe(settings: Settings, playback: Any, fix: str) -> _Probe:
-    options = {"playback": playback} if settings.gripper.backend == "sim" else {}
+    options = {"playback": playback} if is_simulated("gripper", settings.gripper.backend) else {}
     gripper = make_gripper(settings.gripper, **options)
     where = settings.gripper.host if settings.gripper.backend == "franky" else "the simulated gripper"
     return _Probe("gripper", gripper, lambda: gripper.widths(timeout_s=READ_SLICE_S).t_s.tolist(),
@@ -219,7 +221,8 @@ def _gripper_probe(settings: Settings, playback: Any, fix: str) -> _Probe:
 
 
 def _load_cell_probe(settings: Settings, playback: Any, fix: str) -> _Probe:
-    cell = make_load_cell(settings.load_cell, **({"playback": playback} if settings.load_cell.backend == "sim" else {}))
+    simulated = is_simulated("load cell", settings.load_cell.backend)
+    cell = make_load_cell(settings.load_cell, **({"playback": playback} if simulated else {}))
 
     def read() -> list[float]:
         try:
@@ -234,8 +237,9 @@ def _load_cell_probe(settings: Settings, playback: Any, fix: str) -> _Probe:
 def _probes(settings: Settings) -> list[_Probe | Check]:
     """A probe per device; a Check with the problem for a device that cannot even be set up."""
     fixes = _fixes(settings)
-    uses_sim = "sim" in {settings.gripper.backend, settings.load_cell.backend,
-                         *(s.camera_backend for s in settings.sensors)}
+    uses_sim = (is_simulated("gripper", settings.gripper.backend)
+                or is_simulated("load cell", settings.load_cell.backend)
+                or any(is_simulated("camera", s.camera_backend) for s in settings.sensors))
     playback = _simulated_playback(settings) if uses_sim else None
     builders = [
         ("gripper", lambda: _gripper_probe(settings, playback, fixes["gripper"])),
