@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import pytest
+from support.contract import param_names
 
 from haptics.devices.base import SoftnessDisplay
 from haptics.devices.sim import DisplayFirmware, SimulatedDisplay
@@ -212,10 +213,18 @@ def _hardware_rig() -> Rig:
     return Rig(display=HidDisplay.from_settings(display_settings(load_settings())))
 
 
-@pytest.fixture(
-    params=["sim", "sim-v1", "fake-hid", "fake-hid-v1",
-            pytest.param("hid", marks=pytest.mark.hardware)]
-)
+# The display rigs, each a backend's name, with "-v1" speaking protocol version 1 and "fake-" on a
+# faked device; plain "hid" is the real display.
+RIG_PARAMS = ["sim", "sim-v1", "fake-hid", "fake-hid-v1", pytest.param("hid", marks=pytest.mark.hardware)]
+
+
+@pytest.fixture
+def rig_backends() -> set[str]:
+    """The display backends the ``rig`` fixture runs the contract suite on."""
+    return {name.removeprefix("fake-").removesuffix("-v1") for name in param_names(RIG_PARAMS)}
+
+
+@pytest.fixture(params=RIG_PARAMS)
 def rig(request: pytest.FixtureRequest) -> Rig:
     """Every display backend in turn, the simulated ones in both protocol versions; closed after."""
     version = 1 if request.param.endswith("-v1") else 2

@@ -8,6 +8,7 @@ import types
 from pathlib import Path
 
 import pytest
+from support.contract import assert_every_backend_covered
 
 from haptics.devices import BACKENDS, display_class, make_display
 from haptics.devices.sim import DisplayFirmware, SimulatedDisplay
@@ -54,8 +55,11 @@ def read_clock(fake_hid, monkeypatch):
     return fake_hid
 
 
-def test_backend_table_names_sim_and_hid():
-    assert set(BACKENDS) == {"sim", "hid"}
+def test_every_backend_in_the_table_runs_the_contract_suite(rig_backends):
+    assert_every_backend_covered("display", BACKENDS, rig_backends, fixture="rig", where="tests/haptics/conftest.py")
+
+
+def test_the_table_opens_sim_and_hid():
     assert display_class("sim") is SimulatedDisplay
     assert display_class("hid").__name__ == "HidDisplay"
     assert isinstance(make_display(DisplaySettings(backend="sim")), SimulatedDisplay)

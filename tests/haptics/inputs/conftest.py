@@ -305,6 +305,12 @@ def sim_rig() -> InputRig:
 RIGS = {"keyboard": keyboard_rig, "gamepad": gamepad_rig, "display": display_rig, "sim": sim_rig}
 
 
+@pytest.fixture
+def input_rig_backends() -> set[str]:
+    """The operator input backends the ``input_rig`` fixture runs the contract suite on."""
+    return set(RIGS)
+
+
 @pytest.fixture(params=sorted(RIGS))
 def input_rig(request: pytest.FixtureRequest) -> InputRig:
     """Every operator input backend in turn; closed after the test."""

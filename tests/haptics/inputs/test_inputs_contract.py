@@ -7,6 +7,7 @@ import math
 import time
 
 import pytest
+from support.contract import assert_every_backend_covered
 from support.threads import close_during_read
 
 from haptics.errors import InputBackendNotFoundError, InputNotConnectedError, OperatorInputError
@@ -137,6 +138,11 @@ def test_a_press_before_a_reconnect_is_not_reported_after_it(input_rig):
 
 
 # ------------------------------------------------------------------ the name table
+
+
+def test_every_backend_in_the_table_runs_the_contract_suite(input_rig_backends):
+    assert_every_backend_covered("operator input", BACKENDS, input_rig_backends, fixture="input_rig",
+                                 where="tests/haptics/inputs/conftest.py")
 
 
 def test_the_table_names_every_backend_the_settings_allow():

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import pytest
+from support.contract import assert_every_backend_covered, param_names
 from support.threads import close_during_read
 
 from teleop.devices.camera import BACKENDS, TactileCamera, make_camera
@@ -36,7 +37,16 @@ class Rig:
     start: callable = lambda: None  # make the source begin streaming
 
 
-@pytest.fixture(params=["sim", "opencv", pytest.param("hardware", marks=pytest.mark.hardware)])
+# A backend's name runs the suite on it; "hardware" runs it on a real camera.
+PARAMS = ["sim", "opencv", pytest.param("hardware", marks=pytest.mark.hardware)]
+
+
+def test_every_backend_in_the_table_runs_the_suite():
+    assert_every_backend_covered("camera", BACKENDS, param_names(PARAMS), fixture="rig",
+                                 where="tests/teleop/devices/test_camera_contract.py")
+
+
+@pytest.fixture(params=PARAMS)
 def rig(request, make_record, jpeg_frames, mjpg_server, hardware_env) -> Rig:
     if request.param == "sim":
         record = make_record(duration_s=N_FRAMES / FPS, camera_hz=FPS, frame_shape=(120, 160, 3))

@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+from support.contract import assert_every_backend_covered, param_names
 from support.threads import close_during_read
 
 from teleop.devices.gripper import BACKENDS, Gripper, make_gripper
@@ -24,8 +25,17 @@ SPEED = 0.05  # m/s, franky-sim's finger speed limit
 STEP_M = SPEED * 0.02  # one franky follow step at SPEED (teleop.devices.franky_gripper.FOLLOW_STEP_S), m
 
 
-@pytest.fixture(params=["sim", pytest.param("franky", marks=pytest.mark.robot_sim),
-                        pytest.param("hardware", marks=pytest.mark.hardware)])
+# A backend's name runs the suite on it; "hardware" runs it on a real Franka hand.
+PARAMS = ["sim", pytest.param("franky", marks=pytest.mark.robot_sim),
+          pytest.param("hardware", marks=pytest.mark.hardware)]
+
+
+def test_every_backend_in_the_table_runs_the_suite():
+    assert_every_backend_covered("gripper", BACKENDS, param_names(PARAMS), fixture="gripper",
+                                 where="tests/teleop/devices/test_gripper_contract.py")
+
+
+@pytest.fixture(params=PARAMS)
 def gripper(request, hardware_env) -> Gripper:
     if request.param == "sim":
         settings = GripperSettings(backend="sim", width_read_hz=20.0)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from support.contract import assert_every_backend_covered, param_names
 from support.threads import close_during_read
 
 from teleop.devices.hx711_bridge import Hx711Bridge
@@ -72,7 +73,16 @@ def _write_paced(master: int, lines: list[bytes]) -> None:
         os.write(master, line)
 
 
-@pytest.fixture(params=["sim", "serial", "tcp", pytest.param("hardware", marks=pytest.mark.hardware)])
+# A backend's name runs the suite on it; "hardware" runs it on a real HX711 on a serial port.
+PARAMS = ["sim", "serial", "tcp", pytest.param("hardware", marks=pytest.mark.hardware)]
+
+
+def test_every_backend_in_the_table_runs_the_suite():
+    assert_every_backend_covered("load cell", BACKENDS, param_names(PARAMS), fixture="rig",
+                                 where="tests/teleop/devices/test_loadcell_contract.py")
+
+
+@pytest.fixture(params=PARAMS)
 def rig(request, make_record, hardware_env):
     cleanup = []
     if request.param == "sim":
