@@ -36,6 +36,7 @@ from estimator.perception.press_circles import _change_magnitude
 from estimator.perception.presses import IMAGE_SUFFIXES
 from estimator.perception.warp import warp_points
 from teleop.devices.camera import TactileCamera, make_camera
+from teleop.devices.simulated import is_simulated
 from teleop.errors import DeviceError
 from teleop.rig.camera_calibration import READ_TIMEOUT_S, no_contact_frame
 from teleop.settings import SensorSettings, load_settings
@@ -247,12 +248,13 @@ def capture_to_folder(args: argparse.Namespace) -> Path:
     sensor = settings.sensor(args.finger or settings.sensing.finger)
     # A simulated camera only plays grasps back: no ball can be pressed on it, and waiting for its frames
     # would end in a vague timeout. Worded as `teleop calibrate camera` refuses it (teleop/rig/camera_calibration.py).
-    if sensor.camera_backend == "sim":
+    if is_simulated("camera", sensor.camera_backend):
         # quoted: the command is to be pasted into a shell, and a settings path may hold spaces
         simulate = shlex.join(["teleop", "simulate-presses", "--settings", str(args.settings),
                                "--finger", sensor.finger])
         raise CalibrationError(
-            f"{args.settings}: the camera of [sensors.{sensor.finger}] is simulated (backend 'sim'): it cannot be "
+            f"{args.settings}: the camera of [sensors.{sensor.finger}] is simulated (backend "
+            f"{sensor.camera_backend!r}): it cannot be "
             f"calibrated by pressing a ball on it; simulate the presses instead ({simulate} --out P.npz, then "
             "--presses P.npz without --capture), or "
             "configure the real camera (camera_backend = 'opencv' and camera_source)")

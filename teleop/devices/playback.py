@@ -38,16 +38,19 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from teleop.devices.camera import CameraFrame, TactileCamera
 from teleop.devices.gripper import Gripper
-from teleop.devices.live_sim import LiveGrasp
 from teleop.devices.loadcell import LoadCell
 from teleop.errors import DeviceError
 from teleop.record import GRASP_DONE_EVENT, GraspRecord, Samples
 from teleop.settings import GripperSettings, LoadCellSettings, SensorSettings
+
+if TYPE_CHECKING:  # the class is only named here: the simulator stays unloaded where nothing simulates
+    from teleop.devices.live_sim import LiveGrasp
 
 __all__ = ["GraspPlayback", "SimulatedCamera", "SimulatedGripper", "SimulatedLoadCell"]
 

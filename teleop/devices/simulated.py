@@ -9,7 +9,6 @@ from __future__ import annotations
 import importlib
 
 from teleop.devices.base import load_backend
-from teleop.errors import BackendNotFoundError
 from teleop.settings import Settings
 
 __all__ = ["FAMILIES", "is_simulated", "robot_is_simulated"]
@@ -25,8 +24,8 @@ FAMILIES = {
 def is_simulated(family: str, backend: str) -> bool:
     """Whether ``backend`` of device ``family`` (a key of :data:`FAMILIES`) is simulated.
 
-    A backend whose module or library cannot be imported counts as hardware: simulated backends
-    need nothing beyond the package's own dependencies.
+    A backend whose module or library cannot be imported, for whatever reason, counts as hardware:
+    simulated backends need nothing beyond the package's own dependencies.
 
     Raises
     ------
@@ -38,11 +37,11 @@ def is_simulated(family: str, backend: str) -> bool:
     if family not in FAMILIES:
         raise ValueError(f"no device family {family!r}; expected one of {', '.join(FAMILIES)}")
     backends = importlib.import_module(FAMILIES[family]).BACKENDS
+    if backend not in backends:
+        load_backend(family, backends, backend)  # raises, listing the names there are
     try:
         cls = load_backend(family, backends, backend)
-    except BackendNotFoundError:
-        if backend not in backends:
-            raise
+    except Exception:  # noqa: BLE001 - a broken vendor library (OSError, ...) is hardware's problem, not this answer's
         return False
     return bool(cls.simulated)
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
 from support import second_sim
 
@@ -27,9 +30,22 @@ def test_only_the_shipped_sim_backends_are_simulated(family, backend, simulated)
     assert is_simulated(family, backend) is simulated
 
 
-def test_a_backend_whose_module_cannot_be_imported_counts_as_hardware(monkeypatch):
+def test_a_backend_whose_module_cannot_be_imported_counts_as_hardware(monkeypatch, tmp_path):
     monkeypatch.setitem(loadcell.BACKENDS, "vendor", "no_such_vendor_module:Cell")
     assert is_simulated("load cell", "vendor") is False
+    # A vendor library that fails otherwise (a shared object missing: OSError) is hardware's problem too.
+    (tmp_path / "broken_vendor_module.py").write_text("raise OSError('libvendor.so.1: cannot open shared object file')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(loadcell.BACKENDS, "broken", "broken_vendor_module:Cell")
+    assert is_simulated("load cell", "broken") is False
+
+
+def test_asking_whether_the_robot_is_simulated_loads_no_simulator():
+    script = ("import sys; from teleop.session.recorder import session_source; from teleop.settings import "
+              "load_settings; assert session_source(load_settings()) == 'simulated'; "
+              "print(sorted(m for m in sys.modules if m.startswith(('teleop.sim', 'teleop.devices.live_sim'))))")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.strip() == "[]"
 
 
 def test_an_unknown_backend_or_family_is_refused_naming_what_there_is():
