@@ -204,10 +204,12 @@ def describe(exc: Exception, file: Any, start: int, size: int, good_bytes: int, 
     """What is wrong with the record at byte ``start`` of ``file`` (``size`` bytes when it was opened,
     read without fault up to ``good_bytes``); ``exc``: the failure reading it; ``uncut``: why the file
     is not cut short (None: nothing says so). A file that grew while it was read (a log still being
-    written) is described as it was read, with its size now and a word that it grew."""
+    written) is described as it was read, with its size now and a word that it grew (or shrank: cut
+    or replaced meanwhile)."""
     now = _size_now(file, size)
-    grew = "" if now == size else (f"; the file grew from {size} to {now} bytes while it was read: "
-                                   "it is still being written")
+    grew = ("" if now == size else
+            f"; the file grew from {size} to {now} bytes while it was read: it is still being written" if now > size
+            else f"; the file shrank from {size} to {now} bytes while it was read: it was cut or replaced")
     if good_bytes == size:
         return (
             f"the file ends after its last complete record (byte {size}) "

@@ -26,3 +26,13 @@ def test_a_log_that_grows_while_it_is_read_says_so_and_no_byte_past_its_size(tmp
     assert reader.damage.startswith(f"the file ends inside the record after byte {reader.good_bytes} of {later} ")
     assert reader.damage.endswith(f"; the file grew from {at_open} to {later} bytes while it was read: it is still "
                                   "being written")
+
+
+def test_a_log_cut_while_it_is_read_is_said_to_have_shrunk(tmp_path):
+    from teleop.session.logdamage import describe
+
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(b"x" * 58)
+    with cut.open("rb") as file:
+        said = describe(ValueError("bad record"), file, 8, 100, 8, None)
+    assert "shrank from 100 to 58 bytes" in said and "grew" not in said
