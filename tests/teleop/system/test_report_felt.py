@@ -9,6 +9,7 @@ import importlib.util
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from teleop.catalogue import load_catalogue
 from teleop.settings import load_settings
@@ -37,6 +38,7 @@ def _report(folder: Path, *, display: bool):
     return {row[0]: row for row in rows}, text
 
 
+@pytest.mark.slow  # a whole report: 2.5 s
 def test_a_grasp_the_display_rendered_nothing_for_has_no_felt_error(tmp_path):
     rows, text = _report(tmp_path, display=True)
     offset = f"{np.log10(3e6 / 3.61e6):+.2f}"
@@ -47,6 +49,7 @@ def test_a_grasp_the_display_rendered_nothing_for_has_no_felt_error(tmp_path):
             "1 of 2 within a factor 2, 0 dangerous misses, 1 not rendered.") in text
 
 
+@pytest.mark.slow  # a whole report: 2.5 s
 def test_without_display_messages_the_felt_error_is_the_mappings_and_says_so(tmp_path):
     rows, text = _report(tmp_path, display=False)
     offset = f"{np.log10(3e6 / 3.61e6):+.2f}"
