@@ -5,7 +5,9 @@ and takes the second as its noise floors.
 A width below 0 or beyond the gripper's opening by more than :data:`WIDTH_SLACK_SHARE` of it is
 a glitch, or not in metres. The gripper stops at its maximum grasp force, so a force beyond
 :data:`FORCE_LIMIT_FACTOR` times it (either sign) is a glitch, or not in newtons (a load cell
-scaled per gram): up to :data:`FORCE_GLITCHES` such readings are dropped, more refuse the grasp.
+scaled per gram): up to :data:`FORCE_GLITCHES` such readings are dropped, more refuse the grasp (with a
+limit from the reader's settings, for a record that states no gripper, the refusal says so:
+:func:`unstated_gripper`).
 A force that jumps away from both its neighbours, which agree, and back within one sample is a
 glitch too (:func:`force_spikes`): no gripper loads and unloads an object between two load cell
 reads, while one that loads a stiff object that fast holds the force after it. Such spikes are
@@ -21,12 +23,13 @@ import numpy as np
 from estimator.signals import reading_noise
 
 __all__ = ["FORCE_GLITCHES", "FORCE_LIMIT_FACTOR", "MIN_FORCE_NOISE_N", "MIN_WIDTH_NOISE_M", "REST_SAMPLES",
-           "SPIKE_MIN_SAMPLES", "SPIKE_SHARE", "SPIKE_SIGMAS", "WIDTH_SLACK_SHARE", "force_spikes",
-           "implausible_forces", "implausible_widths", "reversed_force"]
+           "SCALE_QUESTION", "SPIKE_MIN_SAMPLES", "SPIKE_SHARE", "SPIKE_SIGMAS", "WIDTH_SLACK_SHARE", "force_spikes",
+           "implausible_forces", "implausible_widths", "reversed_force", "unstated_gripper"]
 
 WIDTH_SLACK_SHARE = 0.1
 FORCE_LIMIT_FACTOR = 2.0
 FORCE_GLITCHES = 2
+SCALE_QUESTION = "is the load cell's scale (counts_per_n) in newtons?"  # ends a refusal of implausible forces
 # The least noise a force or width reading is taken to carry (below any load cell or gripper simulated or
 # seen): exact readings would otherwise give bounds at absurd moduli (1e20 Pa) and intervals of zero width.
 MIN_FORCE_NOISE_N = 1e-3
@@ -86,14 +89,25 @@ def implausible_forces(force_n: np.ndarray, *, max_force_n: float) -> tuple[np.n
     beyond = np.abs(force_n) > limit
     told = f"beyond {limit:.4g} N, {FORCE_LIMIT_FACTOR:g} times the gripper's maximum grasp force"
     if beyond.sum() > FORCE_GLITCHES:
-        return beyond, (f"{int(beyond.sum())} force samples ({np.abs(force_n).max():.4g} N at most) {told}: is the "
-                        "load cell's scale (counts_per_n) in newtons?"), True
+        return beyond, (f"{int(beyond.sum())} force samples ({np.abs(force_n).max():.4g} N at most) {told}: "
+                        f"{SCALE_QUESTION}"), True
     notes = [f"dropped {int(beyond.sum())} force samples {told} (a glitch)"] if beyond.any() else []
     kept = np.flatnonzero(~beyond)
     spike, note = force_spikes(force_n[kept])
     dropped = beyond.copy()
     dropped[kept[spike]] = True
     return dropped, "; ".join([*notes, note] if note else notes), False
+
+
+def unstated_gripper(reason: str) -> str:
+    """``reason``, a refusal of :func:`implausible_forces` whose limit came from the reader's settings as
+    the record states no gripper, saying so: the settings' gripper may not be the one that made the record
+    (another ``target_force_n``), so the load cell's scale is not the only suspect. Any other reason is
+    returned as it is."""
+    if not reason.endswith(SCALE_QUESTION):
+        return reason
+    return (f"{reason.removesuffix(SCALE_QUESTION)}the limit is the settings' gripper's (the record states none): "
+            f"is that the grasp's gripper (its target_force_n)? {SCALE_QUESTION}")
 
 
 def reversed_force(force_n: np.ndarray, *, contact_force_n: float) -> str:

@@ -75,7 +75,7 @@ from typing import Any
 
 import numpy as np
 
-from estimator import analytical, gel_layer
+from estimator import analytical, gel_layer, plausible
 from estimator.errors import FitError, PerceptionError
 from estimator.estimate import StreamEstimate, choose_estimate
 from estimator.faults import checked_frames, checked_phase
@@ -164,6 +164,7 @@ class GraspStream:
         self.grasp_id = grasp_id
         self.camera_lag_s: float | None = None  # offline corrections the record's times were fed with
         self.width_lag_s: float | None = None
+        self._gripper_unstated = False  # a record's stream without the record's gripper: the settings' stands in
         self._force = Series()
         self._width = Series()
         self._frames: dict[str, Frames] = {}
@@ -204,7 +205,7 @@ class GraspStream:
             raise FitError(f"SensingSettings.finger = {finger!r}: {exc.args[0]}") from exc
         stream = cls(settings=settings, calibration=calibration, methods=methods, sensors=record.sensors,
                      gripper=record.gripper)
-        stream.camera_lag_s, stream.width_lag_s = camera_lag_s, width_lag_s
+        stream.camera_lag_s, stream.width_lag_s, stream._gripper_unstated = camera_lag_s, width_lag_s, record.gripper is None
         stream._force = Series.of(record.force_n)
         stream._width = Series.of(record.width_m, shift_s=width_lag_s)
         stream._loading_end_s = record.events.get(GRASP_DONE_EVENT)
@@ -401,6 +402,8 @@ class GraspStream:
                                     contact_force_n=estimator_settings(self.settings).contact_force_n,
                                     stopped_s=self._loading_end_s, max_width_m=self.gripper.max_width_m,
                                     max_force_n=self.gripper.target_force_n)
+            if self._gripper_unstated:  # its force limit is not the record's: its refusal says so
+                phase = dataclasses.replace(phase, reason=plausible.unstated_gripper(phase.reason))
             self._phase = checked_phase(phase, force_t_s=force.t_s, width_t_s=width.t_s, width_hz=self.gripper.width_read_hz,
                                         force_hz=self.settings.load_cell.sample_rate_hz)
         return self._phase

@@ -389,6 +389,7 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
     Returns
     -------
     GraspRecord, GraspTruth
+        The record carries the settings' sensors and gripper (the rig it was simulated on).
 
     Raises
     ------
@@ -500,6 +501,7 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
                             style="script" if driver is None else "operator", extra=extra)
     record = GraspRecord(
         sensors=settings.sensors,
+        gripper=gripper,  # as an exported session's: the estimator reads the grasp on its rig
         frames=tuple(streams),
         force_n=force_samples,
         width_m=width_samples,

@@ -28,14 +28,14 @@ the grasp without it); the drawn values go to ``provenance.extra["mechanics"]``,
 what an estimator reads. The gel is never drawn as a half-space, the contact model held out
 for testing: --vary-contact with --gel-model half-space is refused.
 
---target-force-n is refused where the estimator could not read the records it gives:
+Every record carries the gripper settings it was simulated with (``record.gripper``, as an exported
+session's; with --randomize-rig the rig's known ones), so the estimator reads it on its own rig
+whatever its settings say: with --target-force-n, a gripper of that maximum force.
 
-* at or below the contact force (the settings' ``[estimator] contact_force_n``, read from the file
-  as written: ``teleop`` does not import ``estimator``; :data:`DEFAULT_CONTACT_FORCE_N` when the file
-  sets none), where a grasp never reaches contact;
-* above :data:`FORCE_LIMIT_FACTOR` x the settings' ``[gripper] target_force_n``: the records carry no
-  gripper settings, so the estimator reads them with those of its settings, and refuses a grasp
-  whose force goes beyond that factor times the gripper's maximum force.
+--target-force-n is refused at or below the contact force (the settings' ``[estimator]
+contact_force_n``, read from the file as written: ``teleop`` does not import ``estimator``;
+:data:`DEFAULT_CONTACT_FORCE_N` when the file sets none), where a grasp never reaches contact and
+the estimator could not read the records it gives.
 
 A grasp whose fingers close on each other before the force target (an object too small to
 grasp) fails, and with --overwrite no earlier file of its name is left behind.
@@ -85,9 +85,6 @@ log = logging.getLogger(__name__)
 #: ``estimator.settings.EstimatorSettings.contact_force_n``'s default (N): the force the estimator takes
 #: for first contact. ``teleop`` may not import ``estimator``, so it is mirrored here (a test compares).
 DEFAULT_CONTACT_FORCE_N = 0.75
-#: ``estimator.plausible.FORCE_LIMIT_FACTOR``, mirrored likewise: the estimator refuses a grasp whose
-#: force goes beyond this many times the gripper's maximum grasp force (its settings' target_force_n).
-FORCE_LIMIT_FACTOR = 2.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -135,11 +132,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--target-force-n", type=float, default=None, metavar="N",
                         help="the grasps' force ceiling in N instead of the settings' gripper.target_force_n: a "
                              "scripted grasp squeezes to 40-100 %% of it, the simulated operator at most to it "
-                             "(e.g. 12 for light grasps of 4.8-12 N); the records keep it in provenance.extra"
-                             "[\"target_force_n\"]; not with --randomize-rig, which draws each rig's own; refused at or below the "
+                             "(e.g. 12 for light grasps of 4.8-12 N); the records' gripper settings carry it; "
+                             "not with --randomize-rig, which draws each rig's own; refused at or below the "
                              "estimator's contact force (the settings' estimator.contact_force_n, 0.75 N by "
-                             "default) and above 2 x the settings' gripper.target_force_n (the most the estimator "
-                             "reads with those settings)")
+                             "default)")
     parser.add_argument("--vary-gel", action="store_true",
                         help="with --randomize-rig: also draw each rig's datasheet gel (120-400 kPa, 2.5-4.5 mm), "
                              "as other GelSight-type sensors have; the records carry it")
@@ -189,22 +185,14 @@ def _contact_force_n(settings: Settings) -> float:
 
 
 def _check_target_force(target_force_n: float, settings: Settings, settings_path: str | None) -> None:
-    """Refuse a --target-force-n whose records the estimator, with the same settings, refuses or cannot
-    read (module notes); warn when some scripted grasps may stay below the contact force."""
+    """Refuse a --target-force-n at or below the estimator's contact force (module notes); warn when
+    some scripted grasps may stay below it."""
     where = settings_path or default_settings_path()
     contact = _contact_force_n(settings)
     if target_force_n <= contact:
         raise SettingsError(f"--target-force-n {target_force_n:g}: expected more than the estimator's contact "
                             f"force, estimator.contact_force_n = {contact:g} N in {where}: the fingers would "
                             "never reach contact and the records give no estimate")
-    limit = FORCE_LIMIT_FACTOR * settings.gripper.target_force_n
-    if target_force_n > limit:
-        raise SettingsError(f"--target-force-n {target_force_n:g}: the estimator refuses grasps whose force goes "
-                            f"beyond {FORCE_LIMIT_FACTOR:g} x gripper.target_force_n = {limit:g} N of the settings it "
-                            f"runs with ({where}: target_force_n = {settings.gripper.target_force_n:g} N), and the "
-                            f"records carry no gripper settings of their own: use at most {limit:g} N, or raise "
-                            f"[gripper] target_force_n (to {target_force_n / FORCE_LIMIT_FACTOR:g} N or more) in "
-                            "the settings used to simulate and to estimate")
     if TARGET_FORCE_FRACTION[0] * target_force_n <= contact:
         print(f"teleop simulate: warning: --target-force-n {target_force_n:g}: scripted grasps squeeze to "
               f"{TARGET_FORCE_FRACTION[0]:.0%}-{TARGET_FORCE_FRACTION[1]:.0%} of it, so some may stay below the "
@@ -292,7 +280,7 @@ def _writing(obj: ObjectSpec, index: int, path: Path) -> Iterator[None]:
 
 
 def _simulate_and_write(job: tuple) -> dict:
-    obj, index, seed, settings, out, preview, randomize_rig, vary_gel, operator, vary_contact, target_force_n = job
+    obj, index, seed, settings, out, preview, randomize_rig, vary_gel, operator, vary_contact = job
     path = Path(out) / grasp_filename(obj, index)
     rng = grasp_rng(seed, obj, index)
     mechanics = draw_mechanics(mechanics_rng(seed, obj, index)) if vary_contact else None
@@ -311,11 +299,6 @@ def _simulate_and_write(job: tuple) -> dict:
         path.unlink(missing_ok=True)
         path.with_suffix(".png").unlink(missing_ok=True)
         return {"object": obj.name, "grasp": index, "error": str(exc)}
-    if target_force_n is not None:
-        # The record keeps no gripper settings: without this a lowered ceiling's record reads as a nominal one.
-        provenance = dataclasses.replace(record.provenance,
-                                         extra={**record.provenance.extra, "target_force_n": target_force_n})
-        record = dataclasses.replace(record, provenance=provenance)
     with _writing(obj, index, path.with_suffix(".png")):
         if preview:
             # Whole before its record (a record's preview is part of it), under a name no record takes.
@@ -372,7 +355,7 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise SettingsError(f"--out {out}: cannot create the directory ({exc.strerror or exc})") from exc
     jobs = [(obj, i, args.seed, settings, str(out), args.preview, args.randomize_rig, args.vary_gel, args.operator,
-             args.vary_contact, args.target_force_n) for obj in objects for i in range(args.grasps_per_object)]
+             args.vary_contact) for obj in objects for i in range(args.grasps_per_object)]
     # A preview is part of its record: a leftover one would be taken for the new record's.
     names = [grasp_filename(obj, i) for obj, i, *_ in jobs]
     taken = []

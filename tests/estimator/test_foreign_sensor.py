@@ -97,7 +97,7 @@ def lab(tmp_path_factory, taxim_calib_dir, missing_data) -> dict[str, Path]:
                                        raw_height_px=480, pixel_pitch_m=PITCH_M, gel_modulus_pa=s.gel_modulus_pa,
                                        gel_thickness_m=s.gel_thickness_m)
                         for s in record.sensors)
-        write_record(dataclasses.replace(record, sensors=sensors), records / f"{obj.name}.grasp")
+        write_record(dataclasses.replace(record, sensors=sensors, gripper=None), records / f"{obj.name}.grasp")
 
     settings = root / "settings.toml"
     shipped = default_settings_path().read_text()

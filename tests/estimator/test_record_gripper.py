@@ -37,11 +37,12 @@ def settings():
 
 @pytest.fixture(scope="module")
 def soft_grasp(settings, tmp_path_factory):
-    """A grasp on a rig with 50 kN/m fingers, its record carrying that rig's gripper (written and read)."""
+    """A grasp on a rig with 50 kN/m fingers, its record carrying that rig's gripper (written and read),
+    and the same record stating no gripper (an older record, or an import)."""
     rig = with_fingers(settings, SOFT_FINGERS_N_PER_M)
     record, _ = simulate_grasp(RUBBER, settings=rig, rng=np.random.default_rng(4), seed=4)
-    path = write_record(dataclasses.replace(record, gripper=rig.gripper), tmp_path_factory.mktemp("g") / "r.grasp")
-    return read_record(path), record
+    path = write_record(record, tmp_path_factory.mktemp("g") / "r.grasp")
+    return read_record(path), dataclasses.replace(record, gripper=None)
 
 
 def no_tactile(record, settings):
@@ -117,3 +118,24 @@ def test_the_true_rig_in_the_provenance_is_not_read(settings):
         assert np.array_equal(m.approach_m, measured[0].approach_m)
     estimates = {no_tactile(r, settings).e_pa for r in (record, altered, stripped)}
     assert len(estimates) == 1
+
+
+def test_a_simulated_record_carries_the_gripper_it_was_simulated_with(soft_grasp):
+    carried, _ = soft_grasp
+    assert carried.gripper == with_fingers(load_settings(), SOFT_FINGERS_N_PER_M).gripper
+
+
+def test_a_force_limit_from_the_settings_gripper_is_said_to_be_theirs(soft_grasp, settings):
+    # Read with a weaker gripper than the one that squeezed it, a grasp's forces exceed the limit: the
+    # record's own gripper sets it when the record carries one; else the refusal names the settings'.
+    carried, bare = soft_grasp
+    peak_n = float(np.max(carried.force_n.value))
+    weak = dataclasses.replace(settings, gripper=dataclasses.replace(settings.gripper, target_force_n=peak_n / 4))
+    assert no_tactile(carried, weak).e_pa == no_tactile(carried, settings).e_pa
+    refused = no_tactile(bare, weak)
+    assert not refused and "beyond" in refused.reason
+    assert "the limit is the settings' gripper's (the record states none)" in refused.reason
+    assert refused.reason.endswith("(its target_force_n)? is the load cell's scale (counts_per_n) in newtons?")
+    stated = no_tactile(dataclasses.replace(carried, gripper=weak.gripper), settings)  # the record's own limit
+    assert not stated and "settings' gripper" not in stated.reason
+    assert stated.reason.endswith(" maximum grasp force: is the load cell's scale (counts_per_n) in newtons?")

@@ -106,7 +106,7 @@ def test_without_the_option_the_records_are_those_of_the_settings_rig(tmp_path, 
     expected = write_record(record, tmp_path / "direct.grasp")
     assert plain.read_bytes() == expected.read_bytes()
     back = read_record(plain)
-    assert back.gripper is None and "rig" not in back.provenance.extra
+    assert back.gripper == load_settings(quick_settings).gripper and "rig" not in back.provenance.extra
 
     randomized = simulate_cli(tmp_path / "rig", "--randomize-rig", seed=SEED)
     assert randomized.read_bytes() != plain.read_bytes()

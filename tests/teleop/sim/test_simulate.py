@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -10,7 +11,7 @@ from support.catalogue_toml import object_toml
 from teleop.catalogue import load_catalogue
 from teleop.cli import main
 from teleop.record import read_record
-from teleop.settings import default_settings_path
+from teleop.settings import default_settings_path, load_settings
 
 OAK = object_toml("oak_block", "box", "wood", 1.1e10, texture_m=3e-5)
 
@@ -188,16 +189,18 @@ def test_settings_without_two_sensors_are_refused_before_out_is_made(tmp_path, c
     assert len(stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
 
 
-def test_overwrite_removes_the_stale_preview_and_target_force_is_recorded(tmp_path, catalogue, quick_settings, capsys):
+def test_overwrite_removes_the_stale_preview_and_the_gripper_is_recorded(tmp_path, catalogue, quick_settings, capsys):
     out = tmp_path / "o"
     out.mkdir()
     (out / "oak_block_g000.png").write_bytes(b"another seed's sheet")
     args = ("--objects", str(catalogue), "--only", "oak_block", "--out", str(out), "--settings", str(quick_settings),
             "--overwrite")
-    code, _, stderr = run(capsys, *args)
-    assert code == 0, stderr
-    assert not (out / "oak_block_g000.png").exists()
-    assert "target_force_n" not in read_record(out / "oak_block_g000.grasp").provenance.extra
-    code, _, stderr = run(capsys, *args, "--target-force-n", "12")
-    assert code == 0, stderr
-    assert read_record(out / "oak_block_g000.grasp").provenance.extra["target_force_n"] == 12.0
+    gripper = load_settings(quick_settings).gripper
+    for extra, expected in (((), gripper), (("--operator", "sim"), gripper),
+                            (("--target-force-n", "12"), dataclasses.replace(gripper, target_force_n=12.0))):
+        code, _, stderr = run(capsys, *args, *extra)
+        assert code == 0, stderr
+        assert not (out / "oak_block_g000.png").exists()  # the stale preview, removed by --overwrite
+        record = read_record(out / "oak_block_g000.grasp")
+        assert record.gripper == expected, extra  # what the estimator reads the grasp with
+        assert "target_force_n" not in record.provenance.extra
