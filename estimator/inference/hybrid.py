@@ -41,7 +41,9 @@ Per grasp, the cheapest answer whose expected error fits the budget:
 
 1. The grasp cannot be sampled (no usable loading frame): a refusal that says what the
    force/width-only ``no_tactile`` fit reads (it cannot tell a soft object from a rigid one
-   pressed into the gel, so it is never rendered).
+   pressed into the gel, so it is never rendered). A grasp whose force and width give no
+   loading phase (no contact, implausible forces) is refused with that reason alone: the
+   frames are not what is missing.
 2. The series-compliance fit is ``ok`` with an interval at most
    ``AutoPolicy.max_series_interval_decades`` wide, over at least
    ``MIN_SERIES_FRAMES`` distinct frames: that estimate, and the network is
@@ -251,7 +253,8 @@ class HybridEstimator:
         The model's view of the grasp (:func:`~estimator.inference.sampling.sample_stream`) from the
         stream's finger and calibration, and the other finger's for a marker variant; a grasp that
         cannot be sampled gets a refusal with its reason (in ``auto`` mode saying what the
-        force/width-only ``no_tactile`` fit reads over the stream's measurements).
+        force/width-only ``no_tactile`` fit reads over the stream's measurements, unless the force
+        and width give no loading phase: that reason alone).
 
         Parameters
         ----------
@@ -268,8 +271,11 @@ class HybridEstimator:
         sampled = self._sample(stream)
         if not sampled and mode == "auto":
             fallback = estimate_measurements(stream.measurements(tactile=False), "no_tactile")
-            why = "" if sampled.reason in fallback.reason else f" ({sampled.reason})"  # said once
-            result = _as_fallback(fallback, f"no tactile sample{why}: force and width only")
+            if not fallback and not stream.segment():  # the force and width fail, whatever the frames
+                result = Estimate.refuse("auto", fallback.reason)
+            else:
+                why = "" if sampled.reason in fallback.reason else f" ({sampled.reason})"  # said once
+                result = _as_fallback(fallback, f"no tactile sample{why}: force and width only")
         else:
             result = self.estimate_sampled(sampled, mode=mode)
         return result.with_latency(time.perf_counter() - started)
