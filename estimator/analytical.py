@@ -149,8 +149,10 @@ def _safe(method: str, build: Callable[[], Estimate]) -> Estimate:
 def _falling_depth(approach: np.ndarray, depth: np.ndarray, noise: MeasurementNoise) -> str:
     """Why the depth series is unusable, or "": the gel's indentation cannot fall while the
     fingers close further (beyond the depth noise). It does when the contact is wider than the
-    pad (the gradients the depth is built from leave the image) or the object slips; the reason
-    says whether the widths closed at all. Frames where either is not finite are ignored."""
+    pad (the gradients the depth is built from leave the image), the object slips, or the frames
+    are misaligned in time with the force and width (a camera clock offset: each frame is paired
+    with another moment's approach, more so at high frame rates); the reason says whether the widths
+    closed at all. Frames where either is not finite are ignored."""
     finite = np.isfinite(approach) & np.isfinite(depth)
     order = np.argsort(approach[finite], kind="stable")
     by_approach = depth[finite][order]
@@ -167,7 +169,9 @@ def _falling_depth(approach: np.ndarray, depth: np.ndarray, noise: MeasurementNo
     if moved < 0:
         return (f"{fell} where the widths give more approach: they open by {-2e3 * moved:.3g} mm over the loading "
                 "while the force rises, so the width readings do not follow the grasp, or the object slips")
-    return f"{fell} while the approach grows: the contact is likely wider than the pad, or the object slips"
+    return (f"{fell} while the approach grows: the contact is likely wider than the pad, the object slips, or "
+            "the frames are misaligned in time with the force and width (a camera timing offset: the analytical "
+            "methods' estimator estimate --camera-lag estimates and corrects it)")
 
 
 def _auto_origin(n: int) -> bool:

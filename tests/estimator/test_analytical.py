@@ -193,7 +193,8 @@ def test_gel_that_barely_moves_gives_an_upper_bound():
 
 
 def test_depth_falling_while_closing_is_refused():
-    # What a contact wider than the pad looks like: the reconstructed depth drops as the contact grows.
+    # What a contact wider than the pad looks like: the reconstructed depth drops as the contact grows;
+    # so do frames paired with the wrong moments' approach (a camera timing offset).
     force, approach, depth, a = hertz_series(1e6)
     falling = depth[::-1]
     for est in (
@@ -201,7 +202,9 @@ def test_depth_falling_while_closing_is_refused():
         hertz(force, approach, falling, a, gel_compliance_per_pa=K_GEL, object_poisson=NU, noise=RESOLUTION),
         elastic(force, approach, falling, a**2 * np.pi, initial_width_m=W0, noise=RESOLUTION),
     ):
-        assert not est and "wider than the pad" in est.reason
+        assert not est and "wider than the pad" in est.reason and "the object slips" in est.reason
+        assert "frames are misaligned in time with the force and width" in est.reason
+        assert "estimator estimate --camera-lag estimates and corrects it" in est.reason
 
 
 def test_depth_falling_under_still_or_opening_widths_is_not_said_to_grow_with_the_approach():
