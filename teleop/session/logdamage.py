@@ -207,6 +207,7 @@ def describe(exc: Exception, file: Any, start: int, size: int, good_bytes: int, 
     written) is described as it was read, with its size now and a word that it grew (or shrank: cut
     or replaced meanwhile)."""
     now = _size_now(file, size)
+    total = max(now, size)  # the byte read is within what was there, grown or cut since
     grew = ("" if now == size else
             f"; the file grew from {size} to {now} bytes while it was read: it is still being written" if now > size
             else f"; the file shrank from {size} to {now} bytes while it was read: it was cut or replaced")
@@ -230,14 +231,14 @@ def describe(exc: Exception, file: Any, start: int, size: int, good_bytes: int, 
         length = "" if head is None else f" of {head[1]} bytes"
         if uncut is None:  # really cut short, unless a later chunk shows it is damage (LogReader._read_on)
             return (
-                f"the file ends inside the record after byte {start} of {now} "
+                f"the file ends inside the record after byte {start} of {total} "
                 f"({kind}{length} starts at byte {start}){grew}"
             )
         return (
-            f"damaged record after byte {start} of {now} ({kind} whose length{length} runs "
+            f"damaged record after byte {start} of {total} ({kind} whose length{length} runs "
             f"past the end of the file, though {uncut}){grew}"
         )
-    return f"damaged record after byte {start} of {now} ({kind} of {head[1]} bytes: {what}){grew}"
+    return f"damaged record after byte {start} of {total} ({kind} of {head[1]} bytes: {what}){grew}"
 
 
 def _size_now(file: Any, size: int) -> int:

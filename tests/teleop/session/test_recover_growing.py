@@ -35,4 +35,6 @@ def test_a_log_cut_while_it_is_read_is_said_to_have_shrunk(tmp_path):
     cut.write_bytes(b"x" * 58)
     with cut.open("rb") as file:
         said = describe(ValueError("bad record"), file, 8, 100, 8, None)
-    assert "shrank from 100 to 58 bytes" in said and "grew" not in said
+        assert "shrank from 100 to 58 bytes" in said and "grew" not in said
+        said = describe(ValueError("bad record"), file, 80, 100, 80, None)  # a record read before the cut
+        assert "after byte 80 of 100" in said and "shrank from 100 to 58 bytes" in said
