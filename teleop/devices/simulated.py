@@ -7,11 +7,15 @@ it through the families' name tables (``BACKENDS``), importing only the families
 from __future__ import annotations
 
 import importlib
+import logging
 
 from teleop.devices.base import load_backend
+from teleop.errors import BackendNotFoundError
 from teleop.settings import Settings
 
 __all__ = ["FAMILIES", "is_simulated", "robot_is_simulated"]
+
+log = logging.getLogger(__name__)
 
 #: Device family (``Device.family``) -> the module holding its ``BACKENDS`` table.
 FAMILIES = {
@@ -41,7 +45,11 @@ def is_simulated(family: str, backend: str) -> bool:
         load_backend(family, backends, backend)  # raises, listing the names there are
     try:
         cls = load_backend(family, backends, backend)
-    except Exception:  # noqa: BLE001 - a broken vendor library (OSError, ...) is hardware's problem, not this answer's
+    except BackendNotFoundError:  # a library not installed: a hardware backend's
+        return False
+    except Exception as exc:  # noqa: BLE001 - a broken library (OSError, ...) must not stop a recording
+        log.warning("%s backend %r does not import (%s: %s): taken as hardware", family, backend,
+                    type(exc).__name__, exc)
         return False
     return bool(cls.simulated)
 

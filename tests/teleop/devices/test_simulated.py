@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import subprocess
 import sys
 
@@ -30,14 +31,16 @@ def test_only_the_shipped_sim_backends_are_simulated(family, backend, simulated)
     assert is_simulated(family, backend) is simulated
 
 
-def test_a_backend_whose_module_cannot_be_imported_counts_as_hardware(monkeypatch, tmp_path):
+def test_a_backend_whose_module_cannot_be_imported_counts_as_hardware(monkeypatch, tmp_path, caplog):
     monkeypatch.setitem(loadcell.BACKENDS, "vendor", "no_such_vendor_module:Cell")
     assert is_simulated("load cell", "vendor") is False
     # A vendor library that fails otherwise (a shared object missing: OSError) is hardware's problem too.
     (tmp_path / "broken_vendor_module.py").write_text("raise OSError('libvendor.so.1: cannot open shared object file')\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setitem(loadcell.BACKENDS, "broken", "broken_vendor_module:Cell")
-    assert is_simulated("load cell", "broken") is False
+    with caplog.at_level(logging.WARNING, logger="teleop.devices.simulated"):
+        assert is_simulated("load cell", "broken") is False
+    assert "load cell backend 'broken' does not import (OSError: libvendor.so.1" in caplog.text
 
 
 def test_asking_whether_the_robot_is_simulated_loads_no_simulator():
