@@ -170,8 +170,8 @@ def _falling_depth(approach: np.ndarray, depth: np.ndarray, noise: MeasurementNo
         return (f"{fell} where the widths give more approach: they open by {-2e3 * moved:.3g} mm over the loading "
                 "while the force rises, so the width readings do not follow the grasp, or the object slips")
     return (f"{fell} while the approach grows: the contact is likely wider than the pad, the object slips, or "
-            "the frames are misaligned in time with the force and width (a camera timing offset: the analytical "
-            "methods' estimator estimate --camera-lag estimates and corrects it)")
+            "the frames are misaligned in time with the force and width (a camera timing offset, which "
+            "`estimator estimate --camera-lag` estimates and corrects for the analytical methods)")
 
 
 def _auto_origin(n: int) -> bool:

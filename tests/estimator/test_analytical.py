@@ -204,7 +204,7 @@ def test_depth_falling_while_closing_is_refused():
     ):
         assert not est and "wider than the pad" in est.reason and "the object slips" in est.reason
         assert "frames are misaligned in time with the force and width" in est.reason
-        assert "estimator estimate --camera-lag estimates and corrects it" in est.reason
+        assert "`estimator estimate --camera-lag` estimates and corrects for the analytical methods" in est.reason
 
 
 def test_depth_falling_under_still_or_opening_widths_is_not_said_to_grow_with_the_approach():
