@@ -8,10 +8,6 @@ a glitch, or not in metres. The gripper stops at its maximum grasp force, so a f
 scaled per gram): up to :data:`FORCE_GLITCHES` such readings are dropped, more refuse the grasp (with a
 limit from the reader's settings, for a record that states no gripper, the refusal says so:
 :func:`unstated_gripper`).
-A force that jumps away from both its neighbours, which agree, and back within one sample is a
-glitch too (:func:`force_spikes`): no gripper loads and unloads an object between two load cell
-reads, while one that loads a stiff object that fast holds the force after it. Such spikes are
-dropped, however many, lest one be taken for the loading's peak.
 A force that never reaches the contact force but falls beyond it below zero is a load cell read
 with its sign reversed (:func:`reversed_force`), not a grasp without contact.
 """
@@ -20,11 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator.signals import reading_noise
-
 __all__ = ["FORCE_GLITCHES", "FORCE_LIMIT_FACTOR", "MIN_FORCE_NOISE_N", "MIN_WIDTH_NOISE_M", "REST_SAMPLES",
-           "SCALE_QUESTION", "SPIKE_MIN_SAMPLES", "SPIKE_SHARE", "SPIKE_SIGMAS", "WIDTH_SLACK_SHARE", "force_spikes",
-           "implausible_forces", "implausible_widths", "reversed_force", "unstated_gripper"]
+           "SCALE_QUESTION", "WIDTH_SLACK_SHARE", "implausible_forces", "implausible_widths", "reversed_force",
+           "unstated_gripper"]
 
 WIDTH_SLACK_SHARE = 0.1
 FORCE_LIMIT_FACTOR = 2.0
@@ -35,11 +29,6 @@ SCALE_QUESTION = "is the load cell's scale (counts_per_n) in newtons?"  # ends a
 MIN_FORCE_NOISE_N = 1e-3
 MIN_WIDTH_NOISE_M = 1e-6
 REST_SAMPLES = 10  # the first force samples of a grasp, taken before contact: the cell's reading at rest
-# A spike leaves both neighbours by more than this many reading noises and this share of their force (noise
-# alone, or a hold's ripple, stays within a few noises; simulated grasps have none).
-SPIKE_SIGMAS = 10.0
-SPIKE_SHARE = 0.25
-SPIKE_MIN_SAMPLES = 2 * REST_SAMPLES  # fewer forces tell their noise too roughly to tell a spike from it
 
 
 def implausible_widths(width_m: np.ndarray, *, max_width_m: float) -> tuple[np.ndarray, str]:
@@ -54,49 +43,17 @@ def implausible_widths(width_m: np.ndarray, *, max_width_m: float) -> tuple[np.n
                      "or not in metres?)")
 
 
-def force_spikes(force_n: np.ndarray) -> tuple[np.ndarray, str]:
-    """The isolated one-sample spikes of finite forces (N) in time order, as a mask, and a note naming
-    them ('' when there are none).
-
-    A sample is a spike when it lies on one side of both its neighbours, beyond each by more than
-    :data:`SPIKE_SIGMAS` reading noises and :data:`SPIKE_SHARE` of the neighbours' larger force, while
-    the neighbours agree within that margin. A step that stays up or down, however steep, is no spike:
-    its neighbours disagree. The first and last samples are never spikes (one neighbour only), nor
-    any of fewer than :data:`SPIKE_MIN_SAMPLES` forces.
-    """
-    spike = np.zeros(np.shape(force_n), dtype=bool)
-    if spike.size < SPIKE_MIN_SAMPLES:
-        return spike, ""
-    before, value, after = force_n[:-2], force_n[1:-1], force_n[2:]
-    margin = np.maximum(SPIKE_SIGMAS * reading_noise(force_n, floor=MIN_FORCE_NOISE_N),
-                        SPIKE_SHARE * np.maximum(np.abs(before), np.abs(after)))
-    away = np.maximum(value - np.maximum(before, after), np.minimum(before, after) - value)
-    spike[1:-1] = (away > margin) & (np.abs(before - after) <= margin)
-    if not spike.any():
-        return spike, ""
-    worst = int(np.argmax(np.where(spike[1:-1], away, -np.inf))) + 1
-    return spike, (f"dropped {int(spike.sum())} force samples that jump away from both neighbours and back (at "
-                   f"most {force_n[worst]:.4g} N between {force_n[worst - 1]:.4g} and {force_n[worst + 1]:.4g} N: "
-                   "a glitch)")
-
-
 def implausible_forces(force_n: np.ndarray, *, max_force_n: float) -> tuple[np.ndarray, str, bool]:
-    """The forces (N, finite, in time order) a gripper of maximum grasp force ``max_force_n`` cannot
-    apply, as a mask: beyond its limit, or spikes (:func:`force_spikes`) among the others; a note
-    naming them ('' when there are none); and whether they are more than glitches, so that the grasp
-    is refused (the note is then the reason)."""
+    """The forces (N) a gripper of maximum grasp force ``max_force_n`` cannot apply, as a mask; a
+    note naming them ('' when there are none); and whether they are more than glitches, so that
+    the grasp is refused (the note is then the reason)."""
     limit = FORCE_LIMIT_FACTOR * max_force_n
     beyond = np.abs(force_n) > limit
     told = f"beyond {limit:.4g} N, {FORCE_LIMIT_FACTOR:g} times the gripper's maximum grasp force"
     if beyond.sum() > FORCE_GLITCHES:
         return beyond, (f"{int(beyond.sum())} force samples ({np.abs(force_n).max():.4g} N at most) {told}: "
                         f"{SCALE_QUESTION}"), True
-    notes = [f"dropped {int(beyond.sum())} force samples {told} (a glitch)"] if beyond.any() else []
-    kept = np.flatnonzero(~beyond)
-    spike, note = force_spikes(force_n[kept])
-    dropped = beyond.copy()
-    dropped[kept[spike]] = True
-    return dropped, "; ".join([*notes, note] if note else notes), False
+    return beyond, (f"dropped {int(beyond.sum())} force samples {told} (a glitch)" if beyond.any() else ""), False
 
 
 def unstated_gripper(reason: str) -> str:
