@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import os
@@ -395,28 +394,23 @@ def test_a_source_that_raises_ends_the_bridge_and_is_logged(caplog):
     assert any("stopped serving: the source failed" in r.message for r in caplog.records if r.levelno == logging.ERROR)
 
 
-def _opened(path: str) -> int:
-    """How many of this process's file descriptors are open on ``path``."""
-    count = 0
-    for fd in os.listdir("/proc/self/fd"):
-        with contextlib.suppress(OSError):
-            count += os.readlink(f"/proc/self/fd/{fd}") == path
-    return count
-
-
 def test_bridge_command_exits_with_the_error_when_its_serial_device_goes_away(capsys, unpluggable):
     _, port, unplug = unpluggable
+    said = []
 
-    def unplug_once_open() -> None:  # not before the bridge opened it, however slowly it starts
+    def unplug_once_serving() -> None:  # not before the bridge says it serves, however slowly it starts
         deadline = time.monotonic() + 30.0
-        while _opened(port) < 2 and time.monotonic() < deadline:  # the fixture holds one
+        while time.monotonic() < deadline:
+            said.append(capsys.readouterr())
+            if any("serving on" in s.out for s in said):
+                break
             time.sleep(0.01)
         unplug()
 
-    threading.Thread(target=unplug_once_open, daemon=True).start()
+    threading.Thread(target=unplug_once_serving, daemon=True).start()
     # Within its 60 s: the error is the unplugged port's, not the duration's end.
     assert main(["hx711-bridge", "--serial", port, "--host", "127.0.0.1", "--port", "0", "--duration-s", "60"]) == 2
-    err = capsys.readouterr().err
+    err = "".join(s.err for s in said) + capsys.readouterr().err
     assert err.startswith("teleop hx711-bridge: error: stopped serving tcp://127.0.0.1:") and len(err.splitlines()) == 1
     assert f"serial HX711 at {port}: the port failed: " in err
 
