@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from teleop.system.outcome import GraspOutcome
 
 __all__ = ["LiveView", "closing_table", "display_cell", "felt_line", "felt_summary", "models_answered", "models_line",
-           "rigid_pa"]
+           "rigid_pa", "signed_decades"]
 
 
 def _pa(value: float | None) -> str:
@@ -33,6 +33,12 @@ def _modulus(state: str, e_pa: float | None, unit: str = "") -> str:
 
 def _number(value: float | None, fmt: str) -> str:
     return "-" if value is None else format(value, fmt)
+
+
+def signed_decades(value: float | None) -> str:
+    """A felt offset (decades; negative: felt softer than the label) signed, to two places: ``+0.27``,
+    ``-0.48``; ``-`` for None. A small negative one reads ``+0.00``, never ``-0.00``."""
+    return "-" if value is None else format(round(value, 2) + 0.0, "+.2f")
 
 
 # The states that carry a modulus (a refusal and a grasp without a final have none: _modulus).
@@ -88,7 +94,7 @@ class LiveView:
                   "never felt within 2x" if settled is None else f"felt within 2x {settled:.2f} s after contact")
         return (f"{head} E {_pa(outcome.obj.modulus_pa)} Pa -> {_modulus(outcome.state, outcome.e_final_pa, ' Pa')} "
                 f"({outcome.state}), display {display_cell(outcome)}, "
-                f"felt {_number(felt, '+.2f')} dec, "
+                f"felt {signed_decades(felt)} dec, "
                 f"first estimate {_number(None if first is None else first * 1e3, '.0f')} ms, {timing}")
 
     def update(self, number: int, outcome: GraspOutcome) -> None:
@@ -118,7 +124,7 @@ def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
     header = ("object", "style", "E true (Pa)", "final (Pa)", "state", "display (~Pa)", "felt (dec)", "first est. (ms)",
               "felt 2x (s)", "latency (ms)")
     rows = [(o.obj.name, o.style, _pa(o.obj.modulus_pa), _modulus(o.state, o.e_final_pa), o.state,
-             display_cell(o), _number(o.felt_log10_offset, "+.2f"),
+             display_cell(o), signed_decades(o.felt_log10_offset),
              _number(None if o.t_first_estimate_s is None else o.t_first_estimate_s * 1e3, ".0f"),
              _number(o.t_felt_within_2x_s, ".2f"),
              _number(o.latency_ms, ".0f")) for o in outcomes]

@@ -44,7 +44,7 @@ from teleop.progress import progress_bar
 from teleop.session.export import session_grasps
 from teleop.session.logfile import LogReader
 from teleop.staging import staged, staged_dir
-from teleop.system.demo_table import felt_line, rigid_pa
+from teleop.system.demo_table import felt_line, rigid_pa, signed_decades
 from teleop.system.outcome import display_felt_pa
 from teleop.system.report_data import (
     GraspView,
@@ -156,8 +156,7 @@ def _felt_cell(view: GraspView, recorded: bool, display_range: tuple[float, floa
     felt = _felt_pa(view, recorded, display_range)
     if felt is None:
         return "shown unknown"
-    # signed, as `teleop demo`'s table prints it: negative = felt softer than the label (+ 0.0: no "-0.00")
-    return format(round(felt_log10_offset(felt, view.label_pa, display_range_pa=display_range), 2) + 0.0, "+.2f")
+    return signed_decades(felt_log10_offset(felt, view.label_pa, display_range_pa=display_range))  # as the demo's
 
 
 def _felt_line(views: Sequence[GraspView], recorded: bool, display_range: tuple[float, float]) -> str:

@@ -36,7 +36,7 @@ from teleop.system.demo import (
     prepare_run,
     scene_plan,
 )
-from teleop.system.demo_table import LiveView
+from teleop.system.demo_table import LiveView, signed_decades
 from teleop.system.live_system import LiveSystem, free_ports
 from teleop.system.outcome import ReportReader
 
@@ -95,6 +95,12 @@ def test_outcomes_give_the_closing_table_and_json():
     assert table[4].split()[1:] == ["script", "5e+03", "none", "none", "-", "-", "-", "-", "-"]  # no final: not "?-"
     assert table[-2] == "the display rendered none of 3 grasps"
     assert table[-1] == "model: none (analytical estimates, 2 of 3 finals)"
+
+
+@pytest.mark.parametrize(("offset", "shown"), [(None, "-"), (0.27, "+0.27"), (-0.48, "-0.48"), (-0.004, "+0.00"),
+                                              (-0.006, "-0.01"), (0.0, "+0.00")])
+def test_a_felt_offset_reads_signed_to_two_places_never_minus_zero(offset, shown):
+    assert signed_decades(offset) == shown
 
 
 def test_the_live_line_gives_an_operators_grasp_the_time_to_feel_it_not_the_latency():
