@@ -20,7 +20,7 @@ from estimator.estimate import Estimate
 from estimator.inference.hybrid import ALL_METHODS, HybridEstimator
 from estimator.inference.infer import load_predictor
 from estimator.measure import estimate_grasp
-from estimator.measurements import calibration_problem
+from estimator.measurements import missing_calibration
 from teleop.errors import ComplianceTeleopError
 from teleop.record import GraspRecord, read_record
 from teleop.settings import Settings, default_settings_path, load_settings
@@ -143,17 +143,16 @@ def explained(estimate_record: Estimator, args: argparse.Namespace, settings: Se
               markers: bool = False) -> Estimator:
     """``estimate_record`` whose CalibrationError for a calibration file the record names and that is
     gone says what to do, as ``estimator evaluate`` does
-    (:func:`~estimator.measurements.calibration_problem`): that of the settings' finger unless
+    (:func:`~estimator.measurements.missing_calibration`): that of the settings' finger unless
     ``--calibration`` gives one, and with ``markers`` (a model reading them) the marker finger's."""
     def estimate(record: GraspRecord) -> tuple[Estimate, str | None]:
         try:
             return estimate_record(record)
         except CalibrationError as exc:
-            problem = calibration_problem(record, settings.sensing.finger, args.calibration, "--calibration",
-                                          markers=markers)
-            if problem is None:
+            missing = missing_calibration(record, settings.sensing.finger, args.calibration, markers=markers)
+            if not missing:
                 raise
-            raise CalibrationError(f"calibration missing: {problem}") from exc
+            raise CalibrationError(missing) from exc
     return estimate
 
 

@@ -40,6 +40,7 @@ __all__ = [
     "GraspMeasurements",
     "calibration_path",
     "calibration_problem",
+    "missing_calibration",
     "calibration_sensor_mismatch",
     "check_calibration_fits",
     "check_method",
@@ -257,6 +258,15 @@ def calibration_problem(record: GraspRecord, finger: str, override: str | None, 
         if other is not None:
             problem = _finger_calibration_problem(record, other, marker_override, marker_option)
     return problem
+
+
+def missing_calibration(record: GraspRecord, finger: str, calibration: str | None, *, markers: bool = False) -> str:
+    """Why a calibration file ``record``'s estimate reads is gone (``calibration missing: ...``), or '':
+    :func:`calibration_problem` of ``finger`` unless ``calibration`` (``--calibration``) serves every
+    record, and with ``markers`` (a model variant with markers) of the marker finger too. The one
+    wording ``estimator estimate``, ``evaluate`` and ``bench`` give it."""
+    problem = calibration_problem(record, finger, calibration, "--calibration", markers=markers)
+    return f"calibration missing: {problem}" if problem else ""
 
 
 def _finger_calibration_problem(record: GraspRecord, finger: str, override: str | None,

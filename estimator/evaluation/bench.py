@@ -71,7 +71,6 @@ from estimator.estimate import Estimate
 from estimator.evaluation.evaluate import (
     answered_by,
     cause_kind,
-    missing_calibration,
     result_row,
     unlabelled,
 )
@@ -80,7 +79,7 @@ from estimator.inference.hybrid import HybridEstimator
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.sampling import calibration_for, decoded, sample_grasp
 from estimator.measure import estimate_grasp, measure_grasp, no_contact_reference
-from estimator.measurements import TACTILE_METHODS
+from estimator.measurements import TACTILE_METHODS, missing_calibration
 from estimator.perception.calibration import Calibration
 from estimator.settings import estimator_settings
 from haptics.settings import display_range_pa
@@ -236,7 +235,7 @@ def bench(
     """Time and score ``configs`` over the labelled records in ``paths`` (module notes); a record
     whose own calibration file is gone (unless ``calibration``, the one the configs were given for
     every record, serves it), or the marker finger's where a config reads it, is skipped, as
-    ``estimator evaluate`` skips it (:func:`~estimator.evaluation.evaluate.missing_calibration`).
+    ``estimator evaluate`` skips it (:func:`~estimator.measurements.missing_calibration`).
 
     Raises NothingToBench when none of ``paths`` is readable and labelled (its message counts
     the causes; its ``skipped`` names each record and its cause)."""

@@ -51,7 +51,7 @@ from estimator.inference.hybrid import ALL_METHODS, LEARNED_METHODS, HybridEstim
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.inputs import Variant
 from estimator.measure import estimate_grasp, finger_sensor, measure_grasp
-from estimator.measurements import TACTILE_METHODS, calibration_path, calibration_problem
+from estimator.measurements import TACTILE_METHODS, calibration_path, missing_calibration
 from estimator.perception.calibration import Calibration, load_calibration
 from teleop.errors import RecordError
 from teleop.parallel import progress_map
@@ -208,15 +208,6 @@ def unlabelled(record: GraspRecord) -> str:
     return f"unlabelled: {label.object_name} has no modulus" if label.modulus_pa is None else ""
 
 
-def missing_calibration(record: GraspRecord, finger: str, calibration: str | None, *, markers: bool) -> str:
-    """Why a calibration file ``record``'s estimate reads is gone (``calibration missing: ...``), or '':
-    that of ``finger`` unless ``calibration`` (``--calibration``) serves every record, and with
-    ``markers`` (a model variant with markers) the marker finger's own
-    (:func:`~estimator.measurements.calibration_problem`)."""
-    problem = calibration_problem(record, finger, calibration, "--calibration", markers=markers)
-    return f"calibration missing: {problem}" if problem else ""
-
-
 def evaluate_record(
     path: Path,
     *,
@@ -232,7 +223,7 @@ def evaluate_record(
     row without a method for a skipped one, whose ``skipped`` says why: ``unreadable: ...``,
     ``unlabelled`` (no label, or no modulus), ``calibration missing: ...`` (a calibration file the
     record names is absent, the marker finger's included for a model with markers:
-    :func:`missing_calibration`), ``calibration unusable: ...`` (one it names does not load), or
+    :func:`~estimator.measurements.missing_calibration`), ``calibration unusable: ...`` (one it names does not load), or
     ``trained on: OBJECT`` (its object is in ``exclude``, the objects a model trained on:
     :func:`~estimator.inference.provenance.trained_objects`).
 
