@@ -39,7 +39,7 @@ from teleop.errors import SettingsError
 from teleop.scene import SCENE_DIR, Scene, load_scene, scene_path
 from teleop.session.foxglove_live import add_foxglove_argument
 from teleop.settings import Settings, default_settings_path, load_settings
-from teleop.system.demo_table import LiveView, closing_table, models_answered
+from teleop.system.demo_table import LiveView, closing_table, felt_summary, models_answered
 from teleop.system.live_system import (
     CALIBRATION_PRESSES,
     LiveSystem,
@@ -272,7 +272,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"session log: {system.session_log}{partial}", file=text)
     if args.json:
         print(json.dumps({"scene": scene.name, "operator": args.operator, "grasps": [o.to_json() for o in outcomes],
-                          "models": models_answered(outcomes),
+                          "models": models_answered(outcomes), "summary": felt_summary(outcomes),
                           "session_log": str(system.session_log), "recording_stopped": system.recording_stopped,
                           "run_dir": str(run_dir),
                           "wall_s": time.monotonic() - started}, allow_nan=False))

@@ -4,22 +4,23 @@ The table shows what the softness display rendered for each grasp's final estima
 (at or beyond the display's stiff end, the sensor's resolution limit unless the settings set
 another), ``unknown`` (no usable estimate: the display goes free) or the fraction of the display's
 range with the modulus that fraction stands for on the logarithmic scale (``0.62 ~2.1e+05``).
-Below the table a line names the learned model(s) whose final estimates it shows
+Below the table a line says what the operator felt (:func:`felt_summary`, whose figures ``teleop demo
+--json`` gives as ``summary``) and a line names the learned model(s) whose final estimates it shows
 (:func:`models_line`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
 if TYPE_CHECKING:
     from teleop.system.outcome import GraspOutcome
 
-__all__ = ["LiveView", "closing_table", "display_cell", "felt_line", "felt_summary", "models_answered", "models_line",
-           "rigid_pa", "signed_decades"]
+__all__ = ["LiveView", "closing_table", "display_cell", "felt_figures", "felt_line", "felt_summary", "felt_text",
+           "models_answered", "models_line", "rigid_pa", "signed_decades"]
 
 
 def _pa(value: float | None) -> str:
@@ -114,7 +115,7 @@ def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
     rendered (:func:`display_cell`), the felt error (decades from the label on the display's range to
     the rendering, negative when felt too soft: a rigid object rendered rigid is exact, whatever the
     bound), first estimate, the time from contact until the display stayed within a factor 2 of the
-    label, latency; then :func:`felt_summary` and :func:`models_line`.
+    label, latency; then the line of :func:`felt_summary` (:func:`felt_text`) and :func:`models_line`.
 
     The latency runs from the last loading frame to the display report of the final estimate; an
     operator's grasp has its final when the operator lets go, seconds after the peak, so it shows
@@ -134,7 +135,7 @@ def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
     lines = ["  ".join(str(cell).ljust(w) if i == 0 else str(cell).rjust(w)
                        for i, (cell, w) in enumerate(zip(row, widths, strict=True))) for row in (header, *rows)]
     lines.insert(1, "  ".join("-" * w for w in widths))
-    lines.append(felt_summary(outcomes))
+    lines.append(felt_text(felt_summary(outcomes)))
     lines.append(models_line(outcomes))
     return "\n".join(lines)
 
@@ -162,26 +163,54 @@ def models_line(outcomes: Sequence[GraspOutcome]) -> str:
             + (f"; analytical: {analytical}" if analytical else ""))
 
 
-def felt_summary(outcomes: Sequence[GraspOutcome]) -> str:
-    """What the operator felt over ``outcomes``, in one line (:func:`felt_line`)."""
+def felt_summary(outcomes: Sequence[GraspOutcome]) -> dict[str, Any]:
+    """The figures of what the operator felt over ``outcomes`` (:func:`felt_figures`): the closing
+    table's line (:func:`felt_text`) and ``teleop demo --json``'s ``summary``."""
     felt = [o for o in outcomes if o.felt_log10_error is not None]
     display_range = felt[0].display_range if felt else (0.0, 0.0)
-    return felt_line([(o.obj.modulus_pa, o.display_e_pa) for o in felt], display_range, grasps=len(outcomes))
+    return felt_figures([(o.obj.modulus_pa, o.display_e_pa) for o in felt], display_range, grasps=len(outcomes))
+
+
+def felt_figures(felt: Sequence[tuple[float, float]], display_range: tuple[float, float], *,
+                 grasps: int) -> dict[str, Any]:
+    """What the operator felt, from the (label, rendered modulus) pairs (Pa) of the ``grasps`` the
+    display rendered a modulus for: each rendering against the label clipped to the display's range
+    ``display_range`` (e_soft_pa, e_rigid_pa; an object stiffer than its rigid end is right when
+    rendered rigid).
+
+    Returns
+    -------
+    dict
+        ``grasps``; ``rendered``, those the display rendered a modulus for, and ``not_rendered``
+        (no estimate, or shown unknown); ``mean_error_decades``, the mean felt error; ``within_2x``,
+        the renderings within a factor 2; ``dangerous_misses``
+        (:func:`estimator.evaluation.metrics.dangerous_miss`). The last three are None when the
+        display rendered none.
+    """
+    from estimator.evaluation.metrics import dangerous_miss, felt_log10_error, felt_within
+
+    figures: dict[str, Any] = {"grasps": grasps, "rendered": len(felt), "not_rendered": grasps - len(felt),
+                               "mean_error_decades": None, "within_2x": None, "dangerous_misses": None}
+    if felt:
+        errors = [felt_log10_error(e_pa, label, display_range_pa=display_range) for label, e_pa in felt]
+        # Plain int and float: a rendering read through numpy makes numpy scalars, which json refuses.
+        figures.update(mean_error_decades=float(np.mean(errors)), within_2x=int(sum(map(felt_within, errors))),
+                       dangerous_misses=int(sum(dangerous_miss(label, e_pa, e_rigid_pa=display_range[1])
+                                                for label, e_pa in felt)))
+    return figures
+
+
+def felt_text(figures: dict[str, Any]) -> str:
+    """The figures of :func:`felt_figures` in one line, the mean error to two places."""
+    if not figures["rendered"]:
+        return f"the display rendered none of {figures['grasps']} grasps"
+    unrendered = figures["not_rendered"]
+    return (f"felt (display against the label on its range): mean error {figures['mean_error_decades']:.2f} "
+            f"decades, {figures['within_2x']} of {figures['grasps']} within a factor 2, "
+            f"{figures['dangerous_misses']} dangerous misses"
+            + (f", {unrendered} not rendered" if unrendered else ""))
 
 
 def felt_line(felt: Sequence[tuple[float, float]], display_range: tuple[float, float], *, grasps: int) -> str:
-    """What the operator felt, in one line, from the (label, rendered modulus) pairs (Pa) of the
-    ``grasps`` the display rendered a modulus for: each rendering against the label clipped to the
-    display's range (an object stiffer than its rigid end is right when rendered rigid), the share
-    within a factor 2, the dangerous misses (:func:`estimator.evaluation.metrics.dangerous_miss`) and
-    the grasps the display rendered nothing for (no estimate, or shown unknown)."""
-    from estimator.evaluation.metrics import dangerous_miss, felt_log10_error, felt_within
-
-    if not felt:
-        return f"the display rendered none of {grasps} grasps"
-    errors = [felt_log10_error(e_pa, label, display_range_pa=display_range) for label, e_pa in felt]
-    misses = sum(dangerous_miss(label, e_pa, e_rigid_pa=display_range[1]) for label, e_pa in felt)
-    unrendered = grasps - len(felt)
-    return (f"felt (display against the label on its range): mean error {np.mean(errors):.2f} decades, "
-            f"{sum(map(felt_within, errors))} of {grasps} within a factor 2, {misses} dangerous misses"
-            + (f", {unrendered} not rendered" if unrendered else ""))
+    """What the operator felt, in one line (:func:`felt_text` of :func:`felt_figures`)."""
+    return felt_text(felt_figures(felt, display_range, grasps=grasps))

@@ -36,7 +36,7 @@ from teleop.system.demo import (
     prepare_run,
     scene_plan,
 )
-from teleop.system.demo_table import LiveView, signed_decades
+from teleop.system.demo_table import LiveView, felt_text, signed_decades
 from teleop.system.live_system import LiveSystem, free_ports
 from teleop.system.outcome import ReportReader
 
@@ -328,6 +328,9 @@ def test_demo_runs_the_quick_scene_end_to_end(quick_demo_script, tmp_path):
     assert any(line.startswith("object") for line in out) and f"session log: {run.folder / 'session.mcap'}" in out
     header = next(line for line in out if line.startswith("object"))
     assert "display" in header and "state" in header
+    # The JSON's summary holds the figures of the table's felt line, the line below the rows.
+    assert felt_text(result["summary"]) == out[out.index(header) + 2 + len(result["grasps"])]
+    assert result["summary"]["grasps"] == len(result["grasps"])
     topics = {m.message.topic for m in LogReader(Path(result["session_log"])).messages(None)}
     assert {"frame/left", "frame/right", "force", "width", "grasp_event", "estimate", "command"} <= topics
     assert our_live_children() == []  # every child stopped
