@@ -9,7 +9,7 @@ import pytest
 from haptics.errors import OperatorInputError
 from haptics.inputs import OperatorInput, make_input
 from haptics.inputs.keyboard import KeyboardInput
-from haptics.settings import INPUT_BACKENDS, OperatorSettings, operator_settings
+from haptics.settings import OperatorSettings, operator_settings
 from teleop.errors import SettingsError
 from teleop.settings import load_settings
 
@@ -71,12 +71,6 @@ def test_aliases_of_unmapped_or_distinct_buttons_are_accepted():
 
 def test_an_unmapped_button_is_left_out():
     assert "quit" not in OperatorSettings(gamepad_quit="").gamepad_buttons()
-
-
-def test_the_choices_are_the_backends():
-    from haptics.inputs.base import BACKENDS
-
-    assert tuple(BACKENDS) == INPUT_BACKENDS
 
 
 def test_an_operator_table_in_a_file_is_read_and_checked_naming_the_file(tmp_path):
