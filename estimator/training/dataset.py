@@ -240,11 +240,8 @@ def _check_record(path: Path, *, finger: str,
     if finger not in fingers:
         return _skip(path, "no sensor", f"no sensor on finger {finger!r} (the settings' sensing.finger); the "
                                         f"record has {', '.join(fingers)}: pass the --settings of its rig")
-    problem = calibration_problem(record, finger, options.calibration, "--calibration")
-    if problem is None and options.markers:
-        other = next((s.finger for s in record.sensors if s.finger != finger and s.markers), None)
-        if other is not None:
-            problem = calibration_problem(record, other, options.marker_calibration, "--marker-calibration")
+    problem = calibration_problem(record, finger, options.calibration, "--calibration", markers=options.markers,
+                                  marker_override=options.marker_calibration, marker_option="--marker-calibration")
     if problem is not None:
         return _skip(path, "calibration missing", problem)
     return label.object_name, label.material or "", label.modulus_pa
