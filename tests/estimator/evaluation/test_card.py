@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -142,6 +143,12 @@ def test_the_shipped_card_matches_the_json_it_came_from(capsys):
     assert main(["card", str(SHIPPED_CARD), "--check"]) == 0, capsys.readouterr().err
     sources, _ = recorded_sources(SHIPPED_CARD.read_text(), SHIPPED_CARD)
     assert sources and all(path.is_file() and path.stat().st_size < 16_000 for _, path in sources)
+
+def test_the_shipped_cards_validation_coverage_is_the_one_its_metadata_records():
+    text = " ".join(SHIPPED_CARD.read_text(encoding="utf-8").split())
+    recorded = json.loads((SHIPPED_CARD.parent / "metadata.json").read_text())["metrics"]["val"]["hybrid"]
+    stated = re.findall(r"on the validation objects, (\d+\.\d) %", text)
+    assert stated == [f"{100 * recorded['interval_coverage']:.1f}"], stated
 
 
 def test_keep_refuses_to_replace_another_cards_copy_unless_overwrite(tmp_path, card, capsys):
