@@ -18,10 +18,10 @@ frozen :class:`~haptics.operator_status.LoopStatus` ten times a second. Panels:
   estimate's interval is on the display's range (its whole width, not a +/-);
 * **operator**: the input device, the grip as a bar and the target width it asks for, the
   dead-man enable, the mode (follow, discrete grasp, idle), the discrete grasp's force;
-* **notices**: the robot's last notice (a refused command, the watchdog), the watchdog's kept
-  above a later refusal, and what went wrong on this side (a send that failed), with the
-  operator's last actions, then the last warning logged (a refused CURVE handshake, say: the
-  log itself is held until the screen closes);
+* **notices**: what went wrong on this side (a send that failed) first, then the robot's last
+  notice (a refused command, the watchdog), the watchdog's kept above a later refusal, the
+  operator's last actions, newest first, and the last warning logged (a refused CURVE handshake,
+  say: the log itself is held until the screen closes); cut to the panel's rows, ending in ``…``;
 * the **keys**, at the bottom. The whole fits an 80x24 terminal; in a smaller one, where panels
   are cut off, a line at the top says so and shows the dead-man enable and the mode.
 
@@ -33,7 +33,9 @@ Keys: with ``--input keyboard`` every key goes to the keyboard input device
 (:mod:`haptics.inputs.keyboard`: up/down squeeze and open, e toggles the enable, g r s n q are the
 buttons). With the other inputs the device drives the grip and enable, and g r s n q still work
 as the buttons from the keyboard. Always: ``+``/``-`` change the discrete grasp's force by 1 N
-(up to the settings' maximum), ctrl+c and ctrl+q quit, and ``l`` labels a grasp.
+(up to the settings' maximum), ctrl+c and ctrl+q quit, and ``l`` labels a grasp. s r e q act
+whatever has the focus, except in the open label line (textual's command palette is off: its
+search box would take them as typing).
 
 Labelling: ``l`` opens a line under the panels, in place of the keys' legend, for the grasp shown
 (after ``n``, the last one): type the object's catalogue name (the right arrow takes the
@@ -74,6 +76,10 @@ log = logging.getLogger(__name__)
 
 #: Keys that press a button from the console whatever the input device.
 CONSOLE_BUTTON_KEYS = {"g": "grasp", "r": "release", "s": "stop", "n": "next", "q": "quit"}
+#: Keys that stop the fingers, let them go, toggle the enable or quit: the console's before textual's
+#: bindings or any focused widget could take them (the label line alone takes them, as letters, while
+#: it is open).
+SAFETY_KEYS = ("s", "r", "e", "q")
 LABEL_KEY = "l"
 LABEL_PLACEHOLDER = "object name (right arrow takes the suggestion), NAME shore A 40, NAME shore 00 60 or NAME 12 MPa"
 FORCE_STEP_N = 1.0
@@ -198,6 +204,7 @@ class OperatorConsole(App):
 
     TITLE = "haptics operate"
     AUTO_FOCUS = None  # the keys are the console's until the label line opens
+    ENABLE_COMMAND_PALETTE = False  # ctrl+p would open a search box over the status that takes s, e and q
     CSS = """
     Screen { layout: vertical; overflow-y: auto; }
     .row { height: auto; width: 100%; }
@@ -289,14 +296,26 @@ class OperatorConsole(App):
 
     def on_key(self, event: events.Key) -> None:
         key = event.key
+        event.stop()
         if self.labelling is not None:  # the label line has the keys; escape closes it
-            event.stop()
             if key == "escape":
                 self.close_label()
             else:
                 self.query_one("#label", Input).focus()  # back to the line (after a tab, say)
             return
-        event.stop()
+        self._press_key(key, event.character or "")
+
+    async def on_event(self, event: events.Event) -> None:
+        # A key from the terminal (not one bubbling back) reaches textual's bindings and the focused
+        # widget here; even a priority binding gives way to a focused line that takes letters.
+        if (isinstance(event, events.Key) and not event.is_forwarded and event.key in SAFETY_KEYS
+                and self.labelling is None):
+            self._press_key(event.key, event.character or "")
+            return
+        await super().on_event(event)
+
+    def _press_key(self, key: str, character: str) -> None:
+        """A key the console takes (not the label line's): to the keyboard input device first."""
         if key == LABEL_KEY and (self.keyboard is None or not self.keyboard.press(key)):
             self.open_label()
             return
@@ -305,7 +324,6 @@ class OperatorConsole(App):
             return
         if self.keyboard is not None and self.keyboard.press(key):
             return
-        character = event.character or ""
         if character in ("+", "=") or key in ("plus", "equals_sign"):
             self.loop.set_force(self.loop.force_n + FORCE_STEP_N)
         elif character == "-" or key in ("minus", "hyphen"):
@@ -400,7 +418,10 @@ class OperatorConsole(App):
         cap = None if self.size.height >= TALL_LINES else PANEL_LINES  # else row 2 would push notices off
         for name, _ in self.PANELS:
             panel = self.query_one(f"#{name}", Static)
-            drawn = _fit(texts[name], panel.content_size.width, cap if name in ("estimate", "display") else None)
+            lines = cap if name in ("estimate", "display") else None
+            if name == "notice":  # its row's height is the layout's: cut here, not clipped mid-line
+                lines = panel.content_size.height or None  # 0: not laid out yet
+            drawn = _fit(texts[name], panel.content_size.width, lines)
             if self.drawn.get(name) != drawn:  # wrapped here, so that a cut line ends in an ellipsis
                 panel.update(Text(drawn))
                 self.drawn[name] = drawn
@@ -486,23 +507,25 @@ class OperatorConsole(App):
             f"grasp force {status.force_n:g} N (max {max_force:g})  hand {felt}",
             f"sent {status.follows_sent} follow, {status.commands_sent} command",
         ]
-        notice_lines = []  # why a grasp stopped first: a refusal that came after it must not hide it
+        # In the order kept when the panel is cut to fit: what is wrong now, then why a grasp stopped (a
+        # refusal that came after it must not hide it), and the newest of the operator's actions first.
+        notice_lines = []
+        if self.loop_error:
+            notice_lines.append(self.loop_error + " (q quits)")
+        if status.problem:
+            notice_lines.append(f"problem: {status.problem}")
         if view.ended_by is not None and view.ended_by != view.notice:
             notice_lines.append(_notice_line(view.ended_by, view.t_s, view.ended_by_t_s))
         if view.notice is not None:
             notice_lines.append(_notice_line(view.notice, view.t_s, view.notice_t_s))
         else:
             notice_lines.append("robot: no notice")
-        if self.loop_error:
-            notice_lines.append(self.loop_error + " (q quits)")
-        if status.problem:
-            notice_lines.append(f"problem: {status.problem}")
         if self.console_note and view.grasp_id in (None, self._note_grasp):
             notice_lines.append(self.console_note)
         if view.refused:
             notice_lines.append(f"{view.refused} bus message(s) refused (see the log)")
-        notice_lines.append("last: " + ("  |  ".join(status.log[-3:]) or "-"))
-        if self.log_note:  # last: a long one is cut by the panel, not the lines above
+        notice_lines.append("last: " + ("  |  ".join(reversed(status.log[-3:])) or "-"))
+        if self.log_note:  # last: a long one is cut, not the lines above
             notice_lines.append(self.log_note)
         return {"alive": alive, "grasp": "\n".join(grasp), "estimate": "\n".join(lines),
                 "display": "\n".join(display), "input": "\n".join(operator), "notice": "\n".join(notice_lines)}

@@ -13,6 +13,7 @@ from haptics.inputs.keyboard import KeyboardInput
 from haptics.operator_link import OperatorView, Peer
 from haptics.operator_loop import OperatorLoop
 from teleop.bus.messages import EstimateBody, RobotNoticeBody, RobotStateBody
+from teleop.errors import BusError
 from teleop.settings import load_settings
 
 ALIVE = (Peer("robot node", "robot", True, 0.1), Peer("estimator", "estimator", False, 4.0),
@@ -49,7 +50,7 @@ def test_at_80x24_the_estimate_notices_and_keys_fit_and_the_toggle_tells_the_tru
                 assert "suspended" not in app.texts["input"]
                 # A dead estimator is named where its estimate is.
                 assert "the estimator is down: not current" in app.texts["estimate"]
-                # Everything fits the screen: the notices (the watchdog and the refusal, whole) and the keys.
+                # Everything fits the screen: the notices (the watchdog whole) and the keys.
                 screen = app.screen.region
                 for name in ("estimate", "notice", "keys"):
                     widget = app.query_one(f"#{name}")
@@ -62,7 +63,9 @@ def test_at_80x24_the_estimate_notices_and_keys_fit_and_the_toggle_tells_the_tru
                 assert all(len(line) <= 78 for line in app.query_one("#keys").render().plain.splitlines())
                 notices = " ".join(app.drawn["notice"].split())
                 assert "watchdog" in notices and "the fingers stopped" in notices
-                assert "name a new grasp to start one" in notices
+                # ... the refusal after it begun, cut to the panel's rows where they end, saying so
+                assert "robot refused follow" in notices and notices.endswith("\u2026")
+                assert len(app.drawn["notice"].splitlines()) <= app.query_one("#notice").content_size.height
                 assert len(app.drawn["estimate"].splitlines()) <= 4 and app.drawn["estimate"].endswith("\u2026")
                 # One e drives again, under a new grasp.
                 sent = len(link.sent)
@@ -96,6 +99,45 @@ def test_a_long_reason_leaves_the_operator_and_notices_on_a_100x32_screen():
                 screen = app.screen.region
                 for name in ("input", "notice", "keys"):
                     assert screen.contains_region(app.query_one(f"#{name}").region), name
+                await pilot.press("q")
+                await until(lambda: app.exit_status is not None, pilot)
+
+    asyncio.run(session())
+
+
+class DeafLink(ConsoleLink):
+    """A link whose commands cannot be sent (the robot node went away)."""
+
+    def start_grasp(self, *, target_force_n, grasp_id=None):
+        raise BusError("no robot node subscribes to the commands: a start_grasp now would reach no one")
+
+
+def test_at_80x24_the_notices_show_the_current_problem_first_and_say_where_they_are_cut():
+    link = DeafLink(ALIVE)
+
+    async def session() -> None:
+        with KeyboardInput() as keyboard:
+            app = OperatorConsole(OperatorLoop(link, keyboard, load_settings(), force_n=10.0), input_name="keyboard",
+                                  keyboard=keyboard)
+            async with app.run_test(size=(80, 24)) as pilot:
+                now = time.monotonic()
+                refusal = RobotNoticeBody(event="refused", action="follow", grasp_id="op-1", reason=" ".join(
+                    ["grasp 'op-1' has ended: name a new grasp to start one"] * 3))
+                watchdog = RobotNoticeBody(event="watchdog", action="follow", grasp_id="op-1",
+                                           reason="no follow command for 0.610 s (watchdog 0.2 s): the fingers stopped")
+                link.view = OperatorView(t_s=now, peers=ALIVE, grasp_id="op-1", phase="ended", notice=refusal,
+                                         notice_t_s=now - 5.0, ended_by=watchdog, ended_by_t_s=now - 5.1)
+                await pilot.press("e", "e", "g")
+                await until(lambda: "problem:" in app.texts.get("notice", ""), pilot)
+                await pilot.pause(0.2)
+                panel = app.query_one("#notice")
+                drawn = app.drawn["notice"].splitlines()
+                # What is wrong now leads, the old refusal gives way, and the cut says so.
+                assert drawn[0].startswith("problem: not sent (bus)"), drawn
+                assert len(drawn) <= panel.content_size.height and drawn[-1].endswith("\u2026"), drawn
+                # The operator's actions newest first: the failed grasp before the enable's toggles.
+                last = next(line for line in app.texts["notice"].splitlines() if line.startswith("last: "))
+                assert last.index("a start_grasp now would reach no one") < last.index("enable")
                 await pilot.press("q")
                 await until(lambda: app.exit_status is not None, pilot)
 
