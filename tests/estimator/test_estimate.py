@@ -60,9 +60,10 @@ def test_invalid_estimates_cannot_be_built(kwargs):
         Estimate(method="x", reason="r", **kwargs)
 
 
-def test_negative_latency_is_refused():
+@pytest.mark.parametrize("latency_s", [-0.1, math.inf, math.nan])
+def test_a_negative_or_unbounded_latency_is_refused(latency_s):
     with pytest.raises(FitError, match="latency"):
-        Estimate.ok("x", 1.0, 1.0, 1.0).with_latency(-0.1)
+        Estimate.ok("x", 1.0, 1.0, 1.0).with_latency(latency_s)
 
 
 @given(st.floats(allow_nan=True, allow_infinity=True), st.floats(allow_nan=True, allow_infinity=True))

@@ -157,10 +157,10 @@ def test_the_max_width_is_read_once_per_connection_and_a_down_gripper_refuses_at
 
 
 def test_a_dropped_read_leaves_the_gripper_up_and_a_stop_always_goes_to_the_fingers(monkeypatch):
-    monkeypatch.setattr(gripper_module, "LINK_DOWN_S", 1.0)
+    monkeypatch.setattr(gripper_module, "LINK_DOWN_S", 2.0)
     with LinkGripper(GripperSettings(width_read_hz=50.0)) as gripper:
         gripper.up.clear()
-        time.sleep(0.1)  # a few failed reads at 50 Hz: not down yet
+        time.sleep(0.4)  # several failed reads (each takes 50 ms), but not failing for LINK_DOWN_S: not down yet
         assert gripper.link_error is None
         end = time.monotonic() + 5.0
         while gripper.link_error is None:  # failing for LINK_DOWN_S: down

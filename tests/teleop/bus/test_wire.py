@@ -224,6 +224,10 @@ def test_buffer_size_must_match_dtype_times_shape():
     assert _refused(_with_header(frames, buffers=[["t_s", "|O", [9]], ["value_n", "<f8", [9]]])) == "bad_buffer"
     assert _refused(frames[:4]) == "bad_buffer"  # header lists two buffers, one came
     assert _refused(_with_header(frames, buffers=[["t_s", "<f8", [9]], ["t_s", "<f8", [9]]])) == "bad_buffer"
+    # a third buffer naming one already given would replace it (injected values): each is given once
+    header = msgpack.unpackb(frames[1])
+    doubled = _with_header(frames, buffers=[*header["buffers"], ["value_n", "<f8", [9]]])
+    assert _refused([*doubled, np.full(9, 999.0).tobytes()]) == "bad_buffer"
 
 
 def test_nan_where_a_finite_number_is_required():
