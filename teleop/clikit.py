@@ -127,6 +127,9 @@ def positive_int(text: str) -> int:
     return value
 
 
+#: The distribution the commands come from: its version, its extras.
+DISTRIBUTION = "compliance-teleop"
+
 #: The top-level modules each optional extra of pyproject.toml installs, for the extras commands name.
 EXTRA_MODULES = {"train": frozenset({"torch", "onnx", "onnxscript"})}
 
@@ -293,6 +296,25 @@ def _discard_standard_output() -> None:
     os.close(devnull)
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: print ``<prog> <version>`` and exit 0. The version is looked up only when asked,
+    so that no other run imports what finds it."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        import importlib.metadata
+
+        try:
+            version = importlib.metadata.version(DISTRIBUTION)
+        except importlib.metadata.PackageNotFoundError:  # run from a source tree on sys.path
+            version = f"(version unknown: the {DISTRIBUTION} distribution is not installed)"
+        print(f"{parser.prog} {version}")
+        parser.exit()
+
+
 def _parsed(prog: str, description: str, commands: Mapping[str, Command], argv: list[str],
             chosen: str | None) -> argparse.Namespace:
     """``argv`` parsed, with the ``chosen`` subcommand's module imported for its options; logging set up."""
@@ -300,6 +322,7 @@ def _parsed(prog: str, description: str, commands: Mapping[str, Command], argv: 
         prog=prog, description=description.replace("``", ""), formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (repeatable)")
+    parser.add_argument("--version", action=_VersionAction, help="print the installed version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
     sub.required = True
     for name, command in commands.items():
@@ -354,7 +377,7 @@ def run_cli(
         if not _missing_extra(command, exc):
             raise
         print(f"{prog} {args.command}: error: needs the '{command.extra}' extra ({exc}): "
-              f"pip install 'compliance-teleop[{command.extra}]' (in a checkout: "
+              f"pip install '{DISTRIBUTION}[{command.extra}]' (in a checkout: "
               f"pip install -c constraints.txt -e '.[{command.extra}]')", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP (sigterm_as_ctrl_c)

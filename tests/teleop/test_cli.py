@@ -10,6 +10,7 @@ import shlex
 import subprocess
 import sys
 import types
+from importlib import metadata
 from pathlib import Path
 
 import pytest
@@ -43,6 +44,24 @@ def test_the_readme_names_every_command(prog):
     commands = (ROOT / "README.md").read_text().split("## Commands", 1)[1].split("\n## ", 1)[0]
     listed = next(item for item in commands.split("\n- ") if item.startswith(f"`{prog}`"))
     assert [name for name in PACKAGES[prog] if f"`{name}`" not in listed] == []
+
+
+@pytest.mark.parametrize("prog", sorted(PACKAGES))
+def test_version_prints_the_installed_version(prog):
+    result = run_script(prog, "--version")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == f"{prog} {metadata.version('compliance-teleop')}\n"
+
+
+def test_version_without_the_distribution_installed_is_no_crash(monkeypatch, capsys):
+    def not_installed(name):
+        raise metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(metadata, "version", not_installed)
+    with pytest.raises(SystemExit) as exit_:
+        haptics.cli.main(["--version"])
+    assert exit_.value.code == 0 and capsys.readouterr().out == (
+        "haptics (version unknown: the compliance-teleop distribution is not installed)\n")
 
 
 def test_teleop_has_the_foundation_commands():
