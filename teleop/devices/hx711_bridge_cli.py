@@ -4,7 +4,8 @@ The source is a simulated cell (``--fake``) or an Arduino-style serial HX711 bri
 (``--serial PORT``, pyserial), calibrated and paced by the settings' ``[load_cell]``.
 It serves until ``--duration-s`` passed, Ctrl-C or SIGTERM, then closes the server and (``--json``)
 prints its summary; when the source fails (the serial device went away) it closes every host's
-connection and exits with the error (status 2).
+connection and exits with the error (status 2). Listening beyond loopback (the default ``0.0.0.0``,
+for the host across the network) it warns on stderr: any host can connect, unauthenticated.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import math
 import sys
 import time
 
+from teleop.bus.security import is_loopback
 from teleop.clikit import positive_number
 from teleop.devices.hx711_bridge import FakeHx711, Hx711Bridge, SerialCounts
 from teleop.errors import DeviceError, SettingsError
@@ -29,7 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--fake", action="store_true", help="serve a simulated load cell (constant --force-n plus noise)")
     source.add_argument("--serial", metavar="PORT", help="serve an Arduino-style serial HX711 bridge on this port")
-    parser.add_argument("--host", default="0.0.0.0", help="address to listen on")
+    parser.add_argument(
+        "--host", default="0.0.0.0", help="address to listen on; beyond loopback (the default included) any host on "
+        "the network can connect, unauthenticated, and a warning says so: 127.0.0.1 for this machine only"
+    )
     parser.add_argument("--port", type=int, default=5601, help="TCP port to listen on (0: any free port)")
     parser.add_argument(
         "--settings", default=str(default_settings_path()), help="settings TOML: [load_cell] calibration, rate and baud"
@@ -58,6 +63,21 @@ def _checked(args: argparse.Namespace, cell: LoadCellSettings) -> LoadCellSettin
         raise SettingsError(f"--baud {args.baud}: {exc}") from None
 
 
+def _reachable(host: str) -> bool:
+    """Whether other hosts can connect to a server listening on ``host`` ("": every interface)."""
+    return not host or not is_loopback(f"tcp://[{host}]:*" if ":" in host else f"tcp://{host}:*")
+
+
+def _warn_reachable(bridge: Hx711Bridge) -> None:
+    """Say on stderr that other hosts reach ``bridge`` unauthenticated (the bus refuses such an
+    endpoint without CURVE keys; the bridge has none), and how to keep it to this one."""
+    print(f"teleop hx711-bridge: warning: {bridge.address} is reachable from other hosts, unencrypted and without "
+          f"authentication (the bus's CURVE keys do not cover it): anyone on the network can read the load cell "
+          f"or take up its connections; serve it on 127.0.0.1 only (--host 127.0.0.1) and reach it through an SSH "
+          f"tunnel (ssh -L {bridge.port}:127.0.0.1:{bridge.port} THIS-HOST) unless this network is trusted",
+          file=sys.stderr, flush=True)
+
+
 def run(args: argparse.Namespace) -> int:
     cell = _checked(args, load_settings(args.settings).load_cell)
     if args.fake:
@@ -76,7 +96,10 @@ def run(args: argparse.Namespace) -> int:
         # The signals are caught until the server is closed, so a second Ctrl-C cannot cut that short.
         with StopSignals() as signals, Hx711Bridge(source, host=args.host, port=args.port,
                                                    on_failure=lambda _why: signals.stop.set()) as bridge:
-            print(f"hx711-bridge: serving on {bridge.address}", flush=True)
+            # On stderr: stdout holds the --json summary alone.
+            print(f"hx711-bridge: serving on {bridge.address}", file=sys.stderr, flush=True)
+            if _reachable(args.host):
+                _warn_reachable(bridge)
             signals.stop.wait(args.duration_s)
     finally:
         if isinstance(source, SerialCounts):

@@ -402,7 +402,7 @@ def test_bridge_command_exits_with_the_error_when_its_serial_device_goes_away(ca
         deadline = time.monotonic() + 30.0
         while time.monotonic() < deadline:
             said.append(capsys.readouterr())
-            if any("serving on" in s.out for s in said):
+            if any("serving on" in s.err for s in said):
                 break
             time.sleep(0.01)
         unplug()
@@ -410,8 +410,10 @@ def test_bridge_command_exits_with_the_error_when_its_serial_device_goes_away(ca
     threading.Thread(target=unplug_once_serving, daemon=True).start()
     # Within its 60 s: the error is the unplugged port's, not the duration's end.
     assert main(["hx711-bridge", "--serial", port, "--host", "127.0.0.1", "--port", "0", "--duration-s", "60"]) == 2
-    err = "".join(s.err for s in said) + capsys.readouterr().err
-    assert err.startswith("teleop hx711-bridge: error: stopped serving tcp://127.0.0.1:") and len(err.splitlines()) == 1
+    serving, *errors = ("".join(s.err for s in said) + capsys.readouterr().err).splitlines()
+    assert serving.startswith("hx711-bridge: serving on tcp://127.0.0.1:") and len(errors) == 1
+    err = errors[0]
+    assert err.startswith("teleop hx711-bridge: error: stopped serving tcp://127.0.0.1:")
     assert f"serial HX711 at {port}: the port failed: " in err
 
 
@@ -431,7 +433,7 @@ def test_bridge_command_refuses_bad_options_in_one_line(capsys, option, value, e
     assert main(["hx711-bridge", "--fake", "--host", "127.0.0.1", "--port", "0", "--duration-s", "0.1", option, value]) == 2
     captured = capsys.readouterr()
     assert captured.err.startswith(f"teleop hx711-bridge: error: {expected}") and captured.err.count("\n") == 1
-    assert "serving" not in captured.out  # refused before the server was opened
+    assert "serving" not in captured.err  # refused before the server was opened
 
 
 @pytest.mark.parametrize("value", ["-1", "inf", "0"])
@@ -447,7 +449,7 @@ def test_bridge_command_stops_cleanly_on_ctrl_c_and_sigterm_with_its_summary(sig
     command = [*BRIDGE_COMMAND, "--fake", "--host", "127.0.0.1", "--port", "0", "--json"]
     with subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as process:
         try:
-            address = process.stdout.readline().split()[-1]
+            address = process.stderr.readline().split()[-1]
             with make_load_cell(LoadCellSettings(backend="tcp", address=address, **CAL)) as cell:
                 cell.read(timeout_s=1.0)  # serving
             process.send_signal(signum)
@@ -467,8 +469,8 @@ def test_bridge_command_end_to_end():
         "hx711-bridge", "--fake", "--force-n", "2.5", "--host", "127.0.0.1", "--port", "0",
         "--duration-s", "1.5", "--json",
     ]
-    with subprocess.Popen(command, stdout=subprocess.PIPE, text=True) as process:
-        first = process.stdout.readline()
+    with subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as process:
+        first = process.stderr.readline()
         assert "serving on tcp://127.0.0.1:" in first
         address = first.split()[-1]
         with make_load_cell(LoadCellSettings(backend="tcp", address=address, counts_per_n=42000.0, tare_counts=0)) as cell:
@@ -476,7 +478,7 @@ def test_bridge_command_end_to_end():
         rest = process.stdout.read()
         assert process.wait(timeout=5.0) == 0
     assert len(forces) >= 1 and set(forces) == {2.5}  # 105000 counts / 42000 counts per N
-    summary = json.loads(rest.strip().splitlines()[-1])
+    summary = json.loads(rest)  # stdout holds the summary alone
     assert summary["address"] == address and summary["readings"] > 10
 
 

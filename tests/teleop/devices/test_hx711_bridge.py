@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import json
 import logging
 import os
 import resource
@@ -152,3 +153,17 @@ def test_bridge_command_refuses_noise_beyond_the_hx711_range(capsys, value):
                  "--noise-counts", value]) == 2
     err = capsys.readouterr().err
     assert err.startswith("teleop hx711-bridge: error: --noise-counts ") and "8388608" in err
+
+
+def test_bridge_command_warns_when_other_hosts_can_connect_and_keeps_stdout_for_json(capsys):
+    assert main(["hx711-bridge", "--fake", "--port", "0", "--duration-s", "0.1", "--json"]) == 0  # 0.0.0.0
+    captured = capsys.readouterr()
+    warning = next(line for line in captured.err.splitlines() if "warning" in line)
+    assert "tcp://0.0.0.0:" in warning and "without authentication" in warning and "--host 127.0.0.1" in warning
+    assert json.loads(captured.out)["address"].startswith("tcp://0.0.0.0:")  # the summary alone
+
+
+def test_bridge_command_on_loopback_gives_no_warning(capsys):
+    assert main(["hx711-bridge", "--fake", "--host", "127.0.0.1", "--port", "0", "--duration-s", "0.1"]) == 0
+    captured = capsys.readouterr()
+    assert "warning" not in captured.err and captured.out == ""
