@@ -20,7 +20,7 @@ from pathlib import Path
 
 from teleop.bus.security import security_from_settings
 from teleop.catalogue import default_catalogue_path, load_catalogue
-from teleop.clikit import hangup_ignored
+from teleop.clikit import hangup_ignored, positive_int, positive_number
 from teleop.errors import SessionLogError, SettingsError
 from teleop.scene import load_scene
 from teleop.session.foxglove_live import LiveServer, add_foxglove_argument
@@ -83,14 +83,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--chunk-kib",
-        type=int,
+        type=positive_int,
         default=CHUNK_BYTES // 1024,
         metavar="KIB",
         help="MCAP chunk size in KiB: a killed recorder loses at most one chunk",
     )
     parser.add_argument(
         "--flush-interval-s",
-        type=float,
+        type=positive_number,
         default=0.5,
         metavar="S",
         help="write the open chunk at the latest S seconds after its first message",
