@@ -91,7 +91,7 @@ def positive_number(text: str) -> float:
     """An argparse type: a finite number > 0 (a time, a rate), refused by argparse with what was expected."""
     value = _finite(text)
     if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a number > 0")
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number > 0, finite")
     return value
 
 
@@ -100,7 +100,7 @@ def non_negative_number(text: str) -> float:
     expected (``time.sleep`` refuses a negative, nan or infinite one only once the work is under way)."""
     value = _finite(text)
     if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a number >= 0")
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number >= 0, finite")
     return value
 
 
