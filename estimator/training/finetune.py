@@ -14,7 +14,8 @@ figure was seen, for about 15 grasps of 5 objects:
   rebuilt norms carry the folded ones); every weight trains.
 * AdamW at ``lr`` (3e-4, a seventh of training's), cosine decay over ``epochs``
   (20) with no early stopping (:data:`~estimator.training.recipe.FINE_TUNE_CONFIG`),
-  the flips and label jitter of ``estimator train``.
+  the flips and label jitter of ``estimator train``, and its stop when the loss or the weights
+  diverge (:func:`~estimator.training.train.check_converging`).
 * Without ``replay``, the calibration (temperature, rigid probability, interval
   scale) and the hybrid's policy stay the base model's: a few grasps cannot
   recalibrate them.
@@ -78,7 +79,7 @@ from estimator.training.pool import pooled_from_onnx
 from estimator.training.recalibrate import trained_held_out
 from estimator.training.recipe import FINE_TUNE_CONFIG, REPLAY_RATIO, TrainConfig
 from estimator.training.splits import SplitData, check_dataset_fits, load_split_data, split_metrics
-from estimator.training.train import predict, train_epoch
+from estimator.training.train import check_converging, predict, torch_seed, train_epoch
 from teleop.progress import progress_bar
 from teleop.settings import Settings
 from teleop.staging import staged
@@ -146,7 +147,7 @@ def _tuned(model_dir: Path, base: dict[str, Any], variant: Variant, data: SplitD
     """The base model rebuilt from its ONNX file and fine-tuned on ``data`` (module notes), and its history."""
     torch.use_deterministic_algorithms(True)
     torch.set_num_threads(config.threads)
-    torch.manual_seed(config.seed)
+    torch.manual_seed(torch_seed(config.seed))
     rng = np.random.default_rng(config.seed)
     check = {n: v[:8] for n, v in data.inputs.items()}
     if base.get("ensemble"):  # a pooled model (`estimator pool`) is fine-tuned as one network
@@ -165,6 +166,7 @@ def _tuned(model_dir: Path, base: dict[str, Any], variant: Variant, data: SplitD
             drawn = rng.choice(len(replayed), size=min(len(replayed), round(replay_ratio * len(data))), replace=False)
             epoch_data = _joined([data, replayed.subset(np.sort(drawn))])
         history.append({"epoch": epoch, "train_loss": train_epoch(model, epoch_data, optimiser, config, rng)})
+        check_converging(model, {"training loss": history[-1]["train_loss"]}, epoch, config.lr, "fine-tuning")
         scheduler.step()
     model.eval()
     return model, history
@@ -230,7 +232,8 @@ def fine_tune(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, 
         empty, was measured by other code than the model's training data, or its window, frames or
         image size differ from the model's; the replay dataset likewise, or it trains on objects the
         base model did not, or its val or test objects include ones the base model trained on (but
-        for an earlier fine-tuning's), or it leaves no val samples to recalibrate on.
+        for an earlier fine-tuning's), or it leaves no val samples to recalibrate on; fine-tuning
+        diverges (before ``out_dir`` is made).
     ModelError
         The model cannot be read or rebuilt.
     """
@@ -278,7 +281,7 @@ def _felt(data: SplitData, logits: np.ndarray, calibration: dict[str, Any], sett
     """The display's figures of the model's answers on ``data``, described at ``settings``' limit as at run time."""
     at_limit = {**calibration, "limit_pa": settings.resolution_limit_pa}
     figures = split_metrics(data, logits, "model", at_limit, settings)["model"]
-    return {k: figures[k] for k in ("n", "felt_log10_error", "felt_within_2x", "dangerous_misses")}
+    return {k: figures[k] for k in ("n", "shown_unknown", "felt_log10_error", "felt_within_2x", "dangerous_misses")}
 
 
 def check_by_object(model_dir: str | Path, data_dir: str | Path, *, settings: Settings,
@@ -290,8 +293,9 @@ def check_by_object(model_dir: str | Path, data_dir: str | Path, *, settings: Se
     the others and answer that object's grasps (their live samples) with it and with the base model,
     at the resolution limit and on the display of ``settings`` (the new rig's). Nothing is written.
 
-    Returns ``base`` and ``fine_tuned`` (``n``, ``felt_log10_error``, ``felt_within_2x``,
-    ``dangerous_misses`` over every held-out grasp) and ``per_object`` (object -> the two felt errors).
+    Returns ``base`` and ``fine_tuned`` (``n``, ``shown_unknown``, ``felt_log10_error``, ``felt_within_2x``,
+    ``dangerous_misses`` over every held-out grasp; the felt figures over those not shown unknown, None
+    when every one is) and ``per_object`` (object -> the two felt errors, None likewise).
 
     Raises
     ------
@@ -321,7 +325,11 @@ def check_by_object(model_dir: str | Path, data_dir: str | Path, *, settings: Se
 
 
 def _pooled(folds: list[dict[str, Any]]) -> dict[str, Any]:
-    """Figures over the grasps of every fold, from each fold's."""
-    n = sum(f["n"] for f in folds)
-    return {"n": n, "dangerous_misses": sum(f["dangerous_misses"] for f in folds),
-            **{k: sum(f[k] * f["n"] for f in folds) / n for k in ("felt_log10_error", "felt_within_2x")}}
+    """Figures over the grasps of every fold, from each fold's: the felt ones over the grasps not shown
+    unknown (each fold's weighted by its count of those), None when no fold has one."""
+    felt = [(f, f["n"] - f["shown_unknown"]) for f in folds if f["felt_log10_error"] is not None]
+    n_felt = sum(count for _, count in felt)
+    return {"n": sum(f["n"] for f in folds), "shown_unknown": sum(f["shown_unknown"] for f in folds),
+            "dangerous_misses": sum(f["dangerous_misses"] for f in folds),
+            **{k: sum(f[k] * count for f, count in felt) / n_felt if n_felt else None
+               for k in ("felt_log10_error", "felt_within_2x")}}

@@ -9,6 +9,7 @@ import sys
 from collections import Counter
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from estimator.errors import EstimatorError, ModelError
 from estimator.evaluation.compare import compare_models, unseen_records
@@ -103,6 +104,22 @@ def _records_to_compare(model: str, data: str, records: str) -> frozenset[str]:
     return frozenset(left_out)
 
 
+def _felt(value: float | None, spec: str) -> str:
+    return "- (every grasp shown unknown)" if value is None else format(value, spec)
+
+
+def check_text(check: dict[str, Any]) -> str:
+    """The line saying what :func:`~estimator.training.finetune.check_by_object` found; a felt figure over no
+    grasp (every held-out grasp shown unknown) is shown as ``-`` and says so."""
+    before, after = check["base"], check["fine_tuned"]
+    unknown = (f"; shown unknown {before['shown_unknown']} -> {after['shown_unknown']}, left out of the felt figures"
+               if before["shown_unknown"] or after["shown_unknown"] else "")
+    return (f"leaving one object out, on {before['n']} grasps: felt error {_felt(before['felt_log10_error'], '.3f')} -> "
+            f"{_felt(after['felt_log10_error'], '.3f')} decade, within a factor 2 {_felt(before['felt_within_2x'], '.0%')} "
+            f"-> {_felt(after['felt_within_2x'], '.0%')}, dangerous misses {before['dangerous_misses']} -> "
+            f"{after['dangerous_misses']} (base -> fine-tuned){unknown}")
+
+
 def fine_tune_and_report(model: str, data: str, out: str, *, config: TrainConfig, replay: str | None,
                          replay_ratio: float, check_settings: Settings | None = None, compare: str | None = None,
                          compare_settings: Settings | None = None, as_json: bool = False,
@@ -142,11 +159,7 @@ def fine_tune_and_report(model: str, data: str, out: str, *, config: TrainConfig
         print(json.dumps(summary, allow_nan=False))
         return 0
     if check is not None:
-        before, after = check["base"], check["fine_tuned"]
-        print(f"leaving one object out, on {before['n']} grasps: felt error {before['felt_log10_error']:.3f} -> "
-              f"{after['felt_log10_error']:.3f} decade, within a factor 2 {before['felt_within_2x']:.0%} -> "
-              f"{after['felt_within_2x']:.0%}, dangerous misses {before['dangerous_misses']} -> "
-              f"{after['dangerous_misses']} (base -> fine-tuned)")
+        print(check_text(check))
     print(f"fine-tuned {model} on {tuned['grasps']} grasps ({tuned['samples']} samples) of "
           f"{len(tuned['objects'])} objects in {tuned['seconds']:.0f} s -> {out}; final train loss "
           f"{summary['final_train_loss']:.3f}.")

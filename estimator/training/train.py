@@ -2,7 +2,7 @@
 
 Recipe
 ------
-* Seeded and repeatable: ``torch.manual_seed``, deterministic algorithms, a
+* Seeded and repeatable: ``torch.manual_seed`` (:func:`torch_seed`), deterministic algorithms, a
   seeded numpy generator for shuffles and flips, ``--threads`` torch threads.
   One thread by default: on a 2-core machine shared with anything else, two
   OpenMP threads spin against each other (docs/decisions/0012-train-on-one-thread.md).
@@ -18,7 +18,8 @@ Recipe
   ``NLL_WEIGHT`` times the log score of the label's bin (sharpens the
   distribution; also proper).
 * AdamW, early stopping on the mean CRPS of the validation objects (patience
-  ``--patience`` epochs); the best epoch is kept.
+  ``--patience`` epochs); the best epoch is kept. A run whose losses pass :data:`DIVERGED_LOSS` or
+  stop being finite, or whose weights do, stops with an error naming ``--lr`` (:func:`check_converging`).
 * Label jitter: every step adds normal noise of ``--label-sd`` decades (0.15) to
   log10 of each label: the published labels are material-class values, uncertain
   by about a factor of 2, and without it the distribution puts its mass on the
@@ -77,11 +78,41 @@ from teleop.progress import progress_bar
 from teleop.settings import Settings, load_settings
 from teleop.staging import staged
 
-__all__ = ["NLL_WEIGHT", "distribution_loss", "predict", "train_epoch", "train_model"]
+__all__ = ["DIVERGED_LOSS", "NLL_WEIGHT", "check_converging", "distribution_loss", "predict", "torch_seed",
+           "train_epoch", "train_model"]
 
 log = logging.getLogger(__name__)
 
 NLL_WEIGHT = 0.05
+#: A loss per sample that only a diverging run reaches: the uninformed network (uniform over the bins)
+#: scores about 2 (a run at ``--lr 1`` on a few grasps scores 1e4-1e10, and its logits are too large for
+#: the ONNX file to match torch).
+DIVERGED_LOSS = 1e3
+#: torch seeds its generator with an unsigned 64-bit number.
+_TORCH_SEEDS = 2**64
+
+
+def torch_seed(seed: int) -> int:
+    """torch's seed for the recipe's ``seed`` (any whole number >= 0, as numpy's generators take):
+    ``seed`` itself below 2**64, so models trained with those seeds stay reproducible; larger ones wrap."""
+    return seed % _TORCH_SEEDS
+
+
+def check_converging(model: nn.Module, losses: dict[str, float], epoch: int, lr: float, what: str) -> None:
+    """Stop a run (``what``: "training", "fine-tuning") whose ``losses`` (name -> loss per sample after
+    ``epoch``) are not finite or exceed :data:`DIVERGED_LOSS`, or whose weights are not finite.
+
+    Raises
+    ------
+    EstimatorError
+        As above, naming the loss, the epoch and ``lr`` (``--lr``).
+    """
+    bad = next(((name, value) for name, value in losses.items()
+                if not (math.isfinite(value) and value <= DIVERGED_LOSS)), None)
+    if bad is None and all(bool(torch.isfinite(p).all()) for p in model.parameters()):
+        return
+    found = f"{bad[0]} {bad[1]:.3g}" if bad else "weights not finite"
+    raise EstimatorError(f"{what} diverged: {found} at epoch {epoch} (--lr {lr:g}): lower --lr")
 
 
 _EDGES = torch.from_numpy(distribution.EDGES_LOG10[1:-1].astype(np.float32))
@@ -186,7 +217,7 @@ class Fitted:
 def _fit(train: SplitData, val: SplitData, variant: Variant, config: TrainConfig, *, progress: bool) -> Fitted:
     """Train the network (seeded weights, shuffles, flips and label jitter); early-stopped on the
     validation loss, the best epoch kept."""
-    torch.manual_seed(config.seed)
+    torch.manual_seed(torch_seed(config.seed))
     rng = np.random.default_rng(config.seed)
     model = ComplianceNet(variant)
     optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
@@ -202,6 +233,7 @@ def _fit(train: SplitData, val: SplitData, variant: Variant, config: TrainConfig
         train_pred, val_pred = predict(model, train), predict(model, val)
         with torch.no_grad():
             val_loss = float(distribution_loss(torch.from_numpy(val_pred), torch.from_numpy(val_label)))
+        check_converging(model, {"training loss": total, "validation loss": val_loss}, epoch, config.lr, "training")
         entry = {"epoch": epoch, "train_loss": total, "val_loss": val_loss,
                  "train_log10_error": _mean_log10_error(train_pred, censor(train.label)),
                  "val_log10_error": _mean_log10_error(val_pred, val_label)}
@@ -239,7 +271,8 @@ def train_model(
     ------
     EstimatorError
         ``out_dir`` is a file or, without ``overwrite``, not empty; the dataset has no train or no val
-        samples, or does not match the variant; the model cannot be written into ``out_dir`` (a full
+        samples, or does not match the variant; training diverges (:func:`check_converging`, before
+        ``out_dir`` is made); the model cannot be written into ``out_dir`` (a full
         or read-only disk; :func:`~estimator.training.outdir.model_write_error`).
     """
     started = time.perf_counter()

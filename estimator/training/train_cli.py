@@ -22,6 +22,20 @@ from teleop.clikit import help_literal, non_negative_int
 from teleop.settings import default_settings_path, load_settings
 
 DEFAULT_VARIANT = "depth+fw+analytical"
+#: The most ``--threads`` taken: past a few per core threads only spin against each other, and torch
+#: refuses a count beyond a C int only after the data is loaded, with a traceback.
+MAX_THREADS = 1024
+
+
+def thread_count(text: str) -> int:
+    """An argparse type: torch CPU threads, a whole number from 1 to :data:`MAX_THREADS`."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not 1 <= value <= MAX_THREADS:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number from 1 to {MAX_THREADS}")
+    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -78,7 +92,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="standard deviation of the normal jitter added to log10 of each label at every step: "
                              "the published labels are material-class values, uncertain by about a factor of 2")
     parser.add_argument("--seed", type=non_negative_int, default=TrainConfig.seed, help="seed of weights, shuffles and flips")
-    parser.add_argument("--threads", type=int, default=TrainConfig.threads, help="torch CPU threads")
+    parser.add_argument("--threads", type=thread_count, default=TrainConfig.threads,
+                        help=f"torch CPU threads, 1 to {MAX_THREADS} (default: {TrainConfig.threads})")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (out, variant, epochs_run, best_epoch, metrics) on the last "
                              "stdout line")

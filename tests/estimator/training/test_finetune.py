@@ -251,3 +251,38 @@ def test_a_full_disk_while_fine_tuning_names_the_folder(trained_model, synthetic
     with pytest.raises(EstimatorError, match="cannot write the model into .*tuned: No space left on device"):
         fine_tune(trained_model, data, tmp_path / "tuned", config=TrainConfig(epochs=1, batch_size=8, seed=0),
                   progress=False)
+
+
+def test_the_checks_pooled_felt_figures_leave_out_grasps_shown_unknown():
+    from estimator.training.finetune import _pooled
+    from estimator.training.finetune_cli import check_text
+
+    unknown = {"n": 3, "shown_unknown": 3, "felt_log10_error": None, "felt_within_2x": None, "dangerous_misses": 0}
+    felt = [{"n": 2, "shown_unknown": 1, "felt_log10_error": 0.4, "felt_within_2x": 1.0, "dangerous_misses": 0},
+            {"n": 3, "shown_unknown": 0, "felt_log10_error": 0.2, "felt_within_2x": 0.0, "dangerous_misses": 1}]
+    pooled = _pooled([unknown, *felt])
+    assert (pooled["n"], pooled["shown_unknown"], pooled["dangerous_misses"]) == (8, 4, 1)
+    # Weighted by the grasps each figure is over (1 and 3), not by n.
+    assert pooled["felt_log10_error"] == pytest.approx((0.4 * 1 + 0.2 * 3) / 4)
+    assert pooled["felt_within_2x"] == pytest.approx(0.25)
+    nothing_felt = _pooled([unknown, unknown])
+    assert nothing_felt["felt_log10_error"] is None and nothing_felt["felt_within_2x"] is None
+    text = check_text({"base": pooled, "fine_tuned": nothing_felt})
+    assert "felt error 0.250 -> - (every grasp shown unknown) decade" in text
+    assert "shown unknown 4 -> 6, left out of the felt figures" in text
+
+
+def test_a_diverging_fine_tuning_stops_naming_lr_and_writes_nothing(trained_model, synthetic, tmp_path):
+    data = synthetic.write_dataset(tmp_path / "d", seed=3)
+    config = TrainConfig(epochs=2, batch_size=8, lr=1e6, seed=0)
+    with pytest.raises(EstimatorError, match=r"^fine-tuning diverged: training loss \S+ at epoch \d \(--lr 1e\+06\): "
+                                             "lower --lr$"):
+        fine_tune(trained_model, data, tmp_path / "tuned", config=config, progress=False)
+    assert not (tmp_path / "tuned").exists()
+
+
+def test_fine_tuning_takes_a_seed_past_torchs_range(trained_model, synthetic, tmp_path):
+    data = synthetic.write_dataset(tmp_path / "d", seed=3)
+    meta = fine_tune(trained_model, data, tmp_path / "tuned", config=TrainConfig(epochs=1, batch_size=8, seed=2**64),
+                     progress=False)
+    assert meta["fine_tuning"]["config"]["seed"] == 2**64

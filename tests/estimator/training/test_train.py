@@ -135,3 +135,48 @@ def test_training_curve_has_a_linear_loss_axis_an_honest_loss_unit_and_names_the
     assert "nats" in ax_loss.get_ylabel()
     assert all("depth+fw 3f 64x88" in ax.get_title() for ax in (ax_loss, ax_err))
     plt.close(plt.gcf())
+
+
+def test_a_diverging_run_stops_naming_lr_and_writes_nothing(synthetic_dataset, tmp_path):
+    variant = Variant.parse("depth", n_frames=3, size_px=(16, 22))
+    config = TrainConfig(epochs=2, lr=1e6, batch_size=16, seed=0)
+    with pytest.raises(EstimatorError, match=r"^training diverged: \w+ loss \S+ at epoch 1 \(--lr 1e\+06\): "
+                                             "lower --lr$"):
+        train_model(synthetic_dataset, tmp_path / "m", variant=variant, config=config, progress=False)
+    assert not (tmp_path / "m").exists()
+
+
+def test_a_loss_past_the_divergence_bound_or_weights_not_finite_stop_the_run():
+    import torch
+
+    from estimator.training.train import DIVERGED_LOSS, check_converging
+
+    model = torch.nn.Linear(2, 1)
+    check_converging(model, {"training loss": 1.5, "validation loss": DIVERGED_LOSS}, 3, 2e-3, "training")
+    with pytest.raises(EstimatorError, match=r"^training diverged: validation loss 1.08e\+10 at epoch 3 \(--lr 1\)"):
+        check_converging(model, {"training loss": 1.5, "validation loss": 1.08e10}, 3, 1.0, "training")
+    with torch.no_grad():
+        model.weight[0, 0] = float("inf")
+    with pytest.raises(EstimatorError, match=r"^fine-tuning diverged: weights not finite at epoch 2 \(--lr 0.1\)"):
+        check_converging(model, {"training loss": 1.5}, 2, 0.1, "fine-tuning")
+
+
+def test_seeds_below_2_64_seed_torch_as_themselves_and_larger_ones_train_too(synthetic_dataset, tmp_path):
+    from estimator.training.train import torch_seed
+
+    # The seeds models were trained with so far keep their weights.
+    assert [torch_seed(s) for s in (0, 1, 2**63, 2**64 - 1)] == [0, 1, 2**63, 2**64 - 1]
+    variant = Variant.parse("depth", n_frames=3, size_px=(16, 22))
+    meta = train_model(synthetic_dataset, tmp_path / "m", variant=variant,
+                       config=TrainConfig(epochs=1, batch_size=16, seed=2**64), progress=False)
+    assert meta["training"]["seed"] == 2**64
+
+
+def test_threads_past_the_cap_are_refused_by_the_command_line(tmp_path, capsys):
+    from estimator.cli import main
+    from estimator.training.train_cli import MAX_THREADS
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["train", "--data", str(tmp_path), "--out", str(tmp_path / "m"), "--threads", str(2**64)])
+    assert exit_.value.code == 2
+    assert f"--threads: '{2**64}': expected a whole number from 1 to {MAX_THREADS}" in capsys.readouterr().err
