@@ -5,7 +5,8 @@ about :data:`~teleop.operator.FOLLOW_RATE_HZ`): the fingers follow the message's
 force-capped (:mod:`teleop.operator`). A follow counts only with ``enable`` (the dead-man) held:
 
 * while idle, it starts a *follow grasp* (``grasp_id`` names it, default ``grasp-<n>``; a grasp
-  that has ended, one of the last :data:`ENDED_KEPT`, is not started again). With the simulated backends the node simulates the
+  that has ended, commanded or followed, one of the last :data:`ENDED_KEPT`, is not started
+  again, nor is one a ``release`` cancelled while it prepared). With the simulated backends the node simulates the
   scene's next object live (:mod:`teleop.sim.live`, prepared ahead in its simulator thread: at
   start for the first object, after each grasp for the next; the fingers may move once it is
   ready) and the simulated devices sample it (:mod:`teleop.devices.live_sim`); an object still
@@ -38,6 +39,7 @@ gripper's width, ...) raises; the node answers it with a ``robot_notice`` *refus
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from concurrent.futures import Future
@@ -55,11 +57,12 @@ __all__ = ["Follower"]
 
 FORCE_SILENT_S = 0.1  # with hardware, the fingers close only on a force this fresh: 8 samples at the HX711's 80 Hz
 
-# Follow grasps remembered as ended. A follow naming one is refused rather than starting it again:
-# the follows a console sends for its grasp after the watchdog or a release ended it (until its
-# operator lets go of the enable), and those still in flight. Only the last few grasps' follows
-# can still come, so this many ids (each at most the bus's 256 characters) are ample; the ids
-# are the senders', and a sender making up new ones must not grow the node without end.
+# Grasps remembered as ended (commanded or followed). A follow or start_grasp naming one is
+# refused rather than starting it again: the follows a console sends for its grasp after the
+# watchdog or a release ended it (until its operator lets go of the enable), and those still in
+# flight. Only the last few grasps' follows can still come, so this many ids (each at most the
+# bus's 256 characters) are ample; the ids are the senders', and a sender making up new ones must
+# not grow the node without end.
 ENDED_KEPT = 1024
 
 WATCHED = ("preparing", "following", "stopped")  # the follow grasp's phases the watchdog ends
@@ -73,7 +76,7 @@ class Follower:
     Holds the live object between the simulated fingers (``live``), the next one being prepared
     (``next_live``: its grasp number and the future of (LiveObject, rng)), when the operator's last
     follow came, the operator's enable, whether the watchdog stopped the node and the last
-    :data:`ENDED_KEPT` follow grasps that ended.
+    :data:`ENDED_KEPT` grasps that ended.
     """
 
     def __init__(self, node: RobotNode):
@@ -83,8 +86,9 @@ class Follower:
         self.last_follow_s = -math.inf
         self.enable = False
         self.stopped = False  # mode "stopped" while no grasp runs: after the watchdog
-        # The last ENDED_KEPT follow grasps that ended, oldest first: never started again.
+        # The last ENDED_KEPT grasps that ended, oldest first: never started again.
         self.ended: dict[str, None] = {}
+        self._ids = itertools.count()  # for grasps started without an id
 
     # ------------------------------------------------------------------ commands
 
@@ -133,6 +137,7 @@ class Follower:
             raise DeviceError(f"follow grasp {grasp.grasp_id!r} is {grasp.phase}: nothing to release")
         if not _went_live(grasp):
             node._grasp = None
+            self.record_ended(grasp.grasp_id)  # its console's follows, the enable still held, must not start it again
             node._notice("refused", "release", grasp.grasp_id,
                          f"follow grasp {grasp.grasp_id!r} had not started: cancelled, the fingers have nothing to open")
             return
@@ -145,9 +150,7 @@ class Follower:
 
         node = self.node
         number = node._count
-        grasp_id = node._grasp_id(grasp_id)
-        if grasp_id in self.ended:
-            raise DeviceError(f"grasp {grasp_id!r} has ended: name a new grasp to start one")
+        grasp_id = self.grasp_id(grasp_id)
         self.stopped = False
         grasp = node._grasp = _Grasp(grasp_id, None, follow=True, phase="following")
         if not node.simulated:
@@ -160,6 +163,21 @@ class Follower:
                 self.prepare_next(number)
             grasp.phase, grasp.prepared = "preparing", self.next_live[1]
         return grasp
+
+    def grasp_id(self, given: str | None) -> str:
+        """The id of a grasp to start: ``given``, or for one started without an id ``grasp-<n>``;
+        never that of a grasp that ended (:attr:`ended`).
+
+        Raises
+        ------
+        DeviceError
+            ``given`` names a grasp that ended.
+        """
+        if given and given in self.ended:
+            raise DeviceError(f"grasp {given!r} has ended: name a new grasp to start one")
+        while not given or given in self.ended:
+            given = f"grasp-{next(self._ids):04d}"
+        return given
 
     # ------------------------------------------------------------------ the live simulation
 
@@ -206,15 +224,14 @@ class Follower:
     def grasp_ended(self, grasp: _Grasp) -> None:
         """A grasp ended: an object the fingers let go leaves them; the next one is prepared."""
         node = self.node
-        if grasp.follow:
-            self.record_ended(grasp.grasp_id)
+        self.record_ended(grasp.grasp_id)
         self._let_go()
         # The object prepared may be another grasp's (a commanded grasp took its number): the next one's is due.
         if node.simulated and self.live is None and (self.next_live is None or self.next_live[0] != node._count):
             self.prepare_next()
 
     def record_ended(self, grasp_id: str) -> None:
-        """Follows naming ``grasp_id`` no longer start a grasp (:data:`ENDED_KEPT`)."""
+        """Follows and start_grasp commands naming ``grasp_id`` no longer start a grasp (:data:`ENDED_KEPT`)."""
         self.ended[grasp_id] = None
         if len(self.ended) > ENDED_KEPT:
             del self.ended[next(iter(self.ended))]

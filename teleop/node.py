@@ -10,7 +10,8 @@ the grasp; the rest names none.
 Grasps are commanded on the bus (``command`` messages on ``bus.command``):
 
 ``start_grasp``
-    ``grasp_id`` names the grasp (default ``grasp-<n>``). With the simulated backends the
+    ``grasp_id`` names the grasp (default ``grasp-<n>``); a grasp that has ended, commanded or
+    followed (one of the last :data:`~teleop.follow.ENDED_KEPT`), is not started again. With the simulated backends the
     node simulates a grasp of the next object of its scene (or ``params.object_index``, an
     index into the scene's objects repeated ``grasps_per_object`` times) with
     :func:`~teleop.sim.grasp.simulate_grasp`, seeded from the scene's seed and the grasp
@@ -67,7 +68,6 @@ are refused.
 from __future__ import annotations
 
 import contextlib
-import itertools
 import logging
 import math
 import queue
@@ -108,6 +108,9 @@ COMMAND_TOPICS = ("command", "follow")
 START_GRASP_PARAMS = frozenset({"object_index", "target_force_n"})  # what a start_grasp command may set
 APPROACH_LEAD_S = 0.05  # a replay starts this long before the record's first sample
 TAIL_S = 2 * READ_TIMEOUT_S  # after a grasp's last data is due, wait this long for the readers
+# A step takes at most this many commands before the grasp advances (about 5 ms of refused follows):
+# a flood of commands must not hold off the watchdog (teleop.follow) until all of it is taken.
+COMMANDS_PER_STEP = 50
 
 
 @dataclass
@@ -188,7 +191,6 @@ class RobotNode(ServiceLoop):
         self._simulator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="simulate")
         self._grasp: _Grasp | None = None
         self._count = 0  # simulated grasps that took the scene's next object: its index and seed
-        self._ids = itertools.count()  # for grasps started without an id
         # Capture time of the newest sample published per stream ("width", "force"): the marker waits on them.
         self._newest_s: dict[str, float] = {}
         self._latest: dict[str, float] = {}  # the newest force (N) and width (m) published
@@ -196,6 +198,7 @@ class RobotNode(ServiceLoop):
         self._refusals = Refusals()  # what was refused: which refusals are logged and said
         self._state: tuple | None = None  # the last robot_state sent
         self._looked_s = math.inf  # when the node last looked for commands (inf: not yet)
+        self._commands_left = 0  # commands this step may still take
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -230,12 +233,15 @@ class RobotNode(ServiceLoop):
 
     def step(self, timeout_s: float = 0.005) -> None:
         """Take commands, publish what the devices captured (waiting up to ``timeout_s`` for
-        something), advance the grasp in progress, heartbeat."""
+        something), advance the grasp in progress, heartbeat. It takes at most
+        :data:`COMMANDS_PER_STEP` commands; more wait for the next step, which then does not wait
+        for captures."""
         if self.publisher.heartbeat_if_due(self.clock()):
             self._state = None  # a robot_state goes out with every heartbeat
+        self._commands_left = COMMANDS_PER_STEP
         self._take_commands()
         with contextlib.suppress(queue.Empty):
-            self._publish(*self._captured.get(timeout=timeout_s))
+            self._publish(*self._captured.get(timeout=timeout_s if self._commands_left > 0 else 0))
             while True:
                 # A long backlog to publish is neither the operator's silence nor the node stalled:
                 # follows that came meanwhile count before the watchdog looks.
@@ -249,9 +255,10 @@ class RobotNode(ServiceLoop):
         self._send_state()
 
     def _take_commands(self) -> None:
-        """Take the commands that came. A node that did not look for them for over WATCHDOG_S
-        stalled: the watchdog goes first (:meth:`teleop.follow.Follower.stalled`)."""
-        while self.commands is not None:
+        """Take the commands that came, within what is left of the step's share (:meth:`step`). A node
+        that did not look for them for over WATCHDOG_S stalled: the watchdog goes first
+        (:meth:`teleop.follow.Follower.stalled`)."""
+        while self.commands is not None and self._commands_left > 0:
             now = self.clock()
             if now - self._looked_s > WATCHDOG_S:
                 try:
@@ -263,6 +270,7 @@ class RobotNode(ServiceLoop):
                 return
             self.handle_command(message)
             self._looked_s = self.clock()  # a command's own gripper call (a stop) is no stall of the node
+            self._commands_left -= 1
 
     @property
     def _devices(self) -> tuple[Any, ...]:
@@ -377,7 +385,8 @@ class RobotNode(ServiceLoop):
         Raises
         ------
         DeviceError
-            A grasp is already in progress, or the gripper refuses the command.
+            A grasp is already in progress, ``grasp_id`` names a grasp that ended, or the gripper
+            refuses the command.
         SimulationError
             ``object_index`` is outside the scene's objects.
         """
@@ -388,7 +397,7 @@ class RobotNode(ServiceLoop):
             raise InvalidCommandError(f"target_force_n = {target_force_n}: expected a force in (0, {maximum}] N, "
                                       "the settings' maximum")
         number = self._count
-        grasp_id = self._grasp_id(grasp_id)
+        grasp_id = self._follower.grasp_id(grasp_id)
         self._follower.stopped = False
         if not self.simulated:
             grasp = _Grasp(grasp_id, None, phase="grasping")
@@ -408,10 +417,6 @@ class RobotNode(ServiceLoop):
         self._grasp.prepared = self._simulator.submit(self._simulate, obj, seed, target_force_n)
         log.info("grasp %s: simulating %s (seed %d)", grasp_id, obj.name, seed)
         return grasp_id
-
-    def _grasp_id(self, given: str | None) -> str:
-        """``given``, or for a grasp started without one ``grasp-<n>``."""
-        return given or f"grasp-{next(self._ids):04d}"
 
     def _simulate(self, obj: Any, seed: int, force_n: float | None) -> GraspRecord:
         from teleop.sim.grasp import simulate_grasp
@@ -505,8 +510,7 @@ class RobotNode(ServiceLoop):
             self._end()
         else:  # never started: nothing on the bus to end, but its console's follows must not start it again
             self._grasp = None
-            if grasp.follow:
-                self._follower.record_ended(grasp.grasp_id)
+            self._follower.record_ended(grasp.grasp_id)
 
     def _mark_loading_end(self) -> None:
         """The loading-end marker, once the width read at the stop and a force sample captured at

@@ -12,7 +12,7 @@ import pytest
 from support.node_rig import drain, running_node, step_for, wait_prepared
 
 from teleop.bus.wire import make_message
-from teleop.errors import DeviceError
+from teleop.errors import DeviceError, SimulationError
 from teleop.operator import WATCHDOG_S
 
 
@@ -190,3 +190,55 @@ def test_a_grasp_the_gripper_failed_while_it_prepared_is_not_started_again_by_it
     said = notices(listener)
     assert [(n["event"], n["grasp_id"]) for n in said] == [("device", "G2"), ("refused", "G2")]
     assert "grasp 'G2' has ended: name a new grasp" in said[1]["reason"]
+
+
+def test_a_grasp_released_while_it_prepared_is_not_started_again_by_its_enabled_follows(rig):
+    node, listener = rig
+    ready, open_m = preparing(node, "R2")
+    command(node, "release", "R2")
+    ready()
+    for _ in range(5):  # its console's follows, the enable still held: refused
+        follow(node, "R2", 0.0)
+        step_for(node, 0.01)
+    assert not node.busy and node.gripper.read_width()[1] == pytest.approx(open_m, abs=1e-4)
+    got = drain(listener)
+    assert not [m for m in got if m.type == "grasp_event"]
+    said = [m.body for m in got if m.type == "robot_notice"]
+    assert [(n["action"], n["grasp_id"]) for n in said] == [("release", "R2"), ("follow", "R2")]
+    assert "grasp 'R2' has ended: name a new grasp" in said[1]["reason"]
+
+
+def test_follows_naming_a_commanded_grasp_that_ended_do_not_start_it_again(rig, monkeypatch):
+    node, listener = rig
+
+    def cannot(*_):
+        raise SimulationError("the object cannot be simulated")
+
+    monkeypatch.setattr(node, "_simulate", cannot)  # the commanded grasp starts and ends at once
+    command(node, "start_grasp", "D1")
+    while node.busy:
+        node.step(timeout_s=0.002)
+    follow(node, "D1", 0.07)
+    assert not node.busy
+    got = drain(listener)
+    assert [(m.body["event"], m.body["grasp_id"]) for m in got if m.type == "grasp_event"] == [
+        ("start", "D1"), ("end", "D1")]
+    said = [m.body for m in got if m.type == "robot_notice"]
+    assert [(n["event"], n["action"], n["grasp_id"]) for n in said] == [("refused", "follow", "D1")]
+    assert "grasp 'D1' has ended: name a new grasp" in said[0]["reason"]
+
+
+def test_a_start_grasp_naming_a_follow_grasp_that_ended_is_refused(rig):
+    node, listener = rig
+    go_live(node, "grasp-0000", 0.07)  # the id a start_grasp without one would take first
+    node._follower.last_follow_s -= 2 * WATCHDOG_S  # the operator silent: the watchdog ends it
+    node.step(timeout_s=0.002)
+    assert not node.busy
+    drain(listener)
+    command(node, "start_grasp", "grasp-0000")
+    assert not node.busy
+    said = [m.body for m in drain(listener) if m.type == "robot_notice"]
+    assert [(n["event"], n["action"], n["grasp_id"]) for n in said] == [("refused", "start_grasp", "grasp-0000")]
+    assert "grasp 'grasp-0000' has ended: name a new grasp" in said[0]["reason"]
+    command(node, "start_grasp", None)  # nor does a grasp started without an id take the ended one's
+    assert node._grasp.grasp_id == "grasp-0001"
