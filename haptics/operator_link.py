@@ -55,6 +55,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from teleop.bus.messages import (
+    ENDING_NOTICES,
     DisplayBody,
     EstimateBody,
     LabelBody,
@@ -79,7 +80,6 @@ __all__ = [
 #: (what the operator calls it, the ``source`` it publishes as), in display order.
 PEERS = (("robot node", "robot"), ("estimator", "estimator"), ("display", "renderer"))
 ROBOT_TOPICS = ("grasp_event", "force", "width", "robot_state", "robot_notice")
-ENDING_NOTICES = ("watchdog",)  # robot_notice events that say the robot ended a grasp
 LIVENESS_PERIODS = 3.0  # a peer unheard for this many heartbeat periods is shown dead (as Heartbeat.is_alive)
 SEND_TIMEOUT_S = 0.05  # a lossless send waits at most this long for room
 MAX_DRAIN = 500  # messages taken per poll, so a flood cannot starve the loop
@@ -363,7 +363,7 @@ class OperatorLink:
             self._robot = body
         elif kind == "robot_notice":
             self._notice = (body, self.clock())
-            if body.event in ENDING_NOTICES:
+            if body.event in ENDING_NOTICES and body.grasp_id is not None:
                 self._ended_by = self._notice
             elif body.event == "refused" and body.action == "start_grasp" and body.grasp_id is not None:
                 self._refused_starts.append(body.grasp_id)

@@ -47,6 +47,7 @@ __all__ = [
     "DISPLAY_DEVICE_STATES",
     "DISPLAY_FAULTS",
     "DISPLAY_PHASES",
+    "ENDING_NOTICES",
     "ESTIMATE_STATES",
     "INTERVAL_TOLERANCE",
     "MAX_MODEL_ID_CHARS",
@@ -89,6 +90,10 @@ DISPLAY_FAULTS = ("over_temperature", "over_current", "position_error", "undervo
 # The robot node's modes (robot_state) and the notices it sends (robot_notice).
 ROBOT_MODES = ("idle", "grasping", "holding", "releasing", "following", "stopped")
 ROBOT_NOTICES = ("refused", "watchdog", "force_limit", "device")
+# The notices that end the grasp they name: the watchdog's (the fingers stopped), and a device
+# notice, which names a grasp only when the gripper's command failed and ended it (teleop.node);
+# refused and force_limit leave the grasp running.
+ENDING_NOTICES = ("watchdog", "device")
 # What the estimator service says of its model: it serves another now, or it kept the one it had.
 MODEL_EVENTS = ("loaded", "refused")
 MAX_MODEL_ID_CHARS = 64

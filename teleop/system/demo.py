@@ -17,7 +17,9 @@ decades (of the estimate; the table shows the rendering's), the time from contac
 estimate that is not a refusal (estimator report), and the latency from the last loading frame's capture to the display report that showed the final
 estimate (renderer report). All on this host's monotonic clock; and the learned model that made the
 final estimate (``model``: its :func:`~estimator.inference.infer.model_id`, none for an analytical
-estimate). The live lines and the closing table are in :mod:`teleop.system.demo_table`.
+estimate); and for a grasp the robot node cut short, the robot_notice that ended it (``ended_by``:
+its watchdog stopped the fingers, or a gripper command failed). The live lines and the closing table
+are in :mod:`teleop.system.demo_table`.
 """
 
 from __future__ import annotations

@@ -4,9 +4,12 @@ The table shows what the softness display rendered for each grasp's final estima
 (at or beyond the display's stiff end, the sensor's resolution limit unless the settings set
 another), ``unknown`` (no usable estimate: the display goes free) or the fraction of the display's
 range with the modulus that fraction stands for on the logarithmic scale (``0.62 ~2.1e+05``).
-Below the table a line says what the operator felt (:func:`felt_summary`, whose figures ``teleop demo
---json`` gives as ``summary``) and a line names the learned model(s) whose final estimates it shows
-(:func:`models_line`).
+A grasp the robot node cut short (a robot_notice ended it: its watchdog stopped the fingers, or a
+gripper command failed) shows ``cut: <event>`` in a last ``note`` column and a line below the table
+with the notice's reason, so that its missing or refused estimate is not read as the estimator's
+failing. Below the table a line says what the operator felt (:func:`felt_summary`, whose figures
+``teleop demo --json`` gives as ``summary``: a cut grasp without a rendering counts as not rendered)
+and a line names the learned model(s) whose final estimates it shows (:func:`models_line`).
 """
 
 from __future__ import annotations
@@ -19,8 +22,8 @@ import numpy as np
 if TYPE_CHECKING:
     from teleop.system.outcome import GraspOutcome
 
-__all__ = ["LiveView", "closing_table", "display_cell", "felt_figures", "felt_line", "felt_summary", "felt_text",
-           "models_answered", "models_line", "rigid_pa", "signed_decades"]
+__all__ = ["LiveView", "closing_table", "cut_cell", "cut_line", "display_cell", "felt_figures", "felt_line",
+           "felt_summary", "felt_text", "models_answered", "models_line", "rigid_pa", "signed_decades"]
 
 
 def _pa(value: float | None) -> str:
@@ -68,6 +71,20 @@ def display_cell(outcome: GraspOutcome) -> str:
     return cell if outcome.display_range is None else f"{cell} ~{_pa(outcome.display_e_pa)}"
 
 
+def cut_cell(outcome: GraspOutcome) -> str:
+    """``cut: <event>`` for a grasp a robot_notice ended (:attr:`GraspOutcome.ended_by`), ``-`` otherwise."""
+    notice = outcome.ended_by
+    return "-" if notice is None else f"cut: {notice.event}"
+
+
+def cut_line(outcome: GraspOutcome) -> str | None:
+    """What cut the grasp short, in one line with the notice's reason; None for a grasp that ran its course."""
+    notice = outcome.ended_by
+    if notice is None:
+        return None
+    return f"{outcome.obj.name} ({outcome.grasp_id}) cut by the robot node ({notice.event}): {notice.reason}"
+
+
 class LiveView:
     """One status line per grasp: updated in place on a terminal, printed once when done otherwise."""
 
@@ -93,10 +110,11 @@ class LiveView:
         settled = outcome.t_felt_within_2x_s
         timing = (f"latency {_number(outcome.latency_ms, '.0f')} ms" if outcome.style == "script" else
                   "never felt within 2x" if settled is None else f"felt within 2x {settled:.2f} s after contact")
+        cut = "" if outcome.ended_by is None else f", {cut_cell(outcome)}"
         return (f"{head} E {_pa(outcome.obj.modulus_pa)} Pa -> {_modulus(outcome.state, outcome.e_final_pa, ' Pa')} "
                 f"({outcome.state}), display {display_cell(outcome)}, "
                 f"felt {signed_decades(felt)} dec, "
-                f"first estimate {_number(None if first is None else first * 1e3, '.0f')} ms, {timing}")
+                f"first estimate {_number(None if first is None else first * 1e3, '.0f')} ms, {timing}{cut}")
 
     def update(self, number: int, outcome: GraspOutcome) -> None:
         if self.tty:
@@ -115,7 +133,8 @@ def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
     rendered (:func:`display_cell`), the felt error (decades from the label on the display's range to
     the rendering, negative when felt too soft: a rigid object rendered rigid is exact, whatever the
     bound), first estimate, the time from contact until the display stayed within a factor 2 of the
-    label, latency; then the line of :func:`felt_summary` (:func:`felt_text`) and :func:`models_line`.
+    label, latency, and when a grasp was cut short a note (:func:`cut_cell`); then a line per cut grasp
+    (:func:`cut_line`), the line of :func:`felt_summary` (:func:`felt_text`) and :func:`models_line`.
 
     The latency runs from the last loading frame to the display report of the final estimate; an
     operator's grasp has its final when the operator lets go, seconds after the peak, so it shows
@@ -131,10 +150,13 @@ def closing_table(outcomes: Sequence[GraspOutcome]) -> str:
              _number(o.latency_ms, ".0f")) for o in outcomes]
     if not any(o.style == "script" for o in outcomes):
         header, rows = header[:-1], [row[:-1] for row in rows]
+    if any(o.ended_by is not None for o in outcomes):
+        header, rows = (*header, "note"), [(*row, cut_cell(o)) for row, o in zip(rows, outcomes, strict=True)]
     widths = [max(len(str(r[i])) for r in (header, *rows)) for i in range(len(header))]
     lines = ["  ".join(str(cell).ljust(w) if i == 0 else str(cell).rjust(w)
                        for i, (cell, w) in enumerate(zip(row, widths, strict=True))) for row in (header, *rows)]
     lines.insert(1, "  ".join("-" * w for w in widths))
+    lines.extend(line for o in outcomes if (line := cut_line(o)) is not None)
     lines.append(felt_text(felt_summary(outcomes)))
     lines.append(models_line(outcomes))
     return "\n".join(lines)

@@ -282,7 +282,8 @@ class LiveSystem:
         bus = self.bus = dataclasses.replace(settings.bus, **self.endpoints)
         self.commands = Publisher.from_settings(bus, bus.command, lossless=True, source="operator")
         self.events = Subscriber.from_settings(bus, [bus.robot_pub, bus.estimate_pub, bus.display_pub],
-                                               ("grasp_event", "estimate", "force", "display", "model_event"))
+                                               ("grasp_event", "estimate", "force", "display", "model_event",
+                                                "robot_notice"))
 
     def _spawn(self, name: str, line: Sequence[str], env: dict[str, str]) -> None:
         package, *args = line
@@ -447,7 +448,7 @@ class LiveSystem:
             message = self._next_message(timeout_s=0.05)
             if message is None:
                 continue
-            body = message.fields  # a grasp_event, estimate, force or display: each names its grasp
+            body = message.fields  # a grasp_event, estimate, force, display or robot_notice: each names its grasp
             grasp_id = body.grasp_id
             if (outcome.grasp_id is None and message.type == "grasp_event" and body.event == "start"
                     and message.source == "robot" and grasp_id not in self._followed):
@@ -458,7 +459,7 @@ class LiveSystem:
                 continue
             if on_message is not None:
                 on_message(message)
-            if message.type in ("force", "display"):
+            if message.type in ("force", "display", "robot_notice"):  # a notice: what cut the grasp short
                 outcome.observe(message)
             elif message.type == "estimate":
                 outcome.estimates += 1

@@ -16,7 +16,7 @@ from estimator.evaluation.metrics import felt_log10_error, felt_log10_offset, fe
 from estimator.settings import EstimatorSettings
 from haptics.errors import MappingError
 from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_fraction
-from teleop.bus.messages import EstimateBody
+from teleop.bus.messages import ENDING_NOTICES, EstimateBody, RobotNoticeBody
 from teleop.catalogue import ObjectSpec
 
 __all__ = ["GraspOutcome", "ReportReader", "display_felt_pa"]
@@ -87,11 +87,18 @@ class GraspOutcome:
     contact_force_n: float = field(default_factory=lambda: EstimatorSettings().contact_force_n)
     t_contact_s: float | None = None
     display_track: list[tuple[float, float | None]] = field(default_factory=list)
+    # The robot_notice that ended the grasp before it ran its course (ENDING_NOTICES), None otherwise.
+    ended_by: RobotNoticeBody | None = None
 
     def observe(self, message: Any) -> None:
-        """Note a ``force`` or ``display`` message of this grasp (the convergence figures)."""
+        """Note a ``force`` or ``display`` message of this grasp (the convergence figures), or a
+        ``robot_notice`` naming it that ended it (:attr:`ended_by`: the first such)."""
         body = message.fields
-        if message.type == "force" and self.t_contact_s is None:
+        if message.type == "robot_notice":
+            if (self.ended_by is None and body.event in ENDING_NOTICES and body.grasp_id is not None
+                    and body.grasp_id == self.grasp_id):
+                self.ended_by = body
+        elif message.type == "force" and self.t_contact_s is None:
             reached = np.flatnonzero(np.asarray(body.value_n) >= self.contact_force_n)
             if reached.size:
                 self.t_contact_s = float(body.t_s[reached[0]])
@@ -215,8 +222,11 @@ class GraspOutcome:
     def to_json(self) -> dict[str, Any]:
         """The grasp as ``teleop demo --json`` gives it. What the display rendered: ``display_unknown``
         (no modulus shown: the display goes free, and ``display_fraction`` is null), ``display_rigid``
-        and ``display_fraction`` (0 free, 1 rigid); all null without a rendering."""
+        and ``display_fraction`` (0 free, 1 rigid); all null without a rendering. ``ended_by``: the
+        ``event``, ``action`` and ``reason`` of the robot_notice that cut the grasp short (the
+        watchdog's, a failed gripper command's), null when it ran its course."""
         rendered = self.rendered
+        notice = self.ended_by
         return {"object": self.obj.name, "style": self.style, "operator_style": self.operator_style,
                 "E_true_pa": self.obj.modulus_pa, "E_final_pa": self.e_final_pa,
                 "log10_offset": self.log10_offset, "t_first_estimate_s": self.t_first_estimate_s,
@@ -225,4 +235,6 @@ class GraspOutcome:
                 "display_rigid": None if rendered is None else rendered.rigid,
                 "display_unknown": None if rendered is None else rendered.unknown,
                 "felt_log10_offset": self.felt_log10_offset, "felt_log10_error": self.felt_log10_error,
-                "t_felt_within_2x_s": self.t_felt_within_2x_s, "model": self.model}
+                "t_felt_within_2x_s": self.t_felt_within_2x_s, "model": self.model,
+                "ended_by": None if notice is None else {"event": notice.event, "action": notice.action,
+                                                         "reason": notice.reason}}

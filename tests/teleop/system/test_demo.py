@@ -84,7 +84,7 @@ def test_outcomes_give_the_closing_table_and_json():
                               "log10_offset": 1.0, "t_first_estimate_s": 0.1, "latency_ms": 150.0, "state": "ok",
                               "interval_pa": [None, None], "display_fraction": None, "display_rigid": None,
                               "display_unknown": None, "felt_log10_offset": None, "felt_log10_error": None,
-                              "t_felt_within_2x_s": None, "model": None}
+                              "t_felt_within_2x_s": None, "model": None, "ended_by": None}
     assert bound.log10_offset == pytest.approx(-2.0) and lost.log10_offset is None and lost.state == "none"
     assert lost.to_json()["interval_pa"] is None and lost.to_json()["display_fraction"] is None
     table = closing_table([good, bound, lost]).splitlines()
@@ -313,7 +313,7 @@ def test_demo_runs_the_quick_scene_end_to_end(quick_demo_script, tmp_path):
         assert set(grasp) == {"object", "style", "operator_style", "E_true_pa", "E_final_pa", "log10_offset",
                               "t_first_estimate_s", "latency_ms", "state", "interval_pa", "display_fraction",
                               "display_rigid", "display_unknown", "felt_log10_offset", "felt_log10_error",
-                              "t_felt_within_2x_s", "model"}
+                              "t_felt_within_2x_s", "model", "ended_by"}
         assert grasp["state"] in ("ok", "lower_bound", "upper_bound", "insufficient_data")
         low, high = grasp["interval_pa"]
         assert low is None or high is None or low <= high
@@ -328,8 +328,9 @@ def test_demo_runs_the_quick_scene_end_to_end(quick_demo_script, tmp_path):
     assert any(line.startswith("object") for line in out) and f"session log: {run.folder / 'session.mcap'}" in out
     header = next(line for line in out if line.startswith("object"))
     assert "display" in header and "state" in header
-    # The JSON's summary holds the figures of the table's felt line, the line below the rows.
-    assert felt_text(result["summary"]) == out[out.index(header) + 2 + len(result["grasps"])]
+    # The JSON's summary holds the figures of the table's felt line, below the rows and a line per cut grasp.
+    cut = sum(g["ended_by"] is not None for g in result["grasps"])
+    assert felt_text(result["summary"]) == out[out.index(header) + 2 + len(result["grasps"]) + cut]
     assert result["summary"]["grasps"] == len(result["grasps"])
     topics = {m.message.topic for m in LogReader(Path(result["session_log"])).messages(None)}
     assert {"frame/left", "frame/right", "force", "width", "grasp_event", "estimate", "command"} <= topics
