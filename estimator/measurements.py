@@ -27,7 +27,7 @@ from estimator.perception.grid import DepthGrid, depth_grid
 from estimator.perception.markers import detect_markers
 from estimator.segment import Segment
 from teleop.record import GraspRecord
-from teleop.settings import SensorSettings, resolve_path
+from teleop.settings import SensorSettings, resolve_path, shipped_calibration_hint
 
 log = logging.getLogger(__name__)
 
@@ -271,20 +271,31 @@ def missing_calibration(record: GraspRecord, finger: str, calibration: str | Non
 
 def _finger_calibration_problem(record: GraspRecord, finger: str, override: str | None,
                                 option: str | None) -> str | None:
-    """:func:`calibration_problem` of one finger."""
+    """:func:`calibration_problem` of one finger. A simulated record names the file of the settings it was
+    simulated with and carries none inside: it is given one, or simulated again, never exported again."""
     if override is not None:
         return None
     sensor: SensorSettings = record.sensor(finger)
+    simulated = record.provenance.source == "simulated"
     if not sensor.calibration:
+        again = ("simulate it again (`teleop simulate`) with" if simulated else
+                 "export its session again with `teleop export` and")
         remedy = (f"pass {option} CAL (a calibration of that sensor from `estimator calibrate`)" if option else
-                  "export its session again with `teleop export` and settings that name one for that finger")
+                  f"{again} settings that name one for that finger")
         return f"its sensor on finger {finger!r} names no calibration file: {remedy}"
     path = calibration_path(sensor)
-    if not path.is_file():
-        return (f"it names calibration {path} for finger {finger!r}, which does not exist: export its session "
-                f"again with `teleop export` (exported records carry their calibration inside)"
-                + (f", put the file there, or pass {option} CAL" if option else ", or put the file there"))
-    return None
+    if path.is_file():
+        return None
+    if simulated:
+        fix = (shipped_calibration_hint(sensor)
+               or f"make one with `estimator calibrate` and name it in [sensors.{finger}] calibration")
+        given = f"pass {option} CAL, put the file there" if option else "put the file there"
+        return (f"it names calibration {path} for finger {finger!r}, which does not exist (the file of the settings "
+                f"it was simulated with): {given}, or simulate it again (`teleop simulate`) with settings that "
+                f"name one: {fix}")
+    return (f"it names calibration {path} for finger {finger!r}, which does not exist: export its session "
+            f"again with `teleop export` (exported records carry their calibration inside)"
+            + (f", put the file there, or pass {option} CAL" if option else ", or put the file there"))
 
 
 def resolve_calibration(sensor: SensorSettings, calibration: Calibration | str | Path | None) -> Calibration:

@@ -48,8 +48,10 @@ whole (its preview first, then the record under a temporary name, renamed), and 
 temporaries and previews without their record are removed; so are those of the workers an interrupt
 (Ctrl-C, SIGTERM) stopped mid-write.
 
-A sensor calibration file named in the settings that does not exist is warned of, not refused: the
-records are raw frames, which ``estimator estimate`` reads once that file is made.
+A sensor calibration file named in the settings that does not exist is warned of (as ``teleop settings``
+words it, with the settings file), not refused: the records are raw frames, simulated without a
+calibration, which ``estimator estimate``, ``evaluate`` and ``build-dataset`` read with ``--calibration
+CAL`` or once the file they name is made.
 """
 
 from __future__ import annotations
@@ -201,11 +203,14 @@ def _check_target_force(target_force_n: float, settings: Settings, settings_path
 
 
 def _warn_missing_calibration(settings: Settings, settings_path: str | None) -> None:
-    """Warn (as ``teleop settings`` does) of each sensor calibration file the settings name that does not
-    exist: the estimator refuses the records until it does, but they are raw data that it can serve."""
+    """Warn (in ``teleop settings``'s words, naming the settings file) of each sensor calibration file the
+    settings name that does not exist: the records name it, and the estimator reads them once it exists or
+    with ``--calibration CAL``; they are raw frames that need no calibration to simulate (module notes)."""
+    where = settings_path or default_settings_path()
     for missing in missing_calibrations(settings, settings_path):
-        print(f"teleop simulate: warning: {missing}: the records are simulated all the same (raw frames), but "
-              "`estimator estimate` refuses them with these settings until the file exists", file=sys.stderr)
+        print(f"teleop simulate: warning: {where}: {missing}: the records are simulated all the same (raw frames) "
+              "and name that file: `estimator estimate` reads them once it exists, or with --calibration CAL",
+              file=sys.stderr)
 
 
 def _remove_leftovers(out: Path, jobs: list[tuple]) -> list[tuple[ObjectSpec, int]]:

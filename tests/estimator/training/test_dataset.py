@@ -175,7 +175,7 @@ def test_every_skipped_record_is_named_with_its_cause(sim_grasps, tmp_path, caps
         "moved_calibration.grasp": "calibration missing", "no_loading.grasp": "no usable loading phase",
     }
     reason = skipped["moved_calibration.grasp"]["reason"]
-    assert str(gone) in reason and "does not exist" in reason and "teleop export" in reason
+    assert str(gone) in reason and "does not exist" in reason and "teleop simulate" in reason
     assert "--calibration" in reason
     assert "not a readable ZIP" in skipped["garbage.grasp"]["reason"]
     assert "teleop label" in skipped["no_label.grasp"]["reason"]

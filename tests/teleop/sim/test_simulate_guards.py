@@ -295,7 +295,27 @@ def test_a_missing_calibration_file_is_warned_of_once_and_the_records_written(tm
     assert code == 0, stderr
     missing = Path(load_settings(settings).sensor("left").calibration)
     assert stderr.count("warning") == 1
-    assert (f"teleop simulate: warning: [sensors.left] calibration {missing}: no such file (a relative path "
-            f"resolves against {tmp_path}); make it with `estimator calibrate`: the records are simulated all the "
-            "same") in stderr
+    assert (f"teleop simulate: warning: {settings}: [sensors.left] calibration {missing}: no such file (a relative "
+            f"path resolves against {tmp_path}); make it with `estimator calibrate`: the records are simulated all "
+            "the same (raw frames) and name that file: `estimator estimate` reads them once it exists, or with "
+            "--calibration CAL\n") in stderr
     assert [p.name for p in out.iterdir()] == ["small_rubber_ball_g000.grasp"]
+
+
+def test_a_copied_settings_file_is_warned_of_in_teleop_settings_words_with_the_shipped_calibrations(
+        tmp_path, catalogue, quick_settings, capsys):
+    # The shipped settings copied elsewhere: their relative calibration paths resolve beside the copy.
+    settings = tmp_path / "mysettings.toml"
+    settings.write_text(quick_settings.read_text().replace(f"{default_settings_path().parent}/calibration/",
+                                                           "calibration/"))
+    assert main(["settings", str(settings)]) == 0
+    said = [line.removeprefix("teleop settings: warning: ") for line in capsys.readouterr().err.splitlines()]
+    assert len(said) == 2 and all("the shipped one is" in line for line in said)
+    code, _, stderr = run(capsys, "--objects", str(catalogue), "--only", "small rubber ball",
+                          "--out", str(tmp_path / "o"), "--settings", str(settings))
+    assert code == 0, stderr
+    warnings = [line for line in stderr.splitlines() if "warning" in line]
+    assert warnings == [f"teleop simulate: warning: {settings}: {line}: the records are simulated all the same (raw "
+                        "frames) and name that file: `estimator estimate` reads them once it exists, or with "
+                        "--calibration CAL" for line in said]
+    assert str(tmp_path / "calibration" / "sim-wedge-left.npz") in warnings[0]
