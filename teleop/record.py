@@ -7,8 +7,9 @@ A grasp record is a ZIP archive (suffix ``.grasp``) holding:
 ``record.json``
     ``{"format": "compliance-teleop.grasp", "version": 3, ...}`` (or 1 or 2: below) with the
     sensors (full :class:`~teleop.settings.SensorSettings` per finger: identity,
-    warp calibration and gel), optionally the gripper (below), the optional label, the
-    provenance, named events (``{"contact": t_s, ...}``; :data:`GRASP_DONE_EVENT` is the time the gripper's
+    warp calibration and gel; a ``camera_source`` URL's password as ``***``), optionally
+    the gripper (below), the optional label, the provenance, named events
+    (``{"contact": t_s, ...}``; :data:`GRASP_DONE_EVENT` is the time the gripper's
     grasp command completed: the fingers stopped at the target force and hold it
     until the release) and, per finger, the frame encoding, count and shape.
 ``force/t_s.npy``, ``force/value_n.npy``
@@ -97,6 +98,7 @@ from teleop.grasp_data import (
     reduce_image,
     software_version,
 )
+from teleop.redact import redacted
 from teleop.settings import SensorSettings, settings_to_mapping
 
 __all__ = [
@@ -174,7 +176,7 @@ def write_record(record: GraspRecord, path: str | Path) -> Path:
     files = {finger: _calibration_member(record.sensor(finger)) for finger in sorted(record.calibration_files)}
     sensors = []
     for sensor in record.sensors:
-        table = settings_to_mapping(sensor)
+        table = redacted(settings_to_mapping(sensor))  # records are shared: no camera stream's password
         if sensor.finger in files:
             table["calibration"] = files[sensor.finger]
         sensors.append(table)

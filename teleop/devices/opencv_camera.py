@@ -22,6 +22,7 @@ import cv2
 
 from teleop.devices.camera import CameraFrame, TactileCamera, opencv_fix
 from teleop.errors import DeviceError
+from teleop.redact import redact_url
 from teleop.settings import SensorSettings
 
 __all__ = ["OpenCVCamera"]
@@ -40,7 +41,9 @@ class OpenCVCamera(TactileCamera):
     sensor : SensorSettings
         The sensor; ``camera_source`` names the source unless ``source`` is given.
     source : str, optional
-        Device index or stream URL, overriding ``sensor.camera_source``.
+        Device index or stream URL, overriding ``sensor.camera_source``. A URL may carry the
+        stream server's login (``http://user:password@pi:8080/?action=stream``); messages show it
+        with the password hidden (:func:`teleop.redact.redact_url`).
     jpeg_quality : int
         Quality for frames that must be encoded (decoded sources only).
     queue_frames : int
@@ -74,7 +77,8 @@ class OpenCVCamera(TactileCamera):
         self._index = 0
 
     def __repr__(self) -> str:
-        return f"<OpenCVCamera finger={self.sensor.finger!r} source={self.source!r}>"
+        # Every message about the camera says this: a stream URL's password stays out of it.
+        return f"<OpenCVCamera finger={self.sensor.finger!r} source={redact_url(self.source)!r}>"
 
     def _failed(self, what: str) -> DeviceError:
         """An open that failed, with the setting to check: every command opening the camera says it."""

@@ -43,6 +43,7 @@ from teleop.devices.simulated import robot_is_simulated
 from teleop.errors import BusError, SessionLogError
 from teleop.progress import progress_bar
 from teleop.record import software_version
+from teleop.redact import redacted
 from teleop.scene import scene_path
 from teleop.session.foxglove import FoxgloveMessage
 from teleop.session.foxglove_log import LogChannels, rig_metadata
@@ -150,7 +151,8 @@ class SessionRecorder:
     endpoints : str or iterable of str
         Publisher endpoints to subscribe to (every topic).
     settings : Settings, optional
-        The settings the session runs with; stored in the log. Default: the shipped file.
+        The settings the session runs with; stored in the log (a URL's password as ``***``).
+        Default: the shipped file.
     scene : str
         Scene name or path, recorded (and its TOML attached when it is a file).
     source : {"simulated", "hardware"}, optional
@@ -519,7 +521,8 @@ class SessionRecorder:
         Create times are file modification times (ns since the Unix epoch); 0 for what the
         recorder makes itself (the settings): the session's start time is written instead.
         """
-        settings_json = json.dumps(settings_to_mapping(self.settings), indent=1, sort_keys=True)
+        # Logs are shared: a URL's password (a camera stream's login) is stored as ***.
+        settings_json = json.dumps(redacted(settings_to_mapping(self.settings)), indent=1, sort_keys=True)
         out = [(SETTINGS_ATTACHMENT, "application/json", settings_json.encode("utf-8"), 0)]
         for sensor in self.settings.sensors:
             if not sensor.calibration:

@@ -35,6 +35,8 @@ calibration made for another sensor (its model, finger or serial) is a warning, 
 estimator's finger holding another finger's file of these settings (a swap) is a problem. A missing
 calibration whose name a shipped one has (a copied settings file's relative path) is pointed at it.
 
+A URL's password (a ``camera_source`` with the stream server's login) shows as ``***``.
+
 Exit status 0 when everything a session needs is right (warnings or not), 1 otherwise.
 """
 
@@ -73,6 +75,7 @@ from teleop.errors import (
 )
 from teleop.live import ENDPOINTS
 from teleop.operator import FOLLOW_RATE_HZ
+from teleop.redact import redacted
 from teleop.rig.load_cell_calibration import load_cell_source
 from teleop.settings import (
     SensorSettings,
@@ -534,7 +537,8 @@ def diagnose(settings_path: Path, *, duration_s: float = 2.0) -> dict[str, Any]:
     devices = check_devices(settings, duration_s=duration_s)
     endpoints = check_endpoints(settings)
     calibrations = check_calibrations(settings, settings_path)
-    report = {name: [asdict(c) for c in checks]
+    # Sources and device errors may quote a URL with its password: the report is printed, and shared.
+    report = {name: [redacted(asdict(c)) for c in checks]
               for name, checks in (("devices", devices), ("endpoints", endpoints), ("calibrations", calibrations))}
     return {"ok": all(c.ok for c in (*devices, *endpoints, *calibrations)), "settings": str(settings_path), **report}
 

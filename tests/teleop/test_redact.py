@@ -1,0 +1,41 @@
+"""Passwords in URLs hidden for printing and storing; everything else left as it is."""
+
+from __future__ import annotations
+
+import pytest
+
+from teleop.redact import redact_url, redacted
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("http://admin:Hunter2Pass@127.0.0.1:9/?action=stream", "http://admin:***@127.0.0.1:9/?action=stream"),
+        ("rtsp://cam:pw@pi", "rtsp://cam:***@pi"),
+        ("tcp://u:p@[::1]:5601", "tcp://u:***@[::1]:5601"),
+        ("http://admin:p@ss@pi:8080/", "http://admin:***@pi:8080/"),  # an "@" in it: the last one ends it
+        ("http://:secret@pi/", "http://:***@pi/"),
+        # in a message, with the URL quoted
+        ("<OpenCVCamera finger='left' source='http://a:secret@pi/x'>: cannot open",
+         "<OpenCVCamera finger='left' source='http://a:***@pi/x'>: cannot open"),
+    ],
+)
+def test_a_urls_password_is_replaced(text, expected):
+    assert redact_url(text) == expected
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["0", "/dev/video0", "", "http://pi:8080/?action=stream", "http://user@pi:8080/?action=stream",
+     "http://pi:8080/a:b@c", "tcp://127.0.0.1:5601", "see admin:secret@pi"],  # the last: no URL
+)
+def test_what_holds_no_password_is_unchanged(text):
+    assert redact_url(text) == text
+
+
+def test_every_string_in_plain_data_is_redacted_and_the_rest_kept():
+    data = {"sensors": {"left": {"camera_source": "http://a:pw@pi/", "camera_hz": 30.0, "markers": False}},
+            "list": ["http://b:pw@h", 1, None], "pair": ("0", "http://c:pw@h")}
+    assert redacted(data) == {"sensors": {"left": {"camera_source": "http://a:***@pi/", "camera_hz": 30.0,
+                                                   "markers": False}},
+                              "list": ["http://b:***@h", 1, None], "pair": ("0", "http://c:***@h")}
