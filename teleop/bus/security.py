@@ -37,7 +37,8 @@ Made by ``teleop keys init DIR`` (see :mod:`teleop.bus.keys_cli`)::
     DIR/client.key_secret  this node's client secret certificate, mode 0600
     DIR/authorized/*.key   public certificates of the clients the servers admit
 
-Certificates are the czmq/pyzmq text format (:func:`zmq.auth.create_certificates`).
+Certificates are the czmq/pyzmq text format (:func:`zmq.auth.create_certificates`), read and checked by
+:mod:`teleop.bus.cert_keys`.
 A secret certificate other users may read is refused, as ssh refuses such keys; so are folders and public certificates they may write.
 """
 
@@ -50,7 +51,6 @@ import logging
 import os
 import re
 import shutil
-import stat
 import tempfile
 import threading
 from collections.abc import Callable, Iterable
@@ -60,10 +60,10 @@ from pathlib import Path
 import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
-from zmq.utils import z85
 
 from teleop.bus import cert_access
-from teleop.bus.cert_access import CertificateAccessError, access_error, is_dir, load_certificate
+from teleop.bus.cert_access import CertificateAccessError, access_error, is_dir
+from teleop.bus.cert_keys import PUBLIC_SUFFIX, SECRET_SUFFIX, read_public_cert, read_secret_cert
 from teleop.endpoints import parse_endpoint
 from teleop.errors import BusError, BusSecurityError
 from teleop.settings import BusSettings
@@ -93,8 +93,6 @@ log = logging.getLogger(__name__)
 SERVER_CERT = "server"
 CLIENT_CERT = "client"
 AUTHORIZED_DIR = "authorized"
-PUBLIC_SUFFIX = ".key"
-SECRET_SUFFIX = ".key_secret"
 # A CURVE MESSAGE wraps each frame: "\x07MESSAGE" (8) + nonce (8) + flags (1) + MAC (16).
 # ZMQ_MAXMSGSIZE limits the wrapped frame, so a receiver adds this to its payload limit.
 CURVE_FRAME_OVERHEAD_BYTES = 33
@@ -102,7 +100,6 @@ CURVE_FRAME_OVERHEAD_BYTES = 33
 _LOOPBACK_SCHEMES = frozenset({"inproc", "ipc"})
 _NETWORK_SCHEMES = frozenset({"pgm", "epgm", "norm", "tipc", "vmci"})  # multicast, or a fabric of hosts
 _KEY_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
-_Z85_KEY_CHARS = 40
 _MAX_REFUSALS_LOGGED = 1000  # refused keys a server names: a flood of keys cannot grow memory
 
 
@@ -171,46 +168,6 @@ def _check_name(name: str) -> str:
     return name
 
 
-def _check_z85(key: bytes, path: Path, which: str) -> bytes:
-    try:
-        valid = len(key) == _Z85_KEY_CHARS and len(z85.decode(key)) == 32
-    except (ValueError, KeyError, TypeError):
-        valid = False
-    if not valid:
-        raise BusSecurityError(f"{path}: the {which} key is not a 40-character Z85 CURVE key")
-    return key
-
-
-def _read_public_cert(path: Path, *, in_place: bool = True) -> bytes:
-    """A public certificate's key; refuses a secret one, or one used ``in_place`` that others may write."""
-    public, secret = load_certificate(path, "CURVE certificate")
-    if in_place:
-        cert_access.check_owner_writes(path, "CURVE certificate")
-    if secret is not None:
-        raise BusSecurityError(
-            f"{path} holds a secret key: pass the public certificate (.key), never the .key_secret"
-        )
-    return _check_z85(public, path, "public")
-
-
-def _read_secret_cert(path: Path, public_key: bytes) -> bytes:
-    """The secret key of ``path``, after checking only its owner can read it."""
-    public, secret = load_certificate(path, "CURVE secret certificate")
-    try:
-        mode = stat.S_IMODE(path.stat().st_mode)
-    except OSError as exc:
-        raise BusSecurityError(f"cannot read CURVE secret certificate {path}: {exc}") from exc
-    if mode & 0o077:
-        raise BusSecurityError(
-            f"{path} is readable by other users (mode {mode:04o}): run chmod 600 {path}"
-        )
-    if secret is None:
-        raise BusSecurityError(f"{path} holds no secret key")
-    if public != public_key:
-        raise BusSecurityError(f"{path} does not belong to {path.with_suffix(PUBLIC_SUFFIX)}")
-    return _check_z85(secret, path, "secret")
-
-
 @dataclass(frozen=True)
 class BusSecurity:
     """The CURVE keys of one node, as read from a keys directory by :meth:`load`.
@@ -243,19 +200,19 @@ class BusSecurity:
         if not found:
             raise BusSecurityError(f"CURVE keys directory {directory} does not exist: {_FIX_HINT}")
         cert_access.check_owner_writes(directory, "CURVE keys directory")
-        server_public = _read_public_cert(directory / f"{SERVER_CERT}{PUBLIC_SUFFIX}")
-        client_public = _read_public_cert(directory / f"{CLIENT_CERT}{PUBLIC_SUFFIX}")
+        server_public = read_public_cert(directory / f"{SERVER_CERT}{PUBLIC_SUFFIX}")
+        client_public = read_public_cert(directory / f"{CLIENT_CERT}{PUBLIC_SUFFIX}")
         server_secret_path = directory / f"{SERVER_CERT}{SECRET_SUFFIX}"
         return cls(
             keys_dir=directory,
             server_public_key=server_public,
             client_public_key=client_public,
             authorized_dir=directory / AUTHORIZED_DIR,
-            client_secret_key=_read_secret_cert(
+            client_secret_key=read_secret_cert(
                 directory / f"{CLIENT_CERT}{SECRET_SUFFIX}", client_public
             ),
             server_secret_key=(
-                _read_secret_cert(server_secret_path, server_public)
+                read_secret_cert(server_secret_path, server_public)
                 if server_secret_path.exists()
                 else None
             ),
@@ -297,7 +254,7 @@ def read_authorized(authorized_dir: Path) -> tuple[AuthorizedKey, ...]:
     keys = []
     for path in sorted(authorized_dir.glob(f"*{PUBLIC_SUFFIX}")):
         try:
-            keys.append(AuthorizedKey(path.stem, _read_public_cert(path).decode("ascii")))
+            keys.append(AuthorizedKey(path.stem, read_public_cert(path).decode("ascii")))
         except CertificateAccessError:
             raise  # a permission problem, not a file to remove
         except BusSecurityError as exc:
@@ -506,7 +463,7 @@ def init_keys(
         ``keys_dir`` already holds keys, or ``server_cert`` is not a public certificate.
     """
     directory = Path(keys_dir)
-    server_public = None if server_cert is None else _read_public_cert(Path(server_cert), in_place=False)
+    server_public = None if server_cert is None else read_public_cert(Path(server_cert), in_place=False)
     try:
         names = (f"{n}{s}" for n in (SERVER_CERT, CLIENT_CERT) for s in (PUBLIC_SUFFIX, SECRET_SUFFIX))
         existing = [p for p in (directory / name for name in names) if p.exists()]
@@ -559,7 +516,7 @@ def authorize_key(
     """
     cert = Path(cert)
     name = _check_name(cert.stem if name is None else name)
-    public = _read_public_cert(cert, in_place=False).decode("ascii")
+    public = read_public_cert(cert, in_place=False).decode("ascii")
     listing = list_keys(keys_dir)
     for known in listing.authorized:
         if known.name == name:
