@@ -8,7 +8,9 @@ whose security mechanism differs (one end has keys, the other none), so both end
 A connecting socket whose handshake was refused or broke the protocol is given up by libzmq
 (4.3.5) for good, so a right peer bound later is never heard. The watch notes that endpoint, and
 the socket's own thread (ZeroMQ sockets are not thread-safe) reconnects it every
-:data:`RECONNECT_S` (:meth:`HandshakeWatch.reconnect_due`) until a handshake succeeds.
+:data:`RECONNECT_S` (:meth:`HandshakeWatch.reconnect_due`) until a handshake succeeds. It also keeps,
+for a connecting socket, the endpoints no handshake with ever succeeded and why the last one failed
+(:meth:`HandshakeWatch.never_connected`): nothing came from them, which ``teleop record`` tells at its end.
 """
 
 from __future__ import annotations
@@ -68,9 +70,10 @@ def _mismatch(endpoint: str, side: _Side) -> str:
     return f"{peer} runs no CURVE and this process does (keys {side.keys_dir}): {_fix(side)}"
 
 
-def _warning(kind: int, value: int, endpoint: str, side: _Side) -> str:
-    """What to say about a failed handshake on ``endpoint``, the fix included."""
-    retry = "" if side.server else f"; {_RECONNECTING}"
+def _warning(kind: int, value: int, endpoint: str, side: _Side, *, reconnecting: bool = True) -> str:
+    """What to say about a failed handshake on ``endpoint``, the fix included (``reconnecting``: and
+    that a client retries it, while it still does)."""
+    retry = f"; {_RECONNECTING}" if reconnecting and not side.server else ""
     if kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
         if value == _MISMATCH:
             return f"handshake on {endpoint} failed: {_mismatch(endpoint, side)}{retry}"
@@ -92,15 +95,33 @@ def _warning(kind: int, value: int, endpoint: str, side: _Side) -> str:
 
 
 class HandshakeWatch:
-    """The endpoints a socket's monitor thread saw libzmq give up, for the socket's own thread to reconnect."""
+    """What a socket's monitor thread saw: the endpoints libzmq gave up, for the socket's own thread to
+    reconnect, and those a handshake failed with and none ever succeeded."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._due: dict[str, float] = {}  # endpoint given up -> when to reconnect it (monotonic)
+        self._failed: dict[str, str] = {}  # endpoint -> why its last failed handshake failed
+        self._connected: set[str] = set()  # endpoints a handshake succeeded with
 
     def gave_up(self, endpoint: str) -> None:
         with self._lock:
             self._due.setdefault(endpoint, time.monotonic() + RECONNECT_S)
+
+    def failed(self, endpoint: str, why: str) -> None:
+        """A handshake with ``endpoint`` failed, ``why`` (the fix included)."""
+        with self._lock:
+            self._failed[endpoint] = why
+
+    def succeeded(self, endpoint: str) -> None:
+        with self._lock:
+            self._connected.add(endpoint)
+
+    def never_connected(self) -> dict[str, str]:
+        """Each endpoint a handshake failed with and none ever succeeded, with why the last one failed:
+        nothing was received from it."""
+        with self._lock:
+            return {endpoint: why for endpoint, why in sorted(self._failed.items()) if endpoint not in self._connected}
 
     def next_due_s(self) -> float | None:
         """Seconds until the next reconnect is due; None when no endpoint is given up."""
@@ -142,6 +163,7 @@ def _report(monitor: zmq.Socket, side: _Side, watch: HandshakeWatch) -> None:
                 return
             if kind == zmq.EVENT_HANDSHAKE_SUCCEEDED:
                 dropped.pop(endpoint, None)
+                watch.succeeded(endpoint)
                 if any(seen[0] == endpoint for seen in warned):
                     warned = {seen for seen in warned if seen[0] != endpoint}
                     log.info("handshake with %s now succeeds", endpoint)
@@ -154,8 +176,10 @@ def _report(monitor: zmq.Socket, side: _Side, watch: HandshakeWatch) -> None:
                     continue
             if side.server and value != _MISMATCH:
                 continue  # a client with another server's key: it says so itself
-            if not side.server and kind in _GIVES_UP:
-                watch.gave_up(endpoint)
+            if not side.server:
+                watch.failed(endpoint, _warning(kind, value, endpoint, side, reconnecting=False))
+                if kind in _GIVES_UP:
+                    watch.gave_up(endpoint)
             outcome = (endpoint, kind, value if kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL else 0)
             if outcome not in warned:
                 warned.add(outcome)

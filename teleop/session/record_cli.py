@@ -4,6 +4,9 @@ Stops after --duration-s, or on Ctrl-C / SIGTERM / SIGHUP, and then writes the l
 footer. A recorder killed outright leaves a log without them: ``teleop recover`` fixes it.
 A write error (a full disk) stops the recording, not the session: the command then exits with
 status 3 (:data:`~teleop.session.recorder.RECORDING_STOPPED_STATUS`), its last line saying why.
+An endpoint whose handshake failed and never succeeded (its client key not authorised, keys on one
+end only) gave nothing: the summary names each with the fix, and the command exits with status 1
+(:data:`NEVER_CONNECTED_STATUS`), the log keeping what the other endpoints sent.
 With ``--foxglove`` it also serves what it records live to Foxglove.
 An --out that another recorder is still writing is refused, --overwrite or not
 (:mod:`teleop.session.recordfile`).
@@ -33,6 +36,9 @@ from teleop.session.recorder import (
     SessionRecorder,
 )
 from teleop.settings import load_settings
+
+# `teleop record`'s exit status when it ran but an endpoint never connected: the log lacks all of it.
+NEVER_CONNECTED_STATUS = 1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -103,7 +109,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--json",
         action="store_true",
         help="print one JSON object (out, messages, saved_messages, message_bytes, file_bytes, "
-        "topics, refused, gaps, missed, not_stored, error) as the last stdout line",
+        "topics, refused, gaps, missed, not_stored, error, never_connected) as the last stdout line",
     )
 
 
@@ -148,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
            if stats.not_stored else ""),
         file=sys.stderr,
     )
+    for endpoint, why in stats.never_connected.items():
+        print(f"nothing recorded from {endpoint}, no handshake with it succeeded: {why}", file=sys.stderr)
     if args.json:
         print(json.dumps({"out": str(out), **stats.as_dict()}))
     if stats.error:
@@ -158,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return RECORDING_STOPPED_STATUS
-    return 0
+    return NEVER_CONNECTED_STATUS if stats.never_connected else 0
 
 
 def _catalogue(args: argparse.Namespace) -> Path:

@@ -106,6 +106,10 @@ class _CapturingSubscriber(Subscriber):
             self.captured.append((received_ns, frames))
         return message
 
+    def never_connected(self) -> dict[str, str]:
+        """The endpoints no handshake succeeded with, each with why (:mod:`teleop.bus.handshakes`)."""
+        return {} if self._handshakes is None else self._handshakes.never_connected()
+
 
 @dataclass
 class RecorderStats:
@@ -121,6 +125,8 @@ class RecorderStats:
     missed: int = 0  # messages the publishers sent that never arrived (sequence gaps)
     not_stored: int = 0  # messages that arrived but were still queued when a stop gave up storing them
     error: str | None = None  # the write error that stopped recording
+    # endpoint -> why its last handshake failed, for those none succeeded with: nothing came from them
+    never_connected: dict[str, str] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -134,6 +140,7 @@ class RecorderStats:
             "missed": self.missed,
             "not_stored": self.not_stored,
             "error": self.error,
+            "never_connected": dict(self.never_connected),
         }
 
 
@@ -489,6 +496,7 @@ class SessionRecorder:
             seen, over = self._subscriber.stats, self.stats.refused[TOO_MANY_TOPICS]
             self.stats.refused = Counter(seen.refused) + Counter({TOO_MANY_TOPICS: over})
             self.stats.gaps, self.stats.missed = seen.gaps, seen.missed
+            self.stats.never_connected = self._subscriber.never_connected()
 
     def _stop_receiving(self) -> None:
         if self._subscriber is not None:

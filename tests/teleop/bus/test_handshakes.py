@@ -73,3 +73,16 @@ def test_every_socket_watches_its_handshakes_until_it_closes(keys):
             assert watchers(before + 2) == before + 2
             assert delivered(pub, sub, within_s=HEARD_WITHIN_S) is not None
     assert watchers(before) == before
+
+
+def test_the_watch_lists_only_endpoints_no_handshake_ever_succeeded_with():
+    from teleop.bus.handshakes import HandshakeWatch
+
+    watch = HandshakeWatch()
+    watch.failed("tcp://h:1", "refused at first")
+    watch.succeeded("tcp://h:1")  # recovered: something may have come from it
+    watch.succeeded("tcp://h:2")
+    watch.failed("tcp://h:2", "refused after a restart")  # connected before: not never
+    watch.failed("tcp://h:3", "refused")
+    watch.failed("tcp://h:3", "refused again")
+    assert watch.never_connected() == {"tcp://h:3": "refused again"}
