@@ -48,6 +48,7 @@ from teleop.devices.hx711_protocol import (
 from teleop.devices.loadcell import FIXES, LoadCell
 from teleop.errors import DeviceError, DeviceStalledError
 from teleop.record import Samples
+from teleop.redact import redact_url
 from teleop.settings import LoadCellSettings
 from teleop.settings_fields import tcp_host_port
 
@@ -282,7 +283,7 @@ class TcpHx711(_StreamingHx711):
         self._clock = BridgeClock()
 
     def __repr__(self) -> str:
-        return f"<TcpHx711 {self.settings.address}>"
+        return f"<TcpHx711 {redact_url(self.settings.address)}>"
 
     def _open_link(self) -> None:
         host, port = parse_tcp_address(self.settings.address)

@@ -47,6 +47,7 @@ from teleop.errors import (
     SettingsError,
     TeleopError,
 )
+from teleop.redact import redact_url
 from teleop.rig.conclude import conclude, say
 from teleop.settings import LoadCellSettings, load_settings
 from teleop.settings_edit import check_writable
@@ -170,7 +171,7 @@ def load_cell_source(settings: LoadCellSettings) -> str:
     if settings.backend == "serial":
         return f"{settings.port or '(no port)'} (`load_cell.port`)"
     if settings.backend == "tcp":
-        return f"{settings.address} (`load_cell.address`)"
+        return f"{redact_url(settings.address)} (`load_cell.address`)"
     return "the simulated cell"
 
 

@@ -39,3 +39,13 @@ def test_every_string_in_plain_data_is_redacted_and_the_rest_kept():
     assert redacted(data) == {"sensors": {"left": {"camera_source": "http://a:***@pi/", "camera_hz": 30.0,
                                                    "markers": False}},
                               "list": ["http://b:***@h", 1, None], "pair": ("0", "http://c:***@h")}
+
+
+def test_a_load_cell_address_with_a_password_is_hidden_where_it_is_said():
+    from teleop.devices.hx711 import TcpHx711
+    from teleop.rig.load_cell_calibration import load_cell_source
+    from teleop.settings import LoadCellSettings
+
+    cell = LoadCellSettings(backend="tcp", address="tcp://u:secret@127.0.0.1:5601")
+    said = f"{TcpHx711(cell)!r} {load_cell_source(cell)}"
+    assert "secret" not in said and "u:***@127.0.0.1:5601" in said
