@@ -426,11 +426,11 @@ class LiveSystem:
                 self.check()  # a child that died is the better reason
                 raise
 
-    def _next_message(self, timeout_s: float) -> Message | None:
-        """The next grasp message: one set aside for a later grasp first, then the bus (a
-        ``model_event`` is kept in :attr:`model_events`)."""
+    def _next_message(self, pending: list[Message], timeout_s: float) -> Message | None:
+        """The next grasp message: one of ``pending`` (set aside for a later grasp) first, then the
+        bus (a ``model_event`` is kept in :attr:`model_events`)."""
         while True:
-            message = self._later.pop(0) if self._later else self.events.recv(timeout_s=timeout_s)
+            message = pending.pop(0) if pending else self.events.recv(timeout_s=timeout_s)
             if message is None or message.type != "model_event":
                 return message
             self.model_events.append(message.fields)
@@ -440,12 +440,15 @@ class LiveSystem:
         """Take the grasp's messages until the robot and the estimator ended it; then its reports."""
         obj = outcome.obj
         deadline = time.monotonic() + timeout_s
+        # What earlier grasps set aside, taken once: one set aside again waits for the next grasp
+        # rather than come back at once, before anything on the bus.
+        pending, self._later = self._later, []
         while not outcome.done:
             self.check()
             if time.monotonic() >= deadline:
                 raise TeleopError(f"grasp {outcome.grasp_id or '(not started)'} ({obj.name}) did not end within "
                                   f"{timeout_s:g} s; logs in {self.run_dir}")
-            message = self._next_message(timeout_s=0.05)
+            message = self._next_message(pending, timeout_s=0.05)
             if message is None:
                 continue
             body = message.fields  # a grasp_event, estimate, force, display or robot_notice: each names its grasp
@@ -454,8 +457,11 @@ class LiveSystem:
                     and message.source == "robot" and grasp_id not in self._followed):
                 outcome.grasp_id = grasp_id  # the operator's next grasp
             if grasp_id != outcome.grasp_id:
-                if grasp_id is not None and outcome.grasp_id is not None and grasp_id not in self._followed:
-                    self._later.append(message)  # the operator went on to the next object meanwhile
+                # The operator went on to the next object meanwhile. Not a notice: one naming a grasp not
+                # followed yet refuses a stale follow, of a grasp that may never start.
+                if (grasp_id is not None and outcome.grasp_id is not None and grasp_id not in self._followed
+                        and message.type != "robot_notice"):
+                    self._later.append(message)
                 continue
             if on_message is not None:
                 on_message(message)
