@@ -276,7 +276,8 @@ def _finger_calibration_problem(record: GraspRecord, finger: str, override: str 
     if override is not None:
         return None
     sensor: SensorSettings = record.sensor(finger)
-    simulated = record.provenance.source == "simulated"
+    # Made by `teleop simulate`, not exported from a session log (a simulated session's too).
+    simulated = record.provenance.source == "simulated" and record.provenance.model != "session"
     if not sensor.calibration:
         again = ("simulate it again (`teleop simulate`) with" if simulated else
                  "export its session again with `teleop export` and")

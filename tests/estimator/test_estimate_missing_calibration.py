@@ -78,18 +78,19 @@ def test_a_simulated_record_whose_calibration_is_gone_is_told_to_take_one_or_be_
     assert main(["estimate", str(record), "--method", "elastic", "--calibration", str(shipped)]) == 0
 
 
-@pytest.mark.parametrize("source", ["simulated", "hardware"])
-def test_without_an_option_a_record_is_told_what_fits_its_source(folder, source):
+@pytest.mark.parametrize(("source", "model"), [("simulated", "wedge"), ("hardware", "session"),
+                                               ("simulated", "session")])  # the last: a simulated session's export
+def test_without_an_option_a_record_is_told_what_fits_its_source(folder, source, model):
     from estimator.measurements import calibration_problem
     from teleop.record import read_record
 
     records, missing = folder
     gone = read_record(records / "moved.grasp")
-    gone = replace(gone, provenance=replace(gone.provenance, source=source))
+    gone = replace(gone, provenance=replace(gone.provenance, source=source, model=model))
     unnamed = replace(gone, sensors=tuple(replace(s, calibration="") for s in gone.sensors))
     problem, none_named = calibration_problem(gone, "left", None, None), calibration_problem(unnamed, "left", None, None)
     assert problem.startswith(f"it names calibration {missing} for finger 'left', which does not exist")
-    if source == "simulated":
+    if model != "session":
         assert problem.endswith(": put the file there, or simulate it again (`teleop simulate`) with settings that "
                                 "name one: make one with `estimator calibrate` and name it in [sensors.left] "
                                 "calibration")
