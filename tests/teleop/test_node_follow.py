@@ -73,9 +73,10 @@ def test_enable_released_stops_the_fingers(rig):
 def test_enable_released_stops_fingers_still_on_their_way(rig):
     node, operator, _, _ = rig
     wait_prepared(node)
-    drive(node, operator, lambda t: 0.066, 0.04)  # 14 mm ahead of the open fingers: on their way for 0.14 s
-    drive(node, operator, lambda t: 0.066, 0.4, enable=False)
-    assert node.gripper.read_width()[1] > 0.07  # stopped where they were, not carried on to the old target
+    drive(node, operator, lambda t: 0.03, 0.04)  # 50 mm ahead of the open fingers: on their way for 0.5 s
+    drive(node, operator, lambda t: 0.03, 0.5, enable=False)
+    # Stopped about 4 mm in (0.35 s of the node's delay to spare), not carried on to the old target.
+    assert node.gripper.read_width()[1] > 0.045
 
 
 def test_the_watchdog_stops_fingers_still_on_their_way(rig):
