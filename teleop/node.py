@@ -244,7 +244,8 @@ class RobotNode(ServiceLoop):
             self._publish(*self._captured.get(timeout=timeout_s if self._commands_left > 0 else 0))
             while True:
                 # A long backlog to publish is neither the operator's silence nor the node stalled:
-                # follows that came meanwhile count before the watchdog looks.
+                # follows that came meanwhile count before the watchdog looks (within the step's
+                # share: behind a flood they wait, and the watchdog may go first).
                 self._take_commands()
                 self._publish(*self._captured.get_nowait())
         self._take_commands()
