@@ -108,3 +108,20 @@ def test_a_refused_follow_of_the_grasp_the_robot_runs_keeps_it():
     follows = [body for _, kind, body in link.sent[sent:] if kind == "follow"]
     assert follows and all(b["enable"] and b["grasp_id"] == grasp_id for b in follows)
     assert loop.status.grasp_id == grasp_id and not loop.status.suspended
+
+
+def test_a_follow_grasp_released_while_the_robot_prepared_it_is_forgotten():
+    # No start came (the robot prepares the object), so no end will: the robot cancels it and never
+    # starts it again. Let go and held again, the enable starts a new grasp at once.
+    clock, link, device, loop = loop_rig(grip=0.5)
+    grasp_id = _held_follow(clock, loop, device, link)
+    device.buttons = {"release"}
+    _run(clock, loop, 0.05)
+    device.buttons = set()
+    assert ("release", {"grasp_id": grasp_id}) in [(kind, body) for _, kind, body in link.sent]
+    device.enable = False
+    _run(clock, loop, 0.1)
+    device.enable = True
+    _run(clock, loop, 0.1)
+    kind, body = link.sent[-1][1:]
+    assert kind == "follow" and body["enable"] and body["grasp_id"] not in (grasp_id, None)
