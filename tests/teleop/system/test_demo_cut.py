@@ -62,10 +62,16 @@ class _Events:
         return self.messages.pop(0) if self.messages else None
 
 
-def test_following_a_grasp_keeps_the_notice_that_ended_it_and_no_other(tmp_path: Path):
+def _replaying(tmp_path: Path, grasp_id: str, messages: list) -> LiveSystem:
+    """A demo's live system whose bus replays ``messages``; the estimator's log names ``grasp_id``."""
     system = LiveSystem(Path("settings.toml"), "quick", tmp_path, Path("calibration.npz"))
-    (tmp_path / "estimator.jsonl").write_text('{"grasp_id": "grasp-1"}\n')
-    system.events = _Events([
+    (tmp_path / "estimator.jsonl").write_text(f'{{"grasp_id": "{grasp_id}"}}\n')
+    system.events = _Events(messages)
+    return system
+
+
+def test_following_a_grasp_keeps_the_notice_that_ended_it_and_no_other(tmp_path: Path):
+    system = _replaying(tmp_path, "grasp-1", [
         # Before the operator's grasp starts: a load cell's notice names no grasp.
         _from("robot", "robot_notice", event="device", action="load_cell", grasp_id=None, reason="reads failed"),
         _from("robot", "grasp_event", event="start", grasp_id="grasp-1", object_name="sponge"),
@@ -82,9 +88,7 @@ def test_following_a_grasp_keeps_the_notice_that_ended_it_and_no_other(tmp_path:
 
 
 def test_a_grasp_that_ran_its_course_has_no_ended_by(tmp_path: Path):
-    system = LiveSystem(Path("settings.toml"), "quick", tmp_path, Path("calibration.npz"))
-    (tmp_path / "estimator.jsonl").write_text('{"grasp_id": "grasp-2"}\n')
-    system.events = _Events([
+    system = _replaying(tmp_path, "grasp-2", [
         _from("robot", "grasp_event", event="start", grasp_id="grasp-2", object_name="sponge"),
         _from("robot", "robot_notice", event="force_limit", action="follow", grasp_id="grasp-2", reason="max force"),
         _from("robot", "grasp_event", event="end", grasp_id="grasp-2"),
@@ -96,9 +100,7 @@ def test_a_grasp_that_ran_its_course_has_no_ended_by(tmp_path: Path):
 def test_a_message_of_another_grasp_mid_grasp_does_not_stop_the_bus_being_read(tmp_path: Path):
     # Set aside for a later grasp, a message came straight back before anything on the bus: the
     # grasp's own end was never read, and the demo waited out its timeout.
-    system = LiveSystem(Path("settings.toml"), "quick", tmp_path, Path("calibration.npz"))
-    (tmp_path / "estimator.jsonl").write_text('{"grasp_id": "grasp-1"}\n')
-    system.events = _Events([
+    system = _replaying(tmp_path, "grasp-1", [
         _from("robot", "grasp_event", event="start", grasp_id="grasp-1", object_name="sponge"),
         # a stale follow of a grasp that never went live, refused; then the next grasp starts early
         _from("robot", "robot_notice", event="refused", action="follow", grasp_id="grasp-0", reason="ended"),
