@@ -112,6 +112,11 @@ def test_rigid_when_e_or_its_lower_bound_reaches_the_stiff_end():
     assert bound.uncertainty_decades == 0.0  # above the range: nothing left to doubt on the display
 
 
+def test_an_upper_bound_at_the_stiff_end_is_never_shown_rigid():
+    at_most = map_estimate(EstimateUpdate(10 * RIGID, (1e5, 10 * RIGID), "upper_bound"), **RANGE)
+    assert not at_most.unknown and not at_most.rigid  # "at most X" is no "rigid"
+
+
 def test_a_lower_bound_below_the_stiff_end_is_not_rigid_and_open_above():
     bound = map_estimate(EstimateUpdate(1e6, (None, None), "lower_bound"), **RANGE)
     assert not bound.rigid

@@ -195,3 +195,25 @@ def test_the_shipped_display_range_resolves_its_rigid_end():
     m = one([row(2e11, "lower_bound", display.e_rigid_pa, display.e_rigid_pa, None)],
             (display.e_soft_pa, display.e_rigid_pa))
     assert m["felt_log10_error"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_within_2x_means_a_factor_2_not_more():
+    assert one([row(1e5, "ok", 2.2e5, 1e5, 3e5)])["felt_within_2x"] == 0.0
+
+
+def test_the_soft_figures_stop_at_their_subset_limit():
+    rows = [row(SOFT_SUBSET_MAX_PA, "ok", 3e6, 2e6, 4e6), row(1.07 * SOFT_SUBSET_MAX_PA, "ok", 3.2e6, 2e6, 4e6)]
+    assert SOFT_SUBSET_MAX_PA == 3e6 and one(rows)["soft_n"] == 1
+
+
+def test_a_label_at_the_rigid_threshold_counts_for_rigid_shown_rigid():
+    rows = [row(RIGID_TRUTH_PA, "lower_bound", RIGID, RIGID), row(1.2 * RIGID_TRUTH_PA, "ok", 1e5, 5e4, 2e5)]
+    assert RIGID_TRUTH_PA == 1e8 and one(rows)["rigid_shown_rigid"] == 0.5
+
+
+def test_a_label_below_the_soft_end_rendered_there_is_no_felt_error():
+    assert one([row(SOFT / 5, "ok", SOFT, SOFT / 2, 2 * SOFT)])["felt_log10_error"] == 0.0
+
+
+def test_a_label_on_the_intervals_high_end_is_covered():
+    assert one([row(2e5, "ok", 1e5, 5e4, 2e5)])["interval_coverage"] == 1.0

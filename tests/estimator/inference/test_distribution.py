@@ -194,6 +194,8 @@ def test_the_floor_is_the_highest_lower_bound_of_the_reliable_methods():
     assert analytical_floor(estimates, scale=2.0)[0] == pytest.approx(math.log10(6e6))
     assert analytical_floor(estimates, methods=("no_tactile",)) == (pytest.approx(math.log10(2e5)), "no_tactile")
     assert analytical_floor(estimates[2:]) == (-math.inf, None)
+    # An ok answer's interval is no bound: its low end floors nothing.
+    assert analytical_floor((Estimate.ok("series", 1e6, 5e5, 2e6),)) == (-math.inf, None)
 
 
 def _expected_loss(probs: np.ndarray, points: np.ndarray, *, soft: float, limit: float) -> np.ndarray:
