@@ -120,14 +120,20 @@ class LogChannels:
     ) -> int:
         """Write ``message``'s frames verbatim (the image bytes left out when ``elide_image``:
         the CompressedImage just written holds them); returns the bytes of message data."""
+        channel = self.bus_channel(message)
+        data = pack_frames(frames, elide_last=elide_image)
+        self._add(channel, data, message, received_ns + self.offset_ns)
+        return len(data)
+
+    def bus_channel(self, message: Message) -> int:
+        """The channel of ``message``'s topic, registered (with its schema) on first use: a
+        registration may write the open chunk when it fills it (mcap)."""
         channel = self._channels.get(message.topic)
         if channel is None:
             name = f"compliance-teleop/{message.type}"
             schema = self._schema(name, SCHEMA_ENCODING, schema_data(message.type))
             channel = self._channel(message.topic, MESSAGE_ENCODING, schema, {"type": message.type})
-        data = pack_frames(frames, elide_last=elide_image)
-        self._add(channel, data, message, received_ns + self.offset_ns)
-        return len(data)
+        return channel
 
     @staticmethod
     def carries_image(converted: Sequence[FoxgloveMessage]) -> bool:

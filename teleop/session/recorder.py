@@ -420,6 +420,7 @@ class SessionRecorder:
             return False
         before = self._sink.position
         converted = self._log.write_foxglove(message, received_ns, converted)
+        self._log.bus_channel(message)  # a new topic's records may fill the chunk: before the message, counted so
         between = self._sink.position
         size = self._log.write_bus(
             message, frames, received_ns, elide_image=LogChannels.carries_image(converted)
