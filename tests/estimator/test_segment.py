@@ -12,7 +12,13 @@ from hypothesis import strategies as st
 from estimator.errors import FitError
 from estimator.lag import estimate_camera_lag, estimate_width_lag
 from estimator.plausible import MIN_FORCE_NOISE_N, MIN_WIDTH_NOISE_M
-from estimator.segment import HOLD_FRAMES, HOLD_SETTLE_S, segment_grasp, unplaced_frames
+from estimator.segment import (
+    HOLD_FRAMES,
+    HOLD_SETTLE_S,
+    HOLD_TOLERANCE,
+    segment_grasp,
+    unplaced_frames,
+)
 from estimator.signals import clean_samples, interpolate, noise_std
 
 T_TOUCH = 0.5  # true first touch (s)
@@ -356,6 +362,15 @@ def test_hold_frames_follow_the_peak_after_the_width_reads_settle():
     assert not np.isin(seg.hold_index, seg.frame_index).any()
 
 
+def test_hold_frames_end_where_the_release_begins():
+    tf, force, tw, width, tc = streams(duration=2.0)
+    letting_go = np.clip((tf - 1.3) / 0.2, 0.0, 1.0)  # the release: from 1.3 s, free by 1.5 s
+    seg = run(tf, force * (1.0 - letting_go), tw, width, tc)
+    assert 1 <= seg.hold_index.size <= HOLD_FRAMES
+    assert np.all(seg.hold_t_s <= 1.3 + 1 / 80)
+    assert np.all(seg.hold_force_n >= seg.peak_force_n * (1.0 - HOLD_TOLERANCE))
+
+
 def test_reported_stop_admits_the_peak_frame_before_any_force_after_it_and_fixes_its_width():
     tf, force, tw, width, tc = streams()
     fast = loading_between_frames(tf)
@@ -371,6 +386,19 @@ def test_reported_stop_admits_the_peak_frame_before_any_force_after_it_and_fixes
     assert seg.frame_force_n[0] == pytest.approx(PEAK_N)
     assert seg.frame_width_m[0] == pytest.approx(np.interp(stop_s, tw_live, w_live))
     assert "misaligned" not in seg.flags  # no width is wanted after the stop
+
+
+def test_widths_stamped_after_the_reported_stop_are_the_width_at_the_stop():
+    # The fingers stand still from the reported stop on: width reads stamped later (a delayed stamp, here
+    # still closing) are not a further closing, in the loading phase or at the frames.
+    tf, force, tw, width, tc = streams()
+    stop_s = 0.7  # before the force peaks at 0.8 s
+    seg = segment_grasp(tf, force, tw, width, tc, contact_force_n=0.75, n_frames=3, stopped_s=stop_s)
+    at_stop = np.interp(stop_s, tw, width)
+    loading_after = seg.load_t_s > stop_s
+    assert loading_after.any() and seg.load_width_m[loading_after] == pytest.approx(at_stop, abs=1e-9)
+    frames_after = np.minimum(seg.frame_t_s, seg.t_peak_s) > stop_s  # the peak frame shows the peak's state
+    assert frames_after.any() and seg.frame_width_m[frames_after] == pytest.approx(at_stop, abs=1e-9)
 
 
 # --------------------------------------------------------------------------- an operator's grasp

@@ -198,6 +198,19 @@ def test_a_new_grasp_id_ends_the_previous_grasp():
     assert renderer.grasp_id == "b" and renderer.stats.estimates_ignored == 1
 
 
+def test_a_late_estimate_of_a_grasp_ended_a_few_grasps_ago_is_still_ignored():
+    # The renderer remembers more ended grasps than the last one: a straggler held up on the bus for a
+    # few grasps must not re-engage the display.
+    _, renderer = make(replace(SETTINGS, smoothing_s=0.0))
+    for i, grasp in enumerate(("a", "b", "c")):
+        renderer.on_estimate(estimate(1e6, grasp=grasp), 2.0 * i)
+        renderer.on_grasp_end(grasp, 2.0 * i + 0.5)
+    assert renderer.tick(6.0).level == 0 and renderer.phase == "idle"
+    renderer.on_estimate(estimate(1e8, grasp="a", provisional=True), 6.01)
+    assert renderer.phase == "idle" and renderer.stats.estimates_ignored == 1
+    assert renderer.tick(6.5).level == 0
+
+
 def test_rigid_and_unknown_states_reach_the_display():
     display, renderer = make(replace(SETTINGS, smoothing_s=0.0))
     renderer.on_estimate(estimate(None, state="insufficient_data", provisional=True), 0.0)

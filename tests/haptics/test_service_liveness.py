@@ -90,3 +90,18 @@ def test_a_loading_grasp_is_released_when_its_estimator_dies_and_engages_again_w
         _final(estimator, "g3", provisional=True)
         _step_until(service, lambda: renderer.grasp_id == "g3")
         assert renderer.percept.rigid
+
+
+def test_a_final_let_go_when_its_estimator_dies_is_ended_so_a_late_estimate_of_it_cannot_engage():
+    with _rig() as (estimator, service):
+        renderer = service.renderer
+        estimator.heartbeat_if_due()
+        _final(estimator, "g1")
+        _step_until(service, lambda: renderer.grasp_id == "g1")
+        _step_until(service, lambda: renderer.phase == "idle", timeout_s=2.0)  # the estimator dies: let go
+        # Heard again, it sends one more estimate of g1 (a duplicate held up on the bus): g1 has ended.
+        estimator.heartbeat_if_due()
+        _final(estimator, "g1", provisional=True)
+        _step_until(service, lambda: service.stats.estimates == 2)
+        assert renderer.phase == "idle" and renderer.stats.estimates_ignored == 1
+        assert renderer.display.last_command.level == 0

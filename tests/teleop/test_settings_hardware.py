@@ -19,6 +19,8 @@ from teleop.settings import GripperSettings, LoadCellSettings
     ('[load_cell]\naddress = "tcp://127.0.0.1:99999"\n', "LoadCellSettings.address = 'tcp://127.0.0.1:99999': "
                                                          "expected tcp://HOST:PORT with a port in 1..65535"),
     ('[load_cell]\naddress = "tcp://:5601"\n', "LoadCellSettings.address = 'tcp://:5601': expected tcp://HOST:PORT"),
+    ('[load_cell]\naddress = "udp://127.0.0.1:5601"\n', "LoadCellSettings.address = 'udp://127.0.0.1:5601': "
+                                                         "expected tcp://HOST:PORT"),
     ('[gripper]\nhost = ""\n', "[gripper] GripperSettings.host = '': expected the robot controller's host name or "
                                "IP address"),
     ('[gripper]\nhost = "tcp://172.16.0.2"\n', "GripperSettings.host = 'tcp://172.16.0.2': expected"),

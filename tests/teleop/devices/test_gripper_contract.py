@@ -111,6 +111,7 @@ def test_stop_when_idle_holds_the_width(gripper):
         (lambda g: g.move(0.02, speed_m_s=math.nan), "speed_m_s"),
         (lambda g: g.grasp(0.02, force_n=500.0), "force_n"),
         (lambda g: g.grasp(0.02, epsilon_inner_m=-1.0), "epsilon_inner_m"),
+        (lambda g: g.grasp(0.02, epsilon_outer_m=-1.0), "epsilon_outer_m"),
         (lambda g: g.move_async(math.inf), "width_m"),
         (lambda g: g.grasp_async(0.02, force_n=0.0), "force_n"),
         (lambda g: g.follow(0.5), "width_m"),

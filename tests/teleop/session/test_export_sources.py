@@ -9,6 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from teleop.bus.wire import make_message
+from teleop.record import GRASP_DONE_EVENT
 from teleop.session.export import _Assembler
 from teleop.settings import load_settings
 
@@ -103,3 +104,29 @@ def test_a_grasp_the_estimator_ended_in_a_log_cut_short_is_not_blamed_on_the_dam
     assert x.reason == ("its publisher 'robot' never ended it (the estimator did: the robot node restarted or "
                         "went silent during the grasp)")
     assert y.reason == "the log stops at damage before the grasp's end event (the file ends inside a chunk)"
+
+
+def test_a_loading_end_marker_keeps_the_grasp_open_and_becomes_its_grasp_done_event():
+    # The robot marks where the loading phase ends; the hold and release after it are the same grasp's.
+    assembler = _Assembler(path=Path("s.mcap"), settings=load_settings(), objects={}, source="simulated",
+                           session_version="0", session="s", labels={}, calibration_files={})
+    messages = [_message("robot", "grasp_event", 1.0, event="start", grasp_id="x"),
+                _message("robot", "grasp_event", 1.05, event="loading_end", grasp_id="x"),
+                *_grasp_data("x", 1.0),
+                _message("robot", "grasp_event", 2.0, event="end", grasp_id="x")]
+    (grasp,) = [grasp for message in messages for grasp in assembler.feed(message)]
+    assert grasp, grasp.reason
+    assert grasp.record.events == {"grasp_start": 1.0, "grasp_end": 2.0, GRASP_DONE_EVENT: 1.05}
+    assert np.array_equal(grasp.record.force_n.t_s, [1.15, 1.2])
+
+
+def test_untagged_data_while_two_grasps_are_open_goes_to_neither():
+    # Whose it is cannot be told: it is counted outside any grasp (module notes: "the only grasp open").
+    assembler = _Assembler(path=Path("s.mcap"), settings=load_settings(), objects={}, source="simulated",
+                           session_version="0", session="s", labels={}, calibration_files={})
+    messages = [_message("robot", "grasp_event", 1.0, event="start", grasp_id="x"),
+                _message("robot", "grasp_event", 1.5, event="start", grasp_id="y"),
+                _message("robot", "force", 2.0, t_s=[1.9, 2.0], value_n=[3.0, 3.0])]
+    assert [grasp for message in messages for grasp in assembler.feed(message)] == []
+    assert assembler.unassigned == 1
+    assert not assembler.open["x"].force and not assembler.open["y"].force

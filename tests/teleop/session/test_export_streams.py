@@ -32,3 +32,10 @@ def test_a_frame_declaring_a_huge_image_is_refused_before_it_is_decoded(monkeypa
     shape = (sensor.raw_height_px, sensor.raw_width_px)
     ok, png = cv2.imencode(".png", np.zeros((*shape, 3), np.uint8))
     assert ok and frame_stream("left", [(0.0, "png", png)]).shape == (*shape, 3)
+
+
+def test_frames_of_one_finger_in_two_encodings_are_refused_naming_both():
+    # A record's stream has one encoding; each frame alone would decode.
+    image = np.zeros((24, 32, 3), np.uint8)
+    frames = [(0.0, "jpeg", cv2.imencode(".jpg", image)[1]), (0.03, "png", cv2.imencode(".png", image)[1])]
+    assert frame_stream("left", frames) == "finger 'left' sent frames in several encodings (jpeg, png)"

@@ -84,3 +84,27 @@ def test_an_attached_label_catalogue_is_stamped_with_the_log_s_own_time_base(rec
     assert len(attached) == 1
     # the time it was attached, in the log's time base: after the recording, not decades ahead
     assert last_message_ns <= attached[0].log_time and before_ns <= attached[0].log_time <= time.time_ns()
+
+
+def test_a_label_without_a_modulus_takes_the_logs_catalogue_object_before_a_label_catalogues(tmp_path):
+    """Both catalogues name the object: the log's (or --objects) has it first, as the grasps were run with it."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from teleop.bus.messages import LabelBody
+    from teleop.session.export import _Assembler
+    from teleop.session.export_objects import catalogue_objects, label_catalogue_objects
+
+    own = LAB.replace('"box"', '"sphere"').replace('"rubber"', '"silicone"').replace("7.5e4", "2e4")
+    objects = catalogue_objects(SimpleNamespace(attachments={"catalogue.toml": own.encode()}, damaged_attachments={}),
+                                None, log=tmp_path / "session.mcap")
+    label_objects = label_catalogue_objects(
+        SimpleNamespace(attachments={"label_catalogue-1.toml": LAB.encode()}, damaged_attachments={}),
+        log=tmp_path / "session.mcap")
+    labels = {"g1": LabelBody(grasp_id="g1", object_name="lab_gel", modulus_pa=None, source="catalogue", detail="")}
+    assembler = _Assembler(path=Path("session.mcap"), settings=None, objects=objects, source="simulated",
+                           session_version="0", session="s", labels=labels, calibration_files={},
+                           label_objects=label_objects)
+    label, unlabelled = assembler.label("g1", None)
+    assert unlabelled == ""
+    assert (label.modulus_pa, label.material, label.shape) == (2e4, "silicone", "sphere")

@@ -97,6 +97,17 @@ def test_squeezes_to_its_goal_on_a_soft_object():
         assert 0.8 * goal <= max(run["force"]) <= goal + overshoot + 0.5, op.style.describe()
 
 
+def test_its_hand_never_closes_faster_than_0_09_m_s():
+    # A margin under the fingers' follow speed (FOLLOW_SPEED_M_S): seed 4 draws a squeeze whose speed
+    # variation would pass it uncapped.
+    for seed in range(12):
+        op, run = drive(seed, stiffness_n_per_m=300.0)
+        commands = run["commands"]
+        closing_m_s = [(a.target_width_m - b.target_width_m) * FOLLOW_RATE_HZ
+                       for a, b in zip(commands[:-1], commands[1:], strict=True) if a.enable and b.enable]
+        assert max(closing_m_s) <= 0.09 + 1e-9, op.style.describe()
+
+
 def test_backs_off_and_re_squeezes():
     seed = next(s for s in range(100) if len(draw_style(np.random.default_rng(s), max_force_n=MAX_FORCE_N)
                                             .backoff_to) == 1)
