@@ -131,7 +131,7 @@ class OperatorView:
     ended_by: RobotNoticeBody | None = None  # the last notice that ended a grasp (the watchdog), until cleared
     ended_by_t_s: float | None = None
     refused: int = 0  # bus messages the subscription refused (malformed, unknown type)
-    robot_restarts: int = 0  # times a robot topic's seq fell: the robot node was started again (a new process)
+    robot_restarts: int = 0  # times a robot topic's seq did not rise: the robot node was started again (a new process)
     refused_starts: tuple[str, ...] = ()  # the last start_grasp ids the robot refused, oldest first
     refused_follows: tuple[str, ...] = ()  # the grasp ids of the last follows the robot refused, oldest first
     label: LabelBody | None = None
@@ -201,7 +201,7 @@ class OperatorLink:
         self._dismissed: set[str] = set()  # grasps cleared from the view: their late messages are ignored
         self._labels: dict[str, LabelBody] = {}  # grasp id -> the last label sent for it
         self._robot_seq: dict[str, int] = {}  # robot topic -> the last seq heard on it (this node process)
-        self.robot_restarts = 0  # robot nodes heard started again (a topic's seq fell)
+        self.robot_restarts = 0  # robot nodes heard started again (a topic's seq did not rise)
         self._refused_starts: collections.deque[str] = collections.deque(maxlen=REFUSED_STARTS_KEPT)
         self._refused_follows: collections.deque[str] = collections.deque(maxlen=REFUSED_STARTS_KEPT)
         self.view = self._snapshot()
@@ -328,7 +328,7 @@ class OperatorLink:
         return taken
 
     def _check_restart(self, message: Message) -> None:
-        """Count a robot node started again: a robot topic's ``seq`` fell (a new process numbers each
+        """Count a robot node started again: a robot topic's ``seq`` did not rise (a new process numbers each
         topic from 0; the node sends a ``robot_state`` with every heartbeat, so a restart is heard
         within one). Heard however fast the node came back, unlike its liveness. The old node's
         readings are dropped, and its other topics' numbers forgotten: one restart counts once."""

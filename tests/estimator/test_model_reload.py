@@ -215,6 +215,30 @@ def test_model_slot_switches_to_new_files_once_they_stay_the_same_and_keeps_a_go
     assert slot.model_dir == new and slot.estimator is not good
 
 
+def test_model_slot_does_not_try_again_refused_files_copied_over_unchanged(settings, calibration, tmp_path):
+    # Files with a model id that fail their check: copied again (new mtimes, the same id), they are not
+    # loaded and refused again at every look.
+    served, broken = tmp_path / "served", tmp_path / "broken"
+    write_tiny_model(served, 5.55)
+    write_tiny_model(broken, 4.25, broken=True)
+    now = [0.0]
+    slot = ModelSlot(served, settings=settings, calibration=calibration, check_interval_s=1.0, clock=lambda: now[0])
+    good = slot.estimator
+    events = []
+    for t in range(1, 12):
+        if t in (1, 6):  # copied in, then copied over again
+            for name in ("metadata.json", "model.onnx"):
+                (served / name).unlink()
+                shutil.copy(broken / name, served / name)
+        now[0] = float(t)
+        event = slot.poll(idle=True)
+        if slot.busy:  # loading them: let their check finish
+            event = settled(slot)
+        if event is not None:
+            events.append(event.event)
+    assert events == ["refused"] and slot.failures == 1 and slot.estimator is good
+
+
 def test_model_slot_without_a_model_serves_the_first_one_it_is_given(settings, calibration, tmp_path):
     write_tiny_model(tmp_path / "m", 5.55)
     slot = ModelSlot(None, settings=settings, calibration=calibration)
@@ -267,6 +291,23 @@ def test_service_switches_models_on_load_model_between_grasps_and_every_estimate
     assert [(r["grasp_id"], r["model"], r["model_path"]) for r in reports] == [
         ("g-a", ids[0], str(tmp_path / "a")), ("g-b", ids[1], str(tmp_path / "b"))]
     assert rig.service.stats.reloads == 1 and rig.service.stats.load_requests == 1
+
+
+def test_a_follow_grasp_served_by_a_model_has_its_estimates_provisional_until_its_one_final(settings, calibration,
+                                                                                            records, tmp_path):
+    # The display follows the model's answer while the operator loads; only the end makes it final.
+    write_tiny_model(tmp_path / "a", 5.55)
+    slot = ModelSlot(tmp_path / "a", settings=settings, calibration=calibration, mode="model", check_interval_s=3600)
+    rig = Rig(settings, calibration, model=slot)
+    try:
+        rig.robot.send("robot_state", t_capture_s=0.0, mode="following", grasp_id="g-f", target_width_m=0.08,
+                       enable=True)
+        rig.send_grasp(records["stress_ball"], "g-f")
+        estimates = [m.body for m in rig.collect("g-f") if m.type == "estimate"]
+    finally:
+        rig.close()
+    assert len(estimates) >= 2 and [e["provisional"] for e in estimates] == [True] * (len(estimates) - 1) + [False]
+    assert any(e["model"] == slot.model_id for e in estimates[:-1])  # the model made the provisional ones
 
 
 def test_service_refuses_a_model_that_does_not_check_out_and_keeps_its_own(settings, calibration, records,

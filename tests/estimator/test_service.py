@@ -96,6 +96,21 @@ def test_a_grasp_started_while_another_is_open_closes_that_one(settings, calibra
     assert report["grasp_id"] == "a" and report["final_by"] == "grasp_end"
 
 
+def test_a_loading_end_marker_after_the_service_closed_the_loading_sends_no_second_final(settings, calibration,
+                                                                                         records, tmp_path):
+    # The force settled first: the service's own final went out; the robot's marker comes late.
+    service = EstimatorService(settings, calibration=calibration, subscriber=None, publisher=_Sent(),
+                               methods=METHODS, report=JsonLines(tmp_path / "report.jsonl"), clock=lambda: 0.0)
+    record = records["stress_ball"]
+    _run(service, _grasp_items(record, end=False), "g")
+    assert any(m.type == "estimate" and not m.body["provisional"] for m in service.publisher.sent)
+    t_end_s = float(record.force_n.t_s[-1])
+    _run(service, [(t_end_s, "grasp_event", {"event": "loading_end", "object_name": None}),
+                   (t_end_s, "grasp_event", {"event": "end"})], "g")
+    estimates = [m for m in service.publisher.sent if m.type == "estimate"]
+    assert [m.body["provisional"] for m in estimates].count(False) == 1 and not estimates[-1].body["provisional"]
+
+
 class _Silent:
     """A subscriber that heard the robot node once and now hears nothing but what is ``queued``."""
 

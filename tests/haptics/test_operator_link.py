@@ -218,6 +218,22 @@ def test_next_leaves_a_grasp_the_robot_already_releases_without_a_second_release
     assert link.cleared == 1 and loop.status.last_action == "next object: ready"
 
 
+def test_next_suspends_a_held_enable_until_it_is_let_go_and_held_again(rig):
+    # The next object is not under the fingers yet: the hand still on the enable must not grasp it.
+    clock, link, device, loop = rig
+    device.enable, device.grip = True, 0.5
+    run_for(clock, loop, 0.1)
+    assert link.sent[-1][1] == "follow" and link.sent[-1][2]["enable"]
+    loop.press("next")  # the view shows no grasp yet: next clears at once
+    run_for(clock, loop, 0.05)
+    sent = len(link.sent)
+    run_for(clock, loop, 0.5)
+    assert not any(b["enable"] for _, kind, b in link.sent[sent:] if kind == "follow")
+    assert loop.status.suspended and loop.status.held
+    _hold_again(clock, device, loop)
+    assert link.sent[-1][2]["enable"]
+
+
 def test_next_waits_for_the_final_estimate_that_follows_an_operator_grasps_end(rig):
     clock, link, device, loop = rig
     grasp_id = hold_and_let_go(clock, loop, device, link)
@@ -488,6 +504,18 @@ def test_quitting_releases_the_follow_grasp_the_robot_runs(rig):
     assert link.sent[-2:] == [(clock(), "follow", {"target_width_m": 0.04, "enable": False, "grasp_id": grasp_id}),
                               (clock(), "release", {"grasp_id": grasp_id})]
     assert loop.status.mode == "idle" and "the console quits" in loop.status.last_action
+
+
+def test_quitting_while_driving_lets_go_of_a_grasp_the_robot_does_not_show_yet(rig):
+    # Its robot_state not heard yet, the robot may run it all the same: the last follow must let go.
+    clock, link, device, loop = rig
+    device.enable, device.grip = True, 0.5
+    run_for(clock, loop, 0.1)
+    grasp_id = link.sent[-1][2]["grasp_id"]
+    assert link.sent[-1][2]["enable"] and link.view.robot is None
+    loop.finish()
+    follows = [b for _, kind, b in link.sent if kind == "follow"]
+    assert follows[-1] == {"target_width_m": follows[-2]["target_width_m"], "enable": False, "grasp_id": grasp_id}
 
 
 def test_quitting_leaves_alone_a_grasp_the_robot_releases_or_none(rig):

@@ -1,5 +1,5 @@
 """The operator's link on loopback: what it keeps when the robot node or the estimator dies, and the notice that
-ended a grasp."""
+ended a grasp; and, on a fake clock, the liveness of a peer that announced no heartbeat period."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ import dataclasses
 import time
 
 import numpy as np
+from support.operator_fakes import Clock, QueuedSubscriber, SubscribedPublisher
 
-from haptics.operator_link import OperatorLink
+from haptics.operator_link import LIVENESS_PERIODS, OperatorLink
 from teleop.bus.pubsub import Publisher
 from teleop.settings import load_settings
 
@@ -97,3 +98,20 @@ def test_an_estimate_from_an_estimator_that_died_since_is_not_current():
             estimate(5e4)  # it does go on with the grasp after all
             _wait(lambda v: v.estimate.E_pa == 5e4, link, estimator)
             assert not link.view.estimate_orphaned
+
+
+def test_a_peer_heard_without_an_announced_period_is_dead_after_liveness_periods_of_the_links_own():
+    # A data message before the node's first heartbeat: the bus knows no period of its own for it.
+    clock = Clock()
+    subscriber = QueuedSubscriber(clock)
+    heartbeat_s = 0.5
+    link = OperatorLink(publisher=SubscribedPublisher(), subscriber=subscriber, heartbeat_s=heartbeat_s, clock=clock)
+    subscriber.heartbeat.saw("robot")  # as the Subscriber sees a data message's source: no interval_s
+    link.poll()
+    assert link.view.alive("robot node")
+    clock.t += LIVENESS_PERIODS * heartbeat_s - 0.01
+    link.poll()
+    assert link.view.alive("robot node")
+    clock.t += 0.02
+    link.poll()
+    assert link.view.down("robot node")

@@ -135,3 +135,28 @@ def test_a_grasp_the_robot_starts_after_another_leaves_only_it_to_release():
     press(loop, clock, "quit")
     loop.finish()
     assert [body["grasp_id"] for _, kind, body in link.sent if kind == "release"] == [second]
+
+
+def test_a_discrete_grasp_is_forgotten_when_the_robot_node_goes_down():
+    # As a follow grasp is (test_operator_link.py): a node started again does not run it, so quit must
+    # not release it by name (nor next wait on it).
+    clock, link, loop, grasp_id = _discrete_grasp_loaded("holding")
+    link.view = dataclasses.replace(link.view, peers=(Peer("robot node", "robot", True, 0.1),))
+    loop.step()
+    assert loop.status.grasp_id == grasp_id and loop.status.mode == "discrete"
+    link.view = dataclasses.replace(link.view, peers=(Peer("robot node", "robot", False, 4.0),))
+    loop.step()
+    assert f"the robot node is down: grasp {grasp_id} is lost" in loop.status.log
+    assert loop.status.grasp_id is None and loop.status.mode == "idle"
+    loop.finish()
+    assert "release" not in link.kinds()
+
+
+def test_set_force_keeps_the_discrete_force_between_one_newton_and_the_settings_maximum():
+    # The console's +/- keys step it: held down, they must not run past either end.
+    clock, link, _, loop = loop_rig()
+    limit = loop.settings.gripper.target_force_n
+    assert loop.set_force(limit + 5.0) == loop.force_n == limit
+    press(loop, clock, "grasp")
+    assert link.sent[-1][1:] == ("start_grasp", {"target_force_n": limit, "grasp_id": loop.status.grasp_id})
+    assert loop.set_force(-3.0) == loop.force_n == min(1.0, limit)

@@ -57,6 +57,19 @@ def test_the_link_hears_a_robot_node_started_again_by_its_falling_sequence():
     assert link.view.robot_restarts == 1
 
 
+def test_a_robot_node_restarted_after_its_first_state_is_heard_at_the_same_sequence():
+    # Killed right after its first robot_state, the new node numbers from 0 again: its seq did not fall.
+    clock = Clock()
+    subscriber = QueuedSubscriber(clock)
+    link = OperatorLink(publisher=SubscribedPublisher(), subscriber=subscriber, clock=clock)
+    subscriber.queue.append(_state(0, "op-1"))
+    link.poll()
+    assert link.view.robot_restarts == 0
+    subscriber.queue.append(_state(0, None, mode="idle"))
+    link.poll()
+    assert link.view.robot_restarts == 1 and link.view.robot.mode == "idle"
+
+
 def _run(clock: Clock, loop: OperatorLoop, seconds: float) -> None:
     end = clock.t + seconds
     while clock.t < end - 1e-9:

@@ -105,6 +105,16 @@ def test_dropped_events_make_it_read_the_state_again(make_pad):
         assert reading.buttons == {"stop"}
 
 
+def test_a_button_held_across_dropped_events_is_not_pressed_again(make_pad):
+    # The state read again still has it down: a grasp button kept down must not start a second grasp.
+    pad = make_pad()
+    with GamepadInput(device=pad) as device:
+        pad.key("BTN_SOUTH", 1)
+        assert device.read().buttons == {"grasp"}
+        pad.drop()
+        assert device.read().buttons == frozenset()
+
+
 def test_events_after_dropped_events_are_dropped_up_to_the_next_report(make_pad):
     pad = make_pad()
     with GamepadInput(device=pad) as device:
