@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 
 from haptics.settings import display_range_pa
-from teleop.bus.messages import ModelEventBody
+from teleop.bus.messages import ENDING_NOTICES, ModelEventBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
@@ -438,11 +438,29 @@ class LiveSystem:
     def _follow(self, outcome: GraspOutcome, *, on_update: Callable[[GraspOutcome], None] | None,
                 on_message: Callable[[Message], None] | None, timeout_s: float) -> GraspOutcome:
         """Take the grasp's messages until the robot and the estimator ended it; then its reports."""
-        obj = outcome.obj
-        deadline = time.monotonic() + timeout_s
         # What earlier grasps set aside, taken once: one set aside again waits for the next grasp
-        # rather than come back at once, before anything on the bus.
+        # rather than come back at once, before anything on the bus; what this grasp did not reach
+        # waits for the next too, before what it set aside.
         pending, self._later = self._later, []
+        try:
+            self._take(outcome, pending, on_update=on_update, on_message=on_message,
+                       deadline=time.monotonic() + timeout_s, timeout_s=timeout_s)
+        finally:
+            self._later[:0] = pending
+        grasp_id = outcome.grasp_id
+        self._followed.add(grasp_id)
+        outcome.estimator_report = self.estimator_reports.find(grasp_id, timeout_s=REPORT_TIMEOUT_S)
+        outcome.renderer_report = self.renderer_reports.find(
+            grasp_id, timeout_s=REPORT_TIMEOUT_S if outcome.final is not None else 0.0)
+        if on_update is not None:
+            on_update(outcome)
+        return outcome
+
+    def _take(self, outcome: GraspOutcome, pending: list[Message], *,
+              on_update: Callable[[GraspOutcome], None] | None, on_message: Callable[[Message], None] | None,
+              deadline: float, timeout_s: float) -> None:
+        """:meth:`_follow`'s messages of ``outcome``'s grasp, ``pending`` first, until it ended."""
+        obj = outcome.obj
         while not outcome.done:
             self.check()
             if time.monotonic() >= deadline:
@@ -457,10 +475,11 @@ class LiveSystem:
                     and message.source == "robot" and grasp_id not in self._followed):
                 outcome.grasp_id = grasp_id  # the operator's next grasp
             if grasp_id != outcome.grasp_id:
-                # The operator went on to the next object meanwhile. Not a notice: one naming a grasp not
-                # followed yet refuses a stale follow, of a grasp that may never start.
+                # The operator went on to the next object meanwhile. Of the notices only those that end
+                # a grasp: another names a grasp not followed yet to refuse a stale follow of a grasp
+                # that may never start.
                 if (grasp_id is not None and outcome.grasp_id is not None and grasp_id not in self._followed
-                        and message.type != "robot_notice"):
+                        and (message.type != "robot_notice" or body.event in ENDING_NOTICES)):
                     self._later.append(message)
                 continue
             if on_message is not None:
@@ -484,11 +503,3 @@ class LiveSystem:
                 outcome.robot_ended = True
             if on_update is not None:
                 on_update(outcome)
-        grasp_id = outcome.grasp_id
-        self._followed.add(grasp_id)
-        outcome.estimator_report = self.estimator_reports.find(grasp_id, timeout_s=REPORT_TIMEOUT_S)
-        outcome.renderer_report = self.renderer_reports.find(
-            grasp_id, timeout_s=REPORT_TIMEOUT_S if outcome.final is not None else 0.0)
-        if on_update is not None:
-            on_update(outcome)
-        return outcome

@@ -115,6 +115,26 @@ def test_a_message_of_another_grasp_mid_grasp_does_not_stop_the_bus_being_read(t
     assert system.operated_grasp(SPONGE, timeout_s=2.0).grasp_id == "grasp-2"  # its start, set aside, counts
 
 
+def test_what_the_operator_did_ahead_waits_for_its_grasps_and_keeps_what_cut_them(tmp_path: Path):
+    # The estimator's end of grasp-1 comes last: grasp-2 and grasp-3 ran meanwhile, grasp-2 cut short.
+    system = _replaying(tmp_path, "grasp-1", [
+        _from("robot", "grasp_event", event="start", grasp_id="grasp-1", object_name="sponge"),
+        _from("robot", "grasp_event", event="end", grasp_id="grasp-1"),
+        _from("robot", "grasp_event", event="start", grasp_id="grasp-2", object_name="sponge"),
+        _from("robot", "robot_notice", event="watchdog", action="follow", grasp_id="grasp-2", reason=STALLED),
+        _from("robot", "grasp_event", event="end", grasp_id="grasp-2"),
+        _from("estimator", "grasp_event", event="end", grasp_id="grasp-2"),
+        _from("robot", "grasp_event", event="start", grasp_id="grasp-3", object_name="sponge"),
+        _from("robot", "grasp_event", event="end", grasp_id="grasp-3"),
+        _from("estimator", "grasp_event", event="end", grasp_id="grasp-3"),
+        _from("estimator", "grasp_event", event="end", grasp_id="grasp-1"),
+    ])
+    (tmp_path / "estimator.jsonl").write_text("".join(f'{{"grasp_id": "grasp-{n}"}}\n' for n in (1, 2, 3)))
+    followed = [system.operated_grasp(SPONGE, timeout_s=2.0) for _ in range(3)]
+    assert [o.grasp_id for o in followed] == ["grasp-1", "grasp-2", "grasp-3"]
+    assert [o.ended_by and o.ended_by.event for o in followed] == [None, "watchdog", None]
+
+
 def test_the_demo_subscribes_to_the_robot_nodes_notices(tmp_path: Path):
     system = LiveSystem(default_settings_path(), "quick", tmp_path, tmp_path / "calibration.npz")
     try:
