@@ -308,14 +308,17 @@ class OperatorLoop:
             if self._send(lambda: self.link.start_grasp(target_force_n=self.force_n, grasp_id=grasp_id)):
                 self._discrete.add(grasp_id, self.clock())
                 self._act(f"grasp {grasp_id} at {self.force_n:g} N{self._robot_down()}")
-        elif button in ("release", "stop"):
-            send = self.link.release if button == "release" else self.link.stop
-            if self._send(lambda: send(current)):
-                self._act(f"{button} {current or ''}".rstrip())
+        elif button == "release":
+            if self._send(lambda: self.link.release(current)):
+                self._act(f"release {current or ''}".rstrip())
                 if self._follow_grasp is not None and view.grasp_id != self._follow_grasp:
                     # Cancelled while the robot prepared it: no end will come, and the robot never
                     # starts it again, so the next hold of the enable starts a new grasp.
                     self._follow_grasp = None
+            self._suspend()
+        elif button == "stop":  # the robot holds the grasp, prepared or not, until released or its watchdog
+            if self._send(lambda: self.link.stop(current)):
+                self._act(f"stop {current or ''}".rstrip())
             self._suspend()
         elif button == "next":
             self._suspend()
