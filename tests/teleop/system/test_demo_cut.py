@@ -110,8 +110,8 @@ def test_a_message_of_another_grasp_mid_grasp_does_not_stop_the_bus_being_read(t
         _from("robot", "grasp_event", event="end", grasp_id="grasp-2"),
         _from("estimator", "grasp_event", event="end", grasp_id="grasp-2"),
     ])
+    (tmp_path / "estimator.jsonl").write_text("".join(f'{{"grasp_id": "grasp-{n}"}}\n' for n in (1, 2)))
     assert system.operated_grasp(SPONGE, timeout_s=2.0).grasp_id == "grasp-1"
-    (tmp_path / "estimator.jsonl").write_text('{"grasp_id": "grasp-2"}\n')
     assert system.operated_grasp(SPONGE, timeout_s=2.0).grasp_id == "grasp-2"  # its start, set aside, counts
 
 
