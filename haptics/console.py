@@ -19,7 +19,8 @@ frozen :class:`~haptics.operator_status.LoopStatus` ten times a second. Panels:
 * **operator**: the input device, the grip as a bar and the target width it asks for, the
   dead-man enable, the mode (follow, discrete grasp, idle), the discrete grasp's force;
 * **notices**: what went wrong on this side (a send that failed) first, then the robot's last
-  notice (a refused command, the watchdog), the watchdog's kept above a later refusal, the
+  notice (a refused command, the watchdog), the one that ended the grasp (the watchdog's, a
+  failed gripper command's) kept above a later refusal, the
   operator's last actions, newest first, and the last warning logged (a refused CURVE handshake,
   say: the log itself is held until the screen closes); cut to the panel's rows, ending in ``…``;
 * the **keys**, at the bottom. The whole fits an 80x24 terminal; in a smaller one, where panels

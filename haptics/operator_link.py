@@ -128,7 +128,7 @@ class OperatorView:
     display: DisplayBody | None = None
     notice: RobotNoticeBody | None = None
     notice_t_s: float | None = None
-    ended_by: RobotNoticeBody | None = None  # the last notice that ended a grasp (the watchdog), until cleared
+    ended_by: RobotNoticeBody | None = None  # the last notice that ended a grasp (watchdog, failed gripper), until cleared
     ended_by_t_s: float | None = None
     refused: int = 0  # bus messages the subscription refused (malformed, unknown type)
     robot_restarts: int = 0  # times a robot topic's seq did not rise: the robot node was started again (a new process)

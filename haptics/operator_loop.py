@@ -56,7 +56,8 @@ of both and the status it shows: :mod:`haptics.operator_status`; the grasps it t
 * the robot side's force, width and the display's stiffness go back to the device
   (``device.feel``, not while it is disconnected): the simulated operator closes its loop on them.
 
-A follow grasp takes a new grasp id when enable is first held after the previous grasp ended;
+A follow grasp takes a new grasp id when enable is first held after the previous grasp ended,
+or after a release cancelled it while the robot prepared it (no end comes for that one);
 a discrete grasp takes one per ``grasp`` press. Ids are ``op-<HHMMSS>-<n>``, unique within a
 session.
 """

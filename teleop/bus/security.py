@@ -39,7 +39,8 @@ Made by ``teleop keys init DIR`` (see :mod:`teleop.bus.keys_cli`)::
 
 Certificates are the czmq/pyzmq text format (:func:`zmq.auth.create_certificates`), read and checked by
 :mod:`teleop.bus.cert_keys`.
-A secret certificate other users may read is refused, as ssh refuses such keys; so are folders and public certificates they may write.
+A secret certificate other users may read is refused, as ssh refuses such keys; so are folders and public certificates they may write,
+and a secret certificate whose secret key does not give its public key (damaged, or from another pair).
 """
 
 from __future__ import annotations

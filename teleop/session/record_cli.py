@@ -6,7 +6,8 @@ A write error (a full disk) stops the recording, not the session: the command th
 status 3 (:data:`~teleop.session.recorder.RECORDING_STOPPED_STATUS`), its last line saying why.
 An endpoint whose handshake failed and never succeeded (its client key not authorised, keys on one
 end only) gave nothing: the summary names each with the fix, and the command exits with status 1
-(:data:`NEVER_CONNECTED_STATUS`), the log keeping what the other endpoints sent.
+(:data:`NEVER_CONNECTED_STATUS`; 3 when a write error stopped it too), the log keeping what the
+other endpoints sent.
 With ``--foxglove`` it also serves what it records live to Foxglove.
 An --out that another recorder is still writing is refused, --overwrite or not
 (:mod:`teleop.session.recordfile`).
@@ -50,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--settings",
         metavar="FILE",
         default=None,
-        help="settings TOML the session runs with (stored in the log; bus keys, size limit "
+        help="settings TOML the session runs with (stored in the log, a URL's password as ***; bus keys, size limit "
         "and default endpoints come from it; default: the shipped one)",
     )
     parser.add_argument(

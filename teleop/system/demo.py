@@ -213,7 +213,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "what the display rendered: rigid, unknown, or the fraction of its range and the modulus it stands for; "
         "the felt error in decades, against the label on the display's range, so that an object stiffer than the "
         "sensor resolves is right when rendered rigid; time to the first estimate; how soon after contact the display "
-        "stayed within a factor 2; a scripted grasp's latency to the display report), what was felt, and the log's path."
+        "stayed within a factor 2; a scripted grasp's latency to the display report; for a grasp the robot node "
+        "cut short, a 'cut: EVENT' note and a line with the notice's reason), what was felt, and the log's path."
     )
     add_run_arguments(parser, default_scene="default")
     parser.add_argument("--operator", choices=("sim", "script"), default="sim",

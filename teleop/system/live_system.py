@@ -12,8 +12,8 @@ renderer    ``haptics serve``     simulated softness display (report: ``renderer
 recorder    ``teleop record``     the session log (``session.mcap``)
 ==========  ====================  ==============================================================
 
-This process is the operator: it publishes ``command`` messages and listens to grasp events and
-estimates. Each child runs in its own session (a Ctrl-C here stops them in order: node,
+This process is the operator: it publishes ``command`` messages and listens to grasp events,
+estimates and the robot notices that end a grasp (``GraspOutcome.ended_by``). Each child runs in its own session (a Ctrl-C here stops them in order: node,
 estimator, renderer, recorder, so the log gets everything) and is told by the kernel to stop
 when this process dies (``PR_SET_PDEATHSIG`` on Linux), so none outlives it; a child that exits
 early stops the system with the tail of its log (with an empty log: its folder's free space), except
