@@ -80,6 +80,7 @@ __all__ = [
     "apply_security",
     "authorize_key",
     "check_endpoints",
+    "host_is_loopback",
     "init_keys",
     "is_loopback",
     "list_keys",
@@ -110,7 +111,9 @@ _FIX_HINT = "run `teleop keys init DIR` and set bus.keys_dir = DIR in the settin
 # --------------------------------------------------------------------------- endpoints
 
 
-def _host_is_loopback(host: str) -> bool:
+def host_is_loopback(host: str) -> bool:
+    """Whether no other host can reach a server listening on ``host`` (an address or ``localhost``,
+    IPv6 with or without brackets; "" and "0.0.0.0", every interface, can be reached)."""
     host = host.removeprefix("[").removesuffix("]")
     if host == "localhost":
         return True
@@ -135,7 +138,7 @@ def is_loopback(endpoint: str) -> bool:
         return True
     if parsed.scheme in _NETWORK_SCHEMES:
         return False
-    return all(_host_is_loopback(host) for host in parsed.hosts)
+    return all(host_is_loopback(host) for host in parsed.hosts)
 
 
 def check_endpoints(endpoints: Iterable[str], security: BusSecurity | None) -> None:

@@ -17,7 +17,7 @@ import math
 import sys
 import time
 
-from teleop.bus.security import is_loopback
+from teleop.bus.security import host_is_loopback
 from teleop.clikit import positive_number
 from teleop.devices.hx711_bridge import FakeHx711, Hx711Bridge, SerialCounts
 from teleop.errors import DeviceError, SettingsError
@@ -63,11 +63,6 @@ def _checked(args: argparse.Namespace, cell: LoadCellSettings) -> LoadCellSettin
         raise SettingsError(f"--baud {args.baud}: {exc}") from None
 
 
-def _reachable(host: str) -> bool:
-    """Whether other hosts can connect to a server listening on ``host`` ("": every interface)."""
-    return not host or not is_loopback(f"tcp://[{host}]:*" if ":" in host else f"tcp://{host}:*")
-
-
 def _warn_reachable(bridge: Hx711Bridge) -> None:
     """Say on stderr that other hosts reach ``bridge`` unauthenticated (the bus refuses such an
     endpoint without CURVE keys; the bridge has none), and how to keep it to this one."""
@@ -98,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
                                                    on_failure=lambda _why: signals.stop.set()) as bridge:
             # On stderr: stdout holds the --json summary alone.
             print(f"hx711-bridge: serving on {bridge.address}", file=sys.stderr, flush=True)
-            if _reachable(args.host):
+            if not host_is_loopback(args.host):
                 _warn_reachable(bridge)
             signals.stop.wait(args.duration_s)
     finally:

@@ -41,7 +41,7 @@ from typing import Any
 import foxglove
 
 from teleop.bus.pubsub import Subscriber
-from teleop.bus.security import is_loopback
+from teleop.bus.security import host_is_loopback
 from teleop.bus.wire import Message, now_ns
 from teleop.clikit import help_literal
 from teleop.errors import BusError
@@ -162,7 +162,7 @@ class LiveServer:
                    if os.strerror(errno.EADDRINUSE) in str(exc) else "")
             raise BusError(f"cannot serve the Foxglove live view on {host}:{port}: {exc}{fix}") from exc
         self.host = host
-        if not is_loopback(f"tcp://[{host}]:*" if ":" in host else f"tcp://{host}:*"):
+        if not host_is_loopback(host):
             # the bus refuses such an endpoint without CURVE keys; this view has none to run
             log.warning("the Foxglove live view %s is reachable from other hosts, unencrypted and without "
                         "authentication (the bus's CURVE keys do not cover it): anyone on the network can watch the "
