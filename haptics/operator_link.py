@@ -55,7 +55,6 @@ from dataclasses import dataclass
 from typing import Any
 
 from teleop.bus.messages import (
-    ENDING_NOTICES,
     DisplayBody,
     EstimateBody,
     LabelBody,
@@ -363,7 +362,7 @@ class OperatorLink:
             self._robot = body
         elif kind == "robot_notice":
             self._notice = (body, self.clock())
-            if body.event in ENDING_NOTICES and body.grasp_id is not None:
+            if body.ended_grasp() is not None:
                 self._ended_by = self._notice
             elif body.event == "refused" and body.action == "start_grasp" and body.grasp_id is not None:
                 self._refused_starts.append(body.grasp_id)

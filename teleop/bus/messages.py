@@ -557,6 +557,18 @@ class RobotNoticeBody(Body):
     grasp_id: str | None = scalar(_GRASP)
     reason: str = scalar(TextField(max_chars=MAX_STR_CHARS))
 
+    def ended_grasp(self) -> str | None:
+        """The grasp this notice says the robot node ended: the one place that tells a notice that
+        ends a grasp from one that leaves it running.
+
+        Returns
+        -------
+        str or None
+            :attr:`grasp_id` when :attr:`event` is one of :data:`ENDING_NOTICES`, else None (and
+            None for a device notice naming no grasp: a reader's failure ends none).
+        """
+        return self.grasp_id if self.event in ENDING_NOTICES else None
+
 
 #: Each message type's body class, by type name.
 BODIES: Mapping[str, type[Body]] = {

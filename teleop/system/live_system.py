@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 
 from haptics.settings import display_range_pa
-from teleop.bus.messages import ENDING_NOTICES, ModelEventBody
+from teleop.bus.messages import ModelEventBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
@@ -479,7 +479,7 @@ class LiveSystem:
                 # a grasp: another names a grasp not followed yet to refuse a stale follow of a grasp
                 # that may never start.
                 if (grasp_id is not None and outcome.grasp_id is not None and grasp_id not in self._followed
-                        and (message.type != "robot_notice" or body.event in ENDING_NOTICES)):
+                        and (message.type != "robot_notice" or body.ended_grasp() is not None)):
                     self._later.append(message)
                 continue
             if on_message is not None:

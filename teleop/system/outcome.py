@@ -16,7 +16,7 @@ from estimator.evaluation.metrics import felt_log10_error, felt_log10_offset, fe
 from estimator.settings import EstimatorSettings
 from haptics.errors import MappingError
 from haptics.mapping import EstimateUpdate, Percept, map_estimate, modulus_from_fraction
-from teleop.bus.messages import ENDING_NOTICES, EstimateBody, RobotNoticeBody
+from teleop.bus.messages import EstimateBody, RobotNoticeBody
 from teleop.catalogue import ObjectSpec
 
 __all__ = ["GraspOutcome", "ReportReader", "display_felt_pa"]
@@ -87,7 +87,7 @@ class GraspOutcome:
     contact_force_n: float = field(default_factory=lambda: EstimatorSettings().contact_force_n)
     t_contact_s: float | None = None
     display_track: list[tuple[float, float | None]] = field(default_factory=list)
-    # The robot_notice that ended the grasp before it ran its course (ENDING_NOTICES), None otherwise.
+    # The robot_notice that ended the grasp before it ran its course (its ended_grasp), None otherwise.
     ended_by: RobotNoticeBody | None = None
 
     def observe(self, message: Any) -> None:
@@ -95,8 +95,8 @@ class GraspOutcome:
         ``robot_notice`` naming it that ended it (:attr:`ended_by`: the first such)."""
         body = message.fields
         if message.type == "robot_notice":
-            if (self.ended_by is None and body.event in ENDING_NOTICES and body.grasp_id is not None
-                    and body.grasp_id == self.grasp_id):
+            ended = body.ended_grasp()
+            if self.ended_by is None and ended is not None and ended == self.grasp_id:
                 self.ended_by = body
         elif message.type == "force" and self.t_contact_s is None:
             reached = np.flatnonzero(np.asarray(body.value_n) >= self.contact_force_n)
