@@ -22,7 +22,7 @@ import numpy as np
 if TYPE_CHECKING:
     from teleop.system.outcome import GraspOutcome
 
-__all__ = ["LiveView", "closing_table", "cut_cell", "cut_line", "display_cell", "felt_figures", "felt_line",
+__all__ = ["LiveView", "closing_table", "cut_cell", "cut_line", "display_cell", "felt_figures",
            "felt_summary", "felt_text", "models_answered", "models_line", "rigid_pa", "signed_decades"]
 
 
@@ -231,8 +231,3 @@ def felt_text(figures: dict[str, Any]) -> str:
             f"decades, {figures['within_2x']} of {figures['grasps']} within a factor 2, "
             f"{figures['dangerous_misses']} dangerous misses"
             + (f", {unrendered} not rendered" if unrendered else ""))
-
-
-def felt_line(felt: Sequence[tuple[float, float]], display_range: tuple[float, float], *, grasps: int) -> str:
-    """What the operator felt, in one line (:func:`felt_text` of :func:`felt_figures`)."""
-    return felt_text(felt_figures(felt, display_range, grasps=grasps))

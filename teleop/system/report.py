@@ -44,7 +44,7 @@ from teleop.progress import progress_bar
 from teleop.session.export import session_grasps
 from teleop.session.logfile import LogReader
 from teleop.staging import staged, staged_dir
-from teleop.system.demo_table import felt_line, rigid_pa, signed_decades
+from teleop.system.demo_table import felt_figures, felt_text, rigid_pa, signed_decades
 from teleop.system.outcome import display_felt_pa
 from teleop.system.report_data import (
     GraspView,
@@ -164,7 +164,7 @@ def _felt_line(views: Sequence[GraspView], recorded: bool, display_range: tuple[
     recorded, it says the felt errors are the mapping's of the final estimates."""
     labelled = [v for v in views if v.label_pa]
     felt = [(v.label_pa, f) for v in labelled if (f := _felt_pa(v, recorded, display_range)) is not None]
-    line = felt_line(felt, display_range, grasps=len(labelled))
+    line = felt_text(felt_figures(felt, display_range, grasps=len(labelled)))
     if not recorded:
         line += "; the log has no display messages: felt as the display's mapping renders the final estimates"
     return f"<p>{_e(line[:1].upper() + line[1:])}.</p>" if labelled else ""
