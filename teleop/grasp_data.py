@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 from PIL import Image
 
+from teleop.clikit import DISTRIBUTION
 from teleop.errors import RecordError
 from teleop.labels import LABEL_SOURCES
 from teleop.settings import GripperSettings, SensorSettings
@@ -99,9 +100,9 @@ def _declared_size(buffer: np.ndarray) -> tuple[int, int] | None:
 
 
 def software_version() -> str:
-    """Installed version of the ``compliance-teleop`` distribution."""
+    """Installed version of the ``compliance-teleop`` distribution (:data:`~teleop.clikit.DISTRIBUTION`)."""
     try:
-        return metadata.version("compliance-teleop")
+        return metadata.version(DISTRIBUTION)
     except metadata.PackageNotFoundError:
         return "0+unknown"
 
