@@ -62,6 +62,17 @@ def test_an_enable_held_while_the_last_grasp_ends_shows_and_drives_once_it_is_ov
     assert link.cleared == 1 and [body for _, kind, body in link.sent if kind == "follow" and body["enable"]]
 
 
+def _held_anew_drives_a_new_grasp(clock: Clock, loop: OperatorLoop, device, link, ended: str) -> dict:
+    """Let go of the enable and hold it again: the follow it sends names a new grasp, not ``ended``."""
+    device.enable = False
+    _run(clock, loop, 0.05)
+    device.enable = True
+    _run(clock, loop, 0.05)
+    kind, body = link.sent[-1][1:]
+    assert kind == "follow" and body["enable"] and body["grasp_id"] not in (ended, None)
+    return body
+
+
 def _held_follow(clock: Clock, loop: OperatorLoop, device, link) -> str:
     device.enable = True
     _run(clock, loop, 0.1)
@@ -81,12 +92,7 @@ def test_a_follow_refused_for_a_grasp_the_robot_does_not_run_ends_it_on_the_cons
     _run(clock, loop, 0.5)
     assert link.sent[sent:] == [] and loop.status.grasp_id is None and loop.status.suspended
     assert f"follow {grasp_id} refused by the robot" in loop.status.log
-    device.enable = False
-    _run(clock, loop, 0.05)
-    device.enable = True
-    _run(clock, loop, 0.05)
-    kind, body = link.sent[-1][1:]
-    assert kind == "follow" and body["enable"] and body["grasp_id"] not in (grasp_id, None)
+    body = _held_anew_drives_a_new_grasp(clock, loop, device, link, grasp_id)
     again = body["grasp_id"]  # refused too (this time the refusal is the newest notice): it says why
     refusal = RobotNoticeBody(event="refused", action="follow", grasp_id=again,
                               reason=f"grasp {again!r} has ended: name a new grasp to start one")
@@ -119,9 +125,4 @@ def test_a_follow_grasp_released_while_the_robot_prepared_it_is_forgotten():
     _run(clock, loop, 0.05)
     device.buttons = set()
     assert ("release", {"grasp_id": grasp_id}) in [(kind, body) for _, kind, body in link.sent]
-    device.enable = False
-    _run(clock, loop, 0.1)
-    device.enable = True
-    _run(clock, loop, 0.1)
-    kind, body = link.sent[-1][1:]
-    assert kind == "follow" and body["enable"] and body["grasp_id"] not in (grasp_id, None)
+    _held_anew_drives_a_new_grasp(clock, loop, device, link, grasp_id)

@@ -57,6 +57,14 @@ def notices(listener) -> list[dict]:
     return [m.body for m in drain(listener) if m.type == "robot_notice"]
 
 
+
+def stale_follows_start_nothing(node, grasp_id: str, open_m: float) -> None:
+    """Follows naming ``grasp_id``, which ended, the enable held: refused, and the fingers stay open."""
+    for _ in range(5):
+        follow(node, grasp_id, 0.0)
+        step_for(node, 0.01)
+    assert not node.busy and node.gripper.read_width()[1] == pytest.approx(open_m, abs=1e-4)
+
 def test_follows_of_another_grasp_neither_feed_the_watchdog_nor_set_the_enable(rig):
     node, listener = rig
     go_live(node, "A1", 0.07)
@@ -160,10 +168,7 @@ def test_a_grasp_the_watchdog_ended_while_it_prepared_is_not_started_again_by_it
     node.step(timeout_s=0.002)
     assert not node.busy
     ready()
-    for _ in range(5):  # the console's follows still in flight, the enable held: refused
-        follow(node, "W2", 0.0)
-        step_for(node, 0.01)
-    assert not node.busy and node.gripper.read_width()[1] == pytest.approx(open_m, abs=1e-4)
+    stale_follows_start_nothing(node, "W2", open_m)  # the console's, still in flight, the enable held
     got = drain(listener)
     assert not [m for m in got if m.type == "grasp_event"]
     said = [m.body for m in got if m.type == "robot_notice"]
@@ -183,10 +188,7 @@ def test_a_grasp_the_gripper_failed_while_it_prepared_is_not_started_again_by_it
     step_for(node, 0.05)
     assert not node.busy
     monkeypatch.undo()  # the link back: a follow still naming the failed grasp must not start it
-    for _ in range(5):
-        follow(node, "G2", 0.0)
-        step_for(node, 0.01)
-    assert not node.busy and node.gripper.read_width()[1] == pytest.approx(open_m, abs=1e-4)
+    stale_follows_start_nothing(node, "G2", open_m)
     said = notices(listener)
     assert [(n["event"], n["grasp_id"]) for n in said] == [("device", "G2"), ("refused", "G2")]
     assert "grasp 'G2' has ended: name a new grasp" in said[1]["reason"]
@@ -197,10 +199,7 @@ def test_a_grasp_released_while_it_prepared_is_not_started_again_by_its_enabled_
     ready, open_m = preparing(node, "R2")
     command(node, "release", "R2")
     ready()
-    for _ in range(5):  # its console's follows, the enable still held: refused
-        follow(node, "R2", 0.0)
-        step_for(node, 0.01)
-    assert not node.busy and node.gripper.read_width()[1] == pytest.approx(open_m, abs=1e-4)
+    stale_follows_start_nothing(node, "R2", open_m)  # its console's, the enable still held
     got = drain(listener)
     assert not [m for m in got if m.type == "grasp_event"]
     said = [m.body for m in got if m.type == "robot_notice"]
