@@ -136,7 +136,8 @@ class OperatorLoop:
         self.period_s = 1.0 / follow_rate_hz
         self.clock = clock
         self.quit = False
-        self._session = datetime.now().strftime("%H%M%S")
+        # The day too: the node refuses every id it has seen end, and may run past midnight.
+        self._session = datetime.now().strftime("%m%d-%H%M%S")
         self._count = 0
         self._enable = False
         self._release_left = 0  # enable=False follows still to send

@@ -4,6 +4,7 @@ down (against a fake link and device; the rest of the loop: test_operator_link.p
 from __future__ import annotations
 
 import dataclasses
+from datetime import datetime
 
 from support.operator_fakes import (
     Clock,
@@ -160,3 +161,12 @@ def test_set_force_keeps_the_discrete_force_between_one_newton_and_the_settings_
     press(loop, clock, "grasp")
     assert link.sent[-1][1:] == ("start_grasp", {"target_force_n": limit, "grasp_id": loop.status.grasp_id})
     assert loop.set_force(-3.0) == loop.force_n == min(1.0, limit)
+
+
+def test_a_grasp_id_names_the_day_so_a_console_started_at_the_same_time_tomorrow_is_not_refused():
+    clock, _, _, loop = loop_rig(grip=0.5)
+    before = datetime.now()
+    press(loop, clock, "grasp")
+    after = datetime.now()
+    stamp = loop.status.grasp_id.split("-")[1]
+    assert stamp in {before.strftime("%m%d"), after.strftime("%m%d")}
