@@ -55,7 +55,7 @@ from estimator.errors import FitError
 from estimator.estimate import Estimate
 from estimator.fit_inputs import poisson_ratio, positive, real_array
 from estimator.gel_layer import gel_layer_factor
-from estimator.linefit import MeasurementNoise, fit_line
+from estimator.linefit import MeasurementNoise, fit_line, no_line_reason
 
 __all__ = [
     "METHODS",
@@ -195,7 +195,8 @@ def _uniaxial(
     origin = _auto_origin(stress_pa.size)
     first = fit_line(stress_pa, strain, sigma_strain, through_origin=origin)
     if first is None:
-        return Estimate.refuse(method, f"{what}: the stress does not vary over the loading frames")
+        why = no_line_reason(stress_pa, through_origin=origin, x_name="stress", y_name="strain")
+        return Estimate.refuse(method, f"{what}: {why}")
     sigma = np.sqrt(sigma_strain**2 + (first.slope * sigma_stress_pa) ** 2)
     line = fit_line(stress_pa, strain, sigma, through_origin=origin, systematic_y=systematic_strain)
     if line is None:
@@ -511,7 +512,8 @@ def series(
                                            "not grow with the approach")
         first = fit_line(lever, gap, np.full(gap.shape, sigma_gap), through_origin=origin)
         if first is None:
-            return Estimate.refuse(method, "the gel's indentation does not vary over the loading frames")
+            return Estimate.refuse(method, no_line_reason(lever, through_origin=origin, x_name="gel's indentation",
+                                                          y_name="approach less the gel's indentation"))
         sigma_lever = noise.depth_m / (eta * k_gel)
         sigma = np.sqrt(sigma_gap**2 + (first.slope * sigma_lever) ** 2)
         # A depth scale error moves d in the gap and in the lever together.

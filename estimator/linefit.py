@@ -19,7 +19,7 @@ from scipy import special
 from estimator.errors import FitError
 from estimator.fit_inputs import real_array
 
-__all__ = ["CONFIDENCE", "LineFit", "MeasurementNoise", "fit_line"]
+__all__ = ["CONFIDENCE", "LineFit", "MeasurementNoise", "fit_line", "no_line_reason"]
 
 CONFIDENCE = 0.95
 
@@ -113,7 +113,8 @@ def fit_line(
     (e.g. a depth scale error: one standard deviation per point, fully
     correlated; independent of the others), all in units of ``y``. Returns
     None when the slope is undetermined (no spread in ``x``) or not
-    representable (values so large that the sums overflow).
+    representable (values so large that the sums overflow);
+    :func:`no_line_reason` says which.
 
     Raises
     ------
@@ -129,6 +130,24 @@ def fit_line(
     systematic_y = [_like_x(x, f"systematic_y[{i}]", shared) for i, shared in enumerate(systematic_y)]
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         return _fit_line(x, y, sigma_y, through_origin=through_origin, systematic_y=systematic_y)
+
+
+def no_line_reason(x: np.ndarray, *, through_origin: bool, x_name: str, y_name: str) -> str:
+    """Why :func:`fit_line` gave no line for ``x`` (called ``x_name``) and its ``y`` (``y_name``).
+
+    Either ``x`` lacks the spread a slope needs (no nonzero value through the origin, fewer than two
+    distinct values with an intercept), or the values are too large for the sums to stay finite: ``x``
+    when its own sum of squares overflows, else ``y``.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    spread = bool(np.any(x != 0)) if through_origin else x.size >= 2 and bool(x.max() > x.min())
+    if not spread:
+        return f"the {x_name} does not vary over the loading frames"
+    with np.errstate(over="ignore", invalid="ignore"):
+        x_c = x if through_origin else x - x.mean()
+        x_in_range = math.isfinite(float(x_c @ x_c))
+    name = x_name if not x_in_range else y_name
+    return f"the {name} is too large for a line fit (its sums overflow)"
 
 
 def _like_x(x: np.ndarray, name: str, values: object) -> np.ndarray:

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
+from scipy import special
 
 from estimator.analytical import (
     approach_per_finger,
@@ -407,6 +408,34 @@ def test_fit_line_interval_from_resolution_only_when_exact():
     assert fit_line(np.ones(3), x, np.zeros(3), through_origin=False) is None
 
 
+def test_fit_line_residual_term_uses_student_t_on_n_minus_2():
+    x, y = np.array([0.0, 1.0, 2.0]), np.array([0.0, 1.2, 1.9])
+    line = fit_line(x, y, np.zeros(3), through_origin=False)
+    slope, intercept = np.polyfit(x, y, 1)
+    rss = float(((y - (slope * x + intercept)) ** 2).sum())
+    sxx = float(((x - x.mean()) ** 2).sum())
+    assert line.dof == 1
+    assert line.half_width == pytest.approx(float(special.stdtrit(1, 0.975)) * math.sqrt(rss / 1 / sxx), rel=1e-9)
+
+
+@pytest.mark.parametrize("field", ["force_n", "width_m", "depth_m", "length_m", "depth_scale", "onset_width_m"])
+def test_measurement_noise_refuses_a_negative_deviation(field):
+    with pytest.raises(FitError, match=field):
+        MeasurementNoise(**{field: -1e-6})
+
+
+def test_a_line_beyond_float_range_is_refused_as_such_not_as_a_still_quantity():
+    # The strains' residuals overflow (1e160 squared); the stress itself varies.
+    est = no_tactile(np.array([1.0, 2.0, 3.0, 4.0]), np.array([0.0, -1.0, -3.0, -1.0]) * 1e160,
+                     initial_width_m=1.0, pad_area_m2=1.0)
+    assert not est and "strain" in est.reason and "overflow" in est.reason and "does not vary" not in est.reason
+    still = no_tactile(np.full(4, 2.0), np.linspace(1e-4, 4e-4, 4), initial_width_m=W0, pad_area_m2=PAD_AREA)
+    assert not still and "the stress does not vary over the loading frames" in still.reason
+    depth = np.linspace(0.1e-3, 0.8e-3, 4)
+    est = series(np.array([1.0, 2.0, 3.0, 6.0]) * 1e160, depth, gel_compliance_per_pa=K_GEL, object_poisson=NU)
+    assert not est and "overflow" in est.reason and "does not vary" not in est.reason
+
+
 # --------------------------------------------------------------------------- properties
 
 any_series = hnp.arrays(np.float64, st.integers(0, 8), elements=st.floats(allow_nan=True, allow_infinity=True))
@@ -458,6 +487,14 @@ def test_gel_layer_factor_is_a_half_space_for_small_contacts_and_stiffens_for_wi
         gel_layer_factor(9e-3, gel_thickness_m=3e-3, gel_poisson=0.48))  # a function of a / h alone
     with pytest.raises(FitError, match="gel_poisson"):
         gel_layer_factor(1e-3, gel_thickness_m=3e-3, gel_poisson=0.7)
+
+
+def test_beyond_the_table_the_gel_layer_factor_falls_as_thickness_over_radius():
+    h = 1e-3
+    at_20, at_40, at_80 = (float(gel_layer_factor(r * h, gel_thickness_m=h, gel_poisson=0.48)) for r in (20, 40, 80))
+    assert at_40 == pytest.approx(at_20 / 2, rel=1e-9)
+    assert at_80 == pytest.approx(at_20 / 4, rel=1e-9)
+    assert 0 < at_80 < at_40 < at_20 < 1
 
 
 @pytest.mark.parametrize("e_pa", [3e4, 3e5, 3e6])
