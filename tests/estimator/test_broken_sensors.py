@@ -1,5 +1,6 @@
 """Sensors that cannot be right (estimator.faults): a dead or frozen camera, timestamps not in
-seconds, a width that never moves or reads zero, on the grasps test_measure builds."""
+seconds, a width that never moves or reads zero, on the grasps test_measure builds and on the
+faults' own inputs: sample times, a synthetic grasp's phase, a reference image."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from estimator.faults import RATE_FACTOR, camera_fault, checked_phase, period_fault
+from estimator.load_phase import find_load_phase
 from estimator.measure import estimate_grasp, measure_grasp
 from teleop.catalogue import load_catalogue
 from teleop.record import FrameStream, Samples
@@ -78,7 +81,6 @@ def test_a_width_that_never_moves_or_reads_zero_refuses_the_grasp(calibration):
     assert estimate_grasp(build_record(STEEL), "no_tactile", settings=SETTINGS)
 
 
-
 def test_an_operators_moving_fingers_are_not_a_stuck_width_sensor(object_table):
     # The operator closes 7 mm onto a 75 mm cylinder; its moving fingers inflate the width noise
     # estimate to over a millimetre, which once made the widths look still.
@@ -122,3 +124,44 @@ def test_a_load_cell_with_its_sign_reversed_is_named_not_read_as_no_contact(cali
     squeezed = np.argmax(f.value >= 0.98 * f.value.max())  # the record starts at the hold
     released = np.concatenate([f.value[squeezed:], np.linspace(f.value[-1], 0.0, 20)])  # and let go
     assert not reversed_force(released, contact_force_n=0.75)
+
+
+def test_samples_far_faster_than_the_rig_rate_are_not_seconds():
+    t = np.arange(300) * (1 / 100.0) / (10 * RATE_FACTOR)  # far too close for 100 Hz
+    assert "not in seconds" in period_fault(t, 100.0, "force samples")
+    assert period_fault(np.arange(300) / 100.0, 100.0, "force samples") == ""
+
+
+def test_two_times_say_nothing_about_the_rate():
+    assert period_fault(np.array([0.0, 5.0, 5.0, np.nan]), 100.0, "force samples") == ""
+
+
+def checked_grasp(width_closes_m, *, start_s=0.0):
+    """The checked phase of a grasp rising 0 to 15 N over 1-2.5 s while the widths close ``width_closes_m``,
+    its records starting at ``start_s``."""
+    t = np.arange(start_s, 3.5, 0.01)
+    force = np.interp(t, [0, 1, 2.5, 3.5], [0, 0, 15, 15])
+    tw = np.arange(start_s, 3.5, 0.02)
+    width = 0.05 - np.interp(tw, [0, 1, 2.5, 3.5], [0, 0, width_closes_m, width_closes_m])
+    phase = find_load_phase(t, force, tw, width, contact_force_n=0.75)
+    return checked_phase(phase, force_t_s=t, width_t_s=tw, force_hz=100.0, width_hz=50.0)
+
+
+def test_widths_that_close_half_a_millimetre_are_a_gripper_that_moved():
+    assert checked_grasp(0.5e-3)
+    still = checked_grasp(0.05e-3)
+    assert not still and "stay within" in still.reason
+
+
+def test_still_widths_of_a_record_that_starts_in_contact_are_not_judged():
+    phase = checked_grasp(0.0, start_s=1.5)  # the force record starts at 5 N: no quiet samples before the onset
+    assert phase, phase.reason
+
+
+def test_a_reference_without_cell_structure_is_not_correlated():
+    # A fine checkerboard: texture on every pixel, but every 8 px cell has the same mean.
+    board = ((np.indices((64, 96)).sum(axis=0) % 2) * 100 + 60).astype(np.uint8)
+    reference = np.repeat(board[:, :, None], 3, axis=2)
+    rng = np.random.default_rng(0)
+    frames = [rng.integers(0, 256, reference.shape, dtype=np.uint8) for _ in range(3)]
+    assert camera_fault(reference, frames, np.array([1.0, 1.1, 1.2]), "left") == ""
