@@ -32,7 +32,9 @@ A grasp never ended (no ``end`` event from the publisher of its start: a log ``t
 salvaged, a robot stopped mid-grasp) is labelled all the same but named in
 :attr:`LabelReport.unended`: ``teleop export`` skips it, so its label is not used.
 
-Refused, with nothing written: a log cut short (``teleop recover`` first), an unknown column, and
+Refused, with nothing written: a log cut short or with a record that cannot be read (``teleop
+recover`` first: the copy would leave the record out and read as whole; an attachment whose CRC-32
+fails is not refused, as it is copied as stored, its damage kept), an unknown column, and
 CSV rows naming a grasp the log does not hold (the error lists the log's grasps), a grasp another
 row names too, an object that is neither in the catalogue nor given a modulus or Shore hardness,
 or a bad number: every such row is named in one error, so that a long CSV is mended in one go.
@@ -69,6 +71,7 @@ from teleop.session.logfile import (
     CHUNK_BYTES,
     MESSAGE_ENCODING,
     SCHEMA_ENCODING,
+    LogInfo,
     LogReader,
     schema_data,
 )
@@ -290,6 +293,15 @@ def _cut_short(log: Path, damage: str | None) -> str:
             f"`teleop recover {log} --out FIXED.mcap`, then label FIXED.mcap")
 
 
+def _kept_damage(reader: LogReader, info: LogInfo) -> str | None:
+    """The damage the labelled copy keeps, as :attr:`LogReader.damage` says it: the parts lost before a
+    recovery (in the copied recovery metadata) and the attachments whose CRC-32 fails (copied as stored).
+    A record skipped for damage (an attachment or metadata record whose length is garbled) is not
+    kept: the copy would read as whole."""
+    kept = [str(chunk) for chunk in reader.lost if chunk.lost_in] + list(info.damaged_attachments.values())
+    return "; ".join(kept) or None
+
+
 def _each_row(errors: list[str]) -> str:
     """One error, or every row's under a count (so that a long CSV is mended in one go)."""
     if len(errors) == 1:
@@ -322,7 +334,8 @@ def label_session(
     Raises
     ------
     SessionLogError
-        The log cannot be read, is not a session log, is cut short, is held by a recorder still
+        The log cannot be read, is not a session log, is cut short or has a record that cannot be
+        read (an attachment whose CRC-32 fails is copied as stored), is held by a recorder still
         writing it, or the new log cannot be written (the original is then left as it was).
     LabelError
         The CSV is bad, names a grasp not in the log, or an object without a modulus.
@@ -341,6 +354,12 @@ def _label_session(log: Path, tmp: Path, csv_path: Path, catalogue: str | Path |
     info = reader.info()
     if info.mendable:  # a damaged attachment is not: it is copied as it is, its damage kept
         raise SessionLogError(_cut_short(log, info.damage))
+    if info.damage != _kept_damage(reader, info):
+        raise SessionLogError(
+            f"{log}: {info.damage}: the labelled copy would leave out what could not be read and read as "
+            f"whole, erasing the loss, so the log is unchanged; `teleop recover {log} --out FIXED.mcap` "
+            "copies what can be read and notes this damage in the copy's recovery metadata, then label FIXED.mcap"
+        )
     for name in CATALOGUE_ATTACHMENTS if catalogue is None else ():  # the one the labels would check
         intact_attachment(info, name, log=log, instead="pass --objects CATALOGUE")
     objects, where, attachment = _catalogue_objects(catalogue, info.attachments)

@@ -25,7 +25,9 @@ documents the model, its source and its limits).
 
 The labels are written into the log as `label` messages, each just after its grasp; the log is
 rewritten next to itself with every original record kept and then moved over the original. A grasp
-labelled again takes the newer label. `teleop export` reads them.
+labelled again takes the newer label. `teleop export` reads them. A log cut short, or with a record
+that cannot be read, is refused and left as it is (the error says to `teleop recover` it first); an
+attachment whose checksum fails is copied as stored, so the labelled log still says it is damaged.
 """
 
 

@@ -2,17 +2,26 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
+import struct
 
 import pytest
 from mcap.reader import make_reader
+from mcap.writer import Writer
 
 import teleop.cli
+import teleop.session.label as label_module
+from teleop.bus.wire import encode, make_message
 from teleop.errors import SessionLogError
 from teleop.labels import LabelError, gent_modulus_pa, shore_to_modulus_pa
 from teleop.session import LogReader
-from teleop.session.label import LABEL_SOURCE_NAME, LABELS_METADATA, label_session
+from teleop.session.label import LABEL_SOURCE_NAME, LABELS_METADATA, label_session, read_label_csv
+from teleop.session.logfile import MESSAGE_ENCODING, PROFILE, SCHEMA_ENCODING, schema_data
+from teleop.session.logframes import pack_frames
+
+T0 = 1_700_000_000_000_000_000  # a log time (ns): 2023-11-14
 
 
 @pytest.fixture
@@ -169,6 +178,46 @@ def test_a_cut_log_is_refused_with_the_way_out(log, tmp_path):
     assert log.read_bytes() == data[: len(data) // 2]
 
 
+def _garble_length(log, kind, name):
+    """Give the ``kind`` record (attachment or metadata) ``name`` of ``log`` a length field past the
+    end of the file, its summary and footer intact: reading skips it. Returns its offset."""
+    data = bytearray(log.read_bytes())
+    with log.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    indexes = summary.attachment_indexes if kind == "attachment" else summary.metadata_indexes
+    offset = next(index.offset for index in indexes if index.name == name)
+    data[offset + 1 : offset + 9] = struct.pack("<Q", 2**40)
+    log.write_bytes(bytes(data))
+    return offset
+
+
+@pytest.mark.parametrize("kind, name, record", [
+    ("attachment", "calibration/left/left_cal.npz", "an attachment record"),
+    ("metadata", "rig", "a metadata record"),
+])
+def test_a_log_that_lost_a_record_other_than_a_chunk_is_refused_not_labelled_whole(log, tmp_path, kind, name,
+                                                                                   record):
+    """The copy would leave the skipped record out and read as whole: the loss would be erased."""
+    offset = _garble_length(log, kind, name)
+    before = log.read_bytes()
+    info = LogReader(log).info()
+    assert info.damage and not info.mendable
+    with pytest.raises(SessionLogError) as refused:
+        label_session(log, _csv(tmp_path, "grasp_id,object\ng0,stress_ball\n"))
+    said = str(refused.value)
+    assert said.startswith(f"{log}: ") and f"{record} {name!r}" in said and f"after byte {offset}" in said
+    assert f"`teleop recover {log} --out FIXED.mcap`" in said and "the log is unchanged" in said
+    assert log.read_bytes() == before
+
+
+def test_a_log_whose_session_end_record_is_damaged_is_refused_as_damaged(log, tmp_path):
+    _garble_length(log, "metadata", "session_end")
+    before = log.read_bytes()
+    with pytest.raises(SessionLogError, match=r"cut short or damaged .*'session_end'.*`teleop recover"):
+        label_session(log, _csv(tmp_path, "grasp_id,object\ng0,stress_ball\n"))
+    assert log.read_bytes() == before
+
+
 def test_a_grasp_that_never_ended_is_labelled_with_a_warning_that_export_skips_it(log, tmp_path, capsys):
     csv_path = _csv(tmp_path, "grasp_id,object\ng0,stress_ball\ng2,stress_ball\n")
     assert teleop.cli.main(["label", str(log), "--csv", str(csv_path), "--json"]) == 0
@@ -193,6 +242,86 @@ def test_the_command(log, tmp_path, capsys):
     assert err.startswith("teleop label: error: ") and "b.csv:2" in err and "Traceback" not in err
     assert teleop.cli.main(["label", str(tmp_path / "missing.mcap"), "--csv", str(csv_path)]) == 2
     assert "cannot read session log" in capsys.readouterr().err
+
+
+def test_a_csv_row_with_more_cells_than_columns_is_refused_naming_its_line(tmp_path):
+    path = _csv(tmp_path, "grasp_id,object,modulus_pa\ng0,foam,50000\ng1,foam,5,0000\n")
+    with pytest.raises(LabelError, match=r"labels\.csv:3: more cells than the header has columns"):
+        read_label_csv(path)
+
+
+def _write_log(path, messages):
+    """A complete session log of ``messages`` ((log time ns, bus message)), in that order."""
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start(PROFILE, "test")
+        channels = {}
+        for log_time, message in messages:
+            if message.topic not in channels:
+                schema = writer.register_schema(f"compliance-teleop/{message.type}", SCHEMA_ENCODING,
+                                                schema_data(message.type))
+                channels[message.topic] = writer.register_channel(message.topic, MESSAGE_ENCODING, schema,
+                                                                  {"type": message.type})
+            writer.add_message(channels[message.topic], log_time=log_time, data=pack_frames(encode(message)),
+                               publish_time=log_time, sequence=message.seq % 2**32)
+        writer.finish()
+    return path
+
+
+def _event(event, grasp_id, source, seq):
+    message = make_message("grasp_event", t_capture_s=1.0, event=event, grasp_id=grasp_id, object_name=None)
+    return dataclasses.replace(message, source=source, seq=seq)
+
+
+def test_an_end_from_another_publisher_does_not_end_the_grasp(tmp_path):
+    log = _write_log(tmp_path / "s.mcap", [
+        (T0, _event("start", "g0", "robot", 0)),
+        (T0 + 10, _event("end", "g0", "estimator", 0)),  # not the publisher of the start
+        (T0 + 20, _event("start", "g1", "robot", 1)),
+        (T0 + 30, _event("end", "g1", "robot", 2)),
+    ])
+    report = label_session(log, _csv(tmp_path, "grasp_id,object,modulus_pa\ng0,foam,50000\ng1,foam,50000\n"))
+    assert report.unended == ["g0"]
+
+
+def test_a_label_goes_after_the_last_event_of_its_grasp_at_equal_log_times(tmp_path):
+    log = _write_log(tmp_path / "s.mcap", [
+        (T0, _event("start", "g0", "robot", 0)),
+        (T0, _event("end", "g0", "robot", 1)),  # same log time: the later in the file is the newer
+    ])
+    label_session(log, _csv(tmp_path, "grasp_id,object,modulus_pa\ng0,foam,50000\n"))
+    order = [(m.message.type, m.message.body.get("event"))
+             for m in LogReader(log).messages(topics=("grasp_event", "label"))]
+    assert order == [("grasp_event", "start"), ("grasp_event", "end"), ("label", None)]
+
+
+def test_a_log_whose_grasp_event_is_gone_by_the_copy_is_refused_and_left_as_it_was(log, tmp_path, monkeypatch):
+    before = log.read_bytes()
+    survey = label_module._survey
+
+    def moved(reader):  # as if the log changed between the survey and the copy
+        grasps, seq = survey(reader)
+        grasps["g0"].anchor = ("grasp_event", 1, 1)
+        return grasps, seq
+
+    monkeypatch.setattr(label_module, "_survey", moved)
+    with pytest.raises(SessionLogError, match="changed while it was labelled"):
+        label_session(log, _csv(tmp_path, "grasp_id,object\ng0,stress_ball\n"))
+    assert log.read_bytes() == before
+
+
+def test_a_log_cut_short_after_the_survey_is_refused_not_written_short(log, tmp_path, monkeypatch):
+    survey = label_module._survey
+
+    def cut_after(reader):  # the log is cut (another writer, a full disk) once it was surveyed
+        surveyed = survey(reader)
+        data = log.read_bytes()
+        log.write_bytes(data[: len(data) - 200])
+        return surveyed
+
+    monkeypatch.setattr(label_module, "_survey", cut_after)
+    with pytest.raises(SessionLogError, match="could not be read to its end"):
+        label_session(log, _csv(tmp_path, "grasp_id,object\ng0,stress_ball\n"))
 
 
 def test_the_recorder_logs_a_label_sent_at_capture(tmp_path, helpers, session_settings):
