@@ -8,7 +8,7 @@ import json
 import pytest
 
 from teleop import cli
-from teleop.catalogue import load_catalogue, read_object_table, read_toml_catalogue
+from teleop.catalogue import ObjectSpec, load_catalogue, read_object_table, read_toml_catalogue
 from teleop.errors import SettingsError
 
 # teleop.catalogue.MATERIALS and MODULUS_RANGE_PA, spelt out: the errors must list them.
@@ -161,3 +161,29 @@ def test_a_sphere_whose_extents_differ_is_refused(tmp_path):
     # Rounded to 0.1 mm, within SECTION_TOLERANCE: read.
     (obj,) = read_toml_catalogue(_one_object(tmp_path, size="[0.0300, 0.0301, 0.0299]"))
     assert obj.size_m == (0.03, 0.0301, 0.0299)
+
+
+def test_an_incompressible_object_with_poisson_half_is_accepted():
+    """Rubbers and gels are close to incompressible: Poisson's ratio 0.5 is inside [0, 0.5]."""
+    assert ObjectSpec("gel", "sphere", "silicone", 5e4, poisson=0.5).poisson == 0.5
+
+
+@pytest.mark.parametrize("poisson", [-0.01, 0.51])
+def test_a_poisson_ratio_outside_0_to_half_is_refused(poisson):
+    with pytest.raises(ValueError, match="poisson must be in"):
+        ObjectSpec("gel", "sphere", "silicone", 5e4, poisson=poisson)
+
+
+@pytest.mark.parametrize("size_m", [(0.0, 0.02, 0.02), (0.02, -0.01, 0.02), (0.02, 0.02, 1.0)])
+def test_an_extent_not_inside_0_to_1_m_is_refused(size_m):
+    with pytest.raises(ValueError, match="size_m must be three extents"):
+        ObjectSpec("block", "box", "foam", 5e4, size_m=size_m)
+
+
+def test_a_table_radius_becomes_the_diameter_of_spheres_and_cylinders(tmp_path):
+    path = tmp_path / "objects.csv"
+    path.write_text("Label,Shape,Material,Modulus [Pa],Radius [m]\n"
+                    "ball,sphere,foam,50000,0.01\nrod,cylinder,rubber,1000000,0.005\n", encoding="utf-8")
+    ball, rod = read_object_table(path)
+    assert ball.size_m == pytest.approx((0.02, 0.02, 0.02))
+    assert rod.size_m == pytest.approx((0.01, 0.01, 0.01))

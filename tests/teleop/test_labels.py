@@ -150,3 +150,20 @@ def test_what_an_operator_types(catalogue):
         parse_label("gel shore 00 20", catalogue)
     with pytest.raises(LabelError, match="type the object's name"):
         parse_label("   ", catalogue)
+
+
+@pytest.mark.parametrize("modulus", [0, 0.0, -1.0, float("nan"), float("inf")])
+def test_a_label_with_a_modulus_not_above_zero_or_not_finite_is_refused(modulus):
+    with pytest.raises(LabelError, match="expected a finite number > 0"):
+        ObjectLabel("foam", modulus, "datasheet")
+
+
+def test_a_label_is_made_with_a_positive_modulus_or_none():
+    assert ObjectLabel("foam", 5e4, "datasheet").modulus_pa == 5e4
+    assert ObjectLabel("foam", None, "catalogue").modulus_pa is None
+
+
+@pytest.mark.parametrize("typed, modulus_pa", [("foam 120 kPa", 120e3), ("foam 120 Pa", 120.0),
+                                               ("rubber 2 MPa", 2e6), ("foam E=1.5e2 kpa measured", 150e3)])
+def test_a_typed_modulus_is_read_in_its_unit(typed, modulus_pa):
+    assert parse_label(typed).modulus_pa == pytest.approx(modulus_pa)

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 from mcap.records import Attachment
+from mcap.writer import Writer
 
 from teleop.catalogue import default_catalogue_path
 from teleop.cli import main
@@ -116,3 +117,39 @@ def test_export_of_a_log_whose_damage_recover_cannot_mend_does_not_advise_it(dam
     report = json.loads(captured.out)
     assert code == 0 and report["exported"] and report["complete"] is False and report["mendable"] is False
     assert repr(name) in captured.err and "FIXED.mcap" not in captured.err
+
+
+def _log_with_note(path: Path, data: bytes) -> Path:
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start("compliance-teleop.session", "test")
+        writer.add_attachment(1, 1, "notes.txt", "text/plain", data)
+        writer.finish()
+    return path
+
+
+def _attachment_index(path: Path):
+    with path.open("rb") as f:
+        return make_reader(f).get_summary().attachment_indexes[0]
+
+
+def test_a_damaged_attachment_is_placed_at_the_bytes_of_its_record(tmp_path):
+    path = _log_with_note(tmp_path / "att.mcap", b"hello attachment " * 8)
+    index = _attachment_index(path)
+    data = bytearray(path.read_bytes())
+    data[data.index(b"hello attachment")] ^= 0x01
+    path.write_bytes(bytes(data))
+    said = LogReader(path).info().damaged_attachments["notes.txt"]
+    assert f"at bytes {index.offset} to {index.offset + index.length} " in said
+
+
+def test_an_attachment_stored_without_a_crc_reads_as_intact(tmp_path):
+    """MCAP: a CRC of 0 means none was computed; the attachment is not damaged."""
+    path = _log_with_note(tmp_path / "nocrc.mcap", b"kept as it is")
+    index = _attachment_index(path)
+    data = bytearray(path.read_bytes())
+    crc_at = index.offset + index.length - 4
+    data[crc_at : crc_at + 4] = bytes(4)
+    path.write_bytes(bytes(data))
+    info = LogReader(path).info()
+    assert info.attachments == {"notes.txt": b"kept as it is"} and info.damaged_attachments == {}

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -11,9 +12,12 @@ import pytest
 from mcap.reader import make_reader
 from mcap.records import Message
 from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.writer import Writer
 
 import teleop.cli
+from teleop.errors import SessionLogError
 from teleop.session import LogReader, export_session, recover, replay, session_grasps
+from teleop.session.logdamage import LostChunk, recorded_losses
 from teleop.system.report import build_report
 
 TELEOP = Path(sys.executable).parent / "teleop"
@@ -197,3 +201,40 @@ def test_a_log_recovered_twice_keeps_the_first_losses_once(damaged, recovered, t
     assert [(c.start_byte, c.lost_in) for c in reader.lost] == [(target.chunk_start_offset, str(path.resolve()))]
     by_id = {g.grasp_id: g for g in export_session(twice, tmp_path / "out")}
     assert not by_id["g0"] and "lost before recovery" in by_id["g0"].reason and by_id["g1"]
+
+
+def test_a_grasp_touching_a_lost_part_at_either_end_overlaps_it():
+    lost = LostChunk(0, 10, start_ns=100, end_ns=200)
+    assert lost.overlaps(50, 100) and lost.overlaps(200, 300) and lost.overlaps(120, 180)
+    assert not lost.overlaps(50, 99) and not lost.overlaps(201, 300)
+
+
+def test_a_lost_entry_with_a_field_of_the_wrong_type_is_refused_naming_the_log(tmp_path):
+    good = {"start_byte": 1, "end_byte": 2, "start_ns": 3, "end_ns": 4, "kind": "chunk", "lost_in": "x.mcap"}
+    log = tmp_path / "r.mcap"
+    assert recorded_losses({"lost": json.dumps([good])}, log) == [LostChunk(1, 2, 3, 4, "chunk", "x.mcap")]
+    for key, bad in (("start_byte", "1"), ("end_ns", 4.0), ("kind", 7)):
+        with pytest.raises(SessionLogError, match="r.mcap"):
+            recorded_losses({"lost": json.dumps([{**good, key: bad}])}, log)
+
+
+def test_a_damaged_record_in_a_log_without_chunks_leaves_it_mendable(tmp_path):
+    """A log written without chunks has a summary but no chunk index: the summary cannot say what a damaged
+    record took, so the reader reads on front to back, and what it could not read makes the log mendable
+    (``teleop label`` refuses it rather than rewriting it without the messages)."""
+    path = tmp_path / "plain.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f, use_chunking=False)
+        writer.start("compliance-teleop.session", "test")
+        channel = writer.register_channel("/note", "json", 0, {})
+        for n in range(5):
+            writer.add_message(channel, log_time=n + 1, data=b'{"n": %d}' % n, publish_time=n + 1, sequence=n)
+        writer.add_metadata("session_end", {"messages": "5"})
+        writer.finish()
+    data = bytearray(path.read_bytes())
+    start = data.index(b'{"n": 2}') - (1 + 8 + 2 + 4 + 8 + 8)  # opcode, length, channel, sequence, times
+    assert data[start] == 0x05  # a message record
+    data[start + 1 : start + 9] = struct.pack("<Q", 2**40)
+    path.write_bytes(bytes(data))
+    info = LogReader(path).info()
+    assert info.mendable and not info.complete and info.damage

@@ -7,7 +7,7 @@ import time
 
 import teleop.cli
 from teleop.session import LogReader, session_grasps
-from teleop.session.label import label_session
+from teleop.session.label import label_catalogues, label_session
 
 LAB = '[[objects]]\nname = "lab_gel"\nshape = "box"\nmaterial = "rubber"\nmodulus_pa = 7.5e4\n'
 SHOP = '[[objects]]\nname = "shop_cork"\nshape = "cylinder"\nmaterial = "wood"\nmodulus_pa = 1.2e7\n'
@@ -108,3 +108,8 @@ def test_a_label_without_a_modulus_takes_the_logs_catalogue_object_before_a_labe
     label, unlabelled = assembler.label("g1", None)
     assert unlabelled == ""
     assert (label.modulus_pa, label.material, label.shape) == (2e4, "silicone", "sphere")
+
+
+def test_the_catalogues_labelling_attached_are_listed_oldest_first_past_nine():
+    names = {f"label_catalogue-{n}.toml": b"" for n in (10, 2, 1, 11)}
+    assert label_catalogues(names) == [f"label_catalogue-{n}.toml" for n in (1, 2, 10, 11)]

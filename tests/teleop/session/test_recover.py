@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import shutil
 import signal
 import subprocess
 import sys
@@ -266,3 +267,39 @@ def test_recover_into_a_folder_leaves_no_partial_file(tmp_path, recorded):
     with pytest.raises(SessionLogError, match="cannot write the recovered log"):
         recover(recorded.path, tmp_path)
     assert not list(tmp_path.glob("*.partial"))
+
+
+def test_a_log_cut_short_has_no_trailing_bytes(recorded, log_bytes, tmp_path):
+    """trailing_bytes counts bytes after the footer of a complete log (another writer's), never the
+    partial record a killed recorder left at the end of a cut log."""
+    log = tmp_path / "cut.mcap"
+    log.write_bytes(log_bytes[: len(log_bytes) // 2 + 7])
+    report = recover(log, tmp_path / "fixed.mcap")
+    assert report.cut_short and not report.complete
+    assert report.salvaged_bytes < report.source_bytes
+    assert report.trailing_bytes == 0
+
+
+def test_an_out_that_is_the_source_by_another_spelling_is_refused(recorded, tmp_path):
+    log = tmp_path / "s.mcap"
+    shutil.copyfile(recorded.path, log)
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "link.mcap").symlink_to(log)
+    before = log.read_bytes()
+    for out in (tmp_path / "sub" / ".." / "s.mcap", tmp_path / "link.mcap"):
+        with pytest.raises(SessionLogError, match="is the log being recovered"):
+            recover(log, out)
+    assert log.read_bytes() == before
+
+
+def test_lost_parts_name_their_log_by_its_full_path_when_recovered_by_a_relative_one(
+    recorded, log_bytes, tmp_path, monkeypatch
+):
+    with recorded.path.open("rb") as f:
+        first = min(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    data = bytearray(log_bytes)
+    data[first.chunk_start_offset + first.chunk_length - 20] ^= 0xFF  # its CRC fails: the chunk is lost
+    (tmp_path / "damaged.mcap").write_bytes(bytes(data))
+    monkeypatch.chdir(tmp_path)
+    report = recover("damaged.mcap", "fixed.mcap")
+    assert report.lost and {entry["lost_in"] for entry in report.lost} == {str(tmp_path / "damaged.mcap")}

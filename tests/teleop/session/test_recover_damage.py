@@ -4,6 +4,7 @@ and what follows it is salvaged; logs of a newer format are refused."""
 from __future__ import annotations
 
 import io
+import struct
 
 import pytest
 from mcap.reader import make_reader
@@ -152,3 +153,91 @@ def test_replay_past_a_damaged_chunk_says_it_read_on(tmp_path, whole, summary, c
     assert main(["replay", str(damaged), *_QUICK, "--wait-subscriber-s", "0", "--linger-s", "0"]) == 0
     err = capsys.readouterr().err
     assert "the log is damaged; replay read on past it: damaged record" in err and "stopped early" not in err
+
+
+def _chunks(summary):
+    return sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+
+
+def _without_summary(whole, summary) -> bytearray:
+    """``whole`` up to the end of its last chunk: what a killed recorder leaves (no summary, no footer)."""
+    last = _chunks(summary)[-1]
+    return bytearray(whole[: last.chunk_start_offset + last.chunk_length])
+
+
+def test_a_chunk_skipped_in_a_log_without_summary_holds_the_times_between_its_neighbours(tmp_path, whole, summary):
+    """The part lost spans the log times from the last message read before it to the first read after
+    it, not from the start of time."""
+    chunks = _chunks(summary)
+    k = len(chunks) // 2
+    bad, before, after = chunks[k], chunks[k - 1], chunks[k + 1]
+    data = _without_summary(whole, summary)
+    data[bad.chunk_start_offset + bad.chunk_length - 20] ^= 0xFF
+    path = tmp_path / "killed.mcap"
+    path.write_bytes(bytes(data))
+    reader = LogReader(path)
+    list(reader.messages())
+    (lost,) = reader.lost
+    assert (lost.start_byte, lost.end_byte) == (bad.chunk_start_offset, bad.chunk_start_offset + bad.chunk_length)
+    assert (lost.start_ns, lost.end_ns) == (before.message_end_time, after.message_start_time)
+    assert not lost.overlaps(0, before.message_end_time - 1)
+
+
+def test_an_unreadable_part_in_a_log_without_summary_holds_the_times_between_its_neighbours(
+    tmp_path, whole, summary
+):
+    """As a skipped chunk, but the chunk's length field is garbage: reading goes on at the next intact chunk."""
+    chunks = _chunks(summary)
+    k = len(chunks) // 2
+    bad, before, after = chunks[k], chunks[k - 1], chunks[k + 1]
+    data = _without_summary(whole, summary)
+    data[bad.chunk_start_offset + 1 : bad.chunk_start_offset + 9] = struct.pack("<Q", 2**40)
+    path = tmp_path / "garbled.mcap"
+    path.write_bytes(bytes(data))
+    reader = LogReader(path)
+    list(reader.messages())
+    (lost,) = reader.lost
+    assert lost.kind == "unreadable part"
+    assert (lost.start_byte, lost.end_byte) == (bad.chunk_start_offset, after.chunk_start_offset)
+    assert (lost.start_ns, lost.end_ns) == (before.message_end_time, after.message_start_time)
+
+
+def test_the_scan_for_the_next_chunk_passes_over_one_whose_times_run_backwards(tmp_path, whole, summary):
+    """A "chunk" whose first message time is after its last is not one: reading goes on at the real next chunk."""
+    chunks = _chunks(summary)
+    k = len(chunks) // 2
+    bad, after = chunks[k], chunks[k + 1]
+    assert bad.chunk_length > 200
+    data = _without_summary(whole, summary)
+    data[bad.chunk_start_offset + 1 : bad.chunk_start_offset + 9] = struct.pack("<Q", 2**40)
+    fake = struct.pack("<BQQQQII", 0x06, 40, 10, 5, 0, 0, 0) + struct.pack("<Q", 0)  # a chunk head, times 10 > 5
+    at = bad.chunk_start_offset + 100
+    data[at : at + len(fake)] = fake
+    path = tmp_path / "garbled.mcap"
+    path.write_bytes(bytes(data))
+    reader = LogReader(path)
+    list(reader.messages())
+    assert [(c.start_byte, c.end_byte) for c in reader.lost] == [(bad.chunk_start_offset, after.chunk_start_offset)]
+
+
+def test_a_damaged_last_chunk_that_ends_the_file_is_called_damaged_not_cut(tmp_path, whole, summary):
+    chunk = _chunks(summary)[len(summary.chunk_indexes) // 2]
+    end = chunk.chunk_start_offset + chunk.chunk_length
+    data = bytearray(whole[:end])
+    data[end - 20] ^= 0xFF
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(bytes(data))
+    damage = LogReader(path).info().damage
+    assert (f"damaged record after byte {chunk.chunk_start_offset} of {end} (a chunk record of "
+            f"{chunk.chunk_length - 9} bytes:") in damage
+
+
+def test_a_garbled_attachment_length_is_said_with_the_attachment_and_the_length(tmp_path, whole, summary):
+    attachment = next(a for a in summary.attachment_indexes if a.name.startswith("calibration/"))
+    data = bytearray(whole)
+    data[attachment.offset + 1 : attachment.offset + 9] = struct.pack("<Q", 2**40)
+    path = tmp_path / "s.mcap"
+    path.write_bytes(bytes(data))
+    damage = LogReader(path).info().damage
+    assert f"(an attachment record {attachment.name!r} whose length of {2**40} bytes" in damage
+    assert f"lost: attachment {attachment.name!r}" in damage

@@ -18,6 +18,7 @@ from mcap.writer import Writer
 from teleop.bus.wire import encode, make_message
 from teleop.cli import main
 from teleop.session import LogReader
+from teleop.session.foxglove import foxglove_messages
 from teleop.session.logdamage import RECOVERY_METADATA
 from teleop.session.logfile import MESSAGE_ENCODING, PROFILE, SCHEMA_ENCODING, schema_data
 from teleop.session.logframes import pack_frames
@@ -107,3 +108,69 @@ def test_a_message_on_a_lost_channel_that_tells_nothing_is_dropped_and_said_so(t
     err = capsys.readouterr().err
     assert "1 messages dropped" in err and "kept verbatim" not in err
     assert [m.message.topic for m in LogReader(tmp_path / "fixed2.mcap").messages()] == ["heartbeat"]
+
+
+T0 = 1_700_000_000_000_000_000  # a log time (ns): 2023-11-14
+
+
+def _log_with_held(path, order):
+    """A log whose grasp_event is preceded by messages on channels that have no record: its Foxglove
+    form ("form", same publish time and sequence) and an unrelated one ("junk"), in ``order``."""
+    event = replace(make_message("grasp_event", t_capture_s=1.0, event="start", grasp_id="g0", object_name=None),
+                    source="robot", seq=3)
+    (form,) = foxglove_messages(event)
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start(PROFILE, "test")
+        schema = writer.register_schema("compliance-teleop/grasp_event", SCHEMA_ENCODING, schema_data("grasp_event"))
+        channel = writer.register_channel("grasp_event", MESSAGE_ENCODING, schema, {"type": "grasp_event"})
+        for what in order:
+            if what == "form":
+                writer.add_message(channel + 20, log_time=T0, data=form.data, publish_time=T0, sequence=3)
+            else:
+                writer.add_message(channel + 30, log_time=T0 - 5, data=b"junk", publish_time=T0 - 5, sequence=9)
+        writer.add_message(channel, log_time=T0, data=pack_frames(encode(event)), publish_time=T0, sequence=3)
+        writer.finish()
+    return path
+
+
+def test_an_unrelated_message_before_a_form_is_dropped_while_the_form_is_kept(tmp_path):
+    report = recover(_log_with_held(tmp_path / "a.mcap", ["junk", "form"]), tmp_path / "fixed.mcap")
+    assert report.dropped == 1
+    assert report.rebuilt_channels == ["/events"]
+
+
+def test_a_form_not_right_before_its_bus_message_is_dropped(tmp_path):
+    report = recover(_log_with_held(tmp_path / "b.mcap", ["form", "junk"]), tmp_path / "fixed.mcap")
+    assert report.dropped == 2
+    assert report.rebuilt_channels == []
+
+
+def test_a_message_without_channel_at_the_end_of_the_log_is_dropped(tmp_path):
+    """After the last bus message no bus message can claim it as its form."""
+    heartbeat = replace(make_message("heartbeat", t_capture_s=1.0, interval_s=1.0), source="robot", seq=1)
+    log = tmp_path / "d.mcap"
+    with log.open("wb") as f:
+        writer = Writer(f)
+        writer.start(PROFILE, "test")
+        schema = writer.register_schema("compliance-teleop/heartbeat", SCHEMA_ENCODING, schema_data("heartbeat"))
+        channel = writer.register_channel("heartbeat", MESSAGE_ENCODING, schema, {"type": "heartbeat"})
+        writer.add_message(channel, log_time=T0, data=pack_frames(encode(heartbeat)), publish_time=T0, sequence=1)
+        writer.add_message(channel + 7, log_time=T0 + 1, data=b"junk", publish_time=T0 + 1, sequence=2)
+        writer.finish()
+    report = recover(log, tmp_path / "fixed.mcap")
+    assert (report.messages, report.dropped) == (1, 1)
+
+
+def test_messages_on_a_channel_without_schema_are_copied(tmp_path):
+    """MCAP schema id 0: a channel with no schema; its messages are copied, not dropped."""
+    log = tmp_path / "e.mcap"
+    with log.open("wb") as f:
+        writer = Writer(f)
+        writer.start(PROFILE, "test")
+        channel = writer.register_channel("/note", "json", 0, {})
+        writer.add_message(channel, log_time=T0, data=b'{"a": 1}', publish_time=T0, sequence=1)
+        writer.finish()
+    assert recover(log, tmp_path / "fixed.mcap").dropped == 0
+    with (tmp_path / "fixed.mcap").open("rb") as f:
+        assert [(c.topic, bytes(m.data)) for _, c, m in make_reader(f).iter_messages()] == [("/note", b'{"a": 1}')]

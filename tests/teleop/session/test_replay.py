@@ -2,18 +2,21 @@
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 
 import msgpack
 import pytest
+from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from teleop.bus import Publisher, Subscriber
 from teleop.bus.wire import encode, make_message
 from teleop.errors import SessionLogError
 from teleop.session import LogReader, replay, replay_messages
+from teleop.session.foxglove import IMAGE_SCHEMA
 from teleop.session.label import label_session
-from teleop.session.logfile import MESSAGE_ENCODING
+from teleop.session.logfile import MESSAGE_ENCODING, PROFILE, SCHEMA_ENCODING, schema_data
 from teleop.session.logframes import pack_frames
 
 
@@ -190,3 +193,127 @@ def test_a_file_that_is_not_a_log_is_refused(tmp_path):
         list(replay_messages(path))
     with pytest.raises(SessionLogError, match="cannot read"):
         list(replay_messages(tmp_path / "absent.mcap"))
+
+
+T0 = 1_700_000_000_000_000_000  # a log time (ns): 2023-11-14
+
+
+def _write_log(path, messages):
+    """A complete session log of ``messages`` ((log time ns, bus message)), in that order."""
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start(PROFILE, "test")
+        channels = {}
+        for log_time, message in messages:
+            if message.topic not in channels:
+                schema = writer.register_schema(f"compliance-teleop/{message.type}", SCHEMA_ENCODING,
+                                                schema_data(message.type))
+                channels[message.topic] = writer.register_channel(message.topic, MESSAGE_ENCODING, schema,
+                                                                  {"type": message.type})
+            writer.add_message(channels[message.topic], log_time=log_time, data=pack_frames(encode(message)),
+                               publish_time=log_time, sequence=message.seq % 2**32)
+        writer.finish()
+    return path
+
+
+def _event(event, seq):
+    message = make_message("grasp_event", t_capture_s=1.0, event=event, grasp_id="g0", object_name=None)
+    return dataclasses.replace(message, source="robot", seq=seq)
+
+
+def test_the_span_reported_covers_a_message_stored_out_of_order(tmp_path):
+    """A label an older `teleop label` appended at the end of the file, logged mid-session, does not
+    shorten the receive-time span the replay reports."""
+    label = dataclasses.replace(
+        make_message("label", t_capture_s=1.0, grasp_id="g0", object_name="foam", modulus_pa=5e4,
+                     source="datasheet", detail=""),
+        source="teleop label", seq=0)
+    log = _write_log(tmp_path / "s.mcap", [
+        (T0, _event("start", 0)),
+        (T0 + 2_000_000_000, _event("end", 1)),
+        (T0 + 1_000_000_000, label),
+    ])
+    clock = _FakeClock()
+    pub = _RecordingPublisher(clock)
+    stats = replay(log, pub, speed=None, clock=clock, sleep=clock.sleep)
+    assert stats.sent == len(pub.sent) == 3
+    assert stats.log_span_s == 2.0
+
+
+class _SlowOpeningClock(_FakeClock):
+    """Its first reading, as the log is opened, is 10 s before the next: opening the log took 10 s."""
+
+    def __init__(self):
+        super().__init__()
+        self.readings = 0
+
+    def __call__(self) -> float:
+        self.readings += 1
+        return self.now - 10.0 if self.readings == 1 else self.now
+
+
+def test_pacing_starts_at_the_first_message_sent_not_when_the_log_was_opened(tmp_path):
+    log = _write_log(tmp_path / "s.mcap", [(T0, _event("start", 0)), (T0 + 1_000_000_000, _event("end", 1))])
+    clock = _SlowOpeningClock()
+    pub = _RecordingPublisher(clock)
+    stats = replay(log, pub, speed=1.0, clock=clock, sleep=clock.sleep)
+    assert stats.sent == 2
+    (first, _), (second, _) = pub.sent
+    assert second - first == pytest.approx(1.0)
+
+
+def test_a_replay_of_a_cut_log_says_it_stopped(recorded, tmp_path):
+    data = recorded.path.read_bytes()
+    log = tmp_path / "cut.mcap"
+    log.write_bytes(data[: len(data) // 2 + 3])
+    clock = _FakeClock()
+    stats = replay(log, _RecordingPublisher(clock), speed=None, clock=clock, sleep=clock.sleep)
+    assert stats.sent > 0 and stats.stopped and stats.damage
+
+
+def test_an_elided_frame_takes_its_image_only_from_the_image_of_its_own_sequence(recorded, tmp_path):
+    """The image record before an elided frame must match its log time and sequence; one of another
+    sequence does not hold its bytes: the frame is refused, not rebuilt from the wrong image."""
+    path = tmp_path / "reseq.mcap"
+    changed = False
+    with recorded.path.open("rb") as src, path.open("wb") as out:
+        reader = make_reader(src)
+        writer = Writer(out)
+        header = reader.get_header()
+        writer.start(header.profile, header.library)
+        schemas, channels = {}, {}
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            if schema is not None and schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas.get(channel.schema_id, 0), dict(channel.metadata))
+            sequence = message.sequence
+            if schema is not None and schema.name == IMAGE_SCHEMA and not changed:
+                sequence, changed = sequence + 1000, True
+            writer.add_message(channels[channel.id], log_time=message.log_time, data=message.data,
+                               publish_time=message.publish_time, sequence=sequence)
+        writer.finish()
+    assert changed
+    reader = LogReader(path)
+    frames = list(reader.messages(topics=("frame",)))
+    assert len(frames) == len(list(LogReader(recorded.path).messages(topics=("frame",)))) - 1
+    assert sum(reader.refused.values()) == 1
+
+
+def test_a_message_on_an_unknown_channel_is_not_refused_when_its_topic_is_not_asked_for(tmp_path):
+    """With a topic filter, a stored message whose channel is unknown is not among those asked for: it
+    is passed over, not counted as refused (replay reports the refused)."""
+    beat = dataclasses.replace(make_message("heartbeat", t_capture_s=1.0, interval_s=1.0), source="robot", seq=1)
+    path = tmp_path / "s.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start(PROFILE, "test")
+        schema = writer.register_schema("compliance-teleop/heartbeat", SCHEMA_ENCODING, schema_data("heartbeat"))
+        channel = writer.register_channel("heartbeat", MESSAGE_ENCODING, schema, {"type": "heartbeat"})
+        writer.add_message(channel, log_time=1, data=pack_frames(encode(beat)), publish_time=1)
+        writer.add_message(channel + 7, log_time=2, data=pack_frames(encode(beat)), publish_time=2)  # no channel
+        writer.finish()
+    reader = LogReader(path)
+    assert [m.message.topic for m in reader.messages(topics=("heartbeat",))] == ["heartbeat"]
+    assert sum(reader.refused.values()) == 0
