@@ -41,6 +41,12 @@ def test_every_string_in_plain_data_is_redacted_and_the_rest_kept():
                               "list": ["http://b:***@h", 1, None], "pair": ("0", "http://c:***@h")}
 
 
+def test_a_password_in_a_mapping_key_is_hidden_too():
+    # e.g. a per-source table keyed by the camera URL, stored in a report
+    data = {"http://admin:secret@pi:8080/?action=stream": {"frames": 3}, "plain": "x"}
+    assert redacted(data) == {"http://admin:***@pi:8080/?action=stream": {"frames": 3}, "plain": "x"}
+
+
 def test_a_load_cell_address_with_a_password_is_hidden_where_it_is_said():
     from teleop.devices.hx711 import TcpHx711
     from teleop.rig.load_cell_calibration import load_cell_source

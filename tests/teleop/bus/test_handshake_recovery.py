@@ -7,6 +7,7 @@ import logging
 import struct
 import threading
 import time
+import types
 
 import pytest
 import zmq
@@ -118,12 +119,56 @@ def test_an_unkeyed_socket_whose_peer_drops_one_greeting_says_nothing_of_keys(ha
     assert _warnings(handshake_log, within_s=0) == []
 
 
-def _fed(feed: zmq.Socket, monitor: zmq.Socket, events: list[tuple[int, int]]):
-    """An unkeyed client's watch fed ``events`` on one endpoint, then stopped: the watch."""
+def test_a_binding_socket_lists_no_never_connected_endpoint_as_its_own_address_is_no_peer():
+    context = zmq.Context.instance()
+    mismatch = [(zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL, zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH)]
+    never_connected = {}
+    for server in (True, False):
+        feed, monitor = context.socket(zmq.PAIR), context.socket(zmq.PAIR)
+        feed.bind(f"inproc://test-handshake-never-connected-{server}")
+        monitor.connect(f"inproc://test-handshake-never-connected-{server}")
+        never_connected[server] = list(_fed(feed, monitor, mismatch, server=server).never_connected())
+    assert never_connected == {True: [], False: ["tcp://127.0.0.1:1"]}
+
+
+class _ReconnectingSocket:
+    """What HandshakeWatch.reconnect_due calls on a socket, recorded."""
+
+    def __init__(self):
+        self.calls = []
+
+    def disconnect(self, endpoint: str) -> None:
+        self.calls.append(("disconnect", endpoint))
+
+    def connect(self, endpoint: str) -> None:
+        self.calls.append(("connect", endpoint))
+
+
+def test_a_given_up_endpoint_is_reconnected_only_once_its_time_comes(monkeypatch):
+    from teleop.bus import handshakes
+
+    now = [100.0]
+    monkeypatch.setattr(handshakes, "time", types.SimpleNamespace(monotonic=lambda: now[0]))
+    watch, socket = handshakes.HandshakeWatch(), _ReconnectingSocket()
+    watch.gave_up("tcp://127.0.0.1:5550")
+    watch.reconnect_due(socket)
+    assert socket.calls == [] and watch.next_due_s() == RECONNECT_S  # not yet: libzmq is not hammered
+    now[0] += RECONNECT_S - 0.1
+    watch.reconnect_due(socket)
+    assert socket.calls == []
+    now[0] += 0.1
+    watch.reconnect_due(socket)
+    assert socket.calls == [("disconnect", "tcp://127.0.0.1:5550"), ("connect", "tcp://127.0.0.1:5550")]
+    assert watch.next_due_s() is None
+
+
+def _fed(feed: zmq.Socket, monitor: zmq.Socket, events: list[tuple[int, int]], *, server: bool = False):
+    """An unkeyed socket's watch (``server``: one that binds) fed ``events`` on one endpoint, then
+    stopped: the watch."""
     from teleop.bus.handshakes import HandshakeWatch, _report, _Side
 
     watch = HandshakeWatch()
-    reader = threading.Thread(target=_report, args=(monitor, _Side(server=False, keys_dir=None), watch))
+    reader = threading.Thread(target=_report, args=(monitor, _Side(server=server, keys_dir=None), watch))
     reader.start()
     try:
         for kind, value in events:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+import teleop
 from teleop.bus.security import (
     BusSecurity,
     authorize_key,
@@ -75,6 +76,14 @@ def test_keys_this_user_may_not_read_are_called_unreadable_not_invalid(tmp_path,
     _says_permission(str(info.value), stranger.keys_dir / "client.key")
 
 
+def test_a_keys_folder_inside_one_this_user_cannot_search_is_called_unreadable_not_missing(tmp_path, monkeypatch):
+    init_keys(tmp_path / "outer" / "keys")
+    _unsearchable(monkeypatch, tmp_path / "outer")  # the keys folder itself cannot be stat'ed
+    with pytest.raises(BusSecurityError) as refused:
+        BusSecurity.load(tmp_path / "outer" / "keys")
+    assert "permission denied" in str(refused.value) and "does not exist" not in str(refused.value), refused.value
+
+
 def test_a_missing_certificate_is_called_missing(tmp_path, keys):
     absent = tmp_path / "absent.key"
     with pytest.raises(BusSecurityError, match=f"cannot read CURVE certificate {absent}: it does not exist"):
@@ -88,15 +97,20 @@ def test_a_missing_certificate_is_called_missing(tmp_path, keys):
     not hasattr(os, "geteuid") or os.geteuid() != 0 or shutil.which("setpriv") is None,
     reason="runs `teleop keys` as another user: needs root and setpriv",
 )
-def test_keys_command_as_another_user_says_permission_denied():
+def test_keys_command_as_another_user_says_permission_denied_naming_the_folder_it_cannot_search():
     outer = Path(tempfile.mkdtemp(prefix="teleop-keys-"))
     try:
-        outer.chmod(0o755)  # the keys directory itself stays 0700, owned by root
+        # as many home folders: others may pass through it, not list it; the keys folder inside stays
+        # 0700, owned by root, and is the one that blocks
+        outer.chmod(0o711)
         init_keys(outer / "k1")
+        # this checkout's teleop, whichever one the venv's console script would import
+        env = {**os.environ, "PYTHONPATH": str(Path(teleop.__file__).parents[1])}
         result = subprocess.run(
-            ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups",
-             str(Path(sys.executable).parent / "teleop"), "keys", "list", str(outer / "k1")],
-            capture_output=True, text=True, timeout=60,
+            ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable, "-c",
+             "import sys; from teleop.cli import main; sys.argv[0] = 'teleop'; sys.exit(main())",
+             "keys", "list", str(outer / "k1")],
+            capture_output=True, text=True, timeout=60, env=env,
         )
     finally:
         shutil.rmtree(outer)

@@ -1,15 +1,19 @@
 """A keys folder, its authorized/ folder or a public certificate that other users may write is refused,
-naming the path and the chmod (teleop.bus.cert_access.check_owner_writes)."""
+naming the path and the chmod (teleop.bus.cert_access.check_owner_writes); so is a secret certificate
+other users may read, or one whose secret key is no Z85 key (teleop.bus.cert_keys)."""
 
 from __future__ import annotations
 
 import os
+import re
 import stat
 
 import pytest
 
 from teleop.bus.security import BusSecurity, authorize_key, init_keys, read_authorized
 from teleop.errors import BusSecurityError
+
+_SECRET_LINE = re.compile(r'(secret-key = ")([^"]{40})(")')
 
 
 def _mode(path) -> int:
@@ -25,6 +29,26 @@ def test_a_keys_folder_or_public_certificate_others_may_write_is_refused(tmp_pat
         BusSecurity.load(tmp_path / "keys")
     assert f"{target} is writable" in str(refused.value).replace(f"{target}/ ", f"{target} ")
     assert f"chmod go-w {target}" in str(refused.value)
+
+
+@pytest.mark.parametrize("mode", [0o640, 0o620, 0o610, 0o604, 0o602, 0o601])
+def test_a_secret_certificate_its_group_or_others_may_use_is_refused(tmp_path, mode):
+    # the owner alone: any group or other bit is refused, as ssh refuses a private key
+    init_keys(tmp_path / "keys")
+    (tmp_path / "keys" / "client.key_secret").chmod(mode)
+    with pytest.raises(BusSecurityError, match=f"mode {mode:04o}.*chmod 600"):
+        BusSecurity.load(tmp_path / "keys")
+
+
+@pytest.mark.parametrize("bad", ["x" * 39, "~" * 40])
+def test_a_secret_key_that_is_no_z85_key_is_refused_naming_the_file(tmp_path, bad):
+    # truncated or garbled: said as such, not a bare ValueError from libzmq
+    init_keys(tmp_path / "keys")
+    secret = tmp_path / "keys" / "client.key_secret"
+    secret.write_text(_SECRET_LINE.sub(lambda m: m.group(1) + bad + m.group(3), secret.read_text()))
+    assert secret.stat().st_mode & 0o777 == 0o600  # refused for its key, not its mode
+    with pytest.raises(BusSecurityError, match=f"{secret}: the secret key is not a 40-character Z85 CURVE key"):
+        BusSecurity.load(tmp_path / "keys")
 
 
 @pytest.mark.parametrize("relative, mode", [("authorized", 0o775), ("authorized/client.key", 0o666)])

@@ -16,7 +16,7 @@ from support.bus import HEARD_WITHIN_S, delivered, raw_publisher, wait_subscribe
 from teleop.bus import Heartbeat, Publisher, Subscriber
 from teleop.bus.peers import MAX_TRACKED
 from teleop.bus.wire import encode, make_message
-from teleop.errors import BusError, BusTimeoutError
+from teleop.errors import BusError, BusTimeoutError, MessageRejected
 from teleop.settings import BusSettings
 
 _names = itertools.count()
@@ -103,6 +103,36 @@ def test_a_stalled_subscriber_is_skipped_when_asked_and_the_others_get_everythin
         pub.send("frame", t_capture_s=float(n), finger="left", index=n, encoding="raw", data=image)
         late += [m for m in _drain(stalled) if m.type == "frame"]  # once drained, it is sent to again
         assert 0 < len(late) < n and late[-1].body["index"] == n and stalled.stats.gaps >= 1
+
+
+def _stall(pub: Publisher, image: np.ndarray, start: int) -> int:
+    """Send frames from index ``start`` until one finds the subscriber stalled: the next index."""
+    skips = pub.stalled_skips
+    for i in range(start, start + 2000):
+        pub.send("frame", t_capture_s=float(i), finger="left", index=i, encoding="raw", data=image)
+        if pub.stalled_skips > skips:
+            return i + 1
+    raise AssertionError(f"no stall seen in 2000 sends (stalled_skips {pub.stalled_skips})")
+
+
+def test_a_subscriber_that_stalls_again_after_catching_up_is_waited_for_and_counted_again():
+    # after a skip the publisher is lossless again: a second stall is waited for (send_timeout_s) and
+    # counted, not dropped without a word
+    image = np.zeros((300, 400, 3), dtype=np.uint8)
+    with (
+        Publisher("tcp://127.0.0.1:*", lossless=True, source="robot", high_water_mark=20, send_timeout_s=0.05,
+                  skip_stalled=True) as pub,
+        Subscriber(pub.endpoint, ["frame", "force"], high_water_mark=5) as sub,
+    ):
+        assert delivered(pub, sub, within_s=HEARD_WITHIN_S)
+        _drain(sub, timeout_s=0.05)
+        after = _stall(pub, image, 0)
+        assert pub.stalled_skips == 1
+        _drain(sub)  # it reads again, all it had room for
+        pub.send("frame", t_capture_s=float(after), finger="left", index=after, encoding="raw", data=image)
+        assert [m.body["index"] for m in _drain(sub) if m.type == "frame"][-1] == after  # caught up
+        _stall(pub, image, after + 1)  # then stops reading again
+        assert pub.stalled_skips == 2
 
 
 def test_subscriber_detects_and_reports_gaps():
@@ -293,6 +323,34 @@ def test_heartbeats_detect_a_dead_peer(endpoint):
         assert not sub.heartbeat.is_alive("robot")  # three periods passed without a word
 
 
+def test_a_data_message_alone_says_its_sender_is_alive():
+    # a peer heard only through its data, before its first heartbeat, counts as heard from
+    with (
+        Publisher("inproc://bus-test-data-alive", lossless=True, source="robot") as pub,
+        Subscriber("inproc://bus-test-data-alive", ["force"]) as sub,
+    ):
+        pub.wait_for_subscriber("force")
+        pub.send("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0])
+        assert sub.recv(timeout_s=5.0).type == "force"
+        assert sub.heartbeat.peers() == ["robot"]
+        assert sub.heartbeat.is_alive("robot", timeout_s=60.0)
+
+
+def test_recv_with_no_wait_looks_at_one_queued_message_however_many_heartbeats_wait():
+    # timeout_s=0 looks once: a peer flooding heartbeats cannot keep it reading past its deadline
+    with (
+        Publisher("inproc://bus-test-recv-once", lossless=True, source="robot") as pub,
+        Subscriber("inproc://bus-test-recv-once") as sub,
+    ):
+        pub.wait_for_subscriber("heartbeat")
+        for i in range(50):
+            pub.send("heartbeat", t_capture_s=float(i), interval_s=0.5)
+        assert sub._live().poll(1000)  # they are queued
+        assert sub.recv(timeout_s=0) is None
+        assert sub.stats.received == 1
+        assert sub.heartbeat.peers() == ["robot"]
+
+
 def test_heartbeat_bookkeeping_on_an_injected_clock():
     now = [100.0]
     beat = Heartbeat(clock=lambda: now[0])
@@ -341,6 +399,16 @@ def test_errors_name_the_endpoint():
         sub.recv(timeout_s=0.0)
 
 
+def test_a_malformed_message_is_refused_for_what_it_breaks_not_called_oversize():
+    with Publisher("inproc://bus-test-publish-refused", lossless=False, source="robot") as pub:
+        force = make_message("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0])
+        with pytest.raises(MessageRejected) as refused:
+            pub.publish(dataclasses.replace(force, topic="estimate"))
+        assert refused.value.reason == "bad_header"
+        assert "bus.max_message_bytes" not in str(refused.value)
+        assert pub.sent == 0
+
+
 def test_an_endpoint_in_use_says_how_to_free_it_and_which_setting_names_it():
     with Publisher("tcp://127.0.0.1:*", lossless=True) as holder:
         with pytest.raises(BusError, match=r"holds it: stop it or choose another port$"):
@@ -384,3 +452,5 @@ def test_subscriptions_count_exact_prefixes_and_end_with_their_subscriber(endpoi
                 assert pub.subscriptions("follow") == 1  # the empty prefix is its own
             assert until(0, "", pub) == 0 and pub.subscriptions("follow") == 1
         assert until(0, "follow", pub) == 0 and pub.subscriptions("command") == 0
+        with pytest.raises(BusTimeoutError, match="no subscriber for 'follow'"):  # the one that left is none
+            pub.wait_for_subscriber("follow", timeout_s=0.2)

@@ -82,6 +82,14 @@ def test_endpoints_other_hosts_can_reach(endpoint):
     assert not is_loopback(endpoint)
 
 
+@pytest.mark.parametrize("endpoint", ["tipc://{5560,0,0}", "vmci://1:5555"])
+def test_fabric_transports_reach_other_hosts_and_need_keys(endpoint):
+    # tipc and vmci name no host, yet reach other machines and VMs
+    assert not is_loopback(endpoint)
+    with pytest.raises(BusSecurityError, match="reachable from other hosts"):
+        check_endpoints([endpoint], None)
+
+
 def test_a_non_loopback_endpoint_without_keys_refuses_to_start(keys):
     for make in (
         lambda: Publisher("tcp://0.0.0.0:*", lossless=True),
@@ -332,6 +340,14 @@ def test_init_writes_private_secret_files(tmp_path, keys):
     assert keys.client_secret_key.decode() not in repr(keys)
     with pytest.raises(BusSecurityError, match="already holds CURVE keys"):
         init_keys(keys.keys_dir)
+
+
+def test_init_refuses_a_folder_holding_only_an_authorised_keys_folder_and_writes_nothing(tmp_path):
+    keys_dir = tmp_path / "keys"
+    (keys_dir / "authorized").mkdir(parents=True)
+    with pytest.raises(BusSecurityError, match=r"already holds CURVE keys \(authorized\)"):
+        init_keys(keys_dir)
+    assert [p.name for p in keys_dir.iterdir()] == ["authorized"]  # no half-made pair left behind
 
 
 def test_unsafe_or_damaged_keys_are_refused(tmp_path, keys, stranger):

@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from teleop.bus.field_checks import MAX_TIME_S
+from teleop.bus.messages import MAX_PARAMS
 from teleop.bus.wire import (
     MAX_BODY_BYTES,
     MAX_HEADER_BYTES,
@@ -265,6 +266,46 @@ def test_missing_extra_and_mistyped_fields():
     assert _refused(_with_body(frames, E_pa="1e5")) == "mistyped_field"
     assert _refused(_with_header(frames, seq=-1)) == "bad_header"
     assert _refused(_with_header(frames, extra=1)) == "bad_header"
+
+
+def _made_refused(type_: str, **fields) -> MessageRejected:
+    """The refusal of ``make_message(type_, **fields)``: what a sender is told."""
+    with pytest.raises(MessageRejected) as refused:
+        make_message(type_, **fields)
+    return refused.value
+
+
+def test_an_interval_whose_low_is_above_its_high_is_refused():
+    estimate = dict(t_capture_s=2.1, grasp_id="g1", method="hertz", E_pa=None, state="insufficient_data",
+                    reason="too short", provisional=False, latency_s=0.001)
+    refused = _made_refused("estimate", interval_pa=[6e5, 1e5], **estimate)
+    assert refused.reason == "mistyped_field" and "low is above high" in str(refused)
+    make_message("estimate", interval_pa=[1e5, 1e5], **estimate)  # equal sides: a point interval
+
+
+def test_command_params_hold_at_most_max_params_names():
+    full = {f"p{i}": float(i) for i in range(MAX_PARAMS)}
+    command = dict(t_capture_s=0.0, action="start_grasp", grasp_id="g2")
+    message = make_message("command", params=full, **command)
+    assert decode(encode(message, max_bytes=MAX), max_bytes=MAX).fields.params == full
+    refused = _made_refused("command", params={**full, "one_more": 1.0}, **command)
+    assert refused.reason == "mistyped_field" and f"at most {MAX_PARAMS}" in str(refused)
+
+
+@pytest.mark.parametrize("t", [-1e300, -2 * MAX_TIME_S])
+def test_a_sample_time_far_below_any_clock_is_refused_as_one_far_above(t):
+    # magnitude, not value: -1e300 overflows the session log's nanoseconds as 1e300 does
+    refused = _made_refused("force", t_capture_s=2.0, grasp_id="g1", t_s=np.array([t, 2.0]),
+                            value_n=np.array([1.0, 2.0]))
+    assert refused.reason == "mistyped_field" and "in magnitude" in str(refused)
+
+
+@pytest.mark.parametrize("flag", [True, np.bool_(False)])
+def test_a_flag_is_no_integer(flag):
+    # index=True would be stored as frame 1
+    refused = _made_refused("frame", t_capture_s=1.5, finger="left", grasp_id="g1", index=flag, encoding="jpeg",
+                            data=b"\xff\xd8\xff\xd9")
+    assert refused.reason == "mistyped_field" and "must be an integer" in str(refused)
 
 
 def test_frame_count_and_topic():
