@@ -31,7 +31,8 @@ from teleop.settings import (
 from teleop.sim.grasp import simulate_grasp
 
 # One worker builds the module's lab (calibration, records) once: its tests need not wait for it twice.
-pytestmark = pytest.mark.xdist_group("foreign_sensor_lab")
+# Slow: building the lab calibrates a Mini on real presses (seconds).
+pytestmark = [pytest.mark.xdist_group("foreign_sensor_lab"), pytest.mark.slow]
 
 PITCH_M = 2.95e-5  # taxim's GelSight Mini: 0.0295 mm per raw px
 # The lab's fingers, softer than the shipped settings' (what --settings tells evaluate).

@@ -89,6 +89,7 @@ def _wait_gone(pids: set[int], timeout_s: float = 5.0) -> set[int]:
     return left
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("workers", "slow_submit"), [(0, False), (2, False), (2, True)])
 def test_sigterm_cleans_up_as_a_ctrl_c_for_every_command_and_its_workers_and_says_terminated(tmp_path, workers, slow_submit):
     child, pids = _start(tmp_path, workers, slow_submit=slow_submit)

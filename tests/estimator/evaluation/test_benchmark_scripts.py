@@ -145,6 +145,7 @@ def hybrid_records(tmp_path_factory):
     return tuple(paths)
 
 
+@pytest.mark.slow
 def test_the_hybrid_benchmark_says_so_when_every_grasp_is_refused(run, hybrid_records, tmp_path, capsys):
     """One line naming the folder and the count, status 2: not "segment nan" with numpy's warnings, status 0."""
     refused = tmp_path / "refused"
@@ -157,6 +158,7 @@ def test_the_hybrid_benchmark_says_so_when_every_grasp_is_refused(run, hybrid_re
     assert "nan" not in out and "RuntimeWarning" not in err
 
 
+@pytest.mark.slow
 def test_the_hybrid_stages_skip_the_records_the_bench_skipped(run, hybrid_records, tmp_path, capsys):
     """An unreadable record, left out of the bench's table, aborted the stage timings with its error."""
     records = tmp_path / "mixed"
@@ -168,6 +170,7 @@ def test_the_hybrid_stages_skip_the_records_the_bench_skipped(run, hybrid_record
     assert stages.startswith("hybrid stages over 1 grasps") and "network " in stages
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "argv", "figure"), [
     ("bench_depth", ["--repeats", "2"], "reconstruct_depth (whole)              median"),
     ("bench_optics", ["--repeats", "2"], "left          no contact"),

@@ -212,6 +212,7 @@ def test_trained_objects_are_train_val_and_fine_tuning_objects(tmp_path):
         trained_objects(tmp_path / "empty")
 
 
+@pytest.mark.slow
 def test_plot_draws_one_panel_per_method(tmp_path):
     import matplotlib.image
 

@@ -39,6 +39,7 @@ def last_json(capsys) -> dict:
     return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_evaluate_writes_rows_and_scores_what_the_display_renders(records, tmp_path, capsys):
     csv_path = tmp_path / "rows.csv"
     assert main(["evaluate", str(records), "--methods", "no_tactile", "--rows", str(csv_path), "--json"]) == 0
@@ -110,6 +111,7 @@ def test_rows_option_is_explained():
     assert "felt_pa" in action.help and "CSV" in action.help
 
 
+@pytest.mark.slow
 def test_skipped_records_are_named_with_their_cause_and_nothing_scored_fails(records, tmp_path, capsys):
     from dataclasses import replace
 
@@ -184,6 +186,7 @@ def test_a_learned_method_no_loaded_model_has_names_the_models_loaded(tmp_path, 
     assert f"models: {variant.name} ({variant.method}) in {default_model_dir()}" in err
 
 
+@pytest.mark.slow
 def test_an_interrupted_evaluate_keeps_the_earlier_rows_and_plot(records, tmp_path, capsys, monkeypatch):
     import estimator.evaluation.evaluate_cli as evaluate_cli
 

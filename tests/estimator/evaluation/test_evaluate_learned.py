@@ -121,6 +121,7 @@ def _metadata(model, objects, **extra):
     return model
 
 
+@pytest.mark.slow
 def test_unseen_by_excludes_exactly_the_objects_the_model_trained_on(sim_grasps, tmp_path, capsys):
     # Session records under catalogue names: an object the published table never held is unseen; the
     # model's train and val objects (and those it was fine-tuned on) are not, whatever split lists the rest.
@@ -194,6 +195,7 @@ def test_estimate_refuses_a_model_of_the_other_kind_and_options_it_cannot_honour
         assert all(w in err for w in words), err
 
 
+@pytest.mark.slow
 def test_estimate_without_model_uses_the_shipped_model(sim_grasps, capsys, missing_data):
     if not (default_model_dir() / "metadata.json").is_file():
         missing_data("no shipped model")

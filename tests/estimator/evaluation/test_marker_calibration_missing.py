@@ -44,6 +44,7 @@ def marker_finger(record) -> str:
     return next(s.finger for s in record.sensors if s.markers)
 
 
+@pytest.mark.slow
 def test_the_marker_finger_calibration_counts_only_where_markers_are_read(folder):
     records, missing = folder
     record = read_record(records / "moved.grasp")

@@ -33,6 +33,7 @@ def last_json(capsys) -> dict:
     return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_evaluate_skips_a_record_whose_calibration_is_gone_and_scores_the_rest(folder, tmp_path, capsys):
     records, missing = folder
     moved = str(records / "moved.grasp")
@@ -66,6 +67,7 @@ def test_a_calibration_given_for_every_record_still_stops_the_run_when_it_is_gon
     assert f"calibration file {tmp_path / 'no.npz'} does not exist" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_compare_skips_a_record_whose_calibration_is_gone_and_compares_on_the_rest(folder, tmp_path, capsys):
     records, missing = folder
     candidate = tmp_path / "candidate"

@@ -25,6 +25,7 @@ def hybrid(model, settings, calibration):
     return HybridEstimator(model, settings=settings, calibration=calibration)
 
 
+@pytest.mark.slow
 def test_a_grasp_without_contact_is_refused_for_its_force_not_its_frames(shipped_model, settings, calibration,
                                                                           records):
     record = records["stress_ball"]
@@ -39,6 +40,7 @@ def test_a_grasp_without_contact_is_refused_for_its_force_not_its_frames(shipped
     assert said.e_pa is None
 
 
+@pytest.mark.slow
 def test_a_grasp_whose_frames_are_missing_says_what_force_and_width_read(shipped_model, settings, calibration,
                                                                          records):
     record = records["stress_ball"]

@@ -71,6 +71,7 @@ def test_another_sensors_calibration_is_named_once(caplog, monkeypatch):
 # --------------------------------------------------------------------------- the file
 
 
+@pytest.mark.slow
 def test_round_trip_keeps_every_field_and_the_same_gradients(tmp_path, gelsight_calibration, gelsight_presses):
     path = gelsight_calibration.save(tmp_path / "cal.npz")
     loaded = load_calibration(path)
@@ -252,6 +253,7 @@ def test_a_press_centred_off_the_image_keeps_its_circle_through_refinement(few):
     assert calibration.provenance["circles_refined"][1] is False
 
 
+@pytest.mark.slow
 def test_provenance_records_the_circles_used(gelsight_calibration):
     record = gelsight_calibration.provenance
     assert len(record["press_centers_px"]) == len(record["press_radii_px"]) == 24

@@ -92,6 +92,7 @@ def _flood_source() -> int:
     return 1234
 
 
+@pytest.mark.slow
 def test_a_host_that_stops_reading_neither_stalls_the_others_nor_stays(caplog):
     with caplog.at_level(logging.INFO), Hx711Bridge(_flood_source, host="127.0.0.1", port=0) as bridge:
         stalled = socket.socket()

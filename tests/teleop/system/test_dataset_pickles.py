@@ -180,6 +180,7 @@ def test_pickle_of_shared_references_is_refused_quickly(tmp_path, build, refused
     assert done.stdout.startswith(f"refused: {path}: refused") and refused in done.stdout, done.stdout
 
 
+@pytest.mark.slow
 def test_deep_huge_or_self_holding_containers_are_refused_by_name():
     # 200,000 nested lists (400 kB): a clear error, not a RecursionError.
     n = 200_000

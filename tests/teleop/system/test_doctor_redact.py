@@ -18,6 +18,7 @@ def _closed_port() -> int:
     return port
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("json_flag", [[], ["--json"]])
 def test_a_camera_urls_password_is_hidden_in_the_report(tmp_path, capsys, json_flag):
     port = _closed_port()
