@@ -14,8 +14,9 @@ reaches after the start. Each keeps its capture times: frame times are the messa
 samples are the messages' ``t_s``/``value`` arrays, concatenated in receive order. Frames
 stay the bytes the camera produced (``jpeg``/``png``); ``raw`` frames are stored as
 lossless PNG. Events ``grasp_start``/``grasp_end`` are the two grasp events' capture times,
-and ``grasp_done`` (:data:`~teleop.record.GRASP_DONE_EVENT`) the *loading_end* marker's
-when the robot sent one.
+``grasp_done`` (:data:`~teleop.record.GRASP_DONE_EVENT`) the *loading_end* marker's
+when the robot sent one, and ``stopped_by_watchdog``/``stopped_by_device`` the ``robot_notice``
+that ended the grasp, if one did (:mod:`teleop.session.export_notes`).
 
 Records travel
 --------------
@@ -93,6 +94,7 @@ from teleop.record import (
 )
 from teleop.session.export_calibration import carried_calibrations
 from teleop.session.export_names import record_name, same_grasp_records
+from teleop.session.export_notes import log_notes
 from teleop.session.export_objects import catalogue_objects, label_catalogue_objects
 from teleop.session.export_streams import OpenGrasp, concatenated_samples, frame_stream
 from teleop.session.logdamage import intact_attachment
@@ -180,7 +182,8 @@ class _Assembler:
         calibration_files: dict[str, bytes],
         reader: LogReader | None = None,
         label_objects: dict[str, ObjectSpec] | None = None,  # of the catalogues `teleop label` attached
-        followed: frozenset[str] = frozenset(),  # leader-follower grasps (_log_notes)
+        followed: frozenset[str] = frozenset(),  # leader-follower grasps (LogNotes)
+        stops: dict[str, dict[str, list[float]]] | None = None,  # robot notices that ended grasps (LogNotes)
     ):
         self.path = path
         self.settings = settings
@@ -197,6 +200,7 @@ class _Assembler:
         self.ended_by_others: dict[str, str] = {}  # open grasp -> who else ended it (the estimator, its node silent)
         self.unassigned = 0
         self.followed = followed
+        self.stops = stops or {}
         self.refused: dict[str, int] = {}  # open grasp -> refused messages received while it was open
         self.refused_total = 0  # the reader's count when last looked at
 
@@ -316,10 +320,17 @@ class _Assembler:
             ),
             label=label,
             events={"grasp_start": grasp.start_s, "grasp_end": end_s,
-                    **({} if grasp.loading_end_s is None else {GRASP_DONE_EVENT: grasp.loading_end_s})},
+                    **({} if grasp.loading_end_s is None else {GRASP_DONE_EVENT: grasp.loading_end_s}),
+                    **self.stopped_by(grasp, end_s)},
             calibration_files=self.calibration_files,
         )
         return GraspExport(gid, record=record, unlabelled=unlabelled)
+
+    def stopped_by(self, grasp: OpenGrasp, end_s: float) -> dict[str, float]:
+        """``stopped_by_<event>``: when a robot notice ended the grasp (its first within the grasp)."""
+        events = self.stops.get(grasp.grasp_id, {})
+        within = {event: [t for t in times if grasp.start_s <= t <= end_s] for event, times in events.items()}
+        return {f"stopped_by_{event}": min(times) for event, times in within.items() if times}
 
     def label(self, grasp_id: str, object_name: str | None) -> tuple[Label | None, str]:
         """The grasp's label (module notes) and, when it has no modulus, why."""
@@ -409,19 +420,6 @@ def session_id(info: LogInfo, path: str | Path) -> str:
     return f"log-{hashlib.sha256(head).hexdigest()[:8]}"
 
 
-def _log_notes(reader: LogReader) -> tuple[dict[str, LabelBody], frozenset[str]]:
-    """The last ``label`` message body per grasp id, and the ids of the leader-follower grasps: those a
-    ``robot_state`` follows (:meth:`~teleop.bus.messages.RobotStateBody.followed_grasp`)."""
-    labels, followed = {}, set()
-    for logged in reader.messages(("label", "robot_state")):
-        body = logged.message.fields
-        if logged.message.type == "label":
-            labels[body.grasp_id] = body
-        elif logged.message.type == "robot_state" and (grasp_id := body.followed_grasp()) is not None:
-            followed.add(grasp_id)
-    return labels, frozenset(followed)
-
-
 @dataclass
 class _Found:
     """What reading a log's grasps learnt besides them, for :class:`SessionExport`."""
@@ -469,12 +467,12 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
         )
     objects, label_objects = catalogue_objects(info, catalogue, log=path), label_catalogue_objects(info, log=path)
     settings, files = carried_calibrations(info, settings, path, disk_first=given)
-    labels, followed = _log_notes(reader)
+    notes = log_notes(reader)
     found = found or _Found()
     assembler = _Assembler(
         path=path, settings=settings, objects=objects, label_objects=label_objects, source=source,
         session_version=info.session.get("software_version", "0+unknown"), session=session_id(info, path),
-        labels=labels, calibration_files=files, reader=reader, followed=followed,
+        labels=notes.labels, calibration_files=files, reader=reader, followed=notes.followed, stops=notes.stops,
     )
     assembler.refused_total = sum(reader.refused.values())  # the notes' messages: no grasp's
     seen = set()
@@ -490,8 +488,8 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
         yield grasp
     if assembler.unassigned:
         log.info("%s: %d frame/force/width messages outside any grasp", path, assembler.unassigned)
-    for grasp_id in sorted(set(labels) - seen):
-        line = (f"a label names grasp {grasp_id!r} (object {labels[grasp_id].object_name!r}), "
+    for grasp_id in sorted(set(notes.labels) - seen):
+        line = (f"a label names grasp {grasp_id!r} (object {notes.labels[grasp_id].object_name!r}), "
                 "but the log has no grasp of that id")
         log.warning("%s: %s", path, line)
         found.stray_labels.append(line)

@@ -1,5 +1,5 @@
-"""Export of what the live path knows and the log reader refuses: a leader-follower grasp's style, and
-stored messages the reader refuses (counted, their grasps flagged, a log of nothing else named so)."""
+"""Export of what the live path knows and the log reader refuses: a leader-follower grasp's style, the
+robot notice that cut a grasp short, and stored messages the reader refuses (counted, their grasps flagged, a log of nothing else named so)."""
 
 from __future__ import annotations
 
@@ -50,6 +50,32 @@ def test_a_leader_follower_grasp_is_exported_as_operator_driven(session_settings
     styles = {g.grasp_id: read_record(g.path).provenance.style
               for g in export_session(path, tmp_path / "records", source="hardware")}
     assert styles == {"scripted": "script", "operated": "operator"}
+
+
+def test_a_grasp_the_watchdog_cut_short_says_so_in_its_events(session_settings, helpers, tmp_path):
+    path = tmp_path / "cut.mcap"
+    rng = np.random.default_rng(4)
+    with (
+        Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as pub,
+        helpers.recording(path, [pub.endpoint], settings=session_settings,
+                          catalogue=default_catalogue_path()) as recorder,
+    ):
+        pub.wait_for_subscriber("")
+        sent = _publish_grasp(pub, "whole", 10.0, rng, helpers, follow=True)
+        # Ended notices outside a grasp's time: the one before "cut" started names its id (a node restarted).
+        sent.append(pub.send("robot_notice", t_capture_s=19.0, event="watchdog", action="follow", grasp_id="cut",
+                             reason="no follow command for 0.21 s: the fingers stopped"))
+        sent.append(pub.send("robot_notice", t_capture_s=20.05, event="refused", action="follow", grasp_id="cut",
+                             reason="a refusal ends no grasp"))
+        sent.append(pub.send("robot_notice", t_capture_s=20.06, event="watchdog", action="follow", grasp_id="cut",
+                             reason="no follow command for 0.21 s: the fingers stopped"))
+        sent += _publish_grasp(pub, "cut", 20.0, rng, helpers, follow=True)
+        helpers.wait_for(lambda: recorder.stats.messages == len(sent), what="the session recorded")
+    events = {g.grasp_id: read_record(g.path).events
+              for g in export_session(path, tmp_path / "records", source="hardware")}
+    assert not any(key.startswith("stopped_by") for key in events["whole"])
+    assert events["cut"]["stopped_by_watchdog"] == 20.06
+    assert set(events["cut"]) == {"grasp_start", "grasp_end", "stopped_by_watchdog"}
 
 
 def _spoiled(recorded, out, spoil):
