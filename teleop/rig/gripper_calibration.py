@@ -15,7 +15,8 @@ grasp (commanded to ``W - F / k_configured``, where the configured stiffness put
 that force, so a position-controlled hand squeezes as far as a force-controlled one), wait
 ``--settle-s``, then average the load cell and the width readings over ``--average-s``. The
 fit (:func:`fit_finger_stiffness`) is least squares over all squeezes; its uncertainty is the
-slope's standard error, and each repeat's own stiffness is reported too.
+slope's standard error, and each repeat's own stiffness is reported too; a repeat whose
+width does not fall as the force rises (the hand stalled, the reference slipped) refuses the fit.
 
 Use a reference that is rigid where the fingers touch it (a steel gauge block), held so that the
 load-cell finger presses on it. Everything between the motor and the block yields with the force
@@ -137,19 +138,26 @@ def fit_finger_stiffness(
             f"least 3 spanning {min_force_span_n:g} N; does the load cell read the grip (is it in the finger that "
             "presses on the object)?"))
     slope, se, intercept, rms = _line(force, width)
-    repeats = sorted({s.repeat for s in squeezes})
-    per_repeat = []
-    for repeat in repeats:
+    repeat_slopes = {}
+    for repeat in sorted({s.repeat for s in squeezes}):
         mine = [i for i, s in enumerate(squeezes) if s.repeat == repeat]
         if len(mine) >= 2 and np.ptp(force[mine]) > 0:
-            per_repeat.append(-1.0 / _line(force[mine], width[mine])[0])
+            repeat_slopes[repeat] = _line(force[mine], width[mine])[0]
+    per_repeat = tuple(-1.0 / s if s else math.inf for s in repeat_slopes.values())
     stiffness = -1.0 / slope if slope else math.inf
-    result = StiffnessFit(stiffness, se / slope**2 if slope else math.inf, intercept, rms, tuple(per_repeat),
-                          force.size)
+    result = StiffnessFit(stiffness, se / slope**2 if slope else math.inf, intercept, rms, per_repeat, force.size)
     if not slope < 0:
         return dataclasses.replace(result, reason=(
             f"the width does not fall as the force rises (slope {slope * 1e6:+.3g} um/N): is the reference between "
             "the fingers, and rigid?"))
+    # A repeat whose widths stay put (the hand stalled) or rise cannot be the same fingers
+    # squeezing the same reference: pooled with the others it would only bias k.
+    not_falling = {repeat + 1: s for repeat, s in repeat_slopes.items() if not s < 0}
+    if not_falling:
+        slopes = ", ".join(f"{s * 1e6:+.3g} um/N in repeat {r}" for r, s in not_falling.items())
+        return dataclasses.replace(result, reason=(
+            f"the width does not fall as the force rises ({slopes}): did the fingers stall or the reference "
+            "slip in that repeat?"))
     if object_width_m is not None and abs(intercept - object_width_m) > MAX_CONTACT_MISMATCH_M:
         return dataclasses.replace(result, reason=(
             f"the fingers touch at {intercept * 1e3:.1f} mm, not near the {object_width_m * 1e3:.1f} mm reference: "
