@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -12,6 +13,7 @@ import pytest
 from estimator.errors import CalibrationError, PerceptionError
 from estimator.perception import (
     Calibration,
+    calibration_fit,
     detect_press_circle,
     fit_calibration,
     load_calibration,
@@ -19,6 +21,7 @@ from estimator.perception import (
     split_presses,
     warp_points,
 )
+from estimator.perception.press_circles import press_rings
 from teleop.settings import SensorSettings
 
 PITCH = 0.0295e-3
@@ -232,6 +235,9 @@ def few(gelsight_presses):
     (lambda a: {**a, "flat_weight": float("inf")}, "flat_weight"),
     (lambda a: {**a, "smoothing_px": -0.5}, "smoothing_px"),
     (lambda a: {**a, "centers_px": np.array([[-500.0, -500.0], [-500.0, -500.0]])}, "no press circle"),
+    (lambda a: {**a, "outside_fraction": 0.9}, "outside_fraction = 0.9: expected more than inside_fraction"),
+    (lambda a: {**a, "bins": 129}, "bins: expected an integer in"),
+    (lambda a: {**a, "tiles": (481, 1)}, "tiles: expected"),  # the GelSight frames are 480 rows
 ])
 def test_bad_inputs_are_refused_by_name(few, change, match):
     reference, presses, centers, radii = few
@@ -251,6 +257,77 @@ def test_a_press_centred_off_the_image_keeps_its_circle_through_refinement(few):
                                   pixel_pitch_m=PITCH, refine_passes=1)
     assert calibration.provenance["press_centers_px"][1] == pytest.approx(centers[1], abs=0.01)
     assert calibration.provenance["circles_refined"][1] is False
+
+
+def _fit(few, **options):
+    """A quick fit (no refinement, 16 bins) of the two presses, with ``options`` changed."""
+    reference, presses, centers, radii = few
+    return fit_calibration(reference, list(presses), np.asarray(centers, float), np.asarray(radii, float),
+                           ball_radius_m=BALL, pixel_pitch_m=PITCH, **{"refine_passes": 0, "bins": 16, **options})
+
+
+def test_a_huge_tile_prior_makes_every_tile_the_all_image_table(few):
+    lut = _fit(few, tile_prior_count=1e9).lut
+    assert np.abs(lut - lut[:1, :1]).max() < 1e-4  # every tile equals the first
+    assert np.abs(lut).max() > 0.05  # and the table is not empty
+
+
+def test_the_flat_ring_and_the_inside_fraction_decide_what_is_labelled(few):
+    base = _fit(few, outside_fraction=1.0).lut
+    assert not np.array_equal(base, _fit(few, outside_fraction=1.0, flat_fraction=0.5).lut)  # flat ring measured
+    assert not np.array_equal(base, _fit(few, outside_fraction=1.0, inside_fraction=0.5).lut)
+
+
+def test_the_flat_weight_sets_how_far_untouched_gel_reads_flat(few):
+    # Flat labels together count flat_weight x the on-ball ones: with a tiny weight the bins that
+    # untouched-gel noise lands in are taken over by ball slopes; with the default they read ~0.
+    reference, presses, centers, radii = few
+    rows, cols = np.indices(reference.shape[:2])
+    far = (cols - centers[0][0]) ** 2 + (rows - centers[0][1]) ** 2 > (3 * radii[0]) ** 2
+
+    def untouched_slope(calibration):
+        gx, gy = calibration.gradients(presses[0], reference)
+        return float(np.hypot(gx, gy)[far].mean())
+
+    default = untouched_slope(_fit(few, bins=48))
+    assert default < 2e-3
+    assert untouched_slope(_fit(few, bins=48, flat_weight=0.01)) > 5 * default
+
+
+def test_provenance_keeps_the_remeasured_circles(few):
+    reference, presses, _, _ = few
+    record = _fit(few, refine_passes=1).provenance
+    assert any(record["circles_refined"])
+    for i, refined in enumerate(record["circles_refined"]):
+        if refined:
+            rings = press_rings(presses[i], reference, np.array(record["press_centers_px"][i]),
+                                max_radius_px=0.98 * BALL / PITCH, flat_fraction=0.1)
+            assert record["press_radii_px"][i] == pytest.approx(rings.contact_px, abs=0.01)
+            assert record["press_flat_radii_px"][i] == pytest.approx(rings.flat_px, abs=0.01)
+
+
+def test_a_sphere_fit_further_than_the_radius_from_the_given_centre_is_discarded(few, monkeypatch):
+    _, _, centers, radii = few
+    far = SimpleNamespace(center_px=(float(centers[1][0] + 1.5 * radii[1]), float(centers[1][1])))
+    near = SimpleNamespace(center_px=(float(centers[0][0] + 2.0), float(centers[0][1])))
+    fits = iter([near, far])
+    monkeypatch.setattr(calibration_fit, "fit_sphere", lambda depth, **kw: next(fits))
+    record = _fit(few, refine_passes=1).provenance
+    assert record["circles_refined"] == [True, False]
+    assert record["press_centers_px"][1] == pytest.approx(list(centers[1]))
+
+
+def test_rings_are_measured_inside_the_balls_radius(few, monkeypatch):
+    searched = []
+    real = calibration_fit.press_rings
+
+    def spy(*args, max_radius_px, **kw):
+        searched.append(max_radius_px)
+        return real(*args, max_radius_px=max_radius_px, **kw)
+
+    monkeypatch.setattr(calibration_fit, "press_rings", spy)
+    _fit(few, refine_passes=1)
+    assert searched and max(searched) < BALL / PITCH
 
 
 @pytest.mark.slow

@@ -9,6 +9,8 @@ tap's force at 80 Hz, the stream serves each frame as the gel looks ``LATENCY_S`
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import json
 import os
 import threading
@@ -21,9 +23,10 @@ import pytest
 
 from teleop.cli import main
 from teleop.devices.hx711_bridge import FakeHx711
+from teleop.errors import DeviceTimeoutError, TeleopError
 from teleop.rig import camera_calibration
-from teleop.rig.camera_latency import image_change, measure_latency
-from teleop.rig.gel_corners import draw_corners, find_gel_corners
+from teleop.rig.camera_latency import LatencyFit, image_change, measure_latency
+from teleop.rig.gel_corners import CornerFit, draw_corners, find_gel_corners
 from teleop.settings import SensorSettings, SimulationSettings, default_settings_path, load_settings
 from teleop.sim.optics import OpticsRenderer
 from teleop.sim.presses import sphere_press_height
@@ -251,3 +254,135 @@ def test_a_duration_that_is_no_finite_time_is_refused_before_the_camera_is_read(
         main(["calibrate", "camera", "--settings", str(write_settings(tmp_path, "http://127.0.0.1:1/x.mjpg")),
               "--latency", "--duration-s", duration_s])
     assert exited.value.code == 2 and f"--duration-s: {duration_s!r}: expected a number > 0" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- the steps, with fake devices
+
+
+class FakeFrame:
+    def __init__(self, t_s, level):
+        self.t_s, self.level = t_s, level
+
+    def image(self):
+        return np.full((4, 6, 3), self.level, np.uint8)
+
+
+class ListCamera:
+    """Delivers ``frames`` in order, then times out."""
+
+    def __init__(self, frames):
+        self.frames = list(frames)
+
+    def read(self, timeout_s=None):
+        if not self.frames:
+            raise DeviceTimeoutError("no frame")
+        return self.frames.pop(0)
+
+
+def test_the_no_contact_frame_leaves_out_the_frames_while_exposure_settles():
+    camera = ListCamera([FakeFrame(0.0, 10)] * 5 + [FakeFrame(0.0, 200)] * 5)  # dark while exposure settles
+    frame = camera_calibration.no_contact_frame(camera)
+    assert frame.dtype == np.uint8 and (frame == 200).all()
+
+
+def test_a_tap_recording_drops_frames_stamped_before_it_began():
+    class Cell:
+        def read(self, timeout_s=None):
+            raise DeviceTimeoutError("nothing")
+
+    stale = [FakeFrame(-5.0, 0), FakeFrame(-4.0, 0)]  # queued before the recording
+    frames, force = camera_calibration.record_tap(ListCamera(stale), Cell(), duration_s=0.02)
+    assert frames == [] and len(force) == 0
+
+
+def test_an_overlay_png_that_cannot_be_written_is_an_error(tmp_path):
+    sensor = SensorSettings(finger="left", serial="test-wedge")
+    frame = np.zeros((sensor.raw_height_px, sensor.raw_width_px, 3), np.uint8)
+    with pytest.raises(TeleopError, match="cannot write the overlay PNG there"):
+        camera_calibration._corners(frame, sensor, tmp_path / "no such folder" / "corners.png")
+
+
+def test_refused_corners_write_nothing_and_no_tap_is_asked_for(tmp_path, monkeypatch, capsys):
+    path = tmp_path / "rig.toml"
+    path.write_text('[sensors.left]\nmodel = "wedge"\ncamera_backend = "opencv"\ncamera_source = "0"\n\n'
+                    '[load_cell]\nbackend = "serial"\nport = "/dev/ttyUSB9"\n')
+    before = path.read_bytes()
+    taps = []
+    monkeypatch.setattr(camera_calibration, "make_camera",
+                        lambda sensor: contextlib.nullcontext(argparse.Namespace(sensor=sensor)))
+    monkeypatch.setattr(camera_calibration, "no_contact_frame", lambda camera: None)
+    monkeypatch.setattr(camera_calibration, "_declared_size", lambda frame, sensor, path: frame)
+    monkeypatch.setattr(camera_calibration, "_corners", lambda frame, sensor, png: CornerFit(reason="no gel"))
+    monkeypatch.setattr(camera_calibration, "_latency", lambda *a: taps.append(a) or LatencyFit(latency_s=0.05))
+    args = argparse.Namespace(settings=str(path), finger="left", out_png=None, latency=True, duration_s=1.0, json=True)
+    assert camera_calibration.run(args) == 1
+    assert taps == [] and path.read_bytes() == before
+    assert "camera refused: corners: no gel" in capsys.readouterr().err
+
+
+def test_a_flat_sensor_without_latency_is_refused_before_the_camera_is_read(tmp_path, monkeypatch, capsys):
+    path = tmp_path / "rig.toml"
+    path.write_text('[sensors.left]\nmodel = "mini"\ncamera_backend = "opencv"\ncamera_source = "0"\n')
+    monkeypatch.setattr(camera_calibration, "make_camera",
+                        lambda sensor: (_ for _ in ()).throw(AssertionError("the camera was opened")))
+    assert main(["calibrate", "camera", "--settings", str(path), "--finger", "left"]) == 2
+    assert "is a flat sensor (model = 'mini'): it has no mirror corners" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- latency from recorded signals
+
+
+def _tap(t, at_s, height, width_s=0.03):
+    """A Gaussian bump of ``height`` at ``at_s``."""
+    return height * np.exp(-0.5 * ((t - at_s) / width_s) ** 2)
+
+
+def _signals(latency_s, *, duration_s=4.0, rate_hz=1000.0, force_noise=0.0, change_noise=0.0, tap_n=2.0):
+    """(frame times, image change, force times, force) of one tap at 1.5 s seen ``latency_s`` late."""
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, duration_s, 1.0 / rate_hz)
+    force = _tap(t, 1.5, tap_n) + rng.normal(0.0, force_noise, t.size) if force_noise else _tap(t, 1.5, tap_n)
+    change = 1.0 + _tap(t, 1.5 + latency_s, 3.0) + (rng.normal(0.0, change_noise, t.size) if change_noise else 0.0)
+    return t, change, t, force
+
+
+def test_a_latency_between_grid_steps_is_interpolated_to_a_fraction_of_a_step():
+    fit = measure_latency(*_signals(0.0337))
+    assert fit and fit.latency_s == pytest.approx(0.0337, abs=2e-4)
+
+
+def test_a_lag_beyond_the_search_window_is_refused_not_clipped():
+    fit = measure_latency(*_signals(0.35))
+    assert not fit and "at the search limit" in fit.reason and np.isnan(fit.latency_s)
+
+
+def test_recordings_overlapping_less_than_twice_the_search_window_are_refused():
+    fit = measure_latency(*_signals(0.02, duration_s=0.45))
+    assert not fit and "overlap for 0.45 s" in fit.reason
+
+
+def test_three_samples_are_too_little():
+    t = np.array([0.0, 2.0, 4.0])
+    fit = measure_latency(t, [1.0, 9.0, 1.0], *_signals(0.0)[2:])
+    assert not fit and fit.reason.startswith("too little recorded: 3 frames")
+
+
+def test_a_force_peak_within_its_noise_is_no_tap():
+    # 0.3 N tap over the 0.2 N minimum, but the force scatters 0.1 N: 8 noise deviations are needed.
+    fit = measure_latency(*_signals(0.03, tap_n=0.3, force_noise=0.1))
+    assert not fit and fit.reason.startswith("no tap in the force")
+
+
+def test_an_image_change_within_its_noise_is_no_tap():
+    t, change, tf, force = _signals(0.03)
+    rng = np.random.default_rng(4)
+    change = 1.0 + _tap(t, 1.53, 0.8) + rng.normal(0.0, 0.2, t.size)  # 0.8 levels over 0.5, noise 0.2
+    fit = measure_latency(t, change, tf, force)
+    assert not fit and fit.reason.startswith("no tap in the image")
+
+
+def test_an_image_change_with_events_the_force_lacks_is_refused_as_not_following():
+    t, change, tf, force = _signals(0.03)
+    change = change + _tap(t, 2.6, 3.0) + _tap(t, 3.4, 3.0)  # two camera-only bumps: not the tap
+    fit = measure_latency(t, change, tf, force)
+    assert not fit and "does not follow the force" in fit.reason and fit.correlation < 0.7

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import pytest
 
-from teleop.rig.gel_corners import find_gel_corners
+from teleop.rig.gel_corners import CornerFit, find_gel_corners
 
 WARPED_SIZE = (400, 300)
 
@@ -83,3 +83,33 @@ def test_a_side_bowed_like_a_lens_is_followed_to_its_corners():
     # bowed side would put the top corners about 10 px too high.
     np.testing.assert_allclose(fit.outline_px, corners + [[-0.5, -0.5], [0.5, -0.5], [-0.5, 0.5], [0.5, 0.5]],
                                atol=1.0)
+
+
+def _lit_rectangle() -> np.ndarray:
+    """A gel lit evenly inside (80, 100) .. (560, 400), its top side drawn through many vertices."""
+    frame = np.full((480, 640, 3), 12, np.uint8)
+    x = np.arange(80.0, 561.0, 4.0)
+    top = np.column_stack([x, np.full_like(x, 100.0)])
+    cv2.fillPoly(frame, [np.vstack([top, [[560.0, 400.0], [80.0, 400.0]]]).round().astype(np.int32)], (150, 140, 130))
+    return frame
+
+
+def test_edge_points_scattering_more_than_the_limit_are_refused():
+    clean = find_gel_corners(_lit_rectangle(), warped_size_px=WARPED_SIZE)
+    assert clean and clean.edge_rms_px < 1.0
+    fit = find_gel_corners(_lit_rectangle(), warped_size_px=WARPED_SIZE, max_edge_rms_px=clean.edge_rms_px / 2)
+    assert not fit and fit.reason.startswith("the gel's sides are not straight: edge points scatter")
+
+
+def test_the_corners_written_to_the_settings_keep_a_tenth_of_a_pixel():
+    fit = CornerFit(corners_px=np.array([[80.26, 100.04], [559.76, 99.96], [80.5, 399.44], [560.0, 400.56]]))
+    assert fit.as_settings() == [[80.3, 100.0], [559.8, 100.0], [80.5, 399.4], [560.0, 400.6]]
+
+
+def test_the_corners_are_the_outline_shifted_by_half_a_warped_pixel():
+    # The outline spans warped -0.5 .. W - 0.5; warp_corners_px are warped (0, 0) .. (W, H).
+    fit = find_gel_corners(_lit_rectangle(), warped_size_px=WARPED_SIZE)
+    outline, corners = fit.outline_px, fit.corners_px
+    half = 0.5 * np.array([(outline[1, 0] - outline[0, 0]) / WARPED_SIZE[0], (outline[2, 1] - outline[0, 1]) / WARPED_SIZE[1]])
+    np.testing.assert_allclose(corners[0], outline[0] + half, atol=0.02)  # inward at the top-left
+    np.testing.assert_allclose(corners[3], outline[3] + half, atol=0.02)  # outward at the bottom-right
