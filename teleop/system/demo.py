@@ -238,15 +238,18 @@ def checked_model(option: str | None) -> str | None:
     Raises
     ------
     ModelError
-        The folder does not exist or lacks a model file (named), before any process starts.
+        The folder does not exist, lacks a model file (named) or holds metadata the estimator would
+        refuse, before any process starts.
     """
-    from estimator.inference.infer import model_id
+    from estimator.inference.infer import ModelMetadata, model_id, read_metadata
 
     if option is None or option == "none":
         return option
     path = Path(option).absolute()
     path = path.parent if path.suffix == ".onnx" else path
     model_id(path)
+    meta_path, data = read_metadata(path)
+    ModelMetadata.from_json(data, str(meta_path))
     return str(path)
 
 

@@ -160,6 +160,12 @@ def test_demo_model_option_reaches_the_estimator_and_a_folder_that_is_not_a_mode
     err = capsys.readouterr().err
     assert code == 2 and "is not a model folder: it has no model.onnx" in err and "Traceback" not in err
     assert not (tmp_path / "never").exists()  # refused before anything started
+    (tmp_path / "half" / "model.onnx").write_bytes(b"not onnx")  # now the metadata is what is wrong
+    code = teleop.cli.main(["demo", "--scene", "quick", "--model", str(tmp_path / "half"), "--out",
+                            str(tmp_path / "never")])
+    err = capsys.readouterr().err
+    assert code == 2 and f"{tmp_path / 'half' / 'metadata.json'}: not a compliance-teleop.model metadata" in err
+    assert not (tmp_path / "never").exists()
 
 
 def test_outcomes_show_what_the_display_rendered():
