@@ -68,6 +68,9 @@ def test_missing_keys_and_tables_are_created(tmp_path):
     ({"gripper.no_such_key": 1.0}, "unknown key 'no_such_key'"),
     ({"sensors.left.warp_corners_px": [[1.0, 2.0]]}, "warp_corners_px"),
     ({"counts_per_n": 1.0}, "dotted path"),
+    ({"load_cell..counts_per_n": 1.0}, "dotted path"),  # a part left empty, or blank
+    ({"load_cell. .counts_per_n": 1.0}, "dotted path"),
+    ({".load_cell.counts_per_n": 1.0}, "dotted path"),
     ({"gripper.max_width_m.inner": 1.0}, "is a value, not a table"),
     # The packages' tables are checked by their owners too, as `teleop settings` checks them.
     ({"estimator.n_frames": 0}, r"\[estimator\].*n_frames"),
@@ -123,6 +126,23 @@ def test_a_byte_order_mark_is_read_and_kept(settings_file):
     assert load_settings(settings_file).gripper.finger_stiffness_n_per_m == 123456.0
 
 
+def test_a_file_that_is_not_utf8_is_a_settings_error_not_a_traceback(tmp_path):
+    path = tmp_path / "rig.toml"
+    data = default_settings_path().read_bytes() + "# 20 \xb0C lab\n".encode("latin-1")  # an editor's Latin-1
+    path.write_bytes(data)
+    with pytest.raises(SettingsError, match=r"cannot read settings file .*rig.toml: .*utf-8"):
+        update_settings_file(path, {"load_cell.counts_per_n": 41873.2})
+    assert path.read_bytes() == data
+
+
+def test_the_files_mode_is_kept_when_it_is_rewritten(settings_file):
+    # the new version is a new file (mkstemp makes it 0600): a shared 0664 rig file stays 0664
+    settings_file.chmod(0o664)
+    update_settings_file(settings_file, {"load_cell.counts_per_n": 41873.2})
+    assert stat.S_IMODE(settings_file.stat().st_mode) == 0o664
+    assert load_settings(settings_file).load_cell.counts_per_n == 41873.2
+
+
 def test_a_read_only_file_is_refused_and_left_untouched(settings_file):
     # It was rewritten (os.replace does not ask the file's mode); refused by its mode bits, so for root too.
     settings_file.chmod(0o444)
@@ -147,6 +167,18 @@ def test_a_temporary_file_that_cannot_be_made_is_a_settings_error_with_the_value
     assert settings_file.read_bytes() == before
 
 
+def test_a_failed_replace_leaves_no_temporary_file_behind(settings_file, monkeypatch):
+    def refuse(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", refuse)
+    before = settings_file.read_bytes()
+    with pytest.raises(SettingsError, match="No space left on device; values not written"):
+        update_settings_file(settings_file, {"load_cell.counts_per_n": 41873.2})
+    assert settings_file.read_bytes() == before
+    assert [p.name for p in settings_file.parent.iterdir()] == ["rig.toml"]  # no .rig.toml.*.tmp
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into any folder: nothing to refuse")
 def test_a_folder_that_cannot_be_written_is_refused(settings_file):
     settings_file.parent.chmod(0o555)
@@ -156,6 +188,24 @@ def test_a_folder_that_cannot_be_written_is_refused(settings_file):
             update_settings_file(settings_file, {"load_cell.tare_counts": 5})
     finally:
         settings_file.parent.chmod(0o755)
+    assert settings_file.read_bytes() == before
+
+
+def test_a_folder_the_user_may_not_write_is_refused_with_the_values(settings_file, monkeypatch):
+    # as above, for root too: the folder's permission as os.access answers it for a user without it
+    import teleop.settings_edit as settings_edit
+
+    folder = settings_file.resolve().parent
+    access = os.access
+
+    def refused_for_the_folder(path, mode, *args, **kwargs):
+        return os.fspath(path) != os.fspath(folder) and access(path, mode, *args, **kwargs)
+
+    monkeypatch.setattr(settings_edit.os, "access", refused_for_the_folder)
+    before = settings_file.read_bytes()
+    with pytest.raises(SettingsError, match=r"permission denied to its folder .*; values not written: "
+                                            r"load_cell.counts_per_n = 41873.2$"):
+        update_settings_file(settings_file, {"load_cell.counts_per_n": 41873.2})
     assert settings_file.read_bytes() == before
 
 

@@ -13,10 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import teleop.soak as soak
 from teleop.cli import main
-from teleop.errors import SettingsError
+from teleop.errors import BusTimeoutError, SettingsError
 from teleop.settings import load_settings
-from teleop.soak import GRASP_RATES_HZ, LatencyHistogram, run_soak
+from teleop.soak import GRASP_RATES_HZ, LatencyHistogram, check_log_path, run_soak
 
 
 @pytest.mark.slow
@@ -49,6 +50,35 @@ def test_latency_histogram_quantiles_are_within_its_resolution():
     assert one.quantile_ms(0.5) == one.quantile_ms(0.99) == one.max_ms == 0.437
 
 
+def test_a_latency_quantile_is_at_most_one_resolution_above_the_reading_it_reaches():
+    # the upper edge of the reading's own bin, not of the next one
+    values = np.random.default_rng(1).lognormal(1.0, 0.8, 4000)
+    histogram = LatencyHistogram(resolution=0.005)
+    for value in values:
+        histogram.add(float(value))
+    ordered = np.sort(values)
+    for q in (0.1, 0.5, 0.9, 0.99):
+        reached = ordered[int(np.ceil(q * len(values))) - 1]  # the reading the q-th fraction of readings reach
+        assert reached <= histogram.quantile_ms(q) <= reached * 1.005 * (1 + 1e-12), q
+
+
+@pytest.mark.slow  # the recorder process takes seconds to start
+def test_messages_whose_send_timed_out_count_as_lost(monkeypatch):
+    send = soak._send
+    refused = []
+
+    def send_timing_out_three_widths(publisher, topic, n, t_s, frames):
+        if topic == "width" and len(refused) < 3:
+            refused.append(n)
+            raise BusTimeoutError("simulated send timeout")
+        send(publisher, topic, n, t_s, frames)
+
+    monkeypatch.setattr(soak, "_send", send_timing_out_three_widths)
+    result = run_soak(load_settings(), duration_s=0.5, warmup_s=0.0)
+    assert result.send_timeouts == 3 and result.received == result.sent  # the rest delivered
+    assert result.lost_grasp_msgs == 3
+
+
 @pytest.mark.parametrize(("duration_s", "warmup_s", "match"), [
     (0.0, None, "duration"), (float("nan"), None, "duration"), (6e-8, None, "at least 0.1 s"), (5.0, 5.0, "warm-up"),
     (5.0, -1.0, "warm-up")])
@@ -71,6 +101,14 @@ def test_a_log_that_cannot_be_created_is_refused_in_one_line_before_the_consumer
     assert err == f"teleop soak: error: --log {log}{'' if where == 'file' else ':'} {expected.format(tmp=tmp_path)}\n"
     with pytest.raises(SettingsError, match="does not exist"):  # the function checks it too
         run_soak(load_settings(), duration_s=1.0, log_path=tmp_path / "missing" / "x.mcap")
+
+
+def test_a_dangling_link_at_the_log_path_is_refused_as_existing(tmp_path):
+    # recording through it would create a file wherever it points
+    link = tmp_path / "soak.mcap"
+    link.symlink_to(tmp_path / "elsewhere" / "target.mcap")
+    with pytest.raises(SettingsError, match="exists: name a new file"):
+        check_log_path(link)
 
 
 def _spawned_children(pid: int) -> list[int]:

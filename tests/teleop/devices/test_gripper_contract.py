@@ -278,6 +278,18 @@ def test_sim_grasp_replays_the_recorded_widths(make_record):
     assert np.all(samples.value[n:] >= record.width_m.value[-1])  # then opening kinematically
 
 
+def test_a_replayed_grasp_stopped_before_the_fingers_settle_is_not_held(make_record):
+    # the grasp did not finish, whatever width the fingers read when it was stopped
+    playback = GraspPlayback(make_record(duration_s=5.0))
+    with SimulatedGripper(GripperSettings(width_read_hz=5.0), playback=playback) as gripper:
+        future = gripper.grasp_async(0.04, epsilon_inner_m=0.05, epsilon_outer_m=0.05)  # any width is in range
+        while not future.done():  # a stop before the grasp starts waiting is cleared with it: stop until one lands
+            gripper.stop()
+            time.sleep(0.01)
+        assert future.result() is False and not gripper.is_grasped
+        assert playback.started and not playback.done()  # stopped during the replay
+
+
 def test_a_grasp_remembers_where_it_stopped_and_queues_that_width_in_order(gripper):
     with gripper:
         assert gripper.move(0.04, speed_m_s=SPEED)

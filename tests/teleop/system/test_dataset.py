@@ -94,6 +94,19 @@ def test_read_mjpg_packets_keeps_the_jpeg_frames(tmp_path):
         assert np.mean(np.abs(decoded.astype(float) - frame)) < 3.0
 
 
+def test_a_video_whose_second_frame_does_not_decode_is_refused_naming_it(tmp_path):
+    path = tmp_path / "v.avi"
+    write_mjpg(path, synthetic_frames(3, markers=False))
+    data = bytearray(path.read_bytes())
+    first = data.find(b"\xff\xd8\xff")
+    second = data.find(b"\xff\xd8\xff", first + 1)
+    assert 0 <= first < second
+    data[second:second + 3] = b"\x00\x00\x00"  # frame 1 is no longer a JPEG: frame 0 alone is decoded in full
+    path.write_bytes(bytes(data))
+    with pytest.raises(DatasetError, match="frame 1 is not a decodable JPEG"):
+        read_mjpg_packets(path)
+
+
 def test_raw_grasp_becomes_a_record(tmp_path, object_table):
     src = tmp_path / "raw"
     folder = make_raw_grasp(src, "apple", 2, n=5)
@@ -452,3 +465,12 @@ def test_raw_grasp_refuses_frame_times_that_are_not_finite_and_increasing(tmp_pa
     folder = make_raw_grasp(tmp_path / "raw", "apple", 0, n=3)
     with pytest.raises(DatasetError, match="not finite and increasing"):
         import_raw_grasp(folder, sensors=load_settings().sensors, labels={}, fps=1e-320)
+
+
+def test_a_raw_grasp_with_more_frames_than_forces_is_refused(tmp_path):
+    # 4 frames per video, 3 forces and 3 widths: the samples cannot be put on the frames' times
+    folder = make_raw_grasp(tmp_path / "raw", "apple", 0, n=4)
+    write_pickle(folder / "apple_forces.pkl", np.linspace(0.5, 12.0, 3))
+    write_pickle(folder / "apple_widths.pkl", np.linspace(0.050, 0.046, 3))
+    with pytest.raises(DatasetError, match="4 frames but 3 forces in apple_forces.pkl"):
+        import_raw_grasp(folder, sensors=load_settings().sensors)

@@ -15,7 +15,12 @@ import pytest
 from support.pickles import RunsCode, write_pickle
 
 from teleop.errors import DatasetError, UnsafePickleError
-from teleop.system.dataset_files import load_pickled_array, safe_load_pickle
+from teleop.system.dataset_files import (
+    FORCE_TOLERANCE_N,
+    check_forces,
+    load_pickled_array,
+    safe_load_pickle,
+)
 
 
 @pytest.mark.parametrize("protocol", range(pickle.HIGHEST_PROTOCOL + 1))
@@ -210,3 +215,13 @@ def test_shared_and_nested_arrays_within_the_budgets_still_load(tmp_path):
     path = tmp_path / "forces.pkl"
     write_pickle(path, [array] * 3)
     assert load_pickled_array(path, shape=(3, 6)).sum() == 3 * array.sum()
+
+
+def test_a_force_a_little_past_the_noise_tolerance_is_refused():
+    # -2 N is a sign or tare error, not load-cell noise
+    with pytest.raises(DatasetError, match=r"got 1 below, the lowest -2 N"):
+        check_forces("forces.pkl", np.array([0.3, -2.0, 5.0, 11.0]))
+
+
+def test_forces_within_the_noise_tolerance_are_kept():
+    check_forces("forces.pkl", np.array([-FORCE_TOLERANCE_N, -0.4, 0.0, 12.0]))  # no error

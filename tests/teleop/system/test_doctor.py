@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import os
 import re
@@ -13,18 +14,30 @@ import threading
 import time
 import tty
 
+import numpy as np
 import pytest
 from support.rig_settings import rig_settings
 
 from teleop.bus.security import init_keys
 from teleop.cli import main
-from teleop.errors import ComplianceTeleopError
+from teleop.devices.playback import GraspPlayback
+from teleop.errors import ComplianceTeleopError, TeleopError
 from teleop.operator import FOLLOW_RATE_HZ
-from teleop.settings import BusSettings, Settings, default_settings_path, load_settings
+from teleop.record import FrameStream, GraspRecord, Provenance, Samples
+from teleop.settings import (
+    BusSettings,
+    SensorSettings,
+    Settings,
+    default_settings_path,
+    load_settings,
+)
 from teleop.system.doctor import (
     Check,
+    _camera_probe,
+    _display_probe,
     _judge,  # the verdict on readings, without reading a device
     _Probe,
+    _run_probe,
     check_calibrations,
     check_devices,
     check_duration,
@@ -112,12 +125,13 @@ def test_the_operators_input_device_is_opened_and_read(tmp_path, capsys, name):
         assert device["problem"].endswith("name another in `[operator] input` (or pass `haptics operate --input`)")
 
 
-def _judged(lags_s: list[float]) -> Check:
-    """A device read at 50 Hz on this host's clock, whose readings reached this process ``lags_s`` late."""
+def _judged(lags_s: list[float], *, read_hz: float = 50.0, stamps: list[float] | None = None) -> Check:
+    """A device configured at 50 Hz, read at ``read_hz`` on this host's clock (or stamped ``stamps``),
+    whose readings reached this process ``lags_s`` late."""
     now = time.monotonic()
-    stamps = [now + 0.02 * i for i in range(len(lags_s))]
+    stamps = stamps or [now + i / read_hz for i in range(len(lags_s))]
     probe = _Probe("load cell", object(), list, 50.0, "the cell", "check it")
-    return _judge(probe, stamps, lags_s, 0.02 * len(lags_s))
+    return _judge(probe, stamps, lags_s, len(lags_s) / read_hz)
 
 
 def test_a_stalled_read_is_not_taken_for_a_device_on_another_clock():
@@ -130,6 +144,59 @@ def test_a_device_stamping_on_another_clock_is_named(offset_s):
     check = _judged([offset_s + 0.001 * (i % 3) for i in range(40)])
     assert not check.ok and not check.detail["host_clock"]
     assert f"timestamps are {offset_s:+.3g} s from this host's monotonic clock" in check.problem
+
+
+def test_a_device_reading_under_80_percent_of_its_configured_rate_is_not_ready():
+    check = _judged([0.001] * 31, read_hz=30.0)
+    assert not check.ok and check.rate_hz == pytest.approx(30.0)
+    assert "reads at 30 Hz, configured 50 Hz" in check.problem
+    assert _judged([0.001] * 46, read_hz=45.0).ok  # 90 %: within the tolerance
+
+
+def test_timestamps_going_backwards_are_not_ready():
+    # at rate and on this host's clock, but one reading restamped earlier than the one before it
+    now = time.monotonic()
+    stamps = [now + 0.02 * i for i in range(51)]
+    stamps[20], stamps[21] = stamps[21], stamps[20]
+    check = _judged([0.001] * 51, stamps=stamps)
+    assert not check.ok and not check.detail["monotonic"]
+    assert "timestamps go backwards" in check.problem
+
+
+def test_a_display_reporting_a_fault_is_not_ready():
+    settings = load_settings(default_settings_path())
+    probe = _display_probe(settings, "check [display] backend")
+    probe.device.firmware.inject_fault("over_temperature")  # it answers, with a fault bit set
+    check = _run_probe(probe, 0.3)
+    assert not check.ok
+    assert "reports faults ['over_temperature']" in check.problem and "power-cycle it" in check.problem
+
+
+def _playback_of_frames(height_px: int, width_px: int) -> GraspPlayback:
+    """A second of blank ``width_px`` x ``height_px`` frames per finger at 30 Hz, replayed from now
+    (a simulated grasp takes seconds to make)."""
+    t = np.arange(0.0, 1.0, 1 / 30)
+    frames = np.zeros((t.size, height_px, width_px, 3), np.uint8)
+    fingers = ("left", "right")
+    record = GraspRecord(
+        sensors=tuple(SensorSettings(finger=f) for f in fingers),
+        frames=tuple(FrameStream.from_frames(f, t, frames, encoding="jpeg", jpeg_quality=80) for f in fingers),
+        force_n=Samples(t, np.zeros(t.size)),
+        width_m=Samples(t, np.full(t.size, 0.05)),
+        provenance=Provenance(source="simulated", seed=0, model="synthetic-test"),
+    )
+    playback = GraspPlayback(record)
+    playback.start()
+    return playback
+
+
+def test_a_camera_whose_frames_are_not_the_configured_size_is_not_ready():
+    settings = load_settings(default_settings_path())
+    sensor = settings.sensor("left")
+    assert (sensor.raw_width_px, sensor.raw_height_px) == (640, 480)
+    check = _run_probe(_camera_probe(settings, sensor, _playback_of_frames(48, 64)), 0.3)
+    assert not check.ok  # at rate, but not the size [sensors.left] says
+    assert "frames are 64x48 px, the settings say 640x480: set raw_width_px / raw_height_px" in check.problem
 
 
 @pytest.mark.slow
@@ -213,6 +280,36 @@ def test_every_endpoint_off_loopback_needs_keys_and_any_free_port_is_not_probed(
     assert checks["control"].ok and not checks["control"].detail["probed"]
 
 
+REMOTE = "tcp://192.0.2.1:5550"  # TEST-NET-1: never an address of this host, so binding it fails (not "in use")
+
+
+def _remote_check(monkeypatch, outcome: BaseException | None) -> Check:
+    """The check of ``REMOTE``, whose host answers a connection (None) or raises ``outcome``."""
+    def connect(address, timeout=None):
+        assert address == ("192.0.2.1", 5550)
+        if outcome is not None:
+            raise outcome
+        return socket.socket()
+
+    monkeypatch.setattr(socket, "create_connection", connect)
+    return {c.name: c for c in check_endpoints(Settings(bus=BusSettings(robot_pub=REMOTE)))}["robot_pub"]
+
+
+@pytest.mark.parametrize("outcome", [None, ConnectionRefusedError(errno.ECONNREFUSED, "Connection refused")])
+def test_an_endpoint_on_another_host_that_answers_or_refuses_is_ready(monkeypatch, outcome):
+    # a refusal counts: nothing need listen there before the session starts
+    check = _remote_check(monkeypatch, outcome)
+    assert check.ok and check.problem is None
+    assert check.detail["here"] is False and check.detail["probed"] is True
+
+
+def test_an_endpoint_on_another_host_that_does_not_answer_is_not_ready(monkeypatch):
+    check = _remote_check(monkeypatch, TimeoutError(errno.ETIMEDOUT, "timed out"))
+    assert not check.ok
+    assert check.problem == ("192.0.2.1:5550 does not answer (timed out): check the network, that host, "
+                             "and `bus.robot_pub`")
+
+
 def _keys_line(keys_dir) -> Check:
     checks = {c.name: c for c in check_endpoints(Settings(bus=BusSettings(keys_dir=str(keys_dir))))}
     return checks["bus keys"]
@@ -294,6 +391,13 @@ def test_the_shortest_read_said_is_one_that_is_accepted(tmp_path):
     check_duration(load_settings(path), said)  # no error
 
 
+@pytest.mark.parametrize("duration", [float("nan"), 0.05])
+def test_the_function_refuses_a_read_time_that_is_not_a_number_or_too_short(duration):
+    # scripts call check_devices() directly: a NaN is refused as the command line refuses it, not read for no time
+    with pytest.raises(TeleopError, match="too short to judge the devices' rates"):
+        check_duration(load_settings(default_settings_path()), duration)
+
+
 @pytest.mark.parametrize("duration", ["0", "-1", "nan", "inf"])
 def test_a_read_time_that_is_not_a_positive_number_is_refused(capsys, duration):
     with pytest.raises(SystemExit) as info:
@@ -324,12 +428,23 @@ def test_a_missing_calibration_is_a_problem_for_the_estimators_finger(tmp_path, 
     assert args.capture and args.settings == str(path) and args.finger == "left"
     assert args.out == str(tmp_path / "calibration" / "absent.npz")  # the file the settings name
     assert args.presses and args.ball_radius_mm > 0  # a folder to capture into; captured presses state no ball
-    assert checks["calibration right"].ok  # not the estimator's finger: nothing needs it
+    assert checks["calibration right"].ok and checks["calibration right"].problem is None  # nothing needs it
 
 
 def test_no_calibration_at_all_suggests_one_beside_the_settings_and_where_to_name_it(tmp_path, monkeypatch):
     path = rig_settings(tmp_path, {"sensors.left.calibration": ""})
-    problem = {c.name: c for c in check_calibrations(load_settings(path), path)}["calibration left"].problem
-    args = _calibrate_args(problem, monkeypatch)
+    check = {c.name: c for c in check_calibrations(load_settings(path), path)}["calibration left"]
+    assert not check.ok and check.problem.startswith("none configured: ")  # the estimator's finger
+    args = _calibrate_args(check.problem, monkeypatch)
     assert args.out == str(tmp_path / "calibration-left.npz")
-    assert problem.endswith('then set calibration = "calibration-left.npz" in [sensors.left]')
+    assert check.problem.endswith('then set calibration = "calibration-left.npz" in [sensors.left]')
+
+
+def test_a_model_folder_without_its_metadata_is_named(tmp_path):
+    model = tmp_path / "model"
+    model.mkdir()
+    (model / "model.onnx").write_bytes(b"not really")  # and no metadata.json
+    path = rig_settings(tmp_path, {"estimator.model_path": str(model)})
+    check = {c.name: c for c in check_calibrations(load_settings(path), path)}["model"]
+    assert not check.ok
+    assert check.problem == f"{model} lacks model.onnx or metadata.json: fix `estimator.model_path` or train one"

@@ -44,6 +44,18 @@ def test_latency_plot_names_each_bar_by_grasp_id_and_object_and_labels_the_x_axi
     plt.close(fig)
 
 
+def test_latency_plot_axis_reaches_three_times_the_median_of_slow_runs(monkeypatch, tmp_path):
+    # runs near 100 ms are drawn whole, not cut at twice the 15 ms aim
+    rows = [_row(f"bench-{i:03d}", "duck", latency_ms) for i, latency_ms in enumerate([90.0, 100.0, 110.0])]
+    monkeypatch.setattr(plt, "close", lambda *args, **kwargs: None)
+    plot({"per_grasp": rows, "p50_ms": 100.0, "p99_ms": 110.0}, tmp_path / "latency.png")
+    fig = plt.gcf()
+    try:
+        assert fig.axes[0].get_ylim()[1] == 300.0
+    finally:
+        plt.close(fig)
+
+
 def test_latency_summary_splits_decision_and_delivery():
     o1 = outcome("a", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 150.0, final_sent_s=10.14, t_last_loading_frame_s=10.0,
                  provisional_span_s=0.5, provisional=16)
@@ -56,6 +68,8 @@ def test_latency_summary_splits_decision_and_delivery():
     assert summary["compute_p50_ms"] == pytest.approx(20.0)
     assert summary["loading_end_to_report_p50_ms"] is None and summary["finals_by"] == {}
     assert latency_summary([], [])["p99_ms"] is None
+    # no grasp with two provisionals: the rate is unknown (printed "-"), not a stalled estimator's 0 Hz
+    assert latency_summary([o2], [])["provisional_hz"] is None
 
 
 def test_latency_summary_relates_marker_grasps_to_the_loading_end():
@@ -84,6 +98,7 @@ def test_latency_summary_keeps_each_grasp_and_names_the_slowest_with_where_the_t
     lost = outcome("foam", 5e3, None, None, None, provisional_span_s=0.5, provisional=11)
     summary = latency_summary([fast, slow, lost], [])
     assert [r["object"] for r in summary["per_grasp"]] == ["duck", "oak"]  # measured grasps, run order
+    assert (summary["finals_measured"], summary["grasps"]) == (2, 3)  # "2 of 3": the lost final counts as run
     row = summary["per_grasp"][1]
     assert row["decision_ms"] == pytest.approx(158.0) and row["final_compute_ms"] == pytest.approx(8.0)
     assert row["delivery_ms"] == pytest.approx(2.0) and row["final_by"] == "loading_end"
