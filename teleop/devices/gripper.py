@@ -103,7 +103,11 @@ class Gripper(Device):
     Backends implement ``_open``, ``_shutdown``, ``_move``, ``_grasp``, ``_follow``, ``_stop``,
     ``_read_width``, ``_max_width`` and ``_is_grasped``; they may override
     ``_poll_widths`` when their widths come with their own timestamps, and then
-    ``_readings_at_stop`` as well.
+    ``_readings_at_stop`` as well, and ``_begin_command`` to arm what :meth:`stop` interrupts
+    before a move or grasp starts.
+
+    A :meth:`stop` also cancels the moves and grasps given before it that have not started (an
+    async command still queued behind another): they return False without moving the fingers.
     """
 
     family = "gripper"
@@ -119,6 +123,7 @@ class Gripper(Device):
         self._executor: ThreadPoolExecutor | None = None
         self._max_width_m = 0.0  # read at connect: a connected hand's opening does not change
         self._link_error: str | None = None
+        self._stops = 0  # stop() calls so far: a command given before the latest one does not start
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -182,7 +187,7 @@ class Gripper(Device):
         Returns True when the width was reached, False when stopped or failed.
         """
         self._require_up()
-        return bool(self._move(*self._motion_args(width_m, speed_m_s)))
+        return self._started(self._stops, self._move, *self._motion_args(width_m, speed_m_s))
 
     def grasp(
         self,
@@ -199,13 +204,14 @@ class Gripper(Device):
         width_m + epsilon_outer_m]``. Speed and force default to the settings.
         """
         self._require_up()
-        return self._grasp_until_stop(self._grasp_args(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m))
+        return self._grasp_until_stop(self._grasp_args(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m),
+                                      self._stops)
 
     def move_async(self, width_m: float, *, speed_m_s: float | None = None) -> Future[bool]:
         """:meth:`move` in the command thread; bad arguments are refused here, at once."""
         self._require_up()
-        args = self._motion_args(width_m, speed_m_s)
-        return self._submit(lambda: bool(self._move(*args)))
+        args, issued = self._motion_args(width_m, speed_m_s), self._stops
+        return self._submit(lambda: self._started(issued, self._move, *args))
 
     def grasp_async(
         self,
@@ -219,7 +225,7 @@ class Gripper(Device):
         """:meth:`grasp` in the command thread; bad arguments are refused here, at once."""
         self._require_up()
         args = self._grasp_args(width_m, speed_m_s, force_n, epsilon_inner_m, epsilon_outer_m)
-        return self._submit(self._grasp_until_stop, args)
+        return self._submit(self._grasp_until_stop, args, self._stops)
 
     def follow(self, width_m: float, *, speed_m_s: float | None = None) -> None:
         """Set the fingers' target width ``width_m`` (m) and return at once.
@@ -232,8 +238,10 @@ class Gripper(Device):
         self._follow(*self._motion_args(width_m, FOLLOW_SPEED_M_S if speed_m_s is None else speed_m_s))
 
     def stop(self) -> bool:
-        """Stop a running move, grasp or follow and hold the current width."""
+        """Stop a running move, grasp or follow and hold the current width; a move or grasp given
+        before and not started yet does not start."""
         self._require_connected()
+        self._stops += 1
         return bool(self._stop())
 
     def read_width(self) -> tuple[float, float]:
@@ -278,11 +286,19 @@ class Gripper(Device):
         outer = _finite("epsilon_outer_m", epsilon_outer_m, 0.0, self.settings.max_width_m)
         return width, speed, force, inner, outer
 
-    def _grasp_until_stop(self, args: tuple[float, float, float, float, float]) -> bool:
-        """Run the grasp; when its motion ends, queue a width read and remember the stop
-        (none when that read fails: the grasp itself stands)."""
+    def _started(self, issued: int, motion: Callable[..., bool], *args: Any) -> bool:
+        """Run ``motion`` unless :meth:`stop` was called since it was given (``issued``: the stop count
+        then). Armed first, so that a stop at any moment after the check interrupts it."""
+        self._begin_command()
+        if self._stops != issued:
+            return False
+        return bool(motion(*args))
+
+    def _grasp_until_stop(self, args: tuple[float, float, float, float, float], issued: int) -> bool:
+        """Run the grasp (unless stopped since ``issued``); when its motion ends, queue a width read
+        and remember the stop (none when that read fails: the grasp itself stands)."""
         self._last_stop = None
-        held = bool(self._grasp(*args))
+        held = self._started(issued, self._grasp, *args)
         stopped_s = time.monotonic()
         try:
             with self._width_lock:
@@ -352,6 +368,9 @@ class Gripper(Device):
 
     def _open(self) -> None:
         raise NotImplementedError
+
+    def _begin_command(self) -> None:
+        """Before a move or grasp: arm the backend's interruption by :meth:`_stop` (default: none)."""
 
     def _shutdown(self) -> None:
         raise NotImplementedError

@@ -233,6 +233,9 @@ class SimulatedGripper(Gripper):
     def _shutdown(self) -> None:
         self._halt.set()
 
+    def _begin_command(self) -> None:
+        self._halt.clear()
+
     def _max_width(self) -> float:
         return self.settings.max_width_m
 
@@ -317,7 +320,6 @@ class SimulatedGripper(Gripper):
 
     def _wait_for_replay(self) -> bool:
         """Wait for a running replay to end; False if stopped or closed meanwhile."""
-        self._halt.clear()
         playback = self._playback
         if playback is None or not playback.started:
             return True
@@ -331,7 +333,6 @@ class SimulatedGripper(Gripper):
     def _grasp(self, width_m: float, speed_m_s: float, force_n: float, epsilon_inner_m: float, epsilon_outer_m: float) -> bool:
         playback = self._playback
         if self._live is not None:
-            self._halt.clear()
             if not _wait_until(self._drive(width_m, speed_m_s), time.monotonic, self._halt):
                 return False
             width = self._live.motor.width_at(time.monotonic())
@@ -340,7 +341,6 @@ class SimulatedGripper(Gripper):
         if playback is not None and not playback.done():
             if not playback.started:
                 playback.start()
-            self._halt.clear()
             held = _wait_until(playback.grasp_settled_s(), playback.clock, self._halt)
             width = self._read_width()
             self._grasped = held and width_m - epsilon_inner_m <= width <= width_m + epsilon_outer_m

@@ -200,6 +200,23 @@ def test_stop_ends_a_follow_within_one_step_and_a_move_works_after(gripper):
         assert gripper.read_width()[1] == pytest.approx(0.04, abs=2e-3)
 
 
+def test_a_stop_cancels_the_commands_given_before_it_that_have_not_started(gripper):
+    # A grasp queued behind a move, then a stop: the stop must not be spent on the move alone.
+    with gripper:
+        start = gripper.read_width()[1]
+        far = 0.005 if start > 0.04 else 0.075
+        gripper.move_async(far, speed_m_s=SPEED)
+        queued = gripper.move_async(start, speed_m_s=SPEED)  # back where it began, were it to run
+        _moved(gripper, start, by_m=3e-3)
+        assert gripper.stop()
+        assert queued.result(timeout=10.0) is False
+        held = _still(gripper)
+        time.sleep(0.3)
+        assert gripper.read_width()[1] == pytest.approx(held, abs=STEP_M)
+        assert abs(held - start) > 2e-3  # it did not go back
+        assert gripper.move(start, speed_m_s=SPEED)  # a command given after the stop runs
+
+
 # --------------------------------------------------------------------------- family and sim specifics
 
 
@@ -283,11 +300,11 @@ def test_a_replayed_grasp_stopped_before_the_fingers_settle_is_not_held(make_rec
     playback = GraspPlayback(make_record(duration_s=5.0))
     with SimulatedGripper(GripperSettings(width_read_hz=5.0), playback=playback) as gripper:
         future = gripper.grasp_async(0.04, epsilon_inner_m=0.05, epsilon_outer_m=0.05)  # any width is in range
-        while not future.done():  # a stop before the grasp starts waiting is cleared with it: stop until one lands
-            gripper.stop()
-            time.sleep(0.01)
-        assert future.result() is False and not gripper.is_grasped
-        assert playback.started and not playback.done()  # stopped during the replay
+        while not playback.started:  # the grasp starts the replay
+            time.sleep(0.005)
+        assert gripper.stop()
+        assert future.result(timeout=5.0) is False and not gripper.is_grasped
+        assert not playback.done()  # stopped during the replay
 
 
 def test_a_grasp_remembers_where_it_stopped_and_queues_that_width_in_order(gripper):
