@@ -105,7 +105,9 @@ def detect_markers(
     if not (isinstance(min_darkness, Real) and not isinstance(min_darkness, bool) and 0.0 < min_darkness < 1.0):
         raise PerceptionError(f"min_darkness: expected a number in (0, 1), got {min_darkness!r}")
     dilate_px = _size_px("dilate_px", dilate_px, lowest=0, limit=limit)
-    size = max_diameter_px + 2 - max_diameter_px % 2  # odd, wider than a dot
+    # The smallest odd size wider than a dot: an odd disc is centred on its anchor, so the closing
+    # never darkens a pixel and reaches dots at the image border.
+    size = max_diameter_px + 1 + max_diameter_px % 2
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
     mask = (_dark_dots(frame, kernel, min_darkness, max_diameter_px)
             | _dark_dots(reference, kernel, min_darkness, max_diameter_px))

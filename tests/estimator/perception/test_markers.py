@@ -139,3 +139,26 @@ def test_reconstruct_refuses_a_bad_marker_mask(gelsight_presses, gelsight_calibr
     np.testing.assert_array_equal(reconstruct_depth(gelsight_presses.images[3], ref, gelsight_calibration,
                                                     marker_mask=empty),
                                   reconstruct_depth(gelsight_presses.images[3], ref, gelsight_calibration))
+
+
+def test_a_thin_scratch_that_fits_the_dot_size_is_not_a_marker():
+    # A one-pixel diagonal fits an 11 px box but fills far less than half of it.
+    image = np.full((60, 80, 3), 180, np.uint8)
+    for i in range(9):
+        image[20 + i, 30 + i] = 60
+    assert not detect_markers(image, np.full_like(image, 180), dilate_px=0).any()
+
+
+@pytest.mark.parametrize("max_diameter_px", [10, 11])
+@pytest.mark.parametrize("corner", ["top_left", "top_right", "bottom_left", "bottom_right"])
+def test_a_dot_in_a_corner_of_the_image_is_masked_whole(max_diameter_px, corner):
+    # The closing disc is centred on each pixel, so it fills the half of a dot left by any image border.
+    half_px = (max_diameter_px + 1) // 2
+    image = np.full((30, 40, 3), 180, np.uint8)
+    rows = slice(0, half_px) if corner.startswith("top") else slice(30 - half_px, 30)
+    cols = slice(0, half_px) if corner.endswith("left") else slice(40 - half_px, 40)
+    image[rows, cols] = 60
+    dot = np.zeros((30, 40), bool)
+    dot[rows, cols] = True
+    mask = detect_markers(image, np.full_like(image, 180), max_diameter_px=max_diameter_px, dilate_px=0)
+    np.testing.assert_array_equal(mask, dot)
