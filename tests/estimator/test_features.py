@@ -185,3 +185,32 @@ def test_smoothing_as_wide_as_the_image_is_taken():
     depth = hertz_gel_depth(0.5e-3, 10e-3, shape=(40, 50))[None]
     f = contact_features(depth, pixel_pitch_m=PITCH, contact_threshold_m=THRESHOLD, smooth_px=50.0)
     assert np.isfinite(f.peak_depth_m).all()
+
+
+def test_depth_exactly_at_the_threshold_is_contact():
+    depth = np.zeros((1, 20, 30))
+    depth[0, 5:9, 10:15] = THRESHOLD
+    f = contact_features(depth, pixel_pitch_m=PITCH, contact_threshold_m=THRESHOLD, smooth_px=0.0)
+    assert f.area_m2[0] == pytest.approx(20 * PITCH**2)
+    np.testing.assert_allclose(f.centroid_m[0], [12 * PITCH, 6.5 * PITCH])
+
+
+@pytest.mark.parametrize("cols", [slice(0, 4), slice(26, 30)])
+def test_contact_reaching_only_the_left_or_right_border_touches_the_edge(cols):
+    depth = np.zeros((1, 20, 30))
+    depth[0, 8:12, cols] = 5 * THRESHOLD
+    f = contact_features(depth, pixel_pitch_m=PITCH, contact_threshold_m=THRESHOLD, smooth_px=0.0)
+    assert f.touches_edge[0] and f.cap_touches_edge[0]
+    inner = np.zeros_like(depth)
+    inner[0, 8:12, 10:14] = 5 * THRESHOLD
+    g = contact_features(inner, pixel_pitch_m=PITCH, contact_threshold_m=THRESHOLD, smooth_px=0.0)
+    assert not g.touches_edge[0] and not g.cap_touches_edge[0]
+
+
+def test_cap_includes_pixels_at_exactly_half_the_peak():
+    depth = np.zeros((1, 21, 21))
+    depth[0, 7:14, 7:14] = 2e-4  # 49 px at exactly half the peak
+    depth[0, 9:12, 9:12] = 4e-4  # 9 px at the peak
+    f = contact_features(depth, pixel_pitch_m=PITCH, contact_threshold_m=THRESHOLD, smooth_px=0.0)
+    assert f.peak_depth_m[0] == pytest.approx(4e-4)
+    assert f.cap_radius_m[0] == pytest.approx(np.sqrt(49 * PITCH**2 / np.pi))

@@ -36,12 +36,45 @@ def cap(shape, *, center, ball_m, contact_m, pitch=PITCH):
     return np.where(r <= contact_m, sphere + delta / 2, outside)
 
 
+def rigid_cap(shape, *, center, ball_m, contact_m, pitch=PITCH):
+    """A ball pressed into a gel that stays flat outside the contact: steepest at the rim, where the depth is 0."""
+    rows, cols = np.indices(shape, dtype=np.float64)
+    r = np.hypot(cols - center[0], rows - center[1]) * pitch
+    inside = np.sqrt(np.maximum(ball_m**2 - r**2, 0)) - np.sqrt(ball_m**2 - contact_m**2)
+    return np.where(r <= contact_m, inside, 0.0)
+
+
+def lowest_odd_mode(shape, height_m=0.3e-3):
+    """The lowest DST-II mode: exactly zero half a pixel outside every side, steep at the border."""
+    rows, cols = np.indices(shape, dtype=np.float64)
+    return height_m * np.sin(np.pi * (rows + 0.5) / shape[0]) * np.sin(np.pi * (cols + 0.5) / shape[1])
+
+
+def odd_central_gradients(surface):
+    """Central differences (dimensionless) of a surface extended oddly about the half-pixel border."""
+    ext = np.pad(surface, 1)
+    ext[0], ext[-1] = -ext[1], -ext[-2]
+    ext[:, 0], ext[:, -1] = -ext[:, 1], -ext[:, -2]
+    gx = (ext[1:-1, 2:] - ext[1:-1, :-2]) / (2 * PITCH)
+    gy = (ext[2:, 1:-1] - ext[:-2, 1:-1]) / (2 * PITCH)
+    return gx, gy
+
+
 def test_exact_gradients_integrate_back_to_the_surface():
     surface = bump()
     gy, gx = np.gradient(surface / PITCH)  # central differences, dimensionless
     depth = poisson_depth(gx, gy, pixel_pitch_m=PITCH)
     assert depth.dtype == np.float64
     np.testing.assert_allclose(depth, surface, atol=1e-3 * surface.max())
+
+
+def test_a_surface_sloping_at_the_border_integrates_back_exactly():
+    # The divergence must keep the one-sided differences of the edge rows and columns.
+    surface = lowest_odd_mode((40, 56))
+    gx, gy = odd_central_gradients(surface)
+    assert abs(gx[:, 0]).max() > 0.1 * abs(gx).max()  # the border slope is not negligible
+    depth = poisson_depth(gx, gy, pixel_pitch_m=PITCH)
+    np.testing.assert_allclose(depth, surface, atol=1e-6 * surface.max())
 
 
 def test_float32_in_float32_out_and_zero_gradients_give_zero_depth():
@@ -68,6 +101,10 @@ def test_depth_is_positive_into_the_gel():
     (np.full((5, 5), np.nan), np.zeros((5, 5)), PITCH, "NaN"),
     (np.zeros((5, 5)), np.zeros((5, 5)), 0.0, "pixel_pitch_m"),
     (np.zeros((5, 5)), np.zeros((5, 5)), float("inf"), "pixel_pitch_m"),
+    (np.zeros((5, 5)), np.zeros((5, 5)), -PITCH, "pixel_pitch_m"),  # would flip the depth's sign
+    (np.zeros((5, 5)), np.zeros((5, 5)), -1.0, "pixel_pitch_m"),
+    (np.zeros((2, 8)), np.zeros((2, 8)), PITCH, "3 x 3"),
+    (np.zeros((8, 2)), np.zeros((8, 2)), PITCH, "3 x 3"),
 ])
 def test_bad_gradients_are_refused(gx, gy, pitch, match):
     with pytest.raises(PerceptionError, match=match):
@@ -140,6 +177,32 @@ def test_sphere_fit_recovers_radius_centre_and_contact(ball_mm, contact_mm, cent
     assert fit.contact_radius_m == pytest.approx(contact_mm * 1e-3, abs=2 * PITCH)
     assert fit.apex_depth_m == pytest.approx(depth.max(), rel=0.02)
     assert fit.rms_residual_m < 2e-6
+
+
+def test_contact_circle_of_a_cap_without_rim_reaches_its_edge():
+    # The search for the contact circle runs down to a tenth of the peak, not to half of it.
+    contact_m = 1.5e-3
+    depth = rigid_cap((120, 140), center=(70.3, 60.6), ball_m=3e-3, contact_m=contact_m)
+    fit = fit_sphere(depth.astype(np.float32), pixel_pitch_m=PITCH)
+    assert fit, fit.reason
+    assert fit.radius_m == pytest.approx(3e-3, rel=0.02)
+    assert fit.contact_radius_m == pytest.approx(contact_m, abs=3 * PITCH)
+
+
+def test_sphere_fitted_with_its_centre_off_the_image_is_a_falsy_result():
+    depth = rigid_cap((120, 140), center=(-3.0, 60.0), ball_m=3e-3, contact_m=1.5e-3)
+    fit = fit_sphere(depth.astype(np.float32), pixel_pitch_m=PITCH)
+    assert not fit
+    assert "outside the image" in fit.reason
+    assert fit.center_px is None
+
+
+def test_contact_circle_cut_by_the_corner_to_a_few_pixels_is_too_small():
+    # About 10 pixels lie inside the circle: too few for a 4-parameter fit.
+    depth = cap((40, 50), center=(0.3, 0.3), ball_m=1e-3, contact_m=4 * PITCH)
+    fit = fit_sphere(depth.astype(np.float32), pixel_pitch_m=PITCH, smooth_px=0.0)
+    assert not fit
+    assert "contact circle too small" in fit.reason
 
 
 def test_sphere_fit_reports_no_contact_as_a_falsy_result():
