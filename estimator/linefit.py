@@ -135,19 +135,22 @@ def fit_line(
 def no_line_reason(x: np.ndarray, *, through_origin: bool, x_name: str, y_name: str) -> str:
     """Why :func:`fit_line` gave no line for ``x`` (called ``x_name``) and its ``y`` (``y_name``).
 
-    Either ``x`` lacks the spread a slope needs (no nonzero value through the origin, fewer than two
-    distinct values with an intercept), or the values are too large for the sums to stay finite: ``x``
-    when its own sum of squares overflows, else ``y``.
+    ``x`` lacks the spread a slope needs (no nonzero value through the origin, fewer than two
+    distinct values with an intercept), or its spread is beyond float range (below or above), or
+    else the ``y`` side (the values or their uncertainties) is too large for the sums to stay finite.
     """
     x = np.asarray(x, dtype=np.float64)
-    spread = bool(np.any(x != 0)) if through_origin else x.size >= 2 and bool(x.max() > x.min())
-    if not spread:
+    varies = bool(np.any(x != 0)) if through_origin else x.size >= 2 and bool(x.max() > x.min())
+    if not varies:
         return f"the {x_name} does not vary over the loading frames"
-    with np.errstate(over="ignore", invalid="ignore"):
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
         x_c = x if through_origin else x - x.mean()
-        x_in_range = math.isfinite(float(x_c @ x_c))
-    name = x_name if not x_in_range else y_name
-    return f"the {name} is too large for a line fit (its sums overflow)"
+        sxx = float(x_c @ x_c)  # as fit_line computes it
+    if sxx == 0:
+        return f"the {x_name} varies too little for a line fit (its spread underflows)"
+    if not math.isfinite(sxx):
+        return f"the {x_name} is too large for a line fit (its sums overflow)"
+    return f"the {y_name} or its uncertainty is too large for a line fit (its sums overflow)"
 
 
 def _like_x(x: np.ndarray, name: str, values: object) -> np.ndarray:
