@@ -493,7 +493,8 @@ class RobotNode(ServiceLoop):
             return
         grasp.stop = self.gripper.last_stop
         if grasp.stop is None:
-            log.warning("grasp %s: no width read when the fingers stopped: no loading-end marker", grasp.grasp_id)
+            log.warning("grasp %s: no width read when the fingers stopped, or a stop came before they began: "
+                        "no loading-end marker", grasp.grasp_id)
         self._mark_loading_end()
 
     def _gripper_failed(self, exc: BaseException) -> None:

@@ -110,11 +110,13 @@ class FrankyGripper(Gripper):
 
     def _move(self, width_m: float, speed_m_s: float) -> bool:
         with self._command_lock:
+            self._raise_if_stopped_since_given()  # a stop while a follow step held the hand reached no motion
             hand = self._hand()
             return self._call(f"move to {width_m} m", lambda: hand.move(width_m, speed_m_s))
 
     def _grasp(self, width_m: float, speed_m_s: float, force_n: float, epsilon_inner_m: float, epsilon_outer_m: float) -> bool:
         with self._command_lock:
+            self._raise_if_stopped_since_given()
             hand = self._hand()
             return self._call(
                 f"grasp at {width_m} m",

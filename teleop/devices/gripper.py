@@ -97,6 +97,10 @@ class GraspStop:
     held: bool
 
 
+class _Cancelled(Exception):
+    """A stop came after the command was given, before its motion went out."""
+
+
 class Gripper(Device):
     """A parallel gripper.
 
@@ -107,7 +111,10 @@ class Gripper(Device):
     before a move or grasp starts.
 
     A :meth:`stop` also cancels the moves and grasps given before it that have not started (an
-    async command still queued behind another): they return False without moving the fingers.
+    async command still queued behind another): they return False without moving the fingers,
+    and a cancelled grasp leaves no :attr:`last_stop`. A backend whose motion can wait, after it
+    began, where its ``_stop`` cannot reach it (franky: behind a follow step) calls
+    ``_raise_if_stopped_since_given`` once nothing more delays the motion.
     """
 
     family = "gripper"
@@ -124,6 +131,7 @@ class Gripper(Device):
         self._max_width_m = 0.0  # read at connect: a connected hand's opening does not change
         self._link_error: str | None = None
         self._stops = 0  # stop() calls so far: a command given before the latest one does not start
+        self._given = threading.local()  # .stops: the count when the running command was given
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -187,7 +195,7 @@ class Gripper(Device):
         Returns True when the width was reached, False when stopped or failed.
         """
         self._require_up()
-        return self._started(self._stops, self._move, *self._motion_args(width_m, speed_m_s))
+        return self._move_unless_stopped(self._stops, *self._motion_args(width_m, speed_m_s))
 
     def grasp(
         self,
@@ -211,7 +219,7 @@ class Gripper(Device):
         """:meth:`move` in the command thread; bad arguments are refused here, at once."""
         self._require_up()
         args, issued = self._motion_args(width_m, speed_m_s), self._stops
-        return self._submit(lambda: self._started(issued, self._move, *args))
+        return self._submit(self._move_unless_stopped, issued, *args)
 
     def grasp_async(
         self,
@@ -286,19 +294,35 @@ class Gripper(Device):
         outer = _finite("epsilon_outer_m", epsilon_outer_m, 0.0, self.settings.max_width_m)
         return width, speed, force, inner, outer
 
-    def _started(self, issued: int, motion: Callable[..., bool], *args: Any) -> bool:
-        """Run ``motion`` unless :meth:`stop` was called since it was given (``issued``: the stop count
-        then). Armed first, so that a stop at any moment after the check interrupts it."""
+    def _begin(self, issued: int) -> None:
+        """Before a command's motion: arm the backend's interruption, then _Cancelled if :meth:`stop`
+        was called since the command was given (``issued``: the stop count then). Armed first, so a
+        stop after the check interrupts the motion."""
         self._begin_command()
-        if self._stops != issued:
+        self._given.stops = issued
+        self._raise_if_stopped_since_given()
+
+    def _raise_if_stopped_since_given(self) -> None:
+        """_Cancelled if :meth:`stop` was called since the running command was given."""
+        if self._stops != getattr(self._given, "stops", self._stops):
+            raise _Cancelled
+
+    def _move_unless_stopped(self, issued: int, width_m: float, speed_m_s: float) -> bool:
+        try:
+            self._begin(issued)
+            return bool(self._move(width_m, speed_m_s))
+        except _Cancelled:
             return False
-        return bool(motion(*args))
 
     def _grasp_until_stop(self, args: tuple[float, float, float, float, float], issued: int) -> bool:
         """Run the grasp (unless stopped since ``issued``); when its motion ends, queue a width read
         and remember the stop (none when that read fails: the grasp itself stands)."""
         self._last_stop = None
-        held = self._started(issued, self._grasp, *args)
+        try:
+            self._begin(issued)
+            held = bool(self._grasp(*args))
+        except _Cancelled:  # it never began: no stop to report (the node then marks no loading end)
+            return False
         stopped_s = time.monotonic()
         try:
             with self._width_lock:

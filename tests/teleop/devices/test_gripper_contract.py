@@ -207,9 +207,11 @@ def test_a_stop_cancels_the_commands_given_before_it_that_have_not_started(gripp
         far = 0.005 if start > 0.04 else 0.075
         gripper.move_async(far, speed_m_s=SPEED)
         queued = gripper.move_async(start, speed_m_s=SPEED)  # back where it began, were it to run
+        grasp = gripper.grasp_async(start, speed_m_s=SPEED)
         _moved(gripper, start, by_m=3e-3)
         assert gripper.stop()
-        assert queued.result(timeout=10.0) is False
+        assert queued.result(timeout=10.0) is False and grasp.result(timeout=10.0) is False
+        assert gripper.last_stop is None  # the grasp never began: no stop to mark a loading end by
         held = _still(gripper)
         time.sleep(0.3)
         assert gripper.read_width()[1] == pytest.approx(held, abs=STEP_M)
