@@ -58,7 +58,7 @@ of both and the status it shows: :mod:`haptics.operator_status`; the grasps it t
 
 A follow grasp takes a new grasp id when enable is first held after the previous grasp ended,
 or after a release cancelled it while the robot prepared it (no end comes for that one);
-a discrete grasp takes one per ``grasp`` press. Ids are ``op-<HHMMSS>-<n>``, unique within a
+a discrete grasp takes one per ``grasp`` press. Ids are ``op-<MMDD>-<HHMMSS>-<n>``, unique within a
 session.
 """
 

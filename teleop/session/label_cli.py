@@ -13,9 +13,9 @@ EPILOG = """\
 The CSV has a header row and one row per grasp:
 
   grasp_id,object,modulus_pa,shore_a,shore_00,source,detail
-  op-101512-001,stress_ball,,,,,
-  op-101512-002,blue gel pad,,,60,,
-  op-101512-003,cork mat,1.2e7,,,datasheet,maker's sheet 2024
+  op-1201-101512-001,stress_ball,,,,,
+  op-1201-101512-002,blue gel pad,,,60,,
+  op-1201-101512-003,cork mat,1.2e7,,,datasheet,maker's sheet 2024
 
 grasp_id and object are required; the rest may be left out or empty. An object in the catalogue
 needs nothing else (source catalogue); otherwise give modulus_pa (Pa; source datasheet, or
