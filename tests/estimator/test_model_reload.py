@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import re
 import shutil
 import time
@@ -237,6 +238,53 @@ def test_model_slot_does_not_try_again_refused_files_copied_over_unchanged(setti
         if event is not None:
             events.append(event.event)
     assert events == ["refused"] and slot.failures == 1 and slot.estimator is good
+
+
+def shipped_copy_slot(settings, tmp_path: Path, now: list[float]) -> tuple[ModelSlot, Path]:
+    """A slot serving a copy of the shipped model (onnxruntime only: no onnx needed to write one), on the
+    clock ``now``; no reference check, so no calibration."""
+    from estimator.inference.infer import default_model_dir
+
+    folder = tmp_path / "model"
+    shutil.copytree(default_model_dir(), folder)
+    slot = ModelSlot(folder, settings=settings, calibration=None, check_reference=False, clock=lambda: now[0])
+    return slot, folder
+
+
+def watch(slot: ModelSlot, now: list[float], looks: int) -> list:
+    """What ``looks`` looks at the folder, each a check interval apart, did (a load let finish each time)."""
+    events = []
+    for _ in range(looks):
+        now[0] += 2.0
+        events.append(slot.poll(idle=True))
+        slot.wait(30.0)
+        events.append(slot.poll(idle=True))
+    return [e for e in events if e is not None]
+
+
+def test_model_slot_does_not_try_again_a_damaged_model_it_refused_when_only_its_time_changes(settings, tmp_path):
+    now = [0.0]
+    slot, folder = shipped_copy_slot(settings, tmp_path, now)
+    served = slot.model_id
+    meta = json.loads((folder / "metadata.json").read_text())
+    (folder / "metadata.json").write_text(json.dumps({**meta, "version": 1}))
+    assert [e.event for e in watch(slot, now, 3)] == ["refused"]
+    assert slot.failures == 1 and slot.model_id == served
+    stamp = 1_000_000_000
+    os.utime(folder / "metadata.json", (stamp, stamp))  # the same bytes, a new time
+    assert watch(slot, now, 4) == [] and slot.failures == 1 and slot.model_id == served
+
+
+def test_model_slot_does_not_switch_to_files_that_changed_again_while_loading(settings, tmp_path, monkeypatch):
+    from estimator.inference import infer
+
+    now = [0.0]
+    slot, folder = shipped_copy_slot(settings, tmp_path, now)
+    served, loads = slot.model_id, slot.loads
+    monkeypatch.setattr(infer, "model_id", lambda _folder: "model-0badc0de")  # what the watch saw, not what loads
+    stamp = 1_000_000_000
+    os.utime(folder / "metadata.json", (stamp, stamp))
+    assert watch(slot, now, 3) == [] and slot.loads == loads and slot.model_id == served
 
 
 def test_model_slot_without_a_model_serves_the_first_one_it_is_given(settings, calibration, tmp_path):

@@ -19,7 +19,7 @@ from estimator.evaluation.evaluate import (
     summarise,
 )
 from estimator.inference.inputs import Variant
-from estimator.inference.provenance import held_out_objects, trained_objects
+from estimator.inference.provenance import held_out_objects, load_split, trained_objects
 
 
 def row(method, truth, state, e_pa=None, low=None, high=None, material="rubber", shape="sphere"):
@@ -170,6 +170,12 @@ def write_metadata(directory: Path, data: dict) -> Path:
     directory.mkdir(parents=True, exist_ok=True)
     (directory / "metadata.json").write_text(json.dumps({"format": "compliance-teleop.model", "data": data}))
     return directory
+
+
+def test_a_split_file_reads_back_as_its_three_lists_of_objects(tmp_path):
+    path = tmp_path / "split.json"
+    path.write_text(json.dumps({"seed": 0, "train": ["a"], "val": ["c"], "test": ["b"]}))
+    assert load_split(path) == {"train": ["a"], "val": ["c"], "test": ["b"]}
 
 
 def test_held_out_objects_come_from_the_metadata_or_the_datasets_split(tmp_path):

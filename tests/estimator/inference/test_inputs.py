@@ -1,9 +1,10 @@
-"""Model inputs: variants, scales, the analytical encoding and batching."""
+"""Model inputs: variants, scales, the analytical encoding and batching, and sampling a grasp's frames."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -22,6 +23,7 @@ from estimator.inference.inputs import (
     gel_scale,
     reduce_images,
 )
+from estimator.inference.sampling import SampledGrasp, sample_stream
 
 
 @pytest.mark.parametrize("text", ["depth", "rgb+markers", "depth+fw+analytical", "rgb+markers+fw+analytical"])
@@ -146,6 +148,30 @@ def test_sample_sets_spread_over_the_loading_phase_and_shift_by_a_frame():
     assert isinstance(sample_positions(short, 3, 1), str)
 
 
+@pytest.mark.parametrize(("shift", "n_frames"), [(-1, 3), (0, 0)])
+def test_a_negative_shift_or_no_frames_is_refused(shift, n_frames):
+    with pytest.raises(ModelError, match="expected shift >= 0 and n_frames >= 1"):
+        sample_stream(SimpleNamespace(), n_frames=n_frames, size_px=None, shift=shift)
+
+
+def _one_finger_stream(sampled: SampledGrasp, *, markers: bool) -> SimpleNamespace:
+    """A stream whose only sensor is its own finger's (with ``markers`` or not), sampling as ``sampled``."""
+    return SimpleNamespace(finger="left", sensors=[SimpleNamespace(finger="left", markers=markers)],
+                           skipping_bad_frames=lambda _frames: sampled)
+
+
+def test_a_marker_variant_does_not_read_its_own_finger_as_the_marker_finger():
+    stream = _one_finger_stream(SampledGrasp(force_n=np.array([1.0, 2.0, 3.0])), markers=True)
+    sampled = sample_stream(stream, n_frames=3, size_px=None, markers=True)
+    assert not sampled and "no finger with markers besides 'left'" in sampled.reason
+
+
+def test_a_marker_variant_keeps_the_reason_its_own_finger_gave():
+    stream = _one_finger_stream(SampledGrasp(reason="no loading phase"), markers=False)
+    sampled = sample_stream(stream, n_frames=3, size_px=None, markers=True)
+    assert not sampled and sampled.reason == "no loading phase"
+
+
 @pytest.mark.slow
 def test_sampling_decodes_only_the_reference_and_sampled_frames(sim_grasps):
     from dataclasses import replace
@@ -176,3 +202,24 @@ def test_sampling_decodes_only_the_reference_and_sampled_frames(sim_grasps):
     diff = reduce_images(m.image_bgr.astype(np.float32) - m.reference_bgr.astype(np.float32), (16, 22))
     assert sampled.rgb_diff.shape == (3, 16, 22, 3)
     assert all(any(np.array_equal(row, d) for d in diff) for row in sampled.rgb_diff)  # frame minus reference
+
+
+@pytest.mark.slow
+def test_the_colour_difference_is_cut_to_the_same_window_as_the_depth(sim_grasps):
+    from estimator.inference.sampling import sample_grasp
+    from teleop.record import read_record
+    from teleop.settings import load_settings
+
+    records, calibration = sim_grasps
+    record = read_record(records / "stress_ball.grasp")
+    settings = load_settings()
+    whole = sample_grasp(record, settings=settings, calibration=calibration, n_frames=3, size_px=None)
+    grid = whole.measurements.grid
+    window = tuple(n * grid.pixel_pitch_m / 2 for n in grid.image_shape)  # half the pad each way
+    sampled = sample_grasp(record, settings=settings, calibration=calibration, n_frames=3, size_px=(16, 22),
+                           rgb=True, window_m=window)
+    m = sampled.measurements
+    diff = reduce_images(m.image_bgr.astype(np.float32) - m.reference_bgr.astype(np.float32), (16, 22),
+                         pitch_m=grid.pixel_pitch_m, window_m=window)
+    assert sampled.rgb_diff.shape == (3, 16, 22, 3)
+    assert all(any(np.allclose(row, d) for d in diff) for row in sampled.rgb_diff)

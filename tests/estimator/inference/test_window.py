@@ -20,6 +20,7 @@ from estimator.inference.window import (
     COVERAGE_WIDENING,
     EDGE_WIDENING,
     MAX_PITCH_RATIO,
+    MIN_COVERAGE,
     input_range,
     window_bounds,
     window_images,
@@ -120,6 +121,12 @@ def test_a_larger_pad_is_cut_about_its_centre_and_a_smaller_one_padded_with_unto
         reduce_images(ones, SIZE, window_m=window)
 
 
+@pytest.mark.parametrize("pitch_m", [0.0, -1e-4, math.nan, math.inf])
+def test_a_pitch_that_is_not_a_positive_length_is_refused(pitch_m):
+    with pytest.raises(ModelError, match="pixel pitch"):
+        window_images(np.zeros((1, 8, 8)), pitch_m, (8e-4, 8e-4))
+
+
 # --------------------------------------------------------------------------- range checks
 
 
@@ -149,6 +156,15 @@ def test_a_pad_covering_little_of_the_window_widens_the_interval_and_says_why():
         fit = input_range(default_window_m(), SIZE, pitch_m=near.pixel_pitch_m, grid_shape=near.image_shape,
                           touches_edge=touches)
         assert fit and fit.coverage > 0.8 and fit.widen == widen and len(fit.notes) == int(touches)
+
+
+def test_a_pad_covering_under_the_minimum_share_widens_and_one_at_it_does_not():
+    window, size = (10e-3, 10e-3), (100, 100)  # input pitch 0.1 mm
+    low = input_range(window, size, pitch_m=1e-4, grid_shape=(70, 100))  # covers 70 %
+    assert low and low.coverage == pytest.approx(0.7) and low.coverage < MIN_COVERAGE
+    assert low.widen == COVERAGE_WIDENING and any("covers 70%" in n for n in low.notes)
+    at = input_range(window, size, pitch_m=1e-4, grid_shape=(80, 100))  # covers 80 %, the minimum
+    assert at.coverage == pytest.approx(MIN_COVERAGE) and at.widen == 1.0 and not at.notes
 
 
 def test_a_grid_much_coarser_than_the_input_pitch_is_refused_naming_the_pitch():
