@@ -35,44 +35,48 @@ def _publish_grasp(pub, gid, t, rng, helpers, *, follow):
     return sent
 
 
-def test_a_leader_follower_grasp_is_exported_as_operator_driven(session_settings, helpers, tmp_path):
-    path = tmp_path / "operated.mcap"
-    rng = np.random.default_rng(3)
+def _exported(path, publish, session_settings, helpers) -> dict:
+    """Records by grasp id of a session whose robot publisher ``publish(pub)`` sent its messages (it returns them)."""
     with (
         Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as pub,
         helpers.recording(path, [pub.endpoint], settings=session_settings,
                           catalogue=default_catalogue_path()) as recorder,
     ):
         pub.wait_for_subscriber("")
-        sent = _publish_grasp(pub, "scripted", 10.0, rng, helpers, follow=False)
-        sent += _publish_grasp(pub, "operated", 20.0, rng, helpers, follow=True)
+        sent = publish(pub)
         helpers.wait_for(lambda: recorder.stats.messages == len(sent), what="the session recorded")
-    styles = {g.grasp_id: read_record(g.path).provenance.style
-              for g in export_session(path, tmp_path / "records", source="hardware")}
-    assert styles == {"scripted": "script", "operated": "operator"}
+    return {g.grasp_id: read_record(g.path) for g in export_session(path, path.parent / "records", source="hardware")}
+
+
+def test_a_leader_follower_grasp_is_exported_as_operator_driven(session_settings, helpers, tmp_path):
+    rng = np.random.default_rng(3)
+
+    def publish(pub):
+        return (_publish_grasp(pub, "scripted", 10.0, rng, helpers, follow=False)
+                + _publish_grasp(pub, "operated", 20.0, rng, helpers, follow=True))
+
+    records = _exported(tmp_path / "operated.mcap", publish, session_settings, helpers)
+    assert {gid: record.provenance.style for gid, record in records.items()} == {
+        "scripted": "script", "operated": "operator"}
 
 
 def test_a_grasp_the_watchdog_cut_short_says_so_in_its_events(session_settings, helpers, tmp_path):
-    path = tmp_path / "cut.mcap"
     rng = np.random.default_rng(4)
-    with (
-        Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as pub,
-        helpers.recording(path, [pub.endpoint], settings=session_settings,
-                          catalogue=default_catalogue_path()) as recorder,
-    ):
-        pub.wait_for_subscriber("")
+    stopped = "no follow command for 0.21 s: the fingers stopped"
+
+    def publish(pub):
         sent = _publish_grasp(pub, "whole", 10.0, rng, helpers, follow=True)
         # Ended notices outside a grasp's time: the one before "cut" started names its id (a node restarted).
         sent.append(pub.send("robot_notice", t_capture_s=19.0, event="watchdog", action="follow", grasp_id="cut",
-                             reason="no follow command for 0.21 s: the fingers stopped"))
+                             reason=stopped))
         sent.append(pub.send("robot_notice", t_capture_s=20.05, event="refused", action="follow", grasp_id="cut",
                              reason="a refusal ends no grasp"))
         sent.append(pub.send("robot_notice", t_capture_s=20.06, event="watchdog", action="follow", grasp_id="cut",
-                             reason="no follow command for 0.21 s: the fingers stopped"))
-        sent += _publish_grasp(pub, "cut", 20.0, rng, helpers, follow=True)
-        helpers.wait_for(lambda: recorder.stats.messages == len(sent), what="the session recorded")
-    events = {g.grasp_id: read_record(g.path).events
-              for g in export_session(path, tmp_path / "records", source="hardware")}
+                             reason=stopped))
+        return sent + _publish_grasp(pub, "cut", 20.0, rng, helpers, follow=True)
+
+    events = {gid: record.events for gid, record in _exported(tmp_path / "cut.mcap", publish, session_settings,
+                                                              helpers).items()}
     assert not any(key.startswith("stopped_by") for key in events["whole"])
     assert events["cut"]["stopped_by_watchdog"] == 20.06
     assert set(events["cut"]) == {"grasp_start", "grasp_end", "stopped_by_watchdog"}

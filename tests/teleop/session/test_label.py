@@ -9,17 +9,15 @@ import struct
 
 import pytest
 from mcap.reader import make_reader
-from mcap.writer import Writer
+from support.session_logs import write_log
 
 import teleop.cli
 import teleop.session.label as label_module
-from teleop.bus.wire import encode, make_message
+from teleop.bus.wire import make_message
 from teleop.errors import SessionLogError
 from teleop.labels import LabelError, gent_modulus_pa, shore_to_modulus_pa
 from teleop.session import LogReader
 from teleop.session.label import LABEL_SOURCE_NAME, LABELS_METADATA, label_session, read_label_csv
-from teleop.session.logfile import MESSAGE_ENCODING, PROFILE, SCHEMA_ENCODING, schema_data
-from teleop.session.logframes import pack_frames
 
 T0 = 1_700_000_000_000_000_000  # a log time (ns): 2023-11-14
 
@@ -250,31 +248,13 @@ def test_a_csv_row_with_more_cells_than_columns_is_refused_naming_its_line(tmp_p
         read_label_csv(path)
 
 
-def _write_log(path, messages):
-    """A complete session log of ``messages`` ((log time ns, bus message)), in that order."""
-    with path.open("wb") as f:
-        writer = Writer(f)
-        writer.start(PROFILE, "test")
-        channels = {}
-        for log_time, message in messages:
-            if message.topic not in channels:
-                schema = writer.register_schema(f"compliance-teleop/{message.type}", SCHEMA_ENCODING,
-                                                schema_data(message.type))
-                channels[message.topic] = writer.register_channel(message.topic, MESSAGE_ENCODING, schema,
-                                                                  {"type": message.type})
-            writer.add_message(channels[message.topic], log_time=log_time, data=pack_frames(encode(message)),
-                               publish_time=log_time, sequence=message.seq % 2**32)
-        writer.finish()
-    return path
-
-
 def _event(event, grasp_id, source, seq):
     message = make_message("grasp_event", t_capture_s=1.0, event=event, grasp_id=grasp_id, object_name=None)
     return dataclasses.replace(message, source=source, seq=seq)
 
 
 def test_an_end_from_another_publisher_does_not_end_the_grasp(tmp_path):
-    log = _write_log(tmp_path / "s.mcap", [
+    log = write_log(tmp_path / "s.mcap", [
         (T0, _event("start", "g0", "robot", 0)),
         (T0 + 10, _event("end", "g0", "estimator", 0)),  # not the publisher of the start
         (T0 + 20, _event("start", "g1", "robot", 1)),
@@ -285,7 +265,7 @@ def test_an_end_from_another_publisher_does_not_end_the_grasp(tmp_path):
 
 
 def test_a_label_goes_after_the_last_event_of_its_grasp_at_equal_log_times(tmp_path):
-    log = _write_log(tmp_path / "s.mcap", [
+    log = write_log(tmp_path / "s.mcap", [
         (T0, _event("start", "g0", "robot", 0)),
         (T0, _event("end", "g0", "robot", 1)),  # same log time: the later in the file is the newer
     ])

@@ -14,6 +14,7 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import Writer
+from support.session_logs import register_bus_channel
 
 from teleop.bus.wire import encode, make_message
 from teleop.cli import main
@@ -97,8 +98,7 @@ def test_a_message_on_a_lost_channel_that_tells_nothing_is_dropped_and_said_so(t
     with log.open("wb") as f:
         writer = Writer(f)
         writer.start(PROFILE, "test")
-        schema = writer.register_schema("compliance-teleop/heartbeat", SCHEMA_ENCODING, schema_data("heartbeat"))
-        channel = writer.register_channel("heartbeat", MESSAGE_ENCODING, schema, {"type": "heartbeat"})
+        channel = register_bus_channel(writer, "heartbeat", "heartbeat")
         writer.add_message(channel + 7, log_time=1, data=b'{"a": 1}', publish_time=1)  # its channel: none
         writer.add_message(channel, log_time=2, data=pack_frames(encode(heartbeat)), publish_time=2)
         writer.finish()
@@ -153,8 +153,7 @@ def test_a_message_without_channel_at_the_end_of_the_log_is_dropped(tmp_path):
     with log.open("wb") as f:
         writer = Writer(f)
         writer.start(PROFILE, "test")
-        schema = writer.register_schema("compliance-teleop/heartbeat", SCHEMA_ENCODING, schema_data("heartbeat"))
-        channel = writer.register_channel("heartbeat", MESSAGE_ENCODING, schema, {"type": "heartbeat"})
+        channel = register_bus_channel(writer, "heartbeat", "heartbeat")
         writer.add_message(channel, log_time=T0, data=pack_frames(encode(heartbeat)), publish_time=T0, sequence=1)
         writer.add_message(channel + 7, log_time=T0 + 1, data=b"junk", publish_time=T0 + 1, sequence=2)
         writer.finish()

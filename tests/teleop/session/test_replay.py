@@ -9,6 +9,7 @@ import msgpack
 import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
+from support.session_logs import register_bus_channel, write_log
 
 from teleop.bus import Publisher, Subscriber
 from teleop.bus.wire import encode, make_message
@@ -16,7 +17,7 @@ from teleop.errors import SessionLogError
 from teleop.session import LogReader, replay, replay_messages
 from teleop.session.foxglove import IMAGE_SCHEMA
 from teleop.session.label import label_session
-from teleop.session.logfile import MESSAGE_ENCODING, PROFILE, SCHEMA_ENCODING, schema_data
+from teleop.session.logfile import MESSAGE_ENCODING, PROFILE
 from teleop.session.logframes import pack_frames
 
 
@@ -198,24 +199,6 @@ def test_a_file_that_is_not_a_log_is_refused(tmp_path):
 T0 = 1_700_000_000_000_000_000  # a log time (ns): 2023-11-14
 
 
-def _write_log(path, messages):
-    """A complete session log of ``messages`` ((log time ns, bus message)), in that order."""
-    with path.open("wb") as f:
-        writer = Writer(f)
-        writer.start(PROFILE, "test")
-        channels = {}
-        for log_time, message in messages:
-            if message.topic not in channels:
-                schema = writer.register_schema(f"compliance-teleop/{message.type}", SCHEMA_ENCODING,
-                                                schema_data(message.type))
-                channels[message.topic] = writer.register_channel(message.topic, MESSAGE_ENCODING, schema,
-                                                                  {"type": message.type})
-            writer.add_message(channels[message.topic], log_time=log_time, data=pack_frames(encode(message)),
-                               publish_time=log_time, sequence=message.seq % 2**32)
-        writer.finish()
-    return path
-
-
 def _event(event, seq):
     message = make_message("grasp_event", t_capture_s=1.0, event=event, grasp_id="g0", object_name=None)
     return dataclasses.replace(message, source="robot", seq=seq)
@@ -228,7 +211,7 @@ def test_the_span_reported_covers_a_message_stored_out_of_order(tmp_path):
         make_message("label", t_capture_s=1.0, grasp_id="g0", object_name="foam", modulus_pa=5e4,
                      source="datasheet", detail=""),
         source="teleop label", seq=0)
-    log = _write_log(tmp_path / "s.mcap", [
+    log = write_log(tmp_path / "s.mcap", [
         (T0, _event("start", 0)),
         (T0 + 2_000_000_000, _event("end", 1)),
         (T0 + 1_000_000_000, label),
@@ -253,7 +236,7 @@ class _SlowOpeningClock(_FakeClock):
 
 
 def test_pacing_starts_at_the_first_message_sent_not_when_the_log_was_opened(tmp_path):
-    log = _write_log(tmp_path / "s.mcap", [(T0, _event("start", 0)), (T0 + 1_000_000_000, _event("end", 1))])
+    log = write_log(tmp_path / "s.mcap", [(T0, _event("start", 0)), (T0 + 1_000_000_000, _event("end", 1))])
     clock = _SlowOpeningClock()
     pub = _RecordingPublisher(clock)
     stats = replay(log, pub, speed=1.0, clock=clock, sleep=clock.sleep)
@@ -309,8 +292,7 @@ def test_a_message_on_an_unknown_channel_is_not_refused_when_its_topic_is_not_as
     with path.open("wb") as f:
         writer = Writer(f)
         writer.start(PROFILE, "test")
-        schema = writer.register_schema("compliance-teleop/heartbeat", SCHEMA_ENCODING, schema_data("heartbeat"))
-        channel = writer.register_channel("heartbeat", MESSAGE_ENCODING, schema, {"type": "heartbeat"})
+        channel = register_bus_channel(writer, "heartbeat", "heartbeat")
         writer.add_message(channel, log_time=1, data=pack_frames(encode(beat)), publish_time=1)
         writer.add_message(channel + 7, log_time=2, data=pack_frames(encode(beat)), publish_time=2)  # no channel
         writer.finish()
