@@ -302,7 +302,9 @@ def test_a_replayed_grasp_stopped_before_the_fingers_settle_is_not_held(make_rec
     playback = GraspPlayback(make_record(duration_s=5.0))
     with SimulatedGripper(GripperSettings(width_read_hz=5.0), playback=playback) as gripper:
         future = gripper.grasp_async(0.04, epsilon_inner_m=0.05, epsilon_outer_m=0.05)  # any width is in range
+        deadline_s = time.monotonic() + 10.0
         while not playback.started:  # the grasp starts the replay
+            assert time.monotonic() < deadline_s, "the grasp never started the replay"
             time.sleep(0.005)
         assert gripper.stop()
         assert future.result(timeout=5.0) is False and not gripper.is_grasped

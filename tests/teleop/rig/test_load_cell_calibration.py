@@ -17,6 +17,7 @@ import sys
 import threading
 import time
 import tty
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -402,7 +403,8 @@ def _args(**kw):
 
 def test_each_placed_mass_is_let_settle_for_settle_s(monkeypatch):
     slept = []
-    monkeypatch.setattr(load_cell_calibration.time, "sleep", slept.append)
+    # The module's time alone: patching time.sleep itself would take other threads' sleeps too.
+    monkeypatch.setattr(load_cell_calibration, "time", SimpleNamespace(sleep=slept.append, monotonic=time.monotonic))
     cell = ChunkCell([0.0, 1.0, 2.0])
     placing(monkeypatch, cell, [50000.0, 50000.0, 50000.0])
     load_cell_calibration._measure(cell, _args(), ask=lambda _p: "")
