@@ -34,6 +34,10 @@ def pytest_collection_modifyitems(items) -> None:
             markers.add("train")
         for marker in markers:
             item.add_marker(marker)
+    # Modules holding a long test run first, each whole (its module fixtures set up once): collected last
+    # (tests/test_*.py, the retraining loop's 50 s among them), one kept a worker busy after the other ended.
+    heavy = {item.path for item in items if item.get_closest_marker("slow") or item.get_closest_marker("train")}
+    items.sort(key=lambda item: item.path not in heavy)
 
 
 def _missing(what: str) -> None:
