@@ -271,6 +271,7 @@ def test_the_estimators_layers_by_lifecycle():
     assert not bad, _report("imports across the estimator's layers (run time <- evaluation <- training)", bad)
 
 
+@pytest.mark.slow
 def test_the_estimator_run_time_imports_no_training_or_plotting_library():
     bad = [f"{imp}" for imp in project_imports(tuple(NOT_AT_RUN_TIME)) if estimator_layer(imp.module) == "runtime"]
     assert not bad, _report("the estimator's run time imports", bad)
@@ -392,6 +393,7 @@ def test_the_rules_pass_a_clean_tree(tmp_path):
     assert package_cycles(imports) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("module", "absent"), [
     # The service reads calibrations; fitting them (and the press sets they are fitted on) is tooling.
     ("estimator.service_cli", ("torch", "matplotlib", "onnx", "haptics", "estimator.training", "estimator.evaluation",

@@ -42,6 +42,7 @@ def test_serve_says_reload_sends_on_the_control_endpoint_and_it_listens_on_both(
     assert "load_model message on --command" not in text
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["train", "fine-tune", "pool", "recalibrate"])
 def test_the_model_commands_help_needs_no_torch(command):
     result = estimator_without_torch(command, "--help")
@@ -49,6 +50,7 @@ def test_the_model_commands_help_needs_no_torch(command):
     assert f"usage: estimator {command}" in result.stdout
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("argv", [["train", "--data", "d", "--out", "m"],
                                   ["fine-tune", "--model", "m", "--data", "d", "--out", "o"],
                                   ["pool", "--model", "a", "--model", "b", "--data", "d", "--out", "o"]])

@@ -38,7 +38,8 @@ class Rig:
 
 
 # A backend's name runs the suite on it; "hardware" runs it on a real camera.
-PARAMS = ["sim", "opencv", pytest.param("hardware", marks=pytest.mark.hardware)]
+# opencv decodes a served MJPEG stream (seconds a test): make test runs it, make check the simulated camera.
+PARAMS = ["sim", pytest.param("opencv", marks=pytest.mark.slow), pytest.param("hardware", marks=pytest.mark.hardware)]
 
 
 def test_every_backend_in_the_table_runs_the_suite():
