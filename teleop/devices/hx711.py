@@ -24,7 +24,8 @@ as ``implausible``, so one bogus time cannot shift every later timestamp. When
 :data:`CLOCK_RESYNC_FRAMES` frames in a row are skipped yet agree with one another (the
 first frame's time was the bogus one, or the bridge's clock jumped), the clock starts over
 from them. Each connection starts a new clock: a restarted bridge's clock starts afresh.
-Sequence jumps are counted in ``gaps`` and ``missed``.
+Sequence jumps are counted in ``gaps`` and ``missed``; a reading whose number does not rise (a
+repeated or reordered line) is logged, neither a gap nor a loss.
 """
 
 from __future__ import annotations
@@ -310,10 +311,14 @@ class TcpHx711(_StreamingHx711):
 
     def _sample(self, line: bytes, arrived_s: float) -> tuple[float, int]:
         seq, t_bridge_s, counts = parse_frame(line)
-        if self._last_seq is not None and seq != self._last_seq + 1:
-            self.gaps += 1
-            self.missed += max(0, seq - self._last_seq - 1)
-            log.warning("%r: readings %d..%d lost", self, self._last_seq + 1, seq - 1)
-        self._last_seq = seq  # the reading arrived, even when its time is refused below
+        if self._last_seq is not None and seq <= self._last_seq:
+            # One connection is one bridge run: a repeated or reordered line, not a loss.
+            log.warning("%r: reading %d came after reading %d (repeated or out of order)", self, seq, self._last_seq)
+        else:
+            if self._last_seq is not None and seq != self._last_seq + 1:
+                self.gaps += 1
+                self.missed += seq - self._last_seq - 1
+                log.warning("%r: readings %d..%d lost", self, self._last_seq + 1, seq - 1)
+            self._last_seq = seq  # the reading arrived, even when its time is refused below
         return self._clock.to_host(t_bridge_s, arrived_s), counts
 

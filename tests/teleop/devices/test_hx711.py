@@ -233,6 +233,22 @@ def test_tcp_link_counts_gaps_skips_garbage_and_reports_a_closed_bridge():
     assert np.all(np.diff(samples.t_s) >= 0)
 
 
+def test_a_repeated_or_reordered_reading_is_no_gap_and_the_next_one_is_not_lost(caplog):
+    # Readings 0, 1, 2, then 1 again, then 3: nothing was lost on the bridge.
+    payload = b"".join(format_frame(seq, 10.0 + 0.0125 * seq, 1000 * (seq + 1)) for seq in (0, 1, 2, 1, 3))
+    server = _HandServer(payload)
+    try:
+        with (caplog.at_level(logging.WARNING, logger="teleop.devices.hx711"),
+              make_load_cell(LoadCellSettings(backend="tcp", address=server.address, **CAL)) as cell):
+            samples = _read_at_least(cell, 4)  # the repeated reading's time runs backwards: it is not kept
+            assert (cell.gaps, cell.missed) == (0, 0)
+    finally:
+        server.close()
+    assert samples.value.tolist()[-1] == 4.0  # reading 3
+    assert "reading 1 came after reading 2 (repeated or out of order)" in caplog.text
+    assert "lost" not in caplog.text
+
+
 def _frames(t0: float, seqs, counts: int = 1000) -> bytes:
     return b"".join(format_frame(seq, t0 + seq * 0.0125, counts) for seq in seqs)
 
