@@ -78,7 +78,6 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from teleop.bus.messages import LabelBody
 from teleop.bus.pubsub import DEFAULT_MAX_BYTES
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
@@ -94,7 +93,7 @@ from teleop.record import (
 )
 from teleop.session.export_calibration import carried_calibrations
 from teleop.session.export_names import record_name, same_grasp_records
-from teleop.session.export_notes import log_notes
+from teleop.session.export_notes import LogNotes, log_notes
 from teleop.session.export_objects import catalogue_objects, label_catalogue_objects
 from teleop.session.export_streams import OpenGrasp, concatenated_samples, frame_stream
 from teleop.session.logdamage import intact_attachment
@@ -178,12 +177,10 @@ class _Assembler:
         source: str,
         session_version: str,
         session: str,
-        labels: dict[str, LabelBody],
         calibration_files: dict[str, bytes],
         reader: LogReader | None = None,
         label_objects: dict[str, ObjectSpec] | None = None,  # of the catalogues `teleop label` attached
-        followed: frozenset[str] = frozenset(),  # leader-follower grasps (LogNotes)
-        stops: dict[str, dict[str, list[float]]] | None = None,  # robot notices that ended grasps (LogNotes)
+        notes: LogNotes | None = None,  # labels, followed grasps, notices that ended grasps
     ):
         self.path = path
         self.settings = settings
@@ -192,15 +189,13 @@ class _Assembler:
         self.source = source
         self.session_version = session_version
         self.session = session
-        self.labels = labels
+        self.notes = notes or LogNotes()
         self.calibration_files = calibration_files
         self.reader = reader  # its damage and lost chunks, as read so far
         self.open: dict[str, OpenGrasp] = {}
         self.ended: set[str] = set()
         self.ended_by_others: dict[str, str] = {}  # open grasp -> who else ended it (the estimator, its node silent)
         self.unassigned = 0
-        self.followed = followed
-        self.stops = stops or {}
         self.refused: dict[str, int] = {}  # open grasp -> refused messages received while it was open
         self.refused_total = 0  # the reader's count when last looked at
 
@@ -316,7 +311,7 @@ class _Assembler:
                     "exported_by": software_version(),
                     **({"refused_messages": refused} if refused else {}),
                 },
-                style="operator" if gid in self.followed else "script",
+                style="operator" if gid in self.notes.followed else "script",
             ),
             label=label,
             events={"grasp_start": grasp.start_s, "grasp_end": end_s,
@@ -328,13 +323,13 @@ class _Assembler:
 
     def stopped_by(self, grasp: OpenGrasp, end_s: float) -> dict[str, float]:
         """``stopped_by_<event>``: when a robot notice ended the grasp (its first within the grasp)."""
-        events = self.stops.get(grasp.grasp_id, {})
+        events = self.notes.stops.get(grasp.grasp_id, {})
         within = {event: [t for t in times if grasp.start_s <= t <= end_s] for event, times in events.items()}
         return {f"stopped_by_{event}": min(times) for event, times in within.items() if times}
 
     def label(self, grasp_id: str, object_name: str | None) -> tuple[Label | None, str]:
         """The grasp's label (module notes) and, when it has no modulus, why."""
-        given = self.labels.get(grasp_id)
+        given = self.notes.labels.get(grasp_id)
         if given is None:
             if object_name is None:
                 return None, (
@@ -472,7 +467,7 @@ def _grasps(reader: LogReader, info: LogInfo, *, settings: Settings | None, cata
     assembler = _Assembler(
         path=path, settings=settings, objects=objects, label_objects=label_objects, source=source,
         session_version=info.session.get("software_version", "0+unknown"), session=session_id(info, path),
-        labels=notes.labels, calibration_files=files, reader=reader, followed=notes.followed, stops=notes.stops,
+        calibration_files=files, reader=reader, notes=notes,
     )
     assembler.refused_total = sum(reader.refused.values())  # the notes' messages: no grasp's
     seen = set()

@@ -9,7 +9,7 @@ fingers, or a device failed), by grasp id and event, at their capture time.
 from __future__ import annotations
 
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from teleop.bus.messages import LabelBody
 from teleop.session.logfile import LogReader
@@ -21,9 +21,9 @@ __all__ = ["LogNotes", "log_notes"]
 class LogNotes:
     """See the module notes."""
 
-    labels: dict[str, LabelBody]
-    followed: frozenset[str]
-    stops: dict[str, dict[str, list[float]]]  # grasp id -> notice event -> capture times (s)
+    labels: dict[str, LabelBody] = field(default_factory=dict)
+    followed: frozenset[str] = frozenset()
+    stops: dict[str, dict[str, list[float]]] = field(default_factory=dict)  # grasp id -> notice event -> times (s)
 
 
 def log_notes(reader: LogReader) -> LogNotes:

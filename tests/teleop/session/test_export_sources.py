@@ -32,7 +32,7 @@ def test_a_grasp_a_restarted_node_started_again_ends_at_the_robots_end():
     # The robot node dies mid-grasp and, restarted, names the grasp again; the estimator's forwarded
     # end of the first comes before the robot's end of the second, and its own after it.
     assembler = _Assembler(path=Path("s.mcap"), settings=load_settings(), objects={}, source="simulated",
-                           session_version="0", session="s", labels={}, calibration_files={})
+                           session_version="0", session="s", calibration_files={})
     messages = [
         _message("robot", "grasp_event", 1.0, event="start", grasp_id="x"),
         *_grasp_data("x", 1.0),
@@ -53,7 +53,7 @@ def test_a_grasp_a_restarted_node_started_again_ends_at_the_robots_end():
 
 def test_an_end_from_another_publisher_neither_ends_nor_warns(caplog):
     assembler = _Assembler(path=Path("s.mcap"), settings=load_settings(), objects={}, source="simulated",
-                           session_version="0", session="s", labels={}, calibration_files={})
+                           session_version="0", session="s", calibration_files={})
     messages = [_message("robot", "grasp_event", 1.0, event="start", grasp_id="x"), *_grasp_data("x", 1.0),
                 _message("estimator", "grasp_event", 2.0, event="end", grasp_id="x")]
     assert [grasp for message in messages for grasp in assembler.feed(message)] == []
@@ -69,7 +69,7 @@ def test_untagged_data_captured_before_the_start_is_dropped_and_counted():
     # A camera that delivers late: right frames captured before x started arrive, untagged, while x is
     # the only grasp open; the node leaves untagged only what it captured before the start.
     assembler = _Assembler(path=Path("s.mcap"), settings=load_settings(), objects={}, source="simulated",
-                           session_version="0", session="s", labels={}, calibration_files={})
+                           session_version="0", session="s", calibration_files={})
     image = np.full((20, 30, 3), 7, np.uint8)
 
     def right(at_s):
@@ -95,7 +95,7 @@ def test_a_grasp_the_estimator_ended_in_a_log_cut_short_is_not_blamed_on_the_dam
     # the log stops at damage, but after the grasp the estimator ended; one it did not end is the damage's.
     cut = SimpleNamespace(stopped=True, damage="the file ends inside a chunk", lost=[])
     assembler = _Assembler(path=Path("s.mcap"), settings=load_settings(), objects={}, source="simulated",
-                           session_version="0", session="s", labels={}, calibration_files={}, reader=cut)
+                           session_version="0", session="s", calibration_files={}, reader=cut)
     messages = [_message("robot", "grasp_event", 1.0, event="start", grasp_id="x"), *_grasp_data("x", 1.0),
                 _message("estimator", "grasp_event", 2.0, event="end", grasp_id="x"),
                 _message("robot", "grasp_event", 3.0, event="start", grasp_id="y"), *_grasp_data("y", 3.0)]
@@ -109,7 +109,7 @@ def test_a_grasp_the_estimator_ended_in_a_log_cut_short_is_not_blamed_on_the_dam
 def test_a_loading_end_marker_keeps_the_grasp_open_and_becomes_its_grasp_done_event():
     # The robot marks where the loading phase ends; the hold and release after it are the same grasp's.
     assembler = _Assembler(path=Path("s.mcap"), settings=load_settings(), objects={}, source="simulated",
-                           session_version="0", session="s", labels={}, calibration_files={})
+                           session_version="0", session="s", calibration_files={})
     messages = [_message("robot", "grasp_event", 1.0, event="start", grasp_id="x"),
                 _message("robot", "grasp_event", 1.05, event="loading_end", grasp_id="x"),
                 *_grasp_data("x", 1.0),
@@ -123,7 +123,7 @@ def test_a_loading_end_marker_keeps_the_grasp_open_and_becomes_its_grasp_done_ev
 def test_untagged_data_while_two_grasps_are_open_goes_to_neither():
     # Whose it is cannot be told: it is counted outside any grasp (module notes: "the only grasp open").
     assembler = _Assembler(path=Path("s.mcap"), settings=load_settings(), objects={}, source="simulated",
-                           session_version="0", session="s", labels={}, calibration_files={})
+                           session_version="0", session="s", calibration_files={})
     messages = [_message("robot", "grasp_event", 1.0, event="start", grasp_id="x"),
                 _message("robot", "grasp_event", 1.5, event="start", grasp_id="y"),
                 _message("robot", "force", 2.0, t_s=[1.9, 2.0], value_n=[3.0, 3.0])]

@@ -93,6 +93,7 @@ def test_a_label_without_a_modulus_takes_the_logs_catalogue_object_before_a_labe
 
     from teleop.bus.messages import LabelBody
     from teleop.session.export import _Assembler
+    from teleop.session.export_notes import LogNotes
     from teleop.session.export_objects import catalogue_objects, label_catalogue_objects
 
     own = LAB.replace('"box"', '"sphere"').replace('"rubber"', '"silicone"').replace("7.5e4", "2e4")
@@ -103,7 +104,7 @@ def test_a_label_without_a_modulus_takes_the_logs_catalogue_object_before_a_labe
         log=tmp_path / "session.mcap")
     labels = {"g1": LabelBody(grasp_id="g1", object_name="lab_gel", modulus_pa=None, source="catalogue", detail="")}
     assembler = _Assembler(path=Path("session.mcap"), settings=None, objects=objects, source="simulated",
-                           session_version="0", session="s", labels=labels, calibration_files={},
+                           session_version="0", session="s", notes=LogNotes(labels=labels), calibration_files={},
                            label_objects=label_objects)
     label, unlabelled = assembler.label("g1", None)
     assert unlabelled == ""
