@@ -25,6 +25,11 @@ _EXTRA_FIXTURES = {"trained_model": "train", "cnn_model": "train", "marker_model
                    "franky_sim_robot": "robot_sim"}
 collect_ignore = [] if importlib.util.find_spec("torch") else sorted(TRAIN_MODULES)
 
+# The tests that use one of these session fixtures go to one pytest-xdist worker (``--dist loadgroup``),
+# so the seconds it takes (a demo run, a calibration fit on real presses) are spent once, not per worker.
+_SHARED_FIXTURE_GROUPS = {"quick_demo_script": "quick_demo", "quick_demo_sim": "quick_demo",
+                          "gelsight_calibration": "gelsight_calibration", "mini_calibration": "mini_calibration"}
+
 
 def pytest_collection_modifyitems(items) -> None:
     tests = Path(__file__).parent
@@ -34,6 +39,10 @@ def pytest_collection_modifyitems(items) -> None:
             markers.add("train")
         for marker in markers:
             item.add_marker(marker)
+        group = next((_SHARED_FIXTURE_GROUPS[name] for name in getattr(item, "fixturenames", ())
+                      if name in _SHARED_FIXTURE_GROUPS), None)
+        if group is not None:
+            item.add_marker(pytest.mark.xdist_group(group))
     # Modules holding a long test run first, each whole (its module fixtures set up once): collected last
     # (tests/test_*.py, the retraining loop's 50 s among them), one kept a worker busy after the other ended.
     heavy = {item.path for item in items if item.get_closest_marker("slow") or item.get_closest_marker("train")}

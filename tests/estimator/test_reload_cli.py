@@ -49,6 +49,7 @@ def test_a_timeout_that_is_no_finite_time_is_a_usage_error_before_anything_waits
     assert f"argument --timeout-s: {timeout_s!r}: expected a number > 0" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_request_waits_for_the_services_subscription_and_the_recorders(monkeypatch):
     # On a freshly bound control endpoint the first request went before anyone had subscribed and was
     # lost; and a service answering before a recorder joined left the request off the session's record.

@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import time
 
+import pytest
 from support.operator_fakes import ConsoleLink, until
 
 from haptics.console import OperatorConsole
@@ -22,6 +23,7 @@ REASON = ("loading phase 0.12-0.41 s of the monotone envelope from contact to th
           "skipped, frames sampled by approach rather than time; the hybrid's CNN and the analytical fits agree")
 
 
+@pytest.mark.slow
 def test_at_80x24_the_estimate_notices_and_keys_fit_and_the_toggle_tells_the_truth():
     link = ConsoleLink(ALIVE)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 
+import pytest
 from support.operator_fakes import ConsoleLink, until
 from textual.screen import ModalScreen
 from textual.widgets import Input
@@ -60,6 +61,7 @@ def test_ctrl_p_opens_no_palette_and_s_e_q_still_stop_and_quit_over_a_focused_li
     assert app.exit_status.quit
 
 
+@pytest.mark.slow
 def test_the_label_line_still_takes_the_safety_keys_as_letters():
     link = ConsoleLink(ALIVE)
 

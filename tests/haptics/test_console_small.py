@@ -18,6 +18,7 @@ from haptics.operator_loop import OperatorLoop
 from teleop.settings import load_settings
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", [(60, 20), (40, 12), (20, 5), (80, 24)])
 def test_a_small_terminal_shows_the_enable_and_mode_on_a_line_at_the_top(size):
     link = ConsoleLink((Peer("robot node", "robot", True, 0.1, subscribed=True),))  # heard: the enable drives
@@ -69,6 +70,7 @@ def test_a_robot_node_heard_but_not_yet_hearing_the_console_is_shown_waiting_and
     asyncio.run(session())
 
 
+@pytest.mark.slow
 def test_at_80x24_the_label_line_shows_what_is_typed_and_the_suggestion():
     # Labels become retraining data: the operator must see what is typed, on a screen that does not scroll.
     from teleop.bus.messages import DisplayBody, EstimateBody

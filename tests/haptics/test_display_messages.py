@@ -96,6 +96,7 @@ def step_until(service: RendererService, done, timeout_s: float = 5.0) -> None:
         service.step()
 
 
+@pytest.mark.slow
 def test_every_report_written_is_published_with_the_rendered_percept(rigs):
     rig = rigs()  # the shipped smoothing: the percept moves between reports
     service, settings = rig.service, rig.settings
@@ -236,6 +237,7 @@ def test_no_publisher_no_messages():
     assert service.stats.display_messages == service.stats.display_failures == 0
 
 
+@pytest.mark.slow
 def test_the_display_says_what_the_device_reports_and_its_faults_are_logged_once(rigs, caplog):
     from teleop.bus.messages import DISPLAY_DEVICE_STATES, DISPLAY_FAULTS
 
@@ -266,6 +268,7 @@ def test_the_display_says_what_the_device_reports_and_its_faults_are_logged_once
     assert (cleared.device_state, cleared.device_faults) == ("rendering", "")
 
 
+@pytest.mark.slow
 def test_a_status_report_that_does_not_decode_is_logged_and_skipped(rigs, caplog):
     rig = rigs(smoothing_s=0.0)
     service = rig.service

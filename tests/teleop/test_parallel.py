@@ -19,6 +19,7 @@ def test_one_worker_maps_in_order_here():
     assert progress_map(operator.neg, range(5), workers=1, desc="t", progress=False) == [0, -1, -2, -3, -4]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("spawn", [False, True])
 def test_workers_map_in_order_forked_or_spawned(spawn):
     # In a child interpreter, so that a hung pool fails on the timeout instead of hanging the run.

@@ -87,6 +87,7 @@ def _script(name: str, monkeypatch):
     return module
 
 
+@pytest.mark.slow
 def test_the_operator_sweep_starts_at_its_first_reading_with_the_enable_let_go(monkeypatch):
     """The loop reads it once the robot node is heard, and drives only an enable let go and held then: a
     sweep clocked from construction held the enable at that first reading, and the loop drove nothing
@@ -102,6 +103,7 @@ def test_the_operator_sweep_starts_at_its_first_reading_with_the_enable_let_go(m
     assert device.read().enable
 
 
+@pytest.mark.slow
 def test_the_operator_benchmark_times_commands_from_its_first_second(run, monkeypatch, capsys):
     """Its whole ``--seconds`` drives the gripper: 1 s used to measure 0 commands and print "p50 -"."""
     module = _script("bench_operator", monkeypatch)
@@ -203,6 +205,7 @@ sys.exit(run_script(argparse.ArgumentParser(prog="probe.py"), work))
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("signum", "status", "said"), [(15, 143, "terminated"), (2, 130, "interrupted")])
 def test_a_stop_signal_stops_a_script_its_child_and_its_temporaries(tmp_path, signum, status, said):
     """SIGTERM left the child running (reparented to PID 1) and the temporary folder behind; Ctrl-C ended in

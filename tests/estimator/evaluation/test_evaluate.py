@@ -230,6 +230,7 @@ def test_plot_draws_one_panel_per_method(tmp_path):
     assert big.shape[0] > small.shape[0] * 1.5 and big.shape[1] > small.shape[1] * 2.5  # a 2 x 3 grid
 
 
+@pytest.mark.slow
 def test_plot_gives_the_panel_errors_in_decades_and_names_the_records_directory(tmp_path, monkeypatch):
     import matplotlib
 

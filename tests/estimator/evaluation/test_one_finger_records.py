@@ -46,6 +46,7 @@ def test_estimate_names_a_record_without_the_finger_and_estimates_the_rest(folde
     assert "error" in lines[0] and lines[1]["state"] in ("ok", "lower_bound", "upper_bound")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("methods", [["series"], ["no_tactile", "auto"]])
 def test_evaluate_lists_a_record_without_the_fingers_frames_and_scores_the_rest(folder, methods, capsys):
     assert main(["evaluate", str(folder), "--methods", *methods, "--json"]) == 0

@@ -133,6 +133,7 @@ def test_a_non_linear_cell_is_refused_with_the_reason(serial_rig, capsys):
     assert path.read_bytes() == before
 
 
+@pytest.mark.slow
 def test_a_mass_never_placed_times_out_naming_what_to_do(serial_rig, capsys):
     path, master = serial_rig
     firmware = FakeFirmware(master, [])

@@ -260,6 +260,7 @@ def test_every_live_service_takes_the_foxglove_option(module):
     assert parser.parse_args([]).foxglove is None
 
 
+@pytest.mark.slow
 def test_the_node_serves_what_it_publishes_live(tmp_path):
     stderr = tmp_path / "node.log"
     with Publisher("tcp://127.0.0.1:*", lossless=True, source="operator") as operator, stderr.open("w") as err:

@@ -38,6 +38,7 @@ def _complete(path: Path) -> bool:
     return reader.complete and reader.good_bytes == path.stat().st_size
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("overwrite", [True, False])
 def test_a_second_recorder_on_a_log_being_recorded_is_refused_naming_the_holder(first, overwrite):
     with pytest.raises(SessionLogError, match=f"held by another process \\(PID {os.getpid()}\\)") as info:

@@ -161,6 +161,7 @@ def test_a_neutral_draw_is_the_simulators_own_load_curve(rubber_scene):
         np.testing.assert_allclose(getattr(drawn, name), getattr(plain, name), rtol=1e-12, err_msg=name)
 
 
+@pytest.mark.slow
 def test_each_drawn_quantity_moves_the_load_curve_its_way(rubber_scene):
     plain = rubber_scene()
 

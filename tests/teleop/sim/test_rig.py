@@ -98,6 +98,7 @@ def test_a_narrower_spread_is_honoured(settings):
     assert [s.gel_modulus_pa for s in rig.true.sensors] == [s.gel_modulus_pa for s in settings.sensors]
 
 
+@pytest.mark.slow
 def test_without_the_option_the_records_are_those_of_the_settings_rig(tmp_path, catalogue, quick_settings, simulate_cli):
     plain = simulate_cli(tmp_path / "plain", seed=SEED)
     (obj,) = load_catalogue(catalogue)

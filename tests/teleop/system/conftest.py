@@ -53,9 +53,3 @@ def quick_demo_sim(tmp_path_factory) -> DemoRun:
     """The defaults: the simulated operator, the default model."""
     return _demo(tmp_path_factory.mktemp("demo-sim"))
 
-
-def pytest_collection_modifyitems(items) -> None:
-    """The tests that read a shared run go to one pytest-xdist worker (``--dist loadgroup``), so it runs once."""
-    for item in items:
-        if {"quick_demo_script", "quick_demo_sim"} & set(getattr(item, "fixturenames", ())):
-            item.add_marker(pytest.mark.xdist_group("quick_demo"))

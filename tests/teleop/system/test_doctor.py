@@ -68,6 +68,7 @@ def _edited(tmp_path, line, replacement):
     return path
 
 
+@pytest.mark.slow
 def test_the_shipped_simulated_rig_is_ready(capsys):
     code, report = _doctor(capsys)
     devices = {d["name"]: d for d in report["devices"]}

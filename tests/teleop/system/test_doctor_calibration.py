@@ -23,6 +23,7 @@ def _file(finger):
     return str(config_dir() / "calibration" / f"sim-wedge-{finger}.npz")
 
 
+@pytest.mark.slow
 def test_swapped_calibrations_are_named_and_the_estimators_finger_is_not_ready(tmp_path, capsys):
     path = rig_settings(tmp_path, {"sensors.left.calibration": _file("right"), "sensors.right.calibration": _file("left")})
     checks = {c.name: c for c in check_calibrations(load_settings(path), path)}
