@@ -2,9 +2,9 @@
 
 :class:`DiscreteGrasps` tracks the discrete grasps the loop commanded and does not know over; the
 functions say whether the robot node can be driven (:func:`unreachable`; why not, when more than one
-robot node subscribes to the commands: :func:`crowded`), whether the robot releases
-a grasp already (:func:`releasing`) and whether the grasp shown is over for the operator
-(:func:`over`).
+robot node subscribes to the commands: :func:`crowded`), which grasp the robot runs
+(:func:`running`: the one a release or stop names), whether it releases a grasp already
+(:func:`releasing`) and whether the grasp shown is over for the operator (:func:`over`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from haptics.operator_link import OperatorView
 
 CROWDED = "driving refused: "  # how the notice of :func:`crowded` begins
 
-__all__ = ["CROWDED", "DiscreteGrasps", "crowded", "over", "releasing", "unreachable"]
+__all__ = ["CROWDED", "DiscreteGrasps", "crowded", "over", "releasing", "running", "unreachable"]
 
 
 class DiscreteGrasps:
@@ -94,6 +94,16 @@ def crowded(view: OperatorView) -> str:
         return ""
     return (f"{CROWDED}{peer.nodes} robot nodes subscribe to the commands: each would move; stop all but one "
             "(a node on another bus.robot_pub still takes bus.command), then let go of the enable and hold it again")
+
+
+def running(view: OperatorView) -> str | None:
+    """The grasp the robot node runs as ``view`` says: the one its state names (taken, prepared or
+    under way), else the one shown loading or loaded; None when neither. While it runs one, the node
+    refuses a release naming any other (such as a grasp pressed since and not answered yet)."""
+    robot = view.robot
+    if robot is not None and robot.grasp_id is not None:
+        return robot.grasp_id
+    return view.grasp_id if view.phase in ("loading", "loaded") else None
 
 
 def releasing(robot: Any, grasp_id: str | None) -> bool:

@@ -20,7 +20,9 @@ of both and the status it shows: :mod:`haptics.operator_status`; the grasps it t
   ``label`` on its next step;
 * buttons: ``grasp`` starts a discrete grasp at the chosen force (one the robot refuses, as while
   another runs, is forgotten and the one running stays tracked), ``release`` opens the fingers,
-  ``stop`` stops them where they are, ``next`` ends the grasp shown (releasing it unless the robot
+  ``stop`` stops them where they are (both name the grasp the robot runs,
+  :func:`~haptics.operator_grasps.running`, not a grasp pressed since and not answered yet, else
+  the one this loop drives or commanded last), ``next`` ends the grasp shown (releasing it unless the robot
   already does; refused, with a notice, while a discrete grasp of this loop is in progress that
   the view does not show yet: the operator releases it or waits for its end first)
   and, once the robot has ended it and its final estimate is in (an operator's grasp
@@ -75,7 +77,15 @@ from typing import Any
 
 from haptics.errors import HapticsError
 from haptics.operator_device import RECONNECT_S, DeviceReader
-from haptics.operator_grasps import CROWDED, DiscreteGrasps, crowded, over, releasing, unreachable
+from haptics.operator_grasps import (
+    CROWDED,
+    DiscreteGrasps,
+    crowded,
+    over,
+    releasing,
+    running,
+    unreachable,
+)
 from haptics.operator_link import LIVENESS_PERIODS, OperatorView
 from haptics.operator_status import InputDevice, Link, LoopStatus
 from teleop.bus.messages import LabelBody
@@ -304,7 +314,8 @@ class OperatorLoop:
 
     def _button(self, button: str) -> None:
         view = self.link.view
-        current = self._follow_grasp or self._discrete_grasp or view.grasp_id
+        # The grasp the robot runs first: one pressed since, not answered yet, would be refused by name.
+        current = running(view) or self._follow_grasp or self._discrete_grasp or view.grasp_id
         if button == "grasp":
             grasp_id = self._new_grasp_id()
             if self._send(lambda: self.link.start_grasp(target_force_n=self.force_n, grasp_id=grasp_id)):
