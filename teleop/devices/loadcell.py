@@ -75,12 +75,12 @@ class LoadCell(Device):
     def tare(self, *, n_samples: int | None = None, timeout_s: float | None = None) -> float:
         """Zero the reading: the mean of the next ``n_samples`` becomes the offset (N), returned.
 
-        ``n_samples`` defaults to 0.25 s of samples. The samples used are consumed. Keep the
-        cell unloaded while it runs.
+        ``n_samples`` (an integer >= 1) defaults to 0.25 s of samples. The samples used are
+        consumed. Keep the cell unloaded while it runs.
         """
         self._require_connected()
         n = n_samples if n_samples is not None else max(1, round(TARE_WINDOW_S * self.settings.sample_rate_hz))
-        if not isinstance(n, int) or n < 1:
+        if not isinstance(n, int) or isinstance(n, bool) or n < 1:  # True is no count, though it equals 1
             raise InvalidCommandError(f"n_samples = {n_samples!r}: expected an integer >= 1")
         timeout = check_timeout(self.settings.timeout_s if timeout_s is None else timeout_s)
         batches: list[Samples] = []

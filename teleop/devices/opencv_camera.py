@@ -9,6 +9,10 @@ For a URL the FFmpeg backend runs in raw mode (``CAP_PROP_FORMAT = -1``): each p
 an MJPG stream is the camera's own JPEG, kept byte for byte with no decode and re-encode.
 A stream whose packets are not JPEG, and a device index, deliver decoded BGR images,
 which are encoded as JPEG at ``jpeg_quality``.
+
+Each connection has its own reader, frame queue, stop event and failure (:class:`_Stream`): a
+reader that :meth:`~OpenCVCamera.close` stopped waiting for (a grab that outlived the wait)
+ends on its own later and hands nothing to a later connection.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import logging
 import queue
 import threading
 import time
+from dataclasses import dataclass, field
 
 import cv2
 
@@ -31,6 +36,16 @@ log = logging.getLogger(__name__)
 
 JPEG_SOI = b"\xff\xd8"
 OPEN_TIMEOUT_MS = 5000
+
+
+@dataclass
+class _Stream:
+    """What one connection's reader thread shares with :meth:`OpenCVCamera.read`."""
+
+    frames: queue.Queue[CameraFrame]
+    stop: threading.Event = field(default_factory=threading.Event)
+    failure: str | None = None  # why the stream ended, once it did
+    next_index: int = 0
 
 
 class OpenCVCamera(TactileCamera):
@@ -70,11 +85,9 @@ class OpenCVCamera(TactileCamera):
         self.jpeg_quality = jpeg_quality
         self.read_timeout_s = read_timeout_s
         self.passthrough = False  # True while the stream's own JPEG bytes are kept
-        self._frames: queue.Queue[CameraFrame] = queue.Queue(maxsize=queue_frames)
-        self._stop = threading.Event()
+        self.queue_frames = queue_frames
+        self._stream: _Stream | None = None
         self._reader: threading.Thread | None = None
-        self._failure: str | None = None
-        self._index = 0
 
     def __repr__(self) -> str:
         # Every message about the camera says this: a stream URL's password stays out of it.
@@ -118,17 +131,16 @@ class OpenCVCamera(TactileCamera):
             if first is None:
                 capture.release()
                 raise self._failed("the source delivered no decodable frame")
-        self._failure = None
-        self._stop.clear()
-        self._frames = queue.Queue(maxsize=self._frames.maxsize)
-        self._index = 0
-        self._enqueue(*first)
+        self._stream = _Stream(queue.Queue(maxsize=self.queue_frames))
+        self._enqueue(self._stream, *first)
         # The reader owns the capture from here on and releases it when it ends.
-        self._reader = threading.Thread(target=self._read_forever, args=(capture,), name=repr(self), daemon=True)
+        self._reader = threading.Thread(target=self._read_forever, args=(capture, self._stream), name=repr(self),
+                                        daemon=True)
         self._reader.start()
 
     def _close(self) -> None:
-        self._stop.set()
+        if self._stream is not None:
+            self._stream.stop.set()
         if self._reader is not None:
             self._reader.join(timeout=self.read_timeout_s + 1.0)
 
@@ -147,38 +159,39 @@ class OpenCVCamera(TactileCamera):
             return None
         return t_s, encoded.tobytes()
 
-    def _enqueue(self, t_s: float, encoded: bytes) -> None:
-        frame = CameraFrame(self.sensor.finger, self._index, t_s, encoded, "jpeg")
-        self._index += 1
+    def _enqueue(self, stream: _Stream, t_s: float, encoded: bytes) -> None:
+        frame = CameraFrame(self.sensor.finger, stream.next_index, t_s, encoded, "jpeg")
+        stream.next_index += 1
         while True:
             try:
-                self._frames.put_nowait(frame)
+                stream.frames.put_nowait(frame)
                 return
             except queue.Full:
-                self._frames.get_nowait()  # keep the newest frames; the index jump shows the loss
+                stream.frames.get_nowait()  # keep the newest frames; the index jump shows the loss
                 self.dropped += 1
 
-    def _read_forever(self, capture: cv2.VideoCapture) -> None:
+    def _read_forever(self, capture: cv2.VideoCapture, stream: _Stream) -> None:
         try:
-            while not self._stop.is_set():
+            while not stream.stop.is_set():
                 grabbed = self._grab(capture)
-                if grabbed is None and self._stop.is_set():
+                if grabbed is None and stream.stop.is_set():
                     return  # closing while the stream was quiet: not a failure
                 if grabbed is None:
-                    self._failure = f"{self!r}: the stream ended or stalled for {self.read_timeout_s} s"
-                    log.warning(self._failure)
+                    stream.failure = f"{self!r}: the stream ended or stalled for {self.read_timeout_s} s"
+                    log.warning(stream.failure)
                     return
-                self._enqueue(*grabbed)
+                self._enqueue(stream, *grabbed)
         finally:
             capture.release()
 
     def _read(self, timeout_s: float) -> CameraFrame | None:
+        stream = self._stream
         deadline = time.monotonic() + timeout_s
         while True:
             try:  # short slices, so a reader that failed meanwhile is noticed
-                return self._frames.get(timeout=min(0.05, max(0.0, deadline - time.monotonic())))
+                return stream.frames.get(timeout=min(0.05, max(0.0, deadline - time.monotonic())))
             except queue.Empty:
-                if self._failure is not None:
-                    raise DeviceError(self._failure) from None
-                if self._stop.is_set() or time.monotonic() >= deadline:  # closed meanwhile, or timed out
+                if stream.failure is not None:
+                    raise DeviceError(stream.failure) from None
+                if stream.stop.is_set() or time.monotonic() >= deadline:  # closed meanwhile, or timed out
                     return None

@@ -15,7 +15,7 @@ import pytest
 from support.contract import assert_every_backend_covered, param_names
 from support.threads import close_during_read
 
-from teleop.devices.camera import BACKENDS, TactileCamera, make_camera
+from teleop.devices.camera import BACKENDS, CameraFrame, TactileCamera, make_camera
 from teleop.devices.playback import GraspPlayback
 from teleop.errors import (
     BackendNotFoundError,
@@ -200,3 +200,17 @@ def test_a_calibrated_latency_puts_frames_on_the_load_cells_clock(make_record):
         # The sim camera stamps a frame with the live time it was due.
         due = np.array([playback.frame_due_s("right", f.index) for f in frames])
         assert np.array([f.t_s for f in frames]) == pytest.approx(due - latency_s, abs=1e-9)
+
+
+@pytest.mark.parametrize(("ext", "encoding"), [(".png", "png"), (".jpg", "jpeg")])
+def test_a_grayscale_frame_decodes_to_three_channels(ext, encoding):
+    gray = np.tile(np.arange(0, 240, 10, dtype=np.uint8), (16, 1))  # 16 x 24, one channel
+    encoded = cv2.imencode(ext, gray)[1].tobytes()
+    image = CameraFrame("left", 0, 1.0, encoded, encoding).image()
+    assert image.shape == (16, 24, 3) and image.dtype == np.uint8
+
+
+def test_bytes_that_do_not_decode_are_a_device_error_naming_the_frame():
+    frame = CameraFrame("right", 7, 1.0, b"\xff\xd8" + b"\x00" * 64, "jpeg")
+    with pytest.raises(DeviceError, match=r"frame 7 of finger 'right': jpeg data does not decode"):
+        frame.image()

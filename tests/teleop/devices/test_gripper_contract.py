@@ -12,6 +12,7 @@ from support.contract import assert_every_backend_covered, param_names
 from support.threads import close_during_read
 
 from teleop.devices.gripper import BACKENDS, Gripper, make_gripper
+from teleop.devices.live_sim import LiveGrasp
 from teleop.devices.playback import GraspPlayback, SimulatedGripper
 from teleop.errors import (
     BackendNotFoundError,
@@ -19,7 +20,7 @@ from teleop.errors import (
     DeviceNotConnectedError,
     InvalidCommandError,
 )
-from teleop.settings import GripperSettings
+from teleop.settings import GripperSettings, Settings
 
 SPEED = 0.05  # m/s, franky-sim's finger speed limit
 STEP_M = SPEED * 0.02  # one franky follow step at SPEED (teleop.devices.franky_gripper.FOLLOW_STEP_S), m
@@ -347,6 +348,72 @@ def test_sim_grasp_stops_where_the_replayed_fingers_do(make_record):
     replayed = samples.t_s[samples.t_s >= playback.live_time(playback.origin_s)]  # not the reads before the start
     assert np.all(np.diff(samples.t_s) > 0)
     assert replayed[-1] == stop.width_t_s and np.allclose(replayed, recorded[: after_stop + 1])
+
+
+def test_sim_widths_of_a_replay_that_ended_between_two_reads_are_all_handed_out(make_record):
+    record = make_record(duration_s=0.5)
+    playback = GraspPlayback(record)
+    playback.start(t0_s=time.monotonic() - 10.0)  # ended before the reader's first read
+    with SimulatedGripper(GripperSettings(width_read_hz=5.0), playback=playback) as gripper:
+        samples = gripper.widths(timeout_s=1.0)
+    n = len(record.width_m)
+    np.testing.assert_array_equal(samples.value[:n], record.width_m.value)
+    np.testing.assert_allclose(samples.t_s[:n], playback.live_time(record.width_m.t_s), rtol=0, atol=1e-9)
+
+
+def test_sim_the_read_handed_out_at_a_grasp_stop_is_not_handed_out_again(make_record):
+    record = make_record(duration_s=0.5, command_grasp_s=2.0)
+    record = dataclasses.replace(record, events={"command_grasp": 2.0, "grasp_done": 2.2, "command_release": 2.4})
+    playback = GraspPlayback(record)
+    with SimulatedGripper(GripperSettings(width_read_hz=20.0), playback=playback) as gripper:
+        assert gripper.grasp(0.0, epsilon_outer_m=0.08)
+        stop = gripper.last_stop
+        t = list(gripper.widths().t_s)
+        deadline = time.monotonic() + 5.0
+        while not playback.done() and time.monotonic() < deadline:  # the rest of the replay
+            t.extend(gripper.widths(timeout_s=0.2).t_s)
+        t.extend(gripper.widths(timeout_s=0.3).t_s)  # and a read or two after it
+    recorded = playback.live_time(record.width_m.t_s)
+    assert t.count(stop.width_t_s) == 1
+    replayed = [s for s in t if s >= playback.live_time(playback.origin_s) and s in set(recorded.tolist())]
+    assert replayed == recorded.tolist()  # every recorded read, once, in order
+    assert np.all(np.diff(t) > 0)
+
+
+def test_sim_kinematic_grasp_short_of_the_object_stops_at_its_width():
+    with SimulatedGripper(GripperSettings(max_width_m=0.08, width_read_hz=50.0), object_width_m=0.03) as gripper:
+        assert gripper.grasp(0.05, speed_m_s=0.2, epsilon_inner_m=0.002, epsilon_outer_m=0.002)
+        assert gripper.read_width()[1] == pytest.approx(0.05)
+
+
+class _NoObject:
+    """A stand-in for :class:`~teleop.sim.live.LiveObject`: nothing between the fingers."""
+
+    stall_width_m = 0.0
+
+    def force_at(self, width_m: float) -> float:
+        return 0.0
+
+    def frame(self, finger: str, force_n: float) -> bytes:
+        return b"jpeg"
+
+
+def test_sim_leaving_live_mode_keeps_the_fingers_where_the_live_motor_left_them():
+    with SimulatedGripper(GripperSettings(max_width_m=0.08, width_read_hz=50.0)) as gripper:
+        assert gripper.read_width()[1] == pytest.approx(0.08)
+        grasp = LiveGrasp(_NoObject(), settings=Settings(), rng=np.random.default_rng(0), width_m=0.08)
+        gripper.live(grasp)
+        assert gripper.move(0.05, speed_m_s=0.2)
+        gripper.live(None)
+        assert gripper.read_width()[1] == pytest.approx(0.05, abs=1e-3)  # not back at 0.08
+
+
+def test_sim_gripper_replaying_a_grasp_refuses_to_follow(make_record):
+    playback = GraspPlayback(make_record(duration_s=5.0))
+    with SimulatedGripper(GripperSettings(), playback=playback) as gripper:
+        playback.start()
+        with pytest.raises(DeviceError, match="replays a recorded grasp"):
+            gripper.follow(0.03)
 
 
 def test_a_width_read_is_stamped_when_it_returns_as_the_training_records_are():

@@ -1,10 +1,13 @@
-"""LiveGrasp's cameras: a renderer slower than the frame rate drops frames instead of falling behind."""
+"""LiveGrasp on an injected clock: its cameras (a renderer slower than the frame rate drops frames
+instead of falling behind; what instant a frame shows), its load cell and its width reads."""
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
+import pytest
 
 from teleop.devices.live_sim import LiveGrasp
 from teleop.settings import Settings
@@ -41,8 +44,28 @@ class SlowObject:
         return b"jpeg"
 
 
-def _live(obj: SlowObject, clock) -> LiveGrasp:
-    return LiveGrasp(obj, settings=Settings(), rng=np.random.default_rng(0), width_m=0.05, clock=clock)
+class SpringObject:
+    """A stand-in for :class:`~teleop.sim.live.LiveObject`: force ``stiffness * (free_m - width)``
+    (``constant_n`` when given); each frame records the force it was rendered at."""
+
+    stall_width_m = 0.0
+
+    def __init__(self, *, free_m: float = 0.06, stiffness: float = 2000.0, constant_n: float | None = None):
+        self.free_m, self.stiffness, self.constant_n = free_m, stiffness, constant_n
+        self.rendered: list[float] = []
+
+    def force_at(self, width_m: float) -> float:
+        if self.constant_n is not None:
+            return self.constant_n
+        return max(0.0, self.stiffness * (self.free_m - width_m))
+
+    def frame(self, finger: str, force_n: float) -> bytes:
+        self.rendered.append(force_n)
+        return b"jpeg"
+
+
+def _live(obj: SlowObject | SpringObject, clock, settings: Settings | None = None) -> LiveGrasp:
+    return LiveGrasp(obj, settings=settings or Settings(), rng=np.random.default_rng(0), width_m=0.05, clock=clock)
 
 
 def _take(grasp: LiveGrasp, clock: FakeClock, finger: str):
@@ -118,3 +141,84 @@ def test_the_simulated_camera_counts_the_frames_a_slow_renderer_dropped():
         camera.close()
     assert camera.dropped == frames[-1].index + 1 - len(frames) > 0
     assert camera.dropped == grasp.frames_dropped("left")
+
+
+def test_a_frame_shows_the_force_of_its_capture_instant_not_of_its_arrival():
+    clock = FakeClock()
+    obj = SpringObject()
+    grasp = _live(obj, clock)
+    grasp.motor.command(0.01, 0.1, clock.now)  # squeezing: the force rises 200 N/s
+    offset = grasp.settings.simulation.camera_offset_s
+    for _ in range(10):
+        clock.now = grasp.next_frame_s("left")
+        capture_s = clock.now - offset
+        frame = grasp.take_frame("left")
+        assert obj.rendered[-1] == pytest.approx(grasp.force_at(capture_s), abs=1e-9)
+        assert frame.t_s == pytest.approx(clock.now, abs=JITTER_BOUND / grasp.settings.sensors[0].camera_hz)
+
+
+def test_frame_stamps_stay_within_the_jitter_bound_of_their_capture_slot_in_a_long_session():
+    # The jitter is clipped there (about 3 sigma at 30 Hz: thousands of frames show a clip that is
+    # missing): stamps stay in capture order however many frames a session takes.
+    clock = FakeClock()
+    grasp = _live(SpringObject(constant_n=0.0), clock)
+    period, _ = _grid(grasp, "left")
+    stamps, slots = [], []
+    for _ in range(5000):
+        clock.now = grasp.next_frame_s("left")
+        slots.append(clock.now)  # the slot's capture time plus the offset, before jitter
+        stamps.append(grasp.take_frame("left").t_s)
+    deviation = (np.array(stamps) - np.array(slots)) / period
+    assert np.max(np.abs(deviation)) <= JITTER_BOUND + 1e-9
+    assert np.all(np.diff(stamps) > 0)
+
+
+def _forces(grasp: LiveGrasp, clock: FakeClock, seconds: float) -> tuple[np.ndarray, np.ndarray]:
+    """The readings that arrive over ``seconds``, polled every 10 ms: (stamps s, N)."""
+    t, v = [], []
+    end = clock.now + seconds
+    while clock.now < end:
+        clock.now += 0.01
+        due = grasp.forces_due()
+        t.extend(due.t_s)
+        v.extend(due.value)
+    return np.array(t), np.array(v)
+
+
+def test_the_cell_reads_at_its_sample_rate_in_newtons_with_its_noise():
+    clock = FakeClock()
+    settings = Settings()
+    grasp = _live(SpringObject(constant_n=3.3), clock, settings)
+    t, v = _forces(grasp, clock, 5.0)
+    rate = settings.load_cell.sample_rate_hz
+    assert len(t) == pytest.approx(5.0 * rate, rel=0.02)  # its own oscillator: off by parts per thousand
+    assert np.median(np.diff(t)) == pytest.approx(1.0 / rate, rel=0.05)
+    assert v.mean() == pytest.approx(3.3, abs=0.1)  # a gain error of about 1 %, not whole newtons
+    noise = settings.simulation.force_noise_n
+    assert 0.5 * noise < v.std() < 2.0 * noise
+    counts = v * settings.load_cell.counts_per_n  # the ADC's quantisation: whole counts
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
+
+
+def test_the_next_reading_has_arrived_by_the_time_next_reading_s_says():
+    clock = FakeClock()
+    grasp = _live(SpringObject(constant_n=1.0), clock)
+    for _ in range(20):
+        clock.now = grasp.next_reading_s()
+        assert len(grasp.forces_due()) >= 1  # "at the latest": a reader waiting until then gets it
+
+
+def test_a_width_read_returns_the_width_of_early_in_the_read_not_a_later_one():
+    clock = FakeClock()
+    settings = Settings()
+    settings = dataclasses.replace(settings, simulation=dataclasses.replace(settings.simulation, width_noise_m=0.0))
+    grasp = _live(SpringObject(), clock, settings)
+    grasp.motor.command(0.01, 0.1, clock.now)  # closing at 0.1 m/s
+    clock.now += 0.2
+    latency = settings.simulation.width_latency_s
+    stamp, width = grasp.width_read()
+    assert stamp == clock.now
+    # sampled between (1 - 0.15) * 0.9 and (1 + 0.15) latencies before the return: closing, a wider width
+    assert grasp.motor.width_at(clock.now - 0.85 * 0.9 * latency) - 1e-12 <= width
+    assert width <= grasp.motor.width_at(clock.now - 1.15 * latency) + 1e-12
+    assert width > grasp.motor.width_at(clock.now)

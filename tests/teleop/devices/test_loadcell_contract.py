@@ -1,4 +1,5 @@
-"""One contract for every load-cell backend: sim replay, HX711 over a pty and over framed TCP, a real cell."""
+"""One contract for every load-cell backend: sim replay, HX711 over a pty and over framed TCP, a real cell;
+tare's edges on the sim cell."""
 
 from __future__ import annotations
 
@@ -206,6 +207,85 @@ def test_a_reconnected_cell_hands_out_nothing_from_before_the_close(make_record)
         cell.tare(n_samples=1)
     with cell, pytest.raises(DeviceTimeoutError):
         cell.read(timeout_s=0.2)
+
+
+# --------------------------------------------------------------------------- tare, on the sim cell
+
+
+class FakeClock:
+    def __init__(self, now: float = 1000.0):
+        self.now = now
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def _sim_cell(make_record, clock=time.monotonic):
+    """A sim cell replaying N samples at RATE_HZ on ``clock``, its playback (not started) and the forces."""
+    record = make_record(duration_s=N / RATE_HZ, force_hz=RATE_HZ)
+    playback = GraspPlayback(record, clock=clock)
+    return make_load_cell(LoadCellSettings(**CALIBRATION), playback=playback), playback, record.force_n
+
+
+def test_samples_tare_took_beyond_its_count_come_out_of_the_next_read(make_record):
+    cell, playback, forces = _sim_cell(make_record)
+    playback.start(t0_s=time.monotonic() - 10.0)  # the whole record is due at once
+    with cell:
+        offset = cell.tare(n_samples=3)
+        rest = cell.read(timeout_s=0.5)
+    assert offset == pytest.approx(forces.value[:3].mean(), abs=1e-12)
+    np.testing.assert_allclose(rest.value, forces.value[3:] - offset, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(rest.t_s, playback.live_time(forces.t_s[3:]), rtol=0, atol=1e-9)
+
+
+def test_samples_tare_left_over_come_before_the_fresh_ones(make_record):
+    clock = FakeClock()
+    cell, playback, forces = _sim_cell(make_record, clock)
+    playback.start(t0_s=1000.0)
+    clock.now = 1000.0 + 4.5 / RATE_HZ  # samples 0..4 due
+    with cell:
+        offset = cell.tare(n_samples=2)
+        clock.now = 1000.0 + 8.5 / RATE_HZ  # samples 5..8 due as well
+        got = cell.read(timeout_s=0.5)
+    assert np.all(np.diff(got.t_s) > 0)
+    np.testing.assert_allclose(got.value, forces.value[2:9] - offset, rtol=0, atol=1e-12)
+
+
+def test_the_default_tare_averages_a_quarter_second_of_samples(make_record):
+    cell, playback, forces = _sim_cell(make_record)
+    playback.start(t0_s=time.monotonic() - 10.0)
+    window = round(0.25 * RATE_HZ)  # 20 samples at 80 Hz
+    with cell:
+        offset = cell.tare()
+        rest = cell.read(timeout_s=0.5)
+    assert offset == pytest.approx(forces.value[:window].mean(), abs=1e-12)
+    assert len(rest) == N - window
+
+
+def test_a_tare_that_gets_exactly_its_count_in_one_batch_returns_at_once(make_record):
+    clock = FakeClock()
+    cell, playback, forces = _sim_cell(make_record, clock)
+    playback.start(t0_s=1000.0)
+    clock.now = 1000.0 + 4.5 / RATE_HZ  # samples 0..4 due, nothing more until the clock moves
+    with cell:
+        offset = cell.tare(n_samples=5, timeout_s=0.3)  # no wait for a sixth sample
+    assert offset == pytest.approx(forces.value[:5].mean(), abs=1e-12)
+
+
+def test_closing_during_a_tare_says_the_cell_was_closed(make_record):
+    cell, _, _ = _sim_cell(make_record)  # the replay never starts: the cell stays silent
+    cell.connect()
+    ended = close_during_read(lambda: cell.tare(timeout_s=3.0), cell.close, errors=DeviceError, waiting_s=0.2)
+    assert isinstance(ended.outcome, DeviceNotConnectedError)
+    assert "was closed" in str(ended.outcome)
+
+
+@pytest.mark.parametrize("n_samples", [True, 2.0])
+def test_tare_refuses_a_sample_count_that_is_not_a_whole_number(make_record, n_samples):
+    cell, playback, _ = _sim_cell(make_record)
+    playback.start(t0_s=time.monotonic() - 10.0)
+    with cell, pytest.raises(InvalidCommandError, match=rf"n_samples = {n_samples!r}: expected an integer >= 1"):
+        cell.tare(n_samples=n_samples)
 
 
 def test_unknown_backend_lists_the_names():

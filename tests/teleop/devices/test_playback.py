@@ -1,15 +1,20 @@
-"""GraspPlayback: what a replayed record makes due, and when, on an injected clock."""
+"""GraspPlayback: what a replayed record makes due, and when, on an injected clock; the sim devices
+reading it."""
 
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 import pytest
 
+from teleop.devices.camera import make_camera
+from teleop.devices.loadcell import make_load_cell
 from teleop.devices.playback import GraspPlayback
 from teleop.errors import DeviceError, DeviceTimeoutError
 from teleop.record import GraspRecord, Provenance, Samples
+from teleop.settings import LoadCellSettings, SensorSettings
 
 
 class FakeClock:
@@ -55,6 +60,19 @@ def test_samples_fall_due_at_their_shifted_timestamps(make_record):
     np.testing.assert_array_equal(due.value, record.width_m.value)
 
 
+def test_the_first_frame_is_due_from_its_own_time_on(make_record):
+    clock = FakeClock()
+    playback = GraspPlayback(make_record(), clock=clock)
+    playback.start()
+    first = playback.frame_due_s("left", 0)
+    clock.now = first - 1e-6
+    assert playback.frame_due("left") is None
+    clock.now = first
+    assert playback.frame_due("left") == 0
+    clock.now = playback.frame_due_s("left", 1)
+    assert playback.frame_due("left") == 1
+
+
 def test_the_grasp_command_event_anchors_the_replay(make_record):
     record = make_record(command_grasp_s=1.9)
     playback = GraspPlayback(record, clock=FakeClock(50.0))
@@ -62,6 +80,14 @@ def test_the_grasp_command_event_anchors_the_replay(make_record):
     assert playback.live_time(1.9) == 60.0
     assert playback.live_time(record.force_n.t_s[0]) == pytest.approx(60.1)
     assert playback.grasp_settled_s() == pytest.approx(60.0 + record.width_m.t_s[np.argmin(record.width_m.value)] - 1.9)
+
+
+def test_without_widths_the_grasp_settles_at_the_records_end(make_record):
+    record = dataclasses.replace(make_record(command_grasp_s=1.9), width_m=Samples(np.zeros(0), np.zeros(0)))
+    playback = GraspPlayback(record, clock=FakeClock())
+    playback.start(t0_s=60.0)
+    assert playback.grasp_settled_s() == pytest.approx(60.0 + playback.duration_s)
+    assert np.isnan(playback.hold_width_m())
 
 
 def test_a_playback_runs_once_and_needs_data(make_record):
@@ -95,12 +121,6 @@ def test_a_replay_switched_while_a_reader_holds_the_last_one_serves_the_new_one_
     # reader threads may be inside a read of the last replay, right after taking it. That read
     # must not hand out the last replay's samples again nor skip the new replay's first ones
     # (a live grasp once got no force at all this way).
-    import time
-
-    from teleop.devices.camera import make_camera
-    from teleop.devices.loadcell import make_load_cell
-    from teleop.settings import LoadCellSettings, SensorSettings
-
     last, new_record = make_record(seed=0), make_record(seed=1)
     cell = make_load_cell(LoadCellSettings(), backend="sim").connect()
     camera = make_camera(SensorSettings(finger="left"), backend="sim").connect()
@@ -125,3 +145,32 @@ def test_a_replay_switched_while_a_reader_holds_the_last_one_serves_the_new_one_
         else:
             frame = camera.read(timeout_s=0.5)
             assert frame.index == 0 and frame.encoded == new_record.stream("left").encoded[0]
+
+
+def test_a_camera_told_to_replay_again_from_the_start_while_reading_starts_over(make_record):
+    playback = GraspPlayback(make_record())
+    playback.start(time.monotonic() - 10.0)  # every frame due
+    with make_camera(SensorSettings(finger="left"), playback=playback) as camera:
+        assert [camera.read(timeout_s=0.5).index for _ in range(5)] == list(range(5))
+
+        def restart(timeout_s):
+            camera.replay(playback)  # from its start on, between the reader taking frame 5 and reading it
+            return True
+
+        playback.wait_started = restart
+        with pytest.raises(DeviceTimeoutError):
+            camera.read(timeout_s=0.05)
+        del playback.wait_started
+        assert camera.read(timeout_s=0.5).index == 0
+
+
+def test_sim_devices_do_not_wait_past_their_timeout_for_data_due_later(make_record):
+    playback = GraspPlayback(make_record())
+    camera = make_camera(SensorSettings(finger="left"), playback=playback)
+    cell = make_load_cell(LoadCellSettings(), playback=playback)
+    playback.start(t0_s=time.monotonic() + 2.0)  # nothing is due for 2 s
+    with camera, cell:
+        with pytest.raises(DeviceTimeoutError):
+            camera.read(timeout_s=0.1)
+        with pytest.raises(DeviceTimeoutError):
+            cell.read(timeout_s=0.1)
