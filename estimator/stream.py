@@ -502,8 +502,6 @@ class GraspStream:
             width_lag_s=self.width_lag_s, hold_force_n=segment.hold_force_n,
             hold_approach_m=approach(segment.hold_width_m, segment.hold_force_n), depth_binning=self.binning,
             frames_dropped=self._frames.get(self.finger, Frames()).dropped)
-        if not tactile:
-            return m
         loading_index = segment.frame_index
         if frames is not None:
             frames = np.asarray(frames)
@@ -514,6 +512,8 @@ class GraspStream:
             m = dataclasses.replace(m, t_s=m.t_s[frames], force_n=m.force_n[frames], width_m=m.width_m[frames],
                                     approach_m=m.approach_m[frames])
             loading_index = loading_index[frames]
+        if not tactile:
+            return m
         perception = self._perception
         why = segment.reason or segment.frame_reason or perception.reference_reason(frame_t := self._frame_times(), segment)
         if why:

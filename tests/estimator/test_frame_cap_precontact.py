@@ -1,11 +1,14 @@
 """A grasp whose frames before contact alone pass ``MAX_GRASP_FRAMES`` (an operator holding the dead-man for
 minutes before touching the object) keeps, of them, only the last ones the no-contact reference needs: its
-estimate rests on its contact frames, live and offline alike, and it keeps no more frames than the cap."""
+estimate rests on its contact frames, live and offline alike, and it keeps no more frames than the cap. A frame
+refused live is dropped to make room in its turn, and never blocks the frames after it."""
 
 from __future__ import annotations
 
 import dataclasses
+import re
 
+import cv2
 import numpy as np
 import pytest
 from support.live import METHODS, feed, in_capture_order, same
@@ -13,6 +16,7 @@ from support.live import METHODS, feed, in_capture_order, same
 from estimator import received
 from estimator import stream as stream_module
 from estimator.errors import PerceptionError
+from estimator.inference.sampling import sample_grasp, sample_stream
 from estimator.measurements import REFERENCE_FRAMES, REFERENCE_GUARD_S
 from estimator.stream import GraspStream
 from teleop.record import Samples
@@ -107,3 +111,80 @@ def test_the_report_shows_the_loading_frames_of_a_grasp_with_dropped_frames(sett
     plain, long = moments(records["stress_ball"]), moments(prepended(records["stress_ball"], 2.0 * cap / 30))
     for key in (("left", "mid-loading"), ("left", "peak force")):
         assert long[key] == pytest.approx(plain[key], abs=1e-9), key
+
+
+def test_the_segment_follows_the_frames_kept_while_old_ones_are_dropped(settings, calibration, records, cap):
+    record = prepended(records["stress_ball"], 2.0 * cap / 30)
+    items = in_capture_order(record)
+    live = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    for t, kind, body in items:  # the force and widths first: the onset is known before the frames come
+        if kind != "frame":
+            feed(live, kind, body, t)
+    compared = 0
+    for t, kind, body in items:
+        if kind != "frame" or body["finger"] != live.finger:
+            continue
+        try:
+            feed(live, kind, body, t)
+        except PerceptionError:
+            continue
+        segment = live.segment()  # as the service segments at every frame
+        fresh = live.for_finger(live.finger, calibration=calibration).segment()  # the same frames, nothing cached
+        if any("from before contact, not kept" in note for note in fresh.notes):
+            assert np.array_equal(segment.frame_t_s, fresh.frame_t_s) and segment.notes == fresh.notes, t
+            compared += 1
+        if compared == 5:
+            break
+    assert compared == 5  # frames were dropped along the way
+
+
+def test_a_refused_frame_dropped_once_in_contact_leaves_each_kept_frame_its_own_image(settings, calibration,
+                                                                                       records, cap):
+    # Two seconds before contact (its 4th frame garbled): the cap is reached in contact, and the garbled frame,
+    # dropped then to make room, held no image: each frame kept keeps its own.
+    record = prepended(records["stress_ball"], 2.0)
+    live = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    for t, kind, body in in_capture_order(record):
+        try:
+            if feed(live, kind, body, t) and live.segment():
+                live.measure_frames()
+        except PerceptionError as exc:
+            assert "frame 3 of finger 'left'" in str(exc)
+    offline = GraspStream.from_record(record, settings=settings, calibration=calibration, methods=METHODS)
+    assert live.frames_not_kept("left") == offline.frames_not_kept("left") > 0  # the cap was reached in contact
+    final, measured = live.estimate().estimates, offline.estimate().estimates
+    dropped = [re.search(r"its first (\d+) frames of finger 'left', from before contact, not kept", e.reason)
+               for e in final]
+    assert all(found and int(found[1]) > 3 for found in dropped)  # the garbled 4th frame among them
+    assert any(e.state == "ok" for e in final)
+    assert all(same(a, b) for a, b in zip(final, measured, strict=True))
+    # A model's input, read from the images and depths the stream cached, is the record's of the frames kept.
+    cached = sample_stream(live, n_frames=3, size_px=None)
+    decoded = sample_grasp(live.to_record(), settings=settings, calibration=calibration, n_frames=3, size_px=None)
+    assert cached and np.array_equal(cached.depth_m, decoded.depth_m)
+
+
+def test_a_frame_refused_for_its_time_is_dropped_first_and_blocks_nothing(settings, calibration, cap):
+    jpeg = cv2.imencode(".jpg", np.zeros((8, 8, 3), np.uint8))[1].tobytes()
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    other = next(s.finger for s in stream.sensors if s.finger != stream.finger)  # kept as it came, not decoded
+    with pytest.raises(PerceptionError, match="not finite"):
+        stream.add_frame(other, float("nan"), jpeg, "jpeg")  # refused: it takes a place among those kept
+    times = [i / 30 for i in range(3 * cap)]  # an open gripper long before contact: no force yet
+    for t in times:
+        assert stream.add_frame(other, t, jpeg, "jpeg") is False
+    assert stream.frames_not_kept(other) == 0  # room was made for every one, the refused frame's first
+    assert stream.to_record().stream(other).t_s.tolist() == times[-cap:]  # none lost to the refused one
+
+
+def test_once_a_frame_was_not_kept_no_later_one_makes_room(cap):
+    """As a record's frames past those kept stay past them (Frames.of_record stops at the first frame with no
+    room), live ones do: a later cut that would free room (the onset found again later) drops no frame."""
+    frames = received.Frames()
+    for i in range(cap):
+        frames.add(i / 30, b"jpeg", "jpeg", where="test")
+    assert frames.full
+    assert not frames.make_room(lambda: 0.5)  # 15 frames before the cut: the reference needs them
+    frames.not_kept += 1  # the new frame is counted, not kept (GraspStream.add_frame)
+    assert not frames.make_room(lambda: np.inf)
+    assert (frames.dropped, len(frames.t_s), frames.t_s[0]) == (0, cap, 0.0)

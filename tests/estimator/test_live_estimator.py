@@ -431,6 +431,77 @@ def test_a_stop_before_the_force_shows_contact_waits_for_the_load_cell(settings,
     assert air.loading_complete() and not air.segment()
 
 
+def force_peak_s(settings, calibration, record: GraspRecord) -> float:
+    """The force peak (s) of the record's segmentation."""
+    segment = GraspStream.from_record(record, settings=settings, calibration=calibration, methods=METHODS).segment()
+    assert segment and np.isfinite(segment.t_peak_s)
+    return float(segment.t_peak_s)
+
+
+def fed_except(settings, calibration, record: GraspRecord, held_back) -> GraspStream:
+    """A stream fed the record in capture order but the messages ``held_back(t, kind)`` names."""
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    for t, kind, body in in_capture_order(record):
+        if not held_back(t, kind):
+            feed(stream, kind, body, t)
+    return stream
+
+
+def first_frame_after(stream: GraspStream, record: GraspRecord, t_s: float) -> tuple[float, dict]:
+    """The record's first frame of the stream's finger captured after ``t_s``: its time and message body."""
+    return next((t, body) for t, kind, body in in_capture_order(record)
+                if kind == "frame" and body["finger"] == stream.finger and t > t_s)
+
+
+def test_without_a_marker_loading_waits_for_a_width_sample_after_the_peak(settings, calibration, records):
+    record = dataclasses.replace(records["steel_ball_bearing"], events={})
+    peak = force_peak_s(settings, calibration, record)
+    stream = fed_except(settings, calibration, record, lambda t, kind: kind == "width" and t >= peak)
+    assert stream.segment() and stream.newest_force_s > peak + 0.5  # settled long since, frames came
+    assert not stream.loading_complete()  # no width after the peak frame yet
+    last = max(t for t, kind, _ in in_capture_order(record) if kind == "width")
+    stream.add_width(np.array([last]), record.width_m.value[record.width_m.t_s == last])
+    assert stream.loading_complete()
+
+
+def test_without_a_marker_loading_waits_for_a_frame_after_the_peak(settings, calibration, records):
+    record = dataclasses.replace(records["steel_ball_bearing"], events={})
+    peak = force_peak_s(settings, calibration, record)
+    stream = fed_except(settings, calibration, record, lambda t, kind: kind == "frame" and t > peak)
+    assert stream.segment() and stream.newest_force_s > peak + 0.5  # settled long since, widths came
+    assert not stream.loading_complete()  # the peak frame is still to come
+    t, body = first_frame_after(stream, record, peak)
+    feed(stream, "frame", body, t)
+    assert stream.loading_complete()
+
+
+def test_after_the_marker_a_frame_stamped_at_the_peak_is_not_the_peak_frame(settings, calibration, records):
+    record = records["steel_ball_bearing"]
+    peak = force_peak_s(settings, calibration, record)
+    stream = fed_except(settings, calibration, record, lambda t, kind: t > peak or (kind == "frame" and t == peak))
+    stream.mark_loading_end(min(record.events["grasp_done"], peak))
+    assert stream.segment().t_peak_s == peak
+    t, body = first_frame_after(stream, record, peak)
+    feed(stream, "frame", body, peak)  # a frame captured at the very time of the peak
+    assert stream.newest_force_s < peak + PEAK_FRAME_WINDOW_S
+    assert not stream.loading_complete()  # the peak frame is the first captured after the peak
+    feed(stream, "frame", body, t)
+    assert stream.loading_complete()
+
+
+def test_a_stream_for_another_finger_keeps_the_loading_end_marker(settings, calibration, records):
+    # A marker-finger model measures such a twin: the same grasp, its loading over at the same marker.
+    record = records["steel_ball_bearing"]
+    items, stop_s, _ = until_loading_end(record)
+    stream = GraspStream(settings=settings, calibration=calibration, methods=METHODS)
+    for t, kind, body in items:
+        feed(stream, kind, body, t)
+    stream.mark_loading_end(stop_s)
+    other = next(s.finger for s in stream.sensors if s.finger != stream.finger)
+    twin = stream.for_finger(other, calibration=None)
+    assert twin.loading_end_s == stop_s and twin.to_record().events == stream.to_record().events
+
+
 def test_a_follow_grasp_streams_provisional_estimates_until_its_end(rig, settings, calibration, tmp_path):
     # An operator drives the fingers (the robot says "following"): no loading-end marker, pauses and
     # back-offs; every frame from contact on gives a provisional estimate, the final one comes at the end.

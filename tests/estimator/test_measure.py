@@ -382,11 +382,19 @@ def test_a_records_frame_that_does_not_decode_is_skipped_as_a_live_stream_drops_
     assert series.state != "insufficient_data" and "skipped 1 frames of finger 'left': " in series.reason
 
 
-@pytest.mark.parametrize("frames", [[0, 0], [-1], [10_000], [0.5]])
-def test_frames_that_are_not_distinct_loading_positions_are_refused(calibration, frames):
+@pytest.mark.parametrize("tactile", [True, False])
+def test_frames_are_distinct_loading_positions_that_restrict_the_measurements_with_or_without_tactile(
+        calibration, tactile):
     stream = GraspStream.from_record(build_record(3e5), settings=SETTINGS, calibration=calibration)
-    with pytest.raises(FitError, match="frames"):
-        stream.measurements(frames=np.array(frames))
+    segment = stream.segment()
+    count = segment.frame_index.size
+    every = stream.measurements(segment, tactile=False)
+    last = stream.measurements(segment, frames=np.array([count - 1]), tactile=tactile)
+    for name in ("t_s", "force_n", "width_m", "approach_m"):
+        np.testing.assert_array_equal(getattr(last, name), getattr(every, name)[-1:])
+    for bad in ([count], [-1], [0, 0], [0.5]):  # one past the last loading frame, a negative, a repeat, a float
+        with pytest.raises(FitError, match=rf"expected distinct positions 0\.\.{count - 1} of the loading frames"):
+            stream.measurements(segment, frames=np.array(bad), tactile=tactile)
 
 
 def test_hold_frames_are_measured_only_when_the_fits_use_them(calibration):

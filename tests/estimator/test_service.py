@@ -1,14 +1,17 @@
-"""The estimator service: its per-grasp report on a foreign clock, and its command line."""
+"""The estimator service: a grasp's lifecycle driven message by message (no bus), its per-grasp report on a
+foreign clock, a model that fails, and its command line."""
 
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
 from support.live import METHODS, in_capture_order
 
 import estimator.cli
+from estimator.errors import ModelError
 from estimator.service import EstimatorService
 from teleop.bus.wire import make_message
 from teleop.live import JsonLines
@@ -40,6 +43,26 @@ def test_time_to_first_estimate_is_read_on_the_capture_clock(settings, calibrati
     first = next(m for m in service.publisher.sent if m.type == "estimate" and m.body["state"] != "insufficient_data")
     # Not before the data it rests on was captured; within the grasp's first fraction of a second.
     assert first.t_capture_s - report["t_contact_s"] <= report["time_to_first_estimate_s"] < 0.5
+
+
+def test_time_to_first_estimate_maps_the_clocks_by_the_least_delay_seen(settings, calibration, records, tmp_path):
+    # The service's clock runs 1000 s ahead of the capture clock; the first data came at once, the rest
+    # 0.5 s late (a backlog): the least delay, not the latest, maps one clock onto the other.
+    now = [0.0]
+    service = EstimatorService(settings, calibration=calibration, subscriber=None, publisher=_Sent(),
+                               methods=METHODS, report=JsonLines(tmp_path / "report.jsonl"), clock=lambda: now[0])
+    first_s = None
+    for n, (t_s, kind, body) in enumerate(_grasp_items(records["stress_ball"])):
+        now[0] = t_s + 1000.0 + (0.0 if n <= 1 else 0.5)  # the start and the first data message at once
+        sent = len(service.publisher.sent)
+        service.handle(make_message(kind, t_capture_s=t_s, grasp_id="g", **body), received_s=now[0])
+        if first_s is None and any(m.type == "estimate" and m.body["state"] != "insufficient_data"
+                                   for m in service.publisher.sent[sent:]):
+            first_s = t_s  # the capture time of the message that brought the first estimate
+    (report,) = [json.loads(line) for line in (tmp_path / "report.jsonl").read_text().splitlines()]
+    # That estimate went out 0.5 s after its message was captured, on the capture clock.
+    assert first_s is not None
+    assert report["time_to_first_estimate_s"] == pytest.approx(first_s + 0.5 - report["t_contact_s"], abs=1e-9)
 
 
 @pytest.mark.parametrize("value", ["nan", "-1", "0", "inf"])
@@ -109,6 +132,57 @@ def test_a_loading_end_marker_after_the_service_closed_the_loading_sends_no_seco
                    (t_end_s, "grasp_event", {"event": "end"})], "g")
     estimates = [m for m in service.publisher.sent if m.type == "estimate"]
     assert [m.body["provisional"] for m in estimates].count(False) == 1 and not estimates[-1].body["provisional"]
+
+
+def test_a_grasp_ended_twice_gets_one_final_one_end_and_one_report(settings, calibration, records, tmp_path):
+    service = EstimatorService(settings, calibration=calibration, subscriber=None, publisher=_Sent(),
+                               methods=METHODS, report=JsonLines(tmp_path / "report.jsonl"), clock=lambda: 0.0)
+    items = _grasp_items(records["steel_ball_bearing"])
+    _run(service, [*items, items[-1]], "g")  # its end comes twice (a retry, a second subscriber path)
+    finals = [m.body for m in service.publisher.sent if m.type == "estimate" and not m.body["provisional"]]
+    assert len(finals) == 1 and finals[0]["state"] != "insufficient_data"  # no refusal after the final
+    assert [m.type for m in service.publisher.sent].count("grasp_event") == 1
+    assert len((tmp_path / "report.jsonl").read_text().splitlines()) == 1 and service.stats.ignored == 1
+
+
+class _FailingModel:
+    """A model pinned to a grasp whose every estimate fails (a broken input, a runtime error)."""
+
+    predictor = SimpleNamespace(variant=SimpleNamespace(image="force", markers=False, size_px=None, window_m=None))
+
+    def estimate_stream(self, stream, *, mode):
+        raise ModelError("the network gave NaN")
+
+
+@pytest.fixture(scope="module")
+def failing_model_run(settings, calibration, records, tmp_path_factory) -> tuple[EstimatorService, dict]:
+    """A grasp through a service whose model fails (its clock, at 0 s, reads earlier than the messages
+    were received); the service and its report line."""
+    report = tmp_path_factory.mktemp("failing") / "report.jsonl"
+    service = EstimatorService(settings, calibration=calibration, subscriber=None, publisher=_Sent(),
+                               methods=METHODS, report=JsonLines(report), clock=lambda: 0.0)
+    service.model = SimpleNamespace(estimator=_FailingModel(), model_id="tiny-123", model_dir="/models/tiny",
+                                    mode="auto")
+    _run(service, _grasp_items(records["steel_ball_bearing"]), "g")
+    (line,) = report.read_text().splitlines()
+    return service, json.loads(line)
+
+
+def test_a_failing_model_gives_the_analytical_final_saying_why(failing_model_run):
+    service, report = failing_model_run
+    (final,) = [m for m in service.publisher.sent if m.type == "estimate" and not m.body["provisional"]]
+    assert final.body["model"] is None  # the analytical estimate names no model
+    assert "model failed: the network gave NaN" in final.body["reason"]
+    assert report["model"] is None and report["model_served"] == "tiny-123"  # pinned, but it made no estimate
+    assert "model failed" in report["final"]["reason"]
+    # The report says which frames the final rests on: its loading frames, the last stamping the final.
+    assert report["loading_frames"] > 0 and report["t_last_loading_frame_s"] == final.t_capture_s
+
+
+def test_an_estimates_latency_is_never_negative(failing_model_run):
+    service, _ = failing_model_run  # its clock reads earlier than the messages were received
+    estimates = [m.body for m in service.publisher.sent if m.type == "estimate"]
+    assert estimates and all(e["latency_s"] == 0.0 for e in estimates)
 
 
 class _Silent:
