@@ -33,8 +33,9 @@ salvaged, a robot stopped mid-grasp) is labelled all the same but named in
 :attr:`LabelReport.unended`: ``teleop export`` skips it, so its label is not used.
 
 Refused, with nothing written: a log cut short or with a record that cannot be read (``teleop
-recover`` first: the copy would leave the record out and read as whole; an attachment whose CRC-32
-fails is not refused, as it is copied as stored, its damage kept), an unknown column, and
+recover`` first, whose copy lists the record as lost: the labelled copy would leave it out and read
+as whole; an attachment whose CRC-32 fails is not refused, as it is copied as stored, its damage
+kept), an unknown column, and
 CSV rows naming a grasp the log does not hold (the error lists the log's grasps), a grasp another
 row names too, an object that is neither in the catalogue nor given a modulus or Shore hardness,
 or a bad number: every such row is named in one error, so that a long CSV is mended in one go.
@@ -295,7 +296,8 @@ def _cut_short(log: Path, damage: str | None) -> str:
 
 def _kept_damage(reader: LogReader, info: LogInfo) -> str | None:
     """The damage the labelled copy keeps, as :attr:`LogReader.damage` says it: the parts lost before a
-    recovery (in the copied recovery metadata) and the attachments whose CRC-32 fails (copied as stored).
+    recovery (chunks, attachment and metadata records, in the copied recovery metadata) and the
+    attachments whose CRC-32 fails (copied as stored).
     A record skipped for damage (an attachment or metadata record whose length is garbled) is not
     kept: the copy would read as whole."""
     kept = [str(chunk) for chunk in reader.lost if chunk.lost_in] + list(info.damaged_attachments.values())

@@ -5,9 +5,10 @@ attachments whose checksum fails, and what a damaged record is
 Lost parts
 ----------
 A :class:`LostChunk` is a part of a log that could not be read, with the log times of the
-messages it may have held: grasps overlapping it are not whole. ``teleop recover`` copies only
-what it could read, so it lists every part lost in its source (and those its source had lost
-before, when the source was itself recovered) in the ``lost`` entry of its
+messages it may have held: grasps overlapping it are not whole. A lost attachment or metadata
+record is one too (:meth:`LostChunk.record`), holding no messages: it overlaps no grasp. ``teleop
+recover`` copies only what it could read, so it lists every part lost in its source (and those its
+source had lost before, when the source was itself recovered) in the ``lost`` entry of its
 :data:`RECOVERY_METADATA` record, a JSON list of :meth:`LostChunk.as_mapping`; the reader of the
 recovered log reads them back (:func:`recorded_losses`) and takes them as lost too.
 
@@ -48,16 +49,19 @@ __all__ = [
     "intact_attachment",
     "recorded_losses",
     "recovery_metadata",
+    "skipped_in_summary",
 ]
 
 RECOVERY_METADATA = "recovery"  # the metadata record `teleop recover` adds to what it writes
 _LOST_KEY = "lost"  # ... its entry listing the parts lost (JSON)
 _FIELDS = {"start_byte": int, "end_byte": int, "start_ns": int, "end_ns": int, "kind": str, "lost_in": str}
+_RECORD_KINDS = ("attachment record", "metadata record")  # lost records that hold no messages
 
 
 @dataclass(frozen=True)
 class LostChunk:
-    """A chunk skipped because it (or the record before it) is damaged: its bytes and log times.
+    """A chunk skipped because it (or the record before it) is damaged: its bytes and log times; or
+    another part skipped (:attr:`kind`), such as an attachment or metadata record (:meth:`record`).
 
     ``lost_in``: the log it was lost from, when that is not this one (a recovered log's source:
     the bytes are that log's); "" when it was skipped in this very file.
@@ -67,19 +71,33 @@ class LostChunk:
     end_byte: int
     start_ns: int  # log time of its first message
     end_ns: int  # ... and of its last (UNKNOWN_NS: no message read after it)
-    kind: str = "chunk"  # or what else was skipped (a log without summary: bytes not read)
+    kind: str = "chunk"  # or what else was skipped (a log without summary: bytes not read; a record)
     lost_in: str = ""
+
+    @classmethod
+    def record(cls, start_byte: int, end_byte: int, opcode: str, named: str) -> LostChunk:
+        """The ``opcode`` ("attachment" or "metadata") record at those bytes, lost; ``named``: its
+        name as `` 'name'`` ("" when it does not read). It holds no messages: its log times are an
+        empty span (first after last), which no message's overlaps for readers going by times alone."""
+        return cls(start_byte, end_byte, UNKNOWN_NS, 0, f"{opcode} record{named}")
+
+    @property
+    def holds_messages(self) -> bool:
+        """Whether messages may have been in it (a lost attachment or metadata record holds none)."""
+        return not self.kind.startswith(_RECORD_KINDS)
 
     def overlaps(self, start_ns: int, end_ns: int) -> bool:
         """Whether messages logged between ``start_ns`` and ``end_ns`` may have been in it."""
-        return self.start_ns <= end_ns and start_ns <= self.end_ns
+        return self.holds_messages and self.start_ns <= end_ns and start_ns <= self.end_ns
 
     def as_mapping(self, path: Path | str) -> dict[str, Any]:
         """Its fields, as the recovery metadata stores them; ``path``: the log it was read from."""
         return {**asdict(self), "lost_in": self.lost_in or str(path)}
 
     def __str__(self) -> str:
-        if self.kind == "chunk":
+        if not self.holds_messages:
+            times = "no messages were lost: it holds none"
+        elif self.kind == "chunk":
             times = f"messages logged from {self.start_ns} to {self.end_ns} ns lost"
         elif self.end_ns == UNKNOWN_NS:
             times = f"messages logged after {self.start_ns} ns lost"
@@ -180,6 +198,31 @@ def check_attachment(file: Any, record: Attachment, end: int) -> Attachment:
     return DamagedAttachment(
         record.create_time, record.log_time, record.name, record.media_type, record.data,
         stored_crc=stored, crc=crc, start_byte=end - 9 - len(head) - len(record.data) - 4, end_byte=end,
+    )
+
+
+def skipped_in_summary(summary: Summary, start: int, end: int) -> tuple[list[LostChunk], str]:
+    """The chunks, attachment and metadata records that ``summary`` indexes between bytes ``start``
+    and ``end`` (skipped for damage) as lost parts, and what was skipped, as text."""
+    chunks = [c for c in summary.chunk_indexes if start <= c.chunk_start_offset < end]
+    records = [("attachment", a) for a in summary.attachment_indexes if start <= a.offset < end]
+    records += [("metadata", m) for m in summary.metadata_indexes if start <= m.offset < end]
+    lost = [
+        LostChunk(c.chunk_start_offset, c.chunk_start_offset + c.chunk_length, c.message_start_time,
+                  c.message_end_time)
+        for c in chunks
+    ]
+    lost += [LostChunk.record(i.offset, i.offset + i.length, opcode, f" {i.name!r}") for opcode, i in records]
+    times = ""
+    if chunks:
+        first = min(c.message_start_time for c in chunks)
+        last = max(c.message_end_time for c in chunks)
+        times = f", messages logged from {first} to {last} ns"
+    named = [f"{opcode} {i.name!r}" for opcode, i in records]
+    also = f"; lost: {', '.join(named)}" if named else ""
+    return lost, (
+        f"; skipped bytes {start} to {end} ({len(chunks)} chunk(s) lost{times}{also}) "
+        "and read on from there"
     )
 
 

@@ -105,6 +105,7 @@ from teleop.session.logdamage import (
     describe,
     recorded_losses,
     recovery_metadata,
+    skipped_in_summary,
 )
 from teleop.session.logframes import FRAMING, elides, unpack_frames
 from teleop.session.logscan import (
@@ -340,7 +341,8 @@ class LogReader:
 
         At a damaged record, reading goes on at the next record the file's summary indexes
         (a chunk, attachment or metadata record) when the summary and footer are intact; the
-        chunks skipped are in :attr:`lost`, and the summary's schemas and channels are
+        chunks, attachments and metadata records skipped are in :attr:`lost` (the latter holding
+        no messages), and the summary's schemas and channels are
         yielded again before reading on (a skipped chunk may have held the first of them).
         Without an intact summary (a log cut short) reading stops at the damage.
         An attachment whose CRC-32 fails is yielded as a
@@ -425,7 +427,9 @@ class LogReader:
                 if summary is not None:
                     resume = self._resume_at(summary, damaged_at)
                     if resume is not None:
-                        what += self._skip(summary, damaged_at, resume)
+                        lost, skipped = skipped_in_summary(summary, damaged_at, resume)
+                        self.lost += lost
+                        what += skipped
                 else:
                     resume, skipped = self._read_on(file, damaged_at, size, last_ns)
                     if resume is not None:
@@ -434,7 +438,8 @@ class LogReader:
                                 failure, file, damaged_at, size, self.good_bytes, "an intact chunk follows"
                             )
                         what += skipped
-                        if self.lost and not self.lost[-1].lost_in and self.lost[-1].start_byte == damaged_at:
+                        skip = self.lost[-1] if self.lost else None  # its end: the next message's time
+                        if skip and not skip.lost_in and skip.start_byte == damaged_at and skip.holds_messages:
                             pending = len(self.lost) - 1
                 damages.append(what)
                 self._say(damages)
@@ -453,7 +458,7 @@ class LogReader:
     @property
     def mendable(self) -> bool:
         """Whether ``teleop recover`` makes a whole file of more of it (cut short, or parts skipped)."""
-        return self.stopped or self.cut or any(not c.lost_in for c in self.lost)
+        return self.stopped or self.cut or any(not c.lost_in and c.holds_messages for c in self.lost)
 
     def _say(self, damages: list[str]) -> None:
         """Set :attr:`damage`: the parts lost before recovery, then ``damages`` (this file's)."""
@@ -491,44 +496,22 @@ class LogReader:
         later = [s for s in starts if s > damaged_at]
         return min(later, default=None)
 
-    def _skip(self, summary: Summary, start: int, end: int) -> str:
-        """Note the chunks between bytes ``start`` and ``end`` as lost; what was skipped, as text."""
-        chunks = [c for c in summary.chunk_indexes if start <= c.chunk_start_offset < end]
-        for chunk in chunks:
-            self.lost.append(
-                LostChunk(
-                    chunk.chunk_start_offset,
-                    chunk.chunk_start_offset + chunk.chunk_length,
-                    chunk.message_start_time,
-                    chunk.message_end_time,
-                )
-            )
-        times = ""
-        if chunks:
-            first = min(c.message_start_time for c in chunks)
-            last = max(c.message_end_time for c in chunks)
-            times = f", messages logged from {first} to {last} ns"
-        named = [f"attachment {a.name!r}" for a in summary.attachment_indexes if start <= a.offset < end]
-        named += [f"metadata {m.name!r}" for m in summary.metadata_indexes if start <= m.offset < end]
-        also = f"; lost: {', '.join(named)}" if named else ""
-        return (
-            f"; skipped bytes {start} to {end} ({len(chunks)} chunk(s) lost{times}{also}) "
-            "and read on from there"
-        )
-
     def _read_on(self, file: Any, start: int, size: int, last_ns: int) -> tuple[int | None, str]:
         """Where to read on after the damaged record at byte ``start`` of a log without summary
-        (None: nowhere), and what is skipped, as text; a skipped chunk or region goes in :attr:`lost`."""
+        (None: nowhere), and what is skipped, as text; a skipped chunk, attachment, metadata record or
+        region goes in :attr:`lost`."""
         head = record_head(file, start)
         if head is not None and head[0] in OPCODES and start + 9 + head[1] <= size:
             end = start + 9 + head[1]
             after = record_head(file, end)  # the record after it must look like one
             if end == size or (after is not None and after[0] in OPCODES and after[1] <= size):
-                kind = Opcode(head[0]).name.lower()
-                lost = f": {kind}{record_name(file, start, head[0])} lost"
+                kind, named = Opcode(head[0]).name.lower(), record_name(file, start, head[0])
+                lost = f": {kind}{named} lost"
                 if head[0] in (Opcode.CHUNK, Opcode.MESSAGE):
                     self.lost.append(LostChunk(start, end, last_ns, UNKNOWN_NS, kind))
                     lost = ": the messages in it lost"
+                elif head[0] in (Opcode.ATTACHMENT, Opcode.METADATA):  # holds no messages
+                    self.lost.append(LostChunk.record(start, end, kind, named))
                 return end, f"; skipped it (bytes {start} to {end}{lost}) and read on"
         found = next_chunk(file, start + 1, size)
         if found is None:

@@ -6,8 +6,9 @@ complete record; every complete record read (header, schemas,
 channels, messages, attachments, metadata) is copied unchanged, message data byte for
 byte, into a new file with a summary, indexes and footer. A ``recovery`` metadata record
 says what was salvaged from where, and lists the parts lost (``lost``: those of the source,
-with its byte offsets and the log times of what they held, and those the source had lost
-before when it was itself recovered), so readers of the copy take them as lost
+with its byte offsets and the log times of what they held, attachment and metadata records
+named and holding no messages, and those the source had lost before when it was itself
+recovered), so readers of the copy take them as lost
 (:mod:`teleop.session.logdamage`). An attachment whose CRC-32 fails is copied with its stored
 CRC-32, not a fresh one, so the copy's readers find the damage too; it is named in
 ``damaged_attachments``. A message whose channel record was lost with a damaged chunk (a killed

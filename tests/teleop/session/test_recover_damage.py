@@ -45,14 +45,16 @@ def test_a_damaged_attachment_in_a_cut_short_log_is_skipped_and_every_message_sa
     reader = LogReader(damaged)
     read = [m.frames for m in reader.messages()]
     assert read and read == _frames(plain)  # nothing after the damage is lost
-    assert reader.damaged and reader.cut and reader.stopped and not reader.lost
+    assert reader.damaged and reader.cut and reader.stopped
+    assert [(c.start_byte, c.end_byte, c.holds_messages) for c in reader.lost] == [
+        (attachment.offset, attachment.offset + attachment.length, False)]  # lost, holding no message
     assert reader.damage.startswith(f"damaged record after byte {attachment.offset} ")
     assert f"skipped it (bytes {attachment.offset} to {attachment.offset + attachment.length}: attachment" in (
         reader.damage
     )
     report = recover(damaged, tmp_path / "fixed.mcap")
     assert report.messages == len(read) and report.damaged and report.cut_short
-    assert attachment.name not in report.attachments
+    assert attachment.name not in report.attachments and [c["start_byte"] for c in report.lost] == [attachment.offset]
     assert main(["recover", str(damaged), "--out", str(tmp_path / "fixed2.mcap")]) == 0
     err = capsys.readouterr().err
     assert f"{damaged}: damaged and cut short (damaged record after byte {attachment.offset}" in err
