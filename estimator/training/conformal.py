@@ -9,7 +9,7 @@ that ``metadata.json`` ``calibration`` holds (:mod:`estimator.inference.infer`),
 * a temperature on the logits, minimising the log score under that floor;
 * per band of the grasp's peak force (:data:`FORCE_BAND_EDGES_N`): the probability of E at or
   above the resolution limit from which the answer is a lower bound (the smallest of
-  :data:`P_RIGID_CHOICES` at which the band's bounds hold at :data:`INTERVAL_LEVEL`), and the
+  :data:`P_RIGID_CHOICES` at which the band's lower bounds hold at :data:`INTERVAL_LEVEL`), and the
   interval's half-width in spreads of the distribution (split conformal on the band's grasps
   answered ``ok``) at which the band's answers hold the truth on :data:`INTERVAL_LEVEL` of its
   grasps, bounds included: the level is a promise about every answer the operator gets, light
@@ -136,13 +136,16 @@ def fit_conformal(logits: np.ndarray, log10_truth: np.ndarray, *, gel_scales: np
 
     def fit(grasps: np.ndarray) -> tuple[float, float, float]:
         """(p_rigid, interval scale, ok_level) fitted on the grasps of the mask ``grasps``."""
+        # p_rigid decides only which answers are lower bounds: an upper bound that fails is no reason
+        # for a stricter one, and none would make it hold.
         for p_rigid in P_RIGID_CHOICES:
             bounds = [holds(d, t) for d, t, g in zip(answers[p_rigid], truth_pa, grasps, strict=True)
-                      if g and d.state != "ok"]
+                      if g and d.state == "lower_bound"]
             if not bounds or np.mean(bounds) >= level:
                 break
         said = answers[p_rigid]
         ok = np.array([d.state == "ok" for d in said], dtype=bool) & grasps
+        # Bounds of both kinds are answers the level promises: what they hold, the ok intervals need not.
         bounds_held = sum(holds(d, t) for d, t, g, o in zip(said, truth_pa, grasps, ok, strict=True) if g and not o)
         # Split conformal over the grasps: the ok intervals must hold what the bounds leave to reach level.
         needed = math.ceil((grasps.sum() + 1) * level) - bounds_held

@@ -14,7 +14,7 @@ from estimator.cli import main
 from estimator.errors import EstimatorError, SampleError
 from estimator.inference.inputs import ANALYTICAL_METHODS, Variant
 from estimator.inference.provenance import SPLITS, load_split
-from estimator.training.dataset import split_objects
+from estimator.training.dataset import MODULUS_SPREAD, split_objects
 from estimator.training.dataset_cli import parse_size
 from estimator.training.samples import load_sample, sample_paths
 from teleop.settings import load_settings
@@ -37,6 +37,16 @@ def test_split_is_stratified_by_material():
         per_material = Counter(MATERIALS[n] for n in split[s])
         for material in ("foam", "rubber", "plastic", "metal", "wood"):
             assert per_material[material] == pytest.approx(8 * share, abs=1), (s, material)
+
+
+@pytest.mark.parametrize("fractions", [(0.7, 0.15, 0.15), (0.8, 0.1, 0.1), (0.6, 0.2, 0.2)])
+def test_every_split_gets_its_share_of_a_material_to_within_one_object(fractions):
+    # Each object goes to the split furthest below its share so far: however many objects a material
+    # has, no split is a whole object (or more) off its share of them.
+    for n in range(1, 31):
+        split = split_objects({f"foam_{i}": "foam" for i in range(n)}, seed=0, fractions=fractions)
+        for s, share in zip(SPLITS, fractions, strict=True):
+            assert abs(len(split[s]) - n * share) < 1, (n, s, {k: len(v) for k, v in split.items()})
 
 
 @pytest.mark.parametrize("fractions", [(0.5, 0.5), (0.8, 0.3, -0.1), (0.5, 0.2, 0.2)])
@@ -201,6 +211,59 @@ def test_a_build_that_makes_nothing_fails_naming_every_record_and_leaves_no_fold
     assert sorted(p.name for p in tmp_path.iterdir()) == ["recs"]  # no dataset, whole or half
 
 
+def test_a_record_whose_measurement_fails_is_skipped_as_such(sim_grasps, tmp_path, monkeypatch):
+    import dataclasses
+
+    import estimator.training.dataset as dataset
+    from estimator.training.dataset import DatasetOptions, build_dataset
+    from teleop.record import read_record, write_record
+
+    records, calibration = sim_grasps
+    sources = sorted(records.glob("*.grasp"))[:2]
+    (tmp_path / "recs").mkdir()
+    good = shutil.copy(sources[0], tmp_path / "recs" / "good.grasp")
+    record = read_record(sources[1])
+    bad = write_record(dataclasses.replace(record, label=dataclasses.replace(record.label, object_name="unmeasurable")),
+                       tmp_path / "recs" / "bad.grasp")
+    real = dataset.sample_grasp
+
+    def failing(record, **kwargs):  # the measurement of one record fails (e.g. its depth cannot be recovered)
+        if record.label.object_name == "unmeasurable":
+            raise EstimatorError("depth reconstruction failed")
+        return real(record, **kwargs)
+
+    monkeypatch.setattr(dataset, "sample_grasp", failing)
+    manifest = build_dataset([good, bad], tmp_path / "ds", settings=load_settings(), progress=False,
+                             options=DatasetOptions(shifts=1, size_px=(32, 44), calibration=str(calibration)))
+    assert [(s["path"], s["cause"]) for s in manifest["skipped"]] == [(str(bad), "measurement failed")]
+    assert "depth reconstruction failed" in manifest["skipped"][0]["reason"]
+    assert manifest["skipped_reasons"] == {"measurement failed": 1}
+    assert manifest["grasps_used"] == 1 and [u["path"] for u in manifest["used"]] == [str(good)]
+
+
+def test_a_record_without_a_sensor_on_the_settings_finger_is_skipped_naming_the_finger(sim_grasps, tmp_path):
+    import dataclasses
+
+    from estimator.training.dataset import DatasetOptions, build_dataset
+    from teleop.record import read_record
+
+    records, calibration = sim_grasps
+    (tmp_path / "recs").mkdir()
+    path = shutil.copy(sorted(records.glob("*.grasp"))[0], tmp_path / "recs" / "r.grasp")
+    absent = "middle"
+    assert absent not in [s.finger for s in read_record(path).sensors]
+    # A rig whose sensing finger is one the record has no sensor on.
+    settings = load_settings()
+    middle = dataclasses.replace(settings.sensor(settings.sensing.finger), finger=absent)
+    settings = dataclasses.replace(settings, sensors=(*settings.sensors, middle),
+                                   sensing=dataclasses.replace(settings.sensing, finger=absent))
+    with pytest.raises(EstimatorError) as refused:  # its only record skipped: nothing made
+        build_dataset([path], tmp_path / "ds", settings=settings, progress=False,
+                      options=DatasetOptions(shifts=1, size_px=(32, 44), calibration=str(calibration)))
+    assert f"{path}: no sensor on finger {absent!r}" in str(refused.value) and "--settings" in str(refused.value)
+    assert not (tmp_path / "ds").exists()
+
+
 def test_a_build_that_fails_midway_leaves_nothing_behind(sim_grasps, tmp_path, monkeypatch):
     import estimator.training.dataset as dataset
     from estimator.training.dataset import DatasetOptions, build_dataset
@@ -322,6 +385,16 @@ def test_one_object_labelled_with_far_apart_moduli_is_warned_about(sim_grasps, t
     assert len(spread) == 1 and spread[0] in warned  # sponge's 3e4 and 5e4 are within a factor of 2
     assert spread[0].startswith("object 'stress_ball'")
     assert f"40000 Pa in {paths[1]}" in spread[0] and f"1e+06 Pa in {paths[0]}" in spread[0]
+
+
+def test_moduli_exactly_the_spread_apart_are_not_warned_about(sim_grasps, tmp_path):
+    from estimator.training.dataset import DatasetOptions, build_dataset
+
+    paths = _relabelled(sim_grasps, tmp_path / "recs", [("stress_ball", 1e5), ("stress_ball", MODULUS_SPREAD * 1e5)])
+    manifest = build_dataset(paths, tmp_path / "ds", settings=load_settings(), progress=False,
+                             options=DatasetOptions(shifts=1, size_px=(32, 44), calibration=str(sim_grasps[1])))
+    assert manifest["grasps_used"] == 2
+    assert [w for w in manifest["warnings"] if "moduli" in w] == []  # warned "by more than" the spread
 
 
 def test_a_record_copied_into_two_folders_is_counted_once(sim_grasps, tmp_path, capsys):

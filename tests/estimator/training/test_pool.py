@@ -83,6 +83,34 @@ def test_a_pooled_model_fine_tunes_as_one_network(trained_model, other_seed, syn
     assert not np.allclose(before.predict_logits(inputs), after.predict_logits(inputs), atol=1e-3)
 
 
+def test_models_trained_on_another_split_of_objects_are_not_pooled(trained_model, other_seed, synthetic_dataset,
+                                                                    tmp_path):
+    # A member that trained on the val objects would be calibrated on grasps it has seen: the pool's
+    # validation figures would flatter it.
+    elsewhere = tmp_path / "elsewhere"
+    shutil.copytree(other_seed, elsewhere)
+    meta = json.loads((elsewhere / "metadata.json").read_text())
+    objects = meta["data"]["objects"]
+    meta["data"]["objects"] = {**objects, "train": sorted([*objects["train"], *objects["val"]]), "val": []}
+    (elsewhere / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(EstimatorError, match="another split of objects"):
+        pool_models([trained_model, elsewhere], synthetic_dataset, tmp_path / "pooled")
+    assert not (tmp_path / "pooled").exists()
+
+
+def test_a_dataset_with_one_val_grasp_is_refused_before_any_export(trained_model, other_seed, synthetic_dataset,
+                                                                   tmp_path):
+    data = tmp_path / "data"
+    shutil.copytree(synthetic_dataset, data)
+    kept = sorted((data / "val").rglob("*_a0.npz"))[0]  # one grasp's live sample; its augmentations go too
+    for path in (data / "val").rglob("*.npz"):
+        if path != kept:
+            path.unlink()
+    with pytest.raises(EstimatorError, match="1 val samples; pooling needs at least 2"):
+        pool_models([trained_model, other_seed], data, tmp_path / "pooled")
+    assert not (tmp_path / "pooled").exists()
+
+
 def test_a_model_given_twice_is_refused_however_spelled(tmp_path, capsys):
     model = tmp_path / "model"
     model.mkdir()
