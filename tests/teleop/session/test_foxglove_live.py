@@ -13,6 +13,7 @@ import importlib
 import json
 import logging
 import re
+import socket
 import struct
 import subprocess
 import sys
@@ -24,10 +25,11 @@ import pytest
 from websockets.sync.client import connect
 
 from teleop.bus import Publisher
-from teleop.bus.wire import make_message
+from teleop.bus.wire import make_message, now_ns
 from teleop.errors import BusError
-from teleop.session.foxglove import foxglove_messages, known_channels
+from teleop.session.foxglove import foxglove_messages, image_topic, known_channels
 from teleop.session.foxglove_live import LiveServer, LiveTap, parse_address
+from teleop.settings import Settings
 
 TELEOP = Path(sys.executable).parent / "teleop"
 SUBPROTOCOL = "foxglove.sdk.v1"  # what foxglove-sdk 0.30 accepts (it refuses foxglove.websocket.v1)
@@ -135,10 +137,54 @@ def test_each_topics_times_never_go_back():
 def test_bad_addresses_and_taken_ports_are_refused_clearly():
     assert parse_address("9000") == ("127.0.0.1", 9000)
     assert parse_address("0.0.0.0:0") == ("0.0.0.0", 0)
-    with pytest.raises(BusError, match="expected \\[HOST:\\]PORT"):
-        parse_address("localhost:http")
+    assert parse_address("65535") == ("127.0.0.1", 65535)
+    assert parse_address("[::1]:8765") == parse_address("::1:8765") == ("::1", 8765)
+    for bad in ("localhost:http", "65536", "-1", "[]:8765"):  # "[]": no host, not "every interface"
+        with pytest.raises(BusError, match="expected \\[HOST:\\]PORT"):
+            parse_address(bad)
     with LiveServer("127.0.0.1", 0) as server, pytest.raises(BusError, match="cannot serve"):
         LiveServer("127.0.0.1", server.port)
+
+
+def test_a_live_view_on_an_ipv6_host_is_reachable_at_its_url():
+    try:
+        with socket.socket(socket.AF_INET6) as probe:
+            probe.bind(("::1", 0))
+    except OSError as exc:
+        pytest.skip(f"this host has no IPv6 loopback: {exc}")
+    with (
+        LiveServer(*parse_address("[::1]:0"), fingers=[]) as server,
+        connect(server.url, subprotocols=[SUBPROTOCOL], open_timeout=5) as ws,
+    ):
+        assert server.url == f"ws://[::1]:{server.port}"
+        assert _ops(ws, "serverInfo")["name"] == "compliance-teleop"
+
+
+def test_live_log_times_are_ns_since_the_unix_epoch_like_the_session_logs():
+    force = make_message("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0])
+    with (
+        LiveServer("127.0.0.1", 0, fingers=[]) as server,
+        connect(server.url, subprotocols=[SUBPROTOCOL], open_timeout=5) as ws,
+    ):
+        # monotonic plus the offset is this host's clock (a generous bound: only sign and scale matter)
+        assert abs(now_ns() + server.offset_ns - time.time_ns()) < 60 * 10**9
+        channel = _advertised(ws, {"/force"})["/force"]
+        ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channel["id"]}]}))
+        received_ns = now_ns()
+        data = _first_data(ws, lambda: server.log_message(force, received_ns))
+    assert struct.unpack_from("<BIQ", data)[2] == received_ns + server.offset_ns
+    assert data[13:] == foxglove_messages(force, server.offset_ns)[0].data
+
+
+def test_the_default_rigs_image_channels_are_in_the_first_advertise():
+    fingers = [sensor.finger for sensor in Settings().sensors]
+    assert fingers
+    with (
+        LiveServer("127.0.0.1", 0) as server,
+        connect(server.url, subprotocols=[SUBPROTOCOL], open_timeout=5) as ws,
+    ):
+        topics = {channel["topic"] for channel in _ops(ws, "advertise")["channels"]}
+    assert {image_topic(finger) for finger in fingers} <= topics
 
 
 def test_record_serves_the_bus_live(tmp_path):
@@ -224,11 +270,34 @@ def test_a_tap_that_falls_behind_drops_the_oldest_and_never_holds_a_lossless_pub
     assert served[-1] == 199  # the newest is always served
 
 
+class _QueuedSocket:
+    """Stands in for the tap's subscriber, with ``messages`` already queued on it."""
+
+    def __init__(self, messages):
+        self.messages = list(messages)
+
+    def recv(self, timeout_s):
+        return self.messages.pop(0) if self.messages else None
+
+
+@pytest.mark.parametrize(("max_pending", "kept"), [(3, [7, 8, 9]), (1, [9]), (0, [9])])
+def test_a_tap_keeps_the_newest_max_pending_messages_and_counts_the_rest_dropped(max_pending, kept):
+    # Deterministic only off the bus: how much ZeroMQ has delivered when the tap reads varies.
+    frames = [make_message("frame", t_capture_s=1.0, finger="left", index=i, encoding="jpeg", data=JPEG)
+              for i in range(10)]
+    tap = LiveTap("tcp://127.0.0.1:9", None, max_pending=max_pending)
+    tap._take(_QueuedSocket(frames), timeout_s=0)
+    assert [message.body["index"] for message, _ in tap._pending] == kept
+    assert (tap.stats.received, tap.stats.dropped) == (10, 10 - len(kept))
+
+
 def test_a_tap_that_fails_logs_one_error_and_lets_the_service_carry_on(caplog):
     caplog.set_level(logging.ERROR)
     assert not LiveTap("tcp://127.0.0.1:9", None).start().running  # no --foxglove: nothing
     with LiveServer("127.0.0.1", 0) as taken, LiveTap("tcp://127.0.0.1:9", ("127.0.0.1", taken.port)) as tap:
         assert not tap.running and "cannot serve" in tap.stats.error
+        tap.start()  # a retrying caller: a failed tap stays stopped, and logs no second error
+        assert not tap.running and tap.server is None
     def broken(message, received_ns):
         raise RuntimeError("no more")
 

@@ -1,8 +1,11 @@
 """Session logs Foxglove reads: every Foxglove channel decodes through its declared schema with
-no project code, JPEG bytes are stored once, and the bus messages still read back byte-exact."""
+no project code, JPEG bytes are stored once, the bus messages still read back byte-exact, and a
+log at its channel cap keeps writing on the channels it has."""
 
 from __future__ import annotations
 
+import dataclasses
+import io
 import json
 import math
 from collections import Counter
@@ -213,6 +216,38 @@ def test_sample_times_are_the_batch_spacing_and_never_go_back():
     assert times[3:] == [1_000_000_000, 1_005_000_000, 1_015_000_000]  # the first held back
     log.write_bus(second, encode(second), 1_015_000_000, elide_image=False)
     assert writer.messages[-1] == ("force", 10**18 + 1_015_000_000, 10**18 + second.t_send_ns)
+
+
+def _write(log: LogChannels, message) -> bool:
+    """Write ``message`` as the recorder does: its Foxglove forms, then itself; False when refused."""
+    converted = log.convert(message)
+    if not log.admits(message, converted):
+        return False
+    log.write_foxglove(message, 1_000, converted)
+    log.write_bus(message, encode(message), 1_000, elide_image=log.carries_image(converted))
+    return True
+
+
+def test_a_log_at_its_channel_cap_still_takes_messages_on_the_channels_it_has():
+    writer = _Writer()
+    log = LogChannels(writer, max_channels=2)
+    assert _write(log, make_message("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0]))  # force, /force: full
+    assert not _write(log, make_message("width", t_capture_s=1.0, t_s=[1.0], value_m=[0.03]))
+    assert _write(log, make_message("force", t_capture_s=2.0, t_s=[2.0], value_n=[3.0]))  # no new channel
+    assert [topic for topic, *_ in writer.messages] == ["/force", "force", "/force", "force"]
+
+
+def test_a_sequence_number_past_32_bits_is_written_modulo_2_to_the_32():
+    # The wire takes any seq >= 0 from a sender; MCAP's sequence is a uint32.
+    buffer = io.BytesIO()
+    writer = Writer(buffer)
+    writer.start()
+    message = dataclasses.replace(make_message("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0]), seq=2**32 + 5)
+    assert _write(LogChannels(writer), message)
+    writer.finish()
+    buffer.seek(0)
+    sequences = {channel.topic: record.sequence for _, channel, record in make_reader(buffer).iter_messages()}
+    assert sequences == {"/force": 5, "force": 5}
 
 
 def test_jpeg_bytes_are_stored_once_and_the_bus_messages_read_back_byte_exact(session):
