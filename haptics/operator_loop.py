@@ -20,7 +20,7 @@ of both and the status it shows: :mod:`haptics.operator_status`; the grasps it t
   ``label`` on its next step;
 * buttons: ``grasp`` starts a discrete grasp at the chosen force (one the robot refuses, as while
   another runs, is forgotten and the one running stays tracked), ``release`` opens the fingers,
-  ``stop`` stops them where they are (both name the grasp the robot runs,
+  ``stop`` stops them where they are (both name this loop's grasp the robot runs,
   :func:`~haptics.operator_grasps.running`, not a grasp pressed since and not answered yet, else
   the one this loop drives or commanded last), ``next`` ends the grasp shown (releasing it unless the robot
   already does; refused, with a notice, while a discrete grasp of this loop is in progress that
@@ -314,8 +314,11 @@ class OperatorLoop:
 
     def _button(self, button: str) -> None:
         view = self.link.view
-        # The grasp the robot runs first: one pressed since, not answered yet, would be refused by name.
-        current = running(view) or self._follow_grasp or self._discrete_grasp or view.grasp_id
+        # This loop's grasp the robot runs first: one pressed since, not answered yet, would be refused
+        # by name; another operator's grasp is never named (the node refuses to open it for us).
+        robot_runs = running(view)
+        own = robot_runs if robot_runs is not None and robot_runs in (self._follow_grasp, *self._discrete) else None
+        current = own or self._follow_grasp or self._discrete_grasp or view.grasp_id
         if button == "grasp":
             grasp_id = self._new_grasp_id()
             if self._send(lambda: self.link.start_grasp(target_force_n=self.force_n, grasp_id=grasp_id)):

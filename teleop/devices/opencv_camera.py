@@ -12,7 +12,8 @@ which are encoded as JPEG at ``jpeg_quality``.
 
 Each connection has its own reader, frame queue, stop event and failure (:class:`_Stream`): a
 reader that :meth:`~OpenCVCamera.close` stopped waiting for (a grab that outlived the wait)
-ends on its own later and hands nothing to a later connection.
+ends on its own later and hands no frame or failure to a later connection (at most one more
+count in ``dropped``).
 """
 
 from __future__ import annotations

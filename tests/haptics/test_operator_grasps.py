@@ -97,3 +97,21 @@ def test_a_release_names_the_grasp_the_robots_state_names_before_its_start_is_sh
     press(loop, clock, "grasp")
     press(loop, clock, "release")
     assert _released(link) == [taken]
+
+
+def test_a_release_or_stop_never_names_another_operators_grasp_the_robot_runs():
+    """The node opens only the grasp a release names: another operator's grasp, shown or only in the
+    robot's state, is not named while this console has a grasp of its own."""
+    other = "op-other-001"
+    for view in (OperatorView(t_s=0.0, grasp_id=other, phase="loaded",
+                              robot=RobotStateBody(mode="holding", grasp_id=other, enable=False)),
+                 OperatorView(t_s=0.0, robot=RobotStateBody(mode="following", grasp_id=other, enable=True))):
+        clock, link, _, loop = loop_rig()
+        link.view = view
+        loop.step()
+        mine = press(loop, clock, "grasp")
+        for button in ("stop", "release"):
+            loop.press(button)
+            loop.step()
+        named = [body.get("grasp_id") for _, action, body in link.sent if action in ("stop", "release")]
+        assert named and other not in named and mine in named, (named, mine)
