@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import replace
 
 import numpy as np
@@ -13,6 +14,7 @@ from estimator.errors import EstimatorError, ModelError
 from estimator.inference.distribution import CENSOR_PA, probabilities, quantile
 from estimator.inference.infer import CompliancePredictor, default_model_dir
 from estimator.inference.inputs import Variant
+from estimator.training import finetune as finetune_module
 from estimator.training.export import network_from_onnx
 from estimator.training.finetune import check_by_object, fine_tune
 from estimator.training.recipe import TrainConfig
@@ -137,6 +139,58 @@ def test_a_replay_dataset_of_other_training_objects_is_refused(trained_model, sy
         fine_tune(trained_model, data, tmp_path / "out", config=QUICK, replay=other, replay_ratio=0.0,
                   progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_replay_dataset_that_trains_on_an_object_the_base_model_held_out_is_refused(
+        trained_model, synthetic_dataset, synthetic, tmp_path):
+    # The base model's train objects plus one of its val objects: replay would rehearse a held-out object.
+    replay = shutil.copytree(synthetic_dataset, tmp_path / "replay")
+    split = json.loads((replay / "split.json").read_text())
+    moved = split["val"][0]
+    shutil.move(replay / "val" / moved, replay / "train" / moved)
+    split["train"], split["val"] = sorted([*split["train"], moved]), [o for o in split["val"] if o != moved]
+    (replay / "split.json").write_text(json.dumps(split))
+    data = synthetic.write_dataset(tmp_path / "d", seed=3)
+    with pytest.raises(EstimatorError, match=f"train objects the base model did not train on \\({moved}\\)"):
+        fine_tune(trained_model, data, tmp_path / "out", config=TrainConfig(epochs=1, batch_size=8), replay=replay,
+                  progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_fine_tuning_at_a_negligible_rate_keeps_the_models_answers(trained_model, synthetic, tmp_path):
+    # Batch norms stay frozen: their running statistics must not move to the few new grasps'.
+    data = synthetic.write_dataset(tmp_path / "d", seed=3)
+    fine_tune(trained_model, data, tmp_path / "tuned", config=TrainConfig(epochs=2, batch_size=8, lr=1e-12, seed=0),
+              progress=False)
+    base, tuned = CompliancePredictor(trained_model), CompliancePredictor(tmp_path / "tuned")
+    inputs = load_split_data(data, base.variant)["val"].inputs
+    assert np.max(np.abs(tuned.predict_logits(inputs) - base.predict_logits(inputs))) < 1e-3
+
+
+@pytest.mark.slow
+def test_every_epoch_replays_replay_ratio_samples_per_new_one(trained_model, synthetic, synthetic_dataset, tmp_path,
+                                                              monkeypatch):
+    variant = _variant(trained_model)
+    trained_on = set(CompliancePredictor(trained_model).metadata.raw["data"]["objects"]["train"])
+    # New grasps of the base model's train objects only, so that the replay's val objects stay in.
+    data = synthetic.write_dataset(tmp_path / "d", seed=3)
+    only = tmp_path / "only"
+    for folder in data.glob("*/*"):
+        if folder.is_dir() and folder.name in trained_on:
+            shutil.copytree(folder, only / folder.relative_to(data))
+    for name in ("dataset.json", "split.json"):
+        shutil.copy(data / name, only / name)
+    new = sum(len(part) for part in load_split_data(only, variant).values())
+    replayable = len(load_split_data(synthetic_dataset, variant)["train"])
+    sizes = []
+    real = finetune_module.train_epoch
+    monkeypatch.setattr(finetune_module, "train_epoch",
+                        lambda model, epoch_data, *args: sizes.append(len(epoch_data)) or real(model, epoch_data, *args))
+    ratio = 0.5
+    fine_tune(trained_model, only, tmp_path / "tuned", config=TrainConfig(epochs=2, batch_size=8, lr=1e-4, seed=0),
+              replay=synthetic_dataset, replay_ratio=ratio, progress=False)
+    assert sizes == [new + min(replayable, round(ratio * new))] * 2
 
 
 def test_a_dataset_that_does_not_fit_the_model_is_refused(trained_model, synthetic, tmp_path):

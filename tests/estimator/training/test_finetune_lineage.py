@@ -10,8 +10,8 @@ import pytest
 
 from estimator.errors import EstimatorError
 from estimator.inference.infer import CompliancePredictor
-from estimator.training.finetune import fine_tune
-from estimator.training.recalibrate import recalibrate
+from estimator.training.finetune import _lineage, fine_tune
+from estimator.training.recalibrate import fine_tuned_objects, recalibrate
 from estimator.training.recipe import TrainConfig
 from estimator.training.samples import load_sample, sample_paths
 from estimator.training.splits import load_split_data
@@ -86,3 +86,21 @@ def test_a_model_fine_tuned_twice_names_every_object_either_step_trained_on(
     assert meta["calibration"]["n"] == sum(r["object"] != first for r in val.rows)
     recalibrated = recalibrate(tmp_path / "two", synthetic_dataset, out_dir=tmp_path / "re")
     assert recalibrated["recalibrated"]["left_out"] == sorted([first, second])
+
+
+def test_a_third_fine_tuning_keeps_every_earlier_step():
+    # From the third step on, the first step's objects must stay in the lineage, or `evaluate --unseen-by`
+    # and recalibrate would count them unseen.
+    base = {"fine_tuning": {"objects": ["b"], "data": "/d2", "earlier": [{"objects": ["a"], "data": "/d1"}]}}
+    earlier = _lineage(base)
+    assert earlier == [{"objects": ["a"], "data": "/d1"}, {"objects": ["b"], "data": "/d2"}]
+    assert fine_tuned_objects({"fine_tuning": {"objects": ["c"], "earlier": earlier}}) == {"a", "b", "c"}
+
+
+def test_replay_recalibrates_without_the_val_objects_this_fine_tuning_trains_on(
+        trained_model, synthetic, synthetic_dataset, tmp_path):
+    tuned_on = _split(synthetic_dataset)["val"][0]
+    meta = fine_tune(trained_model, _of(synthetic, tmp_path / "d", {tuned_on}), tmp_path / "out", config=ONE_EPOCH,
+                     replay=synthetic_dataset, progress=False)
+    val = load_split_data(synthetic_dataset, CompliancePredictor(trained_model).variant, ("val",))["val"].live()
+    assert 0 < meta["calibration"]["n"] == sum(r["object"] != tuned_on for r in val.rows) < len(val)

@@ -180,3 +180,95 @@ def test_threads_past_the_cap_are_refused_by_the_command_line(tmp_path, capsys):
         main(["train", "--data", str(tmp_path), "--out", str(tmp_path / "m"), "--threads", str(2**64)])
     assert exit_.value.code == 2
     assert f"--threads: '{2**64}': expected a whole number from 1 to {MAX_THREADS}" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_written_model_is_the_best_epochs_not_the_last(synthetic_dataset, tmp_path):
+    import torch
+
+    from estimator.inference.distribution import censor
+    from estimator.inference.infer import CompliancePredictor
+    from estimator.training.train import distribution_loss
+
+    variant = Variant.parse("depth", n_frames=3, size_px=(16, 22))
+    config = TrainConfig(epochs=6, patience=6, lr=0.05, batch_size=8, seed=0)  # best at epoch 4 of 6 (seeded)
+    meta = train_model(synthetic_dataset, tmp_path / "m", variant=variant, config=config, progress=False)
+    training = meta["training"]
+    assert training["best_epoch"] < training["epochs_run"]
+    assert abs(training["best_val_loss"] - training["history"][-1]["val_loss"]) > 1e-3  # the epochs tell apart
+    val = load_split_data(synthetic_dataset, variant)["val"].live()
+    logits = CompliancePredictor(tmp_path / "m").predict_logits(val.inputs)
+    written = float(distribution_loss(torch.from_numpy(np.asarray(logits, np.float32)),
+                                      torch.from_numpy(censor(val.label).astype(np.float32))))
+    assert written == pytest.approx(training["best_val_loss"], abs=1e-4)
+
+
+def test_a_variant_window_other_than_the_datasets_is_refused(synthetic_dataset, tmp_path):
+    # Images of one window under metadata naming another would be fed to the model at the wrong scale.
+    variant = Variant.parse("depth", n_frames=3, size_px=(16, 22), window_m=(0.01, 0.013))
+    with pytest.raises(EstimatorError, match=r"^variant window .* holds images of a"):
+        train_model(synthetic_dataset, tmp_path / "m", variant=variant, config=TrainConfig(epochs=1), progress=False)
+    assert not (tmp_path / "m").exists()
+
+
+def test_a_loss_of_ten_thousand_per_sample_is_divergence():
+    import torch
+
+    from estimator.training.train import check_converging
+
+    # An uninformed network scores about 2 per sample; a run at --lr 1 scores 1e4 to 1e10.
+    model = torch.nn.Linear(2, 1)
+    check_converging(model, {"training loss": 2.0, "validation loss": 5.0}, 1, 2e-3, "training")
+    with pytest.raises(EstimatorError, match=r"^training diverged: training loss 1e\+04 at epoch 4 \(--lr 1\)"):
+        check_converging(model, {"training loss": 1e4, "validation loss": 5.0}, 4, 1.0, "training")
+
+
+@pytest.mark.parametrize("value", [float("inf"), float("nan")])
+def test_a_label_sd_that_is_not_finite_is_refused(value):
+    with pytest.raises(EstimatorError, match="--label-sd .*: expected a finite value >= 0"):
+        TrainConfig(label_sd_decades=value)
+
+
+@pytest.mark.parametrize("lr", [0.0, -1e-3, float("inf"), float("nan")])
+def test_a_learning_rate_that_is_not_positive_and_finite_is_refused(lr):
+    # At --lr 0 a run would train nothing and ship its initial weights.
+    with pytest.raises(EstimatorError, match=r"^--lr .*: expected a finite value > 0$"):
+        TrainConfig(lr=lr)
+
+
+def test_flips_mirror_whole_samples_and_every_kind_happens():
+    import torch
+
+    from estimator.training.train import _flip
+
+    frames = torch.from_numpy(np.random.default_rng(0).normal(size=(64, 3, 1, 4, 5)).astype(np.float32))
+    out = _flip(frames, np.random.default_rng(1))
+    kinds = []
+    for before, after in zip(frames, out, strict=True):
+        options = {"none": before, "lr": before.flip(-1), "ud": before.flip(-2), "both": before.flip(-1).flip(-2)}
+        matching = [kind for kind, flipped in options.items() if torch.equal(flipped, after)]
+        assert len(matching) == 1  # every frame of the sample flipped alike
+        kinds.append(matching[0])
+    assert set(kinds) == {"none", "lr", "ud", "both"}
+
+
+def test_an_epochs_loss_is_the_mean_loss_per_sample():
+    import torch
+
+    from estimator.inference.distribution import censor
+    from estimator.training.model import ComplianceNet
+    from estimator.training.splits import SplitData
+    from estimator.training.train import distribution_loss, predict, train_epoch
+
+    n = 8
+    variant = Variant.parse("depth", n_frames=3, size_px=(16, 22))
+    inputs = {name: np.zeros((n, *shape), np.float32) for name, shape in variant.input_shapes.items()}  # flips: no-op
+    data = SplitData(inputs, np.random.default_rng(0).uniform(4.0, 11.0, n).astype(np.float32), [{}] * n)
+    torch.manual_seed(0)
+    model = ComplianceNet(variant).eval()  # running statistics: every batch answers as the whole would
+    expected = float(distribution_loss(torch.from_numpy(predict(model, data)),
+                                       torch.from_numpy(censor(data.label).astype(np.float32))))
+    optimiser = torch.optim.SGD(model.parameters(), lr=0.0)
+    got = train_epoch(model, data, optimiser, TrainConfig(batch_size=2, label_sd_decades=0.0),
+                      np.random.default_rng(0))
+    assert got == pytest.approx(expected, rel=1e-5)
