@@ -33,7 +33,7 @@ by up to 5 % of the local displacement near the moving contact edge, 40-170 um o
 the benchmark objects, so the ladder is not thinned). Every frame of the record is
 rendered; frames of the same gel (before touch, through the hold) share one clean
 render and differ by their camera noise. The host keeps the streams from
-``PRE_ROLL_S`` (or ``PRE_ROLL_READINGS`` load-cell readings, when longer) before its
+``PRE_ROLL_S`` (or at least ``PRE_ROLL_READINGS`` load-cell readings, when longer) before its
 load cell first reads a touch until ``POST_ROLL_S`` after it reads the release.
 
 Operator-driven grasps (``operator="sim"``, ``teleop simulate --operator sim``) replace the
@@ -106,7 +106,7 @@ DEFAULT_DENSIFICATION_STRAIN = 0.5
 FINGERS_MET_M = 1e-6  # a width this close to zero: the fingers met (an object too small to grasp)
 RECORD_FORCE_N = 0.2  # the host's touch threshold for keeping a record
 PRE_ROLL_S = 0.2
-PRE_ROLL_READINGS = 8  # at least this many load-cell readings before the touch: a 10 Hz cell needs 0.8 s
+PRE_ROLL_READINGS = 8  # at least this many load-cell readings before the touch: 0.85 s at 10 Hz
 POST_ROLL_S = 0.1
 OPERATORS = ("script", "sim")  # who drives the fingers: the scripted grasp or the simulated operator
 LOAD_LEVELS = 12
@@ -460,7 +460,9 @@ def simulate_grasp(obj: ObjectSpec, *, settings: Settings, rng: np.random.Genera
                                   start_s=float(t[0]), end_s=float(t[-1]))
     threshold = min(RECORD_FORCE_N, 0.5 * float(force.max()))
     above = np.flatnonzero(readings.value > threshold)
-    pre_roll_s = max(PRE_ROLL_S, PRE_ROLL_READINGS / settings.load_cell.sample_rate_hz)
+    # Half a period more than the readings asked for: the cell's stamps jitter, and a window of exactly
+    # PRE_ROLL_READINGS periods holds one reading fewer about half the time.
+    pre_roll_s = max(PRE_ROLL_S, (PRE_ROLL_READINGS + 0.5) / settings.load_cell.sample_rate_hz)
     start_s = (readings.t_s[above[0]] if above.size else motion.touch_s) - pre_roll_s
     after = np.flatnonzero((readings.t_s > release_s) & (readings.value <= threshold))
     end_s = (readings.t_s[after[0]] if after.size else motion.lost_s) + POST_ROLL_S

@@ -185,7 +185,9 @@ def rubber_stiffen(linear_m: np.ndarray, *, extent_m: float, weight: float, lock
     for _ in range(_BISECTIONS):
         mid = 0.5 * (lo + hi)
         eps = mid * target
-        above = (1.0 - weight) * eps + weight * gent_stress(eps, locking=locking) > target
+        # A Hookean object (weight 0) skips g: 0 times its infinite stress past locking is NaN.
+        stiffened = weight * gent_stress(eps, locking=locking) if weight else 0.0
+        above = (1.0 - weight) * eps + stiffened > target
         hi = np.where(above, mid, hi)
         lo = np.where(above, lo, mid)
     return 0.5 * (lo + hi) * target * extent_m

@@ -305,6 +305,11 @@ def test_bad_input_is_named():
         solve_contact(np.zeros((8, 8)), influence, force_n=1.0, approach_m=1e-5)
     with pytest.raises(ValueError, match="gap_m"):
         solve_contact(np.full((8, 8), np.nan), influence, force_n=1.0)
+    inside = np.zeros((8, 8))
+    inside[3, 3] = -1e-6  # an object already inside the gel: the caller's error, whichever load is given
+    for load in ({"force_n": 1.0}, {"approach_m": 1e-5}):
+        with pytest.raises(ValueError, match="gap_m"):
+            solve_contact(inside, influence, **load)
     with pytest.raises(ValueError, match="shape"):
         solve_contact(np.zeros((4, 8)), influence, force_n=1.0)
     with pytest.raises(ValueError, match="force_n"):
@@ -328,9 +333,14 @@ def test_hertz_closed_forms_are_the_textbook_ones():
     assert force == pytest.approx(4 / 3 * estar * math.sqrt(radius) * approach**1.5)
     assert p0 == pytest.approx(3 * force / (2 * math.pi * a**2))
     assert p0 == pytest.approx((6 * force * estar**2 / radius**2) ** (1 / 3) / math.pi)
-    total = hertz_surface_displacement(np.array([0.0, a, 3 * a]), contact_radius_m=a, radius_m=radius)
+    total = hertz_surface_displacement(np.array([0.0, a, a * (1 + 1e-9), 3 * a]), contact_radius_m=a,
+                                       radius_m=radius)
     assert total[0] == pytest.approx(approach) and total[1] == pytest.approx(approach / 2)
-    assert 0 < total[2] < total[1]
+    # Outside (Johnson eq. 3.42b) it continues the inside at r = a and falls off as
+    # (a^2 / (pi R)) [(2 - r^2/a^2) asin(a/r) + sqrt(r^2/a^2 - 1)]: the dent around every Hertz contact.
+    assert total[2] == pytest.approx(approach / 2, rel=1e-6)
+    outside = a * a / (math.pi * radius) * ((2 - 9) * math.asin(1 / 3) + math.sqrt(8))
+    assert total[3] == pytest.approx(outside, rel=1e-9)
     # The gel's centre displacement: k_gel pi p0 a / 2 (the brief's corrected formula).
     gel, obj = Body(2.75e5, 0.48), Body(1e6, 0.4)
     cell = 1e-4
@@ -374,3 +384,35 @@ def test_influence_gives_the_same_field_whatever_it_computed_before():
     np.testing.assert_array_equal(influence.gel(small), first)
     np.testing.assert_allclose(influence.total(small), influence.gel(small) + influence.object(small),
                                rtol=1e-5, atol=1e-6 * np.abs(first).max())
+
+
+def test_layer_stiffening_is_the_gels_share_of_the_compliance():
+    """Only the gel's part of the approach is a layer's: against an object as soft as the gel, half of it
+    (this decides where the simulator may use Hertz, the record's provenance model)."""
+    gel = Body(1.0e6, 0.5, 2e-3)
+    rigid = Body(1.0e15, 0.3)
+    twin = Body(1.0e6, 0.5)
+    a = 2e-4
+    alone = layer_stiffening(a, gel=gel, obj=rigid)
+    assert alone == pytest.approx(0.751 * a / 2e-3, rel=5e-3)  # the documented nu = 0.5 coefficient
+    assert layer_stiffening(a, gel=gel, obj=twin) == pytest.approx(0.5 * alone, rel=1e-6)
+
+
+def test_gel_shear_moves_the_surface_by_the_documented_flow():
+    """Around a small dent the surface flows outward by 1.5 x the depth-averaged flow U, with
+    h div U = w screened over l = 2 h: at radius R, 1.5 V / (2 pi R h) (R / l) K1(R / l) (V the dent's
+    volume). The marker pattern's motion in every simulated frame is this field."""
+    from scipy.special import k1
+
+    cell, n, h, sigma = 1e-4, 201, 3e-3, 0.4e-3
+    offsets = (np.arange(n) - n // 2) * cell
+    yy, xx = np.meshgrid(offsets, offsets, indexing="ij")
+    dent = 1e-5 * np.exp(-(xx**2 + yy**2) / (2 * sigma**2))
+    volume = dent.sum() * cell**2
+    shear = gel_shear(dent, cell_m=(cell, cell), thickness_m=h)
+    c = n // 2
+    for k in (15, 25):
+        radius, screen = k * cell, 2 * h
+        expected = 1.5 * volume / (2 * np.pi * radius * h) * (radius / screen) * k1(radius / screen)
+        assert shear[c, c + k, 0] == pytest.approx(expected, rel=0.03)  # columns to the right
+        assert shear[c + k, c, 1] == pytest.approx(expected, rel=0.03)  # rows down

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -266,3 +267,56 @@ def test_drawn_sizes_stay_graspable():
         # Where the gripper is no limit, the drawn factor is the size's.
         assert mechanics.object_size(big, big.size_m, max_width_m=1.0)[0] == pytest.approx(
             0.074 * mechanics.size_factors[0])
+
+
+@pytest.mark.parametrize("factor", [0.75, 1.15])
+def test_the_drawn_densification_factor_scales_the_objects_limit(factor):
+    """A draw's densification factor moves where the object stops yielding: crushed far beyond its
+    limit it moves (material strain) x factor x extent, not the material's own limit."""
+    extent, strain = 0.03, 0.8
+    crushed = np.array([20.0 * extent])
+    moved = neutral(RUBBER, densification_factor=factor).object_response(crushed, extent_m=extent,
+                                                                 densification_strain=strain)
+    assert float(moved[0]) == pytest.approx(strain * factor * extent, rel=1e-6)
+    small = np.array([1e-7])  # the small-force response is the linear one whatever the factor
+    assert float(neutral(RUBBER, densification_factor=factor).object_response(
+        small, extent_m=extent, densification_strain=strain)[0]) == pytest.approx(1e-7, rel=1e-4)
+
+
+def test_the_log_uniform_fields_are_drawn_log_uniformly():
+    """Gent's J_m spans two decades: half the draws lie below the geometric mean (10), not the
+    arithmetic one (50.5); likewise the sharpness and the thickness factor (module notes' table)."""
+    assert {"gent_locking", "densification_sharpness", "thickness_factor"} <= LOG_UNIFORM
+    rng = np.random.default_rng(0)
+    draws = [draw_mechanics(rng) for _ in range(2000)]
+    for name in ("gent_locking", "densification_sharpness", "thickness_factor"):
+        lo, hi = getattr(CONTACT_SPREAD, name)
+        values = np.array([getattr(d, name) for d in draws])
+        below = float(np.mean(values < math.sqrt(lo * hi)))
+        assert below == pytest.approx(0.5, abs=0.05), name
+
+
+def test_a_draw_takes_the_streams_values_in_the_documented_order():
+    """draw_mechanics is pure and documented: the fields in order, then the three size factors (x, y, z)
+    last; the same seed redraws the same mechanics in every version that keeps this contract."""
+    drawn = draw_mechanics(np.random.default_rng(11))
+    rng = np.random.default_rng(11)
+    for field in dataclasses.fields(CONTACT_SPREAD):
+        if field.name == "size_factor":
+            continue
+        lo, hi = getattr(CONTACT_SPREAD, field.name)
+        expected = (math.exp(rng.uniform(math.log(lo), math.log(hi))) if field.name in LOG_UNIFORM
+                    else rng.uniform(lo, hi))
+        assert getattr(drawn, field.name) == expected, field.name
+    assert drawn.size_factors == tuple(rng.uniform(*CONTACT_SPREAD.size_factor, size=3))
+
+
+def test_the_provenance_keeps_every_drawn_value():
+    """provenance.extra["mechanics"] is the analysis's only record of a draw: every field, as drawn."""
+    mechanics = neutral(RUBBER, base_slip=0.3, friction_stiffening=0.02, gent_locking=7.0, size_factors=(0.9, 1.0, 1.1))
+    kept = mechanics.provenance()
+    names = {f.name for f in dataclasses.fields(ContactMechanics)}
+    assert set(kept) == names
+    for name in names - {"size_factors"}:
+        assert kept[name] == getattr(mechanics, name), name
+    assert kept["size_factors"] == [0.9, 1.0, 1.1]

@@ -10,8 +10,12 @@ from scipy.spatial.transform import Rotation
 
 from teleop.catalogue import ObjectSpec, load_catalogue
 from teleop.errors import SimulationError
+from teleop.settings import load_settings
 from teleop.sim.contact import NO_CONTACT_GAP_M
+from teleop.sim.grasp import contact_grid
 from teleop.sim.shapes import (
+    FIT_MARGIN,
+    OFFSET_FRACTION,
     Pose,
     draw_pose,
     make_scene,
@@ -197,3 +201,79 @@ def test_a_scaled_size_keeps_the_shape_and_fits_the_gripper():
     assert min(kept) == pytest.approx(0.075) and kept[1] / kept[0] == pytest.approx(1.1 / 1.2 * 0.09 / 0.075)
     shrunk = scaled_size(wide, wide.size_m, (0.8, 0.8, 0.8), max_width_m=0.08)
     assert shrunk == pytest.approx((0.06, 0.072, 0.072))  # shrinking is never limited
+
+
+def test_a_box_that_fits_only_without_the_margin_is_refused():
+    """Poses keep FIT_MARGIN: a cube 97 % of the opening across (every face) fits no drawn pose, and the
+    refusal names the margin; one at 90 % is posed within it."""
+    width = 0.08
+    pad = (0.02, 0.025)
+    tight = ObjectSpec(name="tight cube", shape="box", material="wood", modulus_pa=1e9, size_m=(0.97 * width,) * 3)
+    with pytest.raises(SimulationError, match="does not fit between fingers"):
+        draw_pose(tight, tight.size_m, rng=np.random.default_rng(0), max_width_m=width, pad_m=pad)
+    roomy = ObjectSpec(name="roomy cube", shape="box", material="wood", modulus_pa=1e9, size_m=(0.9 * width,) * 3)
+    pose = draw_pose(roomy, roomy.size_m, rng=np.random.default_rng(0), max_width_m=width, pad_m=pad)
+    corners = np.array(np.meshgrid(*[(-s / 2, s / 2) for s in roomy.size_m])).reshape(3, -1).T
+    assert np.ptp(corners @ pose.rotation[0]) < FIT_MARGIN * width
+
+
+def test_the_contact_offset_stays_in_the_central_part_of_each_pad_axis():
+    """draw_pose offsets the object by up to OFFSET_FRACTION (a fifth) of the pad along each pad axis: y
+    (offset_m[0]) within the pad's width pad_m[1], z within its height pad_m[0]. Further out, contacts would
+    sit on the pad's rim, where the gel is clamped."""
+    assert OFFSET_FRACTION == 0.2
+    ball = ObjectSpec(name="ball", shape="sphere", material="rubber", modulus_pa=1e6, size_m=(0.02,) * 3)
+    pad = (0.01, 0.04)  # (height, width): a wide, low pad
+    rng = np.random.default_rng(0)
+    offsets = np.array([draw_pose(ball, ball.size_m, rng=rng, max_width_m=0.08, pad_m=pad).offset_m
+                        for _ in range(200)])
+    assert np.abs(offsets[:, 0]).max() <= OFFSET_FRACTION * pad[1]
+    assert np.abs(offsets[:, 1]).max() <= OFFSET_FRACTION * pad[0]
+    assert np.abs(offsets[:, 0]).max() > 0.8 * OFFSET_FRACTION * pad[1]  # the width's range is used
+
+
+def test_an_unsized_hex_prism_is_drawn_regular():
+    """A hex prism the catalogue gives no size: across corners is 2 / sqrt(3) of across flats (a regular
+    hexagon), as a sized one's must be."""
+    prism = ObjectSpec(name="unsized nut", shape="hex_prism", material="metal", modulus_pa=2e11, size_m=None)
+    flats, corners, length = object_size(prism)
+    assert corners == pytest.approx(flats * 2 / math.sqrt(3), rel=1e-12)
+    assert object_size(prism) == (flats, corners, length)  # fixed by the name
+
+
+def test_the_bulk_cross_section_is_the_whole_objects_not_the_pads_chord():
+    """A 6 cm ball met off its centre by the pads: its bulk cross-section is volume / its own extent
+    (pi D^2 / 6), not volume over the shorter chord between the first-contact points."""
+    sensor = load_settings().sensors[0]
+    shape, cell = contact_grid(sensor, 8)
+    ball = ObjectSpec(name="big ball", shape="sphere", material="rubber", modulus_pa=1e6, size_m=(0.06,) * 3)
+    scene = make_scene(ball, Pose(rotation=np.eye(3), offset_m=(0.0, 0.022)), shape=shape, cell_m=cell,
+                       fingers=("left", "right"), rng=np.random.default_rng(0), size=ball.size_m)
+    assert scene.extent_m < 0.057  # the pads meet a chord, not the diameter
+    assert scene.cross_section_m2 == pytest.approx(math.pi * 0.06**2 / 6, rel=0.03)
+
+
+def test_the_right_finger_sees_the_pad_mirrored():
+    """The right sensor's image columns run along -y: a ball offset along +y touches the left gel right of
+    its centre column and the right gel left of it (mirror images), the frames the estimator reads."""
+    shape, cell = contact_grid(load_settings().sensors[0], 8)
+    ball = ObjectSpec(name="ball", shape="sphere", material="rubber", modulus_pa=1e6, size_m=(0.02,) * 3,
+                      texture_m=1e-9)
+    scene = make_scene(ball, Pose(rotation=np.eye(3), offset_m=(0.003, 0.0)), shape=shape, cell_m=cell,
+                       fingers=("left", "right"), rng=np.random.default_rng(0), size=ball.size_m)
+    (_, left_col), (_, right_col) = scene.first_contact_rc["left"], scene.first_contact_rc["right"]
+    centre = (shape[1] - 1) / 2
+    assert left_col > centre + 1 and right_col < centre - 1
+    assert abs(left_col - (shape[1] - 1 - right_col)) <= 1
+    np.testing.assert_allclose(scene.gap_m["right"], np.fliplr(scene.gap_m["left"]), atol=2e-6)
+
+
+def test_a_small_box_keeps_its_corners_rounded_only_a_little():
+    """Edges are rounded by EDGE_RADIUS_M capped at 15 % of the smallest side: a 2 mm die stays a box (its
+    near-corner points are inside), not a 1 mm-radius ball."""
+    die = ObjectSpec(name="die", shape="box", material="plastic", modulus_pa=2e9, size_m=(0.002,) * 3)
+    distance = surface_distance(die, die.size_m)
+    inside_corner = np.array([[0.0008, 0.0008, 0.0008]])
+    face = np.array([[0.001, 0.0, 0.0]])
+    assert float(distance(inside_corner)[0]) < 0
+    assert float(distance(face)[0]) == pytest.approx(0.0, abs=1e-12)
