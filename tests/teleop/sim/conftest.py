@@ -2,11 +2,21 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 from support.catalogue_toml import object_toml
 
 from teleop.cli import main
 from teleop.settings import default_settings_path, load_settings
+
+
+@pytest.fixture(scope="module")
+def settings():
+    """The simulator tests' settings (in place of the root conftest's): the shipped ones with 10 Hz
+    cameras, a third of the frames to render, which keeps the tests quick."""
+    shipped = load_settings()
+    return dataclasses.replace(shipped, sensors=tuple(dataclasses.replace(s, camera_hz=10.0) for s in shipped.sensors))
 
 
 @pytest.fixture

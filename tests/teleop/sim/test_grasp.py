@@ -21,13 +21,6 @@ RUBBER = ObjectSpec(name="rubber_ball", shape="sphere", material="rubber", modul
 
 
 @pytest.fixture(scope="module")
-def settings():
-    """The shipped settings with 10 Hz cameras: a third of the frames to render keeps the tests quick."""
-    shipped = load_settings()
-    return dataclasses.replace(shipped, sensors=tuple(dataclasses.replace(s, camera_hz=10.0) for s in shipped.sensors))
-
-
-@pytest.fixture(scope="module")
 def grasps(settings):
     return {obj.name: simulate_grasp(obj, settings=settings, rng=np.random.default_rng(7), seed=7)
             for obj in (STEEL, FOAM, RUBBER)}

@@ -34,31 +34,31 @@ STEEL = ObjectSpec(name="steel_ball", shape="sphere", material="metal", modulus_
 RUBBER = ObjectSpec(name="rubber_ball", shape="sphere", material="rubber", modulus_pa=5.0e5, size_m=(0.03,) * 3)
 
 
-@pytest.fixture(scope="module")
-def settings():
-    """The shipped settings with 10 Hz cameras: a third of the frames to render keeps the tests quick."""
-    shipped = load_settings()
-    return dataclasses.replace(shipped, sensors=tuple(dataclasses.replace(s, camera_hz=10.0) for s in shipped.sensors))
-
-
 class _Stop(Exception):
     """Raised by an intercepted load_curve: the grasp's inputs are seen, no grasp is rendered."""
+
+
+def _load_curve_inputs(monkeypatch, settings, keyword: str, seeds: int) -> list[float]:
+    """The ``keyword`` argument that load_curve gets in scripted grasps of STEEL of seeds 0 to
+    ``seeds`` - 1, intercepted before anything is rendered."""
+    seen = []
+
+    def capture(*args, **kwargs):
+        seen.append(kwargs[keyword])
+        raise _Stop
+
+    monkeypatch.setattr(grasp_module, "load_curve", capture)
+    for seed in range(seeds):
+        with pytest.raises(_Stop):
+            simulate_grasp(STEEL, settings=settings, rng=np.random.default_rng(seed))
+    return seen
 
 
 def test_a_scripted_grasps_drawn_force_target_never_exceeds_the_grippers(settings, monkeypatch):
     """Each scripted grasp squeezes to a drawn 40-100 % of gripper.target_force_n, never beyond the
     gripper's force limit. (The load curve's top is the target; it is intercepted so that no grasp is
     rendered.)"""
-    seen = []
-
-    def capture(*args, max_force_n, **kwargs):
-        seen.append(max_force_n)
-        raise _Stop
-
-    monkeypatch.setattr(grasp_module, "load_curve", capture)
-    for seed in range(40):
-        with pytest.raises(_Stop):
-            simulate_grasp(STEEL, settings=settings, rng=np.random.default_rng(seed))
+    seen = _load_curve_inputs(monkeypatch, settings, "max_force_n", 40)
     cap = settings.gripper.target_force_n
     fractions = np.array(seen) / cap
     assert fractions.max() <= 1.0 and fractions.min() >= 0.4
@@ -218,16 +218,7 @@ def test_hertz_is_not_used_where_the_balls_roughness_rivals_its_approach(setting
 def test_the_true_finger_stiffness_is_drawn_near_the_setting(settings, monkeypatch):
     """Each grasp's true finger stiffness is the setting times a log-normal factor of sd 0.1
     (FINGER_STIFFNESS_SD): the rig's linear correction is off by some per cent, never by a factor."""
-    seen = []
-
-    def capture(*args, finger_stiffness_n_per_m, **kwargs):
-        seen.append(finger_stiffness_n_per_m)
-        raise _Stop
-
-    monkeypatch.setattr(grasp_module, "load_curve", capture)
-    for seed in range(30):
-        with pytest.raises(_Stop):
-            simulate_grasp(STEEL, settings=settings, rng=np.random.default_rng(seed))
+    seen = _load_curve_inputs(monkeypatch, settings, "finger_stiffness_n_per_m", 30)
     logs = np.log(np.array(seen) / settings.gripper.finger_stiffness_n_per_m)
     assert np.abs(logs).max() < 4 * FINGER_STIFFNESS_SD
     assert 0.5 * FINGER_STIFFNESS_SD < logs.std() < 1.5 * FINGER_STIFFNESS_SD

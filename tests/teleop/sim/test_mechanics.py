@@ -32,13 +32,6 @@ BALL = ObjectSpec(name="small rubber ball", shape="sphere", material="rubber", m
 RUBBER = ObjectSpec(name="rubber_ball", shape="sphere", material="rubber", modulus_pa=5.0e5, size_m=(0.03,) * 3)
 
 
-@pytest.fixture(scope="module")
-def settings():
-    """The shipped settings with 10 Hz cameras: a third of the frames to render keeps the tests quick."""
-    shipped = load_settings()
-    return dataclasses.replace(shipped, sensors=tuple(dataclasses.replace(s, camera_hz=10.0) for s in shipped.sensors))
-
-
 def neutral(obj: ObjectSpec, **changes) -> ContactMechanics:
     """The simulator's own mechanics as a draw (then ``changes``)."""
     values = dict(base_slip=0.0, thickness_factor=1.0, object_poisson=obj.poisson, densification_factor=1.0,
