@@ -10,11 +10,12 @@ that ``metadata.json`` ``calibration`` holds (:mod:`estimator.inference.infer`),
 * per band of the grasp's peak force (:data:`FORCE_BAND_EDGES_N`): the probability of E at or
   above the resolution limit from which the answer is a lower bound (the smallest of
   :data:`P_RIGID_CHOICES` at which the band's lower bounds hold at :data:`INTERVAL_LEVEL`), and the
-  interval's half-width in spreads of the distribution (split conformal on the band's grasps
-  answered ``ok``) at which the band's answers hold the truth on :data:`INTERVAL_LEVEL` of its
-  grasps, bounds included: the level is a promise about every answer the operator gets, light
-  grasp or firm. The ``ok`` intervals alone hold the truth at ``ok_levels`` (the bounds' surplus
-  lets them be narrower), never below :data:`OK_LEVEL_FLOOR`. A band with fewer than
+  interval's half-width in spreads of the distribution: the smallest at which the band's answers,
+  described with it, hold the truth on :data:`INTERVAL_LEVEL` of its grasps (split conformal),
+  bounds included: the level is a promise about every answer the operator gets, light grasp or
+  firm. The width also decides states (an interval wholly above the limit is a lower bound), so
+  the answers are described anew at each width tried. The ``ok`` intervals alone hold the truth at
+  ``ok_levels`` (the bounds' surplus lets them be narrower), never below :data:`OK_LEVEL_FLOOR`. A band with fewer than
   :data:`MIN_BAND_GRASPS` grasps takes what is fitted on all of them.
 
 :func:`described` answers each grasp exactly as the estimator does
@@ -34,7 +35,6 @@ from estimator.errors import EstimatorError
 from estimator.inference.distribution import (
     Described,
     censor,
-    conformal_scale,
     describe_on_gel,
     fit_temperature,
     floor_log_weights,
@@ -63,6 +63,10 @@ FORCE_BAND_EDGES_N = (10.0, 20.0)
 FLOOR_LEAK = 0.01
 #: The fewest validation grasps a force band's own ``p_rigid`` and interval scale are fitted on.
 MIN_BAND_GRASPS = 100
+#: The narrowest interval scale (spreads) fitted: an answer's interval has a positive width.
+MIN_SCALE = 1e-3
+#: A scale (spreads) at which every interval reaches below the resolution limit.
+WIDEST_SCALE = 1e6
 
 
 def _log_weights(calibration: dict[str, Any], floors_log10: np.ndarray | None) -> np.ndarray | None:
@@ -106,9 +110,11 @@ def fit_conformal(logits: np.ndarray, log10_truth: np.ndarray, *, gel_scales: np
     The temperature minimises the log score of the censored truths (under the floor, if any). Then,
     in each band of ``force_band_edges_n``: ``p_rigid`` is the smallest of :data:`P_RIGID_CHOICES` at
     which the band's lower bounds hold on at least ``level`` of the grasps they answer, and the
-    interval scale is the split-conformal scale of the band's ``ok`` intervals at its ``ok_level``,
-    the share of them that must hold for all the band's answers to hold on ``level`` of its grasps
-    given the bounds that hold (at least :data:`OK_LEVEL_FLOOR`). A band with fewer than
+    interval scale the smallest of the band's interval scores at which its answers hold on
+    ``level`` of its grasps (split conformal: ``ceil((n + 1) level)`` of them) and its ``ok``
+    intervals on at least :data:`OK_LEVEL_FLOOR` of theirs; ``ok_level`` is the split-conformal
+    level those ``ok`` intervals meet. Where no scale does, the widest score is taken (at least
+    one spread), ``ok_level`` 1, and a warning says so. A band with fewer than
     :data:`MIN_BAND_GRASPS` grasps takes what is fitted on all of them.
 
     Returns ``temperature``, ``floor`` (``{"methods", "leak"}``, or None), ``level``,
@@ -124,45 +130,25 @@ def fit_conformal(logits: np.ndarray, log10_truth: np.ndarray, *, gel_scales: np
     floor = None if floors_log10 is None else {"methods": list(FLOOR_METHODS), "leak": FLOOR_LEAK}
     log_weights = _log_weights({"floor": floor}, floors_log10)
     temperature = fit_temperature(logits, censor(log10_truth), log_weights=log_weights)
-    scores = interval_score(probabilities(logits, temperature=temperature, log_weights=log_weights), log10_truth)
+    probs = probabilities(logits, temperature=temperature, log_weights=log_weights)
+    scores = interval_score(probs, log10_truth)
     common = {"temperature": temperature, "floor": floor, "level": level, "soft_pa": soft_pa, "limit_pa": limit_pa}
 
-    def said_at(p_rigid: float) -> list[Described]:
-        # Interval scale 1: states and bounds do not depend on it.
-        cal = {**common, "force_band_edges_n": [], "p_rigids": [p_rigid], "interval_scales": [1.0]}
-        return described(logits, cal, gel_scales, peak_forces_n, floors_log10)
-
-    answers = {p_rigid: said_at(p_rigid) for p_rigid in P_RIGID_CHOICES}
+    limits = {"limit_pa": limit_pa, "soft_pa": soft_pa}
+    fitted: dict[bytes, tuple[float, float, float]] = {}
 
     def fit(grasps: np.ndarray) -> tuple[float, float, float]:
-        """(p_rigid, interval scale, ok_level) fitted on the grasps of the mask ``grasps``."""
-        # p_rigid decides only which answers are lower bounds: an upper bound that fails is no reason
-        # for a stricter one, and none would make it hold.
-        for p_rigid in P_RIGID_CHOICES:
-            bounds = [holds(d, t) for d, t, g in zip(answers[p_rigid], truth_pa, grasps, strict=True)
-                      if g and d.state == "lower_bound"]
-            if not bounds or np.mean(bounds) >= level:
-                break
-        said = answers[p_rigid]
-        ok = np.array([d.state == "ok" for d in said], dtype=bool) & grasps
-        # Bounds of both kinds are answers the level promises: what they hold, the ok intervals need not.
-        bounds_held = sum(holds(d, t) for d, t, g, o in zip(said, truth_pa, grasps, ok, strict=True) if g and not o)
-        # Split conformal over the grasps: the ok intervals must hold what the bounds leave to reach level.
-        needed = math.ceil((grasps.sum() + 1) * level) - bounds_held
-        ok_level = min(max(needed / (ok.sum() + 1), OK_LEVEL_FLOOR), 1.0)
-        scale = conformal_scale(scores[ok], ok_level)
-        if not math.isfinite(scale):
-            scale = max(float(scores[ok].max(initial=0.0)), 1.0)
-            log.warning("%d validation grasps answered ok are too few to promise a %.0f%% interval; the interval "
-                        "takes the widest of them (%.2f spreads): add validation objects", ok.sum(),
-                        100 * ok_level, scale)
-        return p_rigid, scale, ok_level
+        key = np.packbits(grasps).tobytes()  # a band of every grasp is the fit on all of them
+        if key not in fitted:
+            which = np.flatnonzero(grasps)
+            fitted[key] = _fit_band(probs[which], truth_pa[which], scores[which], gel_scales[which], level=level,
+                                    **limits)
+        return fitted[key]
 
-    everywhere = fit(np.ones(bands.size, dtype=bool))
-    fitted = [fit(bands == b) if (bands == b).sum() >= MIN_BAND_GRASPS else everywhere
-              for b in range(len(edges) + 1)]
-    calibration = {**common, "force_band_edges_n": list(edges), "p_rigids": [p for p, _, _ in fitted],
-                   "interval_scales": [s for _, s, _ in fitted], "ok_levels": [q for _, _, q in fitted],
+    per_band = [fit(bands == b) if (bands == b).sum() >= MIN_BAND_GRASPS else fit(np.ones(bands.size, dtype=bool))
+                for b in range(len(edges) + 1)]
+    calibration = {**common, "force_band_edges_n": list(edges), "p_rigids": [p for p, _, _ in per_band],
+                   "interval_scales": [s for _, s, _ in per_band], "ok_levels": [q for _, _, q in per_band],
                    "chosen_on": "val"}
     said = described(logits, calibration, gel_scales, peak_forces_n, floors_log10)
     held = np.array([holds(d, t) for d, t in zip(said, truth_pa, strict=True)], dtype=bool)
@@ -176,6 +162,57 @@ def fit_conformal(logits: np.ndarray, log10_truth: np.ndarray, *, gel_scales: np
                                       for b in range(len(edges) + 1)])
     return calibration
 
+
+def _fit_band(probs: np.ndarray, truth_pa: np.ndarray, scores: np.ndarray, gel_scales: np.ndarray, *, level: float,
+              limit_pa: float, soft_pa: float) -> tuple[float, float, float]:
+    """(p_rigid, interval scale, ok_level) fitted on one band's grasps (:func:`fit_conformal`)."""
+    needed = math.ceil((truth_pa.size + 1) * level)  # held answers, split conformal, bounds included
+
+    def answers(p_rigid: float, scale: float, which: np.ndarray) -> list[tuple[str, bool]]:
+        """(state, whether it holds) of the grasps ``which``."""
+        said = (describe_on_gel(probs[i], scale=scale, p_rigid=p_rigid, gel_scale=float(gel_scales[i]),
+                                limit_pa=limit_pa, soft_pa=soft_pa) for i in which)
+        return [(d.state, holds(d, float(truth_pa[i]))) for i, d in zip(which, said, strict=True)]
+
+    def enough(said: list[tuple[str, bool]]) -> bool:
+        ok_held = [h for state, h in said if state == "ok"]
+        return (sum(h for _, h in said) >= needed
+                and (not ok_held or sum(ok_held) >= math.ceil((len(ok_held) + 1) * OK_LEVEL_FLOOR)))
+
+    for p_rigid in P_RIGID_CHOICES:
+        # An answer that is no ok interval at the widest scale is the same bound at every scale; the
+        # others are ok intervals, or lower bounds while narrow enough to lie wholly above the limit.
+        widest = answers(p_rigid, WIDEST_SCALE, np.arange(truth_pa.size))
+        varies = np.array([state == "ok" for state, _ in widest], dtype=bool)
+        fixed = [a for a, v in zip(widest, varies, strict=True) if not v]
+        which = np.flatnonzero(varies)
+        # An ok interval holds from its own score on (a hair above it, for rounding): the smallest scale is one.
+        candidates = np.unique(np.maximum(scores[which] * (1.0 + 1e-9), MIN_SCALE))
+        lo, hi = 0, candidates.size - 1
+        # First where the ok intervals alone would just make up the level, and just below: usually the answer.
+        guess = needed - sum(h for _, h in fixed) - 1
+        for mid in (guess, guess - 1):
+            if lo <= mid < hi:
+                lo, hi = (lo, mid) if enough(fixed + answers(p_rigid, float(candidates[mid]), which)) else (mid + 1, hi)
+        while lo < hi:
+            mid = (lo + hi) // 2
+            lo, hi = (lo, mid) if enough(fixed + answers(p_rigid, float(candidates[mid]), which)) else (mid + 1, hi)
+        scale = float(candidates[lo]) if candidates.size else 1.0
+        said = fixed + answers(p_rigid, scale, which)
+        bounds = [h for state, h in said if state == "lower_bound"]
+        # p_rigid decides which answers are lower bounds: an upper bound that fails is no reason
+        # for a stricter one, and none would make it hold.
+        if not bounds or np.mean(bounds) >= level:
+            break
+    if not enough(said):
+        scale = max(scale, 1.0)
+        log.warning("%d validation grasps are too few, or their bounds fail too often, to promise a %.0f%% interval; "
+                    "the interval takes the widest of them (%.2f spreads): add validation objects", truth_pa.size,
+                    100 * level, scale)
+        return p_rigid, scale, 1.0
+    ok_held = [h for state, h in said if state == "ok"]
+    # The split-conformal level the ok intervals alone meet at this scale.
+    return p_rigid, scale, min(sum(ok_held) / (len(ok_held) + 1), 1.0)
 
 def holds(said: Described, truth_pa: float) -> bool:
     """Whether the truth (Pa) satisfies an answer: inside its interval, an open side included."""

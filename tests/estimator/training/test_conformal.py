@@ -244,3 +244,31 @@ def test_band_coverage_is_the_share_held_among_that_bands_own_grasps():
     assert cal["band_n"] == [n_light, n_firm]
     assert cal["band_coverage"] == pytest.approx([held[:n_light].mean(), held[n_light:].mean()])
     assert cal["band_coverage"][0] < cal["coverage"] < cal["band_coverage"][1]
+
+
+def test_the_scale_is_the_narrowest_at_which_the_answers_it_describes_hold():
+    # Sure of E just above the limit for 100 objects a little below it: a narrow interval lies wholly
+    # above the limit and is a lower bound that fails, a wide one reaches down to the truth, so each
+    # scale tried must be scored on the answers it describes.
+    rng = np.random.default_rng(5)
+    soft, rigid, near = rng.uniform(4.5, 5.8, 300), rng.uniform(8.5, 11.0, 200), rng.uniform(6.0, 6.6, 100)
+    truth = np.concatenate([soft, rigid, near])
+    logits = np.concatenate([logits_of(soft + rng.normal(0, 0.2, soft.size)), logits_of(np.full(rigid.size, 8.05)),
+                             logits_of(rng.normal(7.1, 0.05, near.size), sd=0.1)])
+    kw = dict(gel_scales=np.ones(truth.size), peak_forces_n=np.full(truth.size, 25.0))
+    cal = fit_conformal(logits, truth, soft_pa=SOFT_PA, limit_pa=LIMIT_PA, force_band_edges_n=(), **kw)
+    needed = np.ceil((truth.size + 1) * INTERVAL_LEVEL)
+
+    def held(scale: float, p_rigid: float) -> list[bool]:
+        said = described(logits, {**cal, "interval_scales": [scale], "p_rigids": [p_rigid]}, kw["gel_scales"],
+                         kw["peak_forces_n"])
+        return [holds(d, 10.0**t) for d, t in zip(said, truth, strict=True)]
+
+    (scale,), (p_rigid,) = cal["interval_scales"], cal["p_rigids"]
+    assert sum(held(scale, p_rigid)) >= needed > sum(held(scale * (1 - 1e-6), p_rigid))
+    assert cal["coverage"] == pytest.approx(np.mean(held(scale, p_rigid)))
+    # The loosest threshold whose lower bounds hold at the level, as the operator gets them.
+    looser = P_RIGID_CHOICES[P_RIGID_CHOICES.index(p_rigid) - 1]
+    said = described(logits, {**cal, "p_rigids": [looser]}, kw["gel_scales"], kw["peak_forces_n"])
+    assert np.mean([holds(d, 10.0**t) for d, t in zip(said, truth, strict=True) if d.state == "lower_bound"]) < 0.9
+    assert p_rigid < P_RIGID_CHOICES[-1]
