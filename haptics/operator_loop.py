@@ -317,7 +317,7 @@ class OperatorLoop:
         # This loop's grasp the robot runs first: one pressed since, not answered yet, would be refused
         # by name; another operator's grasp is never named (the node refuses to open it for us).
         robot_runs = running(view)
-        own = robot_runs if robot_runs is not None and robot_runs in (self._follow_grasp, *self._discrete) else None
+        own = robot_runs if robot_runs in (self._follow_grasp, *self._discrete) else None
         current = own or self._follow_grasp or self._discrete_grasp or view.grasp_id
         if button == "grasp":
             grasp_id = self._new_grasp_id()
