@@ -211,8 +211,9 @@ def _fit_band(probs: np.ndarray, truth_pa: np.ndarray, scores: np.ndarray, gel_s
                     100 * level, scale)
         return p_rigid, scale, 1.0
     ok_held = [h for state, h in said if state == "ok"]
-    # The split-conformal level the ok intervals alone meet at this scale.
-    return p_rigid, scale, min(sum(ok_held) / (len(ok_held) + 1), 1.0)
+    # The split-conformal level the ok intervals alone meet at this scale (the floor, where there are none).
+    return p_rigid, scale, max(min(sum(ok_held) / (len(ok_held) + 1), 1.0), OK_LEVEL_FLOOR)
+
 
 def holds(said: Described, truth_pa: float) -> bool:
     """Whether the truth (Pa) satisfies an answer: inside its interval, an open side included."""

@@ -115,6 +115,7 @@ def test_a_band_with_only_rigid_grasps_gets_a_usable_interval_scale():
     cal = _fit_one_band(np.full(truth.size, 8.05), truth)
     assert cal["n_ok"] == 0
     assert all(np.isfinite(s) and s >= 1.0 for s in cal["interval_scales"])
+    assert all(OK_LEVEL_FLOOR <= q <= 1.0 for q in cal["ok_levels"])
 
 
 def test_bounds_that_hold_on_exactly_the_level_keep_the_loosest_rigid_threshold():
