@@ -194,16 +194,21 @@ class ArrayField:
     max_abs: float | None = None  # float values at most this in magnitude
 
     def coerce(self, value: Any, where: str) -> np.ndarray:
-        """Sender side: arrays as given (checked later, never cast); bytes and numbers converted."""
+        """Sender side: arrays as given (checked later, never cast); bytes and numbers converted,
+        flags refused (``[True, 3.0]`` would be sent as ``[1.0, 3.0]``)."""
         if isinstance(value, bytes | bytearray | memoryview):
             value = np.frombuffer(value, dtype=np.uint8)
         elif not isinstance(value, np.ndarray):
             try:
                 if isinstance(value, str) or not isinstance(value, numbers.Real | Sequence):
                     raise TypeError(type(value).__name__)
-                value = np.atleast_1d(np.asarray(value, dtype=np.dtype(self.dtypes[0])))
+                flag = _first_flag(value)
+                converted = np.atleast_1d(np.asarray(value, dtype=np.dtype(self.dtypes[0])))
             except (TypeError, ValueError) as exc:
                 raise MessageRejected("mistyped_field", f"{where} must be an array of numbers ({exc})") from exc
+            if flag is not None:
+                raise MessageRejected("mistyped_field", f"{where} must be an array of numbers, not of flags: holds {flag!r}")
+            value = converted
         return value
 
     def check(self, array: np.ndarray, where: str) -> np.ndarray:
@@ -218,6 +223,15 @@ class ArrayField:
             raise MessageRejected("mistyped_field", f"{where} holds {np.abs(array).max():.6g}: expected values at most "
                                                   f"{self.max_abs:g} in magnitude")
         return array
+
+
+def _first_flag(value: Any) -> bool | np.bool_ | None:
+    """The first flag in a number or (nested) sequence of numbers, None when it holds none."""
+    try:
+        items = np.asarray(value, dtype=object).flat
+    except ValueError:  # ragged: the conversion to numbers refuses it
+        return None
+    return next((item for item in items if isinstance(item, bool | np.bool_)), None)
 
 
 # How a body dataclass field says what it is (dataclasses.Field.metadata keys).
