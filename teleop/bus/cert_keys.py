@@ -48,12 +48,15 @@ def read_public_cert(path: Path, *, in_place: bool = True) -> bytes:
 
 
 def read_secret_cert(path: Path, public_key: bytes) -> bytes:
-    """The secret key of ``path``, after checking only its owner can read it and that it yields ``public_key``."""
+    """The secret key of ``path``, after checking this user or root owns it, only its owner can read it
+    and it yields ``public_key``."""
     public, secret = load_certificate(path, "CURVE secret certificate")
     try:
-        mode = stat.S_IMODE(path.stat().st_mode)
+        info = path.stat()
     except OSError as exc:
         raise BusSecurityError(f"cannot read CURVE secret certificate {path}: {exc}") from exc
+    cert_access.check_owner(path, "CURVE secret certificate", info.st_uid)
+    mode = stat.S_IMODE(info.st_mode)
     if mode & 0o077:
         raise BusSecurityError(
             f"{path} is readable by other users (mode {mode:04o}): run chmod 600 {path}"

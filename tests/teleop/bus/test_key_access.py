@@ -15,11 +15,13 @@ from pathlib import Path
 import pytest
 
 import teleop
+from teleop.bus.cert_access import access_error, check_owner_writes
 from teleop.bus.security import (
     BusSecurity,
     authorize_key,
     init_keys,
     list_keys,
+    read_authorized,
     security_from_settings,
 )
 from teleop.errors import BusSecurityError
@@ -123,3 +125,30 @@ def test_a_dangling_key_in_the_authorised_folder_is_to_be_removed(keys, tmp_path
     (keys.keys_dir / "authorized" / "gone.key").symlink_to(tmp_path / "nowhere.key")
     with pytest.raises(BusSecurityError, match="it does not exist: remove it from"):
         list_keys(keys.keys_dir)
+
+
+def test_permission_denied_names_the_outermost_folder_this_user_cannot_search(tmp_path, monkeypatch):
+    # outer/ and outer/inner/ both closed: only opening outer/ helps first, so it is the one named
+    outer = tmp_path / "outer"
+    (outer / "inner" / "keys").mkdir(parents=True)
+    closed, real_access = str(outer.absolute()), os.access
+    monkeypatch.setattr(os, "access", lambda p, mode, *a, **k: False if os.fspath(p).startswith(closed)
+                        else real_access(p, mode, *a, **k))
+    error = access_error(outer / "inner" / "keys" / "server.key", "CURVE certificate",
+                         PermissionError(errno.EACCES, "Permission denied"))
+    assert f"folder {outer} (owner " in str(error) and "let " in str(error) and f"read {outer}" in str(error)
+
+
+def test_a_missing_keys_folder_is_said_to_be_missing_with_how_to_make_one(tmp_path):
+    with pytest.raises(BusSecurityError, match=r"CURVE keys directory .*absent does not exist: run `teleop keys init DIR`"):
+        BusSecurity.load(tmp_path / "absent")
+    init_keys(tmp_path / "keys")
+    shutil.rmtree(tmp_path / "keys" / "authorized")
+    with pytest.raises(BusSecurityError, match=r"authorised-keys directory .* does not exist: run `teleop keys init`"):
+        read_authorized(tmp_path / "keys" / "authorized")
+
+
+def test_the_owner_write_check_refuses_a_path_it_cannot_inspect(tmp_path):
+    # fail closed: a folder or certificate whose owner and mode cannot be read is not taken as safe
+    with pytest.raises(BusSecurityError, match="does not exist"):
+        check_owner_writes(tmp_path / "absent", "CURVE keys directory")

@@ -1,6 +1,7 @@
 """A keys folder, its authorized/ folder or a public certificate that other users may write is refused,
-naming the path and the chmod (teleop.bus.cert_access.check_owner_writes); so is a secret certificate
-other users may read, or one whose secret key is no Z85 key (teleop.bus.cert_keys)."""
+naming the path and the chmod, and so is one owned by a user other than this one or root, naming its
+owner (teleop.bus.cert_access.check_owner_writes); so is a secret certificate other users may read or
+own, or one whose secret key is no Z85 key (teleop.bus.cert_keys)."""
 
 from __future__ import annotations
 
@@ -51,6 +52,16 @@ def test_a_secret_key_that_is_no_z85_key_is_refused_naming_the_file(tmp_path, ba
         BusSecurity.load(tmp_path / "keys")
 
 
+def test_a_secret_certificate_holding_only_a_public_key_is_said_to_hold_no_secret_key(tmp_path):
+    # the usual slip: client.key copied over client.key_secret (mode kept 0600)
+    init_keys(tmp_path / "keys")
+    secret = tmp_path / "keys" / "client.key_secret"
+    secret.write_bytes((tmp_path / "keys" / "client.key").read_bytes())
+    assert _mode(secret) == 0o600  # refused for its contents, not its mode
+    with pytest.raises(BusSecurityError, match=f"{re.escape(str(secret))} holds no secret key"):
+        BusSecurity.load(tmp_path / "keys")
+
+
 @pytest.mark.parametrize("relative, mode", [("authorized", 0o775), ("authorized/client.key", 0o666)])
 def test_an_authorized_folder_or_key_others_may_write_is_refused(tmp_path, relative, mode):
     init_keys(tmp_path / "keys")
@@ -77,3 +88,74 @@ def test_keys_made_and_authorised_under_a_group_umask_are_accepted(tmp_path):
     assert [k.name for k in read_authorized(tmp_path / "server" / "authorized")] == ["client", "laptop"]
     assert _mode(tmp_path / "server" / "authorized" / "laptop.key") == 0o644
     assert _mode(tmp_path / "laptop" / "server.key") == 0o644
+
+
+# --------------------------------------------------------------------------- owners
+
+needs_owners = pytest.mark.skipif(not hasattr(os, "geteuid"), reason="POSIX file owners")
+
+
+def _owned_by(monkeypatch, uid: int, *paths) -> None:
+    """Make ``paths`` report ``uid`` as their owner: simulated, as chown needs root."""
+    chosen = {os.path.abspath(p) for p in paths}
+    real_stat = os.stat
+
+    def stat_(path, *args, **kwargs):
+        info = real_stat(path, *args, **kwargs)
+        if isinstance(path, (str, os.PathLike)) and os.path.abspath(os.fspath(path)) in chosen:
+            return os.stat_result((*info[:4], uid, *info[5:10]))
+        return info
+
+    monkeypatch.setattr(os, "stat", stat_)
+
+
+def _another_user() -> int:
+    """A uid that is neither this process's nor root's."""
+    return next(uid for uid in (65534, 65533) if uid != os.geteuid())
+
+
+@needs_owners
+@pytest.mark.parametrize("relative", ["", "server.key", "client.key", "client.key_secret"])
+def test_a_keys_folder_or_certificate_another_user_owns_is_refused(tmp_path, monkeypatch, relative):
+    # its owner may write it whatever its mode: authorise their own key, swap the server's, read a secret
+    init_keys(tmp_path / "keys")
+    target, owner = tmp_path / "keys" / relative, _another_user()
+    _owned_by(monkeypatch, owner, target)
+    with pytest.raises(BusSecurityError, match="is owned by") as refused:
+        BusSecurity.load(tmp_path / "keys")
+    said = str(refused.value).replace(f"{target}/ ", f"{target} ")
+    assert f"{target} is owned by uid {owner}" in said
+    assert f"expected uid {os.geteuid()}" in said and "or root" in said
+
+
+@needs_owners
+@pytest.mark.parametrize("relative", ["authorized", "authorized/client.key"])
+def test_an_authorized_folder_or_key_another_user_owns_is_refused(tmp_path, monkeypatch, relative):
+    init_keys(tmp_path / "keys")
+    target, owner = tmp_path / "keys" / relative, _another_user()
+    _owned_by(monkeypatch, owner, target)
+    with pytest.raises(BusSecurityError, match=f"{target} is owned by uid {owner}") as refused:
+        read_authorized(tmp_path / "keys" / "authorized")
+    assert f"chown {os.geteuid()} {target}" in str(refused.value)
+
+
+@needs_owners
+def test_keys_root_owns_are_accepted(tmp_path, monkeypatch):
+    # as ssh accepts a root-owned authorized_keys: root may write anything anyway
+    init_keys(tmp_path / "keys")
+    keys = tmp_path / "keys"
+    user = _another_user()  # not root, whoever runs the tests
+    monkeypatch.setattr(os, "geteuid", lambda: user)
+    _owned_by(monkeypatch, 0, keys, *keys.iterdir(), *(keys / "authorized").iterdir())
+    BusSecurity.load(keys)
+    assert [k.name for k in read_authorized(keys / "authorized")] == ["client"]
+
+
+@needs_owners
+def test_keys_are_not_made_in_a_folder_another_user_owns(tmp_path, monkeypatch):
+    # they would be refused when loaded: refused before any is written
+    (tmp_path / "keys").mkdir(mode=0o755)
+    _owned_by(monkeypatch, _another_user(), tmp_path / "keys")
+    with pytest.raises(BusSecurityError, match=f"{tmp_path / 'keys'} is owned by uid"):
+        init_keys(tmp_path / "keys")
+    assert list((tmp_path / "keys").iterdir()) == [] and _mode(tmp_path / "keys") == 0o755
