@@ -1,8 +1,10 @@
 """One end without keys: both ends say the mechanisms differ, and a keyed subscriber whose endpoint an
-unkeyed publisher held hears the keyed one bound there afterwards (teleop.bus.handshakes)."""
+unkeyed publisher held hears the keyed one bound there afterwards; which endpoints a socket's watch
+lists as never connected and when it reconnects one (teleop.bus.handshakes)."""
 
 from __future__ import annotations
 
+import itertools
 import logging
 import struct
 import threading
@@ -14,11 +16,15 @@ import zmq
 from support.bus import HEARD_WITHIN_S, delivered
 
 from teleop.bus import Publisher, Subscriber
+from teleop.errors import BusError
 
 LOOPBACK = "tcp://127.0.0.1:*"
 RECONNECT_S = 3.0  # teleop.bus.handshakes.RECONNECT_S
 CLIENT_SAYS = "runs no CURVE and this process does"
 UNKEYED_SAYS = "runs CURVE and this process runs none"
+FED_ENDPOINT = "tcp://127.0.0.1:1"  # the endpoint _fed reports every event on
+MISMATCH = (zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL, zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH)
+_feeds = itertools.count()
 
 
 @pytest.fixture
@@ -128,7 +134,7 @@ def test_a_binding_socket_lists_no_never_connected_endpoint_as_its_own_address_i
         feed.bind(f"inproc://test-handshake-never-connected-{server}")
         monitor.connect(f"inproc://test-handshake-never-connected-{server}")
         never_connected[server] = list(_fed(feed, monitor, mismatch, server=server).never_connected())
-    assert never_connected == {True: [], False: ["tcp://127.0.0.1:1"]}
+    assert never_connected == {True: [], False: [FED_ENDPOINT]}
 
 
 class _ReconnectingSocket:
@@ -162,19 +168,95 @@ def test_a_given_up_endpoint_is_reconnected_only_once_its_time_comes(monkeypatch
     assert watch.next_due_s() is None
 
 
-def _fed(feed: zmq.Socket, monitor: zmq.Socket, events: list[tuple[int, int]], *, server: bool = False):
-    """An unkeyed socket's watch (``server``: one that binds) fed ``events`` on one endpoint, then
-    stopped: the watch."""
+def _fed(feed: zmq.Socket, monitor: zmq.Socket, events: list[tuple[int, int]], *, server: bool = False,
+        keys_dir=None):
+    """A socket's watch (``server``: one that binds; keyed when ``keys_dir`` is given) fed ``events`` on
+    FED_ENDPOINT, then stopped: the watch."""
     from teleop.bus.handshakes import HandshakeWatch, _report, _Side
 
     watch = HandshakeWatch()
-    reader = threading.Thread(target=_report, args=(monitor, _Side(server=server, keys_dir=None), watch))
+    reader = threading.Thread(target=_report, args=(monitor, _Side(server=server, keys_dir=keys_dir), watch))
     reader.start()
     try:
         for kind, value in events:
-            _event(feed, kind, value, "tcp://127.0.0.1:1")
+            _event(feed, kind, value, FED_ENDPOINT)
     finally:
         _event(feed, zmq.EVENT_MONITOR_STOPPED, 0, "")
         reader.join(timeout=HEARD_WITHIN_S)
         feed.close(linger=0)
     return watch
+
+
+def _keyed_watch(events: list[tuple[int, int]], keys_dir):
+    """A keyed connecting socket's watch fed ``events`` (:func:`_fed` on a fresh monitor pair)."""
+    context = zmq.Context.instance()
+    address = f"inproc://test-handshake-keyed-{next(_feeds)}"
+    feed, monitor = context.socket(zmq.PAIR), context.socket(zmq.PAIR)
+    feed.bind(address)
+    monitor.connect(address)
+    return _fed(feed, monitor, events, keys_dir=keys_dir)
+
+
+def test_an_endpoint_whose_handshake_later_succeeds_is_not_listed_as_never_connected(tmp_path):
+    # `teleop record` must not say nothing came from a peer it did hear once the mismatch was mended
+    assert _keyed_watch([MISMATCH, (zmq.EVENT_HANDSHAKE_SUCCEEDED, 0)], tmp_path).never_connected() == {}
+    assert list(_keyed_watch([MISMATCH], tmp_path).never_connected()) == [FED_ENDPOINT]
+
+
+def test_a_dropped_connection_libzmq_retries_itself_is_not_given_up_for_reconnecting(tmp_path):
+    # a keyed client whose server drops its HELLO (another server key): libzmq retries; only a refused
+    # key or a protocol error makes it give the endpoint up
+    watch = _keyed_watch([(zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL, 0)] * 3, tmp_path)
+    assert FED_ENDPOINT in watch.never_connected()  # said, and kept for `teleop record`
+    assert watch.next_due_s() is None  # but not disconnected and reconnected by us
+    assert _keyed_watch([(zmq.EVENT_HANDSHAKE_FAILED_AUTH, 0)], tmp_path).next_due_s() is not None
+
+
+def test_a_failure_after_a_recovery_is_said_again(tmp_path, handshake_log):
+    _keyed_watch([MISMATCH, MISMATCH, (zmq.EVENT_HANDSHAKE_SUCCEEDED, 0), MISMATCH], tmp_path)
+    texts = _warnings(handshake_log, within_s=0)
+    assert len(texts) == 2, texts  # once before the recovery, once after: not silenced for good
+    assert any("now succeeds" in r.getMessage() for r in handshake_log.records)
+
+
+def test_a_repeated_give_up_does_not_postpone_the_reconnect(monkeypatch):
+    from teleop.bus import handshakes
+
+    now = [100.0]
+    monkeypatch.setattr(handshakes, "time", types.SimpleNamespace(monotonic=lambda: now[0]))
+    watch = handshakes.HandshakeWatch()
+    watch.gave_up(FED_ENDPOINT)
+    now[0] += 2.0
+    watch.gave_up(FED_ENDPOINT)  # a second failure reported before the retry
+    assert watch.next_due_s() == RECONNECT_S - 2.0
+
+
+def test_the_next_reconnect_is_the_soonest_one(monkeypatch):
+    from teleop.bus import handshakes
+
+    now = [100.0]
+    monkeypatch.setattr(handshakes, "time", types.SimpleNamespace(monotonic=lambda: now[0]))
+    watch = handshakes.HandshakeWatch()
+    watch.gave_up("tcp://127.0.0.1:1")
+    now[0] += 2.0
+    watch.gave_up("tcp://127.0.0.1:2")
+    assert watch.next_due_s() == RECONNECT_S - 2.0  # the first one's, not the second's
+
+
+class _RefusingSocket(_ReconnectingSocket):
+    """A socket libzmq will not connect again."""
+
+    def connect(self, endpoint: str) -> None:
+        raise zmq.ZMQError(zmq.EINVAL, "refused")
+
+
+def test_an_endpoint_libzmq_will_not_connect_again_is_an_error_not_silently_dropped(monkeypatch):
+    from teleop.bus import handshakes
+
+    now = [100.0]
+    monkeypatch.setattr(handshakes, "time", types.SimpleNamespace(monotonic=lambda: now[0]))
+    watch = handshakes.HandshakeWatch()
+    watch.gave_up(FED_ENDPOINT)
+    now[0] += RECONNECT_S
+    with pytest.raises(BusError, match=f"cannot reconnect {FED_ENDPOINT}"):
+        watch.reconnect_due(_RefusingSocket())

@@ -14,7 +14,7 @@ import zmq
 from support.bus import HEARD_WITHIN_S, delivered, raw_publisher, wait_subscribed
 
 from teleop.bus import Heartbeat, Publisher, Subscriber
-from teleop.bus.peers import MAX_TRACKED
+from teleop.bus.peers import MAX_TRACKED, Recent
 from teleop.bus.wire import encode, make_message
 from teleop.errors import BusError, BusTimeoutError, MessageRejected
 from teleop.settings import BusSettings
@@ -365,6 +365,39 @@ def test_heartbeat_bookkeeping_on_an_injected_clock():
     with pytest.raises(BusError, match="timeout_s"):
         beat.is_alive("display")
     assert beat.last_seen_s("display") == now[0]
+
+
+def test_heartbeat_times_given_explicitly_are_used_not_the_clock():
+    beat = Heartbeat(clock=lambda: 1000.0)  # a clock far from the times given
+    beat.saw("robot", interval_s=0.5, now_s=10.0)
+    assert beat.last_seen_s("robot") == 10.0
+    assert beat.is_alive("robot", now_s=11.4)  # within three periods of 10.0
+    assert not beat.is_alive("robot", now_s=11.6)
+
+
+def test_a_peer_heard_exactly_timeout_s_ago_is_still_alive():
+    beat = Heartbeat(clock=lambda: 0.0)
+    beat.saw("robot", interval_s=0.5, now_s=10.0)
+    assert beat.is_alive("robot", timeout_s=2.0, now_s=12.0)  # "within timeout_s": the bound included
+    assert not beat.is_alive("robot", timeout_s=2.0, now_s=12.001)
+
+
+def test_a_peer_heard_again_is_kept_when_made_up_names_flood_the_table():
+    beat = Heartbeat(clock=lambda: 0.0)
+    beat.saw("robot", interval_s=0.5)  # the first peer heard from
+    for i in range(MAX_TRACKED - 1):
+        beat.saw(f"made-up-{i}")
+    beat.saw("robot")  # heard again: now the most recent
+    beat.saw("one-more")  # the table is full: the longest unheard (made-up-0) goes, not the robot
+    assert beat.last_seen_s("robot") is not None and beat.is_alive("robot")
+    assert beat.last_seen_s("made-up-0") is None
+    recent = Recent("names")
+    recent["a"] = 1
+    for i in range(MAX_TRACKED - 1):
+        recent[i] = i
+    recent["a"] = 2  # written again: now the most recent
+    recent["b"] = 3
+    assert "a" in recent and 0 not in recent and len(recent) == MAX_TRACKED
 
 
 def test_heartbeat_is_sent_only_when_due():

@@ -426,6 +426,23 @@ def test_keys_command_end_to_end(tmp_path, capsys):
     assert not any(s in out for s in secrets for out in outputs)
 
 
+def test_keys_json_names_the_action_and_list_says_whether_the_host_can_bind(tmp_path, capsys):
+    server, laptop = tmp_path / "server", tmp_path / "laptop"
+    code, out, _ = _keys(capsys, "init", str(server), "--json")
+    assert code == 0 and json.loads(out.splitlines()[-1])["action"] == "init"
+    assert _keys(capsys, "init", str(laptop), "--server-cert", str(server / "server.key"))[0] == 0
+    assert "(bind and connect)" in _keys(capsys, "list", str(server))[1]
+    assert "(connect only (no server secret key))" in _keys(capsys, "list", str(laptop))[1]
+    listing = json.loads(_keys(capsys, "list", str(laptop), "--json")[1].splitlines()[-1])
+    assert listing["action"] == "list" and listing["can_serve"] is False
+
+
+def test_keys_without_an_action_is_a_usage_error_not_a_traceback(capsys):
+    with pytest.raises(SystemExit) as exited:
+        teleop.cli.main(["keys"])
+    assert exited.value.code == 2 and "ACTION" in capsys.readouterr().err
+
+
 def test_keys_command_errors_are_one_line(tmp_path):
     result = subprocess.run(
         [
