@@ -109,6 +109,8 @@ class HidDisplay(SoftnessDisplay):
             # Reads then honour their timeout instead of blocking (timeout 0 = poll).
             device.set_nonblocking(1)
         except (OSError, ValueError) as exc:
+            with contextlib.suppress(OSError, ValueError):  # opened but unusable: no handle left behind
+                device.close()
             raise DisplayError(
                 f"{self}: cannot open ({exc}); on Linux the user needs read/write access to the "
                 "hidraw node (a udev rule)"

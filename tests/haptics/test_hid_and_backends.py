@@ -23,6 +23,8 @@ from haptics.protocol_grip import GripReport
 from haptics.settings import DisplaySettings
 
 REPO = Path(__file__).resolve().parents[2]
+#: More fake reads than any test here makes: beyond them the display's read loop would never end.
+MAX_FAKE_READS = 100
 
 
 def hid_display(**options):
@@ -36,16 +38,21 @@ def read_clock(fake_hid, monkeypatch):
     """The display's clock advances by exactly each fake read's timeout, not by the wall clock.
 
     The display cuts a read timeout into slices from its clock; on the wall clock a fake read
-    descheduled on a loaded machine overshoots its slice, and the slices no longer add up.
+    descheduled on a loaded machine overshoots its slice, and the slices no longer add up. Reads
+    that do not move the clock (timeouts of 0 ms) would never end a wait: after
+    :data:`MAX_FAKE_READS` reads the fake fails the test.
     """
     import haptics.devices.base as base
 
     FakeHidDevice = type(fake_hid.device())  # noqa: N806 (the conftest's class)
     now = [1000.0]
+    reads = [0]
     monkeypatch.setattr(base, "time", types.SimpleNamespace(monotonic=lambda: now[0]))
     real_read = FakeHidDevice.read
 
     def read(self, max_length, timeout_ms=0):
+        reads[0] += 1
+        assert reads[0] <= MAX_FAKE_READS, f"{reads[0]} reads: the display's clock stopped at {now[0]} s"
         try:
             return real_read(self, max_length, timeout_ms)
         finally:
@@ -138,14 +145,58 @@ def test_an_unplug_wraps_oserror_and_disconnects(fake_hid):
         display.read_status()
 
 
-def test_a_short_write_is_a_failure(fake_hid):
+@pytest.mark.parametrize("written", [-1, 4])  # hidapi's error return, or part of the report
+def test_a_short_write_is_a_failure(fake_hid, written):
     usb = fake_hid.plug()
     display = hid_display()
     display.connect()
-    usb.write_result = -1  # hidapi's error return
-    with pytest.raises(DisplayError, match="wrote -1 of 8 bytes"):
+    usb.write_result = written
+    with pytest.raises(DisplayError, match=f"wrote {written} of 8 bytes"):
         display.write_command(StiffnessCommand(level=3))
     assert not display.connected
+
+
+def test_a_short_feature_write_is_a_failure_that_disconnects(fake_hid):
+    usb = fake_hid.plug()
+    display = hid_display()
+    display.connect()
+    usb.feature_write_result = 3
+    with pytest.raises(DisplayError, match="feature report wrote 3 of 17 bytes"):
+        display.configure(watchdog_ms=250)
+    assert not display.connected
+
+
+def test_an_unplugged_displays_handle_is_released_once_the_link_fails(fake_hid):
+    usb = fake_hid.plug()
+    display = hid_display()
+    display.connect()
+    fake_hid.unplug(usb)
+    with pytest.raises(DisplayError):
+        display.write_command(StiffnessCommand(level=3))
+    assert fake_hid.closed == fake_hid.opened  # released at the failure ...
+    fake_hid.plug(usb)
+    display.reconnect()
+    display.close()
+    assert fake_hid.closed == fake_hid.opened and len(fake_hid.opened) == 2  # ... and every handle once
+
+
+def test_a_handle_that_fails_to_close_after_an_unplug_still_gives_a_display_error(fake_hid, monkeypatch):
+    # The handle of an unplugged device may raise on close: the caller (the Reconnector, the renderer)
+    # still sees the DisplayError of the failed write, and close() raises nothing.
+    def close(self):
+        raise OSError("handle already gone")
+
+    monkeypatch.setattr(type(fake_hid.device()), "close", close)
+    usb = fake_hid.plug()
+    display = hid_display()
+    display.connect()
+    fake_hid.unplug(usb)
+    with pytest.raises(DisplayError, match="write failed"):
+        display.write_command(StiffnessCommand(level=3))
+    display.close()
+    fake_hid.plug(usb)
+    display.reconnect()
+    display.close()
 
 
 def test_replug_under_a_new_path_is_found_again(fake_hid):
@@ -181,17 +232,32 @@ def test_interfaces_of_another_usage_page_are_skipped(fake_hid):
     assert len(list_hid_displays(0x1209, 0x5EF7)) == 1
 
 
-def test_a_display_speaking_another_protocol_is_refused(fake_hid, monkeypatch):
+def test_a_display_speaking_another_protocol_is_refused_and_its_handle_released(fake_hid, monkeypatch):
     usb = fake_hid.plug()
     report = bytearray(usb.firmware.feature_report())
     report[1] = 3  # protocol version 3
     report[-1] = crc8(bytes(report[:-1]))
     monkeypatch.setattr(usb.firmware, "feature_report", lambda: bytes(report))
     display = hid_display()
-    with pytest.raises(DisplayError, match="protocol_version = 3: this host speaks versions 1 and 2") as raised:
+    for _ in range(3):  # as a Reconnector retries: no handle may pile up
+        with pytest.raises(DisplayError, match="protocol_version = 3: this host speaks versions 1 and 2") as raised:
+            display.connect()
+        assert not display.connected
+        assert raised.value.__cause__ is not None
+    assert len(fake_hid.opened) == 3 and fake_hid.closed == fake_hid.opened
+
+
+def test_a_handle_that_cannot_be_made_non_blocking_is_released(fake_hid, monkeypatch):
+    fake_hid.plug()
+
+    def refuse(self, value):
+        raise OSError("set_nonblocking failed")
+
+    monkeypatch.setattr(type(fake_hid.device()), "set_nonblocking", refuse)
+    display = hid_display()
+    with pytest.raises(DisplayError, match="cannot open .*set_nonblocking failed"):
         display.connect()
-    assert not display.connected
-    assert raised.value.__cause__ is not None
+    assert len(fake_hid.opened) == 1 and fake_hid.closed == fake_hid.opened
 
 
 def test_a_version_1_display_gets_the_bytes_it_always_got(fake_hid):
