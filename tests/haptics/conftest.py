@@ -3,7 +3,8 @@
 This kernel has no uhid, so the HID backend is tested through a fake ``hid``
 module injected into ``sys.modules``: its devices record every write byte for
 byte, answer through the same firmware model as the simulated display, raise
-OSError once unplugged and come back under a new hidraw path when replugged.
+OSError once unplugged and come back under a new hidraw path when replugged;
+the bus keeps every handle opened and every close.
 The simulated and the fake-HID displays each run twice, speaking protocol
 version 2 (the default, with a grip) and version 1 (a display from before the
 grip report). A real display joins the contract suite when COMPLIANCE_TELEOP_HID=1.
@@ -46,6 +47,8 @@ class FakeUsbDisplay:
     read_timeouts_ms: list[int] = field(default_factory=list)
     #: When set, write() returns this instead of the byte count (hidapi's -1 on error).
     write_result: int | None = None
+    #: When set, send_feature_report() returns this instead of the byte count.
+    feature_write_result: int | None = None
     #: open_path() fails as it does without permission on the hidraw node.
     refuse_open: bool = False
 
@@ -57,6 +60,7 @@ class FakeHidDevice:
         self._bus = bus
         self._usb: FakeUsbDisplay | None = None
         self._path: bytes | None = None
+        self._blocking = True  # as hidapi opens a handle
 
     def _live(self) -> FakeUsbDisplay:
         if self._usb is None:
@@ -69,9 +73,11 @@ class FakeHidDevice:
         if path not in self._bus.attached or self._bus.attached[path].refuse_open:
             raise OSError("open failed")
         self._usb, self._path = self._bus.attached[path], path
+        self._bus.opened.append(self)
 
     def set_nonblocking(self, value: int) -> int:
         self._live()
+        self._blocking = not value
         return 0
 
     def write(self, buff) -> int:
@@ -84,7 +90,8 @@ class FakeHidDevice:
         return len(data)
 
     def read(self, max_length: int, timeout_ms: int = 0) -> list[int]:
-        """As hidapi's: waits up to ``timeout_ms`` for a report, which must fit a C int."""
+        """As hidapi's: waits up to ``timeout_ms`` for a report, which must fit a C int; with
+        ``timeout_ms`` 0 a blocking handle would wait for ever for one (here: an AssertionError)."""
         usb = self._live()
         if abs(timeout_ms) > C_INT_MAX:
             raise OverflowError("value too large to convert to int")
@@ -92,6 +99,8 @@ class FakeHidDevice:
         deadline = time.monotonic() + timeout_ms / 1000
         while (report := usb.firmware.next_input_report()) is None and time.monotonic() < deadline:
             time.sleep(0.002)
+        if report is None and timeout_ms == 0 and self._blocking:
+            raise AssertionError("read(n, 0) on a blocking hidapi handle waits for ever for a report")
         self._live()  # a handle closed under the read fails it, as hidapi's may
         return [] if report is None else list(report[:max_length])
 
@@ -105,11 +114,14 @@ class FakeHidDevice:
         usb = self._live()
         data = bytes(buff)
         usb.feature_writes.append(data)
+        if usb.feature_write_result is not None:
+            return usb.feature_write_result
         usb.firmware.receive_feature(data)
         return len(data)
 
     def close(self) -> None:
         self._usb = None
+        self._bus.closed.append(self)
 
 
 class FakeHidBus:
@@ -118,6 +130,9 @@ class FakeHidBus:
     def __init__(self) -> None:
         self.attached: dict[bytes, FakeUsbDisplay] = {}
         self._next_node = 0
+        #: Every handle opened (open_path succeeded) and every close(), in order.
+        self.opened: list[FakeHidDevice] = []
+        self.closed: list[FakeHidDevice] = []
 
     def plug(self, usb: FakeUsbDisplay | None = None, **fields) -> FakeUsbDisplay:
         """Attach ``usb`` (or a new one with ``fields``) under a fresh hidraw path, powered up."""

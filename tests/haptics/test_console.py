@@ -12,11 +12,14 @@ import time
 import pytest
 from support.operator_fakes import NOBODY, ConsoleLink, until
 
+from haptics import console
 from haptics.console import OperatorConsole, estimate_line, squeeze_hint
+from haptics.inputs import OperatorInput
 from haptics.inputs.keyboard import KeyboardInput
 from haptics.mapping import EstimateUpdate
 from haptics.operator_link import OperatorView, Peer
 from haptics.operator_loop import OperatorLoop
+from haptics.operator_status import LoopStatus
 from teleop.bus.messages import DisplayBody, EstimateBody, RobotNoticeBody, RobotStateBody
 from teleop.settings import load_settings
 
@@ -24,6 +27,23 @@ ESTIMATE = EstimateBody(grasp_id="g", method="hybrid", E_pa=3.6e6, interval_pa=[
                         reason="loading phase 0.12-0.41 s (the first squeeze)", provisional=False, latency_s=0.01)
 DISPLAY = DisplayBody(grasp_id="g", phase="active", stiffness=0.87, uncertainty_decades=0.3, rigid=False,
                       unknown=False, provisional=False, E_pa=3.6e6, level=55, level_max=63)
+
+
+class Still:
+    """An input device nobody touches."""
+
+    waits_for_robot = False
+
+    def read(self, *, timeout_s):
+        return OperatorInput(t_s=time.monotonic(), grip=0.0, enable=False)
+
+    def feel(self, **_):
+        pass
+
+
+def unrun_console() -> OperatorConsole:
+    """A console that is not run, for :meth:`OperatorConsole.render_status`."""
+    return OperatorConsole(OperatorLoop(ConsoleLink(), Still(), load_settings(), force_n=10.0), input_name="gamepad")
 
 
 def test_estimates_and_moduli_read_as_people_write_them():
@@ -48,6 +68,9 @@ def test_a_bound_without_a_modulus_reads_as_the_bound_the_display_renders():
 
 def test_a_final_answer_too_wide_to_place_asks_for_a_firmer_squeeze():
     assert squeeze_hint(ESTIMATE) is None  # 0.48 decade: placed on the display's scale
+    one_decade = dataclasses.replace(ESTIMATE, E_pa=3e6, interval_pa=[1e6, 1e7])
+    assert squeeze_hint(one_decade) is None  # a hint only for an interval wider than one decade
+    assert squeeze_hint(dataclasses.replace(one_decade, interval_pa=[1e6, 1.1e7])) is not None
     wide = dataclasses.replace(ESTIMATE, E_pa=3e4, interval_pa=[5e3, 2e5])
     assert squeeze_hint(wide) == "wide interval (1.6 decades): a firmer squeeze reads surer"
     assert squeeze_hint(dataclasses.replace(wide, provisional=True)) is None  # still squeezing
@@ -58,6 +81,45 @@ def test_a_final_answer_too_wide_to_place_asks_for_a_firmer_squeeze():
     assert squeeze_hint(wide, peak_force_n=12.4, max_force_n=30.0) == (
         "wide interval (1.6 decades) after a 12 N squeeze: a firmer one (up to 30 N) reads surer")
     assert squeeze_hint(wide, peak_force_n=29.0, max_force_n=30.0) is None
+    assert squeeze_hint(wide, peak_force_n=27.0, max_force_n=30.0) is None  # 90 % of it is the full squeeze
+    assert squeeze_hint(wide, peak_force_n=26.9, max_force_n=30.0) is not None
+
+
+def test_a_panel_is_cut_only_when_its_lines_outnumber_the_rows_and_a_cut_line_keeps_the_width():
+    assert console._fit("robot: no notice\nlast: -", 40, 2) == "robot: no notice\nlast: -"
+    fitted = console._fit("\n".join(["x" * 30, "y" * 30, "z" * 30]), 10, 2).splitlines()
+    # The ellipsis takes the last column: a wider line would wrap in the panel, pushing a line off it.
+    assert fitted == ["x" * 10, "x" * 9 + "\u2026"]
+
+
+def _line(texts: dict[str, str], panel: str, start: str) -> str:
+    return next(line for line in texts[panel].splitlines() if line.startswith(start))
+
+
+def test_the_force_bar_is_a_share_of_the_gripper_maximum_and_never_overflows():
+    app = unrun_console()
+    max_force = app.loop.settings.gripper.target_force_n
+
+    def bar(force_n: float) -> str:
+        return _line(app.render_status(LoopStatus(view=OperatorView(t_s=0.0, force_n=force_n))), "grasp", "force")
+
+    assert bar(max_force / 2).startswith("force  [" + "#" * 8 + "-" * 8 + "]")
+    assert bar(max_force * 1.5).startswith("force  [" + "#" * 16 + "]")
+    assert bar(-2.0).startswith("force  [" + "-" * 16 + "]")  # a sensor's offset at rest
+
+
+def test_the_notice_that_ended_the_grasp_is_not_shown_twice():
+    notice = RobotNoticeBody(event="watchdog", action="follow", grasp_id="g1",
+                             reason="no follow command for 0.210 s (watchdog 0.2 s): the fingers stopped")
+    view = OperatorView(t_s=10.0, grasp_id="g1", notice=notice, notice_t_s=9.0, ended_by=notice, ended_by_t_s=9.0)
+    assert unrun_console().render_status(LoopStatus(view=view))["notice"].count("the fingers stopped") == 1
+
+
+def test_a_fading_display_reads_as_fading_not_as_a_modulus():
+    # The service still sends the E_pa its falling stiffness maps to: no modulus stands for the level.
+    fading = dataclasses.replace(DISPLAY, phase="fading", stiffness=0.4, E_pa=1.2e5, level=25)
+    texts = unrun_console().render_status(LoopStatus(view=OperatorView(t_s=0.0, grasp_id="g", display=fading)))
+    assert texts["display"].splitlines()[0] == "fading to free (the grasp ended)  level 25/63"
 
 
 def test_a_session_with_the_keyboard_in_the_console():
@@ -75,8 +137,8 @@ def test_a_session_with_the_keyboard_in_the_console():
                 # Nothing running but the console: it says why no estimate and no rendering will come.
                 assert "the estimator is down" in app.texts["estimate"]
                 assert "the renderer is down" in app.texts["display"]
-                # a discrete grasp at the chosen force, raised by one newton with "+"
-                await pilot.press("plus", "g")
+                # a discrete grasp at the chosen force, raised by one newton with "+", lowered by one with "-"
+                await pilot.press("plus", "plus", "minus", "g")
                 await until(lambda: "start_grasp" in link.kinds(), pilot)
                 assert link.sent[-1][1]["target_force_n"] == 11.0
                 grasp_id = link.sent[-1][1]["grasp_id"]
@@ -128,19 +190,6 @@ def test_other_inputs_still_take_the_buttons_and_q_or_ctrl_c_quits():
     settings = load_settings()
     link = ConsoleLink()
 
-    class Still:
-        """An input device nobody touches."""
-
-        waits_for_robot = False
-
-        def read(self, *, timeout_s):
-            from haptics.inputs import OperatorInput
-
-            return OperatorInput(t_s=time.monotonic(), grip=0.0, enable=False)
-
-        def feel(self, **_):
-            pass
-
     async def session() -> OperatorConsole:
         loop = OperatorLoop(link, Still(), settings)
         app = OperatorConsole(loop, input_name="gamepad")
@@ -162,6 +211,22 @@ def test_other_inputs_still_take_the_buttons_and_q_or_ctrl_c_quits():
         return app
 
     assert asyncio.run(interrupted()).exit_status.quit
+
+
+def test_q_quits_a_console_whose_loop_stopped():
+    class BrokenLink(ConsoleLink):
+        def poll(self, timeout_s: float = 0.0) -> int:
+            raise RuntimeError("the link broke")
+
+    async def session() -> OperatorConsole:
+        app = OperatorConsole(OperatorLoop(BrokenLink(), Still(), load_settings()), input_name="gamepad")
+        async with app.run_test(size=(100, 30)) as pilot:
+            await until(lambda: "(q quits)" in app.texts.get("notice", ""), pilot)
+            await pilot.press("q")
+            await until(lambda: app.exit_status is not None, pilot)
+        return app
+
+    assert asyncio.run(session()).exit_status is not None
 
 
 def test_a_warning_logged_while_the_screen_runs_shows_in_the_notices():
@@ -254,6 +319,8 @@ def test_l_labels_the_grasp_from_the_catalogue_or_a_shore_reading():
                 grasp_id = link.sent[-1][1]["grasp_id"]
                 link.view = OperatorView(t_s=time.monotonic(), peers=NOBODY, grasp_id=grasp_id, phase="loaded")
                 await until(lambda: loop.status.label_grasp_id == grasp_id, pilot)
+                # the note said with no grasp in view is not about this one
+                await until(lambda: "no grasp to label yet" not in app.texts["notice"], pilot)
                 # the catalogue's name, typed in part and completed with the suggestion; letters that are
                 # keys (g grasp, r release, e enable, q quit) go to the line, not to the robot
                 await pilot.press("l")

@@ -1,5 +1,5 @@
-"""The operator console on an 80x24 terminal, a dead estimator, the watchdog and the keyboard's toggle
-(textual's pilot against a fake link)."""
+"""The operator console on an 80x24 terminal, a dead estimator, the watchdog and the keyboard's toggle,
+and on a tall terminal (textual's pilot against a fake link)."""
 
 from __future__ import annotations
 
@@ -105,6 +105,31 @@ def test_a_long_reason_leaves_the_operator_and_notices_on_a_100x32_screen():
                 await until(lambda: app.exit_status is not None, pilot)
 
     asyncio.run(session())
+
+
+def test_a_tall_terminal_shows_the_whole_estimate():
+    link = ConsoleLink(ALIVE)
+    reason = "; ".join(f"reason part {n} of a long explanation" for n in range(8))
+
+    async def session() -> str:
+        with KeyboardInput() as keyboard:
+            app = OperatorConsole(OperatorLoop(link, keyboard, load_settings()), input_name="keyboard",
+                                  keyboard=keyboard)
+            async with app.run_test(size=(100, 60)) as pilot:
+                link.view = OperatorView(
+                    t_s=time.monotonic(), peers=ALIVE, grasp_id="op-1", phase="loading",
+                    estimate=EstimateBody(grasp_id="op-1", method="hybrid", E_pa=1.3e5, interval_pa=[6.5e4, 2.6e5],
+                                          state="ok", reason=reason, provisional=True, latency_s=0.01),
+                    estimates=3)
+                await until(lambda: "reason part 7" in app.texts.get("estimate", ""), pilot)
+                await pilot.pause(0.2)
+                drawn = app.drawn["estimate"]
+                await pilot.press("q")
+                await until(lambda: app.exit_status is not None, pilot)
+        return drawn
+
+    drawn = asyncio.run(session())  # on a terminal of 50 rows or more, the panel is not cut to 4 lines
+    assert "\u2026" not in drawn and "reason part 7" in drawn.replace("\n", " ")
 
 
 class DeafLink(ConsoleLink):

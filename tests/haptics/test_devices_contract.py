@@ -6,6 +6,8 @@ display renders through the same code path, and only a version-2 one serves a gr
 
 from __future__ import annotations
 
+import math
+
 import pytest
 from support.threads import close_during_read
 
@@ -45,6 +47,7 @@ def test_use_before_connect_is_refused(rig):
 
 def test_not_connected_says_whether_never_connected_closed_or_unplugged(rig):
     display = rig.display
+    display.close()  # closing a display that is not connected leaves the reason as it was
     with pytest.raises(DisplayNotConnectedError, match=r"read_status\(\) .*never connected"):
         display.read_status()
     display.connect()
@@ -56,6 +59,9 @@ def test_not_connected_says_whether_never_connected_closed_or_unplugged(rig):
     unplug()
     with pytest.raises(DisplayError):
         display.write_command(StiffnessCommand(level=1))
+    with pytest.raises(DisplayNotConnectedError, match=r"read_status\(\) .*failed .*reconnect\(\)"):
+        display.read_status()
+    display.close()  # as a Reconnector's after a failed attempt
     with pytest.raises(DisplayNotConnectedError, match=r"read_status\(\) .*failed .*reconnect\(\)"):
         display.read_status()
 
@@ -100,6 +106,7 @@ def test_writes_are_encoded_with_consecutive_sequence_numbers(rig):
     first = decoded[0].sequence
     assert [d.sequence for d in decoded] == [(first + i) % 256 for i in range(3)]
     assert display.last_command == commands[-1]
+    assert display.reports_written == 3
     if rig.received is not None:
         assert rig.received()[-3:] == reports  # byte for byte as the device got them
 
@@ -178,6 +185,20 @@ def test_a_huge_timeout_is_taken_and_a_bool_one_refused(rig):
     assert display.connected
 
 
+@pytest.mark.parametrize("timeout_s", [math.inf, math.nan])
+def test_a_non_finite_timeout_is_refused(timeout_s):
+    # An infinite timeout would keep a HID read slicing for ever, the renderer's loop with it; NaN is no
+    # number of seconds. On the simulated display, whose reads never wait: were it taken, the read ends.
+    from haptics.devices.sim import SimulatedDisplay
+
+    display = SimulatedDisplay()
+    display.connect()
+    for read in (display.read_status, display.read_operator):
+        with pytest.raises(DisplayError, match=f"timeout_s = {timeout_s!r}: expected a number >= 0"):
+            read(timeout_s=timeout_s)
+    assert display.connected
+
+
 def test_a_garbled_status_report_is_a_protocol_error_and_the_link_stays(rig):
     firmware = rig.need("firmware")
     display = rig.display
@@ -234,7 +255,7 @@ def test_unplug_disconnects_and_reconnect_resends_the_last_command(rig):
     display = rig.display
     level_max = display.connect().level_max
     display.write_command(StiffnessCommand(level=level_max // 4))
-    last = StiffnessCommand(level=level_max // 2, uncertainty=9, stale=True)
+    last = StiffnessCommand(level=level_max, uncertainty=9, stale=True)  # the top of the range is resent too
     unplug()
     with pytest.raises(DisplayError) as raised:
         display.write_command(last)
@@ -250,6 +271,30 @@ def test_unplug_disconnects_and_reconnect_resends_the_last_command(rig):
     assert display.connected
     assert rig.firmware.last_command == last
     assert decode_output_report(rig.received()[-1]).command == last
+
+
+def test_a_status_set_aside_before_a_reconnect_is_not_read_after_it(rig):
+    # A status a version-2 display sent before it was unplugged (here: a fault) is not the state of the
+    # display that came back (power-on reset: no fault).
+    firmware = rig.need("firmware")
+    if firmware.info.protocol_version < 2:
+        pytest.skip("only a version-2 display has reports set aside")
+    unplug, replug = rig.need("unplug"), rig.need("replug")
+    display = rig.display
+    display.connect()
+    firmware.inject_fault("over_temperature")
+    display.write_command(StiffnessCommand(level=5))  # a status with the fault is queued ...
+    firmware.set_grip(0.5)
+    assert display.read_operator(timeout_s=0.5) is not None  # ... and set aside on the way to the grip
+    unplug()
+    with pytest.raises(DisplayError):
+        display.write_command(StiffnessCommand(level=6))
+    replug()
+    display.reconnect()  # resends level 6: the display answers with one status
+    statuses = []
+    while (status := display.read_status(timeout_s=0.05)) is not None:
+        statuses.append(status)
+    assert [(s.level, s.faults) for s in statuses] == [(6, frozenset())]
 
 
 def test_reconnector_backs_off_then_resends(rig):

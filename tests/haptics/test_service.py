@@ -1,4 +1,5 @@
-"""The renderer process adapter: estimates from the bus onto a simulated display, with final latencies."""
+"""The renderer process adapter: estimates from the bus onto a simulated display, with final latencies and
+the display's own status in the ``display`` messages."""
 
 from __future__ import annotations
 
@@ -9,9 +10,11 @@ import time
 
 import pytest
 from support.bus import admit_a_bound_without_its_bound
+from support.operator_fakes import Clock, QueuedSubscriber
 
-from haptics.devices.sim import SimulatedDisplay
+from haptics.devices.sim import DisplayFirmware, SimulatedDisplay
 from haptics.errors import HapticsError
+from haptics.protocol import DeviceStatus, encode_input_report
 from haptics.renderer import HapticRenderer
 from haptics.service import RendererService
 from haptics.settings import display_settings
@@ -255,12 +258,12 @@ def _unplugged_service(monkeypatch=None, kept: int | None = None):
                            clock=lambda: 1.0)
 
 
-def _send(service: RendererService, kind: str, seq: int = 0, **body) -> None:
+def _send(service: RendererService, kind: str, seq: int = 0, t_capture_s: float = 0.5, **body) -> None:
     import dataclasses
 
     from teleop.bus.wire import make_message
 
-    message = dataclasses.replace(make_message(kind, t_capture_s=0.5, **body), source="estimator", seq=seq)
+    message = dataclasses.replace(make_message(kind, t_capture_s=t_capture_s, **body), source="estimator", seq=seq)
     service.handle(message)
 
 
@@ -298,3 +301,182 @@ def test_finals_never_shown_are_logged_sparingly_and_only_the_last_ones_are_kept
     assert len(lines) == 2, lines  # the first, then the 10th
     assert lines[0].startswith("grasp g0: its final estimate") and "never shown" in lines[0]
     assert lines[1].startswith("10 final estimates never shown so far")
+
+
+# --------------------------------------------------------------------------- the display's status, on a fake clock
+
+
+class _HeldPublisher:
+    """A publisher that keeps what is sent (no heartbeats)."""
+
+    heartbeat_s = 1.0
+
+    def __init__(self):
+        self.sent: list[tuple[str, dict]] = []
+
+    def heartbeat_if_due(self, now_s=None) -> bool:
+        return False
+
+    def send(self, kind: str, **body) -> None:
+        self.sent.append((kind, body))
+
+    def displays(self) -> list[dict]:
+        return [body for kind, body in self.sent if kind == "display"]
+
+
+def _clocked_service(display: SimulatedDisplay | None = None, **display_overrides):
+    """A service on a fake clock with a display (a simulated one by default); nothing on its subscriber."""
+    import dataclasses
+
+    clock, publisher = Clock(), _HeldPublisher()
+    settings = dataclasses.replace(display_settings(load_settings()), **display_overrides)
+    renderer = HapticRenderer(display or SimulatedDisplay(), settings)
+    service = RendererService(renderer, subscriber=QueuedSubscriber(clock), publisher=publisher, tick_s=0.005,
+                              clock=clock)
+    return service, publisher, clock
+
+
+def _estimate_at(service: RendererService, grasp_id: str, e_pa: float | None, *, t_capture_s: float,
+                 provisional: bool, state: str = "ok", interval=None) -> None:
+    interval = interval if interval is not None else ([e_pa / 2, e_pa * 2] if e_pa else [None, None])
+    _send(service, "estimate", t_capture_s=t_capture_s, grasp_id=grasp_id, method="series", E_pa=e_pa,
+          interval_pa=interval, state=state, reason="test", provisional=provisional, latency_s=0.001)
+
+
+def _run_clocked(service: RendererService, clock: Clock, seconds: float, dt_s: float = 0.005) -> None:
+    for _ in range(round(seconds / dt_s)):
+        clock.t += dt_s
+        service.step()
+
+
+def _queue_status(display: SimulatedDisplay, state: str, level: int, faults=()) -> None:
+    display.firmware.queue_input_report(encode_input_report(DeviceStatus(state, level, frozenset(faults), 0)))
+
+
+def test_an_unknown_percept_has_no_modulus_while_its_level_still_settles():
+    service, publisher, clock = _clocked_service()
+    _estimate_at(service, "g1", 1e6, t_capture_s=clock.t, provisional=True)
+    _run_clocked(service, clock, 1.0)  # settled on 1 MPa
+    _estimate_at(service, "g1", None, t_capture_s=clock.t, provisional=True, state="insufficient_data")
+    shown = publisher.displays()[-1]
+    assert shown["unknown"] and shown["stiffness"] > 0  # smoothing: the level still falls
+    assert shown["E_pa"] is None
+
+
+def test_a_finals_level_is_the_level_the_display_settles_on():
+    # Not the lagging level of the first report written after the final.
+    service, publisher, clock = _clocked_service(smoothing_s=0.5)
+    _estimate_at(service, "g1", 2e6, t_capture_s=clock.t - 0.05, provisional=False)
+    final = service.stats.finals[-1]
+    _run_clocked(service, clock, 10.0)
+    assert final.level == service.renderer.command.level > 0
+
+
+def test_a_final_captured_up_to_a_second_late_is_measured():
+    # A camera may stamp its frames up to a second late: a latency of -0.5 s is kept, not left out.
+    service, publisher, clock = _clocked_service()
+    _estimate_at(service, "g1", 2e6, t_capture_s=clock.t + 0.5, provisional=False)
+    final = service.stats.finals[-1]
+    assert final.latency_s == pytest.approx(-0.5) and final.to_json()["latency_ms"] == pytest.approx(-500.0)
+    assert service.stats.unmeasured == 0
+
+
+def test_stopping_publishes_the_display_state_of_its_answer_to_the_free_command():
+    service, publisher, clock = _clocked_service()
+    _estimate_at(service, "g1", 2e6, t_capture_s=clock.t, provisional=True)
+    _run_clocked(service, clock, 0.1)
+    assert publisher.displays()[-1]["device_state"] == "rendering"
+    service.finish()
+    last = publisher.displays()[-1]
+    assert (last["phase"], last["level"], last["device_state"]) == ("idle", 0, "free")
+
+
+def test_stopping_mid_grasp_at_the_soft_end_still_publishes_the_idle_display():
+    # The grasp's reports carried level 0, the free command's: the display is set free all the same.
+    service, publisher, clock = _clocked_service()
+    _estimate_at(service, "g1", 1e3, t_capture_s=clock.t, provisional=False, interval=[5e2, 2e3])
+    _run_clocked(service, clock, 0.1)
+    assert service.renderer.phase != "idle" and service.renderer.command.level == 0
+    service.finish()
+    last = publisher.displays()[-1]
+    assert (last["phase"], last["grasp_id"]) == ("idle", None)
+
+
+def test_the_newest_of_the_status_reports_sent_since_the_last_message_is_published():
+    # The display may send statuses of its own (state changes): the message carries the newest.
+    service, publisher, clock = _clocked_service()
+    display = service.renderer.display
+    _estimate_at(service, "g1", 2e6, t_capture_s=clock.t, provisional=True)
+    _run_clocked(service, clock, 0.1)
+    _queue_status(display, "rendering", 100)
+    _queue_status(display, "rendering", 100)
+    display.firmware.inject_fault("over_current")  # the answer to the next write says fault
+    count = len(publisher.displays())
+    _estimate_at(service, "g1", 3e6, t_capture_s=clock.t, provisional=True)
+    _run_clocked(service, clock, 0.005)  # the level starts toward 3 MPa: a report is written
+    assert len(publisher.displays()) > count
+    assert (publisher.displays()[-1]["device_state"], publisher.displays()[-1]["device_faults"]) == (
+        "fault", "over_current")
+
+
+def test_a_status_report_that_does_not_decode_does_not_hide_the_ones_after_it(monkeypatch):
+    service, publisher, clock = _clocked_service()
+    firmware = service.renderer.display.firmware
+    _estimate_at(service, "g1", 2e6, t_capture_s=clock.t, provisional=True)
+    _run_clocked(service, clock, 0.1)
+    answer = firmware.receive_output
+
+    def garbled_then_answer(report):  # line noise just before the display's answer
+        firmware.queue_input_report(b"\x03\x09\x00\x00\x00\x00\x00")  # state 9: does not decode
+        answer(report)
+
+    monkeypatch.setattr(firmware, "receive_output", garbled_then_answer)
+    firmware.inject_fault("over_temperature")
+    count = len(publisher.displays())
+    _run_clocked(service, clock, 0.5)  # a keep-alive at least
+    first = publisher.displays()[count]  # the message of the first report written after the fault
+    assert (first["device_state"], first["device_faults"]) == ("fault", "over_temperature")
+
+
+class _SlowAnsweringFirmware(DisplayFirmware):
+    """A display whose status answers may come later than the host's poll (a real one takes ms)."""
+
+    quiet = False
+
+    def receive_output(self, report):
+        super().receive_output(report)
+        if self.quiet:
+            self._statuses.clear()
+
+
+def test_a_display_back_from_an_unplug_has_no_status_until_it_sends_one():
+    firmware = _SlowAnsweringFirmware()
+    service, publisher, clock = _clocked_service(SimulatedDisplay(firmware=firmware))
+    display = service.renderer.display
+    _estimate_at(service, "g1", 2e6, t_capture_s=clock.t, provisional=True)
+    _run_clocked(service, clock, 0.1)
+    firmware.inject_fault("over_current")
+    _run_clocked(service, clock, 0.5)  # a keep-alive went out: its status says fault
+    assert publisher.displays()[-1]["device_state"] == "fault"
+    display.unplug()
+    _run_clocked(service, clock, 0.5)  # the keep-alive fails: disconnected
+    assert not display.connected
+    firmware.quiet = True
+    display.replug()  # power-on reset: the fault is gone
+    count = len(publisher.displays())
+    _run_clocked(service, clock, 3.0)
+    assert display.connected and len(publisher.displays()) > count
+    assert publisher.displays()[-1]["device_state"] is None
+
+
+def test_fault_bits_without_a_fault_state_are_trouble_logged_once(caplog):
+    service, publisher, clock = _clocked_service()
+    _estimate_at(service, "g1", 2e6, t_capture_s=clock.t, provisional=True)
+    _run_clocked(service, clock, 0.1)
+    with caplog.at_level(logging.INFO, logger="haptics.service"):
+        for _ in range(3):  # the same trouble, reported three times
+            _queue_status(service.renderer.display, "rendering", 100, faults=("bad_report",))
+        _run_clocked(service, clock, 0.5)  # keep-alives: statuses with no faults
+    lines = [r.getMessage() for r in caplog.records if r.name == "haptics.service"]
+    assert len([line for line in lines if "faults: bad_report" in line]) == 1, lines
+    assert any("again, no faults" in line for line in lines), lines
