@@ -262,10 +262,24 @@ def _check_presses_visible(source: str, presses: PressSet, indices) -> None:
         )
 
 
+def _captured(args: argparse.Namespace) -> None:
+    """Run ``--capture``, having first refused what the fit would refuse only after every press."""
+    sensor = chosen_sensor(args)
+    if sensor is None:
+        raise CalibrationError("--capture needs --settings: the file that names the sensor's camera")
+    ball_mm = _agreeing("ball radius (mm)", [("--ball-radius-mm", args.ball_radius_mm)])
+    if ball_mm is None:
+        raise CalibrationError("--capture needs --ball-radius-mm: the captured images cannot state the ball's radius")
+    pitch_mm = _agreeing("mm per px", [("--mm-per-px", args.mm_per_px),
+                                       ("--settings (pixel_pitch_m)", sensor.pixel_pitch_m * 1e3)])
+    _check_tiles(tuple(args.tiles), sensor.image_shape, ball_mm / pitch_mm)
+    capture_to_folder(args, sensor)
+
+
 def run(args: argparse.Namespace) -> int:
     out = _checked_out(args)
     if args.capture:
-        capture_to_folder(args)
+        _captured(args)
     presses, pitch_m, ball_m, record = prepare_presses(args)
     _check_tiles(tuple(args.tiles), presses.reference.shape[:2], ball_m / pitch_m)
     train = split_presses(len(presses), args.train_fraction)

@@ -39,7 +39,7 @@ from teleop.devices.camera import TactileCamera, make_camera
 from teleop.devices.simulated import is_simulated
 from teleop.errors import DeviceError
 from teleop.rig.camera_calibration import READ_TIMEOUT_S, no_contact_frame
-from teleop.settings import SensorSettings, load_settings
+from teleop.settings import SensorSettings
 
 __all__ = ["Contact", "PressTracker", "add_capture_arguments", "capture_presses", "capture_to_folder",
            "find_contact", "next_target", "tile_name", "tile_of"]
@@ -233,10 +233,8 @@ def add_capture_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --capture: give up when no press begins this long after asking")
 
 
-def capture_to_folder(args: argparse.Namespace) -> Path:
-    """Run ``--capture``: capture the presses from the configured camera into the folder ``--presses``."""
-    if not args.settings:
-        raise CalibrationError("--capture needs --settings: the file that names the sensor's camera")
+def capture_to_folder(args: argparse.Namespace, sensor: SensorSettings) -> Path:
+    """Run ``--capture``: capture the presses from ``sensor``'s camera into the folder ``--presses``."""
     tiles = tuple(args.tiles)
     if args.capture_presses < tiles[0] * tiles[1]:
         raise CalibrationError(f"--capture-presses {args.capture_presses}: at least one press per tile of --tiles "
@@ -244,8 +242,6 @@ def capture_to_folder(args: argparse.Namespace) -> Path:
     folder = Path(args.presses)
     if folder.exists() and (not folder.is_dir() or any(p.suffix.lower() in IMAGE_SUFFIXES for p in folder.iterdir())):
         raise CalibrationError(f"--presses {folder}: with --capture, a new or empty folder to save the presses in")
-    settings = load_settings(args.settings)
-    sensor = settings.sensor(args.finger or settings.sensing.finger)
     # A simulated camera only plays grasps back: no ball can be pressed on it, and waiting for its frames
     # would end in a vague timeout. Worded as `teleop calibrate camera` refuses it (teleop/rig/camera_calibration.py).
     if is_simulated("camera", sensor.camera_backend):

@@ -25,7 +25,7 @@ def test_an_out_folder_that_cannot_be_made_is_refused_before_any_capture(tmp_pat
     (tmp_path / "afile").write_text("not a folder")
     out = tmp_path / "afile" / "left.npz"
 
-    def no_capture(args):
+    def no_capture(*args):
         pytest.fail("captured before --out was checked")
 
     monkeypatch.setattr(calibrate_cli, "capture_to_folder", no_capture)

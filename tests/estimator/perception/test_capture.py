@@ -86,6 +86,10 @@ def test_capture_guides_the_presses_saves_them_and_calibrates(tmp_path, gelsight
     ([], "--capture needs --settings"),
     (["--settings", "S", "--capture-presses", "5"], "at least one press per tile"),
     (["--settings", "S", "--presses", "FULL"], "new or empty folder"),
+    # Checked before the camera opens, not after every press has been captured.
+    (["--settings", "S", "--tiles", "0", "3"], "--tiles 0 3: expected 1 to 7 rows and 1 to 9 columns"),
+    (["--settings", "S", "--tiles", "8", "3", "--capture-presses", "24"], "--tiles 8 3: expected 1 to 7 rows"),
+    (["--settings", "S", "--ball-radius-mm", "0"], "from --ball-radius-mm = 0.0: expected a positive number"),
 ])
 def test_capture_refuses_what_it_cannot_do(tmp_path, capsys, argv, match):
     settings = write_settings(tmp_path, "http://127.0.0.1:9/?action=stream")
@@ -97,7 +101,18 @@ def test_capture_refuses_what_it_cannot_do(tmp_path, capsys, argv, match):
     if "--presses" not in argv:
         base += ["--presses", str(tmp_path / "new")]
     assert main([*base, *argv]) == 2
-    assert match in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert match in err and "camera of finger" not in err
+    assert not (tmp_path / "new").exists()
+
+
+def test_capture_asks_for_the_ball_radius_before_the_presses(tmp_path, capsys):
+    """The saved folder cannot state the ball's radius: without --ball-radius-mm every capture is lost."""
+    settings = write_settings(tmp_path, "http://127.0.0.1:9/?action=stream")
+    assert main(["calibrate", "--capture", "--settings", str(settings), "--presses", str(tmp_path / "new"),
+                 "--out", str(tmp_path / "c.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "--capture needs --ball-radius-mm" in err and "camera of finger" not in err
     assert not (tmp_path / "new").exists()
 
 
