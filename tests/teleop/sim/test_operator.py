@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -11,6 +12,9 @@ from teleop.operator import FOLLOW_RATE_HZ, FOLLOW_SPEED_M_S
 from teleop.sim.operator import (
     GIVE_UP_S,
     MIN_PEAK_FORCE_N,
+    OPEN_TOLERANCE_M,
+    SQUEEZE_SPEED_M_S,
+    STALL_GAP_M,
     OperatorCommand,
     OperatorStyle,
     SimulatedOperator,
@@ -19,22 +23,35 @@ from teleop.sim.operator import (
 
 MAX_WIDTH_M = 0.08
 MAX_FORCE_N = 30.0
+STEP_S = 1.0 / FOLLOW_RATE_HZ
 
 
-def drive(seed: int, *, stiffness_n_per_m: float, extent_m: float = 0.04, max_s: float = 40.0,
-          dt: float = 1e-3) -> tuple[SimulatedOperator, dict]:
-    """One grasp of a spring-like object: force k (extent - width), capped at MAX_FORCE_N; the
-    fingers follow the enabled target at FOLLOW_SPEED_M_S and open after the release."""
+def style_of(seed: int, max_force_n: float = MAX_FORCE_N) -> OperatorStyle:
+    return draw_style(np.random.default_rng(seed), max_force_n=max_force_n)
+
+
+def first_seed(where) -> int:
+    """The first seed whose operator style satisfies ``where(style)``."""
+    return next(s for s in range(500) if where(style_of(s)))
+
+
+def drive(seed: int, *, stiffness_n_per_m: float, extent_m: float = 0.04, cap_n: float = MAX_FORCE_N,
+          open_to_m: float = MAX_WIDTH_M, max_s: float = 40.0, dt: float = 1e-3) -> tuple[SimulatedOperator, dict]:
+    """One grasp of a spring-like object: force k (extent - width), capped at ``cap_n`` (the
+    gripper's force limit, where the fingers stall); the fingers follow the enabled target at
+    FOLLOW_SPEED_M_S, open after the release, and never open wider than ``open_to_m``. "steps"
+    holds (t, phase after the step, command, width, force) per operator step."""
     op = SimulatedOperator(np.random.default_rng(seed), max_width_m=MAX_WIDTH_M, max_force_n=MAX_FORCE_N)
     every = round(1.0 / FOLLOW_RATE_HZ / dt)
-    width, target, released = MAX_WIDTH_M, MAX_WIDTH_M, False
-    out = {"t": [], "force": [], "width": [], "commands": [], "releases": 0}
+    width, target, released = open_to_m, open_to_m, False
+    out = {"t": [], "force": [], "width": [], "commands": [], "steps": [], "releases": 0}
     for i in range(round(max_s / dt)):
         t = i * dt
-        force = min(stiffness_n_per_m * max(extent_m - width, 0.0), MAX_FORCE_N)
+        force = min(stiffness_n_per_m * max(extent_m - width, 0.0), cap_n)
         if i % every == 0:
             command = op.step(t, force_n=force, width_m=width)
             out["commands"].append(command)
+            out["steps"].append((t, op.phase, command, width, force))
             out["releases"] += command.release
             released |= command.release
             if command.enable:
@@ -42,7 +59,8 @@ def drive(seed: int, *, stiffness_n_per_m: float, extent_m: float = 0.04, max_s:
         if released:
             target = MAX_WIDTH_M
         width = width + float(np.clip(target - width, -FOLLOW_SPEED_M_S * dt, FOLLOW_SPEED_M_S * dt))
-        width = max(width, extent_m - MAX_FORCE_N / stiffness_n_per_m, 0.0)  # the force limit stalls them
+        # The force limit stalls them; they open no wider than open_to_m.
+        width = min(max(width, extent_m - cap_n / stiffness_n_per_m, 0.0), open_to_m)
         out["t"].append(t)
         out["force"].append(force)
         out["width"].append(width)
@@ -128,10 +146,12 @@ def test_reaction_delay_makes_it_overshoot_a_stiff_object():
 
 
 def test_rejects_bad_limits():
-    with pytest.raises(ValueError, match="max_width_m"):
-        SimulatedOperator(np.random.default_rng(0), max_width_m=0.0, max_force_n=MAX_FORCE_N)
-    with pytest.raises(ValueError, match="max_force_n"):
-        SimulatedOperator(np.random.default_rng(0), max_width_m=MAX_WIDTH_M, max_force_n=float("nan"))
+    for max_width_m in (0.0, -0.01, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="max_width_m"):
+            SimulatedOperator(np.random.default_rng(0), max_width_m=max_width_m, max_force_n=MAX_FORCE_N)
+    for max_force_n in (0.0, -5.0, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="max_force_n"):
+            SimulatedOperator(np.random.default_rng(0), max_width_m=MAX_WIDTH_M, max_force_n=max_force_n)
 
 
 def test_style_is_frozen():
@@ -216,3 +236,104 @@ def test_it_gives_up_a_back_off_the_fingers_no_longer_follow():
     released_s = _one_release(steps)
     assert backoff_s is not None and op.done
     assert backoff_s + GIVE_UP_S <= released_s <= backoff_s + GIVE_UP_S + MAX_WIDTH_M / op.style.squeeze_speed_m_s
+    # The fingers never open after the release either: it waits as long again before it is done.
+    assert steps[-1][0] >= released_s + GIVE_UP_S - 1e-9
+
+
+def test_it_feels_a_touch_only_its_reaction_delay_late():
+    op = SimulatedOperator(np.random.default_rng(0), max_width_m=MAX_WIDTH_M, max_force_n=MAX_FORCE_N)
+    touch_s = op.style.start_delay_s + 0.2
+    target, felt_s = MAX_WIDTH_M, None
+    for i in range(round(2.0 / STEP_S)):
+        t = i * STEP_S
+        target = op.step(t, force_n=2.0 if t >= touch_s else 0.0, width_m=target).target_width_m
+        if op.phase not in ("wait", "approach"):
+            felt_s = t
+            break
+    delay = op.style.reaction_delay_s
+    assert felt_s is not None and touch_s + delay - 1e-9 <= felt_s < touch_s + delay + 2 * STEP_S
+
+
+def test_its_approach_is_faster_than_its_squeeze_but_never_over_8_cm_s():
+    for seed in range(600):
+        style = style_of(seed)
+        assert style.squeeze_speed_m_s <= style.approach_speed_m_s <= SQUEEZE_SPEED_M_S[1] + 1e-12, seed
+
+
+def test_a_weak_gripper_is_never_aimed_past_its_maximum_force():
+    # A gripper weaker than MIN_PEAK_FORCE_N: every peak is within its maximum force.
+    for seed in range(200):
+        style = style_of(seed, max_force_n=2.0)
+        assert all(0.0 < p <= 2.0 for p in style.peaks_n), style.peaks_n
+
+
+def test_squeeze_speeds_are_log_uniform_around_the_papers_speed():
+    # Half the operators squeeze slower than the geometric middle of SQUEEZE_SPEED_M_S (2 cm/s),
+    # not than its arithmetic one (4.25 cm/s).
+    speeds = np.array([style_of(seed).squeeze_speed_m_s for seed in range(400)])
+    middle = math.sqrt(SQUEEZE_SPEED_M_S[0] * SQUEEZE_SPEED_M_S[1])
+    assert 0.4 <= np.mean(speeds < middle) <= 0.6
+
+
+def test_two_pauses_are_taken_in_order_with_a_squeeze_between():
+    # Pauses are taken by rising share of the goal: out of order, the second would come right
+    # after the first, at the same force.
+    seeds = [s for s in range(300) if len(style_of(s).pauses) == 2 and not style_of(s).backoff_to
+             and abs(style_of(s).pauses[1][0] - style_of(s).pauses[0][0]) > 0.25]
+    assert seeds
+    for seed in seeds:
+        op, run = drive(seed, stiffness_n_per_m=800.0, extent_m=0.06)
+        steps = run["steps"]
+        assert list(op.style.pauses) == sorted(op.style.pauses)
+        starts = [steps[i][4] for i in range(1, len(steps)) if steps[i][1] == "pause" and steps[i - 1][1] != "pause"]
+        assert len(starts) == 2 and starts[1] > starts[0] + 0.05 * op.style.peaks_n[0], (seed, starts)
+
+
+def test_it_holds_its_grip_still_for_its_drawn_hold_time():
+    seed = first_seed(lambda s: s.hold_s > 0.5 and not s.backoff_to and not s.pauses)
+    op, run = drive(seed, stiffness_n_per_m=800.0, extent_m=0.06)
+    held_s = next(t for t, phase, *_ in run["steps"] if phase == "hold")
+    released_s = next(t for t, _, command, *_ in run["steps"] if command.release)
+    assert op.style.hold_s - 1e-9 <= released_s - held_s <= op.style.hold_s + 2 * STEP_S
+
+
+def _stall(**style_traits) -> tuple[list[tuple], float]:
+    """The steps of a quick squeeze without pauses (and with ``style_traits``, each a value or a
+    test of one) that stalls on a force limit of 40 % of its first peak, and that limit (N)."""
+    seed = first_seed(lambda s: s.squeeze_speed_m_s >= 0.03 and not s.pauses and all(
+        test(getattr(s, k)) if callable(test) else getattr(s, k) == test for k, test in style_traits.items()))
+    cap = 0.4 * style_of(seed).peaks_n[0]
+    _, run = drive(seed, stiffness_n_per_m=1000.0, extent_m=0.06, cap_n=cap)
+    return run["steps"], cap
+
+
+def test_on_a_stalled_grip_its_hand_leads_the_fingers_by_at_most_the_stall_gap():
+    steps, _ = _stall(backoff_to=())
+    in_contact = [(c.target_width_m, w) for _, phase, c, w, f in steps if c.enable and phase == "squeeze" and f > 1.0]
+    assert in_contact and all(target >= width - STALL_GAP_M - 1e-9 for target, width in in_contact)
+
+
+def test_it_stops_squeezing_soon_after_the_grip_stalls_on_the_force_limit():
+    steps, cap = _stall(backoff_to=())
+    stalled_s = next(t for t, _, _, _, force in steps if force >= cap - 1e-9)
+    squeezed_s = next(t for t, phase, *_ in steps if phase == "squeeze")
+    stopped_s = next(t for t, phase, *_ in steps if t > squeezed_s and phase != "squeeze")
+    assert stopped_s - stalled_s < 0.6  # well under GIVE_UP_S
+
+
+def test_a_back_off_on_a_stalled_grip_opens_the_fingers_at_once():
+    # Its hand stops with the grip: were it still the stall gap ahead, the fingers would not move
+    # until the hand had opened that far.
+    steps, _ = _stall(backoff_to=lambda b: len(b) >= 1)
+    _, _, command, width, _ = next(step for step in steps if step[1] == "backoff")
+    assert command.target_width_m >= width - 1e-12
+
+
+def test_done_once_the_fingers_are_open_within_the_tolerance():
+    # A gripper that opens to 0.5 mm short of its nominal width: no GIVE_UP_S wait for the rest.
+    seed = first_seed(lambda s: not s.backoff_to and not s.pauses)
+    op, run = drive(seed, stiffness_n_per_m=800.0, extent_m=0.06, open_to_m=MAX_WIDTH_M - 0.0005)
+    assert op.done
+    opened_s = next(t for t, _, c, width, _ in run["steps"]
+                    if not c.enable and width >= MAX_WIDTH_M - OPEN_TOLERANCE_M)
+    assert run["steps"][-1][0] - opened_s <= 2 * STEP_S

@@ -300,6 +300,48 @@ def test_capture_series_gives_fresh_noise_per_frame(sensor, settings):
     assert again.capture_series(bases, np.ones((3, 1))) == jpegs
 
 
+class _RepeatingDraws:
+    """Stands in for a camera's rng: draws the given noise-pool offsets in turn."""
+
+    def __init__(self, offsets):
+        self.offsets = iter(offsets)
+
+    def integers(self, high):
+        return next(self.offsets)
+
+
+def test_a_camera_never_gives_two_frames_the_same_noise(sensor, settings):
+    # Two frames of one scene with identical noise would look like a frozen camera.
+    cam = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(3))
+    assert cam.sim.camera_noise > 0
+    cam.rng = _RepeatingDraws([7, 7, 1000])  # the second frame first draws the first one's offset
+    first, second = cam.add_noise(cam.rest_frame), cam.add_noise(cam.rest_frame)
+    assert not np.array_equal(first, second)
+
+
+def test_a_frame_larger_than_the_raw_frame_is_refused(camera, sensor):
+    for shape in ((sensor.raw_height_px + 10, sensor.raw_width_px, 3),
+                  (4 * sensor.raw_height_px, 4 * sensor.raw_width_px, 3)):
+        with pytest.raises(SimulationError, match="larger than the camera's raw frame"):
+            camera.add_noise(np.zeros(shape, np.uint8))
+
+
+def test_the_given_background_is_copied_not_taken_over(sensor, settings):
+    # The caller's array stays writable, and the camera's frames do not follow later writes to it.
+    given = np.full((sensor.raw_height_px, sensor.raw_width_px, 3), 90, np.uint8)
+    cam = OpticsRenderer(sensor, sim=settings.simulation, rng=np.random.default_rng(0), background=given)
+    given[:] = 10  # the caller reuses its buffer
+    assert int(cam.background[0, 0, 0]) == 90
+    assert int(cam.render(np.zeros(sensor.image_shape))[0, 0, 0]) == 90
+
+
+def test_a_flat_punch_over_the_whole_pad_shades_nothing(camera, sensor):
+    # The gel beyond the grid continues at the grid's edge height: a drop back to rest there would
+    # be a cliff, shading a bright rim along the grid's border.
+    frame = camera.render(np.full(sensor.image_shape, 0.3e-3))
+    assert np.abs(frame.astype(int) - camera.rest_frame.astype(int)).max() <= 1
+
+
 @pytest.mark.slow
 def test_noise_is_independent_between_frames_and_pixels(settings, sensor):
     """The pooled noise: right spread, no correlation between frames, neighbours or channels."""

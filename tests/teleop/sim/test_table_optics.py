@@ -211,13 +211,34 @@ def test_markers_darken_the_gel_and_move_with_it(sensor, rig):
 
 
 def test_mistakes_are_named(sensor, rig, monkeypatch):
-    with pytest.raises(SimulationError, match="480"):
+    # The raw size is checked before the background, whose size error would also name 480.
+    with pytest.raises(SimulationError, match="800x480 px raw frame: .* tables were measured on 640x480 px frames"):
         TableCamera(dataclasses.replace(sensor, raw_width_px=800, warp_corners_px=(
             (0.0, 0.0), (800.0, 0.0), (0.0, 480.0), (800.0, 480.0)), warped_width_px=800),
             sim=rig.simulation, rng=np.random.default_rng(0))
     monkeypatch.setattr(table_optics.importlib.util, "find_spec", lambda name: None)
     with pytest.raises(SimulationError, match="pip install taxim"):
         table_optics.calibration_dir("gelsight")
+
+
+@pytest.mark.parametrize("optics", ["gelsight", "gelsight_mini"])
+def test_the_height_blur_is_taxims_two_raw_pixels(optics, taxim_calib_dir):
+    # params.json gives the sigmas relative to the frame's width and height: unscaled, they would
+    # blur by 0.004 px, i.e. not at all, and sharpen every press rim.
+    assert load_tables(optics).blur_px == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("optics", ["gelsight", "gelsight_mini"])
+def test_the_colour_is_continuous_across_the_slope_direction_of_plus_minus_pi(optics, taxim_calib_dir):
+    # A slope facing -x has direction +-pi: its colour must not depend on whether its dz/dy is a
+    # hair above or below zero (the lookup's wrap-around columns).
+    lookup, features = lookup_tables(optics), feature_planes((480, 640))[:, 200:201, 300:302]
+    for steep in (0.05, 0.3, 1.0):  # slopes in units of 1 (slope_unit 1)
+        slope_x = np.full((1, 2), -steep, np.float32)
+        slope_y = np.array([[1e-4, -1e-4]], np.float32) * steep
+        change = colour_change(lookup, features, slope_x, slope_y)
+        across = colour_change(lookup, features, slope_x, np.zeros((1, 2), np.float32))
+        assert np.abs(change[0, 0] - change[0, 1]).max() <= 0.05 * max(1.0, np.abs(across).max()), (steep, change)
 
 
 @pytest.mark.parametrize("optics", ["gelsight", "gelsight_mini"])
