@@ -23,6 +23,15 @@ REASON = ("loading phase 0.12-0.41 s of the monotone envelope from contact to th
           "skipped, frames sampled by approach rather than time; the hybrid's CNN and the analytical fits agree")
 
 
+def loading_view(peers: tuple[Peer, ...], reason: str) -> OperatorView:
+    """Grasp op-1 loading, with a provisional hybrid estimate that gives ``reason``."""
+    return OperatorView(
+        t_s=time.monotonic(), peers=peers, grasp_id="op-1", phase="loading",
+        estimate=EstimateBody(grasp_id="op-1", method="hybrid", E_pa=1.3e5, interval_pa=[6.5e4, 2.6e5],
+                              state="ok", reason=reason, provisional=True, latency_s=0.01),
+        estimates=3)
+
+
 @pytest.mark.slow
 def test_at_80x24_the_estimate_notices_and_keys_fit_and_the_toggle_tells_the_truth():
     link = ConsoleLink(ALIVE)
@@ -91,11 +100,7 @@ def test_a_long_reason_leaves_the_operator_and_notices_on_a_100x32_screen():
             app = OperatorConsole(OperatorLoop(link, keyboard, load_settings()), input_name="keyboard",
                                   keyboard=keyboard)
             async with app.run_test(size=(100, 32)) as pilot:
-                link.view = OperatorView(
-                    t_s=time.monotonic(), peers=idle, grasp_id="op-1", phase="loading",
-                    estimate=EstimateBody(grasp_id="op-1", method="hybrid", E_pa=1.3e5, interval_pa=[6.5e4, 2.6e5],
-                                          state="ok", reason=" ".join([REASON] * 4), provisional=True, latency_s=0.01),
-                    estimates=3)
+                link.view = loading_view(idle, " ".join([REASON] * 4))
                 await until(lambda: "reason" in app.texts.get("estimate", ""), pilot)
                 await pilot.pause(0.2)
                 screen = app.screen.region
@@ -116,11 +121,7 @@ def test_a_tall_terminal_shows_the_whole_estimate():
             app = OperatorConsole(OperatorLoop(link, keyboard, load_settings()), input_name="keyboard",
                                   keyboard=keyboard)
             async with app.run_test(size=(100, 60)) as pilot:
-                link.view = OperatorView(
-                    t_s=time.monotonic(), peers=ALIVE, grasp_id="op-1", phase="loading",
-                    estimate=EstimateBody(grasp_id="op-1", method="hybrid", E_pa=1.3e5, interval_pa=[6.5e4, 2.6e5],
-                                          state="ok", reason=reason, provisional=True, latency_s=0.01),
-                    estimates=3)
+                link.view = loading_view(ALIVE, reason)
                 await until(lambda: "reason part 7" in app.texts.get("estimate", ""), pilot)
                 await pilot.pause(0.2)
                 drawn = app.drawn["estimate"]
