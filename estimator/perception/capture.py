@@ -225,7 +225,7 @@ def add_capture_arguments(parser: argparse.ArgumentParser) -> None:
         "--capture", action="store_true",
         help="capture the presses live first, from the camera of --settings' sensor (--finger), into the new "
              "folder --presses (f0.png and press_NN.png); the terminal says where to press next and how many "
-             "more; then fit on them",
+             "more; then fit on them (give --ball-radius-mm: images cannot state it)",
     )
     parser.add_argument("--capture-presses", type=int, default=16, metavar="N",
                         help="with --capture: presses to capture (at least one per tile of --tiles)")
