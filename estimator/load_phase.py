@@ -176,7 +176,8 @@ def _envelope(t: np.ndarray, loading: np.ndarray, sigma_f: float) -> tuple[np.nd
     around = np.lib.stride_tricks.sliding_window_view(
         np.concatenate([np.full(PAUSE_BANDS, np.nan), dwell, np.full(PAUSE_BANDS, np.nan)]), 2 * PAUSE_BANDS + 1).copy()
     around[:, PAUSE_BANDS] = np.nan  # the band itself
-    usual = np.nanmedian(around, axis=1) if dwell.size > 1 else np.zeros(1)
+    # A rise within one band has no bands around it to judge its dwell by: it is no pause, however long.
+    usual = np.nanmedian(around, axis=1) if dwell.size > 1 else np.full(1, np.inf)
     skipped_s = float(np.sum(dt[backing[:-1]]))
     paused_s = float(np.sum(dwell[dwell >= np.maximum(PAUSE_S, PAUSE_FACTOR * usual)]))
     return on, backoffs, skipped_s, paused_s
