@@ -143,8 +143,13 @@ def _display_panel(ax: Axes, view: GraspView, t0: float, *, note: bool = True) -
     ax.step(t, [d.stiffness for d in view.display], where="post", color="C1", lw=1.5)
     band = ax.get_xaxis_transform()  # bands span the panel's height
     for flag, colour in (("rigid", "C3"), ("unknown", "0.5")):
-        ax.fill_between(t, 0, 1, where=[getattr(d, flag) for d in view.display], step="post", color=colour,
-                        alpha=0.2, lw=0, transform=band)
+        # Each run of flagged renderings, held until the next message as the step line holds it
+        # (fill_between's ``where`` would stop the band at the run's last message).
+        flags = np.array([getattr(d, flag) for d in view.display])
+        for run in np.split(np.arange(flags.size), np.flatnonzero(np.diff(flags)) + 1):
+            if run.size and flags[run[0]]:
+                ax.fill_between(t[run[0]: run[-1] + 2], 0, 1, step="post", color=colour, alpha=0.2, lw=0,
+                                transform=band)
     ax.set(ylim=(-0.05, 1.1), ylabel="display\nstiffness (0..1)")
     if note:
         ax.text(0.005, 0.95, "line: fraction of the display's range; red: rendered rigid; grey: unknown (free)",
