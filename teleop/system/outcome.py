@@ -4,6 +4,7 @@ services' JSON-lines reports it is completed from (:class:`ReportReader`)."""
 from __future__ import annotations
 
 import json
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -21,6 +22,8 @@ from teleop.catalogue import ObjectSpec
 
 __all__ = ["GraspOutcome", "ReportReader", "display_felt_pa"]
 
+log = logging.getLogger(__name__)
+
 
 def display_felt_pa(e_pa: float | None, *, unknown: bool, e_soft_pa: float | None) -> float | None:
     """The modulus a ``display`` message renders, as the operator feels it: its ``E_pa``; the display's
@@ -29,11 +32,13 @@ def display_felt_pa(e_pa: float | None, *, unknown: bool, e_soft_pa: float | Non
 
 
 class ReportReader:
-    """Reads a JSON-lines report another process appends to, line by complete line."""
+    """Reads a JSON-lines report another process appends to, line by complete line; a line that is
+    no JSON object (torn by a writer killed mid-line) is logged and skipped."""
 
     def __init__(self, path: Path):
         self.path = path
         self._offset = 0
+        self._lines = 0  # complete lines read, to name a broken one
         self.records: list[dict[str, Any]] = []
 
     def poll(self) -> list[dict[str, Any]]:
@@ -46,7 +51,19 @@ class ReportReader:
             return []
         complete = data[: data.rfind(b"\n") + 1]
         self._offset += len(complete)
-        new = [json.loads(line) for line in complete.decode("utf-8").splitlines() if line.strip()]
+        new = []
+        for line in complete.splitlines():
+            self._lines += 1
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+            except ValueError:  # a line torn by a killed writer, not UTF-8
+                record = None
+            if isinstance(record, dict):
+                new.append(record)
+            else:
+                log.warning("%s line %d: not a JSON object, skipped", self.path, self._lines)
         self.records.extend(new)
         return new
 

@@ -140,6 +140,23 @@ def test_report_reader_reads_each_complete_line_once_and_skips_blank_lines(tmp_p
     assert reader.records == [{"grasp_id": "g1"}, {"grasp_id": "g2"}, {"grasp_id": "g3"}]
 
 
+def test_report_reader_skips_a_broken_line_naming_it_and_keeps_the_records_around_it(tmp_path, caplog):
+    """A service killed mid-line and started again appends its next record to the torn one."""
+    path = tmp_path / "r.jsonl"
+    path.write_bytes(b'{"grasp_id": "g1"}\n{"grasp_id": "g2", "fin{"grasp_id": "g3"}\n[1, 2]\n\xff\n{"grasp_id": "g4"}\n')
+    reader = ReportReader(path)
+    with caplog.at_level("WARNING", logger="teleop.system.outcome"):
+        assert reader.poll() == [{"grasp_id": "g1"}, {"grasp_id": "g4"}]
+    assert f"{path} line 2: not a JSON object, skipped" in caplog.text
+    assert f"{path} line 3: not a JSON object, skipped" in caplog.text
+    assert f"{path} line 4: not a JSON object, skipped" in caplog.text
+    with path.open("a") as fh:
+        fh.write('{"grasp_id": "g5"}\n{\n')
+    with caplog.at_level("WARNING", logger="teleop.system.outcome"):
+        assert reader.poll() == [{"grasp_id": "g5"}]
+    assert f"{path} line 7: not a JSON object, skipped" in caplog.text  # counted on from the first poll
+
+
 def test_report_reader_returns_a_record_it_has_without_waiting(tmp_path, monkeypatch):
     path = tmp_path / "r.jsonl"
     path.write_text('{"grasp_id": "g1", "x": 1}\n')
