@@ -11,6 +11,7 @@ an object and going on to the next. The demo's main thread only listens (:meth:`
 
 from __future__ import annotations
 
+import logging
 import threading
 from typing import TYPE_CHECKING
 
@@ -26,6 +27,8 @@ if TYPE_CHECKING:
 __all__ = ["SimulatedSeat"]
 
 JOIN_TIMEOUT_S = 5.0
+
+log = logging.getLogger(__name__)
 
 
 class SimulatedSeat:
@@ -77,5 +80,11 @@ class SimulatedSeat:
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
         self._thread.join(timeout=JOIN_TIMEOUT_S)
+        if self._thread.is_alive():
+            # Its loop still uses them: a ZeroMQ socket closed under another thread can abort the process.
+            # The thread is a daemon: it ends with the demo.
+            log.warning("the simulated operator did not stop within %g s: its input and subscriber are left "
+                        "open", JOIN_TIMEOUT_S)
+            return
         self.device.close()
         self._subscriber.close()

@@ -107,3 +107,22 @@ def test_what_ended_the_operators_thread_is_raised_in_the_demos(opened, error):
     assert seat.error is error
     with pytest.raises(type(error), match="hand slipped"):
         seat.check()
+
+
+def test_an_operator_that_does_not_stop_is_left_its_device_and_bus_and_said_so(opened, monkeypatch, caplog):
+    # Closing them under its running loop would pull a ZeroMQ socket from under another thread.
+    system, settings = opened
+    monkeypatch.setattr("teleop.system.seat.JOIN_TIMEOUT_S", 0.05)
+    seat = SimulatedSeat(system, settings, grasps=1)
+    seat.device = device = _Device(seat._thread.is_alive)
+    release = threading.Event()
+    seat.loop = SimpleNamespace(run=lambda stop: release.wait(timeout=60.0))  # deaf to its stop
+    try:
+        with caplog.at_level("WARNING", logger="teleop.system.seat"), seat:
+            pass
+        assert seat._thread.is_alive() and device.calls == [("connect", False)]
+        assert "the simulated operator did not stop within 0.05 s" in caplog.text
+    finally:
+        release.set()
+        seat._thread.join(timeout=30.0)
+        seat._subscriber.close()
