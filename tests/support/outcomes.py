@@ -1,4 +1,5 @@
-"""A demo grasp's outcome built from the fields a test gives (:class:`teleop.system.outcome.GraspOutcome`)."""
+"""A demo grasp's outcome built from the fields a test gives (:class:`teleop.system.outcome.GraspOutcome`), and
+``teleop bench-latency`` run on given outcomes."""
 
 from __future__ import annotations
 
@@ -20,3 +21,27 @@ def outcome(name: str, e_true: float, final: dict | None, first_s: float | None,
     o.estimator_report = {"time_to_first_estimate_s": first_s, **report}
     o.renderer_report = None if latency_ms is None else {"latency_ms": latency_ms}
     return o
+
+
+def fake_bench_latency(monkeypatch, tmp_path, outcomes) -> None:
+    """``teleop bench-latency`` with the live system, the calibration and the frame baseline (5 and 6 ms
+    before and after the run: 5.5 ms) replaced: ``outcomes`` are the grasps it measured."""
+    import estimator.perception.calibration
+    import teleop.system.latency as latency
+
+    class _System:
+        def __init__(self, *args, **kwargs):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return None
+
+    monkeypatch.setattr(latency, "prepare_run", lambda args, **kwargs: (tmp_path / "run", tmp_path / "cal.npz"))
+    monkeypatch.setattr(estimator.perception.calibration, "load_calibration", lambda path: None)
+    monkeypatch.setattr(latency, "frame_baseline_ms", lambda *args, **kwargs: [5.0, 6.0])
+    monkeypatch.setattr(latency, "LiveSystem", _System)
+    monkeypatch.setattr(latency, "LiveView", lambda *args: None)
+    monkeypatch.setattr(latency, "run_grasps", lambda *args, **kwargs: iter(outcomes))

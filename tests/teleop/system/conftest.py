@@ -13,8 +13,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from matplotlib.figure import Figure
 
 import teleop.cli
+import teleop.system.report_figures as figures
 
 
 @dataclass(frozen=True)
@@ -53,3 +55,10 @@ def quick_demo_sim(tmp_path_factory) -> DemoRun:
     """The defaults: the simulated operator, the default model."""
     return _demo(tmp_path_factory.mktemp("demo-sim"))
 
+
+@pytest.fixture
+def drawn(monkeypatch) -> list[Figure]:
+    """The figures the report module saves, as they were when saved (none written)."""
+    saved: list[Figure] = []
+    monkeypatch.setattr(figures, "_save", lambda fig, path: saved.append(fig) or (1, 1))
+    return saved

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 import pytest
-from support.outcomes import outcome
+from support.outcomes import fake_bench_latency, outcome
 
 from estimator.settings import estimator_settings
 from teleop.errors import TeleopError
@@ -140,30 +140,6 @@ def test_baseline_figures_are_the_medians_before_after_and_of_both():
         baseline_figures([], [1.0])
 
 
-def _fake_bench(monkeypatch, tmp_path, outcomes):
-    """``teleop bench-latency`` with the live system, the calibration and the frame baseline replaced:
-    ``outcomes`` are the grasps it measured."""
-    import estimator.perception.calibration
-    import teleop.system.latency as latency
-
-    class _System:
-        def __init__(self, *args, **kwargs):
-            pass
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            return None
-
-    monkeypatch.setattr(latency, "prepare_run", lambda args, **kwargs: (tmp_path / "run", tmp_path / "cal.npz"))
-    monkeypatch.setattr(estimator.perception.calibration, "load_calibration", lambda path: None)
-    monkeypatch.setattr(latency, "frame_baseline_ms", lambda *args, **kwargs: [5.0, 6.0])
-    monkeypatch.setattr(latency, "LiveSystem", _System)
-    monkeypatch.setattr(latency, "LiveView", lambda *args: None)
-    monkeypatch.setattr(latency, "run_grasps", lambda *args, **kwargs: iter(outcomes))
-
-
 def _measured() -> list:
     return [outcome("stress_ball", 1e6, {"E_pa": 1e6, "state": "ok"}, 0.1, 12.0, final_sent_s=10.01,
                     t_last_loading_frame_s=10.0, final_compute_s=0.006, final_by="settled")]
@@ -183,7 +159,7 @@ def test_a_plot_that_cannot_be_written_loses_no_results_and_leaves_no_truncated_
         Path(fname).write_bytes(b"\x89PNG\r\n")  # a start, then the file size limit
         raise OSError(errno.EFBIG, "File too large")
 
-    _fake_bench(monkeypatch, tmp_path, _measured())
+    fake_bench_latency(monkeypatch, tmp_path, _measured())
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", full_disk)
     png = tmp_path / "latency.png"
     code = main(["bench-latency", "--grasps", "1", "--json", "--plot", str(png)])
@@ -198,7 +174,7 @@ def test_a_plot_that_cannot_be_written_loses_no_results_and_leaves_no_truncated_
 def test_a_run_without_a_measured_final_prints_its_results_before_the_plot_error(monkeypatch, tmp_path, capsys):
     from teleop.cli import main
 
-    _fake_bench(monkeypatch, tmp_path, [])
+    fake_bench_latency(monkeypatch, tmp_path, [])
     png = tmp_path / "latency.png"
     code = main(["bench-latency", "--grasps", "1", "--json", "--plot", str(png)])
     out, err = capsys.readouterr()

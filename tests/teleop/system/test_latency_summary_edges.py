@@ -8,7 +8,7 @@ import json
 
 import matplotlib.pyplot as plt
 import pytest
-from support.outcomes import outcome
+from support.outcomes import fake_bench_latency, outcome
 
 from teleop.system.latency import P99_AIM_MS, latency_summary, plot, slowest
 
@@ -105,34 +105,10 @@ def test_a_plot_is_written_in_the_format_its_name_ends_in(tmp_path):
     assert (tmp_path / "latency.pdf").read_bytes()[:5] == b"%PDF-"
 
 
-def _fake_bench(monkeypatch, tmp_path, outcomes):
-    """``teleop bench-latency`` with the live system, the calibration and the frame baseline (5 and 6 ms
-    before and after: 5.5 ms) replaced: ``outcomes`` are the grasps it measured."""
-    import estimator.perception.calibration
-    import teleop.system.latency as latency
-
-    class _System:
-        def __init__(self, *args, **kwargs):
-            pass
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            return None
-
-    monkeypatch.setattr(latency, "prepare_run", lambda args, **kwargs: (tmp_path / "run", tmp_path / "cal.npz"))
-    monkeypatch.setattr(estimator.perception.calibration, "load_calibration", lambda path: None)
-    monkeypatch.setattr(latency, "frame_baseline_ms", lambda *args, **kwargs: [5.0, 6.0])
-    monkeypatch.setattr(latency, "LiveSystem", _System)
-    monkeypatch.setattr(latency, "LiveView", lambda *args: None)
-    monkeypatch.setattr(latency, "run_grasps", lambda *args, **kwargs: iter(outcomes))
-
-
 def test_under_json_stdout_is_the_json_alone_with_the_latency_in_frame_baselines(monkeypatch, tmp_path, capsys):
     from teleop.cli import main
 
-    _fake_bench(monkeypatch, tmp_path, [_measured("a", 11.0, final_sent_s=10.009, t_last_loading_frame_s=10.0),
+    fake_bench_latency(monkeypatch, tmp_path, [_measured("a", 11.0, final_sent_s=10.009, t_last_loading_frame_s=10.0),
                                         _measured("b", 22.0, final_sent_s=20.02, t_last_loading_frame_s=20.0)])
     assert main(["bench-latency", "--grasps", "2", "--json"]) == 0
     out, err = capsys.readouterr()
@@ -147,7 +123,7 @@ def test_under_json_stdout_is_the_json_alone_with_the_latency_in_frame_baselines
 def test_without_a_measured_final_the_latency_in_baselines_is_null(monkeypatch, tmp_path, capsys):
     from teleop.cli import main
 
-    _fake_bench(monkeypatch, tmp_path, [outcome("foam", 5e3, None, None, None)])
+    fake_bench_latency(monkeypatch, tmp_path, [outcome("foam", 5e3, None, None, None)])
     assert main(["bench-latency", "--grasps", "1", "--json"]) == 0
     out, err = capsys.readouterr()
     summary = json.loads(out)
@@ -159,7 +135,7 @@ def test_no_grasps_to_run_is_refused_before_anything_starts(monkeypatch, tmp_pat
     import teleop.system.latency as latency
     from teleop.cli import main
 
-    _fake_bench(monkeypatch, tmp_path, [])
+    fake_bench_latency(monkeypatch, tmp_path, [])
 
     def started(*args, **kwargs):
         raise AssertionError("the run was prepared")

@@ -19,14 +19,6 @@ from teleop.system.report_data import MOMENTS, DisplayPoint, EstimatePoint, Gras
 T0, ONSET_S, PEAK_S, DONE_S = 100.0, 7.0, 7.5, 7.6  # the grasp's start; since it: contact, peak, gripper done
 
 
-@pytest.fixture
-def drawn(monkeypatch):
-    """The figures the module saves, as they were when saved."""
-    saved: list[Figure] = []
-    monkeypatch.setattr(figures, "_save", lambda fig, path: saved.append(fig) or (1, 1))
-    return saved
-
-
 def _series(t_s: np.ndarray, value: np.ndarray) -> SimpleNamespace:
     return SimpleNamespace(t_s=t_s, value=value)
 

@@ -8,20 +8,11 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from matplotlib.figure import Figure
 
 import teleop.system.report_figures as figures
 from teleop.system.report_data import MOMENTS, EstimatePoint, GraspView, TactileMoment
 
 ONSET_S, PEAK_S = 7.0, 7.5  # since the grasp's start: 7 s of approach, 0.5 s of loading
-
-
-@pytest.fixture
-def drawn(monkeypatch):
-    """The figures the module saves, as they were when saved."""
-    saved: list[Figure] = []
-    monkeypatch.setattr(figures, "_save", lambda fig, path: saved.append(fig) or (1, 1))
-    return saved
 
 
 def _series(t_s: np.ndarray, value: np.ndarray) -> SimpleNamespace:
