@@ -5,6 +5,7 @@ from __future__ import annotations
 import http.server
 import importlib.util
 import os
+import signal
 import socketserver
 import threading
 import time
@@ -16,6 +17,12 @@ from support.extras import TRAIN_MODULES
 
 REPO = Path(__file__).resolve().parent.parent
 SHARED = REPO.parent / "shared"
+
+# A suite started in the background of a shell without job control inherits Ctrl-C ignored, and so
+# would every process the tests start: the tests of what a Ctrl-C does would see nothing happen.
+# Handled here, it is back to its default in those processes (an exec keeps only ignored signals).
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 # What needs an extra that `make check` does not install is marked with it (check leaves those tests out):
