@@ -15,11 +15,13 @@ from support.live import Rig
 from estimator.estimate import Estimate
 from estimator.inference.inputs import MEASUREMENT_VERSION
 from estimator.inference.provenance import SPLITS
+from estimator.measure import measure_grasp
+from estimator.measurements import GraspMeasurements
 from estimator.settings import estimator_settings
 from estimator.training.dataset import DATASET_FORMAT, split_objects
 from estimator.training.samples import TrainingSample, save_sample
 from teleop.catalogue import load_catalogue
-from teleop.record import GraspRecord
+from teleop.record import GraspRecord, read_record
 from teleop.settings import CONFIG_DIR, load_settings
 from teleop.sim.grasp import simulate_grasp
 
@@ -158,3 +160,10 @@ def rig(settings, calibration, tmp_path) -> Iterator[Rig]:
     rig = Rig(settings, calibration, report=tmp_path / "estimator.jsonl")
     yield rig
     rig.close()
+
+
+@pytest.fixture(scope="session")
+def measured() -> GraspMeasurements:
+    """The shipped reference grasp, measured for every method (its depth too)."""
+    reference = Path(__file__).resolve().parents[2] / "estimator" / "models" / "reference.grasp"
+    return measure_grasp(read_record(reference), settings=load_settings())

@@ -12,18 +12,12 @@ import pytest
 import estimator.analytical as analytical
 import estimator.measurements as measurements
 from estimator.errors import FitError
-from estimator.measure import estimate_grasp, measure_grasp
-from estimator.measurements import GraspMeasurements, estimate_measurements
+from estimator.measure import estimate_grasp
+from estimator.measurements import estimate_measurements
 from teleop.record import read_record
 from teleop.settings import load_settings
 
 RECORD = Path(__file__).resolve().parents[2] / "estimator" / "models" / "reference.grasp"
-
-
-@pytest.fixture(scope="module")
-def measured() -> GraspMeasurements:
-    """The shipped reference grasp, measured for every method (its depth too)."""
-    return measure_grasp(read_record(RECORD), settings=load_settings())
 
 
 def test_every_method_runs_its_own_fit(measured):

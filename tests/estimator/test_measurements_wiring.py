@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -17,7 +16,6 @@ import estimator.measurements as measurements
 from estimator.errors import CalibrationError
 from estimator.estimate import Estimate
 from estimator.features import contact_features
-from estimator.measure import measure_grasp
 from estimator.measurements import (
     REFERENCE_FRAMES,
     GraspMeasurements,
@@ -25,17 +23,9 @@ from estimator.measurements import (
     estimate_measurements,
     reference_indices,
 )
-from teleop.record import read_record
-from teleop.settings import SensorSettings, load_settings
+from teleop.settings import SensorSettings
 
-RECORD = Path(__file__).resolve().parents[2] / "estimator" / "models" / "reference.grasp"
 PITCH = 1e-3 / 11
-
-
-@pytest.fixture(scope="module")
-def measured() -> GraspMeasurements:
-    """The shipped reference grasp, measured for every method (its depth too)."""
-    return measure_grasp(read_record(RECORD), settings=load_settings())
 
 
 def test_the_reference_is_the_last_frames_strictly_before_the_time():
