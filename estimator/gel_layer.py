@@ -40,8 +40,10 @@ def gel_layer_factor(
     1 for ``a << h`` (a half-space), falling steeply once the contact is wider
     than the layer is thick (a 3 mm gel with nu = 0.48 under a contact of 6 mm
     radius is about 6.5 times stiffer than a half-space) and like ``h / a`` (confined
-    compression) far beyond. Tabulated once per Poisson's ratio for
-    ``a / h <= 20``, interpolated.
+    compression) far beyond for a compressible gel. Tabulated once per Poisson's ratio for
+    ``a / h <= 20``, interpolated, and extended as ``h / a`` beyond: an incompressible
+    layer falls faster there, so at ``nu = 0.5`` and ``a / h = 40`` the factor is about
+    4 times too high (at 0.48, 2.6 %); ``a / h > 20`` is a contact wider than a real pad.
 
     Parameters
     ----------

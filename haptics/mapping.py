@@ -342,10 +342,11 @@ def map_estimate(update: EstimateUpdate, *, e_soft_pa: float, e_rigid_pa: float)
         return _unknown(update, soft, rigid)
     e_pa = update.value_pa
     low, high = update.interval_pa
+    # A bound within EstimateUpdate's rounding tolerance beyond the other side is at that side.
     if update.state == "lower_bound" and low is None:
-        low = e_pa
+        low = e_pa if high is None else min(e_pa, high)
     if update.state == "upper_bound" and high is None:
-        high = e_pa
+        high = e_pa if low is None else max(e_pa, low)
     # The same tolerance as the rigid flag's: a bound at an end after rounding reaches it.
     reaches_soft = (low <= soft * (1 + RIGID_TOLERANCE) if low is not None
                     else update.state == "upper_bound")
