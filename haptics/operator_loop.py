@@ -276,8 +276,8 @@ class OperatorLoop:
         released = releasing(robot, grasp_id)
         if self._enable or self._release_left or self._follow_live():
             let_go = grasp_id or self._lost_follow
-            self._send(lambda: self.link.follow(self._target_m or self.max_width_m, enable=False,
-                                                grasp_id=let_go))
+            target = self.max_width_m if self._target_m is None else self._target_m  # 0 m is a target
+            self._send(lambda: self.link.follow(target, enable=False, grasp_id=let_go))
             self._enable, self._release_left = False, 0
         if grasp_id is not None and not released and self._send(lambda: self.link.release(grasp_id)):
             self._follow_grasp = None
