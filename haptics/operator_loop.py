@@ -197,7 +197,11 @@ class OperatorLoop:
             self._to_label.append((grasp_id, label))
 
     def set_force(self, force_n: float) -> float:
-        """Set the discrete grasp's force, clipped to [1 N, gripper.target_force_n]; the force set. Any thread."""
+        """Set the discrete grasp's force, clipped to [1 N, gripper.target_force_n]; the force set. Any thread.
+
+        Raises ValueError for a force that is not a finite number (clipping would keep a NaN)."""
+        if not math.isfinite(force_n):
+            raise ValueError(f"force_n = {force_n!r}: expected a finite force (N)")
         limit = self.settings.gripper.target_force_n
         self.force_n = min(max(float(force_n), min(1.0, limit)), limit)
         return self.force_n

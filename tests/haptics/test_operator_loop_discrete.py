@@ -4,8 +4,10 @@ down (against a fake link and device; the rest of the loop: test_operator_link.p
 from __future__ import annotations
 
 import dataclasses
+import math
 from datetime import datetime
 
+import pytest
 from support.operator_fakes import (
     Clock,
     FakeLink,
@@ -161,6 +163,15 @@ def test_set_force_keeps_the_discrete_force_between_one_newton_and_the_settings_
     press(loop, clock, "grasp")
     assert link.sent[-1][1:] == ("start_grasp", {"target_force_n": limit, "grasp_id": loop.status.grasp_id})
     assert loop.set_force(-3.0) == loop.force_n == min(1.0, limit)
+
+
+@pytest.mark.parametrize("force_n", [math.nan, math.inf])
+def test_set_force_refuses_a_force_that_is_not_finite_and_keeps_the_one_set(force_n):
+    _, _, _, loop = loop_rig()
+    before = loop.force_n
+    with pytest.raises(ValueError, match=r"force_n = (nan|inf): expected a finite force"):
+        loop.set_force(force_n)
+    assert loop.force_n == before
 
 
 def test_a_grasp_id_names_the_day_so_a_console_started_at_the_same_time_tomorrow_is_not_refused():
