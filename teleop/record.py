@@ -481,7 +481,7 @@ def read_record(path: str | Path) -> GraspRecord:
         provenance = record_header.provenance(path, header, version)
         events = record_header.events(path, header)
         calibration = {}
-        for name in header.get("calibration", []):
+        for name in record_header.calibration(path, header):
             member = f"calibration/{name}.npy"
             try:
                 calibration[name] = np.load(io.BytesIO(r.member(member)), allow_pickle=False)

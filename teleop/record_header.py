@@ -18,7 +18,7 @@ from teleop.grasp_data import ENCODINGS, Label, Provenance
 from teleop.settings import GripperSettings, SensorSettings
 from teleop.settings_fields import build_settings
 
-__all__ = ["events", "field", "frame_info", "gripper", "header_error", "label", "provenance", "sensors"]
+__all__ = ["calibration", "events", "field", "frame_info", "gripper", "header_error", "label", "provenance", "sensors"]
 
 
 def header_error(path: Path, what: str) -> RecordError:
@@ -141,6 +141,14 @@ def provenance(path: Path, header: Mapping[str, Any], version: int) -> Provenanc
         return Provenance(**table)
     except (TypeError, ValueError) as exc:
         raise header_error(path, f"provenance is invalid ({exc})") from exc
+
+
+def calibration(path: Path, header: Mapping[str, Any]) -> list[str]:
+    """The ``calibration`` list: the names of the record's calibration arrays (none when absent)."""
+    names = header.get("calibration", [])
+    if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
+        raise header_error(path, f"header.calibration must be a list of array names, got {names!r}")
+    return names
 
 
 def events(path: Path, header: Mapping[str, Any]) -> dict[str, float]:
