@@ -418,8 +418,7 @@ class GraspStream:
             # The load cell's readings lag the fingers' stop: no contact is final only once they ran on past it.
             return (self._loading_end_s is not None
                     and self.newest_force_s >= self._loading_end_s + PEAK_FRAME_WINDOW_S)
-        frame_t = self._frame_times()
-        frame_after_peak = frame_t.size > 0 and float(frame_t.max()) > segment.t_peak_s
+        frame_after_peak = self._newest_frame_s() > segment.t_peak_s
         if self._loading_end_s is not None:
             return frame_after_peak or self.newest_force_s >= segment.t_peak_s + PEAK_FRAME_WINDOW_S
         return (self.newest_force_s >= segment.t_peak_s + LOADING_SETTLED_S
@@ -560,14 +559,21 @@ class GraspStream:
 
     def last_loading_frame_s(self, segment: Segment) -> float:
         """Capture time of the last loading frame of ``segment``; without one, of the newest
-        frame received (of the newest force sample before any frame)."""
+        frame received that the segmentation places (of the newest force sample before any)."""
         return self._newest_data_s(segment.frame_t_s)
 
     def _newest_data_s(self, loading_t_s: np.ndarray) -> float:
-        frame_t = self._frame_times()
         if loading_t_s.size:
             return float(loading_t_s[-1])
-        return float(frame_t.max()) if frame_t.size else self._force.last_t_s
+        newest_frame_s = self._newest_frame_s()
+        return newest_frame_s if np.isfinite(newest_frame_s) else self._force.last_t_s
+
+    def _newest_frame_s(self) -> float:
+        """Capture time of the newest frame the segmentation places (-inf before one): a frame it skips
+        (NaN in :meth:`_frame_times`) must not hide the others."""
+        frame_t = self._frame_times()
+        placed = frame_t[np.isfinite(frame_t)]
+        return float(placed.max()) if placed.size else -np.inf
 
     def reduce_depths(self, size_px: tuple[int, int] | None, window_m: tuple[float, float] | None = None) -> None:
         """Reduce every depth computed so far to ``size_px`` now, as :meth:`reduced_depths` will
