@@ -17,7 +17,8 @@ force-capped (:mod:`teleop.operator`). A follow counts only with ``enable`` (the
   and counts for nothing, neither moving the fingers nor keeping the grasp from the watchdog.
   The fingers never exceed the settings' maximum grasp force (``gripper.target_force_n``): the
   simulated physics stalls there; with hardware the node stops closing once the load cell
-  reads it, and not at all while the load cell is silent (no force for
+  reads it (checked on each follow and, while the fingers close, on each node step between follows), and
+  not at all while the load cell is silent (no force for
   :data:`FORCE_SILENT_S`: a ``robot_notice`` *refused* says so). Reaching it sends a
   ``robot_notice`` *force_limit*, once per grasp.
 
@@ -86,6 +87,7 @@ class Follower:
         self.last_follow_s = -math.inf
         self.enable = False
         self.stopped = False  # mode "stopped" while no grasp runs: after the watchdog
+        self.closing = False  # the hardware fingers were last driven closing: the cap watches them between follows
         # The last ENDED_KEPT grasps that ended, oldest first: never started again.
         self.ended: dict[str, None] = {}
         self._ids = itertools.count()  # for grasps started without an id
@@ -115,6 +117,7 @@ class Follower:
             if grasp is not None and grasp.phase in ("preparing", "following") and grasp.target_width_m is not None:
                 if grasp.phase == "following":  # preparing: the fingers are not the grasp's yet
                     node.gripper.stop()
+                    self.closing = False
                 grasp.target_width_m = None  # nor does going live drive it
             return
         if grasp.phase not in ("preparing", "following"):
@@ -151,7 +154,7 @@ class Follower:
         node = self.node
         number = node._count
         grasp_id = self.grasp_id(grasp_id)
-        self.stopped = False
+        self.stopped = self.closing = False
         grasp = node._grasp = _Grasp(grasp_id, None, follow=True, phase="following")
         if not node.simulated:
             node._announce("start")
@@ -258,6 +261,8 @@ class Follower:
         elif grasp.phase == "following":
             if self.live is not None and self.live.at_force_limit():
                 self._force_limit(grasp)
+            elif self.closing and grasp.target_width_m is not None and self._cannot_close():
+                self._drive_fingers(grasp)  # between follows: the fingers still closing stop now
         else:
             return False
         return True
@@ -269,16 +274,28 @@ class Follower:
 
         node = self.node
         closing = not node.simulated and grasp.target_width_m < node._latest.get("width", math.inf)
-        if closing and node.clock() - node._newest_s.get("force", -math.inf) > FORCE_SILENT_S:
+        why = self._cannot_close() if closing else None
+        self.closing = closing and why is None
+        if why == "silent":
             node.gripper.stop()
             node._notice("refused", "follow", grasp.grasp_id,
                          f"the load cell has sent no force for over {FORCE_SILENT_S} s: the fingers close no "
                          "further until it reads again", repeat_s=REFUSAL_REPEAT_S)
-        elif closing and node._latest.get("force", 0.0) >= node.settings.gripper.target_force_n:
+        elif why == "force_limit":
             node.gripper.stop()
             self._force_limit(grasp)
         else:
             node.gripper.follow(grasp.target_width_m)
+
+    def _cannot_close(self) -> str | None:
+        """Why hardware fingers must close no further: the load cell ``"silent"`` (a force it does not
+        read cannot be capped) or at the maximum force (``"force_limit"``); None when they may."""
+        node = self.node
+        if node.clock() - node._newest_s.get("force", -math.inf) > FORCE_SILENT_S:
+            return "silent"
+        if node._latest.get("force", 0.0) >= node.settings.gripper.target_force_n:
+            return "force_limit"
+        return None
 
     def _force_limit(self, grasp: _Grasp) -> None:
         if not grasp.force_limited:
@@ -296,21 +313,29 @@ class Follower:
             self._watchdog(grasp, f"the robot node itself stalled for {stalled_s:.3f} s")
 
     def _watchdog(self, grasp: _Grasp, why: str | None = None) -> None:
-        """No follow came for WATCHDOG_S (or ``why``): stop the fingers and end the grasp."""
+        """No follow came for WATCHDOG_S (or ``why``): stop the fingers and end the grasp. A stop the
+        gripper fails is said too, and its DeviceError raised for the node to end the grasp."""
         node = self.node
-        node.gripper.stop()
+        failed = None
+        try:
+            node.gripper.stop()
+        except DeviceError as exc:  # the enable still goes and the watchdog still speaks: the node's own state
+            failed = exc
         node.stats.watchdogs += 1
         why = why or f"no follow command for {node.clock() - self.last_follow_s:.3f} s"
-        log.warning("grasp %s: %s: fingers stopped", grasp.grasp_id, why)
-        node._notice("watchdog", "follow", grasp.grasp_id, f"{why} (watchdog {WATCHDOG_S} s): the fingers stopped")
-        self.enable = False
+        done = "the fingers stopped" if failed is None else f"stopping the fingers failed ({failed})"
+        log.warning("grasp %s: %s: %s", grasp.grasp_id, why, done)
+        node._notice("watchdog", "follow", grasp.grasp_id, f"{why} (watchdog {WATCHDOG_S} s): {done}")
+        self.enable = self.closing = False
+        self.stopped = True
+        if failed is not None:
+            raise failed  # the node's device notice names the grasp, then ends it as below
         if not _went_live(grasp):
             # No end goes out for it, but its console's stale follows must not start it again.
             self.record_ended(grasp.grasp_id)
             node._grasp = None
         else:
             node._end()
-        self.stopped = True
 
 
 def _went_live(grasp: _Grasp) -> bool:
