@@ -526,7 +526,8 @@ def test_a_node_that_looked_within_the_watchdogs_time_takes_the_follow(node):
     assert node._grasp is not None and node.gripper.calls[-1] == ("follow", 0.06) and not notices(node, "watchdog")
 
 
-def test_a_gripper_failing_to_stop_for_the_watchdog_is_said_and_the_node_carries_on(node):
+def _watchdog_with_the_link_down(node) -> None:
+    """A live follow grasp left WATCHDOG_S + 10 ms without follows, the gripper's stop failing."""
     live(node)
 
     def link_down() -> bool:
@@ -535,6 +536,10 @@ def test_a_gripper_failing_to_stop_for_the_watchdog_is_said_and_the_node_carries
     node.gripper.stop = link_down
     node.clock.t += WATCHDOG_S + 0.01
     node.step(timeout_s=0)
+
+
+def test_a_gripper_failing_to_stop_for_the_watchdog_is_said_and_the_node_carries_on(node):
+    _watchdog_with_the_link_down(node)
     assert [n["action"] for n in notices(node, "device")] == ["gripper"]
     node._looked_s = node.clock() - 2 * WATCHDOG_S  # and when the node itself stalled
     live(node, "g2")
@@ -544,14 +549,7 @@ def test_a_gripper_failing_to_stop_for_the_watchdog_is_said_and_the_node_carries
 
 
 def test_a_watchdog_whose_stop_fails_still_says_so_lets_the_enable_go_and_ends_the_grasp(node):
-    live(node)
-
-    def link_down() -> bool:
-        raise DeviceError("the gripper's link is down")
-
-    node.gripper.stop = link_down
-    node.clock.t += WATCHDOG_S + 0.01
-    node.step(timeout_s=0)
+    _watchdog_with_the_link_down(node)
     said = notices(node, "watchdog")
     assert [n["reason"] for n in said] == ["no follow command for 0.210 s (watchdog 0.2 s): stopping the fingers "
                                            "failed (the gripper's link is down)"]
