@@ -87,7 +87,10 @@ class Validated:
                 )
             lo, hi = meta.get("lo"), meta.get("hi")
             for number in _iter_numbers(value):
-                bad = not math.isfinite(number)
+                try:
+                    bad = not math.isfinite(number)
+                except OverflowError:  # an integer too large for a float: refused, not a traceback
+                    bad = True
                 if lo is not None:
                     bad |= number <= lo if meta.get("lo_open") else number < lo
                 if hi is not None:
