@@ -12,20 +12,15 @@ from teleop.catalogue import (
     read_object_table,
     read_toml_catalogue,
 )
-from teleop.errors import SettingsError
-from tests.support.catalogue_toml import object_toml
+from tests.support.catalogue_toml import object_toml, settings_refusal, toml_file
 
 
 def _catalogue(tmp_path, text: str):
-    path = tmp_path / "objects.toml"
-    path.write_text(text, encoding="utf-8")
-    return path
+    return toml_file(tmp_path, "objects.toml", text)
 
 
 def _refusal(path) -> str:
-    with pytest.raises(SettingsError) as info:
-        read_toml_catalogue(path)
-    return str(info.value)
+    return settings_refusal(lambda: read_toml_catalogue(path))
 
 
 def test_an_object_built_in_code_with_an_unknown_shape_is_refused():

@@ -8,18 +8,15 @@ import pytest
 from teleop import scene as scene_module
 from teleop.errors import SettingsError
 from teleop.scene import current_method, load_scene
+from tests.support.catalogue_toml import settings_refusal, toml_file
 
 
 def _scene(tmp_path, text: str):
-    path = tmp_path / "lab_day.toml"
-    path.write_text(text, encoding="utf-8")
-    return path
+    return toml_file(tmp_path, "lab_day.toml", text)
 
 
 def _refusal(path) -> str:
-    with pytest.raises(SettingsError) as info:
-        load_scene(str(path))
-    return str(info.value)
+    return settings_refusal(lambda: load_scene(str(path)))
 
 
 @pytest.mark.parametrize("objects", ["[]", '"stress_ball"', "[1]", '["stress_ball", 2]'])
