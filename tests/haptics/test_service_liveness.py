@@ -59,7 +59,7 @@ def test_a_final_is_let_go_when_the_estimator_dies_before_forwarding_the_grasps_
             service.step()
         assert renderer.phase == "active" and renderer.percept.rigid
         # The estimator dies (its end of g1 never comes): the display lets go of g1.
-        _step_until(service, lambda: renderer.phase in ("fading", "idle"), timeout_s=1.0)
+        _step_until(service, lambda: renderer.phase in ("fading", "idle"))
         _step_until(service, lambda: renderer.phase == "idle")
         assert not renderer.percept.rigid and renderer.percept.stiffness == 0
 
@@ -83,7 +83,7 @@ def test_a_loading_grasp_is_released_when_its_estimator_dies_and_engages_again_w
         _step_until(service, lambda: renderer.grasp_id == "g3")
         assert renderer.percept.rigid and not renderer.has_final
         # The estimator dies mid-grasp: the stiff end is not held over the operator's next grasp.
-        _step_until(service, lambda: renderer.phase == "idle", timeout_s=2.0)
+        _step_until(service, lambda: renderer.phase == "idle")
         assert renderer.percept.stiffness == 0 and renderer.display.last_command.level == 0
         # It was only starved: heard again, its next estimate of g3 is rendered (g3 did not end).
         estimator.heartbeat_if_due()
@@ -98,7 +98,7 @@ def test_a_final_let_go_when_its_estimator_dies_is_ended_so_a_late_estimate_of_i
         estimator.heartbeat_if_due()
         _final(estimator, "g1")
         _step_until(service, lambda: renderer.grasp_id == "g1")
-        _step_until(service, lambda: renderer.phase == "idle", timeout_s=2.0)  # the estimator dies: let go
+        _step_until(service, lambda: renderer.phase == "idle")  # the estimator dies: let go
         # Heard again, it sends one more estimate of g1 (a duplicate held up on the bus): g1 has ended.
         estimator.heartbeat_if_due()
         _final(estimator, "g1", provisional=True)
