@@ -563,17 +563,13 @@ class GraspStream:
         return self._newest_data_s(segment.frame_t_s)
 
     def _newest_data_s(self, loading_t_s: np.ndarray) -> float:
-        if loading_t_s.size:
-            return float(loading_t_s[-1])
-        newest_frame_s = self._newest_frame_s()
-        return newest_frame_s if np.isfinite(newest_frame_s) else self._force.last_t_s
+        newest_s = float(loading_t_s[-1]) if loading_t_s.size else self._newest_frame_s()
+        return newest_s if np.isfinite(newest_s) else self._force.last_t_s
 
     def _newest_frame_s(self) -> float:
-        """Capture time of the newest frame the segmentation places (-inf before one): a frame it skips
-        (NaN in :meth:`_frame_times`) must not hide the others."""
+        """Capture time of the newest frame the segmentation places, -inf before one (a skipped one is NaN)."""
         frame_t = self._frame_times()
-        placed = frame_t[np.isfinite(frame_t)]
-        return float(placed.max()) if placed.size else -np.inf
+        return float(np.max(frame_t, initial=-np.inf, where=np.isfinite(frame_t)))
 
     def reduce_depths(self, size_px: tuple[int, int] | None, window_m: tuple[float, float] | None = None) -> None:
         """Reduce every depth computed so far to ``size_px`` now, as :meth:`reduced_depths` will
@@ -593,13 +589,11 @@ class GraspStream:
         """What has arrived as a grasp record on this stream's rig (source ``hardware``: data as the
         bus delivered it)."""
         fingers = {s.finger for s in self.sensors}
-        streams = tuple(
-            FrameStream(finger, f.times(), tuple(f.encoded), f.encoding or "jpeg")
-            for finger, f in self._frames.items() if finger in fingers and f.t_s  # not one of refused frames only
-        )
-        force, width = self._force.samples(), self._width.samples()
+        streams = tuple(FrameStream(finger, f.times(), tuple(f.encoded), f.encoding or "jpeg")
+                        for finger, f in self._frames.items() if finger in fingers and f.t_s)  # not refused only
         return GraspRecord(
-            sensors=self.sensors, gripper=self.gripper, frames=streams, force_n=force, width_m=width,
+            sensors=self.sensors, gripper=self.gripper, frames=streams, force_n=self._force.samples(),
+            width_m=self._width.samples(),
             provenance=Provenance(source="hardware", extra={"grasp_id": self.grasp_id},
                                   style="operator" if self._follow else "script"),
             events={} if self._loading_end_s is None else {GRASP_DONE_EVENT: self._loading_end_s},
