@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import csv
 import math
+import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -161,7 +162,8 @@ _REQUIRED = object()
 
 
 def _typed(table: dict, key: str, kinds: tuple[type, ...], what: str, where: str, default=_REQUIRED):
-    """``table[key]`` when it is one of ``kinds`` (never a bool for a number); else SettingsError."""
+    """``table[key]`` when it is one of ``kinds`` (never a bool for a number, nor an integer too large
+    for a float); else SettingsError."""
     if key not in table:
         if default is _REQUIRED:
             raise SettingsError(f"{where}: key {key!r} is missing")
@@ -169,7 +171,17 @@ def _typed(table: dict, key: str, kinds: tuple[type, ...], what: str, where: str
     value = table[key]
     if isinstance(value, bool) or not isinstance(value, kinds):
         raise SettingsError(f"{where}: {key} must be {what}, got {value!r}")
+    if float in kinds:
+        _check_float(value, key, what, where)
     return value
+
+
+def _check_float(value: int | float, key: str, what: str, where: str) -> None:
+    """SettingsError for a TOML integer too large for a float (float() would overflow), naming its
+    digit count rather than its digits."""
+    if isinstance(value, int) and abs(value) > sys.float_info.max:
+        raise SettingsError(f"{where}: {key} holds an integer of {len(str(value))} digits, too large for a "
+                            f"number: expected {what}")
 
 
 def read_toml_catalogue(path: str | Path, *, recorded: bool = False) -> tuple[ObjectSpec, ...]:
@@ -210,7 +222,8 @@ def read_toml_catalogue(path: str | Path, *, recorded: bool = False) -> tuple[Ob
         size = _typed(table, "size_m", (list,), "an array of three extents in m", where, default=[])
         if not all(isinstance(s, number) and not isinstance(s, bool) for s in size):
             raise SettingsError(f"{where}: size_m must hold numbers (m), got {size!r}")
-        size = [_float(s, "size_m", "numbers (m)", where) for s in size]
+        for extent in size:
+            _check_float(extent, "size_m", "numbers (m)", where)
         if not recorded:
             _check_section(table.get("shape"), size, where)
         try:
@@ -220,13 +233,10 @@ def read_toml_catalogue(path: str | Path, *, recorded: bool = False) -> tuple[Ob
                     shape=normalise_shape(_typed(table, "shape", (str,), "a string", where), where=where),
                     material=_material(_typed(table, "material", (str,), "a string", where), where,
                                        known=not recorded),
-                    modulus_pa=_float(_typed(table, "modulus_pa", number, "a number (Pa)", where), "modulus_pa",
-                                      "a number (Pa)", where),
-                    poisson=_float(_typed(table, "poisson", number, "a number", where, default=0.4), "poisson",
-                                   "a number", where),
-                    size_m=tuple(size) if "size_m" in table else None,
-                    texture_m=_float(_typed(table, "texture_m", number, "a number (m)", where, default=0.0),
-                                     "texture_m", "a number (m)", where),
+                    modulus_pa=float(_typed(table, "modulus_pa", number, "a number (Pa)", where)),
+                    poisson=float(_typed(table, "poisson", number, "a number", where, default=0.4)),
+                    size_m=tuple(float(s) for s in size) if "size_m" in table else None,
+                    texture_m=float(_typed(table, "texture_m", number, "a number (m)", where, default=0.0)),
                     source=_typed(table, "source", (str,), "a string", where, default=""),
                 )
             )
@@ -236,15 +246,6 @@ def read_toml_catalogue(path: str | Path, *, recorded: bool = False) -> tuple[Ob
             raise SettingsError(f"{where}: {exc}") from exc
     _check_unique(objects, path)
     return tuple(objects)
-
-
-def _float(value: int | float, key: str, what: str, where: str) -> float:
-    """``value`` as a float; SettingsError for a TOML integer too large for one (float() overflows)."""
-    try:
-        return float(value)
-    except OverflowError:
-        raise SettingsError(f"{where}: {key} holds an integer of {len(str(value))} digits, too large for a "
-                            f"number: expected {what}") from None
 
 
 def _material(raw: str, where: str, *, known: bool) -> str:
