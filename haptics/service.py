@@ -51,7 +51,8 @@ renders for it: the percept the estimate maps to (``display_fraction`` of the di
 to ``report``. A latency outside :data:`PLAUSIBLE_LATENCY_S` is no latency (a capture time on
 another clock, or a broken one): it is logged (the first, then a count at every power of ten),
 counted (``unmeasured``) and left out, as null; the estimate is rendered all the same. A final
-estimate whose grasp stops being rendered (its end, a release, another grasp's estimate) before
+estimate whose grasp stops being rendered (its end, a release, another grasp's estimate, the service
+stopping) before
 any report was written after it (the display was not connected) was never shown: it is logged
 and reported as not shown, ``latency_ms`` and ``level`` null (``display_fraction`` and the flags
 still say what it maps to), with the estimates its grasp had by then; the first is logged, then a
@@ -246,7 +247,9 @@ class RendererService(ServiceLoop):
         hold until its own watchdog (or for ever, one with none); so the free command (level 0, as
         the idle renderer writes) goes to the display, and the matching ``display`` message (idle,
         no grasp) on the bus. A display that is not connected, or whose write fails, is left alone
-        (logged): nothing more can reach it."""
+        (logged): nothing more can reach it. A final still waiting for a report to show it is
+        reported as never shown."""
+        self._check_pending(self.clock(), stopping=True)
         renderer, display = self.renderer, self.renderer.display
         info = display.info
         if info is None:
@@ -449,16 +452,18 @@ class RendererService(ServiceLoop):
         self._publish_failing = False
         self.stats.display_messages += 1
 
-    def _check_pending(self, written_s: float) -> None:
+    def _check_pending(self, written_s: float, *, stopping: bool = False) -> None:
         """Record the pending final estimate's latency once a report went out after it (``written_s``:
         the clock just after the renderer call that may have written it), or as never shown once its
-        grasp is no longer rendered with none gone out (module docstring)."""
+        grasp is no longer rendered with none gone out (module docstring), or the service is ``stopping``."""
         pending = self._pending
         if pending is None:
             return
         shown = self.renderer.grasp_id == pending.grasp_id
         if shown and self.renderer.stats.reports_sent == pending.reports_before:
-            return
+            if not stopping:
+                return
+            shown = False  # the service stops before any report showed it
         update = pending.update
         info = self.renderer.display.info
         level_max = None if info is None else info.level_max
