@@ -150,6 +150,8 @@ def felt_difference(rows: Sequence[Mapping[str, Any]], *, display_range_pa: tupl
     np.add.at(weights, (np.repeat(np.arange(resamples), len(objects)), drawn.ravel()), 1.0)
     n = weights @ counts.T  # (resamples, 2): counted grasps per model
     keep = (n > 0).all(axis=1)
+    if not keep.any():  # no resample drew a grasp each model answered (few resamples): no interval
+        return out
     means = (weights @ sums.T)[keep] / n[keep]
     differences = means[:, 1] - means[:, 0]
     tail = (1.0 - level) / 2.0
@@ -184,7 +186,8 @@ def verdict(result: Mapping[str, Any]) -> str:
     better = result["better"]
     if better == "undecided":
         why = (f"only {diff['objects']} objects, at least {MIN_OBJECTS} are needed to tell"
-               if diff["objects"] < MIN_OBJECTS else "the interval contains 0")
+               if diff["objects"] < MIN_OBJECTS else "no interval: no resample held grasps both models answered"
+               if diff["interval"] is None else "the interval contains 0")
         head = f"undecided ({why}): "
     else:
         head = f"{better} better: "
