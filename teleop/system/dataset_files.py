@@ -35,6 +35,7 @@ __all__ = [
     "MAX_PICKLE_ELEMENTS",
     "MAX_PICKLE_ITEMS",
     "WIDTH_SLACK_M",
+    "array_from_pickle",
     "check_forces",
     "check_widths",
     "find_layout_folders",
@@ -96,8 +97,43 @@ _ADMITTED_GLOBALS: dict[tuple[str, str], Any] = {
 }
 
 
-class _ArrayUnpickler(pickle.Unpickler):
-    """An unpickler whose only globals are those of :data:`_ADMITTED_GLOBALS`."""
+# numpy dtype flags a plain array's dtype may carry (NPY_NEEDS_INIT, NPY_NEEDS_PYAPI: text and
+# structured dtypes); any other (NPY_ITEM_REFCOUNT, NPY_LIST_PICKLE, NPY_ITEM_IS_POINTER, ...) makes
+# numpy treat an item as Python object pointers.
+_PLAIN_DTYPE_FLAGS = 0x08 | 0x10
+
+
+def _check_build(inst: Any, state: Any) -> None:
+    """Refuse a BUILD (``__setstate__``) other than of a plain array or dtype, before it runs.
+
+    numpy's ``ndarray.__setstate__`` fills an object array from a list without checking its
+    length (a short list crashes the process), and ``dtype.__setstate__`` takes its flags from
+    the pickle (flags that mark a plain dtype as holding objects lead there too), so neither may
+    see an object dtype or object flags; numpy itself pickles no other BUILD.
+    """
+    if isinstance(inst, np.dtype):
+        flags = state[7] if isinstance(state, tuple) and len(state) >= 8 else 0
+        if not isinstance(flags, int) or flags & ~_PLAIN_DTYPE_FLAGS:
+            raise _Refused(f"a dtype state with object flags {flags!r} (object arrays are not admitted)")
+    elif type(inst) is np.ndarray:
+        dtype = state[-3] if isinstance(state, tuple) and len(state) in (4, 5) else None
+        if isinstance(dtype, np.dtype) and (dtype.hasobject or dtype.flags & ~_PLAIN_DTYPE_FLAGS):
+            raise _Refused(f"an object array (dtype {dtype}, flags {dtype.flags})")
+    else:
+        raise _Refused(f"the state of a {type(inst).__name__} (only numpy arrays and dtypes take one)")
+
+
+class _ArrayUnpickler(pickle._Unpickler):  # noqa: SLF001 -- the Python one, whose BUILD can be checked
+    """An unpickler whose only globals are those of :data:`_ADMITTED_GLOBALS`, and whose BUILD
+    (``__setstate__``) reaches only plain numpy arrays and dtypes (:func:`_check_build`)."""
+
+    dispatch = dict(pickle._Unpickler.dispatch)  # noqa: SLF001
+
+    def load_build(self) -> None:
+        _check_build(self.stack[-2], self.stack[-1])
+        super().load_build()
+
+    dispatch[pickle.BUILD[0]] = load_build
 
     def __init__(self, data: bytes, name: str):
         # latin-1 lets numpy arrays pickled by Python 2 load (their bytes are str there).
@@ -269,6 +305,14 @@ def _shape_text(shape: tuple[int | None, ...]) -> str:
     return "(" + ", ".join("n" if size is None else str(size) for size in shape) + ("," if len(shape) == 1 else "") + ")"
 
 
+def array_from_pickle(value: Any, path: str | os.PathLike[str]) -> np.ndarray:
+    """``np.asarray(value)``; DatasetError naming ``path`` where it holds no array (ragged lists)."""
+    try:
+        return np.asarray(value)
+    except (ValueError, TypeError) as exc:
+        raise DatasetError(f"{path}: expected an array, got a {type(value).__name__} that makes none ({exc})") from None
+
+
 def load_pickled_array(
     path: str | os.PathLike[str], *, ndim: int | None = None, shape: tuple[int | None, ...] | None = None,
     what: str = "",
@@ -293,7 +337,7 @@ def load_pickled_array(
         array is not a measurement), holds non-finite values, or has another number of
         dimensions or shape. The message names the file and its dtype and shape.
     """
-    value = np.asarray(safe_load_pickle(path))
+    value = array_from_pickle(safe_load_pickle(path), path)
     if value.dtype.kind not in "iuf":
         raise DatasetError(f"{path}: expected a numeric array (integer or float), got dtype {value.dtype}")
     if ndim is not None and value.ndim != ndim:

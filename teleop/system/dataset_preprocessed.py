@@ -30,6 +30,7 @@ from teleop.catalogue import ObjectSpec
 from teleop.errors import DatasetError
 from teleop.settings import GripperSettings
 from teleop.system.dataset_files import (
+    array_from_pickle,
     check_forces,
     check_widths,
     find_layout_folders,
@@ -63,7 +64,7 @@ def find_preprocessed_samples(root: str | os.PathLike[str]) -> list[Path]:
 
 def _published_modulus(path: Path) -> float | None:
     """A published estimate (Pa) as a float, or None where it is NaN, infinite or <= 0."""
-    value = np.asarray(safe_load_pickle(path))
+    value = array_from_pickle(safe_load_pickle(path), path)
     if value.size != 1 or value.dtype.kind not in "iuf":
         raise DatasetError(f"{path}: expected one number (Pa), got {value.dtype} shape {value.shape}")
     number = float(value.reshape(()))
