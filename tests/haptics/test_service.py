@@ -9,7 +9,7 @@ import math
 import time
 
 import pytest
-from support.bus import admit_a_bound_without_its_bound
+from support.bus import KeptPublisher, admit_a_bound_without_its_bound
 from support.operator_fakes import Clock, QueuedSubscriber
 
 from haptics.devices.sim import DisplayFirmware, SimulatedDisplay
@@ -306,29 +306,11 @@ def test_finals_never_shown_are_logged_sparingly_and_only_the_last_ones_are_kept
 # --------------------------------------------------------------------------- the display's status, on a fake clock
 
 
-class _HeldPublisher:
-    """A publisher that keeps what is sent (no heartbeats)."""
-
-    heartbeat_s = 1.0
-
-    def __init__(self):
-        self.sent: list[tuple[str, dict]] = []
-
-    def heartbeat_if_due(self, now_s=None) -> bool:
-        return False
-
-    def send(self, kind: str, **body) -> None:
-        self.sent.append((kind, body))
-
-    def displays(self) -> list[dict]:
-        return [body for kind, body in self.sent if kind == "display"]
-
-
 def _clocked_service(display: SimulatedDisplay | None = None, **display_overrides):
     """A service on a fake clock with a display (a simulated one by default); nothing on its subscriber."""
     import dataclasses
 
-    clock, publisher = Clock(), _HeldPublisher()
+    clock, publisher = Clock(), KeptPublisher()
     settings = dataclasses.replace(display_settings(load_settings()), **display_overrides)
     renderer = HapticRenderer(display or SimulatedDisplay(), settings)
     service = RendererService(renderer, subscriber=QueuedSubscriber(clock), publisher=publisher, tick_s=0.005,
@@ -358,7 +340,7 @@ def test_an_unknown_percept_has_no_modulus_while_its_level_still_settles():
     _estimate_at(service, "g1", 1e6, t_capture_s=clock.t, provisional=True)
     _run_clocked(service, clock, 1.0)  # settled on 1 MPa
     _estimate_at(service, "g1", None, t_capture_s=clock.t, provisional=True, state="insufficient_data")
-    shown = publisher.displays()[-1]
+    shown = publisher.of("display")[-1]
     assert shown["unknown"] and shown["stiffness"] > 0  # smoothing: the level still falls
     assert shown["E_pa"] is None
 
@@ -385,9 +367,9 @@ def test_stopping_publishes_the_display_state_of_its_answer_to_the_free_command(
     service, publisher, clock = _clocked_service()
     _estimate_at(service, "g1", 2e6, t_capture_s=clock.t, provisional=True)
     _run_clocked(service, clock, 0.1)
-    assert publisher.displays()[-1]["device_state"] == "rendering"
+    assert publisher.of("display")[-1]["device_state"] == "rendering"
     service.finish()
-    last = publisher.displays()[-1]
+    last = publisher.of("display")[-1]
     assert (last["phase"], last["level"], last["device_state"]) == ("idle", 0, "free")
 
 
@@ -398,7 +380,7 @@ def test_stopping_mid_grasp_at_the_soft_end_still_publishes_the_idle_display():
     _run_clocked(service, clock, 0.1)
     assert service.renderer.phase != "idle" and service.renderer.command.level == 0
     service.finish()
-    last = publisher.displays()[-1]
+    last = publisher.of("display")[-1]
     assert (last["phase"], last["grasp_id"]) == ("idle", None)
 
 
@@ -411,11 +393,11 @@ def test_the_newest_of_the_status_reports_sent_since_the_last_message_is_publish
     _queue_status(display, "rendering", 100)
     _queue_status(display, "rendering", 100)
     display.firmware.inject_fault("over_current")  # the answer to the next write says fault
-    count = len(publisher.displays())
+    count = len(publisher.of("display"))
     _estimate_at(service, "g1", 3e6, t_capture_s=clock.t, provisional=True)
     _run_clocked(service, clock, 0.005)  # the level starts toward 3 MPa: a report is written
-    assert len(publisher.displays()) > count
-    assert (publisher.displays()[-1]["device_state"], publisher.displays()[-1]["device_faults"]) == (
+    assert len(publisher.of("display")) > count
+    assert (publisher.of("display")[-1]["device_state"], publisher.of("display")[-1]["device_faults"]) == (
         "fault", "over_current")
 
 
@@ -432,9 +414,9 @@ def test_a_status_report_that_does_not_decode_does_not_hide_the_ones_after_it(mo
 
     monkeypatch.setattr(firmware, "receive_output", garbled_then_answer)
     firmware.inject_fault("over_temperature")
-    count = len(publisher.displays())
+    count = len(publisher.of("display"))
     _run_clocked(service, clock, 0.5)  # a keep-alive at least
-    first = publisher.displays()[count]  # the message of the first report written after the fault
+    first = publisher.of("display")[count]  # the message of the first report written after the fault
     assert (first["device_state"], first["device_faults"]) == ("fault", "over_temperature")
 
 
@@ -457,16 +439,16 @@ def test_a_display_back_from_an_unplug_has_no_status_until_it_sends_one():
     _run_clocked(service, clock, 0.1)
     firmware.inject_fault("over_current")
     _run_clocked(service, clock, 0.5)  # a keep-alive went out: its status says fault
-    assert publisher.displays()[-1]["device_state"] == "fault"
+    assert publisher.of("display")[-1]["device_state"] == "fault"
     display.unplug()
     _run_clocked(service, clock, 0.5)  # the keep-alive fails: disconnected
     assert not display.connected
     firmware.quiet = True
     display.replug()  # power-on reset: the fault is gone
-    count = len(publisher.displays())
+    count = len(publisher.of("display"))
     _run_clocked(service, clock, 3.0)
-    assert display.connected and len(publisher.displays()) > count
-    assert publisher.displays()[-1]["device_state"] is None
+    assert display.connected and len(publisher.of("display")) > count
+    assert publisher.of("display")[-1]["device_state"] is None
 
 
 def test_fault_bits_without_a_fault_state_are_trouble_logged_once(caplog):

@@ -9,6 +9,7 @@ import json
 import logging
 
 import pytest
+from support.bus import KeptPublisher
 from support.operator_fakes import Clock, QueuedSubscriber
 
 from haptics.devices.sim import SimulatedDisplay
@@ -22,26 +23,8 @@ from teleop.bus.wire import make_message
 from teleop.settings import load_settings
 
 
-class _HeldPublisher:
-    """A publisher that keeps what is sent (no heartbeats)."""
-
-    heartbeat_s = 1.0
-
-    def __init__(self):
-        self.sent: list[tuple[str, dict]] = []
-
-    def heartbeat_if_due(self, now_s=None) -> bool:
-        return False
-
-    def send(self, kind: str, **body) -> None:
-        self.sent.append((kind, body))
-
-    def displays(self) -> list[dict]:
-        return [body for kind, body in self.sent if kind == "display"]
-
-
-def _service(**display_overrides) -> tuple[RendererService, _HeldPublisher, Clock]:
-    clock, publisher = Clock(), _HeldPublisher()
+def _service(**display_overrides) -> tuple[RendererService, KeptPublisher, Clock]:
+    clock, publisher = Clock(), KeptPublisher()
     settings = dataclasses.replace(display_settings(load_settings()), **display_overrides)
     service = RendererService(HapticRenderer(SimulatedDisplay(), settings), subscriber=QueuedSubscriber(clock),
                               publisher=publisher, tick_s=0.005, clock=clock)
@@ -73,11 +56,11 @@ def test_stopping_mid_grasp_counts_the_idle_display_message_it_publishes():
     _estimate(service, "g1", 2e6, t_capture_s=clock.t, provisional=True)
     _run(service, clock, 0.1)
     before = service.stats.display_messages
-    assert before == len(publisher.displays())
+    assert before == len(publisher.of("display"))
     service.finish()
     assert service.renderer.display.last_command.level == 0  # set free
-    assert service.stats.display_messages == before + 1 == len(publisher.displays())
-    assert publisher.displays()[-1]["phase"] == "idle"
+    assert service.stats.display_messages == before + 1 == len(publisher.of("display"))
+    assert publisher.of("display")[-1]["phase"] == "idle"
 
 
 @pytest.mark.parametrize("error", [OSError("the bus went away"), DisplayError("write failed")])
@@ -85,7 +68,7 @@ def test_a_free_command_that_cannot_be_written_on_stopping_is_logged_not_raised(
     service, publisher, clock = _service()
     _estimate(service, "g1", 2e6, t_capture_s=clock.t, provisional=True)
     _run(service, clock, 0.1)
-    published = len(publisher.displays())
+    published = len(publisher.of("display"))
 
     def failing(command):
         raise error
@@ -95,7 +78,7 @@ def test_a_free_command_that_cannot_be_written_on_stopping_is_logged_not_raised(
         service.finish()  # must not raise: the service still closes what it holds
     (said,) = [r.getMessage() for r in caplog.records if r.name == "haptics.service"]
     assert "not set free on stopping" in said and str(error) in said
-    assert len(publisher.displays()) == published  # no idle message claims a display that was not freed
+    assert len(publisher.of("display")) == published  # no idle message claims a display that was not freed
 
 
 def test_stopping_with_the_display_unplugged_names_the_level_last_written_not_the_one_that_failed(caplog):
@@ -211,7 +194,7 @@ class _TickingClock(Clock):
 
 
 def test_every_report_written_when_the_estimator_dies_has_its_display_message():
-    clock, publisher = _TickingClock(), _HeldPublisher()
+    clock, publisher = _TickingClock(), KeptPublisher()
     service = RendererService(HapticRenderer(SimulatedDisplay(), display_settings(load_settings())),
                               subscriber=QueuedSubscriber(clock), publisher=publisher, tick_s=0.005, clock=clock)
     service.subscriber.queue.append(dataclasses.replace(make_message(
@@ -221,7 +204,7 @@ def test_every_report_written_when_the_estimator_dies_has_its_display_message():
     for _ in range(1000):  # the estimator goes unheard mid-grasp: released, faded to free
         service.step()
         phases.append(service.renderer.phase)
-        assert service.stats.display_messages == service.renderer.stats.reports_sent == len(publisher.displays())
+        assert service.stats.display_messages == service.renderer.stats.reports_sent == len(publisher.of("display"))
     assert "fading" in phases and phases[-1] == "idle"
 
 
@@ -270,15 +253,15 @@ def test_a_failed_status_read_forgets_the_status_the_display_last_sent(monkeypat
     display = service.renderer.display
     _estimate(service, "g1", 2e6, t_capture_s=clock.t, provisional=True)
     _run(service, clock, 0.1)
-    assert publisher.displays()[-1]["device_state"] == "rendering"
+    assert publisher.of("display")[-1]["device_state"] == "rendering"
 
     def failing(timeout_s=None):
         raise error
 
     monkeypatch.setattr(display, "read_status", failing)
     _estimate(service, "g1", 3e6, t_capture_s=clock.t, provisional=True)  # a report written: a message
-    assert publisher.displays()[-1]["device_state"] is None  # no status vouches for what it does now
-    assert publisher.displays()[-1]["device_faults"] is None
+    assert publisher.of("display")[-1]["device_state"] is None  # no status vouches for what it does now
+    assert publisher.of("display")[-1]["device_faults"] is None
 
 
 def test_a_final_still_waiting_for_the_display_when_the_service_stops_is_reported_as_not_shown(tmp_path):

@@ -62,3 +62,25 @@ def admit_a_bound_without_its_bound(monkeypatch) -> None:
     from teleop.bus.messages import EstimateBody
 
     monkeypatch.setattr(EstimateBody, "cross_check", lambda self: None)
+
+
+class KeptPublisher:
+    """A publisher that keeps what is sent instead of sending it; setting ``beat`` makes the next
+    heartbeat due (none is otherwise)."""
+
+    heartbeat_s = 1.0
+
+    def __init__(self):
+        self.sent: list[tuple[str, dict]] = []
+        self.beat = False
+
+    def heartbeat_if_due(self, now_s=None) -> bool:
+        due, self.beat = self.beat, False
+        return due
+
+    def send(self, kind: str, **body) -> None:
+        self.sent.append((kind, body))
+
+    def of(self, kind: str) -> list[dict]:
+        """The bodies sent as ``kind``, in order."""
+        return [body for k, body in self.sent if k == kind]

@@ -10,6 +10,7 @@ from concurrent.futures import Future
 
 import numpy as np
 import pytest
+from support.bus import KeptPublisher
 
 from teleop.devices.camera import CameraFrame
 from teleop.devices.gripper import GraspStop
@@ -27,37 +28,18 @@ class _Clock:
         return self.t
 
 
-class _KeptPublisher:
-    """A publisher that keeps what is sent; ``beat`` makes the next heartbeat due."""
-
-    heartbeat_s = 1.0
-
-    def __init__(self):
-        self.sent: list[tuple[str, dict]] = []
-        self.beat = False
-
-    def heartbeat_if_due(self, now_s=None) -> bool:
-        due, self.beat = self.beat, False
-        return due
-
-    def send(self, kind: str, **body) -> None:
-        self.sent.append((kind, body))
-
-    def of(self, kind: str) -> list[dict]:
-        return [body for k, body in self.sent if k == kind]
-
-    def events(self) -> list[str]:
-        return [body["event"] for body in self.of("grasp_event")]
-
-
 @pytest.fixture
 def rig():
     """An unconnected simulated node: ``(node, publisher, clock)``."""
     scene = load_scene("quick")
-    clock, publisher = _Clock(), _KeptPublisher()
+    clock, publisher = _Clock(), KeptPublisher()
     node = RobotNode(scene.settings, publisher=publisher, scene=scene, clock=clock)
     yield node, publisher, clock
     node.close()
+
+
+def _events(publisher: KeptPublisher) -> list[str]:
+    return [body["event"] for body in publisher.of("grasp_event")]
 
 
 def _started(node: RobotNode, grasp_id: str = "g1") -> _Grasp:
@@ -91,7 +73,7 @@ def test_stopping_while_a_grasp_is_only_prepared_sends_no_end_for_it(rig):
     node, publisher, _ = rig
     node._grasp = _Grasp("g1", "obj")  # simulating: no start went out
     node.finish()
-    assert publisher.events() == [] and node.stats.grasps == 0
+    assert _events(publisher) == [] and node.stats.grasps == 0
 
 
 def test_stopping_mid_grasp_publishes_what_was_captured_then_its_end(rig):
@@ -103,7 +85,7 @@ def test_stopping_mid_grasp_publishes_what_was_captured_then_its_end(rig):
     node.finish()
     kinds = [kind for kind, body in publisher.sent]
     assert kinds == ["grasp_event", "force", "frame", "grasp_event"]  # nothing captured is lost behind the end
-    assert publisher.events() == ["start", "end"] and node.stats.grasps == 1 and not node.busy
+    assert _events(publisher) == ["start", "end"] and node.stats.grasps == 1 and not node.busy
     assert publisher.of("force")[0]["grasp_id"] == publisher.of("frame")[0]["grasp_id"] == "g1"
     assert (node.stats.force_batches, node.stats.frames) == (1, 1)
 
@@ -120,7 +102,7 @@ def test_a_grasp_that_ends_lets_go_of_the_object_the_fingers_no_longer_press(rig
     _started(node)
     node._follower.live = _LetGo()
     node._end()
-    assert publisher.events() == ["start", "end"] and node._follower.live is None
+    assert _events(publisher) == ["start", "end"] and node._follower.live is None
     assert "g1" in node._follower.ended and node._next_live is not None  # the next object is prepared
 
 
@@ -186,15 +168,15 @@ def test_the_marker_waits_for_the_width_read_at_the_stop_and_a_force_at_or_after
     _stopped_grasp(node, monkeypatch, GraspStop(stopped_s=100.5, width_t_s=100.52, width_m=0.02, held=True))
     node._publish("force", _samples(100.1, 100.4))  # the load cell delivers during the grasp
     node._publish("width", _samples(100.3, 100.5))
-    assert publisher.events() == ["start"]  # the width read at the stop is not out yet
+    assert _events(publisher) == ["start"]  # the width read at the stop is not out yet
     node._publish("width", _samples(100.52))
-    assert publisher.events() == ["start"]  # nor a force captured at or after the stop
+    assert _events(publisher) == ["start"]  # nor a force captured at or after the stop
     node._publish("force", _samples(100.45, 100.5))  # at the stop itself: enough
-    assert publisher.events() == ["start", "loading_end"]
+    assert _events(publisher) == ["start", "loading_end"]
     assert publisher.of("grasp_event")[-1]["t_capture_s"] == 100.5  # stamped when the fingers stopped
     node._publish("width", _samples(100.6))
     node._publish("force", _samples(100.6))
-    assert publisher.events() == ["start", "loading_end"]  # once
+    assert _events(publisher) == ["start", "loading_end"]  # once
 
 
 def test_the_marker_waits_for_the_width_read_at_the_stop_when_the_forces_are_ahead(rig, monkeypatch):
@@ -202,9 +184,9 @@ def test_the_marker_waits_for_the_width_read_at_the_stop_when_the_forces_are_ahe
     _stopped_grasp(node, monkeypatch, GraspStop(stopped_s=100.5, width_t_s=100.52, width_m=0.02, held=True))
     node._publish("force", _samples(100.3, 100.6))  # a force captured after the stop is out
     node._publish("width", _samples(100.4, 100.51))
-    assert publisher.events() == ["start"]  # widths up to the stop precede the marker
+    assert _events(publisher) == ["start"]  # widths up to the stop precede the marker
     node._publish("width", _samples(100.52))
-    assert publisher.events() == ["start", "loading_end"]
+    assert _events(publisher) == ["start", "loading_end"]
 
 
 def test_a_load_cell_silent_since_the_grasp_began_does_not_hold_the_marker(rig, monkeypatch):
@@ -212,7 +194,7 @@ def test_a_load_cell_silent_since_the_grasp_began_does_not_hold_the_marker(rig, 
     node._publish("force", _samples(99.5))  # before the grasp: then silent
     _stopped_grasp(node, monkeypatch, GraspStop(stopped_s=100.5, width_t_s=100.52, width_m=0.02, held=True))
     node._publish("width", _samples(100.52))
-    assert publisher.events() == ["start", "loading_end"]
+    assert _events(publisher) == ["start", "loading_end"]
 
 
 def test_an_older_width_batch_does_not_take_back_the_width_already_out(rig, monkeypatch):
@@ -225,7 +207,7 @@ def test_an_older_width_batch_does_not_take_back_the_width_already_out(rig, monk
     stop = GraspStop(stopped_s=100.5, width_t_s=100.55, width_m=0.02, held=True)
     monkeypatch.setattr(type(node.gripper), "last_stop", property(lambda self: stop))
     node._publish("grasp_stopped", command)
-    assert publisher.events() == ["start", "loading_end"]
+    assert _events(publisher) == ["start", "loading_end"]
 
 
 def test_the_wake_up_of_an_earlier_grasp_command_marks_nothing(rig, monkeypatch):
@@ -236,7 +218,7 @@ def test_the_wake_up_of_an_earlier_grasp_command_marks_nothing(rig, monkeypatch)
     monkeypatch.setattr(type(node.gripper), "last_stop", property(lambda self: stop))
     node._publish("width", _samples(100.6))
     node._publish("grasp_stopped", _done())  # not this grasp's command
-    assert publisher.events() == ["start"] and grasp.stop is None
+    assert _events(publisher) == ["start"] and grasp.stop is None
 
 
 def test_a_replays_failed_grasp_command_leaves_the_replay_running(rig):
@@ -244,7 +226,7 @@ def test_a_replays_failed_grasp_command_leaves_the_replay_running(rig):
     grasp = _started(node)  # simulated, not a follow grasp: a replay
     grasp.grasp_command = command = _done(DeviceError("halted"))
     node._publish("grasp_stopped", command)
-    assert node.busy and publisher.events() == ["start"] and not publisher.of("robot_notice")
+    assert node.busy and _events(publisher) == ["start"] and not publisher.of("robot_notice")
     assert node.stats.device_errors == 0
 
 
@@ -258,14 +240,14 @@ def test_a_gripper_failing_mid_grasp_is_said_counted_and_ends_the_grasp(rig):
     (notice,) = publisher.of("robot_notice")
     assert (notice["event"], notice["action"], notice["grasp_id"]) == ("device", "gripper", "g1")
     assert "link down" in notice["reason"]
-    assert publisher.events() == ["start", "end"] and node.stats.device_errors == 1 and not node.busy
+    assert _events(publisher) == ["start", "end"] and node.stats.device_errors == 1 and not node.busy
 
 
 def test_a_gripper_failing_before_the_grasp_started_sends_no_end_and_keeps_it_from_starting_again(rig):
     node, publisher, _ = rig
     node._grasp = _Grasp("g1", None, phase="grasping")  # its command refused before the start went out
     node._gripper_failed(DeviceError("link down"))
-    assert publisher.events() == [] and not node.busy and node.stats.device_errors == 1
+    assert _events(publisher) == [] and not node.busy and node.stats.device_errors == 1
     assert "g1" in node._follower.ended  # a console's follows naming it do not start it again
 
 
@@ -279,7 +261,7 @@ def test_a_failing_gripper_command_in_the_grasps_progress_does_not_stop_the_node
     monkeypatch.setattr(node.gripper, "move_async", failing)
     grasp.phase_until_s = 0.0  # the replay is over: its opening move fails
     node.step(timeout_s=0.0)
-    assert publisher.events() == ["start", "end"] and node.stats.device_errors == 1
+    assert _events(publisher) == ["start", "end"] and node.stats.device_errors == 1
     assert publisher.of("robot_state")[-1]["mode"] == "idle"
 
 
@@ -342,7 +324,7 @@ def _hardware(settings):
                                          ("releasing", "releasing"), ("tail", "releasing")])
 def test_a_hardware_grasps_phases_are_its_modes(phase, mode):
     scene = load_scene("quick")
-    publisher = _KeptPublisher()
+    publisher = KeptPublisher()
     node = RobotNode(_hardware(scene.settings), publisher=publisher, clock=_Clock())
     try:
         assert not node.simulated
@@ -370,7 +352,7 @@ def test_a_hardware_grasp_holds_for_hold_s_then_opens_fully_and_ends_after_its_t
     from teleop.node import TAIL_S
 
     scene = load_scene("quick")
-    clock, publisher = _Clock(), _KeptPublisher()
+    clock, publisher = _Clock(), KeptPublisher()
     node = RobotNode(_hardware(scene.settings), publisher=publisher, clock=clock)
     try:
         gripper = node.settings.gripper
@@ -400,7 +382,7 @@ def test_a_hardware_grasp_holds_for_hold_s_then_opens_fully_and_ends_after_its_t
         assert node.busy  # the readers' last data of the grasp may still come
         clock.t = opened_s + TAIL_S
         node._advance()
-        assert not node.busy and publisher.events() == ["start", "end"] and moves == [gripper.max_width_m]
+        assert not node.busy and _events(publisher) == ["start", "end"] and moves == [gripper.max_width_m]
     finally:
         node.close()
 
@@ -413,7 +395,7 @@ def test_a_grasp_that_cannot_be_simulated_is_started_and_ended_on_the_bus(rig):
     grasp.prepared = Future()
     grasp.prepared.set_exception(SimulationError("no contact"))
     node._advance()
-    assert publisher.events() == ["start", "end"] and not node.busy  # an end never comes without its start
+    assert _events(publisher) == ["start", "end"] and not node.busy  # an end never comes without its start
 
 
 def test_a_replay_takes_the_fingers_stopping_them_first_and_leaves_no_live_object(rig, monkeypatch):
@@ -431,13 +413,13 @@ def test_a_replay_takes_the_fingers_stopping_them_first_and_leaves_no_live_objec
     node._follower.live = object()  # left by a follow grasp the watchdog ended
     node._advance()
     assert calls == ["stop", "grasp"] and node._follower.live is None
-    assert publisher.events() == ["start"] and node._grasp.phase == "tail"
+    assert _events(publisher) == ["start"] and node._grasp.phase == "tail"
 
 
 def test_a_hardware_grasp_command_cancelled_before_it_ran_is_no_failure():
     # A cancelled future has no exception to ask for (asking raises): the node must not take it for one.
     scene = load_scene("quick")
-    publisher = _KeptPublisher()
+    publisher = KeptPublisher()
     node = RobotNode(_hardware(scene.settings), publisher=publisher, clock=_Clock())
     try:
         node._grasp = grasp = _Grasp("g1", None, phase="grasping")
