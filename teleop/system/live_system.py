@@ -440,13 +440,14 @@ class LiveSystem:
         """Take the grasp's messages until the robot and the estimator ended it; then its reports."""
         # What earlier grasps set aside, taken once: one set aside again waits for the next grasp
         # rather than come back at once, before anything on the bus; what this grasp did not reach
-        # waits for the next too, before what it set aside.
+        # waits for the next too, after what it set aside: that came before it (nothing was read from
+        # the bus while some was left), and a grasp's end must not come back ahead of its start.
         pending, self._later = self._later, []
         try:
             self._take(outcome, pending, on_update=on_update, on_message=on_message,
                        deadline=time.monotonic() + timeout_s, timeout_s=timeout_s)
         finally:
-            self._later[:0] = pending
+            self._later += pending
         grasp_id = outcome.grasp_id
         self._followed.add(grasp_id)
         outcome.estimator_report = self.estimator_reports.find(grasp_id, timeout_s=REPORT_TIMEOUT_S)

@@ -46,6 +46,7 @@ class SimulatedSeat:
 
     def __init__(self, system: LiveSystem, settings: Settings, *, grasps: int):
         self.device = make_input("sim", settings, grasps=grasps)
+        self._system = system
         bus = system.bus  # the live system's endpoints and keys
         self._subscriber = Subscriber.from_settings(bus, [bus.robot_pub, bus.estimate_pub, bus.display_pub],
                                                     (*ROBOT_TOPICS, "estimate", "display"))
@@ -83,8 +84,9 @@ class SimulatedSeat:
         if self._thread.is_alive():
             # Its loop still uses them: a ZeroMQ socket closed under another thread can abort the process.
             # The thread is a daemon: it ends with the demo.
-            log.warning("the simulated operator did not stop within %g s: its input and subscriber are left "
-                        "open", JOIN_TIMEOUT_S)
+            log.warning("the simulated operator did not stop within %g s: its input, subscriber and command "
+                        "publisher are left open", JOIN_TIMEOUT_S)
+            self._system.commands = None  # the live system's stop must not close its publisher under it either
             return
         self.device.close()
         self._subscriber.close()
