@@ -266,6 +266,8 @@ def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: 
                 marker_calibration=options.marker_calibration, window_m=options.window_m,
             )
         except (EstimatorError, RecordError) as exc:
+            for relative in written:  # a skipped record leaves no sample for training to read
+                (out / relative).unlink()
             return _skip(path, "measurement failed", f"measurement failed: {exc}")
         if not sampled:
             reasons[shift] = sampled.reason
