@@ -66,7 +66,7 @@ import cv2
 import numpy as np
 
 from estimator.analytical import METHODS
-from estimator.errors import EstimatorError
+from estimator.errors import EstimatorError, PerceptionError
 from estimator.estimate import Estimate
 from estimator.evaluation.evaluate import (
     answered_by,
@@ -78,7 +78,7 @@ from estimator.evaluation.metrics import summarise
 from estimator.inference.hybrid import HybridEstimator
 from estimator.inference.infer import CompliancePredictor
 from estimator.inference.sampling import calibration_for, decoded, sample_grasp
-from estimator.measure import estimate_grasp, measure_grasp, no_contact_reference
+from estimator.measure import estimate_grasp, finger_sensor, measure_grasp, no_contact_reference
 from estimator.measurements import TACTILE_METHODS, missing_calibration
 from estimator.perception.calibration import Calibration
 from estimator.settings import estimator_settings
@@ -253,12 +253,17 @@ def bench(
                 continue
             finger = settings.sensing.finger
             missing = (missing_calibration(record, finger, calibration, markers=markers)
-                       if finger in {s.finger for s in record.sensors} else "")  # off-finger: the run says
+                       if finger in {s.finger for s in record.sensors} else "")  # off-finger: unreadable below
             if cause := unlabelled(record) or missing:
                 skipped.append({"path": str(path), "cause": cause})
                 continue
             label = record.label
-            by_binning = {k: decoded(record, reduce=k) for k in sorted({c.binning for c in configs})}
+            try:  # as evaluate: no sensor or frames on the finger, or frames that do not decode
+                finger_sensor(record, finger)
+                by_binning = {k: decoded(record, reduce=k) for k in sorted({c.binning for c in configs})}
+            except (RecordError, PerceptionError) as exc:
+                skipped.append({"path": str(path), "cause": f"unreadable: {exc}"})
+                continue
             ref_ms = _reference_ms(by_binning[estimator_settings(settings).depth_binning], settings, repeats)
             if ref_ms is not None:
                 reference.append(ref_ms)
