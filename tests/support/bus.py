@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import zmq
 
 from teleop.bus import Message, Publisher, Subscriber
+from teleop.bus.wire import make_message
 
 #: How long a test waits for a delivery it expects: it returns at the first message, so this is only
 #: how long a loaded machine may take (a CURVE handshake beside a full test run took over 2 s).
@@ -84,3 +86,18 @@ class KeptPublisher:
     def of(self, kind: str) -> list[dict]:
         """The bodies sent as ``kind``, in order."""
         return [body for k, body in self.sent if k == kind]
+
+
+def message_from(source: str, kind: str, **body) -> Message:
+    """A ``kind`` message with ``body``, as ``source`` sent it, captured at 1 s."""
+    return dataclasses.replace(make_message(kind, t_capture_s=1.0, **body), source=source)
+
+
+class ReplayedEvents:
+    """A subscription replaying ``messages``, then silent."""
+
+    def __init__(self, messages: list):
+        self.messages = messages
+
+    def recv(self, timeout_s: float):
+        return self.messages.pop(0) if self.messages else None

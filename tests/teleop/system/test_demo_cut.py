@@ -3,15 +3,14 @@ the live line and ``--json`` say so, with the notice's reason, instead of showin
 
 from __future__ import annotations
 
-import dataclasses
 import io
 import json
 from pathlib import Path
 
+from support.bus import ReplayedEvents, message_from
 from support.outcomes import outcome
 
 from teleop.bus.messages import RobotNoticeBody
-from teleop.bus.wire import make_message
 from teleop.catalogue import ObjectSpec
 from teleop.settings import default_settings_path, load_settings
 from teleop.system.demo_table import LiveView, closing_table, felt_summary
@@ -48,39 +47,25 @@ def test_a_grasp_the_watchdog_cut_shows_the_cause_in_the_table_line_and_json():
     assert LiveView(io.StringIO(), 2).line(2, cut).endswith(", cut: watchdog")
 
 
-def _from(source: str, kind: str, **body) -> object:
-    return dataclasses.replace(make_message(kind, t_capture_s=1.0, **body), source=source)
-
-
-class _Events:
-    """The demo's subscription, replaying ``messages`` then silent."""
-
-    def __init__(self, messages: list):
-        self.messages = messages
-
-    def recv(self, timeout_s: float):
-        return self.messages.pop(0) if self.messages else None
-
-
 def _replaying(tmp_path: Path, grasp_id: str, messages: list) -> LiveSystem:
     """A demo's live system whose bus replays ``messages``; the estimator's log names ``grasp_id``."""
     system = LiveSystem(Path("settings.toml"), "quick", tmp_path, Path("calibration.npz"))
     (tmp_path / "estimator.jsonl").write_text(f'{{"grasp_id": "{grasp_id}"}}\n')
-    system.events = _Events(messages)
+    system.events = ReplayedEvents(messages)
     return system
 
 
 def test_following_a_grasp_keeps_the_notice_that_ended_it_and_no_other(tmp_path: Path):
     system = _replaying(tmp_path, "grasp-1", [
         # Before the operator's grasp starts: a load cell's notice names no grasp.
-        _from("robot", "robot_notice", event="device", action="load_cell", grasp_id=None, reason="reads failed"),
-        _from("robot", "grasp_event", event="start", grasp_id="grasp-1", object_name="sponge"),
-        _from("robot", "robot_notice", event="force_limit", action="follow", grasp_id="grasp-1", reason="max force"),
-        _from("robot", "robot_notice", event="watchdog", action="follow", grasp_id="grasp-1", reason=STALLED),
+        message_from("robot", "robot_notice", event="device", action="load_cell", grasp_id=None, reason="reads failed"),
+        message_from("robot", "grasp_event", event="start", grasp_id="grasp-1", object_name="sponge"),
+        message_from("robot", "robot_notice", event="force_limit", action="follow", grasp_id="grasp-1", reason="max force"),
+        message_from("robot", "robot_notice", event="watchdog", action="follow", grasp_id="grasp-1", reason=STALLED),
         # The follows queued while the node stalled, refused: they do not replace what ended it.
-        _from("robot", "robot_notice", event="refused", action="follow", grasp_id="grasp-1", reason="ended"),
-        _from("robot", "grasp_event", event="end", grasp_id="grasp-1"),
-        _from("estimator", "grasp_event", event="end", grasp_id="grasp-1"),
+        message_from("robot", "robot_notice", event="refused", action="follow", grasp_id="grasp-1", reason="ended"),
+        message_from("robot", "grasp_event", event="end", grasp_id="grasp-1"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="grasp-1"),
     ])
     followed = system.operated_grasp(SPONGE, timeout_s=30.0)
     assert followed.grasp_id == "grasp-1" and followed.ended_by is not None
@@ -89,10 +74,10 @@ def test_following_a_grasp_keeps_the_notice_that_ended_it_and_no_other(tmp_path:
 
 def test_a_grasp_that_ran_its_course_has_no_ended_by(tmp_path: Path):
     system = _replaying(tmp_path, "grasp-2", [
-        _from("robot", "grasp_event", event="start", grasp_id="grasp-2", object_name="sponge"),
-        _from("robot", "robot_notice", event="force_limit", action="follow", grasp_id="grasp-2", reason="max force"),
-        _from("robot", "grasp_event", event="end", grasp_id="grasp-2"),
-        _from("estimator", "grasp_event", event="end", grasp_id="grasp-2"),
+        message_from("robot", "grasp_event", event="start", grasp_id="grasp-2", object_name="sponge"),
+        message_from("robot", "robot_notice", event="force_limit", action="follow", grasp_id="grasp-2", reason="max force"),
+        message_from("robot", "grasp_event", event="end", grasp_id="grasp-2"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="grasp-2"),
     ])
     assert system.operated_grasp(SPONGE, timeout_s=30.0).ended_by is None
 
@@ -101,14 +86,14 @@ def test_a_message_of_another_grasp_mid_grasp_does_not_stop_the_bus_being_read(t
     # Set aside for a later grasp, a message came straight back before anything on the bus: the
     # grasp's own end was never read, and the demo waited out its timeout.
     system = _replaying(tmp_path, "grasp-1", [
-        _from("robot", "grasp_event", event="start", grasp_id="grasp-1", object_name="sponge"),
+        message_from("robot", "grasp_event", event="start", grasp_id="grasp-1", object_name="sponge"),
         # a stale follow of a grasp that never went live, refused; then the next grasp starts early
-        _from("robot", "robot_notice", event="refused", action="follow", grasp_id="grasp-0", reason="ended"),
-        _from("robot", "grasp_event", event="end", grasp_id="grasp-1"),
-        _from("robot", "grasp_event", event="start", grasp_id="grasp-2", object_name="sponge"),
-        _from("estimator", "grasp_event", event="end", grasp_id="grasp-1"),
-        _from("robot", "grasp_event", event="end", grasp_id="grasp-2"),
-        _from("estimator", "grasp_event", event="end", grasp_id="grasp-2"),
+        message_from("robot", "robot_notice", event="refused", action="follow", grasp_id="grasp-0", reason="ended"),
+        message_from("robot", "grasp_event", event="end", grasp_id="grasp-1"),
+        message_from("robot", "grasp_event", event="start", grasp_id="grasp-2", object_name="sponge"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="grasp-1"),
+        message_from("robot", "grasp_event", event="end", grasp_id="grasp-2"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="grasp-2"),
     ])
     (tmp_path / "estimator.jsonl").write_text("".join(f'{{"grasp_id": "grasp-{n}"}}\n' for n in (1, 2)))
     assert system.operated_grasp(SPONGE, timeout_s=2.0).grasp_id == "grasp-1"
@@ -118,16 +103,16 @@ def test_a_message_of_another_grasp_mid_grasp_does_not_stop_the_bus_being_read(t
 def test_what_the_operator_did_ahead_waits_for_its_grasps_and_keeps_what_cut_them(tmp_path: Path):
     # The estimator's end of grasp-1 comes last: grasp-2 and grasp-3 ran meanwhile, grasp-2 cut short.
     system = _replaying(tmp_path, "grasp-1", [
-        _from("robot", "grasp_event", event="start", grasp_id="grasp-1", object_name="sponge"),
-        _from("robot", "grasp_event", event="end", grasp_id="grasp-1"),
-        _from("robot", "grasp_event", event="start", grasp_id="grasp-2", object_name="sponge"),
-        _from("robot", "robot_notice", event="watchdog", action="follow", grasp_id="grasp-2", reason=STALLED),
-        _from("robot", "grasp_event", event="end", grasp_id="grasp-2"),
-        _from("estimator", "grasp_event", event="end", grasp_id="grasp-2"),
-        _from("robot", "grasp_event", event="start", grasp_id="grasp-3", object_name="sponge"),
-        _from("robot", "grasp_event", event="end", grasp_id="grasp-3"),
-        _from("estimator", "grasp_event", event="end", grasp_id="grasp-3"),
-        _from("estimator", "grasp_event", event="end", grasp_id="grasp-1"),
+        message_from("robot", "grasp_event", event="start", grasp_id="grasp-1", object_name="sponge"),
+        message_from("robot", "grasp_event", event="end", grasp_id="grasp-1"),
+        message_from("robot", "grasp_event", event="start", grasp_id="grasp-2", object_name="sponge"),
+        message_from("robot", "robot_notice", event="watchdog", action="follow", grasp_id="grasp-2", reason=STALLED),
+        message_from("robot", "grasp_event", event="end", grasp_id="grasp-2"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="grasp-2"),
+        message_from("robot", "grasp_event", event="start", grasp_id="grasp-3", object_name="sponge"),
+        message_from("robot", "grasp_event", event="end", grasp_id="grasp-3"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="grasp-3"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="grasp-1"),
     ])
     (tmp_path / "estimator.jsonl").write_text("".join(f'{{"grasp_id": "grasp-{n}"}}\n' for n in (1, 2, 3)))
     followed = [system.operated_grasp(SPONGE, timeout_s=2.0) for _ in range(3)]

@@ -12,8 +12,8 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
+from support.bus import ReplayedEvents, message_from
 
-from teleop.bus.wire import make_message
 from teleop.catalogue import ObjectSpec
 from teleop.errors import TeleopError
 from teleop.node import COMMAND_TOPICS
@@ -224,19 +224,7 @@ def test_a_recorder_stopped_with_an_empty_log_still_lets_the_session_go_on(tmp_p
     assert system.recording_stopped == "no reason in its log"
 
 
-def _from(source: str, kind: str, **body) -> object:
-    return dataclasses.replace(make_message(kind, t_capture_s=1.0, **body), source=source)
-
-
-class _Events:
-    def __init__(self, messages: list):
-        self.messages = messages
-
-    def recv(self, timeout_s: float):
-        return self.messages.pop(0) if self.messages else None
-
-
-class _Waiting(_Events):
+class _Waiting(ReplayedEvents):
     """Replaying ``messages``, then silent for each call's timeout; read on for long past any deadline: a hang."""
 
     def __init__(self, messages: list):
@@ -262,7 +250,7 @@ class _Sent:
 
 
 def _estimate(grasp_id: str, *, provisional: bool) -> object:
-    return _from("estimator", "estimate", grasp_id=grasp_id, method="analytical", E_pa=3e4, interval_pa=[2e4, 4e4],
+    return message_from("estimator", "estimate", grasp_id=grasp_id, method="analytical", E_pa=3e4, interval_pa=[2e4, 4e4],
                  state="ok", reason="", provisional=provisional, latency_s=0.01)
 
 
@@ -271,15 +259,15 @@ def test_a_commanded_grasp_counts_its_estimates_keeps_the_final_and_sees_every_m
     (tmp_path / "estimator.jsonl").write_text('{"grasp_id": "g1"}\n')
     (tmp_path / "renderer.jsonl").write_text('{"grasp_id": "g1"}\n')
     system.commands = _Sent()
-    system.events = _Events([
-        _from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
-        _from("estimator", "model_event", event="loaded", model="m1", reason=""),
+    system.events = ReplayedEvents([
+        message_from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
+        message_from("estimator", "model_event", event="loaded", model="m1", reason=""),
         _estimate("g1", provisional=True),
-        _from("robot", "grasp_event", event="loading_end", grasp_id="g1"),
+        message_from("robot", "grasp_event", event="loading_end", grasp_id="g1"),
         _estimate("g1", provisional=False),
         _estimate("g1", provisional=True),
-        _from("estimator", "grasp_event", event="end", grasp_id="g1"),
-        _from("robot", "grasp_event", event="end", grasp_id="g1"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="g1"),
+        message_from("robot", "grasp_event", event="end", grasp_id="g1"),
     ])
     seen, updates = [], []
     outcome = system.grasp("g1", 2, SPONGE, on_message=seen.append, timeout_s=5.0,
@@ -302,9 +290,9 @@ def test_a_loading_end_does_not_end_the_grasp(tmp_path):
     system = _system(tmp_path)
     system.commands = _Sent()
     system.events = _Waiting([
-        _from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
-        _from("robot", "grasp_event", event="loading_end", grasp_id="g1"),
-        _from("estimator", "grasp_event", event="loading_end", grasp_id="g1"),
+        message_from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
+        message_from("robot", "grasp_event", event="loading_end", grasp_id="g1"),
+        message_from("estimator", "grasp_event", event="loading_end", grasp_id="g1"),
     ])
     with pytest.raises(TeleopError, match=r"grasp g1 \(sponge\) did not end within 0.3 s"):
         system.grasp("g1", 0, SPONGE, timeout_s=0.3)
@@ -313,9 +301,9 @@ def test_a_loading_end_does_not_end_the_grasp(tmp_path):
 def test_only_the_robot_ends_its_side_of_the_grasp(tmp_path):
     system = _system(tmp_path)
     system.commands = _Sent()
-    system.events = _Events([
-        _from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
-        _from("estimator", "grasp_event", event="end", grasp_id="g1"),
+    system.events = ReplayedEvents([
+        message_from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="g1"),
     ])
     with pytest.raises(TeleopError, match="did not end within"):
         system.grasp("g1", 0, SPONGE, timeout_s=0.3)
@@ -324,7 +312,7 @@ def test_only_the_robot_ends_its_side_of_the_grasp(tmp_path):
 def test_the_node_grasping_another_object_is_refused_naming_both(tmp_path):
     system = _system(tmp_path)
     system.commands = _Sent()
-    system.events = _Events([_from("robot", "grasp_event", event="start", grasp_id="g1", object_name="duck")])
+    system.events = ReplayedEvents([message_from("robot", "grasp_event", event="start", grasp_id="g1", object_name="duck")])
     with pytest.raises(TeleopError, match="grasp g1: the node grasped duck, not sponge"):
         system.grasp("g1", 0, SPONGE, timeout_s=5.0)
 
@@ -334,7 +322,7 @@ def test_a_child_that_dies_mid_grasp_is_reported_not_waited_out(tmp_path):
     system = _with_children(tmp_path, journal, node=_Process("node", journal, code=-9))
     (tmp_path / "node.log").write_text("killed\n")
     system.commands = _Sent()
-    system.events = _Events([])
+    system.events = ReplayedEvents([])
     with pytest.raises(TeleopError, match="node exited with status -9"):
         system.grasp("g1", 0, SPONGE, timeout_s=5.0)
 
@@ -343,12 +331,12 @@ def test_an_operated_grasp_is_the_robots_start_not_the_estimators_nor_one_alread
     system = _system(tmp_path)
     (tmp_path / "estimator.jsonl").write_text('{"grasp_id": "g2"}\n')
     system._followed.add("g1")
-    system.events = _Events([
-        _from("estimator", "grasp_event", event="start", grasp_id="g0", object_name="sponge"),
-        _from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
-        _from("robot", "grasp_event", event="start", grasp_id="g2", object_name="sponge"),
-        _from("robot", "grasp_event", event="end", grasp_id="g2"),
-        _from("estimator", "grasp_event", event="end", grasp_id="g2"),
+    system.events = ReplayedEvents([
+        message_from("estimator", "grasp_event", event="start", grasp_id="g0", object_name="sponge"),
+        message_from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
+        message_from("robot", "grasp_event", event="start", grasp_id="g2", object_name="sponge"),
+        message_from("robot", "grasp_event", event="end", grasp_id="g2"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="g2"),
     ])
     outcome = system.operated_grasp(SPONGE, timeout_s=5.0)
     assert outcome.grasp_id == "g2" and outcome.style == "operator"
@@ -459,11 +447,11 @@ def test_the_renderers_report_is_waited_for_only_for_a_grasp_with_a_final_estima
     system = _system(tmp_path)
     system.commands = _Sent()
     system.estimator_reports, system.renderer_reports = _Reports({"e": 1}), _Reports(None)
-    system.events = _Events([
-        _from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
+    system.events = ReplayedEvents([
+        message_from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
         *([_estimate("g1", provisional=False)] if final else []),
-        _from("estimator", "grasp_event", event="end", grasp_id="g1"),
-        _from("robot", "grasp_event", event="end", grasp_id="g1"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="g1"),
+        message_from("robot", "grasp_event", event="end", grasp_id="g1"),
     ])
     outcome = system.grasp("g1", 0, SPONGE, timeout_s=5.0)
     assert system.estimator_reports.timeouts == [REPORT_TIMEOUT_S]
@@ -546,15 +534,15 @@ def test_what_an_earlier_grasp_set_aside_is_taken_in_the_order_it_came(tmp_path)
     # The operator's second grasp ran its whole course while the first was followed.
     system = _system(tmp_path)
     (tmp_path / "estimator.jsonl").write_text("".join(f'{{"grasp_id": "g{n}"}}\n' for n in (1, 2)))
-    system.events = _Events([
-        _from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
-        _from("robot", "grasp_event", event="end", grasp_id="g1"),
-        _from("robot", "grasp_event", event="start", grasp_id="g2", object_name="sponge"),
+    system.events = ReplayedEvents([
+        message_from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
+        message_from("robot", "grasp_event", event="end", grasp_id="g1"),
+        message_from("robot", "grasp_event", event="start", grasp_id="g2", object_name="sponge"),
         _estimate("g2", provisional=True),
         _estimate("g2", provisional=False),
-        _from("robot", "grasp_event", event="end", grasp_id="g2"),
-        _from("estimator", "grasp_event", event="end", grasp_id="g2"),
-        _from("estimator", "grasp_event", event="end", grasp_id="g1"),
+        message_from("robot", "grasp_event", event="end", grasp_id="g2"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="g2"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="g1"),
     ])
     assert system.operated_grasp(SPONGE, timeout_s=2.0).grasp_id == "g1"
     second = system.operated_grasp(SPONGE, timeout_s=2.0)
@@ -568,16 +556,16 @@ def test_a_grasp_that_started_before_the_last_one_ended_keeps_its_end_once_set_a
     # start, drops them and waits out its timeout.
     system = _system(tmp_path)
     (tmp_path / "estimator.jsonl").write_text("".join(f'{{"grasp_id": "g{n}"}}\n' for n in (1, 2, 3)))
-    system.events = _Events([
-        _from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
-        _from("robot", "grasp_event", event="end", grasp_id="g1"),
-        _from("robot", "grasp_event", event="start", grasp_id="g2", object_name="sponge"),
-        _from("robot", "grasp_event", event="end", grasp_id="g2"),
-        _from("robot", "grasp_event", event="start", grasp_id="g3", object_name="sponge"),
-        _from("estimator", "grasp_event", event="end", grasp_id="g2"),
-        _from("robot", "grasp_event", event="end", grasp_id="g3"),
-        _from("estimator", "grasp_event", event="end", grasp_id="g3"),
-        _from("estimator", "grasp_event", event="end", grasp_id="g1"),
+    system.events = ReplayedEvents([
+        message_from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
+        message_from("robot", "grasp_event", event="end", grasp_id="g1"),
+        message_from("robot", "grasp_event", event="start", grasp_id="g2", object_name="sponge"),
+        message_from("robot", "grasp_event", event="end", grasp_id="g2"),
+        message_from("robot", "grasp_event", event="start", grasp_id="g3", object_name="sponge"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="g2"),
+        message_from("robot", "grasp_event", event="end", grasp_id="g3"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="g3"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="g1"),
     ])
     followed = [system.operated_grasp(SPONGE, timeout_s=2.0) for _ in range(3)]
     assert [o.grasp_id for o in followed] == ["g1", "g2", "g3"]
@@ -590,13 +578,13 @@ def test_only_what_belongs_to_a_grasp_yet_to_come_is_set_aside(tmp_path):
     system = _system(tmp_path)
     (tmp_path / "estimator.jsonl").write_text('{"grasp_id": "g1"}\n')
     system._followed.add("g0")
-    system.events = _Events([
-        _from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
-        _from("estimator", "grasp_event", event="end", grasp_id="g0"),
-        _from("robot", "robot_notice", event="refused", action="follow", grasp_id="g2", reason="ended"),
-        _from("robot", "robot_notice", event="watchdog", action="follow", grasp_id="g3", reason="stalled"),
-        _from("robot", "grasp_event", event="end", grasp_id="g1"),
-        _from("estimator", "grasp_event", event="end", grasp_id="g1"),
+    system.events = ReplayedEvents([
+        message_from("robot", "grasp_event", event="start", grasp_id="g1", object_name="sponge"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="g0"),
+        message_from("robot", "robot_notice", event="refused", action="follow", grasp_id="g2", reason="ended"),
+        message_from("robot", "robot_notice", event="watchdog", action="follow", grasp_id="g3", reason="stalled"),
+        message_from("robot", "grasp_event", event="end", grasp_id="g1"),
+        message_from("estimator", "grasp_event", event="end", grasp_id="g1"),
     ])
     assert system.operated_grasp(SPONGE, timeout_s=2.0).grasp_id == "g1"
     assert [(m.type, m.fields.grasp_id) for m in system._later] == [("robot_notice", "g3")]
