@@ -12,7 +12,8 @@ TRAIN_MODULES = frozenset({
     "estimator/training/test_export.py", "estimator/training/test_finetune.py",
     "estimator/training/test_finetune_lineage.py", "estimator/training/test_model.py",
     "estimator/training/test_model_out.py", "estimator/training/test_model_write_errors.py",
-    "estimator/training/test_pool.py", "estimator/training/test_train.py",
+    "estimator/training/test_pool.py", "estimator/training/test_pool_audit.py",
+    "estimator/training/test_train.py",
 })
 
 # A fresh interpreter where `import torch` finds nothing. (Not sys.modules["torch"] = None: libraries
