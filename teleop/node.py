@@ -225,9 +225,14 @@ class RobotNode(ServiceLoop):
     # ------------------------------------------------------------------ loop
 
     def finish(self) -> None:
-        """A grasp under way when the loop stops ends here; the stats take the frames the cameras dropped."""
+        """A grasp under way when the loop stops ends here, its fingers stopped; the stats take the
+        frames the cameras dropped."""
         if self._grasp is not None and math.isfinite(self._grasp.started_s):
             log.warning("stopping during grasp %s: it ends here", self._grasp.grasp_id)
+            try:  # a grasp that holds stops pressing: nobody is left to release it
+                self.gripper.stop()
+            except DeviceError as exc:
+                log.error("stopping during grasp %s: the fingers could not be stopped: %s", self._grasp.grasp_id, exc)
             self._end()
         self.stats.frames_dropped = sum(camera.dropped for camera in self.cameras)
 

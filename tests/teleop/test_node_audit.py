@@ -90,6 +90,29 @@ def test_stopping_mid_grasp_publishes_what_was_captured_then_its_end(rig):
     assert (node.stats.force_batches, node.stats.frames) == (1, 1)
 
 
+def test_stopping_mid_grasp_stops_the_fingers_before_its_end_goes_out(rig, monkeypatch):
+    node, publisher, _ = rig
+    _started(node)
+    stops = []
+    monkeypatch.setattr(node.gripper, "stop", lambda: stops.append(_events(publisher)) or True)
+    node.finish()
+    assert stops == [["start"]] and _events(publisher) == ["start", "end"]
+
+
+def test_fingers_that_cannot_be_stopped_still_let_the_grasp_end_on_the_bus(rig, caplog):
+    node, publisher, _ = rig
+    _started(node)
+    node.finish()  # the node is not connected: its gripper refuses the stop
+    assert _events(publisher) == ["start", "end"] and not node.busy
+    assert "the fingers could not be stopped" in caplog.text
+
+
+def test_stopping_between_grasps_leaves_the_fingers_alone(rig, monkeypatch):
+    node, _, _ = rig
+    monkeypatch.setattr(node.gripper, "stop", lambda: pytest.fail("stopped fingers no grasp moved"))
+    node.finish()
+
+
 class _LetGo:
     """A live object the fingers no longer press."""
 
