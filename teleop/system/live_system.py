@@ -54,6 +54,7 @@ from teleop.bus.messages import ModelEventBody
 from teleop.bus.pubsub import Publisher, Subscriber
 from teleop.bus.wire import Message
 from teleop.catalogue import ObjectSpec
+from teleop.devices.base import check_timeout
 from teleop.errors import TeleopError
 from teleop.live import ENDPOINTS, sigint_ignored
 from teleop.node import COMMAND_TOPICS as NODE_COMMAND_TOPICS
@@ -389,11 +390,14 @@ class LiveSystem:
         ------
         TeleopError
             A child exits, or the grasp does not end within ``timeout_s``.
+        InvalidCommandError
+            ``timeout_s`` is not None or a finite number of seconds > 0; no grasp was commanded.
         """
+        timeout_s = self.grasp_timeout_s if timeout_s is None else check_timeout(timeout_s)
         self.commands.send("command", t_capture_s=time.monotonic(), action="start_grasp", grasp_id=grasp_id,
                            params={"object_index": float(object_index)})
         return self._follow(GraspOutcome(grasp_id, obj, display_range=self.display_range), on_update=on_update,
-                            on_message=on_message, timeout_s=timeout_s or self.grasp_timeout_s)
+                            on_message=on_message, timeout_s=timeout_s)
 
     def operated_grasp(self, obj: ObjectSpec, *, on_update: Callable[[GraspOutcome], None] | None = None,
                        on_message: Callable[[Message], None] | None = None,
@@ -401,9 +405,9 @@ class LiveSystem:
         """Follow the next grasp an operator makes (:mod:`teleop.system.seat`) to the reports: the first
         grasp the robot starts after those already followed; ``obj`` is the object it should grasp.
         Arguments and errors as :meth:`grasp`."""
+        timeout_s = self.grasp_timeout_s if timeout_s is None else check_timeout(timeout_s)
         outcome = GraspOutcome(None, obj, style="operator", display_range=self.display_range)
-        return self._follow(outcome, on_update=on_update, on_message=on_message,
-                            timeout_s=timeout_s or self.grasp_timeout_s)
+        return self._follow(outcome, on_update=on_update, on_message=on_message, timeout_s=timeout_s)
 
     def load_model(self, path: str | Path, *, timeout_s: float = 30.0) -> ModelEventBody:
         """Switch the running estimator to the model in ``path``, as ``estimator reload`` does; the body

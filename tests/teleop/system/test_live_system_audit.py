@@ -343,15 +343,20 @@ def test_an_operated_grasp_is_the_robots_start_not_the_estimators_nor_one_alread
     assert system._later == []  # neither the estimator's g0 nor g1 (followed) kept for later
 
 
-def test_a_grasps_timeout_defaults_to_the_settings(tmp_path, monkeypatch):
+@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), True])
+def test_a_grasps_timeout_defaults_to_the_settings_and_a_bad_one_commands_nothing(tmp_path, monkeypatch, bad):
     system = _system(tmp_path)
     system.commands = _Sent()
     system.grasp_timeout_s = 123.0
     given: list[float] = []
     monkeypatch.setattr(system, "_follow", lambda outcome, **kw: given.append(kw["timeout_s"]))
     system.grasp("g1", 0, SPONGE)
-    system.operated_grasp(SPONGE)
-    assert given == [123.0, 123.0]
+    system.operated_grasp(SPONGE, timeout_s=7)
+    assert given == [123.0, 7.0] and len(system.commands.sent) == 1
+    for grasp in (lambda: system.grasp("g2", 0, SPONGE, timeout_s=bad), lambda: system.operated_grasp(SPONGE, timeout_s=bad)):
+        with pytest.raises(ValueError, match="timeout_s"):
+            grasp()
+    assert len(system.commands.sent) == 1 and len(given) == 2
 
 
 def test_the_children_are_spawned_in_their_own_session_to_die_with_this_process(tmp_path, monkeypatch):
