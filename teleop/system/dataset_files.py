@@ -392,9 +392,10 @@ def check_widths(path: str | os.PathLike[str], width_m: np.ndarray, max_width_m:
 
 
 def layout_index(folder: Path, key: str) -> int:
-    match = re.fullmatch(rf"{key}=(\d+)", folder.name)
+    # No leading zero: grasp=01 beside grasp=1 would be two records of one grasp index.
+    match = re.fullmatch(rf"{key}=(0|[1-9]\d*)", folder.name)
     if match is None:
-        raise DatasetError(f"{folder}: expected a folder named {key}=<integer>")
+        raise DatasetError(f"{folder}: expected a folder named {key}=<integer> (no leading zero)")
     return int(match.group(1))
 
 

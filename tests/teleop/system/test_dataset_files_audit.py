@@ -244,8 +244,8 @@ def test_widths_just_past_the_slack_are_refused_and_at_it_kept():
 
 
 def test_layout_folders_are_named_key_equals_integer_in_full(tmp_path):
-    assert layout_index(tmp_path / "grasp=12", "grasp") == 12
-    for name in ("grasp=12b", "grasp=", "xgrasp=1", "grasp=-1"):
+    assert layout_index(tmp_path / "grasp=12", "grasp") == 12 and layout_index(tmp_path / "grasp=0", "grasp") == 0
+    for name in ("grasp=12b", "grasp=", "xgrasp=1", "grasp=-1", "grasp=01", "grasp=00"):
         with pytest.raises(DatasetError, match="expected a folder named grasp=<integer>"):
             layout_index(tmp_path / name, "grasp")
 
