@@ -48,6 +48,32 @@ def test_a_record_whose_measurement_fails_at_a_later_shift_leaves_no_sample_behi
     assert sum(manifest["samples"].values()) == len(listed) >= 1
 
 
+def test_a_record_whose_sample_is_not_finite_is_skipped_and_the_build_goes_on(sim_grasps, tmp_path, monkeypatch):
+    import dataclasses
+
+    import estimator.training.dataset as dataset
+
+    records, calibration = sim_grasps
+    sources = sorted(records.glob("*.grasp"))[:2]
+    real = dataset.sample_grasp
+
+    def corrupt(record, **kwargs):  # the second record's depth comes out NaN
+        sampled = real(record, **kwargs)
+        if record.label.object_name != corrupt.name:
+            return sampled
+        return dataclasses.replace(sampled, depth_m=np.full_like(sampled.depth_m, np.nan))
+
+    from teleop.record import read_record
+    corrupt.name = read_record(sources[1]).label.object_name
+    monkeypatch.setattr(dataset, "sample_grasp", corrupt)
+    out = tmp_path / "ds"
+    manifest = build_dataset(sources, out, settings=load_settings(), progress=False,
+                             options=DatasetOptions(shifts=1, size_px=(32, 44), calibration=str(calibration)))
+    [skipped] = manifest["skipped"]
+    assert (skipped["path"], skipped["cause"]) == (str(sources[1]), "measurement failed") and "depth_m" in skipped["reason"]
+    assert [u["path"] for u in manifest["used"]] == [str(sources[0])] and _on_disk(out) == manifest["used"][0]["samples"]
+
+
 @pytest.fixture(scope="module")
 def built(sim_grasps, tmp_path_factory):
     """A dataset of the simulated records plus a second, differently labelled grasp of one object, built with
