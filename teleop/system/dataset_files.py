@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import codecs
 import io
+import math
 import os
 import pickle
 import re
@@ -109,18 +110,45 @@ def _check_build(inst: Any, state: Any) -> None:
     numpy's ``ndarray.__setstate__`` fills an object array from a list without checking its
     length (a short list crashes the process), and ``dtype.__setstate__`` takes its flags from
     the pickle (flags that mark a plain dtype as holding objects lead there too), so neither may
-    see an object dtype or object flags; numpy itself pickles no other BUILD.
+    see an object dtype or object flags; numpy itself pickles no other BUILD. Nor does it check
+    a structured or subarray dtype's layout against its item size (:func:`_check_layout`).
     """
     if isinstance(inst, np.dtype):
         flags = state[7] if isinstance(state, tuple) and len(state) >= 8 else 0
         if not isinstance(flags, int) or flags & ~_PLAIN_DTYPE_FLAGS:
             raise _Refused(f"a dtype state with object flags {flags!r} (object arrays are not admitted)")
+        _check_layout(state)
     elif type(inst) is np.ndarray:
         dtype = state[-3] if isinstance(state, tuple) and len(state) in (4, 5) else None
         if isinstance(dtype, np.dtype) and (dtype.hasobject or dtype.flags & ~_PLAIN_DTYPE_FLAGS):
             raise _Refused(f"an object array (dtype {dtype}, flags {dtype.flags})")
     else:
         raise _Refused(f"the state of a {type(inst).__name__} (only numpy arrays and dtypes take one)")
+
+
+def _check_layout(state: tuple) -> None:
+    """Refuse a dtype state whose fields or subarray do not lie within its items: numpy reads a field
+    at the offset the state gives (a list of arrays of a dtype whose field lies far outside its
+    items crashes ``np.asarray``)."""
+    subarray, names, fields, item_bytes = state[2:6]
+    if subarray is None and names is None and fields is None:
+        return
+    if not (isinstance(item_bytes, int) and item_bytes >= 0):
+        raise _Refused(f"a dtype state with fields or a subarray and an item size of {item_bytes!r}")
+    if subarray is not None:
+        base, shape = subarray if isinstance(subarray, tuple) and len(subarray) == 2 else (None, None)
+        if not (isinstance(base, np.dtype) and isinstance(shape, tuple)
+                and all(isinstance(n, int) and n >= 0 for n in shape)
+                and base.itemsize * math.prod(shape) == item_bytes):
+            raise _Refused(f"a subarray dtype state {subarray!r} that does not fill its {item_bytes}-byte items")
+    if names is not None or fields is not None:
+        if not (isinstance(names, tuple) and isinstance(fields, dict) and set(names) <= set(fields)):
+            raise _Refused("a structured dtype state whose field names and fields do not match")
+        for name, spec in fields.items():
+            dtype, offset = spec[:2] if isinstance(spec, tuple) and len(spec) in (2, 3) else (None, None)
+            if not (isinstance(dtype, np.dtype) and isinstance(offset, int)
+                    and 0 <= offset <= item_bytes - dtype.itemsize):
+                raise _Refused(f"a structured dtype state whose field {name!r} lies outside its {item_bytes}-byte items")
 
 
 class _ArrayUnpickler(pickle._Unpickler):  # noqa: SLF001 -- the Python one, whose BUILD can be checked

@@ -85,6 +85,36 @@ def test_an_object_array_is_refused_before_numpy_fills_it(tmp_path, build, refus
     assert done.stdout.startswith(f"UnsafePickleError {path}: refused") and refused in done.stdout, done.stdout
 
 
+def test_a_structured_dtype_whose_field_lies_outside_its_items_is_refused(tmp_path):
+    # Its state sets a field offset numpy never checks: np.asarray of a list of such arrays crashes.
+    state = list(np.dtype([("a", "<f8")]).__reduce__()[2])
+    state[4] = {"a": (np.dtype("<f8"), 1 << 28)}
+    poisoned = np.dtype("V8")
+    poisoned.__setstate__(tuple(state))
+    path = tmp_path / "forces.pkl"
+    path.write_bytes(pickle.dumps([np.zeros(1000, "V8").view(poisoned)] * 2, protocol=2))
+    done = subprocess.run([sys.executable, "-c", _CHILD_LOAD, str(path)], capture_output=True, text=True,
+                          timeout=60, cwd=Path(__file__).resolve().parents[3], env={**os.environ})
+    refusal = f"UnsafePickleError {path}: refused a structured dtype state whose field 'a' lies outside its 8-byte items"
+    assert done.stdout.startswith(refusal), done.stdout + done.stderr[-2000:]
+
+
+def test_a_subarray_dtype_state_bigger_than_its_items_is_refused():
+    out = b"\x80\x02" + pickle.GLOBAL + b"numpy\ndtype\n" + body(("V24", False, True)) + pickle.REDUCE
+    out += body((3, "|", (np.dtype("<f8"), (1 << 20,)), None, None, 24, 8, 0)) + pickle.BUILD + pickle.STOP
+    with pytest.raises(UnsafePickleError, match="subarray dtype state .* does not fill its 24-byte items"):
+        safe_load_pickle(out, name="dtype.pkl")
+
+
+@pytest.mark.parametrize("value", [np.zeros(2, dtype=[("force", "<f8"), ("frame", "<i4", (3,))]),
+                                   np.zeros(2, dtype=np.dtype({"names": ["a"], "formats": ["<f4"], "offsets": [4],
+                                                               "itemsize": 12})),
+                                   np.zeros(2, dtype=[(("title", "t"), "<f8")])], ids=["nested", "padded", "titled"])
+def test_structured_and_subarray_dtypes_within_their_items_load(value):
+    loaded = safe_load_pickle(pickle.dumps(value, protocol=2))
+    assert loaded.dtype == value.dtype and np.array_equal(loaded, value)
+
+
 def test_a_dtype_state_with_object_flags_is_refused_alone():
     out = b"\x80\x02" + pickle.GLOBAL + b"numpy\ndtype\n" + body(("V8", False, True)) + pickle.REDUCE
     out += body((3, "|", None, None, None, 8, 1, 1)) + pickle.BUILD + pickle.STOP
