@@ -45,6 +45,7 @@ REFERENCE_FRAMES = 5  # their median is the no-contact frame
 REST_FRAMES = 15  # spread over a tap's recording, their median is the gel at rest
 READ_TIMEOUT_S = 2.0
 POLL_S = 0.005  # a device with nothing queued is asked again after this long
+DRAIN_S = 0.05  # the camera is read at most this long before the load cell is read again
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -85,7 +86,8 @@ def record_tap(camera: TactileCamera, cell: LoadCell, *, duration_s: float) -> t
     t_force: list[np.ndarray] = []
     force: list[np.ndarray] = []
     while time.monotonic() < end:
-        while True:  # drain the camera
+        drain_until = min(end, time.monotonic() + DRAIN_S)
+        while time.monotonic() < drain_until:  # drain the camera; one never empty (fast) yields to the cell
             try:
                 frame = camera.read(timeout_s=POLL_S)
             except DeviceTimeoutError:

@@ -292,6 +292,9 @@ def run(args: argparse.Namespace, *, ask: Callable[[str], str] = input) -> int:
     cell = connect_counts_cell(settings.load_cell)
     try:
         tare, levels = _measure(cell, args, ask)
+    except EOFError as exc:  # Ctrl-D at a prompt
+        raise SettingsError("the input ended at a prompt (Ctrl-D): nothing was written; press Enter to go on, "
+                            "or Enter alone after the last mass") from exc
     finally:
         cell.close()
     if not levels:
