@@ -98,6 +98,10 @@ def _check_label(label: str) -> str:
     return label
 
 
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is no figure evaluate writes")
+
+
 def load_source(label: str, path: str | Path) -> Source:
     """Read one ``estimator evaluate --json`` output (the JSON object on its last non-empty line) or
     a kept copy of one (the file one JSON object)."""
@@ -105,13 +109,17 @@ def load_source(label: str, path: str | Path) -> Source:
     try:
         text = path.read_text(encoding="utf-8")
         try:
-            result = json.loads(text)
+            result = json.loads(text, parse_constant=_no_constant)
         except ValueError:
-            result = json.loads([line for line in text.splitlines() if line.strip()][-1])
+            result = json.loads([line for line in text.splitlines() if line.strip()][-1], parse_constant=_no_constant)
     except (OSError, IndexError, ValueError) as exc:
         raise EstimatorError(f"{path}: not an estimator evaluate --json output ({exc})") from None
     if not isinstance(result, dict) or not isinstance(result.get("methods"), dict):
         raise EstimatorError(f"{path}: not an estimator evaluate --json output (no 'methods' object)")
+    display = result.get("display_range_pa")
+    if display is not None and not (isinstance(display, list) and len(display) in (0, 2)
+                                    and all(isinstance(v, int | float) for v in display)):
+        raise EstimatorError(f"{path}: display_range_pa: expected [soft, rigid] pascals, got {display!r}")
     return Source(_check_label(label), path, result)
 
 
@@ -144,7 +152,18 @@ def table_rows(sources: Sequence[Source], methods: Sequence[str] | None = None) 
             raise EstimatorError(f"{source.path}: none of the methods {', '.join(methods or [])} "
                                  f"(it has {', '.join(entries)})")
         for name in names:
-            rows.append((source.label, method_name(name, entries[name]), [cell(entries[name]) for _, cell in COLUMNS]))
+            entry = entries[name]
+            if not isinstance(entry, Mapping):
+                raise EstimatorError(f"{source.path}: method {name!r}: expected an object of figures, "
+                                     f"got {type(entry).__name__}")
+            cells = []
+            for heading, cell in COLUMNS:
+                try:
+                    cells.append(cell(entry))
+                except (TypeError, ValueError) as exc:
+                    raise EstimatorError(f"{source.path}: method {name!r}, column {heading!r}: expected a number "
+                                         f"or null ({exc})") from None
+            rows.append((source.label, method_name(name, entry), cells))
     return rows
 
 

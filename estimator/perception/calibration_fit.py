@@ -274,7 +274,7 @@ def fit_calibration(
         Relative colour change covered by the bins.
     inside_fraction, outside_fraction : float
         Label pixels within ``inside_fraction * a`` with the sphere's gradient
-        and beyond ``outside_fraction * a`` as flat.
+        and beyond ``outside_fraction * a`` as flat; ``inside_fraction`` is at most 1.
     flat_fraction : float
         In (0, 1): pixels are labelled flat only beyond the ring where the
         press's mean colour change has fallen to this share of its peak
@@ -329,15 +329,21 @@ def fit_calibration(
         isinstance(flat_weight, int | float) and math.isfinite(flat_weight) and flat_weight > 0
     ):
         raise CalibrationError(f"flat_weight: expected a positive number or None, got {flat_weight!r}")
+    if inside_fraction > 1.0:
+        raise CalibrationError(f"inside_fraction: expected at most 1 (the contact circle's edge; beyond it the gel does "
+                               f"not follow the ball), got {inside_fraction!r}")
     if not outside_fraction > inside_fraction:
         raise CalibrationError(
             f"outside_fraction = {outside_fraction!r}: expected more than inside_fraction = {inside_fraction!r}"
         )
     ball_px = ball_radius_m / pixel_pitch_m
     press_list, centers, radii = _validate_presses(reference, presses, centers_px, radii_px, ball_px)
+    if not (isinstance(tiles, Sequence) and len(tiles) == 2
+            and all(isinstance(t, int | np.integer) and not isinstance(t, bool) for t in tiles)):
+        raise CalibrationError(f"tiles: expected (rows, cols), two integers, got {tiles!r}")
     tiles = tuple(int(t) for t in tiles)
     shape = reference.shape[:2]
-    if len(tiles) != 2 or min(tiles) < 1 or tiles[0] > shape[0] or tiles[1] > shape[1]:
+    if min(tiles) < 1 or tiles[0] > shape[0] or tiles[1] > shape[1]:
         raise CalibrationError(f"tiles: expected (rows, cols) between 1 and the image size, got {tiles}")
     if not (isinstance(smoothing_px, int | float) and math.isfinite(smoothing_px) and smoothing_px >= 0):
         raise CalibrationError(f"smoothing_px: expected a number of pixels >= 0, got {smoothing_px!r}")
