@@ -439,9 +439,10 @@ def _page_height_px(report: Report, width_px: int) -> int:
 
 def check_screenshot_path(png: str | Path, *, log: str | Path | None = None, out: str | Path | None = None,
                           figures: Sequence[str] = ()) -> Path:
-    """``png`` resolved, once it is fit for a screenshot: not the session ``log``, not a folder, not
-    under a file, not an existing file other than a PNG, and not one of the report's own files in
-    ``out`` (index.html, predictions.png, grasp-*.png, ``figures``).
+    """``png`` resolved, once it is fit for a screenshot: not the session ``log``, not a folder (nor
+    ``out``, the report's folder to be, or one above it), not under a file, not an existing file
+    other than a PNG, and not one of the report's own files in ``out`` (index.html, predictions.png,
+    grasp-*.png, ``figures``).
 
     Raises
     ------
@@ -455,6 +456,8 @@ def check_screenshot_path(png: str | Path, *, log: str | Path | None = None, out
         raise ReportError(f"--screenshot {given}: is the session log being reported; {expected}")
     if png.is_dir():
         raise ReportError(f"--screenshot {given}: is a folder; {expected}")
+    if out is not None and (png == Path(out).resolve() or png in Path(out).resolve().parents):
+        raise ReportError(f"--screenshot {given}: is the report's folder --out {out}, or one above it; {expected}")
     ancestor = png.parent
     while not ancestor.exists():
         ancestor = ancestor.parent
