@@ -433,8 +433,11 @@ def check_endpoints(settings: Settings) -> list[Check]:
 
 
 def _utc_text(t_s: float) -> str:
-    """The POSIX time ``t_s`` as ISO 8601 UTC, to the second."""
-    return datetime.fromtimestamp(t_s, UTC).isoformat(timespec="seconds")
+    """The POSIX time ``t_s`` as ISO 8601 UTC, to the second (past the year 9999: the POSIX seconds)."""
+    try:
+        return datetime.fromtimestamp(t_s, UTC).isoformat(timespec="seconds")
+    except (OverflowError, OSError, ValueError):  # a stamp in the year 10000 in UTC, say
+        return f"POSIX time {t_s:.0f} s"
 
 
 def _age(created_utc: Any, path: Path) -> tuple[dict[str, float], str | None]:
