@@ -138,11 +138,17 @@ def _flip(frames: torch.Tensor, generator: np.random.Generator) -> torch.Tensor:
 def train_epoch(model: ComplianceNet, data: SplitData, optimiser: torch.optim.Optimizer, config: TrainConfig,
                 rng: np.random.Generator) -> float:
     """One pass over ``data`` in shuffled batches (flips and label jitter as the module notes say), in
-    the mode the caller set; returns the mean loss per sample."""
+    the mode the caller set; returns the mean loss per sample trained on (a last batch of one is skipped).
+
+    Raises
+    ------
+    EstimatorError
+        No batch holds 2 samples (``--batch-size`` 1, or fewer than 2 samples), naming ``--batch-size``.
+    """
     names = list(model.variant.input_shapes)
     label = torch.from_numpy(censor(data.label).astype(np.float32))
     order = torch.from_numpy(rng.permutation(len(data)))
-    total = 0.0
+    total, trained = 0.0, 0
     for start in range(0, len(data), config.batch_size):
         index = order[start:start + config.batch_size]
         if index.numel() < 2:  # batch norm needs two samples
@@ -155,7 +161,11 @@ def train_epoch(model: ComplianceNet, data: SplitData, optimiser: torch.optim.Op
         loss.backward()
         optimiser.step()
         total += float(loss.detach()) * index.numel()
-    return total / len(data)
+        trained += index.numel()
+    if not trained:  # nothing would train, and the initial weights would ship as the model
+        raise EstimatorError(f"--batch-size {config.batch_size}: no batch of 2 or more among {len(data)} sample(s) "
+                             "(batch norm needs two a batch): expected a batch size >= 2 and at least 2 samples")
+    return total / trained
 
 
 def predict(model: ComplianceNet, data: SplitData, batch_size: int = 256) -> np.ndarray:

@@ -9,11 +9,13 @@ import sys
 #: not collected without torch (tests/conftest.py); test_check_selection.py keeps the list exact.
 TRAIN_MODULES = frozenset({
     "estimator/inference/test_export_infer.py", "estimator/inference/test_hybrid.py",
-    "estimator/training/test_export.py", "estimator/training/test_finetune.py",
-    "estimator/training/test_finetune_lineage.py", "estimator/training/test_model.py",
-    "estimator/training/test_model_out.py", "estimator/training/test_model_write_errors.py",
-    "estimator/training/test_pool.py", "estimator/training/test_pool_audit.py",
-    "estimator/training/test_train.py",
+    "estimator/training/test_export.py", "estimator/training/test_export_audit.py",
+    "estimator/training/test_finetune.py", "estimator/training/test_finetune_audit.py",
+    "estimator/training/test_finetune_cli_audit.py", "estimator/training/test_finetune_lineage.py",
+    "estimator/training/test_model.py", "estimator/training/test_model_out.py",
+    "estimator/training/test_model_write_errors.py", "estimator/training/test_pool.py",
+    "estimator/training/test_pool_audit.py", "estimator/training/test_train.py",
+    "estimator/training/test_train_audit.py",
 })
 
 # A fresh interpreter where `import torch` finds nothing. (Not sys.modules["torch"] = None: libraries
