@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 from mcap.writer import Writer
 
 from teleop.bus.wire import encode
@@ -28,3 +30,20 @@ def write_log(path, messages):
                                publish_time=log_time, sequence=message.seq % 2**32)
         writer.finish()
     return path
+
+
+def logged(kind: str, t_s: float, **fields) -> SimpleNamespace:
+    """One logged bus message as :class:`~teleop.session.logfile.LogReader` yields it: its type, capture
+    time and fields (``grasp_id`` "g" unless given)."""
+    fields.setdefault("grasp_id", "g")
+    return SimpleNamespace(message=SimpleNamespace(type=kind, t_capture_s=t_s, fields=SimpleNamespace(**fields)))
+
+
+class ListedLog:
+    """A session log reader over ``entries`` (from :func:`logged`), in their order."""
+
+    def __init__(self, entries):
+        self.entries = entries
+
+    def messages(self, types):
+        return [entry for entry in self.entries if entry.message.type in types]

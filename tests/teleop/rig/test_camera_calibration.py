@@ -20,6 +20,7 @@ import tty
 import cv2
 import numpy as np
 import pytest
+from support.cameras import FakeFrame, ListCamera
 
 from teleop.cli import main
 from teleop.devices.hx711_bridge import FakeHx711
@@ -257,26 +258,6 @@ def test_a_duration_that_is_no_finite_time_is_refused_before_the_camera_is_read(
 
 
 # --------------------------------------------------------------------------- the steps, with fake devices
-
-
-class FakeFrame:
-    def __init__(self, t_s, level):
-        self.t_s, self.level = t_s, level
-
-    def image(self):
-        return np.full((4, 6, 3), self.level, np.uint8)
-
-
-class ListCamera:
-    """Delivers ``frames`` in order, then times out."""
-
-    def __init__(self, frames):
-        self.frames = list(frames)
-
-    def read(self, timeout_s=None):
-        if not self.frames:
-            raise DeviceTimeoutError("no frame")
-        return self.frames.pop(0)
 
 
 def test_the_no_contact_frame_leaves_out_the_frames_while_exposure_settles():

@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from support.cameras import FakeFrame, ListCamera
 
 from teleop.errors import DeviceTimeoutError
 from teleop.grasp_data import Samples
@@ -17,26 +18,6 @@ from teleop.rig import camera_calibration
 from teleop.rig.camera_latency import LatencyFit
 from teleop.rig.gel_corners import CornerFit
 from teleop.settings import load_settings
-
-
-class Frame:
-    def __init__(self, t_s, level):
-        self.t_s, self.level = t_s, level
-
-    def image(self):
-        return np.full((2, 3, 3), self.level, np.uint8)
-
-
-class ListCamera:
-    """Delivers ``frames`` in order, then times out."""
-
-    def __init__(self, frames):
-        self.frames = list(frames)
-
-    def read(self, timeout_s=None):
-        if not self.frames:
-            raise DeviceTimeoutError("no frame")
-        return self.frames.pop(0)
 
 
 class ListCell:
@@ -53,7 +34,7 @@ class ListCell:
 
 
 def test_a_flicker_in_one_reference_frame_drops_out_of_the_no_contact_frame():
-    frames = [Frame(0.0, 100)] * 2 + [Frame(0.0, 255)] + [Frame(0.0, 101)] * 2
+    frames = [FakeFrame(0.0, 100)] * 2 + [FakeFrame(0.0, 255)] + [FakeFrame(0.0, 101)] * 2
     frame = camera_calibration.no_contact_frame(ListCamera(frames), settle_frames=0)
     assert (frame == 101).all()
 
@@ -67,7 +48,7 @@ def test_force_samples_queued_before_the_tap_recording_are_dropped():
 def test_frames_and_force_stamped_after_the_recording_ended_are_dropped():
     late = time.monotonic() + 1e6
     cell = ListCell([Samples(np.array([late]), np.array([1.0]))])
-    frames, force = camera_calibration.record_tap(ListCamera([Frame(late, 7)]), cell, duration_s=0.02)
+    frames, force = camera_calibration.record_tap(ListCamera([FakeFrame(late, 7)]), cell, duration_s=0.02)
     assert frames == [] and len(force) == 0
 
 
@@ -180,7 +161,7 @@ def test_a_frame_of_the_declared_height_but_another_width_is_refused(tmp_path):
 
 def test_the_gel_at_rest_is_the_median_of_the_recording_not_its_first_frame(tmp_path, monkeypatch):
     # The tap shows in the first frame: measured against the rest of the recording, it alone changed.
-    frames = [Frame(0.1, 180)] + [Frame(0.1 + 0.01 * i, 100) for i in range(1, 40)]
+    frames = [FakeFrame(0.1, 180)] + [FakeFrame(0.1 + 0.01 * i, 100) for i in range(1, 40)]
     given = {}
 
     def measure(frame_t_s, change, force_t_s, force_n):
@@ -224,7 +205,7 @@ def test_a_camera_that_always_has_a_frame_does_not_keep_the_recording_past_its_e
             self.reads += 1
             if self.reads > 1000:
                 raise AssertionError("the camera was still read long after the recording's end")
-            return Frame(clock.tick(), 100)
+            return FakeFrame(clock.tick(), 100)
 
     class Cell:
         def read(self, timeout_s=None):

@@ -420,26 +420,18 @@ def test_a_noisy_tare_raises_the_step_a_mass_must_make(monkeypatch):
         load_cell_calibration._measure(cell, _args(), ask=lambda _p: "")
 
 
-@pytest.fixture
-def rig(tmp_path):
-    path = tmp_path / "rig.toml"
-    shutil.copy(default_settings_path(), path)
-    update_settings_file(path, {"load_cell.backend": "serial", "load_cell.port": "/dev/ttyUSB9"})
-    return path
-
-
-def test_no_masses_and_no_terminal_is_refused_before_the_cell_is_read(rig, capsys, monkeypatch):
+def test_no_masses_and_no_terminal_is_refused_before_the_cell_is_read(absent_cell_rig, capsys, monkeypatch):
     monkeypatch.setattr("sys.stdin.isatty", lambda: False)
     monkeypatch.setattr(load_cell_calibration, "connect_counts_cell",
                         lambda s: (_ for _ in ()).throw(AssertionError("the load cell was connected to")))
-    assert main(["calibrate", "load-cell", "--settings", str(rig)]) == 2
+    assert main(["calibrate", "load-cell", "--settings", str(absent_cell_rig)]) == 2
     assert "no --mass-g given and no terminal to ask in" in capsys.readouterr().err
 
 
-def test_an_interactive_run_with_no_mass_says_one_is_needed(rig, monkeypatch):
+def test_an_interactive_run_with_no_mass_says_one_is_needed(absent_cell_rig, monkeypatch):
     monkeypatch.setattr("sys.stdin.isatty", lambda: True)
     monkeypatch.setattr(load_cell_calibration, "connect_counts_cell", lambda s: ChunkCell([0.0, 1.0, 2.0]))
-    before = rig.read_bytes()
+    before = absent_cell_rig.read_bytes()
     with pytest.raises(SettingsError, match="no mass was measured"):
-        load_cell_calibration.run(_args(settings=str(rig), mass_g=None), ask=lambda _p: "")
-    assert rig.read_bytes() == before
+        load_cell_calibration.run(_args(settings=str(absent_cell_rig), mass_g=None), ask=lambda _p: "")
+    assert absent_cell_rig.read_bytes() == before

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import shutil
 
 import numpy as np
 import pytest
@@ -20,7 +19,6 @@ from teleop.rig.load_cell_calibration import (
     wait_for_level,
 )
 from teleop.settings import default_settings_path, load_settings
-from teleop.settings_edit import update_settings_file
 
 SLOPE = 4.0e4  # counts per N
 TARE = 1000.0
@@ -211,53 +209,45 @@ def test_an_answer_that_is_no_number_is_asked_again(monkeypatch, capsys):
     assert "not a mass in grams: 'two hundred'" in capsys.readouterr().err
 
 
-@pytest.fixture
-def rig(tmp_path):
-    path = tmp_path / "rig.toml"
-    shutil.copy(default_settings_path(), path)
-    update_settings_file(path, {"load_cell.backend": "serial", "load_cell.port": "/dev/ttyUSB9"})
-    return path
-
-
-def test_the_tare_and_slope_written_are_the_fits(rig, monkeypatch):
+def test_the_tare_and_slope_written_are_the_fits(absent_cell_rig, monkeypatch):
     cell = PlacingCell(monkeypatch, [-51234.4, -51234.4 + 4.1e4 * 0.5 * 9.80665])
     monkeypatch.setattr(load_cell_calibration, "connect_counts_cell", lambda settings: cell)
-    assert load_cell_calibration.run(_args(settings=str(rig), mass_g=[500.0])) == 0
-    settings = load_settings(rig).load_cell
+    assert load_cell_calibration.run(_args(settings=str(absent_cell_rig), mass_g=[500.0])) == 0
+    settings = load_settings(absent_cell_rig).load_cell
     assert settings.tare_counts == -51234 and settings.counts_per_n == pytest.approx(4.1e4, rel=1e-6)
     assert cell.closed
 
 
-def test_the_linearity_limit_given_on_the_command_line_is_the_one_applied(rig, monkeypatch):
+def test_the_linearity_limit_given_on_the_command_line_is_the_one_applied(absent_cell_rig, monkeypatch):
     # 200 g reads 4 % high against 1 kg: the line misses it by 0.7 % of full scale, non-linear at
     # --max-residual-percent 0.5 (though the noise limit is higher).
     force = np.array([0.2, 1.0]) * 9.80665
     cell = PlacingCell(monkeypatch, [0.0, *(4e4 * force * [1.04, 1.0])])
     monkeypatch.setattr(load_cell_calibration, "connect_counts_cell", lambda settings: cell)
-    before = rig.read_bytes()
-    args = _args(settings=str(rig), mass_g=[200.0, 1000.0], max_residual_percent=0.5, max_noise_percent=2.0)
+    before = absent_cell_rig.read_bytes()
+    args = _args(settings=str(absent_cell_rig), mass_g=[200.0, 1000.0], max_residual_percent=0.5, max_noise_percent=2.0)
     assert load_cell_calibration.run(args) == 1
-    assert rig.read_bytes() == before
+    assert absent_cell_rig.read_bytes() == before
 
 
-def test_the_cell_is_closed_when_a_mass_is_never_placed(rig, monkeypatch):
+def test_the_cell_is_closed_when_a_mass_is_never_placed(absent_cell_rig, monkeypatch):
     cell = PlacingCell(monkeypatch, [0.0, 0.0])
     monkeypatch.setattr(load_cell_calibration, "connect_counts_cell", lambda settings: cell)
     with pytest.raises(DeviceTimeoutError):
-        load_cell_calibration.run(_args(settings=str(rig)))
+        load_cell_calibration.run(_args(settings=str(absent_cell_rig)))
     assert cell.closed
 
 
-def test_input_ending_at_a_prompt_is_a_clear_refusal_and_writes_nothing(rig, monkeypatch):
+def test_input_ending_at_a_prompt_is_a_clear_refusal_and_writes_nothing(absent_cell_rig, monkeypatch):
     # Ctrl-D at "Remove everything from the cell" was an EOFError traceback.
     cell = PlacingCell(monkeypatch, [0.0])
     monkeypatch.setattr(load_cell_calibration, "connect_counts_cell", lambda settings: cell)
     monkeypatch.setattr("sys.stdin.isatty", lambda: True)
-    before = rig.read_bytes()
+    before = absent_cell_rig.read_bytes()
 
     def ask(prompt):
         raise EOFError
 
     with pytest.raises(load_cell_calibration.SettingsError, match=r"the input ended .* nothing was written"):
-        load_cell_calibration.run(_args(settings=str(rig), mass_g=None), ask=ask)
-    assert rig.read_bytes() == before and cell.closed
+        load_cell_calibration.run(_args(settings=str(absent_cell_rig), mass_g=None), ask=ask)
+    assert absent_cell_rig.read_bytes() == before and cell.closed

@@ -67,16 +67,10 @@ def test_a_grasps_notes_are_on_its_section():
 # --------------------------------------------------------------------------- build
 
 
-def _small_items(grasp_id: str = "g"):
-    return [(1.0, 0, "grasp_event", {"grasp_id": grasp_id, "event": "start", "object_name": "rubber_duck"}),
-            (1.5, 3, "estimate", {"grasp_id": grasp_id, "method": "auto", "E_pa": 2e6, "interval_pa": [1e6, 4e6],
-                                  "state": "ok", "reason": "test", "provisional": False, "latency_s": 0.0}),
-            (2.0, 5, "grasp_event", {"grasp_id": grasp_id, "event": "end", "object_name": None})]
-
-
-@pytest.fixture(scope="module")
-def small_log(tmp_path_factory) -> Path:
-    return _report_tests._record(tmp_path_factory.mktemp("small") / "small.mcap", _small_items(), load_settings())
+_fixes_spec = importlib.util.spec_from_file_location("_report_fixes", Path(__file__).with_name("test_report_fixes.py"))
+_fixes = importlib.util.module_from_spec(_fixes_spec)
+_fixes_spec.loader.exec_module(_fixes)
+small_log = _fixes.small_log  # one grasp of a rubber duck, estimated at 2e6 Pa, without frames
 
 
 class _Drawing:
@@ -150,7 +144,7 @@ def test_a_figure_that_cannot_be_written_is_a_report_error_and_the_earlier_repor
 
 
 def test_a_log_whose_grasps_never_started_is_refused_with_its_name(tmp_path):
-    items = [item for item in _small_items() if item[2] == "estimate"]
+    items = [item for item in _fixes._small_items() if item[2] == "estimate"]
     log = _report_tests._record(tmp_path / "ghosts.mcap", items, load_settings())
     with pytest.raises(SessionLogError, match=r"ghosts\.mcap: no grasp in the log"):
         build_report(log, tmp_path / "report")

@@ -10,6 +10,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
+from support.session_logs import ListedLog, logged
 
 import teleop.system.report_data as report_data
 from teleop.settings import load_settings
@@ -22,28 +23,15 @@ from teleop.system.report_data import (
 )
 
 
-def _logged(kind: str, t_s: float, **fields) -> SimpleNamespace:
-    fields.setdefault("grasp_id", "g")
-    return SimpleNamespace(message=SimpleNamespace(type=kind, t_capture_s=t_s, fields=SimpleNamespace(**fields)))
-
-
-class _Reader:
-    def __init__(self, logged):
-        self.logged = logged
-
-    def messages(self, types):
-        return [entry for entry in self.logged if entry.message.type in types]
-
-
 def test_a_start_event_without_an_object_name_keeps_the_name_an_earlier_start_gave():
-    reader = _Reader([_logged("grasp_event", 1.0, event="start", object_name="duck"),
-                      _logged("grasp_event", 2.0, event="start", object_name=None)])
+    reader = ListedLog([logged("grasp_event", 1.0, event="start", object_name="duck"),
+                      logged("grasp_event", 2.0, event="start", object_name=None)])
     views, recorded = grasp_messages(reader)
     assert views["g"].object_name == "duck" and recorded is False
 
 
 def test_an_estimates_interval_keeps_its_low_and_high_ends_in_order():
-    reader = _Reader([_logged("estimate", 1.5, E_pa=2e6, interval_pa=[1e6, 4e6], state="ok", reason="",
+    reader = ListedLog([logged("estimate", 1.5, E_pa=2e6, interval_pa=[1e6, 4e6], state="ok", reason="",
                               provisional=False, method="auto")])
     (view,) = grasp_messages(reader)[0].values()
     assert view.estimates[0].interval_pa == (1e6, 4e6)

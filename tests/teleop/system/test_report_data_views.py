@@ -11,6 +11,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from support.session_logs import ListedLog, logged
 
 import teleop.system.report_data as report_data
 from estimator.measurements import REFERENCE_GUARD_S, reference_indices
@@ -30,31 +31,18 @@ from teleop.system.report_data import (
 )
 
 
-def _logged(kind: str, t_s: float, **fields) -> SimpleNamespace:
-    fields.setdefault("grasp_id", "g")
-    return SimpleNamespace(message=SimpleNamespace(type=kind, t_capture_s=t_s, fields=SimpleNamespace(**fields)))
-
-
-class _Reader:
-    def __init__(self, logged):
-        self.logged = logged
-
-    def messages(self, types):
-        return [entry for entry in self.logged if entry.message.type in types]
-
-
 def _display(t_s: float, grasp_id: str | None = "g", **fields) -> SimpleNamespace:
     body = {"phase": "active", "stiffness": 0.25, "E_pa": 1e5, "rigid": False, "unknown": False,
             "provisional": False, **fields}
-    return _logged("display", t_s, grasp_id=grasp_id, **body)
+    return logged("display", t_s, grasp_id=grasp_id, **body)
 
 
 def test_messages_are_read_field_by_field_and_the_idle_display_belongs_to_no_grasp():
-    reader = _Reader([
+    reader = ListedLog([
         _display(0.5, None, phase="idle", stiffness=0.0, E_pa=None),  # between grasps
-        _logged("grasp_event", 1.0, event="start", object_name="duck"),
-        _logged("grasp_event", 1.1, event="loading_end", object_name=None),
-        _logged("estimate", 1.5, E_pa=2e6, interval_pa=[1e6, None], state="lower_bound", reason="why",
+        logged("grasp_event", 1.0, event="start", object_name="duck"),
+        logged("grasp_event", 1.1, event="loading_end", object_name=None),
+        logged("estimate", 1.5, E_pa=2e6, interval_pa=[1e6, None], state="lower_bound", reason="why",
                 provisional=0, method="auto"),
         _display(1.6, stiffness=1.0, E_pa=6.75e6, rigid=1, unknown=0, provisional=0),
         _display(1.7, stiffness=0.0, E_pa=None, rigid=False, unknown=True, provisional=True, phase="fading"),
@@ -66,7 +54,7 @@ def test_messages_are_read_field_by_field_and_the_idle_display_belongs_to_no_gra
     assert view.estimates == [EstimatePoint(1.5, 2e6, (1e6, None), "lower_bound", "why", False, "auto")]
     assert view.display == [DisplayPoint(1.6, "active", 1.0, 6.75e6, True, False, False),
                             DisplayPoint(1.7, "fading", 0.0, None, False, True, True)]
-    only_estimates = _Reader([_logged("estimate", 1.5, E_pa=None, interval_pa=[None, None], state="insufficient_data",
+    only_estimates = ListedLog([logged("estimate", 1.5, E_pa=None, interval_pa=[None, None], state="insufficient_data",
                                       reason="", provisional=True, method="series")])
     assert grasp_messages(only_estimates)[1] is False  # a log from before display messages
 
