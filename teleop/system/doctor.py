@@ -45,6 +45,7 @@ from __future__ import annotations
 import argparse
 import errno
 import json
+import logging
 import math
 import shlex
 import socket
@@ -89,6 +90,7 @@ from teleop.settings import (
 __all__ = ["Check", "check_calibrations", "check_devices", "check_duration", "check_endpoints", "diagnose",
            "shortest_duration_s"]
 
+log = logging.getLogger(__name__)
 RATE_TOLERANCE = 0.8  # a device reading below this fraction of its configured rate is a problem
 MAX_CLOCK_OFFSET_S = 1.0  # readings stamped further than this from the host's clock are on another clock
 READ_SLICE_S = 0.2  # each read waits at most this long, so a silent device is noticed
@@ -297,10 +299,11 @@ def _with_fix(problem: str, fix: str) -> str:
 def _run_probe(probe: _Probe | Check, duration_s: float) -> Check:
     if isinstance(probe, Check):
         return probe
+    # A driver's own error (a library's OSError, say) is this device's problem, not the report's.
     try:
         probe.device.connect()
-    except ComplianceTeleopError as exc:
-        return Check(probe.name, False, problem=_with_fix(f"cannot open: {exc}", probe.fix))
+    except Exception as exc:
+        return Check(probe.name, False, problem=_with_fix(f"cannot open: {_error_text(exc)}", probe.fix))
     stamps: list[float] = []
     lags: list[float] = []
     try:
@@ -310,11 +313,18 @@ def _run_probe(probe: _Probe | Check, duration_s: float) -> Check:
             if got:
                 lags.append(time.monotonic() - got[-1])
                 stamps += got
-    except ComplianceTeleopError as exc:
-        return Check(probe.name, False, problem=_with_fix(f"failed while read: {exc}", probe.fix))
+    except Exception as exc:
+        return Check(probe.name, False, problem=_with_fix(f"failed while read: {_error_text(exc)}", probe.fix))
     finally:
-        probe.device.close()
+        try:
+            probe.device.close()
+        except Exception as exc:
+            log.warning("%s: closing it failed: %s", probe.name, _error_text(exc))
     return _judge(probe, stamps, lags, duration_s)
+
+
+def _error_text(exc: Exception) -> str:  # another library's error with its type: whose it is
+    return str(exc) if isinstance(exc, ComplianceTeleopError) else f"{type(exc).__name__}: {exc}"
 
 
 def shortest_duration_s(settings: Settings) -> tuple[float, str]:

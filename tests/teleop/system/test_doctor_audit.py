@@ -231,6 +231,26 @@ def test_a_device_that_does_not_open_says_what_to_do_once(error, problem):
     assert not check.ok and check.problem == problem
 
 
+class _BrokenClose(_Device):
+    def close(self):
+        raise OSError(5, "Input/output error")
+
+
+def test_a_drivers_own_error_is_that_devices_problem_and_its_close_failing_only_a_log_line(caplog):
+    opening = _run_probe(_Probe("display", _Device(OSError(19, "No such device")), list, 10.0, "the display", "plug it"),
+                         0.05)
+    assert not opening.ok and opening.problem == "cannot open: OSError: [Errno 19] No such device: plug it"
+
+    def read():
+        raise ValueError("report of 3 bytes")
+
+    device = _Device()
+    reading = _run_probe(_Probe("display", device, read, 10.0, "the display", "plug it"), 0.05)
+    assert reading.problem == "failed while read: ValueError: report of 3 bytes: plug it" and device.closed
+    fine = _run_probe(_Probe("gripper", _BrokenClose(), lambda: [time.monotonic()], None, "the gripper", "fix"), 0.05)
+    assert fine.ok and "gripper: closing it failed: OSError: [Errno 5] Input/output error" in caplog.text
+
+
 # --------------------------------------------------------------------------- the bus
 
 
