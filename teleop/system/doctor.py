@@ -168,8 +168,8 @@ def _display_probe(settings: Settings, fix: str) -> _Probe:
     display = make_display(display_settings(settings))
     faults: set[str] = set()
 
-    def read() -> list[float]:  # one command every keepalive, as the renderer sends them; stamped when it left
-        time.sleep(display_settings(settings).keepalive_s)
+    def read() -> list[float]:  # a command every keepalive as the renderer sends them (a long one: each slice)
+        time.sleep(min(display_settings(settings).keepalive_s, READ_SLICE_S))
         sent = time.monotonic()
         display.write_command(StiffnessCommand(level=0))  # free: safe with a hand on it
         status = display.read_status(timeout_s=READ_SLICE_S)

@@ -127,6 +127,24 @@ def test_the_display_is_probed_with_a_free_command_and_a_silent_one_gives_no_rea
         probe.device.close()
 
 
+def test_a_long_display_keepalive_does_not_hold_the_read_past_its_slice(monkeypatch, tmp_path):
+    import shutil
+
+    from teleop.settings_edit import update_settings_file
+
+    path = tmp_path / "settings.toml"
+    shutil.copy(SHIPPED, path)
+    update_settings_file(path, {"display.keepalive_s": 60.0})
+    slept = []
+    monkeypatch.setattr(doctor.time, "sleep", slept.append)
+    probe = doctor._display_probe(load_settings(path), "check [display] backend")
+    probe.device.connect()
+    try:
+        assert len(probe.read()) == 1 and slept == [doctor.READ_SLICE_S]
+    finally:
+        probe.device.close()
+
+
 def test_the_simulated_grasp_is_started_so_that_its_first_reading_is_due_now(monkeypatch):
     import numpy as np
 
