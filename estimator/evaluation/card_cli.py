@@ -163,6 +163,9 @@ def table_rows(sources: Sequence[Source], methods: Sequence[str] | None = None) 
                 except (TypeError, ValueError) as exc:
                     raise EstimatorError(f"{source.path}: method {name!r}, column {heading!r}: expected a number "
                                          f"or null ({exc})") from None
+            if not isinstance(entry.get("model"), str | None):
+                raise EstimatorError(f"{source.path}: method {name!r}, model: expected a folder name or null, "
+                                     f"got {entry['model']!r}")
             rows.append((source.label, method_name(name, entry), cells))
     return rows
 

@@ -85,6 +85,12 @@ def test_a_method_that_is_not_an_object_of_figures_is_an_error_naming_it(tmp_pat
     assert str(source) in err and "'series'" in err
 
 
+def test_a_model_that_is_not_a_folder_name_is_an_error_naming_it(tmp_path, card, capsys):
+    source = write(tmp_path / "bad.json", result({"hybrid": {**FIGURES, "model": 7}}))
+    assert main(["card", str(card), "--figures", f"A={source}"]) == 2
+    assert f"{source}: method 'hybrid', model: expected a folder name or null, got 7" in capsys.readouterr().err
+
+
 def test_a_malformed_display_range_is_an_error_naming_it(tmp_path, card, capsys):
     source = write(tmp_path / "bad.json", result(display_range_pa=[5e3]))
     assert main(["card", str(card), "--figures", f"A={source}"]) == 2
