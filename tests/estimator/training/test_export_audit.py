@@ -3,22 +3,22 @@
 from __future__ import annotations
 
 import copy
+import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 from estimator.errors import ModelError
-from estimator.inference.inputs import Variant
 from estimator.training import export as export_module
 from estimator.training.model import ComplianceNet
 
-VARIANT = Variant.parse("depth", n_frames=3, size_px=(16, 22))
-
-
-def _inputs(n=4, seed=0):
-    rng = np.random.default_rng(seed)
-    return {name: rng.normal(size=(n, *shape)).astype(np.float32) for name, shape in VARIANT.input_shapes.items()}
+# The export tests' variant and inputs.
+_spec = importlib.util.spec_from_file_location("_export_tests", Path(__file__).with_name("test_export.py"))
+_export_tests = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_export_tests)
+VARIANT, _inputs = _export_tests.VARIANT, _export_tests._inputs
 
 
 @pytest.fixture(scope="module")
