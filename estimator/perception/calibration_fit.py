@@ -228,6 +228,11 @@ def _validate_presses(
     return press_list, centers, radii
 
 
+def _real(value: object) -> bool:
+    """Whether ``value`` is an int or float and not a bool (True is no count or size)."""
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
 def fit_calibration(
     reference: np.ndarray,
     presses: Sequence[np.ndarray] | np.ndarray,
@@ -317,17 +322,15 @@ def fit_calibration(
     for name, value in (("ball_radius_m", ball_radius_m), ("pixel_pitch_m", pixel_pitch_m),
                         ("relative_range", relative_range), ("inside_fraction", inside_fraction),
                         ("tile_prior_count", tile_prior_count)):
-        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+        if not (_real(value) and math.isfinite(value) and value > 0):
             raise CalibrationError(f"{name}: expected a positive number, got {value!r}")
-    if not (isinstance(refine_passes, int) and refine_passes >= 0):
+    if not (_real(refine_passes) and isinstance(refine_passes, int) and refine_passes >= 0):
         raise CalibrationError(f"refine_passes: expected a non-negative integer, got {refine_passes!r}")
-    if not (isinstance(bins, int) and 2 <= bins <= 128):
+    if not (_real(bins) and isinstance(bins, int) and 2 <= bins <= 128):
         raise CalibrationError(f"bins: expected an integer in [2, 128], got {bins!r}")
-    if not (isinstance(flat_fraction, int | float) and 0.0 < flat_fraction < 1.0):
+    if not (_real(flat_fraction) and 0.0 < flat_fraction < 1.0):
         raise CalibrationError(f"flat_fraction: expected a value in (0, 1), got {flat_fraction!r}")
-    if flat_weight is not None and not (
-        isinstance(flat_weight, int | float) and math.isfinite(flat_weight) and flat_weight > 0
-    ):
+    if flat_weight is not None and not (_real(flat_weight) and math.isfinite(flat_weight) and flat_weight > 0):
         raise CalibrationError(f"flat_weight: expected a positive number or None, got {flat_weight!r}")
     if inside_fraction > 1.0:
         raise CalibrationError(f"inside_fraction: expected at most 1 (the contact circle's edge; beyond it the gel does "

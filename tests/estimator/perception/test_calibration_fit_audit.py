@@ -53,6 +53,9 @@ def disks(few, scale: float = 1.0) -> list[np.ndarray]:
     ({"tiles": None}, "tiles: expected"),
     ({"tiles": (2.5, 3)}, "tiles: expected"),
     ({"tiles": (1, 2, 3)}, "tiles: expected"),
+    ({"refine_passes": True}, "refine_passes: expected a non-negative integer, got True"),  # True is no count
+    ({"flat_weight": True}, "flat_weight: expected a positive number or None, got True"),
+    ({"tile_prior_count": True}, "tile_prior_count: expected a positive number, got True"),
     ({"smoothing_px": float("nan")}, "smoothing_px"),
     ({"smoothing_px": float("inf")}, "smoothing_px"),
     ({"presses": "images"}, "presses: expected a sequence"),
