@@ -250,10 +250,14 @@ def tactile_moments(
     """Fill ``view.segment`` (the estimator's finger's, else the first finger's), ``view.moments``
     (every finger, in :data:`MOMENTS` order) and ``view.notes`` (what cannot be shown, and why)."""
     record = view.record
-    measured = {
-        stream.finger: measure_grasp(record, settings=_finger_settings(settings, stream.finger), tactile=False)
-        for stream in record.frames
-    }
+    try:  # a grasp the estimator cannot segment spoils its own figures, not the report
+        measured = {
+            stream.finger: measure_grasp(record, settings=_finger_settings(settings, stream.finger), tactile=False)
+            for stream in record.frames
+        }
+    except ComplianceTeleopError as exc:
+        view.notes.append(f"not measured: {exc}")
+        return
     segments = {finger: m.segment for finger, m in measured.items()}
     view.segment = segments.get(settings.sensing.finger, next(iter(segments.values())))
     if not view.segment:

@@ -14,6 +14,7 @@ import pytest
 from support.session_logs import ListedLog, logged
 
 import teleop.system.report_data as report_data
+from estimator.errors import EstimatorError
 from estimator.measurements import REFERENCE_GUARD_S, reference_indices
 from estimator.perception.calibration import load_calibration
 from estimator.settings import estimator_settings
@@ -173,6 +174,16 @@ def test_the_segment_is_the_estimating_fingers_and_a_grasp_without_loading_says_
     view = GraspView("g", record=record)
     tactile_moments(view, settings=on_right, calibrations={})
     assert view.notes == ["no loading phase: right: no contact"] and not view.moments
+
+
+def test_a_grasp_the_estimator_cannot_measure_is_a_note_not_the_reports_end(settings, monkeypatch):
+    def fails(record, *, settings, tactile):
+        raise EstimatorError("frame times not increasing")
+
+    monkeypatch.setattr(report_data, "measure_grasp", fails)
+    view = GraspView("g", record=SimpleNamespace(frames=(SimpleNamespace(finger="left"),)))
+    tactile_moments(view, settings=settings, calibrations={})
+    assert view.notes == ["not measured: frame times not increasing"] and view.segment is None and not view.moments
 
 
 def test_moments_are_taken_around_contact_with_the_force_at_each_frame(duck, settings):
