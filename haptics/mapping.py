@@ -168,7 +168,7 @@ class EstimateUpdate:
             )
         if not isinstance(self.provisional, bool):
             raise MappingError(f"estimate provisional = {self.provisional!r}: expected True or False")
-        if not isinstance(self.t_s, int | float) or not math.isfinite(self.t_s):
+        if isinstance(self.t_s, bool) or not isinstance(self.t_s, int | float) or not math.isfinite(self.t_s):
             raise MappingError(f"estimate t_s = {self.t_s!r}: expected a finite time in seconds")
         if len(self.interval_pa) != 2:
             raise MappingError(

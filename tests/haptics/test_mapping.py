@@ -220,6 +220,7 @@ def test_provisional_is_carried_through():
         ({"e_pa": 1e5, "interval_pa": (1e6, None)}, "outside its interval"),
         ({"e_pa": 1e5, "interval_pa": (1e3,)}, "expected \\(low or None, high or None\\)"),
         ({"e_pa": 1e5, "t_s": math.nan}, "t_s = nan"),
+        ({"e_pa": 1e5, "t_s": True}, "t_s = True: expected a finite time"),
         ({"e_pa": 1e5, "provisional": 1}, "provisional = 1: expected True or False"),
         ({"e_pa": 1e5, "provisional": "no"}, "provisional = 'no'"),
     ],
