@@ -51,12 +51,11 @@ renders for it: the percept the estimate maps to (``display_fraction`` of the di
 to ``report``. A latency outside :data:`PLAUSIBLE_LATENCY_S` is no latency (a capture time on
 another clock, or a broken one): it is logged (the first, then a count at every power of ten),
 counted (``unmeasured``) and left out, as null; the estimate is rendered all the same. A final
-estimate whose grasp stops being rendered (its end, a release, another grasp's estimate, the service
-stopping) before
-any report was written after it (the display was not connected) was never shown: it is logged
-and reported as not shown, ``latency_ms`` and ``level`` null (``display_fraction`` and the flags
-still say what it maps to), with the estimates its grasp had by then; the first is logged, then a
-count at every power of ten (``not_shown``). ``stats.finals`` keeps the last :data:`KEPT_FINALS`
+estimate whose grasp stops being rendered (its end, a release, another grasp's estimate, the
+service stopping) before any report was written after it (the display was not connected) was
+never shown: it is logged and reported as not shown, ``latency_ms`` and ``level`` null
+(``display_fraction`` and the flags still say what it maps to), with the estimates its grasp had
+by then; the first is logged, then a count at every power of ten (``not_shown``). ``stats.finals`` keeps the last :data:`KEPT_FINALS`
 finals (``stats.final_estimates`` counts them all); the report has each one.
 
 An estimate the renderer cannot take (the wire accepted it, the mapping does not) is skipped and

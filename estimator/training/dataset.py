@@ -265,14 +265,14 @@ def _record_samples(job: tuple[Path, int, str], *, settings: Settings, options: 
                 size_px=options.size_px, shift=shift, rgb=True, markers=options.markers,
                 marker_calibration=options.marker_calibration, window_m=options.window_m,
             )
-            # A sample that is not one (a non-finite depth, say) is this record's failure, not the build's.
-            sample = sampled and TrainingSample(
-                object_name=label.object_name, grasp=grasp, augmentation=shift, rgb_diff=sampled.rgb_diff,
-                depth_m=sampled.depth_m, force_n=sampled.force_n, width_m=sampled.width_m,
-                rgb_diff_markers=sampled.rgb_diff_markers, depth_markers_m=sampled.depth_markers_m,
-                label_modulus_pa=label.modulus_pa, material=label.material, shape=label.shape,
-                estimates=sampled.estimates, **{name: getattr(sampled, name) for name in RIG_QUANTITIES},
-            )
+            if sampled:  # a sample failing its checks (a NaN depth, say) fails this record, not the build
+                sample = TrainingSample(
+                    object_name=label.object_name, grasp=grasp, augmentation=shift, rgb_diff=sampled.rgb_diff,
+                    depth_m=sampled.depth_m, force_n=sampled.force_n, width_m=sampled.width_m,
+                    rgb_diff_markers=sampled.rgb_diff_markers, depth_markers_m=sampled.depth_markers_m,
+                    label_modulus_pa=label.modulus_pa, material=label.material, shape=label.shape,
+                    estimates=sampled.estimates, **{name: getattr(sampled, name) for name in RIG_QUANTITIES},
+                )
         except (EstimatorError, RecordError) as exc:
             for relative in written:  # a skipped record leaves no sample for training to read
                 (out / relative).unlink()

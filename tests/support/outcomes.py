@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import contextlib
+
 from teleop.bus.messages import EstimateBody
 from teleop.catalogue import ObjectSpec
 from teleop.system.outcome import GraspOutcome
@@ -29,19 +31,9 @@ def fake_bench_latency(monkeypatch, tmp_path, outcomes) -> None:
     import estimator.perception.calibration
     import teleop.system.latency as latency
 
-    class _System:
-        def __init__(self, *args, **kwargs):
-            pass
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            return None
-
     monkeypatch.setattr(latency, "prepare_run", lambda args, **kwargs: (tmp_path / "run", tmp_path / "cal.npz"))
     monkeypatch.setattr(estimator.perception.calibration, "load_calibration", lambda path: None)
     monkeypatch.setattr(latency, "frame_baseline_ms", lambda *args, **kwargs: [5.0, 6.0])
-    monkeypatch.setattr(latency, "LiveSystem", _System)
+    monkeypatch.setattr(latency, "LiveSystem", lambda *args, **kwargs: contextlib.nullcontext())
     monkeypatch.setattr(latency, "LiveView", lambda *args: None)
     monkeypatch.setattr(latency, "run_grasps", lambda *args, **kwargs: iter(outcomes))

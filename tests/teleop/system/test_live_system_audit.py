@@ -3,6 +3,7 @@ when the start fails, what its wait for readiness reports, and the grasp it foll
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import re
 import signal
@@ -75,6 +76,13 @@ def _system(tmp_path: Path, **kwargs) -> LiveSystem:
 def _with_children(tmp_path: Path, journal: list, **processes: _Process) -> LiveSystem:
     system = _system(tmp_path)
     system.children = {name: _Child(name, process, tmp_path / f"{name}.log") for name, process in processes.items()}
+    return system
+
+
+def _exited(tmp_path: Path, name: str, code: int, log: str) -> LiveSystem:
+    """A system whose child ``name`` exited with ``code``, having written ``log``."""
+    system = _with_children(tmp_path, [], **{name: _Process(name, [], code=code)})
+    (tmp_path / f"{name}.log").write_text(log)
     return system
 
 
@@ -181,9 +189,7 @@ def test_the_wait_for_readiness_names_who_stayed_silent_the_renderer_too(tmp_pat
 
 
 def test_a_child_that_exits_while_the_system_starts_is_reported_not_waited_out(tmp_path):
-    journal: list = []
-    system = _with_children(tmp_path, journal, estimator=_Process("estimator", journal, code=1))
-    (tmp_path / "estimator.log").write_text("Traceback ...\nValueError: no calibration\n")
+    system = _exited(tmp_path, "estimator", 1, "Traceback ...\nValueError: no calibration\n")
     system.events = _Heard([])
     system.commands = _Commands()
     with pytest.raises(TeleopError, match=r"(?s)estimator exited with status 1; the end of .*no calibration"):
@@ -207,19 +213,13 @@ def test_a_log_tail_is_its_last_lines(tmp_path):
 
 
 def test_only_the_recorder_may_stop_with_the_recording_stopped_status(tmp_path):
-    journal: list = []
-    system = _with_children(tmp_path, journal,
-                            node=_Process("node", journal, code=live_system.RECORDING_STOPPED_STATUS))
-    (tmp_path / "node.log").write_text("node failed\n")
+    system = _exited(tmp_path, "node", live_system.RECORDING_STOPPED_STATUS, "node failed\n")
     with pytest.raises(TeleopError, match="node exited with status"):
         system.check()
 
 
 def test_a_recorder_stopped_with_an_empty_log_still_lets_the_session_go_on(tmp_path, capsys):
-    journal: list = []
-    system = _with_children(tmp_path, journal,
-                            recorder=_Process("recorder", journal, code=live_system.RECORDING_STOPPED_STATUS))
-    (tmp_path / "recorder.log").write_text("")
+    system = _exited(tmp_path, "recorder", live_system.RECORDING_STOPPED_STATUS, "")
     system.check()
     assert system.recording_stopped == "no reason in its log"
 
@@ -318,9 +318,7 @@ def test_the_node_grasping_another_object_is_refused_naming_both(tmp_path):
 
 
 def test_a_child_that_dies_mid_grasp_is_reported_not_waited_out(tmp_path):
-    journal: list = []
-    system = _with_children(tmp_path, journal, node=_Process("node", journal, code=-9))
-    (tmp_path / "node.log").write_text("killed\n")
+    system = _exited(tmp_path, "node", -9, "killed\n")
     system.commands = _Sent()
     system.events = ReplayedEvents([])
     with pytest.raises(TeleopError, match="node exited with status -9"):
@@ -464,17 +462,6 @@ def test_the_renderers_report_is_waited_for_only_for_a_grasp_with_a_final_estima
     assert outcome.estimator_report == {"e": 1} and "g1" in system._followed
 
 
-class _Answers:
-    def __init__(self, *args, **kwargs):
-        pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return None
-
-
 def _reloading(tmp_path: Path, monkeypatch, reload_model) -> tuple[LiveSystem, list]:
     import estimator.reload_cli
 
@@ -483,7 +470,7 @@ def _reloading(tmp_path: Path, monkeypatch, reload_model) -> tuple[LiveSystem, l
     made: list = []
     monkeypatch.setattr(live_system.Publisher, "from_settings",
                         lambda bus, endpoint, **kwargs: made.append(kwargs) or _Socket([], "control"))
-    monkeypatch.setattr(live_system.Subscriber, "from_settings", _Answers)
+    monkeypatch.setattr(live_system.Subscriber, "from_settings", lambda *args, **kwargs: contextlib.nullcontext())
     monkeypatch.setattr(estimator.reload_cli, "reload_model", reload_model)
     return system, made
 
@@ -519,18 +506,14 @@ def test_load_model_on_a_system_whose_child_died_says_so_before_and_after(tmp_pa
 
 def test_a_child_that_exits_cleanly_before_it_is_told_still_stops_the_system(tmp_path):
     # Status 0 is no less an early exit: the node gone, no grasp would ever end.
-    journal: list = []
-    system = _with_children(tmp_path, journal, node=_Process("node", journal, code=0))
-    (tmp_path / "node.log").write_text("bye\n")
+    system = _exited(tmp_path, "node", 0, "bye\n")
     with pytest.raises(TeleopError, match="node exited with status 0"):
         system.check()
 
 
 def test_the_recording_stopped_reason_is_the_recorders_last_line(tmp_path, capsys):
-    journal: list = []
-    system = _with_children(tmp_path, journal,
-                            recorder=_Process("recorder", journal, code=live_system.RECORDING_STOPPED_STATUS))
-    (tmp_path / "recorder.log").write_text(f"wrote 12 messages\n{live_system.RECORDING_STOPPED}disk full\n")
+    system = _exited(tmp_path, "recorder", live_system.RECORDING_STOPPED_STATUS,
+                     f"wrote 12 messages\n{live_system.RECORDING_STOPPED}disk full\n")
     system.check()
     assert system.recording_stopped == "disk full"
 
