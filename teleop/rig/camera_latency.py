@@ -72,12 +72,13 @@ def image_change(images: Iterable[np.ndarray], reference: np.ndarray) -> np.ndar
     ndarray
         float64 (n,).
     """
-    rest = np.asarray(reference).astype(np.int16)
+    # float, not int16: a median of frames can fall between two levels (127.5).
+    rest = np.asarray(reference, dtype=np.float32)
     out = []
     for i, image in enumerate(images):
         if image.shape != rest.shape:
             raise TeleopError(f"images[{i}] has shape {image.shape}: expected the reference's {rest.shape}")
-        out.append(float(np.abs(image.astype(np.int16) - rest).mean()))
+        out.append(float(np.abs(image.astype(np.float32) - rest).mean()))
     return np.asarray(out)
 
 

@@ -239,6 +239,12 @@ def test_image_change_is_the_mean_absolute_difference_to_the_gel_at_rest():
     assert image_change([rest + 2, rest, rest - 3], rest).tolist() == [2.0, 0.0, 3.0]
 
 
+def test_a_rest_frame_between_two_levels_is_not_rounded():
+    # the median of an even number of frames: half-way between 127 and 128
+    rest = np.median(np.stack([np.full((2, 2), 127, np.uint8), np.full((2, 2), 128, np.uint8)]), axis=0)
+    assert image_change([np.full((2, 2), 128, np.uint8)], rest).tolist() == [0.5]
+
+
 def test_a_read_only_settings_file_is_refused_before_the_camera_is_read(tmp_path, capsys, monkeypatch):
     path = write_settings(tmp_path, "http://127.0.0.1:1/stream.mjpg")
     path.chmod(0o444)
