@@ -93,8 +93,9 @@ class Source:
 
 def _check_label(label: str) -> str:
     label = label.strip()
-    if not label or "|" in label or "--" in label or "\n" in label:
-        raise EstimatorError(f"figures label {label!r}: expected a non-empty label without '|', '--' or a line break")
+    if not label or any(mark in label for mark in ("|", "--", "=", "\n")):
+        raise EstimatorError(f"figures label {label!r}: expected a non-empty label without '|', '--', '=' "
+                             "or a line break")
     return label
 
 
@@ -299,9 +300,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the model card (markdown) holding the two marker lines (default: the shipped "
                              "model's MODEL_CARD.md)")
     parser.add_argument("--figures", action="append", metavar="LABEL=PATH", default=None,
-                        help="an estimator evaluate --json output and the label of its rows, e.g. "
-                             "'Half-space gel=runs/cross-contact/figures.json'; repeat for several, in the "
-                             "table's order. Without it: the sources the card's block records")
+                        help="an estimator evaluate --json output and the label of its rows (the label ends "
+                             "at the first '='), e.g. 'Half-space gel=runs/cross-contact/figures.json'; repeat "
+                             "for several, in the table's order. Without it: the sources the card's block records")
     parser.add_argument("--methods", nargs="+", metavar="METHOD", default=None,
                         help="the methods to show, in this order (hybrid also picks hybrid[variant]; "
                              "without --figures: those the block records; otherwise every method of each source)")
@@ -321,7 +322,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _figure_specs(specs: Sequence[str]) -> list[tuple[str, Path]]:
     out = []
     for spec in specs:
-        label, sep, path = spec.rpartition("=")
+        # at the first '=': a label holds none, a path may (runs/grasp=1/figures.json)
+        label, sep, path = spec.partition("=")
         if not sep or not label.strip() or not path.strip():
             raise EstimatorError(f"--figures {spec!r}: expected LABEL=PATH")
         out.append((label, Path(path)))

@@ -109,6 +109,19 @@ def test_keep_naming_a_file_is_refused_by_name(tmp_path, card, capsys):
     assert keep.read_text() == "mine" and card.read_text() == before
 
 
+def test_a_source_path_may_hold_an_equals_sign_a_label_may_not(tmp_path, card, capsys):
+    folder = tmp_path / "grasp=1"
+    folder.mkdir()
+    source, _ = evaluate_output(folder)
+    assert main(["card", str(card), "--figures", f"Nominal={source}"]) == 0
+    assert "| Nominal | hybrid (default) |" in card.read_text()
+    before = card.read_text()
+    # the label ends at the first '=': the rest is a path, and one that is not there is named
+    assert main(["card", str(card), "--figures", f"E=3 MPa={source}"]) == 2
+    assert f"3 MPa={source}: not an estimator evaluate --json output" in capsys.readouterr().err
+    assert card.read_text() == before
+
+
 def test_a_method_in_none_of_the_sources_is_refused_by_name(tmp_path, card, capsys):
     source, _ = evaluate_output(tmp_path)
     other, _ = evaluate_output(tmp_path, name="other.json")

@@ -115,7 +115,7 @@ def test_an_empty_display_range_and_a_missing_command_write_neither(tmp_path, ca
 # --------------------------------------------------------------------------- labels and sources
 
 
-@pytest.mark.parametrize("label", ["a|b", "a -- b", "a\nb", "   "])
+@pytest.mark.parametrize("label", ["a|b", "a -- b", "a\nb", "   ", "E=3"])
 def test_a_label_that_would_break_the_table_is_refused_with_it(tmp_path, label):
     path = write(tmp_path / "a.json", result())
     with pytest.raises(EstimatorError, match="figures label"):
