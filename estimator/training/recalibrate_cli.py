@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from estimator.errors import EstimatorError
 from estimator.inference.infer import band_names, bands_text
@@ -76,6 +77,10 @@ def run(args: argparse.Namespace) -> int:
     meta = recalibrate(args.model, args.data, out_dir=args.out, settings=load_settings(args.settings),
                        overwrite=args.overwrite)
     new, old = meta["calibration"], meta["recalibrated"]["previous"]
+    if not meta["metrics"].get("test"):
+        left_out = meta["recalibrated"]["left_out"]
+        why = f" once the objects its fine-tuning trained on ({', '.join(left_out)}) are left out" if left_out else ""
+        print(f"note: no test grasps to score{why}: the metadata's metrics.test is empty", file=sys.stderr)
     if args.json:
         print(json.dumps({"out": args.out or args.model, "calibration": new, "previous": old}, allow_nan=False))
         return 0

@@ -33,18 +33,32 @@ def test_recalibrating_gets_the_settings_given_and_prints_old_and_new(tmp_path, 
     def fake(model, data, **kwargs):
         got.update(kwargs)
         new = {**CALIBRATION, "temperature": 2.25, "coverage": 0.91}
-        return {"calibration": new, "recalibrated": {"previous": {**CALIBRATION, "temperature": None}}}
+        return {"calibration": new, "recalibrated": {"previous": {**CALIBRATION, "temperature": None}, "left_out": []},
+                "metrics": {"val": {"n": 12}, "test": {"n": 9}}}
 
     monkeypatch.setattr(recalibrate_cli, "recalibrate", fake)
     settings = rig_settings(tmp_path, {"sensors.left.depth_resolution_m": 6e-5})
     assert main(["recalibrate", "--model", "m", "--data", "d", "--settings", str(settings)]) == 0
     assert got["settings"].source == settings and got["out_dir"] is None and got["overwrite"] is False
-    shown = capsys.readouterr().out
+    captured = capsys.readouterr()
+    shown = captured.out
+    assert "note" not in captured.err
     assert "temperature            - -> 2.25" in shown and "coverage            0.88 -> 0.91" in shown
     assert "on 12 val grasps; wrote m/metadata.json" in shown
     assert main(["recalibrate", "--model", "m", "--data", "d", "--out", "o", "--json"]) == 0
     printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert printed["out"] == "o" and printed["calibration"]["temperature"] == 2.25 and got["out_dir"] == "o"
+
+
+@pytest.mark.parametrize("left_out", [[], ["tofu", "foam_block"]])
+def test_a_recalibration_with_no_test_grasps_left_says_so(tmp_path, monkeypatch, capsys, left_out):
+    meta = {"calibration": CALIBRATION, "recalibrated": {"previous": CALIBRATION, "left_out": left_out},
+            "metrics": {"val": {"n": 12}, "test": {}}}
+    monkeypatch.setattr(recalibrate_cli, "recalibrate", lambda model, data, **kwargs: meta)
+    assert main(["recalibrate", "--model", "m", "--data", "d"]) == 0
+    err = capsys.readouterr().err
+    assert "note: no test grasps to score" in err and "metrics.test is empty" in err
+    assert ("(tofu, foam_block) are left out" in err) == bool(left_out)
 
 
 def test_overwrite_without_out_is_refused(capsys):
