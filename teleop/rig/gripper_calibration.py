@@ -42,7 +42,7 @@ from teleop.devices.simulated import is_simulated
 from teleop.errors import DeviceError, InvalidCommandError, SettingsError
 from teleop.rig.conclude import conclude
 from teleop.rig.load_cell_calibration import load_cell_source
-from teleop.settings import Settings, load_settings
+from teleop.settings import MIN_FINGER_STIFFNESS_N_PER_M, GripperSettings, Settings, load_settings
 from teleop.settings_edit import check_writable
 
 __all__ = ["Squeeze", "StiffnessFit", "fit_finger_stiffness", "squeeze_reference"]
@@ -162,6 +162,12 @@ def fit_finger_stiffness(
         return dataclasses.replace(result, reason=(
             f"the fingers touch at {intercept * 1e3:.1f} mm, not near the {object_width_m * 1e3:.1f} mm reference: "
             "is it between the fingers, and --object-width-mm right?"))
+    most = next(f for f in dataclasses.fields(GripperSettings) if f.name == "finger_stiffness_n_per_m").metadata["hi"]
+    if not MIN_FINGER_STIFFNESS_N_PER_M <= stiffness <= most:
+        return dataclasses.replace(result, reason=(
+            f"k = {stiffness:.4g} N/m is outside what the settings take ({MIN_FINGER_STIFFNESS_N_PER_M:g} to "
+            f"{most:g} N/m; fingers with a gel pad are 2e4-5e5 N/m): is the reference rigid, and the load cell "
+            "calibrated?"))
     if result.stiffness_se_n_per_m > max_relative_se * stiffness:
         return dataclasses.replace(result, reason=(
             f"too uncertain: k = {stiffness:.4g} +- {result.stiffness_se_n_per_m:.2g} N/m (standard error above "

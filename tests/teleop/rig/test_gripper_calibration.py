@@ -93,6 +93,8 @@ def test_fit_recovers_an_exact_line_per_repeat_too():
     (_squeezes(math.inf), WIDTH_M, "the width does not fall"),  # divided by a zero slope
     (_squeezes(1.2e5)[:8] + _squeezes(math.inf)[8:], WIDTH_M, "the width does not fall"),  # the third repeat stalled
     (_squeezes(1.2e5, scatter_m=1e-7)[:8] + _squeezes(-1.2e5)[8:], WIDTH_M, "the width does not fall"),
+    (_squeezes(900.0), WIDTH_M, "k = 900 N/m is outside what the settings take (1000 to 1e+09 N/m"),
+    (_squeezes(2e9), WIDTH_M, "k = 2e+09 N/m is outside what the settings take"),
 ])
 def test_refusals_say_why(squeezes, object_width_m, start):
     fit = fit_finger_stiffness(squeezes, object_width_m=object_width_m)
