@@ -458,7 +458,9 @@ def _write(jobs: list[tuple[Path, int, str]], out: Path, *, settings: Settings, 
         "measurement_version": MEASUREMENT_VERSION,
         "calibration_smoothing_px": sorted({s for r in rows for s in r.get("calibration_smoothing_px", ())}),
         "records": n_records, "grasps_used": sum(1 for r in rows if r.get("samples")),
-        "samples": counts, "objects": {s: len(v) for s, v in split.items()},
+        # objects that gave samples: one whose every record was skipped is in split.json alone
+        "samples": counts, "objects": {s: len({r["object"] for r in rows if r.get("split") == s and r.get("samples")})
+                                       for s in SPLITS},
         "used": [{k: r[k] for k in ("path", "object", "split", "samples")} for r in rows if r.get("samples")],
         "skipped": skipped, "skipped_reasons": dict(Counter(s["cause"] for s in skipped)),
         "warnings": warnings,

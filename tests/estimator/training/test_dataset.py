@@ -198,6 +198,24 @@ def test_every_skipped_record_is_named_with_its_cause(sim_grasps, tmp_path, caps
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
+def test_the_manifest_counts_only_objects_that_gave_samples(sim_grasps, tmp_path, capsys):
+    import dataclasses
+
+    from teleop.record import Samples, read_record, write_record
+
+    folder, _ = _variants(sim_grasps, tmp_path / "recs")
+    good = read_record(folder / "good.grasp")
+    flat = Samples(good.force_n.t_s, np.zeros_like(good.force_n.value))  # measured, and no loading phase
+    other = dataclasses.replace(good.label, object_name="never_loaded")
+    write_record(dataclasses.replace(good, label=other, force_n=flat), folder / "never_loaded.grasp")
+    argv = ["build-dataset", "--records", str(folder), "--out", str(tmp_path / "ds"), "--size", "32x44",
+            "--shifts", "1", "--split", "1,0,0", "--json"]
+    assert main(argv) == 0
+    manifest = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert "never_loaded.grasp" in {Path(s["path"]).name for s in manifest["skipped"]}
+    assert manifest["objects"] == {"train": 1, "val": 0, "test": 0}
+
+
 def test_a_build_that_makes_nothing_fails_naming_every_record_and_leaves_no_folder(sim_grasps, tmp_path, capsys):
     folder, _ = _variants(sim_grasps, tmp_path / "recs")
     (folder / "good.grasp").unlink()
