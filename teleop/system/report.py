@@ -214,12 +214,13 @@ def _summary(views: Sequence[GraspView], recorded: bool, display_range: tuple[fl
 
 def _anchor(view: GraspView) -> str:
     """``grasp-<id>``, the page's anchor of a grasp and the start of its figures' names. An id that
-    is not all ASCII letters, digits, ``_`` and ``-``, or longer than :data:`_ANCHOR_CHARS`, has the
+    is not all lower-case ASCII letters, digits, ``_`` and ``-``, or longer than :data:`_ANCHOR_CHARS`, has the
     rest replaced by ``_``, is cut, and gets ``.`` and a short hash of the whole id (``.`` never
     stays in a cleaned id), so that distinct ids (``a.1``, ``a 1``, ``a_1``) never share one."""
     grasp_id = view.grasp_id
     clean = re.sub(r"[^A-Za-z0-9_-]+", "_", grasp_id)
-    if clean == grasp_id and len(clean) <= _ANCHOR_CHARS:
+    # a capital too: on a case-blind file system (macOS, Windows) g-A's figures would overwrite g-a's
+    if clean == grasp_id.lower() and len(clean) <= _ANCHOR_CHARS:
         return f"grasp-{clean}"
     digest = hashlib.sha256(grasp_id.encode("utf-8", "surrogateescape")).hexdigest()[:10]
     return f"grasp-{clean[:_ANCHOR_CHARS]}.{digest}"

@@ -90,6 +90,13 @@ def test_anchors_of_ids_that_clean_alike_differ():
     assert all(len(a) < 90 for a in anchors)
 
 
+def test_ids_that_differ_only_in_case_get_figures_of_their_own_on_any_file_system():
+    ids = ["g-A", "g-a", "G-a"]
+    names = {f"{_anchor(GraspView(i))}-timeline.png".casefold() for i in ids}  # macOS, Windows: one file
+    assert len(names) == len(ids)
+    assert _anchor(GraspView("g-a")) == "grasp-g-a"  # a lower-case id stays as it is
+
+
 def test_dollar_signs_in_object_names_are_drawn_as_text(tmp_path):
     views = []
     for k, name in enumerate(("$x^{$", "$\\frac$", "price $5 and $6")):
