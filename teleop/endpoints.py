@@ -50,6 +50,13 @@ class Endpoint:
         """The host bound or connected to ('' for a transport without hosts)."""
         return self.hosts[-1] if self.hosts else ""
 
+    @property
+    def ipv6(self) -> bool:
+        """Whether a host is an IPv6 address: ZeroMQ takes one only on a socket with ``ZMQ_IPV6``,
+        which is set for such endpoints alone (with it, a name such as localhost may resolve to ::1,
+        where a peer bound to 127.0.0.1 does not listen)."""
+        return any(":" in h for h in self.hosts)
+
 
 def _without_port(source: str) -> str:
     """A source address without the port it may name (``SRC:PORT``; an IPv6 one in brackets)."""

@@ -17,8 +17,7 @@ Every message carries a per-topic sequence number; a subscriber that sees a jump
 a gap and logs how many messages it missed, and one that sees the number fall (the sender
 restarted; what it had in flight cannot be counted) counts a restart and logs it. Both are
 logged as refusals are (below), by message type, so a replayed or duplicated stream cannot
-flood the log. A PUB
-socket has nowhere to deliver before a subscriber has subscribed: call
+flood the log. A PUB socket has nowhere to deliver before a subscriber has subscribed: call
 :meth:`Publisher.wait_for_subscriber` first.
 
 *Latest value* (display topics: estimates, status). The publisher never blocks (a full
@@ -58,11 +57,10 @@ heartbeat period and keys from :class:`~teleop.settings.BusSettings`.
 
 Memory
 ------
-A subscriber remembers per source (its heartbeat), per source and topic (its sequence) and
-per topic (the latest message, when conflating) at most
-:data:`~teleop.bus.peers.MAX_TRACKED` entries each, forgetting the longest unheard beyond
-that (:class:`~teleop.bus.peers.Recent`), so a sender that makes up a name per message
-cannot fill the memory.
+A subscriber remembers per source (its heartbeat), per source and topic (its sequence) and per
+topic (the latest message, when conflating) at most :data:`~teleop.bus.peers.MAX_TRACKED` entries
+each, forgetting the longest unheard beyond that (:class:`~teleop.bus.peers.Recent`), so a sender
+that makes up a name per message cannot fill the memory.
 
 Sockets are not thread-safe: use each Publisher and Subscriber from one thread.
 """
@@ -89,6 +87,7 @@ from teleop.bus.security import (
     security_from_settings,
 )
 from teleop.bus.wire import Message, claimed_source, decode, encode, make_message, now_ns
+from teleop.endpoints import parse_endpoint
 from teleop.errors import BusAddressInUseError, BusError, BusTimeoutError, MessageRejected
 from teleop.settings import BusSettings
 
@@ -257,6 +256,7 @@ class Publisher(_Socket):
         check_endpoints([endpoint], security)
         socket = (context or zmq.Context.instance()).socket(zmq.XPUB)
         try:
+            socket.setsockopt(zmq.IPV6, parse_endpoint(endpoint).ipv6)
             hwm = high_water_mark or (LOSSLESS_HWM if lossless else LATEST_HWM)
             socket.setsockopt(zmq.SNDHWM, hwm)
             socket.setsockopt(zmq.XPUB_NODROP, int(lossless))
@@ -273,9 +273,7 @@ class Publisher(_Socket):
         self._socket = socket
 
     @classmethod
-    def from_settings(
-        cls, bus: BusSettings, endpoint: str, *, lossless: bool, **options: Any
-    ) -> Publisher:
+    def from_settings(cls, bus: BusSettings, endpoint: str, *, lossless: bool, **options: Any) -> Publisher:
         """A publisher on ``endpoint`` with ``bus``'s size limit, heartbeat period and keys.
 
         ``options`` are the remaining constructor arguments (``source``, ``bind``, ...).
@@ -468,6 +466,7 @@ class Subscriber(_Socket):
         check_endpoints(self.endpoints, security)
         socket = (context or zmq.Context.instance()).socket(zmq.SUB)
         try:
+            socket.setsockopt(zmq.IPV6, any(parse_endpoint(e).ipv6 for e in self.endpoints))
             socket.setsockopt(zmq.RCVHWM, high_water_mark or (LATEST_HWM * 10 if conflate else LOSSLESS_HWM))
             # Checked on each frame's length prefix, before libzmq allocates the frame.
             overhead = CURVE_FRAME_OVERHEAD_BYTES if security is not None else 0

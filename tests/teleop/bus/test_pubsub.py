@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import logging
+import socket
 import time
 
 import msgpack
@@ -43,6 +44,34 @@ def test_lossless_burst_arrives_complete_and_in_order(endpoint):
     assert [m.seq for m in got] == list(range(2000))
     assert np.array_equal([m.body["value_n"][0] for m in got], np.arange(2000) * 0.5)
     assert sub.stats.gaps == 0 and sub.stats.missed == 0 and not sub.stats.refused
+
+
+def _ipv6_loopback() -> bool:
+    try:
+        with socket.create_server(("::1", 0), family=socket.AF_INET6):
+            return True
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not _ipv6_loopback(), reason="no IPv6 loopback here")
+def test_an_ipv6_address_carries_the_bus():
+    with Publisher("tcp://[::1]:*", lossless=True, source="robot") as pub, Subscriber(pub.endpoint, ["force"]) as sub:
+        assert pub.endpoint.startswith("tcp://[::1]:")
+        pub.wait_for_subscriber("force", timeout_s=2.0)
+        pub.send("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0])
+        assert sub.recv(timeout_s=2.0).body["value_n"].tolist() == [2.0]
+
+
+def test_a_host_name_reaches_a_publisher_bound_to_an_ipv4_address():
+    # IPv6 is on only for IPv6 addresses: with it, localhost may resolve to ::1 (where the hosts file
+    # says so), where nothing listens
+    with Publisher("tcp://127.0.0.1:*", lossless=True, source="robot") as pub:
+        port = pub.endpoint.rpartition(":")[2]
+        with Subscriber(f"tcp://localhost:{port}", ["force"]) as sub:
+            pub.wait_for_subscriber("force", timeout_s=2.0)
+            pub.send("force", t_capture_s=1.0, t_s=[1.0], value_n=[2.0])
+            assert sub.recv(timeout_s=2.0) is not None
 
 
 def test_arrays_arrive_intact_through_zmq():
